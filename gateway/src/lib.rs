@@ -1,0 +1,1 @@
+//! millgate gateway library.

@@ -1,0 +1,1 @@
+//! Shared fixtures for millgate's end-to-end tests.
