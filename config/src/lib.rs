@@ -1,1 +1,6 @@
 #![doc = include_str!("../README.md")]
+
+pub mod signal;
+mod types;
+
+pub use types::*;

@@ -1,1 +1,3 @@
 //! millgate gateway library.
+
+pub mod samples;
