@@ -1,5 +1,6 @@
 #![doc = include_str!("../README.md")]
 
+pub mod layout;
 pub mod signal;
 mod types;
 
