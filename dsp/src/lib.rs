@@ -1,2 +1,6 @@
 #![no_std]
 #![doc = include_str!("../README.md")]
+
+pub mod bite;
+pub mod stiffness;
+pub mod transient;

@@ -1,0 +1,401 @@
+//! Streaming detector of metal biting (step load onset) on one torque channel.
+//!
+//! The detector is split into coefficients ([`BiteDetector`], built once from validated
+//! [`BiteSettings`]) and state ([`BiteDetectorState`], mutated per sample).
+//!
+//! - **Baseline**: exponential moving average of the idle samples (samples that are not
+//!   a rise above the baseline by the threshold, while armed). It follows a drifting
+//!   zero and falls quickly enough after a restart in a loaded state.
+//! - **Onset**: a finite sample at or above `baseline + threshold_knm`, or an external
+//!   trigger ([`BiteDetector::trigger`], e.g. the PLC's "metal in stand" bit) which makes
+//!   the next processed sample the trigger sample.
+//! - **Window**: up to `PRE` contiguous samples before the trigger (fewer right after a
+//!   start or a gap) followed by `post_trigger_samples` samples from the trigger on,
+//!   stored in a `heapless::Vec<f64, N>`; `PRE + post_trigger_samples <= N`.
+//! - **Dead time**: after an event the detector re-arms only when `holdoff_samples` have
+//!   passed *and* the torque has come back within `rearm_knm` of the baseline.
+//! - **Data gaps** ([`BiteDetector::gap`]): a gap clears the pre-trigger history (the
+//!   window never joins samples across a gap). A gap during a capture **ends the capture
+//!   early**: the event is emitted at once with the samples before the gap and
+//!   `quality.gap = true`.
+//! - **Bad samples**: a non-finite sample is stored as the previous stored value (the
+//!   baseline for the first one) and sets `quality.non_finite`; a sample at or beyond
+//!   the saturation limits sets `quality.saturated`. Neither ever triggers by itself
+//!   unless it is a saturated value above the threshold.
+
+use heapless::{HistoryBuf, Vec};
+
+/// Settings of a [`BiteDetector`]; torque in kN*m, lengths in samples.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BiteSettings {
+    /// Rise above the baseline that marks a bite, kN*m, finite and > 0.
+    pub threshold_knm: f64,
+    /// Distance to the baseline under which the detector re-arms, kN*m, finite, > 0.
+    pub rearm_knm: f64,
+    /// Minimum number of samples after an event before re-arming, any value.
+    pub holdoff_samples: u32,
+    /// Baseline EMA coefficient per idle sample, in (0, 1]; time constant ~ 1/alpha samples.
+    pub baseline_alpha: f64,
+    /// Samples at or below this value are saturated, kN*m (may be -inf).
+    pub saturation_low_knm: f64,
+    /// Samples at or above this value are saturated, kN*m (may be +inf), > low.
+    pub saturation_high_knm: f64,
+    /// Window length from the trigger sample on, samples, in `1..=N - PRE`.
+    pub post_trigger_samples: usize,
+}
+
+/// The [`BiteSettings`] field (or capacity) that failed validation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BiteSettingsError {
+    /// `threshold_knm` is not finite and > 0.
+    ThresholdKnm,
+    /// `rearm_knm` is not finite and > 0.
+    RearmKnm,
+    /// `baseline_alpha` is not in (0, 1].
+    BaselineAlpha,
+    /// The saturation limits are NaN or `low >= high`.
+    SaturationLimits,
+    /// `post_trigger_samples` is 0 or exceeds `N - PRE`.
+    PostTriggerSamples,
+}
+
+/// What started a capture.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TriggerSource {
+    /// The torque rose above the baseline by the threshold.
+    Level,
+    /// [`BiteDetector::trigger`] was called (external signal).
+    External,
+}
+
+/// Quality flags of a captured window; `Quality::default()` is good.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Quality {
+    /// A NaN or infinite sample lies in the window (stored as the previous value).
+    pub non_finite: bool,
+    /// A sample at or beyond the saturation limits lies in the window.
+    pub saturated: bool,
+    /// A data gap ended the capture early: the window is shorter than requested.
+    pub gap: bool,
+}
+
+impl Quality {
+    /// True when no flag is set.
+    pub fn is_good(&self) -> bool {
+        !(self.non_finite || self.saturated || self.gap)
+    }
+}
+
+/// One captured bite: pre-trigger and post-trigger torque samples, kN*m.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BiteEvent<const N: usize> {
+    /// Window samples, kN*m, oldest first, contiguous (never across a gap).
+    pub window: Vec<f64, N>,
+    /// Index of the trigger sample inside `window`.
+    pub trigger_index: usize,
+    /// Absolute index of the trigger sample since the state was created (gaps count).
+    pub trigger_sample: u64,
+    /// Baseline at the trigger, kN*m.
+    pub baseline_knm: f64,
+    /// What started the capture.
+    pub source: TriggerSource,
+    /// Quality flags.
+    pub quality: Quality,
+}
+
+/// Validated coefficients of a bite detector with `PRE` pre-trigger and `N` window capacity.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BiteDetector<const PRE: usize, const N: usize> {
+    settings: BiteSettings,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Phase {
+    Armed,
+    Capturing,
+    Dead,
+}
+
+/// Mutable state of one channel; create with [`BiteDetector::state`].
+#[derive(Clone, Debug)]
+pub struct BiteDetectorState<const PRE: usize, const N: usize> {
+    phase: Phase,
+    baseline_knm: f64,
+    baseline_valid: bool,
+    history: HistoryBuf<f64, PRE>,
+    window: Vec<f64, N>,
+    trigger_index: usize,
+    trigger_sample: u64,
+    trigger_baseline_knm: f64,
+    source: TriggerSource,
+    external_pending: bool,
+    last_stored_knm: f64,
+    sample_index: u64,
+    window_start: u64,
+    last_non_finite: Option<u64>,
+    last_saturated: Option<u64>,
+    dead_remaining: u32,
+}
+
+impl<const PRE: usize, const N: usize> BiteDetectorState<PRE, N> {
+    /// Current baseline, kN*m (0 before the first finite sample).
+    pub fn baseline_knm(&self) -> f64 {
+        self.baseline_knm
+    }
+
+    /// True while the detector waits for a bite.
+    pub fn is_armed(&self) -> bool {
+        self.phase == Phase::Armed
+    }
+
+    /// Absolute index of the next sample.
+    pub fn sample_index(&self) -> u64 {
+        self.sample_index
+    }
+}
+
+impl<const PRE: usize, const N: usize> BiteDetector<PRE, N> {
+    /// Validates `settings` against the capacities `PRE` and `N`.
+    ///
+    /// ```
+    /// use millgate_dsp::bite::{BiteDetector, BiteSettings};
+    /// let settings = BiteSettings {
+    ///     threshold_knm: 20.0, rearm_knm: 10.0, holdoff_samples: 100,
+    ///     baseline_alpha: 1e-3, saturation_low_knm: -1000.0, saturation_high_knm: 1000.0,
+    ///     post_trigger_samples: 300,
+    /// };
+    /// let detector = BiteDetector::<50, 400>::new(settings).unwrap();
+    /// let mut state = detector.state();
+    /// let mut events = 0;
+    /// for i in 0..2000 {
+    ///     let torque = if i >= 500 && i < 1500 { 100.0 } else { 0.0 };
+    ///     if let Some(event) = detector.process(&mut state, torque) {
+    ///         assert_eq!(event.trigger_sample, 500);
+    ///         assert_eq!(event.trigger_index, 50);
+    ///         events += 1;
+    ///     }
+    /// }
+    /// assert_eq!(events, 1);
+    /// ```
+    pub fn new(settings: BiteSettings) -> Result<Self, BiteSettingsError> {
+        let finite_positive = |v: f64| v.is_finite() && v > 0.0;
+        if !finite_positive(settings.threshold_knm) {
+            return Err(BiteSettingsError::ThresholdKnm);
+        }
+        if !finite_positive(settings.rearm_knm) {
+            return Err(BiteSettingsError::RearmKnm);
+        }
+        if !(settings.baseline_alpha > 0.0 && settings.baseline_alpha <= 1.0) {
+            return Err(BiteSettingsError::BaselineAlpha);
+        }
+        // `!(low < high)` also rejects NaN limits.
+        if !(settings.saturation_low_knm < settings.saturation_high_knm) {
+            return Err(BiteSettingsError::SaturationLimits);
+        }
+        if settings.post_trigger_samples == 0 || PRE >= N || settings.post_trigger_samples > N - PRE
+        {
+            return Err(BiteSettingsError::PostTriggerSamples);
+        }
+        Ok(Self { settings })
+    }
+
+    /// The validated settings.
+    pub fn settings(&self) -> &BiteSettings {
+        &self.settings
+    }
+
+    /// A fresh, armed state with no baseline yet.
+    pub fn state(&self) -> BiteDetectorState<PRE, N> {
+        BiteDetectorState {
+            phase: Phase::Armed,
+            baseline_knm: 0.0,
+            baseline_valid: false,
+            history: HistoryBuf::new(),
+            window: Vec::new(),
+            trigger_index: 0,
+            trigger_sample: 0,
+            trigger_baseline_knm: 0.0,
+            source: TriggerSource::Level,
+            external_pending: false,
+            last_stored_knm: 0.0,
+            sample_index: 0,
+            window_start: 0,
+            last_non_finite: None,
+            last_saturated: None,
+            dead_remaining: 0,
+        }
+    }
+
+    /// External trigger: the next processed sample becomes the trigger sample.
+    ///
+    /// Returns false (and does nothing) when the detector is not armed.
+    pub fn trigger(&self, state: &mut BiteDetectorState<PRE, N>) -> bool {
+        if state.phase == Phase::Armed {
+            state.external_pending = true;
+            true
+        } else {
+            false
+        }
+    }
+
+    /// Declares `missing_samples` lost samples (a data gap) before the next sample.
+    ///
+    /// Clears the pre-trigger history. During a capture, returns the event cut at the gap
+    /// with `quality.gap` set. The absolute sample index advances by `missing_samples`.
+    pub fn gap(
+        &self,
+        state: &mut BiteDetectorState<PRE, N>,
+        missing_samples: u64,
+    ) -> Option<BiteEvent<N>> {
+        let event = if state.phase == Phase::Capturing {
+            let mut event = self.finish(state);
+            event.quality.gap = true;
+            Some(event)
+        } else {
+            None
+        };
+        state.history.clear();
+        state.sample_index = state.sample_index.saturating_add(missing_samples);
+        state.window_start = state.sample_index;
+        event
+    }
+
+    /// Processes one torque sample (kN*m); returns an event when a window completes.
+    #[inline]
+    pub fn process(
+        &self,
+        state: &mut BiteDetectorState<PRE, N>,
+        torque_knm: f64,
+    ) -> Option<BiteEvent<N>> {
+        let index = state.sample_index;
+        state.sample_index = index.wrapping_add(1);
+        let finite = torque_knm.is_finite();
+        if !finite {
+            state.last_non_finite = Some(index);
+        } else if torque_knm <= self.settings.saturation_low_knm
+            || torque_knm >= self.settings.saturation_high_knm
+        {
+            state.last_saturated = Some(index);
+        }
+        if finite && !state.baseline_valid {
+            state.baseline_knm = torque_knm;
+            state.baseline_valid = true;
+        }
+        let stored = if finite {
+            torque_knm
+        } else if state.history.is_empty() && state.phase != Phase::Capturing {
+            state.baseline_knm
+        } else {
+            state.last_stored_knm
+        };
+        state.last_stored_knm = stored;
+
+        match state.phase {
+            Phase::Armed => {
+                let rise = finite
+                    && state.baseline_valid
+                    && torque_knm - state.baseline_knm >= self.settings.threshold_knm;
+                if rise || state.external_pending {
+                    self.start(state, index, stored, rise);
+                    return self.maybe_finish(state);
+                }
+                if finite {
+                    state.baseline_knm +=
+                        self.settings.baseline_alpha * (torque_knm - state.baseline_knm);
+                }
+                if state.history.is_empty() {
+                    state.window_start = index;
+                } else if state.history.is_full() {
+                    state.window_start = state.window_start.wrapping_add(1);
+                }
+                state.history.write(stored);
+                None
+            }
+            Phase::Capturing => {
+                // The capacity check in `new` guarantees room; a full window hands back.
+                if state.window.push(stored).is_err() {
+                    return Some(self.finish(state));
+                }
+                self.maybe_finish(state)
+            }
+            Phase::Dead => {
+                state.dead_remaining = state.dead_remaining.saturating_sub(1);
+                if state.dead_remaining == 0
+                    && finite
+                    && libm::fabs(torque_knm - state.baseline_knm) <= self.settings.rearm_knm
+                {
+                    state.phase = Phase::Armed;
+                    state.history.clear();
+                    state.history.write(stored);
+                    state.window_start = index;
+                }
+                None
+            }
+        }
+    }
+
+    /// Processes a slice of samples, calling `on_event` for every completed window.
+    pub fn block<F: FnMut(BiteEvent<N>)>(
+        &self,
+        state: &mut BiteDetectorState<PRE, N>,
+        samples_knm: &[f64],
+        mut on_event: F,
+    ) {
+        for &sample in samples_knm {
+            if let Some(event) = self.process(state, sample) {
+                on_event(event);
+            }
+        }
+    }
+
+    fn start(&self, state: &mut BiteDetectorState<PRE, N>, index: u64, stored: f64, level: bool) {
+        state.window.clear();
+        if state.history.is_empty() {
+            state.window_start = index;
+        }
+        for &value in state.history.oldest_ordered() {
+            // PRE < N: always fits.
+            let _ = state.window.push(value);
+        }
+        state.trigger_index = state.window.len();
+        let _ = state.window.push(stored);
+        state.trigger_sample = index;
+        state.trigger_baseline_knm = state.baseline_knm;
+        state.source = if level {
+            TriggerSource::Level
+        } else {
+            TriggerSource::External
+        };
+        state.external_pending = false;
+        state.phase = Phase::Capturing;
+    }
+
+    fn maybe_finish(&self, state: &mut BiteDetectorState<PRE, N>) -> Option<BiteEvent<N>> {
+        if state.window.len() - state.trigger_index >= self.settings.post_trigger_samples {
+            Some(self.finish(state))
+        } else {
+            None
+        }
+    }
+
+    fn finish(&self, state: &mut BiteDetectorState<PRE, N>) -> BiteEvent<N> {
+        let start = state.window_start;
+        let in_window = |at: Option<u64>| at.is_some_and(|i| i >= start);
+        let quality = Quality {
+            non_finite: in_window(state.last_non_finite),
+            saturated: in_window(state.last_saturated),
+            gap: false,
+        };
+        state.phase = Phase::Dead;
+        state.dead_remaining = self.settings.holdoff_samples;
+        state.history.clear();
+        BiteEvent {
+            window: core::mem::take(&mut state.window),
+            trigger_index: state.trigger_index,
+            trigger_sample: state.trigger_sample,
+            baseline_knm: state.trigger_baseline_knm,
+            source: state.source,
+            quality,
+        }
+    }
+}
