@@ -188,8 +188,8 @@ impl<const PRE: usize, const N: usize> BiteDetector<PRE, N> {
         if !(settings.baseline_alpha > 0.0 && settings.baseline_alpha <= 1.0) {
             return Err(BiteSettingsError::BaselineAlpha);
         }
-        // `!(low < high)` also rejects NaN limits.
-        if !(settings.saturation_low_knm < settings.saturation_high_knm) {
+        let (low, high) = (settings.saturation_low_knm, settings.saturation_high_knm);
+        if low.is_nan() || high.is_nan() || low >= high {
             return Err(BiteSettingsError::SaturationLimits);
         }
         if settings.post_trigger_samples == 0 || PRE >= N || settings.post_trigger_samples > N - PRE

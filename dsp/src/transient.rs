@@ -57,7 +57,8 @@ pub enum TransientError {
     WindowLength,
     /// `trigger_index` is not inside the window.
     TriggerIndex,
-    /// `baseline_knm` or a window sample is NaN or infinite.
+    /// `baseline_knm` or a window sample is NaN or infinite, or so large that the
+    /// static level or the peak overflows.
     NonFinite,
 }
 
@@ -242,6 +243,10 @@ pub fn analyze<const N: usize>(
                     best
                 }
             });
+    if !static_torque_knm.is_finite() || !peak_torque_knm.is_finite() {
+        // Samples near f64::MAX overflow the mean or the filter.
+        return Err(TransientError::NonFinite);
+    }
     let dt = 1.0 / rate;
     let peak_time_s = peak_offset as f64 * dt;
 
@@ -258,7 +263,7 @@ pub fn analyze<const N: usize>(
         shift_excess_s: None,
         quality: TransientQuality::LowStatic,
     };
-    if !(static_torque_knm >= settings.min_static_knm) {
+    if static_torque_knm < settings.min_static_knm {
         return Ok(result);
     }
     result.taf = finite_or_none(peak_torque_knm / static_torque_knm);
