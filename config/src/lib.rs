@@ -1,7 +1,56 @@
 #![doc = include_str!("../README.md")]
 
+mod dbc;
+mod error;
 pub mod layout;
+mod parse;
+mod raw;
 pub mod signal;
+mod summary;
 mod types;
+mod validate;
 
+use std::path::Path;
+
+pub use error::{ConfigError, Problem};
+pub use summary::summary;
 pub use types::*;
+
+use error::Report;
+
+/// Reads, parses and validates the configuration file at `path`.
+///
+/// Relative paths inside the file (`dbc`, `model`) are resolved against the file's
+/// directory. Problems are reported against `path` as given.
+///
+/// ```no_run
+/// let config = millgate_config::load(std::path::Path::new("config/examples/demo.toml"))?;
+/// println!("{}", millgate_config::summary(&config));
+/// # Ok::<(), millgate_config::ConfigError>(())
+/// ```
+pub fn load(path: &Path) -> Result<Config, ConfigError> {
+    let file_name = path.display().to_string();
+    let text = match std::fs::read_to_string(path) {
+        Ok(text) => text,
+        Err(error) => {
+            let mut report = Report::new(&file_name);
+            report.push("", format!("cannot read the file: {error}"));
+            return report.finish(None);
+        }
+    };
+    let base_dir = path.parent().unwrap_or(Path::new("."));
+    from_toml_str(&text, &file_name, base_dir)
+}
+
+/// Parses and validates configuration `text`; `file_name` names it in problems and
+/// relative paths inside it are resolved against `base_dir`.
+///
+/// All problems are collected, in three passes that each run only when the previous
+/// one found nothing: TOML syntax, schema (unknown or misspelt keys, wrong types,
+/// missing keys), then values and references.
+pub fn from_toml_str(text: &str, file_name: &str, base_dir: &Path) -> Result<Config, ConfigError> {
+    let mut report = Report::new(file_name);
+    let config = parse::parse(text, &mut report)
+        .and_then(|raw| validate::validate(raw, base_dir, &mut report));
+    report.finish(config)
+}

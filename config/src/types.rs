@@ -8,7 +8,7 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration;
 
-/// A whole, validated millgate configuration.
+/// A whole, validated millgate configuration, as returned by [`crate::load`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct Config {
     /// Plant or mill name, for logs and the HMI.
@@ -27,25 +27,37 @@ pub struct Config {
     pub outputs: Outputs,
 }
 
+impl Config {
+    /// Index into [`Config::channels`] of the channel called `name`.
+    pub fn channel_index(&self, name: &str) -> Option<usize> {
+        self.channels
+            .iter()
+            .position(|channel| channel.name == name)
+    }
+}
+
 /// A Modbus TCP device polled by the gateway.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ModbusSource {
+    /// Unique among all sources.
     pub name: String,
     /// `host:port`; resolved at connect time, so a DNS name is kept as written.
     pub address: String,
     /// Modbus unit identifier (slave id), 0..=255.
     pub unit_id: u8,
-    /// Time between polls; must be shorter than a block period of its channels.
+    /// Time between polls, 1..=60000 ms; shorter than the block period
+    /// (120 samples / sample rate) of every block channel on this source.
     pub poll_period: Duration,
-    /// Time allowed for one request/response.
+    /// Time allowed for one request/response, 1..=60000 ms (default 1000 ms).
     pub timeout: Duration,
 }
 
 /// A SocketCAN interface with the DBC file that describes its frames.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CanSource {
+    /// Unique among all sources.
     pub name: String,
-    /// Kernel interface name, e.g. `can0` or `vcan0`.
+    /// Kernel interface name, e.g. `can0` or `vcan0` (1..=15 bytes).
     pub interface: String,
     /// DBC file, resolved relative to the configuration file.
     pub dbc: PathBuf,
@@ -62,6 +74,25 @@ pub enum ChannelKind {
     ProcessValue,
 }
 
+impl ChannelKind {
+    /// Every kind, in the order the documentation lists them.
+    pub const ALL: [ChannelKind; 3] = [
+        ChannelKind::Torque,
+        ChannelKind::Acceleration,
+        ChannelKind::ProcessValue,
+    ];
+
+    /// The spelling used in configuration files: `torque`, `acceleration`,
+    /// `process_value`.
+    pub fn name(self) -> &'static str {
+        match self {
+            ChannelKind::Torque => "torque",
+            ChannelKind::Acceleration => "acceleration",
+            ChannelKind::ProcessValue => "process_value",
+        }
+    }
+}
+
 /// Modbus register table.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum RegisterTable {
@@ -69,6 +100,19 @@ pub enum RegisterTable {
     Input,
     /// Holding registers, read with function code 03.
     Holding,
+}
+
+impl RegisterTable {
+    /// Both tables.
+    pub const ALL: [RegisterTable; 2] = [RegisterTable::Input, RegisterTable::Holding];
+
+    /// The spelling used in configuration files: `input`, `holding`.
+    pub fn name(self) -> &'static str {
+        match self {
+            RegisterTable::Input => "input",
+            RegisterTable::Holding => "holding",
+        }
+    }
 }
 
 /// Type of a scalar process value in registers.
@@ -82,6 +126,26 @@ pub enum ValueType {
 }
 
 impl ValueType {
+    /// Every type.
+    pub const ALL: [ValueType; 5] = [
+        ValueType::U16,
+        ValueType::I16,
+        ValueType::U32,
+        ValueType::I32,
+        ValueType::F32,
+    ];
+
+    /// The spelling used in configuration files: `u16`, `i16`, `u32`, `i32`, `f32`.
+    pub fn name(self) -> &'static str {
+        match self {
+            ValueType::U16 => "u16",
+            ValueType::I16 => "i16",
+            ValueType::U32 => "u32",
+            ValueType::I32 => "i32",
+            ValueType::F32 => "f32",
+        }
+    }
+
     /// Number of 16-bit registers the value occupies.
     pub fn register_count(self) -> u16 {
         match self {
@@ -94,12 +158,35 @@ impl ValueType {
 /// Byte order of a 32-bit value in two registers, named by where bytes A (most
 /// significant) to D (least significant) land: `ABCD` is big-endian words and
 /// bytes (Modbus default), `CDAB` swaps words, `BADC` swaps bytes, `DCBA` both.
+///
+/// For 16-bit types (one register, bytes A and B) `BADC` and `DCBA` swap the two
+/// bytes and `ABCD` and `CDAB` read the register as is (see [`crate::layout`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum WordOrder {
     Abcd,
     Cdab,
     Badc,
     Dcba,
+}
+
+impl WordOrder {
+    /// Every order.
+    pub const ALL: [WordOrder; 4] = [
+        WordOrder::Abcd,
+        WordOrder::Cdab,
+        WordOrder::Badc,
+        WordOrder::Dcba,
+    ];
+
+    /// The spelling used in configuration files: `ABCD`, `CDAB`, `BADC`, `DCBA`.
+    pub fn name(self) -> &'static str {
+        match self {
+            WordOrder::Abcd => "ABCD",
+            WordOrder::Cdab => "CDAB",
+            WordOrder::Badc => "BADC",
+            WordOrder::Dcba => "DCBA",
+        }
+    }
 }
 
 /// Where a channel's samples come from.
@@ -111,6 +198,8 @@ pub enum ChannelSource {
         /// Index into [`Config::modbus_sources`].
         source: usize,
         table: RegisterTable,
+        /// First register of the block, 0..=65414 (the block spans
+        /// [`crate::layout::BLOCK_REGISTERS`] registers from here).
         base: u16,
     },
     /// A scalar process value in plain registers.
@@ -118,6 +207,7 @@ pub enum ChannelSource {
         /// Index into [`Config::modbus_sources`].
         source: usize,
         table: RegisterTable,
+        /// First register of the value.
         address: u16,
         value_type: ValueType,
         word_order: WordOrder,
@@ -128,7 +218,9 @@ pub enum ChannelSource {
     Can {
         /// Index into [`Config::can_sources`].
         source: usize,
+        /// Message name in the DBC.
         message: String,
+        /// Signal name in the message.
         signal: String,
         /// Resolved from the DBC.
         signal_layout: crate::signal::SignalLayout,
@@ -138,13 +230,16 @@ pub enum ChannelSource {
 /// A measured channel. Engineering value = raw * scale + offset.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Channel {
+    /// Unique among channels.
     pub name: String,
     pub kind: ChannelKind,
-    /// Unit of the engineering value, e.g. `kN*m`.
+    /// Unit of the engineering value, e.g. `kN*m` (always `kN*m` for torque).
     pub unit: String,
+    /// Engineering units per raw count; finite and non-zero (1 for CAN channels).
     pub scale: f64,
+    /// Engineering value at raw 0 (0 for CAN channels).
     pub offset: f64,
-    /// Nominal sample rate, Hz (for process values: the poll rate).
+    /// Nominal sample rate, Hz, > 0 (for register values: 1 / the source's poll period).
     pub sample_rate_hz: f64,
     pub source: ChannelSource,
 }
@@ -154,15 +249,16 @@ pub struct Channel {
 pub struct BiteSettings {
     /// Rise above the tracked baseline that marks a bite, kN*m (> 0).
     pub threshold_knm: f64,
-    /// Window kept before the trigger, s.
+    /// Window kept before the trigger, s, 0..=10 (default 0.1).
     pub pre_trigger_s: f64,
-    /// Window captured after the trigger, s.
+    /// Window captured after the trigger, s, > 0 and <= 10 (default 0.5).
     pub post_trigger_s: f64,
 }
 
 /// A hot-mill driveline: one torque channel analysed at each bite.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Driveline {
+    /// Unique among drivelines.
     pub name: String,
     /// Index into [`Config::channels`] of the torque channel.
     pub torque: usize,
@@ -177,7 +273,7 @@ pub struct Driveline {
 /// Alarm thresholds of a driveline.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DrivelineThresholds {
-    /// TAF above which the wear warning bit is set.
+    /// TAF above which the wear warning bit is set (> 1).
     pub taf_warning: f64,
     /// TAF above which the wear alarm bit is set (>= warning).
     pub taf_alarm: f64,
@@ -186,12 +282,14 @@ pub struct DrivelineThresholds {
 /// A tandem cold mill watched for chatter.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TandemMill {
+    /// Unique among tandem mills.
     pub name: String,
-    /// Indices into [`Config::channels`] of the stands' vibration channels, in rolling order.
+    /// Indices into [`Config::channels`] of the stands' vibration channels, in rolling
+    /// order; 2..=8 distinct acceleration channels.
     pub stands: Vec<usize>,
-    /// Chatter band, Hz: (low, high).
+    /// Chatter band, Hz: (low, high), 0 < low < high < half of every stand's sample rate.
     pub chatter_band_hz: (f64, f64),
-    /// Sliding analysis window, s.
+    /// Sliding analysis window, s, > 0 and <= 10.
     pub window_s: f64,
     /// K_max: largest adjacent-stand correlation seen in steady rolling (0..1).
     pub k_max: f64,
@@ -211,23 +309,30 @@ pub struct Outputs {
 /// The PLC written by the gateway.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PlcOutput {
+    /// `host:port`, port 1..=65535; resolved at connect time.
     pub address: String,
+    /// Modbus unit identifier, 0..=255 (default 1).
     pub unit_id: u8,
-    /// First holding register of the millgate map in the PLC.
+    /// First holding register of the millgate map in the PLC (default 0).
     pub register_base: u16,
+    /// Time between writes, 1..=60000 ms.
     pub write_period: Duration,
+    /// Time allowed for one write, 1..=60000 ms (default 1000 ms).
     pub timeout: Duration,
 }
 
 /// The gateway's own Modbus TCP server.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ServerOutput {
+    /// Address to listen on; port 0 picks a free port.
     pub bind: SocketAddr,
+    /// Unit identifier the server answers to, 0..=255 (default 1).
     pub unit_id: u8,
 }
 
 /// The Prometheus endpoint.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MetricsOutput {
+    /// Address to listen on (default `127.0.0.1:9187`).
     pub bind: SocketAddr,
 }

@@ -1,0 +1,146 @@
+//! The file format as written: serde structures mirroring the TOML, before any check.
+//!
+//! Every table denies unknown keys so that a misspelt key is an error naming it.
+//! Integers are read as `i64`, floats as `f64` and enumerations as strings: range and
+//! name checks happen in [`crate::validate`], which can then report every bad value
+//! with the allowed range instead of stopping at serde's first type error.
+
+use serde::Deserialize;
+
+/// `[[sources.modbus]]`: a Modbus TCP device.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawModbusSource {
+    pub name: String,
+    pub address: String,
+    pub unit_id: Option<i64>,
+    pub poll_period_ms: i64,
+    pub timeout_ms: Option<i64>,
+}
+
+/// `[[sources.can]]`: a SocketCAN interface and its DBC file.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawCanSource {
+    pub name: String,
+    pub interface: String,
+    pub dbc: String,
+}
+
+/// `[[channels]]`: one measured channel.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawChannel {
+    pub name: String,
+    pub kind: String,
+    pub unit: String,
+    pub scale: Option<f64>,
+    pub offset: Option<f64>,
+    pub sample_rate_hz: Option<f64>,
+    pub source: RawChannelSource,
+}
+
+/// `channels[].source`: one inline table covering the three source forms; which keys
+/// may appear together is checked in validation, with messages saying why.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawChannelSource {
+    pub modbus: Option<String>,
+    pub can: Option<String>,
+    pub table: Option<String>,
+    pub block: Option<i64>,
+    pub address: Option<i64>,
+    #[serde(rename = "type")]
+    pub value_type: Option<String>,
+    pub word_order: Option<String>,
+    pub message: Option<String>,
+    pub signal: Option<String>,
+}
+
+/// `[[drivelines]]`: a hot-mill driveline.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawDriveline {
+    pub name: String,
+    pub torque: String,
+    pub metal_in_stand: Option<String>,
+    pub model: Option<String>,
+    pub bite: RawBite,
+    pub thresholds: RawThresholds,
+}
+
+/// `drivelines[].bite`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawBite {
+    pub threshold_knm: f64,
+    pub pre_trigger_s: Option<f64>,
+    pub post_trigger_s: Option<f64>,
+}
+
+/// `drivelines[].thresholds`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawThresholds {
+    pub taf_warning: f64,
+    pub taf_alarm: f64,
+}
+
+/// `[[tandem_mills]]`: a tandem cold mill.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawTandemMill {
+    pub name: String,
+    pub stands: Vec<String>,
+    pub chatter_band_hz: Vec<f64>,
+    pub window_s: f64,
+    pub k_max: f64,
+}
+
+/// `[outputs]`.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawOutputs {
+    pub plc: Option<RawPlcOutput>,
+    pub server: Option<RawServerOutput>,
+    pub metrics: Option<RawMetricsOutput>,
+}
+
+/// `[outputs.plc]`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawPlcOutput {
+    pub address: String,
+    pub unit_id: Option<i64>,
+    pub register_base: Option<i64>,
+    pub write_period_ms: i64,
+    pub timeout_ms: Option<i64>,
+}
+
+/// `[outputs.server]`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawServerOutput {
+    pub bind: String,
+    pub unit_id: Option<i64>,
+}
+
+/// `[outputs.metrics]`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawMetricsOutput {
+    pub bind: Option<String>,
+}
+
+/// The whole document after the schema pass. List elements that failed to
+/// deserialize are absent, but then validation does not run (see [`crate::parse`]).
+#[derive(Debug, Default)]
+pub(crate) struct RawConfig {
+    pub name: String,
+    pub modbus_sources: Vec<RawModbusSource>,
+    pub can_sources: Vec<RawCanSource>,
+    pub channels: Vec<RawChannel>,
+    pub drivelines: Vec<RawDriveline>,
+    pub tandem_mills: Vec<RawTandemMill>,
+    pub outputs: RawOutputs,
+}

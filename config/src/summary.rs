@@ -1,0 +1,192 @@
+//! A plain-text summary of a validated configuration (what `millgate check` prints).
+
+use std::fmt::Write as _;
+
+use crate::layout::BLOCK_REGISTERS;
+use crate::{ChannelSource, Config};
+
+/// Lists sources, channels (with where each comes from), drivelines, tandem mills
+/// and outputs, one item per line under a heading per section.
+///
+/// ```
+/// let config = millgate_config::from_toml_str(
+///     "name = \"Test mill\"",
+///     "mill.toml",
+///     std::path::Path::new("."),
+/// )?;
+/// let text = millgate_config::summary(&config);
+/// assert!(text.starts_with("Test mill\n"));
+/// assert!(text.contains("Channels (0):\n  none\n"));
+/// # Ok::<(), millgate_config::ConfigError>(())
+/// ```
+pub fn summary(config: &Config) -> String {
+    let mut text = String::new();
+    // Writing to a String cannot fail; the results are ignored on purpose.
+    let _ = writeln!(text, "{}", config.name);
+
+    let source_count = config.modbus_sources.len() + config.can_sources.len();
+    let _ = writeln!(text, "Sources ({source_count}):");
+    for source in &config.modbus_sources {
+        let _ = writeln!(
+            text,
+            "  {}: Modbus TCP {} unit {}, poll every {} ms, timeout {} ms",
+            source.name,
+            source.address,
+            source.unit_id,
+            source.poll_period.as_millis(),
+            source.timeout.as_millis()
+        );
+    }
+    for source in &config.can_sources {
+        let _ = writeln!(
+            text,
+            "  {}: CAN {}, DBC {}",
+            source.name,
+            source.interface,
+            source.dbc.display()
+        );
+    }
+    none_if_empty(&mut text, source_count);
+
+    let _ = writeln!(text, "Channels ({}):", config.channels.len());
+    for channel in &config.channels {
+        let origin = match &channel.source {
+            ChannelSource::ModbusBlock {
+                source,
+                table,
+                base,
+            } => format!(
+                "{} {} registers {}..={} (sample block)",
+                config.modbus_sources[*source].name,
+                table.name(),
+                base,
+                u32::from(*base) + u32::from(BLOCK_REGISTERS) - 1
+            ),
+            ChannelSource::ModbusValue {
+                source,
+                table,
+                address,
+                value_type,
+                word_order,
+            } => format!(
+                "{} {} register {} ({} {})",
+                config.modbus_sources[*source].name,
+                table.name(),
+                address,
+                value_type.name(),
+                word_order.name()
+            ),
+            ChannelSource::Can {
+                source,
+                message,
+                signal,
+                signal_layout,
+            } => format!(
+                "{} {} {} (id {:#x}{})",
+                config.can_sources[*source].name,
+                message,
+                signal,
+                signal_layout.frame_id,
+                if signal_layout.extended {
+                    ", extended"
+                } else {
+                    ""
+                }
+            ),
+        };
+        let _ = writeln!(
+            text,
+            "  {}: {} [{}] at {} Hz, value = raw * {} + {}, from {}",
+            channel.name,
+            channel.kind.name(),
+            channel.unit,
+            channel.sample_rate_hz,
+            channel.scale,
+            channel.offset,
+            origin
+        );
+    }
+    none_if_empty(&mut text, config.channels.len());
+
+    let _ = writeln!(text, "Drivelines ({}):", config.drivelines.len());
+    for driveline in &config.drivelines {
+        let trigger = match driveline.metal_in_stand {
+            Some(index) => format!(", metal in stand {}", config.channels[index].name),
+            None => String::new(),
+        };
+        let _ = write!(
+            text,
+            "  {}: torque {}{}, bite at a rise > {} kN*m (capture {} s before, {} s after), \
+             TAF warning {} alarm {}",
+            driveline.name,
+            config.channels[driveline.torque].name,
+            trigger,
+            driveline.bite.threshold_knm,
+            driveline.bite.pre_trigger_s,
+            driveline.bite.post_trigger_s,
+            driveline.thresholds.taf_warning,
+            driveline.thresholds.taf_alarm
+        );
+        if let Some(model) = &driveline.model {
+            let _ = write!(text, ", model {}", model.display());
+        }
+        text.push('\n');
+    }
+    none_if_empty(&mut text, config.drivelines.len());
+
+    let _ = writeln!(text, "Tandem mills ({}):", config.tandem_mills.len());
+    for mill in &config.tandem_mills {
+        let stands: Vec<_> = mill
+            .stands
+            .iter()
+            .map(|&index| config.channels[index].name.as_str())
+            .collect();
+        let _ = writeln!(
+            text,
+            "  {}: {} stands ({}), chatter band {}..{} Hz, window {} s, K_max {}",
+            mill.name,
+            stands.len(),
+            stands.join(", "),
+            mill.chatter_band_hz.0,
+            mill.chatter_band_hz.1,
+            mill.window_s,
+            mill.k_max
+        );
+    }
+    none_if_empty(&mut text, config.tandem_mills.len());
+
+    let outputs = &config.outputs;
+    let output_count = usize::from(outputs.plc.is_some())
+        + usize::from(outputs.server.is_some())
+        + usize::from(outputs.metrics.is_some());
+    let _ = writeln!(text, "Outputs ({output_count}):");
+    if let Some(plc) = &outputs.plc {
+        let _ = writeln!(
+            text,
+            "  PLC: {} unit {}, holding registers from {}, write every {} ms, timeout {} ms",
+            plc.address,
+            plc.unit_id,
+            plc.register_base,
+            plc.write_period.as_millis(),
+            plc.timeout.as_millis()
+        );
+    }
+    if let Some(server) = &outputs.server {
+        let _ = writeln!(
+            text,
+            "  Modbus server: listen on {} unit {}",
+            server.bind, server.unit_id
+        );
+    }
+    if let Some(metrics) = &outputs.metrics {
+        let _ = writeln!(text, "  Metrics: http://{}/metrics", metrics.bind);
+    }
+    none_if_empty(&mut text, output_count);
+    text
+}
+
+fn none_if_empty(text: &mut String, count: usize) {
+    if count == 0 {
+        text.push_str("  none\n");
+    }
+}
