@@ -2,5 +2,7 @@
 #![doc = include_str!("../README.md")]
 
 pub mod bite;
+pub mod fit;
+pub mod pencil;
 pub mod stiffness;
 pub mod transient;

@@ -1,0 +1,194 @@
+//! Matrix-pencil (TLS-ESPRIT) estimate of the poles of a short record, without heap.
+//!
+//! The record is decimated by boxcar averaging, its Hankel matrix (rows of
+//! [`PENCIL_COLUMNS`] consecutive decimated samples) is reduced row by row to a
+//! triangular factor R by Givens rotations, so the Hankel matrix is never stored:
+//! Y = Q R and Y, R share their right singular vectors. The SVD of R (fixed size)
+//! gives the signal subspace of rank [`MODEL_ORDER`] (two damped modes = 4 poles, plus
+//! the constant and the load exponential = 2 real poles); the shift-invariance of that
+//! subspace, V1 Psi = V2, gives Psi whose eigenvalues z are the poles:
+//! decay = -ln|z| / dt, frequency = arg(z) / (2 pi dt).
+
+use heapless::Vec;
+use nalgebra::{SMatrix, Schur};
+
+/// Pencil parameter plus one: columns of the Hankel matrix.
+pub const PENCIL_COLUMNS: usize = 17;
+/// Rank kept in the signal subspace: number of poles returned at most.
+pub const MODEL_ORDER: usize = 6;
+/// Fewest decimated samples accepted (two Hankel rows per column).
+pub const MIN_DECIMATED_SAMPLES: usize = 2 * PENCIL_COLUMNS;
+
+/// One pole `s = -decay + i 2 pi frequency`; conjugate pairs are returned once.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Pole {
+    /// Decay rate, 1/s (negative for a growing component).
+    pub decay_per_s: f64,
+    /// Frequency, Hz, >= 0; 0 for a real (non-oscillating) pole.
+    pub frequency_hz: f64,
+}
+
+/// Invalid input to [`poles`] or a failed decomposition.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PencilError {
+    /// The sample rate is not finite and > 0.
+    SampleRateHz,
+    /// The decimation factor is 0.
+    Decimation,
+    /// Fewer than [`MIN_DECIMATED_SAMPLES`] samples after decimation.
+    TooFewSamples,
+    /// A sample is NaN or infinite.
+    NonFinite,
+    /// All samples are zero.
+    Flat,
+    /// The SVD, the shift-invariance solve or the eigenvalue iteration failed.
+    Decomposition,
+}
+
+/// Givens-rotation update of the upper-triangular `r` with one new row.
+fn add_row(r: &mut [[f64; PENCIL_COLUMNS]; PENCIL_COLUMNS], row: &mut [f64; PENCIL_COLUMNS]) {
+    for j in 0..PENCIL_COLUMNS {
+        let x = row[j];
+        if x == 0.0 {
+            continue;
+        }
+        let d = r[j][j];
+        let h = libm::hypot(d, x);
+        let (c, s) = (d / h, x / h);
+        for k in j..PENCIL_COLUMNS {
+            let (rk, xk) = (r[j][k], row[k]);
+            r[j][k] = c * rk + s * xk;
+            row[k] = c * xk - s * rk;
+        }
+    }
+}
+
+/// Poles of `samples` (uniform at `sample_rate_hz`, Hz), decimated by `decimation` >= 1.
+///
+/// Returns at most [`MODEL_ORDER`] poles, complex pairs once (positive frequency);
+/// poles within 10% of the decimated Nyquist frequency or not finite are dropped.
+pub fn poles(
+    samples: &[f64],
+    sample_rate_hz: f64,
+    decimation: usize,
+) -> Result<Vec<Pole, MODEL_ORDER>, PencilError> {
+    if !(sample_rate_hz.is_finite() && sample_rate_hz > 0.0) {
+        return Err(PencilError::SampleRateHz);
+    }
+    if decimation == 0 {
+        return Err(PencilError::Decimation);
+    }
+    if samples.len() / decimation < MIN_DECIMATED_SAMPLES {
+        return Err(PencilError::TooFewSamples);
+    }
+    let mut scale = 0.0_f64;
+    for &value in samples {
+        if !value.is_finite() {
+            return Err(PencilError::NonFinite);
+        }
+        scale = scale.max(libm::fabs(value));
+    }
+    if scale == 0.0 {
+        return Err(PencilError::Flat);
+    }
+    let inverse_scale = 1.0 / scale / decimation as f64;
+
+    let mut r = [[0.0_f64; PENCIL_COLUMNS]; PENCIL_COLUMNS];
+    let mut recent = [0.0_f64; PENCIL_COLUMNS];
+    let mut filled = 0;
+    for chunk in samples.chunks_exact(decimation) {
+        let value = chunk.iter().sum::<f64>() * inverse_scale;
+        recent.copy_within(1.., 0);
+        recent[PENCIL_COLUMNS - 1] = value;
+        filled += 1;
+        if filled >= PENCIL_COLUMNS {
+            let mut row = recent;
+            add_row(&mut r, &mut row);
+        }
+    }
+
+    let r_matrix = SMatrix::<f64, PENCIL_COLUMNS, PENCIL_COLUMNS>::from_fn(|i, j| r[i][j]);
+    let svd = r_matrix
+        .try_svd_unordered(false, true, f64::EPSILON, 2000)
+        .ok_or(PencilError::Decomposition)?;
+    let v_t = svd.v_t.ok_or(PencilError::Decomposition)?;
+    if svd.singular_values.iter().any(|s| !s.is_finite()) {
+        return Err(PencilError::Decomposition);
+    }
+    // Indices of the MODEL_ORDER largest singular values.
+    let mut order = [0_usize; PENCIL_COLUMNS];
+    for (i, slot) in order.iter_mut().enumerate() {
+        *slot = i;
+    }
+    order.sort_unstable_by(|&a, &b| svd.singular_values[b].total_cmp(&svd.singular_values[a]));
+
+    // V1: rows 0..L of the signal subspace, V2: rows 1..L+1.
+    let v1 =
+        SMatrix::<f64, { PENCIL_COLUMNS - 1 }, MODEL_ORDER>::from_fn(|i, k| v_t[(order[k], i)]);
+    let v2 =
+        SMatrix::<f64, { PENCIL_COLUMNS - 1 }, MODEL_ORDER>::from_fn(|i, k| v_t[(order[k], i + 1)]);
+    let gram = v1.transpose() * v1;
+    let cross = v1.transpose() * v2;
+    let psi = gram.lu().solve(&cross).ok_or(PencilError::Decomposition)?;
+    if psi.iter().any(|v| !v.is_finite()) {
+        return Err(PencilError::Decomposition);
+    }
+    let schur = Schur::try_new(psi, f64::EPSILON, 2000).ok_or(PencilError::Decomposition)?;
+    let eigenvalues = schur.complex_eigenvalues();
+
+    let dt = decimation as f64 / sample_rate_hz;
+    let nyquist_hz = 0.5 / dt;
+    let mut result = Vec::new();
+    for z in eigenvalues.iter() {
+        if z.im < 0.0 {
+            continue;
+        }
+        let magnitude = libm::hypot(z.re, z.im);
+        let decay_per_s = -libm::log(magnitude) / dt;
+        let frequency_hz = libm::atan2(z.im, z.re) / (2.0 * core::f64::consts::PI * dt);
+        if decay_per_s.is_finite() && frequency_hz.is_finite() && frequency_hz < 0.9 * nyquist_hz {
+            // At most MODEL_ORDER eigenvalues exist, so this never overflows.
+            let _ = result.push(Pole {
+                decay_per_s,
+                frequency_hz,
+            });
+        }
+    }
+    Ok(result)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use core::f64::consts::PI;
+
+    #[test]
+    fn recovers_two_damped_modes_and_real_poles() {
+        let fs = 500.0;
+        let mut samples = [0.0_f64; 300];
+        for (i, v) in samples.iter_mut().enumerate() {
+            let t = i as f64 / fs;
+            *v = 3.0 * libm::exp(-5.0 * t) * libm::cos(2.0 * PI * 12.0 * t)
+                + 2.0 * libm::exp(-2.0 * t) * libm::sin(2.0 * PI * 31.0 * t)
+                + 4.0 * (1.0 - libm::exp(-20.0 * t));
+        }
+        let found = poles(&samples, fs, 2).unwrap();
+        let near = |f: f64, d: f64| {
+            found.iter().any(|p| {
+                libm::fabs(p.frequency_hz - f) < 1e-6 && libm::fabs(p.decay_per_s - d) < 1e-5
+            })
+        };
+        assert!(near(12.0, 5.0), "{found:?}");
+        assert!(near(31.0, 2.0), "{found:?}");
+        assert!(near(0.0, 20.0), "{found:?}");
+        assert!(near(0.0, 0.0), "{found:?}");
+    }
+
+    #[test]
+    fn rejects_bad_input() {
+        assert_eq!(poles(&[1.0; 10], 100.0, 1), Err(PencilError::TooFewSamples));
+        assert_eq!(poles(&[0.0; 100], 100.0, 1), Err(PencilError::Flat));
+        assert_eq!(poles(&[1.0; 100], 0.0, 1), Err(PencilError::SampleRateHz));
+        assert_eq!(poles(&[1.0; 100], 100.0, 0), Err(PencilError::Decimation));
+    }
+}
