@@ -1,0 +1,367 @@
+//! Driveline model files: a torsional chain of masses and couplings, a PI-controlled
+//! motor, a rolling-load ramp and the measured channel, read from and written to TOML.
+//!
+//! Every field is in SI units except the load torque, which is in kN*m as in the
+//! paper's tables. A [`Model`] returned by [`Model::from_toml_str`] or [`Model::load`]
+//! has passed [`Model::validate`]; code that builds a model by hand should call it too.
+//!
+//! Later extensions (cubic hardening, Coulomb friction, sensor lag, split inertias) are
+//! meant to be optional fields with `#[serde(default, skip_serializing_if = ...)]`, so
+//! files written before they exist keep loading and models without them serialise as
+//! before.
+
+use std::fmt::Display;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+/// Largest number of output samples a model may ask for (duration * sample rate).
+pub const MAX_OUTPUT_SAMPLES: f64 = 1.0e8;
+
+/// A torsional driveline model: masses ordered motor first, rolls last.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Model {
+    /// Free-text name of the driveline.
+    pub name: String,
+    /// Lumped rotating masses, motor first (index 0), rolls last; at least 2.
+    #[serde(rename = "mass")]
+    pub masses: Vec<Mass>,
+    /// Couplings; coupling `i` joins mass `i` and mass `i + 1`, so there are
+    /// `masses.len() - 1` of them.
+    #[serde(rename = "coupling")]
+    pub couplings: Vec<Coupling>,
+    /// PI speed controller acting on mass 0.
+    pub motor: Motor,
+    /// Rolling-load ramp acting against the last mass.
+    pub load: Load,
+    /// Which torque is measured and how it is sampled.
+    pub measurement: Measurement,
+}
+
+/// One lumped rotating mass.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Mass {
+    /// Free-text name (`motor`, `pinion`, `rolls`, ...).
+    pub name: String,
+    /// Moment of inertia referred to roll speed, kg*m^2, > 0.
+    pub inertia: f64,
+}
+
+/// One elastic coupling with viscous damping and an optional symmetric dead zone.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Coupling {
+    /// Free-text name (`gear coupling`, `spindle`, ...).
+    pub name: String,
+    /// Torsional stiffness outside the gap, N*m/rad, > 0.
+    pub stiffness: f64,
+    /// Viscous damping on the twist rate, acting at all times, N*m*s/rad, >= 0.
+    pub damping: f64,
+    /// Total dead-zone width (opened gap), rad, >= 0; default 0 (linear coupling).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub backlash: f64,
+}
+
+/// PI speed controller on mass 0; the reference is the nominal speed (deviation 0).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Motor {
+    /// Proportional gain, N*m*s/rad, >= 0.
+    pub speed_kp: f64,
+    /// Integral gain, N*m/rad, >= 0.
+    pub speed_ki: f64,
+}
+
+/// Rolling load M(t) = static_torque (1 - exp(-rise_rate (t - onset))) for t >= onset.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Load {
+    /// Static rolling torque on the last mass, kN*m, >= 0.
+    pub static_torque: f64,
+    /// Rate of the exponential load rise, 1/s, > 0.
+    pub rise_rate: f64,
+    /// Time of metal biting (start of the load rise), s, >= 0.
+    pub onset: f64,
+}
+
+/// The measured channel: the torque of one coupling, sampled uniformly.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Measurement {
+    /// Index of the measured coupling, 0 ..= couplings - 1.
+    pub coupling: usize,
+    /// Output sample rate, Hz, > 0.
+    pub sample_rate: f64,
+    /// Length of the simulated record, s, > 0.
+    pub duration: f64,
+}
+
+/// Why a model file could not be read or is not a valid driveline.
+///
+/// Every variant names the file; the schema and value variants also name the key path
+/// (`mass[1].inertia`) and what is allowed there.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    /// The file could not be read.
+    #[error("{file}: cannot read: {source}")]
+    Io {
+        /// The file as given.
+        file: String,
+        /// The underlying I/O error.
+        source: std::io::Error,
+    },
+    /// The text is not valid TOML.
+    #[error("{file}:{line}: malformed TOML: {message}")]
+    Syntax {
+        /// The file as given.
+        file: String,
+        /// 1-based line of the error.
+        line: usize,
+        /// What the TOML parser reported.
+        message: String,
+    },
+    /// The TOML is valid but does not match the schema (unknown key, missing key,
+    /// wrong type).
+    #[error("{file}:{line}: {key}: {message}")]
+    Schema {
+        /// The file as given.
+        file: String,
+        /// 1-based line of the offending item (0 if unknown).
+        line: usize,
+        /// Key path, e.g. `coupling[0]`.
+        key: String,
+        /// What serde reported, including the expected keys or type.
+        message: String,
+    },
+    /// A value is outside its allowed range.
+    #[error("{file}: {key}: {value} is not allowed (must be {allowed})")]
+    Value {
+        /// The file as given (or `<model>` for a model built in code).
+        file: String,
+        /// Key path, e.g. `mass[1].inertia`.
+        key: String,
+        /// The offending value as written.
+        value: String,
+        /// The allowed range with its unit.
+        allowed: String,
+    },
+    /// The model could not be written as TOML.
+    #[error("cannot write model as TOML: {0}")]
+    Serialize(#[from] toml::ser::Error),
+}
+
+impl Model {
+    /// Parses and validates a model from TOML text; `file_name` is used in error messages.
+    ///
+    /// # Example
+    /// ```
+    /// let text = r#"
+    /// name = "two masses"
+    /// [[mass]]
+    /// name = "motor"
+    /// inertia = 1.0e3
+    /// [[mass]]
+    /// name = "rolls"
+    /// inertia = 1.0e2
+    /// [[coupling]]
+    /// name = "spindle"
+    /// stiffness = 1.0e6
+    /// damping = 10.0
+    /// [motor]
+    /// speed_kp = 0.0
+    /// speed_ki = 0.0
+    /// [load]
+    /// static_torque = 10.0
+    /// rise_rate = 50.0
+    /// onset = 0.0
+    /// [measurement]
+    /// coupling = 0
+    /// sample_rate = 1000.0
+    /// duration = 0.1
+    /// "#;
+    /// let model = millgate_sim::model::Model::from_toml_str(text, "two.toml")?;
+    /// assert_eq!(model.masses.len(), 2);
+    /// # Ok::<(), millgate_sim::model::ModelError>(())
+    /// ```
+    pub fn from_toml_str(text: &str, file_name: &str) -> Result<Model, ModelError> {
+        let deserializer = toml::Deserializer::parse(text).map_err(|error| ModelError::Syntax {
+            file: file_name.to_owned(),
+            line: line_of(text, error.span()),
+            message: error.message().to_owned(),
+        })?;
+        let model: Model = serde_path_to_error::deserialize(deserializer).map_err(|error| {
+            let key = error.path().to_string();
+            let inner = error.inner();
+            ModelError::Schema {
+                file: file_name.to_owned(),
+                line: line_of(text, inner.span()),
+                key: if key == "." {
+                    "(top level)".to_owned()
+                } else {
+                    key
+                },
+                message: inner.message().to_owned(),
+            }
+        })?;
+        model.validate(file_name)?;
+        Ok(model)
+    }
+
+    /// Reads, parses and validates a model file; errors name the path as given.
+    pub fn load(path: impl AsRef<Path>) -> Result<Model, ModelError> {
+        let path = path.as_ref();
+        let file = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|source| ModelError::Io {
+            file: file.clone(),
+            source,
+        })?;
+        Model::from_toml_str(&text, &file)
+    }
+
+    /// Writes the model as TOML in the same schema [`Model::from_toml_str`] reads.
+    pub fn to_toml_string(&self) -> Result<String, ModelError> {
+        Ok(toml::to_string(self)?)
+    }
+
+    /// Checks every value against its allowed range and the chain's shape.
+    ///
+    /// `file_name` only labels the error. The first problem found is reported.
+    pub fn validate(&self, file_name: &str) -> Result<(), ModelError> {
+        let check = Checker { file: file_name };
+        if self.masses.len() < 2 {
+            return Err(check.error("mass", self.masses.len(), "at least 2 entries"));
+        }
+        for (index, mass) in self.masses.iter().enumerate() {
+            check.positive(&format!("mass[{index}].inertia"), mass.inertia, "kg*m^2")?;
+        }
+        if self.couplings.len() != self.masses.len() - 1 {
+            return Err(check.error(
+                "coupling",
+                format!("{} entries", self.couplings.len()),
+                format!(
+                    "one fewer than the masses: {} entries",
+                    self.masses.len() - 1
+                ),
+            ));
+        }
+        for (index, coupling) in self.couplings.iter().enumerate() {
+            let key = format!("coupling[{index}]");
+            check.positive(&format!("{key}.stiffness"), coupling.stiffness, "N*m/rad")?;
+            check.non_negative(&format!("{key}.damping"), coupling.damping, "N*m*s/rad")?;
+            check.non_negative(&format!("{key}.backlash"), coupling.backlash, "rad")?;
+        }
+        check.non_negative("motor.speed_kp", self.motor.speed_kp, "N*m*s/rad")?;
+        check.non_negative("motor.speed_ki", self.motor.speed_ki, "N*m/rad")?;
+        check.non_negative("load.static_torque", self.load.static_torque, "kN*m")?;
+        check.positive("load.rise_rate", self.load.rise_rate, "1/s")?;
+        check.non_negative("load.onset", self.load.onset, "s")?;
+        if self.measurement.coupling >= self.couplings.len() {
+            return Err(check.error(
+                "measurement.coupling",
+                self.measurement.coupling,
+                format!("a coupling index, 0 ..= {}", self.couplings.len() - 1),
+            ));
+        }
+        check.positive(
+            "measurement.sample_rate",
+            self.measurement.sample_rate,
+            "Hz",
+        )?;
+        check.positive("measurement.duration", self.measurement.duration, "s")?;
+        let samples = self.measurement.duration * self.measurement.sample_rate;
+        if samples > MAX_OUTPUT_SAMPLES {
+            return Err(check.error(
+                "measurement.duration",
+                self.measurement.duration,
+                format!(
+                    "at most {MAX_OUTPUT_SAMPLES:e} samples, i.e. <= {} s at this sample rate",
+                    MAX_OUTPUT_SAMPLES / self.measurement.sample_rate
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Number of output samples: `round(duration * sample_rate)`, at t = k / sample_rate.
+    pub fn sample_count(&self) -> usize {
+        let samples = (self.measurement.duration * self.measurement.sample_rate).round();
+        if samples.is_finite() && samples > 0.0 {
+            samples.min(MAX_OUTPUT_SAMPLES) as usize
+        } else {
+            0
+        }
+    }
+
+    /// Rolling load on the last mass at time `t_s`, N*m (the file gives kN*m).
+    pub fn load_torque_nm(&self, t_s: f64) -> f64 {
+        if t_s < self.load.onset {
+            0.0
+        } else {
+            self.load.static_torque
+                * 1.0e3
+                * (1.0 - (-self.load.rise_rate * (t_s - self.load.onset)).exp())
+        }
+    }
+}
+
+impl Coupling {
+    /// A coupling without backlash.
+    pub fn linear(name: impl Into<String>, stiffness: f64, damping: f64) -> Coupling {
+        Coupling {
+            name: name.into(),
+            stiffness,
+            damping,
+            backlash: 0.0,
+        }
+    }
+}
+
+/// Builds range errors for one file.
+struct Checker<'a> {
+    file: &'a str,
+}
+
+impl Checker<'_> {
+    fn error(&self, key: &str, value: impl Display, allowed: impl Display) -> ModelError {
+        ModelError::Value {
+            file: self.file.to_owned(),
+            key: key.to_owned(),
+            value: value.to_string(),
+            allowed: allowed.to_string(),
+        }
+    }
+
+    fn positive(&self, key: &str, value: f64, unit: &str) -> Result<(), ModelError> {
+        if value.is_finite() && value > 0.0 {
+            Ok(())
+        } else {
+            Err(self.error(key, value, format_args!("> 0 {unit}")))
+        }
+    }
+
+    fn non_negative(&self, key: &str, value: f64, unit: &str) -> Result<(), ModelError> {
+        if value.is_finite() && value >= 0.0 {
+            Ok(())
+        } else {
+            Err(self.error(key, value, format_args!(">= 0 {unit}")))
+        }
+    }
+}
+
+/// 1-based line of the start of `span` in `text`, 0 when there is no span.
+fn line_of(text: &str, span: Option<std::ops::Range<usize>>) -> usize {
+    span.map_or(0, |span| {
+        let end = span.start.min(text.len());
+        text.as_bytes()[..end]
+            .iter()
+            .filter(|&&b| b == b'\n')
+            .count()
+            + 1
+    })
+}
+
+fn is_zero(value: &f64) -> bool {
+    *value == 0.0
+}
