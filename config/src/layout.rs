@@ -39,10 +39,16 @@ impl core::fmt::Display for BlockError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
             BlockError::Truncated { registers } => {
-                write!(f, "block truncated: {registers} registers, header needs {BLOCK_HEADER_REGISTERS}")
+                write!(
+                    f,
+                    "block truncated: {registers} registers, header needs {BLOCK_HEADER_REGISTERS}"
+                )
             }
             BlockError::BadCount { count } => {
-                write!(f, "block sample count {count} outside 1..={MAX_BLOCK_SAMPLES}")
+                write!(
+                    f,
+                    "block sample count {count} outside 1..={MAX_BLOCK_SAMPLES}"
+                )
             }
             BlockError::CountBeyondData { count, available } => write!(
                 f,
@@ -147,9 +153,20 @@ fn swaps_bytes(order: WordOrder) -> bool {
 pub fn decode_value(registers: &[u16], value_type: ValueType, order: WordOrder) -> Option<f64> {
     let word = |i: usize| registers.get(i).copied();
     let single = || {
-        word(0).map(|w| if swaps_bytes(order) { w.swap_bytes() } else { w })
+        word(0).map(|w| {
+            if swaps_bytes(order) {
+                w.swap_bytes()
+            } else {
+                w
+            }
+        })
     };
-    let double = || Some(u32::from_be_bytes(unorder_words([word(0)?, word(1)?], order)));
+    let double = || {
+        Some(u32::from_be_bytes(unorder_words(
+            [word(0)?, word(1)?],
+            order,
+        )))
+    };
     Some(match value_type {
         ValueType::U16 => f64::from(single()?),
         ValueType::I16 => f64::from(single()? as i16),
@@ -164,7 +181,11 @@ pub fn decode_value(registers: &[u16], value_type: ValueType, order: WordOrder) 
 /// how many of them the type uses.
 pub fn encode_value(raw: f64, value_type: ValueType, order: WordOrder) -> ([u16; 2], usize) {
     let single = |w: u16| {
-        let w = if swaps_bytes(order) { w.swap_bytes() } else { w };
+        let w = if swaps_bytes(order) {
+            w.swap_bytes()
+        } else {
+            w
+        };
         ([w, 0], 1)
     };
     let double = |bits: u32| (order_words(bits.to_be_bytes(), order), 2);
@@ -192,8 +213,16 @@ mod tests {
             (WordOrder::Dcba, [0x0000, 0x2041]),
         ];
         for (order, words) in golden {
-            assert_eq!(encode_value(10.0, ValueType::F32, order), (words, 2), "{order:?}");
-            assert_eq!(decode_value(&words, ValueType::F32, order), Some(10.0), "{order:?}");
+            assert_eq!(
+                encode_value(10.0, ValueType::F32, order),
+                (words, 2),
+                "{order:?}"
+            );
+            assert_eq!(
+                decode_value(&words, ValueType::F32, order),
+                Some(10.0),
+                "{order:?}"
+            );
         }
     }
 
@@ -207,7 +236,10 @@ mod tests {
             (WordOrder::Dcba, [0x7856, 0x3412]),
         ];
         for (order, words) in golden {
-            assert_eq!(encode_value(f64::from(0x1234_5678_u32), ValueType::U32, order).0, words);
+            assert_eq!(
+                encode_value(f64::from(0x1234_5678_u32), ValueType::U32, order).0,
+                words
+            );
             assert_eq!(
                 decode_value(&words, ValueType::U32, order),
                 Some(f64::from(0x1234_5678_u32))
@@ -217,17 +249,38 @@ mod tests {
 
     #[test]
     fn sixteen_bit_types_sign_and_byte_swap() {
-        assert_eq!(decode_value(&[0xFFFE], ValueType::I16, WordOrder::Abcd), Some(-2.0));
-        assert_eq!(decode_value(&[0xFFFE], ValueType::U16, WordOrder::Abcd), Some(65534.0));
-        assert_eq!(decode_value(&[0x0100], ValueType::U16, WordOrder::Badc), Some(1.0));
-        assert_eq!(encode_value(-2.0, ValueType::I16, WordOrder::Dcba).0[0], 0xFEFF);
-        assert_eq!(decode_value(&[0x0000, 0x8000], ValueType::I32, WordOrder::Cdab), Some(-2147483648.0));
-        assert_eq!(decode_value(&[0x0001], ValueType::U32, WordOrder::Abcd), None);
+        assert_eq!(
+            decode_value(&[0xFFFE], ValueType::I16, WordOrder::Abcd),
+            Some(-2.0)
+        );
+        assert_eq!(
+            decode_value(&[0xFFFE], ValueType::U16, WordOrder::Abcd),
+            Some(65534.0)
+        );
+        assert_eq!(
+            decode_value(&[0x0100], ValueType::U16, WordOrder::Badc),
+            Some(1.0)
+        );
+        assert_eq!(
+            encode_value(-2.0, ValueType::I16, WordOrder::Dcba).0[0],
+            0xFEFF
+        );
+        assert_eq!(
+            decode_value(&[0x0000, 0x8000], ValueType::I32, WordOrder::Cdab),
+            Some(-2147483648.0)
+        );
+        assert_eq!(
+            decode_value(&[0x0001], ValueType::U32, WordOrder::Abcd),
+            None
+        );
     }
 
     #[test]
     fn integer_encoding_saturates() {
-        assert_eq!(encode_value(1e9, ValueType::I16, WordOrder::Abcd).0[0], 0x7FFF);
+        assert_eq!(
+            encode_value(1e9, ValueType::I16, WordOrder::Abcd).0[0],
+            0x7FFF
+        );
         assert_eq!(encode_value(-5.0, ValueType::U16, WordOrder::Abcd).0[0], 0);
         assert_eq!(to_raw_sample(1e9, 0.01, 0.0), i16::MAX);
         assert_eq!(to_raw_sample(112.34, 0.01, 0.0), 11234);
@@ -242,12 +295,24 @@ mod tests {
         let values: Vec<f64> = block.values(0.5, 1.0).collect();
         assert_eq!(values, vec![0.5, 2.0, 151.0]);
         assert_eq!(sequence_advance(65535, 1), 2);
-        assert_eq!(decode_block(&[7]), Err(BlockError::Truncated { registers: 1 }));
-        assert_eq!(decode_block(&[7, 0, 1]), Err(BlockError::BadCount { count: 0 }));
-        assert_eq!(decode_block(&[7, 121]), Err(BlockError::BadCount { count: 121 }));
+        assert_eq!(
+            decode_block(&[7]),
+            Err(BlockError::Truncated { registers: 1 })
+        );
+        assert_eq!(
+            decode_block(&[7, 0, 1]),
+            Err(BlockError::BadCount { count: 0 })
+        );
+        assert_eq!(
+            decode_block(&[7, 121]),
+            Err(BlockError::BadCount { count: 121 })
+        );
         assert_eq!(
             decode_block(&[7, 3, 1]),
-            Err(BlockError::CountBeyondData { count: 3, available: 1 })
+            Err(BlockError::CountBeyondData {
+                count: 3,
+                available: 1
+            })
         );
     }
 }

@@ -1,1 +1,101 @@
-fn main() {}
+//! The `millgate` command line: parses arguments, sets up logging, calls the library.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "millgate",
+    version,
+    about = "Edge gateway for vibration diagnostics of steel rolling mills"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Validate a configuration file and print a summary.
+    Check {
+        /// The configuration file (TOML).
+        #[arg(long)]
+        config: PathBuf,
+    },
+    /// Run the gateway service until SIGINT or SIGTERM.
+    Run {
+        /// The configuration file (TOML).
+        #[arg(long)]
+        config: PathBuf,
+    },
+    /// Self-contained demo: a virtual DAQ and PLC on loopback, the gateway between them.
+    Demo(millgate::demo::DemoArgs),
+}
+
+fn init_tracing(default_level: &str) {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_level));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .init();
+}
+
+async fn wait_for_signal() -> std::io::Result<()> {
+    use tokio::signal::unix::{signal, SignalKind};
+    let mut terminate = signal(SignalKind::terminate())?;
+    tokio::select! {
+        result = tokio::signal::ctrl_c() => result,
+        _ = terminate.recv() => Ok(()),
+    }
+}
+
+async fn run_service(config: PathBuf) -> anyhow::Result<()> {
+    let config = millgate_config::load(&config).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let (trigger, shutdown) = millgate::shutdown::channel();
+    let service = tokio::spawn(millgate::run(config, shutdown));
+    wait_for_signal().await?;
+    tracing::info!("shutdown requested");
+    trigger.trigger();
+    service.await??;
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let runtime = || {
+        tokio::runtime::Builder::new_multi_thread()
+            .enable_all()
+            .build()
+            .expect("cannot start the tokio runtime")
+    };
+    let result = match cli.command {
+        Command::Check { config } => match millgate::check::check(&config) {
+            Ok(summary) => {
+                print!("{summary}");
+                Ok(())
+            }
+            Err(error) => {
+                eprintln!("{error}");
+                return ExitCode::FAILURE;
+            }
+        },
+        Command::Run { config } => {
+            init_tracing("info");
+            runtime().block_on(run_service(config))
+        }
+        Command::Demo(args) => {
+            init_tracing("warn");
+            runtime().block_on(millgate::demo::run(args))
+        }
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(error) => {
+            eprintln!("millgate: {error:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,279 @@
+//! The analysis task: samples in, bite results out. Only synchronous `dsp` code
+//! runs on the samples; this module routes them and keeps per-driveline state.
+
+use std::sync::Arc;
+use std::time::{Instant, SystemTime, UNIX_EPOCH};
+
+use millgate_config::{Channel, Config, Driveline};
+use millgate_dsp::bite::{BiteDetector, BiteDetectorState, BiteEvent, BiteSettings};
+use millgate_dsp::transient::{self, TransientResult, TransientSettings};
+use tokio::sync::{broadcast, mpsc};
+
+use crate::publish::Publisher;
+use crate::samples::Acquired;
+
+/// Window capacity of a bite, samples (pre + post trigger): 1 s at 2 kHz.
+pub const WINDOW_CAPACITY: usize = 2048;
+/// Largest pre-trigger history, samples.
+pub const PRE_TRIGGER_CAPACITY: usize = 256;
+
+type Detector = BiteDetector<PRE_TRIGGER_CAPACITY, WINDOW_CAPACITY>;
+type DetectorState = BiteDetectorState<PRE_TRIGGER_CAPACITY, WINDOW_CAPACITY>;
+
+/// Low-pass cut-off for period measurement, Hz: keeps the driveline's first modes
+/// (10-30 Hz, domain notes 1.3) and removes measurement noise above them.
+const PERIOD_LOWPASS_HZ: f64 = 40.0;
+
+/// A driveline's configuration that the dsp code cannot take.
+#[derive(Debug, thiserror::Error)]
+pub enum AnalysisError {
+    #[error("drivelines[{index}].bite: {problem}")]
+    Bite { index: usize, problem: String },
+}
+
+/// One analysed bite, as printed by the demo and logged by the service.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BiteReport {
+    pub driveline: usize,
+    pub driveline_name: String,
+    pub channel_name: String,
+    /// Index of the trigger sample in the channel's stream since start.
+    pub trigger_sample: u64,
+    /// Wall-clock time of the trigger, estimated from when the window completed.
+    pub time: SystemTime,
+    /// When the window's last sample was handed to analysis.
+    pub window_complete: Instant,
+    pub transient: TransientResult,
+    /// The window had gaps, NaN or saturated samples.
+    pub degraded: bool,
+}
+
+/// Bite detection and analysis of one driveline.
+struct DrivelineAnalyzer {
+    index: usize,
+    name: String,
+    channel_name: String,
+    sample_rate_hz: f64,
+    detector: Detector,
+    state: DetectorState,
+    transient: TransientSettings,
+    taf_warning: f64,
+    taf_alarm: f64,
+    trigger_high: bool,
+}
+
+impl DrivelineAnalyzer {
+    fn new(index: usize, driveline: &Driveline, torque: &Channel) -> Result<Self, AnalysisError> {
+        let fs = torque.sample_rate_hz;
+        let bite = driveline.bite;
+        let problem = |problem: String| AnalysisError::Bite { index, problem };
+        let post_trigger_samples = (bite.post_trigger_s * fs).round() as usize;
+        let pre_trigger_samples = (bite.pre_trigger_s * fs).round() as usize;
+        if pre_trigger_samples > PRE_TRIGGER_CAPACITY
+            || post_trigger_samples > WINDOW_CAPACITY - PRE_TRIGGER_CAPACITY
+        {
+            return Err(problem(format!(
+                "pre_trigger_s {} and post_trigger_s {} at {fs} Hz need {pre_trigger_samples} + \
+                 {post_trigger_samples} samples (at most {PRE_TRIGGER_CAPACITY} + {})",
+                bite.pre_trigger_s,
+                bite.post_trigger_s,
+                WINDOW_CAPACITY - PRE_TRIGGER_CAPACITY
+            )));
+        }
+        // i16 samples: the ends of the raw range are saturation.
+        let raw_limit = |raw: i16| f64::from(raw) * torque.scale + torque.offset;
+        let (low, high) = (raw_limit(i16::MIN + 1), raw_limit(i16::MAX));
+        let settings = BiteSettings {
+            threshold_knm: bite.threshold_knm,
+            rearm_knm: bite.threshold_knm / 2.0,
+            holdoff_samples: post_trigger_samples as u32,
+            // Baseline time constant 0.5 s: follows a drifting zero, not a bite.
+            baseline_alpha: 1.0 / (0.5 * fs).max(1.0),
+            saturation_low_knm: low.min(high),
+            saturation_high_knm: low.max(high),
+            post_trigger_samples,
+        };
+        let detector = Detector::new(settings).map_err(|e| problem(format!("{e:?}")))?;
+        Ok(Self {
+            index,
+            name: driveline.name.clone(),
+            channel_name: torque.name.clone(),
+            sample_rate_hz: fs,
+            state: detector.state(),
+            detector,
+            transient: TransientSettings {
+                sample_rate_hz: fs,
+                period_lowpass_hz: PERIOD_LOWPASS_HZ.min(0.4 * fs),
+                peak_lowpass_hz: None,
+                settled_fraction: 0.3,
+                min_static_knm: bite.threshold_knm / 2.0,
+                reference_shift_s: None,
+            },
+            taf_warning: driveline.thresholds.taf_warning,
+            taf_alarm: driveline.thresholds.taf_alarm,
+            trigger_high: false,
+        })
+    }
+
+    fn report(&self, event: &BiteEvent<WINDOW_CAPACITY>) -> Option<BiteReport> {
+        let result = transient::analyze::<WINDOW_CAPACITY>(
+            &event.window,
+            event.trigger_index,
+            event.baseline_knm,
+            &self.transient,
+        );
+        let transient = match result {
+            Ok(transient) => transient,
+            Err(error) => {
+                tracing::warn!(driveline = %self.name, ?error, "bite window not analysable");
+                return None;
+            }
+        };
+        let after_trigger = (event.window.len() - event.trigger_index) as f64 / self.sample_rate_hz;
+        Some(BiteReport {
+            driveline: self.index,
+            driveline_name: self.name.clone(),
+            channel_name: self.channel_name.clone(),
+            trigger_sample: event.trigger_sample,
+            time: SystemTime::now() - std::time::Duration::from_secs_f64(after_trigger),
+            window_complete: Instant::now(),
+            transient,
+            degraded: !event.quality.is_good(),
+        })
+    }
+
+    fn samples(&mut self, values: &[f64], reports: &mut Vec<BiteReport>) {
+        for &value in values {
+            if let Some(event) = self.detector.process(&mut self.state, value) {
+                reports.extend(self.report(&event));
+            }
+        }
+    }
+
+    fn gap(&mut self, missed: Option<u64>, reports: &mut Vec<BiteReport>) {
+        if let Some(event) = self.detector.gap(&mut self.state, missed.unwrap_or(0)) {
+            reports.extend(self.report(&event));
+        }
+    }
+
+    /// "Metal in stand": a rising edge through 0.5 triggers a capture.
+    fn trigger_value(&mut self, value: f64) {
+        let high = value > 0.5;
+        if high && !self.trigger_high {
+            self.detector.trigger(&mut self.state);
+        }
+        self.trigger_high = high;
+    }
+}
+
+/// Record a bite in the published results.
+fn publish(publisher: &Publisher, report: &BiteReport, taf_warning: f64, taf_alarm: f64) {
+    publisher.update(|results| {
+        let driveline = &mut results.drivelines[report.driveline];
+        let t = &report.transient;
+        driveline.bite_counter = driveline.bite_counter.wrapping_add(1);
+        driveline.last_bite_unix_s = report
+            .time
+            .duration_since(UNIX_EPOCH)
+            .ok()
+            .and_then(|d| u32::try_from(d.as_secs()).ok());
+        driveline.static_torque_knm = Some(t.static_torque_knm);
+        driveline.peak_torque_knm = Some(t.peak_torque_knm);
+        driveline.taf = t.taf;
+        driveline.first_period_shift_s = t.period_shift_s;
+        driveline.last_bite_degraded = report.degraded;
+        driveline.warning = t.taf.is_some_and(|taf| taf >= taf_warning);
+        driveline.alarm |= t.taf.is_some_and(|taf| taf >= taf_alarm);
+    });
+}
+
+/// The analysis task: consumes samples until every reader has hung up.
+pub struct Analysis {
+    drivelines: Vec<DrivelineAnalyzer>,
+    /// Per channel: the drivelines whose torque it is.
+    by_torque: Vec<Vec<usize>>,
+    /// Per channel: the drivelines it triggers.
+    by_trigger: Vec<Vec<usize>>,
+    publisher: Arc<Publisher>,
+    bites: broadcast::Sender<BiteReport>,
+}
+
+impl Analysis {
+    /// Analysers for every driveline of `config`.
+    pub fn new(
+        config: &Config,
+        publisher: Arc<Publisher>,
+        bites: broadcast::Sender<BiteReport>,
+    ) -> Result<Self, AnalysisError> {
+        let mut by_torque = vec![Vec::new(); config.channels.len()];
+        let mut by_trigger = vec![Vec::new(); config.channels.len()];
+        let mut drivelines = Vec::new();
+        for (index, driveline) in config.drivelines.iter().enumerate() {
+            let torque = &config.channels[driveline.torque];
+            drivelines.push(DrivelineAnalyzer::new(index, driveline, torque)?);
+            by_torque[driveline.torque].push(index);
+            if let Some(trigger) = driveline.metal_in_stand {
+                by_trigger[trigger].push(index);
+            }
+        }
+        Ok(Self {
+            drivelines,
+            by_torque,
+            by_trigger,
+            publisher,
+            bites,
+        })
+    }
+
+    /// Handle one message from a reader; returns the bites it completed.
+    pub fn handle(&mut self, message: Acquired) -> Vec<BiteReport> {
+        let mut reports = Vec::new();
+        match message {
+            Acquired::Samples { channel, values } => {
+                for &d in &self.by_torque[channel] {
+                    self.drivelines[d].samples(&values, &mut reports);
+                }
+            }
+            Acquired::Gap {
+                channel,
+                missed_samples,
+            } => {
+                for &d in &self.by_torque[channel] {
+                    self.drivelines[d].gap(missed_samples, &mut reports);
+                }
+            }
+            Acquired::ProcessValue { channel, value } => {
+                for &d in &self.by_trigger[channel] {
+                    self.drivelines[d].trigger_value(value);
+                }
+            }
+        }
+        for report in &reports {
+            let analyzer = &self.drivelines[report.driveline];
+            publish(
+                &self.publisher,
+                report,
+                analyzer.taf_warning,
+                analyzer.taf_alarm,
+            );
+            tracing::info!(
+                driveline = %report.driveline_name,
+                static_knm = report.transient.static_torque_knm,
+                peak_knm = report.transient.peak_torque_knm,
+                taf = ?report.transient.taf,
+                degraded = report.degraded,
+                "bite"
+            );
+            // Nobody listening is fine: the demo and tests subscribe, the service need not.
+            let _ = self.bites.send(report.clone());
+        }
+        reports
+    }
+
+    /// Run until every sender of `samples` is dropped.
+    pub async fn run(mut self, mut samples: mpsc::Receiver<Acquired>) {
+        while let Some(message) = samples.recv().await {
+            self.handle(message);
+        }
+    }
+}

@@ -1,0 +1,421 @@
+//! `DaqReader`: polls one Modbus TCP DAQ in the millgate acquisition layout.
+//!
+//! tokio-modbus has neither timeouts nor reconnects, so every request here is
+//! wrapped in the source's timeout, and any transport error or timeout drops the
+//! connection and reconnects with capped exponential backoff. A device exception
+//! ("the DAQ refused") is counted but keeps the connection.
+//!
+//! Blocks are tracked by sequence number: a jump of k > 1 means k - 1 blocks were
+//! lost and is passed on as an [`Acquired::Gap`] before the new samples, so the
+//! analysis never joins across missing data.
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use millgate_config::layout::{self, BlockError, BLOCK_REGISTERS};
+use millgate_config::{ChannelSource, Config, ModbusSource, RegisterTable, ValueType, WordOrder};
+use tokio::net::TcpStream;
+use tokio::sync::mpsc;
+use tokio_modbus::client::{Context, Reader};
+use tokio_modbus::prelude::{ExceptionCode, Slave};
+
+use crate::health::{ChannelCounters, SourceHealth};
+use crate::samples::Acquired;
+use crate::shutdown::Shutdown;
+
+/// Why one poll of a DAQ failed.
+#[derive(Debug, thiserror::Error)]
+pub enum DaqError {
+    /// No TCP connection could be made.
+    #[error("cannot connect to {address}: {error}")]
+    Connect {
+        address: String,
+        error: std::io::Error,
+    },
+    /// The device did not answer in time.
+    #[error("no answer within {0:?}")]
+    Timeout(Duration),
+    /// The connection failed or the reply could not be decoded.
+    #[error("transport: {0}")]
+    Transport(#[from] tokio_modbus::Error),
+    /// The device answered with a Modbus exception: it refused the request.
+    #[error("device refused register {address}: {exception}")]
+    Exception {
+        address: u16,
+        exception: ExceptionCode,
+    },
+    /// The device answered, but the block does not follow the layout.
+    #[error("malformed block at register {address}: {error}")]
+    Block { address: u16, error: BlockError },
+}
+
+impl DaqError {
+    /// Whether the connection must be dropped and made again.
+    fn needs_reconnect(&self) -> bool {
+        matches!(
+            self,
+            DaqError::Connect { .. } | DaqError::Timeout(_) | DaqError::Transport(_)
+        )
+    }
+}
+
+struct BlockChannel {
+    channel: usize,
+    table: RegisterTable,
+    base: u16,
+    scale: f64,
+    offset: f64,
+    sample_rate_hz: f64,
+    last: Option<(u16, Instant, u16)>,
+    counters: Arc<ChannelCounters>,
+}
+
+struct ValueChannel {
+    channel: usize,
+    table: RegisterTable,
+    address: u16,
+    value_type: ValueType,
+    word_order: WordOrder,
+    scale: f64,
+    offset: f64,
+    counters: Arc<ChannelCounters>,
+}
+
+/// Reads every channel of one Modbus source.
+pub struct DaqReader {
+    name: String,
+    source: ModbusSource,
+    blocks: Vec<BlockChannel>,
+    values: Vec<ValueChannel>,
+    health: Arc<SourceHealth>,
+}
+
+/// Backoff between reconnect attempts: doubles from `INITIAL` up to `MAX`.
+const RECONNECT_INITIAL: Duration = Duration::from_millis(100);
+const RECONNECT_MAX: Duration = Duration::from_secs(5);
+
+impl DaqReader {
+    /// The reader of `config.modbus_sources[source_index]`, with one counter set per
+    /// channel (indexed like `config.channels`, shared with the caller).
+    pub fn new(
+        config: &Config,
+        source_index: usize,
+        counters: &[Arc<ChannelCounters>],
+        health: Arc<SourceHealth>,
+    ) -> Self {
+        let source = config.modbus_sources[source_index].clone();
+        let mut blocks = Vec::new();
+        let mut values = Vec::new();
+        for (channel, spec) in config.channels.iter().enumerate() {
+            match spec.source {
+                ChannelSource::ModbusBlock {
+                    source: s,
+                    table,
+                    base,
+                } if s == source_index => blocks.push(BlockChannel {
+                    channel,
+                    table,
+                    base,
+                    scale: spec.scale,
+                    offset: spec.offset,
+                    sample_rate_hz: spec.sample_rate_hz,
+                    last: None,
+                    counters: Arc::clone(&counters[channel]),
+                }),
+                ChannelSource::ModbusValue {
+                    source: s,
+                    table,
+                    address,
+                    value_type,
+                    word_order,
+                } if s == source_index => values.push(ValueChannel {
+                    channel,
+                    table,
+                    address,
+                    value_type,
+                    word_order,
+                    scale: spec.scale,
+                    offset: spec.offset,
+                    counters: Arc::clone(&counters[channel]),
+                }),
+                _ => {}
+            }
+        }
+        Self {
+            name: source.name.clone(),
+            source,
+            blocks,
+            values,
+            health,
+        }
+    }
+
+    async fn connect(&self) -> Result<Context, DaqError> {
+        let address = self.source.address.clone();
+        let stream = tokio::time::timeout(self.source.timeout, TcpStream::connect(&address))
+            .await
+            .map_err(|_| DaqError::Timeout(self.source.timeout))?
+            .map_err(|error| DaqError::Connect { address, error })?;
+        // Samples are small and frequent: do not let Nagle hold requests back.
+        let _ = stream.set_nodelay(true);
+        Ok(tokio_modbus::client::tcp::attach_slave(
+            stream,
+            Slave(self.source.unit_id),
+        ))
+    }
+
+    /// Poll until shutdown, reconnecting as needed. Ends when `shutdown` fires or
+    /// the analysis side hangs up.
+    pub async fn run(mut self, samples: mpsc::Sender<Acquired>, mut shutdown: Shutdown) {
+        let mut backoff = RECONNECT_INITIAL;
+        while !shutdown.is_shutdown() {
+            let connected = tokio::select! {
+                connected = self.connect() => connected,
+                () = shutdown.recv() => break,
+            };
+            let mut context = match connected {
+                Ok(context) => context,
+                Err(error) => {
+                    tracing::warn!(source = %self.name, %error, retry_in = ?backoff, "DAQ connect failed");
+                    tokio::select! {
+                        () = tokio::time::sleep(backoff) => {}
+                        () = shutdown.recv() => break,
+                    }
+                    backoff = (backoff * 2).min(RECONNECT_MAX);
+                    continue;
+                }
+            };
+            tracing::info!(source = %self.name, address = %self.source.address, "DAQ connected");
+            self.health.set_connected(true);
+            backoff = RECONNECT_INITIAL;
+            let mut ticks = tokio::time::interval(self.source.poll_period);
+            ticks.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+            loop {
+                tokio::select! {
+                    _ = ticks.tick() => {}
+                    () = shutdown.recv() => break,
+                }
+                match self.poll(&mut context, &samples).await {
+                    Ok(true) => self.health.answered(),
+                    Ok(false) => return,
+                    Err(error) if error.needs_reconnect() => {
+                        tracing::warn!(source = %self.name, %error, "DAQ connection dropped, reconnecting");
+                        break;
+                    }
+                    Err(error) => {
+                        tracing::warn!(source = %self.name, %error, "DAQ reply rejected");
+                    }
+                }
+            }
+            self.health.set_connected(false);
+        }
+    }
+
+    /// One poll of every channel. `Ok(false)` when the analysis side is gone.
+    async fn poll(
+        &mut self,
+        context: &mut Context,
+        samples: &mpsc::Sender<Acquired>,
+    ) -> Result<bool, DaqError> {
+        let timeout = self.source.timeout;
+        let mut first_error = None;
+        for block in &mut self.blocks {
+            let registers =
+                match read(context, block.table, block.base, BLOCK_REGISTERS, timeout).await {
+                    Ok(registers) => registers,
+                    Err(error) => {
+                        count_error(&block.counters, &error);
+                        if error.needs_reconnect() {
+                            return Err(error);
+                        }
+                        first_error.get_or_insert(error);
+                        continue;
+                    }
+                };
+            let decoded = match layout::decode_block(&registers) {
+                Ok(decoded) => decoded,
+                Err(error) => {
+                    block.counters.error();
+                    first_error.get_or_insert(DaqError::Block {
+                        address: block.base,
+                        error,
+                    });
+                    continue;
+                }
+            };
+            for message in block.accept(decoded.sequence, decoded.raw, Instant::now()) {
+                if samples.send(message).await.is_err() {
+                    return Ok(false);
+                }
+            }
+        }
+        for value in &self.values {
+            let count = value.value_type.register_count();
+            let registers = match read(context, value.table, value.address, count, timeout).await {
+                Ok(registers) => registers,
+                Err(error) => {
+                    count_error(&value.counters, &error);
+                    if error.needs_reconnect() {
+                        return Err(error);
+                    }
+                    first_error.get_or_insert(error);
+                    continue;
+                }
+            };
+            let Some(raw) = layout::decode_value(&registers, value.value_type, value.word_order)
+            else {
+                value.counters.error();
+                continue;
+            };
+            value.counters.block(1);
+            let message = Acquired::ProcessValue {
+                channel: value.channel,
+                value: raw * value.scale + value.offset,
+            };
+            if samples.send(message).await.is_err() {
+                return Ok(false);
+            }
+        }
+        first_error.map_or(Ok(true), Err)
+    }
+}
+
+impl BlockChannel {
+    /// Messages for a block read at `now`: nothing when it is the block already
+    /// seen, else an optional gap and the samples.
+    fn accept(&mut self, sequence: u16, raw: &[u16], now: Instant) -> Vec<Acquired> {
+        let count = raw.len() as u16;
+        let mut messages = Vec::with_capacity(2);
+        if let Some((last_sequence, last_time, last_count)) = self.last {
+            let advance = layout::sequence_advance(last_sequence, sequence);
+            if advance == 0 {
+                return messages;
+            }
+            if advance > 1 {
+                let missed_blocks = self.plausible_missed(advance - 1, now - last_time, last_count);
+                self.counters.missed(missed_blocks);
+                messages.push(Acquired::Gap {
+                    channel: self.channel,
+                    missed_samples: Some(missed_blocks * u64::from(count)),
+                });
+            }
+        }
+        self.last = Some((sequence, now, count));
+        self.counters.block(raw.len());
+        let values = layout::Block { sequence, raw }
+            .values(self.scale, self.offset)
+            .collect();
+        messages.push(Acquired::Samples {
+            channel: self.channel,
+            values,
+        });
+        messages
+    }
+
+    /// Blocks missed given the sequence jump, checked against the time elapsed: a
+    /// DAQ that restarted begins its sequence anew, and then the clock is the
+    /// better witness.
+    fn plausible_missed(&self, by_sequence: u16, elapsed: Duration, count: u16) -> u64 {
+        let block_period_s = f64::from(count.max(1)) / self.sample_rate_hz;
+        let by_time = (elapsed.as_secs_f64() / block_period_s).round() as u64;
+        if u64::from(by_sequence) <= by_time + 2 {
+            u64::from(by_sequence)
+        } else {
+            by_time.saturating_sub(1).max(1)
+        }
+    }
+}
+
+fn count_error(counters: &ChannelCounters, error: &DaqError) {
+    match error {
+        DaqError::Timeout(_) => counters.timeout(),
+        _ => counters.error(),
+    }
+}
+
+async fn read(
+    context: &mut Context,
+    table: RegisterTable,
+    address: u16,
+    count: u16,
+    timeout: Duration,
+) -> Result<Vec<u16>, DaqError> {
+    let request = async {
+        match table {
+            RegisterTable::Input => context.read_input_registers(address, count).await,
+            RegisterTable::Holding => context.read_holding_registers(address, count).await,
+        }
+    };
+    let reply = tokio::time::timeout(timeout, request)
+        .await
+        .map_err(|_| DaqError::Timeout(timeout))??;
+    reply.map_err(|exception| DaqError::Exception { address, exception })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn channel() -> BlockChannel {
+        BlockChannel {
+            channel: 3,
+            table: RegisterTable::Input,
+            base: 0,
+            scale: 1.0,
+            offset: 0.0,
+            sample_rate_hz: 1000.0,
+            last: None,
+            counters: Arc::default(),
+        }
+    }
+
+    #[test]
+    fn repeated_block_is_ignored_and_gap_is_marked() {
+        let mut block = channel();
+        let t0 = Instant::now();
+        assert_eq!(block.accept(10, &[1, 2], t0).len(), 1);
+        assert!(block.accept(10, &[1, 2], t0).is_empty(), "same block twice");
+        let messages = block.accept(13, &[3, 4], t0 + Duration::from_millis(6));
+        assert_eq!(
+            messages[0],
+            Acquired::Gap {
+                channel: 3,
+                missed_samples: Some(4)
+            }
+        );
+        assert_eq!(
+            messages[1],
+            Acquired::Samples {
+                channel: 3,
+                values: vec![3.0, 4.0]
+            }
+        );
+        let counters = block.counters.snapshot();
+        assert_eq!((counters.blocks_read, counters.blocks_missed), (2, 2));
+    }
+
+    #[test]
+    fn sequence_wrap_is_continuous() {
+        let mut block = channel();
+        let t0 = Instant::now();
+        block.accept(65535, &[1], t0);
+        let messages = block.accept(0, &[2], t0 + Duration::from_millis(1));
+        assert_eq!(messages.len(), 1, "65535 -> 0 is the next block");
+    }
+
+    #[test]
+    fn restarted_daq_gap_is_estimated_from_time() {
+        let mut block = channel();
+        let t0 = Instant::now();
+        block.accept(5000, &[0; 100], t0);
+        // The DAQ restarted: its sequence began again at 1, 2 s later (20 blocks).
+        let messages = block.accept(1, &[0; 100], t0 + Duration::from_secs(2));
+        assert_eq!(
+            messages[0],
+            Acquired::Gap {
+                channel: 3,
+                missed_samples: Some(1900)
+            }
+        );
+    }
+}

@@ -1,0 +1,137 @@
+//! `PlcWriter`: writes the register map into the PLC's holding registers (FC 16).
+//!
+//! Every write period the heartbeat is incremented and the whole map is written
+//! at the configured base, in chunks of at most 123 registers (the FC 16 limit).
+//! A PLC that is unreachable is retried with capped exponential backoff; the
+//! results keep updating meanwhile, so the first write after it appears is fresh.
+//! On shutdown a last write publishes the "stopped" status.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use millgate_config::PlcOutput;
+use tokio::net::TcpStream;
+use tokio_modbus::client::{Context, Writer};
+use tokio_modbus::prelude::{ExceptionCode, Slave};
+
+use crate::publish::Publisher;
+use crate::results::GatewayState;
+use crate::shutdown::Shutdown;
+
+/// Largest register count of one FC 16 request.
+const MAX_WRITE_REGISTERS: usize = 123;
+const RECONNECT_INITIAL: Duration = Duration::from_millis(100);
+const RECONNECT_MAX: Duration = Duration::from_secs(5);
+
+/// Why a write to the PLC failed.
+#[derive(Debug, thiserror::Error)]
+pub enum PlcError {
+    #[error("cannot connect to PLC {address}: {error}")]
+    Connect {
+        address: String,
+        error: std::io::Error,
+    },
+    #[error("PLC did not answer within {0:?}")]
+    Timeout(Duration),
+    #[error("PLC transport: {0}")]
+    Transport(#[from] tokio_modbus::Error),
+    /// The PLC refused the write: wrong base address, or registers write-protected.
+    #[error("PLC refused the write at register {address}: {exception}")]
+    Refused {
+        address: u16,
+        exception: ExceptionCode,
+    },
+}
+
+/// Writes the published register map to one PLC.
+pub struct PlcWriter {
+    output: PlcOutput,
+    publisher: Arc<Publisher>,
+}
+
+impl PlcWriter {
+    pub fn new(output: PlcOutput, publisher: Arc<Publisher>) -> Self {
+        Self { output, publisher }
+    }
+
+    async fn connect(&self) -> Result<Context, PlcError> {
+        let address = self.output.address.clone();
+        let stream = tokio::time::timeout(self.output.timeout, TcpStream::connect(&address))
+            .await
+            .map_err(|_| PlcError::Timeout(self.output.timeout))?
+            .map_err(|error| PlcError::Connect { address, error })?;
+        let _ = stream.set_nodelay(true);
+        Ok(tokio_modbus::client::tcp::attach_slave(
+            stream,
+            Slave(self.output.unit_id),
+        ))
+    }
+
+    async fn write(&self, context: &mut Context, words: &[u16]) -> Result<(), PlcError> {
+        for (i, chunk) in words.chunks(MAX_WRITE_REGISTERS).enumerate() {
+            let address = self.output.register_base + (i * MAX_WRITE_REGISTERS) as u16;
+            let request = context.write_multiple_registers(address, chunk);
+            tokio::time::timeout(self.output.timeout, request)
+                .await
+                .map_err(|_| PlcError::Timeout(self.output.timeout))??
+                .map_err(|exception| PlcError::Refused { address, exception })?;
+        }
+        Ok(())
+    }
+
+    /// Write every period until shutdown, then write the final "stopped" map.
+    pub async fn run(self, mut shutdown: Shutdown) {
+        let mut context: Option<Context> = None;
+        let mut backoff = RECONNECT_INITIAL;
+        let mut ticks = tokio::time::interval(self.output.write_period);
+        ticks.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        loop {
+            tokio::select! {
+                _ = ticks.tick() => {}
+                () = shutdown.recv() => break,
+            }
+            if context.is_none() {
+                match self.connect().await {
+                    Ok(connected) => {
+                        tracing::info!(plc = %self.output.address, "PLC connected");
+                        context = Some(connected);
+                        backoff = RECONNECT_INITIAL;
+                    }
+                    Err(error) => {
+                        tracing::warn!(%error, retry_in = ?backoff, "PLC unreachable");
+                        tokio::select! {
+                            () = tokio::time::sleep(backoff) => {}
+                            () = shutdown.recv() => break,
+                        }
+                        backoff = (backoff * 2).min(RECONNECT_MAX);
+                        continue;
+                    }
+                }
+            }
+            let words = self.publisher.words(true);
+            if let Some(connected) = context.as_mut() {
+                if let Err(error) = self.write(connected, &words).await {
+                    tracing::warn!(%error, "PLC write failed");
+                    if !matches!(error, PlcError::Refused { .. }) {
+                        context = None;
+                    }
+                }
+            }
+        }
+        self.publisher
+            .update(|results| results.state = GatewayState::Stopped);
+        let words = self.publisher.words(true);
+        let connected = match context {
+            Some(connected) => Ok(connected),
+            None => self.connect().await,
+        };
+        let written = match connected {
+            Ok(mut connected) => self.write(&mut connected, &words).await,
+            Err(error) => Err(error),
+        };
+        match written {
+            Ok(()) => tracing::info!("final registers written, status stopped"),
+            Err(error) => tracing::warn!(%error, "final PLC write failed"),
+        }
+    }
+}

@@ -1,0 +1,120 @@
+//! What the outputs publish: the latest [`Results`] joined with source health,
+//! encoded through the [`RegisterMap`].
+
+use std::sync::{Arc, Mutex};
+
+use millgate_config::{ChannelSource, Config};
+
+use crate::health::{SourceHealth, SourceStatus};
+use crate::registers::RegisterMap;
+use crate::results::Results;
+
+/// Shared between the analysis task (writes results) and the outputs (read them).
+pub struct Publisher {
+    results: Mutex<Results>,
+    map: RegisterMap,
+    health: Vec<Arc<SourceHealth>>,
+    /// Global source index of each driveline's torque channel.
+    driveline_sources: Vec<usize>,
+    /// Global source indices of each mill's stand channels.
+    mill_sources: Vec<Vec<usize>>,
+}
+
+/// Global index of a channel's source: Modbus sources first, then CAN sources.
+pub fn source_of_channel(config: &Config, channel: usize) -> usize {
+    match config.channels[channel].source {
+        ChannelSource::ModbusBlock { source, .. } | ChannelSource::ModbusValue { source, .. } => {
+            source
+        }
+        ChannelSource::Can { source, .. } => config.modbus_sources.len() + source,
+    }
+}
+
+impl Publisher {
+    /// A publisher for `config` with one health record per source (Modbus, then CAN).
+    pub fn new(config: &Config, health: Vec<Arc<SourceHealth>>) -> Self {
+        let results = Results::new(
+            health.len(),
+            config.drivelines.len(),
+            config.tandem_mills.len(),
+        );
+        Self {
+            results: Mutex::new(results),
+            map: RegisterMap::new(config),
+            health,
+            driveline_sources: config
+                .drivelines
+                .iter()
+                .map(|d| source_of_channel(config, d.torque))
+                .collect(),
+            mill_sources: config
+                .tandem_mills
+                .iter()
+                .map(|m| {
+                    m.stands
+                        .iter()
+                        .map(|&c| source_of_channel(config, c))
+                        .collect()
+                })
+                .collect(),
+        }
+    }
+
+    /// The register map.
+    pub fn map(&self) -> &RegisterMap {
+        &self.map
+    }
+
+    /// Change the results.
+    pub fn update<T>(&self, change: impl FnOnce(&mut Results) -> T) -> T {
+        change(&mut crate::lock(&self.results))
+    }
+
+    /// A copy of the results with current source health applied.
+    pub fn results(&self) -> Results {
+        let mut results = crate::lock(&self.results).clone();
+        self.apply_health(&mut results);
+        results
+    }
+
+    fn apply_health(&self, results: &mut Results) {
+        let statuses: Vec<SourceStatus> = self.health.iter().map(|h| h.status()).collect();
+        results.sources = statuses.iter().copied().map(Some).collect();
+        let bad = |source: &usize| {
+            statuses
+                .get(*source)
+                .is_some_and(|s| *s != SourceStatus::Ok)
+        };
+        for (driveline, source) in results.drivelines.iter_mut().zip(&self.driveline_sources) {
+            driveline.source_stale = bad(source);
+        }
+        for (mill, sources) in results.mills.iter_mut().zip(&self.mill_sources) {
+            mill.source_stale = sources.iter().any(bad);
+        }
+    }
+
+    /// Encode the map; with `heartbeat` the heartbeat counter is incremented first
+    /// (the PLC writer does so on each write).
+    pub fn words(&self, heartbeat: bool) -> Vec<u16> {
+        let mut results = crate::lock(&self.results);
+        if heartbeat {
+            results.heartbeat = results.heartbeat.wrapping_add(1);
+        }
+        let mut published = results.clone();
+        drop(results);
+        self.apply_health(&mut published);
+        self.map.encode(&published)
+    }
+
+    /// Clear latched alarms (the acknowledge command).
+    pub fn acknowledge_alarms(&self) {
+        self.update(|results| {
+            for driveline in &mut results.drivelines {
+                driveline.alarm = false;
+            }
+            for mill in &mut results.mills {
+                mill.alarm = false;
+            }
+        });
+    }
+}

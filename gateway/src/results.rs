@@ -1,0 +1,79 @@
+//! The gateway's latest results: what analysis produced, what outputs publish.
+
+use crate::health::SourceStatus;
+
+/// Latest results of one driveline. `None` = not computed (yet), published with
+/// its quality bit cleared.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct DrivelineResults {
+    /// Bites analysed since start (wraps at u32).
+    pub bite_counter: u32,
+    /// Time of the last bite, Unix seconds.
+    pub last_bite_unix_s: Option<u32>,
+    /// Static (settled) torque of the last bite, kN*m.
+    pub static_torque_knm: Option<f64>,
+    /// Peak torque of the last bite, kN*m.
+    pub peak_torque_knm: Option<f64>,
+    /// Torque amplification factor of the last bite.
+    pub taf: Option<f64>,
+    /// First minus second oscillation period of the last bite, s.
+    pub first_period_shift_s: Option<f64>,
+    /// First natural frequency identified from the last bite, Hz.
+    pub beta1_hz: Option<f64>,
+    /// Second natural frequency identified from the last bite, Hz.
+    pub beta2_hz: Option<f64>,
+    /// Wear index (0 = like the linear reference; grows with opened backlash).
+    pub wear_index: Option<f64>,
+    /// The last bite's window had gaps, NaN or saturated samples.
+    pub last_bite_degraded: bool,
+    /// TAF warning and alarm bits (alarm latched until acknowledged).
+    pub warning: bool,
+    pub alarm: bool,
+    /// The torque channel's source is stale or lost: every value is flagged.
+    pub source_stale: bool,
+}
+
+/// Latest chatter metrics of one tandem mill.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct MillResults {
+    pub sigma_n_hz: Option<f64>,
+    pub k_mean: Option<f64>,
+    pub chatter_frequency_hz: Option<f64>,
+    pub warning: bool,
+    pub alarm: bool,
+    pub source_stale: bool,
+}
+
+/// The gateway's own state as published in the status register.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum GatewayState {
+    #[default]
+    Starting,
+    Running,
+    Stopped,
+}
+
+/// Everything the outputs publish.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Results {
+    pub state: GatewayState,
+    /// Incremented on every write to the PLC.
+    pub heartbeat: u16,
+    /// Per source, in config order: Modbus sources first, then CAN sources.
+    pub sources: Vec<Option<SourceStatus>>,
+    pub drivelines: Vec<DrivelineResults>,
+    pub mills: Vec<MillResults>,
+}
+
+impl Results {
+    /// Empty results for `sources` sources, `drivelines` drivelines and `mills` mills.
+    pub fn new(sources: usize, drivelines: usize, mills: usize) -> Self {
+        Self {
+            state: GatewayState::Starting,
+            heartbeat: 0,
+            sources: vec![None; sources],
+            drivelines: vec![DrivelineResults::default(); drivelines],
+            mills: vec![MillResults::default(); mills],
+        }
+    }
+}

@@ -1,0 +1,137 @@
+//! The service: reader tasks -> analysis task -> output tasks, and their shutdown.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use millgate_config::Config;
+use tokio::sync::{broadcast, mpsc};
+use tokio::task::JoinSet;
+
+use crate::analysis::{Analysis, AnalysisError, BiteReport};
+use crate::daq::DaqReader;
+use crate::health::{ChannelCounters, SourceHealth};
+use crate::plc::PlcWriter;
+use crate::publish::Publisher;
+use crate::results::GatewayState;
+use crate::shutdown::{self, Shutdown};
+
+/// Samples in flight between readers and analysis. At 2 kHz and 100-sample blocks
+/// this is seconds of data per channel: enough to ride out a slow analysis step.
+const SAMPLE_QUEUE: usize = 1024;
+
+/// Why the service could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum ServiceError {
+    #[error(transparent)]
+    Analysis(#[from] AnalysisError),
+}
+
+/// A configured, not yet running gateway.
+pub struct Service {
+    config: Config,
+    publisher: Arc<Publisher>,
+    counters: Vec<Arc<ChannelCounters>>,
+    health: Vec<Arc<SourceHealth>>,
+    bites: broadcast::Sender<BiteReport>,
+    analysis: Analysis,
+}
+
+fn modbus_health(source: &millgate_config::ModbusSource) -> SourceHealth {
+    let stale_after = (source.poll_period * 3).max(source.timeout * 2);
+    SourceHealth::new(stale_after, (stale_after * 5).max(Duration::from_secs(5)))
+}
+
+impl Service {
+    /// Build every task's state from `config`.
+    pub fn new(config: Config) -> Result<Self, ServiceError> {
+        let counters = config
+            .channels
+            .iter()
+            .map(|_| Arc::new(ChannelCounters::default()))
+            .collect();
+        let health: Vec<Arc<SourceHealth>> = config
+            .modbus_sources
+            .iter()
+            .map(|source| Arc::new(modbus_health(source)))
+            .chain(config.can_sources.iter().map(|_| {
+                Arc::new(SourceHealth::new(
+                    Duration::from_secs(1),
+                    Duration::from_secs(5),
+                ))
+            }))
+            .collect();
+        let publisher = Arc::new(Publisher::new(&config, health.clone()));
+        let (bites, _) = broadcast::channel(64);
+        let analysis = Analysis::new(&config, Arc::clone(&publisher), bites.clone())?;
+        Ok(Self {
+            config,
+            publisher,
+            counters,
+            health,
+            bites,
+            analysis,
+        })
+    }
+
+    /// Bites as they are analysed.
+    pub fn subscribe_bites(&self) -> broadcast::Receiver<BiteReport> {
+        self.bites.subscribe()
+    }
+
+    /// The published results and register map.
+    pub fn publisher(&self) -> Arc<Publisher> {
+        Arc::clone(&self.publisher)
+    }
+
+    /// Per-channel acquisition counters, indexed like `config.channels`.
+    pub fn counters(&self) -> Vec<Arc<ChannelCounters>> {
+        self.counters.clone()
+    }
+
+    /// Run until `shutdown` fires; then stop the readers, let analysis drain what
+    /// they read, and write the final registers with status "stopped".
+    pub async fn run(self, shutdown: Shutdown) -> Result<(), ServiceError> {
+        let Service {
+            config,
+            publisher,
+            counters,
+            health,
+            analysis,
+            ..
+        } = self;
+        let (samples_tx, samples_rx) = mpsc::channel(SAMPLE_QUEUE);
+        let mut readers = JoinSet::new();
+        for (index, source) in config.modbus_sources.iter().enumerate() {
+            let reader = DaqReader::new(&config, index, &counters, Arc::clone(&health[index]));
+            tracing::info!(source = %source.name, address = %source.address, "starting DaqReader");
+            readers.spawn(reader.run(samples_tx.clone(), shutdown.clone()));
+        }
+        drop(samples_tx);
+        let analysis = tokio::spawn(analysis.run(samples_rx));
+
+        // Outputs stop only after analysis has drained, so the last bite is published.
+        let (outputs_stop, outputs_shutdown) = shutdown::channel();
+        let mut outputs = JoinSet::new();
+        if let Some(plc) = &config.outputs.plc {
+            tracing::info!(plc = %plc.address, base = plc.register_base, "starting PlcWriter");
+            let writer = PlcWriter::new(plc.clone(), Arc::clone(&publisher));
+            outputs.spawn(writer.run(outputs_shutdown.clone()));
+        }
+        publisher.update(|results| results.state = GatewayState::Running);
+
+        while readers.join_next().await.is_some() {}
+        if analysis.await.is_err() {
+            tracing::error!("analysis task failed");
+        }
+        outputs_stop.trigger();
+        while outputs.join_next().await.is_some() {}
+        publisher.update(|results| results.state = GatewayState::Stopped);
+        tracing::info!("stopped");
+        Ok(())
+    }
+}
+
+/// Run the gateway for `config` until `shutdown` fires.
+pub async fn run(config: Config, shutdown: Shutdown) -> Result<(), ServiceError> {
+    Service::new(config)?.run(shutdown).await
+}

@@ -1,0 +1,223 @@
+//! A Modbus TCP server over an in-memory register bank: the wire side of the
+//! virtual DAQ and the virtual PLC.
+//!
+//! The bank has input registers (FC 04, read-only) and holding registers (FC 03,
+//! written with FC 06 / FC 16 when the bank allows it). Reads or writes outside a
+//! table get exception 02 (illegal data address), other function codes exception 01.
+
+use std::future::Future;
+use std::io;
+use std::net::SocketAddr;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+
+use tokio::net::{TcpListener, TcpStream};
+use tokio_modbus::prelude::{ExceptionCode, Request, Response, SlaveRequest};
+use tokio_modbus::server::tcp::Server;
+
+/// Register tables of one virtual device.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RegisterBank {
+    /// Input registers, FC 04.
+    pub input: Vec<u16>,
+    /// Holding registers, FC 03 / 06 / 16.
+    pub holding: Vec<u16>,
+    /// Whether clients may write holding registers.
+    pub holding_writable: bool,
+    /// Number of successful write requests (FC 06 / FC 16) served.
+    pub writes: u64,
+}
+
+impl RegisterBank {
+    /// A bank of zeroed tables.
+    pub fn new(input_len: usize, holding_len: usize, holding_writable: bool) -> Self {
+        Self {
+            input: vec![0; input_len],
+            holding: vec![0; holding_len],
+            holding_writable,
+            writes: 0,
+        }
+    }
+
+    fn read(table: &[u16], address: u16, count: u16) -> Result<Vec<u16>, ExceptionCode> {
+        let start = usize::from(address);
+        let end = start + usize::from(count);
+        if count == 0 || count > 125 {
+            return Err(ExceptionCode::IllegalDataValue);
+        }
+        table
+            .get(start..end)
+            .map(<[u16]>::to_vec)
+            .ok_or(ExceptionCode::IllegalDataAddress)
+    }
+
+    fn write(&mut self, address: u16, words: &[u16]) -> Result<(), ExceptionCode> {
+        if !self.holding_writable {
+            return Err(ExceptionCode::IllegalFunction);
+        }
+        let start = usize::from(address);
+        let target = self
+            .holding
+            .get_mut(start..start + words.len())
+            .ok_or(ExceptionCode::IllegalDataAddress)?;
+        target.copy_from_slice(words);
+        self.writes += 1;
+        Ok(())
+    }
+
+    /// Answer one Modbus request against the bank.
+    pub fn handle(&mut self, request: &Request<'_>) -> Result<Response, ExceptionCode> {
+        match request {
+            Request::ReadInputRegisters(address, count) => {
+                Self::read(&self.input, *address, *count).map(Response::ReadInputRegisters)
+            }
+            Request::ReadHoldingRegisters(address, count) => {
+                Self::read(&self.holding, *address, *count).map(Response::ReadHoldingRegisters)
+            }
+            Request::WriteSingleRegister(address, word) => self
+                .write(*address, &[*word])
+                .map(|()| Response::WriteSingleRegister(*address, *word)),
+            Request::WriteMultipleRegisters(address, words) => {
+                let count =
+                    u16::try_from(words.len()).map_err(|_| ExceptionCode::IllegalDataValue)?;
+                self.write(*address, words)
+                    .map(|()| Response::WriteMultipleRegisters(*address, count))
+            }
+            _ => Err(ExceptionCode::IllegalFunction),
+        }
+    }
+}
+
+/// A register bank shared between the server task and the device logic.
+#[derive(Debug, Clone)]
+pub struct SharedBank(Arc<Mutex<RegisterBank>>);
+
+impl SharedBank {
+    /// Share `bank`.
+    pub fn new(bank: RegisterBank) -> Self {
+        Self(Arc::new(Mutex::new(bank)))
+    }
+
+    /// Lock the bank. A panic while holding the lock cannot leave the tables
+    /// inconsistent (every update is a plain copy), so a poisoned lock is recovered.
+    pub fn lock(&self) -> MutexGuard<'_, RegisterBank> {
+        self.0
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+}
+
+/// How the server accepts clients.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ServeOptions {
+    /// Answer only this unit id (0 and 255 are always accepted, as TCP devices do).
+    pub unit_id: u8,
+    /// Accept one connection at a time and refuse others, as many small DAQs do.
+    pub single_connection: bool,
+}
+
+struct BankService {
+    bank: SharedBank,
+    unit_id: u8,
+    open_connections: Arc<AtomicUsize>,
+}
+
+impl Drop for BankService {
+    fn drop(&mut self) {
+        self.open_connections.fetch_sub(1, Ordering::SeqCst);
+    }
+}
+
+impl tokio_modbus::server::Service for BankService {
+    type Request = SlaveRequest<'static>;
+    type Response = Option<Response>;
+    type Exception = ExceptionCode;
+    type Future = std::future::Ready<Result<Self::Response, Self::Exception>>;
+
+    fn call(&self, request: Self::Request) -> Self::Future {
+        let addressed_to_us = matches!(request.slave, 0 | 255) || request.slave == self.unit_id;
+        if !addressed_to_us {
+            // A gateway would answer 0x0B; a plain TCP device stays silent.
+            return std::future::ready(Ok(None));
+        }
+        std::future::ready(self.bank.lock().handle(&request.request).map(Some))
+    }
+}
+
+/// Serve `bank` on `listener` until `shutdown` completes.
+pub async fn serve(
+    listener: TcpListener,
+    bank: SharedBank,
+    options: ServeOptions,
+    shutdown: impl Future<Output = ()> + Send + Sync + 'static,
+) -> io::Result<()> {
+    let open_connections = Arc::new(AtomicUsize::new(0));
+    let server = Server::new(listener);
+    let on_connected = |stream: TcpStream, peer: SocketAddr| {
+        let bank = bank.clone();
+        let open_connections = Arc::clone(&open_connections);
+        async move {
+            let already_open = open_connections.fetch_add(1, Ordering::SeqCst);
+            if options.single_connection && already_open > 0 {
+                open_connections.fetch_sub(1, Ordering::SeqCst);
+                tracing::debug!(%peer, "refusing a second connection");
+                return Ok(None);
+            }
+            let service = BankService {
+                bank,
+                unit_id: options.unit_id,
+                open_connections,
+            };
+            Ok(Some((service, stream)))
+        }
+    };
+    let on_process_error = |error| tracing::debug!(%error, "modbus connection ended");
+    server
+        .serve_until(&on_connected, on_process_error, shutdown)
+        .await
+        .map(|_| ())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reads_inside_tables_and_refuses_outside() {
+        let mut bank = RegisterBank::new(4, 4, false);
+        bank.input.copy_from_slice(&[1, 2, 3, 4]);
+        assert_eq!(
+            bank.handle(&Request::ReadInputRegisters(1, 2)),
+            Ok(Response::ReadInputRegisters(vec![2, 3]))
+        );
+        assert_eq!(
+            bank.handle(&Request::ReadInputRegisters(3, 2)),
+            Err(ExceptionCode::IllegalDataAddress)
+        );
+        assert_eq!(
+            bank.handle(&Request::WriteSingleRegister(0, 7)),
+            Err(ExceptionCode::IllegalFunction)
+        );
+        assert_eq!(
+            bank.handle(&Request::ReadCoils(0, 1)),
+            Err(ExceptionCode::IllegalFunction)
+        );
+    }
+
+    #[test]
+    fn writable_holding_registers_take_writes() {
+        let mut bank = RegisterBank::new(0, 4, true);
+        let words = std::borrow::Cow::Owned(vec![9, 8]);
+        assert_eq!(
+            bank.handle(&Request::WriteMultipleRegisters(2, words)),
+            Ok(Response::WriteMultipleRegisters(2, 2))
+        );
+        assert_eq!(bank.holding, vec![0, 0, 9, 8]);
+        assert_eq!(bank.writes, 1);
+        let too_far = std::borrow::Cow::Owned(vec![1, 1]);
+        assert_eq!(
+            bank.handle(&Request::WriteMultipleRegisters(3, too_far)),
+            Err(ExceptionCode::IllegalDataAddress)
+        );
+    }
+}
