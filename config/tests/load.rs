@@ -1,0 +1,917 @@
+//! Loading configurations: the example files, defaults, and one test per class of
+//! error, asserting on the message (file, key path, value, what is allowed).
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use millgate_config::{
+    from_toml_str, load, ChannelKind, ChannelSource, Config, ConfigError, RegisterTable, ValueType,
+    WordOrder,
+};
+
+fn examples_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("examples")
+}
+
+/// A valid file: one DAQ with two torque blocks, a PLC with a process value, the
+/// example DBC on CAN, a driveline, a tandem mill, and outputs.
+const BASE: &str = r#"
+name = "Test mill"
+
+[[sources.modbus]]
+name = "daq1"
+address = "127.0.0.1:5020"
+poll_period_ms = 20
+
+[[sources.modbus]]
+name = "plc"
+address = "127.0.0.1:5021"
+poll_period_ms = 50
+
+[[sources.can]]
+name = "stand_can"
+interface = "vcan0"
+dbc = "mill.dbc"
+
+[[channels]]
+name = "spindle_top"
+kind = "torque"
+unit = "kN*m"
+scale = 0.01
+sample_rate_hz = 2000.0
+source = { modbus = "daq1", table = "input", block = 0 }
+
+[[channels]]
+name = "spindle_bottom"
+kind = "torque"
+unit = "kN*m"
+scale = 0.01
+sample_rate_hz = 2000.0
+source = { modbus = "daq1", table = "input", block = 122 }
+
+[[channels]]
+name = "metal_in"
+kind = "process_value"
+unit = "1"
+source = { modbus = "plc", table = "holding", address = 10 }
+
+[[channels]]
+name = "acc0"
+kind = "acceleration"
+unit = "m/s^2"
+sample_rate_hz = 4000.0
+source = { can = "stand_can", message = "AccelBurst", signal = "Acc0" }
+
+[[channels]]
+name = "acc1"
+kind = "acceleration"
+unit = "m/s^2"
+sample_rate_hz = 4000.0
+source = { can = "stand_can", message = "AccelBurst", signal = "Acc1" }
+
+[[drivelines]]
+name = "F1"
+torque = "spindle_top"
+metal_in_stand = "metal_in"
+bite = { threshold_knm = 20.0 }
+thresholds = { taf_warning = 2.2, taf_alarm = 2.6 }
+
+[[tandem_mills]]
+name = "TCM"
+stands = ["acc0", "acc1"]
+chatter_band_hz = [100.0, 300.0]
+window_s = 0.5
+k_max = 0.25
+
+[outputs.plc]
+address = "127.0.0.1:5021"
+write_period_ms = 100
+
+[outputs.server]
+bind = "127.0.0.1:5503"
+
+[outputs.metrics]
+"#;
+
+fn parse(text: &str) -> Result<Config, ConfigError> {
+    from_toml_str(text, "mill.toml", &examples_dir())
+}
+
+/// `BASE` with `from` replaced by `to` (which must change the text).
+fn edited(from: &str, to: &str) -> String {
+    assert!(BASE.contains(from), "BASE has no {from:?}");
+    BASE.replacen(from, to, 1)
+}
+
+/// The problems of an invalid text, one string per problem.
+fn problems(text: &str) -> Vec<String> {
+    match parse(text) {
+        Ok(_) => panic!("expected problems, the configuration was accepted"),
+        Err(error) => error.problems.iter().map(ToString::to_string).collect(),
+    }
+}
+
+/// 1-based line number of the first line of `BASE` equal to `line`.
+fn line_of(line: &str) -> usize {
+    BASE.lines().position(|l| l == line).expect("line in BASE") + 1
+}
+
+/// Asserts that `text` is rejected with exactly one problem, equal to `expected`.
+fn assert_only_problem(text: &str, expected: &str) {
+    assert_eq!(problems(text), vec![expected.to_owned()]);
+}
+
+/// Asserts that `text` is rejected with exactly one problem that starts with
+/// `start` and contains each of `parts`.
+fn assert_problem_like(text: &str, start: &str, parts: &[&str]) {
+    let found = problems(text);
+    assert_eq!(found.len(), 1, "{found:#?}");
+    assert!(
+        found[0].starts_with(start),
+        "{:?} does not start with {start:?}",
+        found[0]
+    );
+    for part in parts {
+        assert!(found[0].contains(part), "{:?} lacks {part:?}", found[0]);
+    }
+}
+
+#[test]
+fn base_is_valid_and_takes_defaults() {
+    let config = parse(BASE).unwrap_or_else(|error| panic!("{error}"));
+    let daq = &config.modbus_sources[0];
+    assert_eq!(daq.unit_id, 1);
+    assert_eq!(daq.timeout, Duration::from_millis(1000));
+    let metal_in = &config.channels[2];
+    assert_eq!((metal_in.scale, metal_in.offset), (1.0, 0.0));
+    assert_eq!(metal_in.sample_rate_hz, 20.0, "1 / 50 ms poll period");
+    assert_eq!(
+        metal_in.source,
+        ChannelSource::ModbusValue {
+            source: 1,
+            table: RegisterTable::Holding,
+            address: 10,
+            value_type: ValueType::U16,
+            word_order: WordOrder::Abcd,
+        }
+    );
+    let bite = config.drivelines[0].bite;
+    assert_eq!((bite.pre_trigger_s, bite.post_trigger_s), (0.1, 0.5));
+    let plc = config.outputs.plc.as_ref().expect("plc output");
+    assert_eq!((plc.unit_id, plc.register_base), (1, 0));
+    assert_eq!(plc.timeout, Duration::from_millis(1000));
+    assert_eq!(
+        config.outputs.server.as_ref().map(|server| server.unit_id),
+        Some(1)
+    );
+    let metrics = config.outputs.metrics.as_ref().expect("metrics output");
+    assert_eq!(metrics.bind.to_string(), "127.0.0.1:9187");
+    assert_eq!(config.channel_index("acc1"), Some(4));
+    assert_eq!(config.channel_index("nope"), None);
+}
+
+#[test]
+fn demo_example() {
+    let config = load(&examples_dir().join("demo.toml")).unwrap_or_else(|error| panic!("{error}"));
+    assert_eq!(config.modbus_sources.len(), 1);
+    let daq = &config.modbus_sources[0];
+    assert!(daq.address.starts_with("127.0.0.1:"), "{}", daq.address);
+    assert_eq!(config.channels.len(), 1);
+    let torque = &config.channels[0];
+    assert_eq!(torque.name, "spindle_top");
+    assert_eq!(torque.kind, ChannelKind::Torque);
+    assert_eq!((torque.scale, torque.sample_rate_hz), (0.01, 2000.0));
+    assert_eq!(
+        torque.source,
+        ChannelSource::ModbusBlock {
+            source: 0,
+            table: RegisterTable::Input,
+            base: 0
+        }
+    );
+    assert_eq!(config.drivelines.len(), 1);
+    assert_eq!(config.drivelines[0].torque, 0);
+    let plc = config.outputs.plc.as_ref().expect("plc output");
+    assert!(plc.address.starts_with("127.0.0.1:"), "{}", plc.address);
+    let server = config.outputs.server.as_ref().expect("server output");
+    assert!(server.bind.ip().is_loopback());
+}
+
+#[test]
+fn hot_mill_example() {
+    let config =
+        load(&examples_dir().join("hot-mill.toml")).unwrap_or_else(|error| panic!("{error}"));
+    let driveline = &config.drivelines[0];
+    assert_eq!(config.channels[driveline.torque].name, "spindle_top");
+    let metal_in = driveline.metal_in_stand.expect("metal in stand");
+    assert_eq!(config.channels[metal_in].kind, ChannelKind::ProcessValue);
+    assert!(config.can_sources[0].dbc.is_file());
+    let ChannelSource::Can { signal_layout, .. } =
+        &config.channels[config.channel_index("f1_roll_force").expect("roll force")].source
+    else {
+        panic!("roll force comes from CAN");
+    };
+    // RollForce : 35|12@0+ (10,-5000) in BO_ 258 StandStatus: 8.
+    assert_eq!(signal_layout.frame_id, 258);
+    assert!(!signal_layout.extended && !signal_layout.little_endian && !signal_layout.signed);
+    assert_eq!(
+        (
+            signal_layout.start_bit,
+            signal_layout.size,
+            signal_layout.frame_len
+        ),
+        (35, 12, 8)
+    );
+    assert_eq!(
+        (signal_layout.factor, signal_layout.offset),
+        (10.0, -5000.0)
+    );
+    let ChannelSource::Can { signal_layout, .. } =
+        &config.channels[config.channel_index("f1_gearbox_oil").expect("oil temp")].source
+    else {
+        panic!("oil temperature comes from CAN");
+    };
+    assert_eq!(
+        (signal_layout.frame_id, signal_layout.extended),
+        (0x18FF_5A01, true)
+    );
+    let speed = &config.channels[config.channel_index("f1_roll_speed").expect("roll speed")];
+    assert!(matches!(
+        speed.source,
+        ChannelSource::ModbusValue {
+            value_type: ValueType::F32,
+            word_order: WordOrder::Cdab,
+            ..
+        }
+    ));
+    assert!(config.outputs.plc.is_some() && config.outputs.server.is_some());
+}
+
+#[test]
+fn tandem_example() {
+    let config =
+        load(&examples_dir().join("tandem-5stand.toml")).unwrap_or_else(|error| panic!("{error}"));
+    let mill = &config.tandem_mills[0];
+    let stands: Vec<_> = mill
+        .stands
+        .iter()
+        .map(|&i| config.channels[i].name.as_str())
+        .collect();
+    assert_eq!(stands, ["s1_vib", "s2_vib", "s3_vib", "s4_vib", "s5_vib"]);
+    for &stand in &mill.stands {
+        assert_eq!(config.channels[stand].kind, ChannelKind::Acceleration);
+        assert!(config.channels[stand].sample_rate_hz > 2.0 * mill.chatter_band_hz.1);
+    }
+    assert_eq!(mill.chatter_band_hz, (100.0, 300.0));
+    assert_eq!((mill.window_s, mill.k_max), (0.5, 0.25));
+    let metrics = config.outputs.metrics.as_ref().expect("metrics output");
+    assert_eq!(
+        metrics.bind.to_string(),
+        "127.0.0.1:9187",
+        "the default bind"
+    );
+}
+
+#[test]
+fn unreadable_file_names_it() {
+    let error = load(Path::new("/nonexistent/mill.toml")).expect_err("no such file");
+    let text = error.to_string();
+    assert!(
+        text.starts_with("/nonexistent/mill.toml: cannot read the file: "),
+        "{text}"
+    );
+}
+
+#[test]
+fn syntax_errors_give_line_and_column_and_are_all_listed() {
+    let text =
+        BASE.replacen("poll_period_ms = 20", "poll_period_ms = = 20", 1) + "\n[outputs.extra\n";
+    let found = problems(&text);
+    assert!(found.len() >= 2, "{found:#?}");
+    let line = line_of("poll_period_ms = 20");
+    assert!(
+        found[0].starts_with(&format!("mill.toml: line {line}, column 18: ")),
+        "{found:#?}"
+    );
+    let last_line = text.lines().count();
+    assert!(
+        found
+            .iter()
+            .any(|p| p.starts_with(&format!("mill.toml: line {last_line}, column "))),
+        "{found:#?}"
+    );
+}
+
+#[test]
+fn misspelt_keys_are_named_in_every_element() {
+    let text = edited("address = \"127.0.0.1:5020\"", "adress = \"127.0.0.1:5020\"")
+        .replacen("scale = 0.01\nsample_rate_hz = 2000.0\nsource = { modbus = \"daq1\", table = \"input\", block = 122 }",
+                  "scale = 0.01\nsample_rate_hz = 2000.0\nsource = { modbus = \"daq1\", tabel = \"input\", block = 122 }", 1);
+    let found = problems(&text);
+    assert_eq!(found.len(), 2, "{found:#?}");
+    assert!(
+        found.iter().any(|p| p.starts_with("mill.toml: sources.modbus[0].adress: unknown field `adress`, expected one of `name`, `address`")),
+        "{found:#?}"
+    );
+    assert!(
+        found.iter().any(|p| p
+            .starts_with("mill.toml: channels[1].source.tabel: unknown field `tabel`")
+            && p.contains("(line ")),
+        "{found:#?}"
+    );
+}
+
+#[test]
+fn wrong_types_and_missing_keys_are_named() {
+    assert_problem_like(
+        &edited("poll_period_ms = 50", "poll_period_ms = \"fast\""),
+        "mill.toml: sources.modbus[1].poll_period_ms: invalid type: string \"fast\", expected i64",
+        &[&format!(
+            "(line {}, column 18)",
+            line_of("poll_period_ms = 50")
+        )],
+    );
+    assert_problem_like(
+        &edited("unit = \"1\"\n", ""),
+        "mill.toml: channels[2]: missing field `unit`",
+        &[],
+    );
+    assert_problem_like(
+        &edited("name = \"Test mill\"\n", ""),
+        "mill.toml: name: missing",
+        &[],
+    );
+    assert_problem_like(
+        &(BASE.to_owned() + "\n[alarms]\nlevel = 1\n"),
+        "mill.toml: alarms: unknown key (allowed here: name, sources, channels, drivelines, tandem_mills, outputs)",
+        &[],
+    );
+    assert_problem_like(
+        &edited("[[sources.can]]", "[[sources.canbus]]"),
+        "mill.toml: sources.canbus: unknown key (allowed here: modbus, can)",
+        &[],
+    );
+}
+
+#[test]
+fn negative_sample_rate() {
+    assert_only_problem(
+        &edited("sample_rate_hz = 2000.0\nsource = { modbus = \"daq1\", table = \"input\", block = 122 }",
+                "sample_rate_hz = -5\nsource = { modbus = \"daq1\", table = \"input\", block = 122 }"),
+        "mill.toml: channels[1].sample_rate_hz: -5 is not allowed (must be > 0 Hz)",
+    );
+}
+
+#[test]
+fn unknown_channel_lists_known_ones() {
+    let text = r#"
+name = "x"
+[[sources.modbus]]
+name = "daq1"
+address = "127.0.0.1:5020"
+poll_period_ms = 20
+[[channels]]
+name = "spindle_top"
+kind = "torque"
+unit = "kN*m"
+sample_rate_hz = 2000.0
+source = { modbus = "daq1", table = "input", block = 0 }
+[[channels]]
+name = "spindle_bottom"
+kind = "torque"
+unit = "kN*m"
+sample_rate_hz = 2000.0
+source = { modbus = "daq1", table = "input", block = 200 }
+[[drivelines]]
+name = "F1"
+torque = "spindel_top"
+bite = { threshold_knm = 20.0 }
+thresholds = { taf_warning = 2.2, taf_alarm = 2.6 }
+"#;
+    assert_only_problem(
+        text,
+        "mill.toml: drivelines[0].torque: unknown channel \"spindel_top\" (known: spindle_top, spindle_bottom)",
+    );
+}
+
+#[test]
+fn unknown_sources_list_known_ones_and_hint_at_the_other_kind() {
+    assert_only_problem(
+        &edited("{ modbus = \"plc\", table", "{ modbus = \"plcc\", table"),
+        "mill.toml: channels[2].source.modbus: unknown Modbus source \"plcc\" (known: daq1, plc)",
+    );
+    assert_only_problem(
+        &edited("{ modbus = \"plc\", table", "{ modbus = \"stand_can\", table"),
+        "mill.toml: channels[2].source.modbus: unknown Modbus source \"stand_can\" (known: daq1, plc) \
+         (\"stand_can\" is a CAN source: write can = \"stand_can\")",
+    );
+    let found = problems(&edited(
+        "{ can = \"stand_can\", message = \"AccelBurst\", signal = \"Acc0\" }",
+        "{ can = \"daq1\", message = \"AccelBurst\", signal = \"Acc0\" }",
+    ));
+    assert!(
+        found.contains(
+            &"mill.toml: channels[3].source.can: unknown CAN source \"daq1\" (known: stand_can) \
+         (\"daq1\" is a Modbus source: write modbus = \"daq1\")"
+                .to_owned()
+        ),
+        "{found:#?}"
+    );
+}
+
+#[test]
+fn duplicate_names() {
+    assert_only_problem(
+        &edited("name = \"stand_can\"", "name = \"plc\"")
+            .replace("can = \"stand_can\"", "can = \"plc\""),
+        "mill.toml: sources.can[0].name: duplicate source name \"plc\" (already used by sources.modbus[1])",
+    );
+    let found = problems(&edited(
+        "name = \"spindle_bottom\"",
+        "name = \"spindle_top\"",
+    ));
+    assert!(found.contains(&"mill.toml: channels[1].name: duplicate channel name \"spindle_top\" (already used by channels[0])".to_owned()), "{found:#?}");
+    let two_drivelines = BASE.to_owned()
+        + "\n[[drivelines]]\nname = \"F1\"\ntorque = \"spindle_bottom\"\n\
+           bite = { threshold_knm = 20.0 }\nthresholds = { taf_warning = 2.2, taf_alarm = 2.6 }\n";
+    assert_only_problem(
+        &two_drivelines,
+        "mill.toml: drivelines[1].name: duplicate driveline name \"F1\" (already used by drivelines[0])",
+    );
+    let two_mills = BASE.to_owned()
+        + "\n[[tandem_mills]]\nname = \"TCM\"\nstands = [\"acc0\", \"acc1\"]\n\
+           chatter_band_hz = [100.0, 300.0]\nwindow_s = 0.5\nk_max = 0.25\n";
+    assert_only_problem(
+        &two_mills,
+        "mill.toml: tandem_mills[1].name: duplicate tandem mill name \"TCM\" (already used by tandem_mills[0])",
+    );
+}
+
+#[test]
+fn kinds_must_fit_their_use() {
+    assert_only_problem(
+        &edited("torque = \"spindle_top\"", "torque = \"metal_in\""),
+        "mill.toml: drivelines[0].torque: channel \"metal_in\" is a process_value channel (must be torque)",
+    );
+    assert_only_problem(
+        &edited("metal_in_stand = \"metal_in\"", "metal_in_stand = \"spindle_bottom\""),
+        "mill.toml: drivelines[0].metal_in_stand: channel \"spindle_bottom\" is a torque channel (must be process_value)",
+    );
+    assert_only_problem(
+        &edited("stands = [\"acc0\", \"acc1\"]", "stands = [\"acc0\", \"spindle_top\"]"),
+        "mill.toml: tandem_mills[0].stands[1]: channel \"spindle_top\" is a torque channel (must be acceleration)",
+    );
+    assert_only_problem(
+        &edited("kind = \"process_value\"", "kind = \"process\""),
+        "mill.toml: channels[2].kind: unknown kind \"process\" (allowed: torque, acceleration, process_value)",
+    );
+    assert_problem_like(
+        &edited("unit = \"kN*m\"", "unit = \"N*m\""),
+        "mill.toml: channels[0].unit: \"N*m\" is not allowed for a torque channel (must be \"kN*m\"",
+        &[],
+    );
+}
+
+#[test]
+fn stand_count_and_repeats() {
+    assert_only_problem(
+        &edited("stands = [\"acc0\", \"acc1\"]", "stands = [\"acc0\"]"),
+        "mill.toml: tandem_mills[0].stands: 1 stands is not allowed (must be 2..=8 stand channels)",
+    );
+    let nine = format!("stands = [{}]", ["\"acc0\""; 9].join(", "));
+    let found = problems(&edited("stands = [\"acc0\", \"acc1\"]", &nine));
+    assert!(found.contains(&"mill.toml: tandem_mills[0].stands: 9 stands is not allowed (must be 2..=8 stand channels)".to_owned()), "{found:#?}");
+    assert_only_problem(
+        &edited(
+            "stands = [\"acc0\", \"acc1\"]",
+            "stands = [\"acc0\", \"acc1\", \"acc0\"]",
+        ),
+        "mill.toml: tandem_mills[0].stands[2]: channel \"acc0\" is listed twice",
+    );
+}
+
+#[test]
+fn poll_period_must_beat_the_block_period() {
+    // 120 samples at 2000 Hz fill a block every 60 ms.
+    assert_only_problem(
+        &edited("poll_period_ms = 20", "poll_period_ms = 60").replacen("block = 122", "block = 1000", 1)
+            .replacen("sample_rate_hz = 2000.0\nsource = { modbus = \"daq1\", table = \"input\", block = 1000 }",
+                      "sample_rate_hz = 1000.0\nsource = { modbus = \"daq1\", table = \"input\", block = 1000 }", 1),
+        "mill.toml: sources.modbus[0].poll_period_ms: 60 ms is not allowed (must be < 60 ms: \
+         channel \"spindle_top\" (channels[0]) fills a 120-sample block every 60 ms at 2000 Hz, \
+         and slower polling loses blocks)",
+    );
+    assert!(parse(&edited("poll_period_ms = 20", "poll_period_ms = 59")).is_ok());
+}
+
+#[test]
+fn integer_ranges() {
+    assert_only_problem(
+        &edited("poll_period_ms = 50", "poll_period_ms = 50\nunit_id = 256"),
+        "mill.toml: sources.modbus[1].unit_id: 256 is not allowed (must be 0..=255)",
+    );
+    assert_only_problem(
+        &edited("poll_period_ms = 50", "poll_period_ms = 0"),
+        "mill.toml: sources.modbus[1].poll_period_ms: 0 is not allowed (must be 1..=60000 ms)",
+    );
+    assert_only_problem(
+        &edited("block = 122", "block = 65415"),
+        "mill.toml: channels[1].source.block: 65415 is not allowed (must be 0..=65414)",
+    );
+    assert!(parse(&edited("block = 122", "block = 65414")).is_ok());
+    assert_only_problem(
+        &edited("address = 10 }", "address = 65535, type = \"f32\" }"),
+        "mill.toml: channels[2].source.address: 65535 is not allowed (must be 0..=65534)",
+    );
+    assert_only_problem(
+        &edited(
+            "write_period_ms = 100",
+            "write_period_ms = 100\nregister_base = 70000",
+        ),
+        "mill.toml: outputs.plc.register_base: 70000 is not allowed (must be 0..=65535)",
+    );
+}
+
+#[test]
+fn value_type_and_word_order_names() {
+    assert_only_problem(
+        &edited("address = 10 }", "address = 10, type = \"float\" }"),
+        "mill.toml: channels[2].source.type: unknown value type \"float\" (allowed: u16, i16, u32, i32, f32)",
+    );
+    assert_only_problem(
+        &edited("address = 10 }", "address = 10, type = \"f32\", word_order = \"DCAB\" }"),
+        "mill.toml: channels[2].source.word_order: unknown word order \"DCAB\" (allowed: ABCD, CDAB, BADC, DCBA)",
+    );
+    // A 16-bit value takes a word order too: BADC swaps its two bytes.
+    let config = parse(&edited(
+        "address = 10 }",
+        "address = 10, type = \"i16\", word_order = \"BADC\" }",
+    ))
+    .unwrap_or_else(|error| panic!("{error}"));
+    assert!(matches!(
+        config.channels[2].source,
+        ChannelSource::ModbusValue {
+            value_type: ValueType::I16,
+            word_order: WordOrder::Badc,
+            ..
+        }
+    ));
+    assert_only_problem(
+        &edited("table = \"input\", block = 0 }", "table = \"input\", block = 0, type = \"i16\" }"),
+        "mill.toml: channels[0].source.type: does not apply to a block (block samples are i16 in the millgate layout); remove it",
+    );
+}
+
+#[test]
+fn source_forms_must_be_complete_and_exclusive() {
+    assert_problem_like(
+        &edited(
+            "table = \"input\", block = 0 }",
+            "table = \"input\", block = 0, address = 5 }",
+        ),
+        "mill.toml: channels[0].source: must give exactly one of block = <first register>",
+        &[],
+    );
+    assert_problem_like(
+        &edited(
+            "{ modbus = \"plc\", table = \"holding\", address = 10 }",
+            "{ modbus = \"plc\", address = 10 }",
+        ),
+        "mill.toml: channels[2].source.table: missing (\"input\" for FC 04",
+        &[],
+    );
+    assert_only_problem(
+        &edited("{ modbus = \"plc\", table = \"holding\"", "{ modbus = \"plc\", table = \"coils\""),
+        "mill.toml: channels[2].source.table: unknown register table \"coils\" (allowed: input, holding)",
+    );
+    assert_problem_like(
+        &edited(
+            "{ modbus = \"plc\", table",
+            "{ modbus = \"plc\", can = \"stand_can\", table",
+        ),
+        "mill.toml: channels[2].source: must name exactly one source",
+        &[],
+    );
+    assert_problem_like(
+        &edited("unit = \"1\"\n", "unit = \"1\"\nsample_rate_hz = 10.0\n"),
+        "mill.toml: channels[2].sample_rate_hz: not used for a register value",
+        &[],
+    );
+    assert_only_problem(
+        &edited("unit = \"1\"\n", "unit = \"1\"\nscale = 0.0\n"),
+        "mill.toml: channels[2].scale: 0 is not allowed (must be finite and non-zero)",
+    );
+}
+
+#[test]
+fn float_ranges() {
+    assert_only_problem(
+        &edited("taf_warning = 2.2, taf_alarm = 2.6", "taf_warning = 1.0, taf_alarm = 2.6"),
+        "mill.toml: drivelines[0].thresholds.taf_warning: 1 is not allowed (must be > 1: TAF is peak over static torque)",
+    );
+    assert_only_problem(
+        &edited("taf_warning = 2.2, taf_alarm = 2.6", "taf_warning = 2.2, taf_alarm = 2.0"),
+        "mill.toml: drivelines[0].thresholds.taf_alarm: 2 is not allowed (must be >= taf_warning = 2.2)",
+    );
+    assert_only_problem(
+        &edited(
+            "threshold_knm = 20.0 }",
+            "threshold_knm = 20.0, post_trigger_s = 0.0 }",
+        ),
+        "mill.toml: drivelines[0].bite.post_trigger_s: 0 is not allowed (must be > 0 and <= 10 s)",
+    );
+    assert_only_problem(
+        &edited("threshold_knm = 20.0 }", "threshold_knm = nan }"),
+        "mill.toml: drivelines[0].bite.threshold_knm: NaN is not allowed (must be > 0 kN*m)",
+    );
+    for k_max in ["0.0", "1.0"] {
+        assert_problem_like(
+            &edited("k_max = 0.25", &format!("k_max = {k_max}")),
+            "mill.toml: tandem_mills[0].k_max: ",
+            &["is not allowed (must be > 0 and < 1"],
+        );
+    }
+}
+
+#[test]
+fn chatter_band() {
+    assert_only_problem(
+        &edited("chatter_band_hz = [100.0, 300.0]", "chatter_band_hz = [300.0, 100.0]"),
+        "mill.toml: tandem_mills[0].chatter_band_hz: [300.0, 100.0] is not allowed (must be [low, high] with 0 < low < high, Hz)",
+    );
+    assert_problem_like(
+        &edited(
+            "chatter_band_hz = [100.0, 300.0]",
+            "chatter_band_hz = [100.0]",
+        ),
+        "mill.toml: tandem_mills[0].chatter_band_hz: [100.0] is not allowed",
+        &[],
+    );
+    // The stands sample at 4000 Hz: the band must stay below 2000 Hz.
+    assert_only_problem(
+        &edited("chatter_band_hz = [100.0, 300.0]", "chatter_band_hz = [500.0, 2000.0]")
+            .replacen("sample_rate_hz = 4000.0\nsource = { can = \"stand_can\", message = \"AccelBurst\", signal = \"Acc1\" }",
+                      "sample_rate_hz = 8000.0\nsource = { can = \"stand_can\", message = \"AccelBurst\", signal = \"Acc1\" }", 1),
+        "mill.toml: tandem_mills[0].chatter_band_hz: upper edge 2000 Hz is not allowed (must be < 2000 Hz, \
+         half the 4000 Hz sample rate of stand channel \"acc0\")",
+    );
+}
+
+#[test]
+fn addresses() {
+    assert_only_problem(
+        &edited("address = \"127.0.0.1:5020\"", "address = \"127.0.0.1\""),
+        "mill.toml: sources.modbus[0].address: \"127.0.0.1\" is not allowed (must be host:port with a port 1..=65535, e.g. 192.168.0.10:502 or plc1.local:502)",
+    );
+    for bad in ["plc.local:0", ":502", "::1:502", "plc:502x"] {
+        assert_problem_like(
+            &edited(
+                "address = \"127.0.0.1:5021\"\nwrite_period_ms",
+                &format!("address = \"{bad}\"\nwrite_period_ms"),
+            ),
+            "mill.toml: outputs.plc.address: ",
+            &[&format!("\"{bad}\" is not allowed")],
+        );
+    }
+    for good in ["plc1.local:502", "[::1]:502", "10.0.0.7:65535"] {
+        let text = edited(
+            "address = \"127.0.0.1:5021\"\nwrite_period_ms",
+            &format!("address = \"{good}\"\nwrite_period_ms"),
+        );
+        assert!(parse(&text).is_ok(), "{good}");
+    }
+    assert_only_problem(
+        &edited("bind = \"127.0.0.1:5503\"", "bind = \"localhost:5503\""),
+        "mill.toml: outputs.server.bind: \"localhost:5503\" is not allowed (must be an IP address and port, e.g. 0.0.0.0:502 or 127.0.0.1:5503)",
+    );
+    assert_problem_like(
+        &edited("[outputs.metrics]", "[outputs.metrics]\nbind = \"9187\""),
+        "mill.toml: outputs.metrics.bind: \"9187\" is not allowed",
+        &[],
+    );
+}
+
+#[test]
+fn overlapping_registers() {
+    assert_only_problem(
+        &edited("block = 122", "block = 100"),
+        "mill.toml: channels[1].source.block: registers 100..=221 overlap registers 0..=121 of channel \
+         \"spindle_top\" in the input registers of source \"daq1\"",
+    );
+    // The same registers in the other table do not overlap.
+    assert!(parse(&edited(
+        "table = \"input\", block = 122",
+        "table = \"holding\", block = 100"
+    ))
+    .is_ok());
+    // A 32-bit value reaches into the next register.
+    let text = edited("address = 10 }", "address = 10, type = \"u32\" }")
+        + "\n[[channels]]\nname = \"speed\"\nkind = \"process_value\"\nunit = \"rpm\"\n\
+           source = { modbus = \"plc\", table = \"holding\", address = 11 }\n";
+    assert_only_problem(
+        &text,
+        "mill.toml: channels[5].source.address: registers 11..=11 overlap registers 10..=11 of channel \
+         \"metal_in\" in the holding registers of source \"plc\"",
+    );
+}
+
+#[test]
+fn can_channels() {
+    assert_only_problem(
+        &edited(
+            "message = \"AccelBurst\", signal = \"Acc0\"",
+            "message = \"AccBurst\", signal = \"Acc0\"",
+        ),
+        "mill.toml: channels[3].source.message: unknown message \"AccBurst\" in mill.dbc \
+         (known: SpindleTorque, StandStatus, AccelBurst, GearboxTemp)",
+    );
+    assert_only_problem(
+        &edited("message = \"AccelBurst\", signal = \"Acc0\"", "message = \"AccelBurst\", signal = \"Acc9\""),
+        "mill.toml: channels[3].source.signal: unknown signal \"Acc9\" in message AccelBurst of mill.dbc \
+         (known: Seq, Acc0, Acc1, Acc2, Acc3, TimestampUs)",
+    );
+    assert_problem_like(
+        &edited("unit = \"m/s^2\"\nsample_rate_hz = 4000.0\nsource = { can = \"stand_can\", message = \"AccelBurst\", signal = \"Acc0\" }",
+                "unit = \"m/s^2\"\nscale = 0.5\nsample_rate_hz = 4000.0\nsource = { can = \"stand_can\", message = \"AccelBurst\", signal = \"Acc0\" }"),
+        "mill.toml: channels[3].scale: not allowed on a CAN channel: the DBC's factor and offset give the engineering value",
+        &[],
+    );
+    assert_only_problem(
+        &edited("signal = \"Acc0\" }", "signal = \"Acc0\", table = \"input\" }"),
+        "mill.toml: channels[3].source.table: does not apply to a CAN source (the DBC describes the signal); remove it",
+    );
+    assert_only_problem(
+        &edited(
+            "message = \"AccelBurst\", signal = \"Acc0\"",
+            "message = \"AccelBurst\"",
+        ),
+        "mill.toml: channels[3].source.signal: missing (the DBC signal name)",
+    );
+    let config = parse(BASE).unwrap_or_else(|error| panic!("{error}"));
+    let ChannelSource::Can { signal_layout, .. } = &config.channels[3].source else {
+        panic!("acc0 comes from CAN");
+    };
+    // Acc0 : 8|16@1- (0.001,0) in BO_ 512 AccelBurst: 64.
+    assert_eq!((signal_layout.frame_id, signal_layout.frame_len), (512, 64));
+    assert!(signal_layout.little_endian && signal_layout.signed);
+    assert_eq!(
+        (
+            signal_layout.start_bit,
+            signal_layout.size,
+            signal_layout.factor
+        ),
+        (8, 16, 0.001)
+    );
+    assert_eq!(
+        (config.channels[3].scale, config.channels[3].offset),
+        (1.0, 0.0)
+    );
+}
+
+/// A scratch directory removed on drop.
+struct Scratch(PathBuf);
+
+impl Scratch {
+    fn new(tag: &str) -> Self {
+        let path =
+            std::env::temp_dir().join(format!("millgate-config-{tag}-{}", std::process::id()));
+        std::fs::create_dir_all(&path).expect("create a scratch directory");
+        Scratch(path)
+    }
+
+    fn write(&self, name: &str, contents: &str) {
+        std::fs::write(self.0.join(name), contents).expect("write a scratch file");
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+const SMALL_DBC: &str = r#"VERSION ""
+
+BS_:
+
+BU_: A
+
+BO_ 100 Muxed: 8 A
+ SG_ Mode M : 0|8@1+ (1,0) [0|255] "" A
+ SG_ Speed m1 : 8|16@1+ (1,0) [0|0] "" A
+ SG_ Level : 24|16@1+ (0,0) [0|0] "" A
+ SG_ Wide : 56|16@1+ (1,0) [0|0] "" A
+
+BO_ 101 Floaty: 8 A
+ SG_ Temp : 0|32@1- (1,0) [0|0] "" A
+
+SIG_VALTYPE_ 101 Temp : 1;
+"#;
+
+fn can_config(signal: (&str, &str)) -> String {
+    format!(
+        "name = \"x\"\n[[sources.can]]\nname = \"bus\"\ninterface = \"vcan0\"\ndbc = \"small.dbc\"\n\
+         [[channels]]\nname = \"c\"\nkind = \"process_value\"\nunit = \"1\"\nsample_rate_hz = 10.0\n\
+         source = {{ can = \"bus\", message = \"{}\", signal = \"{}\" }}\n",
+        signal.0, signal.1
+    )
+}
+
+#[test]
+fn unsupported_dbc_signals() {
+    let scratch = Scratch::new("dbc");
+    scratch.write("small.dbc", SMALL_DBC);
+    let problems_of = |signal| {
+        from_toml_str(&can_config(signal), "mill.toml", &scratch.0)
+            .expect_err("unsupported")
+            .to_string()
+    };
+    assert_eq!(
+        problems_of(("Muxed", "Speed")),
+        "mill.toml: channels[0].source.signal: signal \"Speed\" of message Muxed in small.dbc: \
+         multiplexed signals are not supported"
+    );
+    assert_eq!(
+        problems_of(("Floaty", "Temp")),
+        "mill.toml: channels[0].source.signal: signal \"Temp\" of message Floaty in small.dbc: \
+         IEEE float signals are not supported"
+    );
+    assert!(problems_of(("Muxed", "Level")).contains("the factor non-zero"));
+    assert!(problems_of(("Muxed", "Wide"))
+        .contains("signal needs 9 bytes but the message is 8 bytes long"));
+}
+
+#[test]
+fn dbc_file_problems_name_the_file() {
+    let scratch = Scratch::new("baddbc");
+    assert_problem_like_in(
+        &scratch.0,
+        &can_config(("M", "S")),
+        "mill.toml: sources.can[0].dbc: file \"small.dbc\" not found",
+    );
+    scratch.write("small.dbc", "VERSION \"\"\nBO_ nonsense here\n");
+    assert_problem_like_in(
+        &scratch.0,
+        &can_config(("M", "S")),
+        "mill.toml: sources.can[0].dbc: DBC file \"small.dbc\": cannot parse: ",
+    );
+}
+
+fn assert_problem_like_in(base_dir: &Path, text: &str, start: &str) {
+    let error = from_toml_str(text, "mill.toml", base_dir).expect_err("rejected");
+    assert_eq!(error.problems.len(), 1, "{error}");
+    let found = error.to_string();
+    assert!(
+        found.starts_with(start),
+        "{found:?} does not start with {start:?}"
+    );
+    assert!(!found.contains('\n'), "one line: {found:?}");
+}
+
+#[test]
+fn model_path_is_relative_to_the_file_and_must_exist() {
+    let scratch = Scratch::new("model");
+    std::fs::copy(examples_dir().join("mill.dbc"), scratch.0.join("mill.dbc"))
+        .expect("copy the DBC");
+    let text = edited(
+        "metal_in_stand = \"metal_in\"",
+        "metal_in_stand = \"metal_in\"\nmodel = \"f1-model.toml\"",
+    );
+    let error = from_toml_str(&text, "mill.toml", &scratch.0).expect_err("no model yet");
+    assert_eq!(error.problems.len(), 1, "{error}");
+    assert!(
+        error
+            .to_string()
+            .starts_with("mill.toml: drivelines[0].model: file \"f1-model.toml\" not found"),
+        "{error}"
+    );
+    scratch.write("f1-model.toml", "");
+    let config =
+        from_toml_str(&text, "mill.toml", &scratch.0).unwrap_or_else(|error| panic!("{error}"));
+    assert_eq!(
+        config.drivelines[0].model,
+        Some(scratch.0.join("f1-model.toml"))
+    );
+}
+
+#[test]
+fn every_problem_is_listed_at_once() {
+    let text = edited("poll_period_ms = 50", "poll_period_ms = 50\nunit_id = 300")
+        .replacen("torque = \"spindle_top\"", "torque = \"spindel_top\"", 1)
+        .replacen("k_max = 0.25", "k_max = 2.5", 1)
+        .replacen("bind = \"127.0.0.1:5503\"", "bind = \"nowhere\"", 1);
+    let found = problems(&text);
+    let keys: Vec<_> = found
+        .iter()
+        .map(|p| p.split(": ").nth(1).expect("key").to_owned())
+        .collect();
+    assert_eq!(
+        keys,
+        [
+            "sources.modbus[1].unit_id",
+            "drivelines[0].torque",
+            "tandem_mills[0].k_max",
+            "outputs.server.bind"
+        ]
+    );
+}
