@@ -2,6 +2,7 @@
 #![doc = include_str!("../README.md")]
 
 pub mod bite;
+pub mod chatter;
 pub mod fit;
 pub mod pencil;
 pub mod stiffness;

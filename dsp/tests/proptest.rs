@@ -1,0 +1,143 @@
+//! Property tests: no panic and no NaN in any output, on arbitrary input (including
+//! all-NaN, constant and huge values).
+
+use millgate_dsp::bite::{BiteDetector, BiteSettings};
+use millgate_dsp::chatter::{ChatterDetector, ChatterSettings, StandWindow};
+use millgate_dsp::fit::{fit_eq1, FitOptions};
+use millgate_dsp::stiffness::{forward, inverse, Inertias, NaturalFrequencies, Stiffness};
+use millgate_dsp::transient::{analyze, TransientSettings};
+use proptest::prelude::*;
+
+/// Any f64 including NaN, infinities, huge and tiny values.
+fn any_sample() -> impl Strategy<Value = f64> {
+    prop_oneof![
+        4 => -500.0..500.0_f64,
+        1 => any::<f64>(),
+        1 => Just(f64::NAN),
+        1 => Just(f64::INFINITY),
+        1 => Just(f64::MAX),
+        1 => Just(-f64::MAX),
+    ]
+}
+
+/// Arbitrary records, plus the special all-NaN, constant and huge-constant ones.
+fn record(max_len: usize) -> impl Strategy<Value = Vec<f64>> {
+    prop_oneof![
+        3 => prop::collection::vec(any_sample(), 0..max_len),
+        1 => (0..max_len).prop_map(|n| vec![f64::NAN; n]),
+        1 => (0..max_len, -1e3..1e3_f64).prop_map(|(n, v)| vec![v; n]),
+        1 => (0..max_len).prop_map(|n| vec![1e300; n]),
+    ]
+}
+
+fn finite_opt(v: Option<f64>) -> bool {
+    v.is_none_or(f64::is_finite)
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(256))]
+
+    #[test]
+    fn detector_outputs_are_finite(samples in record(3000), gaps in prop::collection::vec(0..3000usize, 0..4)) {
+        let detector = BiteDetector::<32, 256>::new(BiteSettings {
+            threshold_knm: 20.0,
+            rearm_knm: 10.0,
+            holdoff_samples: 10,
+            baseline_alpha: 0.01,
+            saturation_low_knm: -400.0,
+            saturation_high_knm: 400.0,
+            post_trigger_samples: 200,
+        }).unwrap();
+        let mut state = detector.state();
+        let check = |event: millgate_dsp::bite::BiteEvent<256>| {
+            assert!(event.window.iter().all(|v| !v.is_nan()));
+            assert!(!event.baseline_knm.is_nan());
+            assert!(event.trigger_index < event.window.len());
+        };
+        for (i, &sample) in samples.iter().enumerate() {
+            if gaps.contains(&i) {
+                if let Some(event) = detector.gap(&mut state, 3) {
+                    check(event);
+                }
+            }
+            if i % 7 == 0 {
+                let _ = detector.trigger(&mut state);
+            }
+            if let Some(event) = detector.process(&mut state, sample) {
+                check(event);
+            }
+        }
+        prop_assert!(!state.baseline_knm().is_nan());
+    }
+
+    #[test]
+    fn transient_outputs_are_finite(window in record(600), trigger in 0..600usize, baseline in any_sample()) {
+        let settings = TransientSettings {
+            sample_rate_hz: 1000.0,
+            period_lowpass_hz: 20.0,
+            peak_lowpass_hz: Some(60.0),
+            settled_fraction: 0.3,
+            min_static_knm: 1.0,
+            reference_shift_s: Some(0.001),
+        };
+        if let Ok(r) = analyze::<600>(&window, trigger, baseline, &settings) {
+            prop_assert!(r.static_torque_knm.is_finite() && r.peak_torque_knm.is_finite());
+            prop_assert!(r.peak_time_s.is_finite());
+            prop_assert!(finite_opt(r.taf) && finite_opt(r.first_period_s));
+            prop_assert!(finite_opt(r.second_period_s) && finite_opt(r.period_shift_s));
+            prop_assert!(finite_opt(r.shift_excess_s) && finite_opt(r.rise_time_s));
+        }
+    }
+
+    #[test]
+    fn fit_outputs_are_finite(samples in record(400), positive_only in any::<bool>()) {
+        let options = FitOptions { positive_only, ..FitOptions::new(1000.0) };
+        if let Ok(fit) = fit_eq1(&samples, &options) {
+            prop_assert!(fit.params.iter().all(|v| v.is_finite()));
+            prop_assert!(fit.f1_hz <= fit.f2_hz);
+            prop_assert!(fit.zeta1.is_finite() && fit.zeta2.is_finite());
+            prop_assert!(fit.rms_residual.is_finite() && finite_opt(fit.taf));
+        }
+    }
+
+    #[test]
+    fn chatter_outputs_are_finite(
+        a in prop::collection::vec(any_sample(), 64),
+        b in prop::collection::vec(any_sample(), 64),
+        magnitude_a in prop::collection::vec(any_sample(), 33),
+        magnitude_b in prop::collection::vec(any_sample(), 33),
+    ) {
+        let detector = ChatterDetector::new(ChatterSettings {
+            band_low_hz: 3.0, band_high_hz: 20.0, k_max: 0.25,
+        }).unwrap();
+        let abs = |m: &[f64]| m.iter().map(|v| v.abs()).collect::<Vec<f64>>();
+        let (ma, mb) = (abs(&magnitude_a), abs(&magnitude_b));
+        let stands = [
+            StandWindow { magnitude: &ma, signal: &a },
+            StandWindow { magnitude: &mb, signal: &b },
+        ];
+        if let Ok(r) = detector.evaluate(&stands, 1.0) {
+            prop_assert!(r.sigma_n_hz.is_finite() && r.k_mean.is_finite());
+            prop_assert!((-1.0..=1.0).contains(&r.k_mean));
+            for s in &r.stands {
+                prop_assert!(s.principal_hz.is_finite() && s.amplitude.is_finite());
+                prop_assert!(s.band_energy.is_finite());
+            }
+        }
+    }
+
+    #[test]
+    fn stiffness_outputs_are_finite(values in prop::collection::vec(any_sample(), 7)) {
+        let q = Inertias { q1_kgm2: values[0], q2_kgm2: values[1], q3_kgm2: values[2] };
+        let c = Stiffness { c12_nm_per_rad: values[3], c23_nm_per_rad: values[4] };
+        if let Ok(beta) = forward(&q, &c) {
+            prop_assert!(beta.beta1_hz.is_finite() && beta.beta2_hz.is_finite());
+        }
+        let beta = NaturalFrequencies { beta1_hz: values[5], beta2_hz: values[6] };
+        if let Ok(roots) = inverse(&q, &beta, Some(&c)) {
+            for root in &roots {
+                prop_assert!(root.c12_nm_per_rad.is_finite() && root.c23_nm_per_rad.is_finite());
+            }
+        }
+    }
+}
