@@ -160,6 +160,9 @@ impl Devices {
             .context("the demo configuration needs outputs.plc")?;
         plc_output.address = plc_listener.local_addr()?.to_string();
         plc_output.register_base = 0;
+        if let Some(server) = config.outputs.server.as_mut() {
+            server.bind = "127.0.0.1:0".parse()?;
+        }
         let options = ServeOptions {
             unit_id: 1,
             single_connection: false,

@@ -12,6 +12,7 @@ pub mod publish;
 pub mod registers;
 pub mod results;
 pub mod samples;
+pub mod server;
 pub mod service;
 pub mod shutdown;
 

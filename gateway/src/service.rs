@@ -1,9 +1,11 @@
 //! The service: reader tasks -> analysis task -> output tasks, and their shutdown.
 
+use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Duration;
 
 use millgate_config::Config;
+use tokio::net::TcpListener;
 use tokio::sync::{broadcast, mpsc};
 use tokio::task::JoinSet;
 
@@ -13,6 +15,7 @@ use crate::health::{ChannelCounters, SourceHealth};
 use crate::plc::PlcWriter;
 use crate::publish::Publisher;
 use crate::results::GatewayState;
+use crate::server::ModbusServer;
 use crate::shutdown::{self, Shutdown};
 
 /// Samples in flight between readers and analysis. At 2 kHz and 100-sample blocks
@@ -24,6 +27,11 @@ const SAMPLE_QUEUE: usize = 1024;
 pub enum ServiceError {
     #[error(transparent)]
     Analysis(#[from] AnalysisError),
+    #[error("cannot bind the Modbus server to {address}: {source}")]
+    Bind {
+        address: std::net::SocketAddr,
+        source: std::io::Error,
+    },
 }
 
 /// A configured, not yet running gateway.
@@ -34,6 +42,7 @@ pub struct Service {
     health: Vec<Arc<SourceHealth>>,
     bites: broadcast::Sender<BiteReport>,
     analysis: Analysis,
+    server_listener: Option<TcpListener>,
 }
 
 fn modbus_health(source: &millgate_config::ModbusSource) -> SourceHealth {
@@ -70,7 +79,30 @@ impl Service {
             health,
             bites,
             analysis,
+            server_listener: None,
         })
+    }
+
+    /// Bind the Modbus server's address now (when configured) and return it; `run`
+    /// binds it otherwise. Lets callers learn a port chosen by the OS (`:0`).
+    pub async fn bind_server(&mut self) -> Result<Option<SocketAddr>, ServiceError> {
+        let Some(output) = &self.config.outputs.server else {
+            return Ok(None);
+        };
+        if self.server_listener.is_none() {
+            let listener =
+                TcpListener::bind(output.bind)
+                    .await
+                    .map_err(|source| ServiceError::Bind {
+                        address: output.bind,
+                        source,
+                    })?;
+            self.server_listener = Some(listener);
+        }
+        Ok(self
+            .server_listener
+            .as_ref()
+            .and_then(|listener| listener.local_addr().ok()))
     }
 
     /// Bites as they are analysed.
@@ -90,13 +122,15 @@ impl Service {
 
     /// Run until `shutdown` fires; then stop the readers, let analysis drain what
     /// they read, and write the final registers with status "stopped".
-    pub async fn run(self, shutdown: Shutdown) -> Result<(), ServiceError> {
+    pub async fn run(mut self, shutdown: Shutdown) -> Result<(), ServiceError> {
+        self.bind_server().await?;
         let Service {
             config,
             publisher,
             counters,
             health,
             analysis,
+            server_listener,
             ..
         } = self;
         let (samples_tx, samples_rx) = mpsc::channel(SAMPLE_QUEUE);
@@ -116,6 +150,14 @@ impl Service {
             tracing::info!(plc = %plc.address, base = plc.register_base, "starting PlcWriter");
             let writer = PlcWriter::new(plc.clone(), Arc::clone(&publisher));
             outputs.spawn(writer.run(outputs_shutdown.clone()));
+        }
+        if let (Some(output), Some(listener)) = (&config.outputs.server, server_listener) {
+            let server = ModbusServer::new(output.clone(), Arc::clone(&publisher));
+            outputs.spawn(async move {
+                if let Err(error) = server.run(listener, outputs_shutdown).await {
+                    tracing::error!(%error, "Modbus server failed");
+                }
+            });
         }
         publisher.update(|results| results.state = GatewayState::Running);
 
