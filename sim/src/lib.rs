@@ -1,5 +1,6 @@
 #![doc = include_str!("../README.md")]
 
+pub mod can_node;
 pub mod chain;
 pub mod modal;
 pub mod model;

@@ -1,0 +1,549 @@
+//! `CanReader`: SocketCAN frames in, channel samples out.
+//!
+//! The reader opens one configured CAN interface with a CAN FD capable raw socket
+//! (classic and FD frames both arrive), decodes each data frame with the DBC signal
+//! layouts of the channels on that interface ([`CanDecoder`], pure and host-testable)
+//! and sends [`Acquired::Samples`] over a bounded channel. Frames with an id no
+//! channel uses, frames too short for their signals, remote and error frames are
+//! counted in [`CanCounters`] and otherwise ignored.
+
+use std::collections::HashMap;
+use std::io;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+
+use millgate_config::signal::SignalLayout;
+use millgate_config::{ChannelSource, Config};
+use socketcan::{CanAnyFrame, EmbeddedFrame, Frame, SocketOptions};
+use tokio::sync::{mpsc, watch};
+
+use crate::samples::Acquired;
+
+/// `errno` EAFNOSUPPORT: the kernel has no `AF_CAN` address family.
+const EAFNOSUPPORT: i32 = 97;
+/// `errno` ENODEV: no network interface of that name.
+const ENODEV: i32 = 19;
+/// Most frames decoded into one batch of [`Acquired::Samples`] messages.
+const MAX_FRAMES_PER_BATCH: usize = 256;
+
+/// Why a CAN reader could not start or stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum CanError {
+    /// The configuration has no CAN source with this index.
+    #[error("no CAN source with index {index}: the configuration has {count}")]
+    NoSuchSource { index: usize, count: usize },
+    /// The running kernel was built without SocketCAN (`socket(AF_CAN)` gives errno 97).
+    #[error(
+        "SocketCAN not available in this kernel (errno 97) for CAN interface `{interface}`; \
+         run the vcan suite through scripts/uml-vcan"
+    )]
+    NoSocketCan { interface: String },
+    /// The kernel has SocketCAN but no interface of that name (errno 19).
+    #[error(
+        "no such CAN interface `{interface}` (errno 19, ENODEV); create it, e.g. \
+         `ip link add dev {interface} type vcan && ip link set up {interface}`"
+    )]
+    NoSuchInterface { interface: String },
+    /// Any other failure to open or configure the socket.
+    #[error("cannot open CAN interface `{interface}`: {source}")]
+    Open {
+        interface: String,
+        #[source]
+        source: io::Error,
+    },
+    /// Reading from an open socket failed (e.g. the interface went away).
+    #[error("reading CAN interface `{interface}`: {source}")]
+    Read {
+        interface: String,
+        #[source]
+        source: io::Error,
+    },
+    /// The receiving end of the sample channel was dropped.
+    #[error("CAN reader for `{interface}`: the sample channel is closed")]
+    SamplesClosed { interface: String },
+}
+
+/// Frame counters of one [`CanReader`], shared with whoever monitors it.
+#[derive(Debug, Default)]
+pub struct CanCounters {
+    frames: AtomicU64,
+    decoded: AtomicU64,
+    unknown_id: AtomicU64,
+    bad_length: AtomicU64,
+    remote_frames: AtomicU64,
+    error_frames: AtomicU64,
+}
+
+/// A copy of [`CanCounters`] at one instant. All counts are since the reader opened.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct CanCounts {
+    /// Every frame received: data, remote and error.
+    pub frames: u64,
+    /// Data frames decoded into samples.
+    pub decoded: u64,
+    /// Data frames whose id no configured channel uses.
+    pub unknown_id: u64,
+    /// Data frames of a known id too short for its signals.
+    pub bad_length: u64,
+    /// Remote (RTR) frames.
+    pub remote_frames: u64,
+    /// Error frames reported by the controller.
+    pub error_frames: u64,
+}
+
+impl CanCounters {
+    /// Current values.
+    pub fn snapshot(&self) -> CanCounts {
+        CanCounts {
+            frames: self.frames.load(Ordering::Relaxed),
+            decoded: self.decoded.load(Ordering::Relaxed),
+            unknown_id: self.unknown_id.load(Ordering::Relaxed),
+            bad_length: self.bad_length.load(Ordering::Relaxed),
+            remote_frames: self.remote_frames.load(Ordering::Relaxed),
+            error_frames: self.error_frames.load(Ordering::Relaxed),
+        }
+    }
+
+    fn count_data(&self, outcome: FrameOutcome) {
+        let counter = match outcome {
+            FrameOutcome::Decoded => &self.decoded,
+            FrameOutcome::UnknownId => &self.unknown_id,
+            FrameOutcome::BadLength => &self.bad_length,
+        };
+        counter.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
+/// What [`CanDecoder::decode`] made of one data frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FrameOutcome {
+    /// Every signal of the frame's channels was decoded.
+    Decoded,
+    /// No channel uses this id; nothing decoded.
+    UnknownId,
+    /// The frame is too short for at least one of its signals; nothing decoded, so
+    /// the channels of one message stay sample-aligned.
+    BadLength,
+}
+
+/// A configured channel carried by one CAN message.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct ChannelSignal {
+    channel: usize,
+    layout: SignalLayout,
+    /// The channel's own scale and offset, applied after the DBC's.
+    scale: f64,
+    offset: f64,
+}
+
+/// Signals of one message and the length they need.
+#[derive(Debug, Clone, PartialEq)]
+struct MessageSignals {
+    signals: Vec<ChannelSignal>,
+    /// Largest [`SignalLayout::bytes_needed`] among `signals`.
+    bytes_needed: usize,
+}
+
+/// Pure frame decoder: (id, extended, payload) -> samples of the configured channels.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct CanDecoder {
+    /// Keyed by (identifier, extended).
+    messages: HashMap<(u32, bool), MessageSignals>,
+}
+
+impl CanDecoder {
+    /// Decoder for the channels of CAN source `source_index` of `config`.
+    ///
+    /// A source without channels gives a decoder that counts every frame as unknown.
+    pub fn for_source(config: &Config, source_index: usize) -> Self {
+        let mut decoder = CanDecoder::default();
+        for (channel, settings) in config.channels.iter().enumerate() {
+            if let ChannelSource::Can {
+                source,
+                signal_layout,
+                ..
+            } = &settings.source
+            {
+                if *source == source_index {
+                    decoder.add(channel, *signal_layout, settings.scale, settings.offset);
+                }
+            }
+        }
+        decoder
+    }
+
+    /// Adds channel index `channel`, read from `layout` then scaled by the channel's
+    /// `scale` and `offset` (1 and 0 for plain DBC values).
+    pub fn add(&mut self, channel: usize, layout: SignalLayout, scale: f64, offset: f64) {
+        let message = self
+            .messages
+            .entry((layout.frame_id, layout.extended))
+            .or_insert_with(|| MessageSignals {
+                signals: Vec::new(),
+                bytes_needed: 0,
+            });
+        message.bytes_needed = message.bytes_needed.max(layout.bytes_needed());
+        message.signals.push(ChannelSignal {
+            channel,
+            layout,
+            scale,
+            offset,
+        });
+    }
+
+    /// Number of channels the decoder fills.
+    pub fn channel_count(&self) -> usize {
+        self.messages
+            .values()
+            .map(|message| message.signals.len())
+            .sum()
+    }
+
+    /// Decodes data frame `frame_id`/`extended` with payload `data`, appending
+    /// `(channel index, engineering value)` pairs to `samples` in configuration order.
+    ///
+    /// Appends nothing unless the outcome is [`FrameOutcome::Decoded`].
+    pub fn decode(
+        &self,
+        frame_id: u32,
+        extended: bool,
+        data: &[u8],
+        samples: &mut Vec<(usize, f64)>,
+    ) -> FrameOutcome {
+        let Some(message) = self.messages.get(&(frame_id, extended)) else {
+            return FrameOutcome::UnknownId;
+        };
+        if data.len() < message.bytes_needed {
+            return FrameOutcome::BadLength;
+        }
+        let start = samples.len();
+        for signal in &message.signals {
+            match signal.layout.decode(data) {
+                Some(value) => samples.push((signal.channel, value * signal.scale + signal.offset)),
+                None => {
+                    // Unreachable once `bytes_needed` passed, unless a layout has an
+                    // invalid size; then drop the whole frame, as for a short one.
+                    samples.truncate(start);
+                    return FrameOutcome::BadLength;
+                }
+            }
+        }
+        FrameOutcome::Decoded
+    }
+}
+
+/// Reads one SocketCAN interface and turns its frames into [`Acquired::Samples`].
+#[derive(Debug)]
+pub struct CanReader {
+    interface: String,
+    socket: socketcan::tokio::CanFdSocket,
+    decoder: CanDecoder,
+    counters: Arc<CanCounters>,
+}
+
+impl CanReader {
+    /// Opens the interface of CAN source `source_index` of `config` for the channels
+    /// that use it.
+    ///
+    /// Fails with [`CanError::NoSocketCan`] on a kernel without SocketCAN and with
+    /// [`CanError::NoSuchInterface`] when the interface does not exist.
+    pub fn open(config: &Config, source_index: usize) -> Result<CanReader, CanError> {
+        let source = config
+            .can_sources
+            .get(source_index)
+            .ok_or(CanError::NoSuchSource {
+                index: source_index,
+                count: config.can_sources.len(),
+            })?;
+        let decoder = CanDecoder::for_source(config, source_index);
+        CanReader::open_interface(&source.interface, decoder)
+    }
+
+    /// Opens `interface` with an explicit decoder (tests, tools).
+    pub fn open_interface(interface: &str, decoder: CanDecoder) -> Result<CanReader, CanError> {
+        check_socketcan(interface)?;
+        let socket = socketcan::tokio::CanFdSocket::open(interface)
+            .map_err(|error| open_error(interface, error))?;
+        socket
+            .set_error_filter_accept_all()
+            .map_err(|error| open_error(interface, error))?;
+        Ok(CanReader {
+            interface: interface.to_owned(),
+            socket,
+            decoder,
+            counters: Arc::new(CanCounters::default()),
+        })
+    }
+
+    /// The reader's counters; they keep counting while [`Self::run`] runs.
+    pub fn counters(&self) -> Arc<CanCounters> {
+        Arc::clone(&self.counters)
+    }
+
+    /// Interface name.
+    pub fn interface(&self) -> &str {
+        &self.interface
+    }
+
+    /// Reads frames until `shutdown` turns true (or its sender is dropped), sending
+    /// each channel's samples, oldest first, to `samples`.
+    ///
+    /// Frames already queued in the socket are batched (up to 256 frames) into one
+    /// `Samples` message per channel. A full `samples` channel makes the reader wait
+    /// (the kernel socket buffer then absorbs the backlog).
+    pub async fn run(
+        self,
+        samples: mpsc::Sender<Acquired>,
+        mut shutdown: watch::Receiver<bool>,
+    ) -> Result<(), CanError> {
+        let mut batch = SampleBatch::default();
+        loop {
+            if *shutdown.borrow_and_update() {
+                return Ok(());
+            }
+            let frame = tokio::select! {
+                changed = shutdown.changed() => {
+                    if changed.is_err() {
+                        return Ok(());
+                    }
+                    continue;
+                }
+                frame = self.socket.read_frame() => frame.map_err(|error| self.read_error(error))?,
+            };
+            self.handle(frame, &mut batch);
+            for _ in 1..MAX_FRAMES_PER_BATCH {
+                match self.socket.try_read_frame() {
+                    Ok(frame) => self.handle(frame, &mut batch),
+                    Err(error) if error.kind() == io::ErrorKind::WouldBlock => break,
+                    Err(error) => return Err(self.read_error(error)),
+                }
+            }
+            for message in batch.drain() {
+                samples
+                    .send(message)
+                    .await
+                    .map_err(|_| CanError::SamplesClosed {
+                        interface: self.interface.clone(),
+                    })?;
+            }
+        }
+    }
+
+    fn handle(&self, frame: CanAnyFrame, batch: &mut SampleBatch) {
+        self.counters.frames.fetch_add(1, Ordering::Relaxed);
+        let outcome = match frame {
+            CanAnyFrame::Normal(frame) => self.decoder.decode(
+                frame.raw_id(),
+                frame.is_extended(),
+                frame.data(),
+                &mut batch.pending,
+            ),
+            CanAnyFrame::Fd(frame) => self.decoder.decode(
+                frame.raw_id(),
+                frame.is_extended(),
+                frame.data(),
+                &mut batch.pending,
+            ),
+            CanAnyFrame::Remote(_) => {
+                self.counters.remote_frames.fetch_add(1, Ordering::Relaxed);
+                return;
+            }
+            CanAnyFrame::Error(_) => {
+                self.counters.error_frames.fetch_add(1, Ordering::Relaxed);
+                return;
+            }
+        };
+        self.counters.count_data(outcome);
+        batch.collect();
+    }
+
+    fn read_error(&self, source: io::Error) -> CanError {
+        CanError::Read {
+            interface: self.interface.clone(),
+            source,
+        }
+    }
+}
+
+/// Samples of several frames grouped per channel, in arrival order.
+#[derive(Debug, Default)]
+struct SampleBatch {
+    /// Output of the last decode.
+    pending: Vec<(usize, f64)>,
+    /// Channel index -> values, channels in order of first appearance.
+    per_channel: Vec<(usize, Vec<f64>)>,
+}
+
+impl SampleBatch {
+    /// Moves `pending` into the per-channel lists.
+    fn collect(&mut self) {
+        for (channel, value) in self.pending.drain(..) {
+            match self
+                .per_channel
+                .iter_mut()
+                .find(|(known, _)| *known == channel)
+            {
+                Some((_, values)) => values.push(value),
+                None => self.per_channel.push((channel, vec![value])),
+            }
+        }
+    }
+
+    /// One `Samples` message per channel, emptying the batch.
+    fn drain(&mut self) -> impl Iterator<Item = Acquired> + '_ {
+        self.per_channel
+            .drain(..)
+            .map(|(channel, values)| Acquired::Samples { channel, values })
+    }
+}
+
+/// Fails with [`CanError::NoSocketCan`] when the kernel has no `AF_CAN` sockets.
+fn check_socketcan(interface: &str) -> Result<(), CanError> {
+    let probe = socket2::Socket::new(
+        socket2::Domain::from(socketcan::addr::AF_CAN),
+        socket2::Type::RAW,
+        Some(socket2::Protocol::from(socketcan::addr::CAN_RAW)),
+    );
+    match probe {
+        Ok(_) => Ok(()),
+        Err(error) => Err(open_error(interface, error)),
+    }
+}
+
+/// Names the two errors an operator can act on; keeps the rest as is.
+fn open_error(interface: &str, error: io::Error) -> CanError {
+    let interface = interface.to_owned();
+    match error.raw_os_error() {
+        Some(EAFNOSUPPORT) => CanError::NoSocketCan { interface },
+        Some(ENODEV) => CanError::NoSuchInterface { interface },
+        _ => CanError::Open {
+            interface,
+            source: error,
+        },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn torque_layout(start_bit: u16) -> SignalLayout {
+        SignalLayout {
+            frame_id: 0x101,
+            extended: false,
+            frame_len: 8,
+            start_bit,
+            size: 16,
+            little_endian: true,
+            signed: true,
+            factor: 0.01,
+            offset: 0.0,
+        }
+    }
+
+    fn decoder() -> CanDecoder {
+        let mut decoder = CanDecoder::default();
+        decoder.add(3, torque_layout(0), 1.0, 0.0);
+        decoder.add(5, torque_layout(16), 2.0, 1.0);
+        let oil_temp = SignalLayout {
+            frame_id: 0x18ff_5a01,
+            extended: true,
+            frame_len: 8,
+            start_bit: 0,
+            size: 16,
+            little_endian: true,
+            signed: false,
+            factor: 0.1,
+            offset: -40.0,
+        };
+        decoder.add(7, oil_temp, 1.0, 0.0);
+        decoder
+    }
+
+    #[test]
+    fn decodes_channels_of_a_frame_in_order() {
+        let mut samples = Vec::new();
+        let outcome = decoder().decode(0x101, false, &[0x39, 0x30, 0xc3, 0xdd], &mut samples);
+        assert_eq!(outcome, FrameOutcome::Decoded);
+        assert_eq!(samples.len(), 2);
+        assert_eq!(samples[0].0, 3);
+        assert!((samples[0].1 - 123.45).abs() < 1e-9);
+        assert_eq!(samples[1].0, 5);
+        assert!((samples[1].1 - (-87.65 * 2.0 + 1.0)).abs() < 1e-9);
+    }
+
+    #[test]
+    fn standard_and_extended_ids_are_distinct() {
+        let decoder = decoder();
+        let mut samples = Vec::new();
+        let frame = [0x1d, 0x04, 0, 0, 0, 0, 0, 0];
+        assert_eq!(
+            decoder.decode(0x18ff_5a01, false, &frame, &mut samples),
+            FrameOutcome::UnknownId
+        );
+        assert_eq!(
+            decoder.decode(0x101, true, &frame, &mut samples),
+            FrameOutcome::UnknownId
+        );
+        assert!(samples.is_empty());
+        assert_eq!(
+            decoder.decode(0x18ff_5a01, true, &frame, &mut samples),
+            FrameOutcome::Decoded
+        );
+        assert_eq!(samples.len(), 1);
+        assert!((samples[0].1 - 65.3).abs() < 1e-9);
+    }
+
+    #[test]
+    fn short_frame_decodes_nothing() {
+        let mut samples = vec![(9, 9.0)];
+        // Long enough for channel 3 (bytes 0..2) but not channel 5 (bytes 2..4).
+        let outcome = decoder().decode(0x101, false, &[0x39, 0x30, 0xc3], &mut samples);
+        assert_eq!(outcome, FrameOutcome::BadLength);
+        assert_eq!(samples, vec![(9, 9.0)], "earlier samples stay, none added");
+    }
+
+    #[test]
+    fn counts_channels() {
+        assert_eq!(decoder().channel_count(), 3);
+        assert_eq!(CanDecoder::default().channel_count(), 0);
+    }
+
+    #[test]
+    fn batch_groups_per_channel_in_arrival_order() {
+        let mut batch = SampleBatch::default();
+        batch.pending.extend([(3, 1.0), (5, 10.0)]);
+        batch.collect();
+        batch.pending.extend([(3, 2.0), (5, 20.0)]);
+        batch.collect();
+        let messages: Vec<Acquired> = batch.drain().collect();
+        assert_eq!(
+            messages,
+            vec![
+                Acquired::Samples {
+                    channel: 3,
+                    values: vec![1.0, 2.0]
+                },
+                Acquired::Samples {
+                    channel: 5,
+                    values: vec![10.0, 20.0]
+                },
+            ]
+        );
+        assert_eq!(batch.drain().count(), 0);
+    }
+
+    #[test]
+    fn errno_names_the_problem() {
+        let no_can = open_error("vcan0", io::Error::from_raw_os_error(EAFNOSUPPORT));
+        assert!(matches!(no_can, CanError::NoSocketCan { .. }));
+        assert!(no_can
+            .to_string()
+            .contains("SocketCAN not available in this kernel (errno 97)"));
+        let no_dev = open_error("can7", io::Error::from_raw_os_error(ENODEV));
+        assert!(matches!(no_dev, CanError::NoSuchInterface { .. }));
+        assert!(no_dev.to_string().contains("no such CAN interface `can7`"));
+        let other = open_error("can0", io::Error::from_raw_os_error(1));
+        assert!(matches!(other, CanError::Open { .. }));
+    }
+}
