@@ -4,3 +4,5 @@ pub mod can_node;
 pub mod chain;
 pub mod modal;
 pub mod model;
+pub mod plot;
+pub mod wear_map;

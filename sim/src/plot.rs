@@ -1,0 +1,119 @@
+//! SVG plot of a wear map: TAF vs static torque and first-period shift vs static
+//! torque, one curve per opened gap (the curves a maintenance engineer reads).
+
+use plotters::prelude::*;
+
+use crate::wear_map::{WearMap, WearMapRow};
+
+/// Width and height of the whole figure, px.
+const SIZE: (u32, u32) = (1200, 500);
+
+/// One panel: y-axis label, y range and the plotted value of a row.
+type Panel = (&'static str, (f64, f64), fn(&WearMapRow) -> Option<f64>);
+
+/// Why the plot could not be drawn.
+#[derive(Debug, thiserror::Error)]
+pub enum PlotError {
+    /// The wear map has no rows with finite values to plot.
+    #[error("the wear map has nothing to plot")]
+    Empty,
+    /// plotters reported a drawing error.
+    #[error("drawing the wear map: {0}")]
+    Drawing(String),
+}
+
+fn drawing<E: std::fmt::Display>(error: E) -> PlotError {
+    PlotError::Drawing(error.to_string())
+}
+
+/// Range of `values` with 5% margin, or `None` if no value is finite.
+fn padded_range(values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
+    let (low, high) = values
+        .filter(|v| v.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+            (lo.min(v), hi.max(v))
+        });
+    if low > high {
+        return None;
+    }
+    let margin = if high > low {
+        0.05 * (high - low)
+    } else {
+        0.05 * high.abs().max(1.0)
+    };
+    Some((low - margin, high + margin))
+}
+
+/// Renders the wear map as an SVG document (two panels side by side).
+pub fn wear_map_svg(map: &WearMap) -> Result<String, PlotError> {
+    let torque_range = padded_range(map.rows.iter().map(|r| r.static_torque_knm));
+    let taf_range = padded_range(map.rows.iter().map(|r| r.taf));
+    let shift_range = padded_range(
+        map.rows
+            .iter()
+            .filter_map(|r| r.period_shift_s.map(|s| s * 1.0e3)),
+    )
+    .unwrap_or((-1.0, 1.0));
+    let (Some(torque_range), Some(taf_range)) = (torque_range, taf_range) else {
+        return Err(PlotError::Empty);
+    };
+
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, SIZE).into_drawing_area();
+        root.fill(&WHITE).map_err(drawing)?;
+        let root = root
+            .titled(
+                &format!("Wear map: {} (coupling {})", map.model_name, map.coupling),
+                ("sans-serif", 24),
+            )
+            .map_err(drawing)?;
+        let panels = root.split_evenly((1, 2));
+        let gaps = map.backlashes_rad();
+
+        let panel_specs: [Panel; 2] = [
+            ("TAF (peak / static)", taf_range, |row| Some(row.taf)),
+            ("first - second period, ms", shift_range, |row| {
+                row.period_shift_s.map(|s| s * 1.0e3)
+            }),
+        ];
+        for (panel, (label, y_range, value)) in panels.iter().zip(panel_specs) {
+            let mut chart = ChartBuilder::on(panel)
+                .margin(15)
+                .x_label_area_size(40)
+                .y_label_area_size(60)
+                .build_cartesian_2d(torque_range.0..torque_range.1, y_range.0..y_range.1)
+                .map_err(drawing)?;
+            chart
+                .configure_mesh()
+                .x_desc("static torque, kN*m")
+                .y_desc(label)
+                .axis_desc_style(("sans-serif", 16))
+                .label_style(("sans-serif", 13))
+                .draw()
+                .map_err(drawing)?;
+            for (index, &gap) in gaps.iter().enumerate() {
+                let color = Palette99::pick(index).to_rgba();
+                let points: Vec<(f64, f64)> = map
+                    .rows_for(gap)
+                    .filter_map(|row| value(row).map(|v| (row.static_torque_knm, v)))
+                    .collect();
+                chart
+                    .draw_series(LineSeries::new(points, color.stroke_width(2)))
+                    .map_err(drawing)?
+                    .label(format!("gap {:.1} mrad", gap * 1.0e3))
+                    .legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
+                    });
+            }
+            chart
+                .configure_series_labels()
+                .background_style(WHITE.mix(0.8))
+                .border_style(BLACK)
+                .draw()
+                .map_err(drawing)?;
+        }
+        root.present().map_err(drawing)?;
+    }
+    Ok(svg)
+}
