@@ -6,7 +6,8 @@ use std::time::{Instant, SystemTime, UNIX_EPOCH};
 
 use millgate_config::{Channel, Config, Driveline};
 use millgate_dsp::bite::{BiteDetector, BiteDetectorState, BiteEvent, BiteSettings};
-use millgate_dsp::transient::{self, TransientResult, TransientSettings};
+use millgate_dsp::fit::{fit_eq1, Eq1Fit, FitError, FitOptions, FitStatus};
+use millgate_dsp::transient::{self, TransientError, TransientResult, TransientSettings};
 use tokio::sync::{broadcast, mpsc};
 
 use crate::publish::Publisher;
@@ -23,6 +24,58 @@ type DetectorState = BiteDetectorState<PRE_TRIGGER_CAPACITY, WINDOW_CAPACITY>;
 /// Low-pass cut-off for period measurement, Hz: keeps the driveline's first modes
 /// (10-30 Hz, domain notes 1.3) and removes measurement noise above them.
 const PERIOD_LOWPASS_HZ: f64 = 40.0;
+
+/// What one bite window gives: the transient measures and the eq. (1) fit.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WindowAnalysis {
+    pub transient: TransientResult,
+    /// The fit of eq. (1) from the load onset on (t = 0 at `fit_start_index`).
+    pub fit: Result<Eq1Fit, FitError>,
+    /// Index in the window where the fitted record starts (the load onset).
+    pub fit_start_index: usize,
+}
+
+impl WindowAnalysis {
+    /// The fit, when it converged (or stalled at a minimum): the natural
+    /// frequencies are then trustworthy.
+    pub fn good_fit(&self) -> Option<&Eq1Fit> {
+        self.fit
+            .as_ref()
+            .ok()
+            .filter(|fit| matches!(fit.status, FitStatus::Converged | FitStatus::Stalled))
+    }
+}
+
+/// Analyse one window (kN*m) whose bite was detected at `window[trigger_index]`:
+/// the transient measures (static torque, peak, TAF, periods) and the eq. (1) fit.
+///
+/// The fit starts at the load onset, found by walking back from the trigger while
+/// the torque stays above the baseline by more than `onset_knm`, so that eq. (1)'s
+/// t = 0 is the start of the load rise, as in the paper's Table 1 record.
+pub fn analyze_window(
+    window: &[f64],
+    trigger_index: usize,
+    baseline_knm: f64,
+    onset_knm: f64,
+    settings: &TransientSettings,
+) -> Result<WindowAnalysis, TransientError> {
+    let transient =
+        transient::analyze::<WINDOW_CAPACITY>(window, trigger_index, baseline_knm, settings)?;
+    let fit_start_index = window[..=trigger_index.min(window.len().saturating_sub(1))]
+        .iter()
+        .rposition(|&x| x - baseline_knm <= onset_knm)
+        .unwrap_or(0);
+    let record: Vec<f64> = window[fit_start_index..]
+        .iter()
+        .map(|&x| x - baseline_knm)
+        .collect();
+    let fit = fit_eq1(&record, &FitOptions::new(settings.sample_rate_hz));
+    Ok(WindowAnalysis {
+        transient,
+        fit,
+        fit_start_index,
+    })
+}
 
 /// A driveline's configuration that the dsp code cannot take.
 #[derive(Debug, thiserror::Error)]
@@ -44,6 +97,8 @@ pub struct BiteReport {
     /// When the window's last sample was handed to analysis.
     pub window_complete: Instant,
     pub transient: TransientResult,
+    /// Natural frequencies from the eq. (1) fit, Hz, when it converged.
+    pub beta_hz: Option<(f64, f64)>,
     /// The window had gaps, NaN or saturated samples.
     pub degraded: bool,
 }
@@ -59,6 +114,8 @@ struct DrivelineAnalyzer {
     transient: TransientSettings,
     taf_warning: f64,
     taf_alarm: f64,
+    /// Rise above the baseline that marks the load onset for the fit, kN*m.
+    onset_knm: f64,
     trigger_high: bool,
 }
 
@@ -111,19 +168,21 @@ impl DrivelineAnalyzer {
             },
             taf_warning: driveline.thresholds.taf_warning,
             taf_alarm: driveline.thresholds.taf_alarm,
+            onset_knm: 0.1 * bite.threshold_knm,
             trigger_high: false,
         })
     }
 
     fn report(&self, event: &BiteEvent<WINDOW_CAPACITY>) -> Option<BiteReport> {
-        let result = transient::analyze::<WINDOW_CAPACITY>(
+        let result = analyze_window(
             &event.window,
             event.trigger_index,
             event.baseline_knm,
+            self.onset_knm,
             &self.transient,
         );
-        let transient = match result {
-            Ok(transient) => transient,
+        let analysis = match result {
+            Ok(analysis) => analysis,
             Err(error) => {
                 tracing::warn!(driveline = %self.name, ?error, "bite window not analysable");
                 return None;
@@ -137,7 +196,8 @@ impl DrivelineAnalyzer {
             trigger_sample: event.trigger_sample,
             time: SystemTime::now() - std::time::Duration::from_secs_f64(after_trigger),
             window_complete: Instant::now(),
-            transient,
+            transient: analysis.transient,
+            beta_hz: analysis.good_fit().map(|fit| (fit.f1_hz, fit.f2_hz)),
             degraded: !event.quality.is_good(),
         })
     }
@@ -181,6 +241,8 @@ fn publish(publisher: &Publisher, report: &BiteReport, taf_warning: f64, taf_ala
         driveline.peak_torque_knm = Some(t.peak_torque_knm);
         driveline.taf = t.taf;
         driveline.first_period_shift_s = t.period_shift_s;
+        driveline.beta1_hz = report.beta_hz.map(|(beta1, _)| beta1);
+        driveline.beta2_hz = report.beta_hz.map(|(_, beta2)| beta2);
         driveline.last_bite_degraded = report.degraded;
         driveline.warning = t.taf.is_some_and(|taf| taf >= taf_warning);
         driveline.alarm |= t.taf.is_some_and(|taf| taf >= taf_alarm);
@@ -261,6 +323,7 @@ impl Analysis {
                 static_knm = report.transient.static_torque_knm,
                 peak_knm = report.transient.peak_torque_knm,
                 taf = ?report.transient.taf,
+                beta_hz = ?report.beta_hz,
                 degraded = report.degraded,
                 "bite"
             );

@@ -74,7 +74,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Check { config } => match millgate::check::check(&config) {
             Ok(summary) => {
-                print!("{summary}");
+                println!("{}", summary.trim_end());
                 Ok(())
             }
             Err(error) => {
