@@ -6,6 +6,7 @@ pub mod can;
 pub mod check;
 pub mod daq;
 pub mod demo;
+pub mod export;
 pub mod health;
 pub mod plc;
 pub mod publish;

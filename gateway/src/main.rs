@@ -30,6 +30,15 @@ enum Command {
         #[arg(long)]
         config: PathBuf,
     },
+    /// Export the register map of a configuration.
+    Registers {
+        /// The configuration file (TOML).
+        #[arg(long)]
+        config: PathBuf,
+        /// Output format.
+        #[arg(long, value_enum, default_value = "md")]
+        format: millgate::export::Format,
+    },
     /// Self-contained demo: a virtual DAQ and PLC on loopback, the gateway between them.
     Demo(millgate::demo::DemoArgs),
 }
@@ -82,6 +91,12 @@ fn main() -> ExitCode {
                 return ExitCode::FAILURE;
             }
         },
+        Command::Registers { config, format } => millgate_config::load(&config)
+            .map_err(|e| anyhow::anyhow!("{e}"))
+            .map(|config| {
+                let map = millgate::registers::RegisterMap::new(&config);
+                print!("{}", millgate::export::export(&map, format));
+            }),
         Command::Run { config } => {
             init_tracing("info");
             runtime().block_on(run_service(config))

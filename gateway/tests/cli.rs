@@ -40,14 +40,23 @@ fn check_accepts_every_example_and_prints_a_summary() {
 fn check_names_the_key_and_the_known_channels_of_a_misspelt_name() {
     let demo = std::fs::read_to_string(examples().join("demo.toml")).unwrap();
     let misspelt = demo.replace("torque = \"spindle_top\"", "torque = \"spindel_top\"");
-    assert_ne!(demo, misspelt, "the demo config names spindle_top as the torque");
+    assert_ne!(
+        demo, misspelt,
+        "the demo config names spindle_top as the torque"
+    );
     let path = write_config("misspelt", &misspelt);
     let output = millgate(&["check", "--config", path.to_str().unwrap()]);
     let said = text(&output);
     assert!(!output.status.success(), "must fail: {said}");
     assert!(said.contains("mill.toml"), "names the file: {said}");
-    assert!(said.contains("drivelines[0].torque"), "names the key: {said}");
-    assert!(said.contains("spindel_top") && said.contains("spindle_top"), "names both: {said}");
+    assert!(
+        said.contains("drivelines[0].torque"),
+        "names the key: {said}"
+    );
+    assert!(
+        said.contains("spindel_top") && said.contains("spindle_top"),
+        "names both: {said}"
+    );
 }
 
 #[test]
@@ -71,6 +80,85 @@ fn demo_prints_bites_within_two_percent_of_the_simulated_truth() {
         .filter_map(|l| l.split_whitespace().last()?.strip_suffix('%')?.parse().ok())
         .collect();
     assert!(!errors.is_empty(), "no bite printed: {said}");
-    assert!(errors.iter().all(|e: &f64| e.abs() < 2.0), "TAF errors {errors:?}: {said}");
+    assert!(
+        errors.iter().all(|e: &f64| e.abs() < 2.0),
+        "TAF errors {errors:?}: {said}"
+    );
     assert!(said.contains("F1.taf"), "register snapshot printed: {said}");
+}
+
+#[test]
+fn readme_register_table_is_the_generated_one() {
+    let config = examples().join("hot-mill.toml");
+    let output = millgate(&[
+        "registers",
+        "--config",
+        config.to_str().unwrap(),
+        "--format",
+        "md",
+    ]);
+    assert!(output.status.success(), "{}", text(&output));
+    let generated = String::from_utf8(output.stdout).unwrap();
+    let readme =
+        std::fs::read_to_string(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../README.md"))
+            .unwrap();
+    let begin = "<!-- registers:begin -->\n";
+    let start = readme
+        .find(begin)
+        .expect("README has the registers:begin marker")
+        + begin.len();
+    let end = readme
+        .find("<!-- registers:end -->")
+        .expect("README has the registers:end marker");
+    assert_eq!(
+        &readme[start..end],
+        generated,
+        "README register table differs: regenerate it with millgate registers --config config/examples/hot-mill.toml --format md"
+    );
+}
+
+#[test]
+fn registers_export_json_and_csv_have_the_documented_fields() {
+    let config = examples().join("tandem-5stand.toml");
+    let json = millgate(&[
+        "registers",
+        "--config",
+        config.to_str().unwrap(),
+        "--format",
+        "json",
+    ]);
+    assert!(json.status.success(), "{}", text(&json));
+    let rows: Vec<serde_json::Value> = serde_json::from_slice(&json.stdout).unwrap();
+    assert!(rows
+        .iter()
+        .any(|r| r["name"].as_str().is_some_and(|n| n.ends_with(".k_mean"))));
+    for row in &rows {
+        for key in [
+            "name",
+            "address",
+            "type",
+            "scale",
+            "word_order",
+            "unit",
+            "access",
+            "description",
+        ] {
+            assert!(row.get(key).is_some(), "{key} missing in {row}");
+        }
+        assert!(["u16", "i16", "u32", "i32", "f32"].contains(&row["type"].as_str().unwrap()));
+        assert!(["r", "rw"].contains(&row["access"].as_str().unwrap()));
+    }
+    let csv = millgate(&[
+        "registers",
+        "--config",
+        config.to_str().unwrap(),
+        "--format",
+        "csv",
+    ]);
+    let csv = String::from_utf8(csv.stdout).unwrap();
+    assert_eq!(
+        csv.lines().next(),
+        Some("name,address,type,scale,word_order,unit,access,description")
+    );
+    assert_eq!(csv.lines().count(), rows.len() + 1);
 }
