@@ -1,0 +1,118 @@
+//! The DAQ cable pulled: the virtual DAQ is stopped mid-run and restarted on the
+//! same port. The source goes stale and comes back, the counters show the gap, the
+//! gateway keeps running, and no sample is invented.
+
+use std::net::SocketAddr;
+use std::time::{Duration, Instant};
+
+use millgate::health::SourceStatus;
+use millgate_config::{Config, RegisterTable};
+use millgate_sim::daq::{DaqChannel, Placement, Publish, VirtualDaq};
+use millgate_sim::modbus_bank::ServeOptions;
+use tokio::net::TcpListener;
+
+const SAMPLES_PER_BLOCK: u16 = 100;
+
+fn daq(config: &Config) -> VirtualDaq {
+    let channel = &config.channels[0];
+    let signal = (0..200_000).map(|i| f64::from(i % 1000) * 0.05).collect();
+    VirtualDaq::new(
+        channel.sample_rate_hz,
+        SAMPLES_PER_BLOCK,
+        vec![DaqChannel {
+            placement: Placement {
+                table: RegisterTable::Input,
+                address: 0,
+                scale: channel.scale,
+                offset: channel.offset,
+            },
+            publish: Publish::Block,
+            signal,
+        }],
+    )
+}
+
+async fn start_daq(
+    config: &Config,
+    address: SocketAddr,
+) -> anyhow::Result<(
+    millgate::shutdown::ShutdownTrigger,
+    tokio::task::JoinHandle<std::io::Result<()>>,
+)> {
+    let listener = TcpListener::bind(address).await?;
+    let (stop, mut shutdown) = millgate::shutdown::channel();
+    let options = ServeOptions {
+        unit_id: 1,
+        single_connection: true,
+    };
+    let task =
+        tokio::spawn(daq(config).run(listener, options, async move { shutdown.recv().await }));
+    Ok((stop, task))
+}
+
+async fn wait_for(what: &str, limit: Duration, mut done: impl FnMut() -> bool) {
+    let start = Instant::now();
+    while !done() {
+        assert!(start.elapsed() < limit, "{what}: not within {limit:?}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn daq_restart_goes_stale_then_ok_and_counts_the_gap() -> anyhow::Result<()> {
+    let mut config = millgate::demo::setup(1.0, 0.0, 1)?.config;
+    config.outputs.plc = None;
+    config.outputs.server = None;
+    // Reserve a port for both lives of the DAQ.
+    let address = TcpListener::bind("127.0.0.1:0").await?.local_addr()?;
+    config.modbus_sources[0].address = address.to_string();
+
+    let (stop_daq, daq_task) = start_daq(&config, address).await?;
+    let service = millgate::Service::new(config.clone())?;
+    let counters = service.counters()[0].clone();
+    let publisher = service.publisher();
+    let (stop, shutdown) = millgate::shutdown::channel();
+    let gateway = tokio::spawn(service.run(shutdown));
+    let status = || publisher.results().sources[0];
+
+    wait_for("first blocks", Duration::from_secs(5), || {
+        counters.snapshot().blocks_read >= 5 && status() == Some(SourceStatus::Ok)
+    })
+    .await;
+
+    stop_daq.trigger();
+    daq_task.await??;
+    let pulled = Instant::now();
+    wait_for(
+        "stale after the DAQ stopped",
+        Duration::from_secs(5),
+        || matches!(status(), Some(SourceStatus::Stale | SourceStatus::Lost)),
+    )
+    .await;
+    let before_restart = counters.snapshot();
+    tokio::time::sleep(Duration::from_millis(1500).saturating_sub(pulled.elapsed())).await;
+
+    let (stop_daq, daq_task) = start_daq(&config, address).await?;
+    wait_for("ok again after restart", Duration::from_secs(10), || {
+        status() == Some(SourceStatus::Ok)
+            && counters.snapshot().blocks_read > before_restart.blocks_read + 3
+    })
+    .await;
+    let after = counters.snapshot();
+    assert!(!gateway.is_finished(), "the gateway kept running");
+    assert!(
+        after.blocks_missed >= 10,
+        "a 1.5 s outage at 50 ms blocks: {after:?}"
+    );
+    assert_eq!(
+        after.samples,
+        after.blocks_read * u64::from(SAMPLES_PER_BLOCK),
+        "samples passed on are exactly those of the blocks read: {after:?}"
+    );
+
+    stop.trigger();
+    tokio::time::timeout(Duration::from_secs(10), gateway).await???;
+    stop_daq.trigger();
+    daq_task.await??;
+    Ok(())
+}
