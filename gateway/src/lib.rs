@@ -8,6 +8,7 @@ pub mod daq;
 pub mod demo;
 pub mod export;
 pub mod health;
+pub mod metrics;
 pub mod plc;
 pub mod publish;
 pub mod registers;

@@ -14,6 +14,7 @@ pub struct Publisher {
     results: Mutex<Results>,
     map: RegisterMap,
     health: Vec<Arc<SourceHealth>>,
+    driveline_names: Vec<String>,
     /// Global source index of each driveline's torque channel.
     driveline_sources: Vec<usize>,
     /// Global source indices of each mill's stand channels.
@@ -42,6 +43,7 @@ impl Publisher {
             results: Mutex::new(results),
             map: RegisterMap::new(config),
             health,
+            driveline_names: config.drivelines.iter().map(|d| d.name.clone()).collect(),
             driveline_sources: config
                 .drivelines
                 .iter()
@@ -63,6 +65,11 @@ impl Publisher {
     /// The register map.
     pub fn map(&self) -> &RegisterMap {
         &self.map
+    }
+
+    /// Driveline names, in config order.
+    pub fn driveline_names(&self) -> &[String] {
+        &self.driveline_names
     }
 
     /// Change the results.

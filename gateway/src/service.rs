@@ -12,6 +12,7 @@ use tokio::task::JoinSet;
 use crate::analysis::{Analysis, AnalysisError, BiteReport};
 use crate::daq::DaqReader;
 use crate::health::{ChannelCounters, SourceHealth};
+use crate::metrics::Metrics;
 use crate::plc::PlcWriter;
 use crate::publish::Publisher;
 use crate::results::GatewayState;
@@ -43,6 +44,16 @@ pub struct Service {
     bites: broadcast::Sender<BiteReport>,
     analysis: Analysis,
     server_listener: Option<TcpListener>,
+    metrics_listener: Option<TcpListener>,
+}
+
+/// Addresses the service listens on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Bound {
+    /// The Modbus server for HMIs.
+    pub server: Option<SocketAddr>,
+    /// The Prometheus endpoint.
+    pub metrics: Option<SocketAddr>,
 }
 
 fn modbus_health(source: &millgate_config::ModbusSource) -> SourceHealth {
@@ -80,29 +91,36 @@ impl Service {
             bites,
             analysis,
             server_listener: None,
+            metrics_listener: None,
         })
     }
 
-    /// Bind the Modbus server's address now (when configured) and return it; `run`
-    /// binds it otherwise. Lets callers learn a port chosen by the OS (`:0`).
-    pub async fn bind_server(&mut self) -> Result<Option<SocketAddr>, ServiceError> {
-        let Some(output) = &self.config.outputs.server else {
-            return Ok(None);
-        };
-        if self.server_listener.is_none() {
-            let listener =
-                TcpListener::bind(output.bind)
+    /// Bind the listening outputs (Modbus server, metrics) now and return their
+    /// addresses; `run` binds them otherwise. Lets callers learn ports chosen by
+    /// the OS (`:0`).
+    pub async fn bind(&mut self) -> Result<Bound, ServiceError> {
+        async fn bind_once(
+            slot: &mut Option<TcpListener>,
+            address: Option<SocketAddr>,
+        ) -> Result<Option<SocketAddr>, ServiceError> {
+            let Some(address) = address else {
+                return Ok(None);
+            };
+            if slot.is_none() {
+                let listener = TcpListener::bind(address)
                     .await
-                    .map_err(|source| ServiceError::Bind {
-                        address: output.bind,
-                        source,
-                    })?;
-            self.server_listener = Some(listener);
+                    .map_err(|source| ServiceError::Bind { address, source })?;
+                *slot = Some(listener);
+            }
+            Ok(slot.as_ref().and_then(|l| l.local_addr().ok()))
         }
-        Ok(self
-            .server_listener
-            .as_ref()
-            .and_then(|listener| listener.local_addr().ok()))
+        let outputs = &self.config.outputs;
+        let server = outputs.server.as_ref().map(|s| s.bind);
+        let metrics = outputs.metrics.as_ref().map(|m| m.bind);
+        Ok(Bound {
+            server: bind_once(&mut self.server_listener, server).await?,
+            metrics: bind_once(&mut self.metrics_listener, metrics).await?,
+        })
     }
 
     /// Bites as they are analysed.
@@ -123,7 +141,7 @@ impl Service {
     /// Run until `shutdown` fires; then stop the readers, let analysis drain what
     /// they read, and write the final registers with status "stopped".
     pub async fn run(mut self, shutdown: Shutdown) -> Result<(), ServiceError> {
-        self.bind_server().await?;
+        self.bind().await?;
         let Service {
             config,
             publisher,
@@ -131,6 +149,7 @@ impl Service {
             health,
             analysis,
             server_listener,
+            metrics_listener,
             ..
         } = self;
         let (samples_tx, samples_rx) = mpsc::channel(SAMPLE_QUEUE);
@@ -153,11 +172,21 @@ impl Service {
         }
         if let (Some(output), Some(listener)) = (&config.outputs.server, server_listener) {
             let server = ModbusServer::new(output.clone(), Arc::clone(&publisher));
+            let shutdown = outputs_shutdown.clone();
             outputs.spawn(async move {
-                if let Err(error) = server.run(listener, outputs_shutdown).await {
+                if let Err(error) = server.run(listener, shutdown).await {
                     tracing::error!(%error, "Modbus server failed");
                 }
             });
+        }
+        if let Some(listener) = metrics_listener {
+            let metrics = Metrics::new(
+                &config,
+                counters.clone(),
+                health.clone(),
+                Arc::clone(&publisher),
+            );
+            outputs.spawn(metrics.run(listener, outputs_shutdown));
         }
         publisher.update(|results| results.state = GatewayState::Running);
 

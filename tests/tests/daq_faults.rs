@@ -63,12 +63,16 @@ async fn daq_restart_goes_stale_then_ok_and_counts_the_gap() -> anyhow::Result<(
     let mut config = millgate::demo::setup(1.0, 0.0, 1)?.config;
     config.outputs.plc = None;
     config.outputs.server = None;
+    config.outputs.metrics = Some(millgate_config::MetricsOutput {
+        bind: "127.0.0.1:0".parse()?,
+    });
     // Reserve a port for both lives of the DAQ.
     let address = TcpListener::bind("127.0.0.1:0").await?.local_addr()?;
     config.modbus_sources[0].address = address.to_string();
 
     let (stop_daq, daq_task) = start_daq(&config, address).await?;
-    let service = millgate::Service::new(config.clone())?;
+    let mut service = millgate::Service::new(config.clone())?;
+    let metrics = service.bind().await?.metrics.expect("metrics configured");
     let counters = service.counters()[0].clone();
     let publisher = service.publisher();
     let (stop, shutdown) = millgate::shutdown::channel();
@@ -110,9 +114,40 @@ async fn daq_restart_goes_stale_then_ok_and_counts_the_gap() -> anyhow::Result<(
         "samples passed on are exactly those of the blocks read: {after:?}"
     );
 
+    // The same counters on the Prometheus endpoint, per channel and per source.
+    let page = scrape(metrics).await?;
+    let missed = format!("millgate_channel_blocks_missed_total{{channel=\"spindle_top\"}} ");
+    let line = page
+        .lines()
+        .find(|l| l.starts_with(&missed))
+        .unwrap_or_else(|| panic!("{page}"));
+    let shown: u64 = line[missed.len()..].parse()?;
+    assert!(shown >= after.blocks_missed, "{line} vs {after:?}");
+    assert!(
+        page.contains("millgate_source_status{source=\"daq1\",status=\"ok\"} 0"),
+        "{page}"
+    );
+    assert!(
+        page.contains("millgate_source_connects_total{source=\"daq1\"} 2"),
+        "{page}"
+    );
+
     stop.trigger();
     tokio::time::timeout(Duration::from_secs(10), gateway).await???;
     stop_daq.trigger();
     daq_task.await??;
     Ok(())
+}
+
+/// GET /metrics over a plain TCP connection, as Prometheus does.
+async fn scrape(address: SocketAddr) -> anyhow::Result<String> {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut stream = tokio::net::TcpStream::connect(address).await?;
+    stream
+        .write_all(b"GET /metrics HTTP/1.1\r\nHost: localhost\r\n\r\n")
+        .await?;
+    let mut response = String::new();
+    stream.read_to_string(&mut response).await?;
+    anyhow::ensure!(response.starts_with("HTTP/1.1 200 OK"), "{response}");
+    Ok(response)
 }

@@ -29,7 +29,7 @@ async fn gateway() -> anyhow::Result<Running> {
     }
     config.outputs.server.as_mut().unwrap().bind = "127.0.0.1:0".parse()?;
     let mut service = millgate::Service::new(config)?;
-    let address = service.bind_server().await?.expect("server configured");
+    let address = service.bind().await?.server.expect("server configured");
     let map = service.publisher().map().clone();
     let publisher = service.publisher();
     let (stop, shutdown) = millgate::shutdown::channel();

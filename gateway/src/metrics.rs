@@ -1,0 +1,209 @@
+//! Prometheus `/metrics` endpoint: acquisition counters per channel and health per
+//! source, in the text exposition format (version 0.0.4).
+//!
+//! A minimal HTTP/1.1 responder on tokio: it answers `GET /metrics` and 404
+//! otherwise, one request per connection. Pulling in an HTTP framework for one
+//! read-only page on loopback would add far more than it saves.
+
+use std::fmt::Write as _;
+use std::sync::Arc;
+
+use millgate_config::Config;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream};
+
+use crate::health::{ChannelCounters, SourceHealth};
+use crate::publish::Publisher;
+use crate::shutdown::Shutdown;
+
+/// What the metrics page shows.
+pub struct Metrics {
+    channel_names: Vec<String>,
+    source_names: Vec<String>,
+    counters: Vec<Arc<ChannelCounters>>,
+    health: Vec<Arc<SourceHealth>>,
+    publisher: Arc<Publisher>,
+}
+
+fn escape(label: &str) -> String {
+    label
+        .replace('\\', "\\\\")
+        .replace('"', "\\\"")
+        .replace('\n', "\\n")
+}
+
+impl Metrics {
+    pub fn new(
+        config: &Config,
+        counters: Vec<Arc<ChannelCounters>>,
+        health: Vec<Arc<SourceHealth>>,
+        publisher: Arc<Publisher>,
+    ) -> Self {
+        Self {
+            channel_names: config.channels.iter().map(|c| c.name.clone()).collect(),
+            source_names: config
+                .modbus_sources
+                .iter()
+                .map(|s| s.name.clone())
+                .chain(config.can_sources.iter().map(|s| s.name.clone()))
+                .collect(),
+            counters,
+            health,
+            publisher,
+        }
+    }
+
+    /// The page, in the Prometheus text format.
+    pub fn render(&self) -> String {
+        let mut out = String::new();
+        let snapshots: Vec<_> = self.counters.iter().map(|c| c.snapshot()).collect();
+        let counters: [(
+            &str,
+            &str,
+            fn(&crate::health::ChannelCountersSnapshot) -> u64,
+        ); 5] = [
+            ("blocks_read", "Blocks or frames decoded", |s| s.blocks_read),
+            ("blocks_missed", "Blocks lost, from sequence gaps", |s| {
+                s.blocks_missed
+            }),
+            ("samples", "Samples passed to analysis", |s| s.samples),
+            ("timeouts", "Requests without an answer in time", |s| {
+                s.timeouts
+            }),
+            (
+                "errors",
+                "Transport errors, device exceptions and malformed replies",
+                |s| s.errors,
+            ),
+        ];
+        for (name, help, value) in counters {
+            let _ = writeln!(out, "# HELP millgate_channel_{name}_total {help}.");
+            let _ = writeln!(out, "# TYPE millgate_channel_{name}_total counter");
+            for (channel, snapshot) in self.channel_names.iter().zip(&snapshots) {
+                let _ = writeln!(
+                    out,
+                    "millgate_channel_{name}_total{{channel=\"{}\"}} {}",
+                    escape(channel),
+                    value(snapshot)
+                );
+            }
+        }
+        let _ = writeln!(
+            out,
+            "# HELP millgate_source_status Source status: 0 ok, 1 stale, 2 lost."
+        );
+        let _ = writeln!(out, "# TYPE millgate_source_status gauge");
+        for (source, health) in self.source_names.iter().zip(&self.health) {
+            let status = health.status();
+            let _ = writeln!(
+                out,
+                "millgate_source_status{{source=\"{}\",status=\"{}\"}} {}",
+                escape(source),
+                status.name(),
+                status.code()
+            );
+        }
+        let _ = writeln!(
+            out,
+            "# HELP millgate_source_connects_total Successful connections."
+        );
+        let _ = writeln!(out, "# TYPE millgate_source_connects_total counter");
+        for (source, health) in self.source_names.iter().zip(&self.health) {
+            let _ = writeln!(
+                out,
+                "millgate_source_connects_total{{source=\"{}\"}} {}",
+                escape(source),
+                health.connects()
+            );
+        }
+        let results = self.publisher.results();
+        let _ = writeln!(
+            out,
+            "# HELP millgate_bites_total Bites analysed per driveline."
+        );
+        let _ = writeln!(out, "# TYPE millgate_bites_total counter");
+        let _ = writeln!(
+            out,
+            "# HELP millgate_taf Torque amplification factor of the last bite."
+        );
+        let _ = writeln!(out, "# TYPE millgate_taf gauge");
+        for (driveline, name) in results
+            .drivelines
+            .iter()
+            .zip(self.publisher.driveline_names())
+        {
+            let _ = writeln!(
+                out,
+                "millgate_bites_total{{driveline=\"{}\"}} {}",
+                escape(name),
+                driveline.bite_counter
+            );
+            if let Some(taf) = driveline.taf.filter(|_| !driveline.source_stale) {
+                let _ = writeln!(out, "millgate_taf{{driveline=\"{}\"}} {taf}", escape(name));
+            }
+        }
+        let _ = writeln!(
+            out,
+            "# HELP millgate_heartbeat Heartbeat written to the PLC."
+        );
+        let _ = writeln!(out, "# TYPE millgate_heartbeat gauge");
+        let _ = writeln!(out, "millgate_heartbeat {}", results.heartbeat);
+        out
+    }
+
+    async fn answer(&self, mut stream: TcpStream) -> std::io::Result<()> {
+        let mut request = [0u8; 2048];
+        let read =
+            tokio::time::timeout(std::time::Duration::from_secs(5), stream.read(&mut request))
+                .await
+                .map_err(|_| {
+                    std::io::Error::new(std::io::ErrorKind::TimedOut, "request timed out")
+                })??;
+        let head = String::from_utf8_lossy(&request[..read]);
+        let (status, content_type, body) =
+            if head.starts_with("GET /metrics ") || head.starts_with("GET /metrics?") {
+                (
+                    "200 OK",
+                    "text/plain; version=0.0.4; charset=utf-8",
+                    self.render(),
+                )
+            } else {
+                (
+                    "404 Not Found",
+                    "text/plain; charset=utf-8",
+                    "only /metrics is served\n".to_owned(),
+                )
+            };
+        let response = format!(
+            "HTTP/1.1 {status}\r\nContent-Type: {content_type}\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
+            body.len()
+        );
+        stream.write_all(response.as_bytes()).await?;
+        stream.shutdown().await
+    }
+
+    /// Serve on `listener` until shutdown.
+    pub async fn run(self, listener: TcpListener, mut shutdown: Shutdown) {
+        let metrics = Arc::new(self);
+        if let Ok(local) = listener.local_addr() {
+            tracing::info!(%local, "metrics endpoint listening on /metrics");
+        }
+        loop {
+            let accepted = tokio::select! {
+                accepted = listener.accept() => accepted,
+                () = shutdown.recv() => return,
+            };
+            match accepted {
+                Ok((stream, _)) => {
+                    let metrics = Arc::clone(&metrics);
+                    tokio::spawn(async move {
+                        if let Err(error) = metrics.answer(stream).await {
+                            tracing::debug!(%error, "metrics request failed");
+                        }
+                    });
+                }
+                Err(error) => tracing::warn!(%error, "metrics accept failed"),
+            }
+        }
+    }
+}
