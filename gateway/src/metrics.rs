@@ -12,9 +12,12 @@ use millgate_config::Config;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 
-use crate::health::{ChannelCounters, SourceHealth};
+use crate::health::{ChannelCounters, ChannelCountersSnapshot, SourceHealth};
 use crate::publish::Publisher;
 use crate::shutdown::Shutdown;
+
+/// Reads one counter out of a snapshot.
+type CounterOf = fn(&ChannelCountersSnapshot) -> u64;
 
 /// What the metrics page shows.
 pub struct Metrics {
@@ -57,11 +60,7 @@ impl Metrics {
     pub fn render(&self) -> String {
         let mut out = String::new();
         let snapshots: Vec<_> = self.counters.iter().map(|c| c.snapshot()).collect();
-        let counters: [(
-            &str,
-            &str,
-            fn(&crate::health::ChannelCountersSnapshot) -> u64,
-        ); 5] = [
+        let counters: [(&str, &str, CounterOf); 5] = [
             ("blocks_read", "Blocks or frames decoded", |s| s.blocks_read),
             ("blocks_missed", "Blocks lost, from sequence gaps", |s| {
                 s.blocks_missed
