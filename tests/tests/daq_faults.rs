@@ -116,7 +116,7 @@ async fn daq_restart_goes_stale_then_ok_and_counts_the_gap() -> anyhow::Result<(
 
     // The same counters on the Prometheus endpoint, per channel and per source.
     let page = scrape(metrics).await?;
-    let missed = format!("millgate_channel_blocks_missed_total{{channel=\"spindle_top\"}} ");
+    let missed = "millgate_channel_blocks_missed_total{channel=\"spindle_top\"} ";
     let line = page
         .lines()
         .find(|l| l.starts_with(&missed))
