@@ -119,7 +119,7 @@ async fn daq_restart_goes_stale_then_ok_and_counts_the_gap() -> anyhow::Result<(
     let missed = "millgate_channel_blocks_missed_total{channel=\"spindle_top\"} ";
     let line = page
         .lines()
-        .find(|l| l.starts_with(&missed))
+        .find(|l| l.starts_with(missed))
         .unwrap_or_else(|| panic!("{page}"));
     let shown: u64 = line[missed.len()..].parse()?;
     assert!(shown >= after.blocks_missed, "{line} vs {after:?}");
