@@ -16,6 +16,7 @@ pub mod results;
 pub mod samples;
 pub mod server;
 pub mod service;
+pub mod simcmd;
 pub mod shutdown;
 
 pub use service::{run, Service};

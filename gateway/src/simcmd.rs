@@ -1,0 +1,195 @@
+//! `millgate sim ...`: run the driveline simulator from the command line.
+//!
+//! - `millgate sim transient --model M.toml [--noise-rms KNM] [--seed S] --out FILE.csv`
+//! - `millgate sim modes --model M.toml [--format text|json]`
+//! - `millgate sim wear-map --model M.toml --out DIR`
+
+use std::fmt::Write as _;
+use std::path::PathBuf;
+
+use anyhow::Context as _;
+use clap::{Args, Subcommand, ValueEnum};
+use millgate_sim::chain::simulate_with_noise;
+use millgate_sim::modal;
+use millgate_sim::model::Model;
+use millgate_sim::plot::wear_map_svg;
+use millgate_sim::wear_map::{wear_map, WearMapSpec};
+
+/// Arguments of `millgate sim`.
+#[derive(Debug, Args)]
+pub struct SimArgs {
+    /// What to compute.
+    #[command(subcommand)]
+    pub command: SimCommand,
+}
+
+/// The `millgate sim` subcommands.
+#[derive(Debug, Subcommand)]
+pub enum SimCommand {
+    /// Simulate the bite transient and write `t,torque` (s, kN*m) as CSV.
+    Transient {
+        /// Driveline model (TOML).
+        #[arg(long)]
+        model: PathBuf,
+        /// RMS of added Gaussian noise, kN*m (>= 0).
+        #[arg(long, default_value_t = 0.0)]
+        noise_rms: f64,
+        /// Seed of the noise generator.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Output CSV file.
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Natural frequencies and mass-normalised mode shapes (rigid-body mode first).
+    Modes {
+        /// Driveline model (TOML).
+        #[arg(long)]
+        model: PathBuf,
+        /// Output format.
+        #[arg(long, value_enum, default_value_t = ModesFormat::Text)]
+        format: ModesFormat,
+    },
+    /// TAF and first-period shift over static torque x opened gap: CSV and SVG.
+    WearMap {
+        /// Driveline model (TOML).
+        #[arg(long)]
+        model: PathBuf,
+        /// Output directory (created if missing): wear-map.csv and wear-map.svg.
+        #[arg(long)]
+        out: PathBuf,
+    },
+}
+
+/// Output format of `millgate sim modes`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ModesFormat {
+    /// One line per mode: frequency and shape.
+    Text,
+    /// `{"frequencies_hz": [...], "modes": [[...], ...]}`, one shape per frequency.
+    Json,
+}
+
+/// Runs one `millgate sim` subcommand, printing to stdout.
+pub fn run(args: SimArgs) -> anyhow::Result<()> {
+    match args.command {
+        SimCommand::Transient {
+            model,
+            noise_rms,
+            seed,
+            out,
+        } => {
+            let model = Model::load(&model)?;
+            let transient = simulate_with_noise(&model, noise_rms, seed)?;
+            let mut csv = String::from("t,torque\n");
+            for (t, torque) in transient.t.iter().zip(&transient.torque_knm) {
+                writeln!(csv, "{t},{torque}")?;
+            }
+            std::fs::write(&out, csv).with_context(|| format!("writing {}", out.display()))?;
+            println!("{}: {} samples", out.display(), transient.t.len());
+        }
+        SimCommand::Modes { model, format } => print!("{}", modes_report(&model, format)?),
+        SimCommand::WearMap { model, out } => {
+            let model = Model::load(&model)?;
+            let spec = WearMapSpec::around(&model);
+            let map = wear_map(&model, &spec, |done, total, row| {
+                println!(
+                    "[{done}/{total}] static {:.1} kN*m, gap {:.2} mrad: TAF {:.3}",
+                    row.static_torque_knm,
+                    row.backlash_rad * 1.0e3,
+                    row.taf
+                );
+            })?;
+            std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+            let csv_path = out.join("wear-map.csv");
+            let svg_path = out.join("wear-map.svg");
+            std::fs::write(&csv_path, map.to_csv())
+                .with_context(|| format!("writing {}", csv_path.display()))?;
+            std::fs::write(&svg_path, wear_map_svg(&map)?)
+                .with_context(|| format!("writing {}", svg_path.display()))?;
+            println!("wrote {} and {}", csv_path.display(), svg_path.display());
+        }
+    }
+    Ok(())
+}
+
+/// The text `millgate sim modes` prints for the model at `path`.
+pub fn modes_report(path: &std::path::Path, format: ModesFormat) -> anyhow::Result<String> {
+    let model = Model::load(path)?;
+    let modes = modal::modes(&model)?;
+    let shapes: Vec<Vec<f64>> = (0..modes.frequencies_hz.len())
+        .map(|index| modes.shape(index))
+        .collect();
+    Ok(match format {
+        ModesFormat::Json => {
+            let value = serde_json::json!({
+                "frequencies_hz": modes.frequencies_hz,
+                "modes": shapes,
+            });
+            format!("{value}\n")
+        }
+        ModesFormat::Text => {
+            let mut text = String::new();
+            for (frequency, shape) in modes.frequencies_hz.iter().zip(&shapes) {
+                let shape: Vec<String> = shape.iter().map(|v| format!("{v:+.5e}")).collect();
+                writeln!(text, "{frequency:9.3} Hz  [{}]", shape.join(", "))?;
+            }
+            text
+        }
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn model_path(name: &str) -> PathBuf {
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../sim/models")
+            .join(name)
+    }
+
+    #[test]
+    fn modes_json_lists_rigid_body_mode_first() -> anyhow::Result<()> {
+        let text = modes_report(&model_path("table2-adjusted.toml"), ModesFormat::Json)?;
+        let value: serde_json::Value = serde_json::from_str(&text)?;
+        let frequencies: Vec<f64> = serde_json::from_value(value["frequencies_hz"].clone())?;
+        let modes: Vec<Vec<f64>> = serde_json::from_value(value["modes"].clone())?;
+        assert_eq!(frequencies.len(), 3);
+        assert!(frequencies[0].abs() < 1e-6);
+        assert!((frequencies[1] - 12.03).abs() < 0.01 && (frequencies[2] - 21.09).abs() < 0.01);
+        assert_eq!(modes.len(), 3);
+        assert!(modes.iter().all(|shape| shape.len() == 3));
+        Ok(())
+    }
+
+    #[test]
+    fn transient_and_wear_map_write_their_files() -> anyhow::Result<()> {
+        let directory =
+            std::env::temp_dir().join(format!("millgate-simcmd-{}", std::process::id()));
+        std::fs::create_dir_all(&directory)?;
+        let csv = directory.join("transient.csv");
+        run(SimArgs {
+            command: SimCommand::Transient {
+                model: model_path("table2-adjusted-backlash.toml"),
+                noise_rms: 0.5,
+                seed: 3,
+                out: csv.clone(),
+            },
+        })?;
+        let text = std::fs::read_to_string(&csv)?;
+        assert!(text.starts_with("t,torque\n"));
+        assert_eq!(text.lines().count(), 1 + 1200);
+        run(SimArgs {
+            command: SimCommand::WearMap {
+                model: model_path("table2-adjusted-backlash.toml"),
+                out: directory.join("map"),
+            },
+        })?;
+        let map = std::fs::read_to_string(directory.join("map/wear-map.csv"))?;
+        assert_eq!(map.lines().count(), 1 + 30);
+        assert!(std::fs::read_to_string(directory.join("map/wear-map.svg"))?.starts_with("<svg"));
+        std::fs::remove_dir_all(&directory)?;
+        Ok(())
+    }
+}
