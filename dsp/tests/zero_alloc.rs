@@ -1,22 +1,38 @@
 //! Proves the hot path never touches the heap: a counting global allocator wraps the
 //! system one, and the measured section (detector + transient analysis + eq. (1) fit
-//! over more than 1e6 samples with several bites) must allocate nothing.
+//! over more than 1e6 samples with several bites) must allocate nothing. Only the
+//! measuring thread is counted: the test harness allocates on its own threads.
 #![allow(unsafe_code)]
 
 use millgate_dsp::bite::{BiteDetector, BiteSettings};
 use millgate_dsp::fit::{eq1, fit_eq1, FitOptions};
 use millgate_dsp::transient::{analyze, TransientSettings};
 use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::cell::Cell;
 
 struct Counting;
 
-static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
+thread_local! {
+    /// True while this thread is under measurement (const-initialised: no allocation).
+    static MEASURING: Cell<bool> = const { Cell::new(false) };
+    /// Allocations made by this thread while measuring.
+    static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
+}
+
+fn count() {
+    if MEASURING.try_with(Cell::get).unwrap_or(false) {
+        let _ = ALLOCATIONS.try_with(|a| a.set(a.get() + 1));
+    }
+}
+
+fn allocations() -> usize {
+    ALLOCATIONS.with(Cell::get)
+}
 
 // SAFETY: forwards every call unchanged to `System`, only counting them.
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCATIONS.fetch_add(1, Ordering::SeqCst);
+        count();
         // SAFETY: same contract as the caller's.
         unsafe { System.alloc(layout) }
     }
@@ -27,7 +43,7 @@ unsafe impl GlobalAlloc for Counting {
     }
 
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        ALLOCATIONS.fetch_add(1, Ordering::SeqCst);
+        count();
         // SAFETY: same contract as the caller's.
         unsafe { System.realloc(ptr, layout, new_size) }
     }
@@ -80,7 +96,8 @@ fn detector_analysis_and_fit_never_allocate() {
     let mut state = detector.state();
     let (mut events, mut fits, mut f1_sum) = (0, 0, 0.0);
 
-    let before = ALLOCATIONS.load(Ordering::SeqCst);
+    let before = allocations();
+    MEASURING.with(|m| m.set(true));
     for i in 0..1_200_000 {
         if let Some(event) = detector.process(&mut state, torque(i)) {
             events += 1;
@@ -99,7 +116,8 @@ fn detector_analysis_and_fit_never_allocate() {
             }
         }
     }
-    let allocations = ALLOCATIONS.load(Ordering::SeqCst) - before;
+    MEASURING.with(|m| m.set(false));
+    let allocations = allocations() - before;
 
     assert_eq!(allocations, 0);
     assert_eq!(events, 12);
@@ -110,4 +128,15 @@ fn detector_analysis_and_fit_never_allocate() {
         "{}",
         f1_sum / fits as f64
     );
+}
+
+#[test]
+fn counter_sees_an_allocation_on_the_measuring_thread() {
+    // Guards the guard: a Vec allocated while measuring must be counted.
+    let before = allocations();
+    MEASURING.with(|m| m.set(true));
+    let v: Vec<u64> = std::hint::black_box(Vec::with_capacity(16));
+    MEASURING.with(|m| m.set(false));
+    drop(v);
+    assert!(allocations() > before);
 }
