@@ -1,0 +1,159 @@
+//! The gateway against pymodbus, an independent Modbus implementation: it writes its
+//! map into a pymodbus PLC, and a pymodbus HMI reads the gateway's server.
+
+use std::io::{BufRead, BufReader, Write};
+use std::path::PathBuf;
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use millgate::demo::{nearest_truth, setup, Devices};
+use millgate::registers::{decode_f32, decode_u32, RegisterMap};
+
+fn peer(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("peers")
+        .join(name)
+}
+
+fn address_of(map: &RegisterMap, name: &str) -> usize {
+    usize::from(
+        map.registers()
+            .iter()
+            .find(|r| r.name == name)
+            .unwrap()
+            .address,
+    )
+}
+
+/// The pymodbus PLC's holding registers 0..len, read over Modbus.
+async fn read_plc(port: u16, len: u16) -> anyhow::Result<Vec<u16>> {
+    use tokio_modbus::client::Reader;
+    let address = std::net::SocketAddr::from(([127, 0, 0, 1], port));
+    let mut client =
+        tokio_modbus::client::tcp::connect_slave(address, tokio_modbus::Slave(1)).await?;
+    let mut words = Vec::new();
+    for start in (0..len).step_by(125) {
+        words.extend(
+            client
+                .read_holding_registers(start, (len - start).min(125))
+                .await??,
+        );
+    }
+    Ok(words)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn gateway_writes_its_map_into_a_pymodbus_plc() -> anyhow::Result<()> {
+    let demo = setup(2.0, 0.5, 3)?;
+    let mut config = demo.config;
+    let devices = Devices::start(&mut config, &demo.schedule).await?;
+    let port = tokio::net::TcpListener::bind("127.0.0.1:0")
+        .await?
+        .local_addr()?
+        .port();
+    let map = RegisterMap::new(&config);
+    let mut plc = Command::new("python3")
+        .arg(peer("pymodbus_plc.py"))
+        .args([port.to_string(), map.len().to_string()])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .spawn()?;
+    let mut plc_out = BufReader::new(plc.stdout.take().unwrap());
+    let mut line = String::new();
+    plc_out.read_line(&mut line)?;
+    assert_eq!(line.trim(), "ready", "pymodbus PLC did not start");
+    config.outputs.plc.as_mut().unwrap().address = format!("127.0.0.1:{port}");
+
+    let service = millgate::Service::new(config)?;
+    let mut bites = service.subscribe_bites();
+    let (stop, shutdown) = millgate::shutdown::channel();
+    let gateway = tokio::spawn(service.run(shutdown));
+    let bite = tokio::time::timeout(Duration::from_secs(10), bites.recv()).await??;
+    // Let at least two write periods pass so the bite is in the PLC, then read the
+    // pymodbus PLC live, as its program would.
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let live = read_plc(port, map.len()).await?;
+    stop.trigger();
+    tokio::time::timeout(Duration::from_secs(10), gateway).await???;
+    devices.stop().await?;
+
+    drop(plc.stdin.take());
+    line.clear();
+    plc_out.read_line(&mut line)?;
+    plc.wait()?;
+    let after_stop: Vec<u16> = serde_json::from_str(&line)?;
+    assert_eq!(after_stop.len(), usize::from(map.len()));
+    assert_eq!(
+        after_stop[address_of(&map, "gateway_status")] & 0b10,
+        0b10,
+        "final write: stopped"
+    );
+
+    assert!(live[address_of(&map, "heartbeat")] > 1, "several writes");
+    assert_eq!(live[address_of(&map, "gateway_status")] & 1, 1, "running");
+    assert!(decode_u32(&live[address_of(&map, "F1.bite_counter")..]) >= Some(1));
+    let taf = f64::from(decode_f32(&live[address_of(&map, "F1.taf")..]).unwrap());
+    let truth = nearest_truth(&demo.schedule, bite.transient.static_torque_knm).unwrap();
+    assert!(
+        (taf - truth.taf).abs() < 0.02 * truth.taf,
+        "TAF {taf} vs truth {}",
+        truth.taf
+    );
+    Ok(())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn pymodbus_hmi_reads_the_map_and_gets_exception_codes() -> anyhow::Result<()> {
+    let mut config = setup(1.0, 0.0, 1)?.config;
+    config.modbus_sources[0].address = "127.0.0.1:1".into();
+    config.outputs.plc = None;
+    config.outputs.server.as_mut().unwrap().bind = "127.0.0.1:0".parse()?;
+    let mut service = millgate::Service::new(config)?;
+    let address = service.bind().await?.server.unwrap();
+    let map = service.publisher().map().clone();
+    let (stop, shutdown) = millgate::shutdown::channel();
+    let gateway = tokio::spawn(service.run(shutdown));
+    tokio::time::sleep(Duration::from_millis(100)).await;
+
+    let args = [
+        address.port().to_string(),
+        map.len().to_string(),
+        address_of(&map, "command.acknowledge_alarms").to_string(),
+        address_of(&map, "F1.taf").to_string(),
+    ];
+    let output = tokio::task::spawn_blocking(move || {
+        Command::new("python3")
+            .arg(peer("pymodbus_hmi.py"))
+            .args(args)
+            .output()
+    })
+    .await??;
+    let said = String::from_utf8_lossy(&output.stdout).to_string()
+        + &String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "{said}");
+    let report: serde_json::Value = serde_json::from_slice(&output.stdout)?;
+    assert_eq!(
+        report["head"][1].as_u64().map(|s| s & 1),
+        Some(1),
+        "running: {said}"
+    );
+    assert_eq!(report["read_past_map"], 2, "illegal data address: {said}");
+    assert_eq!(
+        report["write_result_register"], 2,
+        "results read-only: {said}"
+    );
+    assert_eq!(
+        report["write_ack"],
+        serde_json::Value::Null,
+        "command accepted: {said}"
+    );
+    assert_eq!(
+        report["write_bad_ack_value"], 3,
+        "illegal data value: {said}"
+    );
+
+    stop.trigger();
+    tokio::time::timeout(Duration::from_secs(10), gateway).await???;
+    let _ = std::io::stdout().flush();
+    Ok(())
+}
