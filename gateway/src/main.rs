@@ -39,6 +39,8 @@ enum Command {
         #[arg(long, value_enum, default_value = "md")]
         format: millgate::export::Format,
     },
+    /// Driveline simulator: transients, modes, wear maps.
+    Sim(millgate::simcmd::SimArgs),
     /// Self-contained demo: a virtual DAQ and PLC on loopback, the gateway between them.
     Demo(millgate::demo::DemoArgs),
 }
@@ -97,6 +99,7 @@ fn main() -> ExitCode {
                 let map = millgate::registers::RegisterMap::new(&config);
                 print!("{}", millgate::export::export(&map, format));
             }),
+        Command::Sim(args) => millgate::simcmd::run(args),
         Command::Run { config } => {
             init_tracing("info");
             runtime().block_on(run_service(config))
