@@ -123,7 +123,8 @@ mod tests {
                 schedule.torque_knm[bite.onset_sample - 1].abs() < 1e-9,
                 "quiet before onset"
             );
-            assert!(bite.taf > 1.2 && bite.taf < 2.5, "taf {}", bite.taf);
+            // A linear driveline under a load rise: overshoot, but TAF at most ~2.
+            assert!(bite.taf > 1.05 && bite.taf <= 2.0, "taf {}", bite.taf);
         }
         // Rolling: the record settles near the static torque before tail-out.
         let settled = schedule.torque_knm[per_bar - 450];
