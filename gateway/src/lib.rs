@@ -9,6 +9,7 @@ pub mod demo;
 pub mod export;
 pub mod health;
 pub mod metrics;
+pub mod offline;
 pub mod plc;
 pub mod publish;
 pub mod registers;
