@@ -1,0 +1,546 @@
+//! The vcan suite: `CanReader` against real SocketCAN on a virtual CAN interface.
+//!
+//! The tests marked `#[ignore]` need a kernel with SocketCAN and an interface
+//! `vcan0` (or the one named by `MILLGATE_VCAN`); `scripts/uml-vcan` runs them, inside
+//! User-Mode Linux when the host kernel has no CAN. Peers are real: `cansend` from
+//! can-utils (run as a process) and the simulated CAN node from `millgate-sim`.
+//!
+//! The configuration is loaded with `millgate_config` from TOML that points at
+//! `config/examples/mill.dbc`; expected values are computed from the raw integers
+//! with the scaling written in that DBC, not from the loaded layouts.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, ensure, Context, Result};
+use millgate::can::{CanCounts, CanDecoder, CanError, CanReader};
+use millgate::samples::Acquired;
+use millgate_config::{ChannelSource, Config};
+use millgate_sim::can_node::{CanMessage, CanNode};
+use tokio::sync::{mpsc, watch};
+use tokio::task::JoinHandle;
+
+/// How long a test waits for samples before failing.
+const SAMPLE_TIMEOUT: Duration = Duration::from_secs(20);
+
+/// Interface under test: `MILLGATE_VCAN` or `vcan0`.
+fn vcan() -> String {
+    std::env::var("MILLGATE_VCAN").unwrap_or_else(|_| "vcan0".to_owned())
+}
+
+fn examples_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/examples")
+}
+
+/// `cansend` from can-utils: `MILLGATE_CANSEND` or the one on `PATH`.
+fn cansend(interface: &str, frame: &str) -> Result<()> {
+    let program = std::env::var("MILLGATE_CANSEND").unwrap_or_else(|_| "cansend".to_owned());
+    let status = Command::new(&program)
+        .args([interface, frame])
+        .status()
+        .with_context(|| format!("running {program} (install can-utils)"))?;
+    ensure!(status.success(), "{program} {interface} {frame}: {status}");
+    Ok(())
+}
+
+/// Channels of the test configuration, by index in file order.
+const SPINDLE_TOP: usize = 0;
+const SPINDLE_BOTTOM: usize = 1;
+const TORQUE_SEQ: usize = 2;
+const ROLL_SPEED: usize = 3;
+const STRIP_TENSION: usize = 4;
+const ROLL_FORCE: usize = 5;
+const ACC0: usize = 6;
+const ACC3: usize = 7;
+const OIL_TEMP: usize = 8;
+
+/// A configuration with one CAN source on `interface` and channels on every message
+/// kind of mill.dbc: Intel, Motorola, CAN FD and extended id.
+fn config(interface: &str) -> Result<Config> {
+    let channel = |name: &str, kind: &str, unit: &str, rate: f64, message: &str, signal: &str| {
+        format!(
+            "[[channels]]\nname = \"{name}\"\nkind = \"{kind}\"\nunit = \"{unit}\"\n\
+             sample_rate_hz = {rate:.1}\n\
+             source = {{ can = \"stand_can\", message = \"{message}\", signal = \"{signal}\" }}\n\n"
+        )
+    };
+    let mut text = format!(
+        "name = \"vcan suite\"\n\n[[sources.can]]\nname = \"stand_can\"\n\
+         interface = \"{interface}\"\ndbc = \"mill.dbc\"\n\n"
+    );
+    for (name, kind, unit, rate, message, signal) in [
+        (
+            "spindle_top",
+            "torque",
+            "kN*m",
+            1000.0,
+            "SpindleTorque",
+            "SpindleTopTorque",
+        ),
+        (
+            "spindle_bottom",
+            "torque",
+            "kN*m",
+            1000.0,
+            "SpindleTorque",
+            "SpindleBottomTorque",
+        ),
+        (
+            "torque_seq",
+            "process_value",
+            "1",
+            1000.0,
+            "SpindleTorque",
+            "Seq",
+        ),
+        (
+            "roll_speed",
+            "process_value",
+            "rpm",
+            100.0,
+            "StandStatus",
+            "RollSpeed",
+        ),
+        (
+            "strip_tension",
+            "process_value",
+            "kN",
+            100.0,
+            "StandStatus",
+            "StripTension",
+        ),
+        (
+            "roll_force",
+            "process_value",
+            "kN",
+            100.0,
+            "StandStatus",
+            "RollForce",
+        ),
+        (
+            "chock_acc0",
+            "acceleration",
+            "m/s^2",
+            4000.0,
+            "AccelBurst",
+            "Acc0",
+        ),
+        (
+            "chock_acc3",
+            "acceleration",
+            "m/s^2",
+            4000.0,
+            "AccelBurst",
+            "Acc3",
+        ),
+        (
+            "gearbox_oil",
+            "process_value",
+            "degC",
+            1.0,
+            "GearboxTemp",
+            "OilTemp",
+        ),
+    ] {
+        text.push_str(&channel(name, kind, unit, rate, message, signal));
+    }
+    let config = millgate_config::from_toml_str(&text, "vcan-suite.toml", &examples_dir())?;
+    for (index, name) in [
+        (SPINDLE_TOP, "spindle_top"),
+        (TORQUE_SEQ, "torque_seq"),
+        (ROLL_FORCE, "roll_force"),
+        (ACC3, "chock_acc3"),
+        (OIL_TEMP, "gearbox_oil"),
+    ] {
+        ensure!(config.channel_index(name) == Some(index), "channel order");
+    }
+    Ok(config)
+}
+
+/// A `CanMessage` for the listed channels of `config`, in that order.
+fn message(config: &Config, channels: &[usize]) -> Result<CanMessage> {
+    let layouts = channels
+        .iter()
+        .map(|&index| match &config.channels[index].source {
+            ChannelSource::Can { signal_layout, .. } => Ok(*signal_layout),
+            other => bail!("channel {index} is not a CAN channel: {other:?}"),
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok(CanMessage::new(layouts)?)
+}
+
+/// A running reader: its task, its samples and how to stop it.
+struct RunningReader {
+    samples: mpsc::Receiver<Acquired>,
+    counters: std::sync::Arc<millgate::can::CanCounters>,
+    stop: watch::Sender<bool>,
+    task: JoinHandle<Result<(), CanError>>,
+    /// Values received so far, per channel, oldest first.
+    received: HashMap<usize, Vec<f64>>,
+}
+
+impl RunningReader {
+    /// Opens the reader (so frames sent from now on are queued) and runs it.
+    fn start(config: &Config) -> Result<RunningReader> {
+        let reader = CanReader::open(config, 0)?;
+        let counters = reader.counters();
+        let (samples_tx, samples) = mpsc::channel(1024);
+        let (stop, shutdown) = watch::channel(false);
+        let task = tokio::spawn(reader.run(samples_tx, shutdown));
+        Ok(RunningReader {
+            samples,
+            counters,
+            stop,
+            task,
+            received: HashMap::new(),
+        })
+    }
+
+    /// Receives until channel `channel` has at least `count` values in total.
+    async fn wait_for(&mut self, channel: usize, count: usize) -> Result<&[f64]> {
+        let deadline = tokio::time::Instant::now() + SAMPLE_TIMEOUT;
+        while self.received.get(&channel).map_or(0, Vec::len) < count {
+            let message = tokio::time::timeout_at(deadline, self.samples.recv())
+                .await
+                .with_context(|| {
+                    format!(
+                        "timed out waiting for {count} samples of channel {channel}; have {}; counters {:?}",
+                        self.received.get(&channel).map_or(0, Vec::len),
+                        self.counters.snapshot()
+                    )
+                })?
+                .context("reader stopped")?;
+            match message {
+                Acquired::Samples { channel, values } => {
+                    self.received.entry(channel).or_default().extend(values)
+                }
+                other => bail!("unexpected message {other:?}"),
+            }
+        }
+        Ok(&self.received[&channel])
+    }
+
+    /// Waits until the counters show `frames` frames.
+    async fn wait_for_frames(&self, frames: u64) -> Result<CanCounts> {
+        let deadline = Instant::now() + SAMPLE_TIMEOUT;
+        loop {
+            let counts = self.counters.snapshot();
+            if counts.frames >= frames {
+                return Ok(counts);
+            }
+            ensure!(
+                Instant::now() < deadline,
+                "timed out waiting for {frames} frames: {counts:?}"
+            );
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+    }
+
+    /// Asks the reader to stop and checks it ends cleanly.
+    async fn stop(self) -> Result<()> {
+        self.stop.send_replace(true);
+        tokio::time::timeout(Duration::from_secs(5), self.task)
+            .await
+            .context("reader did not stop")??
+            .context("reader failed")?;
+        Ok(())
+    }
+}
+
+fn assert_close(actual: f64, expected: f64, what: &str) {
+    assert!(
+        (actual - expected).abs() <= 1e-9 * expected.abs().max(1.0),
+        "{what}: got {actual}, expected {expected}"
+    );
+}
+
+/// Hex of `bytes`, as cansend wants it.
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|byte| format!("{byte:02X}")).collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "needs SocketCAN vcan0: run scripts/uml-vcan"]
+async fn cansend_frames_become_scaled_samples() -> Result<()> {
+    let config = config(&vcan())?;
+    let mut reader = RunningReader::start(&config)?;
+
+    // SpindleTorque, Intel: i16 top, i16 bottom (0.01 kN.m), u8 Seq.
+    let (top_raw, bottom_raw, seq) = (-12_345_i16, 31_000_i16, 254_u8);
+    let mut torque = [0_u8; 8];
+    torque[0..2].copy_from_slice(&top_raw.to_le_bytes());
+    torque[2..4].copy_from_slice(&bottom_raw.to_le_bytes());
+    torque[4] = seq;
+    cansend(&vcan(), &format!("101#{}", hex(&torque)))?;
+
+    // StandStatus, Motorola: u16 RollSpeed (0.1 rpm) in bytes 0..2, i16 StripTension
+    // (0.1 kN) in bytes 2..4, u12 RollForce (10 kN, -5000) in the low nibble of
+    // byte 4 and byte 5.
+    let (speed_raw, tension_raw, force_raw) = (4_321_u16, -2_468_i16, 0x9ab_u16);
+    let mut status = [0_u8; 8];
+    status[0..2].copy_from_slice(&speed_raw.to_be_bytes());
+    status[2..4].copy_from_slice(&tension_raw.to_be_bytes());
+    status[4] = 0xf0 | (force_raw >> 8) as u8; // high nibble belongs to nothing
+    status[5] = force_raw as u8;
+    cansend(&vcan(), &format!("102#{}", hex(&status)))?;
+
+    // AccelBurst, CAN FD, 64 bytes: i16 Acc0 at byte 1, Acc3 at byte 7 (0.001 m/s2).
+    let (acc0_raw, acc3_raw) = (-32_768_i16, 1_234_i16);
+    let mut burst = [0x55_u8; 64];
+    burst[1..3].copy_from_slice(&acc0_raw.to_le_bytes());
+    burst[7..9].copy_from_slice(&acc3_raw.to_le_bytes());
+    cansend(&vcan(), &format!("200##0{}", hex(&burst)))?;
+
+    // GearboxTemp, extended id 0x18FF5A01: u16 OilTemp (0.1 degC, -40).
+    let oil_raw = 1_053_u16;
+    let mut gearbox = [0_u8; 8];
+    gearbox[0..2].copy_from_slice(&oil_raw.to_le_bytes());
+    cansend(&vcan(), &format!("18FF5A01#{}", hex(&gearbox)))?;
+
+    let expected = [
+        (SPINDLE_TOP, f64::from(top_raw) * 0.01),
+        (SPINDLE_BOTTOM, f64::from(bottom_raw) * 0.01),
+        (TORQUE_SEQ, f64::from(seq)),
+        (ROLL_SPEED, f64::from(speed_raw) * 0.1),
+        (STRIP_TENSION, f64::from(tension_raw) * 0.1),
+        (ROLL_FORCE, f64::from(force_raw) * 10.0 - 5000.0),
+        (ACC0, f64::from(acc0_raw) * 0.001),
+        (ACC3, f64::from(acc3_raw) * 0.001),
+        (OIL_TEMP, f64::from(oil_raw) * 0.1 - 40.0),
+    ];
+    for (channel, value) in expected {
+        let values = reader.wait_for(channel, 1).await?;
+        assert_eq!(values.len(), 1, "channel {channel}: one frame, one sample");
+        assert_close(values[0], value, &format!("channel {channel}"));
+    }
+    let counts = reader.counters.snapshot();
+    assert_eq!(counts.frames, 4);
+    assert_eq!(counts.decoded, 4);
+    assert_eq!(
+        counts.unknown_id + counts.bad_length + counts.error_frames,
+        0
+    );
+    reader.stop().await
+}
+
+/// 5000 classic frames paced at 4000 frames/s, then 100 CAN FD frames at full speed.
+/// One thread, as in the throughput test: the guest has one CPU, and a sender that
+/// is not descheduled could otherwise starve the reader past its socket buffer.
+#[tokio::test(flavor = "current_thread")]
+#[ignore = "needs SocketCAN vcan0: run scripts/uml-vcan"]
+async fn sim_node_sequence_arrives_complete_and_in_order() -> Result<()> {
+    const FRAMES: usize = 5_000;
+    let config = config(&vcan())?;
+    let torque = message(&config, &[SPINDLE_TOP, SPINDLE_BOTTOM, TORQUE_SEQ])?;
+    let burst = message(&config, &[ACC0, ACC3])?;
+    let mut reader = RunningReader::start(&config)?;
+    let node = CanNode::open(&vcan())?;
+
+    // A torque swing in whole raw steps (0.01 kN.m), so values survive exactly.
+    let rows: Vec<[f64; 3]> = (0..FRAMES)
+        .map(|index| {
+            let top_raw = ((index as f64 * 0.01).sin() * 25_000.0).round();
+            let bottom_raw = (-top_raw / 2.0).trunc();
+            [top_raw * 0.01, bottom_raw * 0.01, (index % 256) as f64]
+        })
+        .collect();
+    let bursts: Vec<[f64; 2]> = (0..100).map(|index| [index as f64 * 0.001, -1.0]).collect();
+    // Send from another task while this one drains the samples, as the analysis task
+    // would: an undrained sample channel makes the reader wait and the kernel drop.
+    let sender = {
+        let (rows, bursts) = (rows.clone(), bursts.clone());
+        tokio::spawn(async move {
+            let sent = node.run(&torque, &rows, Duration::from_micros(250)).await?;
+            // CAN FD frames after the classic ones.
+            let sent_fd = node.run(&burst, &bursts, Duration::ZERO).await?;
+            anyhow::Ok((sent, sent_fd))
+        })
+    };
+
+    let top = reader.wait_for(SPINDLE_TOP, FRAMES).await?.to_vec();
+    let seq = reader.wait_for(TORQUE_SEQ, FRAMES).await?.to_vec();
+    let bottom = reader.wait_for(SPINDLE_BOTTOM, FRAMES).await?.to_vec();
+    let acc0 = reader.wait_for(ACC0, bursts.len()).await?.to_vec();
+    assert_eq!(sender.await??, (FRAMES as u64, bursts.len() as u64));
+    assert_eq!(top.len(), FRAMES);
+    for (index, row) in rows.iter().enumerate() {
+        assert_close(top[index], row[0], &format!("top torque #{index}"));
+        assert_close(bottom[index], row[1], &format!("bottom torque #{index}"));
+        assert_eq!(seq[index], row[2], "sequence #{index}");
+    }
+    for (index, row) in bursts.iter().enumerate() {
+        assert_close(acc0[index], row[0], &format!("Acc0 #{index}"));
+    }
+    let counts = reader.counters.snapshot();
+    assert_eq!(counts.decoded, (FRAMES + bursts.len()) as u64);
+    assert_eq!(counts.frames, counts.decoded);
+    reader.stop().await
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "needs SocketCAN vcan0: run scripts/uml-vcan"]
+async fn unknown_short_remote_and_error_frames_are_counted_and_ignored() -> Result<()> {
+    let config = config(&vcan())?;
+    let mut reader = RunningReader::start(&config)?;
+    let interface = vcan();
+    cansend(&interface, "7FF#0102030405060708")?; // no channel uses 0x7FF
+    cansend(&interface, "00000101#3930C3DDC9000000")?; // 0x101 but extended: unknown
+    cansend(&interface, "101#3930")?; // SpindleTorque needs 5 bytes for Seq
+    cansend(&interface, "200##01122")?; // AccelBurst needs 9 bytes
+    cansend(&interface, "101#R")?; // remote frame
+    cansend(&interface, "20000004#0000080000000000")?; // error frame (controller)
+    cansend(&interface, "101#3930C3DDC9000000")?; // the only good frame
+
+    let counts = reader.wait_for_frames(7).await?;
+    let top = reader.wait_for(SPINDLE_TOP, 1).await?.to_vec();
+    assert_eq!(top.len(), 1, "only the good frame yields a sample");
+    assert_close(top[0], 123.45, "top torque of the good frame");
+    assert_eq!(
+        counts,
+        CanCounts {
+            frames: 7,
+            decoded: 1,
+            unknown_id: 2,
+            bad_length: 2,
+            remote_frames: 1,
+            error_frames: 1,
+        }
+    );
+    // The good frame's three channels got one sample each and nothing else did: the
+    // samples of any earlier frame would have arrived before them.
+    reader.wait_for(SPINDLE_BOTTOM, 1).await?;
+    reader.wait_for(TORQUE_SEQ, 1).await?;
+    let mut lengths: Vec<(usize, usize)> = reader
+        .received
+        .iter()
+        .map(|(&channel, values)| (channel, values.len()))
+        .collect();
+    lengths.sort_unstable();
+    assert_eq!(
+        lengths,
+        vec![(SPINDLE_TOP, 1), (SPINDLE_BOTTOM, 1), (TORQUE_SEQ, 1)]
+    );
+    reader.stop().await
+}
+
+#[tokio::test]
+#[ignore = "needs SocketCAN vcan0: run scripts/uml-vcan"]
+async fn missing_interface_is_named_with_errno_19() -> Result<()> {
+    let config = config("mgcan9")?;
+    match CanReader::open(&config, 0) {
+        Err(error @ CanError::NoSuchInterface { .. }) => {
+            let text = error.to_string();
+            assert!(
+                text.contains("no such CAN interface `mgcan9` (errno 19"),
+                "{text}"
+            );
+            assert!(text.contains("ip link add dev mgcan9 type vcan"), "{text}");
+            Ok(())
+        }
+        Err(other) => bail!("expected NoSuchInterface, got {other}"),
+        Ok(_) => bail!("opened an interface that does not exist"),
+    }
+}
+
+/// Frames per second the reader takes from the simulated node at full speed, with
+/// zero loss. One thread for both: the node yields every 32 frames and the reader
+/// then drains them, so a single CPU (the UML guest has one) is shared fairly.
+#[tokio::test(flavor = "current_thread")]
+#[ignore = "needs SocketCAN vcan0: run scripts/uml-vcan"]
+async fn throughput_without_loss() -> Result<()> {
+    const FRAMES: usize = 100_000;
+    let config = config(&vcan())?;
+    let torque = message(&config, &[SPINDLE_TOP, TORQUE_SEQ])?;
+    let mut decoder = CanDecoder::default();
+    let seq_layout = match &config.channels[TORQUE_SEQ].source {
+        ChannelSource::Can { signal_layout, .. } => *signal_layout,
+        other => bail!("not CAN: {other:?}"),
+    };
+    decoder.add(TORQUE_SEQ, seq_layout, 1.0, 0.0);
+    let reader = CanReader::open_interface(&vcan(), decoder)?;
+    let counters = reader.counters();
+    let (samples_tx, mut samples) = mpsc::channel(1024);
+    let (stop, shutdown) = watch::channel(false);
+    let task = tokio::spawn(reader.run(samples_tx, shutdown));
+    let node = CanNode::open(&vcan())?;
+
+    let started = Instant::now();
+    let sender = tokio::spawn(async move {
+        let rows = (0..FRAMES).map(|index| [0.0, (index % 256) as f64]);
+        node.run(&torque, rows, Duration::ZERO).await
+    });
+    let mut received = 0_usize;
+    let mut expected_seq = 0.0;
+    while received < FRAMES {
+        let message = tokio::time::timeout(SAMPLE_TIMEOUT, samples.recv())
+            .await
+            .with_context(|| {
+                format!(
+                    "stalled after {received} of {FRAMES} frames: {:?}",
+                    counters.snapshot()
+                )
+            })?
+            .context("reader stopped")?;
+        let Acquired::Samples { values, .. } = message else {
+            bail!("unexpected {message:?}");
+        };
+        for value in values {
+            ensure!(
+                value == expected_seq,
+                "frame {received}: sequence {value}, expected {expected_seq} (frames lost)"
+            );
+            expected_seq = (expected_seq + 1.0) % 256.0;
+            received += 1;
+        }
+    }
+    let elapsed = started.elapsed();
+    assert_eq!(sender.await??, FRAMES as u64);
+    stop.send_replace(true);
+    task.await??;
+    let counts = counters.snapshot();
+    assert_eq!(counts.decoded, FRAMES as u64);
+    println!(
+        "vcan throughput: {FRAMES} frames in {:.3} s = {:.0} frames/s, zero loss",
+        elapsed.as_secs_f64(),
+        FRAMES as f64 / elapsed.as_secs_f64()
+    );
+    Ok(())
+}
+
+/// Whether this kernel can create `AF_CAN` sockets, asked without millgate's code.
+fn kernel_has_socketcan() -> bool {
+    socket2::Socket::new(
+        socket2::Domain::from(29), // AF_CAN
+        socket2::Type::RAW,
+        Some(socket2::Protocol::from(1)), // CAN_RAW
+    )
+    .is_ok()
+}
+
+/// Runs everywhere: on a kernel without SocketCAN the reader must say so (errno 97)
+/// and point at scripts/uml-vcan; with SocketCAN, a missing interface is ENODEV.
+#[test]
+fn opening_can_explains_a_kernel_without_socketcan() -> Result<()> {
+    let error = match CanReader::open_interface("mgcan9", CanDecoder::default()) {
+        Ok(_) => bail!("opened an interface that does not exist"),
+        Err(error) => error,
+    };
+    let text = error.to_string();
+    if kernel_has_socketcan() {
+        assert!(
+            matches!(error, CanError::NoSuchInterface { .. }),
+            "kernel has SocketCAN, expected NoSuchInterface: {text}"
+        );
+    } else {
+        eprintln!("no SocketCAN in this kernel: checking the error message only");
+        assert!(matches!(error, CanError::NoSocketCan { .. }), "{text}");
+        assert!(
+            text.contains("SocketCAN not available in this kernel (errno 97)"),
+            "{text}"
+        );
+        assert!(text.contains("scripts/uml-vcan"), "{text}");
+    }
+    Ok(())
+}
