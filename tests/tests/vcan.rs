@@ -544,3 +544,31 @@ fn opening_can_explains_a_kernel_without_socketcan() -> Result<()> {
     }
     Ok(())
 }
+
+/// Runs everywhere: the suite's configuration resolves every message kind of mill.dbc,
+/// so a DBC or loader problem shows on the host before User-Mode Linux boots.
+#[test]
+fn suite_config_resolves_every_message_kind() -> Result<()> {
+    let config = config("vcan0")?;
+    let layout = |index: usize| match &config.channels[index].source {
+        ChannelSource::Can { signal_layout, .. } => Ok(*signal_layout),
+        other => bail!("channel {index} is not a CAN channel: {other:?}"),
+    };
+    let top = layout(SPINDLE_TOP)?;
+    assert_eq!(
+        (top.frame_id, top.extended, top.little_endian),
+        (0x101, false, true)
+    );
+    assert_eq!((top.factor, top.signed), (0.01, true));
+    let force = layout(ROLL_FORCE)?;
+    assert_eq!((force.frame_id, force.little_endian), (0x102, false));
+    assert_eq!(
+        (force.start_bit, force.size, force.offset),
+        (35, 12, -5000.0)
+    );
+    let acc3 = layout(ACC3)?;
+    assert_eq!((acc3.frame_id, acc3.frame_len), (0x200, 64));
+    let oil = layout(OIL_TEMP)?;
+    assert_eq!((oil.frame_id, oil.extended), (0x18ff_5a01, true));
+    Ok(())
+}
