@@ -138,3 +138,23 @@ fn short_record_fit_within_three_percent_while_fft_is_off_by_twenty() {
         assert!(fft_e1 > 0.20, "seed {seed}: {peaks:?}");
     }
 }
+
+#[test]
+fn positive_only_fit_skips_samples_below_zero() {
+    // The Table 1 curve starts at a1 + a2 = -62 kN*m and dips below zero near 0.07 s.
+    let samples = noisy(500, 3);
+    let below = samples.iter().filter(|v| **v <= 0.0).count();
+    assert!(below > 5);
+    let options = FitOptions {
+        positive_only: true,
+        ..FitOptions::new(FS)
+    };
+    let fit = fit_eq1(&samples, &options).unwrap();
+    println!(
+        "positive only: {} of 500 samples, f1 {:.3}, f2 {:.3}",
+        fit.samples_used, fit.f1_hz, fit.f2_hz
+    );
+    assert_eq!(fit.samples_used, 500 - below);
+    assert!(relative_error(fit.f1_hz, TABLE1[4]) < 0.01);
+    assert!(relative_error(fit.f2_hz, TABLE1[5]) < 0.01);
+}
