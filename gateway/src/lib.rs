@@ -17,8 +17,8 @@ pub mod results;
 pub mod samples;
 pub mod server;
 pub mod service;
-pub mod simcmd;
 pub mod shutdown;
+pub mod simcmd;
 
 pub use service::{run, Service};
 

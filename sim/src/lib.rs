@@ -2,7 +2,11 @@
 
 pub mod can_node;
 pub mod chain;
+pub mod daq;
 pub mod modal;
+pub mod modbus_bank;
 pub mod model;
+pub mod plc;
 pub mod plot;
+pub mod schedule;
 pub mod wear_map;
