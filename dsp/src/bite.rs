@@ -4,7 +4,10 @@
 //! [`BiteSettings`]) and state ([`BiteDetectorState`], mutated per sample).
 //!
 //! - **Baseline**: exponential moving average of the idle samples (samples that are not
-//!   a rise above the baseline by the threshold, while armed). It follows a drifting
+//!   a rise above the baseline by the threshold, while armed). A fall below it by the
+//!   threshold or more resets it to that level at once (it was a loaded level, e.g.
+//!   after a start mid-bar; zero drift is far slower) and makes it track 50x faster for
+//!   one time constant while the torque settles. It follows a drifting
 //!   zero and falls quickly enough after a restart in a loaded state.
 //! - **Onset**: a finite sample at or above `baseline + threshold_knm`, or an external
 //!   trigger ([`BiteDetector::trigger`], e.g. the PLC's "metal in stand" bit) which makes
@@ -103,6 +106,9 @@ pub struct BiteEvent<const N: usize> {
     pub quality: Quality,
 }
 
+/// How much faster the baseline tracks right after it was reset by a fall.
+const FAST_BASELINE_FACTOR: f64 = 50.0;
+
 /// Validated coefficients of a bite detector with `PRE` pre-trigger and `N` window capacity.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BiteDetector<const PRE: usize, const N: usize> {
@@ -135,6 +141,7 @@ pub struct BiteDetectorState<const PRE: usize, const N: usize> {
     last_non_finite: Option<u64>,
     last_saturated: Option<u64>,
     dead_remaining: u32,
+    fast_baseline_remaining: u32,
 }
 
 impl<const PRE: usize, const N: usize> BiteDetectorState<PRE, N> {
@@ -204,6 +211,11 @@ impl<const PRE: usize, const N: usize> BiteDetector<PRE, N> {
         &self.settings
     }
 
+    /// Samples of fast tracking after a baseline reset: one slow time constant.
+    fn fast_baseline_samples(&self) -> u32 {
+        libm::fmin(1.0 / self.settings.baseline_alpha, f64::from(u32::MAX)) as u32
+    }
+
     /// A fresh, armed state with no baseline yet.
     pub fn state(&self) -> BiteDetectorState<PRE, N> {
         BiteDetectorState {
@@ -223,6 +235,7 @@ impl<const PRE: usize, const N: usize> BiteDetector<PRE, N> {
             last_non_finite: None,
             last_saturated: None,
             dead_remaining: 0,
+            fast_baseline_remaining: 0,
         }
     }
 
@@ -300,8 +313,22 @@ impl<const PRE: usize, const N: usize> BiteDetector<PRE, N> {
                     return self.maybe_finish(state);
                 }
                 if finite {
-                    state.baseline_knm +=
-                        self.settings.baseline_alpha * (torque_knm - state.baseline_knm);
+                    if state.baseline_knm - torque_knm >= self.settings.threshold_knm {
+                        // A fall below the baseline by a whole threshold: the baseline
+                        // was a loaded level (start mid-bar), not the zero. Zero drift is
+                        // far slower than that, so take the new level at once and track
+                        // fast for one slow time constant while the torque settles.
+                        state.baseline_knm = torque_knm;
+                        state.fast_baseline_remaining = self.fast_baseline_samples();
+                    } else {
+                        let alpha = if state.fast_baseline_remaining > 0 {
+                            state.fast_baseline_remaining -= 1;
+                            libm::fmin(1.0, FAST_BASELINE_FACTOR * self.settings.baseline_alpha)
+                        } else {
+                            self.settings.baseline_alpha
+                        };
+                        state.baseline_knm += alpha * (torque_knm - state.baseline_knm);
+                    }
                 }
                 if state.history.is_empty() {
                     state.window_start = index;
