@@ -1,6 +1,7 @@
 //! `PlcWriter`: writes the register map into the PLC's holding registers (FC 16).
 //!
-//! Every write period the heartbeat is incremented and the whole map is written
+//! Every write period, and at once whenever the results change (a bite was
+//! analysed, an alarm acknowledged), the heartbeat is incremented and the whole map is written
 //! at the configured base, in chunks of at most 123 registers (the FC 16 limit).
 //! A PLC that is unreachable is retried with capped exponential backoff; the
 //! results keep updating meanwhile, so the first write after it appears is fresh.
@@ -88,6 +89,7 @@ impl PlcWriter {
         loop {
             tokio::select! {
                 _ = ticks.tick() => {}
+                () = self.publisher.changed() => {}
                 () = shutdown.recv() => break,
             }
             if context.is_none() {

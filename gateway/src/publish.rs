@@ -12,6 +12,9 @@ use crate::results::Results;
 /// Shared between the analysis task (writes results) and the outputs (read them).
 pub struct Publisher {
     results: Mutex<Results>,
+    /// Wakes the PLC writer when results change, so a bite is written at once
+    /// rather than at the next write period.
+    changed: tokio::sync::Notify,
     map: RegisterMap,
     health: Vec<Arc<SourceHealth>>,
     driveline_names: Vec<String>,
@@ -41,6 +44,7 @@ impl Publisher {
         );
         Self {
             results: Mutex::new(results),
+            changed: tokio::sync::Notify::new(),
             map: RegisterMap::new(config),
             health,
             driveline_names: config.drivelines.iter().map(|d| d.name.clone()).collect(),
@@ -74,7 +78,15 @@ impl Publisher {
 
     /// Change the results.
     pub fn update<T>(&self, change: impl FnOnce(&mut Results) -> T) -> T {
-        change(&mut crate::lock(&self.results))
+        let result = change(&mut crate::lock(&self.results));
+        self.changed.notify_one();
+        result
+    }
+
+    /// Wait until the results change (returns at once if they changed since the
+    /// last wait).
+    pub async fn changed(&self) {
+        self.changed.notified().await;
     }
 
     /// A copy of the results with current source health applied.
