@@ -39,6 +39,10 @@ enum Command {
         #[arg(long, value_enum, default_value = "md")]
         format: millgate::export::Format,
     },
+    /// Detect and analyse every bite of a recorded CSV (TAF, periods, eq. (1) fit).
+    Analyze(millgate::offline::analyze::AnalyzeArgs),
+    /// Stiffness adjustment, paper eq. (2): natural frequencies <-> C12, C23.
+    Stiffness(millgate::offline::stiffness::StiffnessArgs),
     /// Driveline simulator: transients, modes, wear maps.
     Sim(millgate::simcmd::SimArgs),
     /// Self-contained demo: a virtual DAQ and PLC on loopback, the gateway between them.
@@ -74,6 +78,11 @@ async fn run_service(config: PathBuf) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Print a command's report, ending it with exactly one newline.
+fn emit(text: String) {
+    println!("{}", text.trim_end());
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let runtime = || {
@@ -99,6 +108,11 @@ fn main() -> ExitCode {
                 let map = millgate::registers::RegisterMap::new(&config);
                 print!("{}", millgate::export::export(&map, format));
             }),
+        Command::Analyze(args) => {
+            init_tracing("warn");
+            millgate::offline::analyze::run(&args).map(emit)
+        }
+        Command::Stiffness(args) => millgate::offline::stiffness::run(&args).map(emit),
         Command::Sim(args) => millgate::simcmd::run(args),
         Command::Run { config } => {
             init_tracing("info");
