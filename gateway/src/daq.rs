@@ -14,12 +14,12 @@ use std::time::{Duration, Instant};
 
 use millgate_config::layout::{self, BlockError, BLOCK_REGISTERS};
 use millgate_config::{ChannelSource, Config, ModbusSource, RegisterTable, ValueType, WordOrder};
-use tokio::net::TcpStream;
 use tokio::sync::mpsc;
 use tokio_modbus::client::{Context, Reader};
-use tokio_modbus::prelude::{ExceptionCode, Slave};
+use tokio_modbus::prelude::ExceptionCode;
 
 use crate::health::{ChannelCounters, SourceHealth};
+use crate::modbus_client::{self, Backoff, ConnectError};
 use crate::samples::Acquired;
 use crate::shutdown::Shutdown;
 
@@ -90,10 +90,6 @@ pub struct DaqReader {
     health: Arc<SourceHealth>,
 }
 
-/// Backoff between reconnect attempts: doubles from `INITIAL` up to `MAX`.
-const RECONNECT_INITIAL: Duration = Duration::from_millis(100);
-const RECONNECT_MAX: Duration = Duration::from_secs(5);
-
 impl DaqReader {
     /// The reader of `config.modbus_sources[source_index]`, with one counter set per
     /// channel (indexed like `config.channels`, shared with the caller).
@@ -151,23 +147,22 @@ impl DaqReader {
     }
 
     async fn connect(&self) -> Result<Context, DaqError> {
-        let address = self.source.address.clone();
-        let stream = tokio::time::timeout(self.source.timeout, TcpStream::connect(&address))
+        let source = &self.source;
+        modbus_client::connect(&source.address, source.unit_id, source.timeout)
             .await
-            .map_err(|_| DaqError::Timeout(self.source.timeout))?
-            .map_err(|error| DaqError::Connect { address, error })?;
-        // Samples are small and frequent: do not let Nagle hold requests back.
-        let _ = stream.set_nodelay(true);
-        Ok(tokio_modbus::client::tcp::attach_slave(
-            stream,
-            Slave(self.source.unit_id),
-        ))
+            .map_err(|error| match error {
+                ConnectError::Timeout(timeout) => DaqError::Timeout(timeout),
+                ConnectError::Io(error) => DaqError::Connect {
+                    address: source.address.clone(),
+                    error,
+                },
+            })
     }
 
     /// Poll until shutdown, reconnecting as needed. Ends when `shutdown` fires or
     /// the analysis side hangs up.
     pub async fn run(mut self, samples: mpsc::Sender<Acquired>, mut shutdown: Shutdown) {
-        let mut backoff = RECONNECT_INITIAL;
+        let mut backoff = Backoff::new();
         while !shutdown.is_shutdown() {
             let connected = tokio::select! {
                 connected = self.connect() => connected,
@@ -176,18 +171,18 @@ impl DaqReader {
             let mut context = match connected {
                 Ok(context) => context,
                 Err(error) => {
-                    tracing::warn!(source = %self.name, %error, retry_in = ?backoff, "DAQ connect failed");
+                    let delay = backoff.next_delay();
+                    tracing::warn!(source = %self.name, %error, retry_in = ?delay, "DAQ connect failed");
                     tokio::select! {
-                        () = tokio::time::sleep(backoff) => {}
+                        () = tokio::time::sleep(delay) => {}
                         () = shutdown.recv() => break,
                     }
-                    backoff = (backoff * 2).min(RECONNECT_MAX);
                     continue;
                 }
             };
             tracing::info!(source = %self.name, address = %self.source.address, "DAQ connected");
             self.health.set_connected(true);
-            backoff = RECONNECT_INITIAL;
+            backoff.reset();
             let mut ticks = tokio::time::interval(self.source.poll_period);
             ticks.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
             loop {

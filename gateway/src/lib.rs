@@ -9,6 +9,7 @@ pub mod demo;
 pub mod export;
 pub mod health;
 pub mod metrics;
+mod modbus_client;
 pub mod offline;
 pub mod plc;
 pub mod publish;

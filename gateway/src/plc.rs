@@ -11,18 +11,16 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use millgate_config::PlcOutput;
-use tokio::net::TcpStream;
 use tokio_modbus::client::{Context, Writer};
-use tokio_modbus::prelude::{ExceptionCode, Slave};
+use tokio_modbus::prelude::ExceptionCode;
 
+use crate::modbus_client::{self, Backoff, ConnectError};
 use crate::publish::Publisher;
 use crate::results::GatewayState;
 use crate::shutdown::Shutdown;
 
 /// Largest register count of one FC 16 request.
 const MAX_WRITE_REGISTERS: usize = 123;
-const RECONNECT_INITIAL: Duration = Duration::from_millis(100);
-const RECONNECT_MAX: Duration = Duration::from_secs(5);
 
 /// Why a write to the PLC failed.
 #[derive(Debug, thiserror::Error)]
@@ -56,16 +54,16 @@ impl PlcWriter {
     }
 
     async fn connect(&self) -> Result<Context, PlcError> {
-        let address = self.output.address.clone();
-        let stream = tokio::time::timeout(self.output.timeout, TcpStream::connect(&address))
+        let output = &self.output;
+        modbus_client::connect(&output.address, output.unit_id, output.timeout)
             .await
-            .map_err(|_| PlcError::Timeout(self.output.timeout))?
-            .map_err(|error| PlcError::Connect { address, error })?;
-        let _ = stream.set_nodelay(true);
-        Ok(tokio_modbus::client::tcp::attach_slave(
-            stream,
-            Slave(self.output.unit_id),
-        ))
+            .map_err(|error| match error {
+                ConnectError::Timeout(timeout) => PlcError::Timeout(timeout),
+                ConnectError::Io(error) => PlcError::Connect {
+                    address: output.address.clone(),
+                    error,
+                },
+            })
     }
 
     async fn write(&self, context: &mut Context, words: &[u16]) -> Result<(), PlcError> {
@@ -83,7 +81,7 @@ impl PlcWriter {
     /// Write every period until shutdown, then write the final "stopped" map.
     pub async fn run(self, mut shutdown: Shutdown) {
         let mut context: Option<Context> = None;
-        let mut backoff = RECONNECT_INITIAL;
+        let mut backoff = Backoff::new();
         let mut ticks = tokio::time::interval(self.output.write_period);
         ticks.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         loop {
@@ -97,15 +95,15 @@ impl PlcWriter {
                     Ok(connected) => {
                         tracing::info!(plc = %self.output.address, "PLC connected");
                         context = Some(connected);
-                        backoff = RECONNECT_INITIAL;
+                        backoff.reset();
                     }
                     Err(error) => {
-                        tracing::warn!(%error, retry_in = ?backoff, "PLC unreachable");
+                        let delay = backoff.next_delay();
+                        tracing::warn!(%error, retry_in = ?delay, "PLC unreachable");
                         tokio::select! {
-                            () = tokio::time::sleep(backoff) => {}
+                            () = tokio::time::sleep(delay) => {}
                             () = shutdown.recv() => break,
                         }
-                        backoff = (backoff * 2).min(RECONNECT_MAX);
                         continue;
                     }
                 }

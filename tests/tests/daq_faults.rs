@@ -9,6 +9,7 @@ use millgate::health::SourceStatus;
 use millgate_config::{Config, RegisterTable};
 use millgate_sim::daq::{DaqChannel, Placement, Publish, VirtualDaq};
 use millgate_sim::modbus_bank::ServeOptions;
+use millgate_tests::wait_for;
 use tokio::net::TcpListener;
 
 const SAMPLES_PER_BLOCK: u16 = 100;
@@ -48,14 +49,6 @@ async fn start_daq(
     let task =
         tokio::spawn(daq(config).run(listener, options, async move { shutdown.recv().await }));
     Ok((stop, task))
-}
-
-async fn wait_for(what: &str, limit: Duration, mut done: impl FnMut() -> bool) {
-    let start = Instant::now();
-    while !done() {
-        assert!(start.elapsed() < limit, "{what}: not within {limit:?}");
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

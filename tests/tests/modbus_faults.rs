@@ -1,21 +1,14 @@
 //! Modbus faults the gateway must ride out: a PLC that appears only after the
 //! gateway started, and a DAQ that sends malformed and truncated replies.
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use millgate::registers::RegisterMap;
 use millgate_sim::modbus_bank::ServeOptions;
 use millgate_sim::plc::VirtualPlc;
+use millgate_tests::wait_for;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
-
-async fn wait_for(what: &str, limit: Duration, mut done: impl FnMut() -> bool) {
-    let start = Instant::now();
-    while !done() {
-        assert!(start.elapsed() < limit, "{what}: not within {limit:?}");
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
-}
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn plc_unreachable_at_start_gets_registers_when_it_appears() -> anyhow::Result<()> {
