@@ -94,7 +94,7 @@ pub struct BiteReport {
     pub trigger_sample: u64,
     /// Wall-clock time of the trigger, estimated from when the window completed.
     pub time: SystemTime,
-    /// When the window's last sample was handed to analysis.
+    /// When the window's last sample was handed to analysis (before the analysis ran).
     pub window_complete: Instant,
     pub transient: TransientResult,
     /// Natural frequencies from the eq. (1) fit, Hz, when it converged.
@@ -174,6 +174,7 @@ impl DrivelineAnalyzer {
     }
 
     fn report(&self, event: &BiteEvent<WINDOW_CAPACITY>) -> Option<BiteReport> {
+        let window_complete = Instant::now();
         let result = analyze_window(
             &event.window,
             event.trigger_index,
@@ -195,7 +196,7 @@ impl DrivelineAnalyzer {
             channel_name: self.channel_name.clone(),
             trigger_sample: event.trigger_sample,
             time: SystemTime::now() - std::time::Duration::from_secs_f64(after_trigger),
-            window_complete: Instant::now(),
+            window_complete,
             transient: analysis.transient,
             beta_hz: analysis.good_fit().map(|fit| (fit.f1_hz, fit.f2_hz)),
             degraded: !event.quality.is_good(),
