@@ -17,6 +17,7 @@ use millgate_config::{ChannelSource, Config};
 use socketcan::{CanAnyFrame, EmbeddedFrame, Frame, SocketOptions};
 use tokio::sync::{mpsc, watch};
 
+use crate::health::SourceHealth;
 use crate::samples::Acquired;
 
 /// `errno` EAFNOSUPPORT: the kernel has no `AF_CAN` address family.
@@ -239,6 +240,7 @@ pub struct CanReader {
     socket: socketcan::tokio::CanFdSocket,
     decoder: CanDecoder,
     counters: Arc<CanCounters>,
+    health: Option<Arc<SourceHealth>>,
 }
 
 impl CanReader {
@@ -272,7 +274,15 @@ impl CanReader {
             socket,
             decoder,
             counters: Arc::new(CanCounters::default()),
+            health: None,
         })
+    }
+
+    /// Report every batch of frames read to `health` (the source is then "ok"
+    /// while frames arrive).
+    pub fn with_health(mut self, health: Arc<SourceHealth>) -> Self {
+        self.health = Some(health);
+        self
     }
 
     /// The reader's counters; they keep counting while [`Self::run`] runs.
@@ -317,6 +327,9 @@ impl CanReader {
                     Err(error) if error.kind() == io::ErrorKind::WouldBlock => break,
                     Err(error) => return Err(self.read_error(error)),
                 }
+            }
+            if let Some(health) = &self.health {
+                health.answered();
             }
             for message in batch.drain() {
                 samples

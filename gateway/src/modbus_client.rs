@@ -1,5 +1,6 @@
-//! What every Modbus TCP client task of the gateway shares: connecting with a
-//! timeout (tokio-modbus has none) and the reconnect backoff.
+//! What the gateway's Modbus TCP client tasks share: connecting with a timeout
+//! (tokio-modbus has none); and the reconnect backoff, which the CAN supervisor
+//! uses too.
 
 use std::time::Duration;
 

@@ -4,18 +4,21 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Duration;
 
-use millgate_config::Config;
+use millgate_config::{ChannelSource, Config};
 use tokio::net::TcpListener;
 use tokio::sync::{broadcast, mpsc};
 use tokio::task::JoinSet;
 
 use crate::analysis::{Analysis, AnalysisError, BiteReport};
+use crate::can::{CanError, CanReader};
 use crate::daq::DaqReader;
 use crate::health::{ChannelCounters, SourceHealth};
 use crate::metrics::Metrics;
+use crate::modbus_client::Backoff;
 use crate::plc::PlcWriter;
 use crate::publish::Publisher;
 use crate::results::GatewayState;
+use crate::samples::Acquired;
 use crate::server::ModbusServer;
 use crate::shutdown::{self, Shutdown};
 
@@ -159,6 +162,17 @@ impl Service {
             tracing::info!(source = %source.name, address = %source.address, "starting DaqReader");
             readers.spawn(reader.run(samples_tx.clone(), shutdown.clone()));
         }
+        for (index, source) in config.can_sources.iter().enumerate() {
+            tracing::info!(source = %source.name, interface = %source.interface, "starting CanReader");
+            let health = Arc::clone(&health[config.modbus_sources.len() + index]);
+            readers.spawn(supervise_can(
+                Arc::new(config.clone()),
+                index,
+                health,
+                samples_tx.clone(),
+                shutdown.clone(),
+            ));
+        }
         drop(samples_tx);
         let analysis = tokio::spawn(analysis.run(samples_rx));
 
@@ -199,6 +213,67 @@ impl Service {
         publisher.update(|results| results.state = GatewayState::Stopped);
         tracing::info!("stopped");
         Ok(())
+    }
+}
+
+/// Keep CAN source `index` read until shutdown: open its interface, read it, and on
+/// any failure (interface absent, down, removed) mark the gap on its channels and
+/// reopen with capped backoff, so an interface that goes down and comes back is
+/// survived.
+async fn supervise_can(
+    config: Arc<Config>,
+    index: usize,
+    health: Arc<SourceHealth>,
+    samples: mpsc::Sender<Acquired>,
+    mut shutdown: Shutdown,
+) {
+    let name = &config.can_sources[index].name;
+    let channels: Vec<usize> = config
+        .channels
+        .iter()
+        .enumerate()
+        .filter(|(_, c)| matches!(c.source, ChannelSource::Can { source, .. } if source == index))
+        .map(|(channel, _)| channel)
+        .collect();
+    let mut backoff = Backoff::new();
+    let mut read_before = false;
+    while !shutdown.is_shutdown() {
+        let error = match CanReader::open(&config, index) {
+            Ok(reader) => {
+                health.set_connected(true);
+                backoff.reset();
+                if read_before {
+                    // Frames sent while the interface was away are lost: no silent join.
+                    for &channel in &channels {
+                        let gap = Acquired::Gap {
+                            channel,
+                            missed_samples: None,
+                        };
+                        if samples.send(gap).await.is_err() {
+                            return;
+                        }
+                    }
+                }
+                read_before = true;
+                let result = reader
+                    .with_health(Arc::clone(&health))
+                    .run(samples.clone(), shutdown.receiver())
+                    .await;
+                health.set_connected(false);
+                match result {
+                    Ok(()) => return,
+                    Err(CanError::SamplesClosed { .. }) => return,
+                    Err(error) => error,
+                }
+            }
+            Err(error) => error,
+        };
+        let delay = backoff.next_delay();
+        tracing::warn!(source = %name, %error, retry_in = ?delay, "CAN source failed");
+        tokio::select! {
+            () = tokio::time::sleep(delay) => {}
+            () = shutdown.recv() => return,
+        }
     }
 }
 

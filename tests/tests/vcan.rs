@@ -572,3 +572,71 @@ fn suite_config_resolves_every_message_kind() -> Result<()> {
     assert_eq!((oil.frame_id, oil.extended), (0x18ff_5a01, true));
     Ok(())
 }
+
+/// `ip link set INTERFACE up|down` (iproute2), as an operator or a cable fault would.
+fn set_link(interface: &str, state: &str) -> Result<()> {
+    let status = Command::new("ip")
+        .args(["link", "set", interface, state])
+        .status()
+        .context("running ip (install iproute2)")?;
+    ensure!(
+        status.success(),
+        "ip link set {interface} {state}: {status}"
+    );
+    Ok(())
+}
+
+/// Send a frame every 20 ms until `done` holds or `limit` passes.
+async fn send_until(
+    interface: &str,
+    limit: Duration,
+    mut done: impl FnMut() -> bool,
+) -> Result<()> {
+    let start = Instant::now();
+    while !done() {
+        ensure!(start.elapsed() < limit, "not within {limit:?}");
+        // Sending on a down interface fails; that is what the outage is.
+        let _ = cansend(interface, "101#10270000000000AA");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    Ok(())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "needs SocketCAN vcan0: run scripts/uml-vcan"]
+async fn service_survives_the_interface_going_down_and_up() -> Result<()> {
+    use millgate::health::SourceStatus;
+    let interface = vcan();
+    let service = millgate::Service::new(config(&interface)?)?;
+    let publisher = service.publisher();
+    let (stop, shutdown) = millgate::shutdown::channel();
+    let gateway = tokio::spawn(service.run(shutdown));
+    let status = || publisher.results().sources[0];
+
+    send_until(&interface, Duration::from_secs(10), || {
+        status() == Some(SourceStatus::Ok)
+    })
+    .await?;
+    set_link(&interface, "down")?;
+    let down = Instant::now();
+    while !matches!(status(), Some(SourceStatus::Stale | SourceStatus::Lost)) {
+        ensure!(
+            down.elapsed() < Duration::from_secs(5),
+            "still {:?} with the link down",
+            status()
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    set_link(&interface, "up")?;
+    // The reader reopens with backoff capped at 5 s.
+    send_until(&interface, Duration::from_secs(15), || {
+        status() == Some(SourceStatus::Ok)
+    })
+    .await?;
+    ensure!(!gateway.is_finished(), "the gateway kept running");
+
+    stop.trigger();
+    tokio::time::timeout(Duration::from_secs(10), gateway).await???;
+    Ok(())
+}
