@@ -219,3 +219,57 @@ fn analyze_finds_the_bite_of_a_simulated_transient_and_stiffness_inverts_table2(
     });
     assert!(found, "{solutions}");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn run_stops_on_sigterm_with_a_final_stopped_write() {
+    use millgate_sim::modbus_bank::ServeOptions;
+    use millgate_sim::plc::VirtualPlc;
+
+    let plc = VirtualPlc::new(64);
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let plc_address = listener.local_addr().unwrap();
+    let options = ServeOptions {
+        unit_id: 1,
+        single_connection: false,
+    };
+    let (stop_plc, mut plc_shutdown) = millgate::shutdown::channel();
+    let plc_task = tokio::spawn(
+        plc.clone()
+            .run(listener, options, async move { plc_shutdown.recv().await }),
+    );
+
+    let demo = std::fs::read_to_string(examples().join("demo.toml")).unwrap();
+    let config = demo
+        .replace("127.0.0.1:5020", "127.0.0.1:1")
+        .replace("127.0.0.1:5502", &plc_address.to_string())
+        .replace("127.0.0.1:5503", "127.0.0.1:0");
+    let path = write_config("sigterm", &config);
+    let mut child = Command::new(env!("CARGO_BIN_EXE_millgate"))
+        .args(["run", "--config", path.to_str().unwrap()])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let running = std::time::Instant::now();
+    while plc.holding()[1] & 1 == 0 {
+        assert!(
+            running.elapsed() < std::time::Duration::from_secs(10),
+            "never running"
+        );
+        tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+    }
+    let killed = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    let output = tokio::task::spawn_blocking(move || child.wait_with_output())
+        .await
+        .unwrap()
+        .unwrap();
+    let logs = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "exit {:?}: {logs}", output.status);
+    assert!(logs.contains("shutdown requested"), "{logs}");
+    assert_eq!(plc.holding()[1] & 0b11, 0b10, "status stopped, not running");
+    stop_plc.trigger();
+    plc_task.await.unwrap().unwrap();
+}
