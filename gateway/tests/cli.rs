@@ -244,7 +244,7 @@ async fn run_stops_on_sigterm_with_a_final_stopped_write() {
         .replace("127.0.0.1:5502", &plc_address.to_string())
         .replace("127.0.0.1:5503", "127.0.0.1:0");
     let path = write_config("sigterm", &config);
-    let mut child = Command::new(env!("CARGO_BIN_EXE_millgate"))
+    let child = Command::new(env!("CARGO_BIN_EXE_millgate"))
         .args(["run", "--config", path.to_str().unwrap()])
         .stderr(std::process::Stdio::piped())
         .spawn()
