@@ -640,3 +640,97 @@ async fn service_survives_the_interface_going_down_and_up() -> Result<()> {
     tokio::time::timeout(Duration::from_secs(10), gateway).await???;
     Ok(())
 }
+
+/// Frames for `cansend`, encoded by python cantools from the project's DBC:
+/// `message` with `signals` (a Python dict literal of physical values).
+fn cantools_frame(message: &str, signals: &str) -> Result<String> {
+    let python = std::env::var("MILLGATE_PYTHON").unwrap_or_else(|_| "python3".to_owned());
+    let dbc = examples_dir().join("mill.dbc");
+    let script = format!(
+        "import cantools\n\
+         db = cantools.database.load_file({dbc:?})\n\
+         m = db.get_message_by_name({message:?})\n\
+         data = m.encode({signals})\n\
+         print('%X#%s' % (m.frame_id, data.hex().upper()))\n"
+    );
+    let output = Command::new(&python)
+        .args(["-c", &script])
+        .output()
+        .with_context(|| format!("running {python} (pip install cantools)"))?;
+    ensure!(
+        output.status.success(),
+        "cantools: {}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    Ok(String::from_utf8(output.stdout)?.trim().to_owned())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "needs SocketCAN vcan0: run scripts/uml-vcan"]
+async fn cantools_encoded_frames_decode_to_their_physical_values() -> Result<()> {
+    let config = config(&vcan())?;
+    let mut reader = RunningReader::start(&config)?;
+    let torque = cantools_frame(
+        "SpindleTorque",
+        "{'SpindleTopTorque': 123.45, 'SpindleBottomTorque': -67.89, 'Seq': 7}",
+    )?;
+    cansend(&vcan(), &torque)?;
+    let status = cantools_frame(
+        "StandStatus",
+        "{'RollSpeed': 432.1, 'StripTension': -246.8, 'RollForce': 12000, 'MetalInStand': 1, 'Seq': 3}",
+    )?;
+    cansend(&vcan(), &status)?;
+    let expected = [
+        (SPINDLE_TOP, 123.45),
+        (SPINDLE_BOTTOM, -67.89),
+        (TORQUE_SEQ, 7.0),
+        (ROLL_SPEED, 432.1),
+        (STRIP_TENSION, -246.8),
+        (ROLL_FORCE, 12000.0),
+    ];
+    for (channel, value) in expected {
+        let values = reader.wait_for(channel, 1).await?;
+        assert!(
+            (values[0] - value).abs() < 1e-6,
+            "channel {channel}: {} vs {value} ({torque}, {status})",
+            values[0]
+        );
+    }
+    reader.stop().await
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "needs SocketCAN vcan0: run scripts/uml-vcan"]
+async fn cangen_random_payloads_are_all_decoded() -> Result<()> {
+    const FRAMES: u64 = 200;
+    let config = config(&vcan())?;
+    let reader = RunningReader::start(&config)?;
+    // cangen: id 0x101, 8 random bytes, 200 frames, 1 ms apart.
+    let cangen = std::env::var("MILLGATE_CANSEND")
+        .map(|cansend| cansend.replace("cansend", "cangen"))
+        .unwrap_or_else(|_| "cangen".to_owned());
+    let status = Command::new(&cangen)
+        .args([
+            &vcan(),
+            "-I",
+            "101",
+            "-L",
+            "8",
+            "-D",
+            "r",
+            "-g",
+            "1",
+            "-n",
+            &FRAMES.to_string(),
+        ])
+        .status()
+        .with_context(|| format!("running {cangen} (install can-utils)"))?;
+    ensure!(status.success(), "cangen: {status}");
+    let counts = reader.wait_for_frames(FRAMES).await?;
+    assert_eq!(
+        (counts.frames, counts.decoded),
+        (FRAMES, FRAMES),
+        "{counts:?}"
+    );
+    reader.stop().await
+}
