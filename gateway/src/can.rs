@@ -9,7 +9,7 @@
 
 use std::collections::HashMap;
 use std::io;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, AtomicU8, Ordering};
 use std::sync::Arc;
 
 use millgate_config::signal::SignalLayout;
@@ -73,6 +73,72 @@ pub struct CanCounters {
     bad_length: AtomicU64,
     remote_frames: AtomicU64,
     error_frames: AtomicU64,
+    error_passive: AtomicU64,
+    bus_off: AtomicU64,
+    /// [`BusState`] as its code, from the last error frame that told it.
+    bus_state: AtomicU8,
+}
+
+/// The controller's fault confinement state, as the last error frame told it.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum BusState {
+    /// Error active: normal operation (also the state before any error frame).
+    #[default]
+    Active,
+    /// Error passive: an error counter passed 127; the node may still talk.
+    Passive,
+    /// Bus off: the controller left the bus until it is restarted.
+    BusOff,
+}
+
+impl BusState {
+    /// Metrics encoding: 0 active, 1 passive, 2 bus off.
+    pub fn code(self) -> u8 {
+        match self {
+            BusState::Active => 0,
+            BusState::Passive => 1,
+            BusState::BusOff => 2,
+        }
+    }
+
+    fn from_code(code: u8) -> Self {
+        match code {
+            1 => BusState::Passive,
+            2 => BusState::BusOff,
+            _ => BusState::Active,
+        }
+    }
+}
+
+/// Error-frame class bits in the CAN id and controller status bits in data[1]
+/// (linux/can/error.h).
+mod error_bits {
+    pub const CRTL: u32 = 0x0004;
+    pub const BUSOFF: u32 = 0x0040;
+    pub const RESTARTED: u32 = 0x0100;
+    pub const CRTL_RX_PASSIVE: u8 = 0x10;
+    pub const CRTL_TX_PASSIVE: u8 = 0x20;
+    pub const CRTL_ACTIVE: u8 = 0x40;
+}
+
+/// The bus state an error frame reports, if it reports one: bus off, error passive,
+/// or back to error active (controller restarted or recovered).
+pub fn bus_state_of_error_frame(class_bits: u32, data: &[u8]) -> Option<BusState> {
+    use error_bits::*;
+    let controller = if class_bits & CRTL != 0 {
+        data.get(1).copied().unwrap_or(0)
+    } else {
+        0
+    };
+    if class_bits & BUSOFF != 0 {
+        Some(BusState::BusOff)
+    } else if controller & (CRTL_RX_PASSIVE | CRTL_TX_PASSIVE) != 0 {
+        Some(BusState::Passive)
+    } else if class_bits & RESTARTED != 0 || controller & CRTL_ACTIVE != 0 {
+        Some(BusState::Active)
+    } else {
+        None
+    }
 }
 
 /// A copy of [`CanCounters`] at one instant. All counts are since the reader opened.
@@ -90,6 +156,12 @@ pub struct CanCounts {
     pub remote_frames: u64,
     /// Error frames reported by the controller.
     pub error_frames: u64,
+    /// Error frames reporting error passive (RX or TX).
+    pub error_passive: u64,
+    /// Error frames reporting bus off.
+    pub bus_off: u64,
+    /// The bus state last reported.
+    pub bus_state: BusState,
 }
 
 impl CanCounters {
@@ -102,7 +174,23 @@ impl CanCounters {
             bad_length: self.bad_length.load(Ordering::Relaxed),
             remote_frames: self.remote_frames.load(Ordering::Relaxed),
             error_frames: self.error_frames.load(Ordering::Relaxed),
+            error_passive: self.error_passive.load(Ordering::Relaxed),
+            bus_off: self.bus_off.load(Ordering::Relaxed),
+            bus_state: BusState::from_code(self.bus_state.load(Ordering::Relaxed)),
         }
+    }
+
+    fn count_error_frame(&self, class_bits: u32, data: &[u8]) {
+        self.error_frames.fetch_add(1, Ordering::Relaxed);
+        let Some(state) = bus_state_of_error_frame(class_bits, data) else {
+            return;
+        };
+        match state {
+            BusState::Passive => self.error_passive.fetch_add(1, Ordering::Relaxed),
+            BusState::BusOff => self.bus_off.fetch_add(1, Ordering::Relaxed),
+            BusState::Active => 0,
+        };
+        self.bus_state.store(state.code(), Ordering::Relaxed);
     }
 
     fn count_data(&self, outcome: FrameOutcome) {
@@ -285,6 +373,13 @@ impl CanReader {
         self
     }
 
+    /// Count into `counters` instead of the reader's own (a supervisor keeps one
+    /// set per source across reopens).
+    pub fn with_counters(mut self, counters: Arc<CanCounters>) -> Self {
+        self.counters = counters;
+        self
+    }
+
     /// The reader's counters; they keep counting while [`Self::run`] runs.
     pub fn counters(&self) -> Arc<CanCounters> {
         Arc::clone(&self.counters)
@@ -361,8 +456,13 @@ impl CanReader {
                 self.counters.remote_frames.fetch_add(1, Ordering::Relaxed);
                 return;
             }
-            CanAnyFrame::Error(_) => {
-                self.counters.error_frames.fetch_add(1, Ordering::Relaxed);
+            CanAnyFrame::Error(frame) => {
+                let state = bus_state_of_error_frame(frame.error_bits(), frame.data());
+                if matches!(state, Some(BusState::Passive | BusState::BusOff)) {
+                    tracing::warn!(interface = %self.interface, ?state, "CAN controller fault");
+                }
+                self.counters
+                    .count_error_frame(frame.error_bits(), frame.data());
                 return;
             }
         };
@@ -438,6 +538,46 @@ fn open_error(interface: &str, error: io::Error) -> CanError {
 
 #[cfg(test)]
 mod tests {
+
+    #[test]
+    fn error_frames_tell_the_bus_state() {
+        // Class bits and data[1] as in linux/can/error.h.
+        assert_eq!(
+            bus_state_of_error_frame(0x04, &[0, 0x10, 0, 0, 0, 0, 0, 0]),
+            Some(BusState::Passive)
+        );
+        assert_eq!(
+            bus_state_of_error_frame(0x04, &[0, 0x20, 0, 0, 0, 0, 0, 0]),
+            Some(BusState::Passive)
+        );
+        assert_eq!(
+            bus_state_of_error_frame(0x40, &[0; 8]),
+            Some(BusState::BusOff)
+        );
+        assert_eq!(
+            bus_state_of_error_frame(0x44, &[0, 0x10, 0, 0, 0, 0, 0, 0]),
+            Some(BusState::BusOff)
+        );
+        assert_eq!(
+            bus_state_of_error_frame(0x100, &[0; 8]),
+            Some(BusState::Active)
+        );
+        assert_eq!(
+            bus_state_of_error_frame(0x04, &[0, 0x40, 0, 0, 0, 0, 0, 0]),
+            Some(BusState::Active)
+        );
+        assert_eq!(
+            bus_state_of_error_frame(0x04, &[0, 0x04, 0, 0, 0, 0, 0, 0]),
+            None,
+            "RX warning only"
+        );
+        assert_eq!(
+            bus_state_of_error_frame(0x08, &[0; 8]),
+            None,
+            "protocol violation"
+        );
+    }
+
     use super::*;
 
     fn torque_layout(start_bit: u16) -> SignalLayout {

@@ -12,6 +12,7 @@ use millgate_config::Config;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 
+use crate::can::{CanCounters, CanCounts};
 use crate::health::{ChannelCounters, ChannelCountersSnapshot, SourceHealth};
 use crate::publish::Publisher;
 use crate::shutdown::Shutdown;
@@ -19,12 +20,17 @@ use crate::shutdown::Shutdown;
 /// Reads one counter out of a snapshot.
 type CounterOf = fn(&ChannelCountersSnapshot) -> u64;
 
+/// Reads one counter out of CAN counts.
+type CanCounterOf = fn(&CanCounts) -> u64;
+
 /// What the metrics page shows.
 pub struct Metrics {
     channel_names: Vec<String>,
     source_names: Vec<String>,
     counters: Vec<Arc<ChannelCounters>>,
     health: Vec<Arc<SourceHealth>>,
+    can_names: Vec<String>,
+    can_counters: Vec<Arc<CanCounters>>,
     publisher: Arc<Publisher>,
 }
 
@@ -40,6 +46,7 @@ impl Metrics {
         config: &Config,
         counters: Vec<Arc<ChannelCounters>>,
         health: Vec<Arc<SourceHealth>>,
+        can_counters: Vec<Arc<CanCounters>>,
         publisher: Arc<Publisher>,
     ) -> Self {
         Self {
@@ -52,6 +59,8 @@ impl Metrics {
                 .collect(),
             counters,
             health,
+            can_names: config.can_sources.iter().map(|s| s.name.clone()).collect(),
+            can_counters,
             publisher,
         }
     }
@@ -113,6 +122,55 @@ impl Metrics {
                 "millgate_source_connects_total{{source=\"{}\"}} {}",
                 escape(source),
                 health.connects()
+            );
+        }
+        let can: Vec<CanCounts> = self.can_counters.iter().map(|c| c.snapshot()).collect();
+        let can_counters: [(&str, &str, CanCounterOf); 8] = [
+            ("frames", "CAN frames received", |c| c.frames),
+            ("decoded", "CAN data frames decoded into samples", |c| {
+                c.decoded
+            }),
+            (
+                "unknown_id",
+                "CAN data frames with an id no channel uses",
+                |c| c.unknown_id,
+            ),
+            (
+                "bad_length",
+                "CAN data frames too short for their signals",
+                |c| c.bad_length,
+            ),
+            ("remote", "CAN remote frames", |c| c.remote_frames),
+            ("error", "CAN error frames", |c| c.error_frames),
+            (
+                "error_passive",
+                "CAN error frames reporting error passive",
+                |c| c.error_passive,
+            ),
+            ("bus_off", "CAN error frames reporting bus off", |c| {
+                c.bus_off
+            }),
+        ];
+        for (name, help, value) in can_counters {
+            let _ = writeln!(out, "# HELP millgate_can_{name}_frames_total {help}.");
+            let _ = writeln!(out, "# TYPE millgate_can_{name}_frames_total counter");
+            for (source, counts) in self.can_names.iter().zip(&can) {
+                let _ = writeln!(
+                    out,
+                    "millgate_can_{name}_frames_total{{source=\"{}\"}} {}",
+                    escape(source),
+                    value(counts)
+                );
+            }
+        }
+        let _ = writeln!(out, "# HELP millgate_can_bus_state Last reported bus state: 0 error active, 1 error passive, 2 bus off.");
+        let _ = writeln!(out, "# TYPE millgate_can_bus_state gauge");
+        for (source, counts) in self.can_names.iter().zip(&can) {
+            let _ = writeln!(
+                out,
+                "millgate_can_bus_state{{source=\"{}\"}} {}",
+                escape(source),
+                counts.bus_state.code()
             );
         }
         let results = self.publisher.results();

@@ -10,7 +10,7 @@ use tokio::sync::{broadcast, mpsc};
 use tokio::task::JoinSet;
 
 use crate::analysis::{Analysis, AnalysisError, BiteReport};
-use crate::can::{CanError, CanReader};
+use crate::can::{CanCounters, CanError, CanReader};
 use crate::daq::DaqReader;
 use crate::health::{ChannelCounters, SourceHealth};
 use crate::metrics::Metrics;
@@ -44,6 +44,7 @@ pub struct Service {
     publisher: Arc<Publisher>,
     counters: Vec<Arc<ChannelCounters>>,
     health: Vec<Arc<SourceHealth>>,
+    can_counters: Vec<Arc<CanCounters>>,
     bites: broadcast::Sender<BiteReport>,
     analysis: Analysis,
     server_listener: Option<TcpListener>,
@@ -86,11 +87,13 @@ impl Service {
         let publisher = Arc::new(Publisher::new(&config, health.clone()));
         let (bites, _) = broadcast::channel(64);
         let analysis = Analysis::new(&config, Arc::clone(&publisher), bites.clone())?;
+        let can_counters = config.can_sources.iter().map(|_| Arc::default()).collect();
         Ok(Self {
             config,
             publisher,
             counters,
             health,
+            can_counters,
             bites,
             analysis,
             server_listener: None,
@@ -150,6 +153,7 @@ impl Service {
             publisher,
             counters,
             health,
+            can_counters,
             analysis,
             server_listener,
             metrics_listener,
@@ -169,6 +173,7 @@ impl Service {
                 Arc::new(config.clone()),
                 index,
                 health,
+                Arc::clone(&can_counters[index]),
                 samples_tx.clone(),
                 shutdown.clone(),
             ));
@@ -198,6 +203,7 @@ impl Service {
                 &config,
                 counters.clone(),
                 health.clone(),
+                can_counters,
                 Arc::clone(&publisher),
             );
             outputs.spawn(metrics.run(listener, outputs_shutdown));
@@ -224,6 +230,7 @@ async fn supervise_can(
     config: Arc<Config>,
     index: usize,
     health: Arc<SourceHealth>,
+    counters: Arc<CanCounters>,
     samples: mpsc::Sender<Acquired>,
     mut shutdown: Shutdown,
 ) {
@@ -257,6 +264,7 @@ async fn supervise_can(
                 read_before = true;
                 let result = reader
                     .with_health(Arc::clone(&health))
+                    .with_counters(Arc::clone(&counters))
                     .run(samples.clone(), shutdown.receiver())
                     .await;
                 health.set_connected(false);

@@ -406,6 +406,7 @@ async fn unknown_short_remote_and_error_frames_are_counted_and_ignored() -> Resu
             bad_length: 2,
             remote_frames: 1,
             error_frames: 1,
+            ..CanCounts::default()
         }
     );
     // The good frame's three channels got one sample each and nothing else did: the
@@ -732,5 +733,34 @@ async fn cangen_random_payloads_are_all_decoded() -> Result<()> {
         (FRAMES, FRAMES),
         "{counts:?}"
     );
+    reader.stop().await
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "needs SocketCAN vcan0: run scripts/uml-vcan"]
+async fn error_passive_and_bus_off_are_counted_and_tracked() -> Result<()> {
+    use millgate::can::BusState;
+    let config = config(&vcan())?;
+    let reader = RunningReader::start(&config)?;
+    let interface = vcan();
+    // Error frames as a controller driver would send them (CAN_ERR_FLAG | class).
+    cansend(&interface, "20000004#0010000000000000")?; // controller: RX error passive
+    let counts = reader.wait_for_frames(1).await?;
+    assert_eq!(
+        (counts.error_passive, counts.bus_state),
+        (1, BusState::Passive),
+        "{counts:?}"
+    );
+    cansend(&interface, "20000040#0000000000000000")?; // bus off
+    let counts = reader.wait_for_frames(2).await?;
+    assert_eq!(
+        (counts.bus_off, counts.bus_state),
+        (1, BusState::BusOff),
+        "{counts:?}"
+    );
+    cansend(&interface, "20000100#0000000000000000")?; // controller restarted
+    let counts = reader.wait_for_frames(3).await?;
+    assert_eq!(counts.bus_state, BusState::Active, "{counts:?}");
+    assert_eq!((counts.error_frames, counts.decoded), (3, 0), "{counts:?}");
     reader.stop().await
 }
