@@ -38,15 +38,7 @@ async fn main() -> anyhow::Result<()> {
     // A slow periodic write, so every measured write is the one the bite caused.
     output.write_period = Duration::from_secs(10);
     let output = output.clone();
-    let (stop_plc, mut plc_shutdown) = millgate::shutdown::channel();
-    let options = ServeOptions {
-        unit_id: 1,
-        single_connection: false,
-    };
-    let plc_task = tokio::spawn(
-        plc.clone()
-            .run(listener, options, async move { plc_shutdown.recv().await }),
-    );
+    let running_plc = plc.spawn(listener, ServeOptions::default());
 
     let health = Arc::new(SourceHealth::new(
         Duration::from_secs(3600),
@@ -92,8 +84,7 @@ async fn main() -> anyhow::Result<()> {
     }
     stop_writer.trigger();
     writer.await?;
-    stop_plc.trigger();
-    plc_task.await??;
+    running_plc.stop().await?;
 
     latencies.sort();
     let at = |q: f64| latencies[((latencies.len() - 1) as f64 * q).round() as usize];

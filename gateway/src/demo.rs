@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use anyhow::Context as _;
 use millgate_config::{ChannelSource, Config};
 use millgate_sim::daq::{DaqChannel, Placement, Publish, VirtualDaq};
-use millgate_sim::modbus_bank::ServeOptions;
+use millgate_sim::modbus_bank::{Running, ServeOptions};
 use millgate_sim::model::Model;
 use millgate_sim::plc::VirtualPlc;
 use millgate_sim::schedule::{rolling_schedule, BarTiming, Schedule};
@@ -136,8 +136,7 @@ fn print_registers(map: &RegisterMap, words: &[u16]) {
 /// The virtual DAQ and PLC running on loopback.
 pub struct Devices {
     pub plc: VirtualPlc,
-    stop: crate::shutdown::ShutdownTrigger,
-    tasks: Vec<tokio::task::JoinHandle<std::io::Result<()>>>,
+    running: [Running; 2],
 }
 
 impl Devices {
@@ -163,25 +162,17 @@ impl Devices {
         if let Some(server) = config.outputs.server.as_mut() {
             server.bind = "127.0.0.1:0".parse()?;
         }
-        let options = ServeOptions {
-            unit_id: 1,
-            single_connection: false,
-        };
-        let (stop, shutdown) = crate::shutdown::channel();
-        let stopped =
-            |mut shutdown: crate::shutdown::Shutdown| async move { shutdown.recv().await };
-        let tasks = vec![
-            tokio::spawn(daq.run(daq_listener, options, stopped(shutdown.clone()))),
-            tokio::spawn(plc.clone().run(plc_listener, options, stopped(shutdown))),
+        let running = [
+            daq.spawn(daq_listener, ServeOptions::default()),
+            plc.spawn(plc_listener, ServeOptions::default()),
         ];
-        Ok(Self { plc, stop, tasks })
+        Ok(Self { plc, running })
     }
 
     /// Stop both devices.
     pub async fn stop(self) -> anyhow::Result<()> {
-        self.stop.trigger();
-        for task in self.tasks {
-            task.await??;
+        for device in self.running {
+            device.stop().await?;
         }
         Ok(())
     }

@@ -228,15 +228,7 @@ async fn run_stops_on_sigterm_with_a_final_stopped_write() {
     let plc = VirtualPlc::new(64);
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let plc_address = listener.local_addr().unwrap();
-    let options = ServeOptions {
-        unit_id: 1,
-        single_connection: false,
-    };
-    let (stop_plc, mut plc_shutdown) = millgate::shutdown::channel();
-    let plc_task = tokio::spawn(
-        plc.clone()
-            .run(listener, options, async move { plc_shutdown.recv().await }),
-    );
+    let running_plc = plc.spawn(listener, ServeOptions::default());
 
     let demo = std::fs::read_to_string(examples().join("demo.toml")).unwrap();
     let config = demo
@@ -270,6 +262,5 @@ async fn run_stops_on_sigterm_with_a_final_stopped_write() {
     assert!(output.status.success(), "exit {:?}: {logs}", output.status);
     assert!(logs.contains("shutdown requested"), "{logs}");
     assert_eq!(plc.holding()[1] & 0b11, 0b10, "status stopped, not running");
-    stop_plc.trigger();
-    plc_task.await.unwrap().unwrap();
+    running_plc.stop().await.unwrap();
 }

@@ -116,6 +116,56 @@ pub struct ServeOptions {
     pub single_connection: bool,
 }
 
+impl Default for ServeOptions {
+    /// Unit 1, any number of connections.
+    fn default() -> Self {
+        Self {
+            unit_id: 1,
+            single_connection: false,
+        }
+    }
+}
+
+/// A virtual device serving in the background, until [`Running::stop`].
+#[derive(Debug)]
+pub struct Running {
+    stop: tokio::sync::oneshot::Sender<()>,
+    task: tokio::task::JoinHandle<io::Result<()>>,
+}
+
+impl Running {
+    /// Spawn `run`, handing it the future that completes when [`Running::stop`] is
+    /// called (or the handle is dropped).
+    pub fn spawn<F>(run: impl FnOnce(StopSignal) -> F) -> Self
+    where
+        F: Future<Output = io::Result<()>> + Send + 'static,
+    {
+        let (stop, stopped) = tokio::sync::oneshot::channel();
+        let signal = StopSignal(stopped);
+        Self {
+            stop,
+            task: tokio::spawn(run(signal)),
+        }
+    }
+
+    /// Stop the device and wait for it; its serving error, if any.
+    pub async fn stop(self) -> io::Result<()> {
+        let _ = self.stop.send(());
+        self.task.await.map_err(io::Error::other)?
+    }
+}
+
+/// Completes when the owning [`Running`] is stopped or dropped.
+#[derive(Debug)]
+pub struct StopSignal(tokio::sync::oneshot::Receiver<()>);
+
+impl StopSignal {
+    /// Wait for the stop request.
+    pub async fn wait(self) {
+        let _ = self.0.await;
+    }
+}
+
 struct BankService {
     bank: SharedBank,
     unit_id: u8,

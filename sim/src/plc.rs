@@ -5,7 +5,7 @@ use std::io;
 
 use tokio::net::TcpListener;
 
-use crate::modbus_bank::{serve, RegisterBank, ServeOptions, SharedBank};
+use crate::modbus_bank::{serve, RegisterBank, Running, ServeOptions, SharedBank};
 
 /// A virtual PLC with `holding_len` writable holding registers.
 #[derive(Debug, Clone)]
@@ -34,6 +34,12 @@ impl VirtualPlc {
     /// Write requests served so far.
     pub fn writes(&self) -> u64 {
         self.bank.lock().writes
+    }
+
+    /// Serve on `listener` in the background until the handle is stopped.
+    pub fn spawn(&self, listener: TcpListener, options: ServeOptions) -> Running {
+        let plc = self.clone();
+        Running::spawn(|stop| plc.run(listener, options, stop.wait()))
     }
 
     /// Serve until `shutdown` completes.

@@ -4,13 +4,9 @@
 use millgate_sim::chain::{simulate, simulate_with_noise, Simulator, Transient};
 use millgate_sim::model::{Coupling, Load, Mass, Measurement, Model, Motor};
 
-fn load(name: &str) -> anyhow::Result<Model> {
-    Ok(Model::load(
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("models")
-            .join(name),
-    )?)
-}
+mod common;
+
+use common::load;
 
 /// Two masses, no controller, no damping, load from t = 0.
 fn two_mass(backlash: f64) -> Model {

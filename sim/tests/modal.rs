@@ -1,16 +1,11 @@
 //! Modal analysis against the paper's Table 2 and Friswell et al. Example 9.7.1.
 
 use millgate_sim::modal::{self, chain_matrix, mass_matrix, solve};
-use millgate_sim::model::Model;
 use nalgebra::{DMatrix, DVector};
 
-fn load(name: &str) -> anyhow::Result<Model> {
-    Ok(Model::load(
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("models")
-            .join(name),
-    )?)
-}
+mod common;
+
+use common::load;
 
 fn assert_close(found: &[f64], expected: &[f64], tolerance: f64) {
     assert_eq!(found.len(), expected.len(), "{found:?} vs {expected:?}");

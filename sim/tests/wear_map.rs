@@ -4,13 +4,9 @@ use millgate_sim::model::Model;
 use millgate_sim::plot::wear_map_svg;
 use millgate_sim::wear_map::{wear_map, WearMap, WearMapRow, WearMapSpec};
 
-fn load(name: &str) -> anyhow::Result<Model> {
-    Ok(Model::load(
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("models")
-            .join(name),
-    )?)
-}
+mod common;
+
+use common::load;
 
 fn row(map: &WearMap, static_torque_knm: f64, backlash_rad: f64) -> anyhow::Result<WearMapRow> {
     map.rows

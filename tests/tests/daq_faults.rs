@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use millgate::health::SourceStatus;
 use millgate_config::{Config, RegisterTable};
 use millgate_sim::daq::{DaqChannel, Placement, Publish, VirtualDaq};
-use millgate_sim::modbus_bank::ServeOptions;
+use millgate_sim::modbus_bank::{Running, ServeOptions};
 use millgate_tests::wait_for;
 use tokio::net::TcpListener;
 
@@ -33,22 +33,12 @@ fn daq(config: &Config) -> VirtualDaq {
     )
 }
 
-async fn start_daq(
-    config: &Config,
-    address: SocketAddr,
-) -> anyhow::Result<(
-    millgate::shutdown::ShutdownTrigger,
-    tokio::task::JoinHandle<std::io::Result<()>>,
-)> {
-    let listener = TcpListener::bind(address).await?;
-    let (stop, mut shutdown) = millgate::shutdown::channel();
+async fn start_daq(config: &Config, address: SocketAddr) -> anyhow::Result<Running> {
     let options = ServeOptions {
         unit_id: 1,
         single_connection: true,
     };
-    let task =
-        tokio::spawn(daq(config).run(listener, options, async move { shutdown.recv().await }));
-    Ok((stop, task))
+    Ok(daq(config).spawn(TcpListener::bind(address).await?, options))
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -63,7 +53,7 @@ async fn daq_restart_goes_stale_then_ok_and_counts_the_gap() -> anyhow::Result<(
     let address = TcpListener::bind("127.0.0.1:0").await?.local_addr()?;
     config.modbus_sources[0].address = address.to_string();
 
-    let (stop_daq, daq_task) = start_daq(&config, address).await?;
+    let daq_device = start_daq(&config, address).await?;
     let mut service = millgate::Service::new(config.clone())?;
     let metrics = service.bind().await?.metrics.expect("metrics configured");
     let counters = service.counters()[0].clone();
@@ -77,8 +67,7 @@ async fn daq_restart_goes_stale_then_ok_and_counts_the_gap() -> anyhow::Result<(
     })
     .await;
 
-    stop_daq.trigger();
-    daq_task.await??;
+    daq_device.stop().await?;
     let pulled = Instant::now();
     wait_for(
         "stale after the DAQ stopped",
@@ -89,7 +78,7 @@ async fn daq_restart_goes_stale_then_ok_and_counts_the_gap() -> anyhow::Result<(
     let before_restart = counters.snapshot();
     tokio::time::sleep(Duration::from_millis(1500).saturating_sub(pulled.elapsed())).await;
 
-    let (stop_daq, daq_task) = start_daq(&config, address).await?;
+    let daq_device = start_daq(&config, address).await?;
     wait_for("ok again after restart", Duration::from_secs(10), || {
         status() == Some(SourceStatus::Ok)
             && counters.snapshot().blocks_read > before_restart.blocks_read + 3
@@ -127,8 +116,7 @@ async fn daq_restart_goes_stale_then_ok_and_counts_the_gap() -> anyhow::Result<(
 
     stop.trigger();
     tokio::time::timeout(Duration::from_secs(10), gateway).await???;
-    stop_daq.trigger();
-    daq_task.await??;
+    daq_device.stop().await?;
     Ok(())
 }
 

@@ -26,15 +26,9 @@ async fn plc_unreachable_at_start_gets_registers_when_it_appears() -> anyhow::Re
     tokio::time::sleep(Duration::from_millis(800)).await;
 
     let plc = VirtualPlc::new(100 + usize::from(map.len()));
-    let listener = TcpListener::bind(plc_address).await?;
-    let (stop_plc, mut plc_shutdown) = millgate::shutdown::channel();
-    let options = ServeOptions {
-        unit_id: 1,
-        single_connection: false,
-    };
-    let plc_task = tokio::spawn(
-        plc.clone()
-            .run(listener, options, async move { plc_shutdown.recv().await }),
+    let running_plc = plc.spawn(
+        TcpListener::bind(plc_address).await?,
+        ServeOptions::default(),
     );
 
     // Reconnect backoff is capped at 5 s; registers must arrive well within that.
@@ -58,8 +52,7 @@ async fn plc_unreachable_at_start_gets_registers_when_it_appears() -> anyhow::Re
     stop.trigger();
     tokio::time::timeout(Duration::from_secs(10), gateway).await???;
     assert_eq!(plc.holding()[101] & 0b10, 0b10, "final write: stopped");
-    stop_plc.trigger();
-    plc_task.await??;
+    running_plc.stop().await?;
     Ok(())
 }
 
