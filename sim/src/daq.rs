@@ -14,7 +14,7 @@ use millgate_config::layout::{self, BLOCK_HEADER_REGISTERS, MAX_BLOCK_SAMPLES};
 use millgate_config::{RegisterTable, ValueType, WordOrder};
 use tokio::net::TcpListener;
 
-use crate::modbus_bank::{serve, RegisterBank, ServeOptions, SharedBank};
+use crate::modbus_bank::{serve, RegisterBank, Running, ServeOptions, SharedBank};
 
 /// Where a signal is published and how it is scaled.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -156,6 +156,11 @@ impl VirtualDaq {
         self.next_sample = end;
     }
 
+    /// Serve and publish in the background until the handle is stopped.
+    pub fn spawn(self, listener: TcpListener, options: ServeOptions) -> Running {
+        Running::spawn(|stop| self.run(listener, options, stop.wait()))
+    }
+
     /// Serve the DAQ on `listener` and publish a block every block period until
     /// `shutdown` completes.
     pub async fn run(
@@ -164,8 +169,11 @@ impl VirtualDaq {
         options: ServeOptions,
         shutdown: impl Future<Output = ()> + Send + Sync + 'static,
     ) -> io::Result<()> {
+        // A DAQ answers with its first block already in the buffer, never an empty one.
+        self.publish_next_block();
         let mut server = tokio::spawn(serve(listener, self.bank(), options, shutdown));
-        let mut ticks = tokio::time::interval(self.block_period());
+        let period = self.block_period();
+        let mut ticks = tokio::time::interval_at(tokio::time::Instant::now() + period, period);
         ticks.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Burst);
         loop {
             tokio::select! {
