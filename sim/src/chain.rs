@@ -12,7 +12,14 @@
 //!   elastic torque is `C (x - g)` for `x > g`, `0` for `|x| <= g`, `C (x + g)` for
 //!   `x < -g`; damping `h (w_i - w_{i+1})` acts at all times;
 //! - the load `M(t)` acts against the last mass; the measured channel is the torque
-//!   (elastic + damping) of the model's measured coupling, in kN*m.
+//!   (elastic + damping + friction) of the model's measured coupling, in kN*m, passed
+//!   through the first-order lag `measurement.lag` when it is set (an extra state that
+//!   starts at 0).
+//!
+//! Optional coupling extensions (all default 0): cubic hardening `k3 e^3` added to the
+//! elastic torque, `e` being the deflection beyond the gap, and Coulomb-like friction
+//! `F tanh(rate / FRICTION_SPEED)`. The tanh keeps the right-hand side smooth, so RK4
+//! keeps its order; its slope `F / FRICTION_SPEED` counts in the step bound below.
 //!
 //! Integrator: classical fixed-step RK4 on `[theta, w]` with the contact regime of every
 //! coupling frozen during a step, so each step integrates a smooth (piecewise linear)
@@ -28,6 +35,11 @@ use rand::{rngs::StdRng, Rng, SeedableRng};
 use rand_distr::StandardNormal;
 
 use crate::model::{Model, ModelError};
+
+/// Twist rate at which a coupling's friction reaches tanh(1) = 76% of its full value,
+/// rad/s. Well below the twist rates of bite transients (0.05-0.5 rad/s), so the
+/// friction acts like Coulomb's, yet smooth enough for a fixed-step integrator.
+pub const FRICTION_SPEED: f64 = 2.0e-3;
 
 /// Integration steps per period of the fastest possible motion (h = 1 / (50 f_bound)).
 pub const STEPS_PER_FASTEST_PERIOD: f64 = 50.0;
@@ -67,8 +79,14 @@ pub struct Simulator {
     inverse_inertia: Vec<f64>,
     stiffness: Vec<f64>,
     damping: Vec<f64>,
+    /// Cubic hardening of each coupling, N*m/rad^3.
+    hardening: Vec<f64>,
+    /// Friction torque of each coupling, N*m.
+    friction: Vec<f64>,
     /// Half the backlash of each coupling, rad.
     half_gap: Vec<f64>,
+    /// `1 / lag` of the measured channel, 1/s; 0 when the channel has no lag.
+    inverse_lag: f64,
     speed_kp: f64,
     speed_ki: f64,
     static_torque_nm: f64,
@@ -83,7 +101,8 @@ pub struct Simulator {
 /// Mutable integrator state and preallocated work buffers for one [`Simulator`].
 #[derive(Debug, Clone)]
 pub struct ChainState {
-    /// `[theta_0 .. theta_{n-1}, w_0 .. w_{n-1}]`, rad and rad/s.
+    /// `[theta_0 .. theta_{n-1}, w_0 .. w_{n-1}]`, rad and rad/s, then the lagged
+    /// measured torque (N*m) when the channel has a lag.
     y: Vec<f64>,
     regime: Vec<Regime>,
     k1: Vec<f64>,
@@ -114,12 +133,18 @@ impl Simulator {
         let stiffness: Vec<f64> = model.couplings.iter().map(|c| c.stiffness).collect();
         let damping: Vec<f64> = model.couplings.iter().map(|c| c.damping).collect();
         let half_gap = model.couplings.iter().map(|c| 0.5 * c.backlash).collect();
+        let hardening = model.couplings.iter().map(|c| c.hardening).collect();
+        let friction = model.couplings.iter().map(|c| c.friction).collect();
+        let lag = model.measurement.lag;
         let sample_period_s = 1.0 / model.measurement.sample_rate;
         let mut simulator = Simulator {
             inverse_inertia,
             stiffness,
             damping,
+            hardening,
+            friction,
             half_gap,
+            inverse_lag: if lag > 0.0 { 1.0 / lag } else { 0.0 },
             speed_kp: model.motor.speed_kp,
             speed_ki: model.motor.speed_ki,
             static_torque_nm: model.load.static_torque * 1.0e3,
@@ -157,6 +182,10 @@ impl Simulator {
     ///
     /// For `(l^2 M + l C + K) v = 0`, the infinity norms `k = |M^-1 K|` and
     /// `c = |M^-1 C|` (PI gains included) give `|l| <= (c + sqrt(c^2 + 4 k)) / 2`.
+    /// Nonlinear couplings count with their largest slopes: friction adds
+    /// `F / FRICTION_SPEED` to the damping; hardening adds `3 k3 e^2` to the stiffness
+    /// at a deflection `e` of four times the static load's (a bound, not a guarantee,
+    /// for transients with TAF up to 4). A lagged channel adds the eigenvalue `1 / lag`.
     pub fn frequency_bound_hz(&self) -> f64 {
         let n = self.inverse_inertia.len();
         let mut k_norm: f64 = 0.0;
@@ -165,12 +194,12 @@ impl Simulator {
             let mut k_row = 0.0;
             let mut c_row = 0.0;
             if i > 0 {
-                k_row += 2.0 * self.stiffness[i - 1];
-                c_row += 2.0 * self.damping[i - 1];
+                k_row += 2.0 * self.largest_stiffness(i - 1);
+                c_row += 2.0 * self.largest_damping(i - 1);
             }
             if i + 1 < n {
-                k_row += 2.0 * self.stiffness[i];
-                c_row += 2.0 * self.damping[i];
+                k_row += 2.0 * self.largest_stiffness(i);
+                c_row += 2.0 * self.largest_damping(i);
             }
             if i == 0 {
                 k_row += self.speed_ki;
@@ -179,7 +208,21 @@ impl Simulator {
             k_norm = k_norm.max(k_row * self.inverse_inertia[i]);
             c_norm = c_norm.max(c_row * self.inverse_inertia[i]);
         }
-        (c_norm + (c_norm * c_norm + 4.0 * k_norm).sqrt()) / 2.0 / std::f64::consts::TAU
+        let chain = (c_norm + (c_norm * c_norm + 4.0 * k_norm).sqrt()) / 2.0;
+        chain.max(self.inverse_lag) / std::f64::consts::TAU
+    }
+
+    /// Largest torque-per-twist slope of coupling `index`, N*m/rad (see
+    /// [`Simulator::frequency_bound_hz`]).
+    fn largest_stiffness(&self, index: usize) -> f64 {
+        let stiffness = self.stiffness[index];
+        let deflection = 4.0 * self.static_torque_nm / stiffness;
+        stiffness + 3.0 * self.hardening[index] * deflection * deflection
+    }
+
+    /// Largest torque-per-twist-rate slope of coupling `index`, N*m*s/rad.
+    fn largest_damping(&self, index: usize) -> f64 {
+        self.damping[index] + self.friction[index] / FRICTION_SPEED
     }
 
     /// Number of output samples.
@@ -189,7 +232,6 @@ impl Simulator {
 
     /// A fresh state at rest: zero angles, zero speeds, every gap centred.
     pub fn initial_state(&self) -> ChainState {
-        let n = self.inverse_inertia.len();
         let regime = self
             .half_gap
             .iter()
@@ -201,16 +243,17 @@ impl Simulator {
                 }
             })
             .collect();
+        let len = self.state_len();
         ChainState {
-            y: vec![0.0; 2 * n],
+            y: vec![0.0; len],
             regime,
-            k1: vec![0.0; 2 * n],
-            k2: vec![0.0; 2 * n],
-            k3: vec![0.0; 2 * n],
-            k4: vec![0.0; 2 * n],
-            stage: vec![0.0; 2 * n],
-            trial: vec![0.0; 2 * n],
-            probe: vec![0.0; 2 * n],
+            k1: vec![0.0; len],
+            k2: vec![0.0; len],
+            k3: vec![0.0; len],
+            k4: vec![0.0; len],
+            stage: vec![0.0; len],
+            trial: vec![0.0; len],
+            probe: vec![0.0; len],
             events: 0,
         }
     }
@@ -235,7 +278,7 @@ impl Simulator {
         let count = torque_knm.len().min(self.samples);
         let step_s = self.step_s();
         for (k, out) in torque_knm.iter_mut().take(count).enumerate() {
-            *out = self.coupling_torque_nm(state, self.measured) * 1.0e-3;
+            *out = self.measured_nm(state) * 1.0e-3;
             if k + 1 == count {
                 break;
             }
@@ -253,22 +296,45 @@ impl Simulator {
         state.events
     }
 
-    /// Torque of coupling `index` (elastic + damping) in the current state, N*m.
-    fn coupling_torque_nm(&self, state: &ChainState, index: usize) -> f64 {
+    /// Length of the state vector: angles, speeds and the lagged channel if any.
+    fn state_len(&self) -> usize {
+        2 * self.inverse_inertia.len() + usize::from(self.inverse_lag > 0.0)
+    }
+
+    /// The measured channel in state `y`, N*m: the lag state, or the measured
+    /// coupling's torque when the channel has no lag.
+    fn measured_nm(&self, state: &ChainState) -> f64 {
         let n = self.inverse_inertia.len();
-        let twist = state.y[index] - state.y[index + 1];
-        let rate = state.y[n + index] - state.y[n + index + 1];
-        self.elastic(index, twist, state.regime[index]) + self.damping[index] * rate
+        if self.inverse_lag > 0.0 {
+            state.y[2 * n]
+        } else {
+            self.coupling_torque(self.measured, &state.y, &state.regime)
+        }
+    }
+
+    /// Torque of coupling `index` (elastic + damping + friction) in state `y` under the
+    /// frozen regimes, N*m.
+    fn coupling_torque(&self, index: usize, y: &[f64], regime: &[Regime]) -> f64 {
+        let n = self.inverse_inertia.len();
+        let twist = y[index] - y[index + 1];
+        let rate = y[n + index] - y[n + index + 1];
+        let mut torque = self.elastic(index, twist, regime[index]) + self.damping[index] * rate;
+        if self.friction[index] > 0.0 {
+            torque += self.friction[index] * (rate / FRICTION_SPEED).tanh();
+        }
+        torque
     }
 
     /// Elastic torque of coupling `index` at twist `x` under a frozen regime, N*m.
     fn elastic(&self, index: usize, x: f64, regime: Regime) -> f64 {
         let g = self.half_gap[index];
-        match regime {
-            Regime::Positive => self.stiffness[index] * (x - g),
-            Regime::Open => 0.0,
-            Regime::Negative => self.stiffness[index] * (x + g),
-        }
+        let deflection = match regime {
+            Regime::Positive => x - g,
+            Regime::Open => return 0.0,
+            Regime::Negative => x + g,
+        };
+        let hardening = self.hardening[index];
+        self.stiffness[index] * deflection + hardening * deflection * deflection * deflection
     }
 
     /// Rolling load at `t_s`, N*m.
@@ -283,19 +349,18 @@ impl Simulator {
     /// Time derivative of `y` at `t_s` with the regimes frozen, written into `dy`.
     fn derivative(&self, t_s: f64, y: &[f64], regime: &[Regime], dy: &mut [f64]) {
         let n = self.inverse_inertia.len();
-        let (angles, speeds) = y.split_at(n);
-        let (angle_rates, accelerations) = dy.split_at_mut(n);
-        angle_rates.copy_from_slice(speeds);
+        dy[..n].copy_from_slice(&y[n..2 * n]);
         // Torque flowing into mass i from its left neighbour (the motor for mass 0).
-        let mut from_left = -self.speed_kp * speeds[0] - self.speed_ki * angles[0];
+        let mut from_left = -self.speed_kp * y[n] - self.speed_ki * y[0];
         for i in 0..n - 1 {
-            let twist = angles[i] - angles[i + 1];
-            let coupling =
-                self.elastic(i, twist, regime[i]) + self.damping[i] * (speeds[i] - speeds[i + 1]);
-            accelerations[i] = (from_left - coupling) * self.inverse_inertia[i];
+            let coupling = self.coupling_torque(i, y, regime);
+            dy[n + i] = (from_left - coupling) * self.inverse_inertia[i];
+            if i == self.measured && self.inverse_lag > 0.0 {
+                dy[2 * n] = (coupling - y[2 * n]) * self.inverse_lag;
+            }
             from_left = coupling;
         }
-        accelerations[n - 1] = (from_left - self.load_nm(t_s)) * self.inverse_inertia[n - 1];
+        dy[2 * n - 1] = (from_left - self.load_nm(t_s)) * self.inverse_inertia[n - 1];
     }
 
     /// One RK4 step of length `h` from `(t_s, state.y)` under the frozen regimes; the

@@ -5,10 +5,11 @@
 //! paper's tables. A [`Model`] returned by [`Model::from_toml_str`] or [`Model::load`]
 //! has passed [`Model::validate`]; code that builds a model by hand should call it too.
 //!
-//! Later extensions (cubic hardening, Coulomb friction, sensor lag, split inertias) are
-//! meant to be optional fields with `#[serde(default, skip_serializing_if = ...)]`, so
-//! files written before they exist keep loading and models without them serialise as
-//! before.
+//! The extensions used by the model-discrepancy workflow (cubic hardening and
+//! Coulomb-like friction per coupling, a first-order lag of the measured channel) are
+//! optional fields with `#[serde(default, skip_serializing_if = ...)]`, so files written
+//! before they existed keep loading and models without them serialise as before. An
+//! unmodelled inertia needs no field: it is one more mass (see [`Model::split_coupling`]).
 
 use std::fmt::Display;
 use std::path::Path;
@@ -62,6 +63,17 @@ pub struct Coupling {
     /// Total dead-zone width (opened gap), rad, >= 0; default 0 (linear coupling).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub backlash: f64,
+    /// Cubic hardening coefficient k3, N*m/rad^3, >= 0; default 0. The elastic torque
+    /// outside the gap becomes `C e + k3 e^3`, where `e` is the deflection beyond the
+    /// gap (`x - g`, `x + g`, or `x` without a gap).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub hardening: f64,
+    /// Coulomb-like friction torque, N*m, >= 0; default 0. The coupling adds
+    /// `friction * tanh(rate / FRICTION_SPEED)` (rate: twist rate, rad/s; see
+    /// [`crate::chain::FRICTION_SPEED`]): a damping whose share falls as the amplitude
+    /// grows, so oscillations decay linearly in time rather than exponentially.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub friction: f64,
 }
 
 /// PI speed controller on mass 0; the reference is the nominal speed (deviation 0).
@@ -96,6 +108,10 @@ pub struct Measurement {
     pub sample_rate: f64,
     /// Length of the simulated record, s, > 0.
     pub duration: f64,
+    /// Time constant of a first-order lag of the sensor or telemetry, s, >= 0; default 0
+    /// (the channel is the coupling torque itself). The lagged channel starts at 0.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub lag: f64,
 }
 
 /// Why a model file could not be read or is not a valid driveline.
@@ -251,6 +267,8 @@ impl Model {
             check.positive(&format!("{key}.stiffness"), coupling.stiffness, "N*m/rad")?;
             check.non_negative(&format!("{key}.damping"), coupling.damping, "N*m*s/rad")?;
             check.non_negative(&format!("{key}.backlash"), coupling.backlash, "rad")?;
+            check.non_negative(&format!("{key}.hardening"), coupling.hardening, "N*m/rad^3")?;
+            check.non_negative(&format!("{key}.friction"), coupling.friction, "N*m")?;
         }
         check.non_negative("motor.speed_kp", self.motor.speed_kp, "N*m*s/rad")?;
         check.non_negative("motor.speed_ki", self.motor.speed_ki, "N*m/rad")?;
@@ -270,6 +288,7 @@ impl Model {
             "Hz",
         )?;
         check.positive("measurement.duration", self.measurement.duration, "s")?;
+        check.non_negative("measurement.lag", self.measurement.lag, "s")?;
         let samples = self.measurement.duration * self.measurement.sample_rate;
         if samples > MAX_OUTPUT_SAMPLES {
             return Err(check.error(
@@ -294,6 +313,51 @@ impl Model {
         }
     }
 
+    /// The same driveline with a mass of `inertia` (kg*m^2) inserted in the middle of
+    /// coupling `index`: the coupling becomes two halves in series, each with twice its
+    /// stiffness, damping and hardening (so the series combination is the original),
+    /// the backlash and friction on the motor-side half. When the split coupling is the
+    /// measured one, the motor-side half is measured; later measured indices shift by one.
+    ///
+    /// `index` must be a coupling index and `inertia` > 0; the result is validated.
+    pub fn split_coupling(&self, index: usize, inertia: f64) -> Result<Model, ModelError> {
+        let Some(original) = self.couplings.get(index) else {
+            return Err(Checker { file: "<split>" }.error(
+                "coupling",
+                index,
+                format!("a coupling index, 0 ..= {}", self.couplings.len().saturating_sub(1)),
+            ));
+        };
+        let mut model = self.clone();
+        let motor_side = Coupling {
+            name: format!("{} (motor side)", original.name),
+            stiffness: 2.0 * original.stiffness,
+            damping: 2.0 * original.damping,
+            hardening: 8.0 * original.hardening,
+            ..original.clone()
+        };
+        let roll_side = Coupling {
+            name: format!("{} (roll side)", original.name),
+            backlash: 0.0,
+            friction: 0.0,
+            ..motor_side.clone()
+        };
+        model.couplings[index] = motor_side;
+        model.couplings.insert(index + 1, roll_side);
+        model.masses.insert(
+            index + 1,
+            Mass {
+                name: format!("inertia inside {}", original.name),
+                inertia,
+            },
+        );
+        if model.measurement.coupling > index {
+            model.measurement.coupling += 1;
+        }
+        model.validate("<split>")?;
+        Ok(model)
+    }
+
     /// Rolling load on the last mass at time `t_s`, N*m (the file gives kN*m).
     pub fn load_torque_nm(&self, t_s: f64) -> f64 {
         if t_s < self.load.onset {
@@ -314,6 +378,8 @@ impl Coupling {
             stiffness,
             damping,
             backlash: 0.0,
+            hardening: 0.0,
+            friction: 0.0,
         }
     }
 }

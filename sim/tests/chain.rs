@@ -39,6 +39,7 @@ fn two_mass(backlash: f64) -> Model {
             coupling: 0,
             sample_rate: 2000.0,
             duration: 0.5,
+            lag: 0.0,
         },
     }
 }
