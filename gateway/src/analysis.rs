@@ -12,13 +12,15 @@ use tokio::sync::{broadcast, mpsc};
 
 use crate::publish::Publisher;
 use crate::samples::Acquired;
+use crate::wear::{self, WearEstimate, WearReference};
 
 /// Window capacity of a bite, samples (pre + post trigger): 1 s at 2 kHz.
 pub const WINDOW_CAPACITY: usize = 2048;
 /// Largest pre-trigger history, samples.
 pub const PRE_TRIGGER_CAPACITY: usize = 256;
 
-type Detector = BiteDetector<PRE_TRIGGER_CAPACITY, WINDOW_CAPACITY>;
+/// The bite detector of every driveline (and of its wear reference).
+pub type Detector = BiteDetector<PRE_TRIGGER_CAPACITY, WINDOW_CAPACITY>;
 type DetectorState = BiteDetectorState<PRE_TRIGGER_CAPACITY, WINDOW_CAPACITY>;
 
 /// Low-pass cut-off for period measurement, Hz: keeps the driveline's first modes
@@ -82,6 +84,13 @@ pub fn analyze_window(
 pub enum AnalysisError {
     #[error("drivelines[{index}].bite: {problem}")]
     Bite { index: usize, problem: String },
+    /// The driveline's model file (for the wear index) is not a valid model.
+    #[error("drivelines[{index}].model: {source}")]
+    Model {
+        index: usize,
+        #[source]
+        source: millgate_sim::model::ModelError,
+    },
 }
 
 /// One analysed bite, as printed by the demo and logged by the service.
@@ -101,6 +110,9 @@ pub struct BiteReport {
     pub beta_hz: Option<(f64, f64)>,
     /// The window had gaps, NaN or saturated samples.
     pub degraded: bool,
+    /// Wear measures against the linear reference; `None` without a driveline model
+    /// or when the bite has no TAF.
+    pub wear: Option<WearEstimate>,
 }
 
 /// Bite detection and analysis of one driveline.
@@ -117,6 +129,8 @@ struct DrivelineAnalyzer {
     /// Rise above the baseline that marks the load onset for the fit, kN*m.
     onset_knm: f64,
     trigger_high: bool,
+    /// Linear references, when the driveline has a model file.
+    wear: Option<WearReference>,
 }
 
 impl DrivelineAnalyzer {
@@ -151,6 +165,41 @@ impl DrivelineAnalyzer {
             post_trigger_samples,
         };
         let detector = Detector::new(settings).map_err(|e| problem(format!("{e:?}")))?;
+        let transient = TransientSettings {
+            sample_rate_hz: fs,
+            period_lowpass_hz: PERIOD_LOWPASS_HZ.min(0.4 * fs),
+            peak_lowpass_hz: None,
+            settled_fraction: 0.3,
+            min_static_knm: bite.threshold_knm / 2.0,
+            reference_shift_s: None,
+        };
+        let onset_knm = 0.1 * bite.threshold_knm;
+        let wear = match &driveline.model {
+            Some(path) => {
+                let model = millgate_sim::model::Model::load(path)
+                    .map_err(|source| AnalysisError::Model { index, source })?;
+                let mut wear =
+                    WearReference::new(&model, detector, transient, onset_knm, bite.pre_trigger_s);
+                // Simulate the model's own load level now: a model that cannot give a
+                // reference is reported at start, not at the first bite.
+                match wear.reference(model.load.static_torque) {
+                    Ok(reference) => tracing::info!(
+                        driveline = %driveline.name,
+                        level_knm = reference.level_knm,
+                        reference_taf = reference.taf,
+                        reference_shift_s = ?reference.period_shift_s,
+                        "linear wear reference"
+                    ),
+                    Err(error) => tracing::warn!(
+                        driveline = %driveline.name,
+                        %error,
+                        "no linear wear reference at the model's load"
+                    ),
+                }
+                Some(wear)
+            }
+            None => None,
+        };
         Ok(Self {
             index,
             name: driveline.name.clone(),
@@ -158,22 +207,29 @@ impl DrivelineAnalyzer {
             sample_rate_hz: fs,
             state: detector.state(),
             detector,
-            transient: TransientSettings {
-                sample_rate_hz: fs,
-                period_lowpass_hz: PERIOD_LOWPASS_HZ.min(0.4 * fs),
-                peak_lowpass_hz: None,
-                settled_fraction: 0.3,
-                min_static_knm: bite.threshold_knm / 2.0,
-                reference_shift_s: None,
-            },
+            transient,
             taf_warning: driveline.thresholds.taf_warning,
             taf_alarm: driveline.thresholds.taf_alarm,
-            onset_knm: 0.1 * bite.threshold_knm,
+            onset_knm,
             trigger_high: false,
+            wear,
         })
     }
 
-    fn report(&self, event: &BiteEvent<WINDOW_CAPACITY>) -> Option<BiteReport> {
+    /// Wear measures of an analysed bite, when the driveline has a model.
+    fn wear_estimate(&mut self, transient: &TransientResult) -> Option<WearEstimate> {
+        let wear = self.wear.as_mut()?;
+        let taf = transient.taf?;
+        match wear.estimate(transient.static_torque_knm, taf, transient.period_shift_s) {
+            Ok(estimate) => estimate,
+            Err(error) => {
+                tracing::warn!(driveline = %self.name, %error, "no wear index for this bite");
+                None
+            }
+        }
+    }
+
+    fn report(&mut self, event: &BiteEvent<WINDOW_CAPACITY>) -> Option<BiteReport> {
         let window_complete = Instant::now();
         let result = analyze_window(
             &event.window,
@@ -200,6 +256,7 @@ impl DrivelineAnalyzer {
             transient: analysis.transient,
             beta_hz: analysis.good_fit().map(|fit| (fit.f1_hz, fit.f2_hz)),
             degraded: !event.quality.is_good(),
+            wear: self.wear_estimate(&analysis.transient),
         })
     }
 
@@ -247,6 +304,10 @@ fn publish(publisher: &Publisher, report: &BiteReport, taf_warning: f64, taf_ala
         driveline.last_bite_degraded = report.degraded;
         driveline.warning = t.taf.is_some_and(|taf| taf >= taf_warning);
         driveline.alarm |= t.taf.is_some_and(|taf| taf >= taf_alarm);
+        driveline.wear_index = report.wear.map(|wear| wear.index);
+        if let (Some(index), false) = (driveline.wear_index, report.degraded) {
+            driveline.wear_trend = Some(wear::next_trend(driveline.wear_trend, index));
+        }
     });
 }
 
@@ -326,6 +387,7 @@ impl Analysis {
                 taf = ?report.transient.taf,
                 beta_hz = ?report.beta_hz,
                 degraded = report.degraded,
+                wear_index = ?report.wear.map(|wear| wear.index),
                 "bite"
             );
             // Nobody listening is fine: the demo and tests subscribe, the service need not.

@@ -20,6 +20,7 @@ pub mod server;
 pub mod service;
 pub mod shutdown;
 pub mod simcmd;
+pub mod wear;
 
 pub use service::{run, Service};
 

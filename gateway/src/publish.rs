@@ -125,6 +125,19 @@ impl Publisher {
         self.map.encode(&published)
     }
 
+    /// Forget the wear trend of every driveline whose bit is set in `drivelines`
+    /// (bit k = driveline k in config order): the next bite's wear index seeds it
+    /// afresh (the reset-wear-trend command, e.g. after a coupling is replaced).
+    pub fn reset_wear_trend(&self, drivelines: u16) {
+        self.update(|results| {
+            for (k, driveline) in results.drivelines.iter_mut().enumerate().take(16) {
+                if drivelines & (1 << k) != 0 {
+                    driveline.wear_trend = None;
+                }
+            }
+        });
+    }
+
     /// Clear latched alarms (the acknowledge command).
     pub fn acknowledge_alarms(&self) {
         self.update(|results| {

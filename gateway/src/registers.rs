@@ -46,6 +46,7 @@ pub enum DrivelineField {
     Beta1,
     Beta2,
     WearIndex,
+    WearTrend,
 }
 
 /// Per-mill chatter quantities, in register order.
@@ -68,6 +69,9 @@ pub enum Field {
     SourcesLost,
     /// Command: write 1 to acknowledge latched alarms.
     AcknowledgeAlarms,
+    /// Command: write a bitmask of drivelines (bit k = driveline k) to reset their
+    /// wear trend.
+    ResetWearTrend,
     Driveline(usize, DrivelineField),
     Mill(usize, MillField),
 }
@@ -226,13 +230,25 @@ impl RegisterMap {
             "Command: write 1 to clear latched alarm bits; reads back 0".into(),
             Field::AcknowledgeAlarms,
         );
+        b.add(
+            9,
+            "command.reset_wear_trend".into(),
+            U16,
+            "bits",
+            1.0,
+            Access::ReadWrite,
+            "Command: write a bitmask of drivelines (bit k = k-th driveline in config order; \
+             1 with a single driveline) to restart their wear trend; reads back 0"
+                .into(),
+            Field::ResetWearTrend,
+        );
         for (k, driveline) in config.drivelines.iter().enumerate() {
             let base = DRIVELINES_START + DRIVELINE_STRIDE * k as u16;
             let n = |field: &str| format!("{}.{field}", driveline.name);
             let f = |field| Field::Driveline(k, field);
-            let fields: [(u16, &str, ValueType, &'static str, &str, DrivelineField); 11] = [
+            let fields: [(u16, &str, ValueType, &'static str, &str, DrivelineField); 12] = [
                 (0, "flags", U16, "bits", "bit0 TAF warning, bit1 TAF alarm (latched), bit2 source stale, bit3 last bite degraded", D::Flags),
-                (1, "quality", U16, "bits", "bit i set: value i of this block is valid (0 last_bite_time, 1 static_torque, 2 peak_torque, 3 taf, 4 period_shift, 5 beta1, 6 beta2, 7 wear_index)", D::Quality),
+                (1, "quality", U16, "bits", "bit i set: value i of this block is valid (0 last_bite_time, 1 static_torque, 2 peak_torque, 3 taf, 4 period_shift, 5 beta1, 6 beta2, 7 wear_index, 8 wear_trend)", D::Quality),
                 (2, "bite_counter", U32, "", "Bites analysed since start", D::BiteCounter),
                 (4, "last_bite_time", U32, "s", "Time of the last bite, Unix seconds", D::LastBiteTime),
                 (6, "static_torque", F32, "kN*m", "Static (settled) rolling torque of the last bite", D::StaticTorque),
@@ -241,7 +257,8 @@ impl RegisterMap {
                 (12, "period_shift", F32, "s", "First minus second oscillation period of the last bite", D::PeriodShift),
                 (14, "beta1", F32, "Hz", "First natural frequency identified from the last bite", D::Beta1),
                 (16, "beta2", F32, "Hz", "Second natural frequency identified from the last bite", D::Beta2),
-                (18, "wear_index", F32, "", "Wear index: departure of the last bite from the linear reference", D::WearIndex),
+                (18, "wear_index", F32, "", "Wear index of the last bite: its TAF / the linear model's TAF - 1 (needs the driveline model)", D::WearIndex),
+                (20, "wear_trend", F32, "", "Wear trend: mean of the wear index over bites (EWMA, weight 0.1), reset by command.reset_wear_trend", D::WearTrend),
             ];
             for (offset, name, value_type, unit, description, field) in fields {
                 b.add(
@@ -362,7 +379,7 @@ fn value_of(field: Field, results: &Results) -> Option<f64> {
         Field::SourcesOk => Some(bits(results, |s| s == S::Ok)),
         Field::SourcesStale => Some(bits(results, |s| s == S::Stale)),
         Field::SourcesLost => Some(bits(results, |s| s == S::Lost)),
-        Field::AcknowledgeAlarms => Some(0.0),
+        Field::AcknowledgeAlarms | Field::ResetWearTrend => Some(0.0),
         Field::Driveline(k, field) => results
             .drivelines
             .get(k)
@@ -375,7 +392,7 @@ fn value_of(field: Field, results: &Results) -> Option<f64> {
 }
 
 /// Values of a driveline block in quality-bit order.
-fn driveline_quality_values(d: &DrivelineResults) -> [Option<f64>; 8] {
+fn driveline_quality_values(d: &DrivelineResults) -> [Option<f64>; 9] {
     [
         d.last_bite_unix_s.map(f64::from),
         d.static_torque_knm,
@@ -385,6 +402,7 @@ fn driveline_quality_values(d: &DrivelineResults) -> [Option<f64>; 8] {
         d.beta1_hz,
         d.beta2_hz,
         d.wear_index,
+        d.wear_trend,
     ]
 }
 
@@ -430,6 +448,7 @@ fn driveline_value(d: &DrivelineResults, field: DrivelineField) -> Option<f64> {
         D::Beta1 => fresh(d.beta1_hz),
         D::Beta2 => fresh(d.beta2_hz),
         D::WearIndex => fresh(d.wear_index),
+        D::WearTrend => fresh(d.wear_trend),
     }
 }
 

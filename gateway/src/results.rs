@@ -22,8 +22,12 @@ pub struct DrivelineResults {
     pub beta1_hz: Option<f64>,
     /// Second natural frequency identified from the last bite, Hz.
     pub beta2_hz: Option<f64>,
-    /// Wear index (0 = like the linear reference; grows with opened backlash).
+    /// Wear index of the last bite: measured TAF / linear reference TAF - 1 (0 = like
+    /// the linear reference; grows with opened backlash). `None` without a model.
     pub wear_index: Option<f64>,
+    /// Wear trend: exponentially weighted mean of the wear index over bites
+    /// ([`crate::wear::next_trend`]); `None` until the first index after start or reset.
+    pub wear_trend: Option<f64>,
     /// The last bite's window had gaps, NaN or saturated samples.
     pub last_bite_degraded: bool,
     /// TAF warning and alarm bits (alarm latched until acknowledged).

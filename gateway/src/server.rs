@@ -6,6 +6,11 @@
 //! past the map, or a write that touches anything but a command register, gets
 //! exception 02 (illegal data address); a bad command value exception 03; other
 //! function codes exception 01.
+//!
+//! Commands: `command.acknowledge_alarms` takes 0 (nothing) or 1 (clear latched
+//! alarms); `command.reset_wear_trend` takes a bitmask of drivelines (bit k = the
+//! k-th driveline in config order, 0 = nothing) and refuses bits of drivelines that
+//! do not exist. Both read back 0.
 
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -70,19 +75,47 @@ fn write(publisher: &Publisher, address: u16, values: &[u16]) -> Result<(), Exce
         }
     }
     // Validate every value before acting on any, so a rejected request changes nothing.
+    let drivelines = publisher.driveline_names().len();
     if commands
         .iter()
-        .any(|(field, value)| *field == Field::AcknowledgeAlarms && *value > 1)
+        .any(|(field, value)| !command_value_valid(*field, *value, drivelines))
     {
         return Err(ExceptionCode::IllegalDataValue);
     }
     for (field, value) in commands {
-        if field == Field::AcknowledgeAlarms && value == 1 {
-            tracing::info!("alarms acknowledged over Modbus");
-            publisher.acknowledge_alarms();
+        match field {
+            Field::AcknowledgeAlarms if value == 1 => {
+                tracing::info!("alarms acknowledged over Modbus");
+                publisher.acknowledge_alarms();
+            }
+            Field::ResetWearTrend if value != 0 => {
+                tracing::info!(
+                    drivelines = format!("{value:#b}"),
+                    "wear trend reset over Modbus"
+                );
+                publisher.reset_wear_trend(value);
+            }
+            _ => {}
         }
     }
     Ok(())
+}
+
+/// Whether `value` is a valid write to command register `field` in a map of
+/// `drivelines` drivelines.
+fn command_value_valid(field: Field, value: u16, drivelines: usize) -> bool {
+    match field {
+        Field::AcknowledgeAlarms => value <= 1,
+        Field::ResetWearTrend => {
+            let all = if drivelines >= 16 {
+                u16::MAX
+            } else {
+                (1u16 << drivelines) - 1
+            };
+            value & !all == 0
+        }
+        _ => false,
+    }
 }
 
 struct MapService {
