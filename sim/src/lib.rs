@@ -9,4 +9,5 @@ pub mod model;
 pub mod plc;
 pub mod plot;
 pub mod schedule;
+pub mod stands;
 pub mod wear_map;
