@@ -3,6 +3,7 @@
 
 pub mod analysis;
 pub mod can;
+pub mod chatter;
 pub mod check;
 pub mod daq;
 pub mod demo;
