@@ -1,8 +1,9 @@
 //! Times `fit_eq1` on the Table 1 transient with seeded noise and writes the record.
 //!
-//! `cargo run --release -p millgate-dsp --example fit_timing -- LEN CSV_OUT`
+//! `cargo run --release -p millgate-dsp --example fit_timing -- LEN CSV_OUT [REPEATS]`
 //! generates LEN samples over 0.5 s (noise RMS 2% of a9, seed 7), writes `t,torque`
-//! to CSV_OUT (so another tool fits the very same data), fits it repeatedly and prints
+//! to CSV_OUT (so another tool fits the very same data), fits it REPEATS times (default
+//! 200; raise it to profile the fit under `perf record`) and prints
 //! one JSON object: median time per fit, fitted parameters and relative errors.
 
 use millgate_dsp::fit::{eq1, fit_eq1, FitOptions};
@@ -21,9 +22,18 @@ fn main() -> Result<(), Box<dyn Error>> {
     let mut args = std::env::args().skip(1);
     let len: usize = args
         .next()
-        .ok_or("usage: fit_timing LEN CSV_OUT")?
+        .ok_or("usage: fit_timing LEN CSV_OUT [REPEATS]")?
         .parse()?;
-    let out = args.next().ok_or("usage: fit_timing LEN CSV_OUT")?;
+    let out = args
+        .next()
+        .ok_or("usage: fit_timing LEN CSV_OUT [REPEATS]")?;
+    let repeats: usize = match args.next() {
+        Some(text) => text.parse()?,
+        None => 200,
+    };
+    if repeats == 0 {
+        return Err("REPEATS must be >= 1".into());
+    }
     let rate = len as f64 / 0.5;
     let mut rng = StdRng::seed_from_u64(7);
     let noise = Normal::new(0.0, 0.02 * TABLE1[8])?;
@@ -38,7 +48,6 @@ fn main() -> Result<(), Box<dyn Error>> {
 
     let options = FitOptions::new(rate);
     let fit = fit_eq1(&samples, &options).map_err(|e| format!("fit failed: {e:?}"))?;
-    let repeats = 200;
     let mut times = Vec::with_capacity(repeats);
     for _ in 0..repeats {
         let start = Instant::now();

@@ -274,39 +274,51 @@ const BASIS_TERMS: [&[Term]; BASIS] = [
     &[term(1.0, LOAD, 1, Part::Re)],
 ];
 
-/// `[sum n^k w^n for n in 0..count]` for k = 0, 1, 2, by binary splitting: O(log count)
-/// complex products and no division, so it stays accurate for w near 1, where the
-/// textbook (1 - w^N) / (1 - w)^3 forms cancel catastrophically.
-fn power_sums(w: Complex<f64>, count: usize) -> [Complex<f64>; 3] {
-    let mut sums = [Complex::new(0.0, 0.0); 3];
-    // Invariant: sums over n in 0..m, power = w^m.
-    let mut power = Complex::new(1.0, 0.0);
+/// `[sum n^k w^n for n in 0..count]` for k = 0, 1, 2 and each `w` of `ws`, by binary
+/// splitting: O(log count) complex products and no division, so it stays accurate for w
+/// near 1, where the textbook (1 - w^N) / (1 - w)^3 forms cancel catastrophically. All
+/// `ws` advance in lockstep (same count, same bits): the lanes are independent, so their
+/// products overlap instead of waiting on one another.
+fn power_sums<const K: usize>(ws: &[Complex<f64>; K], count: usize) -> [[Complex<f64>; 3]; K] {
+    let zero = Complex::new(0.0, 0.0);
+    let mut sums = [[zero; 3]; K];
+    // Invariant: sums over n in 0..m, powers = w^m.
+    let mut powers = [Complex::new(1.0, 0.0); K];
     let mut m = 0_usize;
     for bit in (0..usize::BITS - count.leading_zeros()).rev() {
         if m > 0 {
             // [0, 2m) = [0, m) followed by [0, m) shifted by m:
             // sum (n + m)^k w^(n + m) = w^m (S_k + k m S_(k-1) + ...).
             let shift = m as f64;
-            let [s0, s1, s2] = sums;
-            sums = [
-                s0 + power * s0,
-                s1 + power * (s1 + s0 * shift),
-                s2 + power * (s2 + s1 * (2.0 * shift) + s0 * (shift * shift)),
-            ];
-            power = power * power;
+            for (lane, power) in sums.iter_mut().zip(powers.iter_mut()) {
+                let [s0, s1, s2] = *lane;
+                *lane = [
+                    s0 + *power * s0,
+                    s1 + *power * (s1 + s0 * shift),
+                    s2 + *power * (s2 + s1 * (2.0 * shift) + s0 * (shift * shift)),
+                ];
+                *power = *power * *power;
+            }
             m *= 2;
         }
         if (count >> bit) & 1 == 1 {
             let index = m as f64;
-            sums[0] += power;
-            sums[1] += power * index;
-            sums[2] += power * (index * index);
-            power *= w;
+            for ((lane, power), w) in sums.iter_mut().zip(powers.iter_mut()).zip(ws) {
+                lane[0] += *power;
+                lane[1] += *power * index;
+                lane[2] += *power * (index * index);
+                *power *= *w;
+            }
             m += 1;
         }
     }
     sums
 }
+
+/// Pairs (a, b), a <= b, of [`Source`]s whose products appear in the Gram matrix.
+const PAIRS: usize = SOURCES * (SOURCES + 1) / 2;
+/// Pairs whose conjugate product q_a conj(q_b) differs from q_a q_b (both complex).
+const CONJUGATE_PAIRS: usize = 3;
 
 /// Gram matrix [Phi D]^T [Phi D] over `count` samples `dt` apart, in closed form:
 /// every product of two basis functions is the real or imaginary part of
@@ -323,18 +335,38 @@ fn gram_closed(theta: &Nonlinear, count: usize, dt: f64) -> [[f64; BASIS]; BASIS
         Complex::new(libm::exp(-theta[4] * dt), 0.0),
         Complex::new(1.0, 0.0),
     ];
-    // pair[a][b] for a <= b: sums of (q_a q_b)^n and of (q_a conj(q_b))^n.
-    let zero = [Complex::new(0.0, 0.0); 3];
-    let mut pair = [[(zero, zero); SOURCES]; SOURCES];
+    // All products q_a q_b (a <= b), then q_a conj(q_b) for the complex pairs, summed
+    // together; `slot[a][b]` is the index of q_a q_b.
+    let zero = Complex::new(0.0, 0.0);
+    let mut ws = [zero; PAIRS + CONJUGATE_PAIRS];
+    let mut slot = [[0_usize; SOURCES]; SOURCES];
+    let mut next = 0;
     for a in 0..SOURCES {
         for b in a..SOURCES {
-            let direct = power_sums(sources[a] * sources[b], count);
-            let conjugate = if b < LOAD {
-                power_sums(sources[a] * sources[b].conj(), count)
+            ws[next] = sources[a] * sources[b];
+            slot[a][b] = next;
+            next += 1;
+        }
+    }
+    for a in 0..LOAD {
+        for b in a..LOAD {
+            ws[next] = sources[a] * sources[b].conj();
+            next += 1;
+        }
+    }
+    let sums = power_sums(&ws, count);
+    // pair[a][b] for a <= b: sums of (q_a q_b)^n and of (q_a conj(q_b))^n.
+    let mut pair = [[([zero; 3], [zero; 3]); SOURCES]; SOURCES];
+    let mut conjugate = PAIRS;
+    for a in 0..SOURCES {
+        for b in a..SOURCES {
+            let direct = sums[slot[a][b]];
+            pair[a][b] = if b < LOAD {
+                conjugate += 1;
+                (direct, sums[conjugate - 1])
             } else {
-                direct
+                (direct, direct)
             };
-            pair[a][b] = (direct, conjugate);
         }
     }
     let time_scale = [1.0, dt, dt * dt];
@@ -744,12 +776,9 @@ pub fn fit_eq1(samples: &[f64], options: &FitOptions) -> Result<Eq1Fit, FitError
     if samples.len() < MIN_DECIMATED_SAMPLES {
         return Err(FitError::TooFewSamples);
     }
-    let mut scale = 0.0_f64;
-    for &value in samples {
-        if !value.is_finite() {
-            return Err(FitError::NonFinite);
-        }
-        scale = scale.max(libm::fabs(value));
+    let (scale, finite) = peak_magnitude(samples);
+    if !finite {
+        return Err(FitError::NonFinite);
     }
     if scale == 0.0 {
         return Err(FitError::Flat);
@@ -850,6 +879,20 @@ pub fn fit_eq1(samples: &[f64], options: &FitOptions) -> Result<Eq1Fit, FitError
     })
 }
 
+/// Largest |sample| and whether all samples are finite, in one branch-free pass.
+pub(crate) fn peak_magnitude(samples: &[f64]) -> (f64, bool) {
+    let mut scale = 0.0_f64;
+    let mut finite = true;
+    for &value in samples {
+        let magnitude = libm::fabs(value);
+        finite &= magnitude <= f64::MAX;
+        if magnitude > scale {
+            scale = magnitude;
+        }
+    }
+    (scale, finite)
+}
+
 /// Largest value of the fitted curve over `len` samples, by the same recurrences.
 fn fitted_peak(p: &[f64; PARAMS], len: usize, dt: f64) -> Option<f64> {
     let mut mode1 = Rotor::new(p[6], p[4], dt);
@@ -863,7 +906,10 @@ fn fitted_peak(p: &[f64; PARAMS], len: usize, dt: f64) -> Option<f64> {
             + p[1] * mode2.re
             + p[3] * mode2.im
             + p[8] * (1.0 - load);
-        peak = peak.max(value);
+        // A comparison, not f64::max: its NaN handling costs a branch per sample.
+        if value > peak {
+            peak = value;
+        }
         mode1.advance();
         mode2.advance();
         load *= load_step;
@@ -982,9 +1028,13 @@ mod tests {
                 expected[2] += power * (index * index);
                 power *= w;
             }
-            let sums = power_sums(w, count);
+            let [sums, conjugate] = power_sums(&[w, w.conj()], count);
             for k in 0..3 {
                 assert!((sums[k] - expected[k]).norm() <= 1e-12 * (expected[k].norm() + 1.0));
+                assert!(
+                    (conjugate[k] - expected[k].conj()).norm()
+                        <= 1e-12 * (expected[k].norm() + 1.0)
+                );
             }
         }
     }

@@ -68,12 +68,9 @@ pub fn poles(
     if samples.len() / decimation < MIN_DECIMATED_SAMPLES {
         return Err(PencilError::TooFewSamples);
     }
-    let mut scale = 0.0_f64;
-    for &value in samples {
-        if !value.is_finite() {
-            return Err(PencilError::NonFinite);
-        }
-        scale = scale.max(libm::fabs(value));
+    let (scale, finite) = crate::fit::peak_magnitude(samples);
+    if !finite {
+        return Err(PencilError::NonFinite);
     }
     if scale == 0.0 {
         return Err(PencilError::Flat);
