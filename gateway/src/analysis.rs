@@ -82,6 +82,9 @@ pub fn analyze_window(
 /// A driveline's configuration that the dsp code cannot take.
 #[derive(Debug, thiserror::Error)]
 pub enum AnalysisError {
+    /// A tandem mill the chatter monitor cannot be built for.
+    #[error(transparent)]
+    Chatter(#[from] crate::chatter::ChatterSetupError),
     #[error("drivelines[{index}].bite: {problem}")]
     Bite { index: usize, problem: String },
     /// The driveline's model file (for the wear index) is not a valid model.
@@ -320,10 +323,13 @@ pub struct Analysis {
     by_trigger: Vec<Vec<usize>>,
     publisher: Arc<Publisher>,
     bites: broadcast::Sender<BiteReport>,
+    /// Chatter monitors of the tandem mills.
+    chatter: crate::chatter::ChatterAnalysis,
 }
 
 impl Analysis {
-    /// Analysers for every driveline of `config`.
+    /// Analysers for every driveline and chatter monitors for every tandem mill of
+    /// `config`.
     pub fn new(
         config: &Config,
         publisher: Arc<Publisher>,
@@ -340,17 +346,20 @@ impl Analysis {
                 by_trigger[trigger].push(index);
             }
         }
+        let chatter = crate::chatter::ChatterAnalysis::new(config, Arc::clone(&publisher))?;
         Ok(Self {
             drivelines,
             by_torque,
             by_trigger,
             publisher,
             bites,
+            chatter,
         })
     }
 
     /// Handle one message from a reader; returns the bites it completed.
     pub fn handle(&mut self, message: Acquired) -> Vec<BiteReport> {
+        self.chatter.handle(&message);
         let mut reports = Vec::new();
         match message {
             Acquired::Samples { channel, values } => {

@@ -42,6 +42,10 @@ use millgate_dsp::chatter::{
 use rustfft::num_complex::Complex;
 use rustfft::{Fft, FftPlanner};
 
+use crate::publish::Publisher;
+use crate::results::MillResults;
+use crate::samples::Acquired;
+
 /// Largest lag of one stand behind the most advanced one, s: more means its source
 /// has stopped delivering, and the mill's values are flagged and the window restarted.
 pub const MAX_STAND_LAG_S: f64 = 0.5;
@@ -98,6 +102,14 @@ pub enum ChatterUpdate {
     Failed(ChatterError),
     /// The window restarted; the values are invalid until the next evaluation.
     Restarted(RestartCause),
+}
+
+/// What anchoring a message did to its stand's place on the common axis.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Realigned {
+    Same,
+    First,
+    Changed,
 }
 
 /// Where a stand's sample count sits on the mill's common sample axis.
@@ -297,7 +309,7 @@ impl ChatterMonitor {
         if values.is_empty() || stand >= self.stands.len() {
             return None;
         }
-        let mut restart = self.anchor(stand, values.len(), arrival);
+        let realigned = self.anchor(stand, values.len(), arrival);
         let stream = &mut self.stands[stand];
         let start = stream.next_index().unwrap_or(0);
         let ring_len = stream.ring.len() as i64;
@@ -305,12 +317,17 @@ impl ChatterMonitor {
             stream.ring[index.rem_euclid(ring_len) as usize] = value;
         }
         stream.counted += values.len() as i64;
-        if let Some(cause) = restart {
-            self.restart();
-            return Some(ChatterUpdate::Restarted(cause));
+        match realigned {
+            Realigned::Same => {}
+            // A stand's first samples (at start, or after a gap that already
+            // restarted the window): nothing valid is lost.
+            Realigned::First => self.restart(),
+            Realigned::Changed => {
+                self.restart();
+                return Some(ChatterUpdate::Restarted(RestartCause::Realigned { stand }));
+            }
         }
-        restart = self.check_lag();
-        if let Some(cause) = restart {
+        if let Some(cause) = self.check_lag() {
             return Some(ChatterUpdate::Restarted(cause));
         }
         let end = self.due_window_end()?;
@@ -341,8 +358,8 @@ impl ChatterMonitor {
     }
 
     /// Update the stand's anchor with a message of `len` samples arriving at
-    /// `arrival` (before they are counted); `Some` when its offset changed.
-    fn anchor(&mut self, stand: usize, len: usize, arrival: Instant) -> Option<RestartCause> {
+    /// `arrival` (before they are counted).
+    fn anchor(&mut self, stand: usize, len: usize, arrival: Instant) -> Realigned {
         let epoch = *self.epoch.get_or_insert(arrival);
         let fs = self.sample_rate_hz;
         let stream = &mut self.stands[stand];
@@ -360,8 +377,9 @@ impl ChatterMonitor {
             offset,
         });
         match previous {
-            Some(old) if old.offset == offset => None,
-            _ => Some(RestartCause::Realigned { stand }),
+            None => Realigned::First,
+            Some(old) if old.offset == offset => Realigned::Same,
+            Some(_) => Realigned::Changed,
         }
     }
 
@@ -472,6 +490,124 @@ impl ChatterMonitor {
 pub fn chatter_frequency_hz(result: &ChatterResult) -> Option<f64> {
     let count = result.stands.len();
     (count > 0).then(|| result.stands.iter().map(|s| s.principal_hz).sum::<f64>() / count as f64)
+}
+
+/// Every tandem mill's monitor, fed by the analysis task; results go to the
+/// register map (PLC writes, HMI server) and `/metrics`.
+///
+/// Published per mill after each evaluation: sigma_n, K_mean, the chatter frequency
+/// (mean of the stands' principal frequencies), the warning bit (sigma_n <=
+/// sigma_min, this window) and the alarm bit (both conditions; latched until
+/// acknowledged, like the driveline alarms). A restart clears the values and sets
+/// "source stale" until the next full window.
+pub struct ChatterAnalysis {
+    monitors: Vec<ChatterMonitor>,
+    /// Per channel: the (mill, stand) pairs it feeds.
+    by_channel: Vec<Vec<(usize, usize)>>,
+    publisher: Arc<Publisher>,
+}
+
+impl ChatterAnalysis {
+    /// Monitors for every tandem mill of `config`.
+    pub fn new(config: &Config, publisher: Arc<Publisher>) -> Result<Self, ChatterSetupError> {
+        let mut by_channel = vec![Vec::new(); config.channels.len()];
+        let mut monitors = Vec::new();
+        for (m, mill) in config.tandem_mills.iter().enumerate() {
+            monitors.push(ChatterMonitor::new(config, m)?);
+            for (s, &channel) in mill.stands.iter().enumerate() {
+                by_channel[channel].push((m, s));
+            }
+        }
+        Ok(Self {
+            monitors,
+            by_channel,
+            publisher,
+        })
+    }
+
+    /// The monitors, in config order.
+    pub fn monitors(&self) -> &[ChatterMonitor] {
+        &self.monitors
+    }
+
+    /// Route one reader message to the mills whose stand it is, and publish what
+    /// changed.
+    pub fn handle(&mut self, message: &Acquired) {
+        let channel = match message {
+            Acquired::Samples { channel, .. } | Acquired::Gap { channel, .. } => *channel,
+            Acquired::ProcessValue { .. } => return,
+        };
+        let Some(stands) = self.by_channel.get(channel) else {
+            return;
+        };
+        let now = Instant::now();
+        for &(mill, stand) in stands {
+            let monitor = &mut self.monitors[mill];
+            let change = match message {
+                Acquired::Samples { values, .. } => monitor.samples(stand, values, now),
+                Acquired::Gap { missed_samples, .. } => monitor.gap(stand, *missed_samples),
+                Acquired::ProcessValue { .. } => None,
+            };
+            if let Some(change) = change {
+                publish(&self.publisher, mill, monitor, &change);
+            }
+        }
+    }
+}
+
+/// Record one monitor update in the published results.
+fn publish(publisher: &Publisher, mill: usize, monitor: &ChatterMonitor, change: &ChatterUpdate) {
+    let name = monitor.name();
+    publisher.update(|results| {
+        let Some(published) = results.mills.get_mut(mill) else {
+            return;
+        };
+        let was_flagged = published.source_stale;
+        match change {
+            ChatterUpdate::Evaluated(result) => {
+                published.evaluations = monitor.evaluations();
+                published.sigma_n_hz = Some(result.sigma_n_hz);
+                published.k_mean = Some(result.k_mean);
+                published.chatter_frequency_hz = chatter_frequency_hz(result);
+                published.warning = result.frequencies_locked;
+                if result.synchronized && !published.alarm {
+                    tracing::warn!(
+                        mill = %name,
+                        sigma_n_hz = result.sigma_n_hz,
+                        k_mean = result.k_mean,
+                        frequency_hz = ?published.chatter_frequency_hz,
+                        "chatter alarm: stands synchronized"
+                    );
+                }
+                published.alarm |= result.synchronized;
+                published.source_stale = false;
+                if was_flagged {
+                    tracing::info!(mill = %name, "chatter window complete again");
+                }
+            }
+            ChatterUpdate::Failed(error) => {
+                if published.k_mean.is_some() {
+                    tracing::warn!(mill = %name, ?error, "chatter window not evaluable");
+                }
+                clear(published);
+            }
+            ChatterUpdate::Restarted(cause) => {
+                if !was_flagged {
+                    tracing::warn!(mill = %name, ?cause, "chatter window restarted, values invalid");
+                }
+                clear(published);
+                published.source_stale = true;
+            }
+        }
+    });
+}
+
+/// Values invalid: never a frozen old value.
+fn clear(published: &mut MillResults) {
+    published.sigma_n_hz = None;
+    published.k_mean = None;
+    published.chatter_frequency_hz = None;
+    published.warning = false;
 }
 
 #[cfg(test)]

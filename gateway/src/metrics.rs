@@ -15,6 +15,7 @@ use tokio::net::{TcpListener, TcpStream};
 use crate::can::{CanCounters, CanCounts};
 use crate::health::{ChannelCounters, ChannelCountersSnapshot, SourceHealth};
 use crate::publish::Publisher;
+use crate::results::MillResults;
 use crate::shutdown::Shutdown;
 
 /// Reads one counter out of a snapshot.
@@ -197,6 +198,42 @@ impl Metrics {
             );
             if let Some(taf) = driveline.taf.filter(|_| !driveline.source_stale) {
                 let _ = writeln!(out, "millgate_taf{{driveline=\"{}\"}} {taf}", escape(name));
+            }
+        }
+        // Chatter, per tandem mill; each family grouped, gauges only when valid.
+        let mills: Vec<_> = results
+            .mills
+            .iter()
+            .zip(self.publisher.mill_names())
+            .collect();
+        type MillValueOf = fn(&MillResults) -> Option<f64>;
+        let chatter: [(&str, &str, &str, MillValueOf); 3] = [
+            (
+                "millgate_chatter_evaluations_total",
+                "counter",
+                "Chatter windows evaluated per tandem mill.",
+                |m| Some(m.evaluations as f64),
+            ),
+            (
+                "millgate_chatter_sigma_n_hz",
+                "gauge",
+                "RMS deviation of adjacent stands' principal chatter-band frequencies, Hz.",
+                |m| m.sigma_n_hz.filter(|_| !m.source_stale),
+            ),
+            (
+                "millgate_chatter_k_mean",
+                "gauge",
+                "Mean correlation of adjacent stands' chatter-band vibration.",
+                |m| m.k_mean.filter(|_| !m.source_stale),
+            ),
+        ];
+        for (metric, kind, help, value) in chatter {
+            let _ = writeln!(out, "# HELP {metric} {help}");
+            let _ = writeln!(out, "# TYPE {metric} {kind}");
+            for (mill, name) in &mills {
+                if let Some(value) = value(mill) {
+                    let _ = writeln!(out, "{metric}{{mill=\"{}\"}} {value}", escape(name));
+                }
             }
         }
         let _ = writeln!(

@@ -18,6 +18,7 @@ pub struct Publisher {
     map: RegisterMap,
     health: Vec<Arc<SourceHealth>>,
     driveline_names: Vec<String>,
+    mill_names: Vec<String>,
     /// Global source index of each driveline's torque channel.
     driveline_sources: Vec<usize>,
     /// Global source indices of each mill's stand channels.
@@ -48,6 +49,7 @@ impl Publisher {
             map: RegisterMap::new(config),
             health,
             driveline_names: config.drivelines.iter().map(|d| d.name.clone()).collect(),
+            mill_names: config.tandem_mills.iter().map(|m| m.name.clone()).collect(),
             driveline_sources: config
                 .drivelines
                 .iter()
@@ -74,6 +76,11 @@ impl Publisher {
     /// Driveline names, in config order.
     pub fn driveline_names(&self) -> &[String] {
         &self.driveline_names
+    }
+
+    /// Tandem mill names, in config order.
+    pub fn mill_names(&self) -> &[String] {
+        &self.mill_names
     }
 
     /// Change the results.
@@ -107,8 +114,9 @@ impl Publisher {
         for (driveline, source) in results.drivelines.iter_mut().zip(&self.driveline_sources) {
             driveline.source_stale = bad(source);
         }
+        // A mill is also flagged by its analysis (a gap restarted its window).
         for (mill, sources) in results.mills.iter_mut().zip(&self.mill_sources) {
-            mill.source_stale = sources.iter().any(bad);
+            mill.source_stale |= sources.iter().any(bad);
         }
     }
 

@@ -37,14 +37,24 @@ pub struct DrivelineResults {
     pub source_stale: bool,
 }
 
-/// Latest chatter metrics of one tandem mill.
+/// Latest chatter metrics of one tandem mill (see [`crate::chatter`]). `None` = not
+/// valid: not computed yet, or the window restarted after a gap or a stale stand.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct MillResults {
+    /// Windows evaluated since start.
+    pub evaluations: u64,
+    /// RMS difference of adjacent stands' principal frequencies, Hz.
     pub sigma_n_hz: Option<f64>,
+    /// Mean correlation of adjacent stands' chatter-band vibration, -1..=1.
     pub k_mean: Option<f64>,
+    /// Mean of the stands' principal frequencies in the chatter band, Hz.
     pub chatter_frequency_hz: Option<f64>,
+    /// sigma_n <= sigma_min in the last window.
     pub warning: bool,
+    /// Both chatter conditions held in a window; latched until acknowledged.
     pub alarm: bool,
+    /// A stand's source is stale or lost, or the window restarted after a gap:
+    /// every value is flagged.
     pub source_stale: bool,
 }
 
