@@ -68,6 +68,7 @@ async fn main() -> anyhow::Result<()> {
             let reports = analysis.handle(Acquired::Samples {
                 channel: 0,
                 values: block.to_vec(),
+                received: None,
             });
             for report in reports {
                 seen += 1;

@@ -104,7 +104,9 @@ pub struct BiteReport {
     pub channel_name: String,
     /// Index of the trigger sample in the channel's stream since start.
     pub trigger_sample: u64,
-    /// Wall-clock time of the trigger, estimated from when the window completed.
+    /// Wall-clock time of the trigger: counted back from the receive time of the
+    /// window's last sample when the reader gave one (CAN kernel timestamps), else
+    /// from when the window completed here.
     pub time: SystemTime,
     /// When the window's last sample was handed to analysis (before the analysis ran).
     pub window_complete: Instant,
@@ -232,7 +234,13 @@ impl DrivelineAnalyzer {
         }
     }
 
-    fn report(&mut self, event: &BiteEvent<WINDOW_CAPACITY>) -> Option<BiteReport> {
+    /// The report of a completed window whose last sample was received at
+    /// `last_sample_time` (now when unknown).
+    fn report(
+        &mut self,
+        event: &BiteEvent<WINDOW_CAPACITY>,
+        last_sample_time: Option<SystemTime>,
+    ) -> Option<BiteReport> {
         let window_complete = Instant::now();
         let result = analyze_window(
             &event.window,
@@ -248,13 +256,18 @@ impl DrivelineAnalyzer {
                 return None;
             }
         };
-        let after_trigger = (event.window.len() - event.trigger_index) as f64 / self.sample_rate_hz;
+        // The last window sample is `len - 1 - trigger_index` samples after the trigger.
+        let after_trigger =
+            (event.window.len() - 1 - event.trigger_index) as f64 / self.sample_rate_hz;
         Some(BiteReport {
             driveline: self.index,
             driveline_name: self.name.clone(),
             channel_name: self.channel_name.clone(),
             trigger_sample: event.trigger_sample,
-            time: SystemTime::now() - std::time::Duration::from_secs_f64(after_trigger),
+            time: before(
+                last_sample_time.unwrap_or_else(SystemTime::now),
+                after_trigger,
+            ),
             window_complete,
             transient: analysis.transient,
             beta_hz: analysis.good_fit().map(|fit| (fit.f1_hz, fit.f2_hz)),
@@ -263,17 +276,25 @@ impl DrivelineAnalyzer {
         })
     }
 
-    fn samples(&mut self, values: &[f64], reports: &mut Vec<BiteReport>) {
-        for &value in values {
+    /// Process `values`, the last of which was received at `received` (when known).
+    fn samples(
+        &mut self,
+        values: &[f64],
+        received: Option<SystemTime>,
+        reports: &mut Vec<BiteReport>,
+    ) {
+        for (i, &value) in values.iter().enumerate() {
             if let Some(event) = self.detector.process(&mut self.state, value) {
-                reports.extend(self.report(&event));
+                let later = (values.len() - 1 - i) as f64 / self.sample_rate_hz;
+                let time = received.map(|last| before(last, later));
+                reports.extend(self.report(&event, time));
             }
         }
     }
 
     fn gap(&mut self, missed: Option<u64>, reports: &mut Vec<BiteReport>) {
         if let Some(event) = self.detector.gap(&mut self.state, missed.unwrap_or(0)) {
-            reports.extend(self.report(&event));
+            reports.extend(self.report(&event, None));
         }
     }
 
@@ -285,6 +306,12 @@ impl DrivelineAnalyzer {
         }
         self.trigger_high = high;
     }
+}
+
+/// `time` moved back by `seconds` (>= 0), saturating at the Unix epoch.
+fn before(time: SystemTime, seconds: f64) -> SystemTime {
+    time.checked_sub(std::time::Duration::from_secs_f64(seconds.max(0.0)))
+        .unwrap_or(UNIX_EPOCH)
 }
 
 /// Record a bite in the published results.
@@ -362,9 +389,13 @@ impl Analysis {
         self.chatter.handle(&message);
         let mut reports = Vec::new();
         match message {
-            Acquired::Samples { channel, values } => {
+            Acquired::Samples {
+                channel,
+                values,
+                received,
+            } => {
                 for &d in &self.by_torque[channel] {
-                    self.drivelines[d].samples(&values, &mut reports);
+                    self.drivelines[d].samples(&values, received, &mut reports);
                 }
             }
             Acquired::Gap {

@@ -6,15 +6,36 @@
 //! and sends [`Acquired::Samples`] over a bounded channel. Frames with an id no
 //! channel uses, frames too short for their signals, remote and error frames are
 //! counted in [`CanCounters`] and otherwise ignored.
+//!
+//! **Kernel receive timestamps.** The socket is opened with `SO_TIMESTAMPNS`: every
+//! frame is read with `recvmsg` together with the time the kernel queued it
+//! (`CLOCK_REALTIME`), and each `Samples` message carries the timestamp of the frame
+//! of its last value ([`Acquired::Samples::received`]), from which analysis dates
+//! bites. The delay from that timestamp to the reader handling the frame is summed
+//! per source (`millgate_can_receive_latency_seconds` on `/metrics`): it shows a
+//! reader falling behind its socket. When the kernel delivers no timestamp (the
+//! option refused, or absent from a message) the time the reader read the frame
+//! stands in for it, and the frame is not counted in `kernel_timestamps`.
+//!
+//! **Kernel drops.** With `SO_RXQ_OVFL` each message also carries the socket's
+//! count of frames the kernel dropped because the receive queue was full. When it
+//! moves, the increase is added to `kernel_drops` and every channel of the source
+//! gets an [`Acquired::Gap`] at that point: the dropped frames' ids are unknown, so
+//! no channel may be joined across it.
 
 use std::collections::HashMap;
-use std::io;
+use std::io::{self, IoSliceMut};
+use std::os::fd::AsRawFd;
 use std::sync::atomic::{AtomicU64, AtomicU8, Ordering};
 use std::sync::Arc;
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use millgate_config::signal::SignalLayout;
 use millgate_config::{ChannelSource, Config};
-use socketcan::{CanAnyFrame, EmbeddedFrame, Frame, SocketOptions};
+use nix::sys::socket::{self as nix_socket, sockopt, ControlMessageOwned, MsgFlags};
+use socketcan::{Socket, SocketOptions};
+use tokio::io::unix::AsyncFd;
+use tokio::io::Interest;
 use tokio::sync::{mpsc, watch};
 
 use crate::health::SourceHealth;
@@ -26,6 +47,16 @@ const EAFNOSUPPORT: i32 = 97;
 const ENODEV: i32 = 19;
 /// Most frames decoded into one batch of [`Acquired::Samples`] messages.
 const MAX_FRAMES_PER_BATCH: usize = 256;
+/// Size of a classic CAN frame on a raw socket (`struct can_frame`), bytes.
+pub const CAN_MTU: usize = 16;
+/// Size of a CAN FD frame on a raw socket (`struct canfd_frame`), bytes.
+pub const CANFD_MTU: usize = 72;
+/// `can_id` flag bits and masks (linux/can.h).
+const CAN_EFF_FLAG: u32 = 0x8000_0000;
+const CAN_RTR_FLAG: u32 = 0x4000_0000;
+const CAN_ERR_FLAG: u32 = 0x2000_0000;
+const CAN_EFF_MASK: u32 = 0x1fff_ffff;
+const CAN_SFF_MASK: u32 = 0x0000_07ff;
 
 /// Why a CAN reader could not start or stopped.
 #[derive(Debug, thiserror::Error)]
@@ -75,6 +106,16 @@ pub struct CanCounters {
     error_frames: AtomicU64,
     error_passive: AtomicU64,
     bus_off: AtomicU64,
+    /// Frames the kernel dropped (socket receive queue full), from `SO_RXQ_OVFL`.
+    kernel_drops: AtomicU64,
+    /// Frames that carried a kernel receive timestamp.
+    kernel_timestamps: AtomicU64,
+    /// Sum of (handled - kernel timestamp) over those frames, ns.
+    receive_latency_ns: AtomicU64,
+    /// Largest such delay, ns.
+    receive_latency_max_ns: AtomicU64,
+    /// Reads of a length that is neither a classic nor an FD frame.
+    bad_size: AtomicU64,
     /// [`BusState`] as its code, from the last error frame that told it.
     bus_state: AtomicU8,
 }
@@ -160,6 +201,18 @@ pub struct CanCounts {
     pub error_passive: u64,
     /// Error frames reporting bus off.
     pub bus_off: u64,
+    /// Frames the kernel dropped because the socket's receive queue was full.
+    pub kernel_drops: u64,
+    /// Frames that carried a kernel receive timestamp (the others are dated by
+    /// the reader's clock).
+    pub kernel_timestamps: u64,
+    /// Sum over `kernel_timestamps` frames of the delay from the kernel timestamp to
+    /// the reader handling the frame, ns.
+    pub receive_latency_sum_ns: u64,
+    /// Largest such delay, ns.
+    pub receive_latency_max_ns: u64,
+    /// Reads whose length was neither a classic nor an FD frame.
+    pub bad_size: u64,
     /// The bus state last reported.
     pub bus_state: BusState,
 }
@@ -176,8 +229,28 @@ impl CanCounters {
             error_frames: self.error_frames.load(Ordering::Relaxed),
             error_passive: self.error_passive.load(Ordering::Relaxed),
             bus_off: self.bus_off.load(Ordering::Relaxed),
+            kernel_drops: self.kernel_drops.load(Ordering::Relaxed),
+            kernel_timestamps: self.kernel_timestamps.load(Ordering::Relaxed),
+            receive_latency_sum_ns: self.receive_latency_ns.load(Ordering::Relaxed),
+            receive_latency_max_ns: self.receive_latency_max_ns.load(Ordering::Relaxed),
+            bad_size: self.bad_size.load(Ordering::Relaxed),
             bus_state: BusState::from_code(self.bus_state.load(Ordering::Relaxed)),
         }
+    }
+
+    /// Count a frame read at `handled` with kernel timestamp `kernel` (if any).
+    fn count_timestamp(&self, kernel: Option<SystemTime>, handled: SystemTime) {
+        let Some(kernel) = kernel else {
+            return;
+        };
+        // A kernel clock ahead of ours (it is the same clock) counts as no delay.
+        let delay = handled.duration_since(kernel).unwrap_or(Duration::ZERO);
+        let delay_ns = u64::try_from(delay.as_nanos()).unwrap_or(u64::MAX);
+        self.kernel_timestamps.fetch_add(1, Ordering::Relaxed);
+        self.receive_latency_ns
+            .fetch_add(delay_ns, Ordering::Relaxed);
+        self.receive_latency_max_ns
+            .fetch_max(delay_ns, Ordering::Relaxed);
     }
 
     fn count_error_frame(&self, class_bits: u32, data: &[u8]) {
@@ -280,6 +353,18 @@ impl CanDecoder {
         });
     }
 
+    /// Indices of the channels the decoder fills, in configuration order.
+    pub fn channels(&self) -> Vec<usize> {
+        let mut channels: Vec<usize> = self
+            .messages
+            .values()
+            .flat_map(|message| message.signals.iter().map(|signal| signal.channel))
+            .collect();
+        channels.sort_unstable();
+        channels.dedup();
+        channels
+    }
+
     /// Number of channels the decoder fills.
     pub fn channel_count(&self) -> usize {
         self.messages
@@ -321,14 +406,134 @@ impl CanDecoder {
     }
 }
 
+/// What a raw CAN socket frame is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FrameKind {
+    /// A data frame (classic or FD).
+    Data,
+    /// A remote transmission request.
+    Remote,
+    /// An error frame reported by the controller; its id holds the error class bits.
+    Error,
+}
+
+/// A frame as read from a raw CAN socket, borrowed from the read buffer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RawFrame<'a> {
+    pub kind: FrameKind,
+    /// Identifier (11 or 29 bits) for data and remote frames; error class bits for
+    /// error frames.
+    pub id: u32,
+    /// 29-bit identifier.
+    pub extended: bool,
+    /// Payload: `len` bytes (at most 8 for classic, 64 for FD frames).
+    pub data: &'a [u8],
+}
+
+/// Parses the bytes of one read from a raw CAN socket: a `struct can_frame`
+/// ([`CAN_MTU`] bytes) or `struct canfd_frame` ([`CANFD_MTU`] bytes), native byte
+/// order. `None` for any other length.
+///
+/// ```
+/// use millgate::can::{parse_frame, FrameKind};
+/// let mut bytes = [0u8; 16];
+/// bytes[..4].copy_from_slice(&0x101u32.to_ne_bytes());
+/// bytes[4] = 2;
+/// bytes[8..10].copy_from_slice(&[0x39, 0x30]);
+/// let frame = parse_frame(&bytes).unwrap();
+/// assert_eq!((frame.kind, frame.id, frame.extended), (FrameKind::Data, 0x101, false));
+/// assert_eq!(frame.data, &[0x39, 0x30]);
+/// ```
+pub fn parse_frame(bytes: &[u8]) -> Option<RawFrame<'_>> {
+    let max_len = match bytes.len() {
+        CAN_MTU => 8,
+        CANFD_MTU => 64,
+        _ => return None,
+    };
+    let can_id = u32::from_ne_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]);
+    let len = usize::from(bytes[4]).min(max_len);
+    let data = &bytes[8..8 + len];
+    let extended = can_id & CAN_EFF_FLAG != 0;
+    let (kind, id) = if can_id & CAN_ERR_FLAG != 0 {
+        (FrameKind::Error, can_id & CAN_EFF_MASK)
+    } else {
+        let mask = if extended { CAN_EFF_MASK } else { CAN_SFF_MASK };
+        let kind = if can_id & CAN_RTR_FLAG != 0 {
+            FrameKind::Remote
+        } else {
+            FrameKind::Data
+        };
+        (kind, can_id & mask)
+    };
+    Some(RawFrame {
+        kind,
+        id,
+        extended,
+        data,
+    })
+}
+
+/// One read from the socket: the frame bytes and the ancillary data that came with it.
+#[derive(Debug, Clone, Copy)]
+struct Received {
+    bytes: [u8; CANFD_MTU],
+    len: usize,
+    /// `SCM_TIMESTAMPNS`: when the kernel queued the frame.
+    kernel_time: Option<SystemTime>,
+    /// `SO_RXQ_OVFL`: frames dropped by this socket since it opened.
+    drops: Option<u32>,
+}
+
+/// Reads one frame with its control messages from non-blocking socket `socket`.
+fn receive(socket: &impl AsRawFd) -> io::Result<Received> {
+    let mut bytes = [0u8; CANFD_MTU];
+    let mut control = nix::cmsg_space!(nix::sys::time::TimeSpec, u32);
+    let mut iov = [IoSliceMut::new(&mut bytes)];
+    let message = nix_socket::recvmsg::<()>(
+        socket.as_raw_fd(),
+        &mut iov,
+        Some(&mut control),
+        MsgFlags::empty(),
+    )
+    .map_err(io::Error::from)?;
+    let len = message.bytes;
+    let mut kernel_time = None;
+    let mut drops = None;
+    for control_message in message.cmsgs().map_err(io::Error::from)? {
+        match control_message {
+            ControlMessageOwned::ScmTimestampns(time) => {
+                let since_epoch = u64::try_from(time.tv_sec())
+                    .ok()
+                    .zip(u32::try_from(time.tv_nsec()).ok())
+                    .map(|(s, ns)| Duration::new(s, ns));
+                kernel_time = since_epoch
+                    .filter(|d| !d.is_zero())
+                    .and_then(|d| UNIX_EPOCH.checked_add(d));
+            }
+            ControlMessageOwned::RxqOvfl(count) => drops = Some(count),
+            _ => {}
+        }
+    }
+    Ok(Received {
+        bytes,
+        len,
+        kernel_time,
+        drops,
+    })
+}
+
 /// Reads one SocketCAN interface and turns its frames into [`Acquired::Samples`].
 #[derive(Debug)]
 pub struct CanReader {
     interface: String,
-    socket: socketcan::tokio::CanFdSocket,
+    socket: AsyncFd<socketcan::CanFdSocket>,
     decoder: CanDecoder,
+    /// Channels the decoder fills: each gets a gap when the kernel drops frames.
+    channels: Vec<usize>,
     counters: Arc<CanCounters>,
     health: Option<Arc<SourceHealth>>,
+    /// The socket's `SO_RXQ_OVFL` count at the last frame.
+    drops_seen: u32,
 }
 
 impl CanReader {
@@ -349,20 +554,39 @@ impl CanReader {
         CanReader::open_interface(&source.interface, decoder)
     }
 
-    /// Opens `interface` with an explicit decoder (tests, tools).
+    /// Opens `interface` with an explicit decoder (tests, tools). Must be called
+    /// within a tokio runtime.
+    ///
+    /// Kernel receive timestamps (`SO_TIMESTAMPNS`) and drop counts (`SO_RXQ_OVFL`)
+    /// are asked for; a kernel that refuses either is logged and the reader goes on
+    /// without it (arrival times, no drop count).
     pub fn open_interface(interface: &str, decoder: CanDecoder) -> Result<CanReader, CanError> {
         check_socketcan(interface)?;
-        let socket = socketcan::tokio::CanFdSocket::open(interface)
-            .map_err(|error| open_error(interface, error))?;
-        socket
-            .set_error_filter_accept_all()
-            .map_err(|error| open_error(interface, error))?;
+        let fail = |error| open_error(interface, error);
+        let socket = socketcan::CanFdSocket::open(interface).map_err(fail)?;
+        socket.set_nonblocking(true).map_err(fail)?;
+        socket.set_error_filter_accept_all().map_err(fail)?;
+        if let Err(error) = socket.set_recv_timestamp(true) {
+            tracing::warn!(%interface, %error, "no kernel receive timestamps: frames dated on arrival");
+        }
+        if let Err(error) = nix_socket::setsockopt(&socket, sockopt::RxqOvfl, &1) {
+            tracing::warn!(%interface, %error, "no kernel drop count (SO_RXQ_OVFL)");
+        }
+        // SAFETY: `register_with_interest` asks that the fd stay open and not be
+        // replaced while registered. The `CanFdSocket` owns its fd and closes it only
+        // when dropped, and the `AsyncFd` owns the socket, deregistering first.
+        #[allow(unsafe_code)]
+        let socket = unsafe { AsyncFd::register_with_interest(socket, Interest::READABLE) }
+            .map_err(|error| fail(error.into_parts().1))?;
+        let channels = decoder.channels();
         Ok(CanReader {
             interface: interface.to_owned(),
             socket,
             decoder,
+            channels,
             counters: Arc::new(CanCounters::default()),
             health: None,
+            drops_seen: 0,
         })
     }
 
@@ -395,9 +619,10 @@ impl CanReader {
     ///
     /// Frames already queued in the socket are batched (up to 256 frames) into one
     /// `Samples` message per channel. A full `samples` channel makes the reader wait
-    /// (the kernel socket buffer then absorbs the backlog).
+    /// (the kernel socket buffer then absorbs the backlog; what it cannot hold is
+    /// counted as kernel drops and marked as a gap).
     pub async fn run(
-        self,
+        mut self,
         samples: mpsc::Sender<Acquired>,
         mut shutdown: watch::Receiver<bool>,
     ) -> Result<(), CanError> {
@@ -406,19 +631,21 @@ impl CanReader {
             if *shutdown.borrow_and_update() {
                 return Ok(());
             }
-            let frame = tokio::select! {
+            let received = tokio::select! {
                 changed = shutdown.changed() => {
                     if changed.is_err() {
                         return Ok(());
                     }
                     continue;
                 }
-                frame = self.socket.read_frame() => frame.map_err(|error| self.read_error(error))?,
+                received = self.socket.async_io(Interest::READABLE, receive) => {
+                    received.map_err(|error| self.read_error(error))?
+                }
             };
-            self.handle(frame, &mut batch);
+            self.handle(&received, &mut batch);
             for _ in 1..MAX_FRAMES_PER_BATCH {
-                match self.socket.try_read_frame() {
-                    Ok(frame) => self.handle(frame, &mut batch),
+                match receive(self.socket.get_ref()) {
+                    Ok(received) => self.handle(&received, &mut batch),
                     Err(error) if error.kind() == io::ErrorKind::WouldBlock => break,
                     Err(error) => return Err(self.read_error(error)),
                 }
@@ -437,37 +664,44 @@ impl CanReader {
         }
     }
 
-    fn handle(&self, frame: CanAnyFrame, batch: &mut SampleBatch) {
+    fn handle(&mut self, received: &Received, batch: &mut SampleBatch) {
+        let handled = SystemTime::now();
         self.counters.frames.fetch_add(1, Ordering::Relaxed);
-        let outcome = match frame {
-            CanAnyFrame::Normal(frame) => self.decoder.decode(
-                frame.raw_id(),
-                frame.is_extended(),
-                frame.data(),
-                &mut batch.pending,
-            ),
-            CanAnyFrame::Fd(frame) => self.decoder.decode(
-                frame.raw_id(),
-                frame.is_extended(),
-                frame.data(),
-                &mut batch.pending,
-            ),
-            CanAnyFrame::Remote(_) => {
-                self.counters.remote_frames.fetch_add(1, Ordering::Relaxed);
-                return;
+        self.counters.count_timestamp(received.kernel_time, handled);
+        if let Some(drops) = received.drops {
+            let new_drops = drops.wrapping_sub(self.drops_seen);
+            if new_drops != 0 {
+                self.drops_seen = drops;
+                self.counters
+                    .kernel_drops
+                    .fetch_add(u64::from(new_drops), Ordering::Relaxed);
+                tracing::warn!(interface = %self.interface, new_drops, "kernel dropped CAN frames");
+                batch.gap(&self.channels);
             }
-            CanAnyFrame::Error(frame) => {
-                let state = bus_state_of_error_frame(frame.error_bits(), frame.data());
+        }
+        let Some(frame) = received.bytes.get(..received.len).and_then(parse_frame) else {
+            self.counters.bad_size.fetch_add(1, Ordering::Relaxed);
+            return;
+        };
+        match frame.kind {
+            FrameKind::Data => {
+                let outcome =
+                    self.decoder
+                        .decode(frame.id, frame.extended, frame.data, &mut batch.pending);
+                self.counters.count_data(outcome);
+                batch.collect(received.kernel_time.unwrap_or(handled));
+            }
+            FrameKind::Remote => {
+                self.counters.remote_frames.fetch_add(1, Ordering::Relaxed);
+            }
+            FrameKind::Error => {
+                let state = bus_state_of_error_frame(frame.id, frame.data);
                 if matches!(state, Some(BusState::Passive | BusState::BusOff)) {
                     tracing::warn!(interface = %self.interface, ?state, "CAN controller fault");
                 }
-                self.counters
-                    .count_error_frame(frame.error_bits(), frame.data());
-                return;
+                self.counters.count_error_frame(frame.id, frame.data);
             }
-        };
-        self.counters.count_data(outcome);
-        batch.collect();
+        }
     }
 
     fn read_error(&self, source: io::Error) -> CanError {
@@ -478,35 +712,64 @@ impl CanReader {
     }
 }
 
-/// Samples of several frames grouped per channel, in arrival order.
+/// Samples of several frames grouped per channel, in arrival order, split where
+/// frames were lost.
 #[derive(Debug, Default)]
 struct SampleBatch {
     /// Output of the last decode.
     pending: Vec<(usize, f64)>,
-    /// Channel index -> values, channels in order of first appearance.
-    per_channel: Vec<(usize, Vec<f64>)>,
+    /// Channel index -> values and the receive time of the last, channels in order
+    /// of first appearance.
+    per_channel: Vec<(usize, Vec<f64>, SystemTime)>,
+    /// Messages already complete (samples before a gap, and the gap).
+    ready: Vec<Acquired>,
 }
 
 impl SampleBatch {
-    /// Moves `pending` into the per-channel lists.
-    fn collect(&mut self) {
+    /// Moves `pending`, from a frame received at `received`, into the per-channel lists.
+    fn collect(&mut self, received: SystemTime) {
         for (channel, value) in self.pending.drain(..) {
             match self
                 .per_channel
                 .iter_mut()
-                .find(|(known, _)| *known == channel)
+                .find(|(known, _, _)| *known == channel)
             {
-                Some((_, values)) => values.push(value),
-                None => self.per_channel.push((channel, vec![value])),
+                Some((_, values, last)) => {
+                    values.push(value);
+                    *last = received;
+                }
+                None => self.per_channel.push((channel, vec![value], received)),
             }
         }
     }
 
-    /// One `Samples` message per channel, emptying the batch.
+    /// Frames were lost here: close the samples so far and mark a gap on `channels`.
+    fn gap(&mut self, channels: &[usize]) {
+        self.close();
+        self.ready
+            .extend(channels.iter().map(|&channel| Acquired::Gap {
+                channel,
+                missed_samples: None,
+            }));
+    }
+
+    fn close(&mut self) {
+        self.ready.extend(
+            self.per_channel
+                .drain(..)
+                .map(|(channel, values, received)| Acquired::Samples {
+                    channel,
+                    values,
+                    received: Some(received),
+                }),
+        );
+    }
+
+    /// The messages in order (one `Samples` per channel between gaps), emptying the
+    /// batch.
     fn drain(&mut self) -> impl Iterator<Item = Acquired> + '_ {
-        self.per_channel
-            .drain(..)
-            .map(|(channel, values)| Acquired::Samples { channel, values })
+        self.close();
+        self.ready.drain(..)
     }
 }
 
@@ -664,26 +927,125 @@ mod tests {
 
     #[test]
     fn batch_groups_per_channel_in_arrival_order() {
+        let t = |ms: u64| UNIX_EPOCH + Duration::from_millis(ms);
         let mut batch = SampleBatch::default();
         batch.pending.extend([(3, 1.0), (5, 10.0)]);
-        batch.collect();
+        batch.collect(t(1));
         batch.pending.extend([(3, 2.0), (5, 20.0)]);
-        batch.collect();
+        batch.collect(t(2));
         let messages: Vec<Acquired> = batch.drain().collect();
         assert_eq!(
             messages,
             vec![
                 Acquired::Samples {
                     channel: 3,
-                    values: vec![1.0, 2.0]
+                    values: vec![1.0, 2.0],
+                    received: Some(t(2)),
                 },
                 Acquired::Samples {
                     channel: 5,
-                    values: vec![10.0, 20.0]
+                    values: vec![10.0, 20.0],
+                    received: Some(t(2)),
                 },
             ]
         );
         assert_eq!(batch.drain().count(), 0);
+    }
+
+    #[test]
+    fn kernel_drops_split_the_batch_with_a_gap() {
+        let t = |ms: u64| UNIX_EPOCH + Duration::from_millis(ms);
+        let mut batch = SampleBatch::default();
+        batch.pending.push((3, 1.0));
+        batch.collect(t(1));
+        batch.gap(&[3, 5]);
+        batch.pending.extend([(3, 2.0), (5, 20.0)]);
+        batch.collect(t(9));
+        let messages: Vec<Acquired> = batch.drain().collect();
+        let gap = |channel| Acquired::Gap {
+            channel,
+            missed_samples: None,
+        };
+        assert_eq!(
+            messages,
+            vec![
+                Acquired::Samples {
+                    channel: 3,
+                    values: vec![1.0],
+                    received: Some(t(1)),
+                },
+                gap(3),
+                gap(5),
+                Acquired::Samples {
+                    channel: 3,
+                    values: vec![2.0],
+                    received: Some(t(9)),
+                },
+                Acquired::Samples {
+                    channel: 5,
+                    values: vec![20.0],
+                    received: Some(t(9)),
+                },
+            ]
+        );
+    }
+
+    /// A raw frame as the kernel lays it out: can_id (native endian), len, flags,
+    /// two reserved bytes, data.
+    fn raw(can_id: u32, len: u8, data: &[u8], mtu: usize) -> Vec<u8> {
+        let mut bytes = vec![0u8; mtu];
+        bytes[..4].copy_from_slice(&can_id.to_ne_bytes());
+        bytes[4] = len;
+        bytes[8..8 + data.len()].copy_from_slice(data);
+        bytes
+    }
+
+    #[test]
+    fn raw_frames_parse_by_kind() {
+        let classic = raw(0x101, 4, &[1, 2, 3, 4], CAN_MTU);
+        let frame = parse_frame(&classic).unwrap();
+        assert_eq!(
+            (frame.kind, frame.id, frame.extended, frame.data),
+            (FrameKind::Data, 0x101, false, &[1u8, 2, 3, 4][..])
+        );
+        let extended = raw(0x18ff_5a01 | CAN_EFF_FLAG, 2, &[0x1d, 0x04], CAN_MTU);
+        let frame = parse_frame(&extended).unwrap();
+        assert_eq!((frame.id, frame.extended), (0x18ff_5a01, true));
+        let remote = raw(0x101 | CAN_RTR_FLAG, 0, &[], CAN_MTU);
+        assert_eq!(parse_frame(&remote).unwrap().kind, FrameKind::Remote);
+        let error = raw(
+            0x44 | CAN_ERR_FLAG,
+            8,
+            &[0, 0x10, 0, 0, 0, 0, 0, 0],
+            CAN_MTU,
+        );
+        let frame = parse_frame(&error).unwrap();
+        assert_eq!((frame.kind, frame.id), (FrameKind::Error, 0x44));
+        assert_eq!(
+            bus_state_of_error_frame(frame.id, frame.data),
+            Some(BusState::BusOff)
+        );
+        let fd = raw(0x102, 64, &[7; 64], CANFD_MTU);
+        assert_eq!(parse_frame(&fd).unwrap().data, &[7u8; 64][..]);
+        // A length byte beyond the frame's capacity is clamped, never read past.
+        let bogus = raw(0x101, 200, &[], CAN_MTU);
+        assert_eq!(parse_frame(&bogus).unwrap().data.len(), 8);
+        assert_eq!(parse_frame(&classic[..15]), None);
+    }
+
+    #[test]
+    fn receive_latency_is_summed_from_kernel_timestamps() {
+        let counters = CanCounters::default();
+        let kernel = UNIX_EPOCH + Duration::from_secs(1_000);
+        counters.count_timestamp(Some(kernel), kernel + Duration::from_micros(300));
+        counters.count_timestamp(Some(kernel), kernel + Duration::from_micros(100));
+        counters.count_timestamp(None, kernel);
+        // A kernel timestamp after the read (clock stepped): no negative delay.
+        counters.count_timestamp(Some(kernel + Duration::from_secs(1)), kernel);
+        let counts = counters.snapshot();
+        assert_eq!(counts.kernel_timestamps, 3);
+        assert_eq!(counts.receive_latency_sum_ns, 400_000);
+        assert_eq!(counts.receive_latency_max_ns, 300_000);
     }
 
     #[test]

@@ -312,6 +312,7 @@ impl BlockChannel {
         messages.push(Acquired::Samples {
             channel: self.channel,
             values,
+            received: None,
         });
         messages
     }
@@ -408,7 +409,8 @@ mod tests {
             messages[1],
             Acquired::Samples {
                 channel: 3,
-                values: vec![3.0, 4.0]
+                values: vec![3.0, 4.0],
+                received: None,
             }
         );
         let counters = block.counters.snapshot();

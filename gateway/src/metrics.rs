@@ -24,6 +24,14 @@ type CounterOf = fn(&ChannelCountersSnapshot) -> u64;
 /// Reads one counter out of CAN counts.
 type CanCounterOf = fn(&CanCounts) -> u64;
 
+/// A per-CAN-source metric: name, type, help, value as printed.
+type CanMetric = (
+    &'static str,
+    &'static str,
+    &'static str,
+    fn(&CanCounts) -> String,
+);
+
 /// What the metrics page shows.
 pub struct Metrics {
     channel_names: Vec<String>,
@@ -126,7 +134,7 @@ impl Metrics {
             );
         }
         let can: Vec<CanCounts> = self.can_counters.iter().map(|c| c.snapshot()).collect();
-        let can_counters: [(&str, &str, CanCounterOf); 8] = [
+        let can_counters: [(&str, &str, CanCounterOf); 9] = [
             ("frames", "CAN frames received", |c| c.frames),
             ("decoded", "CAN data frames decoded into samples", |c| {
                 c.decoded
@@ -151,6 +159,11 @@ impl Metrics {
             ("bus_off", "CAN error frames reporting bus off", |c| {
                 c.bus_off
             }),
+            (
+                "bad_size",
+                "CAN socket reads neither a classic nor an FD frame",
+                |c| c.bad_size,
+            ),
         ];
         for (name, help, value) in can_counters {
             let _ = writeln!(out, "# HELP millgate_can_{name}_frames_total {help}.");
@@ -159,6 +172,44 @@ impl Metrics {
                 let _ = writeln!(
                     out,
                     "millgate_can_{name}_frames_total{{source=\"{}\"}} {}",
+                    escape(source),
+                    value(counts)
+                );
+            }
+        }
+        let per_can_source: [CanMetric; 4] = [
+            (
+                "millgate_can_kernel_drops_total",
+                "counter",
+                "CAN frames the kernel dropped because the socket receive queue was full (SO_RXQ_OVFL); each drop marks a gap.",
+                |c| c.kernel_drops.to_string(),
+            ),
+            (
+                "millgate_can_kernel_timestamps_total",
+                "counter",
+                "CAN frames that carried a kernel receive timestamp (SO_TIMESTAMPNS); the others are dated on arrival.",
+                |c| c.kernel_timestamps.to_string(),
+            ),
+            (
+                "millgate_can_receive_latency_seconds_sum",
+                "counter",
+                "Sum of the delays from kernel receive timestamp to the reader handling the frame, s.",
+                |c| format!("{:.9}", c.receive_latency_sum_ns as f64 * 1e-9),
+            ),
+            (
+                "millgate_can_receive_latency_max_seconds",
+                "gauge",
+                "Largest delay from kernel receive timestamp to the reader handling the frame, s.",
+                |c| format!("{:.9}", c.receive_latency_max_ns as f64 * 1e-9),
+            ),
+        ];
+        for (name, kind, help, value) in per_can_source {
+            let _ = writeln!(out, "# HELP {name} {help}");
+            let _ = writeln!(out, "# TYPE {name} {kind}");
+            for (source, counts) in self.can_names.iter().zip(&can) {
+                let _ = writeln!(
+                    out,
+                    "{name}{{source=\"{}\"}} {}",
                     escape(source),
                     value(counts)
                 );
@@ -185,6 +236,16 @@ impl Metrics {
             "# HELP millgate_taf Torque amplification factor of the last bite."
         );
         let _ = writeln!(out, "# TYPE millgate_taf gauge");
+        let _ = writeln!(
+            out,
+            "# HELP millgate_wear_index Wear index of the last bite (TAF / linear reference TAF - 1)."
+        );
+        let _ = writeln!(out, "# TYPE millgate_wear_index gauge");
+        let _ = writeln!(
+            out,
+            "# HELP millgate_wear_trend Wear trend (EWMA of the wear index since start or reset)."
+        );
+        let _ = writeln!(out, "# TYPE millgate_wear_trend gauge");
         for (driveline, name) in results
             .drivelines
             .iter()
@@ -198,6 +259,15 @@ impl Metrics {
             );
             if let Some(taf) = driveline.taf.filter(|_| !driveline.source_stale) {
                 let _ = writeln!(out, "millgate_taf{{driveline=\"{}\"}} {taf}", escape(name));
+            }
+            let wear = [
+                ("millgate_wear_index", driveline.wear_index),
+                ("millgate_wear_trend", driveline.wear_trend),
+            ];
+            for (metric, value) in wear {
+                if let Some(value) = value.filter(|_| !driveline.source_stale) {
+                    let _ = writeln!(out, "{metric}{{driveline=\"{}\"}} {value}", escape(name));
+                }
             }
         }
         // Chatter, per tandem mill; each family grouped, gauges only when valid.

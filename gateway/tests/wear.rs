@@ -62,6 +62,7 @@ fn analyse(
         reports.extend(analysis.handle(Acquired::Samples {
             channel: 0,
             values: block.to_vec(),
+            received: None,
         }));
     }
     assert_eq!(reports.len(), static_torques_knm.len(), "one bite per bar");

@@ -213,9 +213,9 @@ impl RunningReader {
                 })?
                 .context("reader stopped")?;
             match message {
-                Acquired::Samples { channel, values } => {
-                    self.received.entry(channel).or_default().extend(values)
-                }
+                Acquired::Samples {
+                    channel, values, ..
+                } => self.received.entry(channel).or_default().extend(values),
                 other => bail!("unexpected message {other:?}"),
             }
         }
@@ -406,6 +406,10 @@ async fn unknown_short_remote_and_error_frames_are_counted_and_ignored() -> Resu
             bad_length: 2,
             remote_frames: 1,
             error_frames: 1,
+            // Every frame, error frames included, carries a kernel timestamp.
+            kernel_timestamps: 7,
+            receive_latency_sum_ns: counts.receive_latency_sum_ns,
+            receive_latency_max_ns: counts.receive_latency_max_ns,
             ..CanCounts::default()
         }
     );
@@ -763,4 +767,144 @@ async fn error_passive_and_bus_off_are_counted_and_tracked() -> Result<()> {
     assert_eq!(counts.bus_state, BusState::Active, "{counts:?}");
     assert_eq!((counts.error_frames, counts.decoded), (3, 0), "{counts:?}");
     reader.stop().await
+}
+
+/// A reader for the `Seq` byte of SpindleTorque alone, opened (frames queue from now
+/// on) but not yet running.
+fn seq_reader(config: &Config) -> Result<CanReader> {
+    let mut decoder = CanDecoder::default();
+    let seq_layout = match &config.channels[TORQUE_SEQ].source {
+        ChannelSource::Can { signal_layout, .. } => *signal_layout,
+        other => bail!("not CAN: {other:?}"),
+    };
+    decoder.add(TORQUE_SEQ, seq_layout, 1.0, 0.0);
+    Ok(CanReader::open_interface(&vcan(), decoder)?)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "needs SocketCAN vcan0: run scripts/uml-vcan"]
+async fn frames_carry_kernel_receive_timestamps() -> Result<()> {
+    use std::time::SystemTime;
+    const FRAMES: usize = 5;
+    let config = config(&vcan())?;
+    let torque = message(&config, &[SPINDLE_TOP, TORQUE_SEQ])?;
+    let reader = seq_reader(&config)?;
+    let counters = reader.counters();
+    let (samples_tx, mut samples) = mpsc::channel(64);
+    let (stop, shutdown) = watch::channel(false);
+    let task = tokio::spawn(reader.run(samples_tx, shutdown));
+    let node = CanNode::open(&vcan())?;
+
+    let mut stamps = Vec::new();
+    let mut sent_at = Vec::new();
+    for index in 0..FRAMES {
+        sent_at.push(SystemTime::now());
+        node.run(&torque, [[0.0, index as f64]], Duration::ZERO)
+            .await?;
+        let message = tokio::time::timeout(SAMPLE_TIMEOUT, samples.recv())
+            .await
+            .context("no samples")?
+            .context("reader stopped")?;
+        let Acquired::Samples {
+            values, received, ..
+        } = message
+        else {
+            bail!("unexpected {message:?}");
+        };
+        ensure!(values == [index as f64], "frame {index}: {values:?}");
+        let received = received.context("samples without a receive time")?;
+        let now = SystemTime::now();
+        // The kernel stamps with CLOCK_REALTIME, the clock SystemTime reads.
+        ensure!(
+            received >= sent_at[index] && received <= now,
+            "frame {index}: kernel time {received:?} outside [{:?}, {now:?}]",
+            sent_at[index]
+        );
+        stamps.push(received);
+        // Space the frames so their stamps are distinct.
+        tokio::time::sleep(Duration::from_millis(2)).await;
+    }
+    ensure!(
+        stamps.windows(2).all(|pair| pair[0] < pair[1]),
+        "kernel timestamps not increasing: {stamps:?}"
+    );
+    let counts = counters.snapshot();
+    assert_eq!(
+        counts.kernel_timestamps, FRAMES as u64,
+        "every frame stamped by the kernel: {counts:?}"
+    );
+    ensure!(
+        counts.receive_latency_max_ns < 1_000_000_000,
+        "receive latency max {} ns",
+        counts.receive_latency_max_ns
+    );
+    println!(
+        "vcan kernel timestamps: {FRAMES} frames, receive latency mean {:.1} us, max {:.1} us",
+        counts.receive_latency_sum_ns as f64 / FRAMES as f64 / 1e3,
+        counts.receive_latency_max_ns as f64 / 1e3
+    );
+    stop.send_replace(true);
+    task.await??;
+    Ok(())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "needs SocketCAN vcan0: run scripts/uml-vcan"]
+async fn kernel_drops_are_counted_and_marked_as_a_gap() -> Result<()> {
+    // More frames than a default socket receive queue holds, sent while the reader
+    // is open but not reading: the kernel drops the excess.
+    const BURST: usize = 20_000;
+    let config = config(&vcan())?;
+    let torque = message(&config, &[SPINDLE_TOP, TORQUE_SEQ])?;
+    let reader = seq_reader(&config)?;
+    let counters = reader.counters();
+    let node = CanNode::open(&vcan())?;
+    let rows = (0..BURST).map(|index| [0.0, (index % 256) as f64]);
+    assert_eq!(node.run(&torque, rows, Duration::ZERO).await?, BURST as u64);
+
+    let (samples_tx, mut samples) = mpsc::channel(1024);
+    let (stop, shutdown) = watch::channel(false);
+    let task = tokio::spawn(reader.run(samples_tx, shutdown));
+    // Drain what the queue held, then one more frame: the kernel attaches the drop
+    // count to frames queued after the drops.
+    let mut before_gap = 0_usize;
+    let mut after_gap = Vec::new();
+    let mut gap_seen = false;
+    let mut marker_sent = false;
+    while after_gap.is_empty() {
+        let message = match tokio::time::timeout(Duration::from_millis(500), samples.recv()).await {
+            Ok(message) => message.context("reader stopped")?,
+            Err(_) if !marker_sent => {
+                node.run(&torque, [[0.0, 77.0]], Duration::ZERO).await?;
+                marker_sent = true;
+                continue;
+            }
+            Err(_) => bail!("no frame after the drops: {:?}", counters.snapshot()),
+        };
+        match message {
+            Acquired::Samples { values, .. } if gap_seen => after_gap.extend(values),
+            Acquired::Samples { values, .. } => before_gap += values.len(),
+            Acquired::Gap { channel, .. } => {
+                ensure!(channel == TORQUE_SEQ, "gap on channel {channel}");
+                gap_seen = true;
+            }
+            other => bail!("unexpected {other:?}"),
+        }
+    }
+    stop.send_replace(true);
+    task.await??;
+    let counts = counters.snapshot();
+    ensure!(gap_seen, "no gap marked: {counts:?}");
+    assert_eq!(after_gap, vec![77.0], "the marker frame follows the gap");
+    ensure!(counts.kernel_drops > 0, "no drops counted: {counts:?}");
+    assert_eq!(
+        before_gap as u64 + counts.kernel_drops,
+        BURST as u64,
+        "every burst frame either read or counted as dropped: {counts:?}"
+    );
+    println!(
+        "vcan kernel drops: burst of {BURST} frames, {before_gap} queued and read, {} dropped and counted",
+        counts.kernel_drops
+    );
+    Ok(())
 }
