@@ -633,7 +633,8 @@ fn initial_guess(data: &Data<'_>, poles: &[pencil::Pole]) -> Result<Nonlinear, F
         }
         for a in 0..slots.len() {
             atb[a] += basis[a] * value;
-            for b in 0..slots.len() {
+            // Upper triangle only; mirrored below.
+            for b in a..slots.len() {
                 ata[a][b] += basis[a] * basis[b];
             }
         }
@@ -641,7 +642,7 @@ fn initial_guess(data: &Data<'_>, poles: &[pencil::Pole]) -> Result<Nonlinear, F
     let used = slots.len();
     let a = SMatrix::<f64, MAX_BASIS, MAX_BASIS>::from_fn(|i, j| {
         if i < used && j < used {
-            ata[i][j]
+            ata[i.min(j)][i.max(j)]
         } else if i == j {
             1.0
         } else {
