@@ -278,7 +278,7 @@ impl RegisterMap {
             use MillField as M;
             let base = mills_start + MILL_STRIDE * m as u16;
             let fields: [(u16, &str, ValueType, &'static str, &str, MillField); 5] = [
-                (0, "flags", U16, "bits", "bit0 chatter warning (sigma_n <= sigma_min), bit1 chatter alarm (both conditions), bit2 source stale", M::Flags),
+                (0, "flags", U16, "bits", "bit0 chatter warning (sigma_n <= sigma_min), bit1 chatter alarm (both conditions, latched until acknowledged), bit2 source stale or window restarted", M::Flags),
                 (1, "quality", U16, "bits", "bit i set: value i is valid (0 sigma_n, 1 k_mean, 2 chatter_frequency)", M::Quality),
                 (2, "sigma_n", F32, "Hz", "RMS deviation of the adjacent stands' principal chatter-band frequencies", M::SigmaN),
                 (4, "k_mean", F32, "", "Mean correlation of adjacent stands over the window", M::KMean),
