@@ -226,59 +226,38 @@ const LINEAR_INDEX: [usize; 5] = [0, 1, 2, 3, 8];
 /// derivative columns D (t u1, t v1, t u2, t v2, t e10) that span dPhi/dtheta c.
 const BASIS: usize = 10;
 
-/// Real or imaginary part of a complex exponential.
-#[derive(Clone, Copy)]
-enum Part {
-    Re,
-    Im,
-}
+/// Factors of the basis functions apart from their power of t: Re and Im of z1^n and
+/// z2^n (z = exp((-decay + i 2 pi f) dt)), the rise 1 - e^n and the load e^n
+/// (e = exp(-a10 dt)). Indices into the factor product table of [`gram_closed`].
+const RE1: usize = 0;
+const RE2: usize = 1;
+const IM1: usize = 2;
+const IM2: usize = 3;
+const RISE: usize = 4;
+const LOAD: usize = 5;
+const FACTORS: usize = 6;
 
-/// `coefficient * t^power * part(q^n)` with q one of [`Source`]s.
-#[derive(Clone, Copy)]
-struct Term {
-    coefficient: f64,
-    source: usize,
-    power: usize,
-    part: Part,
-}
-
-/// Sources q of the basis: z1 = exp((-a7 + i 2 pi a5) dt), z2 likewise, the load
-/// exponential exp(-a10 dt) and the constant 1.
-const Z1: usize = 0;
-const Z2: usize = 1;
-const LOAD: usize = 2;
-const ONE: usize = 3;
-const SOURCES: usize = 4;
-
-const fn term(coefficient: f64, source: usize, power: usize, part: Part) -> Term {
-    Term {
-        coefficient,
-        source,
-        power,
-        part,
-    }
-}
-
-/// The basis functions as sums of terms, in the order of the Gram matrix: u1, u2, v1,
-/// v2, 1 - e10 (multiplying a1, a2, a3, a4, a9), then t u1, t v1, t u2, t v2, t e10.
-const BASIS_TERMS: [&[Term]; BASIS] = [
-    &[term(1.0, Z1, 0, Part::Re)],
-    &[term(1.0, Z2, 0, Part::Re)],
-    &[term(1.0, Z1, 0, Part::Im)],
-    &[term(1.0, Z2, 0, Part::Im)],
-    &[term(1.0, ONE, 0, Part::Re), term(-1.0, LOAD, 0, Part::Re)],
-    &[term(1.0, Z1, 1, Part::Re)],
-    &[term(1.0, Z1, 1, Part::Im)],
-    &[term(1.0, Z2, 1, Part::Re)],
-    &[term(1.0, Z2, 1, Part::Im)],
-    &[term(1.0, LOAD, 1, Part::Re)],
+/// Each basis function as (factor, power of t), in the order of the Gram matrix: u1,
+/// u2, v1, v2, 1 - e10 (multiplying a1, a2, a3, a4, a9), then t u1, t v1, t u2, t v2,
+/// t e10.
+const BASIS_FACTORS: [(usize, usize); BASIS] = [
+    (RE1, 0),
+    (RE2, 0),
+    (IM1, 0),
+    (IM2, 0),
+    (RISE, 0),
+    (RE1, 1),
+    (IM1, 1),
+    (RE2, 1),
+    (IM2, 1),
+    (LOAD, 1),
 ];
 
 /// `[sum n^k w^n for n in 0..count]` for k = 0, 1, 2 and each `w` of `ws`, by binary
 /// splitting: O(log count) complex products and no division, so it stays accurate for w
-/// near 1, where the textbook (1 - w^N) / (1 - w)^3 forms cancel catastrophically. All
-/// `ws` advance in lockstep (same count, same bits): the lanes are independent, so their
-/// products overlap instead of waiting on one another.
+/// near 1, where the closed forms of [`power_sums_closed`] cancel. All `ws` advance in
+/// lockstep (same count, same bits): the lanes are independent, so their products
+/// overlap instead of waiting on one another.
 fn power_sums<const K: usize>(ws: &[Complex<f64>; K], count: usize) -> [[Complex<f64>; 3]; K] {
     let zero = Complex::new(0.0, 0.0);
     let mut sums = [[zero; 3]; K];
@@ -315,86 +294,110 @@ fn power_sums<const K: usize>(ws: &[Complex<f64>; K], count: usize) -> [[Complex
     sums
 }
 
-/// Pairs (a, b), a <= b, of [`Source`]s whose products appear in the Gram matrix.
-const PAIRS: usize = SOURCES * (SOURCES + 1) / 2;
-/// Pairs whose conjugate product q_a conj(q_b) differs from q_a q_b (both complex).
-const CONJUGATE_PAIRS: usize = 3;
+/// Smallest count |1 - w| for which [`power_sums_closed`] is used; below it binary
+/// splitting takes over. The closed forms cancel as about eps / (count |1 - w|)^3;
+/// the tests against direct sums (1e-12) still pass with 0.2, so 2 leaves a margin.
+const CLOSED_FORM_MIN_SPREAD: f64 = 2.0;
+
+/// `[sum n^k w^n for n in 0..count]` for k = 0, 1, 2 given `w_count` = w^count, from
+/// the geometric-series identities (1 - w) S0 = 1 - W, (1 - w) S1 = S0 - 1 - (N - 1) W,
+/// (1 - w) S2 = 2 S1 - S0 + 1 - (N - 1)^2 W (N = count, W = w^N): one complex division.
+/// Falls back to [`power_sums`] when count |1 - w| < [`CLOSED_FORM_MIN_SPREAD`].
+fn power_sums_closed(w: Complex<f64>, w_count: Complex<f64>, count: usize) -> [Complex<f64>; 3] {
+    let one = Complex::new(1.0, 0.0);
+    let gap = one - w;
+    let gap_norm2 = gap.norm_sqr();
+    let n = count as f64;
+    if !(gap_norm2 * n * n >= CLOSED_FORM_MIN_SPREAD * CLOSED_FORM_MIN_SPREAD) {
+        let [sums] = power_sums(&[w], count);
+        return sums;
+    }
+    let inverse = gap.conj() / gap_norm2;
+    let last = n - 1.0;
+    let s0 = (one - w_count) * inverse;
+    let s1 = (s0 - one - w_count * last) * inverse;
+    let s2 = (s1 * 2.0 - s0 + one - w_count * (last * last)) * inverse;
+    [s0, s1, s2]
+}
 
 /// Gram matrix [Phi D]^T [Phi D] over `count` samples `dt` apart, in closed form:
-/// every product of two basis functions is the real or imaginary part of
-/// t^k (q_a q_b)^n or t^k (q_a conj(q_b))^n, whose sums over n are [`power_sums`].
-/// O(log N) work instead of 55 products per sample.
+/// every product of two basis factors is the real or imaginary part of a sum of
+/// n^k w^n (w a product of z1, z2, e, their conjugates and 1), which
+/// [`power_sums_closed`] gives in O(1); the 6 x 6 x 3 table of factor products then
+/// fills the 10 x 10 matrix. No pass over the samples.
 fn gram_closed(theta: &Nonlinear, count: usize, dt: f64) -> [[f64; BASIS]; BASIS] {
+    let n = count as f64;
+    // exp((-decay + i 2 pi f) dt) and its count-th power.
     let rotor = |decay: f64, frequency: f64| {
-        let (s, c) = libm::sincos(2.0 * PI * frequency * dt);
-        Complex::new(c, s) * libm::exp(-decay * dt)
+        let angle = 2.0 * PI * frequency * dt;
+        let (s, c) = libm::sincos(angle);
+        let (s_count, c_count) = libm::sincos(angle * n);
+        (
+            Complex::new(c, s) * libm::exp(-decay * dt),
+            Complex::new(c_count, s_count) * libm::exp(-decay * dt * n),
+        )
     };
-    let sources = [
-        rotor(theta[2], theta[0]),
-        rotor(theta[3], theta[1]),
-        Complex::new(libm::exp(-theta[4] * dt), 0.0),
-        Complex::new(1.0, 0.0),
+    let (z1, z1_count) = rotor(theta[2], theta[0]);
+    let (z2, z2_count) = rotor(theta[3], theta[1]);
+    let load = Complex::new(libm::exp(-theta[4] * dt), 0.0);
+    let load_count = Complex::new(libm::exp(-theta[4] * dt * n), 0.0);
+    let sums = |w: Complex<f64>, w_count: Complex<f64>| power_sums_closed(w, w_count, count);
+    let z11 = sums(z1 * z1, z1_count * z1_count);
+    let z11c = sums(z1 * z1.conj(), z1_count * z1_count.conj());
+    let z22 = sums(z2 * z2, z2_count * z2_count);
+    let z22c = sums(z2 * z2.conj(), z2_count * z2_count.conj());
+    let z12 = sums(z1 * z2, z1_count * z2_count);
+    let z12c = sums(z1 * z2.conj(), z1_count * z2_count.conj());
+    let z1e = sums(z1 * load, z1_count * load_count);
+    let z1_alone = sums(z1, z1_count);
+    let z2e = sums(z2 * load, z2_count * load_count);
+    let z2_alone = sums(z2, z2_count);
+    let ee = sums(load * load, load_count * load_count);
+    let e = sums(load, load_count);
+    // Sums of n^k for the constant: exact.
+    let constant = [
+        n,
+        n * (n - 1.0) / 2.0,
+        n * (n - 1.0) * (2.0 * n - 1.0) / 6.0,
     ];
-    // All products q_a q_b (a <= b), then q_a conj(q_b) for the complex pairs, summed
-    // together; `slot[a][b]` is the index of q_a q_b.
-    let zero = Complex::new(0.0, 0.0);
-    let mut ws = [zero; PAIRS + CONJUGATE_PAIRS];
-    let mut slot = [[0_usize; SOURCES]; SOURCES];
-    let mut next = 0;
-    for a in 0..SOURCES {
-        for b in a..SOURCES {
-            ws[next] = sources[a] * sources[b];
-            slot[a][b] = next;
-            next += 1;
+
+    // table[x][y][k] = sum over n of n^k factor_x(n) factor_y(n).
+    let mut table = [[[0.0; 3]; FACTORS]; FACTORS];
+    let mut set = |x: usize, y: usize, k: usize, value: f64| {
+        table[x][y][k] = value;
+        table[y][x][k] = value;
+    };
+    for k in 0..3 {
+        // Re a Re b = (Re ab + Re a conj b) / 2, Im a Im b = (Re a conj b - Re ab) / 2,
+        // Re a Im b = (Im ab - Im a conj b) / 2, Im a Re b = (Im ab + Im a conj b) / 2.
+        for (re_a, im_a, re_b, im_b, direct, conjugate) in [
+            (RE1, IM1, RE1, IM1, z11[k], z11c[k]),
+            (RE2, IM2, RE2, IM2, z22[k], z22c[k]),
+            (RE1, IM1, RE2, IM2, z12[k], z12c[k]),
+        ] {
+            set(re_a, re_b, k, 0.5 * (direct.re + conjugate.re));
+            set(im_a, im_b, k, 0.5 * (conjugate.re - direct.re));
+            set(re_a, im_b, k, 0.5 * (direct.im - conjugate.im));
+            set(im_a, re_b, k, 0.5 * (direct.im + conjugate.im));
         }
-    }
-    for a in 0..LOAD {
-        for b in a..LOAD {
-            ws[next] = sources[a] * sources[b].conj();
-            next += 1;
+        for (re, im, with_load, alone) in [
+            (RE1, IM1, z1e[k], z1_alone[k]),
+            (RE2, IM2, z2e[k], z2_alone[k]),
+        ] {
+            set(re, LOAD, k, with_load.re);
+            set(im, LOAD, k, with_load.im);
+            set(re, RISE, k, alone.re - with_load.re);
+            set(im, RISE, k, alone.im - with_load.im);
         }
-    }
-    let sums = power_sums(&ws, count);
-    // pair[a][b] for a <= b: sums of (q_a q_b)^n and of (q_a conj(q_b))^n.
-    let mut pair = [[([zero; 3], [zero; 3]); SOURCES]; SOURCES];
-    let mut conjugate = PAIRS;
-    for a in 0..SOURCES {
-        for b in a..SOURCES {
-            let direct = sums[slot[a][b]];
-            pair[a][b] = if b < LOAD {
-                conjugate += 1;
-                (direct, sums[conjugate - 1])
-            } else {
-                (direct, direct)
-            };
-        }
+        set(LOAD, LOAD, k, ee[k].re);
+        set(RISE, LOAD, k, e[k].re - ee[k].re);
+        set(RISE, RISE, k, constant[k] - 2.0 * e[k].re + ee[k].re);
     }
     let time_scale = [1.0, dt, dt * dt];
-    let product = |x: &Term, y: &Term| {
-        let (x, y) = if x.source <= y.source { (x, y) } else { (y, x) };
-        let k = x.power + y.power;
-        let (direct, conjugate) = pair[x.source][y.source];
-        let (p, q) = (direct[k], conjugate[k]);
-        // Re a Re b = (Re ab + Re a conj b) / 2, and so on.
-        let value = match (x.part, y.part) {
-            (Part::Re, Part::Re) => p.re + q.re,
-            (Part::Im, Part::Im) => q.re - p.re,
-            (Part::Re, Part::Im) => p.im - q.im,
-            (Part::Im, Part::Re) => p.im + q.im,
-        };
-        0.5 * value * x.coefficient * y.coefficient * time_scale[k]
-    };
     let mut gram = [[0.0; BASIS]; BASIS];
-    for i in 0..BASIS {
-        for j in i..BASIS {
-            let mut sum = 0.0;
-            for x in BASIS_TERMS[i] {
-                for y in BASIS_TERMS[j] {
-                    sum += product(x, y);
-                }
-            }
-            gram[i][j] = sum;
-            gram[j][i] = sum;
+    for (i, &(x, p)) in BASIS_FACTORS.iter().enumerate() {
+        for (j, &(y, q)) in BASIS_FACTORS.iter().enumerate() {
+            gram[i][j] = table[x][y][p + q] * time_scale[p + q];
         }
     }
     gram
@@ -993,6 +996,10 @@ mod tests {
             ([11.99, 20.91, 22.17, 3.65, 36.7], 1),
             ([12.0, 12.001, 0.0, 1e-6, 0.5], 3),
             ([0.5, 40.0, -2.0, 60.0, 200.0], 2),
+            // Slow decays and close frequencies: some sums by binary splitting, some
+            // just above the closed-form threshold.
+            ([3.0, 3.5, 0.01, 2.6, 2.0], 1),
+            ([20.0, 20.0005, 1e-9, 0.0, 0.0], 1),
         ] {
             let data = Data {
                 samples: &samples,
@@ -1012,6 +1019,51 @@ mod tests {
                         "{theta:?} [{i}][{j}]: {closed:?} vs {direct:?}"
                     );
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn closed_form_power_sums_match_the_direct_sum() {
+        // Spreads count |1 - w| from below the threshold (binary splitting) to far
+        // above, decaying, growing and unit-modulus w.
+        for (w, count) in [
+            (Complex::new(0.99, 0.05), 1001),
+            (Complex::new(0.999, 0.0), 500),
+            (Complex::new(0.996, 0.0), 500),
+            (Complex::new(0.9999, 0.001), 777),
+            (Complex::from_polar(1.0, 0.3), 300),
+            (Complex::from_polar(1.004, -0.01), 500),
+            (Complex::new(0.3, -0.6), 125),
+            (Complex::new(1.0, 0.0), 64),
+            (Complex::new(0.5, 0.5), 1),
+            (Complex::new(0.5, 0.5), 0),
+        ] {
+            let mut expected = [Complex::new(0.0, 0.0); 3];
+            let mut power = Complex::new(1.0, 0.0);
+            for n in 0..count {
+                let index = n as f64;
+                expected[0] += power;
+                expected[1] += power * index;
+                expected[2] += power * (index * index);
+                power *= w;
+            }
+            // w^count as gram_closed forms it: modulus and angle scaled separately.
+            let w_count =
+                Complex::from_polar(libm::pow(w.norm(), count as f64), w.arg() * count as f64);
+            let sums = power_sums_closed(w, w_count, count);
+            for k in 0..3 {
+                // Relative to the sum of |terms|, the scale the direct sum itself has.
+                let scale: f64 = (0..count)
+                    .map(|n| libm::pow(n as f64, k as f64) * libm::pow(w.norm(), n as f64))
+                    .sum();
+                let error = (sums[k] - expected[k]).norm();
+                assert!(
+                    error <= 1e-12 * (scale + 1.0),
+                    "{w} {count} k={k}: {:?} vs {:?}",
+                    sums[k],
+                    expected[k]
+                );
             }
         }
     }
