@@ -183,6 +183,8 @@ async fn stands_that_synchronize_raise_warning_then_alarm() -> anyhow::Result<()
     let mut before = Vec::new();
     while streaming.elapsed().as_secs_f64() < SYNC_S - 0.3 {
         let mill = devices.mill();
+        // Steady streaming from one DAQ never restarts the window.
+        assert_eq!(mill.flags & STALE, 0, "{mill:?}");
         if mill.quality == 0b111 {
             before.push(mill);
         }
