@@ -308,7 +308,8 @@ fn power_sums_closed(w: Complex<f64>, w_count: Complex<f64>, count: usize) -> [C
     let gap = one - w;
     let gap_norm2 = gap.norm_sqr();
     let n = count as f64;
-    if !(gap_norm2 * n * n >= CLOSED_FORM_MIN_SPREAD * CLOSED_FORM_MIN_SPREAD) {
+    // (Not finite w: either branch gives NaN, which the callers reject.)
+    if gap_norm2 * n * n < CLOSED_FORM_MIN_SPREAD * CLOSED_FORM_MIN_SPREAD {
         let [sums] = power_sums(&[w], count);
         return sums;
     }
