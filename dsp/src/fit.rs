@@ -495,6 +495,80 @@ fn project(theta: &Nonlinear, reference: &Linear, data: &Data<'_>) -> (f64, [f64
     (squares, projections)
 }
 
+/// Cholesky factor L (lower, L L^T = A) of a 5 x 5 symmetric positive definite matrix,
+/// on plain arrays: nalgebra's generic `cholesky` and triangular solves took a tenth of
+/// the fit's time on these tiny matrices.
+#[derive(Clone, Copy)]
+struct Cholesky5 {
+    lower: [[f64; 5]; 5],
+    /// 1 / L[i][i].
+    inverse_diagonal: [f64; 5],
+}
+
+// Index loops: the factorisation and the solves walk rows and columns of `lower` at once.
+#[allow(clippy::needless_range_loop)]
+impl Cholesky5 {
+    /// Factors `a` (lower triangle read); `None` unless positive definite and finite.
+    fn new(a: &SMatrix<f64, 5, 5>) -> Option<Self> {
+        let mut lower = [[0.0; 5]; 5];
+        let mut inverse_diagonal = [0.0; 5];
+        for j in 0..5 {
+            let mut diagonal = a[(j, j)];
+            for k in 0..j {
+                diagonal -= lower[j][k] * lower[j][k];
+            }
+            // Also false for NaN.
+            if !(diagonal > 0.0 && diagonal.is_finite()) {
+                return None;
+            }
+            let root = libm::sqrt(diagonal);
+            lower[j][j] = root;
+            inverse_diagonal[j] = 1.0 / root;
+            for i in j + 1..5 {
+                let mut value = a[(i, j)];
+                for k in 0..j {
+                    value -= lower[i][k] * lower[j][k];
+                }
+                lower[i][j] = value * inverse_diagonal[j];
+            }
+        }
+        Some(Self {
+            lower,
+            inverse_diagonal,
+        })
+    }
+
+    /// Solves A x = b.
+    fn solve(&self, b: &SVector<f64, 5>) -> SVector<f64, 5> {
+        let mut x = *b;
+        for i in 0..5 {
+            let mut value = x[i];
+            for k in 0..i {
+                value -= self.lower[i][k] * x[k];
+            }
+            x[i] = value * self.inverse_diagonal[i];
+        }
+        for i in (0..5).rev() {
+            let mut value = x[i];
+            for k in i + 1..5 {
+                value -= self.lower[k][i] * x[k];
+            }
+            x[i] = value * self.inverse_diagonal[i];
+        }
+        x
+    }
+
+    /// Solves A X = B column by column.
+    fn solve_matrix(&self, b: &SMatrix<f64, 5, 5>) -> SMatrix<f64, 5, 5> {
+        let mut x = *b;
+        for mut column in x.column_iter_mut() {
+            let solved = self.solve(&column.clone_owned());
+            column.copy_from(&solved);
+        }
+        x
+    }
+}
+
 /// Largest ratio of |r0|^2 to the cost accepted in [`evaluate`]: 4 of 16 digits lost.
 const MAX_CANCELLATION: f64 = 1e4;
 
@@ -507,6 +581,8 @@ struct Evaluation {
     /// min over the linear parameters of sum(r^2).
     cost: f64,
     gram: [[f64; BASIS]; BASIS],
+    /// Cholesky factor of Phi^T Phi (the top left 5 x 5 of `gram`).
+    phi_gram: Cholesky5,
     /// D^T r at the optimal linear parameters.
     derivative_projections: [f64; 5],
 }
@@ -519,7 +595,7 @@ fn evaluate(theta: Nonlinear, reference: &Linear, data: &Data<'_>) -> Option<Eva
     } else {
         gram_closed(&theta, data.count(), data.dt)
     };
-    let phi_gram = SMatrix::<f64, 5, 5>::from_fn(|i, j| gram[i][j]).cholesky()?;
+    let phi_gram = Cholesky5::new(&SMatrix::<f64, 5, 5>::from_fn(|i, j| gram[i][j]))?;
     let mut reference = *reference;
     // A reference far from the solution (the first point, or a step that changed the
     // basis a lot) leaves a cost that is a small difference of large numbers: then
@@ -553,6 +629,7 @@ fn evaluate(theta: Nonlinear, reference: &Linear, data: &Data<'_>) -> Option<Eva
         linear,
         cost,
         gram,
+        phi_gram,
         derivative_projections,
     })
 }
@@ -561,7 +638,7 @@ fn evaluate(theta: Nonlinear, reference: &Linear, data: &Data<'_>) -> Option<Eva
 /// projected residual is approximated by P_perp J_N, J_N = D M the Jacobian of the
 /// model in the nonlinear parameters at fixed linear ones, so
 /// J^T J = M^T (D^T D) M - (Phi^T D M)^T (Phi^T Phi)^-1 (Phi^T D M) and J^T r = M^T D^T r.
-fn normal_equations(point: &Evaluation) -> Option<(SMatrix<f64, 5, 5>, SVector<f64, 5>)> {
+fn normal_equations(point: &Evaluation) -> (SMatrix<f64, 5, 5>, SVector<f64, 5>) {
     let [c1, c2, c3, c4, c9] = point.linear;
     let w = 2.0 * PI;
     // dModel/dtheta = D M; rows of M: t u1, t v1, t u2, t v2, t e10.
@@ -574,13 +651,12 @@ fn normal_equations(point: &Evaluation) -> Option<(SMatrix<f64, 5, 5>, SVector<f
         0.0,    0.0,    0.0, 0.0, c9,
     ]);
     let g = &point.gram;
-    let phi_gram = SMatrix::<f64, 5, 5>::from_fn(|i, j| g[i][j]);
     let cross = SMatrix::<f64, 5, 5>::from_fn(|i, j| g[i][5 + j]) * mixing;
     let derivative_gram = SMatrix::<f64, 5, 5>::from_fn(|i, j| g[5 + i][5 + j]);
-    let projected = phi_gram.cholesky()?.solve(&cross);
+    let projected = point.phi_gram.solve_matrix(&cross);
     let jtj = mixing.transpose() * derivative_gram * mixing - cross.transpose() * projected;
     let jtr = mixing.transpose() * SVector::<f64, 5>::from(point.derivative_projections);
-    Some((jtj, jtr))
+    (jtj, jtr)
 }
 
 /// Solves the damped normal equations; `None` if Cholesky fails.
@@ -595,7 +671,7 @@ fn damped_step(
     for i in 0..5 {
         a[(i, i)] += lambda * a[(i, i)].max(floor);
     }
-    let delta = a.cholesky()?.solve(jtr);
+    let delta = Cholesky5::new(&a)?.solve(jtr);
     delta.iter().all(|d| d.is_finite()).then_some(delta)
 }
 
@@ -940,7 +1016,7 @@ fn levenberg_marquardt(
             status = FitStatus::Converged;
             break;
         }
-        let (jtj, jtr) = normal_equations(&point).ok_or(FitError::Singular)?;
+        let (jtj, jtr) = normal_equations(&point);
         loop {
             let Some(delta) = damped_step(&jtj, &jtr, lambda) else {
                 lambda *= 10.0;
@@ -1067,6 +1143,35 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn cholesky5_matches_nalgebra() {
+        // A Hilbert-like SPD matrix plus a diagonal, and a solve against it.
+        let a = SMatrix::<f64, 5, 5>::from_fn(|i, j| {
+            1.0 / (1.0 + i as f64 + j as f64) + if i == j { 0.1 * (i + 1) as f64 } else { 0.0 }
+        });
+        let b = SVector::<f64, 5>::from_fn(|i, _| (i as f64 - 1.5) * 0.7);
+        let ours = Cholesky5::new(&a).unwrap();
+        let theirs = a.cholesky().unwrap();
+        let (x, expected) = (ours.solve(&b), theirs.solve(&b));
+        assert!(
+            (x - expected).norm() <= 1e-12 * expected.norm(),
+            "{x} vs {expected}"
+        );
+        let residual = a * x - b;
+        assert!(residual.norm() <= 1e-12 * b.norm());
+        let columns = SMatrix::<f64, 5, 5>::from_fn(|i, j| (i * 5 + j) as f64);
+        let solved = ours.solve_matrix(&columns);
+        let expected = theirs.solve(&columns);
+        assert!((solved - expected).norm() <= 1e-12 * expected.norm());
+        // Not positive definite, not finite.
+        let mut indefinite = a;
+        indefinite[(3, 3)] = -1.0;
+        assert!(Cholesky5::new(&indefinite).is_none());
+        let mut nan = a;
+        nan[(2, 1)] = f64::NAN;
+        assert!(Cholesky5::new(&nan).is_none());
     }
 
     #[test]
