@@ -975,18 +975,22 @@ pub(crate) fn peak_magnitude(samples: &[f64]) -> (f64, bool) {
 }
 
 /// Largest value of the fitted curve over `len` samples, by the same recurrences.
+/// Each mode is one rotor started at its complex amplitude (a1 - i a3 for mode 1, so
+/// its real part is a1 u1 + a3 v1) and the load term is advanced as a9 e10 directly:
+/// 16 operations per sample instead of 23.
 fn fitted_peak(p: &[f64; PARAMS], len: usize, dt: f64) -> Option<f64> {
-    let mut mode1 = Rotor::new(p[6], p[4], dt);
-    let mut mode2 = Rotor::new(p[7], p[5], dt);
+    let amplitude = |rotor: Rotor, cosine: f64, sine: f64| Rotor {
+        re: cosine,
+        im: -sine,
+        ..rotor
+    };
+    let mut mode1 = amplitude(Rotor::new(p[6], p[4], dt), p[0], p[2]);
+    let mut mode2 = amplitude(Rotor::new(p[7], p[5], dt), p[1], p[3]);
     let load_step = libm::exp(-p[9] * dt);
-    let mut load = 1.0;
+    let mut load = p[8];
     let mut peak = f64::NEG_INFINITY;
     for _ in 0..len {
-        let value = p[0] * mode1.re
-            + p[2] * mode1.im
-            + p[1] * mode2.re
-            + p[3] * mode2.im
-            + p[8] * (1.0 - load);
+        let value = mode1.re + mode2.re + (p[8] - load);
         // A comparison, not f64::max: its NaN handling costs a branch per sample.
         if value > peak {
             peak = value;
@@ -1143,6 +1147,28 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn fitted_peak_matches_eq1_sample_by_sample() {
+        let params = [
+            -147.0, 85.0, 191.0, -31.0, 11.99, 20.91, 22.17, 3.65, 112.0, 36.7,
+        ];
+        let dt = 1e-3;
+        let expected = (0..500)
+            .map(|i| eq1(&params, i as f64 * dt))
+            .fold(f64::NEG_INFINITY, f64::max);
+        let peak = fitted_peak(&params, 500, dt).unwrap();
+        assert!(
+            libm::fabs(peak - expected) <= 1e-10 * expected,
+            "{peak} vs {expected}"
+        );
+        // A short record ends before the overshoot: the peak is its last sample.
+        let expected = (0..10)
+            .map(|i| eq1(&params, i as f64 * dt))
+            .fold(f64::NEG_INFINITY, f64::max);
+        let peak = fitted_peak(&params, 10, dt).unwrap();
+        assert!(libm::fabs(peak - expected) <= 1e-10 * libm::fabs(expected));
     }
 
     #[test]
