@@ -466,10 +466,10 @@ fn general_eigenvalues<const N: usize>(mut a: [[f64; N]; N]) -> Option<[Complex<
                 p = (rr * ss - w) / a[m + 1][m] + a[m][m + 1];
                 q = a[m + 1][m + 1] - z - rr - ss;
                 r = a[m + 2][m + 1];
-                let s = libm::fabs(p) + libm::fabs(q) + libm::fabs(r);
-                p /= s;
-                q /= s;
-                r /= s;
+                let inverse = 1.0 / (libm::fabs(p) + libm::fabs(q) + libm::fabs(r));
+                p *= inverse;
+                q *= inverse;
+                r *= inverse;
                 if m == l {
                     break;
                 }
@@ -496,9 +496,10 @@ fn general_eigenvalues<const N: usize>(mut a: [[f64; N]; N]) -> Option<[Complex<
                     r = if k + 1 != nn { a[k + 2][k - 1] } else { 0.0 };
                     scale = libm::fabs(p) + libm::fabs(q) + libm::fabs(r);
                     if scale != 0.0 {
-                        p /= scale;
-                        q /= scale;
-                        r /= scale;
+                        let inverse = 1.0 / scale;
+                        p *= inverse;
+                        q *= inverse;
+                        r *= inverse;
                     }
                 }
                 let length = libm::sqrt(p * p + q * q + r * r);
@@ -514,8 +515,10 @@ fn general_eigenvalues<const N: usize>(mut a: [[f64; N]; N]) -> Option<[Complex<
                     a[k][k - 1] = -s * scale;
                 }
                 p += s;
-                let (vx, vy, vz) = (p / s, q / s, r / s);
-                let (q, r) = (q / p, r / p);
+                let inverse_s = 1.0 / s;
+                let inverse_p = 1.0 / p;
+                let (vx, vy, vz) = (p * inverse_s, q * inverse_s, r * inverse_s);
+                let (q, r) = (q * inverse_p, r * inverse_p);
                 // Rows k, k + 1, k + 2.
                 for j in k..=nn {
                     let mut t = a[k][j] + q * a[k + 1][j];
