@@ -14,15 +14,16 @@
 //! ten, and each iteration is cheaper:
 //!
 //! - the Gram matrix of the basis (the five model columns and the five columns their
-//!   derivatives span) is a sum of damped complex exponentials times t^k, which has a
-//!   closed form evaluated in O(log N) (binary splitting, no division);
+//!   derivatives span) is a sum of damped complex exponentials times t^k, whose
+//!   geometric-series closed form costs O(1) (binary splitting, O(log N), where the
+//!   closed form would cancel);
 //! - the only pass over the samples projects the residual on those ten columns (the
 //!   exponentials and sines advanced by complex recurrences, one multiplication per
 //!   sample and mode, no transcendental call per sample).
 //!
 //! It is hand-rolled because no crate offers Levenberg-Marquardt or variable projection
-//! without heap: everything lives on fixed-size nalgebra matrices (5x5 Cholesky
-//! solves), the N x 10 Jacobian is never stored.
+//! without heap: everything lives on fixed-size arrays and nalgebra matrices (5x5
+//! Cholesky solves on plain arrays), the N x 10 Jacobian is never stored.
 //!
 //! Initialisation needs no user guess: [`crate::pencil::poles`] gives the poles, a
 //! linear least-squares fit over all candidate poles picks the two oscillating modes of
