@@ -840,8 +840,18 @@ fn damped_step(
     delta.iter().all(|d| d.is_finite()).then_some(delta)
 }
 
-/// Chooses the initial a5..a8, a10 and a9 from the pencil poles.
-fn initial_guess(data: &Data<'_>, poles: &[pencil::Pole]) -> Result<Nonlinear, FitError> {
+/// Start of the iteration chosen from the pencil poles.
+#[derive(Clone, Copy)]
+struct Guess {
+    /// a5, a6, a7, a8, a10.
+    theta: Nonlinear,
+    /// Whether a10 is a load pole of the pencil (else the default 10 / T, T the record
+    /// length).
+    rise_from_pencil: bool,
+}
+
+/// Chooses the initial a5..a8 and a10 from the pencil poles.
+fn initial_guess(data: &Data<'_>, poles: &[pencil::Pole]) -> Result<Guess, FitError> {
     const MAX_BASIS: usize = 1 + pencil::MODEL_ORDER;
     let dt = data.dt;
     let duration = data.duration_s();
@@ -941,13 +951,16 @@ fn initial_guess(data: &Data<'_>, poles: &[pencil::Pole]) -> Result<Nonlinear, F
         (poles[best[1].1], poles[best[0].1])
     };
     let rise = load.map_or(10.0 / duration, |(_, decay)| decay);
-    Ok([
-        first.frequency_hz,
-        second.frequency_hz,
-        first.decay_per_s,
-        second.decay_per_s,
-        rise,
-    ])
+    Ok(Guess {
+        theta: [
+            first.frequency_hz,
+            second.frequency_hz,
+            first.decay_per_s,
+            second.decay_per_s,
+            rise,
+        ],
+        rise_from_pencil: load.is_some(),
+    })
 }
 
 /// Puts both frequencies positive and mode 1 below mode 2.
@@ -970,14 +983,21 @@ fn canonical(mut p: [f64; PARAMS]) -> [f64; PARAMS] {
     p
 }
 
-/// Evaluates `theta` with its load rise a10 as given and at 8 / T and 24 / T (T the
-/// record length) and returns the best. The pencil's real poles are the least reliable
-/// of its output, and a start with a10 far above the truth costs many rejected steps;
-/// the variable-projection cost is smooth and unimodal in a10, so a few trials suffice.
-fn best_rise(theta: Nonlinear, data: &Data<'_>) -> Option<Evaluation> {
+/// Evaluates `guess` with a10 at 8 / T and 24 / T (T the record length), and as
+/// guessed when the pencil found a load pole, and returns the best. The pencil's real
+/// poles are the least reliable of its output, and a start with a10 far above the truth
+/// costs many rejected steps; the variable-projection cost is smooth and unimodal in
+/// a10, so a few trials suffice. (Without a load pole the guess is 10 / T, too close to
+/// 8 / T to be worth its own evaluation.)
+fn best_rise(guess: Guess, data: &Data<'_>) -> Option<Evaluation> {
     let duration = data.duration_s();
+    let theta = guess.theta;
+    let pencil_rise = guess.rise_from_pencil.then_some(theta[4]);
     let mut best: Option<Evaluation> = None;
-    for rise in [theta[4], 8.0 / duration, 24.0 / duration] {
+    for rise in pencil_rise
+        .into_iter()
+        .chain([8.0 / duration, 24.0 / duration])
+    {
         let mut trial = theta;
         trial[4] = rise;
         let reference = best.map_or([0.0; 5], |b| b.linear);
@@ -1076,7 +1096,7 @@ pub fn fit_eq1(samples: &[f64], options: &FitOptions) -> Result<Eq1Fit, FitError
             levenberg_marquardt(initial, &coarse, coarse_used, &coarse_options)?;
         ((point.theta, point.linear), iterations)
     } else {
-        ((initial_guess(&full, &poles)?, [0.0; 5]), 0)
+        ((initial_guess(&full, &poles)?.theta, [0.0; 5]), 0)
     };
     let start = evaluate(start.0, &start.1, &full).ok_or(FitError::Singular)?;
     let (point, rms, iterations, status) = levenberg_marquardt(start, &full, used, options)?;
