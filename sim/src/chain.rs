@@ -93,6 +93,8 @@ pub struct Simulator {
     rise_rate: f64,
     onset_s: f64,
     measured: usize,
+    /// [`Simulator::run_into`] stops when |output| exceeds this, kN*m.
+    divergence_limit_knm: f64,
     sample_period_s: f64,
     samples: usize,
     substeps: usize,
@@ -151,6 +153,7 @@ impl Simulator {
             rise_rate: model.load.rise_rate,
             onset_s: model.load.onset,
             measured: model.measurement.coupling,
+            divergence_limit_knm: f64::INFINITY,
             sample_period_s,
             samples: model.sample_count(),
             substeps: 1,
@@ -165,6 +168,16 @@ impl Simulator {
     /// The same simulator with `substeps` RK4 steps per output sample (at least 1).
     pub fn with_substeps_per_sample(mut self, substeps: usize) -> Simulator {
         self.substeps = substeps.max(1);
+        self
+    }
+
+    /// The same simulator stopping as soon as |output| exceeds `limit_knm` (kN*m) or the
+    /// gap crossings outnumber the output samples, the samples left unwritten set to
+    /// NaN. For fits that try parameter values at which the fixed step is unstable or a
+    /// gap chatters: such a run ends early instead of hunting crossings of an exploding
+    /// state.
+    pub fn with_divergence_limit(mut self, limit_knm: f64) -> Simulator {
+        self.divergence_limit_knm = limit_knm;
         self
     }
 
@@ -277,8 +290,16 @@ impl Simulator {
     pub fn run_into(&self, state: &mut ChainState, torque_knm: &mut [f64]) -> usize {
         let count = torque_knm.len().min(self.samples);
         let step_s = self.step_s();
-        for (k, out) in torque_knm.iter_mut().take(count).enumerate() {
-            *out = self.measured_nm(state) * 1.0e-3;
+        for k in 0..count {
+            let value = self.measured_nm(state) * 1.0e-3;
+            torque_knm[k] = value;
+            let diverged = value.is_nan()
+                || value.abs() > self.divergence_limit_knm
+                || (self.divergence_limit_knm.is_finite() && state.events > count);
+            if diverged {
+                torque_knm[k..count].fill(f64::NAN);
+                break;
+            }
             if k + 1 == count {
                 break;
             }

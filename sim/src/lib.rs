@@ -3,6 +3,7 @@
 pub mod can_node;
 pub mod chain;
 pub mod daq;
+pub mod discrepancy;
 pub mod modal;
 pub mod modbus_bank;
 pub mod model;

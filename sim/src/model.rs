@@ -325,7 +325,10 @@ impl Model {
             return Err(Checker { file: "<split>" }.error(
                 "coupling",
                 index,
-                format!("a coupling index, 0 ..= {}", self.couplings.len().saturating_sub(1)),
+                format!(
+                    "a coupling index, 0 ..= {}",
+                    self.couplings.len().saturating_sub(1)
+                ),
             ));
         };
         let mut model = self.clone();

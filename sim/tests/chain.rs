@@ -213,3 +213,74 @@ fn invalid_hand_built_model_is_an_error_not_a_panic() {
     model.masses[1].inertia = 0.0;
     assert!(Simulator::new(&model).is_err());
 }
+
+#[test]
+fn halving_the_step_changes_hardening_and_friction_results_by_less_than_0_1_percent(
+) -> anyhow::Result<()> {
+    let mut model = load("table2-adjusted.toml")?;
+    model.couplings[1].hardening = 8.0e11;
+    model.couplings[0].friction = 6.0e3;
+    let simulator = Simulator::new(&model)?;
+    let coarse = simulator.run();
+    let fine = simulator
+        .clone()
+        .with_substeps_per_sample(2 * simulator.substeps_per_sample())
+        .run();
+    let difference = max_abs_difference(&coarse.torque_knm, &fine.torque_knm);
+    assert!(difference < 1e-3 * peak(&coarse), "{difference} kN*m");
+    // And the extensions act: the response differs from the linear chain's.
+    let linear = simulate(&load("table2-adjusted.toml")?)?;
+    assert!(max_abs_difference(&coarse.torque_knm, &linear.torque_knm) > 0.05 * peak(&linear));
+    Ok(())
+}
+
+#[test]
+fn lagged_channel_is_the_first_order_filtered_torque() -> anyhow::Result<()> {
+    let direct_model = load("table2-adjusted.toml")?;
+    let mut lagged_model = direct_model.clone();
+    let tau = 5.0e-3;
+    lagged_model.measurement.lag = tau;
+    let direct = simulate(&direct_model)?.torque_knm;
+    let lagged = simulate(&lagged_model)?.torque_knm;
+    // Exact response of dy/dt = (x - y) / tau to x linear between samples.
+    let dt = 1.0 / direct_model.measurement.sample_rate;
+    let a = (-dt / tau).exp();
+    let mut filtered = vec![0.0; direct.len()];
+    for k in 1..direct.len() {
+        let slope = (direct[k] - direct[k - 1]) / dt;
+        filtered[k] = a * filtered[k - 1] + direct[k] - a * direct[k - 1] - tau * slope * (1.0 - a);
+    }
+    let scale = direct.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
+    assert!(max_abs_difference(&lagged, &filtered) < 2e-3 * scale);
+    assert!(
+        max_abs_difference(&lagged, &direct) > 0.05 * scale,
+        "the lag did nothing"
+    );
+    Ok(())
+}
+
+#[test]
+fn splitting_a_coupling_by_a_small_inertia_keeps_the_response() -> anyhow::Result<()> {
+    let model = load("table2-adjusted.toml")?;
+    let base = simulate(&model)?;
+    for coupling in 0..2 {
+        let split = model.split_coupling(coupling, 20.0)?;
+        assert_eq!(split.masses.len(), 4);
+        assert_eq!(
+            split.measurement.coupling,
+            if coupling == 0 { 2 } else { 1 }
+        );
+        let response = simulate(&split)?;
+        let difference = max_abs_difference(&base.torque_knm, &response.torque_knm);
+        assert!(
+            difference < 5e-3 * peak(&base),
+            "coupling {coupling}: {difference} kN*m"
+        );
+    }
+    // A large inertia in the spindle adds a mode the chain did not have.
+    let heavy = simulate(&model.split_coupling(1, 2000.0)?)?;
+    let difference = max_abs_difference(&base.torque_knm, &heavy.torque_knm);
+    assert!(difference > 0.01 * peak(&base), "{difference} kN*m");
+    assert!(model.split_coupling(2, 20.0).is_err());
+    Ok(())
+}
