@@ -43,6 +43,8 @@ enum Command {
     Analyze(millgate::offline::analyze::AnalyzeArgs),
     /// Stiffness adjustment, paper eq. (2): natural frequencies <-> C12, C23.
     Stiffness(millgate::offline::stiffness::StiffnessArgs),
+    /// Where a model and a measured transient disagree, and the effect the model lacks.
+    Discrepancy(millgate::offline::discrepancy::DiscrepancyArgs),
     /// Driveline simulator: transients, modes, wear maps.
     Sim(millgate::simcmd::SimArgs),
     /// Self-contained demo: a virtual DAQ and PLC on loopback, the gateway between them.
@@ -113,6 +115,7 @@ fn main() -> ExitCode {
             millgate::offline::analyze::run(&args).map(emit)
         }
         Command::Stiffness(args) => millgate::offline::stiffness::run(&args).map(emit),
+        Command::Discrepancy(args) => millgate::offline::discrepancy::run(&args).map(emit),
         Command::Sim(args) => millgate::simcmd::run(args),
         Command::Run { config } => {
             init_tracing("info");

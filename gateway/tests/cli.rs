@@ -264,3 +264,115 @@ async fn run_stops_on_sigterm_with_a_final_stopped_write() {
     assert_eq!(plc.holding()[1] & 0b11, 0b10, "status stopped, not running");
     running_plc.stop().await.unwrap();
 }
+
+#[test]
+fn discrepancy_names_a_hidden_gap_and_writes_the_report_folder() {
+    let dir = std::env::temp_dir().join(format!("millgate-cli-{}-discrepancy", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let models = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../sim/models");
+    // The "measured" driveline: the adjusted Table 2 model with a 2 mrad gap in the
+    // spindle; the workflow is handed the model without it.
+    let adjusted = std::fs::read_to_string(models.join("table2-adjusted.toml")).unwrap();
+    let with_gap = adjusted.replacen("damping = 5.0e3", "damping = 5.0e3\nbacklash = 2.0e-3", 1);
+    assert_ne!(with_gap, adjusted, "the spindle's damping line moved");
+    let truth = dir.join("truth.toml");
+    std::fs::write(&truth, with_gap).unwrap();
+    let csv = dir.join("measured.csv");
+    let simulated = millgate(&[
+        "sim",
+        "transient",
+        "--model",
+        truth.to_str().unwrap(),
+        "--noise-rms",
+        "0.5",
+        "--seed",
+        "9",
+        "--out",
+        csv.to_str().unwrap(),
+    ]);
+    assert!(simulated.status.success(), "{}", text(&simulated));
+    let report_dir = dir.join("report");
+    let output = millgate(&[
+        "discrepancy",
+        "--measured",
+        csv.to_str().unwrap(),
+        "--model",
+        models.join("table2-adjusted.toml").to_str().unwrap(),
+        "--report",
+        report_dir.to_str().unwrap(),
+        "--format",
+        "json",
+    ]);
+    assert!(output.status.success(), "{}", text(&output));
+    let progress = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        progress.contains("[9/9]") && progress.contains("calibration"),
+        "{progress}"
+    );
+    let report: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+    assert_eq!(report["effect"], "backlash", "{report}");
+    assert_eq!(report["location"], 1, "{report}");
+    let width = report["parameters"]["width_rad"].as_f64().unwrap();
+    assert!((width / 2.0e-3 - 1.0).abs() < 0.25, "{report}");
+    let (before, after) = (
+        report["rmse_before"].as_f64().unwrap(),
+        report["rmse_after"].as_f64().unwrap(),
+    );
+    assert!(after < 0.6 && before > 3.0 * after, "{report}");
+    assert!(
+        !report["disagreement"].as_array().unwrap().is_empty(),
+        "{report}"
+    );
+    assert_eq!(
+        report["candidates"].as_array().unwrap().len(),
+        9,
+        "{report}"
+    );
+    for key in ["calibration", "noise_rms", "candidates"] {
+        assert!(!report[key].is_null(), "{key} missing: {report}");
+    }
+    // The report folder: a loadable extended model with the gap, the plot, the summary.
+    let extended =
+        millgate_sim::model::Model::load(report_dir.join("extended-model.toml")).unwrap();
+    assert!((extended.couplings[1].backlash / 2.0e-3 - 1.0).abs() < 0.25);
+    let svg = std::fs::read_to_string(report_dir.join("discrepancy.svg")).unwrap();
+    assert!(
+        svg.starts_with("<svg") && svg.contains("residual"),
+        "not the plot"
+    );
+    let summary = std::fs::read_to_string(report_dir.join("summary.md")).unwrap();
+    assert!(
+        summary.contains("Missing effect: backlash in coupling 1"),
+        "{summary}"
+    );
+}
+
+#[test]
+fn discrepancy_names_the_line_of_a_non_uniform_time_column() {
+    let dir = std::env::temp_dir().join(format!("millgate-cli-{}-nonuniform", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let csv = dir.join("bad.csv");
+    let mut body = String::from("t,torque\n");
+    for k in 0..400 {
+        // Sample 200 is missing: the step doubles between lines 201 and 202.
+        if k != 200 {
+            body.push_str(&format!("{},{}\n", k as f64 * 5.0e-4, 1.0));
+        }
+    }
+    std::fs::write(&csv, body).unwrap();
+    let model =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../sim/models/table2-adjusted.toml");
+    let output = millgate(&[
+        "discrepancy",
+        "--measured",
+        csv.to_str().unwrap(),
+        "--model",
+        model.to_str().unwrap(),
+    ]);
+    assert!(!output.status.success());
+    let message = text(&output);
+    assert!(
+        message.contains("bad.csv: line 202") && message.contains("uniform"),
+        "{message}"
+    );
+}

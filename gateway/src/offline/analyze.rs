@@ -101,18 +101,9 @@ fn transient_settings(rate: f64) -> TransientSettings {
 /// Runs the command; returns the text to print.
 pub fn run(args: &AnalyzeArgs) -> anyhow::Result<String> {
     let table = csv::read(&args.input).with_context(|| args.input.display().to_string())?;
-    let (name, signal) = match &args.channel {
-        Some(name) => (
-            name.clone(),
-            table.channel(name).with_context(|| {
-                format!(
-                    "line 1: no column `{name}` (channels: {})",
-                    table.names.join(", ")
-                )
-            })?,
-        ),
-        None => (table.names[0].clone(), table.channels[0].as_slice()),
-    };
+    let (name, signal) = table
+        .pick(args.channel.as_deref())
+        .map_err(|e| anyhow::anyhow!("{}: {e}", args.input.display()))?;
     let rate = table.sample_rate_hz();
     let settings = transient_settings(rate);
     let events = match args.window {
@@ -124,7 +115,7 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<String> {
             let events: Vec<Value> = events.iter().map(event_json).collect();
             json!({ "events": events }).to_string()
         }
-        OutputFormat::Text => text(&name, rate, &events)?,
+        OutputFormat::Text => text(name, rate, &events)?,
     })
 }
 

@@ -102,6 +102,23 @@ impl Table {
             .position(|n| n == name)
             .map(|i| self.channels[i].as_slice())
     }
+
+    /// The channel called `name`, or the first one after `t` when `name` is `None`;
+    /// the error names the header line and the channels there are.
+    pub fn pick<'a>(&'a self, name: Option<&'a str>) -> Result<(&'a str, &'a [f64]), String> {
+        match name {
+            Some(name) => self
+                .channel(name)
+                .map(|values| (name, values))
+                .ok_or_else(|| {
+                    format!(
+                        "line 1: no column `{name}` (channels: {})",
+                        self.names.join(", ")
+                    )
+                }),
+            None => Ok((self.names[0].as_str(), self.channels[0].as_slice())),
+        }
+    }
 }
 
 /// Reads and parses the CSV at `path`.
