@@ -15,7 +15,7 @@ use tokio::net::{TcpListener, TcpStream};
 use crate::can::{CanCounters, CanCounts};
 use crate::health::{ChannelCounters, ChannelCountersSnapshot, SourceHealth};
 use crate::publish::Publisher;
-use crate::results::MillResults;
+use crate::results::{DrivelineResults, MillResults};
 use crate::shutdown::Shutdown;
 
 /// Reads one counter out of a snapshot.
@@ -41,6 +41,23 @@ pub struct Metrics {
     can_names: Vec<String>,
     can_counters: Vec<Arc<CanCounters>>,
     publisher: Arc<Publisher>,
+}
+
+/// Writes one metric family, `(name, type, help)`: HELP, TYPE and one sample per
+/// labelled row that has a value.
+fn family<'a>(
+    out: &mut String,
+    (metric, kind, help): (&str, &str, &str),
+    label: &str,
+    rows: impl Iterator<Item = (&'a str, Option<f64>)>,
+) {
+    let _ = writeln!(out, "# HELP {metric} {help}");
+    let _ = writeln!(out, "# TYPE {metric} {kind}");
+    for (name, value) in rows {
+        if let Some(value) = value {
+            let _ = writeln!(out, "{metric}{{{label}=\"{}\"}} {value}", escape(name));
+        }
+    }
 }
 
 fn escape(label: &str) -> String {
@@ -226,56 +243,46 @@ impl Metrics {
             );
         }
         let results = self.publisher.results();
-        let _ = writeln!(
-            out,
-            "# HELP millgate_bites_total Bites analysed per driveline."
-        );
-        let _ = writeln!(out, "# TYPE millgate_bites_total counter");
-        let _ = writeln!(
-            out,
-            "# HELP millgate_taf Torque amplification factor of the last bite."
-        );
-        let _ = writeln!(out, "# TYPE millgate_taf gauge");
-        let _ = writeln!(
-            out,
-            "# HELP millgate_wear_index Wear index of the last bite (TAF / linear reference TAF - 1)."
-        );
-        let _ = writeln!(out, "# TYPE millgate_wear_index gauge");
-        let _ = writeln!(
-            out,
-            "# HELP millgate_wear_trend Wear trend (EWMA of the wear index since start or reset)."
-        );
-        let _ = writeln!(out, "# TYPE millgate_wear_trend gauge");
-        for (driveline, name) in results
+        // Per driveline, then per tandem mill; each family grouped (the exposition
+        // format wants one block per family), gauges only while their value is valid.
+        type DrivelineValueOf = fn(&DrivelineResults) -> Option<f64>;
+        let drivelines: [(&str, &str, &str, DrivelineValueOf); 4] = [
+            (
+                "millgate_bites_total",
+                "counter",
+                "Bites analysed per driveline.",
+                |d| Some(d.bite_counter as f64),
+            ),
+            (
+                "millgate_taf",
+                "gauge",
+                "Torque amplification factor of the last bite.",
+                |d| d.taf.filter(|_| !d.source_stale),
+            ),
+            (
+                "millgate_wear_index",
+                "gauge",
+                "Wear index of the last bite (TAF / linear reference TAF - 1).",
+                |d| d.wear_index.filter(|_| !d.source_stale),
+            ),
+            (
+                "millgate_wear_trend",
+                "gauge",
+                "Wear trend (EWMA of the wear index since start or reset).",
+                |d| d.wear_trend.filter(|_| !d.source_stale),
+            ),
+        ];
+        let driveline_rows: Vec<_> = results
             .drivelines
             .iter()
             .zip(self.publisher.driveline_names())
-        {
-            let _ = writeln!(
-                out,
-                "millgate_bites_total{{driveline=\"{}\"}} {}",
-                escape(name),
-                driveline.bite_counter
-            );
-            if let Some(taf) = driveline.taf.filter(|_| !driveline.source_stale) {
-                let _ = writeln!(out, "millgate_taf{{driveline=\"{}\"}} {taf}", escape(name));
-            }
-            let wear = [
-                ("millgate_wear_index", driveline.wear_index),
-                ("millgate_wear_trend", driveline.wear_trend),
-            ];
-            for (metric, value) in wear {
-                if let Some(value) = value.filter(|_| !driveline.source_stale) {
-                    let _ = writeln!(out, "{metric}{{driveline=\"{}\"}} {value}", escape(name));
-                }
-            }
-        }
-        // Chatter, per tandem mill; each family grouped, gauges only when valid.
-        let mills: Vec<_> = results
-            .mills
-            .iter()
-            .zip(self.publisher.mill_names())
             .collect();
+        for (metric, kind, help, value) in drivelines {
+            let rows = driveline_rows
+                .iter()
+                .map(|(d, name)| (name.as_str(), value(d)));
+            family(&mut out, (metric, kind, help), "driveline", rows);
+        }
         type MillValueOf = fn(&MillResults) -> Option<f64>;
         let chatter: [(&str, &str, &str, MillValueOf); 3] = [
             (
@@ -297,14 +304,14 @@ impl Metrics {
                 |m| m.k_mean.filter(|_| !m.source_stale),
             ),
         ];
+        let mill_rows: Vec<_> = results
+            .mills
+            .iter()
+            .zip(self.publisher.mill_names())
+            .collect();
         for (metric, kind, help, value) in chatter {
-            let _ = writeln!(out, "# HELP {metric} {help}");
-            let _ = writeln!(out, "# TYPE {metric} {kind}");
-            for (mill, name) in &mills {
-                if let Some(value) = value(mill) {
-                    let _ = writeln!(out, "{metric}{{mill=\"{}\"}} {value}", escape(name));
-                }
-            }
+            let rows = mill_rows.iter().map(|(m, name)| (name.as_str(), value(m)));
+            family(&mut out, (metric, kind, help), "mill", rows);
         }
         let _ = writeln!(
             out,

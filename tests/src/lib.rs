@@ -10,3 +10,30 @@ pub async fn wait_for(what: &str, limit: Duration, mut done: impl FnMut() -> boo
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
 }
+
+/// GET /metrics over a plain TCP connection, as Prometheus does; checks the status and
+/// that every metric family's samples sit in one block after its `# TYPE` line (the
+/// exposition format's rule, which strict parsers enforce).
+pub async fn scrape(address: std::net::SocketAddr) -> anyhow::Result<String> {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut stream = tokio::net::TcpStream::connect(address).await?;
+    stream
+        .write_all(b"GET /metrics HTTP/1.1\r\nHost: localhost\r\n\r\n")
+        .await?;
+    let mut response = String::new();
+    stream.read_to_string(&mut response).await?;
+    anyhow::ensure!(response.starts_with("HTTP/1.1 200 OK"), "{response}");
+    let body = response.split("\r\n\r\n").nth(1).unwrap_or_default();
+    let mut seen = std::collections::HashSet::new();
+    let mut current = "";
+    for line in body.lines().filter(|l| !l.is_empty()) {
+        if let Some(rest) = line.strip_prefix("# TYPE ") {
+            current = rest.split(' ').next().unwrap_or_default();
+            anyhow::ensure!(seen.insert(current.to_owned()), "family {current} twice");
+        } else if !line.starts_with('#') {
+            let name = line.split(['{', ' ']).next().unwrap_or_default();
+            anyhow::ensure!(name == current, "sample {line:?} outside its family block");
+        }
+    }
+    Ok(response)
+}

@@ -2,7 +2,6 @@
 //! Modbus TCP on loopback, the gateway evaluates the synchronization conditions and
 //! writes the mill's block into a virtual PLC, read back from the PLC's bank.
 
-use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
 use millgate::registers::{decode_f32, RegisterMap};
@@ -11,7 +10,7 @@ use millgate_sim::daq::{DaqChannel, Placement, Publish, VirtualDaq};
 use millgate_sim::modbus_bank::{Running, ServeOptions};
 use millgate_sim::plc::VirtualPlc;
 use millgate_sim::stands::{Regime, Stands, StandsSettings};
-use millgate_tests::wait_for;
+use millgate_tests::{scrape, wait_for};
 use tokio::net::TcpListener;
 
 const FS: f64 = 2500.0;
@@ -141,18 +140,6 @@ async fn start(config: &mut Config, daqs: Vec<VirtualDaq>) -> anyhow::Result<Dev
     }
     running.push(plc.spawn(listener, ServeOptions::default()));
     Ok(Devices { plc, map, running })
-}
-
-/// GET /metrics over a plain TCP connection.
-async fn scrape(address: SocketAddr) -> anyhow::Result<String> {
-    use tokio::io::{AsyncReadExt, AsyncWriteExt};
-    let mut stream = tokio::net::TcpStream::connect(address).await?;
-    stream
-        .write_all(b"GET /metrics HTTP/1.1\r\nHost: localhost\r\n\r\n")
-        .await?;
-    let mut response = String::new();
-    stream.read_to_string(&mut response).await?;
-    Ok(response)
 }
 
 /// The value of the first line of `page` starting with `prefix`.

@@ -9,7 +9,7 @@ use millgate::health::SourceStatus;
 use millgate_config::{Config, RegisterTable};
 use millgate_sim::daq::{DaqChannel, Placement, Publish, VirtualDaq};
 use millgate_sim::modbus_bank::{Running, ServeOptions};
-use millgate_tests::wait_for;
+use millgate_tests::{scrape, wait_for};
 use tokio::net::TcpListener;
 
 const SAMPLES_PER_BLOCK: u16 = 100;
@@ -118,17 +118,4 @@ async fn daq_restart_goes_stale_then_ok_and_counts_the_gap() -> anyhow::Result<(
     tokio::time::timeout(Duration::from_secs(10), gateway).await???;
     daq_device.stop().await?;
     Ok(())
-}
-
-/// GET /metrics over a plain TCP connection, as Prometheus does.
-async fn scrape(address: SocketAddr) -> anyhow::Result<String> {
-    use tokio::io::{AsyncReadExt, AsyncWriteExt};
-    let mut stream = tokio::net::TcpStream::connect(address).await?;
-    stream
-        .write_all(b"GET /metrics HTTP/1.1\r\nHost: localhost\r\n\r\n")
-        .await?;
-    let mut response = String::new();
-    stream.read_to_string(&mut response).await?;
-    anyhow::ensure!(response.starts_with("HTTP/1.1 200 OK"), "{response}");
-    Ok(response)
 }
