@@ -627,6 +627,7 @@ impl CanReader {
         mut shutdown: watch::Receiver<bool>,
     ) -> Result<(), CanError> {
         let mut batch = SampleBatch::default();
+        let mut queued: Vec<Received> = Vec::with_capacity(MAX_FRAMES_PER_BATCH);
         loop {
             if *shutdown.borrow_and_update() {
                 return Ok(());
@@ -642,13 +643,20 @@ impl CanReader {
                     received.map_err(|error| self.read_error(error))?
                 }
             };
-            self.handle(&received, &mut batch);
-            for _ in 1..MAX_FRAMES_PER_BATCH {
+            queued.clear();
+            queued.push(received);
+            while queued.len() < MAX_FRAMES_PER_BATCH {
                 match receive(self.socket.get_ref()) {
-                    Ok(received) => self.handle(&received, &mut batch),
+                    Ok(received) => queued.push(received),
                     Err(error) if error.kind() == io::ErrorKind::WouldBlock => break,
                     Err(error) => return Err(self.read_error(error)),
                 }
+            }
+            // One clock reading per batch: outside a vDSO (User-Mode Linux, some
+            // hypervisors) every reading is a system call, as costly as the read.
+            let handled = SystemTime::now();
+            for received in &queued {
+                self.handle(received, handled, &mut batch);
             }
             if let Some(health) = &self.health {
                 health.answered();
@@ -664,8 +672,8 @@ impl CanReader {
         }
     }
 
-    fn handle(&mut self, received: &Received, batch: &mut SampleBatch) {
-        let handled = SystemTime::now();
+    /// Counts and decodes one frame read at `handled` (the batch's clock reading).
+    fn handle(&mut self, received: &Received, handled: SystemTime, batch: &mut SampleBatch) {
         self.counters.frames.fetch_add(1, Ordering::Relaxed);
         self.counters.count_timestamp(received.kernel_time, handled);
         if let Some(drops) = received.drops {
