@@ -569,9 +569,14 @@ fn align(template: &Model, y: &[f64]) -> Result<(f64, f64), DiscrepancyError> {
     Ok((best.1 as f64 / fs, best.2))
 }
 
+/// Weight of the pull towards the drawing stiffness in the modal update: small, so the
+/// identified frequencies are met (to ~0.1%) and the drawings only choose among the
+/// stiffness sets that meet them.
+const REGULARISATION: f64 = 0.01;
+
 /// Least-squares modal update for N masses: stiffness that gives the two identified
 /// frequencies as the first two elastic modes, regularised towards the drawing values
-/// (weight 0.1 on each ln(C / C_drawing)), by Gauss-Newton with LM damping.
+/// (weight [`REGULARISATION`] on each ln(C / C_drawing)), by Levenberg-Marquardt.
 fn modal_update(template: &Model, drawing: &[f64], identified_hz: &[f64; 2]) -> Option<Vec<f64>> {
     let mass = modal::mass_matrix(template);
     let frequencies = |p: &[f64]| -> Option<Vec<f64>> {
@@ -597,7 +602,7 @@ fn modal_update(template: &Model, drawing: &[f64], identified_hz: &[f64; 2]) -> 
             out[0] = f[0] / identified_hz[0] - 1.0;
             out[1] = f[1] / identified_hz[1] - 1.0;
             for (o, q) in out[2..].iter_mut().zip(p) {
-                *o = 0.1 * q;
+                *o = REGULARISATION * q;
             }
             true
         },
@@ -700,4 +705,63 @@ fn adjustments(model: &Model, calibrated: &LinearValues) -> Vec<Adjustment> {
         calibrated.onset_s,
     ));
     list
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::{Coupling, Mass};
+
+    /// A four-mass chain: eq. (2) does not apply, the modal update does.
+    fn four_masses(stiffness: [f64; 3]) -> Model {
+        let mut model =
+            Model::from_toml_str(include_str!("../../models/table2-adjusted.toml"), "t2").unwrap();
+        model.masses = [46.7e3, 11.85e3, 4.0e3, 2.48e3]
+            .iter()
+            .enumerate()
+            .map(|(i, &inertia)| Mass {
+                name: format!("m{i}"),
+                inertia,
+            })
+            .collect();
+        model.couplings = stiffness
+            .iter()
+            .map(|&c| Coupling::linear("c", c, 1.0e4))
+            .collect();
+        model
+    }
+
+    fn elastic_modes(model: &Model) -> Vec<f64> {
+        let modes = modal::modes(model).unwrap();
+        modes
+            .frequencies_hz
+            .into_iter()
+            .filter(|f| *f > 1e-6)
+            .collect()
+    }
+
+    #[test]
+    fn modal_update_moves_drawing_stiffness_to_the_identified_frequencies() {
+        let truth = four_masses([68.77e6, 60.0e6, 32.81e6]);
+        let drawings = four_masses([214.1e6, 80.0e6, 30.68e6]);
+        let target = elastic_modes(&truth);
+        let start = drawings
+            .couplings
+            .iter()
+            .map(|c| c.stiffness)
+            .collect::<Vec<_>>();
+        assert!((elastic_modes(&drawings)[0] / target[0] - 1.0).abs() > 0.1);
+        let updated = modal_update(&drawings, &start, &[target[0], target[1]]).unwrap();
+        let mut model = drawings.clone();
+        for (coupling, c) in model.couplings.iter_mut().zip(&updated) {
+            coupling.stiffness = *c;
+        }
+        let got = elastic_modes(&model);
+        for k in 0..2 {
+            assert!(
+                (got[k] / target[k] - 1.0).abs() < 0.01,
+                "{got:?} vs {target:?}"
+            );
+        }
+    }
 }
