@@ -70,7 +70,7 @@ fn backlash_raises_taf_and_lengthens_the_first_period_more_at_low_static_torque(
     );
     // ... and so does the first-period shift (first - second).
     let shift = |r: &WearMapRow| r.period_shift_s.unwrap_or(f64::NAN);
-    assert!(shift(&worn_low) > shift(&linear_low) + 0.005);
+    assert!(shift(&worn_low) > shift(&linear_low) + 0.001);
     Ok(())
 }
 
@@ -142,5 +142,45 @@ fn bad_grids_are_errors() -> anyhow::Result<()> {
     let mut spec = WearMapSpec::around(&model);
     spec.backlashes_rad.push(f64::NAN);
     assert!(wear_map(&model, &spec, |_, _, _| {}).is_err());
+    Ok(())
+}
+
+#[test]
+fn paper_load_rise_grid_shift_grows_with_gap_and_falls_with_static_torque() -> anyhow::Result<()> {
+    // The paper's slow load rise (36.7/s), gap on the measured spindle coupling.
+    let model = load("table2-adjusted.toml")?;
+    let (low, high) = (56.0, 112.0);
+    let gaps = [0.0, 2.0e-3, 4.0e-3];
+    let spec = WearMapSpec {
+        static_torques_knm: vec![low, high],
+        backlashes_rad: gaps.to_vec(),
+        coupling: None,
+        period_lowpass_hz: None,
+    };
+    let map = wear_map(&model, &spec, |_, _, _| {})?;
+    let shift = |torque: f64, gap: f64| -> anyhow::Result<f64> {
+        row(&map, torque, gap)?
+            .period_shift_s
+            .ok_or_else(|| anyhow::anyhow!("no shift at {torque} {gap}"))
+    };
+    // Linear chain: the shift does not depend on the static torque and is small (the
+    // weak first mode beating with the measured second one; 8.2 ms measured).
+    let linear = shift(low, 0.0)?;
+    assert!((linear - shift(high, 0.0)?).abs() < 1e-9);
+    assert!(linear.abs() < 0.01, "{linear}");
+    for torque in [low, high] {
+        let excess: Vec<f64> = gaps
+            .iter()
+            .map(|&gap| shift(torque, gap).map(|s| s - linear))
+            .collect::<anyhow::Result<_>>()?;
+        assert!(
+            excess[1] > 0.002 && excess[2] > excess[1],
+            "{torque}: {excess:?}"
+        );
+    }
+    for gap in [2.0e-3, 4.0e-3] {
+        assert!(shift(low, gap)? > shift(high, gap)? + 0.001, "{gap}");
+        assert!(row(&map, low, gap)?.taf > row(&map, high, gap)?.taf * 1.05);
+    }
     Ok(())
 }
