@@ -42,6 +42,12 @@ impl Modes {
     pub fn shape(&self, index: usize) -> Vec<f64> {
         self.shapes.column(index).iter().copied().collect()
     }
+
+    /// The elastic natural frequencies, Hz, ascending: every one but the rigid-body
+    /// mode (rounded to exactly 0).
+    pub fn elastic_hz(&self) -> impl Iterator<Item = f64> + '_ {
+        self.frequencies_hz.iter().copied().filter(|&f| f > 0.0)
+    }
 }
 
 /// Mass matrix diag(inertias), kg*m^2.

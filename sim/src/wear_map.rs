@@ -208,16 +208,12 @@ pub fn wear_map(
     })
 }
 
-/// 1.5 x the second elastic mode, Hz (1.5 x the first with a single mode), at most
-/// 0.4 x the sample rate.
-fn default_period_lowpass_hz(model: &Model) -> Result<f64, WearMapError> {
+/// The low-pass cut-off for period measurement on `model`'s measured torque: 1.5 x the
+/// second elastic mode, Hz (1.5 x the first with a single mode), at most 0.4 x the
+/// sample rate.
+pub fn default_period_lowpass_hz(model: &Model) -> Result<f64, ModalError> {
     let modes = modal::modes(model)?;
-    let elastic: Vec<f64> = modes
-        .frequencies_hz
-        .iter()
-        .copied()
-        .filter(|&f| f > 0.0)
-        .collect();
+    let elastic: Vec<f64> = modes.elastic_hz().collect();
     let cutoff = match elastic.as_slice() {
         [_, second, ..] => 1.5 * second,
         [first] => 1.5 * first,

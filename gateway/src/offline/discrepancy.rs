@@ -2,11 +2,10 @@
 //! [--report DIR] [--format text|json]`: the model-discrepancy workflow of
 //! [`millgate_sim::discrepancy`] on a recorded bite transient.
 
-use std::fmt::Write as _;
 use std::path::PathBuf;
 
 use anyhow::Context as _;
-use millgate_sim::discrepancy::{self, report, Measured, Progress, Report};
+use millgate_sim::discrepancy::{self, report, Measured, Progress};
 use millgate_sim::model::Model;
 
 use super::{csv, OutputFormat};
@@ -35,7 +34,8 @@ pub struct DiscrepancyArgs {
     pub format: OutputFormat,
 }
 
-/// Runs the workflow, printing progress to stderr; returns the text to print.
+/// Runs the workflow, printing progress to stderr; returns the text to print (the
+/// report's Markdown summary, or its JSON).
 pub fn run(args: &DiscrepancyArgs) -> anyhow::Result<String> {
     let table = csv::read(&args.measured).with_context(|| args.measured.display().to_string())?;
     let (_, torque) = table
@@ -79,7 +79,7 @@ pub fn run(args: &DiscrepancyArgs) -> anyhow::Result<String> {
     }
     Ok(match args.format {
         OutputFormat::Json => serde_json::to_string_pretty(&report)?,
-        OutputFormat::Text => text(&report),
+        OutputFormat::Text => report::summary(&report),
     })
 }
 
@@ -106,65 +106,4 @@ fn check_uniform(time_s: &[f64]) -> Result<(), String> {
         )),
         None => Ok(()),
     }
-}
-
-/// The human-readable report.
-fn text(report: &Report) -> String {
-    let mut out = String::new();
-    let location = report
-        .location
-        .map_or(String::new(), |i| format!(" in coupling {i}"));
-    let _ = writeln!(out, "effect: {}{location}", report.effect);
-    for (key, value) in &report.parameters {
-        let _ = writeln!(out, "  {key} = {value:.4e}");
-    }
-    let _ = writeln!(
-        out,
-        "rmse: {:.3} kN*m before, {:.3} kN*m after (noise {:.3} kN*m)",
-        report.rmse_before, report.rmse_after, report.noise_rms
-    );
-    if let (Some(b1), Some(b2)) = (report.calibration.beta1_hz, report.calibration.beta2_hz) {
-        let _ = writeln!(out, "identified: beta1 {b1:.3} Hz, beta2 {b2:.3} Hz");
-    }
-    let _ = writeln!(out, "calibration:");
-    for a in &report.calibration.adjustments {
-        let change = a
-            .change_percent
-            .map_or("-".to_owned(), |c| format!("{c:+.1}%"));
-        let _ = writeln!(
-            out,
-            "  {:24} {:.4e} -> {:.4e} {} ({change})",
-            a.key, a.model, a.calibrated, a.unit
-        );
-    }
-    let _ = writeln!(out, "disagreement (linear model vs record):");
-    if report.disagreement.is_empty() {
-        let _ = writeln!(out, "  none above 1.5x the noise");
-    }
-    for d in &report.disagreement {
-        let _ = writeln!(
-            out,
-            "  {:.3}-{:.3} s  {:12} residual RMS {:.2} kN*m",
-            d.t_start_s, d.t_end_s, d.feature, d.residual_rms
-        );
-    }
-    let _ = writeln!(out, "candidates (best first):");
-    for c in &report.candidates {
-        let _ = writeln!(
-            out,
-            "  {:16} {:>4}  {} = {:.4e}  rmse {:.3}  BIC {:.1}",
-            c.effect.key(),
-            c.location.map_or("-".to_owned(), |i| i.to_string()),
-            c.effect.parameter_key(),
-            c.value,
-            c.rmse,
-            c.bic
-        );
-    }
-    let _ = writeln!(
-        out,
-        "  {:16} {:>4}  rmse {:.3}  BIC {:.1}",
-        "(linear)", "-", report.rmse_before, report.bic_linear
-    );
-    out
 }

@@ -45,15 +45,6 @@ impl Record {
             torque_knm: &self.torque_knm,
         }
     }
-
-    /// `t,torque` CSV text, as `millgate sim transient` writes it.
-    pub fn to_csv(&self) -> String {
-        let mut text = String::from("t,torque\n");
-        for (t, v) in self.t_s.iter().zip(&self.torque_knm) {
-            text.push_str(&format!("{t:.6},{v:.6}\n"));
-        }
-        text
-    }
 }
 
 impl HiddenCase {

@@ -127,7 +127,6 @@ pub struct Problem<'a> {
     measured: &'a [f64],
     anchor: LinearValues,
     effect: Option<(EffectSlot, f64)>,
-    fit_stiffness: bool,
     substeps: usize,
     divergence_limit_knm: f64,
 }
@@ -147,7 +146,6 @@ impl<'a> Problem<'a> {
             measured,
             anchor,
             effect,
-            fit_stiffness: true,
             substeps: 1,
             divergence_limit_knm: DIVERGENCE_FACTOR
                 * measured.iter().fold(1.0_f64, |a, v| a.max(v.abs())),
@@ -175,28 +173,14 @@ impl<'a> Problem<'a> {
         Ok(problem)
     }
 
-    /// Keeps the stiffness at its anchor (only damping, load and effect are fitted).
-    pub fn with_fixed_stiffness(mut self) -> Self {
-        self.fit_stiffness = false;
-        self
-    }
-
     fn couplings(&self) -> usize {
         self.anchor.stiffness.len()
     }
 
-    fn dimension(&self) -> usize {
-        let stiffness = if self.fit_stiffness {
-            self.couplings()
-        } else {
-            0
-        };
-        stiffness + self.couplings() + 3 + usize::from(self.effect.is_some())
-    }
-
-    /// Number of fitted parameters.
+    /// Number of fitted parameters: stiffness and damping per coupling, static torque,
+    /// rise rate, onset, and the effect size when there is one.
     pub fn parameter_count(&self) -> usize {
-        self.dimension()
+        2 * self.couplings() + 3 + usize::from(self.effect.is_some())
     }
 
     /// Linear values and effect size at parameter vector `p`.
@@ -205,26 +189,21 @@ impl<'a> Problem<'a> {
         let scale = |anchor: f64, q: f64| anchor * soft_bound(q, MAX_LOG_RATIO).exp();
         let scale_damping =
             |anchor: f64, q: f64| anchor * soft_bound(q, MAX_LOG_DAMPING_RATIO).exp();
-        let mut at = 0;
-        let stiffness = if self.fit_stiffness {
-            at = n;
-            self.anchor
-                .stiffness
-                .iter()
-                .zip(&p[..n])
-                .map(|(&a, &q)| scale(a, q))
-                .collect()
-        } else {
-            self.anchor.stiffness.clone()
-        };
+        let stiffness = self
+            .anchor
+            .stiffness
+            .iter()
+            .zip(&p[..n])
+            .map(|(&a, &q)| scale(a, q))
+            .collect();
         let damping = self
             .anchor
             .damping
             .iter()
-            .zip(&p[at..at + n])
+            .zip(&p[n..2 * n])
             .map(|(&a, &q)| scale_damping(a, q))
             .collect();
-        at += n;
+        let at = 2 * n;
         let linear = LinearValues {
             stiffness,
             damping,
@@ -265,15 +244,6 @@ impl<'a> Problem<'a> {
         out.iter().all(|v| v.is_finite())
     }
 
-    /// Sum of squared residuals at the anchors (parameter vector 0).
-    pub fn anchor_cost(&self) -> f64 {
-        let mut simulated = vec![0.0; self.measured.len()];
-        if !self.simulate(&vec![0.0; self.dimension()], &mut simulated) {
-            return f64::INFINITY;
-        }
-        squared_distance(&simulated, self.measured)
-    }
-
     /// Levenberg-Marquardt from the anchors with the default settings.
     pub fn solve(&self) -> Result<Fitted, ModelError> {
         self.solve_with(&LmSettings::default())
@@ -282,7 +252,7 @@ impl<'a> Problem<'a> {
     /// Levenberg-Marquardt from the anchors.
     pub fn solve_with(&self, settings: &LmSettings) -> Result<Fitted, ModelError> {
         let m = self.measured.len();
-        let result = minimise(&vec![0.0; self.dimension()], m, settings, |p, out| {
+        let result = minimise(&vec![0.0; self.parameter_count()], m, settings, |p, out| {
             if !self.simulate(p, out) {
                 return false;
             }
@@ -309,9 +279,4 @@ impl<'a> Problem<'a> {
 /// everywhere (a hard clamp would leave a fit stuck at the bound).
 fn soft_bound(q: f64, limit: f64) -> f64 {
     limit * (q / limit).tanh()
-}
-
-/// Sum of squared differences of two equally long series.
-pub fn squared_distance(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
 }
