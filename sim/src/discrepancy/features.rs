@@ -53,8 +53,8 @@ pub struct Disagreement {
 /// One transient feature, measured and modelled.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Feature {
-    /// `taf`, `peak_knm`, `first_period_s`, `second_period_s`, `f1_hz`, `f2_hz`,
-    /// `decay1_per_s`, `decay2_per_s`, `asymmetry`, `delay_s`.
+    /// `taf`, `peak_knm`, `first_period_s`, `second_period_s`, `frequency_drift_hz`,
+    /// `f1_hz`, `f2_hz`, `decay1_per_s`, `decay2_per_s`, `asymmetry`, `delay_s`.
     pub name: &'static str,
     /// Value in the measured record.
     pub measured: Option<f64>,
@@ -176,7 +176,8 @@ fn amplitude_explains(measured: &[f64], model: &[f64]) -> bool {
 /// The features of the domain notes for a measured record and a model response.
 ///
 /// TAF and periods come from [`millgate_dsp::transient::analyze`] (periods low-passed at
-/// `period_lowpass_hz`), frequencies and decays from the eq. (1) fit of
+/// `period_lowpass_hz`; the drift is the change of 1 / period from the first to the
+/// second), frequencies and decays from the eq. (1) fit of
 /// [`millgate_dsp::fit::fit_eq1`] on the record from the bite, asymmetry is the largest
 /// positive excursion about the fitted load rise divided by the largest negative one,
 /// and the delay is the lag (s) of the record behind the model that best aligns the
@@ -201,6 +202,11 @@ pub fn compare(
         pair("peak_knm", a.peak, b.peak),
         pair("first_period_s", a.first_period, b.first_period),
         pair("second_period_s", a.second_period, b.second_period),
+        pair(
+            "frequency_drift_hz",
+            a.frequency_drift(),
+            b.frequency_drift(),
+        ),
         pair("f1_hz", a.f1, b.f1),
         pair("f2_hz", a.f2, b.f2),
         pair("decay1_per_s", a.decay1, b.decay1),
@@ -225,6 +231,13 @@ struct Features {
 }
 
 impl Features {
+    /// Frequency drift with amplitude, Hz: the frequency of the second oscillation
+    /// period (smaller amplitude) minus that of the first (larger). A softening gap
+    /// gives a positive drift, hardening a negative one, a linear chain about 0.
+    fn frequency_drift(&self) -> Option<f64> {
+        Some(1.0 / self.second_period? - 1.0 / self.first_period?)
+    }
+
     fn of(
         series: &[f64],
         sample_rate_hz: f64,

@@ -38,8 +38,9 @@ use millgate_dsp::stiffness::{inverse, Inertias, NaturalFrequencies, Stiffness};
 use serde::Serialize;
 
 use crate::chain::Simulator;
-use crate::modal;
+use crate::modal::{self, ModalError};
 use crate::model::{Model, ModelError};
+use crate::wear_map::default_period_lowpass_hz;
 
 pub use effects::Effect;
 use features::{Disagreement, Feature};
@@ -75,6 +76,9 @@ pub enum DiscrepancyError {
     /// The model is not a valid driveline (or an extension of it failed to validate).
     #[error(transparent)]
     Model(#[from] ModelError),
+    /// The calibrated model's modes could not be computed.
+    #[error(transparent)]
+    Modal(#[from] ModalError),
     /// The record is too short, not finite or has no bite in it.
     #[error("measured record: {0}")]
     Record(String),
@@ -263,7 +267,6 @@ pub fn run(
     let f1 = calibration
         .beta1_hz
         .unwrap_or_else(|| first_mode_hz(&linear.model));
-    let f2 = calibration.beta2_hz.unwrap_or(2.0 * f1);
     let onset_index = ((linear.linear.onset_s * fs).ceil() as usize).min(m - 1);
 
     progress(Progress::Step("disagreement"));
@@ -277,7 +280,13 @@ pub fn run(
         onset_index,
         period_samples,
     );
-    let feature_list = features::compare(y, &linear.simulated, fs, onset_index, (f1 * f2).sqrt());
+    let feature_list = features::compare(
+        y,
+        &linear.simulated,
+        fs,
+        onset_index,
+        default_period_lowpass_hz(&linear.model)?,
+    );
 
     progress(Progress::Step("search"));
     let slots: Vec<(Effect, Option<usize>)> = Effect::ALL
@@ -583,12 +592,8 @@ fn modal_update(template: &Model, drawing: &[f64], identified_hz: &[f64; 2]) -> 
         let stiffness: Vec<f64> = drawing.iter().zip(p).map(|(c, q)| c * q.exp()).collect();
         let k = modal::chain_matrix(&stiffness);
         let modes = modal::solve(&mass, &k).ok()?;
-        let elastic: Vec<f64> = modes
-            .frequencies_hz
-            .into_iter()
-            .filter(|f| *f > 1.0e-6)
-            .collect();
-        (elastic.len() >= 2).then(|| elastic[..2].to_vec())
+        let elastic: Vec<f64> = modes.elastic_hz().take(2).collect();
+        (elastic.len() == 2).then_some(elastic)
     };
     let n = drawing.len();
     let result = lm::minimise(
@@ -656,7 +661,7 @@ fn best_starts(
 fn first_mode_hz(model: &Model) -> f64 {
     modal::modes(model)
         .ok()
-        .and_then(|m| m.frequencies_hz.into_iter().find(|f| *f > 1.0e-6))
+        .and_then(|m| m.elastic_hz().next())
         .unwrap_or(1.0)
 }
 
@@ -732,12 +737,7 @@ mod tests {
     }
 
     fn elastic_modes(model: &Model) -> Vec<f64> {
-        let modes = modal::modes(model).unwrap();
-        modes
-            .frequencies_hz
-            .into_iter()
-            .filter(|f| *f > 1e-6)
-            .collect()
+        modal::modes(model).unwrap().elastic_hz().collect()
     }
 
     #[test]
