@@ -2,6 +2,7 @@
 
 mod dbc;
 mod error;
+pub mod frame;
 pub mod layout;
 mod parse;
 mod raw;

@@ -7,8 +7,10 @@
 //! channel uses, frames too short for their signals, remote and error frames are
 //! counted in [`CanCounters`] and otherwise ignored.
 //!
+//! Frames are read in batches, up to 256 per `recvmmsg` call.
+//!
 //! **Kernel receive timestamps.** The socket is opened with `SO_TIMESTAMPNS`: every
-//! frame is read with `recvmsg` together with the time the kernel queued it
+//! frame is read together with the time the kernel queued it
 //! (`CLOCK_REALTIME`), and each `Samples` message carries the timestamp of the frame
 //! of its last value ([`Acquired::Samples::received`]), from which analysis dates
 //! bites. The delay from that timestamp to the reader handling the frame is summed
@@ -30,6 +32,7 @@ use std::sync::atomic::{AtomicU64, AtomicU8, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
+pub use millgate_config::frame::{parse_frame, FrameKind, RawFrame, CANFD_MTU, CAN_MTU};
 use millgate_config::signal::SignalLayout;
 use millgate_config::{ChannelSource, Config};
 use nix::sys::socket::{self as nix_socket, sockopt, ControlMessageOwned, MsgFlags};
@@ -47,16 +50,6 @@ const EAFNOSUPPORT: i32 = 97;
 const ENODEV: i32 = 19;
 /// Most frames decoded into one batch of [`Acquired::Samples`] messages.
 const MAX_FRAMES_PER_BATCH: usize = 256;
-/// Size of a classic CAN frame on a raw socket (`struct can_frame`), bytes.
-pub const CAN_MTU: usize = 16;
-/// Size of a CAN FD frame on a raw socket (`struct canfd_frame`), bytes.
-pub const CANFD_MTU: usize = 72;
-/// `can_id` flag bits and masks (linux/can.h).
-const CAN_EFF_FLAG: u32 = 0x8000_0000;
-const CAN_RTR_FLAG: u32 = 0x4000_0000;
-const CAN_ERR_FLAG: u32 = 0x2000_0000;
-const CAN_EFF_MASK: u32 = 0x1fff_ffff;
-const CAN_SFF_MASK: u32 = 0x0000_07ff;
 
 /// Why a CAN reader could not start or stopped.
 #[derive(Debug, thiserror::Error)]
@@ -406,77 +399,10 @@ impl CanDecoder {
     }
 }
 
-/// What a raw CAN socket frame is.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum FrameKind {
-    /// A data frame (classic or FD).
-    Data,
-    /// A remote transmission request.
-    Remote,
-    /// An error frame reported by the controller; its id holds the error class bits.
-    Error,
-}
-
-/// A frame as read from a raw CAN socket, borrowed from the read buffer.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct RawFrame<'a> {
-    pub kind: FrameKind,
-    /// Identifier (11 or 29 bits) for data and remote frames; error class bits for
-    /// error frames.
-    pub id: u32,
-    /// 29-bit identifier.
-    pub extended: bool,
-    /// Payload: `len` bytes (at most 8 for classic, 64 for FD frames).
-    pub data: &'a [u8],
-}
-
-/// Parses the bytes of one read from a raw CAN socket: a `struct can_frame`
-/// ([`CAN_MTU`] bytes) or `struct canfd_frame` ([`CANFD_MTU`] bytes), native byte
-/// order. `None` for any other length.
-///
-/// ```
-/// use millgate::can::{parse_frame, FrameKind};
-/// let mut bytes = [0u8; 16];
-/// bytes[..4].copy_from_slice(&0x101u32.to_ne_bytes());
-/// bytes[4] = 2;
-/// bytes[8..10].copy_from_slice(&[0x39, 0x30]);
-/// let frame = parse_frame(&bytes).unwrap();
-/// assert_eq!((frame.kind, frame.id, frame.extended), (FrameKind::Data, 0x101, false));
-/// assert_eq!(frame.data, &[0x39, 0x30]);
-/// ```
-pub fn parse_frame(bytes: &[u8]) -> Option<RawFrame<'_>> {
-    let max_len = match bytes.len() {
-        CAN_MTU => 8,
-        CANFD_MTU => 64,
-        _ => return None,
-    };
-    let can_id = u32::from_ne_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]);
-    let len = usize::from(bytes[4]).min(max_len);
-    let data = &bytes[8..8 + len];
-    let extended = can_id & CAN_EFF_FLAG != 0;
-    let (kind, id) = if can_id & CAN_ERR_FLAG != 0 {
-        (FrameKind::Error, can_id & CAN_EFF_MASK)
-    } else {
-        let mask = if extended { CAN_EFF_MASK } else { CAN_SFF_MASK };
-        let kind = if can_id & CAN_RTR_FLAG != 0 {
-            FrameKind::Remote
-        } else {
-            FrameKind::Data
-        };
-        (kind, can_id & mask)
-    };
-    Some(RawFrame {
-        kind,
-        id,
-        extended,
-        data,
-    })
-}
-
-/// One read from the socket: the frame bytes and the ancillary data that came with it.
+/// The ancillary data that came with one frame.
 #[derive(Debug, Clone, Copy)]
 struct Received {
-    bytes: [u8; CANFD_MTU],
+    /// Bytes of the frame in its receive buffer.
     len: usize,
     /// `SCM_TIMESTAMPNS`: when the kernel queued the frame.
     kernel_time: Option<SystemTime>,
@@ -484,42 +410,82 @@ struct Received {
     drops: Option<u32>,
 }
 
-/// Reads one frame with its control messages from non-blocking socket `socket`.
-fn receive(socket: &impl AsRawFd) -> io::Result<Received> {
-    let mut bytes = [0u8; CANFD_MTU];
-    let mut control = nix::cmsg_space!(nix::sys::time::TimeSpec, u32);
-    let mut iov = [IoSliceMut::new(&mut bytes)];
-    let message = nix_socket::recvmsg::<()>(
-        socket.as_raw_fd(),
-        &mut iov,
-        Some(&mut control),
-        MsgFlags::empty(),
-    )
-    .map_err(io::Error::from)?;
-    let len = message.bytes;
-    let mut kernel_time = None;
-    let mut drops = None;
-    for control_message in message.cmsgs().map_err(io::Error::from)? {
-        match control_message {
-            ControlMessageOwned::ScmTimestampns(time) => {
-                let since_epoch = u64::try_from(time.tv_sec())
-                    .ok()
-                    .zip(u32::try_from(time.tv_nsec()).ok())
-                    .map(|(s, ns)| Duration::new(s, ns));
-                kernel_time = since_epoch
-                    .filter(|d| !d.is_zero())
-                    .and_then(|d| UNIX_EPOCH.checked_add(d));
-            }
-            ControlMessageOwned::RxqOvfl(count) => drops = Some(count),
-            _ => {}
+/// Receive buffers for one batch of frames, allocated once per reader.
+#[derive(Debug)]
+struct ReceiveBuffers {
+    /// One `struct canfd_frame` per slot.
+    frames: Box<[[u8; CANFD_MTU]; MAX_FRAMES_PER_BATCH]>,
+    /// What came with `frames[i]`, for the first `received.len()` slots.
+    received: Vec<Received>,
+}
+
+impl ReceiveBuffers {
+    fn new() -> Self {
+        ReceiveBuffers {
+            frames: Box::new([[0; CANFD_MTU]; MAX_FRAMES_PER_BATCH]),
+            received: Vec::with_capacity(MAX_FRAMES_PER_BATCH),
         }
     }
-    Ok(Received {
-        bytes,
-        len,
-        kernel_time,
-        drops,
-    })
+
+    /// The frames of the last batch with their ancillary data, in arrival order.
+    fn frames(&self) -> impl Iterator<Item = (&[u8], &Received)> + '_ {
+        self.frames
+            .iter()
+            .zip(&self.received)
+            .map(|(frame, received)| (frame.get(..received.len).unwrap_or_default(), received))
+    }
+}
+
+/// Reads the frames queued on non-blocking socket `socket`, up to
+/// [`MAX_FRAMES_PER_BATCH`], with their control messages, in one `recvmmsg` call.
+///
+/// One system call per batch rather than per frame: under User-Mode Linux (where the
+/// vcan tests run) and some hypervisors a system call costs tens of microseconds,
+/// more than decoding a frame. Fails with `WouldBlock` when no frame is queued;
+/// otherwise returns how many were read, fewer than the maximum once the queue is
+/// empty.
+fn receive_batch(socket: &impl AsRawFd, buffers: &mut ReceiveBuffers) -> io::Result<usize> {
+    let ReceiveBuffers { frames, received } = buffers;
+    received.clear();
+    // The headers hold raw pointers (not `Send`), so they live for this call only
+    // and cannot be kept in the reader, which a spawned task owns.
+    let control = nix::cmsg_space!(nix::sys::time::TimeSpec, u32);
+    let mut headers =
+        nix_socket::MultiHeaders::<()>::preallocate(MAX_FRAMES_PER_BATCH, Some(control));
+    let mut slices = frames.each_mut().map(|frame| [IoSliceMut::new(frame)]);
+    let messages = nix_socket::recvmmsg(
+        socket.as_raw_fd(),
+        &mut headers,
+        slices.iter_mut(),
+        MsgFlags::MSG_DONTWAIT,
+        None,
+    )
+    .map_err(io::Error::from)?;
+    for message in messages {
+        let mut kernel_time = None;
+        let mut drops = None;
+        for control_message in message.cmsgs().map_err(io::Error::from)? {
+            match control_message {
+                ControlMessageOwned::ScmTimestampns(time) => {
+                    let since_epoch = u64::try_from(time.tv_sec())
+                        .ok()
+                        .zip(u32::try_from(time.tv_nsec()).ok())
+                        .map(|(s, ns)| Duration::new(s, ns));
+                    kernel_time = since_epoch
+                        .filter(|d| !d.is_zero())
+                        .and_then(|d| UNIX_EPOCH.checked_add(d));
+                }
+                ControlMessageOwned::RxqOvfl(count) => drops = Some(count),
+                _ => {}
+            }
+        }
+        received.push(Received {
+            len: message.bytes,
+            kernel_time,
+            drops,
+        });
+    }
+    Ok(received.len())
 }
 
 /// Reads one SocketCAN interface and turns its frames into [`Acquired::Samples`].
@@ -627,36 +593,36 @@ impl CanReader {
         mut shutdown: watch::Receiver<bool>,
     ) -> Result<(), CanError> {
         let mut batch = SampleBatch::default();
-        let mut queued: Vec<Received> = Vec::with_capacity(MAX_FRAMES_PER_BATCH);
+        let mut buffers = ReceiveBuffers::new();
         loop {
             if *shutdown.borrow_and_update() {
                 return Ok(());
             }
-            let received = tokio::select! {
+            let mut ready = tokio::select! {
                 changed = shutdown.changed() => {
                     if changed.is_err() {
                         return Ok(());
                     }
                     continue;
                 }
-                received = self.socket.async_io(Interest::READABLE, receive) => {
-                    received.map_err(|error| self.read_error(error))?
-                }
+                ready = self.socket.readable() => ready.map_err(|error| self.read_error(error))?,
             };
-            queued.clear();
-            queued.push(received);
-            while queued.len() < MAX_FRAMES_PER_BATCH {
-                match receive(self.socket.get_ref()) {
-                    Ok(received) => queued.push(received),
-                    Err(error) if error.kind() == io::ErrorKind::WouldBlock => break,
-                    Err(error) => return Err(self.read_error(error)),
-                }
+            let count = match ready.try_io(|socket| receive_batch(socket, &mut buffers)) {
+                Ok(result) => result.map_err(|error| self.read_error(error))?,
+                Err(_would_block) => continue,
+            };
+            if count < MAX_FRAMES_PER_BATCH {
+                // A short batch emptied the queue: wait for the next readiness event
+                // instead of spending a system call on an empty read. A frame queued
+                // since then has already raised a new event, which this does not clear.
+                ready.clear_ready();
             }
+            drop(ready);
             // One clock reading per batch: outside a vDSO (User-Mode Linux, some
             // hypervisors) every reading is a system call, as costly as the read.
             let handled = SystemTime::now();
-            for received in &queued {
-                self.handle(received, handled, &mut batch);
+            for (frame, received) in buffers.frames() {
+                self.handle(frame, received, handled, &mut batch);
             }
             if let Some(health) = &self.health {
                 health.answered();
@@ -672,8 +638,15 @@ impl CanReader {
         }
     }
 
-    /// Counts and decodes one frame read at `handled` (the batch's clock reading).
-    fn handle(&mut self, received: &Received, handled: SystemTime, batch: &mut SampleBatch) {
+    /// Counts and decodes one frame (`bytes`, with `received`) read at `handled` (the
+    /// batch's clock reading).
+    fn handle(
+        &mut self,
+        bytes: &[u8],
+        received: &Received,
+        handled: SystemTime,
+        batch: &mut SampleBatch,
+    ) {
         self.counters.frames.fetch_add(1, Ordering::Relaxed);
         self.counters.count_timestamp(received.kernel_time, handled);
         if let Some(drops) = received.drops {
@@ -687,7 +660,7 @@ impl CanReader {
                 batch.gap(&self.channels);
             }
         }
-        let Some(frame) = received.bytes.get(..received.len).and_then(parse_frame) else {
+        let Some(frame) = parse_frame(bytes) else {
             self.counters.bad_size.fetch_add(1, Ordering::Relaxed);
             return;
         };
@@ -996,49 +969,6 @@ mod tests {
                 },
             ]
         );
-    }
-
-    /// A raw frame as the kernel lays it out: can_id (native endian), len, flags,
-    /// two reserved bytes, data.
-    fn raw(can_id: u32, len: u8, data: &[u8], mtu: usize) -> Vec<u8> {
-        let mut bytes = vec![0u8; mtu];
-        bytes[..4].copy_from_slice(&can_id.to_ne_bytes());
-        bytes[4] = len;
-        bytes[8..8 + data.len()].copy_from_slice(data);
-        bytes
-    }
-
-    #[test]
-    fn raw_frames_parse_by_kind() {
-        let classic = raw(0x101, 4, &[1, 2, 3, 4], CAN_MTU);
-        let frame = parse_frame(&classic).unwrap();
-        assert_eq!(
-            (frame.kind, frame.id, frame.extended, frame.data),
-            (FrameKind::Data, 0x101, false, &[1u8, 2, 3, 4][..])
-        );
-        let extended = raw(0x18ff_5a01 | CAN_EFF_FLAG, 2, &[0x1d, 0x04], CAN_MTU);
-        let frame = parse_frame(&extended).unwrap();
-        assert_eq!((frame.id, frame.extended), (0x18ff_5a01, true));
-        let remote = raw(0x101 | CAN_RTR_FLAG, 0, &[], CAN_MTU);
-        assert_eq!(parse_frame(&remote).unwrap().kind, FrameKind::Remote);
-        let error = raw(
-            0x44 | CAN_ERR_FLAG,
-            8,
-            &[0, 0x10, 0, 0, 0, 0, 0, 0],
-            CAN_MTU,
-        );
-        let frame = parse_frame(&error).unwrap();
-        assert_eq!((frame.kind, frame.id), (FrameKind::Error, 0x44));
-        assert_eq!(
-            bus_state_of_error_frame(frame.id, frame.data),
-            Some(BusState::BusOff)
-        );
-        let fd = raw(0x102, 64, &[7; 64], CANFD_MTU);
-        assert_eq!(parse_frame(&fd).unwrap().data, &[7u8; 64][..]);
-        // A length byte beyond the frame's capacity is clamped, never read past.
-        let bogus = raw(0x101, 200, &[], CAN_MTU);
-        assert_eq!(parse_frame(&bogus).unwrap().data.len(), 8);
-        assert_eq!(parse_frame(&classic[..15]), None);
     }
 
     #[test]
