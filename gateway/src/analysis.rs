@@ -23,8 +23,10 @@ pub const PRE_TRIGGER_CAPACITY: usize = 256;
 pub type Detector = BiteDetector<PRE_TRIGGER_CAPACITY, WINDOW_CAPACITY>;
 type DetectorState = BiteDetectorState<PRE_TRIGGER_CAPACITY, WINDOW_CAPACITY>;
 
-/// Low-pass cut-off for period measurement, Hz: keeps the driveline's first modes
-/// (10-30 Hz, domain notes 1.3) and removes measurement noise above them.
+/// Low-pass cut-off for period measurement of a driveline without a model, Hz: keeps
+/// the first modes (10-30 Hz, domain notes 1.3) and removes measurement noise above
+/// them. With a model the wear map's cut-off is used (1.5 x its second mode), so
+/// measured period shifts compare with the maps.
 const PERIOD_LOWPASS_HZ: f64 = 40.0;
 
 /// What one bite window gives: the transient measures and the eq. (1) fit.
@@ -170,7 +172,7 @@ impl DrivelineAnalyzer {
             post_trigger_samples,
         };
         let detector = Detector::new(settings).map_err(|e| problem(format!("{e:?}")))?;
-        let transient = TransientSettings {
+        let mut transient = TransientSettings {
             sample_rate_hz: fs,
             period_lowpass_hz: PERIOD_LOWPASS_HZ.min(0.4 * fs),
             peak_lowpass_hz: None,
@@ -183,6 +185,18 @@ impl DrivelineAnalyzer {
             Some(path) => {
                 let model = millgate_sim::model::Model::load(path)
                     .map_err(|source| AnalysisError::Model { index, source })?;
+                match millgate_sim::wear_map::default_period_lowpass_hz(&model) {
+                    Ok(cutoff) if cutoff > 0.0 => {
+                        transient.period_lowpass_hz = cutoff.min(0.4 * fs);
+                    }
+                    Ok(_) => {}
+                    Err(error) => tracing::warn!(
+                        driveline = %driveline.name,
+                        %error,
+                        cutoff_hz = transient.period_lowpass_hz,
+                        "no modes of the model: periods measured with the default cut-off"
+                    ),
+                }
                 let mut wear =
                     WearReference::new(&model, detector, transient, onset_knm, bite.pre_trigger_s);
                 // Simulate the model's own load level now: a model that cannot give a
@@ -190,6 +204,7 @@ impl DrivelineAnalyzer {
                 match wear.reference(model.load.static_torque) {
                     Ok(reference) => tracing::info!(
                         driveline = %driveline.name,
+                        period_lowpass_hz = transient.period_lowpass_hz,
                         level_knm = reference.level_knm,
                         reference_taf = reference.taf,
                         reference_shift_s = ?reference.period_shift_s,
@@ -428,6 +443,7 @@ impl Analysis {
                 beta_hz = ?report.beta_hz,
                 degraded = report.degraded,
                 wear_index = ?report.wear.map(|wear| wear.index),
+                shift_over_linear_s = ?report.wear.and_then(|wear| wear.shift_excess_s),
                 "bite"
             );
             // Nobody listening is fine: the demo and tests subscribe, the service need not.

@@ -205,3 +205,44 @@ fn a_model_that_does_not_load_is_named() {
         "{error}"
     );
 }
+
+#[test]
+fn first_period_shift_over_the_linear_reference_grows_with_the_gap() {
+    // The same measure as the wear map (`millgate sim wear-map`): the first-period
+    // shift of the bite minus that of the linear driveline at the same load, with the
+    // map's period cut-off (1.5 x the second mode).
+    let config = config(true);
+    let torques = [112.0, 60.0];
+    let mut previous: Option<Vec<f64>> = None;
+    for gap_mrad in [0.0, 2.0, 4.0] {
+        let (_, reports) = analyse(&config, &driveline(gap_mrad * 1e-3), &torques);
+        let excess: Vec<f64> = reports
+            .iter()
+            .map(|r| {
+                r.wear
+                    .and_then(|w| w.shift_excess_s)
+                    .expect("shift measured")
+                    * 1e3
+            })
+            .collect();
+        println!("gap {gap_mrad} mrad: first-period shift over linear {excess:?} ms");
+        for (value, previous) in excess.iter().zip(previous.as_deref().unwrap_or(&[])) {
+            assert!(
+                value > previous,
+                "gap {gap_mrad} mrad: {value} <= {previous} ms"
+            );
+        }
+        if gap_mrad == 0.0 {
+            assert!(
+                excess.iter().all(|ms| ms.abs() < 1.0),
+                "no gap: {excess:?} ms"
+            );
+        } else {
+            assert!(
+                excess.iter().all(|&ms| ms > 3.0),
+                "gap {gap_mrad} mrad: {excess:?} ms"
+            );
+        }
+        previous = Some(excess);
+    }
+}
