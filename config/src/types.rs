@@ -285,7 +285,7 @@ pub struct TandemMill {
     /// Unique among tandem mills.
     pub name: String,
     /// Indices into [`Config::channels`] of the stands' vibration channels, in rolling
-    /// order; 2..=8 distinct acceleration channels.
+    /// order; 2..=8 distinct acceleration channels sharing one sample rate.
     pub stands: Vec<usize>,
     /// Chatter band, Hz: (low, high), 0 < low < high < half of every stand's sample rate.
     pub chatter_band_hz: (f64, f64),

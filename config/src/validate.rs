@@ -994,6 +994,25 @@ impl Checker<'_> {
                 None => stands_ok = false,
             }
         }
+        // One chatter window spans all stands sample for sample: one rate for all.
+        let resolved = || {
+            stands
+                .iter()
+                .filter_map(|&index| facts.channels[index].as_ref())
+        };
+        if let Some(first) = resolved().next() {
+            if let Some(other) = resolved().find(|c| c.sample_rate_hz != first.sample_rate_hz) {
+                self.report.push(
+                    &stands_key,
+                    format!(
+                        "stand channels \"{}\" ({} Hz) and \"{}\" ({} Hz) sample at different \
+                         rates (must share one: the stands are compared sample for sample)",
+                        first.name, first.sample_rate_hz, other.name, other.sample_rate_hz
+                    ),
+                );
+                stands_ok = false;
+            }
+        }
         let band_key = format!("{key}.chatter_band_hz");
         let band = match raw.chatter_band_hz[..] {
             [low, high] if low.is_finite() && high.is_finite() && 0.0 < low && low < high => {
@@ -1010,22 +1029,17 @@ impl Checker<'_> {
                 None
             }
         };
-        if let Some((_, high)) = band {
-            for &index in &stands {
-                let Some(channel) = &facts.channels[index] else {
-                    continue;
-                };
-                let nyquist_hz = channel.sample_rate_hz / 2.0;
-                if high >= nyquist_hz {
-                    self.report.push(
-                        &band_key,
-                        format!(
-                            "upper edge {high} Hz is not allowed (must be < {nyquist_hz} Hz, half \
-                             the {} Hz sample rate of stand channel \"{}\")",
-                            channel.sample_rate_hz, channel.name
-                        ),
-                    );
-                }
+        if let Some(((_, high), channel)) = band.zip(resolved().next()) {
+            let nyquist_hz = channel.sample_rate_hz / 2.0;
+            if high >= nyquist_hz {
+                self.report.push(
+                    &band_key,
+                    format!(
+                        "upper edge {high} Hz is not allowed (must be < {nyquist_hz} Hz, half \
+                         the {} Hz sample rate of stand channel \"{}\")",
+                        channel.sample_rate_hz, channel.name
+                    ),
+                );
             }
         }
         let window_s = self.float(
