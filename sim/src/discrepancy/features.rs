@@ -123,13 +123,23 @@ pub fn disagreements(
             let rms = (residual[start..end].iter().map(|r| r * r).sum::<f64>()
                 / (end - start) as f64)
                 .sqrt();
-            let feature = if start < onset_index + period_samples / 4 && end > onset_index {
+            // Labelled where the residual is largest, not where the window starts: a
+            // window from the load rise through the peak is about the peak when the
+            // residual is largest there.
+            let focus = start
+                + residual[start..end]
+                    .iter()
+                    .enumerate()
+                    .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
+                    .map_or(0, |(i, _)| i);
+            let feature = if focus < onset_index + period_samples / 8 {
                 "delay"
-            } else if start <= peak_index && end > peak_index {
+            } else if focus.abs_diff(peak_index) <= period_samples / 8 {
                 "peak"
-            } else if start < onset_index + period_samples * 2 {
+            } else if focus < onset_index + period_samples * 2 {
                 "first_period"
-            } else if amplitude_explains(&measured[start..end], &model[start..end]) {
+            } else if amplitude_explains(&measured[start..end], &model[start..end], period_samples)
+            {
                 "amplitude"
             } else {
                 "phase"
@@ -145,8 +155,10 @@ pub fn disagreements(
 }
 
 /// Whether scaling the model's oscillation about its mean explains more of the window's
-/// residual than shifting it by up to a quarter of the window does.
-fn amplitude_explains(measured: &[f64], model: &[f64]) -> bool {
+/// residual than shifting it does, by up to half an oscillation period
+/// (`period_samples`; a longer shift would match a decaying oscillation to an earlier,
+/// larger cycle) and a quarter of the window.
+fn amplitude_explains(measured: &[f64], model: &[f64], period_samples: usize) -> bool {
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
     let (mm, ml) = (mean(measured), mean(model));
     let a: Vec<f64> = measured.iter().map(|v| v - mm).collect();
@@ -157,7 +169,7 @@ fn amplitude_explains(measured: &[f64], model: &[f64]) -> bool {
     }
     let scale = a.iter().zip(&b).map(|(x, y)| x * y).sum::<f64>() / bb;
     let scaled: f64 = a.iter().zip(&b).map(|(x, y)| (x - scale * y).powi(2)).sum();
-    let max_shift = b.len() / 4;
+    let max_shift = (b.len() / 4).min(period_samples / 2);
     let shifted = (1..=max_shift)
         .flat_map(|s| [s as isize, -(s as isize)])
         .map(|s| {
@@ -378,5 +390,77 @@ mod tests {
         let measured: Vec<f64> = (0..1000).map(|k| curve(k as f64 / fs - 0.0042)).collect();
         let delay = delay_s(&measured, &model, fs, 100).unwrap();
         assert!((delay - 0.0042).abs() < 2.5e-4, "delay {delay}");
+    }
+
+    /// A bite at sample 200 (2 kHz): a 5 ms load rise to 100 kN*m with a decaying
+    /// 21 Hz oscillation (first period 95 samples), delayed by `delay_s`.
+    fn bite(k: usize, delay_s: f64) -> f64 {
+        let t = k as f64 / 2000.0 - 0.1 - delay_s;
+        if t <= 0.0 {
+            return 0.0;
+        }
+        100.0 * (1.0 - (-t / 0.005).exp())
+            + 60.0 * (-4.0 * t).exp() * (std::f64::consts::TAU * 21.0 * t).sin()
+    }
+
+    fn label_of(measured: &[f64], model: &[f64]) -> Vec<&'static str> {
+        disagreements(measured, model, 0.1, 0.0, 2000.0, 200, 95)
+            .iter()
+            .map(|d| d.feature)
+            .collect()
+    }
+
+    #[test]
+    fn windows_are_labelled_where_their_residual_is_largest() {
+        let model: Vec<f64> = (0..1200).map(|k| bite(k, 0.0)).collect();
+        let peak = 200
+            + model[200..]
+                .iter()
+                .enumerate()
+                .max_by(|a, b| a.1.total_cmp(b.1))
+                .unwrap()
+                .0;
+        let bump =
+            |centre: usize, k: usize| 6.0 * (-((k as f64 - centre as f64) / 8.0).powi(2)).exp();
+
+        let delayed: Vec<f64> = (0..1200).map(|k| bite(k, 0.002)).collect();
+        assert_eq!(label_of(&delayed, &model).first(), Some(&"delay"));
+
+        let at_peak: Vec<f64> = (0..1200).map(|k| model[k] + bump(peak, k)).collect();
+        assert_eq!(label_of(&at_peak, &model), ["peak"]);
+
+        // One window from the load rise through the peak, largest at the peak: the peak
+        // (labelled by its start it would be called a delay).
+        let rise_and_peak: Vec<f64> = (0..1200)
+            .map(|k| model[k] + 0.4 * bump(200 + 4, k) + bump(peak, k))
+            .collect();
+        let windows = disagreements(&rise_and_peak, &model, 0.1, 0.0, 2000.0, 200, 95);
+        assert_eq!(windows.len(), 1, "{windows:?}");
+        assert!(
+            windows[0].t_start_s < 0.1 + 95.0 / 4.0 / 2000.0,
+            "{windows:?}"
+        );
+        assert_eq!(windows[0].feature, "peak");
+
+        let in_first_period: Vec<f64> = (0..1200).map(|k| model[k] + bump(200 + 150, k)).collect();
+        assert_eq!(label_of(&in_first_period, &model), ["first_period"]);
+
+        // Late: the oscillation 30% larger, or 3 ms later, from the fifth period on.
+        let late = 200 + 5 * 95;
+        let oscillation = |k: usize| model[k] - 100.0;
+        let larger: Vec<f64> = (0..1200)
+            .map(|k| {
+                if k < late {
+                    model[k]
+                } else {
+                    model[k] + 0.3 * oscillation(k)
+                }
+            })
+            .collect();
+        assert_eq!(label_of(&larger, &model), ["amplitude"]);
+        let later: Vec<f64> = (0..1200)
+            .map(|k| if k < late { model[k] } else { bite(k, 0.003) })
+            .collect();
+        assert_eq!(label_of(&later, &model), ["phase"]);
     }
 }
