@@ -1,15 +1,16 @@
-//! SVG plot of a wear map: TAF vs static torque and first-period shift vs static
-//! torque, one curve per opened gap (the curves a maintenance engineer reads).
+//! SVG plot of a wear map: TAF, first-period shift and (when the map has a zero-gap
+//! row) the shift over the linear driveline's, each against static torque, one curve
+//! per opened gap (the curves a maintenance engineer reads).
 
 use plotters::prelude::*;
 
-use crate::wear_map::{WearMap, WearMapRow};
+use crate::wear_map::WearMap;
 
-/// Width and height of the whole figure, px.
-const SIZE: (u32, u32) = (1200, 500);
+/// Width of one panel and height of the figure, px.
+const PANEL_SIZE: (u32, u32) = (600, 500);
 
-/// One panel: y-axis label, y range and the plotted value of a row.
-type Panel = (&'static str, (f64, f64), fn(&WearMapRow) -> Option<f64>);
+/// One panel: y-axis label and the plotted value of each row of the map, in row order.
+type Panel = (&'static str, Vec<Option<f64>>);
 
 /// Why the plot could not be drawn.
 #[derive(Debug, thiserror::Error)]
@@ -44,23 +45,36 @@ fn padded_range(values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
     Some((low - margin, high + margin))
 }
 
-/// Renders the wear map as an SVG document (two panels side by side).
+/// Renders the wear map as an SVG document (panels side by side).
 pub fn wear_map_svg(map: &WearMap) -> Result<String, PlotError> {
+    let ms = |seconds: Option<f64>| seconds.map(|s| s * 1.0e3);
+    let mut panels: Vec<Panel> = vec![
+        (
+            "TAF (peak / static)",
+            map.rows.iter().map(|row| Some(row.taf)).collect(),
+        ),
+        (
+            "first - second period, ms",
+            map.rows.iter().map(|row| ms(row.period_shift_s)).collect(),
+        ),
+    ];
+    let over_linear: Vec<Option<f64>> = map
+        .rows
+        .iter()
+        .map(|row| ms(map.shift_over_linear_s(row)))
+        .collect();
+    if over_linear.iter().any(Option::is_some) {
+        panels.push(("period shift over zero gap, ms", over_linear));
+    }
     let torque_range = padded_range(map.rows.iter().map(|r| r.static_torque_knm));
-    let taf_range = padded_range(map.rows.iter().map(|r| r.taf));
-    let shift_range = padded_range(
-        map.rows
-            .iter()
-            .filter_map(|r| r.period_shift_s.map(|s| s * 1.0e3)),
-    )
-    .unwrap_or((-1.0, 1.0));
-    let (Some(torque_range), Some(taf_range)) = (torque_range, taf_range) else {
+    let Some(torque_range) = torque_range.filter(|_| !map.rows.is_empty()) else {
         return Err(PlotError::Empty);
     };
 
     let mut svg = String::new();
     {
-        let root = SVGBackend::with_string(&mut svg, SIZE).into_drawing_area();
+        let size = (PANEL_SIZE.0 * panels.len() as u32, PANEL_SIZE.1);
+        let root = SVGBackend::with_string(&mut svg, size).into_drawing_area();
         root.fill(&WHITE).map_err(drawing)?;
         let root = root
             .titled(
@@ -68,17 +82,11 @@ pub fn wear_map_svg(map: &WearMap) -> Result<String, PlotError> {
                 ("sans-serif", 24),
             )
             .map_err(drawing)?;
-        let panels = root.split_evenly((1, 2));
+        let areas = root.split_evenly((1, panels.len()));
         let gaps = map.backlashes_rad();
-
-        let panel_specs: [Panel; 2] = [
-            ("TAF (peak / static)", taf_range, |row| Some(row.taf)),
-            ("first - second period, ms", shift_range, |row| {
-                row.period_shift_s.map(|s| s * 1.0e3)
-            }),
-        ];
-        for (panel, (label, y_range, value)) in panels.iter().zip(panel_specs) {
-            let mut chart = ChartBuilder::on(panel)
+        for (area, (label, values)) in areas.iter().zip(&panels) {
+            let y_range = padded_range(values.iter().flatten().copied()).unwrap_or((-1.0, 1.0));
+            let mut chart = ChartBuilder::on(area)
                 .margin(15)
                 .x_label_area_size(40)
                 .y_label_area_size(60)
@@ -87,7 +95,7 @@ pub fn wear_map_svg(map: &WearMap) -> Result<String, PlotError> {
             chart
                 .configure_mesh()
                 .x_desc("static torque, kN*m")
-                .y_desc(label)
+                .y_desc(*label)
                 .axis_desc_style(("sans-serif", 16))
                 .label_style(("sans-serif", 13))
                 .draw()
@@ -95,8 +103,11 @@ pub fn wear_map_svg(map: &WearMap) -> Result<String, PlotError> {
             for (index, &gap) in gaps.iter().enumerate() {
                 let color = Palette99::pick(index).to_rgba();
                 let points: Vec<(f64, f64)> = map
-                    .rows_for(gap)
-                    .filter_map(|row| value(row).map(|v| (row.static_torque_knm, v)))
+                    .rows
+                    .iter()
+                    .zip(values)
+                    .filter(|(row, _)| row.backlash_rad == gap)
+                    .filter_map(|(row, value)| value.map(|v| (row.static_torque_knm, v)))
                     .collect();
                 chart
                     .draw_series(LineSeries::new(points, color.stroke_width(2)))

@@ -223,23 +223,25 @@ pub fn default_period_lowpass_hz(model: &Model) -> Result<f64, ModalError> {
 }
 
 impl WearMap {
-    /// CSV with header
-    /// `static_torque_knm,backlash_rad,taf,first_period_s,second_period_s,period_shift_s`;
-    /// missing periods are empty fields.
+    /// CSV with header `static_torque_knm,backlash_rad,taf,first_period_s,
+    /// second_period_s,period_shift_s,shift_over_linear_s`; missing periods (and the
+    /// shift over linear without a zero-gap row) are empty fields.
     pub fn to_csv(&self) -> String {
         let mut csv = String::from(
-            "static_torque_knm,backlash_rad,taf,first_period_s,second_period_s,period_shift_s\n",
+            "static_torque_knm,backlash_rad,taf,first_period_s,second_period_s,period_shift_s,\
+             shift_over_linear_s\n",
         );
         let optional = |value: Option<f64>| value.map_or(String::new(), |v| format!("{v:.6}"));
         for row in &self.rows {
             csv.push_str(&format!(
-                "{},{},{:.6},{},{},{}\n",
+                "{},{},{:.6},{},{},{},{}\n",
                 row.static_torque_knm,
                 row.backlash_rad,
                 row.taf,
                 optional(row.first_period_s),
                 optional(row.second_period_s),
                 optional(row.period_shift_s),
+                optional(self.shift_over_linear_s(row)),
             ));
         }
         csv
@@ -256,10 +258,14 @@ impl WearMap {
         gaps
     }
 
-    /// Rows for one gap, in static-torque order.
-    pub fn rows_for(&self, backlash_rad: f64) -> impl Iterator<Item = &WearMapRow> {
-        self.rows
+    /// First-period shift of `row` over the zero-gap row at the same static torque, s:
+    /// what the gap adds to the linear driveline's own shift (the quantity the gateway
+    /// logs per bite). `None` without such a row or without both shifts.
+    pub fn shift_over_linear_s(&self, row: &WearMapRow) -> Option<f64> {
+        let linear = self
+            .rows
             .iter()
-            .filter(move |row| row.backlash_rad == backlash_rad)
+            .find(|r| r.backlash_rad == 0.0 && r.static_torque_knm == row.static_torque_knm)?;
+        Some(row.period_shift_s? - linear.period_shift_s?)
     }
 }

@@ -107,12 +107,16 @@ fn csv_has_one_row_per_grid_point_and_svg_draws_every_gap() -> anyhow::Result<()
     let mut lines = csv.lines();
     assert_eq!(
         lines.next(),
-        Some("static_torque_knm,backlash_rad,taf,first_period_s,second_period_s,period_shift_s")
+        Some("static_torque_knm,backlash_rad,taf,first_period_s,second_period_s,period_shift_s,shift_over_linear_s")
     );
     let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
     assert_eq!(rows.len(), 6);
     for (fields, row) in rows.iter().zip(&map.rows) {
-        assert_eq!(fields.len(), 6);
+        assert_eq!(fields.len(), 7);
+        let over_linear = map
+            .shift_over_linear_s(row)
+            .expect("the map has a zero-gap row");
+        assert!((fields[6].parse::<f64>()? - over_linear).abs() < 1e-6);
         assert_eq!(fields[0].parse::<f64>()?, row.static_torque_knm);
         assert_eq!(fields[1].parse::<f64>()?, row.backlash_rad);
         assert!((fields[2].parse::<f64>()? - row.taf).abs() < 1e-6);
@@ -121,8 +125,22 @@ fn csv_has_one_row_per_grid_point_and_svg_draws_every_gap() -> anyhow::Result<()
     assert!(svg.starts_with("<svg"));
     assert!(svg.contains("gap 0.0 mrad") && svg.contains("gap 2.0 mrad"));
     assert!(svg.contains("static torque, kN*m"));
-    // Two panels, one line per gap each, plus two legend samples per panel.
-    assert!(svg.matches("<polyline").count() >= 4);
+    // Three panels (the third, the shift over zero gap, as the map has a zero-gap row),
+    // one line per gap each.
+    assert!(svg.contains("period shift over zero gap, ms"));
+    assert!(svg.matches("<polyline").count() >= 6);
+    let without_zero_gap = millgate_sim::wear_map::WearMap {
+        rows: map
+            .rows
+            .iter()
+            .filter(|r| r.backlash_rad > 0.0)
+            .copied()
+            .collect(),
+        ..map.clone()
+    };
+    let svg = wear_map_svg(&without_zero_gap)?;
+    assert!(!svg.contains("period shift over zero gap"));
+    assert!(svg.contains("first - second period, ms"));
     Ok(())
 }
 
@@ -171,8 +189,14 @@ fn paper_load_rise_grid_shift_grows_with_gap_and_falls_with_static_torque() -> a
     for torque in [low, high] {
         let excess: Vec<f64> = gaps
             .iter()
-            .map(|&gap| shift(torque, gap).map(|s| s - linear))
+            .map(|&gap| {
+                let row = row(&map, torque, gap)?;
+                map.shift_over_linear_s(&row)
+                    .ok_or_else(|| anyhow::anyhow!("no shift over linear at {torque} {gap}"))
+            })
             .collect::<anyhow::Result<_>>()?;
+        assert!((excess[1] - (shift(torque, gaps[1])? - linear)).abs() < 1e-12);
+        assert_eq!(excess[0], 0.0);
         assert!(
             excess[1] > 0.002 && excess[2] > excess[1],
             "{torque}: {excess:?}"
