@@ -119,6 +119,8 @@ pub fn wear_map_svg(map: &WearMap) -> Result<String, PlotError> {
             }
             chart
                 .configure_series_labels()
+                // Curves fall with static torque: the upper right stays clear.
+                .position(SeriesLabelPosition::UpperRight)
                 .background_style(WHITE.mix(0.8))
                 .border_style(BLACK)
                 .draw()
