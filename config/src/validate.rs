@@ -72,17 +72,13 @@ pub(crate) fn validate(raw: RawConfig, base_dir: &Path, report: &mut Report) -> 
         can: &raw.can_sources,
         dbcs: &dbcs,
     };
-    let mut channel_names = Names::new("channel");
-    let channels: Vec<_> = raw
-        .channels
-        .iter()
-        .enumerate()
-        .map(|(index, channel)| {
-            let key = format!("channels[{index}]");
-            channel_names.add(&mut checker, &key, &channel.name);
-            checker.channel(&key, channel, &sources)
-        })
-        .collect();
+    let channels = checker.named_list(
+        "channels",
+        "channel",
+        &raw.channels,
+        |channel| &channel.name,
+        |checker, key, channel| checker.channel(key, channel, &sources),
+    );
     checker.register_overlaps(&raw.channels, &channels, &raw.modbus_sources);
     checker.block_poll_periods(&raw.channels, &channels, &raw.modbus_sources);
     let channel_facts = ChannelFacts {
@@ -93,28 +89,20 @@ pub(crate) fn validate(raw: RawConfig, base_dir: &Path, report: &mut Report) -> 
             .collect(),
         channels: &channels,
     };
-    let mut driveline_names = Names::new("driveline");
-    let drivelines: Vec<_> = raw
-        .drivelines
-        .iter()
-        .enumerate()
-        .map(|(index, driveline)| {
-            let key = format!("drivelines[{index}]");
-            driveline_names.add(&mut checker, &key, &driveline.name);
-            checker.driveline(&key, driveline, &channel_facts)
-        })
-        .collect();
-    let mut mill_names = Names::new("tandem mill");
-    let tandem_mills: Vec<_> = raw
-        .tandem_mills
-        .iter()
-        .enumerate()
-        .map(|(index, mill)| {
-            let key = format!("tandem_mills[{index}]");
-            mill_names.add(&mut checker, &key, &mill.name);
-            checker.tandem_mill(&key, mill, &channel_facts)
-        })
-        .collect();
+    let drivelines = checker.named_list(
+        "drivelines",
+        "driveline",
+        &raw.drivelines,
+        |driveline| &driveline.name,
+        |checker, key, driveline| checker.driveline(key, driveline, &channel_facts),
+    );
+    let tandem_mills = checker.named_list(
+        "tandem_mills",
+        "tandem mill",
+        &raw.tandem_mills,
+        |mill| &mill.name,
+        |checker, key, mill| checker.tandem_mill(key, mill, &channel_facts),
+    );
     let outputs = checker.outputs(&raw.outputs);
     Some(Config {
         name: name?,
@@ -181,6 +169,28 @@ struct Checker<'a> {
 }
 
 impl Checker<'_> {
+    /// Checks each item of the list at `list_key` with `check`, given the item's key
+    /// (`channels[2]`), and reports a name used twice; `what` names the kind of item.
+    fn named_list<T, U>(
+        &mut self,
+        list_key: &str,
+        what: &'static str,
+        items: &[T],
+        name: impl Fn(&T) -> &str,
+        mut check: impl FnMut(&mut Self, &str, &T) -> Option<U>,
+    ) -> Vec<Option<U>> {
+        let mut names = Names::new(what);
+        items
+            .iter()
+            .enumerate()
+            .map(|(index, item)| {
+                let key = format!("{list_key}[{index}]");
+                names.add(self, &key, name(item));
+                check(self, &key, item)
+            })
+            .collect()
+    }
+
     /// A non-empty name.
     fn name(&mut self, key: &str, name: &str) -> Option<String> {
         if name.trim().is_empty() {

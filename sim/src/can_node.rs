@@ -331,22 +331,19 @@ mod tests {
 
     #[test]
     fn picks_classic_or_fd_by_length() {
-        let classic = CanMessage::new(vec![signal(0x101, false, 8, 0)]).expect("valid");
-        let frame = classic.frame(&[1.0]).expect("fits");
-        let parsed = parse_frame(frame.as_bytes()).expect("a raw frame");
-        assert_eq!(frame.as_bytes().len(), CAN_MTU);
-        assert_eq!(
-            (parsed.id, parsed.extended, parsed.data.len()),
-            (0x101, false, 8)
-        );
-        let fd = CanMessage::new(vec![signal(0x18ff_5a01, true, 12, 0)]).expect("valid");
-        let frame = fd.frame(&[1.0]).expect("fits");
-        let parsed = parse_frame(frame.as_bytes()).expect("a raw frame");
-        assert_eq!(frame.as_bytes().len(), CANFD_MTU);
-        assert_eq!(
-            (parsed.id, parsed.extended, parsed.data.len()),
-            (0x18ff_5a01, true, 12)
-        );
+        for (id, extended, len, mtu) in [
+            (0x101, false, 8, CAN_MTU),
+            (0x18ff_5a01, true, 12, CANFD_MTU),
+        ] {
+            let message = CanMessage::new(vec![signal(id, extended, len, 0)]).expect("valid");
+            let frame = message.frame(&[1.0]).expect("fits");
+            assert_eq!(frame.as_bytes().len(), mtu);
+            let parsed = parse_frame(frame.as_bytes()).expect("a raw frame");
+            assert_eq!(
+                (parsed.id, parsed.extended, parsed.data.len()),
+                (id, extended, usize::from(len))
+            );
+        }
     }
 
     #[test]
