@@ -4,11 +4,14 @@
 //! analysed, an alarm acknowledged), the heartbeat is incremented and the whole map is written
 //! at the configured base, in chunks of at most 123 registers (the FC 16 limit).
 //! A PLC that is unreachable is retried with capped exponential backoff; the
-//! results keep updating meanwhile, so the first write after it appears is fresh.
+//! results and the heartbeat keep moving meanwhile (HMIs read them from the server),
+//! so the first write after it appears is fresh.
 //! On shutdown a last write publishes the "stopped" status.
 
 use std::sync::Arc;
 use std::time::Duration;
+
+use tokio::time::Instant;
 
 use millgate_config::PlcOutput;
 use tokio_modbus::client::{Context, Writer};
@@ -79,9 +82,13 @@ impl PlcWriter {
     }
 
     /// Write every period until shutdown, then write the final "stopped" map.
+    ///
+    /// The heartbeat moves every period even while the PLC is unreachable (the map is
+    /// also served to HMIs); connection attempts are spaced by the backoff meanwhile.
     pub async fn run(self, mut shutdown: Shutdown) {
         let mut context: Option<Context> = None;
         let mut backoff = Backoff::new();
+        let mut next_attempt = Instant::now();
         let mut ticks = tokio::time::interval(self.output.write_period);
         ticks.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         loop {
@@ -90,7 +97,8 @@ impl PlcWriter {
                 () = self.publisher.changed() => {}
                 () = shutdown.recv() => break,
             }
-            if context.is_none() {
+            self.publisher.beat();
+            if context.is_none() && Instant::now() >= next_attempt {
                 match self.connect().await {
                     Ok(connected) => {
                         tracing::info!(plc = %self.output.address, "PLC connected");
@@ -100,17 +108,12 @@ impl PlcWriter {
                     Err(error) => {
                         let delay = backoff.next_delay();
                         tracing::warn!(%error, retry_in = ?delay, "PLC unreachable");
-                        tokio::select! {
-                            () = tokio::time::sleep(delay) => {}
-                            () = shutdown.recv() => break,
-                        }
-                        continue;
+                        next_attempt = Instant::now() + delay;
                     }
                 }
             }
-            let words = self.publisher.words(true);
             if let Some(connected) = context.as_mut() {
-                if let Err(error) = self.write(connected, &words).await {
+                if let Err(error) = self.write(connected, &self.publisher.words()).await {
                     tracing::warn!(%error, "PLC write failed");
                     if !matches!(error, PlcError::Refused { .. }) {
                         context = None;
@@ -120,7 +123,8 @@ impl PlcWriter {
         }
         self.publisher
             .update(|results| results.state = GatewayState::Stopped);
-        let words = self.publisher.words(true);
+        self.publisher.beat();
+        let words = self.publisher.words();
         let connected = match context {
             Some(connected) => Ok(connected),
             None => self.connect().await,

@@ -120,17 +120,18 @@ impl Publisher {
         }
     }
 
-    /// Encode the map; with `heartbeat` the heartbeat counter is incremented first
-    /// (the PLC writer does so on each write).
-    pub fn words(&self, heartbeat: bool) -> Vec<u16> {
+    /// Increment the heartbeat counter (each PLC write period, or each second
+    /// without a PLC output), so a watchdog sees the gateway alive.
+    /// Not a change of the results: waiters on [`Self::changed`] are not woken (the
+    /// PLC writer beats on each write and would wake itself).
+    pub fn beat(&self) {
         let mut results = crate::lock(&self.results);
-        if heartbeat {
-            results.heartbeat = results.heartbeat.wrapping_add(1);
-        }
-        let mut published = results.clone();
-        drop(results);
-        self.apply_health(&mut published);
-        self.map.encode(&published)
+        results.heartbeat = results.heartbeat.wrapping_add(1);
+    }
+
+    /// Encode the map as published now.
+    pub fn words(&self) -> Vec<u16> {
+        self.map.encode(&self.results())
     }
 
     /// Forget the wear trend of every driveline whose bit is set in `drivelines`

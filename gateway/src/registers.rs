@@ -177,7 +177,7 @@ impl RegisterMap {
             "",
             1.0,
             read,
-            "Incremented on every write of the map; a PLC watchdog checks it moves".into(),
+            "Incremented every PLC write period (every second without a PLC output), whether or not the PLC answers; a PLC or HMI watchdog checks it moves".into(),
             Field::Heartbeat,
         );
         b.add(

@@ -52,7 +52,7 @@ fn read(publisher: &Publisher, address: u16, count: u16) -> Result<Vec<u16>, Exc
     if count == 0 || count > MAX_READ_REGISTERS {
         return Err(ExceptionCode::IllegalDataValue);
     }
-    let words = publisher.words(false);
+    let words = publisher.words();
     let start = usize::from(address);
     words
         .get(start..start + usize::from(count))

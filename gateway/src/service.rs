@@ -25,6 +25,8 @@ use crate::shutdown::{self, Shutdown};
 /// Samples in flight between readers and analysis. At 2 kHz and 100-sample blocks
 /// this is seconds of data per channel: enough to ride out a slow analysis step.
 const SAMPLE_QUEUE: usize = 1024;
+/// Heartbeat period when no PLC output sets it (the server's HMIs still watch it).
+pub const HEARTBEAT_WITHOUT_PLC: Duration = Duration::from_secs(1);
 
 /// Why the service could not start.
 #[derive(Debug, thiserror::Error)]
@@ -188,6 +190,11 @@ impl Service {
             tracing::info!(plc = %plc.address, base = plc.register_base, "starting PlcWriter");
             let writer = PlcWriter::new(plc.clone(), Arc::clone(&publisher));
             outputs.spawn(writer.run(outputs_shutdown.clone()));
+        } else {
+            outputs.spawn(beat_without_plc(
+                Arc::clone(&publisher),
+                outputs_shutdown.clone(),
+            ));
         }
         if let (Some(output), Some(listener)) = (&config.outputs.server, server_listener) {
             let server = ModbusServer::new(output.clone(), Arc::clone(&publisher));
@@ -226,6 +233,18 @@ impl Service {
 /// any failure (interface absent, down, removed) mark the gap on its channels and
 /// reopen with capped backoff, so an interface that goes down and comes back is
 /// survived.
+/// Moves the heartbeat every [`HEARTBEAT_WITHOUT_PLC`] until shutdown: without a
+/// PLC writer nothing else would, and an HMI would take the gateway for dead.
+async fn beat_without_plc(publisher: Arc<Publisher>, mut shutdown: Shutdown) {
+    let mut ticks = tokio::time::interval(HEARTBEAT_WITHOUT_PLC);
+    loop {
+        tokio::select! {
+            _ = ticks.tick() => publisher.beat(),
+            () = shutdown.recv() => break,
+        }
+    }
+}
+
 async fn supervise_can(
     config: Arc<Config>,
     index: usize,

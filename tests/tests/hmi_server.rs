@@ -19,13 +19,17 @@ struct Running {
     task: tokio::task::JoinHandle<Result<(), millgate::service::ServiceError>>,
 }
 
-/// A gateway with the demo configuration, its DAQ and PLC unreachable (the server
-/// must work regardless), its Modbus server on a free loopback port.
-async fn gateway() -> anyhow::Result<Running> {
+/// A gateway with the demo configuration, its DAQ unreachable and its PLC
+/// unreachable (`plc`) or not configured (the server must work regardless), its
+/// Modbus server on a free loopback port.
+async fn gateway(plc: bool) -> anyhow::Result<Running> {
     let mut config = setup(1.0, 0.0, 1)?.config;
     config.modbus_sources[0].address = "127.0.0.1:1".into();
-    if let Some(plc) = config.outputs.plc.as_mut() {
-        plc.address = "127.0.0.1:1".into();
+    if let Some(output) = config.outputs.plc.as_mut() {
+        output.address = "127.0.0.1:1".into();
+    }
+    if !plc {
+        config.outputs.plc = None;
     }
     config.outputs.server.as_mut().unwrap().bind = "127.0.0.1:0".parse()?;
     let mut service = millgate::Service::new(config)?;
@@ -49,7 +53,7 @@ async fn client(address: SocketAddr) -> anyhow::Result<Context> {
 
 #[tokio::test]
 async fn map_reads_and_command_writes_with_exception_codes() -> anyhow::Result<()> {
-    let running = gateway().await?;
+    let running = gateway(true).await?;
     let mut hmi = client(running.address).await?;
     let len = running.map.len();
 
@@ -139,7 +143,7 @@ async fn mbpoll_reads_the_map_and_sees_exceptions() -> anyhow::Result<()> {
         Command::new("mbpoll").arg("-V").output().is_ok(),
         "mbpoll is not installed: scripts/test installs it (apt-get install mbpoll)"
     );
-    let running = gateway().await?;
+    let running = gateway(true).await?;
     let (ok, text) = mbpoll(running.address, &["-t", "4", "-r", "0", "-c", "5"]).await?;
     assert!(ok, "mbpoll failed: {text}");
     // mbpoll prints "[1]: \t5" for register 1, gateway_status: bit0 running, bit2
@@ -160,5 +164,29 @@ async fn mbpoll_reads_the_map_and_sees_exceptions() -> anyhow::Result<()> {
 
     running.stop.trigger();
     tokio::time::timeout(Duration::from_secs(10), running.task).await???;
+    Ok(())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn heartbeat_moves_with_the_plc_unreachable_or_absent() -> anyhow::Result<()> {
+    for plc in [true, false] {
+        let running = gateway(plc).await?;
+        let mut hmi = client(running.address).await?;
+        let first = hmi.read_holding_registers(0, 1).await??[0];
+        // The PLC's write period is 100 ms; without a PLC the heartbeat moves each
+        // second.
+        let deadline = tokio::time::Instant::now() + Duration::from_secs(3);
+        let mut now = first;
+        while now == first && tokio::time::Instant::now() < deadline {
+            tokio::time::sleep(Duration::from_millis(100)).await;
+            now = hmi.read_holding_registers(0, 1).await??[0];
+        }
+        assert_ne!(
+            now, first,
+            "heartbeat frozen at {first} (PLC configured: {plc})"
+        );
+        running.stop.trigger();
+        tokio::time::timeout(Duration::from_secs(10), running.task).await???;
+    }
     Ok(())
 }
