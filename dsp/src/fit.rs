@@ -1386,15 +1386,7 @@ mod tests {
             (Complex::new(0.5, 0.5), 1),
             (Complex::new(0.5, 0.5), 0),
         ] {
-            let mut expected = [Complex::new(0.0, 0.0); 3];
-            let mut power = Complex::new(1.0, 0.0);
-            for n in 0..count {
-                let index = n as f64;
-                expected[0] += power;
-                expected[1] += power * index;
-                expected[2] += power * (index * index);
-                power *= w;
-            }
+            let expected = direct_power_sums(w, count);
             // w^count as gram_closed forms it: modulus and angle scaled separately.
             let w_count =
                 Complex::from_polar(libm::pow(w.norm(), count as f64), w.arg() * count as f64);
@@ -1464,19 +1456,25 @@ mod tests {
         assert!(Cholesky5::new(&nan).is_none());
     }
 
+    /// sum w^n, sum n w^n, sum n^2 w^n over n < count, term by term.
+    fn direct_power_sums(w: Complex<f64>, count: usize) -> [Complex<f64>; 3] {
+        let mut sums = [Complex::new(0.0, 0.0); 3];
+        let mut power = Complex::new(1.0, 0.0);
+        for n in 0..count {
+            let index = n as f64;
+            sums[0] += power;
+            sums[1] += power * index;
+            sums[2] += power * (index * index);
+            power *= w;
+        }
+        sums
+    }
+
     #[test]
     fn power_sums_match_the_direct_sum() {
         let w = Complex::new(0.99, 0.05);
         for count in [0, 1, 2, 3, 7, 64, 1001] {
-            let mut expected = [Complex::new(0.0, 0.0); 3];
-            let mut power = Complex::new(1.0, 0.0);
-            for n in 0..count {
-                let index = n as f64;
-                expected[0] += power;
-                expected[1] += power * index;
-                expected[2] += power * (index * index);
-                power *= w;
-            }
+            let expected = direct_power_sums(w, count);
             let [sums, conjugate] = power_sums(&[w, w.conj()], count);
             for k in 0..3 {
                 assert!((sums[k] - expected[k]).norm() <= 1e-12 * (expected[k].norm() + 1.0));
