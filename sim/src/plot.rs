@@ -66,8 +66,7 @@ pub fn wear_map_svg(map: &WearMap) -> Result<String, PlotError> {
     if over_linear.iter().any(Option::is_some) {
         panels.push(("period shift over zero gap, ms", over_linear));
     }
-    let torque_range = padded_range(map.rows.iter().map(|r| r.static_torque_knm));
-    let Some(torque_range) = torque_range.filter(|_| !map.rows.is_empty()) else {
+    let Some(torque_range) = padded_range(map.rows.iter().map(|r| r.static_torque_knm)) else {
         return Err(PlotError::Empty);
     };
 
