@@ -3,6 +3,7 @@
 
 pub mod bite;
 pub mod chatter;
+pub mod filter;
 pub mod fit;
 pub mod pencil;
 pub mod stiffness;

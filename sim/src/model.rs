@@ -114,7 +114,7 @@ pub struct Measurement {
     pub lag: f64,
 }
 
-/// Why a model file could not be read or is not a valid driveline.
+/// Why a model file (a driveline, a pass schedule) could not be read or is not valid.
 ///
 /// Every variant names the file; the schema and value variants also name the key path
 /// (`mass[1].inertia`) and what is allowed there.
@@ -202,37 +202,14 @@ impl Model {
     /// # Ok::<(), millgate_sim::model::ModelError>(())
     /// ```
     pub fn from_toml_str(text: &str, file_name: &str) -> Result<Model, ModelError> {
-        let deserializer = toml::Deserializer::parse(text).map_err(|error| ModelError::Syntax {
-            file: file_name.to_owned(),
-            line: line_of(text, error.span()),
-            message: error.message().to_owned(),
-        })?;
-        let model: Model = serde_path_to_error::deserialize(deserializer).map_err(|error| {
-            let key = error.path().to_string();
-            let inner = error.inner();
-            ModelError::Schema {
-                file: file_name.to_owned(),
-                line: line_of(text, inner.span()),
-                key: if key == "." {
-                    "(top level)".to_owned()
-                } else {
-                    key
-                },
-                message: inner.message().to_owned(),
-            }
-        })?;
+        let model: Model = parse_toml(text, file_name)?;
         model.validate(file_name)?;
         Ok(model)
     }
 
     /// Reads, parses and validates a model file; errors name the path as given.
     pub fn load(path: impl AsRef<Path>) -> Result<Model, ModelError> {
-        let path = path.as_ref();
-        let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| ModelError::Io {
-            file: file.clone(),
-            source,
-        })?;
+        let (text, file) = read_model_file(path.as_ref())?;
         Model::from_toml_str(&text, &file)
     }
 
@@ -388,12 +365,18 @@ impl Coupling {
 }
 
 /// Builds range errors for one file.
-struct Checker<'a> {
-    file: &'a str,
+pub(crate) struct Checker<'a> {
+    /// The file as given, for the messages.
+    pub(crate) file: &'a str,
 }
 
 impl Checker<'_> {
-    fn error(&self, key: &str, value: impl Display, allowed: impl Display) -> ModelError {
+    pub(crate) fn error(
+        &self,
+        key: &str,
+        value: impl Display,
+        allowed: impl Display,
+    ) -> ModelError {
         ModelError::Value {
             file: self.file.to_owned(),
             key: key.to_owned(),
@@ -402,7 +385,7 @@ impl Checker<'_> {
         }
     }
 
-    fn positive(&self, key: &str, value: f64, unit: &str) -> Result<(), ModelError> {
+    pub(crate) fn positive(&self, key: &str, value: f64, unit: &str) -> Result<(), ModelError> {
         if value.is_finite() && value > 0.0 {
             Ok(())
         } else {
@@ -410,13 +393,51 @@ impl Checker<'_> {
         }
     }
 
-    fn non_negative(&self, key: &str, value: f64, unit: &str) -> Result<(), ModelError> {
+    pub(crate) fn non_negative(&self, key: &str, value: f64, unit: &str) -> Result<(), ModelError> {
         if value.is_finite() && value >= 0.0 {
             Ok(())
         } else {
             Err(self.error(key, value, format_args!(">= 0 {unit}")))
         }
     }
+}
+
+/// The text of the file at `path` and its name as given, for the messages.
+pub(crate) fn read_model_file(path: &Path) -> Result<(String, String), ModelError> {
+    let file = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|source| ModelError::Io {
+        file: file.clone(),
+        source,
+    })?;
+    Ok((text, file))
+}
+
+/// Parses TOML `text` into `T`; errors name `file_name`, the line and the key path.
+///
+/// Shared by every model file the simulator reads (drivelines, pass schedules).
+pub(crate) fn parse_toml<T: serde::de::DeserializeOwned>(
+    text: &str,
+    file_name: &str,
+) -> Result<T, ModelError> {
+    let deserializer = toml::Deserializer::parse(text).map_err(|error| ModelError::Syntax {
+        file: file_name.to_owned(),
+        line: line_of(text, error.span()),
+        message: error.message().to_owned(),
+    })?;
+    serde_path_to_error::deserialize(deserializer).map_err(|error| {
+        let key = error.path().to_string();
+        let inner = error.inner();
+        ModelError::Schema {
+            file: file_name.to_owned(),
+            line: line_of(text, inner.span()),
+            key: if key == "." {
+                "(top level)".to_owned()
+            } else {
+                key
+            },
+            message: inner.message().to_owned(),
+        }
+    })
 }
 
 /// 1-based line of the start of `span` in `text`, 0 when there is no span.
