@@ -12,11 +12,7 @@ use millgate_sim::tandem::truth::{ground_truth, mill_critical_speed};
 use millgate_sim::tandem::{PassSchedule, TandemMill};
 
 fn schedule() -> PassSchedule {
-    PassSchedule::load(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/schedules/lu2019-5stand.toml"
-    ))
-    .expect("example schedule")
+    PassSchedule::example().expect("example schedule")
 }
 
 fn close(value: f64, expected: f64, relative: f64) -> bool {
@@ -370,6 +366,20 @@ fn schedule_errors_name_the_file_the_key_and_the_range() {
             .to_string();
         assert!(error.starts_with(expected), "{error}\n expected {expected}");
     }
+}
+
+#[test]
+fn the_built_in_example_is_the_checked_in_file() -> anyhow::Result<()> {
+    let file = PassSchedule::load(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/schedules/lu2019-5stand.toml"
+    ))?;
+    assert_eq!(PassSchedule::example()?, file);
+    assert_eq!(
+        PassSchedule::from_toml_str(&file.to_toml_string()?, "again.toml")?,
+        file
+    );
+    Ok(())
 }
 
 #[test]

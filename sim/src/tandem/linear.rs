@@ -56,15 +56,30 @@ pub struct StandModel {
     pub partials: GapPartials,
 }
 
-/// Stack constants in SI units.
+/// Stack constants in SI units (masses as their inverses, for the hot path).
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct StackSi {
-    work_mass: f64,
-    backup_mass: f64,
+    inverse_work_mass: f64,
+    inverse_backup_mass: f64,
     work_backup_stiffness: f64,
     work_backup_damping: f64,
     backup_housing_stiffness: f64,
     backup_housing_damping: f64,
+}
+
+/// A stand's mass-flow coefficients (see [`TandemMill::derivative`]), precomputed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct FlowCoefficients {
+    /// 2 x_n / h, 1/s per m/s of work-roll velocity on the exit speed.
+    exit_by_rate: f64,
+    /// h / H: forward slip on the entry speed, per unit roll speed.
+    entry_by_slip: f64,
+    /// (1 + f) / H: exit gap on the entry speed, per unit roll speed, 1/m.
+    entry_by_gap: f64,
+    /// (1 + f) h / H^2: entry thickness on the entry speed, per unit roll speed, 1/m.
+    entry_by_entry: f64,
+    /// 2 (l - x_n) / H: work-roll velocity on the entry speed.
+    entry_by_rate: f64,
 }
 
 /// Excitation and boundary inputs at one instant.
@@ -110,6 +125,7 @@ pub struct LinearSystem {
 #[derive(Debug, Clone, PartialEq)]
 pub struct TandemMill {
     stands: Vec<StandModel>,
+    flow: Vec<FlowCoefficients>,
     stack: StackSi,
     /// E / L, Pa/m.
     strip_spring: f64,
@@ -147,11 +163,26 @@ impl TandemMill {
             ));
         }
         let stack = &schedule.stack;
+        let flow = stands
+            .iter()
+            .map(|s| {
+                let (h, big_h, f) = (s.exit_m, s.entry_m, s.gap.forward_slip);
+                let (x_n, l) = (s.gap.neutral_point_m, s.gap.contact_length_m);
+                FlowCoefficients {
+                    exit_by_rate: 2.0 * x_n / h,
+                    entry_by_slip: h / big_h,
+                    entry_by_gap: (1.0 + f) / big_h,
+                    entry_by_entry: (1.0 + f) * h / (big_h * big_h),
+                    entry_by_rate: 2.0 * (l - x_n) / big_h,
+                }
+            })
+            .collect();
         Ok(TandemMill {
             stands,
+            flow,
             stack: StackSi {
-                work_mass: stack.work_roll_mass,
-                backup_mass: stack.backup_roll_mass,
+                inverse_work_mass: 1.0 / stack.work_roll_mass,
+                inverse_backup_mass: 1.0 / stack.backup_roll_mass,
                 work_backup_stiffness: stack.work_backup_stiffness,
                 work_backup_damping: stack.work_backup_damping,
                 backup_housing_stiffness: stack.backup_housing_stiffness,
@@ -217,7 +248,7 @@ impl TandemMill {
         let st = &self.stack;
         let mut speed_out = [0.0; MAX_STANDS];
         let mut speed_in = [0.0; MAX_STANDS];
-        for (i, model) in self.stands.iter().enumerate() {
+        for (i, (model, k)) in self.stands.iter().zip(&self.flow).enumerate() {
             let o = 4 * i;
             let (y_w, y_b, v_w, v_b) = (x[o], x[o + 1], x[o + 2], x[o + 3]);
             let back = if i == 0 {
@@ -239,17 +270,17 @@ impl TandemMill {
                 st.work_backup_stiffness * (y_w - y_b) + st.work_backup_damping * (v_w - v_b);
             dx[o] = v_w;
             dx[o + 1] = v_b;
-            dx[o + 2] = (force - contact + inputs.force_n[i]) / st.work_mass;
+            dx[o + 2] = (force - contact + inputs.force_n[i]) * st.inverse_work_mass;
             dx[o + 3] =
                 (contact - st.backup_housing_stiffness * y_b - st.backup_housing_damping * v_b)
-                    / st.backup_mass;
+                    * st.inverse_backup_mass;
+            // dv_out = v_R df - 2 x_n y_w' / h
+            // dv_in = [v_R h df + v_R (1 + f) dh + 2 (l - x_n) y_w'] / H - v_in dH / H
             let roll = speed * model.roll_speed;
-            let exit_speed = roll * (1.0 + model.gap.forward_slip);
-            let (h, big_h) = (model.exit_m, model.entry_m);
-            let (x_n, l) = (model.gap.neutral_point_m, model.gap.contact_length_m);
-            speed_out[i] = roll * slip - 2.0 * x_n * v_w / h;
-            speed_in[i] = (roll * h * slip + exit_speed * gap + 2.0 * (l - x_n) * v_w) / big_h
-                - exit_speed * (h / big_h) * entry / big_h;
+            speed_out[i] = roll * slip - k.exit_by_rate * v_w;
+            speed_in[i] = roll
+                * (k.entry_by_slip * slip + k.entry_by_gap * gap - k.entry_by_entry * entry)
+                + k.entry_by_rate * v_w;
         }
         for j in 0..n - 1 {
             dx[4 * n + j] = self.strip_spring * (speed_in[j + 1] - speed_out[j]);

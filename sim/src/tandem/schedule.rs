@@ -20,6 +20,9 @@ pub const STANDS: std::ops::RangeInclusive<usize> = 2..=8;
 /// stand against the last one, as a fraction.
 pub const MASS_FLOW_TOLERANCE: f64 = 0.05;
 
+/// The text of `sim/schedules/lu2019-5stand.toml`.
+const EXAMPLE: &str = include_str!("../../schedules/lu2019-5stand.toml");
+
 /// A tandem cold mill rolling one pass schedule.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -106,6 +109,12 @@ impl PassSchedule {
         let schedule: PassSchedule = parse_toml(text, file_name)?;
         schedule.validate(file_name)?;
         Ok(schedule)
+    }
+
+    /// The checked-in example: the 5-stand schedule of Lu et al. (2019)
+    /// (`sim/schedules/lu2019-5stand.toml`), for tests, benchmarks and demos.
+    pub fn example() -> Result<PassSchedule, ModelError> {
+        PassSchedule::from_toml_str(EXAMPLE, "sim/schedules/lu2019-5stand.toml")
     }
 
     /// Reads, parses and validates a schedule file; errors name the path as given.

@@ -228,6 +228,37 @@ impl Record {
     pub fn is_empty(&self) -> bool {
         self.speed.is_empty()
     }
+
+    /// CSV: `t` (s), then `s1_vib .. sN_vib` (chock acceleration, m/s^2; the channel
+    /// names of `config/examples/tandem-5stand.toml`); with `truth` also
+    /// `speed_factor` and the interstand tension deviations `tension_1_2_mpa` ...
+    pub fn to_csv(&self, truth: bool) -> String {
+        use std::fmt::Write as _;
+        let stands = self.acceleration.len();
+        let mut header: Vec<String> = std::iter::once("t".to_owned())
+            .chain((1..=stands).map(|s| format!("s{s}_vib")))
+            .collect();
+        if truth {
+            header.push("speed_factor".to_owned());
+            header.extend((1..stands).map(|j| format!("tension_{j}_{}_mpa", j + 1)));
+        }
+        let mut csv = header.join(",");
+        csv.push('\n');
+        for k in 0..self.len() {
+            let _ = write!(csv, "{}", k as f64 / self.sample_rate_hz);
+            for stand in &self.acceleration {
+                let _ = write!(csv, ",{:.6}", stand[k]);
+            }
+            if truth {
+                let _ = write!(csv, ",{:.6}", self.speed[k]);
+                for tension in &self.tension_pa {
+                    let _ = write!(csv, ",{:.6}", tension[k] * 1e-6);
+                }
+            }
+            csv.push('\n');
+        }
+        csv
+    }
 }
 
 fn check(key: &'static str, value: f64, ok: bool, allowed: &'static str) -> Result<(), RunError> {
@@ -474,6 +505,7 @@ pub fn simulate(mill: &TandemMill, settings: &RunSettings) -> Result<Record, Run
         *slot = angle.eccentricity(amplitudes);
     }
     let mut row = [0.0; MAX_STANDS];
+    let mut carried: Option<(f64, Inputs)> = None;
     let total_steps = samples * substeps;
     for step in 0..total_steps {
         let t = step as f64 * h;
@@ -492,24 +524,47 @@ pub fn simulate(mill: &TandemMill, settings: &RunSettings) -> Result<Record, Run
         let gauge_next = gauge * gauge_decay + gauge_kick * rng.sample::<f64, _>(StandardNormal);
         let (entry_tension, exit_tension) = boundary(t);
 
-        for (s, weight) in [0.0, 0.5, 0.5, 1.0].into_iter().enumerate() {
+        // Inputs at t, t + h/2 and t + h: the step's start reuses the last step's end
+        // (the delayed gauges only read rows stored before), with this step's noise.
+        let inputs_at = |weight: f64| {
             let t_stage = t + weight * h;
             let speed = ramp.speed_at(t_stage, exit_speed);
             let mut inputs = Inputs {
                 entry_tension_pa: entry_tension,
                 exit_tension_pa: exit_tension,
+                force_n: force,
                 ..Inputs::default()
             };
             inputs.entry_thickness_m[0] = gauge + weight * (gauge_next - gauge);
             for stand in 0..n {
                 inputs.gap_offset_m[stand] =
                     gap_now[stand] + weight * (gap_next[stand] - gap_now[stand]);
-                inputs.force_n[stand] = force[stand];
                 if stand + 1 < n {
                     let delay = mill.delay_s(stand, speed);
                     inputs.entry_thickness_m[stand + 1] = history.at(stand, (t_stage - delay) / h);
                 }
             }
+            (speed, inputs)
+        };
+        let start = match carried.take() {
+            Some((speed, inputs)) => (
+                speed,
+                Inputs {
+                    force_n: force,
+                    entry_tension_pa: entry_tension,
+                    exit_tension_pa: exit_tension,
+                    ..inputs
+                },
+            ),
+            None => inputs_at(0.0),
+        };
+        let middle = inputs_at(0.5);
+        let end = inputs_at(1.0);
+        for (s, (weight, &(speed, ref inputs))) in
+            [(0.0, &start), (0.5, &middle), (0.5, &middle), (1.0, &end)]
+                .into_iter()
+                .enumerate()
+        {
             if s == 0 {
                 stage.copy_from_slice(&x);
             } else {
@@ -517,11 +572,11 @@ pub fn simulate(mill: &TandemMill, settings: &RunSettings) -> Result<Record, Run
                     *value = x0 + weight * h * previous;
                 }
             }
-            mill.derivative(speed, &stage, &inputs, &mut k[s]);
+            mill.derivative(speed, &stage, inputs, &mut k[s]);
             if s == 0 {
                 // The state at t: keep the exit gauges, feed the accelerometers.
                 for (stand, slot) in row.iter_mut().enumerate().take(n) {
-                    *slot = mill.gap_deviation(&x, &inputs, stand);
+                    *slot = mill.gap_deviation(&x, inputs, stand);
                 }
                 history.push(&row);
                 let sample_due = step % substeps == 0;
@@ -554,6 +609,7 @@ pub fn simulate(mill: &TandemMill, settings: &RunSettings) -> Result<Record, Run
         }
         gap_now = gap_next;
         gauge = gauge_next;
+        carried = Some(end);
     }
     Ok(record)
 }
