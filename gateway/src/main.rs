@@ -45,7 +45,7 @@ enum Command {
     Stiffness(millgate::offline::stiffness::StiffnessArgs),
     /// Where a model and a measured transient disagree, and the effect the model lacks.
     Discrepancy(millgate::offline::discrepancy::DiscrepancyArgs),
-    /// Driveline simulator: transients, modes, wear maps.
+    /// Simulators: driveline transients, modes, wear maps; tandem-mill chatter.
     Sim(millgate::simcmd::SimArgs),
     /// Self-contained demo: a virtual DAQ and PLC on loopback, the gateway between them.
     Demo(millgate::demo::DemoArgs),
