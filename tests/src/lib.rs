@@ -1,5 +1,7 @@
 //! Shared fixtures for millgate's end-to-end tests.
 
+pub mod chatter_eval;
+
 use std::time::{Duration, Instant};
 
 /// Poll `done` every 20 ms until it holds; panic naming `what` after `limit`.
