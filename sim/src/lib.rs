@@ -10,6 +10,5 @@ pub mod model;
 pub mod plc;
 pub mod plot;
 pub mod schedule;
-pub mod stands;
 pub mod tandem;
 pub mod wear_map;
