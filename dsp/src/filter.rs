@@ -95,6 +95,20 @@ impl Biquad {
         y
     }
 
+    /// Zero-phase filtering in place: forward, then backward, each pass started in the
+    /// steady state of its first sample (no start-up transient; unit DC gain kept).
+    pub fn filtfilt(&self, data: &mut [f64]) {
+        let pass = |samples: &mut dyn Iterator<Item = &mut f64>| {
+            let mut state = None;
+            for sample in samples {
+                let state = state.get_or_insert_with(|| self.settled(*sample));
+                *sample = self.process(state, *sample);
+            }
+        };
+        pass(&mut data.iter_mut());
+        pass(&mut data.iter_mut().rev());
+    }
+
     /// The state of a filter that has seen the constant `x` forever (no start-up
     /// transient for a signal starting at `x`).
     pub fn settled(&self, x: f64) -> BiquadState {
@@ -217,6 +231,20 @@ mod tests {
         for _ in 0..10 {
             assert!((section.process(&mut state, 3.0) - 3.0).abs() < 1e-12);
         }
+    }
+
+    #[test]
+    fn filtfilt_keeps_a_constant_and_cuts_high_frequency() {
+        let filter = Biquad::lowpass(10.0, 1000.0, core::f64::consts::FRAC_1_SQRT_2).unwrap();
+        let mut constant = [5.0; 200];
+        filter.filtfilt(&mut constant);
+        assert!(constant.iter().all(|v| (v - 5.0).abs() < 1e-9));
+        let mut fast = [0.0; 400];
+        for (i, v) in fast.iter_mut().enumerate() {
+            *v = libm::sin(2.0 * PI * 200.0 * i as f64 / 1000.0);
+        }
+        filter.filtfilt(&mut fast);
+        assert!(fast[100..300].iter().all(|v| v.abs() < 0.01));
     }
 
     #[test]
