@@ -34,6 +34,7 @@
 //! needs two or three iterations. All work is done on data scaled to a peak of 1, so
 //! huge inputs do not overflow.
 
+use crate::linalg::{peak_magnitude, Cholesky5};
 use crate::pencil::{self, MIN_DECIMATED_SAMPLES};
 use core::f64::consts::PI;
 use nalgebra::{Complex, SMatrix, SVector};
@@ -660,80 +661,6 @@ fn project(theta: &Nonlinear, reference: &Linear, data: &Data<'_>) -> (f64, [f64
     (squares.total(), projections)
 }
 
-/// Cholesky factor L (lower, L L^T = A) of a 5 x 5 symmetric positive definite matrix,
-/// on plain arrays: nalgebra's generic `cholesky` and triangular solves took a tenth of
-/// the fit's time on these tiny matrices.
-#[derive(Clone, Copy)]
-struct Cholesky5 {
-    lower: [[f64; 5]; 5],
-    /// 1 / L[i][i].
-    inverse_diagonal: [f64; 5],
-}
-
-// Index loops: the factorisation and the solves walk rows and columns of `lower` at once.
-#[allow(clippy::needless_range_loop)]
-impl Cholesky5 {
-    /// Factors `a` (lower triangle read); `None` unless positive definite and finite.
-    fn new(a: &SMatrix<f64, 5, 5>) -> Option<Self> {
-        let mut lower = [[0.0; 5]; 5];
-        let mut inverse_diagonal = [0.0; 5];
-        for j in 0..5 {
-            let mut diagonal = a[(j, j)];
-            for k in 0..j {
-                diagonal -= lower[j][k] * lower[j][k];
-            }
-            // Also false for NaN.
-            if !(diagonal > 0.0 && diagonal.is_finite()) {
-                return None;
-            }
-            let root = libm::sqrt(diagonal);
-            lower[j][j] = root;
-            inverse_diagonal[j] = 1.0 / root;
-            for i in j + 1..5 {
-                let mut value = a[(i, j)];
-                for k in 0..j {
-                    value -= lower[i][k] * lower[j][k];
-                }
-                lower[i][j] = value * inverse_diagonal[j];
-            }
-        }
-        Some(Self {
-            lower,
-            inverse_diagonal,
-        })
-    }
-
-    /// Solves A x = b.
-    fn solve(&self, b: &SVector<f64, 5>) -> SVector<f64, 5> {
-        let mut x = *b;
-        for i in 0..5 {
-            let mut value = x[i];
-            for k in 0..i {
-                value -= self.lower[i][k] * x[k];
-            }
-            x[i] = value * self.inverse_diagonal[i];
-        }
-        for i in (0..5).rev() {
-            let mut value = x[i];
-            for k in i + 1..5 {
-                value -= self.lower[k][i] * x[k];
-            }
-            x[i] = value * self.inverse_diagonal[i];
-        }
-        x
-    }
-
-    /// Solves A X = B column by column.
-    fn solve_matrix(&self, b: &SMatrix<f64, 5, 5>) -> SMatrix<f64, 5, 5> {
-        let mut x = *b;
-        for mut column in x.column_iter_mut() {
-            let solved = self.solve(&column.clone_owned());
-            column.copy_from(&solved);
-        }
-        x
-    }
-}
-
 /// Largest ratio of |r0|^2 to the cost accepted in [`evaluate`]: 4 of 16 digits lost.
 const MAX_CANCELLATION: f64 = 1e4;
 
@@ -1145,20 +1072,6 @@ pub fn fit_eq1(samples: &[f64], options: &FitOptions) -> Result<Eq1Fit, FitError
     })
 }
 
-/// Largest |sample| and whether all samples are finite, in one branch-free pass.
-pub(crate) fn peak_magnitude(samples: &[f64]) -> (f64, bool) {
-    let mut scale = 0.0_f64;
-    let mut finite = true;
-    for &value in samples {
-        let magnitude = libm::fabs(value);
-        finite &= magnitude <= f64::MAX;
-        if magnitude > scale {
-            scale = magnitude;
-        }
-    }
-    (scale, finite)
-}
-
 /// Largest value of the fitted curve over `len` samples, by the same recurrences.
 /// Each mode is one rotor started at its complex amplitude (a1 - i a3 for mode 1, so
 /// its real part is a1 u1 + a3 v1) and the load term is advanced as a9 e10 directly;
@@ -1425,35 +1338,6 @@ mod tests {
             .fold(f64::NEG_INFINITY, f64::max);
         let peak = fitted_peak(&params, 11, dt).unwrap();
         assert!(libm::fabs(peak - expected) <= 1e-10 * libm::fabs(expected));
-    }
-
-    #[test]
-    fn cholesky5_matches_nalgebra() {
-        // A Hilbert-like SPD matrix plus a diagonal, and a solve against it.
-        let a = SMatrix::<f64, 5, 5>::from_fn(|i, j| {
-            1.0 / (1.0 + i as f64 + j as f64) + if i == j { 0.1 * (i + 1) as f64 } else { 0.0 }
-        });
-        let b = SVector::<f64, 5>::from_fn(|i, _| (i as f64 - 1.5) * 0.7);
-        let ours = Cholesky5::new(&a).unwrap();
-        let theirs = a.cholesky().unwrap();
-        let (x, expected) = (ours.solve(&b), theirs.solve(&b));
-        assert!(
-            (x - expected).norm() <= 1e-12 * expected.norm(),
-            "{x} vs {expected}"
-        );
-        let residual = a * x - b;
-        assert!(residual.norm() <= 1e-12 * b.norm());
-        let columns = SMatrix::<f64, 5, 5>::from_fn(|i, j| (i * 5 + j) as f64);
-        let solved = ours.solve_matrix(&columns);
-        let expected = theirs.solve(&columns);
-        assert!((solved - expected).norm() <= 1e-12 * expected.norm());
-        // Not positive definite, not finite.
-        let mut indefinite = a;
-        indefinite[(3, 3)] = -1.0;
-        assert!(Cholesky5::new(&indefinite).is_none());
-        let mut nan = a;
-        nan[(2, 1)] = f64::NAN;
-        assert!(Cholesky5::new(&nan).is_none());
     }
 
     /// sum w^n, sum n w^n, sum n^2 w^n over n < count, term by term.
