@@ -52,6 +52,26 @@ pub enum PencilError {
     Decomposition,
 }
 
+impl core::fmt::Display for PencilError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            PencilError::SampleRateHz => f.write_str("sample_rate_hz must be finite and > 0 Hz"),
+            PencilError::Decimation => f.write_str("the decimation factor must be >= 1"),
+            PencilError::TooFewSamples => write!(
+                f,
+                "fewer than {MIN_DECIMATED_SAMPLES} samples after decimation"
+            ),
+            PencilError::NonFinite => f.write_str("a sample is NaN or infinite"),
+            PencilError::Flat => f.write_str("all samples are zero"),
+            PencilError::Decomposition => {
+                f.write_str("the eigendecompositions or the shift-invariance solve failed")
+            }
+        }
+    }
+}
+
+impl core::error::Error for PencilError {}
+
 /// Poles of `samples` (uniform at `sample_rate_hz`, Hz), decimated by `decimation` >= 1.
 ///
 /// Returns at most [`MODEL_ORDER`] poles, complex pairs once (positive frequency);

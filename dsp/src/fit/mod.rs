@@ -113,6 +113,27 @@ pub enum FitError {
     Diverged,
 }
 
+impl core::fmt::Display for FitError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            FitError::SampleRateHz => "sample_rate_hz must be finite and > 0 Hz",
+            FitError::MaxModeHz => "max_mode_hz must be in (0, 0.45 x the sample rate) Hz",
+            FitError::MaxIterations => "max_iterations must be >= 1",
+            FitError::Tolerance => "tolerance must be in (0, 0.1)",
+            FitError::TooFewSamples => {
+                "too few samples to fit (or too few above zero with positive_only)"
+            }
+            FitError::NonFinite => "a sample is NaN or infinite",
+            FitError::Flat => "all samples are zero",
+            FitError::ModesNotFound => "fewer than two oscillating modes found in the record",
+            FitError::Singular => "a decomposition or the normal equations were singular",
+            FitError::Diverged => "the iteration produced non-finite parameters",
+        })
+    }
+}
+
+impl core::error::Error for FitError {}
+
 /// How the iteration ended.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum FitStatus {
