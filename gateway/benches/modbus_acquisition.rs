@@ -194,7 +194,7 @@ async fn gateway(mut config: millgate_config::Config, channel: usize) -> anyhow:
 
 #[tokio::main(flavor = "multi_thread", worker_threads = 2)]
 async fn main() -> anyhow::Result<()> {
-    let mut config = millgate::demo::setup(1.0, 0.0, 1)?.config;
+    let mut config = millgate_sim::devices::demo::setup(1.0, 0.0, 1)?.config;
     let channel = config.drivelines[0].torque;
     let ChannelSource::ModbusBlock {
         source: 0,

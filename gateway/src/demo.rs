@@ -8,30 +8,10 @@
 
 use std::time::{Duration, Instant};
 
-use anyhow::Context as _;
-use millgate_config::{ChannelSource, Config};
-use millgate_sim::daq::{DaqChannel, Placement, Publish, VirtualDaq};
-use millgate_sim::modbus_bank::{Running, ServeOptions};
-use millgate_sim::model::Model;
-use millgate_sim::plc::VirtualPlc;
-use millgate_sim::schedule::{rolling_schedule, BarTiming, Schedule};
-use tokio::net::TcpListener;
+use millgate_config::Config;
+use millgate_sim::devices::demo::{setup, DemoDevices, DemoSetup, SAMPLES_PER_BLOCK};
 
 use crate::registers::RegisterMap;
-
-/// The demo's configuration (addresses are replaced by the loopback ports taken at start).
-const DEMO_CONFIG: &str = include_str!("../../config/examples/demo.toml");
-/// The driveline the virtual DAQ simulates.
-const DEMO_MODEL: &str = include_str!("../../sim/models/table2-adjusted-backlash.toml");
-/// Static torques of successive bars, kN*m: light and heavy passes alternate so the
-/// effect of the gap on TAF shows.
-const BAR_STATIC_TORQUES_KNM: [f64; 6] = [112.0, 60.0, 150.0, 80.0, 130.0, 45.0];
-const BAR_TIMING: BarTiming = BarTiming {
-    idle_s: 0.6,
-    rolling_s: 1.2,
-};
-/// Samples per DAQ block: 50 ms at 2 kHz.
-const SAMPLES_PER_BLOCK: u16 = 100;
 
 /// Arguments of `millgate demo`.
 #[derive(Debug, Clone, clap::Args)]
@@ -45,67 +25,6 @@ pub struct DemoArgs {
     /// Seed of the noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-}
-
-/// The demo configuration, its model and the schedule the DAQ will play.
-pub struct DemoSetup {
-    pub config: Config,
-    pub schedule: Schedule,
-}
-
-/// Build the demo's configuration and simulated schedule for `duration_s`.
-pub fn setup(duration_s: f64, noise_rms_knm: f64, seed: u64) -> anyhow::Result<DemoSetup> {
-    let config =
-        millgate_config::from_toml_str(DEMO_CONFIG, "demo.toml", std::path::Path::new("."))
-            .map_err(|e| anyhow::anyhow!("{e}"))?;
-    let mut model = Model::from_toml_str(DEMO_MODEL, "table2-adjusted-backlash.toml")?;
-    let torque = &config.channels[config.drivelines[0].torque];
-    model.measurement.sample_rate = torque.sample_rate_hz;
-    let bar_s = BAR_TIMING.idle_s + BAR_TIMING.rolling_s + millgate_sim::schedule::TAIL_OUT_S;
-    let bars = (duration_s / bar_s).ceil() as usize + 1;
-    let torques: Vec<f64> = BAR_STATIC_TORQUES_KNM
-        .iter()
-        .copied()
-        .cycle()
-        .take(bars)
-        .collect();
-    let schedule = rolling_schedule(&model, &torques, BAR_TIMING, noise_rms_knm, seed)?;
-    Ok(DemoSetup { config, schedule })
-}
-
-/// The virtual DAQ that plays `schedule` on the driveline's torque channel of `config`.
-pub fn virtual_daq(config: &Config, schedule: &Schedule) -> anyhow::Result<VirtualDaq> {
-    let torque = &config.channels[config.drivelines[0].torque];
-    let ChannelSource::ModbusBlock { table, base, .. } = torque.source else {
-        anyhow::bail!("the demo's torque channel must be a Modbus block channel");
-    };
-    let channel = DaqChannel {
-        placement: Placement {
-            table,
-            address: base,
-            scale: torque.scale,
-            offset: torque.offset,
-        },
-        publish: Publish::Block,
-        signal: schedule.torque_knm.clone(),
-    };
-    Ok(VirtualDaq::new(
-        torque.sample_rate_hz,
-        SAMPLES_PER_BLOCK,
-        vec![channel],
-    ))
-}
-
-/// The truth of the bar whose static torque is nearest `static_knm`.
-pub fn nearest_truth(
-    schedule: &Schedule,
-    static_knm: f64,
-) -> Option<&millgate_sim::schedule::BiteTruth> {
-    schedule.bites.iter().min_by(|a, b| {
-        let da = (a.static_torque_knm - static_knm).abs();
-        let db = (b.static_torque_knm - static_knm).abs();
-        da.total_cmp(&db)
-    })
 }
 
 fn print_registers(map: &RegisterMap, words: &[u16]) {
@@ -133,51 +52,6 @@ fn print_registers(map: &RegisterMap, words: &[u16]) {
     }
 }
 
-/// The virtual DAQ and PLC running on loopback.
-pub struct Devices {
-    pub plc: VirtualPlc,
-    running: [Running; 2],
-}
-
-impl Devices {
-    /// Start a virtual DAQ playing `schedule` and a virtual PLC on free loopback
-    /// ports, and point `config`'s first Modbus source and its PLC output at them.
-    pub async fn start(config: &mut Config, schedule: &Schedule) -> anyhow::Result<Self> {
-        let daq = virtual_daq(config, schedule)?;
-        let plc = VirtualPlc::new(usize::from(RegisterMap::new(config).len()) + 16);
-        let daq_listener = TcpListener::bind("127.0.0.1:0")
-            .await
-            .context("bind virtual DAQ")?;
-        let plc_listener = TcpListener::bind("127.0.0.1:0")
-            .await
-            .context("bind virtual PLC")?;
-        config.modbus_sources[0].address = daq_listener.local_addr()?.to_string();
-        let plc_output = config
-            .outputs
-            .plc
-            .as_mut()
-            .context("the demo configuration needs outputs.plc")?;
-        plc_output.address = plc_listener.local_addr()?.to_string();
-        plc_output.register_base = 0;
-        if let Some(server) = config.outputs.server.as_mut() {
-            server.bind = "127.0.0.1:0".parse()?;
-        }
-        let running = [
-            daq.spawn(daq_listener, ServeOptions::default()),
-            plc.spawn(plc_listener, ServeOptions::default()),
-        ];
-        Ok(Self { plc, running })
-    }
-
-    /// Stop both devices.
-    pub async fn stop(self) -> anyhow::Result<()> {
-        for device in self.running {
-            device.stop().await?;
-        }
-        Ok(())
-    }
-}
-
 /// Run the demo for `args.duration` seconds.
 pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
     anyhow::ensure!(
@@ -189,7 +63,9 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         mut config,
         schedule,
     } = setup(args.duration, args.noise_rms, args.seed)?;
-    let devices = Devices::start(&mut config, &schedule).await?;
+    // The PLC holds the whole map and a margin.
+    let plc_registers = usize::from(RegisterMap::new(&config).len()) + 16;
+    let devices = DemoDevices::start(&mut config, &schedule, plc_registers).await?;
 
     println!(
         "millgate demo: virtual DAQ at {} ({} Hz, blocks of {SAMPLES_PER_BLOCK}), virtual PLC at {}, {} s",
@@ -219,7 +95,7 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
                 let Ok(bite) = bite else { continue };
                 let t = &bite.transient;
                 let taf = t.taf.unwrap_or(f64::NAN);
-                let truth = nearest_truth(&schedule, t.static_torque_knm);
+                let truth = schedule.nearest_truth(t.static_torque_knm);
                 let truth_taf = truth.map_or(f64::NAN, |truth| truth.taf);
                 println!(
                     "{:>7.2}  {:<12} {:>12.2} {:>11.2} {:>7.3} {:>10.3} {:>6.2}%{}",

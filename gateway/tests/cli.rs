@@ -222,8 +222,8 @@ fn analyze_finds_the_bite_of_a_simulated_transient_and_stiffness_inverts_table2(
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn run_stops_on_sigterm_with_a_final_stopped_write() {
-    use millgate_sim::modbus_bank::ServeOptions;
-    use millgate_sim::plc::VirtualPlc;
+    use millgate_sim::devices::modbus_bank::ServeOptions;
+    use millgate_sim::devices::virtual_plc::VirtualPlc;
 
     let plc = VirtualPlc::new(64);
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();

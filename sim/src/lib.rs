@@ -1,13 +1,12 @@
 #![doc = include_str!("../README.md")]
 
-pub mod can_node;
 pub mod chain;
-pub mod daq;
+#[cfg(feature = "devices")]
+pub mod devices;
 pub mod discrepancy;
 pub mod modal;
-pub mod modbus_bank;
 pub mod model;
-pub mod plc;
+#[cfg(feature = "plot")]
 pub mod plot;
 pub mod schedule;
 pub mod stands;

@@ -39,6 +39,18 @@ pub struct Schedule {
     pub bites: Vec<BiteTruth>,
 }
 
+impl Schedule {
+    /// The truth of the bar whose static torque is nearest `static_knm` (kN*m): the
+    /// bite a measured one most likely is. `None` for a schedule without bars.
+    pub fn nearest_truth(&self, static_knm: f64) -> Option<&BiteTruth> {
+        self.bites.iter().min_by(|a, b| {
+            let da = (a.static_torque_knm - static_knm).abs();
+            let db = (b.static_torque_knm - static_knm).abs();
+            da.total_cmp(&db)
+        })
+    }
+}
+
 /// Timing of each bar.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BarTiming {

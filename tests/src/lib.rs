@@ -2,6 +2,19 @@
 
 use std::time::{Duration, Instant};
 
+use millgate::registers::RegisterMap;
+use millgate_config::Config;
+use millgate_sim::devices::demo::DemoDevices;
+use millgate_sim::schedule::Schedule;
+
+/// The demo's virtual DAQ playing `schedule` and a virtual PLC holding `config`'s whole
+/// register map, started on loopback; `config` is pointed at them
+/// ([`DemoDevices::start`]).
+pub async fn demo_devices(config: &mut Config, schedule: &Schedule) -> anyhow::Result<DemoDevices> {
+    let plc_registers = usize::from(RegisterMap::new(config).len()) + 16;
+    Ok(DemoDevices::start(config, schedule, plc_registers).await?)
+}
+
 /// Poll `done` every 20 ms until it holds; panic naming `what` after `limit`.
 pub async fn wait_for(what: &str, limit: Duration, mut done: impl FnMut() -> bool) {
     let start = Instant::now();

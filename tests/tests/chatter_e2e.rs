@@ -6,9 +6,9 @@ use std::time::{Duration, Instant};
 
 use millgate::registers::{decode_f32, RegisterMap};
 use millgate_config::{Config, RegisterTable};
-use millgate_sim::daq::{DaqChannel, Placement, Publish, VirtualDaq};
-use millgate_sim::modbus_bank::{Running, ServeOptions};
-use millgate_sim::plc::VirtualPlc;
+use millgate_sim::devices::modbus_bank::{Running, ServeOptions};
+use millgate_sim::devices::virtual_daq::{DaqChannel, Placement, Publish, VirtualDaq};
+use millgate_sim::devices::virtual_plc::VirtualPlc;
 use millgate_sim::stands::{Regime, Stands, StandsSettings};
 use millgate_tests::{scrape, wait_for};
 use tokio::net::TcpListener;

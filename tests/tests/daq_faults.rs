@@ -7,8 +7,8 @@ use std::time::{Duration, Instant};
 
 use millgate::health::SourceStatus;
 use millgate_config::{Config, RegisterTable};
-use millgate_sim::daq::{DaqChannel, Placement, Publish, VirtualDaq};
-use millgate_sim::modbus_bank::{Running, ServeOptions};
+use millgate_sim::devices::modbus_bank::{Running, ServeOptions};
+use millgate_sim::devices::virtual_daq::{DaqChannel, Placement, Publish, VirtualDaq};
 use millgate_tests::{scrape, wait_for};
 use tokio::net::TcpListener;
 
@@ -43,7 +43,7 @@ async fn start_daq(config: &Config, address: SocketAddr) -> anyhow::Result<Runni
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn daq_restart_goes_stale_then_ok_and_counts_the_gap() -> anyhow::Result<()> {
-    let mut config = millgate::demo::setup(1.0, 0.0, 1)?.config;
+    let mut config = millgate_sim::devices::demo::setup(1.0, 0.0, 1)?.config;
     config.outputs.plc = None;
     config.outputs.server = None;
     config.outputs.metrics = Some(millgate_config::MetricsOutput {

@@ -4,13 +4,14 @@
 
 use std::time::Duration;
 
-use millgate::demo::{nearest_truth, setup, Devices};
+use millgate_sim::devices::demo::setup;
+use millgate_tests::demo_devices;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn joining_mid_bar_measures_the_following_bites_from_the_true_zero() -> anyhow::Result<()> {
     let demo = setup(5.0, 0.5, 11)?;
     let mut config = demo.config;
-    let devices = Devices::start(&mut config, &demo.schedule).await?;
+    let devices = demo_devices(&mut config, &demo.schedule).await?;
     // The first bite is at 0.6 s; join at 1.2 s, in the middle of the first bar.
     tokio::time::sleep(Duration::from_millis(1200)).await;
     let service = millgate::Service::new(config)?;
@@ -24,7 +25,7 @@ async fn joining_mid_bar_measures_the_following_bites_from_the_true_zero() -> an
     }
     for report in &reports {
         let measured = report.transient.static_torque_knm;
-        let truth = nearest_truth(&demo.schedule, measured).unwrap();
+        let truth = demo.schedule.nearest_truth(measured).unwrap();
         assert!(
             (measured - truth.static_torque_knm).abs() < 0.02 * truth.static_torque_knm,
             "static {measured} vs truth {}",

@@ -4,8 +4,9 @@
 
 use std::time::Duration;
 
-use millgate::demo::{nearest_truth, setup, Devices};
 use millgate::registers::{decode_f32, decode_u32, RegisterMap};
+use millgate_sim::devices::demo::setup;
+use millgate_tests::demo_devices;
 
 fn register(map: &RegisterMap, name: &str) -> usize {
     let found = map.registers().iter().find(|r| r.name == name);
@@ -22,7 +23,7 @@ async fn daq_to_gateway_to_plc_registers_match_simulated_truth() -> anyhow::Resu
     let demo = setup(3.0, 0.5, 7)?;
     let mut config = demo.config;
     let schedule = demo.schedule;
-    let devices = Devices::start(&mut config, &schedule).await?;
+    let devices = demo_devices(&mut config, &schedule).await?;
     let service = millgate::Service::new(config.clone())?;
     let mut bites = service.subscribe_bites();
     let map = service.publisher().map().clone();
@@ -58,7 +59,9 @@ async fn daq_to_gateway_to_plc_registers_match_simulated_truth() -> anyhow::Resu
     .await?;
 
     let last = &reports[1];
-    let truth = nearest_truth(&schedule, last.transient.static_torque_knm).unwrap();
+    let truth = schedule
+        .nearest_truth(last.transient.static_torque_knm)
+        .unwrap();
     assert_eq!(
         truth.static_torque_knm, schedule.bites[1].static_torque_knm,
         "second bar"

@@ -4,15 +4,16 @@
 use std::time::Duration;
 
 use millgate::registers::RegisterMap;
-use millgate_sim::modbus_bank::ServeOptions;
-use millgate_sim::plc::VirtualPlc;
+use millgate_sim::devices::demo::setup;
+use millgate_sim::devices::modbus_bank::ServeOptions;
+use millgate_sim::devices::virtual_plc::VirtualPlc;
 use millgate_tests::wait_for;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn plc_unreachable_at_start_gets_registers_when_it_appears() -> anyhow::Result<()> {
-    let mut config = millgate::demo::setup(1.0, 0.0, 1)?.config;
+    let mut config = setup(1.0, 0.0, 1)?.config;
     let plc_address = TcpListener::bind("127.0.0.1:0").await?.local_addr()?;
     config.modbus_sources[0].address = "127.0.0.1:1".into();
     config.outputs.server = None;
@@ -97,7 +98,7 @@ fn fc04_reply(header: [u8; 7], words: &[u16]) -> Vec<u8> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn malformed_and_truncated_replies_are_counted_and_survived() -> anyhow::Result<()> {
-    let mut config = millgate::demo::setup(1.0, 0.0, 1)?.config;
+    let mut config = setup(1.0, 0.0, 1)?.config;
     config.outputs.plc = None;
     config.outputs.server = None;
     let listener = TcpListener::bind("127.0.0.1:0").await?;

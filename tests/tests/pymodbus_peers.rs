@@ -6,8 +6,9 @@ use std::path::PathBuf;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use millgate::demo::{nearest_truth, setup, Devices};
 use millgate::registers::{decode_f32, decode_u32, RegisterMap};
+use millgate_sim::devices::demo::setup;
+use millgate_tests::demo_devices;
 
 fn peer(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -46,7 +47,7 @@ async fn read_plc(port: u16, len: u16) -> anyhow::Result<Vec<u16>> {
 async fn gateway_writes_its_map_into_a_pymodbus_plc() -> anyhow::Result<()> {
     let demo = setup(2.0, 0.5, 3)?;
     let mut config = demo.config;
-    let devices = Devices::start(&mut config, &demo.schedule).await?;
+    let devices = demo_devices(&mut config, &demo.schedule).await?;
     let port = tokio::net::TcpListener::bind("127.0.0.1:0")
         .await?
         .local_addr()?
@@ -103,7 +104,10 @@ async fn gateway_writes_its_map_into_a_pymodbus_plc() -> anyhow::Result<()> {
     );
     let bite = &received[counter as usize - 1];
     let taf = f64::from(decode_f32(&live[address_of(&map, "F1.taf")..]).unwrap());
-    let truth = nearest_truth(&demo.schedule, bite.transient.static_torque_knm).unwrap();
+    let truth = demo
+        .schedule
+        .nearest_truth(bite.transient.static_torque_knm)
+        .unwrap();
     assert!(
         (taf - truth.taf).abs() < 0.02 * truth.taf,
         "TAF {taf} vs truth {}",

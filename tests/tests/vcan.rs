@@ -18,7 +18,7 @@ use anyhow::{bail, ensure, Context, Result};
 use millgate::can::{CanCounts, CanDecoder, CanError, CanReader};
 use millgate::samples::Acquired;
 use millgate_config::{ChannelSource, Config};
-use millgate_sim::can_node::{CanMessage, CanNode};
+use millgate_sim::devices::can_node::{CanMessage, CanNode};
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 

@@ -9,10 +9,11 @@ use std::process::Command;
 use std::time::Duration;
 
 use millgate::analysis::BiteReport;
-use millgate::demo::Devices;
 use millgate::registers::{decode_f32, RegisterMap};
+use millgate_sim::devices::demo::DemoDevices;
 use millgate_sim::model::Model;
 use millgate_sim::schedule::{rolling_schedule, BarTiming};
+use millgate_tests::demo_devices;
 use tokio_modbus::client::{Context, Reader, Writer};
 use tokio_modbus::prelude::{ExceptionCode, Slave};
 
@@ -42,7 +43,7 @@ fn address(map: &RegisterMap, name: &str) -> u16 {
 /// A running gateway with the driveline model, fed bars simulated with a gap of
 /// `gap_rad` in the spindles.
 struct Mill {
-    devices: Devices,
+    devices: DemoDevices,
     server: SocketAddr,
     map: RegisterMap,
     bites: tokio::sync::broadcast::Receiver<BiteReport>,
@@ -55,9 +56,9 @@ impl Mill {
         let mut model = Model::load(MODEL)?;
         model.couplings[1].backlash = gap_rad;
         let schedule = rolling_schedule(&model, &BARS_KNM, TIMING, 0.5, 11)?;
-        let mut config = millgate::demo::setup(1.0, 0.5, 1)?.config;
+        let mut config = millgate_sim::devices::demo::setup(1.0, 0.5, 1)?.config;
         config.drivelines[0].model = Some(PathBuf::from(MODEL));
-        let devices = Devices::start(&mut config, &schedule).await?;
+        let devices = demo_devices(&mut config, &schedule).await?;
         let mut service = millgate::Service::new(config)?;
         let server = service.bind().await?.server.expect("server configured");
         let map = service.publisher().map().clone();
@@ -85,7 +86,7 @@ impl Mill {
     async fn stop(self) -> anyhow::Result<()> {
         self.stop.trigger();
         tokio::time::timeout(Duration::from_secs(10), self.task).await???;
-        self.devices.stop().await
+        Ok(self.devices.stop().await?)
     }
 }
 

@@ -14,7 +14,7 @@ use millgate_config::layout::{self, BLOCK_HEADER_REGISTERS, MAX_BLOCK_SAMPLES};
 use millgate_config::{RegisterTable, ValueType, WordOrder};
 use tokio::net::TcpListener;
 
-use crate::modbus_bank::{serve, RegisterBank, Running, ServeOptions, SharedBank};
+use super::modbus_bank::{serve, RegisterBank, Running, ServeOptions, SharedBank};
 
 /// Where a signal is published and how it is scaled.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -5,7 +5,7 @@ use std::io;
 
 use tokio::net::TcpListener;
 
-use crate::modbus_bank::{serve, RegisterBank, Running, ServeOptions, SharedBank};
+use super::modbus_bank::{serve, RegisterBank, Running, ServeOptions, SharedBank};
 
 /// A virtual PLC with `holding_len` writable holding registers.
 #[derive(Debug, Clone)]
