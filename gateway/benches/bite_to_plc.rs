@@ -12,11 +12,11 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use millgate::analysis::Analysis;
-use millgate::health::SourceHealth;
-use millgate::plc::PlcWriter;
-use millgate::publish::Publisher;
-use millgate::registers::{decode_u32, RegisterMap};
-use millgate::samples::Acquired;
+use millgate::field::acquired::Acquired;
+use millgate::field::counters::SourceHealth;
+use millgate::outputs::plc_writer::PlcWriter;
+use millgate::outputs::publisher::Publisher;
+use millgate::outputs::register_map::{decode_u32, RegisterMap};
 use millgate_sim::devices::modbus_bank::ServeOptions;
 use millgate_sim::devices::virtual_plc::VirtualPlc;
 

@@ -17,9 +17,9 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{ensure, Context as _};
-use millgate::daq::DaqReader;
-use millgate::health::{ChannelCounters, SourceHealth};
-use millgate::samples::Acquired;
+use millgate::field::acquired::Acquired;
+use millgate::field::counters::{ChannelCounters, SourceHealth};
+use millgate::field::daq_reader::DaqReader;
 use millgate_config::layout::{BLOCK_REGISTERS, MAX_BLOCK_SAMPLES};
 use millgate_config::{ChannelSource, RegisterTable};
 use tokio::net::{TcpListener, TcpStream};

@@ -37,18 +37,18 @@ enum Command {
         config: PathBuf,
         /// Output format.
         #[arg(long, value_enum, default_value = "md")]
-        format: millgate::export::Format,
+        format: millgate::cli::registers::Format,
     },
     /// Detect and analyse every bite of a recorded CSV (TAF, periods, eq. (1) fit).
-    Analyze(millgate::offline::analyze::AnalyzeArgs),
+    Analyze(millgate::cli::analyze::AnalyzeArgs),
     /// Stiffness adjustment, paper eq. (2): natural frequencies <-> C12, C23.
-    Stiffness(millgate::offline::stiffness::StiffnessArgs),
+    Stiffness(millgate::cli::stiffness::StiffnessArgs),
     /// Where a model and a measured transient disagree, and the effect the model lacks.
-    Discrepancy(millgate::offline::discrepancy::DiscrepancyArgs),
+    Discrepancy(millgate::cli::discrepancy::DiscrepancyArgs),
     /// Driveline simulator: transients, modes, wear maps.
-    Sim(millgate::simcmd::SimArgs),
+    Sim(millgate::cli::sim::SimArgs),
     /// Self-contained demo: a virtual DAQ and PLC on loopback, the gateway between them.
-    Demo(millgate::demo::DemoArgs),
+    Demo(millgate::cli::demo::DemoArgs),
 }
 
 fn init_tracing(default_level: &str) {
@@ -97,7 +97,7 @@ fn main() -> ExitCode {
             .expect("cannot start the tokio runtime")
     };
     let result = match cli.command {
-        Command::Check { config } => match millgate::check::check(&config) {
+        Command::Check { config } => match millgate::cli::check::check(&config) {
             Ok(summary) => {
                 println!("{}", summary.trim_end());
                 Ok(())
@@ -110,23 +110,23 @@ fn main() -> ExitCode {
         Command::Registers { config, format } => millgate_config::load(&config)
             .map_err(|e| anyhow::anyhow!("{e}"))
             .map(|config| {
-                let map = millgate::registers::RegisterMap::new(&config);
-                print!("{}", millgate::export::export(&map, format));
+                let map = millgate::outputs::register_map::RegisterMap::new(&config);
+                print!("{}", millgate::cli::registers::export(&map, format));
             }),
         Command::Analyze(args) => {
             init_tracing("warn");
-            millgate::offline::analyze::run(&args).map(emit)
+            millgate::cli::analyze::run(&args).map(emit)
         }
-        Command::Stiffness(args) => millgate::offline::stiffness::run(&args).map(emit),
-        Command::Discrepancy(args) => millgate::offline::discrepancy::run(&args).map(emit),
-        Command::Sim(args) => millgate::simcmd::run(args),
+        Command::Stiffness(args) => millgate::cli::stiffness::run(&args).map(emit),
+        Command::Discrepancy(args) => millgate::cli::discrepancy::run(&args).map(emit),
+        Command::Sim(args) => millgate::cli::sim::run(args),
         Command::Run { config } => {
             init_tracing("info");
             runtime().block_on(run_service(config))
         }
         Command::Demo(args) => {
             init_tracing("warn");
-            runtime().block_on(millgate::demo::run(args))
+            runtime().block_on(millgate::cli::demo::run(args))
         }
     };
     match result {

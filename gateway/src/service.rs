@@ -10,16 +10,16 @@ use tokio::sync::{broadcast, mpsc};
 use tokio::task::JoinSet;
 
 use crate::analysis::{Analysis, AnalysisError, BiteReport};
-use crate::can::{CanCounters, CanError, CanReader};
-use crate::daq::DaqReader;
-use crate::health::{ChannelCounters, SourceHealth};
-use crate::metrics::Metrics;
-use crate::modbus_client::Backoff;
-use crate::plc::PlcWriter;
-use crate::publish::Publisher;
-use crate::results::GatewayState;
-use crate::samples::Acquired;
-use crate::server::ModbusServer;
+use crate::field::acquired::Acquired;
+use crate::field::can::{CanCounters, CanError, CanReader};
+use crate::field::counters::{ChannelCounters, SourceHealth};
+use crate::field::daq_reader::DaqReader;
+use crate::field::modbus_client::Backoff;
+use crate::outputs::hmi_server::ModbusServer;
+use crate::outputs::metrics::Metrics;
+use crate::outputs::plc_writer::PlcWriter;
+use crate::outputs::publisher::Publisher;
+use crate::outputs::results::GatewayState;
 use crate::shutdown::{self, Shutdown};
 
 /// Samples in flight between readers and analysis. At 2 kHz and 100-sample blocks

@@ -2,7 +2,7 @@
 
 use std::time::{Duration, Instant};
 
-use millgate::registers::RegisterMap;
+use millgate::outputs::register_map::RegisterMap;
 use millgate_config::Config;
 use millgate_sim::devices::demo::DemoDevices;
 use millgate_sim::schedule::Schedule;

@@ -7,7 +7,7 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::time::{Duration, Instant};
 
-use millgate::chatter::{ChatterMonitor, ChatterUpdate};
+use millgate::analysis::chatter_monitor::{ChatterMonitor, ChatterUpdate};
 use millgate_sim::stands::{Regime, Stands, StandsSettings};
 
 struct Counting;

@@ -6,7 +6,7 @@ use std::net::SocketAddr;
 use std::process::Command;
 use std::time::Duration;
 
-use millgate::registers::RegisterMap;
+use millgate::outputs::register_map::RegisterMap;
 use millgate_sim::devices::demo::setup;
 use tokio_modbus::client::{Context, Reader, Writer};
 use tokio_modbus::prelude::{ExceptionCode, Slave};
@@ -14,7 +14,7 @@ use tokio_modbus::prelude::{ExceptionCode, Slave};
 struct Running {
     address: SocketAddr,
     map: RegisterMap,
-    publisher: std::sync::Arc<millgate::publish::Publisher>,
+    publisher: std::sync::Arc<millgate::outputs::publisher::Publisher>,
     stop: millgate::shutdown::ShutdownTrigger,
     task: tokio::task::JoinHandle<Result<(), millgate::service::ServiceError>>,
 }

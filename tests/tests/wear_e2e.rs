@@ -9,7 +9,7 @@ use std::process::Command;
 use std::time::Duration;
 
 use millgate::analysis::BiteReport;
-use millgate::registers::{decode_f32, RegisterMap};
+use millgate::outputs::register_map::{decode_f32, RegisterMap};
 use millgate_sim::devices::demo::DemoDevices;
 use millgate_sim::model::Model;
 use millgate_sim::schedule::{rolling_schedule, BarTiming};
@@ -108,7 +108,7 @@ async fn wait_bites(hmi: &mut Context, map: &RegisterMap, count: u32) -> anyhow:
     tokio::time::timeout(Duration::from_secs(5), async {
         loop {
             let words = hmi.read_holding_registers(counter, 2).await??;
-            if millgate::registers::decode_u32(&words) == Some(count) {
+            if millgate::outputs::register_map::decode_u32(&words) == Some(count) {
                 return anyhow::Ok(());
             }
             tokio::time::sleep(Duration::from_millis(20)).await;
@@ -150,7 +150,7 @@ async fn wear_index_over_modbus_grows_with_the_gap_and_the_trend_resets() -> any
     let second = worn.next_bite().await?.wear.expect("wear").index;
     wait_bites(&mut hmi, &worn.map, 2).await?;
     let trend = f64::from(read_f32(&mut hmi, &worn.map, "F1.wear_trend").await?);
-    let expected = millgate::wear::next_trend(Some(worn_index), second);
+    let expected = millgate::analysis::wear::next_trend(Some(worn_index), second);
     assert!(
         (trend - expected).abs() < 1e-5,
         "trend {trend}, expected {expected}"

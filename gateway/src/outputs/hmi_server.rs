@@ -20,8 +20,8 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio_modbus::prelude::{ExceptionCode, Request, Response, SlaveRequest};
 use tokio_modbus::server::tcp::Server;
 
-use crate::publish::Publisher;
-use crate::registers::{Access, Field};
+use crate::outputs::publisher::Publisher;
+use crate::outputs::register_map::{Access, Field};
 use crate::shutdown::Shutdown;
 
 /// Largest register count of one read request (FC 03 / 04).

@@ -12,10 +12,10 @@ use millgate_config::Config;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 
-use crate::can::{CanCounters, CanCounts};
-use crate::health::{ChannelCounters, ChannelCountersSnapshot, SourceHealth};
-use crate::publish::Publisher;
-use crate::results::{DrivelineResults, MillResults};
+use crate::field::can::{CanCounters, CanCounts};
+use crate::field::counters::{ChannelCounters, ChannelCountersSnapshot, SourceHealth};
+use crate::outputs::publisher::Publisher;
+use crate::outputs::results::{DrivelineResults, MillResults};
 use crate::shutdown::Shutdown;
 
 /// Reads one counter out of a snapshot.

@@ -42,9 +42,9 @@ use millgate_dsp::chatter::{
 use rustfft::num_complex::Complex;
 use rustfft::{Fft, FftPlanner};
 
-use crate::publish::Publisher;
-use crate::results::MillResults;
-use crate::samples::Acquired;
+use crate::field::acquired::Acquired;
+use crate::outputs::publisher::Publisher;
+use crate::outputs::results::MillResults;
 
 /// Largest lag of one stand behind the most advanced one, s: more means its source
 /// has stopped delivering, and the mill's values are flagged and the window restarted.

@@ -13,7 +13,7 @@
 use millgate_config::layout::encode_value;
 use millgate_config::{Config, ValueType, WordOrder};
 
-use crate::results::{DrivelineResults, GatewayState, MillResults, Results};
+use crate::outputs::results::{DrivelineResults, GatewayState, MillResults, Results};
 
 /// Whether clients may write a register.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -350,7 +350,7 @@ impl RegisterMap {
     }
 }
 
-fn bits(results: &Results, pick: impl Fn(crate::health::SourceStatus) -> bool) -> f64 {
+fn bits(results: &Results, pick: impl Fn(crate::field::counters::SourceStatus) -> bool) -> f64 {
     let mask = results
         .sources
         .iter()
@@ -362,7 +362,7 @@ fn bits(results: &Results, pick: impl Fn(crate::health::SourceStatus) -> bool) -
 }
 
 fn value_of(field: Field, results: &Results) -> Option<f64> {
-    use crate::health::SourceStatus as S;
+    use crate::field::counters::SourceStatus as S;
     match field {
         Field::Heartbeat => Some(f64::from(results.heartbeat)),
         Field::GatewayStatus => {

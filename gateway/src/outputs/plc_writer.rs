@@ -17,9 +17,9 @@ use millgate_config::PlcOutput;
 use tokio_modbus::client::{Context, Writer};
 use tokio_modbus::prelude::ExceptionCode;
 
-use crate::modbus_client::{self, Backoff, ConnectError};
-use crate::publish::Publisher;
-use crate::results::GatewayState;
+use crate::field::modbus_client::{self, Backoff, ConnectError};
+use crate::outputs::publisher::Publisher;
+use crate::outputs::results::GatewayState;
 use crate::shutdown::Shutdown;
 
 /// Largest register count of one FC 16 request.

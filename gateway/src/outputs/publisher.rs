@@ -5,9 +5,9 @@ use std::sync::{Arc, Mutex};
 
 use millgate_config::{ChannelSource, Config};
 
-use crate::health::{SourceHealth, SourceStatus};
-use crate::registers::RegisterMap;
-use crate::results::Results;
+use crate::field::counters::{SourceHealth, SourceStatus};
+use crate::outputs::register_map::RegisterMap;
+use crate::outputs::results::Results;
 
 /// Shared between the analysis task (writes results) and the outputs (read them).
 pub struct Publisher {

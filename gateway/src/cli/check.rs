@@ -11,7 +11,7 @@ use millgate_config::ConfigError;
 /// `<file>: <key path>: <problem>`; `main` prints it and exits non-zero.
 ///
 /// ```no_run
-/// match millgate::check::check(std::path::Path::new("config/examples/demo.toml")) {
+/// match millgate::cli::check::check(std::path::Path::new("config/examples/demo.toml")) {
 ///     Ok(summary) => print!("{summary}"),
 ///     Err(problems) => eprintln!("{problems}"),
 /// }

@@ -1,6 +1,6 @@
 //! The gateway's latest results: what analysis produced, what outputs publish.
 
-use crate::health::SourceStatus;
+use crate::field::counters::SourceStatus;
 
 /// Latest results of one driveline. `None` = not computed (yet), published with
 /// its quality bit cleared.
@@ -26,7 +26,7 @@ pub struct DrivelineResults {
     /// the linear reference; grows with opened backlash). `None` without a model.
     pub wear_index: Option<f64>,
     /// Wear trend: exponentially weighted mean of the wear index over bites
-    /// ([`crate::wear::next_trend`]); `None` until the first index after start or reset.
+    /// ([`crate::analysis::wear::next_trend`]); `None` until the first index after start or reset.
     pub wear_trend: Option<f64>,
     /// The last bite's window had gaps, NaN or saturated samples.
     pub last_bite_degraded: bool,
@@ -37,7 +37,7 @@ pub struct DrivelineResults {
     pub source_stale: bool,
 }
 
-/// Latest chatter metrics of one tandem mill (see [`crate::chatter`]). `None` = not
+/// Latest chatter metrics of one tandem mill (see [`crate::analysis::chatter_monitor`]). `None` = not
 /// valid: not computed yet, or the window restarted after a gap or a stale stand.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct MillResults {

@@ -92,9 +92,9 @@ pub struct WearEstimate {
 /// `measured / reference - 1`; `None` unless both are finite and the reference > 0.
 ///
 /// ```
-/// let index = millgate::wear::wear_index(2.2, 2.0).unwrap();
+/// let index = millgate::analysis::wear::wear_index(2.2, 2.0).unwrap();
 /// assert!((index - 0.1).abs() < 1e-12);
-/// assert_eq!(millgate::wear::wear_index(2.2, 0.0), None);
+/// assert_eq!(millgate::analysis::wear::wear_index(2.2, 0.0), None);
 /// ```
 pub fn wear_index(measured_taf: f64, reference_taf: f64) -> Option<f64> {
     let index = measured_taf / reference_taf - 1.0;

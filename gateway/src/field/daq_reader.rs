@@ -18,9 +18,9 @@ use tokio::sync::mpsc;
 use tokio_modbus::client::{Context, Reader};
 use tokio_modbus::prelude::ExceptionCode;
 
-use crate::health::{ChannelCounters, SourceHealth};
-use crate::modbus_client::{self, Backoff, ConnectError};
-use crate::samples::Acquired;
+use crate::field::acquired::Acquired;
+use crate::field::counters::{ChannelCounters, SourceHealth};
+use crate::field::modbus_client::{self, Backoff, ConnectError};
 use crate::shutdown::Shutdown;
 
 /// Why one poll of a DAQ failed.

@@ -41,8 +41,8 @@ use tokio::io::unix::AsyncFd;
 use tokio::io::Interest;
 use tokio::sync::{mpsc, watch};
 
-use crate::health::SourceHealth;
-use crate::samples::Acquired;
+use crate::field::acquired::Acquired;
+use crate::field::counters::SourceHealth;
 
 /// `errno` EAFNOSUPPORT: the kernel has no `AF_CAN` address family.
 const EAFNOSUPPORT: i32 = 97;

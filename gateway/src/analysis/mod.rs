@@ -1,6 +1,9 @@
 //! The analysis task: samples in, bite results out. Only synchronous `dsp` code
 //! runs on the samples; this module routes them and keeps per-driveline state.
 
+pub mod chatter_monitor;
+pub mod wear;
+
 use std::sync::Arc;
 use std::time::{Instant, SystemTime, UNIX_EPOCH};
 
@@ -10,9 +13,9 @@ use millgate_dsp::fit::{fit_eq1, Eq1Fit, FitError, FitOptions, FitStatus};
 use millgate_dsp::transient::{self, TransientError, TransientResult, TransientSettings};
 use tokio::sync::{broadcast, mpsc};
 
-use crate::publish::Publisher;
-use crate::samples::Acquired;
-use crate::wear::{self, WearEstimate, WearReference};
+use crate::field::acquired::Acquired;
+use crate::outputs::publisher::Publisher;
+use wear::{WearEstimate, WearReference};
 
 /// Window capacity of a bite, samples (pre + post trigger): 1 s at 2 kHz.
 pub const WINDOW_CAPACITY: usize = 2048;
@@ -86,7 +89,7 @@ pub fn analyze_window(
 pub enum AnalysisError {
     /// A tandem mill the chatter monitor cannot be built for.
     #[error(transparent)]
-    Chatter(#[from] crate::chatter::ChatterSetupError),
+    Chatter(#[from] chatter_monitor::ChatterSetupError),
     #[error("drivelines[{index}].bite: {problem}")]
     Bite { index: usize, problem: String },
     /// The driveline's model file (for the wear index) is not a valid model.
@@ -366,7 +369,7 @@ pub struct Analysis {
     publisher: Arc<Publisher>,
     bites: broadcast::Sender<BiteReport>,
     /// Chatter monitors of the tandem mills.
-    chatter: crate::chatter::ChatterAnalysis,
+    chatter: chatter_monitor::ChatterAnalysis,
 }
 
 impl Analysis {
@@ -388,7 +391,7 @@ impl Analysis {
                 by_trigger[trigger].push(index);
             }
         }
-        let chatter = crate::chatter::ChatterAnalysis::new(config, Arc::clone(&publisher))?;
+        let chatter = chatter_monitor::ChatterAnalysis::new(config, Arc::clone(&publisher))?;
         Ok(Self {
             drivelines,
             by_torque,

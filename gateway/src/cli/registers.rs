@@ -1,10 +1,10 @@
 //! `millgate registers`: the register map as Markdown, CSV or JSON, from the same
-//! table the gateway encodes with (`registers.rs`).
+//! table the gateway encodes with ([`crate::outputs::register_map`]).
 
 use millgate_config::{ValueType, WordOrder};
 use serde::Serialize;
 
-use crate::registers::RegisterMap;
+use crate::outputs::register_map::RegisterMap;
 
 /// Output format of the export.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]

@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use millgate_config::Config;
 use millgate_sim::devices::demo::{setup, DemoDevices, DemoSetup, SAMPLES_PER_BLOCK};
 
-use crate::registers::RegisterMap;
+use crate::outputs::register_map::RegisterMap;
 
 /// Arguments of `millgate demo`.
 #[derive(Debug, Clone, clap::Args)]
@@ -122,7 +122,7 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         started.elapsed().as_secs_f64()
     );
     print_registers(publisher.map(), &live);
-    let status = crate::registers::Field::GatewayStatus;
+    let status = crate::outputs::register_map::Field::GatewayStatus;
     if let Some(register) = publisher
         .map()
         .registers()

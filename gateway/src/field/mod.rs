@@ -1,0 +1,9 @@
+//! Field I/O: the reader tasks that turn DAQ register blocks (Modbus TCP) and CAN
+//! frames (SocketCAN) into [`acquired::Acquired`] messages on the bounded channel to
+//! analysis, with their counters and source health.
+
+pub mod acquired;
+pub mod can;
+pub mod counters;
+pub mod daq_reader;
+pub(crate) mod modbus_client;
