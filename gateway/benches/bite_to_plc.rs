@@ -13,7 +13,7 @@ use std::time::Duration;
 
 use millgate::analysis::Analysis;
 use millgate::field::acquired::Acquired;
-use millgate::field::counters::SourceHealth;
+use millgate::field::source_health::SourceHealth;
 use millgate::outputs::plc_writer::PlcWriter;
 use millgate::outputs::publisher::Publisher;
 use millgate::outputs::register_map::{decode_u32, RegisterMap};

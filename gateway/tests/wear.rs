@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use millgate::analysis::{Analysis, BiteReport};
 use millgate::field::acquired::Acquired;
-use millgate::field::counters::SourceHealth;
+use millgate::field::source_health::SourceHealth;
 use millgate::outputs::publisher::Publisher;
 use millgate_sim::model::Model;
 use millgate_sim::schedule::{rolling_schedule, BarTiming};

@@ -5,7 +5,7 @@
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
-use millgate::field::counters::SourceStatus;
+use millgate::field::source_health::SourceStatus;
 use millgate_config::{Config, RegisterTable};
 use millgate_sim::devices::modbus_bank::{Running, ServeOptions};
 use millgate_sim::devices::virtual_daq::{DaqChannel, Placement, Publish, VirtualDaq};

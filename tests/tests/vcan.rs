@@ -16,7 +16,8 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, ensure, Context, Result};
 use millgate::field::acquired::Acquired;
-use millgate::field::can::{CanCounts, CanDecoder, CanError, CanReader};
+use millgate::field::can::{CanDecoder, CanError, CanReader};
+use millgate::field::counters::CanCounts;
 use millgate_config::{ChannelSource, Config};
 use millgate_sim::devices::can_node::{CanMessage, CanNode};
 use tokio::sync::{mpsc, watch};
@@ -174,7 +175,7 @@ fn message(config: &Config, channels: &[usize]) -> Result<CanMessage> {
 /// A running reader: its task, its samples and how to stop it.
 struct RunningReader {
     samples: mpsc::Receiver<Acquired>,
-    counters: std::sync::Arc<millgate::field::can::CanCounters>,
+    counters: std::sync::Arc<millgate::field::counters::CanCounters>,
     stop: watch::Sender<bool>,
     task: JoinHandle<Result<(), CanError>>,
     /// Values received so far, per channel, oldest first.
@@ -610,7 +611,7 @@ async fn send_until(
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 #[ignore = "needs SocketCAN vcan0: run scripts/uml-vcan"]
 async fn service_survives_the_interface_going_down_and_up() -> Result<()> {
-    use millgate::field::counters::SourceStatus;
+    use millgate::field::source_health::SourceStatus;
     let interface = vcan();
     let service = millgate::Service::new(config(&interface)?)?;
     let publisher = service.publisher();
@@ -743,7 +744,7 @@ async fn cangen_random_payloads_are_all_decoded() -> Result<()> {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 #[ignore = "needs SocketCAN vcan0: run scripts/uml-vcan"]
 async fn error_passive_and_bus_off_are_counted_and_tracked() -> Result<()> {
-    use millgate::field::can::BusState;
+    use millgate::field::counters::BusState;
     let config = config(&vcan())?;
     let reader = RunningReader::start(&config)?;
     let interface = vcan();

@@ -19,8 +19,10 @@ use tokio_modbus::client::{Context, Reader};
 use tokio_modbus::prelude::ExceptionCode;
 
 use crate::field::acquired::Acquired;
-use crate::field::counters::{ChannelCounters, SourceHealth};
-use crate::field::modbus_client::{self, Backoff, ConnectError};
+use crate::field::backoff::Backoff;
+use crate::field::counters::ChannelCounters;
+use crate::field::modbus_client::{self, ConnectError};
+use crate::field::source_health::SourceHealth;
 use crate::shutdown::Shutdown;
 
 /// Why one poll of a DAQ failed.

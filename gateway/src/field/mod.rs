@@ -3,7 +3,9 @@
 //! analysis, with their counters and source health.
 
 pub mod acquired;
+pub(crate) mod backoff;
 pub mod can;
 pub mod counters;
 pub mod daq_reader;
 pub(crate) mod modbus_client;
+pub mod source_health;

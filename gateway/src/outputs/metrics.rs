@@ -12,8 +12,8 @@ use millgate_config::Config;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 
-use crate::field::can::{CanCounters, CanCounts};
-use crate::field::counters::{ChannelCounters, ChannelCountersSnapshot, SourceHealth};
+use crate::field::counters::{CanCounters, CanCounts, ChannelCounters, ChannelCountersSnapshot};
+use crate::field::source_health::SourceHealth;
 use crate::outputs::publisher::Publisher;
 use crate::outputs::results::{DrivelineResults, MillResults};
 use crate::shutdown::Shutdown;

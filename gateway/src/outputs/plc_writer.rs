@@ -17,7 +17,8 @@ use millgate_config::PlcOutput;
 use tokio_modbus::client::{Context, Writer};
 use tokio_modbus::prelude::ExceptionCode;
 
-use crate::field::modbus_client::{self, Backoff, ConnectError};
+use crate::field::backoff::Backoff;
+use crate::field::modbus_client::{self, ConnectError};
 use crate::outputs::publisher::Publisher;
 use crate::outputs::results::GatewayState;
 use crate::shutdown::Shutdown;

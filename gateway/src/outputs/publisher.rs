@@ -5,7 +5,7 @@ use std::sync::{Arc, Mutex};
 
 use millgate_config::{ChannelSource, Config};
 
-use crate::field::counters::{SourceHealth, SourceStatus};
+use crate::field::source_health::{SourceHealth, SourceStatus};
 use crate::outputs::register_map::RegisterMap;
 use crate::outputs::results::Results;
 

@@ -350,7 +350,10 @@ impl RegisterMap {
     }
 }
 
-fn bits(results: &Results, pick: impl Fn(crate::field::counters::SourceStatus) -> bool) -> f64 {
+fn bits(
+    results: &Results,
+    pick: impl Fn(crate::field::source_health::SourceStatus) -> bool,
+) -> f64 {
     let mask = results
         .sources
         .iter()
@@ -362,7 +365,7 @@ fn bits(results: &Results, pick: impl Fn(crate::field::counters::SourceStatus) -
 }
 
 fn value_of(field: Field, results: &Results) -> Option<f64> {
-    use crate::field::counters::SourceStatus as S;
+    use crate::field::source_health::SourceStatus as S;
     match field {
         Field::Heartbeat => Some(f64::from(results.heartbeat)),
         Field::GatewayStatus => {

@@ -1,6 +1,6 @@
 //! The gateway's latest results: what analysis produced, what outputs publish.
 
-use crate::field::counters::SourceStatus;
+use crate::field::source_health::SourceStatus;
 
 /// Latest results of one driveline. `None` = not computed (yet), published with
 /// its quality bit cleared.
