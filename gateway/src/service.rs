@@ -9,7 +9,8 @@ use tokio::net::TcpListener;
 use tokio::sync::{broadcast, mpsc};
 use tokio::task::JoinSet;
 
-use crate::analysis::{Analysis, AnalysisError, BiteReport};
+use crate::analysis::driveline::BiteReport;
+use crate::analysis::{Analysis, AnalysisError};
 use crate::field::can::supervisor::supervise_can;
 use crate::field::counters::{CanCounters, ChannelCounters};
 use crate::field::daq_reader::DaqReader;

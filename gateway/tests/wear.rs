@@ -5,7 +5,8 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
 
-use millgate::analysis::{Analysis, BiteReport};
+use millgate::analysis::driveline::BiteReport;
+use millgate::analysis::Analysis;
 use millgate::field::acquired::Acquired;
 use millgate::field::source_health::SourceHealth;
 use millgate::outputs::publisher::Publisher;

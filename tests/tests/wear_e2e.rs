@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use std::process::Command;
 use std::time::Duration;
 
-use millgate::analysis::BiteReport;
+use millgate::analysis::driveline::BiteReport;
 use millgate::outputs::register_map::{decode_f32, RegisterMap};
 use millgate_sim::devices::demo::DemoDevices;
 use millgate_sim::model::Model;

@@ -32,7 +32,7 @@ use millgate_dsp::transient::TransientSettings;
 use millgate_sim::chain::simulate;
 use millgate_sim::model::{Model, ModelError};
 
-use crate::analysis::{analyze_window, Detector};
+use super::bite_window::{analyze_window, Detector};
 
 /// Grid of the reference cache, kN*m: references are simulated at static torques
 /// that are multiples of this step.

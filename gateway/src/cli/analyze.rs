@@ -19,7 +19,9 @@ use serde_json::{json, Value};
 
 use super::csv;
 use super::OutputFormat;
-use crate::analysis::{analyze_window, WindowAnalysis, PRE_TRIGGER_CAPACITY, WINDOW_CAPACITY};
+use crate::analysis::bite_window::{
+    analyze_window, WindowAnalysis, PRE_TRIGGER_CAPACITY, WINDOW_CAPACITY,
+};
 
 /// Rise above the baseline that marks a bite, kN*m.
 pub const THRESHOLD_KNM: f64 = 20.0;
