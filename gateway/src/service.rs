@@ -15,6 +15,7 @@ use crate::field::can::supervisor::supervise_can;
 use crate::field::counters::{CanCounters, ChannelCounters};
 use crate::field::daq_reader::DaqReader;
 use crate::field::source_health::SourceHealth;
+use crate::outputs::heartbeat;
 use crate::outputs::hmi_server::ModbusServer;
 use crate::outputs::metrics::Metrics;
 use crate::outputs::plc_writer::PlcWriter;
@@ -25,8 +26,6 @@ use crate::shutdown::{self, Shutdown};
 /// Samples in flight between readers and analysis. At 2 kHz and 100-sample blocks
 /// this is seconds of data per channel: enough to ride out a slow analysis step.
 const SAMPLE_QUEUE: usize = 1024;
-/// Heartbeat period when no PLC output sets it (the server's HMIs still watch it).
-pub const HEARTBEAT_WITHOUT_PLC: Duration = Duration::from_secs(1);
 
 /// Why the service could not start.
 #[derive(Debug, thiserror::Error)]
@@ -191,7 +190,7 @@ impl Service {
             let writer = PlcWriter::new(plc.clone(), Arc::clone(&publisher));
             outputs.spawn(writer.run(outputs_shutdown.clone()));
         } else {
-            outputs.spawn(beat_without_plc(
+            outputs.spawn(heartbeat::beat_without_plc(
                 Arc::clone(&publisher),
                 outputs_shutdown.clone(),
             ));
@@ -226,18 +225,6 @@ impl Service {
         publisher.update(|results| results.state = GatewayState::Stopped);
         tracing::info!("stopped");
         Ok(())
-    }
-}
-
-/// Moves the heartbeat every [`HEARTBEAT_WITHOUT_PLC`] until shutdown: without a
-/// PLC writer nothing else would, and an HMI would take the gateway for dead.
-async fn beat_without_plc(publisher: Arc<Publisher>, mut shutdown: Shutdown) {
-    let mut ticks = tokio::time::interval(HEARTBEAT_WITHOUT_PLC);
-    loop {
-        tokio::select! {
-            _ = ticks.tick() => publisher.beat(),
-            () = shutdown.recv() => break,
-        }
     }
 }
 
