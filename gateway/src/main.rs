@@ -43,10 +43,13 @@ enum Command {
     Analyze(millgate::cli::analyze::AnalyzeArgs),
     /// Stiffness adjustment, paper eq. (2): natural frequencies <-> C12, C23.
     Stiffness(millgate::cli::stiffness::StiffnessArgs),
+    #[cfg(feature = "sim-tools")]
     /// Where a model and a measured transient disagree, and the effect the model lacks.
     Discrepancy(millgate::cli::discrepancy::DiscrepancyArgs),
+    #[cfg(feature = "sim-tools")]
     /// Driveline simulator: transients, modes, wear maps.
     Sim(millgate::cli::sim::SimArgs),
+    #[cfg(feature = "sim-tools")]
     /// Self-contained demo: a virtual DAQ and PLC on loopback, the gateway between them.
     Demo(millgate::cli::demo::DemoArgs),
 }
@@ -118,12 +121,15 @@ fn main() -> ExitCode {
             millgate::cli::analyze::run(&args).map(emit)
         }
         Command::Stiffness(args) => millgate::cli::stiffness::run(&args).map(emit),
+        #[cfg(feature = "sim-tools")]
         Command::Discrepancy(args) => millgate::cli::discrepancy::run(&args).map(emit),
+        #[cfg(feature = "sim-tools")]
         Command::Sim(args) => millgate::cli::sim::run(args),
         Command::Run { config } => {
             init_tracing("info");
             runtime().block_on(run_service(config))
         }
+        #[cfg(feature = "sim-tools")]
         Command::Demo(args) => {
             init_tracing("warn");
             runtime().block_on(millgate::cli::demo::run(args))

@@ -68,6 +68,8 @@ fn check_names_the_line_of_malformed_toml() {
     assert!(said.contains("line 3"), "names the line: {said}");
 }
 
+// Runs a command of the `sim-tools` feature.
+#[cfg(feature = "sim-tools")]
 #[test]
 fn demo_prints_bites_within_two_percent_of_the_simulated_truth() {
     let output = millgate(&["demo", "--duration", "4"]);
@@ -163,6 +165,8 @@ fn registers_export_json_and_csv_have_the_documented_fields() {
     assert_eq!(csv.lines().count(), rows.len() + 1);
 }
 
+// Runs a command of the `sim-tools` feature.
+#[cfg(feature = "sim-tools")]
 #[test]
 fn analyze_finds_the_bite_of_a_simulated_transient_and_stiffness_inverts_table2() {
     let dir = std::env::temp_dir().join(format!("millgate-cli-{}-analyze", std::process::id()));
@@ -265,6 +269,8 @@ async fn run_stops_on_sigterm_with_a_final_stopped_write() {
     running_plc.stop().await.unwrap();
 }
 
+// Runs a command of the `sim-tools` feature.
+#[cfg(feature = "sim-tools")]
 #[test]
 fn discrepancy_names_a_hidden_gap_and_writes_the_report_folder() {
     let dir = std::env::temp_dir().join(format!("millgate-cli-{}-discrepancy", std::process::id()));
@@ -347,6 +353,8 @@ fn discrepancy_names_a_hidden_gap_and_writes_the_report_folder() {
     );
 }
 
+// Runs a command of the `sim-tools` feature.
+#[cfg(feature = "sim-tools")]
 #[test]
 fn discrepancy_names_the_line_of_a_non_uniform_time_column() {
     let dir = std::env::temp_dir().join(format!("millgate-cli-{}-nonuniform", std::process::id()));

@@ -9,16 +9,22 @@
 //! - `millgate stiffness --inertia Q1,Q2,Q3 (--freq B1,B2 | --stiffness C12,C23)
 //!   [--drawing C12,C23] [--format text|json]`: [`stiffness`]
 //! - `millgate discrepancy --measured FILE.csv --model MODEL.toml [--channel NAME]
-//!   [--report DIR] [--format text|json]`: [`discrepancy`]
-//! - `millgate sim transient|modes|wear-map ...`: [`sim`]
-//! - `millgate demo [--duration S]`: [`demo`]
+//!   [--report DIR] [--format text|json]`: `discrepancy`
+//! - `millgate sim transient|modes|wear-map ...`: `sim`
+//! - `millgate demo [--duration S]`: `demo`
+//!
+//! `discrepancy`, `sim` and `demo` come with the default `sim-tools` feature (they
+//! need the simulator's virtual devices or plots).
 
 pub mod analyze;
 pub mod check;
 pub mod csv;
+#[cfg(feature = "sim-tools")]
 pub mod demo;
+#[cfg(feature = "sim-tools")]
 pub mod discrepancy;
 pub mod registers;
+#[cfg(feature = "sim-tools")]
 pub mod sim;
 pub mod stiffness;
 
