@@ -7,7 +7,7 @@ use std::time::Duration;
 use millgate_config::Config;
 use tokio::net::TcpListener;
 use tokio::sync::{broadcast, mpsc};
-use tokio::task::JoinSet;
+use tokio::task::{JoinHandle, JoinSet};
 
 use crate::analysis::driveline::BiteReport;
 use crate::analysis::{Analysis, AnalysisError};
@@ -21,22 +21,32 @@ use crate::outputs::metrics::Metrics;
 use crate::outputs::plc_writer::PlcWriter;
 use crate::outputs::publisher::Publisher;
 use crate::outputs::results::GatewayState;
-use crate::shutdown::{self, Shutdown};
+use crate::shutdown::{self, Shutdown, ShutdownTrigger};
 
 /// Samples in flight between readers and analysis. At 2 kHz and 100-sample blocks
 /// this is seconds of data per channel: enough to ride out a slow analysis step.
 const SAMPLE_QUEUE: usize = 1024;
 
-/// Why the service could not start.
+/// Why the service could not start, or its task failed.
 #[derive(Debug, thiserror::Error)]
 pub enum ServiceError {
+    /// A driveline or tandem mill the analysis cannot be built for.
     #[error(transparent)]
     Analysis(#[from] AnalysisError),
-    #[error("cannot bind the Modbus server to {address}: {source}")]
+    /// A listening output (the HMI Modbus server, the metrics endpoint) could not bind.
+    #[error("cannot bind the {output} to {address}: {source}")]
     Bind {
+        /// Which output: "Modbus server" or "metrics endpoint".
+        output: &'static str,
+        /// The configured address.
         address: std::net::SocketAddr,
+        /// Why.
+        #[source]
         source: std::io::Error,
     },
+    /// The service's task panicked or was cancelled.
+    #[error("the service task failed: {0}")]
+    Task(#[from] tokio::task::JoinError),
 }
 
 /// A configured, not yet running gateway.
@@ -107,6 +117,7 @@ impl Service {
     /// the OS (`:0`).
     pub async fn bind(&mut self) -> Result<Bound, ServiceError> {
         async fn bind_once(
+            output: &'static str,
             slot: &mut Option<TcpListener>,
             address: Option<SocketAddr>,
         ) -> Result<Option<SocketAddr>, ServiceError> {
@@ -114,9 +125,14 @@ impl Service {
                 return Ok(None);
             };
             if slot.is_none() {
-                let listener = TcpListener::bind(address)
-                    .await
-                    .map_err(|source| ServiceError::Bind { address, source })?;
+                let listener =
+                    TcpListener::bind(address)
+                        .await
+                        .map_err(|source| ServiceError::Bind {
+                            output,
+                            address,
+                            source,
+                        })?;
                 *slot = Some(listener);
             }
             Ok(slot.as_ref().and_then(|l| l.local_addr().ok()))
@@ -125,8 +141,8 @@ impl Service {
         let server = outputs.server.as_ref().map(|s| s.bind);
         let metrics = outputs.metrics.as_ref().map(|m| m.bind);
         Ok(Bound {
-            server: bind_once(&mut self.server_listener, server).await?,
-            metrics: bind_once(&mut self.metrics_listener, metrics).await?,
+            server: bind_once("Modbus server", &mut self.server_listener, server).await?,
+            metrics: bind_once("metrics endpoint", &mut self.metrics_listener, metrics).await?,
         })
     }
 
@@ -225,6 +241,74 @@ impl Service {
         publisher.update(|results| results.state = GatewayState::Stopped);
         tracing::info!("stopped");
         Ok(())
+    }
+}
+
+/// A service running in its own task, started by [`Service::spawn`]: what tests, the
+/// demo and benchmarks need to watch it and stop it.
+#[derive(Debug)]
+pub struct RunningService {
+    bound: Bound,
+    publisher: Arc<Publisher>,
+    counters: Vec<Arc<ChannelCounters>>,
+    bites: broadcast::Receiver<BiteReport>,
+    stop: ShutdownTrigger,
+    task: JoinHandle<Result<(), ServiceError>>,
+}
+
+impl Service {
+    /// Bind the listening outputs, then run in a new tokio task until
+    /// [`RunningService::stop`]. Every bite analysed after this call is queued for
+    /// [`RunningService::bites`] (the last 64 when nobody reads them).
+    pub async fn spawn(mut self) -> Result<RunningService, ServiceError> {
+        let bound = self.bind().await?;
+        let publisher = self.publisher();
+        let counters = self.counters();
+        let bites = self.subscribe_bites();
+        let (stop, shutdown) = shutdown::channel();
+        let task = tokio::spawn(self.run(shutdown));
+        Ok(RunningService {
+            bound,
+            publisher,
+            counters,
+            bites,
+            stop,
+            task,
+        })
+    }
+}
+
+impl RunningService {
+    /// The addresses the listening outputs bound (ports the OS chose for `:0`).
+    pub fn bound(&self) -> Bound {
+        self.bound
+    }
+
+    /// The published results and register map.
+    pub fn publisher(&self) -> Arc<Publisher> {
+        Arc::clone(&self.publisher)
+    }
+
+    /// Per-channel acquisition counters, indexed like `config.channels`.
+    pub fn counters(&self) -> &[Arc<ChannelCounters>] {
+        &self.counters
+    }
+
+    /// The bites analysed since the service was spawned, oldest first.
+    pub fn bites(&mut self) -> &mut broadcast::Receiver<BiteReport> {
+        &mut self.bites
+    }
+
+    /// Whether the service's task has ended (it runs until stopped).
+    pub fn is_finished(&self) -> bool {
+        self.task.is_finished()
+    }
+
+    /// Stop the service as SIGTERM does (readers stop, analysis drains, the final
+    /// registers are written with status "stopped") and wait for it.
+    pub async fn stop(self) -> Result<(), ServiceError> {
+        self.stop.trigger();
+        self.task.await?
     }
 }
 

@@ -54,12 +54,10 @@ async fn daq_restart_goes_stale_then_ok_and_counts_the_gap() -> anyhow::Result<(
     config.modbus_sources[0].address = address.to_string();
 
     let daq_device = start_daq(&config, address).await?;
-    let mut service = millgate::Service::new(config.clone())?;
-    let metrics = service.bind().await?.metrics.expect("metrics configured");
-    let counters = service.counters()[0].clone();
-    let publisher = service.publisher();
-    let (stop, shutdown) = millgate::shutdown::channel();
-    let gateway = tokio::spawn(service.run(shutdown));
+    let gateway = millgate::Service::new(config.clone())?.spawn().await?;
+    let metrics = gateway.bound().metrics.expect("metrics configured");
+    let counters = gateway.counters()[0].clone();
+    let publisher = gateway.publisher();
     let status = || publisher.results().sources[0];
 
     wait_for("first blocks", Duration::from_secs(5), || {
@@ -114,8 +112,7 @@ async fn daq_restart_goes_stale_then_ok_and_counts_the_gap() -> anyhow::Result<(
         "{page}"
     );
 
-    stop.trigger();
-    tokio::time::timeout(Duration::from_secs(10), gateway).await???;
+    tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
     daq_device.stop().await?;
     Ok(())
 }

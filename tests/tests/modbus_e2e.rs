@@ -24,16 +24,13 @@ async fn daq_to_gateway_to_plc_registers_match_simulated_truth() -> anyhow::Resu
     let mut config = demo.config;
     let schedule = demo.schedule;
     let devices = demo_devices(&mut config, &schedule).await?;
-    let service = millgate::Service::new(config.clone())?;
-    let mut bites = service.subscribe_bites();
-    let map = service.publisher().map().clone();
-    let (stop, shutdown) = millgate::shutdown::channel();
-    let gateway = tokio::spawn(service.run(shutdown));
+    let mut gateway = millgate::Service::new(config.clone())?.spawn().await?;
+    let map = gateway.publisher().map().clone();
 
     let mut reports = Vec::new();
     let collected = tokio::time::timeout(Duration::from_secs(20), async {
         while reports.len() < 2 {
-            reports.push(bites.recv().await?);
+            reports.push(gateway.bites().recv().await?);
         }
         anyhow::Ok(())
     })
@@ -97,8 +94,7 @@ async fn daq_to_gateway_to_plc_registers_match_simulated_truth() -> anyhow::Resu
         "running"
     );
 
-    stop.trigger();
-    gateway.await??;
+    gateway.stop().await?;
     let stopped = devices.plc.holding()[register(&map, "gateway_status")];
     assert_eq!(stopped & 0b10, 0b10, "final write says stopped");
     devices.stop().await?;

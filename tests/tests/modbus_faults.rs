@@ -22,8 +22,7 @@ async fn plc_unreachable_at_start_gets_registers_when_it_appears() -> anyhow::Re
     plc_output.register_base = 100;
     let map = RegisterMap::new(&config);
 
-    let (stop, shutdown) = millgate::shutdown::channel();
-    let gateway = tokio::spawn(millgate::run(config, shutdown));
+    let gateway = millgate::Service::new(config)?.spawn().await?;
     tokio::time::sleep(Duration::from_millis(800)).await;
 
     let plc = VirtualPlc::new(100 + usize::from(map.len()));
@@ -50,8 +49,7 @@ async fn plc_unreachable_at_start_gets_registers_when_it_appears() -> anyhow::Re
     })
     .await;
 
-    stop.trigger();
-    tokio::time::timeout(Duration::from_secs(10), gateway).await???;
+    tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
     assert_eq!(plc.holding()[101] & 0b10, 0b10, "final write: stopped");
     running_plc.stop().await?;
     Ok(())
@@ -127,10 +125,8 @@ async fn malformed_and_truncated_replies_are_counted_and_survived() -> anyhow::R
     ];
     let daq = tokio::spawn(serve_script(listener, script));
 
-    let service = millgate::Service::new(config)?;
-    let counters = service.counters()[0].clone();
-    let (stop, shutdown) = millgate::shutdown::channel();
-    let gateway = tokio::spawn(service.run(shutdown));
+    let gateway = millgate::Service::new(config)?.spawn().await?;
+    let counters = gateway.counters()[0].clone();
 
     wait_for(
         "the good block after the bad ones",
@@ -146,8 +142,7 @@ async fn malformed_and_truncated_replies_are_counted_and_survived() -> anyhow::R
     );
     assert!(!gateway.is_finished(), "still running");
 
-    stop.trigger();
-    tokio::time::timeout(Duration::from_secs(10), gateway).await???;
+    tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
     daq.abort();
     Ok(())
 }

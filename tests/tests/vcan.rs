@@ -613,10 +613,8 @@ async fn send_until(
 async fn service_survives_the_interface_going_down_and_up() -> Result<()> {
     use millgate::field::source_health::SourceStatus;
     let interface = vcan();
-    let service = millgate::Service::new(config(&interface)?)?;
-    let publisher = service.publisher();
-    let (stop, shutdown) = millgate::shutdown::channel();
-    let gateway = tokio::spawn(service.run(shutdown));
+    let gateway = millgate::Service::new(config(&interface)?)?.spawn().await?;
+    let publisher = gateway.publisher();
     let status = || publisher.results().sources[0];
 
     send_until(&interface, Duration::from_secs(10), || {
@@ -642,8 +640,7 @@ async fn service_survives_the_interface_going_down_and_up() -> Result<()> {
     .await?;
     ensure!(!gateway.is_finished(), "the gateway kept running");
 
-    stop.trigger();
-    tokio::time::timeout(Duration::from_secs(10), gateway).await???;
+    tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
     Ok(())
 }
 

@@ -10,6 +10,7 @@ use std::time::Duration;
 
 use millgate::analysis::driveline::BiteReport;
 use millgate::outputs::register_map::{decode_f32, RegisterMap};
+use millgate::service::RunningService;
 use millgate_sim::devices::demo::DemoDevices;
 use millgate_sim::model::Model;
 use millgate_sim::schedule::{rolling_schedule, BarTiming};
@@ -46,9 +47,7 @@ struct Mill {
     devices: DemoDevices,
     server: SocketAddr,
     map: RegisterMap,
-    bites: tokio::sync::broadcast::Receiver<BiteReport>,
-    stop: millgate::shutdown::ShutdownTrigger,
-    task: tokio::task::JoinHandle<Result<(), millgate::service::ServiceError>>,
+    gateway: RunningService,
 }
 
 impl Mill {
@@ -59,24 +58,17 @@ impl Mill {
         let mut config = millgate_sim::devices::demo::setup(1.0, 0.5, 1)?.config;
         config.drivelines[0].model = Some(PathBuf::from(MODEL));
         let devices = demo_devices(&mut config, &schedule).await?;
-        let mut service = millgate::Service::new(config)?;
-        let server = service.bind().await?.server.expect("server configured");
-        let map = service.publisher().map().clone();
-        let bites = service.subscribe_bites();
-        let (stop, shutdown) = millgate::shutdown::channel();
-        let task = tokio::spawn(service.run(shutdown));
+        let gateway = millgate::Service::new(config)?.spawn().await?;
         Ok(Self {
             devices,
-            server,
-            map,
-            bites,
-            stop,
-            task,
+            server: gateway.bound().server.expect("server configured"),
+            map: gateway.publisher().map().clone(),
+            gateway,
         })
     }
 
     async fn next_bite(&mut self) -> anyhow::Result<BiteReport> {
-        Ok(tokio::time::timeout(Duration::from_secs(10), self.bites.recv()).await??)
+        Ok(tokio::time::timeout(Duration::from_secs(10), self.gateway.bites().recv()).await??)
     }
 
     async fn hmi(&self) -> anyhow::Result<Context> {
@@ -84,8 +76,7 @@ impl Mill {
     }
 
     async fn stop(self) -> anyhow::Result<()> {
-        self.stop.trigger();
-        tokio::time::timeout(Duration::from_secs(10), self.task).await???;
+        tokio::time::timeout(Duration::from_secs(10), self.gateway.stop()).await??;
         Ok(self.devices.stop().await?)
     }
 }

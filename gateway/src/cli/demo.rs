@@ -78,11 +78,8 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         "{:>7}  {:<12} {:>12} {:>11} {:>7} {:>10} {:>7}",
         "time s", "channel", "static kN*m", "peak kN*m", "TAF", "truth TAF", "error"
     );
-    let service = crate::Service::new(config.clone())?;
-    let mut bites = service.subscribe_bites();
-    let publisher = service.publisher();
-    let (stop_gateway, gateway_shutdown) = crate::shutdown::channel();
-    let gateway = tokio::spawn(service.run(gateway_shutdown));
+    let mut gateway = crate::Service::new(config.clone())?.spawn().await?;
+    let publisher = gateway.publisher();
 
     let started = Instant::now();
     let deadline = tokio::time::sleep(Duration::from_secs_f64(args.duration));
@@ -91,7 +88,7 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
     loop {
         tokio::select! {
             () = &mut deadline => break,
-            bite = bites.recv() => {
+            bite = gateway.bites().recv() => {
                 let Ok(bite) = bite else { continue };
                 let t = &bite.transient;
                 let taf = t.taf.unwrap_or(f64::NAN);
@@ -113,8 +110,7 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         }
     }
     let live = devices.plc.holding();
-    stop_gateway.trigger();
-    gateway.await??;
+    gateway.stop().await?;
     let after_stop = devices.plc.holding();
     devices.stop().await?;
     println!(

@@ -10,6 +10,7 @@ use crate::outputs::register_map::RegisterMap;
 use crate::outputs::results::Results;
 
 /// Shared between the analysis task (writes results) and the outputs (read them).
+#[derive(Debug)]
 pub struct Publisher {
     results: Mutex<Results>,
     /// Wakes the PLC writer when results change, so a bite is written at once
