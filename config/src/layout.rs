@@ -58,6 +58,8 @@ impl core::fmt::Display for BlockError {
     }
 }
 
+impl std::error::Error for BlockError {}
+
 /// A decoded block: its sequence number and raw samples.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Block<'a> {

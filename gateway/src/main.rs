@@ -76,7 +76,7 @@ async fn wait_for_signal() -> std::io::Result<()> {
 }
 
 async fn run_service(config: PathBuf) -> anyhow::Result<()> {
-    let config = millgate_config::load(&config).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let config = millgate_config::load(&config)?;
     let (trigger, shutdown) = millgate::shutdown::channel();
     let service = tokio::spawn(millgate::run(config, shutdown));
     wait_for_signal().await?;
@@ -84,6 +84,21 @@ async fn run_service(config: PathBuf) -> anyhow::Result<()> {
     trigger.trigger();
     service.await??;
     Ok(())
+}
+
+/// `error` and its causes as one line: each cause is appended unless the text so far
+/// already says it (an error that shows its source in its own message, as ours do so
+/// that log lines read whole, would otherwise repeat it).
+fn sentence(error: &anyhow::Error) -> String {
+    let mut text = error.to_string();
+    for cause in error.chain().skip(1) {
+        let cause = cause.to_string();
+        if !text.contains(&cause) {
+            text.push_str(": ");
+            text.push_str(&cause);
+        }
+    }
+    text
 }
 
 /// Print a command's report, ending it with exactly one newline.
@@ -111,7 +126,7 @@ fn main() -> ExitCode {
             }
         },
         Command::Registers { config, format } => millgate_config::load(&config)
-            .map_err(|e| anyhow::anyhow!("{e}"))
+            .map_err(anyhow::Error::from)
             .map(|config| {
                 let map = millgate::outputs::register_map::RegisterMap::new(&config);
                 print!("{}", millgate::cli::registers::export(&map, format));
@@ -138,7 +153,7 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(error) => {
-            eprintln!("millgate: {error:#}");
+            eprintln!("millgate: {}", sentence(&error));
             ExitCode::FAILURE
         }
     }

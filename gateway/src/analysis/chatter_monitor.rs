@@ -53,23 +53,58 @@ pub const MAX_STAND_LAG_S: f64 = 0.5;
 /// Fewest samples in a window.
 pub const MIN_WINDOW_SAMPLES: usize = 16;
 
-/// A tandem mill the monitor cannot be built for.
+/// A tandem mill the monitor cannot be built for. Each message starts with the key at
+/// fault (`tandem_mills[0].window_s`), as the configuration's own problems do.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ChatterSetupError {
-    #[error("tandem mill \"{mill}\": window_s {window_s} s at {sample_rate_hz} Hz gives {samples} samples (need at least {MIN_WINDOW_SAMPLES})")]
+    /// The window holds fewer than [`MIN_WINDOW_SAMPLES`] samples.
+    #[error(
+        "tandem_mills[{index}].window_s: {window_s} s at {sample_rate_hz} Hz gives {samples} \
+         samples, at least {MIN_WINDOW_SAMPLES} are needed (tandem mill \"{mill}\")"
+    )]
     WindowTooShort {
+        /// Index of the mill in the configuration.
+        index: usize,
+        /// The mill's name.
         mill: String,
+        /// Configured window, s.
         window_s: f64,
+        /// Sample rate of the stands, Hz.
         sample_rate_hz: f64,
+        /// Samples in that window.
         samples: usize,
     },
-    #[error("tandem mill \"{mill}\": {problem:?} (chatter band {low_hz}..{high_hz} Hz, window {window_s} s)")]
-    Detector {
+    /// The window's frequency step (1 / `window_s`) is too coarse for the chatter band:
+    /// no spectrum bin with a neighbour on each side falls inside it.
+    #[error(
+        "tandem_mills[{index}].window_s: {window_s} s is too short for the chatter band \
+         {low_hz}..{high_hz} Hz: its frequency step {step_hz} Hz leaves no spectrum bin \
+         inside the band with a neighbour on each side (tandem mill \"{mill}\")"
+    )]
+    WindowTooShortForBand {
+        /// Index of the mill in the configuration.
+        index: usize,
+        /// The mill's name.
         mill: String,
-        problem: ChatterError,
-        low_hz: f64,
-        high_hz: f64,
+        /// Configured window, s.
         window_s: f64,
+        /// Spectrum frequency step, Hz.
+        step_hz: f64,
+        /// Lower edge of the chatter band, Hz.
+        low_hz: f64,
+        /// Upper edge of the chatter band, Hz.
+        high_hz: f64,
+    },
+    /// The chatter detector refused the mill's settings.
+    #[error("tandem_mills[{index}]: {source} (tandem mill \"{mill}\")")]
+    Detector {
+        /// Index of the mill in the configuration.
+        index: usize,
+        /// The mill's name.
+        mill: String,
+        /// What the detector refused.
+        #[source]
+        source: ChatterError,
     },
 }
 
@@ -82,6 +117,21 @@ pub enum RestartCause {
     Lagging { stand: usize },
     /// This stand's sample count was re-anchored against the arrival times.
     Realigned { stand: usize },
+}
+
+impl std::fmt::Display for RestartCause {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            RestartCause::Gap { stand } => write!(f, "samples lost on stand {stand}"),
+            RestartCause::Lagging { stand } => write!(
+                f,
+                "stand {stand} fell more than {MAX_STAND_LAG_S} s behind the others"
+            ),
+            RestartCause::Realigned { stand } => {
+                write!(f, "stand {stand} re-anchored against the arrival times")
+            }
+        }
+    }
 }
 
 /// What one message to the monitor changed.
@@ -180,6 +230,7 @@ impl ChatterMonitor {
         let window = (mill.window_s * fs).round() as usize;
         if window < MIN_WINDOW_SAMPLES {
             return Err(ChatterSetupError::WindowTooShort {
+                index,
                 mill: mill.name.clone(),
                 window_s: mill.window_s,
                 sample_rate_hz: fs,
@@ -187,26 +238,30 @@ impl ChatterMonitor {
             });
         }
         let (low_hz, high_hz) = mill.chatter_band_hz;
-        let detector_error = |problem| ChatterSetupError::Detector {
-            mill: mill.name.clone(),
-            problem,
-            low_hz,
-            high_hz,
-            window_s: mill.window_s,
-        };
         let detector = ChatterDetector::new(ChatterSettings {
             band_low_hz: low_hz,
             band_high_hz: high_hz,
             k_max: mill.k_max,
         })
-        .map_err(detector_error)?;
+        .map_err(|source| ChatterSetupError::Detector {
+            index,
+            mill: mill.name.clone(),
+            source,
+        })?;
         let bins = window / 2 + 1;
         let step_hz = fs / window as f64;
         let low_bin = (low_hz / step_hz).ceil().max(1.0) as usize;
         let high_bin = (high_hz / step_hz).floor() as usize;
         // The same check as the detector's: a band bin with two neighbours.
         if low_bin > high_bin || high_bin + 1 >= bins {
-            return Err(detector_error(ChatterError::SpectrumLength));
+            return Err(ChatterSetupError::WindowTooShortForBand {
+                index,
+                mill: mill.name.clone(),
+                window_s: mill.window_s,
+                step_hz,
+                low_hz,
+                high_hz,
+            });
         }
         let mut planner = FftPlanner::new();
         let forward = planner.plan_fft_forward(window);
@@ -573,13 +628,13 @@ fn publish(publisher: &Publisher, mill: usize, monitor: &ChatterMonitor, change:
             }
             ChatterUpdate::Failed(error) => {
                 if published.k_mean.is_some() {
-                    tracing::warn!(mill = %name, ?error, "chatter window not evaluable");
+                    tracing::warn!(mill = %name, %error, "chatter window not evaluable");
                 }
                 clear(published);
             }
             ChatterUpdate::Restarted(cause) => {
                 if !was_flagged {
-                    tracing::warn!(mill = %name, ?cause, "chatter window restarted, values invalid");
+                    tracing::warn!(mill = %name, %cause, "chatter window restarted, values invalid");
                 }
                 clear(published);
                 published.source_stale = true;

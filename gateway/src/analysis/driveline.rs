@@ -71,19 +71,19 @@ impl DrivelineAnalyzer {
     ) -> Result<Self, AnalysisError> {
         let fs = torque.sample_rate_hz;
         let bite = driveline.bite;
-        let problem = |problem: String| AnalysisError::Bite { index, problem };
         let post_trigger_samples = (bite.post_trigger_s * fs).round() as usize;
         let pre_trigger_samples = (bite.pre_trigger_s * fs).round() as usize;
         if pre_trigger_samples > PRE_TRIGGER_CAPACITY
             || post_trigger_samples > WINDOW_CAPACITY - PRE_TRIGGER_CAPACITY
         {
-            return Err(problem(format!(
-                "pre_trigger_s {} and post_trigger_s {} at {fs} Hz need {pre_trigger_samples} + \
-                 {post_trigger_samples} samples (at most {PRE_TRIGGER_CAPACITY} + {})",
-                bite.pre_trigger_s,
-                bite.post_trigger_s,
-                WINDOW_CAPACITY - PRE_TRIGGER_CAPACITY
-            )));
+            return Err(AnalysisError::BiteWindow {
+                index,
+                pre_trigger_s: bite.pre_trigger_s,
+                post_trigger_s: bite.post_trigger_s,
+                sample_rate_hz: fs,
+                pre_samples: pre_trigger_samples,
+                post_samples: post_trigger_samples,
+            });
         }
         // i16 samples: the ends of the raw range are saturation.
         let raw_limit = |raw: i16| f64::from(raw) * torque.scale + torque.offset;
@@ -98,7 +98,8 @@ impl DrivelineAnalyzer {
             saturation_high_knm: low.max(high),
             post_trigger_samples,
         };
-        let detector = Detector::new(settings).map_err(|e| problem(format!("{e:?}")))?;
+        let detector = Detector::new(settings)
+            .map_err(|source| AnalysisError::BiteSettings { index, source })?;
         let mut transient = TransientSettings {
             sample_rate_hz: fs,
             period_lowpass_hz: PERIOD_LOWPASS_HZ.min(0.4 * fs),
@@ -194,7 +195,7 @@ impl DrivelineAnalyzer {
         let analysis = match result {
             Ok(analysis) => analysis,
             Err(error) => {
-                tracing::warn!(driveline = %self.name, ?error, "bite window not analysable");
+                tracing::warn!(driveline = %self.name, %error, "bite window not analysable");
                 return None;
             }
         };

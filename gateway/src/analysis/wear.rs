@@ -28,7 +28,7 @@
 
 use std::collections::BTreeMap;
 
-use millgate_dsp::transient::TransientSettings;
+use millgate_dsp::transient::{TransientError, TransientSettings};
 use millgate_sim::chain::simulate;
 use millgate_sim::model::{Model, ModelError};
 
@@ -59,8 +59,14 @@ pub enum WearError {
     #[error("the linear reference at {static_knm} kN*m gives no bite window")]
     NoBite { static_knm: f64 },
     /// The reference bite was detected but not analysable.
-    #[error("the linear reference at {static_knm} kN*m is not analysable: {problem}")]
-    Analysis { static_knm: f64, problem: String },
+    #[error("the linear reference at {static_knm} kN*m is not analysable: {source}")]
+    Analysis {
+        /// The static torque simulated, kN*m.
+        static_knm: f64,
+        /// Why the transient analysis refused the window.
+        #[source]
+        source: TransientError,
+    },
     /// The reference has no TAF (static torque below the analysis minimum).
     #[error("the linear reference at {static_knm} kN*m has no TAF")]
     NoTaf { static_knm: f64 },
@@ -225,7 +231,7 @@ impl WearReference {
         )
         .map_err(|error| WearError::Analysis {
             static_knm: level_knm,
-            problem: format!("{error:?}"),
+            source: error,
         })?;
         let taf = analysis.transient.taf.ok_or(WearError::NoTaf {
             static_knm: level_knm,

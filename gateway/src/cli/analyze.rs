@@ -137,7 +137,6 @@ fn analyse_window(
         );
     }
     let analysis = analyze_window(samples, 0, 0.0, ONSET_KNM, settings)
-        .map_err(|e| anyhow::anyhow!("{e:?}"))
         .with_context(|| format!("analysing {}..{} s", window.start_s, window.end_s))?;
     Ok(Event {
         t_bite_s: time_s.get(first).copied().unwrap_or(window.start_s),
@@ -161,7 +160,7 @@ fn detect(
         saturation_high_knm: f64::INFINITY,
         post_trigger_samples: post,
     })
-    .map_err(|e| anyhow::anyhow!("detector settings: {e:?}"))?;
+    .context("detector settings")?;
     let mut state = detector.state();
     let mut windows = Vec::new();
     detector.block(&mut state, signal, |event| windows.push(event));
@@ -185,7 +184,7 @@ fn detect(
             }),
             Err(error) => tracing::warn!(
                 t_s = time_s[event.trigger_sample as usize],
-                ?error,
+                %error,
                 "bite window not analysed"
             ),
         }
@@ -214,7 +213,7 @@ fn event_json(event: &Event) -> Value {
     let t = &event.analysis.transient;
     let fit = match &event.analysis.fit {
         Ok(fit) => fit_json(fit),
-        Err(error) => json!({ "error": format!("{error:?}") }),
+        Err(error) => json!({ "error": error.to_string() }),
     };
     json!({
         "t_bite_s": event.t_bite_s,
@@ -274,7 +273,7 @@ fn text(channel: &str, rate: f64, events: &[Event]) -> anyhow::Result<String> {
                 let params: Vec<String> = fit.params.iter().map(|p| format!("{p:.4}")).collect();
                 writeln!(out, "       params = [{}]", params.join(", "))?;
             }
-            Err(error) => writeln!(out, "  fit: failed ({error:?})")?,
+            Err(error) => writeln!(out, "  fit: failed ({error})")?,
         }
     }
     Ok(out)

@@ -60,9 +60,7 @@ pub fn run(args: &StiffnessArgs) -> anyhow::Result<String> {
             c12_nm_per_rad: c12,
             c23_nm_per_rad: c23,
         };
-        let beta = forward(&inertias, &stiffness)
-            .map_err(|e| anyhow::anyhow!("invalid input: {e:?}"))
-            .context("stiffness forward")?;
+        let beta = forward(&inertias, &stiffness).context("stiffness forward")?;
         match args.format {
             OutputFormat::Json => {
                 out = json!({"beta1_hz": beta.beta1_hz, "beta2_hz": beta.beta2_hz}).to_string();
@@ -94,7 +92,6 @@ pub fn run(args: &StiffnessArgs) -> anyhow::Result<String> {
         &NaturalFrequencies { beta1_hz, beta2_hz },
         drawing.as_ref(),
     )
-    .map_err(|e| anyhow::anyhow!("invalid input: {e:?}"))
     .context("stiffness inverse")?;
     match args.format {
         OutputFormat::Json => {

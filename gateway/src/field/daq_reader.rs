@@ -29,10 +29,12 @@ use crate::shutdown::Shutdown;
 #[derive(Debug, thiserror::Error)]
 pub enum DaqError {
     /// No TCP connection could be made.
-    #[error("cannot connect to {address}: {error}")]
+    #[error("cannot connect to {address}: {source}")]
     Connect {
+        /// The DAQ's `host:port`.
         address: String,
-        error: std::io::Error,
+        /// Refused, unreachable, unresolvable, ...
+        source: std::io::Error,
     },
     /// The device did not answer in time.
     #[error("no answer within {0:?}")]
@@ -43,12 +45,20 @@ pub enum DaqError {
     /// The device answered with a Modbus exception: it refused the request.
     #[error("device refused register {address}: {exception}")]
     Exception {
+        /// The first register of the request.
         address: u16,
+        /// The exception code the device answered with.
+        #[source]
         exception: ExceptionCode,
     },
     /// The device answered, but the block does not follow the layout.
-    #[error("malformed block at register {address}: {error}")]
-    Block { address: u16, error: BlockError },
+    #[error("malformed block at register {address}: {source}")]
+    Block {
+        /// The block's first register.
+        address: u16,
+        /// What is wrong with it.
+        source: BlockError,
+    },
 }
 
 impl DaqError {
@@ -156,7 +166,7 @@ impl DaqReader {
                 ConnectError::Timeout(timeout) => DaqError::Timeout(timeout),
                 ConnectError::Io(error) => DaqError::Connect {
                     address: source.address.clone(),
-                    error,
+                    source: error,
                 },
             })
     }
@@ -244,7 +254,7 @@ impl DaqReader {
                     block.counters.error();
                     first_error.get_or_insert(DaqError::Block {
                         address: block.base,
-                        error,
+                        source: error,
                     });
                     continue;
                 }

@@ -29,19 +29,27 @@ const MAX_WRITE_REGISTERS: usize = 123;
 /// Why a write to the PLC failed.
 #[derive(Debug, thiserror::Error)]
 pub enum PlcError {
-    #[error("cannot connect to PLC {address}: {error}")]
+    /// No TCP connection could be made ("the network failed").
+    #[error("cannot connect to PLC {address}: {source}")]
     Connect {
+        /// The PLC's `host:port`.
         address: String,
-        error: std::io::Error,
+        /// Refused, unreachable, unresolvable, ...
+        source: std::io::Error,
     },
+    /// The PLC did not answer in time.
     #[error("PLC did not answer within {0:?}")]
     Timeout(Duration),
+    /// The connection failed or the reply could not be decoded.
     #[error("PLC transport: {0}")]
     Transport(#[from] tokio_modbus::Error),
     /// The PLC refused the write: wrong base address, or registers write-protected.
     #[error("PLC refused the write at register {address}: {exception}")]
     Refused {
+        /// The first register of the refused request.
         address: u16,
+        /// The exception code the PLC answered with.
+        #[source]
         exception: ExceptionCode,
     },
 }
@@ -65,7 +73,7 @@ impl PlcWriter {
                 ConnectError::Timeout(timeout) => PlcError::Timeout(timeout),
                 ConnectError::Io(error) => PlcError::Connect {
                     address: output.address.clone(),
-                    error,
+                    source: error,
                 },
             })
     }
