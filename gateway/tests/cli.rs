@@ -60,6 +60,44 @@ fn check_names_the_key_and_the_known_channels_of_a_misspelt_name() {
 }
 
 #[test]
+fn check_builds_the_driveline_model_and_names_the_model_file_and_key() {
+    let model = std::fs::read_to_string(
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../sim/models/table2-adjusted.toml"),
+    )
+    .unwrap();
+    let malformed = model.replace("inertia = 11.85e3", "inertia = -11.85e3");
+    assert_ne!(model, malformed, "the model has the pinion's inertia");
+    let demo = std::fs::read_to_string(examples().join("demo.toml")).unwrap();
+    let with_model = demo.replace(
+        "torque = \"spindle_top\"\n",
+        "torque = \"spindle_top\"\nmodel = \"bad-model.toml\"\n",
+    );
+    assert_ne!(demo, with_model, "the demo driveline names its torque");
+    let path = write_config("bad-model", &with_model);
+    let model_path = path.with_file_name("bad-model.toml");
+    std::fs::write(&model_path, malformed).unwrap();
+    let output = millgate(&["check", "--config", path.to_str().unwrap()]);
+    let said = text(&output);
+    assert!(!output.status.success(), "must fail: {said}");
+    assert!(
+        said.contains("mill.toml: drivelines[0].model: "),
+        "names the configuration file and key: {said}"
+    );
+    assert!(
+        said.contains("bad-model.toml"),
+        "names the model file: {said}"
+    );
+    assert!(
+        said.contains("mass[1].inertia: -11850 is not allowed"),
+        "names the key in the model: {said}"
+    );
+    // The same model, valid, passes: the wear reference is built from it.
+    std::fs::write(&model_path, model).unwrap();
+    let output = millgate(&["check", "--config", path.to_str().unwrap()]);
+    assert!(output.status.success(), "{}", text(&output));
+}
+
+#[test]
 fn check_names_the_line_of_malformed_toml() {
     let path = write_config("malformed", "name = \"x\"\n\n[[channels]\nname = 1\n");
     let output = millgate(&["check", "--config", path.to_str().unwrap()]);
