@@ -7,4 +7,5 @@ pub mod fit;
 mod linalg;
 pub mod pencil;
 pub mod stiffness;
+pub mod testing;
 pub mod transient;

@@ -2,55 +2,14 @@
 //! system one, and the measured section (detector + transient analysis + eq. (1) fit
 //! over more than 1e6 samples with several bites) must allocate nothing. Only the
 //! measuring thread is counted: the test harness allocates on its own threads.
-#![allow(unsafe_code)]
 
 use millgate_dsp::bite::{BiteDetector, BiteSettings};
 use millgate_dsp::fit::{eq1, fit_eq1, FitOptions};
 use millgate_dsp::transient::{analyze, TransientSettings};
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
-
-struct Counting;
-
-thread_local! {
-    /// True while this thread is under measurement (const-initialised: no allocation).
-    static MEASURING: Cell<bool> = const { Cell::new(false) };
-    /// Allocations made by this thread while measuring.
-    static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
-}
-
-fn count() {
-    if MEASURING.try_with(Cell::get).unwrap_or(false) {
-        let _ = ALLOCATIONS.try_with(|a| a.set(a.get() + 1));
-    }
-}
-
-fn allocations() -> usize {
-    ALLOCATIONS.with(Cell::get)
-}
-
-// SAFETY: forwards every call unchanged to `System`, only counting them.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        count();
-        // SAFETY: same contract as the caller's.
-        unsafe { System.alloc(layout) }
-    }
-
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        // SAFETY: `ptr` was allocated by `System` with `layout`.
-        unsafe { System.dealloc(ptr, layout) }
-    }
-
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        count();
-        // SAFETY: same contract as the caller's.
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
+use millgate_tests::counting_allocator::{allocations_during, CountingAllocator};
 
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: CountingAllocator = CountingAllocator;
 
 const TABLE1: [f64; 10] = [
     -147.0, 85.0, 191.0, -31.0, 11.99, 20.91, 22.17, 3.65, 112.0, 36.7,
@@ -96,28 +55,26 @@ fn detector_analysis_and_fit_never_allocate() {
     let mut state = detector.state();
     let (mut events, mut fits, mut f1_sum) = (0, 0, 0.0);
 
-    let before = allocations();
-    MEASURING.with(|m| m.set(true));
-    for i in 0..1_200_000 {
-        if let Some(event) = detector.process(&mut state, torque(i)) {
-            events += 1;
-            let result = analyze::<N>(
-                &event.window,
-                event.trigger_index,
-                event.baseline_knm,
-                &transient,
-            );
-            if result.is_ok() {
-                let post = &event.window[event.trigger_index..];
-                if let Ok(fit) = fit_eq1(post, &options) {
-                    fits += 1;
-                    f1_sum += fit.f1_hz;
+    let ((), allocations) = allocations_during(|| {
+        for i in 0..1_200_000 {
+            if let Some(event) = detector.process(&mut state, torque(i)) {
+                events += 1;
+                let result = analyze::<N>(
+                    &event.window,
+                    event.trigger_index,
+                    event.baseline_knm,
+                    &transient,
+                );
+                if result.is_ok() {
+                    let post = &event.window[event.trigger_index..];
+                    if let Ok(fit) = fit_eq1(post, &options) {
+                        fits += 1;
+                        f1_sum += fit.f1_hz;
+                    }
                 }
             }
         }
-    }
-    MEASURING.with(|m| m.set(false));
-    let allocations = allocations() - before;
+    });
 
     assert_eq!(allocations, 0);
     assert_eq!(events, 12);
@@ -133,10 +90,8 @@ fn detector_analysis_and_fit_never_allocate() {
 #[test]
 fn counter_sees_an_allocation_on_the_measuring_thread() {
     // Guards the guard: a Vec allocated while measuring must be counted.
-    let before = allocations();
-    MEASURING.with(|m| m.set(true));
-    let v: Vec<u64> = std::hint::black_box(Vec::with_capacity(16));
-    MEASURING.with(|m| m.set(false));
+    let (v, allocations) =
+        allocations_during(|| std::hint::black_box(Vec::<u64>::with_capacity(16)));
     drop(v);
-    assert!(allocations() > before);
+    assert!(allocations > 0);
 }
