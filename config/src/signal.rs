@@ -28,7 +28,9 @@ pub struct SignalLayout {
     pub little_endian: bool,
     /// Two's-complement signed raw value.
     pub signed: bool,
+    /// DBC factor: physical value = raw * factor + offset.
     pub factor: f64,
+    /// DBC offset.
     pub offset: f64,
 }
 

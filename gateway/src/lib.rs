@@ -1,6 +1,8 @@
 //! millgate: the edge gateway's library. The `millgate` binary only parses the
 //! command line and calls into it; [`service::run`] is the service.
 
+#![warn(missing_docs)]
+
 pub mod analysis;
 pub mod cli;
 pub mod field;

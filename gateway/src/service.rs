@@ -50,6 +50,7 @@ pub enum ServiceError {
 }
 
 /// A configured, not yet running gateway.
+#[derive(Debug)]
 pub struct Service {
     config: Config,
     publisher: Arc<Publisher>,

@@ -198,9 +198,7 @@ fn a_model_that_does_not_load_is_named() {
     ));
     let publisher = Arc::new(Publisher::new(&config, vec![health]));
     let (bites, _) = tokio::sync::broadcast::channel(1);
-    let error = Analysis::new(&config, publisher, bites)
-        .err()
-        .expect("missing model refused");
+    let error = Analysis::new(&config, publisher, bites).expect_err("missing model refused");
     assert!(
         error.to_string().starts_with("drivelines[0].model:"),
         "{error}"

@@ -33,9 +33,11 @@ pub struct BiteTruth {
 /// A whole schedule: the measured torque and the truth of each bite.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Schedule {
+    /// Sample rate of `torque_knm`, Hz.
     pub sample_rate_hz: f64,
     /// Measured torque, kN*m, with noise when asked for.
     pub torque_knm: Vec<f64>,
+    /// The truth of each bar's bite, in order.
     pub bites: Vec<BiteTruth>,
 }
 

@@ -18,6 +18,7 @@ pub(crate) type DetectorState = BiteDetectorState<PRE_TRIGGER_CAPACITY, WINDOW_C
 /// What one bite window gives: the transient measures and the eq. (1) fit.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct WindowAnalysis {
+    /// Static torque, peak, TAF and periods of the window.
     pub transient: TransientResult,
     /// The fit of eq. (1) from the load onset on (t = 0 at `fit_start_index`).
     pub fit: Result<Eq1Fit, FitError>,

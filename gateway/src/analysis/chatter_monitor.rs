@@ -112,11 +112,20 @@ pub enum ChatterSetupError {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum RestartCause {
     /// The reader reported lost samples on this stand.
-    Gap { stand: usize },
+    Gap {
+        /// Index of the stand in the mill.
+        stand: usize,
+    },
     /// This stand fell more than [`MAX_STAND_LAG_S`] behind the others.
-    Lagging { stand: usize },
+    Lagging {
+        /// Index of the stand in the mill.
+        stand: usize,
+    },
     /// This stand's sample count was re-anchored against the arrival times.
-    Realigned { stand: usize },
+    Realigned {
+        /// Index of the stand in the mill.
+        stand: usize,
+    },
 }
 
 impl std::fmt::Display for RestartCause {
@@ -216,6 +225,19 @@ pub struct ChatterMonitor {
     reference_origin_s: Option<f64>,
     lagging: Option<usize>,
     evaluations: u64,
+}
+
+// By hand: the FFT plans (`dyn Fft`) have no Debug; the buffers are not worth printing.
+impl std::fmt::Debug for ChatterMonitor {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ChatterMonitor")
+            .field("name", &self.name)
+            .field("stands", &self.stands.len())
+            .field("window", &self.window)
+            .field("hop", &self.hop)
+            .field("evaluations", &self.evaluations)
+            .finish_non_exhaustive()
+    }
 }
 
 impl ChatterMonitor {
@@ -541,6 +563,7 @@ pub fn chatter_frequency_hz(result: &ChatterResult) -> Option<f64> {
 /// sigma_min, this window) and the alarm bit (both conditions; latched until
 /// acknowledged, like the driveline alarms). A restart clears the values and sets
 /// "source stale" until the next full window.
+#[derive(Debug)]
 pub struct ChatterAnalysis {
     monitors: Vec<ChatterMonitor>,
     /// Per channel: the (mill, stand) pairs it feeds.

@@ -24,8 +24,11 @@ const PERIOD_LOWPASS_HZ: f64 = 40.0;
 /// One analysed bite, as printed by the demo and logged by the service.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BiteReport {
+    /// Index of the driveline in the configuration.
     pub driveline: usize,
+    /// The driveline's name.
     pub driveline_name: String,
+    /// The torque channel's name.
     pub channel_name: String,
     /// Index of the trigger sample in the channel's stream since start.
     pub trigger_sample: u64,
@@ -35,6 +38,7 @@ pub struct BiteReport {
     pub time: SystemTime,
     /// When the window's last sample was handed to analysis (before the analysis ran).
     pub window_complete: Instant,
+    /// Static torque, peak, TAF and periods.
     pub transient: TransientResult,
     /// Natural frequencies from the eq. (1) fit, Hz, when it converged.
     pub beta_hz: Option<(f64, f64)>,
@@ -46,6 +50,7 @@ pub struct BiteReport {
 }
 
 /// Bite detection and analysis of one driveline.
+#[derive(Debug)]
 pub(super) struct DrivelineAnalyzer {
     index: usize,
     name: String,

@@ -69,6 +69,7 @@ pub enum AnalysisError {
 }
 
 /// The analysis task: consumes samples until every reader has hung up.
+#[derive(Debug)]
 pub struct Analysis {
     drivelines: Vec<DrivelineAnalyzer>,
     /// Per channel: the drivelines whose torque it is.

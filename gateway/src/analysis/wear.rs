@@ -57,7 +57,10 @@ pub enum WearError {
     Model(#[from] ModelError),
     /// The simulated load never crossed the bite threshold, or the window was cut.
     #[error("the linear reference at {static_knm} kN*m gives no bite window")]
-    NoBite { static_knm: f64 },
+    NoBite {
+        /// The static torque simulated, kN*m.
+        static_knm: f64,
+    },
     /// The reference bite was detected but not analysable.
     #[error("the linear reference at {static_knm} kN*m is not analysable: {source}")]
     Analysis {
@@ -69,7 +72,10 @@ pub enum WearError {
     },
     /// The reference has no TAF (static torque below the analysis minimum).
     #[error("the linear reference at {static_knm} kN*m has no TAF")]
-    NoTaf { static_knm: f64 },
+    NoTaf {
+        /// The static torque simulated, kN*m.
+        static_knm: f64,
+    },
 }
 
 /// The linear reference at one static torque level.

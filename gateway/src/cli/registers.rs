@@ -9,8 +9,11 @@ use crate::outputs::register_map::RegisterMap;
 /// Output format of the export.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Format {
+    /// A Markdown table (the README's).
     Md,
+    /// CSV with a header line.
     Csv,
+    /// A JSON array of registers.
     Json,
 }
 

@@ -17,16 +17,26 @@ pub enum Acquired {
     /// samples were taken). Analysis then dates bites from it rather than from the
     /// time it processes them.
     Samples {
+        /// Index of the channel in the configuration.
         channel: usize,
+        /// The samples, oldest first, in engineering units.
         values: Vec<f64>,
+        /// When the last of `values` was received, when known (see above).
         received: Option<SystemTime>,
     },
     /// Samples were lost on this channel between the previous and the next
     /// `Samples`: the analysis must not join across it. `missed_samples` when known.
     Gap {
+        /// Index of the channel in the configuration.
         channel: usize,
+        /// Samples lost, when the reader knows (Modbus sequence numbers).
         missed_samples: Option<u64>,
     },
     /// The latest value of a scalar process value.
-    ProcessValue { channel: usize, value: f64 },
+    ProcessValue {
+        /// Index of the channel in the configuration.
+        channel: usize,
+        /// The value in engineering units.
+        value: f64,
+    },
 }

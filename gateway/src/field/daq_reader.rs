@@ -71,6 +71,7 @@ impl DaqError {
     }
 }
 
+#[derive(Debug)]
 struct BlockChannel {
     channel: usize,
     table: RegisterTable,
@@ -82,6 +83,7 @@ struct BlockChannel {
     counters: Arc<ChannelCounters>,
 }
 
+#[derive(Debug)]
 struct ValueChannel {
     channel: usize,
     table: RegisterTable,
@@ -94,6 +96,7 @@ struct ValueChannel {
 }
 
 /// Reads every channel of one Modbus source.
+#[derive(Debug)]
 pub struct DaqReader {
     name: String,
     source: ModbusSource,

@@ -138,12 +138,14 @@ impl tokio_modbus::server::Service for MapService {
 }
 
 /// The gateway's Modbus TCP server.
+#[derive(Debug)]
 pub struct ModbusServer {
     output: ServerOutput,
     publisher: Arc<Publisher>,
 }
 
 impl ModbusServer {
+    /// A server of `publisher`'s map with the settings of `output`.
     pub fn new(output: ServerOutput, publisher: Arc<Publisher>) -> Self {
         Self { output, publisher }
     }

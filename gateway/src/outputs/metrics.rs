@@ -33,6 +33,7 @@ type CanMetric = (
 );
 
 /// What the metrics page shows.
+#[derive(Debug)]
 pub struct Metrics {
     channel_names: Vec<String>,
     source_names: Vec<String>,
@@ -68,6 +69,9 @@ fn escape(label: &str) -> String {
 }
 
 impl Metrics {
+    /// The page for `config`: per channel its `counters`, per source its `health`
+    /// (Modbus sources, then CAN sources), per CAN source its `can_counters`, and the
+    /// results of `publisher`.
     pub fn new(
         config: &Config,
         counters: Vec<Arc<ChannelCounters>>,

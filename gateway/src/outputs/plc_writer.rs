@@ -55,12 +55,14 @@ pub enum PlcError {
 }
 
 /// Writes the published register map to one PLC.
+#[derive(Debug)]
 pub struct PlcWriter {
     output: PlcOutput,
     publisher: Arc<Publisher>,
 }
 
 impl PlcWriter {
+    /// A writer of `publisher`'s map to the PLC of `output`.
     pub fn new(output: PlcOutput, publisher: Arc<Publisher>) -> Self {
         Self { output, publisher }
     }

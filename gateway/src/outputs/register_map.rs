@@ -18,7 +18,9 @@ use crate::outputs::results::{DrivelineResults, GatewayState, MillResults, Resul
 /// Whether clients may write a register.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Access {
+    /// Read only (FC 03 / 04); a write gets exception 02.
     Read,
+    /// A command register: readable and writable (FC 06 / 16).
     ReadWrite,
 }
 
@@ -35,44 +37,68 @@ impl Access {
 /// Per-driveline quantities, in register order.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum DrivelineField {
+    /// Warning, alarm, stale and degraded bits ([`driveline_flags`]).
     Flags,
+    /// Bit i set: value i of the block is valid.
     Quality,
+    /// Bites analysed since start.
     BiteCounter,
+    /// Time of the last bite, Unix seconds.
     LastBiteTime,
+    /// Static torque of the last bite, kN*m.
     StaticTorque,
+    /// Peak torque of the last bite, kN*m.
     PeakTorque,
+    /// Torque amplification factor of the last bite.
     Taf,
+    /// First minus second oscillation period of the last bite, s.
     PeriodShift,
+    /// First natural frequency from the eq. (1) fit, Hz.
     Beta1,
+    /// Second natural frequency from the eq. (1) fit, Hz.
     Beta2,
+    /// Wear index of the last bite.
     WearIndex,
+    /// Wear trend (EWMA of the wear index).
     WearTrend,
 }
 
 /// Per-mill chatter quantities, in register order.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum MillField {
+    /// Warning, alarm and stale bits.
     Flags,
+    /// Bit i set: value i of the block is valid.
     Quality,
+    /// RMS difference of adjacent stands' principal frequencies, Hz.
     SigmaN,
+    /// Mean correlation of adjacent stands' chatter-band vibration.
     KMean,
+    /// Mean of the stands' principal frequencies in the chatter band, Hz.
     ChatterFrequency,
 }
 
 /// What a register holds.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Field {
+    /// Incremented every write period.
     Heartbeat,
+    /// Running, stopped, source problem bits ([`status_bits`]).
     GatewayStatus,
+    /// Bit i: source i answers.
     SourcesOk,
+    /// Bit i: source i is stale.
     SourcesStale,
+    /// Bit i: source i is lost.
     SourcesLost,
     /// Command: write 1 to acknowledge latched alarms.
     AcknowledgeAlarms,
     /// Command: write a bitmask of drivelines (bit k = driveline k) to reset their
     /// wear trend.
     ResetWearTrend,
+    /// A quantity of driveline k (config order).
     Driveline(usize, DrivelineField),
+    /// A quantity of tandem mill k (config order).
     Mill(usize, MillField),
 }
 
@@ -83,13 +109,19 @@ pub struct Register {
     pub name: String,
     /// Offset from the map's base.
     pub address: u16,
+    /// How the value is encoded (one register for 16-bit types, two for 32-bit).
     pub value_type: ValueType,
+    /// Unit of the physical value (empty for counts and bits).
     pub unit: &'static str,
     /// Physical value = register value * scale.
     pub scale: f64,
+    /// Order of the words and bytes of 32-bit values.
     pub word_order: WordOrder,
+    /// Read only or a command.
     pub access: Access,
+    /// One sentence for the documentation and exports.
     pub description: String,
+    /// What the register holds.
     pub field: Field,
 }
 

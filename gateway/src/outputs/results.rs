@@ -30,8 +30,9 @@ pub struct DrivelineResults {
     pub wear_trend: Option<f64>,
     /// The last bite's window had gaps, NaN or saturated samples.
     pub last_bite_degraded: bool,
-    /// TAF warning and alarm bits (alarm latched until acknowledged).
+    /// TAF at or above the warning threshold at the last bite.
     pub warning: bool,
+    /// TAF reached the alarm threshold; latched until acknowledged.
     pub alarm: bool,
     /// The torque channel's source is stale or lost: every value is flagged.
     pub source_stale: bool,
@@ -61,21 +62,27 @@ pub struct MillResults {
 /// The gateway's own state as published in the status register.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum GatewayState {
+    /// Built, tasks not started yet.
     #[default]
     Starting,
+    /// Readers, analysis and outputs running.
     Running,
+    /// Shut down: the values are the last ones and will not change.
     Stopped,
 }
 
 /// Everything the outputs publish.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Results {
+    /// Starting, running or stopped.
     pub state: GatewayState,
     /// Incremented on every write to the PLC.
     pub heartbeat: u16,
     /// Per source, in config order: Modbus sources first, then CAN sources.
     pub sources: Vec<Option<SourceStatus>>,
+    /// Per driveline, in config order.
     pub drivelines: Vec<DrivelineResults>,
+    /// Per tandem mill, in config order.
     pub mills: Vec<MillResults>,
 }
 

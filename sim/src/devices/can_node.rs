@@ -43,30 +43,52 @@ pub enum CanNodeError {
     NoSignals,
     /// The signals given for one message do not share one frame id.
     #[error("signals of one CAN message must share its id: {first:#x} and {other:#x}")]
-    MixedIds { first: u32, other: u32 },
+    MixedIds {
+        /// The first signal's frame id.
+        first: u32,
+        /// Another signal's, different.
+        other: u32,
+    },
     /// The identifier does not fit its format (11 or 29 bits).
     #[error("CAN id {frame_id:#x} does not fit a {} identifier", if *.extended { "29-bit" } else { "11-bit" })]
-    BadId { frame_id: u32, extended: bool },
+    BadId {
+        /// The identifier.
+        frame_id: u32,
+        /// 29-bit (extended) format when true, 11-bit otherwise.
+        extended: bool,
+    },
     /// Frame length beyond CAN FD's 64 bytes.
     #[error("CAN frame length {len} bytes exceeds 64")]
-    TooLong { len: usize },
+    TooLong {
+        /// The requested length, bytes.
+        len: usize,
+    },
     /// A row does not have one value per signal.
     #[error("expected {expected} values for the message, got {got}")]
-    WrongValueCount { expected: usize, got: usize },
+    WrongValueCount {
+        /// Signals of the message.
+        expected: usize,
+        /// Values given.
+        got: usize,
+    },
     /// A signal lies beyond the message length.
     #[error(transparent)]
     FrameTooShort(#[from] FrameTooShort),
     /// The interface could not be opened.
     #[error("cannot open CAN interface `{interface}`: {source}{}", if source.raw_os_error() == Some(EAFNOSUPPORT) { " (SocketCAN not available in this kernel; run scripts/uml-vcan)" } else { "" })]
     Open {
+        /// The interface name.
         interface: String,
+        /// Why.
         #[source]
         source: io::Error,
     },
     /// Sending a frame failed.
     #[error("writing to CAN interface `{interface}`: {source}")]
     Write {
+        /// The interface name.
         interface: String,
+        /// Why.
         #[source]
         source: io::Error,
     },

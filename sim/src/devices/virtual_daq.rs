@@ -19,11 +19,13 @@ use super::modbus_bank::{serve, RegisterBank, Running, ServeOptions, SharedBank}
 /// Where a signal is published and how it is scaled.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Placement {
+    /// Input or holding registers.
     pub table: RegisterTable,
     /// First register (block base, or the process value's register).
     pub address: u16,
     /// Engineering value = raw * scale + offset.
     pub scale: f64,
+    /// Engineering value at raw 0.
     pub offset: f64,
 }
 
@@ -34,7 +36,9 @@ pub enum Publish {
     Block,
     /// A scalar process value.
     Value {
+        /// How the registers encode the value.
         value_type: ValueType,
+        /// Where the value's bytes land in the registers.
         word_order: WordOrder,
     },
 }
@@ -42,7 +46,9 @@ pub enum Publish {
 /// One channel of the virtual DAQ.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DaqChannel {
+    /// Where the channel is published and how it is scaled.
     pub placement: Placement,
+    /// As a block buffer or a process value.
     pub publish: Publish,
     /// The signal in engineering units at the DAQ's sample rate; played once,
     /// then the last value is held.

@@ -12,12 +12,12 @@ use crate::field::counters::BusState;
 /// Error-frame class bits in the CAN id and controller status bits in data[1]
 /// (linux/can/error.h).
 mod error_bits {
-    pub const CRTL: u32 = 0x0004;
-    pub const BUSOFF: u32 = 0x0040;
-    pub const RESTARTED: u32 = 0x0100;
-    pub const CRTL_RX_PASSIVE: u8 = 0x10;
-    pub const CRTL_TX_PASSIVE: u8 = 0x20;
-    pub const CRTL_ACTIVE: u8 = 0x40;
+    pub(super) const CRTL: u32 = 0x0004;
+    pub(super) const BUSOFF: u32 = 0x0040;
+    pub(super) const RESTARTED: u32 = 0x0100;
+    pub(super) const CRTL_RX_PASSIVE: u8 = 0x10;
+    pub(super) const CRTL_TX_PASSIVE: u8 = 0x20;
+    pub(super) const CRTL_ACTIVE: u8 = 0x40;
 }
 
 /// The bus state an error frame reports, if it reports one: bus off, error passive,

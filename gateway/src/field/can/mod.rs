@@ -5,7 +5,7 @@
 //! layouts of the channels on that interface ([`CanDecoder`], pure and host-testable)
 //! and sends [`Acquired::Samples`] over a bounded channel. Frames with an id no
 //! channel uses, frames too short for their signals, remote and error frames are
-//! counted in [`CanCounters`] and otherwise ignored.
+//! counted in [`CanCounters`](crate::field::counters::CanCounters) and otherwise ignored.
 //!
 //! Frames are read in batches, up to 64 per `recvmmsg` call.
 //!
@@ -50,34 +50,52 @@ use crate::field::acquired::Acquired;
 pub enum CanError {
     /// The configuration has no CAN source with this index.
     #[error("no CAN source with index {index}: the configuration has {count}")]
-    NoSuchSource { index: usize, count: usize },
+    NoSuchSource {
+        /// The index asked for.
+        index: usize,
+        /// CAN sources in the configuration.
+        count: usize,
+    },
     /// The running kernel was built without SocketCAN (`socket(AF_CAN)` gives errno 97).
     #[error(
         "SocketCAN not available in this kernel (errno 97) for CAN interface `{interface}`; \
          run the vcan suite through scripts/uml-vcan"
     )]
-    NoSocketCan { interface: String },
+    NoSocketCan {
+        /// The interface name.
+        interface: String,
+    },
     /// The kernel has SocketCAN but no interface of that name (errno 19).
     #[error(
         "no such CAN interface `{interface}` (errno 19, ENODEV); create it, e.g. \
          `ip link add dev {interface} type vcan && ip link set up {interface}`"
     )]
-    NoSuchInterface { interface: String },
+    NoSuchInterface {
+        /// The interface name.
+        interface: String,
+    },
     /// Any other failure to open or configure the socket.
     #[error("cannot open CAN interface `{interface}`: {source}")]
     Open {
+        /// The interface name.
         interface: String,
+        /// Why.
         #[source]
         source: io::Error,
     },
     /// Reading from an open socket failed (e.g. the interface went away).
     #[error("reading CAN interface `{interface}`: {source}")]
     Read {
+        /// The interface name.
         interface: String,
+        /// Why.
         #[source]
         source: io::Error,
     },
     /// The receiving end of the sample channel was dropped.
     #[error("CAN reader for `{interface}`: the sample channel is closed")]
-    SamplesClosed { interface: String },
+    SamplesClosed {
+        /// The interface name.
+        interface: String,
+    },
 }
