@@ -1,6 +1,4 @@
-//! millgate: the edge gateway's library. The `millgate` binary only parses the
-//! command line and calls into it; [`service::run`] is the service.
-
+#![doc = include_str!("../README.md")]
 #![warn(missing_docs)]
 
 pub mod analysis;
