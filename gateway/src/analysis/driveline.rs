@@ -11,8 +11,8 @@ use millgate_dsp::transient::{TransientResult, TransientSettings};
 use super::bite_window::{
     analyze_window, Detector, DetectorState, PRE_TRIGGER_CAPACITY, WINDOW_CAPACITY,
 };
+use super::error::AnalysisError;
 use super::wear::{self, WearEstimate, WearReference};
-use super::AnalysisError;
 use crate::outputs::publisher::Publisher;
 
 /// Low-pass cut-off for period measurement of a driveline without a model, Hz: keeps

@@ -5,9 +5,6 @@
 use std::sync::atomic::{AtomicU64, AtomicU8, Ordering};
 use std::time::{Duration, SystemTime};
 
-#[cfg(doc)]
-use crate::field::can::CanReader;
-
 /// Per-channel acquisition counters. Monotonic; read with [`ChannelCounters::snapshot`].
 #[derive(Debug, Default)]
 pub struct ChannelCounters {
@@ -63,7 +60,7 @@ impl ChannelCounters {
     }
 }
 
-/// Frame counters of one [`CanReader`], shared with whoever monitors it.
+/// Frame counters of one [`CanReader`](crate::field::can::CanReader), shared with whoever monitors it.
 #[derive(Debug, Default)]
 pub struct CanCounters {
     frames: AtomicU64,

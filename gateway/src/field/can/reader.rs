@@ -12,8 +12,8 @@ use tokio::sync::{mpsc, watch};
 
 use super::batch::SampleBatch;
 use super::decode::{bus_state_of_error_frame, CanDecoder, FrameOutcome};
+use super::error::CanError;
 use super::socket::{open_socket, receive_batch, ReceiveBuffers, Received, MAX_FRAMES_PER_BATCH};
-use super::CanError;
 use crate::field::acquired::Acquired;
 use crate::field::counters::{BusState, CanCounters};
 use crate::field::source_health::SourceHealth;

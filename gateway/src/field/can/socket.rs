@@ -12,7 +12,7 @@ use socketcan::{Socket, SocketOptions};
 use tokio::io::unix::AsyncFd;
 use tokio::io::Interest;
 
-use super::CanError;
+use super::error::CanError;
 
 /// `errno` EAFNOSUPPORT: the kernel has no `AF_CAN` address family.
 const EAFNOSUPPORT: i32 = 97;

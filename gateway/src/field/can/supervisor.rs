@@ -6,7 +6,8 @@ use std::sync::Arc;
 use millgate_config::{ChannelSource, Config};
 use tokio::sync::mpsc;
 
-use super::{CanError, CanReader};
+use super::error::CanError;
+use super::reader::CanReader;
 use crate::field::acquired::Acquired;
 use crate::field::backoff::Backoff;
 use crate::field::counters::CanCounters;
