@@ -5,8 +5,8 @@
 use core::f64::consts::PI;
 use nalgebra::Complex;
 
+use super::record::{Data, Nonlinear, BASIS};
 use super::recurrence::Rotor;
-use super::{Data, Nonlinear, BASIS};
 
 /// Factors of the basis functions apart from their power of t: Re and Im of z1^n and
 /// z2^n (z = exp((-decay + i 2 pi f) dt)), the rise 1 - e^n and the load e^n

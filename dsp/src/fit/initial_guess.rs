@@ -5,8 +5,9 @@
 use nalgebra::{SMatrix, SVector};
 
 use super::levenberg_marquardt::{evaluate, Evaluation};
+use super::model::FitError;
+use super::record::{Data, Nonlinear};
 use super::recurrence::Rotor;
-use super::{Data, FitError, Nonlinear};
 use crate::pencil;
 
 /// Start of the iteration chosen from the pencil poles.

@@ -6,8 +6,9 @@ use core::f64::consts::PI;
 use nalgebra::{SMatrix, SVector};
 
 use super::gram::{gram_closed, gram_direct};
+use super::model::{FitError, FitOptions, FitStatus};
 use super::projection::project;
-use super::{Data, FitError, FitOptions, FitStatus, Linear, Nonlinear, BASIS};
+use super::record::{Data, Linear, Nonlinear, BASIS};
 use crate::linalg::Cholesky5;
 
 /// Largest ratio of |r0|^2 to the cost accepted in [`evaluate`]: 4 of 16 digits lost.

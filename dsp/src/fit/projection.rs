@@ -1,8 +1,8 @@
 //! The one pass over the samples per evaluated point: the residual against a
 //! reference linear part, its sum of squares and its projections on the basis.
 
+use super::record::{Data, Linear, Nonlinear, BASIS};
 use super::recurrence::{Pair, PairRotor, Rotor};
-use super::{Data, Linear, Nonlinear, BASIS};
 
 /// Accumulators of [`project`]: even and odd samples in the two lanes of each [`Pair`].
 struct Projection {
