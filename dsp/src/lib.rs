@@ -4,6 +4,7 @@
 pub mod bite;
 pub mod chatter;
 pub mod fit;
+pub mod mathieu;
 pub mod pencil;
 pub mod stiffness;
 pub mod transient;
