@@ -11,4 +11,5 @@ pub mod plc;
 pub mod plot;
 pub mod schedule;
 pub mod stands;
+pub mod tree;
 pub mod wear_map;
