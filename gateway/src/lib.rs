@@ -16,6 +16,7 @@ pub mod plc;
 pub mod publish;
 pub mod registers;
 pub mod results;
+pub mod rodcmd;
 pub mod samples;
 pub mod server;
 pub mod service;

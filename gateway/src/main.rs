@@ -47,6 +47,8 @@ enum Command {
     Discrepancy(millgate::offline::discrepancy::DiscrepancyArgs),
     /// Driveline simulator: transients, modes, wear maps.
     Sim(millgate::simcmd::SimArgs),
+    /// Rod mills: parametric stability of every pass (Mathieu, Ince-Strutt).
+    Rod(millgate::rodcmd::RodArgs),
     /// Self-contained demo: a virtual DAQ and PLC on loopback, the gateway between them.
     Demo(millgate::demo::DemoArgs),
 }
@@ -120,6 +122,7 @@ fn main() -> ExitCode {
         Command::Stiffness(args) => millgate::offline::stiffness::run(&args).map(emit),
         Command::Discrepancy(args) => millgate::offline::discrepancy::run(&args).map(emit),
         Command::Sim(args) => millgate::simcmd::run(args),
+        Command::Rod(args) => millgate::rodcmd::run(args).map(emit),
         Command::Run { config } => {
             init_tracing("info");
             runtime().block_on(run_service(config))

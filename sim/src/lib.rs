@@ -9,6 +9,7 @@ pub mod modbus_bank;
 pub mod model;
 pub mod plc;
 pub mod plot;
+pub mod rod;
 pub mod schedule;
 pub mod stands;
 pub mod tree;

@@ -246,37 +246,14 @@ impl Model {
     /// # Ok::<(), millgate_sim::model::ModelError>(())
     /// ```
     pub fn from_toml_str(text: &str, file_name: &str) -> Result<Model, ModelError> {
-        let deserializer = toml::Deserializer::parse(text).map_err(|error| ModelError::Syntax {
-            file: file_name.to_owned(),
-            line: line_of(text, error.span()),
-            message: error.message().to_owned(),
-        })?;
-        let model: Model = serde_path_to_error::deserialize(deserializer).map_err(|error| {
-            let key = error.path().to_string();
-            let inner = error.inner();
-            ModelError::Schema {
-                file: file_name.to_owned(),
-                line: line_of(text, inner.span()),
-                key: if key == "." {
-                    "(top level)".to_owned()
-                } else {
-                    key
-                },
-                message: inner.message().to_owned(),
-            }
-        })?;
+        let model: Model = parse_toml(text, file_name)?;
         model.validate(file_name)?;
         Ok(model)
     }
 
     /// Reads, parses and validates a model file; errors name the path as given.
     pub fn load(path: impl AsRef<Path>) -> Result<Model, ModelError> {
-        let path = path.as_ref();
-        let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| ModelError::Io {
-            file: file.clone(),
-            source,
-        })?;
+        let (text, file) = read_text(path.as_ref())?;
         Model::from_toml_str(&text, &file)
     }
 
@@ -501,6 +478,43 @@ impl Checker<'_> {
             Err(self.error(key, value, format_args!(">= 0 {unit}")))
         }
     }
+}
+
+/// Reads a text file; the error and the returned name are the path as given.
+pub(crate) fn read_text(path: &Path) -> Result<(String, String), ModelError> {
+    let file = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|source| ModelError::Io {
+        file: file.clone(),
+        source,
+    })?;
+    Ok((text, file))
+}
+
+/// Parses TOML text into `T`; errors name `file_name`, the line, and for schema
+/// errors the key path and what serde expected.
+pub(crate) fn parse_toml<T: serde::de::DeserializeOwned>(
+    text: &str,
+    file_name: &str,
+) -> Result<T, ModelError> {
+    let deserializer = toml::Deserializer::parse(text).map_err(|error| ModelError::Syntax {
+        file: file_name.to_owned(),
+        line: line_of(text, error.span()),
+        message: error.message().to_owned(),
+    })?;
+    serde_path_to_error::deserialize(deserializer).map_err(|error| {
+        let key = error.path().to_string();
+        let inner = error.inner();
+        ModelError::Schema {
+            file: file_name.to_owned(),
+            line: line_of(text, inner.span()),
+            key: if key == "." {
+                "(top level)".to_owned()
+            } else {
+                key
+            },
+            message: inner.message().to_owned(),
+        }
+    })
 }
 
 /// 1-based line of the start of `span` in `text`, 0 when there is no span.
