@@ -81,7 +81,7 @@ pub enum RodCommand {
         #[arg(long, allow_hyphen_values = true)]
         q: f64,
         /// Damping c per unit Mathieu time, 0..=10.
-        #[arg(long, default_value_t = 0.0)]
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
         damping: f64,
         /// Output format.
         #[arg(long, value_enum, default_value_t = RodFormat::Json)]

@@ -131,13 +131,19 @@ impl Beam {
 mod tests {
     use super::*;
 
-    /// Clamped-clamped mode shape and its slope at x (L = 1).
+    /// Clamped-clamped mode shape and its slope at x (L = 1): `cosh bx - cos bx -
+    /// s (sinh bx - sin bx)`, with `s = (cosh b - cos b) / (sinh b - sin b)`. The
+    /// hyperbolic parts are written with `1 - s` (computed without cancellation) so
+    /// that high modes (cosh b ~ 1e14) keep their digits.
     fn clamped_shape(beta: f64, x: f64) -> (f64, f64) {
-        let sigma = (beta.cosh() - beta.cos()) / (beta.sinh() - beta.sin());
+        let one_minus_s = (beta.cos() - beta.sin() - (-beta).exp()) / (beta.sinh() - beta.sin());
+        let one_plus_s = 2.0 - one_minus_s;
         let bx = beta * x;
+        let (grow, decay) = (0.5 * one_minus_s * bx.exp(), 0.5 * one_plus_s * (-bx).exp());
+        // cosh - s sinh = grow + decay; sinh - s cosh = grow - decay.
         (
-            bx.cosh() - bx.cos() - sigma * (bx.sinh() - bx.sin()),
-            beta * (bx.sinh() + bx.sin() - sigma * (bx.cosh() - bx.cos())),
+            grow + decay - bx.cos() + (1.0 - one_minus_s) * bx.sin(),
+            beta * (grow - decay + bx.sin() + (1.0 - one_minus_s) * bx.cos()),
         )
     }
 

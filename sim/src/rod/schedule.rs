@@ -156,7 +156,7 @@ pub fn parse(text: &str, file: &str) -> Result<Vec<Pass>, RodError> {
         let temperature_c = number("temperature_c", required("temperature_c")?, "deg C")?;
         let diameters_m = list("diameters_mm", required("diameters_mm")?, "mm")?
             .into_iter()
-            .map(|mm| mm * 1.0e-3)
+            .map(|mm| mm / 1.0e3)
             .collect();
         let finishing_speed_m_s = field("finishing_speed_m_s")
             .map(|text| {
