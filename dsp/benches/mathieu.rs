@@ -32,6 +32,16 @@ fn mathieu(c: &mut Criterion) {
     group.bench_function("locate_damped_q0.3", |b| {
         b.iter(|| m.locate(black_box(2.5), black_box(0.3), black_box(0.02)))
     });
+    // Typical rod points (example RSM pass P1): below tongue 1, and a second mode far up.
+    group.bench_function("locate_rod_a0.44_q0.022", |b| {
+        b.iter(|| m.locate(black_box(0.443), black_box(0.0221), black_box(0.013)))
+    });
+    group.bench_function("locate_rod_a17.3_q0.22", |b| {
+        b.iter(|| m.locate(black_box(17.27), black_box(0.2159), black_box(0.083)))
+    });
+    group.bench_function("locate_rod_a233_q2.9", |b| {
+        b.iter(|| m.locate(black_box(232.9), black_box(2.91), black_box(0.305)))
+    });
     group.finish();
 }
 

@@ -74,11 +74,15 @@ const MAX_EIGEN_ITERATIONS: usize = 200;
 const MAX_SEARCH_ITERATIONS: usize = 200;
 
 /// A damped tongue `n` is taken as absent without a search when its undamped width `w`
-/// gives `SKIP_FACTOR * w / (4 n) < c`: a narrow tongue's largest exponent is
+/// gives `skip_factor(w / n) * w / (4 n) < c`. A narrow tongue's largest exponent is
 /// `w / (4 n)` to first order (`|Delta| - 2 ~ pi^2 ((w/2)^2 - (a - mid)^2) / (4 n^2)`);
-/// wide tongues at large q reach 3.7 times that (n = 6, q = 100). The unit test
-/// `skip_estimate_is_conservative` checks the factor over a grid.
-const SKIP_FACTOR: f64 = 8.0;
+/// measured over orders 1..=10 and q up to 100 it is at most 1.13 times that for
+/// `w / n < 0.1`, 1.5 for `w / n < 1`, and 3.74 for the widest (n = 6, q = 100). The
+/// factor `1.3 + 2 w / n`, at most 8, stays above every measured ratio by 15% or more;
+/// the unit test `skip_estimate_is_conservative` checks it over a grid.
+fn skip_factor(width_per_order: f64) -> f64 {
+    (1.3 + 2.0 * width_per_order).min(8.0)
+}
 
 /// Largest relative change of the trace taken as rounding when it stops shrinking with
 /// doubled steps (see [`Mathieu::trace`]).
@@ -199,6 +203,23 @@ impl Class {
         }
     }
 
+    /// The `k`-th smallest diagonal entry: they increase from row 1 on; only row 0 of
+    /// the odd classes (`1 +- q`) may fall among the others.
+    fn kth_diagonal(self, q: f64, k: usize) -> f64 {
+        let first = self.diagonal(q, 0);
+        // Rows 1.. below row 0, at most k + 1 of interest.
+        let below = (1..=k + 1)
+            .take_while(|&i| self.diagonal(q, i) < first)
+            .count();
+        if k < below {
+            self.diagonal(q, k + 1)
+        } else if k == below {
+            first
+        } else {
+            self.diagonal(q, k)
+        }
+    }
+
     /// Square of the off-diagonal entry joining rows `i - 1` and `i` (`i >= 1`): q^2,
     /// except `2 q^2` in the `a_2m` class, whose first row is scaled by sqrt(2) to make
     /// the matrix symmetric (DLMF 28.4.5 has `2 A_0` in the second equation).
@@ -248,30 +269,40 @@ impl Class {
         count
     }
 
-    /// The Sturm count and `det / det'` of `T - x I` (the Newton correction), from
-    /// one pivot pass that also differentiates the pivots in `x`.
+    /// The Sturm count and `det / det'` of `T - x I` (the Newton correction; NaN where
+    /// the pivots overflow), from one pivot pass that also differentiates the pivots in
+    /// `x`.
     fn newton_pass(self, q: f64, x: f64, terms: usize) -> (usize, f64) {
         let pivot_min = pivot_min(q);
         let mut count = 0;
-        let mut pivot = 1.0;
-        let mut pivot_derivative = 0.0;
+        // 1 / pivot and the pivot's derivative in x: one division per row.
+        let mut inverse = 0.0;
+        let mut derivative = 0.0;
         let mut log_derivative = 0.0;
         for i in 0..terms {
-            let (value, derivative) = if i == 0 {
+            let (value, slope) = if i == 0 {
                 (self.diagonal(q, 0) - x, -1.0)
             } else {
                 let e2 = self.off_squared(q, i);
                 (
-                    self.diagonal(q, i) - x - e2 / pivot,
-                    -1.0 + e2 * pivot_derivative / (pivot * pivot),
+                    self.diagonal(q, i) - x - e2 * inverse,
+                    -1.0 + e2 * derivative * inverse * inverse,
                 )
             };
-            pivot = guard(value, pivot_min);
-            pivot_derivative = derivative;
+            let pivot = guard(value, pivot_min);
+            inverse = 1.0 / pivot;
+            derivative = slope;
             count += usize::from(pivot < 0.0);
-            log_derivative += pivot_derivative / pivot;
+            log_derivative += derivative * inverse;
         }
-        (count, 1.0 / log_derivative)
+        // At (or within rounding of) an eigenvalue of a leading block the pivots
+        // overflow: no Newton step then (NaN makes the caller bisect).
+        let correction = if log_derivative.is_finite() && log_derivative != 0.0 {
+            1.0 / log_derivative
+        } else {
+            f64::NAN
+        };
+        (count, correction)
     }
 
     /// Eigenvalue `index` (0 = smallest) of the class matrix at `q`.
@@ -282,12 +313,7 @@ impl Class {
     /// bracket), then Newton steps on the determinant converge, each step kept in the
     /// bracket (a bisection otherwise), until the step stops shrinking at rounding.
     fn eigenvalue(self, q: f64, index: usize) -> f64 {
-        let mut diagonal = [0.0; TERMS];
-        for (i, value) in diagonal.iter_mut().enumerate() {
-            *value = self.diagonal(q, i);
-        }
-        diagonal.sort_unstable_by(f64::total_cmp);
-        let centre = diagonal[index];
+        let centre = self.kth_diagonal(q, index);
         let spread = 2.0 * SQRT_2 * q.abs() * (1.0 + 1.0e-12) + 1.0e-12 * (1.0 + centre.abs());
         let mut lo = centre - spread;
         let mut hi = centre + spread;
@@ -360,6 +386,52 @@ fn terms_for(q: f64, x: f64) -> usize {
 fn count_below(q: f64, x: f64) -> usize {
     let terms = terms_for(q, x);
     CLASSES.iter().map(|class| class.count(q, x, terms)).sum()
+}
+
+/// Hill function of the damped equation `x'' + 2c x' + (a - 2q cos 2t) x = 0` at real
+/// `a`: zero exactly where a solution with Floquet multiplier +1 (`odd = false`:
+/// harmonics `e^{ikt}`, k even) or -1 (`odd = true`: k odd) exists, i.e. on the edges
+/// of the damped tongues of even or odd order.
+///
+/// With `x = sum X_k e^{ikt}` the equation is `(k^2 - 2ick - a) X_k + q (X_{k-2} +
+/// X_{k+2}) = 0`: a complex symmetric tridiagonal matrix over `|k| <= K`. Its
+/// determinant, each row divided by `k^2 + sqrt(a^2 + 1)` (positive and smooth, so the
+/// roots stay and the value stays bounded), is computed by the continuant recurrence.
+/// Flipping `k -> -k` conjugates the matrix, so the determinant is real for real `a`
+/// (its imaginary part is rounding). `K` follows the characteristic values' truncation
+/// ([`terms_for`]). Without damping its roots are the characteristic values of the
+/// parity (unit test `hill_roots_are_the_characteristic_values_without_damping`).
+///
+/// This is Hill's determinant, not the monodromy: it finds the damped edges in about a
+/// microsecond per evaluation where a converged monodromy costs several, and it is
+/// exact at the edges, where `acosh` makes the monodromy's exponent least precise.
+fn hill_function(odd: bool, a: f64, q: f64, c: f64) -> f64 {
+    let terms = terms_for(q, a.abs()) as i32;
+    let k_max = if odd { 2 * terms - 1 } else { 2 * terms };
+    let scale = libm::sqrt(a * a + 1.0);
+    // Continuant D_j = d_j D_{j-1} - e_j^2 D_{j-2} on normalised rows (complex as pairs).
+    let (mut previous, mut current) = ((0.0, 0.0), (1.0, 0.0));
+    let mut last_weight = 0.0;
+    let mut k = -k_max;
+    while k <= k_max {
+        let kf = f64::from(k);
+        let weight = kf * kf + scale;
+        let d = ((kf * kf - a) / weight, -2.0 * c * kf / weight);
+        let e2 = if last_weight > 0.0 {
+            q * q / (weight * last_weight)
+        } else {
+            0.0
+        };
+        let next = (
+            d.0 * current.0 - d.1 * current.1 - e2 * previous.0,
+            d.0 * current.1 + d.1 * current.0 - e2 * previous.1,
+        );
+        previous = current;
+        current = next;
+        last_weight = weight;
+        k += 2;
+    }
+    current.0
 }
 
 /// `mu = ln |largest multiplier| / pi` from the monodromy trace of the undamped
@@ -747,11 +819,13 @@ impl Mathieu {
     /// Edges in `a - c^2` of damped tongue `order` >= 1, given its undamped edges; an
     /// edge not asked for is NaN.
     ///
-    /// The step count is the one that converges at the tongue's middle, kept for every
-    /// evaluation inside it (the coefficient's variation, which sets it, is the same
-    /// across the tongue). The narrow-tongue estimate puts the peak of `|Delta|` at the
-    /// middle; when `|Delta|` there is below the threshold a golden-section search
-    /// looks for a point above it (wide tongues at large q peak off centre).
+    /// The edges are the roots of the Hill function ([`hill_function`]) of the
+    /// tongue's parity inside the undamped tongue shifted by `c^2`; it has the sign of
+    /// the tongue's ends outside the damped part and the other sign inside. The middle
+    /// (where a narrow tongue peaks) usually has the inside sign; when it has not, a
+    /// golden-section search for the peak of `|Delta|` (monodromy, the step count
+    /// converged at the middle) finds an inside point or shows there is none (wide
+    /// tongues at large q peak off centre).
     fn damped_edges(
         &self,
         order: u8,
@@ -764,69 +838,77 @@ impl Mathieu {
         if c == 0.0 {
             return Ok((width > 0.0).then_some((lo, hi)));
         }
-        if width.is_nan() || width <= 0.0 || SKIP_FACTOR * width / (4.0 * f64::from(order)) < c {
+        let per_order = width / f64::from(order);
+        if width.is_nan() || width <= 0.0 || skip_factor(per_order) * per_order / 4.0 < c {
             return Ok(None);
         }
         check_a(lo)?;
         check_a(hi)?;
-        let threshold = libm::cosh(c * PI);
+        let shift = c * c;
+        let odd = order % 2 == 1;
+        let f = |a: f64| -> Result<f64, MathieuError> { Ok(hill_function(odd, a, q, c)) };
+        let outside = f(lo + shift)?.signum();
         let middle = 0.5 * (lo + hi);
-        let (middle_trace, steps) = self.converged_trace(middle, q)?;
-        // g > 0 inside the damped tongue; |Delta| has one peak inside the tongue.
-        let g = |a: f64| -> Result<f64, MathieuError> {
-            Ok(0.5 * half_period_trace(a, q, steps).0.abs() - threshold)
-        };
-        let peak = if 0.5 * middle_trace.abs() > threshold {
+        let inside = if f(middle + shift)?.signum() != outside {
             Some(middle)
         } else {
-            golden_peak(g, lo, hi)?
+            let threshold = libm::cosh(c * PI);
+            let steps = self.converged_trace(middle, q)?.1;
+            let g = |a: f64| -> Result<f64, MathieuError> {
+                Ok(0.5 * half_period_trace(a, q, steps).0.abs() - threshold)
+            };
+            match golden_peak(g, lo, hi)? {
+                Some(peak) if f(peak + shift)?.signum() != outside => Some(peak),
+                _ => None,
+            }
         };
-        let Some(peak) = peak else {
+        let Some(inside) = inside else {
             return Ok(None);
         };
-        let tolerance = 1.0e-13 * (1.0 + peak.abs());
+        let tolerance = 1.0e-13 * (1.0 + inside.abs());
         let lower = if edges == Edges::Upper {
             f64::NAN
         } else {
-            brent(g, lo, peak, tolerance)?
+            brent(f, lo + shift, inside + shift, tolerance)? - shift
         };
         let upper = if edges == Edges::Lower {
             f64::NAN
         } else {
-            brent(g, peak, hi, tolerance)?
+            brent(f, inside + shift, hi + shift, tolerance)? - shift
         };
         Ok(Some((lower, upper)))
     }
 
-    /// Upper edge in `a - c^2` of damped tongue 0 (below `a_0`): where `mu = c`.
+    /// Upper edge in `a - c^2` of damped tongue 0 (below `a_0`): the first root of the
+    /// periodic Hill function, below `a_0 + c^2` (where it is negative: between that
+    /// root and the next).
     fn tongue_zero_edge(&self, q: f64, c: f64, a0: f64) -> Result<f64, MathieuError> {
         if c == 0.0 {
             return Ok(a0);
         }
-        let steps = self.converged_trace(a0, q)?.1;
-        let f = |a: f64| -> Result<f64, MathieuError> {
-            Ok(mu_from_trace(half_period_trace(a, q, steps).0) - c)
-        };
-        // mu grows below a_0 (like sqrt(a_0 - a) far below): step down until mu > c.
-        let mut step = (c * c).max(1.0e-6);
-        let mut lower = a0 - step;
-        while f(lower)? <= 0.0 {
+        let shift = c * c;
+        let f = |a: f64| -> Result<f64, MathieuError> { Ok(hill_function(false, a, q, c)) };
+        let upper = a0 + shift;
+        let sign = f(upper)?.signum();
+        let mut step = shift.max(1.0e-6);
+        let mut lower = upper - step;
+        while f(lower)?.signum() == sign {
             step *= 2.0;
-            lower = check_a(a0 - step)?;
+            lower = check_a(upper - step)?;
         }
-        brent(f, lower, a0, 1.0e-13 * (1.0 + a0.abs()))
+        Ok(brent(f, lower, upper, 1.0e-13 * (1.0 + a0.abs()))? - shift)
     }
 
-    /// Damped edges in `a - c^2` of tongue `order` (0..=10); tongue 0's lower edge is
-    /// `-inf`; an edge not asked for is NaN.
+    /// Damped edges in `a - c^2` of tongue `order` (0..=10) given its undamped edges;
+    /// tongue 0's lower edge is `-inf`; an edge not asked for is NaN.
     fn damped_any(
         &self,
         order: u8,
         q: f64,
         c: f64,
+        undamped: (f64, f64),
         edges: Edges,
     ) -> Result<Option<(f64, f64)>, MathieuError> {
-        let undamped = undamped_edges(order, q);
         if order == 0 {
             return Ok(Some((
                 f64::NEG_INFINITY,
@@ -855,8 +937,8 @@ impl Mathieu {
         let mut best: Option<TongueLocation> = None;
         // Downward: the containing (or next lower) tongue first.
         for order in (0..=start).rev() {
-            let (_, undamped_hi) = undamped_edges(order, q);
-            if order < start && best.is_some_and(|b| x - undamped_hi >= b.distance) {
+            let undamped = undamped_edges(order, q);
+            if order < start && best.is_some_and(|b| x - undamped.1 >= b.distance) {
                 break;
             }
             let edges = if containing && order == start {
@@ -864,7 +946,7 @@ impl Mathieu {
             } else {
                 Edges::Upper
             };
-            let Some((lo, hi)) = self.damped_any(order, q, c, edges)? else {
+            let Some((lo, hi)) = self.damped_any(order, q, c, undamped, edges)? else {
                 continue;
             };
             if x > lo && x < hi {
@@ -883,11 +965,11 @@ impl Mathieu {
         }
         // Upward, while a tongue could still be nearer than the best so far.
         for order in start + 1..=MAX_ORDER {
-            let (undamped_lo, _) = undamped_edges(order, q);
-            if best.is_some_and(|b| undamped_lo - x >= b.distance) {
+            let undamped = undamped_edges(order, q);
+            if best.is_some_and(|b| undamped.0 - x >= b.distance) {
                 break;
             }
-            if let Some((lo, _)) = self.damped_any(order, q, c, Edges::Lower)? {
+            if let Some((lo, _)) = self.damped_any(order, q, c, undamped, Edges::Lower)? {
                 nearer(&mut best, order, lo - x);
                 break;
             }
@@ -974,6 +1056,33 @@ mod tests {
     }
 
     #[test]
+    fn hill_roots_are_the_characteristic_values_without_damping() {
+        let m = Mathieu::default();
+        for q in [-3.0, 0.2, 1.0, 8.0, 40.0] {
+            for order in 0..=6_u8 {
+                let odd = order % 2 == 1;
+                let mut values = [m.characteristic_a(order, q).unwrap(), f64::NAN];
+                if order > 0 {
+                    values[1] = m.characteristic_b(order, q).unwrap();
+                }
+                // A step inside the tongue; tongues narrower than 1e-9 are not resolved.
+                let width = (values[0] - values[1]).abs();
+                if width < 1e-9 {
+                    continue;
+                }
+                for value in values.into_iter().filter(|v| v.is_finite()) {
+                    let step = (1e-7 * (1.0 + value.abs())).min(0.25 * width);
+                    let (below, above) = (
+                        hill_function(odd, value - step, q, 0.0),
+                        hill_function(odd, value + step, q, 0.0),
+                    );
+                    assert!(below * above < 0.0, "order {order} q {q}: {below} {above}");
+                }
+            }
+        }
+    }
+
+    #[test]
     fn adaptive_truncation_matches_the_full_matrix() {
         for q in [-100.0, -7.0, 0.01, 0.4, 3.0, 30.0, 100.0] {
             for class in CLASSES {
@@ -1037,11 +1146,12 @@ mod tests {
         // than 1e-3 are left out: their exponent (~1e-4 and less) drowns in the noise
         // of acosh near |Delta| = 2 (a trace error of 1e-12 reads as mu ~ 4e-7).
         let m = Mathieu::default();
-        for order in 1..=8_u8 {
-            for q in [0.05, 0.3, 1.0, 3.0, 8.0, 30.0, 100.0] {
+        for order in 1..=10_u8 {
+            for q in [0.05, 0.3, 1.0, 3.0, 8.0, 20.0, 40.0, 100.0] {
                 let (lo, hi) = undamped_edges(order, q);
                 let width = hi - lo;
-                let c = SKIP_FACTOR * width / (4.0 * f64::from(order)) * 1.0001;
+                let per_order = width / f64::from(order);
+                let c = skip_factor(per_order) * per_order / 4.0 * 1.0001;
                 if c > MAX_DAMPING || width < 1e-3 {
                     continue;
                 }

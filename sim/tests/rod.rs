@@ -379,3 +379,44 @@ fn bad_mill_files_name_the_key_and_the_allowed_range() {
     let message = mill_from(&MILL.replace("../rsm-drive.toml", "../missing.toml")).unwrap_err();
     assert!(message.contains("missing.toml: cannot read"), "{message}");
 }
+
+#[test]
+fn span_status_agrees_with_the_full_evaluation() {
+    let mill = mill();
+    let passes = schedule::load(rod_dir().join("rsm-schedule.csv")).unwrap();
+    for pass in &passes {
+        let setup = PassSetup::new(&mill, pass).unwrap();
+        let (lo, hi) = setup.speed_range_m_s;
+        for k in 0..7 {
+            let v = lo + (hi - lo) * (k as f64 + 0.5) / 7.0;
+            let status = setup.status(v).unwrap();
+            let report = setup.evaluate(v).unwrap();
+            for (s, span) in status.iter().zip(&report.spans) {
+                assert_eq!(s.span, span.span);
+                assert_eq!(s.stable, span.stable);
+                let worst = span
+                    .points
+                    .iter()
+                    .filter_map(|p| p.exponent_per_s)
+                    .fold(f64::NEG_INFINITY, f64::max);
+                assert_eq!(s.worst_exponent_per_s, Some(worst));
+                let changes: Vec<f64> = span
+                    .points
+                    .iter()
+                    .filter(|p| p.stable)
+                    .filter_map(|p| p.speed_change_m_s.map(f64::abs))
+                    .collect();
+                match s.speed_margin_m_s {
+                    Some(margin) if s.stable => {
+                        assert_eq!(
+                            margin,
+                            changes.iter().copied().fold(f64::INFINITY, f64::min)
+                        )
+                    }
+                    Some(margin) => assert!(margin < 0.0),
+                    None => assert!(!s.stable || changes.is_empty()),
+                }
+            }
+        }
+    }
+}

@@ -581,17 +581,76 @@ impl<'m> PassSetup<'m> {
         merged
     }
 
-    /// Every operating point at finishing speed `speed_m_s` (> 0; outside the
-    /// configuration's range it is evaluated all the same).
-    pub fn evaluate(&self, speed_m_s: f64) -> Result<PassReport, RodError> {
-        if !(speed_m_s.is_finite() && speed_m_s > 0.0) {
-            return Err(RodError::Pass {
+    /// Each span's stability, worst exponent and speed margin at finishing speed
+    /// `speed_m_s` (> 0): the exponents and the precomputed bands only, no tongue
+    /// search (microseconds per pass when the points are in stable gaps).
+    pub fn status(&self, speed_m_s: f64) -> Result<Vec<SpanStatus>, RodError> {
+        self.check_speed(speed_m_s)?;
+        let mut spans = Vec::with_capacity(self.spans.len());
+        for span in &self.spans {
+            let mut stable = true;
+            let mut worst: Option<f64> = None;
+            let mut nearest: Option<f64> = None;
+            let mut leave: Option<f64> = None;
+            for source in &span.sources {
+                let point = self.operating(span, source, speed_m_s);
+                let exponent = self.exponent(&point, || self.describe(span, source))?;
+                let point_stable = match exponent {
+                    Some(e) => e <= 0.0,
+                    None => point.a >= 0.0,
+                };
+                if let Some(e) = exponent {
+                    let per_s = 0.5 * point.theta_rad_s * e;
+                    worst = Some(worst.map_or(per_s, |w| w.max(per_s)));
+                }
+                let change =
+                    speed_change(&source.bands, self.speed_range_m_s, speed_m_s).map(f64::abs);
+                if point_stable {
+                    if let Some(change) = change {
+                        nearest = Some(nearest.map_or(change, |n| n.min(change)));
+                    }
+                } else {
+                    stable = false;
+                    leave = match (leave, change) {
+                        // A point that no speed stabilises keeps the span unstable.
+                        (_, None) => Some(f64::INFINITY),
+                        (None, Some(change)) => Some(change),
+                        (Some(l), Some(change)) => Some(l.max(change)),
+                    };
+                }
+            }
+            let speed_margin_m_s = if stable {
+                nearest
+            } else {
+                leave.filter(|l| l.is_finite()).map(|l| -l)
+            };
+            spans.push(SpanStatus {
+                span: self.mill.spans[span.span].name.clone(),
+                stable,
+                worst_exponent_per_s: worst,
+                speed_margin_m_s,
+            });
+        }
+        Ok(spans)
+    }
+
+    fn check_speed(&self, speed_m_s: f64) -> Result<(), RodError> {
+        if speed_m_s.is_finite() && speed_m_s > 0.0 {
+            Ok(())
+        } else {
+            Err(RodError::Pass {
                 origin: self.pass.origin.clone(),
                 key: "finishing_speed_m_s".to_owned(),
                 value: format!("{speed_m_s}"),
                 allowed: "> 0 m/s".to_owned(),
-            });
+            })
         }
+    }
+
+    /// Every operating point at finishing speed `speed_m_s` (> 0; outside the
+    /// configuration's range it is evaluated all the same).
+    pub fn evaluate(&self, speed_m_s: f64) -> Result<PassReport, RodError> {
+        self.check_speed(speed_m_s)?;
         let mut spans = Vec::with_capacity(self.spans.len());
         let mut worst: Option<f64> = None;
         for span in &self.spans {
@@ -663,6 +722,25 @@ impl<'m> PassSetup<'m> {
             unstable_at_every_speed: self.unstable_at_every_speed.clone(),
         })
     }
+}
+
+/// One span's stability at one finishing speed, without the tongue search: what a
+/// service re-evaluates whenever the PLC's speed changes ([`PassSetup::status`]).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SpanStatus {
+    /// `upstream - downstream`.
+    pub span: String,
+    /// No point of the span is unstable.
+    pub stable: bool,
+    /// Largest growth exponent of the span's points, 1/s (`None`: every point beyond
+    /// the resolved range).
+    pub worst_exponent_per_s: Option<f64>,
+    /// Smallest finishing-speed change (m/s) that changes the stability of one of the
+    /// span's points: positive when the span is stable (the distance to the nearest
+    /// band), negative when it is not (minus the change that makes the last unstable
+    /// point stable); `None` when no point has a band edge in the speed range (then
+    /// `stable` cannot change with speed).
+    pub speed_margin_m_s: Option<f64>,
 }
 
 /// Speed change from `speed` to the nearest band edge (to leave a band when inside
