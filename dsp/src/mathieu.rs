@@ -11,7 +11,8 @@
 //!   edges of the undamped tongues, for |q| <= 100, to about 1e-13 relative (better than
 //!   1e-10 is what the golden test demands). The DLMF 28.4 recurrences split into four
 //!   symmetric tridiagonal matrices, one per parity/period class (`a_2m`, `a_2m+1`,
-//!   `b_2m+1`, `b_2m+2`), truncated at 32 terms each. The eigenvalue is chosen by its
+//!   `b_2m+1`, `b_2m+2`), truncated at 12..=32 terms each by `|q|` and the value
+//!   sought (the truncation is checked against all 32). The eigenvalue is chosen by its
 //!   index in its class, never as "the one nearest n^2" (which jumps branches at large
 //!   q): a Sturm count of the LDL^T pivots isolates it, then Newton steps on the
 //!   determinant (its logarithmic derivative comes out of the same pivot pass) finish it,
@@ -24,14 +25,20 @@
 //!   solutions over half a period (the coefficient is even, so `Delta = 2 (y1 y2' +
 //!   y1' y2)(pi / 2)`), integrated by the sixth-order Magnus method on Gauss-Legendre
 //!   nodes, whose step `exp(Omega)` is exact for a frozen coefficient, so fast
-//!   oscillation costs no steps. The step count doubles until two successive traces
-//!   agree to the tolerance; then `mu = acosh(|Delta| / 2) / pi`.
+//!   oscillation costs no steps. The step count doubles until the finer trace's
+//!   estimated error (the change / 63) is within the tolerance; then
+//!   `mu = acosh(|Delta| / 2) / pi`.
 //! - the **tongues**: tongue `n >= 1` lies between `a_n(q)` and `b_n(q)`; "tongue 0" is
 //!   the region below `a_0(q)`. With damping the unstable set of tongue n shrinks to
-//!   where `|Delta(a - c^2, q)| > 2 cosh(c pi)`, found by golden-section search for the
-//!   peak of `|Delta|` (unimodal inside a tongue) and Brent's method for the two edges.
-//!   [`Mathieu::locate`] gives the nearest tongue and the signed distance in `a` to its
-//!   nearest edge.
+//!   where `|Delta(a - c^2, q)| > 2 cosh(c pi)`. Its edges are where the damped equation
+//!   has a solution with multiplier +1 or -1: the real roots of its Hill determinant
+//!   (a complex tridiagonal continuant, real on the real axis; `hill_function`),
+//!   found by Brent's method between the undamped edges (shifted by `c^2`) and a point
+//!   inside (the middle, or the peak of `|Delta|` by golden section when the tongue is
+//!   wide). Tongues too narrow for the damping are skipped by an estimate checked over a
+//!   grid. [`Mathieu::locate`] gives the nearest tongue (damped, when `c > 0`) and the
+//!   signed distance in `a` to its nearest edge, visiting only tongues that could be
+//!   nearer than the best found.
 //!
 //! Everything is stack-only (`no_std`, no heap). Nothing is streamed, so there is no
 //! state: a [`Mathieu`] holds the solver's tolerance and step limit, built once.
