@@ -98,7 +98,7 @@ pub fn run(args: RodArgs) -> anyhow::Result<String> {
             format,
             plot,
         } => {
-            let mill = RodMill::load(&mill)?;
+            let mill = std::sync::Arc::new(RodMill::load(&mill)?);
             let passes = schedule::load(&schedule_path)?;
             let checked = check_schedule(&mill, &passes)?;
             let mut text = match format {

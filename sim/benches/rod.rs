@@ -15,7 +15,9 @@ use millgate_sim::rod::schedule;
 
 fn bench_rod(c: &mut Criterion) {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models/rod");
-    let mill = RodMill::load(dir.join("rsm-mill.toml")).unwrap_or_else(|e| panic!("{e}"));
+    let mill = std::sync::Arc::new(
+        RodMill::load(dir.join("rsm-mill.toml")).unwrap_or_else(|e| panic!("{e}")),
+    );
     let passes = schedule::load(dir.join("rsm-schedule.csv")).unwrap_or_else(|e| panic!("{e}"));
     let mut group = c.benchmark_group("rod");
     // P1: every point stable; P3: two points inside damped tongues.

@@ -5,6 +5,7 @@
 
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use millgate_sim::rod::beam::{Beam, Ends};
 use millgate_sim::rod::check::{check_schedule, PassSetup, Source};
@@ -15,12 +16,14 @@ fn rod_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("models/rod")
 }
 
-fn mill() -> RodMill {
-    RodMill::load(rod_dir().join("rsm-mill.toml")).expect("example mill")
+fn mill() -> Arc<RodMill> {
+    Arc::new(RodMill::load(rod_dir().join("rsm-mill.toml")).expect("example mill"))
 }
 
-fn mill_from(text: &str) -> Result<RodMill, String> {
-    RodMill::from_toml_str(text, "mill.toml", &rod_dir()).map_err(|e| e.to_string())
+fn mill_from(text: &str) -> Result<Arc<RodMill>, String> {
+    RodMill::from_toml_str(text, "mill.toml", &rod_dir())
+        .map(Arc::new)
+        .map_err(|e| e.to_string())
 }
 
 const MILL: &str = include_str!("../models/rod/rsm-mill.toml");

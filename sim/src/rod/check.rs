@@ -20,6 +20,7 @@
 //! 1e-9 of the range.
 
 use std::f64::consts::PI;
+use std::sync::Arc;
 
 use millgate_dsp::mathieu::{MAX_ABS_A, MAX_ABS_Q, MAX_DAMPING, MAX_ORDER};
 use serde::Serialize;
@@ -96,9 +97,12 @@ pub struct AvoidBand {
 }
 
 /// One pass, validated, with everything that does not depend on the finishing speed.
+///
+/// It shares the mill (`Arc`), so a long-lived task can keep the mill and the active
+/// pass's setup side by side and rebuild only the setup when the pass changes.
 #[derive(Debug, Clone)]
-pub struct PassSetup<'m> {
-    mill: &'m RodMill,
+pub struct PassSetup {
+    mill: Arc<RodMill>,
     /// The pass as given.
     pub pass: Pass,
     /// Index of its configuration in [`RodMill::configurations`].
@@ -212,10 +216,10 @@ pub struct PassReport {
     pub unstable_at_every_speed: Vec<String>,
 }
 
-impl<'m> PassSetup<'m> {
+impl PassSetup {
     /// Validates `pass` against `mill` and computes the speed-independent part,
     /// including every source's unstable speed bands.
-    pub fn new(mill: &'m RodMill, pass: &Pass) -> Result<PassSetup<'m>, RodError> {
+    pub fn new(mill: &Arc<RodMill>, pass: &Pass) -> Result<PassSetup, RodError> {
         let refuse = |key: &str, value: String, allowed: String| RodError::Pass {
             origin: pass.origin.clone(),
             key: key.to_owned(),
@@ -321,7 +325,7 @@ impl<'m> PassSetup<'m> {
             ));
         }
         let mut setup = PassSetup {
-            mill,
+            mill: Arc::clone(mill),
             pass: pass.clone(),
             configuration,
             speed_range_m_s: modes.speed_range_m_s,
@@ -398,7 +402,7 @@ impl<'m> PassSetup<'m> {
 
     /// The mill this pass runs on.
     pub fn mill(&self) -> &RodMill {
-        self.mill
+        &self.mill
     }
 
     /// Mathieu point of `source` in `span` at finishing speed `speed`.
@@ -793,7 +797,7 @@ pub struct PassBands {
 
 /// Every pass of a schedule at its own finishing speed, and the bands to avoid per
 /// configuration.
-pub fn check_schedule(mill: &RodMill, passes: &[Pass]) -> Result<ScheduleReport, RodError> {
+pub fn check_schedule(mill: &Arc<RodMill>, passes: &[Pass]) -> Result<ScheduleReport, RodError> {
     let reports = passes
         .iter()
         .map(|pass| {

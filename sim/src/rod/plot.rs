@@ -162,7 +162,7 @@ pub fn ince_strutt_svg(mill: &RodMill, reports: &[PassReport]) -> Result<String,
 }
 
 /// Renders the Campbell chart of one pass (see the module docs).
-pub fn campbell_svg(setup: &PassSetup<'_>) -> Result<String, PlotError> {
+pub fn campbell_svg(setup: &PassSetup) -> Result<String, PlotError> {
     let mill = setup.mill();
     let (v_lo, v_hi) = setup.speed_range_m_s;
     let speeds: Vec<f64> = (0..=CURVE_POINTS)
