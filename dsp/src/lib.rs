@@ -6,6 +6,7 @@ pub mod bite;
 pub mod chatter;
 pub mod fit;
 mod linalg;
+pub mod mathieu;
 pub mod pencil;
 pub mod stiffness;
 pub mod testing;

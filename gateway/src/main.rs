@@ -50,6 +50,9 @@ enum Command {
     /// Driveline simulator: transients, modes, wear maps.
     Sim(millgate::cli::sim::SimArgs),
     #[cfg(feature = "sim-tools")]
+    /// Rod mills: parametric stability of every pass (Mathieu, Ince-Strutt).
+    Rod(millgate::cli::rod::RodArgs),
+    #[cfg(feature = "sim-tools")]
     /// Self-contained demo: a virtual DAQ and PLC on loopback, the gateway between them.
     Demo(millgate::cli::demo::DemoArgs),
 }
@@ -140,6 +143,8 @@ fn main() -> ExitCode {
         Command::Discrepancy(args) => millgate::cli::discrepancy::run(&args).map(emit),
         #[cfg(feature = "sim-tools")]
         Command::Sim(args) => millgate::cli::sim::run(args),
+        #[cfg(feature = "sim-tools")]
+        Command::Rod(args) => millgate::cli::rod::run(args).map(emit),
         Command::Run { config } => {
             init_tracing("info");
             runtime().block_on(run_service(config))

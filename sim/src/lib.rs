@@ -9,8 +9,10 @@ pub mod modal;
 pub mod model;
 #[cfg(feature = "plot")]
 pub mod plot;
+pub mod rod;
 pub mod schedule;
 // Documented by the chatter work under way on this module (it edits stands.rs).
 #[allow(missing_docs)]
 pub mod stands;
+pub mod tree;
 pub mod wear_map;

@@ -11,9 +11,10 @@
 //! - `millgate discrepancy --measured FILE.csv --model MODEL.toml [--channel NAME]
 //!   [--report DIR] [--format text|json]`: `discrepancy`
 //! - `millgate sim transient|modes|wear-map ...`: `sim`
+//! - `millgate rod check|mathieu|floquet ...`: `rod` (rod mills, parametric stability)
 //! - `millgate demo [--duration S]`: `demo`
 //!
-//! `discrepancy`, `sim` and `demo` come with the default `sim-tools` feature (they
+//! `discrepancy`, `sim`, `rod` and `demo` come with the default `sim-tools` feature (they
 //! need the simulator's virtual devices or plots).
 
 pub mod analyze;
@@ -24,6 +25,8 @@ pub mod demo;
 #[cfg(feature = "sim-tools")]
 pub mod discrepancy;
 pub mod registers;
+#[cfg(feature = "sim-tools")]
+pub mod rod;
 #[cfg(feature = "sim-tools")]
 pub mod sim;
 pub mod stiffness;
