@@ -1,4 +1,5 @@
 #![no_std]
+#![warn(missing_docs)]
 #![doc = include_str!("../README.md")]
 
 pub mod band_gain;
@@ -6,7 +7,10 @@ pub mod bite;
 pub mod chatter;
 pub mod filter;
 pub mod fit;
+mod linalg;
+pub mod mathieu;
 pub mod mode_damping;
 pub mod pencil;
 pub mod stiffness;
+pub mod testing;
 pub mod transient;

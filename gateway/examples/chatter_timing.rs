@@ -9,7 +9,7 @@
 
 use std::time::{Duration, Instant};
 
-use millgate::chatter::{ChatterMonitor, ChatterUpdate};
+use millgate::analysis::chatter_monitor::{ChatterMonitor, ChatterUpdate};
 use millgate_sim::tandem::simulate::{simulate, Accelerometer, Excitation, RunSettings, SpeedRamp};
 use millgate_sim::tandem::{PassSchedule, TandemMill};
 

@@ -1,14 +1,16 @@
 #![doc = include_str!("../README.md")]
+#![warn(missing_docs)]
 
-pub mod can_node;
 pub mod chain;
-pub mod daq;
+#[cfg(feature = "devices")]
+pub mod devices;
 pub mod discrepancy;
 pub mod modal;
-pub mod modbus_bank;
 pub mod model;
-pub mod plc;
+#[cfg(feature = "plot")]
 pub mod plot;
+pub mod rod;
 pub mod schedule;
 pub mod tandem;
+pub mod tree;
 pub mod wear_map;

@@ -1,5 +1,13 @@
-//! Driveline model files: a torsional chain of masses and couplings, a PI-controlled
-//! motor, a rolling-load ramp and the measured channel, read from and written to TOML.
+//! Driveline model files: a torsional chain (or tree) of masses and couplings, a
+//! PI-controlled motor, a rolling-load ramp and the measured channel, read from and
+//! written to TOML.
+//!
+//! A hot-mill driveline is a chain: coupling `i` joins mass `i` and mass `i + 1`. A
+//! rod-mill block drive is a tree of gear stages (domain notes 3): there every coupling
+//! names the two masses it joins (`between`), may cross a gear stage (`ratio`), and may
+//! be engaged only by a servo coupling (`servo`) in some of the named configurations
+//! (`[[configuration]]`). [`Model::tree`] refers one configuration's engaged couplings
+//! and every inertia to the shaft of mass 0 (see [`crate::tree`]).
 //!
 //! Every field is in SI units except the load torque, which is in kN*m as in the
 //! paper's tables. A [`Model`] returned by [`Model::from_toml_str`] or [`Model::load`]
@@ -38,6 +46,25 @@ pub struct Model {
     pub load: Load,
     /// Which torque is measured and how it is sampled.
     pub measurement: Measurement,
+    /// Named configurations of the servo couplings; optional (a drive without servo
+    /// couplings has none). The first one is the default.
+    #[serde(
+        default,
+        rename = "configuration",
+        skip_serializing_if = "Vec::is_empty"
+    )]
+    pub configurations: Vec<Configuration>,
+}
+
+/// One configuration of the servo couplings: which of them are engaged.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Configuration {
+    /// Name used by schedules and commands; unique.
+    pub name: String,
+    /// The servo couplings engaged (names used in `coupling[i].servo`); every coupling
+    /// of another servo is disengaged, couplings without a servo are always engaged.
+    pub engaged: Vec<String>,
 }
 
 /// One lumped rotating mass.
@@ -46,7 +73,8 @@ pub struct Model {
 pub struct Mass {
     /// Free-text name (`motor`, `pinion`, `rolls`, ...).
     pub name: String,
-    /// Moment of inertia referred to roll speed, kg*m^2, > 0.
+    /// Moment of inertia on the mass's own shaft, kg*m^2, > 0. In a model without
+    /// gear ratios every shaft turns at one speed: the paper's "referred to roll speed".
     pub inertia: f64,
 }
 
@@ -74,6 +102,22 @@ pub struct Coupling {
     /// grows, so oscillations decay linearly in time rather than exponentially.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub friction: f64,
+    /// The two masses this coupling joins, by name; optional. Without it coupling `i`
+    /// joins mass `i` and mass `i + 1` (a chain). Either every coupling names its masses
+    /// or none does; with names the couplings of each configuration must form a tree
+    /// over all masses (no loop, none left out).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub between: Option<[String; 2]>,
+    /// Speed of the second mass over the first (a gear stage), finite and > 0, default
+    /// one. Stiffness, damping, backlash, hardening and friction are those seen on the
+    /// first mass's shaft.
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub ratio: f64,
+    /// The servo coupling (e.g. `M3`) that engages this coupling; optional. A coupling
+    /// without one is always engaged; one with a servo is engaged in the
+    /// configurations that list that servo.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub servo: Option<String>,
 }
 
 /// PI speed controller on mass 0; the reference is the nominal speed (deviation 0).
@@ -209,7 +253,7 @@ impl Model {
 
     /// Reads, parses and validates a model file; errors name the path as given.
     pub fn load(path: impl AsRef<Path>) -> Result<Model, ModelError> {
-        let (text, file) = read_model_file(path.as_ref())?;
+        let (text, file) = read_text(path.as_ref())?;
         Model::from_toml_str(&text, &file)
     }
 
@@ -218,7 +262,8 @@ impl Model {
         Ok(toml::to_string(self)?)
     }
 
-    /// Checks every value against its allowed range and the chain's shape.
+    /// Checks every value against its allowed range and the drive's shape (a chain, or
+    /// a tree in every configuration).
     ///
     /// `file_name` only labels the error. The first problem found is reported.
     pub fn validate(&self, file_name: &str) -> Result<(), ModelError> {
@@ -229,7 +274,8 @@ impl Model {
         for (index, mass) in self.masses.iter().enumerate() {
             check.positive(&format!("mass[{index}].inertia"), mass.inertia, "kg*m^2")?;
         }
-        if self.couplings.len() != self.masses.len() - 1 {
+        let named = self.couplings.iter().any(|c| c.between.is_some());
+        if !named && self.couplings.len() != self.masses.len() - 1 {
             return Err(check.error(
                 "coupling",
                 format!("{} entries", self.couplings.len()),
@@ -246,7 +292,13 @@ impl Model {
             check.non_negative(&format!("{key}.backlash"), coupling.backlash, "rad")?;
             check.non_negative(&format!("{key}.hardening"), coupling.hardening, "N*m/rad^3")?;
             check.non_negative(&format!("{key}.friction"), coupling.friction, "N*m")?;
+            check.positive(
+                &format!("{key}.ratio"),
+                coupling.ratio,
+                "(speed of the second mass over the first)",
+            )?;
         }
+        crate::tree::validate(self, file_name)?;
         check.non_negative("motor.speed_kp", self.motor.speed_kp, "N*m*s/rad")?;
         check.non_negative("motor.speed_ki", self.motor.speed_ki, "N*m/rad")?;
         check.non_negative("load.static_torque", self.load.static_torque, "kN*m")?;
@@ -290,14 +342,15 @@ impl Model {
         }
     }
 
-    /// The same driveline with a mass of `inertia` (kg*m^2) inserted in the middle of
-    /// coupling `index`: the coupling becomes two halves in series, each with twice its
+    /// The same chain driveline with a mass of `inertia` (kg*m^2) inserted in the
+    /// middle of coupling `index` (a tree model is refused): the coupling becomes two halves in series, each with twice its
     /// stiffness, damping and hardening (so the series combination is the original),
     /// the backlash and friction on the motor-side half. When the split coupling is the
     /// measured one, the motor-side half is measured; later measured indices shift by one.
     ///
     /// `index` must be a coupling index and `inertia` > 0; the result is validated.
     pub fn split_coupling(&self, index: usize, inertia: f64) -> Result<Model, ModelError> {
+        crate::tree::require_chain(self, "<split>", "splitting a coupling")?;
         let Some(original) = self.couplings.get(index) else {
             return Err(Checker { file: "<split>" }.error(
                 "coupling",
@@ -338,6 +391,29 @@ impl Model {
         Ok(model)
     }
 
+    /// True when coupling `i` joins mass `i` and mass `i + 1` at ratio 1 without a
+    /// servo: the shape the time simulation and the discrepancy workflow need.
+    pub fn is_chain(&self) -> bool {
+        self.configurations.is_empty()
+            && self.couplings.iter().enumerate().all(|(i, c)| {
+                c.ratio == 1.0
+                    && c.servo.is_none()
+                    && c.between.as_ref().is_none_or(|[first, second]| {
+                        self.masses.get(i).is_some_and(|m| &m.name == first)
+                            && self.masses.get(i + 1).is_some_and(|m| &m.name == second)
+                    })
+            })
+    }
+
+    /// The drive in one configuration (`None`: the first one, or every coupling when
+    /// the model has none), referred to the shaft of mass 0.
+    ///
+    /// The model must be valid ([`Model::validate`]); an unknown configuration name is
+    /// an error naming the known ones.
+    pub fn tree(&self, configuration: Option<&str>) -> Result<crate::tree::Tree, ModelError> {
+        crate::tree::build(self, configuration, "<model>")
+    }
+
     /// Rolling load on the last mass at time `t_s`, N*m (the file gives kN*m).
     pub fn load_torque_nm(&self, t_s: f64) -> f64 {
         if t_s < self.load.onset {
@@ -360,13 +436,15 @@ impl Coupling {
             backlash: 0.0,
             hardening: 0.0,
             friction: 0.0,
+            between: None,
+            ratio: 1.0,
+            servo: None,
         }
     }
 }
 
 /// Builds range errors for one file.
 pub(crate) struct Checker<'a> {
-    /// The file as given, for the messages.
     pub(crate) file: &'a str,
 }
 
@@ -402,8 +480,8 @@ impl Checker<'_> {
     }
 }
 
-/// The text of the file at `path` and its name as given, for the messages.
-pub(crate) fn read_model_file(path: &Path) -> Result<(String, String), ModelError> {
+/// Reads a text file; the error and the returned name are the path as given.
+pub(crate) fn read_text(path: &Path) -> Result<(String, String), ModelError> {
     let file = path.display().to_string();
     let text = std::fs::read_to_string(path).map_err(|source| ModelError::Io {
         file: file.clone(),
@@ -412,9 +490,8 @@ pub(crate) fn read_model_file(path: &Path) -> Result<(String, String), ModelErro
     Ok((text, file))
 }
 
-/// Parses TOML `text` into `T`; errors name `file_name`, the line and the key path.
-///
-/// Shared by every model file the simulator reads (drivelines, pass schedules).
+/// Parses TOML text into `T`; errors name `file_name`, the line, and for schema
+/// errors the key path and what serde expected.
 pub(crate) fn parse_toml<T: serde::de::DeserializeOwned>(
     text: &str,
     file_name: &str,
@@ -454,4 +531,12 @@ fn line_of(text: &str, span: Option<std::ops::Range<usize>>) -> usize {
 
 fn is_zero(value: &f64) -> bool {
     *value == 0.0
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+fn is_one(value: &f64) -> bool {
+    *value == 1.0
 }

@@ -5,11 +5,11 @@
 
 use std::time::{Duration, Instant};
 
-use millgate::registers::{decode_f32, RegisterMap};
+use millgate::outputs::register_map::{decode_f32, RegisterMap};
 use millgate_config::{Config, RegisterTable};
-use millgate_sim::daq::{DaqChannel, Placement, Publish, VirtualDaq};
-use millgate_sim::modbus_bank::{Running, ServeOptions};
-use millgate_sim::plc::VirtualPlc;
+use millgate_sim::devices::modbus_bank::{Running, ServeOptions};
+use millgate_sim::devices::virtual_daq::{DaqChannel, Placement, Publish, VirtualDaq};
+use millgate_sim::devices::virtual_plc::VirtualPlc;
 use millgate_sim::tandem::roots::CriticalSpeed;
 use millgate_sim::tandem::simulate::{simulate, Accelerometer, Excitation, RunSettings, SpeedRamp};
 use millgate_sim::tandem::truth::{ground_truth, mill_critical_speed, GroundTruth};
@@ -183,9 +183,7 @@ async fn a_ramp_into_chatter_raises_the_alarm_after_the_onset() -> anyhow::Resul
     config.modbus_sources.truncate(1);
     let devices = start(&mut config, vec![daq(&signals, &[0, 1, 2, 3, 4])]).await?;
     let streaming = Instant::now();
-    let service = millgate::Service::new(config)?;
-    let (stop, shutdown) = millgate::shutdown::channel();
-    let gateway = tokio::spawn(service.run(shutdown));
+    let gateway = millgate::Service::new(config)?.spawn().await?;
 
     // Stable rolling: every valid window is quiet.
     wait_for("first valid chatter window", Duration::from_secs(5), || {
@@ -251,8 +249,7 @@ async fn a_ramp_into_chatter_raises_the_alarm_after_the_onset() -> anyhow::Resul
         "{mill:?}"
     );
 
-    stop.trigger();
-    gateway.await??;
+    gateway.stop().await?;
     for device in devices.running {
         device.stop().await?;
     }
@@ -267,10 +264,8 @@ async fn stopped_stand_daq_flags_stale_and_clears_quality() -> anyhow::Result<()
     let mut config = config([0, 0, 0, 0, 1])?;
     let daqs = vec![daq(&signals, &[0, 1, 2, 3]), daq(&signals, &[4])];
     let mut devices = start(&mut config, daqs).await?;
-    let mut service = millgate::Service::new(config)?;
-    let metrics = service.bind().await?.metrics.expect("metrics configured");
-    let (stop, shutdown) = millgate::shutdown::channel();
-    let gateway = tokio::spawn(service.run(shutdown));
+    let gateway = millgate::Service::new(config)?.spawn().await?;
+    let metrics = gateway.bound().metrics.expect("metrics configured");
 
     wait_for("valid chatter values", Duration::from_secs(5), || {
         devices.mill().quality == 0b111
@@ -315,8 +310,7 @@ async fn stopped_stand_daq_flags_stale_and_clears_quality() -> anyhow::Result<()
         "no K_mean gauge while stale: {page}"
     );
 
-    stop.trigger();
-    gateway.await??;
+    gateway.stop().await?;
     for device in devices.running {
         device.stop().await?;
     }

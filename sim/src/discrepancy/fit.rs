@@ -122,6 +122,7 @@ pub struct Fitted {
 
 /// A model fitted to one measured record: the template (masses, motor, measurement
 /// grid), the anchors of the parameters and what is free.
+#[derive(Debug)]
 pub struct Problem<'a> {
     template: &'a Model,
     measured: &'a [f64],

@@ -29,6 +29,7 @@ pub mod effects;
 pub mod features;
 pub mod fit;
 pub mod lm;
+#[cfg(feature = "plot")]
 pub mod report;
 
 use std::collections::BTreeMap;

@@ -9,7 +9,7 @@ use plotters::prelude::*;
 
 use super::Report;
 
-/// Files written by [`write`].
+/// Files written by [`write()`].
 pub const MODEL_FILE: &str = "extended-model.toml";
 /// The plot.
 pub const PLOT_FILE: &str = "discrepancy.svg";

@@ -67,16 +67,28 @@ pub enum RootsError {
     NotFound,
     /// The argument principle finds roots right of the rightmost one found.
     #[error("{count} characteristic roots lie right of the rightmost found ({real_per_s:.4}/s)")]
-    Unverified { count: usize, real_per_s: f64 },
+    Unverified {
+        /// Roots the argument principle counts right of the rightmost found.
+        count: usize,
+        /// Real part of the rightmost root found, 1/s.
+        real_per_s: f64,
+    },
     /// The mill is stable over the whole speed range searched.
     #[error("stable up to speed factor {high}: no critical speed in the range searched")]
-    StableInRange { high: f64 },
+    StableInRange {
+        /// Highest speed factor searched.
+        high: f64,
+    },
     /// The mill is unstable already at the lowest speed searched.
     #[error("unstable already at speed factor {low}: no critical speed in the range searched")]
-    UnstableInRange { low: f64 },
+    UnstableInRange {
+        /// Lowest speed factor searched.
+        low: f64,
+    },
 }
 
 /// The characteristic function of one [`LinearSystem`], ready for evaluation.
+#[derive(Debug)]
 pub struct Characteristic {
     m: usize,
     delays: Vec<f64>,

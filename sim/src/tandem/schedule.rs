@@ -11,7 +11,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use super::rollgap::{roll_gap, Pass, RollGap};
-use crate::model::{parse_toml, read_model_file, Checker, ModelError};
+use crate::model::{parse_toml, read_text, Checker, ModelError};
 
 /// Fewest and most stands a schedule may have (the chatter detectors take up to 8).
 pub const STANDS: std::ops::RangeInclusive<usize> = 2..=8;
@@ -119,7 +119,7 @@ impl PassSchedule {
 
     /// Reads, parses and validates a schedule file; errors name the path as given.
     pub fn load(path: impl AsRef<Path>) -> Result<PassSchedule, ModelError> {
-        let (text, file) = read_model_file(path.as_ref())?;
+        let (text, file) = read_text(path.as_ref())?;
         PassSchedule::from_toml_str(&text, &file)
     }
 
