@@ -95,6 +95,12 @@ pub(crate) struct RawTandemMill {
     pub chatter_band_hz: Vec<f64>,
     pub window_s: f64,
     pub k_max: f64,
+    pub detector: Option<String>,
+    pub reference_band_hz: Option<Vec<f64>>,
+    pub gain_window_s: Option<f64>,
+    pub gain_thresholds: Option<Vec<f64>>,
+    pub slow_down_release: Option<f64>,
+    pub slow_down_hold_s: Option<f64>,
 }
 
 /// `[outputs]`.

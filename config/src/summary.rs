@@ -152,6 +152,21 @@ pub fn summary(config: &Config) -> String {
             mill.window_s,
             mill.k_max
         );
+        let detector = match mill.detector {
+            crate::ChatterDetectorKind::BandGain => format!(
+                "band gain (reference band {}..{} Hz, window {} s, thresholds {:?})",
+                mill.reference_band_hz.0,
+                mill.reference_band_hz.1,
+                mill.gain_window_s,
+                mill.gain_thresholds
+            ),
+            crate::ChatterDetectorKind::Paper => "paper (sigma_n and K_mean)".to_owned(),
+        };
+        let _ = writeln!(
+            text,
+            "    alarm: {detector}; slow-down released below {} for {} s",
+            mill.slow_down_release, mill.slow_down_hold_s
+        );
     }
     none_if_empty(&mut text, config.tandem_mills.len());
 

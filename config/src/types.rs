@@ -310,6 +310,40 @@ pub struct TandemMill {
     pub window_s: f64,
     /// K_max: largest adjacent-stand correlation seen in steady rolling (0..1).
     pub k_max: f64,
+    /// Which detector raises the chatter alarm and the slow-down request.
+    pub detector: ChatterDetectorKind,
+    /// Reference band of the chatter-band gain, Hz: (low, high), above the chatter
+    /// band (low >= its upper edge) and below half the sample rate. Default: 1.5 to 3
+    /// times the chatter band's upper edge.
+    pub reference_band_hz: (f64, f64),
+    /// Window of the chatter-band gain, s, > 0 and <= 10 (default 2); the monitor
+    /// checks it is 1..=16 hops of `window_s / 2`.
+    pub gain_window_s: f64,
+    /// Alarm threshold of the chatter-band gain per stand, in `stands` order, each
+    /// finite and > 0 (from commissioning: the largest gain in stable rolling up to
+    /// the highest allowed speed, plus a margin). Required with the band-gain
+    /// detector; may be empty with the paper's (no gain ratio is then published).
+    pub gain_thresholds: Vec<f64>,
+    /// The slow-down request clears once the alarm figure (the gain ratio, or for the
+    /// paper's detector the synchronization) has stayed below this fraction of its
+    /// alarm level for `slow_down_hold_s`; > 0 and < 1 (default 0.8).
+    pub slow_down_release: f64,
+    /// Time the alarm figure must stay below the release level before the slow-down
+    /// request clears, s, >= 0 and <= 600 (default 5).
+    pub slow_down_hold_s: f64,
+}
+
+/// The chatter detector that raises a tandem mill's alarm (`detector` key).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ChatterDetectorKind {
+    /// `"band_gain"` (the default): chatter-band RMS over reference-band RMS per stand
+    /// against `gain_thresholds`; the detector that warned earliest at zero false
+    /// alarms in the tandem-model race (`tests/src/chatter_eval.rs`).
+    #[default]
+    BandGain,
+    /// `"paper"`: the synchronization conditions (sigma_n <= sigma_min and K_mean >=
+    /// K_max); in the race they fired before developed chatter in 38 of 60 ramps.
+    Paper,
 }
 
 /// Where results go.

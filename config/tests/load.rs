@@ -5,8 +5,8 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use millgate_config::{
-    from_toml_str, load, ChannelKind, ChannelSource, Config, ConfigError, RegisterTable, ValueType,
-    WordOrder,
+    from_toml_str, load, ChannelKind, ChannelSource, ChatterDetectorKind, Config, ConfigError,
+    RegisterTable, ValueType, WordOrder,
 };
 
 fn examples_dir() -> PathBuf {
@@ -82,6 +82,7 @@ stands = ["acc0", "acc1"]
 chatter_band_hz = [100.0, 300.0]
 window_s = 0.5
 k_max = 0.25
+gain_thresholds = [1.2, 1.5]
 
 [outputs.plc]
 address = "127.0.0.1:5021"
@@ -264,6 +265,11 @@ fn tandem_example() {
     }
     assert_eq!(mill.chatter_band_hz, (100.0, 300.0));
     assert_eq!((mill.window_s, mill.k_max), (0.5, 0.25));
+    assert_eq!(mill.detector, ChatterDetectorKind::BandGain);
+    assert_eq!(mill.reference_band_hz, (450.0, 900.0));
+    assert_eq!(mill.gain_window_s, 2.0);
+    assert_eq!(mill.gain_thresholds.len(), 5);
+    assert_eq!((mill.slow_down_release, mill.slow_down_hold_s), (0.8, 5.0));
     let metrics = config.outputs.metrics.as_ref().expect("metrics output");
     assert_eq!(
         metrics.bind.to_string(),
@@ -440,7 +446,8 @@ fn duplicate_names() {
     );
     let two_mills = BASE.to_owned()
         + "\n[[tandem_mills]]\nname = \"TCM\"\nstands = [\"acc0\", \"acc1\"]\n\
-           chatter_band_hz = [100.0, 300.0]\nwindow_s = 0.5\nk_max = 0.25\n";
+           chatter_band_hz = [100.0, 300.0]\nwindow_s = 0.5\nk_max = 0.25\n\
+           detector = \"paper\"\n";
     assert_only_problem(
         &two_mills,
         "mill.toml: tandem_mills[1].name: duplicate tandem mill name \"TCM\" (already used by tandem_mills[0])",
@@ -659,6 +666,50 @@ fn chatter_band() {
         &edited("chatter_band_hz = [100.0, 300.0]", "chatter_band_hz = [500.0, 2000.0]"),
         "mill.toml: tandem_mills[0].chatter_band_hz: upper edge 2000 Hz is not allowed (must be < 2000 Hz, \
          half the 4000 Hz sample rate of stand channel \"acc0\")",
+    );
+}
+
+#[test]
+fn band_gain_keys() {
+    let config = parse(BASE).unwrap_or_else(|error| panic!("{error}"));
+    let mill = &config.tandem_mills[0];
+    assert_eq!(mill.detector, ChatterDetectorKind::BandGain);
+    // Defaults: reference band 1.5-3x the chatter band's top, 2 s, release 0.8 for 5 s.
+    assert_eq!(mill.reference_band_hz, (450.0, 900.0));
+    assert_eq!(mill.gain_window_s, 2.0);
+    assert_eq!(mill.gain_thresholds, [1.2, 1.5]);
+    assert_eq!((mill.slow_down_release, mill.slow_down_hold_s), (0.8, 5.0));
+    let paper = parse(&edited(
+        "gain_thresholds = [1.2, 1.5]",
+        "detector = \"paper\"\nreference_band_hz = [400.0, 1500.0]\nslow_down_hold_s = 0.0",
+    ))
+    .unwrap_or_else(|error| panic!("{error}"));
+    let mill = &paper.tandem_mills[0];
+    assert_eq!(mill.detector, ChatterDetectorKind::Paper);
+    assert!(mill.gain_thresholds.is_empty());
+    assert_eq!(mill.reference_band_hz, (400.0, 1500.0));
+    assert_eq!(mill.slow_down_hold_s, 0.0);
+
+    let key = "mill.toml: tandem_mills[0].";
+    for (from, to, problem) in [
+        ("gain_thresholds = [1.2, 1.5]", "", "gain_thresholds: missing (the band-gain detector, the default, needs one alarm threshold per stand"),
+        ("gain_thresholds = [1.2, 1.5]", "gain_thresholds = [1.2]", "gain_thresholds: 1 values is not allowed (must be one per stand: 2)"),
+        ("gain_thresholds = [1.2, 1.5]", "gain_thresholds = [1.2, 0.0]", "gain_thresholds[1]: 0 is not allowed (must be > 0"),
+        ("gain_thresholds = [1.2, 1.5]", "gain_thresholds = [1.2, 1.5]\ndetector = \"rms\"", "detector: \"rms\" is not allowed (must be \"band_gain\" or \"paper\")"),
+        ("gain_thresholds = [1.2, 1.5]", "gain_thresholds = [1.2, 1.5]\nreference_band_hz = [250.0, 900.0]", "reference_band_hz: lower edge 250 Hz is not allowed (must be >= 300 Hz"),
+        ("gain_thresholds = [1.2, 1.5]", "gain_thresholds = [1.2, 1.5]\nreference_band_hz = [900.0, 450.0]", "reference_band_hz: [900.0, 450.0] is not allowed (must be [low, high] with 0 < low < high, Hz)"),
+        ("gain_thresholds = [1.2, 1.5]", "gain_thresholds = [1.2, 1.5]\nreference_band_hz = [450.0, 2000.0]", "reference_band_hz: upper edge 2000 Hz is not allowed (must be < 2000 Hz"),
+        ("gain_thresholds = [1.2, 1.5]", "gain_thresholds = [1.2, 1.5]\ngain_window_s = 0.0", "gain_window_s: 0 is not allowed (must be > 0 and <= 10 s)"),
+        ("gain_thresholds = [1.2, 1.5]", "gain_thresholds = [1.2, 1.5]\nslow_down_release = 1.0", "slow_down_release: 1 is not allowed (must be > 0 and < 1"),
+        ("gain_thresholds = [1.2, 1.5]", "gain_thresholds = [1.2, 1.5]\nslow_down_hold_s = -1.0", "slow_down_hold_s: -1 is not allowed (must be >= 0 and <= 600 s)"),
+    ] {
+        assert_problem_like(&edited(from, to), &format!("{key}{problem}"), &[]);
+    }
+    // A chatter band near Nyquist leaves no room for the default reference band.
+    assert_problem_like(
+        &edited("chatter_band_hz = [100.0, 300.0]", "chatter_band_hz = [100.0, 1500.0]"),
+        "mill.toml: tandem_mills[0].reference_band_hz: upper edge 4500 Hz is not allowed (must be < 2000 Hz",
+        &["the default is 1.5 to 3 times the chatter band's upper edge"],
     );
 }
 

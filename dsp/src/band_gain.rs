@@ -83,6 +83,8 @@ impl core::fmt::Display for BandGainError {
     }
 }
 
+impl core::error::Error for BandGainError {}
+
 /// One band-pass: high-pass then low-pass, each 4th-order Butterworth.
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct BandPass {

@@ -28,6 +28,8 @@ impl core::fmt::Display for FilterError {
     }
 }
 
+impl core::error::Error for FilterError {}
+
 /// Coefficients of one second-order section (a0 normalised to 1).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Biquad {

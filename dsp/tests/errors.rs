@@ -1,8 +1,10 @@
 //! Every dsp error reads as a sentence naming what is wrong (the field, where there is
 //! one), and is a `core::error::Error`, so callers can wrap it as a source.
 
+use millgate_dsp::band_gain::BandGainError;
 use millgate_dsp::bite::BiteSettingsError;
 use millgate_dsp::chatter::ChatterError;
+use millgate_dsp::filter::FilterError;
 use millgate_dsp::fit::FitError;
 use millgate_dsp::pencil::PencilError;
 use millgate_dsp::stiffness::StiffnessError;
@@ -85,6 +87,23 @@ fn setting_errors_name_their_field() {
         (StiffnessError::Beta1, "beta1_hz"),
         (StiffnessError::Beta2, "beta2_hz"),
         (StiffnessError::Drawing, "drawing"),
+    ] {
+        message(&error, field);
+    }
+    for (error, field) in [
+        (BandGainError::SampleRateHz, "sample_rate_hz"),
+        (BandGainError::ChatterBandHz, "chatter_band_hz"),
+        (BandGainError::ReferenceBandHz, "reference_band_hz"),
+        (BandGainError::HopSamples, "hop_samples"),
+        (BandGainError::WindowHops, "window_hops"),
+        (BandGainError::Stands, "stands"),
+    ] {
+        message(&error, field);
+    }
+    for (error, field) in [
+        (FilterError::SampleRateHz, "sample_rate_hz"),
+        (FilterError::CutoffHz, "cutoff_hz"),
+        (FilterError::Q, "q must"),
     ] {
         message(&error, field);
     }

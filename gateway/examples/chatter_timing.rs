@@ -5,7 +5,8 @@
 //!
 //! Prints the time of the calls that completed a window (five forward and five
 //! inverse FFTs, the peak search and the correlations) and of all calls (ring
-//! buffer writes included), per evaluated window.
+//! buffer writes and the band gain's filters, which run on every sample, included),
+//! per evaluated window.
 
 use std::time::{Duration, Instant};
 
@@ -35,7 +36,8 @@ fn main() -> anyhow::Result<()> {
     let names: Vec<String> = (0..STANDS).map(|s| format!("\"s{s}\"")).collect();
     text += &format!(
         "[[tandem_mills]]\nname = \"TCM\"\nstands = [{}]\nchatter_band_hz = [100.0, 300.0]\n\
-         window_s = 0.5\nk_max = 0.25\n",
+         window_s = 0.5\nk_max = 0.25\n\
+         gain_thresholds = [1.187, 1.492, 2.209, 3.087, 3.327]\n",
         names.join(", ")
     );
     let config = millgate_config::from_toml_str(&text, "timing.toml", std::path::Path::new("."))

@@ -172,6 +172,29 @@ fn registers_export_json_and_csv_have_the_documented_fields() {
     assert!(rows
         .iter()
         .any(|r| r["name"].as_str().is_some_and(|n| n.ends_with(".k_mean"))));
+    // The band-gain registers of the mill block (offsets 8-14 after the block start).
+    let row = |suffix: &str| {
+        rows.iter()
+            .find(|r| r["name"].as_str().is_some_and(|n| n.ends_with(suffix)))
+            .unwrap_or_else(|| panic!("no {suffix} register"))
+    };
+    let flags = row(".flags")["address"].as_u64().unwrap();
+    for (suffix, offset, value_type) in [
+        (".chatter_gain", 8, "f32"),
+        (".gain_ratio", 10, "f32"),
+        (".band_rms_max", 12, "f32"),
+        (".worst_stand", 14, "u16"),
+    ] {
+        assert_eq!(
+            row(suffix)["address"].as_u64(),
+            Some(flags + offset),
+            "{suffix}"
+        );
+        assert_eq!(row(suffix)["type"].as_str(), Some(value_type), "{suffix}");
+    }
+    assert!(row(".flags")["description"]
+        .as_str()
+        .is_some_and(|d| d.contains("bit3 slow-down request")));
     for row in &rows {
         for key in [
             "name",

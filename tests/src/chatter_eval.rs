@@ -372,7 +372,7 @@ pub fn monitor_config(stands: usize) -> anyhow::Result<Config> {
     let names: Vec<String> = (0..stands).map(|s| format!("\"s{s}\"")).collect();
     text += &format!(
         "[[tandem_mills]]\nname = \"TCM\"\nstands = [{}]\nchatter_band_hz = [{}, {}]\n\
-         window_s = {WINDOW_S}\nk_max = {CONFIGURED_K_MAX}\n",
+         window_s = {WINDOW_S}\nk_max = {CONFIGURED_K_MAX}\ndetector = \"paper\"\n",
         names.join(", "),
         CHATTER_BAND_HZ.0,
         CHATTER_BAND_HZ.1

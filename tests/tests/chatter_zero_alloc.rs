@@ -26,7 +26,8 @@ fn samples_gaps_and_evaluations_allocate_nothing() -> anyhow::Result<()> {
          [[channels]]\nname = \"c\"\nkind = \"acceleration\"\nunit = \"g\"\nsample_rate_hz = {FS}\n\
          source = {{ modbus = \"daq\", table = \"input\", block = 244 }}\n\
          [[tandem_mills]]\nname = \"TCM\"\nstands = [\"a\", \"b\", \"c\"]\n\
-         chatter_band_hz = [100.0, 300.0]\nwindow_s = 0.5\nk_max = 0.25\n"
+         chatter_band_hz = [100.0, 300.0]\nwindow_s = 0.5\nk_max = 0.25\n\
+         gain_thresholds = [2.209, 3.087, 3.327]\n"
     );
     let config = millgate_config::from_toml_str(&text, "t.toml", std::path::Path::new("."))
         .map_err(|e| anyhow::anyhow!("{e}"))?;
@@ -56,7 +57,7 @@ fn samples_gaps_and_evaluations_allocate_nothing() -> anyhow::Result<()> {
     let t0 = Instant::now();
     let period = Duration::from_secs_f64(BLOCK as f64 / FS);
 
-    let (mut evaluated, mut restarted) = (0, 0);
+    let (mut evaluated, mut restarted, mut gained) = (0, 0, 0);
     let ((), allocations) = allocations_during(|| {
         for (b, start) in (0..signals[0].len() - BLOCK).step_by(BLOCK).enumerate() {
             if b == 40 {
@@ -66,7 +67,10 @@ fn samples_gaps_and_evaluations_allocate_nothing() -> anyhow::Result<()> {
                 let update =
                     monitor.samples(s, &signal[start..start + BLOCK], t0 + period * b as u32);
                 match update {
-                    Some(ChatterUpdate::Evaluated(_)) => evaluated += 1,
+                    Some(ChatterUpdate::Evaluated(_)) => {
+                        evaluated += 1;
+                        gained += usize::from(monitor.gain().is_some_and(|g| g.ratio.is_some()));
+                    }
                     Some(ChatterUpdate::Restarted(_)) => restarted += 1,
                     _ => {}
                 }
@@ -74,6 +78,11 @@ fn samples_gaps_and_evaluations_allocate_nothing() -> anyhow::Result<()> {
         }
     });
     assert!(evaluated > 30, "{evaluated} windows evaluated");
+    // The band gain ran too: readings once its 2 s window filled, before and after the gap.
+    assert!(
+        gained > 10,
+        "{gained} of {evaluated} windows with a gain reading"
+    );
     assert_eq!(restarted, 1, "the gap");
     assert_eq!(
         allocations, 0,

@@ -912,3 +912,170 @@ async fn kernel_drops_are_counted_and_marked_as_a_gap() -> Result<()> {
     );
     Ok(())
 }
+
+/// The race's band-gain thresholds of the simulated five-stand mill.
+const TANDEM_GAIN_THRESHOLDS: &str = "[1.187, 1.492, 2.209, 3.087, 3.327]";
+
+/// A five-stand tandem mill whose chock accelerometers come over CAN FD
+/// (`config/examples/tandem-chocks.dbc`, one sample of every stand per frame).
+fn tandem_config(interface: &str) -> Result<Config> {
+    let mut text = format!(
+        "name = \"tandem over CAN\"\n\n[[sources.can]]\nname = \"chock_can\"\n\
+         interface = \"{interface}\"\ndbc = \"tandem-chocks.dbc\"\n\n"
+    );
+    for stand in 1..=5 {
+        text += &format!(
+            "[[channels]]\nname = \"s{stand}_vib\"\nkind = \"acceleration\"\nunit = \"m/s^2\"\n\
+             sample_rate_hz = 2500.0\n\
+             source = {{ can = \"chock_can\", message = \"StandChocks\", signal = \"S{stand}Vib\" }}\n\n"
+        );
+    }
+    text += &format!(
+        "[[tandem_mills]]\nname = \"TCM\"\n\
+         stands = [\"s1_vib\", \"s2_vib\", \"s3_vib\", \"s4_vib\", \"s5_vib\"]\n\
+         chatter_band_hz = [100.0, 300.0]\nwindow_s = 0.5\nk_max = 0.25\n\
+         gain_thresholds = {TANDEM_GAIN_THRESHOLDS}\n"
+    );
+    millgate_config::from_toml_str(&text, "tandem-can.toml", &examples_dir())
+        .map_err(|e| anyhow::anyhow!("{e}"))
+}
+
+#[test]
+fn tandem_chocks_dbc_resolves_five_stands_in_one_fd_frame() -> Result<()> {
+    let config = tandem_config("vcan0")?;
+    let message = message(&config, &[0, 1, 2, 3, 4])?;
+    assert_eq!(message.frame_id(), 768);
+    // One frame of 16 bytes: the five stands at 0.01 m/s^2 per bit.
+    let frame = message.encode(&[1.23, -4.56, 0.0, 327.67, -327.68])?;
+    assert_eq!(frame.len(), 16);
+    let raw = |stand: usize| i16::from_le_bytes([frame[1 + 2 * stand], frame[2 + 2 * stand]]);
+    assert_eq!(
+        (0..5).map(raw).collect::<Vec<_>>(),
+        [123, -456, 0, 32767, -32768]
+    );
+    Ok(())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "needs SocketCAN vcan0: run scripts/uml-vcan"]
+async fn tandem_chatter_over_can_requests_a_slow_down_before_it_develops() -> Result<()> {
+    use millgate_sim::tandem::simulate::{
+        simulate, Accelerometer, Excitation, RunSettings, SpeedRamp,
+    };
+    use millgate_sim::tandem::truth::{ground_truth, mill_critical_speed};
+    use millgate_sim::tandem::{PassSchedule, TandemMill};
+    const FS: f64 = 2500.0;
+    // The physical model: 6 s at 90% of the critical speed, then a 2 m/s^2 ramp
+    // (the Modbus end-to-end test's run, tests/tests/chatter_e2e.rs).
+    let mill = TandemMill::new(&PassSchedule::example()?)?;
+    let critical = mill_critical_speed(&mill)?;
+    let ramp = SpeedRamp {
+        start: 0.9 * critical.speed,
+        end: 1.5 * critical.speed,
+        hold_s: 6.0,
+        accel_m_s2: 2.0,
+    };
+    let record = simulate(
+        &mill,
+        &RunSettings {
+            ramp,
+            excitation: Excitation::default(),
+            sensor: Accelerometer {
+                sample_rate_hz: FS,
+                ..Accelerometer::default()
+            },
+            duration_s: 16.0,
+            seed: 7,
+            internal_rate_hz: None,
+        },
+    )?;
+    let truth = ground_truth(&mill, &ramp, &record, critical);
+    let onset = truth
+        .onset_s
+        .context("the ramp passes the critical speed")?;
+    let developed = truth.developed_s.context("chatter develops")?;
+    let signals = record.acceleration;
+    // The DBC's range, as a real node would clip.
+    let rows: Vec<[f64; 5]> = (0..signals[0].len())
+        .map(|k| std::array::from_fn(|s| signals[s][k].clamp(-327.68, 327.67)))
+        .collect();
+
+    let interface = vcan();
+    let config = tandem_config(&interface)?;
+    let message = message(&config, &[0, 1, 2, 3, 4])?;
+    let gateway = millgate::Service::new(config)?.spawn().await?;
+    let publisher = gateway.publisher();
+    let node = CanNode::open(&interface)?;
+    let sender = tokio::spawn(async move {
+        node.run(&message, rows, Duration::from_secs_f64(1.0 / FS))
+            .await
+    });
+
+    // Sample time of the window ending with evaluation `n` (1-based) after a valid
+    // start: the first window ends one window (0.5 s) in, then one every hop (0.25 s);
+    // the first batch of frames anchors the stands and is not used (<= 0.1 s).
+    let window_end_s = |n: u64| 0.5 + 0.25 * (n as f64 - 1.0);
+    let started = Instant::now();
+    let mut peak_before = 0.0_f64;
+    let mut valid_before = 0;
+    let alarm = loop {
+        ensure!(
+            started.elapsed() < Duration::from_secs(60),
+            "no alarm: {:?}",
+            publisher.results().mills[0]
+        );
+        let mill = publisher.results().mills[0].clone();
+        if mill.evaluations > 0 {
+            // Steady frames never restart the window (no gap, no lag).
+            ensure!(!mill.source_stale, "window restarted: {mill:?}");
+        }
+        let at_s = window_end_s(mill.evaluations);
+        if mill.alarm {
+            break (at_s, mill);
+        }
+        if let Some(ratio) = mill.gain_ratio {
+            if at_s < onset {
+                peak_before = peak_before.max(ratio);
+                valid_before += 1;
+            }
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    };
+    let (alarm_s, mill) = alarm;
+    println!(
+        "tandem over CAN: onset {onset:.2} s, developed {developed:.2} s; {valid_before} gain \
+         readings before the onset, peak ratio {peak_before:.3}; alarm in the window ending at \
+         {alarm_s:.2} s (+-0.1 s): gain ratio {:.2} on stand {:?}, slow-down {}",
+        mill.gain_ratio.unwrap_or(f64::NAN),
+        mill.worst_stand.map(|s| s + 1),
+        mill.slow_down_request
+    );
+    ensure!(
+        valid_before > 3,
+        "gain readings before the onset: {valid_before}"
+    );
+    ensure!(
+        peak_before < 1.0,
+        "gain ratio {peak_before} before the onset"
+    );
+    ensure!(
+        alarm_s > onset - 0.1,
+        "alarm at {alarm_s:.2} s, before the onset"
+    );
+    ensure!(
+        alarm_s < developed,
+        "alarm at {alarm_s:.2} s, after developed chatter"
+    );
+    ensure!(
+        mill.slow_down_request,
+        "slow-down requested with the alarm: {mill:?}"
+    );
+    ensure!(
+        mill.gain_ratio.is_some_and(|r| r >= 1.0) && mill.worst_stand.is_some(),
+        "{mill:?}"
+    );
+
+    sender.abort();
+    tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
+    Ok(())
+}

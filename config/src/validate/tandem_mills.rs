@@ -2,9 +2,28 @@
 //! correlation threshold.
 
 use crate::raw::RawTandemMill;
-use crate::{ChannelKind, TandemMill};
+use crate::{ChannelKind, ChatterDetectorKind, TandemMill};
 
 use super::{ChannelFacts, Checker, MAX_WINDOW_S, STANDS_RANGE};
+
+/// Default gain window, s: the variant that won the race (`tests/src/chatter_eval.rs`).
+const DEFAULT_GAIN_WINDOW_S: f64 = 2.0;
+/// Default release level of the slow-down request, fraction of the alarm level.
+const DEFAULT_SLOW_DOWN_RELEASE: f64 = 0.8;
+/// Default time below the release level before the slow-down request clears, s.
+const DEFAULT_SLOW_DOWN_HOLD_S: f64 = 5.0;
+/// Longest slow-down hold, s.
+const MAX_SLOW_DOWN_HOLD_S: f64 = 600.0;
+
+/// The band-gain and slow-down keys of one mill, each `None` when reported.
+struct GainKeys {
+    detector: Option<ChatterDetectorKind>,
+    reference_band_hz: Option<(f64, f64)>,
+    gain_window_s: Option<f64>,
+    gain_thresholds: Option<Vec<f64>>,
+    slow_down_release: Option<f64>,
+    slow_down_hold_s: Option<f64>,
+}
 
 impl Checker<'_> {
     pub(super) fn tandem_mill(
@@ -102,12 +121,170 @@ impl Checker<'_> {
             raw.k_max > 0.0 && raw.k_max < 1.0,
             "> 0 and < 1, a correlation coefficient; typically 0.2..0.3",
         );
+        let sample_rate_hz = resolved().next().map(|c| c.sample_rate_hz);
+        // The gain's keys are checked against a chatter band and stand list that passed
+        // (so one mistake is reported once).
+        let checked_band =
+            band.filter(|&(_, high)| sample_rate_hz.is_none_or(|fs| high < fs / 2.0));
+        let gain = self.band_gain_keys(
+            key,
+            raw,
+            checked_band,
+            sample_rate_hz,
+            stands_ok.then_some(stands.len()),
+        );
         Some(TandemMill {
             name: name?,
             stands: stands_ok.then_some(stands)?,
             chatter_band_hz: band?,
             window_s: window_s?,
             k_max: k_max?,
+            detector: gain.detector?,
+            reference_band_hz: gain.reference_band_hz?,
+            gain_window_s: gain.gain_window_s?,
+            gain_thresholds: gain.gain_thresholds?,
+            slow_down_release: gain.slow_down_release?,
+            slow_down_hold_s: gain.slow_down_hold_s?,
         })
+    }
+
+    /// `detector`, `reference_band_hz`, `gain_window_s`, `gain_thresholds`,
+    /// `slow_down_release` and `slow_down_hold_s` of the mill at `key`; `band` is its
+    /// checked chatter band, `sample_rate_hz` its stands' rate and `stands` their
+    /// number, when known.
+    fn band_gain_keys(
+        &mut self,
+        key: &str,
+        raw: &RawTandemMill,
+        band: Option<(f64, f64)>,
+        sample_rate_hz: Option<f64>,
+        stands: Option<usize>,
+    ) -> GainKeys {
+        let detector = match raw.detector.as_deref() {
+            None | Some("band_gain") => Some(ChatterDetectorKind::BandGain),
+            Some("paper") => Some(ChatterDetectorKind::Paper),
+            Some(other) => {
+                self.report.push(
+                    format!("{key}.detector"),
+                    format!("\"{other}\" is not allowed (must be \"band_gain\" or \"paper\")"),
+                );
+                None
+            }
+        };
+        let reference_key = format!("{key}.reference_band_hz");
+        let reference_band_hz = match (raw.reference_band_hz.as_deref(), band) {
+            (None, Some((_, high))) => Some((1.5 * high, 3.0 * high)),
+            (None, None) => None,
+            (Some(&[low, high]), _)
+                if low.is_finite() && high.is_finite() && 0.0 < low && low < high =>
+            {
+                Some((low, high))
+            }
+            (Some(other), _) => {
+                self.report.push(
+                    &reference_key,
+                    format!(
+                        "{other:?} is not allowed (must be [low, high] with 0 < low < high, Hz)"
+                    ),
+                );
+                None
+            }
+        };
+        let reference_band_hz = reference_band_hz.filter(|&(low, high)| {
+            if let Some((_, chatter_high)) = band.filter(|&(_, chatter_high)| low < chatter_high) {
+                self.report.push(
+                    &reference_key,
+                    format!(
+                        "lower edge {low} Hz is not allowed (must be >= {chatter_high} Hz, the \
+                         chatter band's upper edge: the reference band lies above it)"
+                    ),
+                );
+                return false;
+            }
+            if let Some(nyquist_hz) = sample_rate_hz.map(|fs| fs / 2.0).filter(|&n| high >= n) {
+                self.report.push(
+                    &reference_key,
+                    format!(
+                        "upper edge {high} Hz is not allowed (must be < {nyquist_hz} Hz, half the \
+                         stands' sample rate{})",
+                        if raw.reference_band_hz.is_none() {
+                            "; the default is 1.5 to 3 times the chatter band's upper edge, set \
+                             the key"
+                        } else {
+                            ""
+                        }
+                    ),
+                );
+                return false;
+            }
+            true
+        });
+        let gain_window = raw.gain_window_s.unwrap_or(DEFAULT_GAIN_WINDOW_S);
+        let gain_window_s = self.float(
+            &format!("{key}.gain_window_s"),
+            gain_window,
+            gain_window > 0.0 && gain_window <= MAX_WINDOW_S,
+            &format!("> 0 and <= {MAX_WINDOW_S} s"),
+        );
+        let thresholds_key = format!("{key}.gain_thresholds");
+        let gain_thresholds = match (&raw.gain_thresholds, detector) {
+            (None, Some(ChatterDetectorKind::BandGain)) => {
+                self.report.push(
+                    &thresholds_key,
+                    "missing (the band-gain detector, the default, needs one alarm threshold \
+                     per stand, > 0, from stable rolling up to the highest allowed speed; or \
+                     set detector = \"paper\")",
+                );
+                None
+            }
+            (None, _) => Some(Vec::new()),
+            (Some(values), _) if stands.is_some_and(|n| n != values.len()) => {
+                self.report.push(
+                    &thresholds_key,
+                    format!(
+                        "{} values is not allowed (must be one per stand: {})",
+                        values.len(),
+                        raw.stands.len()
+                    ),
+                );
+                None
+            }
+            (Some(values), _) => {
+                let mut ok = true;
+                for (position, &value) in values.iter().enumerate() {
+                    ok &= self
+                        .float(
+                            &format!("{thresholds_key}[{position}]"),
+                            value,
+                            value > 0.0,
+                            "> 0, a ratio of band RMS values",
+                        )
+                        .is_some();
+                }
+                ok.then(|| values.clone())
+            }
+        };
+        let release = raw.slow_down_release.unwrap_or(DEFAULT_SLOW_DOWN_RELEASE);
+        let slow_down_release = self.float(
+            &format!("{key}.slow_down_release"),
+            release,
+            release > 0.0 && release < 1.0,
+            "> 0 and < 1, a fraction of the alarm level",
+        );
+        let hold = raw.slow_down_hold_s.unwrap_or(DEFAULT_SLOW_DOWN_HOLD_S);
+        let slow_down_hold_s = self.float(
+            &format!("{key}.slow_down_hold_s"),
+            hold,
+            (0.0..=MAX_SLOW_DOWN_HOLD_S).contains(&hold),
+            &format!(">= 0 and <= {MAX_SLOW_DOWN_HOLD_S} s"),
+        );
+        GainKeys {
+            detector,
+            reference_band_hz,
+            gain_window_s,
+            gain_thresholds,
+            slow_down_release,
+            slow_down_hold_s,
+        }
     }
 }

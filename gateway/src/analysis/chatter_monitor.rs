@@ -27,15 +27,35 @@
 //! first block was one newer than the others' (the DAQ published between two reads
 //! of one poll) and re-anchors a stand after a gap of unknown length.
 //!
+//! **Chatter-band gain.** Every common sample index that all stands have is also fed,
+//! as one frame, to `dsp::band_gain` (per stand a chatter-band and a reference-band
+//! Butterworth band-pass; `gain_window_s` of whole hops). Its hops fall on the same
+//! sample indices as the spectra's windows, so each evaluation carries the gain of the
+//! window ending with it ([`ChatterMonitor::gain`]), or none while the gain's longer
+//! window refills after a restart. With `gain_thresholds` the largest
+//! `gain[s] / threshold[s]` is the mill's gain ratio: 1 is the alarm level of the
+//! band-gain detector, the default (it warned earliest at zero false alarms in the
+//! tandem-model race, `tests/src/chatter_eval.rs`).
+//!
 //! **Restarts.** A gap on any stand, a stand falling more than [`MAX_STAND_LAG_S`]
 //! behind the others, or a change of a stand's anchor invalidates the mill's values
 //! (flag "source stale") and restarts the window: the next evaluation uses only
-//! samples taken after the restart on every stand.
+//! samples taken after the restart on every stand, and the gain's filters restart.
+//!
+//! **Slow-down request** ([`SlowDown`]): set by the configured detector's alarm
+//! (gain ratio >= 1, or both synchronization conditions), cleared only after the
+//! alarm figure stayed below `slow_down_release` for `slow_down_hold_s` of trusted
+//! windows. A restart or an unevaluable window neither sets nor clears it: it holds,
+//! and the time below the release level starts again (the mill is not sped up on data
+//! the gateway cannot read; the stale bit tells the PLC why).
 
 use std::sync::Arc;
 use std::time::Instant;
 
-use millgate_config::{Config, TandemMill};
+use millgate_config::{ChatterDetectorKind, Config, TandemMill};
+use millgate_dsp::band_gain::{
+    BandGain, BandGainError, BandGainSettings, BandGainState, BandGainWindow, MAX_WINDOW_HOPS,
+};
 use millgate_dsp::chatter::{
     ChatterDetector, ChatterError, ChatterResult, ChatterSettings, StandWindow, MAX_STANDS,
 };
@@ -94,6 +114,33 @@ pub enum ChatterSetupError {
         low_hz: f64,
         /// Upper edge of the chatter band, Hz.
         high_hz: f64,
+    },
+    /// `gain_window_s` is not a whole number of hops (half of `window_s`) in
+    /// 1..=[`MAX_WINDOW_HOPS`].
+    #[error(
+        "tandem_mills[{index}].gain_window_s: {gain_window_s} s is not allowed (must be 1 to \
+         {MAX_WINDOW_HOPS} whole hops of window_s / 2 = {hop_s} s; tandem mill \"{mill}\")"
+    )]
+    GainWindow {
+        /// Index of the mill in the configuration.
+        index: usize,
+        /// The mill's name.
+        mill: String,
+        /// Configured gain window, s.
+        gain_window_s: f64,
+        /// The monitor's hop, s.
+        hop_s: f64,
+    },
+    /// The chatter-band gain refused the mill's settings (bands, sample rate).
+    #[error("tandem_mills[{index}]: band gain: {source} (tandem mill \"{mill}\")")]
+    BandGain {
+        /// Index of the mill in the configuration.
+        index: usize,
+        /// The mill's name.
+        mill: String,
+        /// What the band gain refused.
+        #[source]
+        source: BandGainError,
     },
     /// The chatter detector refused the mill's settings.
     #[error("tandem_mills[{index}]: {source} (tandem mill \"{mill}\")")]
@@ -196,10 +243,113 @@ impl StandStream {
     }
 }
 
+/// The chatter-band gain of the window that ended with the latest evaluation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GainReading {
+    /// The largest chatter-band gain of any stand (chatter-band RMS / reference-band RMS).
+    pub max_gain: f64,
+    /// The largest chatter-band RMS of any stand, in the stand channels' unit.
+    pub max_band_rms: f64,
+    /// The largest `gain[s] / gain_thresholds[s]` (>= 1: the band-gain alarm) and the
+    /// stand (index in the mill) it belongs to; `None` without thresholds.
+    pub ratio: Option<(f64, usize)>,
+}
+
+impl GainReading {
+    /// The reading of one band-gain window against per-stand `thresholds` (empty: no
+    /// ratio).
+    pub fn new(window: &BandGainWindow, thresholds: &[f64]) -> Self {
+        let ratio = (thresholds.len() == window.gain.len() && !thresholds.is_empty()).then(|| {
+            window
+                .gain
+                .iter()
+                .zip(thresholds)
+                .map(|(gain, threshold)| gain / threshold)
+                .enumerate()
+                .fold((f64::NEG_INFINITY, 0), |best, (stand, ratio)| {
+                    if ratio > best.0 {
+                        (ratio, stand)
+                    } else {
+                        best
+                    }
+                })
+        });
+        Self {
+            max_gain: window.max_gain(),
+            max_band_rms: window.max_band_rms(),
+            ratio,
+        }
+    }
+}
+
+/// The slow-down request of one mill, with hysteresis (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SlowDown {
+    release: f64,
+    hold_s: f64,
+    requested: bool,
+    /// Time the alarm figure has stayed below the release level while requested, s.
+    below_s: f64,
+}
+
+impl SlowDown {
+    /// Not requested; clears after `hold_s` below `release` (a fraction of the alarm
+    /// level, 0..1).
+    pub fn new(release: f64, hold_s: f64) -> Self {
+        Self {
+            release,
+            hold_s,
+            requested: false,
+            below_s: 0.0,
+        }
+    }
+
+    /// Whether the slow-down is requested.
+    pub fn requested(&self) -> bool {
+        self.requested
+    }
+
+    /// One trusted window: `level` is the alarm figure relative to its alarm level
+    /// (1 = alarm), `step_s` the time since the previous window. Returns the request.
+    pub fn window(&mut self, level: f64, step_s: f64) -> bool {
+        if level >= 1.0 {
+            self.requested = true;
+            self.below_s = 0.0;
+        } else if self.requested {
+            if level < self.release {
+                self.below_s += step_s;
+                if self.below_s >= self.hold_s {
+                    self.requested = false;
+                    self.below_s = 0.0;
+                }
+            } else {
+                self.below_s = 0.0;
+            }
+        }
+        self.requested
+    }
+
+    /// A window that could not be trusted: the request holds, the time below the
+    /// release level starts again.
+    pub fn untrusted(&mut self) {
+        self.below_s = 0.0;
+    }
+}
+
 /// Sliding-window chatter monitor of one tandem mill (see the module docs).
 pub struct ChatterMonitor {
     name: String,
     detector: ChatterDetector,
+    kind: ChatterDetectorKind,
+    band_gain: BandGain,
+    gain_state: BandGainState,
+    /// Common index of the next frame for the band gain.
+    gain_next: i64,
+    gain_thresholds: Vec<f64>,
+    /// The band gain's latest window; `None` after a restart until a full one.
+    gain: Option<GainReading>,
+    /// The slow-down request's release level and hold, from the configuration.
+    slow_down: SlowDown,
     sample_rate_hz: f64,
     window: usize,
     hop: usize,
@@ -309,9 +459,41 @@ impl ChatterMonitor {
             })
             .collect();
         let n = mill.stands.len();
+        let hop_s = hop as f64 / fs;
+        let window_hops = (mill.gain_window_s / hop_s).round();
+        if !((1.0..=MAX_WINDOW_HOPS as f64).contains(&window_hops)
+            && (window_hops * hop_s - mill.gain_window_s).abs() <= 1e-6 * mill.gain_window_s)
+        {
+            return Err(ChatterSetupError::GainWindow {
+                index,
+                mill: mill.name.clone(),
+                gain_window_s: mill.gain_window_s,
+                hop_s,
+            });
+        }
+        let band_gain = BandGain::new(BandGainSettings {
+            sample_rate_hz: fs,
+            chatter_band_hz: mill.chatter_band_hz,
+            reference_band_hz: mill.reference_band_hz,
+            hop_samples: hop,
+            window_hops: window_hops as usize,
+            stands: n,
+        })
+        .map_err(|source| ChatterSetupError::BandGain {
+            index,
+            mill: mill.name.clone(),
+            source,
+        })?;
         Ok(Self {
             name: mill.name.clone(),
             detector,
+            kind: mill.detector,
+            gain_state: band_gain.state(),
+            band_gain,
+            gain_next: 0,
+            gain_thresholds: mill.gain_thresholds.clone(),
+            gain: None,
+            slow_down: SlowDown::new(mill.slow_down_release, mill.slow_down_hold_s),
             sample_rate_hz: fs,
             window,
             hop,
@@ -360,6 +542,45 @@ impl ChatterMonitor {
         self.evaluations
     }
 
+    /// Time between evaluations, s.
+    pub fn hop_s(&self) -> f64 {
+        self.hop as f64 / self.sample_rate_hz
+    }
+
+    /// The detector that raises the alarm and the slow-down request.
+    pub fn detector(&self) -> ChatterDetectorKind {
+        self.kind
+    }
+
+    /// The chatter-band gain of the window that ended with the latest evaluation;
+    /// `None` while its window refills after a restart.
+    pub fn gain(&self) -> Option<GainReading> {
+        self.gain
+    }
+
+    /// The configured detector's alarm figure for an evaluation with `result`,
+    /// relative to its alarm level (>= 1: alarm): the gain ratio, or for the paper's
+    /// detector 1 when synchronized, the release level when only the frequencies
+    /// lock (it holds a slow-down request), else 0. `None` when the figure is not
+    /// available (no gain window yet, or no thresholds).
+    pub fn alarm_level(&self, result: &ChatterResult) -> Option<f64> {
+        match self.kind {
+            ChatterDetectorKind::BandGain => self.gain.and_then(|g| g.ratio).map(|(r, _)| r),
+            ChatterDetectorKind::Paper => Some(if result.synchronized {
+                1.0
+            } else if result.frequencies_locked {
+                self.slow_down.release
+            } else {
+                0.0
+            }),
+        }
+    }
+
+    /// A fresh slow-down request with the mill's release level and hold.
+    pub fn slow_down(&self) -> SlowDown {
+        SlowDown::new(self.slow_down.release, self.slow_down.hold_s)
+    }
+
     /// Samples of stand `stand` (index in the mill's `stands`), oldest first, that
     /// arrived at `arrival`. Returns what changed: a restart, or an evaluation when
     /// this completed a hop on every stand.
@@ -393,6 +614,7 @@ impl ChatterMonitor {
         if let Some(cause) = self.check_lag() {
             return Some(ChatterUpdate::Restarted(cause));
         }
+        self.feed_band_gain();
         let end = self.due_window_end()?;
         self.next_end = end + self.hop as i64;
         Some(match self.evaluate(end) {
@@ -447,6 +669,7 @@ impl ChatterMonitor {
     }
 
     /// Forget the window: the next one starts after every stand's latest sample.
+    /// The band gain restarts with the next window, so its hops end with the windows.
     fn restart(&mut self) {
         let latest = self
             .stands
@@ -456,6 +679,42 @@ impl ChatterMonitor {
             .unwrap_or(0);
         self.valid_from = self.valid_from.max(latest);
         self.next_end = self.next_end.max(self.valid_from + self.window as i64);
+        self.band_gain.reset(&mut self.gain_state);
+        self.gain_next = self.next_end - self.window as i64;
+        self.gain = None;
+    }
+
+    /// Feed the band gain every frame all stands have and the rings still hold.
+    fn feed_band_gain(&mut self) {
+        let mut earliest = i64::MAX;
+        let mut latest = i64::MIN;
+        for stream in &self.stands {
+            let Some(next) = stream.next_index() else {
+                return;
+            };
+            earliest = earliest.min(next);
+            latest = latest.max(next);
+        }
+        let oldest_held = latest - self.stands[0].ring.len() as i64;
+        if self.gain_next < oldest_held {
+            // Cannot happen while the lag check restarts the window in time; if it
+            // did, the frames are gone: start the gain again rather than feed stale ones.
+            self.band_gain.reset(&mut self.gain_state);
+            self.gain = None;
+            self.gain_next = oldest_held;
+        }
+        let mut frame = [0.0; MAX_STANDS];
+        let frame = &mut frame[..self.stands.len()];
+        for index in self.gain_next..earliest {
+            for (value, stream) in frame.iter_mut().zip(&self.stands) {
+                *value = stream.sample(index);
+            }
+            // The frame has one sample per stand, as the gain was built for.
+            if let Ok(Some(window)) = self.band_gain.process(&mut self.gain_state, frame) {
+                self.gain = Some(GainReading::new(&window, &self.gain_thresholds));
+            }
+        }
+        self.gain_next = self.gain_next.max(earliest);
     }
 
     /// Restart once when a stand falls too far behind; clears when it catches up.
@@ -559,13 +818,17 @@ pub fn chatter_frequency_hz(result: &ChatterResult) -> Option<f64> {
 /// register map (PLC writes, HMI server) and `/metrics`.
 ///
 /// Published per mill after each evaluation: sigma_n, K_mean, the chatter frequency
-/// (mean of the stands' principal frequencies), the warning bit (sigma_n <=
-/// sigma_min, this window) and the alarm bit (both conditions; latched until
-/// acknowledged, like the driveline alarms). A restart clears the values and sets
-/// "source stale" until the next full window.
+/// (mean of the stands' principal frequencies), the chatter-band gain, band RMS and
+/// gain ratio with its stand, and the configured detector's bits: warning (band gain:
+/// gain ratio >= `slow_down_release` in this window; paper: sigma_n <= sigma_min),
+/// alarm (band gain: ratio >= 1; paper: both conditions; latched until acknowledged,
+/// like the driveline alarms) and the slow-down request ([`SlowDown`]). A restart
+/// clears the values and sets "source stale" until the next full window.
 #[derive(Debug)]
 pub struct ChatterAnalysis {
     monitors: Vec<ChatterMonitor>,
+    /// Per mill, the slow-down request.
+    slow_downs: Vec<SlowDown>,
     /// Per channel: the (mill, stand) pairs it feeds.
     by_channel: Vec<Vec<(usize, usize)>>,
     publisher: Arc<Publisher>,
@@ -583,6 +846,7 @@ impl ChatterAnalysis {
             }
         }
         Ok(Self {
+            slow_downs: monitors.iter().map(ChatterMonitor::slow_down).collect(),
             monitors,
             by_channel,
             publisher,
@@ -613,15 +877,44 @@ impl ChatterAnalysis {
                 Acquired::ProcessValue { .. } => None,
             };
             if let Some(change) = change {
-                publish(&self.publisher, mill, monitor, &change);
+                publish(
+                    &self.publisher,
+                    mill,
+                    monitor,
+                    &mut self.slow_downs[mill],
+                    &change,
+                );
             }
         }
     }
 }
 
 /// Record one monitor update in the published results.
-fn publish(publisher: &Publisher, mill: usize, monitor: &ChatterMonitor, change: &ChatterUpdate) {
+fn publish(
+    publisher: &Publisher,
+    mill: usize,
+    monitor: &ChatterMonitor,
+    slow_down: &mut SlowDown,
+    change: &ChatterUpdate,
+) {
     let name = monitor.name();
+    let was_requested = slow_down.requested();
+    match change {
+        ChatterUpdate::Evaluated(result) => match monitor.alarm_level(result) {
+            Some(level) => {
+                slow_down.window(level, monitor.hop_s());
+            }
+            None => slow_down.untrusted(),
+        },
+        ChatterUpdate::Failed(_) | ChatterUpdate::Restarted(_) => slow_down.untrusted(),
+    }
+    if slow_down.requested() != was_requested {
+        tracing::warn!(
+            mill = %name,
+            requested = slow_down.requested(),
+            "chatter slow-down request changed"
+        );
+    }
     publisher.update(|results| {
         let Some(published) = results.mills.get_mut(mill) else {
             return;
@@ -633,17 +926,36 @@ fn publish(publisher: &Publisher, mill: usize, monitor: &ChatterMonitor, change:
                 published.sigma_n_hz = Some(result.sigma_n_hz);
                 published.k_mean = Some(result.k_mean);
                 published.chatter_frequency_hz = chatter_frequency_hz(result);
-                published.warning = result.frequencies_locked;
-                if result.synchronized && !published.alarm {
+                let gain = monitor.gain();
+                published.chatter_gain = gain.map(|g| g.max_gain);
+                published.band_rms_max = gain.map(|g| g.max_band_rms);
+                published.gain_ratio = gain.and_then(|g| g.ratio).map(|(ratio, _)| ratio);
+                published.worst_stand = gain.and_then(|g| g.ratio).map(|(_, stand)| stand);
+                let (warning, alarm) = match monitor.detector() {
+                    ChatterDetectorKind::BandGain => {
+                        let ratio = published.gain_ratio;
+                        let release = slow_down.release;
+                        (
+                            ratio.is_some_and(|r| r >= release),
+                            ratio.is_some_and(|r| r >= 1.0),
+                        )
+                    }
+                    ChatterDetectorKind::Paper => (result.frequencies_locked, result.synchronized),
+                };
+                published.warning = warning;
+                if alarm && !published.alarm {
                     tracing::warn!(
                         mill = %name,
+                        detector = ?monitor.detector(),
+                        gain_ratio = ?published.gain_ratio,
+                        stand = ?published.worst_stand,
                         sigma_n_hz = result.sigma_n_hz,
                         k_mean = result.k_mean,
                         frequency_hz = ?published.chatter_frequency_hz,
-                        "chatter alarm: stands synchronized"
+                        "chatter alarm"
                     );
                 }
-                published.alarm |= result.synchronized;
+                published.alarm |= alarm;
                 published.source_stale = false;
                 if was_flagged {
                     tracing::info!(mill = %name, "chatter window complete again");
@@ -663,6 +975,7 @@ fn publish(publisher: &Publisher, mill: usize, monitor: &ChatterMonitor, change:
                 published.source_stale = true;
             }
         }
+        published.slow_down_request = slow_down.requested();
     });
 }
 
@@ -671,6 +984,10 @@ fn clear(published: &mut MillResults) {
     published.sigma_n_hz = None;
     published.k_mean = None;
     published.chatter_frequency_hz = None;
+    published.chatter_gain = None;
+    published.gain_ratio = None;
+    published.band_rms_max = None;
+    published.worst_stand = None;
     published.warning = false;
 }
 
@@ -698,10 +1015,13 @@ mod tests {
             );
         }
         let names: Vec<String> = (0..stands).map(|s| format!("\"s{s}\"")).collect();
+        // Thresholds 1, 2, 3, ...: the ratio of stand s is its gain / (s + 1).
+        let thresholds: Vec<String> = (1..=stands).map(|s| format!("{s}.0")).collect();
         text += &format!(
             "[[tandem_mills]]\nname = \"TCM\"\nstands = [{}]\nchatter_band_hz = [100.0, 300.0]\n\
-             window_s = 0.5\nk_max = 0.25\n",
-            names.join(", ")
+             window_s = 0.5\nk_max = 0.25\ngain_thresholds = [{}]\n",
+            names.join(", "),
+            thresholds.join(", ")
         );
         let config = millgate_config::from_toml_str(&text, "t.toml", std::path::Path::new("."))
             .expect("test config");
@@ -906,5 +1226,134 @@ mod tests {
         let r = results.last().expect("evaluations after realignment");
         assert!(r.k_mean > 0.95, "K_mean {}", r.k_mean);
         assert!(r.synchronized);
+    }
+
+    #[test]
+    fn gain_is_the_band_to_reference_rms_ratio_of_each_window() {
+        let mut monitor = monitor(2);
+        let hop_s = monitor.hop_s();
+        // Chatter-band line A = 2.0 at 180 Hz, reference-band line B = 0.5 at 620 Hz:
+        // the Butterworth band-passes pass each (gain within 1% of 1 there), so the
+        // gain is A / B = 4 and the band RMS A / sqrt 2. Stand 1 has half the chatter.
+        let line = |a: f64| -> Vec<f64> {
+            sine(180.0, 0.2, a, 0..20_000)
+                .iter()
+                .zip(sine(620.0, 1.0, 0.5, 0..20_000))
+                .map(|(x, y)| x + y)
+                .collect()
+        };
+        let t0 = Instant::now();
+        let period = Duration::from_secs_f64(BLOCK as f64 / FS);
+        let signals = [line(2.0), line(1.0)];
+        let mut readings = Vec::new();
+        let mut evaluations = 0;
+        let mut last_result = None;
+        for (b, start) in (0..20_000 - BLOCK).step_by(BLOCK).enumerate() {
+            for (s, signal) in signals.iter().enumerate() {
+                let update =
+                    monitor.samples(s, &signal[start..start + BLOCK], t0 + period * b as u32);
+                if let Some(ChatterUpdate::Evaluated(result)) = update {
+                    evaluations += 1;
+                    readings.push(monitor.gain());
+                    last_result = Some(result);
+                }
+            }
+        }
+        // The first evaluations come before the 2 s gain window (8 hops after a
+        // settling hop) is full: no reading, never a partial one. The spectra's first
+        // window (2 hops) ends with evaluation 0, the gain's first with number 9 - 2.
+        let first = readings
+            .iter()
+            .position(Option::is_some)
+            .expect("a gain reading");
+        assert_eq!(first, (2.0 / hop_s) as usize + 1 - 2, "{readings:?}");
+        assert!(readings[first..].iter().all(Option::is_some));
+        assert_eq!(readings.len(), evaluations);
+        let last = readings.last().copied().flatten().expect("reading");
+        assert!((last.max_gain - 4.0).abs() < 0.04 * 4.0, "{last:?}");
+        assert!(
+            (last.max_band_rms - 2.0 / 2f64.sqrt()).abs() < 0.03,
+            "{last:?}"
+        );
+        // Thresholds 1 and 2: stand 0's ratio 4, stand 1's (gain 2) / 2 = 1.
+        let (ratio, stand) = last.ratio.expect("ratio");
+        assert_eq!(stand, 0);
+        assert!((ratio - 4.0).abs() < 0.16, "{ratio}");
+        let result = last_result.expect("an evaluation");
+        assert_eq!(monitor.alarm_level(&result), Some(ratio));
+
+        // A gap restarts the gain too: no reading until its window refilled.
+        monitor.gap(0, Some(BLOCK as u64));
+        assert_eq!(monitor.gain(), None);
+    }
+
+    #[test]
+    fn gain_window_must_be_whole_hops() {
+        let text = "name = \"t\"\n[[sources.modbus]]\nname = \"daq\"\naddress = \"127.0.0.1:1\"\n\
+                    poll_period_ms = 20\n[[channels]]\nname = \"a\"\nkind = \"acceleration\"\n\
+                    unit = \"g\"\nsample_rate_hz = 2500.0\nsource = { modbus = \"daq\", table = \"input\", block = 0 }\n\
+                    [[channels]]\nname = \"b\"\nkind = \"acceleration\"\nunit = \"g\"\n\
+                    sample_rate_hz = 2500.0\nsource = { modbus = \"daq\", table = \"input\", block = 122 }\n\
+                    [[tandem_mills]]\nname = \"TCM\"\nstands = [\"a\", \"b\"]\n\
+                    chatter_band_hz = [100.0, 300.0]\nwindow_s = 0.5\nk_max = 0.25\n\
+                    gain_thresholds = [1.0, 1.0]\n";
+        for (gain_window_s, accepted) in [
+            (2.0, true),
+            (0.25, true),
+            (4.0, true),
+            (1.1, false),
+            (4.25, false),
+        ] {
+            let text = format!("{text}gain_window_s = {gain_window_s}\n");
+            let config = millgate_config::from_toml_str(&text, "t.toml", std::path::Path::new("."))
+                .expect("valid configuration");
+            match ChatterMonitor::new(&config, 0) {
+                Ok(_) => assert!(accepted, "{gain_window_s} s accepted"),
+                Err(error) => {
+                    assert!(!accepted, "{gain_window_s} s: {error}");
+                    assert_eq!(
+                        error.to_string(),
+                        format!(
+                            "tandem_mills[0].gain_window_s: {gain_window_s} s is not allowed (must be 1 \
+                             to 16 whole hops of window_s / 2 = 0.25 s; tandem mill \"TCM\")"
+                        )
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn slow_down_request_has_hysteresis_and_holds_through_untrusted_data() {
+        let mut slow_down = SlowDown::new(0.8, 1.0);
+        let step = 0.25;
+        // Below the alarm level: nothing requested, however long.
+        for level in [0.5, 0.9, 0.99, 0.0] {
+            assert!(!slow_down.window(level, step));
+        }
+        assert!(slow_down.window(1.0, step), "set at the alarm level");
+        // Between release and alarm the request holds indefinitely.
+        for _ in 0..20 {
+            assert!(slow_down.window(0.85, step));
+        }
+        // Below release: cleared after 1 s = 4 windows, not before.
+        for _ in 0..3 {
+            assert!(slow_down.window(0.5, step));
+        }
+        // Untrusted data restarts the time below release.
+        slow_down.untrusted();
+        for _ in 0..3 {
+            assert!(slow_down.window(0.5, step));
+        }
+        // A window back above release restarts it as well.
+        assert!(slow_down.window(0.8, step));
+        for _ in 0..3 {
+            assert!(slow_down.window(0.79, step));
+        }
+        assert!(
+            !slow_down.window(0.79, step),
+            "cleared after 4 windows below"
+        );
+        assert!(!slow_down.requested());
     }
 }

@@ -288,7 +288,7 @@ impl Metrics {
             family(&mut out, (metric, kind, help), "driveline", rows);
         }
         type MillValueOf = fn(&MillResults) -> Option<f64>;
-        let chatter: [(&str, &str, &str, MillValueOf); 3] = [
+        let chatter: [(&str, &str, &str, MillValueOf); 5] = [
             (
                 "millgate_chatter_evaluations_total",
                 "counter",
@@ -306,6 +306,18 @@ impl Metrics {
                 "gauge",
                 "Mean correlation of adjacent stands' chatter-band vibration.",
                 |m| m.k_mean.filter(|_| !m.source_stale),
+            ),
+            (
+                "millgate_chatter_gain_ratio",
+                "gauge",
+                "Largest chatter-band gain / threshold of any stand (>= 1: band-gain alarm).",
+                |m| m.gain_ratio.filter(|_| !m.source_stale),
+            ),
+            (
+                "millgate_chatter_slow_down_request",
+                "gauge",
+                "1 while the gateway requests a slow-down for chatter, else 0.",
+                |m| Some(f64::from(u8::from(m.slow_down_request))),
             ),
         ];
         let mill_rows: Vec<_> = results

@@ -76,6 +76,26 @@ pub enum MillField {
     KMean,
     /// Mean of the stands' principal frequencies in the chatter band, Hz.
     ChatterFrequency,
+    /// Largest chatter-band gain of any stand.
+    ChatterGain,
+    /// Largest gain / threshold of any stand (>= 1: band-gain alarm).
+    GainRatio,
+    /// Largest chatter-band RMS of any stand.
+    BandRmsMax,
+    /// 1-based stand of the gain ratio.
+    WorstStand,
+}
+
+/// Flag bits of a tandem mill's `flags` register.
+pub mod mill_flags {
+    /// The configured detector's warning in the last window.
+    pub const WARNING: u16 = 1 << 0;
+    /// The configured detector's alarm; latched until acknowledged.
+    pub const ALARM: u16 = 1 << 1;
+    /// A stand's source is stale or the window restarted: values invalid.
+    pub const SOURCE_STALE: u16 = 1 << 2;
+    /// Slow-down request with hysteresis (the PLC decides the speed drop).
+    pub const SLOW_DOWN_REQUEST: u16 = 1 << 3;
 }
 
 /// What a register holds.
@@ -309,12 +329,16 @@ impl RegisterMap {
         for (m, mill) in config.tandem_mills.iter().enumerate() {
             use MillField as M;
             let base = mills_start + MILL_STRIDE * m as u16;
-            let fields: [(u16, &str, ValueType, &'static str, &str, MillField); 5] = [
-                (0, "flags", U16, "bits", "bit0 chatter warning (sigma_n <= sigma_min), bit1 chatter alarm (both conditions, latched until acknowledged), bit2 source stale or window restarted", M::Flags),
-                (1, "quality", U16, "bits", "bit i set: value i is valid (0 sigma_n, 1 k_mean, 2 chatter_frequency)", M::Quality),
+            let fields: [(u16, &str, ValueType, &'static str, &str, MillField); 9] = [
+                (0, "flags", U16, "bits", "Bits of the configured detector (detector key; band gain by default): bit0 chatter warning (band gain: gain_ratio >= slow_down_release; paper: sigma_n <= sigma_min), bit1 chatter alarm (gain_ratio >= 1; paper: both conditions; latched until acknowledged), bit2 source stale or window restarted, bit3 slow-down request (hysteresis: set by the alarm condition, cleared after slow_down_hold_s below slow_down_release; held while stale)", M::Flags),
+                (1, "quality", U16, "bits", "bit i set: value i is valid (0 sigma_n, 1 k_mean, 2 chatter_frequency, 3 chatter_gain, 4 gain_ratio, 5 band_rms_max, 6 worst_stand)", M::Quality),
                 (2, "sigma_n", F32, "Hz", "RMS deviation of the adjacent stands' principal chatter-band frequencies", M::SigmaN),
                 (4, "k_mean", F32, "", "Mean correlation of adjacent stands over the window", M::KMean),
                 (6, "chatter_frequency", F32, "Hz", "Mean principal frequency in the chatter band", M::ChatterFrequency),
+                (8, "chatter_gain", F32, "", "Largest chatter-band gain of any stand: chatter-band RMS / reference-band RMS over gain_window_s", M::ChatterGain),
+                (10, "gain_ratio", F32, "", "Largest gain / gain_thresholds[stand] of any stand: the early-warning figure, >= 1 is the band-gain alarm", M::GainRatio),
+                (12, "band_rms_max", F32, "", "Largest chatter-band RMS of any stand over gain_window_s, in the stand channels' unit", M::BandRmsMax),
+                (14, "worst_stand", U16, "", "Stand of gain_ratio, 1-based in the mill's stands order (0 when not valid)", M::WorstStand),
             ];
             for (offset, name, value_type, unit, description, field) in fields {
                 b.add(
@@ -487,26 +511,49 @@ fn driveline_value(d: &DrivelineResults, field: DrivelineField) -> Option<f64> {
     }
 }
 
+/// Values of a mill block in quality-bit order.
+fn mill_quality_values(m: &MillResults) -> [Option<f64>; 7] {
+    [
+        m.sigma_n_hz,
+        m.k_mean,
+        m.chatter_frequency_hz,
+        m.chatter_gain,
+        m.gain_ratio,
+        m.band_rms_max,
+        m.worst_stand.map(|stand| stand as f64 + 1.0),
+    ]
+}
+
 fn mill_value(m: &MillResults, field: MillField) -> Option<f64> {
+    use mill_flags as fl;
     let fresh = |v: Option<f64>| v.filter(|_| !m.source_stale);
     match field {
-        MillField::Flags => Some(f64::from(
-            u16::from(m.warning) | (u16::from(m.alarm) << 1) | (u16::from(m.source_stale) << 2),
-        )),
+        MillField::Flags => {
+            let flags = [
+                (m.warning, fl::WARNING),
+                (m.alarm, fl::ALARM),
+                (m.source_stale, fl::SOURCE_STALE),
+                (m.slow_down_request, fl::SLOW_DOWN_REQUEST),
+            ]
+            .iter()
+            .filter(|(set, _)| *set)
+            .fold(0, |flags, (_, bit)| flags | bit);
+            Some(f64::from(flags))
+        }
         MillField::Quality => {
             if m.source_stale {
                 Some(0.0)
             } else {
-                Some(quality_mask(&[
-                    m.sigma_n_hz,
-                    m.k_mean,
-                    m.chatter_frequency_hz,
-                ]))
+                Some(quality_mask(&mill_quality_values(m)))
             }
         }
         MillField::SigmaN => fresh(m.sigma_n_hz),
         MillField::KMean => fresh(m.k_mean),
         MillField::ChatterFrequency => fresh(m.chatter_frequency_hz),
+        MillField::ChatterGain => fresh(m.chatter_gain),
+        MillField::GainRatio => fresh(m.gain_ratio),
+        MillField::BandRmsMax => fresh(m.band_rms_max),
+        MillField::WorstStand => fresh(mill_quality_values(m)[6]),
     }
 }
 
@@ -518,4 +565,74 @@ pub fn decode_f32(words: &[u16]) -> Option<f32> {
 /// Decode a u32 (ABCD) from two registers.
 pub fn decode_u32(words: &[u16]) -> Option<u32> {
     millgate_config::layout::decode_value(words, ValueType::U32, WordOrder::Abcd).map(|v| v as u32)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The map of the tandem example and the address of its mill block.
+    fn tandem_map() -> (RegisterMap, usize) {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../config/examples/tandem-5stand.toml");
+        let config = millgate_config::load(&path).expect("the tandem example loads");
+        let map = RegisterMap::new(&config);
+        let flags = map
+            .registers()
+            .iter()
+            .find(|r| r.name == "TCM 2030.flags")
+            .expect("mill block");
+        let base = usize::from(flags.address);
+        (map, base)
+    }
+
+    #[test]
+    fn mill_block_golden_words() {
+        let (map, base) = tandem_map();
+        let mut results = Results::new(2, 0, 1);
+        results.mills[0] = MillResults {
+            evaluations: 9,
+            sigma_n_hz: Some(0.5),
+            k_mean: Some(0.25),
+            chatter_frequency_hz: Some(200.0),
+            chatter_gain: Some(3.5),
+            gain_ratio: Some(1.25),
+            band_rms_max: Some(2.0),
+            worst_stand: Some(3),
+            warning: true,
+            alarm: true,
+            source_stale: false,
+            slow_down_request: true,
+        };
+        let words = map.encode(&results);
+        assert_eq!(words[base], 0b1011, "warning, alarm, slow-down");
+        assert_eq!(words[base + 1], 0b111_1111, "every value valid");
+        // f32 ABCD: 0.5 = 0x3F000000, 0.25 = 0x3E800000, 200 = 0x43480000,
+        // 3.5 = 0x40600000, 1.25 = 0x3FA00000, 2 = 0x40000000; stand 3 is the 4th.
+        assert_eq!(
+            words[base + 2..base + 15],
+            [0x3F00, 0, 0x3E80, 0, 0x4348, 0, 0x4060, 0, 0x3FA0, 0, 0x4000, 0, 4]
+        );
+
+        // Before the gain's window is full: its values invalid, the spectra's valid.
+        results.mills[0].chatter_gain = None;
+        results.mills[0].gain_ratio = None;
+        results.mills[0].band_rms_max = None;
+        results.mills[0].worst_stand = None;
+        let words = map.encode(&results);
+        assert_eq!(words[base + 1], 0b000_0111);
+        assert_eq!(words[base + 8..base + 15], [0; 7]);
+
+        // Stale: every value reads 0 with its quality bit clear; the request holds.
+        results.mills[0].gain_ratio = Some(1.25);
+        results.mills[0].source_stale = true;
+        results.mills[0].warning = false;
+        let words = map.encode(&results);
+        assert_eq!(
+            words[base], 0b1110,
+            "alarm (latched), stale, slow-down held"
+        );
+        assert_eq!(words[base + 1], 0);
+        assert_eq!(words[base + 2..base + 15], [0; 13]);
+    }
 }

@@ -50,10 +50,24 @@ pub struct MillResults {
     pub k_mean: Option<f64>,
     /// Mean of the stands' principal frequencies in the chatter band, Hz.
     pub chatter_frequency_hz: Option<f64>,
-    /// sigma_n <= sigma_min in the last window.
+    /// Largest chatter-band gain of any stand (chatter-band RMS / reference-band RMS).
+    pub chatter_gain: Option<f64>,
+    /// Largest gain / threshold of any stand: >= 1 is the band-gain alarm.
+    pub gain_ratio: Option<f64>,
+    /// Largest chatter-band RMS of any stand, in the stand channels' unit.
+    pub band_rms_max: Option<f64>,
+    /// Stand (index in the mill's `stands`) of the gain ratio.
+    pub worst_stand: Option<usize>,
+    /// The configured detector's warning in the last window (band gain: gain ratio >=
+    /// `slow_down_release`; paper: sigma_n <= sigma_min).
     pub warning: bool,
-    /// Both chatter conditions held in a window; latched until acknowledged.
+    /// The configured detector's alarm held in a window (band gain: gain ratio >= 1;
+    /// paper: both conditions); latched until acknowledged.
     pub alarm: bool,
+    /// Slow-down request to the PLC, with hysteresis (set by the alarm condition,
+    /// cleared after `slow_down_hold_s` below `slow_down_release`); not latched, and
+    /// held while the values are stale.
+    pub slow_down_request: bool,
     /// A stand's source is stale or lost, or the window restarted after a gap:
     /// every value is flagged.
     pub source_stale: bool,
