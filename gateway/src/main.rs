@@ -43,6 +43,8 @@ enum Command {
     Analyze(millgate::cli::analyze::AnalyzeArgs),
     /// Stiffness adjustment, paper eq. (2): natural frequencies <-> C12, C23.
     Stiffness(millgate::cli::stiffness::StiffnessArgs),
+    /// A tandem mill's recorded stand vibrations through the chatter monitor, per window.
+    Chatter(millgate::cli::chatter::ChatterArgs),
     #[cfg(feature = "sim-tools")]
     /// Where a model and a measured transient disagree, and the effect the model lacks.
     Discrepancy(millgate::cli::discrepancy::DiscrepancyArgs),
@@ -139,6 +141,7 @@ fn main() -> ExitCode {
             millgate::cli::analyze::run(&args).map(emit)
         }
         Command::Stiffness(args) => millgate::cli::stiffness::run(&args).map(emit),
+        Command::Chatter(args) => millgate::cli::chatter::run(&args).map(emit),
         #[cfg(feature = "sim-tools")]
         Command::Discrepancy(args) => millgate::cli::discrepancy::run(&args).map(emit),
         #[cfg(feature = "sim-tools")]

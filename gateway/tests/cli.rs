@@ -445,3 +445,75 @@ fn discrepancy_names_the_line_of_a_non_uniform_time_column() {
         "{message}"
     );
 }
+
+#[test]
+fn sim_tandem_ramp_feeds_chatter_offline() {
+    let dir = std::env::temp_dir().join(format!("millgate-cli-{}-chatter", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let csv = dir.join("stands.csv");
+    let schedule =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../sim/schedules/lu2019-5stand.toml");
+    // The documented `--ramp TO,ACCEL` form.
+    let sim = millgate(&[
+        "sim",
+        "tandem",
+        "--schedule",
+        schedule.to_str().unwrap(),
+        "--speed",
+        "0.9",
+        "--ramp",
+        "1.4,1.0",
+        "--hold",
+        "1",
+        "--duration",
+        "3",
+        "--out",
+        csv.to_str().unwrap(),
+    ]);
+    assert!(sim.status.success(), "{}", text(&sim));
+    let bad = millgate(&[
+        "sim",
+        "tandem",
+        "--schedule",
+        schedule.to_str().unwrap(),
+        "--ramp",
+        "1.4",
+        "--out",
+        csv.to_str().unwrap(),
+    ]);
+    assert!(!bad.status.success());
+    assert!(
+        text(&bad).contains("--ramp: 1 values is not allowed (must be TO,ACCEL"),
+        "{}",
+        text(&bad)
+    );
+
+    let config = examples().join("tandem-5stand.toml");
+    let chatter = millgate(&[
+        "chatter",
+        "--input",
+        csv.to_str().unwrap(),
+        "--config",
+        config.to_str().unwrap(),
+    ]);
+    assert!(chatter.status.success(), "{}", text(&chatter));
+    let out = String::from_utf8_lossy(&chatter.stdout);
+    // 3 s: windows end 0.548 s and every 0.25 s after; stable rolling, no alarm.
+    assert!(out.starts_with("     t_s    f1_hz     rms1"), "{out}");
+    assert_eq!(out.lines().count(), 1 + 10 + 1, "{out}");
+    assert!(out.trim_end().ends_with("first alarm: none"), "{out}");
+    let missing = millgate(&[
+        "chatter",
+        "--input",
+        csv.to_str().unwrap(),
+        "--config",
+        examples().join("hot-mill.toml").to_str().unwrap(),
+    ]);
+    assert!(!missing.status.success());
+    assert!(
+        text(&missing).contains("no [[tandem_mills]]"),
+        "{}",
+        text(&missing)
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -1043,8 +1043,8 @@ async fn tandem_chatter_over_can_requests_a_slow_down_before_it_develops() -> Re
     };
     let (alarm_s, mill) = alarm;
     println!(
-        "tandem over CAN: onset {onset:.2} s, developed {developed:.2} s; {valid_before} gain \
-         readings before the onset, peak ratio {peak_before:.3}; alarm in the window ending at \
+        "tandem over CAN: onset {onset:.2} s, developed {developed:.2} s; {valid_before} polls \
+         with a gain ratio before the onset, peak {peak_before:.3}; alarm in the window ending at \
          {alarm_s:.2} s (+-0.1 s): gain ratio {:.2} on stand {:?}, slow-down {}",
         mill.gain_ratio.unwrap_or(f64::NAN),
         mill.worst_stand.map(|s| s + 1),

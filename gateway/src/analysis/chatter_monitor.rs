@@ -282,6 +282,17 @@ impl GainReading {
     }
 }
 
+/// The configured detector's bits after one update ([`ChatterMonitor::judge`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Verdict {
+    /// The detector's warning in this window (not latched).
+    pub warning: bool,
+    /// The detector's alarm condition in this window (the published bit latches it).
+    pub alarm: bool,
+    /// The slow-down request after this update.
+    pub slow_down: bool,
+}
+
 /// The slow-down request of one mill, with hysteresis (see the module docs).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SlowDown {
@@ -348,6 +359,8 @@ pub struct ChatterMonitor {
     gain_thresholds: Vec<f64>,
     /// The band gain's latest window; `None` after a restart until a full one.
     gain: Option<GainReading>,
+    /// The same window per stand.
+    gain_window: Option<BandGainWindow>,
     /// The slow-down request's release level and hold, from the configuration.
     slow_down: SlowDown,
     sample_rate_hz: f64,
@@ -493,6 +506,7 @@ impl ChatterMonitor {
             gain_next: 0,
             gain_thresholds: mill.gain_thresholds.clone(),
             gain: None,
+            gain_window: None,
             slow_down: SlowDown::new(mill.slow_down_release, mill.slow_down_hold_s),
             sample_rate_hz: fs,
             window,
@@ -556,6 +570,52 @@ impl ChatterMonitor {
     /// `None` while its window refills after a restart.
     pub fn gain(&self) -> Option<GainReading> {
         self.gain
+    }
+
+    /// The band gain's window behind [`Self::gain`], per stand.
+    pub fn gain_window(&self) -> Option<&BandGainWindow> {
+        self.gain_window.as_ref()
+    }
+
+    /// Common sample index one past the last window evaluated (the first sample
+    /// anchors the axis at 0 when all stands start together).
+    pub fn last_window_end(&self) -> i64 {
+        self.next_end - self.hop as i64
+    }
+
+    /// The configured detector's verdict on one update: moves `slow_down` and returns
+    /// the warning and alarm of this window (see [`ChatterAnalysis`]); both false for
+    /// a restart or a window that could not be evaluated.
+    pub fn judge(&self, change: &ChatterUpdate, slow_down: &mut SlowDown) -> Verdict {
+        let ChatterUpdate::Evaluated(result) = change else {
+            slow_down.untrusted();
+            return Verdict {
+                warning: false,
+                alarm: false,
+                slow_down: slow_down.requested(),
+            };
+        };
+        match self.alarm_level(result) {
+            Some(level) => {
+                slow_down.window(level, self.hop_s());
+            }
+            None => slow_down.untrusted(),
+        }
+        let (warning, alarm) = match self.kind {
+            ChatterDetectorKind::BandGain => {
+                let ratio = self.gain.and_then(|g| g.ratio).map(|(ratio, _)| ratio);
+                (
+                    ratio.is_some_and(|r| r >= slow_down.release),
+                    ratio.is_some_and(|r| r >= 1.0),
+                )
+            }
+            ChatterDetectorKind::Paper => (result.frequencies_locked, result.synchronized),
+        };
+        Verdict {
+            warning,
+            alarm,
+            slow_down: slow_down.requested(),
+        }
     }
 
     /// The configured detector's alarm figure for an evaluation with `result`,
@@ -682,6 +742,7 @@ impl ChatterMonitor {
         self.band_gain.reset(&mut self.gain_state);
         self.gain_next = self.next_end - self.window as i64;
         self.gain = None;
+        self.gain_window = None;
     }
 
     /// Feed the band gain every frame all stands have and the rings still hold.
@@ -701,6 +762,7 @@ impl ChatterMonitor {
             // did, the frames are gone: start the gain again rather than feed stale ones.
             self.band_gain.reset(&mut self.gain_state);
             self.gain = None;
+            self.gain_window = None;
             self.gain_next = oldest_held;
         }
         let mut frame = [0.0; MAX_STANDS];
@@ -712,6 +774,7 @@ impl ChatterMonitor {
             // The frame has one sample per stand, as the gain was built for.
             if let Ok(Some(window)) = self.band_gain.process(&mut self.gain_state, frame) {
                 self.gain = Some(GainReading::new(&window, &self.gain_thresholds));
+                self.gain_window = Some(window);
             }
         }
         self.gain_next = self.gain_next.max(earliest);
@@ -899,16 +962,8 @@ fn publish(
 ) {
     let name = monitor.name();
     let was_requested = slow_down.requested();
-    match change {
-        ChatterUpdate::Evaluated(result) => match monitor.alarm_level(result) {
-            Some(level) => {
-                slow_down.window(level, monitor.hop_s());
-            }
-            None => slow_down.untrusted(),
-        },
-        ChatterUpdate::Failed(_) | ChatterUpdate::Restarted(_) => slow_down.untrusted(),
-    }
-    if slow_down.requested() != was_requested {
+    let verdict = monitor.judge(change, slow_down);
+    if verdict.slow_down != was_requested {
         tracing::warn!(
             mill = %name,
             requested = slow_down.requested(),
@@ -931,17 +986,7 @@ fn publish(
                 published.band_rms_max = gain.map(|g| g.max_band_rms);
                 published.gain_ratio = gain.and_then(|g| g.ratio).map(|(ratio, _)| ratio);
                 published.worst_stand = gain.and_then(|g| g.ratio).map(|(_, stand)| stand);
-                let (warning, alarm) = match monitor.detector() {
-                    ChatterDetectorKind::BandGain => {
-                        let ratio = published.gain_ratio;
-                        let release = slow_down.release;
-                        (
-                            ratio.is_some_and(|r| r >= release),
-                            ratio.is_some_and(|r| r >= 1.0),
-                        )
-                    }
-                    ChatterDetectorKind::Paper => (result.frequencies_locked, result.synchronized),
-                };
+                let Verdict { warning, alarm, .. } = verdict;
                 published.warning = warning;
                 if alarm && !published.alarm {
                     tracing::warn!(
@@ -975,7 +1020,7 @@ fn publish(
                 published.source_stale = true;
             }
         }
-        published.slow_down_request = slow_down.requested();
+        published.slow_down_request = verdict.slow_down;
     });
 }
 

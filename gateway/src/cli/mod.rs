@@ -8,6 +8,8 @@
 //!   [`analyze`] (CSV reading in [`csv`])
 //! - `millgate stiffness --inertia Q1,Q2,Q3 (--freq B1,B2 | --stiffness C12,C23)
 //!   [--drawing C12,C23] [--format text|json]`: [`stiffness`]
+//! - `millgate chatter --input STANDS.csv --config MILL.toml [--mill NAME]
+//!   [--format text|json]`: [`chatter`] (the chatter monitor offline, per window)
 //! - `millgate discrepancy --measured FILE.csv --model MODEL.toml [--channel NAME]
 //!   [--report DIR] [--format text|json]`: `discrepancy`
 //! - `millgate sim transient|modes|wear-map ...`: `sim`
@@ -18,6 +20,7 @@
 //! need the simulator's virtual devices or plots).
 
 pub mod analyze;
+pub mod chatter;
 pub mod check;
 pub mod csv;
 #[cfg(feature = "sim-tools")]

@@ -79,7 +79,7 @@ pub struct TandemArgs {
     pub speed: f64,
     /// After `--hold`, ramp to speed factor TO at ACCEL m/s^2 of the last stand's exit
     /// speed: `--ramp 1.4,1.0`.
-    #[arg(long, value_delimiter = ',', num_args = 2, value_names = ["TO", "ACCEL"])]
+    #[arg(long, value_delimiter = ',', value_name = "TO,ACCEL")]
     pub ramp: Option<Vec<f64>>,
     /// Time at the start speed before the ramp, s.
     #[arg(long, default_value_t = 20.0)]
@@ -174,7 +174,12 @@ pub fn tandem(args: &TandemArgs) -> anyhow::Result<String> {
             hold_s: args.hold,
             accel_m_s2: accel,
         },
-        _ => SpeedRamp::constant(args.speed),
+        None => SpeedRamp::constant(args.speed),
+        Some(values) => anyhow::bail!(
+            "--ramp: {} values is not allowed (must be TO,ACCEL: the speed factor to ramp to \
+             and the acceleration in m/s^2)",
+            values.len()
+        ),
     };
     let mut excitation = Excitation::default();
     excitation.force_noise_density *= args.noise_scale;

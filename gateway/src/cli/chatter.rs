@@ -1,0 +1,323 @@
+//! `millgate chatter --input stands.csv --config MILL.toml [--mill NAME] [--format
+//! text|json]`: a recorded (or simulated, `millgate sim tandem`) CSV of a tandem mill's
+//! stand vibrations through the service's own chatter monitor, offline.
+//!
+//! The CSV's columns are named after the mill's stand channels (`t,s1_vib,...`); its
+//! sample rate must be the channels'. The samples go to
+//! [`ChatterMonitor`] in 120-sample blocks (a Modbus DAQ's), stamped with their own
+//! sample time, and every evaluated window is judged as the service judges it
+//! ([`ChatterMonitor::judge`]): one row per window with per-stand principal frequency
+//! and chatter-band RMS, sigma_n, K_mean, the gain ratio (the early-warning figure) and
+//! the flags; the first warning and alarm times at the end. Not done yet: a plot option.
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context};
+use serde::Serialize;
+
+use super::OutputFormat;
+use crate::analysis::chatter_monitor::{ChatterMonitor, ChatterUpdate};
+
+/// Samples per block fed to the monitor, as a Modbus DAQ delivers them.
+const BLOCK: usize = 120;
+/// Largest relative difference between the CSV's and the channels' sample rate.
+const RATE_TOLERANCE: f64 = 0.01;
+
+/// Arguments of `millgate chatter`.
+#[derive(Debug, clap::Args)]
+pub struct ChatterArgs {
+    /// CSV with a header `t,<stand channel>,...` (t in s, accelerations in the
+    /// channels' unit).
+    #[arg(long)]
+    pub input: PathBuf,
+    /// Gateway configuration with the `[[tandem_mills]]` entry.
+    #[arg(long)]
+    pub config: PathBuf,
+    /// Name of the tandem mill (default: the first one).
+    #[arg(long)]
+    pub mill: Option<String>,
+    /// Output format.
+    #[arg(long, value_enum, default_value = "text")]
+    pub format: OutputFormat,
+}
+
+/// One stand in one window.
+#[derive(Debug, Clone, Serialize)]
+pub struct StandRow {
+    /// Principal frequency in the chatter band, Hz.
+    pub principal_hz: f64,
+    /// Chatter-band RMS over the gain's window, channel unit; `None` until it is full.
+    pub band_rms: Option<f64>,
+}
+
+/// One evaluated window.
+#[derive(Debug, Clone, Serialize)]
+pub struct WindowRow {
+    /// Time of the window's last sample, s (the CSV's time axis).
+    pub t_s: f64,
+    /// Per stand, in the mill's order.
+    pub stands: Vec<StandRow>,
+    /// RMS difference of adjacent principal frequencies, Hz.
+    pub sigma_n_hz: f64,
+    /// Mean correlation of adjacent stands' chatter-band content.
+    pub k_mean: f64,
+    /// Largest gain / threshold (the early-warning figure, >= 1 alarm); `None` until
+    /// the gain's window is full or without thresholds.
+    pub gain_ratio: Option<f64>,
+    /// The configured detector's warning in this window.
+    pub warning: bool,
+    /// The configured detector's alarm condition in this window.
+    pub alarm: bool,
+    /// The slow-down request after this window.
+    pub slow_down: bool,
+}
+
+/// What `millgate chatter` reports.
+#[derive(Debug, Clone, Serialize)]
+pub struct ChatterReport {
+    /// Every evaluated window, in time order.
+    pub windows: Vec<WindowRow>,
+    /// End time of the first window with the warning, s.
+    pub first_warning_s: Option<f64>,
+    /// End time of the first window with the alarm, s.
+    pub first_alarm_s: Option<f64>,
+}
+
+/// Runs `millgate chatter`: returns what it prints.
+pub fn run(args: &ChatterArgs) -> anyhow::Result<String> {
+    let report = analyze(args)?;
+    Ok(match args.format {
+        OutputFormat::Json => serde_json::to_string_pretty(&report)? + "\n",
+        OutputFormat::Text => text(&report),
+    })
+}
+
+/// The report of `args` (see the module docs).
+pub fn analyze(args: &ChatterArgs) -> anyhow::Result<ChatterReport> {
+    let config = millgate_config::load(&args.config)?;
+    let index = match &args.mill {
+        None if config.tandem_mills.is_empty() => {
+            bail!("{}: no [[tandem_mills]]", args.config.display())
+        }
+        None => 0,
+        Some(name) => config
+            .tandem_mills
+            .iter()
+            .position(|m| &m.name == name)
+            .with_context(|| {
+                let names: Vec<_> = config
+                    .tandem_mills
+                    .iter()
+                    .map(|m| m.name.as_str())
+                    .collect();
+                format!(
+                    "--mill {name}: no such tandem mill in {} (mills: {})",
+                    args.config.display(),
+                    names.join(", ")
+                )
+            })?,
+    };
+    let mill = &config.tandem_mills[index];
+    let input = args.input.display();
+    let table = super::csv::read(&args.input).with_context(|| format!("{input}"))?;
+    let mut stands = Vec::new();
+    for &channel in &mill.stands {
+        let name = &config.channels[channel].name;
+        let values = table.channel(name).with_context(|| {
+            format!(
+                "{input}: line 1: no column `{name}` for a stand of tandem mill \"{}\" (columns: {})",
+                mill.name,
+                table.names.join(", ")
+            )
+        })?;
+        stands.push(values);
+    }
+    let rate_hz = config.channels[mill.stands[0]].sample_rate_hz;
+    let csv_rate_hz = table.sample_rate_hz();
+    if (csv_rate_hz / rate_hz - 1.0).abs() > RATE_TOLERANCE {
+        bail!(
+            "{input}: sample rate {csv_rate_hz:.1} Hz from column t, the stand channels sample at \
+             {rate_hz} Hz (must agree within {}%)",
+            RATE_TOLERANCE * 100.0
+        );
+    }
+    let mut monitor = ChatterMonitor::new(&config, index)?;
+    let mut slow_down = monitor.slow_down();
+    let period = Duration::from_secs_f64(BLOCK as f64 / rate_hz);
+    let t0 = Instant::now();
+    let mut windows = Vec::new();
+    for (b, start) in (0..table.time_s.len()).step_by(BLOCK).enumerate() {
+        let end = (start + BLOCK).min(table.time_s.len());
+        for (s, values) in stands.iter().enumerate() {
+            let Some(change) = monitor.samples(s, &values[start..end], t0 + period * b as u32)
+            else {
+                continue;
+            };
+            let verdict = monitor.judge(&change, &mut slow_down);
+            let ChatterUpdate::Evaluated(result) = change else {
+                continue;
+            };
+            let last = usize::try_from(monitor.last_window_end() - 1).unwrap_or(0);
+            let gain = monitor.gain_window();
+            windows.push(WindowRow {
+                t_s: table.time_s[last.min(table.time_s.len() - 1)],
+                stands: result
+                    .stands
+                    .iter()
+                    .enumerate()
+                    .map(|(stand, metrics)| StandRow {
+                        principal_hz: metrics.principal_hz,
+                        band_rms: gain.and_then(|g| g.band_rms.get(stand).copied()),
+                    })
+                    .collect(),
+                sigma_n_hz: result.sigma_n_hz,
+                k_mean: result.k_mean,
+                gain_ratio: monitor.gain().and_then(|g| g.ratio).map(|(ratio, _)| ratio),
+                warning: verdict.warning,
+                alarm: verdict.alarm,
+                slow_down: verdict.slow_down,
+            });
+        }
+    }
+    let first = |pick: fn(&WindowRow) -> bool| windows.iter().find(|w| pick(w)).map(|w| w.t_s);
+    Ok(ChatterReport {
+        first_warning_s: first(|w| w.warning),
+        first_alarm_s: first(|w| w.alarm),
+        windows,
+    })
+}
+
+/// The report as aligned text lines.
+fn text(report: &ChatterReport) -> String {
+    use std::fmt::Write as _;
+    let mut out = String::new();
+    let stands = report.windows.first().map_or(0, |w| w.stands.len());
+    let _ = write!(out, "{:>8}", "t_s");
+    for s in 1..=stands {
+        let _ = write!(out, " {:>8} {:>8}", format!("f{s}_hz"), format!("rms{s}"));
+    }
+    let _ = writeln!(
+        out,
+        " {:>8} {:>7} {:>7} flags",
+        "sigma_n", "K_mean", "gain_r"
+    );
+    for w in &report.windows {
+        let _ = write!(out, "{:>8.3}", w.t_s);
+        for stand in &w.stands {
+            let rms = stand.band_rms.map_or("-".to_owned(), |v| format!("{v:.3}"));
+            let _ = write!(out, " {:>8.2} {rms:>8}", stand.principal_hz);
+        }
+        let ratio = w.gain_ratio.map_or("-".to_owned(), |v| format!("{v:.3}"));
+        let flags: Vec<&str> = [
+            (w.warning, "warning"),
+            (w.alarm, "alarm"),
+            (w.slow_down, "slow-down"),
+        ]
+        .iter()
+        .filter(|(set, _)| *set)
+        .map(|(_, name)| *name)
+        .collect();
+        let line = format!(
+            " {:>8.3} {:>7.3} {ratio:>7} {}",
+            w.sigma_n_hz,
+            w.k_mean,
+            flags.join(",")
+        );
+        let _ = writeln!(out, "{}", line.trim_end());
+    }
+    let time = |t: Option<f64>| t.map_or("none".to_owned(), |t| format!("{t:.3} s"));
+    let _ = writeln!(
+        out,
+        "first warning: {}, first alarm: {}",
+        time(report.first_warning_s),
+        time(report.first_alarm_s)
+    );
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use millgate_sim::tandem::simulate::{
+        simulate, Accelerometer, Excitation, RunSettings, SpeedRamp,
+    };
+    use millgate_sim::tandem::truth::{ground_truth, mill_critical_speed};
+    use millgate_sim::tandem::{PassSchedule, TandemMill};
+
+    fn example() -> PathBuf {
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/examples/tandem-5stand.toml")
+    }
+
+    #[test]
+    fn a_simulated_ramp_alarms_between_onset_and_developed_chatter() -> anyhow::Result<()> {
+        // The physical model (not what the detector was built from): 6 s at 90% of the
+        // critical speed, then 2 m/s^2, as the end-to-end tests.
+        let mill = TandemMill::new(&PassSchedule::example()?)?;
+        let critical = mill_critical_speed(&mill)?;
+        let ramp = SpeedRamp {
+            start: 0.9 * critical.speed,
+            end: 1.5 * critical.speed,
+            hold_s: 6.0,
+            accel_m_s2: 2.0,
+        };
+        let record = simulate(
+            &mill,
+            &RunSettings {
+                ramp,
+                excitation: Excitation::default(),
+                sensor: Accelerometer {
+                    sample_rate_hz: 2500.0,
+                    ..Accelerometer::default()
+                },
+                duration_s: 14.0,
+                seed: 7,
+                internal_rate_hz: None,
+            },
+        )?;
+        let truth = ground_truth(&mill, &ramp, &record, critical);
+        let onset = truth.onset_s.expect("onset");
+        let developed = truth.developed_s.expect("developed");
+        let input =
+            std::env::temp_dir().join(format!("millgate-chatter-{}.csv", std::process::id()));
+        std::fs::write(&input, record.to_csv(false))?;
+        let mut args = ChatterArgs {
+            input: input.clone(),
+            config: example(),
+            mill: None,
+            format: OutputFormat::Json,
+        };
+        let json: serde_json::Value = serde_json::from_str(&run(&args)?)?;
+        let alarm = json["first_alarm_s"].as_f64().expect("an alarm");
+        assert!(
+            alarm > onset && alarm < developed,
+            "alarm {alarm} s, onset {onset} s, developed {developed} s"
+        );
+        let windows = json["windows"].as_array().expect("windows");
+        // One window every 0.25 s after the first 0.5 s (the first block anchors).
+        assert!(windows.len() >= 44, "{}", windows.len());
+        assert_eq!(windows[0]["stands"].as_array().map(Vec::len), Some(5));
+        let last = &windows[windows.len() - 1];
+        assert_eq!(last["slow_down"], serde_json::Value::Bool(true));
+
+        args.format = OutputFormat::Text;
+        let text = run(&args)?;
+        assert!(text.starts_with("     t_s"), "{text}");
+        assert!(
+            text.trim_end()
+                .ends_with(&format!("first alarm: {alarm:.3} s")),
+            "{text}"
+        );
+
+        args.mill = Some("nowhere".into());
+        let error = analyze(&args).expect_err("unknown mill");
+        assert!(
+            error
+                .to_string()
+                .contains("--mill nowhere: no such tandem mill"),
+            "{error}"
+        );
+        std::fs::remove_file(&input)?;
+        Ok(())
+    }
+}
