@@ -132,3 +132,85 @@ pub fn wear_map_svg(map: &WearMap) -> Result<String, PlotError> {
     }
     Ok(svg)
 }
+
+/// One panel of [`time_series_svg`]: y-axis label and named series, one value per
+/// time point (`None` = not valid there, a break in the curve).
+pub type TimePanel<'a> = (&'a str, Vec<(String, Vec<Option<f64>>)>);
+
+/// Renders curves over time as an SVG document, panels stacked (one x axis, s).
+/// Used by `millgate chatter --plot`.
+pub fn time_series_svg(
+    title: &str,
+    time_s: &[f64],
+    panels: &[TimePanel<'_>],
+) -> Result<String, PlotError> {
+    let Some(time_range) = padded_range(time_s.iter().copied()) else {
+        return Err(PlotError::Nothing("no time points"));
+    };
+    if panels.is_empty() {
+        return Err(PlotError::Nothing("no panels"));
+    }
+    let mut svg = String::new();
+    {
+        let size = (PANEL_SIZE.0 * 2, 260 * panels.len() as u32 + 40);
+        let root = SVGBackend::with_string(&mut svg, size).into_drawing_area();
+        root.fill(&WHITE).map_err(drawing)?;
+        let root = root.titled(title, ("sans-serif", 22)).map_err(drawing)?;
+        let areas = root.split_evenly((panels.len(), 1));
+        for (area, (label, series)) in areas.iter().zip(panels) {
+            let values = series.iter().flat_map(|(_, v)| v.iter().flatten().copied());
+            let y_range = padded_range(values).unwrap_or((-1.0, 1.0));
+            let mut chart = ChartBuilder::on(area)
+                .margin(10)
+                .x_label_area_size(35)
+                .y_label_area_size(60)
+                .build_cartesian_2d(time_range.0..time_range.1, y_range.0..y_range.1)
+                .map_err(drawing)?;
+            chart
+                .configure_mesh()
+                .x_desc("t, s")
+                .y_desc(*label)
+                .axis_desc_style(("sans-serif", 14))
+                .label_style(("sans-serif", 12))
+                .draw()
+                .map_err(drawing)?;
+            for (index, (name, values)) in series.iter().enumerate() {
+                let color = Palette99::pick(index).to_rgba();
+                // Each run of valid values is its own line: no line across a gap.
+                let mut runs: Vec<Vec<(f64, f64)>> = vec![Vec::new()];
+                for (&t, value) in time_s.iter().zip(values) {
+                    match value.filter(|v| v.is_finite()) {
+                        Some(v) => {
+                            if let Some(run) = runs.last_mut() {
+                                run.push((t, v));
+                            }
+                        }
+                        None if runs.last().is_some_and(|run| !run.is_empty()) => {
+                            runs.push(Vec::new());
+                        }
+                        None => {}
+                    }
+                }
+                for (run_index, run) in runs.into_iter().enumerate() {
+                    let drawn = chart
+                        .draw_series(LineSeries::new(run, color.stroke_width(2)))
+                        .map_err(drawing)?;
+                    if run_index == 0 {
+                        drawn.label(name.clone()).legend(move |(x, y)| {
+                            PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
+                        });
+                    }
+                }
+            }
+            chart
+                .configure_series_labels()
+                .position(SeriesLabelPosition::UpperLeft)
+                .background_style(WHITE.mix(0.8))
+                .border_style(BLACK)
+                .draw()
+                .map_err(drawing)?;
+        }
+        root.present().map_err(drawing)?;
+    }
+    Ok(svg)
+}

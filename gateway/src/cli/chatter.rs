@@ -8,7 +8,9 @@
 //! sample time, and every evaluated window is judged as the service judges it
 //! ([`ChatterMonitor::judge`]): one row per window with per-stand principal frequency
 //! and chatter-band RMS, sigma_n, K_mean, the gain ratio (the early-warning figure) and
-//! the flags; the first warning and alarm times at the end. Not done yet: a plot option.
+//! the flags; the first warning and alarm times at the end. `--plot FILE.svg` (with the
+//! default `sim-tools` feature) draws the per-stand band RMS, the gain ratio and the
+//! flags over time.
 
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -40,6 +42,10 @@ pub struct ChatterArgs {
     /// Output format.
     #[arg(long, value_enum, default_value = "text")]
     pub format: OutputFormat,
+    /// Also draw the per-stand band RMS, the gain ratio and the flags over time (SVG).
+    #[cfg(feature = "sim-tools")]
+    #[arg(long)]
+    pub plot: Option<PathBuf>,
 }
 
 /// One stand in one window.
@@ -87,6 +93,11 @@ pub struct ChatterReport {
 /// Runs `millgate chatter`: returns what it prints.
 pub fn run(args: &ChatterArgs) -> anyhow::Result<String> {
     let report = analyze(args)?;
+    #[cfg(feature = "sim-tools")]
+    if let Some(path) = &args.plot {
+        std::fs::write(path, plot(&report)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
     Ok(match args.format {
         OutputFormat::Json => serde_json::to_string_pretty(&report)? + "\n",
         OutputFormat::Text => text(&report),
@@ -188,6 +199,52 @@ pub fn analyze(args: &ChatterArgs) -> anyhow::Result<ChatterReport> {
     })
 }
 
+/// The report as an SVG: log10 of each stand's band RMS, log10 of the gain ratio (0 is
+/// the alarm level) and the flags (warning 1, alarm 2, slow-down 3 when set).
+#[cfg(feature = "sim-tools")]
+pub fn plot(report: &ChatterReport) -> anyhow::Result<String> {
+    use millgate_sim::plot::time_series_svg;
+    let time_s: Vec<f64> = report.windows.iter().map(|w| w.t_s).collect();
+    let stands = report.windows.first().map_or(0, |w| w.stands.len());
+    let log = |v: Option<f64>| v.filter(|&v| v > 0.0).map(f64::log10);
+    let rms = (0..stands)
+        .map(|s| {
+            let values = report
+                .windows
+                .iter()
+                .map(|w| log(w.stands[s].band_rms))
+                .collect();
+            (format!("stand {}", s + 1), values)
+        })
+        .collect();
+    let ratio = vec![(
+        "gain ratio".to_owned(),
+        report.windows.iter().map(|w| log(w.gain_ratio)).collect(),
+    )];
+    let flag = |name: &str, level: f64, pick: fn(&WindowRow) -> bool| {
+        let values = report
+            .windows
+            .iter()
+            .map(|w| Some(if pick(w) { level } else { 0.0 }))
+            .collect();
+        (name.to_owned(), values)
+    };
+    let flags = vec![
+        flag("warning", 1.0, |w| w.warning),
+        flag("alarm", 2.0, |w| w.alarm),
+        flag("slow-down", 3.0, |w| w.slow_down),
+    ];
+    Ok(time_series_svg(
+        "millgate chatter",
+        &time_s,
+        &[
+            ("log10 chatter-band RMS", rms),
+            ("log10 gain ratio (0 = alarm)", ratio),
+            ("flags", flags),
+        ],
+    )?)
+}
+
 /// The report as aligned text lines.
 fn text(report: &ChatterReport) -> String {
     use std::fmt::Write as _;
@@ -281,11 +338,15 @@ mod tests {
         let input =
             std::env::temp_dir().join(format!("millgate-chatter-{}.csv", std::process::id()));
         std::fs::write(&input, record.to_csv(false))?;
+        #[cfg(feature = "sim-tools")]
+        let plot = input.with_extension("svg");
         let mut args = ChatterArgs {
             input: input.clone(),
             config: example(),
             mill: None,
             format: OutputFormat::Json,
+            #[cfg(feature = "sim-tools")]
+            plot: Some(plot.clone()),
         };
         let json: serde_json::Value = serde_json::from_str(&run(&args)?)?;
         let alarm = json["first_alarm_s"].as_f64().expect("an alarm");
@@ -299,6 +360,16 @@ mod tests {
         assert_eq!(windows[0]["stands"].as_array().map(Vec::len), Some(5));
         let last = &windows[windows.len() - 1];
         assert_eq!(last["slow_down"], serde_json::Value::Bool(true));
+        #[cfg(feature = "sim-tools")]
+        {
+            let svg = std::fs::read_to_string(&plot)?;
+            assert!(
+                svg.starts_with("<svg") && svg.contains("gain ratio"),
+                "{}",
+                &svg[..100]
+            );
+            std::fs::remove_file(&plot)?;
+        }
 
         args.format = OutputFormat::Text;
         let text = run(&args)?;
