@@ -1,20 +1,26 @@
-//! Fitting a model to a measured record: the parametrisation shared by the linear
+//! Fitting a model to measured bites: the parametrisation shared by the linear
 //! calibration and every candidate effect, and the residual it minimises.
 //!
-//! Parameters live in a space where the fit is well scaled and the bounds hold by
+//! One model is fitted to every bite at once: coupling stiffness, damping and the
+//! effect's size are shared, the load (static torque, rise rate, onset) is each bite's
+//! own. Parameters live in a space where the fit is well scaled and the bounds hold by
 //! construction, smoothly (a clamp would stall the fit at a bound): `ln(value /
 //! anchor)` for stiffness, damping, static torque and rise rate, squashed by a tanh
 //! into a factor 10 (100 for damping) of the anchor; the logit of the effect size's
 //! position between the logarithms of its range's ends; and `(onset - anchor) / 1 ms`
-//! for the onset. The integration step is fixed for a whole
-//! fit (from the anchor model with the effect at the top of its range), so the
-//! residual is a smooth function of the parameters and forward differences work.
+//! for the onset. The integration step is fixed for a whole fit (from the anchor model
+//! with the effect at the top of its range), so the residual is a smooth function of
+//! the parameters and forward differences work. A bite's load moves only that bite's
+//! residuals, so the Jacobian simulates one bite per load column
+//! ([`Problem`]'s [`Residuals::jacobian`]).
+
+use nalgebra::DMatrix;
 
 use crate::chain::Simulator;
 use crate::model::{Model, ModelError};
 
 use super::effects::{Effect, Range};
-use super::lm::{minimise, LmSettings};
+use super::lm::{minimise, LmSettings, Residuals};
 
 /// Onset parameter unit, s.
 const ONSET_UNIT_S: f64 = 1.0e-3;
@@ -35,32 +41,75 @@ const MAX_SEARCH_SUBSTEPS: f64 = 24.0;
 const DIVERGENCE_FACTOR: f64 = 20.0;
 
 /// Largest |ln ratio| a stiffness, static torque or rise rate may move from its anchor
-/// in one fit (a factor of 10): drawings are wrong by tens of percent, seldom by 10x.
+/// in one fit (a factor of 10): the calibration's starts are within a factor 10 of the
+/// drawings, and a fit needs no more room than that around its start.
 pub const MAX_LOG_RATIO: f64 = std::f64::consts::LN_10;
 
 /// Largest |ln ratio| a damping may move from its anchor (a factor of 100): model
 /// damping is often a guess.
 const MAX_LOG_DAMPING_RATIO: f64 = 2.0 * std::f64::consts::LN_10;
 
-/// Values of the linear model's calibrated quantities.
-#[derive(Debug, Clone, PartialEq)]
-pub struct LinearValues {
-    /// Coupling stiffness, N*m/rad, one per coupling.
-    pub stiffness: Vec<f64>,
-    /// Coupling damping, N*m*s/rad, one per coupling (> 0).
-    pub damping: Vec<f64>,
-    /// Static rolling torque, kN*m.
+/// Levenberg-Marquardt settings of the simulation fits: the Jacobian (one simulation per
+/// parameter) carried by Broyden updates over up to four accepted steps.
+pub const FIT_SETTINGS: LmSettings = LmSettings {
+    max_iterations: 40,
+    cost_tolerance: 1.0e-7,
+    difference_step: 1.0e-6,
+    max_step: 2.0,
+    jacobian_refresh: 4,
+};
+
+/// Load parameters per bite in the parameter vector: static torque, rise rate, onset.
+const LOAD_PARAMETERS: usize = 3;
+
+/// One measured bite as the fits see it.
+#[derive(Debug, Clone)]
+pub struct BiteRecord<'a> {
+    /// The handed model, sampled at the bite's rate over its length.
+    pub template: Model,
+    /// The measured torque, kN*m, from the bite record's first sample.
+    pub measured: &'a [f64],
+}
+
+/// The load of one bite.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BiteLoad {
+    /// Static rolling torque, kN*m, > 0.
     pub static_torque_knm: f64,
-    /// Load rise rate, 1/s.
+    /// Load rise rate, 1/s, > 0.
     pub rise_rate_per_s: f64,
-    /// Onset of the load rise from the record's first sample, s.
+    /// Onset of the load rise from the bite record's first sample, s, >= 0.
     pub onset_s: f64,
 }
 
+impl BiteLoad {
+    /// The load written in `model` (a zero static torque becomes 1 N*m so its logarithm
+    /// exists).
+    pub fn of(model: &Model) -> BiteLoad {
+        BiteLoad {
+            static_torque_knm: model.load.static_torque.max(1.0e-3),
+            rise_rate_per_s: model.load.rise_rate,
+            onset_s: model.load.onset,
+        }
+    }
+}
+
+/// Values of the linear model's calibrated quantities.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LinearValues {
+    /// Coupling stiffness, N*m/rad, one per coupling (shared by the bites).
+    pub stiffness: Vec<f64>,
+    /// Coupling damping, N*m*s/rad, one per coupling, > 0 (shared by the bites).
+    pub damping: Vec<f64>,
+    /// Load of each bite.
+    pub loads: Vec<BiteLoad>,
+}
+
 impl LinearValues {
-    /// The values written in `model`; a zero damping becomes a small positive one so
-    /// its logarithm exists (1e-6 of the stiffness, s).
-    pub fn of(model: &Model) -> LinearValues {
+    /// The values written in `model`, its load repeated for `bites` bites; a zero
+    /// damping becomes a small positive one so its logarithm exists (1e-6 of the
+    /// stiffness, s).
+    pub fn of(model: &Model, bites: usize) -> LinearValues {
         LinearValues {
             stiffness: model.couplings.iter().map(|c| c.stiffness).collect(),
             damping: model
@@ -68,14 +117,12 @@ impl LinearValues {
                 .iter()
                 .map(|c| c.damping.max(1.0e-6 * c.stiffness))
                 .collect(),
-            static_torque_knm: model.load.static_torque.max(1.0e-3),
-            rise_rate_per_s: model.load.rise_rate,
-            onset_s: model.load.onset,
+            loads: vec![BiteLoad::of(model); bites],
         }
     }
 
-    /// `model` with these values written in.
-    pub fn write_into(&self, model: &Model) -> Model {
+    /// `model` with the shared values and the load of bite `bite` written in.
+    pub fn model_for(&self, model: &Model, bite: usize) -> Model {
         let mut out = model.clone();
         for (coupling, (&stiffness, &damping)) in out
             .couplings
@@ -85,10 +132,19 @@ impl LinearValues {
             coupling.stiffness = stiffness;
             coupling.damping = damping;
         }
-        out.load.static_torque = self.static_torque_knm;
-        out.load.rise_rate = self.rise_rate_per_s;
-        out.load.onset = self.onset_s;
+        let load = self.loads[bite];
+        out.load.static_torque = load.static_torque_knm;
+        out.load.rise_rate = load.rise_rate_per_s;
+        out.load.onset = load.onset_s;
         out
+    }
+
+    /// The same values with `stiffness` instead.
+    pub fn with_stiffness(&self, stiffness: &[f64]) -> LinearValues {
+        LinearValues {
+            stiffness: stiffness.to_vec(),
+            ..self.clone()
+        }
     }
 }
 
@@ -103,6 +159,13 @@ pub struct EffectSlot {
     pub range: Range,
 }
 
+impl EffectSlot {
+    /// `model` with this effect of size `value` applied.
+    pub fn apply(&self, model: &Model, value: f64) -> Result<Model, ModelError> {
+        self.effect.apply(model, self.location, value)
+    }
+}
+
 /// The outcome of one fit.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Fitted {
@@ -110,50 +173,87 @@ pub struct Fitted {
     pub linear: LinearValues,
     /// Fitted effect size (parameter units), when an effect was fitted.
     pub effect_value: Option<f64>,
-    /// The fitted model (linear values written, effect applied).
-    pub model: Model,
-    /// Sum of squared residuals, (kN*m)^2.
+    /// The fitted model of each bite (linear values written, effect applied).
+    pub models: Vec<Model>,
+    /// Sum of squared residuals over every bite, (kN*m)^2.
     pub cost: f64,
-    /// Simulated measured channel of `model`, kN*m.
-    pub simulated: Vec<f64>,
-    /// Simulations spent.
-    pub evaluations: usize,
+    /// Sum of squared residuals of each bite, (kN*m)^2.
+    pub bite_costs: Vec<f64>,
+    /// Simulated measured channel of each bite's model, kN*m.
+    pub simulated: Vec<Vec<f64>>,
+    /// Simulations of one bite spent.
+    pub simulations: usize,
 }
 
-/// A model fitted to one measured record: the template (masses, motor, measurement
-/// grid), the anchors of the parameters and what is free.
+impl Fitted {
+    /// Number of residuals (samples over every bite).
+    pub fn samples(&self) -> usize {
+        self.simulated.iter().map(Vec::len).sum()
+    }
+
+    /// RMS residual over every bite, kN*m.
+    pub fn rmse(&self) -> f64 {
+        (self.cost / self.samples().max(1) as f64).sqrt()
+    }
+
+    /// RMS residual of each bite, kN*m.
+    pub fn bite_rmse(&self) -> Vec<f64> {
+        self.bite_costs
+            .iter()
+            .zip(&self.simulated)
+            .map(|(cost, s)| (cost / s.len().max(1) as f64).sqrt())
+            .collect()
+    }
+
+    /// Bayesian information criterion with `parameters` fitted parameters: each bite's
+    /// own noise level, `sum_b m_b ln(RSS_b / m_b) + k ln(m)` (Gaussian residuals).
+    pub fn bic(&self, parameters: usize) -> f64 {
+        let total = self.samples() as f64;
+        let fit: f64 = self
+            .bite_costs
+            .iter()
+            .zip(&self.simulated)
+            .map(|(&cost, s)| {
+                let m = s.len() as f64;
+                m * (cost.max(f64::MIN_POSITIVE) / m).ln()
+            })
+            .sum();
+        fit + parameters as f64 * total.ln()
+    }
+}
+
+/// A model fitted to measured bites: the templates, the anchors of the parameters and
+/// what is free. Counts the simulations it runs.
 pub struct Problem<'a> {
-    template: &'a Model,
-    measured: &'a [f64],
+    bites: &'a [BiteRecord<'a>],
     anchor: LinearValues,
     effect: Option<(EffectSlot, f64)>,
-    substeps: usize,
-    divergence_limit_knm: f64,
+    /// RK4 steps per output sample of each bite.
+    substeps: Vec<usize>,
+    /// Divergence limit of each bite, kN*m.
+    limits: Vec<f64>,
+    /// Offset of each bite's residuals in the residual vector (and the total at the end).
+    offsets: Vec<usize>,
+    /// Simulations of one bite run so far.
+    simulations: usize,
 }
 
 impl<'a> Problem<'a> {
-    /// A problem around `anchor`, optionally with an effect starting at `effect_start`.
-    ///
-    /// `template` must already sample at the record's rate and length.
+    /// A problem around `anchor` (one load per bite), optionally with an effect starting
+    /// at `effect_start`.
     pub fn new(
-        template: &'a Model,
-        measured: &'a [f64],
+        bites: &'a [BiteRecord<'a>],
         anchor: LinearValues,
         effect: Option<(EffectSlot, f64)>,
     ) -> Result<Problem<'a>, ModelError> {
-        let mut problem = Problem {
-            template,
-            measured,
-            anchor,
-            effect,
-            substeps: 1,
-            divergence_limit_knm: DIVERGENCE_FACTOR
-                * measured.iter().fold(1.0_f64, |a, v| a.max(v.abs())),
-        };
+        let mut offsets = vec![0];
+        for bite in bites {
+            offsets.push(offsets.last().copied().unwrap_or(0) + bite.measured.len());
+        }
         // The step must keep RK4 stable at the stiffest point the fit is likely to visit:
         // the effect at the top of its range, stiffness and damping a little above their
         // anchors. Beyond that a trial may diverge; it is then cut short and refused.
-        let mut stiffest = problem.anchor.clone();
+        let mut stiffest = anchor.clone();
         for value in stiffest
             .stiffness
             .iter_mut()
@@ -161,26 +261,52 @@ impl<'a> Problem<'a> {
         {
             *value *= 1.5;
         }
-        let base = stiffest.write_into(template);
-        let stiffest_model = match effect {
-            Some((slot, _)) => slot.effect.apply(&base, slot.location, slot.range.high)?,
-            None => base,
-        };
-        let bound_hz = Simulator::new(&stiffest_model)?.frequency_bound_hz();
-        let per_sample =
-            SEARCH_STEPS_PER_FASTEST_PERIOD * bound_hz / template.measurement.sample_rate;
-        problem.substeps = per_sample.ceil().clamp(1.0, MAX_SEARCH_SUBSTEPS) as usize;
-        Ok(problem)
+        let mut substeps = Vec::with_capacity(bites.len());
+        let mut limits = Vec::with_capacity(bites.len());
+        for (b, bite) in bites.iter().enumerate() {
+            let base = stiffest.model_for(&bite.template, b);
+            let stiffest_model = match effect {
+                Some((slot, _)) => slot.apply(&base, slot.range.high)?,
+                None => base,
+            };
+            let bound_hz = Simulator::new(&stiffest_model)?.frequency_bound_hz();
+            let per_sample =
+                SEARCH_STEPS_PER_FASTEST_PERIOD * bound_hz / bite.template.measurement.sample_rate;
+            substeps.push(per_sample.ceil().clamp(1.0, MAX_SEARCH_SUBSTEPS) as usize);
+            limits.push(
+                DIVERGENCE_FACTOR * bite.measured.iter().fold(1.0_f64, |a, v| a.max(v.abs())),
+            );
+        }
+        Ok(Problem {
+            bites,
+            anchor,
+            effect,
+            substeps,
+            limits,
+            offsets,
+            simulations: 0,
+        })
     }
 
     fn couplings(&self) -> usize {
         self.anchor.stiffness.len()
     }
 
-    /// Number of fitted parameters: stiffness and damping per coupling, static torque,
-    /// rise rate, onset, and the effect size when there is one.
+    /// Parameters shared by the bites: stiffness and damping per coupling, the effect
+    /// size when there is one.
+    fn shared_count(&self) -> usize {
+        2 * self.couplings() + usize::from(self.effect.is_some())
+    }
+
+    /// Number of fitted parameters: the shared ones, and static torque, rise rate and
+    /// onset per bite.
     pub fn parameter_count(&self) -> usize {
-        2 * self.couplings() + 3 + usize::from(self.effect.is_some())
+        self.shared_count() + LOAD_PARAMETERS * self.bites.len()
+    }
+
+    /// Simulations of one bite run so far.
+    pub fn simulations(&self) -> usize {
+        self.simulations
     }
 
     /// Linear values and effect size at parameter vector `p`.
@@ -203,75 +329,173 @@ impl<'a> Problem<'a> {
             .zip(&p[n..2 * n])
             .map(|(&a, &q)| scale_damping(a, q))
             .collect();
-        let at = 2 * n;
-        let linear = LinearValues {
-            stiffness,
-            damping,
-            static_torque_knm: scale(self.anchor.static_torque_knm, p[at]),
-            rise_rate_per_s: scale(self.anchor.rise_rate_per_s, p[at + 1]),
-            onset_s: (self.anchor.onset_s + p[at + 2] * ONSET_UNIT_S).max(0.0),
-        };
         let effect = self
             .effect
-            .map(|(slot, start)| slot.range.squash(slot.range.unsquash(start) + p[at + 3]));
-        (linear, effect)
+            .map(|(slot, start)| slot.range.squash(slot.range.unsquash(start) + p[2 * n]));
+        let at = self.shared_count();
+        let loads = self
+            .anchor
+            .loads
+            .iter()
+            .zip(p[at..].chunks_exact(LOAD_PARAMETERS))
+            .map(|(anchor, q)| BiteLoad {
+                static_torque_knm: scale(anchor.static_torque_knm, q[0]),
+                rise_rate_per_s: scale(anchor.rise_rate_per_s, q[1]),
+                onset_s: (anchor.onset_s + q[2] * ONSET_UNIT_S).max(0.0),
+            })
+            .collect();
+        (
+            LinearValues {
+                stiffness,
+                damping,
+                loads,
+            },
+            effect,
+        )
     }
 
-    /// The model at parameter vector `p`.
-    fn model_at(&self, p: &[f64]) -> Result<(Model, LinearValues, Option<f64>), ModelError> {
-        let (linear, effect) = self.decode(p);
-        let base = linear.write_into(self.template);
-        let model = match (self.effect, effect) {
-            (Some((slot, _)), Some(value)) => slot.effect.apply(&base, slot.location, value)?,
-            _ => base,
-        };
-        Ok((model, linear, effect))
+    /// The model of bite `bite` for the decoded values.
+    fn model_of(
+        &self,
+        linear: &LinearValues,
+        effect: Option<f64>,
+        bite: usize,
+    ) -> Result<Model, ModelError> {
+        let base = linear.model_for(&self.bites[bite].template, bite);
+        match (self.effect, effect) {
+            (Some((slot, _)), Some(value)) => slot.apply(&base, value),
+            _ => Ok(base),
+        }
     }
 
-    /// Simulates the model at `p` into `out` (kN*m); `false` if the model is refused.
-    fn simulate(&self, p: &[f64], out: &mut [f64]) -> bool {
-        let Ok((model, _, _)) = self.model_at(p) else {
+    /// Simulates bite `bite` of the decoded values into `out` (kN*m); `false` if the
+    /// model is refused or the run diverged.
+    fn simulate(
+        &mut self,
+        linear: &LinearValues,
+        effect: Option<f64>,
+        bite: usize,
+        out: &mut [f64],
+    ) -> bool {
+        self.simulations += 1;
+        let Ok(model) = self.model_of(linear, effect, bite) else {
             return false;
         };
         let Ok(simulator) = Simulator::new(&model) else {
             return false;
         };
         let simulator = simulator
-            .with_substeps_per_sample(self.substeps)
-            .with_divergence_limit(self.divergence_limit_knm);
+            .with_substeps_per_sample(self.substeps[bite])
+            .with_divergence_limit(self.limits[bite]);
         let mut state = simulator.initial_state();
         simulator.run_into(&mut state, out);
         out.iter().all(|v| v.is_finite())
     }
 
-    /// Levenberg-Marquardt from the anchors with the default settings.
-    pub fn solve(&self) -> Result<Fitted, ModelError> {
-        self.solve_with(&LmSettings::default())
+    /// Simulates bite `bite` at `p` into its block of `out` and subtracts the record.
+    fn bite_residuals(
+        &mut self,
+        linear: &LinearValues,
+        effect: Option<f64>,
+        bite: usize,
+        out: &mut [f64],
+    ) -> bool {
+        let block = &mut out[self.offsets[bite]..self.offsets[bite + 1]];
+        if !self.simulate(linear, effect, bite, block) {
+            return false;
+        }
+        for (o, y) in block.iter_mut().zip(self.bites[bite].measured) {
+            *o -= y;
+        }
+        true
+    }
+
+    /// Levenberg-Marquardt from the anchors with [`FIT_SETTINGS`].
+    pub fn solve(&mut self) -> Result<Fitted, ModelError> {
+        self.solve_with(&FIT_SETTINGS)
     }
 
     /// Levenberg-Marquardt from the anchors.
-    pub fn solve_with(&self, settings: &LmSettings) -> Result<Fitted, ModelError> {
-        let m = self.measured.len();
-        let result = minimise(&vec![0.0; self.parameter_count()], m, settings, |p, out| {
-            if !self.simulate(p, out) {
-                return false;
-            }
-            for (o, y) in out.iter_mut().zip(self.measured) {
-                *o -= y;
-            }
-            true
-        });
-        let (model, linear, effect_value) = self.model_at(&result.params)?;
-        let mut simulated = vec![0.0; m];
-        self.simulate(&result.params, &mut simulated);
+    pub fn solve_with(&mut self, settings: &LmSettings) -> Result<Fitted, ModelError> {
+        let result = minimise(&vec![0.0; self.parameter_count()], settings, self);
+        let (linear, effect_value) = self.decode(&result.params);
+        let mut models = Vec::with_capacity(self.bites.len());
+        let mut simulated = Vec::with_capacity(self.bites.len());
+        let mut bite_costs = Vec::with_capacity(self.bites.len());
+        for b in 0..self.bites.len() {
+            models.push(self.model_of(&linear, effect_value, b)?);
+            let mut series = vec![0.0; self.bites[b].measured.len()];
+            let cost = if self.simulate(&linear, effect_value, b, &mut series) {
+                series
+                    .iter()
+                    .zip(self.bites[b].measured)
+                    .map(|(s, y)| (s - y).powi(2))
+                    .sum()
+            } else {
+                f64::INFINITY
+            };
+            simulated.push(series);
+            bite_costs.push(cost);
+        }
         Ok(Fitted {
             linear,
             effect_value,
-            model,
-            cost: result.cost,
+            models,
+            cost: bite_costs.iter().sum(),
+            bite_costs,
             simulated,
-            evaluations: result.evaluations + 1,
+            simulations: self.simulations,
         })
+    }
+}
+
+impl Residuals for Problem<'_> {
+    fn residual_count(&self) -> usize {
+        self.offsets.last().copied().unwrap_or(0)
+    }
+
+    fn evaluate(&mut self, p: &[f64], out: &mut [f64]) -> bool {
+        let (linear, effect) = self.decode(p);
+        (0..self.bites.len()).all(|b| self.bite_residuals(&linear, effect, b, out))
+    }
+
+    /// Forward differences; a load column simulates only its own bite (the other
+    /// bites' rows are zero).
+    fn jacobian(&mut self, p: &[f64], r: &[f64], step: f64, jacobian: &mut DMatrix<f64>) -> bool {
+        let shared = self.shared_count();
+        let mut probe = p.to_vec();
+        let mut shifted = vec![0.0; r.len()];
+        for j in 0..p.len() {
+            // Rows this column moves: every bite for a shared parameter, else its bite.
+            let bites = if j < shared {
+                0..self.bites.len()
+            } else {
+                let b = (j - shared) / LOAD_PARAMETERS;
+                b..b + 1
+            };
+            let mut column_ok = false;
+            for h in [step, -step] {
+                probe[j] = p[j] + h;
+                let (linear, effect) = self.decode(&probe);
+                if bites
+                    .clone()
+                    .all(|b| self.bite_residuals(&linear, effect, b, &mut shifted))
+                {
+                    column_ok = true;
+                    jacobian.column_mut(j).fill(0.0);
+                    let rows = self.offsets[bites.start]..self.offsets[bites.end];
+                    for i in rows {
+                        jacobian[(i, j)] = (shifted[i] - r[i]) / h;
+                    }
+                    break;
+                }
+            }
+            probe[j] = p[j];
+            if !column_ok {
+                return false;
+            }
+        }
+        true
     }
 }
 
