@@ -3,11 +3,12 @@
 //! the wall time, then the slowest single-bite and multi-bite runs.
 //!
 //! ```text
-//! cargo run --release -p millgate-sim --example discrepancy_cases [-- [--verbose] [INDEX ...]]
+//! cargo run --release -p millgate-sim --example discrepancy_cases [-- [--verbose] [--seed N] [INDEX ...]]
 //! ```
 //!
 //! The workflow runs as the command line runs it: candidate search on every core.
-//! `--verbose` adds the identifications, stiffness starts and best candidates.
+//! `--verbose` adds the identifications, stiffness starts and best candidates; `--seed`
+//! draws another suite (the test's is 1).
 
 use std::time::Instant;
 
@@ -39,10 +40,23 @@ fn details(report: &Report) {
 fn main() -> anyhow::Result<()> {
     let arguments: Vec<String> = std::env::args().skip(1).collect();
     let verbose = arguments.iter().any(|a| a == "--verbose");
-    let wanted: Vec<usize> = arguments.iter().filter_map(|a| a.parse().ok()).collect();
+    let seed_at = arguments.iter().position(|a| a == "--seed");
+    let seed = match seed_at {
+        Some(at) => arguments
+            .get(at + 1)
+            .and_then(|s| s.parse().ok())
+            .ok_or_else(|| anyhow::anyhow!("--seed needs a number"))?,
+        None => 1,
+    };
+    let wanted: Vec<usize> = arguments
+        .iter()
+        .enumerate()
+        .filter(|&(i, _)| seed_at.is_none_or(|at| i != at + 1))
+        .filter_map(|(_, a)| a.parse().ok())
+        .collect();
     let mut slowest = [(0.0_f64, String::new()), (0.0, String::new())];
     let mut failures = 0;
-    for (index, case) in suite(1)?.into_iter().enumerate() {
+    for (index, case) in suite(seed)?.into_iter().enumerate() {
         if !wanted.is_empty() && !wanted.contains(&index) {
             continue;
         }
@@ -66,6 +80,24 @@ fn main() -> anyhow::Result<()> {
             outcome.as_ref().err().map_or("ok", String::as_str),
         );
         if verbose {
+            println!(
+                "   hidden {:?}, static {:?} kN*m, truth {:.4?}, handed {:.4?}",
+                case.hidden,
+                case.loads
+                    .iter()
+                    .map(|l| l.static_torque)
+                    .collect::<Vec<_>>(),
+                case.truth
+                    .couplings
+                    .iter()
+                    .map(|c| c.stiffness)
+                    .collect::<Vec<_>>(),
+                case.handed
+                    .couplings
+                    .iter()
+                    .map(|c| c.stiffness)
+                    .collect::<Vec<_>>(),
+            );
             details(&report);
         }
         let slot = &mut slowest[usize::from(measured.len() > 1)];

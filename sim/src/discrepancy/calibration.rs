@@ -9,7 +9,9 @@
 //! 3. **Stiffness starts**: every root of eq. (2) for each identification (three
 //!    masses), or a regularised modal update (N masses), within a factor
 //!    [`MAX_LOG_RATIO`](super::fit::MAX_LOG_RATIO) of the drawings; the model's own
-//!    stiffness too.
+//!    stiffness; and the best points of a global search over stiffness within a factor
+//!    [`GRID_FACTOR`] of the drawings ([`grid_starts`]), for when no identification
+//!    gives a root (a coupling stuck by friction leaves one mode in the loaded part).
 //! 4. **Linear fits**: stiffness, damping, and every bite's static torque, rise rate and
 //!    onset by Levenberg-Marquardt from each start (loads re-aligned to it); the best is
 //!    the calibrated linear model. Inertias and the motor's controller are trusted.
@@ -67,6 +69,8 @@ pub enum TrialSource {
     ModalUpdate,
     /// The stiffness written in the model (the drawings).
     Model,
+    /// A minimum of the global search over stiffness around the drawings.
+    Grid,
 }
 
 impl IdentificationWindow {
@@ -86,6 +90,7 @@ impl TrialSource {
             TrialSource::Eq2 => "eq2",
             TrialSource::ModalUpdate => "modal_update",
             TrialSource::Model => "model",
+            TrialSource::Grid => "grid",
         }
     }
 }
@@ -151,20 +156,7 @@ pub struct Calibrated {
     /// Where to start the candidate search from: the identified stiffness (up to
     /// [`IDENTIFIED_ANCHORS`] starts, loaded part first) with their fits' loads and
     /// damping, and the best linear fit.
-    pub anchors: Vec<Anchor>,
-    /// The first identified anchor (the best linear fit when nothing was identified):
-    /// what effect sizes are measured against.
-    pub reference: LinearValues,
-}
-
-/// A start of the candidate search.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Anchor {
-    /// The linear values.
-    pub values: LinearValues,
-    /// For identified stiffness, the bite it was identified on: it is the couplings'
-    /// tangent stiffness at that bite's static load.
-    pub tangent_of_bite: Option<usize>,
+    pub anchors: Vec<LinearValues>,
 }
 
 /// Identified stiffness starts handed to the candidate search, at most.
@@ -246,13 +238,17 @@ pub fn calibrate(
         }
     }
     add(TrialSource::Model, None, drawings.clone());
+    for stiffness in grid_starts(bites, &prior, simulations)? {
+        add(TrialSource::Grid, None, stiffness);
+    }
 
     let mut fits: Vec<(StiffnessTrial, Fitted, Vec<f64>)> = Vec::with_capacity(starts.len());
     for (source, identification, stiffness) in starts {
         let start = aligned(bites, &prior.with_stiffness(&stiffness), simulations)?;
         let mut problem = Problem::new(bites, start, None)?;
         let fit = problem.solve()?;
-        *simulations += fit.simulations;
+        *simulations += problem.simulations();
+        let Some(fit) = fit else { continue };
         let trial = StiffnessTrial {
             source,
             identification,
@@ -269,8 +265,8 @@ pub fn calibrate(
     // Identified stiffness: from the loaded part if any (a gap biases the whole
     // transient's), each distinct start with its fit's loads and damping, best-fitting
     // first (fits are sorted); the two roots of eq. (2) can fit a record with an
-    // effect about equally, so both are kept.
-    let mut identified_anchors: Vec<Anchor> = Vec::new();
+    // effect about equally, so both are kept. Then the best linear fit.
+    let mut anchors: Vec<LinearValues> = Vec::new();
     for window in [
         IdentificationWindow::Loaded,
         IdentificationWindow::Transient,
@@ -279,25 +275,15 @@ pub fn calibrate(
             let Some(i) = trial.identification else {
                 continue;
             };
-            if identified[i].window == window && identified_anchors.len() < IDENTIFIED_ANCHORS {
-                identified_anchors.push(Anchor {
-                    values: fit.linear.with_stiffness(stiffness),
-                    tangent_of_bite: Some(identified[i].bite),
-                });
+            if identified[i].window == window && anchors.len() < IDENTIFIED_ANCHORS {
+                anchors.push(fit.linear.with_stiffness(stiffness));
             }
         }
-        if !identified_anchors.is_empty() {
+        if !anchors.is_empty() {
             break;
         }
     }
-    let reference = identified_anchors
-        .first()
-        .map_or_else(|| best.linear.clone(), |a| a.values.clone());
-    let mut anchors = identified_anchors;
-    anchors.push(Anchor {
-        values: best.linear.clone(),
-        tangent_of_bite: None,
-    });
+    anchors.push(best.linear.clone());
     let transient = identified
         .iter()
         .find(|id| id.window == IdentificationWindow::Transient && id.bite == 0);
@@ -312,7 +298,6 @@ pub fn calibrate(
         },
         best,
         anchors,
-        reference,
     })
 }
 
@@ -326,7 +311,7 @@ fn aligned(
     let mut out = values.clone();
     for (b, bite) in bites.iter().enumerate() {
         let model = values.model_for(&bite.template, b);
-        let (onset_s, scale) = align(&model, bite.measured)?.ok_or(DiscrepancyError::Bite {
+        let (onset_s, scale, _) = align(&model, bite.measured)?.ok_or(DiscrepancyError::Bite {
             bite: b,
             reason: "no bite found: the record does not look like a load step".into(),
         })?;
@@ -340,14 +325,15 @@ fn aligned(
     Ok(out)
 }
 
-/// Onset (s) and load scale that best align `model`'s response with the record `y`;
-/// `None` when no positive scale fits (the record is not a load step).
+/// Onset (s), load scale and the remaining sum of squares ((kN*m)^2) of the best
+/// alignment of `model`'s response with the record `y`; `None` when no positive scale
+/// fits (the record is not a load step).
 ///
 /// Before the bite the chain is at rest, so the response to a load starting at `o` is
 /// the response to a load starting at 0 delayed by `o`; and a linear chain's response
 /// is proportional to the static load. One simulation from onset 0 is shifted over
 /// every sample and scaled by least squares.
-pub fn align(model: &Model, y: &[f64]) -> Result<Option<(f64, f64)>, DiscrepancyError> {
+pub fn align(model: &Model, y: &[f64]) -> Result<Option<(f64, f64, f64)>, DiscrepancyError> {
     let fs = model.measurement.sample_rate;
     let mut at_zero = model.clone();
     at_zero.load.onset = 0.0;
@@ -379,7 +365,76 @@ pub fn align(model: &Model, y: &[f64]) -> Result<Option<(f64, f64)>, Discrepancy
             best = (cost, shift, scale);
         }
     }
-    Ok((best.0.is_finite() && best.2 > 0.0).then(|| (best.1 as f64 / fs, best.2)))
+    Ok((best.0.is_finite() && best.2 > 0.0).then(|| (best.1 as f64 / fs, best.2, best.0)))
+}
+
+/// Grid points per coupling of the global stiffness search.
+pub const GRID_POINTS: usize = 9;
+/// The global search spans the drawing stiffness divided and multiplied by this.
+pub const GRID_FACTOR: f64 = 5.0;
+/// Couplings up to which the global search runs (GRID_POINTS^couplings points).
+pub const GRID_MAX_COUPLINGS: usize = 3;
+/// Minima of the global search kept as starts.
+const GRID_STARTS: usize = 2;
+
+/// The global stiffness search: every combination of [`GRID_POINTS`] log-spaced
+/// factors in `1/GRID_FACTOR ..= GRID_FACTOR` on each coupling's drawing stiffness
+/// (`prior`), each scored by the linear response aligned to every bite (one simulation
+/// per bite, see [`align`]); the [`GRID_STARTS`] best points that are not grid
+/// neighbours of a better one. Skipped beyond [`GRID_MAX_COUPLINGS`] couplings.
+fn grid_starts(
+    bites: &[BiteRecord<'_>],
+    prior: &LinearValues,
+    simulations: &mut usize,
+) -> Result<Vec<Vec<f64>>, DiscrepancyError> {
+    let n = prior.stiffness.len();
+    if n > GRID_MAX_COUPLINGS {
+        return Ok(Vec::new());
+    }
+    let factor = |k: usize| GRID_FACTOR.powf(2.0 * k as f64 / (GRID_POINTS - 1) as f64 - 1.0);
+    let mut scored: Vec<(f64, Vec<usize>)> = Vec::new();
+    for index in 0..GRID_POINTS.pow(n as u32) {
+        let point: Vec<usize> = (0..n)
+            .map(|i| index / GRID_POINTS.pow(i as u32) % GRID_POINTS)
+            .collect();
+        let stiffness: Vec<f64> = prior
+            .stiffness
+            .iter()
+            .zip(&point)
+            .map(|(c, &k)| c * factor(k))
+            .collect();
+        let values = prior.with_stiffness(&stiffness);
+        let mut cost = 0.0;
+        for (b, bite) in bites.iter().enumerate() {
+            *simulations += 1;
+            cost += align(&values.model_for(&bite.template, b), bite.measured)?
+                .map_or(f64::INFINITY, |(_, _, c)| c);
+        }
+        scored.push((cost, point));
+    }
+    scored.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut kept: Vec<&Vec<usize>> = Vec::new();
+    for (cost, point) in &scored {
+        let neighbour =
+            |other: &&Vec<usize>| other.iter().zip(point).all(|(a, b)| a.abs_diff(*b) <= 1);
+        if cost.is_finite() && !kept.iter().any(neighbour) {
+            kept.push(point);
+        }
+        if kept.len() == GRID_STARTS {
+            break;
+        }
+    }
+    Ok(kept
+        .into_iter()
+        .map(|point| {
+            prior
+                .stiffness
+                .iter()
+                .zip(point)
+                .map(|(c, &k)| c * factor(k))
+                .collect()
+        })
+        .collect())
 }
 
 /// Every (C12, C23) root of eq. (2) for the identified `betas` (Hz), nearest `drawing`

@@ -106,9 +106,10 @@ pub fn decide(
         return Ok(decision);
     }
     // Could the linear model alone get there from the candidate's values?
-    let refit = Problem::new(bites, best.fit.linear.clone(), None)?.solve()?;
-    decision.simulations += refit.simulations;
-    if refit.cost < decision.linear.cost {
+    let mut problem = Problem::new(bites, best.fit.linear.clone(), None)?;
+    let refit = problem.solve()?;
+    decision.simulations += problem.simulations();
+    if let Some(refit) = refit.filter(|r| r.cost < decision.linear.cost) {
         decision.bic_linear = refit.bic(linear_parameters);
         decision.linear = refit;
     }
@@ -227,5 +228,103 @@ fn model_coupling(candidate: &super::search::Candidate, index: usize) -> usize {
     match (candidate.effect, candidate.location) {
         (Effect::ExtraInertia, Some(split)) if index > split => index + 1,
         _ => index,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::chain::simulate_with_noise;
+    use crate::discrepancy::effects::Range;
+    use crate::discrepancy::fit::{EffectSlot, LinearValues};
+    use crate::discrepancy::search::Candidate;
+
+    /// A 0.3 s bite of the adjusted Table 2 driveline with a 2 mrad gap in the spindle.
+    fn record() -> (Model, Vec<f64>) {
+        let mut model =
+            Model::from_toml_str(include_str!("../../models/table2-adjusted.toml"), "t2").unwrap();
+        model.measurement.duration = 0.3;
+        let with_gap = Effect::Backlash.apply(&model, Some(1), 2.0e-3).unwrap();
+        let y = simulate_with_noise(&with_gap, 0.5, 3).unwrap().torque_knm;
+        (model, y)
+    }
+
+    /// The fit of `effect` in the spindle from the model's own values, as a candidate.
+    fn candidate(bites: &[BiteRecord<'_>], effect: Effect, start: f64) -> FittedCandidate {
+        let model = &bites[0].template;
+        let slot = EffectSlot {
+            effect,
+            location: Some(1),
+            range: Range {
+                low: 1.0e-3 * start,
+                high: 1.0e3 * start,
+            },
+        };
+        let mut problem =
+            Problem::new(bites, LinearValues::of(model, 1), Some((slot, start))).unwrap();
+        let fit = problem.solve().unwrap().unwrap();
+        FittedCandidate {
+            candidate: Candidate {
+                effect,
+                location: Some(1),
+                value: fit.effect_value.unwrap(),
+                rmse: fit.rmse(),
+                bite_rmse: fit.bite_rmse(),
+                bic: fit.bic(problem.parameter_count()),
+            },
+            fit,
+        }
+    }
+
+    #[test]
+    fn a_rival_within_the_margin_makes_it_cannot_tell_with_a_further_record() {
+        let (model, y) = record();
+        let bites = [BiteRecord {
+            template: model.clone(),
+            measured: &y,
+        }];
+        let linear = Problem::new(&bites, LinearValues::of(&model, 1), None)
+            .unwrap()
+            .solve()
+            .unwrap()
+            .unwrap();
+        let gap = candidate(&bites, Effect::Backlash, 1.0e-3);
+        let hardening = candidate(&bites, Effect::Hardening, 3.0e11);
+        assert!(gap.candidate.bic < hardening.candidate.bic - BIC_MARGIN);
+
+        // As fitted: the gap alone explains the bite.
+        let clear = [gap.clone(), hardening.clone()];
+        let decision = decide(&bites, &clear, linear.clone()).unwrap();
+        assert_eq!(decision.verdict, Verdict::Named);
+        assert_eq!(decision.named, Some(0));
+        assert!(decision.rivals.is_empty());
+
+        // Were the hardening within the margin, the bite could not tell them apart.
+        let mut close = hardening.clone();
+        close.candidate.bic = gap.candidate.bic + 0.5 * BIC_MARGIN;
+        let decision = decide(&bites, &[gap.clone(), close], linear.clone()).unwrap();
+        assert_eq!(decision.verdict, Verdict::CannotTell);
+        assert_eq!(decision.rivals, [1]);
+
+        // Nothing beating the linear model by the margin: none.
+        let mut weak = gap.clone();
+        weak.candidate.bic = decision.bic_linear - 0.5 * BIC_MARGIN;
+        let decision = decide(&bites, &[weak], linear).unwrap();
+        assert_eq!(decision.verdict, Verdict::None);
+
+        // The further record separates the two better than the bite given does.
+        let given = (gap.fit.simulated[0]
+            .iter()
+            .zip(&hardening.fit.simulated[0])
+            .map(|(a, b)| (a - b).powi(2))
+            .sum::<f64>()
+            / y.len() as f64)
+            .sqrt();
+        let further = tell_apart(&gap, &hardening, 0.5).unwrap().unwrap();
+        assert!(
+            further.difference_rms_knm > given,
+            "{further:?}, {given} on the bite given"
+        );
+        assert!(further.advice.contains("kN*m"), "{}", further.advice);
     }
 }

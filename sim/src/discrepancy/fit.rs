@@ -8,7 +8,13 @@
 //! anchor)` for stiffness, damping, static torque and rise rate, squashed by a tanh
 //! into a factor 10 (100 for damping) of the anchor; the logit of the effect size's
 //! position between the logarithms of its range's ends; and `(onset - anchor) / 1 ms`
-//! for the onset. The integration step is fixed for a whole fit (from the anchor model
+//! for the onset. With hardening in coupling `i`, that coupling's stiffness parameter is
+//! its tangent `C + 3 k3 e^2` at the anchor's static twist `e = M / C_anchor` under the
+//! largest load `M` (about what the record's loaded part pins down); `C` follows from it
+//! and `k3`, so the long valley where more hardening and less stiffness explain the
+//! record alike lies along the `k3` axis. (The tangent of the true twist would be
+//! exact, but it is not monotonic in `C` once the cubic share exceeds the linear one.)
+//! The integration step is fixed for a whole fit (from the anchor model
 //! with the effect at the top of its range), so the residual is a smooth function of
 //! the parameters and forward differences work. A bite's load moves only that bite's
 //! residuals, so the Jacobian simulates one bite per load column
@@ -228,6 +234,9 @@ pub struct Problem<'a> {
     bites: &'a [BiteRecord<'a>],
     anchor: LinearValues,
     effect: Option<(EffectSlot, f64)>,
+    /// For hardening: its coupling and the twist (rad) at which the stiffness parameter
+    /// is the tangent stiffness.
+    tangent: Option<(usize, f64)>,
     /// RK4 steps per output sample of each bite.
     substeps: Vec<usize>,
     /// Divergence limit of each bite, kN*m.
@@ -277,10 +286,27 @@ impl<'a> Problem<'a> {
                 DIVERGENCE_FACTOR * bite.measured.iter().fold(1.0_f64, |a, v| a.max(v.abs())),
             );
         }
+        // Hardening: the coupling's stiffness parameter becomes its tangent at the
+        // anchor's static twist under the largest load (the start decodes to itself).
+        let mut anchor = anchor;
+        let tangent = match effect {
+            Some((slot, start)) if slot.effect == Effect::Hardening => slot.location.map(|i| {
+                let largest_nm = anchor
+                    .loads
+                    .iter()
+                    .fold(0.0_f64, |a, l| a.max(l.static_torque_knm))
+                    * 1.0e3;
+                let twist = largest_nm / anchor.stiffness[i];
+                anchor.stiffness[i] += 3.0 * start * twist * twist;
+                (i, twist)
+            }),
+            _ => None,
+        };
         Ok(Problem {
             bites,
             anchor,
             effect,
+            tangent,
             substeps,
             limits,
             offsets,
@@ -309,13 +335,14 @@ impl<'a> Problem<'a> {
         self.simulations
     }
 
-    /// Linear values and effect size at parameter vector `p`.
-    fn decode(&self, p: &[f64]) -> (LinearValues, Option<f64>) {
+    /// Linear values and effect size at parameter vector `p` (`None` where a hardening
+    /// larger than the tangent stiffness allows leaves no positive linear stiffness).
+    fn decode(&self, p: &[f64]) -> Option<(LinearValues, Option<f64>)> {
         let n = self.couplings();
         let scale = |anchor: f64, q: f64| anchor * soft_bound(q, MAX_LOG_RATIO).exp();
         let scale_damping =
             |anchor: f64, q: f64| anchor * soft_bound(q, MAX_LOG_DAMPING_RATIO).exp();
-        let stiffness = self
+        let mut stiffness: Vec<f64> = self
             .anchor
             .stiffness
             .iter()
@@ -332,6 +359,12 @@ impl<'a> Problem<'a> {
         let effect = self
             .effect
             .map(|(slot, start)| slot.range.squash(slot.range.unsquash(start) + p[2 * n]));
+        if let (Some((coupling, twist)), Some(k3)) = (self.tangent, effect) {
+            stiffness[coupling] -= 3.0 * k3 * twist * twist;
+            if stiffness[coupling] <= 0.0 {
+                return None;
+            }
+        }
         let at = self.shared_count();
         let loads = self
             .anchor
@@ -344,14 +377,14 @@ impl<'a> Problem<'a> {
                 onset_s: (anchor.onset_s + q[2] * ONSET_UNIT_S).max(0.0),
             })
             .collect();
-        (
+        Some((
             LinearValues {
                 stiffness,
                 damping,
                 loads,
             },
             effect,
-        )
+        ))
     }
 
     /// The model of bite `bite` for the decoded values.
@@ -410,15 +443,20 @@ impl<'a> Problem<'a> {
         true
     }
 
-    /// Levenberg-Marquardt from the anchors with [`FIT_SETTINGS`].
-    pub fn solve(&mut self) -> Result<Fitted, ModelError> {
+    /// Levenberg-Marquardt from the anchors with [`FIT_SETTINGS`]; see
+    /// [`Problem::solve_with`].
+    pub fn solve(&mut self) -> Result<Option<Fitted>, ModelError> {
         self.solve_with(&FIT_SETTINGS)
     }
 
-    /// Levenberg-Marquardt from the anchors.
-    pub fn solve_with(&mut self, settings: &LmSettings) -> Result<Fitted, ModelError> {
+    /// Levenberg-Marquardt from the anchors; `None` when the point reached has no model
+    /// (a hardening that leaves no positive linear stiffness; the start always has one,
+    /// and only evaluated points are accepted, so this is a guard, not an outcome).
+    pub fn solve_with(&mut self, settings: &LmSettings) -> Result<Option<Fitted>, ModelError> {
         let result = minimise(&vec![0.0; self.parameter_count()], settings, self);
-        let (linear, effect_value) = self.decode(&result.params);
+        let Some((linear, effect_value)) = self.decode(&result.params) else {
+            return Ok(None);
+        };
         let mut models = Vec::with_capacity(self.bites.len());
         let mut simulated = Vec::with_capacity(self.bites.len());
         let mut bite_costs = Vec::with_capacity(self.bites.len());
@@ -437,7 +475,7 @@ impl<'a> Problem<'a> {
             simulated.push(series);
             bite_costs.push(cost);
         }
-        Ok(Fitted {
+        Ok(Some(Fitted {
             linear,
             effect_value,
             models,
@@ -445,7 +483,7 @@ impl<'a> Problem<'a> {
             bite_costs,
             simulated,
             simulations: self.simulations,
-        })
+        }))
     }
 }
 
@@ -455,7 +493,9 @@ impl Residuals for Problem<'_> {
     }
 
     fn evaluate(&mut self, p: &[f64], out: &mut [f64]) -> bool {
-        let (linear, effect) = self.decode(p);
+        let Some((linear, effect)) = self.decode(p) else {
+            return false;
+        };
         (0..self.bites.len()).all(|b| self.bite_residuals(&linear, effect, b, out))
     }
 
@@ -476,7 +516,9 @@ impl Residuals for Problem<'_> {
             let mut column_ok = false;
             for h in [step, -step] {
                 probe[j] = p[j] + h;
-                let (linear, effect) = self.decode(&probe);
+                let Some((linear, effect)) = self.decode(&probe) else {
+                    continue;
+                };
                 if bites
                     .clone()
                     .all(|b| self.bite_residuals(&linear, effect, b, &mut shifted))

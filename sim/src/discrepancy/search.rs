@@ -15,8 +15,7 @@ use serde::Serialize;
 
 use crate::model::Model;
 
-use super::calibration::Anchor;
-use super::effects::Effect;
+use super::effects::{Effect, Range};
 use super::fit::{BiteRecord, EffectSlot, Fitted, LinearValues, Problem, FIT_SETTINGS};
 use super::lm::LmSettings;
 use super::DiscrepancyError;
@@ -25,7 +24,7 @@ use super::DiscrepancyError;
 pub const STARTS: usize = 5;
 
 /// Full fits per candidate, from the best short fits.
-const FULL_FITS: usize = 2;
+const FULL_FITS: usize = 3;
 
 /// Iterations of each short fit from a starting size.
 const SHORT_ITERATIONS: usize = 6;
@@ -56,84 +55,89 @@ pub struct FittedCandidate {
     pub fit: Fitted,
 }
 
-/// Every effect at every location of `reference` (the calibrated driveline at the
-/// largest static torque of the bites), with its size range; `first_period_s` is the
-/// first oscillation period (for the lag's range).
-pub fn slots(reference: &Model, first_period_s: f64) -> Vec<EffectSlot> {
-    Effect::ALL
+/// One effect at one location to fit: its slot (the range the fit may use) and the
+/// starting sizes from each anchor.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SlotPlan {
+    /// The effect, its location, and the union of the anchors' ranges.
+    pub slot: EffectSlot,
+    /// Starting sizes per anchor ([`STARTS`] log-spaced over that anchor's range).
+    pub starts: Vec<Vec<f64>>,
+}
+
+/// Every effect at every location, with its sizes relative to each anchor's driveline
+/// at the largest static torque of the bites (an anchor may be far off: a misled
+/// identification, a linear fit bent by the effect); `first_period_s` is the first
+/// oscillation period (for the lag's range).
+pub fn plans(
+    bites: &[BiteRecord<'_>],
+    anchors: &[LinearValues],
+    first_period_s: f64,
+) -> Vec<SlotPlan> {
+    let drivelines: Vec<Model> = anchors
         .iter()
-        .flat_map(|&effect| {
-            effect
-                .locations(reference)
-                .into_iter()
-                .map(move |location| EffectSlot {
+        .map(|values| {
+            let largest = (0..values.loads.len())
+                .max_by(|&a, &b| {
+                    let load = |i: usize| values.loads[i].static_torque_knm;
+                    load(a).total_cmp(&load(b))
+                })
+                .unwrap_or(0);
+            values.model_for(&bites[largest].template, largest)
+        })
+        .collect();
+    let Some(first) = drivelines.first() else {
+        return Vec::new();
+    };
+    let mut plans = Vec::new();
+    for &effect in &Effect::ALL {
+        for location in effect.locations(first) {
+            let ranges: Vec<Range> = drivelines
+                .iter()
+                .map(|d| effect.range(d, location, first_period_s))
+                .collect();
+            let union = Range {
+                low: ranges.iter().map(|r| r.low).fold(f64::INFINITY, f64::min),
+                high: ranges.iter().map(|r| r.high).fold(0.0, f64::max),
+            };
+            plans.push(SlotPlan {
+                slot: EffectSlot {
                     effect,
                     location,
-                    range: effect.range(reference, location, first_period_s),
-                })
-        })
-        .collect()
-}
-
-/// The linear values of `anchor` for a short fit of `slot` from `start`: for hardening
-/// from an identified (tangent) stiffness, that coupling's stiffness lowered so that its
-/// tangent `C + 3 k3 e^2` at the static twist `e = M / C` is the identified one (what
-/// the loaded part shows is the tangent; the linear stiffness is lower).
-fn adapted(anchor: &Anchor, slot: EffectSlot, start: f64) -> LinearValues {
-    let values = &anchor.values;
-    let (Effect::Hardening, Some(coupling), Some(bite)) =
-        (slot.effect, slot.location, anchor.tangent_of_bite)
-    else {
-        return values.clone();
-    };
-    let tangent = values.stiffness[coupling];
-    let torque_nm = values.loads[bite].static_torque_knm * 1.0e3;
-    let excess = |c: f64| c + 3.0 * start * torque_nm * torque_nm / (c * c) - tangent;
-    // excess is convex in C with its minimum at (6 k3 M^2)^(1/3); the linear stiffness
-    // is the root above it (the one where hardening is the smaller part).
-    let mut low = (6.0 * start * torque_nm * torque_nm).cbrt();
-    let mut high = tangent;
-    if !(low < high && excess(low) < 0.0) {
-        return values.clone();
-    }
-    for _ in 0..60 {
-        let middle = 0.5 * (low + high);
-        if excess(middle) < 0.0 {
-            low = middle;
-        } else {
-            high = middle;
+                    range: union,
+                },
+                starts: ranges.iter().map(|r| r.starts(STARTS)).collect(),
+            });
         }
     }
-    let mut stiffness = values.stiffness.clone();
-    stiffness[coupling] = high;
-    values.with_stiffness(&stiffness)
+    plans
 }
 
-/// Fits every slot from every anchor on `threads` worker threads (at least 1);
+/// Fits every planned slot from every anchor on `threads` worker threads (at least 1);
 /// `on_fitted(done, total, candidate)` hears each as it is done. Returns the candidates
 /// best (lowest BIC) first and the simulations of one bite spent.
 pub fn search(
     bites: &[BiteRecord<'_>],
-    anchors: &[Anchor],
-    slots: &[EffectSlot],
+    anchors: &[LinearValues],
+    plans: &[SlotPlan],
     threads: usize,
     mut on_fitted: impl FnMut(usize, usize, &Candidate),
 ) -> Result<(Vec<FittedCandidate>, usize), DiscrepancyError> {
     let next = AtomicUsize::new(0);
     let (sender, receiver) = mpsc::channel();
-    let mut fitted = Vec::with_capacity(slots.len());
+    let mut fitted = Vec::with_capacity(plans.len());
     let mut simulations = 0;
     let mut failure = None;
     std::thread::scope(|scope| {
-        for _ in 0..threads.clamp(1, slots.len().max(1)) {
+        for _ in 0..threads.clamp(1, plans.len().max(1)) {
             let sender = sender.clone();
             let next = &next;
             scope.spawn(move || loop {
                 let index = next.fetch_add(1, Ordering::Relaxed);
-                let Some(&slot) = slots.get(index) else {
+                let Some(plan) = plans.get(index) else {
                     break;
                 };
-                if sender.send(fit_slot(bites, anchors, slot)).is_err() {
+                if sender.send(fit_slot(bites, anchors, plan)).is_err() {
                     break;
                 }
             });
@@ -143,13 +147,13 @@ pub fn search(
             match outcome {
                 Ok((Some(candidate), spent)) => {
                     simulations += spent;
-                    on_fitted(done + 1, slots.len(), &candidate.candidate);
+                    on_fitted(done + 1, plans.len(), &candidate.candidate);
                     fitted.push(candidate);
                 }
                 Ok((None, spent)) => simulations += spent,
                 Err(error) => {
                     // Stop handing out slots; the workers finish the ones they have.
-                    next.store(slots.len(), Ordering::Relaxed);
+                    next.store(plans.len(), Ordering::Relaxed);
                     failure.get_or_insert(error);
                 }
             }
@@ -166,21 +170,22 @@ pub fn search(
 /// [`FULL_FITS`] best of them in full. Also the simulations spent.
 fn fit_slot(
     bites: &[BiteRecord<'_>],
-    anchors: &[Anchor],
-    slot: EffectSlot,
+    anchors: &[LinearValues],
+    plan: &SlotPlan,
 ) -> Result<(Option<FittedCandidate>, usize), DiscrepancyError> {
+    let slot = plan.slot;
     let short = LmSettings {
         max_iterations: SHORT_ITERATIONS,
         ..FIT_SETTINGS
     };
     let mut simulations = 0;
     let mut shorts: Vec<Fitted> = Vec::new();
-    for anchor in anchors {
-        for start in slot.range.starts(STARTS) {
-            let anchor = adapted(anchor, slot, start);
-            let fit = Problem::new(bites, anchor, Some((slot, start)))?.solve_with(&short)?;
-            simulations += fit.simulations;
-            shorts.push(fit);
+    for (anchor, starts) in anchors.iter().zip(&plan.starts) {
+        for &start in starts {
+            let mut problem = Problem::new(bites, anchor.clone(), Some((slot, start)))?;
+            let fit = problem.solve_with(&short)?;
+            simulations += problem.simulations();
+            shorts.extend(fit);
         }
     }
     shorts.sort_by(|a, b| a.cost.total_cmp(&b.cost));
@@ -189,7 +194,8 @@ fn fit_slot(
         let size = start.effect_value.unwrap_or(slot.range.low);
         let mut problem = Problem::new(bites, start.linear, Some((slot, size)))?;
         let fit = problem.solve()?;
-        simulations += fit.simulations;
+        simulations += problem.simulations();
+        let Some(fit) = fit else { continue };
         if best.as_ref().is_none_or(|(b, _)| fit.cost < b.cost) {
             best = Some((fit, problem.parameter_count()));
         }

@@ -177,13 +177,15 @@ pub fn run_with(
 
     progress(Progress::Step(Step::Calibration));
     let calibrated = calibration::calibrate(&records, &noise, &mut simulations)?;
-    let reference = reference_model(&calibrated.reference, &records);
     let f1 = calibrated
         .calibration
         .identified
         .iter()
         .find(|id| id.window == calibration::IdentificationWindow::Loaded)
-        .map_or_else(|| calibration::first_mode_hz(&reference), |id| id.beta1_hz);
+        .map_or_else(
+            || calibration::first_mode_hz(&calibrated.best.models[0]),
+            |id| id.beta1_hz,
+        );
 
     progress(Progress::Step(Step::Disagreement));
     let mut disagreement = Vec::new();
@@ -207,11 +209,11 @@ pub fn run_with(
     }
 
     progress(Progress::Step(Step::Search));
-    let slots = search::slots(&reference, 1.0 / f1);
+    let plans = search::plans(&records, &calibrated.anchors, 1.0 / f1);
     let (candidates, spent) = search::search(
         &records,
         &calibrated.anchors,
-        &slots,
+        &plans,
         settings.threads,
         |done, total, candidate| {
             progress(Progress::Candidate {
@@ -340,19 +342,6 @@ fn bite_records<'a>(
         });
     }
     Ok(records)
-}
-
-/// The driveline the effect sizes are measured against: the calibration's reference
-/// values at the largest static torque of the bites.
-fn reference_model(values: &super::fit::LinearValues, records: &[BiteRecord<'_>]) -> Model {
-    let largest = (0..values.loads.len())
-        .max_by(|&a, &b| {
-            values.loads[a]
-                .static_torque_knm
-                .total_cmp(&values.loads[b].static_torque_knm)
-        })
-        .unwrap_or(0);
-    values.model_for(&records[largest].template, largest)
 }
 
 /// The calibrated linear model to monitor against: the candidate's fitted linear values
