@@ -13,7 +13,7 @@
 use std::time::Instant;
 
 use millgate_sim::discrepancy::cases::suite;
-use millgate_sim::discrepancy::{run, Report};
+use millgate_sim::discrepancy::{run, Progress, Report};
 
 fn details(report: &Report) {
     for id in &report.calibration.identified {
@@ -63,7 +63,12 @@ fn main() -> anyhow::Result<()> {
         let records = case.records()?;
         let measured: Vec<_> = records.iter().map(|r| r.measured()).collect();
         let started = Instant::now();
-        let report = run(&measured, &case.handed, |_| {})?;
+        let mut steps = String::new();
+        let report = run(&measured, &case.handed, |progress| {
+            if let Progress::Step(step) = progress {
+                steps += &format!(" {step} {:.1}", started.elapsed().as_secs_f64());
+            }
+        })?;
         let seconds = started.elapsed().as_secs_f64();
         let outcome = case.check(&report);
         failures += usize::from(outcome.is_err());
@@ -80,6 +85,7 @@ fn main() -> anyhow::Result<()> {
             outcome.as_ref().err().map_or("ok", String::as_str),
         );
         if verbose {
+            println!("   steps (s from start):{steps}");
             println!(
                 "   hidden {:?}, static {:?} kN*m, truth {:.4?}, handed {:.4?}",
                 case.hidden,

@@ -39,6 +39,13 @@ const ONSET_UNIT_S: f64 = 1.0e-3;
 /// or stiff one that the record does not resolve.)
 const SEARCH_STEPS_PER_FASTEST_PERIOD: f64 = 15.0;
 
+/// The integration step of a fit is chosen for its effect at this multiple of the start
+/// (the short fits start at five sizes spread over the range, the full fits at the best
+/// short fits' sizes, so no fit needs to travel further); sized for the top of the
+/// range instead, a friction or hardening fit spent 2-7 RK4 steps per sample where it
+/// needs one or two.
+const STIFFEST_EFFECT_FACTOR: f64 = 10.0;
+
 /// Cap on RK4 steps per output sample during the search.
 const MAX_SEARCH_SUBSTEPS: f64 = 24.0;
 
@@ -260,8 +267,9 @@ impl<'a> Problem<'a> {
             offsets.push(offsets.last().copied().unwrap_or(0) + bite.measured.len());
         }
         // The step must keep RK4 stable at the stiffest point the fit is likely to visit:
-        // the effect at the top of its range, stiffness and damping a little above their
-        // anchors. Beyond that a trial may diverge; it is then cut short and refused.
+        // the effect at [`STIFFEST_EFFECT_FACTOR`] times its start (at most the top of its
+        // range), stiffness and damping a little above their anchors. Beyond that a
+        // trial may diverge; it is then cut short and refused.
         let mut stiffest = anchor.clone();
         for value in stiffest
             .stiffness
@@ -275,7 +283,9 @@ impl<'a> Problem<'a> {
         for (b, bite) in bites.iter().enumerate() {
             let base = stiffest.model_for(&bite.template, b);
             let stiffest_model = match effect {
-                Some((slot, _)) => slot.apply(&base, slot.range.high)?,
+                Some((slot, start)) => {
+                    slot.apply(&base, (STIFFEST_EFFECT_FACTOR * start).min(slot.range.high))?
+                }
                 None => base,
             };
             let bound_hz = Simulator::new(&stiffest_model)?.frequency_bound_hz();
