@@ -10,7 +10,7 @@
 //!    masses), or a regularised modal update (N masses), within a factor
 //!    [`MAX_LOG_RATIO`](super::fit::MAX_LOG_RATIO) of the drawings; the model's own
 //!    stiffness; and the best points of a global search over stiffness within a factor
-//!    [`GRID_FACTOR`] of the drawings ([`grid_starts`]), for when no identification
+//!    [`GRID_FACTOR`] of the drawings (`grid_starts`), for when no identification
 //!    gives a root (a coupling stuck by friction leaves one mode in the loaded part).
 //! 4. **Linear fits**: stiffness, damping, and every bite's static torque, rise rate and
 //!    onset by Levenberg-Marquardt from each start (loads re-aligned to it); the best is

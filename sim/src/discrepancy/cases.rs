@@ -12,6 +12,7 @@ use rand::{Rng, SeedableRng};
 use crate::chain::simulate_with_noise;
 use crate::model::{Load, Model, ModelError};
 
+use super::decision::describe;
 use super::effects::Effect;
 use super::{Measured, Report, Verdict};
 
@@ -116,21 +117,21 @@ impl HiddenCase {
     /// nothing is hidden; and the residual after within [`RESIDUAL_TOLERANCE`] times the
     /// true noise. The error says what went wrong.
     pub fn check(&self, report: &Report) -> Result<(), String> {
-        let named = (report.effect, report.location);
+        let named = report
+            .effect
+            .map_or("none".to_owned(), |e| describe(&e, report.location));
         match self.hidden {
-            None if report.effect.is_some() || report.verdict != Verdict::None => {
-                return Err(format!("{} {named:?} in a null case", report.verdict));
+            None if report.verdict != Verdict::None => {
+                return Err(format!("{} {named} in a null case", report.verdict));
             }
             None => {}
             Some(hidden) => {
+                let truth = describe(&hidden.effect, hidden.location);
                 if report.verdict != Verdict::Named {
-                    return Err(format!("{} {named:?}", report.verdict));
+                    return Err(format!("{} {named}, hidden {truth}", report.verdict));
                 }
-                if named != (Some(hidden.effect), hidden.location) {
-                    return Err(format!(
-                        "named {named:?}, hidden {:?}",
-                        (hidden.effect, hidden.location)
-                    ));
+                if (report.effect, report.location) != (Some(hidden.effect), hidden.location) {
+                    return Err(format!("named {named}, hidden {truth}"));
                 }
                 let fitted = report
                     .parameters

@@ -25,7 +25,7 @@ pub const BIC_MARGIN: f64 = 10.0;
 
 /// Static torques tried for a further bite, as multiples of the largest static torque
 /// of the bites given.
-const FURTHER_TORQUE_FACTORS: [f64; 3] = [0.35, 0.6, 1.5];
+pub const FURTHER_TORQUE_FACTORS: [f64; 3] = [0.35, 0.6, 1.5];
 
 /// What the bites show.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -59,7 +59,7 @@ pub trait Residuals {
     /// Length of the residual vector.
     fn residual_count(&self) -> usize;
 
-    /// Writes the residuals at `p` into `out` (length [`Residuals::len`]); `false` when
+    /// Writes the residuals at `p` into `out` (length [`Residuals::residual_count`]); `false` when
     /// `p` cannot be evaluated (for example a simulation refused the model): such a
     /// point is treated as infinitely bad, so steps back off from it.
     fn evaluate(&mut self, p: &[f64], out: &mut [f64]) -> bool;
