@@ -32,6 +32,7 @@ pub enum FrameKind {
 /// A frame as read from a raw CAN socket, borrowed from the read buffer.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct RawFrame<'a> {
+    /// Data, remote or error frame.
     pub kind: FrameKind,
     /// Identifier (11 or 29 bits) for data and remote frames; error class bits for
     /// error frames.

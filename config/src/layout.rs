@@ -28,11 +28,22 @@ pub const BLOCK_REGISTERS: u16 = BLOCK_HEADER_REGISTERS + MAX_BLOCK_SAMPLES;
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum BlockError {
     /// Fewer registers than the header.
-    Truncated { registers: usize },
+    Truncated {
+        /// Registers read.
+        registers: usize,
+    },
     /// The sample count is 0 or above [`MAX_BLOCK_SAMPLES`].
-    BadCount { count: u16 },
+    BadCount {
+        /// The block's sample count.
+        count: u16,
+    },
     /// The count says more samples than the registers read hold.
-    CountBeyondData { count: u16, available: usize },
+    CountBeyondData {
+        /// The block's sample count.
+        count: u16,
+        /// Sample registers read.
+        available: usize,
+    },
 }
 
 impl core::fmt::Display for BlockError {
@@ -58,10 +69,14 @@ impl core::fmt::Display for BlockError {
     }
 }
 
+impl std::error::Error for BlockError {}
+
 /// A decoded block: its sequence number and raw samples.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Block<'a> {
+    /// Block sequence number, wraps 65535 -> 0.
     pub sequence: u16,
+    /// The samples as read: i16 two's complement in u16 registers.
     pub raw: &'a [u16],
 }
 

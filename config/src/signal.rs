@@ -28,7 +28,9 @@ pub struct SignalLayout {
     pub little_endian: bool,
     /// Two's-complement signed raw value.
     pub signed: bool,
+    /// DBC factor: physical value = raw * factor + offset.
     pub factor: f64,
+    /// DBC offset.
     pub offset: f64,
 }
 
@@ -226,6 +228,7 @@ impl SignalLayout {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use millgate_dsp::testing::assert_isclose;
 
     fn layout(
         start_bit: u16,
@@ -246,14 +249,6 @@ mod tests {
             factor,
             offset,
         }
-    }
-
-    fn assert_close(actual: Option<f64>, expected: f64) {
-        let actual = actual.expect("signal should fit in the frame");
-        assert!(
-            (actual - expected).abs() <= 1e-9 * expected.abs().max(1.0),
-            "{actual} != {expected}"
-        );
     }
 
     // Golden frames below were produced by python `cantools` 45.1.0
@@ -336,7 +331,13 @@ mod tests {
 
     fn check_decode(frame: &[u8], signals: &[(SignalLayout, f64)]) {
         for (signal, expected) in signals {
-            assert_close(signal.decode(frame), *expected);
+            assert_isclose(
+                signal.decode(frame).expect("fits the frame"),
+                *expected,
+                1e-9,
+                1e-9,
+                "signal",
+            );
         }
     }
 
@@ -374,13 +375,43 @@ mod tests {
         // MotoOdd 1023; and bytes 0x11..=0x20 as 1234321929484202369, 217.5, 286.
         let ones = [0xff_u8; 16];
         let [moto_wide, intel_odd, moto_odd] = wide_signals().map(|(signal, _)| signal);
-        assert_close(moto_wide.decode(&ones), -1.0);
-        assert_close(intel_odd.decode(&ones), 0.5);
-        assert_close(moto_odd.decode(&ones), 1023.0);
+        assert_isclose(
+            moto_wide.decode(&ones).expect("fits the frame"),
+            -1.0,
+            1e-9,
+            1e-9,
+            "moto_wide",
+        );
+        assert_isclose(
+            intel_odd.decode(&ones).expect("fits the frame"),
+            0.5,
+            1e-9,
+            1e-9,
+            "intel_odd",
+        );
+        assert_isclose(
+            moto_odd.decode(&ones).expect("fits the frame"),
+            1023.0,
+            1e-9,
+            1e-9,
+            "moto_odd",
+        );
         let counting: Vec<u8> = (0x11..=0x20).collect();
         assert_eq!(moto_wide.decode_raw(&counting), Some(1234321929484202369));
-        assert_close(intel_odd.decode(&counting), 217.5);
-        assert_close(moto_odd.decode(&counting), 286.0);
+        assert_isclose(
+            intel_odd.decode(&counting).expect("fits the frame"),
+            217.5,
+            1e-9,
+            1e-9,
+            "intel_odd",
+        );
+        assert_isclose(
+            moto_odd.decode(&counting).expect("fits the frame"),
+            286.0,
+            1e-9,
+            1e-9,
+            "moto_odd",
+        );
     }
 
     #[test]

@@ -118,10 +118,15 @@ impl RegisterTable {
 /// Type of a scalar process value in registers.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ValueType {
+    /// Unsigned 16-bit, one register.
     U16,
+    /// Signed 16-bit (two's complement), one register.
     I16,
+    /// Unsigned 32-bit, two registers.
     U32,
+    /// Signed 32-bit (two's complement), two registers.
     I32,
+    /// IEEE 754 single precision, two registers.
     F32,
 }
 
@@ -163,9 +168,13 @@ impl ValueType {
 /// bytes and `ABCD` and `CDAB` read the register as is (see [`crate::layout`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum WordOrder {
+    /// Big-endian words and bytes (the Modbus default).
     Abcd,
+    /// Words swapped.
     Cdab,
+    /// Bytes swapped in each word.
     Badc,
+    /// Words and bytes swapped (little-endian).
     Dcba,
 }
 
@@ -197,6 +206,7 @@ pub enum ChannelSource {
     ModbusBlock {
         /// Index into [`Config::modbus_sources`].
         source: usize,
+        /// Input or holding registers.
         table: RegisterTable,
         /// First register of the block, 0..=65414 (the block spans
         /// [`crate::layout::BLOCK_REGISTERS`] registers from here).
@@ -206,10 +216,13 @@ pub enum ChannelSource {
     ModbusValue {
         /// Index into [`Config::modbus_sources`].
         source: usize,
+        /// Input or holding registers.
         table: RegisterTable,
         /// First register of the value.
         address: u16,
+        /// How the registers encode the value.
         value_type: ValueType,
+        /// Where the value's bytes land in the registers.
         word_order: WordOrder,
     },
     /// A signal of a CAN message described by the source's DBC file, resolved at
@@ -232,6 +245,7 @@ pub enum ChannelSource {
 pub struct Channel {
     /// Unique among channels.
     pub name: String,
+    /// What the channel measures.
     pub kind: ChannelKind,
     /// Unit of the engineering value, e.g. `kN*m` (always `kN*m` for torque).
     pub unit: String,
@@ -241,6 +255,7 @@ pub struct Channel {
     pub offset: f64,
     /// Nominal sample rate, Hz, > 0 (for register values: 1 / the source's poll period).
     pub sample_rate_hz: f64,
+    /// Where the samples come from.
     pub source: ChannelSource,
 }
 
@@ -266,7 +281,9 @@ pub struct Driveline {
     pub metal_in_stand: Option<usize>,
     /// Optional driveline model file (sim model TOML), relative to the config file.
     pub model: Option<PathBuf>,
+    /// Bite detection.
     pub bite: BiteSettings,
+    /// TAF warning and alarm.
     pub thresholds: DrivelineThresholds,
 }
 

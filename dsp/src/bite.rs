@@ -62,6 +62,20 @@ pub enum BiteSettingsError {
     PostTriggerSamples,
 }
 
+impl core::fmt::Display for BiteSettingsError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            BiteSettingsError::ThresholdKnm => "threshold_knm must be finite and > 0 kN*m",
+            BiteSettingsError::RearmKnm => "rearm_knm must be finite and > 0 kN*m",
+            BiteSettingsError::BaselineAlpha => "baseline_alpha must be in (0, 1]",
+            BiteSettingsError::SaturationLimits => "the saturation limits must not be NaN and low must be below high",
+            BiteSettingsError::PostTriggerSamples => "post_trigger_samples must be in 1..=N - PRE (the window capacity less the pre-trigger history)",
+        })
+    }
+}
+
+impl core::error::Error for BiteSettingsError {}
+
 /// What started a capture.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum TriggerSource {

@@ -56,6 +56,36 @@ pub enum ChatterError {
     Overflow,
 }
 
+impl core::fmt::Display for ChatterError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            ChatterError::BandLowHz => f.write_str("band_low_hz must be finite and >= 0 Hz"),
+            ChatterError::BandHighHz => {
+                f.write_str("band_high_hz must be finite and > band_low_hz")
+            }
+            ChatterError::KMax => f.write_str("k_max must be in [-1, 1]"),
+            ChatterError::FrequencyStepHz => {
+                f.write_str("frequency_step_hz must be finite and > 0 Hz")
+            }
+            ChatterError::StandCount => write!(f, "the stands must number 2..={MAX_STANDS}"),
+            ChatterError::SpectrumLength => f.write_str(
+                "the spectra differ in length or the chatter band has no interior bin in them",
+            ),
+            ChatterError::SignalLength => {
+                f.write_str("the signals differ in length or have fewer than 2 samples")
+            }
+            ChatterError::NonFinite => f.write_str(
+                "a spectrum or signal value is NaN or infinite, or a magnitude is negative",
+            ),
+            ChatterError::Overflow => {
+                f.write_str("values so large that the energy or correlation overflows")
+            }
+        }
+    }
+}
+
+impl core::error::Error for ChatterError {}
+
 /// One stand's window: magnitude spectrum and time signal.
 #[derive(Clone, Copy, Debug)]
 pub struct StandWindow<'a> {

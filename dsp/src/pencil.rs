@@ -15,7 +15,9 @@
 //! decay = -ln|z| / dt, frequency = arg(z) / (2 pi dt).
 
 use heapless::Vec;
-use nalgebra::{Complex, SMatrix};
+use nalgebra::SMatrix;
+
+use crate::linalg::{general_eigenvalues, peak_magnitude, symmetric_eigen};
 
 /// Pencil parameter plus one: columns of the Hankel matrix.
 pub const PENCIL_COLUMNS: usize = 12;
@@ -50,6 +52,26 @@ pub enum PencilError {
     Decomposition,
 }
 
+impl core::fmt::Display for PencilError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            PencilError::SampleRateHz => f.write_str("sample_rate_hz must be finite and > 0 Hz"),
+            PencilError::Decimation => f.write_str("the decimation factor must be >= 1"),
+            PencilError::TooFewSamples => write!(
+                f,
+                "fewer than {MIN_DECIMATED_SAMPLES} samples after decimation"
+            ),
+            PencilError::NonFinite => f.write_str("a sample is NaN or infinite"),
+            PencilError::Flat => f.write_str("all samples are zero"),
+            PencilError::Decomposition => {
+                f.write_str("the eigendecompositions or the shift-invariance solve failed")
+            }
+        }
+    }
+}
+
+impl core::error::Error for PencilError {}
+
 /// Poles of `samples` (uniform at `sample_rate_hz`, Hz), decimated by `decimation` >= 1.
 ///
 /// Returns at most [`MODEL_ORDER`] poles, complex pairs once (positive frequency);
@@ -68,7 +90,7 @@ pub fn poles(
     if samples.len() / decimation < MIN_DECIMATED_SAMPLES {
         return Err(PencilError::TooFewSamples);
     }
-    let (scale, finite) = crate::fit::peak_magnitude(samples);
+    let (scale, finite) = peak_magnitude(samples);
     if !finite {
         return Err(PencilError::NonFinite);
     }
@@ -170,381 +192,6 @@ pub fn poles(
     Ok(result)
 }
 
-/// Most QL sweeps spent on one eigenvalue before [`symmetric_eigen`] gives up.
-const MAX_SWEEPS: usize = 60;
-
-/// Eigenvalues and eigenvectors of the symmetric matrix `a` (`a[i][j]`, only the lower
-/// triangle read): Householder reduction to tridiagonal form, then implicit QL with
-/// Wilkinson-like shifts (EISPACK tred2 + tql2). Returns the eigenvalues, unsorted, and
-/// the eigenvectors as `vectors[j]` (unit norm) for eigenvalue j; `None` if a value did
-/// not converge within [`MAX_SWEEPS`] sweeps. Written out because nalgebra's generic
-/// `SymmetricEigen` took 60% of the pencil's time on 12 x 12; this is the same
-/// algorithm on plain arrays.
-// Index loops: the algorithm walks both triangles of `a` at once.
-#[allow(clippy::needless_range_loop)]
-fn symmetric_eigen<const N: usize>(mut a: [[f64; N]; N]) -> Option<([f64; N], [[f64; N]; N])> {
-    let mut d = [0.0_f64; N];
-    let mut e = [0.0_f64; N];
-    // Householder: row i (from the last) is reflected onto its subdiagonal entry; the
-    // reflectors are kept in the rows of `a` and accumulated afterwards.
-    for i in (1..N).rev() {
-        let l = i - 1;
-        let mut h = 0.0;
-        if l > 0 {
-            let scale: f64 = a[i][..=l].iter().map(|v| libm::fabs(*v)).sum();
-            if scale == 0.0 {
-                e[i] = a[i][l];
-            } else {
-                for v in a[i][..=l].iter_mut() {
-                    *v /= scale;
-                    h += *v * *v;
-                }
-                let f = a[i][l];
-                let g = if f >= 0.0 {
-                    -libm::sqrt(h)
-                } else {
-                    libm::sqrt(h)
-                };
-                e[i] = scale * g;
-                h -= f * g;
-                a[i][l] = f - g;
-                let mut f = 0.0;
-                for j in 0..=l {
-                    a[j][i] = a[i][j] / h;
-                    let mut g = 0.0;
-                    for k in 0..=j {
-                        g += a[j][k] * a[i][k];
-                    }
-                    for k in j + 1..=l {
-                        g += a[k][j] * a[i][k];
-                    }
-                    e[j] = g / h;
-                    f += e[j] * a[i][j];
-                }
-                let hh = f / (h + h);
-                for j in 0..=l {
-                    let f = a[i][j];
-                    let g = e[j] - hh * f;
-                    e[j] = g;
-                    for k in 0..=j {
-                        a[j][k] -= f * e[k] + g * a[i][k];
-                    }
-                }
-            }
-        } else {
-            e[i] = a[i][l];
-        }
-        d[i] = h;
-    }
-    d[0] = 0.0;
-    e[0] = 0.0;
-    // Accumulate the reflectors into the orthogonal matrix, in place.
-    for i in 0..N {
-        if d[i] != 0.0 {
-            for j in 0..i {
-                let mut g = 0.0;
-                for k in 0..i {
-                    g += a[i][k] * a[k][j];
-                }
-                for k in 0..i {
-                    a[k][j] -= g * a[k][i];
-                }
-            }
-        }
-        d[i] = a[i][i];
-        a[i][i] = 1.0;
-        for j in 0..i {
-            a[j][i] = 0.0;
-            a[i][j] = 0.0;
-        }
-    }
-    // Implicit QL on the tridiagonal (d, e); rotations applied to the rows of the
-    // transposed vector matrix, so each touches two contiguous rows.
-    let mut vectors = [[0.0_f64; N]; N];
-    for (i, row) in vectors.iter_mut().enumerate() {
-        for (k, v) in row.iter_mut().enumerate() {
-            *v = a[k][i];
-        }
-    }
-    for i in 1..N {
-        e[i - 1] = e[i];
-    }
-    e[N - 1] = 0.0;
-    for l in 0..N {
-        let mut sweeps = 0;
-        loop {
-            let mut m = l;
-            while m + 1 < N {
-                let dd = libm::fabs(d[m]) + libm::fabs(d[m + 1]);
-                if libm::fabs(e[m]) <= f64::EPSILON * dd {
-                    break;
-                }
-                m += 1;
-            }
-            if m == l {
-                break;
-            }
-            sweeps += 1;
-            if sweeps > MAX_SWEEPS {
-                return None;
-            }
-            let mut g = (d[l + 1] - d[l]) / (2.0 * e[l]);
-            // Plain square roots, not hypot (a third of the time here): the pencil's
-            // matrices are scaled to entries of order 1 to N, far from overflow.
-            let mut r = libm::sqrt(g * g + 1.0);
-            g = d[m] - d[l] + e[l] / (g + if g >= 0.0 { r } else { -r });
-            let (mut s, mut c, mut p) = (1.0, 1.0, 0.0);
-            let mut deflated = false;
-            for i in (l..m).rev() {
-                let f = s * e[i];
-                let b = c * e[i];
-                r = libm::sqrt(f * f + g * g);
-                e[i + 1] = r;
-                if r == 0.0 {
-                    d[i + 1] -= p;
-                    e[m] = 0.0;
-                    deflated = true;
-                    break;
-                }
-                s = f / r;
-                c = g / r;
-                g = d[i + 1] - p;
-                r = (d[i] - g) * s + 2.0 * c * b;
-                p = s * r;
-                d[i + 1] = g + p;
-                g = c * r - b;
-                let (low, high) = vectors.split_at_mut(i + 1);
-                for (x, y) in low[i].iter_mut().zip(high[0].iter_mut()) {
-                    let f = *y;
-                    *y = s * *x + c * f;
-                    *x = c * *x - s * f;
-                }
-            }
-            if deflated {
-                continue;
-            }
-            d[l] -= p;
-            e[l] = g;
-            e[m] = 0.0;
-        }
-    }
-    Some((d, vectors))
-}
-
-/// Most Francis double-shift QR steps spent on one eigenvalue (or pair) before
-/// [`general_eigenvalues`] gives up; exceptional shifts every 10 steps.
-const MAX_QR_STEPS: usize = 60;
-
-/// Eigenvalues of the real square matrix `a` (`a[i][j]`, row i, column j), unsorted,
-/// complex pairs adjacent; `None` if one did not converge within [`MAX_QR_STEPS`]
-/// steps or the input is not finite. Householder reduction to upper Hessenberg form,
-/// then Francis double-shift QR with deflation (EISPACK hqr), no Schur vectors: the
-/// pencil needs the poles only, and nalgebra's generic `Schur` (which accumulates the
-/// vectors) took a fifth of the pencil's time on its 6 x 6 matrix.
-// Index loops: the QR sweeps walk rows and columns of `a` at once.
-#[allow(clippy::needless_range_loop)]
-fn general_eigenvalues<const N: usize>(mut a: [[f64; N]; N]) -> Option<[Complex<f64>; N]> {
-    if a.iter().flatten().any(|v| !v.is_finite()) {
-        return None;
-    }
-    // Householder: column k below the subdiagonal is reflected onto a[k + 1][k].
-    for k in 0..N.saturating_sub(2) {
-        let norm = libm::sqrt(a[k + 1..].iter().map(|row| row[k] * row[k]).sum::<f64>());
-        if norm == 0.0 {
-            continue;
-        }
-        let alpha = if a[k + 1][k] > 0.0 { -norm } else { norm };
-        let mut v = [0.0_f64; N];
-        for i in k + 1..N {
-            v[i] = a[i][k];
-        }
-        v[k + 1] -= alpha;
-        let v_norm2: f64 = v[k + 1..].iter().map(|x| x * x).sum();
-        if v_norm2 == 0.0 {
-            continue;
-        }
-        let beta = 2.0 / v_norm2;
-        // From the left: rows k + 1.. of columns k..
-        for j in k..N {
-            let dot: f64 = (k + 1..N).map(|i| v[i] * a[i][j]).sum();
-            let f = beta * dot;
-            for i in k + 1..N {
-                a[i][j] -= f * v[i];
-            }
-        }
-        // From the right: columns k + 1.. of every row.
-        for row in a.iter_mut() {
-            let dot: f64 = (k + 1..N).map(|j| row[j] * v[j]).sum();
-            let f = beta * dot;
-            for j in k + 1..N {
-                row[j] -= f * v[j];
-            }
-        }
-        a[k + 1][k] = alpha;
-        for row in a[k + 2..].iter_mut() {
-            row[k] = 0.0;
-        }
-    }
-
-    let mut eigenvalues = [Complex::new(0.0, 0.0); N];
-    // Scale for negligible subdiagonal entries when both neighbours vanish.
-    let mut norm = 0.0;
-    for i in 0..N {
-        for j in i.saturating_sub(1)..N {
-            norm += libm::fabs(a[i][j]);
-        }
-    }
-    // Sum of the exceptional shifts applied to the diagonal.
-    let mut shift_total = 0.0;
-    // Active block is rows and columns low..=high; high counts down as values deflate.
-    let mut high = N;
-    while high > 0 {
-        let nn = high - 1;
-        let mut steps = 0;
-        loop {
-            // Smallest l such that a[l..=nn] is unreduced (a[l][l - 1] negligible).
-            let mut l = nn;
-            while l > 0 {
-                let mut s = libm::fabs(a[l - 1][l - 1]) + libm::fabs(a[l][l]);
-                if s == 0.0 {
-                    s = norm;
-                }
-                if libm::fabs(a[l][l - 1]) + s == s {
-                    a[l][l - 1] = 0.0;
-                    break;
-                }
-                l -= 1;
-            }
-            let mut x = a[nn][nn];
-            if l == nn {
-                eigenvalues[nn] = Complex::new(x + shift_total, 0.0);
-                high -= 1;
-                break;
-            }
-            let mut y = a[nn - 1][nn - 1];
-            let mut w = a[nn][nn - 1] * a[nn - 1][nn];
-            if l + 1 == nn {
-                // Trailing 2 x 2 block: its two eigenvalues in closed form.
-                let p = 0.5 * (y - x);
-                let q = p * p + w;
-                let root = libm::sqrt(libm::fabs(q));
-                x += shift_total;
-                if q >= 0.0 {
-                    let z = p + if p >= 0.0 { root } else { -root };
-                    eigenvalues[nn - 1] = Complex::new(x + z, 0.0);
-                    eigenvalues[nn] = Complex::new(if z != 0.0 { x - w / z } else { x + z }, 0.0);
-                } else {
-                    eigenvalues[nn - 1] = Complex::new(x + p, root);
-                    eigenvalues[nn] = Complex::new(x + p, -root);
-                }
-                high -= 2;
-                break;
-            }
-            if steps == MAX_QR_STEPS {
-                return None;
-            }
-            if steps > 0 && steps % 10 == 0 {
-                // Exceptional shift (ad hoc, as in EISPACK) to break a cycle.
-                shift_total += x;
-                for i in 0..=nn {
-                    a[i][i] -= x;
-                }
-                let s = libm::fabs(a[nn][nn - 1]) + libm::fabs(a[nn - 1][nn - 2]);
-                x = 0.75 * s;
-                y = x;
-                w = -0.4375 * s * s;
-            }
-            steps += 1;
-            // First column of (H - s1)(H - s2), started as low as two consecutive small
-            // subdiagonal entries allow.
-            let (mut p, mut q, mut r);
-            let mut m = nn - 2;
-            loop {
-                let z = a[m][m];
-                let rr = x - z;
-                let ss = y - z;
-                p = (rr * ss - w) / a[m + 1][m] + a[m][m + 1];
-                q = a[m + 1][m + 1] - z - rr - ss;
-                r = a[m + 2][m + 1];
-                let inverse = 1.0 / (libm::fabs(p) + libm::fabs(q) + libm::fabs(r));
-                p *= inverse;
-                q *= inverse;
-                r *= inverse;
-                if m == l {
-                    break;
-                }
-                let u = libm::fabs(a[m][m - 1]) * (libm::fabs(q) + libm::fabs(r));
-                let v = libm::fabs(p)
-                    * (libm::fabs(a[m - 1][m - 1]) + libm::fabs(z) + libm::fabs(a[m + 1][m + 1]));
-                if u + v == v {
-                    break;
-                }
-                m -= 1;
-            }
-            for i in m + 2..=nn {
-                a[i][i - 2] = 0.0;
-                if i != m + 2 {
-                    a[i][i - 3] = 0.0;
-                }
-            }
-            // Double-shift QR step: chase the bulge down with 3 x 3 reflectors.
-            for k in m..nn {
-                let mut scale = 0.0;
-                if k != m {
-                    p = a[k][k - 1];
-                    q = a[k + 1][k - 1];
-                    r = if k + 1 != nn { a[k + 2][k - 1] } else { 0.0 };
-                    scale = libm::fabs(p) + libm::fabs(q) + libm::fabs(r);
-                    if scale != 0.0 {
-                        let inverse = 1.0 / scale;
-                        p *= inverse;
-                        q *= inverse;
-                        r *= inverse;
-                    }
-                }
-                let length = libm::sqrt(p * p + q * q + r * r);
-                let s = if p >= 0.0 { length } else { -length };
-                if s == 0.0 {
-                    continue;
-                }
-                if k == m {
-                    if l != m {
-                        a[k][k - 1] = -a[k][k - 1];
-                    }
-                } else {
-                    a[k][k - 1] = -s * scale;
-                }
-                p += s;
-                let inverse_s = 1.0 / s;
-                let inverse_p = 1.0 / p;
-                let (vx, vy, vz) = (p * inverse_s, q * inverse_s, r * inverse_s);
-                let (q, r) = (q * inverse_p, r * inverse_p);
-                // Rows k, k + 1, k + 2.
-                for j in k..=nn {
-                    let mut t = a[k][j] + q * a[k + 1][j];
-                    if k + 1 != nn {
-                        t += r * a[k + 2][j];
-                        a[k + 2][j] -= t * vz;
-                    }
-                    a[k + 1][j] -= t * vy;
-                    a[k][j] -= t * vx;
-                }
-                // Columns k, k + 1, k + 2.
-                for i in l..=nn.min(k + 3) {
-                    let mut t = vx * a[i][k] + vy * a[i][k + 1];
-                    if k + 1 != nn {
-                        t += vz * a[i][k + 2];
-                        a[i][k + 2] -= t * r;
-                    }
-                    a[i][k + 1] -= t * q;
-                    a[i][k] -= t;
-                }
-            }
-        }
-    }
-    Some(eigenvalues)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -570,126 +217,6 @@ mod tests {
         assert!(near(31.0, 2.0), "{found:?}");
         assert!(near(0.0, 20.0), "{found:?}");
         assert!(near(0.0, 0.0), "{found:?}");
-    }
-
-    #[test]
-    fn symmetric_eigen_diagonalises() {
-        // Symmetric, with a cluster of close eigenvalues and a zero row and column.
-        let a: [[f64; 7]; 7] = core::array::from_fn(|i| {
-            core::array::from_fn(|j| match (i, j) {
-                (6, _) | (_, 6) => 0.0,
-                _ => 1.0 / (1.0 + i as f64 + j as f64) + if i == j { 0.5 } else { 0.0 },
-            })
-        });
-        let (values, vectors) = symmetric_eigen(a).unwrap();
-        for (j, vector) in vectors.iter().enumerate() {
-            for (k, other) in vectors.iter().enumerate() {
-                let dot: f64 = vector.iter().zip(other).map(|(x, y)| x * y).sum();
-                let expected = if j == k { 1.0 } else { 0.0 };
-                assert!(libm::fabs(dot - expected) < 1e-13, "{j} {k}: {dot}");
-            }
-            for (row, a_row) in a.iter().enumerate() {
-                let product: f64 = a_row.iter().zip(vector).map(|(x, y)| x * y).sum();
-                assert!(libm::fabs(product - values[j] * vector[row]) < 1e-13);
-            }
-        }
-        let mut sorted = values;
-        sorted.sort_unstable_by(f64::total_cmp);
-        assert!(libm::fabs(sorted[0]) < 1e-14, "{sorted:?}");
-        let expected = SMatrix::<f64, 7, 7>::from_fn(|i, j| a[i][j]).symmetric_eigenvalues();
-        let mut expected: [f64; 7] = expected.into();
-        expected.sort_unstable_by(f64::total_cmp);
-        for (x, y) in sorted.iter().zip(expected) {
-            assert!(libm::fabs(x - y) < 1e-13, "{sorted:?} vs {expected:?}");
-        }
-    }
-
-    /// Eigenvalues of `a` by nalgebra's Schur decomposition, for comparison.
-    fn reference_eigenvalues(a: &[[f64; 6]; 6]) -> [Complex<f64>; 6] {
-        let matrix = SMatrix::<f64, 6, 6>::from_fn(|i, j| a[i][j]);
-        let values = nalgebra::Schur::new(matrix).complex_eigenvalues();
-        core::array::from_fn(|i| values[i])
-    }
-
-    /// Asserts that `found` and `expected` are the same multiset to `tolerance`.
-    fn assert_same_eigenvalues<const N: usize>(
-        found: &[Complex<f64>; N],
-        expected: &[Complex<f64>; N],
-        tolerance: f64,
-    ) {
-        let mut taken = [false; N];
-        for value in found {
-            let nearest = (0..N)
-                .filter(|&j| !taken[j])
-                .min_by(|&i, &j| {
-                    (expected[i] - value)
-                        .norm()
-                        .total_cmp(&(expected[j] - value).norm())
-                })
-                .unwrap();
-            taken[nearest] = true;
-            assert!(
-                (expected[nearest] - value).norm() <= tolerance,
-                "{found:?} vs {expected:?}"
-            );
-        }
-    }
-
-    #[test]
-    fn general_eigenvalues_match_nalgebra() {
-        // Deterministic pseudo-random matrices (LCG): non-normal, with complex pairs.
-        let mut state = 0x2545_f491_4f6c_dd1d_u64;
-        let mut next = || {
-            state = state
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1);
-            (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        };
-        for _ in 0..200 {
-            let a: [[f64; 6]; 6] = core::array::from_fn(|_| core::array::from_fn(|_| next()));
-            let found = general_eigenvalues(a).unwrap();
-            assert_same_eigenvalues(&found, &reference_eigenvalues(&a), 1e-12);
-        }
-    }
-
-    #[test]
-    fn general_eigenvalues_of_known_spectra() {
-        // Triangular plus a rotation block: eigenvalues 2, -1, 0.5 +- 0.25i, 3, 3.
-        let a = [
-            [2.0, 1.0, 0.5, -0.3, 0.2, 0.1],
-            [0.0, -1.0, 0.7, 0.4, -0.6, 0.9],
-            [0.0, 0.0, 0.5, 0.25, 1.5, -2.0],
-            [0.0, 0.0, -0.25, 0.5, 0.3, 0.8],
-            [0.0, 0.0, 0.0, 0.0, 3.0, 1.0],
-            [0.0, 0.0, 0.0, 0.0, 0.0, 3.0],
-        ];
-        let expected = [
-            Complex::new(2.0, 0.0),
-            Complex::new(-1.0, 0.0),
-            Complex::new(0.5, 0.25),
-            Complex::new(0.5, -0.25),
-            Complex::new(3.0, 0.0),
-            Complex::new(3.0, 0.0),
-        ];
-        let found = general_eigenvalues(a).unwrap();
-        assert_same_eigenvalues(&found, &expected, 1e-12);
-        // A similarity transform keeps the spectrum: Q a Q^T with a Householder Q.
-        let v = [0.3, -0.5, 0.2, 0.7, -0.1, 0.4];
-        let v_norm2: f64 = v.iter().map(|x| x * x).sum();
-        let q: [[f64; 6]; 6] = core::array::from_fn(|i| {
-            core::array::from_fn(|j| f64::from(u8::from(i == j)) - 2.0 * v[i] * v[j] / v_norm2)
-        });
-        let product = |x: &[[f64; 6]; 6], y: &[[f64; 6]; 6]| -> [[f64; 6]; 6] {
-            core::array::from_fn(|i| {
-                core::array::from_fn(|j| (0..6).map(|k| x[i][k] * y[k][j]).sum())
-            })
-        };
-        let similar = product(&product(&q, &a), &q);
-        let found = general_eigenvalues(similar).unwrap();
-        // The double eigenvalue 3 (a Jordan block) is only determined to sqrt(eps).
-        assert_same_eigenvalues(&found, &expected, 1e-7);
-        assert_same_eigenvalues(&found, &reference_eigenvalues(&similar), 1e-7);
-        assert!(general_eigenvalues([[f64::NAN; 6]; 6]).is_none());
     }
 
     #[test]

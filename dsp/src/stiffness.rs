@@ -63,6 +63,23 @@ pub enum StiffnessError {
     Drawing,
 }
 
+impl core::fmt::Display for StiffnessError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            StiffnessError::Q1 => "inertia Q1 (q1_kgm2) must be finite and > 0 kg*m^2",
+            StiffnessError::Q2 => "inertia Q2 (q2_kgm2) must be finite and > 0 kg*m^2",
+            StiffnessError::Q3 => "inertia Q3 (q3_kgm2) must be finite and > 0 kg*m^2",
+            StiffnessError::C12 => "stiffness C12 (c12_nm_per_rad) must be finite and > 0 N*m/rad",
+            StiffnessError::C23 => "stiffness C23 (c23_nm_per_rad) must be finite and > 0 N*m/rad",
+            StiffnessError::Beta1 => "frequency beta1_hz must be finite and > 0 Hz",
+            StiffnessError::Beta2 => "frequency beta2_hz must be finite and greater than beta1_hz",
+            StiffnessError::Drawing => "the drawing stiffness must be finite and > 0 N*m/rad",
+        })
+    }
+}
+
+impl core::error::Error for StiffnessError {}
+
 fn positive(value: f64, error: StiffnessError) -> Result<f64, StiffnessError> {
     if value.is_finite() && value > 0.0 {
         Ok(value)

@@ -82,6 +82,24 @@ pub enum TransientError {
     NonFinite,
 }
 
+impl core::fmt::Display for TransientError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            TransientError::SampleRateHz => "sample_rate_hz must be finite and > 0 Hz",
+            TransientError::PeriodLowpassHz => "period_lowpass_hz must be in (0, 0.45 x the sample rate) Hz",
+            TransientError::PeakLowpassHz => "peak_lowpass_hz must be in (0, 0.45 x the sample rate) Hz",
+            TransientError::SettledFraction => "settled_fraction must be in (0, 1]",
+            TransientError::MinStaticKnm => "min_static_knm must be finite and > 0 kN*m",
+            TransientError::ReferenceShiftS => "reference_shift_s must be finite",
+            TransientError::WindowLength => "the window needs at least 4 samples after the trigger and at most its capacity",
+            TransientError::TriggerIndex => "trigger_index is not inside the window",
+            TransientError::NonFinite => "the baseline or a window sample is NaN or infinite, or so large that the static level or the peak overflows",
+        })
+    }
+}
+
+impl core::error::Error for TransientError {}
+
 /// Quality of a [`TransientResult`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum TransientQuality {

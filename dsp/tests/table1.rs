@@ -1,6 +1,7 @@
 //! Golden test on the paper's Table 1 transient (domain notes 1.1).
 
 use millgate_dsp::fit::{eq1, fit_eq1, FitOptions, FitStatus};
+use millgate_dsp::testing::relative_error;
 use millgate_dsp::transient::{analyze, TransientSettings};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
@@ -25,10 +26,6 @@ fn noisy(len: usize, seed: u64) -> Vec<f64> {
         .into_iter()
         .map(|v| v + noise.sample(&mut rng))
         .collect()
-}
-
-fn relative_error(estimate: f64, truth: f64) -> f64 {
-    (estimate / truth - 1.0).abs()
 }
 
 fn clean_taf(len: usize) -> f64 {

@@ -12,19 +12,19 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use millgate::analysis::Analysis;
-use millgate::health::SourceHealth;
-use millgate::plc::PlcWriter;
-use millgate::publish::Publisher;
-use millgate::registers::{decode_u32, RegisterMap};
-use millgate::samples::Acquired;
-use millgate_sim::modbus_bank::ServeOptions;
-use millgate_sim::plc::VirtualPlc;
+use millgate::field::acquired::Acquired;
+use millgate::field::source_health::SourceHealth;
+use millgate::outputs::plc_writer::PlcWriter;
+use millgate::outputs::publisher::Publisher;
+use millgate::outputs::register_map::{decode_u32, RegisterMap};
+use millgate_sim::devices::modbus_bank::ServeOptions;
+use millgate_sim::devices::virtual_plc::VirtualPlc;
 
 const BITES: usize = 1000;
 
 #[tokio::main(flavor = "multi_thread", worker_threads = 2)]
 async fn main() -> anyhow::Result<()> {
-    let demo = millgate::demo::setup(1.0, 0.5, 5)?;
+    let demo = millgate_sim::devices::demo::setup(1.0, 0.5, 5)?;
     let mut config = demo.config;
     // One bar: idle, bite, rolling, tail-out.
     let bar_end = demo.schedule.bites[1].onset_sample - demo.schedule.bites[0].onset_sample;

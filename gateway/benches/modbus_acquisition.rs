@@ -17,9 +17,10 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{ensure, Context as _};
-use millgate::daq::DaqReader;
-use millgate::health::{ChannelCounters, SourceHealth};
-use millgate::samples::Acquired;
+use millgate::field::acquired::Acquired;
+use millgate::field::counters::ChannelCounters;
+use millgate::field::daq_reader::DaqReader;
+use millgate::field::source_health::SourceHealth;
 use millgate_config::layout::{BLOCK_REGISTERS, MAX_BLOCK_SAMPLES};
 use millgate_config::{ChannelSource, RegisterTable};
 use tokio::net::{TcpListener, TcpStream};
@@ -194,7 +195,7 @@ async fn gateway(mut config: millgate_config::Config, channel: usize) -> anyhow:
 
 #[tokio::main(flavor = "multi_thread", worker_threads = 2)]
 async fn main() -> anyhow::Result<()> {
-    let mut config = millgate::demo::setup(1.0, 0.0, 1)?.config;
+    let mut config = millgate_sim::devices::demo::setup(1.0, 0.0, 1)?.config;
     let channel = config.drivelines[0].torque;
     let ChannelSource::ModbusBlock {
         source: 0,

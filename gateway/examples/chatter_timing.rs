@@ -9,7 +9,7 @@
 
 use std::time::{Duration, Instant};
 
-use millgate::chatter::{ChatterMonitor, ChatterUpdate};
+use millgate::analysis::chatter_monitor::{ChatterMonitor, ChatterUpdate};
 use millgate_sim::stands::{Regime, Stands, StandsSettings};
 
 const FS: f64 = 2500.0;

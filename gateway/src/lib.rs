@@ -1,27 +1,12 @@
-//! millgate: the edge gateway's library. The `millgate` binary only parses the
-//! command line and calls into it; [`service::run`] is the service.
+#![doc = include_str!("../README.md")]
+#![warn(missing_docs)]
 
 pub mod analysis;
-pub mod can;
-pub mod chatter;
-pub mod check;
-pub mod daq;
-pub mod demo;
-pub mod export;
-pub mod health;
-pub mod metrics;
-mod modbus_client;
-pub mod offline;
-pub mod plc;
-pub mod publish;
-pub mod registers;
-pub mod results;
-pub mod samples;
-pub mod server;
+pub mod cli;
+pub mod field;
+pub mod outputs;
 pub mod service;
 pub mod shutdown;
-pub mod simcmd;
-pub mod wear;
 
 pub use service::{run, Service};
 

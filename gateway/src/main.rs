@@ -37,18 +37,24 @@ enum Command {
         config: PathBuf,
         /// Output format.
         #[arg(long, value_enum, default_value = "md")]
-        format: millgate::export::Format,
+        format: millgate::cli::registers::Format,
     },
     /// Detect and analyse every bite of a recorded CSV (TAF, periods, eq. (1) fit).
-    Analyze(millgate::offline::analyze::AnalyzeArgs),
+    Analyze(millgate::cli::analyze::AnalyzeArgs),
     /// Stiffness adjustment, paper eq. (2): natural frequencies <-> C12, C23.
-    Stiffness(millgate::offline::stiffness::StiffnessArgs),
+    Stiffness(millgate::cli::stiffness::StiffnessArgs),
+    #[cfg(feature = "sim-tools")]
     /// Where a model and a measured transient disagree, and the effect the model lacks.
-    Discrepancy(millgate::offline::discrepancy::DiscrepancyArgs),
+    Discrepancy(millgate::cli::discrepancy::DiscrepancyArgs),
+    #[cfg(feature = "sim-tools")]
     /// Driveline simulator: transients, modes, wear maps.
-    Sim(millgate::simcmd::SimArgs),
+    Sim(millgate::cli::sim::SimArgs),
+    #[cfg(feature = "sim-tools")]
+    /// Rod mills: parametric stability of every pass (Mathieu, Ince-Strutt).
+    Rod(millgate::cli::rod::RodArgs),
+    #[cfg(feature = "sim-tools")]
     /// Self-contained demo: a virtual DAQ and PLC on loopback, the gateway between them.
-    Demo(millgate::demo::DemoArgs),
+    Demo(millgate::cli::demo::DemoArgs),
 }
 
 fn init_tracing(default_level: &str) {
@@ -73,7 +79,7 @@ async fn wait_for_signal() -> std::io::Result<()> {
 }
 
 async fn run_service(config: PathBuf) -> anyhow::Result<()> {
-    let config = millgate_config::load(&config).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let config = millgate_config::load(&config)?;
     let (trigger, shutdown) = millgate::shutdown::channel();
     let service = tokio::spawn(millgate::run(config, shutdown));
     wait_for_signal().await?;
@@ -81,6 +87,21 @@ async fn run_service(config: PathBuf) -> anyhow::Result<()> {
     trigger.trigger();
     service.await??;
     Ok(())
+}
+
+/// `error` and its causes as one line: each cause is appended unless the text so far
+/// already says it (an error that shows its source in its own message, as ours do so
+/// that log lines read whole, would otherwise repeat it).
+fn sentence(error: &anyhow::Error) -> String {
+    let mut text = error.to_string();
+    for cause in error.chain().skip(1) {
+        let cause = cause.to_string();
+        if !text.contains(&cause) {
+            text.push_str(": ");
+            text.push_str(&cause);
+        }
+    }
+    text
 }
 
 /// Print a command's report, ending it with exactly one newline.
@@ -97,7 +118,7 @@ fn main() -> ExitCode {
             .expect("cannot start the tokio runtime")
     };
     let result = match cli.command {
-        Command::Check { config } => match millgate::check::check(&config) {
+        Command::Check { config } => match millgate::cli::check::check(&config) {
             Ok(summary) => {
                 println!("{}", summary.trim_end());
                 Ok(())
@@ -108,31 +129,36 @@ fn main() -> ExitCode {
             }
         },
         Command::Registers { config, format } => millgate_config::load(&config)
-            .map_err(|e| anyhow::anyhow!("{e}"))
+            .map_err(anyhow::Error::from)
             .map(|config| {
-                let map = millgate::registers::RegisterMap::new(&config);
-                print!("{}", millgate::export::export(&map, format));
+                let map = millgate::outputs::register_map::RegisterMap::new(&config);
+                print!("{}", millgate::cli::registers::export(&map, format));
             }),
         Command::Analyze(args) => {
             init_tracing("warn");
-            millgate::offline::analyze::run(&args).map(emit)
+            millgate::cli::analyze::run(&args).map(emit)
         }
-        Command::Stiffness(args) => millgate::offline::stiffness::run(&args).map(emit),
-        Command::Discrepancy(args) => millgate::offline::discrepancy::run(&args).map(emit),
-        Command::Sim(args) => millgate::simcmd::run(args),
+        Command::Stiffness(args) => millgate::cli::stiffness::run(&args).map(emit),
+        #[cfg(feature = "sim-tools")]
+        Command::Discrepancy(args) => millgate::cli::discrepancy::run(&args).map(emit),
+        #[cfg(feature = "sim-tools")]
+        Command::Sim(args) => millgate::cli::sim::run(args),
+        #[cfg(feature = "sim-tools")]
+        Command::Rod(args) => millgate::cli::rod::run(args).map(emit),
         Command::Run { config } => {
             init_tracing("info");
             runtime().block_on(run_service(config))
         }
+        #[cfg(feature = "sim-tools")]
         Command::Demo(args) => {
             init_tracing("warn");
-            runtime().block_on(millgate::demo::run(args))
+            runtime().block_on(millgate::cli::demo::run(args))
         }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(error) => {
-            eprintln!("millgate: {error:#}");
+            eprintln!("millgate: {}", sentence(&error));
             ExitCode::FAILURE
         }
     }

@@ -4,43 +4,53 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Duration;
 
-use millgate_config::{ChannelSource, Config};
+use millgate_config::Config;
 use tokio::net::TcpListener;
 use tokio::sync::{broadcast, mpsc};
-use tokio::task::JoinSet;
+use tokio::task::{JoinHandle, JoinSet};
 
-use crate::analysis::{Analysis, AnalysisError, BiteReport};
-use crate::can::{CanCounters, CanError, CanReader};
-use crate::daq::DaqReader;
-use crate::health::{ChannelCounters, SourceHealth};
-use crate::metrics::Metrics;
-use crate::modbus_client::Backoff;
-use crate::plc::PlcWriter;
-use crate::publish::Publisher;
-use crate::results::GatewayState;
-use crate::samples::Acquired;
-use crate::server::ModbusServer;
-use crate::shutdown::{self, Shutdown};
+use crate::analysis::driveline::BiteReport;
+use crate::analysis::{Analysis, AnalysisError};
+use crate::field::can::supervisor::supervise_can;
+use crate::field::counters::{CanCounters, ChannelCounters};
+use crate::field::daq_reader::DaqReader;
+use crate::field::source_health::SourceHealth;
+use crate::outputs::heartbeat;
+use crate::outputs::hmi_server::ModbusServer;
+use crate::outputs::metrics::Metrics;
+use crate::outputs::plc_writer::PlcWriter;
+use crate::outputs::publisher::Publisher;
+use crate::outputs::results::GatewayState;
+use crate::shutdown::{self, Shutdown, ShutdownTrigger};
 
 /// Samples in flight between readers and analysis. At 2 kHz and 100-sample blocks
 /// this is seconds of data per channel: enough to ride out a slow analysis step.
 const SAMPLE_QUEUE: usize = 1024;
-/// Heartbeat period when no PLC output sets it (the server's HMIs still watch it).
-pub const HEARTBEAT_WITHOUT_PLC: Duration = Duration::from_secs(1);
 
-/// Why the service could not start.
+/// Why the service could not start, or its task failed.
 #[derive(Debug, thiserror::Error)]
 pub enum ServiceError {
+    /// A driveline or tandem mill the analysis cannot be built for.
     #[error(transparent)]
     Analysis(#[from] AnalysisError),
-    #[error("cannot bind the Modbus server to {address}: {source}")]
+    /// A listening output (the HMI Modbus server, the metrics endpoint) could not bind.
+    #[error("cannot bind the {output} to {address}: {source}")]
     Bind {
+        /// Which output: "Modbus server" or "metrics endpoint".
+        output: &'static str,
+        /// The configured address.
         address: std::net::SocketAddr,
+        /// Why.
+        #[source]
         source: std::io::Error,
     },
+    /// The service's task panicked or was cancelled.
+    #[error("the service task failed: {0}")]
+    Task(#[from] tokio::task::JoinError),
 }
 
 /// A configured, not yet running gateway.
+#[derive(Debug)]
 pub struct Service {
     config: Config,
     publisher: Arc<Publisher>,
@@ -108,6 +118,7 @@ impl Service {
     /// the OS (`:0`).
     pub async fn bind(&mut self) -> Result<Bound, ServiceError> {
         async fn bind_once(
+            output: &'static str,
             slot: &mut Option<TcpListener>,
             address: Option<SocketAddr>,
         ) -> Result<Option<SocketAddr>, ServiceError> {
@@ -115,9 +126,14 @@ impl Service {
                 return Ok(None);
             };
             if slot.is_none() {
-                let listener = TcpListener::bind(address)
-                    .await
-                    .map_err(|source| ServiceError::Bind { address, source })?;
+                let listener =
+                    TcpListener::bind(address)
+                        .await
+                        .map_err(|source| ServiceError::Bind {
+                            output,
+                            address,
+                            source,
+                        })?;
                 *slot = Some(listener);
             }
             Ok(slot.as_ref().and_then(|l| l.local_addr().ok()))
@@ -126,8 +142,8 @@ impl Service {
         let server = outputs.server.as_ref().map(|s| s.bind);
         let metrics = outputs.metrics.as_ref().map(|m| m.bind);
         Ok(Bound {
-            server: bind_once(&mut self.server_listener, server).await?,
-            metrics: bind_once(&mut self.metrics_listener, metrics).await?,
+            server: bind_once("Modbus server", &mut self.server_listener, server).await?,
+            metrics: bind_once("metrics endpoint", &mut self.metrics_listener, metrics).await?,
         })
     }
 
@@ -191,7 +207,7 @@ impl Service {
             let writer = PlcWriter::new(plc.clone(), Arc::clone(&publisher));
             outputs.spawn(writer.run(outputs_shutdown.clone()));
         } else {
-            outputs.spawn(beat_without_plc(
+            outputs.spawn(heartbeat::beat_without_plc(
                 Arc::clone(&publisher),
                 outputs_shutdown.clone(),
             ));
@@ -229,78 +245,71 @@ impl Service {
     }
 }
 
-/// Keep CAN source `index` read until shutdown: open its interface, read it, and on
-/// any failure (interface absent, down, removed) mark the gap on its channels and
-/// reopen with capped backoff, so an interface that goes down and comes back is
-/// survived.
-/// Moves the heartbeat every [`HEARTBEAT_WITHOUT_PLC`] until shutdown: without a
-/// PLC writer nothing else would, and an HMI would take the gateway for dead.
-async fn beat_without_plc(publisher: Arc<Publisher>, mut shutdown: Shutdown) {
-    let mut ticks = tokio::time::interval(HEARTBEAT_WITHOUT_PLC);
-    loop {
-        tokio::select! {
-            _ = ticks.tick() => publisher.beat(),
-            () = shutdown.recv() => break,
-        }
+/// A service running in its own task, started by [`Service::spawn`]: what tests, the
+/// demo and benchmarks need to watch it and stop it.
+#[derive(Debug)]
+pub struct RunningService {
+    bound: Bound,
+    publisher: Arc<Publisher>,
+    counters: Vec<Arc<ChannelCounters>>,
+    bites: broadcast::Receiver<BiteReport>,
+    stop: ShutdownTrigger,
+    task: JoinHandle<Result<(), ServiceError>>,
+}
+
+impl Service {
+    /// Bind the listening outputs, then run in a new tokio task until
+    /// [`RunningService::stop`]. Every bite analysed after this call is queued for
+    /// [`RunningService::bites`] (the last 64 when nobody reads them).
+    pub async fn spawn(mut self) -> Result<RunningService, ServiceError> {
+        let bound = self.bind().await?;
+        let publisher = self.publisher();
+        let counters = self.counters();
+        let bites = self.subscribe_bites();
+        let (stop, shutdown) = shutdown::channel();
+        let task = tokio::spawn(self.run(shutdown));
+        Ok(RunningService {
+            bound,
+            publisher,
+            counters,
+            bites,
+            stop,
+            task,
+        })
     }
 }
 
-async fn supervise_can(
-    config: Arc<Config>,
-    index: usize,
-    health: Arc<SourceHealth>,
-    counters: Arc<CanCounters>,
-    samples: mpsc::Sender<Acquired>,
-    mut shutdown: Shutdown,
-) {
-    let name = &config.can_sources[index].name;
-    let channels: Vec<usize> = config
-        .channels
-        .iter()
-        .enumerate()
-        .filter(|(_, c)| matches!(c.source, ChannelSource::Can { source, .. } if source == index))
-        .map(|(channel, _)| channel)
-        .collect();
-    let mut backoff = Backoff::new();
-    let mut read_before = false;
-    while !shutdown.is_shutdown() {
-        let error = match CanReader::open(&config, index) {
-            Ok(reader) => {
-                health.set_connected(true);
-                backoff.reset();
-                if read_before {
-                    // Frames sent while the interface was away are lost: no silent join.
-                    for &channel in &channels {
-                        let gap = Acquired::Gap {
-                            channel,
-                            missed_samples: None,
-                        };
-                        if samples.send(gap).await.is_err() {
-                            return;
-                        }
-                    }
-                }
-                read_before = true;
-                let result = reader
-                    .with_health(Arc::clone(&health))
-                    .with_counters(Arc::clone(&counters))
-                    .run(samples.clone(), shutdown.receiver())
-                    .await;
-                health.set_connected(false);
-                match result {
-                    Ok(()) => return,
-                    Err(CanError::SamplesClosed { .. }) => return,
-                    Err(error) => error,
-                }
-            }
-            Err(error) => error,
-        };
-        let delay = backoff.next_delay();
-        tracing::warn!(source = %name, %error, retry_in = ?delay, "CAN source failed");
-        tokio::select! {
-            () = tokio::time::sleep(delay) => {}
-            () = shutdown.recv() => return,
-        }
+impl RunningService {
+    /// The addresses the listening outputs bound (ports the OS chose for `:0`).
+    pub fn bound(&self) -> Bound {
+        self.bound
+    }
+
+    /// The published results and register map.
+    pub fn publisher(&self) -> Arc<Publisher> {
+        Arc::clone(&self.publisher)
+    }
+
+    /// Per-channel acquisition counters, indexed like `config.channels`.
+    pub fn counters(&self) -> &[Arc<ChannelCounters>] {
+        &self.counters
+    }
+
+    /// The bites analysed since the service was spawned, oldest first.
+    pub fn bites(&mut self) -> &mut broadcast::Receiver<BiteReport> {
+        &mut self.bites
+    }
+
+    /// Whether the service's task has ended (it runs until stopped).
+    pub fn is_finished(&self) -> bool {
+        self.task.is_finished()
+    }
+
+    /// Stop the service as SIGTERM does (readers stop, analysis drains, the final
+    /// registers are written with status "stopped") and wait for it.
+    pub async fn stop(self) -> Result<(), ServiceError> {
+        self.stop.trigger();
+        self.task.await?
     }
 }
 

@@ -60,6 +60,44 @@ fn check_names_the_key_and_the_known_channels_of_a_misspelt_name() {
 }
 
 #[test]
+fn check_builds_the_driveline_model_and_names_the_model_file_and_key() {
+    let model = std::fs::read_to_string(
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../sim/models/table2-adjusted.toml"),
+    )
+    .unwrap();
+    let malformed = model.replace("inertia = 11.85e3", "inertia = -11.85e3");
+    assert_ne!(model, malformed, "the model has the pinion's inertia");
+    let demo = std::fs::read_to_string(examples().join("demo.toml")).unwrap();
+    let with_model = demo.replace(
+        "torque = \"spindle_top\"\n",
+        "torque = \"spindle_top\"\nmodel = \"bad-model.toml\"\n",
+    );
+    assert_ne!(demo, with_model, "the demo driveline names its torque");
+    let path = write_config("bad-model", &with_model);
+    let model_path = path.with_file_name("bad-model.toml");
+    std::fs::write(&model_path, malformed).unwrap();
+    let output = millgate(&["check", "--config", path.to_str().unwrap()]);
+    let said = text(&output);
+    assert!(!output.status.success(), "must fail: {said}");
+    assert!(
+        said.contains("mill.toml: drivelines[0].model: "),
+        "names the configuration file and key: {said}"
+    );
+    assert!(
+        said.contains("bad-model.toml"),
+        "names the model file: {said}"
+    );
+    assert!(
+        said.contains("mass[1].inertia: -11850 is not allowed"),
+        "names the key in the model: {said}"
+    );
+    // The same model, valid, passes: the wear reference is built from it.
+    std::fs::write(&model_path, model).unwrap();
+    let output = millgate(&["check", "--config", path.to_str().unwrap()]);
+    assert!(output.status.success(), "{}", text(&output));
+}
+
+#[test]
 fn check_names_the_line_of_malformed_toml() {
     let path = write_config("malformed", "name = \"x\"\n\n[[channels]\nname = 1\n");
     let output = millgate(&["check", "--config", path.to_str().unwrap()]);
@@ -68,6 +106,8 @@ fn check_names_the_line_of_malformed_toml() {
     assert!(said.contains("line 3"), "names the line: {said}");
 }
 
+// Runs a command of the `sim-tools` feature.
+#[cfg(feature = "sim-tools")]
 #[test]
 fn demo_prints_bites_within_two_percent_of_the_simulated_truth() {
     let output = millgate(&["demo", "--duration", "4"]);
@@ -163,6 +203,8 @@ fn registers_export_json_and_csv_have_the_documented_fields() {
     assert_eq!(csv.lines().count(), rows.len() + 1);
 }
 
+// Runs a command of the `sim-tools` feature.
+#[cfg(feature = "sim-tools")]
 #[test]
 fn analyze_finds_the_bite_of_a_simulated_transient_and_stiffness_inverts_table2() {
     let dir = std::env::temp_dir().join(format!("millgate-cli-{}-analyze", std::process::id()));
@@ -222,8 +264,8 @@ fn analyze_finds_the_bite_of_a_simulated_transient_and_stiffness_inverts_table2(
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn run_stops_on_sigterm_with_a_final_stopped_write() {
-    use millgate_sim::modbus_bank::ServeOptions;
-    use millgate_sim::plc::VirtualPlc;
+    use millgate_sim::devices::modbus_bank::ServeOptions;
+    use millgate_sim::devices::virtual_plc::VirtualPlc;
 
     let plc = VirtualPlc::new(64);
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
@@ -267,6 +309,7 @@ async fn run_stops_on_sigterm_with_a_final_stopped_write() {
 
 /// Simulates the adjusted Table 2 driveline with a 2 mrad gap in the spindle at
 /// `static_knm` into `dir/name.csv` (`millgate sim transient`, noise 0.5 kN*m).
+#[cfg(feature = "sim-tools")]
 fn gap_record(dir: &std::path::Path, name: &str, static_knm: f64, seed: u32) -> PathBuf {
     let models = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../sim/models");
     let adjusted = std::fs::read_to_string(models.join("table2-adjusted.toml")).unwrap();
@@ -297,6 +340,8 @@ fn gap_record(dir: &std::path::Path, name: &str, static_knm: f64, seed: u32) -> 
     csv
 }
 
+// Runs a command of the `sim-tools` feature.
+#[cfg(feature = "sim-tools")]
 #[test]
 fn discrepancy_finds_a_hidden_gap_in_two_bites_from_drawing_stiffness() {
     let dir = std::env::temp_dir().join(format!("millgate-cli-{}-discrepancy", std::process::id()));
@@ -384,6 +429,8 @@ fn discrepancy_finds_a_hidden_gap_in_two_bites_from_drawing_stiffness() {
     );
 }
 
+// Runs a command of the `sim-tools` feature.
+#[cfg(feature = "sim-tools")]
 #[test]
 fn discrepancy_splits_a_record_holding_two_bites() {
     let dir = std::env::temp_dir().join(format!("millgate-cli-{}-two-bites", std::process::id()));
@@ -435,6 +482,8 @@ fn discrepancy_splits_a_record_holding_two_bites() {
     assert_eq!(report["location"], 1, "{report}");
 }
 
+// Runs a command of the `sim-tools` feature.
+#[cfg(feature = "sim-tools")]
 #[test]
 fn discrepancy_names_the_line_of_a_non_uniform_time_column() {
     let dir = std::env::temp_dir().join(format!("millgate-cli-{}-nonuniform", std::process::id()));

@@ -5,10 +5,11 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
 
-use millgate::analysis::{Analysis, BiteReport};
-use millgate::health::SourceHealth;
-use millgate::publish::Publisher;
-use millgate::samples::Acquired;
+use millgate::analysis::driveline::BiteReport;
+use millgate::analysis::Analysis;
+use millgate::field::acquired::Acquired;
+use millgate::field::source_health::SourceHealth;
+use millgate::outputs::publisher::Publisher;
 use millgate_sim::model::Model;
 use millgate_sim::schedule::{rolling_schedule, BarTiming};
 
@@ -111,12 +112,12 @@ fn the_gap_weighs_more_at_light_load() {
     assert!(indices[1] > indices[0], "{indices:?}");
     let reference = reports[1].wear.unwrap().reference;
     assert_eq!(
-        reference.level_knm % millgate::wear::STATIC_TORQUE_STEP_KNM,
+        reference.level_knm % millgate::analysis::wear::STATIC_TORQUE_STEP_KNM,
         0.0
     );
     assert!(
         (reference.level_knm - reports[1].transient.static_torque_knm).abs()
-            <= millgate::wear::STATIC_TORQUE_STEP_KNM / 2.0,
+            <= millgate::analysis::wear::STATIC_TORQUE_STEP_KNM / 2.0,
         "reference level {} for a static torque of {}",
         reference.level_knm,
         reports[1].transient.static_torque_knm
@@ -129,7 +130,7 @@ fn trend_follows_the_index_and_resets() {
     let indices = wear_indices(&reports);
     let mut expected = None;
     for index in &indices {
-        expected = Some(millgate::wear::next_trend(expected, *index));
+        expected = Some(millgate::analysis::wear::next_trend(expected, *index));
     }
     let results = publisher.results();
     let driveline = &results.drivelines[0];
@@ -197,9 +198,7 @@ fn a_model_that_does_not_load_is_named() {
     ));
     let publisher = Arc::new(Publisher::new(&config, vec![health]));
     let (bites, _) = tokio::sync::broadcast::channel(1);
-    let error = Analysis::new(&config, publisher, bites)
-        .err()
-        .expect("missing model refused");
+    let error = Analysis::new(&config, publisher, bites).expect_err("missing model refused");
     assert!(
         error.to_string().starts_with("drivelines[0].model:"),
         "{error}"

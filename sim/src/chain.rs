@@ -128,9 +128,12 @@ struct Crossing {
 }
 
 impl Simulator {
-    /// Validates the model and builds the simulator with the automatic step.
+    /// Validates the model and builds the simulator with the automatic step; a tree
+    /// model (gear ratios, servo configurations) is refused: the simulation is of
+    /// chains.
     pub fn new(model: &Model) -> Result<Simulator, ModelError> {
         model.validate("<model>")?;
+        crate::tree::require_chain(model, "<model>", "the time simulation")?;
         let inverse_inertia: Vec<f64> = model.masses.iter().map(|m| 1.0 / m.inertia).collect();
         let stiffness: Vec<f64> = model.couplings.iter().map(|c| c.stiffness).collect();
         let damping: Vec<f64> = model.couplings.iter().map(|c| c.damping).collect();

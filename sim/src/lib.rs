@@ -1,14 +1,18 @@
 #![doc = include_str!("../README.md")]
+#![warn(missing_docs)]
 
-pub mod can_node;
 pub mod chain;
-pub mod daq;
+#[cfg(feature = "devices")]
+pub mod devices;
 pub mod discrepancy;
 pub mod modal;
-pub mod modbus_bank;
 pub mod model;
-pub mod plc;
+#[cfg(feature = "plot")]
 pub mod plot;
+pub mod rod;
 pub mod schedule;
+// Documented by the chatter work under way on this module (it edits stands.rs).
+#[allow(missing_docs)]
 pub mod stands;
+pub mod tree;
 pub mod wear_map;

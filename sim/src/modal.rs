@@ -1,7 +1,8 @@
-//! Modal analysis of the linear chain: natural frequencies and mass-normalised mode
-//! shapes of K x = w^2 M x.
+//! Modal analysis of the linear driveline (chain or tree): natural frequencies and
+//! mass-normalised mode shapes of K x = w^2 M x.
 //!
-//! The chain is free (the motor side is not grounded and the PI controller is not part
+//! A tree model is analysed in its default configuration, referred to mass 0's shaft
+//! ([`crate::tree::Tree::modes`] for another configuration). The drive is free (the motor side is not grounded and the PI controller is not part
 //! of K), so the first mode is the rigid-body mode at 0 Hz. Backlash is ignored: the
 //! couplings are taken at their full stiffness.
 
@@ -35,12 +36,23 @@ pub enum ModalError {
     /// The matrices are not square or do not have the same size.
     #[error("mass and stiffness matrices must be square and of the same size")]
     Shape,
+    /// The model's couplings do not form a tree (it was not validated).
+    #[error("the model's couplings do not join every mass exactly once (validate the model)")]
+    Topology,
 }
 
 impl Modes {
     /// Mode `index` as a vector over the masses (rows of [`Modes::shapes`]).
     pub fn shape(&self, index: usize) -> Vec<f64> {
         self.shapes.column(index).iter().copied().collect()
+    }
+
+    /// Mode `index` scaled to unit Euclidean norm (the normalisation of the paper's
+    /// Table 3), same sign convention as [`Modes::shapes`].
+    pub fn unit_shape(&self, index: usize) -> Vec<f64> {
+        let column = self.shapes.column(index);
+        let norm = column.norm();
+        column.iter().map(|value| value / norm).collect()
     }
 
     /// The elastic natural frequencies, Hz, ascending: every one but the rigid-body
@@ -50,7 +62,7 @@ impl Modes {
     }
 }
 
-/// Mass matrix diag(inertias), kg*m^2.
+/// Mass matrix diag(inertias) of a chain model (no gear ratios), kg*m^2.
 pub fn mass_matrix(model: &Model) -> DMatrix<f64> {
     let inertias: Vec<f64> = model.masses.iter().map(|mass| mass.inertia).collect();
     DMatrix::from_diagonal(&nalgebra::DVector::from_vec(inertias))
@@ -72,13 +84,14 @@ pub fn chain_matrix(coefficients: &[f64]) -> DMatrix<f64> {
     matrix
 }
 
-/// Stiffness matrix of the model's chain (couplings at full stiffness), N*m/rad.
+/// Stiffness matrix of a chain model (couplings at full stiffness), N*m/rad.
 pub fn stiffness_matrix(model: &Model) -> DMatrix<f64> {
     let stiffnesses: Vec<f64> = model.couplings.iter().map(|c| c.stiffness).collect();
     chain_matrix(&stiffnesses)
 }
 
-/// Natural frequencies and mode shapes of a validated model (backlash ignored).
+/// Natural frequencies and mode shapes of a validated model (backlash ignored); a
+/// tree in its default configuration, referred to mass 0's shaft.
 ///
 /// # Example
 /// ```
@@ -92,7 +105,7 @@ pub fn stiffness_matrix(model: &Model) -> DMatrix<f64> {
 /// # Ok::<(), Box<dyn std::error::Error>>(())
 /// ```
 pub fn modes(model: &Model) -> Result<Modes, ModalError> {
-    solve(&mass_matrix(model), &stiffness_matrix(model))
+    model.tree(None).map_err(|_| ModalError::Topology)?.modes()
 }
 
 /// Natural frequencies (Hz) and mass-normalised modes of K x = w^2 M x.

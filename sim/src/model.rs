@@ -1,5 +1,13 @@
-//! Driveline model files: a torsional chain of masses and couplings, a PI-controlled
-//! motor, a rolling-load ramp and the measured channel, read from and written to TOML.
+//! Driveline model files: a torsional chain (or tree) of masses and couplings, a
+//! PI-controlled motor, a rolling-load ramp and the measured channel, read from and
+//! written to TOML.
+//!
+//! A hot-mill driveline is a chain: coupling `i` joins mass `i` and mass `i + 1`. A
+//! rod-mill block drive is a tree of gear stages (domain notes 3): there every coupling
+//! names the two masses it joins (`between`), may cross a gear stage (`ratio`), and may
+//! be engaged only by a servo coupling (`servo`) in some of the named configurations
+//! (`[[configuration]]`). [`Model::tree`] refers one configuration's engaged couplings
+//! and every inertia to the shaft of mass 0 (see [`crate::tree`]).
 //!
 //! Every field is in SI units except the load torque, which is in kN*m as in the
 //! paper's tables. A [`Model`] returned by [`Model::from_toml_str`] or [`Model::load`]
@@ -38,6 +46,25 @@ pub struct Model {
     pub load: Load,
     /// Which torque is measured and how it is sampled.
     pub measurement: Measurement,
+    /// Named configurations of the servo couplings; optional (a drive without servo
+    /// couplings has none). The first one is the default.
+    #[serde(
+        default,
+        rename = "configuration",
+        skip_serializing_if = "Vec::is_empty"
+    )]
+    pub configurations: Vec<Configuration>,
+}
+
+/// One configuration of the servo couplings: which of them are engaged.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Configuration {
+    /// Name used by schedules and commands; unique.
+    pub name: String,
+    /// The servo couplings engaged (names used in `coupling[i].servo`); every coupling
+    /// of another servo is disengaged, couplings without a servo are always engaged.
+    pub engaged: Vec<String>,
 }
 
 /// One lumped rotating mass.
@@ -46,7 +73,8 @@ pub struct Model {
 pub struct Mass {
     /// Free-text name (`motor`, `pinion`, `rolls`, ...).
     pub name: String,
-    /// Moment of inertia referred to roll speed, kg*m^2, > 0.
+    /// Moment of inertia on the mass's own shaft, kg*m^2, > 0. In a model without
+    /// gear ratios every shaft turns at one speed: the paper's "referred to roll speed".
     pub inertia: f64,
 }
 
@@ -74,6 +102,22 @@ pub struct Coupling {
     /// grows, so oscillations decay linearly in time rather than exponentially.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub friction: f64,
+    /// The two masses this coupling joins, by name; optional. Without it coupling `i`
+    /// joins mass `i` and mass `i + 1` (a chain). Either every coupling names its masses
+    /// or none does; with names the couplings of each configuration must form a tree
+    /// over all masses (no loop, none left out).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub between: Option<[String; 2]>,
+    /// Speed of the second mass over the first (a gear stage), finite and > 0, default
+    /// one. Stiffness, damping, backlash, hardening and friction are those seen on the
+    /// first mass's shaft.
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub ratio: f64,
+    /// The servo coupling (e.g. `M3`) that engages this coupling; optional. A coupling
+    /// without one is always engaged; one with a servo is engaged in the
+    /// configurations that list that servo.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub servo: Option<String>,
 }
 
 /// PI speed controller on mass 0; the reference is the nominal speed (deviation 0).
@@ -202,37 +246,14 @@ impl Model {
     /// # Ok::<(), millgate_sim::model::ModelError>(())
     /// ```
     pub fn from_toml_str(text: &str, file_name: &str) -> Result<Model, ModelError> {
-        let deserializer = toml::Deserializer::parse(text).map_err(|error| ModelError::Syntax {
-            file: file_name.to_owned(),
-            line: line_of(text, error.span()),
-            message: error.message().to_owned(),
-        })?;
-        let model: Model = serde_path_to_error::deserialize(deserializer).map_err(|error| {
-            let key = error.path().to_string();
-            let inner = error.inner();
-            ModelError::Schema {
-                file: file_name.to_owned(),
-                line: line_of(text, inner.span()),
-                key: if key == "." {
-                    "(top level)".to_owned()
-                } else {
-                    key
-                },
-                message: inner.message().to_owned(),
-            }
-        })?;
+        let model: Model = parse_toml(text, file_name)?;
         model.validate(file_name)?;
         Ok(model)
     }
 
     /// Reads, parses and validates a model file; errors name the path as given.
     pub fn load(path: impl AsRef<Path>) -> Result<Model, ModelError> {
-        let path = path.as_ref();
-        let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| ModelError::Io {
-            file: file.clone(),
-            source,
-        })?;
+        let (text, file) = read_text(path.as_ref())?;
         Model::from_toml_str(&text, &file)
     }
 
@@ -241,7 +262,8 @@ impl Model {
         Ok(toml::to_string(self)?)
     }
 
-    /// Checks every value against its allowed range and the chain's shape.
+    /// Checks every value against its allowed range and the drive's shape (a chain, or
+    /// a tree in every configuration).
     ///
     /// `file_name` only labels the error. The first problem found is reported.
     pub fn validate(&self, file_name: &str) -> Result<(), ModelError> {
@@ -252,7 +274,8 @@ impl Model {
         for (index, mass) in self.masses.iter().enumerate() {
             check.positive(&format!("mass[{index}].inertia"), mass.inertia, "kg*m^2")?;
         }
-        if self.couplings.len() != self.masses.len() - 1 {
+        let named = self.couplings.iter().any(|c| c.between.is_some());
+        if !named && self.couplings.len() != self.masses.len() - 1 {
             return Err(check.error(
                 "coupling",
                 format!("{} entries", self.couplings.len()),
@@ -269,7 +292,13 @@ impl Model {
             check.non_negative(&format!("{key}.backlash"), coupling.backlash, "rad")?;
             check.non_negative(&format!("{key}.hardening"), coupling.hardening, "N*m/rad^3")?;
             check.non_negative(&format!("{key}.friction"), coupling.friction, "N*m")?;
+            check.positive(
+                &format!("{key}.ratio"),
+                coupling.ratio,
+                "(speed of the second mass over the first)",
+            )?;
         }
+        crate::tree::validate(self, file_name)?;
         check.non_negative("motor.speed_kp", self.motor.speed_kp, "N*m*s/rad")?;
         check.non_negative("motor.speed_ki", self.motor.speed_ki, "N*m/rad")?;
         check.non_negative("load.static_torque", self.load.static_torque, "kN*m")?;
@@ -313,14 +342,15 @@ impl Model {
         }
     }
 
-    /// The same driveline with a mass of `inertia` (kg*m^2) inserted in the middle of
-    /// coupling `index`: the coupling becomes two halves in series, each with twice its
+    /// The same chain driveline with a mass of `inertia` (kg*m^2) inserted in the
+    /// middle of coupling `index` (a tree model is refused): the coupling becomes two halves in series, each with twice its
     /// stiffness, damping and hardening (so the series combination is the original),
     /// the backlash and friction on the motor-side half. When the split coupling is the
     /// measured one, the motor-side half is measured; later measured indices shift by one.
     ///
     /// `index` must be a coupling index and `inertia` > 0; the result is validated.
     pub fn split_coupling(&self, index: usize, inertia: f64) -> Result<Model, ModelError> {
+        crate::tree::require_chain(self, "<split>", "splitting a coupling")?;
         let Some(original) = self.couplings.get(index) else {
             return Err(Checker { file: "<split>" }.error(
                 "coupling",
@@ -361,6 +391,29 @@ impl Model {
         Ok(model)
     }
 
+    /// True when coupling `i` joins mass `i` and mass `i + 1` at ratio 1 without a
+    /// servo: the shape the time simulation and the discrepancy workflow need.
+    pub fn is_chain(&self) -> bool {
+        self.configurations.is_empty()
+            && self.couplings.iter().enumerate().all(|(i, c)| {
+                c.ratio == 1.0
+                    && c.servo.is_none()
+                    && c.between.as_ref().is_none_or(|[first, second]| {
+                        self.masses.get(i).is_some_and(|m| &m.name == first)
+                            && self.masses.get(i + 1).is_some_and(|m| &m.name == second)
+                    })
+            })
+    }
+
+    /// The drive in one configuration (`None`: the first one, or every coupling when
+    /// the model has none), referred to the shaft of mass 0.
+    ///
+    /// The model must be valid ([`Model::validate`]); an unknown configuration name is
+    /// an error naming the known ones.
+    pub fn tree(&self, configuration: Option<&str>) -> Result<crate::tree::Tree, ModelError> {
+        crate::tree::build(self, configuration, "<model>")
+    }
+
     /// Rolling load on the last mass at time `t_s`, N*m (the file gives kN*m).
     pub fn load_torque_nm(&self, t_s: f64) -> f64 {
         if t_s < self.load.onset {
@@ -383,17 +436,25 @@ impl Coupling {
             backlash: 0.0,
             hardening: 0.0,
             friction: 0.0,
+            between: None,
+            ratio: 1.0,
+            servo: None,
         }
     }
 }
 
 /// Builds range errors for one file.
-struct Checker<'a> {
-    file: &'a str,
+pub(crate) struct Checker<'a> {
+    pub(crate) file: &'a str,
 }
 
 impl Checker<'_> {
-    fn error(&self, key: &str, value: impl Display, allowed: impl Display) -> ModelError {
+    pub(crate) fn error(
+        &self,
+        key: &str,
+        value: impl Display,
+        allowed: impl Display,
+    ) -> ModelError {
         ModelError::Value {
             file: self.file.to_owned(),
             key: key.to_owned(),
@@ -402,7 +463,7 @@ impl Checker<'_> {
         }
     }
 
-    fn positive(&self, key: &str, value: f64, unit: &str) -> Result<(), ModelError> {
+    pub(crate) fn positive(&self, key: &str, value: f64, unit: &str) -> Result<(), ModelError> {
         if value.is_finite() && value > 0.0 {
             Ok(())
         } else {
@@ -410,13 +471,50 @@ impl Checker<'_> {
         }
     }
 
-    fn non_negative(&self, key: &str, value: f64, unit: &str) -> Result<(), ModelError> {
+    pub(crate) fn non_negative(&self, key: &str, value: f64, unit: &str) -> Result<(), ModelError> {
         if value.is_finite() && value >= 0.0 {
             Ok(())
         } else {
             Err(self.error(key, value, format_args!(">= 0 {unit}")))
         }
     }
+}
+
+/// Reads a text file; the error and the returned name are the path as given.
+pub(crate) fn read_text(path: &Path) -> Result<(String, String), ModelError> {
+    let file = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|source| ModelError::Io {
+        file: file.clone(),
+        source,
+    })?;
+    Ok((text, file))
+}
+
+/// Parses TOML text into `T`; errors name `file_name`, the line, and for schema
+/// errors the key path and what serde expected.
+pub(crate) fn parse_toml<T: serde::de::DeserializeOwned>(
+    text: &str,
+    file_name: &str,
+) -> Result<T, ModelError> {
+    let deserializer = toml::Deserializer::parse(text).map_err(|error| ModelError::Syntax {
+        file: file_name.to_owned(),
+        line: line_of(text, error.span()),
+        message: error.message().to_owned(),
+    })?;
+    serde_path_to_error::deserialize(deserializer).map_err(|error| {
+        let key = error.path().to_string();
+        let inner = error.inner();
+        ModelError::Schema {
+            file: file_name.to_owned(),
+            line: line_of(text, inner.span()),
+            key: if key == "." {
+                "(top level)".to_owned()
+            } else {
+                key
+            },
+            message: inner.message().to_owned(),
+        }
+    })
 }
 
 /// 1-based line of the start of `span` in `text`, 0 when there is no span.
@@ -433,4 +531,12 @@ fn line_of(text: &str, span: Option<std::ops::Range<usize>>) -> usize {
 
 fn is_zero(value: &f64) -> bool {
     *value == 0.0
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+fn is_one(value: &f64) -> bool {
+    *value == 1.0
 }

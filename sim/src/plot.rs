@@ -18,17 +18,20 @@ pub enum PlotError {
     /// The wear map has no rows with finite values to plot.
     #[error("the wear map has nothing to plot")]
     Empty,
+    /// A rod-mill plot has nothing to draw (the text says which).
+    #[error("nothing to plot: {0}")]
+    Nothing(&'static str),
     /// plotters reported a drawing error.
     #[error("drawing the wear map: {0}")]
     Drawing(String),
 }
 
-fn drawing<E: std::fmt::Display>(error: E) -> PlotError {
+pub(crate) fn drawing<E: std::fmt::Display>(error: E) -> PlotError {
     PlotError::Drawing(error.to_string())
 }
 
 /// Range of `values` with 5% margin, or `None` if no value is finite.
-fn padded_range(values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
+pub(crate) fn padded_range(values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
     let (low, high) = values
         .filter(|v| v.is_finite())
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {

@@ -33,10 +33,24 @@ pub struct BiteTruth {
 /// A whole schedule: the measured torque and the truth of each bite.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Schedule {
+    /// Sample rate of `torque_knm`, Hz.
     pub sample_rate_hz: f64,
     /// Measured torque, kN*m, with noise when asked for.
     pub torque_knm: Vec<f64>,
+    /// The truth of each bar's bite, in order.
     pub bites: Vec<BiteTruth>,
+}
+
+impl Schedule {
+    /// The truth of the bar whose static torque is nearest `static_knm` (kN*m): the
+    /// bite a measured one most likely is. `None` for a schedule without bars.
+    pub fn nearest_truth(&self, static_knm: f64) -> Option<&BiteTruth> {
+        self.bites.iter().min_by(|a, b| {
+            let da = (a.static_torque_knm - static_knm).abs();
+            let db = (b.static_torque_knm - static_knm).abs();
+            da.total_cmp(&db)
+        })
+    }
 }
 
 /// Timing of each bar.

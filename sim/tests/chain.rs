@@ -41,6 +41,7 @@ fn two_mass(backlash: f64) -> Model {
             duration: 0.5,
             lag: 0.0,
         },
+        configurations: Vec::new(),
     }
 }
 

@@ -16,16 +16,23 @@ fn every_example_model_loads() -> anyhow::Result<()> {
         let path = entry?.path();
         if path.extension().is_some_and(|e| e == "toml") {
             let model = Model::load(&path)?;
+            loaded += 1;
+            // The RSM tree drives are checked in rsm_table3.rs.
+            let table2 = path
+                .file_name()
+                .is_some_and(|name| name.to_string_lossy().starts_with("table2"));
+            if !table2 {
+                continue;
+            }
             assert_eq!(model.masses.len(), 3, "{}", path.display());
             assert_eq!(model.couplings.len(), 2, "{}", path.display());
             assert_eq!(model.load.static_torque, 112.0);
             assert_eq!(model.load.rise_rate, 36.7);
-            loaded += 1;
         }
     }
     assert!(
-        loaded >= 3,
-        "expected at least 3 example models, found {loaded}"
+        loaded >= 5,
+        "expected at least 5 example models, found {loaded}"
     );
     Ok(())
 }

@@ -1,6 +1,26 @@
-//! Shared fixtures for millgate's end-to-end tests.
+//! Test support for millgate, in one place: the demo's devices sized for a
+//! configuration ([`demo_devices`]), waiting for a condition ([`wait_for`]), scraping
+//! `/metrics` ([`scrape`]) and the counting allocator of the zero-allocation tests
+//! ([`counting_allocator`]). A running gateway is started with
+//! `millgate::Service::new(config)?.spawn().await?` ([`millgate::Service::spawn`]);
+//! tolerance comparisons are `millgate_dsp::testing`.
+
+pub mod counting_allocator;
 
 use std::time::{Duration, Instant};
+
+use millgate::outputs::register_map::RegisterMap;
+use millgate_config::Config;
+use millgate_sim::devices::demo::DemoDevices;
+use millgate_sim::schedule::Schedule;
+
+/// The demo's virtual DAQ playing `schedule` and a virtual PLC holding `config`'s whole
+/// register map, started on loopback; `config` is pointed at them
+/// ([`DemoDevices::start`]).
+pub async fn demo_devices(config: &mut Config, schedule: &Schedule) -> anyhow::Result<DemoDevices> {
+    let plc_registers = usize::from(RegisterMap::new(config).len()) + 16;
+    Ok(DemoDevices::start(config, schedule, plc_registers).await?)
+}
 
 /// Poll `done` every 20 ms until it holds; panic naming `what` after `limit`.
 pub async fn wait_for(what: &str, limit: Duration, mut done: impl FnMut() -> bool) {

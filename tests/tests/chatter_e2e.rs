@@ -4,11 +4,11 @@
 
 use std::time::{Duration, Instant};
 
-use millgate::registers::{decode_f32, RegisterMap};
+use millgate::outputs::register_map::{decode_f32, RegisterMap};
 use millgate_config::{Config, RegisterTable};
-use millgate_sim::daq::{DaqChannel, Placement, Publish, VirtualDaq};
-use millgate_sim::modbus_bank::{Running, ServeOptions};
-use millgate_sim::plc::VirtualPlc;
+use millgate_sim::devices::modbus_bank::{Running, ServeOptions};
+use millgate_sim::devices::virtual_daq::{DaqChannel, Placement, Publish, VirtualDaq};
+use millgate_sim::devices::virtual_plc::VirtualPlc;
 use millgate_sim::stands::{Regime, Stands, StandsSettings};
 use millgate_tests::{scrape, wait_for};
 use tokio::net::TcpListener;
@@ -158,9 +158,7 @@ async fn stands_that_synchronize_raise_warning_then_alarm() -> anyhow::Result<()
     config.modbus_sources.truncate(1);
     let devices = start(&mut config, vec![daq(&signals, &[0, 1, 2, 3, 4])]).await?;
     let streaming = Instant::now();
-    let service = millgate::Service::new(config)?;
-    let (stop, shutdown) = millgate::shutdown::channel();
-    let gateway = tokio::spawn(service.run(shutdown));
+    let gateway = millgate::Service::new(config)?.spawn().await?;
 
     // Steady rolling: every valid window shows independent stands.
     wait_for("first valid chatter window", Duration::from_secs(5), || {
@@ -224,8 +222,7 @@ async fn stands_that_synchronize_raise_warning_then_alarm() -> anyhow::Result<()
         "{mill:?}"
     );
 
-    stop.trigger();
-    gateway.await??;
+    gateway.stop().await?;
     for device in devices.running {
         device.stop().await?;
     }
@@ -239,10 +236,8 @@ async fn stopped_stand_daq_flags_stale_and_clears_quality() -> anyhow::Result<()
     let mut config = config([0, 0, 0, 0, 1])?;
     let daqs = vec![daq(&signals, &[0, 1, 2, 3]), daq(&signals, &[4])];
     let mut devices = start(&mut config, daqs).await?;
-    let mut service = millgate::Service::new(config)?;
-    let metrics = service.bind().await?.metrics.expect("metrics configured");
-    let (stop, shutdown) = millgate::shutdown::channel();
-    let gateway = tokio::spawn(service.run(shutdown));
+    let gateway = millgate::Service::new(config)?.spawn().await?;
+    let metrics = gateway.bound().metrics.expect("metrics configured");
 
     wait_for("valid chatter values", Duration::from_secs(5), || {
         devices.mill().quality == 0b111
@@ -287,8 +282,7 @@ async fn stopped_stand_daq_flags_stale_and_clears_quality() -> anyhow::Result<()
         "no K_mean gauge while stale: {page}"
     );
 
-    stop.trigger();
-    gateway.await??;
+    gateway.stop().await?;
     for device in devices.running {
         device.stop().await?;
     }

@@ -5,10 +5,10 @@
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
-use millgate::health::SourceStatus;
+use millgate::field::source_health::SourceStatus;
 use millgate_config::{Config, RegisterTable};
-use millgate_sim::daq::{DaqChannel, Placement, Publish, VirtualDaq};
-use millgate_sim::modbus_bank::{Running, ServeOptions};
+use millgate_sim::devices::modbus_bank::{Running, ServeOptions};
+use millgate_sim::devices::virtual_daq::{DaqChannel, Placement, Publish, VirtualDaq};
 use millgate_tests::{scrape, wait_for};
 use tokio::net::TcpListener;
 
@@ -43,7 +43,7 @@ async fn start_daq(config: &Config, address: SocketAddr) -> anyhow::Result<Runni
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn daq_restart_goes_stale_then_ok_and_counts_the_gap() -> anyhow::Result<()> {
-    let mut config = millgate::demo::setup(1.0, 0.0, 1)?.config;
+    let mut config = millgate_sim::devices::demo::setup(1.0, 0.0, 1)?.config;
     config.outputs.plc = None;
     config.outputs.server = None;
     config.outputs.metrics = Some(millgate_config::MetricsOutput {
@@ -54,12 +54,10 @@ async fn daq_restart_goes_stale_then_ok_and_counts_the_gap() -> anyhow::Result<(
     config.modbus_sources[0].address = address.to_string();
 
     let daq_device = start_daq(&config, address).await?;
-    let mut service = millgate::Service::new(config.clone())?;
-    let metrics = service.bind().await?.metrics.expect("metrics configured");
-    let counters = service.counters()[0].clone();
-    let publisher = service.publisher();
-    let (stop, shutdown) = millgate::shutdown::channel();
-    let gateway = tokio::spawn(service.run(shutdown));
+    let gateway = millgate::Service::new(config.clone())?.spawn().await?;
+    let metrics = gateway.bound().metrics.expect("metrics configured");
+    let counters = gateway.counters()[0].clone();
+    let publisher = gateway.publisher();
     let status = || publisher.results().sources[0];
 
     wait_for("first blocks", Duration::from_secs(5), || {
@@ -114,8 +112,7 @@ async fn daq_restart_goes_stale_then_ok_and_counts_the_gap() -> anyhow::Result<(
         "{page}"
     );
 
-    stop.trigger();
-    tokio::time::timeout(Duration::from_secs(10), gateway).await???;
+    tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
     daq_device.stop().await?;
     Ok(())
 }

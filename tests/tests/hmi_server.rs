@@ -6,17 +6,16 @@ use std::net::SocketAddr;
 use std::process::Command;
 use std::time::Duration;
 
-use millgate::demo::setup;
-use millgate::registers::RegisterMap;
+use millgate::outputs::register_map::RegisterMap;
+use millgate_sim::devices::demo::setup;
 use tokio_modbus::client::{Context, Reader, Writer};
 use tokio_modbus::prelude::{ExceptionCode, Slave};
 
 struct Running {
     address: SocketAddr,
     map: RegisterMap,
-    publisher: std::sync::Arc<millgate::publish::Publisher>,
-    stop: millgate::shutdown::ShutdownTrigger,
-    task: tokio::task::JoinHandle<Result<(), millgate::service::ServiceError>>,
+    publisher: std::sync::Arc<millgate::outputs::publisher::Publisher>,
+    gateway: millgate::service::RunningService,
 }
 
 /// A gateway with the demo configuration, its DAQ unreachable and its PLC
@@ -32,18 +31,13 @@ async fn gateway(plc: bool) -> anyhow::Result<Running> {
         config.outputs.plc = None;
     }
     config.outputs.server.as_mut().unwrap().bind = "127.0.0.1:0".parse()?;
-    let mut service = millgate::Service::new(config)?;
-    let address = service.bind().await?.server.expect("server configured");
-    let map = service.publisher().map().clone();
-    let publisher = service.publisher();
-    let (stop, shutdown) = millgate::shutdown::channel();
-    let task = tokio::spawn(service.run(shutdown));
+    let gateway = millgate::Service::new(config)?.spawn().await?;
+    let publisher = gateway.publisher();
     Ok(Running {
-        address,
-        map,
+        address: gateway.bound().server.expect("server configured"),
+        map: publisher.map().clone(),
         publisher,
-        stop,
-        task,
+        gateway,
     })
 }
 
@@ -109,8 +103,7 @@ async fn map_reads_and_command_writes_with_exception_codes() -> anyhow::Result<(
         "acknowledged"
     );
 
-    running.stop.trigger();
-    tokio::time::timeout(Duration::from_secs(10), running.task).await???;
+    tokio::time::timeout(Duration::from_secs(10), running.gateway.stop()).await??;
     Ok(())
 }
 
@@ -162,8 +155,7 @@ async fn mbpoll_reads_the_map_and_sees_exceptions() -> anyhow::Result<()> {
         "mbpoll said: {text}"
     );
 
-    running.stop.trigger();
-    tokio::time::timeout(Duration::from_secs(10), running.task).await???;
+    tokio::time::timeout(Duration::from_secs(10), running.gateway.stop()).await??;
     Ok(())
 }
 
@@ -185,8 +177,7 @@ async fn heartbeat_moves_with_the_plc_unreachable_or_absent() -> anyhow::Result<
             now, first,
             "heartbeat frozen at {first} (PLC configured: {plc})"
         );
-        running.stop.trigger();
-        tokio::time::timeout(Duration::from_secs(10), running.task).await???;
+        tokio::time::timeout(Duration::from_secs(10), running.gateway.stop()).await??;
     }
     Ok(())
 }

@@ -4,8 +4,9 @@
 
 use std::time::Duration;
 
-use millgate::demo::{nearest_truth, setup, Devices};
-use millgate::registers::{decode_f32, decode_u32, RegisterMap};
+use millgate::outputs::register_map::{decode_f32, decode_u32, RegisterMap};
+use millgate_sim::devices::demo::setup;
+use millgate_tests::demo_devices;
 
 fn register(map: &RegisterMap, name: &str) -> usize {
     let found = map.registers().iter().find(|r| r.name == name);
@@ -22,17 +23,14 @@ async fn daq_to_gateway_to_plc_registers_match_simulated_truth() -> anyhow::Resu
     let demo = setup(3.0, 0.5, 7)?;
     let mut config = demo.config;
     let schedule = demo.schedule;
-    let devices = Devices::start(&mut config, &schedule).await?;
-    let service = millgate::Service::new(config.clone())?;
-    let mut bites = service.subscribe_bites();
-    let map = service.publisher().map().clone();
-    let (stop, shutdown) = millgate::shutdown::channel();
-    let gateway = tokio::spawn(service.run(shutdown));
+    let devices = demo_devices(&mut config, &schedule).await?;
+    let mut gateway = millgate::Service::new(config.clone())?.spawn().await?;
+    let map = gateway.publisher().map().clone();
 
     let mut reports = Vec::new();
     let collected = tokio::time::timeout(Duration::from_secs(20), async {
         while reports.len() < 2 {
-            reports.push(bites.recv().await?);
+            reports.push(gateway.bites().recv().await?);
         }
         anyhow::Ok(())
     })
@@ -58,7 +56,9 @@ async fn daq_to_gateway_to_plc_registers_match_simulated_truth() -> anyhow::Resu
     .await?;
 
     let last = &reports[1];
-    let truth = nearest_truth(&schedule, last.transient.static_torque_knm).unwrap();
+    let truth = schedule
+        .nearest_truth(last.transient.static_torque_knm)
+        .unwrap();
     assert_eq!(
         truth.static_torque_knm, schedule.bites[1].static_torque_knm,
         "second bar"
@@ -94,8 +94,7 @@ async fn daq_to_gateway_to_plc_registers_match_simulated_truth() -> anyhow::Resu
         "running"
     );
 
-    stop.trigger();
-    gateway.await??;
+    gateway.stop().await?;
     let stopped = devices.plc.holding()[register(&map, "gateway_status")];
     assert_eq!(stopped & 0b10, 0b10, "final write says stopped");
     devices.stop().await?;

@@ -3,16 +3,17 @@
 
 use std::time::Duration;
 
-use millgate::registers::RegisterMap;
-use millgate_sim::modbus_bank::ServeOptions;
-use millgate_sim::plc::VirtualPlc;
+use millgate::outputs::register_map::RegisterMap;
+use millgate_sim::devices::demo::setup;
+use millgate_sim::devices::modbus_bank::ServeOptions;
+use millgate_sim::devices::virtual_plc::VirtualPlc;
 use millgate_tests::wait_for;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn plc_unreachable_at_start_gets_registers_when_it_appears() -> anyhow::Result<()> {
-    let mut config = millgate::demo::setup(1.0, 0.0, 1)?.config;
+    let mut config = setup(1.0, 0.0, 1)?.config;
     let plc_address = TcpListener::bind("127.0.0.1:0").await?.local_addr()?;
     config.modbus_sources[0].address = "127.0.0.1:1".into();
     config.outputs.server = None;
@@ -21,8 +22,7 @@ async fn plc_unreachable_at_start_gets_registers_when_it_appears() -> anyhow::Re
     plc_output.register_base = 100;
     let map = RegisterMap::new(&config);
 
-    let (stop, shutdown) = millgate::shutdown::channel();
-    let gateway = tokio::spawn(millgate::run(config, shutdown));
+    let gateway = millgate::Service::new(config)?.spawn().await?;
     tokio::time::sleep(Duration::from_millis(800)).await;
 
     let plc = VirtualPlc::new(100 + usize::from(map.len()));
@@ -49,8 +49,7 @@ async fn plc_unreachable_at_start_gets_registers_when_it_appears() -> anyhow::Re
     })
     .await;
 
-    stop.trigger();
-    tokio::time::timeout(Duration::from_secs(10), gateway).await???;
+    tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
     assert_eq!(plc.holding()[101] & 0b10, 0b10, "final write: stopped");
     running_plc.stop().await?;
     Ok(())
@@ -97,7 +96,7 @@ fn fc04_reply(header: [u8; 7], words: &[u16]) -> Vec<u8> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn malformed_and_truncated_replies_are_counted_and_survived() -> anyhow::Result<()> {
-    let mut config = millgate::demo::setup(1.0, 0.0, 1)?.config;
+    let mut config = setup(1.0, 0.0, 1)?.config;
     config.outputs.plc = None;
     config.outputs.server = None;
     let listener = TcpListener::bind("127.0.0.1:0").await?;
@@ -126,10 +125,8 @@ async fn malformed_and_truncated_replies_are_counted_and_survived() -> anyhow::R
     ];
     let daq = tokio::spawn(serve_script(listener, script));
 
-    let service = millgate::Service::new(config)?;
-    let counters = service.counters()[0].clone();
-    let (stop, shutdown) = millgate::shutdown::channel();
-    let gateway = tokio::spawn(service.run(shutdown));
+    let gateway = millgate::Service::new(config)?.spawn().await?;
+    let counters = gateway.counters()[0].clone();
 
     wait_for(
         "the good block after the bad ones",
@@ -145,8 +142,7 @@ async fn malformed_and_truncated_replies_are_counted_and_survived() -> anyhow::R
     );
     assert!(!gateway.is_finished(), "still running");
 
-    stop.trigger();
-    tokio::time::timeout(Duration::from_secs(10), gateway).await???;
+    tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
     daq.abort();
     Ok(())
 }

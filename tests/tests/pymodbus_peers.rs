@@ -6,8 +6,9 @@ use std::path::PathBuf;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use millgate::demo::{nearest_truth, setup, Devices};
-use millgate::registers::{decode_f32, decode_u32, RegisterMap};
+use millgate::outputs::register_map::{decode_f32, decode_u32, RegisterMap};
+use millgate_sim::devices::demo::setup;
+use millgate_tests::demo_devices;
 
 fn peer(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -46,7 +47,6 @@ async fn read_plc(port: u16, len: u16) -> anyhow::Result<Vec<u16>> {
 async fn gateway_writes_its_map_into_a_pymodbus_plc() -> anyhow::Result<()> {
     let demo = setup(2.0, 0.5, 3)?;
     let mut config = demo.config;
-    let devices = Devices::start(&mut config, &demo.schedule).await?;
     let port = tokio::net::TcpListener::bind("127.0.0.1:0")
         .await?
         .local_addr()?
@@ -62,24 +62,25 @@ async fn gateway_writes_its_map_into_a_pymodbus_plc() -> anyhow::Result<()> {
     let mut line = String::new();
     plc_out.read_line(&mut line)?;
     assert_eq!(line.trim(), "ready", "pymodbus PLC did not start");
+    // The DAQ streams from now on: started after the Python PLC (whose start-up can
+    // take longer than the first bar's idle time), so the gateway sees the first bite
+    // from its idle level.
+    let devices = demo_devices(&mut config, &demo.schedule).await?;
     config.outputs.plc.as_mut().unwrap().address = format!("127.0.0.1:{port}");
 
-    let service = millgate::Service::new(config)?;
-    let mut bites = service.subscribe_bites();
-    let (stop, shutdown) = millgate::shutdown::channel();
-    let gateway = tokio::spawn(service.run(shutdown));
-    let mut received = vec![tokio::time::timeout(Duration::from_secs(10), bites.recv()).await??];
+    let mut gateway = millgate::Service::new(config)?.spawn().await?;
+    let mut received =
+        vec![tokio::time::timeout(Duration::from_secs(10), gateway.bites().recv()).await??];
     // Let at least two write periods pass so the bite is in the PLC, then read the
     // pymodbus PLC live, as its program would.
     tokio::time::sleep(Duration::from_millis(300)).await;
     let live = read_plc(port, map.len()).await?;
     // On a loaded machine more bars may have been analysed meanwhile: the PLC holds the
     // last one, so compare against the bite with the PLC's bite counter.
-    while let Ok(bite) = bites.try_recv() {
+    while let Ok(bite) = gateway.bites().try_recv() {
         received.push(bite);
     }
-    stop.trigger();
-    tokio::time::timeout(Duration::from_secs(10), gateway).await???;
+    tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
     devices.stop().await?;
 
     drop(plc.stdin.take());
@@ -103,7 +104,10 @@ async fn gateway_writes_its_map_into_a_pymodbus_plc() -> anyhow::Result<()> {
     );
     let bite = &received[counter as usize - 1];
     let taf = f64::from(decode_f32(&live[address_of(&map, "F1.taf")..]).unwrap());
-    let truth = nearest_truth(&demo.schedule, bite.transient.static_torque_knm).unwrap();
+    let truth = demo
+        .schedule
+        .nearest_truth(bite.transient.static_torque_knm)
+        .unwrap();
     assert!(
         (taf - truth.taf).abs() < 0.02 * truth.taf,
         "TAF {taf} vs truth {}",
@@ -118,11 +122,9 @@ async fn pymodbus_hmi_reads_the_map_and_gets_exception_codes() -> anyhow::Result
     config.modbus_sources[0].address = "127.0.0.1:1".into();
     config.outputs.plc = None;
     config.outputs.server.as_mut().unwrap().bind = "127.0.0.1:0".parse()?;
-    let mut service = millgate::Service::new(config)?;
-    let address = service.bind().await?.server.unwrap();
-    let map = service.publisher().map().clone();
-    let (stop, shutdown) = millgate::shutdown::channel();
-    let gateway = tokio::spawn(service.run(shutdown));
+    let gateway = millgate::Service::new(config)?.spawn().await?;
+    let address = gateway.bound().server.unwrap();
+    let map = gateway.publisher().map().clone();
     tokio::time::sleep(Duration::from_millis(100)).await;
 
     let args = [
@@ -162,8 +164,7 @@ async fn pymodbus_hmi_reads_the_map_and_gets_exception_codes() -> anyhow::Result
         "illegal data value: {said}"
     );
 
-    stop.trigger();
-    tokio::time::timeout(Duration::from_secs(10), gateway).await???;
+    tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
     let _ = std::io::stdout().flush();
     Ok(())
 }

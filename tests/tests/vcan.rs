@@ -15,10 +15,12 @@ use std::process::Command;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, ensure, Context, Result};
-use millgate::can::{CanCounts, CanDecoder, CanError, CanReader};
-use millgate::samples::Acquired;
+use millgate::field::acquired::Acquired;
+use millgate::field::can::{CanDecoder, CanError, CanReader};
+use millgate::field::counters::CanCounts;
 use millgate_config::{ChannelSource, Config};
-use millgate_sim::can_node::{CanMessage, CanNode};
+use millgate_dsp::testing::assert_isclose;
+use millgate_sim::devices::can_node::{CanMessage, CanNode};
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
@@ -174,7 +176,7 @@ fn message(config: &Config, channels: &[usize]) -> Result<CanMessage> {
 /// A running reader: its task, its samples and how to stop it.
 struct RunningReader {
     samples: mpsc::Receiver<Acquired>,
-    counters: std::sync::Arc<millgate::can::CanCounters>,
+    counters: std::sync::Arc<millgate::field::counters::CanCounters>,
     stop: watch::Sender<bool>,
     task: JoinHandle<Result<(), CanError>>,
     /// Values received so far, per channel, oldest first.
@@ -249,13 +251,6 @@ impl RunningReader {
     }
 }
 
-fn assert_close(actual: f64, expected: f64, what: &str) {
-    assert!(
-        (actual - expected).abs() <= 1e-9 * expected.abs().max(1.0),
-        "{what}: got {actual}, expected {expected}"
-    );
-}
-
 /// Hex of `bytes`, as cansend wants it.
 fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|byte| format!("{byte:02X}")).collect()
@@ -313,7 +308,7 @@ async fn cansend_frames_become_scaled_samples() -> Result<()> {
     for (channel, value) in expected {
         let values = reader.wait_for(channel, 1).await?;
         assert_eq!(values.len(), 1, "channel {channel}: one frame, one sample");
-        assert_close(values[0], value, &format!("channel {channel}"));
+        assert_isclose(values[0], value, 1e-9, 1e-9, &format!("channel {channel}"));
     }
     let counts = reader.counters.snapshot();
     assert_eq!(counts.frames, 4);
@@ -366,12 +361,24 @@ async fn sim_node_sequence_arrives_complete_and_in_order() -> Result<()> {
     assert_eq!(sender.await??, (FRAMES as u64, bursts.len() as u64));
     assert_eq!(top.len(), FRAMES);
     for (index, row) in rows.iter().enumerate() {
-        assert_close(top[index], row[0], &format!("top torque #{index}"));
-        assert_close(bottom[index], row[1], &format!("bottom torque #{index}"));
+        assert_isclose(
+            top[index],
+            row[0],
+            1e-9,
+            1e-9,
+            &format!("top torque #{index}"),
+        );
+        assert_isclose(
+            bottom[index],
+            row[1],
+            1e-9,
+            1e-9,
+            &format!("bottom torque #{index}"),
+        );
         assert_eq!(seq[index], row[2], "sequence #{index}");
     }
     for (index, row) in bursts.iter().enumerate() {
-        assert_close(acc0[index], row[0], &format!("Acc0 #{index}"));
+        assert_isclose(acc0[index], row[0], 1e-9, 1e-9, &format!("Acc0 #{index}"));
     }
     let counts = reader.counters.snapshot();
     assert_eq!(counts.decoded, (FRAMES + bursts.len()) as u64);
@@ -396,7 +403,7 @@ async fn unknown_short_remote_and_error_frames_are_counted_and_ignored() -> Resu
     let counts = reader.wait_for_frames(7).await?;
     let top = reader.wait_for(SPINDLE_TOP, 1).await?.to_vec();
     assert_eq!(top.len(), 1, "only the good frame yields a sample");
-    assert_close(top[0], 123.45, "top torque of the good frame");
+    assert_isclose(top[0], 123.45, 1e-9, 1e-9, "top torque of the good frame");
     assert_eq!(
         counts,
         CanCounts {
@@ -610,12 +617,10 @@ async fn send_until(
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 #[ignore = "needs SocketCAN vcan0: run scripts/uml-vcan"]
 async fn service_survives_the_interface_going_down_and_up() -> Result<()> {
-    use millgate::health::SourceStatus;
+    use millgate::field::source_health::SourceStatus;
     let interface = vcan();
-    let service = millgate::Service::new(config(&interface)?)?;
-    let publisher = service.publisher();
-    let (stop, shutdown) = millgate::shutdown::channel();
-    let gateway = tokio::spawn(service.run(shutdown));
+    let gateway = millgate::Service::new(config(&interface)?)?.spawn().await?;
+    let publisher = gateway.publisher();
     let status = || publisher.results().sources[0];
 
     send_until(&interface, Duration::from_secs(10), || {
@@ -641,8 +646,7 @@ async fn service_survives_the_interface_going_down_and_up() -> Result<()> {
     .await?;
     ensure!(!gateway.is_finished(), "the gateway kept running");
 
-    stop.trigger();
-    tokio::time::timeout(Duration::from_secs(10), gateway).await???;
+    tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
     Ok(())
 }
 
@@ -743,7 +747,7 @@ async fn cangen_random_payloads_are_all_decoded() -> Result<()> {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 #[ignore = "needs SocketCAN vcan0: run scripts/uml-vcan"]
 async fn error_passive_and_bus_off_are_counted_and_tracked() -> Result<()> {
-    use millgate::can::BusState;
+    use millgate::field::counters::BusState;
     let config = config(&vcan())?;
     let reader = RunningReader::start(&config)?;
     let interface = vcan();

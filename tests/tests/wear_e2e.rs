@@ -8,11 +8,13 @@ use std::path::PathBuf;
 use std::process::Command;
 use std::time::Duration;
 
-use millgate::analysis::BiteReport;
-use millgate::demo::Devices;
-use millgate::registers::{decode_f32, RegisterMap};
+use millgate::analysis::driveline::BiteReport;
+use millgate::outputs::register_map::{decode_f32, RegisterMap};
+use millgate::service::RunningService;
+use millgate_sim::devices::demo::DemoDevices;
 use millgate_sim::model::Model;
 use millgate_sim::schedule::{rolling_schedule, BarTiming};
+use millgate_tests::demo_devices;
 use tokio_modbus::client::{Context, Reader, Writer};
 use tokio_modbus::prelude::{ExceptionCode, Slave};
 
@@ -42,12 +44,10 @@ fn address(map: &RegisterMap, name: &str) -> u16 {
 /// A running gateway with the driveline model, fed bars simulated with a gap of
 /// `gap_rad` in the spindles.
 struct Mill {
-    devices: Devices,
+    devices: DemoDevices,
     server: SocketAddr,
     map: RegisterMap,
-    bites: tokio::sync::broadcast::Receiver<BiteReport>,
-    stop: millgate::shutdown::ShutdownTrigger,
-    task: tokio::task::JoinHandle<Result<(), millgate::service::ServiceError>>,
+    gateway: RunningService,
 }
 
 impl Mill {
@@ -55,27 +55,20 @@ impl Mill {
         let mut model = Model::load(MODEL)?;
         model.couplings[1].backlash = gap_rad;
         let schedule = rolling_schedule(&model, &BARS_KNM, TIMING, 0.5, 11)?;
-        let mut config = millgate::demo::setup(1.0, 0.5, 1)?.config;
+        let mut config = millgate_sim::devices::demo::setup(1.0, 0.5, 1)?.config;
         config.drivelines[0].model = Some(PathBuf::from(MODEL));
-        let devices = Devices::start(&mut config, &schedule).await?;
-        let mut service = millgate::Service::new(config)?;
-        let server = service.bind().await?.server.expect("server configured");
-        let map = service.publisher().map().clone();
-        let bites = service.subscribe_bites();
-        let (stop, shutdown) = millgate::shutdown::channel();
-        let task = tokio::spawn(service.run(shutdown));
+        let devices = demo_devices(&mut config, &schedule).await?;
+        let gateway = millgate::Service::new(config)?.spawn().await?;
         Ok(Self {
             devices,
-            server,
-            map,
-            bites,
-            stop,
-            task,
+            server: gateway.bound().server.expect("server configured"),
+            map: gateway.publisher().map().clone(),
+            gateway,
         })
     }
 
     async fn next_bite(&mut self) -> anyhow::Result<BiteReport> {
-        Ok(tokio::time::timeout(Duration::from_secs(10), self.bites.recv()).await??)
+        Ok(tokio::time::timeout(Duration::from_secs(10), self.gateway.bites().recv()).await??)
     }
 
     async fn hmi(&self) -> anyhow::Result<Context> {
@@ -83,9 +76,8 @@ impl Mill {
     }
 
     async fn stop(self) -> anyhow::Result<()> {
-        self.stop.trigger();
-        tokio::time::timeout(Duration::from_secs(10), self.task).await???;
-        self.devices.stop().await
+        tokio::time::timeout(Duration::from_secs(10), self.gateway.stop()).await??;
+        Ok(self.devices.stop().await?)
     }
 }
 
@@ -107,7 +99,7 @@ async fn wait_bites(hmi: &mut Context, map: &RegisterMap, count: u32) -> anyhow:
     tokio::time::timeout(Duration::from_secs(5), async {
         loop {
             let words = hmi.read_holding_registers(counter, 2).await??;
-            if millgate::registers::decode_u32(&words) == Some(count) {
+            if millgate::outputs::register_map::decode_u32(&words) == Some(count) {
                 return anyhow::Ok(());
             }
             tokio::time::sleep(Duration::from_millis(20)).await;
@@ -149,7 +141,7 @@ async fn wear_index_over_modbus_grows_with_the_gap_and_the_trend_resets() -> any
     let second = worn.next_bite().await?.wear.expect("wear").index;
     wait_bites(&mut hmi, &worn.map, 2).await?;
     let trend = f64::from(read_f32(&mut hmi, &worn.map, "F1.wear_trend").await?);
-    let expected = millgate::wear::next_trend(Some(worn_index), second);
+    let expected = millgate::analysis::wear::next_trend(Some(worn_index), second);
     assert!(
         (trend - expected).abs() < 1e-5,
         "trend {trend}, expected {expected}"

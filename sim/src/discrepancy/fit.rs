@@ -237,6 +237,7 @@ impl Fitted {
 
 /// A model fitted to measured bites: the templates, the anchors of the parameters and
 /// what is free. Counts the simulations it runs.
+#[derive(Debug)]
 pub struct Problem<'a> {
     bites: &'a [BiteRecord<'a>],
     anchor: LinearValues,

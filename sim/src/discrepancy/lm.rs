@@ -99,6 +99,14 @@ pub struct FnResiduals<F> {
     pub function: F,
 }
 
+impl<F> std::fmt::Debug for FnResiduals<F> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("FnResiduals")
+            .field("len", &self.len)
+            .finish_non_exhaustive()
+    }
+}
+
 impl<F: FnMut(&[f64], &mut [f64]) -> bool> Residuals for FnResiduals<F> {
     fn residual_count(&self) -> usize {
         self.len

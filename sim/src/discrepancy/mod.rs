@@ -50,6 +50,7 @@ pub mod fit;
 pub mod identify;
 pub mod lm;
 pub mod noise;
+#[cfg(feature = "plot")]
 pub mod report;
 pub mod search;
 pub mod split;

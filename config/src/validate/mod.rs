@@ -1,0 +1,194 @@
+//! [`RawConfig`] to [`Config`]: defaults, ranges, names, references and DBC lookups.
+//!
+//! Every check reports into the [`Report`] and carries on, so one run lists every
+//! problem. Each check returns `Option`: `None` means "reported, no value"; the final
+//! [`Config`] is only handed out when the report is empty, and then every value is
+//! present.
+//!
+//! One file per part of the configuration: `sources`, `channels`, `drivelines`,
+//! `tandem_mills`, `outputs`; `values` holds the checks of single values they share.
+
+use std::collections::HashMap;
+use std::ops::RangeInclusive;
+use std::path::Path;
+
+use can_dbc::Dbc;
+
+use crate::error::Report;
+use crate::layout::BLOCK_REGISTERS;
+use crate::raw::{RawCanSource, RawConfig, RawModbusSource};
+use crate::{Channel, Config};
+
+/// Modbus unit identifier when none is given.
+pub(crate) const DEFAULT_UNIT_ID: i64 = 1;
+/// Modbus request timeout when none is given, ms.
+pub(crate) const DEFAULT_TIMEOUT_MS: i64 = 1000;
+/// Allowed poll, write and timeout periods, ms.
+const PERIOD_RANGE_MS: RangeInclusive<i64> = 1..=60_000;
+/// Bite capture before the trigger when none is given, s.
+pub(crate) const DEFAULT_PRE_TRIGGER_S: f64 = 0.1;
+/// Bite capture after the trigger when none is given, s.
+pub(crate) const DEFAULT_POST_TRIGGER_S: f64 = 0.5;
+/// Longest bite capture window and chatter window, s.
+const MAX_WINDOW_S: f64 = 10.0;
+/// Prometheus endpoint when `[outputs.metrics]` has no `bind`.
+pub(crate) const DEFAULT_METRICS_BIND: &str = "127.0.0.1:9187";
+/// Stands a tandem mill may have.
+const STANDS_RANGE: RangeInclusive<usize> = 2..=8;
+/// Longest Linux network interface name, bytes (IFNAMSIZ - 1).
+const MAX_INTERFACE_NAME: usize = 15;
+/// Highest first register of a block: the block must end by register 65535.
+const MAX_BLOCK_BASE: i64 = 65_536 - BLOCK_REGISTERS as i64;
+
+/// Validates `raw`; paths are resolved against `base_dir`.
+pub(crate) fn validate(raw: RawConfig, base_dir: &Path, report: &mut Report) -> Option<Config> {
+    let mut checker = Checker {
+        base_dir,
+        report,
+        source_names: HashMap::new(),
+    };
+    let name = checker.name("name", &raw.name);
+    let modbus_sources: Vec<_> = raw
+        .modbus_sources
+        .iter()
+        .enumerate()
+        .map(|(index, source)| checker.modbus_source(index, source))
+        .collect();
+    let (can_sources, dbcs): (Vec<_>, Vec<_>) = raw
+        .can_sources
+        .iter()
+        .enumerate()
+        .map(|(index, source)| checker.can_source(index, source))
+        .unzip();
+    let sources = Sources {
+        modbus: &raw.modbus_sources,
+        can: &raw.can_sources,
+        dbcs: &dbcs,
+    };
+    let channels = checker.named_list(
+        "channels",
+        "channel",
+        &raw.channels,
+        |channel| &channel.name,
+        |checker, key, channel| checker.channel(key, channel, &sources),
+    );
+    checker.register_overlaps(&raw.channels, &channels, &raw.modbus_sources);
+    checker.block_poll_periods(&raw.channels, &channels, &raw.modbus_sources);
+    let channel_facts = ChannelFacts {
+        names: raw
+            .channels
+            .iter()
+            .map(|channel| channel.name.as_str())
+            .collect(),
+        channels: &channels,
+    };
+    let drivelines = checker.named_list(
+        "drivelines",
+        "driveline",
+        &raw.drivelines,
+        |driveline| &driveline.name,
+        |checker, key, driveline| checker.driveline(key, driveline, &channel_facts),
+    );
+    let tandem_mills = checker.named_list(
+        "tandem_mills",
+        "tandem mill",
+        &raw.tandem_mills,
+        |mill| &mill.name,
+        |checker, key, mill| checker.tandem_mill(key, mill, &channel_facts),
+    );
+    let outputs = checker.outputs(&raw.outputs);
+    Some(Config {
+        name: name?,
+        modbus_sources: modbus_sources.into_iter().collect::<Option<_>>()?,
+        can_sources: can_sources.into_iter().collect::<Option<_>>()?,
+        channels: channels.into_iter().collect::<Option<_>>()?,
+        drivelines: drivelines.into_iter().collect::<Option<_>>()?,
+        tandem_mills: tandem_mills.into_iter().collect::<Option<_>>()?,
+        outputs: outputs?,
+    })
+}
+
+/// The raw sources and the parsed DBC of each CAN source (`None` when unreadable).
+struct Sources<'a> {
+    modbus: &'a [RawModbusSource],
+    can: &'a [RawCanSource],
+    dbcs: &'a [Option<Dbc>],
+}
+
+/// What drivelines and mills need to know about channels: names (even of channels
+/// that failed validation, so references to them are not reported twice) and the
+/// validated channels.
+struct ChannelFacts<'a> {
+    names: Vec<&'a str>,
+    channels: &'a [Option<Channel>],
+}
+
+/// Names seen so far in one list, to report duplicates.
+struct Names {
+    what: &'static str,
+    first_key: HashMap<String, String>,
+}
+
+impl Names {
+    fn new(what: &'static str) -> Self {
+        Names {
+            what,
+            first_key: HashMap::new(),
+        }
+    }
+
+    /// Records `name` of the element at `key`, reporting a duplicate.
+    fn add(&mut self, checker: &mut Checker<'_>, key: &str, name: &str) {
+        if let Some(first) = self.first_key.get(name) {
+            checker.report.push(
+                format!("{key}.name"),
+                format!(
+                    "duplicate {} name \"{name}\" (already used by {first})",
+                    self.what
+                ),
+            );
+        } else {
+            self.first_key.insert(name.to_owned(), key.to_owned());
+        }
+    }
+}
+
+struct Checker<'a> {
+    base_dir: &'a Path,
+    report: &'a mut Report,
+    /// Source name -> key of the source that first used it (Modbus and CAN share
+    /// one namespace).
+    source_names: HashMap<String, String>,
+}
+
+mod channels;
+mod drivelines;
+mod outputs;
+mod sources;
+mod tandem_mills;
+mod values;
+
+/// An optional setting after its check: absent stays absent (`Some(None)`), a
+/// setting that failed its check (`Some(None)` inside) becomes `None`.
+fn optional<T>(checked: Option<Option<T>>) -> Option<Option<T>> {
+    match checked {
+        None => Some(None),
+        Some(None) => None,
+        Some(Some(value)) => Some(Some(value)),
+    }
+}
+
+/// `known: a, b` or `none defined`.
+fn known_list(names: &[&str]) -> String {
+    if names.is_empty() {
+        "none defined".to_owned()
+    } else {
+        format!("known: {}", names.join(", "))
+    }
+}
+
+/// Milliseconds with at most three decimals and no trailing zeros.
+fn format_ms(value_ms: f64) -> String {
+    let text = format!("{value_ms:.3}");
+    text.trim_end_matches('0').trim_end_matches('.').to_owned()
+}

@@ -1,0 +1,161 @@
+//! The start of the iteration, with no user guess: the pencil's poles, a linear
+//! least-squares fit over all of them to pick the two oscillating modes of largest
+//! energy and the load rate, then the best of a few load rates.
+
+use nalgebra::{SMatrix, SVector};
+
+use super::levenberg_marquardt::{evaluate, Evaluation};
+use super::model::FitError;
+use super::record::{Data, Nonlinear};
+use super::recurrence::Rotor;
+use crate::pencil;
+
+/// Start of the iteration chosen from the pencil poles.
+#[derive(Clone, Copy)]
+pub(super) struct Guess {
+    /// a5, a6, a7, a8, a10.
+    pub(super) theta: Nonlinear,
+    /// Whether a10 is a load pole of the pencil (else the default 10 / T, T the record
+    /// length).
+    rise_from_pencil: bool,
+}
+
+/// Chooses the initial a5..a8 and a10 from the pencil poles.
+pub(super) fn initial_guess(data: &Data<'_>, poles: &[pencil::Pole]) -> Result<Guess, FitError> {
+    const MAX_BASIS: usize = 1 + pencil::MODEL_ORDER;
+    let dt = data.dt;
+    let duration = data.duration_s();
+    // Basis slot -> (pole index, is sine); slot 0 is the constant.
+    let mut rotors = [Rotor::new(0.0, 0.0, dt); pencil::MODEL_ORDER];
+    let mut slots: heapless::Vec<(usize, bool), MAX_BASIS> = heapless::Vec::new();
+    let _ = slots.push((usize::MAX, false));
+    for (k, pole) in poles.iter().enumerate() {
+        rotors[k] = Rotor::new(pole.decay_per_s, pole.frequency_hz, dt);
+        if pole.frequency_hz > 0.0 {
+            let _ = slots.push((k, false));
+            let _ = slots.push((k, true));
+        } else if pole.decay_per_s * duration > 0.5 {
+            // Slower real poles are indistinguishable from the constant: dropped.
+            let _ = slots.push((k, false));
+        }
+    }
+    let mut ata = [[0.0_f64; MAX_BASIS]; MAX_BASIS];
+    let mut atb = [0.0_f64; MAX_BASIS];
+    for value in data.values() {
+        let mut basis = [0.0_f64; MAX_BASIS];
+        for (slot, &(k, sine)) in basis.iter_mut().zip(slots.iter()) {
+            *slot = match (k, sine) {
+                (usize::MAX, _) => 1.0,
+                (k, false) => rotors[k].re,
+                (k, true) => rotors[k].im,
+            };
+        }
+        for rotor in rotors.iter_mut().take(poles.len()) {
+            rotor.advance();
+        }
+        if data.positive_only && value <= 0.0 {
+            continue;
+        }
+        for a in 0..slots.len() {
+            atb[a] += basis[a] * value;
+            // Upper triangle only; mirrored below.
+            for b in a..slots.len() {
+                ata[a][b] += basis[a] * basis[b];
+            }
+        }
+    }
+    let used = slots.len();
+    let a = SMatrix::<f64, MAX_BASIS, MAX_BASIS>::from_fn(|i, j| {
+        if i < used && j < used {
+            ata[i.min(j)][i.max(j)]
+        } else if i == j {
+            1.0
+        } else {
+            0.0
+        }
+    });
+    let b = SVector::<f64, MAX_BASIS>::from_fn(|i, _| if i < used { atb[i] } else { 0.0 });
+    let coefficients = a.lu().solve(&b).ok_or(FitError::Singular)?;
+    let constant = coefficients[0];
+
+    // Energy of each oscillating candidate over the record; best two kept.
+    let mut best: [(f64, usize); 2] = [(-1.0, usize::MAX); 2];
+    let mut load: Option<(f64, f64)> = None;
+    let mut slot = 1;
+    while slot < used {
+        let (k, _) = slots[slot];
+        let pole = poles[k];
+        if pole.frequency_hz > 0.0 {
+            let (c, s) = (coefficients[slot], coefficients[slot + 1]);
+            let rate = 2.0 * pole.decay_per_s;
+            let weight = if libm::fabs(rate * duration) < 1e-9 {
+                duration
+            } else {
+                (1.0 - libm::exp(-rate * duration)) / rate
+            };
+            let energy = (c * c + s * s) * weight;
+            if energy.is_finite() {
+                if energy > best[0].0 {
+                    best[1] = best[0];
+                    best[0] = (energy, k);
+                } else if energy > best[1].0 {
+                    best[1] = (energy, k);
+                }
+            }
+            slot += 2;
+        } else {
+            // The load term is -a9 exp(-a10 t): opposite sign to the constant.
+            let c = coefficients[slot];
+            if c * constant < 0.0 && load.is_none_or(|(m, _)| libm::fabs(c) > m) {
+                load = Some((libm::fabs(c), pole.decay_per_s));
+            }
+            slot += 1;
+        }
+    }
+    if best[1].1 == usize::MAX {
+        return Err(FitError::ModesNotFound);
+    }
+    let (first, second) = if poles[best[0].1].frequency_hz <= poles[best[1].1].frequency_hz {
+        (poles[best[0].1], poles[best[1].1])
+    } else {
+        (poles[best[1].1], poles[best[0].1])
+    };
+    let rise = load.map_or(10.0 / duration, |(_, decay)| decay);
+    Ok(Guess {
+        theta: [
+            first.frequency_hz,
+            second.frequency_hz,
+            first.decay_per_s,
+            second.decay_per_s,
+            rise,
+        ],
+        rise_from_pencil: load.is_some(),
+    })
+}
+
+/// Evaluates `guess` with a10 at 8 / T and 24 / T (T the record length), and as
+/// guessed when the pencil found a load pole, and returns the best. The pencil's real
+/// poles are the least reliable of its output, and a start with a10 far above the truth
+/// costs many rejected steps; the variable-projection cost is smooth and unimodal in
+/// a10, so a few trials suffice. (Without a load pole the guess is 10 / T, too close to
+/// 8 / T to be worth its own evaluation.)
+pub(super) fn best_rise(guess: Guess, data: &Data<'_>) -> Option<Evaluation> {
+    let duration = data.duration_s();
+    let theta = guess.theta;
+    let pencil_rise = guess.rise_from_pencil.then_some(theta[4]);
+    let mut best: Option<Evaluation> = None;
+    for rise in pencil_rise
+        .into_iter()
+        .chain([8.0 / duration, 24.0 / duration])
+    {
+        let mut trial = theta;
+        trial[4] = rise;
+        let reference = best.map_or([0.0; 5], |b| b.linear);
+        if let Some(candidate) = evaluate(trial, &reference, data) {
+            if best.is_none_or(|b| candidate.cost < b.cost) {
+                best = Some(candidate);
+            }
+        }
+    }
+    best
+}

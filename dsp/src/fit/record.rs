@@ -1,0 +1,51 @@
+//! The record as the fit works on it, and the split of the eq. (1) parameters into the
+//! nonlinear ones (iterated) and the linear ones (solved at each point).
+
+/// The record as fitted: every `stride`-th sample times `inverse_scale` (peak
+/// magnitude 1), `dt` seconds apart.
+pub(super) struct Data<'a> {
+    pub(super) samples: &'a [f64],
+    pub(super) stride: usize,
+    pub(super) inverse_scale: f64,
+    pub(super) dt: f64,
+    pub(super) positive_only: bool,
+}
+
+impl Data<'_> {
+    /// The samples used, scaled.
+    pub(super) fn values(&self) -> impl Iterator<Item = f64> + '_ {
+        self.samples
+            .iter()
+            .step_by(self.stride)
+            .map(|v| v * self.inverse_scale)
+    }
+
+    /// Number of samples in the residual (after the stride and the positive mask).
+    pub(super) fn used(&self) -> usize {
+        self.values()
+            .filter(|v| !self.positive_only || *v > 0.0)
+            .count()
+    }
+
+    /// Number of samples after the stride (masked ones included).
+    pub(super) fn count(&self) -> usize {
+        self.samples.len().div_ceil(self.stride)
+    }
+
+    /// Duration covered, s.
+    pub(super) fn duration_s(&self) -> f64 {
+        self.count() as f64 * self.dt
+    }
+}
+
+/// Nonlinear parameters a5, a6, a7, a8, a10 (the LM unknowns), in that order.
+pub(super) type Nonlinear = [f64; 5];
+/// Linear parameters a1, a2, a3, a4, a9 (solved exactly at every nonlinear point).
+pub(super) type Linear = [f64; 5];
+/// Paper index (0-based) of each nonlinear parameter.
+pub(super) const NONLINEAR_INDEX: [usize; 5] = [4, 5, 6, 7, 9];
+/// Paper index (0-based) of each linear parameter.
+pub(super) const LINEAR_INDEX: [usize; 5] = [0, 1, 2, 3, 8];
+/// Basis functions per sample: the 5 columns of Phi (model = Phi c), then the 5
+/// derivative columns D (t u1, t v1, t u2, t v2, t e10) that span dPhi/dtheta c.
+pub(super) const BASIS: usize = 10;

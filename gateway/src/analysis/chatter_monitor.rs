@@ -1,0 +1,910 @@
+//! Chatter monitoring of one tandem mill: aligned sliding windows of the stands'
+//! vibration, their spectra, and the synchronization conditions of `dsp::chatter`.
+//!
+//! **Window and hop.** Each stand keeps a ring buffer (allocated once) of its latest
+//! samples. Every hop of half a window (`window_s / 2`, so windows overlap by half,
+//! the usual choice for Hann windows) the window of `N = round(window_s * fs)`
+//! samples that ends at the same sample on every stand is analysed.
+//!
+//! **Spectrum.** Per stand: mean removed, Hann window, forward FFT of length `N`
+//! (planned once with `rustfft`, run with `process_with_scratch`, no allocation per
+//! window). Magnitudes are scaled by `2 / sum(hann)`, so a sine of peak `A` shows as
+//! `A`. The frequency step `fs / N = 1 / window_s` is sigma_min.
+//!
+//! **Correlation signal.** K_mean is computed on each stand's chatter-band content:
+//! the windowed spectrum with every bin outside the band zeroed, transformed back
+//! (inverse FFT, also planned once). Vibration outside the band (roll eccentricity,
+//! drive harmonics common to all stands) then cannot pass for synchronization.
+//!
+//! **Alignment.** A reader hands over samples without time stamps, so every stand
+//! counts its samples; a gap with a known number of missed samples advances the
+//! count. The stands of one mill must be sampled on one clock (one DAQ, or DAQs
+//! sharing sample clock and block grid). Where each stand's count starts is
+//! checked against arrival times: the earliest arrival of a sample, less its count
+//! over the sample rate, estimates when the stand's first sample was taken; the
+//! difference to the mill's reference is rounded to whole blocks (the length of
+//! the stand's first message) and added to the count. This catches a stand whose
+//! first block was one newer than the others' (the DAQ published between two reads
+//! of one poll) and re-anchors a stand after a gap of unknown length.
+//!
+//! **Restarts.** A gap on any stand, a stand falling more than [`MAX_STAND_LAG_S`]
+//! behind the others, or a change of a stand's anchor invalidates the mill's values
+//! (flag "source stale") and restarts the window: the next evaluation uses only
+//! samples taken after the restart on every stand.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use millgate_config::{Config, TandemMill};
+use millgate_dsp::chatter::{
+    ChatterDetector, ChatterError, ChatterResult, ChatterSettings, StandWindow, MAX_STANDS,
+};
+use rustfft::num_complex::Complex;
+use rustfft::{Fft, FftPlanner};
+
+use crate::field::acquired::Acquired;
+use crate::outputs::publisher::Publisher;
+use crate::outputs::results::MillResults;
+
+/// Largest lag of one stand behind the most advanced one, s: more means its source
+/// has stopped delivering, and the mill's values are flagged and the window restarted.
+pub const MAX_STAND_LAG_S: f64 = 0.5;
+
+/// Fewest samples in a window.
+pub const MIN_WINDOW_SAMPLES: usize = 16;
+
+/// A tandem mill the monitor cannot be built for. Each message starts with the key at
+/// fault (`tandem_mills[0].window_s`), as the configuration's own problems do.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ChatterSetupError {
+    /// The window holds fewer than [`MIN_WINDOW_SAMPLES`] samples.
+    #[error(
+        "tandem_mills[{index}].window_s: {window_s} s at {sample_rate_hz} Hz gives {samples} \
+         samples, at least {MIN_WINDOW_SAMPLES} are needed (tandem mill \"{mill}\")"
+    )]
+    WindowTooShort {
+        /// Index of the mill in the configuration.
+        index: usize,
+        /// The mill's name.
+        mill: String,
+        /// Configured window, s.
+        window_s: f64,
+        /// Sample rate of the stands, Hz.
+        sample_rate_hz: f64,
+        /// Samples in that window.
+        samples: usize,
+    },
+    /// The window's frequency step (1 / `window_s`) is too coarse for the chatter band:
+    /// no spectrum bin with a neighbour on each side falls inside it.
+    #[error(
+        "tandem_mills[{index}].window_s: {window_s} s is too short for the chatter band \
+         {low_hz}..{high_hz} Hz: its frequency step {step_hz} Hz leaves no spectrum bin \
+         inside the band with a neighbour on each side (tandem mill \"{mill}\")"
+    )]
+    WindowTooShortForBand {
+        /// Index of the mill in the configuration.
+        index: usize,
+        /// The mill's name.
+        mill: String,
+        /// Configured window, s.
+        window_s: f64,
+        /// Spectrum frequency step, Hz.
+        step_hz: f64,
+        /// Lower edge of the chatter band, Hz.
+        low_hz: f64,
+        /// Upper edge of the chatter band, Hz.
+        high_hz: f64,
+    },
+    /// The chatter detector refused the mill's settings.
+    #[error("tandem_mills[{index}]: {source} (tandem mill \"{mill}\")")]
+    Detector {
+        /// Index of the mill in the configuration.
+        index: usize,
+        /// The mill's name.
+        mill: String,
+        /// What the detector refused.
+        #[source]
+        source: ChatterError,
+    },
+}
+
+/// Why the mill's window restarted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RestartCause {
+    /// The reader reported lost samples on this stand.
+    Gap {
+        /// Index of the stand in the mill.
+        stand: usize,
+    },
+    /// This stand fell more than [`MAX_STAND_LAG_S`] behind the others.
+    Lagging {
+        /// Index of the stand in the mill.
+        stand: usize,
+    },
+    /// This stand's sample count was re-anchored against the arrival times.
+    Realigned {
+        /// Index of the stand in the mill.
+        stand: usize,
+    },
+}
+
+impl std::fmt::Display for RestartCause {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            RestartCause::Gap { stand } => write!(f, "samples lost on stand {stand}"),
+            RestartCause::Lagging { stand } => write!(
+                f,
+                "stand {stand} fell more than {MAX_STAND_LAG_S} s behind the others"
+            ),
+            RestartCause::Realigned { stand } => {
+                write!(f, "stand {stand} re-anchored against the arrival times")
+            }
+        }
+    }
+}
+
+/// What one message to the monitor changed.
+// The result (about 240 bytes) is moved once per window; boxing it would allocate
+// on every window instead.
+#[allow(clippy::large_enum_variant)]
+#[derive(Debug, Clone, PartialEq)]
+pub enum ChatterUpdate {
+    /// A window was evaluated.
+    Evaluated(ChatterResult),
+    /// A window was complete but its data could not be evaluated (NaN, overflow).
+    Failed(ChatterError),
+    /// The window restarted; the values are invalid until the next evaluation.
+    Restarted(RestartCause),
+}
+
+/// What anchoring a message did to its stand's place on the common axis.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Realigned {
+    Same,
+    First,
+    Changed,
+}
+
+/// Where a stand's sample count sits on the mill's common sample axis.
+#[derive(Debug, Clone, Copy)]
+struct Anchor {
+    /// Earliest (arrival time - samples counted / fs) seen, s since the mill's epoch.
+    origin_s: f64,
+    /// Samples per block: the length of the first message after anchoring.
+    block: i64,
+    /// Added to the count to give the common sample index.
+    offset: i64,
+}
+
+/// One stand's ring buffer and position.
+#[derive(Debug)]
+struct StandStream {
+    ring: Vec<f64>,
+    /// Samples counted since the anchor (known missed samples included).
+    counted: i64,
+    anchor: Option<Anchor>,
+}
+
+impl StandStream {
+    /// Common index of the next sample, once anchored.
+    fn next_index(&self) -> Option<i64> {
+        self.anchor.map(|a| self.counted + a.offset)
+    }
+
+    fn sample(&self, index: i64) -> f64 {
+        self.ring[index.rem_euclid(self.ring.len() as i64) as usize]
+    }
+}
+
+/// Sliding-window chatter monitor of one tandem mill (see the module docs).
+pub struct ChatterMonitor {
+    name: String,
+    detector: ChatterDetector,
+    sample_rate_hz: f64,
+    window: usize,
+    hop: usize,
+    max_lag: i64,
+    stands: Vec<StandStream>,
+    forward: Arc<dyn Fft<f64>>,
+    inverse: Arc<dyn Fft<f64>>,
+    hann: Vec<f64>,
+    magnitude_scale: f64,
+    /// Bins kept for the correlation signal (the chatter band), inclusive.
+    band_bins: (usize, usize),
+    buffer: Vec<Complex<f64>>,
+    scratch: Vec<Complex<f64>>,
+    /// `stands * bins` magnitudes, one spectrum after another.
+    magnitudes: Vec<f64>,
+    /// `stands * window` band-limited signals.
+    band_signals: Vec<f64>,
+    /// Windows may only start at or after this common index.
+    valid_from: i64,
+    /// Common index one past the next window's last sample.
+    next_end: i64,
+    epoch: Option<Instant>,
+    reference_origin_s: Option<f64>,
+    lagging: Option<usize>,
+    evaluations: u64,
+}
+
+// By hand: the FFT plans (`dyn Fft`) have no Debug; the buffers are not worth printing.
+impl std::fmt::Debug for ChatterMonitor {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ChatterMonitor")
+            .field("name", &self.name)
+            .field("stands", &self.stands.len())
+            .field("window", &self.window)
+            .field("hop", &self.hop)
+            .field("evaluations", &self.evaluations)
+            .finish_non_exhaustive()
+    }
+}
+
+impl ChatterMonitor {
+    /// The monitor of `config.tandem_mills[index]`.
+    pub fn new(config: &Config, index: usize) -> Result<Self, ChatterSetupError> {
+        let mill: &TandemMill = &config.tandem_mills[index];
+        // The configuration checked that all stands share one sample rate.
+        let fs = mill
+            .stands
+            .first()
+            .map_or(0.0, |&c| config.channels[c].sample_rate_hz);
+        let window = (mill.window_s * fs).round() as usize;
+        if window < MIN_WINDOW_SAMPLES {
+            return Err(ChatterSetupError::WindowTooShort {
+                index,
+                mill: mill.name.clone(),
+                window_s: mill.window_s,
+                sample_rate_hz: fs,
+                samples: window,
+            });
+        }
+        let (low_hz, high_hz) = mill.chatter_band_hz;
+        let detector = ChatterDetector::new(ChatterSettings {
+            band_low_hz: low_hz,
+            band_high_hz: high_hz,
+            k_max: mill.k_max,
+        })
+        .map_err(|source| ChatterSetupError::Detector {
+            index,
+            mill: mill.name.clone(),
+            source,
+        })?;
+        let bins = window / 2 + 1;
+        let step_hz = fs / window as f64;
+        let low_bin = (low_hz / step_hz).ceil().max(1.0) as usize;
+        let high_bin = (high_hz / step_hz).floor() as usize;
+        // The same check as the detector's: a band bin with two neighbours.
+        if low_bin > high_bin || high_bin + 1 >= bins {
+            return Err(ChatterSetupError::WindowTooShortForBand {
+                index,
+                mill: mill.name.clone(),
+                window_s: mill.window_s,
+                step_hz,
+                low_hz,
+                high_hz,
+            });
+        }
+        let mut planner = FftPlanner::new();
+        let forward = planner.plan_fft_forward(window);
+        let inverse = planner.plan_fft_inverse(window);
+        let scratch_len = forward
+            .get_inplace_scratch_len()
+            .max(inverse.get_inplace_scratch_len());
+        let hann: Vec<f64> = (0..window)
+            .map(|k| 0.5 - 0.5 * (std::f64::consts::TAU * k as f64 / window as f64).cos())
+            .collect();
+        let magnitude_scale = 2.0 / hann.iter().sum::<f64>();
+        let hop = (window / 2).max(1);
+        let max_lag = (MAX_STAND_LAG_S * fs).ceil() as i64;
+        // Room for a full window, a hop of slack and the largest allowed lag.
+        let ring_len = window + hop + max_lag as usize;
+        let stands = mill
+            .stands
+            .iter()
+            .map(|_| StandStream {
+                ring: vec![0.0; ring_len],
+                counted: 0,
+                anchor: None,
+            })
+            .collect();
+        let n = mill.stands.len();
+        Ok(Self {
+            name: mill.name.clone(),
+            detector,
+            sample_rate_hz: fs,
+            window,
+            hop,
+            max_lag,
+            stands,
+            forward,
+            inverse,
+            hann,
+            magnitude_scale,
+            band_bins: (low_bin, high_bin),
+            buffer: vec![Complex::new(0.0, 0.0); window],
+            scratch: vec![Complex::new(0.0, 0.0); scratch_len],
+            magnitudes: vec![0.0; n * bins],
+            band_signals: vec![0.0; n * window],
+            valid_from: 0,
+            next_end: window as i64,
+            epoch: None,
+            reference_origin_s: None,
+            lagging: None,
+            evaluations: 0,
+        })
+    }
+
+    /// The mill's name.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Samples per window.
+    pub fn window_samples(&self) -> usize {
+        self.window
+    }
+
+    /// Samples per hop (half a window).
+    pub fn hop_samples(&self) -> usize {
+        self.hop
+    }
+
+    /// Spectrum frequency step, Hz (sigma_min).
+    pub fn frequency_step_hz(&self) -> f64 {
+        self.sample_rate_hz / self.window as f64
+    }
+
+    /// Windows evaluated since start.
+    pub fn evaluations(&self) -> u64 {
+        self.evaluations
+    }
+
+    /// Samples of stand `stand` (index in the mill's `stands`), oldest first, that
+    /// arrived at `arrival`. Returns what changed: a restart, or an evaluation when
+    /// this completed a hop on every stand.
+    pub fn samples(
+        &mut self,
+        stand: usize,
+        values: &[f64],
+        arrival: Instant,
+    ) -> Option<ChatterUpdate> {
+        if values.is_empty() || stand >= self.stands.len() {
+            return None;
+        }
+        let realigned = self.anchor(stand, values.len(), arrival);
+        let stream = &mut self.stands[stand];
+        let start = stream.next_index().unwrap_or(0);
+        let ring_len = stream.ring.len() as i64;
+        for (index, &value) in (start..).zip(values) {
+            stream.ring[index.rem_euclid(ring_len) as usize] = value;
+        }
+        stream.counted += values.len() as i64;
+        match realigned {
+            Realigned::Same => {}
+            // A stand's first samples (at start, or after a gap that already
+            // restarted the window): nothing valid is lost.
+            Realigned::First => self.restart(),
+            Realigned::Changed => {
+                self.restart();
+                return Some(ChatterUpdate::Restarted(RestartCause::Realigned { stand }));
+            }
+        }
+        if let Some(cause) = self.check_lag() {
+            return Some(ChatterUpdate::Restarted(cause));
+        }
+        let end = self.due_window_end()?;
+        self.next_end = end + self.hop as i64;
+        Some(match self.evaluate(end) {
+            Ok(result) => {
+                self.evaluations += 1;
+                ChatterUpdate::Evaluated(result)
+            }
+            Err(error) => ChatterUpdate::Failed(error),
+        })
+    }
+
+    /// Samples were lost on stand `stand`: `missed` of them when known. Restarts the
+    /// window; an unknown gap also drops the stand's anchor (it is re-anchored from
+    /// the arrival of its next samples).
+    pub fn gap(&mut self, stand: usize, missed: Option<u64>) -> Option<ChatterUpdate> {
+        let stream = self.stands.get_mut(stand)?;
+        match missed.and_then(|m| i64::try_from(m).ok()) {
+            Some(missed) => stream.counted = stream.counted.saturating_add(missed),
+            None => {
+                stream.anchor = None;
+                stream.counted = 0;
+            }
+        }
+        self.restart();
+        Some(ChatterUpdate::Restarted(RestartCause::Gap { stand }))
+    }
+
+    /// Update the stand's anchor with a message of `len` samples arriving at
+    /// `arrival` (before they are counted).
+    fn anchor(&mut self, stand: usize, len: usize, arrival: Instant) -> Realigned {
+        let epoch = *self.epoch.get_or_insert(arrival);
+        let fs = self.sample_rate_hz;
+        let stream = &mut self.stands[stand];
+        let through = (stream.counted + len as i64) as f64 / fs;
+        let origin_s = arrival.saturating_duration_since(epoch).as_secs_f64() - through;
+        let reference = *self.reference_origin_s.get_or_insert(origin_s);
+        let previous = stream.anchor;
+        let block = previous.map_or(len as i64, |a| a.block).max(1);
+        let origin_s = previous.map_or(origin_s, |a| a.origin_s.min(origin_s));
+        let blocks = ((origin_s - reference) * fs / block as f64).round() as i64;
+        let offset = blocks * block;
+        stream.anchor = Some(Anchor {
+            origin_s,
+            block,
+            offset,
+        });
+        match previous {
+            None => Realigned::First,
+            Some(old) if old.offset == offset => Realigned::Same,
+            Some(_) => Realigned::Changed,
+        }
+    }
+
+    /// Forget the window: the next one starts after every stand's latest sample.
+    fn restart(&mut self) {
+        let latest = self
+            .stands
+            .iter()
+            .filter_map(StandStream::next_index)
+            .max()
+            .unwrap_or(0);
+        self.valid_from = self.valid_from.max(latest);
+        self.next_end = self.next_end.max(self.valid_from + self.window as i64);
+    }
+
+    /// Restart once when a stand falls too far behind; clears when it catches up.
+    fn check_lag(&mut self) -> Option<RestartCause> {
+        let indices = self.stands.iter().map(StandStream::next_index);
+        let latest = indices.clone().flatten().max()?;
+        let (stand, earliest) = indices
+            .enumerate()
+            .filter_map(|(s, i)| i.map(|i| (s, i)))
+            .min_by_key(|&(_, i)| i)?;
+        if latest - earliest <= self.max_lag {
+            self.lagging = None;
+            return None;
+        }
+        if self.lagging.replace(stand).is_some() {
+            return None;
+        }
+        self.restart();
+        Some(RestartCause::Lagging { stand })
+    }
+
+    /// End of the window to evaluate now, if every stand has it.
+    fn due_window_end(&mut self) -> Option<i64> {
+        let mut earliest = i64::MAX;
+        let mut latest = i64::MIN;
+        for stream in &self.stands {
+            let next = stream.next_index()?;
+            earliest = earliest.min(next);
+            latest = latest.max(next);
+        }
+        if earliest < self.next_end {
+            return None;
+        }
+        // The newest window on the hop grid that every stand has; the most advanced
+        // stand's ring must still hold its start.
+        let hop = self.hop as i64;
+        let end = self.next_end + (earliest - self.next_end) / hop * hop;
+        let ring_len = self.stands[0].ring.len() as i64;
+        (latest - ring_len <= end - self.window as i64).then_some(end)
+    }
+
+    /// Spectra and band signals of the window ending at `end`, then the detector.
+    fn evaluate(&mut self, end: i64) -> Result<ChatterResult, ChatterError> {
+        let n = self.window;
+        let bins = n / 2 + 1;
+        let start = end - n as i64;
+        let (low, high) = self.band_bins;
+        for (s, stream) in self.stands.iter().enumerate() {
+            let mean = (start..end).map(|i| stream.sample(i)).sum::<f64>() / n as f64;
+            for ((slot, i), w) in self.buffer.iter_mut().zip(start..end).zip(&self.hann) {
+                *slot = Complex::new((stream.sample(i) - mean) * w, 0.0);
+            }
+            self.forward
+                .process_with_scratch(&mut self.buffer, &mut self.scratch);
+            for (m, c) in self.magnitudes[s * bins..(s + 1) * bins]
+                .iter_mut()
+                .zip(&self.buffer)
+            {
+                *m = c.norm() * self.magnitude_scale;
+            }
+            // Keep the band and its mirror image: a real band-limited signal.
+            for (k, c) in self.buffer.iter_mut().enumerate() {
+                let folded = k.min(n - k);
+                if !(low..=high).contains(&folded) {
+                    *c = Complex::new(0.0, 0.0);
+                }
+            }
+            self.inverse
+                .process_with_scratch(&mut self.buffer, &mut self.scratch);
+            for (v, c) in self.band_signals[s * n..(s + 1) * n]
+                .iter_mut()
+                .zip(&self.buffer)
+            {
+                *v = c.re / n as f64;
+            }
+        }
+        let count = self.stands.len();
+        let empty = StandWindow {
+            magnitude: &[],
+            signal: &[],
+        };
+        let mut windows = [empty; MAX_STANDS];
+        for (s, window) in windows.iter_mut().enumerate().take(count) {
+            *window = StandWindow {
+                magnitude: &self.magnitudes[s * bins..(s + 1) * bins],
+                signal: &self.band_signals[s * n..(s + 1) * n],
+            };
+        }
+        let windows = windows.get(..count).ok_or(ChatterError::StandCount)?;
+        self.detector.evaluate(windows, self.frequency_step_hz())
+    }
+}
+
+/// Mean of the stands' principal frequencies, Hz: the published chatter frequency.
+pub fn chatter_frequency_hz(result: &ChatterResult) -> Option<f64> {
+    let count = result.stands.len();
+    (count > 0).then(|| result.stands.iter().map(|s| s.principal_hz).sum::<f64>() / count as f64)
+}
+
+/// Every tandem mill's monitor, fed by the analysis task; results go to the
+/// register map (PLC writes, HMI server) and `/metrics`.
+///
+/// Published per mill after each evaluation: sigma_n, K_mean, the chatter frequency
+/// (mean of the stands' principal frequencies), the warning bit (sigma_n <=
+/// sigma_min, this window) and the alarm bit (both conditions; latched until
+/// acknowledged, like the driveline alarms). A restart clears the values and sets
+/// "source stale" until the next full window.
+#[derive(Debug)]
+pub struct ChatterAnalysis {
+    monitors: Vec<ChatterMonitor>,
+    /// Per channel: the (mill, stand) pairs it feeds.
+    by_channel: Vec<Vec<(usize, usize)>>,
+    publisher: Arc<Publisher>,
+}
+
+impl ChatterAnalysis {
+    /// Monitors for every tandem mill of `config`.
+    pub fn new(config: &Config, publisher: Arc<Publisher>) -> Result<Self, ChatterSetupError> {
+        let mut by_channel = vec![Vec::new(); config.channels.len()];
+        let mut monitors = Vec::new();
+        for (m, mill) in config.tandem_mills.iter().enumerate() {
+            monitors.push(ChatterMonitor::new(config, m)?);
+            for (s, &channel) in mill.stands.iter().enumerate() {
+                by_channel[channel].push((m, s));
+            }
+        }
+        Ok(Self {
+            monitors,
+            by_channel,
+            publisher,
+        })
+    }
+
+    /// The monitors, in config order.
+    pub fn monitors(&self) -> &[ChatterMonitor] {
+        &self.monitors
+    }
+
+    /// Route one reader message to the mills whose stand it is, and publish what
+    /// changed.
+    pub fn handle(&mut self, message: &Acquired) {
+        let channel = match message {
+            Acquired::Samples { channel, .. } | Acquired::Gap { channel, .. } => *channel,
+            Acquired::ProcessValue { .. } => return,
+        };
+        let Some(stands) = self.by_channel.get(channel) else {
+            return;
+        };
+        let now = Instant::now();
+        for &(mill, stand) in stands {
+            let monitor = &mut self.monitors[mill];
+            let change = match message {
+                Acquired::Samples { values, .. } => monitor.samples(stand, values, now),
+                Acquired::Gap { missed_samples, .. } => monitor.gap(stand, *missed_samples),
+                Acquired::ProcessValue { .. } => None,
+            };
+            if let Some(change) = change {
+                publish(&self.publisher, mill, monitor, &change);
+            }
+        }
+    }
+}
+
+/// Record one monitor update in the published results.
+fn publish(publisher: &Publisher, mill: usize, monitor: &ChatterMonitor, change: &ChatterUpdate) {
+    let name = monitor.name();
+    publisher.update(|results| {
+        let Some(published) = results.mills.get_mut(mill) else {
+            return;
+        };
+        let was_flagged = published.source_stale;
+        match change {
+            ChatterUpdate::Evaluated(result) => {
+                published.evaluations = monitor.evaluations();
+                published.sigma_n_hz = Some(result.sigma_n_hz);
+                published.k_mean = Some(result.k_mean);
+                published.chatter_frequency_hz = chatter_frequency_hz(result);
+                published.warning = result.frequencies_locked;
+                if result.synchronized && !published.alarm {
+                    tracing::warn!(
+                        mill = %name,
+                        sigma_n_hz = result.sigma_n_hz,
+                        k_mean = result.k_mean,
+                        frequency_hz = ?published.chatter_frequency_hz,
+                        "chatter alarm: stands synchronized"
+                    );
+                }
+                published.alarm |= result.synchronized;
+                published.source_stale = false;
+                if was_flagged {
+                    tracing::info!(mill = %name, "chatter window complete again");
+                }
+            }
+            ChatterUpdate::Failed(error) => {
+                if published.k_mean.is_some() {
+                    tracing::warn!(mill = %name, %error, "chatter window not evaluable");
+                }
+                clear(published);
+            }
+            ChatterUpdate::Restarted(cause) => {
+                if !was_flagged {
+                    tracing::warn!(mill = %name, %cause, "chatter window restarted, values invalid");
+                }
+                clear(published);
+                published.source_stale = true;
+            }
+        }
+    });
+}
+
+/// Values invalid: never a frozen old value.
+fn clear(published: &mut MillResults) {
+    published.sigma_n_hz = None;
+    published.k_mean = None;
+    published.chatter_frequency_hz = None;
+    published.warning = false;
+}
+
+#[cfg(test)]
+mod tests {
+    use std::f64::consts::TAU;
+    use std::time::Duration;
+
+    use super::*;
+
+    const FS: f64 = 2500.0;
+    /// Samples per simulated DAQ block: 48 ms.
+    const BLOCK: usize = 120;
+
+    /// A mill of `stands` stands at 2500 Hz, band 100-300 Hz, window 0.5 s.
+    fn monitor(stands: usize) -> ChatterMonitor {
+        let mut text = String::from(
+            "name = \"t\"\n[[sources.modbus]]\nname = \"daq\"\naddress = \"127.0.0.1:1\"\npoll_period_ms = 20\n",
+        );
+        for s in 0..stands {
+            text += &format!(
+                "[[channels]]\nname = \"s{s}\"\nkind = \"acceleration\"\nunit = \"m/s^2\"\n\
+                 sample_rate_hz = {FS}\nsource = {{ modbus = \"daq\", table = \"input\", block = {} }}\n",
+                s * 122
+            );
+        }
+        let names: Vec<String> = (0..stands).map(|s| format!("\"s{s}\"")).collect();
+        text += &format!(
+            "[[tandem_mills]]\nname = \"TCM\"\nstands = [{}]\nchatter_band_hz = [100.0, 300.0]\n\
+             window_s = 0.5\nk_max = 0.25\n",
+            names.join(", ")
+        );
+        let config = millgate_config::from_toml_str(&text, "t.toml", std::path::Path::new("."))
+            .expect("test config");
+        ChatterMonitor::new(&config, 0).expect("monitor")
+    }
+
+    fn sine(f_hz: f64, phase: f64, amplitude: f64, samples: std::ops::Range<usize>) -> Vec<f64> {
+        samples
+            .map(|k| amplitude * (TAU * f_hz * k as f64 / FS + phase).sin())
+            .collect()
+    }
+
+    /// Feed `signals` (one per stand) block by block, all stands of a block arriving
+    /// at the same instant, one block period apart; the evaluations in order.
+    fn feed(monitor: &mut ChatterMonitor, signals: &[Vec<f64>], t0: Instant) -> Vec<ChatterResult> {
+        let mut results = Vec::new();
+        let period = Duration::from_secs_f64(BLOCK as f64 / FS);
+        for (b, start) in (0..signals[0].len()).step_by(BLOCK).enumerate() {
+            let arrival = t0 + period * b as u32;
+            for (s, signal) in signals.iter().enumerate() {
+                let end = (start + BLOCK).min(signal.len());
+                if let Some(ChatterUpdate::Evaluated(r)) =
+                    monitor.samples(s, &signal[start..end], arrival)
+                {
+                    results.push(r);
+                }
+            }
+        }
+        results
+    }
+
+    #[test]
+    fn pure_sine_frequency_within_interpolation_accuracy() {
+        let step = monitor(2).frequency_step_hz();
+        assert_eq!(step, 2.0);
+        let mut worst: f64 = 0.0;
+        // Across a bin: on a bin, a quarter and half way between bins.
+        for f_hz in [150.0, 150.5, 151.0, 187.3, 222.9, 280.75] {
+            let mut monitor = monitor(2);
+            assert_eq!(
+                (monitor.window_samples(), monitor.hop_samples()),
+                (1250, 625)
+            );
+            let signal = sine(f_hz, 0.3, 2.0, 0..3000);
+            let results = feed(&mut monitor, &[signal.clone(), signal], Instant::now());
+            let r = results.last().expect("one window");
+            for stand in &r.stands {
+                let error = stand.principal_hz - f_hz;
+                worst = worst.max(error.abs());
+                assert!(
+                    error.abs() <= 0.1 * step,
+                    "{f_hz} Hz: found {}",
+                    stand.principal_hz
+                );
+                assert!((stand.amplitude - 2.0).abs() < 0.2, "{stand:?}");
+            }
+            assert!(r.sigma_n_hz < 1e-9 && r.frequencies_locked);
+            assert!((r.k_mean - 1.0).abs() < 1e-9, "{}", r.k_mean);
+        }
+        println!("worst interpolated frequency error {worst:.4} Hz at a {step} Hz step");
+    }
+
+    #[test]
+    fn one_evaluation_per_hop_on_aligned_windows() {
+        let mut monitor = monitor(3);
+        let signals: Vec<Vec<f64>> = [160.0, 200.0, 240.0]
+            .iter()
+            .map(|&f| sine(f, 0.0, 1.0, 0..12_000))
+            .collect();
+        let results = feed(&mut monitor, &signals, Instant::now());
+        // The first block of each stand anchors it and is not used; then every 625
+        // samples a window of 1250 ends.
+        let usable = 12_000 - BLOCK;
+        assert_eq!(results.len(), (usable - 1250) / 625 + 1);
+        assert_eq!(monitor.evaluations(), results.len() as u64);
+        let r = results.last().unwrap();
+        let sigma = ((40.0f64.powi(2) * 2.0) / 2.0).sqrt();
+        assert!((r.sigma_n_hz - sigma).abs() < 0.2, "{}", r.sigma_n_hz);
+        assert!(!r.frequencies_locked && !r.correlated && !r.synchronized);
+        assert!(r.k_mean.abs() < 0.05, "{}", r.k_mean);
+    }
+
+    #[test]
+    fn common_vibration_outside_the_band_is_not_correlation() {
+        let mut monitor = monitor(2);
+        // Independent chatter-band lines under a large common 20 Hz roll vibration.
+        let common = sine(20.0, 0.0, 10.0, 0..5000);
+        let signals: Vec<Vec<f64>> = [(150.0, 0.0), (260.0, 1.0)]
+            .iter()
+            .map(|&(f, p)| {
+                let own = sine(f, p, 1.0, 0..5000);
+                own.iter().zip(&common).map(|(a, b)| a + b).collect()
+            })
+            .collect();
+        let r = feed(&mut monitor, &signals, Instant::now()).pop().unwrap();
+        assert!(r.k_mean.abs() < 0.05, "K_mean {}", r.k_mean);
+        assert!((r.stands[0].principal_hz - 150.0).abs() < 0.2);
+        assert!((r.stands[1].principal_hz - 260.0).abs() < 0.2);
+    }
+
+    #[test]
+    fn gap_restarts_the_window_and_flags_until_a_full_one() {
+        let mut monitor = monitor(2);
+        let t0 = Instant::now();
+        let signal = sine(180.0, 0.0, 1.0, 0..40 * BLOCK);
+        let block = |b: usize| &signal[b * BLOCK..(b + 1) * BLOCK];
+        let period = Duration::from_secs_f64(BLOCK as f64 / FS);
+        let mut evaluated_at = Vec::new();
+        for b in 0..40 {
+            let arrival = t0 + period * b as u32;
+            if b == 15 {
+                assert_eq!(
+                    monitor.gap(1, Some(BLOCK as u64)),
+                    Some(ChatterUpdate::Restarted(RestartCause::Gap { stand: 1 }))
+                );
+            }
+            for s in 0..2 {
+                // Stand 1 loses block 14: the gap above says so.
+                if s == 1 && b == 14 {
+                    continue;
+                }
+                if let Some(ChatterUpdate::Evaluated(_)) = monitor.samples(s, block(b), arrival) {
+                    evaluated_at.push(b);
+                }
+            }
+        }
+        // Block 0 anchors; windows of 1250 from sample 120 end in block 11, then
+        // every 625 samples (block 16 would be next). The gap at block 15 restarts
+        // at sample 1800: windows end at 3050 (block 25), 3675 (30), 4300 (35).
+        assert_eq!(evaluated_at, [11, 25, 30, 35]);
+    }
+
+    #[test]
+    fn stand_that_stops_is_flagged_once() {
+        let mut monitor = monitor(2);
+        let t0 = Instant::now();
+        let signal = sine(180.0, 0.0, 1.0, 0..40 * BLOCK);
+        let period = Duration::from_secs_f64(BLOCK as f64 / FS);
+        let mut restarts = Vec::new();
+        for b in 0..40 {
+            for s in 0..2 {
+                if s == 1 && b >= 5 {
+                    continue;
+                }
+                let values = &signal[b * BLOCK..(b + 1) * BLOCK];
+                if let Some(ChatterUpdate::Restarted(cause)) =
+                    monitor.samples(s, values, t0 + period * b as u32)
+                {
+                    restarts.push((b, cause));
+                }
+            }
+        }
+        let lagging: Vec<_> = restarts
+            .iter()
+            .filter(|(_, c)| matches!(c, RestartCause::Lagging { .. }))
+            .collect();
+        assert_eq!(lagging.len(), 1, "{restarts:?}");
+        // 0.5 s = 1250 samples: the lag passes that at the 11th block after the stop.
+        assert_eq!(
+            *lagging[0],
+            (5 + 1250 / BLOCK, RestartCause::Lagging { stand: 1 })
+        );
+    }
+
+    #[test]
+    fn stand_starting_one_block_late_is_realigned_from_arrival_times() {
+        // A shared chatter line at a frequency where a one-block (48 ms) shift turns
+        // the phase by half a turn: misaligned stands would anti-correlate.
+        let f_hz = 197.0 + 11.0 / 12.0;
+        let mut monitor = monitor(2);
+        let signal = sine(f_hz, 0.0, 1.0, 0..60 * BLOCK);
+        let period = Duration::from_secs_f64(BLOCK as f64 / FS);
+        let poll = Duration::from_millis(20);
+        let t0 = Instant::now();
+        // DAQ block b is published at t0 + b * period; a poll every 20 ms reads the
+        // newest block of each stand. At the first poll block 1 of stand 1 is already
+        // out when it is read (published between the two reads), block 0 for stand 0.
+        // DAQ block b is published at t0 + b * period; a poll every 20 ms reads the
+        // newest block of each stand. The first poll reads stand 0 just before block 1
+        // is published and stand 1 just after: stand 1 starts one block ahead.
+        let mut last = [None, None];
+        let mut results = Vec::new();
+        for p in 0..140u32 {
+            let at = t0 + period - Duration::from_micros(100) + poll * p;
+            let newest = ((at - t0).as_nanos() / period.as_nanos()) as usize;
+            for (s, last) in last.iter_mut().enumerate() {
+                let (block, at) = if p == 0 && s == 1 {
+                    (1, at + Duration::from_micros(200))
+                } else {
+                    (newest, at)
+                };
+                if last.is_some_and(|l| l >= block) {
+                    continue;
+                }
+                *last = Some(block);
+                let values = &signal[block * BLOCK..(block + 1) * BLOCK];
+                if let Some(ChatterUpdate::Evaluated(r)) = monitor.samples(s, values, at) {
+                    results.push(r);
+                }
+            }
+        }
+        let r = results.last().expect("evaluations after realignment");
+        assert!(r.k_mean > 0.95, "K_mean {}", r.k_mean);
+        assert!(r.synchronized);
+    }
+}

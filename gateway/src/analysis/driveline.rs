@@ -1,0 +1,290 @@
+//! One driveline's bites: detection on its torque channel (and its "metal in stand"
+//! trigger), the window analysis, the wear index against its model, and the results
+//! published for the register map.
+
+use std::time::{Instant, SystemTime, UNIX_EPOCH};
+
+use millgate_config::{Channel, Driveline};
+use millgate_dsp::bite::{BiteEvent, BiteSettings};
+use millgate_dsp::transient::{TransientResult, TransientSettings};
+
+use super::bite_window::{
+    analyze_window, Detector, DetectorState, PRE_TRIGGER_CAPACITY, WINDOW_CAPACITY,
+};
+use super::error::AnalysisError;
+use super::wear::{self, WearEstimate, WearReference};
+use crate::outputs::publisher::Publisher;
+
+/// Low-pass cut-off for period measurement of a driveline without a model, Hz: keeps
+/// the first modes (10-30 Hz, domain notes 1.3) and removes measurement noise above
+/// them. With a model the wear map's cut-off is used (1.5 x its second mode), so
+/// measured period shifts compare with the maps.
+const PERIOD_LOWPASS_HZ: f64 = 40.0;
+
+/// One analysed bite, as printed by the demo and logged by the service.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BiteReport {
+    /// Index of the driveline in the configuration.
+    pub driveline: usize,
+    /// The driveline's name.
+    pub driveline_name: String,
+    /// The torque channel's name.
+    pub channel_name: String,
+    /// Index of the trigger sample in the channel's stream since start.
+    pub trigger_sample: u64,
+    /// Wall-clock time of the trigger: counted back from the receive time of the
+    /// window's last sample when the reader gave one (CAN kernel timestamps), else
+    /// from when the window completed here.
+    pub time: SystemTime,
+    /// When the window's last sample was handed to analysis (before the analysis ran).
+    pub window_complete: Instant,
+    /// Static torque, peak, TAF and periods.
+    pub transient: TransientResult,
+    /// Natural frequencies from the eq. (1) fit, Hz, when it converged.
+    pub beta_hz: Option<(f64, f64)>,
+    /// The window had gaps, NaN or saturated samples.
+    pub degraded: bool,
+    /// Wear measures against the linear reference; `None` without a driveline model
+    /// or when the bite has no TAF.
+    pub wear: Option<WearEstimate>,
+}
+
+/// Bite detection and analysis of one driveline.
+#[derive(Debug)]
+pub(super) struct DrivelineAnalyzer {
+    index: usize,
+    name: String,
+    channel_name: String,
+    sample_rate_hz: f64,
+    detector: Detector,
+    state: DetectorState,
+    transient: TransientSettings,
+    taf_warning: f64,
+    taf_alarm: f64,
+    /// Rise above the baseline that marks the load onset for the fit, kN*m.
+    onset_knm: f64,
+    trigger_high: bool,
+    /// Linear references, when the driveline has a model file.
+    wear: Option<WearReference>,
+}
+
+impl DrivelineAnalyzer {
+    pub(super) fn new(
+        index: usize,
+        driveline: &Driveline,
+        torque: &Channel,
+    ) -> Result<Self, AnalysisError> {
+        let fs = torque.sample_rate_hz;
+        let bite = driveline.bite;
+        let post_trigger_samples = (bite.post_trigger_s * fs).round() as usize;
+        let pre_trigger_samples = (bite.pre_trigger_s * fs).round() as usize;
+        if pre_trigger_samples > PRE_TRIGGER_CAPACITY
+            || post_trigger_samples > WINDOW_CAPACITY - PRE_TRIGGER_CAPACITY
+        {
+            return Err(AnalysisError::BiteWindow {
+                index,
+                pre_trigger_s: bite.pre_trigger_s,
+                post_trigger_s: bite.post_trigger_s,
+                sample_rate_hz: fs,
+                pre_samples: pre_trigger_samples,
+                post_samples: post_trigger_samples,
+            });
+        }
+        // i16 samples: the ends of the raw range are saturation.
+        let raw_limit = |raw: i16| f64::from(raw) * torque.scale + torque.offset;
+        let (low, high) = (raw_limit(i16::MIN + 1), raw_limit(i16::MAX));
+        let settings = BiteSettings {
+            threshold_knm: bite.threshold_knm,
+            rearm_knm: bite.threshold_knm / 2.0,
+            holdoff_samples: post_trigger_samples as u32,
+            // Baseline time constant 0.5 s: follows a drifting zero, not a bite.
+            baseline_alpha: 1.0 / (0.5 * fs).max(1.0),
+            saturation_low_knm: low.min(high),
+            saturation_high_knm: low.max(high),
+            post_trigger_samples,
+        };
+        let detector = Detector::new(settings)
+            .map_err(|source| AnalysisError::BiteSettings { index, source })?;
+        let mut transient = TransientSettings {
+            sample_rate_hz: fs,
+            period_lowpass_hz: PERIOD_LOWPASS_HZ.min(0.4 * fs),
+            peak_lowpass_hz: None,
+            settled_fraction: 0.3,
+            min_static_knm: bite.threshold_knm / 2.0,
+            reference_shift_s: None,
+        };
+        let onset_knm = 0.1 * bite.threshold_knm;
+        let wear = match &driveline.model {
+            Some(path) => {
+                let model = millgate_sim::model::Model::load(path)
+                    .map_err(|source| AnalysisError::Model { index, source })?;
+                match millgate_sim::wear_map::default_period_lowpass_hz(&model) {
+                    Ok(cutoff) if cutoff > 0.0 => {
+                        transient.period_lowpass_hz = cutoff.min(0.4 * fs);
+                    }
+                    Ok(_) => {}
+                    Err(error) => tracing::warn!(
+                        driveline = %driveline.name,
+                        %error,
+                        cutoff_hz = transient.period_lowpass_hz,
+                        "no modes of the model: periods measured with the default cut-off"
+                    ),
+                }
+                let mut wear =
+                    WearReference::new(&model, detector, transient, onset_knm, bite.pre_trigger_s);
+                // Simulate the model's own load level now: a model that cannot give a
+                // reference is reported at start, not at the first bite.
+                match wear.reference(model.load.static_torque) {
+                    Ok(reference) => tracing::info!(
+                        driveline = %driveline.name,
+                        period_lowpass_hz = transient.period_lowpass_hz,
+                        level_knm = reference.level_knm,
+                        reference_taf = reference.taf,
+                        reference_shift_s = ?reference.period_shift_s,
+                        "linear wear reference"
+                    ),
+                    Err(error) => tracing::warn!(
+                        driveline = %driveline.name,
+                        %error,
+                        "no linear wear reference at the model's load"
+                    ),
+                }
+                Some(wear)
+            }
+            None => None,
+        };
+        Ok(Self {
+            index,
+            name: driveline.name.clone(),
+            channel_name: torque.name.clone(),
+            sample_rate_hz: fs,
+            state: detector.state(),
+            detector,
+            transient,
+            taf_warning: driveline.thresholds.taf_warning,
+            taf_alarm: driveline.thresholds.taf_alarm,
+            onset_knm,
+            trigger_high: false,
+            wear,
+        })
+    }
+
+    /// Wear measures of an analysed bite, when the driveline has a model.
+    fn wear_estimate(&mut self, transient: &TransientResult) -> Option<WearEstimate> {
+        let wear = self.wear.as_mut()?;
+        let taf = transient.taf?;
+        match wear.estimate(transient.static_torque_knm, taf, transient.period_shift_s) {
+            Ok(estimate) => estimate,
+            Err(error) => {
+                tracing::warn!(driveline = %self.name, %error, "no wear index for this bite");
+                None
+            }
+        }
+    }
+
+    /// The report of a completed window whose last sample was received at
+    /// `last_sample_time` (now when unknown).
+    fn report(
+        &mut self,
+        event: &BiteEvent<WINDOW_CAPACITY>,
+        last_sample_time: Option<SystemTime>,
+    ) -> Option<BiteReport> {
+        let window_complete = Instant::now();
+        let result = analyze_window(
+            &event.window,
+            event.trigger_index,
+            event.baseline_knm,
+            self.onset_knm,
+            &self.transient,
+        );
+        let analysis = match result {
+            Ok(analysis) => analysis,
+            Err(error) => {
+                tracing::warn!(driveline = %self.name, %error, "bite window not analysable");
+                return None;
+            }
+        };
+        // The last window sample is `len - 1 - trigger_index` samples after the trigger.
+        let after_trigger =
+            (event.window.len() - 1 - event.trigger_index) as f64 / self.sample_rate_hz;
+        Some(BiteReport {
+            driveline: self.index,
+            driveline_name: self.name.clone(),
+            channel_name: self.channel_name.clone(),
+            trigger_sample: event.trigger_sample,
+            time: before(
+                last_sample_time.unwrap_or_else(SystemTime::now),
+                after_trigger,
+            ),
+            window_complete,
+            transient: analysis.transient,
+            beta_hz: analysis.good_fit().map(|fit| (fit.f1_hz, fit.f2_hz)),
+            degraded: !event.quality.is_good(),
+            wear: self.wear_estimate(&analysis.transient),
+        })
+    }
+
+    /// Process `values`, the last of which was received at `received` (when known).
+    pub(super) fn samples(
+        &mut self,
+        values: &[f64],
+        received: Option<SystemTime>,
+        reports: &mut Vec<BiteReport>,
+    ) {
+        for (i, &value) in values.iter().enumerate() {
+            if let Some(event) = self.detector.process(&mut self.state, value) {
+                let later = (values.len() - 1 - i) as f64 / self.sample_rate_hz;
+                let time = received.map(|last| before(last, later));
+                reports.extend(self.report(&event, time));
+            }
+        }
+    }
+
+    pub(super) fn gap(&mut self, missed: Option<u64>, reports: &mut Vec<BiteReport>) {
+        if let Some(event) = self.detector.gap(&mut self.state, missed.unwrap_or(0)) {
+            reports.extend(self.report(&event, None));
+        }
+    }
+
+    /// Record `report`, a bite of this driveline, in the published results.
+    pub(super) fn publish(&self, publisher: &Publisher, report: &BiteReport) {
+        publisher.update(|results| {
+            let driveline = &mut results.drivelines[report.driveline];
+            let t = &report.transient;
+            driveline.bite_counter = driveline.bite_counter.wrapping_add(1);
+            driveline.last_bite_unix_s = report
+                .time
+                .duration_since(UNIX_EPOCH)
+                .ok()
+                .and_then(|d| u32::try_from(d.as_secs()).ok());
+            driveline.static_torque_knm = Some(t.static_torque_knm);
+            driveline.peak_torque_knm = Some(t.peak_torque_knm);
+            driveline.taf = t.taf;
+            driveline.first_period_shift_s = t.period_shift_s;
+            driveline.beta1_hz = report.beta_hz.map(|(beta1, _)| beta1);
+            driveline.beta2_hz = report.beta_hz.map(|(_, beta2)| beta2);
+            driveline.last_bite_degraded = report.degraded;
+            driveline.warning = t.taf.is_some_and(|taf| taf >= self.taf_warning);
+            driveline.alarm |= t.taf.is_some_and(|taf| taf >= self.taf_alarm);
+            driveline.wear_index = report.wear.map(|wear| wear.index);
+            if let (Some(index), false) = (driveline.wear_index, report.degraded) {
+                driveline.wear_trend = Some(wear::next_trend(driveline.wear_trend, index));
+            }
+        });
+    }
+
+    /// "Metal in stand": a rising edge through 0.5 triggers a capture.
+    pub(super) fn trigger_value(&mut self, value: f64) {
+        let high = value > 0.5;
+        if high && !self.trigger_high {
+            self.detector.trigger(&mut self.state);
+        }
+        self.trigger_high = high;
+    }
+}
+
+/// `time` moved back by `seconds` (>= 0), saturating at the Unix epoch.
+fn before(time: SystemTime, seconds: f64) -> SystemTime {
+    time.checked_sub(std::time::Duration::from_secs_f64(seconds.max(0.0)))
+        .unwrap_or(UNIX_EPOCH)
+}

@@ -1,0 +1,251 @@
+//! Wear index of a driveline: the measured bite against its linear reference.
+//!
+//! When a driveline names a model file (`drivelines[i].model`, a `millgate-sim`
+//! model TOML), the gateway simulates the **linear reference**: the same model with
+//! every coupling's backlash forced to 0 (its other properties, damping, motor
+//! controller, load rise, stay as in the file), loaded to the static torque the bite
+//! measured. The simulated torque goes through the same bite detector and the same
+//! `dsp` transient analysis as the measured samples, which gives the reference TAF and
+//! the reference first-period shift (domain notes, section 1.3: the linear model's
+//! response is the reference, wear is the departure from it).
+//!
+//! - **Wear index** = measured TAF / reference TAF - 1. It is about 0 for a driveline
+//!   without opened backlash and grows with the gap. The period-shift excess
+//!   (measured minus reference first-period shift, s) is reported beside it in
+//!   [`WearEstimate`] but not folded into the index: it needs three clean
+//!   up-crossings, which a short or noisy bite may not give.
+//! - **Reference cache**: references are cached by the static torque rounded to
+//!   [`STATIC_TORQUE_STEP_KNM`]; a bite at a new level simulates once (a few ms), later
+//!   bites at that level reuse it. The level, not the exact measured value, is what is
+//!   simulated. For a linear driveline the response scales with the load, so TAF
+//!   hardly depends on the level; what changes with it is where the fixed bite
+//!   threshold cuts the load rise, and the cache step is far finer than that matters.
+//! - **Wear trend**: an exponentially weighted mean of the wear index over bites,
+//!   weight [`WEAR_TREND_WEIGHT`] for the newest (a time constant of about 10 bites),
+//!   seeded by the first index after start or after the maintenance engineer resets it
+//!   (command register `command.reset_wear_trend`). Degraded windows (gaps, NaN,
+//!   saturation) do not move it.
+
+use std::collections::BTreeMap;
+
+use millgate_dsp::transient::{TransientError, TransientSettings};
+use millgate_sim::chain::simulate;
+use millgate_sim::model::{Model, ModelError};
+
+use super::bite_window::{analyze_window, Detector};
+
+/// Grid of the reference cache, kN*m: references are simulated at static torques
+/// that are multiples of this step.
+pub const STATIC_TORQUE_STEP_KNM: f64 = 5.0;
+/// Most cached reference levels; the cache is emptied when a new level would pass it
+/// (at 5 kN*m steps, 0 to 640 kN*m fits, far beyond any rolling torque).
+const MAX_CACHED_LEVELS: usize = 128;
+/// Time simulated after the bite window, s: margin for the load rise to reach the
+/// bite threshold at low static torques.
+const RISE_MARGIN_S: f64 = 0.5;
+/// Idle time simulated before the load onset beyond the pre-trigger window, s, so the
+/// detector has a baseline and a full pre-trigger history, as on a real bar.
+const IDLE_MARGIN_S: f64 = 0.05;
+/// Weight of the newest wear index in the wear trend (EWMA), in (0, 1].
+pub const WEAR_TREND_WEIGHT: f64 = 0.1;
+
+/// Why a linear reference could not be computed.
+#[derive(Debug, thiserror::Error)]
+pub enum WearError {
+    /// The model could not be simulated (an invalid value after the overrides).
+    #[error("simulating the linear reference: {0}")]
+    Model(#[from] ModelError),
+    /// The simulated load never crossed the bite threshold, or the window was cut.
+    #[error("the linear reference at {static_knm} kN*m gives no bite window")]
+    NoBite {
+        /// The static torque simulated, kN*m.
+        static_knm: f64,
+    },
+    /// The reference bite was detected but not analysable.
+    #[error("the linear reference at {static_knm} kN*m is not analysable: {source}")]
+    Analysis {
+        /// The static torque simulated, kN*m.
+        static_knm: f64,
+        /// Why the transient analysis refused the window.
+        #[source]
+        source: TransientError,
+    },
+    /// The reference has no TAF (static torque below the analysis minimum).
+    #[error("the linear reference at {static_knm} kN*m has no TAF")]
+    NoTaf {
+        /// The static torque simulated, kN*m.
+        static_knm: f64,
+    },
+}
+
+/// The linear reference at one static torque level.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Reference {
+    /// Static torque the reference was simulated at (a cache level), kN*m.
+    pub level_knm: f64,
+    /// TAF of the simulated linear bite.
+    pub taf: f64,
+    /// First minus second period of the simulated linear bite, s, when measured.
+    pub period_shift_s: Option<f64>,
+}
+
+/// A bite's wear measures against its reference.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WearEstimate {
+    /// Measured TAF / reference TAF - 1 (dimensionless; 0 = like the linear driveline).
+    pub index: f64,
+    /// The reference it was computed against.
+    pub reference: Reference,
+    /// Measured minus reference first-period shift, s, when both were measured.
+    pub shift_excess_s: Option<f64>,
+}
+
+/// Wear index of a bite of TAF `measured_taf` against `reference_taf`:
+/// `measured / reference - 1`; `None` unless both are finite and the reference > 0.
+///
+/// ```
+/// let index = millgate::analysis::wear::wear_index(2.2, 2.0).unwrap();
+/// assert!((index - 0.1).abs() < 1e-12);
+/// assert_eq!(millgate::analysis::wear::wear_index(2.2, 0.0), None);
+/// ```
+pub fn wear_index(measured_taf: f64, reference_taf: f64) -> Option<f64> {
+    let index = measured_taf / reference_taf - 1.0;
+    (measured_taf.is_finite() && reference_taf.is_finite() && reference_taf > 0.0).then_some(index)
+}
+
+/// The wear trend after one more `index`: EWMA with weight [`WEAR_TREND_WEIGHT`],
+/// seeded by `index` when there is no trend yet (start, or after a reset).
+pub fn next_trend(trend: Option<f64>, index: f64) -> f64 {
+    match trend.filter(|t| t.is_finite()) {
+        Some(trend) => trend + WEAR_TREND_WEIGHT * (index - trend),
+        None => index,
+    }
+}
+
+/// Linear references of one driveline, cached by static torque level.
+#[derive(Debug, Clone)]
+pub struct WearReference {
+    /// The driveline model with every backlash set to 0 and the measured channel's
+    /// sample rate.
+    linear: Model,
+    detector: Detector,
+    transient: TransientSettings,
+    onset_knm: f64,
+    /// Idle time before the load onset, s.
+    onset_s: f64,
+    /// Simulated record length, s.
+    duration_s: f64,
+    cache: BTreeMap<i64, Reference>,
+}
+
+impl WearReference {
+    /// References for a driveline described by `model`, analysed like its measured
+    /// bites: the same `detector` settings (pre-trigger `pre_trigger_s`, s), transient
+    /// settings (their sample rate becomes the simulation's) and onset threshold, kN*m.
+    pub fn new(
+        model: &Model,
+        detector: Detector,
+        transient: TransientSettings,
+        onset_knm: f64,
+        pre_trigger_s: f64,
+    ) -> Self {
+        let mut linear = model.clone();
+        for coupling in &mut linear.couplings {
+            coupling.backlash = 0.0;
+        }
+        linear.measurement.sample_rate = transient.sample_rate_hz;
+        let post_trigger_s =
+            detector.settings().post_trigger_samples as f64 / transient.sample_rate_hz;
+        let onset_s = pre_trigger_s + IDLE_MARGIN_S;
+        Self {
+            linear,
+            detector,
+            transient,
+            onset_knm,
+            onset_s,
+            duration_s: onset_s + post_trigger_s + RISE_MARGIN_S,
+            cache: BTreeMap::new(),
+        }
+    }
+
+    /// The cache level of `static_knm`: the nearest multiple of
+    /// [`STATIC_TORQUE_STEP_KNM`], at least one step.
+    pub fn level_of(static_knm: f64) -> i64 {
+        ((static_knm / STATIC_TORQUE_STEP_KNM).round() as i64).max(1)
+    }
+
+    /// Number of cached levels.
+    pub fn cached_levels(&self) -> usize {
+        self.cache.len()
+    }
+
+    /// The reference for a bite of static torque `static_knm`, kN*m: from the cache,
+    /// or simulated at its level and cached.
+    pub fn reference(&mut self, static_knm: f64) -> Result<Reference, WearError> {
+        let level = Self::level_of(static_knm);
+        if let Some(reference) = self.cache.get(&level) {
+            return Ok(*reference);
+        }
+        let reference = self.simulate(level as f64 * STATIC_TORQUE_STEP_KNM)?;
+        if self.cache.len() >= MAX_CACHED_LEVELS {
+            self.cache.clear();
+        }
+        self.cache.insert(level, reference);
+        Ok(reference)
+    }
+
+    /// The wear measures of a bite of static torque `static_knm` (kN*m), TAF `taf`
+    /// and first-period shift `period_shift_s` (s).
+    pub fn estimate(
+        &mut self,
+        static_knm: f64,
+        taf: f64,
+        period_shift_s: Option<f64>,
+    ) -> Result<Option<WearEstimate>, WearError> {
+        let reference = self.reference(static_knm)?;
+        Ok(wear_index(taf, reference.taf).map(|index| WearEstimate {
+            index,
+            reference,
+            shift_excess_s: period_shift_s
+                .zip(reference.period_shift_s)
+                .map(|(measured, linear)| measured - linear),
+        }))
+    }
+
+    /// Simulate and analyse the linear reference at `level_knm`.
+    fn simulate(&self, level_knm: f64) -> Result<Reference, WearError> {
+        let mut model = self.linear.clone();
+        model.load.static_torque = level_knm;
+        model.load.onset = self.onset_s;
+        model.measurement.duration = self.duration_s;
+        let transient = simulate(&model)?;
+        let mut state = self.detector.state();
+        let event = transient
+            .torque_knm
+            .iter()
+            .find_map(|&torque| self.detector.process(&mut state, torque))
+            .filter(|event| event.quality.is_good())
+            .ok_or(WearError::NoBite {
+                static_knm: level_knm,
+            })?;
+        let analysis = analyze_window(
+            &event.window,
+            event.trigger_index,
+            event.baseline_knm,
+            self.onset_knm,
+            &self.transient,
+        )
+        .map_err(|error| WearError::Analysis {
+            static_knm: level_knm,
+            source: error,
+        })?;
+        let taf = analysis.transient.taf.ok_or(WearError::NoTaf {
+            static_knm: level_knm,
+        })?;
+        Ok(Reference {
+            level_knm,
+            taf,
+            period_shift_s: analysis.transient.period_shift_s,
+        })
+    }
+}

@@ -1,0 +1,163 @@
+//! `millgate check --config FILE`: validate a configuration, build everything the
+//! service builds from it, and describe it.
+
+use std::path::Path;
+
+use millgate_config::ConfigError;
+
+use crate::service::{Service, ServiceError};
+
+/// Why `millgate check` rejects a configuration.
+#[derive(Debug, thiserror::Error)]
+pub enum CheckError {
+    /// The file does not load: every problem, one per line, as
+    /// `<file>: <key path>: <problem>`.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// The file is valid, but the service cannot be built from it (a driveline model
+    /// that does not load, a bite window beyond the detector's capacity, a chatter
+    /// window too short for its band): `<file>: <key path>: <problem>`.
+    #[error("{file}: {source}")]
+    Service {
+        /// The configuration file as given.
+        file: String,
+        /// What the service refused (boxed: a service error is large, a check error
+        /// should not be).
+        #[source]
+        source: Box<ServiceError>,
+    },
+}
+
+/// Loads and validates the configuration at `path`, builds what `millgate run` builds
+/// before it opens a socket (detectors, wear references from the driveline models,
+/// chatter monitors), and returns the summary `millgate check` prints.
+///
+/// The error names the file, the key and the problem; `main` prints it and exits
+/// non-zero.
+///
+/// ```no_run
+/// match millgate::cli::check::check(std::path::Path::new("config/examples/demo.toml")) {
+///     Ok(summary) => print!("{summary}"),
+///     Err(problems) => eprintln!("{problems}"),
+/// }
+/// ```
+pub fn check(path: &Path) -> Result<String, CheckError> {
+    let config = millgate_config::load(path)?;
+    let summary = millgate_config::summary(&config);
+    Service::new(config).map_err(|source| CheckError::Service {
+        file: path.display().to_string(),
+        source: Box::new(source),
+    })?;
+    Ok(format!("{}: OK\n{summary}", path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn example(name: &str) -> std::path::PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../config/examples")
+            .join(name)
+    }
+
+    #[test]
+    fn accepts_each_example_and_summarises_it() {
+        for (file, expected) in [
+            ("demo.toml", "spindle_top: torque"),
+            ("hot-mill.toml", "F1 main drive: torque spindle_top"),
+            ("tandem-5stand.toml", "TCM 2030: 5 stands"),
+        ] {
+            let summary = check(&example(file)).unwrap_or_else(|error| panic!("{error}"));
+            assert!(summary.contains(": OK\n"), "{summary}");
+            assert!(summary.contains(expected), "{file}: {summary}");
+        }
+    }
+
+    /// `example` with `from` replaced by `to`, written as `name.toml` beside the
+    /// examples' DBC and models in a fresh directory; checked, then removed.
+    fn check_variant(example_file: &str, from: &str, to: &str) -> Result<String, CheckError> {
+        let text = std::fs::read_to_string(example(example_file)).expect("the example");
+        assert!(text.contains(from), "{example_file} has `{from}`");
+        let directory = std::env::temp_dir().join(format!(
+            "millgate-check-{}-{}",
+            std::process::id(),
+            to.len()
+        ));
+        std::fs::create_dir_all(&directory).expect("temporary directory");
+        std::fs::copy(example("mill.dbc"), directory.join("mill.dbc")).expect("copy the DBC");
+        let path = directory.join("variant.toml");
+        std::fs::write(&path, text.replace(from, to)).expect("write the variant");
+        let result = check(&path);
+        std::fs::remove_dir_all(&directory).expect("remove the temporary directory");
+        result
+    }
+
+    #[test]
+    fn bite_window_beyond_the_detector_capacity_is_reported_with_its_key() {
+        // 2 s after the trigger at 2 kHz: 4000 samples, the detector holds 1792.
+        let error = check_variant("demo.toml", "post_trigger_s = 0.5", "post_trigger_s = 2.0")
+            .expect_err("window beyond capacity");
+        let text = error.to_string();
+        assert!(matches!(error, CheckError::Service { .. }), "{text}");
+        assert!(
+            text.contains(
+                "variant.toml: drivelines[0].bite: pre_trigger_s 0.1 s and post_trigger_s 2 s"
+            ),
+            "{text}"
+        );
+        assert!(text.contains("need 200 + 4000 samples"), "{text}");
+        assert!(text.contains("at most 256 + 1792"), "{text}");
+    }
+
+    #[test]
+    fn chatter_window_too_short_for_the_band_is_reported_with_its_key() {
+        // 20 ms: a 50 Hz frequency step, no bin inside 110..140 Hz.
+        let error = check_variant(
+            "tandem-5stand.toml",
+            "chatter_band_hz = [100.0, 300.0]\nwindow_s = 0.5",
+            "chatter_band_hz = [110.0, 140.0]\nwindow_s = 0.02",
+        )
+        .expect_err("window too short for the band");
+        let text = error.to_string();
+        assert!(
+            text.contains("variant.toml: tandem_mills[0].window_s: 0.02 s is too short for the chatter band 110..140 Hz"),
+            "{text}"
+        );
+        assert!(text.contains("frequency step 50 Hz"), "{text}");
+    }
+
+    #[test]
+    fn lists_every_problem() {
+        let directory = std::env::temp_dir().join(format!("millgate-check-{}", std::process::id()));
+        std::fs::create_dir_all(&directory).expect("temporary directory");
+        let path = directory.join("bad.toml");
+        std::fs::write(
+            &path,
+            "name = \"bad\"\n\
+             [[sources.modbus]]\n\
+             name = \"daq1\"\n\
+             address = \"127.0.0.1\"\n\
+             unit_id = 300\n\
+             poll_period_ms = 20\n",
+        )
+        .expect("write the test file");
+        let error = check(&path).expect_err("two problems");
+        std::fs::remove_dir_all(&directory).expect("remove the temporary directory");
+        let CheckError::Config(error) = error else {
+            panic!("a configuration problem: {error}");
+        };
+        assert_eq!(error.problems.len(), 2, "{error}");
+        let text = error.to_string();
+        assert!(
+            text.contains("bad.toml: sources.modbus[0].address: \"127.0.0.1\" is not allowed"),
+            "{text}"
+        );
+        assert!(
+            text.contains(
+                "bad.toml: sources.modbus[0].unit_id: 300 is not allowed (must be 0..=255)"
+            ),
+            "{text}"
+        );
+    }
+}

@@ -1,0 +1,42 @@
+//! The command-line tools apart from the service (`millgate run`): each command is a
+//! module with its arguments (a clap `Args` struct) and a `run` returning what to print;
+//! `main` parses the command line and prints.
+//!
+//! - `millgate check --config FILE`: [`check`]
+//! - `millgate registers --config FILE --format md|csv|json`: [`registers`]
+//! - `millgate analyze --input FILE.csv [--channel NAME] [--window START,END] [--format text|json]`:
+//!   [`analyze`] (CSV reading in [`csv`])
+//! - `millgate stiffness --inertia Q1,Q2,Q3 (--freq B1,B2 | --stiffness C12,C23)
+//!   [--drawing C12,C23] [--format text|json]`: [`stiffness`]
+//! - `millgate discrepancy --measured FILE.csv --model MODEL.toml [--channel NAME]
+//!   [--report DIR] [--format text|json]`: `discrepancy`
+//! - `millgate sim transient|modes|wear-map ...`: `sim`
+//! - `millgate rod check|mathieu|floquet ...`: `rod` (rod mills, parametric stability)
+//! - `millgate demo [--duration S]`: `demo`
+//!
+//! `discrepancy`, `sim`, `rod` and `demo` come with the default `sim-tools` feature (they
+//! need the simulator's virtual devices or plots).
+
+pub mod analyze;
+pub mod check;
+pub mod csv;
+#[cfg(feature = "sim-tools")]
+pub mod demo;
+#[cfg(feature = "sim-tools")]
+pub mod discrepancy;
+pub mod registers;
+#[cfg(feature = "sim-tools")]
+pub mod rod;
+#[cfg(feature = "sim-tools")]
+pub mod sim;
+pub mod stiffness;
+
+/// Output format of the offline commands.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum OutputFormat {
+    /// Human-readable lines.
+    #[default]
+    Text,
+    /// One JSON document.
+    Json,
+}

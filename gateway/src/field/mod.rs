@@ -1,0 +1,11 @@
+//! Field I/O: the reader tasks that turn DAQ register blocks (Modbus TCP) and CAN
+//! frames (SocketCAN) into [`acquired::Acquired`] messages on the bounded channel to
+//! analysis, with their counters and source health.
+
+pub mod acquired;
+pub(crate) mod backoff;
+pub mod can;
+pub mod counters;
+pub mod daq_reader;
+pub(crate) mod modbus_client;
+pub mod source_health;

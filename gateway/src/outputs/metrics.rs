@@ -1,0 +1,384 @@
+//! Prometheus `/metrics` endpoint: acquisition counters per channel and health per
+//! source, in the text exposition format (version 0.0.4).
+//!
+//! A minimal HTTP/1.1 responder on tokio: it answers `GET /metrics` and 404
+//! otherwise, one request per connection. Pulling in an HTTP framework for one
+//! read-only page on loopback would add far more than it saves.
+
+use std::fmt::Write as _;
+use std::sync::Arc;
+
+use millgate_config::Config;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream};
+
+use crate::field::counters::{CanCounters, CanCounts, ChannelCounters, ChannelCountersSnapshot};
+use crate::field::source_health::SourceHealth;
+use crate::outputs::publisher::Publisher;
+use crate::outputs::results::{DrivelineResults, MillResults};
+use crate::shutdown::Shutdown;
+
+/// Reads one counter out of a snapshot.
+type CounterOf = fn(&ChannelCountersSnapshot) -> u64;
+
+/// Reads one counter out of CAN counts.
+type CanCounterOf = fn(&CanCounts) -> u64;
+
+/// A per-CAN-source metric: name, type, help, value as printed.
+type CanMetric = (
+    &'static str,
+    &'static str,
+    &'static str,
+    fn(&CanCounts) -> String,
+);
+
+/// What the metrics page shows.
+#[derive(Debug)]
+pub struct Metrics {
+    channel_names: Vec<String>,
+    source_names: Vec<String>,
+    counters: Vec<Arc<ChannelCounters>>,
+    health: Vec<Arc<SourceHealth>>,
+    can_names: Vec<String>,
+    can_counters: Vec<Arc<CanCounters>>,
+    publisher: Arc<Publisher>,
+}
+
+/// Writes one metric family, `(name, type, help)`: HELP, TYPE and one sample per
+/// labelled row that has a value.
+fn family<'a>(
+    out: &mut String,
+    (metric, kind, help): (&str, &str, &str),
+    label: &str,
+    rows: impl Iterator<Item = (&'a str, Option<f64>)>,
+) {
+    let _ = writeln!(out, "# HELP {metric} {help}");
+    let _ = writeln!(out, "# TYPE {metric} {kind}");
+    for (name, value) in rows {
+        if let Some(value) = value {
+            let _ = writeln!(out, "{metric}{{{label}=\"{}\"}} {value}", escape(name));
+        }
+    }
+}
+
+fn escape(label: &str) -> String {
+    label
+        .replace('\\', "\\\\")
+        .replace('"', "\\\"")
+        .replace('\n', "\\n")
+}
+
+impl Metrics {
+    /// The page for `config`: per channel its `counters`, per source its `health`
+    /// (Modbus sources, then CAN sources), per CAN source its `can_counters`, and the
+    /// results of `publisher`.
+    pub fn new(
+        config: &Config,
+        counters: Vec<Arc<ChannelCounters>>,
+        health: Vec<Arc<SourceHealth>>,
+        can_counters: Vec<Arc<CanCounters>>,
+        publisher: Arc<Publisher>,
+    ) -> Self {
+        Self {
+            channel_names: config.channels.iter().map(|c| c.name.clone()).collect(),
+            source_names: config
+                .modbus_sources
+                .iter()
+                .map(|s| s.name.clone())
+                .chain(config.can_sources.iter().map(|s| s.name.clone()))
+                .collect(),
+            counters,
+            health,
+            can_names: config.can_sources.iter().map(|s| s.name.clone()).collect(),
+            can_counters,
+            publisher,
+        }
+    }
+
+    /// The page, in the Prometheus text format.
+    pub fn render(&self) -> String {
+        let mut out = String::new();
+        let snapshots: Vec<_> = self.counters.iter().map(|c| c.snapshot()).collect();
+        let counters: [(&str, &str, CounterOf); 5] = [
+            ("blocks_read", "Blocks or frames decoded", |s| s.blocks_read),
+            ("blocks_missed", "Blocks lost, from sequence gaps", |s| {
+                s.blocks_missed
+            }),
+            ("samples", "Samples passed to analysis", |s| s.samples),
+            ("timeouts", "Requests without an answer in time", |s| {
+                s.timeouts
+            }),
+            (
+                "errors",
+                "Transport errors, device exceptions and malformed replies",
+                |s| s.errors,
+            ),
+        ];
+        for (name, help, value) in counters {
+            let _ = writeln!(out, "# HELP millgate_channel_{name}_total {help}.");
+            let _ = writeln!(out, "# TYPE millgate_channel_{name}_total counter");
+            for (channel, snapshot) in self.channel_names.iter().zip(&snapshots) {
+                let _ = writeln!(
+                    out,
+                    "millgate_channel_{name}_total{{channel=\"{}\"}} {}",
+                    escape(channel),
+                    value(snapshot)
+                );
+            }
+        }
+        let _ = writeln!(
+            out,
+            "# HELP millgate_source_status Source status: 0 ok, 1 stale, 2 lost."
+        );
+        let _ = writeln!(out, "# TYPE millgate_source_status gauge");
+        for (source, health) in self.source_names.iter().zip(&self.health) {
+            let status = health.status();
+            let _ = writeln!(
+                out,
+                "millgate_source_status{{source=\"{}\",status=\"{}\"}} {}",
+                escape(source),
+                status.name(),
+                status.code()
+            );
+        }
+        let _ = writeln!(
+            out,
+            "# HELP millgate_source_connects_total Successful connections."
+        );
+        let _ = writeln!(out, "# TYPE millgate_source_connects_total counter");
+        for (source, health) in self.source_names.iter().zip(&self.health) {
+            let _ = writeln!(
+                out,
+                "millgate_source_connects_total{{source=\"{}\"}} {}",
+                escape(source),
+                health.connects()
+            );
+        }
+        let can: Vec<CanCounts> = self.can_counters.iter().map(|c| c.snapshot()).collect();
+        let can_counters: [(&str, &str, CanCounterOf); 9] = [
+            ("frames", "CAN frames received", |c| c.frames),
+            ("decoded", "CAN data frames decoded into samples", |c| {
+                c.decoded
+            }),
+            (
+                "unknown_id",
+                "CAN data frames with an id no channel uses",
+                |c| c.unknown_id,
+            ),
+            (
+                "bad_length",
+                "CAN data frames too short for their signals",
+                |c| c.bad_length,
+            ),
+            ("remote", "CAN remote frames", |c| c.remote_frames),
+            ("error", "CAN error frames", |c| c.error_frames),
+            (
+                "error_passive",
+                "CAN error frames reporting error passive",
+                |c| c.error_passive,
+            ),
+            ("bus_off", "CAN error frames reporting bus off", |c| {
+                c.bus_off
+            }),
+            (
+                "bad_size",
+                "CAN socket reads neither a classic nor an FD frame",
+                |c| c.bad_size,
+            ),
+        ];
+        for (name, help, value) in can_counters {
+            let _ = writeln!(out, "# HELP millgate_can_{name}_frames_total {help}.");
+            let _ = writeln!(out, "# TYPE millgate_can_{name}_frames_total counter");
+            for (source, counts) in self.can_names.iter().zip(&can) {
+                let _ = writeln!(
+                    out,
+                    "millgate_can_{name}_frames_total{{source=\"{}\"}} {}",
+                    escape(source),
+                    value(counts)
+                );
+            }
+        }
+        let per_can_source: [CanMetric; 4] = [
+            (
+                "millgate_can_kernel_drops_total",
+                "counter",
+                "CAN frames the kernel dropped because the socket receive queue was full (SO_RXQ_OVFL); each drop marks a gap.",
+                |c| c.kernel_drops.to_string(),
+            ),
+            (
+                "millgate_can_kernel_timestamps_total",
+                "counter",
+                "CAN frames that carried a kernel receive timestamp (SO_TIMESTAMPNS); the others are dated on arrival.",
+                |c| c.kernel_timestamps.to_string(),
+            ),
+            (
+                "millgate_can_receive_latency_seconds_sum",
+                "counter",
+                "Sum of the delays from kernel receive timestamp to the reader handling the frame, s.",
+                |c| format!("{:.9}", c.receive_latency_sum_ns as f64 * 1e-9),
+            ),
+            (
+                "millgate_can_receive_latency_max_seconds",
+                "gauge",
+                "Largest delay from kernel receive timestamp to the reader handling the frame, s.",
+                |c| format!("{:.9}", c.receive_latency_max_ns as f64 * 1e-9),
+            ),
+        ];
+        for (name, kind, help, value) in per_can_source {
+            let _ = writeln!(out, "# HELP {name} {help}");
+            let _ = writeln!(out, "# TYPE {name} {kind}");
+            for (source, counts) in self.can_names.iter().zip(&can) {
+                let _ = writeln!(
+                    out,
+                    "{name}{{source=\"{}\"}} {}",
+                    escape(source),
+                    value(counts)
+                );
+            }
+        }
+        let _ = writeln!(out, "# HELP millgate_can_bus_state Last reported bus state: 0 error active, 1 error passive, 2 bus off.");
+        let _ = writeln!(out, "# TYPE millgate_can_bus_state gauge");
+        for (source, counts) in self.can_names.iter().zip(&can) {
+            let _ = writeln!(
+                out,
+                "millgate_can_bus_state{{source=\"{}\"}} {}",
+                escape(source),
+                counts.bus_state.code()
+            );
+        }
+        let results = self.publisher.results();
+        // Per driveline, then per tandem mill; each family grouped (the exposition
+        // format wants one block per family), gauges only while their value is valid.
+        type DrivelineValueOf = fn(&DrivelineResults) -> Option<f64>;
+        let drivelines: [(&str, &str, &str, DrivelineValueOf); 4] = [
+            (
+                "millgate_bites_total",
+                "counter",
+                "Bites analysed per driveline.",
+                |d| Some(d.bite_counter as f64),
+            ),
+            (
+                "millgate_taf",
+                "gauge",
+                "Torque amplification factor of the last bite.",
+                |d| d.taf.filter(|_| !d.source_stale),
+            ),
+            (
+                "millgate_wear_index",
+                "gauge",
+                "Wear index of the last bite (TAF / linear reference TAF - 1).",
+                |d| d.wear_index.filter(|_| !d.source_stale),
+            ),
+            (
+                "millgate_wear_trend",
+                "gauge",
+                "Wear trend (EWMA of the wear index since start or reset).",
+                |d| d.wear_trend.filter(|_| !d.source_stale),
+            ),
+        ];
+        let driveline_rows: Vec<_> = results
+            .drivelines
+            .iter()
+            .zip(self.publisher.driveline_names())
+            .collect();
+        for (metric, kind, help, value) in drivelines {
+            let rows = driveline_rows
+                .iter()
+                .map(|(d, name)| (name.as_str(), value(d)));
+            family(&mut out, (metric, kind, help), "driveline", rows);
+        }
+        type MillValueOf = fn(&MillResults) -> Option<f64>;
+        let chatter: [(&str, &str, &str, MillValueOf); 3] = [
+            (
+                "millgate_chatter_evaluations_total",
+                "counter",
+                "Chatter windows evaluated per tandem mill.",
+                |m| Some(m.evaluations as f64),
+            ),
+            (
+                "millgate_chatter_sigma_n_hz",
+                "gauge",
+                "RMS deviation of adjacent stands' principal chatter-band frequencies, Hz.",
+                |m| m.sigma_n_hz.filter(|_| !m.source_stale),
+            ),
+            (
+                "millgate_chatter_k_mean",
+                "gauge",
+                "Mean correlation of adjacent stands' chatter-band vibration.",
+                |m| m.k_mean.filter(|_| !m.source_stale),
+            ),
+        ];
+        let mill_rows: Vec<_> = results
+            .mills
+            .iter()
+            .zip(self.publisher.mill_names())
+            .collect();
+        for (metric, kind, help, value) in chatter {
+            let rows = mill_rows.iter().map(|(m, name)| (name.as_str(), value(m)));
+            family(&mut out, (metric, kind, help), "mill", rows);
+        }
+        let _ = writeln!(
+            out,
+            "# HELP millgate_heartbeat Heartbeat written to the PLC."
+        );
+        let _ = writeln!(out, "# TYPE millgate_heartbeat gauge");
+        let _ = writeln!(out, "millgate_heartbeat {}", results.heartbeat);
+        out
+    }
+
+    async fn answer(&self, mut stream: TcpStream) -> std::io::Result<()> {
+        let mut request = [0u8; 2048];
+        let read =
+            tokio::time::timeout(std::time::Duration::from_secs(5), stream.read(&mut request))
+                .await
+                .map_err(|_| {
+                    std::io::Error::new(std::io::ErrorKind::TimedOut, "request timed out")
+                })??;
+        let head = String::from_utf8_lossy(&request[..read]);
+        let (status, content_type, body) =
+            if head.starts_with("GET /metrics ") || head.starts_with("GET /metrics?") {
+                (
+                    "200 OK",
+                    "text/plain; version=0.0.4; charset=utf-8",
+                    self.render(),
+                )
+            } else {
+                (
+                    "404 Not Found",
+                    "text/plain; charset=utf-8",
+                    "only /metrics is served\n".to_owned(),
+                )
+            };
+        let response = format!(
+            "HTTP/1.1 {status}\r\nContent-Type: {content_type}\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
+            body.len()
+        );
+        stream.write_all(response.as_bytes()).await?;
+        stream.shutdown().await
+    }
+
+    /// Serve on `listener` until shutdown.
+    pub async fn run(self, listener: TcpListener, mut shutdown: Shutdown) {
+        let metrics = Arc::new(self);
+        if let Ok(local) = listener.local_addr() {
+            tracing::info!(%local, "metrics endpoint listening on /metrics");
+        }
+        loop {
+            let accepted = tokio::select! {
+                accepted = listener.accept() => accepted,
+                () = shutdown.recv() => return,
+            };
+            match accepted {
+                Ok((stream, _)) => {
+                    let metrics = Arc::clone(&metrics);
+                    tokio::spawn(async move {
+                        if let Err(error) = metrics.answer(stream).await {
+                            tracing::debug!(%error, "metrics request failed");
+                        }
+                    });
+                }
+                Err(error) => tracing::warn!(%error, "metrics accept failed"),
+            }
+        }
+    }
+}

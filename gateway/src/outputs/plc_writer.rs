@@ -1,0 +1,152 @@
+//! `PlcWriter`: writes the register map into the PLC's holding registers (FC 16).
+//!
+//! Every write period, and at once whenever the results change (a bite was
+//! analysed, an alarm acknowledged), the heartbeat is incremented and the whole map is written
+//! at the configured base, in chunks of at most 123 registers (the FC 16 limit).
+//! A PLC that is unreachable is retried with capped exponential backoff; the
+//! results and the heartbeat keep moving meanwhile (HMIs read them from the server),
+//! so the first write after it appears is fresh.
+//! On shutdown a last write publishes the "stopped" status.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use tokio::time::Instant;
+
+use millgate_config::PlcOutput;
+use tokio_modbus::client::{Context, Writer};
+use tokio_modbus::prelude::ExceptionCode;
+
+use crate::field::backoff::Backoff;
+use crate::field::modbus_client::{self, ConnectError};
+use crate::outputs::publisher::Publisher;
+use crate::outputs::results::GatewayState;
+use crate::shutdown::Shutdown;
+
+/// Largest register count of one FC 16 request.
+const MAX_WRITE_REGISTERS: usize = 123;
+
+/// Why a write to the PLC failed.
+#[derive(Debug, thiserror::Error)]
+pub enum PlcError {
+    /// No TCP connection could be made ("the network failed").
+    #[error("cannot connect to PLC {address}: {source}")]
+    Connect {
+        /// The PLC's `host:port`.
+        address: String,
+        /// Refused, unreachable, unresolvable, ...
+        source: std::io::Error,
+    },
+    /// The PLC did not answer in time.
+    #[error("PLC did not answer within {0:?}")]
+    Timeout(Duration),
+    /// The connection failed or the reply could not be decoded.
+    #[error("PLC transport: {0}")]
+    Transport(#[from] tokio_modbus::Error),
+    /// The PLC refused the write: wrong base address, or registers write-protected.
+    #[error("PLC refused the write at register {address}: {exception}")]
+    Refused {
+        /// The first register of the refused request.
+        address: u16,
+        /// The exception code the PLC answered with.
+        #[source]
+        exception: ExceptionCode,
+    },
+}
+
+/// Writes the published register map to one PLC.
+#[derive(Debug)]
+pub struct PlcWriter {
+    output: PlcOutput,
+    publisher: Arc<Publisher>,
+}
+
+impl PlcWriter {
+    /// A writer of `publisher`'s map to the PLC of `output`.
+    pub fn new(output: PlcOutput, publisher: Arc<Publisher>) -> Self {
+        Self { output, publisher }
+    }
+
+    async fn connect(&self) -> Result<Context, PlcError> {
+        let output = &self.output;
+        modbus_client::connect(&output.address, output.unit_id, output.timeout)
+            .await
+            .map_err(|error| match error {
+                ConnectError::Timeout(timeout) => PlcError::Timeout(timeout),
+                ConnectError::Io(error) => PlcError::Connect {
+                    address: output.address.clone(),
+                    source: error,
+                },
+            })
+    }
+
+    async fn write(&self, context: &mut Context, words: &[u16]) -> Result<(), PlcError> {
+        for (i, chunk) in words.chunks(MAX_WRITE_REGISTERS).enumerate() {
+            let address = self.output.register_base + (i * MAX_WRITE_REGISTERS) as u16;
+            let request = context.write_multiple_registers(address, chunk);
+            tokio::time::timeout(self.output.timeout, request)
+                .await
+                .map_err(|_| PlcError::Timeout(self.output.timeout))??
+                .map_err(|exception| PlcError::Refused { address, exception })?;
+        }
+        Ok(())
+    }
+
+    /// Write every period until shutdown, then write the final "stopped" map.
+    ///
+    /// The heartbeat moves every period even while the PLC is unreachable (the map is
+    /// also served to HMIs); connection attempts are spaced by the backoff meanwhile.
+    pub async fn run(self, mut shutdown: Shutdown) {
+        let mut context: Option<Context> = None;
+        let mut backoff = Backoff::new();
+        let mut next_attempt = Instant::now();
+        let mut ticks = tokio::time::interval(self.output.write_period);
+        ticks.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        loop {
+            tokio::select! {
+                _ = ticks.tick() => {}
+                () = self.publisher.changed() => {}
+                () = shutdown.recv() => break,
+            }
+            self.publisher.beat();
+            if context.is_none() && Instant::now() >= next_attempt {
+                match self.connect().await {
+                    Ok(connected) => {
+                        tracing::info!(plc = %self.output.address, "PLC connected");
+                        context = Some(connected);
+                        backoff.reset();
+                    }
+                    Err(error) => {
+                        let delay = backoff.next_delay();
+                        tracing::warn!(%error, retry_in = ?delay, "PLC unreachable");
+                        next_attempt = Instant::now() + delay;
+                    }
+                }
+            }
+            if let Some(connected) = context.as_mut() {
+                if let Err(error) = self.write(connected, &self.publisher.words()).await {
+                    tracing::warn!(%error, "PLC write failed");
+                    if !matches!(error, PlcError::Refused { .. }) {
+                        context = None;
+                    }
+                }
+            }
+        }
+        self.publisher
+            .update(|results| results.state = GatewayState::Stopped);
+        self.publisher.beat();
+        let words = self.publisher.words();
+        let connected = match context {
+            Some(connected) => Ok(connected),
+            None => self.connect().await,
+        };
+        let written = match connected {
+            Ok(mut connected) => self.write(&mut connected, &words).await,
+            Err(error) => Err(error),
+        };
+        match written {
+            Ok(()) => tracing::info!("final registers written, status stopped"),
+            Err(error) => tracing::warn!(%error, "final PLC write failed"),
+        }
+    }
+}

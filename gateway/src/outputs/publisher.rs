@@ -1,0 +1,162 @@
+//! What the outputs publish: the latest [`Results`] joined with source health,
+//! encoded through the [`RegisterMap`].
+
+use std::sync::{Arc, Mutex};
+
+use millgate_config::{ChannelSource, Config};
+
+use crate::field::source_health::{SourceHealth, SourceStatus};
+use crate::outputs::register_map::RegisterMap;
+use crate::outputs::results::Results;
+
+/// Shared between the analysis task (writes results) and the outputs (read them).
+#[derive(Debug)]
+pub struct Publisher {
+    results: Mutex<Results>,
+    /// Wakes the PLC writer when results change, so a bite is written at once
+    /// rather than at the next write period.
+    changed: tokio::sync::Notify,
+    map: RegisterMap,
+    health: Vec<Arc<SourceHealth>>,
+    driveline_names: Vec<String>,
+    mill_names: Vec<String>,
+    /// Global source index of each driveline's torque channel.
+    driveline_sources: Vec<usize>,
+    /// Global source indices of each mill's stand channels.
+    mill_sources: Vec<Vec<usize>>,
+}
+
+/// Global index of a channel's source: Modbus sources first, then CAN sources.
+pub fn source_of_channel(config: &Config, channel: usize) -> usize {
+    match config.channels[channel].source {
+        ChannelSource::ModbusBlock { source, .. } | ChannelSource::ModbusValue { source, .. } => {
+            source
+        }
+        ChannelSource::Can { source, .. } => config.modbus_sources.len() + source,
+    }
+}
+
+impl Publisher {
+    /// A publisher for `config` with one health record per source (Modbus, then CAN).
+    pub fn new(config: &Config, health: Vec<Arc<SourceHealth>>) -> Self {
+        let results = Results::new(
+            health.len(),
+            config.drivelines.len(),
+            config.tandem_mills.len(),
+        );
+        Self {
+            results: Mutex::new(results),
+            changed: tokio::sync::Notify::new(),
+            map: RegisterMap::new(config),
+            health,
+            driveline_names: config.drivelines.iter().map(|d| d.name.clone()).collect(),
+            mill_names: config.tandem_mills.iter().map(|m| m.name.clone()).collect(),
+            driveline_sources: config
+                .drivelines
+                .iter()
+                .map(|d| source_of_channel(config, d.torque))
+                .collect(),
+            mill_sources: config
+                .tandem_mills
+                .iter()
+                .map(|m| {
+                    m.stands
+                        .iter()
+                        .map(|&c| source_of_channel(config, c))
+                        .collect()
+                })
+                .collect(),
+        }
+    }
+
+    /// The register map.
+    pub fn map(&self) -> &RegisterMap {
+        &self.map
+    }
+
+    /// Driveline names, in config order.
+    pub fn driveline_names(&self) -> &[String] {
+        &self.driveline_names
+    }
+
+    /// Tandem mill names, in config order.
+    pub fn mill_names(&self) -> &[String] {
+        &self.mill_names
+    }
+
+    /// Change the results.
+    pub fn update<T>(&self, change: impl FnOnce(&mut Results) -> T) -> T {
+        let result = change(&mut crate::lock(&self.results));
+        self.changed.notify_one();
+        result
+    }
+
+    /// Wait until the results change (returns at once if they changed since the
+    /// last wait).
+    pub async fn changed(&self) {
+        self.changed.notified().await;
+    }
+
+    /// A copy of the results with current source health applied.
+    pub fn results(&self) -> Results {
+        let mut results = crate::lock(&self.results).clone();
+        self.apply_health(&mut results);
+        results
+    }
+
+    fn apply_health(&self, results: &mut Results) {
+        let statuses: Vec<SourceStatus> = self.health.iter().map(|h| h.status()).collect();
+        results.sources = statuses.iter().copied().map(Some).collect();
+        let bad = |source: &usize| {
+            statuses
+                .get(*source)
+                .is_some_and(|s| *s != SourceStatus::Ok)
+        };
+        for (driveline, source) in results.drivelines.iter_mut().zip(&self.driveline_sources) {
+            driveline.source_stale = bad(source);
+        }
+        // A mill is also flagged by its analysis (a gap restarted its window).
+        for (mill, sources) in results.mills.iter_mut().zip(&self.mill_sources) {
+            mill.source_stale |= sources.iter().any(bad);
+        }
+    }
+
+    /// Increment the heartbeat counter (each PLC write period, or each second
+    /// without a PLC output), so a watchdog sees the gateway alive.
+    /// Not a change of the results: waiters on [`Self::changed`] are not woken (the
+    /// PLC writer beats on each write and would wake itself).
+    pub fn beat(&self) {
+        let mut results = crate::lock(&self.results);
+        results.heartbeat = results.heartbeat.wrapping_add(1);
+    }
+
+    /// Encode the map as published now.
+    pub fn words(&self) -> Vec<u16> {
+        self.map.encode(&self.results())
+    }
+
+    /// Forget the wear trend of every driveline whose bit is set in `drivelines`
+    /// (bit k = driveline k in config order): the next bite's wear index seeds it
+    /// afresh (the reset-wear-trend command, e.g. after a coupling is replaced).
+    pub fn reset_wear_trend(&self, drivelines: u16) {
+        self.update(|results| {
+            for (k, driveline) in results.drivelines.iter_mut().enumerate().take(16) {
+                if drivelines & (1 << k) != 0 {
+                    driveline.wear_trend = None;
+                }
+            }
+        });
+    }
+
+    /// Clear latched alarms (the acknowledge command).
+    pub fn acknowledge_alarms(&self) {
+        self.update(|results| {
+            for driveline in &mut results.drivelines {
+                driveline.alarm = false;
+            }
+            for mill in &mut results.mills {
+                mill.alarm = false;
+            }
+        });
+    }
+}

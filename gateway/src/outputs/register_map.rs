@@ -1,0 +1,521 @@
+//! The millgate register map: one typed table, in one place.
+//!
+//! Every register the gateway publishes is a [`Register`] built here: its address
+//! (offset from the map's base), type, unit, scale, word order, access and meaning.
+//! Encoding ([`RegisterMap::encode`]) is a pure function of [`Results`]; the PLC
+//! writer, the Modbus server and the `millgate registers` export all use this table.
+//!
+//! Conventions: 32-bit values (u32, f32) are big-endian words and bytes (`ABCD`,
+//! the Modbus default); physical value = register value * scale. A value whose
+//! quality bit is 0 is not valid (never computed, or its source is stale): the
+//! registers then hold 0 rather than a frozen old value.
+
+use millgate_config::layout::encode_value;
+use millgate_config::{Config, ValueType, WordOrder};
+
+use crate::outputs::results::{DrivelineResults, GatewayState, MillResults, Results};
+
+/// Whether clients may write a register.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Access {
+    /// Read only (FC 03 / 04); a write gets exception 02.
+    Read,
+    /// A command register: readable and writable (FC 06 / 16).
+    ReadWrite,
+}
+
+impl Access {
+    /// `r` or `rw`.
+    pub fn code(self) -> &'static str {
+        match self {
+            Access::Read => "r",
+            Access::ReadWrite => "rw",
+        }
+    }
+}
+
+/// Per-driveline quantities, in register order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DrivelineField {
+    /// Warning, alarm, stale and degraded bits ([`driveline_flags`]).
+    Flags,
+    /// Bit i set: value i of the block is valid.
+    Quality,
+    /// Bites analysed since start.
+    BiteCounter,
+    /// Time of the last bite, Unix seconds.
+    LastBiteTime,
+    /// Static torque of the last bite, kN*m.
+    StaticTorque,
+    /// Peak torque of the last bite, kN*m.
+    PeakTorque,
+    /// Torque amplification factor of the last bite.
+    Taf,
+    /// First minus second oscillation period of the last bite, s.
+    PeriodShift,
+    /// First natural frequency from the eq. (1) fit, Hz.
+    Beta1,
+    /// Second natural frequency from the eq. (1) fit, Hz.
+    Beta2,
+    /// Wear index of the last bite.
+    WearIndex,
+    /// Wear trend (EWMA of the wear index).
+    WearTrend,
+}
+
+/// Per-mill chatter quantities, in register order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MillField {
+    /// Warning, alarm and stale bits.
+    Flags,
+    /// Bit i set: value i of the block is valid.
+    Quality,
+    /// RMS difference of adjacent stands' principal frequencies, Hz.
+    SigmaN,
+    /// Mean correlation of adjacent stands' chatter-band vibration.
+    KMean,
+    /// Mean of the stands' principal frequencies in the chatter band, Hz.
+    ChatterFrequency,
+}
+
+/// What a register holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Field {
+    /// Incremented every write period.
+    Heartbeat,
+    /// Running, stopped, source problem bits ([`status_bits`]).
+    GatewayStatus,
+    /// Bit i: source i answers.
+    SourcesOk,
+    /// Bit i: source i is stale.
+    SourcesStale,
+    /// Bit i: source i is lost.
+    SourcesLost,
+    /// Command: write 1 to acknowledge latched alarms.
+    AcknowledgeAlarms,
+    /// Command: write a bitmask of drivelines (bit k = driveline k) to reset their
+    /// wear trend.
+    ResetWearTrend,
+    /// A quantity of driveline k (config order).
+    Driveline(usize, DrivelineField),
+    /// A quantity of tandem mill k (config order).
+    Mill(usize, MillField),
+}
+
+/// One register (or register pair) of the map.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Register {
+    /// Dotted name, e.g. `F1.taf`.
+    pub name: String,
+    /// Offset from the map's base.
+    pub address: u16,
+    /// How the value is encoded (one register for 16-bit types, two for 32-bit).
+    pub value_type: ValueType,
+    /// Unit of the physical value (empty for counts and bits).
+    pub unit: &'static str,
+    /// Physical value = register value * scale.
+    pub scale: f64,
+    /// Order of the words and bytes of 32-bit values.
+    pub word_order: WordOrder,
+    /// Read only or a command.
+    pub access: Access,
+    /// One sentence for the documentation and exports.
+    pub description: String,
+    /// What the register holds.
+    pub field: Field,
+}
+
+/// Flag bits of a driveline's `flags` register.
+pub mod driveline_flags {
+    /// TAF above the warning threshold at the last bite.
+    pub const WARNING: u16 = 1 << 0;
+    /// TAF above the alarm threshold; latched until acknowledged.
+    pub const ALARM: u16 = 1 << 1;
+    /// The torque channel's source is stale or lost.
+    pub const SOURCE_STALE: u16 = 1 << 2;
+    /// The last bite's window had gaps, NaN or saturated samples.
+    pub const DEGRADED: u16 = 1 << 3;
+}
+
+/// Bits of the gateway status register.
+pub mod status_bits {
+    /// The gateway is running and publishing fresh results.
+    pub const RUNNING: u16 = 1 << 0;
+    /// The gateway has stopped; values are the last ones and will not change.
+    pub const STOPPED: u16 = 1 << 1;
+    /// At least one source is stale or lost.
+    pub const SOURCE_PROBLEM: u16 = 1 << 2;
+}
+
+/// First register of the first driveline block.
+const DRIVELINES_START: u16 = 16;
+/// Registers reserved per driveline block.
+const DRIVELINE_STRIDE: u16 = 32;
+/// Registers reserved per mill block.
+const MILL_STRIDE: u16 = 16;
+
+/// The register map of one configuration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RegisterMap {
+    registers: Vec<Register>,
+    len: u16,
+}
+
+struct Builder {
+    registers: Vec<Register>,
+}
+
+impl Builder {
+    #[allow(clippy::too_many_arguments)]
+    fn add(
+        &mut self,
+        address: u16,
+        name: String,
+        value_type: ValueType,
+        unit: &'static str,
+        scale: f64,
+        access: Access,
+        description: String,
+        field: Field,
+    ) {
+        self.registers.push(Register {
+            name,
+            address,
+            value_type,
+            unit,
+            scale,
+            word_order: WordOrder::Abcd,
+            access,
+            description,
+            field,
+        });
+    }
+}
+
+impl RegisterMap {
+    /// The map for `config`: global registers, then one block per driveline, then
+    /// one per tandem mill.
+    pub fn new(config: &Config) -> Self {
+        use DrivelineField as D;
+        use ValueType::{F32, U16, U32};
+        let mut b = Builder {
+            registers: Vec::new(),
+        };
+        let read = Access::Read;
+        b.add(
+            0,
+            "heartbeat".into(),
+            U16,
+            "",
+            1.0,
+            read,
+            "Incremented every PLC write period (every second without a PLC output), whether or not the PLC answers; a PLC or HMI watchdog checks it moves".into(),
+            Field::Heartbeat,
+        );
+        b.add(
+            1,
+            "gateway_status".into(),
+            U16,
+            "bits",
+            1.0,
+            read,
+            "bit0 running, bit1 stopped, bit2 a source is stale or lost".into(),
+            Field::GatewayStatus,
+        );
+        b.add(
+            2,
+            "sources_ok".into(),
+            U16,
+            "bits",
+            1.0,
+            read,
+            "bit i: source i answers (sources in config order: Modbus, then CAN)".into(),
+            Field::SourcesOk,
+        );
+        b.add(
+            3,
+            "sources_stale".into(),
+            U16,
+            "bits",
+            1.0,
+            read,
+            "bit i: source i has not answered for longer than its stale time".into(),
+            Field::SourcesStale,
+        );
+        b.add(
+            4,
+            "sources_lost".into(),
+            U16,
+            "bits",
+            1.0,
+            read,
+            "bit i: source i is lost (never answered, or silent past its lost time)".into(),
+            Field::SourcesLost,
+        );
+        b.add(
+            8,
+            "command.acknowledge_alarms".into(),
+            U16,
+            "",
+            1.0,
+            Access::ReadWrite,
+            "Command: write 1 to clear latched alarm bits; reads back 0".into(),
+            Field::AcknowledgeAlarms,
+        );
+        b.add(
+            9,
+            "command.reset_wear_trend".into(),
+            U16,
+            "bits",
+            1.0,
+            Access::ReadWrite,
+            "Command: write a bitmask of drivelines (bit k = k-th driveline in config order; \
+             1 with a single driveline) to restart their wear trend; reads back 0"
+                .into(),
+            Field::ResetWearTrend,
+        );
+        for (k, driveline) in config.drivelines.iter().enumerate() {
+            let base = DRIVELINES_START + DRIVELINE_STRIDE * k as u16;
+            let n = |field: &str| format!("{}.{field}", driveline.name);
+            let f = |field| Field::Driveline(k, field);
+            let fields: [(u16, &str, ValueType, &'static str, &str, DrivelineField); 12] = [
+                (0, "flags", U16, "bits", "bit0 TAF warning, bit1 TAF alarm (latched), bit2 source stale, bit3 last bite degraded", D::Flags),
+                (1, "quality", U16, "bits", "bit i set: value i of this block is valid (0 last_bite_time, 1 static_torque, 2 peak_torque, 3 taf, 4 period_shift, 5 beta1, 6 beta2, 7 wear_index, 8 wear_trend)", D::Quality),
+                (2, "bite_counter", U32, "", "Bites analysed since start", D::BiteCounter),
+                (4, "last_bite_time", U32, "s", "Time of the last bite, Unix seconds", D::LastBiteTime),
+                (6, "static_torque", F32, "kN*m", "Static (settled) rolling torque of the last bite", D::StaticTorque),
+                (8, "peak_torque", F32, "kN*m", "Peak torque of the last bite", D::PeakTorque),
+                (10, "taf", F32, "", "Torque amplification factor of the last bite (peak / static)", D::Taf),
+                (12, "period_shift", F32, "s", "First minus second oscillation period of the last bite", D::PeriodShift),
+                (14, "beta1", F32, "Hz", "First natural frequency identified from the last bite", D::Beta1),
+                (16, "beta2", F32, "Hz", "Second natural frequency identified from the last bite", D::Beta2),
+                (18, "wear_index", F32, "", "Wear index of the last bite: its TAF / the linear model's TAF - 1 (needs the driveline model)", D::WearIndex),
+                (20, "wear_trend", F32, "", "Wear trend: mean of the wear index over bites (EWMA, weight 0.1), reset by command.reset_wear_trend", D::WearTrend),
+            ];
+            for (offset, name, value_type, unit, description, field) in fields {
+                b.add(
+                    base + offset,
+                    n(name),
+                    value_type,
+                    unit,
+                    1.0,
+                    read,
+                    description.into(),
+                    f(field),
+                );
+            }
+        }
+        let mills_start = DRIVELINES_START + DRIVELINE_STRIDE * config.drivelines.len() as u16;
+        for (m, mill) in config.tandem_mills.iter().enumerate() {
+            use MillField as M;
+            let base = mills_start + MILL_STRIDE * m as u16;
+            let fields: [(u16, &str, ValueType, &'static str, &str, MillField); 5] = [
+                (0, "flags", U16, "bits", "bit0 chatter warning (sigma_n <= sigma_min), bit1 chatter alarm (both conditions, latched until acknowledged), bit2 source stale or window restarted", M::Flags),
+                (1, "quality", U16, "bits", "bit i set: value i is valid (0 sigma_n, 1 k_mean, 2 chatter_frequency)", M::Quality),
+                (2, "sigma_n", F32, "Hz", "RMS deviation of the adjacent stands' principal chatter-band frequencies", M::SigmaN),
+                (4, "k_mean", F32, "", "Mean correlation of adjacent stands over the window", M::KMean),
+                (6, "chatter_frequency", F32, "Hz", "Mean principal frequency in the chatter band", M::ChatterFrequency),
+            ];
+            for (offset, name, value_type, unit, description, field) in fields {
+                b.add(
+                    base + offset,
+                    format!("{}.{name}", mill.name),
+                    value_type,
+                    unit,
+                    1.0,
+                    read,
+                    description.into(),
+                    Field::Mill(m, field),
+                );
+            }
+        }
+        let len = mills_start + MILL_STRIDE * config.tandem_mills.len() as u16;
+        Self {
+            registers: b.registers,
+            len,
+        }
+    }
+
+    /// The registers, by address.
+    pub fn registers(&self) -> &[Register] {
+        &self.registers
+    }
+
+    /// Number of registers the map spans (including reserved ones, which read 0).
+    pub fn len(&self) -> u16 {
+        self.len
+    }
+
+    /// Whether the map is empty (it never is: the global registers are always there).
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// The register at `address`, if one starts there.
+    pub fn find(&self, address: u16) -> Option<&Register> {
+        self.registers.iter().find(|r| r.address == address)
+    }
+
+    /// The register covering `address` (either word of a 32-bit value).
+    pub fn covering(&self, address: u16) -> Option<&Register> {
+        self.registers
+            .iter()
+            .find(|r| (r.address..r.address + r.value_type.register_count()).contains(&address))
+    }
+
+    /// Encode `results` into the whole map.
+    pub fn encode(&self, results: &Results) -> Vec<u16> {
+        let mut words = vec![0u16; usize::from(self.len)];
+        for register in &self.registers {
+            let Some(value) = value_of(register.field, results) else {
+                continue;
+            };
+            let (encoded, used) = encode_value(
+                value / register.scale,
+                register.value_type,
+                register.word_order,
+            );
+            let start = usize::from(register.address);
+            words[start..start + used].copy_from_slice(&encoded[..used]);
+        }
+        words
+    }
+}
+
+fn bits(
+    results: &Results,
+    pick: impl Fn(crate::field::source_health::SourceStatus) -> bool,
+) -> f64 {
+    let mask = results
+        .sources
+        .iter()
+        .enumerate()
+        .take(16)
+        .filter(|(_, status)| status.is_some_and(&pick))
+        .fold(0u16, |mask, (i, _)| mask | (1 << i));
+    f64::from(mask)
+}
+
+fn value_of(field: Field, results: &Results) -> Option<f64> {
+    use crate::field::source_health::SourceStatus as S;
+    match field {
+        Field::Heartbeat => Some(f64::from(results.heartbeat)),
+        Field::GatewayStatus => {
+            let mut status = match results.state {
+                GatewayState::Starting => 0,
+                GatewayState::Running => status_bits::RUNNING,
+                GatewayState::Stopped => status_bits::STOPPED,
+            };
+            if results.sources.iter().any(|s| *s != Some(S::Ok)) {
+                status |= status_bits::SOURCE_PROBLEM;
+            }
+            Some(f64::from(status))
+        }
+        Field::SourcesOk => Some(bits(results, |s| s == S::Ok)),
+        Field::SourcesStale => Some(bits(results, |s| s == S::Stale)),
+        Field::SourcesLost => Some(bits(results, |s| s == S::Lost)),
+        Field::AcknowledgeAlarms | Field::ResetWearTrend => Some(0.0),
+        Field::Driveline(k, field) => results
+            .drivelines
+            .get(k)
+            .and_then(|d| driveline_value(d, field)),
+        Field::Mill(m, field) => results
+            .mills
+            .get(m)
+            .and_then(|mill| mill_value(mill, field)),
+    }
+}
+
+/// Values of a driveline block in quality-bit order.
+fn driveline_quality_values(d: &DrivelineResults) -> [Option<f64>; 9] {
+    [
+        d.last_bite_unix_s.map(f64::from),
+        d.static_torque_knm,
+        d.peak_torque_knm,
+        d.taf,
+        d.first_period_shift_s,
+        d.beta1_hz,
+        d.beta2_hz,
+        d.wear_index,
+        d.wear_trend,
+    ]
+}
+
+fn quality_mask(values: &[Option<f64>]) -> f64 {
+    let mask = values
+        .iter()
+        .enumerate()
+        .filter(|(_, v)| v.is_some_and(f64::is_finite))
+        .fold(0u16, |mask, (i, _)| mask | (1 << i));
+    f64::from(mask)
+}
+
+fn driveline_value(d: &DrivelineResults, field: DrivelineField) -> Option<f64> {
+    use driveline_flags as fl;
+    use DrivelineField as D;
+    let fresh = |v: Option<f64>| v.filter(|_| !d.source_stale);
+    match field {
+        D::Flags => {
+            let flags = [
+                (d.warning, fl::WARNING),
+                (d.alarm, fl::ALARM),
+                (d.source_stale, fl::SOURCE_STALE),
+                (d.last_bite_degraded, fl::DEGRADED),
+            ]
+            .iter()
+            .filter(|(set, _)| *set)
+            .fold(0, |flags, (_, bit)| flags | bit);
+            Some(f64::from(flags))
+        }
+        D::Quality => {
+            if d.source_stale {
+                Some(0.0)
+            } else {
+                Some(quality_mask(&driveline_quality_values(d)))
+            }
+        }
+        D::BiteCounter => Some(f64::from(d.bite_counter)),
+        D::LastBiteTime => fresh(driveline_quality_values(d)[0]),
+        D::StaticTorque => fresh(d.static_torque_knm),
+        D::PeakTorque => fresh(d.peak_torque_knm),
+        D::Taf => fresh(d.taf),
+        D::PeriodShift => fresh(d.first_period_shift_s),
+        D::Beta1 => fresh(d.beta1_hz),
+        D::Beta2 => fresh(d.beta2_hz),
+        D::WearIndex => fresh(d.wear_index),
+        D::WearTrend => fresh(d.wear_trend),
+    }
+}
+
+fn mill_value(m: &MillResults, field: MillField) -> Option<f64> {
+    let fresh = |v: Option<f64>| v.filter(|_| !m.source_stale);
+    match field {
+        MillField::Flags => Some(f64::from(
+            u16::from(m.warning) | (u16::from(m.alarm) << 1) | (u16::from(m.source_stale) << 2),
+        )),
+        MillField::Quality => {
+            if m.source_stale {
+                Some(0.0)
+            } else {
+                Some(quality_mask(&[
+                    m.sigma_n_hz,
+                    m.k_mean,
+                    m.chatter_frequency_hz,
+                ]))
+            }
+        }
+        MillField::SigmaN => fresh(m.sigma_n_hz),
+        MillField::KMean => fresh(m.k_mean),
+        MillField::ChatterFrequency => fresh(m.chatter_frequency_hz),
+    }
+}
+
+/// Decode an f32 (ABCD) from two registers: what a PLC or HMI does.
+pub fn decode_f32(words: &[u16]) -> Option<f32> {
+    millgate_config::layout::decode_value(words, ValueType::F32, WordOrder::Abcd).map(|v| v as f32)
+}
+
+/// Decode a u32 (ABCD) from two registers.
+pub fn decode_u32(words: &[u16]) -> Option<u32> {
+    millgate_config::layout::decode_value(words, ValueType::U32, WordOrder::Abcd).map(|v| v as u32)
+}

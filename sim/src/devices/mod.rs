@@ -1,0 +1,14 @@
+//! Virtual field devices, the peers the gateway is tested and demonstrated against:
+//! a Modbus TCP DAQ streaming simulated channels ([`virtual_daq`]), a PLC whose
+//! holding registers the gateway writes ([`virtual_plc`]), a CAN node sending DBC
+//! messages on a SocketCAN interface ([`can_node`]), the Modbus server they share
+//! ([`modbus_bank`]), and the demo's rig built from them ([`demo`]).
+//!
+//! Behind the `devices` feature (default): they need tokio, tokio-modbus, socketcan
+//! and nix, which the physics does not.
+
+pub mod can_node;
+pub mod demo;
+pub mod modbus_bank;
+pub mod virtual_daq;
+pub mod virtual_plc;

@@ -1,0 +1,54 @@
+//! A virtual PLC: a Modbus TCP server whose holding registers the gateway writes.
+
+use std::future::Future;
+use std::io;
+
+use tokio::net::TcpListener;
+
+use super::modbus_bank::{serve, RegisterBank, Running, ServeOptions, SharedBank};
+
+/// A virtual PLC with `holding_len` writable holding registers.
+#[derive(Debug, Clone)]
+pub struct VirtualPlc {
+    bank: SharedBank,
+}
+
+impl VirtualPlc {
+    /// A PLC with zeroed holding registers.
+    pub fn new(holding_len: usize) -> Self {
+        Self {
+            bank: SharedBank::new(RegisterBank::new(0, holding_len, true)),
+        }
+    }
+
+    /// The register bank, for inspection by tests and the demo.
+    pub fn bank(&self) -> SharedBank {
+        self.bank.clone()
+    }
+
+    /// A copy of the holding registers.
+    pub fn holding(&self) -> Vec<u16> {
+        self.bank.lock().holding.clone()
+    }
+
+    /// Write requests served so far.
+    pub fn writes(&self) -> u64 {
+        self.bank.lock().writes
+    }
+
+    /// Serve on `listener` in the background until the handle is stopped.
+    pub fn spawn(&self, listener: TcpListener, options: ServeOptions) -> Running {
+        let plc = self.clone();
+        Running::spawn(|stop| plc.run(listener, options, stop.wait()))
+    }
+
+    /// Serve until `shutdown` completes.
+    pub async fn run(
+        self,
+        listener: TcpListener,
+        options: ServeOptions,
+        shutdown: impl Future<Output = ()> + Send + Sync + 'static,
+    ) -> io::Result<()> {
+        serve(listener, self.bank, options, shutdown).await
+    }
+}
