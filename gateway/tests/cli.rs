@@ -343,21 +343,45 @@ fn gap_record(dir: &std::path::Path, name: &str, static_knm: f64, seed: u32) -> 
 // Runs a command of the `sim-tools` feature.
 #[cfg(feature = "sim-tools")]
 #[test]
-fn discrepancy_finds_a_hidden_gap_in_two_bites_from_drawing_stiffness() {
+fn discrepancy_splits_a_record_of_two_bites_and_finds_a_gap_from_drawing_stiffness() {
     let dir = std::env::temp_dir().join(format!("millgate-cli-{}-discrepancy", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let models = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../sim/models");
     // The "measured" driveline: the adjusted Table 2 model with a 2 mrad gap in the
-    // spindle, two bites; the workflow is handed the drawings' stiffness without the gap.
-    let high = gap_record(&dir, "high", 112.0, 9);
-    let low = gap_record(&dir, "low", 60.0, 10);
+    // spindle, two bites in one record (idle, bite, unloading ramp, idle, bite); the
+    // workflow is handed the drawings' stiffness without the gap.
+    let mut body = String::from("t,torque\n");
+    let mut k = 0;
+    let mut sample = |body: &mut String, value: f64| {
+        body.push_str(&format!("{},{value}\n", k as f64 * 5.0e-4));
+        k += 1;
+    };
+    for (i, (static_knm, seed)) in [(112.0, 9), (60.0, 10)].into_iter().enumerate() {
+        let csv = gap_record(&dir, &format!("bite{i}"), static_knm, seed);
+        let values: Vec<f64> = std::fs::read_to_string(csv)
+            .unwrap()
+            .lines()
+            .skip(1)
+            .map(|line| line.split(',').nth(1).unwrap().parse().unwrap())
+            .collect();
+        for _ in 0..400 {
+            sample(&mut body, 0.0);
+        }
+        for &value in &values {
+            sample(&mut body, value);
+        }
+        let last = values[values.len() - 1];
+        for step in 1..=100 {
+            sample(&mut body, last * (1.0 - f64::from(step) / 100.0));
+        }
+    }
+    let csv = dir.join("two-bites.csv");
+    std::fs::write(&csv, body).unwrap();
     let report_dir = dir.join("report");
     let output = millgate(&[
         "discrepancy",
         "--measured",
-        high.to_str().unwrap(),
-        "--measured",
-        low.to_str().unwrap(),
+        csv.to_str().unwrap(),
         "--model",
         models.join("table2-drawings.toml").to_str().unwrap(),
         "--report",
@@ -367,6 +391,7 @@ fn discrepancy_finds_a_hidden_gap_in_two_bites_from_drawing_stiffness() {
     ]);
     assert!(output.status.success(), "{}", text(&output));
     let progress = String::from_utf8_lossy(&output.stderr);
+    assert!(progress.contains("two-bites.csv: 2 bites"), "{progress}");
     assert!(
         progress.contains("[9/9]") && progress.contains("calibration"),
         "{progress}"
@@ -432,54 +457,41 @@ fn discrepancy_finds_a_hidden_gap_in_two_bites_from_drawing_stiffness() {
 // Runs a command of the `sim-tools` feature.
 #[cfg(feature = "sim-tools")]
 #[test]
-fn discrepancy_splits_a_record_holding_two_bites() {
-    let dir = std::env::temp_dir().join(format!("millgate-cli-{}-two-bites", std::process::id()));
+fn discrepancy_takes_several_records_and_names_the_file_of_a_bad_bite() {
+    let dir = std::env::temp_dir().join(format!("millgate-cli-{}-bad-bite", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    // Two simulated bites in one record: idle, bite, unloading ramp, idle, bite.
-    let mut body = String::from("t,torque\n");
-    let mut k = 0;
-    let mut sample = |body: &mut String, value: f64| {
-        body.push_str(&format!("{},{value}\n", k as f64 * 5.0e-4));
-        k += 1;
+    // A load step of 400 samples, then a record of 50: the second is too short, and
+    // the error comes before any fit.
+    let write = |name: &str, samples: usize| {
+        let mut body = String::from("t,torque\n");
+        for k in 0..samples {
+            let value = if k < 100 { 0.0 } else { 100.0 };
+            body.push_str(&format!("{},{value}\n", k as f64 * 5.0e-4));
+        }
+        let path = dir.join(name);
+        std::fs::write(&path, body).unwrap();
+        path
     };
-    for (i, (static_knm, seed)) in [(112.0, 9), (60.0, 10)].into_iter().enumerate() {
-        let csv = gap_record(&dir, &format!("bite{i}"), static_knm, seed);
-        let values: Vec<f64> = std::fs::read_to_string(csv)
-            .unwrap()
-            .lines()
-            .skip(1)
-            .map(|line| line.split(',').nth(1).unwrap().parse().unwrap())
-            .collect();
-        for _ in 0..400 {
-            sample(&mut body, 0.0);
-        }
-        for &value in &values {
-            sample(&mut body, value);
-        }
-        let last = values[values.len() - 1];
-        for step in 1..=100 {
-            sample(&mut body, last * (1.0 - f64::from(step) / 100.0));
-        }
-    }
-    let csv = dir.join("two-bites.csv");
-    std::fs::write(&csv, body).unwrap();
-    let models = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../sim/models");
+    let (good, short) = (write("good.csv", 400), write("short.csv", 50));
+    let model =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../sim/models/table2-adjusted.toml");
     let output = millgate(&[
         "discrepancy",
         "--measured",
-        csv.to_str().unwrap(),
+        good.to_str().unwrap(),
+        "--measured",
+        short.to_str().unwrap(),
         "--model",
-        models.join("table2-adjusted.toml").to_str().unwrap(),
-        "--format",
-        "json",
+        model.to_str().unwrap(),
     ]);
-    assert!(output.status.success(), "{}", text(&output));
-    let progress = String::from_utf8_lossy(&output.stderr);
-    assert!(progress.contains("two-bites.csv: 2 bites"), "{progress}");
-    let report: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
-    assert_eq!(report["bites"].as_array().unwrap().len(), 2, "{report}");
-    assert_eq!(report["effect"], "backlash", "{report}");
-    assert_eq!(report["location"], 1, "{report}");
+    assert!(!output.status.success());
+    let message = text(&output);
+    assert!(
+        message.contains("short.csv")
+            && message.contains("measured bite 2: 50 samples; at least 100 are needed")
+            && !message.contains("good.csv"),
+        "{message}"
+    );
 }
 
 // Runs a command of the `sim-tools` feature.

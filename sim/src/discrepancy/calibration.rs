@@ -31,7 +31,7 @@ use crate::model::Model;
 use super::fit::{self, BiteLoad, BiteRecord, Fitted, LinearValues, Problem};
 use super::identify;
 use super::lm::{self, FnResiduals};
-use super::DiscrepancyError;
+use super::{BiteProblem, DiscrepancyError};
 
 /// Two stiffness starts closer than this (largest |ln ratio| over the couplings) are one.
 const SAME_START: f64 = 0.03;
@@ -259,7 +259,7 @@ pub fn calibrate(
     }
     fits.sort_by(|a, b| a.1.cost.total_cmp(&b.1.cost));
     let Some((_, best, _)) = fits.first() else {
-        return Err(DiscrepancyError::Calibration("no stiffness start".into()));
+        return Err(DiscrepancyError::NoStiffnessStart);
     };
     let best = best.clone();
     // Identified stiffness: from the loaded part if any (a gap biases the whole
@@ -313,7 +313,7 @@ fn aligned(
         let model = values.model_for(&bite.template, b);
         let (onset_s, scale, _) = align(&model, bite.measured)?.ok_or(DiscrepancyError::Bite {
             bite: b,
-            reason: "no bite found: the record does not look like a load step".into(),
+            problem: BiteProblem::NoLoadStep,
         })?;
         *simulations += 1;
         out.loads[b] = BiteLoad {

@@ -29,7 +29,7 @@ macro_rules! keyed {
     ($($name:ty),*) => {$(
         impl std::fmt::Display for $name {
             fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-                f.write_str(self.key())
+                f.pad(self.key())
             }
         }
 
@@ -94,16 +94,33 @@ pub enum DiscrepancyError {
     #[error("no measured bite given")]
     NoBite,
     /// A bite is too short, not finite or has no bite in it.
-    #[error("measured bite {}: {reason}", bite + 1)]
+    #[error("measured bite {}: {problem}", bite + 1)]
     Bite {
         /// The bite, 0-based in the order given.
         bite: usize,
         /// What is wrong with it.
-        reason: String,
+        problem: BiteProblem,
     },
-    /// Calibration found no linear model at all.
-    #[error("calibration: {0}")]
-    Calibration(String),
+    /// Calibration found no linear model at all: no stiffness start could be fitted.
+    #[error("calibration: no stiffness start could be fitted")]
+    NoStiffnessStart,
+}
+
+/// What is wrong with a measured bite.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum BiteProblem {
+    /// The sample rate is not a positive number.
+    #[error("sample rate {0} Hz is not > 0")]
+    SampleRate(f64),
+    /// Fewer than [`MIN_SAMPLES`] samples.
+    #[error("{0} samples; at least {MIN_SAMPLES} are needed")]
+    TooShort(usize),
+    /// A sample (0-based) is NaN or infinite.
+    #[error("sample {0} is not a finite number")]
+    NotFinite(usize),
+    /// No load step was found in the record.
+    #[error("no bite found: the record does not look like a load step")]
+    NoLoadStep,
 }
 
 /// A step of the workflow.

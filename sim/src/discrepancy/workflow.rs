@@ -15,7 +15,7 @@ use super::fit::{BiteRecord, Fitted};
 use super::noise::noise_rms;
 use super::search::{self, Candidate, FittedCandidate};
 use super::windows::{self, BiteTiming, Disagreement};
-use super::{DiscrepancyError, Measured, Progress, Step, MIN_SAMPLES};
+use super::{BiteProblem, DiscrepancyError, Measured, Progress, Step, MIN_SAMPLES};
 
 /// How the workflow runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -318,19 +318,17 @@ fn bite_records<'a>(
     }
     let mut records = Vec::with_capacity(bites.len());
     for (b, bite) in bites.iter().enumerate() {
-        let fail = |reason: String| DiscrepancyError::Bite { bite: b, reason };
+        let fail = |problem| DiscrepancyError::Bite { bite: b, problem };
         let fs = bite.sample_rate_hz;
         let m = bite.torque_knm.len();
         if !(fs.is_finite() && fs > 0.0) {
-            return Err(fail(format!("sample rate {fs} Hz is not > 0")));
+            return Err(fail(BiteProblem::SampleRate(fs)));
         }
         if m < MIN_SAMPLES {
-            return Err(fail(format!(
-                "{m} samples; at least {MIN_SAMPLES} are needed"
-            )));
+            return Err(fail(BiteProblem::TooShort(m)));
         }
         if let Some(k) = bite.torque_knm.iter().position(|v| !v.is_finite()) {
-            return Err(fail(format!("sample {k} is not a finite number")));
+            return Err(fail(BiteProblem::NotFinite(k)));
         }
         let mut template = model.clone();
         template.measurement.sample_rate = fs;
