@@ -77,13 +77,14 @@ fn line(
 }
 
 /// Runs the cases `indices` of the suite on [`WORKERS`] threads, prints the table and
-/// fails naming every case not recovered.
-fn run_cases(cases: &[HiddenCase], indices: &[usize]) -> anyhow::Result<()> {
+/// fails naming every case not recovered; returns the reports (in `indices` order).
+fn run_cases(cases: &[HiddenCase], indices: &[usize]) -> anyhow::Result<Vec<Report>> {
     // The longest (most bites) first, so the workers end together.
     let mut order = indices.to_vec();
     order.sort_by_key(|&i| std::cmp::Reverse(cases[i].loads.len()));
     let next = AtomicUsize::new(0);
     let lines = Mutex::new(vec![String::new(); cases.len()]);
+    let reports = Mutex::new(vec![None; cases.len()]);
     let failures = Mutex::new(Vec::new());
     let settings = Settings { threads: 1 };
     std::thread::scope(|scope| -> anyhow::Result<()> {
@@ -105,6 +106,7 @@ fn run_cases(cases: &[HiddenCase], indices: &[usize]) -> anyhow::Result<()> {
                             failures.lock().unwrap().push(format!("{}: {e}", case.name));
                         }
                         lines.lock().unwrap()[index] = text;
+                        reports.lock().unwrap()[index] = Some(report);
                     }
                 })
             })
@@ -134,7 +136,8 @@ fn run_cases(cases: &[HiddenCase], indices: &[usize]) -> anyhow::Result<()> {
     }
     let failures = failures.into_inner().unwrap();
     assert!(failures.is_empty(), "{failures:#?}");
-    Ok(())
+    let mut reports = reports.into_inner().unwrap();
+    Ok(indices.iter().filter_map(|&i| reports[i].take()).collect())
 }
 
 /// The CI subset (a few seconds): a gap in the measured coupling under stiffness from
@@ -153,7 +156,33 @@ fn a_gap_in_the_measured_coupling_and_a_null_case_from_drawings() -> anyhow::Res
         [Some((Effect::Backlash, Some(1))), None],
         "the suite's designs moved: pick the CI cases again"
     );
-    run_cases(&cases, &CI_CASES)
+    let reports = run_cases(&cases, &CI_CASES)?;
+    // The model the wear diagnosis monitors against: linear, stiffness moved from the
+    // drawings to the truth.
+    for (case, report) in picked.iter().zip(&reports) {
+        let calibrated = report
+            .series
+            .calibrated_model
+            .as_ref()
+            .expect("a run gives the calibrated model");
+        for (fitted, truth) in calibrated.couplings.iter().zip(&case.truth.couplings) {
+            assert_eq!(
+                (fitted.backlash, fitted.hardening, fitted.friction),
+                (0.0, 0.0, 0.0),
+                "{}: calibrated model not linear",
+                case.name
+            );
+            let error = fitted.stiffness / truth.stiffness - 1.0;
+            assert!(
+                error.abs() < 0.05,
+                "{}: calibrated stiffness {:.4e} N*m/rad against the true {:.4e}",
+                case.name,
+                fitted.stiffness,
+                truth.stiffness
+            );
+        }
+    }
+    Ok(())
 }
 
 /// The whole suite (32 cases, 1-5 bites; about 2 min CPU):
@@ -173,5 +202,5 @@ fn every_hidden_effect_is_named_sized_and_removed() -> anyhow::Result<()> {
         cases.len()
     );
     let all: Vec<usize> = (0..cases.len()).collect();
-    run_cases(&cases, &all)
+    run_cases(&cases, &all).map(|_| ())
 }

@@ -129,6 +129,9 @@ pub struct Series {
     /// The calibrated linear model to monitor against (first bite's load): the
     /// extended model's stiffness and damping with a nonlinear effect removed (a linear
     /// one, sensor lag or extra inertia, kept); the linear fit when no effect is named.
+    /// Always `Some` in a report from [`run`] or [`run_with`] (`None` only in a
+    /// `Series::default()`). The wear diagnosis monitors against it: set its `load` to
+    /// the bite being monitored.
     pub calibrated_model: Option<Model>,
 }
 
