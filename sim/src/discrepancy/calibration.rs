@@ -8,7 +8,7 @@
 //!    gap biases it).
 //! 3. **Stiffness starts**: every root of eq. (2) for each identification (three
 //!    masses), or a regularised modal update (N masses), within a factor
-//!    [`MAX_LOG_RATIO`](super::fit::MAX_LOG_RATIO) of the drawings; the model's own
+//!    [`MAX_LOG_RATIO`](super::model_fit::MAX_LOG_RATIO) of the drawings; the model's own
 //!    stiffness; and the best points of a global search over stiffness within a factor
 //!    [`GRID_FACTOR`] of the drawings (`grid_starts`), for when no identification
 //!    gives a root (a coupling stuck by friction leaves one mode in the loaded part).
@@ -28,9 +28,9 @@ use crate::chain::Simulator;
 use crate::modal;
 use crate::model::Model;
 
-use super::fit::{self, BiteLoad, BiteRecord, Fitted, LinearValues, Problem};
 use super::identify;
-use super::lm::{self, FnResiduals};
+use super::levenberg_marquardt::{self, FnResiduals};
+use super::model_fit::{self, BiteLoad, BiteRecord, Fitted, LinearValues, Problem};
 use super::{BiteProblem, DiscrepancyError};
 
 /// Two stiffness starts closer than this (largest |ln ratio| over the couplings) are one.
@@ -223,7 +223,7 @@ pub fn calibrate(
         let plausible = |root: &Vec<f64>| {
             root.iter()
                 .zip(&drawings)
-                .all(|(c, d)| (c / d).ln().abs() <= fit::MAX_LOG_RATIO)
+                .all(|(c, d)| (c / d).ln().abs() <= model_fit::MAX_LOG_RATIO)
         };
         if template.masses.len() == 3 {
             for root in eq2_roots(template, &drawings, &betas) {
@@ -496,7 +496,11 @@ fn modal_update(template: &Model, drawing: &[f64], identified_hz: &[f64; 2]) -> 
             true
         },
     };
-    let result = lm::minimise(&vec![0.0; n], &lm::LmSettings::default(), &mut problem);
+    let result = levenberg_marquardt::minimise(
+        &vec![0.0; n],
+        &levenberg_marquardt::LmSettings::default(),
+        &mut problem,
+    );
     result.cost.is_finite().then(|| {
         drawing
             .iter()

@@ -15,7 +15,7 @@ use crate::chain::Simulator;
 use crate::model::Model;
 
 use super::effects::Effect;
-use super::fit::{BiteRecord, Fitted, Problem};
+use super::model_fit::{BiteRecord, Fitted, Problem};
 use super::search::FittedCandidate;
 use super::DiscrepancyError;
 
@@ -236,7 +236,7 @@ mod tests {
     use super::*;
     use crate::chain::simulate_with_noise;
     use crate::discrepancy::effects::Range;
-    use crate::discrepancy::fit::{EffectSlot, LinearValues};
+    use crate::discrepancy::model_fit::{EffectSlot, LinearValues};
     use crate::discrepancy::search::Candidate;
 
     /// A 0.3 s bite of the adjusted Table 2 driveline with a 2 mrad gap in the spindle.

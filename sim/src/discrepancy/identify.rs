@@ -22,7 +22,7 @@
 use millgate_dsp::pencil;
 use nalgebra::{DMatrix, DVector};
 
-use super::lm::{minimise, FnResiduals, LmSettings};
+use super::levenberg_marquardt::{minimise, FnResiduals, LmSettings};
 
 /// The loaded part starts after the last sample below this fraction of the static level.
 pub const LOADED_FRACTION: f64 = 0.25;

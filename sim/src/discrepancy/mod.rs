@@ -10,7 +10,7 @@
 //!    loaded past their gaps, and the paper's way on the whole transient; turn the
 //!    loaded-part frequencies into stiffness (eq. (2), every root, or a modal update for
 //!    N masses); fit stiffness, damping and each bite's load by Levenberg-Marquardt from
-//!    each start ([`fit`], [`lm`]). Inertias and the motor's controller are trusted.
+//!    each start ([`model_fit`], [`levenberg_marquardt`]). Inertias and the motor's controller are trusted.
 //! 3. **Disagreement** ([`windows`], [`features`]): residual windows above the noise
 //!    and the transient features of record and model, per bite.
 //! 4. **Candidate search** ([`search`], [`effects`]): every effect at every location,
@@ -46,9 +46,9 @@ pub mod cases;
 pub mod decision;
 pub mod effects;
 pub mod features;
-pub mod fit;
 pub mod identify;
-pub mod lm;
+pub mod levenberg_marquardt;
+pub mod model_fit;
 pub mod noise;
 #[cfg(feature = "plot")]
 pub mod report;

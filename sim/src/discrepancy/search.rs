@@ -16,8 +16,8 @@ use serde::Serialize;
 use crate::model::Model;
 
 use super::effects::{Effect, Range};
-use super::fit::{BiteRecord, EffectSlot, Fitted, LinearValues, Problem, FIT_SETTINGS};
-use super::lm::LmSettings;
+use super::levenberg_marquardt::LmSettings;
+use super::model_fit::{BiteRecord, EffectSlot, Fitted, LinearValues, Problem, FIT_SETTINGS};
 use super::DiscrepancyError;
 
 /// Starting sizes tried per candidate and anchor before its fit.

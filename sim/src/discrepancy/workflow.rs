@@ -11,7 +11,7 @@ use super::calibration::{self, Calibration};
 use super::decision::{self, FurtherRecord, Verdict};
 use super::effects::Effect;
 use super::features::{self, Feature};
-use super::fit::{BiteRecord, Fitted};
+use super::model_fit::{BiteRecord, Fitted};
 use super::noise::noise_rms;
 use super::search::{self, Candidate, FittedCandidate};
 use super::windows::{self, BiteTiming, Disagreement};

@@ -26,7 +26,7 @@ use crate::chain::Simulator;
 use crate::model::{Model, ModelError};
 
 use super::effects::{Effect, Range};
-use super::lm::{minimise, LmSettings, Residuals};
+use super::levenberg_marquardt::{minimise, LmSettings, Residuals};
 
 /// Onset parameter unit, s.
 const ONSET_UNIT_S: f64 = 1.0e-3;
