@@ -568,6 +568,85 @@ impl RodAnalysis {
 mod tests {
     use super::*;
 
+    /// The example RSM block with a temperature channel; channels 0..4 are the
+    /// configuration, pass, speed and temperature.
+    fn monitor() -> RodMonitor {
+        let models = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../sim/models/rod");
+        let mut text = String::from(
+            "name = \"rod\"\n[[sources.modbus]]\nname = \"plc\"\naddress = \"127.0.0.1:1\"\npoll_period_ms = 20\n",
+        );
+        for (address, name) in ["configuration", "pass", "speed", "temperature"]
+            .iter()
+            .enumerate()
+        {
+            text += &format!(
+                "[[channels]]\nname = \"{name}\"\nkind = \"process_value\"\nunit = \"1\"\n\
+                 source = {{ modbus = \"plc\", table = \"holding\", address = {address} }}\n"
+            );
+        }
+        text += "[[rod_mills]]\nname = \"RSM\"\nmill = \"rsm-mill.toml\"\n\
+                 schedule = \"rsm-schedule.csv\"\nconfiguration = \"configuration\"\n\
+                 configurations = [\"table3\", \"fast\"]\npass = \"pass\"\n\
+                 finishing_speed = \"speed\"\ntemperature = \"temperature\"\n";
+        let config = millgate_config::from_toml_str(&text, "rod.toml", &models)
+            .unwrap_or_else(|error| panic!("{error}"));
+        RodMonitor::new(&config, 0).unwrap_or_else(|error| panic!("{error}"))
+    }
+
+    /// Feeds (configuration, pass, speed, temperature); the last results.
+    fn feed(monitor: &mut RodMonitor, values: [f64; 4]) -> Option<RodMillResults> {
+        let mut last = None;
+        for (channel, value) in values.into_iter().enumerate() {
+            last = monitor.process_value(channel, value).or(last);
+        }
+        last
+    }
+
+    #[test]
+    fn refused_inputs_name_the_key_and_range_and_the_monitor_recovers() {
+        let mut monitor = monitor();
+        // Nothing until every input is known; a channel not its own is ignored.
+        assert_eq!(monitor.process_value(0, 0.0), None);
+        assert_eq!(monitor.process_value(7, 1.0), None);
+        let good = feed(&mut monitor, [0.0, 1.0, 60.0, 950.0]).expect("evaluated");
+        assert!(!good.input_refused && good.spans.len() == 3 && good.spans.iter().all(|s| s.valid));
+        assert_eq!(
+            (good.configuration, good.pass, good.temperature_c),
+            (Some(0), Some(1), Some(950.0))
+        );
+        // The same inputs again: nothing to recompute.
+        assert_eq!(feed(&mut monitor, [0.0, 1.0, 60.0, 950.0]), None);
+        let refusals = [
+            ([0.0, 9.0, 60.0, 950.0], "rod_mills[0].pass (channel \"pass\"): 9 is not allowed (must be an integer 1..=4, the rows of"),
+            ([2.0, 1.0, 60.0, 950.0], "rod_mills[0].configuration (channel \"configuration\"): 2 is not allowed (must be an integer 0..=1: 0 table3, 1 fast)"),
+            ([0.0, 1.0, 0.0, 950.0], "rod_mills[0].finishing_speed (channel \"speed\"): 0 is not allowed (must be > 0 m/s)"),
+            ([0.0, 1.0, 60.0, 1500.0], "rod_mills[0].temperature (channel \"temperature\"): rod_mills[0] \"RSM\", pass P1"),
+        ];
+        for (values, expected) in refusals {
+            let results = feed(&mut monitor, values).expect("evaluated");
+            assert!(results.input_refused, "{values:?}");
+            assert!(results.spans.iter().all(|s| !s.valid), "{values:?}");
+            let message = monitor.last_error.clone().unwrap_or_default();
+            assert!(message.starts_with(expected), "{message}");
+            if values[3] == 1500.0 {
+                assert!(
+                    message.contains(
+                        "temperature_c: 1500 is not allowed (must be within the modulus table"
+                    ),
+                    "{message}"
+                );
+            }
+            let back = feed(&mut monitor, [0.0, 1.0, 61.0 + values[2], 950.0]).expect("evaluated");
+            assert!(
+                !back.input_refused && back.spans.iter().all(|s| s.valid),
+                "{values:?}"
+            );
+        }
+        // Pass P1 in table3 at 950 and at 1500 deg C (refused, cached too): the bad
+        // pass and configuration are refused before any setup.
+        assert_eq!(monitor.cached_setups(), 2);
+    }
+
     fn status(stable: bool, margin: Option<f64>) -> SpanStatus {
         SpanStatus {
             span: "S1-S2".into(),
