@@ -627,6 +627,12 @@ fn mill_value(m: &MillResults, field: MillField) -> Option<f64> {
     }
 }
 
+/// The unstable and near-tongue bits of a rod `flags` register.
+fn rod_flag_bits(unstable: bool, near_tongue: bool) -> u16 {
+    let bit = |set: bool, bit: u16| if set { bit } else { 0 };
+    bit(unstable, rod_flags::UNSTABLE) | bit(near_tongue, rod_flags::NEAR_TONGUE)
+}
+
 /// Whether a rod mill's values may be published: evaluated, inputs accepted, fresh.
 fn rod_mill_valid(m: &RodMillResults) -> bool {
     m.evaluations > 0 && !m.input_refused && !m.source_stale
@@ -646,8 +652,7 @@ fn rod_mill_value(m: &RodMillResults, field: RodMillField) -> Option<f64> {
         R::Flags => {
             let any = |pick: fn(&RodSpanResults) -> bool| m.spans.iter().any(pick);
             Some(f64::from(if valid {
-                u16::from(any(|s| s.unstable)) * rod_flags::UNSTABLE
-                    | u16::from(any(|s| s.near_tongue)) * rod_flags::NEAR_TONGUE
+                rod_flag_bits(any(|s| s.unstable), any(|s| s.near_tongue))
             } else {
                 rod_flags::INVALID
             }))
@@ -672,10 +677,7 @@ fn rod_span_value(m: &RodMillResults, span: usize, field: RodSpanField) -> Optio
     });
     match field {
         S::Flags => Some(f64::from(match result {
-            Some(s) => {
-                u16::from(s.unstable) * rod_flags::UNSTABLE
-                    | u16::from(s.near_tongue) * rod_flags::NEAR_TONGUE
-            }
+            Some(s) => rod_flag_bits(s.unstable, s.near_tongue),
             None => rod_flags::INVALID,
         })),
         S::Quality => Some(values.map_or(0.0, |v| quality_mask(&v))),
