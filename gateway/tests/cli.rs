@@ -28,7 +28,12 @@ fn write_config(name: &str, body: &str) -> PathBuf {
 
 #[test]
 fn check_accepts_every_example_and_prints_a_summary() {
-    for example in ["hot-mill.toml", "tandem-5stand.toml", "demo.toml"] {
+    for example in [
+        "hot-mill.toml",
+        "tandem-5stand.toml",
+        "demo.toml",
+        "rod-mill.toml",
+    ] {
         let path = examples().join(example);
         let output = millgate(&["check", "--config", path.to_str().unwrap()]);
         assert!(output.status.success(), "{example}: {}", text(&output));
