@@ -16,12 +16,13 @@ use crate::error::{line_column, Report};
 use crate::raw::RawConfig;
 
 /// Keys allowed at the top level of a configuration file.
-const TOP_LEVEL_KEYS: [&str; 6] = [
+const TOP_LEVEL_KEYS: [&str; 7] = [
     "name",
     "sources",
     "channels",
     "drivelines",
     "tandem_mills",
+    "rod_mills",
     "outputs",
 ];
 
@@ -53,6 +54,7 @@ pub(crate) fn parse(text: &str, report: &mut Report) -> Option<RawConfig> {
             "channels" => raw.channels = schema.list(value, "channels"),
             "drivelines" => raw.drivelines = schema.list(value, "drivelines"),
             "tandem_mills" => raw.tandem_mills = schema.list(value, "tandem_mills"),
+            "rod_mills" => raw.rod_mills = schema.list(value, "rod_mills"),
             "outputs" => raw.outputs = schema.value(value, "outputs").unwrap_or_default(),
             _ => schema.unknown_key(key, "", &TOP_LEVEL_KEYS),
         }

@@ -103,6 +103,23 @@ pub(crate) struct RawTandemMill {
     pub slow_down_hold_s: Option<f64>,
 }
 
+/// `[[rod_mills]]`: a rod mill checked online against the Mathieu tongues.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawRodMill {
+    pub name: String,
+    pub mill: String,
+    pub schedule: String,
+    pub configuration: String,
+    pub configurations: Vec<String>,
+    pub pass: String,
+    pub finishing_speed: String,
+    pub temperature: Option<String>,
+    pub near_tongue_m_s: Option<f64>,
+    pub hysteresis_m_s: Option<f64>,
+    pub temperature_step_c: Option<f64>,
+}
+
 /// `[outputs]`.
 #[derive(Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -148,5 +165,6 @@ pub(crate) struct RawConfig {
     pub channels: Vec<RawChannel>,
     pub drivelines: Vec<RawDriveline>,
     pub tandem_mills: Vec<RawTandemMill>,
+    pub rod_mills: Vec<RawRodMill>,
     pub outputs: RawOutputs,
 }

@@ -23,6 +23,8 @@ pub struct Config {
     pub drivelines: Vec<Driveline>,
     /// Tandem mills watched for chatter.
     pub tandem_mills: Vec<TandemMill>,
+    /// Rod mills whose rod spans are checked against the Mathieu tongues online.
+    pub rod_mills: Vec<RodMill>,
     /// Where results go.
     pub outputs: Outputs,
 }
@@ -344,6 +346,44 @@ pub enum ChatterDetectorKind {
     /// `"paper"`: the synchronization conditions (sigma_n <= sigma_min and K_mean >=
     /// K_max); in the race they fired before developed chatter in 38 of 60 ramps.
     Paper,
+}
+
+/// A rod (wire) mill whose rod spans are checked online against the Mathieu
+/// instability tongues, from PLC process values (`[[rod_mills]]`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RodMill {
+    /// Unique among rod mills.
+    pub name: String,
+    /// Rod-mill file (`millgate-sim` rod mill TOML: drive, stands, spans, modulus
+    /// table), relative to the config file; its content is checked by the service.
+    pub mill: PathBuf,
+    /// Pass schedule CSV (rod diameters and temperature per pass), relative to the
+    /// config file.
+    pub schedule: PathBuf,
+    /// Index into [`Config::channels`] of the process value carrying the active drive
+    /// configuration: value k (an integer 0..configurations.len()) selects
+    /// `configurations[k]`.
+    pub configuration: usize,
+    /// Drive configuration names (of the mill's drive) by PLC value, 1..=64 names.
+    pub configurations: Vec<String>,
+    /// Index into [`Config::channels`] of the process value carrying the pass number:
+    /// k (1-based) selects the k-th row of the schedule.
+    pub pass: usize,
+    /// Index into [`Config::channels`] of the finishing speed, m/s (rod speed out of
+    /// the last stand).
+    pub finishing_speed: usize,
+    /// Index into [`Config::channels`] of the rod temperature, deg C; without it the
+    /// schedule's temperature of the pass is used.
+    pub temperature: Option<usize>,
+    /// A stable span whose speed margin is below this is "near a tongue", m/s, > 0
+    /// (default 2).
+    pub near_tongue_m_s: f64,
+    /// Speed hysteresis of the unstable and near-tongue flags, m/s, >= 0 (default
+    /// 0.5): a flag clears only once the margin is this much beyond where it was set.
+    pub hysteresis_m_s: f64,
+    /// Rod temperature step, deg C, > 0 (default 10): the measured temperature is
+    /// rounded to a multiple of it before the pass's setup is (re)computed.
+    pub temperature_step_c: f64,
 }
 
 /// Where results go.

@@ -349,7 +349,7 @@ fn wrong_types_and_missing_keys_are_named() {
     );
     assert_problem_like(
         &(BASE.to_owned() + "\n[alarms]\nlevel = 1\n"),
-        "mill.toml: alarms: unknown key (allowed here: name, sources, channels, drivelines, tandem_mills, outputs)",
+        "mill.toml: alarms: unknown key (allowed here: name, sources, channels, drivelines, tandem_mills, rod_mills, outputs)",
         &[],
     );
     assert_problem_like(
@@ -969,5 +969,80 @@ fn every_problem_is_listed_at_once() {
             "tandem_mills[0].k_max",
             "outputs.server.bind"
         ]
+    );
+}
+
+#[test]
+fn rod_mill_example() {
+    let config =
+        load(&examples_dir().join("rod-mill.toml")).unwrap_or_else(|error| panic!("{error}"));
+    let mill = &config.rod_mills[0];
+    let channel = |index: usize| config.channels[index].name.as_str();
+    assert_eq!(mill.name, "RSM");
+    assert!(mill.mill.ends_with("sim/models/rod/rsm-mill.toml"));
+    assert!(mill.schedule.ends_with("sim/models/rod/rsm-schedule.csv"));
+    assert_eq!(mill.configurations, ["table3", "fast"]);
+    assert_eq!(channel(mill.configuration), "rsm_configuration");
+    assert_eq!(channel(mill.pass), "rsm_pass");
+    assert_eq!(channel(mill.finishing_speed), "rsm_finishing_speed");
+    assert_eq!(mill.temperature.map(channel), Some("rsm_rod_temperature"));
+    assert_eq!(
+        (
+            mill.near_tongue_m_s,
+            mill.hysteresis_m_s,
+            mill.temperature_step_c
+        ),
+        (2.0, 0.5, 10.0)
+    );
+}
+
+#[test]
+fn rod_mill_problems_name_the_key_and_the_allowed_range() {
+    let text = std::fs::read_to_string(examples_dir().join("rod-mill.toml")).expect("example");
+    let check = |from: &str, to: &str| -> Vec<String> {
+        assert!(text.contains(from), "the example has {from:?}");
+        match from_toml_str(&text.replace(from, to), "rod.toml", &examples_dir()) {
+            Ok(_) => panic!("{to:?} was accepted"),
+            Err(error) => error.problems.iter().map(ToString::to_string).collect(),
+        }
+    };
+    let found = check("hysteresis_m_s = 0.5", "hysteresis_m_s = -1.0");
+    assert_eq!(
+        found,
+        ["rod.toml: rod_mills[0].hysteresis_m_s: -1 is not allowed (must be >= 0 m/s)"]
+    );
+    let found = check(
+        "configurations = [\"table3\", \"fast\"]",
+        "configurations = []",
+    );
+    assert_eq!(found.len(), 1, "{found:?}");
+    assert!(
+        found[0].starts_with(
+            "rod.toml: rod_mills[0].configurations: 0 names is not allowed (must be 1..=64"
+        ),
+        "{found:?}"
+    );
+    let found = check(
+        "finishing_speed = \"rsm_finishing_speed\"",
+        "finishing_speed = \"rsm_speed\"",
+    );
+    assert_eq!(found.len(), 1, "{found:?}");
+    assert!(
+        found[0]
+            .starts_with("rod.toml: rod_mills[0].finishing_speed: unknown channel \"rsm_speed\""),
+        "{found:?}"
+    );
+    let found = check("near_tongue_m_s = 2.0", "near_tongue_m_s = 0.0");
+    assert_eq!(
+        found,
+        ["rod.toml: rod_mills[0].near_tongue_m_s: 0 is not allowed (must be > 0 m/s)"]
+    );
+    let found = check("rsm-mill.toml\"", "rsm-mil.toml\"");
+    assert_eq!(found.len(), 1, "{found:?}");
+    assert!(
+        found[0].starts_with(
+            "rod.toml: rod_mills[0].mill: file \"../../sim/models/rod/rsm-mil.toml\" not found"
+        ),
+        "{found:?}"
     );
 }

@@ -6,7 +6,7 @@
 //! present.
 //!
 //! One file per part of the configuration: `sources`, `channels`, `drivelines`,
-//! `tandem_mills`, `outputs`; `values` holds the checks of single values they share.
+//! `tandem_mills`, `rod_mills`, `outputs`; `values` holds the checks of single values they share.
 
 use std::collections::HashMap;
 use std::ops::RangeInclusive;
@@ -96,6 +96,13 @@ pub(crate) fn validate(raw: RawConfig, base_dir: &Path, report: &mut Report) -> 
         |mill| &mill.name,
         |checker, key, mill| checker.tandem_mill(key, mill, &channel_facts),
     );
+    let rod_mills = checker.named_list(
+        "rod_mills",
+        "rod mill",
+        &raw.rod_mills,
+        |mill| &mill.name,
+        |checker, key, mill| checker.rod_mill(key, mill, &channel_facts),
+    );
     let outputs = checker.outputs(&raw.outputs);
     Some(Config {
         name: name?,
@@ -104,6 +111,7 @@ pub(crate) fn validate(raw: RawConfig, base_dir: &Path, report: &mut Report) -> 
         channels: channels.into_iter().collect::<Option<_>>()?,
         drivelines: drivelines.into_iter().collect::<Option<_>>()?,
         tandem_mills: tandem_mills.into_iter().collect::<Option<_>>()?,
+        rod_mills: rod_mills.into_iter().collect::<Option<_>>()?,
         outputs: outputs?,
     })
 }
@@ -164,6 +172,7 @@ struct Checker<'a> {
 mod channels;
 mod drivelines;
 mod outputs;
+mod rod_mills;
 mod sources;
 mod tandem_mills;
 mod values;

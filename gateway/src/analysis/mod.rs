@@ -1,12 +1,14 @@
 //! The analysis task: samples in, bite and chatter results out. Only synchronous
 //! `dsp` code runs on the samples; this module routes each reader message to the
 //! drivelines whose torque or trigger it is ([`driveline`]) and to the tandem mills
-//! whose stand it is ([`chatter_monitor`]).
+//! whose stand it is ([`chatter_monitor`]); process values that carry a rod mill's
+//! operating point go to its span stability monitor ([`rod_monitor`]).
 
 pub mod bite_window;
 pub mod chatter_monitor;
 pub mod driveline;
 mod error;
+pub mod rod_monitor;
 pub mod wear;
 
 use std::sync::Arc;
@@ -31,6 +33,8 @@ pub struct Analysis {
     bites: broadcast::Sender<BiteReport>,
     /// Chatter monitors of the tandem mills.
     chatter: chatter_monitor::ChatterAnalysis,
+    /// Span stability monitors of the rod mills.
+    rod_mills: rod_monitor::RodAnalysis,
 }
 
 impl Analysis {
@@ -53,6 +57,7 @@ impl Analysis {
             }
         }
         let chatter = chatter_monitor::ChatterAnalysis::new(config, Arc::clone(&publisher))?;
+        let rod_mills = rod_monitor::RodAnalysis::new(config, Arc::clone(&publisher))?;
         Ok(Self {
             drivelines,
             by_torque,
@@ -60,12 +65,14 @@ impl Analysis {
             publisher,
             bites,
             chatter,
+            rod_mills,
         })
     }
 
     /// Handle one message from a reader; returns the bites it completed.
     pub fn handle(&mut self, message: Acquired) -> Vec<BiteReport> {
         self.chatter.handle(&message);
+        self.rod_mills.handle(&message);
         let mut reports = Vec::new();
         match message {
             Acquired::Samples {

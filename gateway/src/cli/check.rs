@@ -67,6 +67,7 @@ mod tests {
             ("demo.toml", "spindle_top: torque"),
             ("hot-mill.toml", "F1 main drive: torque spindle_top"),
             ("tandem-5stand.toml", "TCM 2030: 5 stands"),
+            ("rod-mill.toml", "RSM: mill "),
         ] {
             let summary = check(&example(file)).unwrap_or_else(|error| panic!("{error}"));
             assert!(summary.contains(": OK\n"), "{summary}");
@@ -125,6 +126,40 @@ mod tests {
             "{text}"
         );
         assert!(text.contains("frequency step 50 Hz"), "{text}");
+    }
+
+    #[test]
+    fn rod_mill_configuration_unknown_to_the_drive_is_reported_with_its_key() {
+        let text = std::fs::read_to_string(example("rod-mill.toml")).expect("the example");
+        let absolute = text
+            .replace(
+                "../../sim/models/rod/",
+                &format!("{}/", example("../../sim/models/rod").display()),
+            )
+            .replace("[\"table3\", \"fast\"]", "[\"table3\", \"fastest\"]");
+        let error = check_text(&absolute).expect_err("unknown configuration");
+        let message = error.to_string();
+        assert!(matches!(error, CheckError::Service { .. }), "{message}");
+        assert!(
+            message.contains(
+                "rod_mills[0].configurations[1]: \"fastest\" is not allowed (must be a \
+                 configuration of the drive of"
+            ),
+            "{message}"
+        );
+        assert!(message.contains("table3, fast)"), "{message}");
+    }
+
+    /// Check `text` written to a fresh file.
+    fn check_text(text: &str) -> Result<String, CheckError> {
+        let directory =
+            std::env::temp_dir().join(format!("millgate-check-rod-{}", std::process::id()));
+        std::fs::create_dir_all(&directory).expect("temporary directory");
+        let path = directory.join("rod.toml");
+        std::fs::write(&path, text).expect("write the variant");
+        let result = check(&path);
+        std::fs::remove_dir_all(&directory).expect("remove the temporary directory");
+        result
     }
 
     #[test]

@@ -24,6 +24,8 @@ pub struct Publisher {
     driveline_sources: Vec<usize>,
     /// Global source indices of each mill's stand channels.
     mill_sources: Vec<Vec<usize>>,
+    /// Global source indices of each rod mill's input channels.
+    rod_mill_sources: Vec<Vec<usize>>,
 }
 
 /// Global index of a channel's source: Modbus sources first, then CAN sources.
@@ -39,11 +41,12 @@ pub fn source_of_channel(config: &Config, channel: usize) -> usize {
 impl Publisher {
     /// A publisher for `config` with one health record per source (Modbus, then CAN).
     pub fn new(config: &Config, health: Vec<Arc<SourceHealth>>) -> Self {
-        let results = Results::new(
+        let mut results = Results::new(
             health.len(),
             config.drivelines.len(),
             config.tandem_mills.len(),
         );
+        results.rod_mills = vec![Default::default(); config.rod_mills.len()];
         Self {
             results: Mutex::new(results),
             changed: tokio::sync::Notify::new(),
@@ -63,6 +66,18 @@ impl Publisher {
                     m.stands
                         .iter()
                         .map(|&c| source_of_channel(config, c))
+                        .collect()
+                })
+                .collect(),
+            rod_mill_sources: config
+                .rod_mills
+                .iter()
+                .map(|m| {
+                    [Some(m.configuration), Some(m.pass), Some(m.finishing_speed)]
+                        .into_iter()
+                        .chain([m.temperature])
+                        .flatten()
+                        .map(|c| source_of_channel(config, c))
                         .collect()
                 })
                 .collect(),
@@ -118,6 +133,9 @@ impl Publisher {
         // A mill is also flagged by its analysis (a gap restarted its window).
         for (mill, sources) in results.mills.iter_mut().zip(&self.mill_sources) {
             mill.source_stale |= sources.iter().any(bad);
+        }
+        for (mill, sources) in results.rod_mills.iter_mut().zip(&self.rod_mill_sources) {
+            mill.source_stale = sources.iter().any(bad);
         }
     }
 

@@ -13,7 +13,10 @@
 use millgate_config::layout::encode_value;
 use millgate_config::{Config, ValueType, WordOrder};
 
-use crate::outputs::results::{DrivelineResults, GatewayState, MillResults, Results};
+use crate::analysis::rod_monitor::MAX_ROD_SPANS;
+use crate::outputs::results::{
+    DrivelineResults, GatewayState, MillResults, Results, RodMillResults, RodSpanResults,
+};
 
 /// Whether clients may write a register.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -98,6 +101,38 @@ pub mod mill_flags {
     pub const SLOW_DOWN_REQUEST: u16 = 1 << 3;
 }
 
+/// Per-rod-mill quantities, in register order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RodMillField {
+    /// Any span unstable, any near a tongue, inputs invalid ([`rod_flags`]).
+    Flags,
+    /// Bit i set: value i of the block is valid.
+    Quality,
+    /// Configuration input in use (index into the rod mill's `configurations`).
+    Configuration,
+    /// Pass number in use, 1-based.
+    Pass,
+    /// Finishing speed evaluated, m/s.
+    FinishingSpeed,
+    /// Rod temperature of the setup in use, deg C.
+    Temperature,
+}
+
+/// Per-span quantities of a rod mill, in register order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RodSpanField {
+    /// Unstable, near tongue, invalid bits ([`rod_flags`]).
+    Flags,
+    /// Bit i set: value i is valid.
+    Quality,
+    /// Finishing-speed margin to the nearest band edge, m/s.
+    SpeedMargin,
+    /// Worst growth exponent of the span's points, 1/s.
+    WorstExponent,
+    /// Configuration input the span was evaluated in.
+    Configuration,
+}
+
 /// What a register holds.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Field {
@@ -120,6 +155,10 @@ pub enum Field {
     Driveline(usize, DrivelineField),
     /// A quantity of tandem mill k (config order).
     Mill(usize, MillField),
+    /// A quantity of rod mill k (config order).
+    RodMill(usize, RodMillField),
+    /// A quantity of span s (rolling order) of rod mill k.
+    RodSpan(usize, usize, RodSpanField),
 }
 
 /// One register (or register pair) of the map.
@@ -157,6 +196,17 @@ pub mod driveline_flags {
     pub const DEGRADED: u16 = 1 << 3;
 }
 
+/// Flag bits of a rod mill's and a rod span's `flags` register.
+pub mod rod_flags {
+    /// The span is unstable (mill: any span), with hysteresis.
+    pub const UNSTABLE: u16 = 1 << 0;
+    /// The span is stable but near a tongue (mill: any span), with hysteresis.
+    pub const NEAR_TONGUE: u16 = 1 << 1;
+    /// No valid result: an input's source is stale or lost, or an input was refused
+    /// (out of range); the other bits are then 0.
+    pub const INVALID: u16 = 1 << 2;
+}
+
 /// Bits of the gateway status register.
 pub mod status_bits {
     /// The gateway is running and publishing fresh results.
@@ -173,6 +223,12 @@ const DRIVELINES_START: u16 = 16;
 const DRIVELINE_STRIDE: u16 = 32;
 /// Registers reserved per mill block.
 const MILL_STRIDE: u16 = 16;
+/// First register of a rod mill's first span, from the rod mill's block start.
+const ROD_SPANS_START: u16 = 8;
+/// Registers per rod span.
+const ROD_SPAN_STRIDE: u16 = 8;
+/// Registers reserved per rod mill block: the mill's own, then [`MAX_ROD_SPANS`] spans.
+const ROD_MILL_STRIDE: u16 = ROD_SPANS_START + ROD_SPAN_STRIDE * MAX_ROD_SPANS as u16;
 
 /// The register map of one configuration.
 #[derive(Debug, Clone, PartialEq)]
@@ -353,7 +409,60 @@ impl RegisterMap {
                 );
             }
         }
-        let len = mills_start + MILL_STRIDE * config.tandem_mills.len() as u16;
+        let rods_start = mills_start + MILL_STRIDE * config.tandem_mills.len() as u16;
+        for (k, mill) in config.rod_mills.iter().enumerate() {
+            use RodMillField as R;
+            use RodSpanField as S;
+            let base = rods_start + ROD_MILL_STRIDE * k as u16;
+            let fields: [(u16, &str, ValueType, &'static str, &str, RodMillField); 6] = [
+                (0, "flags", U16, "bits", "bit0 a span is unstable, bit1 a span is near a tongue, bit2 invalid (an input's source is stale or lost, or an input is out of range)", R::Flags),
+                (1, "quality", U16, "bits", "bit i set: value i is valid (0 configuration, 1 pass, 2 finishing_speed, 3 rod_temperature)", R::Quality),
+                (2, "configuration", U16, "", "Drive configuration in use: the PLC's value, an index into the rod mill's configurations", R::Configuration),
+                (3, "pass", U16, "", "Pass in use: the PLC's pass number (1-based row of the schedule)", R::Pass),
+                (4, "finishing_speed", F32, "m/s", "Finishing speed the spans were evaluated at", R::FinishingSpeed),
+                (6, "rod_temperature", F32, "degC", "Rod temperature of the pass setup in use (rounded to temperature_step_c, or the schedule's)", R::Temperature),
+            ];
+            for (offset, name, value_type, unit, description, field) in fields {
+                b.add(
+                    base + offset,
+                    format!("{}.{name}", mill.name),
+                    value_type,
+                    unit,
+                    1.0,
+                    read,
+                    description.into(),
+                    Field::RodMill(k, field),
+                );
+            }
+            for span in 0..MAX_ROD_SPANS {
+                let span_base = base + ROD_SPANS_START + ROD_SPAN_STRIDE * span as u16;
+                let fields: [(u16, &str, ValueType, &'static str, &str, RodSpanField); 5] = [
+                    (0, "flags", U16, "bits", "bit0 unstable, bit1 near a tongue (stable, speed margin < near_tongue_m_s), both with hysteresis; bit2 invalid (stale or refused input, or the mill has fewer spans)", S::Flags),
+                    (1, "quality", U16, "bits", "bit i set: value i is valid (0 speed_margin, 1 worst_exponent, 2 configuration)", S::Quality),
+                    (2, "speed_margin", F32, "m/s", "Finishing-speed change to the nearest unstable band edge: > 0 stable, < 0 unstable (the change that stabilises it); invalid when no band lies in the speed range", S::SpeedMargin),
+                    (4, "worst_exponent", F32, "1/s", "Largest growth exponent of the span's points (< 0 decaying)", S::WorstExponent),
+                    (6, "configuration", U16, "", "Drive configuration the span was evaluated in (index into the rod mill's configurations)", S::Configuration),
+                ];
+                for (offset, name, value_type, unit, description, field) in fields {
+                    b.add(
+                        span_base + offset,
+                        format!("{}.span{}.{name}", mill.name, span + 1),
+                        value_type,
+                        unit,
+                        1.0,
+                        read,
+                        format!(
+                            "Span {} (stand {} to {} in rolling order): {description}",
+                            span + 1,
+                            span + 1,
+                            span + 2
+                        ),
+                        Field::RodSpan(k, span, field),
+                    );
+                }
+            }
+        }
+        let len = rods_start + ROD_MILL_STRIDE * config.rod_mills.len() as u16;
         Self {
             registers: b.registers,
             len,
@@ -447,6 +556,14 @@ fn value_of(field: Field, results: &Results) -> Option<f64> {
             .mills
             .get(m)
             .and_then(|mill| mill_value(mill, field)),
+        Field::RodMill(k, field) => results
+            .rod_mills
+            .get(k)
+            .and_then(|mill| rod_mill_value(mill, field)),
+        Field::RodSpan(k, span, field) => results
+            .rod_mills
+            .get(k)
+            .and_then(|mill| rod_span_value(mill, span, field)),
     }
 }
 
@@ -554,6 +671,66 @@ fn mill_value(m: &MillResults, field: MillField) -> Option<f64> {
         MillField::GainRatio => fresh(m.gain_ratio),
         MillField::BandRmsMax => fresh(m.band_rms_max),
         MillField::WorstStand => fresh(mill_quality_values(m)[6]),
+    }
+}
+
+/// The unstable and near-tongue bits of a rod `flags` register.
+fn rod_flag_bits(unstable: bool, near_tongue: bool) -> u16 {
+    let bit = |set: bool, bit: u16| if set { bit } else { 0 };
+    bit(unstable, rod_flags::UNSTABLE) | bit(near_tongue, rod_flags::NEAR_TONGUE)
+}
+
+/// Whether a rod mill's values may be published: evaluated, inputs accepted, fresh.
+fn rod_mill_valid(m: &RodMillResults) -> bool {
+    m.evaluations > 0 && !m.input_refused && !m.source_stale
+}
+
+fn rod_mill_value(m: &RodMillResults, field: RodMillField) -> Option<f64> {
+    use RodMillField as R;
+    let valid = rod_mill_valid(m);
+    let values = [
+        m.configuration.map(f64::from),
+        m.pass.map(f64::from),
+        m.finishing_speed_m_s,
+        m.temperature_c,
+    ];
+    let fresh = |v: Option<f64>| v.filter(|_| valid);
+    match field {
+        R::Flags => {
+            let any = |pick: fn(&RodSpanResults) -> bool| m.spans.iter().any(pick);
+            Some(f64::from(if valid {
+                rod_flag_bits(any(|s| s.unstable), any(|s| s.near_tongue))
+            } else {
+                rod_flags::INVALID
+            }))
+        }
+        R::Quality => Some(if valid { quality_mask(&values) } else { 0.0 }),
+        R::Configuration => fresh(values[0]),
+        R::Pass => fresh(values[1]),
+        R::FinishingSpeed => fresh(values[2]),
+        R::Temperature => fresh(values[3]),
+    }
+}
+
+fn rod_span_value(m: &RodMillResults, span: usize, field: RodSpanField) -> Option<f64> {
+    use RodSpanField as S;
+    let result = m.spans.get(span).filter(|s| s.valid && rod_mill_valid(m));
+    let values = result.map(|s| {
+        [
+            s.speed_margin_m_s,
+            s.worst_exponent_per_s,
+            s.configuration.map(f64::from),
+        ]
+    });
+    match field {
+        S::Flags => Some(f64::from(match result {
+            Some(s) => rod_flag_bits(s.unstable, s.near_tongue),
+            None => rod_flags::INVALID,
+        })),
+        S::Quality => Some(values.map_or(0.0, |v| quality_mask(&v))),
+        S::SpeedMargin => values.and_then(|v| v[0]),
+        S::WorstExponent => values.and_then(|v| v[1]),
+        S::Configuration => values.and_then(|v| v[2]),
     }
 }
 

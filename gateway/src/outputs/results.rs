@@ -73,6 +73,50 @@ pub struct MillResults {
     pub source_stale: bool,
 }
 
+/// Latest stability of one rod-mill span (see [`crate::analysis::rod_monitor`]).
+/// `valid == false`: no result (inputs missing or refused); published as invalid.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct RodSpanResults {
+    /// The span was evaluated at the current inputs.
+    pub valid: bool,
+    /// Unstable (with hysteresis).
+    pub unstable: bool,
+    /// Stable but near a tongue (with hysteresis).
+    pub near_tongue: bool,
+    /// Finishing-speed change to the nearest band edge, m/s: positive when stable,
+    /// negative (minus the change that stabilises it) when not; `None` without an edge
+    /// in the configuration's speed range.
+    pub speed_margin_m_s: Option<f64>,
+    /// Largest growth exponent of the span's points, 1/s (negative: decaying).
+    pub worst_exponent_per_s: Option<f64>,
+    /// The configuration input's value (index into the rod mill's `configurations`)
+    /// the span was evaluated in.
+    pub configuration: Option<u16>,
+}
+
+/// Latest results of one rod mill. `None` values and invalid spans are published
+/// with their quality bits cleared.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct RodMillResults {
+    /// Evaluations since start (one per change of the inputs).
+    pub evaluations: u64,
+    /// The last inputs were refused (configuration, pass, speed or temperature out of
+    /// range): the spans are invalid.
+    pub input_refused: bool,
+    /// Configuration input in use (index into `configurations`).
+    pub configuration: Option<u16>,
+    /// Pass number in use, 1-based.
+    pub pass: Option<u16>,
+    /// Finishing speed evaluated, m/s.
+    pub finishing_speed_m_s: Option<f64>,
+    /// Rod temperature of the setup in use, deg C.
+    pub temperature_c: Option<f64>,
+    /// The source of an input is stale or lost: every value is invalid.
+    pub source_stale: bool,
+    /// Per span, in rolling order (empty until the first evaluation).
+    pub spans: Vec<RodSpanResults>,
+}
+
 /// The gateway's own state as published in the status register.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum GatewayState {
@@ -98,6 +142,8 @@ pub struct Results {
     pub drivelines: Vec<DrivelineResults>,
     /// Per tandem mill, in config order.
     pub mills: Vec<MillResults>,
+    /// Per rod mill, in config order (sized by [`crate::outputs::publisher::Publisher::new`]).
+    pub rod_mills: Vec<RodMillResults>,
 }
 
 impl Results {
@@ -109,6 +155,7 @@ impl Results {
             sources: vec![None; sources],
             drivelines: vec![DrivelineResults::default(); drivelines],
             mills: vec![MillResults::default(); mills],
+            rod_mills: Vec::new(),
         }
     }
 }
