@@ -16,13 +16,14 @@ use crate::error::{line_column, Report};
 use crate::raw::RawConfig;
 
 /// Keys allowed at the top level of a configuration file.
-const TOP_LEVEL_KEYS: [&str; 6] = [
+const TOP_LEVEL_KEYS: [&str; 7] = [
     "name",
     "sources",
     "channels",
     "drivelines",
     "tandem_mills",
     "outputs",
+    "cache_dir",
 ];
 
 /// Keys allowed in the `[sources]` table.
@@ -49,6 +50,7 @@ pub(crate) fn parse(text: &str, report: &mut Report) -> Option<RawConfig> {
                     raw.name = name;
                 }
             }
+            "cache_dir" => raw.cache_dir = schema.value(value, "cache_dir"),
             "sources" => schema.sources(value, &mut raw),
             "channels" => raw.channels = schema.list(value, "channels"),
             "drivelines" => raw.drivelines = schema.list(value, "drivelines"),
