@@ -329,6 +329,27 @@ pub struct WearSettings {
     pub pool_bites: usize,
 }
 
+impl Default for WearSettings {
+    /// The defaults of a `[drivelines.wear]` table left out.
+    fn default() -> Self {
+        Self {
+            couplings: None,
+            max_gap_mrad: 8.0,
+            gap_step_mrad: 0.125,
+            static_torque_knm: None,
+            torque_points: 16,
+            pool_bites: 20,
+        }
+    }
+}
+
+impl DrivelineThresholds {
+    /// Default gap warning threshold, mrad.
+    pub const DEFAULT_GAP_WARNING_MRAD: f64 = 2.0;
+    /// Default gap alarm threshold, mrad.
+    pub const DEFAULT_GAP_ALARM_MRAD: f64 = 4.0;
+}
+
 /// A tandem cold mill watched for chatter.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TandemMill {

@@ -9,21 +9,13 @@ use super::{
 };
 
 /// Gap warning threshold when none is given, mrad.
-const DEFAULT_GAP_WARNING_MRAD: f64 = 2.0;
+const DEFAULT_GAP_WARNING_MRAD: f64 = DrivelineThresholds::DEFAULT_GAP_WARNING_MRAD;
 /// Gap alarm threshold when none is given, mrad.
-const DEFAULT_GAP_ALARM_MRAD: f64 = 4.0;
-/// Largest gap of the wear maps when none is given, mrad.
-const DEFAULT_MAX_GAP_MRAD: f64 = 8.0;
+const DEFAULT_GAP_ALARM_MRAD: f64 = DrivelineThresholds::DEFAULT_GAP_ALARM_MRAD;
 /// Largest `max_gap_mrad` allowed, mrad.
 const MAX_MAX_GAP_MRAD: f64 = 100.0;
-/// Gap step of the wear maps when none is given, mrad.
-const DEFAULT_GAP_STEP_MRAD: f64 = 0.125;
 /// Most gap steps of a wear map.
 const MAX_GAP_STEPS: f64 = 400.0;
-/// Static torques of the wear maps' grid when none is given.
-const DEFAULT_TORQUE_POINTS: i64 = 16;
-/// Bites pooled into the gap estimate when none is given.
-const DEFAULT_POOL_BITES: i64 = 20;
 
 impl Checker<'_> {
     pub(super) fn driveline(
@@ -134,6 +126,7 @@ impl Checker<'_> {
 
     /// `drivelines[i].wear`, every key optional.
     fn wear(&mut self, key: &str, raw: Option<&RawWear>) -> Option<WearSettings> {
+        let defaults = WearSettings::default();
         let empty = RawWear {
             couplings: None,
             max_gap_mrad: None,
@@ -149,14 +142,14 @@ impl Checker<'_> {
                 .coupling_list(&format!("{key}.couplings"), list)
                 .map(Some),
         };
-        let max_gap = raw.max_gap_mrad.unwrap_or(DEFAULT_MAX_GAP_MRAD);
+        let max_gap = raw.max_gap_mrad.unwrap_or(defaults.max_gap_mrad);
         let max_gap = self.float(
             &format!("{key}.max_gap_mrad"),
             max_gap,
             max_gap > 0.0 && max_gap <= MAX_MAX_GAP_MRAD,
             &format!("> 0 and <= {MAX_MAX_GAP_MRAD} mrad"),
         );
-        let step = raw.gap_step_mrad.unwrap_or(DEFAULT_GAP_STEP_MRAD);
+        let step = raw.gap_step_mrad.unwrap_or(defaults.gap_step_mrad);
         let step = self.float(
             &format!("{key}.gap_step_mrad"),
             step,
@@ -182,13 +175,13 @@ impl Checker<'_> {
         };
         let points = self.int_in(
             &format!("{key}.torque_points"),
-            raw.torque_points.unwrap_or(DEFAULT_TORQUE_POINTS),
+            raw.torque_points.unwrap_or(defaults.torque_points as i64),
             3..=64,
             "",
         );
         let pool = self.int_in(
             &format!("{key}.pool_bites"),
-            raw.pool_bites.unwrap_or(DEFAULT_POOL_BITES),
+            raw.pool_bites.unwrap_or(defaults.pool_bites as i64),
             1..=1000,
             " bites",
         );
