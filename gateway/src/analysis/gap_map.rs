@@ -11,7 +11,7 @@
 //! - **Grid**: static torques geometric over the driveline's range (denser where the
 //!   gap weighs most), gaps uniform from 0 (the linear row, shared by every coupling).
 //! - **Interpolation**: linear in log static torque along a row, then linear in the gap
-//!   ([`CouplingMap::at`], [`Cell`]).
+//!   ([`GapMaps::cells`], [`Cell`]).
 //! - **Interpolation error**: per point, from leave-one-out: the value each inner point
 //!   takes when interpolated from its two neighbours, a quarter of the difference
 //!   (linear interpolation over twice the step errs four times as much where the
@@ -179,7 +179,7 @@ pub struct CouplingMap {
     pub coupling: usize,
     /// The coupling's name in the model.
     pub name: String,
-    /// Per gap of [`GapMapData::gaps_rad`], per static torque of the spec.
+    /// Per gap of [`GapMapSpec::gaps_rad`], per static torque of the spec.
     pub rows: Vec<Vec<MapPoint>>,
 }
 
