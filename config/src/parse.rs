@@ -24,6 +24,7 @@ const TOP_LEVEL_KEYS: [&str; 7] = [
     "tandem_mills",
     "rod_mills",
     "outputs",
+    "cache_dir",
 ];
 
 /// Keys allowed in the `[sources]` table.
@@ -50,6 +51,7 @@ pub(crate) fn parse(text: &str, report: &mut Report) -> Option<RawConfig> {
                     raw.name = name;
                 }
             }
+            "cache_dir" => raw.cache_dir = schema.value(value, "cache_dir"),
             "sources" => schema.sources(value, &mut raw),
             "channels" => raw.channels = schema.list(value, "channels"),
             "drivelines" => raw.drivelines = schema.list(value, "drivelines"),
