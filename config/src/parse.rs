@@ -16,7 +16,7 @@ use crate::error::{line_column, Report};
 use crate::raw::RawConfig;
 
 /// Keys allowed at the top level of a configuration file.
-const TOP_LEVEL_KEYS: [&str; 7] = [
+const TOP_LEVEL_KEYS: [&str; 8] = [
     "name",
     "sources",
     "channels",
