@@ -16,7 +16,7 @@ use crate::error::{line_column, Report};
 use crate::raw::RawConfig;
 
 /// Keys allowed at the top level of a configuration file.
-const TOP_LEVEL_KEYS: [&str; 7] = [
+const TOP_LEVEL_KEYS: [&str; 8] = [
     "name",
     "sources",
     "channels",
@@ -24,6 +24,7 @@ const TOP_LEVEL_KEYS: [&str; 7] = [
     "tandem_mills",
     "rod_mills",
     "outputs",
+    "cache_dir",
 ];
 
 /// Keys allowed in the `[sources]` table.
@@ -50,6 +51,7 @@ pub(crate) fn parse(text: &str, report: &mut Report) -> Option<RawConfig> {
                     raw.name = name;
                 }
             }
+            "cache_dir" => raw.cache_dir = schema.value(value, "cache_dir"),
             "sources" => schema.sources(value, &mut raw),
             "channels" => raw.channels = schema.list(value, "channels"),
             "drivelines" => raw.drivelines = schema.list(value, "drivelines"),

@@ -67,6 +67,19 @@ pub(crate) struct RawDriveline {
     pub model: Option<String>,
     pub bite: RawBite,
     pub thresholds: RawThresholds,
+    pub wear: Option<RawWear>,
+}
+
+/// `drivelines[].wear`: the gap diagnosis against the driveline model.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawWear {
+    pub couplings: Option<Vec<i64>>,
+    pub max_gap_mrad: Option<f64>,
+    pub gap_step_mrad: Option<f64>,
+    pub static_torque_knm: Option<Vec<f64>>,
+    pub torque_points: Option<i64>,
+    pub pool_bites: Option<i64>,
 }
 
 /// `drivelines[].bite`.
@@ -84,6 +97,8 @@ pub(crate) struct RawBite {
 pub(crate) struct RawThresholds {
     pub taf_warning: f64,
     pub taf_alarm: f64,
+    pub gap_warning_mrad: Option<f64>,
+    pub gap_alarm_mrad: Option<f64>,
 }
 
 /// `[[tandem_mills]]`: a tandem cold mill.
@@ -160,6 +175,7 @@ pub(crate) struct RawMetricsOutput {
 #[derive(Debug, Default)]
 pub(crate) struct RawConfig {
     pub name: String,
+    pub cache_dir: Option<String>,
     pub modbus_sources: Vec<RawModbusSource>,
     pub can_sources: Vec<RawCanSource>,
     pub channels: Vec<RawChannel>,

@@ -128,7 +128,14 @@ pub fn summary(config: &Config) -> String {
             driveline.thresholds.taf_alarm
         );
         if let Some(model) = &driveline.model {
-            let _ = write!(text, ", model {}", model.display());
+            let _ = write!(
+                text,
+                ", model {} (gap warning {} mrad, alarm {} mrad, last {} bites pooled)",
+                model.display(),
+                driveline.thresholds.gap_warning_mrad,
+                driveline.thresholds.gap_alarm_mrad,
+                driveline.wear.pool_bites
+            );
         }
         text.push('\n');
     }

@@ -45,6 +45,8 @@ enum Command {
     Stiffness(millgate::cli::stiffness::StiffnessArgs),
     /// A tandem mill's recorded stand vibrations through the chatter monitor, per window.
     Chatter(millgate::cli::chatter::ChatterArgs),
+    /// The opened gap from recorded bites: in mrad, where, and how sure.
+    Wear(millgate::cli::wear::WearArgs),
     #[cfg(feature = "sim-tools")]
     /// Where a model and a measured transient disagree, and the effect the model lacks.
     Discrepancy(millgate::cli::discrepancy::DiscrepancyArgs),
@@ -142,6 +144,10 @@ fn main() -> ExitCode {
         }
         Command::Stiffness(args) => millgate::cli::stiffness::run(&args).map(emit),
         Command::Chatter(args) => millgate::cli::chatter::run(&args).map(emit),
+        Command::Wear(args) => {
+            init_tracing("warn");
+            millgate::cli::wear::run(&args).map(emit)
+        }
         #[cfg(feature = "sim-tools")]
         Command::Discrepancy(args) => millgate::cli::discrepancy::run(&args).map(emit),
         #[cfg(feature = "sim-tools")]

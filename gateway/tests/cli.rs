@@ -18,9 +18,16 @@ fn examples() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/examples")
 }
 
+/// Writes `body` as `mill.toml` in a fresh folder beside a copy of the demo's
+/// driveline model (which the demo configuration names).
 fn write_config(name: &str, body: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("millgate-cli-{}-{name}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
+    std::fs::copy(
+        examples().join("table2-adjusted.toml"),
+        dir.join("table2-adjusted.toml"),
+    )
+    .unwrap();
     let path = dir.join("mill.toml");
     std::fs::write(&path, body).unwrap();
     path
@@ -74,10 +81,10 @@ fn check_builds_the_driveline_model_and_names_the_model_file_and_key() {
     assert_ne!(model, malformed, "the model has the pinion's inertia");
     let demo = std::fs::read_to_string(examples().join("demo.toml")).unwrap();
     let with_model = demo.replace(
-        "torque = \"spindle_top\"\n",
-        "torque = \"spindle_top\"\nmodel = \"bad-model.toml\"\n",
+        "model = \"table2-adjusted.toml\"",
+        "model = \"bad-model.toml\"",
     );
-    assert_ne!(demo, with_model, "the demo driveline names its torque");
+    assert_ne!(demo, with_model, "the demo driveline names its model");
     let path = write_config("bad-model", &with_model);
     let model_path = path.with_file_name("bad-model.toml");
     std::fs::write(&model_path, malformed).unwrap();
@@ -118,18 +125,51 @@ fn demo_prints_bites_within_two_percent_of_the_simulated_truth() {
     let output = millgate(&["demo", "--duration", "4"]);
     let said = text(&output);
     assert!(output.status.success(), "{said}");
-    // Bite rows end with the TAF error against the truth, e.g. "-0.13%".
-    let errors: Vec<f64> = said
-        .lines()
-        .filter(|l| l.contains("spindle_top"))
-        .filter_map(|l| l.split_whitespace().last()?.strip_suffix('%')?.parse().ok())
+    // Bite rows: "time static TAF truth error% | gap truth, this bite, pooled (low ..
+    // high), coupling".
+    let rows: Vec<(&str, &str)> = said.lines().filter_map(|l| l.split_once(" | ")).collect();
+    let errors: Vec<f64> = rows
+        .iter()
+        .filter_map(|(taf, _)| {
+            taf.split_whitespace()
+                .last()?
+                .strip_suffix('%')?
+                .parse()
+                .ok()
+        })
         .collect();
     assert!(!errors.is_empty(), "no bite printed: {said}");
     assert!(
         errors.iter().all(|e: &f64| e.abs() < 2.0),
         "TAF errors {errors:?}: {said}"
     );
-    assert!(said.contains("F1.taf"), "register snapshot printed: {said}");
+    // Each bite's own gap estimate beside the simulated gap (1 mrad growing); "-"
+    // while the maps are still building.
+    let gaps: Vec<(f64, f64)> = rows
+        .iter()
+        .filter_map(|(_, gap)| {
+            let mut words = gap.split_whitespace();
+            Some((words.next()?.parse().ok()?, words.next()?.parse().ok()?))
+        })
+        .collect();
+    assert!(!gaps.is_empty(), "no gap estimate printed: {said}");
+    for (truth, bite) in gaps {
+        assert!(
+            (bite - truth).abs() < 0.3,
+            "gap {bite} vs truth {truth}: {said}"
+        );
+    }
+    // The wear registers filled and valid (quality bits 9 gap_mrad .. 13 bites_pooled).
+    let quality: u16 = said
+        .lines()
+        .find(|l| l.contains("F1.quality"))
+        .and_then(|l| l.split_whitespace().nth(2)?.parse().ok())
+        .expect("quality register printed");
+    assert_eq!(quality & (0b11111 << 9), 0b11111 << 9, "{said}");
+    assert!(
+        said.contains("F1.gap_mrad"),
+        "register snapshot printed: {said}"
+    );
 }
 
 #[test]

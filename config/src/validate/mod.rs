@@ -48,6 +48,17 @@ pub(crate) fn validate(raw: RawConfig, base_dir: &Path, report: &mut Report) -> 
         source_names: HashMap::new(),
     };
     let name = checker.name("name", &raw.name);
+    let cache_dir = match raw.cache_dir.as_deref() {
+        None => Some(None),
+        Some(dir) if dir.trim().is_empty() => {
+            checker.report.push(
+                "cache_dir",
+                "must not be empty (leave it out for the user's cache folder)",
+            );
+            None
+        }
+        Some(dir) => Some(Some(base_dir.join(dir))),
+    };
     let modbus_sources: Vec<_> = raw
         .modbus_sources
         .iter()
@@ -106,6 +117,7 @@ pub(crate) fn validate(raw: RawConfig, base_dir: &Path, report: &mut Report) -> 
     let outputs = checker.outputs(&raw.outputs);
     Some(Config {
         name: name?,
+        cache_dir: cache_dir?,
         modbus_sources: modbus_sources.into_iter().collect::<Option<_>>()?,
         can_sources: can_sources.into_iter().collect::<Option<_>>()?,
         channels: channels.into_iter().collect::<Option<_>>()?,

@@ -47,7 +47,17 @@ pub enum AnalysisError {
         #[source]
         source: BiteSettingsError,
     },
-    /// The driveline's model file (for the wear index) is not a valid model.
+    /// The driveline's `wear` settings do not fit its model (the message names the
+    /// key).
+    #[error("{source}")]
+    GapMaps {
+        /// Index of the driveline in the configuration.
+        index: usize,
+        /// What does not fit (boxed: the error stays small on the `Ok` path).
+        #[source]
+        source: Box<super::gap_map::GapMapError>,
+    },
+    /// The driveline's model file (for the wear diagnosis) is not a valid model.
     #[error("drivelines[{index}].model: {source}")]
     Model {
         /// Index of the driveline in the configuration.

@@ -26,6 +26,16 @@ pub enum CheckError {
         #[source]
         source: Box<ServiceError>,
     },
+    /// The service can be built, but a driveline naming a model would run without
+    /// wear diagnosis (the model does not load, or its `wear` settings do not fit it):
+    /// one `<file>: <key path>: <problem>` per line.
+    #[error("{}", problems.iter().map(|problem| format!("{file}: {problem}")).collect::<Vec<_>>().join("\n"))]
+    Wear {
+        /// The configuration file as given.
+        file: String,
+        /// Each problem, naming the key and the model file.
+        problems: Vec<String>,
+    },
 }
 
 /// Loads and validates the configuration at `path`, builds what `millgate run` builds
@@ -44,10 +54,17 @@ pub enum CheckError {
 pub fn check(path: &Path) -> Result<String, CheckError> {
     let config = millgate_config::load(path)?;
     let summary = millgate_config::summary(&config);
-    Service::new(config).map_err(|source| CheckError::Service {
+    let service = Service::new(config).map_err(|source| CheckError::Service {
         file: path.display().to_string(),
         source: Box::new(source),
     })?;
+    let problems = service.wear_problems();
+    if !problems.is_empty() {
+        return Err(CheckError::Wear {
+            file: path.display().to_string(),
+            problems,
+        });
+    }
     Ok(format!("{}: OK\n{summary}", path.display()))
 }
 
@@ -87,6 +104,11 @@ mod tests {
         ));
         std::fs::create_dir_all(&directory).expect("temporary directory");
         std::fs::copy(example("mill.dbc"), directory.join("mill.dbc")).expect("copy the DBC");
+        std::fs::copy(
+            example("table2-adjusted.toml"),
+            directory.join("table2-adjusted.toml"),
+        )
+        .expect("copy the model");
         let path = directory.join("variant.toml");
         std::fs::write(&path, text.replace(from, to)).expect("write the variant");
         let result = check(&path);
@@ -109,6 +131,27 @@ mod tests {
         );
         assert!(text.contains("need 200 + 4000 samples"), "{text}");
         assert!(text.contains("at most 256 + 1792"), "{text}");
+    }
+
+    #[test]
+    fn wear_settings_that_do_not_fit_the_model_are_reported_with_their_key() {
+        let error = check_variant(
+            "demo.toml",
+            "wear = { pool_bites = 5",
+            "wear = { couplings = [0, 3], pool_bites = 5",
+        )
+        .expect_err("the model has couplings 0 and 1");
+        let text = error.to_string();
+        assert!(matches!(error, CheckError::Wear { .. }), "{text}");
+        // The file as given (here a temporary path), then the key and the allowed range.
+        assert!(
+            text.ends_with(
+                "variant.toml: drivelines[0].wear.couplings[1]: 3 is not allowed (must be a \
+                 coupling of the model \"Table 2 driveline, stiffness adjusted to \
+                 measurement\": 0 ..= 1)"
+            ),
+            "{text}"
+        );
     }
 
     #[test]

@@ -14,6 +14,9 @@
 //!   [--report DIR] [--format text|json]`: `discrepancy`
 //! - `millgate sim transient|modes|wear-map ...`: `sim`
 //! - `millgate rod check|mathieu|floquet ...`: `rod` (rod mills, parametric stability)
+//! - `millgate wear --input FILE.csv --model MODEL.toml [--channel NAME] [--pool N]
+//!   [--format text|json] [--plot FILE.svg]`: [`wear`] (the gap diagnosis on a record;
+//!   `--plot` with `sim-tools`)
 //! - `millgate demo [--duration S]`: `demo`
 //!
 //! `discrepancy`, `sim`, `rod` and `demo` come with the default `sim-tools` feature (they
@@ -33,6 +36,7 @@ pub mod rod;
 #[cfg(feature = "sim-tools")]
 pub mod sim;
 pub mod stiffness;
+pub mod wear;
 
 /// Output format of the offline commands.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, clap::ValueEnum)]

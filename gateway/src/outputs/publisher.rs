@@ -1,6 +1,7 @@
 //! What the outputs publish: the latest [`Results`] joined with source health,
 //! encoded through the [`RegisterMap`].
 
+use std::sync::atomic::{AtomicU16, Ordering};
 use std::sync::{Arc, Mutex};
 
 use millgate_config::{ChannelSource, Config};
@@ -26,6 +27,9 @@ pub struct Publisher {
     mill_sources: Vec<Vec<usize>>,
     /// Global source indices of each rod mill's input channels.
     rod_mill_sources: Vec<Vec<usize>>,
+    /// Drivelines (bit k = driveline k) whose wear was reset since the analysis last
+    /// looked: it empties their gap pools.
+    wear_resets: AtomicU16,
 }
 
 /// Global index of a channel's source: Modbus sources first, then CAN sources.
@@ -81,6 +85,7 @@ impl Publisher {
                         .collect()
                 })
                 .collect(),
+            wear_resets: AtomicU16::new(0),
         }
     }
 
@@ -153,17 +158,28 @@ impl Publisher {
         self.map.encode(&self.results())
     }
 
-    /// Forget the wear trend of every driveline whose bit is set in `drivelines`
-    /// (bit k = driveline k in config order): the next bite's wear index seeds it
-    /// afresh (the reset-wear-trend command, e.g. after a coupling is replaced).
+    /// Forget the wear trend and the gap estimate of every driveline whose bit is set
+    /// in `drivelines` (bit k = driveline k in config order): the next bite's wear
+    /// index seeds the trend afresh and the gap pool starts empty (the reset-wear-trend
+    /// command, e.g. after a coupling is replaced). The gap alarm stays latched until
+    /// acknowledged.
     pub fn reset_wear_trend(&self, drivelines: u16) {
+        self.wear_resets.fetch_or(drivelines, Ordering::Relaxed);
         self.update(|results| {
             for (k, driveline) in results.drivelines.iter_mut().enumerate().take(16) {
                 if drivelines & (1 << k) != 0 {
                     driveline.wear_trend = None;
+                    driveline.gap = None;
+                    driveline.gap_warning = false;
                 }
             }
         });
+    }
+
+    /// The drivelines reset since the last call (bit k = driveline k): the analysis
+    /// empties their gap pools.
+    pub fn take_wear_resets(&self) -> u16 {
+        self.wear_resets.swap(0, Ordering::Relaxed)
     }
 
     /// Clear latched alarms (the acknowledge command).
@@ -171,6 +187,7 @@ impl Publisher {
         self.update(|results| {
             for driveline in &mut results.drivelines {
                 driveline.alarm = false;
+                driveline.gap_alarm = false;
             }
             for mill in &mut results.mills {
                 mill.alarm = false;

@@ -60,11 +60,24 @@ pub enum DrivelineField {
     Beta1,
     /// Second natural frequency from the eq. (1) fit, Hz.
     Beta2,
-    /// Wear index of the last bite.
+    /// TAF-ratio wear index of the last bite (secondary to the gap).
     WearIndex,
     /// Wear trend (EWMA of the wear index).
     WearTrend,
+    /// Opened gap, maximum likelihood, mrad.
+    Gap,
+    /// Lower end of the gap's 90% interval, mrad.
+    GapLow,
+    /// Upper end of the gap's 90% interval, mrad.
+    GapHigh,
+    /// Coupling holding the gap, [`GAP_COUPLING_UNDETERMINED`] when undetermined.
+    GapCoupling,
+    /// Bites pooled into the gap estimate.
+    BitesPooled,
 }
+
+/// `gap_coupling` when the bites cannot tell which coupling holds the gap.
+pub const GAP_COUPLING_UNDETERMINED: u16 = u16::MAX;
 
 /// Per-mill chatter quantities, in register order.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -194,6 +207,11 @@ pub mod driveline_flags {
     pub const SOURCE_STALE: u16 = 1 << 2;
     /// The last bite's window had gaps, NaN or saturated samples.
     pub const DEGRADED: u16 = 1 << 3;
+    /// The estimated opened gap is at or above the gap warning threshold.
+    pub const GAP_WARNING: u16 = 1 << 4;
+    /// The gap's 90% interval lay at or above the gap alarm threshold; latched until
+    /// acknowledged.
+    pub const GAP_ALARM: u16 = 1 << 5;
 }
 
 /// Flag bits of a rod mill's and a rod span's `flags` register.
@@ -346,7 +364,8 @@ impl RegisterMap {
             1.0,
             Access::ReadWrite,
             "Command: write a bitmask of drivelines (bit k = k-th driveline in config order; \
-             1 with a single driveline) to restart their wear trend; reads back 0"
+             1 with a single driveline) to restart their wear trend and gap estimate (after \
+             a coupling is replaced); reads back 0"
                 .into(),
             Field::ResetWearTrend,
         );
@@ -354,9 +373,9 @@ impl RegisterMap {
             let base = DRIVELINES_START + DRIVELINE_STRIDE * k as u16;
             let n = |field: &str| format!("{}.{field}", driveline.name);
             let f = |field| Field::Driveline(k, field);
-            let fields: [(u16, &str, ValueType, &'static str, &str, DrivelineField); 12] = [
-                (0, "flags", U16, "bits", "bit0 TAF warning, bit1 TAF alarm (latched), bit2 source stale, bit3 last bite degraded", D::Flags),
-                (1, "quality", U16, "bits", "bit i set: value i of this block is valid (0 last_bite_time, 1 static_torque, 2 peak_torque, 3 taf, 4 period_shift, 5 beta1, 6 beta2, 7 wear_index, 8 wear_trend)", D::Quality),
+            let fields: [(u16, &str, ValueType, &'static str, &str, DrivelineField); 17] = [
+                (0, "flags", U16, "bits", "bit0 TAF warning, bit1 TAF alarm (latched), bit2 source stale, bit3 last bite degraded, bit4 gap warning, bit5 gap alarm (latched)", D::Flags),
+                (1, "quality", U16, "bits", "bit i set: value i of this block is valid (0 last_bite_time, 1 static_torque, 2 peak_torque, 3 taf, 4 period_shift, 5 beta1, 6 beta2, 7 wear_index, 8 wear_trend, 9 gap_mrad, 10 gap_low_mrad, 11 gap_high_mrad, 12 gap_coupling, 13 bites_pooled)", D::Quality),
                 (2, "bite_counter", U32, "", "Bites analysed since start", D::BiteCounter),
                 (4, "last_bite_time", U32, "s", "Time of the last bite, Unix seconds", D::LastBiteTime),
                 (6, "static_torque", F32, "kN*m", "Static (settled) rolling torque of the last bite", D::StaticTorque),
@@ -365,8 +384,13 @@ impl RegisterMap {
                 (12, "period_shift", F32, "s", "First minus second oscillation period of the last bite", D::PeriodShift),
                 (14, "beta1", F32, "Hz", "First natural frequency identified from the last bite", D::Beta1),
                 (16, "beta2", F32, "Hz", "Second natural frequency identified from the last bite", D::Beta2),
-                (18, "wear_index", F32, "", "Wear index of the last bite: its TAF / the linear model's TAF - 1 (needs the driveline model)", D::WearIndex),
-                (20, "wear_trend", F32, "", "Wear trend: mean of the wear index over bites (EWMA, weight 0.1), reset by command.reset_wear_trend", D::WearTrend),
+                (18, "wear_index", F32, "", "Secondary figure: TAF-ratio wear index of the last bite, its TAF / the linear model's TAF - 1 (needs the driveline model)", D::WearIndex),
+                (20, "wear_trend", F32, "", "Secondary figure: mean of the TAF-ratio wear index over bites (EWMA, weight 0.1), reset by command.reset_wear_trend", D::WearTrend),
+                (22, "gap_mrad", F32, "mrad", "Opened gap (total dead-zone width, referred to the rolls), maximum likelihood over the pooled bites (needs the driveline model)", D::Gap),
+                (24, "gap_low_mrad", F32, "mrad", "Lower end of the gap's 90% interval", D::GapLow),
+                (26, "gap_high_mrad", F32, "mrad", "Upper end of the gap's 90% interval", D::GapHigh),
+                (28, "gap_coupling", U16, "", "Coupling holding the gap (model index, 0 = motor side); 65535 = undetermined (the bites cannot tell)", D::GapCoupling),
+                (29, "bites_pooled", U16, "", "Bites pooled into the gap estimate (the last drivelines[].wear.pool_bites; reset by command.reset_wear_trend)", D::BitesPooled),
             ];
             for (offset, name, value_type, unit, description, field) in fields {
                 b.add(
@@ -568,7 +592,8 @@ fn value_of(field: Field, results: &Results) -> Option<f64> {
 }
 
 /// Values of a driveline block in quality-bit order.
-fn driveline_quality_values(d: &DrivelineResults) -> [Option<f64>; 9] {
+fn driveline_quality_values(d: &DrivelineResults) -> [Option<f64>; 14] {
+    let gap = d.gap.as_ref();
     [
         d.last_bite_unix_s.map(f64::from),
         d.static_torque_knm,
@@ -579,6 +604,16 @@ fn driveline_quality_values(d: &DrivelineResults) -> [Option<f64>; 9] {
         d.beta2_hz,
         d.wear_index,
         d.wear_trend,
+        gap.map(|g| g.gap_mrad),
+        gap.map(|g| g.low_mrad),
+        gap.map(|g| g.high_mrad),
+        gap.map(|g| {
+            g.coupling
+                .and_then(|c| u16::try_from(c).ok())
+                .filter(|&c| c != GAP_COUPLING_UNDETERMINED)
+                .map_or(f64::from(GAP_COUPLING_UNDETERMINED), f64::from)
+        }),
+        gap.map(|g| g.bites_pooled.min(usize::from(u16::MAX)) as f64),
     ]
 }
 
@@ -602,6 +637,8 @@ fn driveline_value(d: &DrivelineResults, field: DrivelineField) -> Option<f64> {
                 (d.alarm, fl::ALARM),
                 (d.source_stale, fl::SOURCE_STALE),
                 (d.last_bite_degraded, fl::DEGRADED),
+                (d.gap_warning, fl::GAP_WARNING),
+                (d.gap_alarm, fl::GAP_ALARM),
             ]
             .iter()
             .filter(|(set, _)| *set)
@@ -625,6 +662,11 @@ fn driveline_value(d: &DrivelineResults, field: DrivelineField) -> Option<f64> {
         D::Beta2 => fresh(d.beta2_hz),
         D::WearIndex => fresh(d.wear_index),
         D::WearTrend => fresh(d.wear_trend),
+        D::Gap => fresh(driveline_quality_values(d)[9]),
+        D::GapLow => fresh(driveline_quality_values(d)[10]),
+        D::GapHigh => fresh(driveline_quality_values(d)[11]),
+        D::GapCoupling => fresh(driveline_quality_values(d)[12]),
+        D::BitesPooled => fresh(driveline_quality_values(d)[13]),
     }
 }
 

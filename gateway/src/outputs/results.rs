@@ -22,8 +22,9 @@ pub struct DrivelineResults {
     pub beta1_hz: Option<f64>,
     /// Second natural frequency identified from the last bite, Hz.
     pub beta2_hz: Option<f64>,
-    /// Wear index of the last bite: measured TAF / linear reference TAF - 1 (0 = like
-    /// the linear reference; grows with opened backlash). `None` without a model.
+    /// TAF-ratio wear index of the last bite (a secondary figure beside the gap):
+    /// measured TAF / linear reference TAF - 1 (0 = like the linear reference; grows
+    /// with opened backlash). `None` without a model.
     pub wear_index: Option<f64>,
     /// Wear trend: exponentially weighted mean of the wear index over bites
     /// ([`crate::analysis::wear::next_trend`]); `None` until the first index after start or reset.
@@ -34,8 +35,32 @@ pub struct DrivelineResults {
     pub warning: bool,
     /// TAF reached the alarm threshold; latched until acknowledged.
     pub alarm: bool,
+    /// The pooled estimate of the opened gap; `None` without a model, until the gap
+    /// maps are ready and a bite inside them was seen, after a reset.
+    pub gap: Option<GapResults>,
+    /// The estimated gap is at or above the gap warning threshold.
+    pub gap_warning: bool,
+    /// The gap's 90% interval lay at or above the gap alarm threshold; latched until
+    /// acknowledged.
+    pub gap_alarm: bool,
     /// The torque channel's source is stale or lost: every value is flagged.
     pub source_stale: bool,
+}
+
+/// The pooled gap estimate of a driveline, as published (see
+/// [`crate::analysis::gap_estimate`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GapResults {
+    /// Opened gap, maximum likelihood, mrad.
+    pub gap_mrad: f64,
+    /// Lower end of the 90% interval, mrad.
+    pub low_mrad: f64,
+    /// Upper end of the 90% interval, mrad.
+    pub high_mrad: f64,
+    /// Coupling holding the gap (model index), `None` when undetermined.
+    pub coupling: Option<usize>,
+    /// Bites pooled.
+    pub bites_pooled: usize,
 }
 
 /// Latest chatter metrics of one tandem mill (see [`crate::analysis::chatter_monitor`]). `None` = not
