@@ -702,23 +702,34 @@ fn listeners_on_the_same_port_are_refused() {
     // The HMI server and the metrics endpoint on one port: the second bind fails at
     // run time, after `check` said OK.
     assert_only_problem(
-        &edited("[outputs.metrics]", "[outputs.metrics]\nbind = \"127.0.0.1:5503\""),
+        &edited(
+            "[outputs.metrics]",
+            "[outputs.metrics]\nbind = \"127.0.0.1:5503\"",
+        ),
         "mill.toml: outputs.metrics.bind: 127.0.0.1:5503 is not allowed: outputs.server.bind \
          (127.0.0.1:5503) listens on the same port; each listener needs its own port",
     );
     // The wildcard covers every address of its family.
     assert_problem_like(
-        &edited("[outputs.metrics]", "[outputs.metrics]\nbind = \"0.0.0.0:5503\""),
+        &edited(
+            "[outputs.metrics]",
+            "[outputs.metrics]\nbind = \"0.0.0.0:5503\"",
+        ),
         "mill.toml: outputs.metrics.bind: 0.0.0.0:5503 is not allowed",
         &[],
     );
     // Another address, another family, or port 0 (the OS picks): no clash.
     for bind in ["127.0.0.2:5503", "[::1]:5503", "127.0.0.1:0"] {
-        let text = edited("[outputs.metrics]", &format!("[outputs.metrics]\nbind = \"{bind}\""));
+        let text = edited(
+            "[outputs.metrics]",
+            &format!("[outputs.metrics]\nbind = \"{bind}\""),
+        );
         assert!(parse(&text).is_ok(), "{bind}");
     }
-    let both_zero = edited("bind = \"127.0.0.1:5503\"", "bind = \"127.0.0.1:0\"")
-        .replace("[outputs.metrics]", "[outputs.metrics]\nbind = \"127.0.0.1:0\"");
+    let both_zero = edited("bind = \"127.0.0.1:5503\"", "bind = \"127.0.0.1:0\"").replace(
+        "[outputs.metrics]",
+        "[outputs.metrics]\nbind = \"127.0.0.1:0\"",
+    );
     assert!(parse(&both_zero).is_ok());
 }
 
@@ -735,16 +746,25 @@ fn server_limits_and_unit_id() {
     assert_eq!(server.idle_timeout, Duration::from_millis(500));
     assert!(server.allow_remote_commands);
     assert_only_problem(
-        &edited("bind = \"127.0.0.1:5503\"", "bind = \"127.0.0.1:5503\"\nunit_id = 0"),
+        &edited(
+            "bind = \"127.0.0.1:5503\"",
+            "bind = \"127.0.0.1:5503\"\nunit_id = 0",
+        ),
         "mill.toml: outputs.server.unit_id: 0 is not allowed (must be 1..=255; 0 is the \
          broadcast address, which a server never answers)",
     );
     assert_only_problem(
-        &edited("bind = \"127.0.0.1:5503\"", "bind = \"127.0.0.1:5503\"\nmax_connections = 0"),
+        &edited(
+            "bind = \"127.0.0.1:5503\"",
+            "bind = \"127.0.0.1:5503\"\nmax_connections = 0",
+        ),
         "mill.toml: outputs.server.max_connections: 0 is not allowed (must be 1..=64)",
     );
     assert_only_problem(
-        &edited("bind = \"127.0.0.1:5503\"", "bind = \"127.0.0.1:5503\"\nidle_timeout_ms = 50"),
+        &edited(
+            "bind = \"127.0.0.1:5503\"",
+            "bind = \"127.0.0.1:5503\"\nidle_timeout_ms = 50",
+        ),
         "mill.toml: outputs.server.idle_timeout_ms: 50 is not allowed (must be 100..=3600000 ms)",
     );
 }
@@ -765,8 +785,9 @@ fn names_with_control_characters_are_refused() {
     );
     let found = problems(&edited("name = \"daq1\"", "name = \"daq\\r1\""));
     assert!(
-        found.iter().any(|p| p.starts_with("mill.toml: sources.modbus[0].name: ")
-            && p.contains("U+000D")),
+        found
+            .iter()
+            .any(|p| p.starts_with("mill.toml: sources.modbus[0].name: ") && p.contains("U+000D")),
         "{found:#?}"
     );
 }

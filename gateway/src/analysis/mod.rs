@@ -16,6 +16,7 @@ use tokio::sync::{broadcast, mpsc};
 
 use crate::field::acquired::Acquired;
 use crate::outputs::publisher::Publisher;
+use crate::supervision::{Liveness, ANALYSIS_TICK};
 use driveline::{BiteReport, DrivelineAnalyzer};
 pub use error::AnalysisError;
 
@@ -110,10 +111,23 @@ impl Analysis {
         reports
     }
 
-    /// Run until every sender of `samples` is dropped.
-    pub async fn run(mut self, mut samples: mpsc::Receiver<Acquired>) {
-        while let Some(message) = samples.recv().await {
-            self.handle(message);
+    /// Run until every sender of `samples` is dropped, counting each turn of the loop
+    /// (a message handled, or [`ANALYSIS_TICK`] without one) in `liveness`: a watchdog
+    /// sees a stuck analysis as turns that stop.
+    pub async fn run(mut self, mut samples: mpsc::Receiver<Acquired>, liveness: Arc<Liveness>) {
+        let mut idle = tokio::time::interval(ANALYSIS_TICK);
+        idle.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        loop {
+            tokio::select! {
+                message = samples.recv() => match message {
+                    Some(message) => {
+                        self.handle(message);
+                    }
+                    None => break,
+                },
+                _ = idle.tick() => {}
+            }
+            liveness.analysis_turned();
         }
     }
 }

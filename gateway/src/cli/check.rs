@@ -44,11 +44,15 @@ pub enum CheckError {
 pub fn check(path: &Path) -> Result<String, CheckError> {
     let config = millgate_config::load(path)?;
     let summary = millgate_config::summary(&config);
-    Service::new(config).map_err(|source| CheckError::Service {
+    let service = Service::new(config).map_err(|source| CheckError::Service {
         file: path.display().to_string(),
         source: Box::new(source),
     })?;
-    Ok(format!("{}: OK\n{summary}", path.display()))
+    let mut report = format!("{}: OK\n{summary}", path.display());
+    for warning in service.warnings() {
+        report.push_str(&format!("warning: {}: {warning}\n", path.display()));
+    }
+    Ok(report)
 }
 
 #[cfg(test)]
@@ -125,6 +129,43 @@ mod tests {
             "{text}"
         );
         assert!(text.contains("frequency step 50 Hz"), "{text}");
+    }
+
+    #[test]
+    fn a_register_base_that_runs_the_map_past_65535_is_reported() {
+        // The demo's map spans 48 registers: base 65500 would end at 65547.
+        let error = check_variant("demo.toml", "register_base = 0", "register_base = 65500")
+            .expect_err("map past 65535");
+        assert_eq!(
+            error
+                .to_string()
+                .rsplit_once("variant.toml: ")
+                .map(|(_, tail)| tail),
+            Some(
+                "outputs.plc.register_base: 65500 is not allowed: the register map spans 48 \
+                 registers and would end at register 65547, past 65535 (must be 0..=65488)"
+            )
+        );
+        assert!(check_variant("demo.toml", "register_base = 0", "register_base = 65488").is_ok());
+    }
+
+    #[test]
+    fn a_server_reachable_from_other_hosts_is_a_warning() {
+        let summary = check_variant(
+            "demo.toml",
+            "bind = \"127.0.0.1:5503\"",
+            "bind = \"0.0.0.0:5503\"",
+        )
+        .expect("valid");
+        assert!(
+            summary.contains("warning: ")
+                && summary
+                    .contains("outputs.server.bind: 0.0.0.0:5503 accepts clients from other hosts")
+                && summary.contains("command writes are refused"),
+            "{summary}"
+        );
+        let loopback = check(&example("demo.toml")).expect("valid");
+        assert!(!loopback.contains("warning: "), "{loopback}");
     }
 
     #[test]

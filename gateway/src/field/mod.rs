@@ -8,4 +8,5 @@ pub mod can;
 pub mod counters;
 pub mod daq_reader;
 pub(crate) mod modbus_client;
+pub mod quality;
 pub mod source_health;
