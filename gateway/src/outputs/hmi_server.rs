@@ -221,6 +221,7 @@ impl Connection {
     async fn requests(&self, stream: &mut TcpStream) -> &'static str {
         let mut buffer = [0u8; 2 * MAX_FRAME_LEN];
         let mut filled = 0;
+        let mut frame_started: Option<tokio::time::Instant> = None;
         let frame_timeout = FRAME_TIMEOUT.min(self.idle_timeout);
         loop {
             // Answer every whole frame received so far.
@@ -231,6 +232,7 @@ impl Connection {
                             modbus_frame::respond(&self.publisher, self.policy, &buffer[..len]);
                         buffer.copy_within(len..filled, 0);
                         filled -= len;
+                        frame_started = None;
                         match reply {
                             Reply::Send(bytes) => {
                                 count(&self.counters.requests);
@@ -252,12 +254,21 @@ impl Connection {
                     }
                 }
             }
-            let limit = if filled == 0 {
-                self.idle_timeout
-            } else {
-                frame_timeout
+            // Idle: the idle timeout from now. Inside a request: its deadline runs from
+            // its first byte, however slowly the rest trickles in.
+            let deadline = match (filled, frame_started) {
+                (0, _) => {
+                    frame_started = None;
+                    tokio::time::Instant::now() + self.idle_timeout
+                }
+                (_, Some(started)) => started + frame_timeout,
+                (_, None) => {
+                    let now = tokio::time::Instant::now();
+                    frame_started = Some(now);
+                    now + frame_timeout
+                }
             };
-            match tokio::time::timeout(limit, stream.read(&mut buffer[filled..])).await {
+            match tokio::time::timeout_at(deadline, stream.read(&mut buffer[filled..])).await {
                 Err(_) => {
                     count(&self.counters.idle_closed);
                     return if filled == 0 {
