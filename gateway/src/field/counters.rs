@@ -107,6 +107,8 @@ pub struct CanCounters {
     receive_latency_max_ns: AtomicU64,
     /// Reads of a length that is neither a classic nor an FD frame.
     bad_size: AtomicU64,
+    /// Signal values at the end of their raw range, replaced by gaps.
+    saturated_samples: AtomicU64,
     /// [`BusState`] as its code, from the last error frame that told it.
     bus_state: AtomicU8,
 }
@@ -173,6 +175,9 @@ pub struct CanCounts {
     pub receive_latency_max_ns: u64,
     /// Reads whose length was neither a classic nor an FD frame.
     pub bad_size: u64,
+    /// Signal values at the end of their raw range (saturated, or "not available"),
+    /// passed on as gaps, not as values.
+    pub saturated_samples: u64,
     /// The bus state last reported.
     pub bus_state: BusState,
 }
@@ -194,6 +199,7 @@ impl CanCounters {
             receive_latency_sum_ns: self.receive_latency_ns.load(Ordering::Relaxed),
             receive_latency_max_ns: self.receive_latency_max_ns.load(Ordering::Relaxed),
             bad_size: self.bad_size.load(Ordering::Relaxed),
+            saturated_samples: self.saturated_samples.load(Ordering::Relaxed),
             bus_state: BusState::from_code(self.bus_state.load(Ordering::Relaxed)),
         }
     }
@@ -241,6 +247,11 @@ impl CanCounters {
     /// Count a read of a length that is neither a classic nor an FD frame.
     pub(crate) fn count_bad_size(&self) {
         self.bad_size.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Count `samples` saturated signal values.
+    pub(crate) fn count_saturated(&self, samples: u64) {
+        self.saturated_samples.fetch_add(samples, Ordering::Relaxed);
     }
 
     /// Count `frames` the kernel dropped.

@@ -231,7 +231,13 @@ impl Metrics {
                 );
             }
         }
-        let per_can_source: [CanMetric; 4] = [
+        let per_can_source: [CanMetric; 5] = [
+            (
+                "millgate_can_saturated_samples_total",
+                "counter",
+                "CAN signal values at the end of their raw range (saturated or not available), passed on as gaps.",
+                |c| c.saturated_samples.to_string(),
+            ),
             (
                 "millgate_can_kernel_drops_total",
                 "counter",

@@ -8,6 +8,7 @@ use millgate_config::signal::SignalLayout;
 use millgate_config::{ChannelSource, Config};
 
 use crate::field::counters::BusState;
+use crate::field::quality::{can_signal_limits, SaturationLimits};
 
 /// Error-frame class bits in the CAN id and controller status bits in data[1]
 /// (linux/can/error.h).
@@ -127,6 +128,23 @@ impl CanDecoder {
         channels.sort_unstable();
         channels.dedup();
         channels
+    }
+
+    /// The saturation limits of each channel the decoder fills
+    /// ([`crate::field::quality::can_signal_limits`]), in configuration order.
+    pub fn saturation_limits(&self) -> Vec<(usize, SaturationLimits)> {
+        let mut limits: Vec<(usize, SaturationLimits)> = self
+            .messages
+            .values()
+            .flat_map(|message| {
+                message.signals.iter().map(|signal| {
+                    let limits = can_signal_limits(&signal.layout, signal.scale, signal.offset);
+                    (signal.channel, limits)
+                })
+            })
+            .collect();
+        limits.sort_unstable_by_key(|(channel, _)| *channel);
+        limits
     }
 
     /// Number of channels the decoder fills.
