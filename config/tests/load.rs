@@ -790,6 +790,14 @@ fn names_with_control_characters_are_refused() {
             .any(|p| p.starts_with("mill.toml: sources.modbus[0].name: ") && p.contains("U+000D")),
         "{found:#?}"
     );
+    // Other problems quote the refused name (in a list of known sources): escaped, so
+    // every line of the report still names the file (found by the fuzz suite).
+    let found = problems(&edited("name = \"daq1\"", "name = \"daq\n1\""));
+    assert!(found.len() > 1, "{found:#?}");
+    let report = found.join("\n");
+    for line in report.lines() {
+        assert!(line.starts_with("mill.toml: "), "{line:?} in {found:#?}");
+    }
 }
 
 #[test]

@@ -153,7 +153,7 @@ async fn readiness_watchdog_and_an_orderly_stop_under_a_service_manager() {
     .unwrap();
     let socket_path = dir.join("notify.sock");
     let socket = UnixDatagram::bind(&socket_path).unwrap();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_millgate"))
+    let child = Command::new(env!("CARGO_BIN_EXE_millgate"))
         .args(["run", "--config", path.to_str().unwrap()])
         .env("NOTIFY_SOCKET", &socket_path)
         // 1 s: four PLC write periods of 100 ms fit; pings every 250 ms.

@@ -60,8 +60,10 @@ async fn daq_restart_goes_stale_then_ok_and_counts_the_gap() -> anyhow::Result<(
     let publisher = gateway.publisher();
     let status = || publisher.results().sources[0];
 
-    wait_for("first blocks", Duration::from_secs(5), || {
-        counters.snapshot().blocks_read >= 5 && status() == Some(SourceStatus::Ok)
+    // 50 blocks (3 s): the restarted DAQ's sequence, counting anew while the reader
+    // backs off (up to 1.6 s after the restart), stays behind the old one.
+    wait_for("first blocks", Duration::from_secs(10), || {
+        counters.snapshot().blocks_read >= 50 && status() == Some(SourceStatus::Ok)
     })
     .await;
 
@@ -216,7 +218,9 @@ async fn a_frozen_sequence_makes_the_source_stale_and_is_counted() -> anyhow::Re
         100 + i.min(10) as u16
     }))
     .await?;
-    let gateway = millgate::Service::new(hostile_config(&daq)?)?.spawn().await?;
+    let gateway = millgate::Service::new(hostile_config(&daq)?)?
+        .spawn()
+        .await?;
     let counters = gateway.counters()[0].clone();
     let publisher = gateway.publisher();
     wait_for("blocks flow", Duration::from_secs(5), || {
@@ -232,12 +236,22 @@ async fn a_frozen_sequence_makes_the_source_stale_and_is_counted() -> anyhow::Re
     .await;
     // Stale after the source's stale time (1 s: two 300 ms timeouts at least, and
     // three 20 ms polls), from the last new block.
-    assert!(frozen.elapsed() < Duration::from_secs(2), "{:?}", frozen.elapsed());
+    assert!(
+        frozen.elapsed() < Duration::from_secs(2),
+        "{:?}",
+        frozen.elapsed()
+    );
     let requests = daq.stats().requests();
     tokio::time::sleep(Duration::from_millis(300)).await;
     assert!(daq.stats().requests() > requests, "the DAQ is still polled");
     let seen = counters.snapshot();
-    assert_eq!(seen.blocks_read, 11, "{seen:?}");
+    // Sequences 100..=110 at most (the first ones may pass before the gateway
+    // connects): the repeated block 110 is never counted again.
+    assert!(
+        (5..=11).contains(&(seen.blocks_read + seen.blocks_missed)),
+        "{seen:?}"
+    );
+    assert_eq!(seen.samples, seen.blocks_read * 100, "{seen:?}");
     assert_eq!(seen.sequence_stalls, 1, "{seen:?}");
     tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
     Ok(())
@@ -256,7 +270,9 @@ async fn a_sequence_going_backwards_is_a_restart_and_no_bite_across_it_is_valid(
         (5000 + i - if i >= 14 { 100 } else { 0 }) as u16
     }))
     .await?;
-    let mut gateway = millgate::Service::new(hostile_config(&daq)?)?.spawn().await?;
+    let mut gateway = millgate::Service::new(hostile_config(&daq)?)?
+        .spawn()
+        .await?;
     let publisher = gateway.publisher();
     let first = tokio::time::timeout(Duration::from_secs(10), gateway.bites().recv()).await??;
     assert!(first.degraded, "the window spans the restart: {first:?}");
@@ -281,7 +297,9 @@ async fn a_sequence_going_backwards_is_a_restart_and_no_bite_across_it_is_valid(
     );
     let counters = gateway.counters()[0].snapshot();
     assert_eq!(counters.sequence_restarts, 1, "{counters:?}");
-    assert_eq!(counters.blocks_missed, 0, "{counters:?}");
+    // Not the 101 the wrapping jump used to count; a poll late on a loaded machine
+    // may miss a block or two.
+    assert!(counters.blocks_missed <= 2, "{counters:?}");
     tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
     Ok(())
 }
@@ -292,10 +310,8 @@ async fn samples_at_full_scale_publish_no_bite_as_valid() -> anyhow::Result<()> 
     // with TAF 1.000 and valid quality bits.
     let mut raw = vec![0i16; 1000];
     raw.extend(std::iter::repeat_n(i16::MAX, 20_000));
-    let daq = HostileDaq::start(streaming(raw, 100, Duration::from_millis(50), |i| {
-        i as u16
-    }))
-    .await?;
+    let daq =
+        HostileDaq::start(streaming(raw, 100, Duration::from_millis(50), |i| i as u16)).await?;
     let mut config = hostile_config(&daq)?;
     config.outputs.metrics = Some(millgate_config::MetricsOutput {
         bind: "127.0.0.1:0".parse()?,
@@ -336,10 +352,8 @@ async fn bites_clipped_at_full_scale_are_counted_degraded_and_not_published() ->
         .iter()
         .map(|&v| to_raw_sample(v, scale, 0.0))
         .collect();
-    let daq = HostileDaq::start(streaming(raw, 100, Duration::from_millis(50), |i| {
-        i as u16
-    }))
-    .await?;
+    let daq =
+        HostileDaq::start(streaming(raw, 100, Duration::from_millis(50), |i| i as u16)).await?;
     let mut config = hostile_config(&daq)?;
     config.channels[0].scale = scale;
     let mut gateway = millgate::Service::new(config)?.spawn().await?;
@@ -349,10 +363,17 @@ async fn bites_clipped_at_full_scale_are_counted_degraded_and_not_published() ->
     assert!(first.degraded, "{first:?}");
     let results = publisher.results().drivelines[0].clone();
     assert_eq!(
-        (results.static_torque_knm, results.taf, results.degraded_bites),
+        (
+            results.static_torque_knm,
+            results.taf,
+            results.degraded_bites
+        ),
         (None, None, 1)
     );
-    assert!(!results.warning && !results.alarm, "no alarm from clipped data");
+    assert!(
+        !results.warning && !results.alarm,
+        "no alarm from clipped data"
+    );
     assert!(gateway.counters()[0].snapshot().saturated_samples > 0);
     tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
     Ok(())

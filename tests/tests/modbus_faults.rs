@@ -210,13 +210,22 @@ async fn hostile_frames_get_exceptions_and_the_connection_stays_open() -> anyhow
     let read_status = frame(1, &[0x03, 0x00, 0x01, 0x00, 0x01]);
     let expect = |reply: Option<Vec<u8>>, function: u8, code: u8, what: &str| {
         let reply = reply.unwrap_or_else(|| panic!("{what}: no reply"));
-        assert_eq!(&reply[7..], &[function | 0x80, code], "{what}: {reply:02x?}");
+        assert_eq!(
+            &reply[7..],
+            &[function | 0x80, code],
+            "{what}: {reply:02x?}"
+        );
     };
     // The frame that panicked tokio-modbus 0.17.0's coil unpacking.
     let fc15 = [
         0x00, 0x01, 0x00, 0x00, 0x00, 0x07, 0x01, 0x0f, 0x00, 0x00, 0x00, 0x10, 0x00,
     ];
-    expect(exchange(&mut hmi, &fc15).await?, 0x0f, 0x01, "FC 15 quantity 16, 0 bytes");
+    expect(
+        exchange(&mut hmi, &fc15).await?,
+        0x0f,
+        0x01,
+        "FC 15 quantity 16, 0 bytes",
+    );
     expect(
         exchange(&mut hmi, &frame(1, &[0x10, 0x00, 0x08, 0x00, 0x00, 0x00])).await?,
         0x10,
@@ -255,8 +264,14 @@ async fn hostile_frames_get_exceptions_and_the_connection_stays_open() -> anyhow
     let reply = exchange(&mut hmi, &read_status).await?.expect("a reply");
     assert_eq!(&reply[7..9], &[0x03, 0x02], "{reply:02x?}");
     let page = scrape(gateway.bound().metrics.expect("metrics")).await?;
-    assert!(page.contains("millgate_server_exceptions_total 5"), "{page}");
-    assert!(page.contains("millgate_server_broadcasts_total 1"), "{page}");
+    assert!(
+        page.contains("millgate_server_exceptions_total 5"),
+        "{page}"
+    );
+    assert!(
+        page.contains("millgate_server_broadcasts_total 1"),
+        "{page}"
+    );
     tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
     Ok(())
 }
@@ -288,23 +303,36 @@ async fn slowloris_and_connection_floods_are_bounded() -> anyhow::Result<()> {
     }
     let ended = tokio::time::timeout(Duration::from_secs(2), trickle.read(&mut byte)).await;
     trickle_closed |= matches!(ended, Ok(Ok(0)) | Ok(Err(_)));
-    assert!(trickle_closed, "slowloris still served after {:?}", started.elapsed());
+    assert!(
+        trickle_closed,
+        "slowloris still served after {:?}",
+        started.elapsed()
+    );
     let ended = tokio::time::timeout(Duration::from_secs(2), idle.read(&mut byte)).await;
-    assert!(matches!(ended, Ok(Ok(0)) | Ok(Err(_))), "idle client not closed");
+    assert!(
+        matches!(ended, Ok(Ok(0)) | Ok(Err(_))),
+        "idle client not closed"
+    );
     // The slots are free again: a real client is served.
     let mut hmi = TcpStream::connect(address).await?;
     let reply = exchange(&mut hmi, &request).await?.expect("served");
     assert_eq!(&reply[7..9], &[0x03, 0x02]);
     let page = scrape(gateway.bound().metrics.expect("metrics")).await?;
-    assert!(page.contains("millgate_server_refused_connections_total 1"), "{page}");
-    assert!(page.contains("millgate_server_idle_closed_connections_total 2"), "{page}");
+    assert!(
+        page.contains("millgate_server_refused_connections_total 1"),
+        "{page}"
+    );
+    assert!(
+        page.contains("millgate_server_idle_closed_connections_total 2"),
+        "{page}"
+    );
     tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
     Ok(())
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn the_metrics_endpoint_reads_the_whole_head_and_refuses_malformed_ones(
-) -> anyhow::Result<()> {
+async fn the_metrics_endpoint_reads_the_whole_head_and_refuses_malformed_ones() -> anyhow::Result<()>
+{
     let (gateway, _) = server_gateway(8, 60_000).await?;
     let metrics = gateway.bound().metrics.expect("metrics");
     async fn ask(address: SocketAddr, parts: &[&[u8]]) -> anyhow::Result<String> {
@@ -329,8 +357,14 @@ async fn the_metrics_endpoint_reads_the_whole_head_and_refuses_malformed_ones(
     assert!(split.contains("millgate_heartbeat"));
     for (request, status) in [
         (&b"GARBAGE\r\n\r\n"[..], "HTTP/1.1 400 Bad Request"),
-        (b"GET /metrics HTTP/1.1\r\nbroken header\r\n\r\n", "HTTP/1.1 400 Bad Request"),
-        (b"POST /metrics HTTP/1.1\r\n\r\n", "HTTP/1.1 405 Method Not Allowed"),
+        (
+            b"GET /metrics HTTP/1.1\r\nbroken header\r\n\r\n",
+            "HTTP/1.1 400 Bad Request",
+        ),
+        (
+            b"POST /metrics HTTP/1.1\r\n\r\n",
+            "HTTP/1.1 405 Method Not Allowed",
+        ),
         (b"GET /other HTTP/1.1\r\n\r\n", "HTTP/1.1 404 Not Found"),
     ] {
         let response = ask(metrics, &[request]).await?;
@@ -352,7 +386,10 @@ async fn a_plc_that_vanishes_and_returns_gets_registers_again() -> anyhow::Resul
     config.outputs.plc.as_mut().unwrap().address = plc_address.to_string();
     let map = RegisterMap::new(&config);
     let plc = VirtualPlc::new(usize::from(map.len()));
-    let first_life = plc.spawn(TcpListener::bind(plc_address).await?, ServeOptions::default());
+    let first_life = plc.spawn(
+        TcpListener::bind(plc_address).await?,
+        ServeOptions::default(),
+    );
     let gateway = Service::new(config)?.spawn().await?;
     wait_for("first writes", Duration::from_secs(5), || plc.writes() >= 3).await;
     first_life.stop().await?;
@@ -360,11 +397,21 @@ async fn a_plc_that_vanishes_and_returns_gets_registers_again() -> anyhow::Resul
     let beat = gateway.publisher().results().heartbeat;
     tokio::time::sleep(Duration::from_millis(1500)).await;
     assert!(!gateway.is_finished());
-    assert_ne!(gateway.publisher().results().heartbeat, beat, "heartbeat moves");
+    assert_ne!(
+        gateway.publisher().results().heartbeat,
+        beat,
+        "heartbeat moves"
+    );
     let writes = plc.writes();
-    let second_life = plc.spawn(TcpListener::bind(plc_address).await?, ServeOptions::default());
+    let second_life = plc.spawn(
+        TcpListener::bind(plc_address).await?,
+        ServeOptions::default(),
+    );
     // Backoff after 1.5 s of failures is at most 1.6 s.
-    wait_for("writes again", Duration::from_secs(5), || plc.writes() > writes + 2).await;
+    wait_for("writes again", Duration::from_secs(5), || {
+        plc.writes() > writes + 2
+    })
+    .await;
     assert_eq!(plc.holding()[1] & 1, 1, "running");
     tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
     assert_eq!(plc.holding()[1] & 0b11, 0b10, "final write: stopped");
@@ -381,9 +428,10 @@ async fn start_up_failures_are_errors_not_silence() -> anyhow::Result<()> {
     config.outputs.server.as_mut().unwrap().bind = taken.local_addr()?;
     let error = Service::new(config.clone())?.spawn().await.unwrap_err();
     assert!(
-        error
-            .to_string()
-            .starts_with(&format!("cannot bind the Modbus server to {}", taken.local_addr()?)),
+        error.to_string().starts_with(&format!(
+            "cannot bind the Modbus server to {}",
+            taken.local_addr()?
+        )),
         "{error}"
     );
     // A register base that runs the map past 65535.
@@ -391,7 +439,9 @@ async fn start_up_failures_are_errors_not_silence() -> anyhow::Result<()> {
     config.outputs.plc.as_mut().unwrap().register_base = 65_500;
     let error = Service::new(config).unwrap_err();
     assert!(
-        error.to_string().starts_with("outputs.plc.register_base: 65500 is not allowed"),
+        error
+            .to_string()
+            .starts_with("outputs.plc.register_base: 65500 is not allowed"),
         "{error}"
     );
     Ok(())

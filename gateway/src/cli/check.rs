@@ -83,11 +83,11 @@ mod tests {
     fn check_variant(example_file: &str, from: &str, to: &str) -> Result<String, CheckError> {
         let text = std::fs::read_to_string(example(example_file)).expect("the example");
         assert!(text.contains(from), "{example_file} has `{from}`");
-        let directory = std::env::temp_dir().join(format!(
-            "millgate-check-{}-{}",
-            std::process::id(),
-            to.len()
-        ));
+        // One directory per call: tests run in parallel.
+        static CALLS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+        let call = CALLS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let directory =
+            std::env::temp_dir().join(format!("millgate-check-{}-{call}", std::process::id()));
         std::fs::create_dir_all(&directory).expect("temporary directory");
         std::fs::copy(example("mill.dbc"), directory.join("mill.dbc")).expect("copy the DBC");
         let path = directory.join("variant.toml");

@@ -26,13 +26,13 @@ use std::time::{Duration, Instant};
 use millgate_config::layout::{self, BlockError, BLOCK_REGISTERS};
 use millgate_config::{ChannelSource, Config, ModbusSource, RegisterTable, ValueType, WordOrder};
 use tokio::sync::mpsc;
-use tokio_modbus::client::{Context, Reader};
+use tokio_modbus::client::Context;
 use tokio_modbus::prelude::ExceptionCode;
 
 use crate::field::acquired::Acquired;
 use crate::field::backoff::Backoff;
 use crate::field::counters::ChannelCounters;
-use crate::field::modbus_client::{self, ConnectError};
+use crate::field::modbus_client::{self, CheckedError, ConnectError, ReplyMismatch};
 use crate::field::quality::{self, SaturationLimits};
 use crate::field::source_health::SourceHealth;
 use crate::shutdown::Shutdown;
@@ -58,6 +58,9 @@ pub enum DaqError {
     /// The connection failed or the reply could not be decoded.
     #[error("transport: {0}")]
     Transport(#[from] tokio_modbus::Error),
+    /// The reply does not answer the request (another register count).
+    #[error("reply does not match the request: {0}")]
+    Mismatch(#[from] ReplyMismatch),
     /// The device answered with a Modbus exception: it refused the request.
     #[error("device refused register {address}: {exception}")]
     Exception {
@@ -82,8 +85,20 @@ impl DaqError {
     fn needs_reconnect(&self) -> bool {
         matches!(
             self,
-            DaqError::Connect { .. } | DaqError::Timeout(_) | DaqError::Transport(_)
+            DaqError::Connect { .. }
+                | DaqError::Timeout(_)
+                | DaqError::Transport(_)
+                | DaqError::Mismatch(_)
         )
+    }
+}
+
+impl From<CheckedError> for DaqError {
+    fn from(error: CheckedError) -> Self {
+        match error {
+            CheckedError::Transport(error) => DaqError::Transport(error),
+            CheckedError::Mismatch(mismatch) => DaqError::Mismatch(mismatch),
+        }
     }
 }
 
@@ -492,12 +507,7 @@ async fn read(
     count: u16,
     timeout: Duration,
 ) -> Result<Vec<u16>, DaqError> {
-    let request = async {
-        match table {
-            RegisterTable::Input => context.read_input_registers(address, count).await,
-            RegisterTable::Holding => context.read_holding_registers(address, count).await,
-        }
-    };
+    let request = modbus_client::read_registers(context, table, address, count);
     let reply = tokio::time::timeout(timeout, request)
         .await
         .map_err(|_| DaqError::Timeout(timeout))??;

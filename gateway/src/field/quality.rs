@@ -8,14 +8,15 @@
 //! The limits ([`saturation_limits`]) are the ends of the raw range of the channel's
 //! encoding: raw i16 -32767 and below or 32767 for a Modbus block sample (a 16-bit
 //! converter clips there; -32768 and -32767 are both its negative end, as many DAQs
-//! clip symmetrically), and for a CAN signal of 8 bits or more the ends of its raw
-//! range (signed: as i16; unsigned: all ones, which J1939 and most DBCs reserve for
-//! "not available", see [`can_signal_limits`]). Process values have none.
+//! clip symmetrically), and for a CAN torque or acceleration signal of 8 bits or more
+//! the ends of its raw range (signed: as i16; unsigned: all ones, which J1939 and most
+//! DBCs reserve for "not available", see [`can_signal_limits`]). Process values
+//! (register values, and CAN counters, speeds, flags) have none.
 
 use std::time::SystemTime;
 
 use millgate_config::signal::SignalLayout;
-use millgate_config::{Channel, ChannelSource};
+use millgate_config::{Channel, ChannelKind, ChannelSource};
 
 use crate::field::acquired::Acquired;
 
@@ -56,6 +57,10 @@ fn i16_limits(scale: f64, offset: f64) -> SaturationLimits {
 pub fn saturation_limits(channel: &Channel) -> SaturationLimits {
     match &channel.source {
         ChannelSource::ModbusBlock { .. } => i16_limits(channel.scale, channel.offset),
+        // A process value on CAN (a counter, a speed, a flag) may use its whole range.
+        ChannelSource::Can { .. } if channel.kind == ChannelKind::ProcessValue => {
+            SaturationLimits::NONE
+        }
         ChannelSource::Can { signal_layout, .. } => {
             can_signal_limits(signal_layout, channel.scale, channel.offset)
         }

@@ -16,11 +16,11 @@ use std::time::Duration;
 use tokio::time::Instant;
 
 use millgate_config::PlcOutput;
-use tokio_modbus::client::{Context, Writer};
+use tokio_modbus::client::Context;
 use tokio_modbus::prelude::ExceptionCode;
 
 use crate::field::backoff::Backoff;
-use crate::field::modbus_client::{self, ConnectError};
+use crate::field::modbus_client::{self, CheckedError, ConnectError, ReplyMismatch};
 use crate::outputs::publisher::Publisher;
 use crate::outputs::results::GatewayState;
 use crate::shutdown::Shutdown;
@@ -46,6 +46,9 @@ pub enum PlcError {
     /// The connection failed or the reply could not be decoded.
     #[error("PLC transport: {0}")]
     Transport(#[from] tokio_modbus::Error),
+    /// The PLC's reply does not match the write (another address or count echoed).
+    #[error("PLC reply does not match the write: {0}")]
+    Mismatch(#[from] ReplyMismatch),
     /// The PLC refused the write: wrong base address, or registers write-protected.
     #[error("PLC refused the write at register {address}: {exception}")]
     Refused {
@@ -55,6 +58,15 @@ pub enum PlcError {
         #[source]
         exception: ExceptionCode,
     },
+}
+
+impl From<CheckedError> for PlcError {
+    fn from(error: CheckedError) -> Self {
+        match error {
+            CheckedError::Transport(error) => PlcError::Transport(error),
+            CheckedError::Mismatch(mismatch) => PlcError::Mismatch(mismatch),
+        }
+    }
 }
 
 /// Writes the published register map to one PLC.
@@ -99,7 +111,7 @@ impl PlcWriter {
     async fn write(&self, context: &mut Context, words: &[u16]) -> Result<(), PlcError> {
         for (i, chunk) in words.chunks(MAX_WRITE_REGISTERS).enumerate() {
             let address = self.output.register_base + (i * MAX_WRITE_REGISTERS) as u16;
-            let request = context.write_multiple_registers(address, chunk);
+            let request = modbus_client::write_registers(context, address, chunk);
             tokio::time::timeout(self.output.timeout, request)
                 .await
                 .map_err(|_| PlcError::Timeout(self.output.timeout))??

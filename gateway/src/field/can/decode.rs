@@ -8,7 +8,7 @@ use millgate_config::signal::SignalLayout;
 use millgate_config::{ChannelSource, Config};
 
 use crate::field::counters::BusState;
-use crate::field::quality::{can_signal_limits, SaturationLimits};
+use crate::field::quality::{saturation_limits, SaturationLimits};
 
 /// Error-frame class bits in the CAN id and controller status bits in data[1]
 /// (linux/can/error.h).
@@ -76,6 +76,8 @@ struct MessageSignals {
 pub struct CanDecoder {
     /// Keyed by (identifier, extended).
     messages: HashMap<(u32, bool), MessageSignals>,
+    /// Saturation limits of the measured channels (torque, acceleration).
+    limits: Vec<(usize, SaturationLimits)>,
 }
 
 impl CanDecoder {
@@ -93,6 +95,10 @@ impl CanDecoder {
             {
                 if *source == source_index {
                     decoder.add(channel, *signal_layout, settings.scale, settings.offset);
+                    let limits = saturation_limits(settings);
+                    if limits != SaturationLimits::NONE {
+                        decoder.limits.push((channel, limits));
+                    }
                 }
             }
         }
@@ -130,21 +136,11 @@ impl CanDecoder {
         channels
     }
 
-    /// The saturation limits of each channel the decoder fills
-    /// ([`crate::field::quality::can_signal_limits`]), in configuration order.
+    /// The saturation limits of the measured channels of the source (torque and
+    /// acceleration: [`crate::field::quality::saturation_limits`]); channels added with
+    /// [`Self::add`] have none.
     pub fn saturation_limits(&self) -> Vec<(usize, SaturationLimits)> {
-        let mut limits: Vec<(usize, SaturationLimits)> = self
-            .messages
-            .values()
-            .flat_map(|message| {
-                message.signals.iter().map(|signal| {
-                    let limits = can_signal_limits(&signal.layout, signal.scale, signal.offset);
-                    (signal.channel, limits)
-                })
-            })
-            .collect();
-        limits.sort_unstable_by_key(|(channel, _)| *channel);
-        limits
+        self.limits.clone()
     }
 
     /// Number of channels the decoder fills.
