@@ -192,6 +192,44 @@ mod tests {
     }
 
     #[test]
+    fn only_measured_can_channels_have_limits() {
+        // hot-mill.toml: RollForce and OilTemp are CAN process values (a force, a
+        // temperature: their whole range is theirs); a torque on the same signal is
+        // a measured channel whose raw ends mean saturated or not available.
+        let config = millgate_config::load(
+            &std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("../config/examples/hot-mill.toml"),
+        )
+        .expect("the example loads");
+        let mut can_channels = config
+            .channels
+            .iter()
+            .filter(|c| matches!(c.source, ChannelSource::Can { .. }))
+            .peekable();
+        assert!(
+            can_channels.peek().is_some(),
+            "hot-mill.toml has CAN channels"
+        );
+        for channel in can_channels {
+            assert_eq!(channel.kind, ChannelKind::ProcessValue, "{}", channel.name);
+            assert_eq!(
+                saturation_limits(channel),
+                SaturationLimits::NONE,
+                "{}",
+                channel.name
+            );
+            let mut torque = channel.clone();
+            torque.kind = ChannelKind::Torque;
+            assert_ne!(
+                saturation_limits(&torque),
+                SaturationLimits::NONE,
+                "{}",
+                channel.name
+            );
+        }
+    }
+
+    #[test]
     fn saturated_runs_become_gaps_of_their_length() {
         let limits = SaturationLimits {
             low: -10.0,
