@@ -1,10 +1,10 @@
 //! Soak benchmark: `millgate run` (the release binary, as a separate process) against
-//! the demo's virtual DAQ and PLC for a set time, bites streaming (one bar every
-//! ~4.4 s), an HMI client reading the whole register map and a Prometheus scrape every
+//! the demo's virtual DAQ and PLC for a set time, bites streaming (one bar about every
+//! 2 s), an HMI client reading the whole register map and a Prometheus scrape every
 //! sample period. Every sample prints the process's resident memory (VmRSS), its open
-//! descriptors, its threads, the bites counted and the PLC writes; the summary gives
-//! the growth of RSS and descriptors after the warm-up. Not a test: a leak shows as
-//! a steady growth over minutes.
+//! descriptors, its threads, the bites counted (degraded ones apart), the DAQ blocks
+//! missed and the PLC writes; the summary gives the growth of RSS and descriptors
+//! after the warm-up. Not a test: a leak shows as a steady growth over minutes.
 //!
 //! ```sh
 //! cargo build --release -p millgate --bin millgate --example soak
@@ -169,8 +169,8 @@ async fn main() -> anyhow::Result<()> {
         options.every.as_secs_f64()
     );
     println!(
-        "{:>7} {:>9} {:>4} {:>7} {:>6} {:>8} {:>9}",
-        "t_s", "rss_kib", "fds", "threads", "bites", "degraded", "plc_writes"
+        "{:>7} {:>9} {:>4} {:>7} {:>6} {:>8} {:>6} {:>9}",
+        "t_s", "rss_kib", "fds", "threads", "bites", "degraded", "missed", "plc_writes"
     );
 
     let mut hmi: Option<tokio_modbus::client::Context> = None;
@@ -191,23 +191,25 @@ async fn main() -> anyhow::Result<()> {
         }
         let (rss, threads, fds) =
             process_figures(pid).context("the gateway is gone (it exited during the soak)")?;
-        let [bites, degraded] = scrape(
+        let [bites, degraded, missed] = scrape(
             metrics,
             &[
                 "millgate_bites_total{driveline=\"F1\"}",
                 "millgate_degraded_bites_total{driveline=\"F1\"}",
+                "millgate_channel_blocks_missed_total{channel=\"spindle_top\"}",
             ],
         )?[..] else {
-            unreachable!("two metrics asked for")
+            unreachable!("three metrics asked for")
         };
         println!(
-            "{:>7.0} {:>9} {:>4} {:>7} {:>6} {:>8} {:>9}",
+            "{:>7.0} {:>9} {:>4} {:>7} {:>6} {:>8} {:>6} {:>9}",
             started.elapsed().as_secs_f64(),
             rss,
             fds,
             threads,
             bites,
             degraded,
+            missed,
             plc.writes()
         );
         samples.push((rss, fds));
