@@ -18,7 +18,7 @@
 //! delay, which restarts from its initial value only after a poll that brought new
 //! data (not on TCP connect: a DAQ at its client limit accepts and closes at once,
 //! and would be reconnected thousands of times a second). Repeating warnings are
-//! rate-limited ([`crate::warn_limit`]).
+//! rate-limited (one line per 10 s with the count suppressed, `warn_limit.rs`).
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
