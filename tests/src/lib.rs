@@ -8,6 +8,8 @@
 pub mod counting_allocator;
 pub mod hostile_daq;
 
+pub mod chatter_eval;
+
 use std::time::{Duration, Instant};
 
 use millgate::outputs::register_map::RegisterMap;
