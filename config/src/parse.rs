@@ -16,13 +16,14 @@ use crate::error::{line_column, Report};
 use crate::raw::RawConfig;
 
 /// Keys allowed at the top level of a configuration file.
-const TOP_LEVEL_KEYS: [&str; 6] = [
+const TOP_LEVEL_KEYS: [&str; 7] = [
     "name",
     "sources",
     "channels",
     "drivelines",
     "tandem_mills",
     "outputs",
+    "history",
 ];
 
 /// Keys allowed in the `[sources]` table.
@@ -54,6 +55,7 @@ pub(crate) fn parse(text: &str, report: &mut Report) -> Option<RawConfig> {
             "drivelines" => raw.drivelines = schema.list(value, "drivelines"),
             "tandem_mills" => raw.tandem_mills = schema.list(value, "tandem_mills"),
             "outputs" => raw.outputs = schema.value(value, "outputs").unwrap_or_default(),
+            "history" => raw.history = schema.value(value, "history"),
             _ => schema.unknown_key(key, "", &TOP_LEVEL_KEYS),
         }
     }

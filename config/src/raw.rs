@@ -132,6 +132,15 @@ pub(crate) struct RawMetricsOutput {
     pub bind: Option<String>,
 }
 
+/// `[history]`: the event history file.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawHistory {
+    pub path: String,
+    pub retention_days: Option<i64>,
+    pub max_size_mb: Option<i64>,
+}
+
 /// The whole document after the schema pass. List elements that failed to
 /// deserialize are absent, but then validation does not run (see [`crate::parse`]).
 #[derive(Debug, Default)]
@@ -143,4 +152,5 @@ pub(crate) struct RawConfig {
     pub drivelines: Vec<RawDriveline>,
     pub tandem_mills: Vec<RawTandemMill>,
     pub outputs: RawOutputs,
+    pub history: Option<RawHistory>,
 }

@@ -182,6 +182,18 @@ pub fn summary(config: &Config) -> String {
         let _ = writeln!(text, "  Metrics: http://{}/metrics", metrics.bind);
     }
     none_if_empty(&mut text, output_count);
+    match &config.history {
+        Some(history) => {
+            let _ = writeln!(
+                text,
+                "History: {}, events kept {} days, at most {} MiB",
+                history.path.display(),
+                history.retention_days,
+                history.max_size_mb
+            );
+        }
+        None => text.push_str("History: none\n"),
+    }
     text
 }
 

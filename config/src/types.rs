@@ -25,6 +25,8 @@ pub struct Config {
     pub tandem_mills: Vec<TandemMill>,
     /// Where results go.
     pub outputs: Outputs,
+    /// The event history file; `None` keeps no history.
+    pub history: Option<History>,
 }
 
 impl Config {
@@ -352,4 +354,18 @@ pub struct ServerOutput {
 pub struct MetricsOutput {
     /// Address to listen on (default `127.0.0.1:9187`).
     pub bind: SocketAddr,
+}
+
+/// The event history: one SQLite file per gateway holding every bite, wear estimate,
+/// alarm, chatter episode, source outage and start and stop, and the state restored
+/// at the next start.
+#[derive(Debug, Clone, PartialEq)]
+pub struct History {
+    /// The SQLite file, resolved relative to the configuration file; its folder exists.
+    pub path: PathBuf,
+    /// Events older than this are deleted, 1..=36500 days (default 400).
+    pub retention_days: u32,
+    /// Largest size of the file's data before the oldest events are deleted,
+    /// 1..=1048576 MiB (default 1024).
+    pub max_size_mb: u32,
 }

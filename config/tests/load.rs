@@ -343,7 +343,7 @@ fn wrong_types_and_missing_keys_are_named() {
     );
     assert_problem_like(
         &(BASE.to_owned() + "\n[alarms]\nlevel = 1\n"),
-        "mill.toml: alarms: unknown key (allowed here: name, sources, channels, drivelines, tandem_mills, outputs)",
+        "mill.toml: alarms: unknown key (allowed here: name, sources, channels, drivelines, tandem_mills, outputs, history)",
         &[],
     );
     assert_problem_like(
@@ -919,4 +919,54 @@ fn every_problem_is_listed_at_once() {
             "outputs.server.bind"
         ]
     );
+}
+
+#[test]
+fn history_path_retention_and_size() {
+    let scratch = Scratch::new("history");
+    let dbc = std::fs::read_to_string(examples_dir().join("mill.dbc")).unwrap();
+    scratch.write("mill.dbc", &dbc);
+    let with = |history: &str| format!("{BASE}\n[history]\n{history}\n");
+    let config = from_toml_str(&with("path = \"data/history.db\""), "mill.toml", &scratch.0);
+    let problems: Vec<String> = config
+        .expect_err("the folder does not exist")
+        .problems
+        .iter()
+        .map(ToString::to_string)
+        .collect();
+    assert_eq!(problems.len(), 1, "{problems:#?}");
+    assert!(
+        problems[0].starts_with("mill.toml: history.path: the folder of \"data/history.db\" does not exist"),
+        "{}",
+        problems[0]
+    );
+    std::fs::create_dir_all(scratch.0.join("data")).unwrap();
+    let config = from_toml_str(&with("path = \"data/history.db\""), "mill.toml", &scratch.0)
+        .unwrap_or_else(|error| panic!("{error}"));
+    let history = config.history.expect("history configured");
+    assert_eq!(history.path, scratch.0.join("data/history.db"));
+    assert_eq!((history.retention_days, history.max_size_mb), (400, 1024));
+    let error = from_toml_str(&with("path = \"data\""), "mill.toml", &scratch.0).unwrap_err();
+    assert!(
+        error.to_string().contains("history.path: \"data\" is a folder"),
+        "{error}"
+    );
+    let error = from_toml_str(
+        &with("path = \"h.db\"\nretention_days = 0\nmax_size_mb = 2000000"),
+        "mill.toml",
+        &scratch.0,
+    )
+    .unwrap_err();
+    assert_eq!(
+        error.to_string(),
+        "mill.toml: history.retention_days: 0 is not allowed (must be 1..=36500 days)\n\
+         mill.toml: history.max_size_mb: 2000000 is not allowed (must be 1..=1048576 MiB)"
+    );
+    let error = from_toml_str(&with("path = \"h.db\"\nkeep = 3"), "mill.toml", &scratch.0)
+        .unwrap_err();
+    assert!(
+        error.to_string().starts_with("mill.toml: history.keep: unknown field `keep`"),
+        "{error}"
+    );
+    assert!(parse(BASE).unwrap().history.is_none());
 }

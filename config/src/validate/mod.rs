@@ -6,7 +6,8 @@
 //! present.
 //!
 //! One file per part of the configuration: `sources`, `channels`, `drivelines`,
-//! `tandem_mills`, `outputs`; `values` holds the checks of single values they share.
+//! `tandem_mills`, `outputs`, `history`; `values` holds the checks of single values
+//! they share.
 
 use std::collections::HashMap;
 use std::ops::RangeInclusive;
@@ -97,6 +98,7 @@ pub(crate) fn validate(raw: RawConfig, base_dir: &Path, report: &mut Report) -> 
         |checker, key, mill| checker.tandem_mill(key, mill, &channel_facts),
     );
     let outputs = checker.outputs(&raw.outputs);
+    let history = raw.history.as_ref().map(|history| checker.history(history));
     Some(Config {
         name: name?,
         modbus_sources: modbus_sources.into_iter().collect::<Option<_>>()?,
@@ -105,6 +107,7 @@ pub(crate) fn validate(raw: RawConfig, base_dir: &Path, report: &mut Report) -> 
         drivelines: drivelines.into_iter().collect::<Option<_>>()?,
         tandem_mills: tandem_mills.into_iter().collect::<Option<_>>()?,
         outputs: outputs?,
+        history: optional(history)?,
     })
 }
 
@@ -163,6 +166,7 @@ struct Checker<'a> {
 
 mod channels;
 mod drivelines;
+mod history;
 mod outputs;
 mod sources;
 mod tandem_mills;
