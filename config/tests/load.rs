@@ -936,7 +936,9 @@ fn history_path_retention_and_size() {
         .collect();
     assert_eq!(problems.len(), 1, "{problems:#?}");
     assert!(
-        problems[0].starts_with("mill.toml: history.path: the folder of \"data/history.db\" does not exist"),
+        problems[0].starts_with(
+            "mill.toml: history.path: the folder of \"data/history.db\" does not exist"
+        ),
         "{}",
         problems[0]
     );
@@ -948,7 +950,9 @@ fn history_path_retention_and_size() {
     assert_eq!((history.retention_days, history.max_size_mb), (400, 1024));
     let error = from_toml_str(&with("path = \"data\""), "mill.toml", &scratch.0).unwrap_err();
     assert!(
-        error.to_string().contains("history.path: \"data\" is a folder"),
+        error
+            .to_string()
+            .contains("history.path: \"data\" is a folder"),
         "{error}"
     );
     let error = from_toml_str(
@@ -962,10 +966,12 @@ fn history_path_retention_and_size() {
         "mill.toml: history.retention_days: 0 is not allowed (must be 1..=36500 days)\n\
          mill.toml: history.max_size_mb: 2000000 is not allowed (must be 1..=1048576 MiB)"
     );
-    let error = from_toml_str(&with("path = \"h.db\"\nkeep = 3"), "mill.toml", &scratch.0)
-        .unwrap_err();
+    let error =
+        from_toml_str(&with("path = \"h.db\"\nkeep = 3"), "mill.toml", &scratch.0).unwrap_err();
     assert!(
-        error.to_string().starts_with("mill.toml: history.keep: unknown field `keep`"),
+        error
+            .to_string()
+            .starts_with("mill.toml: history.keep: unknown field `keep`"),
         "{error}"
     );
     assert!(parse(BASE).unwrap().history.is_none());

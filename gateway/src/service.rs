@@ -16,10 +16,12 @@ use crate::field::counters::{CanCounters, ChannelCounters};
 use crate::field::daq_reader::DaqReader;
 use crate::field::source_health::SourceHealth;
 use crate::outputs::heartbeat;
+use crate::outputs::history::outages::{OutageMonitor, WatchedSource};
+use crate::outputs::history::{History, RunInfo};
 use crate::outputs::hmi_server::ModbusServer;
 use crate::outputs::metrics::Metrics;
 use crate::outputs::plc_writer::PlcWriter;
-use crate::outputs::publisher::Publisher;
+use crate::outputs::publisher::{source_of_channel, Publisher};
 use crate::outputs::results::GatewayState;
 use crate::shutdown::{self, Shutdown, ShutdownTrigger};
 
@@ -59,6 +61,7 @@ pub struct Service {
     can_counters: Vec<Arc<CanCounters>>,
     bites: broadcast::Sender<BiteReport>,
     analysis: Analysis,
+    history: History,
     server_listener: Option<TcpListener>,
     metrics_listener: Option<TcpListener>,
 }
@@ -96,7 +99,9 @@ impl Service {
                 ))
             }))
             .collect();
-        let publisher = Arc::new(Publisher::new(&config, health.clone()));
+        let history = History::new(config.history.as_ref());
+        let publisher =
+            Arc::new(Publisher::new(&config, health.clone()).with_history(history.clone()));
         let (bites, _) = broadcast::channel(64);
         let analysis = Analysis::new(&config, Arc::clone(&publisher), bites.clone())?;
         let can_counters = config.can_sources.iter().map(|_| Arc::default()).collect();
@@ -108,6 +113,7 @@ impl Service {
             can_counters,
             bites,
             analysis,
+            history,
             server_listener: None,
             metrics_listener: None,
         })
@@ -162,10 +168,72 @@ impl Service {
         self.counters.clone()
     }
 
+    /// The event history (disabled without `[history]`).
+    pub fn history(&self) -> History {
+        self.history.clone()
+    }
+
+    /// Open the history and publish what it restores (before any reader starts, so
+    /// the first bite continues the restored counter).
+    async fn restore(&self) {
+        let history = self.history.clone();
+        let run = RunInfo {
+            version: env!("CARGO_PKG_VERSION").to_owned(),
+            config_name: self.config.name.clone(),
+        };
+        let restored = match tokio::task::spawn_blocking(move || history.start(run)).await {
+            Ok(restored) => restored,
+            Err(error) => {
+                tracing::error!(%error, "opening the history failed");
+                return;
+            }
+        };
+        let publisher = &self.publisher;
+        publisher.update(|results| {
+            restored.apply(results, publisher.driveline_names(), publisher.mill_names())
+        });
+        for driveline in &restored.drivelines {
+            tracing::info!(
+                driveline = %driveline.name,
+                bite_counter = driveline.results.bite_counter,
+                wear_trend = ?driveline.results.wear_trend,
+                alarm_latched = driveline.results.alarm,
+                last_bite = ?driveline.results.last_bite_unix_s,
+                extra = driveline.extra.is_some(),
+                "state restored from the history"
+            );
+        }
+    }
+
+    /// The outage monitor of every source.
+    fn outage_monitor(&self) -> OutageMonitor {
+        let config = &self.config;
+        let names = config
+            .modbus_sources
+            .iter()
+            .map(|s| &s.name)
+            .chain(config.can_sources.iter().map(|s| &s.name));
+        let sources = names
+            .zip(&self.health)
+            .enumerate()
+            .map(|(index, (name, health))| WatchedSource {
+                name: name.clone(),
+                health: Arc::clone(health),
+                channels: (0..config.channels.len())
+                    .filter(|&c| source_of_channel(config, c) == index)
+                    .map(|c| Arc::clone(&self.counters[c]))
+                    .collect(),
+            })
+            .collect();
+        OutageMonitor::new(sources, self.history.clone())
+    }
+
     /// Run until `shutdown` fires; then stop the readers, let analysis drain what
     /// they read, and write the final registers with status "stopped".
     pub async fn run(mut self, shutdown: Shutdown) -> Result<(), ServiceError> {
         self.bind().await?;
+        self.restore().await;
+        let outage_monitor = self.history.is_enabled().then(|| self.outage_monitor());
         let Service {
             config,
             publisher,
@@ -173,6 +241,7 @@ impl Service {
             health,
             can_counters,
             analysis,
+            history,
             server_listener,
             metrics_listener,
             ..
@@ -212,8 +281,13 @@ impl Service {
                 outputs_shutdown.clone(),
             ));
         }
+        if let Some(monitor) = outage_monitor {
+            outputs.spawn(monitor.run(outputs_shutdown.clone()));
+        }
         if let (Some(output), Some(listener)) = (&config.outputs.server, server_listener) {
-            let server = ModbusServer::new(output.clone(), Arc::clone(&publisher));
+            let plc_address = config.outputs.plc.as_ref().map(|plc| plc.address.clone());
+            let server = ModbusServer::new(output.clone(), Arc::clone(&publisher))
+                .with_plc_address(plc_address);
             let shutdown = outputs_shutdown.clone();
             outputs.spawn(async move {
                 if let Err(error) = server.run(listener, shutdown).await {
@@ -240,6 +314,13 @@ impl Service {
         outputs_stop.trigger();
         while outputs.join_next().await.is_some() {}
         publisher.update(|results| results.state = GatewayState::Stopped);
+        // Last: the writer commits what analysis and the outputs recorded.
+        if tokio::task::spawn_blocking(move || history.close())
+            .await
+            .is_err()
+        {
+            tracing::error!("closing the history failed");
+        }
         tracing::info!("stopped");
         Ok(())
     }
@@ -252,6 +333,7 @@ pub struct RunningService {
     bound: Bound,
     publisher: Arc<Publisher>,
     counters: Vec<Arc<ChannelCounters>>,
+    history: History,
     bites: broadcast::Receiver<BiteReport>,
     stop: ShutdownTrigger,
     task: JoinHandle<Result<(), ServiceError>>,
@@ -265,6 +347,7 @@ impl Service {
         let bound = self.bind().await?;
         let publisher = self.publisher();
         let counters = self.counters();
+        let history = self.history();
         let bites = self.subscribe_bites();
         let (stop, shutdown) = shutdown::channel();
         let task = tokio::spawn(self.run(shutdown));
@@ -272,6 +355,7 @@ impl Service {
             bound,
             publisher,
             counters,
+            history,
             bites,
             stop,
             task,
@@ -293,6 +377,11 @@ impl RunningService {
     /// Per-channel acquisition counters, indexed like `config.channels`.
     pub fn counters(&self) -> &[Arc<ChannelCounters>] {
         &self.counters
+    }
+
+    /// The event history: [`History::stored`] counts the events committed.
+    pub fn history(&self) -> &History {
+        &self.history
     }
 
     /// The bites analysed since the service was spawned, oldest first.

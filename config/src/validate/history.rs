@@ -43,8 +43,10 @@ impl Checker<'_> {
     /// exists; the file itself may not exist yet (it is created at the first start).
     fn history_path(&mut self, key: &str, relative: &str) -> Option<std::path::PathBuf> {
         if relative.trim().is_empty() {
-            self.report
-                .push(key, "must not be empty (the SQLite file, e.g. \"history.db\")");
+            self.report.push(
+                key,
+                "must not be empty (the SQLite file, e.g. \"history.db\")",
+            );
             return None;
         }
         let path = self.base_dir.join(relative);

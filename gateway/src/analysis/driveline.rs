@@ -6,14 +6,19 @@ use std::time::{Instant, SystemTime, UNIX_EPOCH};
 
 use millgate_config::{Channel, Driveline};
 use millgate_dsp::bite::{BiteEvent, BiteSettings};
-use millgate_dsp::transient::{TransientResult, TransientSettings};
+use millgate_dsp::transient::{TransientQuality, TransientResult, TransientSettings};
 
 use super::bite_window::{
     analyze_window, Detector, DetectorState, PRE_TRIGGER_CAPACITY, WINDOW_CAPACITY,
 };
 use super::error::AnalysisError;
 use super::wear::{self, WearEstimate, WearReference};
+use crate::outputs::history::events::{
+    AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, HistoryEvent,
+};
+use crate::outputs::history::time::UtcTime;
 use crate::outputs::publisher::Publisher;
+use crate::outputs::results::DrivelineResults;
 
 /// Low-pass cut-off for period measurement of a driveline without a model, Hz: keeps
 /// the first modes (10-30 Hz, domain notes 1.3) and removes measurement noise above
@@ -246,10 +251,12 @@ impl DrivelineAnalyzer {
         }
     }
 
-    /// Record `report`, a bite of this driveline, in the published results.
+    /// Record `report`, a bite of this driveline, in the published results and the
+    /// history (the bite, and its warning and alarm changes).
     pub(super) fn publish(&self, publisher: &Publisher, report: &BiteReport) {
-        publisher.update(|results| {
+        publisher.update_recorded(|results, events| {
             let driveline = &mut results.drivelines[report.driveline];
+            let (was_warning, was_alarm) = (driveline.warning, driveline.alarm);
             let t = &report.transient;
             driveline.bite_counter = driveline.bite_counter.wrapping_add(1);
             driveline.last_bite_unix_s = report
@@ -270,6 +277,35 @@ impl DrivelineAnalyzer {
             if let (Some(index), false) = (driveline.wear_index, report.degraded) {
                 driveline.wear_trend = Some(wear::next_trend(driveline.wear_trend, index));
             }
+            driveline.restored = false;
+            events.push(HistoryEvent::Bite(Box::new(bite_record(report, driveline))));
+            let time = UtcTime::from_system(report.time);
+            let alarm = |kind, event, threshold| {
+                HistoryEvent::Alarm(AlarmRecord {
+                    time,
+                    subject: report.driveline_name.clone(),
+                    kind,
+                    event,
+                    origin: None,
+                    value: t.taf,
+                    threshold: Some(threshold),
+                })
+            };
+            if driveline.warning != was_warning {
+                let event = if driveline.warning {
+                    AlarmEvent::Raised
+                } else {
+                    AlarmEvent::Cleared
+                };
+                events.push(alarm(AlarmKind::TafWarning, event, self.taf_warning));
+            }
+            if driveline.alarm && !was_alarm {
+                events.push(alarm(
+                    AlarmKind::TafAlarm,
+                    AlarmEvent::Raised,
+                    self.taf_alarm,
+                ));
+            }
         });
     }
 
@@ -280,6 +316,37 @@ impl DrivelineAnalyzer {
             self.detector.trigger(&mut self.state);
         }
         self.trigger_high = high;
+    }
+}
+
+/// The history's record of `report` with the driveline's published `state` after it.
+fn bite_record(report: &BiteReport, state: &DrivelineResults) -> BiteRecord {
+    let t = &report.transient;
+    let reference = report.wear.map(|wear| wear.reference);
+    BiteRecord {
+        driveline: report.driveline_name.clone(),
+        channel: report.channel_name.clone(),
+        time: UtcTime::from_system(report.time),
+        static_torque_knm: t.static_torque_knm,
+        peak_torque_knm: t.peak_torque_knm,
+        taf: t.taf,
+        first_period_s: t.first_period_s,
+        second_period_s: t.second_period_s,
+        period_shift_s: t.period_shift_s,
+        beta_hz: report.beta_hz,
+        quality: match t.quality {
+            TransientQuality::Good => "good",
+            TransientQuality::FewCrossings => "few_crossings",
+            TransientQuality::LowStatic => "low_static",
+        },
+        degraded: report.degraded,
+        reference_taf: reference.map(|r| r.taf),
+        reference_level_knm: reference.map(|r| r.level_knm),
+        shift_over_linear_s: report.wear.and_then(|wear| wear.shift_excess_s),
+        // Hook: the gap diagnosis fills these when it lands.
+        gap: None,
+        extra_state: None,
+        state: state.clone(),
     }
 }
 

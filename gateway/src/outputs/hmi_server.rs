@@ -10,9 +10,10 @@
 //! Commands: `command.acknowledge_alarms` takes 0 (nothing) or 1 (clear latched
 //! alarms); `command.reset_wear_trend` takes a bitmask of drivelines (bit k = the
 //! k-th driveline in config order, 0 = nothing) and refuses bits of drivelines that
-//! do not exist. Both read back 0.
+//! do not exist. Both read back 0. The history records who sent a command: the PLC
+//! when the client's address is the configured PLC's, an HMI otherwise.
 
-use std::net::SocketAddr;
+use std::net::{IpAddr, SocketAddr};
 use std::sync::Arc;
 
 use millgate_config::ServerOutput;
@@ -20,6 +21,7 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio_modbus::prelude::{ExceptionCode, Request, Response, SlaveRequest};
 use tokio_modbus::server::tcp::Server;
 
+use crate::outputs::history::events::CommandOrigin;
 use crate::outputs::publisher::Publisher;
 use crate::outputs::register_map::{Access, Field};
 use crate::shutdown::Shutdown;
@@ -27,9 +29,13 @@ use crate::shutdown::Shutdown;
 /// Largest register count of one read request (FC 03 / 04).
 const MAX_READ_REGISTERS: u16 = 125;
 
-/// Answer one request against the published map. Pure apart from the command
-/// side effects on `publisher`; the socket side is in [`ModbusServer::run`].
-pub fn answer(publisher: &Publisher, request: &Request<'_>) -> Result<Response, ExceptionCode> {
+/// Answer one request of `origin` against the published map. Pure apart from the
+/// command side effects on `publisher`; the socket side is in [`ModbusServer::run`].
+pub fn answer(
+    publisher: &Publisher,
+    request: &Request<'_>,
+    origin: CommandOrigin,
+) -> Result<Response, ExceptionCode> {
     match request {
         Request::ReadHoldingRegisters(address, count) => {
             read(publisher, *address, *count).map(Response::ReadHoldingRegisters)
@@ -37,11 +43,13 @@ pub fn answer(publisher: &Publisher, request: &Request<'_>) -> Result<Response, 
         Request::ReadInputRegisters(address, count) => {
             read(publisher, *address, *count).map(Response::ReadInputRegisters)
         }
-        Request::WriteSingleRegister(address, value) => write(publisher, *address, &[*value])
-            .map(|()| Response::WriteSingleRegister(*address, *value)),
+        Request::WriteSingleRegister(address, value) => {
+            write(publisher, *address, &[*value], origin)
+                .map(|()| Response::WriteSingleRegister(*address, *value))
+        }
         Request::WriteMultipleRegisters(address, values) => {
             let count = values.len() as u16;
-            write(publisher, *address, values)
+            write(publisher, *address, values, origin)
                 .map(|()| Response::WriteMultipleRegisters(*address, count))
         }
         _ => Err(ExceptionCode::IllegalFunction),
@@ -60,7 +68,12 @@ fn read(publisher: &Publisher, address: u16, count: u16) -> Result<Vec<u16>, Exc
         .ok_or(ExceptionCode::IllegalDataAddress)
 }
 
-fn write(publisher: &Publisher, address: u16, values: &[u16]) -> Result<(), ExceptionCode> {
+fn write(
+    publisher: &Publisher,
+    address: u16,
+    values: &[u16],
+    origin: CommandOrigin,
+) -> Result<(), ExceptionCode> {
     let map = publisher.map();
     let mut commands = Vec::with_capacity(values.len());
     for (offset, &value) in values.iter().enumerate() {
@@ -85,15 +98,17 @@ fn write(publisher: &Publisher, address: u16, values: &[u16]) -> Result<(), Exce
     for (field, value) in commands {
         match field {
             Field::AcknowledgeAlarms if value == 1 => {
-                tracing::info!("alarms acknowledged over Modbus");
-                publisher.acknowledge_alarms();
+                tracing::info!(by = origin.name(), peer = ?origin.peer(), "alarms acknowledged over Modbus");
+                publisher.acknowledge_alarms(origin);
             }
             Field::ResetWearTrend if value != 0 => {
                 tracing::info!(
                     drivelines = format!("{value:#b}"),
+                    by = origin.name(),
+                    peer = ?origin.peer(),
                     "wear trend reset over Modbus"
                 );
-                publisher.reset_wear_trend(value);
+                publisher.reset_wear_trend(value, origin);
             }
             _ => {}
         }
@@ -121,6 +136,7 @@ fn command_value_valid(field: Field, value: u16, drivelines: usize) -> bool {
 struct MapService {
     publisher: Arc<Publisher>,
     unit_id: u8,
+    origin: CommandOrigin,
 }
 
 impl tokio_modbus::server::Service for MapService {
@@ -133,7 +149,7 @@ impl tokio_modbus::server::Service for MapService {
         if !(matches!(request.slave, 0 | 255) || request.slave == self.unit_id) {
             return std::future::ready(Ok(None));
         }
-        std::future::ready(answer(&self.publisher, &request.request).map(Some))
+        std::future::ready(answer(&self.publisher, &request.request, self.origin).map(Some))
     }
 }
 
@@ -142,12 +158,24 @@ impl tokio_modbus::server::Service for MapService {
 pub struct ModbusServer {
     output: ServerOutput,
     publisher: Arc<Publisher>,
+    plc_address: Option<String>,
 }
 
 impl ModbusServer {
     /// A server of `publisher`'s map with the settings of `output`.
     pub fn new(output: ServerOutput, publisher: Arc<Publisher>) -> Self {
-        Self { output, publisher }
+        Self {
+            output,
+            publisher,
+            plc_address: None,
+        }
+    }
+
+    /// Commands from a client at the host of `plc_address` (`host:port`, the PLC
+    /// output's) are recorded as the PLC's.
+    pub fn with_plc_address(mut self, plc_address: Option<String>) -> Self {
+        self.plc_address = plc_address;
+        self
     }
 
     /// Bind the configured address.
@@ -160,12 +188,25 @@ impl ModbusServer {
         let local = listener.local_addr()?;
         tracing::info!(%local, "Modbus server listening");
         let server = Server::new(listener);
+        let plc_hosts: Vec<IpAddr> = match &self.plc_address {
+            Some(address) => tokio::net::lookup_host(address.as_str())
+                .await
+                .map(|found| found.map(|a| a.ip()).collect())
+                .unwrap_or_default(),
+            None => Vec::new(),
+        };
         let publisher = self.publisher;
         let unit_id = self.output.unit_id;
         let on_connected = |stream: TcpStream, peer: SocketAddr| {
+            let origin = if plc_hosts.contains(&peer.ip()) {
+                CommandOrigin::Plc(peer)
+            } else {
+                CommandOrigin::Hmi(peer)
+            };
             let service = MapService {
                 publisher: Arc::clone(&publisher),
                 unit_id,
+                origin,
             };
             async move {
                 tracing::debug!(%peer, "HMI connected");

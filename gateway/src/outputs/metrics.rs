@@ -14,6 +14,7 @@ use tokio::net::{TcpListener, TcpStream};
 
 use crate::field::counters::{CanCounters, CanCounts, ChannelCounters, ChannelCountersSnapshot};
 use crate::field::source_health::SourceHealth;
+use crate::outputs::history::HistoryStatus;
 use crate::outputs::publisher::Publisher;
 use crate::outputs::results::{DrivelineResults, MillResults};
 use crate::shutdown::Shutdown;
@@ -58,6 +59,96 @@ fn family<'a>(
         if let Some(value) = value {
             let _ = writeln!(out, "{metric}{{{label}=\"{}\"}} {value}", escape(name));
         }
+    }
+}
+
+/// The history's families: state, events stored and dropped, commits, retention,
+/// the file's size and the last error (as an info metric with the message as label).
+fn history_metrics(out: &mut String, status: &HistoryStatus) {
+    let scalars: [(&str, &str, &str, String); 8] = [
+        (
+            "millgate_history_state",
+            "gauge",
+            "Event history: 0 disabled, 1 ok, 2 failing (see millgate_history_last_error_info).",
+            status.state.code().to_string(),
+        ),
+        (
+            "millgate_history_events_stored_total",
+            "counter",
+            "Events committed to the history file.",
+            status.stored.to_string(),
+        ),
+        (
+            "millgate_history_queue_events",
+            "gauge",
+            "Events waiting for the history writer.",
+            status
+                .enqueued
+                .saturating_sub(status.stored + status.dropped_error)
+                .to_string(),
+        ),
+        (
+            "millgate_history_commits_total",
+            "counter",
+            "History transactions committed (each a group of events).",
+            status.commits.to_string(),
+        ),
+        (
+            "millgate_history_commit_seconds_sum",
+            "counter",
+            "Time spent in history transactions, s.",
+            format!("{:.6}", status.commit_seconds_sum),
+        ),
+        (
+            "millgate_history_commit_seconds_max",
+            "gauge",
+            "Longest history transaction since start, s.",
+            format!("{:.6}", status.commit_seconds_max),
+        ),
+        (
+            "millgate_history_retention_deleted_total",
+            "counter",
+            "Rows deleted by the history's retention (age and size).",
+            status.retention_deleted.to_string(),
+        ),
+        (
+            "millgate_history_file_bytes",
+            "gauge",
+            "Size of the history file at the last retention check, bytes.",
+            status.file_bytes.to_string(),
+        ),
+    ];
+    for (name, kind, help, value) in scalars {
+        let _ = writeln!(out, "# HELP {name} {help}");
+        let _ = writeln!(out, "# TYPE {name} {kind}");
+        let _ = writeln!(out, "{name} {value}");
+    }
+    let _ = writeln!(
+        out,
+        "# HELP millgate_history_events_dropped_total Events not stored: the queue was full, or the file could not take them."
+    );
+    let _ = writeln!(out, "# TYPE millgate_history_events_dropped_total counter");
+    for (reason, count) in [
+        ("queue_full", status.dropped_queue_full),
+        ("error", status.dropped_error),
+    ] {
+        let _ = writeln!(
+            out,
+            "millgate_history_events_dropped_total{{reason=\"{reason}\"}} {count}"
+        );
+    }
+    let _ = writeln!(
+        out,
+        "# HELP millgate_history_last_error_info The history's last error (the message is the label), with its Unix time as value."
+    );
+    let _ = writeln!(out, "# TYPE millgate_history_last_error_info gauge");
+    if let Some((time, message)) = &status.last_error {
+        let _ = writeln!(
+            out,
+            "millgate_history_last_error_info{{error=\"{}\"}} {:.3}",
+            escape(message),
+            time.unix_s()
+        );
     }
 }
 
@@ -323,6 +414,7 @@ impl Metrics {
         );
         let _ = writeln!(out, "# TYPE millgate_heartbeat gauge");
         let _ = writeln!(out, "millgate_heartbeat {}", results.heartbeat);
+        history_metrics(&mut out, &self.publisher.history().status());
         out
     }
 

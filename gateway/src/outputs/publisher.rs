@@ -6,6 +6,11 @@ use std::sync::{Arc, Mutex};
 use millgate_config::{ChannelSource, Config};
 
 use crate::field::source_health::{SourceHealth, SourceStatus};
+use crate::outputs::history::events::{
+    AlarmEvent, AlarmKind, AlarmRecord, CommandOrigin, HistoryEvent,
+};
+use crate::outputs::history::time::UtcTime;
+use crate::outputs::history::History;
 use crate::outputs::register_map::RegisterMap;
 use crate::outputs::results::Results;
 
@@ -24,6 +29,8 @@ pub struct Publisher {
     driveline_sources: Vec<usize>,
     /// Global source indices of each mill's stand channels.
     mill_sources: Vec<Vec<usize>>,
+    /// Where changes are recorded (disabled without `[history]`).
+    history: History,
 }
 
 /// Global index of a channel's source: Modbus sources first, then CAN sources.
@@ -66,7 +73,19 @@ impl Publisher {
                         .collect()
                 })
                 .collect(),
+            history: History::disabled(),
         }
+    }
+
+    /// This publisher recording into `history`.
+    pub fn with_history(mut self, history: History) -> Self {
+        self.history = history;
+        self
+    }
+
+    /// The history changes are recorded into.
+    pub fn history(&self) -> &History {
+        &self.history
     }
 
     /// The register map.
@@ -86,9 +105,26 @@ impl Publisher {
 
     /// Change the results.
     pub fn update<T>(&self, change: impl FnOnce(&mut Results) -> T) -> T {
-        let result = change(&mut crate::lock(&self.results));
+        self.update_recorded(|results, _| change(results))
+    }
+
+    /// Change the results and record what happened (the events `change` pushes) in
+    /// the history, under one lock: whoever reads the results after this call finds
+    /// the events already counted in [`History::enqueued`], which is what lets the
+    /// PLC writer wait until a bite it writes is stored.
+    pub fn update_recorded<T>(
+        &self,
+        change: impl FnOnce(&mut Results, &mut Vec<HistoryEvent>) -> T,
+    ) -> T {
+        let mut results = crate::lock(&self.results);
+        let mut events = Vec::new();
+        let value = change(&mut results, &mut events);
+        for event in events {
+            self.history.record(event);
+        }
+        drop(results);
         self.changed.notify_one();
-        result
+        value
     }
 
     /// Wait until the results change (returns at once if they changed since the
@@ -138,23 +174,49 @@ impl Publisher {
     /// Forget the wear trend of every driveline whose bit is set in `drivelines`
     /// (bit k = driveline k in config order): the next bite's wear index seeds it
     /// afresh (the reset-wear-trend command, e.g. after a coupling is replaced).
-    pub fn reset_wear_trend(&self, drivelines: u16) {
-        self.update(|results| {
+    /// `origin` says who, for the history.
+    pub fn reset_wear_trend(&self, drivelines: u16, origin: CommandOrigin) {
+        let time = UtcTime::now();
+        self.update_recorded(|results, events| {
             for (k, driveline) in results.drivelines.iter_mut().enumerate().take(16) {
                 if drivelines & (1 << k) != 0 {
                     driveline.wear_trend = None;
+                    events.push(HistoryEvent::WearReset {
+                        time,
+                        driveline: self.driveline_names[k].clone(),
+                        origin,
+                    });
                 }
             }
         });
     }
 
-    /// Clear latched alarms (the acknowledge command).
-    pub fn acknowledge_alarms(&self) {
-        self.update(|results| {
-            for driveline in &mut results.drivelines {
+    /// Clear latched alarms (the acknowledge command); `origin` says who, for the
+    /// history, which records each alarm that was latched.
+    pub fn acknowledge_alarms(&self, origin: CommandOrigin) {
+        let time = UtcTime::now();
+        let acknowledged = |subject: &String, kind| {
+            HistoryEvent::Alarm(AlarmRecord {
+                time,
+                subject: subject.clone(),
+                kind,
+                event: AlarmEvent::Acknowledged,
+                origin: Some(origin),
+                value: None,
+                threshold: None,
+            })
+        };
+        self.update_recorded(|results, events| {
+            for (driveline, name) in results.drivelines.iter_mut().zip(&self.driveline_names) {
+                if driveline.alarm {
+                    events.push(acknowledged(name, AlarmKind::TafAlarm));
+                }
                 driveline.alarm = false;
             }
-            for mill in &mut results.mills {
+            for (mill, name) in results.mills.iter_mut().zip(&self.mill_names) {
+                if mill.alarm {
+                    events.push(acknowledged(name, AlarmKind::ChatterAlarm));
+                }
                 mill.alarm = false;
             }
         });

@@ -135,6 +135,9 @@ pub mod driveline_flags {
     pub const SOURCE_STALE: u16 = 1 << 2;
     /// The last bite's window had gaps, NaN or saturated samples.
     pub const DEGRADED: u16 = 1 << 3;
+    /// The values are from before the gateway's last restart (restored from the
+    /// history; `last_bite_time` says when); cleared by the next bite.
+    pub const RESTORED: u16 = 1 << 4;
 }
 
 /// Bits of the gateway status register.
@@ -279,9 +282,9 @@ impl RegisterMap {
             let n = |field: &str| format!("{}.{field}", driveline.name);
             let f = |field| Field::Driveline(k, field);
             let fields: [(u16, &str, ValueType, &'static str, &str, DrivelineField); 12] = [
-                (0, "flags", U16, "bits", "bit0 TAF warning, bit1 TAF alarm (latched), bit2 source stale, bit3 last bite degraded", D::Flags),
+                (0, "flags", U16, "bits", "bit0 TAF warning, bit1 TAF alarm (latched), bit2 source stale, bit3 last bite degraded, bit4 values restored from before the last restart (last_bite_time says when; cleared by the next bite)", D::Flags),
                 (1, "quality", U16, "bits", "bit i set: value i of this block is valid (0 last_bite_time, 1 static_torque, 2 peak_torque, 3 taf, 4 period_shift, 5 beta1, 6 beta2, 7 wear_index, 8 wear_trend)", D::Quality),
-                (2, "bite_counter", U32, "", "Bites analysed since start", D::BiteCounter),
+                (2, "bite_counter", U32, "", "Bites analysed since start (continued across restarts with a history)", D::BiteCounter),
                 (4, "last_bite_time", U32, "s", "Time of the last bite, Unix seconds", D::LastBiteTime),
                 (6, "static_torque", F32, "kN*m", "Static (settled) rolling torque of the last bite", D::StaticTorque),
                 (8, "peak_torque", F32, "kN*m", "Peak torque of the last bite", D::PeakTorque),
@@ -461,6 +464,7 @@ fn driveline_value(d: &DrivelineResults, field: DrivelineField) -> Option<f64> {
                 (d.alarm, fl::ALARM),
                 (d.source_stale, fl::SOURCE_STALE),
                 (d.last_bite_degraded, fl::DEGRADED),
+                (d.restored, fl::RESTORED),
             ]
             .iter()
             .filter(|(set, _)| *set)

@@ -36,6 +36,9 @@ pub struct DrivelineResults {
     pub alarm: bool,
     /// The torque channel's source is stale or lost: every value is flagged.
     pub source_stale: bool,
+    /// The values are from before the last restart (restored from the history);
+    /// cleared by the next bite.
+    pub restored: bool,
 }
 
 /// Latest chatter metrics of one tandem mill (see [`crate::analysis::chatter_monitor`]). `None` = not
