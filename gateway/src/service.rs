@@ -177,10 +177,7 @@ impl Service {
     /// the first bite continues the restored counter).
     async fn restore(&self) {
         let history = self.history.clone();
-        let run = RunInfo {
-            version: env!("CARGO_PKG_VERSION").to_owned(),
-            config_name: self.config.name.clone(),
-        };
+        let run = RunInfo::of(&self.config);
         let restored = match tokio::task::spawn_blocking(move || history.start(run)).await {
             Ok(restored) => restored,
             Err(error) => {

@@ -5,12 +5,22 @@
 //! reads it, analyses every bite and writes its results into a virtual PLC, also on
 //! loopback. Each bite is printed beside its simulated truth; the PLC's registers
 //! are printed at the end.
+//!
+//! The gateway keeps an event history (`--history FILE`, by default a new file in a
+//! temporary folder; the path is printed at start) and has the simulated driveline's
+//! model, so it computes the wear index and trend; a second run on the same file
+//! continues the bite counter and the wear trend.
 
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use millgate_config::Config;
-use millgate_sim::devices::demo::{setup, DemoDevices, DemoSetup, SAMPLES_PER_BLOCK};
+use millgate_sim::devices::demo::{
+    setup, DemoDevices, DemoSetup, DEMO_MODEL, SAMPLES_PER_BLOCK,
+};
 
+use crate::outputs::history::query::HistoryReader;
+use crate::outputs::history::time::UtcTime;
 use crate::outputs::register_map::RegisterMap;
 
 /// Arguments of `millgate demo`.
@@ -25,6 +35,34 @@ pub struct DemoArgs {
     /// Seed of the noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// The event history file (created when missing; a run on an existing file
+    /// continues its counters and wear trend). Default: a new file in a temporary
+    /// folder.
+    #[arg(long)]
+    pub history: Option<PathBuf>,
+}
+
+/// The history file of a demo run, and the driveline model written beside it.
+fn history_files(args: &DemoArgs) -> anyhow::Result<(PathBuf, PathBuf)> {
+    let path = match &args.history {
+        Some(path) => path.clone(),
+        None => {
+            let stamp = UtcTime::now().unix_ms();
+            let folder = std::env::temp_dir()
+                .join(format!("millgate-demo-{}-{stamp}", std::process::id()));
+            folder.join("history.db")
+        }
+    };
+    let folder = match path.parent() {
+        Some(folder) if !folder.as_os_str().is_empty() => folder.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    std::fs::create_dir_all(&folder)
+        .map_err(|e| anyhow::anyhow!("--history: cannot create {}: {e}", folder.display()))?;
+    let model = folder.join("demo-driveline.toml");
+    std::fs::write(&model, DEMO_MODEL)
+        .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", model.display()))?;
+    Ok((path, model))
 }
 
 fn print_registers(map: &RegisterMap, words: &[u16]) {
@@ -63,6 +101,28 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         mut config,
         schedule,
     } = setup(args.duration, args.noise_rms, args.seed)?;
+    let (history_path, model) = history_files(&args)?;
+    config.drivelines[0].model = Some(model);
+    config.history = Some(millgate_config::History {
+        path: history_path.clone(),
+        retention_days: 400,
+        max_size_mb: 1024,
+    });
+    match HistoryReader::open(&history_path).and_then(|reader| reader.state()) {
+        Ok(state) => match state.drivelines.first() {
+            Some(before) => println!(
+                "history: {} (continuing: bite counter {}, wear trend {})",
+                history_path.display(),
+                before.results.bite_counter,
+                before
+                    .results
+                    .wear_trend
+                    .map_or_else(|| "none".to_owned(), |trend| format!("{trend:.4}"))
+            ),
+            None => println!("history: {}", history_path.display()),
+        },
+        Err(_) => println!("history: {} (new)", history_path.display()),
+    }
     // The PLC holds the whole map and a margin.
     let plc_registers = usize::from(RegisterMap::new(&config).len()) + 16;
     let devices = DemoDevices::start(&mut config, &schedule, plc_registers).await?;
@@ -80,6 +140,7 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
     );
     let mut gateway = crate::Service::new(config.clone())?.spawn().await?;
     let publisher = gateway.publisher();
+    let history = gateway.history().clone();
 
     let started = Instant::now();
     let deadline = tokio::time::sleep(Duration::from_secs_f64(args.duration));
@@ -116,6 +177,16 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
     println!(
         "{printed} bites analysed in {:.1} s",
         started.elapsed().as_secs_f64()
+    );
+    let last = publisher.results().drivelines[0].clone();
+    println!(
+        "history: {} ({} events stored; bite counter {}, wear trend {}; \
+         `millgate history --db FILE`, `millgate report --db FILE --out DIR` read it)",
+        history_path.display(),
+        history.stored(),
+        last.bite_counter,
+        last.wear_trend
+            .map_or_else(|| "none".to_owned(), |trend| format!("{trend:.4}"))
     );
     print_registers(publisher.map(), &live);
     let status = crate::outputs::register_map::Field::GatewayStatus;

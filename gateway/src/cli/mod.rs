@@ -12,10 +12,14 @@
 //!   [--report DIR] [--format text|json]`: `discrepancy`
 //! - `millgate sim transient|modes|wear-map ...`: `sim`
 //! - `millgate rod check|mathieu|floquet ...`: `rod` (rod mills, parametric stability)
-//! - `millgate demo [--duration S]`: `demo`
+//! - `millgate demo [--duration S] [--history FILE]`: `demo`
+//! - `millgate history --db FILE [--kind K] [--driveline NAME] [--since T] [--until T]
+//!   --format csv|json|md`: [`history`]
+//! - `millgate report --db FILE --out DIR [--since T] [--until T]`: `report`
 //!
 //! `discrepancy`, `sim`, `rod` and `demo` come with the default `sim-tools` feature (they
-//! need the simulator's virtual devices or plots).
+//! need the simulator's virtual devices or plots); `report` with `plot` (part of
+//! `sim-tools`).
 
 pub mod analyze;
 pub mod check;
@@ -24,7 +28,10 @@ pub mod csv;
 pub mod demo;
 #[cfg(feature = "sim-tools")]
 pub mod discrepancy;
+pub mod history;
 pub mod registers;
+#[cfg(feature = "plot")]
+pub mod report;
 #[cfg(feature = "sim-tools")]
 pub mod rod;
 #[cfg(feature = "sim-tools")]

@@ -28,8 +28,10 @@ use crate::schedule::{rolling_schedule, BarTiming, Schedule, TAIL_OUT_S};
 
 /// The demo's configuration (addresses are replaced by the loopback ports taken at start).
 const DEMO_CONFIG: &str = include_str!("../../../config/examples/demo.toml");
-/// The driveline the virtual DAQ simulates.
-const DEMO_MODEL: &str = include_str!("../../models/table2-adjusted-backlash.toml");
+/// The driveline the virtual DAQ simulates (`sim/models/table2-adjusted-backlash.toml`),
+/// as TOML: a gateway given it as its driveline model computes the wear index against
+/// its linear reference.
+pub const DEMO_MODEL: &str = include_str!("../../models/table2-adjusted-backlash.toml");
 /// Static torques of successive bars, kN*m: light and heavy passes alternate so the
 /// effect of the gap on TAF shows.
 const BAR_STATIC_TORQUES_KNM: [f64; 6] = [112.0, 60.0, 150.0, 80.0, 130.0, 45.0];

@@ -330,6 +330,30 @@ record! {
     }
 }
 
+record! {
+    /// A run's driveline settings (table `driveline_settings`).
+    SettingsRow, "driveline_settings", name "driveline", time "time" {
+        /// Row id.
+        id: i64,
+        /// The run.
+        run_id: i64,
+        /// The run's start, UTC, ISO-8601.
+        time: String,
+        /// Driveline name.
+        driveline: String,
+        /// TAF warning threshold.
+        taf_warning: f64,
+        /// TAF alarm threshold.
+        taf_alarm: f64,
+        /// The driveline model file, as configured.
+        model: Option<String>,
+        /// The gap diagnosis' warning threshold, mrad.
+        gap_warning_mrad: Option<f64>,
+        /// The gap diagnosis' alarm threshold, mrad.
+        gap_alarm_mrad: Option<f64>,
+    }
+}
+
 /// A read-only connection to a history file.
 #[derive(Debug)]
 pub struct HistoryReader {
@@ -451,6 +475,11 @@ impl HistoryReader {
 
     /// Gateway runs (starts and stops).
     pub fn runs(&self, filter: &Filter) -> Result<Vec<RunRow>, HistoryError> {
+        self.rows(filter)
+    }
+
+    /// Driveline settings of each run.
+    pub fn settings(&self, filter: &Filter) -> Result<Vec<SettingsRow>, HistoryError> {
         self.rows(filter)
     }
 

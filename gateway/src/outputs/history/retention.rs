@@ -29,10 +29,15 @@ pub const SHRINK_TO: f64 = 0.9;
 /// Time to wait after a failed step.
 const FAILED_PERIOD: Duration = Duration::from_secs(60);
 
-/// Each table with the column that dates its rows; `gateway_runs` only for runs that
-/// ended (never this one).
-const TABLES: [(&str, &str, &str); 6] = [
+/// Each table with the column that dates its rows and a condition: `gateway_runs`
+/// and `driveline_settings` only of runs that ended (never this one's).
+const TABLES: [(&str, &str, &str); 7] = [
     ("bites", "time", ""),
+    (
+        "driveline_settings",
+        "time",
+        "AND run_id IN (SELECT id FROM gateway_runs WHERE ended IS NOT NULL)",
+    ),
     ("wear_estimates", "time", ""),
     ("alarms", "time", ""),
     ("chatter_episodes", "started_at", ""),
@@ -155,13 +160,18 @@ impl Retention {
             full_chunk |= rows as u64 >= u64::from(self.chunk_rows);
         }
         transaction.commit()?;
-        let freed = sizes(connection)?.free_pages;
-        if freed > 0 {
+        // A file without incremental auto-vacuum (made by another tool) keeps its
+        // free pages and reuses them for new rows: it stops growing, but does not shrink.
+        let incremental =
+            connection.pragma_query_value(None, "auto_vacuum", |row| row.get::<_, i64>(0))? == 2;
+        if incremental && sizes(connection)?.free_pages > 0 {
             connection
                 .execute_batch(&format!("PRAGMA incremental_vacuum({})", self.vacuum_pages))?;
         }
         let after = sizes(connection)?;
-        let more = full_chunk || after.free_pages > 0 || (state.shrinking && deleted > 0);
+        let more = full_chunk
+            || (incremental && after.free_pages > 0)
+            || (state.shrinking && deleted > 0);
         state.next = Instant::now() + if more { BUSY_PERIOD } else { CHECK_PERIOD };
         Ok(Step {
             deleted,

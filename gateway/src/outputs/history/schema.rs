@@ -139,6 +139,18 @@ CREATE TABLE driveline_state (
     alarm_latched     INTEGER NOT NULL,
     extra             TEXT              -- JSON: further restorable state (the pooled gap estimate)
 );
+-- Each run's driveline settings, for reports (thresholds, model).
+CREATE TABLE driveline_settings (
+    id               INTEGER PRIMARY KEY,
+    run_id           INTEGER NOT NULL REFERENCES gateway_runs(id),
+    time             TEXT NOT NULL,    -- the run's start
+    driveline        TEXT NOT NULL,
+    taf_warning      REAL NOT NULL,
+    taf_alarm        REAL NOT NULL,
+    model            TEXT,             -- the driveline model file, as configured
+    gap_warning_mrad REAL,             -- the gap diagnosis' thresholds
+    gap_alarm_mrad   REAL
+);
 CREATE TABLE mill_state (
     mill          TEXT PRIMARY KEY,
     updated_at    TEXT NOT NULL,
@@ -173,10 +185,6 @@ pub enum SchemaError {
 
 /// Bring `connection`'s file to [`current_version`] in one transaction; returns the
 /// version it was at (0 for a new file).
-///
-/// A new file is also switched to incremental auto-vacuum first (it can only be
-/// changed on a file without tables), so the retention can hand freed pages back to
-/// the file system in small steps.
 pub fn migrate(connection: &mut Connection) -> Result<i64, SchemaError> {
     let found: i64 = connection.pragma_query_value(None, "user_version", |row| row.get(0))?;
     let known = current_version();
@@ -185,13 +193,6 @@ pub fn migrate(connection: &mut Connection) -> Result<i64, SchemaError> {
     }
     if found == known {
         return Ok(found);
-    }
-    if found == 0 {
-        let tables: i64 =
-            connection.query_row("SELECT count(*) FROM sqlite_schema", [], |row| row.get(0))?;
-        if tables == 0 {
-            connection.pragma_update(None, "auto_vacuum", "INCREMENTAL")?;
-        }
     }
     // IMMEDIATE: take the write lock before reading anything, so two processes
     // starting on one file cannot both migrate.
@@ -210,7 +211,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_new_file_gets_every_table_the_version_and_incremental_vacuum() {
+    fn a_new_file_gets_every_table_and_the_version() {
         let mut connection = Connection::open_in_memory().unwrap();
         assert_eq!(migrate(&mut connection).unwrap(), 0);
         let version: i64 = connection
@@ -231,6 +232,7 @@ mod tests {
                 "alarms",
                 "bites",
                 "chatter_episodes",
+                "driveline_settings",
                 "driveline_state",
                 "gateway_runs",
                 "mill_state",

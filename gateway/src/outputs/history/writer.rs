@@ -50,6 +50,17 @@ pub fn connect(path: &std::path::Path) -> Result<Connection, HistoryError> {
     )
     .map_err(sqlite)?;
     connection.busy_timeout(BUSY_TIMEOUT).map_err(sqlite)?;
+    // A new file gets incremental auto-vacuum, so the retention can hand freed pages
+    // back to the file system in small steps. It can only be set before the first
+    // table and before WAL mode.
+    let tables: i64 = connection
+        .query_row("SELECT count(*) FROM sqlite_schema", [], |row| row.get(0))
+        .map_err(sqlite)?;
+    if tables == 0 {
+        connection
+            .pragma_update(None, "auto_vacuum", "INCREMENTAL")
+            .map_err(sqlite)?;
+    }
     let mode: String = connection
         .pragma_update_and_check(None, "journal_mode", "WAL", |row| row.get(0))
         .map_err(sqlite)?;
@@ -180,6 +191,23 @@ impl Writer {
             ],
         )?;
         let run_id = transaction.last_insert_rowid();
+        for driveline in &self.run.drivelines {
+            transaction.execute(
+                "INSERT INTO driveline_settings (run_id, time, driveline, taf_warning, taf_alarm,
+                     model, gap_warning_mrad, gap_alarm_mrad)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+                params![
+                    run_id,
+                    self.started_at.to_string(),
+                    driveline.name,
+                    driveline.taf_warning,
+                    driveline.taf_alarm,
+                    driveline.model,
+                    driveline.gap_warning_mrad,
+                    driveline.gap_alarm_mrad
+                ],
+            )?;
+        }
         transaction.commit()?;
         Ok(run_id)
     }
