@@ -120,7 +120,10 @@ async fn what_is_recorded_is_read_back_and_restored_at_the_next_start() {
     let path = scratch.file("history.db");
     let history = History::new(Some(&config(&path)));
     let restored = history.start(run_info());
-    assert!(restored.drivelines.is_empty(), "a new file restores nothing");
+    assert!(
+        restored.drivelines.is_empty(),
+        "a new file restores nothing"
+    );
     let t0 = UtcTime::parse("2026-03-01T08:00:00Z").unwrap();
     let mut trend = 0.0;
     for n in 1..=40u32 {
@@ -195,12 +198,19 @@ async fn what_is_recorded_is_read_back_and_restored_at_the_next_start() {
             ..window.clone()
         })
         .unwrap();
-    assert_eq!(next[0].bite_counter, 15, "paging by id goes on where it stopped");
+    assert_eq!(
+        next[0].bite_counter, 15,
+        "paging by id goes on where it stopped"
+    );
     let wear = reader.wear(&Filter::default()).unwrap();
     assert_eq!(wear.len(), 41, "one estimate per bite and the reset");
     let reset = wear.last().unwrap();
     assert_eq!(
-        (reset.event.as_str(), reset.origin.as_str(), reset.peer.as_deref()),
+        (
+            reset.event.as_str(),
+            reset.origin.as_str(),
+            reset.peer.as_deref()
+        ),
         ("reset", "hmi", Some("10.0.0.7:50211"))
     );
     let outages = reader.outages(&Filter::default()).unwrap();
@@ -246,13 +256,20 @@ async fn what_is_recorded_is_read_back_and_restored_at_the_next_start() {
     results.sources = vec![Some(millgate::field::source_health::SourceStatus::Ok)];
     assert_eq!(restored.apply(&mut results, &["F1".into()], &[]), 1);
     let words = map.encode(&results);
-    let flags = map.registers().iter().find(|r| r.name == "F1.flags").unwrap();
+    let flags = map
+        .registers()
+        .iter()
+        .find(|r| r.name == "F1.flags")
+        .unwrap();
     let flags = words[usize::from(flags.address)];
     assert_eq!(
         flags & (driveline_flags::RESTORED | driveline_flags::ALARM),
         driveline_flags::RESTORED | driveline_flags::ALARM
     );
-    let runs = HistoryReader::open(&path).unwrap().runs(&Filter::default()).unwrap();
+    let runs = HistoryReader::open(&path)
+        .unwrap()
+        .runs(&Filter::default())
+        .unwrap();
     assert_eq!(runs.len(), 2);
 }
 
@@ -354,12 +371,20 @@ async fn a_corrupt_file_is_reported_and_left_alone() {
     // A failing history is not waited for (the PLC must go on), so wait for the count.
     let deadline = std::time::Instant::now() + Duration::from_secs(10);
     while history.status().dropped_error < 3 {
-        assert!(std::time::Instant::now() < deadline, "{:?}", history.status());
+        assert!(
+            std::time::Instant::now() < deadline,
+            "{:?}",
+            history.status()
+        );
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
     assert_eq!(history.stored(), 0);
     history.close();
-    assert_eq!(std::fs::read(&path).unwrap(), garbage, "the file is left as it was");
+    assert_eq!(
+        std::fs::read(&path).unwrap(),
+        garbage,
+        "the file is left as it was"
+    );
 }
 
 /// Rows of `bites` and `wear_estimates` made by SQL (fast), `count` of each, one a

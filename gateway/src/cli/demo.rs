@@ -15,9 +15,7 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use millgate_config::Config;
-use millgate_sim::devices::demo::{
-    setup, DemoDevices, DemoSetup, DEMO_MODEL, SAMPLES_PER_BLOCK,
-};
+use millgate_sim::devices::demo::{setup, DemoDevices, DemoSetup, DEMO_MODEL, SAMPLES_PER_BLOCK};
 
 use crate::outputs::history::query::HistoryReader;
 use crate::outputs::history::time::UtcTime;
@@ -48,8 +46,8 @@ fn history_files(args: &DemoArgs) -> anyhow::Result<(PathBuf, PathBuf)> {
         Some(path) => path.clone(),
         None => {
             let stamp = UtcTime::now().unix_ms();
-            let folder = std::env::temp_dir()
-                .join(format!("millgate-demo-{}-{stamp}", std::process::id()));
+            let folder =
+                std::env::temp_dir().join(format!("millgate-demo-{}-{stamp}", std::process::id()));
             folder.join("history.db")
         }
     };

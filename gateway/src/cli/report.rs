@@ -238,14 +238,20 @@ fn time_svg(title: &str, axis: &TimeAxis, panels: &[TimePanel<'_>]) -> anyhow::R
                 .draw()
                 .map_err(drawing)?;
             if !panel.band.is_empty() {
-                let mut upper: Vec<(f64, f64)> = panel.band.iter().map(|(x, _, hi)| (*x, *hi)).collect();
+                let mut upper: Vec<(f64, f64)> =
+                    panel.band.iter().map(|(x, _, hi)| (*x, *hi)).collect();
                 let lower = panel.band.iter().rev().map(|(x, lo, _)| (*x, *lo));
                 upper.extend(lower);
                 chart
-                    .draw_series(std::iter::once(Polygon::new(upper, BLUE.mix(0.15).filled())))
+                    .draw_series(std::iter::once(Polygon::new(
+                        upper,
+                        BLUE.mix(0.15).filled(),
+                    )))
                     .map_err(drawing)?
                     .label("interval")
-                    .legend(|(x, y)| Rectangle::new([(x, y - 4), (x + 16, y + 4)], BLUE.mix(0.15).filled()));
+                    .legend(|(x, y)| {
+                        Rectangle::new([(x, y - 4), (x + 16, y + 4)], BLUE.mix(0.15).filled())
+                    });
             }
             for (index, (label, points)) in panel.points.iter().enumerate() {
                 let color = Palette99::pick(index).to_rgba();
@@ -261,10 +267,16 @@ fn time_svg(title: &str, axis: &TimeAxis, panels: &[TimePanel<'_>]) -> anyhow::R
                     .draw_series(LineSeries::new(points.clone(), color.stroke_width(2)))
                     .map_err(drawing)?
                     .label(*label)
-                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], color.stroke_width(2)));
+                    .legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 16, y)], color.stroke_width(2))
+                    });
             }
             for (index, (label, value)) in panel.thresholds.iter().enumerate() {
-                let color = if index == 0 { RGBColor(230, 150, 0) } else { RED };
+                let color = if index == 0 {
+                    RGBColor(230, 150, 0)
+                } else {
+                    RED
+                };
                 chart
                     .draw_series(LineSeries::new(
                         vec![(0.0, *value), (axis.span, *value)],
@@ -302,7 +314,11 @@ fn taf_svg(
             .collect()
     };
     let (good, degraded) = (points(false), points(true));
-    let all = || good.iter().chain(&degraded).chain(curves.iter().flat_map(|(_, c)| c.iter()));
+    let all = || {
+        good.iter()
+            .chain(&degraded)
+            .chain(curves.iter().flat_map(|(_, c)| c.iter()))
+    };
     let x_range = range(all().map(|p| p.0));
     let thresholds: Vec<(&str, f64)> = settings
         .map(|s| vec![("TAF warning", s.taf_warning), ("TAF alarm", s.taf_alarm)])
@@ -340,14 +356,25 @@ fn taf_svg(
             .label("bite")
             .legend(|(x, y)| Circle::new((x + 8, y), 3, BLUE.filled()));
         chart
-            .draw_series(degraded.iter().map(|p| Circle::new(*p, 3, RGBColor(150, 150, 150))))
+            .draw_series(
+                degraded
+                    .iter()
+                    .map(|p| Circle::new(*p, 3, RGBColor(150, 150, 150))),
+            )
             .map_err(drawing)?
             .label("bite, degraded window")
             .legend(|(x, y)| Circle::new((x + 8, y), 3, RGBColor(150, 150, 150)));
         for (index, (label, value)) in thresholds.iter().enumerate() {
-            let color = if index == 0 { RGBColor(230, 150, 0) } else { RED };
+            let color = if index == 0 {
+                RGBColor(230, 150, 0)
+            } else {
+                RED
+            };
             chart
-                .draw_series(LineSeries::new(vec![(x_range.0, *value), (x_range.1, *value)], color))
+                .draw_series(LineSeries::new(
+                    vec![(x_range.0, *value), (x_range.1, *value)],
+                    color,
+                ))
                 .map_err(drawing)?
                 .label(format!("{label} {value}"))
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], color));
@@ -423,15 +450,14 @@ fn lanes_svg(title: &str, axis: &TimeAxis, lanes: &[Lane]) -> anyhow::Result<Str
 
 /// The wear map of the driveline model at `model`, TAF over static torque for gaps of
 /// 0..4 mrad over `torques` (kN*m); why not, when the file cannot be read or simulated.
-fn wear_curves(
-    model: &str,
-    torques: (f64, f64),
-) -> Result<Vec<Curve>, String> {
+fn wear_curves(model: &str, torques: (f64, f64)) -> Result<Vec<Curve>, String> {
     use millgate_sim::wear_map::{wear_map, WearMapSpec};
     let model = millgate_sim::model::Model::load(Path::new(model)).map_err(|e| e.to_string())?;
     let (low, high) = (torques.0.max(5.0), torques.1.max(torques.0.max(5.0) + 5.0));
     let spec = WearMapSpec {
-        static_torques_knm: (0..6).map(|i| low + (high - low) * f64::from(i) / 5.0).collect(),
+        static_torques_knm: (0..6)
+            .map(|i| low + (high - low) * f64::from(i) / 5.0)
+            .collect(),
         backlashes_rad: (0..=4).map(|i| f64::from(i) * 1.0e-3).collect(),
         coupling: None,
         period_lowpass_hz: None,
@@ -497,7 +523,10 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<String> {
         .min();
     let start = since.or(first_time).unwrap_or_else(UtcTime::now);
     let end = until.unwrap_or_else(UtcTime::now);
-    anyhow::ensure!(end > start, "--until must be after --since (or after the first event)");
+    anyhow::ensure!(
+        end > start,
+        "--until must be after --since (or after the first event)"
+    );
     let axis = TimeAxis::new(start, end);
     let config_name = runs.last().map_or("millgate", |r| r.config_name.as_str());
 
@@ -523,7 +552,11 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<String> {
     let mut summary = Vec::new();
     for name in &drivelines {
         let own: Vec<&BiteRow> = bites.iter().filter(|b| &b.driveline == name).collect();
-        let mut tafs: Vec<f64> = own.iter().filter(|b| !b.degraded).filter_map(|b| b.taf).collect();
+        let mut tafs: Vec<f64> = own
+            .iter()
+            .filter(|b| !b.degraded)
+            .filter_map(|b| b.taf)
+            .collect();
         let now = state.drivelines.iter().find(|d| &d.name == name);
         summary.push(vec![
             name.clone(),
@@ -533,14 +566,27 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<String> {
             fmt(quantile(&mut tafs, 0.95), 3),
             fmt(quantile(&mut tafs, 1.0), 3),
             fmt(now.and_then(|d| d.results.wear_trend), 4),
-            now.map_or("-".into(), |d| if d.results.alarm { "latched".into() } else { "no".into() }),
+            now.map_or("-".into(), |d| {
+                if d.results.alarm {
+                    "latched".into()
+                } else {
+                    "no".into()
+                }
+            }),
             now.map_or("-".into(), |d| d.results.bite_counter.to_string()),
         ]);
     }
     blocks.push(Block::Table(
         [
-            "driveline", "bites", "degraded", "TAF median", "TAF p95", "TAF max",
-            "wear trend now", "TAF alarm", "bite counter",
+            "driveline",
+            "bites",
+            "degraded",
+            "TAF median",
+            "TAF p95",
+            "TAF max",
+            "wear trend now",
+            "TAF alarm",
+            "bite counter",
         ]
         .map(String::from)
         .to_vec(),
@@ -548,7 +594,11 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<String> {
     ));
     let mut written = Vec::new();
     for name in &drivelines {
-        let own: Vec<BiteRow> = bites.iter().filter(|b| &b.driveline == name).cloned().collect();
+        let own: Vec<BiteRow> = bites
+            .iter()
+            .filter(|b| &b.driveline == name)
+            .cloned()
+            .collect();
         let own_wear: Vec<&WearRow> = wear.iter().filter(|w| &w.driveline == name).collect();
         let setting = settings.iter().rev().find(|s| &s.driveline == name);
         blocks.push(Block::Heading(3, name.clone()));
@@ -585,9 +635,7 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<String> {
         }
         let gap: Vec<(f64, f64, f64, f64)> = own_wear
             .iter()
-            .filter_map(|w| {
-                Some((at(&w.time)?, w.gap_mrad?, w.gap_low_mrad?, w.gap_high_mrad?))
-            })
+            .filter_map(|w| Some((at(&w.time)?, w.gap_mrad?, w.gap_low_mrad?, w.gap_high_mrad?)))
             .collect();
         if !gap.is_empty() {
             panels.push(TimePanel {
@@ -700,7 +748,9 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<String> {
         )));
     }
     blocks.push(Block::Table(
-        ["time", "subject", "alarm", "event", "by", "value"].map(String::from).to_vec(),
+        ["time", "subject", "alarm", "event", "by", "value"]
+            .map(String::from)
+            .to_vec(),
         rows,
     ));
 
@@ -711,7 +761,9 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<String> {
         "The gateway ran {:.1}% of the period ({} runs, {} ended uncleanly).",
         100.0 * up / axis.span,
         runs.len(),
-        runs.iter().filter(|r| r.ended.as_deref() == Some("unclean")).count()
+        runs.iter()
+            .filter(|r| r.ended.as_deref() == Some("unclean"))
+            .count()
     )));
     let mut sources: Vec<String> = Vec::new();
     for outage in &outages {
@@ -734,7 +786,11 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<String> {
             .iter()
             .filter_map(|o| {
                 let from = at_time(&axis, &o.started_at)?;
-                let to = o.ended_at.as_deref().and_then(|t| at_time(&axis, t)).unwrap_or(axis.span);
+                let to = o
+                    .ended_at
+                    .as_deref()
+                    .and_then(|t| at_time(&axis, t))
+                    .unwrap_or(axis.span);
                 let (from, to) = clip(&axis, from, to)?;
                 Some((from, to, RGBColor(220, 80, 60)))
             })
@@ -744,23 +800,38 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<String> {
             source.clone(),
             spans.len().to_string(),
             format!("{down:.2} {}", axis.unit),
-            format!("{:.2}%", 100.0 * (1.0 - down / up.max(f64::MIN_POSITIVE)).clamp(0.0, 1.0)),
+            format!(
+                "{:.2}%",
+                100.0 * (1.0 - down / up.max(f64::MIN_POSITIVE)).clamp(0.0, 1.0)
+            ),
             own.iter().map(|o| o.blocks_missed).sum::<i64>().to_string(),
         ]);
         lanes.push((format!("{source} out"), spans, Vec::new()));
     }
     if sources.is_empty() {
-        blocks.push(Block::Text("No source outages recorded in the period.".into()));
+        blocks.push(Block::Text(
+            "No source outages recorded in the period.".into(),
+        ));
     } else {
         blocks.push(Block::Table(
-            ["source", "outages", "down", "available while the gateway ran", "blocks missed"]
-                .map(String::from)
-                .to_vec(),
+            [
+                "source",
+                "outages",
+                "down",
+                "available while the gateway ran",
+                "blocks missed",
+            ]
+            .map(String::from)
+            .to_vec(),
             availability,
         ));
     }
     blocks.push(Block::Figure {
-        svg: lanes_svg("Gateway running (green) and source outages (red)", &axis, &lanes)?,
+        svg: lanes_svg(
+            "Gateway running (green) and source outages (red)",
+            &axis,
+            &lanes,
+        )?,
         file: "availability.svg".into(),
         title: "Source availability".into(),
     });
@@ -779,7 +850,10 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<String> {
         }
     }
     write("report.md", &markdown(&blocks))?;
-    write("report.html", &html(&format!("Maintenance report: {config_name}"), &blocks))?;
+    write(
+        "report.html",
+        &html(&format!("Maintenance report: {config_name}"), &blocks),
+    )?;
     Ok(format!(
         "report written to {}: report.md, report.html, {} ({} bites, {} alarm events, {} outages)",
         args.out.display(),
@@ -841,6 +915,12 @@ fn run_spans(axis: &TimeAxis, runs: &[RunRow], bites: &[BiteRow]) -> Vec<(f64, f
 /// A file-name-safe form of a driveline name.
 fn file_stem(name: &str) -> String {
     name.chars()
-        .map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '_' })
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
         .collect()
 }

@@ -169,9 +169,8 @@ impl Retention {
                 .execute_batch(&format!("PRAGMA incremental_vacuum({})", self.vacuum_pages))?;
         }
         let after = sizes(connection)?;
-        let more = full_chunk
-            || (incremental && after.free_pages > 0)
-            || (state.shrinking && deleted > 0);
+        let more =
+            full_chunk || (incremental && after.free_pages > 0) || (state.shrinking && deleted > 0);
         state.next = Instant::now() + if more { BUSY_PERIOD } else { CHECK_PERIOD };
         Ok(Step {
             deleted,
