@@ -179,19 +179,22 @@ fn fill(path: &Path, mb: u64) {
     };
     let start = Instant::now();
     while size(&connection) < mb << 20 {
-        // 200 000 bites a minute apart ending now, then their wear estimates.
+        // 200 000 more bites 10 s apart from 300 days ago on (in time order, as the
+        // service writes them), then their wear estimates.
         connection
             .execute_batch(
                 "BEGIN;
-                 WITH RECURSIVE n(i) AS (SELECT 1 UNION ALL SELECT i + 1 FROM n WHERE i < 200000)
+                 WITH RECURSIVE n(i) AS (SELECT 1 UNION ALL SELECT i + 1 FROM n WHERE i < 200000),
+                     base(b) AS (SELECT coalesce(max(id), 0) FROM bites)
                  INSERT INTO bites (run_id, driveline, time, bite_counter, channel,
                      static_torque_knm, peak_torque_knm, taf, first_period_s, second_period_s,
                      period_shift_s, beta1_hz, beta2_hz, quality, degraded, wear_index,
                      wear_trend, reference_taf, shift_over_linear_s)
-                 SELECT 1, 'F' || (i % 7 + 1),
-                     strftime('%Y-%m-%dT%H:%M:%fZ', 'now', '-' || (i % 500000) || ' minutes'),
-                     i, 'spindle_top', 420.0 + i % 13, 800.0 + i % 17, 1.9 + (i % 10) * 0.01,
-                     0.05, 0.048, 0.002, 12.0, 21.0, 'good', 0, 0.05, 0.04, 1.8, 0.001 FROM n;
+                 SELECT 1, 'F' || ((b + i) % 7 + 1),
+                     strftime('%Y-%m-%dT%H:%M:%fZ', 'now', '-300 days', '+' || ((b + i) * 10) || ' seconds'),
+                     b + i, 'spindle_top', 420.0 + i % 13, 800.0 + i % 17, 1.9 + (i % 10) * 0.01,
+                     0.05, 0.048, 0.002, 12.0, 21.0, 'good', 0, 0.05, 0.04, 1.8, 0.001
+                 FROM n, base;
                  INSERT INTO wear_estimates (run_id, driveline, time, event, origin, wear_index,
                      wear_trend, reference_taf, reference_level_knm, shift_over_linear_s)
                  SELECT 1, driveline, time, 'bite', 'analysis', wear_index, wear_trend,
