@@ -165,8 +165,12 @@ impl Retention {
         let incremental =
             connection.pragma_query_value(None, "auto_vacuum", |row| row.get::<_, i64>(0))? == 2;
         if incremental && sizes(connection)?.free_pages > 0 {
-            connection
-                .execute_batch(&format!("PRAGMA incremental_vacuum({})", self.vacuum_pages))?;
+            // The pragma releases one page per step of its statement: run it to the
+            // end (`execute_batch` steps once, which released a single page).
+            let mut vacuum =
+                connection.prepare(&format!("PRAGMA incremental_vacuum({})", self.vacuum_pages))?;
+            let mut rows = vacuum.raw_query();
+            while rows.next()?.is_some() {}
         }
         let after = sizes(connection)?;
         let more =
