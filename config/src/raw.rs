@@ -104,6 +104,7 @@ pub(crate) struct RawOutputs {
     pub plc: Option<RawPlcOutput>,
     pub server: Option<RawServerOutput>,
     pub metrics: Option<RawMetricsOutput>,
+    pub mqtt: Option<RawMqttOutput>,
 }
 
 /// `[outputs.plc]`.
@@ -130,6 +131,22 @@ pub(crate) struct RawServerOutput {
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawMetricsOutput {
     pub bind: Option<String>,
+}
+
+/// `[outputs.mqtt]`: the Sparkplug B edge node.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawMqttOutput {
+    pub broker: String,
+    pub group_id: String,
+    pub node_id: String,
+    pub client_id: Option<String>,
+    pub keep_alive_s: Option<i64>,
+    pub data_period_ms: Option<i64>,
+    pub command_qos: Option<i64>,
+    pub primary_host_id: Option<String>,
+    pub username: Option<String>,
+    pub password: Option<String>,
 }
 
 /// `[history]`: the event history file.

@@ -97,7 +97,7 @@ pub(crate) fn validate(raw: RawConfig, base_dir: &Path, report: &mut Report) -> 
         |mill| &mill.name,
         |checker, key, mill| checker.tandem_mill(key, mill, &channel_facts),
     );
-    let outputs = checker.outputs(&raw.outputs);
+    let outputs = checker.outputs(&raw.outputs, raw.history.is_some());
     let history = raw.history.as_ref().map(|history| checker.history(history));
     Some(Config {
         name: name?,
