@@ -23,6 +23,7 @@ use crate::outputs::metrics::Metrics;
 use crate::outputs::plc_writer::PlcWriter;
 use crate::outputs::publisher::{source_of_channel, Publisher};
 use crate::outputs::results::GatewayState;
+use crate::outputs::sparkplug::SparkplugNode;
 use crate::shutdown::{self, Shutdown, ShutdownTrigger};
 
 /// Samples in flight between readers and analysis. At 2 kHz and 100-sample blocks
@@ -292,14 +293,28 @@ impl Service {
                 }
             });
         }
+        let sparkplug = match (&config.outputs.mqtt, &config.history) {
+            (Some(mqtt), Some(history)) => {
+                tracing::info!(broker = %mqtt.broker, group = %mqtt.group_id, node = %mqtt.node_id, "starting the Sparkplug B edge node");
+                let node =
+                    SparkplugNode::new(mqtt.clone(), history.path.clone(), Arc::clone(&publisher));
+                let status = node.status();
+                outputs.spawn(node.run(outputs_shutdown.clone()));
+                Some(status)
+            }
+            _ => None,
+        };
         if let Some(listener) = metrics_listener {
-            let metrics = Metrics::new(
+            let mut metrics = Metrics::new(
                 &config,
                 counters.clone(),
                 health.clone(),
                 can_counters,
                 Arc::clone(&publisher),
             );
+            if let Some(status) = sparkplug {
+                metrics = metrics.with_sparkplug(status);
+            }
             outputs.spawn(metrics.run(listener, outputs_shutdown));
         }
         publisher.update(|results| results.state = GatewayState::Running);

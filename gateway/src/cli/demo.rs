@@ -38,6 +38,25 @@ pub struct DemoArgs {
     /// folder.
     #[arg(long)]
     pub history: Option<PathBuf>,
+    /// Publish the demo's Sparkplug B edge node to this MQTT broker (plain MQTT).
+    #[arg(long, value_name = "HOST:PORT")]
+    pub mqtt: Option<std::net::SocketAddr>,
+    /// Sparkplug group id with `--mqtt`.
+    #[arg(long, default_value = "millgate", value_parser = sparkplug_id)]
+    pub group: String,
+    /// Sparkplug edge node id with `--mqtt`.
+    #[arg(long, default_value = "demo", value_parser = sparkplug_id)]
+    pub node: String,
+}
+
+fn sparkplug_id(id: &str) -> Result<String, String> {
+    if millgate_config::is_sparkplug_id(id) {
+        Ok(id.to_owned())
+    } else {
+        Err(format!(
+            "\"{id}\" is not allowed (must be non-empty, without / + or #)"
+        ))
+    }
 }
 
 /// The history file of a demo run, and the driveline model written beside it.
@@ -106,6 +125,23 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         retention_days: 400,
         max_size_mb: 1024,
     });
+    if let Some(broker) = args.mqtt {
+        config.outputs.mqtt = Some(millgate_config::MqttOutput {
+            broker: broker.to_string(),
+            client_id: format!("millgate-{}-{}", args.group, args.node),
+            group_id: args.group.clone(),
+            node_id: args.node.clone(),
+            keep_alive: Duration::from_secs(30),
+            data_period: Duration::from_secs(1),
+            command_qos: 1,
+            primary_host_id: None,
+            credentials: None,
+        });
+        println!(
+            "Sparkplug B: edge node {}/{} on mqtt://{broker} (topics spBv1.0/{}/#)",
+            args.group, args.node, args.group
+        );
+    }
     match HistoryReader::open(&history_path).and_then(|reader| reader.state()) {
         Ok(state) => match state.drivelines.first() {
             Some(before) => println!(

@@ -17,6 +17,7 @@ use crate::field::source_health::SourceHealth;
 use crate::outputs::history::HistoryStatus;
 use crate::outputs::publisher::Publisher;
 use crate::outputs::results::{DrivelineResults, MillResults};
+use crate::outputs::sparkplug::{SparkplugCounts, SparkplugStatus};
 use crate::shutdown::Shutdown;
 
 /// Reads one counter out of a snapshot.
@@ -43,6 +44,7 @@ pub struct Metrics {
     can_names: Vec<String>,
     can_counters: Vec<Arc<CanCounters>>,
     publisher: Arc<Publisher>,
+    sparkplug: Option<Arc<SparkplugStatus>>,
 }
 
 /// Writes one metric family, `(name, type, help)`: HELP, TYPE and one sample per
@@ -59,6 +61,53 @@ fn family<'a>(
         if let Some(value) = value {
             let _ = writeln!(out, "{metric}{{{label}=\"{}\"}} {value}", escape(name));
         }
+    }
+}
+
+/// The Sparkplug B edge node's families.
+fn sparkplug_metrics(out: &mut String, counts: &SparkplugCounts) {
+    let scalars: [(&str, &str, &str, u64); 6] = [
+        (
+            "millgate_sparkplug_connected",
+            "gauge",
+            "1 while a session with the MQTT broker is up.",
+            u64::from(counts.connected),
+        ),
+        (
+            "millgate_sparkplug_bd_seq",
+            "gauge",
+            "The current session's Sparkplug bdSeq (0..=255).",
+            u64::from(counts.bd_seq),
+        ),
+        (
+            "millgate_sparkplug_messages_published_total",
+            "counter",
+            "Sparkplug messages handed to the broker connection.",
+            counts.published,
+        ),
+        (
+            "millgate_sparkplug_bites_published_total",
+            "counter",
+            "Bites published as their own DDATA.",
+            counts.bites,
+        ),
+        (
+            "millgate_sparkplug_sessions_total",
+            "counter",
+            "Sessions the MQTT broker accepted.",
+            counts.connections,
+        ),
+        (
+            "millgate_sparkplug_rebirths_total",
+            "counter",
+            "Node Control/Rebirth commands obeyed.",
+            counts.rebirths,
+        ),
+    ];
+    for (name, kind, help, value) in scalars {
+        let _ = writeln!(out, "# HELP {name} {help}");
+        let _ = writeln!(out, "# TYPE {name} {kind}");
+        let _ = writeln!(out, "{name} {value}");
     }
 }
 
@@ -183,7 +232,14 @@ impl Metrics {
             can_names: config.can_sources.iter().map(|s| s.name.clone()).collect(),
             can_counters,
             publisher,
+            sparkplug: None,
         }
+    }
+
+    /// Also show the Sparkplug B edge node's counters.
+    pub fn with_sparkplug(mut self, status: Arc<SparkplugStatus>) -> Self {
+        self.sparkplug = Some(status);
+        self
     }
 
     /// The page, in the Prometheus text format.
@@ -415,6 +471,9 @@ impl Metrics {
         let _ = writeln!(out, "# TYPE millgate_heartbeat gauge");
         let _ = writeln!(out, "millgate_heartbeat {}", results.heartbeat);
         history_metrics(&mut out, &self.publisher.history().status());
+        if let Some(status) = &self.sparkplug {
+            sparkplug_metrics(&mut out, &status.counts());
+        }
         out
     }
 

@@ -11,3 +11,4 @@ pub mod plc_writer;
 pub mod publisher;
 pub mod register_map;
 pub mod results;
+pub mod sparkplug;

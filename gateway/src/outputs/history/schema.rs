@@ -157,6 +157,14 @@ CREATE TABLE mill_state (
     alarm_latched INTEGER NOT NULL
 );
 "#,
+    // Version 2: the Sparkplug B edge node's session number.
+    r#"
+CREATE TABLE sparkplug_node (
+    node       TEXT PRIMARY KEY,  -- 'group_id/node_id'
+    bd_seq     INTEGER NOT NULL,  -- the last MQTT session's bdSeq, 0..=255
+    updated_at TEXT NOT NULL
+);
+"#,
 ];
 
 /// The schema version this millgate writes.
@@ -237,6 +245,7 @@ mod tests {
                 "gateway_runs",
                 "mill_state",
                 "source_outages",
+                "sparkplug_node",
                 "wear_estimates"
             ]
         );
