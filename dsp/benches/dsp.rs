@@ -1,4 +1,5 @@
-//! Throughput of the streaming bite detector and time per eq. (1) fit.
+//! Throughput of the streaming bite detector, time per eq. (1) fit, and time per
+//! chatter window (band gain, mode damping) of 5 stands.
 //!
 //! Run: `cargo bench -p millgate-dsp --bench dsp`.
 
@@ -73,5 +74,56 @@ fn fit(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, detector, fit);
+/// One 0.5 s window of 5 stands at 2500 Hz: the band gain's filtering of a hop (the
+/// window's other half was filtered the hop before) and the matrix pencil on each
+/// stand's chatter band.
+fn chatter_window(c: &mut Criterion) {
+    use millgate_dsp::band_gain::{BandGain, BandGainSettings};
+    use millgate_dsp::mode_damping::least_damped;
+
+    const RATE: f64 = 2500.0;
+    const WINDOW: usize = 1250;
+    let mut rng = StdRng::seed_from_u64(2);
+    let noise = Normal::new(0.0, 0.3).unwrap();
+    let frames: Vec<[f64; 5]> = (0..WINDOW)
+        .map(|i| {
+            let t = i as f64 / RATE;
+            core::array::from_fn(|s| {
+                (std::f64::consts::TAU * (150.0 + 20.0 * s as f64) * t).sin()
+                    + noise.sample(&mut rng)
+            })
+        })
+        .collect();
+    let detector = BandGain::new(BandGainSettings {
+        sample_rate_hz: RATE,
+        chatter_band_hz: (100.0, 300.0),
+        reference_band_hz: (450.0, 900.0),
+        hop_samples: WINDOW / 2,
+        window_hops: 2,
+        stands: 5,
+    })
+    .unwrap();
+    let mut state = detector.state();
+    let mut group = c.benchmark_group("chatter_window_5_stands");
+    group.bench_function("band_gain_hop", |b| {
+        b.iter(|| {
+            let mut last = None;
+            for frame in &frames[..WINDOW / 2] {
+                last = detector.process(&mut state, black_box(frame)).unwrap();
+            }
+            black_box(last)
+        })
+    });
+    let band: Vec<f64> = frames.iter().map(|f| f[2]).collect();
+    group.bench_function("mode_damping_pencil", |b| {
+        b.iter(|| {
+            for _ in 0..5 {
+                black_box(least_damped(black_box(&band), RATE, 3, (100.0, 300.0)).ok());
+            }
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, detector, fit, chatter_window);
 criterion_main!(benches);

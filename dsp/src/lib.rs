@@ -2,11 +2,14 @@
 #![warn(missing_docs)]
 #![doc = include_str!("../README.md")]
 
+pub mod band_gain;
 pub mod bite;
 pub mod chatter;
+pub mod filter;
 pub mod fit;
 mod linalg;
 pub mod mathieu;
+pub mod mode_damping;
 pub mod pencil;
 pub mod stiffness;
 pub mod testing;

@@ -38,7 +38,9 @@
 //! - **first-period shift** = first - second period, and minus a linear-model reference
 //!   shift when one is given: the wear index of the domain notes (section 1.3).
 
-use core::f64::consts::{PI, SQRT_2};
+use core::f64::consts::{FRAC_1_SQRT_2, PI};
+
+use crate::filter::Biquad;
 
 /// Settings of [`analyze`].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -137,51 +139,11 @@ pub struct TransientResult {
     pub quality: TransientQuality,
 }
 
-/// Second-order Butterworth low-pass, direct form I.
-#[derive(Clone, Copy)]
-struct Biquad {
-    b0: f64,
-    b1: f64,
-    b2: f64,
-    a1: f64,
-    a2: f64,
-}
-
-impl Biquad {
-    fn lowpass(cutoff_hz: f64, sample_rate_hz: f64) -> Self {
-        let k = libm::tan(PI * cutoff_hz / sample_rate_hz);
-        let norm = 1.0 / (1.0 + SQRT_2 * k + k * k);
-        let b0 = k * k * norm;
-        Self {
-            b0,
-            b1: 2.0 * b0,
-            b2: b0,
-            a1: 2.0 * (k * k - 1.0) * norm,
-            a2: (1.0 - SQRT_2 * k + k * k) * norm,
-        }
-    }
-
-    /// Zero-phase filtering in place: forward then backward, each started in the steady
-    /// state of its first input sample (unit DC gain) to avoid start-up transients.
-    fn filtfilt(&self, data: &mut [f64]) {
-        self.run(data.iter_mut());
-        self.run(data.iter_mut().rev());
-    }
-
-    fn run<'a>(&self, mut samples: impl Iterator<Item = &'a mut f64>) {
-        let Some(first) = samples.next() else {
-            return;
-        };
-        let (mut x1, mut x2, mut y1, mut y2) = (*first, *first, *first, *first);
-        for sample in samples {
-            let x = *sample;
-            let y = self.b0 * x + self.b1 * x1 + self.b2 * x2 - self.a1 * y1 - self.a2 * y2;
-            x2 = x1;
-            x1 = x;
-            y2 = y1;
-            y1 = y;
-            *sample = y;
-        }
+/// Zero-phase second-order Butterworth low-pass of `data` in place (the caller has
+/// checked `cutoff_hz` against the sample rate, so the section always exists).
+fn lowpass_filtfilt(data: &mut [f64], cutoff_hz: f64, sample_rate_hz: f64) {
+    if let Ok(section) = Biquad::lowpass(cutoff_hz, sample_rate_hz, FRAC_1_SQRT_2) {
+        section.filtfilt(data);
     }
 }
 
@@ -359,7 +321,7 @@ fn crossings_about(
         *out = value - baseline_knm - (trend.level + trend.amplitude * decay);
         decay *= trend.ratio;
     }
-    Biquad::lowpass(cutoff_hz, rate).filtfilt(oscillation);
+    lowpass_filtfilt(oscillation, cutoff_hz, rate);
     let dt = 1.0 / rate;
     let mut crossings = [0.0_f64; 3];
     let mut found = 0;
@@ -465,7 +427,7 @@ pub fn analyze<const N: usize>(
 
     // Peak after the trigger, optionally on the smoothed signal.
     if let Some(cutoff) = peak_cutoff {
-        Biquad::lowpass(cutoff, rate).filtfilt(data);
+        lowpass_filtfilt(data, cutoff, rate);
     }
     let (peak_offset, peak_torque_knm) =
         data[trigger_index..]
@@ -554,20 +516,6 @@ mod tests {
             min_static_knm: 1.0,
             reference_shift_s: Some(0.0),
         }
-    }
-
-    #[test]
-    fn filter_has_unit_dc_gain_and_cuts_high_frequency() {
-        let filter = Biquad::lowpass(10.0, 1000.0);
-        let mut constant = [5.0; 200];
-        filter.filtfilt(&mut constant);
-        assert!(constant.iter().all(|v| (v - 5.0).abs() < 1e-9));
-        let mut fast = [0.0; 400];
-        for (i, v) in fast.iter_mut().enumerate() {
-            *v = libm::sin(2.0 * PI * 200.0 * i as f64 / 1000.0);
-        }
-        filter.filtfilt(&mut fast);
-        assert!(fast[100..300].iter().all(|v| v.abs() < 0.01));
     }
 
     #[test]

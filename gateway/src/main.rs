@@ -52,7 +52,7 @@ enum Command {
     /// Where a model and a measured transient disagree, and the effect the model lacks.
     Discrepancy(millgate::cli::discrepancy::DiscrepancyArgs),
     #[cfg(feature = "sim-tools")]
-    /// Driveline simulator: transients, modes, wear maps.
+    /// Simulators: driveline transients, modes, wear maps; tandem-mill chatter.
     Sim(millgate::cli::sim::SimArgs),
     #[cfg(feature = "sim-tools")]
     /// Rod mills: parametric stability of every pass (Mathieu, Ince-Strutt).

@@ -11,8 +11,6 @@ pub mod model;
 pub mod plot;
 pub mod rod;
 pub mod schedule;
-// Documented by the chatter work under way on this module (it edits stands.rs).
-#[allow(missing_docs)]
-pub mod stands;
+pub mod tandem;
 pub mod tree;
 pub mod wear_map;

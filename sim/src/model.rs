@@ -158,7 +158,7 @@ pub struct Measurement {
     pub lag: f64,
 }
 
-/// Why a model file could not be read or is not a valid driveline.
+/// Why a model file (a driveline, a pass schedule) could not be read or is not valid.
 ///
 /// Every variant names the file; the schema and value variants also name the key path
 /// (`mass[1].inertia`) and what is allowed there.

@@ -7,6 +7,8 @@
 
 pub mod counting_allocator;
 
+pub mod chatter_eval;
+
 use std::time::{Duration, Instant};
 
 use millgate::outputs::register_map::RegisterMap;

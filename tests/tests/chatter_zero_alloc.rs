@@ -5,7 +5,8 @@
 use std::time::{Duration, Instant};
 
 use millgate::analysis::chatter_monitor::{ChatterMonitor, ChatterUpdate};
-use millgate_sim::stands::{Regime, Stands, StandsSettings};
+use millgate_sim::tandem::simulate::{simulate, Accelerometer, Excitation, RunSettings, SpeedRamp};
+use millgate_sim::tandem::{PassSchedule, TandemMill};
 use millgate_tests::counting_allocator::{allocations_during, CountingAllocator};
 
 #[global_allocator]
@@ -30,17 +31,28 @@ fn samples_gaps_and_evaluations_allocate_nothing() -> anyhow::Result<()> {
     let config = millgate_config::from_toml_str(&text, "t.toml", std::path::Path::new("."))
         .map_err(|e| anyhow::anyhow!("{e}"))?;
     let mut monitor = ChatterMonitor::new(&config, 0)?;
-    let stands = Stands::new(
-        StandsSettings {
-            sample_rate_hz: FS,
-            natural_hz: vec![150.0, 190.0, 240.0],
-            amplitude: 1.0,
-            linewidth_hz: 0.5,
-            noise_rms: 0.3,
+    // The physical model's last three stands: stable, then a ramp into chatter.
+    let mill = TandemMill::new(&PassSchedule::example()?)?;
+    let record = simulate(
+        &mill,
+        &RunSettings {
+            ramp: SpeedRamp {
+                start: 1.0,
+                end: 1.4,
+                hold_s: 3.0,
+                accel_m_s2: 2.0,
+            },
+            excitation: Excitation::default(),
+            sensor: Accelerometer {
+                sample_rate_hz: FS,
+                ..Accelerometer::default()
+            },
+            duration_s: 10.0,
+            seed: 3,
+            internal_rate_hz: None,
         },
-        Regime::synchronized(5.0, 187.0),
     )?;
-    let signals = stands.generate(10.0, 3)?;
+    let signals = &record.acceleration[2..];
     let t0 = Instant::now();
     let period = Duration::from_secs_f64(BLOCK as f64 / FS);
 

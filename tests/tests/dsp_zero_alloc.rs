@@ -88,6 +88,62 @@ fn detector_analysis_and_fit_never_allocate() {
 }
 
 #[test]
+fn chatter_band_gain_and_mode_damping_never_allocate() {
+    use millgate_dsp::band_gain::{BandGain, BandGainSettings};
+    use millgate_dsp::mode_damping::least_damped;
+
+    const WINDOW: usize = 1250;
+    const RATE: f64 = 2500.0;
+    let detector = BandGain::new(BandGainSettings {
+        sample_rate_hz: RATE,
+        chatter_band_hz: (100.0, 300.0),
+        reference_band_hz: (450.0, 900.0),
+        hop_samples: WINDOW / 2,
+        window_hops: 2,
+        stands: 5,
+    })
+    .unwrap();
+    let mut state = detector.state();
+    // Stand s: a 150 + 20 s Hz line growing slowly, over deterministic pseudo-noise.
+    let sample = |i: usize, s: usize| {
+        let t = i as f64 / RATE;
+        let noise = ((i * 7 + s).wrapping_mul(2_654_435_761) >> 7) % 1000;
+        (1.0 + 0.05 * t) * (std::f64::consts::TAU * (150.0 + 20.0 * s as f64) * t).sin()
+            + (noise as f64 / 1000.0 - 0.5)
+    };
+    let mut band = [[0.0; WINDOW]; 5];
+    let (mut windows, mut poles, mut gain_sum) = (0, 0, 0.0);
+    let ((), allocations) = allocations_during(|| {
+        for i in 0..250_000 {
+            let frame: [f64; 5] = core::array::from_fn(|s| sample(i, s));
+            let result = detector.process(&mut state, &frame).unwrap();
+            for (s, ring) in band.iter_mut().enumerate() {
+                ring[i % WINDOW] = detector.band_sample(&state, s);
+            }
+            if let Some(window) = result {
+                windows += 1;
+                gain_sum += window.max_gain();
+                for ring in &band {
+                    if let Ok(Some(_)) = least_damped(ring, RATE, 3, (100.0, 300.0)) {
+                        poles += 1;
+                    }
+                }
+            }
+        }
+    });
+
+    assert_eq!(allocations, 0);
+    assert_eq!(windows, 250_000 / (WINDOW / 2) - 2);
+    // The figures are real: every stand's line is found, the gain is far above 1.
+    assert_eq!(poles, 5 * windows);
+    assert!(
+        gain_sum / windows as f64 > 3.0,
+        "{}",
+        gain_sum / windows as f64
+    );
+}
+
+#[test]
 fn counter_sees_an_allocation_on_the_measuring_thread() {
     // Guards the guard: a Vec allocated while measuring must be counted.
     let (v, allocations) =

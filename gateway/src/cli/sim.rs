@@ -3,6 +3,7 @@
 //! - `millgate sim transient --model M.toml [--noise-rms KNM] [--seed S] --out FILE.csv`
 //! - `millgate sim modes --model M.toml [--format text|json]`
 //! - `millgate sim wear-map --model M.toml --out DIR`
+//! - `millgate sim tandem --schedule S.toml [--speed F] [--ramp TO,ACCEL] --out FILE.csv`
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -13,6 +14,9 @@ use millgate_sim::chain::simulate_with_noise;
 use millgate_sim::modal;
 use millgate_sim::model::Model;
 use millgate_sim::plot::wear_map_svg;
+use millgate_sim::tandem::simulate::{simulate, Accelerometer, Excitation, RunSettings, SpeedRamp};
+use millgate_sim::tandem::truth::{ground_truth, mill_critical_speed};
+use millgate_sim::tandem::{PassSchedule, TandemMill};
 use millgate_sim::wear_map::{wear_map, WearMapSpec};
 
 /// Arguments of `millgate sim`.
@@ -59,6 +63,51 @@ pub enum SimCommand {
         #[arg(long)]
         out: PathBuf,
     },
+    /// A tandem cold mill's chock accelerations (`sim::tandem`): CSV `t,s1_vib,..`;
+    /// prints the critical speed, the onset and when chatter developed.
+    Tandem(TandemArgs),
+}
+
+/// Arguments of `millgate sim tandem`.
+#[derive(Debug, Args)]
+pub struct TandemArgs {
+    /// Pass schedule (TOML), e.g. sim/schedules/lu2019-5stand.toml.
+    #[arg(long)]
+    pub schedule: PathBuf,
+    /// Speed factor at the start (times the schedule's roll speeds).
+    #[arg(long, default_value_t = 0.9)]
+    pub speed: f64,
+    /// After `--hold`, ramp to speed factor TO at ACCEL m/s^2 of the last stand's exit
+    /// speed: `--ramp 1.4,1.0`.
+    #[arg(long, value_delimiter = ',', num_args = 2, value_names = ["TO", "ACCEL"])]
+    pub ramp: Option<Vec<f64>>,
+    /// Time at the start speed before the ramp, s.
+    #[arg(long, default_value_t = 20.0)]
+    pub hold: f64,
+    /// Length of the record, s.
+    #[arg(long, default_value_t = 40.0)]
+    pub duration: f64,
+    /// Accelerometer sample rate, Hz (500-20000).
+    #[arg(long, default_value_t = 2500.0)]
+    pub sample_rate: f64,
+    /// Factor on the force noise and the incoming gauge noise.
+    #[arg(long, default_value_t = 1.0)]
+    pub noise_scale: f64,
+    /// RMS of the accelerometers' own noise, m/s^2.
+    #[arg(long, default_value_t = 0.02)]
+    pub sensor_noise: f64,
+    /// Sample without the anti-alias low-pass.
+    #[arg(long)]
+    pub no_anti_alias: bool,
+    /// Seed of every random source.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Add the speed factor and the interstand tension deviations (MPa) as columns.
+    #[arg(long)]
+    pub truth: bool,
+    /// Output CSV file.
+    #[arg(long)]
+    pub out: PathBuf,
 }
 
 /// Output format of `millgate sim modes`.
@@ -109,8 +158,60 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
                 .with_context(|| format!("writing {}", svg_path.display()))?;
             println!("wrote {} and {}", csv_path.display(), svg_path.display());
         }
+        SimCommand::Tandem(args) => print!("{}", tandem(&args)?),
     }
     Ok(())
+}
+
+/// Runs `millgate sim tandem`: writes the CSV, returns the summary it prints.
+pub fn tandem(args: &TandemArgs) -> anyhow::Result<String> {
+    let schedule = PassSchedule::load(&args.schedule)?;
+    let mill = TandemMill::new(&schedule)?;
+    let ramp = match args.ramp.as_deref() {
+        Some(&[to, accel]) => SpeedRamp {
+            start: args.speed,
+            end: to,
+            hold_s: args.hold,
+            accel_m_s2: accel,
+        },
+        _ => SpeedRamp::constant(args.speed),
+    };
+    let mut excitation = Excitation::default();
+    excitation.force_noise_density *= args.noise_scale;
+    excitation.entry_gauge_rms_m *= args.noise_scale;
+    let settings = RunSettings {
+        ramp,
+        excitation,
+        sensor: Accelerometer {
+            sample_rate_hz: args.sample_rate,
+            noise_rms: args.sensor_noise,
+            anti_alias: !args.no_anti_alias,
+        },
+        duration_s: args.duration,
+        seed: args.seed,
+        internal_rate_hz: None,
+    };
+    let record = simulate(&mill, &settings)?;
+    let critical = mill_critical_speed(&mill)?;
+    let truth = ground_truth(&mill, &ramp, &record, critical);
+    std::fs::write(&args.out, record.to_csv(args.truth))
+        .with_context(|| format!("writing {}", args.out.display()))?;
+    let exit = mill.exit_speed(mill.stands().len() - 1, 1.0);
+    let at = |t: Option<f64>| t.map_or("never".to_owned(), |t| format!("{t:.2} s"));
+    Ok(format!(
+        "{}: {} samples x {} stands at {} Hz\n\
+         critical speed factor {:.3} ({:.2} m/s exit speed), chatter at {:.1} Hz\n\
+         onset (ramp passes it): {}\ndeveloped (a tension swings past half its schedule value): {}\n",
+        args.out.display(),
+        record.len(),
+        record.acceleration.len(),
+        args.sample_rate,
+        critical.speed,
+        critical.speed * exit,
+        critical.frequency_hz,
+        at(truth.onset_s),
+        at(truth.developed_s),
+    ))
 }
 
 /// The text `millgate sim modes` prints for the model at `path`.
@@ -160,6 +261,42 @@ mod tests {
         assert!((frequencies[1] - 12.03).abs() < 0.01 && (frequencies[2] - 21.09).abs() < 0.01);
         assert_eq!(modes.len(), 3);
         assert!(modes.iter().all(|shape| shape.len() == 3));
+        Ok(())
+    }
+
+    #[test]
+    fn tandem_writes_stands_and_reports_the_truth() -> anyhow::Result<()> {
+        let out = std::env::temp_dir().join(format!("millgate-tandem-{}.csv", std::process::id()));
+        let summary = tandem(&TandemArgs {
+            schedule: std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("../sim/schedules/lu2019-5stand.toml"),
+            speed: 1.0,
+            ramp: Some(vec![1.6, 2.0]),
+            hold: 1.0,
+            duration: 12.0,
+            sample_rate: 2500.0,
+            noise_scale: 1.0,
+            sensor_noise: 0.02,
+            no_anti_alias: false,
+            seed: 2,
+            truth: true,
+            out: out.clone(),
+        })?;
+        let text = std::fs::read_to_string(&out)?;
+        std::fs::remove_file(&out)?;
+        let mut lines = text.lines();
+        assert_eq!(
+            lines.next(),
+            Some("t,s1_vib,s2_vib,s3_vib,s4_vib,s5_vib,speed_factor,tension_1_2_mpa,tension_2_3_mpa,tension_3_4_mpa,tension_4_5_mpa")
+        );
+        assert_eq!(lines.count(), 30_000);
+        // 1.0 -> 1.098 at 2 m/s^2 on a 22.8 m/s exit: 1.1 s after the 1 s hold.
+        assert!(summary.contains("critical speed factor 1.098"), "{summary}");
+        assert!(summary.contains("onset (ramp passes it): 2.1"), "{summary}");
+        assert!(
+            !summary.contains("developed (a tension swings past half its schedule value): never"),
+            "{summary}"
+        );
         Ok(())
     }
 
