@@ -407,3 +407,38 @@ async fn no_birth_before_the_primary_host_is_online_and_its_offline_ends_the_ses
     terminate(&mut service);
     setup.stop(service).await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn after_a_broker_restart_the_node_is_born_again_with_the_next_bd_seq() {
+    let setup = Setup::new("sparkplug-restart", "db").await;
+    let port = free_port();
+    let mut broker = Broker::start(&setup.scratch, port);
+    let mut host = Host::start(port, "plant");
+    setup.append_config(&format!(
+        "\n[outputs.mqtt]\nbroker = \"127.0.0.1:{port}\"\ngroup_id = \"plant\"\nnode_id = \"f1\"\nkeep_alive_s = 5\n"
+    ));
+    let mut service = setup.spawn("run.log");
+    let limit = Duration::from_secs(30);
+    let nbirth = host.next_of("NBIRTH", limit);
+    let bd_seq = metric(&nbirth, "bdSeq")["value"].as_u64().unwrap();
+
+    // The broker dies (no Will: the broker itself is gone) and comes back after the
+    // node has failed to connect a few times: those attempts use no bdSeq.
+    drop(broker);
+    std::thread::sleep(Duration::from_millis(3500));
+    broker = Broker::start(&setup.scratch, port);
+    // The host reconnects on its own schedule and may miss the births (QoS 0, not
+    // retained): as a host does on seeing a node it has no birth of, it asks again.
+    while host.next(limit)["ready"] != true {}
+    host.command("rebirth f1");
+    let next = host.next_of("NBIRTH", limit);
+    assert_eq!(seq(&next), 0);
+    assert_eq!(metric(&next, "bdSeq")["value"].as_u64(), Some(bd_seq + 1));
+    let dbirth = host.next_of("DBIRTH", limit);
+    assert_eq!(seq(&dbirth), 1);
+    terminate(&mut service);
+    let death = host.next_of("NDEATH", limit);
+    assert_eq!(metric(&death, "bdSeq")["value"].as_u64(), Some(bd_seq + 1));
+    drop(broker);
+    setup.stop(service).await;
+}

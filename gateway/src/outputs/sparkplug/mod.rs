@@ -295,17 +295,21 @@ impl SparkplugNode {
                         } else {
                             tracing::debug!(%error, broker = %self.config.broker, "Sparkplug broker not reachable");
                         }
-                        connected = false;
-                        born = false;
-                        self.status.connected.store(0, Ordering::Relaxed);
                         // What the dead session had queued belongs to it: its seq
                         // numbers mean nothing in the next session.
                         drop_pending(&mut events);
-                        bd_seq = self.next_bd_seq(Some(bd_seq)).await;
-                        node.new_session(bd_seq);
-                        self.status.bd_seq.store(bd_seq, Ordering::Relaxed);
-                        let will = node.death(now_ms());
-                        events.mqtt_options.set_last_will(LastWill::new(will.topic, will.payload, QoS::AtLeastOnce, false));
+                        // A new bdSeq only after a session the broker accepted: a
+                        // refused or failed CONNECT never registered its Will.
+                        if connected {
+                            bd_seq = self.next_bd_seq(Some(bd_seq)).await;
+                            node.new_session(bd_seq);
+                            self.status.bd_seq.store(bd_seq, Ordering::Relaxed);
+                            let will = node.death(now_ms());
+                            events.mqtt_options.set_last_will(LastWill::new(will.topic, will.payload, QoS::AtLeastOnce, false));
+                        }
+                        connected = false;
+                        born = false;
+                        self.status.connected.store(0, Ordering::Relaxed);
                         tokio::select! {
                             () = shutdown.recv() => break,
                             () = tokio::time::sleep(RECONNECT_DELAY) => {}
