@@ -16,14 +16,16 @@ use crate::error::{line_column, Report};
 use crate::raw::RawConfig;
 
 /// Keys allowed at the top level of a configuration file.
-const TOP_LEVEL_KEYS: [&str; 7] = [
+const TOP_LEVEL_KEYS: [&str; 9] = [
     "name",
     "sources",
     "channels",
     "drivelines",
     "tandem_mills",
+    "rod_mills",
     "outputs",
     "history",
+    "cache_dir",
 ];
 
 /// Keys allowed in the `[sources]` table.
@@ -50,10 +52,12 @@ pub(crate) fn parse(text: &str, report: &mut Report) -> Option<RawConfig> {
                     raw.name = name;
                 }
             }
+            "cache_dir" => raw.cache_dir = schema.value(value, "cache_dir"),
             "sources" => schema.sources(value, &mut raw),
             "channels" => raw.channels = schema.list(value, "channels"),
             "drivelines" => raw.drivelines = schema.list(value, "drivelines"),
             "tandem_mills" => raw.tandem_mills = schema.list(value, "tandem_mills"),
+            "rod_mills" => raw.rod_mills = schema.list(value, "rod_mills"),
             "outputs" => raw.outputs = schema.value(value, "outputs").unwrap_or_default(),
             "history" => raw.history = schema.value(value, "history"),
             _ => schema.unknown_key(key, "", &TOP_LEVEL_KEYS),

@@ -67,6 +67,19 @@ pub(crate) struct RawDriveline {
     pub model: Option<String>,
     pub bite: RawBite,
     pub thresholds: RawThresholds,
+    pub wear: Option<RawWear>,
+}
+
+/// `drivelines[].wear`: the gap diagnosis against the driveline model.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawWear {
+    pub couplings: Option<Vec<i64>>,
+    pub max_gap_mrad: Option<f64>,
+    pub gap_step_mrad: Option<f64>,
+    pub static_torque_knm: Option<Vec<f64>>,
+    pub torque_points: Option<i64>,
+    pub pool_bites: Option<i64>,
 }
 
 /// `drivelines[].bite`.
@@ -84,6 +97,8 @@ pub(crate) struct RawBite {
 pub(crate) struct RawThresholds {
     pub taf_warning: f64,
     pub taf_alarm: f64,
+    pub gap_warning_mrad: Option<f64>,
+    pub gap_alarm_mrad: Option<f64>,
 }
 
 /// `[[tandem_mills]]`: a tandem cold mill.
@@ -95,6 +110,23 @@ pub(crate) struct RawTandemMill {
     pub chatter_band_hz: Vec<f64>,
     pub window_s: f64,
     pub k_max: f64,
+}
+
+/// `[[rod_mills]]`: a rod mill checked online against the Mathieu tongues.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawRodMill {
+    pub name: String,
+    pub mill: String,
+    pub schedule: String,
+    pub configuration: String,
+    pub configurations: Vec<String>,
+    pub pass: String,
+    pub finishing_speed: String,
+    pub temperature: Option<String>,
+    pub near_tongue_m_s: Option<f64>,
+    pub hysteresis_m_s: Option<f64>,
+    pub temperature_step_c: Option<f64>,
 }
 
 /// `[outputs]`.
@@ -163,11 +195,13 @@ pub(crate) struct RawHistory {
 #[derive(Debug, Default)]
 pub(crate) struct RawConfig {
     pub name: String,
+    pub cache_dir: Option<String>,
     pub modbus_sources: Vec<RawModbusSource>,
     pub can_sources: Vec<RawCanSource>,
     pub channels: Vec<RawChannel>,
     pub drivelines: Vec<RawDriveline>,
     pub tandem_mills: Vec<RawTandemMill>,
+    pub rod_mills: Vec<RawRodMill>,
     pub outputs: RawOutputs,
     pub history: Option<RawHistory>,
 }

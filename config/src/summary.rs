@@ -128,7 +128,14 @@ pub fn summary(config: &Config) -> String {
             driveline.thresholds.taf_alarm
         );
         if let Some(model) = &driveline.model {
-            let _ = write!(text, ", model {}", model.display());
+            let _ = write!(
+                text,
+                ", model {} (gap warning {} mrad, alarm {} mrad, last {} bites pooled)",
+                model.display(),
+                driveline.thresholds.gap_warning_mrad,
+                driveline.thresholds.gap_alarm_mrad,
+                driveline.wear.pool_bites
+            );
         }
         text.push('\n');
     }
@@ -154,6 +161,30 @@ pub fn summary(config: &Config) -> String {
         );
     }
     none_if_empty(&mut text, config.tandem_mills.len());
+
+    // Listed only when present, so summaries of other mills stay as they were.
+    if !config.rod_mills.is_empty() {
+        let _ = writeln!(text, "Rod mills ({}):", config.rod_mills.len());
+    }
+    for mill in &config.rod_mills {
+        let channel = |index: usize| config.channels[index].name.as_str();
+        let _ = writeln!(
+            text,
+            "  {}: mill {}, schedule {}, configuration from {} ({}), pass from {}, \
+             finishing speed from {}, temperature from {}, near tongue < {} m/s, \
+             hysteresis {} m/s",
+            mill.name,
+            mill.mill.display(),
+            mill.schedule.display(),
+            channel(mill.configuration),
+            mill.configurations.join(", "),
+            channel(mill.pass),
+            channel(mill.finishing_speed),
+            mill.temperature.map_or("the schedule", channel),
+            mill.near_tongue_m_s,
+            mill.hysteresis_m_s
+        );
+    }
 
     let outputs = &config.outputs;
     let output_count = usize::from(outputs.plc.is_some())

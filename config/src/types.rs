@@ -13,6 +13,9 @@ use std::time::Duration;
 pub struct Config {
     /// Plant or mill name, for logs and the HMI.
     pub name: String,
+    /// Folder for files the gateway may rebuild (the wear maps), relative to the
+    /// configuration file; `None`: the user's cache folder (see the gateway).
+    pub cache_dir: Option<PathBuf>,
     /// Modbus TCP DAQs and PLCs that the gateway polls.
     pub modbus_sources: Vec<ModbusSource>,
     /// SocketCAN interfaces.
@@ -23,6 +26,8 @@ pub struct Config {
     pub drivelines: Vec<Driveline>,
     /// Tandem mills watched for chatter.
     pub tandem_mills: Vec<TandemMill>,
+    /// Rod mills whose rod spans are checked against the Mathieu tongues online.
+    pub rod_mills: Vec<RodMill>,
     /// Where results go.
     pub outputs: Outputs,
     /// The event history file; `None` keeps no history.
@@ -285,17 +290,68 @@ pub struct Driveline {
     pub model: Option<PathBuf>,
     /// Bite detection.
     pub bite: BiteSettings,
-    /// TAF warning and alarm.
+    /// TAF and gap warning and alarm.
     pub thresholds: DrivelineThresholds,
+    /// The gap diagnosis against `model` (used only with a model).
+    pub wear: WearSettings,
 }
 
 /// Alarm thresholds of a driveline.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DrivelineThresholds {
-    /// TAF above which the wear warning bit is set (> 1).
+    /// TAF above which the TAF warning bit is set (> 1).
     pub taf_warning: f64,
-    /// TAF above which the wear alarm bit is set (>= warning).
+    /// TAF above which the TAF alarm bit is set (>= warning).
     pub taf_alarm: f64,
+    /// Estimated opened gap (maximum likelihood) at or above which the gap warning bit
+    /// is set, mrad (> 0; default 2).
+    pub gap_warning_mrad: f64,
+    /// Opened gap whose 90% interval lies wholly at or above it sets the gap alarm
+    /// bit (latched until acknowledged), mrad (>= `gap_warning_mrad`; default 4).
+    pub gap_alarm_mrad: f64,
+}
+
+/// The gap diagnosis of a driveline with a model: which couplings may carry the gap,
+/// the wear maps' grid and the pool of bites.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WearSettings {
+    /// Couplings (model indices, motor side first) that may carry the gap, distinct;
+    /// `None`: every coupling of the model.
+    pub couplings: Option<Vec<usize>>,
+    /// Largest opened gap the maps cover, mrad, in (0, 100] (default 8).
+    pub max_gap_mrad: f64,
+    /// Gap step of the maps, mrad, > 0 with at most 400 steps up to `max_gap_mrad`
+    /// (default 0.125).
+    pub gap_step_mrad: f64,
+    /// Static torque range the maps cover, kN*m, `0 < low < high`; `None`: from the
+    /// model's static torque (0.25x to 2x, and at least 1.25x the bite threshold).
+    pub static_torque_knm: Option<(f64, f64)>,
+    /// Static torques of the maps' grid (geometric spacing over the range), 3..=64
+    /// (default 16).
+    pub torque_points: usize,
+    /// Bites pooled into the gap estimate (the last N), 1..=1000 (default 20).
+    pub pool_bites: usize,
+}
+
+impl Default for WearSettings {
+    /// The defaults of a `[drivelines.wear]` table left out.
+    fn default() -> Self {
+        Self {
+            couplings: None,
+            max_gap_mrad: 8.0,
+            gap_step_mrad: 0.125,
+            static_torque_knm: None,
+            torque_points: 16,
+            pool_bites: 20,
+        }
+    }
+}
+
+impl DrivelineThresholds {
+    /// Default gap warning threshold, mrad.
+    pub const DEFAULT_GAP_WARNING_MRAD: f64 = 2.0;
+    /// Default gap alarm threshold, mrad.
+    pub const DEFAULT_GAP_ALARM_MRAD: f64 = 4.0;
 }
 
 /// A tandem cold mill watched for chatter.
@@ -312,6 +368,44 @@ pub struct TandemMill {
     pub window_s: f64,
     /// K_max: largest adjacent-stand correlation seen in steady rolling (0..1).
     pub k_max: f64,
+}
+
+/// A rod (wire) mill whose rod spans are checked online against the Mathieu
+/// instability tongues, from PLC process values (`[[rod_mills]]`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RodMill {
+    /// Unique among rod mills.
+    pub name: String,
+    /// Rod-mill file (`millgate-sim` rod mill TOML: drive, stands, spans, modulus
+    /// table), relative to the config file; its content is checked by the service.
+    pub mill: PathBuf,
+    /// Pass schedule CSV (rod diameters and temperature per pass), relative to the
+    /// config file.
+    pub schedule: PathBuf,
+    /// Index into [`Config::channels`] of the process value carrying the active drive
+    /// configuration: value k (an integer 0..configurations.len()) selects
+    /// `configurations[k]`.
+    pub configuration: usize,
+    /// Drive configuration names (of the mill's drive) by PLC value, 1..=64 names.
+    pub configurations: Vec<String>,
+    /// Index into [`Config::channels`] of the process value carrying the pass number:
+    /// k (1-based) selects the k-th row of the schedule.
+    pub pass: usize,
+    /// Index into [`Config::channels`] of the finishing speed, m/s (rod speed out of
+    /// the last stand).
+    pub finishing_speed: usize,
+    /// Index into [`Config::channels`] of the rod temperature, deg C; without it the
+    /// schedule's temperature of the pass is used.
+    pub temperature: Option<usize>,
+    /// A stable span whose speed margin is below this is "near a tongue", m/s, > 0
+    /// (default 2).
+    pub near_tongue_m_s: f64,
+    /// Speed hysteresis of the unstable and near-tongue flags, m/s, >= 0 (default
+    /// 0.5): a flag clears only once the margin is this much beyond where it was set.
+    pub hysteresis_m_s: f64,
+    /// Rod temperature step, deg C, > 0 (default 10): the measured temperature is
+    /// rounded to a multiple of it before the pass's setup is (re)computed.
+    pub temperature_step_c: f64,
 }
 
 /// Where results go.

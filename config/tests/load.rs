@@ -157,6 +157,17 @@ fn base_is_valid_and_takes_defaults() {
     );
     let bite = config.drivelines[0].bite;
     assert_eq!((bite.pre_trigger_s, bite.post_trigger_s), (0.1, 0.5));
+    let thresholds = config.drivelines[0].thresholds;
+    assert_eq!(
+        (thresholds.gap_warning_mrad, thresholds.gap_alarm_mrad),
+        (2.0, 4.0)
+    );
+    let wear = &config.drivelines[0].wear;
+    assert_eq!(wear.couplings, None, "every coupling of the model");
+    assert_eq!((wear.max_gap_mrad, wear.gap_step_mrad), (8.0, 0.125));
+    assert_eq!(wear.static_torque_knm, None, "from the model");
+    assert_eq!((wear.torque_points, wear.pool_bites), (16, 20));
+    assert_eq!(config.cache_dir, None, "the user's cache folder");
     let plc = config.outputs.plc.as_ref().expect("plc output");
     assert_eq!((plc.unit_id, plc.register_base), (1, 0));
     assert_eq!(plc.timeout, Duration::from_millis(1000));
@@ -343,7 +354,7 @@ fn wrong_types_and_missing_keys_are_named() {
     );
     assert_problem_like(
         &(BASE.to_owned() + "\n[alarms]\nlevel = 1\n"),
-        "mill.toml: alarms: unknown key (allowed here: name, sources, channels, drivelines, tandem_mills, outputs, history)",
+        "mill.toml: alarms: unknown key (allowed here: name, sources, channels, drivelines, tandem_mills, rod_mills, outputs, history, cache_dir)",
         &[],
     );
     assert_problem_like(
@@ -638,6 +649,98 @@ fn float_ranges() {
             &["is not allowed (must be > 0 and < 1"],
         );
     }
+}
+
+#[test]
+fn wear_settings_and_gap_thresholds() {
+    let text = edited(
+        "taf_warning = 2.2, taf_alarm = 2.6 }",
+        "taf_warning = 2.2, taf_alarm = 2.6, gap_warning_mrad = 1.5, gap_alarm_mrad = 3 }\n\
+         wear = { couplings = [1], max_gap_mrad = 6, gap_step_mrad = 0.25, \
+         static_torque_knm = [30, 200], torque_points = 8, pool_bites = 10 }",
+    )
+    .replacen(
+        "name = \"Test mill\"",
+        "name = \"Test mill\"\ncache_dir = \"cache\"",
+        1,
+    );
+    let config = parse(&text).unwrap_or_else(|error| panic!("{error}"));
+    let driveline = &config.drivelines[0];
+    assert_eq!(driveline.thresholds.gap_warning_mrad, 1.5);
+    assert_eq!(driveline.thresholds.gap_alarm_mrad, 3.0);
+    assert_eq!(driveline.wear.couplings, Some(vec![1]));
+    assert_eq!(driveline.wear.max_gap_mrad, 6.0);
+    assert_eq!(driveline.wear.gap_step_mrad, 0.25);
+    assert_eq!(driveline.wear.static_torque_knm, Some((30.0, 200.0)));
+    assert_eq!(driveline.wear.torque_points, 8);
+    assert_eq!(driveline.wear.pool_bites, 10);
+    assert_eq!(config.cache_dir, Some(examples_dir().join("cache")));
+
+    let wear = |table: &str| {
+        edited(
+            "taf_warning = 2.2, taf_alarm = 2.6 }",
+            &format!("taf_warning = 2.2, taf_alarm = 2.6 }}\nwear = {{ {table} }}"),
+        )
+    };
+    assert_only_problem(
+        &wear("couplings = [0, 0]"),
+        "mill.toml: drivelines[0].wear.couplings[1]: 0 is listed twice",
+    );
+    assert_only_problem(
+        &wear("couplings = [-1]"),
+        "mill.toml: drivelines[0].wear.couplings[0]: -1 is not allowed (must be a coupling index of the model, >= 0)",
+    );
+    assert_only_problem(
+        &wear("couplings = []"),
+        "mill.toml: drivelines[0].wear.couplings: must name at least one coupling (leave the key out for all of them)",
+    );
+    assert_only_problem(
+        &wear("max_gap_mrad = 0"),
+        "mill.toml: drivelines[0].wear.max_gap_mrad: 0 is not allowed (must be > 0 and <= 100 mrad)",
+    );
+    assert_problem_like(
+        &wear("gap_step_mrad = 0.01"),
+        "mill.toml: drivelines[0].wear.gap_step_mrad: 0.01 is not allowed (must be > 0 mrad",
+        &["max_gap_mrad / 400"],
+    );
+    assert_only_problem(
+        &wear("static_torque_knm = [100, 50]"),
+        "mill.toml: drivelines[0].wear.static_torque_knm: [100.0, 50.0] is not allowed (must be [low, high] in kN*m with 0 < low < high)",
+    );
+    assert_only_problem(
+        &wear("torque_points = 2"),
+        "mill.toml: drivelines[0].wear.torque_points: 2 is not allowed (must be 3..=64)",
+    );
+    assert_only_problem(
+        &wear("pool_bites = 0"),
+        "mill.toml: drivelines[0].wear.pool_bites: 0 is not allowed (must be 1..=1000 bites)",
+    );
+    assert_problem_like(
+        &wear("pool = 3"),
+        "mill.toml: drivelines[0].wear.pool: unknown field `pool`",
+        &["pool_bites"],
+    );
+    assert_only_problem(
+        &edited(
+            "taf_warning = 2.2, taf_alarm = 2.6",
+            "taf_warning = 2.2, taf_alarm = 2.6, gap_warning_mrad = 3, gap_alarm_mrad = 2",
+        ),
+        "mill.toml: drivelines[0].thresholds.gap_alarm_mrad: 2 is not allowed (must be >= gap_warning_mrad = 3 mrad)",
+    );
+    assert_only_problem(
+        &edited(
+            "taf_warning = 2.2, taf_alarm = 2.6",
+            "taf_warning = 2.2, taf_alarm = 2.6, gap_warning_mrad = -1",
+        ),
+        "mill.toml: drivelines[0].thresholds.gap_warning_mrad: -1 is not allowed (must be > 0 mrad)",
+    );
+    // A warning above the default alarm moves the alarm's default up with it.
+    let config = parse(&edited(
+        "taf_warning = 2.2, taf_alarm = 2.6",
+        "taf_warning = 2.2, taf_alarm = 2.6, gap_warning_mrad = 5",
+    ))
+    .unwrap_or_else(|error| panic!("{error}"));
+    assert_eq!(config.drivelines[0].thresholds.gap_alarm_mrad, 5.0);
 }
 
 #[test]
@@ -1025,5 +1128,80 @@ fn mqtt_output_keys_defaults_and_errors() {
         &with(&format!("{minimal}\nqos = 1")),
         "mill.toml: outputs.mqtt.qos: unknown field `qos`",
         &["command_qos"],
+    );
+}
+
+#[test]
+fn rod_mill_example() {
+    let config =
+        load(&examples_dir().join("rod-mill.toml")).unwrap_or_else(|error| panic!("{error}"));
+    let mill = &config.rod_mills[0];
+    let channel = |index: usize| config.channels[index].name.as_str();
+    assert_eq!(mill.name, "RSM");
+    assert!(mill.mill.ends_with("sim/models/rod/rsm-mill.toml"));
+    assert!(mill.schedule.ends_with("sim/models/rod/rsm-schedule.csv"));
+    assert_eq!(mill.configurations, ["table3", "fast"]);
+    assert_eq!(channel(mill.configuration), "rsm_configuration");
+    assert_eq!(channel(mill.pass), "rsm_pass");
+    assert_eq!(channel(mill.finishing_speed), "rsm_finishing_speed");
+    assert_eq!(mill.temperature.map(channel), Some("rsm_rod_temperature"));
+    assert_eq!(
+        (
+            mill.near_tongue_m_s,
+            mill.hysteresis_m_s,
+            mill.temperature_step_c
+        ),
+        (2.0, 0.5, 10.0)
+    );
+}
+
+#[test]
+fn rod_mill_problems_name_the_key_and_the_allowed_range() {
+    let text = std::fs::read_to_string(examples_dir().join("rod-mill.toml")).expect("example");
+    let check = |from: &str, to: &str| -> Vec<String> {
+        assert!(text.contains(from), "the example has {from:?}");
+        match from_toml_str(&text.replace(from, to), "rod.toml", &examples_dir()) {
+            Ok(_) => panic!("{to:?} was accepted"),
+            Err(error) => error.problems.iter().map(ToString::to_string).collect(),
+        }
+    };
+    let found = check("hysteresis_m_s = 0.5", "hysteresis_m_s = -1.0");
+    assert_eq!(
+        found,
+        ["rod.toml: rod_mills[0].hysteresis_m_s: -1 is not allowed (must be >= 0 m/s)"]
+    );
+    let found = check(
+        "configurations = [\"table3\", \"fast\"]",
+        "configurations = []",
+    );
+    assert_eq!(found.len(), 1, "{found:?}");
+    assert!(
+        found[0].starts_with(
+            "rod.toml: rod_mills[0].configurations: 0 names is not allowed (must be 1..=64"
+        ),
+        "{found:?}"
+    );
+    let found = check(
+        "finishing_speed = \"rsm_finishing_speed\"",
+        "finishing_speed = \"rsm_speed\"",
+    );
+    assert_eq!(found.len(), 1, "{found:?}");
+    assert!(
+        found[0]
+            .starts_with("rod.toml: rod_mills[0].finishing_speed: unknown channel \"rsm_speed\""),
+        "{found:?}"
+    );
+    let found = check("near_tongue_m_s = 2.0", "near_tongue_m_s = 0.0");
+    assert_eq!(
+        found,
+        ["rod.toml: rod_mills[0].near_tongue_m_s: 0 is not allowed (must be > 0 m/s)"]
+    );
+    let found = check("rsm-mill.toml\"", "rsm-mil.toml\"");
+    assert_eq!(found.len(), 1, "{found:?}");
+    assert!(
+        found[0].starts_with(
+            "rod.toml: rod_mills[0].mill: file \"../../sim/models/rod/rsm-mil.toml\" not found"
+        ),
+        "{found:?}"
     );
 }

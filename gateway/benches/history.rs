@@ -49,6 +49,7 @@ fn bite(n: u32) -> HistoryEvent {
         reference_level_knm: Some(400.0),
         shift_over_linear_s: Some(0.001),
         gap: None,
+        pooled: None,
         extra_state: None,
         state: DrivelineResults {
             bite_counter: n,
@@ -66,6 +67,7 @@ fn bite(n: u32) -> HistoryEvent {
             alarm: false,
             source_stale: false,
             restored: false,
+            ..DrivelineResults::default()
         },
     }))
 }

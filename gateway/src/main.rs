@@ -48,6 +48,8 @@ enum Command {
     Analyze(millgate::cli::analyze::AnalyzeArgs),
     /// Stiffness adjustment, paper eq. (2): natural frequencies <-> C12, C23.
     Stiffness(millgate::cli::stiffness::StiffnessArgs),
+    /// The opened gap from recorded bites: in mrad, where, and how sure.
+    Wear(millgate::cli::wear::WearArgs),
     #[cfg(feature = "sim-tools")]
     /// Where a model and a measured transient disagree, and the effect the model lacks.
     Discrepancy(millgate::cli::discrepancy::DiscrepancyArgs),
@@ -144,6 +146,10 @@ fn main() -> ExitCode {
             millgate::cli::analyze::run(&args).map(emit)
         }
         Command::Stiffness(args) => millgate::cli::stiffness::run(&args).map(emit),
+        Command::Wear(args) => {
+            init_tracing("warn");
+            millgate::cli::wear::run(&args).map(emit)
+        }
         Command::History(args) => millgate::cli::history::run(&args).map(|text| print!("{text}")),
         #[cfg(feature = "plot")]
         Command::Report(args) => millgate::cli::report::run(&args).map(emit),

@@ -1,6 +1,7 @@
 //! The service: reader tasks -> analysis task -> output tasks, and their shutdown.
 
 use std::net::SocketAddr;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -10,6 +11,8 @@ use tokio::sync::{broadcast, mpsc};
 use tokio::task::{JoinHandle, JoinSet};
 
 use crate::analysis::driveline::BiteReport;
+use crate::analysis::gap_estimate::GapObservation;
+use crate::analysis::gap_monitor::spawn_job;
 use crate::analysis::{Analysis, AnalysisError};
 use crate::field::can::supervisor::supervise_can;
 use crate::field::counters::{CanCounters, ChannelCounters};
@@ -105,6 +108,9 @@ impl Service {
             Arc::new(Publisher::new(&config, health.clone()).with_history(history.clone()));
         let (bites, _) = broadcast::channel(64);
         let analysis = Analysis::new(&config, Arc::clone(&publisher), bites.clone())?;
+        for problem in analysis.wear_problems() {
+            tracing::error!(%problem, "running without wear diagnosis for this driveline");
+        }
         let can_counters = config.can_sources.iter().map(|_| Arc::default()).collect();
         Ok(Self {
             config,
@@ -154,6 +160,24 @@ impl Service {
         })
     }
 
+    /// Why drivelines that name a model would run without wear diagnosis (a model that
+    /// does not load, `wear` settings that do not fit it): logged at start, and errors
+    /// for `millgate check`. Each names the key and the file.
+    pub fn wear_problems(&self) -> Vec<String> {
+        self.analysis
+            .wear_problems()
+            .iter()
+            .map(ToString::to_string)
+            .collect()
+    }
+
+    /// Start driveline `index`'s gap pool from `observations` (oldest first), e.g. as
+    /// saved by a history before a restart ([`RunningService`] bites carry each new
+    /// observation). The estimate is published as soon as the gap maps are ready.
+    pub fn restore_gap_pool(&mut self, index: usize, observations: Vec<GapObservation>) {
+        self.analysis.restore_gap_pool(index, observations);
+    }
+
     /// Bites as they are analysed.
     pub fn subscribe_bites(&self) -> broadcast::Receiver<BiteReport> {
         self.bites.subscribe()
@@ -175,8 +199,10 @@ impl Service {
     }
 
     /// Open the history and publish what it restores (before any reader starts, so
-    /// the first bite continues the restored counter).
-    async fn restore(&self) {
+    /// the first bite continues the restored counter), and pool the bites last put
+    /// into each driveline's gap pool again (the history is where the pool survives a
+    /// restart).
+    async fn restore(&mut self) {
         let history = self.history.clone();
         let run = RunInfo::of(&self.config);
         let restored = match tokio::task::spawn_blocking(move || history.start(run)).await {
@@ -191,13 +217,29 @@ impl Service {
             restored.apply(results, publisher.driveline_names(), publisher.mill_names())
         });
         for driveline in &restored.drivelines {
+            let index = publisher
+                .driveline_names()
+                .iter()
+                .position(|name| *name == driveline.name);
+            if let (Some(index), false) = (index, driveline.gap_pool.is_empty()) {
+                let observations = driveline.gap_pool.iter().map(|bite| GapObservation {
+                    static_torque_knm: bite.static_torque_knm,
+                    taf: bite.taf,
+                    taf_sigma: bite.taf_sigma,
+                    period_shift_s: bite.period_shift_s,
+                    period_shift_sigma_s: bite.period_shift_sigma_s,
+                });
+                self.analysis
+                    .restore_gap_pool(index, observations.collect());
+            }
             tracing::info!(
                 driveline = %driveline.name,
                 bite_counter = driveline.results.bite_counter,
                 wear_trend = ?driveline.results.wear_trend,
                 alarm_latched = driveline.results.alarm,
                 last_bite = ?driveline.results.last_bite_unix_s,
-                extra = driveline.extra.is_some(),
+                gap_alarm_latched = driveline.results.gap_alarm,
+                gap_pool = driveline.gap_pool.len(),
                 "state restored from the history"
             );
         }
@@ -238,10 +280,10 @@ impl Service {
             counters,
             health,
             can_counters,
-            analysis,
             history,
             server_listener,
             metrics_listener,
+            mut analysis,
             ..
         } = self;
         let (samples_tx, samples_rx) = mpsc::channel(SAMPLE_QUEUE);
@@ -264,7 +306,20 @@ impl Service {
             ));
         }
         drop(samples_tx);
-        let analysis = tokio::spawn(analysis.run(samples_rx));
+        // Gap maps: read from the cache or built on threads of their own while the
+        // service runs; the analysis installs them as they come.
+        let jobs = analysis.take_gap_map_jobs();
+        let (maps_tx, maps_rx) = mpsc::channel(jobs.len().max(1));
+        let cancel_maps = Arc::new(AtomicBool::new(false));
+        let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+        for job in jobs {
+            let driveline = job.driveline_name.clone();
+            if let Err(error) = spawn_job(job, threads, maps_tx.clone(), Arc::clone(&cancel_maps)) {
+                tracing::error!(%driveline, %error, "cannot start the gap map build");
+            }
+        }
+        drop(maps_tx);
+        let analysis = tokio::spawn(analysis.run_with_maps(samples_rx, maps_rx));
 
         // Outputs stop only after analysis has drained, so the last bite is published.
         let (outputs_stop, outputs_shutdown) = shutdown::channel();
@@ -320,6 +375,7 @@ impl Service {
         publisher.update(|results| results.state = GatewayState::Running);
 
         while readers.join_next().await.is_some() {}
+        cancel_maps.store(true, Ordering::Relaxed);
         if analysis.await.is_err() {
             tracing::error!("analysis task failed");
         }

@@ -18,9 +18,16 @@ fn examples() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/examples")
 }
 
+/// Writes `body` as `mill.toml` in a fresh folder beside a copy of the demo's
+/// driveline model (which the demo configuration names).
 fn write_config(name: &str, body: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("millgate-cli-{}-{name}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
+    std::fs::copy(
+        examples().join("table2-adjusted.toml"),
+        dir.join("table2-adjusted.toml"),
+    )
+    .unwrap();
     let path = dir.join("mill.toml");
     std::fs::write(&path, body).unwrap();
     path
@@ -28,7 +35,12 @@ fn write_config(name: &str, body: &str) -> PathBuf {
 
 #[test]
 fn check_accepts_every_example_and_prints_a_summary() {
-    for example in ["hot-mill.toml", "tandem-5stand.toml", "demo.toml"] {
+    for example in [
+        "hot-mill.toml",
+        "tandem-5stand.toml",
+        "demo.toml",
+        "rod-mill.toml",
+    ] {
         let path = examples().join(example);
         let output = millgate(&["check", "--config", path.to_str().unwrap()]);
         assert!(output.status.success(), "{example}: {}", text(&output));
@@ -69,10 +81,10 @@ fn check_builds_the_driveline_model_and_names_the_model_file_and_key() {
     assert_ne!(model, malformed, "the model has the pinion's inertia");
     let demo = std::fs::read_to_string(examples().join("demo.toml")).unwrap();
     let with_model = demo.replace(
-        "torque = \"spindle_top\"\n",
-        "torque = \"spindle_top\"\nmodel = \"bad-model.toml\"\n",
+        "model = \"table2-adjusted.toml\"",
+        "model = \"bad-model.toml\"",
     );
-    assert_ne!(demo, with_model, "the demo driveline names its torque");
+    assert_ne!(demo, with_model, "the demo driveline names its model");
     let path = write_config("bad-model", &with_model);
     let model_path = path.with_file_name("bad-model.toml");
     std::fs::write(&model_path, malformed).unwrap();
@@ -113,18 +125,51 @@ fn demo_prints_bites_within_two_percent_of_the_simulated_truth() {
     let output = millgate(&["demo", "--duration", "4"]);
     let said = text(&output);
     assert!(output.status.success(), "{said}");
-    // Bite rows end with the TAF error against the truth, e.g. "-0.13%".
-    let errors: Vec<f64> = said
-        .lines()
-        .filter(|l| l.contains("spindle_top"))
-        .filter_map(|l| l.split_whitespace().last()?.strip_suffix('%')?.parse().ok())
+    // Bite rows: "time static TAF truth error% | gap truth, this bite, pooled (low ..
+    // high), coupling".
+    let rows: Vec<(&str, &str)> = said.lines().filter_map(|l| l.split_once(" | ")).collect();
+    let errors: Vec<f64> = rows
+        .iter()
+        .filter_map(|(taf, _)| {
+            taf.split_whitespace()
+                .last()?
+                .strip_suffix('%')?
+                .parse()
+                .ok()
+        })
         .collect();
     assert!(!errors.is_empty(), "no bite printed: {said}");
     assert!(
         errors.iter().all(|e: &f64| e.abs() < 2.0),
         "TAF errors {errors:?}: {said}"
     );
-    assert!(said.contains("F1.taf"), "register snapshot printed: {said}");
+    // Each bite's own gap estimate beside the simulated gap (1 mrad growing); "-"
+    // while the maps are still building.
+    let gaps: Vec<(f64, f64)> = rows
+        .iter()
+        .filter_map(|(_, gap)| {
+            let mut words = gap.split_whitespace();
+            Some((words.next()?.parse().ok()?, words.next()?.parse().ok()?))
+        })
+        .collect();
+    assert!(!gaps.is_empty(), "no gap estimate printed: {said}");
+    for (truth, bite) in gaps {
+        assert!(
+            (bite - truth).abs() < 0.3,
+            "gap {bite} vs truth {truth}: {said}"
+        );
+    }
+    // The wear registers filled and valid (quality bits 9 gap_mrad .. 13 bites_pooled).
+    let quality: u16 = said
+        .lines()
+        .find(|l| l.contains("F1.quality"))
+        .and_then(|l| l.split_whitespace().nth(2)?.parse().ok())
+        .expect("quality register printed");
+    assert_eq!(quality & (0b11111 << 9), 0b11111 << 9, "{said}");
+    assert!(
+        said.contains("F1.gap_mrad"),
+        "register snapshot printed: {said}"
+    );
 }
 
 #[test]
@@ -307,21 +352,23 @@ async fn run_stops_on_sigterm_with_a_final_stopped_write() {
     running_plc.stop().await.unwrap();
 }
 
-// Runs a command of the `sim-tools` feature.
+/// Simulates the adjusted Table 2 driveline with a 2 mrad gap in the spindle at
+/// `static_knm` into `dir/name.csv` (`millgate sim transient`, noise 0.5 kN*m).
 #[cfg(feature = "sim-tools")]
-#[test]
-fn discrepancy_names_a_hidden_gap_and_writes_the_report_folder() {
-    let dir = std::env::temp_dir().join(format!("millgate-cli-{}-discrepancy", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+fn gap_record(dir: &std::path::Path, name: &str, static_knm: f64, seed: u32) -> PathBuf {
     let models = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../sim/models");
-    // The "measured" driveline: the adjusted Table 2 model with a 2 mrad gap in the
-    // spindle; the workflow is handed the model without it.
     let adjusted = std::fs::read_to_string(models.join("table2-adjusted.toml")).unwrap();
-    let with_gap = adjusted.replacen("damping = 5.0e3", "damping = 5.0e3\nbacklash = 2.0e-3", 1);
-    assert_ne!(with_gap, adjusted, "the spindle's damping line moved");
-    let truth = dir.join("truth.toml");
+    let with_gap = adjusted
+        .replacen("damping = 5.0e3", "damping = 5.0e3\nbacklash = 2.0e-3", 1)
+        .replacen(
+            "static_torque = 112.0",
+            &format!("static_torque = {static_knm:.1}"),
+            1,
+        );
+    assert!(with_gap.contains("backlash") && with_gap.contains(&format!("{static_knm:.1}")));
+    let truth = dir.join(format!("{name}.toml"));
     std::fs::write(&truth, with_gap).unwrap();
-    let csv = dir.join("measured.csv");
+    let csv = dir.join(format!("{name}.csv"));
     let simulated = millgate(&[
         "sim",
         "transient",
@@ -330,18 +377,58 @@ fn discrepancy_names_a_hidden_gap_and_writes_the_report_folder() {
         "--noise-rms",
         "0.5",
         "--seed",
-        "9",
+        &seed.to_string(),
         "--out",
         csv.to_str().unwrap(),
     ]);
     assert!(simulated.status.success(), "{}", text(&simulated));
+    csv
+}
+
+// Runs a command of the `sim-tools` feature.
+#[cfg(feature = "sim-tools")]
+#[test]
+fn discrepancy_splits_a_record_of_two_bites_and_finds_a_gap_from_drawing_stiffness() {
+    let dir = std::env::temp_dir().join(format!("millgate-cli-{}-discrepancy", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let models = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../sim/models");
+    // The "measured" driveline: the adjusted Table 2 model with a 2 mrad gap in the
+    // spindle, two bites in one record (idle, bite, unloading ramp, idle, bite); the
+    // workflow is handed the drawings' stiffness without the gap.
+    let mut body = String::from("t,torque\n");
+    let mut k = 0;
+    let mut sample = |body: &mut String, value: f64| {
+        body.push_str(&format!("{},{value}\n", k as f64 * 5.0e-4));
+        k += 1;
+    };
+    for (i, (static_knm, seed)) in [(112.0, 9), (60.0, 10)].into_iter().enumerate() {
+        let csv = gap_record(&dir, &format!("bite{i}"), static_knm, seed);
+        let values: Vec<f64> = std::fs::read_to_string(csv)
+            .unwrap()
+            .lines()
+            .skip(1)
+            .map(|line| line.split(',').nth(1).unwrap().parse().unwrap())
+            .collect();
+        for _ in 0..400 {
+            sample(&mut body, 0.0);
+        }
+        for &value in &values {
+            sample(&mut body, value);
+        }
+        let last = values[values.len() - 1];
+        for step in 1..=100 {
+            sample(&mut body, last * (1.0 - f64::from(step) / 100.0));
+        }
+    }
+    let csv = dir.join("two-bites.csv");
+    std::fs::write(&csv, body).unwrap();
     let report_dir = dir.join("report");
     let output = millgate(&[
         "discrepancy",
         "--measured",
         csv.to_str().unwrap(),
         "--model",
-        models.join("table2-adjusted.toml").to_str().unwrap(),
+        models.join("table2-drawings.toml").to_str().unwrap(),
         "--report",
         report_dir.to_str().unwrap(),
         "--format",
@@ -349,20 +436,29 @@ fn discrepancy_names_a_hidden_gap_and_writes_the_report_folder() {
     ]);
     assert!(output.status.success(), "{}", text(&output));
     let progress = String::from_utf8_lossy(&output.stderr);
+    assert!(progress.contains("two-bites.csv: 2 bites"), "{progress}");
     assert!(
         progress.contains("[9/9]") && progress.contains("calibration"),
         "{progress}"
     );
     let report: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+    assert_eq!(report["verdict"], "named", "{report}");
     assert_eq!(report["effect"], "backlash", "{report}");
     assert_eq!(report["location"], 1, "{report}");
     let width = report["parameters"]["width_rad"].as_f64().unwrap();
     assert!((width / 2.0e-3 - 1.0).abs() < 0.25, "{report}");
-    let (before, after) = (
-        report["rmse_before"].as_f64().unwrap(),
-        report["rmse_after"].as_f64().unwrap(),
-    );
-    assert!(after < 0.6 && before > 3.0 * after, "{report}");
+    // Per bite: its static torque and residuals, down to the noise after.
+    let bites = report["bites"].as_array().unwrap();
+    assert_eq!(bites.len(), 2, "{report}");
+    for (bite, static_knm) in bites.iter().zip([112.0, 60.0]) {
+        let fitted = bite["static_torque_knm"].as_f64().unwrap();
+        assert!((fitted / static_knm - 1.0).abs() < 0.05, "{report}");
+        let (before, after) = (
+            bite["rmse_before"].as_f64().unwrap(),
+            bite["rmse_after"].as_f64().unwrap(),
+        );
+        assert!(after < 0.6 && before > 3.0 * after, "{report}");
+    }
     assert!(
         !report["disagreement"].as_array().unwrap().is_empty(),
         "{report}"
@@ -372,22 +468,74 @@ fn discrepancy_names_a_hidden_gap_and_writes_the_report_folder() {
         9,
         "{report}"
     );
-    for key in ["calibration", "noise_rms", "candidates"] {
+    for key in ["calibration", "noise_rms", "candidates", "alternatives"] {
         assert!(!report[key].is_null(), "{key} missing: {report}");
     }
-    // The report folder: a loadable extended model with the gap, the plot, the summary.
+    // The report folder: a loadable extended model with the gap, the calibrated linear
+    // model without it (stiffness moved from the drawings to the truth), the plot of
+    // both bites, the summary.
     let extended =
         millgate_sim::model::Model::load(report_dir.join("extended-model.toml")).unwrap();
     assert!((extended.couplings[1].backlash / 2.0e-3 - 1.0).abs() < 0.25);
+    let calibrated =
+        millgate_sim::model::Model::load(report_dir.join("calibrated-model.toml")).unwrap();
+    for (coupling, truth) in calibrated.couplings.iter().zip([68.77e6, 32.81e6]) {
+        assert_eq!(coupling.backlash, 0.0);
+        assert!(
+            (coupling.stiffness / truth - 1.0).abs() < 0.05,
+            "{} against {truth}",
+            coupling.stiffness
+        );
+    }
     let svg = std::fs::read_to_string(report_dir.join("discrepancy.svg")).unwrap();
     assert!(
-        svg.starts_with("<svg") && svg.contains("residual"),
-        "not the plot"
+        svg.starts_with("<svg") && svg.contains("residual") && svg.contains("bite 2"),
+        "not the plot of both bites"
     );
     let summary = std::fs::read_to_string(report_dir.join("summary.md")).unwrap();
     assert!(
         summary.contains("Missing effect: backlash in coupling 1"),
         "{summary}"
+    );
+}
+
+// Runs a command of the `sim-tools` feature.
+#[cfg(feature = "sim-tools")]
+#[test]
+fn discrepancy_takes_several_records_and_names_the_file_of_a_bad_bite() {
+    let dir = std::env::temp_dir().join(format!("millgate-cli-{}-bad-bite", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    // A load step of 400 samples, then a record of 50: the second is too short, and
+    // the error comes before any fit.
+    let write = |name: &str, samples: usize| {
+        let mut body = String::from("t,torque\n");
+        for k in 0..samples {
+            let value = if k < 100 { 0.0 } else { 100.0 };
+            body.push_str(&format!("{},{value}\n", k as f64 * 5.0e-4));
+        }
+        let path = dir.join(name);
+        std::fs::write(&path, body).unwrap();
+        path
+    };
+    let (good, short) = (write("good.csv", 400), write("short.csv", 50));
+    let model =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../sim/models/table2-adjusted.toml");
+    let output = millgate(&[
+        "discrepancy",
+        "--measured",
+        good.to_str().unwrap(),
+        "--measured",
+        short.to_str().unwrap(),
+        "--model",
+        model.to_str().unwrap(),
+    ]);
+    assert!(!output.status.success());
+    let message = text(&output);
+    assert!(
+        message.contains("short.csv")
+            && message.contains("measured bite 2: 50 samples; at least 100 are needed")
+            && !message.contains("good.csv"),
+        "{message}"
     );
 }
 

@@ -8,7 +8,8 @@ use std::process::Command;
 use std::time::Duration;
 
 use millgate::outputs::history::events::{
-    AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, CommandOrigin, EndedBy, HistoryEvent,
+    AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, CommandOrigin, EndedBy, GapEstimate,
+    HistoryEvent, PooledBite, WearState,
 };
 use millgate::outputs::history::query::{Filter, HistoryReader};
 use millgate::outputs::history::retention::{Retention, RetentionState};
@@ -85,6 +86,7 @@ fn bite(n: u32, time: UtcTime, taf: f64, trend: f64, alarm: bool) -> HistoryEven
         reference_level_knm: Some(100.0),
         shift_over_linear_s: None,
         gap: None,
+        pooled: pooled(n, taf),
         extra_state: (n == 3).then(|| serde_json::json!({"pooled_gap_mrad": 1.5})),
         state: DrivelineResults {
             bite_counter: n,
@@ -102,8 +104,22 @@ fn bite(n: u32, time: UtcTime, taf: f64, trend: f64, alarm: bool) -> HistoryEven
             alarm,
             source_stale: false,
             restored: false,
+            ..DrivelineResults::default()
         },
     }))
+}
+
+/// What bite `n` with `taf` put into the gap pool (its own static torque, TAF and
+/// period shift, as the analysis pools them): nothing when its window was degraded.
+fn pooled(n: u32, taf: f64) -> Option<PooledBite> {
+    (!n.is_multiple_of(7)).then(|| PooledBite {
+        static_torque_knm: 100.0 + f64::from(n),
+        taf,
+        // Values that are not round in binary: the restore must give back each bit.
+        taf_sigma: 0.01 + f64::from(n) / 3.0e3,
+        period_shift_s: Some(0.002),
+        period_shift_sigma_s: f64::from(n) / 7.0e5,
+    })
 }
 
 async fn settle(history: &History) {
@@ -236,6 +252,7 @@ async fn what_is_recorded_is_read_back_and_restored_at_the_next_start() {
     let f1 = &restored.drivelines[0];
     assert_eq!(f1.results.bite_counter, 40);
     assert_eq!(f1.results.wear_trend, None, "the reset came last");
+    assert!(f1.gap_pool.is_empty(), "the reset came last");
     assert!(f1.results.alarm, "the alarm stays latched");
     assert!(f1.results.restored);
     assert_eq!(f1.results.taf, bites[39].taf);
@@ -272,6 +289,80 @@ async fn what_is_recorded_is_read_back_and_restored_at_the_next_start() {
         .runs(&Filter::default())
         .unwrap();
     assert_eq!(runs.len(), 2);
+}
+
+#[tokio::test]
+async fn the_gap_pool_since_the_last_reset_and_the_gap_alarm_are_restored() {
+    let scratch = Scratch::new("gap-pool");
+    let path = scratch.file("history.db");
+    let t0 = UtcTime::parse("2026-03-01T08:00:00Z").unwrap();
+    let at = |minutes: i64| UtcTime::from_unix_ms(t0.unix_ms() + minutes * 60_000);
+    let start = |history: &History| history.start(run_info());
+    let history = History::new(Some(&config(&path)));
+    start(&history);
+    for n in 1..=16u32 {
+        let mut event = bite(n, at(i64::from(n)), 2.0, 0.1, false);
+        if let HistoryEvent::Bite(record) = &mut event {
+            record.gap = Some(GapEstimate {
+                gap_mrad: 1.5 + f64::from(n) * 0.1,
+                gap_low_mrad: 1.2,
+                gap_high_mrad: 2.9,
+                coupling: (n > 2).then_some(1),
+                bites_pooled: n as usize,
+                state: WearState::Warning,
+                alarm_latched: n >= 12,
+            });
+            record.state.gap_alarm = n >= 12;
+        }
+        history.record(event);
+        if n == 5 {
+            history.record(HistoryEvent::WearReset {
+                time: UtcTime::from_unix_ms(at(5).unix_ms() + 30_000),
+                driveline: "F1".into(),
+                origin: CommandOrigin::Local,
+            });
+        }
+    }
+    settle(&history).await;
+    history.close();
+    let bites = HistoryReader::open(&path)
+        .unwrap()
+        .bites(&Filter::default())
+        .unwrap();
+    assert_eq!(bites[0].gap_coupling, None, "undetermined");
+    assert_eq!(bites[4].gap_coupling.as_deref(), Some("1"));
+    assert_eq!(bites[4].gap_mrad, Some(2.0));
+
+    let history = History::new(Some(&config(&path)));
+    let restored = start(&history);
+    let f1 = &restored.drivelines[0];
+    let expected: Vec<PooledBite> = (6..=16).filter_map(|n| pooled(n, 2.0)).collect();
+    assert_eq!(expected.len(), 9, "bites 7 and 14 were degraded");
+    assert_eq!(
+        f1.gap_pool, expected,
+        "the bites after the reset, oldest first"
+    );
+    assert!(f1.results.gap_alarm, "the gap alarm stays latched");
+    assert!(
+        f1.results.gap.is_none(),
+        "the estimate comes back from the pool"
+    );
+    history.record(HistoryEvent::Alarm(AlarmRecord {
+        time: at(17),
+        subject: "F1".into(),
+        kind: AlarmKind::WearAlarm,
+        event: AlarmEvent::Acknowledged,
+        origin: Some(CommandOrigin::Local),
+        value: None,
+        threshold: None,
+    }));
+    settle(&history).await;
+    history.close();
+    let history = History::new(Some(&config(&path)));
+    let restored = start(&history);
+    history.close();
+    assert!(!restored.drivelines[0].results.gap_alarm, "acknowledged");
+    assert_eq!(restored.drivelines[0].gap_pool, expected);
 }
 
 #[tokio::test]

@@ -2,9 +2,9 @@
 //! demo's virtual DAQ and PLC:
 //!
 //! - killed with SIGKILL right after a bite reached the PLC and started again on the
-//!   same file: every bite the PLC saw is in the file; the bite counter, the wear trend
-//!   and the latched alarm continue; restored values carry the "restored" flag until
-//!   the next bite;
+//!   same file: every bite the PLC saw is in the file; the bite counter, the wear trend,
+//!   the pooled gap estimate and the latched alarm continue; restored values carry the
+//!   "restored" flag until the next bite;
 //! - a full disk (a 4 MiB tmpfs filled while the service runs), a read-only folder (a
 //!   read-only tmpfs) and a corrupt file: a clear error in the log and on `/metrics`,
 //!   events counted as dropped, and the PLC writes go on; the full disk recovers once
@@ -132,6 +132,33 @@ async fn sigkill_loses_no_bite_the_plc_saw_and_the_restart_continues() {
         resumed[0].bite_counter,
         before.bite_counter + 1,
         "the counter continues"
+    );
+    // The gap pool continues: the first estimate of the second run pools the first
+    // run's bites and its own (the demo's pool holds 5; a lost pool would give 1).
+    let pooled_before = stored
+        .iter()
+        .rev()
+        .find_map(|b| b.bites_pooled)
+        .expect("the first run estimated the gap");
+    until(
+        "a gap estimate of the second run",
+        Duration::from_secs(20),
+        || {
+            bites(&history)
+                .iter()
+                .any(|b| b.bite_counter > before.bite_counter && b.bites_pooled.is_some())
+        },
+    )
+    .await;
+    let after = bites(&history);
+    let first_estimate = after
+        .iter()
+        .find(|b| b.bite_counter > before.bite_counter && b.bites_pooled.is_some())
+        .unwrap();
+    assert_eq!(
+        first_estimate.bites_pooled,
+        Some((pooled_before + 1).min(5)),
+        "the pool survived the restart (first run's last estimate pooled {pooled_before})"
     );
     let mut trend = before.wear_trend;
     for bite in resumed {

@@ -204,6 +204,8 @@ async fn births_data_rebirth_and_the_will_as_an_independent_host_decodes_them() 
         "kN*m"
     );
     assert_eq!(metric(&dbirth, "beta1")["properties"]["engUnit"], "Hz");
+    assert_eq!(metric(&dbirth, "gap")["properties"]["engUnit"], "mrad");
+    assert_eq!(metric(&dbirth, "gap_alarm")["datatype"], 11, "Boolean");
     assert_eq!(metric(&dbirth, "static_torque")["datatype"], 10, "Double");
     assert_eq!(metric(&dbirth, "bite_counter")["datatype"], 7, "UInt32");
     let bite_alias = metric(&dbirth, "bite_id")["alias"].as_u64().unwrap();
@@ -242,6 +244,15 @@ async fn births_data_rebirth_and_the_will_as_an_independent_host_decodes_them() 
     if u64::from(plc.counter()) == bites[1].0 {
         let taf = by_name(&bites[1].1, "taf").as_f64().unwrap();
         assert_eq!(taf as f32, plc.taf(), "the TAF the PLC has");
+        // The pooled gap, once the gap maps are ready (read from the cache or built).
+        if let Some(gap) = by_name(&bites[1].1, "gap").as_f64() {
+            let words = plc.plc.holding();
+            assert_eq!(
+                Some(gap as f32),
+                millgate::outputs::register_map::decode_f32(&words[plc.at("F1.gap_mrad")..]),
+                "the gap the PLC has"
+            );
+        }
     }
     assert_eq!(
         by_name(&bites[1].1, "bite_counter").as_u64(),

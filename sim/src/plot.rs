@@ -132,3 +132,103 @@ pub fn wear_map_svg(map: &WearMap) -> Result<String, PlotError> {
     }
     Ok(svg)
 }
+
+/// A family of curves with one highlighted and measured points over them, e.g. TAF
+/// over static torque of a gap map's rows, the estimated gap's curve and the bites
+/// (`millgate wear --plot`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct CurvesPlot {
+    /// Title above the chart.
+    pub title: String,
+    /// x-axis label with its unit.
+    pub x_label: String,
+    /// y-axis label with its unit.
+    pub y_label: String,
+    /// Thin curves: (legend label, points in x order).
+    pub curves: Vec<(String, Vec<(f64, f64)>)>,
+    /// The curve drawn thick and black on top, when there is one.
+    pub highlighted: Option<(String, Vec<(f64, f64)>)>,
+    /// Measured points, drawn as red dots, with their legend label.
+    pub points: (String, Vec<(f64, f64)>),
+}
+
+/// Renders `plot` as an SVG document.
+pub fn curves_svg(plot: &CurvesPlot) -> Result<String, PlotError> {
+    let all = || {
+        plot.curves
+            .iter()
+            .flat_map(|(_, points)| points.iter())
+            .chain(
+                plot.highlighted
+                    .iter()
+                    .flat_map(|(_, points)| points.iter()),
+            )
+            .chain(plot.points.1.iter())
+    };
+    let (Some(x_range), Some(y_range)) = (
+        padded_range(all().map(|p| p.0)),
+        padded_range(all().map(|p| p.1)),
+    ) else {
+        return Err(PlotError::Nothing("no curve and no point"));
+    };
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (900, 600)).into_drawing_area();
+        root.fill(&WHITE).map_err(drawing)?;
+        let root = root
+            .titled(&plot.title, ("sans-serif", 22))
+            .map_err(drawing)?;
+        let mut chart = ChartBuilder::on(&root)
+            .margin(15)
+            .x_label_area_size(40)
+            .y_label_area_size(60)
+            .build_cartesian_2d(x_range.0..x_range.1, y_range.0..y_range.1)
+            .map_err(drawing)?;
+        chart
+            .configure_mesh()
+            .x_desc(plot.x_label.as_str())
+            .y_desc(plot.y_label.as_str())
+            .axis_desc_style(("sans-serif", 16))
+            .label_style(("sans-serif", 13))
+            .draw()
+            .map_err(drawing)?;
+        for (index, (label, points)) in plot.curves.iter().enumerate() {
+            let color = Palette99::pick(index).to_rgba();
+            chart
+                .draw_series(LineSeries::new(points.clone(), color.stroke_width(1)))
+                .map_err(drawing)?
+                .label(label.as_str())
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(1))
+                });
+        }
+        if let Some((label, points)) = &plot.highlighted {
+            chart
+                .draw_series(LineSeries::new(points.clone(), BLACK.stroke_width(4)))
+                .map_err(drawing)?
+                .label(label.as_str())
+                .legend(|(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(4))
+                });
+        }
+        let (label, points) = &plot.points;
+        chart
+            .draw_series(
+                points
+                    .iter()
+                    .map(|&(x, y)| Circle::new((x, y), 5, RED.filled())),
+            )
+            .map_err(drawing)?
+            .label(label.as_str())
+            .legend(|(x, y)| Circle::new((x + 10, y), 5, RED.filled()));
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperRight)
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(drawing)?;
+        root.present().map_err(drawing)?;
+    }
+    Ok(svg)
+}

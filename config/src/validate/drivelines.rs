@@ -1,12 +1,21 @@
 //! `[[drivelines]]`: torque and trigger channels, bite capture, TAF thresholds and the
 //! driveline model file.
 
-use crate::raw::RawDriveline;
-use crate::{BiteSettings, ChannelKind, Driveline, DrivelineThresholds};
+use crate::raw::{RawDriveline, RawWear};
+use crate::{BiteSettings, ChannelKind, Driveline, DrivelineThresholds, WearSettings};
 
 use super::{
     optional, ChannelFacts, Checker, DEFAULT_POST_TRIGGER_S, DEFAULT_PRE_TRIGGER_S, MAX_WINDOW_S,
 };
+
+/// Gap warning threshold when none is given, mrad.
+const DEFAULT_GAP_WARNING_MRAD: f64 = DrivelineThresholds::DEFAULT_GAP_WARNING_MRAD;
+/// Gap alarm threshold when none is given, mrad.
+const DEFAULT_GAP_ALARM_MRAD: f64 = DrivelineThresholds::DEFAULT_GAP_ALARM_MRAD;
+/// Largest `max_gap_mrad` allowed, mrad.
+const MAX_MAX_GAP_MRAD: f64 = 100.0;
+/// Most gap steps of a wear map.
+const MAX_GAP_STEPS: f64 = 400.0;
 
 impl Checker<'_> {
     pub(super) fn driveline(
@@ -71,6 +80,30 @@ impl Checker<'_> {
             taf_warning.is_none_or(|warning| taf_alarm >= warning),
             &format!(">= taf_warning = {}", raw.thresholds.taf_warning),
         );
+        let gap_warning = raw
+            .thresholds
+            .gap_warning_mrad
+            .unwrap_or(DEFAULT_GAP_WARNING_MRAD);
+        let gap_warning = self.float(
+            &format!("{thresholds_key}.gap_warning_mrad"),
+            gap_warning,
+            gap_warning > 0.0,
+            "> 0 mrad",
+        );
+        let gap_alarm = raw
+            .thresholds
+            .gap_alarm_mrad
+            .unwrap_or(DEFAULT_GAP_ALARM_MRAD.max(gap_warning.unwrap_or(0.0)));
+        let gap_alarm = self.float(
+            &format!("{thresholds_key}.gap_alarm_mrad"),
+            gap_alarm,
+            gap_warning.is_none_or(|warning| gap_alarm >= warning),
+            &format!(
+                ">= gap_warning_mrad = {} mrad",
+                gap_warning.unwrap_or(DEFAULT_GAP_WARNING_MRAD)
+            ),
+        );
+        let wear = self.wear(&format!("{key}.wear"), raw.wear.as_ref());
         Some(Driveline {
             name: name?,
             torque: torque?,
@@ -84,7 +117,116 @@ impl Checker<'_> {
             thresholds: DrivelineThresholds {
                 taf_warning: taf_warning?,
                 taf_alarm: taf_alarm?,
+                gap_warning_mrad: gap_warning?,
+                gap_alarm_mrad: gap_alarm?,
             },
+            wear: wear?,
         })
+    }
+
+    /// `drivelines[i].wear`, every key optional.
+    fn wear(&mut self, key: &str, raw: Option<&RawWear>) -> Option<WearSettings> {
+        let defaults = WearSettings::default();
+        let empty = RawWear {
+            couplings: None,
+            max_gap_mrad: None,
+            gap_step_mrad: None,
+            static_torque_knm: None,
+            torque_points: None,
+            pool_bites: None,
+        };
+        let raw = raw.unwrap_or(&empty);
+        let couplings = match &raw.couplings {
+            None => Some(None),
+            Some(list) => self
+                .coupling_list(&format!("{key}.couplings"), list)
+                .map(Some),
+        };
+        let max_gap = raw.max_gap_mrad.unwrap_or(defaults.max_gap_mrad);
+        let max_gap = self.float(
+            &format!("{key}.max_gap_mrad"),
+            max_gap,
+            max_gap > 0.0 && max_gap <= MAX_MAX_GAP_MRAD,
+            &format!("> 0 and <= {MAX_MAX_GAP_MRAD} mrad"),
+        );
+        let step = raw.gap_step_mrad.unwrap_or(defaults.gap_step_mrad);
+        let step = self.float(
+            &format!("{key}.gap_step_mrad"),
+            step,
+            step > 0.0 && max_gap.is_none_or(|max| max / step <= MAX_GAP_STEPS && step <= max),
+            &format!("> 0 mrad, at most max_gap_mrad, and at least max_gap_mrad / {MAX_GAP_STEPS}"),
+        );
+        let range = match &raw.static_torque_knm {
+            None => Some(None),
+            Some(values) => match values.as_slice() {
+                [low, high] if low.is_finite() && high.is_finite() && *low > 0.0 && low < high => {
+                    Some(Some((*low, *high)))
+                }
+                _ => {
+                    self.report.push(
+                        format!("{key}.static_torque_knm"),
+                        format!(
+                            "{values:?} is not allowed (must be [low, high] in kN*m with 0 < low < high)"
+                        ),
+                    );
+                    None
+                }
+            },
+        };
+        let points = self.int_in(
+            &format!("{key}.torque_points"),
+            raw.torque_points.unwrap_or(defaults.torque_points as i64),
+            3..=64,
+            "",
+        );
+        let pool = self.int_in(
+            &format!("{key}.pool_bites"),
+            raw.pool_bites.unwrap_or(defaults.pool_bites as i64),
+            1..=1000,
+            " bites",
+        );
+        Some(WearSettings {
+            couplings: couplings?,
+            max_gap_mrad: max_gap?,
+            gap_step_mrad: step?,
+            static_torque_knm: range?,
+            torque_points: usize::try_from(points?).ok()?,
+            pool_bites: usize::try_from(pool?).ok()?,
+        })
+    }
+
+    /// A non-empty list of distinct coupling indices (>= 0); whether the model has
+    /// them is checked where the model is loaded.
+    fn coupling_list(&mut self, key: &str, list: &[i64]) -> Option<Vec<usize>> {
+        let mut couplings = Vec::with_capacity(list.len());
+        for (index, &coupling) in list.iter().enumerate() {
+            match usize::try_from(coupling) {
+                Ok(value) if !couplings.contains(&value) => couplings.push(value),
+                Ok(_) => {
+                    self.report.push(
+                        format!("{key}[{index}]"),
+                        format!("{coupling} is listed twice"),
+                    );
+                    return None;
+                }
+                Err(_) => {
+                    self.report.push(
+                        format!("{key}[{index}]"),
+                        format!(
+                            "{coupling} is not allowed (must be a coupling index of the model, >= 0)"
+                        ),
+                    );
+                    return None;
+                }
+            }
+        }
+        if couplings.is_empty() {
+            self.report.push(
+                key,
+                "must name at least one coupling (leave the key out for all of them)",
+            );
+            return None;
+        }
+        Some(couplings)
     }
 }

@@ -6,8 +6,8 @@
 //! present.
 //!
 //! One file per part of the configuration: `sources`, `channels`, `drivelines`,
-//! `tandem_mills`, `outputs`, `history`; `values` holds the checks of single values
-//! they share.
+//! `tandem_mills`, `rod_mills`, `outputs`, `history`; `values` holds the checks of
+//! single values they share.
 
 use std::collections::HashMap;
 use std::ops::RangeInclusive;
@@ -49,6 +49,17 @@ pub(crate) fn validate(raw: RawConfig, base_dir: &Path, report: &mut Report) -> 
         source_names: HashMap::new(),
     };
     let name = checker.name("name", &raw.name);
+    let cache_dir = match raw.cache_dir.as_deref() {
+        None => Some(None),
+        Some(dir) if dir.trim().is_empty() => {
+            checker.report.push(
+                "cache_dir",
+                "must not be empty (leave it out for the user's cache folder)",
+            );
+            None
+        }
+        Some(dir) => Some(Some(base_dir.join(dir))),
+    };
     let modbus_sources: Vec<_> = raw
         .modbus_sources
         .iter()
@@ -97,15 +108,24 @@ pub(crate) fn validate(raw: RawConfig, base_dir: &Path, report: &mut Report) -> 
         |mill| &mill.name,
         |checker, key, mill| checker.tandem_mill(key, mill, &channel_facts),
     );
+    let rod_mills = checker.named_list(
+        "rod_mills",
+        "rod mill",
+        &raw.rod_mills,
+        |mill| &mill.name,
+        |checker, key, mill| checker.rod_mill(key, mill, &channel_facts),
+    );
     let outputs = checker.outputs(&raw.outputs, raw.history.is_some());
     let history = raw.history.as_ref().map(|history| checker.history(history));
     Some(Config {
         name: name?,
+        cache_dir: cache_dir?,
         modbus_sources: modbus_sources.into_iter().collect::<Option<_>>()?,
         can_sources: can_sources.into_iter().collect::<Option<_>>()?,
         channels: channels.into_iter().collect::<Option<_>>()?,
         drivelines: drivelines.into_iter().collect::<Option<_>>()?,
         tandem_mills: tandem_mills.into_iter().collect::<Option<_>>()?,
+        rod_mills: rod_mills.into_iter().collect::<Option<_>>()?,
         outputs: outputs?,
         history: optional(history)?,
     })
@@ -168,6 +188,7 @@ mod channels;
 mod drivelines;
 mod history;
 mod outputs;
+mod rod_mills;
 mod sources;
 mod tandem_mills;
 mod values;

@@ -37,6 +37,18 @@ impl WindowAnalysis {
     }
 }
 
+/// The transient measures of one window (kN*m) whose bite was detected at
+/// `window[trigger_index]`: what [`analyze_window`] gives without the fit (the wear
+/// maps need only these).
+pub fn window_transient(
+    window: &[f64],
+    trigger_index: usize,
+    baseline_knm: f64,
+    settings: &TransientSettings,
+) -> Result<TransientResult, TransientError> {
+    transient::analyze::<WINDOW_CAPACITY>(window, trigger_index, baseline_knm, settings)
+}
+
 /// Analyse one window (kN*m) whose bite was detected at `window[trigger_index]`:
 /// the transient measures (static torque, peak, TAF, periods) and the eq. (1) fit.
 ///
@@ -50,8 +62,7 @@ pub fn analyze_window(
     onset_knm: f64,
     settings: &TransientSettings,
 ) -> Result<WindowAnalysis, TransientError> {
-    let transient =
-        transient::analyze::<WINDOW_CAPACITY>(window, trigger_index, baseline_knm, settings)?;
+    let transient = window_transient(window, trigger_index, baseline_knm, settings)?;
     let fit_start_index = window[..=trigger_index.min(window.len().saturating_sub(1))]
         .iter()
         .rposition(|&x| x - baseline_knm <= onset_knm)

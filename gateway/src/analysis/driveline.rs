@@ -2,19 +2,27 @@
 //! trigger), the window analysis, the wear index against its model, and the results
 //! published for the register map.
 
+use std::path::Path;
+use std::sync::Arc;
 use std::time::{Instant, SystemTime, UNIX_EPOCH};
 
 use millgate_config::{Channel, Driveline};
 use millgate_dsp::bite::{BiteEvent, BiteSettings};
 use millgate_dsp::transient::{TransientQuality, TransientResult, TransientSettings};
+use millgate_sim::model::Model;
 
 use super::bite_window::{
     analyze_window, Detector, DetectorState, PRE_TRIGGER_CAPACITY, WINDOW_CAPACITY,
 };
 use super::error::AnalysisError;
+use super::gap_estimate::{GapEstimate, GapObservation};
+use super::gap_map::{GapMapSpec, GapMaps};
+use super::gap_monitor::{GapBite, GapMapJob, GapMonitor};
+use super::simulated_bite::BiteSimulator;
 use super::wear::{self, WearEstimate, WearReference};
 use crate::outputs::history::events::{
-    AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, HistoryEvent,
+    AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, GapEstimate as RecordedGap, HistoryEvent,
+    PooledBite,
 };
 use crate::outputs::history::time::UtcTime;
 use crate::outputs::publisher::Publisher;
@@ -25,6 +33,10 @@ use crate::outputs::results::DrivelineResults;
 /// them. With a model the wear map's cut-off is used (1.5 x its second mode), so
 /// measured period shifts compare with the maps.
 const PERIOD_LOWPASS_HZ: f64 = 40.0;
+/// Peak low-pass cut-off over the period cut-off of a driveline with a model (3x its
+/// second mode): the oscillation's peak passes (a 21 Hz mode loses 1% of its amplitude),
+/// noise is cut to a quarter at 2 kHz, and the maps are analysed alike.
+const PEAK_OVER_PERIOD_CUTOFF: f64 = 2.0;
 
 /// One analysed bite, as printed by the demo and logged by the service.
 #[derive(Debug, Clone, PartialEq)]
@@ -49,9 +61,12 @@ pub struct BiteReport {
     pub beta_hz: Option<(f64, f64)>,
     /// The window had gaps, NaN or saturated samples.
     pub degraded: bool,
-    /// Wear measures against the linear reference; `None` without a driveline model
-    /// or when the bite has no TAF.
+    /// TAF-ratio wear index against the linear reference; `None` without a driveline
+    /// model or when the bite has no TAF.
     pub wear: Option<WearEstimate>,
+    /// The bite's gap observation and the gap estimates; `None` without a model, for a
+    /// degraded window or a bite without TAF.
+    pub gap: Option<GapBite>,
 }
 
 /// Bite detection and analysis of one driveline.
@@ -71,16 +86,43 @@ pub(super) struct DrivelineAnalyzer {
     trigger_high: bool,
     /// Linear references, when the driveline has a model file.
     wear: Option<WearReference>,
+    /// The gap diagnosis, when the driveline has a model file.
+    gap: Option<GapMonitor>,
+    /// The maps to build, until the service takes the job.
+    gap_job: Option<GapMapJob>,
+    /// Why a driveline naming a model runs without wear diagnosis.
+    wear_problem: Option<AnalysisError>,
 }
 
-impl DrivelineAnalyzer {
-    pub(super) fn new(
+/// How one driveline's bites are detected and analysed, from its configuration and
+/// model: shared by the service, the wear references and gap maps (simulated bites
+/// analysed like measured ones) and `millgate wear`.
+#[derive(Debug, Clone, Copy)]
+pub struct BiteSetup {
+    /// The bite detector.
+    pub detector: Detector,
+    /// The transient analysis settings.
+    pub transient: TransientSettings,
+    /// Rise above the baseline that marks the load onset for the fit, kN*m.
+    pub onset_knm: f64,
+    /// Capture before the trigger, s.
+    pub pre_trigger_s: f64,
+}
+
+impl BiteSetup {
+    /// The setup of driveline `index` called `name` with capture settings `bite`,
+    /// measured at `fs` Hz, whose samples saturate at or beyond `saturation_knm` (low,
+    /// high; kN*m); with its `model` the analysis low-passes periods at 1.5x the
+    /// model's second mode (the wear maps' cut-off) and the peak at twice that, so that
+    /// noise does not raise the TAF the gap is estimated from.
+    pub fn new(
         index: usize,
-        driveline: &Driveline,
-        torque: &Channel,
+        name: &str,
+        bite: &millgate_config::BiteSettings,
+        fs: f64,
+        saturation_knm: (f64, f64),
+        model: Option<&Model>,
     ) -> Result<Self, AnalysisError> {
-        let fs = torque.sample_rate_hz;
-        let bite = driveline.bite;
         let post_trigger_samples = (bite.post_trigger_s * fs).round() as usize;
         let pre_trigger_samples = (bite.pre_trigger_s * fs).round() as usize;
         if pre_trigger_samples > PRE_TRIGGER_CAPACITY
@@ -95,9 +137,7 @@ impl DrivelineAnalyzer {
                 post_samples: post_trigger_samples,
             });
         }
-        // i16 samples: the ends of the raw range are saturation.
-        let raw_limit = |raw: i16| f64::from(raw) * torque.scale + torque.offset;
-        let (low, high) = (raw_limit(i16::MIN + 1), raw_limit(i16::MAX));
+        let (low, high) = saturation_knm;
         let settings = BiteSettings {
             threshold_knm: bite.threshold_knm,
             rearm_knm: bite.threshold_knm / 2.0,
@@ -118,60 +158,175 @@ impl DrivelineAnalyzer {
             min_static_knm: bite.threshold_knm / 2.0,
             reference_shift_s: None,
         };
-        let onset_knm = 0.1 * bite.threshold_knm;
-        let wear = match &driveline.model {
-            Some(path) => {
-                let model = millgate_sim::model::Model::load(path)
-                    .map_err(|source| AnalysisError::Model { index, source })?;
-                match millgate_sim::wear_map::default_period_lowpass_hz(&model) {
-                    Ok(cutoff) if cutoff > 0.0 => {
-                        transient.period_lowpass_hz = cutoff.min(0.4 * fs);
-                    }
-                    Ok(_) => {}
-                    Err(error) => tracing::warn!(
-                        driveline = %driveline.name,
-                        %error,
-                        cutoff_hz = transient.period_lowpass_hz,
-                        "no modes of the model: periods measured with the default cut-off"
-                    ),
+        if let Some(model) = model {
+            match millgate_sim::wear_map::default_period_lowpass_hz(model) {
+                Ok(cutoff) if cutoff > 0.0 => {
+                    transient.period_lowpass_hz = cutoff.min(0.4 * fs);
+                    transient.peak_lowpass_hz =
+                        Some((PEAK_OVER_PERIOD_CUTOFF * cutoff).min(0.4 * fs));
                 }
-                let mut wear =
-                    WearReference::new(&model, detector, transient, onset_knm, bite.pre_trigger_s);
-                // Simulate the model's own load level now: a model that cannot give a
-                // reference is reported at start, not at the first bite.
-                match wear.reference(model.load.static_torque) {
-                    Ok(reference) => tracing::info!(
-                        driveline = %driveline.name,
-                        period_lowpass_hz = transient.period_lowpass_hz,
-                        level_knm = reference.level_knm,
-                        reference_taf = reference.taf,
-                        reference_shift_s = ?reference.period_shift_s,
-                        "linear wear reference"
-                    ),
-                    Err(error) => tracing::warn!(
-                        driveline = %driveline.name,
-                        %error,
-                        "no linear wear reference at the model's load"
-                    ),
-                }
-                Some(wear)
+                Ok(_) => {}
+                Err(error) => tracing::warn!(
+                    driveline = %name,
+                    %error,
+                    cutoff_hz = transient.period_lowpass_hz,
+                    "no modes of the model: periods measured with the default cut-off"
+                ),
             }
-            None => None,
+        }
+        Ok(Self {
+            detector,
+            transient,
+            onset_knm: 0.1 * bite.threshold_knm,
+            pre_trigger_s: bite.pre_trigger_s,
+        })
+    }
+
+    /// Bites of `model` simulated and analysed with this setup.
+    pub fn simulator(&self, model: &Model) -> BiteSimulator {
+        BiteSimulator::new(model, self.detector, self.transient, self.pre_trigger_s)
+    }
+}
+
+/// The driveline's model and what is built from it, or the problem that keeps the
+/// wear diagnosis off.
+struct ModelParts {
+    model: Model,
+    spec: GapMapSpec,
+}
+
+fn model_parts(
+    index: usize,
+    driveline: &Driveline,
+    path: &Path,
+) -> Result<ModelParts, AnalysisError> {
+    let model = Model::load(path).map_err(|source| AnalysisError::Model { index, source })?;
+    let spec = GapMapSpec::new(index, &driveline.wear, &model, driveline.bite.threshold_knm)
+        .map_err(|source| AnalysisError::GapMaps {
+            index,
+            source: Box::new(source),
+        })?;
+    Ok(ModelParts { model, spec })
+}
+
+impl DrivelineAnalyzer {
+    /// The analyser of driveline `index` measured on `torque`; its gap maps (when it
+    /// has a model) are left to build as a [`GapMapJob`] with the cache in `cache_dir`.
+    /// A model that does not load or does not fit the `wear` settings is not an error
+    /// here: the driveline runs without wear diagnosis and [`Self::wear_problem`] says
+    /// why.
+    pub(super) fn new(
+        index: usize,
+        driveline: &Driveline,
+        torque: &Channel,
+        cache_dir: &Path,
+    ) -> Result<Self, AnalysisError> {
+        let parts = driveline
+            .model
+            .as_ref()
+            .map(|path| model_parts(index, driveline, path));
+        let (parts, wear_problem) = match parts {
+            Some(Ok(parts)) => (Some(parts), None),
+            Some(Err(problem)) => {
+                tracing::error!(driveline = %driveline.name, %problem, "no wear diagnosis");
+                (None, Some(problem))
+            }
+            None => (None, None),
         };
+        // i16 samples: the ends of the raw range are saturation.
+        let raw_limit = |raw: i16| f64::from(raw) * torque.scale + torque.offset;
+        let setup = BiteSetup::new(
+            index,
+            &driveline.name,
+            &driveline.bite,
+            torque.sample_rate_hz,
+            (raw_limit(i16::MIN + 1), raw_limit(i16::MAX)),
+            parts.as_ref().map(|p| &p.model),
+        )?;
+        let mut wear = None;
+        let mut gap = None;
+        let mut gap_job = None;
+        if let (Some(parts), Some(path)) = (parts, &driveline.model) {
+            let simulator = setup.simulator(&parts.model);
+            let mut reference = WearReference::new(simulator.clone());
+            // Simulate the model's own load level now: a model that cannot give a
+            // reference is reported at start, not at the first bite.
+            match reference.reference(parts.model.load.static_torque) {
+                Ok(reference) => tracing::info!(
+                    driveline = %driveline.name,
+                    period_lowpass_hz = setup.transient.period_lowpass_hz,
+                    peak_lowpass_hz = ?setup.transient.peak_lowpass_hz,
+                    level_knm = reference.level_knm,
+                    reference_taf = reference.taf,
+                    reference_shift_s = ?reference.period_shift_s,
+                    "linear wear reference"
+                ),
+                Err(error) => tracing::warn!(
+                    driveline = %driveline.name,
+                    %error,
+                    "no linear wear reference at the model's load"
+                ),
+            }
+            wear = Some(reference);
+            gap = Some(GapMonitor::new(
+                &driveline.thresholds,
+                driveline.wear.pool_bites,
+            ));
+            gap_job = Some(GapMapJob::new(
+                index,
+                &driveline.name,
+                path,
+                simulator,
+                parts.spec,
+                cache_dir,
+            ));
+        }
         Ok(Self {
             index,
             name: driveline.name.clone(),
             channel_name: torque.name.clone(),
-            sample_rate_hz: fs,
-            state: detector.state(),
-            detector,
-            transient,
+            sample_rate_hz: torque.sample_rate_hz,
+            state: setup.detector.state(),
+            detector: setup.detector,
+            transient: setup.transient,
             taf_warning: driveline.thresholds.taf_warning,
             taf_alarm: driveline.thresholds.taf_alarm,
-            onset_knm,
+            onset_knm: setup.onset_knm,
             trigger_high: false,
             wear,
+            gap,
+            gap_job,
+            wear_problem,
         })
+    }
+
+    /// Why the driveline runs without wear diagnosis although it names a model.
+    pub(super) fn wear_problem(&self) -> Option<&AnalysisError> {
+        self.wear_problem.as_ref()
+    }
+
+    /// The build of the gap maps, once (the service runs it off the analysis task).
+    pub(super) fn take_gap_map_job(&mut self) -> Option<GapMapJob> {
+        self.gap_job.take()
+    }
+
+    /// Install the gap maps (or note they failed); returns the pooled estimate of the
+    /// bites seen so far, to publish.
+    pub(super) fn set_gap_maps(&mut self, maps: Option<Arc<GapMaps>>) -> Option<GapEstimate> {
+        self.gap.as_mut()?.set_maps(maps)
+    }
+
+    /// Replace the gap pool by `observations` (oldest first; restored from history).
+    pub(super) fn restore_gap_pool(
+        &mut self,
+        observations: Vec<GapObservation>,
+    ) -> Option<GapEstimate> {
+        self.gap.as_mut()?.restore(observations)
+    }
+
+    /// The gap pool's saved form, when the driveline has a model.
+    pub(super) fn gap_pool(&self) -> Option<Vec<GapObservation>> {
+        self.gap.as_ref().map(GapMonitor::observations)
     }
 
     /// Wear measures of an analysed bite, when the driveline has a model.
@@ -212,6 +367,13 @@ impl DrivelineAnalyzer {
         // The last window sample is `len - 1 - trigger_index` samples after the trigger.
         let after_trigger =
             (event.window.len() - 1 - event.trigger_index) as f64 / self.sample_rate_hz;
+        let degraded = !event.quality.is_good();
+        let transient = &self.transient;
+        let gap = self
+            .gap
+            .as_mut()
+            .filter(|_| !degraded)
+            .and_then(|gap| gap.observe(&event.window, &analysis.transient, transient));
         Some(BiteReport {
             driveline: self.index,
             driveline_name: self.name.clone(),
@@ -224,8 +386,9 @@ impl DrivelineAnalyzer {
             window_complete,
             transient: analysis.transient,
             beta_hz: analysis.good_fit().map(|fit| (fit.f1_hz, fit.f2_hz)),
-            degraded: !event.quality.is_good(),
+            degraded,
             wear: self.wear_estimate(&analysis.transient),
+            gap,
         })
     }
 
@@ -277,17 +440,29 @@ impl DrivelineAnalyzer {
             if let (Some(index), false) = (driveline.wear_index, report.degraded) {
                 driveline.wear_trend = Some(wear::next_trend(driveline.wear_trend, index));
             }
+            let was_gap_alarm = driveline.gap_alarm;
+            let gap = report
+                .gap
+                .and_then(|gap| Some((self.gap.as_ref()?, gap.pooled?)));
+            if let Some((monitor, estimate)) = gap {
+                monitor.publish(driveline, &estimate);
+            }
             driveline.restored = false;
-            events.push(HistoryEvent::Bite(Box::new(bite_record(report, driveline))));
+            let record = bite_record(
+                report,
+                driveline,
+                gap.map(|(monitor, estimate)| monitor.record(&estimate, driveline.gap_alarm)),
+            );
+            events.push(HistoryEvent::Bite(Box::new(record)));
             let time = UtcTime::from_system(report.time);
-            let alarm = |kind, event, threshold| {
+            let alarm = |kind, event, value, threshold| {
                 HistoryEvent::Alarm(AlarmRecord {
                     time,
                     subject: report.driveline_name.clone(),
                     kind,
                     event,
                     origin: None,
-                    value: t.taf,
+                    value,
                     threshold: Some(threshold),
                 })
             };
@@ -297,16 +472,41 @@ impl DrivelineAnalyzer {
                 } else {
                     AlarmEvent::Cleared
                 };
-                events.push(alarm(AlarmKind::TafWarning, event, self.taf_warning));
+                events.push(alarm(AlarmKind::TafWarning, event, t.taf, self.taf_warning));
             }
             if driveline.alarm && !was_alarm {
                 events.push(alarm(
                     AlarmKind::TafAlarm,
                     AlarmEvent::Raised,
+                    t.taf,
                     self.taf_alarm,
                 ));
             }
+            if let (Some((monitor, estimate)), true) = (gap, driveline.gap_alarm && !was_gap_alarm)
+            {
+                events.push(alarm(
+                    AlarmKind::WearAlarm,
+                    AlarmEvent::Raised,
+                    Some(estimate.gap_low_mrad),
+                    monitor.alarm_mrad(),
+                ));
+            }
         });
+    }
+
+    /// Record `estimate` (from maps just installed or a restored pool) in the results.
+    pub(super) fn publish_gap(&self, publisher: &Publisher, estimate: &GapEstimate) {
+        if let Some(monitor) = &self.gap {
+            publisher
+                .update(|results| monitor.publish(&mut results.drivelines[self.index], estimate));
+        }
+    }
+
+    /// Empty the gap pool (the reset command).
+    pub(super) fn reset_gap_pool(&mut self) {
+        if let Some(monitor) = &mut self.gap {
+            monitor.reset();
+        }
     }
 
     /// "Metal in stand": a rising edge through 0.5 triggers a capture.
@@ -320,7 +520,11 @@ impl DrivelineAnalyzer {
 }
 
 /// The history's record of `report` with the driveline's published `state` after it.
-fn bite_record(report: &BiteReport, state: &DrivelineResults) -> BiteRecord {
+fn bite_record(
+    report: &BiteReport,
+    state: &DrivelineResults,
+    gap: Option<RecordedGap>,
+) -> BiteRecord {
     let t = &report.transient;
     let reference = report.wear.map(|wear| wear.reference);
     BiteRecord {
@@ -343,8 +547,17 @@ fn bite_record(report: &BiteReport, state: &DrivelineResults) -> BiteRecord {
         reference_taf: reference.map(|r| r.taf),
         reference_level_knm: reference.map(|r| r.level_knm),
         shift_over_linear_s: report.wear.and_then(|wear| wear.shift_excess_s),
-        // Hook: the gap diagnosis fills these when it lands.
-        gap: None,
+        gap,
+        pooled: report.gap.map(|gap| {
+            let o = gap.observation;
+            PooledBite {
+                static_torque_knm: o.static_torque_knm,
+                taf: o.taf,
+                taf_sigma: o.taf_sigma,
+                period_shift_s: o.period_shift_s,
+                period_shift_sigma_s: o.period_shift_sigma_s,
+            }
+        }),
         extra_state: None,
         state: state.clone(),
     }

@@ -4,6 +4,7 @@ use millgate_dsp::bite::BiteSettingsError;
 
 use super::bite_window::{PRE_TRIGGER_CAPACITY, WINDOW_CAPACITY};
 use super::chatter_monitor::ChatterSetupError;
+use super::rod_monitor::RodSetupError;
 
 /// A driveline or tandem mill of the configuration that the analysis cannot be built
 /// for. Each message starts with the key at fault (`drivelines[0].bite`), as the
@@ -13,6 +14,9 @@ pub enum AnalysisError {
     /// A tandem mill the chatter monitor cannot be built for.
     #[error(transparent)]
     Chatter(#[from] ChatterSetupError),
+    /// A rod mill whose mill file, schedule or configuration names are not usable.
+    #[error(transparent)]
+    RodMill(#[from] RodSetupError),
     /// The bite window needs more samples than the detector holds.
     #[error(
         "drivelines[{index}].bite: pre_trigger_s {pre_trigger_s} s and post_trigger_s \
@@ -43,7 +47,17 @@ pub enum AnalysisError {
         #[source]
         source: BiteSettingsError,
     },
-    /// The driveline's model file (for the wear index) is not a valid model.
+    /// The driveline's `wear` settings do not fit its model (the message names the
+    /// key).
+    #[error("{source}")]
+    GapMaps {
+        /// Index of the driveline in the configuration.
+        index: usize,
+        /// What does not fit (boxed: the error stays small on the `Ok` path).
+        #[source]
+        source: Box<super::gap_map::GapMapError>,
+    },
+    /// The driveline's model file (for the wear diagnosis) is not a valid model.
     #[error("drivelines[{index}].model: {source}")]
     Model {
         /// Index of the driveline in the configuration.

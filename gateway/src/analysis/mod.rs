@@ -1,12 +1,21 @@
 //! The analysis task: samples in, bite and chatter results out. Only synchronous
 //! `dsp` code runs on the samples; this module routes each reader message to the
 //! drivelines whose torque or trigger it is ([`driveline`]) and to the tandem mills
-//! whose stand it is ([`chatter_monitor`]).
+//! whose stand it is ([`chatter_monitor`]); process values that carry a rod mill's
+//! operating point go to its span stability monitor ([`rod_monitor`]). The gap maps
+//! of drivelines with a model are built elsewhere ([`gap_monitor::GapMapJob`], on
+//! threads of their own) and installed when ready ([`Analysis::install_gap_maps`]).
 
 pub mod bite_window;
 pub mod chatter_monitor;
 pub mod driveline;
 mod error;
+pub mod gap_estimate;
+pub mod gap_map;
+pub mod gap_map_cache;
+pub mod gap_monitor;
+pub mod rod_monitor;
+pub mod simulated_bite;
 pub mod wear;
 
 use std::sync::Arc;
@@ -18,6 +27,13 @@ use crate::field::acquired::Acquired;
 use crate::outputs::publisher::Publisher;
 use driveline::{BiteReport, DrivelineAnalyzer};
 pub use error::AnalysisError;
+use gap_estimate::GapObservation;
+use gap_map::{GapMapError, GapMaps};
+use gap_monitor::GapMapJob;
+
+/// The outcome of a driveline's gap map job, for [`Analysis::run`]: the driveline
+/// index and the maps or why there are none.
+pub type GapMapsReady = (usize, Result<GapMaps, GapMapError>);
 
 /// The analysis task: consumes samples until every reader has hung up.
 #[derive(Debug)]
@@ -31,11 +47,16 @@ pub struct Analysis {
     bites: broadcast::Sender<BiteReport>,
     /// Chatter monitors of the tandem mills.
     chatter: chatter_monitor::ChatterAnalysis,
+    /// Span stability monitors of the rod mills.
+    rod_mills: rod_monitor::RodAnalysis,
 }
 
 impl Analysis {
     /// Analysers for every driveline and chatter monitors for every tandem mill of
-    /// `config`.
+    /// `config`. The gap maps of drivelines with a model are not built here: take
+    /// their jobs with [`Self::take_gap_map_jobs`]. A model that does not load or fit
+    /// is not an error (the driveline runs without wear diagnosis, see
+    /// [`Self::wear_problems`]).
     pub fn new(
         config: &Config,
         publisher: Arc<Publisher>,
@@ -44,15 +65,22 @@ impl Analysis {
         let mut by_torque = vec![Vec::new(); config.channels.len()];
         let mut by_trigger = vec![Vec::new(); config.channels.len()];
         let mut drivelines = Vec::new();
+        let cache_dir = config
+            .cache_dir
+            .clone()
+            .unwrap_or_else(gap_map_cache::default_dir);
         for (index, driveline) in config.drivelines.iter().enumerate() {
             let torque = &config.channels[driveline.torque];
-            drivelines.push(DrivelineAnalyzer::new(index, driveline, torque)?);
+            drivelines.push(DrivelineAnalyzer::new(
+                index, driveline, torque, &cache_dir,
+            )?);
             by_torque[driveline.torque].push(index);
             if let Some(trigger) = driveline.metal_in_stand {
                 by_trigger[trigger].push(index);
             }
         }
         let chatter = chatter_monitor::ChatterAnalysis::new(config, Arc::clone(&publisher))?;
+        let rod_mills = rod_monitor::RodAnalysis::new(config, Arc::clone(&publisher))?;
         Ok(Self {
             drivelines,
             by_torque,
@@ -60,12 +88,77 @@ impl Analysis {
             publisher,
             bites,
             chatter,
+            rod_mills,
         })
+    }
+
+    /// Why drivelines that name a model run without wear diagnosis (a model that does
+    /// not load, `wear` settings that do not fit it); each message names the key.
+    pub fn wear_problems(&self) -> Vec<&AnalysisError> {
+        self.drivelines
+            .iter()
+            .filter_map(DrivelineAnalyzer::wear_problem)
+            .collect()
+    }
+
+    /// The gap map builds of the drivelines with a model (each once; later calls give
+    /// none). Run each off the analysis task and hand the result to
+    /// [`Self::install_gap_maps`] (or through the channel of [`Self::run_with_maps`]).
+    pub fn take_gap_map_jobs(&mut self) -> Vec<GapMapJob> {
+        self.drivelines
+            .iter_mut()
+            .filter_map(DrivelineAnalyzer::take_gap_map_job)
+            .collect()
+    }
+
+    /// Install driveline `index`'s gap maps, or note that they failed (logged with
+    /// the error, the gap registers stay invalid); publishes the estimate of the bites
+    /// pooled meanwhile.
+    pub fn install_gap_maps(&mut self, index: usize, maps: Result<GapMaps, GapMapError>) {
+        let Some(driveline) = self.drivelines.get_mut(index) else {
+            return;
+        };
+        let maps = match maps {
+            Ok(maps) => Some(Arc::new(maps)),
+            Err(error) => {
+                tracing::error!(driveline = index, %error, "no gap maps: the gap registers stay invalid");
+                None
+            }
+        };
+        if let Some(estimate) = driveline.set_gap_maps(maps) {
+            driveline.publish_gap(&self.publisher, &estimate);
+        }
+    }
+
+    /// Replace driveline `index`'s gap pool by `observations` (oldest first), as a
+    /// history restores it at start; publishes the estimate once the maps are ready.
+    pub fn restore_gap_pool(&mut self, index: usize, observations: Vec<GapObservation>) {
+        let Some(driveline) = self.drivelines.get_mut(index) else {
+            return;
+        };
+        if let Some(estimate) = driveline.restore_gap_pool(observations) {
+            driveline.publish_gap(&self.publisher, &estimate);
+        }
+    }
+
+    /// Driveline `index`'s gap pool in its saved form (oldest first); `None` without
+    /// a model.
+    pub fn gap_pool(&self, index: usize) -> Option<Vec<GapObservation>> {
+        self.drivelines.get(index)?.gap_pool()
     }
 
     /// Handle one message from a reader; returns the bites it completed.
     pub fn handle(&mut self, message: Acquired) -> Vec<BiteReport> {
+        let resets = self.publisher.take_wear_resets();
+        if resets != 0 {
+            for (k, driveline) in self.drivelines.iter_mut().enumerate().take(16) {
+                if resets & (1 << k) != 0 {
+                    driveline.reset_gap_pool();
+                }
+            }
+        }
         self.chatter.handle(&message);
+        self.rod_mills.handle(&message);
         let mut reports = Vec::new();
         match message {
             Acquired::Samples {
@@ -102,6 +195,10 @@ impl Analysis {
                 degraded = report.degraded,
                 wear_index = ?report.wear.map(|wear| wear.index),
                 shift_over_linear_s = ?report.wear.and_then(|wear| wear.shift_excess_s),
+                gap_mrad = ?report.gap.and_then(|gap| gap.pooled).map(|e| e.gap_mrad),
+                gap_low_mrad = ?report.gap.and_then(|gap| gap.pooled).map(|e| e.gap_low_mrad),
+                gap_high_mrad = ?report.gap.and_then(|gap| gap.pooled).map(|e| e.gap_high_mrad),
+                gap_coupling = ?report.gap.and_then(|gap| gap.pooled).map(|e| e.coupling),
                 "bite"
             );
             // Nobody listening is fine: the demo and tests subscribe, the service need not.
@@ -111,9 +208,32 @@ impl Analysis {
     }
 
     /// Run until every sender of `samples` is dropped.
-    pub async fn run(mut self, mut samples: mpsc::Receiver<Acquired>) {
-        while let Some(message) = samples.recv().await {
-            self.handle(message);
+    pub async fn run(self, samples: mpsc::Receiver<Acquired>) {
+        let (_keep, maps) = mpsc::channel(1);
+        self.run_with_maps(samples, maps).await;
+    }
+
+    /// Run until every sender of `samples` is dropped, installing gap maps as they
+    /// arrive on `maps`.
+    pub async fn run_with_maps(
+        mut self,
+        mut samples: mpsc::Receiver<Acquired>,
+        mut maps: mpsc::Receiver<GapMapsReady>,
+    ) {
+        let mut maps_open = true;
+        loop {
+            tokio::select! {
+                message = samples.recv() => match message {
+                    Some(message) => {
+                        self.handle(message);
+                    }
+                    None => return,
+                },
+                ready = maps.recv(), if maps_open => match ready {
+                    Some((index, result)) => self.install_gap_maps(index, result),
+                    None => maps_open = false,
+                },
+            }
         }
     }
 }

@@ -28,11 +28,7 @@
 
 use std::collections::BTreeMap;
 
-use millgate_dsp::transient::{TransientError, TransientSettings};
-use millgate_sim::chain::simulate;
-use millgate_sim::model::{Model, ModelError};
-
-use super::bite_window::{analyze_window, Detector};
+use super::simulated_bite::{BiteSimulator, SimulatedBiteError};
 
 /// Grid of the reference cache, kN*m: references are simulated at static torques
 /// that are multiples of this step.
@@ -40,43 +36,8 @@ pub const STATIC_TORQUE_STEP_KNM: f64 = 5.0;
 /// Most cached reference levels; the cache is emptied when a new level would pass it
 /// (at 5 kN*m steps, 0 to 640 kN*m fits, far beyond any rolling torque).
 const MAX_CACHED_LEVELS: usize = 128;
-/// Time simulated after the bite window, s: margin for the load rise to reach the
-/// bite threshold at low static torques.
-const RISE_MARGIN_S: f64 = 0.5;
-/// Idle time simulated before the load onset beyond the pre-trigger window, s, so the
-/// detector has a baseline and a full pre-trigger history, as on a real bar.
-const IDLE_MARGIN_S: f64 = 0.05;
 /// Weight of the newest wear index in the wear trend (EWMA), in (0, 1].
 pub const WEAR_TREND_WEIGHT: f64 = 0.1;
-
-/// Why a linear reference could not be computed.
-#[derive(Debug, thiserror::Error)]
-pub enum WearError {
-    /// The model could not be simulated (an invalid value after the overrides).
-    #[error("simulating the linear reference: {0}")]
-    Model(#[from] ModelError),
-    /// The simulated load never crossed the bite threshold, or the window was cut.
-    #[error("the linear reference at {static_knm} kN*m gives no bite window")]
-    NoBite {
-        /// The static torque simulated, kN*m.
-        static_knm: f64,
-    },
-    /// The reference bite was detected but not analysable.
-    #[error("the linear reference at {static_knm} kN*m is not analysable: {source}")]
-    Analysis {
-        /// The static torque simulated, kN*m.
-        static_knm: f64,
-        /// Why the transient analysis refused the window.
-        #[source]
-        source: TransientError,
-    },
-    /// The reference has no TAF (static torque below the analysis minimum).
-    #[error("the linear reference at {static_knm} kN*m has no TAF")]
-    NoTaf {
-        /// The static torque simulated, kN*m.
-        static_knm: f64,
-    },
-}
 
 /// The linear reference at one static torque level.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -125,45 +86,16 @@ pub fn next_trend(trend: Option<f64>, index: f64) -> f64 {
 /// Linear references of one driveline, cached by static torque level.
 #[derive(Debug, Clone)]
 pub struct WearReference {
-    /// The driveline model with every backlash set to 0 and the measured channel's
-    /// sample rate.
-    linear: Model,
-    detector: Detector,
-    transient: TransientSettings,
-    onset_knm: f64,
-    /// Idle time before the load onset, s.
-    onset_s: f64,
-    /// Simulated record length, s.
-    duration_s: f64,
+    simulator: BiteSimulator,
     cache: BTreeMap<i64, Reference>,
 }
 
 impl WearReference {
-    /// References for a driveline described by `model`, analysed like its measured
-    /// bites: the same `detector` settings (pre-trigger `pre_trigger_s`, s), transient
-    /// settings (their sample rate becomes the simulation's) and onset threshold, kN*m.
-    pub fn new(
-        model: &Model,
-        detector: Detector,
-        transient: TransientSettings,
-        onset_knm: f64,
-        pre_trigger_s: f64,
-    ) -> Self {
-        let mut linear = model.clone();
-        for coupling in &mut linear.couplings {
-            coupling.backlash = 0.0;
-        }
-        linear.measurement.sample_rate = transient.sample_rate_hz;
-        let post_trigger_s =
-            detector.settings().post_trigger_samples as f64 / transient.sample_rate_hz;
-        let onset_s = pre_trigger_s + IDLE_MARGIN_S;
+    /// References for a driveline whose bites `simulator` simulates and analyses like
+    /// its measured ones (the linear model: no gap).
+    pub fn new(simulator: BiteSimulator) -> Self {
         Self {
-            linear,
-            detector,
-            transient,
-            onset_knm,
-            onset_s,
-            duration_s: onset_s + post_trigger_s + RISE_MARGIN_S,
+            simulator,
             cache: BTreeMap::new(),
         }
     }
@@ -181,7 +113,7 @@ impl WearReference {
 
     /// The reference for a bite of static torque `static_knm`, kN*m: from the cache,
     /// or simulated at its level and cached.
-    pub fn reference(&mut self, static_knm: f64) -> Result<Reference, WearError> {
+    pub fn reference(&mut self, static_knm: f64) -> Result<Reference, SimulatedBiteError> {
         let level = Self::level_of(static_knm);
         if let Some(reference) = self.cache.get(&level) {
             return Ok(*reference);
@@ -201,7 +133,7 @@ impl WearReference {
         static_knm: f64,
         taf: f64,
         period_shift_s: Option<f64>,
-    ) -> Result<Option<WearEstimate>, WearError> {
+    ) -> Result<Option<WearEstimate>, SimulatedBiteError> {
         let reference = self.reference(static_knm)?;
         Ok(wear_index(taf, reference.taf).map(|index| WearEstimate {
             index,
@@ -213,39 +145,12 @@ impl WearReference {
     }
 
     /// Simulate and analyse the linear reference at `level_knm`.
-    fn simulate(&self, level_knm: f64) -> Result<Reference, WearError> {
-        let mut model = self.linear.clone();
-        model.load.static_torque = level_knm;
-        model.load.onset = self.onset_s;
-        model.measurement.duration = self.duration_s;
-        let transient = simulate(&model)?;
-        let mut state = self.detector.state();
-        let event = transient
-            .torque_knm
-            .iter()
-            .find_map(|&torque| self.detector.process(&mut state, torque))
-            .filter(|event| event.quality.is_good())
-            .ok_or(WearError::NoBite {
-                static_knm: level_knm,
-            })?;
-        let analysis = analyze_window(
-            &event.window,
-            event.trigger_index,
-            event.baseline_knm,
-            self.onset_knm,
-            &self.transient,
-        )
-        .map_err(|error| WearError::Analysis {
-            static_knm: level_knm,
-            source: error,
-        })?;
-        let taf = analysis.transient.taf.ok_or(WearError::NoTaf {
-            static_knm: level_knm,
-        })?;
+    fn simulate(&self, level_knm: f64) -> Result<Reference, SimulatedBiteError> {
+        let bite = self.simulator.bite(level_knm, None)?;
         Ok(Reference {
             level_knm,
-            taf,
-            period_shift_s: analysis.transient.period_shift_s,
+            taf: bite.taf,
+            period_shift_s: bite.transient.period_shift_s,
         })
     }
 }

@@ -26,6 +26,16 @@ pub enum CheckError {
         #[source]
         source: Box<ServiceError>,
     },
+    /// The service can be built, but a driveline naming a model would run without
+    /// wear diagnosis (the model does not load, or its `wear` settings do not fit it):
+    /// one `<file>: <key path>: <problem>` per line.
+    #[error("{}", problems.iter().map(|problem| format!("{file}: {problem}")).collect::<Vec<_>>().join("\n"))]
+    Wear {
+        /// The configuration file as given.
+        file: String,
+        /// Each problem, naming the key and the model file.
+        problems: Vec<String>,
+    },
 }
 
 /// Loads and validates the configuration at `path`, builds what `millgate run` builds
@@ -44,10 +54,17 @@ pub enum CheckError {
 pub fn check(path: &Path) -> Result<String, CheckError> {
     let config = millgate_config::load(path)?;
     let summary = millgate_config::summary(&config);
-    Service::new(config).map_err(|source| CheckError::Service {
+    let service = Service::new(config).map_err(|source| CheckError::Service {
         file: path.display().to_string(),
         source: Box::new(source),
     })?;
+    let problems = service.wear_problems();
+    if !problems.is_empty() {
+        return Err(CheckError::Wear {
+            file: path.display().to_string(),
+            problems,
+        });
+    }
     Ok(format!("{}: OK\n{summary}", path.display()))
 }
 
@@ -67,6 +84,7 @@ mod tests {
             ("demo.toml", "spindle_top: torque"),
             ("hot-mill.toml", "F1 main drive: torque spindle_top"),
             ("tandem-5stand.toml", "TCM 2030: 5 stands"),
+            ("rod-mill.toml", "RSM: mill "),
         ] {
             let summary = check(&example(file)).unwrap_or_else(|error| panic!("{error}"));
             assert!(summary.contains(": OK\n"), "{summary}");
@@ -86,6 +104,11 @@ mod tests {
         ));
         std::fs::create_dir_all(&directory).expect("temporary directory");
         std::fs::copy(example("mill.dbc"), directory.join("mill.dbc")).expect("copy the DBC");
+        std::fs::copy(
+            example("table2-adjusted.toml"),
+            directory.join("table2-adjusted.toml"),
+        )
+        .expect("copy the model");
         let path = directory.join("variant.toml");
         std::fs::write(&path, text.replace(from, to)).expect("write the variant");
         let result = check(&path);
@@ -111,6 +134,27 @@ mod tests {
     }
 
     #[test]
+    fn wear_settings_that_do_not_fit_the_model_are_reported_with_their_key() {
+        let error = check_variant(
+            "demo.toml",
+            "wear = { pool_bites = 5",
+            "wear = { couplings = [0, 3], pool_bites = 5",
+        )
+        .expect_err("the model has couplings 0 and 1");
+        let text = error.to_string();
+        assert!(matches!(error, CheckError::Wear { .. }), "{text}");
+        // The file as given (here a temporary path), then the key and the allowed range.
+        assert!(
+            text.ends_with(
+                "variant.toml: drivelines[0].wear.couplings[1]: 3 is not allowed (must be a \
+                 coupling of the model \"Table 2 driveline, stiffness adjusted to \
+                 measurement\": 0 ..= 1)"
+            ),
+            "{text}"
+        );
+    }
+
+    #[test]
     fn chatter_window_too_short_for_the_band_is_reported_with_its_key() {
         // 20 ms: a 50 Hz frequency step, no bin inside 110..140 Hz.
         let error = check_variant(
@@ -125,6 +169,40 @@ mod tests {
             "{text}"
         );
         assert!(text.contains("frequency step 50 Hz"), "{text}");
+    }
+
+    #[test]
+    fn rod_mill_configuration_unknown_to_the_drive_is_reported_with_its_key() {
+        let text = std::fs::read_to_string(example("rod-mill.toml")).expect("the example");
+        let absolute = text
+            .replace(
+                "../../sim/models/rod/",
+                &format!("{}/", example("../../sim/models/rod").display()),
+            )
+            .replace("[\"table3\", \"fast\"]", "[\"table3\", \"fastest\"]");
+        let error = check_text(&absolute).expect_err("unknown configuration");
+        let message = error.to_string();
+        assert!(matches!(error, CheckError::Service { .. }), "{message}");
+        assert!(
+            message.contains(
+                "rod_mills[0].configurations[1]: \"fastest\" is not allowed (must be a \
+                 configuration of the drive of"
+            ),
+            "{message}"
+        );
+        assert!(message.contains("table3, fast)"), "{message}");
+    }
+
+    /// Check `text` written to a fresh file.
+    fn check_text(text: &str) -> Result<String, CheckError> {
+        let directory =
+            std::env::temp_dir().join(format!("millgate-check-rod-{}", std::process::id()));
+        std::fs::create_dir_all(&directory).expect("temporary directory");
+        let path = directory.join("rod.toml");
+        std::fs::write(&path, text).expect("write the variant");
+        let result = check(&path);
+        std::fs::remove_dir_all(&directory).expect("remove the temporary directory");
+        result
     }
 
     #[test]

@@ -1,21 +1,23 @@
 //! `millgate demo`: the whole path on one machine, with nothing to set up.
 //!
 //! A virtual DAQ streams a simulated rolling schedule (one bite per bar, from the
-//! Table 2 driveline with an opened gap) over Modbus TCP on loopback; the gateway
-//! reads it, analyses every bite and writes its results into a virtual PLC, also on
-//! loopback. Each bite is printed beside its simulated truth; the PLC's registers
-//! are printed at the end.
+//! Table 2 driveline with a gap in the spindles that opens further bar by bar) over
+//! Modbus TCP on loopback; the gateway reads it, analyses every bite, estimates the
+//! opened gap against the driveline model and writes its results into a virtual PLC,
+//! also on loopback. Each bite is printed beside its simulated truth (TAF and gap);
+//! the PLC's registers are printed at the end.
 //!
 //! The gateway keeps an event history (`--history FILE`, by default a new file in a
-//! temporary folder; the path is printed at start) and has the simulated driveline's
-//! model, so it computes the wear index and trend; a second run on the same file
-//! continues the bite counter and the wear trend.
+//! temporary folder; the path is printed at start); a second run on the same file
+//! continues the bite counter, the wear trend and the pooled gap estimate.
 
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use millgate_config::Config;
-use millgate_sim::devices::demo::{setup, DemoDevices, DemoSetup, DEMO_MODEL, SAMPLES_PER_BLOCK};
+use millgate_sim::devices::demo::{
+    setup, DemoDevices, DemoSetup, BARS_PER_CYCLE, GAP_COUPLING, SAMPLES_PER_BLOCK,
+};
 
 use crate::outputs::history::query::HistoryReader;
 use crate::outputs::history::time::UtcTime;
@@ -59,8 +61,8 @@ fn sparkplug_id(id: &str) -> Result<String, String> {
     }
 }
 
-/// The history file of a demo run, and the driveline model written beside it.
-fn history_files(args: &DemoArgs) -> anyhow::Result<(PathBuf, PathBuf)> {
+/// The history file of a demo run (its folder created when missing).
+fn history_file(args: &DemoArgs) -> anyhow::Result<PathBuf> {
     let path = match &args.history {
         Some(path) => path.clone(),
         None => {
@@ -76,10 +78,7 @@ fn history_files(args: &DemoArgs) -> anyhow::Result<(PathBuf, PathBuf)> {
     };
     std::fs::create_dir_all(&folder)
         .map_err(|e| anyhow::anyhow!("--history: cannot create {}: {e}", folder.display()))?;
-    let model = folder.join("demo-driveline.toml");
-    std::fs::write(&model, DEMO_MODEL)
-        .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", model.display()))?;
-    Ok((path, model))
+    Ok(path)
 }
 
 fn print_registers(map: &RegisterMap, words: &[u16]) {
@@ -118,8 +117,7 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         mut config,
         schedule,
     } = setup(args.duration, args.noise_rms, args.seed)?;
-    let (history_path, model) = history_files(&args)?;
-    config.drivelines[0].model = Some(model);
+    let history_path = history_file(&args)?;
     config.history = Some(millgate_config::History {
         path: history_path.clone(),
         retention_days: 400,
@@ -169,8 +167,16 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         args.duration
     );
     println!(
-        "{:>7}  {:<12} {:>12} {:>11} {:>7} {:>10} {:>7}",
-        "time s", "channel", "static kN*m", "peak kN*m", "TAF", "truth TAF", "error"
+        "{:>7} {:>12} {:>7} {:>10} {:>7} | {:>10} {:>10} {:>24} {:>9}",
+        "time s",
+        "static kN*m",
+        "TAF",
+        "truth TAF",
+        "error",
+        "gap truth",
+        "this bite",
+        "pooled gap (90%), mrad",
+        "coupling"
     );
     let mut gateway = crate::Service::new(config.clone())?.spawn().await?;
     let publisher = gateway.publisher();
@@ -180,6 +186,9 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
     let deadline = tokio::time::sleep(Duration::from_secs_f64(args.duration));
     tokio::pin!(deadline);
     let mut printed = 0usize;
+    // The bars repeat their static torques but not their gap: a bite is the nearest
+    // in static torque among the next cycle of bars after the last one matched.
+    let mut next_bar = 0;
     loop {
         tokio::select! {
             () = &mut deadline => break,
@@ -187,17 +196,40 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
                 let Ok(bite) = bite else { continue };
                 let t = &bite.transient;
                 let taf = t.taf.unwrap_or(f64::NAN);
-                let truth = schedule.nearest_truth(t.static_torque_knm);
+                let truth = schedule.next_truth(next_bar, BARS_PER_CYCLE, t.static_torque_knm);
+                if let Some((index, _)) = truth {
+                    next_bar = index + 1;
+                }
+                let truth = truth.map(|(_, truth)| truth);
                 let truth_taf = truth.map_or(f64::NAN, |truth| truth.taf);
+                let truth_gap = truth.map_or(f64::NAN, |truth| truth.backlash_rad[GAP_COUPLING] * 1e3);
+                let (this_bite, pooled, coupling) = match bite.gap {
+                    None => ("-".to_owned(), "-".to_owned(), String::new()),
+                    Some(gap) => match (gap.bite, gap.pooled) {
+                        (Some(single), Some(pooled)) => (
+                            format!("{:.2}", single.gap_mrad),
+                            format!(
+                                "{:.2} ({:.2} .. {:.2})",
+                                pooled.gap_mrad, pooled.gap_low_mrad, pooled.gap_high_mrad
+                            ),
+                            pooled
+                                .coupling
+                                .map_or_else(|| "undet.".to_owned(), |c| c.to_string()),
+                        ),
+                        _ => ("-".to_owned(), "maps building".to_owned(), String::new()),
+                    },
+                };
                 println!(
-                    "{:>7.2}  {:<12} {:>12.2} {:>11.2} {:>7.3} {:>10.3} {:>6.2}%{}",
+                    "{:>7.2} {:>12.2} {:>7.3} {:>10.3} {:>6.2}% | {:>10.2} {:>10} {:>24} {:>9}{}",
                     started.elapsed().as_secs_f64(),
-                    bite.channel_name,
                     t.static_torque_knm,
-                    t.peak_torque_knm,
                     taf,
                     truth_taf,
                     100.0 * (taf - truth_taf) / truth_taf,
+                    truth_gap,
+                    this_bite,
+                    pooled,
+                    coupling,
                     if bite.degraded { "  (degraded window)" } else { "" },
                 );
                 printed += 1;

@@ -12,7 +12,10 @@
 //!   [--report DIR] [--format text|json]`: `discrepancy`
 //! - `millgate sim transient|modes|wear-map ...`: `sim`
 //! - `millgate rod check|mathieu|floquet ...`: `rod` (rod mills, parametric stability)
-//! - `millgate demo [--duration S] [--history FILE]`: `demo`
+//! - `millgate wear --input FILE.csv --model MODEL.toml [--channel NAME] [--pool N]
+//!   [--format text|json] [--plot FILE.svg]`: [`wear`] (the gap diagnosis on a record;
+//!   `--plot` with `sim-tools`)
+//! - `millgate demo [--duration S] [--history FILE] [--mqtt HOST:PORT]`: `demo`
 //! - `millgate history --db FILE [--kind K] [--driveline NAME] [--since T] [--until T]
 //!   --format csv|json|md`: [`history`]
 //! - `millgate report --db FILE --out DIR [--since T] [--until T]`: `report`
@@ -37,6 +40,7 @@ pub mod rod;
 #[cfg(feature = "sim-tools")]
 pub mod sim;
 pub mod stiffness;
+pub mod wear;
 
 /// Output format of the offline commands.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, clap::ValueEnum)]

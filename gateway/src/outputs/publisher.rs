@@ -1,6 +1,7 @@
 //! What the outputs publish: the latest [`Results`] joined with source health,
 //! encoded through the [`RegisterMap`].
 
+use std::sync::atomic::{AtomicU16, Ordering};
 use std::sync::{Arc, Mutex};
 
 use millgate_config::{ChannelSource, Config};
@@ -31,6 +32,11 @@ pub struct Publisher {
     mill_sources: Vec<Vec<usize>>,
     /// Where changes are recorded (disabled without `[history]`).
     history: History,
+    /// Global source indices of each rod mill's input channels.
+    rod_mill_sources: Vec<Vec<usize>>,
+    /// Drivelines (bit k = driveline k) whose wear was reset since the analysis last
+    /// looked: it empties their gap pools.
+    wear_resets: AtomicU16,
 }
 
 /// Global index of a channel's source: Modbus sources first, then CAN sources.
@@ -46,11 +52,12 @@ pub fn source_of_channel(config: &Config, channel: usize) -> usize {
 impl Publisher {
     /// A publisher for `config` with one health record per source (Modbus, then CAN).
     pub fn new(config: &Config, health: Vec<Arc<SourceHealth>>) -> Self {
-        let results = Results::new(
+        let mut results = Results::new(
             health.len(),
             config.drivelines.len(),
             config.tandem_mills.len(),
         );
+        results.rod_mills = vec![Default::default(); config.rod_mills.len()];
         Self {
             results: Mutex::new(results),
             changed: tokio::sync::Notify::new(),
@@ -74,6 +81,19 @@ impl Publisher {
                 })
                 .collect(),
             history: History::disabled(),
+            rod_mill_sources: config
+                .rod_mills
+                .iter()
+                .map(|m| {
+                    [Some(m.configuration), Some(m.pass), Some(m.finishing_speed)]
+                        .into_iter()
+                        .chain([m.temperature])
+                        .flatten()
+                        .map(|c| source_of_channel(config, c))
+                        .collect()
+                })
+                .collect(),
+            wear_resets: AtomicU16::new(0),
         }
     }
 
@@ -155,6 +175,9 @@ impl Publisher {
         for (mill, sources) in results.mills.iter_mut().zip(&self.mill_sources) {
             mill.source_stale |= sources.iter().any(bad);
         }
+        for (mill, sources) in results.rod_mills.iter_mut().zip(&self.rod_mill_sources) {
+            mill.source_stale = sources.iter().any(bad);
+        }
     }
 
     /// Increment the heartbeat counter (each PLC write period, or each second
@@ -171,16 +194,20 @@ impl Publisher {
         self.map.encode(&self.results())
     }
 
-    /// Forget the wear trend of every driveline whose bit is set in `drivelines`
-    /// (bit k = driveline k in config order): the next bite's wear index seeds it
-    /// afresh (the reset-wear-trend command, e.g. after a coupling is replaced).
-    /// `origin` says who, for the history.
+    /// Forget the wear trend and the gap estimate of every driveline whose bit is set
+    /// in `drivelines` (bit k = driveline k in config order): the next bite's wear
+    /// index seeds the trend afresh and the gap pool starts empty (the reset-wear-trend
+    /// command, e.g. after a coupling is replaced). The gap alarm stays latched until
+    /// acknowledged. `origin` says who, for the history.
     pub fn reset_wear_trend(&self, drivelines: u16, origin: CommandOrigin) {
         let time = UtcTime::now();
+        self.wear_resets.fetch_or(drivelines, Ordering::Relaxed);
         self.update_recorded(|results, events| {
             for (k, driveline) in results.drivelines.iter_mut().enumerate().take(16) {
                 if drivelines & (1 << k) != 0 {
                     driveline.wear_trend = None;
+                    driveline.gap = None;
+                    driveline.gap_warning = false;
                     events.push(HistoryEvent::WearReset {
                         time,
                         driveline: self.driveline_names[k].clone(),
@@ -189,6 +216,12 @@ impl Publisher {
                 }
             }
         });
+    }
+
+    /// The drivelines reset since the last call (bit k = driveline k): the analysis
+    /// empties their gap pools.
+    pub fn take_wear_resets(&self) -> u16 {
+        self.wear_resets.swap(0, Ordering::Relaxed)
     }
 
     /// Clear latched alarms (the acknowledge command); `origin` says who, for the
@@ -211,7 +244,11 @@ impl Publisher {
                 if driveline.alarm {
                     events.push(acknowledged(name, AlarmKind::TafAlarm));
                 }
+                if driveline.gap_alarm {
+                    events.push(acknowledged(name, AlarmKind::WearAlarm));
+                }
                 driveline.alarm = false;
+                driveline.gap_alarm = false;
             }
             for (mill, name) in results.mills.iter_mut().zip(&self.mill_names) {
                 if mill.alarm {

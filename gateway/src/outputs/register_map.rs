@@ -13,7 +13,10 @@
 use millgate_config::layout::encode_value;
 use millgate_config::{Config, ValueType, WordOrder};
 
-use crate::outputs::results::{DrivelineResults, GatewayState, MillResults, Results};
+use crate::analysis::rod_monitor::MAX_ROD_SPANS;
+use crate::outputs::results::{
+    DrivelineResults, GatewayState, MillResults, Results, RodMillResults, RodSpanResults,
+};
 
 /// Whether clients may write a register.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -57,11 +60,24 @@ pub enum DrivelineField {
     Beta1,
     /// Second natural frequency from the eq. (1) fit, Hz.
     Beta2,
-    /// Wear index of the last bite.
+    /// TAF-ratio wear index of the last bite (secondary to the gap).
     WearIndex,
     /// Wear trend (EWMA of the wear index).
     WearTrend,
+    /// Opened gap, maximum likelihood, mrad.
+    Gap,
+    /// Lower end of the gap's 90% interval, mrad.
+    GapLow,
+    /// Upper end of the gap's 90% interval, mrad.
+    GapHigh,
+    /// Coupling holding the gap, [`GAP_COUPLING_UNDETERMINED`] when undetermined.
+    GapCoupling,
+    /// Bites pooled into the gap estimate.
+    BitesPooled,
 }
+
+/// `gap_coupling` when the bites cannot tell which coupling holds the gap.
+pub const GAP_COUPLING_UNDETERMINED: u16 = u16::MAX;
 
 /// Per-mill chatter quantities, in register order.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -76,6 +92,38 @@ pub enum MillField {
     KMean,
     /// Mean of the stands' principal frequencies in the chatter band, Hz.
     ChatterFrequency,
+}
+
+/// Per-rod-mill quantities, in register order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RodMillField {
+    /// Any span unstable, any near a tongue, inputs invalid ([`rod_flags`]).
+    Flags,
+    /// Bit i set: value i of the block is valid.
+    Quality,
+    /// Configuration input in use (index into the rod mill's `configurations`).
+    Configuration,
+    /// Pass number in use, 1-based.
+    Pass,
+    /// Finishing speed evaluated, m/s.
+    FinishingSpeed,
+    /// Rod temperature of the setup in use, deg C.
+    Temperature,
+}
+
+/// Per-span quantities of a rod mill, in register order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RodSpanField {
+    /// Unstable, near tongue, invalid bits ([`rod_flags`]).
+    Flags,
+    /// Bit i set: value i is valid.
+    Quality,
+    /// Finishing-speed margin to the nearest band edge, m/s.
+    SpeedMargin,
+    /// Worst growth exponent of the span's points, 1/s.
+    WorstExponent,
+    /// Configuration input the span was evaluated in.
+    Configuration,
 }
 
 /// What a register holds.
@@ -100,6 +148,10 @@ pub enum Field {
     Driveline(usize, DrivelineField),
     /// A quantity of tandem mill k (config order).
     Mill(usize, MillField),
+    /// A quantity of rod mill k (config order).
+    RodMill(usize, RodMillField),
+    /// A quantity of span s (rolling order) of rod mill k.
+    RodSpan(usize, usize, RodSpanField),
 }
 
 /// One register (or register pair) of the map.
@@ -135,9 +187,25 @@ pub mod driveline_flags {
     pub const SOURCE_STALE: u16 = 1 << 2;
     /// The last bite's window had gaps, NaN or saturated samples.
     pub const DEGRADED: u16 = 1 << 3;
+    /// The estimated opened gap is at or above the gap warning threshold.
+    pub const GAP_WARNING: u16 = 1 << 4;
+    /// The gap's 90% interval lay at or above the gap alarm threshold; latched until
+    /// acknowledged.
+    pub const GAP_ALARM: u16 = 1 << 5;
     /// The values are from before the gateway's last restart (restored from the
     /// history; `last_bite_time` says when); cleared by the next bite.
-    pub const RESTORED: u16 = 1 << 4;
+    pub const RESTORED: u16 = 1 << 6;
+}
+
+/// Flag bits of a rod mill's and a rod span's `flags` register.
+pub mod rod_flags {
+    /// The span is unstable (mill: any span), with hysteresis.
+    pub const UNSTABLE: u16 = 1 << 0;
+    /// The span is stable but near a tongue (mill: any span), with hysteresis.
+    pub const NEAR_TONGUE: u16 = 1 << 1;
+    /// No valid result: an input's source is stale or lost, or an input was refused
+    /// (out of range); the other bits are then 0.
+    pub const INVALID: u16 = 1 << 2;
 }
 
 /// Bits of the gateway status register.
@@ -156,6 +224,12 @@ const DRIVELINES_START: u16 = 16;
 const DRIVELINE_STRIDE: u16 = 32;
 /// Registers reserved per mill block.
 const MILL_STRIDE: u16 = 16;
+/// First register of a rod mill's first span, from the rod mill's block start.
+const ROD_SPANS_START: u16 = 8;
+/// Registers per rod span.
+const ROD_SPAN_STRIDE: u16 = 8;
+/// Registers reserved per rod mill block: the mill's own, then [`MAX_ROD_SPANS`] spans.
+const ROD_MILL_STRIDE: u16 = ROD_SPANS_START + ROD_SPAN_STRIDE * MAX_ROD_SPANS as u16;
 
 /// The register map of one configuration.
 #[derive(Debug, Clone, PartialEq)]
@@ -273,7 +347,8 @@ impl RegisterMap {
             1.0,
             Access::ReadWrite,
             "Command: write a bitmask of drivelines (bit k = k-th driveline in config order; \
-             1 with a single driveline) to restart their wear trend; reads back 0"
+             1 with a single driveline) to restart their wear trend and gap estimate (after \
+             a coupling is replaced); reads back 0"
                 .into(),
             Field::ResetWearTrend,
         );
@@ -281,9 +356,9 @@ impl RegisterMap {
             let base = DRIVELINES_START + DRIVELINE_STRIDE * k as u16;
             let n = |field: &str| format!("{}.{field}", driveline.name);
             let f = |field| Field::Driveline(k, field);
-            let fields: [(u16, &str, ValueType, &'static str, &str, DrivelineField); 12] = [
-                (0, "flags", U16, "bits", "bit0 TAF warning, bit1 TAF alarm (latched), bit2 source stale, bit3 last bite degraded, bit4 values restored from before the last restart (last_bite_time says when; cleared by the next bite)", D::Flags),
-                (1, "quality", U16, "bits", "bit i set: value i of this block is valid (0 last_bite_time, 1 static_torque, 2 peak_torque, 3 taf, 4 period_shift, 5 beta1, 6 beta2, 7 wear_index, 8 wear_trend)", D::Quality),
+            let fields: [(u16, &str, ValueType, &'static str, &str, DrivelineField); 17] = [
+                (0, "flags", U16, "bits", "bit0 TAF warning, bit1 TAF alarm (latched), bit2 source stale, bit3 last bite degraded, bit4 gap warning, bit5 gap alarm (latched), bit6 values restored from before the last restart (last_bite_time says when; cleared by the next bite)", D::Flags),
+                (1, "quality", U16, "bits", "bit i set: value i of this block is valid (0 last_bite_time, 1 static_torque, 2 peak_torque, 3 taf, 4 period_shift, 5 beta1, 6 beta2, 7 wear_index, 8 wear_trend, 9 gap_mrad, 10 gap_low_mrad, 11 gap_high_mrad, 12 gap_coupling, 13 bites_pooled)", D::Quality),
                 (2, "bite_counter", U32, "", "Bites analysed since start (continued across restarts with a history)", D::BiteCounter),
                 (4, "last_bite_time", U32, "s", "Time of the last bite, Unix seconds", D::LastBiteTime),
                 (6, "static_torque", F32, "kN*m", "Static (settled) rolling torque of the last bite", D::StaticTorque),
@@ -292,8 +367,13 @@ impl RegisterMap {
                 (12, "period_shift", F32, "s", "First minus second oscillation period of the last bite", D::PeriodShift),
                 (14, "beta1", F32, "Hz", "First natural frequency identified from the last bite", D::Beta1),
                 (16, "beta2", F32, "Hz", "Second natural frequency identified from the last bite", D::Beta2),
-                (18, "wear_index", F32, "", "Wear index of the last bite: its TAF / the linear model's TAF - 1 (needs the driveline model)", D::WearIndex),
-                (20, "wear_trend", F32, "", "Wear trend: mean of the wear index over bites (EWMA, weight 0.1), reset by command.reset_wear_trend", D::WearTrend),
+                (18, "wear_index", F32, "", "Secondary figure: TAF-ratio wear index of the last bite, its TAF / the linear model's TAF - 1 (needs the driveline model)", D::WearIndex),
+                (20, "wear_trend", F32, "", "Secondary figure: mean of the TAF-ratio wear index over bites (EWMA, weight 0.1), reset by command.reset_wear_trend", D::WearTrend),
+                (22, "gap_mrad", F32, "mrad", "Opened gap (total dead-zone width, referred to the rolls), maximum likelihood over the pooled bites (needs the driveline model)", D::Gap),
+                (24, "gap_low_mrad", F32, "mrad", "Lower end of the gap's 90% interval", D::GapLow),
+                (26, "gap_high_mrad", F32, "mrad", "Upper end of the gap's 90% interval", D::GapHigh),
+                (28, "gap_coupling", U16, "", "Coupling holding the gap (model index, 0 = motor side); 65535 = undetermined (the bites cannot tell)", D::GapCoupling),
+                (29, "bites_pooled", U16, "", "Bites pooled into the gap estimate (the last drivelines[].wear.pool_bites; reset by command.reset_wear_trend)", D::BitesPooled),
             ];
             for (offset, name, value_type, unit, description, field) in fields {
                 b.add(
@@ -332,7 +412,60 @@ impl RegisterMap {
                 );
             }
         }
-        let len = mills_start + MILL_STRIDE * config.tandem_mills.len() as u16;
+        let rods_start = mills_start + MILL_STRIDE * config.tandem_mills.len() as u16;
+        for (k, mill) in config.rod_mills.iter().enumerate() {
+            use RodMillField as R;
+            use RodSpanField as S;
+            let base = rods_start + ROD_MILL_STRIDE * k as u16;
+            let fields: [(u16, &str, ValueType, &'static str, &str, RodMillField); 6] = [
+                (0, "flags", U16, "bits", "bit0 a span is unstable, bit1 a span is near a tongue, bit2 invalid (an input's source is stale or lost, or an input is out of range)", R::Flags),
+                (1, "quality", U16, "bits", "bit i set: value i is valid (0 configuration, 1 pass, 2 finishing_speed, 3 rod_temperature)", R::Quality),
+                (2, "configuration", U16, "", "Drive configuration in use: the PLC's value, an index into the rod mill's configurations", R::Configuration),
+                (3, "pass", U16, "", "Pass in use: the PLC's pass number (1-based row of the schedule)", R::Pass),
+                (4, "finishing_speed", F32, "m/s", "Finishing speed the spans were evaluated at", R::FinishingSpeed),
+                (6, "rod_temperature", F32, "degC", "Rod temperature of the pass setup in use (rounded to temperature_step_c, or the schedule's)", R::Temperature),
+            ];
+            for (offset, name, value_type, unit, description, field) in fields {
+                b.add(
+                    base + offset,
+                    format!("{}.{name}", mill.name),
+                    value_type,
+                    unit,
+                    1.0,
+                    read,
+                    description.into(),
+                    Field::RodMill(k, field),
+                );
+            }
+            for span in 0..MAX_ROD_SPANS {
+                let span_base = base + ROD_SPANS_START + ROD_SPAN_STRIDE * span as u16;
+                let fields: [(u16, &str, ValueType, &'static str, &str, RodSpanField); 5] = [
+                    (0, "flags", U16, "bits", "bit0 unstable, bit1 near a tongue (stable, speed margin < near_tongue_m_s), both with hysteresis; bit2 invalid (stale or refused input, or the mill has fewer spans)", S::Flags),
+                    (1, "quality", U16, "bits", "bit i set: value i is valid (0 speed_margin, 1 worst_exponent, 2 configuration)", S::Quality),
+                    (2, "speed_margin", F32, "m/s", "Finishing-speed change to the nearest unstable band edge: > 0 stable, < 0 unstable (the change that stabilises it); invalid when no band lies in the speed range", S::SpeedMargin),
+                    (4, "worst_exponent", F32, "1/s", "Largest growth exponent of the span's points (< 0 decaying)", S::WorstExponent),
+                    (6, "configuration", U16, "", "Drive configuration the span was evaluated in (index into the rod mill's configurations)", S::Configuration),
+                ];
+                for (offset, name, value_type, unit, description, field) in fields {
+                    b.add(
+                        span_base + offset,
+                        format!("{}.span{}.{name}", mill.name, span + 1),
+                        value_type,
+                        unit,
+                        1.0,
+                        read,
+                        format!(
+                            "Span {} (stand {} to {} in rolling order): {description}",
+                            span + 1,
+                            span + 1,
+                            span + 2
+                        ),
+                        Field::RodSpan(k, span, field),
+                    );
+                }
+            }
+        }
+        let len = rods_start + ROD_MILL_STRIDE * config.rod_mills.len() as u16;
         Self {
             registers: b.registers,
             len,
@@ -426,11 +559,20 @@ fn value_of(field: Field, results: &Results) -> Option<f64> {
             .mills
             .get(m)
             .and_then(|mill| mill_value(mill, field)),
+        Field::RodMill(k, field) => results
+            .rod_mills
+            .get(k)
+            .and_then(|mill| rod_mill_value(mill, field)),
+        Field::RodSpan(k, span, field) => results
+            .rod_mills
+            .get(k)
+            .and_then(|mill| rod_span_value(mill, span, field)),
     }
 }
 
 /// Values of a driveline block in quality-bit order.
-fn driveline_quality_values(d: &DrivelineResults) -> [Option<f64>; 9] {
+fn driveline_quality_values(d: &DrivelineResults) -> [Option<f64>; 14] {
+    let gap = d.gap.as_ref();
     [
         d.last_bite_unix_s.map(f64::from),
         d.static_torque_knm,
@@ -441,6 +583,16 @@ fn driveline_quality_values(d: &DrivelineResults) -> [Option<f64>; 9] {
         d.beta2_hz,
         d.wear_index,
         d.wear_trend,
+        gap.map(|g| g.gap_mrad),
+        gap.map(|g| g.low_mrad),
+        gap.map(|g| g.high_mrad),
+        gap.map(|g| {
+            g.coupling
+                .and_then(|c| u16::try_from(c).ok())
+                .filter(|&c| c != GAP_COUPLING_UNDETERMINED)
+                .map_or(f64::from(GAP_COUPLING_UNDETERMINED), f64::from)
+        }),
+        gap.map(|g| g.bites_pooled.min(usize::from(u16::MAX)) as f64),
     ]
 }
 
@@ -464,6 +616,8 @@ fn driveline_value(d: &DrivelineResults, field: DrivelineField) -> Option<f64> {
                 (d.alarm, fl::ALARM),
                 (d.source_stale, fl::SOURCE_STALE),
                 (d.last_bite_degraded, fl::DEGRADED),
+                (d.gap_warning, fl::GAP_WARNING),
+                (d.gap_alarm, fl::GAP_ALARM),
                 (d.restored, fl::RESTORED),
             ]
             .iter()
@@ -488,6 +642,11 @@ fn driveline_value(d: &DrivelineResults, field: DrivelineField) -> Option<f64> {
         D::Beta2 => fresh(d.beta2_hz),
         D::WearIndex => fresh(d.wear_index),
         D::WearTrend => fresh(d.wear_trend),
+        D::Gap => fresh(driveline_quality_values(d)[9]),
+        D::GapLow => fresh(driveline_quality_values(d)[10]),
+        D::GapHigh => fresh(driveline_quality_values(d)[11]),
+        D::GapCoupling => fresh(driveline_quality_values(d)[12]),
+        D::BitesPooled => fresh(driveline_quality_values(d)[13]),
     }
 }
 
@@ -511,6 +670,66 @@ fn mill_value(m: &MillResults, field: MillField) -> Option<f64> {
         MillField::SigmaN => fresh(m.sigma_n_hz),
         MillField::KMean => fresh(m.k_mean),
         MillField::ChatterFrequency => fresh(m.chatter_frequency_hz),
+    }
+}
+
+/// The unstable and near-tongue bits of a rod `flags` register.
+fn rod_flag_bits(unstable: bool, near_tongue: bool) -> u16 {
+    let bit = |set: bool, bit: u16| if set { bit } else { 0 };
+    bit(unstable, rod_flags::UNSTABLE) | bit(near_tongue, rod_flags::NEAR_TONGUE)
+}
+
+/// Whether a rod mill's values may be published: evaluated, inputs accepted, fresh.
+fn rod_mill_valid(m: &RodMillResults) -> bool {
+    m.evaluations > 0 && !m.input_refused && !m.source_stale
+}
+
+fn rod_mill_value(m: &RodMillResults, field: RodMillField) -> Option<f64> {
+    use RodMillField as R;
+    let valid = rod_mill_valid(m);
+    let values = [
+        m.configuration.map(f64::from),
+        m.pass.map(f64::from),
+        m.finishing_speed_m_s,
+        m.temperature_c,
+    ];
+    let fresh = |v: Option<f64>| v.filter(|_| valid);
+    match field {
+        R::Flags => {
+            let any = |pick: fn(&RodSpanResults) -> bool| m.spans.iter().any(pick);
+            Some(f64::from(if valid {
+                rod_flag_bits(any(|s| s.unstable), any(|s| s.near_tongue))
+            } else {
+                rod_flags::INVALID
+            }))
+        }
+        R::Quality => Some(if valid { quality_mask(&values) } else { 0.0 }),
+        R::Configuration => fresh(values[0]),
+        R::Pass => fresh(values[1]),
+        R::FinishingSpeed => fresh(values[2]),
+        R::Temperature => fresh(values[3]),
+    }
+}
+
+fn rod_span_value(m: &RodMillResults, span: usize, field: RodSpanField) -> Option<f64> {
+    use RodSpanField as S;
+    let result = m.spans.get(span).filter(|s| s.valid && rod_mill_valid(m));
+    let values = result.map(|s| {
+        [
+            s.speed_margin_m_s,
+            s.worst_exponent_per_s,
+            s.configuration.map(f64::from),
+        ]
+    });
+    match field {
+        S::Flags => Some(f64::from(match result {
+            Some(s) => rod_flag_bits(s.unstable, s.near_tongue),
+            None => rod_flags::INVALID,
+        })),
+        S::Quality => Some(values.map_or(0.0, |v| quality_mask(&v))),
+        S::SpeedMargin => values.and_then(|v| v[0]),
+        S::WorstExponent => values.and_then(|v| v[1]),
+        S::Configuration => values.and_then(|v| v[2]),
     }
 }
 

@@ -22,8 +22,9 @@ pub struct DrivelineResults {
     pub beta1_hz: Option<f64>,
     /// Second natural frequency identified from the last bite, Hz.
     pub beta2_hz: Option<f64>,
-    /// Wear index of the last bite: measured TAF / linear reference TAF - 1 (0 = like
-    /// the linear reference; grows with opened backlash). `None` without a model.
+    /// TAF-ratio wear index of the last bite (a secondary figure beside the gap):
+    /// measured TAF / linear reference TAF - 1 (0 = like the linear reference; grows
+    /// with opened backlash). `None` without a model.
     pub wear_index: Option<f64>,
     /// Wear trend: exponentially weighted mean of the wear index over bites
     /// ([`crate::analysis::wear::next_trend`]); `None` until the first index after start or reset.
@@ -34,11 +35,35 @@ pub struct DrivelineResults {
     pub warning: bool,
     /// TAF reached the alarm threshold; latched until acknowledged.
     pub alarm: bool,
+    /// The pooled estimate of the opened gap; `None` without a model, until the gap
+    /// maps are ready and a bite inside them was seen, after a reset.
+    pub gap: Option<GapResults>,
+    /// The estimated gap is at or above the gap warning threshold.
+    pub gap_warning: bool,
+    /// The gap's 90% interval lay at or above the gap alarm threshold; latched until
+    /// acknowledged.
+    pub gap_alarm: bool,
     /// The torque channel's source is stale or lost: every value is flagged.
     pub source_stale: bool,
     /// The values are from before the last restart (restored from the history);
     /// cleared by the next bite.
     pub restored: bool,
+}
+
+/// The pooled gap estimate of a driveline, as published (see
+/// [`crate::analysis::gap_estimate`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GapResults {
+    /// Opened gap, maximum likelihood, mrad.
+    pub gap_mrad: f64,
+    /// Lower end of the 90% interval, mrad.
+    pub low_mrad: f64,
+    /// Upper end of the 90% interval, mrad.
+    pub high_mrad: f64,
+    /// Coupling holding the gap (model index), `None` when undetermined.
+    pub coupling: Option<usize>,
+    /// Bites pooled.
+    pub bites_pooled: usize,
 }
 
 /// Latest chatter metrics of one tandem mill (see [`crate::analysis::chatter_monitor`]). `None` = not
@@ -60,6 +85,50 @@ pub struct MillResults {
     /// A stand's source is stale or lost, or the window restarted after a gap:
     /// every value is flagged.
     pub source_stale: bool,
+}
+
+/// Latest stability of one rod-mill span (see [`crate::analysis::rod_monitor`]).
+/// `valid == false`: no result (inputs missing or refused); published as invalid.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct RodSpanResults {
+    /// The span was evaluated at the current inputs.
+    pub valid: bool,
+    /// Unstable (with hysteresis).
+    pub unstable: bool,
+    /// Stable but near a tongue (with hysteresis).
+    pub near_tongue: bool,
+    /// Finishing-speed change to the nearest band edge, m/s: positive when stable,
+    /// negative (minus the change that stabilises it) when not; `None` without an edge
+    /// in the configuration's speed range.
+    pub speed_margin_m_s: Option<f64>,
+    /// Largest growth exponent of the span's points, 1/s (negative: decaying).
+    pub worst_exponent_per_s: Option<f64>,
+    /// The configuration input's value (index into the rod mill's `configurations`)
+    /// the span was evaluated in.
+    pub configuration: Option<u16>,
+}
+
+/// Latest results of one rod mill. `None` values and invalid spans are published
+/// with their quality bits cleared.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct RodMillResults {
+    /// Evaluations since start (one per change of the inputs).
+    pub evaluations: u64,
+    /// The last inputs were refused (configuration, pass, speed or temperature out of
+    /// range): the spans are invalid.
+    pub input_refused: bool,
+    /// Configuration input in use (index into `configurations`).
+    pub configuration: Option<u16>,
+    /// Pass number in use, 1-based.
+    pub pass: Option<u16>,
+    /// Finishing speed evaluated, m/s.
+    pub finishing_speed_m_s: Option<f64>,
+    /// Rod temperature of the setup in use, deg C.
+    pub temperature_c: Option<f64>,
+    /// The source of an input is stale or lost: every value is invalid.
+    pub source_stale: bool,
+    /// Per span, in rolling order (empty until the first evaluation).
+    pub spans: Vec<RodSpanResults>,
 }
 
 /// The gateway's own state as published in the status register.
@@ -87,6 +156,8 @@ pub struct Results {
     pub drivelines: Vec<DrivelineResults>,
     /// Per tandem mill, in config order.
     pub mills: Vec<MillResults>,
+    /// Per rod mill, in config order (sized by [`crate::outputs::publisher::Publisher::new`]).
+    pub rod_mills: Vec<RodMillResults>,
 }
 
 impl Results {
@@ -98,6 +169,7 @@ impl Results {
             sources: vec![None; sources],
             drivelines: vec![DrivelineResults::default(); drivelines],
             mills: vec![MillResults::default(); mills],
+            rod_mills: Vec::new(),
         }
     }
 }

@@ -102,7 +102,8 @@ impl Setup {
             .await
             .unwrap();
         let (server_port, metrics_port) = (free_port(), free_port());
-        let model = repo().join("sim/models/table2-adjusted-backlash.toml");
+        // The demo's monitoring model (linear; the simulated mill opens a gap).
+        let model = repo().join("sim/models/table2-adjusted.toml");
         let text = std::fs::read_to_string(repo().join("config/examples/demo.toml"))
             .unwrap()
             .replace("127.0.0.1:5020", &config.modbus_sources[0].address)
@@ -112,18 +113,22 @@ impl Setup {
             )
             .replace("127.0.0.1:5503", &format!("127.0.0.1:{server_port}"))
             .replace(
-                "torque = \"spindle_top\"",
-                &format!("torque = \"spindle_top\"\nmodel = \"{}\"", model.display()),
+                "model = \"table2-adjusted.toml\"",
+                &format!("model = \"{}\"", model.display()),
             )
             .replace(
-                "thresholds = { taf_warning = 2.2, taf_alarm = 2.6 }",
-                "thresholds = { taf_warning = 1.2, taf_alarm = 1.3 }",
+                "thresholds = { taf_warning = 2.2, taf_alarm = 2.6,",
+                "thresholds = { taf_warning = 1.1, taf_alarm = 1.15,",
             )
             + &format!(
                 "\n[outputs.metrics]\nbind = \"127.0.0.1:{metrics_port}\"\n\
                  \n[history]\npath = \"{}\"\n",
                 history.display()
             );
+        assert!(
+            text.contains(&model.display().to_string()) && text.contains("taf_alarm = 1.15,"),
+            "config/examples/demo.toml changed: the test's edits no longer apply"
+        );
         let config = scratch.join("mill.toml");
         std::fs::write(&config, text).unwrap();
         Self {

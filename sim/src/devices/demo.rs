@@ -1,8 +1,9 @@
 //! The demo's rig, shared by `millgate demo`, the end-to-end tests and the gateway's
-//! benchmarks: the demo configuration (`config/examples/demo.toml`), a rolling
-//! schedule simulated from the Table 2 driveline with an opened gap
-//! (`sim/models/table2-adjusted-backlash.toml`), and a virtual DAQ playing it and a
-//! virtual PLC, both on free loopback ports.
+//! benchmarks: the demo configuration (`config/examples/demo.toml`, whose driveline
+//! model is the linear Table 2 driveline `sim/models/table2-adjusted.toml`), a rolling
+//! schedule simulated from that driveline with a gap opened in the spindles that grows
+//! from [`GAP_START_RAD`] to [`GAP_END_RAD`] over the run, as wear does, and a virtual
+//! DAQ playing it and a virtual PLC, both on free loopback ports.
 //!
 //! ```no_run
 //! # async fn demo() -> Result<(), millgate_sim::devices::demo::DemoError> {
@@ -24,17 +25,26 @@ use super::modbus_bank::{Running, ServeOptions};
 use super::virtual_daq::{DaqChannel, Placement, Publish, VirtualDaq};
 use super::virtual_plc::VirtualPlc;
 use crate::model::{Model, ModelError};
-use crate::schedule::{rolling_schedule, BarTiming, Schedule, TAIL_OUT_S};
+use crate::schedule::{rolling_schedule_with_gap, BarTiming, Schedule, TAIL_OUT_S};
 
 /// The demo's configuration (addresses are replaced by the loopback ports taken at start).
 const DEMO_CONFIG: &str = include_str!("../../../config/examples/demo.toml");
-/// The driveline the virtual DAQ simulates (`sim/models/table2-adjusted-backlash.toml`),
-/// as TOML: a gateway given it as its driveline model computes the wear index against
-/// its linear reference.
-pub const DEMO_MODEL: &str = include_str!("../../models/table2-adjusted-backlash.toml");
+/// The driveline model: the configuration names it (the gateway's monitoring model),
+/// and the virtual DAQ simulates it with the growing gap.
+const DEMO_MODEL: &str = include_str!("../../models/table2-adjusted.toml");
+/// File name of the model, as `config/examples/demo.toml` names it.
+const DEMO_MODEL_FILE: &str = "table2-adjusted.toml";
+/// Coupling whose gap opens during the demo: the spindles (C23).
+pub const GAP_COUPLING: usize = 1;
+/// Opened gap of the first bar, rad.
+pub const GAP_START_RAD: f64 = 1.0e-3;
+/// Opened gap of the last bar, rad.
+pub const GAP_END_RAD: f64 = 3.0e-3;
 /// Static torques of successive bars, kN*m: light and heavy passes alternate so the
 /// effect of the gap on TAF shows.
 const BAR_STATIC_TORQUES_KNM: [f64; 6] = [112.0, 60.0, 150.0, 80.0, 130.0, 45.0];
+/// Bars in one cycle of static torques (they repeat; the gap does not).
+pub const BARS_PER_CYCLE: usize = BAR_STATIC_TORQUES_KNM.len();
 /// Idle and rolling time of each bar.
 const BAR_TIMING: BarTiming = BarTiming {
     idle_s: 0.6,
@@ -79,11 +89,13 @@ pub struct DemoSetup {
 }
 
 /// The demo's configuration and a schedule of bars covering `duration_s` (s), with
-/// `noise_rms_knm` (kN*m RMS) of Gaussian noise seeded with `seed`.
+/// `noise_rms_knm` (kN*m RMS) of Gaussian noise seeded with `seed`. The bundled model
+/// is written to `millgate-demo` in the system's temporary folder, where the
+/// configuration's `model` finds it.
 pub fn setup(duration_s: f64, noise_rms_knm: f64, seed: u64) -> Result<DemoSetup, DemoError> {
-    let config =
-        millgate_config::from_toml_str(DEMO_CONFIG, "demo.toml", std::path::Path::new("."))?;
-    let mut model = Model::from_toml_str(DEMO_MODEL, "table2-adjusted-backlash.toml")?;
+    let folder = write_model()?;
+    let config = millgate_config::from_toml_str(DEMO_CONFIG, "demo.toml", &folder)?;
+    let mut model = Model::from_toml_str(DEMO_MODEL, DEMO_MODEL_FILE)?;
     let torque = &config.channels[config.drivelines[0].torque];
     model.measurement.sample_rate = torque.sample_rate_hz;
     let bar_s = BAR_TIMING.idle_s + BAR_TIMING.rolling_s + TAIL_OUT_S;
@@ -94,8 +106,40 @@ pub fn setup(duration_s: f64, noise_rms_knm: f64, seed: u64) -> Result<DemoSetup
         .cycle()
         .take(bars)
         .collect();
-    let schedule = rolling_schedule(&model, &torques, BAR_TIMING, noise_rms_knm, seed)?;
+    let gaps: Vec<f64> = (0..bars)
+        .map(|k| {
+            let progress = k as f64 / (bars - 1).max(1) as f64;
+            GAP_START_RAD + (GAP_END_RAD - GAP_START_RAD) * progress
+        })
+        .collect();
+    let schedule = rolling_schedule_with_gap(
+        &model,
+        &torques,
+        BAR_TIMING,
+        noise_rms_knm,
+        seed,
+        GAP_COUPLING,
+        &gaps,
+    )?;
     Ok(DemoSetup { config, schedule })
+}
+
+/// Writes the bundled model into the demo's folder (a temporary file renamed into
+/// place: demos and tests may run at once); returns the folder.
+fn write_model() -> Result<std::path::PathBuf, DemoError> {
+    let io = |what| move |source| DemoError::Io { what, source };
+    let folder = std::env::temp_dir().join("millgate-demo");
+    std::fs::create_dir_all(&folder).map_err(io("creating the demo's folder"))?;
+    static WRITES: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let write = WRITES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let temporary = folder.join(format!(
+        "{DEMO_MODEL_FILE}.{}-{write}.tmp",
+        std::process::id()
+    ));
+    std::fs::write(&temporary, DEMO_MODEL).map_err(io("writing the demo's model"))?;
+    std::fs::rename(&temporary, folder.join(DEMO_MODEL_FILE))
+        .map_err(io("writing the demo's model"))?;
+    Ok(folder)
 }
 
 /// The virtual DAQ that plays `schedule` on the first driveline's torque channel of

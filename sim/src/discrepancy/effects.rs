@@ -1,13 +1,10 @@
 //! The candidate effects a calibrated linear model may lack, each a model extension
 //! with one bounded parameter at one location.
 
-use serde::Serialize;
-
 use crate::model::{Model, ModelError};
 
 /// A physical effect the workflow can add to a model.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
-#[serde(rename_all = "snake_case")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Effect {
     /// An opened gap (dead zone) in coupling i: `width_rad`, rad.
     Backlash,
@@ -20,6 +17,8 @@ pub enum Effect {
     /// Amplitude-dependent (Coulomb-like) friction in coupling i: `friction_knm`, kN*m.
     CoulombDamping,
 }
+
+keyed!(Effect);
 
 impl Effect {
     /// Every effect, in the order the search tries them.
@@ -53,6 +52,13 @@ impl Effect {
         }
     }
 
+    /// Whether the model with the effect is still linear (an extra inertia, a sensor
+    /// lag): such an effect stays in the calibrated linear model, the others (what wear
+    /// changes: a gap, hardening, friction) are removed from it.
+    pub fn is_linear(self) -> bool {
+        matches!(self, Effect::SensorLag | Effect::ExtraInertia)
+    }
+
     /// Whether the effect sits in a coupling (otherwise it has no location).
     pub fn per_coupling(self) -> bool {
         !matches!(self, Effect::SensorLag)
@@ -73,13 +79,15 @@ impl Effect {
     /// Sizes are relative to the driveline so the same search fits any mill: the static
     /// twist `e = M / C` of the coupling at the model's static load for gaps and
     /// hardening, the static load for friction, the smaller neighbouring inertia for an
-    /// extra inertia, the first oscillation period `T1` for the lag.
+    /// extra inertia, the first oscillation period `T1` for the lag. A gap is allowed up
+    /// to 8 static twists: at a low static torque a worn coupling's gap can be several
+    /// times its twist.
     pub fn range(self, model: &Model, location: Option<usize>, first_period_s: f64) -> Range {
         let static_nm = model.load.static_torque * 1.0e3;
         let coupling = location.and_then(|i| model.couplings.get(i));
         let static_twist = coupling.map_or(0.0, |c| static_nm / c.stiffness);
         let (low, high) = match self {
-            Effect::Backlash => (1.0e-3 * static_twist, 3.0 * static_twist),
+            Effect::Backlash => (1.0e-3 * static_twist, 8.0 * static_twist),
             Effect::SensorLag => (2.0e-3 * first_period_s, 0.3 * first_period_s),
             Effect::Hardening => {
                 let stiffness = coupling.map_or(0.0, |c| c.stiffness);

@@ -62,27 +62,43 @@ impl WearState {
 }
 
 /// The gap diagnosis of a driveline at one bite: the opened gap pooled over recent
-/// bites, with its interval.
-///
-/// **Hook for the gap diagnosis** (branch `wear`): the analysis fills
-/// [`BiteRecord::gap`] with this once the diagnosis exists; until then it is always
-/// `None` and the `gap_*` columns stay `NULL`.
+/// bites, with its 90% interval (`analysis::gap_estimate::GapEstimate` as published;
+/// `None` in [`BiteRecord::gap`] while the gap maps are not ready, and for drivelines
+/// without a model).
 #[derive(Debug, Clone, PartialEq)]
 pub struct GapEstimate {
     /// The pooled gap estimate, mrad referred to the rolls.
     pub gap_mrad: f64,
-    /// Lower end of its interval, mrad.
+    /// Lower end of its 90% interval, mrad.
     pub gap_low_mrad: f64,
-    /// Upper end of its interval, mrad.
+    /// Upper end of its 90% interval, mrad.
     pub gap_high_mrad: f64,
-    /// The coupling the gap is attributed to (its model name).
-    pub coupling: String,
+    /// The coupling holding the gap (model index, 0 = motor side), `None` when the
+    /// bites cannot tell. Stored as its decimal text in the `gap_coupling` columns.
+    pub coupling: Option<usize>,
     /// Bites pooled into the estimate.
-    pub bites_pooled: u32,
+    pub bites_pooled: usize,
     /// Ok, warning or alarm against the gap thresholds.
     pub state: WearState,
     /// The wear alarm is latched (until acknowledged).
     pub alarm_latched: bool,
+}
+
+/// A bite's entry in its driveline's gap pool: what the gap diagnosis needs to pool
+/// it again after a restart. The same fields as `analysis::gap_estimate::GapObservation`
+/// (the outputs do not import the analysis; the service converts).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PooledBite {
+    /// Static (settled) torque, kN*m.
+    pub static_torque_knm: f64,
+    /// Torque amplification factor.
+    pub taf: f64,
+    /// Standard deviation of `taf` from the window's noise.
+    pub taf_sigma: f64,
+    /// First minus second oscillation period, s, when measured.
+    pub period_shift_s: Option<f64>,
+    /// Standard deviation of `period_shift_s`, s (>= 0).
+    pub period_shift_sigma_s: f64,
 }
 
 /// One analysed bite with the driveline's published state after it.
@@ -118,15 +134,17 @@ pub struct BiteRecord {
     pub reference_level_knm: Option<f64>,
     /// Measured minus reference first-period shift, s.
     pub shift_over_linear_s: Option<f64>,
-    /// The gap diagnosis at this bite: `None` until the diagnosis exists (see
-    /// [`GapEstimate`]).
+    /// The gap diagnosis after this bite (see [`GapEstimate`]).
     pub gap: Option<GapEstimate>,
+    /// What this bite put into the driveline's gap pool (`None`: nothing, e.g. no
+    /// model, no TAF or a degraded window): a restart pools the last ones again.
+    pub pooled: Option<PooledBite>,
     /// The driveline's published results after this bite (counter, last values,
     /// wear index and trend, warning and latched alarm): what a restart restores.
     pub state: DrivelineResults,
     /// Further state a restart restores, as JSON in `driveline_state.extra` (kept when
-    /// `None`): **hook for the pooled gap estimate** of the gap diagnosis, handed back
-    /// at start in [`super::restore::RestoredDriveline::extra`]. `None` today.
+    /// `None`), handed back at start in [`super::restore::RestoredDriveline::extra`].
+    /// `None` today: the gap pool is restored from the bites' [`BiteRecord::pooled`].
     pub extra_state: Option<serde_json::Value>,
 }
 
@@ -158,8 +176,8 @@ pub enum AlarmKind {
     TafAlarm,
     /// A tandem mill's stands synchronized (latched).
     ChatterAlarm,
-    /// A driveline's gap diagnosis reached its alarm threshold (latched; hook for the
-    /// gap diagnosis).
+    /// A driveline's gap diagnosis reached its alarm threshold: the pooled gap's 90%
+    /// interval lay at or above it (latched; flags bit 5).
     WearAlarm,
 }
 

@@ -259,10 +259,10 @@ pub struct DrivelineSettings {
     pub taf_alarm: f64,
     /// The driveline model file, as configured.
     pub model: Option<String>,
-    /// The gap diagnosis' warning threshold, mrad: **hook**, `None` until the gap
-    /// diagnosis exists.
+    /// The gap diagnosis' warning threshold, mrad; `None` without a model (no gap
+    /// diagnosis).
     pub gap_warning_mrad: Option<f64>,
-    /// The gap diagnosis' alarm threshold, mrad: **hook**, as above.
+    /// The gap diagnosis' alarm threshold, mrad; `None` without a model.
     pub gap_alarm_mrad: Option<f64>,
 }
 
@@ -283,8 +283,15 @@ impl RunInfo {
                         .model
                         .as_ref()
                         .map(|path| path.display().to_string()),
-                    gap_warning_mrad: None,
-                    gap_alarm_mrad: None,
+                    // The gap diagnosis runs only with a model.
+                    gap_warning_mrad: driveline
+                        .model
+                        .as_ref()
+                        .map(|_| driveline.thresholds.gap_warning_mrad),
+                    gap_alarm_mrad: driveline
+                        .model
+                        .as_ref()
+                        .map(|_| driveline.thresholds.gap_alarm_mrad),
                 })
                 .collect(),
         }

@@ -193,7 +193,8 @@ record! {
         gap_low_mrad: Option<f64>,
         /// Its interval's upper end, mrad.
         gap_high_mrad: Option<f64>,
-        /// The coupling the gap is attributed to.
+        /// The coupling holding the gap (model index, 0 = motor side); `None` when
+        /// the bites cannot tell.
         gap_coupling: Option<String>,
         /// Bites pooled into the estimate.
         bites_pooled: Option<i64>,
@@ -231,7 +232,8 @@ record! {
         gap_low_mrad: Option<f64>,
         /// Its interval's upper end, mrad.
         gap_high_mrad: Option<f64>,
-        /// The coupling the gap is attributed to.
+        /// The coupling holding the gap (model index, 0 = motor side); `None` when
+        /// the bites cannot tell.
         gap_coupling: Option<String>,
         /// Bites pooled.
         bites_pooled: Option<i64>,

@@ -137,7 +137,7 @@ CREATE TABLE driveline_state (
     degraded          INTEGER NOT NULL,
     warning           INTEGER NOT NULL,
     alarm_latched     INTEGER NOT NULL,
-    extra             TEXT              -- JSON: further restorable state (the pooled gap estimate)
+    extra             TEXT              -- JSON: further restorable state
 );
 -- Each run's driveline settings, for reports (thresholds, model).
 CREATE TABLE driveline_settings (
@@ -164,6 +164,14 @@ CREATE TABLE sparkplug_node (
     bd_seq     INTEGER NOT NULL,  -- the last MQTT session's bdSeq, 0..=255
     updated_at TEXT NOT NULL
 );
+"#,
+    // Version 3: what a bite put into the gap pool (a restart pools the last ones
+    // again: static_torque_knm, taf and period_shift_s are the bite's own columns),
+    // and the latched gap alarm.
+    r#"
+ALTER TABLE bites ADD COLUMN gap_taf_sigma REAL;             -- NULL: not pooled
+ALTER TABLE bites ADD COLUMN gap_period_shift_sigma_s REAL;
+ALTER TABLE driveline_state ADD COLUMN gap_alarm_latched INTEGER NOT NULL DEFAULT 0;
 "#,
 ];
 

@@ -514,15 +514,17 @@ fn insert_bite(
     let time = bite.time.to_string();
     let state = &bite.state;
     let gap = bite.gap.as_ref();
+    let coupling = gap.and_then(|g| g.coupling).map(|c| c.to_string());
     transaction
         .prepare_cached(
             "INSERT INTO bites (run_id, driveline, time, bite_counter, channel,
                  static_torque_knm, peak_torque_knm, taf, first_period_s, second_period_s,
                  period_shift_s, beta1_hz, beta2_hz, quality, degraded, wear_index, wear_trend,
                  reference_taf, shift_over_linear_s,
-                 gap_mrad, gap_low_mrad, gap_high_mrad, gap_coupling, bites_pooled)
+                 gap_mrad, gap_low_mrad, gap_high_mrad, gap_coupling, bites_pooled,
+                 gap_taf_sigma, gap_period_shift_sigma_s)
              VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16,
-                 ?17, ?18, ?19, ?20, ?21, ?22, ?23, ?24)",
+                 ?17, ?18, ?19, ?20, ?21, ?22, ?23, ?24, ?25, ?26)",
         )?
         .execute(params![
             run_id,
@@ -547,8 +549,10 @@ fn insert_bite(
             gap.map(|g| g.gap_mrad),
             gap.map(|g| g.gap_low_mrad),
             gap.map(|g| g.gap_high_mrad),
-            gap.map(|g| g.coupling.as_str()),
-            gap.map(|g| g.bites_pooled),
+            coupling,
+            gap.and_then(|g| i64::try_from(g.bites_pooled).ok()),
+            bite.pooled.map(|p| p.taf_sigma),
+            bite.pooled.map(|p| p.period_shift_sigma_s),
         ])?;
     if state.wear_index.is_some() || gap.is_some() {
         transaction
@@ -572,8 +576,8 @@ fn insert_bite(
                 gap.map(|g| g.gap_mrad),
                 gap.map(|g| g.gap_low_mrad),
                 gap.map(|g| g.gap_high_mrad),
-                gap.map(|g| g.coupling.as_str()),
-                gap.map(|g| g.bites_pooled),
+                coupling,
+                gap.and_then(|g| i64::try_from(g.bites_pooled).ok()),
                 gap.map(|g| g.state.name()),
                 gap.map(|g| g.alarm_latched),
             ])?;
@@ -582,8 +586,9 @@ fn insert_bite(
         .prepare_cached(
             "INSERT INTO driveline_state (driveline, updated_at, bite_counter, last_bite_time,
                  static_torque_knm, peak_torque_knm, taf, period_shift_s, beta1_hz, beta2_hz,
-                 wear_index, wear_trend, degraded, warning, alarm_latched, extra)
-             VALUES (?1, ?2, ?3, ?2, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15)
+                 wear_index, wear_trend, degraded, warning, alarm_latched, extra,
+                 gap_alarm_latched)
+             VALUES (?1, ?2, ?3, ?2, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16)
              ON CONFLICT (driveline) DO UPDATE SET
                  updated_at = excluded.updated_at, bite_counter = excluded.bite_counter,
                  last_bite_time = excluded.last_bite_time,
@@ -593,7 +598,8 @@ fn insert_bite(
                  beta2_hz = excluded.beta2_hz, wear_index = excluded.wear_index,
                  wear_trend = excluded.wear_trend, degraded = excluded.degraded,
                  warning = excluded.warning, alarm_latched = excluded.alarm_latched,
-                 extra = coalesce(excluded.extra, driveline_state.extra)",
+                 extra = coalesce(excluded.extra, driveline_state.extra),
+                 gap_alarm_latched = excluded.gap_alarm_latched",
         )?
         .execute(params![
             bite.driveline,
@@ -611,6 +617,7 @@ fn insert_bite(
             state.warning,
             state.alarm,
             bite.extra_state.as_ref().map(ToString::to_string),
+            state.gap_alarm,
         ])?;
     Ok(())
 }
@@ -646,10 +653,18 @@ fn insert_alarm(
     match alarm.kind {
         // The bite's own record carries the latch when it raises it; an
         // acknowledgement clears it here.
-        AlarmKind::TafAlarm | AlarmKind::WearAlarm if !latched => {
+        AlarmKind::TafAlarm if !latched => {
             transaction
                 .prepare_cached(
                     "UPDATE driveline_state SET alarm_latched = 0, updated_at = ?2
+                     WHERE driveline = ?1",
+                )?
+                .execute(params![alarm.subject, time])?;
+        }
+        AlarmKind::WearAlarm if !latched => {
+            transaction
+                .prepare_cached(
+                    "UPDATE driveline_state SET gap_alarm_latched = 0, updated_at = ?2
                      WHERE driveline = ?1",
                 )?
                 .execute(params![alarm.subject, time])?;

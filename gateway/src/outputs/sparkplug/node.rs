@@ -160,6 +160,55 @@ const DRIVELINE: &[Def<DrivelineResults>] = &[
         unit: "",
         read: |r| Some(Value::Bool(r.restored)),
     },
+    Def {
+        name: "gap",
+        datatype: DataType::Double,
+        unit: "mrad",
+        read: |r| r.gap.as_ref().map(|g| Value::F64(g.gap_mrad)),
+    },
+    Def {
+        name: "gap_low",
+        datatype: DataType::Double,
+        unit: "mrad",
+        read: |r| r.gap.as_ref().map(|g| Value::F64(g.low_mrad)),
+    },
+    Def {
+        name: "gap_high",
+        datatype: DataType::Double,
+        unit: "mrad",
+        read: |r| r.gap.as_ref().map(|g| Value::F64(g.high_mrad)),
+    },
+    Def {
+        // Model index, 0 = motor side; null while undetermined.
+        name: "gap_coupling",
+        datatype: DataType::UInt32,
+        unit: "",
+        read: |r| {
+            let coupling = r.gap.as_ref()?.coupling?;
+            u32::try_from(coupling).ok().map(Value::U32)
+        },
+    },
+    Def {
+        name: "bites_pooled",
+        datatype: DataType::UInt32,
+        unit: "",
+        read: |r| {
+            let pooled = r.gap.as_ref()?.bites_pooled;
+            Some(Value::U32(u32::try_from(pooled).unwrap_or(u32::MAX)))
+        },
+    },
+    Def {
+        name: "gap_warning",
+        datatype: DataType::Boolean,
+        unit: "",
+        read: |r| Some(Value::Bool(r.gap_warning)),
+    },
+    Def {
+        name: "gap_alarm",
+        datatype: DataType::Boolean,
+        unit: "",
+        read: |r| Some(Value::Bool(r.gap_alarm)),
+    },
 ];
 
 /// A tandem mill's chatter metrics.

@@ -1,0 +1,662 @@
+//! The gap diagnosis against the physics: bars of the Table 2 driveline simulated with a
+//! hidden gap (`millgate_sim` chain physics, the rolling schedule of the virtual DAQ),
+//! fed sample by sample through the service's analysis (bite detector, transient
+//! analysis, observation, pooled estimate against maps built at start), compared with
+//! the truth; the maps' cache, the pool's saved form, the wear state, bad input, and
+//! `millgate wear` as a user runs it.
+//!
+//! The maps here are coarse (0.25 mrad, 10 static torques: about a second to build in
+//! a debug build); `cargo run --release -p millgate --example gap_evaluation` runs the
+//! same evaluation on the service's default maps over many more seeded cases.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::atomic::AtomicBool;
+use std::sync::{Arc, OnceLock};
+use std::time::Duration;
+
+use millgate::analysis::driveline::BiteReport;
+use millgate::analysis::gap_estimate::{GapEstimate, GapObservation};
+use millgate::analysis::gap_map::{GapMapError, GapMaps};
+use millgate::analysis::gap_monitor::MapsOrigin;
+use millgate::analysis::Analysis;
+use millgate::field::acquired::Acquired;
+use millgate::field::source_health::SourceHealth;
+use millgate::outputs::history::events::CommandOrigin;
+use millgate::outputs::publisher::Publisher;
+use millgate::outputs::register_map::driveline_flags;
+use millgate_sim::model::Model;
+use millgate_sim::schedule::{rolling_schedule, BarTiming};
+
+const MODELS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../sim/models");
+const TIMING: BarTiming = BarTiming {
+    idle_s: 0.6,
+    rolling_s: 1.2,
+};
+/// Coarse maps for the tests.
+const COARSE: &str = "gap_step_mrad = 0.25, torque_points = 10";
+
+/// A scratch folder of this test process.
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("millgate-gap-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("scratch folder");
+    dir
+}
+
+/// One driveline on a Modbus block channel (as the demo's) with the linear Table 2
+/// model, `wear` and extra `thresholds` entries, and the cache in `cache`.
+fn config(wear: &str, thresholds: &str, cache: &Path) -> millgate_config::Config {
+    let text = format!(
+        r#"
+name = "gap tests"
+cache_dir = "{}"
+
+[[sources.modbus]]
+name = "daq1"
+address = "127.0.0.1:5020"
+poll_period_ms = 20
+
+[[channels]]
+name = "spindle_top"
+kind = "torque"
+unit = "kN*m"
+scale = 0.01
+sample_rate_hz = 2000.0
+source = {{ modbus = "daq1", table = "input", block = 0 }}
+
+[[drivelines]]
+name = "F1"
+torque = "spindle_top"
+model = "table2-adjusted.toml"
+bite = {{ threshold_knm = 20.0, pre_trigger_s = 0.1, post_trigger_s = 0.5 }}
+thresholds = {{ taf_warning = 2.2, taf_alarm = 2.6{thresholds} }}
+wear = {{ {wear} }}
+"#,
+        cache.display()
+    );
+    millgate_config::from_toml_str(&text, "gap.toml", Path::new(MODELS))
+        .unwrap_or_else(|error| panic!("{error}"))
+}
+
+fn analysis(config: &millgate_config::Config) -> (Analysis, Arc<Publisher>) {
+    let health = Arc::new(SourceHealth::new(
+        Duration::from_secs(3600),
+        Duration::from_secs(3600),
+    ));
+    let publisher = Arc::new(Publisher::new(config, vec![health]));
+    let (bites, _) = tokio::sync::broadcast::channel(64);
+    let analysis = Analysis::new(config, Arc::clone(&publisher), bites).expect("analysis");
+    (analysis, publisher)
+}
+
+/// The coarse maps, built once per test process (and cached).
+fn coarse_maps() -> &'static GapMaps {
+    static MAPS: OnceLock<GapMaps> = OnceLock::new();
+    MAPS.get_or_init(|| {
+        let (mut analysis, _) = analysis(&config(COARSE, "", &scratch("cache")));
+        let job = analysis.take_gap_map_jobs().remove(0);
+        let (maps, _) = job
+            .run(2, &AtomicBool::new(false), &|_, _| {})
+            .unwrap_or_else(|error| panic!("{error}"));
+        maps
+    })
+}
+
+/// The linear model with `gap_mrad` opened in `coupling`.
+fn hidden(coupling: usize, gap_mrad: f64) -> Model {
+    let mut model = Model::load(PathBuf::from(MODELS).join("table2-adjusted.toml")).expect("model");
+    model.couplings[coupling].backlash = gap_mrad * 1e-3;
+    model
+}
+
+/// Feed the bars of `torques` simulated with `model` (noise `noise` kN*m RMS, `seed`)
+/// through `analysis` in 100-sample blocks, as the DAQ reader delivers them.
+fn feed(
+    analysis: &mut Analysis,
+    model: &Model,
+    torques: &[f64],
+    noise: f64,
+    seed: u64,
+) -> Vec<BiteReport> {
+    let schedule = rolling_schedule(model, torques, TIMING, noise, seed).expect("schedule");
+    let mut reports = Vec::new();
+    for block in schedule.torque_knm.chunks(100) {
+        reports.extend(analysis.handle(Acquired::Samples {
+            channel: 0,
+            values: block.to_vec(),
+            received: None,
+        }));
+    }
+    assert_eq!(reports.len(), torques.len(), "one bite per bar");
+    reports
+}
+
+/// A small seeded generator for the cases (xorshift64*).
+struct Seeded(u64);
+
+impl Seeded {
+    fn uniform(&mut self, low: f64, high: f64) -> f64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        let unit = (self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64;
+        low + (high - low) * unit
+    }
+}
+
+/// One seeded case: the pooled estimate after 10 bites at static torques spread over
+/// 40-170 kN*m, and whether the gap warning was raised.
+fn case(model: &Model, rng: &mut Seeded, seed: u64) -> (GapEstimate, bool) {
+    let config = config(COARSE, "", &scratch("cache"));
+    let (mut analysis, publisher) = analysis(&config);
+    analysis.take_gap_map_jobs();
+    analysis.install_gap_maps(0, Ok(coarse_maps().clone()));
+    let noise = rng.uniform(0.3, 1.0);
+    let torques: Vec<f64> = (0..10).map(|_| rng.uniform(40.0, 170.0)).collect();
+    let reports = feed(&mut analysis, model, &torques, noise, seed);
+    let estimate = reports[9]
+        .gap
+        .and_then(|gap| gap.pooled)
+        .expect("an estimate after 10 bites");
+    assert_eq!(estimate.bites_pooled, 10);
+    let results = publisher.results();
+    let published = results.drivelines[0].gap.expect("published");
+    assert_eq!(published.gap_mrad, estimate.gap_mrad);
+    (estimate, results.drivelines[0].gap_warning)
+}
+
+#[test]
+fn the_gap_is_found_in_mrad_with_an_interval_that_holds_the_truth_and_the_right_coupling() {
+    let mut rng = Seeded(0x5eed_0013);
+    let mut errors = Vec::new();
+    let mut covered = 0;
+    for index in 0..10_u64 {
+        let coupling = (index % 2) as usize;
+        let truth = rng.uniform(1.0, 6.0);
+        let (estimate, _) = case(&hidden(coupling, truth), &mut rng, 100 + index);
+        let error = estimate.gap_mrad - truth;
+        println!(
+            "coupling {coupling}, gap {truth:.3} mrad: estimate {:.3} ({:.3} .. {:.3}) mrad, coupling {:?}",
+            estimate.gap_mrad, estimate.gap_low_mrad, estimate.gap_high_mrad, estimate.coupling
+        );
+        assert!(
+            error.abs() <= (0.15 * truth).max(0.3),
+            "coupling {coupling}, gap {truth} mrad: estimate {estimate:?}"
+        );
+        if let Some(named) = estimate.coupling {
+            assert_eq!(
+                named, coupling,
+                "the coupling named is the one with the gap: {estimate:?}"
+            );
+        }
+        covered += usize::from(estimate.gap_low_mrad <= truth && truth <= estimate.gap_high_mrad);
+        errors.push(error);
+    }
+    errors.sort_by(f64::total_cmp);
+    println!("errors, mrad: {errors:.3?}; the 90% interval holds the truth in {covered} of 10");
+    assert!(
+        covered >= 9,
+        "the 90% interval holds the truth in {covered} of 10"
+    );
+}
+
+#[test]
+fn without_a_gap_the_interval_stays_below_half_a_milliradian_and_nothing_is_raised() {
+    let mut rng = Seeded(0x5eed_0000);
+    for index in 0..3 {
+        let (estimate, warning) = case(&hidden(0, 0.0), &mut rng, 200 + index);
+        println!("no gap: {estimate:?}");
+        assert!(estimate.gap_high_mrad < 0.5, "{estimate:?}");
+        assert_eq!(estimate.coupling, None, "no gap, no coupling: {estimate:?}");
+        assert!(!warning, "no warning without a gap");
+    }
+}
+
+#[test]
+fn the_stated_uncertainty_matches_the_scatter_over_noise() {
+    // 40 bars at the same static torque, 1 kN*m of noise: the spread of TAF and shift
+    // over the bars against the standard deviations each bite states from its own
+    // window's noise.
+    let config = config(COARSE, "", &scratch("cache"));
+    let (mut analysis, _) = analysis(&config);
+    analysis.take_gap_map_jobs();
+    let reports = feed(&mut analysis, &hidden(1, 2.0), &[50.0; 40], 1.0, 21);
+    let observations: Vec<GapObservation> = reports
+        .iter()
+        .map(|r| r.gap.expect("observation").observation)
+        .collect();
+    let spread = |values: &[f64]| {
+        let mean = values.iter().sum::<f64>() / values.len() as f64;
+        (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (values.len() - 1) as f64).sqrt()
+    };
+    let mean = |values: &[f64]| values.iter().sum::<f64>() / values.len() as f64;
+    let tafs: Vec<f64> = observations.iter().map(|o| o.taf).collect();
+    let taf_sigmas: Vec<f64> = observations.iter().map(|o| o.taf_sigma).collect();
+    let shifts: Vec<f64> = observations
+        .iter()
+        .filter_map(|o| o.period_shift_s)
+        .collect();
+    let shift_sigmas: Vec<f64> = observations
+        .iter()
+        .map(|o| o.period_shift_sigma_s)
+        .collect();
+    assert_eq!(shifts.len(), 40, "every shift measured");
+    let (taf_ratio, shift_ratio) = (
+        spread(&tafs) / mean(&taf_sigmas),
+        spread(&shifts) / mean(&shift_sigmas),
+    );
+    println!(
+        "TAF: spread {:.5}, stated {:.5}; shift: spread {:.3} ms, stated {:.3} ms",
+        spread(&tafs),
+        mean(&taf_sigmas),
+        spread(&shifts) * 1e3,
+        mean(&shift_sigmas) * 1e3
+    );
+    // 40 samples: the spread itself is known to about +-11% (1 sigma).
+    assert!(
+        (0.6..=1.6).contains(&taf_ratio),
+        "TAF spread / stated {taf_ratio}"
+    );
+    assert!(
+        (0.5..=2.0).contains(&shift_ratio),
+        "shift spread / stated {shift_ratio}"
+    );
+}
+
+#[test]
+fn the_wear_state_warns_latches_the_alarm_until_acknowledged_and_the_reset_empties_the_pool() {
+    let config = config(
+        &format!("{COARSE}, pool_bites = 3"),
+        ", gap_warning_mrad = 2.0, gap_alarm_mrad = 2.5",
+        &scratch("cache"),
+    );
+    let (mut analysis, publisher) = analysis(&config);
+    analysis.take_gap_map_jobs();
+    let flags = |publisher: &Publisher| {
+        let mut results = publisher.results();
+        results.drivelines[0].source_stale = false;
+        let words = publisher.map().encode(&results);
+        let register = publisher
+            .map()
+            .registers()
+            .iter()
+            .find(|r| r.name == "F1.flags")
+            .unwrap();
+        words[usize::from(register.address)]
+    };
+    // Bites before the maps are ready: pooled, no estimate, registers invalid.
+    let reports = feed(&mut analysis, &hidden(1, 3.0), &[60.0, 120.0], 0.5, 7);
+    assert!(reports
+        .iter()
+        .all(|r| r.gap.is_some_and(|g| g.pooled.is_none())));
+    assert_eq!(publisher.results().drivelines[0].gap, None);
+    // The maps arrive: the two bites give the estimate at once.
+    analysis.install_gap_maps(0, Ok(coarse_maps().clone()));
+    let gap = publisher.results().drivelines[0]
+        .gap
+        .expect("estimate once the maps are in");
+    assert_eq!(gap.bites_pooled, 2);
+    assert!((gap.gap_mrad - 3.0).abs() < 0.3, "{gap:?}");
+    let both = driveline_flags::GAP_WARNING | driveline_flags::GAP_ALARM;
+    assert_eq!(flags(&publisher) & both, both, "3 mrad: warning and alarm");
+
+    // Acknowledged: the alarm clears; the next bite with the gap still there sets it.
+    publisher.acknowledge_alarms(CommandOrigin::Local);
+    assert_eq!(flags(&publisher) & both, driveline_flags::GAP_WARNING);
+    feed(&mut analysis, &hidden(1, 3.0), &[90.0], 0.5, 8);
+    assert_eq!(flags(&publisher) & both, both);
+    assert_eq!(
+        publisher.results().drivelines[0].gap.unwrap().bites_pooled,
+        3
+    );
+
+    // The coupling is replaced: reset; the pool restarts with the next bite, no gap.
+    publisher.reset_wear_trend(1, CommandOrigin::Local);
+    assert_eq!(
+        publisher.results().drivelines[0].gap,
+        None,
+        "invalid at once"
+    );
+    feed(&mut analysis, &hidden(1, 0.0), &[80.0], 0.5, 9);
+    let gap = publisher.results().drivelines[0]
+        .gap
+        .expect("a new estimate");
+    assert_eq!(gap.bites_pooled, 1, "only the bite after the reset");
+    assert!(gap.gap_mrad < 0.3, "{gap:?}");
+    assert_eq!(
+        flags(&publisher) & both,
+        driveline_flags::GAP_ALARM,
+        "the alarm stays latched"
+    );
+    publisher.acknowledge_alarms(CommandOrigin::Local);
+    assert_eq!(flags(&publisher) & both, 0);
+}
+
+#[test]
+fn the_pool_saved_as_a_list_of_observations_restores_the_estimate() {
+    let config = config(COARSE, "", &scratch("cache"));
+    let (mut analysis, publisher) = analysis(&config);
+    analysis.take_gap_map_jobs();
+    analysis.install_gap_maps(0, Ok(coarse_maps().clone()));
+    feed(
+        &mut analysis,
+        &hidden(0, 2.5),
+        &[50.0, 140.0, 75.0],
+        0.7,
+        11,
+    );
+    let before = publisher.results().drivelines[0].gap.expect("estimate");
+    let saved = serde_json::to_string(&analysis.gap_pool(0).expect("a pool")).unwrap();
+
+    // A restart: a new analysis, the pool restored before the maps are in.
+    let (mut restarted, publisher) = self::analysis(&config);
+    let observations: Vec<GapObservation> = serde_json::from_str(&saved).unwrap();
+    assert_eq!(observations.len(), 3);
+    restarted.restore_gap_pool(0, observations);
+    assert_eq!(publisher.results().drivelines[0].gap, None, "no maps yet");
+    restarted.install_gap_maps(0, Ok(coarse_maps().clone()));
+    assert_eq!(
+        publisher.results().drivelines[0].gap,
+        Some(before),
+        "the same estimate"
+    );
+}
+
+#[test]
+fn maps_come_from_the_cache_after_a_restart_and_a_changed_model_is_rebuilt() {
+    let cache = scratch("restart-cache");
+    let config = config(
+        "gap_step_mrad = 1.0, max_gap_mrad = 2, torque_points = 3",
+        "",
+        &cache,
+    );
+    let job = || analysis(&config).0.take_gap_map_jobs().remove(0);
+    let cancel = AtomicBool::new(false);
+    let (built, origin) = job().run(2, &cancel, &|_, _| {}).expect("built");
+    let MapsOrigin::Built {
+        saved: Some(file), ..
+    } = origin
+    else {
+        panic!("built and saved: {origin:?}");
+    };
+    assert!(file.starts_with(&cache), "{}", file.display());
+    let (cached, origin) = job()
+        .run(2, &cancel, &|_, _| panic!("no simulation"))
+        .expect("cached");
+    assert_eq!(origin, MapsOrigin::Cache(file.clone()));
+    assert_eq!(cached, built);
+
+    // Another model (damping changed): another key, another file.
+    let text = std::fs::read_to_string(PathBuf::from(MODELS).join("table2-adjusted.toml")).unwrap();
+    let other = cache.join("other.toml");
+    std::fs::write(&other, text.replace("damping = 5.0e3", "damping = 6.0e3")).unwrap();
+    let mut config = config.clone();
+    config.drivelines[0].model = Some(other);
+    let other_job = analysis(&config).0.take_gap_map_jobs().remove(0);
+    assert_ne!(other_job.cache_file(), Some(file.clone()));
+
+    // A damaged file is rebuilt and rewritten.
+    std::fs::write(&file, "{ not json").unwrap();
+    let (rebuilt, origin) = job().run(2, &cancel, &|_, _| {}).expect("rebuilt");
+    assert!(
+        matches!(origin, MapsOrigin::Built { saved: Some(_), .. }),
+        "{origin:?}"
+    );
+    assert_eq!(rebuilt, built);
+}
+
+#[test]
+fn a_map_that_cannot_be_built_is_named_and_the_driveline_runs_on_with_the_gap_invalid() {
+    // Static torques below the bite threshold (20 kN*m): the simulated bites never
+    // trigger the detector.
+    let config = config(
+        "static_torque_knm = [5, 15], torque_points = 3, max_gap_mrad = 1, gap_step_mrad = 0.5",
+        "",
+        &scratch("bad-cache"),
+    );
+    let (mut analysis, publisher) = analysis(&config);
+    let job = analysis.take_gap_map_jobs().remove(0);
+    let error = job
+        .run(2, &AtomicBool::new(false), &|_, _| {})
+        .expect_err("no bite");
+    let message = error.to_string();
+    assert!(
+        matches!(error, GapMapError::Point { .. })
+            && message.contains("table2-adjusted.toml")
+            && message.contains("gives no bite window"),
+        "{message}"
+    );
+    analysis.install_gap_maps(0, Err(error));
+    let reports = feed(&mut analysis, &hidden(1, 2.0), &[100.0], 0.5, 3);
+    assert!(
+        reports[0].transient.taf.is_some(),
+        "bites are still analysed"
+    );
+    let results = publisher.results();
+    assert!(results.drivelines[0].taf.is_some());
+    assert_eq!(results.drivelines[0].gap, None, "the gap stays invalid");
+}
+
+#[test]
+fn wear_settings_that_do_not_fit_the_model_are_named_at_start() {
+    let config = config("couplings = [1, 2]", "", &scratch("cache"));
+    let (mut analysis, _) = analysis(&config);
+    let problems: Vec<String> = analysis
+        .wear_problems()
+        .iter()
+        .map(ToString::to_string)
+        .collect();
+    assert_eq!(
+        problems,
+        vec![
+            "drivelines[0].wear.couplings[1]: 2 is not allowed (must be a coupling of the model \
+              \"Table 2 driveline, stiffness adjusted to measurement\": 0 ..= 1)"
+                .to_owned()
+        ]
+    );
+    assert!(analysis.take_gap_map_jobs().is_empty());
+}
+
+fn millgate(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_millgate"))
+        .args(args)
+        .output()
+        .expect("run millgate")
+}
+
+fn text(output: &Output) -> String {
+    String::from_utf8_lossy(&output.stdout).to_string() + &String::from_utf8_lossy(&output.stderr)
+}
+
+/// Bars of `torques` with `gap_mrad` in the spindles written as a `t,torque` CSV.
+fn record(name: &str, torques: &[f64], gap_mrad: f64) -> String {
+    let schedule = rolling_schedule(&hidden(1, gap_mrad), torques, TIMING, 0.5, 5).unwrap();
+    let mut csv = String::from("t,torque\n");
+    for (k, torque) in schedule.torque_knm.iter().enumerate() {
+        csv.push_str(&format!(
+            "{:.6},{torque:.4}\n",
+            k as f64 / schedule.sample_rate_hz
+        ));
+    }
+    let path = scratch("cli").join(name);
+    std::fs::write(&path, csv).unwrap();
+    path.to_str().unwrap().to_owned()
+}
+
+#[test]
+fn millgate_wear_reports_each_bite_and_the_pooled_gap_as_json_and_plots_it() {
+    let input = record("bites.csv", &[60.0, 140.0, 90.0], 2.5);
+    let model = format!("{MODELS}/table2-adjusted.toml");
+    let cache = scratch("cli-cache");
+    let plot = scratch("cli").join("wear.svg");
+    let output = millgate(&[
+        "wear",
+        "--input",
+        &input,
+        "--model",
+        &model,
+        "--format",
+        "json",
+        "--gap-step-mrad",
+        "0.25",
+        "--max-gap-mrad",
+        "5",
+        "--cache-dir",
+        cache.to_str().unwrap(),
+        "--plot",
+        plot.to_str().unwrap(),
+    ]);
+    assert!(output.status.success(), "{}", text(&output));
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        stderr.contains("wear: gap maps"),
+        "progress on stderr: {stderr}"
+    );
+    let value: serde_json::Value = serde_json::from_slice(&output.stdout).expect("JSON on stdout");
+    let keys: Vec<&str> = value
+        .as_object()
+        .unwrap()
+        .keys()
+        .map(String::as_str)
+        .collect();
+    assert_eq!(
+        keys,
+        [
+            "bites",
+            "bites_pooled",
+            "coupling",
+            "gap_high_mrad",
+            "gap_low_mrad",
+            "gap_mrad"
+        ]
+    );
+    let bites = value["bites"].as_array().unwrap();
+    assert_eq!(bites.len(), 3);
+    for (bite, static_knm) in bites.iter().zip([60.0, 140.0, 90.0]) {
+        let keys: Vec<&str> = bite
+            .as_object()
+            .unwrap()
+            .keys()
+            .map(String::as_str)
+            .collect();
+        assert_eq!(
+            keys,
+            [
+                "gap_mrad",
+                "shift_over_linear_s",
+                "static_torque",
+                "t_bite_s",
+                "taf"
+            ]
+        );
+        let measured = bite["static_torque"].as_f64().unwrap();
+        assert!((measured - static_knm).abs() < 0.02 * static_knm, "{bite}");
+        let gap = bite["gap_mrad"].as_f64().unwrap();
+        assert!((gap - 2.5).abs() < 0.3, "{bite}");
+    }
+    assert_eq!(value["coupling"], 1);
+    assert_eq!(value["bites_pooled"], 3);
+    let (low, high) = (
+        value["gap_low_mrad"].as_f64().unwrap(),
+        value["gap_high_mrad"].as_f64().unwrap(),
+    );
+    assert!(
+        low <= value["gap_mrad"].as_f64().unwrap() && value["gap_mrad"].as_f64().unwrap() <= high
+    );
+    let svg = std::fs::read_to_string(&plot).unwrap();
+    assert!(
+        svg.starts_with("<svg") && svg.contains("estimated"),
+        "the SVG"
+    );
+
+    // The second run reads the maps from the cache; --pool 1 keeps the last bite.
+    let output = millgate(&[
+        "wear",
+        "--input",
+        &input,
+        "--model",
+        &model,
+        "--pool",
+        "1",
+        "--gap-step-mrad",
+        "0.25",
+        "--max-gap-mrad",
+        "5",
+        "--cache-dir",
+        cache.to_str().unwrap(),
+    ]);
+    let said = text(&output);
+    assert!(output.status.success(), "{said}");
+    assert!(said.contains("gap maps from"), "{said}");
+    assert!(
+        said.contains("1 bite(s) pooled") && said.contains("coupling 1"),
+        "{said}"
+    );
+}
+
+#[test]
+fn millgate_wear_names_the_file_of_a_record_without_bites_and_of_a_bad_model() {
+    let quiet = scratch("cli").join("quiet.csv");
+    let mut csv = String::from("t,torque\n");
+    for k in 0..2000 {
+        csv.push_str(&format!("{},{}\n", k as f64 / 2000.0, 0.1 * (k % 7) as f64));
+    }
+    std::fs::write(&quiet, csv).unwrap();
+    let model = format!("{MODELS}/table2-adjusted.toml");
+    let output = millgate(&[
+        "wear",
+        "--input",
+        quiet.to_str().unwrap(),
+        "--model",
+        &model,
+    ]);
+    let said = text(&output);
+    assert!(!output.status.success());
+    assert!(
+        said.contains("quiet.csv: no bite in channel `torque`"),
+        "{said}"
+    );
+
+    let bad = scratch("cli").join("bad-model.toml");
+    std::fs::write(
+        &bad,
+        "name = \"x\"\n[[mass]]\nname = \"m\"\ninertia = -3.0\n",
+    )
+    .unwrap();
+    let input = record("one.csv", &[100.0], 1.0);
+    let output = millgate(&["wear", "--input", &input, "--model", bad.to_str().unwrap()]);
+    let said = text(&output);
+    assert!(!output.status.success());
+    assert!(said.contains("bad-model.toml"), "{said}");
+}
+
+#[test]
+fn a_calibrated_model_written_as_a_file_is_a_monitoring_model() {
+    // The path on a real mill (README, "From a recording to a monitoring model"):
+    // `millgate discrepancy` writes the calibrated model (the effect it found left
+    // out) with `Model::to_toml_string` as `calibrated-model.toml` in its report
+    // folder, and `drivelines[].model` names that file. Here the file is written the
+    // same way from the linear Table 2 model and the gap of records simulated with a
+    // hidden gap is found against it.
+    let folder = scratch("calibrated");
+    let linear = Model::load(PathBuf::from(MODELS).join("table2-adjusted.toml")).expect("model");
+    let file = folder.join("calibrated-model.toml");
+    std::fs::write(&file, linear.to_toml_string().expect("model as TOML")).unwrap();
+    let mut config = config(COARSE, "", &folder);
+    config.drivelines[0].model = Some(file.clone());
+    let (mut analysis, publisher) = analysis(&config);
+    assert!(analysis.wear_problems().is_empty(), "the file loads");
+    let job = analysis.take_gap_map_jobs().remove(0);
+    assert_eq!(job.model_file, file);
+    let (maps, _) = job
+        .run(2, &AtomicBool::new(false), &|_, _| {})
+        .unwrap_or_else(|error| panic!("{error}"));
+    analysis.install_gap_maps(0, Ok(maps));
+    let torques = [45.0, 150.0, 70.0, 120.0, 95.0, 60.0];
+    feed(&mut analysis, &hidden(1, 3.0), &torques, 0.5, 31);
+    let gap = publisher.results().drivelines[0].gap.expect("an estimate");
+    assert!(
+        (gap.gap_mrad - 3.0).abs() <= 0.45 && gap.low_mrad <= 3.0 && 3.0 <= gap.high_mrad,
+        "{gap:?}"
+    );
+}

@@ -1,0 +1,156 @@
+//! One record holding several bites, split into one record per bite.
+//!
+//! A bite is a stretch where the torque (a centred moving mean over
+//! [`SMOOTHING_S`] either side) stays above [`LOADED_FRACTION`] of the record's loaded
+//! level (its 90th percentile) and above five times the noise, dips shorter than
+//! [`MERGE_GAP_S`] (the transient's swings through zero) included, lasting at least
+//! [`MIN_BITE_S`]. Each bite's record starts up to [`PRE_BITE_S`] before the rise (half
+//! the idle stretch before it at most) and ends before the unloading: where the torque
+//! last stood at [`UNLOAD_FRACTION`] of its settled level (the median of the bite's
+//! second half), less the smoothing. A record with one bite comes back whole.
+
+use super::noise::noise_rms;
+use super::Measured;
+
+/// Half-width of the moving mean, s.
+pub const SMOOTHING_S: f64 = 0.01;
+/// Share of the loaded level above which the torque counts as loaded.
+pub const LOADED_FRACTION: f64 = 0.1;
+/// Loaded stretches closer than this are one bite, s.
+pub const MERGE_GAP_S: f64 = 0.15;
+/// Shortest bite, s.
+pub const MIN_BITE_S: f64 = 0.2;
+/// Idle kept before a bite's rise, s.
+pub const PRE_BITE_S: f64 = 0.1;
+/// A bite's record ends where the torque last stood at this share of its settled level.
+pub const UNLOAD_FRACTION: f64 = 0.9;
+
+/// The bites of `record`, each as its own record (times kept); `record` itself when it
+/// holds one bite or none.
+pub fn split_bites<'a>(record: &Measured<'a>) -> Vec<Measured<'a>> {
+    let y = record.torque_knm;
+    let m = y.len();
+    let fs = record.sample_rate_hz;
+    let half = ((SMOOTHING_S * fs).round() as usize).max(1);
+    // Centred moving mean by a running sum.
+    let mut prefix = Vec::with_capacity(m + 1);
+    prefix.push(0.0);
+    for v in y {
+        prefix.push(prefix[prefix.len() - 1] + v);
+    }
+    let smooth: Vec<f64> = (0..m)
+        .map(|k| {
+            let (a, b) = (k.saturating_sub(half), (k + half + 1).min(m));
+            (prefix[b] - prefix[a]) / (b - a) as f64
+        })
+        .collect();
+    let mut sorted = smooth.clone();
+    sorted.sort_by(f64::total_cmp);
+    let Some(&level) = sorted.get(m * 9 / 10) else {
+        return vec![*record];
+    };
+    let threshold = (LOADED_FRACTION * level).max(5.0 * noise_rms(y));
+    let merge = (MERGE_GAP_S * fs).round() as usize;
+    let mut runs: Vec<(usize, usize)> = Vec::new();
+    let mut k = 0;
+    while k < m {
+        if smooth[k] <= threshold {
+            k += 1;
+            continue;
+        }
+        let start = k;
+        while k < m && smooth[k] > threshold {
+            k += 1;
+        }
+        match runs.last_mut() {
+            Some(last) if start - last.1 < merge => last.1 = k,
+            _ => runs.push((start, k)),
+        }
+    }
+    runs.retain(|&(a, b)| (b - a) as f64 >= MIN_BITE_S * fs);
+    if runs.len() < 2 {
+        return vec![*record];
+    }
+    let pre = (PRE_BITE_S * fs).round() as usize;
+    let mut bites = Vec::with_capacity(runs.len());
+    for (i, &(a, b)) in runs.iter().enumerate() {
+        let idle_before = if i == 0 { a } else { a - runs[i - 1].1 };
+        let start = a - pre.min(idle_before / 2);
+        let end = if b == m {
+            m
+        } else {
+            let mut tail = smooth[(a + b) / 2..b].to_vec();
+            let middle = tail.len() / 2;
+            let (_, settled, _) = tail.select_nth_unstable_by(middle, f64::total_cmp);
+            let settled = *settled;
+            let last = (a..b)
+                .rev()
+                .find(|&j| smooth[j] >= UNLOAD_FRACTION * settled)
+                .unwrap_or(b);
+            last.saturating_sub(half).max(a + 1)
+        };
+        bites.push(Measured {
+            t0_s: record.t0_s + start as f64 / fs,
+            sample_rate_hz: fs,
+            torque_knm: &y[start..end],
+        });
+    }
+    bites
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::chain::simulate_with_noise;
+    use crate::model::Model;
+
+    #[test]
+    fn three_bites_with_idle_and_unloading_between_are_three_records() {
+        let mut model =
+            Model::from_toml_str(include_str!("../../models/table2-adjusted.toml"), "t2").unwrap();
+        let fs = model.measurement.sample_rate;
+        let mut record = Vec::new();
+        let mut onsets = Vec::new();
+        let mut unloads = Vec::new();
+        for (b, static_knm) in [60.0, 150.0, 100.0].into_iter().enumerate() {
+            record.extend(std::iter::repeat_n(0.0, 600)); // 0.3 s idle
+            model.load.static_torque = static_knm;
+            let bite = simulate_with_noise(&model, 0.5, b as u64)
+                .unwrap()
+                .torque_knm;
+            onsets.push(record.len() + (model.load.onset * fs) as usize);
+            let last = *bite.last().unwrap();
+            record.extend(bite);
+            unloads.push(record.len());
+            // Unloading: a 50 ms ramp down.
+            record.extend((1..=100).map(|k| last * (1.0 - k as f64 / 100.0)));
+        }
+        record.extend(std::iter::repeat_n(0.0, 600));
+        let whole = Measured {
+            t0_s: 1.0,
+            sample_rate_hz: fs,
+            torque_knm: &record,
+        };
+        let bites = split_bites(&whole);
+        assert_eq!(bites.len(), 3);
+        for (bite, (&onset, &unload)) in bites.iter().zip(onsets.iter().zip(&unloads)) {
+            let start = ((bite.t0_s - 1.0) * fs).round() as usize;
+            let end = start + bite.torque_knm.len();
+            // The rise inside, with idle before it; the unloading outside, most of the
+            // settled part inside.
+            assert!(
+                start + 50 <= onset && onset < start + 250,
+                "{start} {onset}"
+            );
+            assert!(end <= unload && end + 200 > unload, "{end} {unload}");
+        }
+        // One bite: the record itself.
+        let one = &record[..1800];
+        let single = Measured {
+            torque_knm: one,
+            ..whole
+        };
+        assert_eq!(split_bites(&single).len(), 1);
+        assert_eq!(split_bites(&single)[0].torque_knm.len(), 1800);
+    }
+}
