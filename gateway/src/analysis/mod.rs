@@ -104,7 +104,7 @@ impl Analysis {
 
     /// The gap map builds of the drivelines with a model (each once; later calls give
     /// none). Run each off the analysis task and hand the result to
-    /// [`Self::install_gap_maps`] (or through the channel of [`Self::run_with_maps`]).
+    /// [`Self::install_gap_maps`] (or through the `maps` channel of [`Self::run`]).
     pub fn take_gap_map_jobs(&mut self) -> Vec<GapMapJob> {
         self.drivelines
             .iter_mut()
