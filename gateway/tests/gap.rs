@@ -753,32 +753,49 @@ fn a_model_calibrated_from_a_recording_with_a_gap_open_finds_the_gap_later() {
         (gap.gap_mrad - truth_mrad).abs() <= (0.15 * truth_mrad).max(0.3),
         "{gap:?}"
     );
-    assert!(gap.low_mrad <= truth_mrad && truth_mrad <= gap.high_mrad, "{gap:?}");
+    assert!(
+        gap.low_mrad <= truth_mrad && truth_mrad <= gap.high_mrad,
+        "{gap:?}"
+    );
     assert_eq!((gap.coupling, gap.bites_pooled), (Some(0), 10));
 }
 
 /// The larger evaluation of the path above: `cargo test -p millgate --test gap
-/// calibrated_models_over_seeds -- --ignored --nocapture` (about 5 s of CPU per case;
-/// figures in the README). Half the calibration records come from a fresh coupling,
-/// half with 1-4 mrad open in the spindle coupling, three bites at 60, 110, 160 kN*m
-/// (all shifted by up to 15 kN*m); the monitored gap is
-/// 1-6 mrad in coupling 0 or 1.
+/// calibrated_models_over_seeds -- --ignored --nocapture` (about 25 s of CPU per case;
+/// figures in the README; `GAP_CALIBRATION_CASES=N`, default 20). Half the calibration
+/// records come from a fresh coupling, half with 1-4 mrad open in the spindle coupling;
+/// three bites at 60, 110, 160 kN*m, all shifted by up to 15 kN*m
+/// (`GAP_CALIBRATION_BITES=1`: the middle one only); the monitored gap is 1-6 mrad in
+/// coupling 0 or 1.
 #[test]
 #[ignore]
 fn calibrated_models_over_seeds() {
     let cases = std::env::var("GAP_CALIBRATION_CASES").map_or(20, |n| n.parse().expect("a count"));
+    let one_bite = std::env::var("GAP_CALIBRATION_BITES").is_ok_and(|n| n == "1");
     let mut rng = Seeded(0xca1_1b4a7e);
     let (mut within, mut covered, mut stiffness_errors) = (0, 0, Vec::new());
-    println!("case calib_gap calib_shift_knm verdict effect | coupling truth | gap low high coupling");
+    println!(
+        "case calib_gap calib_shift_knm verdict effect | coupling truth | gap low high coupling"
+    );
     for case in 0..cases {
-        let calibration_gap = if case % 2 == 0 { 0.0 } else { rng.uniform(1.0, 4.0) };
+        let calibration_gap = if case % 2 == 0 {
+            0.0
+        } else {
+            rng.uniform(1.0, 4.0)
+        };
         let shift = rng.uniform(-15.0, 15.0);
-        let calibration_knm = CALIBRATION_KNM.map(|t| t + shift);
+        let calibration_knm: Vec<f64> = CALIBRATION_KNM.iter().map(|t| t + shift).collect();
+        // One bite: the middle one.
+        let calibration_knm = if one_bite {
+            &calibration_knm[1..2]
+        } else {
+            &calibration_knm[..]
+        };
         let truth = rng.uniform(1.0, 6.0);
         let coupling = case / 2 % 2;
         let seen = calibrate_then_monitor(
             calibration_gap,
-            &calibration_knm,
+            calibration_knm,
             coupling,
             truth,
             1000 + 10 * case as u64,
@@ -838,8 +855,8 @@ fn maps_of(model: &Model, name: &str) -> GapMaps {
 #[test]
 #[ignore]
 fn model_error_allowance_from_the_calibration_error() {
-    let calibrations: u64 = std::env::var("GAP_ALLOWANCE_CALIBRATIONS")
-        .map_or(4, |n| n.parse().expect("a count"));
+    let calibrations: u64 =
+        std::env::var("GAP_ALLOWANCE_CALIBRATIONS").map_or(4, |n| n.parse().expect("a count"));
     let base = maps_of(&truth(), "allowance-truth");
     let (mut taf, mut shift) = (Vec::new(), Vec::new());
     for k in 0..calibrations {
