@@ -76,11 +76,14 @@ impl Report {
     }
 
     /// Records a problem at `key`.
+    /// Record a problem. Control characters in `key` and `message` (a user's name
+    /// quoted in a list of known names, a key with a line break) are escaped, so each
+    /// problem stays one line naming its file.
     pub(crate) fn push(&mut self, key: impl Into<String>, message: impl Into<String>) {
         self.problems.push(Problem {
             file: self.file.clone(),
-            key: key.into(),
-            message: message.into(),
+            key: one_line(key.into()),
+            message: one_line(message.into()),
         });
     }
 
@@ -123,6 +126,24 @@ pub(crate) fn line_column(text: &str, offset: usize) -> (usize, usize) {
     let line_start = before.rfind('\n').map_or(0, |newline| newline + 1);
     let column = before[line_start..].chars().count() + 1;
     (line, column)
+}
+
+/// `text` with its control characters escaped (`\n`, `\u{0}`), unchanged when it has
+/// none.
+fn one_line(text: String) -> String {
+    if text.chars().any(char::is_control) {
+        text.chars()
+            .map(|c| {
+                if c.is_control() {
+                    c.escape_default().to_string()
+                } else {
+                    c.to_string()
+                }
+            })
+            .collect()
+    } else {
+        text
+    }
 }
 
 #[cfg(test)]

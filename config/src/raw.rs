@@ -161,6 +161,9 @@ pub(crate) struct RawPlcOutput {
 pub(crate) struct RawServerOutput {
     pub bind: String,
     pub unit_id: Option<i64>,
+    pub max_connections: Option<i64>,
+    pub idle_timeout_ms: Option<i64>,
+    pub allow_remote_commands: Option<bool>,
 }
 
 /// `[outputs.metrics]`.

@@ -220,8 +220,17 @@ pub fn summary(config: &Config) -> String {
     if let Some(server) = &outputs.server {
         let _ = writeln!(
             text,
-            "  Modbus server: listen on {} unit {}",
-            server.bind, server.unit_id
+            "  Modbus server: listen on {} unit {}, at most {} clients, idle timeout {} ms, \
+             commands from {}",
+            server.bind,
+            server.unit_id,
+            server.max_connections,
+            server.idle_timeout.as_millis(),
+            if server.allow_remote_commands {
+                "any host"
+            } else {
+                "loopback clients only"
+            }
         );
     }
     if let Some(metrics) = &outputs.metrics {

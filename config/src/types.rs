@@ -471,8 +471,18 @@ pub struct PlcOutput {
 pub struct ServerOutput {
     /// Address to listen on; port 0 picks a free port.
     pub bind: SocketAddr,
-    /// Unit identifier the server answers to, 0..=255 (default 1).
+    /// Unit identifier the server answers to, 1..=255 (default 1); requests to unit
+    /// 255 are answered too, requests to unit 0 (broadcast) never.
     pub unit_id: u8,
+    /// Clients served at once, 1..=64 (default 8); a further connection is closed at
+    /// once.
+    pub max_connections: usize,
+    /// A connection without a request for this long is closed, 100..=3600000 ms
+    /// (default 60000 ms).
+    pub idle_timeout: Duration,
+    /// Whether clients on other hosts may write the command registers (default
+    /// false: only loopback clients may; others get exception 01).
+    pub allow_remote_commands: bool,
 }
 
 /// The Prometheus endpoint.

@@ -172,10 +172,11 @@ fn base_is_valid_and_takes_defaults() {
     let plc = config.outputs.plc.as_ref().expect("plc output");
     assert_eq!((plc.unit_id, plc.register_base), (1, 0));
     assert_eq!(plc.timeout, Duration::from_millis(1000));
-    assert_eq!(
-        config.outputs.server.as_ref().map(|server| server.unit_id),
-        Some(1)
-    );
+    let server = config.outputs.server.as_ref().expect("server output");
+    assert_eq!(server.unit_id, 1);
+    assert_eq!(server.max_connections, 8);
+    assert_eq!(server.idle_timeout, Duration::from_secs(60));
+    assert!(!server.allow_remote_commands);
     let metrics = config.outputs.metrics.as_ref().expect("metrics output");
     assert_eq!(metrics.bind.to_string(), "127.0.0.1:9187");
     assert_eq!(config.channel_index("acc1"), Some(4));
@@ -848,6 +849,109 @@ fn addresses() {
         "mill.toml: outputs.metrics.bind: \"9187\" is not allowed",
         &[],
     );
+}
+
+#[test]
+fn listeners_on_the_same_port_are_refused() {
+    // The HMI server and the metrics endpoint on one port: the second bind fails at
+    // run time, after `check` said OK.
+    assert_only_problem(
+        &edited(
+            "[outputs.metrics]",
+            "[outputs.metrics]\nbind = \"127.0.0.1:5503\"",
+        ),
+        "mill.toml: outputs.metrics.bind: 127.0.0.1:5503 is not allowed: outputs.server.bind \
+         (127.0.0.1:5503) listens on the same port; each listener needs its own port",
+    );
+    // The wildcard covers every address of its family.
+    assert_problem_like(
+        &edited(
+            "[outputs.metrics]",
+            "[outputs.metrics]\nbind = \"0.0.0.0:5503\"",
+        ),
+        "mill.toml: outputs.metrics.bind: 0.0.0.0:5503 is not allowed",
+        &[],
+    );
+    // Another address, another family, or port 0 (the OS picks): no clash.
+    for bind in ["127.0.0.2:5503", "[::1]:5503", "127.0.0.1:0"] {
+        let text = edited(
+            "[outputs.metrics]",
+            &format!("[outputs.metrics]\nbind = \"{bind}\""),
+        );
+        assert!(parse(&text).is_ok(), "{bind}");
+    }
+    let both_zero = edited("bind = \"127.0.0.1:5503\"", "bind = \"127.0.0.1:0\"").replace(
+        "[outputs.metrics]",
+        "[outputs.metrics]\nbind = \"127.0.0.1:0\"",
+    );
+    assert!(parse(&both_zero).is_ok());
+}
+
+#[test]
+fn server_limits_and_unit_id() {
+    let text = edited(
+        "bind = \"127.0.0.1:5503\"",
+        "bind = \"127.0.0.1:5503\"\nmax_connections = 2\nidle_timeout_ms = 500\n\
+         allow_remote_commands = true",
+    );
+    let config = parse(&text).unwrap_or_else(|error| panic!("{error}"));
+    let server = config.outputs.server.unwrap();
+    assert_eq!(server.max_connections, 2);
+    assert_eq!(server.idle_timeout, Duration::from_millis(500));
+    assert!(server.allow_remote_commands);
+    assert_only_problem(
+        &edited(
+            "bind = \"127.0.0.1:5503\"",
+            "bind = \"127.0.0.1:5503\"\nunit_id = 0",
+        ),
+        "mill.toml: outputs.server.unit_id: 0 is not allowed (must be 1..=255; 0 is the \
+         broadcast address, which a server never answers)",
+    );
+    assert_only_problem(
+        &edited(
+            "bind = \"127.0.0.1:5503\"",
+            "bind = \"127.0.0.1:5503\"\nmax_connections = 0",
+        ),
+        "mill.toml: outputs.server.max_connections: 0 is not allowed (must be 1..=64)",
+    );
+    assert_only_problem(
+        &edited(
+            "bind = \"127.0.0.1:5503\"",
+            "bind = \"127.0.0.1:5503\"\nidle_timeout_ms = 50",
+        ),
+        "mill.toml: outputs.server.idle_timeout_ms: 50 is not allowed (must be 100..=3600000 ms)",
+    );
+}
+
+#[test]
+fn names_with_control_characters_are_refused() {
+    // A NUL or a line break in a name would cut or forge log lines, register names
+    // and Prometheus labels.
+    assert_only_problem(
+        &edited("name = \"F1\"", "name = \"F1\\nF2\""),
+        "mill.toml: drivelines[0].name: \"F1\\nF2\" is not allowed (must not contain control \
+         characters; U+000A at byte 2)",
+    );
+    assert_problem_like(
+        &edited("name = \"Test mill\"", "name = \"Test\\u0000mill\""),
+        "mill.toml: name: ",
+        &["U+0000 at byte 4"],
+    );
+    let found = problems(&edited("name = \"daq1\"", "name = \"daq\\r1\""));
+    assert!(
+        found
+            .iter()
+            .any(|p| p.starts_with("mill.toml: sources.modbus[0].name: ") && p.contains("U+000D")),
+        "{found:#?}"
+    );
+    // Other problems quote the refused name (in a list of known sources): escaped, so
+    // every line of the report still names the file (found by the fuzz suite).
+    let found = problems(&edited("name = \"daq1\"", "name = \"daq\n1\""));
+    assert!(found.len() > 1, "{found:#?}");
+    let report = found.join("\n");
+    for line in report.lines() {
+        assert!(line.starts_with("mill.toml: "), "{line:?} in {found:#?}");
+    }
 }
 
 #[test]

@@ -24,7 +24,9 @@
 //! - **Bad samples**: a non-finite sample is stored as the previous stored value (the
 //!   baseline for the first one) and sets `quality.non_finite`; a sample at or beyond
 //!   the saturation limits sets `quality.saturated`. Neither ever triggers by itself
-//!   unless it is a saturated value above the threshold.
+//!   unless it is a saturated value above the threshold, and neither sets, moves or
+//!   resets the baseline or re-arms the detector: coming back from full scale is not
+//!   a rise from it.
 
 use heapless::{HistoryBuf, Vec};
 
@@ -297,14 +299,18 @@ impl<const PRE: usize, const N: usize> BiteDetector<PRE, N> {
         let index = state.sample_index;
         state.sample_index = index.wrapping_add(1);
         let finite = torque_knm.is_finite();
+        let saturated = finite
+            && (torque_knm <= self.settings.saturation_low_knm
+                || torque_knm >= self.settings.saturation_high_knm);
+        // A saturated sample says only that the torque is beyond a limit: it never
+        // sets or moves the baseline, nor re-arms the detector.
+        let usable = finite && !saturated;
         if !finite {
             state.last_non_finite = Some(index);
-        } else if torque_knm <= self.settings.saturation_low_knm
-            || torque_knm >= self.settings.saturation_high_knm
-        {
+        } else if saturated {
             state.last_saturated = Some(index);
         }
-        if finite && !state.baseline_valid {
+        if usable && !state.baseline_valid {
             state.baseline_knm = torque_knm;
             state.baseline_valid = true;
         }
@@ -326,7 +332,7 @@ impl<const PRE: usize, const N: usize> BiteDetector<PRE, N> {
                     self.start(state, index, stored, rise);
                     return self.maybe_finish(state);
                 }
-                if finite {
+                if usable {
                     if state.baseline_knm - torque_knm >= self.settings.threshold_knm {
                         // A fall below the baseline by a whole threshold: the baseline
                         // was a loaded level (start mid-bar), not the zero. Zero drift is
@@ -362,7 +368,7 @@ impl<const PRE: usize, const N: usize> BiteDetector<PRE, N> {
             Phase::Dead => {
                 state.dead_remaining = state.dead_remaining.saturating_sub(1);
                 if state.dead_remaining == 0
-                    && finite
+                    && usable
                     && libm::fabs(torque_knm - state.baseline_knm) <= self.settings.rearm_knm
                 {
                     state.phase = Phase::Armed;

@@ -244,3 +244,50 @@ fn settings_are_validated() {
         Some(E::PostTriggerSamples)
     );
 }
+
+#[test]
+fn coming_back_from_negative_full_scale_invents_no_bite_and_misses_none() {
+    // Idle at 5 kN*m, the channel pinned at -500 (the converter's negative end, a
+    // cable fault) for 2000 samples, back to idle, then a real bite at 4000. Before,
+    // the fall reset the baseline to -500, the return to idle was a "bite" of +505,
+    // and its dead time swallowed the real one.
+    let mut samples = record(6000, &[(4000, 5000)], 100.0, 0.0);
+    for sample in &mut samples[1000..3000] {
+        *sample = -500.0;
+    }
+    let events = run(&samples);
+    assert_eq!(
+        events.len(),
+        1,
+        "{:?}",
+        events.iter().map(|e| e.trigger_sample).collect::<Vec<_>>()
+    );
+    assert!(
+        (4000..4005).contains(&events[0].trigger_sample),
+        "the real bite, at {}",
+        events[0].trigger_sample
+    );
+    assert!(events[0].quality.is_good());
+    assert!(
+        (events[0].baseline_knm - 5.0).abs() < 2.0,
+        "baseline {}",
+        events[0].baseline_knm
+    );
+}
+
+#[test]
+fn a_start_at_full_scale_sets_no_baseline() {
+    // The first samples are pinned at +500: no baseline from them; once the channel
+    // reads idle, a bite from there is found.
+    let mut samples = record(4000, &[(3000, 3800)], 100.0, 0.0);
+    for sample in &mut samples[..1000] {
+        *sample = 500.0;
+    }
+    let events = run(&samples);
+    let triggers: Vec<u64> = events.iter().map(|e| e.trigger_sample).collect();
+    assert!(
+        events.iter().all(|e| e.trigger_sample >= 3000),
+        "nothing before the bite: {triggers:?}"
+    );
+    assert_eq!(events.len(), 1, "{triggers:?}");
+}

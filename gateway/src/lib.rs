@@ -7,6 +7,8 @@ pub mod field;
 pub mod outputs;
 pub mod service;
 pub mod shutdown;
+pub mod supervision;
+mod warn_limit;
 
 pub use service::{run, Service};
 

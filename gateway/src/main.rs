@@ -82,15 +82,75 @@ async fn wait_for_signal() -> std::io::Result<()> {
     }
 }
 
-async fn run_service(config: PathBuf) -> anyhow::Result<()> {
-    let config = millgate_config::load(&config)?;
-    let (trigger, shutdown) = millgate::shutdown::channel();
-    let service = tokio::spawn(millgate::run(config, shutdown));
-    wait_for_signal().await?;
-    tracing::info!("shutdown requested");
-    trigger.trigger();
-    service.await??;
-    Ok(())
+/// `millgate run`: fails at once, with the reason and a non-zero exit, when anything
+/// the service must load or bind fails; tells systemd (`sd_notify`, when
+/// `NOTIFY_SOCKET` is set) READY=1 once every listener is bound and the first PLC
+/// write was attempted, pings its watchdog while the analysis and the outputs make
+/// progress (`WATCHDOG_USEC`), and says STOPPING=1 on SIGINT or SIGTERM. A service
+/// that ends by itself is a failure.
+async fn run_service(config_path: PathBuf) -> anyhow::Result<()> {
+    use sd_notify::NotifyState;
+    let config = millgate_config::load(&config_path)?;
+    let heartbeat = config
+        .outputs
+        .plc
+        .as_ref()
+        .map_or(millgate::outputs::heartbeat_period_without_plc(), |plc| {
+            plc.write_period
+        });
+    let watchdog = sd_notify::watchdog_enabled();
+    if let Some(period) = watchdog {
+        millgate::supervision::check_watchdog(period, heartbeat)
+            .map_err(|error| anyhow::anyhow!("{}: {error}", config_path.display()))?;
+    }
+    let service = millgate::Service::new(config)
+        .map_err(|error| anyhow::anyhow!("{}: {error}", config_path.display()))?;
+    let mut gateway = service.spawn().await?;
+    let signal = wait_for_signal();
+    tokio::pin!(signal);
+    tokio::select! {
+        ready = gateway.ready() => ready?,
+        received = &mut signal => {
+            received?;
+            tracing::info!("shutdown requested before the service was ready");
+            gateway.stop().await?;
+            return Ok(());
+        }
+    }
+    tracing::info!("ready");
+    notify(&[NotifyState::Ready]);
+    let (stop_watchdog, watchdog_shutdown) = millgate::shutdown::channel();
+    if let Some(period) = watchdog {
+        tokio::spawn(millgate::supervision::watchdog(
+            gateway.liveness(),
+            gateway.publisher(),
+            period,
+            || notify(&[NotifyState::Watchdog]),
+            watchdog_shutdown,
+        ));
+    }
+    tokio::select! {
+        received = &mut signal => {
+            received?;
+            tracing::info!("shutdown requested");
+            notify(&[NotifyState::Stopping]);
+            stop_watchdog.trigger();
+            gateway.stop().await?;
+            Ok(())
+        }
+        ended = gateway.finished() => {
+            stop_watchdog.trigger();
+            Err(ended.err().unwrap_or(millgate::service::ServiceError::Ended).into())
+        }
+    }
+}
+
+/// Tell systemd `states`; without `NOTIFY_SOCKET` nothing is sent. A failure to send
+/// is logged: the service itself is fine.
+fn notify(states: &[sd_notify::NotifyState<'_>]) {
+    if let Err(error) = sd_notify::notify(states) {
+        tracing::warn!(%error, "cannot notify the service manager");
+    }
 }
 
 /// `error` and its causes as one line: each cause is appended unless the text so far
@@ -134,9 +194,10 @@ fn main() -> ExitCode {
         },
         Command::Registers { config, format } => millgate_config::load(&config)
             .map_err(anyhow::Error::from)
-            .map(|config| {
-                let map = millgate::outputs::register_map::RegisterMap::new(&config);
+            .and_then(|config| {
+                let map = millgate::outputs::register_map::RegisterMap::try_new(&config)?;
                 print!("{}", millgate::cli::registers::export(&map, format));
+                Ok(())
             }),
         Command::Analyze(args) => {
             init_tracing("warn");

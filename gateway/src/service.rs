@@ -1,4 +1,10 @@
 //! The service: reader tasks -> analysis task -> output tasks, and their shutdown.
+//!
+//! Start-up fails loudly: [`Service::new`] refuses what cannot run (a model that does
+//! not load, a register map past register 65535), [`Service::spawn`] what cannot bind,
+//! and once running, an output task that ends (a listener that fails for good) or an
+//! analysis that dies ends the service with the error, so `millgate run` exits
+//! non-zero and its supervisor restarts it.
 
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -7,7 +13,7 @@ use std::time::Duration;
 
 use millgate_config::Config;
 use tokio::net::TcpListener;
-use tokio::sync::{broadcast, mpsc};
+use tokio::sync::{broadcast, mpsc, watch};
 use tokio::task::{JoinHandle, JoinSet};
 
 use crate::analysis::driveline::BiteReport;
@@ -19,12 +25,14 @@ use crate::field::counters::{CanCounters, ChannelCounters};
 use crate::field::daq_reader::DaqReader;
 use crate::field::source_health::SourceHealth;
 use crate::outputs::heartbeat;
-use crate::outputs::hmi_server::ModbusServer;
+use crate::outputs::hmi_server::{self, ModbusServer, ServerCounters};
 use crate::outputs::metrics::Metrics;
 use crate::outputs::plc_writer::PlcWriter;
 use crate::outputs::publisher::Publisher;
+use crate::outputs::register_map::{self, MapTooLarge};
 use crate::outputs::results::GatewayState;
 use crate::shutdown::{self, Shutdown, ShutdownTrigger};
+use crate::supervision::Liveness;
 
 /// Samples in flight between readers and analysis. At 2 kHz and 100-sample blocks
 /// this is seconds of data per channel: enough to ride out a slow analysis step.
@@ -47,9 +55,44 @@ pub enum ServiceError {
         #[source]
         source: std::io::Error,
     },
+    /// Drivelines that name a model the wear diagnosis cannot use (the model does not
+    /// load, or its `wear` settings do not fit it): one `<key path>: <problem>` each,
+    /// naming the model file.
+    #[error("{}", .0.join("\n"))]
+    Wear(Vec<String>),
+    /// The register map does not fit a Modbus table.
+    #[error("drivelines, tandem_mills: {0}")]
+    MapTooLarge(#[from] MapTooLarge),
+    /// The register map written at `outputs.plc.register_base` runs past register 65535.
+    #[error(
+        "outputs.plc.register_base: {base} is not allowed: the register map spans {span} \
+         registers and would end at register {end}, past 65535 (must be 0..={max})"
+    )]
+    RegisterBase {
+        /// The configured base.
+        base: u16,
+        /// Registers the map spans.
+        span: u16,
+        /// Last register the map would reach.
+        end: u32,
+        /// Highest base that fits.
+        max: u32,
+    },
+    /// An output task ended while the service ran: its listener failed for good, or it
+    /// panicked.
+    #[error("the {output} stopped: {reason}")]
+    Output {
+        /// Which output.
+        output: &'static str,
+        /// What ended it.
+        reason: String,
+    },
     /// The service's task panicked or was cancelled.
     #[error("the service task failed: {0}")]
     Task(#[from] tokio::task::JoinError),
+    /// The service ended without being asked to stop.
+    #[error("the service ended without being asked to stop")]
+    Ended,
 }
 
 /// A configured, not yet running gateway.
@@ -64,6 +107,10 @@ pub struct Service {
     analysis: Analysis,
     server_listener: Option<TcpListener>,
     metrics_listener: Option<TcpListener>,
+    liveness: Arc<Liveness>,
+    server_counters: Arc<ServerCounters>,
+    /// Set once the PLC writer attempted its first write (at once without a PLC).
+    plc_attempted: watch::Sender<bool>,
 }
 
 /// Addresses the service listens on.
@@ -75,14 +122,46 @@ pub struct Bound {
     pub metrics: Option<SocketAddr>,
 }
 
-fn modbus_health(source: &millgate_config::ModbusSource) -> SourceHealth {
-    let stale_after = (source.poll_period * 3).max(source.timeout * 2);
+/// The health of Modbus source `index` of `config`: stale after three poll periods,
+/// two timeouts or two periods of its slowest full block (new data is what keeps a
+/// source fresh), whichever is longest; lost after five times that or 5 s.
+fn modbus_health(config: &Config, index: usize) -> SourceHealth {
+    let source = &config.modbus_sources[index];
+    let slowest_block = config
+        .channels
+        .iter()
+        .filter_map(|channel| match channel.source {
+            millgate_config::ChannelSource::ModbusBlock { source, .. } if source == index => {
+                Some(Duration::from_secs_f64(
+                    f64::from(millgate_config::layout::MAX_BLOCK_SAMPLES) / channel.sample_rate_hz,
+                ))
+            }
+            _ => None,
+        })
+        .max()
+        .unwrap_or_default();
+    let stale_after = (source.poll_period * 3)
+        .max(source.timeout * 2)
+        .max(slowest_block * 2);
     SourceHealth::new(stale_after, (stale_after * 5).max(Duration::from_secs(5)))
 }
 
 impl Service {
-    /// Build every task's state from `config`.
+    /// Build every task's state from `config`; an error names the key of a setting
+    /// the service cannot run with.
     pub fn new(config: Config) -> Result<Self, ServiceError> {
+        let span = register_map::RegisterMap::try_new(&config)?.len();
+        if let Some(plc) = &config.outputs.plc {
+            let end = u32::from(plc.register_base) + u32::from(span) - 1;
+            if end > u32::from(u16::MAX) {
+                return Err(ServiceError::RegisterBase {
+                    base: plc.register_base,
+                    span,
+                    end,
+                    max: u32::from(u16::MAX) + 1 - u32::from(span),
+                });
+            }
+        }
         let counters = config
             .channels
             .iter()
@@ -91,7 +170,8 @@ impl Service {
         let health: Vec<Arc<SourceHealth>> = config
             .modbus_sources
             .iter()
-            .map(|source| Arc::new(modbus_health(source)))
+            .enumerate()
+            .map(|(index, _)| Arc::new(modbus_health(&config, index)))
             .chain(config.can_sources.iter().map(|_| {
                 Arc::new(SourceHealth::new(
                     Duration::from_secs(1),
@@ -102,10 +182,19 @@ impl Service {
         let publisher = Arc::new(Publisher::new(&config, health.clone()));
         let (bites, _) = broadcast::channel(64);
         let analysis = Analysis::new(&config, Arc::clone(&publisher), bites.clone())?;
-        for problem in analysis.wear_problems() {
-            tracing::error!(%problem, "running without wear diagnosis for this driveline");
+        // A driveline model that does not load, or `wear` settings that do not fit it,
+        // is a configuration error: `run` exits with it at once (and `check` names it)
+        // rather than running on without the wear diagnosis the file asks for.
+        let problems: Vec<String> = analysis
+            .wear_problems()
+            .iter()
+            .map(ToString::to_string)
+            .collect();
+        if !problems.is_empty() {
+            return Err(ServiceError::Wear(problems));
         }
         let can_counters = config.can_sources.iter().map(|_| Arc::default()).collect();
+        let (plc_attempted, _) = watch::channel(config.outputs.plc.is_none());
         Ok(Self {
             config,
             publisher,
@@ -116,7 +205,23 @@ impl Service {
             analysis,
             server_listener: None,
             metrics_listener: None,
+            liveness: Arc::default(),
+            server_counters: Arc::default(),
+            plc_attempted,
         })
+    }
+
+    /// What the configuration exposes that an operator should know: a Modbus server
+    /// reachable from other hosts. `millgate check` prints these; the service logs them
+    /// as warnings at start.
+    pub fn warnings(&self) -> Vec<String> {
+        self.config
+            .outputs
+            .server
+            .as_ref()
+            .and_then(hmi_server::exposure_warning)
+            .into_iter()
+            .collect()
     }
 
     /// Bind the listening outputs (Modbus server, metrics) now and return their
@@ -153,17 +258,6 @@ impl Service {
         })
     }
 
-    /// Why drivelines that name a model would run without wear diagnosis (a model that
-    /// does not load, `wear` settings that do not fit it): logged at start, and errors
-    /// for `millgate check`. Each names the key and the file.
-    pub fn wear_problems(&self) -> Vec<String> {
-        self.analysis
-            .wear_problems()
-            .iter()
-            .map(ToString::to_string)
-            .collect()
-    }
-
     /// Start driveline `index`'s gap pool from `observations` (oldest first), e.g. as
     /// saved by a history before a restart ([`RunningService`] bites carry each new
     /// observation). The estimate is published as soon as the gap maps are ready.
@@ -187,9 +281,15 @@ impl Service {
     }
 
     /// Run until `shutdown` fires; then stop the readers, let analysis drain what
-    /// they read, and write the final registers with status "stopped".
-    pub async fn run(mut self, shutdown: Shutdown) -> Result<(), ServiceError> {
+    /// they read, and write the final registers with status "stopped" (the source
+    /// statuses as they were while running: an orderly stop is not a fault).
+    ///
+    /// Ends early with an error when an output task or the analysis fails.
+    pub async fn run(mut self, mut shutdown: Shutdown) -> Result<(), ServiceError> {
         self.bind().await?;
+        for warning in self.warnings() {
+            tracing::warn!("{warning}");
+        }
         let Service {
             config,
             publisher,
@@ -198,15 +298,20 @@ impl Service {
             can_counters,
             server_listener,
             metrics_listener,
+            liveness,
+            server_counters,
+            plc_attempted,
             mut analysis,
             ..
         } = self;
+        // Readers stop on their own signal, after the final source statuses are kept.
+        let (readers_stop, readers_shutdown) = shutdown::channel();
         let (samples_tx, samples_rx) = mpsc::channel(SAMPLE_QUEUE);
         let mut readers = JoinSet::new();
         for (index, source) in config.modbus_sources.iter().enumerate() {
             let reader = DaqReader::new(&config, index, &counters, Arc::clone(&health[index]));
             tracing::info!(source = %source.name, address = %source.address, "starting DaqReader");
-            readers.spawn(reader.run(samples_tx.clone(), shutdown.clone()));
+            readers.spawn(reader.run(samples_tx.clone(), readers_shutdown.clone()));
         }
         for (index, source) in config.can_sources.iter().enumerate() {
             tracing::info!(source = %source.name, interface = %source.interface, "starting CanReader");
@@ -217,7 +322,7 @@ impl Service {
                 health,
                 Arc::clone(&can_counters[index]),
                 samples_tx.clone(),
-                shutdown.clone(),
+                readers_shutdown.clone(),
             ));
         }
         drop(samples_tx);
@@ -234,28 +339,39 @@ impl Service {
             }
         }
         drop(maps_tx);
-        let analysis = tokio::spawn(analysis.run_with_maps(samples_rx, maps_rx));
+        let mut analysis = tokio::spawn(analysis.run(samples_rx, maps_rx, Arc::clone(&liveness)));
 
         // Outputs stop only after analysis has drained, so the last bite is published.
+        // Each returns what ended it; before the stop, any end is a failure.
         let (outputs_stop, outputs_shutdown) = shutdown::channel();
-        let mut outputs = JoinSet::new();
+        let mut outputs: JoinSet<(&'static str, Result<(), String>)> = JoinSet::new();
         if let Some(plc) = &config.outputs.plc {
             tracing::info!(plc = %plc.address, base = plc.register_base, "starting PlcWriter");
-            let writer = PlcWriter::new(plc.clone(), Arc::clone(&publisher));
-            outputs.spawn(writer.run(outputs_shutdown.clone()));
-        } else {
-            outputs.spawn(heartbeat::beat_without_plc(
-                Arc::clone(&publisher),
-                outputs_shutdown.clone(),
-            ));
-        }
-        if let (Some(output), Some(listener)) = (&config.outputs.server, server_listener) {
-            let server = ModbusServer::new(output.clone(), Arc::clone(&publisher));
+            let writer =
+                PlcWriter::new(plc.clone(), Arc::clone(&publisher)).on_first_attempt(plc_attempted);
             let shutdown = outputs_shutdown.clone();
             outputs.spawn(async move {
-                if let Err(error) = server.run(listener, shutdown).await {
-                    tracing::error!(%error, "Modbus server failed");
-                }
+                writer.run(shutdown).await;
+                ("PLC writer", Ok(()))
+            });
+        } else {
+            let beat =
+                heartbeat::beat_without_plc(Arc::clone(&publisher), outputs_shutdown.clone());
+            outputs.spawn(async move {
+                beat.await;
+                ("heartbeat", Ok(()))
+            });
+        }
+        if let (Some(output), Some(listener)) = (&config.outputs.server, server_listener) {
+            let server = ModbusServer::new(
+                output.clone(),
+                Arc::clone(&publisher),
+                Arc::clone(&server_counters),
+            );
+            let shutdown = outputs_shutdown.clone();
+            outputs.spawn(async move {
+                let served = server.run(listener, shutdown).await;
+                ("Modbus server", served.map_err(|error| error.to_string()))
             });
         }
         if let Some(listener) = metrics_listener {
@@ -265,34 +381,90 @@ impl Service {
                 health.clone(),
                 can_counters,
                 Arc::clone(&publisher),
-            );
-            outputs.spawn(metrics.run(listener, outputs_shutdown));
+            )
+            .with_server(server_counters);
+            let shutdown = outputs_shutdown.clone();
+            outputs.spawn(async move {
+                metrics.run(listener, shutdown).await;
+                ("metrics endpoint", Ok(()))
+            });
         }
         publisher.update(|results| results.state = GatewayState::Running);
 
+        let mut analysis_ended = None;
+        let failure = tokio::select! {
+            () = shutdown.recv() => None,
+            Some(ended) = outputs.join_next() => Some(output_failure(ended)),
+            ended = &mut analysis => {
+                let failure = match &ended {
+                    Ok(()) => ServiceError::Ended,
+                    Err(error) => ServiceError::Output {
+                        output: "analysis",
+                        reason: error.to_string(),
+                    },
+                };
+                analysis_ended = Some(ended);
+                Some(failure)
+            }
+        };
+        if let Some(failure) = &failure {
+            tracing::error!(%failure, "stopping the service");
+        }
+        publisher.freeze_health();
+        readers_stop.trigger();
         while readers.join_next().await.is_some() {}
         cancel_maps.store(true, Ordering::Relaxed);
-        if analysis.await.is_err() {
-            tracing::error!("analysis task failed");
+        let analysis_ended = match analysis_ended {
+            Some(ended) => ended,
+            None => analysis.await,
+        };
+        if let Err(error) = analysis_ended {
+            tracing::error!(%error, "analysis task failed");
         }
         outputs_stop.trigger();
-        while outputs.join_next().await.is_some() {}
+        while let Some(ended) = outputs.join_next().await {
+            if let Ok((output, Err(reason))) = ended {
+                tracing::error!(output, %reason, "output failed");
+            }
+        }
         publisher.update(|results| results.state = GatewayState::Stopped);
         tracing::info!("stopped");
-        Ok(())
+        failure.map_or(Ok(()), Err)
     }
 }
 
-/// A service running in its own task, started by [`Service::spawn`]: what tests, the
-/// demo and benchmarks need to watch it and stop it.
+/// The error of an output task that ended while the service ran.
+fn output_failure(
+    ended: Result<(&'static str, Result<(), String>), tokio::task::JoinError>,
+) -> ServiceError {
+    match ended {
+        Ok((output, Err(reason))) => ServiceError::Output { output, reason },
+        Ok((output, Ok(()))) => ServiceError::Output {
+            output,
+            reason: "it ended on its own".into(),
+        },
+        Err(error) => ServiceError::Output {
+            output: "an output task",
+            reason: error.to_string(),
+        },
+    }
+}
+
+/// A service running in its own task, started by [`Service::spawn`]: what `main`,
+/// tests, the demo and benchmarks need to watch it and stop it.
 #[derive(Debug)]
 pub struct RunningService {
     bound: Bound,
     publisher: Arc<Publisher>,
     counters: Vec<Arc<ChannelCounters>>,
     bites: broadcast::Receiver<BiteReport>,
+    liveness: Arc<Liveness>,
+    plc_attempted: watch::Receiver<bool>,
     stop: ShutdownTrigger,
-    task: JoinHandle<Result<(), ServiceError>>,
+    /// The service's task, until its outcome was taken.
+    task: Option<JoinHandle<Result<(), ServiceError>>>,
+    /// The task's outcome, when [`RunningService::ready`] saw it end.
+    ended: Option<Result<(), ServiceError>>,
 }
 
 impl Service {
@@ -304,6 +476,8 @@ impl Service {
         let publisher = self.publisher();
         let counters = self.counters();
         let bites = self.subscribe_bites();
+        let liveness = Arc::clone(&self.liveness);
+        let plc_attempted = self.plc_attempted.subscribe();
         let (stop, shutdown) = shutdown::channel();
         let task = tokio::spawn(self.run(shutdown));
         Ok(RunningService {
@@ -311,8 +485,11 @@ impl Service {
             publisher,
             counters,
             bites,
+            liveness,
+            plc_attempted,
             stop,
-            task,
+            task: Some(task),
+            ended: None,
         })
     }
 }
@@ -333,6 +510,12 @@ impl RunningService {
         &self.counters
     }
 
+    /// The turns of the analysis loop, for a watchdog
+    /// ([`crate::supervision::watchdog`]).
+    pub fn liveness(&self) -> Arc<Liveness> {
+        Arc::clone(&self.liveness)
+    }
+
     /// The bites analysed since the service was spawned, oldest first.
     pub fn bites(&mut self) -> &mut broadcast::Receiver<BiteReport> {
         &mut self.bites
@@ -340,14 +523,57 @@ impl RunningService {
 
     /// Whether the service's task has ended (it runs until stopped).
     pub fn is_finished(&self) -> bool {
-        self.task.is_finished()
+        self.ended.is_some() || self.task.as_ref().is_none_or(JoinHandle::is_finished)
+    }
+
+    /// Wait until the service is ready: every listener bound (done by `spawn`) and the
+    /// PLC writer's first write attempted, whatever its outcome (at once without a PLC
+    /// output). An error when the service ends first.
+    pub async fn ready(&mut self) -> Result<(), ServiceError> {
+        if let Some(task) = self.task.as_mut() {
+            let mut attempted = self.plc_attempted.clone();
+            let ended = tokio::select! {
+                seen = attempted.wait_for(|attempted| *attempted) => match seen {
+                    Ok(_) => return Ok(()),
+                    // The writer is gone before attempting: the service is ending.
+                    Err(_) => None,
+                },
+                ended = task => Some(ended.unwrap_or_else(|error| Err(error.into()))),
+            };
+            if let Some(ended) = ended {
+                self.task = None;
+                self.ended = Some(ended);
+            }
+        }
+        self.finished().await
+    }
+
+    /// Wait until the service's task ends by itself. It runs until stopped, so this
+    /// is always an error: what ended it, or [`ServiceError::Ended`]. Cancel-safe: the
+    /// task stays with the service until it has ended.
+    pub async fn finished(&mut self) -> Result<(), ServiceError> {
+        if self.ended.is_none() {
+            if let Some(task) = self.task.as_mut() {
+                let outcome = task.await.unwrap_or_else(|error| Err(error.into()));
+                self.task = None;
+                self.ended = Some(outcome);
+            }
+        }
+        self.ended
+            .take()
+            .unwrap_or(Ok(()))
+            .and(Err(ServiceError::Ended))
     }
 
     /// Stop the service as SIGTERM does (readers stop, analysis drains, the final
     /// registers are written with status "stopped") and wait for it.
     pub async fn stop(self) -> Result<(), ServiceError> {
         self.stop.trigger();
-        self.task.await?
+        match (self.ended, self.task) {
+            (Some(outcome), _) => outcome,
+            (None, Some(task)) => task.await?,
+            (None, None) => Ok(()),
+        }
     }
 }
 

@@ -665,3 +665,34 @@ fn sim_tandem_ramp_feeds_chatter_offline() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+// Runs a command of the `sim-tools` feature.
+#[cfg(feature = "sim-tools")]
+#[test]
+fn discrepancy_on_a_constant_record_says_there_is_no_transient() {
+    let dir = std::env::temp_dir().join(format!("millgate-cli-{}-constant", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let csv = dir.join("constant.csv");
+    let mut body = String::from("t,torque\n");
+    for k in 0..1200 {
+        body.push_str(&format!("{},100\n", k as f64 * 5.0e-4));
+    }
+    std::fs::write(&csv, body).unwrap();
+    let model =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../sim/models/table2-adjusted.toml");
+    let output = millgate(&[
+        "discrepancy",
+        "--measured",
+        csv.to_str().unwrap(),
+        "--model",
+        model.to_str().unwrap(),
+    ]);
+    std::fs::remove_dir_all(&dir).unwrap();
+    assert!(!output.status.success());
+    let message = text(&output);
+    assert!(
+        message.contains("constant.csv: the torque record has no transient"),
+        "{message}"
+    );
+    assert!(!message.contains("extra_inertia"), "{message}");
+}

@@ -107,7 +107,7 @@ pub enum WearMapError {
         samples: usize,
     },
     /// The transient analysis rejected its input.
-    #[error("transient analysis: {0:?}")]
+    #[error("transient analysis: {0}")]
     Transient(TransientError),
 }
 

@@ -1,5 +1,7 @@
 //! Modbus faults the gateway must ride out: a PLC that appears only after the
-//! gateway started, and a DAQ that sends malformed and truncated replies.
+//! gateway started, or vanishes and returns; a DAQ that sends malformed and truncated
+//! replies; HMI clients that send frames meant to break a server, hold connections
+//! open or trickle bytes; metrics requests in pieces or malformed; start-up failures.
 
 use std::time::Duration;
 
@@ -7,7 +9,8 @@ use millgate::outputs::register_map::RegisterMap;
 use millgate_sim::devices::demo::setup;
 use millgate_sim::devices::modbus_bank::ServeOptions;
 use millgate_sim::devices::virtual_plc::VirtualPlc;
-use millgate_tests::wait_for;
+use millgate_tests::{scrape, wait_for};
+use std::time::Instant;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 
@@ -144,5 +147,302 @@ async fn malformed_and_truncated_replies_are_counted_and_survived() -> anyhow::R
 
     tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
     daq.abort();
+    Ok(())
+}
+
+// ---------------------------------------------------------------- the HMI server
+
+use std::net::SocketAddr;
+
+use millgate::Service;
+
+/// A gateway with the demo configuration, DAQ and PLC unreachable, its server on a
+/// free loopback port with at most `max_connections` clients and `idle_ms` idle time,
+/// and metrics.
+async fn server_gateway(
+    max_connections: usize,
+    idle_ms: u64,
+) -> anyhow::Result<(millgate::service::RunningService, SocketAddr)> {
+    let mut config = setup(1.0, 0.0, 1)?.config;
+    config.modbus_sources[0].address = "127.0.0.1:1".into();
+    config.outputs.plc = None;
+    let server = config.outputs.server.as_mut().unwrap();
+    server.bind = "127.0.0.1:0".parse()?;
+    server.max_connections = max_connections;
+    server.idle_timeout = Duration::from_millis(idle_ms);
+    config.outputs.metrics = Some(millgate_config::MetricsOutput {
+        bind: "127.0.0.1:0".parse()?,
+    });
+    let gateway = Service::new(config)?.spawn().await?;
+    let address = gateway.bound().server.expect("server");
+    Ok((gateway, address))
+}
+
+/// Send `frame`, read the reply (MBAP header and PDU), or `None` when none comes
+/// within 500 ms.
+async fn exchange(stream: &mut TcpStream, frame: &[u8]) -> anyhow::Result<Option<Vec<u8>>> {
+    stream.write_all(frame).await?;
+    let mut header = [0u8; 7];
+    match tokio::time::timeout(Duration::from_millis(500), stream.read_exact(&mut header)).await {
+        Err(_) => return Ok(None),
+        Ok(read) => read?,
+    };
+    let length = usize::from(u16::from_be_bytes([header[4], header[5]]));
+    let mut pdu = vec![0u8; length - 1];
+    stream.read_exact(&mut pdu).await?;
+    Ok(Some([&header[..], &pdu].concat()))
+}
+
+/// A frame with transaction id 0x0001 for `unit` carrying `pdu`.
+fn frame(unit: u8, pdu: &[u8]) -> Vec<u8> {
+    let mut frame = vec![0, 1, 0, 0];
+    frame.extend(((pdu.len() + 1) as u16).to_be_bytes());
+    frame.push(unit);
+    frame.extend_from_slice(pdu);
+    frame
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn hostile_frames_get_exceptions_and_the_connection_stays_open() -> anyhow::Result<()> {
+    let (gateway, address) = server_gateway(8, 60_000).await?;
+    let publisher = gateway.publisher();
+    let mut hmi = TcpStream::connect(address).await?;
+    let read_status = frame(1, &[0x03, 0x00, 0x01, 0x00, 0x01]);
+    let expect = |reply: Option<Vec<u8>>, function: u8, code: u8, what: &str| {
+        let reply = reply.unwrap_or_else(|| panic!("{what}: no reply"));
+        assert_eq!(
+            &reply[7..],
+            &[function | 0x80, code],
+            "{what}: {reply:02x?}"
+        );
+    };
+    // The frame that panicked tokio-modbus 0.17.0's coil unpacking.
+    let fc15 = [
+        0x00, 0x01, 0x00, 0x00, 0x00, 0x07, 0x01, 0x0f, 0x00, 0x00, 0x00, 0x10, 0x00,
+    ];
+    expect(
+        exchange(&mut hmi, &fc15).await?,
+        0x0f,
+        0x01,
+        "FC 15 quantity 16, 0 bytes",
+    );
+    expect(
+        exchange(&mut hmi, &frame(1, &[0x10, 0x00, 0x08, 0x00, 0x00, 0x00])).await?,
+        0x10,
+        0x03,
+        "FC 16 quantity 0",
+    );
+    let quantity_124 = [&[0x10, 0x00, 0x08, 0x00, 124, 248][..], &[0u8; 248]].concat();
+    expect(
+        exchange(&mut hmi, &frame(1, &quantity_124)).await?,
+        0x10,
+        0x03,
+        "FC 16 quantity 124",
+    );
+    expect(
+        exchange(
+            &mut hmi,
+            &frame(1, &[0x10, 0x00, 0x08, 0x00, 0x01, 0x04, 0, 1, 0, 0]),
+        )
+        .await?,
+        0x10,
+        0x03,
+        "FC 16 byte count mismatch",
+    );
+    expect(
+        exchange(&mut hmi, &frame(7, &[0x03, 0x00, 0x01, 0x00, 0x01])).await?,
+        0x03,
+        0x0b,
+        "another unit id",
+    );
+    // A broadcast acknowledge: no reply, no action.
+    publisher.update(|results| results.drivelines[0].alarm = true);
+    let broadcast = exchange(&mut hmi, &frame(0, &[0x06, 0x00, 0x08, 0x00, 0x01])).await?;
+    assert_eq!(broadcast, None, "a broadcast is never answered");
+    assert!(publisher.results().drivelines[0].alarm, "nor acted on");
+    // After all that, the same connection still reads the map.
+    let reply = exchange(&mut hmi, &read_status).await?.expect("a reply");
+    assert_eq!(&reply[7..9], &[0x03, 0x02], "{reply:02x?}");
+    let page = scrape(gateway.bound().metrics.expect("metrics")).await?;
+    assert!(
+        page.contains("millgate_server_exceptions_total 5"),
+        "{page}"
+    );
+    assert!(
+        page.contains("millgate_server_broadcasts_total 1"),
+        "{page}"
+    );
+    tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
+    Ok(())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn slowloris_and_connection_floods_are_bounded() -> anyhow::Result<()> {
+    // Two clients at most, 300 ms idle time: before, 1 000 one-byte connections were
+    // held open for ever.
+    let (gateway, address) = server_gateway(2, 300).await?;
+    let mut idle = TcpStream::connect(address).await?;
+    let mut trickle = TcpStream::connect(address).await?;
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    // A third client is closed at once.
+    let mut third = TcpStream::connect(address).await?;
+    let mut byte = [0u8; 1];
+    let closed = tokio::time::timeout(Duration::from_millis(500), third.read(&mut byte)).await;
+    assert!(matches!(closed, Ok(Ok(0)) | Ok(Err(_))), "{closed:?}");
+    // The trickler sends a request one byte every 100 ms: the request must be whole
+    // within the idle time, so it is closed as the idle one is.
+    let request = frame(1, &[0x03, 0x00, 0x01, 0x00, 0x01]);
+    let started = Instant::now();
+    let mut trickle_closed = false;
+    for &b in &request {
+        if trickle.write_all(&[b]).await.is_err() {
+            trickle_closed = true;
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let ended = tokio::time::timeout(Duration::from_secs(2), trickle.read(&mut byte)).await;
+    trickle_closed |= matches!(ended, Ok(Ok(0)) | Ok(Err(_)));
+    assert!(
+        trickle_closed,
+        "slowloris still served after {:?}",
+        started.elapsed()
+    );
+    let ended = tokio::time::timeout(Duration::from_secs(2), idle.read(&mut byte)).await;
+    assert!(
+        matches!(ended, Ok(Ok(0)) | Ok(Err(_))),
+        "idle client not closed"
+    );
+    // The slots are free again: a real client is served.
+    let mut hmi = TcpStream::connect(address).await?;
+    let reply = exchange(&mut hmi, &request).await?.expect("served");
+    assert_eq!(&reply[7..9], &[0x03, 0x02]);
+    let page = scrape(gateway.bound().metrics.expect("metrics")).await?;
+    assert!(
+        page.contains("millgate_server_refused_connections_total 1"),
+        "{page}"
+    );
+    assert!(
+        page.contains("millgate_server_idle_closed_connections_total 2"),
+        "{page}"
+    );
+    tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
+    Ok(())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_metrics_endpoint_reads_the_whole_head_and_refuses_malformed_ones() -> anyhow::Result<()>
+{
+    let (gateway, _) = server_gateway(8, 60_000).await?;
+    let metrics = gateway.bound().metrics.expect("metrics");
+    async fn ask(address: SocketAddr, parts: &[&[u8]]) -> anyhow::Result<String> {
+        let mut stream = TcpStream::connect(address).await?;
+        for part in parts {
+            stream.write_all(part).await?;
+            stream.flush().await?;
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        let mut response = String::new();
+        tokio::time::timeout(Duration::from_secs(5), stream.read_to_string(&mut response))
+            .await??;
+        Ok(response)
+    }
+    // A head in three segments: the first read() held only "GET /met".
+    let split = ask(
+        metrics,
+        &[b"GET /met", b"rics HTTP/1.1\r\nHo", b"st: x\r\n\r\n"],
+    )
+    .await?;
+    assert!(split.starts_with("HTTP/1.1 200 OK"), "{split}");
+    assert!(split.contains("millgate_heartbeat"));
+    for (request, status) in [
+        (&b"GARBAGE\r\n\r\n"[..], "HTTP/1.1 400 Bad Request"),
+        (
+            b"GET /metrics HTTP/1.1\r\nbroken header\r\n\r\n",
+            "HTTP/1.1 400 Bad Request",
+        ),
+        (
+            b"POST /metrics HTTP/1.1\r\n\r\n",
+            "HTTP/1.1 405 Method Not Allowed",
+        ),
+        (b"GET /other HTTP/1.1\r\n\r\n", "HTTP/1.1 404 Not Found"),
+    ] {
+        let response = ask(metrics, &[request]).await?;
+        assert!(response.starts_with(status), "{request:?}: {response}");
+    }
+    let long = [&b"GET /metrics HTTP/1.1\r\nX: "[..], &[b'a'; 9000]].concat();
+    let response = ask(metrics, &[&long]).await?;
+    assert!(response.starts_with("HTTP/1.1 431"), "{response}");
+    tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
+    Ok(())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_plc_that_vanishes_and_returns_gets_registers_again() -> anyhow::Result<()> {
+    let mut config = setup(1.0, 0.0, 1)?.config;
+    config.modbus_sources[0].address = "127.0.0.1:1".into();
+    config.outputs.server = None;
+    let plc_address = TcpListener::bind("127.0.0.1:0").await?.local_addr()?;
+    config.outputs.plc.as_mut().unwrap().address = plc_address.to_string();
+    let map = RegisterMap::new(&config);
+    let plc = VirtualPlc::new(usize::from(map.len()));
+    let first_life = plc.spawn(
+        TcpListener::bind(plc_address).await?,
+        ServeOptions::default(),
+    );
+    let gateway = Service::new(config)?.spawn().await?;
+    wait_for("first writes", Duration::from_secs(5), || plc.writes() >= 3).await;
+    first_life.stop().await?;
+    // Gone for 1.5 s: the gateway keeps running, the heartbeat keeps moving.
+    let beat = gateway.publisher().results().heartbeat;
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    assert!(!gateway.is_finished());
+    assert_ne!(
+        gateway.publisher().results().heartbeat,
+        beat,
+        "heartbeat moves"
+    );
+    let writes = plc.writes();
+    let second_life = plc.spawn(
+        TcpListener::bind(plc_address).await?,
+        ServeOptions::default(),
+    );
+    // Backoff after 1.5 s of failures is at most 1.6 s.
+    wait_for("writes again", Duration::from_secs(5), || {
+        plc.writes() > writes + 2
+    })
+    .await;
+    assert_eq!(plc.holding()[1] & 1, 1, "running");
+    tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
+    assert_eq!(plc.holding()[1] & 0b11, 0b10, "final write: stopped");
+    second_life.stop().await?;
+    Ok(())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn start_up_failures_are_errors_not_silence() -> anyhow::Result<()> {
+    // A port already taken: spawning fails with the reason, it does not run without
+    // its server.
+    let taken = TcpListener::bind("127.0.0.1:0").await?;
+    let mut config = setup(1.0, 0.0, 1)?.config;
+    config.outputs.server.as_mut().unwrap().bind = taken.local_addr()?;
+    let error = Service::new(config.clone())?.spawn().await.unwrap_err();
+    assert!(
+        error.to_string().starts_with(&format!(
+            "cannot bind the Modbus server to {}",
+            taken.local_addr()?
+        )),
+        "{error}"
+    );
+    // A register base that runs the map past 65535.
+    config.outputs.server = None;
+    config.outputs.plc.as_mut().unwrap().register_base = 65_500;
+    let error = Service::new(config).unwrap_err();
+    assert!(
+        error
+            .to_string()
+            .starts_with("outputs.plc.register_base: 65500 is not allowed"),
+        "{error}"
+    );
     Ok(())
 }

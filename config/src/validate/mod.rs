@@ -31,6 +31,10 @@ pub(crate) const DEFAULT_PRE_TRIGGER_S: f64 = 0.1;
 pub(crate) const DEFAULT_POST_TRIGGER_S: f64 = 0.5;
 /// Longest bite capture window and chatter window, s.
 const MAX_WINDOW_S: f64 = 10.0;
+/// HMI clients the Modbus server serves at once when `max_connections` is not given.
+pub(crate) const DEFAULT_MAX_CONNECTIONS: usize = 8;
+/// Idle time after which the Modbus server closes a connection, when not given, ms.
+pub(crate) const DEFAULT_IDLE_TIMEOUT_MS: u64 = 60_000;
 /// Prometheus endpoint when `[outputs.metrics]` has no `bind`.
 pub(crate) const DEFAULT_METRICS_BIND: &str = "127.0.0.1:9187";
 /// Stands a tandem mill may have.

@@ -31,10 +31,22 @@ impl Checker<'_> {
             .collect()
     }
 
-    /// A non-empty name.
+    /// A non-empty name without control characters: names end up in log lines,
+    /// register names, Prometheus labels and HMI screens, where a NUL or a line break
+    /// would cut or forge a line.
     pub(super) fn name(&mut self, key: &str, name: &str) -> Option<String> {
         if name.trim().is_empty() {
             self.report.push(key, "must not be empty");
+            None
+        } else if let Some((at, control)) = name.char_indices().find(|(_, c)| c.is_control()) {
+            self.report.push(
+                key,
+                format!(
+                    "{name:?} is not allowed (must not contain control characters; \
+                     U+{:04X} at byte {at})",
+                    u32::from(control)
+                ),
+            );
             None
         } else {
             Some(name.to_owned())

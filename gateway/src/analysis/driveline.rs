@@ -131,6 +131,8 @@ impl BiteSetup {
                 post_samples: post_trigger_samples,
             });
         }
+        // The readers already turn saturated samples into gaps; the detector marks any
+        // that reach it (a window with one is degraded, its values not published).
         let (low, high) = saturation_knm;
         let settings = BiteSettings {
             threshold_knm: bite.threshold_knm,
@@ -227,14 +229,14 @@ impl DrivelineAnalyzer {
             }
             None => (None, None),
         };
-        // i16 samples: the ends of the raw range are saturation.
-        let raw_limit = |raw: i16| f64::from(raw) * torque.scale + torque.offset;
+        // The ends of the channel's raw range (field::quality, as the readers use).
+        let limits = crate::field::quality::saturation_limits(torque);
         let setup = BiteSetup::new(
             index,
             &driveline.name,
             &driveline.bite,
             torque.sample_rate_hz,
-            (raw_limit(i16::MIN + 1), raw_limit(i16::MAX)),
+            (limits.low, limits.high),
             parts.as_ref().map(|p| &p.model),
         )?;
         let mut wear = None;
@@ -409,27 +411,39 @@ impl DrivelineAnalyzer {
     }
 
     /// Record `report`, a bite of this driveline, in the published results.
+    ///
+    /// A degraded bite (its window held a gap, a saturated or a non-finite sample) is
+    /// counted and dated, and flagged degraded, but its values are not valid: they are
+    /// published with their quality bits clear (registers 0), raise no TAF warning or
+    /// alarm, and do not move the wear trend. Nothing computed from data that cannot be
+    /// trusted reads as a result.
     pub(super) fn publish(&self, publisher: &Publisher, report: &BiteReport) {
         publisher.update(|results| {
             let driveline = &mut results.drivelines[report.driveline];
             let t = &report.transient;
+            let valid = !report.degraded;
+            let trusted = |value: Option<f64>| value.filter(|_| valid);
             driveline.bite_counter = driveline.bite_counter.wrapping_add(1);
+            driveline.degraded_bites = driveline
+                .degraded_bites
+                .wrapping_add(u32::from(report.degraded));
             driveline.last_bite_unix_s = report
                 .time
                 .duration_since(UNIX_EPOCH)
                 .ok()
                 .and_then(|d| u32::try_from(d.as_secs()).ok());
-            driveline.static_torque_knm = Some(t.static_torque_knm);
-            driveline.peak_torque_knm = Some(t.peak_torque_knm);
-            driveline.taf = t.taf;
-            driveline.first_period_shift_s = t.period_shift_s;
-            driveline.beta1_hz = report.beta_hz.map(|(beta1, _)| beta1);
-            driveline.beta2_hz = report.beta_hz.map(|(_, beta2)| beta2);
+            driveline.static_torque_knm = trusted(Some(t.static_torque_knm));
+            driveline.peak_torque_knm = trusted(Some(t.peak_torque_knm));
+            driveline.taf = trusted(t.taf);
+            driveline.first_period_shift_s = trusted(t.period_shift_s);
+            driveline.beta1_hz = trusted(report.beta_hz.map(|(beta1, _)| beta1));
+            driveline.beta2_hz = trusted(report.beta_hz.map(|(_, beta2)| beta2));
             driveline.last_bite_degraded = report.degraded;
-            driveline.warning = t.taf.is_some_and(|taf| taf >= self.taf_warning);
-            driveline.alarm |= t.taf.is_some_and(|taf| taf >= self.taf_alarm);
-            driveline.wear_index = report.wear.map(|wear| wear.index);
-            if let (Some(index), false) = (driveline.wear_index, report.degraded) {
+            let taf = trusted(t.taf);
+            driveline.warning = taf.is_some_and(|taf| taf >= self.taf_warning);
+            driveline.alarm |= taf.is_some_and(|taf| taf >= self.taf_alarm);
+            driveline.wear_index = trusted(report.wear.map(|wear| wear.index));
+            if let Some(index) = driveline.wear_index {
                 driveline.wear_trend = Some(wear::next_trend(driveline.wear_trend, index));
             }
             if let (Some(monitor), Some(estimate)) =

@@ -25,6 +25,7 @@ use tokio::sync::{broadcast, mpsc};
 
 use crate::field::acquired::Acquired;
 use crate::outputs::publisher::Publisher;
+use crate::supervision::{Liveness, ANALYSIS_TICK};
 use driveline::{BiteReport, DrivelineAnalyzer};
 pub use error::AnalysisError;
 use gap_estimate::GapObservation;
@@ -207,19 +208,18 @@ impl Analysis {
         reports
     }
 
-    /// Run until every sender of `samples` is dropped.
-    pub async fn run(self, samples: mpsc::Receiver<Acquired>) {
-        let (_keep, maps) = mpsc::channel(1);
-        self.run_with_maps(samples, maps).await;
-    }
-
     /// Run until every sender of `samples` is dropped, installing gap maps as they
-    /// arrive on `maps`.
-    pub async fn run_with_maps(
+    /// arrive on `maps`, and counting each turn of the loop (a message handled, or
+    /// [`ANALYSIS_TICK`] without one) in `liveness`: a watchdog sees a stuck analysis
+    /// as turns that stop.
+    pub async fn run(
         mut self,
         mut samples: mpsc::Receiver<Acquired>,
         mut maps: mpsc::Receiver<GapMapsReady>,
+        liveness: Arc<Liveness>,
     ) {
+        let mut idle = tokio::time::interval(ANALYSIS_TICK);
+        idle.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         let mut maps_open = true;
         loop {
             tokio::select! {
@@ -227,13 +227,15 @@ impl Analysis {
                     Some(message) => {
                         self.handle(message);
                     }
-                    None => return,
+                    None => break,
                 },
                 ready = maps.recv(), if maps_open => match ready {
                     Some((index, result)) => self.install_gap_maps(index, result),
                     None => maps_open = false,
                 },
+                _ = idle.tick() => {}
             }
+            liveness.analysis_turned();
         }
     }
 }

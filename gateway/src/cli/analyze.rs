@@ -13,8 +13,8 @@ use std::str::FromStr;
 
 use anyhow::{bail, Context as _};
 use millgate_dsp::bite::{BiteDetector, BiteSettings};
-use millgate_dsp::fit::Eq1Fit;
-use millgate_dsp::transient::TransientSettings;
+use millgate_dsp::fit::{Eq1Fit, FitStatus};
+use millgate_dsp::transient::{TransientQuality, TransientSettings};
 use serde_json::{json, Value};
 
 use super::csv;
@@ -106,7 +106,9 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<String> {
     let (name, signal) = table
         .pick(args.channel.as_deref())
         .map_err(|e| anyhow::anyhow!("{}: {e}", args.input.display()))?;
-    let rate = table.sample_rate_hz();
+    let rate = table
+        .sample_rate_hz()
+        .map_err(|e| anyhow::anyhow!("{}: {e}", args.input.display()))?;
     let settings = transient_settings(rate);
     let events = match args.window {
         Some(window) => vec![analyse_window(&table.time_s, signal, window, &settings)?],
@@ -130,9 +132,12 @@ fn analyse_window(
     let first = time_s.partition_point(|&t| t < window.start_s);
     let end = time_s.partition_point(|&t| t <= window.end_s);
     let samples = &signal[first..end];
-    if samples.len() > WINDOW_CAPACITY {
+    // The transient needs the trigger sample and 4 after it.
+    if !(5..=WINDOW_CAPACITY).contains(&samples.len()) {
         bail!(
-            "--window holds {} samples, more than the capacity of {WINDOW_CAPACITY}",
+            "--window {},{}: the window holds {} samples; the analysis needs 5..={WINDOW_CAPACITY}",
+            window.start_s,
+            window.end_s,
             samples.len()
         );
     }
@@ -204,7 +209,7 @@ fn fit_json(fit: &Eq1Fit) -> Value {
         "rise_per_s": fit.rise_per_s,
         "rmse": fit.rms_residual,
         "iterations": fit.iterations,
-        "status": format!("{:?}", fit.status),
+        "status": status_tag(fit.status),
         "params": fit.params,
     })
 }
@@ -223,9 +228,45 @@ fn event_json(event: &Event) -> Value {
         "first_period_s": t.first_period_s,
         "second_period_s": t.second_period_s,
         "period_shift_s": t.period_shift_s,
-        "quality": format!("{:?}", t.quality),
+        "quality": quality_tag(t.quality),
         "fit": fit,
     })
+}
+
+/// The JSON tag of a fit status.
+fn status_tag(status: FitStatus) -> &'static str {
+    match status {
+        FitStatus::Converged => "converged",
+        FitStatus::Stalled => "stalled",
+        FitStatus::MaxIterations => "max_iterations",
+    }
+}
+
+/// What a fit status means, for the text report.
+fn status_words(status: FitStatus) -> &'static str {
+    match status {
+        FitStatus::Converged => "converged",
+        FitStatus::Stalled => "stalled at a minimum",
+        FitStatus::MaxIterations => "stopped at the iteration limit: not converged",
+    }
+}
+
+/// The JSON tag of a transient's quality.
+fn quality_tag(quality: TransientQuality) -> &'static str {
+    match quality {
+        TransientQuality::Good => "good",
+        TransientQuality::FewCrossings => "few_crossings",
+        TransientQuality::LowStatic => "low_static",
+    }
+}
+
+/// What a transient's quality means, for the text report.
+fn quality_words(quality: TransientQuality) -> &'static str {
+    match quality {
+        TransientQuality::Good => "all measured",
+        TransientQuality::FewCrossings => "fewer than three crossings: no periods",
+        TransientQuality::LowStatic => "static torque too low: no TAF or periods",
+    }
 }
 
 fn optional(value: Option<f64>, digits: usize) -> String {
@@ -251,11 +292,11 @@ fn text(channel: &str, rate: f64, events: &[Event]) -> anyhow::Result<String> {
         )?;
         writeln!(
             out,
-            "  first_period_s = {}, second_period_s = {}, period_shift_s = {} ({:?})",
+            "  first_period_s = {}, second_period_s = {}, period_shift_s = {} ({})",
             optional(t.first_period_s, 4),
             optional(t.second_period_s, 4),
             optional(t.period_shift_s, 4),
-            t.quality
+            quality_words(t.quality)
         )?;
         match &event.analysis.fit {
             Ok(fit) => {
@@ -267,8 +308,12 @@ fn text(channel: &str, rate: f64, events: &[Event]) -> anyhow::Result<String> {
                 )?;
                 writeln!(
                     out,
-                    "       static = {:.2}, rise_per_s = {:.2}, rmse = {:.3}, iterations = {} ({:?})",
-                    fit.static_torque, fit.rise_per_s, fit.rms_residual, fit.iterations, fit.status
+                    "       static = {:.2}, rise_per_s = {:.2}, rmse = {:.3}, iterations = {} ({})",
+                    fit.static_torque,
+                    fit.rise_per_s,
+                    fit.rms_residual,
+                    fit.iterations,
+                    status_words(fit.status)
                 )?;
                 let params: Vec<String> = fit.params.iter().map(|p| format!("{p:.4}")).collect();
                 writeln!(out, "       params = [{}]", params.join(", "))?;
@@ -366,6 +411,67 @@ mod tests {
         assert_eq!(out.matches("f1_hz = 11.990").count(), 2, "{out}");
         assert_eq!(out.matches("f2_hz = 20.910").count(), 2, "{out}");
         assert!(format!("{error:#}").contains("no column `speed`"));
+    }
+
+    #[test]
+    fn a_record_with_missing_rows_is_refused_with_the_line() {
+        // The Table 1 curve at 2 kHz with 0.1 s of rows (samples 300..500) missing:
+        // read at the mean rate it gave f2 = 17.9 Hz for 20.91, exit 0.
+        let rate = 2000.0;
+        let path = write_csv(
+            "missing-rows",
+            (0..1200)
+                .filter(|i| !(300..500).contains(i))
+                .map(|i| (i as f64 / rate, eq1(&TABLE1, i as f64 / rate))),
+        );
+        let error = run(&AnalyzeArgs {
+            input: path.clone(),
+            channel: None,
+            window: None,
+            format: OutputFormat::Text,
+        })
+        .unwrap_err();
+        std::fs::remove_file(&path).unwrap();
+        let text = format!("{error:#}");
+        // Sample 500 is the 301st row kept: line 302 (line 1 is the header).
+        assert!(
+            text.contains("line 302, column 1 (`t`): t steps by 0.100500 s"),
+            "{text}"
+        );
+        assert!(text.contains("rows are missing"), "{text}");
+    }
+
+    #[test]
+    fn reports_say_what_the_statuses_mean_and_windows_name_their_size() {
+        let path = write_csv(
+            "words",
+            (0..500).map(|i| (i as f64 / 1000.0, eq1(&TABLE1, i as f64 / 1000.0))),
+        );
+        let args = |window: &str, format| AnalyzeArgs {
+            input: path.clone(),
+            channel: None,
+            window: Some(window.parse().unwrap()),
+            format,
+        };
+        let text = run(&args("0,0.499", OutputFormat::Text)).unwrap();
+        let json = run(&args("0,0.499", OutputFormat::Json)).unwrap();
+        let short = run(&args("0,0.002", OutputFormat::Text)).unwrap_err();
+        std::fs::remove_file(&path).unwrap();
+        assert!(
+            text.contains("(all measured)") && text.contains("(converged)"),
+            "{text}"
+        );
+        assert!(
+            !text.contains("Good") && !text.contains("Converged"),
+            "{text}"
+        );
+        let value: Value = serde_json::from_str(&json).unwrap();
+        assert_eq!(value["events"][0]["quality"], "good");
+        assert_eq!(value["events"][0]["fit"]["status"], "converged");
+        assert_eq!(
+            format!("{short:#}"),
+            "--window 0,0.002: the window holds 3 samples; the analysis needs 5..=2048"
+        );
     }
 
     #[test]

@@ -145,7 +145,9 @@ pub fn analyze(args: &ChatterArgs) -> anyhow::Result<ChatterReport> {
         stands.push(values);
     }
     let rate_hz = config.channels[mill.stands[0]].sample_rate_hz;
-    let csv_rate_hz = table.sample_rate_hz();
+    let csv_rate_hz = table
+        .sample_rate_hz()
+        .map_err(|e| anyhow::anyhow!("{input}: {e}"))?;
     if (csv_rate_hz / rate_hz - 1.0).abs() > RATE_TOLERANCE {
         bail!(
             "{input}: sample rate {csv_rate_hz:.1} Hz from column t, the stand channels sample at \

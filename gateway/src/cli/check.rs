@@ -26,9 +26,9 @@ pub enum CheckError {
         #[source]
         source: Box<ServiceError>,
     },
-    /// The service can be built, but a driveline naming a model would run without
-    /// wear diagnosis (the model does not load, or its `wear` settings do not fit it):
-    /// one `<file>: <key path>: <problem>` per line.
+    /// A driveline names a model the wear diagnosis cannot use (the model does not
+    /// load, or its `wear` settings do not fit it): one `<file>: <key path>: <problem>`
+    /// per line.
     #[error("{}", problems.iter().map(|problem| format!("{file}: {problem}")).collect::<Vec<_>>().join("\n"))]
     Wear {
         /// The configuration file as given.
@@ -54,18 +54,19 @@ pub enum CheckError {
 pub fn check(path: &Path) -> Result<String, CheckError> {
     let config = millgate_config::load(path)?;
     let summary = millgate_config::summary(&config);
-    let service = Service::new(config).map_err(|source| CheckError::Service {
-        file: path.display().to_string(),
-        source: Box::new(source),
-    })?;
-    let problems = service.wear_problems();
-    if !problems.is_empty() {
-        return Err(CheckError::Wear {
+    let file = path.display().to_string();
+    let service = Service::new(config).map_err(|source| match source {
+        ServiceError::Wear(problems) => CheckError::Wear { file, problems },
+        source => CheckError::Service {
             file: path.display().to_string(),
-            problems,
-        });
+            source: Box::new(source),
+        },
+    })?;
+    let mut report = format!("{}: OK\n{summary}", path.display());
+    for warning in service.warnings() {
+        report.push_str(&format!("warning: {}: {warning}\n", path.display()));
     }
-    Ok(format!("{}: OK\n{summary}", path.display()))
+    Ok(report)
 }
 
 #[cfg(test)]
@@ -97,11 +98,11 @@ mod tests {
     fn check_variant(example_file: &str, from: &str, to: &str) -> Result<String, CheckError> {
         let text = std::fs::read_to_string(example(example_file)).expect("the example");
         assert!(text.contains(from), "{example_file} has `{from}`");
-        let directory = std::env::temp_dir().join(format!(
-            "millgate-check-{}-{}",
-            std::process::id(),
-            to.len()
-        ));
+        // One directory per call: tests run in parallel.
+        static CALLS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+        let call = CALLS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let directory =
+            std::env::temp_dir().join(format!("millgate-check-{}-{call}", std::process::id()));
         std::fs::create_dir_all(&directory).expect("temporary directory");
         std::fs::copy(example("mill.dbc"), directory.join("mill.dbc")).expect("copy the DBC");
         std::fs::copy(
@@ -169,6 +170,43 @@ mod tests {
             "{text}"
         );
         assert!(text.contains("frequency step 50 Hz"), "{text}");
+    }
+
+    #[test]
+    fn a_register_base_that_runs_the_map_past_65535_is_reported() {
+        // The demo's map spans 48 registers: base 65500 would end at 65547.
+        let error = check_variant("demo.toml", "register_base = 0", "register_base = 65500")
+            .expect_err("map past 65535");
+        assert_eq!(
+            error
+                .to_string()
+                .rsplit_once("variant.toml: ")
+                .map(|(_, tail)| tail),
+            Some(
+                "outputs.plc.register_base: 65500 is not allowed: the register map spans 48 \
+                 registers and would end at register 65547, past 65535 (must be 0..=65488)"
+            )
+        );
+        assert!(check_variant("demo.toml", "register_base = 0", "register_base = 65488").is_ok());
+    }
+
+    #[test]
+    fn a_server_reachable_from_other_hosts_is_a_warning() {
+        let summary = check_variant(
+            "demo.toml",
+            "bind = \"127.0.0.1:5503\"",
+            "bind = \"0.0.0.0:5503\"",
+        )
+        .expect("valid");
+        assert!(
+            summary.contains("warning: ")
+                && summary
+                    .contains("outputs.server.bind: 0.0.0.0:5503 accepts clients from other hosts")
+                && summary.contains("command writes are refused"),
+            "{summary}"
+        );
+        let loopback = check(&example("demo.toml")).expect("valid");
+        assert!(!loopback.contains("warning: "), "{loopback}");
     }
 
     #[test]

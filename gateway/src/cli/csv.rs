@@ -18,6 +18,16 @@ pub enum CsvError {
     /// The header names no channel.
     #[error("line 1: no channel column after `t`")]
     NoChannel,
+    /// Two header cells carry the same name: a channel would be ambiguous.
+    #[error("line 1, column {column}: column name `{name}` repeats column {first_column}")]
+    DuplicateColumn {
+        /// 1-based column number of the repeat.
+        column: usize,
+        /// The repeated name.
+        name: String,
+        /// 1-based column number of its first use.
+        first_column: usize,
+    },
     /// A data row has fewer cells than the header.
     #[error("line {line}, column {column} (`{name}`): missing value")]
     MissingColumn {
@@ -64,6 +74,23 @@ pub enum CsvError {
         /// Time on the previous data line, s.
         previous_s: f64,
     },
+    /// A time step departs from the record's median step: rows are missing (or doubled),
+    /// and a mean sample rate would misdate every sample after them.
+    #[error(
+        "line {line}, column 1 (`t`): t steps by {step_s:.6} s from the line before, the \
+         record's median step is {median_step_s:.6} s; rows are missing or the sampling is \
+         not uniform (each step must be within {tolerance_percent}% of the median)"
+    )]
+    NonUniformTime {
+        /// 1-based line number of the row after the odd step.
+        line: usize,
+        /// That step, s.
+        step_s: f64,
+        /// Median step of the record, s.
+        median_step_s: f64,
+        /// Allowed departure from the mean step, %.
+        tolerance_percent: f64,
+    },
     /// Fewer than two data rows: no sample rate.
     #[error("fewer than two data lines: the sample rate is undefined")]
     TooShort,
@@ -86,13 +113,39 @@ pub struct Table {
     pub time_s: Vec<f64>,
     /// One vector per channel, same length as `time_s`.
     pub channels: Vec<Vec<f64>>,
+    /// 1-based line number of each row in the file (blank lines are skipped).
+    pub lines: Vec<usize>,
 }
 
+/// Largest departure of one time step from the record's mean step, relative.
+pub const UNIFORM_TOLERANCE: f64 = 0.01;
+
 impl Table {
-    /// Mean sample rate, Hz: (rows - 1) / (last time - first time).
-    pub fn sample_rate_hz(&self) -> f64 {
+    /// The sample rate, Hz, of a uniformly sampled record: (rows - 1) / (last time -
+    /// first time), once every time step is checked to lie within
+    /// [`UNIFORM_TOLERANCE`] of the record's median step. A record with missing rows
+    /// is an error naming the line after the first odd step: the mean rate would
+    /// misdate every sample after it (0.1 s missing from a 0.6 s record read 21 Hz as
+    /// 18 Hz).
+    pub fn sample_rate_hz(&self) -> Result<f64, CsvError> {
         let n = self.time_s.len();
-        (n - 1) as f64 / (self.time_s[n - 1] - self.time_s[0])
+        let mut steps: Vec<f64> = self.time_s.windows(2).map(|p| p[1] - p[0]).collect();
+        let odd_step = |step: f64, median: f64| (step / median - 1.0).abs() > UNIFORM_TOLERANCE;
+        steps.sort_by(f64::total_cmp);
+        let median_step_s = steps[steps.len() / 2];
+        let odd = self
+            .time_s
+            .windows(2)
+            .position(|pair| odd_step(pair[1] - pair[0], median_step_s));
+        match odd {
+            Some(k) => Err(CsvError::NonUniformTime {
+                line: self.lines[k + 1],
+                step_s: self.time_s[k + 1] - self.time_s[k],
+                median_step_s,
+                tolerance_percent: UNIFORM_TOLERANCE * 100.0,
+            }),
+            None => Ok((n - 1) as f64 / (self.time_s[n - 1] - self.time_s[0])),
+        }
     }
 
     /// The channel called `name`, if any.
@@ -147,10 +200,20 @@ pub fn parse(text: &str) -> Result<Table, CsvError> {
     if header.len() < 2 {
         return Err(CsvError::NoChannel);
     }
+    for (index, name) in header.iter().enumerate() {
+        if let Some(first) = header[..index].iter().position(|other| other == name) {
+            return Err(CsvError::DuplicateColumn {
+                column: index + 1,
+                name: name.clone(),
+                first_column: first + 1,
+            });
+        }
+    }
     let mut table = Table {
         names: header[1..].to_vec(),
         time_s: Vec::new(),
         channels: vec![Vec::new(); header.len() - 1],
+        lines: Vec::new(),
     };
     for (line, row) in lines {
         let cells: Vec<&str> = row.split(',').map(str::trim).collect();
@@ -194,6 +257,7 @@ pub fn parse(text: &str) -> Result<Table, CsvError> {
                     }
                 }
                 table.time_s.push(value);
+                table.lines.push(line);
             } else {
                 table.channels[index - 1].push(value);
             }
@@ -215,7 +279,49 @@ mod tests {
         assert_eq!(table.names, ["a", "b"]);
         assert_eq!(table.time_s, [0.0, 0.5]);
         assert_eq!(table.channel("b"), Some(&[2.0, 4.0][..]));
-        assert_eq!(table.sample_rate_hz(), 2.0);
+        assert_eq!(table.sample_rate_hz(), Ok(2.0));
+        assert_eq!(table.lines, [2, 4]);
+    }
+
+    #[test]
+    fn a_repeated_column_name_is_refused_with_both_columns() {
+        let error = parse("t,a,b,a\n0,1,2,3\n0.1,1,2,3\n").unwrap_err();
+        assert_eq!(
+            error.to_string(),
+            "line 1, column 4: column name `a` repeats column 2"
+        );
+        assert!(matches!(
+            parse("t,t\n0,1\n1,2\n"),
+            Err(CsvError::DuplicateColumn { column: 2, .. })
+        ));
+    }
+
+    #[test]
+    fn missing_rows_are_refused_with_the_line_after_the_gap() {
+        // 2 kHz, rows 300..500 (0.1 s) missing; a blank line before the gap shifts the
+        // line numbers, which must still be the file's.
+        let mut text = String::from("t,a\n");
+        for k in (0..1200).filter(|k| !(300..500).contains(k)) {
+            text.push_str(&format!("{},1\n", f64::from(k) * 5.0e-4));
+            if k == 10 {
+                text.push('\n');
+            }
+        }
+        let table = parse(&text).unwrap();
+        let error = table.sample_rate_hz().unwrap_err();
+        // Row index 300 of the kept rows is sample 500, on line 2 + 300 + 1 (the blank).
+        assert!(
+            matches!(error, CsvError::NonUniformTime { line: 303, .. }),
+            "{error}"
+        );
+        assert!(
+            error
+                .to_string()
+                .starts_with("line 303, column 1 (`t`): t steps by 0.100500 s"),
+            "{error}"
+        );
+        let uniform = parse("t,a\n0,1\n0.0005,1\n0.001,1\n").unwrap();
+        assert!((uniform.sample_rate_hz().unwrap() - 2000.0).abs() < 1e-6);
     }
 
     #[test]

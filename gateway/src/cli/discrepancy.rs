@@ -10,8 +10,8 @@ use millgate_sim::model::Model;
 
 use super::{csv, OutputFormat};
 
-/// Largest relative departure of one time step from the mean step.
-const UNIFORM_TOLERANCE: f64 = 0.01;
+/// Smallest load step, in multiples of the record's noise, that makes a bite transient.
+const MIN_STEP_OVER_NOISE: f64 = 10.0;
 
 /// Arguments of `millgate discrepancy`.
 #[derive(Debug, Clone, clap::Args)]
@@ -56,13 +56,15 @@ pub fn run(args: &DiscrepancyArgs) -> anyhow::Result<String> {
             .pick(args.channel.as_deref())
             .map_err(anyhow::Error::msg)
             .with_context(|| path.display().to_string())?;
-        check_uniform(&table.time_s)
-            .map_err(anyhow::Error::msg)
-            .with_context(|| path.display().to_string())?;
+        // Uniform time (the shared reader's check) and a load step to explain.
+        let sample_rate_hz = table
+            .sample_rate_hz()
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        check_transient(torque).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
         recorded.push(Recorded {
             path: path.clone(),
             t0_s: table.time_s[0],
-            sample_rate_hz: table.sample_rate_hz(),
+            sample_rate_hz,
             torque_knm: torque.to_vec(),
         });
     }
@@ -136,27 +138,55 @@ pub fn run(args: &DiscrepancyArgs) -> anyhow::Result<String> {
     })
 }
 
-/// Fails with the line of the first sample whose time step departs from the mean step
-/// by more than [`UNIFORM_TOLERANCE`].
-fn check_uniform(time_s: &[f64]) -> Result<(), String> {
-    if time_s.len() < 3 {
+/// Fails unless `torque_knm` holds a bite transient: a load step from its first 5% to
+/// its last 20% of at least [`MIN_STEP_OVER_NOISE`] times its noise (RMS of the first
+/// differences / sqrt 2). A constant record would otherwise be "explained" by the
+/// effect that best fits nothing (`extra_inertia` with a stiffness change of +17 000%).
+fn check_transient(torque_knm: &[f64]) -> Result<(), String> {
+    let n = torque_knm.len();
+    if n < 20 {
         return Err(format!(
-            "{} samples; the workflow needs a transient",
-            time_s.len()
+            "{n} samples; the workflow needs a bite transient (at least 20 samples)"
         ));
     }
-    let step = (time_s[time_s.len() - 1] - time_s[0]) / (time_s.len() - 1) as f64;
-    match time_s
+    let mean = |values: &[f64]| values.iter().sum::<f64>() / values.len() as f64;
+    let step_knm = mean(&torque_knm[n - n / 5..]) - mean(&torque_knm[..n / 20]);
+    let noise_knm = (torque_knm
         .windows(2)
-        .position(|w| ((w[1] - w[0]) / step - 1.0).abs() > UNIFORM_TOLERANCE)
-    {
-        // Line 1 is the header, sample k is on line k + 2.
-        Some(k) => Err(format!(
-            "line {}: t steps by {:.6} s, the record's mean step is {step:.6} s; \
-             the workflow needs uniform sampling",
-            k + 3,
-            time_s[k + 1] - time_s[k]
-        )),
-        None => Ok(()),
+        .map(|pair| (pair[1] - pair[0]).powi(2))
+        .sum::<f64>()
+        / (2.0 * (n - 1) as f64))
+        .sqrt();
+    if step_knm.abs() > MIN_STEP_OVER_NOISE * noise_knm && step_knm.abs() > 0.0 {
+        Ok(())
+    } else {
+        Err(format!(
+            "the torque record has no transient: its last 20% lies {step_knm:.3} kN*m from \
+             its first 5% (noise {noise_knm:.3} kN*m RMS); the workflow needs a bite, a load \
+             step of more than {MIN_STEP_OVER_NOISE} times the noise"
+        ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_record_without_a_load_step_is_no_transient() {
+        let constant = vec![100.0; 1200];
+        let error = check_transient(&constant).unwrap_err();
+        assert!(
+            error.starts_with("the torque record has no transient"),
+            "{error}"
+        );
+        // Noise alone (a deterministic +-1 kN*m pattern) is no transient either.
+        let noise: Vec<f64> = (0..1200).map(|i| 100.0 + f64::from(i % 7) - 3.0).collect();
+        assert!(check_transient(&noise).is_err());
+        // A bite: 0 before the onset, 112 kN*m after, with the same pattern on top.
+        let bite: Vec<f64> = (0..1200)
+            .map(|i| if i < 100 { 0.0 } else { 112.0 } + f64::from(i % 7) - 3.0)
+            .collect();
+        assert_eq!(check_transient(&bite), Ok(()));
     }
 }

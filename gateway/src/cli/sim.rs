@@ -17,7 +17,7 @@ use millgate_sim::plot::wear_map_svg;
 use millgate_sim::tandem::simulate::{simulate, Accelerometer, Excitation, RunSettings, SpeedRamp};
 use millgate_sim::tandem::truth::{ground_truth, mill_critical_speed};
 use millgate_sim::tandem::{PassSchedule, TandemMill};
-use millgate_sim::wear_map::{wear_map, WearMapSpec};
+use millgate_sim::wear_map::{wear_map, WearMap, WearMapSpec};
 
 /// Arguments of `millgate sim`.
 #[derive(Debug, Args)]
@@ -149,6 +149,7 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
                     row.taf
                 );
             })?;
+            check_computed(&map, &model)?;
             std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
             let csv_path = out.join("wear-map.csv");
             let svg_path = out.join("wear-map.svg");
@@ -159,6 +160,45 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
             println!("wrote {} and {}", csv_path.display(), svg_path.display());
         }
         SimCommand::Tandem(args) => print!("{}", tandem(&args)?),
+    }
+    Ok(())
+}
+
+/// Lowest TAF of a grid point whose measured coupling carried the load: below it the
+/// load never reached the coupling within the record.
+const MIN_CARRIED_TAF: f64 = 0.5;
+
+/// Fails unless every grid point of `map` measured a loaded coupling, and at least one
+/// measured a period shift: a map of TAF 0.000 (a 200-mass chain whose load does not
+/// reach the measured coupling within the record) is no result.
+fn check_computed(map: &WearMap, model: &Model) -> anyhow::Result<()> {
+    let coupling = map.coupling;
+    if let Some(row) = map
+        .rows
+        .iter()
+        .find(|row| !(row.taf.is_finite() && row.taf >= MIN_CARRIED_TAF))
+    {
+        anyhow::bail!(
+            "wear map of \"{}\": at static torque {} kN*m and gap {} mrad the measured \
+             coupling (measurement.coupling = {coupling}) peaks at {:.3} x the static torque \
+             within the record's {} s: the load does not reach it (at least {MIN_CARRIED_TAF} \
+             needed); lengthen measurement.duration or measure a coupling nearer the load; \
+             nothing written",
+            map.model_name,
+            row.static_torque_knm,
+            row.backlash_rad * 1.0e3,
+            row.taf,
+            model.measurement.duration,
+        );
+    }
+    if map.rows.iter().all(|row| row.period_shift_s.is_none()) {
+        anyhow::bail!(
+            "wear map of \"{}\": no grid point has two oscillation periods on the measured \
+             coupling (measurement.coupling = {coupling}) within the record's {} s; nothing \
+             written",
+            map.model_name,
+            model.measurement.duration,
+        );
     }
     Ok(())
 }
@@ -266,6 +306,49 @@ mod tests {
         assert!((frequencies[1] - 12.03).abs() < 0.01 && (frequencies[2] - 21.09).abs() < 0.01);
         assert_eq!(modes.len(), 3);
         assert!(modes.iter().all(|shape| shape.len() == 3));
+        Ok(())
+    }
+
+    #[test]
+    fn a_wear_map_that_computes_nothing_is_an_error_and_writes_nothing() -> anyhow::Result<()> {
+        // A chain of 200 masses: the load at the last one does not reach coupling 1
+        // within 0.6 s, and the map was TAF 0.000 everywhere, exit 0.
+        let directory =
+            std::env::temp_dir().join(format!("millgate-simcmd-chain-{}", std::process::id()));
+        std::fs::create_dir_all(&directory)?;
+        let mut model = String::from("name = \"chain of 200\"\n");
+        for i in 0..200 {
+            model.push_str(&format!("[[mass]]\nname = \"m{i}\"\ninertia = 1.0e3\n"));
+        }
+        for i in 0..199 {
+            model.push_str(&format!(
+                "[[coupling]]\nname = \"c{i}\"\nstiffness = 50.0e6\ndamping = 1.0e3\n"
+            ));
+        }
+        model.push_str(
+            "[motor]\nspeed_kp = 5.0e5\nspeed_ki = 2.0e6\n\
+             [load]\nstatic_torque = 112.0\nrise_rate = 36.7\nonset = 0.05\n\
+             [measurement]\ncoupling = 1\nsample_rate = 2000.0\nduration = 0.6\n",
+        );
+        let model_path = directory.join("chain.toml");
+        std::fs::write(&model_path, model)?;
+        let out = directory.join("map");
+        let error = run(SimArgs {
+            command: SimCommand::WearMap {
+                model: model_path,
+                out: out.clone(),
+            },
+        })
+        .unwrap_err();
+        let written = out.exists();
+        std::fs::remove_dir_all(&directory)?;
+        let text = format!("{error:#}");
+        assert!(
+            text.contains("the load does not reach it")
+                && text.contains("measurement.coupling = 1"),
+            "{text}"
+        );
+        assert!(!written, "nothing written");
         Ok(())
     }
 

@@ -2,7 +2,9 @@
 //! inverse (measured frequencies -> every stiffness pair), SI units.
 
 use anyhow::{bail, Context as _};
-use millgate_dsp::stiffness::{forward, inverse, Inertias, NaturalFrequencies, Stiffness};
+use millgate_dsp::stiffness::{
+    forward, inverse, Inertias, NaturalFrequencies, Stiffness, StiffnessError,
+};
 use serde_json::json;
 use std::fmt::Write as _;
 
@@ -39,7 +41,49 @@ fn pair(values: &[f64], option: &str) -> anyhow::Result<[f64; 2]> {
     }
 }
 
-/// Runs the command; returns the text to print.
+/// `error` as a sentence naming the command-line option and the value at fault.
+fn option_error(error: StiffnessError, args: &StiffnessArgs) -> anyhow::Error {
+    let list = |values: &Option<Vec<f64>>| {
+        values
+            .as_deref()
+            .unwrap_or_default()
+            .iter()
+            .map(f64::to_string)
+            .collect::<Vec<_>>()
+            .join(",")
+    };
+    let inertia = list(&Some(args.inertia.clone()));
+    let (option, given, rule) = match error {
+        StiffnessError::Q1 => ("inertia", inertia, "Q1 must be finite and > 0 kg*m^2"),
+        StiffnessError::Q2 => ("inertia", inertia, "Q2 must be finite and > 0 kg*m^2"),
+        StiffnessError::Q3 => ("inertia", inertia, "Q3 must be finite and > 0 kg*m^2"),
+        StiffnessError::C12 => (
+            "stiffness",
+            list(&args.stiffness),
+            "C12 must be finite and > 0 N*m/rad",
+        ),
+        StiffnessError::C23 => (
+            "stiffness",
+            list(&args.stiffness),
+            "C23 must be finite and > 0 N*m/rad",
+        ),
+        StiffnessError::Beta1 => ("freq", list(&args.freq), "B1 must be finite and > 0 Hz"),
+        StiffnessError::Beta2 => (
+            "freq",
+            list(&args.freq),
+            "B2 must be finite and greater than B1",
+        ),
+        StiffnessError::Drawing => (
+            "drawing",
+            list(&args.drawing),
+            "C12 and C23 must be finite and > 0 N*m/rad",
+        ),
+    };
+    anyhow::anyhow!("--{option} {given}: {rule}")
+}
+
+/// Runs the command; returns the text to print. The inverse problem with no positive
+/// stiffness pair is an error: the tool has no result.
 pub fn run(args: &StiffnessArgs) -> anyhow::Result<String> {
     let [q1, q2, q3] = match args.inertia.as_slice() {
         [a, b, c] => [*a, *b, *c],
@@ -60,7 +104,7 @@ pub fn run(args: &StiffnessArgs) -> anyhow::Result<String> {
             c12_nm_per_rad: c12,
             c23_nm_per_rad: c23,
         };
-        let beta = forward(&inertias, &stiffness).context("stiffness forward")?;
+        let beta = forward(&inertias, &stiffness).map_err(|e| option_error(e, args))?;
         match args.format {
             OutputFormat::Json => {
                 out = json!({"beta1_hz": beta.beta1_hz, "beta2_hz": beta.beta2_hz}).to_string();
@@ -92,7 +136,14 @@ pub fn run(args: &StiffnessArgs) -> anyhow::Result<String> {
         &NaturalFrequencies { beta1_hz, beta2_hz },
         drawing.as_ref(),
     )
-    .context("stiffness inverse")?;
+    .map_err(|e| option_error(e, args))?;
+    if roots.is_empty() {
+        bail!(
+            "--freq {beta1_hz},{beta2_hz}: no positive stiffness pair C12, C23 gives these \
+             frequencies with inertias {q1},{q2},{q3} kg*m^2 (the frequencies are too close \
+             together, or the inertias are not the driveline's)"
+        );
+    }
     match args.format {
         OutputFormat::Json => {
             let solutions: Vec<_> = roots
@@ -102,9 +153,6 @@ pub fn run(args: &StiffnessArgs) -> anyhow::Result<String> {
             out = json!({ "solutions": solutions }).to_string();
         }
         OutputFormat::Text => {
-            if roots.is_empty() {
-                writeln!(out, "no positive stiffness pair gives these frequencies")?;
-            }
             for (i, c) in roots.iter().enumerate() {
                 let note = if i == 0 && drawing.is_some() {
                     "  (nearest to drawing)"
@@ -183,6 +231,40 @@ mod tests {
         let error = run_cli(&["--inertia", "1,2", "--freq", "1,2"]).unwrap_err();
         assert!(error.to_string().contains("--inertia"));
         let error = run_cli(&["--inertia", "1,-2,3", "--stiffness", "1,2"]).unwrap_err();
-        assert!(format!("{error:#}").contains("Q2"));
+        assert_eq!(
+            format!("{error:#}"),
+            "--inertia 1,-2,3: Q2 must be finite and > 0 kg*m^2"
+        );
+        let error = run_cli(&["--inertia", "1,2,3", "--freq", "21,12"]).unwrap_err();
+        assert_eq!(
+            format!("{error:#}"),
+            "--freq 21,12: B2 must be finite and greater than B1"
+        );
+        let error =
+            run_cli(&["--inertia", "1,2,3", "--freq", "12,21", "--drawing", "0,1"]).unwrap_err();
+        assert_eq!(
+            format!("{error:#}"),
+            "--drawing 0,1: C12 and C23 must be finite and > 0 N*m/rad"
+        );
+    }
+
+    #[test]
+    fn no_positive_root_is_an_error_in_both_formats() {
+        // 12 and 13 Hz on the Table 2 inertias: the quadratic in C12 has no positive root.
+        for format in ["text", "json"] {
+            let error = run_cli(&[
+                "--inertia",
+                "46.70e3,11.85e3,2.48e3",
+                "--freq",
+                "12,13",
+                "--format",
+                format,
+            ])
+            .unwrap_err();
+            assert!(
+                format!("{error:#}").starts_with("--freq 12,13: no positive stiffness pair"),
+                "{error:#}"
+            );
+        }
     }
 }

@@ -107,7 +107,9 @@ pub fn run(args: &WearArgs) -> anyhow::Result<String> {
     let (channel, signal) = table
         .pick(args.channel.as_deref())
         .map_err(|e| anyhow::anyhow!("{input}: {e}"))?;
-    let rate = table.sample_rate_hz();
+    let rate = table
+        .sample_rate_hz()
+        .map_err(|e| anyhow::anyhow!("{input}: {e}"))?;
     let model = Model::load(&args.model)?;
     let capture = BiteSettings {
         threshold_knm: args.threshold_knm,

@@ -13,6 +13,9 @@ pub struct ChannelCounters {
     samples: AtomicU64,
     timeouts: AtomicU64,
     errors: AtomicU64,
+    saturated_samples: AtomicU64,
+    sequence_restarts: AtomicU64,
+    sequence_stalls: AtomicU64,
 }
 
 /// A copy of [`ChannelCounters`] at one moment.
@@ -28,6 +31,14 @@ pub struct ChannelCountersSnapshot {
     pub timeouts: u64,
     /// Transport errors, device exceptions and malformed replies.
     pub errors: u64,
+    /// Samples at the converter's limits, replaced by gaps.
+    pub saturated_samples: u64,
+    /// Block sequences that went backwards or jumped further than the time elapsed:
+    /// DAQ restarts.
+    pub sequence_restarts: u64,
+    /// Times the block sequence stood still for three block periods while the DAQ
+    /// answered (a frozen DAQ).
+    pub sequence_stalls: u64,
 }
 
 impl ChannelCounters {
@@ -48,6 +59,18 @@ impl ChannelCounters {
         self.errors.fetch_add(1, Ordering::Relaxed);
     }
 
+    pub(crate) fn saturated(&self, samples: u64) {
+        self.saturated_samples.fetch_add(samples, Ordering::Relaxed);
+    }
+
+    pub(crate) fn restart(&self) {
+        self.sequence_restarts.fetch_add(1, Ordering::Relaxed);
+    }
+
+    pub(crate) fn stall(&self) {
+        self.sequence_stalls.fetch_add(1, Ordering::Relaxed);
+    }
+
     /// Current values.
     pub fn snapshot(&self) -> ChannelCountersSnapshot {
         ChannelCountersSnapshot {
@@ -56,6 +79,9 @@ impl ChannelCounters {
             samples: self.samples.load(Ordering::Relaxed),
             timeouts: self.timeouts.load(Ordering::Relaxed),
             errors: self.errors.load(Ordering::Relaxed),
+            saturated_samples: self.saturated_samples.load(Ordering::Relaxed),
+            sequence_restarts: self.sequence_restarts.load(Ordering::Relaxed),
+            sequence_stalls: self.sequence_stalls.load(Ordering::Relaxed),
         }
     }
 }
@@ -81,6 +107,8 @@ pub struct CanCounters {
     receive_latency_max_ns: AtomicU64,
     /// Reads of a length that is neither a classic nor an FD frame.
     bad_size: AtomicU64,
+    /// Signal values at the end of their raw range, replaced by gaps.
+    saturated_samples: AtomicU64,
     /// [`BusState`] as its code, from the last error frame that told it.
     bus_state: AtomicU8,
 }
@@ -147,6 +175,9 @@ pub struct CanCounts {
     pub receive_latency_max_ns: u64,
     /// Reads whose length was neither a classic nor an FD frame.
     pub bad_size: u64,
+    /// Signal values at the end of their raw range (saturated, or "not available"),
+    /// passed on as gaps, not as values.
+    pub saturated_samples: u64,
     /// The bus state last reported.
     pub bus_state: BusState,
 }
@@ -168,6 +199,7 @@ impl CanCounters {
             receive_latency_sum_ns: self.receive_latency_ns.load(Ordering::Relaxed),
             receive_latency_max_ns: self.receive_latency_max_ns.load(Ordering::Relaxed),
             bad_size: self.bad_size.load(Ordering::Relaxed),
+            saturated_samples: self.saturated_samples.load(Ordering::Relaxed),
             bus_state: BusState::from_code(self.bus_state.load(Ordering::Relaxed)),
         }
     }
@@ -215,6 +247,11 @@ impl CanCounters {
     /// Count a read of a length that is neither a classic nor an FD frame.
     pub(crate) fn count_bad_size(&self) {
         self.bad_size.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Count `samples` saturated signal values.
+    pub(crate) fn count_saturated(&self, samples: u64) {
+        self.saturated_samples.fetch_add(samples, Ordering::Relaxed);
     }
 
     /// Count `frames` the kernel dropped.

@@ -7,7 +7,18 @@
 //!
 //! Blocks are tracked by sequence number: a jump of k > 1 means k - 1 blocks were
 //! lost and is passed on as an [`Acquired::Gap`] before the new samples, so the
-//! analysis never joins across missing data.
+//! analysis never joins across missing data. A sequence that goes backwards, or jumps
+//! further than the time elapsed explains, is a DAQ restart: counted as one, marked
+//! as a gap, and not counted as lost blocks. A sequence that stands still while the
+//! DAQ answers (a frozen DAQ) is no new data: the source is "answered" only when a
+//! block advanced, so it goes stale, and the stall is counted. Saturated samples
+//! become gaps ([`crate::field::quality`]).
+//!
+//! Reconnects: a connection that fails or is dropped is made again after the backoff
+//! delay, which restarts from its initial value only after a poll that brought new
+//! data (not on TCP connect: a DAQ at its client limit accepts and closes at once,
+//! and would be reconnected thousands of times a second). Repeating warnings are
+//! rate-limited (one line per 10 s with the count suppressed, `warn_limit.rs`).
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -15,15 +26,20 @@ use std::time::{Duration, Instant};
 use millgate_config::layout::{self, BlockError, BLOCK_REGISTERS};
 use millgate_config::{ChannelSource, Config, ModbusSource, RegisterTable, ValueType, WordOrder};
 use tokio::sync::mpsc;
-use tokio_modbus::client::{Context, Reader};
+use tokio_modbus::client::Context;
 use tokio_modbus::prelude::ExceptionCode;
 
 use crate::field::acquired::Acquired;
 use crate::field::backoff::Backoff;
 use crate::field::counters::ChannelCounters;
-use crate::field::modbus_client::{self, ConnectError};
+use crate::field::modbus_client::{self, CheckedError, ConnectError, ReplyMismatch};
+use crate::field::quality::{self, SaturationLimits};
 use crate::field::source_health::SourceHealth;
 use crate::shutdown::Shutdown;
+use crate::warn_limit::{WarnLimit, WARN_PERIOD};
+
+/// Block periods a sequence may stand still before the stall is counted.
+const STALL_BLOCK_PERIODS: u32 = 3;
 
 /// Why one poll of a DAQ failed.
 #[derive(Debug, thiserror::Error)]
@@ -42,6 +58,9 @@ pub enum DaqError {
     /// The connection failed or the reply could not be decoded.
     #[error("transport: {0}")]
     Transport(#[from] tokio_modbus::Error),
+    /// The reply does not answer the request (another register count).
+    #[error("reply does not match the request: {0}")]
+    Mismatch(#[from] ReplyMismatch),
     /// The device answered with a Modbus exception: it refused the request.
     #[error("device refused register {address}: {exception}")]
     Exception {
@@ -66,8 +85,20 @@ impl DaqError {
     fn needs_reconnect(&self) -> bool {
         matches!(
             self,
-            DaqError::Connect { .. } | DaqError::Timeout(_) | DaqError::Transport(_)
+            DaqError::Connect { .. }
+                | DaqError::Timeout(_)
+                | DaqError::Transport(_)
+                | DaqError::Mismatch(_)
         )
+    }
+}
+
+impl From<CheckedError> for DaqError {
+    fn from(error: CheckedError) -> Self {
+        match error {
+            CheckedError::Transport(error) => DaqError::Transport(error),
+            CheckedError::Mismatch(mismatch) => DaqError::Mismatch(mismatch),
+        }
     }
 }
 
@@ -79,8 +110,21 @@ struct BlockChannel {
     scale: f64,
     offset: f64,
     sample_rate_hz: f64,
+    limits: SaturationLimits,
+    /// Sequence, time it was first seen and sample count of the last new block.
     last: Option<(u16, Instant, u16)>,
+    /// The sequence has stood still past [`STALL_BLOCK_PERIODS`] (counted once).
+    stalled: bool,
     counters: Arc<ChannelCounters>,
+}
+
+/// What one block read brought.
+#[derive(Debug, PartialEq)]
+enum BlockNews {
+    /// The block already seen.
+    Same,
+    /// A new block: the messages for analysis.
+    New(Vec<Acquired>),
 }
 
 #[derive(Debug)]
@@ -130,7 +174,9 @@ impl DaqReader {
                     scale: spec.scale,
                     offset: spec.offset,
                     sample_rate_hz: spec.sample_rate_hz,
+                    limits: quality::saturation_limits(spec),
                     last: None,
+                    stalled: false,
                     counters: Arc::clone(&counters[channel]),
                 }),
                 ChannelSource::ModbusValue {
@@ -178,66 +224,101 @@ impl DaqReader {
     /// the analysis side hangs up.
     pub async fn run(mut self, samples: mpsc::Sender<Acquired>, mut shutdown: Shutdown) {
         let mut backoff = Backoff::new();
+        let mut connect_warnings = WarnLimit::new(WARN_PERIOD);
+        let mut drop_warnings = WarnLimit::new(WARN_PERIOD);
         while !shutdown.is_shutdown() {
             let connected = tokio::select! {
                 connected = self.connect() => connected,
                 () = shutdown.recv() => break,
             };
-            let mut context = match connected {
-                Ok(context) => context,
+            match connected {
+                Ok(mut context) => {
+                    tracing::debug!(source = %self.name, address = %self.source.address, "DAQ connected");
+                    self.health.set_connected(true);
+                    let ended = self
+                        .poll_connection(&mut context, &samples, &mut shutdown, &mut backoff)
+                        .await;
+                    self.health.set_connected(false);
+                    match ended {
+                        ConnectionEnd::Stop => return,
+                        ConnectionEnd::Dropped(error) => {
+                            if let Some(suppressed) =
+                                drop_warnings.occurred(tokio::time::Instant::now())
+                            {
+                                tracing::warn!(source = %self.name, %error, suppressed, "DAQ connection dropped, reconnecting");
+                            }
+                        }
+                    }
+                }
                 Err(error) => {
-                    let delay = backoff.next_delay();
-                    tracing::warn!(source = %self.name, %error, retry_in = ?delay, "DAQ connect failed");
-                    tokio::select! {
-                        () = tokio::time::sleep(delay) => {}
-                        () = shutdown.recv() => break,
-                    }
-                    continue;
-                }
-            };
-            tracing::info!(source = %self.name, address = %self.source.address, "DAQ connected");
-            self.health.set_connected(true);
-            backoff.reset();
-            let period = self.source.poll_period;
-            let mut due = tokio::time::Instant::now();
-            loop {
-                // Only wait on the timer when the poll is not due yet: a poll that
-                // took a period or longer starts the next at once. (`Interval`
-                // re-arms its timer every tick, and once 5 ms behind waits for the
-                // timer's next 1 ms tick: a third fewer polls when polls are fast.)
-                if tokio::time::Instant::now() < due {
-                    tokio::select! {
-                        () = tokio::time::sleep_until(due) => {}
-                        () = shutdown.recv() => break,
-                    }
-                } else if shutdown.is_shutdown() {
-                    break;
-                }
-                due = next_poll(due, tokio::time::Instant::now(), period);
-                match self.poll(&mut context, &samples).await {
-                    Ok(true) => self.health.answered(),
-                    Ok(false) => return,
-                    Err(error) if error.needs_reconnect() => {
-                        tracing::warn!(source = %self.name, %error, "DAQ connection dropped, reconnecting");
-                        break;
-                    }
-                    Err(error) => {
-                        tracing::warn!(source = %self.name, %error, "DAQ reply rejected");
+                    if let Some(suppressed) = connect_warnings.occurred(tokio::time::Instant::now())
+                    {
+                        tracing::warn!(source = %self.name, %error, suppressed, "DAQ connect failed");
                     }
                 }
             }
-            self.health.set_connected(false);
+            let delay = backoff.next_delay();
+            tokio::select! {
+                () = tokio::time::sleep(delay) => {}
+                () = shutdown.recv() => break,
+            }
         }
     }
 
-    /// One poll of every channel. `Ok(false)` when the analysis side is gone.
+    /// Poll on one connection until it fails, shutdown fires (`Stop`) or the
+    /// analysis side hangs up (`Stop`). A poll that brought new data resets `backoff`.
+    async fn poll_connection(
+        &mut self,
+        context: &mut Context,
+        samples: &mpsc::Sender<Acquired>,
+        shutdown: &mut Shutdown,
+        backoff: &mut Backoff,
+    ) -> ConnectionEnd {
+        let period = self.source.poll_period;
+        let mut due = tokio::time::Instant::now();
+        let mut reply_warnings = WarnLimit::new(WARN_PERIOD);
+        loop {
+            // Only wait on the timer when the poll is not due yet: a poll that
+            // took a period or longer starts the next at once. (`Interval`
+            // re-arms its timer every tick, and once 5 ms behind waits for the
+            // timer's next 1 ms tick: a third fewer polls when polls are fast.)
+            if tokio::time::Instant::now() < due {
+                tokio::select! {
+                    () = tokio::time::sleep_until(due) => {}
+                    () = shutdown.recv() => return ConnectionEnd::Stop,
+                }
+            } else if shutdown.is_shutdown() {
+                return ConnectionEnd::Stop;
+            }
+            due = next_poll(due, tokio::time::Instant::now(), period);
+            match self.poll(context, samples).await {
+                Ok(Poll::NewData) => {
+                    self.health.answered();
+                    backoff.reset();
+                    reply_warnings.clear();
+                }
+                Ok(Poll::NothingNew) => {}
+                Ok(Poll::AnalysisGone) => return ConnectionEnd::Stop,
+                Err(error) if error.needs_reconnect() => return ConnectionEnd::Dropped(error),
+                Err(error) => {
+                    if let Some(suppressed) = reply_warnings.occurred(tokio::time::Instant::now()) {
+                        tracing::warn!(source = %self.name, %error, suppressed, "DAQ reply rejected");
+                    }
+                }
+            }
+        }
+    }
+
+    /// One poll of every channel: whether it brought new data (a block advanced, or
+    /// a process value was read on a source without blocks), or the analysis is gone.
     async fn poll(
         &mut self,
         context: &mut Context,
         samples: &mpsc::Sender<Acquired>,
-    ) -> Result<bool, DaqError> {
+    ) -> Result<Poll, DaqError> {
         let timeout = self.source.timeout;
         let mut first_error = None;
+        let mut new_data = false;
         for block in &mut self.blocks {
             let registers =
                 match read(context, block.table, block.base, BLOCK_REGISTERS, timeout).await {
@@ -262,9 +343,15 @@ impl DaqReader {
                     continue;
                 }
             };
-            for message in block.accept(decoded.sequence, decoded.raw, Instant::now()) {
+            let BlockNews::New(messages) =
+                block.accept(decoded.sequence, decoded.raw, Instant::now())
+            else {
+                continue;
+            };
+            new_data = true;
+            for message in messages {
                 if samples.send(message).await.is_err() {
-                    return Ok(false);
+                    return Ok(Poll::AnalysisGone);
                 }
             }
         }
@@ -287,62 +374,105 @@ impl DaqReader {
                 continue;
             };
             value.counters.block(1);
+            new_data |= self.blocks.is_empty();
             let message = Acquired::ProcessValue {
                 channel: value.channel,
                 value: raw * value.scale + value.offset,
             };
             if samples.send(message).await.is_err() {
-                return Ok(false);
+                return Ok(Poll::AnalysisGone);
             }
         }
-        first_error.map_or(Ok(true), Err)
+        match first_error {
+            Some(error) => Err(error),
+            None if new_data => Ok(Poll::NewData),
+            None => Ok(Poll::NothingNew),
+        }
     }
 }
 
+/// What one poll of every channel gave.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Poll {
+    /// A block advanced (or a process value was read on a source without blocks).
+    NewData,
+    /// Every block was the one already seen: a frozen DAQ, or polled early.
+    NothingNew,
+    /// The analysis task is gone: stop.
+    AnalysisGone,
+}
+
+/// Why a connection's poll loop ended.
+#[derive(Debug)]
+enum ConnectionEnd {
+    /// Shutdown, or the analysis is gone.
+    Stop,
+    /// The connection failed: reconnect after the backoff.
+    Dropped(DaqError),
+}
+
 impl BlockChannel {
-    /// Messages for a block read at `now`: nothing when it is the block already
-    /// seen, else an optional gap and the samples.
-    fn accept(&mut self, sequence: u16, raw: &[u16], now: Instant) -> Vec<Acquired> {
+    /// What a block read at `now` brings: `Same` when it is the block already seen
+    /// (counting a stall once it stands still past [`STALL_BLOCK_PERIODS`]), else the
+    /// messages: an optional gap (lost blocks, or a DAQ restart), then the samples,
+    /// saturated ones replaced by gaps.
+    fn accept(&mut self, sequence: u16, raw: &[u16], now: Instant) -> BlockNews {
         let count = raw.len() as u16;
         let mut messages = Vec::with_capacity(2);
         if let Some((last_sequence, last_time, last_count)) = self.last {
             let advance = layout::sequence_advance(last_sequence, sequence);
+            let elapsed = now.saturating_duration_since(last_time);
+            let block_period = self.block_period(last_count);
             if advance == 0 {
-                return messages;
+                if !self.stalled && elapsed > block_period * STALL_BLOCK_PERIODS {
+                    self.stalled = true;
+                    self.counters.stall();
+                }
+                return BlockNews::Same;
             }
-            if advance > 1 {
-                let missed_blocks = self.plausible_missed(advance - 1, now - last_time, last_count);
-                self.counters.missed(missed_blocks);
+            let by_time = (elapsed.as_secs_f64() / block_period.as_secs_f64()).round() as u64;
+            if u64::from(advance) <= by_time + 2 {
+                if advance > 1 {
+                    let missed_blocks = u64::from(advance - 1);
+                    self.counters.missed(missed_blocks);
+                    messages.push(Acquired::Gap {
+                        channel: self.channel,
+                        missed_samples: Some(missed_blocks * u64::from(count)),
+                    });
+                }
+            } else {
+                // Backwards, or further than the clock allows: the DAQ restarted (its
+                // sequence began anew) or replays old blocks. What was lost is not
+                // known from the sequence; the clock estimates it for the analysis's
+                // sample count, and it is not counted as lost blocks.
+                self.counters.restart();
+                tracing::warn!(
+                    channel = self.channel,
+                    from = last_sequence,
+                    to = sequence,
+                    "DAQ block sequence restarted"
+                );
                 messages.push(Acquired::Gap {
                     channel: self.channel,
-                    missed_samples: Some(missed_blocks * u64::from(count)),
+                    missed_samples: Some(by_time.saturating_sub(1) * u64::from(count)),
                 });
             }
         }
         self.last = Some((sequence, now, count));
+        self.stalled = false;
         self.counters.block(raw.len());
         let values = layout::Block { sequence, raw }
             .values(self.scale, self.offset)
             .collect();
-        messages.push(Acquired::Samples {
-            channel: self.channel,
-            values,
-            received: None,
-        });
-        messages
+        let saturated =
+            quality::split_saturated(&self.limits, self.channel, values, None, &mut messages);
+        self.counters.saturated(saturated);
+        BlockNews::New(messages)
     }
 
-    /// Blocks missed given the sequence jump, checked against the time elapsed: a
-    /// DAQ that restarted begins its sequence anew, and then the clock is the
-    /// better witness.
-    fn plausible_missed(&self, by_sequence: u16, elapsed: Duration, count: u16) -> u64 {
-        let block_period_s = f64::from(count.max(1)) / self.sample_rate_hz;
-        let by_time = (elapsed.as_secs_f64() / block_period_s).round() as u64;
-        if u64::from(by_sequence) <= by_time + 2 {
-            u64::from(by_sequence)
-        } else {
-            by_time.saturating_sub(1).max(1)
-        }
+    /// Duration of a block of `count` samples.
+    fn block_period(&self, count: u16) -> Duration {
+        Duration::from_secs_f64(f64::from(count.max(1)) / self.sample_rate_hz)
     }
 }
 
@@ -377,12 +507,7 @@ async fn read(
     count: u16,
     timeout: Duration,
 ) -> Result<Vec<u16>, DaqError> {
-    let request = async {
-        match table {
-            RegisterTable::Input => context.read_input_registers(address, count).await,
-            RegisterTable::Holding => context.read_holding_registers(address, count).await,
-        }
-    };
+    let request = modbus_client::read_registers(context, table, address, count);
     let reply = tokio::time::timeout(timeout, request)
         .await
         .map_err(|_| DaqError::Timeout(timeout))??;
@@ -401,8 +526,20 @@ mod tests {
             scale: 1.0,
             offset: 0.0,
             sample_rate_hz: 1000.0,
+            limits: quality::SaturationLimits {
+                low: -32767.0,
+                high: 32767.0,
+            },
             last: None,
+            stalled: false,
             counters: Arc::default(),
+        }
+    }
+
+    fn messages(news: BlockNews) -> Vec<Acquired> {
+        match news {
+            BlockNews::New(messages) => messages,
+            BlockNews::Same => panic!("expected a new block"),
         }
     }
 
@@ -410,9 +547,13 @@ mod tests {
     fn repeated_block_is_ignored_and_gap_is_marked() {
         let mut block = channel();
         let t0 = Instant::now();
-        assert_eq!(block.accept(10, &[1, 2], t0).len(), 1);
-        assert!(block.accept(10, &[1, 2], t0).is_empty(), "same block twice");
-        let messages = block.accept(13, &[3, 4], t0 + Duration::from_millis(6));
+        assert_eq!(messages(block.accept(10, &[1, 2], t0)).len(), 1);
+        assert_eq!(
+            block.accept(10, &[1, 2], t0),
+            BlockNews::Same,
+            "same block twice"
+        );
+        let messages = messages(block.accept(13, &[3, 4], t0 + Duration::from_millis(6)));
         assert_eq!(
             messages[0],
             Acquired::Gap {
@@ -449,7 +590,7 @@ mod tests {
         let mut block = channel();
         let t0 = Instant::now();
         block.accept(65535, &[1], t0);
-        let messages = block.accept(0, &[2], t0 + Duration::from_millis(1));
+        let messages = messages(block.accept(0, &[2], t0 + Duration::from_millis(1)));
         assert_eq!(messages.len(), 1, "65535 -> 0 is the next block");
     }
 
@@ -459,7 +600,7 @@ mod tests {
         let t0 = Instant::now();
         block.accept(5000, &[0; 100], t0);
         // The DAQ restarted: its sequence began again at 1, 2 s later (20 blocks).
-        let messages = block.accept(1, &[0; 100], t0 + Duration::from_secs(2));
+        let messages = messages(block.accept(1, &[0; 100], t0 + Duration::from_secs(2)));
         assert_eq!(
             messages[0],
             Acquired::Gap {
@@ -467,5 +608,83 @@ mod tests {
                 missed_samples: Some(1900)
             }
         );
+        let counters = block.counters.snapshot();
+        assert_eq!((counters.sequence_restarts, counters.blocks_missed), (1, 0));
+    }
+
+    #[test]
+    fn a_sequence_going_backwards_is_a_restart_not_lost_blocks() {
+        let mut block = channel();
+        let t0 = Instant::now();
+        block.accept(5000, &[0; 100], t0);
+        // One block period later the sequence is 100 behind: the wrapping jump of
+        // 65 436 counted 101 missed blocks before.
+        let messages = messages(block.accept(4900, &[7; 100], t0 + Duration::from_millis(100)));
+        assert_eq!(
+            messages[0],
+            Acquired::Gap {
+                channel: 3,
+                missed_samples: Some(0)
+            },
+            "a gap: the detector restarts"
+        );
+        assert!(matches!(messages[1], Acquired::Samples { .. }));
+        let counters = block.counters.snapshot();
+        assert_eq!(counters.sequence_restarts, 1);
+        assert_eq!(counters.blocks_missed, 0);
+        // It goes on from there as usual.
+        let next = messages_of(&mut block, 4901, t0 + Duration::from_millis(200));
+        assert_eq!(next.len(), 1);
+    }
+
+    fn messages_of(block: &mut BlockChannel, sequence: u16, at: Instant) -> Vec<Acquired> {
+        messages(block.accept(sequence, &[0; 100], at))
+    }
+
+    #[test]
+    fn a_frozen_sequence_is_counted_once_per_stall() {
+        let mut block = channel();
+        let t0 = Instant::now();
+        let ms = Duration::from_millis;
+        block.accept(10, &[0; 100], t0);
+        // Block period 100 ms: still within three periods, no stall yet.
+        assert_eq!(block.accept(10, &[0; 100], t0 + ms(250)), BlockNews::Same);
+        assert_eq!(block.counters.snapshot().sequence_stalls, 0);
+        for later in [350, 500, 2000] {
+            assert_eq!(block.accept(10, &[0; 100], t0 + ms(later)), BlockNews::Same);
+        }
+        assert_eq!(block.counters.snapshot().sequence_stalls, 1);
+        // Moving again, then frozen again: a second stall.
+        messages_of(&mut block, 11, t0 + ms(2100));
+        block.accept(11, &[0; 100], t0 + ms(2500));
+        assert_eq!(block.counters.snapshot().sequence_stalls, 2);
+    }
+
+    #[test]
+    fn saturated_samples_become_gaps_and_are_counted() {
+        let mut block = channel();
+        let t0 = Instant::now();
+        let raw = [100, 32767, 32767, (-32768i16) as u16, 5];
+        let messages = messages(block.accept(1, &raw, t0));
+        assert_eq!(
+            messages,
+            [
+                Acquired::Samples {
+                    channel: 3,
+                    values: vec![100.0],
+                    received: None
+                },
+                Acquired::Gap {
+                    channel: 3,
+                    missed_samples: Some(3)
+                },
+                Acquired::Samples {
+                    channel: 3,
+                    values: vec![5.0],
+                    received: None
+                },
+            ]
+        );
+        assert_eq!(block.counters.snapshot().saturated_samples, 3);
     }
 }

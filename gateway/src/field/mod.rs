@@ -7,5 +7,6 @@ pub(crate) mod backoff;
 pub mod can;
 pub mod counters;
 pub mod daq_reader;
-pub(crate) mod modbus_client;
+pub mod modbus_client;
+pub mod quality;
 pub mod source_health;

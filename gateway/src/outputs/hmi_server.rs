@@ -4,137 +4,113 @@
 //! addresses (offset 0, independent of the PLC's `register_base`). Results are
 //! read-only: only the documented command registers accept FC 06 / FC 16. A read
 //! past the map, or a write that touches anything but a command register, gets
-//! exception 02 (illegal data address); a bad command value exception 03; other
-//! function codes exception 01.
+//! exception 02 (illegal data address); a bad command value or a malformed request
+//! exception 03; other function codes exception 01. The framing and every answer are
+//! in [`crate::outputs::modbus_frame`].
 //!
 //! Commands: `command.acknowledge_alarms` takes 0 (nothing) or 1 (clear latched
 //! alarms); `command.reset_wear_trend` takes a bitmask of drivelines (bit k = the
 //! k-th driveline in config order, 0 = nothing) and refuses bits of drivelines that
-//! do not exist. Both read back 0.
+//! do not exist. Both read back 0. Only loopback clients may write them unless
+//! `allow_remote_commands` is set (the registers need no authentication).
+//!
+//! Limits: at most `max_connections` clients at once (a further connection is
+//! closed at once); a connection without a request for `idle_timeout` is closed, and
+//! a request must arrive whole within [`FRAME_TIMEOUT`] (at most the idle timeout) of
+//! its first byte, so a client trickling bytes (slowloris) holds a slot for seconds,
+//! not forever. A stream that is not Modbus TCP is closed.
 
 use std::net::SocketAddr;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
+use std::time::Duration;
 
 use millgate_config::ServerOutput;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
-use tokio_modbus::prelude::{ExceptionCode, Request, Response, SlaveRequest};
-use tokio_modbus::server::tcp::Server;
+use tokio::sync::Semaphore;
+use tokio::task::JoinSet;
 
+use crate::outputs::modbus_frame::{self, Policy, Reply, MAX_FRAME_LEN};
 use crate::outputs::publisher::Publisher;
-use crate::outputs::register_map::{Access, Field};
 use crate::shutdown::Shutdown;
+use crate::warn_limit::{WarnLimit, WARN_PERIOD};
 
-/// Largest register count of one read request (FC 03 / 04).
-const MAX_READ_REGISTERS: u16 = 125;
+/// Time a request may take from its first byte to its last.
+pub const FRAME_TIMEOUT: Duration = Duration::from_secs(5);
 
-/// Answer one request against the published map. Pure apart from the command
-/// side effects on `publisher`; the socket side is in [`ModbusServer::run`].
-pub fn answer(publisher: &Publisher, request: &Request<'_>) -> Result<Response, ExceptionCode> {
-    match request {
-        Request::ReadHoldingRegisters(address, count) => {
-            read(publisher, *address, *count).map(Response::ReadHoldingRegisters)
+/// What the server has seen, for `/metrics`.
+#[derive(Debug, Default)]
+pub struct ServerCounters {
+    connections: AtomicU64,
+    refused: AtomicU64,
+    idle_closed: AtomicU64,
+    not_modbus: AtomicU64,
+    requests: AtomicU64,
+    exceptions: AtomicU64,
+    broadcasts: AtomicU64,
+}
+
+/// A copy of [`ServerCounters`].
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ServerCounts {
+    /// Connections accepted and served.
+    pub connections: u64,
+    /// Connections closed at once: `max_connections` clients were connected.
+    pub refused: u64,
+    /// Connections closed for idling, or for a request not completed in time.
+    pub idle_closed: u64,
+    /// Connections closed because the stream was not Modbus TCP.
+    pub not_modbus: u64,
+    /// Requests answered (responses and exceptions).
+    pub requests: u64,
+    /// Of those, exception responses.
+    pub exceptions: u64,
+    /// Broadcast requests (unit 0), never answered nor acted on.
+    pub broadcasts: u64,
+}
+
+impl ServerCounters {
+    /// Current values.
+    pub fn snapshot(&self) -> ServerCounts {
+        let load = |counter: &AtomicU64| counter.load(Ordering::Relaxed);
+        ServerCounts {
+            connections: load(&self.connections),
+            refused: load(&self.refused),
+            idle_closed: load(&self.idle_closed),
+            not_modbus: load(&self.not_modbus),
+            requests: load(&self.requests),
+            exceptions: load(&self.exceptions),
+            broadcasts: load(&self.broadcasts),
         }
-        Request::ReadInputRegisters(address, count) => {
-            read(publisher, *address, *count).map(Response::ReadInputRegisters)
-        }
-        Request::WriteSingleRegister(address, value) => write(publisher, *address, &[*value])
-            .map(|()| Response::WriteSingleRegister(*address, *value)),
-        Request::WriteMultipleRegisters(address, values) => {
-            let count = values.len() as u16;
-            write(publisher, *address, values)
-                .map(|()| Response::WriteMultipleRegisters(*address, count))
-        }
-        _ => Err(ExceptionCode::IllegalFunction),
     }
 }
 
-fn read(publisher: &Publisher, address: u16, count: u16) -> Result<Vec<u16>, ExceptionCode> {
-    if count == 0 || count > MAX_READ_REGISTERS {
-        return Err(ExceptionCode::IllegalDataValue);
-    }
-    let words = publisher.words();
-    let start = usize::from(address);
-    words
-        .get(start..start + usize::from(count))
-        .map(<[u16]>::to_vec)
-        .ok_or(ExceptionCode::IllegalDataAddress)
+fn count(counter: &AtomicU64) {
+    counter.fetch_add(1, Ordering::Relaxed);
 }
 
-fn write(publisher: &Publisher, address: u16, values: &[u16]) -> Result<(), ExceptionCode> {
-    let map = publisher.map();
-    let mut commands = Vec::with_capacity(values.len());
-    for (offset, &value) in values.iter().enumerate() {
-        let target = address
-            .checked_add(offset as u16)
-            .ok_or(ExceptionCode::IllegalDataAddress)?;
-        match map.find(target) {
-            Some(register) if register.access == Access::ReadWrite => {
-                commands.push((register.field, value))
-            }
-            _ => return Err(ExceptionCode::IllegalDataAddress),
-        }
+/// The warning for a server whose bind address reaches other hosts, `None` on a
+/// loopback bind. `millgate check` prints it and the service logs it at start.
+pub fn exposure_warning(output: &ServerOutput) -> Option<String> {
+    if output.bind.ip().is_loopback() {
+        return None;
     }
-    // Validate every value before acting on any, so a rejected request changes nothing.
-    let drivelines = publisher.driveline_names().len();
-    if commands
-        .iter()
-        .any(|(field, value)| !command_value_valid(*field, *value, drivelines))
-    {
-        return Err(ExceptionCode::IllegalDataValue);
-    }
-    for (field, value) in commands {
-        match field {
-            Field::AcknowledgeAlarms if value == 1 => {
-                tracing::info!("alarms acknowledged over Modbus");
-                publisher.acknowledge_alarms();
-            }
-            Field::ResetWearTrend if value != 0 => {
-                tracing::info!(
-                    drivelines = format!("{value:#b}"),
-                    "wear trend reset over Modbus"
-                );
-                publisher.reset_wear_trend(value);
-            }
-            _ => {}
-        }
-    }
-    Ok(())
-}
-
-/// Whether `value` is a valid write to command register `field` in a map of
-/// `drivelines` drivelines.
-fn command_value_valid(field: Field, value: u16, drivelines: usize) -> bool {
-    match field {
-        Field::AcknowledgeAlarms => value <= 1,
-        Field::ResetWearTrend => {
-            let all = if drivelines >= 16 {
-                u16::MAX
-            } else {
-                (1u16 << drivelines) - 1
-            };
-            value & !all == 0
-        }
-        _ => false,
-    }
-}
-
-struct MapService {
-    publisher: Arc<Publisher>,
-    unit_id: u8,
-}
-
-impl tokio_modbus::server::Service for MapService {
-    type Request = SlaveRequest<'static>;
-    type Response = Option<Response>;
-    type Exception = ExceptionCode;
-    type Future = std::future::Ready<Result<Self::Response, Self::Exception>>;
-
-    fn call(&self, request: Self::Request) -> Self::Future {
-        if !(matches!(request.slave, 0 | 255) || request.slave == self.unit_id) {
-            return std::future::ready(Ok(None));
-        }
-        std::future::ready(answer(&self.publisher, &request.request).map(Some))
-    }
+    Some(if output.allow_remote_commands {
+        format!(
+            "outputs.server.bind: {} accepts clients from other hosts and \
+             outputs.server.allow_remote_commands = true lets any of them write the command \
+             registers (acknowledge alarms, reset wear trends) without authentication",
+            output.bind
+        )
+    } else {
+        format!(
+            "outputs.server.bind: {} accepts clients from other hosts: they may read the \
+             map; their command writes are refused (exception 01) unless \
+             outputs.server.allow_remote_commands = true",
+            output.bind
+        )
+    })
 }
 
 /// The gateway's Modbus TCP server.
@@ -142,42 +118,169 @@ impl tokio_modbus::server::Service for MapService {
 pub struct ModbusServer {
     output: ServerOutput,
     publisher: Arc<Publisher>,
+    counters: Arc<ServerCounters>,
 }
 
 impl ModbusServer {
-    /// A server of `publisher`'s map with the settings of `output`.
-    pub fn new(output: ServerOutput, publisher: Arc<Publisher>) -> Self {
-        Self { output, publisher }
+    /// A server of `publisher`'s map with the settings of `output`, counting into
+    /// `counters`.
+    pub fn new(
+        output: ServerOutput,
+        publisher: Arc<Publisher>,
+        counters: Arc<ServerCounters>,
+    ) -> Self {
+        Self {
+            output,
+            publisher,
+            counters,
+        }
     }
 
-    /// Bind the configured address.
-    pub async fn bind(&self) -> std::io::Result<TcpListener> {
-        TcpListener::bind(self.output.bind).await
-    }
-
-    /// Serve on `listener` until shutdown.
+    /// Serve on `listener` until shutdown; an error when accepting fails for good.
     pub async fn run(self, listener: TcpListener, mut shutdown: Shutdown) -> std::io::Result<()> {
         let local = listener.local_addr()?;
-        tracing::info!(%local, "Modbus server listening");
-        let server = Server::new(listener);
-        let publisher = self.publisher;
-        let unit_id = self.output.unit_id;
-        let on_connected = |stream: TcpStream, peer: SocketAddr| {
-            let service = MapService {
-                publisher: Arc::clone(&publisher),
-                unit_id,
+        tracing::info!(%local, max_connections = self.output.max_connections, "Modbus server listening");
+        let slots = Arc::new(Semaphore::new(self.output.max_connections));
+        let mut connections = JoinSet::new();
+        let mut refusals = WarnLimit::new(WARN_PERIOD);
+        let mut accept_errors = 0u32;
+        loop {
+            let accepted = tokio::select! {
+                accepted = listener.accept() => accepted,
+                () = shutdown.recv() => break,
+                Some(_) = connections.join_next(), if !connections.is_empty() => continue,
             };
-            async move {
-                tracing::debug!(%peer, "HMI connected");
-                Ok(Some((service, stream)))
-            }
+            let (stream, peer) = match accepted {
+                Ok(accepted) => {
+                    accept_errors = 0;
+                    accepted
+                }
+                Err(error) => {
+                    // Out of descriptors or memory: back off a little; a listener
+                    // that keeps failing is a fault of the service.
+                    accept_errors += 1;
+                    tracing::warn!(%error, "Modbus server accept failed");
+                    if accept_errors >= 100 {
+                        return Err(error);
+                    }
+                    tokio::time::sleep(Duration::from_millis(100)).await;
+                    continue;
+                }
+            };
+            let Ok(slot) = Arc::clone(&slots).try_acquire_owned() else {
+                count(&self.counters.refused);
+                if let Some(suppressed) = refusals.occurred(tokio::time::Instant::now()) {
+                    tracing::warn!(%peer, max = self.output.max_connections, suppressed, "Modbus server full, connection closed");
+                }
+                drop(stream);
+                continue;
+            };
+            count(&self.counters.connections);
+            let connection = Connection {
+                publisher: Arc::clone(&self.publisher),
+                counters: Arc::clone(&self.counters),
+                policy: Policy {
+                    unit_id: self.output.unit_id,
+                    commands_allowed: self.output.allow_remote_commands || peer.ip().is_loopback(),
+                },
+                idle_timeout: self.output.idle_timeout,
+                peer,
+            };
+            let shutdown = shutdown.clone();
+            connections.spawn(async move {
+                connection.serve(stream, shutdown).await;
+                drop(slot);
+            });
+        }
+        connections.shutdown().await;
+        Ok(())
+    }
+}
+
+/// One client's connection.
+struct Connection {
+    publisher: Arc<Publisher>,
+    counters: Arc<ServerCounters>,
+    policy: Policy,
+    idle_timeout: Duration,
+    peer: SocketAddr,
+}
+
+impl Connection {
+    async fn serve(self, mut stream: TcpStream, mut shutdown: Shutdown) {
+        let _ = stream.set_nodelay(true);
+        tracing::debug!(peer = %self.peer, "HMI connected");
+        let ended = tokio::select! {
+            ended = self.requests(&mut stream) => ended,
+            () = shutdown.recv() => "server stopping",
         };
-        let on_process_error = |error| tracing::debug!(%error, "HMI connection ended");
-        server
-            .serve_until(&on_connected, on_process_error, async move {
-                shutdown.recv().await
-            })
-            .await
-            .map(|_| ())
+        tracing::debug!(peer = %self.peer, ended, "HMI connection ended");
+    }
+
+    /// Answer requests until the client leaves, idles, or sends what is not Modbus.
+    async fn requests(&self, stream: &mut TcpStream) -> &'static str {
+        let mut buffer = [0u8; 2 * MAX_FRAME_LEN];
+        let mut filled = 0;
+        let mut frame_started: Option<tokio::time::Instant> = None;
+        let frame_timeout = FRAME_TIMEOUT.min(self.idle_timeout);
+        loop {
+            // Answer every whole frame received so far.
+            loop {
+                match modbus_frame::frame_len(&buffer[..filled]) {
+                    Ok(Some(len)) => {
+                        let reply =
+                            modbus_frame::respond(&self.publisher, self.policy, &buffer[..len]);
+                        buffer.copy_within(len..filled, 0);
+                        filled -= len;
+                        frame_started = None;
+                        match reply {
+                            Reply::Send(bytes) => {
+                                count(&self.counters.requests);
+                                if modbus_frame::exception_code(&bytes).is_some() {
+                                    count(&self.counters.exceptions);
+                                }
+                                if stream.write_all(&bytes).await.is_err() {
+                                    return "write failed";
+                                }
+                            }
+                            Reply::Broadcast => count(&self.counters.broadcasts),
+                        }
+                    }
+                    Ok(None) => break,
+                    Err(error) => {
+                        count(&self.counters.not_modbus);
+                        tracing::debug!(peer = %self.peer, %error, "not Modbus TCP, closing");
+                        return "not Modbus TCP";
+                    }
+                }
+            }
+            // Idle: the idle timeout from now. Inside a request: its deadline runs from
+            // its first byte, however slowly the rest trickles in.
+            let deadline = match (filled, frame_started) {
+                (0, _) => {
+                    frame_started = None;
+                    tokio::time::Instant::now() + self.idle_timeout
+                }
+                (_, Some(started)) => started + frame_timeout,
+                (_, None) => {
+                    let now = tokio::time::Instant::now();
+                    frame_started = Some(now);
+                    now + frame_timeout
+                }
+            };
+            match tokio::time::timeout_at(deadline, stream.read(&mut buffer[filled..])).await {
+                Err(_) => {
+                    count(&self.counters.idle_closed);
+                    return if filled == 0 {
+                        "idle"
+                    } else {
+                        "request not completed in time"
+                    };
+                }
+                Ok(Ok(0)) => return "closed by the client",
+                Ok(Ok(read)) => filled += read,
+                Ok(Err(_)) => return "read failed",
+            }
+        }
     }
 }

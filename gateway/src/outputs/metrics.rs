@@ -1,9 +1,11 @@
 //! Prometheus `/metrics` endpoint: acquisition counters per channel and health per
 //! source, in the text exposition format (version 0.0.4).
 //!
-//! A minimal HTTP/1.1 responder on tokio: it answers `GET /metrics` and 404
-//! otherwise, one request per connection. Pulling in an HTTP framework for one
-//! read-only page on loopback would add far more than it saves.
+//! A minimal HTTP/1.1 responder on tokio: it reads the whole request head (at most
+//! 8 KiB within 5 s, [`crate::outputs::http_head`]), answers `GET /metrics`, 404 for
+//! another path, 405 for another method, 400 for a malformed head, one request per
+//! connection, at most 16 at once. Pulling in an HTTP framework for one read-only
+//! page on loopback would add far more than it saves.
 
 use std::fmt::Write as _;
 use std::sync::Arc;
@@ -14,7 +16,15 @@ use tokio::net::{TcpListener, TcpStream};
 
 use crate::field::counters::{CanCounters, CanCounts, ChannelCounters, ChannelCountersSnapshot};
 use crate::field::source_health::SourceHealth;
+use crate::outputs::hmi_server::{ServerCounters, ServerCounts};
+use crate::outputs::http_head::{self, HeadError};
 use crate::outputs::publisher::Publisher;
+use crate::warn_limit::{WarnLimit, WARN_PERIOD};
+
+/// Time a client has to send its whole request head.
+pub const HEAD_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(5);
+/// Scrapes answered at once; Prometheus sends one at a time.
+pub const MAX_SCRAPES: usize = 16;
 use crate::outputs::results::{DrivelineResults, MillResults};
 use crate::shutdown::Shutdown;
 
@@ -42,6 +52,7 @@ pub struct Metrics {
     can_names: Vec<String>,
     can_counters: Vec<Arc<CanCounters>>,
     publisher: Arc<Publisher>,
+    server: Option<Arc<ServerCounters>>,
 }
 
 /// Writes one metric family, `(name, type, help)`: HELP, TYPE and one sample per
@@ -92,14 +103,21 @@ impl Metrics {
             can_names: config.can_sources.iter().map(|s| s.name.clone()).collect(),
             can_counters,
             publisher,
+            server: None,
         }
+    }
+
+    /// Show the HMI server's counters too.
+    pub fn with_server(mut self, counters: Arc<ServerCounters>) -> Self {
+        self.server = Some(counters);
+        self
     }
 
     /// The page, in the Prometheus text format.
     pub fn render(&self) -> String {
         let mut out = String::new();
         let snapshots: Vec<_> = self.counters.iter().map(|c| c.snapshot()).collect();
-        let counters: [(&str, &str, CounterOf); 5] = [
+        let counters: [(&str, &str, CounterOf); 8] = [
             ("blocks_read", "Blocks or frames decoded", |s| s.blocks_read),
             ("blocks_missed", "Blocks lost, from sequence gaps", |s| {
                 s.blocks_missed
@@ -112,6 +130,21 @@ impl Metrics {
                 "errors",
                 "Transport errors, device exceptions and malformed replies",
                 |s| s.errors,
+            ),
+            (
+                "saturated_samples",
+                "Samples at the converter's limits, replaced by gaps",
+                |s| s.saturated_samples,
+            ),
+            (
+                "sequence_restarts",
+                "Block sequences that went backwards or jumped past the elapsed time (DAQ restarts)",
+                |s| s.sequence_restarts,
+            ),
+            (
+                "sequence_stalls",
+                "Times the block sequence stood still for 3 block periods while the DAQ answered",
+                |s| s.sequence_stalls,
             ),
         ];
         for (name, help, value) in counters {
@@ -198,7 +231,13 @@ impl Metrics {
                 );
             }
         }
-        let per_can_source: [CanMetric; 4] = [
+        let per_can_source: [CanMetric; 5] = [
+            (
+                "millgate_can_saturated_samples_total",
+                "counter",
+                "CAN signal values at the end of their raw range (saturated or not available), passed on as gaps.",
+                |c| c.saturated_samples.to_string(),
+            ),
             (
                 "millgate_can_kernel_drops_total",
                 "counter",
@@ -250,12 +289,18 @@ impl Metrics {
         // Per driveline, then per tandem mill; each family grouped (the exposition
         // format wants one block per family), gauges only while their value is valid.
         type DrivelineValueOf = fn(&DrivelineResults) -> Option<f64>;
-        let drivelines: [(&str, &str, &str, DrivelineValueOf); 4] = [
+        let drivelines: [(&str, &str, &str, DrivelineValueOf); 5] = [
             (
                 "millgate_bites_total",
                 "counter",
                 "Bites analysed per driveline.",
                 |d| Some(d.bite_counter as f64),
+            ),
+            (
+                "millgate_degraded_bites_total",
+                "counter",
+                "Bites whose window had a gap, saturated or non-finite samples: counted, values not published.",
+                |d| Some(d.degraded_bites as f64),
             ),
             (
                 "millgate_taf",
@@ -329,6 +374,44 @@ impl Metrics {
             let rows = mill_rows.iter().map(|(m, name)| (name.as_str(), value(m)));
             family(&mut out, (metric, kind, help), "mill", rows);
         }
+        if let Some(server) = &self.server {
+            let counts = server.snapshot();
+            type ServerCountOf = fn(&ServerCounts) -> u64;
+            let families: [(&str, &str, ServerCountOf); 7] = [
+                ("connections", "HMI connections accepted", |c| c.connections),
+                (
+                    "refused_connections",
+                    "HMI connections closed at once: max_connections clients were connected",
+                    |c| c.refused,
+                ),
+                (
+                    "idle_closed_connections",
+                    "HMI connections closed for idling or a request not completed in time",
+                    |c| c.idle_closed,
+                ),
+                (
+                    "not_modbus_connections",
+                    "HMI connections closed because the stream was not Modbus TCP",
+                    |c| c.not_modbus,
+                ),
+                ("requests", "HMI requests answered", |c| c.requests),
+                (
+                    "exceptions",
+                    "HMI requests answered with a Modbus exception",
+                    |c| c.exceptions,
+                ),
+                (
+                    "broadcasts",
+                    "HMI broadcast requests (unit 0), never answered nor acted on",
+                    |c| c.broadcasts,
+                ),
+            ];
+            for (name, help, value) in families {
+                let _ = writeln!(out, "# HELP millgate_server_{name}_total {help}.");
+                let _ = writeln!(out, "# TYPE millgate_server_{name}_total counter");
+                let _ = writeln!(out, "millgate_server_{name}_total {}", value(&counts));
+            }
+        }
         let _ = writeln!(
             out,
             "# HELP millgate_heartbeat Heartbeat written to the PLC."
@@ -338,43 +421,70 @@ impl Metrics {
         out
     }
 
+    /// Read one request head (whole, within [`HEAD_TIMEOUT`] and
+    /// [`http_head::MAX_HEAD_LEN`]) and answer it.
     async fn answer(&self, mut stream: TcpStream) -> std::io::Result<()> {
-        let mut request = [0u8; 2048];
-        let read =
-            tokio::time::timeout(std::time::Duration::from_secs(5), stream.read(&mut request))
-                .await
-                .map_err(|_| {
-                    std::io::Error::new(std::io::ErrorKind::TimedOut, "request timed out")
-                })??;
-        let head = String::from_utf8_lossy(&request[..read]);
-        let (status, content_type, body) =
-            if head.starts_with("GET /metrics ") || head.starts_with("GET /metrics?") {
-                (
-                    "200 OK",
-                    "text/plain; version=0.0.4; charset=utf-8",
-                    self.render(),
-                )
-            } else {
-                (
-                    "404 Not Found",
-                    "text/plain; charset=utf-8",
-                    "only /metrics is served\n".to_owned(),
-                )
-            };
+        let mut received = Vec::with_capacity(1024);
+        let head = tokio::time::timeout(HEAD_TIMEOUT, async {
+            let mut chunk = [0u8; 1024];
+            loop {
+                if let Some(end) = http_head::head_end(&received)? {
+                    return Ok(end);
+                }
+                let read = stream
+                    .read(&mut chunk)
+                    .await
+                    .map_err(|_| HeadError::Malformed)?;
+                if read == 0 {
+                    return Err(HeadError::Malformed);
+                }
+                received.extend_from_slice(&chunk[..read]);
+            }
+        })
+        .await
+        .map_err(|_| std::io::Error::new(std::io::ErrorKind::TimedOut, "request head timed out"))?;
+        let parsed = head.and_then(|end| http_head::parse(&received[..end]));
+        let text = "text/plain; charset=utf-8";
+        let (status, content_type, body) = match parsed {
+            Ok(request) if request.method != "GET" => (
+                "405 Method Not Allowed",
+                text,
+                "only GET is served\n".to_owned(),
+            ),
+            Ok(request) if request.path == "/metrics" => (
+                "200 OK",
+                "text/plain; version=0.0.4; charset=utf-8",
+                self.render(),
+            ),
+            Ok(_) => (
+                "404 Not Found",
+                text,
+                "only /metrics is served\n".to_owned(),
+            ),
+            Err(error) => (error.status(), text, format!("{error}\n")),
+        };
+        let allow = if status.starts_with("405") {
+            "Allow: GET\r\n"
+        } else {
+            ""
+        };
         let response = format!(
-            "HTTP/1.1 {status}\r\nContent-Type: {content_type}\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
+            "HTTP/1.1 {status}\r\nContent-Type: {content_type}\r\nContent-Length: {}\r\n{allow}Connection: close\r\n\r\n{body}",
             body.len()
         );
         stream.write_all(response.as_bytes()).await?;
         stream.shutdown().await
     }
 
-    /// Serve on `listener` until shutdown.
+    /// Serve on `listener` until shutdown, at most [`MAX_SCRAPES`] requests at once
+    /// (a further connection is closed at once).
     pub async fn run(self, listener: TcpListener, mut shutdown: Shutdown) {
         let metrics = Arc::new(self);
         if let Ok(local) = listener.local_addr() {
             tracing::info!(%local, "metrics endpoint listening on /metrics");
         }
+        let slots = Arc::new(tokio::sync::Semaphore::new(MAX_SCRAPES));
+        let mut accept_warnings = WarnLimit::new(WARN_PERIOD);
         loop {
             let accepted = tokio::select! {
                 accepted = listener.accept() => accepted,
@@ -382,14 +492,24 @@ impl Metrics {
             };
             match accepted {
                 Ok((stream, _)) => {
+                    let Ok(slot) = Arc::clone(&slots).try_acquire_owned() else {
+                        continue;
+                    };
                     let metrics = Arc::clone(&metrics);
                     tokio::spawn(async move {
                         if let Err(error) = metrics.answer(stream).await {
                             tracing::debug!(%error, "metrics request failed");
                         }
+                        drop(slot);
                     });
                 }
-                Err(error) => tracing::warn!(%error, "metrics accept failed"),
+                Err(error) => {
+                    if let Some(suppressed) = accept_warnings.occurred(tokio::time::Instant::now())
+                    {
+                        tracing::warn!(%error, suppressed, "metrics accept failed");
+                    }
+                    tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+                }
             }
         }
     }

@@ -4,8 +4,16 @@
 
 pub(crate) mod heartbeat;
 pub mod hmi_server;
+pub mod http_head;
 pub mod metrics;
+pub mod modbus_frame;
 pub mod plc_writer;
 pub mod publisher;
 pub mod register_map;
 pub mod results;
+
+/// How often the heartbeat moves when there is no PLC output (the PLC writer moves
+/// it every write period otherwise).
+pub fn heartbeat_period_without_plc() -> std::time::Duration {
+    heartbeat::HEARTBEAT_WITHOUT_PLC
+}

@@ -3,9 +3,11 @@
 //! Every write period, and at once whenever the results change (a bite was
 //! analysed, an alarm acknowledged), the heartbeat is incremented and the whole map is written
 //! at the configured base, in chunks of at most 123 registers (the FC 16 limit).
-//! A PLC that is unreachable is retried with capped exponential backoff; the
+//! A PLC that is unreachable, or whose connection fails, is retried with capped
+//! exponential backoff, which starts again from its initial delay only after a write
+//! went through (a PLC that accepts and closes is not retried every period); the
 //! results and the heartbeat keep moving meanwhile (HMIs read them from the server),
-//! so the first write after it appears is fresh.
+//! so the first write after it appears is fresh. Repeating warnings are rate-limited.
 //! On shutdown a last write publishes the "stopped" status.
 
 use std::sync::Arc;
@@ -14,14 +16,15 @@ use std::time::Duration;
 use tokio::time::Instant;
 
 use millgate_config::PlcOutput;
-use tokio_modbus::client::{Context, Writer};
+use tokio_modbus::client::Context;
 use tokio_modbus::prelude::ExceptionCode;
 
 use crate::field::backoff::Backoff;
-use crate::field::modbus_client::{self, ConnectError};
+use crate::field::modbus_client::{self, CheckedError, ConnectError, ReplyMismatch};
 use crate::outputs::publisher::Publisher;
 use crate::outputs::results::GatewayState;
 use crate::shutdown::Shutdown;
+use crate::warn_limit::{WarnLimit, WARN_PERIOD};
 
 /// Largest register count of one FC 16 request.
 const MAX_WRITE_REGISTERS: usize = 123;
@@ -43,6 +46,9 @@ pub enum PlcError {
     /// The connection failed or the reply could not be decoded.
     #[error("PLC transport: {0}")]
     Transport(#[from] tokio_modbus::Error),
+    /// The PLC's reply does not match the write (another address or count echoed).
+    #[error("PLC reply does not match the write: {0}")]
+    Mismatch(#[from] ReplyMismatch),
     /// The PLC refused the write: wrong base address, or registers write-protected.
     #[error("PLC refused the write at register {address}: {exception}")]
     Refused {
@@ -54,17 +60,39 @@ pub enum PlcError {
     },
 }
 
+impl From<CheckedError> for PlcError {
+    fn from(error: CheckedError) -> Self {
+        match error {
+            CheckedError::Transport(error) => PlcError::Transport(error),
+            CheckedError::Mismatch(mismatch) => PlcError::Mismatch(mismatch),
+        }
+    }
+}
+
 /// Writes the published register map to one PLC.
 #[derive(Debug)]
 pub struct PlcWriter {
     output: PlcOutput,
     publisher: Arc<Publisher>,
+    /// Told once the first write was attempted (the service's readiness).
+    first_attempt: Option<tokio::sync::watch::Sender<bool>>,
 }
 
 impl PlcWriter {
     /// A writer of `publisher`'s map to the PLC of `output`.
     pub fn new(output: PlcOutput, publisher: Arc<Publisher>) -> Self {
-        Self { output, publisher }
+        Self {
+            output,
+            publisher,
+            first_attempt: None,
+        }
+    }
+
+    /// Send `true` on `attempted` once the first write was attempted (connected or
+    /// not, written or not).
+    pub fn on_first_attempt(mut self, attempted: tokio::sync::watch::Sender<bool>) -> Self {
+        self.first_attempt = Some(attempted);
+        self
     }
 
     async fn connect(&self) -> Result<Context, PlcError> {
@@ -83,7 +111,7 @@ impl PlcWriter {
     async fn write(&self, context: &mut Context, words: &[u16]) -> Result<(), PlcError> {
         for (i, chunk) in words.chunks(MAX_WRITE_REGISTERS).enumerate() {
             let address = self.output.register_base + (i * MAX_WRITE_REGISTERS) as u16;
-            let request = context.write_multiple_registers(address, chunk);
+            let request = modbus_client::write_registers(context, address, chunk);
             tokio::time::timeout(self.output.timeout, request)
                 .await
                 .map_err(|_| PlcError::Timeout(self.output.timeout))??
@@ -96,10 +124,12 @@ impl PlcWriter {
     ///
     /// The heartbeat moves every period even while the PLC is unreachable (the map is
     /// also served to HMIs); connection attempts are spaced by the backoff meanwhile.
-    pub async fn run(self, mut shutdown: Shutdown) {
+    pub async fn run(mut self, mut shutdown: Shutdown) {
         let mut context: Option<Context> = None;
         let mut backoff = Backoff::new();
         let mut next_attempt = Instant::now();
+        let mut connect_warnings = WarnLimit::new(WARN_PERIOD);
+        let mut write_warnings = WarnLimit::new(WARN_PERIOD);
         let mut ticks = tokio::time::interval(self.output.write_period);
         ticks.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         loop {
@@ -114,22 +144,36 @@ impl PlcWriter {
                     Ok(connected) => {
                         tracing::info!(plc = %self.output.address, "PLC connected");
                         context = Some(connected);
-                        backoff.reset();
                     }
                     Err(error) => {
                         let delay = backoff.next_delay();
-                        tracing::warn!(%error, retry_in = ?delay, "PLC unreachable");
+                        if let Some(suppressed) = connect_warnings.occurred(Instant::now()) {
+                            tracing::warn!(%error, retry_in = ?delay, suppressed, "PLC unreachable");
+                        }
                         next_attempt = Instant::now() + delay;
                     }
                 }
             }
             if let Some(connected) = context.as_mut() {
-                if let Err(error) = self.write(connected, &self.publisher.words()).await {
-                    tracing::warn!(%error, "PLC write failed");
-                    if !matches!(error, PlcError::Refused { .. }) {
-                        context = None;
+                match self.write(connected, &self.publisher.words()).await {
+                    Ok(()) => {
+                        backoff.reset();
+                        connect_warnings.clear();
+                        write_warnings.clear();
+                    }
+                    Err(error) => {
+                        if let Some(suppressed) = write_warnings.occurred(Instant::now()) {
+                            tracing::warn!(%error, suppressed, "PLC write failed");
+                        }
+                        if !matches!(error, PlcError::Refused { .. }) {
+                            context = None;
+                            next_attempt = Instant::now() + backoff.next_delay();
+                        }
                     }
                 }
+            }
+            if let Some(attempted) = self.first_attempt.take() {
+                attempted.send_replace(true);
             }
         }
         self.publisher

@@ -19,6 +19,8 @@ pub struct Publisher {
     changed: tokio::sync::Notify,
     map: RegisterMap,
     health: Vec<Arc<SourceHealth>>,
+    /// The source statuses of the final image, once the service stops.
+    frozen_health: Mutex<Option<Vec<SourceStatus>>>,
     driveline_names: Vec<String>,
     mill_names: Vec<String>,
     /// Global source index of each driveline's torque channel.
@@ -56,6 +58,7 @@ impl Publisher {
             changed: tokio::sync::Notify::new(),
             map: RegisterMap::new(config),
             health,
+            frozen_health: Mutex::new(None),
             driveline_names: config.drivelines.iter().map(|d| d.name.clone()).collect(),
             mill_names: config.tandem_mills.iter().map(|m| m.name.clone()).collect(),
             driveline_sources: config
@@ -124,8 +127,18 @@ impl Publisher {
         results
     }
 
+    /// Keep the source statuses as they are now in every later image: the readers are
+    /// about to stop, and a source they stop reading is not a source gone stale. The
+    /// final image of an orderly stop shows the sources as they were while running.
+    pub fn freeze_health(&self) {
+        let statuses = self.health.iter().map(|h| h.status()).collect();
+        *crate::lock(&self.frozen_health) = Some(statuses);
+    }
+
     fn apply_health(&self, results: &mut Results) {
-        let statuses: Vec<SourceStatus> = self.health.iter().map(|h| h.status()).collect();
+        let frozen = crate::lock(&self.frozen_health).clone();
+        let statuses: Vec<SourceStatus> =
+            frozen.unwrap_or_else(|| self.health.iter().map(|h| h.status()).collect());
         results.sources = statuses.iter().copied().map(Some).collect();
         let bad = |source: &usize| {
             statuses

@@ -205,7 +205,8 @@ pub mod driveline_flags {
     pub const ALARM: u16 = 1 << 1;
     /// The torque channel's source is stale or lost.
     pub const SOURCE_STALE: u16 = 1 << 2;
-    /// The last bite's window had gaps, NaN or saturated samples.
+    /// The last bite's window had gaps, NaN or saturated samples: its values are not
+    /// valid (quality bits clear).
     pub const DEGRADED: u16 = 1 << 3;
     /// The estimated opened gap is at or above the gap warning threshold.
     pub const GAP_WARNING: u16 = 1 << 4;
@@ -229,7 +230,8 @@ pub mod rod_flags {
 pub mod status_bits {
     /// The gateway is running and publishing fresh results.
     pub const RUNNING: u16 = 1 << 0;
-    /// The gateway has stopped; values are the last ones and will not change.
+    /// The gateway has stopped in order; every other register keeps its last running
+    /// value (source bits included) and will not change.
     pub const STOPPED: u16 = 1 << 1;
     /// At least one source is stale or lost.
     pub const SOURCE_PROBLEM: u16 = 1 << 2;
@@ -247,6 +249,28 @@ const ROD_SPANS_START: u16 = 8;
 const ROD_SPAN_STRIDE: u16 = 8;
 /// Registers reserved per rod mill block: the mill's own, then [`MAX_ROD_SPANS`] spans.
 const ROD_MILL_STRIDE: u16 = ROD_SPANS_START + ROD_SPAN_STRIDE * MAX_ROD_SPANS as u16;
+
+/// Registers the map of `drivelines` drivelines and `mills` tandem mills spans.
+pub fn span(drivelines: usize, mills: usize) -> u64 {
+    u64::from(DRIVELINES_START)
+        + u64::from(DRIVELINE_STRIDE) * drivelines as u64
+        + u64::from(MILL_STRIDE) * mills as u64
+}
+
+/// A configuration whose register map does not fit the 65 536 registers of a table.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "the register map of {drivelines} drivelines and {mills} tandem mills spans {span} \
+     registers, more than the 65535 a Modbus table can address from 0"
+)]
+pub struct MapTooLarge {
+    /// Drivelines configured.
+    pub drivelines: usize,
+    /// Tandem mills configured.
+    pub mills: usize,
+    /// Registers the map would span.
+    pub span: u64,
+}
 
 /// The register map of one configuration.
 #[derive(Debug, Clone, PartialEq)]
@@ -287,8 +311,23 @@ impl Builder {
 }
 
 impl RegisterMap {
+    /// The map for `config`, when it fits a Modbus table.
+    pub fn try_new(config: &Config) -> Result<Self, MapTooLarge> {
+        let (drivelines, mills) = (config.drivelines.len(), config.tandem_mills.len());
+        let span = span(drivelines, mills);
+        if span > u64::from(u16::MAX) {
+            return Err(MapTooLarge {
+                drivelines,
+                mills,
+                span,
+            });
+        }
+        Ok(Self::new(config))
+    }
+
     /// The map for `config`: global registers, then one block per driveline, then
-    /// one per tandem mill.
+    /// one per tandem mill. The map must fit a Modbus table ([`Self::try_new`] checks;
+    /// `Service::new` refuses a configuration whose map does not).
     pub fn new(config: &Config) -> Self {
         use DrivelineField as D;
         use ValueType::{F32, U16, U32};
@@ -313,7 +352,7 @@ impl RegisterMap {
             "bits",
             1.0,
             read,
-            "bit0 running, bit1 stopped, bit2 a source is stale or lost".into(),
+            "bit0 running, bit1 stopped (an orderly stop: every other register, source bits and flags included, keeps its last running value), bit2 a source is stale or lost".into(),
             Field::GatewayStatus,
         );
         b.add(
@@ -374,7 +413,7 @@ impl RegisterMap {
             let n = |field: &str| format!("{}.{field}", driveline.name);
             let f = |field| Field::Driveline(k, field);
             let fields: [(u16, &str, ValueType, &'static str, &str, DrivelineField); 17] = [
-                (0, "flags", U16, "bits", "bit0 TAF warning, bit1 TAF alarm (latched), bit2 source stale, bit3 last bite degraded, bit4 gap warning, bit5 gap alarm (latched)", D::Flags),
+                (0, "flags", U16, "bits", "bit0 TAF warning, bit1 TAF alarm (latched), bit2 source stale, bit3 last bite degraded (a gap, saturated or non-finite samples in its window: its values are not valid, their quality bits clear), bit4 gap warning, bit5 gap alarm (latched)", D::Flags),
                 (1, "quality", U16, "bits", "bit i set: value i of this block is valid (0 last_bite_time, 1 static_torque, 2 peak_torque, 3 taf, 4 period_shift, 5 beta1, 6 beta2, 7 wear_index, 8 wear_trend, 9 gap_mrad, 10 gap_low_mrad, 11 gap_high_mrad, 12 gap_coupling, 13 bites_pooled)", D::Quality),
                 (2, "bite_counter", U32, "", "Bites analysed since start", D::BiteCounter),
                 (4, "last_bite_time", U32, "s", "Time of the last bite, Unix seconds", D::LastBiteTime),

@@ -8,6 +8,9 @@ use crate::field::source_health::SourceStatus;
 pub struct DrivelineResults {
     /// Bites analysed since start (wraps at u32).
     pub bite_counter: u32,
+    /// Of those, degraded bites (gap, saturated or non-finite samples in the window),
+    /// whose values were not published.
+    pub degraded_bites: u32,
     /// Time of the last bite, Unix seconds.
     pub last_bite_unix_s: Option<u32>,
     /// Static (settled) torque of the last bite, kN*m.
@@ -29,7 +32,7 @@ pub struct DrivelineResults {
     /// Wear trend: exponentially weighted mean of the wear index over bites
     /// ([`crate::analysis::wear::next_trend`]); `None` until the first index after start or reset.
     pub wear_trend: Option<f64>,
-    /// The last bite's window had gaps, NaN or saturated samples.
+    /// The last bite's window had gaps, NaN or saturated samples: its values are `None`.
     pub last_bite_degraded: bool,
     /// TAF at or above the warning threshold at the last bite.
     pub warning: bool,

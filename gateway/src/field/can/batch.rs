@@ -1,10 +1,12 @@
 //! [`SampleBatch`]: the values decoded from one batch of frames, grouped into one
 //! [`Acquired::Samples`] message per channel, split by a gap where the kernel dropped
-//! frames.
+//! frames or a signal's value lay at the end of its raw range (saturated or "not
+//! available": [`crate::field::quality`]).
 
 use std::time::SystemTime;
 
 use crate::field::acquired::Acquired;
+use crate::field::quality::SaturationLimits;
 
 /// Samples of several frames grouped per channel, in arrival order, split where
 /// frames were lost.
@@ -17,12 +19,48 @@ pub(crate) struct SampleBatch {
     per_channel: Vec<(usize, Vec<f64>, SystemTime)>,
     /// Messages already complete (samples before a gap, and the gap).
     ready: Vec<Acquired>,
+    /// Saturation limits of the channels that have any, by channel index.
+    limits: Vec<(usize, SaturationLimits)>,
 }
 
 impl SampleBatch {
-    /// Moves `pending`, from a frame received at `received`, into the per-channel lists.
-    pub(crate) fn collect(&mut self, received: SystemTime) {
-        for (channel, value) in self.pending.drain(..) {
+    /// A batch whose channels saturate at `limits` (channel index, limits).
+    pub(crate) fn new(limits: Vec<(usize, SaturationLimits)>) -> Self {
+        Self {
+            limits,
+            ..Self::default()
+        }
+    }
+
+    fn saturated(&self, channel: usize, value: f64) -> bool {
+        self.limits
+            .iter()
+            .any(|(known, limits)| *known == channel && limits.saturated(value))
+    }
+
+    /// Moves `pending`, from a frame received at `received`, into the per-channel lists;
+    /// a saturated value closes its channel's samples and becomes a one-sample gap.
+    /// Returns the number of saturated values.
+    pub(crate) fn collect(&mut self, received: SystemTime) -> u64 {
+        let mut saturated = 0;
+        let pending = std::mem::take(&mut self.pending);
+        for &(channel, value) in &pending {
+            if self.saturated(channel, value) {
+                saturated += 1;
+                if let Some(at) = self.per_channel.iter().position(|(c, _, _)| *c == channel) {
+                    let (channel, values, received) = self.per_channel.remove(at);
+                    self.ready.push(Acquired::Samples {
+                        channel,
+                        values,
+                        received: Some(received),
+                    });
+                }
+                self.ready.push(Acquired::Gap {
+                    channel,
+                    missed_samples: Some(1),
+                });
+                continue;
+            }
             match self
                 .per_channel
                 .iter_mut()
@@ -35,6 +73,9 @@ impl SampleBatch {
                 None => self.per_channel.push((channel, vec![value], received)),
             }
         }
+        self.pending = pending;
+        self.pending.clear();
+        saturated
     }
 
     /// Frames were lost here: close the samples so far and mark a gap on `channels`.
@@ -98,6 +139,47 @@ mod tests {
             ]
         );
         assert_eq!(batch.drain().count(), 0);
+    }
+
+    #[test]
+    fn a_saturated_value_becomes_a_gap_on_its_channel_only() {
+        let t = |ms: u64| UNIX_EPOCH + Duration::from_millis(ms);
+        let limits = SaturationLimits {
+            low: -327.67,
+            high: 327.67,
+        };
+        let mut batch = SampleBatch::new(vec![(3, limits)]);
+        batch.pending.extend([(3, 1.0), (5, 400.0)]);
+        assert_eq!(batch.collect(t(1)), 0, "channel 5 has no limits");
+        batch.pending.extend([(3, 327.67), (5, 401.0)]);
+        assert_eq!(batch.collect(t(2)), 1);
+        batch.pending.push((3, 2.0));
+        batch.collect(t(3));
+        let messages: Vec<Acquired> = batch.drain().collect();
+        assert_eq!(
+            messages,
+            vec![
+                Acquired::Samples {
+                    channel: 3,
+                    values: vec![1.0],
+                    received: Some(t(1)),
+                },
+                Acquired::Gap {
+                    channel: 3,
+                    missed_samples: Some(1),
+                },
+                Acquired::Samples {
+                    channel: 5,
+                    values: vec![400.0, 401.0],
+                    received: Some(t(2)),
+                },
+                Acquired::Samples {
+                    channel: 3,
+                    values: vec![2.0],
+                    received: Some(t(3)),
+                },
+            ]
+        );
     }
 
     #[test]

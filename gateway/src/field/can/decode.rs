@@ -8,6 +8,7 @@ use millgate_config::signal::SignalLayout;
 use millgate_config::{ChannelSource, Config};
 
 use crate::field::counters::BusState;
+use crate::field::quality::{saturation_limits, SaturationLimits};
 
 /// Error-frame class bits in the CAN id and controller status bits in data[1]
 /// (linux/can/error.h).
@@ -75,6 +76,8 @@ struct MessageSignals {
 pub struct CanDecoder {
     /// Keyed by (identifier, extended).
     messages: HashMap<(u32, bool), MessageSignals>,
+    /// Saturation limits of the measured channels (torque, acceleration).
+    limits: Vec<(usize, SaturationLimits)>,
 }
 
 impl CanDecoder {
@@ -92,6 +95,10 @@ impl CanDecoder {
             {
                 if *source == source_index {
                     decoder.add(channel, *signal_layout, settings.scale, settings.offset);
+                    let limits = saturation_limits(settings);
+                    if limits != SaturationLimits::NONE {
+                        decoder.limits.push((channel, limits));
+                    }
                 }
             }
         }
@@ -127,6 +134,13 @@ impl CanDecoder {
         channels.sort_unstable();
         channels.dedup();
         channels
+    }
+
+    /// The saturation limits of the measured channels of the source (torque and
+    /// acceleration: [`crate::field::quality::saturation_limits`]); channels added with
+    /// [`Self::add`] have none.
+    pub fn saturation_limits(&self) -> Vec<(usize, SaturationLimits)> {
+        self.limits.clone()
     }
 
     /// Number of channels the decoder fills.

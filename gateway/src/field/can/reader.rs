@@ -106,7 +106,7 @@ impl CanReader {
         samples: mpsc::Sender<Acquired>,
         mut shutdown: watch::Receiver<bool>,
     ) -> Result<(), CanError> {
-        let mut batch = SampleBatch::default();
+        let mut batch = SampleBatch::new(self.decoder.saturation_limits());
         let mut buffers = ReceiveBuffers::new();
         loop {
             if *shutdown.borrow_and_update() {
@@ -186,7 +186,10 @@ impl CanReader {
                     FrameOutcome::UnknownId => self.counters.count_unknown_id(),
                     FrameOutcome::BadLength => self.counters.count_bad_length(),
                 }
-                batch.collect(received.kernel_time.unwrap_or(handled));
+                let saturated = batch.collect(received.kernel_time.unwrap_or(handled));
+                if saturated > 0 {
+                    self.counters.count_saturated(saturated);
+                }
             }
             FrameKind::Remote => {
                 self.counters.count_remote_frame();
