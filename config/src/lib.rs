@@ -56,3 +56,9 @@ pub fn from_toml_str(text: &str, file_name: &str, base_dir: &Path) -> Result<Con
         .and_then(|raw| validate::validate(raw, base_dir, &mut report));
     report.finish(config)
 }
+
+/// Whether `id` can be a Sparkplug B group, edge node or device id: non-empty and
+/// none of the MQTT topic characters `/ + #`.
+pub fn is_sparkplug_id(id: &str) -> bool {
+    !id.is_empty() && !id.contains(['/', '+', '#'])
+}

@@ -16,7 +16,7 @@ use crate::error::{line_column, Report};
 use crate::raw::RawConfig;
 
 /// Keys allowed at the top level of a configuration file.
-const TOP_LEVEL_KEYS: [&str; 8] = [
+const TOP_LEVEL_KEYS: [&str; 9] = [
     "name",
     "sources",
     "channels",
@@ -24,6 +24,7 @@ const TOP_LEVEL_KEYS: [&str; 8] = [
     "tandem_mills",
     "rod_mills",
     "outputs",
+    "history",
     "cache_dir",
 ];
 
@@ -58,6 +59,7 @@ pub(crate) fn parse(text: &str, report: &mut Report) -> Option<RawConfig> {
             "tandem_mills" => raw.tandem_mills = schema.list(value, "tandem_mills"),
             "rod_mills" => raw.rod_mills = schema.list(value, "rod_mills"),
             "outputs" => raw.outputs = schema.value(value, "outputs").unwrap_or_default(),
+            "history" => raw.history = schema.value(value, "history"),
             _ => schema.unknown_key(key, "", &TOP_LEVEL_KEYS),
         }
     }

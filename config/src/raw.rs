@@ -142,6 +142,7 @@ pub(crate) struct RawOutputs {
     pub plc: Option<RawPlcOutput>,
     pub server: Option<RawServerOutput>,
     pub metrics: Option<RawMetricsOutput>,
+    pub mqtt: Option<RawMqttOutput>,
 }
 
 /// `[outputs.plc]`.
@@ -173,6 +174,31 @@ pub(crate) struct RawMetricsOutput {
     pub bind: Option<String>,
 }
 
+/// `[outputs.mqtt]`: the Sparkplug B edge node.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawMqttOutput {
+    pub broker: String,
+    pub group_id: String,
+    pub node_id: String,
+    pub client_id: Option<String>,
+    pub keep_alive_s: Option<i64>,
+    pub data_period_ms: Option<i64>,
+    pub command_qos: Option<i64>,
+    pub primary_host_id: Option<String>,
+    pub username: Option<String>,
+    pub password: Option<String>,
+}
+
+/// `[history]`: the event history file.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawHistory {
+    pub path: String,
+    pub retention_days: Option<i64>,
+    pub max_size_mb: Option<i64>,
+}
+
 /// The whole document after the schema pass. List elements that failed to
 /// deserialize are absent, but then validation does not run (see [`crate::parse`]).
 #[derive(Debug, Default)]
@@ -186,4 +212,5 @@ pub(crate) struct RawConfig {
     pub tandem_mills: Vec<RawTandemMill>,
     pub rod_mills: Vec<RawRodMill>,
     pub outputs: RawOutputs,
+    pub history: Option<RawHistory>,
 }

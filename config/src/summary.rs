@@ -204,7 +204,8 @@ pub fn summary(config: &Config) -> String {
     let outputs = &config.outputs;
     let output_count = usize::from(outputs.plc.is_some())
         + usize::from(outputs.server.is_some())
-        + usize::from(outputs.metrics.is_some());
+        + usize::from(outputs.metrics.is_some())
+        + usize::from(outputs.mqtt.is_some());
     let _ = writeln!(text, "Outputs ({output_count}):");
     if let Some(plc) = &outputs.plc {
         let _ = writeln!(
@@ -236,7 +237,30 @@ pub fn summary(config: &Config) -> String {
     if let Some(metrics) = &outputs.metrics {
         let _ = writeln!(text, "  Metrics: http://{}/metrics", metrics.bind);
     }
+    if let Some(mqtt) = &outputs.mqtt {
+        let _ = writeln!(
+            text,
+            "  Sparkplug B: broker {} as client {}, edge node {}/{}, keep-alive {} s",
+            mqtt.broker,
+            mqtt.client_id,
+            mqtt.group_id,
+            mqtt.node_id,
+            mqtt.keep_alive.as_secs()
+        );
+    }
     none_if_empty(&mut text, output_count);
+    match &config.history {
+        Some(history) => {
+            let _ = writeln!(
+                text,
+                "History: {}, events kept {} days, at most {} MiB",
+                history.path.display(),
+                history.retention_days,
+                history.max_size_mb
+            );
+        }
+        None => text.push_str("History: none\n"),
+    }
     text
 }
 

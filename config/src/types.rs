@@ -30,6 +30,8 @@ pub struct Config {
     pub rod_mills: Vec<RodMill>,
     /// Where results go.
     pub outputs: Outputs,
+    /// The event history file; `None` keeps no history.
+    pub history: Option<History>,
 }
 
 impl Config {
@@ -449,6 +451,35 @@ pub struct Outputs {
     pub server: Option<ServerOutput>,
     /// Prometheus `/metrics` endpoint.
     pub metrics: Option<MetricsOutput>,
+    /// Sparkplug B edge node on an MQTT broker.
+    pub mqtt: Option<MqttOutput>,
+}
+
+/// The Sparkplug B edge node: the gateway publishes its drivelines and tandem mills
+/// as devices to an MQTT broker (`spBv1.0/<group_id>/.../<node_id>[/<device>]`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MqttOutput {
+    /// Broker `host:port`, port 1..=65535; resolved at connect time.
+    pub broker: String,
+    /// Sparkplug group id: non-empty, none of `/ + #`.
+    pub group_id: String,
+    /// Sparkplug edge node id: non-empty, none of `/ + #`.
+    pub node_id: String,
+    /// MQTT client id (default `millgate-<group_id>-<node_id>`), 1..=64 characters.
+    pub client_id: String,
+    /// MQTT keep-alive, 5..=3600 s (default 30 s).
+    pub keep_alive: Duration,
+    /// Longest time between a change of a value and its DDATA, 1..=60000 ms
+    /// (default 1000 ms); bites are published at once.
+    pub data_period: Duration,
+    /// QoS of the NCMD subscription (commands from hosts), 0 or 1 (default 1).
+    pub command_qos: u8,
+    /// The primary host application's id: no births until its STATE
+    /// (`spBv1.0/STATE/<id>`) says online; offline ends the session. Same rules as
+    /// `group_id`.
+    pub primary_host_id: Option<String>,
+    /// User name and password for the broker, both or neither.
+    pub credentials: Option<(String, String)>,
 }
 
 /// The PLC written by the gateway.
@@ -490,4 +521,18 @@ pub struct ServerOutput {
 pub struct MetricsOutput {
     /// Address to listen on (default `127.0.0.1:9187`).
     pub bind: SocketAddr,
+}
+
+/// The event history: one SQLite file per gateway holding every bite, wear estimate,
+/// alarm, chatter episode, source outage and start and stop, and the state restored
+/// at the next start.
+#[derive(Debug, Clone, PartialEq)]
+pub struct History {
+    /// The SQLite file, resolved relative to the configuration file; its folder exists.
+    pub path: PathBuf,
+    /// Events older than this are deleted, 1..=36500 days (default 400).
+    pub retention_days: u32,
+    /// Largest size of the file's data before the oldest events are deleted,
+    /// 1..=1048576 MiB (default 1024).
+    pub max_size_mb: u32,
 }

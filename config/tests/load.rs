@@ -361,7 +361,7 @@ fn wrong_types_and_missing_keys_are_named() {
     );
     assert_problem_like(
         &(BASE.to_owned() + "\n[alarms]\nlevel = 1\n"),
-        "mill.toml: alarms: unknown key (allowed here: name, sources, channels, drivelines, tandem_mills, rod_mills, outputs, cache_dir)",
+        "mill.toml: alarms: unknown key (allowed here: name, sources, channels, drivelines, tandem_mills, rod_mills, outputs, history, cache_dir)",
         &[],
     );
     assert_problem_like(
@@ -1176,6 +1176,113 @@ fn every_problem_is_listed_at_once() {
             "tandem_mills[0].k_max",
             "outputs.server.bind"
         ]
+    );
+}
+
+#[test]
+fn history_path_retention_and_size() {
+    let scratch = Scratch::new("history");
+    let dbc = std::fs::read_to_string(examples_dir().join("mill.dbc")).unwrap();
+    scratch.write("mill.dbc", &dbc);
+    let with = |history: &str| format!("{BASE}\n[history]\n{history}\n");
+    let config = from_toml_str(&with("path = \"data/history.db\""), "mill.toml", &scratch.0);
+    let problems: Vec<String> = config
+        .expect_err("the folder does not exist")
+        .problems
+        .iter()
+        .map(ToString::to_string)
+        .collect();
+    assert_eq!(problems.len(), 1, "{problems:#?}");
+    assert!(
+        problems[0].starts_with(
+            "mill.toml: history.path: the folder of \"data/history.db\" does not exist"
+        ),
+        "{}",
+        problems[0]
+    );
+    std::fs::create_dir_all(scratch.0.join("data")).unwrap();
+    let config = from_toml_str(&with("path = \"data/history.db\""), "mill.toml", &scratch.0)
+        .unwrap_or_else(|error| panic!("{error}"));
+    let history = config.history.expect("history configured");
+    assert_eq!(history.path, scratch.0.join("data/history.db"));
+    assert_eq!((history.retention_days, history.max_size_mb), (400, 1024));
+    let error = from_toml_str(&with("path = \"data\""), "mill.toml", &scratch.0).unwrap_err();
+    assert!(
+        error
+            .to_string()
+            .contains("history.path: \"data\" is a folder"),
+        "{error}"
+    );
+    let error = from_toml_str(
+        &with("path = \"h.db\"\nretention_days = 0\nmax_size_mb = 2000000"),
+        "mill.toml",
+        &scratch.0,
+    )
+    .unwrap_err();
+    assert_eq!(
+        error.to_string(),
+        "mill.toml: history.retention_days: 0 is not allowed (must be 1..=36500 days)\n\
+         mill.toml: history.max_size_mb: 2000000 is not allowed (must be 1..=1048576 MiB)"
+    );
+    let error =
+        from_toml_str(&with("path = \"h.db\"\nkeep = 3"), "mill.toml", &scratch.0).unwrap_err();
+    assert!(
+        error
+            .to_string()
+            .starts_with("mill.toml: history.keep: unknown field `keep`"),
+        "{error}"
+    );
+    assert!(parse(BASE).unwrap().history.is_none());
+}
+
+#[test]
+fn mqtt_output_keys_defaults_and_errors() {
+    let history = format!(
+        "\n[history]\npath = \"{}\"\n",
+        std::env::temp_dir().join("h.db").display()
+    );
+    let with = |mqtt: &str| format!("{BASE}\n[outputs.mqtt]\n{mqtt}\n{history}");
+    let minimal = "broker = \"127.0.0.1:1883\"\ngroup_id = \"plant\"\nnode_id = \"f1\"";
+    let config = parse(&with(minimal)).unwrap();
+    let mqtt = config.outputs.mqtt.expect("mqtt configured");
+    assert_eq!(mqtt.broker, "127.0.0.1:1883");
+    assert_eq!(mqtt.client_id, "millgate-plant-f1");
+    assert_eq!(mqtt.keep_alive, std::time::Duration::from_secs(30));
+    assert_eq!(mqtt.data_period, std::time::Duration::from_millis(1000));
+    assert_eq!((mqtt.command_qos, mqtt.credentials), (1, None));
+    assert_eq!(mqtt.primary_host_id, None);
+    let hosted = parse(&with(&format!("{minimal}\nprimary_host_id = \"scada\""))).unwrap();
+    assert_eq!(
+        hosted.outputs.mqtt.unwrap().primary_host_id.as_deref(),
+        Some("scada")
+    );
+    assert_only_problem(
+        &with(&format!("{minimal}\nprimary_host_id = \"#\"")),
+        "mill.toml: outputs.mqtt.primary_host_id: \"#\" is not allowed (must be non-empty, without / + or #)",
+    );
+
+    assert_eq!(
+        problems(&format!("{BASE}\n[outputs.mqtt]\n{minimal}\n")),
+        ["mill.toml: outputs.mqtt: needs [history]: the Sparkplug session number (bdSeq) is kept in the history file"]
+    );
+    let bad = "broker = \"broker\"\ngroup_id = \"a/b\"\nnode_id = \"\"\nkeep_alive_s = 2\n\
+               command_qos = 2\nusername = \"u\"\nclient_id = \"\"";
+    assert_eq!(
+        problems(&with(bad)),
+        [
+            "mill.toml: outputs.mqtt.broker: \"broker\" is not allowed (must be host:port with a port 1..=65535, e.g. 192.168.0.10:502 or plc1.local:502)",
+            "mill.toml: outputs.mqtt.group_id: \"a/b\" is not allowed (must be non-empty, without / + or #)",
+            "mill.toml: outputs.mqtt.node_id: \"\" is not allowed (must be non-empty, without / + or #)",
+            "mill.toml: outputs.mqtt.client_id: \"\" is not allowed (must be 1..=64 characters)",
+            "mill.toml: outputs.mqtt.keep_alive_s: 2 is not allowed (must be 5..=3600 s)",
+            "mill.toml: outputs.mqtt.command_qos: 2 is not allowed (must be 0..=1)",
+            "mill.toml: outputs.mqtt.password: missing: username and password are given together",
+        ]
+    );
+    assert_problem_like(
+        &with(&format!("{minimal}\nqos = 1")),
+        "mill.toml: outputs.mqtt.qos: unknown field `qos`",
+        &["command_qos"],
     );
 }
 

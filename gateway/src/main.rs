@@ -39,6 +39,11 @@ enum Command {
         #[arg(long, value_enum, default_value = "md")]
         format: millgate::cli::registers::Format,
     },
+    /// Export the event history (bites, wear, alarms, outages, chatter, runs).
+    History(millgate::cli::history::HistoryArgs),
+    #[cfg(feature = "plot")]
+    /// Write a maintenance report (Markdown, HTML, SVG plots) from the event history.
+    Report(millgate::cli::report::ReportArgs),
     /// Detect and analyse every bite of a recorded CSV (TAF, periods, eq. (1) fit).
     Analyze(millgate::cli::analyze::AnalyzeArgs),
     /// Stiffness adjustment, paper eq. (2): natural frequencies <-> C12, C23.
@@ -209,6 +214,9 @@ fn main() -> ExitCode {
             init_tracing("warn");
             millgate::cli::wear::run(&args).map(emit)
         }
+        Command::History(args) => millgate::cli::history::run(&args).map(|text| print!("{text}")),
+        #[cfg(feature = "plot")]
+        Command::Report(args) => millgate::cli::report::run(&args).map(emit),
         #[cfg(feature = "sim-tools")]
         Command::Discrepancy(args) => millgate::cli::discrepancy::run(&args).map(emit),
         #[cfg(feature = "sim-tools")]

@@ -25,12 +25,15 @@ use crate::field::counters::{CanCounters, ChannelCounters};
 use crate::field::daq_reader::DaqReader;
 use crate::field::source_health::SourceHealth;
 use crate::outputs::heartbeat;
+use crate::outputs::history::outages::{OutageMonitor, WatchedSource};
+use crate::outputs::history::{History, RunInfo};
 use crate::outputs::hmi_server::{self, ModbusServer, ServerCounters};
 use crate::outputs::metrics::Metrics;
 use crate::outputs::plc_writer::PlcWriter;
-use crate::outputs::publisher::Publisher;
+use crate::outputs::publisher::{source_of_channel, Publisher};
 use crate::outputs::register_map::{self, MapTooLarge};
 use crate::outputs::results::GatewayState;
+use crate::outputs::sparkplug::SparkplugNode;
 use crate::shutdown::{self, Shutdown, ShutdownTrigger};
 use crate::supervision::Liveness;
 
@@ -105,6 +108,7 @@ pub struct Service {
     can_counters: Vec<Arc<CanCounters>>,
     bites: broadcast::Sender<BiteReport>,
     analysis: Analysis,
+    history: History,
     server_listener: Option<TcpListener>,
     metrics_listener: Option<TcpListener>,
     liveness: Arc<Liveness>,
@@ -179,7 +183,9 @@ impl Service {
                 ))
             }))
             .collect();
-        let publisher = Arc::new(Publisher::new(&config, health.clone()));
+        let history = History::new(config.history.as_ref());
+        let publisher =
+            Arc::new(Publisher::new(&config, health.clone()).with_history(history.clone()));
         let (bites, _) = broadcast::channel(64);
         let analysis = Analysis::new(&config, Arc::clone(&publisher), bites.clone())?;
         // A driveline model that does not load, or `wear` settings that do not fit it,
@@ -203,6 +209,7 @@ impl Service {
             can_counters,
             bites,
             analysis,
+            history,
             server_listener: None,
             metrics_listener: None,
             liveness: Arc::default(),
@@ -280,6 +287,81 @@ impl Service {
         self.counters.clone()
     }
 
+    /// The event history (disabled without `[history]`).
+    pub fn history(&self) -> History {
+        self.history.clone()
+    }
+
+    /// Open the history and publish what it restores (before any reader starts, so
+    /// the first bite continues the restored counter), and pool the bites last put
+    /// into each driveline's gap pool again (the history is where the pool survives a
+    /// restart).
+    async fn restore(&mut self) {
+        let history = self.history.clone();
+        let run = RunInfo::of(&self.config);
+        let restored = match tokio::task::spawn_blocking(move || history.start(run)).await {
+            Ok(restored) => restored,
+            Err(error) => {
+                tracing::error!(%error, "opening the history failed");
+                return;
+            }
+        };
+        let publisher = &self.publisher;
+        publisher.update(|results| {
+            restored.apply(results, publisher.driveline_names(), publisher.mill_names())
+        });
+        for driveline in &restored.drivelines {
+            let index = publisher
+                .driveline_names()
+                .iter()
+                .position(|name| *name == driveline.name);
+            if let (Some(index), false) = (index, driveline.gap_pool.is_empty()) {
+                let observations = driveline.gap_pool.iter().map(|bite| GapObservation {
+                    static_torque_knm: bite.static_torque_knm,
+                    taf: bite.taf,
+                    taf_sigma: bite.taf_sigma,
+                    period_shift_s: bite.period_shift_s,
+                    period_shift_sigma_s: bite.period_shift_sigma_s,
+                });
+                self.analysis
+                    .restore_gap_pool(index, observations.collect());
+            }
+            tracing::info!(
+                driveline = %driveline.name,
+                bite_counter = driveline.results.bite_counter,
+                wear_trend = ?driveline.results.wear_trend,
+                alarm_latched = driveline.results.alarm,
+                last_bite = ?driveline.results.last_bite_unix_s,
+                gap_alarm_latched = driveline.results.gap_alarm,
+                gap_pool = driveline.gap_pool.len(),
+                "state restored from the history"
+            );
+        }
+    }
+
+    /// The outage monitor of every source.
+    fn outage_monitor(&self) -> OutageMonitor {
+        let config = &self.config;
+        let names = config
+            .modbus_sources
+            .iter()
+            .map(|s| &s.name)
+            .chain(config.can_sources.iter().map(|s| &s.name));
+        let sources = names
+            .zip(&self.health)
+            .enumerate()
+            .map(|(index, (name, health))| WatchedSource {
+                name: name.clone(),
+                health: Arc::clone(health),
+                channels: (0..config.channels.len())
+                    .filter(|&c| source_of_channel(config, c) == index)
+                    .map(|c| Arc::clone(&self.counters[c]))
+                    .collect(),
+            })
+            .collect();
+        OutageMonitor::new(sources, self.history.clone())
+    }
+
     /// Run until `shutdown` fires; then stop the readers, let analysis drain what
     /// they read, and write the final registers with status "stopped" (the source
     /// statuses as they were while running: an orderly stop is not a fault).
@@ -290,12 +372,15 @@ impl Service {
         for warning in self.warnings() {
             tracing::warn!("{warning}");
         }
+        self.restore().await;
+        let outage_monitor = self.history.is_enabled().then(|| self.outage_monitor());
         let Service {
             config,
             publisher,
             counters,
             health,
             can_counters,
+            history,
             server_listener,
             metrics_listener,
             liveness,
@@ -362,27 +447,54 @@ impl Service {
                 ("heartbeat", Ok(()))
             });
         }
+        if let Some(monitor) = outage_monitor {
+            let shutdown = outputs_shutdown.clone();
+            outputs.spawn(async move {
+                monitor.run(shutdown).await;
+                ("outage monitor", Ok(()))
+            });
+        }
         if let (Some(output), Some(listener)) = (&config.outputs.server, server_listener) {
+            let plc_address = config.outputs.plc.as_ref().map(|plc| plc.address.clone());
             let server = ModbusServer::new(
                 output.clone(),
                 Arc::clone(&publisher),
                 Arc::clone(&server_counters),
-            );
+            )
+            .with_plc_address(plc_address);
             let shutdown = outputs_shutdown.clone();
             outputs.spawn(async move {
                 let served = server.run(listener, shutdown).await;
                 ("Modbus server", served.map_err(|error| error.to_string()))
             });
         }
+        let sparkplug = match (&config.outputs.mqtt, &config.history) {
+            (Some(mqtt), Some(history)) => {
+                tracing::info!(broker = %mqtt.broker, group = %mqtt.group_id, node = %mqtt.node_id, "starting the Sparkplug B edge node");
+                let node =
+                    SparkplugNode::new(mqtt.clone(), history.path.clone(), Arc::clone(&publisher));
+                let status = node.status();
+                let shutdown = outputs_shutdown.clone();
+                outputs.spawn(async move {
+                    node.run(shutdown).await;
+                    ("Sparkplug B edge node", Ok(()))
+                });
+                Some(status)
+            }
+            _ => None,
+        };
         if let Some(listener) = metrics_listener {
-            let metrics = Metrics::new(
+            let mut metrics = Metrics::new(
                 &config,
                 counters.clone(),
                 health.clone(),
                 can_counters,
                 Arc::clone(&publisher),
-            )
-            .with_server(server_counters);
+            );
+            metrics = metrics.with_server(server_counters);
+            if let Some(status) = sparkplug {
+                metrics = metrics.with_sparkplug(status);
+            }
             let shutdown = outputs_shutdown.clone();
             outputs.spawn(async move {
                 metrics.run(listener, shutdown).await;
@@ -428,6 +540,13 @@ impl Service {
             }
         }
         publisher.update(|results| results.state = GatewayState::Stopped);
+        // Last: the writer commits what analysis and the outputs recorded.
+        if tokio::task::spawn_blocking(move || history.close())
+            .await
+            .is_err()
+        {
+            tracing::error!("closing the history failed");
+        }
         tracing::info!("stopped");
         failure.map_or(Ok(()), Err)
     }
@@ -457,6 +576,7 @@ pub struct RunningService {
     bound: Bound,
     publisher: Arc<Publisher>,
     counters: Vec<Arc<ChannelCounters>>,
+    history: History,
     bites: broadcast::Receiver<BiteReport>,
     liveness: Arc<Liveness>,
     plc_attempted: watch::Receiver<bool>,
@@ -475,6 +595,7 @@ impl Service {
         let bound = self.bind().await?;
         let publisher = self.publisher();
         let counters = self.counters();
+        let history = self.history();
         let bites = self.subscribe_bites();
         let liveness = Arc::clone(&self.liveness);
         let plc_attempted = self.plc_attempted.subscribe();
@@ -484,6 +605,7 @@ impl Service {
             bound,
             publisher,
             counters,
+            history,
             bites,
             liveness,
             plc_attempted,
@@ -514,6 +636,11 @@ impl RunningService {
     /// ([`crate::supervision::watchdog`]).
     pub fn liveness(&self) -> Arc<Liveness> {
         Arc::clone(&self.liveness)
+    }
+
+    /// The event history: [`History::stored`] counts the events committed.
+    pub fn history(&self) -> &History {
+        &self.history
     }
 
     /// The bites analysed since the service was spawned, oldest first.

@@ -116,7 +116,8 @@ mod tests {
         let config = millgate_config::from_toml_str(
             include_str!("../../config/examples/demo.toml"),
             "demo.toml",
-            std::path::Path::new("."),
+            // The demo's driveline model is named relative to the examples folder.
+            std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples")),
         )
         .unwrap();
         Arc::new(Publisher::new(&config, Vec::new()))

@@ -528,19 +528,19 @@ fn discrepancy_splits_a_record_of_two_bites_and_finds_a_gap_from_drawing_stiffne
 fn discrepancy_takes_several_records_and_names_the_file_of_a_bad_bite() {
     let dir = std::env::temp_dir().join(format!("millgate-cli-{}-bad-bite", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    // A load step of 400 samples, then a record of 50: the second is too short, and
-    // the error comes before any fit.
+    // A load step of 400 samples, then one of 90: the second is too short, and the
+    // error comes before any fit.
     let write = |name: &str, samples: usize| {
         let mut body = String::from("t,torque\n");
         for k in 0..samples {
-            let value = if k < 100 { 0.0 } else { 100.0 };
+            let value = if k < samples / 4 { 0.0 } else { 100.0 };
             body.push_str(&format!("{},{value}\n", k as f64 * 5.0e-4));
         }
         let path = dir.join(name);
         std::fs::write(&path, body).unwrap();
         path
     };
-    let (good, short) = (write("good.csv", 400), write("short.csv", 50));
+    let (good, short) = (write("good.csv", 400), write("short.csv", 90));
     let model =
         PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../sim/models/table2-adjusted.toml");
     let output = millgate(&[
@@ -556,7 +556,7 @@ fn discrepancy_takes_several_records_and_names_the_file_of_a_bad_bite() {
     let message = text(&output);
     assert!(
         message.contains("short.csv")
-            && message.contains("measured bite 2: 50 samples; at least 100 are needed")
+            && message.contains("measured bite 2: 90 samples; at least 100 are needed")
             && !message.contains("good.csv"),
         "{message}"
     );

@@ -24,6 +24,7 @@ use millgate::analysis::gap_monitor::MapsOrigin;
 use millgate::analysis::Analysis;
 use millgate::field::acquired::Acquired;
 use millgate::field::source_health::SourceHealth;
+use millgate::outputs::history::events::CommandOrigin;
 use millgate::outputs::publisher::Publisher;
 use millgate::outputs::register_map::driveline_flags;
 use millgate::outputs::results::GapResults;
@@ -308,7 +309,7 @@ fn the_wear_state_warns_latches_the_alarm_until_acknowledged_and_the_reset_empti
     assert_eq!(flags(&publisher) & both, both, "3 mrad: warning and alarm");
 
     // Acknowledged: the alarm clears; the next bite with the gap still there sets it.
-    publisher.acknowledge_alarms();
+    publisher.acknowledge_alarms(CommandOrigin::Local);
     assert_eq!(flags(&publisher) & both, driveline_flags::GAP_WARNING);
     feed(&mut analysis, &hidden(1, 3.0), &[90.0], 0.5, 8);
     assert_eq!(flags(&publisher) & both, both);
@@ -318,7 +319,7 @@ fn the_wear_state_warns_latches_the_alarm_until_acknowledged_and_the_reset_empti
     );
 
     // The coupling is replaced: reset; the pool restarts with the next bite, no gap.
-    publisher.reset_wear_trend(1);
+    publisher.reset_wear_trend(1, CommandOrigin::Local);
     assert_eq!(
         publisher.results().drivelines[0].gap,
         None,
@@ -335,7 +336,7 @@ fn the_wear_state_warns_latches_the_alarm_until_acknowledged_and_the_reset_empti
         driveline_flags::GAP_ALARM,
         "the alarm stays latched"
     );
-    publisher.acknowledge_alarms();
+    publisher.acknowledge_alarms(CommandOrigin::Local);
     assert_eq!(flags(&publisher) & both, 0);
 }
 

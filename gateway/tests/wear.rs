@@ -146,12 +146,18 @@ fn trend_follows_the_index_and_resets() {
         "{trend} outside {low}..{high}"
     );
 
-    publisher.reset_wear_trend(0b10);
+    publisher.reset_wear_trend(
+        0b10,
+        millgate::outputs::history::events::CommandOrigin::Local,
+    );
     assert!(
         publisher.results().drivelines[0].wear_trend.is_some(),
         "bit 1 is another driveline"
     );
-    publisher.reset_wear_trend(0b1);
+    publisher.reset_wear_trend(
+        0b1,
+        millgate::outputs::history::events::CommandOrigin::Local,
+    );
     let results = publisher.results();
     assert_eq!(results.drivelines[0].wear_trend, None);
     assert_eq!(

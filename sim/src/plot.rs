@@ -31,7 +31,7 @@ pub(crate) fn drawing<E: std::fmt::Display>(error: E) -> PlotError {
 }
 
 /// Range of `values` with 5% margin, or `None` if no value is finite.
-pub(crate) fn padded_range(values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
+pub fn padded_range(values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
     let (low, high) = values
         .filter(|v| v.is_finite())
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {

@@ -24,6 +24,7 @@ use millgate::field::can::CanDecoder;
 use millgate::field::modbus_client;
 use millgate::field::quality::{split_saturated, SaturationLimits};
 use millgate::field::source_health::SourceHealth;
+use millgate::outputs::history::events::CommandOrigin;
 use millgate::outputs::modbus_frame::{self, Policy, Reply};
 use millgate::outputs::publisher::Publisher;
 use millgate_config::layout::decode_block;
@@ -277,6 +278,7 @@ fn fuzz_hmi_server_frames() {
             let policy = Policy {
                 unit_id: 1,
                 commands_allowed,
+                origin: CommandOrigin::Local,
             };
             let cut = if stream.is_empty() {
                 0

@@ -6,7 +6,8 @@
 //! present.
 //!
 //! One file per part of the configuration: `sources`, `channels`, `drivelines`,
-//! `tandem_mills`, `rod_mills`, `outputs`; `values` holds the checks of single values they share.
+//! `tandem_mills`, `rod_mills`, `outputs`, `history`; `values` holds the checks of
+//! single values they share.
 
 use std::collections::HashMap;
 use std::ops::RangeInclusive;
@@ -118,7 +119,8 @@ pub(crate) fn validate(raw: RawConfig, base_dir: &Path, report: &mut Report) -> 
         |mill| &mill.name,
         |checker, key, mill| checker.rod_mill(key, mill, &channel_facts),
     );
-    let outputs = checker.outputs(&raw.outputs);
+    let outputs = checker.outputs(&raw.outputs, raw.history.is_some());
+    let history = raw.history.as_ref().map(|history| checker.history(history));
     Some(Config {
         name: name?,
         cache_dir: cache_dir?,
@@ -129,6 +131,7 @@ pub(crate) fn validate(raw: RawConfig, base_dir: &Path, report: &mut Report) -> 
         tandem_mills: tandem_mills.into_iter().collect::<Option<_>>()?,
         rod_mills: rod_mills.into_iter().collect::<Option<_>>()?,
         outputs: outputs?,
+        history: optional(history)?,
     })
 }
 
@@ -187,6 +190,7 @@ struct Checker<'a> {
 
 mod channels;
 mod drivelines;
+mod history;
 mod outputs;
 mod rod_mills;
 mod sources;

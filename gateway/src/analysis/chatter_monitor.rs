@@ -63,6 +63,10 @@ use rustfft::num_complex::Complex;
 use rustfft::{Fft, FftPlanner};
 
 use crate::field::acquired::Acquired;
+use crate::outputs::history::events::{
+    AlarmEvent, AlarmKind, AlarmRecord, ChatterWindow, EndedBy, HistoryEvent,
+};
+use crate::outputs::history::time::UtcTime;
 use crate::outputs::publisher::Publisher;
 use crate::outputs::results::MillResults;
 
@@ -952,7 +956,8 @@ impl ChatterAnalysis {
     }
 }
 
-/// Record one monitor update in the published results.
+/// Record one monitor update in the published results, and in the history the
+/// chatter episodes (from the warning condition set to it cleared) and the alarm.
 fn publish(
     publisher: &Publisher,
     mill: usize,
@@ -970,11 +975,12 @@ fn publish(
             "chatter slow-down request changed"
         );
     }
-    publisher.update(|results| {
+    publisher.update_recorded(|results, events| {
         let Some(published) = results.mills.get_mut(mill) else {
             return;
         };
         let was_flagged = published.source_stale;
+        let (was_warning, was_alarm) = (published.warning, published.alarm);
         match change {
             ChatterUpdate::Evaluated(result) => {
                 published.evaluations = monitor.evaluations();
@@ -1021,7 +1027,62 @@ fn publish(
             }
         }
         published.slow_down_request = verdict.slow_down;
+        record_episode(events, name, change, (was_warning, was_alarm), published);
     });
+}
+
+/// The history events of one update: an episode starts, goes on or ends with the
+/// warning condition (a window restart ends it too); the alarm is recorded when it
+/// latches.
+fn record_episode(
+    events: &mut Vec<HistoryEvent>,
+    mill: &str,
+    change: &ChatterUpdate,
+    (was_warning, was_alarm): (bool, bool),
+    published: &MillResults,
+) {
+    let time = UtcTime::now();
+    let window = match change {
+        ChatterUpdate::Evaluated(result) => Some(ChatterWindow {
+            sigma_n_hz: result.sigma_n_hz,
+            k_mean: result.k_mean,
+            frequency_hz: published.chatter_frequency_hz,
+            synchronized: result.synchronized,
+        }),
+        _ => None,
+    };
+    match (was_warning, published.warning, window) {
+        (false, true, Some(window)) => events.push(HistoryEvent::ChatterStarted {
+            time,
+            mill: mill.to_owned(),
+            window,
+        }),
+        (true, true, Some(window)) => events.push(HistoryEvent::ChatterWindow {
+            mill: mill.to_owned(),
+            window,
+        }),
+        (true, false, window) => events.push(HistoryEvent::ChatterEnded {
+            time,
+            mill: mill.to_owned(),
+            ended_by: if window.is_some() {
+                EndedBy::Analysis
+            } else {
+                EndedBy::WindowRestart
+            },
+        }),
+        _ => {}
+    }
+    if published.alarm && !was_alarm {
+        events.push(HistoryEvent::Alarm(AlarmRecord {
+            time,
+            subject: mill.to_owned(),
+            kind: AlarmKind::ChatterAlarm,
+            event: AlarmEvent::Raised,
+            origin: None,
+            value: published.k_mean,
+            threshold: None,
+        }));
+    }
 }
 
 /// Values invalid: never a frozen old value.

@@ -8,7 +8,7 @@ use std::time::{Instant, SystemTime, UNIX_EPOCH};
 
 use millgate_config::{Channel, Driveline};
 use millgate_dsp::bite::{BiteEvent, BiteSettings};
-use millgate_dsp::transient::{TransientResult, TransientSettings};
+use millgate_dsp::transient::{TransientQuality, TransientResult, TransientSettings};
 use millgate_sim::model::Model;
 
 use super::bite_window::{
@@ -20,7 +20,13 @@ use super::gap_map::{GapMapSpec, GapMaps};
 use super::gap_monitor::{GapBite, GapMapJob, GapMonitor};
 use super::simulated_bite::BiteSimulator;
 use super::wear::{self, WearEstimate, WearReference};
+use crate::outputs::history::events::{
+    AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, GapEstimate as RecordedGap, HistoryEvent,
+    PooledBite,
+};
+use crate::outputs::history::time::UtcTime;
 use crate::outputs::publisher::Publisher;
+use crate::outputs::results::DrivelineResults;
 
 /// Low-pass cut-off for period measurement of a driveline without a model, Hz: keeps
 /// the first modes (10-30 Hz, domain notes 1.3) and removes measurement noise above
@@ -410,7 +416,8 @@ impl DrivelineAnalyzer {
         }
     }
 
-    /// Record `report`, a bite of this driveline, in the published results.
+    /// Record `report`, a bite of this driveline, in the published results and the
+    /// history (the bite, and its warning and alarm changes).
     ///
     /// A degraded bite (its window held a gap, a saturated or a non-finite sample) is
     /// counted and dated, and flagged degraded, but its values are not valid: they are
@@ -418,8 +425,9 @@ impl DrivelineAnalyzer {
     /// alarm, and do not move the wear trend. Nothing computed from data that cannot be
     /// trusted reads as a result.
     pub(super) fn publish(&self, publisher: &Publisher, report: &BiteReport) {
-        publisher.update(|results| {
+        publisher.update_recorded(|results, events| {
             let driveline = &mut results.drivelines[report.driveline];
+            let (was_warning, was_alarm) = (driveline.warning, driveline.alarm);
             let t = &report.transient;
             let valid = !report.degraded;
             let trusted = |value: Option<f64>| value.filter(|_| valid);
@@ -446,10 +454,56 @@ impl DrivelineAnalyzer {
             if let Some(index) = driveline.wear_index {
                 driveline.wear_trend = Some(wear::next_trend(driveline.wear_trend, index));
             }
-            if let (Some(monitor), Some(estimate)) =
-                (&self.gap, report.gap.and_then(|gap| gap.pooled))
-            {
+            let was_gap_alarm = driveline.gap_alarm;
+            let gap = report
+                .gap
+                .and_then(|gap| Some((self.gap.as_ref()?, gap.pooled?)));
+            if let Some((monitor, estimate)) = gap {
                 monitor.publish(driveline, &estimate);
+            }
+            driveline.restored = false;
+            let record = bite_record(
+                report,
+                driveline,
+                gap.map(|(monitor, estimate)| monitor.record(&estimate, driveline.gap_alarm)),
+            );
+            events.push(HistoryEvent::Bite(Box::new(record)));
+            let time = UtcTime::from_system(report.time);
+            let alarm = |kind, event, value, threshold| {
+                HistoryEvent::Alarm(AlarmRecord {
+                    time,
+                    subject: report.driveline_name.clone(),
+                    kind,
+                    event,
+                    origin: None,
+                    value,
+                    threshold: Some(threshold),
+                })
+            };
+            if driveline.warning != was_warning {
+                let event = if driveline.warning {
+                    AlarmEvent::Raised
+                } else {
+                    AlarmEvent::Cleared
+                };
+                events.push(alarm(AlarmKind::TafWarning, event, t.taf, self.taf_warning));
+            }
+            if driveline.alarm && !was_alarm {
+                events.push(alarm(
+                    AlarmKind::TafAlarm,
+                    AlarmEvent::Raised,
+                    t.taf,
+                    self.taf_alarm,
+                ));
+            }
+            if let (Some((monitor, estimate)), true) = (gap, driveline.gap_alarm && !was_gap_alarm)
+            {
+                events.push(alarm(
+                    AlarmKind::WearAlarm,
+                    AlarmEvent::Raised,
+                    Some(estimate.gap_low_mrad),
+                    monitor.alarm_mrad(),
+                ));
             }
         });
     }
@@ -476,6 +530,50 @@ impl DrivelineAnalyzer {
             self.detector.trigger(&mut self.state);
         }
         self.trigger_high = high;
+    }
+}
+
+/// The history's record of `report` with the driveline's published `state` after it.
+fn bite_record(
+    report: &BiteReport,
+    state: &DrivelineResults,
+    gap: Option<RecordedGap>,
+) -> BiteRecord {
+    let t = &report.transient;
+    let reference = report.wear.map(|wear| wear.reference);
+    BiteRecord {
+        driveline: report.driveline_name.clone(),
+        channel: report.channel_name.clone(),
+        time: UtcTime::from_system(report.time),
+        static_torque_knm: t.static_torque_knm,
+        peak_torque_knm: t.peak_torque_knm,
+        taf: t.taf,
+        first_period_s: t.first_period_s,
+        second_period_s: t.second_period_s,
+        period_shift_s: t.period_shift_s,
+        beta_hz: report.beta_hz,
+        quality: match t.quality {
+            TransientQuality::Good => "good",
+            TransientQuality::FewCrossings => "few_crossings",
+            TransientQuality::LowStatic => "low_static",
+        },
+        degraded: report.degraded,
+        reference_taf: reference.map(|r| r.taf),
+        reference_level_knm: reference.map(|r| r.level_knm),
+        shift_over_linear_s: report.wear.and_then(|wear| wear.shift_excess_s),
+        gap,
+        pooled: report.gap.map(|gap| {
+            let o = gap.observation;
+            PooledBite {
+                static_torque_knm: o.static_torque_knm,
+                taf: o.taf,
+                taf_sigma: o.taf_sigma,
+                period_shift_s: o.period_shift_s,
+                period_shift_sigma_s: o.period_shift_sigma_s,
+            }
+        }),
+        extra_state: None,
+        state: state.clone(),
     }
 }
 

@@ -26,6 +26,7 @@ use super::gap_estimate::{GapEstimate, GapObservation, GapPool};
 use super::gap_map::{build, GapMapError, GapMapSpec, GapMaps};
 use super::gap_map_cache;
 use super::simulated_bite::BiteSimulator;
+use crate::outputs::history::events::{GapEstimate as RecordedGap, WearState};
 use crate::outputs::results::{DrivelineResults, GapResults};
 
 /// What a bite adds to the gap diagnosis.
@@ -263,5 +264,30 @@ impl GapMonitor {
         });
         results.gap_warning = estimate.gap_mrad >= self.warning_mrad;
         results.gap_alarm |= estimate.gap_low_mrad >= self.alarm_mrad;
+    }
+
+    /// The gap alarm threshold, mrad.
+    pub(super) fn alarm_mrad(&self) -> f64 {
+        self.alarm_mrad
+    }
+
+    /// `estimate` as the history records it, with the alarm latch as published.
+    pub(super) fn record(&self, estimate: &GapEstimate, alarm_latched: bool) -> RecordedGap {
+        let state = if estimate.gap_low_mrad >= self.alarm_mrad {
+            WearState::Alarm
+        } else if estimate.gap_mrad >= self.warning_mrad {
+            WearState::Warning
+        } else {
+            WearState::Ok
+        };
+        RecordedGap {
+            gap_mrad: estimate.gap_mrad,
+            gap_low_mrad: estimate.gap_low_mrad,
+            gap_high_mrad: estimate.gap_high_mrad,
+            coupling: estimate.coupling,
+            bites_pooled: estimate.bites_pooled,
+            state,
+            alarm_latched,
+        }
     }
 }

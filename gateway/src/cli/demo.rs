@@ -6,7 +6,12 @@
 //! opened gap against the driveline model and writes its results into a virtual PLC,
 //! also on loopback. Each bite is printed beside its simulated truth (TAF and gap);
 //! the PLC's registers are printed at the end.
+//!
+//! The gateway keeps an event history (`--history FILE`, by default a new file in a
+//! temporary folder; the path is printed at start); a second run on the same file
+//! continues the bite counter, the wear trend and the pooled gap estimate.
 
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use millgate_config::Config;
@@ -14,6 +19,8 @@ use millgate_sim::devices::demo::{
     setup, DemoDevices, DemoSetup, BARS_PER_CYCLE, GAP_COUPLING, SAMPLES_PER_BLOCK,
 };
 
+use crate::outputs::history::query::HistoryReader;
+use crate::outputs::history::time::UtcTime;
 use crate::outputs::register_map::RegisterMap;
 
 /// Arguments of `millgate demo`.
@@ -28,6 +35,50 @@ pub struct DemoArgs {
     /// Seed of the noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// The event history file (created when missing; a run on an existing file
+    /// continues its counters and wear trend). Default: a new file in a temporary
+    /// folder.
+    #[arg(long)]
+    pub history: Option<PathBuf>,
+    /// Publish the demo's Sparkplug B edge node to this MQTT broker (plain MQTT).
+    #[arg(long, value_name = "HOST:PORT")]
+    pub mqtt: Option<std::net::SocketAddr>,
+    /// Sparkplug group id with `--mqtt`.
+    #[arg(long, default_value = "millgate", value_parser = sparkplug_id)]
+    pub group: String,
+    /// Sparkplug edge node id with `--mqtt`.
+    #[arg(long, default_value = "demo", value_parser = sparkplug_id)]
+    pub node: String,
+}
+
+fn sparkplug_id(id: &str) -> Result<String, String> {
+    if millgate_config::is_sparkplug_id(id) {
+        Ok(id.to_owned())
+    } else {
+        Err(format!(
+            "\"{id}\" is not allowed (must be non-empty, without / + or #)"
+        ))
+    }
+}
+
+/// The history file of a demo run (its folder created when missing).
+fn history_file(args: &DemoArgs) -> anyhow::Result<PathBuf> {
+    let path = match &args.history {
+        Some(path) => path.clone(),
+        None => {
+            let stamp = UtcTime::now().unix_ms();
+            let folder =
+                std::env::temp_dir().join(format!("millgate-demo-{}-{stamp}", std::process::id()));
+            folder.join("history.db")
+        }
+    };
+    let folder = match path.parent() {
+        Some(folder) if !folder.as_os_str().is_empty() => folder.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    std::fs::create_dir_all(&folder)
+        .map_err(|e| anyhow::anyhow!("--history: cannot create {}: {e}", folder.display()))?;
+    Ok(path)
 }
 
 fn print_registers(map: &RegisterMap, words: &[u16]) {
@@ -66,6 +117,44 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         mut config,
         schedule,
     } = setup(args.duration, args.noise_rms, args.seed)?;
+    let history_path = history_file(&args)?;
+    config.history = Some(millgate_config::History {
+        path: history_path.clone(),
+        retention_days: 400,
+        max_size_mb: 1024,
+    });
+    if let Some(broker) = args.mqtt {
+        config.outputs.mqtt = Some(millgate_config::MqttOutput {
+            broker: broker.to_string(),
+            client_id: format!("millgate-{}-{}", args.group, args.node),
+            group_id: args.group.clone(),
+            node_id: args.node.clone(),
+            keep_alive: Duration::from_secs(30),
+            data_period: Duration::from_secs(1),
+            command_qos: 1,
+            primary_host_id: None,
+            credentials: None,
+        });
+        println!(
+            "Sparkplug B: edge node {}/{} on mqtt://{broker} (topics spBv1.0/{}/#)",
+            args.group, args.node, args.group
+        );
+    }
+    match HistoryReader::open(&history_path).and_then(|reader| reader.state()) {
+        Ok(state) => match state.drivelines.first() {
+            Some(before) => println!(
+                "history: {} (continuing: bite counter {}, wear trend {})",
+                history_path.display(),
+                before.results.bite_counter,
+                before
+                    .results
+                    .wear_trend
+                    .map_or_else(|| "none".to_owned(), |trend| format!("{trend:.4}"))
+            ),
+            None => println!("history: {}", history_path.display()),
+        },
+        Err(_) => println!("history: {} (new)", history_path.display()),
+    }
     // The PLC holds the whole map and a margin.
     let plc_registers = usize::from(RegisterMap::new(&config).len()) + 16;
     let devices = DemoDevices::start(&mut config, &schedule, plc_registers).await?;
@@ -91,6 +180,7 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
     );
     let mut gateway = crate::Service::new(config.clone())?.spawn().await?;
     let publisher = gateway.publisher();
+    let history = gateway.history().clone();
 
     let started = Instant::now();
     let deadline = tokio::time::sleep(Duration::from_secs_f64(args.duration));
@@ -153,6 +243,16 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
     println!(
         "{printed} bites analysed in {:.1} s",
         started.elapsed().as_secs_f64()
+    );
+    let last = publisher.results().drivelines[0].clone();
+    println!(
+        "history: {} ({} events stored; bite counter {}, wear trend {}; \
+         `millgate history --db FILE`, `millgate report --db FILE --out DIR` read it)",
+        history_path.display(),
+        history.stored(),
+        last.bite_counter,
+        last.wear_trend
+            .map_or_else(|| "none".to_owned(), |trend| format!("{trend:.4}"))
     );
     print_registers(publisher.map(), &live);
     let status = crate::outputs::register_map::Field::GatewayStatus;

@@ -17,10 +17,14 @@
 //! - `millgate wear --input FILE.csv --model MODEL.toml [--channel NAME] [--pool N]
 //!   [--format text|json] [--plot FILE.svg]`: [`wear`] (the gap diagnosis on a record;
 //!   `--plot` with `sim-tools`)
-//! - `millgate demo [--duration S]`: `demo`
+//! - `millgate demo [--duration S] [--history FILE] [--mqtt HOST:PORT]`: `demo`
+//! - `millgate history --db FILE [--kind K] [--driveline NAME] [--since T] [--until T]
+//!   --format csv|json|md`: [`history`]
+//! - `millgate report --db FILE --out DIR [--since T] [--until T]`: `report`
 //!
 //! `discrepancy`, `sim`, `rod` and `demo` come with the default `sim-tools` feature (they
-//! need the simulator's virtual devices or plots).
+//! need the simulator's virtual devices or plots); `report` with `plot` (part of
+//! `sim-tools`).
 
 pub mod analyze;
 pub mod chatter;
@@ -30,7 +34,10 @@ pub mod csv;
 pub mod demo;
 #[cfg(feature = "sim-tools")]
 pub mod discrepancy;
+pub mod history;
 pub mod registers;
+#[cfg(feature = "plot")]
+pub mod report;
 #[cfg(feature = "sim-tools")]
 pub mod rod;
 #[cfg(feature = "sim-tools")]

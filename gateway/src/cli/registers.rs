@@ -64,7 +64,9 @@ fn rows(map: &RegisterMap) -> impl Iterator<Item = Row<'_>> {
     })
 }
 
-fn csv_field(text: &str) -> String {
+/// `text` as one CSV field: quoted (quotes doubled) when it holds a comma, a quote or
+/// a line break.
+pub(crate) fn csv_field(text: &str) -> String {
     if text.contains([',', '"', '\n']) {
         format!("\"{}\"", text.replace('"', "\"\""))
     } else {

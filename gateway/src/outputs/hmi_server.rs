@@ -12,7 +12,9 @@
 //! alarms); `command.reset_wear_trend` takes a bitmask of drivelines (bit k = the
 //! k-th driveline in config order, 0 = nothing) and refuses bits of drivelines that
 //! do not exist. Both read back 0. Only loopback clients may write them unless
-//! `allow_remote_commands` is set (the registers need no authentication).
+//! `allow_remote_commands` is set (the registers need no authentication). The
+//! history records who sent a command: the PLC when the client's address is the
+//! configured PLC's, an HMI otherwise.
 //!
 //! Limits: at most `max_connections` clients at once (a further connection is
 //! closed at once); a connection without a request for `idle_timeout` is closed, and
@@ -20,7 +22,7 @@
 //! its first byte, so a client trickling bytes (slowloris) holds a slot for seconds,
 //! not forever. A stream that is not Modbus TCP is closed.
 
-use std::net::SocketAddr;
+use std::net::{IpAddr, SocketAddr};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
@@ -31,6 +33,7 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::Semaphore;
 use tokio::task::JoinSet;
 
+use crate::outputs::history::events::CommandOrigin;
 use crate::outputs::modbus_frame::{self, Policy, Reply, MAX_FRAME_LEN};
 use crate::outputs::publisher::Publisher;
 use crate::shutdown::Shutdown;
@@ -119,6 +122,7 @@ pub struct ModbusServer {
     output: ServerOutput,
     publisher: Arc<Publisher>,
     counters: Arc<ServerCounters>,
+    plc_address: Option<String>,
 }
 
 impl ModbusServer {
@@ -133,7 +137,15 @@ impl ModbusServer {
             output,
             publisher,
             counters,
+            plc_address: None,
         }
+    }
+
+    /// Commands from a client at the host of `plc_address` (`host:port`, the PLC
+    /// output's) are recorded as the PLC's.
+    pub fn with_plc_address(mut self, plc_address: Option<String>) -> Self {
+        self.plc_address = plc_address;
+        self
     }
 
     /// Serve on `listener` until shutdown; an error when accepting fails for good.
@@ -144,6 +156,13 @@ impl ModbusServer {
         let mut connections = JoinSet::new();
         let mut refusals = WarnLimit::new(WARN_PERIOD);
         let mut accept_errors = 0u32;
+        let plc_hosts: Vec<IpAddr> = match &self.plc_address {
+            Some(address) => tokio::net::lookup_host(address.as_str())
+                .await
+                .map(|found| found.map(|a| a.ip()).collect())
+                .unwrap_or_default(),
+            None => Vec::new(),
+        };
         loop {
             let accepted = tokio::select! {
                 accepted = listener.accept() => accepted,
@@ -182,6 +201,11 @@ impl ModbusServer {
                 policy: Policy {
                     unit_id: self.output.unit_id,
                     commands_allowed: self.output.allow_remote_commands || peer.ip().is_loopback(),
+                    origin: if plc_hosts.contains(&peer.ip()) {
+                        CommandOrigin::Plc(peer)
+                    } else {
+                        CommandOrigin::Hmi(peer)
+                    },
                 },
                 idle_timeout: self.output.idle_timeout,
                 peer,

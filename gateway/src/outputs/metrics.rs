@@ -16,6 +16,7 @@ use tokio::net::{TcpListener, TcpStream};
 
 use crate::field::counters::{CanCounters, CanCounts, ChannelCounters, ChannelCountersSnapshot};
 use crate::field::source_health::SourceHealth;
+use crate::outputs::history::HistoryStatus;
 use crate::outputs::hmi_server::{ServerCounters, ServerCounts};
 use crate::outputs::http_head::{self, HeadError};
 use crate::outputs::publisher::Publisher;
@@ -26,6 +27,7 @@ pub const HEAD_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(5);
 /// Scrapes answered at once; Prometheus sends one at a time.
 pub const MAX_SCRAPES: usize = 16;
 use crate::outputs::results::{DrivelineResults, MillResults};
+use crate::outputs::sparkplug::{SparkplugCounts, SparkplugStatus};
 use crate::shutdown::Shutdown;
 
 /// Reads one counter out of a snapshot.
@@ -53,6 +55,7 @@ pub struct Metrics {
     can_counters: Vec<Arc<CanCounters>>,
     publisher: Arc<Publisher>,
     server: Option<Arc<ServerCounters>>,
+    sparkplug: Option<Arc<SparkplugStatus>>,
 }
 
 /// Writes one metric family, `(name, type, help)`: HELP, TYPE and one sample per
@@ -69,6 +72,143 @@ fn family<'a>(
         if let Some(value) = value {
             let _ = writeln!(out, "{metric}{{{label}=\"{}\"}} {value}", escape(name));
         }
+    }
+}
+
+/// The Sparkplug B edge node's families.
+fn sparkplug_metrics(out: &mut String, counts: &SparkplugCounts) {
+    let scalars: [(&str, &str, &str, u64); 6] = [
+        (
+            "millgate_sparkplug_connected",
+            "gauge",
+            "1 while a session with the MQTT broker is up.",
+            u64::from(counts.connected),
+        ),
+        (
+            "millgate_sparkplug_bd_seq",
+            "gauge",
+            "The current session's Sparkplug bdSeq (0..=255).",
+            u64::from(counts.bd_seq),
+        ),
+        (
+            "millgate_sparkplug_messages_published_total",
+            "counter",
+            "Sparkplug messages handed to the broker connection.",
+            counts.published,
+        ),
+        (
+            "millgate_sparkplug_bites_published_total",
+            "counter",
+            "Bites published as their own DDATA.",
+            counts.bites,
+        ),
+        (
+            "millgate_sparkplug_sessions_total",
+            "counter",
+            "Sessions the MQTT broker accepted.",
+            counts.connections,
+        ),
+        (
+            "millgate_sparkplug_rebirths_total",
+            "counter",
+            "Node Control/Rebirth commands obeyed.",
+            counts.rebirths,
+        ),
+    ];
+    for (name, kind, help, value) in scalars {
+        let _ = writeln!(out, "# HELP {name} {help}");
+        let _ = writeln!(out, "# TYPE {name} {kind}");
+        let _ = writeln!(out, "{name} {value}");
+    }
+}
+
+/// The history's families: state, events stored and dropped, commits, retention,
+/// the file's size and the last error (as an info metric with the message as label).
+fn history_metrics(out: &mut String, status: &HistoryStatus) {
+    let scalars: [(&str, &str, &str, String); 8] = [
+        (
+            "millgate_history_state",
+            "gauge",
+            "Event history: 0 disabled, 1 ok, 2 failing (see millgate_history_last_error_info).",
+            status.state.code().to_string(),
+        ),
+        (
+            "millgate_history_events_stored_total",
+            "counter",
+            "Events committed to the history file.",
+            status.stored.to_string(),
+        ),
+        (
+            "millgate_history_queue_events",
+            "gauge",
+            "Events waiting for the history writer.",
+            status
+                .enqueued
+                .saturating_sub(status.stored + status.dropped_error)
+                .to_string(),
+        ),
+        (
+            "millgate_history_commits_total",
+            "counter",
+            "History transactions committed (each a group of events).",
+            status.commits.to_string(),
+        ),
+        (
+            "millgate_history_commit_seconds_sum",
+            "counter",
+            "Time spent in history transactions, s.",
+            format!("{:.6}", status.commit_seconds_sum),
+        ),
+        (
+            "millgate_history_commit_seconds_max",
+            "gauge",
+            "Longest history transaction since start, s.",
+            format!("{:.6}", status.commit_seconds_max),
+        ),
+        (
+            "millgate_history_retention_deleted_total",
+            "counter",
+            "Rows deleted by the history's retention (age and size).",
+            status.retention_deleted.to_string(),
+        ),
+        (
+            "millgate_history_file_bytes",
+            "gauge",
+            "Size of the history file at the last retention check, bytes.",
+            status.file_bytes.to_string(),
+        ),
+    ];
+    for (name, kind, help, value) in scalars {
+        let _ = writeln!(out, "# HELP {name} {help}");
+        let _ = writeln!(out, "# TYPE {name} {kind}");
+        let _ = writeln!(out, "{name} {value}");
+    }
+    let _ = writeln!(
+        out,
+        "# HELP millgate_history_events_dropped_total Events not stored: the queue was full, or the file could not take them."
+    );
+    let _ = writeln!(out, "# TYPE millgate_history_events_dropped_total counter");
+    for (reason, count) in [
+        ("queue_full", status.dropped_queue_full),
+        ("error", status.dropped_error),
+    ] {
+        let _ = writeln!(
+            out,
+            "millgate_history_events_dropped_total{{reason=\"{reason}\"}} {count}"
+        );
+    }
+    let _ = writeln!(
+        out,
+        "# HELP millgate_history_last_error_info The history's last error (the message is the label), with its Unix time as value."
+    );
+    let _ = writeln!(out, "# TYPE millgate_history_last_error_info gauge");
+    if let Some((time, message)) = &status.last_error {
+        let _ = writeln!(
+            out,
+            "millgate_history_last_error_info{{error=\"{}\"}} {:.3}",
+            escape(message),
+            time.unix_s()
+        );
     }
 }
 
@@ -104,12 +244,19 @@ impl Metrics {
             can_counters,
             publisher,
             server: None,
+            sparkplug: None,
         }
     }
 
     /// Show the HMI server's counters too.
     pub fn with_server(mut self, counters: Arc<ServerCounters>) -> Self {
         self.server = Some(counters);
+        self
+    }
+
+    /// Also show the Sparkplug B edge node's counters.
+    pub fn with_sparkplug(mut self, status: Arc<SparkplugStatus>) -> Self {
+        self.sparkplug = Some(status);
         self
     }
 
@@ -418,6 +565,10 @@ impl Metrics {
         );
         let _ = writeln!(out, "# TYPE millgate_heartbeat gauge");
         let _ = writeln!(out, "millgate_heartbeat {}", results.heartbeat);
+        history_metrics(&mut out, &self.publisher.history().status());
+        if let Some(status) = &self.sparkplug {
+            sparkplug_metrics(&mut out, &status.counts());
+        }
         out
     }
 

@@ -27,6 +27,7 @@
 //! | FC 06 / 16 from another host without `allow_remote_commands` | exception 01 |
 //! | any other function code | exception 01 |
 
+use crate::outputs::history::events::CommandOrigin;
 use crate::outputs::publisher::Publisher;
 use crate::outputs::register_map::{Access, Field};
 
@@ -98,6 +99,8 @@ pub struct Policy {
     pub unit_id: u8,
     /// Whether this client may write command registers.
     pub commands_allowed: bool,
+    /// Who the client is, as the history records its commands.
+    pub origin: CommandOrigin,
 }
 
 /// What the server makes of one whole frame.
@@ -182,7 +185,7 @@ fn answer(
             if !policy.commands_allowed {
                 return Err(Exception::IllegalFunction);
             }
-            write(publisher, be(data, 0), &[be(data, 2)])?;
+            write(publisher, be(data, 0), &[be(data, 2)], policy.origin)?;
             Ok(data.to_vec())
         }
         0x10 => {
@@ -201,7 +204,7 @@ fn answer(
                 return Err(Exception::IllegalFunction);
             }
             let values: Vec<u16> = data[5..].chunks_exact(2).map(|w| be(w, 0)).collect();
-            write(publisher, address, &values)?;
+            write(publisher, address, &values, policy.origin)?;
             Ok(data[..4].to_vec())
         }
         _ => Err(Exception::IllegalFunction),
@@ -217,7 +220,12 @@ fn read(publisher: &Publisher, address: u16, count: u16) -> Result<Vec<u16>, Exc
         .ok_or(Exception::IllegalDataAddress)
 }
 
-fn write(publisher: &Publisher, address: u16, values: &[u16]) -> Result<(), Exception> {
+fn write(
+    publisher: &Publisher,
+    address: u16,
+    values: &[u16],
+    origin: CommandOrigin,
+) -> Result<(), Exception> {
     let map = publisher.map();
     let mut commands = Vec::with_capacity(values.len());
     for (offset, &value) in values.iter().enumerate() {
@@ -242,15 +250,17 @@ fn write(publisher: &Publisher, address: u16, values: &[u16]) -> Result<(), Exce
     for (field, value) in commands {
         match field {
             Field::AcknowledgeAlarms if value == 1 => {
-                tracing::info!("alarms acknowledged over Modbus");
-                publisher.acknowledge_alarms();
+                tracing::info!(by = origin.name(), peer = ?origin.peer(), "alarms acknowledged over Modbus");
+                publisher.acknowledge_alarms(origin);
             }
             Field::ResetWearTrend if value != 0 => {
                 tracing::info!(
                     drivelines = format!("{value:#b}"),
+                    by = origin.name(),
+                    peer = ?origin.peer(),
                     "wear trend reset over Modbus"
                 );
-                publisher.reset_wear_trend(value);
+                publisher.reset_wear_trend(value, origin);
             }
             _ => {}
         }
@@ -284,7 +294,8 @@ mod tests {
         let config = millgate_config::from_toml_str(
             include_str!("../../../config/examples/demo.toml"),
             "demo.toml",
-            std::path::Path::new("."),
+            // The demo's driveline model is named relative to the examples folder.
+            std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples")),
         )
         .unwrap();
         let health = vec![Arc::new(crate::field::source_health::SourceHealth::new(
@@ -297,6 +308,7 @@ mod tests {
     const POLICY: Policy = Policy {
         unit_id: 1,
         commands_allowed: true,
+        origin: CommandOrigin::Local,
     };
 
     /// A frame with transaction id 0x1234 for `unit` carrying `pdu`.
@@ -399,6 +411,7 @@ mod tests {
         let remote = Policy {
             unit_id: 1,
             commands_allowed: false,
+            origin: CommandOrigin::Local,
         };
         let ack = frame(1, &[0x06, 0x00, 0x08, 0x00, 0x01]);
         assert_eq!(respond(&publisher, remote, &ack).exception(), Some(0x01));

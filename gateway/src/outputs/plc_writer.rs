@@ -9,6 +9,11 @@
 //! results and the heartbeat keep moving meanwhile (HMIs read them from the server),
 //! so the first write after it appears is fresh. Repeating warnings are rate-limited.
 //! On shutdown a last write publishes the "stopped" status.
+//!
+//! With a history, each write first waits (at most [`HISTORY_WAIT`]) until the
+//! events recorded before the map was read are committed: a bite the PLC sees is in
+//! the file, even if the gateway is killed right after. A failing history is not
+//! waited for.
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -28,6 +33,9 @@ use crate::warn_limit::{WarnLimit, WARN_PERIOD};
 
 /// Largest register count of one FC 16 request.
 const MAX_WRITE_REGISTERS: usize = 123;
+/// Longest wait for the history to commit what a write shows (a commit takes
+/// milliseconds; this bounds a slow disk's delay of the PLC's values).
+pub const HISTORY_WAIT: Duration = Duration::from_millis(500);
 
 /// Why a write to the PLC failed.
 #[derive(Debug, thiserror::Error)]
@@ -155,7 +163,12 @@ impl PlcWriter {
                 }
             }
             if let Some(connected) = context.as_mut() {
-                match self.write(connected, &self.publisher.words()).await {
+                let words = self.publisher.words();
+                let history = self.publisher.history();
+                if !history.wait_settled(history.enqueued(), HISTORY_WAIT).await {
+                    tracing::debug!(wait = ?HISTORY_WAIT, "history commit slower than the PLC wait");
+                }
+                match self.write(connected, &words).await {
                     Ok(()) => {
                         backoff.reset();
                         connect_warnings.clear();

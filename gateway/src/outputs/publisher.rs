@@ -7,6 +7,11 @@ use std::sync::{Arc, Mutex};
 use millgate_config::{ChannelSource, Config};
 
 use crate::field::source_health::{SourceHealth, SourceStatus};
+use crate::outputs::history::events::{
+    AlarmEvent, AlarmKind, AlarmRecord, CommandOrigin, HistoryEvent,
+};
+use crate::outputs::history::time::UtcTime;
+use crate::outputs::history::History;
 use crate::outputs::register_map::RegisterMap;
 use crate::outputs::results::Results;
 
@@ -27,6 +32,8 @@ pub struct Publisher {
     driveline_sources: Vec<usize>,
     /// Global source indices of each mill's stand channels.
     mill_sources: Vec<Vec<usize>>,
+    /// Where changes are recorded (disabled without `[history]`).
+    history: History,
     /// Global source indices of each rod mill's input channels.
     rod_mill_sources: Vec<Vec<usize>>,
     /// Drivelines (bit k = driveline k) whose wear was reset since the analysis last
@@ -76,6 +83,7 @@ impl Publisher {
                         .collect()
                 })
                 .collect(),
+            history: History::disabled(),
             rod_mill_sources: config
                 .rod_mills
                 .iter()
@@ -90,6 +98,17 @@ impl Publisher {
                 .collect(),
             wear_resets: AtomicU16::new(0),
         }
+    }
+
+    /// This publisher recording into `history`.
+    pub fn with_history(mut self, history: History) -> Self {
+        self.history = history;
+        self
+    }
+
+    /// The history changes are recorded into.
+    pub fn history(&self) -> &History {
+        &self.history
     }
 
     /// The register map.
@@ -109,9 +128,26 @@ impl Publisher {
 
     /// Change the results.
     pub fn update<T>(&self, change: impl FnOnce(&mut Results) -> T) -> T {
-        let result = change(&mut crate::lock(&self.results));
+        self.update_recorded(|results, _| change(results))
+    }
+
+    /// Change the results and record what happened (the events `change` pushes) in
+    /// the history, under one lock: whoever reads the results after this call finds
+    /// the events already counted in [`History::enqueued`], which is what lets the
+    /// PLC writer wait until a bite it writes is stored.
+    pub fn update_recorded<T>(
+        &self,
+        change: impl FnOnce(&mut Results, &mut Vec<HistoryEvent>) -> T,
+    ) -> T {
+        let mut results = crate::lock(&self.results);
+        let mut events = Vec::new();
+        let value = change(&mut results, &mut events);
+        for event in events {
+            self.history.record(event);
+        }
+        drop(results);
         self.changed.notify_one();
-        result
+        value
     }
 
     /// Wait until the results change (returns at once if they changed since the
@@ -175,15 +211,21 @@ impl Publisher {
     /// in `drivelines` (bit k = driveline k in config order): the next bite's wear
     /// index seeds the trend afresh and the gap pool starts empty (the reset-wear-trend
     /// command, e.g. after a coupling is replaced). The gap alarm stays latched until
-    /// acknowledged.
-    pub fn reset_wear_trend(&self, drivelines: u16) {
+    /// acknowledged. `origin` says who, for the history.
+    pub fn reset_wear_trend(&self, drivelines: u16, origin: CommandOrigin) {
+        let time = UtcTime::now();
         self.wear_resets.fetch_or(drivelines, Ordering::Relaxed);
-        self.update(|results| {
+        self.update_recorded(|results, events| {
             for (k, driveline) in results.drivelines.iter_mut().enumerate().take(16) {
                 if drivelines & (1 << k) != 0 {
                     driveline.wear_trend = None;
                     driveline.gap = None;
                     driveline.gap_warning = false;
+                    events.push(HistoryEvent::WearReset {
+                        time,
+                        driveline: self.driveline_names[k].clone(),
+                        origin,
+                    });
                 }
             }
         });
@@ -195,14 +237,36 @@ impl Publisher {
         self.wear_resets.swap(0, Ordering::Relaxed)
     }
 
-    /// Clear latched alarms (the acknowledge command).
-    pub fn acknowledge_alarms(&self) {
-        self.update(|results| {
-            for driveline in &mut results.drivelines {
+    /// Clear latched alarms (the acknowledge command); `origin` says who, for the
+    /// history, which records each alarm that was latched.
+    pub fn acknowledge_alarms(&self, origin: CommandOrigin) {
+        let time = UtcTime::now();
+        let acknowledged = |subject: &String, kind| {
+            HistoryEvent::Alarm(AlarmRecord {
+                time,
+                subject: subject.clone(),
+                kind,
+                event: AlarmEvent::Acknowledged,
+                origin: Some(origin),
+                value: None,
+                threshold: None,
+            })
+        };
+        self.update_recorded(|results, events| {
+            for (driveline, name) in results.drivelines.iter_mut().zip(&self.driveline_names) {
+                if driveline.alarm {
+                    events.push(acknowledged(name, AlarmKind::TafAlarm));
+                }
+                if driveline.gap_alarm {
+                    events.push(acknowledged(name, AlarmKind::WearAlarm));
+                }
                 driveline.alarm = false;
                 driveline.gap_alarm = false;
             }
-            for mill in &mut results.mills {
+            for (mill, name) in results.mills.iter_mut().zip(&self.mill_names) {
+                if mill.alarm {
+                    events.push(acknowledged(name, AlarmKind::ChatterAlarm));
+                }
                 mill.alarm = false;
             }
         });

@@ -213,6 +213,9 @@ pub mod driveline_flags {
     /// The gap's 90% interval lay at or above the gap alarm threshold; latched until
     /// acknowledged.
     pub const GAP_ALARM: u16 = 1 << 5;
+    /// The values are from before the gateway's last restart (restored from the
+    /// history; `last_bite_time` says when); cleared by the next bite.
+    pub const RESTORED: u16 = 1 << 6;
 }
 
 /// Flag bits of a rod mill's and a rod span's `flags` register.
@@ -413,9 +416,9 @@ impl RegisterMap {
             let n = |field: &str| format!("{}.{field}", driveline.name);
             let f = |field| Field::Driveline(k, field);
             let fields: [(u16, &str, ValueType, &'static str, &str, DrivelineField); 17] = [
-                (0, "flags", U16, "bits", "bit0 TAF warning, bit1 TAF alarm (latched), bit2 source stale, bit3 last bite degraded (a gap, saturated or non-finite samples in its window: its values are not valid, their quality bits clear), bit4 gap warning, bit5 gap alarm (latched)", D::Flags),
+                (0, "flags", U16, "bits", "bit0 TAF warning, bit1 TAF alarm (latched), bit2 source stale, bit3 last bite degraded (a gap, saturated or non-finite samples in its window: its values are not valid, their quality bits clear), bit4 gap warning, bit5 gap alarm (latched), bit6 values restored from before the last restart (last_bite_time says when; cleared by the next bite)", D::Flags),
                 (1, "quality", U16, "bits", "bit i set: value i of this block is valid (0 last_bite_time, 1 static_torque, 2 peak_torque, 3 taf, 4 period_shift, 5 beta1, 6 beta2, 7 wear_index, 8 wear_trend, 9 gap_mrad, 10 gap_low_mrad, 11 gap_high_mrad, 12 gap_coupling, 13 bites_pooled)", D::Quality),
-                (2, "bite_counter", U32, "", "Bites analysed since start", D::BiteCounter),
+                (2, "bite_counter", U32, "", "Bites analysed since start (continued across restarts with a history)", D::BiteCounter),
                 (4, "last_bite_time", U32, "s", "Time of the last bite, Unix seconds", D::LastBiteTime),
                 (6, "static_torque", F32, "kN*m", "Static (settled) rolling torque of the last bite", D::StaticTorque),
                 (8, "peak_torque", F32, "kN*m", "Peak torque of the last bite", D::PeakTorque),
@@ -678,6 +681,7 @@ fn driveline_value(d: &DrivelineResults, field: DrivelineField) -> Option<f64> {
                 (d.last_bite_degraded, fl::DEGRADED),
                 (d.gap_warning, fl::GAP_WARNING),
                 (d.gap_alarm, fl::GAP_ALARM),
+                (d.restored, fl::RESTORED),
             ]
             .iter()
             .filter(|(set, _)| *set)

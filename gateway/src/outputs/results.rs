@@ -48,6 +48,9 @@ pub struct DrivelineResults {
     pub gap_alarm: bool,
     /// The torque channel's source is stale or lost: every value is flagged.
     pub source_stale: bool,
+    /// The values are from before the last restart (restored from the history);
+    /// cleared by the next bite.
+    pub restored: bool,
 }
 
 /// The pooled gap estimate of a driveline, as published (see

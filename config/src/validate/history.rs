@@ -1,0 +1,79 @@
+//! `[history]`: the event history file and its retention.
+
+use std::ops::RangeInclusive;
+
+use crate::raw::RawHistory;
+use crate::History;
+
+use super::Checker;
+
+/// Days events are kept when `retention_days` is not given: a year and a month, so a
+/// year-on-year comparison of the wear trend still finds last year's month.
+pub(crate) const DEFAULT_RETENTION_DAYS: i64 = 400;
+/// Allowed retention, days (100 years at most).
+const RETENTION_DAYS: RangeInclusive<i64> = 1..=36_500;
+/// Largest data size when `max_size_mb` is not given, MiB.
+pub(crate) const DEFAULT_MAX_SIZE_MB: i64 = 1024;
+/// Allowed data sizes, MiB (1 TiB at most).
+const MAX_SIZE_MB: RangeInclusive<i64> = 1..=1_048_576;
+
+impl Checker<'_> {
+    pub(super) fn history(&mut self, raw: &RawHistory) -> Option<History> {
+        let path = self.history_path("history.path", &raw.path);
+        let retention_days = self.int_in(
+            "history.retention_days",
+            raw.retention_days.unwrap_or(DEFAULT_RETENTION_DAYS),
+            RETENTION_DAYS,
+            " days",
+        );
+        let max_size_mb = self.int_in(
+            "history.max_size_mb",
+            raw.max_size_mb.unwrap_or(DEFAULT_MAX_SIZE_MB),
+            MAX_SIZE_MB,
+            " MiB",
+        );
+        Some(History {
+            path: path?,
+            retention_days: u32::try_from(retention_days?).ok()?,
+            max_size_mb: u32::try_from(max_size_mb?).ok()?,
+        })
+    }
+
+    /// A file path relative to the configuration file's directory whose folder
+    /// exists; the file itself may not exist yet (it is created at the first start).
+    fn history_path(&mut self, key: &str, relative: &str) -> Option<std::path::PathBuf> {
+        if relative.trim().is_empty() {
+            self.report.push(
+                key,
+                "must not be empty (the SQLite file, e.g. \"history.db\")",
+            );
+            return None;
+        }
+        let path = self.base_dir.join(relative);
+        if path.is_dir() {
+            self.report.push(
+                key,
+                format!(
+                    "\"{relative}\" is a folder (must be a file, e.g. \"{relative}/history.db\")"
+                ),
+            );
+            return None;
+        }
+        let folder = match path.parent() {
+            Some(folder) if !folder.as_os_str().is_empty() => folder.to_path_buf(),
+            _ => std::path::PathBuf::from("."),
+        };
+        if !folder.is_dir() {
+            self.report.push(
+                key,
+                format!(
+                    "the folder of \"{relative}\" does not exist (looked for {}; create it, \
+                     writable by the service's user; paths are relative to the configuration file)",
+                    folder.display()
+                ),
+            );
+            return None;
+        }
+        Some(path)
+    }
+}

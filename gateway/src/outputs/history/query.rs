@@ -1,0 +1,506 @@
+//! Reading the history: a read-only connection of its own ([`HistoryReader`]) and
+//! typed rows per table, filtered by name, time range and id, in id order (the order
+//! events were stored), with a limit.
+//!
+//! This is the API the commands use (`millgate history`, `millgate report`) and the
+//! one a web page or an MQTT store-and-forward replay builds on: page with
+//! [`Filter::after_id`] and [`Filter::limit`] (ids grow with every stored row, so
+//! the last id read is where to go on from). Each row type lists its columns in
+//! [`Record::COLUMNS`] and gives its cells in that order ([`Record::cells`]); JSON
+//! comes from its `Serialize` implementation with the same names.
+
+use std::path::{Path, PathBuf};
+
+use rusqlite::{Connection, OpenFlags};
+use serde::Serialize;
+
+use super::restore::Restored;
+use super::schema::{current_version, SchemaError};
+use super::time::UtcTime;
+use super::HistoryError;
+
+/// Which rows to read.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Filter {
+    /// Only rows of this driveline (bites, wear), subject (alarms: a driveline or
+    /// mill), source (outages) or mill (chatter episodes).
+    pub name: Option<String>,
+    /// Rows at or after this time (a row's time, or its start).
+    pub since: Option<UtcTime>,
+    /// Rows before this time.
+    pub until: Option<UtcTime>,
+    /// Rows whose id is above this one (paging, replay).
+    pub after_id: Option<i64>,
+    /// At most this many rows.
+    pub limit: Option<u32>,
+}
+
+/// One value of a row, for CSV and Markdown exports.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Cell {
+    /// No value (`NULL`).
+    Null,
+    /// An integer (counts, ids, booleans as 0/1).
+    Integer(i64),
+    /// A measured value.
+    Real(f64),
+    /// Text (names, times).
+    Text(String),
+}
+
+impl std::fmt::Display for Cell {
+    /// Empty for `Null`; reals as the shortest text that reads back to the same f64.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Cell::Null => Ok(()),
+            Cell::Integer(value) => write!(f, "{value}"),
+            Cell::Real(value) => write!(f, "{value}"),
+            Cell::Text(text) => f.write_str(text),
+        }
+    }
+}
+
+/// Conversion of a row field to a [`Cell`].
+pub trait ToCell {
+    /// The cell.
+    fn to_cell(&self) -> Cell;
+}
+
+impl ToCell for i64 {
+    fn to_cell(&self) -> Cell {
+        Cell::Integer(*self)
+    }
+}
+
+impl ToCell for f64 {
+    fn to_cell(&self) -> Cell {
+        Cell::Real(*self)
+    }
+}
+
+impl ToCell for bool {
+    fn to_cell(&self) -> Cell {
+        Cell::Integer(i64::from(*self))
+    }
+}
+
+impl ToCell for String {
+    fn to_cell(&self) -> Cell {
+        Cell::Text(self.clone())
+    }
+}
+
+impl<T: ToCell> ToCell for Option<T> {
+    fn to_cell(&self) -> Cell {
+        self.as_ref().map_or(Cell::Null, ToCell::to_cell)
+    }
+}
+
+/// A row type of one table.
+pub trait Record: Sized + Serialize {
+    /// The table.
+    const TABLE: &'static str;
+    /// The columns read, in order (the struct's fields).
+    const COLUMNS: &'static [&'static str];
+    /// The column [`Filter::name`] matches.
+    const NAME_COLUMN: &'static str;
+    /// The column [`Filter::since`] and [`Filter::until`] compare.
+    const TIME_COLUMN: &'static str;
+    /// The row from a result row of [`Self::COLUMNS`].
+    fn from_row(row: &rusqlite::Row<'_>) -> rusqlite::Result<Self>;
+    /// The values, in [`Self::COLUMNS`] order.
+    fn cells(&self) -> Vec<Cell>;
+}
+
+/// Declares a row struct of `table` with its [`Record`] implementation: one place
+/// names each column, its type and its meaning.
+macro_rules! record {
+    (
+        $(#[$meta:meta])* $name:ident, $table:literal, name $name_column:literal,
+        time $time_column:literal {
+            $($(#[$field_meta:meta])* $field:ident: $ty:ty,)*
+        }
+    ) => {
+        $(#[$meta])*
+        #[derive(Debug, Clone, PartialEq, Serialize)]
+        pub struct $name {
+            $($(#[$field_meta])* pub $field: $ty,)*
+        }
+
+        impl Record for $name {
+            const TABLE: &'static str = $table;
+            const COLUMNS: &'static [&'static str] = &[$(stringify!($field)),*];
+            const NAME_COLUMN: &'static str = $name_column;
+            const TIME_COLUMN: &'static str = $time_column;
+
+            fn from_row(row: &rusqlite::Row<'_>) -> rusqlite::Result<Self> {
+                Ok(Self { $($field: row.get(stringify!($field))?,)* })
+            }
+
+            fn cells(&self) -> Vec<Cell> {
+                vec![$(self.$field.to_cell()),*]
+            }
+        }
+    };
+}
+
+record! {
+    /// A bite (table `bites`); torques kN*m, periods s, frequencies Hz, gaps mrad.
+    BiteRow, "bites", name "driveline", time "time" {
+        /// Row id.
+        id: i64,
+        /// The gateway run that recorded it.
+        run_id: i64,
+        /// Driveline name.
+        driveline: String,
+        /// UTC, ISO-8601.
+        time: String,
+        /// The driveline's bite counter after this bite.
+        bite_counter: i64,
+        /// Torque channel.
+        channel: String,
+        /// Static torque, kN*m.
+        static_torque_knm: f64,
+        /// Peak torque, kN*m.
+        peak_torque_knm: f64,
+        /// Peak / static.
+        taf: Option<f64>,
+        /// First period, s.
+        first_period_s: Option<f64>,
+        /// Second period, s.
+        second_period_s: Option<f64>,
+        /// First minus second period, s.
+        period_shift_s: Option<f64>,
+        /// First natural frequency (eq. (1) fit), Hz.
+        beta1_hz: Option<f64>,
+        /// Second natural frequency, Hz.
+        beta2_hz: Option<f64>,
+        /// `good`, `few_crossings`, `low_static`.
+        quality: String,
+        /// The window had gaps, NaN or saturation.
+        degraded: bool,
+        /// TAF / linear reference TAF - 1.
+        wear_index: Option<f64>,
+        /// Wear trend after this bite.
+        wear_trend: Option<f64>,
+        /// The linear reference's TAF.
+        reference_taf: Option<f64>,
+        /// Measured minus reference first-period shift, s.
+        shift_over_linear_s: Option<f64>,
+        /// Pooled gap estimate, mrad (gap diagnosis).
+        gap_mrad: Option<f64>,
+        /// Its interval's lower end, mrad.
+        gap_low_mrad: Option<f64>,
+        /// Its interval's upper end, mrad.
+        gap_high_mrad: Option<f64>,
+        /// The coupling holding the gap (model index, 0 = motor side); `None` when
+        /// the bites cannot tell.
+        gap_coupling: Option<String>,
+        /// Bites pooled into the estimate.
+        bites_pooled: Option<i64>,
+    }
+}
+
+record! {
+    /// A wear estimate or a trend reset (table `wear_estimates`).
+    WearRow, "wear_estimates", name "driveline", time "time" {
+        /// Row id.
+        id: i64,
+        /// Driveline name.
+        driveline: String,
+        /// UTC, ISO-8601.
+        time: String,
+        /// `bite` or `reset`.
+        event: String,
+        /// `analysis`, or who reset: `hmi`, `plc`, `local`.
+        origin: String,
+        /// The Modbus client that reset.
+        peer: Option<String>,
+        /// Wear index of the bite.
+        wear_index: Option<f64>,
+        /// Wear trend after it.
+        wear_trend: Option<f64>,
+        /// The linear reference's TAF.
+        reference_taf: Option<f64>,
+        /// Static torque level of the reference, kN*m.
+        reference_level_knm: Option<f64>,
+        /// Measured minus reference first-period shift, s.
+        shift_over_linear_s: Option<f64>,
+        /// Pooled gap estimate, mrad.
+        gap_mrad: Option<f64>,
+        /// Its interval's lower end, mrad.
+        gap_low_mrad: Option<f64>,
+        /// Its interval's upper end, mrad.
+        gap_high_mrad: Option<f64>,
+        /// The coupling holding the gap (model index, 0 = motor side); `None` when
+        /// the bites cannot tell.
+        gap_coupling: Option<String>,
+        /// Bites pooled.
+        bites_pooled: Option<i64>,
+        /// `ok`, `warning`, `alarm`.
+        state: Option<String>,
+        /// The wear alarm was latched.
+        alarm_latched: Option<bool>,
+    }
+}
+
+record! {
+    /// An alarm raised, cleared or acknowledged (table `alarms`).
+    AlarmRow, "alarms", name "subject", time "time" {
+        /// Row id.
+        id: i64,
+        /// UTC, ISO-8601.
+        time: String,
+        /// The driveline or mill.
+        subject: String,
+        /// `taf_warning`, `taf_alarm`, `chatter_alarm`, `wear_alarm`.
+        kind: String,
+        /// `raised`, `cleared`, `acknowledged`.
+        event: String,
+        /// `analysis`, `hmi`, `plc`, `local`.
+        origin: String,
+        /// The Modbus client that acknowledged.
+        peer: Option<String>,
+        /// The value that raised it.
+        value: Option<f64>,
+        /// The threshold.
+        threshold: Option<f64>,
+    }
+}
+
+record! {
+    /// A source outage (table `source_outages`).
+    OutageRow, "source_outages", name "source", time "started_at" {
+        /// Row id.
+        id: i64,
+        /// The source.
+        source: String,
+        /// UTC, ISO-8601.
+        started_at: String,
+        /// UTC, ISO-8601; empty while it lasts.
+        ended_at: Option<String>,
+        /// `recovered` (analysis), `stop`, `restart`.
+        ended_by: Option<String>,
+        /// `stale` or `lost`.
+        worst_status: String,
+        /// Blocks lost on its channels.
+        blocks_missed: i64,
+    }
+}
+
+record! {
+    /// A chatter episode (table `chatter_episodes`).
+    ChatterRow, "chatter_episodes", name "mill", time "started_at" {
+        /// Row id.
+        id: i64,
+        /// The tandem mill.
+        mill: String,
+        /// UTC, ISO-8601.
+        started_at: String,
+        /// UTC, ISO-8601.
+        ended_at: Option<String>,
+        /// `analysis`, `window_restart`, `stop`, `restart`.
+        ended_by: Option<String>,
+        /// Windows evaluated in it.
+        windows: i64,
+        /// Smallest sigma_n, Hz.
+        min_sigma_n_hz: Option<f64>,
+        /// Largest K_mean.
+        max_k_mean: Option<f64>,
+        /// Chatter frequency of its last window, Hz.
+        frequency_hz: Option<f64>,
+        /// The alarm condition held in a window.
+        alarm: bool,
+    }
+}
+
+record! {
+    /// A gateway run (table `gateway_runs`).
+    RunRow, "gateway_runs", name "config_name", time "started_at" {
+        /// Row id.
+        id: i64,
+        /// UTC, ISO-8601.
+        started_at: String,
+        /// UTC, ISO-8601; empty while running or after a kill.
+        stopped_at: Option<String>,
+        /// `stopped`, `unclean`; empty while running.
+        ended: Option<String>,
+        /// millgate version.
+        version: String,
+        /// The configuration's name.
+        config_name: String,
+    }
+}
+
+record! {
+    /// A run's driveline settings (table `driveline_settings`).
+    SettingsRow, "driveline_settings", name "driveline", time "time" {
+        /// Row id.
+        id: i64,
+        /// The run.
+        run_id: i64,
+        /// The run's start, UTC, ISO-8601.
+        time: String,
+        /// Driveline name.
+        driveline: String,
+        /// TAF warning threshold.
+        taf_warning: f64,
+        /// TAF alarm threshold.
+        taf_alarm: f64,
+        /// The driveline model file, as configured.
+        model: Option<String>,
+        /// The gap diagnosis' warning threshold, mrad.
+        gap_warning_mrad: Option<f64>,
+        /// The gap diagnosis' alarm threshold, mrad.
+        gap_alarm_mrad: Option<f64>,
+    }
+}
+
+/// A read-only connection to a history file.
+#[derive(Debug)]
+pub struct HistoryReader {
+    path: PathBuf,
+    connection: Connection,
+}
+
+impl HistoryReader {
+    /// Open `path` read-only; refuses a file that is not a millgate history or is
+    /// newer than this millgate.
+    pub fn open(path: &Path) -> Result<Self, HistoryError> {
+        let sqlite = |source| HistoryError::Sqlite {
+            path: path.to_path_buf(),
+            source,
+        };
+        let connection = Connection::open_with_flags(
+            path,
+            OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX,
+        )
+        .map_err(sqlite)?;
+        let version: i64 = connection
+            .pragma_query_value(None, "user_version", |row| row.get(0))
+            .map_err(sqlite)?;
+        let known = current_version();
+        if version > known {
+            return Err(HistoryError::Schema {
+                path: path.to_path_buf(),
+                source: SchemaError::TooNew {
+                    found: version,
+                    known,
+                },
+            });
+        }
+        if version == 0 {
+            return Err(sqlite(rusqlite::Error::SqliteFailure(
+                rusqlite::ffi::Error::new(rusqlite::ffi::SQLITE_NOTADB),
+                Some("not a millgate history (no schema version)".into()),
+            )));
+        }
+        Ok(Self {
+            path: path.to_path_buf(),
+            connection,
+        })
+    }
+
+    /// The file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    fn error(&self, source: rusqlite::Error) -> HistoryError {
+        HistoryError::Sqlite {
+            path: self.path.clone(),
+            source,
+        }
+    }
+
+    /// The rows of `R`'s table that pass `filter`, in id order.
+    pub fn rows<R: Record>(&self, filter: &Filter) -> Result<Vec<R>, HistoryError> {
+        let mut conditions = Vec::new();
+        let mut values: Vec<rusqlite::types::Value> = Vec::new();
+        let mut condition = |sql: String, value: rusqlite::types::Value| {
+            values.push(value);
+            conditions.push(format!("{sql} ?{}", values.len()));
+        };
+        if let Some(name) = &filter.name {
+            condition(format!("{} =", R::NAME_COLUMN), name.clone().into());
+        }
+        if let Some(since) = filter.since {
+            condition(format!("{} >=", R::TIME_COLUMN), since.to_string().into());
+        }
+        if let Some(until) = filter.until {
+            condition(format!("{} <", R::TIME_COLUMN), until.to_string().into());
+        }
+        if let Some(after) = filter.after_id {
+            condition("id >".into(), after.into());
+        }
+        let mut sql = format!("SELECT {} FROM {}", R::COLUMNS.join(", "), R::TABLE);
+        if !conditions.is_empty() {
+            sql.push_str(" WHERE ");
+            sql.push_str(&conditions.join(" AND "));
+        }
+        sql.push_str(" ORDER BY id");
+        if let Some(limit) = filter.limit {
+            sql.push_str(&format!(" LIMIT {limit}"));
+        }
+        let mut statement = self.connection.prepare(&sql).map_err(|e| self.error(e))?;
+        let rows = statement
+            .query_map(rusqlite::params_from_iter(values), R::from_row)
+            .map_err(|e| self.error(e))?;
+        rows.collect::<rusqlite::Result<Vec<R>>>()
+            .map_err(|e| self.error(e))
+    }
+
+    /// Bites by driveline and time range.
+    pub fn bites(&self, filter: &Filter) -> Result<Vec<BiteRow>, HistoryError> {
+        self.rows(filter)
+    }
+
+    /// Wear estimates and trend resets.
+    pub fn wear(&self, filter: &Filter) -> Result<Vec<WearRow>, HistoryError> {
+        self.rows(filter)
+    }
+
+    /// Alarms raised, cleared and acknowledged.
+    pub fn alarms(&self, filter: &Filter) -> Result<Vec<AlarmRow>, HistoryError> {
+        self.rows(filter)
+    }
+
+    /// Source outages.
+    pub fn outages(&self, filter: &Filter) -> Result<Vec<OutageRow>, HistoryError> {
+        self.rows(filter)
+    }
+
+    /// Chatter episodes.
+    pub fn chatter(&self, filter: &Filter) -> Result<Vec<ChatterRow>, HistoryError> {
+        self.rows(filter)
+    }
+
+    /// Gateway runs (starts and stops).
+    pub fn runs(&self, filter: &Filter) -> Result<Vec<RunRow>, HistoryError> {
+        self.rows(filter)
+    }
+
+    /// Driveline settings of each run.
+    pub fn settings(&self, filter: &Filter) -> Result<Vec<SettingsRow>, HistoryError> {
+        self.rows(filter)
+    }
+
+    /// The drivelines that have bites, by name.
+    pub fn drivelines(&self) -> Result<Vec<String>, HistoryError> {
+        let mut statement = self
+            .connection
+            .prepare("SELECT DISTINCT driveline FROM bites ORDER BY driveline")
+            .map_err(|e| self.error(e))?;
+        let names = statement
+            .query_map([], |row| row.get(0))
+            .map_err(|e| self.error(e))?;
+        names
+            .collect::<rusqlite::Result<Vec<String>>>()
+            .map_err(|e| self.error(e))
+    }
+
+    /// The state the next start would restore.
+    pub fn state(&self) -> Result<Restored, HistoryError> {
+        super::restore::read(&self.connection).map_err(|e| self.error(e))
+    }
+}

@@ -1,0 +1,208 @@
+//! Retention: events older than `history.retention_days`, and the oldest events while
+//! the file's data passes `history.max_size_mb`, are deleted in chunks; freed pages
+//! are handed back to the file system.
+//!
+//! The writer runs one [`Retention::step`] between batches when it is due: at most
+//! [`Retention::chunk_rows`] rows per table in one transaction, then at most
+//! [`Retention::vacuum_pages`] free pages released (`PRAGMA incremental_vacuum`; new
+//! files are created with `auto_vacuum=INCREMENTAL`). A step takes milliseconds, so
+//! the events queued meanwhile wait at most that long. While a step leaves work (more
+//! old rows, still too large, free pages left) the next one follows after
+//! [`BUSY_PERIOD`]; otherwise after [`CHECK_PERIOD`].
+//!
+//! Size: the data are the file's pages less its free pages. Past the limit, the
+//! oldest rows are deleted until the data are below [`SHRINK_TO`] of it, so a full
+//! file is not trimmed again at every step.
+
+use std::time::{Duration, Instant};
+
+use rusqlite::{Connection, OptionalExtension};
+
+use super::time::UtcTime;
+
+/// Time between retention checks while there is nothing to delete.
+pub const CHECK_PERIOD: Duration = Duration::from_secs(10);
+/// Time between steps while there is work left (the writer commits events between).
+pub const BUSY_PERIOD: Duration = Duration::from_millis(20);
+/// After passing the size limit, rows are deleted until the data are this fraction of it.
+pub const SHRINK_TO: f64 = 0.9;
+/// Time to wait after a failed step.
+const FAILED_PERIOD: Duration = Duration::from_secs(60);
+
+/// Each table with the column that dates its rows and a condition: `gateway_runs`
+/// and `driveline_settings` only of runs that ended (never this one's).
+const TABLES: [(&str, &str, &str); 7] = [
+    ("bites", "time", ""),
+    (
+        "driveline_settings",
+        "time",
+        "AND run_id IN (SELECT id FROM gateway_runs WHERE ended IS NOT NULL)",
+    ),
+    ("wear_estimates", "time", ""),
+    ("alarms", "time", ""),
+    ("chatter_episodes", "started_at", ""),
+    ("source_outages", "started_at", ""),
+    ("gateway_runs", "started_at", "AND ended IS NOT NULL"),
+];
+
+/// Retention settings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Retention {
+    /// Rows older than this are deleted.
+    pub max_age: Duration,
+    /// Largest data size, bytes.
+    pub max_bytes: u64,
+    /// Most rows deleted per table in one step.
+    pub chunk_rows: u32,
+    /// Most free pages released in one step.
+    pub vacuum_pages: u32,
+}
+
+/// What one step did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Step {
+    /// Rows deleted.
+    pub deleted: u64,
+    /// Pages handed back to the file system.
+    pub released_pages: u64,
+    /// File size after the step (pages times page size; the WAL not included), bytes.
+    pub file_bytes: u64,
+    /// Data (pages in use) after the step, bytes.
+    pub data_bytes: u64,
+    /// Work is left for another step.
+    pub more: bool,
+}
+
+/// The retention's progress between steps.
+#[derive(Debug)]
+pub struct RetentionState {
+    next: Instant,
+    shrinking: bool,
+}
+
+impl Default for RetentionState {
+    fn default() -> Self {
+        Self {
+            // The first check soon after start: a file left too large by a run with a
+            // larger limit is trimmed at once.
+            next: Instant::now() + BUSY_PERIOD,
+            shrinking: false,
+        }
+    }
+}
+
+impl RetentionState {
+    /// Whether a step is due now.
+    pub fn due(&self) -> bool {
+        Instant::now() >= self.next
+    }
+
+    /// How long the writer may wait for events before the next step is due.
+    pub fn wait(&self) -> Duration {
+        self.next.saturating_duration_since(Instant::now())
+    }
+
+    pub(crate) fn failed(&mut self) {
+        self.next = Instant::now() + FAILED_PERIOD;
+    }
+}
+
+impl Retention {
+    /// The settings of `[history]`: 500 rows and 256 pages (1 MiB at 4 KiB pages)
+    /// per step.
+    pub fn from_config(config: &millgate_config::History) -> Self {
+        Self {
+            max_age: Duration::from_secs(u64::from(config.retention_days) * 86_400),
+            max_bytes: u64::from(config.max_size_mb) * 1024 * 1024,
+            chunk_rows: 500,
+            vacuum_pages: 256,
+        }
+    }
+
+    /// One bounded step at `now`; updates `state` (when the next is due).
+    pub fn step(
+        &self,
+        connection: &Connection,
+        now: UtcTime,
+        state: &mut RetentionState,
+    ) -> rusqlite::Result<Step> {
+        let before = sizes(connection)?;
+        if before.data > self.max_bytes {
+            state.shrinking = true;
+        } else if (before.data as f64) < SHRINK_TO * self.max_bytes as f64 {
+            state.shrinking = false;
+        }
+        let mut cutoff = now.minus(self.max_age).to_string();
+        if state.shrinking {
+            // The time of the chunk-th oldest bite (or now, when there are fewer):
+            // every table loses its rows older than that, at most a chunk each.
+            let oldest: Option<String> = connection
+                .query_row(
+                    "SELECT time FROM bites ORDER BY time LIMIT 1 OFFSET ?1",
+                    [self.chunk_rows],
+                    |row| row.get(0),
+                )
+                .optional()?;
+            cutoff = cutoff.max(oldest.unwrap_or_else(|| now.to_string()));
+        }
+        let mut deleted = 0u64;
+        let mut full_chunk = false;
+        let transaction = connection.unchecked_transaction()?;
+        for (table, column, condition) in TABLES {
+            let rows = transaction.execute(
+                &format!(
+                    "DELETE FROM {table} WHERE rowid IN (SELECT rowid FROM {table}
+                     WHERE {column} < ?1 {condition} ORDER BY {column} LIMIT ?2)"
+                ),
+                rusqlite::params![cutoff, self.chunk_rows],
+            )?;
+            deleted += rows as u64;
+            full_chunk |= rows as u64 >= u64::from(self.chunk_rows);
+        }
+        transaction.commit()?;
+        // A file without incremental auto-vacuum (made by another tool) keeps its
+        // free pages and reuses them for new rows: it stops growing, but does not shrink.
+        let incremental =
+            connection.pragma_query_value(None, "auto_vacuum", |row| row.get::<_, i64>(0))? == 2;
+        if incremental && sizes(connection)?.free_pages > 0 {
+            // The pragma releases one page per step of its statement: run it to the
+            // end (`execute_batch` steps once, which released a single page).
+            let mut vacuum =
+                connection.prepare(&format!("PRAGMA incremental_vacuum({})", self.vacuum_pages))?;
+            let mut rows = vacuum.raw_query();
+            while rows.next()?.is_some() {}
+        }
+        let after = sizes(connection)?;
+        let more =
+            full_chunk || (incremental && after.free_pages > 0) || (state.shrinking && deleted > 0);
+        state.next = Instant::now() + if more { BUSY_PERIOD } else { CHECK_PERIOD };
+        Ok(Step {
+            deleted,
+            released_pages: before.pages.saturating_sub(after.pages),
+            file_bytes: after.pages * after.page_size,
+            data_bytes: after.data,
+            more,
+        })
+    }
+}
+
+/// Page counts of the main file.
+struct Sizes {
+    pages: u64,
+    free_pages: u64,
+    page_size: u64,
+    data: u64,
+}
+
+fn sizes(connection: &Connection) -> rusqlite::Result<Sizes> {
+    let pragma = |name| connection.pragma_query_value(None, name, |row| row.get::<_, i64>(0));
+    let pages = pragma("page_count")?.max(0) as u64;
+    let free_pages = pragma("freelist_count")?.max(0) as u64;
+    let page_size = pragma("page_size")?.max(0) as u64;
+    Ok(Sizes {
+        pages,
+        free_pages,
+        page_size,
+        data: pages.saturating_sub(free_pages) * page_size,
+    })
+}

@@ -1,0 +1,301 @@
+//! The history file's schema and its migrations.
+//!
+//! The schema version is SQLite's `PRAGMA user_version`. [`MIGRATIONS`] holds the SQL
+//! of each version in order; [`migrate`] applies every step above the file's version
+//! and sets the new version in one transaction, so a file is either at its old
+//! version or fully at the new one. A file written by a newer millgate (a version
+//! above the last step) is refused rather than guessed at. (No migration crate
+//! supports rust-version 1.89 today; this table of steps is all the gateway needs.)
+//!
+//! Conventions: times are UTC ISO-8601 text (see [`super::time`]); torques kN*m,
+//! periods s, frequencies Hz, gaps mrad referred to the rolls; booleans 0/1; `NULL`
+//! is "not measured". `run_id` is the gateway run ([`gateway_runs`]) that recorded a
+//! row.
+//!
+//! [`gateway_runs`]: MIGRATIONS
+
+use rusqlite::{Connection, TransactionBehavior};
+
+/// The SQL of each schema version, in order: entry `i` takes a file from version `i`
+/// to `i + 1`. Never edit a released step; add one.
+pub const MIGRATIONS: &[&str] = &[
+    // Version 1.
+    r#"
+CREATE TABLE gateway_runs (
+    id          INTEGER PRIMARY KEY,
+    started_at  TEXT NOT NULL,
+    stopped_at  TEXT,            -- NULL while running; after a kill it stays NULL
+    ended       TEXT,            -- 'stopped' (clean), 'unclean' (set at the next start)
+    version     TEXT NOT NULL,   -- millgate version
+    config_name TEXT NOT NULL
+);
+CREATE TABLE bites (
+    id                  INTEGER PRIMARY KEY,
+    run_id              INTEGER NOT NULL REFERENCES gateway_runs(id),
+    driveline           TEXT NOT NULL,
+    time                TEXT NOT NULL,
+    bite_counter        INTEGER NOT NULL,  -- the driveline's counter after this bite
+    channel             TEXT NOT NULL,
+    static_torque_knm   REAL NOT NULL,
+    peak_torque_knm     REAL NOT NULL,
+    taf                 REAL,
+    first_period_s      REAL,
+    second_period_s     REAL,
+    period_shift_s      REAL,
+    beta1_hz            REAL,              -- eq. (1) fit, when it converged
+    beta2_hz            REAL,
+    quality             TEXT NOT NULL,     -- 'good', 'few_crossings', 'low_static'
+    degraded            INTEGER NOT NULL,  -- the window had gaps, NaN or saturation
+    wear_index          REAL,              -- TAF / linear reference TAF - 1
+    wear_trend          REAL,              -- EWMA after this bite
+    reference_taf       REAL,
+    shift_over_linear_s REAL,
+    -- The gap diagnosis, when the driveline has one (NULL before it existed).
+    gap_mrad            REAL,
+    gap_low_mrad        REAL,
+    gap_high_mrad       REAL,
+    gap_coupling        TEXT,
+    bites_pooled        INTEGER
+);
+CREATE INDEX bites_by_driveline_time ON bites(driveline, time);
+CREATE INDEX bites_by_time ON bites(time);
+CREATE TABLE wear_estimates (
+    id                  INTEGER PRIMARY KEY,
+    run_id              INTEGER NOT NULL REFERENCES gateway_runs(id),
+    driveline           TEXT NOT NULL,
+    time                TEXT NOT NULL,
+    event               TEXT NOT NULL,     -- 'bite' (a new estimate) or 'reset' (trend reset)
+    origin              TEXT NOT NULL,     -- 'analysis', or who reset: 'hmi', 'plc', 'local'
+    peer                TEXT,              -- the Modbus client that sent the reset
+    wear_index          REAL,
+    wear_trend          REAL,
+    reference_taf       REAL,
+    reference_level_knm REAL,
+    shift_over_linear_s REAL,
+    gap_mrad            REAL,
+    gap_low_mrad        REAL,
+    gap_high_mrad       REAL,
+    gap_coupling        TEXT,
+    bites_pooled        INTEGER,
+    state               TEXT,              -- 'ok', 'warning', 'alarm' (gap diagnosis)
+    alarm_latched       INTEGER
+);
+CREATE INDEX wear_by_driveline_time ON wear_estimates(driveline, time);
+CREATE INDEX wear_by_time ON wear_estimates(time);
+CREATE TABLE alarms (
+    id          INTEGER PRIMARY KEY,
+    run_id      INTEGER NOT NULL REFERENCES gateway_runs(id),
+    time        TEXT NOT NULL,
+    subject     TEXT NOT NULL,     -- the driveline or tandem mill
+    kind        TEXT NOT NULL,     -- 'taf_warning', 'taf_alarm', 'chatter_alarm', 'wear_alarm'
+    event       TEXT NOT NULL,     -- 'raised', 'cleared', 'acknowledged'
+    origin      TEXT NOT NULL,     -- 'analysis', 'hmi', 'plc', 'local'
+    peer        TEXT,              -- the Modbus client that acknowledged
+    value       REAL,              -- what raised it (TAF, K_mean)
+    threshold   REAL
+);
+CREATE INDEX alarms_by_time ON alarms(time);
+CREATE TABLE chatter_episodes (
+    id               INTEGER PRIMARY KEY,
+    run_id           INTEGER NOT NULL REFERENCES gateway_runs(id),
+    mill             TEXT NOT NULL,
+    started_at       TEXT NOT NULL,
+    ended_at         TEXT,             -- NULL while it lasts
+    ended_by         TEXT,             -- 'analysis', 'window_restart', 'stop', 'restart'
+    windows          INTEGER NOT NULL,
+    min_sigma_n_hz   REAL,
+    max_k_mean       REAL,
+    frequency_hz     REAL,             -- chatter frequency of the last window
+    alarm            INTEGER NOT NULL  -- both conditions held in a window
+);
+CREATE INDEX chatter_by_time ON chatter_episodes(started_at);
+CREATE TABLE source_outages (
+    id            INTEGER PRIMARY KEY,
+    run_id        INTEGER NOT NULL REFERENCES gateway_runs(id),
+    source        TEXT NOT NULL,
+    started_at    TEXT NOT NULL,
+    ended_at      TEXT,             -- NULL while it lasts
+    ended_by      TEXT,             -- 'recovered', 'stop', 'restart'
+    worst_status  TEXT NOT NULL,    -- 'stale' or 'lost'
+    blocks_missed INTEGER NOT NULL  -- blocks lost on the source's channels meanwhile
+);
+CREATE INDEX outages_by_time ON source_outages(started_at);
+-- The state a start restores, one row per driveline, updated with each event.
+CREATE TABLE driveline_state (
+    driveline         TEXT PRIMARY KEY,
+    updated_at        TEXT NOT NULL,
+    bite_counter      INTEGER NOT NULL,
+    last_bite_time    TEXT,
+    static_torque_knm REAL,
+    peak_torque_knm   REAL,
+    taf               REAL,
+    period_shift_s    REAL,
+    beta1_hz          REAL,
+    beta2_hz          REAL,
+    wear_index        REAL,
+    wear_trend        REAL,
+    degraded          INTEGER NOT NULL,
+    warning           INTEGER NOT NULL,
+    alarm_latched     INTEGER NOT NULL,
+    extra             TEXT              -- JSON: further restorable state
+);
+-- Each run's driveline settings, for reports (thresholds, model).
+CREATE TABLE driveline_settings (
+    id               INTEGER PRIMARY KEY,
+    run_id           INTEGER NOT NULL REFERENCES gateway_runs(id),
+    time             TEXT NOT NULL,    -- the run's start
+    driveline        TEXT NOT NULL,
+    taf_warning      REAL NOT NULL,
+    taf_alarm        REAL NOT NULL,
+    model            TEXT,             -- the driveline model file, as configured
+    gap_warning_mrad REAL,             -- the gap diagnosis' thresholds
+    gap_alarm_mrad   REAL
+);
+CREATE TABLE mill_state (
+    mill          TEXT PRIMARY KEY,
+    updated_at    TEXT NOT NULL,
+    alarm_latched INTEGER NOT NULL
+);
+"#,
+    // Version 2: the Sparkplug B edge node's session number.
+    r#"
+CREATE TABLE sparkplug_node (
+    node       TEXT PRIMARY KEY,  -- 'group_id/node_id'
+    bd_seq     INTEGER NOT NULL,  -- the last MQTT session's bdSeq, 0..=255
+    updated_at TEXT NOT NULL
+);
+"#,
+    // Version 3: what a bite put into the gap pool (a restart pools the last ones
+    // again: static_torque_knm, taf and period_shift_s are the bite's own columns),
+    // and the latched gap alarm.
+    r#"
+ALTER TABLE bites ADD COLUMN gap_taf_sigma REAL;             -- NULL: not pooled
+ALTER TABLE bites ADD COLUMN gap_period_shift_sigma_s REAL;
+ALTER TABLE driveline_state ADD COLUMN gap_alarm_latched INTEGER NOT NULL DEFAULT 0;
+"#,
+];
+
+/// The schema version this millgate writes.
+pub fn current_version() -> i64 {
+    MIGRATIONS.len() as i64
+}
+
+/// Why the schema could not be brought up to date.
+#[derive(Debug, thiserror::Error)]
+pub enum SchemaError {
+    /// The file is at a version this millgate does not know.
+    #[error(
+        "the history file has schema version {found}, newer than this millgate's {known}: \
+         use a newer millgate, or another file"
+    )]
+    TooNew {
+        /// `user_version` of the file.
+        found: i64,
+        /// The last version this millgate knows.
+        known: i64,
+    },
+    /// SQLite refused a step (the file is corrupt, read-only, full, ...).
+    #[error("migrating the history schema: {0}")]
+    Sqlite(#[from] rusqlite::Error),
+}
+
+/// Bring `connection`'s file to [`current_version`] in one transaction; returns the
+/// version it was at (0 for a new file).
+pub fn migrate(connection: &mut Connection) -> Result<i64, SchemaError> {
+    let found: i64 = connection.pragma_query_value(None, "user_version", |row| row.get(0))?;
+    let known = current_version();
+    if found > known {
+        return Err(SchemaError::TooNew { found, known });
+    }
+    if found == known {
+        return Ok(found);
+    }
+    // IMMEDIATE: take the write lock before reading anything, so two processes
+    // starting on one file cannot both migrate.
+    let transaction = connection.transaction_with_behavior(TransactionBehavior::Immediate)?;
+    let version: i64 = transaction.pragma_query_value(None, "user_version", |row| row.get(0))?;
+    for step in &MIGRATIONS[usize::try_from(version).unwrap_or(0)..] {
+        transaction.execute_batch(step)?;
+    }
+    transaction.pragma_update(None, "user_version", known)?;
+    transaction.commit()?;
+    Ok(found)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_new_file_gets_every_table_and_the_version() {
+        let mut connection = Connection::open_in_memory().unwrap();
+        assert_eq!(migrate(&mut connection).unwrap(), 0);
+        let version: i64 = connection
+            .pragma_query_value(None, "user_version", |row| row.get(0))
+            .unwrap();
+        assert_eq!(version, current_version());
+        let mut tables: Vec<String> = connection
+            .prepare("SELECT name FROM sqlite_schema WHERE type = 'table' ORDER BY name")
+            .unwrap()
+            .query_map([], |row| row.get(0))
+            .unwrap()
+            .collect::<Result<_, _>>()
+            .unwrap();
+        tables.sort();
+        assert_eq!(
+            tables,
+            [
+                "alarms",
+                "bites",
+                "chatter_episodes",
+                "driveline_settings",
+                "driveline_state",
+                "gateway_runs",
+                "mill_state",
+                "source_outages",
+                "sparkplug_node",
+                "wear_estimates"
+            ]
+        );
+        // Migrating again changes nothing.
+        assert_eq!(migrate(&mut connection).unwrap(), current_version());
+    }
+
+    #[test]
+    fn a_newer_file_is_refused_and_left_alone() {
+        let mut connection = Connection::open_in_memory().unwrap();
+        connection
+            .pragma_update(None, "user_version", current_version() + 1)
+            .unwrap();
+        let error = migrate(&mut connection).unwrap_err();
+        assert!(
+            error.to_string().starts_with(&format!(
+                "the history file has schema version {}, newer",
+                current_version() + 1
+            )),
+            "{error}"
+        );
+    }
+
+    #[test]
+    fn a_failing_step_leaves_the_file_at_its_old_version() {
+        let mut connection = Connection::open_in_memory().unwrap();
+        // A table in the way of step 1: the step fails half-way, nothing is kept.
+        connection
+            .execute_batch("CREATE TABLE alarms (x INTEGER)")
+            .unwrap();
+        assert!(migrate(&mut connection).is_err());
+        let version: i64 = connection
+            .pragma_query_value(None, "user_version", |row| row.get(0))
+            .unwrap();
+        assert_eq!(version, 0);
+        let bites: i64 = connection
+            .query_row(
+                "SELECT count(*) FROM sqlite_schema WHERE name = 'bites'",
+                [],
+                |row| row.get(0),
+            )
+            .unwrap();
+        assert_eq!(bites, 0, "the step's first tables were rolled back");
+    }
+}

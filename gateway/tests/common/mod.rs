@@ -1,0 +1,238 @@
+//! What the service tests share: the demo's virtual DAQ and PLC, a configuration for
+//! `millgate run` between them, the PLC's driveline registers, `/metrics`.
+// Each test crate uses a part of it.
+#![allow(dead_code)]
+
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use millgate::outputs::register_map::{decode_f32, decode_u32, RegisterMap};
+use millgate_sim::devices::demo::{setup, DemoDevices};
+use millgate_sim::devices::virtual_plc::VirtualPlc;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
+pub(crate) fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// Registers of the driveline block read from the virtual PLC.
+pub(crate) struct Plc<'a> {
+    pub(crate) plc: &'a VirtualPlc,
+    pub(crate) map: &'a RegisterMap,
+}
+
+impl Plc<'_> {
+    pub(crate) fn at(&self, name: &str) -> usize {
+        let register = self.map.registers().iter().find(|r| r.name == name);
+        usize::from(
+            register
+                .unwrap_or_else(|| panic!("no register {name}"))
+                .address,
+        )
+    }
+
+    pub(crate) fn counter(&self) -> u32 {
+        let words = self.plc.holding();
+        decode_u32(&words[self.at("F1.bite_counter")..]).unwrap_or(0)
+    }
+
+    pub(crate) fn flags(&self) -> u16 {
+        self.plc.holding()[self.at("F1.flags")]
+    }
+
+    pub(crate) fn taf(&self) -> f32 {
+        decode_f32(&self.plc.holding()[self.at("F1.taf")..]).unwrap_or(f32::NAN)
+    }
+
+    /// Wait until the PLC shows `more` bites beyond what it shows now.
+    pub(crate) async fn bites_after_now(&self, more: u32) {
+        let now = self.counter();
+        until("bites in the PLC", Duration::from_secs(40), || {
+            self.counter() >= now + more
+        })
+        .await;
+    }
+}
+
+/// Poll `done` every 5 ms, at most `limit`.
+pub(crate) async fn until(what: &str, limit: Duration, mut done: impl FnMut() -> bool) {
+    let start = Instant::now();
+    while !done() {
+        assert!(start.elapsed() < limit, "{what}: not within {limit:?}");
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+}
+
+pub(crate) fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// A scratch folder, the demo's devices and the configuration of a service that keeps
+/// its history at `history`.
+pub(crate) struct Setup {
+    pub(crate) scratch: PathBuf,
+    pub(crate) history: PathBuf,
+    pub(crate) config: PathBuf,
+    pub(crate) devices: DemoDevices,
+    pub(crate) map: RegisterMap,
+    pub(crate) server_port: u16,
+    pub(crate) metrics_port: u16,
+}
+
+impl Setup {
+    /// The demo's configuration with the driveline model (wear index and trend), TAF
+    /// thresholds every demo bite passes (the alarm latches at the first bite), the
+    /// `/metrics` endpoint and the history at `folder/history.db` (`folder` relative to
+    /// the scratch folder).
+    pub(crate) async fn new(tag: &str, folder: &str) -> Self {
+        let scratch =
+            std::env::temp_dir().join(format!("millgate-history-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&scratch);
+        std::fs::create_dir_all(scratch.join(folder)).unwrap();
+        let history = scratch.join(folder).join("history.db");
+        let demo = setup(60.0, 0.5, 5).unwrap();
+        let mut config = demo.config;
+        let map = RegisterMap::new(&config);
+        let devices = DemoDevices::start(&mut config, &demo.schedule, usize::from(map.len()) + 16)
+            .await
+            .unwrap();
+        let (server_port, metrics_port) = (free_port(), free_port());
+        // The demo's monitoring model (linear; the simulated mill opens a gap).
+        let model = repo().join("sim/models/table2-adjusted.toml");
+        let text = std::fs::read_to_string(repo().join("config/examples/demo.toml"))
+            .unwrap()
+            .replace("127.0.0.1:5020", &config.modbus_sources[0].address)
+            .replace(
+                "127.0.0.1:5502",
+                &config.outputs.plc.as_ref().unwrap().address,
+            )
+            .replace("127.0.0.1:5503", &format!("127.0.0.1:{server_port}"))
+            .replace(
+                "model = \"table2-adjusted.toml\"",
+                &format!("model = \"{}\"", model.display()),
+            )
+            .replace(
+                "thresholds = { taf_warning = 2.2, taf_alarm = 2.6,",
+                "thresholds = { taf_warning = 1.1, taf_alarm = 1.15,",
+            )
+            + &format!(
+                "\n[outputs.metrics]\nbind = \"127.0.0.1:{metrics_port}\"\n\
+                 \n[history]\npath = \"{}\"\n",
+                history.display()
+            );
+        assert!(
+            text.contains(&model.display().to_string()) && text.contains("taf_alarm = 1.15,"),
+            "config/examples/demo.toml changed: the test's edits no longer apply"
+        );
+        let config = scratch.join("mill.toml");
+        std::fs::write(&config, text).unwrap();
+        Self {
+            scratch,
+            history,
+            config,
+            devices,
+            map,
+            server_port,
+            metrics_port,
+        }
+    }
+
+    /// Append `text` to the configuration file.
+    pub(crate) fn append_config(&self, text: &str) {
+        let mut config = std::fs::read_to_string(&self.config).unwrap();
+        config.push_str(text);
+        std::fs::write(&self.config, config).unwrap();
+    }
+
+    pub(crate) fn plc(&self) -> Plc<'_> {
+        Plc {
+            plc: &self.devices.plc,
+            map: &self.map,
+        }
+    }
+
+    pub(crate) fn log(&self, name: &str) -> PathBuf {
+        self.scratch.join(name)
+    }
+
+    /// `millgate run` on the configuration, its log in the scratch folder.
+    pub(crate) fn spawn(&self, log: &str) -> Child {
+        self.spawn_in_namespace(log, None)
+    }
+
+    /// `millgate run` in its own user and mount namespace where a tmpfs with `options`
+    /// is mounted on the history's folder, or directly for `None`.
+    pub(crate) fn spawn_in_namespace(&self, log: &str, tmpfs: Option<&str>) -> Child {
+        let log = std::fs::File::create(self.log(log)).unwrap();
+        let millgate = env!("CARGO_BIN_EXE_millgate");
+        let config = self.config.to_str().unwrap();
+        let mut command = match tmpfs {
+            Some(options) => {
+                let mut command = Command::new("unshare");
+                command.args([
+                    "-rm",
+                    "sh",
+                    "-c",
+                    "mount -t tmpfs -o \"$1\" tmpfs \"$2\" && shift 2 && exec \"$@\"",
+                    "sh",
+                    options,
+                    self.history.parent().unwrap().to_str().unwrap(),
+                    millgate,
+                ]);
+                command
+            }
+            None => Command::new(millgate),
+        };
+        command
+            .args(["run", "--config", config])
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(log)
+            .spawn()
+            .expect("start millgate run")
+    }
+
+    /// The `/metrics` page.
+    pub(crate) async fn metrics(&self) -> String {
+        let mut stream = tokio::net::TcpStream::connect(("127.0.0.1", self.metrics_port))
+            .await
+            .unwrap();
+        stream
+            .write_all(b"GET /metrics HTTP/1.0\r\nHost: localhost\r\n\r\n")
+            .await
+            .unwrap();
+        let mut page = String::new();
+        stream.read_to_string(&mut page).await.unwrap();
+        page
+    }
+
+    /// The value of the metric line starting with `name` (with its labels).
+    pub(crate) async fn metric(&self, name: &str) -> Option<f64> {
+        let page = self.metrics().await;
+        page.lines()
+            .find_map(|line| line.strip_prefix(name)?.strip_prefix(' ')?.parse().ok())
+    }
+
+    pub(crate) async fn stop(self, mut service: Child) {
+        let _ = service.kill();
+        let _ = service.wait();
+        self.devices.stop().await.unwrap();
+        let _ = std::fs::remove_dir_all(&self.scratch);
+    }
+}
+
+/// Terminate `service` as systemd would, and check it stopped cleanly.
+pub(crate) fn terminate(service: &mut Child) {
+    let term = Command::new("kill")
+        .args(["-TERM", &service.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(term.success());
+    let status = service.wait().unwrap();
+    assert!(status.success(), "{status:?}");
+}

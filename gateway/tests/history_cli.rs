@@ -1,0 +1,190 @@
+//! The history's commands on a file two demo runs wrote: `millgate demo --history`
+//! continues the counter and the wear trend; `millgate history` exports what Debian's
+//! `sqlite3` counts in the file, in every format and time range; `millgate report`
+//! writes the Markdown, the offline HTML and the SVG plots; bad input is a clear error.
+#![cfg(feature = "sim-tools")]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use millgate::analysis::wear::next_trend;
+
+fn millgate(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_millgate"))
+        .args(args)
+        .output()
+        .expect("run millgate")
+}
+
+fn ok(args: &[&str]) -> String {
+    let output = millgate(args);
+    assert!(
+        output.status.success(),
+        "millgate {args:?}: {}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    String::from_utf8(output.stdout).unwrap()
+}
+
+fn sqlite3(db: &Path, sql: &str) -> String {
+    let output = Command::new("sqlite3")
+        .arg("-readonly")
+        .arg(db)
+        .arg(sql)
+        .output()
+        .expect("Debian's sqlite3 (apt install sqlite3)");
+    assert!(output.status.success(), "{output:?}");
+    String::from_utf8(output.stdout).unwrap().trim().to_owned()
+}
+
+fn scratch() -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("millgate-history-cli-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+#[test]
+fn two_demo_runs_continue_and_history_and_report_read_the_file() {
+    let dir = scratch();
+    let db = dir.join("history.db");
+    let db_arg = db.to_str().unwrap();
+
+    let first = ok(&["demo", "--duration", "5", "--history", db_arg]);
+    assert!(
+        first.contains(&format!("history: {db_arg} (new)")),
+        "{first}"
+    );
+    let second = ok(&[
+        "demo",
+        "--duration",
+        "4",
+        "--seed",
+        "2",
+        "--history",
+        db_arg,
+    ]);
+    let first_count: i64 = sqlite3(&db, "SELECT max(bite_counter) FROM bites WHERE run_id = 1")
+        .parse()
+        .unwrap();
+    assert!(first_count >= 2, "{first}");
+    assert!(
+        second.contains(&format!("continuing: bite counter {first_count},")),
+        "{second}"
+    );
+
+    // The export against the file as sqlite3 reads it.
+    let json: serde_json::Value =
+        serde_json::from_str(&ok(&["history", "--db", db_arg, "--format", "json"])).unwrap();
+    let bites = json.as_array().unwrap();
+    assert_eq!(
+        bites.len().to_string(),
+        sqlite3(&db, "SELECT count(*) FROM bites")
+    );
+    let runs: Vec<i64> = bites
+        .iter()
+        .map(|b| b["run_id"].as_i64().unwrap())
+        .collect();
+    assert!(runs.contains(&1) && runs.contains(&2), "{runs:?}");
+    // One counter across both runs, and the trend goes on from the first run's.
+    let mut trend: Option<f64> = None;
+    for (n, bite) in bites.iter().enumerate() {
+        assert_eq!(bite["bite_counter"].as_i64(), Some(n as i64 + 1), "{bite}");
+        assert_eq!(bite["driveline"], "F1");
+        if let (Some(index), false) = (bite["wear_index"].as_f64(), bite["degraded"] == true) {
+            trend = Some(next_trend(trend, index));
+        }
+        // serde_json parses floats to within an ulp (no float_roundtrip feature).
+        let stored = bite["wear_trend"].as_f64();
+        let close = match (stored, trend) {
+            (Some(a), Some(b)) => (a - b).abs() <= 1e-12 * b.abs(),
+            (a, b) => a == b,
+        };
+        assert!(close, "{stored:?} against {trend:?}: {bite}");
+    }
+
+    let csv = ok(&["history", "--db", db_arg, "--format", "csv"]);
+    let mut lines = csv.lines();
+    assert!(lines
+        .next()
+        .unwrap()
+        .starts_with("id,run_id,driveline,time,bite_counter"));
+    assert_eq!(lines.count(), bites.len());
+    let md = ok(&["history", "--db", db_arg, "--format", "md"]);
+    assert_eq!(
+        md.lines().filter(|line| line.starts_with("| ")).count(),
+        bites.len() + 1,
+        "a header and a row per bite: {md}"
+    );
+
+    // A time range: from the second run's first bite on.
+    let since = bites.iter().find(|b| b["run_id"] == 2).unwrap()["time"]
+        .as_str()
+        .unwrap()
+        .to_owned();
+    let later: serde_json::Value = serde_json::from_str(&ok(&[
+        "history", "--db", db_arg, "--since", &since, "--format", "json",
+    ]))
+    .unwrap();
+    assert_eq!(
+        later.as_array().unwrap().len().to_string(),
+        sqlite3(
+            &db,
+            &format!("SELECT count(*) FROM bites WHERE time >= '{since}'")
+        )
+    );
+    let runs: serde_json::Value = serde_json::from_str(&ok(&[
+        "history", "--db", db_arg, "--kind", "runs", "--format", "json",
+    ]))
+    .unwrap();
+    let ended: Vec<&str> = runs
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["ended"].as_str().unwrap_or("open"))
+        .collect();
+    assert_eq!(ended, ["stopped", "stopped"]);
+
+    // The report.
+    let out = dir.join("report");
+    ok(&["report", "--db", db_arg, "--out", out.to_str().unwrap()]);
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(md.contains("F1"), "{md}");
+    let svgs: Vec<PathBuf> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|entry| entry.unwrap().path())
+        .filter(|path| path.extension().is_some_and(|e| e == "svg"))
+        .collect();
+    assert!(!svgs.is_empty(), "SVG plots");
+    for svg in &svgs {
+        let name = svg.file_name().unwrap().to_str().unwrap();
+        assert!(md.contains(name), "report.md links {name}");
+        assert!(std::fs::read_to_string(svg).unwrap().contains("<svg"));
+    }
+    let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    assert!(
+        html.matches("<svg").count() >= svgs.len(),
+        "the plots inline"
+    );
+    assert!(
+        !html.contains("src=\"http") && !html.contains("href=\"http"),
+        "offline"
+    );
+
+    // Bad input: a clear error naming what is wrong, no panic.
+    let missing = millgate(&["history", "--db", "/nonexistent/h.db", "--format", "csv"]);
+    let stderr = String::from_utf8_lossy(&missing.stderr);
+    assert!(!missing.status.success());
+    assert!(
+        stderr.contains("/nonexistent/h.db") && !stderr.contains("panicked"),
+        "{stderr}"
+    );
+    let bad_time = millgate(&["history", "--db", db_arg, "--since", "yesterday"]);
+    let stderr = String::from_utf8_lossy(&bad_time.stderr);
+    assert!(!bad_time.status.success());
+    assert!(
+        stderr.contains("--since") && stderr.contains("yesterday"),
+        "{stderr}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -1,0 +1,376 @@
+//! Acceptance of the event history against the real `millgate run` binary between the
+//! demo's virtual DAQ and PLC:
+//!
+//! - killed with SIGKILL right after a bite reached the PLC and started again on the
+//!   same file: every bite the PLC saw is in the file; the bite counter, the wear trend,
+//!   the pooled gap estimate and the latched alarm continue; restored values carry the
+//!   "restored" flag until the next bite;
+//! - a full disk (a 4 MiB tmpfs filled while the service runs), a read-only folder (a
+//!   read-only tmpfs) and a corrupt file: a clear error in the log and on `/metrics`,
+//!   events counted as dropped, and the PLC writes go on; the full disk recovers once
+//!   space is freed. The tmpfs are mounted in a private mount namespace
+//!   (`unshare -rm`, util-linux) that only the service sees.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command};
+use std::time::Duration;
+
+use common::{terminate, until, Setup};
+
+use millgate::analysis::wear::next_trend;
+use millgate::outputs::history::query::{BiteRow, Filter, HistoryReader};
+use millgate::outputs::register_map::driveline_flags;
+
+fn bites(history: &Path) -> Vec<BiteRow> {
+    HistoryReader::open(history)
+        .unwrap()
+        .bites(&Filter::default())
+        .unwrap()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sigkill_loses_no_bite_the_plc_saw_and_the_restart_continues() {
+    let setup = Setup::new("kill", "db").await;
+    let history = setup.history.clone();
+    let server_port = setup.server_port;
+    let plc = setup.plc();
+
+    // First run: killed the moment the PLC shows its 4th bite.
+    let mut first = setup.spawn("first.log");
+    until("3 bites in the PLC", Duration::from_secs(40), || {
+        plc.counter() >= 3
+    })
+    .await;
+    let seen = plc.counter();
+    until("another bite in the PLC", Duration::from_secs(20), || {
+        plc.counter() > seen
+    })
+    .await;
+    first.kill().unwrap();
+    first.wait().unwrap();
+    let in_plc = plc.counter();
+    let taf_in_plc = plc.taf();
+    assert!(
+        plc.flags() & driveline_flags::ALARM != 0,
+        "the alarm latched"
+    );
+
+    let stored = bites(&history);
+    let counters: Vec<i64> = stored.iter().map(|b| b.bite_counter).collect();
+    for counter in 1..=i64::from(in_plc) {
+        assert!(
+            counters.contains(&counter),
+            "bite {counter} reached the PLC but is not in the file: {counters:?}"
+        );
+    }
+    let last_seen = stored
+        .iter()
+        .find(|b| b.bite_counter == i64::from(in_plc))
+        .unwrap();
+    assert_eq!(last_seen.taf.map(|taf| taf as f32), Some(taf_in_plc));
+    let before = stored.last().unwrap().clone();
+    assert!(
+        before.wear_trend.is_some(),
+        "the driveline model gives a trend"
+    );
+
+    // Second run on the same file: the state comes back before any new bite.
+    let mut second = setup.spawn("second.log");
+    // The PLC still holds the killed run's last write; the second run's first writes
+    // are the ones with the restored flag.
+    until(
+        "the second run writes the PLC",
+        Duration::from_secs(20),
+        || plc.flags() & driveline_flags::RESTORED != 0,
+    )
+    .await;
+    assert_eq!(
+        plc.counter(),
+        before.bite_counter as u32,
+        "the counter restored"
+    );
+    assert!(
+        plc.flags() & driveline_flags::ALARM != 0,
+        "the alarm still latched"
+    );
+    let restored = before.bite_counter as u32;
+    until("a bite after the restart", Duration::from_secs(20), || {
+        plc.counter() > restored
+    })
+    .await;
+    assert_eq!(
+        plc.flags() & driveline_flags::RESTORED,
+        0,
+        "a new bite clears it"
+    );
+    assert!(
+        plc.flags() & driveline_flags::ALARM != 0,
+        "latched until acknowledged"
+    );
+
+    // The trend goes on from the restored value: the first bite of the second run
+    // with a wear index (not degraded) moved it by one EWMA step.
+    until(
+        "a bite of the second run with a wear index",
+        Duration::from_secs(20),
+        || {
+            bites(&history).iter().any(|b| {
+                b.bite_counter > before.bite_counter && b.wear_index.is_some() && !b.degraded
+            })
+        },
+    )
+    .await;
+    let after = bites(&history);
+    assert!(after.iter().all(|b| b.run_id >= before.run_id));
+    let resumed: Vec<&BiteRow> = after
+        .iter()
+        .filter(|b| b.bite_counter > before.bite_counter)
+        .collect();
+    assert_eq!(
+        resumed[0].bite_counter,
+        before.bite_counter + 1,
+        "the counter continues"
+    );
+    // The gap pool continues: the first estimate of the second run pools the first
+    // run's bites and its own (the demo's pool holds 5; a lost pool would give 1).
+    let pooled_before = stored
+        .iter()
+        .rev()
+        .find_map(|b| b.bites_pooled)
+        .expect("the first run estimated the gap");
+    until(
+        "a gap estimate of the second run",
+        Duration::from_secs(20),
+        || {
+            bites(&history)
+                .iter()
+                .any(|b| b.bite_counter > before.bite_counter && b.bites_pooled.is_some())
+        },
+    )
+    .await;
+    let after = bites(&history);
+    let first_estimate = after
+        .iter()
+        .find(|b| b.bite_counter > before.bite_counter && b.bites_pooled.is_some())
+        .unwrap();
+    assert_eq!(
+        first_estimate.bites_pooled,
+        Some((pooled_before + 1).min(5)),
+        "the pool survived the restart (first run's last estimate pooled {pooled_before})"
+    );
+    let mut trend = before.wear_trend;
+    for bite in resumed {
+        let expected = match (bite.wear_index, bite.degraded) {
+            (Some(index), false) => Some(next_trend(trend, index)),
+            _ => trend,
+        };
+        assert_eq!(bite.wear_trend, expected, "bite {}", bite.bite_counter);
+        trend = expected;
+    }
+
+    // Acknowledged over the gateway's Modbus server from loopback: the PLC's host.
+    {
+        use tokio_modbus::client::Writer;
+        let server = std::net::SocketAddr::from(([127, 0, 0, 1], server_port));
+        let mut hmi = tokio_modbus::client::tcp::connect_slave(server, tokio_modbus::Slave(1))
+            .await
+            .unwrap();
+        let command = plc.at("command.acknowledge_alarms") as u16;
+        hmi.write_single_register(command, 1)
+            .await
+            .unwrap()
+            .unwrap();
+    }
+    until(
+        "the acknowledgement in the file",
+        Duration::from_secs(10),
+        || {
+            HistoryReader::open(&history)
+                .unwrap()
+                .alarms(&Filter::default())
+                .unwrap()
+                .iter()
+                .any(|a| a.event == "acknowledged" && a.origin == "plc")
+        },
+    )
+    .await;
+
+    terminate(&mut second);
+    let runs = HistoryReader::open(&history)
+        .unwrap()
+        .runs(&Filter::default())
+        .unwrap();
+    let ends: Vec<Option<&str>> = runs.iter().map(|r| r.ended.as_deref()).collect();
+    assert_eq!(ends, [Some("unclean"), Some("stopped")]);
+    let alarms = HistoryReader::open(&history)
+        .unwrap()
+        .alarms(&Filter::default())
+        .unwrap();
+    let raised = alarms
+        .iter()
+        .filter(|a| a.kind == "taf_alarm" && a.event == "raised")
+        .count();
+    assert_eq!(
+        raised, 1,
+        "latched across the restart, raised once: {alarms:#?}"
+    );
+    setup.stop(second).await;
+}
+
+/// The history's state gauge, its error-drop counter and its last error from `/metrics`.
+async fn history_metrics(setup: &Setup) -> (f64, f64, String) {
+    let page = setup.metrics().await;
+    let state = setup.metric("millgate_history_state").await.unwrap();
+    let dropped = setup
+        .metric("millgate_history_events_dropped_total{reason=\"error\"}")
+        .await
+        .unwrap();
+    let error = page
+        .lines()
+        .find_map(|line| line.strip_prefix("millgate_history_last_error_info{error=\""))
+        .map(|rest| rest.split("\"} ").next().unwrap().to_owned())
+        .unwrap_or_default();
+    (state, dropped, error)
+}
+
+/// A service whose history cannot be opened: the PLC gets its bites, `/metrics` and
+/// the log name the file and say why, the bites are counted as dropped.
+async fn unusable_history_is_reported_and_the_plc_goes_on(
+    setup: &Setup,
+    mut service: Child,
+    why: &str,
+) -> Child {
+    let plc = setup.plc();
+    plc.bites_after_now(2).await;
+    let (state, dropped, error) = history_metrics(setup).await;
+    assert_eq!(state, 2.0, "failing");
+    assert!(dropped >= 2.0, "the bites counted as dropped: {dropped}");
+    assert!(error.contains(setup.history.to_str().unwrap()), "{error}");
+    assert!(error.contains(why), "{error}");
+    let log = std::fs::read_to_string(setup.log("run.log")).unwrap();
+    assert!(
+        log.contains("history not stored; the service goes on without it") && log.contains(why),
+        "{log}"
+    );
+    assert!(service.try_wait().unwrap().is_none(), "the service runs on");
+    terminate(&mut service);
+    service
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_full_disk_is_reported_the_plc_goes_on_and_storing_resumes_when_space_is_freed() {
+    let setup = Setup::new("full", "tmpfs").await;
+    let service = setup.spawn_in_namespace("run.log", Some("size=4m"));
+    let plc = setup.plc();
+    plc.bites_after_now(1).await;
+    // The service's view of its tmpfs (the test's own mount namespace has none).
+    let folder = PathBuf::from(format!("/proc/{}/root", service.id()))
+        .join(setup.history.parent().unwrap().strip_prefix("/").unwrap());
+    let stored = setup.metric("millgate_history_events_stored_total").await;
+    assert!(
+        stored >= Some(1.0),
+        "stored while there is space: {stored:?}"
+    );
+    assert!(
+        !setup.history.exists(),
+        "the file is on the service's tmpfs"
+    );
+
+    // Fill the tmpfs.
+    let filler = folder.join("filler");
+    {
+        use std::io::Write;
+        let mut file = std::fs::File::create(&filler).unwrap();
+        let block = vec![0u8; 64 * 1024];
+        let full = loop {
+            if let Err(error) = file.write_all(&block) {
+                break error;
+            }
+        };
+        assert_eq!(full.raw_os_error(), Some(28), "ENOSPC: {full}");
+    }
+    plc.bites_after_now(2).await;
+    let (state, dropped, error) = history_metrics(&setup).await;
+    assert_eq!(state, 2.0, "failing");
+    assert!(dropped >= 1.0, "{dropped}");
+    assert!(error.contains("the disk is full"), "{error}");
+    let log = std::fs::read_to_string(setup.log("run.log")).unwrap();
+    assert!(log.contains("the disk is full"), "{log}");
+
+    // Space again: the next bite is stored.
+    std::fs::remove_file(&filler).unwrap();
+    let stored_counter = plc.counter();
+    let stored = setup
+        .metric("millgate_history_events_stored_total")
+        .await
+        .unwrap();
+    plc.bites_after_now(2).await;
+    assert_eq!(setup.metric("millgate_history_state").await, Some(1.0));
+    let now = setup
+        .metric("millgate_history_events_stored_total")
+        .await
+        .unwrap();
+    assert!(now > stored, "{stored} -> {now}");
+    // Read by Debian's sqlite3 in the service's mount namespace (SQLite resolves the
+    // /proc/PID/root link to the test's own view, where the file is not).
+    let last = Command::new("nsenter")
+        .args([
+            "-t",
+            &service.id().to_string(),
+            "-m",
+            "sqlite3",
+            "-readonly",
+        ])
+        .arg(&setup.history)
+        .arg("SELECT max(bite_counter) FROM bites")
+        .output()
+        .unwrap();
+    assert!(last.status.success(), "{last:?}");
+    let last: u32 = String::from_utf8(last.stdout)
+        .unwrap()
+        .trim()
+        .parse()
+        .unwrap();
+    assert!(
+        last >= stored_counter + 2,
+        "the bites after the freed space are stored: {last}"
+    );
+    let log = std::fs::read_to_string(setup.log("run.log")).unwrap();
+    assert!(log.contains("history stored again"), "{log}");
+    setup.stop(service).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_read_only_folder_is_reported_and_the_plc_goes_on() {
+    let setup = Setup::new("readonly", "ro").await;
+    let service = setup.spawn_in_namespace("run.log", Some("ro,size=1m"));
+    let service = unusable_history_is_reported_and_the_plc_goes_on(
+        &setup,
+        service,
+        "cannot create or open the file",
+    )
+    .await;
+    setup.stop(service).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_corrupt_file_is_reported_left_alone_and_the_plc_goes_on() {
+    let setup = Setup::new("corrupt", "db").await;
+    let garbage: Vec<u8> = (0..8192u32).map(|i| (i * 7 + 3) as u8).collect();
+    std::fs::write(&setup.history, &garbage).unwrap();
+    let service = setup.spawn("run.log");
+    let service = unusable_history_is_reported_and_the_plc_goes_on(
+        &setup,
+        service,
+        "not a readable SQLite history",
+    )
+    .await;
+    assert_eq!(
+        std::fs::read(&setup.history).unwrap(),
+        garbage,
+        "left as it was"
+    );
+    setup.stop(service).await;
+}

@@ -1,0 +1,455 @@
+//! The Sparkplug B edge node against a real broker and a host that is not ours:
+//! Debian's `mosquitto` on a loopback port with a generated configuration, and
+//! `sparkplug_host.py` (paho-mqtt 1.6.1 with the Tahu protobuf schema that pysparkplug
+//! 0.6.1 ships) subscribed to the group. `millgate run` sits between the demo's virtual
+//! DAQ and PLC with `[outputs.mqtt]`. Checked: birth order and seq, bdSeq in NBIRTH
+//! and in the Will, aliases, units, one DDATA per bite with its id and the PLC's
+//! values, the rebirth command, the Will at SIGKILL and the next session's bdSeq.
+//!
+//! Needs `apt install mosquitto` and `pip install pysparkplug==0.6.1` (with paho-mqtt 1.6.1)
+//! (scripts/test installs them).
+
+mod common;
+
+use std::collections::{HashMap, HashSet};
+use std::io::{BufRead, BufReader, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Child, ChildStdin, Command, Stdio};
+use std::sync::mpsc::{Receiver, RecvTimeoutError};
+use std::time::{Duration, Instant};
+
+use common::{free_port, terminate, Setup};
+use serde_json::Value;
+
+/// Debian's mosquitto on `127.0.0.1:port`, anonymous, no persistence; killed on drop.
+struct Broker(Child);
+
+impl Broker {
+    fn start(folder: &Path, port: u16) -> Self {
+        let config = folder.join("mosquitto.conf");
+        std::fs::write(
+            &config,
+            format!("listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n"),
+        )
+        .unwrap();
+        let binary = ["/usr/sbin/mosquitto", "mosquitto"]
+            .into_iter()
+            .find(|b| Path::new(b).exists())
+            .unwrap_or("mosquitto");
+        let child = Command::new(binary)
+            .arg("-c")
+            .arg(&config)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("Debian's mosquitto (apt install mosquitto)");
+        let start = Instant::now();
+        while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+            assert!(
+                start.elapsed() < Duration::from_secs(10),
+                "mosquitto not listening"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        Self(child)
+    }
+}
+
+impl Drop for Broker {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// The Python host: its messages as JSON, its stdin for commands.
+struct Host {
+    child: Child,
+    stdin: ChildStdin,
+    lines: Receiver<Value>,
+    seen: Vec<Value>,
+}
+
+impl Host {
+    fn start(port: u16, group: &str) -> Self {
+        let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/sparkplug_host.py");
+        let mut child = Command::new("python3")
+            .arg(script)
+            .args(["127.0.0.1", &port.to_string(), group])
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .spawn()
+            .expect("python3");
+        let stdin = child.stdin.take().unwrap();
+        let stdout = child.stdout.take().unwrap();
+        let (tx, lines) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines() {
+                let Ok(line) = line else { break };
+                let value: Value = serde_json::from_str(&line).expect("host JSON");
+                if tx.send(value).is_err() {
+                    break;
+                }
+            }
+        });
+        let mut host = Self {
+            child,
+            stdin,
+            lines,
+            seen: Vec::new(),
+        };
+        let ready = host.next(Duration::from_secs(20));
+        assert_eq!(ready["ready"], true, "{ready}");
+        host.seen.clear();
+        host
+    }
+
+    fn next(&mut self, limit: Duration) -> Value {
+        match self.lines.recv_timeout(limit) {
+            Ok(value) => {
+                self.seen.push(value.clone());
+                value
+            }
+            Err(RecvTimeoutError::Timeout) => panic!("no message from the host within {limit:?}"),
+            Err(RecvTimeoutError::Disconnected) => panic!("the host script ended"),
+        }
+    }
+
+    /// The next message of `kind` (NBIRTH, DDATA, ...), the others kept in `seen`.
+    fn next_of(&mut self, kind: &str, limit: Duration) -> Value {
+        let start = Instant::now();
+        loop {
+            let left = limit.saturating_sub(start.elapsed());
+            let message = self.next(left.max(Duration::from_millis(1)));
+            if message["type"] == kind {
+                return message;
+            }
+        }
+    }
+
+    fn command(&mut self, line: &str) {
+        writeln!(self.stdin, "{line}").unwrap();
+        self.stdin.flush().unwrap();
+    }
+}
+
+impl Drop for Host {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn metric<'a>(message: &'a Value, name: &str) -> &'a Value {
+    message["metrics"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|m| m["name"] == name)
+        .unwrap_or_else(|| panic!("no metric {name} in {message}"))
+}
+
+fn seq(message: &Value) -> u64 {
+    message["seq"]
+        .as_u64()
+        .unwrap_or_else(|| panic!("no seq: {message}"))
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn births_data_rebirth_and_the_will_as_an_independent_host_decodes_them() {
+    let setup = Setup::new("sparkplug", "db").await;
+    let port = free_port();
+    let _broker = Broker::start(&setup.scratch, port);
+    let mut host = Host::start(port, "plant");
+    setup.append_config(&format!(
+        "\n[outputs.mqtt]\nbroker = \"127.0.0.1:{port}\"\ngroup_id = \"plant\"\nnode_id = \"stand-f1\"\nkeep_alive_s = 5\ndata_period_ms = 200\n"
+    ));
+
+    let mut service = setup.spawn("run.log");
+    let limit = Duration::from_secs(30);
+    let nbirth = host.next_of("NBIRTH", limit);
+    assert_eq!(nbirth["topic"], "spBv1.0/plant/NBIRTH/stand-f1");
+    assert_eq!(seq(&nbirth), 0);
+    let bd_seq = metric(&nbirth, "bdSeq")["value"].as_u64().unwrap();
+    assert_eq!(bd_seq, 0, "a new history file starts at bdSeq 0");
+    let rebirth = metric(&nbirth, "Node Control/Rebirth");
+    assert_eq!(
+        (rebirth["datatype"].as_u64(), &rebirth["value"]),
+        (Some(11), &Value::Bool(false))
+    );
+    let dbirth = host.next(limit);
+    assert_eq!(
+        dbirth["topic"], "spBv1.0/plant/DBIRTH/stand-f1/F1",
+        "{dbirth}"
+    );
+    assert_eq!(seq(&dbirth), 1);
+    // Every metric named, aliased, typed; units as properties.
+    let mut names: HashMap<u64, String> = HashMap::new();
+    for m in dbirth["metrics"].as_array().unwrap() {
+        let alias = m["alias"].as_u64().expect("alias");
+        assert!(m["datatype"].as_u64().unwrap() > 0, "{m}");
+        assert!(names
+            .insert(alias, m["name"].as_str().unwrap().to_owned())
+            .is_none());
+    }
+    let node_aliases: HashSet<u64> = nbirth["metrics"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|m| m["alias"].as_u64())
+        .collect();
+    assert!(node_aliases.is_disjoint(&names.keys().copied().collect()));
+    assert_eq!(
+        metric(&dbirth, "static_torque")["properties"]["engUnit"],
+        "kN*m"
+    );
+    assert_eq!(metric(&dbirth, "beta1")["properties"]["engUnit"], "Hz");
+    assert_eq!(metric(&dbirth, "gap")["properties"]["engUnit"], "mrad");
+    assert_eq!(metric(&dbirth, "gap_alarm")["datatype"], 11, "Boolean");
+    assert_eq!(metric(&dbirth, "static_torque")["datatype"], 10, "Double");
+    assert_eq!(metric(&dbirth, "bite_counter")["datatype"], 7, "UInt32");
+    let bite_alias = metric(&dbirth, "bite_id")["alias"].as_u64().unwrap();
+
+    // Bites: each its own DDATA with the bite id, by alias only, values as in the PLC.
+    let plc = setup.plc();
+    let mut bites = Vec::new();
+    while bites.len() < 2 {
+        let data = host.next_of("DDATA", limit);
+        let metrics = data["metrics"].as_array().unwrap();
+        assert!(
+            metrics
+                .iter()
+                .all(|m| m["name"].is_null() && names.contains_key(&m["alias"].as_u64().unwrap())),
+            "{data}"
+        );
+        if let Some(id) = metrics.iter().find(|m| m["alias"] == bite_alias) {
+            bites.push((id["value"].as_u64().unwrap(), data.clone()));
+        }
+    }
+    common::until("the PLC shows the bites", limit, || {
+        u64::from(plc.counter()) >= bites[1].0
+    })
+    .await;
+    assert_eq!(bites[0].0 + 1, bites[1].0, "one DDATA per bite");
+    let by_name = |data: &Value, name: &str| -> Value {
+        let alias = names.iter().find(|(_, n)| n.as_str() == name).unwrap().0;
+        data["metrics"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|m| m["alias"] == *alias)
+            .unwrap()["value"]
+            .clone()
+    };
+    if u64::from(plc.counter()) == bites[1].0 {
+        let taf = by_name(&bites[1].1, "taf").as_f64().unwrap();
+        assert_eq!(taf as f32, plc.taf(), "the TAF the PLC has");
+        // The pooled gap, once the gap maps are ready (read from the cache or built).
+        if let Some(gap) = by_name(&bites[1].1, "gap").as_f64() {
+            let words = plc.plc.holding();
+            assert_eq!(
+                Some(gap as f32),
+                millgate::outputs::register_map::decode_f32(&words[plc.at("F1.gap_mrad")..]),
+                "the gap the PLC has"
+            );
+        }
+    }
+    assert_eq!(
+        by_name(&bites[1].1, "bite_counter").as_u64(),
+        Some(bites[1].0)
+    );
+
+    // The edge node's counters on /metrics.
+    assert_eq!(
+        setup.metric("millgate_sparkplug_connected").await,
+        Some(1.0)
+    );
+    assert_eq!(
+        setup.metric("millgate_sparkplug_bd_seq").await,
+        Some(bd_seq as f64)
+    );
+    let published = setup
+        .metric("millgate_sparkplug_bites_published_total")
+        .await
+        .unwrap();
+    assert!(published >= 2.0, "{published}");
+
+    // Rebirth on command: NBIRTH seq 0 with the same bdSeq, then the DBIRTH.
+    host.command("rebirth stand-f1");
+    let again = host.next_of("NBIRTH", limit);
+    assert_eq!(seq(&again), 0);
+    assert_eq!(metric(&again, "bdSeq")["value"].as_u64(), Some(bd_seq));
+    let dbirth_again = host.next(limit);
+    assert_eq!(
+        (dbirth_again["type"].as_str(), seq(&dbirth_again)),
+        (Some("DBIRTH"), 1)
+    );
+
+    // seq: every message after an NBIRTH is one more than the one before (mod 256).
+    let mut last: Option<u64> = None;
+    for message in &host.seen {
+        match message["type"].as_str() {
+            Some("NBIRTH") => last = Some(0),
+            Some("NDEATH" | "NCMD") => {}
+            _ => {
+                let this = seq(message);
+                assert_eq!(Some(this), last.map(|l| (l + 1) % 256), "{message}");
+                last = Some(this);
+            }
+        }
+    }
+
+    // SIGKILL: the broker sends the Will, with the session's bdSeq; the next run's
+    // NBIRTH has the next.
+    service.kill().unwrap();
+    service.wait().unwrap();
+    let death = host.next_of("NDEATH", limit);
+    assert_eq!(death["topic"], "spBv1.0/plant/NDEATH/stand-f1");
+    assert_eq!(metric(&death, "bdSeq")["value"].as_u64(), Some(bd_seq));
+    assert!(death["seq"].is_null());
+    let mut second = setup.spawn("second.log");
+    let next = host.next_of("NBIRTH", limit);
+    assert_eq!(metric(&next, "bdSeq")["value"].as_u64(), Some(bd_seq + 1));
+    // A clean stop sends the NDEATH itself.
+    host.next_of("DBIRTH", limit);
+    terminate(&mut second);
+    let death = host.next_of("NDEATH", limit);
+    assert_eq!(metric(&death, "bdSeq")["value"].as_u64(), Some(bd_seq + 1));
+    setup.stop(second).await;
+}
+
+#[test]
+fn the_demo_publishes_its_edge_node() {
+    let scratch =
+        std::env::temp_dir().join(format!("millgate-sparkplug-demo-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&scratch);
+    std::fs::create_dir_all(&scratch).unwrap();
+    let port = free_port();
+    let _broker = Broker::start(&scratch, port);
+    let mut host = Host::start(port, "demo-plant");
+    let broker = format!("127.0.0.1:{port}");
+    let history = scratch.join("history.db");
+    let demo = Command::new(env!("CARGO_BIN_EXE_millgate"))
+        .args([
+            "demo",
+            "--duration",
+            "4",
+            "--mqtt",
+            &broker,
+            "--group",
+            "demo-plant",
+            "--node",
+            "n1",
+        ])
+        .arg("--history")
+        .arg(&history)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let limit = Duration::from_secs(30);
+    let nbirth = host.next_of("NBIRTH", limit);
+    assert_eq!(nbirth["topic"], "spBv1.0/demo-plant/NBIRTH/n1");
+    let dbirth = host.next_of("DBIRTH", limit);
+    assert_eq!(dbirth["device"], "F1");
+    let bite = host.next_of("DDATA", limit);
+    assert!(!bite["metrics"].as_array().unwrap().is_empty());
+    let death = host.next_of("NDEATH", limit);
+    assert_eq!(
+        metric(&death, "bdSeq")["value"],
+        metric(&nbirth, "bdSeq")["value"]
+    );
+    let output = demo.wait_with_output().unwrap();
+    assert!(output.status.success());
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        stdout.contains(&format!(
+            "Sparkplug B: edge node demo-plant/n1 on mqtt://{broker}"
+        )),
+        "{stdout}"
+    );
+    let bad = Command::new(env!("CARGO_BIN_EXE_millgate"))
+        .args(["demo", "--mqtt", &broker, "--node", "a/b"])
+        .output()
+        .unwrap();
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("\"a/b\" is not allowed"));
+    let _ = std::fs::remove_dir_all(&scratch);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn no_birth_before_the_primary_host_is_online_and_its_offline_ends_the_session() {
+    let setup = Setup::new("sparkplug-state", "db").await;
+    let port = free_port();
+    let _broker = Broker::start(&setup.scratch, port);
+    let mut host = Host::start(port, "plant");
+    setup.append_config(&format!(
+        "\n[outputs.mqtt]\nbroker = \"127.0.0.1:{port}\"\ngroup_id = \"plant\"\nnode_id = \"f1\"\nprimary_host_id = \"scada\"\n"
+    ));
+    let mut service = setup.spawn("run.log");
+    // Connected (the /metrics gauge) but silent while the host has no STATE.
+    common::until("connected", Duration::from_secs(20), || {
+        std::fs::read_to_string(setup.log("run.log"))
+            .unwrap()
+            .contains("Sparkplug session up")
+    })
+    .await;
+    std::thread::sleep(Duration::from_millis(1500));
+    assert!(
+        host.lines.try_recv().is_err(),
+        "nothing before the host is online"
+    );
+
+    host.command("state scada online");
+    let limit = Duration::from_secs(20);
+    let nbirth = host.next_of("NBIRTH", limit);
+    let bd_seq = metric(&nbirth, "bdSeq")["value"].as_u64().unwrap();
+    host.next_of("DBIRTH", limit);
+    host.command("state scada offline");
+    let death = host.next_of("NDEATH", limit);
+    assert_eq!(metric(&death, "bdSeq")["value"].as_u64(), Some(bd_seq));
+    host.command("state scada online");
+    let next = host.next_of("NBIRTH", limit);
+    assert_eq!(
+        metric(&next, "bdSeq")["value"].as_u64(),
+        Some(bd_seq + 1),
+        "a new session"
+    );
+    terminate(&mut service);
+    setup.stop(service).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn after_a_broker_restart_the_node_is_born_again_with_the_next_bd_seq() {
+    let setup = Setup::new("sparkplug-restart", "db").await;
+    let port = free_port();
+    let mut broker = Broker::start(&setup.scratch, port);
+    let mut host = Host::start(port, "plant");
+    setup.append_config(&format!(
+        "\n[outputs.mqtt]\nbroker = \"127.0.0.1:{port}\"\ngroup_id = \"plant\"\nnode_id = \"f1\"\nkeep_alive_s = 5\n"
+    ));
+    let mut service = setup.spawn("run.log");
+    let limit = Duration::from_secs(30);
+    let nbirth = host.next_of("NBIRTH", limit);
+    let bd_seq = metric(&nbirth, "bdSeq")["value"].as_u64().unwrap();
+
+    // The broker dies (no Will: the broker itself is gone) and comes back after the
+    // node has failed to connect a few times: those attempts use no bdSeq.
+    drop(broker);
+    std::thread::sleep(Duration::from_millis(3500));
+    broker = Broker::start(&setup.scratch, port);
+    // The host reconnects on its own schedule and may miss the births (QoS 0, not
+    // retained): as a host does on seeing a node it has no birth of, it asks again.
+    while host.next(limit)["ready"] != true {}
+    host.command("rebirth f1");
+    let next = host.next_of("NBIRTH", limit);
+    assert_eq!(seq(&next), 0);
+    assert_eq!(metric(&next, "bdSeq")["value"].as_u64(), Some(bd_seq + 1));
+    let dbirth = host.next_of("DBIRTH", limit);
+    assert_eq!(seq(&dbirth), 1);
+    terminate(&mut service);
+    let death = host.next_of("NDEATH", limit);
+    assert_eq!(metric(&death, "bdSeq")["value"].as_u64(), Some(bd_seq + 1));
+    drop(broker);
+    setup.stop(service).await;
+}

@@ -1,0 +1,93 @@
+"""A Sparkplug B host for gateway/tests/sparkplug.rs that is not millgate's code:
+paho-mqtt 1.6.1 (the version pysparkplug 0.6.1 requires) subscribes, and the Eclipse Tahu protobuf schema as shipped by
+pysparkplug 0.6.1 (sparkplug_b_pb2) decodes. Prints one JSON line per message on
+spBv1.0/<group>/#; reads commands from stdin: "rebirth <node>" publishes an NCMD
+with Node Control/Rebirth = true; "state <host_id> online|offline" publishes the
+primary host's retained STATE (Sparkplug 3.0 JSON).
+
+    python3 sparkplug_host.py HOST PORT GROUP
+"""
+
+import json
+import sys
+import threading
+import time
+
+import paho.mqtt.client as mqtt
+from pysparkplug._protobuf import sparkplug_b_pb2
+
+Payload = sparkplug_b_pb2.Payload
+BOOLEAN = 11
+
+host, port, group = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+lock = threading.Lock()
+
+
+def emit(record):
+    with lock:
+        print(json.dumps(record), flush=True)
+
+
+def metric_json(metric):
+    kind = metric.WhichOneof("value")
+    properties = {}
+    if metric.HasField("properties"):
+        for key, value in zip(metric.properties.keys, metric.properties.values):
+            properties[key] = getattr(value, value.WhichOneof("value"))
+    return {
+        "name": metric.name if metric.HasField("name") else None,
+        "alias": metric.alias if metric.HasField("alias") else None,
+        "timestamp": metric.timestamp if metric.HasField("timestamp") else None,
+        "datatype": metric.datatype,
+        "is_null": metric.is_null,
+        "is_historical": metric.is_historical,
+        "value": getattr(metric, kind) if kind else None,
+        "properties": properties,
+    }
+
+
+def on_connect(client, userdata, flags, rc):
+    client.subscribe(f"spBv1.0/{group}/#", qos=1)
+
+
+def on_subscribe(client, userdata, mid, granted_qos):
+    emit({"ready": True})
+
+
+def on_message(client, userdata, message):
+    parts = message.topic.split("/")
+    payload = Payload()
+    payload.ParseFromString(message.payload)
+    emit(
+        {
+            "topic": message.topic,
+            "type": parts[2],
+            "node": parts[3],
+            "device": parts[4] if len(parts) > 4 else None,
+            "seq": payload.seq if payload.HasField("seq") else None,
+            "timestamp": payload.timestamp if payload.HasField("timestamp") else None,
+            "metrics": [metric_json(m) for m in payload.metrics],
+        }
+    )
+
+
+client = mqtt.Client(client_id="test-host")
+client.on_connect = on_connect
+client.on_subscribe = on_subscribe
+client.on_message = on_message
+client.connect(host, port, keepalive=30)
+client.loop_start()
+
+for line in sys.stdin:
+    words = line.split()
+    if words[:1] == ["rebirth"]:
+        command = Payload()
+        metric = command.metrics.add()
+        metric.name = "Node Control/Rebirth"
+        metric.datatype = BOOLEAN
+        metric.boolean_value = True
+        client.publish(f"spBv1.0/{group}/NCMD/{words[1]}", command.SerializeToString(), qos=1)
+    elif words[:1] == ["state"]:
+        state = {"online": words[2] == "online", "timestamp": int(time.time() * 1000)}
+        client.publish(f"spBv1.0/STATE/{words[1]}", json.dumps(state), qos=1, retain=True)
+client.loop_stop()
