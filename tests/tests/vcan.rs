@@ -282,9 +282,9 @@ async fn cansend_frames_become_scaled_samples() -> Result<()> {
     cansend(&vcan(), &format!("102#{}", hex(&status)))?;
 
     // AccelBurst, CAN FD, 64 bytes: i16 Acc0 at byte 1, Acc3 at byte 7 (0.001 m/s2).
-    // The most negative value a measurement keeps: -32768, the end of the raw range,
-    // reads as saturated and becomes a gap (field::quality).
-    let (acc0_raw, acc3_raw) = (-32_767_i16, 1_234_i16);
+    // The most negative value a measurement keeps: -32767 and -32768, the end of the
+    // raw range, read as saturated and become a gap (field::quality).
+    let (acc0_raw, acc3_raw) = (-32_766_i16, 1_234_i16);
     let mut burst = [0x55_u8; 64];
     burst[1..3].copy_from_slice(&acc0_raw.to_le_bytes());
     burst[7..9].copy_from_slice(&acc3_raw.to_le_bytes());
