@@ -255,6 +255,41 @@ const MILL: &[Def<MillResults>] = &[
         unit: "",
         read: |r| Some(Value::Bool(r.source_stale)),
     },
+    Def {
+        name: "chatter_gain",
+        datatype: DataType::Double,
+        unit: "",
+        read: |r| r.chatter_gain.map(Value::F64),
+    },
+    Def {
+        name: "gain_ratio",
+        datatype: DataType::Double,
+        unit: "",
+        read: |r| r.gain_ratio.map(Value::F64),
+    },
+    Def {
+        name: "band_rms_max",
+        datatype: DataType::Double,
+        // In the stand channels' own unit.
+        unit: "",
+        read: |r| r.band_rms_max.map(Value::F64),
+    },
+    Def {
+        name: "worst_stand",
+        datatype: DataType::UInt32,
+        unit: "",
+        // 1-based, as the register.
+        read: |r| {
+            r.worst_stand
+                .map(|stand| Value::U32(u32::try_from(stand + 1).unwrap_or(u32::MAX)))
+        },
+    },
+    Def {
+        name: "slow_down_request",
+        datatype: DataType::Boolean,
+        unit: "",
+        read: |r| Some(Value::Bool(r.slow_down_request)),
+    },
 ];
 
 /// The bite id metric of a bite's DDATA: the driveline's bite counter after the bite,
@@ -678,6 +713,30 @@ mod tests {
             let seq = decode(&bite).seq.unwrap();
             assert_eq!(seq, u64::from((5 + n) % 256));
         }
+    }
+
+    #[test]
+    fn a_tandem_mill_publishes_its_early_warning_and_slow_down_request() {
+        let mut node = node();
+        let mut results = Results::new(1, 2, 1);
+        node.births(&results, 1000);
+        let mill = &mut results.mills[0];
+        mill.gain_ratio = Some(1.25);
+        mill.worst_stand = Some(3);
+        mill.slow_down_request = true;
+        let data = node.data(&results, 1100);
+        assert_eq!(data.len(), 1);
+        assert_eq!(data[0].topic, "spBv1.0/plant/DDATA/stand-f1/tandem");
+        let values: Vec<Option<MetricValue>> = decode(&data[0])
+            .metrics
+            .into_iter()
+            .map(|m| m.value)
+            .collect();
+        assert_eq!(values.len(), 3, "{values:?}");
+        assert!(values.contains(&Some(MetricValue::DoubleValue(1.25))));
+        // 1-based, as the register.
+        assert!(values.contains(&Some(MetricValue::IntValue(4))));
+        assert!(values.contains(&Some(MetricValue::BooleanValue(true))));
     }
 
     #[test]
