@@ -406,7 +406,13 @@ impl HistoryReader {
         &self.path
     }
 
-    fn error(&self, source: rusqlite::Error) -> HistoryError {
+    /// The read-only connection, for the queries of sibling modules ([`super::series`]).
+    pub(super) fn connection(&self) -> &Connection {
+        &self.connection
+    }
+
+    /// `source` as this file's error.
+    pub(super) fn error(&self, source: rusqlite::Error) -> HistoryError {
         HistoryError::Sqlite {
             path: self.path.clone(),
             source,
