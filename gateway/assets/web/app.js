@@ -140,7 +140,17 @@
   function plotWidth(node) {
     return Math.max(320, node.clientWidth || 800);
   }
-  const utcDate = (ts) => uPlot.tzDate(new Date(ts * 1e3), "Etc/UTC");
+  // Time axis labels in UTC, 24 h: dates over days, clock times within a day.
+  function utcTicks(u, splits) {
+    const span = splits.length > 1 ? splits[splits.length - 1] - splits[0] : 0;
+    return splits.map((s) => {
+      const text = new Date(s * 1000).toISOString();
+      if (span > 3 * 86400) return text.slice(0, 10);
+      if (span > 600) return text.slice(11, 16);
+      return text.slice(11, 19);
+    });
+  }
+  const quiet = { show: false };
 
   function drivelinePage() {
     const name = driveline;
@@ -165,7 +175,7 @@
         card("Opened gap", d.gap ? num(d.gap.gap_mrad, 2) + " mrad" : "–",
           d.gap ? "90%: " + num(d.gap.low_mrad, 2) + "–" + num(d.gap.high_mrad, 2) + " mrad · " + d.gap.bites_pooled + " bites"
             : (d.has_model ? "no estimate yet" : "no driveline model configured"), d.wear_state),
-        card("Gap trend", trendText(d.gap_trend_mrad_per_week), "least squares over the last week"),
+        card("Gap trend", trendText(d.gap_trend_mrad_per_week), "least squares over 4 weeks, since the last reset"),
         card("Static torque", d.static_torque_knm === null ? "–" : num(d.static_torque_knm, 0) + " kN·m",
           "peak " + (d.peak_torque_knm === null ? "–" : num(d.peak_torque_knm, 0) + " kN·m")));
     }
@@ -196,18 +206,18 @@
         data[5].push(t.gap_alarm_mrad);
       }
       const options = {
-        width: plotWidth(gapNode), height: 300, tzDate: utcDate,
-        scales: { x: { time: true } },
+        width: plotWidth(gapNode), height: 300,
+        scales: { x: { time: false } },
         series: [
-          { label: "time (UTC)" },
-          { label: "gap", stroke: "#1d4ed8", width: 2, spanGaps: true, value: (u, v) => num(v, 2) + " mrad" },
-          { label: "90% low", stroke: "#93c5fd", width: 1, spanGaps: true },
-          { label: "90% high", stroke: "#93c5fd", width: 1, spanGaps: true },
-          { label: "warning", stroke: "#b45309", width: 1.5, dash: [8, 5] },
-          { label: "alarm", stroke: "#b91c1c", width: 1.5, dash: [8, 5] },
+          { label: "time (UTC)", value: (u, v) => (v === null ? "–" : new Date(v * 1000).toISOString().slice(0, 19).replace("T", " ")) },
+          { label: "gap", stroke: "#1d4ed8", width: 2, spanGaps: true, points: quiet, value: (u, v) => num(v, 2) + " mrad" },
+          { label: "90% low", stroke: "#93c5fd", width: 1, spanGaps: true, points: quiet, value: (u, v) => num(v, 2) },
+          { label: "90% high", stroke: "#93c5fd", width: 1, spanGaps: true, points: quiet, value: (u, v) => num(v, 2) },
+          { label: "warning", stroke: "#b45309", width: 1.5, dash: [8, 5], points: quiet },
+          { label: "alarm", stroke: "#b91c1c", width: 1.5, dash: [8, 5], points: quiet },
         ],
         bands: [{ series: [3, 2], fill: "rgba(29, 78, 216, 0.15)" }],
-        axes: [{}, { label: "opened gap, mrad" }],
+        axes: [{ values: utcTicks, label: "time (UTC)" }, { label: "opened gap, mrad" }],
       };
       if (gapPlot) gapPlot.destroy();
       gapPlot = new uPlot(options, data, gapNode);
@@ -225,9 +235,9 @@
         scales: { x: { time: false } },
         series: [
           { label: "static torque, kN·m", value: (u, v) => num(v, 0) },
-          { label: "TAF (bites)", stroke: "#0f766e", width: 0, paths: () => null, points: { show: true, size: 6, fill: "#0f766e" } },
-          { label: "warning", stroke: "#b45309", width: 1.5, dash: [8, 5], points: { show: false } },
-          { label: "alarm", stroke: "#b91c1c", width: 1.5, dash: [8, 5], points: { show: false } },
+          { label: "TAF (bites)", stroke: "#0f766e", width: 0, paths: () => null, points: { show: true, size: 6, fill: "#0f766e" }, value: (u, v) => num(v, 3) },
+          { label: "warning", stroke: "#b45309", width: 1.5, dash: [8, 5], points: quiet },
+          { label: "alarm", stroke: "#b91c1c", width: 1.5, dash: [8, 5], points: quiet },
         ],
         axes: [{ label: "static torque, kN·m" }, { label: "TAF" }],
       };

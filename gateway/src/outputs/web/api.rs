@@ -23,7 +23,9 @@ use tokio_stream::{Stream, StreamExt};
 use super::{DrivelineInfo, WebState};
 use crate::field::source_health::SourceStatus;
 use crate::outputs::history::query::{AlarmRow, BiteRow, Filter, HistoryReader, OutageRow};
+use crate::outputs::history::series::{WearPoint, MAX_SERIES_POINTS};
 use crate::outputs::history::time::UtcTime;
+use crate::outputs::history::HistoryError;
 use crate::outputs::results::{
     DrivelineResults, GatewayState, MillResults, Results, RodMillResults,
 };
@@ -32,6 +34,10 @@ use crate::outputs::results::{
 pub const LIMIT_DEFAULT: u32 = 100;
 /// Largest `limit`.
 pub const LIMIT_MAX: u32 = 10_000;
+/// Default `points` of `/api/drivelines/{name}/wear`.
+pub const POINTS_DEFAULT: u32 = 300;
+/// The gap trend is fitted to the estimates of this window before the last bite.
+pub const TREND_WINDOW: Duration = Duration::from_secs(28 * 86_400);
 /// Outages counted on the overview: those that started in this window.
 pub const OUTAGE_WINDOW: Duration = Duration::from_secs(24 * 3600);
 
@@ -167,7 +173,7 @@ async fn with_history<T: Send + 'static>(
     }
 }
 
-fn history_error(error: crate::outputs::history::HistoryError) -> ApiError {
+fn history_error(error: HistoryError) -> ApiError {
     ApiError {
         status: StatusCode::SERVICE_UNAVAILABLE,
         message: error.to_string(),
@@ -250,8 +256,9 @@ pub struct DrivelineView {
     pub wear_trend: Option<f64>,
     /// Pooled gap estimate.
     pub gap: Option<GapView>,
-    /// Gap trend, mrad per week, from the history (least squares over the last
-    /// week's estimates); `None` on live updates, without a history or estimates.
+    /// Gap trend, mrad per week, from the history (least squares over the estimates
+    /// of the 4 weeks before the last bite, after the last wear reset); `None` on
+    /// live updates, without a history or with fewer than 5 estimates.
     pub gap_trend_mrad_per_week: Option<f64>,
     /// `ok`, `warning` or `alarm` of the TAF.
     pub taf_state: &'static str,
@@ -553,9 +560,15 @@ fn add_history(reader: &HistoryReader, overview: &mut Overview) -> Result<(), Ap
     Ok(())
 }
 
-/// The gap trend of `driveline` over the last week, mrad/week.
-fn gap_trend(_reader: &HistoryReader, _driveline: &str) -> Result<Option<f64>, ApiError> {
-    Ok(None)
+/// The gap trend of `driveline` over the [`TREND_WINDOW`] before its last bite,
+/// mrad/week; `None` with too few estimates, or when the file does not know the
+/// driveline yet (no run recorded it).
+fn gap_trend(reader: &HistoryReader, driveline: &str) -> Result<Option<f64>, ApiError> {
+    match reader.gap_trend(driveline, None, TREND_WINDOW) {
+        Ok(trend) => Ok(trend.map(|trend| trend.mrad_per_week)),
+        Err(HistoryError::UnknownDriveline { .. }) => Ok(None),
+        Err(error) => Err(history_error(error)),
+    }
 }
 
 /// The overview with the history's parts when there is a history.
@@ -636,19 +649,28 @@ pub(crate) async fn bites(
     Ok(Json(rows))
 }
 
-/// `GET /api/drivelines/{name}/wear?since=&until=&points=`.
+/// `GET /api/drivelines/{name}/wear?since=&until=&points=`: the gap estimate (last
+/// in each bucket, interval extremes) and TAF (mean, max) in at most `points` time
+/// buckets, oldest first; buckets without bites are left out.
 pub(crate) async fn wear(
     State(state): State<Arc<WebState>>,
     Path(name): Path<String>,
     query: Result<Query<Vec<(String, String)>>, QueryRejection>,
-) -> Result<Response, ApiError> {
+) -> Result<Json<Vec<WearPoint>>, ApiError> {
     let params = Params::of(query, &["since", "until", "points"])?;
     driveline_index(&state, &name)?;
-    let _ = params.range()?;
-    Err(ApiError {
-        status: StatusCode::NOT_IMPLEMENTED,
-        message: "not yet".into(),
+    let (since, until) = params.range()?;
+    let max = u32::try_from(MAX_SERIES_POINTS).unwrap_or(u32::MAX);
+    let points = params.count("points", 1..=max, POINTS_DEFAULT)?;
+    let series = with_history(&state, move |reader| {
+        match reader.wear_series(&name, since, until, points as usize) {
+            Ok(series) => Ok(series),
+            Err(HistoryError::UnknownDriveline { .. }) => Ok(Vec::new()),
+            Err(error) => Err(history_error(error)),
+        }
     })
+    .await?;
+    Ok(Json(series))
 }
 
 /// `GET /api/alarms?since=&until=&limit=&subject=`: the newest `limit` alarm events

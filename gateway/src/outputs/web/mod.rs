@@ -62,6 +62,13 @@ const BUSY_RESPONSE: &[u8] = b"HTTP/1.1 503 Service Unavailable\r\n\
 content-type: application/json\r\nconnection: close\r\ncontent-length: 57\r\n\r\n\
 {\"error\": \"too many connections to the maintenance page\"}";
 
+/// Connections past `max_connections` answered 503 at once; more are closed unanswered.
+const REFUSALS: usize = 8;
+
+/// How long a refused connection's request is read (and dropped) before the close:
+/// closing a socket with unread data sends a reset, which loses the 503 answer.
+const REFUSAL_DRAIN: Duration = Duration::from_millis(200);
+
 /// How often a full server is logged at most.
 const WARN_PERIOD: Duration = Duration::from_secs(60);
 
@@ -173,6 +180,7 @@ impl WebServer {
         tracing::info!(%local, max_connections = self.settings.max_connections, "maintenance page listening");
         let router = self.router();
         let slots = Arc::new(Semaphore::new(self.settings.max_connections));
+        let refusal_slots = Arc::new(Semaphore::new(REFUSALS));
         let mut connections = JoinSet::new();
         let mut refusals = WarnLimit::new(WARN_PERIOD);
         let mut accept_errors = 0u32;
@@ -209,9 +217,14 @@ impl WebServer {
                 }
             };
             let Ok(slot) = Arc::clone(&slots).try_acquire_owned() else {
-                // Never waits: a fresh socket's send buffer takes the few bytes, and
-                // if not, the client gets the close alone.
-                let _ = stream.try_write(BUSY_RESPONSE);
+                // Answered 503 by a refusal task of its own while there are refusal
+                // slots (bounded too), else closed at once.
+                if let Ok(refusal) = Arc::clone(&refusal_slots).try_acquire_owned() {
+                    connections.spawn(async move {
+                        refuse(stream).await;
+                        drop(refusal);
+                    });
+                }
                 if let Some(suppressed) = refusals.occurred(tokio::time::Instant::now()) {
                     tracing::warn!(%peer, max = self.settings.max_connections, suppressed, "maintenance page full, connection refused");
                 }
@@ -228,6 +241,19 @@ impl WebServer {
         connections.shutdown().await;
         Ok(())
     }
+}
+
+/// Answer a connection past the limit with [`BUSY_RESPONSE`] and close it.
+async fn refuse(mut stream: tokio::net::TcpStream) {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let answered = async {
+        stream.write_all(BUSY_RESPONSE).await?;
+        stream.shutdown().await?;
+        let mut drain = [0u8; 4096];
+        while stream.read(&mut drain).await? > 0 {}
+        std::io::Result::Ok(())
+    };
+    let _ = tokio::time::timeout(REFUSAL_DRAIN, answered).await;
 }
 
 /// One connection: HTTP/1.1 with keep-alive; the head must arrive within
