@@ -71,6 +71,10 @@
     return now.drivelines.filter((d, i) => before.drivelines[i] && d.bite_counter !== before.drivelines[i].bite_counter);
   }
 
+  function plotWidth(node) {
+    return Math.max(320, node.clientWidth || 800);
+  }
+
   // ---- overview -----------------------------------------------------------------
   function overviewPage() {
     let full = null; // the last /api/overview (with the history's trend and outages)
@@ -115,12 +119,46 @@
           el("td", {}, f && f.outages_24h !== null ? f.outages_24h : "–"), el("td", {}, last));
       }));
     }
+    // The opened gap of every driveline over the history, one plot.
+    const gapNode = document.getElementById("overview-gap-plot");
+    const gapNote = document.getElementById("overview-gap-note");
+    let gapPlot = null;
+    async function drawGaps(o) {
+      if (!o.history) {
+        gapNote.textContent = "No history configured: the plot needs [history] in the configuration.";
+        return;
+      }
+      const models = o.drivelines.filter((d) => d.has_model);
+      if (models.length === 0) {
+        gapNote.textContent = "No driveline has a model configured: no gap estimates.";
+        return;
+      }
+      const series = await Promise.all(models.map((d) =>
+        getJson("/api/drivelines/" + encodeURIComponent(d.name) + "/wear?points=300")));
+      const tables = series.map((points) => [points.map((p) => Date.parse(p.end) / 1000), points.map((p) => p.gap_mrad)]);
+      const data = tables.length === 1 ? tables[0] : uPlot.join(tables);
+      const options = {
+        width: plotWidth(gapNode), height: 260, tzDate: utcDate,
+        scales: { x: { time: true } },
+        series: [{ label: "time (UTC)", value: timeLabel }].concat(models.map((d, i) => ({
+          label: d.name, stroke: colours[i % colours.length], width: 2, spanGaps: true, points: quiet,
+          value: (u, v) => num(v, 2) + " mrad",
+        }))),
+        axes: [{ values: utcTicks, incrs: timeIncrs, space: 70, label: "time (UTC)" }, { label: "opened gap, mrad" }],
+      };
+      if (gapPlot) gapPlot.destroy();
+      gapPlot = new uPlot(options, data, gapNode);
+      window.millgatePlots.overviewGap = gapPlot;
+      gapNote.textContent = data[0].length ? "" : "No gap estimate in the history yet.";
+    }
     async function refresh() {
       try {
         full = await getJson("/api/overview");
         render(lastLive || full);
+        await drawGaps(full);
       } catch (error) {
         console.error(error);
+        gapNote.textContent = error.message;
       }
     }
     let pending = null;
@@ -137,20 +175,23 @@
   }
 
   // ---- driveline ----------------------------------------------------------------
-  function plotWidth(node) {
-    return Math.max(320, node.clientWidth || 800);
-  }
   // Time axis labels in UTC, 24 h: dates over days, clock times within a day.
   function utcTicks(u, splits) {
     const span = splits.length > 1 ? splits[splits.length - 1] - splits[0] : 0;
     return splits.map((s) => {
       const text = new Date(s * 1000).toISOString();
       if (span > 3 * 86400) return text.slice(0, 10);
-      if (span > 600) return text.slice(11, 16);
+      if (span > 180) return text.slice(11, 16);
       return text.slice(11, 19);
     });
   }
   const quiet = { show: false };
+  // Whole seconds at least between time ticks (the bites' times are to the second).
+  const timeIncrs = [1, 2, 5, 10, 15, 30, 60, 120, 300, 600, 900, 1800, 3600, 7200, 14400, 21600,
+    43200, 86400, 172800, 604800, 2592000, 7776000, 31536000];
+  const utcDate = (ts) => uPlot.tzDate(new Date(ts * 1e3), "Etc/UTC");
+  const timeLabel = (u, v) => (v === null ? "–" : new Date(v * 1000).toISOString().slice(0, 19).replace("T", " "));
+  const colours = ["#1d4ed8", "#0f766e", "#7c3aed", "#c2410c", "#be185d", "#4d7c0f", "#0369a1", "#a16207"];
 
   function drivelinePage() {
     const name = driveline;
@@ -206,10 +247,10 @@
         data[5].push(t.gap_alarm_mrad);
       }
       const options = {
-        width: plotWidth(gapNode), height: 300,
-        scales: { x: { time: false } },
+        width: plotWidth(gapNode), height: 300, tzDate: utcDate,
+        scales: { x: { time: true } },
         series: [
-          { label: "time (UTC)", value: (u, v) => (v === null ? "–" : new Date(v * 1000).toISOString().slice(0, 19).replace("T", " ")) },
+          { label: "time (UTC)", value: timeLabel },
           { label: "gap", stroke: "#1d4ed8", width: 2, spanGaps: true, points: quiet, value: (u, v) => num(v, 2) + " mrad" },
           { label: "90% low", stroke: "#93c5fd", width: 1, spanGaps: true, points: quiet, value: (u, v) => num(v, 2) },
           { label: "90% high", stroke: "#93c5fd", width: 1, spanGaps: true, points: quiet, value: (u, v) => num(v, 2) },
@@ -217,7 +258,7 @@
           { label: "alarm", stroke: "#b91c1c", width: 1.5, dash: [8, 5], points: quiet },
         ],
         bands: [{ series: [3, 2], fill: "rgba(29, 78, 216, 0.15)" }],
-        axes: [{ values: utcTicks, label: "time (UTC)" }, { label: "opened gap, mrad" }],
+        axes: [{ values: utcTicks, incrs: timeIncrs, space: 70, label: "time (UTC)" }, { label: "opened gap, mrad" }],
       };
       if (gapPlot) gapPlot.destroy();
       gapPlot = new uPlot(options, data, gapNode);

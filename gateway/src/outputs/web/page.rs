@@ -107,6 +107,8 @@ const OVERVIEW: &str = r#"<h1>Overview</h1>
 <table id="drivelines" class="grid"><thead><tr><th>Driveline</th><th>Last bite</th><th>Bites</th>
 <th>TAF</th><th>Opened gap (90% interval)</th><th>Gap trend</th><th>Wear</th></tr></thead>
 <tbody></tbody></table></section>
+<section><h2>Opened gap over time</h2><div id="overview-gap-plot" class="plot"></div>
+<p class="note" id="overview-gap-note"></p></section>
 <section id="mills-section"><h2>Tandem mills</h2>
 <table id="mills" class="grid"><thead><tr><th>Mill</th><th>Chatter</th><th>Early warning (gain / threshold)</th>
 <th>Worst stand</th><th>Chatter frequency</th><th>Slow-down request</th></tr></thead><tbody></tbody></table></section>
