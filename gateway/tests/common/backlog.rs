@@ -1,22 +1,65 @@
-//! A Sparkplug edge node run in-process against a history file holding a backlog,
-//! shared by gateway/tests/sparkplug.rs (the pacing test) and
-//! gateway/benches/sparkplug.rs (the replay rate).
+//! Debian's mosquitto, and a Sparkplug edge node run in-process against a history
+//! file holding a backlog: shared by gateway/tests/sparkplug.rs and
+//! gateway/benches/sparkplug.rs.
 
 use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
 use std::sync::Arc;
+use std::time::{Duration, Instant};
 
 use millgate::outputs::publisher::Publisher;
 use millgate::outputs::sparkplug::{forward, next_bd_seq, SparkplugNode};
 use millgate_config::Config;
 
+/// Debian's mosquitto on `127.0.0.1:port`, anonymous, no persistence; killed on drop.
+pub(crate) struct Broker(Child);
+
+impl Broker {
+    pub(crate) fn start(folder: &Path, port: u16) -> Self {
+        let config = folder.join("mosquitto.conf");
+        std::fs::write(
+            &config,
+            format!("listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n"),
+        )
+        .unwrap();
+        let binary = ["/usr/sbin/mosquitto", "mosquitto"]
+            .into_iter()
+            .find(|b| Path::new(b).exists())
+            .unwrap_or("mosquitto");
+        let child = Command::new(binary)
+            .arg("-c")
+            .arg(&config)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("Debian's mosquitto (apt install mosquitto)");
+        let start = Instant::now();
+        while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+            assert!(
+                start.elapsed() < Duration::from_secs(10),
+                "mosquitto not listening"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        Self(child)
+    }
+}
+
+impl Drop for Broker {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
 /// The demo's configuration (one driveline, F1) with `[outputs.mqtt]` on
-/// `127.0.0.1:port` as `plant/f1` and the history at `history`; `extra` goes into
+/// `127.0.0.1:port` as `<group>/f1` and the history at `history`; `extra` goes into
 /// `[outputs.mqtt]` (pacing keys).
-pub fn node_config(port: u16, history: &Path, extra: &str) -> Config {
+pub(crate) fn node_config(port: u16, group: &str, history: &Path, extra: &str) -> Config {
     let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
     let text = std::fs::read_to_string(repo.join("config/examples/demo.toml")).unwrap()
         + &format!(
-            "\n[outputs.mqtt]\nbroker = \"127.0.0.1:{port}\"\ngroup_id = \"plant\"\n\
+            "\n[outputs.mqtt]\nbroker = \"127.0.0.1:{port}\"\ngroup_id = \"{group}\"\n\
              node_id = \"f1\"\nkeep_alive_s = 5\n{extra}\n\n[history]\npath = \"{}\"\n",
             history.display()
         );
@@ -27,8 +70,8 @@ pub fn node_config(port: u16, history: &Path, extra: &str) -> Config {
 
 /// A new history file at `path` with `count` bites of driveline F1 (bite counters
 /// 1..=count, 10 ms apart from 2026-01-01T00:00:00.010Z) and the replay cursor of
-/// node `plant/f1` before the first: all of them are its backlog.
-pub fn write_backlog(path: &Path, count: u32) {
+/// node `<group>/f1` before the first: all of them are its backlog.
+pub(crate) fn write_backlog(path: &Path, group: &str, count: u32) {
     let connection = millgate::outputs::history::writer::connect(path).unwrap();
     connection
         .execute(
@@ -49,13 +92,14 @@ pub fn write_backlog(path: &Path, count: u32) {
         )
         .unwrap();
     drop(connection);
-    next_bd_seq(path, "plant/f1").unwrap();
-    forward::store_cursor(path, "plant/f1", 0).unwrap();
+    let node = format!("{group}/f1");
+    next_bd_seq(path, &node).unwrap();
+    forward::store_cursor(path, &node, 0).unwrap();
 }
 
 /// The node of `config` started on the current tokio runtime; trigger the returned
 /// handle to stop it.
-pub fn start_node(
+pub(crate) fn start_node(
     config: &Config,
 ) -> (
     millgate::shutdown::ShutdownTrigger,

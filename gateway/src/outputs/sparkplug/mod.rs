@@ -409,7 +409,10 @@ impl SparkplugNode {
         let mut replay_end: Option<i64> = None;
         let replay_batch = usize::try_from(self.config.replay_batch).unwrap_or(usize::MAX);
         let mut bite_poll = tokio::time::interval(BITE_POLL);
+        // Paced from each session's births (reset there); a late batch delays the
+        // next ones rather than bursting.
         let mut replay = tokio::time::interval(self.config.replay_period);
+        replay.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         let mut cursor = tokio::time::interval(CURSOR_PERIOD);
         let mut data = tokio::time::interval(self.config.data_period);
         loop {
@@ -432,6 +435,7 @@ impl SparkplugNode {
                             }
                             None => {
                                 replay_end = self.births(&client, &mut node, &mut confirmations, &mut bites).await;
+                                replay.reset_immediately();
                                 born = true;
                             }
                         }
@@ -455,6 +459,7 @@ impl SparkplugNode {
                                 Some(true) if !born => {
                                     tracing::info!(host = ?self.config.primary_host_id, "primary host online");
                                     replay_end = self.births(&client, &mut node, &mut confirmations, &mut bites).await;
+                                    replay.reset_immediately();
                                     born = true;
                                 }
                                 Some(false) if born => {
