@@ -28,7 +28,7 @@ pub mod node;
 pub mod payload;
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, AtomicU8, Ordering};
+use std::sync::atomic::{AtomicI64, AtomicU64, AtomicU8, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
@@ -337,27 +337,6 @@ impl SparkplugNode {
         }
     }
 
-    /// Store the cursor when it moved since `stored`; count the backlog.
-    async fn keep_cursor(&self, confirmed: i64, stored: &mut i64, bites: &mut BiteSource) {
-        if confirmed != *stored {
-            let (path, key) = (self.history.clone(), self.node_key());
-            let done =
-                tokio::task::spawn_blocking(move || forward::store_cursor(&path, &key, confirmed))
-                    .await;
-            match done {
-                Ok(Ok(())) => *stored = confirmed,
-                Ok(Err(error)) => tracing::warn!(%error, "Sparkplug replay cursor not stored"),
-                Err(error) => tracing::error!(%error, "Sparkplug cursor task failed"),
-            }
-        }
-        if let Some(backlog) = bites
-            .read(move |reader| reader.bites_after(confirmed))
-            .await
-        {
-            self.status.backlog.store(backlog, Ordering::Relaxed);
-        }
-    }
-
     /// The stored replay cursor (the history's last bite for a new node; 0 when the
     /// file cannot be read, logged).
     async fn load_cursor(&self) -> i64 {
@@ -380,7 +359,19 @@ impl SparkplugNode {
         let publisher = Arc::clone(&self.publisher);
         let mut bd_seq = self.next_bd_seq(None).await;
         let mut confirmations = Confirmations::new(self.load_cursor().await);
-        let mut stored_cursor = confirmations.confirmed();
+        // The cursor is stored and the backlog counted by a task of its own: a timer
+        // in the select below would cancel the event loop's poll, and a CONNECT in
+        // flight with it (the broker then sees the next CONNECT take the session over
+        // and sends the Will).
+        let confirmed = Arc::new(AtomicI64::new(confirmations.confirmed()));
+        let (stop_keeper, keeper_stop) = tokio::sync::oneshot::channel();
+        let keeper = tokio::spawn(keep_cursor(
+            self.history.clone(),
+            self.node_key(),
+            Arc::clone(&self.status),
+            Arc::clone(&confirmed),
+            keeper_stop,
+        ));
         let mut bites = BiteSource::new(self.history.clone());
         let mut node = EdgeNode::new(
             &self.config.group_id,
@@ -413,7 +404,6 @@ impl SparkplugNode {
         // next ones rather than bursting.
         let mut replay = tokio::time::interval(self.config.replay_period);
         replay.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-        let mut cursor = tokio::time::interval(CURSOR_PERIOD);
         let mut data = tokio::time::interval(self.config.data_period);
         loop {
             tokio::select! {
@@ -516,13 +506,11 @@ impl SparkplugNode {
                 _ = bite_poll.tick(), if born && replay_end.is_none() => {
                     self.forward(&client, &mut node, &mut confirmations, &mut bites, MAX_OUTSTANDING, None, false).await;
                 }
-                _ = cursor.tick() => {
-                    self.keep_cursor(confirmations.confirmed(), &mut stored_cursor, &mut bites).await;
-                }
                 _ = data.tick(), if born => {
                     self.publish(&client, &mut confirmations, node.data(&publisher.results(), now_ms()));
                 }
             }
+            confirmed.store(confirmations.confirmed(), Ordering::Relaxed);
         }
         if born {
             // A clean stop: the PUBACKs of the bites in flight (so the next start does
@@ -553,8 +541,9 @@ impl SparkplugNode {
             };
             let _ = tokio::time::timeout(Duration::from_secs(2), flush).await;
         }
-        self.keep_cursor(confirmations.confirmed(), &mut stored_cursor, &mut bites)
-            .await;
+        confirmed.store(confirmations.confirmed(), Ordering::Relaxed);
+        let _ = stop_keeper.send(());
+        let _ = keeper.await;
         self.status.connected.store(0, Ordering::Relaxed);
     }
 }
@@ -609,6 +598,45 @@ impl BiteSource {
                 tracing::error!(%error, "Sparkplug history task failed");
                 None
             }
+        }
+    }
+}
+
+/// Every [`CURSOR_PERIOD`] until `stop` (and once more then): store the replay cursor
+/// `confirmed` of `node` in the history file `history` when it moved, and count the
+/// backlog after it into `status`.
+async fn keep_cursor(
+    history: PathBuf,
+    node: String,
+    status: Arc<SparkplugStatus>,
+    confirmed: Arc<AtomicI64>,
+    mut stop: tokio::sync::oneshot::Receiver<()>,
+) {
+    let mut bites = BiteSource::new(history.clone());
+    let mut stored = confirmed.load(Ordering::Relaxed);
+    let mut period = tokio::time::interval(CURSOR_PERIOD);
+    loop {
+        let stopping = tokio::select! {
+            _ = &mut stop => true,
+            _ = period.tick() => false,
+        };
+        let cursor = confirmed.load(Ordering::Relaxed);
+        if cursor != stored {
+            let (path, key) = (history.clone(), node.clone());
+            let done =
+                tokio::task::spawn_blocking(move || forward::store_cursor(&path, &key, cursor))
+                    .await;
+            match done {
+                Ok(Ok(())) => stored = cursor,
+                Ok(Err(error)) => tracing::warn!(%error, "Sparkplug replay cursor not stored"),
+                Err(error) => tracing::error!(%error, "Sparkplug cursor task failed"),
+            }
+        }
+        if let Some(backlog) = bites.read(move |reader| reader.bites_after(cursor)).await {
+            status.backlog.store(backlog, Ordering::Relaxed);
+        }
+        if stopping {
+            break;
         }
     }
 }
