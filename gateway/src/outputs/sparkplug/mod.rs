@@ -255,22 +255,23 @@ impl SparkplugNode {
         (last > confirmations.read()).then_some(last)
     }
 
-    /// Publish the next bites of the history (at most `limit`, none after `until`) as
-    /// DDATA, flagged historical when `historical`; returns how many rows were read.
+    /// Publish the next bites of the history after the last one read, as `step` says.
     async fn forward(
         &self,
         client: &AsyncClient,
         node: &mut EdgeNode,
         confirmations: &mut Confirmations,
         bites: &mut BiteSource,
-        limit: usize,
-        until: Option<i64>,
-        historical: bool,
-    ) -> usize {
+        step: Step,
+    ) {
+        let (limit, until, historical) = match step {
+            Step::Replay { batch, end } => (batch, Some(end), true),
+            Step::Live => (MAX_OUTSTANDING, None, false),
+        };
         let room = MAX_OUTSTANDING.saturating_sub(confirmations.outstanding());
         let limit = u32::try_from(limit.min(room)).unwrap_or(u32::MAX);
         if limit == 0 {
-            return 0;
+            return;
         }
         let filter = Filter {
             after_id: Some(confirmations.read()),
@@ -278,16 +279,14 @@ impl SparkplugNode {
             ..Filter::default()
         };
         let Some(rows) = bites.read(move |reader| reader.bites(&filter)).await else {
-            return 0;
+            return;
         };
         let results = self.publisher.results();
         let names = self.publisher.driveline_names();
-        let mut count = 0;
         for row in rows
             .iter()
             .take_while(|row| until.is_none_or(|end| row.id <= end))
         {
-            count += 1;
             if let Some(index) = names.iter().position(|name| *name == row.driveline) {
                 let message = self.bite_message(node, index, row, &results, historical);
                 if !self.send(
@@ -312,7 +311,6 @@ impl SparkplugNode {
             // Nothing left up to `end`: the retention deleted the rest meanwhile.
             confirmations.read_up_to(end);
         }
-        count
     }
 
     /// The DDATA of the bite `row` of driveline `index`: live with the results' values
@@ -497,14 +495,17 @@ impl SparkplugNode {
                     }
                 },
                 _ = replay.tick(), if born && replay_end.is_some() => {
-                    self.forward(&client, &mut node, &mut confirmations, &mut bites, replay_batch, replay_end, true).await;
+                    if let Some(end) = replay_end {
+                        let step = Step::Replay { batch: replay_batch, end };
+                        self.forward(&client, &mut node, &mut confirmations, &mut bites, step).await;
+                    }
                     if replay_end.is_some_and(|end| confirmations.read() >= end) {
                         tracing::info!(replayed = self.status.replayed.load(Ordering::Relaxed), "Sparkplug backlog replayed");
                         replay_end = None;
                     }
                 }
                 _ = bite_poll.tick(), if born && replay_end.is_none() => {
-                    self.forward(&client, &mut node, &mut confirmations, &mut bites, MAX_OUTSTANDING, None, false).await;
+                    self.forward(&client, &mut node, &mut confirmations, &mut bites, Step::Live).await;
                 }
                 _ = data.tick(), if born => {
                     self.publish(&client, &mut confirmations, node.data(&publisher.results(), now_ms()));
@@ -546,6 +547,15 @@ impl SparkplugNode {
         let _ = keeper.await;
         self.status.connected.store(0, Ordering::Relaxed);
     }
+}
+
+/// Which bites [`SparkplugNode::forward`] publishes.
+#[derive(Debug, Clone, Copy)]
+enum Step {
+    /// The backlog: at most `batch` bites, none after row `end`, flagged historical.
+    Replay { batch: usize, end: i64 },
+    /// What was recorded after the backlog, live.
+    Live,
 }
 
 /// The history file's bites, read on a blocking thread with one read-only
