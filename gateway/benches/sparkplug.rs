@@ -164,6 +164,7 @@ async fn live(port: u16) {
     let _ = std::fs::remove_dir_all(&folder);
 }
 
+/// The replay of a backlog with `pacing` (config keys; empty: the defaults).
 async fn replay(port: u16, name: &str, pacing: &str) {
     let folder = folder(name);
     let history = folder.join("history.db");
@@ -182,7 +183,12 @@ async fn replay(port: u16, name: &str, pacing: &str) {
         .await;
     let elapsed = start.elapsed().as_secs_f64();
     println!(
-        "replay ({name}, {pacing}): {BACKLOG_BITES} bites -> subscriber in {elapsed:.2} s: {:.0} bites/s",
+        "replay ({name}: {}): {BACKLOG_BITES} bites -> subscriber in {elapsed:.2} s: {:.0} bites/s",
+        if pacing.is_empty() {
+            "100 per 100 ms"
+        } else {
+            "replay_batch 100000 per 1 ms"
+        },
         f64::from(BACKLOG_BITES) / elapsed
     );
     check(&ids, 1, BACKLOG_BITES, historical, true);
