@@ -188,6 +188,17 @@ pub(crate) struct RawMqttOutput {
     pub primary_host_id: Option<String>,
     pub username: Option<String>,
     pub password: Option<String>,
+    pub password_file: Option<String>,
+    pub tls: Option<RawMqttTls>,
+}
+
+/// `[outputs.mqtt.tls]`: TLS to the broker.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawMqttTls {
+    pub ca_file: String,
+    pub cert_file: Option<String>,
+    pub key_file: Option<String>,
 }
 
 /// `[history]`: the event history file.

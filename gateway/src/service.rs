@@ -90,6 +90,9 @@ pub enum ServiceError {
         /// What ended it.
         reason: String,
     },
+    /// The Sparkplug B edge node's TLS files cannot be used.
+    #[error("the Sparkplug B edge node cannot start: {0}")]
+    SparkplugTls(#[from] crate::outputs::sparkplug::tls::TlsSetupError),
     /// The service's task panicked or was cancelled.
     #[error("the service task failed: {0}")]
     Task(#[from] tokio::task::JoinError),
@@ -472,7 +475,7 @@ impl Service {
             (Some(mqtt), Some(history)) => {
                 tracing::info!(broker = %mqtt.broker, group = %mqtt.group_id, node = %mqtt.node_id, "starting the Sparkplug B edge node");
                 let node =
-                    SparkplugNode::new(mqtt.clone(), history.path.clone(), Arc::clone(&publisher));
+                    SparkplugNode::new(mqtt.clone(), history.path.clone(), Arc::clone(&publisher))?;
                 let status = node.status();
                 let shutdown = outputs_shutdown.clone();
                 outputs.spawn(async move {

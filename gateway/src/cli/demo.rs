@@ -134,6 +134,7 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
             command_qos: 1,
             primary_host_id: None,
             credentials: None,
+            tls: None,
         });
         println!(
             "Sparkplug B: edge node {}/{} on mqtt://{broker} (topics spBv1.0/{}/#)",

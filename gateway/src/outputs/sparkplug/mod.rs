@@ -16,10 +16,14 @@
 //!   birth until the host is online; a STATE offline gets the NDEATH and ends the
 //!   session (the next one, with the next bdSeq, waits for the host again).
 //!
-//! Not yet (issue 19): store-and-forward from the history, TLS.
+//! - With `[outputs.mqtt.tls]` the session runs over TLS ([`tls`]); username and
+//!   password go in the CONNECT.
+//!
+//! Not yet (issue 19): store-and-forward from the history.
 
 pub mod node;
 pub mod payload;
+pub mod tls;
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, AtomicU8, Ordering};
@@ -27,7 +31,10 @@ use std::sync::Arc;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use millgate_config::MqttOutput;
-use rumqttc::{AsyncClient, Event, EventLoop, LastWill, MqttOptions, Packet, QoS};
+use rumqttc::{
+    AsyncClient, ConnectReturnCode, ConnectionError, Event, EventLoop, LastWill, MqttOptions,
+    Packet, QoS, TlsConfiguration, Transport,
+};
 
 use crate::outputs::history::writer::connect;
 use crate::outputs::history::HistoryError;
@@ -66,9 +73,71 @@ pub fn next_bd_seq(path: &Path, node: &str) -> Result<u8, HistoryError> {
     Ok(u8::try_from(bd_seq).unwrap_or(0))
 }
 
+/// Why a connection to the broker failed (the log and `/metrics` say which).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ConnectFailure {
+    /// No answer, connection refused by the host, or the session broke off.
+    Unreachable,
+    /// The TLS handshake failed (an unknown CA, a name mismatch, a certificate the
+    /// broker does not accept).
+    Tls,
+    /// The broker refused the user name and password or the client.
+    NotAuthorised,
+    /// The broker refused the connection for another reason.
+    Refused,
+}
+
+impl ConnectFailure {
+    /// Every kind, in the order of [`SparkplugCounts::failures`].
+    pub const ALL: [Self; 4] = [
+        Self::Unreachable,
+        Self::Tls,
+        Self::NotAuthorised,
+        Self::Refused,
+    ];
+
+    /// The label on `/metrics`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Unreachable => "unreachable",
+            Self::Tls => "tls",
+            Self::NotAuthorised => "not_authorised",
+            Self::Refused => "refused",
+        }
+    }
+
+    /// The kind of `error`.
+    pub fn of(error: &ConnectionError) -> Self {
+        match error {
+            ConnectionError::Tls(_) => Self::Tls,
+            // A TLS alert after the handshake (TLS 1.3 reports a refused client
+            // certificate there) comes as an I/O error holding the rustls error.
+            ConnectionError::Io(io) if io.get_ref().is_some_and(|e| e.is::<rustls::Error>()) => {
+                Self::Tls
+            }
+            ConnectionError::ConnectionRefused(
+                ConnectReturnCode::BadUserNamePassword | ConnectReturnCode::NotAuthorized,
+            ) => Self::NotAuthorised,
+            ConnectionError::ConnectionRefused(_) => Self::Refused,
+            _ => Self::Unreachable,
+        }
+    }
+
+    /// What to check, for the log.
+    fn hint(self) -> &'static str {
+        match self {
+            Self::Unreachable => "check outputs.mqtt.broker and that the broker runs",
+            Self::Tls => "check outputs.mqtt.tls (ca_file against the broker's certificate and its name, cert_file/key_file against the broker's require_certificate)",
+            Self::NotAuthorised => "not authorised: check outputs.mqtt.username and password (or password_file) against the broker",
+            Self::Refused => "check outputs.mqtt.client_id and the broker's log",
+        }
+    }
+}
+
 /// Counters of the edge node, for `/metrics`.
 #[derive(Debug, Default)]
 pub struct SparkplugStatus {
+    failures: [AtomicU64; 4],
     connected: AtomicU8,
     bd_seq: AtomicU8,
     published: AtomicU64,
@@ -92,6 +161,9 @@ pub struct SparkplugCounts {
     pub connections: u64,
     /// Rebirth commands obeyed.
     pub rebirths: u64,
+    /// Failed connections and lost sessions by [`ConnectFailure`] (in the order of
+    /// [`ConnectFailure::ALL`]).
+    pub failures: [u64; 4],
 }
 
 impl SparkplugStatus {
@@ -105,6 +177,7 @@ impl SparkplugStatus {
             bites: load(&self.bites),
             connections: load(&self.connections),
             rebirths: load(&self.rebirths),
+            failures: self.failures.each_ref().map(load),
         }
     }
 }
@@ -116,6 +189,7 @@ pub struct SparkplugNode {
     history: PathBuf,
     publisher: Arc<Publisher>,
     status: Arc<SparkplugStatus>,
+    tls: Option<Arc<rustls::ClientConfig>>,
 }
 
 fn now_ms() -> u64 {
@@ -125,14 +199,21 @@ fn now_ms() -> u64 {
 }
 
 impl SparkplugNode {
-    /// The node of `config`, keeping its bdSeq in the history file `history`.
-    pub fn new(config: MqttOutput, history: PathBuf, publisher: Arc<Publisher>) -> Self {
-        Self {
+    /// The node of `config`, keeping its bdSeq in the history file `history`; fails
+    /// when the TLS files of `config` cannot be used.
+    pub fn new(
+        config: MqttOutput,
+        history: PathBuf,
+        publisher: Arc<Publisher>,
+    ) -> Result<Self, tls::TlsSetupError> {
+        let tls = config.tls.as_ref().map(tls::client_config).transpose()?;
+        Ok(Self {
             config,
             history,
             publisher,
             status: Arc::new(SparkplugStatus::default()),
-        }
+            tls,
+        })
     }
 
     /// The counters, shared with `/metrics`.
@@ -181,6 +262,11 @@ impl SparkplugNode {
         if let Some((user, password)) = &self.config.credentials {
             options.set_credentials(user.clone(), password.clone());
         }
+        if let Some(config) = &self.tls {
+            options.set_transport(Transport::tls_with_config(TlsConfiguration::Rustls(
+                Arc::clone(config),
+            )));
+        }
         options
     }
 
@@ -227,6 +313,8 @@ impl SparkplugNode {
             .as_deref()
             .map(node::state_topic);
         let mut connected = false;
+        // The last failure logged as a warning: the same failure again is only debug.
+        let mut last_failure = None;
         // Births sent in this session (with a primary host: after its STATE online).
         let mut born = false;
         let mut counters: Vec<u32> = Vec::new();
@@ -237,6 +325,7 @@ impl SparkplugNode {
                 () = shutdown.recv() => break,
                 event = events.poll() => match event {
                     Ok(Event::Incoming(Packet::ConnAck(_))) => {
+                        last_failure = None;
                         tracing::info!(broker = %self.config.broker, bd_seq, "Sparkplug session up");
                         connected = true;
                         self.status.connected.store(1, Ordering::Relaxed);
@@ -290,11 +379,17 @@ impl SparkplugNode {
                     }
                     Ok(_) => {}
                     Err(error) => {
+                        let failure = ConnectFailure::of(&error);
+                        let slot = ConnectFailure::ALL.iter().position(|&f| f == failure).unwrap_or(0);
+                        self.status.failures[slot].fetch_add(1, Ordering::Relaxed);
                         if connected {
                             tracing::warn!(%error, broker = %self.config.broker, "Sparkplug session ended");
+                        } else if last_failure != Some(failure) {
+                            tracing::warn!(%error, broker = %self.config.broker, reason = failure.name(), "Sparkplug broker connection failed, retrying every {} s: {}", RECONNECT_DELAY.as_secs(), failure.hint());
                         } else {
-                            tracing::debug!(%error, broker = %self.config.broker, "Sparkplug broker not reachable");
+                            tracing::debug!(%error, broker = %self.config.broker, "Sparkplug broker connection failed again");
                         }
+                        last_failure = Some(failure);
                         // What the dead session had queued belongs to it: its seq
                         // numbers mean nothing in the next session.
                         drop_pending(&mut events);
