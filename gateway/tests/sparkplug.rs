@@ -26,12 +26,18 @@ struct Broker(Child);
 
 impl Broker {
     fn start(folder: &Path, port: u16) -> Self {
-        let config = folder.join("mosquitto.conf");
-        std::fs::write(
-            &config,
-            format!("listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n"),
+        Self::with_listeners(
+            folder,
+            port,
+            &format!("listener {port} 127.0.0.1\nallow_anonymous true\n"),
         )
-        .unwrap();
+    }
+
+    /// mosquitto with the `listeners` configuration, no persistence; returns once
+    /// `port` accepts connections.
+    fn with_listeners(folder: &Path, port: u16, listeners: &str) -> Self {
+        let config = folder.join("mosquitto.conf");
+        std::fs::write(&config, format!("{listeners}\npersistence false\n")).unwrap();
         let binary = ["/usr/sbin/mosquitto", "mosquitto"]
             .into_iter()
             .find(|b| Path::new(b).exists())
@@ -72,10 +78,16 @@ struct Host {
 
 impl Host {
     fn start(port: u16, group: &str) -> Self {
+        Self::with_options(port, group, &[])
+    }
+
+    /// The host with more `options` of sparkplug_host.py (TLS, user name).
+    fn with_options(port: u16, group: &str, options: &[&str]) -> Self {
         let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/sparkplug_host.py");
         let mut child = Command::new("python3")
             .arg(script)
             .args(["127.0.0.1", &port.to_string(), group])
+            .args(options)
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .spawn()
@@ -451,5 +463,227 @@ async fn after_a_broker_restart_the_node_is_born_again_with_the_next_bd_seq() {
     let death = host.next_of("NDEATH", limit);
     assert_eq!(metric(&death, "bdSeq")["value"].as_u64(), Some(bd_seq + 1));
     drop(broker);
+    setup.stop(service).await;
+}
+
+/// PEM files made for the TLS test in `folder`: a CA (`ca.pem`), the broker's
+/// certificate for 127.0.0.1 and the gateway's client certificate, both signed by it
+/// (`server.pem`/`server.key`, `client.pem`/`client.key`), and a second CA that signed
+/// nothing here (`other-ca.pem`).
+fn certificates(folder: &Path) {
+    use rcgen::{BasicConstraints, CertificateParams, CertifiedIssuer, DnType, IsCa, KeyPair};
+    let authority = |name: &str| {
+        let mut params = CertificateParams::new(Vec::<String>::new()).unwrap();
+        params.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
+        params.distinguished_name.push(DnType::CommonName, name);
+        CertifiedIssuer::self_signed(params, KeyPair::generate().unwrap()).unwrap()
+    };
+    let write = |name: &str, text: String| std::fs::write(folder.join(name), text).unwrap();
+    let ca = authority("millgate test CA");
+    write("ca.pem", ca.pem());
+    write("other-ca.pem", authority("another CA").pem());
+    for (name, subject) in [("server", "127.0.0.1"), ("client", "gateway f1")] {
+        let key = KeyPair::generate().unwrap();
+        let mut params = CertificateParams::new(vec![subject.to_owned()]).unwrap();
+        params.distinguished_name.push(DnType::CommonName, subject);
+        let certificate = params.signed_by(&key, &ca).unwrap();
+        write(&format!("{name}.pem"), certificate.pem());
+        write(&format!("{name}.key"), key.serialize_pem());
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn over_tls_with_a_password_and_a_client_certificate_and_clear_errors_when_refused() {
+    let setup = Setup::new("sparkplug-tls", "db").await;
+    let folder = &setup.scratch;
+    certificates(folder);
+    let passwords = folder.join("passwords");
+    let made = Command::new("mosquitto_passwd")
+        .args(["-b", "-c"])
+        .arg(&passwords)
+        .args(["gw", "s3cret"])
+        .status()
+        .expect("mosquitto_passwd (Debian's mosquitto)");
+    assert!(made.success());
+    std::fs::write(folder.join("secret"), "s3cret\n").unwrap();
+    std::fs::write(folder.join("wrong-secret"), "guess\n").unwrap();
+    // Two TLS listeners: one that requires a client certificate, one that does not;
+    // both with passwords.
+    let (with_certificate, without) = (free_port(), free_port());
+    let tls = |port: u16, require: bool| {
+        format!(
+            "listener {port} 127.0.0.1\ncafile {ca}\ncertfile {cert}\nkeyfile {key}\n\
+             require_certificate {require}\nallow_anonymous false\npassword_file {passwords}\n",
+            ca = folder.join("ca.pem").display(),
+            cert = folder.join("server.pem").display(),
+            key = folder.join("server.key").display(),
+            passwords = passwords.display(),
+        )
+    };
+    let _broker = Broker::with_listeners(
+        folder,
+        with_certificate,
+        &format!(
+            "per_listener_settings true\n{}{}",
+            tls(with_certificate, true),
+            tls(without, false)
+        ),
+    );
+    let file = |name: &str| folder.join(name).display().to_string();
+    let mut host = Host::with_options(
+        with_certificate,
+        "plant",
+        &[
+            "--ca",
+            &file("ca.pem"),
+            "--cert",
+            &file("client.pem"),
+            "--key",
+            &file("client.key"),
+            "--username",
+            "gw",
+            "--password",
+            "s3cret",
+        ],
+    );
+    let base = std::fs::read_to_string(&setup.config).unwrap();
+    let configure = |node: &str, port: u16, secret: &str, tls: &str| {
+        std::fs::write(
+            &setup.config,
+            format!(
+                "{base}\n[outputs.mqtt]\nbroker = \"127.0.0.1:{port}\"\ngroup_id = \"plant\"\n\
+                 node_id = \"{node}\"\nusername = \"gw\"\npassword_file = \"{}\"\n\
+                 [outputs.mqtt.tls]\n{tls}\n",
+                file(secret)
+            ),
+        )
+        .unwrap();
+    };
+
+    // Client certificate and password: born over TLS, the host decodes a bite.
+    configure(
+        "f1",
+        with_certificate,
+        "secret",
+        &format!(
+            "ca_file = \"{}\"\ncert_file = \"{}\"\nkey_file = \"{}\"",
+            file("ca.pem"),
+            file("client.pem"),
+            file("client.key")
+        ),
+    );
+    let mut service = setup.spawn("tls.log");
+    let limit = Duration::from_secs(30);
+    let nbirth = host.next_of("NBIRTH", limit);
+    assert_eq!(nbirth["topic"], "spBv1.0/plant/NBIRTH/f1");
+    let dbirth = host.next_of("DBIRTH", limit);
+    let bite_alias = metric(&dbirth, "bite_id")["alias"].as_u64().unwrap();
+    loop {
+        let data = host.next_of("DDATA", limit);
+        if data["metrics"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|m| m["alias"] == bite_alias)
+        {
+            break;
+        }
+    }
+    assert_eq!(
+        setup.metric("millgate_sparkplug_connected").await,
+        Some(1.0)
+    );
+    terminate(&mut service);
+    let death = host.next_of("NDEATH", limit);
+    assert_eq!(
+        metric(&death, "bdSeq")["value"],
+        metric(&nbirth, "bdSeq")["value"]
+    );
+
+    // A CA that did not sign the broker's certificate: a TLS error in the log and on
+    // /metrics, retried, and the service goes on (the PLC gets its bites).
+    let failures =
+        |reason: &str| format!("millgate_sparkplug_connect_failures_total{{reason=\"{reason}\"}}");
+    configure(
+        "f1-wrong-ca",
+        without,
+        "secret",
+        &format!("ca_file = \"{}\"", file("other-ca.pem")),
+    );
+    let mut service = setup.spawn("wrong-ca.log");
+    let logged = |log: &str, text: &str| {
+        std::fs::read_to_string(setup.log(log))
+            .unwrap()
+            .contains(text)
+    };
+    common::until("the TLS failure in the log", limit, || {
+        logged("wrong-ca.log", "Sparkplug broker connection failed")
+    })
+    .await;
+    let start = Instant::now();
+    while setup.metric(&failures("tls")).await.unwrap_or(0.0) < 2.0 {
+        assert!(
+            start.elapsed() < limit,
+            "no retried TLS failure on /metrics"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    setup.plc().bites_after_now(1).await;
+    assert!(service.try_wait().unwrap().is_none(), "the service runs");
+    assert_eq!(
+        setup.metric("millgate_sparkplug_connected").await,
+        Some(0.0)
+    );
+    let log = std::fs::read_to_string(setup.log("wrong-ca.log")).unwrap();
+    assert!(
+        log.contains("Sparkplug broker connection failed")
+            && log.contains("invalid peer certificate")
+            && log.contains("check outputs.mqtt.tls"),
+        "{log}"
+    );
+    terminate(&mut service);
+
+    // A wrong password: "not authorised", on /metrics too.
+    configure(
+        "f1-bad-password",
+        without,
+        "wrong-secret",
+        &format!("ca_file = \"{}\"", file("ca.pem")),
+    );
+    let mut service = setup.spawn("password.log");
+    common::until("the refusal in the log", limit, || {
+        logged("password.log", "Sparkplug broker connection failed")
+    })
+    .await;
+    let start = Instant::now();
+    while setup
+        .metric(&failures("not_authorised"))
+        .await
+        .unwrap_or(0.0)
+        < 1.0
+    {
+        assert!(
+            start.elapsed() < limit,
+            "no not_authorised failure on /metrics"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    assert_eq!(setup.metric(&failures("tls")).await, Some(0.0));
+    let log = std::fs::read_to_string(setup.log("password.log")).unwrap();
+    assert!(
+        log.contains("not authorised: check outputs.mqtt.username"),
+        "{log}"
+    );
+    terminate(&mut service);
+    // Neither refused node was ever born.
+    while let Ok(message) = host.lines.try_recv() {
+        host.seen.push(message);
+    }
+    assert!(
+        host.seen
+            .iter()
+            .all(|m| m["node"] == "f1" || m["node"].is_null()),
+        "only f1 was born"
+    );
     setup.stop(service).await;
 }
