@@ -148,6 +148,28 @@ pub struct RodMillResults {
     pub spans: Vec<RodSpanResults>,
 }
 
+impl RodMillResults {
+    /// Whether the values may be published: evaluated, inputs accepted, fresh.
+    pub fn valid(&self) -> bool {
+        self.evaluations > 0 && !self.input_refused && !self.source_stale
+    }
+
+    /// The span nearest to a band edge: the valid span with the smallest speed margin
+    /// (the most negative when unstable), `(index in rolling order, margin in m/s)`;
+    /// `None` while the mill is not [`Self::valid`] or no span has a margin.
+    pub fn worst_span(&self) -> Option<(usize, f64)> {
+        if !self.valid() {
+            return None;
+        }
+        self.spans
+            .iter()
+            .enumerate()
+            .filter(|(_, span)| span.valid)
+            .filter_map(|(index, span)| Some((index, span.speed_margin_m_s?)))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+    }
+}
+
 /// The gateway's own state as published in the status register.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum GatewayState {

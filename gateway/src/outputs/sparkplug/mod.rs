@@ -190,6 +190,8 @@ pub struct SparkplugNode {
     publisher: Arc<Publisher>,
     status: Arc<SparkplugStatus>,
     tls: Option<Arc<rustls::ClientConfig>>,
+    /// Rod mills: name and span count.
+    rod_mills: Vec<(String, usize)>,
 }
 
 fn now_ms() -> u64 {
@@ -213,7 +215,15 @@ impl SparkplugNode {
             publisher,
             status: Arc::new(SparkplugStatus::default()),
             tls,
+            rod_mills: Vec::new(),
         })
+    }
+
+    /// The node with these rod mills as devices: `(name, span count)` in config order
+    /// (the span count from the mill file; it fixes the `span<i>` metrics at birth).
+    pub fn with_rod_mills(mut self, rod_mills: Vec<(String, usize)>) -> Self {
+        self.rod_mills = rod_mills;
+        self
     }
 
     /// The counters, shared with `/metrics`.
@@ -298,7 +308,8 @@ impl SparkplugNode {
             publisher.driveline_names(),
             publisher.mill_names(),
             bd_seq,
-        );
+        )
+        .with_rod_mills(&self.rod_mills);
         self.status.bd_seq.store(bd_seq, Ordering::Relaxed);
         let (client, mut events) =
             AsyncClient::new(self.options(node.death(now_ms())), CLIENT_QUEUE);
