@@ -426,7 +426,7 @@ impl SparkplugNode {
                     let results = publisher.results();
                     for (index, after) in results.drivelines.iter().enumerate() {
                         if counters.get(index).is_some_and(|&before| after.bite_counter != before) {
-                            let time = after.last_bite_unix_s.map_or_else(now_ms, |s| u64::from(s) * 1000);
+                            let time = after.last_bite_unix_ms.unwrap_or_else(now_ms);
                             self.publish(&client, vec![node.bite(index, after, time, false)]);
                             self.status.bites.fetch_add(1, Ordering::Relaxed);
                             counters[index] = after.bite_counter;
