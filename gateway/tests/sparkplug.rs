@@ -687,3 +687,146 @@ async fn over_tls_with_a_password_and_a_client_certificate_and_clear_errors_when
     );
     setup.stop(service).await;
 }
+
+/// The rod mill example's block (`sim/models/rod`) as a device: a virtual process
+/// PLC holds the drive configuration, the pass and the finishing speed; the DBIRTH has
+/// one `span<i>/` set per span of the mill file; the values match what the simulator's
+/// library gives for the pass at that speed (`PassSetup::status`), and the worst
+/// margin and span are the smallest margin and its span.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_rod_mill_is_a_device_with_its_spans_and_worst_margin() {
+    use millgate_config::layout::encode_value;
+    use millgate_config::{ValueType, WordOrder};
+    use millgate_sim::devices::modbus_bank::ServeOptions;
+    use millgate_sim::devices::virtual_plc::VirtualPlc;
+    use millgate_sim::rod::check::PassSetup;
+    use millgate_sim::rod::mill::RodMill;
+    use millgate_sim::rod::schedule;
+
+    let scratch =
+        std::env::temp_dir().join(format!("millgate-sparkplug-rod-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&scratch);
+    std::fs::create_dir_all(&scratch).unwrap();
+    let models = common::repo().join("sim/models/rod");
+    // Pass P1 (table3) at 51.5 m/s: inside span 2's band (50.8-52.3 m/s).
+    let speed = 51.5;
+    let mill = RodMill::load(models.join("rsm-mill.toml")).unwrap();
+    let passes = schedule::load(models.join("rsm-schedule.csv")).unwrap();
+    let expected = PassSetup::new(&mill, &passes[0])
+        .unwrap()
+        .status(speed)
+        .unwrap();
+    assert_eq!(expected.len(), mill.spans.len());
+
+    let process = VirtualPlc::new(16);
+    {
+        let bank = process.bank();
+        let mut bank = bank.lock();
+        bank.holding[0] = 0;
+        bank.holding[1] = 1;
+        let (words, _) = encode_value(speed, ValueType::F32, WordOrder::Abcd);
+        bank.holding[2..4].copy_from_slice(&words);
+    }
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let process_address = listener.local_addr().unwrap();
+    let process_running = process.spawn(listener, ServeOptions::default());
+    let port = free_port();
+    let _broker = Broker::start(&scratch, port);
+    let mut host = Host::start(port, "rods");
+    let config = scratch.join("rod.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "name = \"rod sparkplug\"\n\
+             [[sources.modbus]]\nname = \"process_plc\"\naddress = \"{process_address}\"\n\
+             poll_period_ms = 20\ntimeout_ms = 200\n\
+             [[channels]]\nname = \"rsm_configuration\"\nkind = \"process_value\"\nunit = \"1\"\n\
+             source = {{ modbus = \"process_plc\", table = \"holding\", address = 0 }}\n\
+             [[channels]]\nname = \"rsm_pass\"\nkind = \"process_value\"\nunit = \"1\"\n\
+             source = {{ modbus = \"process_plc\", table = \"holding\", address = 1 }}\n\
+             [[channels]]\nname = \"rsm_speed\"\nkind = \"process_value\"\nunit = \"m/s\"\n\
+             source = {{ modbus = \"process_plc\", table = \"holding\", address = 2, type = \"f32\" }}\n\
+             [[rod_mills]]\nname = \"RSM\"\nmill = \"{mill}\"\nschedule = \"{schedule}\"\n\
+             configuration = \"rsm_configuration\"\nconfigurations = [\"table3\", \"fast\"]\n\
+             pass = \"rsm_pass\"\nfinishing_speed = \"rsm_speed\"\n\
+             [outputs.mqtt]\nbroker = \"127.0.0.1:{port}\"\ngroup_id = \"rods\"\n\
+             node_id = \"block\"\ndata_period_ms = 100\n\
+             [history]\npath = \"history.db\"\n",
+            mill = models.join("rsm-mill.toml").display(),
+            schedule = models.join("rsm-schedule.csv").display(),
+        ),
+    )
+    .unwrap();
+    let log = std::fs::File::create(scratch.join("run.log")).unwrap();
+    let mut service = Command::new(env!("CARGO_BIN_EXE_millgate"))
+        .args(["run", "--config"])
+        .arg(&config)
+        .env("RUST_LOG", "info")
+        .stdout(Stdio::null())
+        .stderr(log)
+        .spawn()
+        .unwrap();
+
+    let limit = Duration::from_secs(30);
+    let dbirth = host.next_of("DBIRTH", limit);
+    assert_eq!(dbirth["topic"], "spBv1.0/rods/DBIRTH/block/RSM");
+    let mut names: HashMap<u64, String> = HashMap::new();
+    let mut values: HashMap<String, Value> = HashMap::new();
+    for m in dbirth["metrics"].as_array().unwrap() {
+        let name = m["name"].as_str().unwrap().to_owned();
+        names.insert(m["alias"].as_u64().unwrap(), name.clone());
+        values.insert(name, m["value"].clone());
+    }
+    let spans = names
+        .values()
+        .filter(|n| n.ends_with("/speed_margin"))
+        .count();
+    assert_eq!(spans, mill.spans.len(), "one span<i>/ set per span");
+    assert!(names
+        .values()
+        .any(|n| n == &format!("span{spans}/worst_exponent")));
+    assert_eq!(
+        metric(&dbirth, "worst_margin")["properties"]["engUnit"],
+        "m/s"
+    );
+    // Until the mill is evaluated at the speed (the DBIRTH may predate it).
+    let start = Instant::now();
+    while values["valid"] != Value::Bool(true) || values["finishing_speed"].as_f64() != Some(speed)
+    {
+        let left = limit.saturating_sub(start.elapsed());
+        let data = host.next_of("DDATA", left.max(Duration::from_millis(1)));
+        for m in data["metrics"].as_array().unwrap() {
+            let name = &names[&m["alias"].as_u64().unwrap()];
+            values.insert(name.clone(), m["value"].clone());
+        }
+    }
+    let mut worst: Option<(usize, f64)> = None;
+    for (index, status) in expected.iter().enumerate() {
+        let value = |field: &str| values[&format!("span{}/{field}", index + 1)].clone();
+        assert_eq!(value("valid"), Value::Bool(true), "span {}", index + 1);
+        assert_eq!(
+            value("unstable"),
+            Value::Bool(!status.stable),
+            "span {}: {status:?}",
+            index + 1
+        );
+        match status.speed_margin_m_s {
+            Some(margin) => {
+                let published = value("speed_margin").as_f64().unwrap();
+                assert!((published - margin).abs() < 1e-9, "{published} vs {margin}");
+                if worst.is_none_or(|(_, w)| margin < w) {
+                    worst = Some((index, margin));
+                }
+            }
+            None => assert!(value("speed_margin").is_null()),
+        }
+    }
+    let (worst_span, worst_margin) = worst.expect("a span with a margin");
+    assert_eq!(values["worst_span"].as_u64(), Some(worst_span as u64 + 1));
+    assert_eq!(values["worst_margin"].as_f64(), Some(worst_margin));
+    assert!(worst_margin < 0.0, "span 2 is in its band at {speed} m/s");
+    assert_eq!(values["unstable"], Value::Bool(true));
+    terminate(&mut service);
+    process_running.stop().await.unwrap();
+    let _ = std::fs::remove_dir_all(&scratch);
+}
