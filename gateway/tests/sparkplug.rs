@@ -710,7 +710,7 @@ async fn a_rod_mill_is_a_device_with_its_spans_and_worst_margin() {
     let models = common::repo().join("sim/models/rod");
     // Pass P1 (table3) at 51.5 m/s: inside span 2's band (50.8-52.3 m/s).
     let speed = 51.5;
-    let mill = RodMill::load(models.join("rsm-mill.toml")).unwrap();
+    let mill = std::sync::Arc::new(RodMill::load(models.join("rsm-mill.toml")).unwrap());
     let passes = schedule::load(models.join("rsm-schedule.csv")).unwrap();
     let expected = PassSetup::new(&mill, &passes[0])
         .unwrap()
