@@ -9,6 +9,7 @@ mod parse;
 mod raw;
 pub mod signal;
 mod summary;
+mod tls;
 mod types;
 mod validate;
 
@@ -16,6 +17,7 @@ use std::path::Path;
 
 pub use error::{ConfigError, Problem};
 pub use summary::summary;
+pub use tls::{TlsFileError, TlsMaterial};
 pub use types::*;
 
 use error::Report;

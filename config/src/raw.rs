@@ -201,6 +201,17 @@ pub(crate) struct RawMqttOutput {
     pub password: Option<String>,
     pub replay_batch: Option<i64>,
     pub replay_period_ms: Option<i64>,
+    pub password_file: Option<String>,
+    pub tls: Option<RawMqttTls>,
+}
+
+/// `[outputs.mqtt.tls]`: TLS to the broker.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawMqttTls {
+    pub ca_file: String,
+    pub cert_file: Option<String>,
+    pub key_file: Option<String>,
 }
 
 /// `[history]`: the event history file.

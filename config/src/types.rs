@@ -518,7 +518,8 @@ pub struct MqttOutput {
     /// (`spBv1.0/STATE/<id>`) says online; offline ends the session. Same rules as
     /// `group_id`.
     pub primary_host_id: Option<String>,
-    /// User name and password for the broker, both or neither.
+    /// User name and password for the broker, both or neither; the password from
+    /// `password` or read from `password_file` at load (one trailing newline dropped).
     pub credentials: Option<(String, String)>,
     /// Store-and-forward: bites replayed from the history per `replay_period`,
     /// 1..=100000 (default 100).
@@ -526,6 +527,22 @@ pub struct MqttOutput {
     /// Store-and-forward: the period of one replay batch, 1..=60000 ms (default
     /// 100 ms); the defaults replay 1000 bites/s.
     pub replay_period: Duration,
+    /// TLS to the broker (`[outputs.mqtt.tls]`); plain MQTT without it.
+    pub tls: Option<MqttTls>,
+}
+
+/// `[outputs.mqtt.tls]`: the broker's certificate is checked against `ca_file`; with
+/// `cert_file` and `key_file` the gateway also authenticates with a client
+/// certificate. The files exist at load; their PEM content is read when the edge node
+/// starts (errors name the key and the file).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MqttTls {
+    /// PEM file of the certificate authorities trusted for the broker, relative to the
+    /// configuration file.
+    pub ca_file: PathBuf,
+    /// Client certificate (PEM chain) and its private key (PEM: PKCS#8, PKCS#1 or
+    /// SEC1), both or neither.
+    pub client: Option<(PathBuf, PathBuf)>,
 }
 
 /// The PLC written by the gateway.

@@ -1298,7 +1298,7 @@ fn mqtt_output_keys_defaults_and_errors() {
             "mill.toml: outputs.mqtt.client_id: \"\" is not allowed (must be 1..=64 characters)",
             "mill.toml: outputs.mqtt.keep_alive_s: 2 is not allowed (must be 5..=3600 s)",
             "mill.toml: outputs.mqtt.command_qos: 2 is not allowed (must be 0..=1)",
-            "mill.toml: outputs.mqtt.password: missing: username and password are given together",
+            "mill.toml: outputs.mqtt.password: missing: username needs password or password_file",
         ]
     );
     assert_problem_like(
@@ -1306,6 +1306,134 @@ fn mqtt_output_keys_defaults_and_errors() {
         "mill.toml: outputs.mqtt.qos: unknown field `qos`",
         &["command_qos"],
     );
+}
+
+#[test]
+fn mqtt_credentials_and_tls_files() {
+    let scratch = std::env::temp_dir().join(format!("millgate-mqtt-tls-{}", std::process::id()));
+    std::fs::create_dir_all(&scratch).unwrap();
+    let file = |name: &str, text: &str| {
+        let path = scratch.join(name);
+        std::fs::write(&path, text).unwrap();
+        path.display().to_string()
+    };
+    // The PEM framing is checked here; the DER inside is rustls' to judge (the
+    // gateway's TLS setup).
+    let cert = file(
+        "cert.pem",
+        "-----BEGIN CERTIFICATE-----\nMAMCAQA=\n-----END CERTIFICATE-----\n",
+    );
+    let key = file(
+        "key.pem",
+        "-----BEGIN PRIVATE KEY-----\nMAMCAQA=\n-----END PRIVATE KEY-----\n",
+    );
+    let secret = file("secret", "s3cret\n");
+    let empty = file("empty", "");
+    let text = file("text.pem", "not a certificate\n");
+    let missing = scratch.join("missing.pem").display().to_string();
+    let history = format!(
+        "\n[history]\npath = \"{}\"\n",
+        std::env::temp_dir().join("h.db").display()
+    );
+    let with = |mqtt: &str| {
+        format!(
+            "{BASE}\n[outputs.mqtt]\nbroker = \"127.0.0.1:8883\"\ngroup_id = \"plant\"\n\
+             node_id = \"f1\"\n{mqtt}\n{history}"
+        )
+    };
+
+    let config = parse(&with(&format!(
+        "username = \"gw\"\npassword_file = \"{secret}\"\n[outputs.mqtt.tls]\n\
+         ca_file = \"{cert}\"\ncert_file = \"{cert}\"\nkey_file = \"{key}\""
+    )))
+    .unwrap_or_else(|error| panic!("{error}"));
+    let mqtt = config.outputs.mqtt.unwrap();
+    assert_eq!(
+        mqtt.credentials,
+        Some(("gw".to_owned(), "s3cret".to_owned())),
+        "the file's text without its newline"
+    );
+    let tls = mqtt.tls.unwrap();
+    assert_eq!(tls.ca_file.display().to_string(), cert);
+    let material = tls.read().unwrap();
+    assert_eq!((material.ca.len(), material.client.is_some()), (1, true));
+    let ca_only = parse(&with(&format!("[outputs.mqtt.tls]\nca_file = \"{cert}\"")))
+        .unwrap()
+        .outputs
+        .mqtt
+        .unwrap();
+    assert_eq!(ca_only.tls.unwrap().client, None);
+    assert_eq!(ca_only.credentials, None);
+
+    assert_eq!(
+        problems(&with(&format!(
+            "username = \"gw\"\npassword = \"x\"\npassword_file = \"{secret}\""
+        ))),
+        ["mill.toml: outputs.mqtt.password_file: not allowed together with password (give one of them)"]
+    );
+    assert_eq!(
+        problems(&with(&format!(
+            "username = \"gw\"\npassword_file = \"{empty}\""
+        ))),
+        [format!(
+            "mill.toml: outputs.mqtt.password_file: \"{empty}\" is empty ({empty})"
+        )]
+    );
+    let unreadable = problems(&with(&format!(
+        "username = \"gw\"\npassword_file = \"{missing}\""
+    )));
+    assert!(
+        unreadable.len() == 1
+            && unreadable[0].starts_with(&format!(
+                "mill.toml: outputs.mqtt.password_file: cannot read \"{missing}\" ({missing}: "
+            )),
+        "{unreadable:?}"
+    );
+    assert_eq!(
+        problems(&with("password = \"x\"")),
+        ["mill.toml: outputs.mqtt.username: missing: a password needs a username"]
+    );
+    assert_eq!(
+        problems(&with(&format!(
+            "[outputs.mqtt.tls]\nca_file = \"{cert}\"\nkey_file = \"{key}\""
+        ))),
+        ["mill.toml: outputs.mqtt.tls.cert_file: missing: a private key (key_file) needs its client certificate"]
+    );
+    assert_eq!(
+        problems(&with(&format!(
+            "[outputs.mqtt.tls]\nca_file = \"{cert}\"\ncert_file = \"{cert}\""
+        ))),
+        ["mill.toml: outputs.mqtt.tls.key_file: missing: a client certificate (cert_file) needs its private key"]
+    );
+    assert_eq!(
+        problems(&with(&format!("[outputs.mqtt.tls]\nca_file = \"{missing}\""))),
+        [format!(
+            "mill.toml: outputs.mqtt.tls.ca_file: file \"{missing}\" not found (looked for {missing}; \
+             paths are relative to the configuration file)"
+        )]
+    );
+    assert_eq!(
+        problems(&with(&format!("[outputs.mqtt.tls]\nca_file = \"{text}\""))),
+        [format!(
+            "mill.toml: outputs.mqtt.tls.ca_file: {text}: no certificate in the file (must be PEM \
+             with -----BEGIN CERTIFICATE-----)"
+        )]
+    );
+    assert_eq!(
+        problems(&with(&format!(
+            "[outputs.mqtt.tls]\nca_file = \"{cert}\"\ncert_file = \"{cert}\"\nkey_file = \"{cert}\""
+        ))),
+        [format!(
+            "mill.toml: outputs.mqtt.tls.key_file: {cert}: no private key in the file (must be \
+             PEM: -----BEGIN PRIVATE KEY-----, RSA PRIVATE KEY or EC PRIVATE KEY)"
+        )]
+    );
+    assert_problem_like(
+        &with(&format!("[outputs.mqtt.tls]\nca = \"{cert}\"")),
+        "mill.toml: outputs.mqtt.tls.ca: unknown field `ca`",
+        &["ca_file"],
+    );
+    let _ = std::fs::remove_dir_all(&scratch);
 }
 
 #[test]

@@ -91,6 +91,9 @@ pub enum ServiceError {
         /// What ended it.
         reason: String,
     },
+    /// The Sparkplug B edge node's TLS files cannot be used.
+    #[error("the Sparkplug B edge node cannot start: {0}")]
+    SparkplugTls(#[from] crate::outputs::sparkplug::tls::TlsSetupError),
     /// The service's task panicked or was cancelled.
     #[error("the service task failed: {0}")]
     Task(#[from] tokio::task::JoinError),
@@ -398,6 +401,12 @@ impl Service {
             mut analysis,
             ..
         } = self;
+        let rod_mills: Vec<(String, usize)> = config
+            .rod_mills
+            .iter()
+            .map(|mill| mill.name.clone())
+            .zip(analysis.rod_mill_spans())
+            .collect();
         // Readers stop on their own signal, after the final source statuses are kept.
         let (readers_stop, readers_shutdown) = shutdown::channel();
         let (samples_tx, samples_rx) = mpsc::channel(SAMPLE_QUEUE);
@@ -481,7 +490,8 @@ impl Service {
             (Some(mqtt), Some(history)) => {
                 tracing::info!(broker = %mqtt.broker, group = %mqtt.group_id, node = %mqtt.node_id, "starting the Sparkplug B edge node");
                 let node =
-                    SparkplugNode::new(mqtt.clone(), history.path.clone(), Arc::clone(&publisher));
+                    SparkplugNode::new(mqtt.clone(), history.path.clone(), Arc::clone(&publisher))?
+                        .with_rod_mills(rod_mills);
                 let status = node.status();
                 let shutdown = outputs_shutdown.clone();
                 outputs.spawn(async move {

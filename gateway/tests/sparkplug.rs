@@ -18,7 +18,7 @@ mod common;
 
 use std::collections::{HashMap, HashSet};
 use std::io::{BufRead, BufReader, Write};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdin, Command, Stdio};
 use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::time::{Duration, Instant};
@@ -37,10 +37,16 @@ struct Host {
 
 impl Host {
     fn start(port: u16, group: &str) -> Self {
+        Self::with_options(port, group, &[])
+    }
+
+    /// The host with more `options` of sparkplug_host.py (TLS, user name).
+    fn with_options(port: u16, group: &str, options: &[&str]) -> Self {
         let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/sparkplug_host.py");
         let mut child = Command::new("python3")
             .arg(script)
             .args(["127.0.0.1", &port.to_string(), group])
+            .args(options)
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .spawn()
@@ -610,5 +616,369 @@ async fn a_backlog_is_replayed_historical_in_order_at_the_configured_pace() {
     .await;
     stop.trigger();
     task.await.unwrap();
+}
+
+/// PEM files made for the TLS test in `folder`: a CA (`ca.pem`), the broker's
+/// certificate for 127.0.0.1 and the gateway's client certificate, both signed by it
+/// (`server.pem`/`server.key`, `client.pem`/`client.key`), and a second CA that signed
+/// nothing here (`other-ca.pem`).
+fn certificates(folder: &Path) {
+    use rcgen::{BasicConstraints, CertificateParams, CertifiedIssuer, DnType, IsCa, KeyPair};
+    let authority = |name: &str| {
+        let mut params = CertificateParams::new(Vec::<String>::new()).unwrap();
+        params.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
+        params.distinguished_name.push(DnType::CommonName, name);
+        CertifiedIssuer::self_signed(params, KeyPair::generate().unwrap()).unwrap()
+    };
+    let write = |name: &str, text: String| std::fs::write(folder.join(name), text).unwrap();
+    let ca = authority("millgate test CA");
+    write("ca.pem", ca.pem());
+    write("other-ca.pem", authority("another CA").pem());
+    for (name, subject) in [("server", "127.0.0.1"), ("client", "gateway f1")] {
+        let key = KeyPair::generate().unwrap();
+        let mut params = CertificateParams::new(vec![subject.to_owned()]).unwrap();
+        params.distinguished_name.push(DnType::CommonName, subject);
+        let certificate = params.signed_by(&key, &ca).unwrap();
+        write(&format!("{name}.pem"), certificate.pem());
+        write(&format!("{name}.key"), key.serialize_pem());
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn over_tls_with_a_password_and_a_client_certificate_and_clear_errors_when_refused() {
+    let setup = Setup::new("sparkplug-tls", "db").await;
+    let folder = &setup.scratch;
+    certificates(folder);
+    let passwords = folder.join("passwords");
+    let made = Command::new("mosquitto_passwd")
+        .args(["-b", "-c"])
+        .arg(&passwords)
+        .args(["gw", "s3cret"])
+        .status()
+        .expect("mosquitto_passwd (Debian's mosquitto)");
+    assert!(made.success());
+    std::fs::write(folder.join("secret"), "s3cret\n").unwrap();
+    std::fs::write(folder.join("wrong-secret"), "guess\n").unwrap();
+    // Two TLS listeners: one that requires a client certificate, one that does not;
+    // both with passwords.
+    let (with_certificate, without) = (free_port(), free_port());
+    let tls = |port: u16, require: bool| {
+        format!(
+            "listener {port} 127.0.0.1\ncafile {ca}\ncertfile {cert}\nkeyfile {key}\n\
+             require_certificate {require}\nallow_anonymous false\npassword_file {passwords}\n",
+            ca = folder.join("ca.pem").display(),
+            cert = folder.join("server.pem").display(),
+            key = folder.join("server.key").display(),
+            passwords = passwords.display(),
+        )
+    };
+    let _broker = Broker::with_listeners(
+        folder,
+        with_certificate,
+        &format!(
+            "per_listener_settings true\n{}{}",
+            tls(with_certificate, true),
+            tls(without, false)
+        ),
+    );
+    let file = |name: &str| folder.join(name).display().to_string();
+    let mut host = Host::with_options(
+        with_certificate,
+        "plant",
+        &[
+            "--ca",
+            &file("ca.pem"),
+            "--cert",
+            &file("client.pem"),
+            "--key",
+            &file("client.key"),
+            "--username",
+            "gw",
+            "--password",
+            "s3cret",
+        ],
+    );
+    let base = std::fs::read_to_string(&setup.config).unwrap();
+    let configure = |node: &str, port: u16, secret: &str, tls: &str| {
+        std::fs::write(
+            &setup.config,
+            format!(
+                "{base}\n[outputs.mqtt]\nbroker = \"127.0.0.1:{port}\"\ngroup_id = \"plant\"\n\
+                 node_id = \"{node}\"\nusername = \"gw\"\npassword_file = \"{}\"\n\
+                 [outputs.mqtt.tls]\n{tls}\n",
+                file(secret)
+            ),
+        )
+        .unwrap();
+    };
+
+    // Client certificate and password: born over TLS, the host decodes a bite.
+    configure(
+        "f1",
+        with_certificate,
+        "secret",
+        &format!(
+            "ca_file = \"{}\"\ncert_file = \"{}\"\nkey_file = \"{}\"",
+            file("ca.pem"),
+            file("client.pem"),
+            file("client.key")
+        ),
+    );
+    let mut service = setup.spawn("tls.log");
+    let limit = Duration::from_secs(30);
+    let nbirth = host.next_of("NBIRTH", limit);
+    assert_eq!(nbirth["topic"], "spBv1.0/plant/NBIRTH/f1");
+    let dbirth = host.next_of("DBIRTH", limit);
+    let bite_alias = metric(&dbirth, "bite_id")["alias"].as_u64().unwrap();
+    loop {
+        let data = host.next_of("DDATA", limit);
+        if data["metrics"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|m| m["alias"] == bite_alias)
+        {
+            break;
+        }
+    }
+    assert_eq!(
+        setup.metric("millgate_sparkplug_connected").await,
+        Some(1.0)
+    );
+    terminate(&mut service);
+    let death = host.next_of("NDEATH", limit);
+    assert_eq!(
+        metric(&death, "bdSeq")["value"],
+        metric(&nbirth, "bdSeq")["value"]
+    );
+
+    // A CA that did not sign the broker's certificate: a TLS error in the log and on
+    // /metrics, retried, and the service goes on (the PLC gets its bites).
+    let failures =
+        |reason: &str| format!("millgate_sparkplug_connect_failures_total{{reason=\"{reason}\"}}");
+    configure(
+        "f1-wrong-ca",
+        without,
+        "secret",
+        &format!("ca_file = \"{}\"", file("other-ca.pem")),
+    );
+    let mut service = setup.spawn("wrong-ca.log");
+    let logged = |log: &str, text: &str| {
+        std::fs::read_to_string(setup.log(log))
+            .unwrap()
+            .contains(text)
+    };
+    common::until("the TLS failure in the log", limit, || {
+        logged("wrong-ca.log", "Sparkplug broker connection failed")
+    })
+    .await;
+    let start = Instant::now();
+    while setup.metric(&failures("tls")).await.unwrap_or(0.0) < 2.0 {
+        assert!(
+            start.elapsed() < limit,
+            "no retried TLS failure on /metrics"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    setup.plc().bites_after_now(1).await;
+    assert!(service.try_wait().unwrap().is_none(), "the service runs");
+    assert_eq!(
+        setup.metric("millgate_sparkplug_connected").await,
+        Some(0.0)
+    );
+    let log = std::fs::read_to_string(setup.log("wrong-ca.log")).unwrap();
+    assert!(
+        log.contains("Sparkplug broker connection failed")
+            && log.contains("invalid peer certificate")
+            && log.contains("check outputs.mqtt.tls"),
+        "{log}"
+    );
+    terminate(&mut service);
+
+    // A wrong password: "not authorised", on /metrics too.
+    configure(
+        "f1-bad-password",
+        without,
+        "wrong-secret",
+        &format!("ca_file = \"{}\"", file("ca.pem")),
+    );
+    let mut service = setup.spawn("password.log");
+    common::until("the refusal in the log", limit, || {
+        logged("password.log", "Sparkplug broker connection failed")
+    })
+    .await;
+    let start = Instant::now();
+    while setup
+        .metric(&failures("not_authorised"))
+        .await
+        .unwrap_or(0.0)
+        < 1.0
+    {
+        assert!(
+            start.elapsed() < limit,
+            "no not_authorised failure on /metrics"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    assert_eq!(setup.metric(&failures("tls")).await, Some(0.0));
+    let log = std::fs::read_to_string(setup.log("password.log")).unwrap();
+    assert!(
+        log.contains("not authorised: check outputs.mqtt.username"),
+        "{log}"
+    );
+    terminate(&mut service);
+    // Neither refused node was ever born.
+    while let Ok(message) = host.lines.try_recv() {
+        host.seen.push(message);
+    }
+    assert!(
+        host.seen
+            .iter()
+            .all(|m| m["node"] == "f1" || m["node"].is_null()),
+        "only f1 was born"
+    );
+    setup.stop(service).await;
+}
+
+/// The rod mill example's block (`sim/models/rod`) as a device: a virtual process
+/// PLC holds the drive configuration, the pass and the finishing speed; the DBIRTH has
+/// one `span<i>/` set per span of the mill file; the values match what the simulator's
+/// library gives for the pass at that speed (`PassSetup::status`), and the worst
+/// margin and span are the smallest margin and its span.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_rod_mill_is_a_device_with_its_spans_and_worst_margin() {
+    use millgate_config::layout::encode_value;
+    use millgate_config::{ValueType, WordOrder};
+    use millgate_sim::devices::modbus_bank::ServeOptions;
+    use millgate_sim::devices::virtual_plc::VirtualPlc;
+    use millgate_sim::rod::check::PassSetup;
+    use millgate_sim::rod::mill::RodMill;
+    use millgate_sim::rod::schedule;
+
+    let scratch =
+        std::env::temp_dir().join(format!("millgate-sparkplug-rod-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&scratch);
+    std::fs::create_dir_all(&scratch).unwrap();
+    let models = common::repo().join("sim/models/rod");
+    // Pass P1 (table3) at 51.5 m/s: inside span 2's band (50.8-52.3 m/s).
+    let speed = 51.5;
+    let mill = std::sync::Arc::new(RodMill::load(models.join("rsm-mill.toml")).unwrap());
+    let passes = schedule::load(models.join("rsm-schedule.csv")).unwrap();
+    let expected = PassSetup::new(&mill, &passes[0])
+        .unwrap()
+        .status(speed)
+        .unwrap();
+    assert_eq!(expected.len(), mill.spans.len());
+
+    let process = VirtualPlc::new(16);
+    {
+        let bank = process.bank();
+        let mut bank = bank.lock();
+        bank.holding[0] = 0;
+        bank.holding[1] = 1;
+        let (words, _) = encode_value(speed, ValueType::F32, WordOrder::Abcd);
+        bank.holding[2..4].copy_from_slice(&words);
+    }
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let process_address = listener.local_addr().unwrap();
+    let process_running = process.spawn(listener, ServeOptions::default());
+    let port = free_port();
+    let _broker = Broker::start(&scratch, port);
+    let mut host = Host::start(port, "rods");
+    let config = scratch.join("rod.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "name = \"rod sparkplug\"\n\
+             [[sources.modbus]]\nname = \"process_plc\"\naddress = \"{process_address}\"\n\
+             poll_period_ms = 20\ntimeout_ms = 200\n\
+             [[channels]]\nname = \"rsm_configuration\"\nkind = \"process_value\"\nunit = \"1\"\n\
+             source = {{ modbus = \"process_plc\", table = \"holding\", address = 0 }}\n\
+             [[channels]]\nname = \"rsm_pass\"\nkind = \"process_value\"\nunit = \"1\"\n\
+             source = {{ modbus = \"process_plc\", table = \"holding\", address = 1 }}\n\
+             [[channels]]\nname = \"rsm_speed\"\nkind = \"process_value\"\nunit = \"m/s\"\n\
+             source = {{ modbus = \"process_plc\", table = \"holding\", address = 2, type = \"f32\" }}\n\
+             [[rod_mills]]\nname = \"RSM\"\nmill = \"{mill}\"\nschedule = \"{schedule}\"\n\
+             configuration = \"rsm_configuration\"\nconfigurations = [\"table3\", \"fast\"]\n\
+             pass = \"rsm_pass\"\nfinishing_speed = \"rsm_speed\"\n\
+             [outputs.mqtt]\nbroker = \"127.0.0.1:{port}\"\ngroup_id = \"rods\"\n\
+             node_id = \"block\"\ndata_period_ms = 100\n\
+             [history]\npath = \"history.db\"\n",
+            mill = models.join("rsm-mill.toml").display(),
+            schedule = models.join("rsm-schedule.csv").display(),
+        ),
+    )
+    .unwrap();
+    let log = std::fs::File::create(scratch.join("run.log")).unwrap();
+    let mut service = Command::new(env!("CARGO_BIN_EXE_millgate"))
+        .args(["run", "--config"])
+        .arg(&config)
+        .env("RUST_LOG", "info")
+        .stdout(Stdio::null())
+        .stderr(log)
+        .spawn()
+        .unwrap();
+
+    let limit = Duration::from_secs(30);
+    let dbirth = host.next_of("DBIRTH", limit);
+    assert_eq!(dbirth["topic"], "spBv1.0/rods/DBIRTH/block/RSM");
+    let mut names: HashMap<u64, String> = HashMap::new();
+    let mut values: HashMap<String, Value> = HashMap::new();
+    for m in dbirth["metrics"].as_array().unwrap() {
+        let name = m["name"].as_str().unwrap().to_owned();
+        names.insert(m["alias"].as_u64().unwrap(), name.clone());
+        values.insert(name, m["value"].clone());
+    }
+    let spans = names
+        .values()
+        .filter(|n| n.ends_with("/speed_margin"))
+        .count();
+    assert_eq!(spans, mill.spans.len(), "one span<i>/ set per span");
+    assert!(names
+        .values()
+        .any(|n| n == &format!("span{spans}/worst_exponent")));
+    assert_eq!(
+        metric(&dbirth, "worst_margin")["properties"]["engUnit"],
+        "m/s"
+    );
+    // Until the mill is evaluated at the speed (the DBIRTH may predate it).
+    let start = Instant::now();
+    while values["valid"] != Value::Bool(true) || values["finishing_speed"].as_f64() != Some(speed)
+    {
+        let left = limit.saturating_sub(start.elapsed());
+        let data = host.next_of("DDATA", left.max(Duration::from_millis(1)));
+        for m in data["metrics"].as_array().unwrap() {
+            let name = &names[&m["alias"].as_u64().unwrap()];
+            values.insert(name.clone(), m["value"].clone());
+        }
+    }
+    let mut worst: Option<(usize, f64)> = None;
+    for (index, status) in expected.iter().enumerate() {
+        let value = |field: &str| values[&format!("span{}/{field}", index + 1)].clone();
+        assert_eq!(value("valid"), Value::Bool(true), "span {}", index + 1);
+        assert_eq!(
+            value("unstable"),
+            Value::Bool(!status.stable),
+            "span {}: {status:?}",
+            index + 1
+        );
+        match status.speed_margin_m_s {
+            Some(margin) => {
+                let published = value("speed_margin").as_f64().unwrap();
+                assert!((published - margin).abs() < 1e-9, "{published} vs {margin}");
+                if worst.is_none_or(|(_, w)| margin < w) {
+                    worst = Some((index, margin));
+                }
+            }
+            None => assert!(value("speed_margin").is_null()),
+        }
+    }
+    let (worst_span, worst_margin) = worst.expect("a span with a margin");
+    assert_eq!(values["worst_span"].as_u64(), Some(worst_span as u64 + 1));
+    assert_eq!(values["worst_margin"].as_f64(), Some(worst_margin));
+    assert!(worst_margin < 0.0, "span 2 is in its band at {speed} m/s");
+    assert_eq!(values["unstable"], Value::Bool(true));
+    terminate(&mut service);
+    process_running.stop().await.unwrap();
     let _ = std::fs::remove_dir_all(&scratch);
 }

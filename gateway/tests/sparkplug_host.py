@@ -5,9 +5,14 @@ spBv1.0/<group>/#; reads commands from stdin: "rebirth <node>" publishes an NCMD
 with Node Control/Rebirth = true; "state <host_id> online|offline" publishes the
 primary host's retained STATE (Sparkplug 3.0 JSON).
 
-    python3 sparkplug_host.py HOST PORT GROUP
+    python3 sparkplug_host.py HOST PORT GROUP [--ca FILE [--cert FILE --key FILE]]
+        [--username U --password P]
+
+With --ca the host connects over TLS (the broker checked against FILE; --cert and
+--key for a broker that requires a client certificate).
 """
 
+import argparse
 import json
 import sys
 import threading
@@ -19,7 +24,17 @@ from pysparkplug._protobuf import sparkplug_b_pb2
 Payload = sparkplug_b_pb2.Payload
 BOOLEAN = 11
 
-host, port, group = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+arguments = argparse.ArgumentParser()
+arguments.add_argument("host")
+arguments.add_argument("port", type=int)
+arguments.add_argument("group")
+arguments.add_argument("--ca")
+arguments.add_argument("--cert")
+arguments.add_argument("--key")
+arguments.add_argument("--username")
+arguments.add_argument("--password")
+options = arguments.parse_args()
+host, port, group = options.host, options.port, options.group
 lock = threading.Lock()
 
 
@@ -75,6 +90,10 @@ client = mqtt.Client(client_id="test-host")
 client.on_connect = on_connect
 client.on_subscribe = on_subscribe
 client.on_message = on_message
+if options.ca:
+    client.tls_set(ca_certs=options.ca, certfile=options.cert, keyfile=options.key)
+if options.username:
+    client.username_pw_set(options.username, options.password)
 client.connect(host, port, keepalive=30)
 client.loop_start()
 

@@ -5,8 +5,8 @@ use std::net::SocketAddr;
 use std::ops::RangeInclusive;
 use std::time::Duration;
 
-use crate::raw::{RawMqttOutput, RawOutputs, RawWebOutput};
-use crate::{MetricsOutput, MqttOutput, Outputs, PlcOutput, ServerOutput, WebOutput};
+use crate::raw::{RawMqttOutput, RawMqttTls, RawOutputs, RawWebOutput};
+use crate::{MetricsOutput, MqttOutput, MqttTls, Outputs, PlcOutput, ServerOutput, WebOutput};
 
 use super::{
     optional, Checker, DEFAULT_IDLE_TIMEOUT_MS, DEFAULT_MAX_CONNECTIONS, DEFAULT_METRICS_BIND,
@@ -222,23 +222,10 @@ impl Checker<'_> {
                 .map(Some),
             None => Some(None),
         };
-        let credentials = match (&raw.username, &raw.password) {
-            (Some(user), Some(password)) => Some(Some((user.clone(), password.clone()))),
-            (None, None) => Some(None),
-            (Some(_), None) => {
-                self.report.push(
-                    format!("{key}.password"),
-                    "missing: username and password are given together",
-                );
-                None
-            }
-            (None, Some(_)) => {
-                self.report.push(
-                    format!("{key}.username"),
-                    "missing: username and password are given together",
-                );
-                None
-            }
+        let credentials = self.mqtt_credentials(raw);
+        let tls = match &raw.tls {
+            Some(tls) => self.mqtt_tls(tls).map(Some),
+            None => Some(None),
         };
         if !history {
             self.report.push(
@@ -269,7 +256,115 @@ impl Checker<'_> {
             credentials: credentials?,
             replay_batch: u32::try_from(replay_batch?).ok()?,
             replay_period: replay_period?,
+            tls: tls?,
         })
+    }
+
+    /// `username` with `password` or `password_file` (read now; one trailing newline
+    /// is dropped), or none of them.
+    fn mqtt_credentials(&mut self, raw: &RawMqttOutput) -> Option<Option<(String, String)>> {
+        let key = "outputs.mqtt";
+        let password = match (&raw.password, &raw.password_file) {
+            (Some(_), Some(_)) => {
+                self.report.push(
+                    format!("{key}.password_file"),
+                    "not allowed together with password (give one of them)",
+                );
+                return None;
+            }
+            (Some(password), None) => Some(password.clone()),
+            (None, Some(file)) => Some(self.password_file(&format!("{key}.password_file"), file)?),
+            (None, None) => None,
+        };
+        match (&raw.username, password) {
+            (Some(user), Some(password)) => Some(Some((user.clone(), password))),
+            (None, None) => Some(None),
+            (Some(_), None) => {
+                self.report.push(
+                    format!("{key}.password"),
+                    "missing: username needs password or password_file",
+                );
+                None
+            }
+            (None, Some(_)) => {
+                self.report.push(
+                    format!("{key}.username"),
+                    "missing: a password needs a username",
+                );
+                None
+            }
+        }
+    }
+
+    /// The password in the file `relative` (to the configuration file): its text
+    /// without one trailing newline; not empty.
+    fn password_file(&mut self, key: &str, relative: &str) -> Option<String> {
+        let path = self.base_dir.join(relative);
+        match std::fs::read_to_string(&path) {
+            Ok(text) => {
+                let password = text
+                    .strip_suffix('\n')
+                    .map_or(text.as_str(), |t| t.strip_suffix('\r').unwrap_or(t));
+                if password.is_empty() {
+                    self.report
+                        .push(key, format!("\"{relative}\" is empty ({})", path.display()));
+                    return None;
+                }
+                Some(password.to_owned())
+            }
+            Err(error) => {
+                self.report.push(
+                    key,
+                    format!(
+                        "cannot read \"{relative}\" ({}: {error}; paths are relative to the \
+                         configuration file)",
+                        path.display()
+                    ),
+                );
+                None
+            }
+        }
+    }
+
+    /// `[outputs.mqtt.tls]`: the files exist and hold PEM certificates and a key; a
+    /// client certificate needs its key and a key its certificate.
+    fn mqtt_tls(&mut self, raw: &RawMqttTls) -> Option<MqttTls> {
+        let key = "outputs.mqtt.tls";
+        let ca_file = self.existing_file(&format!("{key}.ca_file"), &raw.ca_file);
+        let client = match (&raw.cert_file, &raw.key_file) {
+            (Some(cert), Some(private)) => {
+                let cert = self.existing_file(&format!("{key}.cert_file"), cert);
+                let private = self.existing_file(&format!("{key}.key_file"), private);
+                Some(Some((cert?, private?)))
+            }
+            (None, None) => Some(None),
+            (Some(_), None) => {
+                self.report.push(
+                    format!("{key}.key_file"),
+                    "missing: a client certificate (cert_file) needs its private key",
+                );
+                None
+            }
+            (None, Some(_)) => {
+                self.report.push(
+                    format!("{key}.cert_file"),
+                    "missing: a private key (key_file) needs its client certificate",
+                );
+                None
+            }
+        };
+        let tls = MqttTls {
+            ca_file: ca_file?,
+            client: client?,
+        };
+        if let Err(error) = tls.read() {
+            self.report.push(
+                format!("{key}.{}", error.key),
+                format!("{}: {}", error.path.display(), error.why),
+            );
+            return None;
+        }
+        Some(tls)
     }
 
     /// A Sparkplug group, node or device id: non-empty, none of `/ + #`.

@@ -93,6 +93,15 @@ impl Analysis {
         })
     }
 
+    /// Each rod mill's span count (from its mill file), in config order.
+    pub fn rod_mill_spans(&self) -> Vec<usize> {
+        self.rod_mills
+            .monitors()
+            .iter()
+            .map(|monitor| monitor.span_names().len())
+            .collect()
+    }
+
     /// Why drivelines that name a model run without wear diagnosis (a model that does
     /// not load, `wear` settings that do not fit it); each message names the key.
     pub fn wear_problems(&self) -> Vec<&AnalysisError> {

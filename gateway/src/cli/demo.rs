@@ -142,6 +142,7 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
             credentials: None,
             replay_batch: 100,
             replay_period: Duration::from_millis(100),
+            tls: None,
         });
         println!(
             "Sparkplug B: edge node {}/{} on mqtt://{broker} (topics spBv1.0/{}/#)",

@@ -27,7 +27,7 @@ pub const HEAD_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(5);
 /// Scrapes answered at once; Prometheus sends one at a time.
 pub const MAX_SCRAPES: usize = 16;
 use crate::outputs::results::{DrivelineResults, MillResults};
-use crate::outputs::sparkplug::{SparkplugCounts, SparkplugStatus};
+use crate::outputs::sparkplug::{ConnectFailure, SparkplugCounts, SparkplugStatus};
 use crate::shutdown::Shutdown;
 
 /// Reads one counter out of a snapshot.
@@ -132,6 +132,20 @@ fn sparkplug_metrics(out: &mut String, counts: &SparkplugCounts) {
         let _ = writeln!(out, "# TYPE {name} {kind}");
         let _ = writeln!(out, "{name} {value}");
     }
+    family(
+        out,
+        (
+            "millgate_sparkplug_connect_failures_total",
+            "counter",
+            "Failed connections to the MQTT broker and lost sessions, by reason \
+             (unreachable, tls, not_authorised, refused).",
+        ),
+        "reason",
+        ConnectFailure::ALL
+            .iter()
+            .zip(counts.failures)
+            .map(|(failure, count)| (failure.name(), Some(count as f64))),
+    );
 }
 
 /// The history's families: state, events stored and dropped, commits, retention,

@@ -765,14 +765,9 @@ fn rod_flag_bits(unstable: bool, near_tongue: bool) -> u16 {
     bit(unstable, rod_flags::UNSTABLE) | bit(near_tongue, rod_flags::NEAR_TONGUE)
 }
 
-/// Whether a rod mill's values may be published: evaluated, inputs accepted, fresh.
-fn rod_mill_valid(m: &RodMillResults) -> bool {
-    m.evaluations > 0 && !m.input_refused && !m.source_stale
-}
-
 fn rod_mill_value(m: &RodMillResults, field: RodMillField) -> Option<f64> {
     use RodMillField as R;
-    let valid = rod_mill_valid(m);
+    let valid = m.valid();
     let values = [
         m.configuration.map(f64::from),
         m.pass.map(f64::from),
@@ -799,7 +794,7 @@ fn rod_mill_value(m: &RodMillResults, field: RodMillField) -> Option<f64> {
 
 fn rod_span_value(m: &RodMillResults, span: usize, field: RodSpanField) -> Option<f64> {
     use RodSpanField as S;
-    let result = m.spans.get(span).filter(|s| s.valid && rod_mill_valid(m));
+    let result = m.spans.get(span).filter(|s| s.valid && m.valid());
     let values = result.map(|s| {
         [
             s.speed_margin_m_s,

@@ -13,6 +13,9 @@ pub struct DrivelineResults {
     pub degraded_bites: u32,
     /// Time of the last bite, Unix seconds.
     pub last_bite_unix_s: Option<u32>,
+    /// Time of the last bite's trigger, ms since the Unix epoch (the timestamp of
+    /// the bite's Sparkplug DDATA; not restored after a restart).
+    pub last_bite_unix_ms: Option<u64>,
     /// Static (settled) torque of the last bite, kN*m.
     pub static_torque_knm: Option<f64>,
     /// Peak torque of the last bite, kN*m.
@@ -146,6 +149,28 @@ pub struct RodMillResults {
     pub source_stale: bool,
     /// Per span, in rolling order (empty until the first evaluation).
     pub spans: Vec<RodSpanResults>,
+}
+
+impl RodMillResults {
+    /// Whether the values may be published: evaluated, inputs accepted, fresh.
+    pub fn valid(&self) -> bool {
+        self.evaluations > 0 && !self.input_refused && !self.source_stale
+    }
+
+    /// The span nearest to a band edge: the valid span with the smallest speed margin
+    /// (the most negative when unstable), `(index in rolling order, margin in m/s)`;
+    /// `None` while the mill is not [`Self::valid`] or no span has a margin.
+    pub fn worst_span(&self) -> Option<(usize, f64)> {
+        if !self.valid() {
+            return None;
+        }
+        self.spans
+            .iter()
+            .enumerate()
+            .filter(|(_, span)| span.valid)
+            .filter_map(|(index, span)| Some((index, span.speed_margin_m_s?)))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+    }
 }
 
 /// The gateway's own state as published in the status register.

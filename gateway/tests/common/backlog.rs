@@ -16,12 +16,18 @@ pub(crate) struct Broker(Child);
 
 impl Broker {
     pub(crate) fn start(folder: &Path, port: u16) -> Self {
-        let config = folder.join("mosquitto.conf");
-        std::fs::write(
-            &config,
-            format!("listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n"),
+        Self::with_listeners(
+            folder,
+            port,
+            &format!("listener {port} 127.0.0.1\nallow_anonymous true\n"),
         )
-        .unwrap();
+    }
+
+    /// mosquitto with the `listeners` configuration, no persistence; returns once
+    /// `port` accepts connections.
+    pub(crate) fn with_listeners(folder: &Path, port: u16, listeners: &str) -> Self {
+        let config = folder.join("mosquitto.conf");
+        std::fs::write(&config, format!("{listeners}\npersistence false\n")).unwrap();
         let binary = ["/usr/sbin/mosquitto", "mosquitto"]
             .into_iter()
             .find(|b| Path::new(b).exists())
@@ -108,7 +114,8 @@ pub(crate) fn start_node(
 ) {
     let publisher = Arc::new(Publisher::new(config, Vec::new()));
     let history = config.history.as_ref().unwrap().path.clone();
-    let node = SparkplugNode::new(config.outputs.mqtt.clone().unwrap(), history, publisher);
+    let node = SparkplugNode::new(config.outputs.mqtt.clone().unwrap(), history, publisher)
+        .unwrap_or_else(|error| panic!("{error}"));
     let status = node.status();
     let (trigger, shutdown) = millgate::shutdown::channel();
     (trigger, status, tokio::spawn(node.run(shutdown)))

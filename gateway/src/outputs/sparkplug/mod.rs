@@ -21,11 +21,13 @@
 //!   broker or the primary host was away, are replayed flagged historical after the
 //!   next births, paced ([`forward`]).
 //!
-//! Not yet (issue 19): TLS.
+//! - With `[outputs.mqtt.tls]` the session runs over TLS ([`tls`]); username and
+//!   password go in the CONNECT.
 
 pub mod forward;
 pub mod node;
 pub mod payload;
+pub mod tls;
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicI64, AtomicU64, AtomicU8, Ordering};
@@ -33,7 +35,10 @@ use std::sync::Arc;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use millgate_config::MqttOutput;
-use rumqttc::{AsyncClient, Event, EventLoop, LastWill, MqttOptions, Outgoing, Packet, QoS};
+use rumqttc::{
+    AsyncClient, ConnectReturnCode, ConnectionError, Event, EventLoop, LastWill, MqttOptions,
+    Outgoing, Packet, QoS, TlsConfiguration, Transport,
+};
 
 use crate::outputs::history::query::{BiteRow, Filter, HistoryReader};
 use crate::outputs::history::writer::connect;
@@ -81,9 +86,71 @@ pub fn next_bd_seq(path: &Path, node: &str) -> Result<u8, HistoryError> {
     Ok(u8::try_from(bd_seq).unwrap_or(0))
 }
 
+/// Why a connection to the broker failed (the log and `/metrics` say which).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ConnectFailure {
+    /// No answer, connection refused by the host, or the session broke off.
+    Unreachable,
+    /// The TLS handshake failed (an unknown CA, a name mismatch, a certificate the
+    /// broker does not accept).
+    Tls,
+    /// The broker refused the user name and password or the client.
+    NotAuthorised,
+    /// The broker refused the connection for another reason.
+    Refused,
+}
+
+impl ConnectFailure {
+    /// Every kind, in the order of [`SparkplugCounts::failures`].
+    pub const ALL: [Self; 4] = [
+        Self::Unreachable,
+        Self::Tls,
+        Self::NotAuthorised,
+        Self::Refused,
+    ];
+
+    /// The label on `/metrics`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Unreachable => "unreachable",
+            Self::Tls => "tls",
+            Self::NotAuthorised => "not_authorised",
+            Self::Refused => "refused",
+        }
+    }
+
+    /// The kind of `error`.
+    pub fn of(error: &ConnectionError) -> Self {
+        match error {
+            ConnectionError::Tls(_) => Self::Tls,
+            // A TLS alert after the handshake (TLS 1.3 reports a refused client
+            // certificate there) comes as an I/O error holding the rustls error.
+            ConnectionError::Io(io) if io.get_ref().is_some_and(|e| e.is::<rustls::Error>()) => {
+                Self::Tls
+            }
+            ConnectionError::ConnectionRefused(
+                ConnectReturnCode::BadUserNamePassword | ConnectReturnCode::NotAuthorized,
+            ) => Self::NotAuthorised,
+            ConnectionError::ConnectionRefused(_) => Self::Refused,
+            _ => Self::Unreachable,
+        }
+    }
+
+    /// What to check, for the log.
+    fn hint(self) -> &'static str {
+        match self {
+            Self::Unreachable => "check outputs.mqtt.broker and that the broker runs",
+            Self::Tls => "check outputs.mqtt.tls (ca_file against the broker's certificate and its name, cert_file/key_file against the broker's require_certificate)",
+            Self::NotAuthorised => "not authorised: check outputs.mqtt.username and password (or password_file) against the broker",
+            Self::Refused => "check outputs.mqtt.client_id and the broker's log",
+        }
+    }
+}
+
 /// Counters of the edge node, for `/metrics`.
 #[derive(Debug, Default)]
 pub struct SparkplugStatus {
+    failures: [AtomicU64; 4],
     connected: AtomicU8,
     bd_seq: AtomicU8,
     published: AtomicU64,
@@ -113,6 +180,9 @@ pub struct SparkplugCounts {
     pub connections: u64,
     /// Rebirth commands obeyed.
     pub rebirths: u64,
+    /// Failed connections and lost sessions by [`ConnectFailure`] (in the order of
+    /// [`ConnectFailure::ALL`]).
+    pub failures: [u64; 4],
 }
 
 impl SparkplugStatus {
@@ -128,6 +198,7 @@ impl SparkplugStatus {
             rebirths: load(&self.rebirths),
             replayed: load(&self.replayed),
             backlog: load(&self.backlog),
+            failures: self.failures.each_ref().map(load),
         }
     }
 }
@@ -139,6 +210,9 @@ pub struct SparkplugNode {
     history: PathBuf,
     publisher: Arc<Publisher>,
     status: Arc<SparkplugStatus>,
+    tls: Option<Arc<rustls::ClientConfig>>,
+    /// Rod mills: name and span count.
+    rod_mills: Vec<(String, usize)>,
 }
 
 fn now_ms() -> u64 {
@@ -148,14 +222,29 @@ fn now_ms() -> u64 {
 }
 
 impl SparkplugNode {
-    /// The node of `config`, keeping its bdSeq in the history file `history`.
-    pub fn new(config: MqttOutput, history: PathBuf, publisher: Arc<Publisher>) -> Self {
-        Self {
+    /// The node of `config`, keeping its bdSeq in the history file `history`; fails
+    /// when the TLS files of `config` cannot be used.
+    pub fn new(
+        config: MqttOutput,
+        history: PathBuf,
+        publisher: Arc<Publisher>,
+    ) -> Result<Self, tls::TlsSetupError> {
+        let tls = config.tls.as_ref().map(tls::client_config).transpose()?;
+        Ok(Self {
             config,
             history,
             publisher,
             status: Arc::new(SparkplugStatus::default()),
-        }
+            tls,
+            rod_mills: Vec::new(),
+        })
+    }
+
+    /// The node with these rod mills as devices: `(name, span count)` in config order
+    /// (the span count from the mill file; it fixes the `span<i>` metrics at birth).
+    pub fn with_rod_mills(mut self, rod_mills: Vec<(String, usize)>) -> Self {
+        self.rod_mills = rod_mills;
+        self
     }
 
     /// The counters, shared with `/metrics`.
@@ -203,6 +292,11 @@ impl SparkplugNode {
         ));
         if let Some((user, password)) = &self.config.credentials {
             options.set_credentials(user.clone(), password.clone());
+        }
+        if let Some(config) = &self.tls {
+            options.set_transport(Transport::tls_with_config(TlsConfiguration::Rustls(
+                Arc::clone(config),
+            )));
         }
         options
     }
@@ -377,7 +471,8 @@ impl SparkplugNode {
             publisher.driveline_names(),
             publisher.mill_names(),
             bd_seq,
-        );
+        )
+        .with_rod_mills(&self.rod_mills);
         self.status.bd_seq.store(bd_seq, Ordering::Relaxed);
         let (client, mut events) =
             AsyncClient::new(self.options(node.death(now_ms())), CLIENT_QUEUE);
@@ -392,6 +487,8 @@ impl SparkplugNode {
             .as_deref()
             .map(node::state_topic);
         let mut connected = false;
+        // The last failure logged as a warning: the same failure again is only debug.
+        let mut last_failure = None;
         // Births sent in this session (with a primary host: after its STATE online).
         let mut born = false;
         // While replaying: the last bite id of the backlog.
@@ -408,6 +505,7 @@ impl SparkplugNode {
                 () = shutdown.recv() => break,
                 event = events.poll() => match event {
                     Ok(Event::Incoming(Packet::ConnAck(_))) => {
+                        last_failure = None;
                         tracing::info!(broker = %self.config.broker, bd_seq, "Sparkplug session up");
                         connected = true;
                         self.status.connected.store(1, Ordering::Relaxed);
@@ -465,11 +563,17 @@ impl SparkplugNode {
                     }
                     Ok(_) => {}
                     Err(error) => {
+                        let failure = ConnectFailure::of(&error);
+                        let slot = ConnectFailure::ALL.iter().position(|&f| f == failure).unwrap_or(0);
+                        self.status.failures[slot].fetch_add(1, Ordering::Relaxed);
                         if connected {
                             tracing::warn!(%error, broker = %self.config.broker, "Sparkplug session ended");
+                        } else if last_failure != Some(failure) {
+                            tracing::warn!(%error, broker = %self.config.broker, reason = failure.name(), "Sparkplug broker connection failed, retrying every {} s: {}", RECONNECT_DELAY.as_secs(), failure.hint());
                         } else {
-                            tracing::debug!(%error, broker = %self.config.broker, "Sparkplug broker not reachable");
+                            tracing::debug!(%error, broker = %self.config.broker, "Sparkplug broker connection failed again");
                         }
+                        last_failure = Some(failure);
                         // What the dead session had queued belongs to it: its seq
                         // numbers mean nothing in the next session. Its unacknowledged
                         // bites are replayed from the history.

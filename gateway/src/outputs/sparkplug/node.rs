@@ -3,7 +3,9 @@
 //! values (NDATA/DDATA by alias), for each bite (its own DDATA with a bite id) and for
 //! a rebirth command. The task in [`super`] moves the messages to the broker.
 //!
-//! Devices: each driveline and each tandem mill, named as in the configuration.
+//! Devices: each driveline, each tandem mill and each rod mill, named as in the
+//! configuration. A rod mill's per-span metrics are `span<i>/<name>` (i 1-based in
+//! rolling order), as many spans as its mill file has (fixed at birth).
 //! Aliases are unique within the node: the node's metrics first, then each device's in
 //! order. `seq` counts 0..=255 over every message of the session but the NDEATH, and
 //! starts at 0 with each NBIRTH; `bdSeq` (0..=255) is the session number the NBIRTH
@@ -12,7 +14,9 @@
 use prost::Message as _;
 
 use super::payload::{DataType, Metric, MetricValue, Payload, PropertySet};
-use crate::outputs::results::{DrivelineResults, MillResults, Results};
+use crate::outputs::results::{
+    DrivelineResults, MillResults, Results, RodMillResults, RodSpanResults,
+};
 
 /// The Sparkplug B topic namespace.
 pub const NAMESPACE: &str = "spBv1.0";
@@ -303,6 +307,178 @@ pub const NOT_RECORDED: &[&str] = &[
     "gap_alarm",
 ];
 
+/// A rod mill's own metrics. The values of the operating point, the flags and the
+/// worst span are null while the mill is not valid (not evaluated yet, an input
+/// refused or stale).
+const ROD_MILL: &[Def<RodMillResults>] = &[
+    Def {
+        name: "evaluations",
+        datatype: DataType::UInt64,
+        unit: "",
+        read: |r| Some(Value::U64(r.evaluations)),
+    },
+    Def {
+        name: "valid",
+        datatype: DataType::Boolean,
+        unit: "",
+        read: |r| Some(Value::Bool(r.valid())),
+    },
+    Def {
+        name: "input_refused",
+        datatype: DataType::Boolean,
+        unit: "",
+        read: |r| Some(Value::Bool(r.input_refused)),
+    },
+    Def {
+        name: "source_stale",
+        datatype: DataType::Boolean,
+        unit: "",
+        read: |r| Some(Value::Bool(r.source_stale)),
+    },
+    Def {
+        // Index into the rod mill's configurations.
+        name: "configuration",
+        datatype: DataType::UInt32,
+        unit: "",
+        read: |r| valid(r, r.configuration.map(|c| Value::U32(u32::from(c)))),
+    },
+    Def {
+        // 1-based, as the PLC's.
+        name: "pass",
+        datatype: DataType::UInt32,
+        unit: "",
+        read: |r| valid(r, r.pass.map(|p| Value::U32(u32::from(p)))),
+    },
+    Def {
+        name: "finishing_speed",
+        datatype: DataType::Double,
+        unit: "m/s",
+        read: |r| valid(r, r.finishing_speed_m_s.map(Value::F64)),
+    },
+    Def {
+        name: "rod_temperature",
+        datatype: DataType::Double,
+        unit: "degC",
+        read: |r| valid(r, r.temperature_c.map(Value::F64)),
+    },
+    Def {
+        name: "unstable",
+        datatype: DataType::Boolean,
+        unit: "",
+        read: |r| valid(r, Some(Value::Bool(r.spans.iter().any(|s| s.unstable)))),
+    },
+    Def {
+        name: "near_tongue",
+        datatype: DataType::Boolean,
+        unit: "",
+        read: |r| valid(r, Some(Value::Bool(r.spans.iter().any(|s| s.near_tongue)))),
+    },
+    Def {
+        // The smallest speed margin of the valid spans (negative: one is unstable).
+        name: "worst_margin",
+        datatype: DataType::Double,
+        unit: "m/s",
+        read: |r| r.worst_span().map(|(_, margin)| Value::F64(margin)),
+    },
+    Def {
+        // 1-based, as the `span<i>` metrics.
+        name: "worst_span",
+        datatype: DataType::UInt32,
+        unit: "",
+        read: |r| {
+            r.worst_span()
+                .map(|(span, _)| Value::U32(u32::try_from(span + 1).unwrap_or(u32::MAX)))
+        },
+    },
+];
+
+/// A rod mill span's metrics (`span<i>/<name>`), read from the span while it and
+/// its mill are valid, else from an empty span (not valid, flags clear, values null).
+const ROD_SPAN: &[Def<RodSpanResults>] = &[
+    Def {
+        name: "valid",
+        datatype: DataType::Boolean,
+        unit: "",
+        read: |s| Some(Value::Bool(s.valid)),
+    },
+    Def {
+        name: "unstable",
+        datatype: DataType::Boolean,
+        unit: "",
+        read: |s| Some(Value::Bool(s.unstable)),
+    },
+    Def {
+        name: "near_tongue",
+        datatype: DataType::Boolean,
+        unit: "",
+        read: |s| Some(Value::Bool(s.near_tongue)),
+    },
+    Def {
+        name: "speed_margin",
+        datatype: DataType::Double,
+        unit: "m/s",
+        read: |s| s.speed_margin_m_s.map(Value::F64),
+    },
+    Def {
+        name: "worst_exponent",
+        datatype: DataType::Double,
+        unit: "1/s",
+        read: |s| s.worst_exponent_per_s.map(Value::F64),
+    },
+    Def {
+        name: "configuration",
+        datatype: DataType::UInt32,
+        unit: "",
+        read: |s| s.configuration.map(|c| Value::U32(u32::from(c))),
+    },
+];
+
+/// `value` while rod mill `r` is valid, else null.
+fn valid(r: &RodMillResults, value: Option<Value>) -> Option<Value> {
+    value.filter(|_| r.valid())
+}
+
+/// The metric columns of a rod mill with `spans` spans: its own, then each span's.
+fn rod_columns(spans: usize) -> Vec<Column> {
+    let mut out: Vec<Column> = columns(ROD_MILL)
+        .map(|(name, datatype, unit)| (name.to_owned(), datatype, unit))
+        .collect();
+    for span in 1..=spans {
+        out.extend(
+            columns(ROD_SPAN)
+                .map(|(name, datatype, unit)| (format!("span{span}/{name}"), datatype, unit)),
+        );
+    }
+    out
+}
+
+/// The values of `mill` in the order of [`rod_columns`] for `spans` spans.
+fn rod_values(mill: Option<&RodMillResults>, spans: usize) -> Vec<Option<Value>> {
+    let fallback = RodMillResults::default();
+    let mill = mill.unwrap_or(&fallback);
+    let empty = RodSpanResults::default();
+    let mut values = read_all(ROD_MILL, Some(mill));
+    for index in 0..spans {
+        let span = mill
+            .spans
+            .get(index)
+            .filter(|s| s.valid && mill.valid())
+            .unwrap_or(&empty);
+        values.extend(ROD_SPAN.iter().map(|def| (def.read)(span)));
+    }
+    values
+}
+
+/// A metric's name, datatype and unit.
+type Column = (String, DataType, &'static str);
+
+/// The name, datatype and unit of each of `defs`.
+fn columns<R>(
+    defs: &[Def<R>],
+) -> impl Iterator<Item = (&'static str, DataType, &'static str)> + '_ {
+    defs.iter().map(|def| (def.name, def.datatype, def.unit))
+}
+
 /// The bite id metric of a bite's DDATA: the driveline's bite counter after the bite,
 /// which the history keeps across restarts, so (device, bite_id) names a bite once.
 pub const BITE_ID: &str = "bite_id";
@@ -322,6 +498,9 @@ pub struct EdgeNode {
     /// What the last birth or data message said, per device and metric.
     sent_drivelines: Vec<Vec<Option<Value>>>,
     sent_mills: Vec<Vec<Option<Value>>>,
+    /// Rod mills: name, span count and metric columns.
+    rod_mills: Vec<(String, usize, Vec<Column>)>,
+    sent_rod_mills: Vec<Vec<Option<Value>>>,
 }
 
 impl EdgeNode {
@@ -342,7 +521,20 @@ impl EdgeNode {
             seq: 0,
             sent_drivelines: vec![Vec::new(); drivelines.len()],
             sent_mills: vec![Vec::new(); mills.len()],
+            rod_mills: Vec::new(),
+            sent_rod_mills: Vec::new(),
         }
+    }
+
+    /// The node with these rod mills as devices too: `(name, span count)`, in config
+    /// order (after the tandem mills).
+    pub fn with_rod_mills(mut self, rod_mills: &[(String, usize)]) -> Self {
+        self.rod_mills = rod_mills
+            .iter()
+            .map(|(name, spans)| (name.clone(), *spans, rod_columns(*spans)))
+            .collect();
+        self.sent_rod_mills = vec![Vec::new(); rod_mills.len()];
+        self
     }
 
     /// This session's bdSeq.
@@ -421,22 +613,33 @@ impl EdgeNode {
         }];
         for index in 0..self.drivelines.len() {
             let values = read_all(DRIVELINE, results.drivelines.get(index));
-            let metrics = birth_metrics(
-                DRIVELINE,
-                self.driveline_alias(index, 0),
-                &values,
+            let base = self.driveline_alias(index, 0);
+            let mut metrics = birth_metrics(columns(DRIVELINE), base, &values, now_ms);
+            metrics.push(metric(
+                Some(BITE_ID),
+                base + DRIVELINE.len() as u64,
+                DataType::UInt64,
+                None,
                 now_ms,
-                true,
-            );
+            ));
             self.sent_drivelines[index] = values;
             let topic = self.device_topic("DBIRTH", &self.drivelines[index]);
             out.push(self.device_message(topic, metrics, now_ms));
         }
         for index in 0..self.mills.len() {
             let values = read_all(MILL, results.mills.get(index));
-            let metrics = birth_metrics(MILL, self.mill_alias(index, 0), &values, now_ms, false);
+            let metrics = birth_metrics(columns(MILL), self.mill_alias(index, 0), &values, now_ms);
             self.sent_mills[index] = values;
             let topic = self.device_topic("DBIRTH", &self.mills[index]);
+            out.push(self.device_message(topic, metrics, now_ms));
+        }
+        for index in 0..self.rod_mills.len() {
+            let (name, spans, columns) = &self.rod_mills[index];
+            let values = rod_values(results.rod_mills.get(index), *spans);
+            let named = columns.iter().map(|(n, t, u)| (n.as_str(), *t, *u));
+            let metrics = birth_metrics(named, self.rod_mill_alias(index, 0), &values, now_ms);
+            let topic = self.device_topic("DBIRTH", name);
+            self.sent_rod_mills[index] = values;
             out.push(self.device_message(topic, metrics, now_ms));
         }
         out
@@ -465,6 +668,15 @@ impl EdgeNode {
         NODE_METRICS + (drivelines + index * MILL.len() + metric) as u64
     }
 
+    fn rod_mill_alias(&self, index: usize, metric: usize) -> u64 {
+        let before = self.mill_alias(self.mills.len(), 0);
+        let rods: usize = self.rod_mills[..index]
+            .iter()
+            .map(|(_, _, c)| c.len())
+            .sum();
+        before + (rods + metric) as u64
+    }
+
     /// A DDATA per device whose values changed since the last birth or data message,
     /// with only the changed metrics, by alias.
     pub fn data(&mut self, results: &Results, now_ms: u64) -> Vec<Outgoing> {
@@ -473,7 +685,7 @@ impl EdgeNode {
             let values = read_all(DRIVELINE, results.drivelines.get(index));
             let base = self.driveline_alias(index, 0);
             let metrics = changed(
-                DRIVELINE,
+                columns(DRIVELINE),
                 base,
                 &self.sent_drivelines[index],
                 &values,
@@ -488,10 +700,28 @@ impl EdgeNode {
         for index in 0..self.mills.len() {
             let values = read_all(MILL, results.mills.get(index));
             let base = self.mill_alias(index, 0);
-            let metrics = changed(MILL, base, &self.sent_mills[index], &values, now_ms);
+            let metrics = changed(
+                columns(MILL),
+                base,
+                &self.sent_mills[index],
+                &values,
+                now_ms,
+            );
             if !metrics.is_empty() {
                 self.sent_mills[index] = values;
                 let topic = self.device_topic("DDATA", &self.mills[index]);
+                out.push(self.device_message(topic, metrics, now_ms));
+            }
+        }
+        for index in 0..self.rod_mills.len() {
+            let (name, spans, columns) = &self.rod_mills[index];
+            let values = rod_values(results.rod_mills.get(index), *spans);
+            let named = columns.iter().map(|(n, t, u)| (n.as_str(), *t, *u));
+            let base = self.rod_mill_alias(index, 0);
+            let metrics = changed(named, base, &self.sent_rod_mills[index], &values, now_ms);
+            if !metrics.is_empty() {
+                let topic = self.device_topic("DDATA", name);
+                self.sent_rod_mills[index] = values;
                 out.push(self.device_message(topic, metrics, now_ms));
             }
         }
@@ -591,55 +821,38 @@ fn metric(
     }
 }
 
-/// Every metric of a device's birth, then the bite id when `bite_id` (drivelines).
-fn birth_metrics<R>(
-    defs: &[Def<R>],
+/// Every metric of a device's birth: name, alias, datatype, value, unit.
+fn birth_metrics<'a>(
+    columns: impl Iterator<Item = (&'a str, DataType, &'static str)>,
     base: u64,
     values: &[Option<Value>],
     now_ms: u64,
-    bite_id: bool,
 ) -> Vec<Metric> {
-    let mut metrics: Vec<Metric> = defs
-        .iter()
+    columns
         .zip(values)
         .enumerate()
-        .map(|(at, (def, value))| {
-            let mut metric = metric(
-                Some(def.name),
-                base + at as u64,
-                def.datatype,
-                *value,
-                now_ms,
-            );
-            if !def.unit.is_empty() {
-                metric.properties = Some(PropertySet::unit(def.unit));
+        .map(|(at, ((name, datatype, unit), value))| {
+            let mut metric = metric(Some(name), base + at as u64, datatype, *value, now_ms);
+            if !unit.is_empty() {
+                metric.properties = Some(PropertySet::unit(unit));
             }
             metric
         })
-        .collect();
-    if bite_id {
-        metrics.push(metric(
-            Some(BITE_ID),
-            base + defs.len() as u64,
-            DataType::UInt64,
-            None,
-            now_ms,
-        ));
-    }
-    metrics
+        .collect()
 }
 
-fn changed<R>(
-    defs: &[Def<R>],
+/// The metrics whose value differs from what was sent, by alias only.
+fn changed<'a>(
+    columns: impl Iterator<Item = (&'a str, DataType, &'static str)>,
     base: u64,
     sent: &[Option<Value>],
     values: &[Option<Value>],
     now_ms: u64,
 ) -> Vec<Metric> {
-    defs.iter()
+    columns
         .enumerate()
         .filter(|(at, _)| sent.get(*at) != values.get(*at))
-        .map(|(at, def)| metric(None, base + at as u64, def.datatype, values[at], now_ms))
+        .map(|(at, (_, datatype, _))| metric(None, base + at as u64, datatype, values[at], now_ms))
         .collect()
 }
 
@@ -774,6 +987,121 @@ mod tests {
         // 1-based, as the register.
         assert!(values.contains(&Some(MetricValue::IntValue(4))));
         assert!(values.contains(&Some(MetricValue::BooleanValue(true))));
+    }
+
+    #[test]
+    fn a_rod_mill_publishes_its_worst_span_and_one_set_of_metrics_per_span() {
+        let mut node = node().with_rod_mills(&[("RSM".into(), 3)]);
+        let mut results = Results::new(1, 2, 1);
+        results.rod_mills = vec![RodMillResults::default()];
+        let births: Vec<Payload> = node.births(&results, 1000).iter().map(decode).collect();
+        assert_eq!(births.len(), 5, "NBIRTH, F1, F2, tandem, RSM");
+        let rod = &births[4];
+        let names: Vec<&str> = rod
+            .metrics
+            .iter()
+            .map(|m| m.name.as_deref().unwrap())
+            .collect();
+        assert_eq!(names.len(), ROD_MILL.len() + 3 * ROD_SPAN.len());
+        assert!(names.contains(&"worst_margin") && names.contains(&"span3/speed_margin"));
+        assert!(!names.iter().any(|n| n.starts_with("span4/")), "{names:?}");
+        let by_name = |payload: &Payload, name: &str| {
+            payload
+                .metrics
+                .iter()
+                .find(|m| m.name.as_deref() == Some(name))
+                .unwrap()
+                .clone()
+        };
+        let unit = by_name(rod, "span2/worst_exponent").properties.unwrap();
+        assert_eq!(unit, PropertySet::unit("1/s"));
+        // Not evaluated yet: the worst span and the span values are null.
+        assert_eq!(by_name(rod, "worst_span").is_null, Some(true));
+        assert_eq!(by_name(rod, "span1/speed_margin").is_null, Some(true));
+        assert_eq!(
+            by_name(rod, "span1/valid").value,
+            Some(MetricValue::BooleanValue(false))
+        );
+        // Aliases continue after the tandem mill's, unique over the node.
+        let mut aliases: Vec<u64> = births
+            .iter()
+            .flat_map(|p| p.metrics.iter().filter_map(|m| m.alias))
+            .collect();
+        let count = aliases.len();
+        aliases.sort_unstable();
+        aliases.dedup();
+        assert_eq!(aliases.len(), count);
+        let alias = |name: &str| by_name(rod, name).alias.unwrap();
+
+        // Span 2 unstable at -0.2 m/s; span 3 has a smaller margin but is not valid
+        // (it does not count); span 1 stable.
+        let span = |margin: f64, valid: bool| RodSpanResults {
+            valid,
+            unstable: margin < 0.0,
+            near_tongue: false,
+            speed_margin_m_s: Some(margin),
+            worst_exponent_per_s: Some(margin * -3.0),
+            configuration: Some(1),
+        };
+        results.rod_mills[0] = RodMillResults {
+            evaluations: 1,
+            configuration: Some(1),
+            pass: Some(4),
+            finishing_speed_m_s: Some(60.0),
+            temperature_c: Some(950.0),
+            spans: vec![span(0.5, true), span(-0.2, true), span(-1.0, false)],
+            ..RodMillResults::default()
+        };
+        let data = node.data(&results, 1100);
+        let rod = data.iter().find(|m| m.topic.ends_with("/RSM")).unwrap();
+        assert_eq!(rod.topic, "spBv1.0/plant/DDATA/stand-f1/RSM");
+        let rod = decode(rod);
+        assert!(rod.metrics.iter().all(|m| m.name.is_none()));
+        let value = |payload: &Payload, name: &str| {
+            payload
+                .metrics
+                .iter()
+                .find(|m| m.alias == Some(alias(name)))
+                .map(|m| m.value.clone())
+        };
+        assert_eq!(
+            value(&rod, "worst_margin"),
+            Some(Some(MetricValue::DoubleValue(-0.2)))
+        );
+        assert_eq!(
+            value(&rod, "worst_span"),
+            Some(Some(MetricValue::IntValue(2)))
+        );
+        assert_eq!(
+            value(&rod, "unstable"),
+            Some(Some(MetricValue::BooleanValue(true)))
+        );
+        assert_eq!(
+            value(&rod, "span2/speed_margin"),
+            Some(Some(MetricValue::DoubleValue(-0.2)))
+        );
+        assert_eq!(
+            value(&rod, "span1/valid"),
+            Some(Some(MetricValue::BooleanValue(true)))
+        );
+        // Span 3 stays as born: not valid, its margin null (unchanged, so not sent).
+        assert_eq!(value(&rod, "span3/valid"), None);
+        assert_eq!(value(&rod, "span3/speed_margin"), None);
+
+        // A stale input: the operating point, the flags and the spans go null/invalid.
+        results.rod_mills[0].source_stale = true;
+        let stale = decode(&node.data(&results, 1200)[0]);
+        assert_eq!(value(&stale, "worst_margin"), Some(None));
+        assert_eq!(value(&stale, "pass"), Some(None));
+        assert_eq!(
+            value(&stale, "span2/valid"),
+            Some(Some(MetricValue::BooleanValue(false)))
+        );
+        assert_eq!(value(&stale, "span2/speed_margin"), Some(None));
+        assert_eq!(
+            value(&stale, "source_stale"),
+            Some(Some(MetricValue::BooleanValue(true)))
+        );
     }
 
     #[test]
