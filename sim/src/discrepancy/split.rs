@@ -7,8 +7,9 @@
 //! [`MIN_BITE_S`]. Each bite's record starts up to [`PRE_BITE_S`] before the rise (half
 //! the idle stretch before it at most) and ends before the unloading: back from where
 //! the torque last stood at [`UNLOAD_FRACTION`] of its settled level (the median of the
-//! bite's second half) to where it last stood at that level, within three times the
-//! moving mean's noise, less the smoothing. A record with one bite comes back whole.
+//! bite's second half) to the last point as high as the torque over the [`LOOKBACK_S`]
+//! before it, within three times the moving mean's noise, less the smoothing. A record
+//! with one bite comes back whole.
 
 use super::noise::noise_rms;
 use super::Measured;
@@ -26,6 +27,10 @@ pub const PRE_BITE_S: f64 = 0.1;
 /// A bite's unloading is found where the torque last stood at this share of its settled
 /// level (the record ends before, where the unloading began).
 pub const UNLOAD_FRACTION: f64 = 0.9;
+/// The unloading began at the last point that stood as high as the moving mean over
+/// this stretch before it, s: the moving mean's width (longer, an oscillation decaying
+/// from higher crests before would carry the point back into the transient).
+pub const LOOKBACK_S: f64 = 2.0 * SMOOTHING_S;
 
 /// The bites of `record`, each as its own record (times kept); `record` itself when it
 /// holds one bite or none.
@@ -90,16 +95,25 @@ pub fn split_bites<'a>(record: &Measured<'a>) -> Vec<Measured<'a>> {
                 .rev()
                 .find(|&j| smooth[j] >= UNLOAD_FRACTION * settled)
                 .unwrap_or(b);
-            // Back from there to where the unloading began: the last time the moving
-            // mean stood at the settled level, within three times its own noise. A
-            // smooth unloading (a raised-cosine tail-out) takes tens of ms to reach
-            // the fraction above; a bite ending there keeps a drop of several % of the
-            // load that no driveline model has, and a fit bends to it (a sensor lag
-            // named in fresh records).
+            // Back from there to where the unloading began: the last point whose moving
+            // mean comes within three times its own noise of the highest one over the
+            // [`LOOKBACK_S`] before it (inside a falling unloading every earlier value is
+            // higher; on the settled part, or at an oscillation's crest, the point is the
+            // top). A smooth unloading (a raised-cosine tail-out) takes tens of ms to
+            // reach the fraction above; a bite ending there keeps a drop of several % of
+            // the load that no driveline model has, and the fits bend to it (fresh bites
+            // were named a sensor lag). The settled median is no reference: with the
+            // tail-out and a slow oscillation in the second half it sits % below.
             let margin = 3.0 * noise / ((2 * half + 1) as f64).sqrt();
+            let lookback = (LOOKBACK_S * fs).round() as usize;
             let last = (a..=unloading)
                 .rev()
-                .find(|&j| smooth[j] >= settled - margin)
+                .find(|&j| {
+                    let highest = smooth[j.saturating_sub(lookback).max(a)..=j]
+                        .iter()
+                        .fold(f64::NEG_INFINITY, |h, &v| h.max(v));
+                    smooth[j] >= highest - margin
+                })
                 .unwrap_or(unloading);
             last.saturating_sub(half).max(a + 1)
         };
