@@ -23,7 +23,9 @@
 //!   oldest events while the data passes `history.max_size_mb`, are deleted in chunks
 //!   between batches; freed pages go back to the file system (incremental vacuum).
 //! - **Reading** ([`query`]): [`query::HistoryReader`] opens its own read-only
-//!   connection; `millgate history` and `millgate report` use it.
+//!   connection; `millgate history` and `millgate report` use it. [`series`] adds
+//!   what a page plots over months: the gap and TAF in time buckets and the gap's
+//!   trend per week, aggregated by SQLite.
 //!
 //! Schema: [`schema`]; times: [`time`] (UTC ISO-8601 text).
 
@@ -33,6 +35,7 @@ pub mod query;
 pub mod restore;
 pub mod retention;
 pub mod schema;
+pub mod series;
 pub mod time;
 pub mod writer;
 
@@ -71,6 +74,25 @@ pub enum HistoryError {
         /// Why.
         #[source]
         source: schema::SchemaError,
+    },
+    /// A query's argument is outside its allowed range.
+    #[error("history query: {name} = {value} is out of range ({allowed})")]
+    Argument {
+        /// The argument's name.
+        name: &'static str,
+        /// The value given.
+        value: String,
+        /// What is allowed.
+        allowed: String,
+    },
+    /// The driveline is neither configured in any run recorded in the file nor has
+    /// bites in it.
+    #[error("history {}: no driveline \"{name}\" in the file", path.display())]
+    UnknownDriveline {
+        /// The file.
+        path: PathBuf,
+        /// The name asked for.
+        name: String,
     },
 }
 

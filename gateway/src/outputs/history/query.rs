@@ -406,7 +406,13 @@ impl HistoryReader {
         &self.path
     }
 
-    fn error(&self, source: rusqlite::Error) -> HistoryError {
+    /// The read-only connection, for the queries of sibling modules ([`super::series`]).
+    pub(super) fn connection(&self) -> &Connection {
+        &self.connection
+    }
+
+    /// `source` as this file's error.
+    pub(super) fn error(&self, source: rusqlite::Error) -> HistoryError {
         HistoryError::Sqlite {
             path: self.path.clone(),
             source,
@@ -415,6 +421,19 @@ impl HistoryReader {
 
     /// The rows of `R`'s table that pass `filter`, in id order.
     pub fn rows<R: Record>(&self, filter: &Filter) -> Result<Vec<R>, HistoryError> {
+        self.select(filter, false)
+    }
+
+    /// The newest rows of `R`'s table that pass `filter` (the last [`Filter::limit`]
+    /// of them by id), oldest first: "the last 20 bites".
+    pub fn newest<R: Record>(&self, filter: &Filter) -> Result<Vec<R>, HistoryError> {
+        let mut rows = self.select(filter, true)?;
+        rows.reverse();
+        Ok(rows)
+    }
+
+    /// The rows that pass `filter` in id order, or in reverse id order (`newest`).
+    fn select<R: Record>(&self, filter: &Filter, newest: bool) -> Result<Vec<R>, HistoryError> {
         let mut conditions = Vec::new();
         let mut values: Vec<rusqlite::types::Value> = Vec::new();
         let mut condition = |sql: String, value: rusqlite::types::Value| {
@@ -438,7 +457,11 @@ impl HistoryReader {
             sql.push_str(" WHERE ");
             sql.push_str(&conditions.join(" AND "));
         }
-        sql.push_str(" ORDER BY id");
+        sql.push_str(if newest {
+            " ORDER BY id DESC"
+        } else {
+            " ORDER BY id"
+        });
         if let Some(limit) = filter.limit {
             sql.push_str(&format!(" LIMIT {limit}"));
         }
@@ -448,6 +471,26 @@ impl HistoryReader {
             .map_err(|e| self.error(e))?;
         rows.collect::<rusqlite::Result<Vec<R>>>()
             .map_err(|e| self.error(e))
+    }
+
+    /// The id of the last bite in the file (0 when there is none).
+    pub fn last_bite_id(&self) -> Result<i64, HistoryError> {
+        self.connection
+            .query_row("SELECT coalesce(max(id), 0) FROM bites", [], |row| {
+                row.get(0)
+            })
+            .map_err(|e| self.error(e))
+    }
+
+    /// How many bites have an id above `id`.
+    pub fn bites_after(&self, id: i64) -> Result<u64, HistoryError> {
+        let count: i64 = self
+            .connection
+            .query_row("SELECT count(*) FROM bites WHERE id > ?1", [id], |row| {
+                row.get(0)
+            })
+            .map_err(|e| self.error(e))?;
+        Ok(u64::try_from(count).unwrap_or(0))
     }
 
     /// Bites by driveline and time range.

@@ -173,6 +173,12 @@ ALTER TABLE bites ADD COLUMN gap_taf_sigma REAL;             -- NULL: not pooled
 ALTER TABLE bites ADD COLUMN gap_period_shift_sigma_s REAL;
 ALTER TABLE driveline_state ADD COLUMN gap_alarm_latched INTEGER NOT NULL DEFAULT 0;
 "#,
+    // Version 4: the Sparkplug store-and-forward cursor: every bite up to this
+    // `bites.id` the broker has confirmed; later ones are replayed, flagged historical,
+    // at the next session. NULL: not set yet (the node starts at the file's last bite).
+    r#"
+ALTER TABLE sparkplug_node ADD COLUMN replay_cursor INTEGER;
+"#,
 ];
 
 /// The schema version this millgate writes.
@@ -259,6 +265,34 @@ mod tests {
         );
         // Migrating again changes nothing.
         assert_eq!(migrate(&mut connection).unwrap(), current_version());
+    }
+
+    #[test]
+    fn a_version_3_file_gains_the_replay_cursor_and_keeps_its_bd_seq() {
+        let mut connection = Connection::open_in_memory().unwrap();
+        for step in &MIGRATIONS[..3] {
+            connection.execute_batch(step).unwrap();
+        }
+        connection.pragma_update(None, "user_version", 3).unwrap();
+        connection
+            .execute(
+                "INSERT INTO sparkplug_node (node, bd_seq, updated_at) VALUES ('plant/f1', 41, 't')",
+                [],
+            )
+            .unwrap();
+        assert_eq!(migrate(&mut connection).unwrap(), 3);
+        let (bd_seq, cursor): (i64, Option<i64>) = connection
+            .query_row(
+                "SELECT bd_seq, replay_cursor FROM sparkplug_node WHERE node = 'plant/f1'",
+                [],
+                |row| Ok((row.get(0)?, row.get(1)?)),
+            )
+            .unwrap();
+        assert_eq!((bd_seq, cursor), (41, None));
+        let version: i64 = connection
+            .pragma_query_value(None, "user_version", |row| row.get(0))
+            .unwrap();
+        assert_eq!(version, 4);
     }
 
     #[test]

@@ -191,6 +191,13 @@ impl fmt::Display for UtcTime {
     }
 }
 
+/// Serialized as its ISO-8601 text, the form the file and the exports use.
+impl serde::Serialize for UtcTime {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.collect_str(self)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
