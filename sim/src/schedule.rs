@@ -138,6 +138,30 @@ pub fn rolling_schedule_with_gap(
     )
 }
 
+/// One bar per model of `models`, each its own driveline and load (static torque, rise
+/// rate; onset and duration come from `timing`), at the first model's sample rate, noise
+/// as [`rolling_schedule`]: bites of a driveline whose effect or load differs per bar.
+/// At least one model.
+pub fn rolling_schedule_of(
+    models: &[Model],
+    timing: BarTiming,
+    noise_rms_knm: f64,
+    seed: u64,
+) -> Result<Schedule, ModelError> {
+    let Some(first) = models.first() else {
+        return Err(ModelError::Value {
+            file: "<schedule>".into(),
+            key: "models".into(),
+            value: "0".into(),
+            allowed: "at least one bar".into(),
+        });
+    };
+    let torques: Vec<f64> = models.iter().map(|m| m.load.static_torque).collect();
+    bars(first, &torques, timing, noise_rms_knm, seed, |k, bar| {
+        *bar = models[k].clone();
+    })
+}
+
 /// The schedule of one bar per static torque, bar k's model changed by `change(k, bar)`.
 fn bars(
     model: &Model,

@@ -185,10 +185,11 @@ fn a_gap_in_the_measured_coupling_and_a_null_case_from_drawings() -> anyhow::Res
     Ok(())
 }
 
-/// The whole suite (32 cases, 1-5 bites; about 2 min CPU):
+/// The whole suite (37 cases, 1-5 bites, 5 split from a rolling schedule; about 3.5 min
+/// of CPU):
 /// `cargo test --release -p millgate-sim --test discrepancy -- --ignored --nocapture`.
 #[test]
-#[ignore = "about 2 min of CPU; run with --ignored (see sim/README.md)"]
+#[ignore = "about 3.5 min of CPU; run with --ignored (see sim/README.md)"]
 fn every_hidden_effect_is_named_sized_and_removed() -> anyhow::Result<()> {
     let cases = suite(SEED)?;
     let drawings = cases

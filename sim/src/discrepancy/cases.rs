@@ -11,9 +11,11 @@ use rand::{Rng, SeedableRng};
 
 use crate::chain::simulate_with_noise;
 use crate::model::{Load, Model, ModelError};
+use crate::schedule::{rolling_schedule_of, BarTiming};
 
 use super::decision::describe;
 use super::effects::Effect;
+use super::split::split_bites;
 use super::{Measured, Report, Verdict};
 
 /// Largest relative error of a recovered effect size.
@@ -35,6 +37,14 @@ pub const NOISE_KNM: (f64, f64) = (0.2, 2.0);
 pub const DRAWING_FACTOR: (f64, f64) = (1.3, 4.0);
 /// Gap widths, rad.
 pub const BACKLASH_RAD: (f64, f64) = (1.0e-3, 5.0e-3);
+/// Gap widths of the [`Recorded::Schedule`] cases, rad: a big gap already open when the
+/// record was taken (the wear diagnosis's calibration records).
+pub const SCHEDULE_BACKLASH_RAD: (f64, f64) = (3.0e-3, 5.0e-3);
+/// Timing of each bar of a [`Recorded::Schedule`] case.
+pub const SCHEDULE_TIMING: BarTiming = BarTiming {
+    idle_s: 0.3,
+    rolling_s: 0.7,
+};
 
 /// An effect hidden in the truth.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -58,6 +68,17 @@ pub enum Handed {
     Drawings,
 }
 
+/// How a case's bites were recorded.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Recorded {
+    /// Each bite its own record of 0.6 s, from before the rise into the settled part.
+    Separate,
+    /// One record of a rolling schedule ([`SCHEDULE_TIMING`]: idle, bite, rolling, a
+    /// smooth tail-out per bar), split into bites by
+    /// [`split_bites`](super::split_bites) as a long recording is.
+    Schedule,
+}
+
 /// One test case: the truth, what the workflow is handed, and the hidden effect.
 #[derive(Debug, Clone, PartialEq)]
 pub struct HiddenCase {
@@ -67,6 +88,8 @@ pub struct HiddenCase {
     pub hidden: Option<Hidden>,
     /// Where the handed stiffness comes from.
     pub handed_from: Handed,
+    /// How the bites were recorded.
+    pub recorded: Recorded,
     /// Noise RMS added to every bite, kN*m.
     pub noise_rms: f64,
     /// Seed of the noise (bite `b` uses `seed + b`).
@@ -154,8 +177,31 @@ impl HiddenCase {
     }
 
     /// Simulates every bite of the truth with the hidden effect and adds the seeded
-    /// noise.
+    /// noise; a [`Recorded::Schedule`] case's bites are split from one record (as many
+    /// as [`split_bites`] finds).
     pub fn records(&self) -> Result<Vec<Record>, ModelError> {
+        if self.recorded == Recorded::Schedule {
+            let models = (0..self.loads.len())
+                .map(|b| self.true_model(b))
+                .collect::<Result<Vec<_>, _>>()?;
+            let schedule =
+                rolling_schedule_of(&models, SCHEDULE_TIMING, self.noise_rms, self.seed)?;
+            let whole = Measured {
+                t0_s: 0.0,
+                sample_rate_hz: schedule.sample_rate_hz,
+                torque_knm: &schedule.torque_knm,
+            };
+            return Ok(split_bites(&whole)
+                .iter()
+                .map(|bite| Record {
+                    t_s: (0..bite.torque_knm.len())
+                        .map(|k| bite.t0_s + k as f64 / bite.sample_rate_hz)
+                        .collect(),
+                    torque_knm: bite.torque_knm.to_vec(),
+                    sample_rate_hz: bite.sample_rate_hz,
+                })
+                .collect());
+        }
         (0..self.loads.len())
             .map(|b| {
                 let model = self.true_model(b)?;
@@ -170,47 +216,56 @@ impl HiddenCase {
     }
 }
 
-/// What one generated case hides, where, with which handed stiffness and how many bites.
-type Design = (Option<Effect>, Option<usize>, Handed, usize);
+/// What one generated case hides, where, with which handed stiffness, how many bites
+/// and how they were recorded.
+type Design = (Option<Effect>, Option<usize>, Handed, usize, Recorded);
 
 /// The designs of [`suite`]: every effect, gaps in either coupling, right stiffness and
-/// drawings, one to five bites.
-const DESIGNS: [Design; 32] = {
+/// drawings, one to five bites; last, bites split from a rolling schedule with a big gap
+/// in the measured coupling or none, from drawings (new designs go last: the earlier
+/// cases keep their numbers).
+const DESIGNS: [Design; 37] = {
     use Effect::*;
     use Handed::*;
+    use Recorded::*;
     [
-        (None, None, Right, 1),
-        (None, None, Drawings, 1),
-        (None, None, PaperDrawings, 1),
-        (None, None, Drawings, 3),
-        (Some(Backlash), Some(1), Right, 1),
-        (Some(Backlash), Some(1), Drawings, 1),
-        (Some(Backlash), Some(1), Drawings, 1),
-        (Some(Backlash), Some(1), Drawings, 1),
-        (Some(Backlash), Some(1), PaperDrawings, 1),
-        (Some(Backlash), Some(0), Right, 1),
-        (Some(Backlash), Some(0), Drawings, 1),
-        (Some(Backlash), Some(0), Drawings, 1),
-        (Some(Backlash), Some(0), PaperDrawings, 1),
-        (Some(Backlash), Some(1), Drawings, 3),
-        (Some(Backlash), Some(0), Drawings, 5),
-        (Some(Backlash), Some(1), Right, 2),
-        (Some(Hardening), Some(1), Right, 1),
-        (Some(Hardening), Some(1), Drawings, 1),
-        (Some(Hardening), Some(0), Drawings, 1),
-        (Some(Hardening), Some(1), Drawings, 2),
-        (Some(CoulombDamping), Some(1), Right, 1),
-        (Some(CoulombDamping), Some(1), Drawings, 1),
-        (Some(CoulombDamping), Some(0), Drawings, 1),
-        (Some(CoulombDamping), Some(0), Drawings, 2),
-        (Some(SensorLag), None, Right, 1),
-        (Some(SensorLag), None, Drawings, 1),
-        (Some(SensorLag), None, PaperDrawings, 1),
-        (Some(SensorLag), None, Drawings, 2),
-        (Some(ExtraInertia), Some(1), Right, 1),
-        (Some(ExtraInertia), Some(0), Drawings, 1),
-        (Some(Hardening), Some(0), Right, 1),
-        (Some(CoulombDamping), Some(1), PaperDrawings, 1),
+        (None, None, Right, 1, Separate),
+        (None, None, Drawings, 1, Separate),
+        (None, None, PaperDrawings, 1, Separate),
+        (None, None, Drawings, 3, Separate),
+        (Some(Backlash), Some(1), Right, 1, Separate),
+        (Some(Backlash), Some(1), Drawings, 1, Separate),
+        (Some(Backlash), Some(1), Drawings, 1, Separate),
+        (Some(Backlash), Some(1), Drawings, 1, Separate),
+        (Some(Backlash), Some(1), PaperDrawings, 1, Separate),
+        (Some(Backlash), Some(0), Right, 1, Separate),
+        (Some(Backlash), Some(0), Drawings, 1, Separate),
+        (Some(Backlash), Some(0), Drawings, 1, Separate),
+        (Some(Backlash), Some(0), PaperDrawings, 1, Separate),
+        (Some(Backlash), Some(1), Drawings, 3, Separate),
+        (Some(Backlash), Some(0), Drawings, 5, Separate),
+        (Some(Backlash), Some(1), Right, 2, Separate),
+        (Some(Hardening), Some(1), Right, 1, Separate),
+        (Some(Hardening), Some(1), Drawings, 1, Separate),
+        (Some(Hardening), Some(0), Drawings, 1, Separate),
+        (Some(Hardening), Some(1), Drawings, 2, Separate),
+        (Some(CoulombDamping), Some(1), Right, 1, Separate),
+        (Some(CoulombDamping), Some(1), Drawings, 1, Separate),
+        (Some(CoulombDamping), Some(0), Drawings, 1, Separate),
+        (Some(CoulombDamping), Some(0), Drawings, 2, Separate),
+        (Some(SensorLag), None, Right, 1, Separate),
+        (Some(SensorLag), None, Drawings, 1, Separate),
+        (Some(SensorLag), None, PaperDrawings, 1, Separate),
+        (Some(SensorLag), None, Drawings, 2, Separate),
+        (Some(ExtraInertia), Some(1), Right, 1, Separate),
+        (Some(ExtraInertia), Some(0), Drawings, 1, Separate),
+        (Some(Hardening), Some(0), Right, 1, Separate),
+        (Some(CoulombDamping), Some(1), PaperDrawings, 1, Separate),
+        (None, None, PaperDrawings, 3, Schedule),
+        (None, None, Drawings, 3, Schedule),
+        (Some(Backlash), Some(1), PaperDrawings, 3, Schedule),
+        (Some(Backlash), Some(1), Drawings, 3, Schedule),
+        (Some(Backlash), Some(1), Drawings, 5, Schedule),
     ]
 };
 
@@ -218,9 +273,10 @@ const DESIGNS: [Design; 32] = {
 ///
 /// The truth is the Table 2 adjusted driveline with each coupling's stiffness scaled by
 /// up to 20% either way (the paper's adjusted values for `PaperDrawings` cases), bites
-/// of 0.6 s at 2 kHz with static torque in [`STATIC_TORQUE_KNM`] (several bites spread
-/// over it), onset 30-80 ms, rise rate 25-50/s, noise in [`NOISE_KNM`]. Sizes: gaps in
-/// [`BACKLASH_RAD`]; hardening adding 15-50% of the linear torque at the largest static
+/// of 0.6 s at 2 kHz (or split from a rolling schedule, [`Recorded::Schedule`]) with
+/// static torque in [`STATIC_TORQUE_KNM`] (several bites spread over it), onset 30-80 ms,
+/// rise rate 25-50/s, noise in [`NOISE_KNM`]. Sizes: gaps in [`BACKLASH_RAD`]
+/// ([`SCHEDULE_BACKLASH_RAD`] in schedule cases); hardening adding 15-50% of the linear torque at the largest static
 /// twist; friction 2.5-6% of the largest static torque; a sensor lag of 3-15 ms; an
 /// extra inertia of 15-30% of the smaller neighbouring mass.
 pub fn suite(seed: u64) -> Result<Vec<HiddenCase>, ModelError> {
@@ -228,7 +284,7 @@ pub fn suite(seed: u64) -> Result<Vec<HiddenCase>, ModelError> {
     let paper_drawings = Model::from_toml_str(DRAWINGS, "table2-drawings.toml")?;
     let mut rng = StdRng::seed_from_u64(seed);
     let mut cases = Vec::with_capacity(DESIGNS.len());
-    for (index, &(effect, location, handed_from, bites)) in DESIGNS.iter().enumerate() {
+    for (index, &(effect, location, handed_from, bites, recorded)) in DESIGNS.iter().enumerate() {
         let mut truth = adjusted.clone();
         let mut handed = adjusted.clone();
         match handed_from {
@@ -265,7 +321,13 @@ pub fn suite(seed: u64) -> Result<Vec<HiddenCase>, ModelError> {
             let stiffness = coupling.map_or(0.0, |c| c.stiffness);
             let twist = largest_knm * 1.0e3 / stiffness.max(f64::MIN_POSITIVE);
             let value = match effect {
-                Effect::Backlash => log_uniform(&mut rng, BACKLASH_RAD.0, BACKLASH_RAD.1),
+                Effect::Backlash => {
+                    let (low, high) = match recorded {
+                        Recorded::Separate => BACKLASH_RAD,
+                        Recorded::Schedule => SCHEDULE_BACKLASH_RAD,
+                    };
+                    log_uniform(&mut rng, low, high)
+                }
                 Effect::Hardening => rng.random_range(0.15..0.5) * stiffness / (twist * twist),
                 Effect::CoulombDamping => rng.random_range(0.025..0.06) * largest_knm,
                 Effect::SensorLag => rng.random_range(3.0e-3..15.0e-3),
@@ -289,16 +351,22 @@ pub fn suite(seed: u64) -> Result<Vec<HiddenCase>, ModelError> {
         };
         let noise_rms = log_uniform(&mut rng, NOISE_KNM.0, noise_high);
         let name = format!(
-            "{index:02} {}{} {:?}, {bites} bite{}",
+            "{index:02} {}{} {:?}, {bites} bite{}{}",
             effect.map_or("none", Effect::key),
             location.map_or(String::new(), |i| format!("@{i}")),
             handed_from,
-            if bites == 1 { "" } else { "s" }
+            if bites == 1 { "" } else { "s" },
+            if recorded == Recorded::Schedule {
+                " split"
+            } else {
+                ""
+            }
         );
         cases.push(HiddenCase {
             name,
             hidden,
             handed_from,
+            recorded,
             noise_rms,
             seed: seed.wrapping_mul(1000) + 10 * index as u64,
             truth,

@@ -5,9 +5,11 @@
 //! level (its 90th percentile) and above five times the noise, dips shorter than
 //! [`MERGE_GAP_S`] (the transient's swings through zero) included, lasting at least
 //! [`MIN_BITE_S`]. Each bite's record starts up to [`PRE_BITE_S`] before the rise (half
-//! the idle stretch before it at most) and ends before the unloading: where the torque
-//! last stood at [`UNLOAD_FRACTION`] of its settled level (the median of the bite's
-//! second half), less the smoothing. A record with one bite comes back whole.
+//! the idle stretch before it at most) and ends before the unloading: back from where
+//! the torque last stood at [`UNLOAD_FRACTION`] of its settled level (the median of the
+//! bite's second half) to the last point as high as the torque over the [`LOOKBACK_S`]
+//! before it, within three times the moving mean's noise, less the smoothing. A record
+//! with one bite comes back whole.
 
 use super::noise::noise_rms;
 use super::Measured;
@@ -22,8 +24,13 @@ pub const MERGE_GAP_S: f64 = 0.15;
 pub const MIN_BITE_S: f64 = 0.2;
 /// Idle kept before a bite's rise, s.
 pub const PRE_BITE_S: f64 = 0.1;
-/// A bite's record ends where the torque last stood at this share of its settled level.
+/// A bite's unloading is found where the torque last stood at this share of its settled
+/// level (the record ends before, where the unloading began).
 pub const UNLOAD_FRACTION: f64 = 0.9;
+/// The unloading began at the last point that stood as high as the moving mean over
+/// this stretch before it, s: the moving mean's width (longer, an oscillation decaying
+/// from higher crests before would carry the point back into the transient).
+pub const LOOKBACK_S: f64 = 2.0 * SMOOTHING_S;
 
 /// The bites of `record`, each as its own record (times kept); `record` itself when it
 /// holds one bite or none.
@@ -49,7 +56,8 @@ pub fn split_bites<'a>(record: &Measured<'a>) -> Vec<Measured<'a>> {
     let Some(&level) = sorted.get(m * 9 / 10) else {
         return vec![*record];
     };
-    let threshold = (LOADED_FRACTION * level).max(5.0 * noise_rms(y));
+    let noise = noise_rms(y);
+    let threshold = (LOADED_FRACTION * level).max(5.0 * noise);
     let merge = (MERGE_GAP_S * fs).round() as usize;
     let mut runs: Vec<(usize, usize)> = Vec::new();
     let mut k = 0;
@@ -83,10 +91,30 @@ pub fn split_bites<'a>(record: &Measured<'a>) -> Vec<Measured<'a>> {
             let middle = tail.len() / 2;
             let (_, settled, _) = tail.select_nth_unstable_by(middle, f64::total_cmp);
             let settled = *settled;
-            let last = (a..b)
+            let unloading = (a..b)
                 .rev()
                 .find(|&j| smooth[j] >= UNLOAD_FRACTION * settled)
                 .unwrap_or(b);
+            // Back from there to where the unloading began: the last point whose moving
+            // mean comes within three times its own noise of the highest one over the
+            // [`LOOKBACK_S`] before it (inside a falling unloading every earlier value is
+            // higher; on the settled part, or at an oscillation's crest, the point is the
+            // top). A smooth unloading (a raised-cosine tail-out) takes tens of ms to
+            // reach the fraction above; a bite ending there keeps a drop of several % of
+            // the load that no driveline model has, and the fits bend to it (fresh bites
+            // were named a sensor lag). The settled median is no reference: with the
+            // tail-out and a slow oscillation in the second half it sits % below.
+            let margin = 3.0 * noise / ((2 * half + 1) as f64).sqrt();
+            let lookback = (LOOKBACK_S * fs).round() as usize;
+            let last = (a..=unloading)
+                .rev()
+                .find(|&j| {
+                    let highest = smooth[j.saturating_sub(lookback).max(a)..=j]
+                        .iter()
+                        .fold(f64::NEG_INFINITY, |h, &v| h.max(v));
+                    smooth[j] >= highest - margin
+                })
+                .unwrap_or(unloading);
             last.saturating_sub(half).max(a + 1)
         };
         bites.push(Measured {
@@ -103,6 +131,7 @@ mod tests {
     use super::*;
     use crate::chain::simulate_with_noise;
     use crate::model::Model;
+    use crate::schedule::{rolling_schedule, BarTiming, TAIL_OUT_S};
 
     #[test]
     fn three_bites_with_idle_and_unloading_between_are_three_records() {
@@ -152,5 +181,43 @@ mod tests {
         };
         assert_eq!(split_bites(&single).len(), 1);
         assert_eq!(split_bites(&single)[0].torque_knm.len(), 1800);
+    }
+
+    #[test]
+    fn a_bite_ends_where_a_smooth_unloading_begins() {
+        // The rolling schedule's tail-out is a 0.2 s raised cosine: it reaches 90% of
+        // the load only ~41 ms in. A bite record must end where it begins (before, the
+        // bites kept ~30 ms of a drop no driveline model has, and three fresh bites were
+        // named a sensor lag).
+        let model =
+            Model::from_toml_str(include_str!("../../models/table2-adjusted.toml"), "t2").unwrap();
+        let timing = BarTiming {
+            idle_s: 0.3,
+            rolling_s: 0.7,
+        };
+        let torques = [60.0, 160.0, 110.0];
+        let schedule = rolling_schedule(&model, &torques, timing, 0.5, 3).unwrap();
+        let fs = schedule.sample_rate_hz;
+        let whole = Measured {
+            t0_s: 0.0,
+            sample_rate_hz: fs,
+            torque_knm: &schedule.torque_knm,
+        };
+        let bites = split_bites(&whole);
+        assert_eq!(bites.len(), torques.len());
+        let per_bar = ((timing.idle_s + timing.rolling_s + TAIL_OUT_S) * fs).round() as usize;
+        for (b, bite) in bites.iter().enumerate() {
+            let start = (bite.t0_s * fs).round() as usize;
+            let end = start + bite.torque_knm.len();
+            let unloading = b * per_bar + ((timing.idle_s + timing.rolling_s) * fs) as usize;
+            // Share of the load the taper has shed by the bite's last sample.
+            let kept = end.saturating_sub(unloading) as f64 / (TAIL_OUT_S * fs);
+            let shed = 0.5 * (1.0 - (std::f64::consts::PI * kept).cos());
+            assert!(
+                shed < 0.01 && end + 40 > unloading,
+                "bite {b}: ends at {end} ({:.1}% shed), the unloading begins at {unloading}",
+                100.0 * shed
+            );
+        }
     }
 }
