@@ -143,6 +143,7 @@ pub(crate) struct RawOutputs {
     pub server: Option<RawServerOutput>,
     pub metrics: Option<RawMetricsOutput>,
     pub mqtt: Option<RawMqttOutput>,
+    pub web: Option<RawWebOutput>,
 }
 
 /// `[outputs.plc]`.
@@ -172,6 +173,16 @@ pub(crate) struct RawServerOutput {
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawMetricsOutput {
     pub bind: Option<String>,
+}
+
+/// `[outputs.web]`: the maintenance web page.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawWebOutput {
+    pub bind: Option<String>,
+    pub max_connections: Option<i64>,
+    pub header_timeout_ms: Option<i64>,
+    pub request_timeout_ms: Option<i64>,
 }
 
 /// `[outputs.mqtt]`: the Sparkplug B edge node.

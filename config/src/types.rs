@@ -453,6 +453,46 @@ pub struct Outputs {
     pub metrics: Option<MetricsOutput>,
     /// Sparkplug B edge node on an MQTT broker.
     pub mqtt: Option<MqttOutput>,
+    /// The maintenance web page and its JSON API.
+    pub web: Option<WebOutput>,
+}
+
+/// The maintenance web page and its JSON API (read-only HTTP/1.1).
+#[derive(Debug, Clone, PartialEq)]
+pub struct WebOutput {
+    /// Address to listen on (default `127.0.0.1:8080`); port 0 picks a free port.
+    pub bind: SocketAddr,
+    /// Connections served at once, 1..=1024 (default 32); a further connection waits
+    /// in the listen backlog until one closes. Each open page holds one for its live
+    /// updates.
+    pub max_connections: usize,
+    /// Time a client has to send a request's headers, counted from the connection's
+    /// start or the previous response, 100..=60000 ms (default 5000 ms); a slower
+    /// connection is closed.
+    pub header_timeout: Duration,
+    /// Time allowed to answer one request (the history queries), 100..=60000 ms
+    /// (default 10000 ms); past it the answer is 503. Live updates
+    /// (`/api/events`) are not bounded by it.
+    pub request_timeout: Duration,
+}
+
+impl WebOutput {
+    /// Default `max_connections`.
+    pub const DEFAULT_MAX_CONNECTIONS: usize = 32;
+    /// Default `header_timeout`, ms.
+    pub const DEFAULT_HEADER_TIMEOUT_MS: u64 = 5_000;
+    /// Default `request_timeout`, ms.
+    pub const DEFAULT_REQUEST_TIMEOUT_MS: u64 = 10_000;
+
+    /// The page on `bind` with the defaults of every other key.
+    pub fn on(bind: SocketAddr) -> Self {
+        Self {
+            bind,
+            max_connections: Self::DEFAULT_MAX_CONNECTIONS,
+            header_timeout: Duration::from_millis(Self::DEFAULT_HEADER_TIMEOUT_MS),
+            request_timeout: Duration::from_millis(Self::DEFAULT_REQUEST_TIMEOUT_MS),
+        }
+    }
 }
 
 /// The Sparkplug B edge node: the gateway publishes its drivelines and tandem mills

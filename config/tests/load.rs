@@ -1360,3 +1360,78 @@ fn rod_mill_problems_name_the_key_and_the_allowed_range() {
         "{found:?}"
     );
 }
+
+#[test]
+fn the_web_page_defaults_limits_and_listener_clash() {
+    // Defaults: loopback 8080, 32 connections, 5 s headers, 10 s requests.
+    let config = parse(&edited(
+        "[outputs.metrics]",
+        "[outputs.web]\n\n[outputs.metrics]",
+    ))
+    .unwrap_or_else(|error| panic!("{error}"));
+    let web = config.outputs.web.unwrap();
+    assert_eq!(web.bind, "127.0.0.1:8080".parse().unwrap());
+    assert_eq!(web.max_connections, 32);
+    assert_eq!(web.header_timeout, Duration::from_millis(5000));
+    assert_eq!(web.request_timeout, Duration::from_millis(10_000));
+    assert!(parse(BASE).unwrap().outputs.web.is_none());
+    let set = parse(&edited(
+        "[outputs.metrics]",
+        "[outputs.web]\nbind = \"0.0.0.0:8088\"\nmax_connections = 1\nheader_timeout_ms = 100\n\
+         request_timeout_ms = 60000\n\n[outputs.metrics]",
+    ))
+    .unwrap_or_else(|error| panic!("{error}"));
+    let web = set.outputs.web.unwrap();
+    assert_eq!(
+        (
+            web.bind.port(),
+            web.max_connections,
+            web.header_timeout,
+            web.request_timeout
+        ),
+        (8088, 1, Duration::from_millis(100), Duration::from_secs(60))
+    );
+    // Each key names itself and its range.
+    for (key, value, range) in [
+        ("max_connections", "0", "1..=1024"),
+        ("max_connections", "1025", "1..=1024"),
+        ("header_timeout_ms", "99", "100..=60000"),
+        ("request_timeout_ms", "60001", "100..=60000"),
+    ] {
+        let found = problems(&edited(
+            "[outputs.metrics]",
+            &format!("[outputs.web]\n{key} = {value}\n\n[outputs.metrics]"),
+        ));
+        assert_eq!(found.len(), 1, "{found:#?}");
+        assert!(
+            found[0].starts_with(&format!("mill.toml: outputs.web.{key}: {value}"))
+                && found[0].contains(range),
+            "{found:?}"
+        );
+    }
+    assert_problem_like(
+        &edited(
+            "[outputs.metrics]",
+            "[outputs.web]\nbind = \"localhost:80\"\n\n[outputs.metrics]",
+        ),
+        "mill.toml: outputs.web.bind: \"localhost:80\" is not allowed",
+        &[],
+    );
+    assert_problem_like(
+        &edited(
+            "[outputs.metrics]",
+            "[outputs.web]\nport = 80\n\n[outputs.metrics]",
+        ),
+        "mill.toml: ",
+        &["port"],
+    );
+    // The same port as the metrics endpoint.
+    assert_only_problem(
+        &edited(
+            "[outputs.metrics]",
+            "[outputs.web]\nbind = \"127.0.0.1:9187\"\n\n[outputs.metrics]\nbind = \"127.0.0.1:9187\"",
+        ),
+        "mill.toml: outputs.web.bind: 127.0.0.1:9187 is not allowed: outputs.metrics.bind \
+         (127.0.0.1:9187) listens on the same port; each listener needs its own port",
+    );
+}

@@ -34,6 +34,7 @@ use crate::outputs::publisher::{source_of_channel, Publisher};
 use crate::outputs::register_map::{self, MapTooLarge};
 use crate::outputs::results::GatewayState;
 use crate::outputs::sparkplug::SparkplugNode;
+use crate::outputs::web::{self, WebServer};
 use crate::shutdown::{self, Shutdown, ShutdownTrigger};
 use crate::supervision::Liveness;
 
@@ -50,7 +51,7 @@ pub enum ServiceError {
     /// A listening output (the HMI Modbus server, the metrics endpoint) could not bind.
     #[error("cannot bind the {output} to {address}: {source}")]
     Bind {
-        /// Which output: "Modbus server" or "metrics endpoint".
+        /// Which output: "Modbus server", "metrics endpoint" or "maintenance page".
         output: &'static str,
         /// The configured address.
         address: std::net::SocketAddr,
@@ -111,6 +112,7 @@ pub struct Service {
     history: History,
     server_listener: Option<TcpListener>,
     metrics_listener: Option<TcpListener>,
+    web_listener: Option<TcpListener>,
     liveness: Arc<Liveness>,
     server_counters: Arc<ServerCounters>,
     /// Set once the PLC writer attempted its first write (at once without a PLC).
@@ -124,6 +126,8 @@ pub struct Bound {
     pub server: Option<SocketAddr>,
     /// The Prometheus endpoint.
     pub metrics: Option<SocketAddr>,
+    /// The maintenance web page.
+    pub web: Option<SocketAddr>,
 }
 
 /// The health of Modbus source `index` of `config`: stale after three poll periods,
@@ -212,6 +216,7 @@ impl Service {
             history,
             server_listener: None,
             metrics_listener: None,
+            web_listener: None,
             liveness: Arc::default(),
             server_counters: Arc::default(),
             plc_attempted,
@@ -219,15 +224,16 @@ impl Service {
     }
 
     /// What the configuration exposes that an operator should know: a Modbus server
-    /// reachable from other hosts. `millgate check` prints these; the service logs them
-    /// as warnings at start.
+    /// or a web page reachable from other hosts. `millgate check` prints these; the
+    /// service logs them as warnings at start.
     pub fn warnings(&self) -> Vec<String> {
-        self.config
-            .outputs
+        let outputs = &self.config.outputs;
+        outputs
             .server
             .as_ref()
             .and_then(hmi_server::exposure_warning)
             .into_iter()
+            .chain(outputs.web.as_ref().and_then(web::exposure_warning))
             .collect()
     }
 
@@ -259,9 +265,11 @@ impl Service {
         let outputs = &self.config.outputs;
         let server = outputs.server.as_ref().map(|s| s.bind);
         let metrics = outputs.metrics.as_ref().map(|m| m.bind);
+        let web = outputs.web.as_ref().map(|w| w.bind);
         Ok(Bound {
             server: bind_once("Modbus server", &mut self.server_listener, server).await?,
             metrics: bind_once("metrics endpoint", &mut self.metrics_listener, metrics).await?,
+            web: bind_once("maintenance page", &mut self.web_listener, web).await?,
         })
     }
 
@@ -383,6 +391,7 @@ impl Service {
             history,
             server_listener,
             metrics_listener,
+            web_listener,
             liveness,
             server_counters,
             plc_attempted,
@@ -483,6 +492,17 @@ impl Service {
             }
             _ => None,
         };
+        if let (Some(settings), Some(listener)) = (&config.outputs.web, web_listener) {
+            let server = WebServer::new(&config, settings.clone(), Arc::clone(&publisher));
+            let shutdown = outputs_shutdown.clone();
+            outputs.spawn(async move {
+                let served = server.run(listener, shutdown).await;
+                (
+                    "maintenance page",
+                    served.map_err(|error| error.to_string()),
+                )
+            });
+        }
         if let Some(listener) = metrics_listener {
             let mut metrics = Metrics::new(
                 &config,

@@ -38,6 +38,8 @@ pub(crate) const DEFAULT_MAX_CONNECTIONS: usize = 8;
 pub(crate) const DEFAULT_IDLE_TIMEOUT_MS: u64 = 60_000;
 /// Prometheus endpoint when `[outputs.metrics]` has no `bind`.
 pub(crate) const DEFAULT_METRICS_BIND: &str = "127.0.0.1:9187";
+/// Default `outputs.web.bind`: loopback only.
+pub(crate) const DEFAULT_WEB_BIND: &str = "127.0.0.1:8080";
 /// Stands a tandem mill may have.
 const STANDS_RANGE: RangeInclusive<usize> = 2..=8;
 /// Longest Linux network interface name, bytes (IFNAMSIZ - 1).

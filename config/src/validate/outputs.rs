@@ -1,21 +1,26 @@
-//! `[outputs]`: the PLC writer, the HMI server and the metrics endpoint.
+//! `[outputs]`: the PLC writer, the HMI server, the metrics endpoint, the Sparkplug
+//! node and the web page.
 
 use std::net::SocketAddr;
 use std::ops::RangeInclusive;
 use std::time::Duration;
 
-use crate::raw::{RawMqttOutput, RawOutputs};
-use crate::{MetricsOutput, MqttOutput, Outputs, PlcOutput, ServerOutput};
+use crate::raw::{RawMqttOutput, RawOutputs, RawWebOutput};
+use crate::{MetricsOutput, MqttOutput, Outputs, PlcOutput, ServerOutput, WebOutput};
 
 use super::{
     optional, Checker, DEFAULT_IDLE_TIMEOUT_MS, DEFAULT_MAX_CONNECTIONS, DEFAULT_METRICS_BIND,
-    DEFAULT_TIMEOUT_MS, DEFAULT_UNIT_ID,
+    DEFAULT_TIMEOUT_MS, DEFAULT_UNIT_ID, DEFAULT_WEB_BIND,
 };
 
 /// Most HMI clients `outputs.server.max_connections` may allow.
 const MAX_CONNECTIONS_LIMIT: i64 = 64;
 /// Allowed `outputs.server.idle_timeout_ms`.
 const IDLE_TIMEOUT_RANGE_MS: RangeInclusive<i64> = 100..=3_600_000;
+/// Allowed `outputs.web.max_connections`.
+const WEB_CONNECTIONS_RANGE: RangeInclusive<i64> = 1..=1024;
+/// Allowed `outputs.web.header_timeout_ms` and `request_timeout_ms`.
+const WEB_TIMEOUT_RANGE_MS: RangeInclusive<i64> = 100..=60_000;
 
 impl Checker<'_> {
     /// `[outputs]`; `history` says whether `[history]` is configured (the MQTT output
@@ -83,19 +88,73 @@ impl Checker<'_> {
                 bind: self.bind("outputs.metrics.bind", bind)?,
             })
         });
-        let (server, metrics) = (optional(server), optional(metrics));
-        if let (Some(Some(server)), Some(Some(metrics))) = (&server, &metrics) {
-            self.distinct_listeners(&[
-                ("outputs.server.bind", server.bind),
-                ("outputs.metrics.bind", metrics.bind),
-            ]);
-        }
+        let web = raw.web.as_ref().map(|web| self.web(web));
+        let (server, metrics, web) = (optional(server), optional(metrics), optional(web));
+        let listeners: Vec<(&str, SocketAddr)> = [
+            (
+                "outputs.server.bind",
+                server.as_ref().and_then(|s| s.as_ref().map(|s| s.bind)),
+            ),
+            (
+                "outputs.metrics.bind",
+                metrics.as_ref().and_then(|m| m.as_ref().map(|m| m.bind)),
+            ),
+            (
+                "outputs.web.bind",
+                web.as_ref().and_then(|w| w.as_ref().map(|w| w.bind)),
+            ),
+        ]
+        .into_iter()
+        .filter_map(|(key, bind)| Some((key, bind?)))
+        .collect();
+        self.distinct_listeners(&listeners);
         let mqtt = raw.mqtt.as_ref().map(|mqtt| self.mqtt(mqtt, history));
         Some(Outputs {
             plc: optional(plc)?,
             server: server?,
             metrics: metrics?,
             mqtt: optional(mqtt)?,
+            web: web?,
+        })
+    }
+
+    fn web(&mut self, raw: &RawWebOutput) -> Option<WebOutput> {
+        let key = "outputs.web";
+        let bind = self.bind(
+            &format!("{key}.bind"),
+            raw.bind.as_deref().unwrap_or(DEFAULT_WEB_BIND),
+        );
+        let max_connections = self.int_in(
+            &format!("{key}.max_connections"),
+            raw.max_connections
+                .unwrap_or(WebOutput::DEFAULT_MAX_CONNECTIONS as i64),
+            WEB_CONNECTIONS_RANGE,
+            "",
+        );
+        let mut timeout = |name: &str, value: Option<i64>, default: i64| {
+            self.int_in(
+                &format!("{key}.{name}"),
+                value.unwrap_or(default),
+                WEB_TIMEOUT_RANGE_MS,
+                " ms",
+            )
+            .and_then(|ms| Some(Duration::from_millis(u64::try_from(ms).ok()?)))
+        };
+        let header_timeout = timeout(
+            "header_timeout_ms",
+            raw.header_timeout_ms,
+            WebOutput::DEFAULT_HEADER_TIMEOUT_MS as i64,
+        );
+        let request_timeout = timeout(
+            "request_timeout_ms",
+            raw.request_timeout_ms,
+            WebOutput::DEFAULT_REQUEST_TIMEOUT_MS as i64,
+        );
+        Some(WebOutput {
+            bind: bind?,
+            max_connections: usize::try_from(max_connections?).ok()?,
+            header_timeout: header_timeout?,
+            request_timeout: request_timeout?,
         })
     }
 

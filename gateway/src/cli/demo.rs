@@ -10,6 +10,9 @@
 //! The gateway keeps an event history (`--history FILE`, by default a new file in a
 //! temporary folder; the path is printed at start); a second run on the same file
 //! continues the bite counter, the wear trend and the pooled gap estimate.
+//!
+//! The maintenance page is served while the demo runs (`--web HOST:PORT`, by default
+//! a free loopback port; its address is printed at start).
 
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -49,6 +52,9 @@ pub struct DemoArgs {
     /// Sparkplug edge node id with `--mqtt`.
     #[arg(long, default_value = "demo", value_parser = sparkplug_id)]
     pub node: String,
+    /// Serve the maintenance page on this address (default: a free loopback port).
+    #[arg(long, value_name = "HOST:PORT", default_value = "127.0.0.1:0")]
+    pub web: std::net::SocketAddr,
 }
 
 fn sparkplug_id(id: &str) -> Result<String, String> {
@@ -155,6 +161,7 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         },
         Err(_) => println!("history: {} (new)", history_path.display()),
     }
+    config.outputs.web = Some(millgate_config::WebOutput::on(args.web));
     // The PLC holds the whole map and a margin.
     let plc_registers = usize::from(RegisterMap::new(&config).len()) + 16;
     let devices = DemoDevices::start(&mut config, &schedule, plc_registers).await?;
@@ -166,6 +173,12 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         plc_output_address(&config),
         args.duration
     );
+    let mut gateway = crate::Service::new(config.clone())?.spawn().await?;
+    let publisher = gateway.publisher();
+    let history = gateway.history().clone();
+    if let Some(web) = gateway.bound().web {
+        println!("maintenance page: http://{web}/");
+    }
     println!(
         "{:>7} {:>12} {:>7} {:>10} {:>7} | {:>10} {:>10} {:>24} {:>9}",
         "time s",
@@ -178,9 +191,6 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         "pooled gap (90%), mrad",
         "coupling"
     );
-    let mut gateway = crate::Service::new(config.clone())?.spawn().await?;
-    let publisher = gateway.publisher();
-    let history = gateway.history().clone();
 
     let started = Instant::now();
     let deadline = tokio::time::sleep(Duration::from_secs_f64(args.duration));

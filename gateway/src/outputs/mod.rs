@@ -1,7 +1,7 @@
 //! Outputs: the latest results, the register map that encodes them, and the tasks
 //! that publish it: the PLC writer, the HMI Modbus server and the Prometheus metrics
 //! (and the heartbeat's own task when there is no PLC); the event history that keeps
-//! them across restarts.
+//! them across restarts; the maintenance web page.
 
 pub(crate) mod heartbeat;
 pub mod history;
@@ -14,6 +14,7 @@ pub mod publisher;
 pub mod register_map;
 pub mod results;
 pub mod sparkplug;
+pub mod web;
 
 /// How often the heartbeat moves when there is no PLC output (the PLC writer moves
 /// it every write period otherwise).

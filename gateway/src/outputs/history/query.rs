@@ -421,6 +421,19 @@ impl HistoryReader {
 
     /// The rows of `R`'s table that pass `filter`, in id order.
     pub fn rows<R: Record>(&self, filter: &Filter) -> Result<Vec<R>, HistoryError> {
+        self.select(filter, false)
+    }
+
+    /// The newest rows of `R`'s table that pass `filter` (the last [`Filter::limit`]
+    /// of them by id), oldest first: "the last 20 bites".
+    pub fn newest<R: Record>(&self, filter: &Filter) -> Result<Vec<R>, HistoryError> {
+        let mut rows = self.select(filter, true)?;
+        rows.reverse();
+        Ok(rows)
+    }
+
+    /// The rows that pass `filter` in id order, or in reverse id order (`newest`).
+    fn select<R: Record>(&self, filter: &Filter, newest: bool) -> Result<Vec<R>, HistoryError> {
         let mut conditions = Vec::new();
         let mut values: Vec<rusqlite::types::Value> = Vec::new();
         let mut condition = |sql: String, value: rusqlite::types::Value| {
@@ -444,7 +457,11 @@ impl HistoryReader {
             sql.push_str(" WHERE ");
             sql.push_str(&conditions.join(" AND "));
         }
-        sql.push_str(" ORDER BY id");
+        sql.push_str(if newest {
+            " ORDER BY id DESC"
+        } else {
+            " ORDER BY id"
+        });
         if let Some(limit) = filter.limit {
             sql.push_str(&format!(" LIMIT {limit}"));
         }

@@ -1,0 +1,392 @@
+// millgate maintenance page: fills the server's HTML shell from the JSON API and keeps
+// it live through /api/events (server-sent events). No framework; plots by uPlot.
+"use strict";
+
+(function () {
+  const body = document.body;
+  const page = body.dataset.page;
+  const driveline = body.dataset.driveline;
+  // The plots, for the browser test (it checks their data).
+  window.millgatePlots = {};
+
+  // ---- formatting -------------------------------------------------------------
+  const num = (v, digits) => (v === null || v === undefined ? "–" : Number(v).toFixed(digits));
+  const utc = (text) => (text ? text.replace("T", " ").replace(/\.\d+Z$|Z$/, "") : "–");
+  function ago(text) {
+    if (!text) return "";
+    const s = Math.max(0, (Date.now() - Date.parse(text)) / 1000);
+    if (s < 90) return Math.round(s) + " s ago";
+    if (s < 5400) return Math.round(s / 60) + " min ago";
+    if (s < 172800) return Math.round(s / 3600) + " h ago";
+    return Math.round(s / 86400) + " d ago";
+  }
+  function el(tag, attrs, ...children) {
+    const node = document.createElement(tag);
+    for (const [k, v] of Object.entries(attrs || {})) {
+      if (k === "class") node.className = v;
+      else node.setAttribute(k, v);
+    }
+    for (const child of children) {
+      if (child === null || child === undefined) continue;
+      node.append(child instanceof Node ? child : document.createTextNode(String(child)));
+    }
+    return node;
+  }
+  const badge = (state, text) => el("span", { class: "badge " + state }, text || state.replace("_", " "));
+  const gapText = (g) =>
+    g ? num(g.gap_mrad, 2) + " mrad (" + num(g.low_mrad, 2) + "–" + num(g.high_mrad, 2) + ")" : "–";
+  const trendText = (t) => (t === null || t === undefined ? "–" : (t >= 0 ? "+" : "") + num(t, 2) + " mrad/week");
+  function fill(tbody, rows) {
+    tbody.replaceChildren(...rows);
+  }
+  async function getJson(path) {
+    const response = await fetch(path, { headers: { Accept: "application/json" } });
+    const answer = await response.json();
+    if (!response.ok) throw new Error(answer.error || response.statusText);
+    return answer;
+  }
+
+  // ---- live updates -------------------------------------------------------------
+  const live = document.getElementById("live");
+  let lastLive = null;
+  const listeners = [];
+  function connect() {
+    const source = new EventSource("/api/events");
+    source.addEventListener("results", (event) => {
+      const now = JSON.parse(event.data);
+      const before = lastLive;
+      lastLive = now;
+      live.textContent = "live";
+      live.className = "live on";
+      for (const listener of listeners) listener(now, before);
+    });
+    source.onerror = () => {
+      live.textContent = "reconnecting";
+      live.className = "live off";
+    };
+  }
+  // Drivelines whose bite counter moved between two live messages.
+  function newBites(now, before) {
+    if (!before) return [];
+    return now.drivelines.filter((d, i) => before.drivelines[i] && d.bite_counter !== before.drivelines[i].bite_counter);
+  }
+
+  function plotWidth(node) {
+    return Math.max(320, node.clientWidth || 800);
+  }
+
+  // ---- overview -----------------------------------------------------------------
+  function overviewPage() {
+    let full = null; // the last /api/overview (with the history's trend and outages)
+    function render(o) {
+      fill(document.querySelector("#drivelines tbody"), o.drivelines.map((d) => {
+        const trend = full && full.drivelines.find((f) => f.name === d.name);
+        return el("tr", { id: "driveline-" + d.name },
+          el("td", {}, el("a", { href: "/drivelines/" + encodeURIComponent(d.name) }, d.name)),
+          el("td", {}, utc(d.last_bite), " ", el("span", { class: "muted" }, ago(d.last_bite))),
+          el("td", { class: "bite-counter" }, d.bite_counter),
+          el("td", {}, num(d.taf, 3), " ", badge(d.taf_state)),
+          el("td", {}, gapText(d.gap)),
+          el("td", {}, trendText(trend ? trend.gap_trend_mrad_per_week : null)),
+          el("td", {}, badge(d.wear_state), d.source_stale ? badge("stale", "source stale") : null,
+            d.restored ? el("span", { class: "muted" }, " restored") : null));
+      }));
+      document.getElementById("mills-section").classList.toggle("hidden", o.tandem_mills.length === 0);
+      fill(document.querySelector("#mills tbody"), o.tandem_mills.map((m) =>
+        el("tr", {},
+          el("td", {}, m.name),
+          el("td", {}, badge(m.chatter_state)),
+          el("td", {}, num(m.gain_ratio, 2)),
+          el("td", {}, m.worst_stand || "–"),
+          el("td", {}, m.chatter_frequency_hz === null ? "–" : num(m.chatter_frequency_hz, 1) + " Hz"),
+          el("td", {}, m.slow_down_request ? badge("warning", "requested") : "no"))));
+      document.getElementById("rod-section").classList.toggle("hidden", o.rod_mills.length === 0);
+      fill(document.querySelector("#rods tbody"), o.rod_mills.map((r) =>
+        el("tr", {},
+          el("td", {}, r.name),
+          el("td", {}, badge(r.state)),
+          el("td", {}, r.worst_span === null ? "–" : "span " + r.worst_span),
+          el("td", {}, r.worst_margin_m_s === null ? "–" : num(r.worst_margin_m_s, 2) + " m/s"),
+          el("td", {}, r.pass === null ? "–" : r.pass),
+          el("td", {}, r.finishing_speed_m_s === null ? "–" : num(r.finishing_speed_m_s, 1) + " m/s"))));
+      fill(document.querySelector("#sources tbody"), o.sources.map((s) => {
+        const f = full && full.sources.find((x) => x.name === s.name);
+        const last = f && f.last_outage_start
+          ? utc(f.last_outage_start) + (f.last_outage_end ? " to " + utc(f.last_outage_end) : " (ongoing)")
+          : (o.history ? "none" : "no history configured");
+        return el("tr", {},
+          el("td", {}, s.name), el("td", {}, s.kind), el("td", {}, badge(s.status)),
+          el("td", {}, f && f.outages_24h !== null ? f.outages_24h : "–"), el("td", {}, last));
+      }));
+    }
+    // The opened gap of every driveline over the history, one plot.
+    const gapNode = document.getElementById("overview-gap-plot");
+    const gapNote = document.getElementById("overview-gap-note");
+    let gapPlot = null;
+    async function drawGaps(o) {
+      if (!o.history) {
+        gapNote.textContent = "No history configured: the plot needs [history] in the configuration.";
+        return;
+      }
+      const models = o.drivelines.filter((d) => d.has_model);
+      if (models.length === 0) {
+        gapNote.textContent = "No driveline has a model configured: no gap estimates.";
+        return;
+      }
+      const series = await Promise.all(models.map((d) =>
+        getJson("/api/drivelines/" + encodeURIComponent(d.name) + "/wear?points=300")));
+      const tables = series.map((points) => [points.map((p) => Date.parse(p.end) / 1000), points.map((p) => p.gap_mrad)]);
+      const data = tables.length === 1 ? tables[0] : uPlot.join(tables);
+      const options = {
+        width: plotWidth(gapNode), height: 260, tzDate: utcDate,
+        scales: { x: { time: true } },
+        series: [{ label: "time (UTC)", value: timeLabel }].concat(models.map((d, i) => ({
+          label: d.name, stroke: colours[i % colours.length], width: 2, spanGaps: true, points: quiet,
+          value: (u, v) => num(v, 2) + " mrad",
+        }))),
+        axes: [{ values: utcTicks, incrs: timeIncrs, space: 70, label: "time (UTC)" }, { label: "opened gap, mrad" }],
+      };
+      if (gapPlot) gapPlot.destroy();
+      gapPlot = new uPlot(options, data, gapNode);
+      window.millgatePlots.overviewGap = gapPlot;
+      gapNote.textContent = data[0].length ? "" : "No gap estimate in the history yet.";
+    }
+    async function refresh() {
+      try {
+        full = await getJson("/api/overview");
+        render(lastLive || full);
+        await drawGaps(full);
+      } catch (error) {
+        console.error(error);
+        gapNote.textContent = error.message;
+      }
+    }
+    let pending = null;
+    listeners.push((now, before) => {
+      render(now);
+      // A bite changes the trend: fetch the history's part again, once.
+      if (newBites(now, before).length > 0 && pending === null) {
+        pending = setTimeout(() => { pending = null; refresh(); }, 1000);
+      }
+    });
+    refresh();
+    setInterval(refresh, 30000);
+    setInterval(() => lastLive && render(lastLive), 10000); // "x s ago"
+  }
+
+  // ---- driveline ----------------------------------------------------------------
+  // Time axis labels in UTC, 24 h: dates over days, clock times within a day.
+  function utcTicks(u, splits) {
+    const span = splits.length > 1 ? splits[splits.length - 1] - splits[0] : 0;
+    return splits.map((s) => {
+      const text = new Date(s * 1000).toISOString();
+      if (span > 3 * 86400) return text.slice(0, 10);
+      if (span > 180) return text.slice(11, 16);
+      return text.slice(11, 19);
+    });
+  }
+  const quiet = { show: false };
+  // Whole seconds at least between time ticks (the bites' times are to the second).
+  const timeIncrs = [1, 2, 5, 10, 15, 30, 60, 120, 300, 600, 900, 1800, 3600, 7200, 14400, 21600,
+    43200, 86400, 172800, 604800, 2592000, 7776000, 31536000];
+  const utcDate = (ts) => uPlot.tzDate(new Date(ts * 1e3), "Etc/UTC");
+  const timeLabel = (u, v) => (v === null ? "–" : new Date(v * 1000).toISOString().slice(0, 19).replace("T", " "));
+  const colours = ["#1d4ed8", "#0f766e", "#7c3aed", "#c2410c", "#be185d", "#4d7c0f", "#0369a1", "#a16207"];
+
+  function drivelinePage() {
+    const name = driveline;
+    const gapNode = document.getElementById("gap-plot");
+    const tafNode = document.getElementById("taf-plot");
+    const gapNote = document.getElementById("gap-note");
+    const tafNote = document.getElementById("taf-note");
+    const tbody = document.querySelector("#bites tbody");
+    let info = null;
+    let gapPlot = null;
+    let tafPlot = null;
+    let bites = [];
+
+    function cards(d) {
+      const card = (label, value, sub, state) =>
+        el("div", { class: "card" }, el("div", { class: "label" }, label),
+          el("div", { class: "value" }, value, state ? " " : null, state ? badge(state) : null),
+          el("div", { class: "sub" }, sub || ""));
+      document.getElementById("cards").replaceChildren(
+        card("Last bite", d.last_bite ? utc(d.last_bite).slice(11) : "–", d.last_bite ? ago(d.last_bite) + " · bite " + d.bite_counter : "no bite yet"),
+        card("TAF", num(d.taf, 3), "warning " + d.thresholds.taf_warning + " · alarm " + d.thresholds.taf_alarm, d.taf_state),
+        card("Opened gap", d.gap ? num(d.gap.gap_mrad, 2) + " mrad" : "–",
+          d.gap ? "90%: " + num(d.gap.low_mrad, 2) + "–" + num(d.gap.high_mrad, 2) + " mrad · " + d.gap.bites_pooled + " bites"
+            : (d.has_model ? "no estimate yet" : "no driveline model configured"), d.wear_state),
+        card("Gap trend", trendText(d.gap_trend_mrad_per_week), "least squares over 4 weeks, since the last reset"),
+        card("Static torque", d.static_torque_knm === null ? "–" : num(d.static_torque_knm, 0) + " kN·m",
+          "peak " + (d.peak_torque_knm === null ? "–" : num(d.peak_torque_knm, 0) + " kN·m")));
+    }
+
+    function row(b, fresh) {
+      const gap = b.gap_mrad === null || b.gap_mrad === undefined ? "–"
+        : num(b.gap_mrad, 2) + " (" + num(b.gap_low_mrad, 2) + "–" + num(b.gap_high_mrad, 2) + ")";
+      return el("tr", { class: fresh ? "fresh" : "", "data-bite": b.bite_counter },
+        el("td", {}, utc(b.time)), el("td", {}, b.bite_counter),
+        el("td", {}, num(b.static_torque_knm, 0) + " kN·m"), el("td", {}, num(b.peak_torque_knm, 0) + " kN·m"),
+        el("td", {}, num(b.taf, 3)),
+        el("td", {}, b.period_shift_s === null || b.period_shift_s === undefined ? "–" : num(b.period_shift_s * 1000, 2) + " ms"),
+        el("td", {}, gap), el("td", {}, b.degraded ? badge("warning", "degraded") : b.quality));
+    }
+    function table() {
+      fill(tbody, bites.slice(-25).reverse().map((b) => row(b, false)));
+    }
+
+    function drawGap(points) {
+      const t = info.thresholds;
+      const data = [[], [], [], [], [], []];
+      for (const p of points) {
+        data[0].push(Date.parse(p.end) / 1000);
+        data[1].push(p.gap_mrad);
+        data[2].push(p.gap_low_mrad);
+        data[3].push(p.gap_high_mrad);
+        data[4].push(t.gap_warning_mrad);
+        data[5].push(t.gap_alarm_mrad);
+      }
+      const options = {
+        width: plotWidth(gapNode), height: 300, tzDate: utcDate,
+        scales: { x: { time: true } },
+        series: [
+          { label: "time (UTC)", value: timeLabel },
+          { label: "gap", stroke: "#1d4ed8", width: 2, spanGaps: true, points: quiet, value: (u, v) => num(v, 2) + " mrad" },
+          { label: "90% low", stroke: "#93c5fd", width: 1, spanGaps: true, points: quiet, value: (u, v) => num(v, 2) },
+          { label: "90% high", stroke: "#93c5fd", width: 1, spanGaps: true, points: quiet, value: (u, v) => num(v, 2) },
+          { label: "warning", stroke: "#b45309", width: 1.5, dash: [8, 5], points: quiet },
+          { label: "alarm", stroke: "#b91c1c", width: 1.5, dash: [8, 5], points: quiet },
+        ],
+        bands: [{ series: [3, 2], fill: "rgba(29, 78, 216, 0.15)" }],
+        axes: [{ values: utcTicks, incrs: timeIncrs, space: 70, label: "time (UTC)" }, { label: "opened gap, mrad" }],
+      };
+      if (gapPlot) gapPlot.destroy();
+      gapPlot = new uPlot(options, data, gapNode);
+      window.millgatePlots.gap = gapPlot;
+    }
+
+    function drawTaf() {
+      const t = info.thresholds;
+      const points = bites.filter((b) => b.taf !== null && !b.degraded)
+        .map((b) => [b.static_torque_knm, b.taf]).sort((a, b) => a[0] - b[0]);
+      const data = [points.map((p) => p[0]), points.map((p) => p[1]),
+        points.map(() => t.taf_warning), points.map(() => t.taf_alarm)];
+      const options = {
+        width: plotWidth(tafNode), height: 260,
+        scales: { x: { time: false } },
+        series: [
+          { label: "static torque, kN·m", value: (u, v) => num(v, 0) },
+          { label: "TAF (bites)", stroke: "#0f766e", width: 0, paths: () => null, points: { show: true, size: 6, fill: "#0f766e" }, value: (u, v) => num(v, 3) },
+          { label: "warning", stroke: "#b45309", width: 1.5, dash: [8, 5], points: quiet },
+          { label: "alarm", stroke: "#b91c1c", width: 1.5, dash: [8, 5], points: quiet },
+        ],
+        axes: [{ label: "static torque, kN·m" }, { label: "TAF" }],
+      };
+      if (tafPlot) tafPlot.destroy();
+      tafPlot = new uPlot(options, data, tafNode);
+      window.millgatePlots.taf = tafPlot;
+    }
+
+    async function loadHistory() {
+      try {
+        const [wear, rows] = await Promise.all([
+          getJson("/api/drivelines/" + encodeURIComponent(name) + "/wear?points=400"),
+          getJson("/api/drivelines/" + encodeURIComponent(name) + "/bites?limit=500"),
+        ]);
+        bites = rows;
+        table();
+        drawGap(wear);
+        gapNote.textContent = wear.some((p) => p.gap_mrad !== null) ? ""
+          : (info.has_model ? "No gap estimate in the history yet." : "No gap estimates: the driveline has no model configured.");
+        drawTaf();
+        tafNote.textContent = "Points: the measured bites (newest 500). The wear maps' TAF curves " +
+          "are not published by the analysis, so they are not drawn.";
+      } catch (error) {
+        gapNote.textContent = error.message;
+        tafNote.textContent = error.message;
+      }
+    }
+
+    async function start() {
+      info = await getJson("/api/drivelines/" + encodeURIComponent(name));
+      cards(info);
+      const overview = await getJson("/api/overview");
+      if (overview.history) {
+        await loadHistory();
+      } else {
+        gapNote.textContent = "No history configured: the plots need [history] in the configuration.";
+        tafNote.textContent = "No history configured.";
+        fill(tbody, [el("tr", {}, el("td", { colspan: 8, class: "muted" }, "no history configured: live figures only"))]);
+      }
+      let pending = null;
+      listeners.push((now, before) => {
+        const d = now.drivelines.find((x) => x.name === name);
+        if (!d) return;
+        d.gap_trend_mrad_per_week = info.gap_trend_mrad_per_week;
+        cards(d);
+        if (!newBites(now, before).some((x) => x.name === name)) return;
+        // The new bite at once from the live figures...
+        const liveBite = {
+          time: d.last_bite, bite_counter: d.bite_counter, static_torque_knm: d.static_torque_knm,
+          peak_torque_knm: d.peak_torque_knm, taf: d.taf, period_shift_s: d.first_period_shift_s,
+          gap_mrad: d.gap ? d.gap.gap_mrad : null, gap_low_mrad: d.gap ? d.gap.low_mrad : null,
+          gap_high_mrad: d.gap ? d.gap.high_mrad : null, degraded: d.last_bite_degraded, quality: "live",
+        };
+        tbody.prepend(row(liveBite, true));
+        if (gapPlot && d.gap && d.last_bite) {
+          const data = gapPlot.data.map((s) => s.slice());
+          data[0].push(Date.parse(d.last_bite) / 1000);
+          data[1].push(d.gap.gap_mrad); data[2].push(d.gap.low_mrad); data[3].push(d.gap.high_mrad);
+          data[4].push(info.thresholds.gap_warning_mrad); data[5].push(info.thresholds.gap_alarm_mrad);
+          gapPlot.setData(data);
+        }
+        // ...then the stored rows and the trend, once the history has them.
+        if (overview.history && pending === null) {
+          pending = setTimeout(async () => {
+            pending = null;
+            try {
+              info = await getJson("/api/drivelines/" + encodeURIComponent(name));
+            } catch (error) { console.error(error); }
+            loadHistory();
+          }, 1500);
+        }
+      });
+      window.addEventListener("resize", () => {
+        if (gapPlot) gapPlot.setSize({ width: plotWidth(gapNode), height: 300 });
+        if (tafPlot) tafPlot.setSize({ width: plotWidth(tafNode), height: 260 });
+      });
+    }
+    start().catch((error) => { gapNote.textContent = error.message; });
+  }
+
+  // ---- alarms -------------------------------------------------------------------
+  function alarmsPage() {
+    const note = document.getElementById("alarms-note");
+    async function refresh() {
+      try {
+        const rows = await getJson("/api/alarms?limit=500");
+        note.textContent = rows.length ? "The newest " + rows.length + " alarm events, newest first." : "No alarm events in the history.";
+        fill(document.querySelector("#alarms tbody"), rows.reverse().map((a) =>
+          el("tr", {},
+            el("td", {}, utc(a.time)), el("td", {}, a.subject), el("td", {}, a.kind.replace("_", " ")),
+            el("td", {}, badge(a.event === "raised" ? "alarm" : (a.event === "cleared" ? "ok" : "unknown"), a.event)),
+            el("td", {}, a.origin + (a.peer ? " (" + a.peer + ")" : "")),
+            el("td", {}, a.value === null ? "–" : num(a.value, 3)),
+            el("td", {}, a.threshold === null ? "–" : num(a.threshold, 3)))));
+      } catch (error) {
+        note.textContent = error.message;
+      }
+    }
+    const flags = (o) => JSON.stringify([o.drivelines.map((d) => [d.warning, d.alarm, d.gap_warning, d.gap_alarm]),
+      o.tandem_mills.map((m) => [m.chatter_state])]);
+    listeners.push((now, before) => {
+      if (before && flags(now) !== flags(before)) setTimeout(refresh, 1000);
+    });
+    refresh();
+  }
+
+  if (page === "overview") overviewPage();
+  else if (page === "driveline") drivelinePage();
+  else if (page === "alarms") alarmsPage();
+  connect();
+})();

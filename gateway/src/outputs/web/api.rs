@@ -1,0 +1,718 @@
+//! The JSON API: live figures from the publisher's snapshot, history from the file.
+//!
+//! Every error is `{"error": "..."}` with its status: 400 for a bad parameter (naming
+//! it and its allowed range), 404 for an unknown driveline or without a history, 503
+//! when the history cannot be read in time.
+
+use std::collections::BTreeSet;
+use std::convert::Infallible;
+use std::ops::RangeInclusive;
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::extract::rejection::QueryRejection;
+use axum::extract::{Path, Query, State};
+use axum::http::{header, HeaderValue, StatusCode};
+use axum::response::sse::{Event, KeepAlive, Sse};
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use serde::Serialize;
+use tokio_stream::wrappers::WatchStream;
+use tokio_stream::{Stream, StreamExt};
+
+use super::{DrivelineInfo, WebState};
+use crate::field::source_health::SourceStatus;
+use crate::outputs::history::query::{AlarmRow, BiteRow, Filter, HistoryReader, OutageRow};
+use crate::outputs::history::series::{WearPoint, MAX_SERIES_POINTS};
+use crate::outputs::history::time::UtcTime;
+use crate::outputs::history::HistoryError;
+use crate::outputs::results::{
+    DrivelineResults, GatewayState, MillResults, Results, RodMillResults,
+};
+
+/// Default and largest `limit` of `/api/drivelines/{name}/bites` and `/api/alarms`.
+pub const LIMIT_DEFAULT: u32 = 100;
+/// Largest `limit`.
+pub const LIMIT_MAX: u32 = 10_000;
+/// Default `points` of `/api/drivelines/{name}/wear`.
+pub const POINTS_DEFAULT: u32 = 300;
+/// The gap trend is fitted to the estimates of this window before the last bite.
+pub const TREND_WINDOW: Duration = Duration::from_secs(28 * 86_400);
+/// Outages counted on the overview: those that started in this window.
+pub const OUTAGE_WINDOW: Duration = Duration::from_secs(24 * 3600);
+
+/// A refused request: its status and a sentence saying why.
+#[derive(Debug)]
+pub struct ApiError {
+    /// 400, 404, 500 or 503.
+    pub status: StatusCode,
+    /// What was wrong, naming the parameter and its allowed range.
+    pub message: String,
+}
+
+impl ApiError {
+    fn bad(message: String) -> Self {
+        Self {
+            status: StatusCode::BAD_REQUEST,
+            message,
+        }
+    }
+}
+
+/// `{"error": message}` with `status`.
+pub fn error(status: StatusCode, message: &str) -> Response {
+    #[derive(Serialize)]
+    struct Body<'a> {
+        error: &'a str,
+    }
+    (status, Json(Body { error: message })).into_response()
+}
+
+/// The query parameters of a request, checked against what its route takes.
+#[derive(Debug)]
+struct Params(Vec<(String, String)>);
+
+impl Params {
+    /// The parameters, refusing names `allowed` does not list and repeated names.
+    fn of(
+        query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+        allowed: &[&str],
+    ) -> Result<Self, ApiError> {
+        let Query(pairs) = query.map_err(|rejection| ApiError::bad(rejection.body_text()))?;
+        let mut seen = BTreeSet::new();
+        for (name, _) in &pairs {
+            if !allowed.contains(&name.as_str()) {
+                return Err(ApiError::bad(format!(
+                    "unknown parameter \"{name}\" (allowed: {})",
+                    allowed.join(", ")
+                )));
+            }
+            if !seen.insert(name.as_str()) {
+                return Err(ApiError::bad(format!("parameter {name} given twice")));
+            }
+        }
+        Ok(Self(pairs))
+    }
+
+    fn get(&self, name: &str) -> Option<&str> {
+        self.0
+            .iter()
+            .find(|(key, _)| key == name)
+            .map(|(_, value)| value.as_str())
+    }
+
+    /// An RFC 3339 / ISO-8601 UTC time (or Unix seconds).
+    fn time(&self, name: &str) -> Result<Option<UtcTime>, ApiError> {
+        self.get(name)
+            .map(|text| {
+                UtcTime::parse(text).map_err(|error| ApiError::bad(format!("{name}: {error}")))
+            })
+            .transpose()
+    }
+
+    /// `since` and `until`, `since` before `until`.
+    fn range(&self) -> Result<(Option<UtcTime>, Option<UtcTime>), ApiError> {
+        let (since, until) = (self.time("since")?, self.time("until")?);
+        if let (Some(since), Some(until)) = (since, until) {
+            if since >= until {
+                return Err(ApiError::bad(format!(
+                    "since ({since}) must be before until ({until})"
+                )));
+            }
+        }
+        Ok((since, until))
+    }
+
+    /// A count in `range`, `default` when absent.
+    fn count(&self, name: &str, range: RangeInclusive<u32>, default: u32) -> Result<u32, ApiError> {
+        let Some(text) = self.get(name) else {
+            return Ok(default);
+        };
+        match text.parse::<u32>() {
+            Ok(value) if range.contains(&value) => Ok(value),
+            _ => Err(ApiError::bad(format!(
+                "{name}: \"{text}\" is not allowed (must be an integer in {}..={})",
+                range.start(),
+                range.end()
+            ))),
+        }
+    }
+}
+
+/// Run `work` on a reader of the history file on the blocking pool, within the
+/// request timeout. 404 without a history, 503 when the file cannot be read or the
+/// query takes too long (it then finishes on its own; its result is dropped).
+async fn with_history<T: Send + 'static>(
+    state: &WebState,
+    work: impl FnOnce(&HistoryReader) -> Result<T, ApiError> + Send + 'static,
+) -> Result<T, ApiError> {
+    let Some(path) = state.history.clone() else {
+        return Err(ApiError {
+            status: StatusCode::NOT_FOUND,
+            message: "no history configured (add [history] to the configuration)".into(),
+        });
+    };
+    let unavailable = |message: String| ApiError {
+        status: StatusCode::SERVICE_UNAVAILABLE,
+        message,
+    };
+    let query = tokio::task::spawn_blocking(move || {
+        let reader = HistoryReader::open(&path).map_err(|error| ApiError {
+            status: StatusCode::SERVICE_UNAVAILABLE,
+            message: error.to_string(),
+        })?;
+        work(&reader)
+    });
+    match tokio::time::timeout(state.request_timeout, query).await {
+        Ok(Ok(answer)) => answer,
+        Ok(Err(_)) => Err(unavailable("the history query failed".into())),
+        Err(_) => Err(unavailable(format!(
+            "the history query took longer than {} ms (outputs.web.request_timeout_ms)",
+            state.request_timeout.as_millis()
+        ))),
+    }
+}
+
+fn history_error(error: HistoryError) -> ApiError {
+    ApiError {
+        status: StatusCode::SERVICE_UNAVAILABLE,
+        message: error.to_string(),
+    }
+}
+
+/// The driveline named `name`, or 404.
+fn driveline_index(state: &WebState, name: &str) -> Result<usize, ApiError> {
+    state
+        .drivelines
+        .iter()
+        .position(|d| d.name == name)
+        .ok_or_else(|| ApiError {
+            status: StatusCode::NOT_FOUND,
+            message: format!(
+                "no driveline \"{name}\" (known: {})",
+                state
+                    .drivelines
+                    .iter()
+                    .map(|d| d.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        })
+}
+
+/// The pooled gap estimate as published.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct GapView {
+    /// Opened gap, mrad.
+    pub gap_mrad: f64,
+    /// 90% interval, lower end, mrad.
+    pub low_mrad: f64,
+    /// 90% interval, upper end, mrad.
+    pub high_mrad: f64,
+    /// Coupling holding the gap (model index, 0 = motor side); `None`: undetermined.
+    pub coupling: Option<usize>,
+    /// Bites pooled.
+    pub bites_pooled: usize,
+}
+
+/// A driveline's thresholds.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct ThresholdsView {
+    /// TAF warning.
+    pub taf_warning: f64,
+    /// TAF alarm.
+    pub taf_alarm: f64,
+    /// Gap warning, mrad.
+    pub gap_warning_mrad: f64,
+    /// Gap alarm, mrad.
+    pub gap_alarm_mrad: f64,
+}
+
+/// A driveline's live figures (and, on the overview and its own endpoint, the gap
+/// trend from the history).
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct DrivelineView {
+    /// Name.
+    pub name: String,
+    /// Whether it has a model (the gap diagnosis runs only with one).
+    pub has_model: bool,
+    /// Bites since start (continued across restarts with a history).
+    pub bite_counter: u32,
+    /// Degraded bites (values not published).
+    pub degraded_bites: u32,
+    /// Time of the last bite, UTC ISO-8601 (second resolution).
+    pub last_bite: Option<String>,
+    /// Static torque of the last bite, kN*m.
+    pub static_torque_knm: Option<f64>,
+    /// Peak torque of the last bite, kN*m.
+    pub peak_torque_knm: Option<f64>,
+    /// TAF of the last bite.
+    pub taf: Option<f64>,
+    /// First minus second period, s.
+    pub first_period_shift_s: Option<f64>,
+    /// TAF-ratio wear index of the last bite.
+    pub wear_index: Option<f64>,
+    /// Its trend.
+    pub wear_trend: Option<f64>,
+    /// Pooled gap estimate.
+    pub gap: Option<GapView>,
+    /// Gap trend, mrad per week, from the history (least squares over the estimates
+    /// of the 4 weeks before the last bite, after the last wear reset); `None` on
+    /// live updates, without a history or with fewer than 5 estimates.
+    pub gap_trend_mrad_per_week: Option<f64>,
+    /// `ok`, `warning` or `alarm` of the TAF.
+    pub taf_state: &'static str,
+    /// `ok`, `warning`, `alarm` of the gap, or `unknown` without an estimate.
+    pub wear_state: &'static str,
+    /// TAF warning at the last bite.
+    pub warning: bool,
+    /// TAF alarm latched.
+    pub alarm: bool,
+    /// Gap warning.
+    pub gap_warning: bool,
+    /// Gap alarm latched.
+    pub gap_alarm: bool,
+    /// The torque source is stale or lost.
+    pub source_stale: bool,
+    /// The values are restored from before the last restart.
+    pub restored: bool,
+    /// The last bite's window was degraded.
+    pub last_bite_degraded: bool,
+    /// Thresholds.
+    pub thresholds: ThresholdsView,
+}
+
+impl DrivelineView {
+    fn new(info: &DrivelineInfo, results: &DrivelineResults) -> Self {
+        let state = |warning: bool, alarm: bool| match (warning, alarm) {
+            (_, true) => "alarm",
+            (true, false) => "warning",
+            _ => "ok",
+        };
+        Self {
+            name: info.name.clone(),
+            has_model: info.has_model,
+            bite_counter: results.bite_counter,
+            degraded_bites: results.degraded_bites,
+            last_bite: results
+                .last_bite_unix_s
+                .map(|s| UtcTime::from_unix_ms(i64::from(s) * 1000).to_string()),
+            static_torque_knm: results.static_torque_knm,
+            peak_torque_knm: results.peak_torque_knm,
+            taf: results.taf,
+            first_period_shift_s: results.first_period_shift_s,
+            wear_index: results.wear_index,
+            wear_trend: results.wear_trend,
+            gap: results.gap.map(|gap| GapView {
+                gap_mrad: gap.gap_mrad,
+                low_mrad: gap.low_mrad,
+                high_mrad: gap.high_mrad,
+                coupling: gap.coupling,
+                bites_pooled: gap.bites_pooled,
+            }),
+            gap_trend_mrad_per_week: None,
+            taf_state: state(results.warning, results.alarm),
+            wear_state: if results.gap.is_none() && !results.gap_alarm {
+                "unknown"
+            } else {
+                state(results.gap_warning, results.gap_alarm)
+            },
+            warning: results.warning,
+            alarm: results.alarm,
+            gap_warning: results.gap_warning,
+            gap_alarm: results.gap_alarm,
+            source_stale: results.source_stale,
+            restored: results.restored,
+            last_bite_degraded: results.last_bite_degraded,
+            thresholds: ThresholdsView {
+                taf_warning: info.taf_warning,
+                taf_alarm: info.taf_alarm,
+                gap_warning_mrad: info.gap_warning_mrad,
+                gap_alarm_mrad: info.gap_alarm_mrad,
+            },
+        }
+    }
+}
+
+/// A tandem mill's chatter state.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct MillView {
+    /// Name.
+    pub name: String,
+    /// Stand channels, rolling order.
+    pub stands: Vec<String>,
+    /// `ok`, `warning`, `alarm`, `stale` or `unknown` (no window yet).
+    pub chatter_state: &'static str,
+    /// Early-warning figure: largest band gain / threshold (>= 1 is the alarm).
+    pub gain_ratio: Option<f64>,
+    /// Stand channel of the gain ratio.
+    pub worst_stand: Option<String>,
+    /// RMS difference of adjacent stands' principal frequencies, Hz.
+    pub sigma_n_hz: Option<f64>,
+    /// Mean adjacent-stand correlation.
+    pub k_mean: Option<f64>,
+    /// Chatter frequency, Hz.
+    pub chatter_frequency_hz: Option<f64>,
+    /// Slow-down request to the PLC.
+    pub slow_down_request: bool,
+    /// Windows evaluated.
+    pub evaluations: u64,
+}
+
+impl MillView {
+    fn new((name, stands): &(String, Vec<String>), results: &MillResults) -> Self {
+        Self {
+            name: name.clone(),
+            stands: stands.clone(),
+            chatter_state: if results.alarm {
+                "alarm"
+            } else if results.source_stale {
+                "stale"
+            } else if results.warning {
+                "warning"
+            } else if results.evaluations == 0 {
+                "unknown"
+            } else {
+                "ok"
+            },
+            gain_ratio: results.gain_ratio,
+            worst_stand: results
+                .worst_stand
+                .and_then(|stand| stands.get(stand).cloned()),
+            sigma_n_hz: results.sigma_n_hz,
+            k_mean: results.k_mean,
+            chatter_frequency_hz: results.chatter_frequency_hz,
+            slow_down_request: results.slow_down_request,
+            evaluations: results.evaluations,
+        }
+    }
+}
+
+/// A rod mill's worst span.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct RodMillView {
+    /// Name.
+    pub name: String,
+    /// `stable`, `near_tongue`, `unstable`, `refused` (inputs out of range),
+    /// `stale` or `unknown` (not evaluated).
+    pub state: &'static str,
+    /// Span (1-based, rolling order) with the smallest speed margin.
+    pub worst_span: Option<usize>,
+    /// Its speed margin, m/s (negative: unstable).
+    pub worst_margin_m_s: Option<f64>,
+    /// Pass in use, 1-based.
+    pub pass: Option<u16>,
+    /// Finishing speed, m/s.
+    pub finishing_speed_m_s: Option<f64>,
+}
+
+impl RodMillView {
+    fn new(name: &str, results: &RodMillResults) -> Self {
+        let worst = results
+            .spans
+            .iter()
+            .enumerate()
+            .filter(|(_, span)| span.valid)
+            .filter_map(|(index, span)| Some((index + 1, span.speed_margin_m_s?)))
+            .min_by(|a, b| a.1.total_cmp(&b.1));
+        let valid = results.spans.iter().filter(|span| span.valid);
+        let state = if results.source_stale {
+            "stale"
+        } else if results.input_refused {
+            "refused"
+        } else if valid.clone().any(|span| span.unstable) {
+            "unstable"
+        } else if valid.clone().any(|span| span.near_tongue) {
+            "near_tongue"
+        } else if valid.count() == 0 {
+            "unknown"
+        } else {
+            "stable"
+        };
+        Self {
+            name: name.to_owned(),
+            state,
+            worst_span: worst.map(|w| w.0),
+            worst_margin_m_s: worst.map(|w| w.1),
+            pass: results.pass,
+            finishing_speed_m_s: results.finishing_speed_m_s,
+        }
+    }
+}
+
+/// A source's status and outages.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct SourceView {
+    /// Name.
+    pub name: String,
+    /// `modbus` or `can`.
+    pub kind: &'static str,
+    /// `ok`, `stale`, `lost` or `unknown`.
+    pub status: &'static str,
+    /// Outages that started in the last 24 h (history only).
+    pub outages_24h: Option<u32>,
+    /// Start of the last outage, UTC ISO-8601 (history only).
+    pub last_outage_start: Option<String>,
+    /// Its end; `None` while it lasts.
+    pub last_outage_end: Option<String>,
+}
+
+/// `/api/overview` (and, without the history parts, each `/api/events` message).
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct Overview {
+    /// The configuration's name.
+    pub name: String,
+    /// `starting`, `running` or `stopped`.
+    pub state: &'static str,
+    /// Whether a history is configured (plots need it).
+    pub history: bool,
+    /// Drivelines, config order.
+    pub drivelines: Vec<DrivelineView>,
+    /// Tandem mills, config order.
+    pub tandem_mills: Vec<MillView>,
+    /// Rod mills, config order.
+    pub rod_mills: Vec<RodMillView>,
+    /// Sources: Modbus, then CAN.
+    pub sources: Vec<SourceView>,
+}
+
+fn live_overview(state: &WebState, results: &Results) -> Overview {
+    Overview {
+        name: state.config_name.clone(),
+        state: match results.state {
+            GatewayState::Starting => "starting",
+            GatewayState::Running => "running",
+            GatewayState::Stopped => "stopped",
+        },
+        history: state.history.is_some(),
+        drivelines: state
+            .drivelines
+            .iter()
+            .zip(&results.drivelines)
+            .map(|(info, results)| DrivelineView::new(info, results))
+            .collect(),
+        tandem_mills: state
+            .mills
+            .iter()
+            .zip(&results.mills)
+            .map(|(mill, results)| MillView::new(mill, results))
+            .collect(),
+        rod_mills: state
+            .rod_mills
+            .iter()
+            .zip(&results.rod_mills)
+            .map(|(name, results)| RodMillView::new(name, results))
+            .collect(),
+        sources: state
+            .sources
+            .iter()
+            .zip(&results.sources)
+            .map(|((name, kind), status)| SourceView {
+                name: name.clone(),
+                kind,
+                status: match status {
+                    Some(SourceStatus::Ok) => "ok",
+                    Some(SourceStatus::Stale) => "stale",
+                    Some(SourceStatus::Lost) => "lost",
+                    None => "unknown",
+                },
+                outages_24h: None,
+                last_outage_start: None,
+                last_outage_end: None,
+            })
+            .collect(),
+    }
+}
+
+/// The live overview as `/api/events` sends it.
+pub(crate) fn live_json(state: &WebState) -> String {
+    let overview = live_overview(state, &state.publisher.results());
+    serde_json::to_string(&overview).unwrap_or_default()
+}
+
+/// Add what the history knows to `overview`: gap trends and source outages.
+fn add_history(reader: &HistoryReader, overview: &mut Overview) -> Result<(), ApiError> {
+    let now = UtcTime::now();
+    for source in &mut overview.sources {
+        let outages = reader
+            .outages(&Filter {
+                name: Some(source.name.clone()),
+                since: Some(now.minus(OUTAGE_WINDOW)),
+                ..Filter::default()
+            })
+            .map_err(history_error)?;
+        source.outages_24h = Some(u32::try_from(outages.len()).unwrap_or(u32::MAX));
+        let last = reader
+            .newest::<OutageRow>(&Filter {
+                name: Some(source.name.clone()),
+                limit: Some(1),
+                ..Filter::default()
+            })
+            .map_err(history_error)?;
+        if let Some(last) = last.into_iter().next() {
+            source.last_outage_start = Some(last.started_at);
+            source.last_outage_end = last.ended_at;
+        }
+    }
+    for driveline in &mut overview.drivelines {
+        driveline.gap_trend_mrad_per_week = gap_trend(reader, &driveline.name)?;
+    }
+    Ok(())
+}
+
+/// The gap trend of `driveline` over the [`TREND_WINDOW`] before its last bite,
+/// mrad/week; `None` with too few estimates, or when the file does not know the
+/// driveline yet (no run recorded it).
+fn gap_trend(reader: &HistoryReader, driveline: &str) -> Result<Option<f64>, ApiError> {
+    match reader.gap_trend(driveline, None, TREND_WINDOW) {
+        Ok(trend) => Ok(trend.map(|trend| trend.mrad_per_week)),
+        Err(HistoryError::UnknownDriveline { .. }) => Ok(None),
+        Err(error) => Err(history_error(error)),
+    }
+}
+
+/// The overview with the history's parts when there is a history.
+async fn full_overview(state: &Arc<WebState>) -> Result<Overview, ApiError> {
+    let mut overview = live_overview(state, &state.publisher.results());
+    if state.history.is_some() {
+        overview = with_history(state, move |reader| {
+            add_history(reader, &mut overview)?;
+            Ok(overview)
+        })
+        .await?;
+    }
+    Ok(overview)
+}
+
+/// `GET /api/overview`: every driveline, tandem mill, rod mill and source.
+pub(crate) async fn overview(
+    State(state): State<Arc<WebState>>,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Json<Overview>, ApiError> {
+    Params::of(query, &[])?;
+    Ok(Json(full_overview(&state).await?))
+}
+
+/// `GET /api/drivelines`: every driveline's live figures.
+pub(crate) async fn drivelines(
+    State(state): State<Arc<WebState>>,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Json<Vec<DrivelineView>>, ApiError> {
+    Params::of(query, &[])?;
+    Ok(Json(
+        live_overview(&state, &state.publisher.results()).drivelines,
+    ))
+}
+
+/// `GET /api/drivelines/{name}`: one driveline with its gap trend.
+pub(crate) async fn driveline(
+    State(state): State<Arc<WebState>>,
+    Path(name): Path<String>,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Json<DrivelineView>, ApiError> {
+    Params::of(query, &[])?;
+    let index = driveline_index(&state, &name)?;
+    let results = state.publisher.results();
+    let mut view = DrivelineView::new(&state.drivelines[index], &results.drivelines[index]);
+    if state.history.is_some() {
+        view = with_history(&state, move |reader| {
+            view.gap_trend_mrad_per_week = gap_trend(reader, &view.name)?;
+            Ok(view)
+        })
+        .await?;
+    }
+    Ok(Json(view))
+}
+
+/// `GET /api/drivelines/{name}/bites?since=&until=&limit=`: the newest `limit` bites
+/// in the range, oldest first.
+pub(crate) async fn bites(
+    State(state): State<Arc<WebState>>,
+    Path(name): Path<String>,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Json<Vec<BiteRow>>, ApiError> {
+    let params = Params::of(query, &["since", "until", "limit"])?;
+    driveline_index(&state, &name)?;
+    let (since, until) = params.range()?;
+    let limit = params.count("limit", 1..=LIMIT_MAX, LIMIT_DEFAULT)?;
+    let filter = Filter {
+        name: Some(name),
+        since,
+        until,
+        after_id: None,
+        limit: Some(limit),
+    };
+    let rows = with_history(&state, move |reader| {
+        reader.newest(&filter).map_err(history_error)
+    })
+    .await?;
+    Ok(Json(rows))
+}
+
+/// `GET /api/drivelines/{name}/wear?since=&until=&points=`: the gap estimate (last
+/// in each bucket, interval extremes) and TAF (mean, max) in at most `points` time
+/// buckets, oldest first; buckets without bites are left out.
+pub(crate) async fn wear(
+    State(state): State<Arc<WebState>>,
+    Path(name): Path<String>,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Json<Vec<WearPoint>>, ApiError> {
+    let params = Params::of(query, &["since", "until", "points"])?;
+    driveline_index(&state, &name)?;
+    let (since, until) = params.range()?;
+    let max = u32::try_from(MAX_SERIES_POINTS).unwrap_or(u32::MAX);
+    let points = params.count("points", 1..=max, POINTS_DEFAULT)?;
+    let series = with_history(&state, move |reader| {
+        match reader.wear_series(&name, since, until, points as usize) {
+            Ok(series) => Ok(series),
+            Err(HistoryError::UnknownDriveline { .. }) => Ok(Vec::new()),
+            Err(error) => Err(history_error(error)),
+        }
+    })
+    .await?;
+    Ok(Json(series))
+}
+
+/// `GET /api/alarms?since=&until=&limit=&subject=`: the newest `limit` alarm events
+/// in the range, oldest first.
+pub(crate) async fn alarms(
+    State(state): State<Arc<WebState>>,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Json<Vec<AlarmRow>>, ApiError> {
+    let params = Params::of(query, &["since", "until", "limit", "subject"])?;
+    let (since, until) = params.range()?;
+    let limit = params.count("limit", 1..=LIMIT_MAX, LIMIT_DEFAULT)?;
+    let filter = Filter {
+        name: params.get("subject").map(str::to_owned),
+        since,
+        until,
+        after_id: None,
+        limit: Some(limit),
+    };
+    let rows = with_history(&state, move |reader| {
+        reader.newest(&filter).map_err(history_error)
+    })
+    .await?;
+    Ok(Json(rows))
+}
+
+/// `GET /api/events`: server-sent events, `event: results` with the live overview
+/// (no history parts) at once and whenever it changes (checked every
+/// [`super::LIVE_PERIOD`]); a comment every 15 s keeps proxies from closing it.
+pub(crate) async fn events(
+    State(state): State<Arc<WebState>>,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Response, ApiError> {
+    Params::of(query, &[])?;
+    let stream: std::pin::Pin<Box<dyn Stream<Item = Result<Event, Infallible>> + Send>> = Box::pin(
+        WatchStream::new(state.live.clone())
+            .map(|json| Ok(Event::default().event("results").data(json.as_str()))),
+    );
+    let mut response = Sse::new(stream)
+        .keep_alive(KeepAlive::new().interval(Duration::from_secs(15)))
+        .into_response();
+    response
+        .headers_mut()
+        .insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+    Ok(response)
+}

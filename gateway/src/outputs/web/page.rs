@@ -1,0 +1,190 @@
+//! The pages: small HTML shells (names escaped, no inline script or style) that the
+//! page's own script fills from the API, and the assets compiled into the binary.
+
+use std::sync::Arc;
+
+use axum::extract::{Path, State};
+use axum::http::{header, HeaderValue, StatusCode};
+use axum::response::{Html, IntoResponse, Response};
+
+use super::WebState;
+
+/// uPlot's version, vendored in `gateway/assets/uplot` (MIT, its LICENSE beside it).
+pub const UPLOT_VERSION: &str = "1.6.32";
+
+/// The assets: path under `/assets/`, content type, bytes, Cache-Control.
+const ASSETS: &[(&str, &str, &[u8], &str)] = &[
+    (
+        "app.js",
+        "text/javascript; charset=utf-8",
+        include_bytes!("../../../assets/web/app.js"),
+        "no-cache",
+    ),
+    (
+        "app.css",
+        "text/css; charset=utf-8",
+        include_bytes!("../../../assets/web/app.css"),
+        "no-cache",
+    ),
+    // Named with their version: a browser may keep them for a day.
+    (
+        "uPlot-1.6.32.min.js",
+        "text/javascript; charset=utf-8",
+        include_bytes!("../../../assets/uplot/uPlot.iife.min.js"),
+        "public, max-age=86400",
+    ),
+    (
+        "uPlot-1.6.32.min.css",
+        "text/css; charset=utf-8",
+        include_bytes!("../../../assets/uplot/uPlot.min.css"),
+        "public, max-age=86400",
+    ),
+    (
+        "uPlot-LICENSE.txt",
+        "text/plain; charset=utf-8",
+        include_bytes!("../../../assets/uplot/LICENSE"),
+        "public, max-age=86400",
+    ),
+];
+
+/// `text` with `& < > " '` escaped for HTML text and attribute values.
+pub fn escape(text: &str) -> String {
+    let mut escaped = String::with_capacity(text.len());
+    for c in text.chars() {
+        match c {
+            '&' => escaped.push_str("&amp;"),
+            '<' => escaped.push_str("&lt;"),
+            '>' => escaped.push_str("&gt;"),
+            '"' => escaped.push_str("&quot;"),
+            '\'' => escaped.push_str("&#39;"),
+            c => escaped.push(c),
+        }
+    }
+    escaped
+}
+
+/// A whole page: `title` and `body` (already escaped), the page kind and driveline
+/// for the script.
+fn layout(state: &WebState, title: &str, page: &str, driveline: &str, body: &str) -> Response {
+    let plant = escape(&state.config_name);
+    let nav: String = state
+        .drivelines
+        .iter()
+        .map(|d| {
+            let name = escape(&d.name);
+            format!("<a href=\"/drivelines/{name}\">{name}</a>")
+        })
+        .collect();
+    let html = format!(
+        "<!doctype html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n\
+         <meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n\
+         <title>{title} · {plant} · millgate</title>\n\
+         <link rel=\"stylesheet\" href=\"/assets/uPlot-{UPLOT_VERSION}.min.css\">\n\
+         <link rel=\"stylesheet\" href=\"/assets/app.css\">\n\
+         <script src=\"/assets/uPlot-{UPLOT_VERSION}.min.js\" defer></script>\n\
+         <script src=\"/assets/app.js\" defer></script>\n</head>\n\
+         <body data-page=\"{page}\" data-driveline=\"{driveline}\">\n\
+         <header><a class=\"brand\" href=\"/\">millgate</a><span class=\"plant\">{plant}</span>\
+         <nav><a href=\"/\">Overview</a>{nav}<a href=\"/alarms\">Alarms</a></nav>\
+         <span id=\"live\" class=\"live\">connecting</span></header>\n\
+         <main>\n{body}\n<noscript><p class=\"note\">This page needs JavaScript; the same \
+         figures are in the JSON API under <a href=\"/api/overview\">/api/overview</a>.</p>\
+         </noscript>\n</main>\n<footer>millgate {version} · read-only · \
+         <a href=\"/api/overview\">JSON API</a> · plots by \
+         <a href=\"/assets/uPlot-LICENSE.txt\">uPlot {UPLOT_VERSION}</a> (MIT)</footer>\n\
+         </body>\n</html>\n",
+        version = env!("CARGO_PKG_VERSION"),
+    );
+    let mut response = Html(html).into_response();
+    response
+        .headers_mut()
+        .insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
+    response
+}
+
+const OVERVIEW: &str = r#"<h1>Overview</h1>
+<section><h2>Drivelines</h2>
+<table id="drivelines" class="grid"><thead><tr><th>Driveline</th><th>Last bite</th><th>Bites</th>
+<th>TAF</th><th>Opened gap (90% interval)</th><th>Gap trend</th><th>Wear</th></tr></thead>
+<tbody></tbody></table></section>
+<section><h2>Opened gap over time</h2><div id="overview-gap-plot" class="plot"></div>
+<p class="note" id="overview-gap-note"></p></section>
+<section id="mills-section"><h2>Tandem mills</h2>
+<table id="mills" class="grid"><thead><tr><th>Mill</th><th>Chatter</th><th>Early warning (gain / threshold)</th>
+<th>Worst stand</th><th>Chatter frequency</th><th>Slow-down request</th></tr></thead><tbody></tbody></table></section>
+<section id="rod-section"><h2>Rod mills</h2>
+<table id="rods" class="grid"><thead><tr><th>Mill</th><th>State</th><th>Worst span</th><th>Speed margin</th>
+<th>Pass</th><th>Finishing speed</th></tr></thead><tbody></tbody></table></section>
+<section><h2>Sources</h2>
+<table id="sources" class="grid"><thead><tr><th>Source</th><th>Kind</th><th>Status</th><th>Outages (24 h)</th>
+<th>Last outage</th></tr></thead><tbody></tbody></table></section>"#;
+
+const ALARMS: &str = r#"<h1>Alarms</h1>
+<p class="note" id="alarms-note"></p>
+<table id="alarms" class="grid"><thead><tr><th>Time (UTC)</th><th>Subject</th><th>Alarm</th><th>Event</th>
+<th>By</th><th>Value</th><th>Threshold</th></tr></thead><tbody></tbody></table>"#;
+
+/// `GET /`: the overview.
+pub(crate) async fn overview(State(state): State<Arc<WebState>>) -> Response {
+    layout(&state, "Overview", "overview", "", OVERVIEW)
+}
+
+/// `GET /alarms`: the alarm list.
+pub(crate) async fn alarms(State(state): State<Arc<WebState>>) -> Response {
+    layout(&state, "Alarms", "alarms", "", ALARMS)
+}
+
+/// `GET /drivelines/{name}`: one driveline, or 404.
+pub(crate) async fn driveline(
+    State(state): State<Arc<WebState>>,
+    Path(name): Path<String>,
+) -> Response {
+    let Some(info) = state.drivelines.iter().find(|d| d.name == name) else {
+        let mut page = layout(
+            &state,
+            "Not found",
+            "missing",
+            "",
+            &format!(
+                "<h1>No driveline “{}”</h1><p><a href=\"/\">Back to the overview</a></p>",
+                escape(&name)
+            ),
+        );
+        *page.status_mut() = StatusCode::NOT_FOUND;
+        return page;
+    };
+    let name = escape(&info.name);
+    let body = format!(
+        "<h1>Driveline {name}</h1>\n<div id=\"cards\" class=\"cards\"></div>\n\
+         <section><h2>Opened gap over time</h2><div id=\"gap-plot\" class=\"plot\"></div>\
+         <p class=\"note\" id=\"gap-note\"></p></section>\n\
+         <section><h2>TAF over static torque</h2><div id=\"taf-plot\" class=\"plot\"></div>\
+         <p class=\"note\" id=\"taf-note\"></p></section>\n\
+         <section><h2>Last bites</h2><table id=\"bites\" class=\"grid\"><thead><tr>\
+         <th>Time (UTC)</th><th>Bite</th><th>Static torque</th><th>Peak torque</th><th>TAF</th>\
+         <th>Period shift</th><th>Gap (90% interval)</th><th>Quality</th></tr></thead>\
+         <tbody></tbody></table></section>"
+    );
+    layout(
+        &state,
+        &format!("Driveline {name}"),
+        "driveline",
+        &name,
+        &body,
+    )
+}
+
+/// `GET /assets/{file}`: the script, the style sheet and uPlot.
+pub(crate) async fn asset(Path(file): Path<String>) -> Response {
+    match ASSETS.iter().find(|(name, ..)| *name == file) {
+        Some((_, content_type, bytes, cache)) => (
+            [
+                (header::CONTENT_TYPE, HeaderValue::from_static(content_type)),
+                (header::CACHE_CONTROL, HeaderValue::from_static(cache)),
+            ],
+            *bytes,
+        )
+            .into_response(),
+        None => super::api::error(StatusCode::NOT_FOUND, "no such asset"),
+    }
+}

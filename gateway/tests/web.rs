@@ -1,0 +1,468 @@
+//! The maintenance web page against a real service (`millgate run` between the demo's
+//! virtual DAQ and PLC) over real HTTP on loopback: the JSON API's answers and
+//! limits, the security headers, requests refused (bad parameters, methods, bodies,
+//! oversized, malformed and slow requests), the connection limit with the Modbus
+//! path answering meanwhile, live updates, and the page without a history.
+
+mod common;
+
+use std::time::{Duration, Instant};
+
+use common::{free_port, http, http_raw, web_ready, HttpAnswer, Setup};
+use millgate::outputs::history::query::{BiteRow, Filter, HistoryReader};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::TcpStream;
+
+fn assert_security_headers(answer: &HttpAnswer, what: &str) {
+    let csp = answer
+        .header("content-security-policy")
+        .unwrap_or_else(|| panic!("{what}: no content-security-policy"));
+    for directive in [
+        "default-src 'none'",
+        "script-src 'self'",
+        "style-src 'self'",
+        "connect-src 'self'",
+        "frame-ancestors 'none'",
+    ] {
+        assert!(
+            csp.contains(directive),
+            "{what}: CSP {csp:?} lacks {directive}"
+        );
+    }
+    assert!(
+        !csp.contains("unsafe"),
+        "{what}: CSP {csp:?} allows unsafe sources"
+    );
+    assert_eq!(
+        answer.header("x-content-type-options"),
+        Some("nosniff"),
+        "{what}"
+    );
+    assert_eq!(
+        answer.header("referrer-policy"),
+        Some("no-referrer"),
+        "{what}"
+    );
+    assert_eq!(answer.header("x-frame-options"), Some("DENY"), "{what}");
+    assert!(
+        answer.header("cache-control").is_some(),
+        "{what}: no cache-control"
+    );
+}
+
+/// A 400 whose JSON error names `words`.
+async fn assert_bad(port: u16, path: &str, words: &[&str]) {
+    let answer = http(port, "GET", path).await;
+    assert_eq!(answer.status, 400, "{path}: {}", answer.body);
+    let error = answer.json()["error"].as_str().unwrap().to_owned();
+    for word in words {
+        assert!(
+            error.contains(word),
+            "{path}: {error:?} does not name {word:?}"
+        );
+    }
+    assert_security_headers(&answer, path);
+}
+
+fn newest_bites(setup: &Setup, limit: u32) -> Vec<BiteRow> {
+    HistoryReader::open(&setup.history)
+        .unwrap()
+        .newest(&Filter {
+            name: Some("F1".into()),
+            limit: Some(limit),
+            ..Filter::default()
+        })
+        .unwrap()
+}
+
+/// The `data:` JSON of every whole `results` event in `text` (chunked framing lines
+/// never start with `data: `).
+fn events(text: &str) -> Vec<serde_json::Value> {
+    text.split('\n')
+        .filter_map(|line| line.strip_prefix("data: "))
+        .filter_map(|data| serde_json::from_str(data.trim_end()).ok())
+        .collect()
+}
+
+/// An open `/api/events` stream.
+struct EventStream {
+    stream: TcpStream,
+    text: String,
+}
+
+impl EventStream {
+    async fn open(port: u16) -> Self {
+        let mut stream = TcpStream::connect(("127.0.0.1", port)).await.unwrap();
+        stream
+            .write_all(
+                b"GET /api/events HTTP/1.1\r\nhost: localhost\r\naccept: text/event-stream\r\n\r\n",
+            )
+            .await
+            .unwrap();
+        Self {
+            stream,
+            text: String::new(),
+        }
+    }
+
+    /// Read until an event satisfies `done`, at most `limit`.
+    async fn until(
+        &mut self,
+        limit: Duration,
+        done: impl Fn(&serde_json::Value) -> bool,
+    ) -> serde_json::Value {
+        let start = Instant::now();
+        let mut buffer = [0u8; 8192];
+        loop {
+            if let Some(event) = events(&self.text).into_iter().rev().find(|e| done(e)) {
+                return event;
+            }
+            let left = limit.saturating_sub(start.elapsed());
+            let read = tokio::time::timeout(left, self.stream.read(&mut buffer))
+                .await
+                .unwrap_or_else(|_| panic!("no such event within {limit:?}: {}", self.text))
+                .unwrap();
+            assert!(read > 0, "events stream closed: {}", self.text);
+            self.text
+                .push_str(&String::from_utf8_lossy(&buffer[..read]));
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_api_answers_from_the_live_results_and_the_history_and_refuses_bad_requests() {
+    let setup = Setup::new("web-api", "history").await;
+    let port = free_port();
+    setup.append_config(&format!("\n[outputs.web]\nbind = \"127.0.0.1:{port}\"\n"));
+    let service = setup.spawn("web-api.log");
+    web_ready(port).await;
+    let plc = setup.plc();
+    plc.bites_after_now(2).await;
+
+    // Pages and assets.
+    let page = http(port, "GET", "/").await;
+    assert_eq!(page.status, 200);
+    assert!(page
+        .header("content-type")
+        .unwrap()
+        .starts_with("text/html"));
+    assert!(page
+        .body
+        .contains("<script src=\"/assets/app.js\" defer></script>"));
+    assert!(!page.body.contains("<script>"), "no inline script");
+    assert_security_headers(&page, "/");
+    let uplot = http(port, "GET", "/assets/uPlot-1.6.32.min.js").await;
+    let vendored =
+        std::fs::read_to_string(common::repo().join("gateway/assets/uplot/uPlot.iife.min.js"))
+            .unwrap();
+    assert_eq!(uplot.status, 200);
+    assert_eq!(uplot.body, vendored);
+    assert!(uplot
+        .header("content-type")
+        .unwrap()
+        .starts_with("text/javascript"));
+    assert_security_headers(&uplot, "uPlot");
+    let driveline_page = http(port, "GET", "/drivelines/F1").await;
+    assert_eq!(driveline_page.status, 200);
+    assert!(driveline_page.body.contains("id=\"gap-plot\""));
+    assert_eq!(http(port, "GET", "/drivelines/F9").await.status, 404);
+    assert_eq!(http(port, "GET", "/nothing").await.status, 404);
+
+    // The overview against the PLC and the file.
+    let overview = http(port, "GET", "/api/overview").await;
+    assert_eq!(overview.status, 200);
+    assert_eq!(overview.header("cache-control"), Some("no-store"));
+    assert_security_headers(&overview, "/api/overview");
+    let overview = overview.json();
+    assert_eq!(overview["history"], true);
+    let f1 = &overview["drivelines"][0];
+    assert_eq!(f1["name"], "F1");
+    let counter = f1["bite_counter"].as_u64().unwrap();
+    let plc_counter = u64::from(plc.counter());
+    assert!(
+        counter >= 2 && counter.abs_diff(plc_counter) <= 1,
+        "page {counter}, PLC {plc_counter}"
+    );
+    // The demo's TAFs are above the test's lowered thresholds (1.1 / 1.15).
+    assert_eq!(f1["alarm"], true);
+    assert_eq!(f1["taf_state"], "alarm");
+    assert_eq!(overview["sources"][0]["name"], "daq1");
+    assert_eq!(overview["sources"][0]["status"], "ok");
+    assert_eq!(overview["sources"][0]["outages_24h"], 0);
+    let drivelines = http(port, "GET", "/api/drivelines").await.json();
+    assert_eq!(drivelines.as_array().unwrap().len(), 1);
+    let one = http(port, "GET", "/api/drivelines/F1").await.json();
+    assert_eq!(one["name"], "F1");
+    assert_eq!(one["thresholds"]["taf_alarm"], 1.15);
+
+    // Bites: the newest, as stored.
+    let stored = newest_bites(&setup, 2);
+    let bites = http(port, "GET", "/api/drivelines/F1/bites?limit=2").await;
+    assert_eq!(bites.status, 200, "{}", bites.body);
+    let bites = bites.json();
+    let bites = bites.as_array().unwrap();
+    assert!(!bites.is_empty() && bites.len() <= 2);
+    let last = bites.last().unwrap();
+    let newest_id = stored.last().unwrap().id;
+    assert!(
+        last["id"].as_i64().unwrap() >= newest_id,
+        "API's newest bite {} older than the file's {newest_id}",
+        last["id"]
+    );
+    assert_eq!(last["driveline"], "F1");
+    // A time range: every row inside it.
+    let first_time = stored[0].time.clone();
+    let ranged = http(
+        port,
+        "GET",
+        &format!("/api/drivelines/F1/bites?since={first_time}&limit=10000"),
+    )
+    .await;
+    assert_eq!(ranged.status, 200, "{}", ranged.body);
+    let ranged = ranged.json();
+    let ranged = ranged.as_array().unwrap();
+    assert!(!ranged.is_empty());
+    assert!(ranged
+        .iter()
+        .all(|b| b["time"].as_str().unwrap() >= first_time.as_str()));
+    let before = http(
+        port,
+        "GET",
+        &format!("/api/drivelines/F1/bites?until={first_time}"),
+    )
+    .await
+    .json();
+    assert!(before
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|b| b["time"].as_str().unwrap() < first_time.as_str()));
+    // Wear series in buckets.
+    let wear = http(port, "GET", "/api/drivelines/F1/wear?points=3").await;
+    assert_eq!(wear.status, 200, "{}", wear.body);
+    let wear = wear.json();
+    let wear = wear.as_array().unwrap();
+    assert!(!wear.is_empty() && wear.len() <= 3);
+    assert!(wear.iter().all(|p| p["bites"].as_u64().unwrap() >= 1));
+    // Alarms: the TAF alarm the first bite raised.
+    let alarms = http(port, "GET", "/api/alarms?subject=F1").await.json();
+    assert!(
+        alarms
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|a| a["kind"] == "taf_alarm" && a["event"] == "raised"),
+        "{alarms}"
+    );
+
+    // Bad parameters, unknown names.
+    assert_bad(
+        port,
+        "/api/drivelines/F1/bites?limit=10001",
+        &["limit", "1..=10000"],
+    )
+    .await;
+    assert_bad(
+        port,
+        "/api/drivelines/F1/bites?limit=0",
+        &["limit", "1..=10000"],
+    )
+    .await;
+    assert_bad(port, "/api/drivelines/F1/bites?limit=ten", &["limit"]).await;
+    assert_bad(
+        port,
+        "/api/drivelines/F1/bites?since=yesterday",
+        &["since", "ISO-8601"],
+    )
+    .await;
+    assert_bad(
+        port,
+        "/api/drivelines/F1/bites?since=2026-02-01&until=2026-01-01",
+        &["since", "before", "until"],
+    )
+    .await;
+    assert_bad(
+        port,
+        "/api/drivelines/F1/bites?sort=asc",
+        &["sort", "since, until, limit"],
+    )
+    .await;
+    assert_bad(
+        port,
+        "/api/drivelines/F1/bites?limit=1&limit=2",
+        &["limit", "twice"],
+    )
+    .await;
+    assert_bad(
+        port,
+        "/api/drivelines/F1/wear?points=0",
+        &["points", "1..=10000"],
+    )
+    .await;
+    assert_bad(port, "/api/alarms?until=2026-13-01", &["until"]).await;
+    assert_bad(port, "/api/overview?x=1", &["x"]).await;
+    let unknown = http(port, "GET", "/api/drivelines/F9/bites").await;
+    assert_eq!(unknown.status, 404);
+    assert!(unknown.json()["error"].as_str().unwrap().contains("F9"));
+    assert_eq!(http(port, "GET", "/api/drivelines/F9").await.status, 404);
+
+    // Read-only: other methods, bodies.
+    for (method, path) in [
+        ("POST", "/api/overview"),
+        ("DELETE", "/"),
+        ("PUT", "/api/alarms"),
+        ("POST", "/nothing"),
+    ] {
+        let answer = http(port, method, path).await;
+        assert_eq!(answer.status, 405, "{method} {path}");
+        assert_eq!(answer.header("allow"), Some("GET, HEAD"));
+        assert!(answer.json()["error"]
+            .as_str()
+            .unwrap()
+            .contains("read-only"));
+        assert_security_headers(&answer, method);
+    }
+    let with_body = http_raw(
+        port,
+        b"GET /api/overview HTTP/1.1\r\nhost: l\r\nconnection: close\r\ncontent-length: 5\r\n\r\nhello",
+    )
+    .await;
+    assert_eq!(with_body.status, 413);
+    let head = http(port, "HEAD", "/api/overview").await;
+    assert_eq!(head.status, 200);
+    assert!(head.body.is_empty());
+    // Too large and malformed heads.
+    let huge = format!(
+        "GET / HTTP/1.1\r\nhost: l\r\nx-padding: {}\r\nconnection: close\r\n\r\n",
+        "a".repeat(20_000)
+    );
+    assert_eq!(http_raw(port, huge.as_bytes()).await.status, 431);
+    assert_eq!(http_raw(port, b"BLURB\x01 /\r\n\r\n").await.status, 400);
+
+    // Live: the next bite arrives on /api/events within 2 s of the PLC seeing it.
+    let mut live = EventStream::open(port).await;
+    let first = live.until(Duration::from_secs(2), |_| true).await;
+    let seen = first["drivelines"][0]["bite_counter"].as_u64().unwrap();
+    let plc_before = plc.counter();
+    plc.bites_after_now(1).await;
+    let plc_seen = Instant::now();
+    assert!(u64::from(plc_before) >= seen);
+    let event = live
+        .until(Duration::from_secs(2), |e| {
+            e["drivelines"][0]["bite_counter"].as_u64() > Some(u64::from(plc_before))
+        })
+        .await;
+    assert!(plc_seen.elapsed() < Duration::from_secs(2));
+    assert_eq!(event["drivelines"][0]["name"], "F1");
+    drop(live);
+    setup.stop(service).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn slow_and_excess_connections_are_refused_while_the_modbus_path_answers_and_no_history_is_said(
+) {
+    let setup = Setup::new("web-limits", "history").await;
+    let port = free_port();
+    // Without [history]: live figures only.
+    let text = std::fs::read_to_string(&setup.config).unwrap();
+    let without_history = text.split("\n[history]").next().unwrap().to_owned();
+    assert!(!without_history.contains("[history]"));
+    std::fs::write(
+        &setup.config,
+        format!(
+            "{without_history}\n[outputs.web]\nbind = \"127.0.0.1:{port}\"\nmax_connections = 3\n\
+             header_timeout_ms = 500\n"
+        ),
+    )
+    .unwrap();
+    let service = setup.spawn("web-limits.log");
+    web_ready(port).await;
+
+    // No history: the API says so; the live figures are there.
+    let overview = http(port, "GET", "/api/overview").await;
+    assert_eq!(overview.status, 200);
+    assert_eq!(overview.json()["history"], false);
+    let bites = http(port, "GET", "/api/drivelines/F1/bites").await;
+    assert_eq!(bites.status, 404);
+    assert!(bites.json()["error"]
+        .as_str()
+        .unwrap()
+        .contains("no history configured"));
+
+    // A connection that sends nothing, and one that sends its head a byte at a time,
+    // are closed after the 500 ms header timeout.
+    for (what, trickle) in [("silent", false), ("slowloris", true)] {
+        let start = Instant::now();
+        let mut stream = TcpStream::connect(("127.0.0.1", port)).await.unwrap();
+        let closed = async {
+            let head = b"GET / HTTP/1.1\r\nhost: localhost\r\nx-slow: aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa";
+            let mut buffer = [0u8; 1024];
+            for byte in head.iter().cycle() {
+                if trickle && stream.write_all(&[*byte]).await.is_err() {
+                    return;
+                }
+                match tokio::time::timeout(Duration::from_millis(100), stream.read(&mut buffer))
+                    .await
+                {
+                    Ok(Ok(0)) | Ok(Err(_)) => return,
+                    Ok(Ok(_)) => {} // hyper's 408 answer, then the close
+                    Err(_) => {}
+                }
+            }
+        };
+        tokio::time::timeout(Duration::from_secs(3), closed)
+            .await
+            .unwrap_or_else(|_| panic!("{what} connection still open after 3 s"));
+        let held = start.elapsed();
+        assert!(
+            held >= Duration::from_millis(400),
+            "{what} closed after {held:?}"
+        );
+    }
+
+    // Three live pages hold the three connections: the fourth is answered 503.
+    let mut pages = Vec::new();
+    for _ in 0..3 {
+        let mut page = EventStream::open(port).await;
+        page.until(Duration::from_secs(2), |_| true).await;
+        pages.push(page);
+    }
+    let refused = http(port, "GET", "/api/overview").await;
+    assert_eq!(refused.status, 503);
+    assert!(refused.json()["error"]
+        .as_str()
+        .unwrap()
+        .contains("too many connections"));
+    // Meanwhile the PLC gets bites and the Modbus server answers.
+    setup.plc().bites_after_now(1).await;
+    let mut modbus = TcpStream::connect(("127.0.0.1", setup.server_port))
+        .await
+        .unwrap();
+    // Read holding register 0 (FC 3), unit 1.
+    modbus
+        .write_all(&[0, 7, 0, 0, 0, 6, 1, 3, 0, 0, 0, 1])
+        .await
+        .unwrap();
+    let mut answer = [0u8; 11];
+    tokio::time::timeout(Duration::from_secs(2), modbus.read_exact(&mut answer))
+        .await
+        .expect("Modbus answer within 2 s")
+        .unwrap();
+    assert_eq!(&answer[..9], &[0, 7, 0, 0, 0, 5, 1, 3, 2]);
+    // A page closed frees its connection.
+    drop(pages.pop());
+    let start = Instant::now();
+    loop {
+        let answer = http(port, "GET", "/api/overview").await;
+        if answer.status == 200 {
+            break;
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(2),
+            "no connection freed"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    drop(pages);
+    setup.stop(service).await;
+}

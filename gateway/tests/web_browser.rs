@@ -1,0 +1,247 @@
+//! The maintenance page in a real browser: Debian's headless chromium driven through
+//! chromedriver (WebDriver, fantoccini) against a real service with a history. The
+//! overview lists the driveline, the driveline page's gap plot is a uPlot canvas with
+//! data, and a new bite shows on the open overview and driveline page within 2 s
+//! without a reload.
+//!
+//! Skipped (it says so on stderr) when `chromium` or `chromedriver` is not installed;
+//! `scripts/test` installs both (`apt-get install chromium chromium-driver`).
+//! `MILLGATE_SCREENSHOTS=DIR` saves the overview and the driveline page as PNG there
+//! (the README's picture: `docs/img`).
+
+mod common;
+
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use common::{free_port, web_ready, Setup};
+use fantoccini::{Client, ClientBuilder, Locator};
+use hyper_util::client::legacy::connect::HttpConnector;
+
+/// `program` on the PATH.
+fn which(program: &str) -> Option<PathBuf> {
+    std::env::var_os("PATH").and_then(|paths| {
+        std::env::split_paths(&paths)
+            .map(|folder| folder.join(program))
+            .find(|path| path.is_file())
+    })
+}
+
+/// chromedriver on a free loopback port, killed on drop.
+struct Driver {
+    child: Child,
+    port: u16,
+}
+
+impl Drop for Driver {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+async fn start_driver(chromedriver: &PathBuf) -> Driver {
+    let port = free_port();
+    let child = Command::new(chromedriver)
+        .args([format!("--port={port}"), "--allowed-ips=127.0.0.1".into()])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("start chromedriver");
+    let driver = Driver { child, port };
+    let start = Instant::now();
+    while tokio::net::TcpStream::connect(("127.0.0.1", port))
+        .await
+        .is_err()
+    {
+        assert!(
+            start.elapsed() < Duration::from_secs(20),
+            "chromedriver not up in 20 s"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    driver
+}
+
+async fn browser(driver: &Driver, chromium: &PathBuf) -> Client {
+    let mut capabilities = serde_json::Map::new();
+    capabilities.insert(
+        "goog:chromeOptions".into(),
+        serde_json::json!({
+            "binary": chromium,
+            // CI runs as root: no sandbox.
+            "args": ["--headless=new", "--no-sandbox", "--disable-gpu",
+                     "--disable-dev-shm-usage", "--window-size=1280,1000"],
+        }),
+    );
+    ClientBuilder::new(HttpConnector::new())
+        .capabilities(capabilities)
+        .connect(&format!("http://127.0.0.1:{}", driver.port))
+        .await
+        .expect("a chromium session through chromedriver")
+}
+
+/// Evaluate `script` (a `return ...` body) until `done` holds for its value, at most
+/// `limit`; the last value.
+async fn until_js(
+    client: &Client,
+    script: &str,
+    limit: Duration,
+    done: impl Fn(&serde_json::Value) -> bool,
+) -> serde_json::Value {
+    let start = Instant::now();
+    loop {
+        let value = client.execute(script, vec![]).await.expect(script);
+        if done(&value) {
+            return value;
+        }
+        assert!(start.elapsed() < limit, "{script}: {value} after {limit:?}");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+async fn screenshot(client: &Client, name: &str) {
+    if let Some(folder) = std::env::var_os("MILLGATE_SCREENSHOTS") {
+        let png = client.screenshot().await.expect("screenshot");
+        std::fs::write(PathBuf::from(folder).join(name), png).expect("write screenshot");
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_pages_list_the_drivelines_plot_the_gap_and_show_a_new_bite_within_2_s() {
+    let (Some(chromium), Some(chromedriver)) = (which("chromium"), which("chromedriver")) else {
+        eprintln!(
+            "skipped: chromium or chromedriver not installed (scripts/test installs them: \
+             apt-get install chromium chromium-driver)"
+        );
+        return;
+    };
+    let setup = Setup::new("web-browser", "history").await;
+    let port = free_port();
+    setup.append_config(&format!("\n[outputs.web]\nbind = \"127.0.0.1:{port}\"\n"));
+    let service = setup.spawn("web-browser.log");
+    web_ready(port).await;
+    let plc = setup.plc();
+    plc.bites_after_now(2).await;
+    let driver = start_driver(&chromedriver).await;
+    let client = browser(&driver, &chromium).await;
+    let long = Duration::from_secs(10);
+
+    // The overview lists the driveline.
+    client
+        .goto(&format!("http://127.0.0.1:{port}/"))
+        .await
+        .unwrap();
+    let row = client
+        .wait_for_find(Locator::Css("#driveline-F1"))
+        .await
+        .unwrap();
+    assert!(row.text().await.unwrap().starts_with("F1"));
+    let rows = client
+        .find_all(Locator::Css("#drivelines tbody tr"))
+        .await
+        .unwrap();
+    assert_eq!(rows.len(), 1);
+    // A new bite shows without a reload within 2 s of the PLC seeing it.
+    client
+        .execute("window.notReloaded = true; return true;", vec![])
+        .await
+        .unwrap();
+    let counter =
+        "return Number(document.querySelector('#driveline-F1 .bite-counter').textContent);";
+    let shown = until_js(&client, counter, long, |v| v.as_u64() > Some(0)).await;
+    let plc_before = plc.counter();
+    assert!(shown.as_u64().unwrap() <= u64::from(plc_before) + 1);
+    plc.bites_after_now(1).await;
+    let seen = Instant::now();
+    until_js(&client, counter, Duration::from_secs(2), |v| {
+        v.as_u64() > Some(u64::from(plc_before))
+    })
+    .await;
+    assert!(seen.elapsed() < Duration::from_secs(2));
+    let kept = client
+        .execute("return window.notReloaded === true;", vec![])
+        .await
+        .unwrap();
+    assert_eq!(kept, serde_json::Value::Bool(true), "the overview reloaded");
+    // Its gap plot: every driveline's estimates from the history.
+    until_js(
+        &client,
+        "const p = window.millgatePlots.overviewGap; \
+         return p ? p.data[1].filter((v) => v !== null).length : 0;",
+        long,
+        |v| v.as_u64() >= Some(2),
+    )
+    .await;
+    screenshot(&client, "maintenance-overview.png").await;
+
+    // The driveline page: the gap plot is a canvas with the history's data.
+    client
+        .goto(&format!("http://127.0.0.1:{port}/drivelines/F1"))
+        .await
+        .unwrap();
+    let points = until_js(
+        &client,
+        "const p = window.millgatePlots && window.millgatePlots.gap; \
+         return p ? p.data[1].filter((v) => v !== null).length : 0;",
+        long,
+        |v| v.as_u64() >= Some(2),
+    )
+    .await;
+    assert!(points.as_u64().unwrap() >= 2);
+    let canvas = client
+        .execute(
+            "const c = document.querySelector('#gap-plot canvas'); \
+             return c ? [c.width, c.height] : null;",
+            vec![],
+        )
+        .await
+        .unwrap();
+    assert!(
+        canvas[0].as_u64() > Some(300) && canvas[1].as_u64() > Some(100),
+        "{canvas}"
+    );
+    let taf_points = until_js(
+        &client,
+        "const p = window.millgatePlots.taf; return p ? p.data[0].length : 0;",
+        long,
+        |v| v.as_u64() >= Some(3),
+    )
+    .await;
+    assert!(taf_points.as_u64().unwrap() >= 3);
+    // A new bite heads the table within 2 s, without a reload.
+    client
+        .execute("window.notReloaded = true; return true;", vec![])
+        .await
+        .unwrap();
+    let newest = "const r = document.querySelector('#bites tbody tr[data-bite]'); \
+                  return r ? Number(r.dataset.bite) : 0;";
+    until_js(&client, newest, long, |v| v.as_u64() > Some(0)).await;
+    let plc_before = plc.counter();
+    plc.bites_after_now(1).await;
+    let seen = Instant::now();
+    until_js(&client, newest, Duration::from_secs(2), |v| {
+        v.as_u64() > Some(u64::from(plc_before))
+    })
+    .await;
+    assert!(seen.elapsed() < Duration::from_secs(2));
+    let kept = client
+        .execute("return window.notReloaded === true;", vec![])
+        .await
+        .unwrap();
+    assert_eq!(
+        kept,
+        serde_json::Value::Bool(true),
+        "the driveline page reloaded"
+    );
+    if std::env::var_os("MILLGATE_SCREENSHOTS").is_some() {
+        // Let the stored rows replace the live one, for the picture.
+        tokio::time::sleep(Duration::from_millis(1800)).await;
+    }
+    screenshot(&client, "maintenance-driveline.png").await;
+
+    client.close().await.unwrap();
+    drop(driver);
+    setup.stop(service).await;
+}
