@@ -12,7 +12,7 @@
 //! - a bite every `--every-s` s (staggered between drivelines) with static torque
 //!   300-600 kN*m and a TAF of 1.2-1.6 that rises with the gap and falls with the
 //!   static torque; 0.2 % degraded windows;
-//! - a gap growing over weeks (0.08-0.25 mrad/week, a coupling's own rate) and reset
+//! - a gap growing over weeks (0.1-0.3 mrad/week, a coupling's own rate) and reset
 //!   when the coupling is changed (every 9-16 weeks, a wear reset from the HMI), with
 //!   the pooled estimate and its 90 % interval on every bite once 20 bites are pooled;
 //! - a latched wear alarm when the gap's interval passes 4 mrad, acknowledged from
@@ -127,7 +127,7 @@ impl Driveline {
             source: format!("daq{k}"),
             counter: 0,
             coupling_since_ms: start_ms,
-            growth: random.uniform(0.08, 0.25),
+            growth: random.uniform(0.1, 0.3),
             initial_gap: random.uniform(0.3, 0.8),
             next_change_ms: start_ms + (random.uniform(3.0, 16.0) * WEEK_MS) as i64,
             bites_since_reset: 0,
@@ -182,7 +182,7 @@ fn bite(driveline: &mut Driveline, time_ms: i64, random: &mut Random, out: &mut 
             origin: hmi(),
         });
         driveline.coupling_since_ms = time_ms;
-        driveline.growth = random.uniform(0.08, 0.25);
+        driveline.growth = random.uniform(0.1, 0.3);
         driveline.initial_gap = random.uniform(0.3, 0.8);
         driveline.next_change_ms = time_ms + (random.uniform(9.0, 16.0) * WEEK_MS) as i64;
         driveline.bites_since_reset = 0;
@@ -206,7 +206,7 @@ fn bite(driveline: &mut Driveline, time_ms: i64, random: &mut Random, out: &mut 
     let true_gap = driveline.initial_gap + driveline.growth * weeks;
     let static_torque_knm = random.uniform(300.0, 600.0);
     let degraded = random.uniform(0.0, 1.0) < 0.002;
-    let taf = (1.22 + 0.05 * true_gap * (450.0 / static_torque_knm) + 0.015 * random.normal())
+    let taf = (1.22 + 0.06 * true_gap * (450.0 / static_torque_knm) + 0.015 * random.normal())
         .clamp(1.15, 1.75);
     let pooled = driveline.bites_since_reset.min(POOL_BITES);
     let gap = (driveline.bites_since_reset >= POOL_FIRST).then(|| {
