@@ -199,6 +199,8 @@ pub(crate) struct RawMqttOutput {
     pub primary_host_id: Option<String>,
     pub username: Option<String>,
     pub password: Option<String>,
+    pub replay_batch: Option<i64>,
+    pub replay_period_ms: Option<i64>,
 }
 
 /// `[history]`: the event history file.

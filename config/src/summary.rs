@@ -205,7 +205,8 @@ pub fn summary(config: &Config) -> String {
     let output_count = usize::from(outputs.plc.is_some())
         + usize::from(outputs.server.is_some())
         + usize::from(outputs.metrics.is_some())
-        + usize::from(outputs.mqtt.is_some());
+        + usize::from(outputs.mqtt.is_some())
+        + usize::from(outputs.web.is_some());
     let _ = writeln!(text, "Outputs ({output_count}):");
     if let Some(plc) = &outputs.plc {
         let _ = writeln!(
@@ -236,6 +237,17 @@ pub fn summary(config: &Config) -> String {
     }
     if let Some(metrics) = &outputs.metrics {
         let _ = writeln!(text, "  Metrics: http://{}/metrics", metrics.bind);
+    }
+    if let Some(web) = &outputs.web {
+        let _ = writeln!(
+            text,
+            "  Maintenance page: http://{}/, at most {} connections, headers within {} ms, \
+             answers within {} ms",
+            web.bind,
+            web.max_connections,
+            web.header_timeout.as_millis(),
+            web.request_timeout.as_millis()
+        );
     }
     if let Some(mqtt) = &outputs.mqtt {
         let _ = writeln!(

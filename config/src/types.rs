@@ -520,6 +520,12 @@ pub struct MqttOutput {
     pub primary_host_id: Option<String>,
     /// User name and password for the broker, both or neither.
     pub credentials: Option<(String, String)>,
+    /// Store-and-forward: bites replayed from the history per `replay_period`,
+    /// 1..=100000 (default 100).
+    pub replay_batch: u32,
+    /// Store-and-forward: the period of one replay batch, 1..=60000 ms (default
+    /// 100 ms); the defaults replay 1000 bites/s.
+    pub replay_period: Duration,
 }
 
 /// The PLC written by the gateway.

@@ -1251,6 +1251,28 @@ fn mqtt_output_keys_defaults_and_errors() {
     assert_eq!(mqtt.data_period, std::time::Duration::from_millis(1000));
     assert_eq!((mqtt.command_qos, mqtt.credentials), (1, None));
     assert_eq!(mqtt.primary_host_id, None);
+    assert_eq!(mqtt.replay_batch, 100);
+    assert_eq!(mqtt.replay_period, std::time::Duration::from_millis(100));
+    let paced = parse(&with(&format!(
+        "{minimal}\nreplay_batch = 5\nreplay_period_ms = 250"
+    )))
+    .unwrap()
+    .outputs
+    .mqtt
+    .unwrap();
+    assert_eq!(
+        (paced.replay_batch, paced.replay_period),
+        (5, std::time::Duration::from_millis(250))
+    );
+    assert_eq!(
+        problems(&with(&format!(
+            "{minimal}\nreplay_batch = 0\nreplay_period_ms = 0"
+        ))),
+        [
+            "mill.toml: outputs.mqtt.replay_batch: 0 is not allowed (must be 1..=100000)",
+            "mill.toml: outputs.mqtt.replay_period_ms: 0 is not allowed (must be 1..=60000 ms)",
+        ]
+    );
     let hosted = parse(&with(&format!("{minimal}\nprimary_host_id = \"scada\""))).unwrap();
     assert_eq!(
         hosted.outputs.mqtt.unwrap().primary_host_id.as_deref(),

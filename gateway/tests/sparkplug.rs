@@ -4,63 +4,28 @@
 //! 0.6.1 ships) subscribed to the group. `millgate run` sits between the demo's virtual
 //! DAQ and PLC with `[outputs.mqtt]`. Checked: birth order and seq, bdSeq in NBIRTH
 //! and in the Will, aliases, units, one DDATA per bite with its id and the PLC's
-//! values, the rebirth command, the Will at SIGKILL and the next session's bdSeq.
+//! values, the rebirth command, the Will at SIGKILL and the next session's bdSeq;
+//! store-and-forward: after a broker outage, a primary host outage and a gateway
+//! killed during one, every bite arrives once live or flagged historical, the
+//! historical ones first; the replay's pacing.
 //!
 //! Needs `apt install mosquitto` and `pip install pysparkplug==0.6.1` (with paho-mqtt 1.6.1)
 //! (scripts/test installs them).
 
+#[path = "common/backlog.rs"]
+mod backlog;
 mod common;
 
 use std::collections::{HashMap, HashSet};
 use std::io::{BufRead, BufReader, Write};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::{Child, ChildStdin, Command, Stdio};
 use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::time::{Duration, Instant};
 
+use backlog::Broker;
 use common::{free_port, terminate, Setup};
 use serde_json::Value;
-
-/// Debian's mosquitto on `127.0.0.1:port`, anonymous, no persistence; killed on drop.
-struct Broker(Child);
-
-impl Broker {
-    fn start(folder: &Path, port: u16) -> Self {
-        let config = folder.join("mosquitto.conf");
-        std::fs::write(
-            &config,
-            format!("listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n"),
-        )
-        .unwrap();
-        let binary = ["/usr/sbin/mosquitto", "mosquitto"]
-            .into_iter()
-            .find(|b| Path::new(b).exists())
-            .unwrap_or("mosquitto");
-        let child = Command::new(binary)
-            .arg("-c")
-            .arg(&config)
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("Debian's mosquitto (apt install mosquitto)");
-        let start = Instant::now();
-        while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
-            assert!(
-                start.elapsed() < Duration::from_secs(10),
-                "mosquitto not listening"
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        Self(child)
-    }
-}
-
-impl Drop for Broker {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
 
 /// The Python host: its messages as JSON, its stdin for commands.
 struct Host {
@@ -147,6 +112,91 @@ fn metric<'a>(message: &'a Value, name: &str) -> &'a Value {
         .iter()
         .find(|m| m["name"] == name)
         .unwrap_or_else(|| panic!("no metric {name} in {message}"))
+}
+
+/// The bite DDATAs of driveline F1 among `seen`, as (bite id, flagged historical), in
+/// arrival order, one list per session (each NBIRTH starts one).
+fn bites_by_session(seen: &[Value], bite_alias: u64) -> Vec<Vec<(u64, bool)>> {
+    let mut sessions: Vec<Vec<(u64, bool)>> = Vec::new();
+    for message in seen {
+        match message["type"].as_str() {
+            Some("NBIRTH") => sessions.push(Vec::new()),
+            Some("DDATA") if message["device"] == "F1" => {
+                let metrics = message["metrics"].as_array().unwrap();
+                let Some(id) = metrics.iter().find(|m| m["alias"] == bite_alias) else {
+                    continue;
+                };
+                let historical = metrics.iter().all(|m| m["is_historical"] == true);
+                assert!(
+                    historical || metrics.iter().all(|m| m["is_historical"] == false),
+                    "all or none flagged: {message}"
+                );
+                sessions
+                    .last_mut()
+                    .expect("a DDATA before any NBIRTH")
+                    .push((id["value"].as_u64().unwrap(), historical));
+            }
+            _ => {}
+        }
+    }
+    sessions
+}
+
+/// Every bite id 1..=last arrived, once live or flagged historical: a repeat only
+/// flagged historical; in each session the historical ones first, then the live ones,
+/// each in order.
+fn assert_every_bite_once(sessions: &[Vec<(u64, bool)>], last: u64) {
+    let mut live = HashSet::new();
+    let mut all = HashSet::new();
+    for session in sessions {
+        let first_live = session
+            .iter()
+            .position(|(_, h)| !h)
+            .unwrap_or(session.len());
+        assert!(
+            session[first_live..].iter().all(|(_, h)| !h),
+            "historical after live: {session:?}"
+        );
+        for part in [&session[..first_live], &session[first_live..]] {
+            assert!(
+                part.windows(2).all(|w| w[0].0 < w[1].0),
+                "order: {session:?}"
+            );
+        }
+        if let (Some(h), Some(l)) = (first_live.checked_sub(1), session.get(first_live)) {
+            assert!(
+                session[h].0 < l.0,
+                "the backlog before the live bites: {session:?}"
+            );
+        }
+        for &(id, historical) in session {
+            all.insert(id);
+            if !historical {
+                assert!(live.insert(id), "bite {id} twice live: {sessions:?}");
+            }
+        }
+    }
+    let missing: Vec<u64> = (1..=last).filter(|id| !all.contains(id)).collect();
+    assert!(
+        missing.is_empty(),
+        "bites {missing:?} never arrived: {sessions:?}"
+    );
+}
+
+/// Read the host until it has had bite `last` of F1 (live or historical).
+fn until_bite(host: &mut Host, bite_alias: u64, last: u64, limit: Duration) {
+    let start = Instant::now();
+    while !bites_by_session(&host.seen, bite_alias)
+        .iter()
+        .flatten()
+        .any(|&(id, _)| id >= last)
+    {
+        host.next(
+            limit
+                .saturating_sub(start.elapsed())
+                .max(Duration::from_millis(1)),
+        );
+    }
 }
 
 fn seq(message: &Value) -> u64 {
@@ -395,9 +445,10 @@ async fn no_birth_before_the_primary_host_is_online_and_its_offline_ends_the_ses
     })
     .await;
     std::thread::sleep(Duration::from_millis(1500));
+    let early = host.lines.try_recv();
     assert!(
-        host.lines.try_recv().is_err(),
-        "nothing before the host is online"
+        early.is_err(),
+        "nothing before the host is online: {early:?}"
     );
 
     host.command("state scada online");
@@ -415,6 +466,52 @@ async fn no_birth_before_the_primary_host_is_online_and_its_offline_ends_the_ses
         Some(bd_seq + 1),
         "a new session"
     );
+    let dbirth = host.next_of("DBIRTH", limit);
+    let bite_alias = metric(&dbirth, "bite_id")["alias"].as_u64().unwrap();
+
+    // Store-and-forward: the host goes offline; a bite; the gateway is killed and
+    // started again (the replay cursor is in the file); another bite; the host comes
+    // back: the bites in between arrive flagged historical, before the live ones.
+    let plc = setup.plc();
+    plc.bites_after_now(1).await;
+    host.command("state scada offline");
+    host.next_of("NDEATH", limit);
+    plc.bites_after_now(1).await;
+    service.kill().unwrap();
+    service.wait().unwrap();
+    let mut service = setup.spawn("second.log");
+    plc.bites_after_now(1).await;
+    let backlog = setup.metric("millgate_sparkplug_backlog_bites").await;
+    assert!(backlog.is_some_and(|b| b >= 1.0), "{backlog:?}");
+    host.command("state scada online");
+    host.next_of("NBIRTH", limit);
+    let last_at_online = u64::from(plc.counter());
+    until_bite(&mut host, bite_alias, last_at_online + 1, limit);
+    let sessions = bites_by_session(&host.seen, bite_alias);
+    assert_every_bite_once(&sessions, last_at_online + 1);
+    let replayed: Vec<u64> = sessions
+        .last()
+        .unwrap()
+        .iter()
+        .filter(|(_, h)| *h)
+        .map(|(id, _)| *id)
+        .collect();
+    assert!(
+        replayed.len() >= 2,
+        "the outage's bites replayed: {sessions:?}"
+    );
+    assert!(
+        setup
+            .metric("millgate_sparkplug_replayed_total")
+            .await
+            .is_some_and(|n| n >= replayed.len() as f64),
+        "replayed on /metrics"
+    );
+    common::until("the backlog confirmed", limit, || {
+        let page = std::fs::read_to_string(setup.log("second.log")).unwrap();
+        page.contains("Sparkplug backlog replayed")
+    })
+    .await;
     terminate(&mut service);
     setup.stop(service).await;
 }
@@ -425,31 +522,93 @@ async fn after_a_broker_restart_the_node_is_born_again_with_the_next_bd_seq() {
     let port = free_port();
     let mut broker = Broker::start(&setup.scratch, port);
     let mut host = Host::start(port, "plant");
+    // A primary host: the node births (and replays) only once the host, back on the
+    // restarted broker, has subscribed and said so; otherwise the replay could go
+    // before the host's reconnection and be lost to it (not to the broker).
     setup.append_config(&format!(
-        "\n[outputs.mqtt]\nbroker = \"127.0.0.1:{port}\"\ngroup_id = \"plant\"\nnode_id = \"f1\"\nkeep_alive_s = 5\n"
+        "\n[outputs.mqtt]\nbroker = \"127.0.0.1:{port}\"\ngroup_id = \"plant\"\nnode_id = \"f1\"\nkeep_alive_s = 5\nprimary_host_id = \"scada\"\n"
     ));
+    host.command("state scada online");
     let mut service = setup.spawn("run.log");
     let limit = Duration::from_secs(30);
     let nbirth = host.next_of("NBIRTH", limit);
     let bd_seq = metric(&nbirth, "bdSeq")["value"].as_u64().unwrap();
+    let dbirth = host.next_of("DBIRTH", limit);
+    let bite_alias = metric(&dbirth, "bite_id")["alias"].as_u64().unwrap();
+    until_bite(&mut host, bite_alias, 1, limit);
 
-    // The broker dies (no Will: the broker itself is gone) and comes back after the
-    // node has failed to connect a few times: those attempts use no bdSeq.
+    // The broker dies (no Will: the broker itself is gone) and comes back after a
+    // few bites and after the node has failed to connect a few times: those attempts
+    // use no bdSeq.
+    let plc = setup.plc();
     drop(broker);
-    std::thread::sleep(Duration::from_millis(3500));
+    plc.bites_after_now(2).await;
     broker = Broker::start(&setup.scratch, port);
-    // The host reconnects on its own schedule and may miss the births (QoS 0, not
-    // retained): as a host does on seeing a node it has no birth of, it asks again.
     while host.next(limit)["ready"] != true {}
-    host.command("rebirth f1");
+    host.command("state scada online");
     let next = host.next_of("NBIRTH", limit);
     assert_eq!(seq(&next), 0);
     assert_eq!(metric(&next, "bdSeq")["value"].as_u64(), Some(bd_seq + 1));
     let dbirth = host.next_of("DBIRTH", limit);
     assert_eq!(seq(&dbirth), 1);
-    terminate(&mut service);
+    let last_at_birth = u64::from(plc.counter());
+    until_bite(&mut host, bite_alias, last_at_birth + 1, limit);
+    assert_every_bite_once(&bites_by_session(&host.seen, bite_alias), last_at_birth + 1);
+    // The Will at SIGKILL carries the last NBIRTH's bdSeq.
+    service.kill().unwrap();
+    service.wait().unwrap();
     let death = host.next_of("NDEATH", limit);
     assert_eq!(metric(&death, "bdSeq")["value"].as_u64(), Some(bd_seq + 1));
     drop(broker);
     setup.stop(service).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_backlog_is_replayed_historical_in_order_at_the_configured_pace() {
+    let scratch =
+        std::env::temp_dir().join(format!("millgate-sparkplug-pace-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&scratch);
+    std::fs::create_dir_all(&scratch).unwrap();
+    let port = free_port();
+    let _broker = Broker::start(&scratch, port);
+    // A group of its own: free_port() may hand another test's broker port out too.
+    let mut host = Host::start(port, "pace");
+    let history = scratch.join("history.db");
+    const BITES: u32 = 24;
+    const BATCH: u32 = 4;
+    const PERIOD_MS: u32 = 150;
+    backlog::write_backlog(&history, "pace", BITES);
+    let config = backlog::node_config(
+        port,
+        "pace",
+        &history,
+        &format!("replay_batch = {BATCH}\nreplay_period_ms = {PERIOD_MS}"),
+    );
+    let started = Instant::now();
+    let (stop, status, task) = backlog::start_node(&config);
+    let limit = Duration::from_secs(20);
+    let dbirth = host.next_of("DBIRTH", limit);
+    let bite_alias = metric(&dbirth, "bite_id")["alias"].as_u64().unwrap();
+    until_bite(&mut host, bite_alias, u64::from(BITES), limit);
+    let sessions = bites_by_session(&host.seen, bite_alias);
+    let expected: Vec<(u64, bool)> = (1..=u64::from(BITES)).map(|id| (id, true)).collect();
+    assert_eq!(sessions, [expected]);
+    let span_s = started.elapsed().as_secs_f64();
+    // The replay starts at the births, after the node's start; its batches go at the
+    // period's ticks, the first at once: the last batch leaves (N/b - 1) periods
+    // later, and the host has it after that.
+    let least_s = f64::from(BITES / BATCH - 1) * f64::from(PERIOD_MS) / 1000.0;
+    assert!(span_s >= least_s, "{span_s} s < {least_s} s");
+    assert!(span_s < least_s + 5.0, "{span_s} s: stalled");
+    // The replay's bites carry the rows' own times (10 ms apart) and values.
+    let ddata: Vec<&Value> = host.seen.iter().filter(|m| m["type"] == "DDATA").collect();
+    assert_eq!(ddata[0]["timestamp"], 1_767_225_600_010u64);
+    assert_eq!(ddata[1]["timestamp"], 1_767_225_600_020u64);
+    common::until("the cursor confirmed", limit, || {
+        status.counts().backlog == 0 && status.counts().replayed == u64::from(BITES)
+    })
+    .await;
+    stop.trigger();
+    task.await.unwrap();
+    let _ = std::fs::remove_dir_all(&scratch);
 }

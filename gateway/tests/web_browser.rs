@@ -134,7 +134,9 @@ async fn the_pages_list_the_drivelines_plot_the_gap_and_show_a_new_bite_within_2
         .await
         .unwrap();
     let row = client
-        .wait_for_find(Locator::Css("#driveline-F1"))
+        .wait()
+        .at_most(long)
+        .for_element(Locator::Css("#driveline-F1"))
         .await
         .unwrap();
     assert!(row.text().await.unwrap().starts_with("F1"));

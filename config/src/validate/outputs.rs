@@ -247,6 +247,16 @@ impl Checker<'_> {
             );
             return None;
         }
+        let replay_batch = self.int_in(
+            &format!("{key}.replay_batch"),
+            raw.replay_batch.unwrap_or(100),
+            1..=100_000,
+            "",
+        );
+        let replay_period = self.period(
+            &format!("{key}.replay_period_ms"),
+            raw.replay_period_ms.unwrap_or(100),
+        );
         Some(MqttOutput {
             broker: broker?,
             group_id: group_id?,
@@ -257,6 +267,8 @@ impl Checker<'_> {
             command_qos: u8::try_from(command_qos?).ok()?,
             primary_host_id: primary_host_id?,
             credentials: credentials?,
+            replay_batch: u32::try_from(replay_batch?).ok()?,
+            replay_period: replay_period?,
         })
     }
 

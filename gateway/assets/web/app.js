@@ -181,7 +181,7 @@
     return splits.map((s) => {
       const text = new Date(s * 1000).toISOString();
       if (span > 3 * 86400) return text.slice(0, 10);
-      if (span > 180) return text.slice(11, 16);
+      if (span > 7200) return text.slice(11, 16);
       return text.slice(11, 19);
     });
   }

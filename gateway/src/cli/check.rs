@@ -210,6 +210,33 @@ mod tests {
     }
 
     #[test]
+    fn a_web_page_reachable_from_other_hosts_is_a_warning() {
+        let page = |bind: &str| {
+            check_variant(
+                "demo.toml",
+                "[outputs.server]",
+                &format!("[outputs.web]\nbind = \"{bind}\"\n\n[outputs.server]"),
+            )
+            .expect("valid")
+        };
+        let open = page("0.0.0.0:8080");
+        assert!(
+            open.contains("Maintenance page: http://0.0.0.0:8080/, at most 32 connections")
+                && open.contains("warning: ")
+                && open.contains(
+                    "variant.toml: outputs.web.bind: 0.0.0.0:8080 accepts clients from other hosts"
+                ),
+            "{open}"
+        );
+        let loopback = page("127.0.0.1:8080");
+        assert!(
+            loopback.contains("Maintenance page: http://127.0.0.1:8080/")
+                && !loopback.contains("warning: "),
+            "{loopback}"
+        );
+    }
+
+    #[test]
     fn rod_mill_configuration_unknown_to_the_drive_is_reported_with_its_key() {
         let text = std::fs::read_to_string(example("rod-mill.toml")).expect("the example");
         let absolute = text

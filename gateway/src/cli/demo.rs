@@ -140,6 +140,8 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
             command_qos: 1,
             primary_host_id: None,
             credentials: None,
+            replay_batch: 100,
+            replay_period: Duration::from_millis(100),
         });
         println!(
             "Sparkplug B: edge node {}/{} on mqtt://{broker} (topics spBv1.0/{}/#)",

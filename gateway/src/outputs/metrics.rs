@@ -77,7 +77,7 @@ fn family<'a>(
 
 /// The Sparkplug B edge node's families.
 fn sparkplug_metrics(out: &mut String, counts: &SparkplugCounts) {
-    let scalars: [(&str, &str, &str, u64); 6] = [
+    let scalars: [(&str, &str, &str, u64); 8] = [
         (
             "millgate_sparkplug_connected",
             "gauge",
@@ -99,8 +99,20 @@ fn sparkplug_metrics(out: &mut String, counts: &SparkplugCounts) {
         (
             "millgate_sparkplug_bites_published_total",
             "counter",
-            "Bites published as their own DDATA.",
+            "Bites published live as their own DDATA.",
             counts.bites,
+        ),
+        (
+            "millgate_sparkplug_replayed_total",
+            "counter",
+            "Bites replayed from the history as DDATA flagged historical.",
+            counts.replayed,
+        ),
+        (
+            "millgate_sparkplug_backlog_bites",
+            "gauge",
+            "Bites in the history the broker has not confirmed (PUBACK) yet.",
+            counts.backlog,
         ),
         (
             "millgate_sparkplug_sessions_total",

@@ -64,12 +64,21 @@ pub(crate) async fn until(what: &str, limit: Duration, mut done: impl FnMut() ->
     }
 }
 
+/// A free loopback port, never the same one twice in this process, and below the
+/// kernel's ephemeral range (32768..): a port a test frees for a while (a broker
+/// restarted on it) is not handed to another test's listener meanwhile, as the
+/// kernel's `:0` can do.
 pub(crate) fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
+    use std::sync::atomic::{AtomicU16, Ordering};
+    const PER_PROCESS: u16 = 60;
+    static NEXT: AtomicU16 = AtomicU16::new(0);
+    let base = 20_000 + u16::try_from(std::process::id() % 200).unwrap() * PER_PROCESS;
+    loop {
+        let port = base + NEXT.fetch_add(1, Ordering::Relaxed) % PER_PROCESS;
+        if std::net::TcpListener::bind(("127.0.0.1", port)).is_ok() {
+            return port;
+        }
+    }
 }
 
 /// A scratch folder, the demo's devices and the configuration of a service that keeps

@@ -476,6 +476,26 @@ impl HistoryReader {
             .map_err(|e| self.error(e))
     }
 
+    /// The id of the last bite in the file (0 when there is none).
+    pub fn last_bite_id(&self) -> Result<i64, HistoryError> {
+        self.connection
+            .query_row("SELECT coalesce(max(id), 0) FROM bites", [], |row| {
+                row.get(0)
+            })
+            .map_err(|e| self.error(e))
+    }
+
+    /// How many bites have an id above `id`.
+    pub fn bites_after(&self, id: i64) -> Result<u64, HistoryError> {
+        let count: i64 = self
+            .connection
+            .query_row("SELECT count(*) FROM bites WHERE id > ?1", [id], |row| {
+                row.get(0)
+            })
+            .map_err(|e| self.error(e))?;
+        Ok(u64::try_from(count).unwrap_or(0))
+    }
+
     /// Bites by driveline and time range.
     pub fn bites(&self, filter: &Filter) -> Result<Vec<BiteRow>, HistoryError> {
         self.rows(filter)

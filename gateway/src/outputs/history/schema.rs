@@ -173,7 +173,13 @@ ALTER TABLE bites ADD COLUMN gap_taf_sigma REAL;             -- NULL: not pooled
 ALTER TABLE bites ADD COLUMN gap_period_shift_sigma_s REAL;
 ALTER TABLE driveline_state ADD COLUMN gap_alarm_latched INTEGER NOT NULL DEFAULT 0;
 "#,
-    // Version 4: the web page's queries on a year of bites (a million rows per
+    // Version 4: the Sparkplug store-and-forward cursor: every bite up to this
+    // `bites.id` the broker has confirmed; later ones are replayed, flagged historical,
+    // at the next session. NULL: not set yet (the node starts at the file's last bite).
+    r#"
+ALTER TABLE sparkplug_node ADD COLUMN replay_cursor INTEGER;
+"#,
+    // Version 5: the web page's queries on a year of bites (a million rows per
     // driveline). The bites index by driveline and time also holds what the gap and
     // TAF series aggregate, so a month or a year of one driveline is read from the
     // index alone (its entries lie together) instead of from the table pages, where
@@ -276,12 +282,40 @@ mod tests {
     }
 
     #[test]
-    fn version_4_moves_a_version_3_file_to_the_web_indexes_and_keeps_its_rows() {
+    fn a_version_3_file_gains_the_replay_cursor_and_keeps_its_bd_seq() {
         let mut connection = Connection::open_in_memory().unwrap();
         for step in &MIGRATIONS[..3] {
             connection.execute_batch(step).unwrap();
         }
         connection.pragma_update(None, "user_version", 3).unwrap();
+        connection
+            .execute(
+                "INSERT INTO sparkplug_node (node, bd_seq, updated_at) VALUES ('plant/f1', 41, 't')",
+                [],
+            )
+            .unwrap();
+        assert_eq!(migrate(&mut connection).unwrap(), 3);
+        let (bd_seq, cursor): (i64, Option<i64>) = connection
+            .query_row(
+                "SELECT bd_seq, replay_cursor FROM sparkplug_node WHERE node = 'plant/f1'",
+                [],
+                |row| Ok((row.get(0)?, row.get(1)?)),
+            )
+            .unwrap();
+        assert_eq!((bd_seq, cursor), (41, None));
+        let version: i64 = connection
+            .pragma_query_value(None, "user_version", |row| row.get(0))
+            .unwrap();
+        assert_eq!(version, 4);
+    }
+
+    #[test]
+    fn version_5_moves_a_version_4_file_to_the_web_indexes_and_keeps_its_rows() {
+        let mut connection = Connection::open_in_memory().unwrap();
+        for step in &MIGRATIONS[..4] {
+            connection.execute_batch(step).unwrap();
+        }
+        connection.pragma_update(None, "user_version", 4).unwrap();
         connection
             .execute_batch(
                 "INSERT INTO gateway_runs (started_at, version, config_name)
@@ -294,7 +328,7 @@ mod tests {
                      VALUES (1, 'F1', '2026-01-01T00:00:02.000Z', 'reset', 'hmi');",
             )
             .unwrap();
-        assert_eq!(migrate(&mut connection).unwrap(), 3);
+        assert_eq!(migrate(&mut connection).unwrap(), 4);
         let plan = |sql: &str| -> String {
             connection
                 .prepare(&format!("EXPLAIN QUERY PLAN {sql}"))

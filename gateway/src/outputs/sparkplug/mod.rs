@@ -16,23 +16,31 @@
 //!   birth until the host is online; a STATE offline gets the NDEATH and ends the
 //!   session (the next one, with the next bdSeq, waits for the host again).
 //!
-//! Not yet (issue 19): store-and-forward from the history, TLS.
+//! - Bites go from the history file, in order, each as its own DDATA at QoS 1; bites
+//!   the broker did not acknowledge before a session ended, or recorded while the
+//!   broker or the primary host was away, are replayed flagged historical after the
+//!   next births, paced ([`forward`]).
+//!
+//! Not yet (issue 19): TLS.
 
+pub mod forward;
 pub mod node;
 pub mod payload;
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, AtomicU8, Ordering};
+use std::sync::atomic::{AtomicI64, AtomicU64, AtomicU8, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use millgate_config::MqttOutput;
-use rumqttc::{AsyncClient, Event, EventLoop, LastWill, MqttOptions, Packet, QoS};
+use rumqttc::{AsyncClient, Event, EventLoop, LastWill, MqttOptions, Outgoing, Packet, QoS};
 
+use crate::outputs::history::query::{BiteRow, Filter, HistoryReader};
 use crate::outputs::history::writer::connect;
 use crate::outputs::history::HistoryError;
 use crate::outputs::publisher::Publisher;
 use crate::shutdown::Shutdown;
+use forward::Confirmations;
 use node::EdgeNode;
 
 /// How often the results are looked at for a new bite.
@@ -41,6 +49,13 @@ const BITE_POLL: Duration = Duration::from_millis(20);
 const RECONNECT_DELAY: Duration = Duration::from_secs(1);
 /// Requests the MQTT client queues for its event loop.
 const CLIENT_QUEUE: usize = 256;
+/// Bites handed to the client and not yet acknowledged, at most: below
+/// [`CLIENT_QUEUE`], so the births and data of the session always find room.
+const MAX_OUTSTANDING: usize = 192;
+/// How often the replay cursor is stored (when it moved) and the backlog counted.
+const CURSOR_PERIOD: Duration = Duration::from_millis(250);
+/// How long a clean stop waits for the PUBACKs of the bites in flight.
+const STOP_ACK_WAIT: Duration = Duration::from_secs(1);
 
 /// The next session number of `node` (`group_id/node_id`) in the history file at
 /// `path`: the last one plus one, modulo 256 (0 for a new node); stored before it is
@@ -75,6 +90,8 @@ pub struct SparkplugStatus {
     bites: AtomicU64,
     connections: AtomicU64,
     rebirths: AtomicU64,
+    replayed: AtomicU64,
+    backlog: AtomicU64,
 }
 
 /// A snapshot of [`SparkplugStatus`].
@@ -86,8 +103,12 @@ pub struct SparkplugCounts {
     pub bd_seq: u8,
     /// Messages handed to the broker connection (births, data, deaths).
     pub published: u64,
-    /// Bites published as their own DDATA.
+    /// Bites published live as their own DDATA.
     pub bites: u64,
+    /// Bites replayed from the history, flagged historical.
+    pub replayed: u64,
+    /// Bites in the history the broker has not acknowledged yet.
+    pub backlog: u64,
     /// Sessions the broker accepted.
     pub connections: u64,
     /// Rebirth commands obeyed.
@@ -105,6 +126,8 @@ impl SparkplugStatus {
             bites: load(&self.bites),
             connections: load(&self.connections),
             rebirths: load(&self.rebirths),
+            replayed: load(&self.replayed),
+            backlog: load(&self.backlog),
         }
     }
 }
@@ -184,28 +207,170 @@ impl SparkplugNode {
         options
     }
 
-    fn publish(&self, client: &AsyncClient, messages: Vec<node::Outgoing>) {
-        for message in messages {
-            match client.try_publish(message.topic, QoS::AtMostOnce, false, message.payload) {
-                Ok(()) => {
-                    self.status.published.fetch_add(1, Ordering::Relaxed);
-                }
-                Err(error) => tracing::warn!(%error, "Sparkplug message not queued"),
+    /// Hand `message` to the client, noting it in `confirmations` (`bite`: the row id
+    /// of the bite it carries); false when the client's queue is full.
+    fn send(
+        &self,
+        client: &AsyncClient,
+        confirmations: &mut Confirmations,
+        message: node::Outgoing,
+        qos: QoS,
+        bite: Option<i64>,
+    ) -> bool {
+        match client.try_publish(message.topic, qos, false, message.payload) {
+            Ok(()) => {
+                confirmations.queued(bite);
+                self.status.published.fetch_add(1, Ordering::Relaxed);
+                true
+            }
+            Err(error) => {
+                tracing::warn!(%error, "Sparkplug message not queued");
+                false
             }
         }
     }
 
-    /// Publish the births; returns the bite counters they carry.
-    fn births(&self, client: &AsyncClient, node: &mut EdgeNode) -> Vec<u32> {
+    fn publish(
+        &self,
+        client: &AsyncClient,
+        confirmations: &mut Confirmations,
+        messages: Vec<node::Outgoing>,
+    ) {
+        for message in messages {
+            self.send(client, confirmations, message, QoS::AtMostOnce, None);
+        }
+    }
+
+    /// Publish the births; returns the history's last bite id: the replay ends there.
+    async fn births(
+        &self,
+        client: &AsyncClient,
+        node: &mut EdgeNode,
+        confirmations: &mut Confirmations,
+        bites: &mut BiteSource,
+    ) -> Option<i64> {
         let results = self.publisher.results();
-        self.publish(client, node.births(&results, now_ms()));
-        results.drivelines.iter().map(|d| d.bite_counter).collect()
+        self.publish(client, confirmations, node.births(&results, now_ms()));
+        let last = bites.read(|reader| reader.last_bite_id()).await?;
+        (last > confirmations.read()).then_some(last)
+    }
+
+    /// Publish the next bites of the history after the last one read, as `step` says.
+    async fn forward(
+        &self,
+        client: &AsyncClient,
+        node: &mut EdgeNode,
+        confirmations: &mut Confirmations,
+        bites: &mut BiteSource,
+        step: Step,
+    ) {
+        let (limit, until, historical) = match step {
+            Step::Replay { batch, end } => (batch, Some(end), true),
+            Step::Live => (MAX_OUTSTANDING, None, false),
+        };
+        let room = MAX_OUTSTANDING.saturating_sub(confirmations.outstanding());
+        let limit = u32::try_from(limit.min(room)).unwrap_or(u32::MAX);
+        if limit == 0 {
+            return;
+        }
+        let filter = Filter {
+            after_id: Some(confirmations.read()),
+            limit: Some(limit),
+            ..Filter::default()
+        };
+        let Some(rows) = bites.read(move |reader| reader.bites(&filter)).await else {
+            return;
+        };
+        let results = self.publisher.results();
+        let names = self.publisher.driveline_names();
+        for row in rows
+            .iter()
+            .take_while(|row| until.is_none_or(|end| row.id <= end))
+        {
+            if let Some(index) = names.iter().position(|name| *name == row.driveline) {
+                let message = self.bite_message(node, index, row, &results, historical);
+                if !self.send(
+                    client,
+                    confirmations,
+                    message,
+                    QoS::AtLeastOnce,
+                    Some(row.id),
+                ) {
+                    break;
+                }
+                let counter = if historical {
+                    &self.status.replayed
+                } else {
+                    &self.status.bites
+                };
+                counter.fetch_add(1, Ordering::Relaxed);
+            }
+            confirmations.read_up_to(row.id);
+        }
+        if let (Some(end), true) = (until, rows.is_empty()) {
+            // Nothing left up to `end`: the retention deleted the rest meanwhile.
+            confirmations.read_up_to(end);
+        }
+    }
+
+    /// The DDATA of the bite `row` of driveline `index`: live with the results' values
+    /// when they are still this bite's (with the flags of the moment), else from the
+    /// row.
+    fn bite_message(
+        &self,
+        node: &mut EdgeNode,
+        index: usize,
+        row: &BiteRow,
+        results: &crate::outputs::results::Results,
+        historical: bool,
+    ) -> node::Outgoing {
+        let time = forward::bite_ms(row).unwrap_or_else(now_ms);
+        let current = results
+            .drivelines
+            .get(index)
+            .filter(|live| !historical && i64::from(live.bite_counter) == row.bite_counter);
+        match current {
+            Some(live) => node.bite(index, live, time, false),
+            None => node.bite(index, &forward::bite_results(row), time, historical),
+        }
+    }
+
+    /// The stored replay cursor (the history's last bite for a new node; 0 when the
+    /// file cannot be read, logged).
+    async fn load_cursor(&self) -> i64 {
+        let (path, key) = (self.history.clone(), self.node_key());
+        match tokio::task::spawn_blocking(move || forward::load_cursor(&path, &key)).await {
+            Ok(Ok(cursor)) => cursor,
+            Ok(Err(error)) => {
+                tracing::error!(%error, "Sparkplug replay cursor not read; starting at the first bite");
+                0
+            }
+            Err(error) => {
+                tracing::error!(%error, "Sparkplug cursor task failed");
+                0
+            }
+        }
     }
 
     /// Publish until `shutdown`, reconnecting with a new bdSeq after each lost session.
     pub async fn run(self, mut shutdown: Shutdown) {
         let publisher = Arc::clone(&self.publisher);
         let mut bd_seq = self.next_bd_seq(None).await;
+        let mut confirmations = Confirmations::new(self.load_cursor().await);
+        // The cursor is stored and the backlog counted by a task of its own: a timer
+        // in the select below would cancel the event loop's poll, and a CONNECT in
+        // flight with it (the broker then sees the next CONNECT take the session over
+        // and sends the Will).
+        let confirmed = Arc::new(AtomicI64::new(confirmations.confirmed()));
+        let (stop_keeper, keeper_stop) = tokio::sync::oneshot::channel();
+        let keeper = tokio::spawn(keep_cursor(
+            self.history.clone(),
+            self.node_key(),
+            Arc::clone(&self.status),
+            Arc::clone(&confirmed),
+            keeper_stop,
+        ));
+        let mut bites = BiteSource::new(self.history.clone());
         let mut node = EdgeNode::new(
             &self.config.group_id,
             &self.config.node_id,
@@ -229,8 +394,14 @@ impl SparkplugNode {
         let mut connected = false;
         // Births sent in this session (with a primary host: after its STATE online).
         let mut born = false;
-        let mut counters: Vec<u32> = Vec::new();
+        // While replaying: the last bite id of the backlog.
+        let mut replay_end: Option<i64> = None;
+        let replay_batch = usize::try_from(self.config.replay_batch).unwrap_or(usize::MAX);
         let mut bite_poll = tokio::time::interval(BITE_POLL);
+        // Paced from each session's births (reset there); a late batch delays the
+        // next ones rather than bursting.
+        let mut replay = tokio::time::interval(self.config.replay_period);
+        replay.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         let mut data = tokio::time::interval(self.config.data_period);
         loop {
             tokio::select! {
@@ -251,18 +422,22 @@ impl SparkplugNode {
                                 }
                             }
                             None => {
-                                counters = self.births(&client, &mut node);
+                                replay_end = self.births(&client, &mut node, &mut confirmations, &mut bites).await;
+                                replay.reset_immediately();
                                 born = true;
                             }
                         }
                     }
+                    Ok(Event::Incoming(Packet::PubAck(ack))) => confirmations.acknowledged(ack.pkid),
+                    Ok(Event::Outgoing(Outgoing::Publish(pkid))) => confirmations.written(pkid),
                     Ok(Event::Incoming(Packet::Publish(message))) => {
                         if message.topic == node.command_topic() {
                             match node::is_rebirth(&message.payload) {
                                 Ok(true) if born => {
                                     tracing::info!("Sparkplug rebirth requested");
                                     self.status.rebirths.fetch_add(1, Ordering::Relaxed);
-                                    counters = self.births(&client, &mut node);
+                                    let results = publisher.results();
+                                    self.publish(&client, &mut confirmations, node.births(&results, now_ms()));
                                 }
                                 Ok(_) => {}
                                 Err(error) => tracing::warn!(%error, "undecodable Sparkplug NCMD"),
@@ -271,15 +446,15 @@ impl SparkplugNode {
                             match node::host_online(&message.payload) {
                                 Some(true) if !born => {
                                     tracing::info!(host = ?self.config.primary_host_id, "primary host online");
-                                    counters = self.births(&client, &mut node);
+                                    replay_end = self.births(&client, &mut node, &mut confirmations, &mut bites).await;
+                                    replay.reset_immediately();
                                     born = true;
                                 }
                                 Some(false) if born => {
                                     // The specification: NDEATH and disconnect; the next
                                     // session waits for the host again.
                                     tracing::warn!(host = ?self.config.primary_host_id, "primary host offline: ending the session");
-                                    let death = node.death(now_ms());
-                                    let _ = client.try_publish(death.topic, QoS::AtLeastOnce, false, death.payload);
+                                    self.send(&client, &mut confirmations, node.death(now_ms()), QoS::AtLeastOnce, None);
                                     let _ = client.try_disconnect();
                                     born = false;
                                 }
@@ -296,8 +471,11 @@ impl SparkplugNode {
                             tracing::debug!(%error, broker = %self.config.broker, "Sparkplug broker not reachable");
                         }
                         // What the dead session had queued belongs to it: its seq
-                        // numbers mean nothing in the next session.
+                        // numbers mean nothing in the next session. Its unacknowledged
+                        // bites are replayed from the history.
                         drop_pending(&mut events);
+                        confirmations.session_lost();
+                        replay_end = None;
                         // A new bdSeq only after a session the broker accepted: a
                         // refused or failed CONNECT never registered its Will.
                         if connected {
@@ -316,38 +494,160 @@ impl SparkplugNode {
                         }
                     }
                 },
-                _ = bite_poll.tick(), if born => {
-                    let results = publisher.results();
-                    for (index, after) in results.drivelines.iter().enumerate() {
-                        if counters.get(index).is_some_and(|&before| after.bite_counter != before) {
-                            let time = after.last_bite_unix_s.map_or_else(now_ms, |s| u64::from(s) * 1000);
-                            self.publish(&client, vec![node.bite(index, after, time, false)]);
-                            self.status.bites.fetch_add(1, Ordering::Relaxed);
-                            counters[index] = after.bite_counter;
-                        }
+                _ = replay.tick(), if born && replay_end.is_some() => {
+                    if let Some(end) = replay_end {
+                        let step = Step::Replay { batch: replay_batch, end };
+                        self.forward(&client, &mut node, &mut confirmations, &mut bites, step).await;
+                    }
+                    if replay_end.is_some_and(|end| confirmations.read() >= end) {
+                        tracing::info!(replayed = self.status.replayed.load(Ordering::Relaxed), "Sparkplug backlog replayed");
+                        replay_end = None;
                     }
                 }
+                _ = bite_poll.tick(), if born && replay_end.is_none() => {
+                    self.forward(&client, &mut node, &mut confirmations, &mut bites, Step::Live).await;
+                }
                 _ = data.tick(), if born => {
-                    self.publish(&client, node.data(&publisher.results(), now_ms()));
+                    self.publish(&client, &mut confirmations, node.data(&publisher.results(), now_ms()));
                 }
             }
+            confirmed.store(confirmations.confirmed(), Ordering::Relaxed);
         }
         if born {
-            // A clean stop: the NDEATH the Will would have sent, then DISCONNECT (which
-            // discards the Will).
+            // A clean stop: the PUBACKs of the bites in flight (so the next start does
+            // not replay them), the NDEATH the Will would have sent, then DISCONNECT
+            // (which discards the Will).
+            let acks = async {
+                while confirmations.outstanding() > 0 {
+                    match events.poll().await {
+                        Ok(Event::Incoming(Packet::PubAck(ack))) => {
+                            confirmations.acknowledged(ack.pkid)
+                        }
+                        Ok(Event::Outgoing(Outgoing::Publish(pkid))) => confirmations.written(pkid),
+                        Ok(_) => {}
+                        Err(_) => break,
+                    }
+                }
+            };
+            let _ = tokio::time::timeout(STOP_ACK_WAIT, acks).await;
             let death = node.death(now_ms());
             let _ = client.try_publish(death.topic, QoS::AtLeastOnce, false, death.payload);
             let _ = client.try_disconnect();
             let flush = async {
                 while let Ok(event) = events.poll().await {
-                    if matches!(event, Event::Outgoing(rumqttc::Outgoing::Disconnect)) {
+                    if matches!(event, Event::Outgoing(Outgoing::Disconnect)) {
                         break;
                     }
                 }
             };
             let _ = tokio::time::timeout(Duration::from_secs(2), flush).await;
         }
+        confirmed.store(confirmations.confirmed(), Ordering::Relaxed);
+        let _ = stop_keeper.send(());
+        let _ = keeper.await;
         self.status.connected.store(0, Ordering::Relaxed);
+    }
+}
+
+/// Which bites [`SparkplugNode::forward`] publishes.
+#[derive(Debug, Clone, Copy)]
+enum Step {
+    /// The backlog: at most `batch` bites, none after row `end`, flagged historical.
+    Replay { batch: usize, end: i64 },
+    /// What was recorded after the backlog, live.
+    Live,
+}
+
+/// The history file's bites, read on a blocking thread with one read-only
+/// connection, opened when first needed and again after a failure.
+#[derive(Debug)]
+struct BiteSource {
+    path: PathBuf,
+    reader: Option<HistoryReader>,
+    failing: bool,
+}
+
+impl BiteSource {
+    fn new(path: PathBuf) -> Self {
+        Self {
+            path,
+            reader: None,
+            failing: false,
+        }
+    }
+
+    /// `read`'s answer; `None` when the file cannot be read (logged once per failure).
+    async fn read<T: Send + 'static>(
+        &mut self,
+        read: impl FnOnce(&HistoryReader) -> Result<T, HistoryError> + Send + 'static,
+    ) -> Option<T> {
+        let (path, taken) = (self.path.clone(), self.reader.take());
+        let joined = tokio::task::spawn_blocking(move || {
+            let reader = match taken {
+                Some(reader) => reader,
+                None => HistoryReader::open(&path)?,
+            };
+            let value = read(&reader)?;
+            Ok::<_, HistoryError>((reader, value))
+        })
+        .await;
+        match joined {
+            Ok(Ok((reader, value))) => {
+                self.reader = Some(reader);
+                self.failing = false;
+                Some(value)
+            }
+            Ok(Err(error)) => {
+                if !self.failing {
+                    tracing::error!(%error, "Sparkplug: the history's bites cannot be read");
+                }
+                self.failing = true;
+                None
+            }
+            Err(error) => {
+                tracing::error!(%error, "Sparkplug history task failed");
+                None
+            }
+        }
+    }
+}
+
+/// Every [`CURSOR_PERIOD`] until `stop` (and once more then): store the replay cursor
+/// `confirmed` of `node` in the history file `history` when it moved, and count the
+/// backlog after it into `status`.
+async fn keep_cursor(
+    history: PathBuf,
+    node: String,
+    status: Arc<SparkplugStatus>,
+    confirmed: Arc<AtomicI64>,
+    mut stop: tokio::sync::oneshot::Receiver<()>,
+) {
+    let mut bites = BiteSource::new(history.clone());
+    let mut stored = confirmed.load(Ordering::Relaxed);
+    let mut period = tokio::time::interval(CURSOR_PERIOD);
+    loop {
+        let stopping = tokio::select! {
+            _ = &mut stop => true,
+            _ = period.tick() => false,
+        };
+        let cursor = confirmed.load(Ordering::Relaxed);
+        if cursor != stored {
+            let (path, key) = (history.clone(), node.clone());
+            let done =
+                tokio::task::spawn_blocking(move || forward::store_cursor(&path, &key, cursor))
+                    .await;
+            match done {
+                Ok(Ok(())) => stored = cursor,
+                Ok(Err(error)) => tracing::warn!(%error, "Sparkplug replay cursor not stored"),
+                Err(error) => tracing::error!(%error, "Sparkplug cursor task failed"),
+            }
+        }
+        if let Some(backlog) = bites.read(move |reader| reader.bites_after(cursor)).await {
+            status.backlog.store(backlog, Ordering::Relaxed);
+        }
+        if stopping {
+            break;
+        }
     }
 }
 

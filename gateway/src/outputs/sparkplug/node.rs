@@ -292,6 +292,17 @@ const MILL: &[Def<MillResults>] = &[
     },
 ];
 
+/// Driveline metrics a bite's history row does not keep (flags of the moment): a
+/// replayed bite's DDATA leaves them out rather than claim a value.
+pub const NOT_RECORDED: &[&str] = &[
+    "warning",
+    "alarm",
+    "source_stale",
+    "restored",
+    "gap_warning",
+    "gap_alarm",
+];
+
 /// The bite id metric of a bite's DDATA: the driveline's bite counter after the bite,
 /// which the history keeps across restarts, so (device, bite_id) names a bite once.
 pub const BITE_ID: &str = "bite_id";
@@ -489,7 +500,8 @@ impl EdgeNode {
 
     /// A bite of driveline `index`: its own DDATA with every driveline metric and the
     /// bite id, timestamped with the bite's time; `historical` flags a value sent
-    /// after the fact.
+    /// after the fact (a bite replayed from the history), which carries only what the
+    /// history keeps (not [`NOT_RECORDED`]).
     pub fn bite(
         &mut self,
         index: usize,
@@ -502,6 +514,7 @@ impl EdgeNode {
         let mut metrics: Vec<Metric> = values
             .iter()
             .enumerate()
+            .filter(|(at, _)| !historical || !NOT_RECORDED.contains(&DRIVELINE[*at].name))
             .map(|(at, value)| {
                 metric(
                     None,
@@ -713,6 +726,30 @@ mod tests {
             let seq = decode(&bite).seq.unwrap();
             assert_eq!(seq, u64::from((5 + n) % 256));
         }
+    }
+
+    #[test]
+    fn a_historical_bite_is_flagged_and_leaves_out_what_the_history_lacks() {
+        let mut node = node();
+        let mut results = Results::new(1, 2, 1);
+        node.births(&results, 1000);
+        results.drivelines[1].bite_counter = 9;
+        results.drivelines[1].taf = Some(1.3);
+        let payload = decode(&node.bite(1, &results.drivelines[1], 777, true));
+        assert_eq!(payload.timestamp, Some(777));
+        assert!(payload
+            .metrics
+            .iter()
+            .all(|m| m.is_historical == Some(true) && m.timestamp == Some(777)));
+        assert_eq!(
+            payload.metrics.len(),
+            DRIVELINE.len() - NOT_RECORDED.len() + 1
+        );
+        let bite_id = node.driveline_alias(1, DRIVELINE.len());
+        let id = payload.metrics.iter().find(|m| m.alias == Some(bite_id));
+        assert_eq!(id.unwrap().value, Some(MetricValue::LongValue(9)));
+        // A historical bite does not change what DDATA compares with.
+        assert!(node.data(&results, 1100).len() == 1);
     }
 
     #[test]
