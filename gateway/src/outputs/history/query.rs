@@ -425,14 +425,14 @@ impl HistoryReader {
     }
 
     /// The newest rows of `R`'s table that pass `filter` (the last [`Filter::limit`]
-    /// of them by id), oldest first: "the last 20 bites".
+    /// of them by time, then id), oldest first: "the last 20 bites".
     pub fn newest<R: Record>(&self, filter: &Filter) -> Result<Vec<R>, HistoryError> {
         let mut rows = self.select(filter, true)?;
         rows.reverse();
         Ok(rows)
     }
 
-    /// The rows that pass `filter` in id order, or in reverse id order (`newest`).
+    /// The rows that pass `filter` in id order, or newest first by time (`newest`).
     fn select<R: Record>(&self, filter: &Filter, newest: bool) -> Result<Vec<R>, HistoryError> {
         let mut conditions = Vec::new();
         let mut values: Vec<rusqlite::types::Value> = Vec::new();
@@ -457,11 +457,14 @@ impl HistoryReader {
             sql.push_str(" WHERE ");
             sql.push_str(&conditions.join(" AND "));
         }
-        sql.push_str(if newest {
-            " ORDER BY id DESC"
+        // Newest by time (then id, for rows of one millisecond): the time indexes
+        // give those in order; by id alone SQLite sorted every row of a driveline
+        // (a million in a year) to return the last 100.
+        if newest {
+            sql.push_str(&format!(" ORDER BY {} DESC, id DESC", R::TIME_COLUMN));
         } else {
-            " ORDER BY id"
-        });
+            sql.push_str(" ORDER BY id");
+        }
         if let Some(limit) = filter.limit {
             sql.push_str(&format!(" LIMIT {limit}"));
         }

@@ -35,7 +35,9 @@ pub struct RestoredDriveline {
 const MAX_POOL_BITES: i64 = 1000;
 
 /// The last [`MAX_POOL_BITES`] bites `driveline` put into its gap pool since its last
-/// wear reset, oldest first.
+/// wear reset, oldest first. By time (the `(driveline, time)` index walked back from
+/// the newest), not by id: by id SQLite sorted every bite of the driveline first (2.8 s
+/// at start on a year of bites).
 fn gap_pool(connection: &Connection, driveline: &str) -> rusqlite::Result<Vec<PooledBite>> {
     let mut pool = connection
         .prepare_cached(
@@ -45,7 +47,7 @@ fn gap_pool(connection: &Connection, driveline: &str) -> rusqlite::Result<Vec<Po
              WHERE driveline = ?1 AND gap_taf_sigma IS NOT NULL AND taf IS NOT NULL
                  AND time > coalesce((SELECT max(time) FROM wear_estimates
                      WHERE driveline = ?1 AND event = 'reset'), '')
-             ORDER BY id DESC LIMIT ?2",
+             ORDER BY time DESC, id DESC LIMIT ?2",
         )?
         .query_map(params![driveline, MAX_POOL_BITES], |row| {
             Ok(PooledBite {

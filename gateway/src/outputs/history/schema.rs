@@ -179,6 +179,20 @@ ALTER TABLE driveline_state ADD COLUMN gap_alarm_latched INTEGER NOT NULL DEFAUL
     r#"
 ALTER TABLE sparkplug_node ADD COLUMN replay_cursor INTEGER;
 "#,
+    // Version 5: the web page's queries on a year of bites (a million rows per
+    // driveline). The bites index by driveline and time also holds what the gap and
+    // TAF series aggregate, so a month or a year of one driveline is read from the
+    // index alone (its entries lie together) instead of from the table pages, where
+    // the drivelines' rows interleave; it serves every query the old one did. The
+    // wear resets get a partial index: the last reset of a driveline was a scan of
+    // all its wear estimates.
+    r#"
+DROP INDEX bites_by_driveline_time;
+CREATE INDEX bites_by_driveline_time
+    ON bites(driveline, time, degraded, taf, gap_mrad, gap_low_mrad, gap_high_mrad);
+CREATE INDEX wear_resets_by_driveline_time ON wear_estimates(driveline, time)
+    WHERE event = 'reset';
+"#,
 ];
 
 /// The schema version this millgate writes.
@@ -292,7 +306,62 @@ mod tests {
         let version: i64 = connection
             .pragma_query_value(None, "user_version", |row| row.get(0))
             .unwrap();
-        assert_eq!(version, 4);
+        assert_eq!(version, current_version());
+    }
+
+    #[test]
+    fn version_5_moves_a_version_4_file_to_the_web_indexes_and_keeps_its_rows() {
+        let mut connection = Connection::open_in_memory().unwrap();
+        for step in &MIGRATIONS[..4] {
+            connection.execute_batch(step).unwrap();
+        }
+        connection.pragma_update(None, "user_version", 4).unwrap();
+        connection
+            .execute_batch(
+                "INSERT INTO gateway_runs (started_at, version, config_name)
+                     VALUES ('2026-01-01T00:00:00.000Z', 't', 't');
+                 INSERT INTO bites (run_id, driveline, time, bite_counter, channel,
+                     static_torque_knm, peak_torque_knm, quality, degraded, taf, gap_mrad)
+                     VALUES (1, 'F1', '2026-01-01T00:00:01.000Z', 1, 'c', 400, 520,
+                         'good', 0, 1.3, 0.5);
+                 INSERT INTO wear_estimates (run_id, driveline, time, event, origin)
+                     VALUES (1, 'F1', '2026-01-01T00:00:02.000Z', 'reset', 'hmi');",
+            )
+            .unwrap();
+        assert_eq!(migrate(&mut connection).unwrap(), 4);
+        let plan = |sql: &str| -> String {
+            connection
+                .prepare(&format!("EXPLAIN QUERY PLAN {sql}"))
+                .unwrap()
+                .query_map([], |row| row.get::<_, String>(3))
+                .unwrap()
+                .collect::<Result<Vec<_>, _>>()
+                .unwrap()
+                .join("; ")
+        };
+        // The series read the index alone; the last reset is a probe of its index.
+        let series = plan(
+            "SELECT count(*), min(gap_low_mrad), max(gap_high_mrad), avg(taf), max(taf),
+                 max(gap_mrad) FROM bites
+             WHERE driveline = 'F1' AND time >= '2026' AND time < '2027' AND degraded = 0",
+        );
+        assert!(
+            series.contains("COVERING INDEX bites_by_driveline_time"),
+            "{series}"
+        );
+        let reset = plan(
+            "SELECT max(time) FROM wear_estimates
+             WHERE driveline = 'F1' AND event = 'reset' AND time < '2027'",
+        );
+        assert!(reset.contains("wear_resets_by_driveline_time"), "{reset}");
+        let rows: (i64, f64, String) = connection
+            .query_row(
+                "SELECT count(*), taf, (SELECT event FROM wear_estimates) FROM bites",
+                [],
+                |row| Ok((row.get(0)?, row.get(1)?, row.get(2)?)),
+            )
+            .unwrap();
+        assert_eq!(rows, (1, 1.3, "reset".into()));
     }
 
     #[test]

@@ -2,8 +2,8 @@
 //! buckets ([`HistoryReader::wear_series`]) and the gap's growth per week
 //! ([`HistoryReader::gap_trend`]).
 //!
-//! Both are aggregated by SQLite (GROUP BY the integer bucket of a bite's time; sums
-//! for the least-squares slope), so a year of bites (a million rows per driveline at
+//! Both are aggregated by SQLite (an aggregate per time bucket over its index range;
+//! sums for the least-squares slope), so a year of bites (a million rows per driveline at
 //! one bite every 30 s) never comes into memory: the answer is at most
 //! [`MAX_SERIES_POINTS`] rows or one.
 //!
@@ -125,8 +125,9 @@ impl HistoryReader {
     /// in the range) gives an empty series; a driveline the file does not know is
     /// [`HistoryError::UnknownDriveline`]; `since` after `until` is an argument error.
     ///
-    /// Cost: one pass over the range's bites in the `(driveline, time)` index, grouped
-    /// by SQLite, plus one index probe per bucket for its last gap.
+    /// Cost: one pass over the range's entries of the `(driveline, time, ...)` index,
+    /// aggregated by SQLite bucket by bucket, plus one index probe per bucket for its
+    /// last gap; no row comes into memory but the buckets'.
     pub fn wear_series(
         &self,
         driveline: &str,
@@ -165,22 +166,21 @@ impl HistoryReader {
         // points >= 1 and <= 10 000: the cast is exact.
         let points = points as i64;
         let width_ms = ((span_ms + points - 1) / points).max(1);
-        let bucket_bounds = |bucket: i64| {
-            let start = UtcTime::from_unix_ms(since.unix_ms() + bucket * width_ms);
-            let end = UtcTime::from_unix_ms((start.unix_ms() + width_ms).min(until.unix_ms()));
-            (start, end)
-        };
         let connection = self.connection();
-        let mut buckets = connection
-            .prepare_cached(&format!(
-                "SELECT ({TIME_MS_SQL} - ?2) / ?3 AS bucket, count(*),
-                     min(gap_low_mrad), max(gap_high_mrad),
+        // One aggregate per bucket over its range of the (driveline, time) index,
+        // which holds the columns aggregated (schema version 5): no table page is
+        // read. A single GROUP BY of the bucket number (computed from the time text
+        // by `unixepoch`) gave the same rows but sorted every bite of the range first:
+        // a year at 500 points took 2.3 s against 0.56 s this way (median,
+        // examples/history_web_queries on the year fixture, a loaded 2-core machine).
+        let mut bucket = connection
+            .prepare_cached(
+                "SELECT count(*), min(gap_low_mrad), max(gap_high_mrad),
                      avg(CASE WHEN degraded = 0 THEN taf END),
                      max(CASE WHEN degraded = 0 THEN taf END)
                  FROM bites
-                 WHERE driveline = ?1 AND time >= ?4 AND time < ?5
-                 GROUP BY bucket ORDER BY bucket"
-            ))
+                 WHERE driveline = ?1 AND time >= ?2 AND time < ?3",
+            )
             .map_err(|e| self.error(e))?;
         let mut last_gap = connection
             .prepare_cached(
@@ -189,39 +189,34 @@ impl HistoryReader {
                  ORDER BY time DESC, id DESC LIMIT 1",
             )
             .map_err(|e| self.error(e))?;
-        let rows = buckets
-            .query_map(
-                params![
-                    driveline,
-                    since.unix_ms(),
-                    width_ms,
-                    since.to_string(),
-                    until.to_string()
-                ],
-                |row| {
+        let mut series = Vec::new();
+        for k in 0..points {
+            let start_ms = since.unix_ms() + k * width_ms;
+            if start_ms >= until.unix_ms() {
+                break;
+            }
+            let start = UtcTime::from_unix_ms(start_ms);
+            let end = UtcTime::from_unix_ms((start_ms + width_ms).min(until.unix_ms()));
+            let (start_text, end_text) = (start.to_string(), end.to_string());
+            let range = params![driveline, start_text, end_text];
+            let (bites, gap_low_mrad, gap_high_mrad, taf_mean, taf_max) = bucket
+                .query_row(range, |row| {
                     Ok((
                         row.get::<_, i64>(0)?,
-                        row.get::<_, i64>(1)?,
+                        row.get::<_, Option<f64>>(1)?,
                         row.get::<_, Option<f64>>(2)?,
                         row.get::<_, Option<f64>>(3)?,
                         row.get::<_, Option<f64>>(4)?,
-                        row.get::<_, Option<f64>>(5)?,
                     ))
-                },
-            )
-            .map_err(|e| self.error(e))?;
-        let mut series = Vec::new();
-        for row in rows {
-            let (bucket, bites, gap_low_mrad, gap_high_mrad, taf_mean, taf_max) =
-                row.map_err(|e| self.error(e))?;
-            let (start, end) = bucket_bounds(bucket);
+                })
+                .map_err(|e| self.error(e))?;
+            if bites == 0 {
+                continue;
+            }
             // The interval's ends exist exactly when some bite had an estimate.
             let gap_mrad = if gap_low_mrad.is_some() {
                 last_gap
-                    .query_row(
-                        params![driveline, start.to_string(), end.to_string()],
-                        |row| row.get(0),
-                    )
+                    .query_row(range, |row| row.get(0))
                     .optional()
                     .map_err(|e| self.error(e))?
             } else {

@@ -372,8 +372,10 @@ impl Writer {
     }
 }
 
-/// Insert one event.
-pub(crate) fn insert(
+/// Insert one event as the writer does (its rows, its state updates) in `transaction`
+/// under the run `run_id`; bulk loads (the year fixture, `examples/history_year.rs`)
+/// call it in transactions of their own.
+pub fn insert(
     transaction: &Transaction<'_>,
     run_id: i64,
     event: &HistoryEvent,
