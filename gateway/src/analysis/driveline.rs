@@ -435,10 +435,11 @@ impl DrivelineAnalyzer {
             driveline.degraded_bites = driveline
                 .degraded_bites
                 .wrapping_add(u32::from(report.degraded));
-            let since_epoch = report.time.duration_since(UNIX_EPOCH).ok();
-            driveline.last_bite_unix_s = since_epoch.and_then(|d| u32::try_from(d.as_secs()).ok());
-            driveline.last_bite_unix_ms =
-                since_epoch.and_then(|d| u64::try_from(d.as_millis()).ok());
+            driveline.last_bite_unix_s = report
+                .time
+                .duration_since(UNIX_EPOCH)
+                .ok()
+                .and_then(|d| u32::try_from(d.as_secs()).ok());
             driveline.static_torque_knm = trusted(Some(t.static_torque_knm));
             driveline.peak_torque_knm = trusted(Some(t.peak_torque_knm));
             driveline.taf = trusted(t.taf);

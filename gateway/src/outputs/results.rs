@@ -13,9 +13,6 @@ pub struct DrivelineResults {
     pub degraded_bites: u32,
     /// Time of the last bite, Unix seconds.
     pub last_bite_unix_s: Option<u32>,
-    /// Time of the last bite's trigger, ms since the Unix epoch (the timestamp of
-    /// the bite's Sparkplug DDATA; not restored after a restart).
-    pub last_bite_unix_ms: Option<u64>,
     /// Static (settled) torque of the last bite, kN*m.
     pub static_torque_knm: Option<f64>,
     /// Peak torque of the last bite, kN*m.
