@@ -587,3 +587,84 @@ fn retention_deletes_by_age_and_size_in_chunks_and_the_file_shrinks() {
         "the newest bite is kept"
     );
 }
+
+/// A long run (its start past the age limit, most of its bites not) and a size limit
+/// that deletes a chunk at a time: the run's row stays while any row refers to it,
+/// every step succeeds, and the run goes with its last bite.
+#[test]
+fn retention_keeps_a_run_while_its_rows_remain() {
+    let scratch = Scratch::new("retention-runs");
+    let path = scratch.file("history.db");
+    let connection = millgate::outputs::history::writer::connect(&path).unwrap();
+    let now = UtcTime::parse("2026-06-01T00:00:00Z").unwrap();
+    let day = |d: u64| now.minus(Duration::from_secs(d * 86_400)).to_string();
+    for (started, ended) in [(day(10), "stopped"), (day(2), "unclean")] {
+        connection
+            .execute(
+                "INSERT INTO gateway_runs (started_at, ended, version, config_name)
+                 VALUES (?1, ?2, 't', 't')",
+                [started, ended.to_owned()],
+            )
+            .unwrap();
+    }
+    // Run 1: 3 000 bites a minute apart from 10 days ago (2.1 days); run 2: 100.
+    connection
+        .execute(
+            "WITH RECURSIVE n(i) AS (SELECT 0 UNION ALL SELECT i + 1 FROM n WHERE i < 3099)
+             INSERT INTO bites (run_id, driveline, time, bite_counter, channel,
+                 static_torque_knm, peak_torque_knm, taf, quality, degraded)
+             SELECT CASE WHEN i < 3000 THEN 1 ELSE 2 END, 'F1',
+                 strftime('%Y-%m-%dT%H:%M:%fZ', CASE WHEN i < 3000 THEN ?1 ELSE ?2 END,
+                     '+' || (i % 3000) || ' minutes'),
+                 i, 'spindle_top', 100.0, 200.0, 2.0, 'good', 0 FROM n",
+            [day(10), day(2)],
+        )
+        .unwrap();
+    // Keep 9 days: run 1 started before the limit but most of its bites are younger.
+    let age = Retention {
+        max_age: Duration::from_secs(9 * 86_400),
+        max_bytes: 1 << 40,
+        chunk_rows: 500,
+        vacuum_pages: 64,
+    };
+    let mut state = RetentionState::default();
+    let runs = |connection: &rusqlite::Connection| -> Vec<i64> {
+        let mut statement = connection
+            .prepare("SELECT id FROM gateway_runs ORDER BY id")
+            .unwrap();
+        let ids = statement.query_map([], |row| row.get(0)).unwrap();
+        ids.map(Result::unwrap).collect()
+    };
+    loop {
+        let step = age
+            .step(&connection, now, &mut state)
+            .unwrap_or_else(|error| panic!("a retention step failed: {error}"));
+        if !step.more {
+            break;
+        }
+    }
+    assert_eq!(runs(&connection), [1, 2], "run 1 still has bites");
+    // Then a size limit below the data: chunks go, run 1's row with its last bite.
+    let size = Retention {
+        max_bytes: 64 << 10,
+        ..age
+    };
+    for _ in 0..100 {
+        let step = size
+            .step(&connection, now, &mut state)
+            .unwrap_or_else(|error| panic!("a retention step failed: {error}"));
+        let (first_run, left): (Option<i64>, i64) = connection
+            .query_row("SELECT min(run_id), count(*) FROM bites", [], |row| {
+                Ok((row.get(0)?, row.get(1)?))
+            })
+            .unwrap();
+        let kept = runs(&connection);
+        if let Some(run) = first_run {
+            assert!(kept.contains(&run), "run {run} deleted while {left} bites remain");
+        }
+        if !step.more {
+            break;
+        }
+    }
+    assert!(!runs(&connection).contains(&1), "run 1 deleted after its bites");
+}

@@ -30,7 +30,8 @@ pub const SHRINK_TO: f64 = 0.9;
 const FAILED_PERIOD: Duration = Duration::from_secs(60);
 
 /// Each table with the column that dates its rows and a condition: `gateway_runs`
-/// and `driveline_settings` only of runs that ended (never this one's).
+/// and `driveline_settings` only of runs that ended (never this one's), and a run
+/// only once no row refers to it (see [`UNREFERENCED_RUN`]).
 const TABLES: [(&str, &str, &str); 7] = [
     ("bites", "time", ""),
     (
@@ -42,8 +43,23 @@ const TABLES: [(&str, &str, &str); 7] = [
     ("alarms", "time", ""),
     ("chatter_episodes", "started_at", ""),
     ("source_outages", "started_at", ""),
-    ("gateway_runs", "started_at", "AND ended IS NOT NULL"),
+    ("gateway_runs", "started_at", UNREFERENCED_RUN),
 ];
+
+/// A run's row may go only when no row of another table refers to it: the rows of a
+/// long run outlive its start by the run's length, and a size step deletes at most a
+/// chunk per table, so dating the run by its start alone deleted runs whose bites were
+/// still there (the foreign key refused it and retention stopped). Each table's rows
+/// are inserted in run order and its row ids only grow while it holds rows, so the row
+/// with the lowest id carries the lowest run id left: one index lookup per table
+/// instead of a search of a year of bites for the run's id.
+const UNREFERENCED_RUN: &str = "AND ended IS NOT NULL
+     AND id < coalesce((SELECT run_id FROM bites ORDER BY rowid LIMIT 1), id + 1)
+     AND id < coalesce((SELECT run_id FROM wear_estimates ORDER BY rowid LIMIT 1), id + 1)
+     AND id < coalesce((SELECT run_id FROM alarms ORDER BY rowid LIMIT 1), id + 1)
+     AND id < coalesce((SELECT run_id FROM chatter_episodes ORDER BY rowid LIMIT 1), id + 1)
+     AND id < coalesce((SELECT run_id FROM source_outages ORDER BY rowid LIMIT 1), id + 1)
+     AND id < coalesce((SELECT run_id FROM driveline_settings ORDER BY rowid LIMIT 1), id + 1)";
 
 /// Retention settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
