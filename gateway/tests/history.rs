@@ -660,11 +660,17 @@ fn retention_keeps_a_run_while_its_rows_remain() {
             .unwrap();
         let kept = runs(&connection);
         if let Some(run) = first_run {
-            assert!(kept.contains(&run), "run {run} deleted while {left} bites remain");
+            assert!(
+                kept.contains(&run),
+                "run {run} deleted while {left} bites remain"
+            );
         }
         if !step.more {
             break;
         }
     }
-    assert!(!runs(&connection).contains(&1), "run 1 deleted after its bites");
+    assert!(
+        !runs(&connection).contains(&1),
+        "run 1 deleted after its bites"
+    );
 }
