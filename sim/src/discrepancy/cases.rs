@@ -75,7 +75,7 @@ pub enum Recorded {
     Separate,
     /// One record of a rolling schedule ([`SCHEDULE_TIMING`]: idle, bite, rolling, a
     /// smooth tail-out per bar), split into bites by
-    /// [`split_bites`](super::split_bites) as a long recording is.
+    /// [`split_bites`] as a long recording is.
     Schedule,
 }
 
