@@ -33,6 +33,7 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::Semaphore;
 use tokio::task::JoinSet;
 
+use crate::outputs::accept::AcceptFailures;
 use crate::outputs::history::events::CommandOrigin;
 use crate::outputs::modbus_frame::{self, Policy, Reply, MAX_FRAME_LEN};
 use crate::outputs::publisher::Publisher;
@@ -155,7 +156,7 @@ impl ModbusServer {
         let slots = Arc::new(Semaphore::new(self.output.max_connections));
         let mut connections = JoinSet::new();
         let mut refusals = WarnLimit::new(WARN_PERIOD);
-        let mut accept_errors = 0u32;
+        let mut accept_failures = AcceptFailures::default();
         let plc_hosts: Vec<IpAddr> = match &self.plc_address {
             Some(address) => tokio::net::lookup_host(address.as_str())
                 .await
@@ -171,18 +172,11 @@ impl ModbusServer {
             };
             let (stream, peer) = match accepted {
                 Ok(accepted) => {
-                    accept_errors = 0;
+                    accept_failures.accepted();
                     accepted
                 }
                 Err(error) => {
-                    // Out of descriptors or memory: back off a little; a listener
-                    // that keeps failing is a fault of the service.
-                    accept_errors += 1;
-                    tracing::warn!(%error, "Modbus server accept failed");
-                    if accept_errors >= 100 {
-                        return Err(error);
-                    }
-                    tokio::time::sleep(Duration::from_millis(100)).await;
+                    accept_failures.failed(error, "Modbus server").await?;
                     continue;
                 }
             };

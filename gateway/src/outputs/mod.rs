@@ -3,6 +3,7 @@
 //! (and the heartbeat's own task when there is no PLC); the event history that keeps
 //! them across restarts; the maintenance web page.
 
+pub(crate) mod accept;
 pub(crate) mod heartbeat;
 pub mod history;
 pub mod hmi_server;

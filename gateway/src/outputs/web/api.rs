@@ -22,7 +22,7 @@ use tokio_stream::{Stream, StreamExt};
 
 use super::{DrivelineInfo, WebState};
 use crate::field::source_health::SourceStatus;
-use crate::outputs::history::query::{AlarmRow, BiteRow, Filter, HistoryReader, OutageRow};
+use crate::outputs::history::query::{AlarmRow, BiteRow, Filter, HistoryReader, OutageRow, Record};
 use crate::outputs::history::series::{WearPoint, MAX_SERIES_POINTS};
 use crate::outputs::history::time::UtcTime;
 use crate::outputs::history::HistoryError;
@@ -633,20 +633,7 @@ pub(crate) async fn bites(
 ) -> Result<Json<Vec<BiteRow>>, ApiError> {
     let params = Params::of(query, &["since", "until", "limit"])?;
     driveline_index(&state, &name)?;
-    let (since, until) = params.range()?;
-    let limit = params.count("limit", 1..=LIMIT_MAX, LIMIT_DEFAULT)?;
-    let filter = Filter {
-        name: Some(name),
-        since,
-        until,
-        after_id: None,
-        limit: Some(limit),
-    };
-    let rows = with_history(&state, move |reader| {
-        reader.newest(&filter).map_err(history_error)
-    })
-    .await?;
-    Ok(Json(rows))
+    Ok(Json(newest(&state, &params, Some(name)).await?))
 }
 
 /// `GET /api/drivelines/{name}/wear?since=&until=&points=`: the gap estimate (last
@@ -680,20 +667,30 @@ pub(crate) async fn alarms(
     query: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Json<Vec<AlarmRow>>, ApiError> {
     let params = Params::of(query, &["since", "until", "limit", "subject"])?;
+    let subject = params.get("subject").map(str::to_owned);
+    Ok(Json(newest(&state, &params, subject).await?))
+}
+
+/// The newest `limit` rows of `name` (all names when `None`) in the parameters'
+/// `since`..`until`, oldest first: what `bites` and `alarms` answer.
+async fn newest<R: Record + Send + 'static>(
+    state: &WebState,
+    params: &Params,
+    name: Option<String>,
+) -> Result<Vec<R>, ApiError> {
     let (since, until) = params.range()?;
     let limit = params.count("limit", 1..=LIMIT_MAX, LIMIT_DEFAULT)?;
     let filter = Filter {
-        name: params.get("subject").map(str::to_owned),
+        name,
         since,
         until,
         after_id: None,
         limit: Some(limit),
     };
-    let rows = with_history(&state, move |reader| {
+    with_history(state, move |reader| {
         reader.newest(&filter).map_err(history_error)
     })
-    .await?;
-    Ok(Json(rows))
+    .await
 }
 
 /// `GET /api/events`: server-sent events, `event: results` with the live overview

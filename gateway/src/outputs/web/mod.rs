@@ -40,6 +40,7 @@ use tokio::net::TcpListener;
 use tokio::sync::{watch, Semaphore};
 use tokio::task::JoinSet;
 
+use crate::outputs::accept::AcceptFailures;
 use crate::outputs::publisher::Publisher;
 use crate::shutdown::Shutdown;
 use crate::warn_limit::WarnLimit;
@@ -183,7 +184,7 @@ impl WebServer {
         let refusal_slots = Arc::new(Semaphore::new(REFUSALS));
         let mut connections = JoinSet::new();
         let mut refusals = WarnLimit::new(WARN_PERIOD);
-        let mut accept_errors = 0u32;
+        let mut accept_failures = AcceptFailures::default();
         let mut live_tick = tokio::time::interval(LIVE_PERIOD);
         live_tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         loop {
@@ -201,18 +202,11 @@ impl WebServer {
             };
             let (stream, peer) = match accepted {
                 Ok(accepted) => {
-                    accept_errors = 0;
+                    accept_failures.accepted();
                     accepted
                 }
                 Err(error) => {
-                    // Out of descriptors or memory: back off a little; a listener
-                    // that keeps failing is a fault of the service.
-                    accept_errors += 1;
-                    tracing::warn!(%error, "maintenance page accept failed");
-                    if accept_errors >= 100 {
-                        return Err(error);
-                    }
-                    tokio::time::sleep(Duration::from_millis(100)).await;
+                    accept_failures.failed(error, "maintenance page").await?;
                     continue;
                 }
             };
