@@ -30,7 +30,7 @@ use crate::outputs::history::{History, RunInfo};
 use crate::outputs::hmi_server::{self, ModbusServer, ServerCounters};
 use crate::outputs::metrics::Metrics;
 use crate::outputs::plc_writer::PlcWriter;
-use crate::outputs::publisher::{source_of_channel, Publisher};
+use crate::outputs::publisher::{source_of_channel, Publisher, WearMapState};
 use crate::outputs::register_map::{self, MapTooLarge};
 use crate::outputs::results::GatewayState;
 use crate::outputs::sparkplug::SparkplugNode;
@@ -437,8 +437,26 @@ impl Service {
         let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
         for job in jobs {
             let driveline = job.driveline_name.clone();
-            if let Err(error) = spawn_job(job, threads, maps_tx.clone(), Arc::clone(&cancel_maps)) {
+            let index = job.driveline;
+            let progress = {
+                let publisher = Arc::clone(&publisher);
+                move |done, total| {
+                    publisher.set_wear_map(index, WearMapState::Building { done, total })
+                }
+            };
+            let spawned = spawn_job(
+                job,
+                threads,
+                maps_tx.clone(),
+                Arc::clone(&cancel_maps),
+                progress,
+            );
+            if let Err(error) = spawned {
                 tracing::error!(%driveline, %error, "cannot start the gap map build");
+                publisher.set_wear_map(
+                    index,
+                    WearMapState::Failed(format!("cannot start the gap map build: {error}")),
+                );
             }
         }
         drop(maps_tx);

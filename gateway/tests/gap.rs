@@ -25,7 +25,7 @@ use millgate::analysis::Analysis;
 use millgate::field::acquired::Acquired;
 use millgate::field::source_health::SourceHealth;
 use millgate::outputs::history::events::CommandOrigin;
-use millgate::outputs::publisher::Publisher;
+use millgate::outputs::publisher::{Publisher, WearMapState};
 use millgate::outputs::register_map::driveline_flags;
 use millgate::outputs::results::GapResults;
 use millgate_sim::discrepancy::{self, split_bites, Effect, Measured, Verdict};
@@ -298,8 +298,17 @@ fn the_wear_state_warns_latches_the_alarm_until_acknowledged_and_the_reset_empti
         .iter()
         .all(|r| r.gap.is_some_and(|g| g.pooled.is_none())));
     assert_eq!(publisher.results().drivelines[0].gap, None);
-    // The maps arrive: the two bites give the estimate at once.
+    assert!(matches!(
+        publisher.wear_map(0),
+        Some(WearMapState::Building { .. })
+    ));
+    // The maps arrive: the two bites give the estimate at once, and the outputs
+    // (the maintenance page) see the maps; a late progress report does not hide them.
     analysis.install_gap_maps(0, Ok(coarse_maps().clone()));
+    publisher.set_wear_map(0, WearMapState::Building { done: 1, total: 2 });
+    assert!(
+        matches!(publisher.wear_map(0), Some(WearMapState::Ready(maps)) if *maps == *coarse_maps())
+    );
     let gap = publisher.results().drivelines[0]
         .gap
         .expect("estimate once the maps are in");
@@ -443,12 +452,16 @@ fn a_map_that_cannot_be_built_is_named_and_the_driveline_runs_on_with_the_gap_in
     let results = publisher.results();
     assert!(results.drivelines[0].taf.is_some());
     assert_eq!(results.drivelines[0].gap, None, "the gap stays invalid");
+    match publisher.wear_map(0) {
+        Some(WearMapState::Failed(why)) => assert!(why.contains("gives no bite window"), "{why}"),
+        other => panic!("{other:?}"),
+    }
 }
 
 #[test]
 fn wear_settings_that_do_not_fit_the_model_are_named_at_start() {
     let config = config("couplings = [1, 2]", "", &scratch("cache"));
-    let (mut analysis, _) = analysis(&config);
+    let (mut analysis, publisher) = analysis(&config);
     let problems: Vec<String> = analysis
         .wear_problems()
         .iter()
@@ -463,6 +476,10 @@ fn wear_settings_that_do_not_fit_the_model_are_named_at_start() {
         ]
     );
     assert!(analysis.take_gap_map_jobs().is_empty());
+    match publisher.wear_map(0) {
+        Some(WearMapState::Failed(why)) => assert_eq!(why, problems[0]),
+        other => panic!("{other:?}"),
+    }
 }
 
 fn millgate(args: &[&str]) -> Output {

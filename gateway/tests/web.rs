@@ -50,6 +50,140 @@ fn assert_security_headers(answer: &HttpAnswer, what: &str) {
     );
 }
 
+/// `points` (`[x, y]`, x ascending) at `x`, linear between neighbours; `None`
+/// outside.
+fn at(points: &[serde_json::Value], x: f64) -> Option<f64> {
+    let xy = |p: &serde_json::Value| (p[0].as_f64().unwrap(), p[1].as_f64().unwrap());
+    points.windows(2).find_map(|pair| {
+        let ((x0, y0), (x1, y1)) = (xy(&pair[0]), xy(&pair[1]));
+        (x0..=x1)
+            .contains(&x)
+            .then(|| y0 + (y1 - y0) * (x - x0) / (x1 - x0))
+    })
+}
+
+/// `/api/drivelines/F1/map`: the wear maps' curves once the build is done, the live
+/// estimate on them, and the pooled bites near the estimate's curve.
+async fn wear_map_on_the_page(port: u16, setup: &Setup) {
+    let start = Instant::now();
+    // The map and the live figures of one bite (read again when a bite came between).
+    let (map, live) = loop {
+        let before = http(port, "GET", "/api/drivelines/F1").await.json();
+        let answer = http(port, "GET", "/api/drivelines/F1/map").await;
+        let live = http(port, "GET", "/api/drivelines/F1").await.json();
+        assert_eq!(answer.status, 200, "{}", answer.body);
+        assert_security_headers(&answer, "/api/drivelines/F1/map");
+        let map = answer.json();
+        let same_bite = before["bite_counter"] == live["bite_counter"];
+        if map["state"] != "building" && same_bite {
+            break (map, live);
+        }
+        if map["state"] != "building" {
+            continue;
+        }
+        assert!(
+            map["message"].as_str().unwrap().contains("wear maps"),
+            "{map}"
+        );
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "maps still building: {map}"
+        );
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    };
+    assert_eq!(map["state"], "ready", "{map}");
+    assert_eq!(
+        map["model"], "Table 2 driveline, stiffness adjusted to measurement",
+        "{map}"
+    );
+    let couplings = map["couplings"].as_array().unwrap();
+    // The demo's model has 2 couplings, both candidates; gaps 0..=8 mrad (defaults).
+    assert_eq!(couplings.len(), 2, "{map}");
+    for coupling in couplings {
+        let curves = coupling["curves"].as_array().unwrap();
+        let gaps: Vec<f64> = curves
+            .iter()
+            .map(|c| c["gap_mrad"].as_f64().unwrap())
+            .collect();
+        assert_eq!(gaps, (0..=8).map(f64::from).collect::<Vec<_>>());
+        for curve in curves {
+            let points = curve["points"].as_array().unwrap();
+            assert_eq!(points.len(), 12, "torque_points of the demo");
+            assert!(points
+                .windows(2)
+                .all(|p| p[0][0].as_f64() < p[1][0].as_f64()));
+        }
+        // A backlash gap raises the TAF (the paper's premise): at every grid torque
+        // the 8 mrad curve lies above the linear one.
+        let (linear, widest) = (&curves[0]["points"], &curves[8]["points"]);
+        for (a, b) in linear
+            .as_array()
+            .unwrap()
+            .iter()
+            .zip(widest.as_array().unwrap())
+        {
+            assert!(
+                b[1].as_f64() > a[1].as_f64(),
+                "coupling {}: TAF at 8 mrad {} not above the linear {}",
+                coupling["coupling"],
+                b[1],
+                a[1]
+            );
+        }
+    }
+    // The estimate on its map is the live one.
+    let estimate = &map["estimate"];
+    let gap = &live["gap"];
+    if gap.is_null() {
+        assert!(estimate.is_null(), "{map}");
+        return;
+    }
+    let named = gap["coupling"]
+        .as_u64()
+        .or(gap["likeliest_coupling"].as_u64());
+    assert_eq!(estimate["coupling"].as_u64(), named, "{estimate} vs {gap}");
+    assert_eq!(estimate["determined"], !gap["coupling"].is_null());
+    let mrad = |v: &serde_json::Value| v["gap_mrad"].as_f64().unwrap();
+    assert_eq!(mrad(&estimate["gap"]), mrad(gap));
+    assert_eq!(estimate["low"]["gap_mrad"], gap["low_mrad"]);
+    assert_eq!(estimate["high"]["gap_mrad"], gap["high_mrad"]);
+    assert!(mrad(&estimate["low"]) <= mrad(&estimate["gap"]));
+    assert!(mrad(&estimate["gap"]) <= mrad(&estimate["high"]));
+    // The pooled bites (measured by the bite pipeline on the simulated mill, whose
+    // gap opens) lie nearer the estimate's curve than the linear driveline's: the
+    // page draws the two on one scale.
+    let curve = estimate["gap"]["points"].as_array().unwrap();
+    let coupling = couplings
+        .iter()
+        .find(|c| c["coupling"] == estimate["coupling"])
+        .unwrap();
+    let linear = coupling["curves"][0]["points"].as_array().unwrap();
+    let pooled = gap["bites_pooled"].as_u64().unwrap() as u32;
+    let (mut to_estimate, mut to_linear) = (Vec::new(), Vec::new());
+    for bite in newest_bites(setup, pooled) {
+        let (Some(taf), false) = (bite.taf, bite.degraded) else {
+            continue;
+        };
+        let s = bite.static_torque_knm;
+        if let (Some(on_estimate), Some(on_linear)) = (at(curve, s), at(linear, s)) {
+            eprintln!(
+                "bite {}: static {s:.0} kN*m, TAF {taf:.3}; map at {:.2} mrad {on_estimate:.3}, \
+                 linear {on_linear:.3}",
+                bite.bite_counter,
+                mrad(&estimate["gap"])
+            );
+            to_estimate.push((taf - on_estimate).abs());
+            to_linear.push((taf - on_linear).abs());
+        }
+    }
+    assert!(!to_estimate.is_empty(), "no pooled bite inside the map");
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    assert!(
+        mean(&to_estimate) < 0.05 && mean(&to_estimate) < mean(&to_linear),
+        "bites off the estimate's curve: {to_estimate:?} (linear {to_linear:?})"
+    );
+}
+
 /// A 400 whose JSON error names `words`.
 async fn assert_bad(port: u16, path: &str, words: &[&str]) {
     let answer = http(port, "GET", path).await;
@@ -272,6 +406,8 @@ async fn the_api_answers_from_the_live_results_and_the_history_and_refuses_bad_r
         "{alarms}"
     );
 
+    wear_map_on_the_page(port, &setup).await;
+
     // Bad parameters, unknown names.
     assert_bad(
         port,
@@ -316,12 +452,17 @@ async fn the_api_answers_from_the_live_results_and_the_history_and_refuses_bad_r
         &["points", "1..=10000"],
     )
     .await;
+    assert_bad(port, "/api/drivelines/F1/map?coupling=1", &["coupling"]).await;
     assert_bad(port, "/api/alarms?until=2026-13-01", &["until"]).await;
     assert_bad(port, "/api/overview?x=1", &["x"]).await;
     let unknown = http(port, "GET", "/api/drivelines/F9/bites").await;
     assert_eq!(unknown.status, 404);
     assert!(unknown.json()["error"].as_str().unwrap().contains("F9"));
     assert_eq!(http(port, "GET", "/api/drivelines/F9").await.status, 404);
+    assert_eq!(
+        http(port, "GET", "/api/drivelines/F9/map").await.status,
+        404
+    );
 
     // Read-only: other methods, bodies.
     for (method, path) in [

@@ -1,8 +1,8 @@
 //! The maintenance page in a real browser: Debian's headless chromium driven through
 //! chromedriver (WebDriver, fantoccini) against a real service with a history. The
 //! overview lists the driveline, the driveline page's gap plot is a uPlot canvas with
-//! data, and a new bite shows on the open overview and driveline page within 2 s
-//! without a reload.
+//! data, its TAF plot carries the wear map's curves and the estimate's, and a new bite
+//! shows on the open overview and driveline page within 2 s without a reload.
 //!
 //! Skipped (it says so on stderr) when `chromium` or `chromedriver` is not installed;
 //! `scripts/test` installs both (`apt-get install chromium chromium-driver`).
@@ -212,6 +212,41 @@ async fn the_pages_list_the_drivelines_plot_the_gap_and_show_a_new_bite_within_2
     )
     .await;
     assert!(taf_points.as_u64().unwrap() >= 3);
+    // On the wear map's curves: one per whole mrad (0..=8) of the coupling the
+    // estimate names (or its likeliest), and the estimate's own curve with data.
+    let curves = until_js(
+        &client,
+        "const p = window.millgatePlots.taf; \
+         return p ? p.series.filter((s) => String(s.label).startsWith('map, gap')).length : 0;",
+        long,
+        |v| v.as_u64() == Some(9),
+    )
+    .await;
+    assert_eq!(curves.as_u64(), Some(9));
+    let coupling = || async {
+        common::http(port, "GET", "/api/drivelines/F1/map")
+            .await
+            .json()["estimate"]["coupling"]
+            .clone()
+    };
+    let before = coupling().await;
+    let estimate = client
+        .execute(
+            "const p = window.millgatePlots.taf; \
+             const i = p.series.findIndex((s) => String(s.label).startsWith('estimate')); \
+             return i < 0 ? null : [p.millgateCoupling, \
+               p.data[i].filter((v) => v !== null && v !== undefined).length, \
+               document.querySelectorAll('#taf-coupling option').length];",
+            vec![],
+        )
+        .await
+        .unwrap();
+    // (Compared only when no bite moved the estimate meanwhile.)
+    if before == coupling().await {
+        assert_eq!(estimate[0], before, "{estimate}");
+    }
+    assert_eq!(estimate[1].as_u64(), Some(12), "{estimate}");
+    assert_eq!(estimate[2].as_u64(), Some(2), "{estimate}");
     // A new bite heads the table within 2 s, without a reload.
     client
         .execute("window.notReloaded = true; return true;", vec![])

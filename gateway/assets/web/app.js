@@ -265,27 +265,109 @@
       window.millgatePlots.gap = gapPlot;
     }
 
+    // The wear maps (/api/drivelines/{name}/map) and the coupling whose curves are
+    // drawn: the user's choice, else the one the estimate names (or its likeliest).
+    let map = null;
+    let chosenCoupling = null;
+    const couplingSelect = document.getElementById("taf-coupling");
+    couplingSelect.addEventListener("change", () => {
+      chosenCoupling = Number(couplingSelect.value);
+      drawTaf();
+    });
+    function mapCoupling() {
+      if (!map || map.state !== "ready" || map.couplings.length === 0) return null;
+      const wanted = chosenCoupling !== null ? chosenCoupling : (map.estimate ? map.estimate.coupling : null);
+      return map.couplings.find((c) => c.coupling === wanted) || map.couplings[0];
+    }
+    function couplingPicker() {
+      const ready = map && map.state === "ready" && map.couplings.length > 0;
+      document.getElementById("taf-coupling-label").classList.toggle("hidden", !ready);
+      if (!ready) return;
+      const shown = mapCoupling();
+      couplingSelect.replaceChildren(...map.couplings.map((c) => {
+        const estimate = map.estimate && map.estimate.coupling === c.coupling
+          ? (map.estimate.determined ? " (holds the gap)" : " (likeliest)") : "";
+        const option = el("option", { value: c.coupling }, c.coupling + " " + c.name + estimate);
+        option.selected = c.coupling === shown.coupling;
+        return option;
+      }));
+    }
+    // Curve colours: the linear driveline dark, larger gaps lighter.
+    const curveColour = (i, n) => "hsl(215, 16%, " + Math.round(28 + 50 * i / Math.max(1, n - 1)) + "%)";
+
     function drawTaf() {
       const t = info.thresholds;
       const points = bites.filter((b) => b.taf !== null && !b.degraded)
         .map((b) => [b.static_torque_knm, b.taf]).sort((a, b) => a[0] - b[0]);
-      const data = [points.map((p) => p[0]), points.map((p) => p[1]),
-        points.map(() => t.taf_warning), points.map(() => t.taf_alarm)];
+      const tables = [[points.map((p) => p[0]), points.map((p) => p[1])]];
+      const series = [
+        { label: "static torque, kN·m", value: (u, v) => num(v, 0) },
+        { label: "TAF (bites)", stroke: "#0f766e", width: 0, paths: () => null, points: { show: true, size: 6, fill: "#0f766e" }, value: (u, v) => num(v, 3) },
+      ];
+      const bands = [];
+      const curveTable = (curve) => [curve.points.map((p) => p[0]), curve.points.map((p) => p[1])];
+      const coupling = mapCoupling();
+      if (coupling) {
+        coupling.curves.forEach((curve, i) => {
+          tables.push(curveTable(curve));
+          series.push({ label: "map, gap " + num(curve.gap_mrad, 0) + " mrad", stroke: curveColour(i, coupling.curves.length),
+            width: 1, spanGaps: true, points: quiet, value: (u, v) => num(v, 3) });
+        });
+        const e = map.estimate;
+        if (e && e.coupling === coupling.coupling) {
+          const high = series.length;
+          tables.push(curveTable(e.high), curveTable(e.low), curveTable(e.gap));
+          series.push(
+            { label: "90% high " + num(e.high.gap_mrad, 2), stroke: "#93c5fd", width: 1, spanGaps: true, points: quiet, value: (u, v) => num(v, 3) },
+            { label: "90% low " + num(e.low.gap_mrad, 2), stroke: "#93c5fd", width: 1, spanGaps: true, points: quiet, value: (u, v) => num(v, 3) },
+            { label: "estimate " + num(e.gap.gap_mrad, 2) + " mrad", stroke: "#1d4ed8", width: 2.5, spanGaps: true, points: quiet, value: (u, v) => num(v, 3) });
+          bands.push({ series: [high, high + 1], fill: "rgba(29, 78, 216, 0.12)" });
+        }
+      }
+      // The thresholds across everything drawn.
+      const xs = tables.flatMap((table) => table[0]);
+      const span = xs.length ? [Math.min(...xs), Math.max(...xs)] : [];
+      tables.push([span, span.map(() => t.taf_warning), span.map(() => t.taf_alarm)]);
+      series.push(
+        { label: "warning", stroke: "#b45309", width: 1.5, dash: [8, 5], points: quiet },
+        { label: "alarm", stroke: "#b91c1c", width: 1.5, dash: [8, 5], points: quiet });
       const options = {
-        width: plotWidth(tafNode), height: 260,
+        width: plotWidth(tafNode), height: 320,
         scales: { x: { time: false } },
-        series: [
-          { label: "static torque, kN·m", value: (u, v) => num(v, 0) },
-          { label: "TAF (bites)", stroke: "#0f766e", width: 0, paths: () => null, points: { show: true, size: 6, fill: "#0f766e" }, value: (u, v) => num(v, 3) },
-          { label: "warning", stroke: "#b45309", width: 1.5, dash: [8, 5], points: quiet },
-          { label: "alarm", stroke: "#b91c1c", width: 1.5, dash: [8, 5], points: quiet },
-        ],
-        axes: [{ label: "static torque, kN·m" }, { label: "TAF" }],
+        series, bands,
+        axes: [{ label: "static torque (as measured), kN·m" }, { label: "TAF" }],
       };
       if (tafPlot) tafPlot.destroy();
-      tafPlot = new uPlot(options, data, tafNode);
+      tafPlot = new uPlot(options, uPlot.join(tables), tafNode);
       window.millgatePlots.taf = tafPlot;
+      tafPlot.millgateCoupling = coupling ? coupling.coupling : null;
+      const what = "Points: the measured bites" + (bites.length ? " (newest " + bites.length + ")" : " (none in the history yet)") + ". ";
+      if (coupling) {
+        const e = map.estimate;
+        const where = !e ? "no estimate yet"
+          : (e.coupling !== coupling.coupling ? "the estimate is on coupling " + e.coupling
+            : (e.determined ? "the estimate names this coupling" : "the bites cannot tell the couplings apart; this is the likeliest"));
+        tafNote.textContent = what + "Lines: the wear map of coupling " + coupling.coupling + " \u201c" + coupling.name +
+          "\u201d (model " + map.model + "), the TAF a bite shows at each opened gap, simulated; " + where + ".";
+      } else {
+        tafNote.textContent = what + (map ? map.message : "");
+      }
     }
+
+    async function loadMap() {
+      try {
+        map = await getJson("/api/drivelines/" + encodeURIComponent(name) + "/map");
+      } catch (error) {
+        map = { state: "failed", message: error.message, couplings: [] };
+      }
+      couplingPicker();
+      drawTaf();
+      // A build in progress: look again until it is done (one timer).
+      if (map.state === "building" && mapTimer === null) {
+        mapTimer = setTimeout(() => { mapTimer = null; loadMap(); }, 5000);
+      }
+    }
+    let mapTimer = null;
 
     async function loadHistory() {
       try {
@@ -298,9 +380,7 @@
         drawGap(wear);
         gapNote.textContent = wear.some((p) => p.gap_mrad !== null) ? ""
           : (info.has_model ? "No gap estimate in the history yet." : "No gap estimates: the driveline has no model configured.");
-        drawTaf();
-        tafNote.textContent = "Points: the measured bites (newest 500). The wear maps' TAF curves " +
-          "are not published by the analysis, so they are not drawn.";
+        await loadMap();
       } catch (error) {
         gapNote.textContent = error.message;
         tafNote.textContent = error.message;
@@ -315,7 +395,7 @@
         await loadHistory();
       } else {
         gapNote.textContent = "No history configured: the plots need [history] in the configuration.";
-        tafNote.textContent = "No history configured.";
+        await loadMap();
         fill(tbody, [el("tr", {}, el("td", { colspan: 8, class: "muted" }, "no history configured: live figures only"))]);
       }
       let pending = null;
@@ -340,20 +420,22 @@
           data[4].push(info.thresholds.gap_warning_mrad); data[5].push(info.thresholds.gap_alarm_mrad);
           gapPlot.setData(data);
         }
-        // ...then the stored rows and the trend, once the history has them.
-        if (overview.history && pending === null) {
+        // ...then the stored rows and the trend, once the history has them (without
+        // a history, the estimate on the wear map).
+        if (pending === null) {
           pending = setTimeout(async () => {
             pending = null;
+            if (!overview.history) return loadMap();
             try {
               info = await getJson("/api/drivelines/" + encodeURIComponent(name));
             } catch (error) { console.error(error); }
             loadHistory();
-          }, 1500);
+          }, overview.history ? 1500 : 200);
         }
       });
       window.addEventListener("resize", () => {
         if (gapPlot) gapPlot.setSize({ width: plotWidth(gapNode), height: 300 });
-        if (tafPlot) tafPlot.setSize({ width: plotWidth(tafNode), height: 260 });
+        if (tafPlot) tafPlot.setSize({ width: plotWidth(tafNode), height: 320 });
       });
     }
     start().catch((error) => { gapNote.textContent = error.message; });

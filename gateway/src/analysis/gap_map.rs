@@ -297,6 +297,25 @@ impl GapMaps {
         Some((cell.taf(), shift))
     }
 
+    /// The index (in spec order) of coupling `coupling`'s map.
+    pub fn index_of(&self, coupling: usize) -> Option<usize> {
+        self.data
+            .maps
+            .iter()
+            .position(|map| map.coupling == coupling)
+    }
+
+    /// [`Self::taf_curve`]s of map `index` at every whole mrad up to the largest gap
+    /// row: (gap in mrad, curve), gap 0 first.
+    pub fn whole_mrad_curves(&self, index: usize) -> Vec<(u32, Vec<(f64, f64)>)> {
+        let max_mrad = self.gaps_rad().last().copied().unwrap_or(0.0) * 1e3;
+        // Rows are exact multiples of the step: 8 mrad may come out as 7.999...
+        let whole = (max_mrad + 1e-9).floor() as u32;
+        (0..=whole)
+            .map(|mrad| (mrad, self.taf_curve(index, f64::from(mrad) * 1e-3)))
+            .collect()
+    }
+
     /// TAF over measured static torque (kN*m) of map `index` at gap `gap_rad`
     /// (between rows: interpolated), one point per grid torque.
     pub fn taf_curve(&self, index: usize, gap_rad: f64) -> Vec<(f64, f64)> {

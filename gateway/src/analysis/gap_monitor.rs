@@ -156,13 +156,15 @@ impl GapMapJob {
 }
 
 /// Run `job` on a thread of its own (and `threads` workers: the build uses the
-/// machine while the service already runs), sending the outcome on `ready`; the build
-/// stops early once `cancel` is set.
+/// machine while the service already runs), reporting `progress(done, total)` per
+/// simulation and sending the outcome on `ready`; the build stops early once
+/// `cancel` is set.
 pub fn spawn_job(
     job: GapMapJob,
     threads: usize,
     ready: tokio::sync::mpsc::Sender<super::GapMapsReady>,
     cancel: Arc<AtomicBool>,
+    progress: impl Fn(usize, usize) + Send + Sync + 'static,
 ) -> std::io::Result<std::thread::JoinHandle<()>> {
     std::thread::Builder::new()
         .name(format!("gap-maps-{}", job.driveline))
@@ -173,7 +175,7 @@ pub fn spawn_job(
                 simulations = job.spec().simulations(),
                 "gap maps: reading the cache or building"
             );
-            let outcome = job.run(threads, &cancel, &|_, _| {});
+            let outcome = job.run(threads, &cancel, &progress);
             match &outcome {
                 Ok((_, origin)) => tracing::info!(
                     driveline = %job.driveline_name,
@@ -260,6 +262,7 @@ impl GapMonitor {
             low_mrad: estimate.gap_low_mrad,
             high_mrad: estimate.gap_high_mrad,
             coupling: estimate.coupling,
+            likeliest_coupling: Some(estimate.likeliest_coupling),
             bites_pooled: estimate.bites_pooled,
         });
         results.gap_warning = estimate.gap_mrad >= self.warning_mrad;

@@ -24,7 +24,7 @@ use millgate_config::Config;
 use tokio::sync::{broadcast, mpsc};
 
 use crate::field::acquired::Acquired;
-use crate::outputs::publisher::Publisher;
+use crate::outputs::publisher::{Publisher, WearMapState};
 use crate::supervision::{Liveness, ANALYSIS_TICK};
 use driveline::{BiteReport, DrivelineAnalyzer};
 pub use error::AnalysisError;
@@ -80,6 +80,11 @@ impl Analysis {
                 by_trigger[trigger].push(index);
             }
         }
+        for (index, driveline) in drivelines.iter().enumerate() {
+            if let Some(problem) = driveline.wear_problem() {
+                publisher.set_wear_map(index, WearMapState::Failed(problem.to_string()));
+            }
+        }
         let chatter = chatter_monitor::ChatterAnalysis::new(config, Arc::clone(&publisher))?;
         let rod_mills = rod_monitor::RodAnalysis::new(config, Arc::clone(&publisher))?;
         Ok(Self {
@@ -129,9 +134,16 @@ impl Analysis {
             return;
         };
         let maps = match maps {
-            Ok(maps) => Some(Arc::new(maps)),
+            Ok(maps) => {
+                let maps = Arc::new(maps);
+                self.publisher
+                    .set_wear_map(index, WearMapState::Ready(Arc::clone(&maps)));
+                Some(maps)
+            }
             Err(error) => {
                 tracing::error!(driveline = index, %error, "no gap maps: the gap registers stay invalid");
+                self.publisher
+                    .set_wear_map(index, WearMapState::Failed(error.to_string()));
                 None
             }
         };

@@ -371,19 +371,11 @@ fn plot(
 ) -> anyhow::Result<String> {
     use millgate_sim::plot::{curves_svg, CurvesPlot};
     let coupling = result.map_or(maps.maps()[0].coupling, |e| e.likeliest_coupling);
-    let index = maps
-        .maps()
-        .iter()
-        .position(|map| map.coupling == coupling)
-        .unwrap_or(0);
-    let max_mrad = maps.gaps_rad().last().copied().unwrap_or(0.0) * 1e3;
-    let curves = (0..=max_mrad.floor() as usize)
-        .map(|mrad| {
-            (
-                format!("gap {mrad} mrad"),
-                maps.taf_curve(index, mrad as f64 * 1e-3),
-            )
-        })
+    let index = maps.index_of(coupling).unwrap_or(0);
+    let curves = maps
+        .whole_mrad_curves(index)
+        .into_iter()
+        .map(|(mrad, curve)| (format!("gap {mrad} mrad"), curve))
         .collect();
     let highlighted = result.map(|e| {
         (

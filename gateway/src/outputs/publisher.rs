@@ -6,6 +6,7 @@ use std::sync::{Arc, Mutex};
 
 use millgate_config::{ChannelSource, Config};
 
+use crate::analysis::gap_map::GapMaps;
 use crate::field::source_health::{SourceHealth, SourceStatus};
 use crate::outputs::history::events::{
     AlarmEvent, AlarmKind, AlarmRecord, CommandOrigin, HistoryEvent,
@@ -39,6 +40,27 @@ pub struct Publisher {
     /// Drivelines (bit k = driveline k) whose wear was reset since the analysis last
     /// looked: it empties their gap pools.
     wear_resets: AtomicU16,
+    /// Each driveline's gap maps, for the maintenance page's wear map curves.
+    wear_maps: Mutex<Vec<WearMapState>>,
+}
+
+/// Where a driveline's gap maps are (the analysis holds its own reference; this one
+/// is for the outputs that draw them).
+#[derive(Debug, Clone)]
+pub enum WearMapState {
+    /// The driveline has no model: no maps.
+    NoModel,
+    /// Read from the cache or being built: `done` of `total` simulations.
+    Building {
+        /// Simulations done.
+        done: usize,
+        /// Simulations the build runs (0 until the build reports).
+        total: usize,
+    },
+    /// Ready.
+    Ready(Arc<GapMaps>),
+    /// Will not come: why (the model does not load or fit, the build failed).
+    Failed(String),
 }
 
 /// Global index of a channel's source: Modbus sources first, then CAN sources.
@@ -97,6 +119,34 @@ impl Publisher {
                 })
                 .collect(),
             wear_resets: AtomicU16::new(0),
+            wear_maps: Mutex::new(
+                config
+                    .drivelines
+                    .iter()
+                    .map(|d| match d.model {
+                        Some(_) => WearMapState::Building { done: 0, total: 0 },
+                        None => WearMapState::NoModel,
+                    })
+                    .collect(),
+            ),
+        }
+    }
+
+    /// Driveline `index`'s gap maps.
+    pub fn wear_map(&self, index: usize) -> Option<WearMapState> {
+        crate::lock(&self.wear_maps).get(index).cloned()
+    }
+
+    /// Set driveline `index`'s gap maps (a progress report of a build that has
+    /// finished or failed is ignored).
+    pub fn set_wear_map(&self, index: usize, state: WearMapState) {
+        let mut maps = crate::lock(&self.wear_maps);
+        if let Some(slot) = maps.get_mut(index) {
+            let late = matches!(state, WearMapState::Building { .. })
+                && !matches!(slot, WearMapState::Building { .. });
+            if !late {
+                *slot = state;
+            }
         }
     }
 

@@ -65,6 +65,9 @@ pub struct GapResults {
     pub high_mrad: f64,
     /// Coupling holding the gap (model index), `None` when undetermined.
     pub coupling: Option<usize>,
+    /// The likeliest coupling (model index), named or not; `None` where it is not
+    /// known (a bite replayed from the history, which keeps only `coupling`).
+    pub likeliest_coupling: Option<usize>,
     /// Bites pooled.
     pub bites_pooled: usize,
 }

@@ -172,6 +172,7 @@ pub fn bite_results(row: &BiteRow) -> DrivelineResults {
         low_mrad: row.gap_low_mrad.unwrap_or(gap_mrad),
         high_mrad: row.gap_high_mrad.unwrap_or(gap_mrad),
         coupling: row.gap_coupling.as_deref().and_then(|c| c.parse().ok()),
+        likeliest_coupling: None,
         bites_pooled: row
             .bites_pooled
             .and_then(|n| usize::try_from(n).ok())

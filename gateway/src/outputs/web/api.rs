@@ -21,13 +21,15 @@ use tokio_stream::wrappers::WatchStream;
 use tokio_stream::{Stream, StreamExt};
 
 use super::{DrivelineInfo, WebState};
+use crate::analysis::gap_map::GapMaps;
 use crate::field::source_health::SourceStatus;
 use crate::outputs::history::query::{AlarmRow, BiteRow, Filter, HistoryReader, OutageRow, Record};
 use crate::outputs::history::series::{WearPoint, MAX_SERIES_POINTS};
 use crate::outputs::history::time::UtcTime;
 use crate::outputs::history::HistoryError;
+use crate::outputs::publisher::WearMapState;
 use crate::outputs::results::{
-    DrivelineResults, GatewayState, MillResults, Results, RodMillResults,
+    DrivelineResults, GapResults, GatewayState, MillResults, Results, RodMillResults,
 };
 
 /// Default and largest `limit` of `/api/drivelines/{name}/bites` and `/api/alarms`.
@@ -211,6 +213,8 @@ pub struct GapView {
     pub high_mrad: f64,
     /// Coupling holding the gap (model index, 0 = motor side); `None`: undetermined.
     pub coupling: Option<usize>,
+    /// The likeliest coupling, named or not.
+    pub likeliest_coupling: Option<usize>,
     /// Bites pooled.
     pub bites_pooled: usize,
 }
@@ -308,6 +312,7 @@ impl DrivelineView {
                 low_mrad: gap.low_mrad,
                 high_mrad: gap.high_mrad,
                 coupling: gap.coupling,
+                likeliest_coupling: gap.likeliest_coupling,
                 bites_pooled: gap.bites_pooled,
             }),
             gap_trend_mrad_per_week: None,
@@ -621,6 +626,161 @@ pub(crate) async fn driveline(
         })
         .await?;
     }
+    Ok(Json(view))
+}
+
+/// One TAF curve of a wear map: TAF over the static torque the analysis measures,
+/// at one opened gap.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct MapCurve {
+    /// Opened gap, mrad.
+    pub gap_mrad: f64,
+    /// `[static torque kN*m, TAF]`, static torque ascending.
+    pub points: Vec<[f64; 2]>,
+}
+
+impl MapCurve {
+    fn new(gap_mrad: f64, curve: Vec<(f64, f64)>) -> Self {
+        Self {
+            gap_mrad,
+            points: curve.into_iter().map(|(s, taf)| [s, taf]).collect(),
+        }
+    }
+}
+
+/// A coupling's wear map: its curves at every whole mrad.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct CouplingCurves {
+    /// Coupling (model index, 0 = motor side).
+    pub coupling: usize,
+    /// Its name in the model.
+    pub name: String,
+    /// Gap 0 (the linear driveline) first.
+    pub curves: Vec<MapCurve>,
+}
+
+/// The pooled gap estimate on its coupling's map: the curve at the estimate and at
+/// the ends of its 90% interval.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct EstimateCurves {
+    /// The coupling the estimate names, else the likeliest.
+    pub coupling: usize,
+    /// Whether the estimate names the coupling (else the bites cannot tell the
+    /// couplings apart and `coupling` is only the likeliest).
+    pub determined: bool,
+    /// At the estimated gap.
+    pub gap: MapCurve,
+    /// At the interval's lower end.
+    pub low: MapCurve,
+    /// At its upper end.
+    pub high: MapCurve,
+}
+
+/// A driveline's wear maps as `/api/drivelines/{name}/map` gives them.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct WearMapView {
+    /// `ready`, `building` (read from the cache or simulated), `failed` or `no_model`.
+    pub state: &'static str,
+    /// What `state` means here (progress, the failure); `None` when ready.
+    pub message: Option<String>,
+    /// Simulations done and in all while `building` (0 of 0 until the build reports).
+    pub simulations: Option<[usize; 2]>,
+    /// The model's name, when ready.
+    pub model: Option<String>,
+    /// The static torque range every curve covers, kN*m, when ready.
+    pub static_range_knm: Option<[f64; 2]>,
+    /// Every coupling that may carry the gap, in the wear settings' order.
+    pub couplings: Vec<CouplingCurves>,
+    /// The live pooled estimate on its map; `None` without an estimate.
+    pub estimate: Option<EstimateCurves>,
+}
+
+impl WearMapView {
+    fn not_ready(state: &'static str, message: String, simulations: Option<[usize; 2]>) -> Self {
+        Self {
+            state,
+            message: Some(message),
+            simulations,
+            model: None,
+            static_range_knm: None,
+            couplings: Vec::new(),
+            estimate: None,
+        }
+    }
+
+    fn new(maps: &GapMaps, gap: Option<&GapResults>) -> Self {
+        let couplings = maps
+            .maps()
+            .iter()
+            .enumerate()
+            .map(|(index, map)| CouplingCurves {
+                coupling: map.coupling,
+                name: map.name.clone(),
+                curves: maps
+                    .whole_mrad_curves(index)
+                    .into_iter()
+                    .map(|(mrad, curve)| MapCurve::new(f64::from(mrad), curve))
+                    .collect(),
+            })
+            .collect();
+        let estimate = gap.and_then(|gap| {
+            let coupling = gap.coupling.or(gap.likeliest_coupling)?;
+            let index = maps.index_of(coupling)?;
+            let curve = |mrad: f64| MapCurve::new(mrad, maps.taf_curve(index, mrad * 1e-3));
+            Some(EstimateCurves {
+                coupling,
+                determined: gap.coupling.is_some(),
+                gap: curve(gap.gap_mrad),
+                low: curve(gap.low_mrad),
+                high: curve(gap.high_mrad),
+            })
+        });
+        let (low, high) = maps.static_range_knm();
+        Self {
+            state: "ready",
+            message: None,
+            simulations: None,
+            model: Some(maps.data().model_name.clone()),
+            static_range_knm: Some([low, high]),
+            couplings,
+            estimate,
+        }
+    }
+}
+
+/// `GET /api/drivelines/{name}/map`: the wear maps' TAF curves over static torque
+/// (what a bite's TAF is at each opened gap, per coupling) and the live estimate on
+/// them.
+pub(crate) async fn wear_map(
+    State(state): State<Arc<WebState>>,
+    Path(name): Path<String>,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Json<WearMapView>, ApiError> {
+    Params::of(query, &[])?;
+    let index = driveline_index(&state, &name)?;
+    let view = match state.publisher.wear_map(index) {
+        Some(WearMapState::Ready(maps)) => {
+            let results = state.publisher.results();
+            WearMapView::new(&maps, results.drivelines[index].gap.as_ref())
+        }
+        Some(WearMapState::Building { done, total }) => WearMapView::not_ready(
+            "building",
+            if total == 0 {
+                "the wear maps are being read from the cache or built".into()
+            } else {
+                format!("the wear maps are being built: {done} of {total} simulations")
+            },
+            Some([done, total]),
+        ),
+        Some(WearMapState::Failed(why)) => {
+            WearMapView::not_ready("failed", format!("no wear maps: {why}"), None)
+        }
+        Some(WearMapState::NoModel) | None => WearMapView::not_ready(
+            "no_model",
+            format!("driveline \"{name}\" has no model configured: no wear maps"),
+            None,
+        ),
+    };
     Ok(Json(view))
 }
 

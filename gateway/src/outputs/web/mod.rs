@@ -5,7 +5,7 @@
 //!   each a small server-rendered HTML shell that the page's own script
 //!   (`assets/web/app.js`) fills from the JSON API, plotting with the vendored uPlot
 //!   (`assets/uplot`, MIT). Everything is compiled into the binary: no CDN, no fonts.
-//! - **API** ([`api`]): `/api/overview`, `/api/drivelines[/{name}[/bites|/wear]]`,
+//! - **API** ([`api`]): `/api/overview`, `/api/drivelines[/{name}[/bites|/wear|/map]]`,
 //!   `/api/alarms` and `/api/events` (server-sent events: the live results, sent when
 //!   they change). Live figures come from the [`Publisher`]'s snapshot; history
 //!   figures from the history file through a read-only [`HistoryReader`] of the
@@ -284,6 +284,7 @@ pub(crate) fn router(state: Arc<WebState>) -> Router {
         .route("/api/drivelines/{name}", get(api::driveline))
         .route("/api/drivelines/{name}/bites", get(api::bites))
         .route("/api/drivelines/{name}/wear", get(api::wear))
+        .route("/api/drivelines/{name}/map", get(api::wear_map))
         .route("/api/alarms", get(api::alarms))
         .route("/api/events", get(api::events))
         .fallback(|| async { api::error(StatusCode::NOT_FOUND, "no such page") })

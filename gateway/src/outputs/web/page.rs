@@ -158,7 +158,10 @@ pub(crate) async fn driveline(
         "<h1>Driveline {name}</h1>\n<div id=\"cards\" class=\"cards\"></div>\n\
          <section><h2>Opened gap over time</h2><div id=\"gap-plot\" class=\"plot\"></div>\
          <p class=\"note\" id=\"gap-note\"></p></section>\n\
-         <section><h2>TAF over static torque</h2><div id=\"taf-plot\" class=\"plot\"></div>\
+         <section><h2>TAF over static torque</h2>\
+         <label class=\"picker hidden\" id=\"taf-coupling-label\">wear map of coupling \
+         <select id=\"taf-coupling\"></select></label>\
+         <div id=\"taf-plot\" class=\"plot\"></div>\
          <p class=\"note\" id=\"taf-note\"></p></section>\n\
          <section><h2>Last bites</h2><table id=\"bites\" class=\"grid\"><thead><tr>\
          <th>Time (UTC)</th><th>Bite</th><th>Static torque</th><th>Peak torque</th><th>TAF</th>\
