@@ -10,6 +10,7 @@ use std::time::{Duration, Instant};
 
 use common::{free_port, http, http_raw, web_ready, HttpAnswer, Setup};
 use millgate::outputs::history::query::{BiteRow, Filter, HistoryReader};
+use millgate::outputs::web::api::TREND_WINDOW;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 
@@ -182,6 +183,42 @@ async fn wear_map_on_the_page(port: u16, setup: &Setup) {
         mean(&to_estimate) < 0.05 && mean(&to_estimate) < mean(&to_linear),
         "bites off the estimate's curve: {to_estimate:?} (linear {to_linear:?})"
     );
+}
+
+/// The overview's gap trend (kept between bites) equals the history's fit over the
+/// file, before and after a new bite.
+async fn gap_trend_follows_the_file(port: u16, setup: &Setup) {
+    let file_trend = || {
+        HistoryReader::open(&setup.history)
+            .unwrap()
+            .gap_trend("F1", None, TREND_WINDOW)
+            .unwrap()
+            .map(|t| t.mrad_per_week)
+    };
+    let start = Instant::now();
+    let mut seen = Vec::new();
+    while seen.len() < 2 {
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "no gap trend twice: {seen:?}"
+        );
+        // The page's trend between two reads of the file that agree (no bite between).
+        let before = file_trend();
+        let page = http(port, "GET", "/api/overview").await.json()["drivelines"][0]
+            ["gap_trend_mrad_per_week"]
+            .as_f64();
+        if before.is_none() || before != file_trend() || seen.contains(&before) {
+            tokio::time::sleep(Duration::from_millis(200)).await;
+            continue;
+        }
+        let file = before.unwrap();
+        let page = page.unwrap_or_else(|| panic!("no trend on the page, {file} in the file"));
+        assert!(
+            (page - file).abs() <= 1e-9 * file.abs(),
+            "page {page} mrad/week, file {file}"
+        );
+        seen.push(before);
+    }
 }
 
 /// A 400 whose JSON error names `words`.
@@ -407,6 +444,7 @@ async fn the_api_answers_from_the_live_results_and_the_history_and_refuses_bad_r
     );
 
     wear_map_on_the_page(port, &setup).await;
+    gap_trend_follows_the_file(port, &setup).await;
 
     // Bad parameters, unknown names.
     assert_bad(

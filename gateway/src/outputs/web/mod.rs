@@ -108,6 +108,8 @@ pub struct WebState {
     pub(crate) request_timeout: Duration,
     /// The live results as `/api/events` sends them (JSON), newest.
     pub(crate) live: watch::Receiver<Arc<String>>,
+    /// Gap trends as last fitted, per driveline ([`api`]'s `gap_trend`).
+    pub(crate) trends: api::TrendCache,
 }
 
 /// The web page server.
@@ -160,6 +162,7 @@ impl WebServer {
             history: config.history.as_ref().map(|h| h.path.clone()),
             request_timeout: settings.request_timeout,
             live: live_rx,
+            trends: api::TrendCache::default(),
         };
         let state = Arc::new(state);
         live.send_replace(Arc::new(api::live_json(&state)));
