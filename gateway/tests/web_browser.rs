@@ -82,6 +82,34 @@ async fn browser(driver: &Driver, chromium: &PathBuf) -> Client {
         .expect("a chromium session through chromedriver")
 }
 
+/// Counts the page's fetches from now on by kind: `window.fetched.{overview, wear,
+/// bites}`.
+const COUNT_FETCHES: &str = "window.fetched = { overview: 0, wear: 0, bites: 0 }; \
+    const fetchOriginal = window.fetch; \
+    window.fetch = (url, options) => { \
+      const path = String(url); \
+      if (path.startsWith('/api/overview')) window.fetched.overview++; \
+      if (path.includes('/wear')) window.fetched.wear++; \
+      if (path.includes('/bites')) window.fetched.bites++; \
+      return fetchOriginal(url, options); \
+    }; \
+    return true;";
+
+/// Wait until the page fetched `kind` again (counted since [`COUNT_FETCHES`]), then
+/// check it fetched no gap series.
+async fn refetched_without_series(client: &Client, kind: &str) {
+    let count = format!("return window.fetched.{kind};");
+    until_js(client, &count, Duration::from_secs(10), |v| {
+        v.as_u64() >= Some(1)
+    })
+    .await;
+    let fetched = client
+        .execute("return window.fetched;", vec![])
+        .await
+        .unwrap();
+    assert_eq!(fetched["wear"], 0, "{fetched}");
+}
+
 /// Evaluate `script` (a `return ...` body) until `done` holds for its value, at most
 /// `limit`; the last value.
 async fn until_js(
@@ -176,6 +204,19 @@ async fn the_pages_list_the_drivelines_plot_the_gap_and_show_a_new_bite_within_2
         |v| v.as_u64() >= Some(2),
     )
     .await;
+    // A later bite's estimate is appended from the live figures, without fetching the
+    // history's series again (they scan the file; refetched every 5 min at most).
+    client.execute(COUNT_FETCHES, vec![]).await.unwrap();
+    let estimates = "const p = window.millgatePlots.overviewGap; \
+                     return p.data[1].filter((v) => v !== null && v !== undefined).length;";
+    let shown = client.execute(estimates, vec![]).await.unwrap();
+    plc.bites_after_now(1).await;
+    until_js(&client, estimates, Duration::from_secs(2), |v| {
+        v.as_u64() > shown.as_u64()
+    })
+    .await;
+    // The overview itself is fetched again 1 s after the bite; the series are not.
+    refetched_without_series(&client, "overview").await;
     screenshot(&client, "maintenance-overview.png").await;
 
     // The driveline page: the gap plot is a canvas with the history's data.
@@ -252,6 +293,7 @@ async fn the_pages_list_the_drivelines_plot_the_gap_and_show_a_new_bite_within_2
         .execute("window.notReloaded = true; return true;", vec![])
         .await
         .unwrap();
+    client.execute(COUNT_FETCHES, vec![]).await.unwrap();
     let newest = "const r = document.querySelector('#bites tbody tr[data-bite]'); \
                   return r ? Number(r.dataset.bite) : 0;";
     until_js(&client, newest, long, |v| v.as_u64() > Some(0)).await;
@@ -272,6 +314,8 @@ async fn the_pages_list_the_drivelines_plot_the_gap_and_show_a_new_bite_within_2
         serde_json::Value::Bool(true),
         "the driveline page reloaded"
     );
+    // The stored rows come again after the bite, the gap series does not.
+    refetched_without_series(&client, "bites").await;
     if std::env::var_os("MILLGATE_SCREENSHOTS").is_some() {
         // Let the stored rows replace the live one, for the picture.
         tokio::time::sleep(Duration::from_millis(1800)).await;

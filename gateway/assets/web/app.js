@@ -71,6 +71,11 @@
     return now.drivelines.filter((d, i) => before.drivelines[i] && d.bite_counter !== before.drivelines[i].bite_counter);
   }
 
+  // The history's time series cost a scan of the file (about 0.3 s per driveline on a
+  // year of bites): a page fetches them on load and again at most this often; bites in
+  // between are appended from the live figures.
+  const SERIES_PERIOD_MS = 5 * 60 * 1000;
+
   function plotWidth(node) {
     return Math.max(320, node.clientWidth || 800);
   }
@@ -151,21 +156,47 @@
       window.millgatePlots.overviewGap = gapPlot;
       gapNote.textContent = data[0].length ? "" : "No gap estimate in the history yet.";
     }
+    let gapsAt = 0;
     async function refresh() {
       try {
         full = await getJson("/api/overview");
         render(lastLive || full);
-        await drawGaps(full);
+        if (Date.now() - gapsAt >= SERIES_PERIOD_MS) {
+          gapsAt = Date.now();
+          await drawGaps(full);
+        }
       } catch (error) {
         console.error(error);
         gapNote.textContent = error.message;
       }
     }
+    // New bites' gap estimates onto the plot, from the live figures.
+    function appendGaps(moved) {
+      if (!gapPlot) return;
+      const names = gapPlot.series.slice(1).map((s) => s.label);
+      const data = gapPlot.data.map((s) => Array.from(s));
+      for (const d of moved) {
+        const i = names.indexOf(d.name);
+        if (i < 0 || !d.gap || !d.last_bite) continue;
+        const t = Date.parse(d.last_bite) / 1000;
+        const last = data[0].length - 1;
+        if (last >= 0 && t < data[0][last]) continue; // older than the plot's end
+        if (last < 0 || t > data[0][last]) {
+          data[0].push(t);
+          for (const series of data.slice(1)) series.push(null);
+        }
+        data[i + 1][data[0].length - 1] = d.gap.gap_mrad;
+        gapNote.textContent = "";
+      }
+      gapPlot.setData(data);
+    }
     let pending = null;
     listeners.push((now, before) => {
       render(now);
-      // A bite changes the trend: fetch the history's part again, once.
-      if (newBites(now, before).length > 0 && pending === null) {
+      const moved = newBites(now, before);
+      appendGaps(moved);
+      // A bite changes the trend: fetch the overview's history part again, once.
+      if (moved.length > 0 && pending === null) {
         pending = setTimeout(() => { pending = null; refresh(); }, 1000);
       }
     });
@@ -369,17 +400,22 @@
     }
     let mapTimer = null;
 
+    let wearAt = 0;
     async function loadHistory() {
       try {
+        const series = Date.now() - wearAt >= SERIES_PERIOD_MS;
         const [wear, rows] = await Promise.all([
-          getJson("/api/drivelines/" + encodeURIComponent(name) + "/wear?points=400"),
+          series ? getJson("/api/drivelines/" + encodeURIComponent(name) + "/wear?points=400") : null,
           getJson("/api/drivelines/" + encodeURIComponent(name) + "/bites?limit=500"),
         ]);
         bites = rows;
         table();
-        drawGap(wear);
-        gapNote.textContent = wear.some((p) => p.gap_mrad !== null) ? ""
-          : (info.has_model ? "No gap estimate in the history yet." : "No gap estimates: the driveline has no model configured.");
+        if (wear) {
+          wearAt = Date.now();
+          drawGap(wear);
+          gapNote.textContent = wear.some((p) => p.gap_mrad !== null) ? ""
+            : (info.has_model ? "No gap estimate in the history yet." : "No gap estimates: the driveline has no model configured.");
+        }
         await loadMap();
       } catch (error) {
         gapNote.textContent = error.message;
@@ -419,6 +455,7 @@
           data[1].push(d.gap.gap_mrad); data[2].push(d.gap.low_mrad); data[3].push(d.gap.high_mrad);
           data[4].push(info.thresholds.gap_warning_mrad); data[5].push(info.thresholds.gap_alarm_mrad);
           gapPlot.setData(data);
+          gapNote.textContent = "";
         }
         // ...then the stored rows and the trend, once the history has them (without
         // a history, the estimate on the wear map).
