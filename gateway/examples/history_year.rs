@@ -38,6 +38,7 @@ use millgate::outputs::history::events::{
 };
 use millgate::outputs::history::time::UtcTime;
 use millgate::outputs::history::writer;
+use millgate::outputs::history::{DrivelineSettings, RunInfo};
 use millgate::outputs::results::DrivelineResults;
 use rusqlite::params;
 
@@ -330,7 +331,6 @@ fn begin_run(
     drivelines: &[Driveline],
     random: &mut Random,
 ) -> rusqlite::Result<i64> {
-    let started_at = UtcTime::from_unix_ms(start_ms).to_string();
     let clean = random.uniform(0.0, 1.0) < 0.8;
     transaction.execute(
         "UPDATE gateway_runs SET stopped_at = CASE WHEN ?2 THEN ?1 END,
@@ -338,29 +338,22 @@ fn begin_run(
          WHERE ended IS NULL",
         params![UtcTime::from_unix_ms(start_ms - 60_000).to_string(), clean],
     )?;
-    transaction.execute(
-        "INSERT INTO gateway_runs (started_at, version, config_name) VALUES (?1, ?2, ?3)",
-        params![started_at, env!("CARGO_PKG_VERSION"), "Year fixture mill"],
-    )?;
-    let run_id = transaction.last_insert_rowid();
-    for driveline in drivelines {
-        transaction.execute(
-            "INSERT INTO driveline_settings (run_id, time, driveline, taf_warning, taf_alarm,
-                 model, gap_warning_mrad, gap_alarm_mrad)
-             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
-            params![
-                run_id,
-                started_at,
-                driveline.name,
-                TAF_WARNING,
-                TAF_ALARM,
-                "driveline-model.toml",
-                GAP_WARNING_MRAD,
-                GAP_ALARM_MRAD
-            ],
-        )?;
-    }
-    Ok(run_id)
+    let run = RunInfo {
+        version: env!("CARGO_PKG_VERSION").to_owned(),
+        config_name: "Year fixture mill".into(),
+        drivelines: drivelines
+            .iter()
+            .map(|driveline| DrivelineSettings {
+                name: driveline.name.clone(),
+                taf_warning: TAF_WARNING,
+                taf_alarm: TAF_ALARM,
+                model: Some("driveline-model.toml".into()),
+                gap_warning_mrad: Some(GAP_WARNING_MRAD),
+                gap_alarm_mrad: Some(GAP_ALARM_MRAD),
+            })
+            .collect(),
+    };
+    writer::insert_run(transaction, UtcTime::from_unix_ms(start_ms), &run)
 }
 
 fn main() -> anyhow::Result<()> {

@@ -15,7 +15,7 @@ use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{free_port, web_ready, Setup};
+use common::{free_port, web_ready, Plc, Setup};
 use fantoccini::{Client, ClientBuilder, Locator};
 use hyper_util::client::legacy::connect::HttpConnector;
 
@@ -94,6 +94,24 @@ const COUNT_FETCHES: &str = "window.fetched = { overview: 0, wear: 0, bites: 0 }
       return fetchOriginal(url, options); \
     }; \
     return true;";
+
+/// The PLC sees a new bite, and `script` (the bite counter the page shows) passes it
+/// within 2 s, without a reload of the `page`.
+async fn new_bite_within_2_s(client: &Client, plc: &Plc<'_>, script: &str, page: &str) {
+    let plc_before = plc.counter();
+    plc.bites_after_now(1).await;
+    let seen = Instant::now();
+    until_js(client, script, Duration::from_secs(2), |v| {
+        v.as_u64() > Some(u64::from(plc_before))
+    })
+    .await;
+    assert!(seen.elapsed() < Duration::from_secs(2));
+    let kept = client
+        .execute("return window.notReloaded === true;", vec![])
+        .await
+        .unwrap();
+    assert_eq!(kept, serde_json::Value::Bool(true), "the {page} reloaded");
+}
 
 /// Wait until the page fetched `kind` again (counted since [`COUNT_FETCHES`]), then
 /// check it fetched no gap series.
@@ -181,20 +199,8 @@ async fn the_pages_list_the_drivelines_plot_the_gap_and_show_a_new_bite_within_2
     let counter =
         "return Number(document.querySelector('#driveline-F1 .bite-counter').textContent);";
     let shown = until_js(&client, counter, long, |v| v.as_u64() > Some(0)).await;
-    let plc_before = plc.counter();
-    assert!(shown.as_u64().unwrap() <= u64::from(plc_before) + 1);
-    plc.bites_after_now(1).await;
-    let seen = Instant::now();
-    until_js(&client, counter, Duration::from_secs(2), |v| {
-        v.as_u64() > Some(u64::from(plc_before))
-    })
-    .await;
-    assert!(seen.elapsed() < Duration::from_secs(2));
-    let kept = client
-        .execute("return window.notReloaded === true;", vec![])
-        .await
-        .unwrap();
-    assert_eq!(kept, serde_json::Value::Bool(true), "the overview reloaded");
+    assert!(shown.as_u64().unwrap() <= u64::from(plc.counter()) + 1);
+    new_bite_within_2_s(&client, &plc, counter, "overview").await;
     // Its gap plot: every driveline's estimates from the history.
     until_js(
         &client,
@@ -297,23 +303,7 @@ async fn the_pages_list_the_drivelines_plot_the_gap_and_show_a_new_bite_within_2
     let newest = "const r = document.querySelector('#bites tbody tr[data-bite]'); \
                   return r ? Number(r.dataset.bite) : 0;";
     until_js(&client, newest, long, |v| v.as_u64() > Some(0)).await;
-    let plc_before = plc.counter();
-    plc.bites_after_now(1).await;
-    let seen = Instant::now();
-    until_js(&client, newest, Duration::from_secs(2), |v| {
-        v.as_u64() > Some(u64::from(plc_before))
-    })
-    .await;
-    assert!(seen.elapsed() < Duration::from_secs(2));
-    let kept = client
-        .execute("return window.notReloaded === true;", vec![])
-        .await
-        .unwrap();
-    assert_eq!(
-        kept,
-        serde_json::Value::Bool(true),
-        "the driveline page reloaded"
-    );
+    new_bite_within_2_s(&client, &plc, newest, "driveline page").await;
     // The stored rows come again after the bite, the gap series does not.
     refetched_without_series(&client, "bites").await;
     if std::env::var_os("MILLGATE_SCREENSHOTS").is_some() {

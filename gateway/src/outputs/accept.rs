@@ -13,25 +13,29 @@ const BACKOFF: Duration = Duration::from_millis(100);
 pub(crate) struct AcceptFailures(u32);
 
 impl AcceptFailures {
-    /// A connection was accepted: the count starts again.
-    pub(crate) fn accepted(&mut self) {
-        self.0 = 0;
-    }
-
-    /// `accept` failed (out of descriptors or memory): warn, back off a little, and
-    /// give the error back once [`MAX_FAILURES_IN_A_ROW`] failed in a row (a listener
-    /// that keeps failing is a fault of the service).
-    pub(crate) async fn failed(
+    /// What one `accept` gave: the connection (the count of failures starts again),
+    /// or `None` after a failure (out of descriptors or memory: warned, with a short
+    /// back-off). The error comes back once [`MAX_FAILURES_IN_A_ROW`] failed in a row
+    /// (a listener that keeps failing is a fault of the service).
+    pub(crate) async fn check<T>(
         &mut self,
-        error: std::io::Error,
+        accepted: std::io::Result<T>,
         listener: &str,
-    ) -> Result<(), std::io::Error> {
-        self.0 += 1;
-        tracing::warn!(%error, "{listener} accept failed");
-        if self.0 >= MAX_FAILURES_IN_A_ROW {
-            return Err(error);
+    ) -> Result<Option<T>, std::io::Error> {
+        match accepted {
+            Ok(connection) => {
+                self.0 = 0;
+                Ok(Some(connection))
+            }
+            Err(error) => {
+                self.0 += 1;
+                tracing::warn!(%error, "{listener} accept failed");
+                if self.0 >= MAX_FAILURES_IN_A_ROW {
+                    return Err(error);
+                }
+                tokio::time::sleep(BACKOFF).await;
+                Ok(None)
+            }
         }
-        tokio::time::sleep(BACKOFF).await;
-        Ok(())
     }
 }

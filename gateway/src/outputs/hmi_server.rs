@@ -170,15 +170,9 @@ impl ModbusServer {
                 () = shutdown.recv() => break,
                 Some(_) = connections.join_next(), if !connections.is_empty() => continue,
             };
-            let (stream, peer) = match accepted {
-                Ok(accepted) => {
-                    accept_failures.accepted();
-                    accepted
-                }
-                Err(error) => {
-                    accept_failures.failed(error, "Modbus server").await?;
-                    continue;
-                }
+            let Some((stream, peer)) = accept_failures.check(accepted, "Modbus server").await?
+            else {
+                continue;
             };
             let Ok(slot) = Arc::clone(&slots).try_acquire_owned() else {
                 count(&self.counters.refused);

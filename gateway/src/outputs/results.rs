@@ -54,8 +54,8 @@ pub struct DrivelineResults {
 }
 
 /// The pooled gap estimate of a driveline, as published (see
-/// [`crate::analysis::gap_estimate`]).
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// [`crate::analysis::gap_estimate`]); serialized as the web API's `gap`.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct GapResults {
     /// Opened gap, maximum likelihood, mrad.
     pub gap_mrad: f64,
@@ -63,7 +63,8 @@ pub struct GapResults {
     pub low_mrad: f64,
     /// Upper end of the 90% interval, mrad.
     pub high_mrad: f64,
-    /// Coupling holding the gap (model index), `None` when undetermined.
+    /// Coupling holding the gap (model index, 0 = motor side), `None` when
+    /// undetermined.
     pub coupling: Option<usize>,
     /// The likeliest coupling (model index), named or not; `None` where it is not
     /// known (a bite replayed from the history, which keeps only `coupling`).

@@ -101,6 +101,39 @@ pub(crate) struct Writer {
     last_logged: Option<(Instant, String)>,
 }
 
+/// Insert `run`'s row, started at `started_at`, and its drivelines' settings; the
+/// run's id. (Public for fixtures that write a history as the writer would.)
+pub fn insert_run(
+    connection: &Connection,
+    started_at: UtcTime,
+    run: &RunInfo,
+) -> rusqlite::Result<i64> {
+    let started_at = started_at.to_string();
+    connection.execute(
+        "INSERT INTO gateway_runs (started_at, version, config_name) VALUES (?1, ?2, ?3)",
+        params![started_at, run.version, run.config_name],
+    )?;
+    let run_id = connection.last_insert_rowid();
+    for driveline in &run.drivelines {
+        connection.execute(
+            "INSERT INTO driveline_settings (run_id, time, driveline, taf_warning, taf_alarm,
+                 model, gap_warning_mrad, gap_alarm_mrad)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+            params![
+                run_id,
+                started_at,
+                driveline.name,
+                driveline.taf_warning,
+                driveline.taf_alarm,
+                driveline.model,
+                driveline.gap_warning_mrad,
+                driveline.gap_alarm_mrad
+            ],
+        )?;
+    }
+    Ok(run_id)
+}
+
 impl Writer {
     /// Open the file, record this run, and read what it restores. A failure is
     /// logged and counted; the writer tries again later.
@@ -182,32 +215,7 @@ impl Writer {
                 [&now],
             )?;
         }
-        transaction.execute(
-            "INSERT INTO gateway_runs (started_at, version, config_name) VALUES (?1, ?2, ?3)",
-            params![
-                self.started_at.to_string(),
-                self.run.version,
-                self.run.config_name
-            ],
-        )?;
-        let run_id = transaction.last_insert_rowid();
-        for driveline in &self.run.drivelines {
-            transaction.execute(
-                "INSERT INTO driveline_settings (run_id, time, driveline, taf_warning, taf_alarm,
-                     model, gap_warning_mrad, gap_alarm_mrad)
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
-                params![
-                    run_id,
-                    self.started_at.to_string(),
-                    driveline.name,
-                    driveline.taf_warning,
-                    driveline.taf_alarm,
-                    driveline.model,
-                    driveline.gap_warning_mrad,
-                    driveline.gap_alarm_mrad
-                ],
-            )?;
-        }
+        let run_id = insert_run(&transaction, self.started_at, &self.run)?;
         transaction.commit()?;
         Ok(run_id)
     }

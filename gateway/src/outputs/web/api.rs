@@ -202,23 +202,6 @@ fn driveline_index(state: &WebState, name: &str) -> Result<usize, ApiError> {
         })
 }
 
-/// The pooled gap estimate as published.
-#[derive(Debug, Clone, Serialize, PartialEq)]
-pub struct GapView {
-    /// Opened gap, mrad.
-    pub gap_mrad: f64,
-    /// 90% interval, lower end, mrad.
-    pub low_mrad: f64,
-    /// 90% interval, upper end, mrad.
-    pub high_mrad: f64,
-    /// Coupling holding the gap (model index, 0 = motor side); `None`: undetermined.
-    pub coupling: Option<usize>,
-    /// The likeliest coupling, named or not.
-    pub likeliest_coupling: Option<usize>,
-    /// Bites pooled.
-    pub bites_pooled: usize,
-}
-
 /// A driveline's thresholds.
 #[derive(Debug, Clone, Serialize, PartialEq)]
 pub struct ThresholdsView {
@@ -259,7 +242,7 @@ pub struct DrivelineView {
     /// Its trend.
     pub wear_trend: Option<f64>,
     /// Pooled gap estimate.
-    pub gap: Option<GapView>,
+    pub gap: Option<GapResults>,
     /// Gap trend, mrad per week, from the history (least squares over the estimates
     /// of the 4 weeks before the last bite, after the last wear reset); `None` on
     /// live updates, without a history or with fewer than 5 estimates.
@@ -307,14 +290,7 @@ impl DrivelineView {
             first_period_shift_s: results.first_period_shift_s,
             wear_index: results.wear_index,
             wear_trend: results.wear_trend,
-            gap: results.gap.map(|gap| GapView {
-                gap_mrad: gap.gap_mrad,
-                low_mrad: gap.low_mrad,
-                high_mrad: gap.high_mrad,
-                coupling: gap.coupling,
-                likeliest_coupling: gap.likeliest_coupling,
-                bites_pooled: gap.bites_pooled,
-            }),
+            gap: results.gap,
             gap_trend_mrad_per_week: None,
             taf_state: state(results.warning, results.alarm),
             wear_state: if results.gap.is_none() && !results.gap_alarm {

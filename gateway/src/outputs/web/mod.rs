@@ -203,15 +203,9 @@ impl WebServer {
                 }
                 Some(_) = connections.join_next(), if !connections.is_empty() => continue,
             };
-            let (stream, peer) = match accepted {
-                Ok(accepted) => {
-                    accept_failures.accepted();
-                    accepted
-                }
-                Err(error) => {
-                    accept_failures.failed(error, "maintenance page").await?;
-                    continue;
-                }
+            let Some((stream, peer)) = accept_failures.check(accepted, "maintenance page").await?
+            else {
+                continue;
             };
             let Ok(slot) = Arc::clone(&slots).try_acquire_owned() else {
                 // Answered 503 by a refusal task of its own while there are refusal
