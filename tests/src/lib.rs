@@ -34,18 +34,38 @@ pub async fn wait_for(what: &str, limit: Duration, mut done: impl FnMut() -> boo
     }
 }
 
+/// `GET path` over a new connection that the answer closes; the whole answer (status
+/// line, headers, body) once it is 200 OK.
+async fn get(address: std::net::SocketAddr, path: &str) -> anyhow::Result<String> {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut stream = tokio::net::TcpStream::connect(address).await?;
+    stream
+        .write_all(
+            format!("GET {path} HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n")
+                .as_bytes(),
+        )
+        .await?;
+    let mut response = String::new();
+    stream.read_to_string(&mut response).await?;
+    anyhow::ensure!(
+        response.starts_with("HTTP/1.1 200 OK"),
+        "{path}: {response}"
+    );
+    Ok(response)
+}
+
+/// The maintenance page's `/api/overview` at `address`, as JSON.
+pub async fn web_overview(address: std::net::SocketAddr) -> anyhow::Result<serde_json::Value> {
+    let response = get(address, "/api/overview").await?;
+    let body = response.split("\r\n\r\n").nth(1).unwrap_or_default();
+    Ok(serde_json::from_str(body)?)
+}
+
 /// GET /metrics over a plain TCP connection, as Prometheus does; checks the status and
 /// that every metric family's samples sit in one block after its `# TYPE` line (the
 /// exposition format's rule, which strict parsers enforce).
 pub async fn scrape(address: std::net::SocketAddr) -> anyhow::Result<String> {
-    use tokio::io::{AsyncReadExt, AsyncWriteExt};
-    let mut stream = tokio::net::TcpStream::connect(address).await?;
-    stream
-        .write_all(b"GET /metrics HTTP/1.1\r\nHost: localhost\r\n\r\n")
-        .await?;
-    let mut response = String::new();
-    stream.read_to_string(&mut response).await?;
-    anyhow::ensure!(response.starts_with("HTTP/1.1 200 OK"), "{response}");
+    let response = get(address, "/metrics").await?;
     let body = response.split("\r\n\r\n").nth(1).unwrap_or_default();
     let mut seen = std::collections::HashSet::new();
     let mut current = "";

@@ -15,7 +15,7 @@ use millgate_sim::tandem::roots::CriticalSpeed;
 use millgate_sim::tandem::simulate::{simulate, Accelerometer, Excitation, RunSettings, SpeedRamp};
 use millgate_sim::tandem::truth::{ground_truth, mill_critical_speed, GroundTruth};
 use millgate_sim::tandem::{PassSchedule, TandemMill};
-use millgate_tests::{scrape, wait_for};
+use millgate_tests::{scrape, wait_for, web_overview};
 use tokio::net::TcpListener;
 
 const FS: f64 = 2500.0;
@@ -57,7 +57,8 @@ fn config(daq_of_stand: [usize; 5]) -> anyhow::Result<Config> {
          chatter_band_hz = [100.0, 300.0]\nwindow_s = 0.5\nk_max = {K_MAX}\n\
          gain_thresholds = {GAIN_THRESHOLDS}\n\
          [outputs.plc]\naddress = \"127.0.0.1:1\"\nwrite_period_ms = 50\n\
-         [outputs.metrics]\nbind = \"127.0.0.1:0\"\n"
+         [outputs.metrics]\nbind = \"127.0.0.1:0\"\n\
+         [outputs.web]\nbind = \"127.0.0.1:0\"\n"
     );
     millgate_config::from_toml_str(&text, "chatter-e2e.toml", std::path::Path::new("."))
         .map_err(|e| anyhow::anyhow!("{e}"))
@@ -199,6 +200,11 @@ async fn a_ramp_into_chatter_requests_a_slow_down_before_it_develops() -> anyhow
     let devices = start(&mut config, vec![daq(&signals, &[0, 1, 2, 3, 4])]).await?;
     let streaming = Instant::now();
     let gateway = millgate::Service::new(config)?.spawn().await?;
+    let web = gateway
+        .bound()
+        .web
+        .expect("the maintenance page is configured");
+    let stands = ["s1_vib", "s2_vib", "s3_vib", "s4_vib", "s5_vib"];
 
     // Stable rolling: the spectra's values come first, the gain's once its 2 s window
     // (after a settling hop) is full; every valid window is below the alarm.
@@ -241,6 +247,24 @@ async fn a_ramp_into_chatter_requests_a_slow_down_before_it_develops() -> anyhow
         "{} snapshots before the onset",
         before.len()
     );
+    // The maintenance page before the onset: no alarm, the early-warning figure
+    // below 1, a stand named.
+    let tcm = &web_overview(web).await?["tandem_mills"][0];
+    assert!(
+        ["ok", "warning"].contains(&tcm["chatter_state"].as_str().unwrap()),
+        "{tcm}"
+    );
+    assert!(
+        tcm["gain_ratio"]
+            .as_f64()
+            .is_some_and(|r| r > 0.0 && r < 1.0),
+        "{tcm}"
+    );
+    assert!(
+        stands.contains(&tcm["worst_stand"].as_str().unwrap()),
+        "{tcm}"
+    );
+    assert_eq!(tcm["slow_down_request"], false, "{tcm}");
     let peak_before = before.iter().map(|m| m.gain_ratio).fold(0.0, f32::max);
     for mill in &before {
         assert_eq!(mill.flags & (ALARM | STALE | SLOW_DOWN), 0, "{mill:?}");
@@ -295,6 +319,18 @@ async fn a_ramp_into_chatter_requests_a_slow_down_before_it_develops() -> anyhow
     assert_eq!(mill.flags & (STALE | SLOW_DOWN), SLOW_DOWN, "{mill:?}");
     assert!(mill.gain_ratio >= 1.0, "{mill:?}");
     assert!((1..=5).contains(&mill.worst_stand), "{mill:?}");
+    // The page says so too.
+    let tcm = &web_overview(web).await?["tandem_mills"][0];
+    assert_eq!(tcm["chatter_state"], "alarm", "{tcm}");
+    assert_eq!(tcm["slow_down_request"], true, "{tcm}");
+    assert!(
+        tcm["gain_ratio"].as_f64().is_some_and(|r| r >= 1.0),
+        "{tcm}"
+    );
+    assert!(
+        stands.contains(&tcm["worst_stand"].as_str().unwrap()),
+        "{tcm}"
+    );
     // The request holds while chatter goes on (the PLC drops the speed, not the
     // gateway; this ramp keeps going).
     for _ in 0..10 {
@@ -324,6 +360,10 @@ async fn stopped_stand_daq_flags_stale_and_clears_quality() -> anyhow::Result<()
     let mut devices = start(&mut config, daqs).await?;
     let gateway = millgate::Service::new(config)?.spawn().await?;
     let metrics = gateway.bound().metrics.expect("metrics configured");
+    let web = gateway
+        .bound()
+        .web
+        .expect("the maintenance page is configured");
 
     wait_for("valid chatter values", Duration::from_secs(8), || {
         devices.mill().quality == ALL_VALID
@@ -380,6 +420,18 @@ async fn stopped_stand_daq_flags_stale_and_clears_quality() -> anyhow::Result<()
         metric(&page, "millgate_chatter_gain_ratio{mill=\"TCM\"}").is_none(),
         "no gain ratio gauge while stale: {page}"
     );
+    // Nor on the maintenance page: stale, no figures.
+    let tcm = &web_overview(web).await?["tandem_mills"][0];
+    assert_eq!(tcm["chatter_state"], "stale", "{tcm}");
+    for figure in [
+        "gain_ratio",
+        "worst_stand",
+        "sigma_n_hz",
+        "k_mean",
+        "chatter_frequency_hz",
+    ] {
+        assert!(tcm[figure].is_null(), "{figure} while stale: {tcm}");
+    }
 
     gateway.stop().await?;
     for device in devices.running {

@@ -15,13 +15,14 @@ use std::time::Duration;
 
 use millgate::outputs::register_map::{decode_f32, rod_flags, RegisterMap};
 use millgate_config::layout::encode_value;
+use millgate_config::WebOutput;
 use millgate_config::{Config, ValueType, WordOrder};
 use millgate_sim::devices::modbus_bank::{Running, ServeOptions};
 use millgate_sim::devices::virtual_plc::VirtualPlc;
 use millgate_sim::rod::check::PassSetup;
 use millgate_sim::rod::mill::RodMill;
 use millgate_sim::rod::schedule;
-use millgate_tests::wait_for;
+use millgate_tests::{wait_for, web_overview};
 use tokio::net::TcpListener;
 
 /// Holding registers of the process PLC: configuration (u16), pass (u16), finishing
@@ -182,7 +183,12 @@ async fn ramp_through_a_tongue_sets_and_clears_the_span_flags() -> anyhow::Resul
     );
 
     devices.set(0, 1, 47.0);
+    config.outputs.web = Some(WebOutput::on("127.0.0.1:0".parse()?));
     let gateway = millgate::Service::new(config)?.spawn().await?;
+    let web = gateway
+        .bound()
+        .web
+        .expect("the maintenance page is configured");
 
     let mut speeds = Vec::new();
     let mut speed = 47.0;
@@ -223,6 +229,35 @@ async fn ramp_through_a_tongue_sets_and_clears_the_span_flags() -> anyhow::Resul
             !unstable || words.mill_flags & rod_flags::UNSTABLE != 0,
             "{words:?}"
         );
+        // The maintenance page: the worst span and its margin as the library gives
+        // them at this speed, the state as the PLC's mill flags say.
+        let rod = &web_overview(web).await?["rod_mills"][0];
+        let (worst, worst_margin) = setup
+            .status(speed)?
+            .iter()
+            .enumerate()
+            .filter_map(|(span, status)| Some((span + 1, status.speed_margin_m_s?)))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .expect("spans with band edges");
+        assert_eq!(
+            rod["worst_span"].as_u64(),
+            Some(worst as u64),
+            "{speed}: {rod}"
+        );
+        assert!(
+            (rod["worst_margin_m_s"].as_f64().unwrap() - worst_margin).abs() < 1e-6,
+            "{speed}: {rod}, library {worst_margin}"
+        );
+        let state = if words.mill_flags & rod_flags::UNSTABLE != 0 {
+            "unstable"
+        } else if words.mill_flags & rod_flags::NEAR_TONGUE != 0 {
+            "near_tongue"
+        } else {
+            "stable"
+        };
+        assert_eq!(rod["state"], state, "{speed}: {rod} vs {words:?}");
+        assert_eq!(rod["pass"], 1);
+        assert_eq!(rod["finishing_speed_m_s"].as_f64(), Some(speed), "{rod}");
         let in_band = speed > band.from_m_s && speed < band.to_m_s;
         let distance = (speed - band.from_m_s)
             .abs()
@@ -301,6 +336,10 @@ async fn ramp_through_a_tongue_sets_and_clears_the_span_flags() -> anyhow::Resul
         },
     )
     .await;
+    // The page says stale and shows no margin it cannot trust.
+    let rod = &web_overview(web).await?["rod_mills"][0];
+    assert_eq!(rod["state"], "stale", "{rod}");
+    assert!(rod["worst_margin_m_s"].is_null(), "{rod}");
 
     gateway.stop().await?;
     devices.output_running.stop().await?;

@@ -342,6 +342,9 @@ pub struct MillView {
 
 impl MillView {
     fn new((name, stands): &(String, Vec<String>), results: &MillResults) -> Self {
+        // The window's figures describe the mill now: none from a stale stand (as the
+        // PLC gets them).
+        let fresh = |value: Option<f64>| value.filter(|_| !results.source_stale);
         Self {
             name: name.clone(),
             stands: stands.clone(),
@@ -356,13 +359,14 @@ impl MillView {
             } else {
                 "ok"
             },
-            gain_ratio: results.gain_ratio,
+            gain_ratio: fresh(results.gain_ratio),
             worst_stand: results
                 .worst_stand
+                .filter(|_| !results.source_stale)
                 .and_then(|stand| stands.get(stand).cloned()),
-            sigma_n_hz: results.sigma_n_hz,
-            k_mean: results.k_mean,
-            chatter_frequency_hz: results.chatter_frequency_hz,
+            sigma_n_hz: fresh(results.sigma_n_hz),
+            k_mean: fresh(results.k_mean),
+            chatter_frequency_hz: fresh(results.chatter_frequency_hz),
             slow_down_request: results.slow_down_request,
             evaluations: results.evaluations,
         }
@@ -389,13 +393,9 @@ pub struct RodMillView {
 
 impl RodMillView {
     fn new(name: &str, results: &RodMillResults) -> Self {
-        let worst = results
-            .spans
-            .iter()
-            .enumerate()
-            .filter(|(_, span)| span.valid)
-            .filter_map(|(index, span)| Some((index + 1, span.speed_margin_m_s?)))
-            .min_by(|a, b| a.1.total_cmp(&b.1));
+        // Values only while they may be published (as the PLC gets them).
+        let worst = results.worst_span();
+        let valid_mill = results.valid();
         let valid = results.spans.iter().filter(|span| span.valid);
         let state = if results.source_stale {
             "stale"
@@ -413,10 +413,10 @@ impl RodMillView {
         Self {
             name: name.to_owned(),
             state,
-            worst_span: worst.map(|w| w.0),
-            worst_margin_m_s: worst.map(|w| w.1),
-            pass: results.pass,
-            finishing_speed_m_s: results.finishing_speed_m_s,
+            worst_span: worst.map(|(index, _)| index + 1),
+            worst_margin_m_s: worst.map(|(_, margin)| margin),
+            pass: results.pass.filter(|_| valid_mill),
+            finishing_speed_m_s: results.finishing_speed_m_s.filter(|_| valid_mill),
         }
     }
 }
