@@ -41,6 +41,52 @@ impl Config {
             .iter()
             .position(|channel| channel.name == name)
     }
+
+    /// Every source in the gateway's one source order: the Modbus sources, then the
+    /// CAN sources, each in file order. Source `i` of this order is bit `i` of the
+    /// status registers and the `i`-th source on `/metrics` and the web page.
+    pub fn sources(&self) -> impl Iterator<Item = SourceRef<'_>> + '_ {
+        self.modbus_sources
+            .iter()
+            .map(SourceRef::Modbus)
+            .chain(self.can_sources.iter().map(SourceRef::Can))
+    }
+
+    /// The index in [`Self::sources`] of the source channel `channel` is read from.
+    pub fn source_of_channel(&self, channel: usize) -> usize {
+        match self.channels[channel].source {
+            ChannelSource::ModbusBlock { source, .. }
+            | ChannelSource::ModbusValue { source, .. } => source,
+            ChannelSource::Can { source, .. } => self.modbus_sources.len() + source,
+        }
+    }
+}
+
+/// A source in the order of [`Config::sources`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum SourceRef<'a> {
+    /// A Modbus device.
+    Modbus(&'a ModbusSource),
+    /// A SocketCAN interface.
+    Can(&'a CanSource),
+}
+
+impl SourceRef<'_> {
+    /// The source's name (unique among all sources).
+    pub fn name(&self) -> &str {
+        match self {
+            SourceRef::Modbus(source) => &source.name,
+            SourceRef::Can(source) => &source.name,
+        }
+    }
+
+    /// `modbus` or `can`.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            SourceRef::Modbus(_) => "modbus",
+            SourceRef::Can(_) => "can",
+        }
+    }
 }
 
 /// A Modbus TCP device polled by the gateway.

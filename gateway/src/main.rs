@@ -39,6 +39,14 @@ enum Command {
         #[arg(long, value_enum, default_value = "md")]
         format: millgate::cli::registers::Format,
     },
+    /// Print the catalogue of published figures: each figure's unit, type, quality
+    /// guard and stale rule, and its register, Sparkplug metric, /metrics family and
+    /// history column.
+    Figures {
+        /// Output format.
+        #[arg(long, value_enum, default_value = "md")]
+        format: millgate::cli::registers::Format,
+    },
     /// Export the event history (bites, wear, alarms, outages, chatter, runs).
     History(millgate::cli::history::HistoryArgs),
     #[cfg(feature = "plot")]
@@ -78,13 +86,19 @@ fn init_tracing(default_level: &str) {
         .init();
 }
 
-async fn wait_for_signal() -> std::io::Result<()> {
+/// SIGINT or SIGTERM, handled from the moment this is called (before the service is
+/// spawned: a signal during the start is a stop, never the default action that kills
+/// the process before its final PLC write).
+fn stop_signals() -> std::io::Result<impl std::future::Future<Output = ()>> {
     use tokio::signal::unix::{signal, SignalKind};
     let mut terminate = signal(SignalKind::terminate())?;
-    tokio::select! {
-        result = tokio::signal::ctrl_c() => result,
-        _ = terminate.recv() => Ok(()),
-    }
+    let mut interrupt = signal(SignalKind::interrupt())?;
+    Ok(async move {
+        tokio::select! {
+            _ = interrupt.recv() => {}
+            _ = terminate.recv() => {}
+        }
+    })
 }
 
 /// `millgate run`: fails at once, with the reason and a non-zero exit, when anything
@@ -110,13 +124,12 @@ async fn run_service(config_path: PathBuf) -> anyhow::Result<()> {
     }
     let service = millgate::Service::new(config)
         .map_err(|error| anyhow::anyhow!("{}: {error}", config_path.display()))?;
-    let mut gateway = service.spawn().await?;
-    let signal = wait_for_signal();
+    let signal = stop_signals()?;
     tokio::pin!(signal);
+    let mut gateway = service.spawn().await?;
     tokio::select! {
         ready = gateway.ready() => ready?,
-        received = &mut signal => {
-            received?;
+        () = &mut signal => {
             tracing::info!("shutdown requested before the service was ready");
             gateway.stop().await?;
             return Ok(());
@@ -128,15 +141,14 @@ async fn run_service(config_path: PathBuf) -> anyhow::Result<()> {
     if let Some(period) = watchdog {
         tokio::spawn(millgate::supervision::watchdog(
             gateway.liveness(),
-            gateway.publisher(),
+            gateway.board(),
             period,
             || notify(&[NotifyState::Watchdog]),
             watchdog_shutdown,
         ));
     }
     tokio::select! {
-        received = &mut signal => {
-            received?;
+        () = &mut signal => {
             tracing::info!("shutdown requested");
             notify(&[NotifyState::Stopping]);
             stop_watchdog.trigger();
@@ -204,6 +216,10 @@ fn main() -> ExitCode {
                 print!("{}", millgate::cli::registers::export(&map, format));
                 Ok(())
             }),
+        Command::Figures { format } => {
+            print!("{}", millgate::cli::figures::export(format));
+            Ok(())
+        }
         Command::Analyze(args) => {
             init_tracing("warn");
             millgate::cli::analyze::run(&args).map(emit)

@@ -159,17 +159,45 @@ fn demo_prints_bites_within_two_percent_of_the_simulated_truth() {
             "gap {bite} vs truth {truth}: {said}"
         );
     }
-    // The wear registers filled and valid (quality bits 9 gap_mrad .. 13 bites_pooled).
+    // The wear registers filled and valid (quality bits 9 gap_mrad .. 11 gap_high_mrad,
+    // 13 bites_pooled); the coupling (bit 12) only once the bites name it.
     let quality: u16 = said
         .lines()
         .find(|l| l.contains("F1.quality"))
         .and_then(|l| l.split_whitespace().nth(2)?.parse().ok())
         .expect("quality register printed");
-    assert_eq!(quality & (0b11111 << 9), 0b11111 << 9, "{said}");
+    assert_eq!(quality & (0b10111 << 9), 0b10111 << 9, "{said}");
+    let last_coupling = said
+        .lines()
+        .filter(|l| l.contains(" | "))
+        .filter_map(|l| l.split_whitespace().last())
+        .next_back()
+        .expect("a bite printed");
+    assert_eq!(
+        quality & (1 << 12) != 0,
+        last_coupling.parse::<u16>().is_ok(),
+        "gap_coupling valid exactly when the last bite names a coupling ({last_coupling}): {said}"
+    );
     assert!(
         said.contains("F1.gap_mrad"),
         "register snapshot printed: {said}"
     );
+}
+
+/// The README's text between `<!-- {marker}:begin -->` and `<!-- {marker}:end -->`.
+fn readme_section(marker: &str) -> String {
+    let readme =
+        std::fs::read_to_string(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../README.md"))
+            .unwrap();
+    let begin = format!("<!-- {marker}:begin -->\n");
+    let start = readme
+        .find(&begin)
+        .unwrap_or_else(|| panic!("README has the {marker}:begin marker"))
+        + begin.len();
+    let end = readme
+        .find(&format!("<!-- {marker}:end -->"))
+        .unwrap_or_else(|| panic!("README has the {marker}:end marker"));
+    readme[start..end].to_owned()
 }
 
 #[test]
@@ -184,21 +212,45 @@ fn readme_register_table_is_the_generated_one() {
     ]);
     assert!(output.status.success(), "{}", text(&output));
     let generated = String::from_utf8(output.stdout).unwrap();
-    let readme =
-        std::fs::read_to_string(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../README.md"))
-            .unwrap();
-    let begin = "<!-- registers:begin -->\n";
-    let start = readme
-        .find(begin)
-        .expect("README has the registers:begin marker")
-        + begin.len();
-    let end = readme
-        .find("<!-- registers:end -->")
-        .expect("README has the registers:end marker");
     assert_eq!(
-        &readme[start..end],
+        readme_section("registers"),
         generated,
         "README register table differs: regenerate it with millgate registers --config config/examples/hot-mill.toml --format md"
+    );
+}
+
+#[test]
+fn readme_figure_table_is_the_generated_one_and_the_exports_agree() {
+    let output = millgate(&["figures", "--format", "md"]);
+    assert!(output.status.success(), "{}", text(&output));
+    let generated = String::from_utf8(output.stdout).unwrap();
+    assert_eq!(
+        readme_section("figures"),
+        generated,
+        "README figure table differs: regenerate it with millgate figures --format md"
+    );
+    // The JSON export: one object per catalogue figure, with every output's name.
+    let json = millgate(&["figures", "--format", "json"]);
+    let rows: Vec<serde_json::Value> = serde_json::from_slice(&json.stdout).unwrap();
+    assert_eq!(rows.len(), millgate::state::catalogue::all().len());
+    for row in &rows {
+        for field in [
+            "subject",
+            "key",
+            "register",
+            "sparkplug",
+            "metric",
+            "history",
+        ] {
+            assert!(row[field].is_string(), "{field} of {row}");
+        }
+    }
+    let csv = millgate(&["figures", "--format", "csv"]);
+    let csv = String::from_utf8(csv.stdout).unwrap();
+    assert_eq!(
+        csv.lines().count(),
+        rows.len() + 1,
+        "a header and a row each"
     );
 }
 
@@ -239,7 +291,7 @@ fn registers_export_json_and_csv_have_the_documented_fields() {
     }
     assert!(row(".flags")["description"]
         .as_str()
-        .is_some_and(|d| d.contains("bit3 slow-down request")));
+        .is_some_and(|d| d.contains("bit3 slow_down_request: Slow-down request")));
     for row in &rows {
         for key in [
             "name",

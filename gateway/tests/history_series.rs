@@ -9,14 +9,14 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Duration;
 
-use millgate::outputs::history::events::{
-    BiteRecord, CommandOrigin, GapEstimate, HistoryEvent, WearState,
-};
 use millgate::outputs::history::query::{Filter, HistoryReader};
 use millgate::outputs::history::series::{WearPoint, MAX_SERIES_POINTS, MIN_TREND_BITES};
-use millgate::outputs::history::time::UtcTime;
-use millgate::outputs::history::{DrivelineSettings, History, HistoryError, RunInfo};
-use millgate::outputs::results::DrivelineResults;
+use millgate::outputs::history::{DrivelineSettings, HistoryError, RunInfo};
+use millgate::state::commands::CommandOrigin;
+use millgate::state::events::{BiteRecord, GapEstimate, HistoryEvent, WearState};
+use millgate::state::history::History;
+use millgate::state::results::DrivelineResults;
+use millgate::state::time::UtcTime;
 
 const MINUTE_MS: i64 = 60_000;
 const DAY_MS: i64 = 86_400_000;
@@ -145,11 +145,14 @@ fn write_file(folder: &Path) -> PathBuf {
         retention_days: 3650,
         max_size_mb: 1024,
     }));
-    history.start(RunInfo {
-        version: "test".into(),
-        config_name: "series test".into(),
-        drivelines: vec![settings("F1"), settings("F2")],
-    });
+    millgate::outputs::history::start(
+        &history,
+        RunInfo {
+            version: "test".into(),
+            config_name: "series test".into(),
+            drivelines: vec![settings("F1"), settings("F2")],
+        },
+    );
     let mut n = 0;
     let mut reset_done = false;
     let mut time_ms = start().unix_ms();

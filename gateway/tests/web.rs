@@ -134,20 +134,21 @@ async fn wear_map_on_the_page(port: u16, setup: &Setup) {
     }
     // The estimate on its map is the live one.
     let estimate = &map["estimate"];
-    let gap = &live["gap"];
-    if gap.is_null() {
+    // The driveline's figures: the catalogue's keys.
+    let gap = &live;
+    if gap["gap_mrad"].is_null() {
         assert!(estimate.is_null(), "{map}");
         return;
     }
-    let named = gap["coupling"]
+    let named = gap["gap_coupling"]
         .as_u64()
         .or(gap["likeliest_coupling"].as_u64());
     assert_eq!(estimate["coupling"].as_u64(), named, "{estimate} vs {gap}");
-    assert_eq!(estimate["determined"], !gap["coupling"].is_null());
+    assert_eq!(estimate["determined"], !gap["gap_coupling"].is_null());
     let mrad = |v: &serde_json::Value| v["gap_mrad"].as_f64().unwrap();
     assert_eq!(mrad(&estimate["gap"]), mrad(gap));
-    assert_eq!(estimate["low"]["gap_mrad"], gap["low_mrad"]);
-    assert_eq!(estimate["high"]["gap_mrad"], gap["high_mrad"]);
+    assert_eq!(estimate["low"]["gap_mrad"], gap["gap_low_mrad"]);
+    assert_eq!(estimate["high"]["gap_mrad"], gap["gap_high_mrad"]);
     assert!(mrad(&estimate["low"]) <= mrad(&estimate["gap"]));
     assert!(mrad(&estimate["gap"]) <= mrad(&estimate["high"]));
     // The pooled bites (measured by the bite pipeline on the simulated mill, whose
@@ -361,6 +362,14 @@ async fn the_api_answers_from_the_live_results_and_the_history_and_refuses_bad_r
     assert_eq!(overview["history"], true);
     let f1 = &overview["drivelines"][0];
     assert_eq!(f1["name"], "F1");
+    // Every catalogue figure by its key (null while it has none).
+    for figure in millgate::state::catalogue::DRIVELINE {
+        assert!(
+            f1.get(figure.key).is_some(),
+            "the page's driveline has no {}: {f1}",
+            figure.key
+        );
+    }
     let counter = f1["bite_counter"].as_u64().unwrap();
     let plc_counter = u64::from(plc.counter());
     assert!(
@@ -368,7 +377,7 @@ async fn the_api_answers_from_the_live_results_and_the_history_and_refuses_bad_r
         "page {counter}, PLC {plc_counter}"
     );
     // The demo's TAFs are above the test's lowered thresholds (1.1 / 1.15).
-    assert_eq!(f1["alarm"], true);
+    assert_eq!(f1["taf_alarm"], true);
     assert_eq!(f1["taf_state"], "alarm");
     assert_eq!(overview["sources"][0]["name"], "daq1");
     assert_eq!(overview["sources"][0]["status"], "ok");

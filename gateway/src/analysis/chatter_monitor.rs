@@ -63,12 +63,12 @@ use rustfft::num_complex::Complex;
 use rustfft::{Fft, FftPlanner};
 
 use crate::field::acquired::Acquired;
-use crate::outputs::history::events::{
+use crate::state::board::Board;
+use crate::state::events::{
     AlarmEvent, AlarmKind, AlarmRecord, ChatterWindow, EndedBy, HistoryEvent,
 };
-use crate::outputs::history::time::UtcTime;
-use crate::outputs::publisher::Publisher;
-use crate::outputs::results::MillResults;
+use crate::state::results::TandemMillResults;
+use crate::state::time::UtcTime;
 
 /// Largest lag of one stand behind the most advanced one, s: more means its source
 /// has stopped delivering, and the mill's values are flagged and the window restarted.
@@ -898,12 +898,12 @@ pub struct ChatterAnalysis {
     slow_downs: Vec<SlowDown>,
     /// Per channel: the (mill, stand) pairs it feeds.
     by_channel: Vec<Vec<(usize, usize)>>,
-    publisher: Arc<Publisher>,
+    board: Arc<Board>,
 }
 
 impl ChatterAnalysis {
     /// Monitors for every tandem mill of `config`.
-    pub fn new(config: &Config, publisher: Arc<Publisher>) -> Result<Self, ChatterSetupError> {
+    pub fn new(config: &Config, board: Arc<Board>) -> Result<Self, ChatterSetupError> {
         let mut by_channel = vec![Vec::new(); config.channels.len()];
         let mut monitors = Vec::new();
         for (m, mill) in config.tandem_mills.iter().enumerate() {
@@ -916,7 +916,7 @@ impl ChatterAnalysis {
             slow_downs: monitors.iter().map(ChatterMonitor::slow_down).collect(),
             monitors,
             by_channel,
-            publisher,
+            board,
         })
     }
 
@@ -945,7 +945,7 @@ impl ChatterAnalysis {
             };
             if let Some(change) = change {
                 publish(
-                    &self.publisher,
+                    &self.board,
                     mill,
                     monitor,
                     &mut self.slow_downs[mill],
@@ -959,7 +959,7 @@ impl ChatterAnalysis {
 /// Record one monitor update in the published results, and in the history the
 /// chatter episodes (from the warning condition set to it cleared) and the alarm.
 fn publish(
-    publisher: &Publisher,
+    board: &Board,
     mill: usize,
     monitor: &ChatterMonitor,
     slow_down: &mut SlowDown,
@@ -975,12 +975,12 @@ fn publish(
             "chatter slow-down request changed"
         );
     }
-    publisher.update_recorded(|results, events| {
-        let Some(published) = results.mills.get_mut(mill) else {
+    board.update_recorded(|results, events| {
+        let Some(published) = results.tandem_mills.get_mut(mill) else {
             return;
         };
         let was_flagged = published.source_stale;
-        let (was_warning, was_alarm) = (published.warning, published.alarm);
+        let (was_warning, was_alarm) = (published.chatter_warning, published.chatter_alarm);
         match change {
             ChatterUpdate::Evaluated(result) => {
                 published.evaluations = monitor.evaluations();
@@ -993,8 +993,8 @@ fn publish(
                 published.gain_ratio = gain.and_then(|g| g.ratio).map(|(ratio, _)| ratio);
                 published.worst_stand = gain.and_then(|g| g.ratio).map(|(_, stand)| stand);
                 let Verdict { warning, alarm, .. } = verdict;
-                published.warning = warning;
-                if alarm && !published.alarm {
+                published.chatter_warning = warning;
+                if alarm && !published.chatter_alarm {
                     tracing::warn!(
                         mill = %name,
                         detector = ?monitor.detector(),
@@ -1006,7 +1006,7 @@ fn publish(
                         "chatter alarm"
                     );
                 }
-                published.alarm |= alarm;
+                published.chatter_alarm |= alarm;
                 published.source_stale = false;
                 if was_flagged {
                     tracing::info!(mill = %name, "chatter window complete again");
@@ -1039,7 +1039,7 @@ fn record_episode(
     mill: &str,
     change: &ChatterUpdate,
     (was_warning, was_alarm): (bool, bool),
-    published: &MillResults,
+    published: &TandemMillResults,
 ) {
     let time = UtcTime::now();
     let window = match change {
@@ -1051,7 +1051,7 @@ fn record_episode(
         }),
         _ => None,
     };
-    match (was_warning, published.warning, window) {
+    match (was_warning, published.chatter_warning, window) {
         (false, true, Some(window)) => events.push(HistoryEvent::ChatterStarted {
             time,
             mill: mill.to_owned(),
@@ -1072,21 +1072,32 @@ fn record_episode(
         }),
         _ => {}
     }
-    if published.alarm && !was_alarm {
-        events.push(HistoryEvent::Alarm(AlarmRecord {
+    let alarm = |kind, event| {
+        HistoryEvent::Alarm(AlarmRecord {
             time,
             subject: mill.to_owned(),
-            kind: AlarmKind::ChatterAlarm,
-            event: AlarmEvent::Raised,
+            kind,
+            event,
             origin: None,
-            value: published.k_mean,
+            value: published.gain_ratio.or(published.k_mean),
             threshold: None,
-        }));
+        })
+    };
+    if published.chatter_warning != was_warning {
+        let event = if published.chatter_warning {
+            AlarmEvent::Raised
+        } else {
+            AlarmEvent::Cleared
+        };
+        events.push(alarm(AlarmKind::ChatterWarning, event));
+    }
+    if published.chatter_alarm && !was_alarm {
+        events.push(alarm(AlarmKind::ChatterAlarm, AlarmEvent::Raised));
     }
 }
 
 /// Values invalid: never a frozen old value.
-fn clear(published: &mut MillResults) {
+fn clear(published: &mut TandemMillResults) {
     published.sigma_n_hz = None;
     published.k_mean = None;
     published.chatter_frequency_hz = None;
@@ -1094,7 +1105,7 @@ fn clear(published: &mut MillResults) {
     published.gain_ratio = None;
     published.band_rms_max = None;
     published.worst_stand = None;
-    published.warning = false;
+    published.chatter_warning = false;
 }
 
 #[cfg(test)]

@@ -16,8 +16,8 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use super::gap_map::{GapMapData, GapMapSpec, GapMaps};
 use super::simulated_bite::BiteSimulator;
+use crate::state::gap_maps::{GapMapData, GapMapSpec, GapMaps};
 
 /// Version of the file format and of what a map point means; part of the key.
 pub const FORMAT_VERSION: u32 = 1;

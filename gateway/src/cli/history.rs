@@ -16,7 +16,7 @@ use crate::cli::registers::{csv_field, Format};
 use crate::outputs::history::query::{
     AlarmRow, BiteRow, ChatterRow, Filter, HistoryReader, OutageRow, Record, RunRow, WearRow,
 };
-use crate::outputs::history::time::UtcTime;
+use crate::state::time::UtcTime;
 
 /// What to export.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]

@@ -4,6 +4,7 @@
 //!
 //! - `millgate check --config FILE`: [`check`]
 //! - `millgate registers --config FILE --format md|csv|json`: [`registers`]
+//! - `millgate figures --format md|csv|json`: [`figures`]
 //! - `millgate analyze --input FILE.csv [--channel NAME] [--window START,END] [--format text|json]`:
 //!   [`analyze`] (CSV reading in [`csv`])
 //! - `millgate stiffness --inertia Q1,Q2,Q3 (--freq B1,B2 | --stiffness C12,C23)
@@ -34,6 +35,7 @@ pub mod csv;
 pub mod demo;
 #[cfg(feature = "sim-tools")]
 pub mod discrepancy;
+pub mod figures;
 pub mod history;
 pub mod registers;
 #[cfg(feature = "plot")]

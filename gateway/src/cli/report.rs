@@ -26,7 +26,7 @@ use crate::cli::history::parse_time;
 use crate::outputs::history::query::{
     AlarmRow, BiteRow, Filter, HistoryReader, OutageRow, RunRow, SettingsRow, WearRow,
 };
-use crate::outputs::history::time::UtcTime;
+use crate::state::time::UtcTime;
 
 /// Width and height of a plot panel, px.
 const PANEL: (u32, u32) = (900, 300);
@@ -567,7 +567,7 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<String> {
             fmt(quantile(&mut tafs, 1.0), 3),
             fmt(now.and_then(|d| d.results.wear_trend), 4),
             now.map_or("-".into(), |d| {
-                if d.results.alarm {
+                if d.results.taf_alarm {
                     "latched".into()
                 } else {
                     "no".into()

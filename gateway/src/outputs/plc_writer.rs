@@ -15,6 +15,7 @@
 //! the file, even if the gateway is killed right after. A failing history is not
 //! waited for.
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -26,9 +27,10 @@ use tokio_modbus::prelude::ExceptionCode;
 
 use crate::field::backoff::Backoff;
 use crate::field::modbus_client::{self, CheckedError, ConnectError, ReplyMismatch};
-use crate::outputs::publisher::Publisher;
-use crate::outputs::results::GatewayState;
+use crate::outputs::register_map::RegisterMap;
 use crate::shutdown::Shutdown;
+use crate::state::board::Board;
+use crate::state::results::GatewayState;
 use crate::warn_limit::{WarnLimit, WARN_PERIOD};
 
 /// Largest register count of one FC 16 request.
@@ -68,6 +70,103 @@ pub enum PlcError {
     },
 }
 
+impl PlcError {
+    /// The reason a failed write is counted under on `/metrics`.
+    pub fn reason(&self) -> PlcFailure {
+        match self {
+            PlcError::Connect { .. } => PlcFailure::Connect,
+            PlcError::Timeout(_) => PlcFailure::Timeout,
+            PlcError::Transport(_) => PlcFailure::Transport,
+            PlcError::Mismatch(_) => PlcFailure::Mismatch,
+            PlcError::Refused { .. } => PlcFailure::Refused,
+        }
+    }
+}
+
+/// Why a PLC write failed, as counted: the network ("connect", "timeout",
+/// "transport", "mismatch") apart from the PLC saying no ("refused").
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PlcFailure {
+    /// No TCP connection could be made.
+    Connect,
+    /// No answer in time.
+    Timeout,
+    /// The connection failed or the reply was not Modbus.
+    Transport,
+    /// The reply did not match the write.
+    Mismatch,
+    /// The PLC answered with a Modbus exception.
+    Refused,
+}
+
+impl PlcFailure {
+    /// Every reason, in the order of [`PlcCounts::failures`].
+    pub const ALL: [PlcFailure; 5] = [
+        PlcFailure::Connect,
+        PlcFailure::Timeout,
+        PlcFailure::Transport,
+        PlcFailure::Mismatch,
+        PlcFailure::Refused,
+    ];
+
+    /// The `/metrics` label value.
+    pub fn name(self) -> &'static str {
+        match self {
+            PlcFailure::Connect => "connect",
+            PlcFailure::Timeout => "timeout",
+            PlcFailure::Transport => "transport",
+            PlcFailure::Mismatch => "mismatch",
+            PlcFailure::Refused => "refused",
+        }
+    }
+}
+
+/// What the PLC writer has done, for `/metrics`.
+#[derive(Debug, Default)]
+pub struct PlcCounters {
+    writes: AtomicU64,
+    failures: [AtomicU64; 5],
+    last_success_ms: AtomicU64,
+}
+
+/// A copy of [`PlcCounters`].
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct PlcCounts {
+    /// Whole maps written.
+    pub writes: u64,
+    /// Failed writes (and connection attempts) per [`PlcFailure::ALL`].
+    pub failures: [u64; 5],
+    /// When the last write went through, ms since the Unix epoch (0: never).
+    pub last_success_unix_ms: u64,
+}
+
+impl PlcCounters {
+    /// Current values.
+    pub fn snapshot(&self) -> PlcCounts {
+        let load = |c: &AtomicU64| c.load(Ordering::Relaxed);
+        PlcCounts {
+            writes: load(&self.writes),
+            failures: self.failures.each_ref().map(load),
+            last_success_unix_ms: load(&self.last_success_ms),
+        }
+    }
+
+    fn written(&self) {
+        self.writes.fetch_add(1, Ordering::Relaxed);
+        let now = crate::state::time::UtcTime::now().unix_ms();
+        self.last_success_ms
+            .store(u64::try_from(now).unwrap_or(0), Ordering::Relaxed);
+    }
+
+    fn failed(&self, error: &PlcError) {
+        let at = PlcFailure::ALL
+            .iter()
+            .position(|reason| *reason == error.reason())
+            .unwrap_or(0);
+        self.failures[at].fetch_add(1, Ordering::Relaxed);
+    }
+}
+
 impl From<CheckedError> for PlcError {
     fn from(error: CheckedError) -> Self {
         match error {
@@ -81,17 +180,26 @@ impl From<CheckedError> for PlcError {
 #[derive(Debug)]
 pub struct PlcWriter {
     output: PlcOutput,
-    publisher: Arc<Publisher>,
+    map: Arc<RegisterMap>,
+    board: Arc<Board>,
+    counters: Arc<PlcCounters>,
     /// Told once the first write was attempted (the service's readiness).
     first_attempt: Option<tokio::sync::watch::Sender<bool>>,
 }
 
 impl PlcWriter {
-    /// A writer of `publisher`'s map to the PLC of `output`.
-    pub fn new(output: PlcOutput, publisher: Arc<Publisher>) -> Self {
+    /// A writer of `board`'s results, encoded by `map`, to the PLC of `output`,
+    /// counting into `counters`.
+    pub fn new(
+        output: PlcOutput,
+        (map, board): (Arc<RegisterMap>, Arc<Board>),
+        counters: Arc<PlcCounters>,
+    ) -> Self {
         Self {
             output,
-            publisher,
+            map,
+            board,
+            counters,
             first_attempt: None,
         }
     }
@@ -143,10 +251,10 @@ impl PlcWriter {
         loop {
             tokio::select! {
                 _ = ticks.tick() => {}
-                () = self.publisher.changed() => {}
+                () = self.board.changed() => {}
                 () = shutdown.recv() => break,
             }
-            self.publisher.beat();
+            self.board.beat();
             if context.is_none() && Instant::now() >= next_attempt {
                 match self.connect().await {
                     Ok(connected) => {
@@ -154,6 +262,7 @@ impl PlcWriter {
                         context = Some(connected);
                     }
                     Err(error) => {
+                        self.counters.failed(&error);
                         let delay = backoff.next_delay();
                         if let Some(suppressed) = connect_warnings.occurred(Instant::now()) {
                             tracing::warn!(%error, retry_in = ?delay, suppressed, "PLC unreachable");
@@ -163,18 +272,20 @@ impl PlcWriter {
                 }
             }
             if let Some(connected) = context.as_mut() {
-                let words = self.publisher.words();
-                let history = self.publisher.history();
+                let words = self.map.encode(&self.board.results());
+                let history = self.board.history();
                 if !history.wait_settled(history.enqueued(), HISTORY_WAIT).await {
                     tracing::debug!(wait = ?HISTORY_WAIT, "history commit slower than the PLC wait");
                 }
                 match self.write(connected, &words).await {
                     Ok(()) => {
+                        self.counters.written();
                         backoff.reset();
                         connect_warnings.clear();
                         write_warnings.clear();
                     }
                     Err(error) => {
+                        self.counters.failed(&error);
                         if let Some(suppressed) = write_warnings.occurred(Instant::now()) {
                             tracing::warn!(%error, suppressed, "PLC write failed");
                         }
@@ -189,10 +300,10 @@ impl PlcWriter {
                 attempted.send_replace(true);
             }
         }
-        self.publisher
+        self.board
             .update(|results| results.state = GatewayState::Stopped);
-        self.publisher.beat();
-        let words = self.publisher.words();
+        self.board.beat();
+        let words = self.map.encode(&self.board.results());
         let connected = match context {
             Some(connected) => Ok(connected),
             None => self.connect().await,

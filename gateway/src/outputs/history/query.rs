@@ -16,8 +16,8 @@ use serde::Serialize;
 
 use super::restore::Restored;
 use super::schema::{current_version, SchemaError};
-use super::time::UtcTime;
 use super::HistoryError;
+use crate::state::time::UtcTime;
 
 /// Which rows to read.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
@@ -195,7 +195,7 @@ record! {
         gap_high_mrad: Option<f64>,
         /// The coupling holding the gap (model index, 0 = motor side); `None` when
         /// the bites cannot tell.
-        gap_coupling: Option<String>,
+        gap_coupling: Option<i64>,
         /// Bites pooled into the estimate.
         bites_pooled: Option<i64>,
     }
@@ -234,7 +234,7 @@ record! {
         gap_high_mrad: Option<f64>,
         /// The coupling holding the gap (model index, 0 = motor side); `None` when
         /// the bites cannot tell.
-        gap_coupling: Option<String>,
+        gap_coupling: Option<i64>,
         /// Bites pooled.
         bites_pooled: Option<i64>,
         /// `ok`, `warning`, `alarm`.
@@ -253,7 +253,8 @@ record! {
         time: String,
         /// The driveline or mill.
         subject: String,
-        /// `taf_warning`, `taf_alarm`, `chatter_alarm`, `wear_alarm`.
+        /// The flag's key: `taf_warning`, `taf_alarm`, `gap_warning`, `gap_alarm`,
+        /// `chatter_warning`, `chatter_alarm`.
         kind: String,
         /// `raised`, `cleared`, `acknowledged`.
         event: String,

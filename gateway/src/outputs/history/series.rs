@@ -18,8 +18,8 @@ use rusqlite::{params, OptionalExtension};
 use serde::Serialize;
 
 use super::query::HistoryReader;
-use super::time::UtcTime;
 use super::HistoryError;
+use crate::state::time::UtcTime;
 
 /// Most buckets [`HistoryReader::wear_series`] returns.
 pub const MAX_SERIES_POINTS: usize = 10_000;

@@ -42,9 +42,9 @@ use rumqttc::{
 
 use crate::outputs::history::query::{BiteRow, Filter, HistoryReader};
 use crate::outputs::history::writer::connect;
-use crate::outputs::history::HistoryError;
-use crate::outputs::publisher::Publisher;
+use crate::outputs::history::{HistoryError, BITE_COLUMNS};
 use crate::shutdown::Shutdown;
+use crate::state::board::Board;
 use forward::Confirmations;
 use node::EdgeNode;
 
@@ -73,10 +73,7 @@ pub fn next_bd_seq(path: &Path, node: &str) -> Result<u8, HistoryError> {
              ON CONFLICT (node) DO UPDATE SET bd_seq = (bd_seq + 1) % 256,
                  updated_at = excluded.updated_at
              RETURNING bd_seq",
-            rusqlite::params![
-                node,
-                crate::outputs::history::time::UtcTime::now().to_string()
-            ],
+            rusqlite::params![node, crate::state::time::UtcTime::now().to_string()],
             |row| row.get(0),
         )
         .map_err(|source| HistoryError::Sqlite {
@@ -208,7 +205,7 @@ impl SparkplugStatus {
 pub struct SparkplugNode {
     config: MqttOutput,
     history: PathBuf,
-    publisher: Arc<Publisher>,
+    board: Arc<Board>,
     status: Arc<SparkplugStatus>,
     tls: Option<Arc<rustls::ClientConfig>>,
     /// Rod mills: name and span count.
@@ -227,13 +224,13 @@ impl SparkplugNode {
     pub fn new(
         config: MqttOutput,
         history: PathBuf,
-        publisher: Arc<Publisher>,
+        board: Arc<Board>,
     ) -> Result<Self, tls::TlsSetupError> {
         let tls = config.tls.as_ref().map(tls::client_config).transpose()?;
         Ok(Self {
             config,
             history,
-            publisher,
+            board,
             status: Arc::new(SparkplugStatus::default()),
             tls,
             rod_mills: Vec::new(),
@@ -343,7 +340,7 @@ impl SparkplugNode {
         confirmations: &mut Confirmations,
         bites: &mut BiteSource,
     ) -> Option<i64> {
-        let results = self.publisher.results();
+        let results = self.board.results();
         self.publish(client, confirmations, node.births(&results, now_ms()));
         let last = bites.read(|reader| reader.last_bite_id()).await?;
         (last > confirmations.read()).then_some(last)
@@ -375,8 +372,8 @@ impl SparkplugNode {
         let Some(rows) = bites.read(move |reader| reader.bites(&filter)).await else {
             return;
         };
-        let results = self.publisher.results();
-        let names = self.publisher.driveline_names();
+        let results = self.board.results();
+        let names = self.board.driveline_names();
         for row in rows
             .iter()
             .take_while(|row| until.is_none_or(|end| row.id <= end))
@@ -415,7 +412,7 @@ impl SparkplugNode {
         node: &mut EdgeNode,
         index: usize,
         row: &BiteRow,
-        results: &crate::outputs::results::Results,
+        results: &crate::state::results::Results,
         historical: bool,
     ) -> node::Outgoing {
         let time = forward::bite_ms(row).unwrap_or_else(now_ms);
@@ -423,9 +420,15 @@ impl SparkplugNode {
             .drivelines
             .get(index)
             .filter(|live| !historical && i64::from(live.bite_counter) == row.bite_counter);
+        let recorded: Vec<&str> = BITE_COLUMNS.iter().map(|(key, _)| *key).collect();
         match current {
-            Some(live) => node.bite(index, live, time, false),
-            None => node.bite(index, &forward::bite_results(row), time, historical),
+            Some(live) => node.bite(index, live, time, (None, false)),
+            None => node.bite(
+                index,
+                &forward::bite_results(row),
+                time,
+                (Some(&recorded), historical),
+            ),
         }
     }
 
@@ -448,7 +451,7 @@ impl SparkplugNode {
 
     /// Publish until `shutdown`, reconnecting with a new bdSeq after each lost session.
     pub async fn run(self, mut shutdown: Shutdown) {
-        let publisher = Arc::clone(&self.publisher);
+        let board = Arc::clone(&self.board);
         let mut bd_seq = self.next_bd_seq(None).await;
         let mut confirmations = Confirmations::new(self.load_cursor().await);
         // The cursor is stored and the backlog counted by a task of its own: a timer
@@ -468,11 +471,10 @@ impl SparkplugNode {
         let mut node = EdgeNode::new(
             &self.config.group_id,
             &self.config.node_id,
-            publisher.driveline_names(),
-            publisher.mill_names(),
+            (board.driveline_names(), board.tandem_mill_names()),
+            &self.rod_mills,
             bd_seq,
-        )
-        .with_rod_mills(&self.rod_mills);
+        );
         self.status.bd_seq.store(bd_seq, Ordering::Relaxed);
         let (client, mut events) =
             AsyncClient::new(self.options(node.death(now_ms())), CLIENT_QUEUE);
@@ -534,7 +536,7 @@ impl SparkplugNode {
                                 Ok(true) if born => {
                                     tracing::info!("Sparkplug rebirth requested");
                                     self.status.rebirths.fetch_add(1, Ordering::Relaxed);
-                                    let results = publisher.results();
+                                    let results = board.results();
                                     self.publish(&client, &mut confirmations, node.births(&results, now_ms()));
                                 }
                                 Ok(_) => {}
@@ -612,7 +614,7 @@ impl SparkplugNode {
                     self.forward(&client, &mut node, &mut confirmations, &mut bites, Step::Live).await;
                 }
                 _ = data.tick(), if born => {
-                    self.publish(&client, &mut confirmations, node.data(&publisher.results(), now_ms()));
+                    self.publish(&client, &mut confirmations, node.data(&board.results(), now_ms()));
                 }
             }
             confirmed.store(confirmations.confirmed(), Ordering::Relaxed);

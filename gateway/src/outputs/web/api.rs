@@ -1,4 +1,4 @@
-//! The JSON API: live figures from the publisher's snapshot, history from the file.
+//! The JSON API: live figures from the board's snapshot, history from the file.
 //!
 //! Every error is `{"error": "..."}` with its status: 400 for a bad parameter (naming
 //! it and its allowed range), 404 for an unknown driveline or without a history, 503
@@ -17,20 +17,21 @@ use axum::response::sse::{Event, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
 use serde::Serialize;
+use serde_json::{Map, Value as JsonValue};
 use tokio_stream::wrappers::WatchStream;
 use tokio_stream::{Stream, StreamExt};
 
 use super::{DrivelineInfo, WebState};
-use crate::analysis::gap_map::GapMaps;
 use crate::field::source_health::SourceStatus;
 use crate::outputs::history::query::{AlarmRow, BiteRow, Filter, HistoryReader, OutageRow, Record};
 use crate::outputs::history::series::{WearPoint, MAX_SERIES_POINTS};
-use crate::outputs::history::time::UtcTime;
 use crate::outputs::history::HistoryError;
-use crate::outputs::publisher::WearMapState;
-use crate::outputs::results::{
-    DrivelineResults, GapResults, GatewayState, MillResults, Results, RodMillResults,
+use crate::state::catalogue::{self, Figure, Subject, Value};
+use crate::state::gap_maps::{GapMapState, GapMaps};
+use crate::state::results::{
+    DrivelineResults, GapResults, GatewayState, Results, RodMillResults, TandemMillResults,
 };
+use crate::state::time::UtcTime;
 
 /// Default and largest `limit` of `/api/drivelines/{name}/bites` and `/api/alarms`.
 pub const LIMIT_DEFAULT: u32 = 100;
@@ -59,15 +60,6 @@ impl ApiError {
             message,
         }
     }
-}
-
-/// `{"error": message}` with `status`.
-pub fn error(status: StatusCode, message: &str) -> Response {
-    #[derive(Serialize)]
-    struct Body<'a> {
-        error: &'a str,
-    }
-    (status, Json(Body { error: message })).into_response()
 }
 
 /// The query parameters of a request, checked against what its route takes.
@@ -215,34 +207,47 @@ pub struct ThresholdsView {
     pub gap_alarm_mrad: f64,
 }
 
-/// A driveline's live figures (and, on the overview and its own endpoint, the gap
-/// trend from the history).
+/// The figures of `subject` as JSON, one member per catalogue key: its value while good
+/// or last usable (the page marks a stale source beside it), `null` while it has none.
+/// A time is ISO-8601 UTC text.
+pub fn figures_json<R: Subject>(figures: &[Figure<R>], subject: &R) -> Map<String, JsonValue> {
+    figures
+        .iter()
+        .map(|figure| {
+            let value = match figure.read(subject).usable() {
+                None => JsonValue::Null,
+                Some(Value::Real(v)) => {
+                    serde_json::Number::from_f64(v).map_or(JsonValue::Null, JsonValue::Number)
+                }
+                Some(Value::Count(v) | Value::Index(v)) => JsonValue::from(v),
+                Some(Value::Bool(v)) => JsonValue::Bool(v),
+                Some(Value::Time(ms)) => JsonValue::String(UtcTime::from_unix_ms(ms).to_string()),
+            };
+            (figure.key.to_owned(), value)
+        })
+        .collect()
+}
+
+/// `ok`, `warning` or `alarm` of a warning flag and a (latched) alarm flag.
+fn state_of(warning: bool, alarm: bool) -> &'static str {
+    match (warning, alarm) {
+        (_, true) => "alarm",
+        (true, false) => "warning",
+        _ => "ok",
+    }
+}
+
+/// A driveline's live figures (every catalogue figure by its key) and, on the overview
+/// and its own endpoint, the gap trend from the history.
 #[derive(Debug, Clone, Serialize, PartialEq)]
 pub struct DrivelineView {
     /// Name.
     pub name: String,
     /// Whether it has a model (the gap diagnosis runs only with one).
     pub has_model: bool,
-    /// Bites since start (continued across restarts with a history).
-    pub bite_counter: u32,
-    /// Degraded bites (values not published).
-    pub degraded_bites: u32,
-    /// Time of the last bite, UTC ISO-8601 (second resolution).
-    pub last_bite: Option<String>,
-    /// Static torque of the last bite, kN*m.
-    pub static_torque_knm: Option<f64>,
-    /// Peak torque of the last bite, kN*m.
-    pub peak_torque_knm: Option<f64>,
-    /// TAF of the last bite.
-    pub taf: Option<f64>,
-    /// First minus second period, s.
-    pub first_period_shift_s: Option<f64>,
-    /// TAF-ratio wear index of the last bite.
-    pub wear_index: Option<f64>,
-    /// Its trend.
-    pub wear_trend: Option<f64>,
-    /// Pooled gap estimate.
-    pub gap: Option<GapResults>,
+    /// The catalogue's driveline figures by key ([`catalogue::DRIVELINE`]).
+    #[serde(flatten)]
+    pub figures: Map<String, JsonValue>,
     /// Gap trend, mrad per week, from the history (least squares over the estimates
     /// of the 4 weeks before the last bite, after the last wear reset); `None` on
     /// live updates, without a history or with fewer than 5 estimates.
@@ -251,60 +256,23 @@ pub struct DrivelineView {
     pub taf_state: &'static str,
     /// `ok`, `warning`, `alarm` of the gap, or `unknown` without an estimate.
     pub wear_state: &'static str,
-    /// TAF warning at the last bite.
-    pub warning: bool,
-    /// TAF alarm latched.
-    pub alarm: bool,
-    /// Gap warning.
-    pub gap_warning: bool,
-    /// Gap alarm latched.
-    pub gap_alarm: bool,
-    /// The torque source is stale or lost.
-    pub source_stale: bool,
-    /// The values are restored from before the last restart.
-    pub restored: bool,
-    /// The last bite's window was degraded.
-    pub last_bite_degraded: bool,
     /// Thresholds.
     pub thresholds: ThresholdsView,
 }
 
 impl DrivelineView {
     fn new(info: &DrivelineInfo, results: &DrivelineResults) -> Self {
-        let state = |warning: bool, alarm: bool| match (warning, alarm) {
-            (_, true) => "alarm",
-            (true, false) => "warning",
-            _ => "ok",
-        };
         Self {
             name: info.name.clone(),
             has_model: info.has_model,
-            bite_counter: results.bite_counter,
-            degraded_bites: results.degraded_bites,
-            last_bite: results
-                .last_bite_unix_s
-                .map(|s| UtcTime::from_unix_ms(i64::from(s) * 1000).to_string()),
-            static_torque_knm: results.static_torque_knm,
-            peak_torque_knm: results.peak_torque_knm,
-            taf: results.taf,
-            first_period_shift_s: results.first_period_shift_s,
-            wear_index: results.wear_index,
-            wear_trend: results.wear_trend,
-            gap: results.gap,
+            figures: figures_json(catalogue::DRIVELINE, results),
             gap_trend_mrad_per_week: None,
-            taf_state: state(results.warning, results.alarm),
+            taf_state: state_of(results.taf_warning, results.taf_alarm),
             wear_state: if results.gap.is_none() && !results.gap_alarm {
                 "unknown"
             } else {
-                state(results.gap_warning, results.gap_alarm)
+                state_of(results.gap_warning, results.gap_alarm)
             },
-            warning: results.warning,
-            alarm: results.alarm,
-            gap_warning: results.gap_warning,
-            gap_alarm: results.gap_alarm,
-            source_stale: results.source_stale,
-            restored: results.restored,
-            last_bite_degraded: results.last_bite_degraded,
             thresholds: ThresholdsView {
                 taf_warning: info.taf_warning,
                 taf_alarm: info.taf_alarm,
@@ -315,65 +283,49 @@ impl DrivelineView {
     }
 }
 
-/// A tandem mill's chatter state.
+/// A tandem mill's chatter state and figures (every catalogue figure by its key).
 #[derive(Debug, Clone, Serialize, PartialEq)]
-pub struct MillView {
+pub struct TandemMillView {
     /// Name.
     pub name: String,
     /// Stand channels, rolling order.
     pub stands: Vec<String>,
     /// `ok`, `warning`, `alarm`, `stale` or `unknown` (no window yet).
     pub chatter_state: &'static str,
-    /// Early-warning figure: largest band gain / threshold (>= 1 is the alarm).
-    pub gain_ratio: Option<f64>,
-    /// Stand channel of the gain ratio.
-    pub worst_stand: Option<String>,
-    /// RMS difference of adjacent stands' principal frequencies, Hz.
-    pub sigma_n_hz: Option<f64>,
-    /// Mean adjacent-stand correlation.
-    pub k_mean: Option<f64>,
-    /// Chatter frequency, Hz.
-    pub chatter_frequency_hz: Option<f64>,
-    /// Slow-down request to the PLC.
-    pub slow_down_request: bool,
-    /// Windows evaluated.
-    pub evaluations: u64,
+    /// The stand channel of `worst_stand`.
+    pub worst_stand_channel: Option<String>,
+    /// The catalogue's tandem mill figures by key ([`catalogue::TANDEM_MILL`]): a stale
+    /// stand withdraws the window's (as the PLC gets them).
+    #[serde(flatten)]
+    pub figures: Map<String, JsonValue>,
 }
 
-impl MillView {
-    fn new((name, stands): &(String, Vec<String>), results: &MillResults) -> Self {
-        // The window's figures describe the mill now: none from a stale stand (as the
-        // PLC gets them).
-        let fresh = |value: Option<f64>| value.filter(|_| !results.source_stale);
+impl TandemMillView {
+    fn new((name, stands): &(String, Vec<String>), results: &TandemMillResults) -> Self {
         Self {
             name: name.clone(),
             stands: stands.clone(),
-            chatter_state: if results.alarm {
+            chatter_state: if results.chatter_alarm {
                 "alarm"
             } else if results.source_stale {
                 "stale"
-            } else if results.warning {
+            } else if results.chatter_warning {
                 "warning"
             } else if results.evaluations == 0 {
                 "unknown"
             } else {
                 "ok"
             },
-            gain_ratio: fresh(results.gain_ratio),
-            worst_stand: results
+            worst_stand_channel: results
                 .worst_stand
                 .filter(|_| !results.source_stale)
                 .and_then(|stand| stands.get(stand).cloned()),
-            sigma_n_hz: fresh(results.sigma_n_hz),
-            k_mean: fresh(results.k_mean),
-            chatter_frequency_hz: fresh(results.chatter_frequency_hz),
-            slow_down_request: results.slow_down_request,
-            evaluations: results.evaluations,
+            figures: figures_json(catalogue::TANDEM_MILL, results),
         }
     }
 }
 
-/// A rod mill's worst span.
+/// A rod mill's state, figures and spans.
 #[derive(Debug, Clone, Serialize, PartialEq)]
 pub struct RodMillView {
     /// Name.
@@ -381,21 +333,15 @@ pub struct RodMillView {
     /// `stable`, `near_tongue`, `unstable`, `refused` (inputs out of range),
     /// `stale` or `unknown` (not evaluated).
     pub state: &'static str,
-    /// Span (1-based, rolling order) with the smallest speed margin.
-    pub worst_span: Option<usize>,
-    /// Its speed margin, m/s (negative: unstable).
-    pub worst_margin_m_s: Option<f64>,
-    /// Pass in use, 1-based.
-    pub pass: Option<u16>,
-    /// Finishing speed, m/s.
-    pub finishing_speed_m_s: Option<f64>,
+    /// The catalogue's rod mill figures by key ([`catalogue::ROD_MILL`]).
+    #[serde(flatten)]
+    pub figures: Map<String, JsonValue>,
+    /// Each span's figures ([`catalogue::ROD_SPAN`]), rolling order.
+    pub spans: Vec<Map<String, JsonValue>>,
 }
 
 impl RodMillView {
     fn new(name: &str, results: &RodMillResults) -> Self {
-        // Values only while they may be published (as the PLC gets them).
-        let worst = results.worst_span();
-        let valid_mill = results.valid();
         let valid = results.spans.iter().filter(|span| span.valid);
         let state = if results.source_stale {
             "stale"
@@ -413,10 +359,10 @@ impl RodMillView {
         Self {
             name: name.to_owned(),
             state,
-            worst_span: worst.map(|(index, _)| index + 1),
-            worst_margin_m_s: worst.map(|(_, margin)| margin),
-            pass: results.pass.filter(|_| valid_mill),
-            finishing_speed_m_s: results.finishing_speed_m_s.filter(|_| valid_mill),
+            figures: figures_json(catalogue::ROD_MILL, results),
+            spans: (0..results.spans.len())
+                .map(|span| figures_json(catalogue::ROD_SPAN, &results.published_span(span)))
+                .collect(),
         }
     }
 }
@@ -450,7 +396,7 @@ pub struct Overview {
     /// Drivelines, config order.
     pub drivelines: Vec<DrivelineView>,
     /// Tandem mills, config order.
-    pub tandem_mills: Vec<MillView>,
+    pub tandem_mills: Vec<TandemMillView>,
     /// Rod mills, config order.
     pub rod_mills: Vec<RodMillView>,
     /// Sources: Modbus, then CAN.
@@ -473,10 +419,10 @@ fn live_overview(state: &WebState, results: &Results) -> Overview {
             .map(|(info, results)| DrivelineView::new(info, results))
             .collect(),
         tandem_mills: state
-            .mills
+            .tandem_mills
             .iter()
-            .zip(&results.mills)
-            .map(|(mill, results)| MillView::new(mill, results))
+            .zip(&results.tandem_mills)
+            .map(|(mill, results)| TandemMillView::new(mill, results))
             .collect(),
         rod_mills: state
             .rod_mills
@@ -507,7 +453,7 @@ fn live_overview(state: &WebState, results: &Results) -> Overview {
 
 /// The live overview as `/api/events` sends it.
 pub(crate) fn live_json(state: &WebState) -> String {
-    let overview = live_overview(state, &state.publisher.results());
+    let overview = live_overview(state, &state.board.results());
     serde_json::to_string(&overview).unwrap_or_default()
 }
 
@@ -585,7 +531,7 @@ fn gap_trend(
 
 /// The overview with the history's parts when there is a history.
 async fn full_overview(state: &Arc<WebState>) -> Result<Overview, ApiError> {
-    let mut overview = live_overview(state, &state.publisher.results());
+    let mut overview = live_overview(state, &state.board.results());
     if state.history.is_some() {
         let shared = Arc::clone(state);
         overview = with_history(state, move |reader| {
@@ -613,7 +559,7 @@ pub(crate) async fn drivelines(
 ) -> Result<Json<Vec<DrivelineView>>, ApiError> {
     Params::of(query, &[])?;
     Ok(Json(
-        live_overview(&state, &state.publisher.results()).drivelines,
+        live_overview(&state, &state.board.results()).drivelines,
     ))
 }
 
@@ -625,7 +571,7 @@ pub(crate) async fn driveline(
 ) -> Result<Json<DrivelineView>, ApiError> {
     Params::of(query, &[])?;
     let index = driveline_index(&state, &name)?;
-    let results = state.publisher.results();
+    let results = state.board.results();
     let mut view = DrivelineView::new(&state.drivelines[index], &results.drivelines[index]);
     if state.history.is_some() {
         let shared = Arc::clone(&state);
@@ -638,7 +584,7 @@ pub(crate) async fn driveline(
     Ok(Json(view))
 }
 
-/// One TAF curve of a wear map: TAF over the static torque the analysis measures,
+/// One TAF curve of a gap map: TAF over the static torque the analysis measures,
 /// at one opened gap.
 #[derive(Debug, Clone, Serialize, PartialEq)]
 pub struct MapCurve {
@@ -657,7 +603,7 @@ impl MapCurve {
     }
 }
 
-/// A coupling's wear map: its curves at every whole mrad.
+/// A coupling's gap map: its curves at every whole mrad.
 #[derive(Debug, Clone, Serialize, PartialEq)]
 pub struct CouplingCurves {
     /// Coupling (model index, 0 = motor side).
@@ -685,9 +631,9 @@ pub struct EstimateCurves {
     pub high: MapCurve,
 }
 
-/// A driveline's wear maps as `/api/drivelines/{name}/map` gives them.
+/// A driveline's gap maps as `/api/drivelines/{name}/map` gives them.
 #[derive(Debug, Clone, Serialize, PartialEq)]
-pub struct WearMapView {
+pub struct GapMapView {
     /// `ready`, `building` (read from the cache or simulated), `failed` or `no_model`.
     pub state: &'static str,
     /// What `state` means here (progress, the failure); `None` when ready.
@@ -704,7 +650,7 @@ pub struct WearMapView {
     pub estimate: Option<EstimateCurves>,
 }
 
-impl WearMapView {
+impl GapMapView {
     fn not_ready(state: &'static str, message: String, simulations: Option<[usize; 2]>) -> Self {
         Self {
             state,
@@ -757,36 +703,36 @@ impl WearMapView {
     }
 }
 
-/// `GET /api/drivelines/{name}/map`: the wear maps' TAF curves over static torque
+/// `GET /api/drivelines/{name}/map`: the gap maps' TAF curves over static torque
 /// (what a bite's TAF is at each opened gap, per coupling) and the live estimate on
 /// them.
-pub(crate) async fn wear_map(
+pub(crate) async fn gap_maps(
     State(state): State<Arc<WebState>>,
     Path(name): Path<String>,
     query: Result<Query<Vec<(String, String)>>, QueryRejection>,
-) -> Result<Json<WearMapView>, ApiError> {
+) -> Result<Json<GapMapView>, ApiError> {
     Params::of(query, &[])?;
     let index = driveline_index(&state, &name)?;
-    let view = match state.publisher.wear_map(index) {
-        Some(WearMapState::Ready(maps)) => {
-            let results = state.publisher.results();
-            WearMapView::new(&maps, results.drivelines[index].gap.as_ref())
+    let view = match state.board.gap_maps(index) {
+        Some(GapMapState::Ready(maps)) => {
+            let results = state.board.results();
+            GapMapView::new(&maps, results.drivelines[index].gap.as_ref())
         }
-        Some(WearMapState::Building { done, total }) => WearMapView::not_ready(
+        Some(GapMapState::Building { done, total }) => GapMapView::not_ready(
             "building",
             if total == 0 {
-                "the wear maps are being read from the cache or built".into()
+                "the gap maps are being read from the cache or built".into()
             } else {
-                format!("the wear maps are being built: {done} of {total} simulations")
+                format!("the gap maps are being built: {done} of {total} simulations")
             },
             Some([done, total]),
         ),
-        Some(WearMapState::Failed(why)) => {
-            WearMapView::not_ready("failed", format!("no wear maps: {why}"), None)
+        Some(GapMapState::Failed(why)) => {
+            GapMapView::not_ready("failed", format!("no gap maps: {why}"), None)
         }
-        Some(WearMapState::NoModel) | None => WearMapView::not_ready(
+        Some(GapMapState::NoModel) | None => GapMapView::not_ready(
             "no_model",
-            format!("driveline \"{name}\" has no model configured: no wear maps"),
+            format!("driveline \"{name}\" has no model configured: no gap maps"),
             None,
         ),
     };

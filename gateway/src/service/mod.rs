@@ -7,35 +7,34 @@
 //! non-zero and its supervisor restarts it.
 
 use std::net::SocketAddr;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
-use std::time::Duration;
 
 use millgate_config::Config;
 use tokio::net::TcpListener;
 use tokio::sync::{broadcast, mpsc, watch};
-use tokio::task::{JoinHandle, JoinSet};
+
+mod outputs;
+mod readers;
+mod running;
+
+pub use running::RunningService;
 
 use crate::analysis::driveline::BiteReport;
 use crate::analysis::gap_estimate::GapObservation;
-use crate::analysis::gap_monitor::spawn_job;
 use crate::analysis::{Analysis, AnalysisError};
-use crate::field::can::supervisor::supervise_can;
 use crate::field::counters::{CanCounters, ChannelCounters};
-use crate::field::daq_reader::DaqReader;
 use crate::field::source_health::SourceHealth;
-use crate::outputs::heartbeat;
 use crate::outputs::history::outages::{OutageMonitor, WatchedSource};
-use crate::outputs::history::{History, RunInfo};
-use crate::outputs::hmi_server::{self, ModbusServer, ServerCounters};
-use crate::outputs::metrics::Metrics;
-use crate::outputs::plc_writer::PlcWriter;
-use crate::outputs::publisher::{source_of_channel, Publisher, WearMapState};
-use crate::outputs::register_map::{self, MapTooLarge};
-use crate::outputs::results::GatewayState;
-use crate::outputs::sparkplug::SparkplugNode;
-use crate::outputs::web::{self, WebServer};
-use crate::shutdown::{self, Shutdown, ShutdownTrigger};
+use crate::outputs::history::RunInfo;
+use crate::outputs::hmi_server::{self, ServerCounters};
+use crate::outputs::metrics::Acquisition;
+use crate::outputs::register_map::{MapTooLarge, RegisterMap};
+use crate::outputs::web;
+use crate::shutdown::{self, Shutdown};
+use crate::state::board::Board;
+use crate::state::commands::{self, CommandReceiver, CommandSender};
+use crate::state::history::History;
+use crate::state::results::GatewayState;
 use crate::supervision::Liveness;
 
 /// Samples in flight between readers and analysis. At 2 kHz and 100-sample blocks
@@ -106,7 +105,10 @@ pub enum ServiceError {
 #[derive(Debug)]
 pub struct Service {
     config: Config,
-    publisher: Arc<Publisher>,
+    map: Arc<RegisterMap>,
+    board: Arc<Board>,
+    commands: CommandSender,
+    command_receiver: CommandReceiver,
     counters: Vec<Arc<ChannelCounters>>,
     health: Vec<Arc<SourceHealth>>,
     can_counters: Vec<Arc<CanCounters>>,
@@ -133,35 +135,12 @@ pub struct Bound {
     pub web: Option<SocketAddr>,
 }
 
-/// The health of Modbus source `index` of `config`: stale after three poll periods,
-/// two timeouts or two periods of its slowest full block (new data is what keeps a
-/// source fresh), whichever is longest; lost after five times that or 5 s.
-fn modbus_health(config: &Config, index: usize) -> SourceHealth {
-    let source = &config.modbus_sources[index];
-    let slowest_block = config
-        .channels
-        .iter()
-        .filter_map(|channel| match channel.source {
-            millgate_config::ChannelSource::ModbusBlock { source, .. } if source == index => {
-                Some(Duration::from_secs_f64(
-                    f64::from(millgate_config::layout::MAX_BLOCK_SAMPLES) / channel.sample_rate_hz,
-                ))
-            }
-            _ => None,
-        })
-        .max()
-        .unwrap_or_default();
-    let stale_after = (source.poll_period * 3)
-        .max(source.timeout * 2)
-        .max(slowest_block * 2);
-    SourceHealth::new(stale_after, (stale_after * 5).max(Duration::from_secs(5)))
-}
-
 impl Service {
     /// Build every task's state from `config`; an error names the key of a setting
     /// the service cannot run with.
     pub fn new(config: Config) -> Result<Self, ServiceError> {
-        let span = register_map::RegisterMap::try_new(&config)?.len();
+        let map = RegisterMap::try_new(&config)?;
+        let span = map.len();
         if let Some(plc) = &config.outputs.plc {
             let end = u32::from(plc.register_base) + u32::from(span) - 1;
             if end > u32::from(u16::MAX) {
@@ -178,23 +157,11 @@ impl Service {
             .iter()
             .map(|_| Arc::new(ChannelCounters::default()))
             .collect();
-        let health: Vec<Arc<SourceHealth>> = config
-            .modbus_sources
-            .iter()
-            .enumerate()
-            .map(|(index, _)| Arc::new(modbus_health(&config, index)))
-            .chain(config.can_sources.iter().map(|_| {
-                Arc::new(SourceHealth::new(
-                    Duration::from_secs(1),
-                    Duration::from_secs(5),
-                ))
-            }))
-            .collect();
+        let health = readers::source_health(&config);
         let history = History::new(config.history.as_ref());
-        let publisher =
-            Arc::new(Publisher::new(&config, health.clone()).with_history(history.clone()));
+        let board = Arc::new(Board::new(&config, health.clone()).with_history(history.clone()));
         let (bites, _) = broadcast::channel(64);
-        let analysis = Analysis::new(&config, Arc::clone(&publisher), bites.clone())?;
+        let analysis = Analysis::new(&config, Arc::clone(&board), bites.clone())?;
         // A driveline model that does not load, or `wear` settings that do not fit it,
         // is a configuration error: `run` exits with it at once (and `check` names it)
         // rather than running on without the wear diagnosis the file asks for.
@@ -208,9 +175,13 @@ impl Service {
         }
         let can_counters = config.can_sources.iter().map(|_| Arc::default()).collect();
         let (plc_attempted, _) = watch::channel(config.outputs.plc.is_none());
+        let (commands, command_receiver) = commands::channel();
         Ok(Self {
             config,
-            publisher,
+            map: Arc::new(map),
+            board,
+            commands,
+            command_receiver,
             counters,
             health,
             can_counters,
@@ -288,9 +259,19 @@ impl Service {
         self.bites.subscribe()
     }
 
-    /// The published results and register map.
-    pub fn publisher(&self) -> Arc<Publisher> {
-        Arc::clone(&self.publisher)
+    /// The published results.
+    pub fn board(&self) -> Arc<Board> {
+        Arc::clone(&self.board)
+    }
+
+    /// Where commands to the analysis go.
+    pub fn commands(&self) -> CommandSender {
+        self.commands.clone()
+    }
+
+    /// The register map the PLC writer and the HMI server encode the results with.
+    pub fn register_map(&self) -> Arc<RegisterMap> {
+        Arc::clone(&self.map)
     }
 
     /// Per-channel acquisition counters, indexed like `config.channels`.
@@ -310,19 +291,20 @@ impl Service {
     async fn restore(&mut self) {
         let history = self.history.clone();
         let run = RunInfo::of(&self.config);
-        let restored = match tokio::task::spawn_blocking(move || history.start(run)).await {
+        let start = move || crate::outputs::history::start(&history, run);
+        let restored = match tokio::task::spawn_blocking(start).await {
             Ok(restored) => restored,
             Err(error) => {
                 tracing::error!(%error, "opening the history failed");
                 return;
             }
         };
-        let publisher = &self.publisher;
-        publisher.update(|results| {
-            restored.apply(results, publisher.driveline_names(), publisher.mill_names())
+        let board = &self.board;
+        board.update(|results| {
+            restored.apply(results, board.driveline_names(), board.tandem_mill_names())
         });
         for driveline in &restored.drivelines {
-            let index = publisher
+            let index = board
                 .driveline_names()
                 .iter()
                 .position(|name| *name == driveline.name);
@@ -341,8 +323,8 @@ impl Service {
                 driveline = %driveline.name,
                 bite_counter = driveline.results.bite_counter,
                 wear_trend = ?driveline.results.wear_trend,
-                alarm_latched = driveline.results.alarm,
-                last_bite = ?driveline.results.last_bite_unix_s,
+                alarm_latched = driveline.results.taf_alarm,
+                last_bite_ms = ?driveline.results.last_bite_unix_ms,
                 gap_alarm_latched = driveline.results.gap_alarm,
                 gap_pool = driveline.gap_pool.len(),
                 "state restored from the history"
@@ -353,19 +335,15 @@ impl Service {
     /// The outage monitor of every source.
     fn outage_monitor(&self) -> OutageMonitor {
         let config = &self.config;
-        let names = config
-            .modbus_sources
-            .iter()
-            .map(|s| &s.name)
-            .chain(config.can_sources.iter().map(|s| &s.name));
-        let sources = names
+        let sources = config
+            .sources()
             .zip(&self.health)
             .enumerate()
-            .map(|(index, (name, health))| WatchedSource {
-                name: name.clone(),
+            .map(|(index, (source, health))| WatchedSource {
+                name: source.name().to_owned(),
                 health: Arc::clone(health),
                 channels: (0..config.channels.len())
-                    .filter(|&c| source_of_channel(config, c) == index)
+                    .filter(|&c| config.source_of_channel(c) == index)
                     .map(|c| Arc::clone(&self.counters[c]))
                     .collect(),
             })
@@ -387,10 +365,14 @@ impl Service {
         let outage_monitor = self.history.is_enabled().then(|| self.outage_monitor());
         let Service {
             config,
-            publisher,
+            map,
+            board,
+            commands,
+            command_receiver,
             counters,
             health,
             can_counters,
+            analysis,
             history,
             server_listener,
             metrics_listener,
@@ -398,158 +380,53 @@ impl Service {
             liveness,
             server_counters,
             plc_attempted,
-            mut analysis,
             ..
         } = self;
-        let rod_mills: Vec<(String, usize)> = config
-            .rod_mills
-            .iter()
-            .map(|mill| mill.name.clone())
-            .zip(analysis.rod_mill_spans())
-            .collect();
+        let rod_mill_spans = analysis.rod_mill_spans();
         // Readers stop on their own signal, after the final source statuses are kept.
         let (readers_stop, readers_shutdown) = shutdown::channel();
-        let (samples_tx, samples_rx) = mpsc::channel(SAMPLE_QUEUE);
-        let mut readers = JoinSet::new();
-        for (index, source) in config.modbus_sources.iter().enumerate() {
-            let reader = DaqReader::new(&config, index, &counters, Arc::clone(&health[index]));
-            tracing::info!(source = %source.name, address = %source.address, "starting DaqReader");
-            readers.spawn(reader.run(samples_tx.clone(), readers_shutdown.clone()));
-        }
-        for (index, source) in config.can_sources.iter().enumerate() {
-            tracing::info!(source = %source.name, interface = %source.interface, "starting CanReader");
-            let health = Arc::clone(&health[config.modbus_sources.len() + index]);
-            readers.spawn(supervise_can(
-                Arc::new(config.clone()),
-                index,
-                health,
-                Arc::clone(&can_counters[index]),
-                samples_tx.clone(),
-                readers_shutdown.clone(),
-            ));
-        }
-        drop(samples_tx);
-        // Gap maps: read from the cache or built on threads of their own while the
-        // service runs; the analysis installs them as they come.
-        let jobs = analysis.take_gap_map_jobs();
-        let (maps_tx, maps_rx) = mpsc::channel(jobs.len().max(1));
-        let cancel_maps = Arc::new(AtomicBool::new(false));
-        let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-        for job in jobs {
-            let driveline = job.driveline_name.clone();
-            let index = job.driveline;
-            let progress = {
-                let publisher = Arc::clone(&publisher);
-                move |done, total| {
-                    publisher.set_wear_map(index, WearMapState::Building { done, total })
-                }
-            };
-            let spawned = spawn_job(
-                job,
-                threads,
-                maps_tx.clone(),
-                Arc::clone(&cancel_maps),
-                progress,
-            );
-            if let Err(error) = spawned {
-                tracing::error!(%driveline, %error, "cannot start the gap map build");
-                publisher.set_wear_map(
-                    index,
-                    WearMapState::Failed(format!("cannot start the gap map build: {error}")),
-                );
-            }
-        }
-        drop(maps_tx);
-        let mut analysis = tokio::spawn(analysis.run(samples_rx, maps_rx, Arc::clone(&liveness)));
+        let (samples, samples_rx) = mpsc::channel(SAMPLE_QUEUE);
+        let acquisition = Acquisition {
+            counters,
+            health,
+            can: can_counters,
+        };
+        let mut readers = readers::spawn(&config, &acquisition, samples, readers_shutdown);
+        let analysis_task = readers::spawn_analysis(
+            analysis,
+            (samples_rx, command_receiver),
+            &board,
+            Arc::clone(&liveness),
+        );
+        let analysis_maps = analysis_task.maps;
+        let mut analysis = analysis_task.task;
 
         // Outputs stop only after analysis has drained, so the last bite is published.
         // Each returns what ended it; before the stop, any end is a failure.
         let (outputs_stop, outputs_shutdown) = shutdown::channel();
-        let mut outputs: JoinSet<(&'static str, Result<(), String>)> = JoinSet::new();
-        if let Some(plc) = &config.outputs.plc {
-            tracing::info!(plc = %plc.address, base = plc.register_base, "starting PlcWriter");
-            let writer =
-                PlcWriter::new(plc.clone(), Arc::clone(&publisher)).on_first_attempt(plc_attempted);
-            let shutdown = outputs_shutdown.clone();
-            outputs.spawn(async move {
-                writer.run(shutdown).await;
-                ("PLC writer", Ok(()))
-            });
-        } else {
-            let beat =
-                heartbeat::beat_without_plc(Arc::clone(&publisher), outputs_shutdown.clone());
-            outputs.spawn(async move {
-                beat.await;
-                ("heartbeat", Ok(()))
-            });
-        }
-        if let Some(monitor) = outage_monitor {
-            let shutdown = outputs_shutdown.clone();
-            outputs.spawn(async move {
-                monitor.run(shutdown).await;
-                ("outage monitor", Ok(()))
-            });
-        }
-        if let (Some(output), Some(listener)) = (&config.outputs.server, server_listener) {
-            let plc_address = config.outputs.plc.as_ref().map(|plc| plc.address.clone());
-            let server = ModbusServer::new(
-                output.clone(),
-                Arc::clone(&publisher),
-                Arc::clone(&server_counters),
-            )
-            .with_plc_address(plc_address);
-            let shutdown = outputs_shutdown.clone();
-            outputs.spawn(async move {
-                let served = server.run(listener, shutdown).await;
-                ("Modbus server", served.map_err(|error| error.to_string()))
-            });
-        }
-        let sparkplug = match (&config.outputs.mqtt, &config.history) {
-            (Some(mqtt), Some(history)) => {
-                tracing::info!(broker = %mqtt.broker, group = %mqtt.group_id, node = %mqtt.node_id, "starting the Sparkplug B edge node");
-                let node =
-                    SparkplugNode::new(mqtt.clone(), history.path.clone(), Arc::clone(&publisher))?
-                        .with_rod_mills(rod_mills);
-                let status = node.status();
-                let shutdown = outputs_shutdown.clone();
-                outputs.spawn(async move {
-                    node.run(shutdown).await;
-                    ("Sparkplug B edge node", Ok(()))
-                });
-                Some(status)
-            }
-            _ => None,
+        let wiring = outputs::Wiring {
+            config: &config,
+            map,
+            board: Arc::clone(&board),
+            commands,
+            acquisition,
+            server_counters,
+            plc_attempted: Some(plc_attempted),
+            listeners: outputs::Listeners {
+                server: server_listener,
+                metrics: metrics_listener,
+                web: web_listener,
+            },
+            outage_monitor,
+            rod_mill_spans,
+            plc_counters: Arc::default(),
+            sparkplug: None,
         };
-        if let (Some(settings), Some(listener)) = (&config.outputs.web, web_listener) {
-            let server = WebServer::new(&config, settings.clone(), Arc::clone(&publisher));
-            let shutdown = outputs_shutdown.clone();
-            outputs.spawn(async move {
-                let served = server.run(listener, shutdown).await;
-                (
-                    "maintenance page",
-                    served.map_err(|error| error.to_string()),
-                )
-            });
+        let mut outputs = tokio::task::JoinSet::new();
+        for (name, task) in outputs::tasks(wiring, &outputs_shutdown)? {
+            outputs.spawn(async move { (name, task.await) });
         }
-        if let Some(listener) = metrics_listener {
-            let mut metrics = Metrics::new(
-                &config,
-                counters.clone(),
-                health.clone(),
-                can_counters,
-                Arc::clone(&publisher),
-            );
-            metrics = metrics.with_server(server_counters);
-            if let Some(status) = sparkplug {
-                metrics = metrics.with_sparkplug(status);
-            }
-            let shutdown = outputs_shutdown.clone();
-            outputs.spawn(async move {
-                metrics.run(listener, shutdown).await;
-                ("metrics endpoint", Ok(()))
-            });
-        }
-        publisher.update(|results| results.state = GatewayState::Running);
+        board.update(|results| results.state = GatewayState::Running);
 
         let mut analysis_ended = None;
         let failure = tokio::select! {
@@ -570,10 +447,10 @@ impl Service {
         if let Some(failure) = &failure {
             tracing::error!(%failure, "stopping the service");
         }
-        publisher.freeze_health();
+        board.freeze_health();
         readers_stop.trigger();
         while readers.join_next().await.is_some() {}
-        cancel_maps.store(true, Ordering::Relaxed);
+        analysis_maps.cancel();
         let analysis_ended = match analysis_ended {
             Some(ended) => ended,
             None => analysis.await,
@@ -587,7 +464,7 @@ impl Service {
                 tracing::error!(output, %reason, "output failed");
             }
         }
-        publisher.update(|results| results.state = GatewayState::Stopped);
+        board.update(|results| results.state = GatewayState::Stopped);
         // Last: the writer commits what analysis and the outputs recorded.
         if tokio::task::spawn_blocking(move || history.close())
             .await
@@ -614,141 +491,6 @@ fn output_failure(
             output: "an output task",
             reason: error.to_string(),
         },
-    }
-}
-
-/// A service running in its own task, started by [`Service::spawn`]: what `main`,
-/// tests, the demo and benchmarks need to watch it and stop it.
-#[derive(Debug)]
-pub struct RunningService {
-    bound: Bound,
-    publisher: Arc<Publisher>,
-    counters: Vec<Arc<ChannelCounters>>,
-    history: History,
-    bites: broadcast::Receiver<BiteReport>,
-    liveness: Arc<Liveness>,
-    plc_attempted: watch::Receiver<bool>,
-    stop: ShutdownTrigger,
-    /// The service's task, until its outcome was taken.
-    task: Option<JoinHandle<Result<(), ServiceError>>>,
-    /// The task's outcome, when [`RunningService::ready`] saw it end.
-    ended: Option<Result<(), ServiceError>>,
-}
-
-impl Service {
-    /// Bind the listening outputs, then run in a new tokio task until
-    /// [`RunningService::stop`]. Every bite analysed after this call is queued for
-    /// [`RunningService::bites`] (the last 64 when nobody reads them).
-    pub async fn spawn(mut self) -> Result<RunningService, ServiceError> {
-        let bound = self.bind().await?;
-        let publisher = self.publisher();
-        let counters = self.counters();
-        let history = self.history();
-        let bites = self.subscribe_bites();
-        let liveness = Arc::clone(&self.liveness);
-        let plc_attempted = self.plc_attempted.subscribe();
-        let (stop, shutdown) = shutdown::channel();
-        let task = tokio::spawn(self.run(shutdown));
-        Ok(RunningService {
-            bound,
-            publisher,
-            counters,
-            history,
-            bites,
-            liveness,
-            plc_attempted,
-            stop,
-            task: Some(task),
-            ended: None,
-        })
-    }
-}
-
-impl RunningService {
-    /// The addresses the listening outputs bound (ports the OS chose for `:0`).
-    pub fn bound(&self) -> Bound {
-        self.bound
-    }
-
-    /// The published results and register map.
-    pub fn publisher(&self) -> Arc<Publisher> {
-        Arc::clone(&self.publisher)
-    }
-
-    /// Per-channel acquisition counters, indexed like `config.channels`.
-    pub fn counters(&self) -> &[Arc<ChannelCounters>] {
-        &self.counters
-    }
-
-    /// The turns of the analysis loop, for a watchdog
-    /// ([`crate::supervision::watchdog`]).
-    pub fn liveness(&self) -> Arc<Liveness> {
-        Arc::clone(&self.liveness)
-    }
-
-    /// The event history: [`History::stored`] counts the events committed.
-    pub fn history(&self) -> &History {
-        &self.history
-    }
-
-    /// The bites analysed since the service was spawned, oldest first.
-    pub fn bites(&mut self) -> &mut broadcast::Receiver<BiteReport> {
-        &mut self.bites
-    }
-
-    /// Whether the service's task has ended (it runs until stopped).
-    pub fn is_finished(&self) -> bool {
-        self.ended.is_some() || self.task.as_ref().is_none_or(JoinHandle::is_finished)
-    }
-
-    /// Wait until the service is ready: every listener bound (done by `spawn`) and the
-    /// PLC writer's first write attempted, whatever its outcome (at once without a PLC
-    /// output). An error when the service ends first.
-    pub async fn ready(&mut self) -> Result<(), ServiceError> {
-        if let Some(task) = self.task.as_mut() {
-            let mut attempted = self.plc_attempted.clone();
-            let ended = tokio::select! {
-                seen = attempted.wait_for(|attempted| *attempted) => match seen {
-                    Ok(_) => return Ok(()),
-                    // The writer is gone before attempting: the service is ending.
-                    Err(_) => None,
-                },
-                ended = task => Some(ended.unwrap_or_else(|error| Err(error.into()))),
-            };
-            if let Some(ended) = ended {
-                self.task = None;
-                self.ended = Some(ended);
-            }
-        }
-        self.finished().await
-    }
-
-    /// Wait until the service's task ends by itself. It runs until stopped, so this
-    /// is always an error: what ended it, or [`ServiceError::Ended`]. Cancel-safe: the
-    /// task stays with the service until it has ended.
-    pub async fn finished(&mut self) -> Result<(), ServiceError> {
-        if self.ended.is_none() {
-            if let Some(task) = self.task.as_mut() {
-                let outcome = task.await.unwrap_or_else(|error| Err(error.into()));
-                self.task = None;
-                self.ended = Some(outcome);
-            }
-        }
-        self.ended
-            .take()
-            .unwrap_or(Ok(()))
-            .and(Err(ServiceError::Ended))
-    }
-
-    /// Stop the service as SIGTERM does (readers stop, analysis drains, the final
-    /// registers are written with status "stopped") and wait for it.
-    pub async fn stop(self) -> Result<(), ServiceError> {
-        self.stop.trigger();
-        match (self.ended, self.task) {
-            (Some(outcome), _) => outcome,
-            (None, Some(task)) => task.await?,
-            (None, None) => Ok(()),
-        }
     }
 }
 
