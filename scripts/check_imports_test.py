@@ -197,7 +197,8 @@ class Resolution(FixtureTest):
             {
                 "lib.rs": "pub mod f;\npub mod types;\npub mod user;\npub use types::*;\n",
                 "types.rs": "pub struct Config;\n",
-                "f/mod.rs": "mod inner;\npub use inner::{Thing as Renamed, Other};\n",
+                "f/mod.rs": "mod inner;\npub use inner::{Thing as Renamed, Other};\n"
+                "pub use crate::types::Config as Shared;\n",
                 "f/inner.rs": "pub struct Thing;\npub struct Other;\n",
                 "user.rs": "use crate::f::Renamed;\npub fn c() -> crate::Config { crate::Config }\n"
                 "pub fn o() -> crate::f::Other { crate::f::Other }\n",
@@ -205,7 +206,11 @@ class Resolution(FixtureTest):
         )
         self.assertEqual(
             fixture.edges(),
-            {("user.rs", "f/inner.rs"): [1, 3], ("user.rs", "types.rs"): [2]},
+            {
+                ("user.rs", "f/inner.rs"): [1, 3],
+                ("user.rs", "types.rs"): [2],
+                ("f/mod.rs", "types.rs"): [3],
+            },
         )
 
     def test_self_named_import_and_macro_crate_paths(self):
