@@ -166,7 +166,7 @@ impl GapMapJob {
 pub fn spawn_job(
     job: GapMapJob,
     threads: usize,
-    ready: tokio::sync::mpsc::Sender<super::GapMapsReady>,
+    ready: tokio::sync::mpsc::Sender<GapMapsReady>,
     cancel: Arc<AtomicBool>,
     progress: impl Fn(usize, usize) + Send + Sync + 'static,
 ) -> std::io::Result<std::thread::JoinHandle<()>> {
@@ -193,6 +193,10 @@ pub fn spawn_job(
             let _ = ready.blocking_send((job.driveline, outcome.map(|(maps, _)| maps)));
         })
 }
+
+/// The outcome of a driveline's gap map job, for [`super::Analysis::run`]: the
+/// driveline index and the maps or why there are none.
+pub type GapMapsReady = (usize, Result<GapMaps, GapMapError>);
 
 /// The gap diagnosis state of one driveline in the analysis task.
 #[derive(Debug)]

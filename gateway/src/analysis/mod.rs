@@ -32,11 +32,7 @@ use driveline::{BiteReport, DrivelineAnalyzer};
 pub use error::AnalysisError;
 use gap_estimate::GapObservation;
 use gap_map::GapMapError;
-use gap_monitor::GapMapJob;
-
-/// The outcome of a driveline's gap map job, for [`Analysis::run`]: the driveline
-/// index and the maps or why there are none.
-pub type GapMapsReady = (usize, Result<GapMaps, GapMapError>);
+use gap_monitor::{GapMapJob, GapMapsReady};
 
 /// The analysis task: consumes samples until every reader has hung up.
 #[derive(Debug)]

@@ -13,22 +13,24 @@ use millgate_config::Config;
 use tokio::net::TcpListener;
 use tokio::sync::{broadcast, mpsc, watch};
 
+mod error;
 mod outputs;
 mod readers;
 mod running;
 
+pub use error::ServiceError;
 pub use running::RunningService;
 
 use crate::analysis::driveline::BiteReport;
 use crate::analysis::gap_estimate::GapObservation;
-use crate::analysis::{Analysis, AnalysisError};
+use crate::analysis::Analysis;
 use crate::field::counters::{CanCounters, ChannelCounters};
 use crate::field::source_health::SourceHealth;
 use crate::outputs::history::outages::{OutageMonitor, WatchedSource};
 use crate::outputs::history::RunInfo;
 use crate::outputs::hmi_server::{self, ServerCounters};
 use crate::outputs::metrics::Acquisition;
-use crate::outputs::register_map::{MapTooLarge, RegisterMap};
+use crate::outputs::register_map::RegisterMap;
 use crate::outputs::web;
 use crate::shutdown::{self, Shutdown};
 use crate::state::board::Board;
@@ -40,66 +42,6 @@ use crate::supervision::Liveness;
 /// Samples in flight between readers and analysis. At 2 kHz and 100-sample blocks
 /// this is seconds of data per channel: enough to ride out a slow analysis step.
 const SAMPLE_QUEUE: usize = 1024;
-
-/// Why the service could not start, or its task failed.
-#[derive(Debug, thiserror::Error)]
-pub enum ServiceError {
-    /// A driveline or tandem mill the analysis cannot be built for.
-    #[error(transparent)]
-    Analysis(#[from] AnalysisError),
-    /// A listening output (the HMI Modbus server, the metrics endpoint) could not bind.
-    #[error("cannot bind the {output} to {address}: {source}")]
-    Bind {
-        /// Which output: "Modbus server", "metrics endpoint" or "maintenance page".
-        output: &'static str,
-        /// The configured address.
-        address: std::net::SocketAddr,
-        /// Why.
-        #[source]
-        source: std::io::Error,
-    },
-    /// Drivelines that name a model the wear diagnosis cannot use (the model does not
-    /// load, or its `wear` settings do not fit it): one `<key path>: <problem>` each,
-    /// naming the model file.
-    #[error("{}", .0.join("\n"))]
-    Wear(Vec<String>),
-    /// The register map does not fit a Modbus table.
-    #[error("drivelines, tandem_mills: {0}")]
-    MapTooLarge(#[from] MapTooLarge),
-    /// The register map written at `outputs.plc.register_base` runs past register 65535.
-    #[error(
-        "outputs.plc.register_base: {base} is not allowed: the register map spans {span} \
-         registers and would end at register {end}, past 65535 (must be 0..={max})"
-    )]
-    RegisterBase {
-        /// The configured base.
-        base: u16,
-        /// Registers the map spans.
-        span: u16,
-        /// Last register the map would reach.
-        end: u32,
-        /// Highest base that fits.
-        max: u32,
-    },
-    /// An output task ended while the service ran: its listener failed for good, or it
-    /// panicked.
-    #[error("the {output} stopped: {reason}")]
-    Output {
-        /// Which output.
-        output: &'static str,
-        /// What ended it.
-        reason: String,
-    },
-    /// The Sparkplug B edge node's TLS files cannot be used.
-    #[error("the Sparkplug B edge node cannot start: {0}")]
-    SparkplugTls(#[from] crate::outputs::sparkplug::tls::TlsSetupError),
-    /// The service's task panicked or was cancelled.
-    #[error("the service task failed: {0}")]
-    Task(#[from] tokio::task::JoinError),
-    /// The service ended without being asked to stop.
-    #[error("the service ended without being asked to stop")]
-    Ended,
-}
 
 /// A configured, not yet running gateway.
 #[derive(Debug)]

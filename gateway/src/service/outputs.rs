@@ -9,7 +9,7 @@ use millgate_config::Config;
 use tokio::net::TcpListener;
 use tokio::sync::watch;
 
-use super::ServiceError;
+use super::error::ServiceError;
 use crate::outputs::heartbeat;
 use crate::outputs::history::outages::OutageMonitor;
 use crate::outputs::hmi_server::{ModbusServer, ServerCounters};

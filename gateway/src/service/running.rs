@@ -6,7 +6,8 @@ use std::sync::Arc;
 use tokio::sync::{broadcast, watch};
 use tokio::task::JoinHandle;
 
-use super::{Bound, Service, ServiceError};
+use super::error::ServiceError;
+use super::{Bound, Service};
 use crate::analysis::driveline::BiteReport;
 use crate::field::counters::ChannelCounters;
 use crate::outputs::register_map::RegisterMap;

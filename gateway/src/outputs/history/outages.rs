@@ -14,8 +14,8 @@ use crate::field::counters::ChannelCounters;
 use crate::field::source_health::{SourceHealth, SourceStatus};
 use crate::shutdown::Shutdown;
 
-use super::History;
 use crate::state::events::{EndedBy, HistoryEvent};
+use crate::state::history::History;
 use crate::state::time::UtcTime;
 
 /// Time between health checks.

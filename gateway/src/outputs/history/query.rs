@@ -14,9 +14,9 @@ use std::path::{Path, PathBuf};
 use rusqlite::{Connection, OpenFlags};
 use serde::Serialize;
 
+use super::error::HistoryError;
 use super::restore::Restored;
 use super::schema::{current_version, SchemaError};
-use super::HistoryError;
 use crate::state::time::UtcTime;
 
 /// Which rows to read.

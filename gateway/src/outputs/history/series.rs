@@ -17,8 +17,8 @@ use std::time::Duration;
 use rusqlite::{params, OptionalExtension};
 use serde::Serialize;
 
+use super::error::HistoryError;
 use super::query::HistoryReader;
-use super::HistoryError;
 use crate::state::time::UtcTime;
 
 /// Most buckets [`HistoryReader::wear_series`] returns.

@@ -14,12 +14,15 @@ use std::time::{Duration, Instant};
 
 use rusqlite::{params, Connection, OpenFlags, Transaction};
 
+use super::error::{explain, HistoryError};
 use super::restore::Restored;
 use super::retention::{Retention, RetentionState};
-use super::{explain, schema, HistoryError, RunInfo};
+use super::run::RunInfo;
+use super::schema;
 use crate::state::events::{
     AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, ChatterWindow, HistoryEvent,
 };
+use crate::state::history::History;
 use crate::state::history::{Counters, HistoryState};
 use crate::state::time::UtcTime;
 
@@ -709,4 +712,33 @@ fn insert_alarm(
         _ => {}
     }
     Ok(())
+}
+
+/// Open (or create) `history`'s file, bring its schema up to date, record this run and
+/// read what it restores; then start the writer thread. Blocks on file I/O (call it
+/// from a blocking task in async code); does nothing when disabled or started before.
+/// An unusable file is logged and shown on `/metrics`, not returned: the writer
+/// retries it and the service runs on with nothing restored.
+pub fn start(history: &History, run: RunInfo) -> Restored {
+    let Some(ends) = history.take_writer_ends() else {
+        return Restored::default();
+    };
+    let counters = history.counters();
+    let retention = Retention::from_config(&ends.config);
+    let (writer, restored) = Writer::open(ends.config.path, retention, run, counters);
+    let (receiver, settled) = (ends.receiver, ends.settled);
+    let spawned = std::thread::Builder::new()
+        .name("HistoryWriter".into())
+        .spawn(move || writer.run(receiver, settled));
+    match spawned {
+        Ok(handle) => history.set_writer(Some(handle)),
+        Err(error) => {
+            tracing::error!(%error, "cannot start the history writer thread");
+            history
+                .counters()
+                .set_error(format!("cannot start the history writer thread: {error}"));
+            history.set_writer(None);
+        }
+    }
+    restored
 }

@@ -21,7 +21,7 @@ use serde_json::{Map, Value as JsonValue};
 use tokio_stream::wrappers::WatchStream;
 use tokio_stream::{Stream, StreamExt};
 
-use super::{DrivelineInfo, WebState};
+use super::shared::{DrivelineInfo, TrendCache, WebState};
 use crate::field::source_health::SourceStatus;
 use crate::outputs::history::query::{AlarmRow, BiteRow, Filter, HistoryReader, OutageRow, Record};
 use crate::outputs::history::series::{WearPoint, MAX_SERIES_POINTS};
@@ -490,17 +490,6 @@ fn add_history(
     }
     Ok(())
 }
-
-/// Gap trends as last fitted, per driveline: the time of the last bite (Unix ms) they
-/// were fitted up to, and the trend. A trend changes only with a new bite (a later
-/// wear reset counts from the next bite on), so an overview load looks up one index
-/// entry per driveline instead of fitting four weeks of bites again (about 70 ms per
-/// driveline on a year of bites, one every 30 s). Retention that deletes bites inside
-/// the window leaves the trend as fitted until the next bite.
-#[derive(Debug, Default)]
-pub(crate) struct TrendCache(
-    std::sync::Mutex<std::collections::HashMap<String, (i64, Option<f64>)>>,
-);
 
 /// The gap trend of `driveline` over the [`TREND_WINDOW`] before its last bite,
 /// mrad/week, from `trends` when no bite came since; `None` with too few estimates,

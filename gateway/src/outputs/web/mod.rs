@@ -19,8 +19,10 @@
 
 pub mod api;
 pub mod page;
+mod shared;
 
-use std::path::PathBuf;
+pub use shared::{DrivelineInfo, WebState};
+
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -38,45 +40,6 @@ use crate::state::board::Board;
 
 /// How often the live results are compared with what `/api/events` last sent.
 pub const LIVE_PERIOD: Duration = Duration::from_millis(200);
-
-/// What the configuration says about a driveline, for the pages.
-#[derive(Debug, Clone)]
-pub struct DrivelineInfo {
-    /// Its name.
-    pub name: String,
-    /// TAF warning and alarm thresholds.
-    pub taf_warning: f64,
-    /// TAF alarm threshold.
-    pub taf_alarm: f64,
-    /// Gap warning threshold, mrad.
-    pub gap_warning_mrad: f64,
-    /// Gap alarm threshold, mrad.
-    pub gap_alarm_mrad: f64,
-    /// Whether it has a model (the gap diagnosis runs only with one).
-    pub has_model: bool,
-}
-
-/// Everything the handlers share.
-#[derive(Debug)]
-pub struct WebState {
-    /// The configuration's name.
-    pub(crate) config_name: String,
-    pub(crate) drivelines: Vec<DrivelineInfo>,
-    /// Tandem mills: name and stand channel names.
-    pub(crate) tandem_mills: Vec<(String, Vec<String>)>,
-    /// Rod mills by name.
-    pub(crate) rod_mills: Vec<String>,
-    /// Sources: name and kind (`modbus`, `can`), Modbus first as in the results.
-    pub(crate) sources: Vec<(String, &'static str)>,
-    pub(crate) board: Arc<Board>,
-    /// The history file, `None` without `[history]`.
-    pub(crate) history: Option<PathBuf>,
-    pub(crate) request_timeout: Duration,
-    /// The live results as `/api/events` sends them (JSON), newest.
-    pub(crate) live: watch::Receiver<Arc<String>>,
-    /// Gap trends as last fitted, per driveline ([`api`]'s `gap_trend`).
-    pub(crate) trends: api::TrendCache,
-}
 
 /// The web page server.
 #[derive(Debug)]
@@ -126,7 +89,7 @@ impl WebServer {
             history: config.history.as_ref().map(|h| h.path.clone()),
             request_timeout: settings.request_timeout,
             live: live_rx,
-            trends: api::TrendCache::default(),
+            trends: shared::TrendCache::default(),
         };
         let state = Arc::new(state);
         live.send_replace(Arc::new(api::live_json(&state)));

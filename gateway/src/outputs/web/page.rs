@@ -7,7 +7,7 @@ use axum::extract::{Path, State};
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{Html, IntoResponse, Response};
 
-use super::WebState;
+use super::shared::WebState;
 
 /// uPlot's version, vendored in `gateway/assets/uplot` (MIT, its LICENSE beside it).
 pub const UPLOT_VERSION: &str = "1.6.32";
