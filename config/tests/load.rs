@@ -1283,7 +1283,10 @@ fn systemd_service_folders() {
             && summary.contains(&format!("Cache: {}", cache.display())),
         "{summary}"
     );
-    assert_eq!(under_systemd.history.unwrap().path, state.join("history.db"));
+    assert_eq!(
+        under_systemd.history.unwrap().path,
+        state.join("history.db")
+    );
     assert_eq!(under_systemd.cache_dir, Some(cache.clone()));
     assert_eq!(
         under_systemd.outputs.mqtt.unwrap().credentials,
