@@ -33,15 +33,18 @@ uml_install_missing() {
     apt-get install -y -qq "${missing[@]}" >/dev/null
 }
 
-# Builds the test targets of `cargo test ARGS... --no-run` on the host (compiling in the
-# guest is slow) and prints their executables, one a line.
+# Builds the test targets of `cargo test ARGS... --no-run` on the host (compiling in
+# the guest is slow) and prints the executables of the integration test $1 among
+# them, one a line.
 uml_test_executables() {
-    local build_json
+    local name=$1 build_json
+    shift
     build_json=$(cd "$repo" && cargo test "$@" --no-run --message-format=json) ||
         uml_die "cargo test $* --no-run failed"
     printf '%s\n' "$build_json" |
         grep '"reason":"compiler-artifact"' |
         grep '"kind":\["test"\]' |
+        grep "\"name\":\"$name\"" |
         sed -n 's/.*"executable":"\([^"]*\)".*/\1/p'
 }
 

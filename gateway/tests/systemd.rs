@@ -381,6 +381,26 @@ async fn the_shipped_unit_runs_the_full_setup_under_systemd() {
     ))
     .await;
     step("systemctl enable --now returned");
+    // How the start went, for the record (a debug build in the guest's one CPU).
+    run("journalctl", &["--sync"]).await;
+    let start_log = run(
+        "journalctl",
+        &[
+            "-u",
+            "millgate.service",
+            "-o",
+            "short-monotonic",
+            "--no-pager",
+        ],
+    )
+    .await;
+    for line in start_log.lines().filter(|line| {
+        ["Starting", ": OK", "history open", "ready", "Started"]
+            .iter()
+            .any(|mark| line.contains(mark))
+    }) {
+        println!("  {line}");
+    }
     let state = unit_state(&["ActiveState", "SubState", "MainPID"]).await;
     assert_eq!(
         (state["ActiveState"].as_str(), state["SubState"].as_str()),
