@@ -748,3 +748,65 @@ fn discrepancy_on_a_constant_record_says_there_is_no_transient() {
     );
     assert!(!message.contains("extra_inertia"), "{message}");
 }
+
+/// `check` under the variables systemd sets for `StateDirectory=`, `CacheDirectory=` and
+/// `LoadCredential=` (as `ExecStartPre=millgate check` runs in the shipped unit): a
+/// relative history path in `$STATE_DIRECTORY`, the cache in `$CACHE_DIRECTORY`, the
+/// MQTT password from `$CREDENTIALS_DIRECTORY`; without them the credential is an
+/// error naming the key and the variable.
+#[test]
+fn check_uses_the_folders_systemd_hands_the_service() {
+    let demo = std::fs::read_to_string(examples().join("demo.toml")).unwrap();
+    let path = write_config(
+        "service-folders",
+        &format!(
+            "{demo}\n[outputs.mqtt]\nbroker = \"127.0.0.1:1883\"\ngroup_id = \"plant\"\n\
+             node_id = \"f1\"\nusername = \"millgate\"\npassword_credential = \"mqtt\"\n\
+             \n[history]\npath = \"history.db\"\n"
+        ),
+    );
+    let folder = path.parent().unwrap();
+    let [state, cache, credentials] = ["state", "cache", "credentials"].map(|name| {
+        let dir = folder.join(name);
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    });
+    std::fs::write(credentials.join("mqtt"), "secret\n").unwrap();
+    let check = |systemd: bool| {
+        let mut command = Command::new(env!("CARGO_BIN_EXE_millgate"));
+        command.args(["check", "--config", path.to_str().unwrap()]);
+        for (variable, dir) in [
+            ("STATE_DIRECTORY", &state),
+            ("CACHE_DIRECTORY", &cache),
+            ("CREDENTIALS_DIRECTORY", &credentials),
+        ] {
+            if systemd {
+                command.env(variable, dir);
+            } else {
+                command.env_remove(variable);
+            }
+        }
+        command.output().expect("run millgate")
+    };
+
+    let output = check(true);
+    let said = text(&output);
+    assert!(output.status.success(), "{said}");
+    assert!(
+        said.contains(&format!("History: {}", state.join("history.db").display()))
+            && said.contains(&format!("Cache: {}", cache.display())),
+        "{said}"
+    );
+    assert!(!state.join("history.db").exists(), "check creates no file");
+
+    let output = check(false);
+    let said = text(&output);
+    assert!(!output.status.success(), "must fail: {said}");
+    assert!(
+        said.contains(
+            "mill.toml: outputs.mqtt.password_credential: $CREDENTIALS_DIRECTORY is not set"
+        ),
+        "names the key and the variable: {said}"
+    );
+    std::fs::remove_dir_all(folder).unwrap();
+}
