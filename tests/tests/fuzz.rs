@@ -21,7 +21,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use millgate::field::can::CanDecoder;
-use millgate::field::modbus_client;
+use millgate::field::modbus::{client, ModbusError};
 use millgate::field::quality::{split_saturated, SaturationLimits};
 use millgate::field::source_health::SourceHealth;
 use millgate::outputs::modbus_frame::Served;
@@ -362,7 +362,7 @@ fn daq_reply() -> impl Strategy<Value = Vec<u8>> {
         )
 }
 
-/// One poll, as the DAQ reader makes it ([`modbus_client::read_registers`]), of a DAQ
+/// One poll, as the DAQ reader makes it ([`client::read`]), of a DAQ
 /// that answers `reply` and hangs up; a block's registers are then decoded and split
 /// at saturated samples.
 async fn poll_once(reply: &[u8]) -> Result<(), TestCaseError> {
@@ -371,13 +371,17 @@ async fn poll_once(reply: &[u8]) -> Result<(), TestCaseError> {
     daq_io.write_all(reply).await.unwrap();
     daq_io.shutdown().await.unwrap();
     let mut client = tokio_modbus::client::tcp::attach_slave(client_io, tokio_modbus::Slave(1));
-    let read = tokio::time::timeout(
+    let read = client::read(
+        &mut client,
+        (RegisterTable::Input, 0, 122),
         Duration::from_secs(1),
-        modbus_client::read_registers(&mut client, RegisterTable::Input, 0, 122),
     )
     .await;
-    prop_assert!(read.is_ok(), "the client hung on a reply that ended");
-    if let Ok(Ok(Ok(registers))) = read {
+    prop_assert!(
+        !matches!(read, Err(ModbusError::Timeout(_))),
+        "the client hung on a reply that ended"
+    );
+    if let Ok(registers) = read {
         prop_assert_eq!(registers.len(), 122, "only whole replies get through");
         if let Ok(block) = decode_block(&registers) {
             prop_assert!((1..=120).contains(&block.raw.len()));

@@ -5,8 +5,8 @@ use std::ops::RangeInclusive;
 use crate::raw::RawHistory;
 use crate::History;
 
-use super::values::Written;
 use super::Checker;
+use super::Written;
 
 /// Days events are kept when `retention_days` is not given: a year and a month, so a
 /// year-on-year comparison of the wear trend still finds last year's month.

@@ -19,7 +19,16 @@ use crate::error::Report;
 use crate::layout::BLOCK_REGISTERS;
 use crate::raw::{RawCanSource, RawConfig, RawModbusSource};
 use crate::{Channel, Config, ServiceDirs, CACHE_DIRECTORY};
-use values::Written;
+
+/// What the gateway writes at a configured path, and so which service folder a
+/// relative path of it is resolved against.
+#[derive(Debug, Clone, Copy)]
+enum Written {
+    /// `history.path`: `$STATE_DIRECTORY` (`StateDirectory=`).
+    History,
+    /// `cache_dir`: `$CACHE_DIRECTORY` (`CacheDirectory=`).
+    Cache,
+}
 
 /// Modbus unit identifier when none is given.
 pub(crate) const DEFAULT_UNIT_ID: i64 = 1;

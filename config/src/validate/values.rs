@@ -6,18 +6,8 @@ use std::ops::RangeInclusive;
 use std::path::PathBuf;
 use std::time::Duration;
 
-use super::{Checker, Names, DEFAULT_UNIT_ID, PERIOD_RANGE_MS};
+use super::{Checker, Names, Written, DEFAULT_UNIT_ID, PERIOD_RANGE_MS};
 use crate::{CACHE_DIRECTORY, STATE_DIRECTORY};
-
-/// What the gateway writes at a configured path, and so which service folder a
-/// relative path of it is resolved against.
-#[derive(Debug, Clone, Copy)]
-pub(super) enum Written {
-    /// `history.path`: `$STATE_DIRECTORY` (`StateDirectory=`).
-    History,
-    /// `cache_dir`: `$CACHE_DIRECTORY` (`CacheDirectory=`).
-    Cache,
-}
 
 impl Checker<'_> {
     /// Checks each item of the list at `list_key` with `check`, given the item's key

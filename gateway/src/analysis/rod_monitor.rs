@@ -3,7 +3,7 @@
 //!
 //! A `[[rod_mills]]` entry names the rod-mill file, the pass schedule and four PLC
 //! process values, read like every other process value by the Modbus reader
-//! ([`crate::field::daq_reader`]): the active drive configuration (value k selects
+//! ([`crate::field::modbus`]): the active drive configuration (value k selects
 //! `configurations[k]`), the pass number (1-based row of the schedule, which gives
 //! the rod diameters and, without a temperature channel, the rod temperature), the
 //! finishing speed (m/s) and optionally the rod temperature (deg C).

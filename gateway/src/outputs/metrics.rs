@@ -94,6 +94,13 @@ impl Exposition {
     fn scalar(&mut self, name: &str, kind: Kind, help: &str, value: f64) {
         self.family(name, kind, help, [(Vec::new(), value)]);
     }
+
+    /// A family of one sample without labels per `(name, kind, help, value)`.
+    fn scalars<'a>(&mut self, rows: impl IntoIterator<Item = (&'a str, Kind, &'a str, f64)>) {
+        for (name, kind, help, value) in rows {
+            self.scalar(name, kind, help, value);
+        }
+    }
 }
 
 /// A sample value as Prometheus reads it.
@@ -587,9 +594,7 @@ fn history_metrics(page: &mut Exposition, status: &HistoryStatus) {
             status.file_bytes as f64,
         ),
     ];
-    for (name, kind, help, value) in scalars {
-        page.scalar(name, kind, help, value);
-    }
+    page.scalars(scalars);
     page.family(
         "millgate_history_events_dropped_total",
         Kind::Counter,
@@ -669,9 +674,7 @@ fn sparkplug_metrics(page: &mut Exposition, counts: &SparkplugCounts) {
             counts.rebirths as f64,
         ),
     ];
-    for (name, kind, help, value) in scalars {
-        page.scalar(name, kind, help, value);
-    }
+    page.scalars(scalars);
     page.family(
         "millgate_sparkplug_connect_failures_total",
         Kind::Counter,

@@ -23,10 +23,9 @@ use tokio::time::Instant;
 
 use millgate_config::PlcOutput;
 use tokio_modbus::client::Context;
-use tokio_modbus::prelude::ExceptionCode;
 
 use crate::field::backoff::Backoff;
-use crate::field::modbus_client::{self, CheckedError, ConnectError, ReplyMismatch};
+use crate::field::modbus::{client, ModbusError};
 use crate::outputs::register_map::RegisterMap;
 use crate::shutdown::Shutdown;
 use crate::state::board::Board;
@@ -39,47 +38,14 @@ const MAX_WRITE_REGISTERS: usize = 123;
 /// milliseconds; this bounds a slow disk's delay of the PLC's values).
 pub const HISTORY_WAIT: Duration = Duration::from_millis(500);
 
-/// Why a write to the PLC failed.
-#[derive(Debug, thiserror::Error)]
-pub enum PlcError {
-    /// No TCP connection could be made ("the network failed").
-    #[error("cannot connect to PLC {address}: {source}")]
-    Connect {
-        /// The PLC's `host:port`.
-        address: String,
-        /// Refused, unreachable, unresolvable, ...
-        source: std::io::Error,
-    },
-    /// The PLC did not answer in time.
-    #[error("PLC did not answer within {0:?}")]
-    Timeout(Duration),
-    /// The connection failed or the reply could not be decoded.
-    #[error("PLC transport: {0}")]
-    Transport(#[from] tokio_modbus::Error),
-    /// The PLC's reply does not match the write (another address or count echoed).
-    #[error("PLC reply does not match the write: {0}")]
-    Mismatch(#[from] ReplyMismatch),
-    /// The PLC refused the write: wrong base address, or registers write-protected.
-    #[error("PLC refused the write at register {address}: {exception}")]
-    Refused {
-        /// The first register of the refused request.
-        address: u16,
-        /// The exception code the PLC answered with.
-        #[source]
-        exception: ExceptionCode,
-    },
-}
-
-impl PlcError {
-    /// The reason a failed write is counted under on `/metrics`.
-    pub fn reason(&self) -> PlcFailure {
-        match self {
-            PlcError::Connect { .. } => PlcFailure::Connect,
-            PlcError::Timeout(_) => PlcFailure::Timeout,
-            PlcError::Transport(_) => PlcFailure::Transport,
-            PlcError::Mismatch(_) => PlcFailure::Mismatch,
-            PlcError::Refused { .. } => PlcFailure::Refused,
-        }
+/// The reason a failed PLC write is counted under on `/metrics`.
+fn reason(error: &ModbusError) -> PlcFailure {
+    match error {
+        ModbusError::Connect { .. } => PlcFailure::Connect,
+        ModbusError::Timeout(_) => PlcFailure::Timeout,
+        ModbusError::Transport(_) => PlcFailure::Transport,
+        ModbusError::Mismatch(_) => PlcFailure::Mismatch,
+        ModbusError::Exception { .. } => PlcFailure::Refused,
     }
 }
 
@@ -158,21 +124,12 @@ impl PlcCounters {
             .store(u64::try_from(now).unwrap_or(0), Ordering::Relaxed);
     }
 
-    fn failed(&self, error: &PlcError) {
+    fn failed(&self, error: &ModbusError) {
         let at = PlcFailure::ALL
             .iter()
-            .position(|reason| *reason == error.reason())
+            .position(|failure| *failure == reason(error))
             .unwrap_or(0);
         self.failures[at].fetch_add(1, Ordering::Relaxed);
-    }
-}
-
-impl From<CheckedError> for PlcError {
-    fn from(error: CheckedError) -> Self {
-        match error {
-            CheckedError::Transport(error) => PlcError::Transport(error),
-            CheckedError::Mismatch(mismatch) => PlcError::Mismatch(mismatch),
-        }
     }
 }
 
@@ -211,27 +168,15 @@ impl PlcWriter {
         self
     }
 
-    async fn connect(&self) -> Result<Context, PlcError> {
+    async fn connect(&self) -> Result<Context, ModbusError> {
         let output = &self.output;
-        modbus_client::connect(&output.address, output.unit_id, output.timeout)
-            .await
-            .map_err(|error| match error {
-                ConnectError::Timeout(timeout) => PlcError::Timeout(timeout),
-                ConnectError::Io(error) => PlcError::Connect {
-                    address: output.address.clone(),
-                    source: error,
-                },
-            })
+        client::connect(&output.address, output.unit_id, output.timeout).await
     }
 
-    async fn write(&self, context: &mut Context, words: &[u16]) -> Result<(), PlcError> {
+    async fn write(&self, context: &mut Context, words: &[u16]) -> Result<(), ModbusError> {
         for (i, chunk) in words.chunks(MAX_WRITE_REGISTERS).enumerate() {
             let address = self.output.register_base + (i * MAX_WRITE_REGISTERS) as u16;
-            let request = modbus_client::write_registers(context, address, chunk);
-            tokio::time::timeout(self.output.timeout, request)
-                .await
-                .map_err(|_| PlcError::Timeout(self.output.timeout))??
-                .map_err(|exception| PlcError::Refused { address, exception })?;
+            client::write(context, address, chunk, self.output.timeout).await?;
         }
         Ok(())
     }
@@ -265,7 +210,7 @@ impl PlcWriter {
                         self.counters.failed(&error);
                         let delay = backoff.next_delay();
                         if let Some(suppressed) = connect_warnings.occurred(Instant::now()) {
-                            tracing::warn!(%error, retry_in = ?delay, suppressed, "PLC unreachable");
+                            tracing::warn!(plc = %self.output.address, %error, retry_in = ?delay, suppressed, "PLC unreachable");
                         }
                         next_attempt = Instant::now() + delay;
                     }
@@ -287,9 +232,9 @@ impl PlcWriter {
                     Err(error) => {
                         self.counters.failed(&error);
                         if let Some(suppressed) = write_warnings.occurred(Instant::now()) {
-                            tracing::warn!(%error, suppressed, "PLC write failed");
+                            tracing::warn!(plc = %self.output.address, %error, suppressed, "PLC write failed");
                         }
-                        if !matches!(error, PlcError::Refused { .. }) {
+                        if error.needs_reconnect() {
                             context = None;
                             next_attempt = Instant::now() + backoff.next_delay();
                         }

@@ -14,7 +14,7 @@ use crate::analysis::gap_monitor::spawn_job;
 use crate::analysis::Analysis;
 use crate::field::acquired::Acquired;
 use crate::field::can::supervisor::supervise_can;
-use crate::field::daq_reader::DaqReader;
+use crate::field::modbus::DaqReader;
 use crate::field::source_health::SourceHealth;
 use crate::outputs::metrics::Acquisition;
 use crate::shutdown::Shutdown;

@@ -240,9 +240,9 @@ impl Subject for RodSpanResults {
     }
 }
 
-/// One published figure.
-#[derive(Debug)]
-pub struct Figure<R> {
+/// What the catalogue says of a figure, whatever its subject.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Spec {
     /// The name every output uses: `taf`, `gap_mrad`, ...
     pub key: &'static str,
     /// Unit of a real value (`kN*m`, `Hz`, `s`, `mrad`, `m/s`, `1/s`, `degC`), empty
@@ -263,10 +263,9 @@ pub struct Figure<R> {
     /// The name on `/metrics` when the rule (`millgate_<subject>_<key>`) gives a
     /// name Prometheus' conventions refuse.
     pub metric: Option<&'static str>,
-    value: fn(&R) -> Option<Value>,
 }
 
-impl<R> Figure<R> {
+impl Spec {
     /// Whether the figure only grows (until a restart without a history, or a wrap):
     /// a Prometheus counter. A count that can fall (the bites pooled) is not.
     pub fn is_counter(&self) -> bool {
@@ -274,10 +273,19 @@ impl<R> Figure<R> {
     }
 }
 
-impl FigureInfo {
-    /// See [`Figure::is_counter`].
-    pub fn is_counter(&self) -> bool {
-        self.figure_type == FigureType::Count && self.guard == Guard::Always
+/// One published figure of results `R`: its [`Spec`] (reached through `Deref`) and
+/// how to read it.
+#[derive(Debug)]
+pub struct Figure<R> {
+    /// What the catalogue says of it.
+    pub spec: Spec,
+    value: fn(&R) -> Option<Value>,
+}
+
+impl<R> std::ops::Deref for Figure<R> {
+    type Target = Spec;
+    fn deref(&self) -> &Spec {
+        &self.spec
     }
 }
 
@@ -310,48 +318,30 @@ impl<R: Subject> Figure<R> {
             },
         }
     }
+
+    /// The figure with its subject, without its reader.
+    pub fn info(&self) -> FigureInfo {
+        FigureInfo {
+            subject: R::KIND,
+            spec: self.spec,
+        }
+    }
 }
 
-/// A figure of `R` without its reader, for tables that span subjects.
+/// A figure with its subject and without its reader, for tables that span subjects
+/// (its [`Spec`] reached through `Deref`).
 #[derive(Debug, Clone, Copy)]
 pub struct FigureInfo {
     /// What it describes.
     pub subject: SubjectKind,
-    /// See [`Figure::key`].
-    pub key: &'static str,
-    /// See [`Figure::unit`].
-    pub unit: &'static str,
-    /// See [`Figure::figure_type`].
-    pub figure_type: FigureType,
-    /// See [`Figure::description`].
-    pub description: &'static str,
-    /// See [`Figure::guard`].
-    pub guard: Guard,
-    /// See [`Figure::stale`].
-    pub stale: Stale,
-    /// See [`Figure::range`].
-    pub range: Option<(f64, f64)>,
-    /// See [`Figure::alarm`].
-    pub alarm: Option<AlarmKind>,
-    /// See [`Figure::metric`].
-    pub metric: Option<&'static str>,
+    /// What the catalogue says of it.
+    pub spec: Spec,
 }
 
-impl<R: Subject> Figure<R> {
-    /// The figure's description without its reader.
-    pub fn info(&self) -> FigureInfo {
-        FigureInfo {
-            subject: R::KIND,
-            key: self.key,
-            unit: self.unit,
-            figure_type: self.figure_type,
-            description: self.description,
-            guard: self.guard,
-            stale: self.stale,
-            range: self.range,
-            alarm: self.alarm,
-            metric: self.metric,
-        }
+impl std::ops::Deref for FigureInfo {
+    type Target = Spec;
+    fn deref(&self) -> &Spec {
+        &self.spec
     }
 }
 
@@ -384,15 +374,17 @@ const fn real<R>(
     value: fn(&R) -> Option<Value>,
 ) -> Figure<R> {
     Figure {
-        key,
-        unit,
-        figure_type: FigureType::Real,
-        description,
-        guard: Guard::QualityBit(quality_bit),
-        stale,
-        range: None,
-        alarm: None,
-        metric: None,
+        spec: Spec {
+            key,
+            unit,
+            figure_type: FigureType::Real,
+            description,
+            guard: Guard::QualityBit(quality_bit),
+            stale,
+            range: None,
+            alarm: None,
+            metric: None,
+        },
         value,
     }
 }
@@ -406,15 +398,17 @@ const fn flag<R>(
     value: fn(&R) -> Option<Value>,
 ) -> Figure<R> {
     Figure {
-        key,
-        unit: "",
-        figure_type: FigureType::Bool,
-        description,
-        guard: Guard::FlagBit(bit),
-        stale,
-        range: Some((0.0, 1.0)),
-        alarm,
-        metric: None,
+        spec: Spec {
+            key,
+            unit: "",
+            figure_type: FigureType::Bool,
+            description,
+            guard: Guard::FlagBit(bit),
+            stale,
+            range: Some((0.0, 1.0)),
+            alarm,
+            metric: None,
+        },
         value,
     }
 }
@@ -425,36 +419,38 @@ const fn count<R>(
     value: fn(&R) -> Option<Value>,
 ) -> Figure<R> {
     Figure {
-        key,
-        unit: "",
-        figure_type: FigureType::Count,
-        description,
-        guard: Guard::Always,
-        stale: Stale::Kept,
-        range: None,
-        alarm: None,
-        metric: None,
+        spec: Spec {
+            key,
+            unit: "",
+            figure_type: FigureType::Count,
+            description,
+            guard: Guard::Always,
+            stale: Stale::Kept,
+            range: None,
+            alarm: None,
+            metric: None,
+        },
         value,
     }
 }
 
 const fn with_range<R>(mut figure: Figure<R>, low: f64, high: f64) -> Figure<R> {
-    figure.range = Some((low, high));
+    figure.spec.range = Some((low, high));
     figure
 }
 
 const fn metric_named<R>(mut figure: Figure<R>, name: &'static str) -> Figure<R> {
-    figure.metric = Some(name);
+    figure.spec.metric = Some(name);
     figure
 }
 
 const fn presence<R>(mut figure: Figure<R>) -> Figure<R> {
-    figure.guard = Guard::Presence;
+    figure.spec.guard = Guard::Presence;
     figure
 }
 
 const fn typed<R>(mut figure: Figure<R>, figure_type: FigureType) -> Figure<R> {
-    figure.figure_type = figure_type;
+    figure.spec.figure_type = figure_type;
     figure
 }
 
