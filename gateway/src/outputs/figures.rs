@@ -11,7 +11,7 @@ use crate::outputs::metrics;
 use crate::outputs::register_map::{
     DRIVELINE_LAYOUT, NOT_MAPPED, ROD_MILL_LAYOUT, ROD_SPAN_LAYOUT, TANDEM_MILL_LAYOUT,
 };
-use crate::outputs::sparkplug::node;
+use crate::outputs::sparkplug::devices;
 use crate::state::catalogue::{self, FigureInfo, Guard, SubjectKind};
 
 /// One figure and its names in every output.
@@ -103,7 +103,7 @@ pub fn rows() -> Vec<FigureRow> {
                 register: register_of(figure),
                 sparkplug: format!(
                     "{sparkplug_name} ({:?})",
-                    node::datatype(figure.figure_type)
+                    devices::datatype(figure.figure_type)
                 ),
                 metric,
                 history: history_of(figure),

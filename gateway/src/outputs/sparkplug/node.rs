@@ -16,8 +16,9 @@
 
 use prost::Message as _;
 
+use super::devices::{columns, values, wire, Column, Device, Kind};
 use super::payload::{DataType, Metric, MetricValue, Payload, PropertySet};
-use crate::state::catalogue::{self, Figure, FigureType, Subject, Value};
+use crate::state::catalogue::{self, Value};
 use crate::state::results::{DrivelineResults, Results};
 
 /// The Sparkplug B topic namespace.
@@ -34,101 +35,14 @@ pub struct Outgoing {
     pub payload: Vec<u8>,
 }
 
-/// The Sparkplug datatype of a catalogue figure type. Counts and indices go as UInt64:
-/// Tahu's JavaScript codec (2.x) decodes every UInt32 metric as null (its open bug), and
-/// a UInt64 holds every count the gateway keeps.
-pub fn datatype(figure_type: FigureType) -> DataType {
-    match figure_type {
-        FigureType::Real => DataType::Double,
-        FigureType::Count | FigureType::Index => DataType::UInt64,
-        FigureType::Bool => DataType::Boolean,
-        FigureType::Time => DataType::DateTime,
-    }
-}
-
-/// A figure's value on the wire.
-fn wire(value: Value) -> MetricValue {
-    match value {
-        Value::Real(v) => MetricValue::DoubleValue(v),
-        Value::Count(v) | Value::Index(v) => MetricValue::LongValue(v),
-        Value::Bool(v) => MetricValue::BooleanValue(v),
-        Value::Time(ms) => MetricValue::LongValue(u64::try_from(ms).unwrap_or(0)),
-    }
-}
-
-/// A metric of a device: its name, datatype and unit (from the catalogue).
-#[derive(Debug, Clone, PartialEq)]
-struct Column {
-    name: String,
-    datatype: DataType,
-    unit: &'static str,
-}
-
-/// The columns of `figures`, named `prefix` + key.
-fn columns<'a, R>(figures: &'a [Figure<R>], prefix: &str) -> impl Iterator<Item = Column> + 'a {
-    let prefix = prefix.to_owned();
-    figures.iter().map(move |figure| Column {
-        name: format!("{prefix}{}", figure.key),
-        datatype: datatype(figure.figure_type),
-        unit: figure.unit,
-    })
-}
-
-/// What `figures` of `subject` publish: the good values (null otherwise: Sparkplug
-/// cannot mark a last usable value, so it withholds it, as the PLC registers do).
-fn values<R: Subject>(figures: &[Figure<R>], subject: &R) -> Vec<Option<Value>> {
-    figures.iter().map(|f| f.read(subject).good()).collect()
-}
-
-/// What a device is.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Kind {
-    /// Driveline k.
-    Driveline(usize),
-    /// Tandem mill k.
-    TandemMill(usize),
-    /// Rod mill k with this many spans (fixed at birth).
-    RodMill(usize, usize),
-}
-
-/// A device of the node: its name, kind, metric columns (aliases run on from
-/// `first_alias`) and what the last birth or data message said.
-#[derive(Debug)]
-struct Device {
-    name: String,
-    kind: Kind,
-    columns: Vec<Column>,
-    first_alias: u64,
-    sent: Vec<Option<Value>>,
-}
-
-impl Device {
-    /// The device's values in `results`, in column order.
-    fn values(&self, results: &Results) -> Vec<Option<Value>> {
-        match self.kind {
-            Kind::Driveline(k) => values(
-                catalogue::DRIVELINE,
-                &results.drivelines.get(k).cloned().unwrap_or_default(),
-            ),
-            Kind::TandemMill(k) => values(
-                catalogue::TANDEM_MILL,
-                &results.tandem_mills.get(k).cloned().unwrap_or_default(),
-            ),
-            Kind::RodMill(k, spans) => {
-                let mill = results.rod_mills.get(k).cloned().unwrap_or_default();
-                let mut out = values(catalogue::ROD_MILL, &mill);
-                for span in 0..spans {
-                    out.extend(values(catalogue::ROD_SPAN, &mill.published_span(span)));
-                }
-                out
-            }
-        }
-    }
-}
-
 /// The bite id metric of a bite's DDATA: the driveline's bite counter after the bite,
 /// which the history keeps across restarts, so (device, bite_id) names a bite once.
 pub const BITE_ID: &str = "bite_id";
+
+/// Longest a driveline's changed values wait for the DDATA of the bite that changed
+/// them (a bite reaches the history, and from it the broker, within milliseconds; a
+/// history that cannot store it must not hold the values back for good).
+pub const BITE_HOLD_MS: u64 = 2000;
 
 /// Node metrics: bdSeq (alias 0) and the rebirth command (alias 1).
 const NODE_METRICS: u64 = 2;
@@ -164,6 +78,8 @@ impl EdgeNode {
                 columns,
                 first_alias: alias,
                 sent: Vec::new(),
+                bite_counter: None,
+                held_since: None,
             });
             alias += width;
         };
@@ -302,6 +218,11 @@ impl EdgeNode {
                 })
                 .collect();
             self.devices[index].sent = values;
+            if let Kind::Driveline(k) = self.devices[index].kind {
+                self.devices[index].bite_counter =
+                    results.drivelines.get(k).map(|d| d.bite_counter);
+                self.devices[index].held_since = None;
+            }
             let topic = self.device_topic("DBIRTH", index);
             out.push(self.device_message(topic, metrics, now_ms));
         }
@@ -322,10 +243,24 @@ impl EdgeNode {
     }
 
     /// A DDATA per device whose values changed since the last birth or data message,
-    /// with only the changed metrics, by alias.
+    /// with only the changed metrics, by alias. A driveline whose results show a bite
+    /// whose own DDATA has not gone yet waits for it (at most [`BITE_HOLD_MS`]): a host
+    /// sees a bite's DDATA before the values it changed, never after.
     pub fn data(&mut self, results: &Results, now_ms: u64) -> Vec<Outgoing> {
         let mut out = Vec::new();
         for index in 0..self.devices.len() {
+            if let Kind::Driveline(k) = self.devices[index].kind {
+                let now = results.drivelines.get(k).map(|d| d.bite_counter);
+                let device = &mut self.devices[index];
+                if now == device.bite_counter {
+                    device.held_since = None;
+                } else {
+                    let since = *device.held_since.get_or_insert(now_ms);
+                    if now_ms.saturating_sub(since) < BITE_HOLD_MS {
+                        continue;
+                    }
+                }
+            }
             let device = &self.devices[index];
             let values = device.values(results);
             let metrics: Vec<Metric> = values
@@ -393,8 +328,13 @@ impl EdgeNode {
             for metric in &mut metrics {
                 metric.is_historical = Some(true);
             }
-        } else if only.is_none() {
-            self.devices[device].sent[..values.len()].copy_from_slice(&values);
+        } else {
+            let sent = &mut self.devices[device];
+            sent.bite_counter = Some(after.bite_counter);
+            sent.held_since = None;
+            if only.is_none() {
+                sent.sent[..values.len()].copy_from_slice(&values);
+            }
         }
         let topic = self.device_topic("DDATA", device);
         self.device_message(topic, metrics, bite_ms)
@@ -583,8 +523,10 @@ mod tests {
         let bite_id = driveline_alias(1, BITE_ID);
         let id = payload.metrics.iter().find(|m| m.alias == Some(bite_id));
         assert_eq!(id.unwrap().value, Some(MetricValue::LongValue(9)));
-        // A historical bite does not change what DDATA compares with.
-        assert!(node.data(&results, 1100).len() == 1);
+        // A historical bite does not change what DDATA compares with, nor count as the
+        // live bite the results show: its values go once the hold is over.
+        assert!(node.data(&results, 1100).is_empty());
+        assert_eq!(node.data(&results, 1100 + BITE_HOLD_MS).len(), 1);
     }
 
     #[test]
@@ -729,6 +671,31 @@ mod tests {
             value(&stale, "source_stale"),
             Some(Some(MetricValue::BooleanValue(true)))
         );
+    }
+
+    #[test]
+    fn a_bites_changed_values_wait_for_the_bites_own_ddata() {
+        let mut node = node();
+        let mut results = Results::new(1, 2, 1);
+        node.births(&results, 1000);
+        // A degraded bite: the results move before the history has the bite.
+        results.drivelines[0].bite_counter = 1;
+        results.drivelines[0].last_bite_degraded = true;
+        assert!(node.data(&results, 1100).is_empty(), "held for the bite");
+        let bite = decode(&node.bite(0, &results.drivelines[0], 1150, (None, false)));
+        assert!(bite.metrics.len() > 1);
+        assert!(
+            node.data(&results, 1200).is_empty(),
+            "the bite carried the changed values"
+        );
+        // A bite the history never gives: its values go after the hold.
+        results.drivelines[1].bite_counter = 1;
+        results.drivelines[1].taf = Some(1.2);
+        assert!(node.data(&results, 2000).is_empty());
+        assert!(node.data(&results, 2000 + BITE_HOLD_MS - 1).is_empty());
+        let late = node.data(&results, 2000 + BITE_HOLD_MS);
+        assert_eq!(late.len(), 1);
+        assert!(late[0].topic.ends_with("/F2"));
     }
 
     #[test]
