@@ -378,6 +378,33 @@ async fn a_corrupt_file_is_reported_left_alone_and_the_plc_goes_on() {
     setup.stop(service).await;
 }
 
+/// `promtool check metrics` (Debian's `prometheus`, which `scripts/test` installs)
+/// finds no problem in `page` (an HTTP answer: the body is checked).
+fn promtool_passes(page: &str) {
+    use std::io::Write;
+    let body = page.split_once("\r\n\r\n").map_or(page, |(_, body)| body);
+    let mut promtool = Command::new("promtool")
+        .args(["check", "metrics"])
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("promtool is not installed: scripts/test installs it (apt-get install prometheus)");
+    promtool
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(body.as_bytes())
+        .unwrap();
+    let output = promtool.wait_with_output().unwrap();
+    assert!(
+        output.status.success(),
+        "promtool check metrics: {}{}\n{body}",
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr)
+    );
+}
+
 /// A gap past the warning threshold is one truth in every output: the PLC's flag, an
 /// alarm event in the history and on the Alarms page's API, and the gap figures on
 /// `/metrics` equal to the PLC's registers, while `millgate run` runs.
@@ -435,6 +462,8 @@ async fn a_gap_warning_is_an_alarm_event_and_the_gap_is_on_metrics() {
         "the same gap on /metrics as in the PLC"
     );
     assert!(pooled.is_some_and(|n| n >= 1.0), "bites pooled {pooled:?}");
+    // The page follows Prometheus' conventions, as its own linter reads them.
+    promtool_passes(&setup.metrics().await);
 
     // The Alarms page's API lists the warning, raised, with the gap that raised it.
     web_ready(web_port).await;

@@ -355,6 +355,15 @@ async fn the_metrics_endpoint_reads_the_whole_head_and_refuses_malformed_ones() 
     .await?;
     assert!(split.starts_with("HTTP/1.1 200 OK"), "{split}");
     assert!(split.contains("millgate_heartbeat"));
+    // HEAD: the same answer without the body.
+    let head = ask(
+        metrics,
+        &[b"HEAD /metrics HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"],
+    )
+    .await?;
+    assert!(head.starts_with("HTTP/1.1 200 OK"), "{head}");
+    assert!(head.contains("text/plain; version=0.0.4"), "{head}");
+    assert!(!head.contains("millgate_heartbeat"), "no body: {head}");
     for (request, status) in [
         (&b"GARBAGE\r\n\r\n"[..], "HTTP/1.1 400 Bad Request"),
         (

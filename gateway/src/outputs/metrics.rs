@@ -123,13 +123,35 @@ fn escape(label: &str) -> String {
         .replace('\n', "\\n")
 }
 
-/// The `/metrics` name of a catalogue figure: `millgate_<subject>_<key>`, a counter
-/// with `_total`, a time as `..._timestamp_seconds`, unless the catalogue names it.
+/// Key suffixes of units Prometheus writes out in base units (its linter refuses the
+/// abbreviations `s` and `m`): `(unit, key suffix, metric suffix)`.
+const PROMETHEUS_UNITS: [(&str, &str, &str); 3] = [
+    ("s", "_s", "_seconds"),
+    ("m/s", "_m_s", "_meters_per_second"),
+    ("1/s", "_per_s", "_per_second"),
+];
+
+/// The `/metrics` name of a catalogue figure: `millgate_<subject>_<key>` (a unit in
+/// Prometheus' base-unit words: `_seconds`, `_meters_per_second`, `_per_second`), a
+/// counter with `_total`, a time as `..._timestamp_seconds`, unless the catalogue
+/// names it.
 pub fn metric_name(figure: &FigureInfo) -> String {
     if let Some(name) = figure.metric {
         return name.to_owned();
     }
-    let base = format!("millgate_{}_{}", figure.subject.name(), figure.key);
+    let key = PROMETHEUS_UNITS
+        .iter()
+        .find(|(unit, suffix, _)| figure.unit == *unit && figure.key.ends_with(suffix))
+        .map_or_else(
+            || figure.key.to_owned(),
+            |(_, suffix, words)| {
+                format!(
+                    "{}{words}",
+                    figure.key.strip_suffix(suffix).unwrap_or(figure.key)
+                )
+            },
+        );
+    let base = format!("millgate_{}_{key}", figure.subject.name());
     if figure.is_counter() {
         format!("{base}_total")
     } else if figure.figure_type == FigureType::Time {
@@ -812,7 +834,39 @@ mod tests {
             health,
             can: config.can_sources.iter().map(|_| Arc::default()).collect(),
         };
-        Metrics::new(config, acquisition, board, spans).render()
+        Metrics::new(config, acquisition, board, spans)
+            .with_server(Arc::default())
+            .with_plc(Arc::default())
+            .with_sparkplug(Arc::default())
+            .render()
+    }
+
+    /// `promtool check metrics` (Debian's `prometheus`, installed by `scripts/test`)
+    /// finds no problem in `page`.
+    fn promtool_passes(page: &str) {
+        use std::io::Write;
+        let mut promtool = std::process::Command::new("promtool")
+            .args(["check", "metrics"])
+            .stdin(std::process::Stdio::piped())
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect(
+                "promtool is not installed: scripts/test installs it (apt-get install prometheus)",
+            );
+        promtool
+            .stdin
+            .take()
+            .unwrap()
+            .write_all(page.as_bytes())
+            .unwrap();
+        let output = promtool.wait_with_output().unwrap();
+        assert!(
+            output.status.success(),
+            "promtool check metrics: {}{}",
+            String::from_utf8_lossy(&output.stdout),
+            String::from_utf8_lossy(&output.stderr)
+        );
     }
 
     #[test]
@@ -838,6 +892,9 @@ mod tests {
         });
         let rod = example("rod-mill.toml");
         let rod_page = page_of(&rod, &[2], |_| {});
+        for each in [&page, &tandem_page, &rod_page] {
+            promtool_passes(each);
+        }
         let all = format!("{page}{tandem_page}{rod_page}");
         for figure in catalogue::all() {
             let name = metric_name(&figure);
