@@ -12,7 +12,7 @@
 
 use std::path::PathBuf;
 
-use crate::cli::registers::{csv_field, Format};
+use crate::cli::registers::csv_field;
 use crate::outputs::history::query::{
     AlarmRow, BiteRow, ChatterRow, Filter, HistoryReader, OutageRow, Record, RunRow, WearRow,
 };
@@ -33,6 +33,17 @@ pub enum Kind {
     Chatter,
     /// Gateway starts and stops.
     Runs,
+}
+
+/// Output format of the export.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Format {
+    /// CSV: a header line of the columns, then one line per row.
+    Csv,
+    /// A JSON array, one object per row with the columns as keys.
+    Json,
+    /// A Markdown table: a header of the columns, then one line per row.
+    Md,
 }
 
 /// Arguments of `millgate history`.
