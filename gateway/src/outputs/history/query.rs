@@ -15,7 +15,7 @@ use rusqlite::{Connection, OpenFlags};
 use serde::Serialize;
 
 use super::restore::Restored;
-use super::schema::{current_version, SchemaError};
+use super::schema::{check_file_owner, current_version, SchemaError};
 use super::time::UtcTime;
 use super::HistoryError;
 
@@ -364,8 +364,9 @@ pub struct HistoryReader {
 }
 
 impl HistoryReader {
-    /// Open `path` read-only; refuses a file that is not a millgate history or is
-    /// newer than this millgate.
+    /// Open `path` read-only; refuses a file that is not a millgate history (another
+    /// application's SQLite file, or one without a millgate schema) or is newer than
+    /// this millgate.
     pub fn open(path: &Path) -> Result<Self, HistoryError> {
         let sqlite = |source| HistoryError::Sqlite {
             path: path.to_path_buf(),
@@ -376,6 +377,7 @@ impl HistoryReader {
             OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX,
         )
         .map_err(sqlite)?;
+        check_file_owner(&connection, path)?;
         let version: i64 = connection
             .pragma_query_value(None, "user_version", |row| row.get(0))
             .map_err(sqlite)?;
