@@ -255,7 +255,7 @@ fn main() -> ExitCode {
             init_tracing("warn");
             millgate::cli::wear::run(&args).map(emit)
         }
-        Command::History(args) => millgate::cli::history::run(&args).map(|text| print!("{text}")),
+        Command::History(args) => millgate::cli::history::run(&args),
         #[cfg(feature = "plot")]
         Command::Report(args) => millgate::cli::report::run(&args).map(emit),
         #[cfg(feature = "sim-tools")]

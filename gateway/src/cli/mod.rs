@@ -37,6 +37,7 @@ pub mod demo;
 #[cfg(feature = "sim-tools")]
 pub mod discrepancy;
 pub mod history;
+pub mod progress;
 pub mod registers;
 #[cfg(feature = "plot")]
 pub mod report;

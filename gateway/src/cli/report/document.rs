@@ -62,7 +62,9 @@ fn escape_html(text: &str) -> String {
 /// The report as one HTML page that needs no other file: the SVGs are inline.
 pub fn html(title: &str, blocks: &[Block]) -> String {
     let mut out = format!(
-        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{}</title>\n\
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">\
+         <meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\
+         <title>{}</title>\n\
          <style>body{{font-family:sans-serif;max-width:960px;margin:2em auto;color:#222}}\
          table{{border-collapse:collapse;margin:1em 0}}td,th{{border:1px solid #bbb;\
          padding:2px 8px;text-align:left}}figure{{margin:1em 0}}svg{{max-width:100%;\

@@ -5,22 +5,34 @@
 //! ```
 //!
 //! Writes into `DIR`: `report.md` (plots linked), `report.html` (one file that opens
-//! offline, plots inline) and the SVG plots:
-//! - per driveline `<name>-time.svg`: TAF of each bite over time with its warning and
-//!   alarm thresholds; the wear index and trend; the gap estimate with its interval
-//!   and thresholds when the history holds the gap diagnosis;
-//! - per driveline `<name>-taf.svg`: TAF over static torque (degraded windows apart)
-//!   with the thresholds and, when the driveline's model file (as configured) can be
-//!   read, the wear map's curves for gaps of 0..4 mrad over the measured torque range;
+//! offline, plots inline) and the SVG plots, each reduced to what a reader can see
+//! (a year of bites is a million per driveline):
+//! - per driveline `<name>-time.svg`: in 450 time buckets (the web page's
+//!   [`wear_series`]), the TAF's range and mean with its warning and alarm
+//!   thresholds; the wear index's range and the wear trend; the gap estimate with
+//!   its interval and thresholds when the history holds the gap diagnosis;
+//! - per driveline `<name>-taf.svg`: TAF over static torque, the bites binned into
+//!   180 x 90 cells shaded by count (degraded windows grey), with the thresholds and,
+//!   when the driveline's model file (as configured) can be read, the wear map's
+//!   curves for gaps of 0..4 mrad over the measured torque range;
 //! - `alarms.svg`: the alarm timeline (raised, cleared, acknowledged; latched spans);
-//! - `availability.svg`: each source's outages and the gateway's own down time.
+//! - `availability.svg`: when the gateway ran (and, for a run without a recorded
+//!   stop, from its last recorded event on, that the file cannot tell), each
+//!   source's outages.
 //!
-//! The Markdown and the HTML come from one document model ([`Block`]).
+//! The Markdown and the HTML come from one document model ([`Block`]). Bites are
+//! never held: counted and aggregated by SQLite or binned as they are read, so the
+//! memory is that of the buckets and cells; progress goes to stderr when it is a
+//! terminal.
 //!
-//! The module's files follow its jobs: `document` (the document model, Markdown and
-//! HTML), `plots` (the SVG plots), `spans` (run and alarm spans on the time axis);
-//! this file reads the history and assembles the report.
+//! The module's files follow its jobs: `data` (what is read of a driveline),
+//! `document` (the document model, Markdown and HTML), `plots` (the SVG plots and the
+//! binning of bites), `spans` (run and alarm spans on the time axis); this file
+//! assembles the report.
+//!
+//! [`wear_series`]: crate::outputs::history::query::HistoryReader::wear_series
 
+mod data;
 mod document;
 mod plots;
 mod spans;
@@ -30,13 +42,12 @@ use std::path::PathBuf;
 use plotters::prelude::*;
 
 pub use document::{html, markdown, Block};
-use plots::{lanes_svg, range, taf_svg, time_svg, wear_curves, Lane, TimeAxis, TimePanel};
+use plots::{lanes_svg, taf_svg, time_svg, Lane, TimeAxis, TimePanel};
 use spans::{alarm_spans, at_time, clip, run_spans};
 
 use crate::cli::history::parse_time;
-use crate::outputs::history::query::{
-    AlarmRow, BiteRow, Filter, HistoryReader, OutageRow, WearRow,
-};
+use crate::cli::progress::Progress;
+use crate::outputs::history::query::{AlarmRow, Filter, HistoryReader, OutageRow};
 use crate::outputs::history::time::UtcTime;
 
 /// Alarm rows listed in the report's table (all are in the timeline plot).
@@ -63,24 +74,21 @@ fn fmt(value: Option<f64>, digits: usize) -> String {
     value.map_or_else(|| "-".to_owned(), |v| format!("{v:.digits$}"))
 }
 
-/// Quantile `q` (0..=1) of `values` (sorted here), nearest rank.
-fn quantile(values: &mut [f64], q: f64) -> Option<f64> {
-    values.sort_by(f64::total_cmp);
-    let last = values.len().checked_sub(1)?;
-    Some(values[((last as f64) * q).round() as usize])
-}
-
 /// Write the report of `args`; returns what was written.
+///
+/// Memory: the report holds the alarms, runs and outages of the period (a few
+/// thousand rows a year) and, per driveline, its buckets and cells, never its bites:
+/// those are counted, aggregated and binned by SQLite or as they are read.
 pub fn run(args: &ReportArgs) -> anyhow::Result<String> {
     let reader = HistoryReader::open(&args.db)?;
     let since = parse_time("--since", args.since.as_deref())?;
     let until = parse_time("--until", args.until.as_deref())?;
+    let mut progress = Progress::on_terminal();
     let window = Filter {
         since,
         until,
         ..Filter::default()
     };
-    let bites = reader.bites(&window)?;
     let alarms = reader.alarms(&window)?;
     let runs = reader.runs(&Filter::default())?;
     let outages = reader.outages(&Filter {
@@ -88,13 +96,24 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<String> {
         ..Filter::default()
     })?;
     let settings = reader.settings(&Filter::default())?;
-    let wear = reader.wear(&window)?;
+    let state = reader.state()?;
+    let mut drivelines: Vec<String> = reader.drivelines()?;
+    for restored in &state.drivelines {
+        if !drivelines.contains(&restored.name) {
+            drivelines.push(restored.name.clone());
+        }
+    }
+    let mut first_bite = None;
+    for name in &drivelines {
+        if let Some((first, _)) = reader.bite_span(name)? {
+            first_bite = first_bite.min(Some(first)).or(Some(first));
+        }
+    }
     let first_time = runs
         .first()
-        .map(|r| r.started_at.as_str())
+        .and_then(|r| UtcTime::parse(&r.started_at).ok())
         .into_iter()
-        .chain(bites.first().map(|b| b.time.as_str()))
-        .filter_map(|t| UtcTime::parse(t).ok())
+        .chain(first_bite)
         .min();
     let start = since.or(first_time).unwrap_or_else(UtcTime::now);
     let end = until.unwrap_or_else(UtcTime::now);
@@ -116,41 +135,68 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<String> {
             env!("CARGO_PKG_VERSION")
         )),
     ];
-    let state = reader.state()?;
-    let mut drivelines: Vec<String> = reader.drivelines()?;
-    for restored in &state.drivelines {
-        if !drivelines.contains(&restored.name) {
-            drivelines.push(restored.name.clone());
-        }
+    let mut read = Vec::new();
+    for (index, name) in drivelines.iter().enumerate() {
+        progress.update(|| format!("report: {name} ({} of {})", index + 1, drivelines.len()));
+        let setting = settings
+            .iter()
+            .rev()
+            .find(|s| &s.driveline == name)
+            .cloned();
+        read.push(data::read(
+            &reader,
+            name,
+            since,
+            until,
+            setting,
+            &mut progress,
+        )?);
     }
     blocks.push(Block::Heading(2, "Drivelines".into()));
-    let mut summary = Vec::new();
-    for name in &drivelines {
-        let own: Vec<&BiteRow> = bites.iter().filter(|b| &b.driveline == name).collect();
-        let mut tafs: Vec<f64> = own
-            .iter()
-            .filter(|b| !b.degraded)
-            .filter_map(|b| b.taf)
-            .collect();
-        let now = state.drivelines.iter().find(|d| &d.name == name);
-        summary.push(vec![
-            name.clone(),
-            own.len().to_string(),
-            own.iter().filter(|b| b.degraded).count().to_string(),
-            fmt(quantile(&mut tafs, 0.5), 3),
-            fmt(quantile(&mut tafs, 0.95), 3),
-            fmt(quantile(&mut tafs, 1.0), 3),
-            fmt(now.and_then(|d| d.results.wear_trend), 4),
-            now.map_or("-".into(), |d| {
-                if d.results.alarm {
-                    "latched".into()
-                } else {
-                    "no".into()
-                }
-            }),
-            now.map_or("-".into(), |d| d.results.bite_counter.to_string()),
-        ]);
-    }
+    blocks.push(Block::Text(
+        "TAF figures are of clean windows (degraded ones left out); \"now\" is the \
+         state a restart would restore; the gap is the last estimate in the period \
+         with its 90% interval and coupling (model index, 0 = motor side), its trend \
+         the least-squares slope over the four weeks before the period's end."
+            .into(),
+    ));
+    let summary: Vec<Vec<String>> = drivelines
+        .iter()
+        .zip(&read)
+        .map(|(name, data)| {
+            let now = state.drivelines.iter().find(|d| &d.name == name);
+            let gap = data.last.as_ref().filter(|b| b.gap_mrad.is_some());
+            vec![
+                name.clone(),
+                data.summary.bites.to_string(),
+                data.summary.degraded.to_string(),
+                fmt(data.summary.taf_median, 3),
+                fmt(data.summary.taf_p95, 3),
+                fmt(data.summary.taf_max, 3),
+                fmt(now.and_then(|d| d.results.wear_trend), 4),
+                now.map_or("-".into(), |d| {
+                    if d.results.alarm {
+                        "latched".into()
+                    } else {
+                        "no".into()
+                    }
+                }),
+                now.map_or("-".into(), |d| d.results.bite_counter.to_string()),
+                fmt(gap.and_then(|b| b.gap_mrad), 2),
+                gap.map_or("-".into(), |b| {
+                    format!("{}..{}", fmt(b.gap_low_mrad, 2), fmt(b.gap_high_mrad, 2))
+                }),
+                gap.map_or("-".into(), |b| {
+                    b.gap_coupling
+                        .clone()
+                        .unwrap_or_else(|| "undetermined".into())
+                }),
+                data.trend
+                    .as_ref()
+                    .map_or("-".into(), |t| format!("{:+.3}", t.mrad_per_week)),
+            ]
+        })
+        .collect();
     blocks.push(Block::Table(
         [
             "driveline",
@@ -162,61 +208,75 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<String> {
             "wear trend now",
             "TAF alarm",
             "bite counter",
+            "gap, mrad",
+            "90% interval, mrad",
+            "coupling",
+            "gap trend, mrad/week",
         ]
         .map(String::from)
         .to_vec(),
         summary,
     ));
     let mut written = Vec::new();
-    for name in &drivelines {
-        let own: Vec<BiteRow> = bites
-            .iter()
-            .filter(|b| &b.driveline == name)
-            .cloned()
-            .collect();
-        let own_wear: Vec<&WearRow> = wear.iter().filter(|w| &w.driveline == name).collect();
-        let setting = settings.iter().rev().find(|s| &s.driveline == name);
+    for (name, data) in drivelines.iter().zip(&read) {
         blocks.push(Block::Heading(3, name.clone()));
-        let at = |time: &str| axis.x(time);
-        let taf_points: Vec<(f64, f64)> = own
-            .iter()
-            .filter_map(|b| Some((at(&b.time)?, b.taf?)))
-            .collect();
+        let setting = data.setting.as_ref();
+        let middle = |start: UtcTime, end: UtcTime| axis.middle(start, end);
         let mut panels = vec![TimePanel {
             y_label: "TAF",
-            points: vec![("TAF of each bite", taf_points)],
-            lines: Vec::new(),
-            band: Vec::new(),
+            lines: vec![(
+                "TAF mean",
+                data.wear
+                    .iter()
+                    .filter_map(|p| Some((middle(p.start, p.end), p.taf_mean?)))
+                    .collect(),
+            )],
+            band_label: "TAF min..max",
+            band: data
+                .wear
+                .iter()
+                .filter_map(|p| Some((middle(p.start, p.end), p.taf_min?, p.taf_max?)))
+                .collect(),
             thresholds: setting
                 .map(|s| vec![("warning", s.taf_warning), ("alarm", s.taf_alarm)])
                 .unwrap_or_default(),
         }];
-        let index: Vec<(f64, f64)> = own_wear
-            .iter()
-            .filter_map(|w| Some((at(&w.time)?, w.wear_index?)))
-            .collect();
-        let trend: Vec<(f64, f64)> = own_wear
-            .iter()
-            .filter_map(|w| Some((at(&w.time)?, w.wear_trend?)))
-            .collect();
-        if !index.is_empty() {
+        if !data.index.is_empty() {
             panels.push(TimePanel {
                 y_label: "wear index",
-                points: vec![("wear index", index)],
-                lines: vec![("wear trend", trend)],
-                band: Vec::new(),
+                lines: vec![(
+                    "wear trend",
+                    data.index
+                        .iter()
+                        .filter_map(|p| Some((middle(p.start, p.end), p.trend?)))
+                        .collect(),
+                )],
+                band_label: "wear index min..max",
+                band: data
+                    .index
+                    .iter()
+                    .map(|p| (middle(p.start, p.end), p.index_min, p.index_max))
+                    .collect(),
                 thresholds: Vec::new(),
             });
         }
-        let gap: Vec<(f64, f64, f64, f64)> = own_wear
+        let gap: Vec<(f64, f64, f64, f64)> = data
+            .wear
             .iter()
-            .filter_map(|w| Some((at(&w.time)?, w.gap_mrad?, w.gap_low_mrad?, w.gap_high_mrad?)))
+            .filter_map(|p| {
+                Some((
+                    middle(p.start, p.end),
+                    p.gap_mrad?,
+                    p.gap_low_mrad?,
+                    p.gap_high_mrad?,
+                ))
+            })
             .collect();
         if !gap.is_empty() {
             panels.push(TimePanel {
                 y_label: "gap, mrad",
-                points: Vec::new(),
                 lines: vec![("gap estimate", gap.iter().map(|g| (g.0, g.1)).collect())],
+                band_label: "90% interval (lowest..highest)",
                 band: gap.iter().map(|g| (g.0, g.2, g.3)).collect(),
                 thresholds: setting
                     .map(|s| {
@@ -235,29 +295,39 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<String> {
             file,
             title,
         });
-        if panels.len() == 1 {
+        if let Some(bucket) = data.wear.first() {
+            blocks.push(Block::Text(format!(
+                "Per time bucket of {}: the range of the bites' values shaded, the mean \
+                 TAF, the wear trend and the gap estimate after the bucket's last bite.",
+                duration_text(bucket.end.unix_ms() - bucket.start.unix_ms())
+            )));
+        }
+        if data.index.is_empty() {
             blocks.push(Block::Text(
                 "No wear index: the driveline has no model (drivelines[].model).".into(),
             ));
         }
-        let torques = range(own.iter().map(|b| b.static_torque_knm));
-        let curves = match setting.and_then(|s| s.model.as_deref()) {
-            Some(model) => match wear_curves(model, torques) {
-                Ok(curves) => curves,
-                Err(why) => {
-                    blocks.push(Block::Text(format!("No wear map curves: {model}: {why}.")));
-                    Vec::new()
-                }
-            },
-            None => Vec::new(),
+        let curves = match &data.curves {
+            Ok(curves) => curves.as_slice(),
+            Err(why) => {
+                blocks.push(Block::Text(format!("No wear map curves: {why}.")));
+                &[]
+            }
         };
         let file = format!("{}-taf.svg", file_stem(name));
         let title = format!("{name}: TAF over static torque");
         blocks.push(Block::Figure {
-            svg: taf_svg(&title, &own, setting, &curves)?,
+            svg: taf_svg(&title, &data.grid, setting, curves)?,
             file,
             title,
         });
+        if data.grid.outside > 0 {
+            blocks.push(Block::Text(format!(
+                "{} bites lie outside the plot (a degraded window's TAF beyond the clean \
+                 bites' range).",
+                data.grid.outside
+            )));
+        }
     }
 
     blocks.push(Block::Heading(2, "Alarm timeline".into()));
@@ -330,16 +400,28 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<String> {
     ));
 
     blocks.push(Block::Heading(2, "Source availability".into()));
-    let gateway_up = run_spans(&axis, &runs, &bites);
-    let up: f64 = gateway_up.iter().map(|(a, b)| b - a).sum();
-    blocks.push(Block::Text(format!(
+    let gateway = run_spans(&reader, &axis, &runs)?;
+    let total = |spans: &[(f64, f64)]| spans.iter().map(|(a, b)| b - a).sum::<f64>();
+    let (up, unknown) = (total(&gateway.up), total(&gateway.unknown));
+    let mut text = format!(
         "The gateway ran {:.1}% of the period ({} runs, {} ended uncleanly).",
         100.0 * up / axis.span,
         runs.len(),
         runs.iter()
             .filter(|r| r.ended.as_deref() == Some("unclean"))
             .count()
-    )));
+    );
+    if gateway.open > 0 {
+        text.push_str(&format!(
+            " {} run(s) have no recorded stop (killed, their power cut, or still \
+             running): each counts as running until its last recorded event; from \
+             there to the next start or the period's end, {:.1}% of the period, the \
+             file cannot tell whether it ran (grey).",
+            gateway.open,
+            100.0 * unknown / axis.span
+        ));
+    }
+    blocks.push(Block::Text(text));
     let mut sources: Vec<String> = Vec::new();
     for outage in &outages {
         if !sources.contains(&outage.source) {
@@ -349,9 +431,16 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<String> {
     let mut availability = Vec::new();
     let mut lanes: Vec<Lane> = vec![(
         "gateway running".into(),
-        gateway_up
+        gateway
+            .up
             .iter()
             .map(|(a, b)| (*a, *b, RGBColor(120, 190, 120)))
+            .chain(
+                gateway
+                    .unknown
+                    .iter()
+                    .map(|(a, b)| (*a, *b, RGBColor(190, 190, 190))),
+            )
             .collect(),
         Vec::new(),
     )];
@@ -429,14 +518,30 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<String> {
         "report.html",
         &html(&format!("Maintenance report: {config_name}"), &blocks),
     )?;
+    let bites: u64 = read.iter().map(|d| d.summary.bites).sum();
+    progress.finish(&format!(
+        "report: {} drivelines, {bites} bites in {:.1} s",
+        drivelines.len(),
+        progress.elapsed_s()
+    ));
     Ok(format!(
-        "report written to {}: report.md, report.html, {} ({} bites, {} alarm events, {} outages)",
+        "report written to {}: report.md, report.html, {} ({bites} bites, {} alarm events, {} outages)",
         args.out.display(),
         written.join(", "),
-        bites.len(),
         alarms.len(),
         outages.len()
     ))
+}
+
+/// `ms` as a duration a reader takes in: "6 h", "2.5 days", "40 s".
+fn duration_text(ms: i64) -> String {
+    let s = ms as f64 / 1000.0;
+    match s {
+        s if s < 120.0 => format!("{s:.0} s"),
+        s if s < 7200.0 => format!("{:.0} min", s / 60.0),
+        s if s < 172_800.0 => format!("{:.1} h", s / 3600.0),
+        s => format!("{:.1} days", s / 86_400.0),
+    }
 }
 
 /// A file-name-safe form of a driveline name.

@@ -6,7 +6,8 @@ use std::path::Path;
 
 use plotters::prelude::*;
 
-use crate::outputs::history::query::{BiteRow, SettingsRow};
+use crate::outputs::history::query::SettingsRow;
+use crate::outputs::history::summary::TafPoint;
 use crate::outputs::history::time::UtcTime;
 
 /// Width and height of a plot panel, px.
@@ -40,8 +41,17 @@ impl TimeAxis {
     }
 
     pub(super) fn x(&self, time: &str) -> Option<f64> {
-        let t = UtcTime::parse(time).ok()?;
-        Some((t.unix_ms() - self.start.unix_ms()) as f64 / 1000.0 / self.unit_s)
+        Some(self.x_of(UtcTime::parse(time).ok()?))
+    }
+
+    /// `time` on the axis.
+    pub(super) fn x_of(&self, time: UtcTime) -> f64 {
+        (time.unix_ms() - self.start.unix_ms()) as f64 / 1000.0 / self.unit_s
+    }
+
+    /// The middle of `[start, end)` on the axis: where a time bucket is drawn.
+    pub(super) fn middle(&self, start: UtcTime, end: UtcTime) -> f64 {
+        (self.x_of(start) + self.x_of(end)) / 2.0
     }
 
     fn label(&self) -> String {
@@ -57,12 +67,13 @@ pub(super) fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
     millgate_sim::plot::padded_range(values).unwrap_or((0.0, 1.0))
 }
 
-/// A panel of points and lines over time: `(label, points, line)` series and
-/// horizontal threshold lines `(label, value)`; `band` an interval drawn shaded.
+/// A panel of lines over time: `(label, line)` series and horizontal threshold lines
+/// `(label, value)`; `band` a range `(x, low, high)` drawn shaded, labelled
+/// `band_label`.
 pub(super) struct TimePanel<'a> {
     pub(super) y_label: &'a str,
-    pub(super) points: Vec<(&'a str, Vec<(f64, f64)>)>,
     pub(super) lines: Vec<(&'a str, Vec<(f64, f64)>)>,
+    pub(super) band_label: &'a str,
     pub(super) band: Vec<(f64, f64, f64)>,
     pub(super) thresholds: Vec<(&'a str, f64)>,
 }
@@ -80,9 +91,8 @@ pub(super) fn time_svg(
         let root = root.titled(title, ("sans-serif", 20)).map_err(drawing)?;
         for (area, panel) in root.split_evenly((panels.len(), 1)).iter().zip(panels) {
             let values = panel
-                .points
+                .lines
                 .iter()
-                .chain(&panel.lines)
                 .flat_map(|(_, p)| p.iter().map(|(_, y)| *y))
                 .chain(panel.band.iter().flat_map(|(_, lo, hi)| [*lo, *hi]))
                 .chain(panel.thresholds.iter().map(|(_, v)| *v));
@@ -111,18 +121,10 @@ pub(super) fn time_svg(
                         BLUE.mix(0.15).filled(),
                     )))
                     .map_err(drawing)?
-                    .label("interval")
+                    .label(panel.band_label)
                     .legend(|(x, y)| {
                         Rectangle::new([(x, y - 4), (x + 16, y + 4)], BLUE.mix(0.15).filled())
                     });
-            }
-            for (index, (label, points)) in panel.points.iter().enumerate() {
-                let color = Palette99::pick(index).to_rgba();
-                chart
-                    .draw_series(points.iter().map(|p| Circle::new(*p, 2, color.filled())))
-                    .map_err(drawing)?
-                    .label(*label)
-                    .legend(move |(x, y)| Circle::new((x + 8, y), 3, color.filled()));
             }
             for (index, (label, points)) in panel.lines.iter().enumerate() {
                 let color = Palette99::pick(index + 3).to_rgba();
@@ -162,31 +164,95 @@ pub(super) fn time_svg(
     Ok(svg)
 }
 
-/// TAF over static torque: bites (degraded apart), thresholds, wear map curves.
+/// Cells of [`TafGrid`] across and up: 4.5 by 4 px of a 900 by 450 px plot.
+const GRID: (usize, usize) = (180, 90);
+
+/// Bites binned over static torque (x) and TAF (y) for [`taf_svg`]: a year of bites
+/// drawn as at most 180 x 90 shaded cells instead of a million circles; clean and
+/// degraded windows apart.
+#[derive(Debug, Clone)]
+pub(super) struct TafGrid {
+    x: (f64, f64),
+    y: (f64, f64),
+    clean: Vec<u32>,
+    degraded: Vec<u32>,
+    /// Bites with a TAF outside the ranges (not drawn).
+    pub(super) outside: u64,
+}
+
+impl TafGrid {
+    /// An empty grid over static torque `x` (kN*m) and TAF `y`, each `(low, high)`
+    /// with low < high.
+    pub(super) fn new(x: (f64, f64), y: (f64, f64)) -> Self {
+        Self {
+            x,
+            y,
+            clean: vec![0; GRID.0 * GRID.1],
+            degraded: vec![0; GRID.0 * GRID.1],
+            outside: 0,
+        }
+    }
+
+    /// Count a bite (one without a TAF is not plotted).
+    pub(super) fn add(&mut self, point: TafPoint) {
+        let Some(taf) = point.taf else {
+            return;
+        };
+        let cell = |value: f64, (low, high): (f64, f64), cells: usize| {
+            let at = (value - low) / (high - low) * cells as f64;
+            // The top edge belongs to the last cell.
+            (0.0..=cells as f64)
+                .contains(&at)
+                .then(|| (at as usize).min(cells - 1))
+        };
+        match (
+            cell(point.static_torque_knm, self.x, GRID.0),
+            cell(taf, self.y, GRID.1),
+        ) {
+            (Some(i), Some(j)) => {
+                let cells = if point.degraded {
+                    &mut self.degraded
+                } else {
+                    &mut self.clean
+                };
+                cells[j * GRID.0 + i] += 1;
+            }
+            _ => self.outside += 1,
+        }
+    }
+
+    /// The occupied cells of `cells`: `(x0, y0, x1, y1, count)`.
+    fn occupied<'a>(
+        &'a self,
+        cells: &'a [u32],
+    ) -> impl Iterator<Item = (f64, f64, f64, f64, u32)> + 'a {
+        let width = (self.x.1 - self.x.0) / GRID.0 as f64;
+        let height = (self.y.1 - self.y.0) / GRID.1 as f64;
+        cells
+            .iter()
+            .enumerate()
+            .filter(|(_, count)| **count > 0)
+            .map(move |(index, count)| {
+                let (i, j) = ((index % GRID.0) as f64, (index / GRID.0) as f64);
+                let (x0, y0) = (self.x.0 + i * width, self.y.0 + j * height);
+                (x0, y0, x0 + width, y0 + height, *count)
+            })
+    }
+}
+
+/// TAF over static torque: the bites' cells (shaded by count; degraded windows a
+/// grey dot per cell), the thresholds, the wear map's curves.
 pub(super) fn taf_svg(
     title: &str,
-    bites: &[BiteRow],
+    grid: &TafGrid,
     settings: Option<&SettingsRow>,
     curves: &[Curve],
 ) -> anyhow::Result<String> {
-    let points = |degraded: bool| -> Vec<(f64, f64)> {
-        bites
-            .iter()
-            .filter(|b| b.degraded == degraded)
-            .filter_map(|b| b.taf.map(|taf| (b.static_torque_knm, taf)))
-            .collect()
-    };
-    let (good, degraded) = (points(false), points(true));
-    let all = || {
-        good.iter()
-            .chain(&degraded)
-            .chain(curves.iter().flat_map(|(_, c)| c.iter()))
-    };
-    let x_range = range(all().map(|p| p.0));
     let thresholds: Vec<(&str, f64)> = settings
         .map(|s| vec![("TAF warning", s.taf_warning), ("TAF alarm", s.taf_alarm)])
         .unwrap_or_default();
-    let y_range = range(all().map(|p| p.1).chain(thresholds.iter().map(|t| t.1)));
+    let (x_range, y_range) = (grid.x, grid.y);
+    let most = grid.clean.iter().max().copied().unwrap_or(0).max(1);
     let mut svg = String::new();
     {
         let root = SVGBackend::with_string(&mut svg, (PANEL.0, 450)).into_drawing_area();
@@ -205,6 +271,26 @@ pub(super) fn taf_svg(
             .label_style(("sans-serif", 12))
             .draw()
             .map_err(drawing)?;
+        // Shade by the logarithm of the count: one bite still shows, the densest
+        // cell is darkest.
+        let shade = |count: u32| 0.2 + 0.8 * f64::from(count).ln_1p() / f64::from(most).ln_1p();
+        chart
+            .draw_series(grid.occupied(&grid.clean).map(|(x0, y0, x1, y1, count)| {
+                Rectangle::new([(x0, y0), (x1, y1)], BLUE.mix(shade(count)).filled())
+            }))
+            .map_err(drawing)?
+            .label(format!("bites (shade: bites per cell, darkest {most})"))
+            .legend(|(x, y)| Rectangle::new([(x, y - 4), (x + 8, y + 4)], BLUE.filled()));
+        // Degraded windows as a dot per occupied cell, over the clean bites' shade
+        // (they are few; cells of their own would hide the clean density).
+        let grey = RGBColor(90, 90, 90);
+        chart
+            .draw_series(grid.occupied(&grid.degraded).map(|(x0, y0, x1, y1, _)| {
+                Circle::new(((x0 + x1) / 2.0, (y0 + y1) / 2.0), 1, grey.filled())
+            }))
+            .map_err(drawing)?
+            .label("bites, degraded window (a dot per cell)")
+            .legend(move |(x, y)| Circle::new((x + 4, y), 2, grey.filled()));
         for (index, (label, curve)) in curves.iter().enumerate() {
             let color = Palette99::pick(index + 5).to_rgba();
             chart
@@ -213,20 +299,6 @@ pub(super) fn taf_svg(
                 .label(label.as_str())
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], color));
         }
-        chart
-            .draw_series(good.iter().map(|p| Circle::new(*p, 3, BLUE.filled())))
-            .map_err(drawing)?
-            .label("bite")
-            .legend(|(x, y)| Circle::new((x + 8, y), 3, BLUE.filled()));
-        chart
-            .draw_series(
-                degraded
-                    .iter()
-                    .map(|p| Circle::new(*p, 3, RGBColor(150, 150, 150))),
-            )
-            .map_err(drawing)?
-            .label("bite, degraded window")
-            .legend(|(x, y)| Circle::new((x + 8, y), 3, RGBColor(150, 150, 150)));
         for (index, (label, value)) in thresholds.iter().enumerate() {
             let color = if index == 0 {
                 RGBColor(230, 150, 0)

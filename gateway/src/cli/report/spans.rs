@@ -4,7 +4,8 @@
 use plotters::style::RGBColor;
 
 use super::plots::TimeAxis;
-use crate::outputs::history::query::{AlarmRow, BiteRow, RunRow};
+use crate::outputs::history::query::{AlarmRow, HistoryReader, RunRow};
+use crate::outputs::history::time::UtcTime;
 
 /// Overlap of `[from, to)` with the axis' period, in axis units.
 pub(super) fn clip(axis: &TimeAxis, from: f64, to: f64) -> Option<(f64, f64)> {
@@ -40,22 +41,44 @@ pub(super) fn alarm_spans(axis: &TimeAxis, alarms: &[&AlarmRow]) -> Vec<(f64, f6
     spans
 }
 
-/// When the gateway ran, in axis units: each run from its start to its stop; a run
-/// that was killed to its last recorded bite.
-pub(super) fn run_spans(axis: &TimeAxis, runs: &[RunRow], bites: &[BiteRow]) -> Vec<(f64, f64)> {
-    runs.iter()
-        .filter_map(|run| {
-            let from = at_time(axis, &run.started_at)?;
-            let to = match (&run.stopped_at, &run.ended) {
-                (Some(stopped), _) => at_time(axis, stopped)?,
-                (None, None) => axis.span,
-                (None, Some(_)) => bites
-                    .iter()
-                    .filter(|b| b.run_id == run.id)
-                    .filter_map(|b| at_time(axis, &b.time))
-                    .fold(from, f64::max),
-            };
-            clip(axis, from, to)
-        })
-        .collect()
+/// When the gateway ran, in axis units, as far as the file tells.
+#[derive(Debug, Default)]
+pub(super) struct RunSpans {
+    /// Known to be running: each run from its start to its recorded stop, or, for a
+    /// run without one (killed, its power cut, or still running), to its last
+    /// recorded event.
+    pub(super) up: Vec<(f64, f64)>,
+    /// Not known: for a run without a recorded stop, from its last recorded event to
+    /// the next run's start (or the period's end).
+    pub(super) unknown: Vec<(f64, f64)>,
+    /// Runs without a recorded stop.
+    pub(super) open: usize,
+}
+
+/// The run spans of `runs` (in start order) on `axis`.
+pub(super) fn run_spans(
+    reader: &HistoryReader,
+    axis: &TimeAxis,
+    runs: &[RunRow],
+) -> anyhow::Result<RunSpans> {
+    let mut spans = RunSpans::default();
+    for (index, run) in runs.iter().enumerate() {
+        let Some(from) = at_time(axis, &run.started_at) else {
+            continue;
+        };
+        if let Some(to) = run.stopped_at.as_deref().and_then(|t| at_time(axis, t)) {
+            spans.up.extend(clip(axis, from, to));
+            continue;
+        }
+        spans.open += 1;
+        let next = runs.get(index + 1);
+        let next_start = next.and_then(|n| UtcTime::parse(&n.started_at).ok());
+        let seen = reader
+            .last_event(run, next_start)?
+            .map_or(from, |time| axis.x_of(time).max(from));
+        spans.up.extend(clip(axis, from, seen));
+        let until = next_start.map_or(axis.span, |time| axis.x_of(time));
+        spans.unknown.extend(clip(axis, seen, until));
+    }
+    Ok(spans)
 }

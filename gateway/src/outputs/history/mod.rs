@@ -25,7 +25,9 @@
 //! - **Reading** ([`query`]): [`query::HistoryReader`] opens its own read-only
 //!   connection; `millgate history` and `millgate report` use it. [`series`] adds
 //!   what a page plots over months: the gap and TAF in time buckets and the gap's
-//!   trend per week, aggregated by SQLite.
+//!   trend per week, aggregated by SQLite; [`summary`] what a report reads over a
+//!   year without holding it (a driveline's TAF quantiles, its bites one by one, when
+//!   a run without a recorded stop was last seen).
 //!
 //! Schema: [`schema`]; times: [`time`] (UTC ISO-8601 text).
 
@@ -36,6 +38,7 @@ pub mod restore;
 pub mod retention;
 pub mod schema;
 pub mod series;
+pub mod summary;
 pub mod time;
 pub mod writer;
 
