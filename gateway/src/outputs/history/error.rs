@@ -46,6 +46,25 @@ pub enum HistoryError {
     },
 }
 
+/// [`schema::check_owner`] as the history's error for the file at `path`: SQLite's own
+/// failure (a corrupt file, say) explained as such, another application's file as a
+/// schema error.
+pub(super) fn check_file_owner(
+    connection: &rusqlite::Connection,
+    path: &std::path::Path,
+) -> Result<(), HistoryError> {
+    schema::check_owner(connection).map_err(|error| match error {
+        schema::SchemaError::Sqlite(source) => HistoryError::Sqlite {
+            path: path.to_path_buf(),
+            source,
+        },
+        source => HistoryError::Schema {
+            path: path.to_path_buf(),
+            source,
+        },
+    })
+}
+
 /// SQLite's message, with what it means for the operator where the code says more.
 pub(crate) fn explain(error: &rusqlite::Error) -> String {
     use rusqlite::ffi::ErrorCode;

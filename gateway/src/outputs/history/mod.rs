@@ -25,7 +25,9 @@
 //! - **Reading** ([`query`]): [`query::HistoryReader`] opens its own read-only
 //!   connection; `millgate history` and `millgate report` use it. [`series`] adds
 //!   what a page plots over months: the gap and TAF in time buckets and the gap's
-//!   trend per week, aggregated by SQLite.
+//!   trend per week, aggregated by SQLite; [`summary`] what a report reads over a
+//!   year without holding it (a driveline's TAF quantiles, its bites one by one, when
+//!   a run without a recorded stop was last seen).
 //!
 //! Schema: [`schema`]; times: [`crate::state::time`] (UTC ISO-8601 text). The handle
 //! everything records through, [`History`](crate::state::history::History), is the state layer's
@@ -39,6 +41,7 @@ pub mod retention;
 mod run;
 pub mod schema;
 pub mod series;
+pub mod summary;
 pub mod writer;
 
 pub use error::HistoryError;

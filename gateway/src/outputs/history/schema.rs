@@ -214,6 +214,12 @@ ALTER TABLE driveline_state ADD COLUMN gap_warning INTEGER NOT NULL DEFAULT 0;
 "#,
 ];
 
+/// `PRAGMA application_id` of a millgate history: the bytes "MLGT" (0x4D4C4754), set
+/// on every file the gateway creates or migrates, so `file(1)` and other tools can
+/// tell a history from other SQLite files, and millgate refuses another
+/// application's file rather than adding its tables to it.
+pub const APPLICATION_ID: i64 = 0x4D4C_4754;
+
 /// The schema version this millgate writes.
 pub fn current_version() -> i64 {
     MIGRATIONS.len() as i64
@@ -233,20 +239,67 @@ pub enum SchemaError {
         /// The last version this millgate knows.
         known: i64,
     },
+    /// The file is an SQLite database of another application: another
+    /// `application_id`, or tables and no millgate schema version.
+    #[error(
+        "not a millgate history: an SQLite file of another application ({}); \
+         use another file",
+        if *application_id == 0 {
+            "tables, but no millgate schema".to_owned()
+        } else {
+            format!("application_id {application_id:#010x}, millgate's is {APPLICATION_ID:#010x}")
+        }
+    )]
+    Foreign {
+        /// The file's `PRAGMA application_id`.
+        application_id: i64,
+    },
     /// SQLite refused a step (the file is corrupt, read-only, full, ...).
     #[error("migrating the history schema: {0}")]
     Sqlite(#[from] rusqlite::Error),
 }
 
-/// Bring `connection`'s file to [`current_version`] in one transaction; returns the
-/// version it was at (0 for a new file).
+/// Refuses a file that is not a millgate history: one whose `application_id` is
+/// another application's, or (an id of 0, as before millgate set one) that has tables
+/// but no `gateway_runs`. Reads only; call it before anything changes the file.
+pub fn check_owner(connection: &Connection) -> Result<(), SchemaError> {
+    let application_id: i64 =
+        connection.pragma_query_value(None, "application_id", |row| row.get(0))?;
+    if application_id == APPLICATION_ID {
+        return Ok(());
+    }
+    if application_id != 0 {
+        return Err(SchemaError::Foreign { application_id });
+    }
+    let (tables, runs): (i64, i64) = connection.query_row(
+        "SELECT count(*), count(*) FILTER (WHERE name = 'gateway_runs')
+         FROM sqlite_schema WHERE type = 'table'",
+        [],
+        |row| Ok((row.get(0)?, row.get(1)?)),
+    )?;
+    if tables > 0 && runs == 0 {
+        return Err(SchemaError::Foreign { application_id });
+    }
+    Ok(())
+}
+
+/// Bring `connection`'s file to [`current_version`] in one transaction and mark it
+/// as millgate's ([`APPLICATION_ID`]); returns the version it was at (0 for a new
+/// file). Refuses another application's file ([`check_owner`]) and a newer schema.
 pub fn migrate(connection: &mut Connection) -> Result<i64, SchemaError> {
+    check_owner(connection)?;
     let found: i64 = connection.pragma_query_value(None, "user_version", |row| row.get(0))?;
     let known = current_version();
     if found > known {
         return Err(SchemaError::TooNew { found, known });
     }
     if found == known {
+        // A file of a millgate from before the application id.
+        let application_id: i64 =
+            connection.pragma_query_value(None, "application_id", |row| row.get(0))?;
+        if application_id != APPLICATION_ID {
+            connection.pragma_update(None, "application_id", APPLICATION_ID)?;
+        }
         return Ok(found);
     }
     // IMMEDIATE: take the write lock before reading anything, so two processes
@@ -257,6 +310,7 @@ pub fn migrate(connection: &mut Connection) -> Result<i64, SchemaError> {
         transaction.execute_batch(step)?;
     }
     transaction.pragma_update(None, "user_version", known)?;
+    transaction.pragma_update(None, "application_id", APPLICATION_ID)?;
     transaction.commit()?;
     Ok(found)
 }
@@ -381,6 +435,64 @@ mod tests {
             )
             .unwrap();
         assert_eq!(rows, (1, 1.3, "reset".into()));
+    }
+
+    fn application_id(connection: &Connection) -> i64 {
+        connection
+            .pragma_query_value(None, "application_id", |row| row.get(0))
+            .unwrap()
+    }
+
+    #[test]
+    fn new_and_migrated_files_carry_millgate_s_application_id() {
+        let mut new = Connection::open_in_memory().unwrap();
+        migrate(&mut new).unwrap();
+        assert_eq!(application_id(&new), APPLICATION_ID);
+        // A file of an older millgate: version 4 (migrated), and current (marked).
+        for version in [4, current_version()] {
+            let mut old = Connection::open_in_memory().unwrap();
+            for step in &MIGRATIONS[..usize::try_from(version).unwrap()] {
+                old.execute_batch(step).unwrap();
+            }
+            old.pragma_update(None, "user_version", version).unwrap();
+            assert_eq!(application_id(&old), 0);
+            assert_eq!(migrate(&mut old).unwrap(), version);
+            assert_eq!(
+                application_id(&old),
+                APPLICATION_ID,
+                "from version {version}"
+            );
+        }
+    }
+
+    #[test]
+    fn another_application_s_file_is_refused_and_left_alone() {
+        // Fossil's id, and one of no application but with its own tables.
+        for (id, table) in [(0x0F05_5112, None), (0, Some("CREATE TABLE notes (x)"))] {
+            let mut connection = Connection::open_in_memory().unwrap();
+            connection
+                .pragma_update(None, "application_id", id)
+                .unwrap();
+            if let Some(table) = table {
+                connection.execute_batch(table).unwrap();
+            }
+            let error = migrate(&mut connection).unwrap_err();
+            let text = error.to_string();
+            assert!(matches!(error, SchemaError::Foreign { .. }), "{text}");
+            assert!(text.starts_with("not a millgate history"), "{text}");
+            if id != 0 {
+                assert!(text.contains("application_id 0x0f055112"), "{text}");
+            }
+            let tables: i64 = connection
+                .query_row(
+                    "SELECT count(*) FROM sqlite_schema WHERE name = 'bites'",
+                    [],
+                    |row| row.get(0),
+                )
+                .unwrap();
+            assert_eq!(tables, 0, "no millgate table added");
+            assert_eq!(application_id(&connection), id);
+        }
     }
 
     #[test]

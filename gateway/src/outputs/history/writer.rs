@@ -56,6 +56,9 @@ pub fn connect(path: &std::path::Path) -> Result<Connection, HistoryError> {
     )
     .map_err(sqlite)?;
     connection.busy_timeout(BUSY_TIMEOUT).map_err(sqlite)?;
+    // Another application's SQLite file is refused before anything here changes it
+    // (WAL mode, auto-vacuum, tables).
+    super::error::check_file_owner(&connection, path)?;
     // A new file gets incremental auto-vacuum, so the retention can hand freed pages
     // back to the file system in small steps. It can only be set before the first
     // table and before WAL mode.

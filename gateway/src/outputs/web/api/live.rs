@@ -17,11 +17,10 @@ use serde_json::{Map, Value as JsonValue};
 use tokio_stream::wrappers::WatchStream;
 use tokio_stream::{Stream, StreamExt};
 
-use super::{
-    driveline_index, history_error, with_history, ApiError, Params, OUTAGE_WINDOW, TREND_WINDOW,
-};
+use super::{driveline_index, history_error, with_history, ApiError, Params, OUTAGE_WINDOW};
 use crate::field::source_health::SourceStatus;
 use crate::outputs::history::query::{Filter, HistoryReader, OutageRow};
+use crate::outputs::history::series::TREND_WINDOW;
 use crate::outputs::history::HistoryError;
 use crate::outputs::web::shared::{DrivelineInfo, TrendCache, WebState};
 use crate::state::catalogue::{self, Figure, Subject, Value};

@@ -38,8 +38,6 @@ pub const LIMIT_DEFAULT: u32 = 100;
 pub const LIMIT_MAX: u32 = 10_000;
 /// Default `points` of `/api/drivelines/{name}/wear`.
 pub const POINTS_DEFAULT: u32 = 300;
-/// The gap trend is fitted to the estimates of this window before the last bite.
-pub const TREND_WINDOW: Duration = Duration::from_secs(28 * 86_400);
 /// Outages counted on the overview: those that started in this window.
 pub const OUTAGE_WINDOW: Duration = Duration::from_secs(24 * 3600);
 
