@@ -94,6 +94,16 @@ pub enum ServiceError {
     /// The Sparkplug B edge node's TLS files cannot be used.
     #[error("the Sparkplug B edge node cannot start: {0}")]
     SparkplugTls(#[from] crate::outputs::sparkplug::tls::TlsSetupError),
+    /// The OPC UA server cannot be built or started.
+    #[cfg(feature = "opcua")]
+    #[error(transparent)]
+    OpcUa(#[from] crate::outputs::opcua::OpcUaError),
+    /// `[outputs.opcua]` in a millgate built without the `opcua` feature.
+    #[error(
+        "outputs.opcua: this millgate was built without the OPC UA server (build it with \
+         cargo build --release -p millgate --features opcua)"
+    )]
+    OpcUaNotBuilt,
     /// The service's task panicked or was cancelled.
     #[error("the service task failed: {0}")]
     Task(#[from] tokio::task::JoinError),
@@ -116,6 +126,9 @@ pub struct Service {
     server_listener: Option<TcpListener>,
     metrics_listener: Option<TcpListener>,
     web_listener: Option<TcpListener>,
+    opcua_listener: Option<TcpListener>,
+    #[cfg(feature = "opcua")]
+    opcua: Option<crate::outputs::opcua::adapter::OpcUaOutputTask>,
     liveness: Arc<Liveness>,
     server_counters: Arc<ServerCounters>,
     /// Set once the PLC writer attempted its first write (at once without a PLC).
@@ -131,6 +144,8 @@ pub struct Bound {
     pub metrics: Option<SocketAddr>,
     /// The maintenance web page.
     pub web: Option<SocketAddr>,
+    /// The OPC UA server.
+    pub opcua: Option<SocketAddr>,
 }
 
 /// The health of Modbus source `index` of `config`: stale after three poll periods,
@@ -206,6 +221,16 @@ impl Service {
         if !problems.is_empty() {
             return Err(ServiceError::Wear(problems));
         }
+        #[cfg(feature = "opcua")]
+        let opcua = crate::outputs::opcua::adapter::OpcUaOutputTask::prepare(
+            &config,
+            &analysis.rod_mill_spans(),
+            &publisher,
+        )?;
+        #[cfg(not(feature = "opcua"))]
+        if config.outputs.opcua.is_some() {
+            return Err(ServiceError::OpcUaNotBuilt);
+        }
         let can_counters = config.can_sources.iter().map(|_| Arc::default()).collect();
         let (plc_attempted, _) = watch::channel(config.outputs.plc.is_none());
         Ok(Self {
@@ -220,6 +245,9 @@ impl Service {
             server_listener: None,
             metrics_listener: None,
             web_listener: None,
+            opcua_listener: None,
+            #[cfg(feature = "opcua")]
+            opcua,
             liveness: Arc::default(),
             server_counters: Arc::default(),
             plc_attempted,
@@ -237,7 +265,20 @@ impl Service {
             .and_then(hmi_server::exposure_warning)
             .into_iter()
             .chain(outputs.web.as_ref().and_then(web::exposure_warning))
+            .chain(self.opcua_warning())
             .collect()
+    }
+
+    /// The OPC UA server's exposure warning.
+    #[cfg(feature = "opcua")]
+    fn opcua_warning(&self) -> Option<String> {
+        let settings = self.config.outputs.opcua.as_ref()?;
+        crate::outputs::opcua::exposure_warning(settings)
+    }
+
+    #[cfg(not(feature = "opcua"))]
+    fn opcua_warning(&self) -> Option<String> {
+        None
     }
 
     /// Bind the listening outputs (Modbus server, metrics) now and return their
@@ -269,10 +310,12 @@ impl Service {
         let server = outputs.server.as_ref().map(|s| s.bind);
         let metrics = outputs.metrics.as_ref().map(|m| m.bind);
         let web = outputs.web.as_ref().map(|w| w.bind);
+        let opcua = outputs.opcua.as_ref().map(|o| o.bind);
         Ok(Bound {
             server: bind_once("Modbus server", &mut self.server_listener, server).await?,
             metrics: bind_once("metrics endpoint", &mut self.metrics_listener, metrics).await?,
             web: bind_once("maintenance page", &mut self.web_listener, web).await?,
+            opcua: bind_once("OPC UA server", &mut self.opcua_listener, opcua).await?,
         })
     }
 
@@ -395,6 +438,9 @@ impl Service {
             server_listener,
             metrics_listener,
             web_listener,
+            opcua_listener,
+            #[cfg(feature = "opcua")]
+            opcua,
             liveness,
             server_counters,
             plc_attempted,
@@ -531,6 +577,13 @@ impl Service {
                 )
             });
         }
+        #[cfg(feature = "opcua")]
+        if let (Some(opcua), Some(listener)) = (opcua, opcua_listener) {
+            tracing::info!("starting the OPC UA server");
+            opcua.spawn(listener, &mut outputs, &outputs_shutdown);
+        }
+        #[cfg(not(feature = "opcua"))]
+        drop(opcua_listener);
         if let Some(listener) = metrics_listener {
             let mut metrics = Metrics::new(
                 &config,
@@ -628,6 +681,8 @@ pub struct RunningService {
     bites: broadcast::Receiver<BiteReport>,
     liveness: Arc<Liveness>,
     plc_attempted: watch::Receiver<bool>,
+    #[cfg(feature = "opcua")]
+    opcua: Option<crate::outputs::opcua::OpcUaStatus>,
     stop: ShutdownTrigger,
     /// The service's task, until its outcome was taken.
     task: Option<JoinHandle<Result<(), ServiceError>>>,
@@ -647,6 +702,8 @@ impl Service {
         let bites = self.subscribe_bites();
         let liveness = Arc::clone(&self.liveness);
         let plc_attempted = self.plc_attempted.subscribe();
+        #[cfg(feature = "opcua")]
+        let opcua = self.opcua.as_ref().map(|opcua| opcua.status());
         let (stop, shutdown) = shutdown::channel();
         let task = tokio::spawn(self.run(shutdown));
         Ok(RunningService {
@@ -657,6 +714,8 @@ impl Service {
             bites,
             liveness,
             plc_attempted,
+            #[cfg(feature = "opcua")]
+            opcua,
             stop,
             task: Some(task),
             ended: None,
@@ -673,6 +732,12 @@ impl RunningService {
     /// The published results and register map.
     pub fn publisher(&self) -> Arc<Publisher> {
         Arc::clone(&self.publisher)
+    }
+
+    /// The OPC UA server's counts, with `[outputs.opcua]`.
+    #[cfg(feature = "opcua")]
+    pub fn opcua(&self) -> Option<crate::outputs::opcua::OpcUaStatus> {
+        self.opcua.clone()
     }
 
     /// Per-channel acquisition counters, indexed like `config.channels`.
