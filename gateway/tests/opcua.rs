@@ -731,7 +731,14 @@ async fn certificates_and_passwords_are_checked() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn hostile_streams_are_counted_and_the_service_goes_on() {
-    let rig = Rig::start("hostile", 30.0, |_, _| {}).await;
+    // Loopback, security none, anonymous and a user.
+    let rig = Rig::start("hostile", 30.0, |config, _| {
+        config.outputs.opcua.as_mut().unwrap().users = vec![OpcUaUser {
+            name: "operator".into(),
+            password: "s3cret".into(),
+        }];
+    })
+    .await;
     let address = rig.gateway.bound().opcua.unwrap();
     let exchange = |bytes: Vec<u8>| async move {
         let mut stream = TcpStream::connect(address).await.unwrap();
@@ -786,7 +793,8 @@ async fn hostile_streams_are_counted_and_the_service_goes_on() {
     assert!(counts.protocol_errors >= 1, "{counts:?}");
     // The service goes on: a client reads, and bites still reach the PLC.
     let before = rig.bite_counter();
-    let mut peer = Peer::connect(&rig.url, &[]).expect("a good client after the hostile ones");
+    let mut peer = Peer::connect(&rig.url, &["--user", "operator", "--password", "s3cret"])
+        .expect("a good client after the hostile ones, signed in on the none endpoint");
     assert_eq!(peer.ask("read Gateway/state", "read")["value"], 1);
     common::until(
         "a bite after the hostile streams",
@@ -796,4 +804,94 @@ async fn hostile_streams_are_counted_and_the_service_goes_on() {
     .await;
     peer.send("quit");
     rig.stop().await;
+}
+
+/// `millgate check` with `[outputs.opcua]`: the summary names the endpoint and the
+/// settings, a non-loopback bind is warned of, a bad value names its key and range.
+#[test]
+fn check_names_the_server_and_warns_of_other_hosts() {
+    let scratch = std::env::temp_dir().join(format!("millgate-opcua-check-{}", std::process::id()));
+    std::fs::create_dir_all(&scratch).unwrap();
+    let repo = common::repo();
+    std::fs::copy(
+        repo.join("config/examples/table2-adjusted.toml"),
+        scratch.join("table2-adjusted.toml"),
+    )
+    .unwrap();
+    let demo = std::fs::read_to_string(repo.join("config/examples/demo.toml")).unwrap();
+    let check = |opcua: &str| {
+        let path = scratch.join("mill.toml");
+        std::fs::write(&path, format!("{demo}\n[outputs.opcua]\n{opcua}\n")).unwrap();
+        let output = Command::new(env!("CARGO_BIN_EXE_millgate"))
+            .args(["check", "--config", path.to_str().unwrap()])
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&output.stdout).to_string()
+            + &String::from_utf8_lossy(&output.stderr);
+        (output.status.success(), text)
+    };
+    let (ok, text) = check("bind = \"127.0.0.1:4841\"");
+    assert!(ok, "{text}");
+    assert!(
+        text.contains(
+            "OPC UA server: opc.tcp://127.0.0.1:4841/ (listen on 127.0.0.1:4841), security none"
+        ),
+        "{text}"
+    );
+    assert!(!text.contains("warning:"), "{text}");
+    // A wildcard bind: the warning, the endpoint at the host clients use.
+    let (ok, text) = check("bind = \"0.0.0.0:4841\"\nhost = \"gateway1\"\nsecurity_modes = [\"none\", \"sign_and_encrypt\"]");
+    assert!(ok, "{text}");
+    assert!(
+        text.contains(
+            "mill.toml: outputs.opcua.bind: 0.0.0.0:4841 accepts OPC UA clients from other \
+             hosts; outputs.opcua.security_modes has none"
+        ),
+        "{text}"
+    );
+    assert!(
+        text.contains("warning: ") && text.contains("OPC UA server: opc.tcp://gateway1:4841/"),
+        "{text}"
+    );
+    let (ok, text) = check("max_sessions = 0");
+    assert!(!ok);
+    assert!(
+        text.contains("outputs.opcua.max_sessions: 0 is not allowed (must be 1..=100)"),
+        "{text}"
+    );
+    let _ = std::fs::remove_dir_all(&scratch);
+}
+
+/// The root README's address space table is `millgate address-space` of the demo's
+/// configuration (a driveline with its model), generated from the spec the server
+/// publishes.
+#[test]
+fn readme_address_space_table_is_generated() {
+    let repo = common::repo();
+    let output = Command::new(env!("CARGO_BIN_EXE_millgate"))
+        .args([
+            "address-space",
+            "--config",
+            repo.join("config/examples/demo.toml").to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(output.status.success());
+    let table = String::from_utf8(output.stdout).unwrap();
+    assert!(table.contains("| `Drivelines/F1/gap_mrad` | Double | mrad (C25) |  |"));
+    let readme = std::fs::read_to_string(repo.join("README.md")).unwrap();
+    let begin = "<!-- address-space:begin -->\n";
+    let start = readme
+        .find(begin)
+        .expect("README has the address-space:begin marker")
+        + begin.len();
+    let end = readme
+        .find("<!-- address-space:end -->")
+        .expect("README has the address-space:end marker");
+    assert_eq!(
+        &readme[start..end],
+        table,
+        "README address space table differs: regenerate it with millgate address-space \
+         --config config/examples/demo.toml"
+    );
 }

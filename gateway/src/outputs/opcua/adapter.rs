@@ -347,7 +347,8 @@ impl ResultsAdapter {
     }
 
     /// The alarms raised, cleared or acknowledged between `before` and `after`, seen at
-    /// `now`.
+    /// `now`; a raised alarm is dated by its bite (`now` for mills, rod mills and
+    /// sources), a cleared or acknowledged one `now`.
     pub fn events(
         &self,
         before: &Results,
@@ -362,7 +363,7 @@ impl ResultsAdapter {
                               severity: u16,
                               latched: bool,
                               message: String,
-                              time: SystemTime| {
+                              raised: SystemTime| {
             if was != is {
                 events.push(AlarmEventSpec {
                     object,
@@ -371,7 +372,7 @@ impl ResultsAdapter {
                     message,
                     active: is,
                     unacknowledged: latched && is,
-                    time,
+                    time: if is { raised } else { now },
                 });
             }
         };
@@ -878,5 +879,163 @@ impl OpcUaOutputTask {
             let served = serving.await;
             ("OPC UA server", served.map_err(|error| error.to_string()))
         });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::outputs::results::GapResults;
+
+    fn demo() -> (ResultsAdapter, AddressSpaceSpec) {
+        let path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/examples/demo.toml");
+        let config = millgate_config::load(&path).unwrap();
+        ResultsAdapter::new(&config, &[])
+    }
+
+    /// Driveline F1's updates in `snapshot`, by key.
+    fn f1<'a>(
+        spec: &'a AddressSpaceSpec,
+        snapshot: &'a Snapshot,
+    ) -> impl Fn(&str) -> VariableUpdate + 'a {
+        let index = spec.objects.iter().position(|o| o.name == "F1").unwrap();
+        move |key| {
+            let at = spec.objects[index]
+                .variables
+                .iter()
+                .position(|v| v.key == key)
+                .unwrap_or_else(|| panic!("no {key}"));
+            snapshot.objects[index][at]
+        }
+    }
+
+    fn bitten() -> Results {
+        let mut results = Results::new(1, 1, 0);
+        results.sources = vec![Some(SourceStatus::Ok)];
+        let d = &mut results.drivelines[0];
+        d.bite_counter = 7;
+        d.last_bite_unix_s = Some(1_700_000_000);
+        d.taf = Some(1.4);
+        d.static_torque_knm = Some(60.0);
+        d.alarm = true;
+        d.gap = Some(GapResults {
+            gap_mrad: 2.0,
+            low_mrad: 1.8,
+            high_mrad: 2.2,
+            coupling: None,
+            likeliest_coupling: Some(1),
+            bites_pooled: 5,
+        });
+        results
+    }
+
+    #[test]
+    fn fresh_values_are_good_and_dated_by_their_bite() {
+        let (mut adapter, spec) = demo();
+        let snapshot = adapter.snapshot(&bitten(), SystemTime::now());
+        let f1 = f1(&spec, &snapshot);
+        let bite = UNIX_EPOCH + Duration::from_secs(1_700_000_000);
+        assert_eq!(
+            f1("taf"),
+            VariableUpdate::good(Value::Double(1.4), Some(bite))
+        );
+        assert_eq!(f1("gap_coupling").value, Some(Value::UInt32(65_535)));
+        assert_eq!(f1("alarm").quality, Quality::Good);
+        // The fit gave no frequency from a clean window: no data, not a zero.
+        assert_eq!(f1("beta1"), VariableUpdate::missing(Quality::BadNoData));
+    }
+
+    #[test]
+    fn a_stale_source_withdraws_figures_and_keeps_counters_uncertain() {
+        let (mut adapter, spec) = demo();
+        let mut results = bitten();
+        results.drivelines[0].source_stale = true;
+        let snapshot = adapter.snapshot(&results, SystemTime::now());
+        let f1 = f1(&spec, &snapshot);
+        for key in [
+            "taf",
+            "static_torque",
+            "gap_mrad",
+            "last_bite_time",
+            "wear_trend",
+        ] {
+            assert_eq!(
+                f1(key),
+                VariableUpdate::missing(Quality::BadNoCommunication),
+                "{key}"
+            );
+        }
+        let bites = f1("bite_counter");
+        assert_eq!(
+            (bites.value, bites.quality),
+            (Some(Value::UInt32(7)), Quality::UncertainLastUsableValue)
+        );
+        assert_eq!(f1("alarm").quality, Quality::UncertainLastUsableValue);
+        assert_eq!(
+            f1("source_stale"),
+            VariableUpdate::good(Value::Boolean(true), None)
+        );
+    }
+
+    #[test]
+    fn missing_values_say_why() {
+        let (mut adapter, spec) = demo();
+        let never = Results::new(1, 1, 0);
+        let snapshot = adapter.snapshot(&never, SystemTime::now());
+        assert_eq!(
+            f1(&spec, &snapshot)("taf"),
+            VariableUpdate::missing(Quality::BadWaitingForInitialData)
+        );
+        let mut degraded = bitten();
+        degraded.drivelines[0].last_bite_degraded = true;
+        degraded.drivelines[0].taf = None;
+        let snapshot = adapter.snapshot(&degraded, SystemTime::now());
+        assert_eq!(
+            f1(&spec, &snapshot)("taf"),
+            VariableUpdate::missing(Quality::BadDeviceFailure)
+        );
+        // A non-finite number is never published as good.
+        let mut nan = bitten();
+        nan.drivelines[0].taf = Some(f64::NAN);
+        let snapshot = adapter.snapshot(&nan, SystemTime::now());
+        assert!(!f1(&spec, &snapshot)("taf").quality.carries_value());
+    }
+
+    #[test]
+    fn alarm_transitions_become_events() {
+        let (adapter, spec) = demo();
+        let now = UNIX_EPOCH + Duration::from_secs(1_800_000_000);
+        let quiet = {
+            let mut results = bitten();
+            results.drivelines[0].alarm = false;
+            results
+        };
+        let raised = adapter.events(&quiet, &bitten(), now);
+        assert_eq!(raised.len(), 1, "{raised:?}");
+        let event = &raised[0];
+        assert_eq!(spec.objects[event.object].name, "F1");
+        assert_eq!(event.kind, "taf_alarm");
+        assert!(event.active && event.unacknowledged);
+        assert_eq!(event.severity, ALARM_SEVERITY);
+        assert_eq!(
+            event.time,
+            UNIX_EPOCH + Duration::from_secs(1_700_000_000),
+            "raised at its bite"
+        );
+        assert!(event.message.starts_with("F1: TAF alarm raised, TAF 1.40"));
+        let acknowledged = adapter.events(&bitten(), &quiet, now);
+        assert_eq!(acknowledged.len(), 1);
+        assert!(!acknowledged[0].active && !acknowledged[0].unacknowledged);
+        assert_eq!(acknowledged[0].time, now);
+        assert!(acknowledged[0].message.contains("acknowledged"));
+        // A source going stale, from the source's object.
+        let mut stale = bitten();
+        stale.sources = vec![Some(SourceStatus::Stale)];
+        let events = adapter.events(&bitten(), &stale, now);
+        assert_eq!(events.len(), 1);
+        assert_eq!(events[0].kind, "source_stale");
+        assert_eq!(spec.objects[events[0].object].kind, ObjectKind::Source);
+        assert!(adapter.events(&bitten(), &bitten(), now).is_empty());
     }
 }

@@ -288,11 +288,13 @@ pub struct Acknowledgement {
     pub user: Option<String>,
 }
 
-/// The address space as a Markdown table: one row per variable with its node id,
-/// type, unit (UNECE code), range and description.
+/// The address space as a Markdown table: one row per variable with its path below
+/// the root (its node id's string is `Millgate/` and the path), type, unit (UNECE
+/// code), range and description.
 pub fn render_markdown(spec: &AddressSpaceSpec) -> String {
     let mut text = String::from(
-        "| node (ns=millgate) | type | unit | range | description |\n|---|---|---|---|---|\n",
+        "| variable (below `Millgate/`) | type | unit (UNECE code) | range | description |\n\
+         |---|---|---|---|---|\n",
     );
     for (index, object) in spec.objects.iter().enumerate() {
         let path = object_path(spec, index);
