@@ -144,6 +144,25 @@ pub(crate) struct RawOutputs {
     pub metrics: Option<RawMetricsOutput>,
     pub mqtt: Option<RawMqttOutput>,
     pub web: Option<RawWebOutput>,
+    pub opcua: Option<RawOpcUaOutput>,
+}
+
+/// `[outputs.opcua]`: the OPC UA server.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawOpcUaOutput {
+    pub bind: Option<String>,
+    pub host: Option<String>,
+    pub security_modes: Option<Vec<String>>,
+    pub pki_dir: Option<String>,
+    pub anonymous: Option<bool>,
+    pub users_file: Option<String>,
+    pub allow_remote_commands: Option<bool>,
+    pub max_connections: Option<i64>,
+    pub max_sessions: Option<i64>,
+    pub max_subscriptions_per_session: Option<i64>,
+    pub max_monitored_items_per_subscription: Option<i64>,
+    pub max_session_timeout_ms: Option<i64>,
 }
 
 /// `[outputs.plc]`.

@@ -1,5 +1,5 @@
 //! `[outputs]`: the PLC writer, the HMI server, the metrics endpoint, the Sparkplug
-//! node and the web page.
+//! node and the web page (the OPC UA server's keys are in `opcua.rs`).
 
 use std::net::SocketAddr;
 use std::ops::RangeInclusive;
@@ -27,9 +27,14 @@ const WEB_CONNECTIONS_RANGE: RangeInclusive<i64> = 1..=1024;
 const WEB_TIMEOUT_RANGE_MS: RangeInclusive<i64> = 100..=60_000;
 
 impl Checker<'_> {
-    /// `[outputs]`; `history` says whether `[history]` is configured (the MQTT output
-    /// keeps its session number there).
-    pub(super) fn outputs(&mut self, raw: &RawOutputs, history: bool) -> Option<Outputs> {
+    /// `[outputs]`; `history` is the history file when `[history]` is configured (the
+    /// MQTT output keeps its session number there; the OPC UA server's certificates go
+    /// beside it by default).
+    pub(super) fn outputs(
+        &mut self,
+        raw: &RawOutputs,
+        history: Option<&std::path::Path>,
+    ) -> Option<Outputs> {
         let plc = raw.plc.as_ref().map(|plc| {
             let key = "outputs.plc";
             let address = self.host_port(&format!("{key}.address"), &plc.address);
@@ -93,7 +98,9 @@ impl Checker<'_> {
             })
         });
         let web = raw.web.as_ref().map(|web| self.web(web));
+        let opcua = raw.opcua.as_ref().map(|opcua| self.opcua(opcua, history));
         let (server, metrics, web) = (optional(server), optional(metrics), optional(web));
+        let opcua = optional(opcua);
         let listeners: Vec<(&str, SocketAddr)> = [
             (
                 "outputs.server.bind",
@@ -107,18 +114,26 @@ impl Checker<'_> {
                 "outputs.web.bind",
                 web.as_ref().and_then(|w| w.as_ref().map(|w| w.bind)),
             ),
+            (
+                "outputs.opcua.bind",
+                opcua.as_ref().and_then(|o| o.as_ref().map(|o| o.bind)),
+            ),
         ]
         .into_iter()
         .filter_map(|(key, bind)| Some((key, bind?)))
         .collect();
         self.distinct_listeners(&listeners);
-        let mqtt = raw.mqtt.as_ref().map(|mqtt| self.mqtt(mqtt, history));
+        let mqtt = raw
+            .mqtt
+            .as_ref()
+            .map(|mqtt| self.mqtt(mqtt, history.is_some()));
         Some(Outputs {
             plc: optional(plc)?,
             server: server?,
             metrics: metrics?,
             mqtt: optional(mqtt)?,
             web: web?,
+            opcua: opcua?,
         })
     }
 

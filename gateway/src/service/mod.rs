@@ -60,6 +60,11 @@ pub struct Service {
     server_listener: Option<TcpListener>,
     metrics_listener: Option<TcpListener>,
     web_listener: Option<TcpListener>,
+    opcua_listener: Option<TcpListener>,
+    /// The OPC UA server, made by [`Service::new`] (its address space and certificate
+    /// store checked there, so `check` reports them).
+    #[cfg(feature = "opcua")]
+    opcua: Option<crate::outputs::opcua::adapter::OpcUaOutputTask>,
     liveness: Arc<Liveness>,
     server_counters: Arc<ServerCounters>,
     /// Set once the PLC writer attempted its first write (at once without a PLC).
@@ -75,6 +80,8 @@ pub struct Bound {
     pub metrics: Option<SocketAddr>,
     /// The maintenance web page.
     pub web: Option<SocketAddr>,
+    /// The OPC UA server.
+    pub opcua: Option<SocketAddr>,
 }
 
 impl Service {
@@ -115,9 +122,20 @@ impl Service {
         if !problems.is_empty() {
             return Err(ServiceError::Wear(problems));
         }
+        let (commands, command_receiver) = commands::channel();
+        #[cfg(feature = "opcua")]
+        let opcua = crate::outputs::opcua::adapter::OpcUaOutputTask::prepare(
+            &config,
+            &analysis.rod_mill_spans(),
+            Arc::clone(&board),
+            commands.clone(),
+        )?;
+        #[cfg(not(feature = "opcua"))]
+        if config.outputs.opcua.is_some() {
+            return Err(ServiceError::OpcUaNotBuilt);
+        }
         let can_counters = config.can_sources.iter().map(|_| Arc::default()).collect();
         let (plc_attempted, _) = watch::channel(config.outputs.plc.is_none());
-        let (commands, command_receiver) = commands::channel();
         Ok(Self {
             config,
             map: Arc::new(map),
@@ -133,23 +151,34 @@ impl Service {
             server_listener: None,
             metrics_listener: None,
             web_listener: None,
+            opcua_listener: None,
+            #[cfg(feature = "opcua")]
+            opcua,
             liveness: Arc::default(),
             server_counters: Arc::default(),
             plc_attempted,
         })
     }
 
-    /// What the configuration exposes that an operator should know: a Modbus server
-    /// or a web page reachable from other hosts. `millgate check` prints these; the
-    /// service logs them as warnings at start.
+    /// What the configuration exposes that an operator should know: a Modbus server,
+    /// a web page or an OPC UA server reachable from other hosts. `millgate check`
+    /// prints these; the service logs them as warnings at start.
     pub fn warnings(&self) -> Vec<String> {
         let outputs = &self.config.outputs;
+        #[cfg(feature = "opcua")]
+        let opcua = outputs
+            .opcua
+            .as_ref()
+            .and_then(crate::outputs::opcua::exposure_warning);
+        #[cfg(not(feature = "opcua"))]
+        let opcua = None;
         outputs
             .server
             .as_ref()
             .and_then(hmi_server::exposure_warning)
             .into_iter()
             .chain(outputs.web.as_ref().and_then(web::exposure_warning))
+            .chain(opcua)
             .collect()
     }
 
@@ -182,10 +211,12 @@ impl Service {
         let server = outputs.server.as_ref().map(|s| s.bind);
         let metrics = outputs.metrics.as_ref().map(|m| m.bind);
         let web = outputs.web.as_ref().map(|w| w.bind);
+        let opcua = outputs.opcua.as_ref().map(|o| o.bind);
         Ok(Bound {
             server: bind_once("Modbus server", &mut self.server_listener, server).await?,
             metrics: bind_once("metrics endpoint", &mut self.metrics_listener, metrics).await?,
             web: bind_once("maintenance page", &mut self.web_listener, web).await?,
+            opcua: bind_once("OPC UA server", &mut self.opcua_listener, opcua).await?,
         })
     }
 
@@ -319,6 +350,9 @@ impl Service {
             server_listener,
             metrics_listener,
             web_listener,
+            opcua_listener,
+            #[cfg(feature = "opcua")]
+            opcua,
             liveness,
             server_counters,
             plc_attempted,
@@ -358,11 +392,16 @@ impl Service {
                 server: server_listener,
                 metrics: metrics_listener,
                 web: web_listener,
+                opcua: opcua_listener,
             },
             outage_monitor,
             rod_mill_spans,
             plc_counters: Arc::default(),
             sparkplug: None,
+            #[cfg(feature = "opcua")]
+            opcua,
+            #[cfg(feature = "opcua")]
+            opcua_status: None,
         };
         let mut outputs = tokio::task::JoinSet::new();
         for (name, task) in outputs::tasks(wiring, &outputs_shutdown)? {

@@ -35,6 +35,7 @@ pub(super) struct Listeners {
     pub(super) server: Option<TcpListener>,
     pub(super) metrics: Option<TcpListener>,
     pub(super) web: Option<TcpListener>,
+    pub(super) opcua: Option<TcpListener>,
 }
 
 /// What the outputs are built from.
@@ -54,19 +55,26 @@ pub(super) struct Wiring<'a> {
     pub(super) plc_counters: Arc<PlcCounters>,
     /// The Sparkplug node's status once built, for `/metrics`.
     pub(super) sparkplug: Option<Arc<SparkplugStatus>>,
+    /// The OPC UA server, made by `Service::new`.
+    #[cfg(feature = "opcua")]
+    pub(super) opcua: Option<crate::outputs::opcua::adapter::OpcUaOutputTask>,
+    /// The OPC UA server's status once started, for `/metrics`.
+    #[cfg(feature = "opcua")]
+    pub(super) opcua_status: Option<crate::outputs::opcua::OpcUaStatus>,
 }
 
 /// Builds one output, or none when it is not configured.
 type Builder = fn(&mut Wiring<'_>, &Shutdown) -> Result<Option<OutputTask>, ServiceError>;
 
 /// Every output in start order (`/metrics` last: it shows the others' counters).
-const OUTPUTS: [Builder; 7] = [
+const OUTPUTS: [Builder; 8] = [
     plc_writer,
     heartbeat_without_plc,
     outage_monitor,
     hmi_server,
     sparkplug,
     web_page,
+    opcua,
     metrics,
 ];
 
@@ -195,6 +203,24 @@ fn web_page(w: &mut Wiring<'_>, shutdown: &Shutdown) -> Result<Option<OutputTask
     }))
 }
 
+#[cfg(feature = "opcua")]
+fn opcua(w: &mut Wiring<'_>, shutdown: &Shutdown) -> Result<Option<OutputTask>, ServiceError> {
+    let (Some(opcua), Some(listener)) = (w.opcua.take(), w.listeners.opcua.take()) else {
+        return Ok(None);
+    };
+    tracing::info!("starting the OPC UA server");
+    w.opcua_status = Some(opcua.status());
+    Ok(task("OPC UA server", opcua.run(listener, shutdown.clone())))
+}
+
+/// Without the feature `Service::new` refuses `[outputs.opcua]`, so nothing was bound
+/// and nothing starts.
+#[cfg(not(feature = "opcua"))]
+fn opcua(w: &mut Wiring<'_>, _: &Shutdown) -> Result<Option<OutputTask>, ServiceError> {
+    debug_assert!(w.listeners.opcua.is_none());
+    Ok(None)
+}
+
 fn metrics(w: &mut Wiring<'_>, shutdown: &Shutdown) -> Result<Option<OutputTask>, ServiceError> {
     let Some(listener) = w.listeners.metrics.take() else {
         return Ok(None);
@@ -211,6 +237,10 @@ fn metrics(w: &mut Wiring<'_>, shutdown: &Shutdown) -> Result<Option<OutputTask>
     }
     if let Some(status) = w.sparkplug.clone() {
         metrics = metrics.with_sparkplug(status);
+    }
+    #[cfg(feature = "opcua")]
+    if let Some(status) = w.opcua_status.clone() {
+        metrics = metrics.with_opcua(status);
     }
     let shutdown = shutdown.clone();
     Ok(task("metrics endpoint", async move {
