@@ -1,12 +1,14 @@
 //! Test support for millgate, in one place: the demo's devices sized for a
 //! configuration ([`demo_devices`]), waiting for a condition ([`wait_for`]), scraping
-//! `/metrics` ([`scrape`]), a scripted hostile DAQ ([`hostile_daq`]) and the
+//! `/metrics` ([`scrape`]), a scripted hostile DAQ ([`hostile_daq`]), a serial line
+//! with a pymodbus RTU device on it ([`serial_line`]) and the
 //! counting allocator of the zero-allocation tests ([`counting_allocator`]). A running gateway is started with
 //! `millgate::Service::new(config)?.spawn().await?` ([`millgate::Service::spawn`]);
 //! tolerance comparisons are `millgate_dsp::testing`.
 
 pub mod counting_allocator;
 pub mod hostile_daq;
+pub mod serial_line;
 
 pub mod chatter_eval;
 
