@@ -6,7 +6,7 @@
 //! connection and reconnects with capped exponential backoff (over RTU: the serial
 //! device is closed and opened again, its buffers cleared). A device exception
 //! ("the DAQ refused") is counted but keeps the connection. Over RTU every request
-//! waits out the line's inter-frame silence after the last reply ([`super::rtu`]).
+//! waits out the line's inter-frame silence after the last reply (`rtu.rs`).
 //!
 //! Blocks are tracked by sequence number: a jump of k > 1 means k - 1 blocks were
 //! lost and is passed on as an [`Acquired::Gap`] before the new samples, so the
