@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """A Modbus RTU device played by pymodbus: a drive with a small DAQ on a serial line.
 
-usage: pymodbus_rtu_device.py DEVICE BAUD STOPBITS UNIT EPOCH
+usage: pymodbus_rtu_device.py DEVICE BAUD STOPBITS UNIT EPOCH [firehose]
 
 Serves Modbus RTU on the serial device DEVICE (BAUD, 8 data bits, no parity: a
 pseudo-terminal refuses parity settings, STOPBITS 1 or 2) as unit UNIT:
@@ -14,6 +14,10 @@ pseudo-terminal refuses parity settings, STOPBITS 1 or 2) as unit UNIT:
   from EPOCH (seconds since 1970), so a device restarted with the same EPOCH goes on
   as if it had kept sampling (a cable pulled and plugged back), and a reader can tell
   from the values alone which samples it missed.
+
+With "firehose" the block is instead a new one at every read of register 0 (block k
+for the k-th read; EPOCH unused): the RTU benchmark's device, whose every poll brings
+a block.
 
 Holding and input registers are one register space (pymodbus' shared registers).
 Prints "ready" once the port is open; serves until killed.
@@ -39,12 +43,18 @@ def block(k: int) -> list[int]:
     return words + [0] * (BLOCK_REGISTERS - len(words))
 
 
-async def main(device: str, baud: int, stop_bits: int, unit: int, epoch: float) -> None:
+async def main(device: str, baud: int, stop_bits: int, unit: int, epoch: float, firehose: bool) -> None:
     speed = list(struct.unpack(">HH", struct.pack(">f", 12.5)))
+    reads = 0
 
-    async def current_block(_function, start, _address, _count, registers, _set_values):
+    async def current_block(_function, start, address, _count, registers, _set_values):
         """Before each access: the block of this moment into registers 0..121."""
-        k = int((time.time() - epoch) / BLOCK_PERIOD_S)
+        nonlocal reads
+        if firehose:
+            reads += address == 0
+            k = reads
+        else:
+            k = int((time.time() - epoch) / BLOCK_PERIOD_S)
         registers[0 - start : BLOCK_REGISTERS - start] = block(k)
 
     registers = [0] * SPEED_REGISTER + speed + [4242]
@@ -71,4 +81,5 @@ async def main(device: str, baud: int, stop_bits: int, unit: int, epoch: float) 
 
 if __name__ == "__main__":
     device, baud, stop_bits, unit, epoch = sys.argv[1:6]
-    asyncio.run(main(device, int(baud), int(stop_bits), int(unit), float(epoch)))
+    firehose = sys.argv[6:7] == ["firehose"]
+    asyncio.run(main(device, int(baud), int(stop_bits), int(unit), float(epoch), firehose))

@@ -1,7 +1,8 @@
 //! A serial line on loopback for the Modbus RTU tests and benchmark: a pseudo-terminal
 //! pair made by socat ([`PtyPair`]), and a pymodbus RTU device on one end of it
 //! ([`RtuDevice`], `peers/pymodbus_rtu_device.py`). Both are killed when dropped, so a
-//! failing test leaves no process behind.
+//! failing test leaves no process behind. The benchmark's line carries bytes at a baud
+//! rate ([`PacedLine`]).
 //!
 //! A pseudo-terminal refuses parity settings, so the line runs without parity; it
 //! also carries bytes at once, whatever the baud rate.
@@ -109,18 +110,32 @@ impl RtuDevice {
         unit: u8,
         epoch: f64,
     ) -> anyhow::Result<Self> {
+        Self::spawn(device, (baud, stop_bits, unit), &[format!("{epoch:.6}")])
+    }
+
+    /// As [`RtuDevice::start`], but each read of the block is a new block (the
+    /// script's "firehose"), so every poll of the block brings new data.
+    pub fn firehose(device: &Path, baud: u32, stop_bits: u8, unit: u8) -> anyhow::Result<Self> {
+        Self::spawn(
+            device,
+            (baud, stop_bits, unit),
+            &["0".to_owned(), "firehose".to_owned()],
+        )
+    }
+
+    fn spawn(
+        device: &Path,
+        (baud, stop_bits, unit): (u32, u8, u8),
+        rest: &[String],
+    ) -> anyhow::Result<Self> {
         let script = Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("peers")
             .join("pymodbus_rtu_device.py");
         let mut child = Command::new("python3")
             .arg(script)
             .arg(device)
-            .args([
-                baud.to_string(),
-                stop_bits.to_string(),
-                unit.to_string(),
-                format!("{epoch:.6}"),
-            ])
+            .args([baud.to_string(), stop_bits.to_string(), unit.to_string()])
+            .args(rest)
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
@@ -162,4 +177,60 @@ pub fn unix_now() -> f64 {
     std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0.0, |since| since.as_secs_f64())
+}
+
+/// A serial line at a baud rate between two pseudo-terminal pairs: bytes written at
+/// one end of the line arrive at the other no sooner than the line could carry them
+/// (`character_time` each, back to back), in both directions. A pseudo-terminal
+/// carries bytes at once; this is the wire of the RTU benchmark. Its threads end when
+/// the pairs are dropped.
+#[derive(Debug)]
+pub struct PacedLine {
+    /// The gateway's side: open `gateway_side.gateway`.
+    pub gateway_side: PtyPair,
+    /// The device's side: the device opens `device_side.device`.
+    pub device_side: PtyPair,
+}
+
+impl PacedLine {
+    /// Two pairs joined by relays that hold each chunk until its last character
+    /// would have arrived on the line.
+    pub fn open(character_time: Duration) -> anyhow::Result<Self> {
+        let gateway_side = PtyPair::open()?;
+        let device_side = PtyPair::open()?;
+        let open = |path: &Path| {
+            std::fs::OpenOptions::new()
+                .read(true)
+                .write(true)
+                .open(path)
+        };
+        let near = open(&gateway_side.device)?;
+        let far = open(&device_side.gateway)?;
+        relay(near.try_clone()?, far.try_clone()?, character_time);
+        relay(far, near, character_time);
+        Ok(Self {
+            gateway_side,
+            device_side,
+        })
+    }
+}
+
+/// Copies `from` to `to` at the line's pace, on a thread of its own.
+fn relay(mut from: std::fs::File, mut to: std::fs::File, character_time: Duration) {
+    use std::io::{Read, Write};
+    std::thread::spawn(move || {
+        let mut buffer = [0u8; 512];
+        let mut line_free = Instant::now();
+        while let Ok(read) = from.read(&mut buffer) {
+            if read == 0 {
+                break;
+            }
+            let now = Instant::now();
+            line_free = line_free.max(now) + character_time * read as u32;
+            std::thread::sleep(line_free.saturating_duration_since(now));
+            if to.write_all(&buffer[..read]).is_err() {
+                break;
+            }
+        }
+    });
 }
