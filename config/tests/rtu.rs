@@ -184,6 +184,19 @@ fn every_line_setting_names_its_key_and_range() {
     for (from, to, expected) in cases {
         assert_eq!(only_problem(&edited(from, to)), expected, "{to}");
     }
+    // The RTU range holds even when another line setting is wrong.
+    let problems = parse(&edited(
+        "poll_period_ms = 40",
+        "unit_id = 0\nparity = \"space\"\npoll_period_ms = 40",
+    ))
+    .expect_err("two problems");
+    assert_eq!(
+        problems,
+        [
+            "mill.toml: sources.modbus[0].parity: unknown parity \"space\" (allowed: none, even, odd)",
+            "mill.toml: sources.modbus[0].unit_id: 0 is not allowed (must be 1..=247)",
+        ]
+    );
     // A longer silence than the specification's is allowed (slow devices need it).
     let config = parse(&edited(
         "poll_period_ms = 40",

@@ -60,17 +60,17 @@ impl Checker<'_> {
             }
         };
         let unit_id_key = format!("{key}.unit_id");
-        let unit_id = match serial {
+        let unit_id = if raw.device.is_some() && raw.address.is_none() {
             // 0 is the broadcast address (no device answers it), 248..=255 reserved.
-            Some(Some(_)) => self
-                .int_in(
-                    &unit_id_key,
-                    raw.unit_id.unwrap_or(DEFAULT_UNIT_ID),
-                    RTU_UNIT_IDS,
-                    "",
-                )
-                .and_then(|id| u8::try_from(id).ok()),
-            _ => self.unit_id(&unit_id_key, raw.unit_id),
+            self.int_in(
+                &unit_id_key,
+                raw.unit_id.unwrap_or(DEFAULT_UNIT_ID),
+                RTU_UNIT_IDS,
+                "",
+            )
+            .and_then(|id| u8::try_from(id).ok())
+        } else {
+            self.unit_id(&unit_id_key, raw.unit_id)
         };
         let poll_period = self.period(&format!("{key}.poll_period_ms"), raw.poll_period_ms);
         let timeout = self.period(
