@@ -20,7 +20,7 @@ pub struct Config {
     /// file's folder; without `cache_dir`, `$CACHE_DIRECTORY`; `None` (neither): the
     /// user's cache folder (see the gateway).
     pub cache_dir: Option<PathBuf>,
-    /// Modbus TCP DAQs and PLCs that the gateway polls.
+    /// Modbus DAQs and PLCs that the gateway polls, over TCP or a serial line (RTU).
     pub modbus_sources: Vec<ModbusSource>,
     /// SocketCAN interfaces.
     pub can_sources: Vec<CanSource>,
