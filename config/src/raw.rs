@@ -7,12 +7,19 @@
 
 use serde::Deserialize;
 
-/// `[[sources.modbus]]`: a Modbus TCP device.
+/// `[[sources.modbus]]`: a Modbus TCP device (`address`) or a Modbus RTU device on a
+/// serial line (`device` and the line's settings).
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawModbusSource {
     pub name: String,
-    pub address: String,
+    pub address: Option<String>,
+    pub device: Option<String>,
+    pub baud_rate: Option<i64>,
+    pub parity: Option<String>,
+    pub data_bits: Option<i64>,
+    pub stop_bits: Option<i64>,
+    pub inter_frame_delay_us: Option<i64>,
     pub unit_id: Option<i64>,
     pub poll_period_ms: i64,
     pub timeout_ms: Option<i64>,

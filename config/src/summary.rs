@@ -27,11 +27,20 @@ pub fn summary(config: &Config) -> String {
     let source_count = config.modbus_sources.len() + config.can_sources.len();
     let _ = writeln!(text, "Sources ({source_count}):");
     for source in &config.modbus_sources {
+        let transport = match &source.serial {
+            None => format!("Modbus TCP {}", source.address),
+            Some(line) => format!(
+                "Modbus RTU {} at {} Bd {}, silence {} us,",
+                source.address,
+                line.baud_rate,
+                line.format(),
+                line.inter_frame_delay.as_micros()
+            ),
+        };
         let _ = writeln!(
             text,
-            "  {}: Modbus TCP {} unit {}, poll every {} ms, timeout {} ms",
+            "  {}: {transport} unit {}, poll every {} ms, timeout {} ms",
             source.name,
-            source.address,
             source.unit_id,
             source.poll_period.as_millis(),
             source.timeout.as_millis()

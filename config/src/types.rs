@@ -8,6 +8,8 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration;
 
+use crate::SerialLine;
+
 /// A whole, validated millgate configuration, as returned by [`crate::load`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct Config {
@@ -18,7 +20,7 @@ pub struct Config {
     /// file's folder; without `cache_dir`, `$CACHE_DIRECTORY`; `None` (neither): the
     /// user's cache folder (see the gateway).
     pub cache_dir: Option<PathBuf>,
-    /// Modbus TCP DAQs and PLCs that the gateway polls.
+    /// Modbus DAQs and PLCs that the gateway polls, over TCP or a serial line (RTU).
     pub modbus_sources: Vec<ModbusSource>,
     /// SocketCAN interfaces.
     pub can_sources: Vec<CanSource>,
@@ -91,19 +93,27 @@ impl SourceRef<'_> {
     }
 }
 
-/// A Modbus TCP device polled by the gateway.
+/// A Modbus device polled by the gateway: over TCP, or over a serial line (RTU).
 #[derive(Debug, Clone, PartialEq)]
 pub struct ModbusSource {
     /// Unique among all sources.
     pub name: String,
-    /// `host:port`; resolved at connect time, so a DNS name is kept as written.
+    /// Where the device is. Modbus TCP: `host:port`, resolved at connect time, so a
+    /// DNS name is kept as written. Modbus RTU (`serial` set): the serial device's
+    /// absolute path (the file's `device` key), e.g. `/dev/ttyUSB0`.
     pub address: String,
-    /// Modbus unit identifier (slave id), 0..=255.
+    /// The serial line's settings for a Modbus RTU device (`device` in the file);
+    /// `None` for Modbus TCP (`address`).
+    pub serial: Option<SerialLine>,
+    /// Modbus unit identifier (slave id): 0..=255 over TCP, 1..=247 over RTU (0 is
+    /// the broadcast address, which no device answers).
     pub unit_id: u8,
     /// Time between polls, 1..=60000 ms; shorter than the block period
-    /// (120 samples / sample rate) of every block channel on this source.
+    /// (120 samples / sample rate) of every block channel on this source, and over
+    /// RTU long enough for the line to carry one poll's frames and silences.
     pub poll_period: Duration,
-    /// Time allowed for one request/response, 1..=60000 ms (default 1000 ms).
+    /// Time allowed for one request/response (over RTU the response timeout),
+    /// 1..=60000 ms (default 1000 ms).
     pub timeout: Duration,
 }
 

@@ -1,18 +1,19 @@
 //! Test support for millgate, in one place: the demo's devices sized for a
 //! configuration ([`demo_devices`]), waiting for a condition ([`wait_for`]), HTTP to a
 //! running gateway ([`net`], shared with `gateway/tests`), scraping `/metrics`
-//! ([`scrape`]), a scripted hostile DAQ ([`hostile_daq`]) and the
+//! ([`scrape`]), a scripted hostile DAQ ([`hostile_daq`]), a serial line with a
+//! pymodbus RTU device on it ([`serial_line`]) and the
 //! counting allocator of the zero-allocation tests ([`counting_allocator`]). A running gateway is started with
 //! `millgate::Service::new(config)?.spawn().await?` ([`millgate::Service::spawn`]);
 //! tolerance comparisons are `millgate_dsp::testing`.
 
 pub mod counting_allocator;
 pub mod hostile_daq;
+pub mod serial_line;
 
 pub mod chatter_eval;
 
-// Shared with the gateway's integration tests (`gateway/tests/common`): one file.
-#[path = "../support/net.rs"]
+// Shared with the gateway's integration tests (`gateway/tests/common` includes the file).
 pub mod net;
 pub use net::until as wait_for;
 

@@ -112,6 +112,7 @@ pub(crate) fn validate(
     );
     checker.register_overlaps(&raw.channels, &channels, &raw.modbus_sources);
     checker.block_poll_periods(&raw.channels, &channels, &raw.modbus_sources);
+    checker.serial_loads(&modbus_sources, &channels);
     let channel_facts = ChannelFacts {
         names: raw
             .channels

@@ -14,7 +14,7 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
 // The support shared with the end-to-end crate: one file, included by both (`pub`
 // there, where it is the crate's API).
-#[path = "../../../tests/support/net.rs"]
+#[path = "../../../tests/src/net.rs"]
 #[allow(unreachable_pub)]
 mod net;
 pub(crate) use net::{until, HttpAnswer};

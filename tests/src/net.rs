@@ -1,5 +1,5 @@
-//! Test support shared by the gateway's integration tests (`gateway/tests/common`) and
-//! the end-to-end crate (`tests/src/lib.rs`), which both include this one file: waiting
+//! Test support shared by the gateway's integration tests (`gateway/tests/common`, which
+//! includes this file) and the end-to-end crate (whose module it is): waiting
 //! for a condition and talking HTTP to a running gateway (its page, its `/metrics`).
 //! A file rather than a crate: it needs nothing of millgate, and a crate that both
 //! `millgate` (as a dev-dependency) and `millgate-tests` depend on would be one more
