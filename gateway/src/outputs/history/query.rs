@@ -19,6 +19,31 @@ use super::restore::Restored;
 use super::schema::{current_version, SchemaError};
 use crate::state::time::UtcTime;
 
+/// SQLite's `quick_check` of the file at `path` open on `connection`.
+pub(super) fn quick_check(connection: &Connection, path: &Path) -> Result<(), HistoryError> {
+    let problems = connection
+        .prepare("PRAGMA quick_check(10)")
+        .and_then(|mut statement| {
+            statement
+                .query_map([], |row| row.get::<_, String>(0))?
+                .collect::<rusqlite::Result<Vec<_>>>()
+        })
+        .map_err(|source| HistoryError::Sqlite {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    if problems.len() == 1 && problems[0] == "ok" {
+        return Ok(());
+    }
+    Err(HistoryError::Sqlite {
+        path: path.to_path_buf(),
+        source: rusqlite::Error::SqliteFailure(
+            rusqlite::ffi::Error::new(rusqlite::ffi::SQLITE_CORRUPT),
+            Some(format!("quick_check: {}", problems.join("; "))),
+        ),
+    })
+}
+
 /// Which rows to read.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct Filter {
@@ -407,6 +432,12 @@ impl HistoryReader {
     /// The file.
     pub fn path(&self) -> &Path {
         &self.path
+    }
+
+    /// SQLite's `quick_check` of the whole file (every page's structure, no index
+    /// contents): `Ok` for a sound file, else the problems SQLite found (at most ten).
+    pub fn quick_check(&self) -> Result<(), HistoryError> {
+        quick_check(&self.connection, &self.path)
     }
 
     /// The read-only connection, for the queries of sibling modules ([`super::series`]).
