@@ -387,6 +387,28 @@ mod tests {
     }
 
     #[test]
+    fn metrics_reachable_from_other_hosts_is_a_warning() {
+        let metrics = |bind: &str| {
+            check_variant(
+                "demo.toml",
+                "[outputs.server]",
+                &format!("[outputs.metrics]\nbind = \"{bind}\"\n\n[outputs.server]"),
+            )
+            .expect("valid")
+        };
+        let open = metrics("0.0.0.0:9187");
+        assert!(
+            open.contains("warning: ")
+                && open.contains(
+                    "variant.toml: outputs.metrics.bind: 0.0.0.0:9187 accepts clients from \
+                     other hosts"
+                ),
+            "{open}"
+        );
+        assert!(!metrics("127.0.0.1:9187").contains("warning: "));
+    }
+
+    #[test]
     fn rod_mill_configuration_unknown_to_the_drive_is_reported_with_its_key() {
         let text = std::fs::read_to_string(example("rod-mill.toml")).expect("the example");
         let absolute = text

@@ -139,8 +139,8 @@ impl Service {
         })
     }
 
-    /// What the configuration exposes that an operator should know: a Modbus server
-    /// or a web page reachable from other hosts. `millgate check` prints these; the
+    /// What the configuration exposes that an operator should know: a Modbus server,
+    /// `/metrics` or a web page reachable from other hosts. `millgate check` prints these; the
     /// service logs them as warnings at start.
     pub fn warnings(&self) -> Vec<String> {
         let outputs = &self.config.outputs;
@@ -149,6 +149,12 @@ impl Service {
             .as_ref()
             .and_then(hmi_server::exposure_warning)
             .into_iter()
+            .chain(
+                outputs
+                    .metrics
+                    .as_ref()
+                    .and_then(crate::outputs::metrics::exposure_warning),
+            )
             .chain(outputs.web.as_ref().and_then(web::exposure_warning))
             .collect()
     }

@@ -321,7 +321,8 @@ pub(crate) async fn web_ready(port: u16) {
         )
         .await
         {
-            let request = b"GET /api/drivelines HTTP/1.1\r\nhost: l\r\nconnection: close\r\n\r\n";
+            let request =
+                b"GET /api/drivelines HTTP/1.1\r\nhost: localhost\r\nconnection: close\r\n\r\n";
             let mut answer = Vec::new();
             if stream.write_all(request).await.is_ok()
                 && stream.read_to_end(&mut answer).await.is_ok()

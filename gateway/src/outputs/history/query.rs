@@ -19,6 +19,10 @@ use super::restore::Restored;
 use super::schema::{current_version, SchemaError};
 use crate::state::time::UtcTime;
 
+/// SQLite virtual-machine instructions between two looks at a reader's stop
+/// condition ([`HistoryReader::interrupt_when`]): well under a millisecond of work.
+const QUERY_CHECK_OPS: std::ffi::c_int = 10_000;
+
 /// SQLite's `quick_check` of the file at `path` open on `connection`.
 pub(super) fn quick_check(connection: &Connection, path: &Path) -> Result<(), HistoryError> {
     let problems = connection
@@ -432,6 +436,16 @@ impl HistoryReader {
     /// The file.
     pub fn path(&self) -> &Path {
         &self.path
+    }
+
+    /// Interrupt every statement of this reader once `stop` returns true (checked
+    /// every few thousand SQLite instructions): a statement then fails with
+    /// `SQLITE_INTERRUPT` instead of running to its end.
+    pub fn interrupt_when(&mut self, stop: impl FnMut() -> bool + Send + 'static) {
+        // Only fails on a closed connection, which a reader never holds.
+        let _ = self
+            .connection
+            .progress_handler(QUERY_CHECK_OPS, Some(stop));
     }
 
     /// SQLite's `quick_check` of the whole file (every page's structure, no index
