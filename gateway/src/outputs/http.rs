@@ -6,9 +6,10 @@
 //!   is closed: a slow client cannot hold it).
 //! - At most `max_connections` connections. When all are taken, a new one evicts an
 //!   idle connection (waiting for a request head, or between requests; never one
-//!   answering): the oldest idle one of the peer address holding the most
-//!   connections, so clients that hold slow or idle connections lose them first. With
-//!   none idle the new one is answered 503 and closed (a bounded number of such
+//!   answering): the oldest idle one of the other peer address holding the most
+//!   connections, so clients that hold slow or idle connections lose them first. A
+//!   new connection from an address that already holds more than any other, or with
+//!   none idle to evict, is answered 503 and closed (a bounded number of such
 //!   answers at once, the rest closed unanswered).
 //! - A listener whose `accept` keeps failing ends the loop with the error
 //!   (the accept policy it shares with the HMI server), so the service sees the output
@@ -133,7 +134,7 @@ pub(crate) async fn serve(
         let Ok(refusal) = Arc::clone(&refusal_slots).try_acquire_owned() else {
             continue;
         };
-        let evicted = registry.evict_one();
+        let evicted = registry.evict_one(peer.ip());
         let (slots, registry, router) = (Arc::clone(&slots), Arc::clone(&registry), router.clone());
         connections.spawn(async move {
             let freed = match evicted {
@@ -253,27 +254,37 @@ impl Registry {
         crate::lock(&self.0).retain(|other| !Arc::ptr_eq(other, activity));
     }
 
-    /// Evict the oldest idle connection of the peer address holding the most
-    /// connections (the oldest idle one of any peer when that peer has none idle);
-    /// whether one was.
-    fn evict_one(&self) -> bool {
+    /// Make room for a new connection from `newcomer`: evict the oldest idle
+    /// connection of the other peer address holding the most connections (of any
+    /// other address when that one has none idle; of `newcomer`'s own when it is the
+    /// only address). An address that already holds more connections than any other
+    /// evicts nothing: its new connection is refused, so one client cannot push the
+    /// others out. Whether one was evicted.
+    fn evict_one(&self, newcomer: std::net::IpAddr) -> bool {
         use std::sync::atomic::Ordering;
         let connections = crate::lock(&self.0);
         let held = |peer: std::net::IpAddr| connections.iter().filter(|c| c.peer == peer).count();
-        let greediest = connections
+        let greediest_other = connections
             .iter()
             .map(|c| c.peer)
+            .filter(|&peer| peer != newcomer)
             .max_by_key(|&peer| held(peer));
-        let oldest_idle = |of: Option<std::net::IpAddr>| {
+        let oldest_idle = |of: &dyn Fn(std::net::IpAddr) -> bool| {
             connections
                 .iter()
                 .filter(|c| {
                     c.busy.load(Ordering::Acquire) == 0 && !c.evicted.load(Ordering::Acquire)
                 })
-                .filter(|c| of.is_none_or(|peer| c.peer == peer))
+                .filter(|c| of(c.peer))
                 .min_by_key(|c| *crate::lock(&c.idle_since))
         };
-        match oldest_idle(greediest).or_else(|| oldest_idle(None)) {
+        let victim = match greediest_other {
+            Some(greediest) if held(newcomer) > held(greediest) => None,
+            Some(greediest) => oldest_idle(&|peer| peer == greediest)
+                .or_else(|| oldest_idle(&|peer| peer != newcomer)),
+            None => oldest_idle(&|peer| peer == newcomer),
+        };
+        match victim {
             Some(victim) => {
                 victim.evicted.store(true, Ordering::Release);
                 // A permit is stored if it is not waiting yet: the eviction is not lost.
