@@ -122,14 +122,18 @@ impl SparkplugNode {
         format!("{}/{}", self.config.group_id, self.config.node_id)
     }
 
-    /// The next bdSeq from the history file; `None` (logged) when the file cannot
-    /// take it.
-    async fn stored_bd_seq(&self) -> Option<u8> {
+    /// The next bdSeq from the history file; `None` when the file cannot take it
+    /// (logged as an error when `loud`, else at debug level).
+    async fn stored_bd_seq(&self, loud: bool) -> Option<u8> {
         let (path, key) = (self.history.clone(), self.node_key());
         match tokio::task::spawn_blocking(move || next_bd_seq(&path, &key)).await {
             Ok(Ok(bd_seq)) => Some(bd_seq),
-            Ok(Err(error)) => {
+            Ok(Err(error)) if loud => {
                 tracing::error!(%error, "Sparkplug bdSeq not read from the history file");
+                None
+            }
+            Ok(Err(error)) => {
+                tracing::debug!(%error, "Sparkplug bdSeq not read from the history file");
                 None
             }
             Err(error) => {
@@ -142,22 +146,25 @@ impl SparkplugNode {
     /// The next bdSeq; when the history file cannot take it, one more than `last`
     /// (logged: a host then may see a bdSeq repeat after a restart).
     async fn next_bd_seq(&self, last: u8) -> u8 {
-        self.stored_bd_seq()
+        self.stored_bd_seq(true)
             .await
             .unwrap_or_else(|| last.wrapping_add(1))
     }
 
-    /// `read` until it gives a value (every [`RECONNECT_DELAY`]), `None` when
-    /// `shutdown` came first: the session's first bdSeq and replay cursor come from
-    /// the file, never from a default below what it holds.
+    /// `read` until it gives a value (every [`RECONNECT_DELAY`]; only the first
+    /// failure is `loud`, logged as an error), `None` when `shutdown` came first: the
+    /// session's first bdSeq and replay cursor come from the file, never from a
+    /// default below what it holds.
     async fn from_file<T, F: std::future::Future<Output = Option<T>>>(
         shutdown: &mut Shutdown,
-        mut read: impl FnMut() -> F,
+        mut read: impl FnMut(bool) -> F,
     ) -> Option<T> {
+        let mut loud = true;
         loop {
-            if let Some(value) = read().await {
+            if let Some(value) = read(loud).await {
                 return Some(value);
             }
+            loud = false;
             tokio::select! {
                 () = shutdown.recv() => return None,
                 () = tokio::time::sleep(RECONNECT_DELAY) => {}
@@ -327,13 +334,17 @@ impl SparkplugNode {
     }
 
     /// The stored replay cursor (the history's last bite for a new node); `None`
-    /// (logged) when the file cannot be read.
-    async fn load_cursor(&self) -> Option<i64> {
+    /// when the file cannot be read (logged as an error when `loud`).
+    async fn load_cursor(&self, loud: bool) -> Option<i64> {
         let (path, key) = (self.history.clone(), self.node_key());
         match tokio::task::spawn_blocking(move || forward::load_cursor(&path, &key)).await {
             Ok(Ok(cursor)) => Some(cursor),
-            Ok(Err(error)) => {
+            Ok(Err(error)) if loud => {
                 tracing::error!(%error, "Sparkplug replay cursor not read from the history file");
+                None
+            }
+            Ok(Err(error)) => {
+                tracing::debug!(%error, "Sparkplug replay cursor not read from the history file");
                 None
             }
             Err(error) => {
@@ -346,10 +357,13 @@ impl SparkplugNode {
     /// Publish until `shutdown`, reconnecting with a new bdSeq after each lost session.
     pub async fn run(self, mut shutdown: Shutdown) {
         let board = Arc::clone(&self.board);
-        let Some(mut bd_seq) = Self::from_file(&mut shutdown, || self.stored_bd_seq()).await else {
+        let Some(mut bd_seq) =
+            Self::from_file(&mut shutdown, |loud| self.stored_bd_seq(loud)).await
+        else {
             return;
         };
-        let Some(cursor) = Self::from_file(&mut shutdown, || self.load_cursor()).await else {
+        let Some(cursor) = Self::from_file(&mut shutdown, |loud| self.load_cursor(loud)).await
+        else {
             return;
         };
         let mut confirmations = Confirmations::new(cursor);
