@@ -234,3 +234,39 @@ fn host_allowed(host: &str, allowed: &[String]) -> bool {
     let name = name.strip_suffix('.').unwrap_or(name).to_ascii_lowercase();
     name.parse::<std::net::Ipv4Addr>().is_ok() || name == "localhost" || allowed.contains(&name)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::host_allowed;
+
+    #[test]
+    fn hosts_are_addresses_localhost_or_the_allowed_names() {
+        let allowed = ["mill-gw.plant.example".to_owned()];
+        for host in [
+            "127.0.0.1",
+            "127.0.0.1:8080",
+            "10.1.2.3:80",
+            "[::1]:8080",
+            "[fe80::1]",
+            "localhost",
+            "LOCALHOST:8080",
+            "localhost.",
+            "mill-gw.plant.example",
+            "Mill-GW.plant.example:8080",
+        ] {
+            assert!(host_allowed(host, &allowed), "{host}");
+        }
+        for host in [
+            "",
+            "evil.example",
+            "evil.example:8080",
+            "127.0.0.1.evil.example",
+            "localhost.evil.example",
+            "[::1",
+            "[evil.example]:80",
+            "mill-gw.plant.example.evil.example",
+        ] {
+            assert!(!host_allowed(host, &allowed), "{host}");
+        }
+    }
+}

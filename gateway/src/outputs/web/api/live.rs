@@ -482,3 +482,28 @@ impl<S: Stream + Unpin> Stream for Lifetime<S> {
         std::pin::Pin::new(&mut self.updates).poll_next(context)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[tokio::test(start_paused = true)]
+    async fn a_stream_ends_at_its_lifetime_and_frees_its_slot() {
+        let slots = Arc::new(tokio::sync::Semaphore::new(1));
+        let (_live, receiver) = tokio::sync::watch::channel(Arc::new("{}".to_owned()));
+        let mut stream = Lifetime {
+            updates: WatchStream::new(receiver),
+            end: Box::pin(tokio::time::sleep(EVENT_STREAM_LIFETIME)),
+            _slot: Arc::clone(&slots).try_acquire_owned().unwrap(),
+        };
+        assert!(stream.next().await.is_some(), "the current results at once");
+        assert_eq!(slots.available_permits(), 0, "the stream holds its slot");
+        tokio::time::advance(EVENT_STREAM_LIFETIME - Duration::from_secs(1)).await;
+        let pending = tokio::time::timeout(Duration::from_millis(500), stream.next()).await;
+        assert!(pending.is_err(), "nothing new before the end: {pending:?}");
+        tokio::time::advance(Duration::from_secs(1)).await;
+        assert!(stream.next().await.is_none(), "ended at its lifetime");
+        drop(stream);
+        assert_eq!(slots.available_permits(), 1, "the slot is free again");
+    }
+}
