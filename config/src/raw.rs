@@ -209,6 +209,9 @@ pub(crate) struct RawWebOutput {
     pub max_connections: Option<i64>,
     pub header_timeout_ms: Option<i64>,
     pub request_timeout_ms: Option<i64>,
+    pub history_queries: Option<i64>,
+    pub max_event_streams: Option<i64>,
+    pub allowed_hosts: Option<Vec<String>>,
 }
 
 /// `[outputs.mqtt]`: the Sparkplug B edge node.

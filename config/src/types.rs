@@ -662,8 +662,19 @@ pub struct WebOutput {
     pub header_timeout: Duration,
     /// Time allowed to answer one request (the history queries), 100..=60000 ms
     /// (default 10000 ms); past it the answer is 503. Live updates
-    /// (`/api/events`) are not bounded by it.
+    /// (`/api/events`) are not bounded by it; a query past it is interrupted.
     pub request_timeout: Duration,
+    /// History queries run at once, 1..=8 (default 2), each on a thread of its own
+    /// at the lowest CPU priority; a further request waits up to a second for one,
+    /// then is answered 503 with `Retry-After`.
+    pub history_queries: usize,
+    /// Live-update streams (`/api/events`) open at once, 1..=`max_connections`
+    /// (default 8; at most `max_connections - 1` when that is above 1); a further one is answered 503.
+    pub max_event_streams: usize,
+    /// Host names the page answers to besides IP addresses and `localhost` (a request
+    /// naming another host in its `Host` header is refused 421: DNS rebinding);
+    /// default none. Lower case, letters, digits, `-` and `.`.
+    pub allowed_hosts: Vec<String>,
 }
 
 impl WebOutput {
@@ -673,6 +684,10 @@ impl WebOutput {
     pub const DEFAULT_HEADER_TIMEOUT_MS: u64 = 5_000;
     /// Default `request_timeout`, ms.
     pub const DEFAULT_REQUEST_TIMEOUT_MS: u64 = 10_000;
+    /// Default `history_queries`.
+    pub const DEFAULT_HISTORY_QUERIES: usize = 2;
+    /// Default `max_event_streams`.
+    pub const DEFAULT_MAX_EVENT_STREAMS: usize = 8;
 
     /// The page on `bind` with the defaults of every other key.
     pub fn on(bind: SocketAddr) -> Self {
@@ -681,6 +696,9 @@ impl WebOutput {
             max_connections: Self::DEFAULT_MAX_CONNECTIONS,
             header_timeout: Duration::from_millis(Self::DEFAULT_HEADER_TIMEOUT_MS),
             request_timeout: Duration::from_millis(Self::DEFAULT_REQUEST_TIMEOUT_MS),
+            history_queries: Self::DEFAULT_HISTORY_QUERIES,
+            max_event_streams: Self::DEFAULT_MAX_EVENT_STREAMS,
+            allowed_hosts: Vec::new(),
         }
     }
 }

@@ -1689,6 +1689,12 @@ fn the_web_page_defaults_limits_and_listener_clash() {
     assert_eq!(web.max_connections, 32);
     assert_eq!(web.header_timeout, Duration::from_millis(5000));
     assert_eq!(web.request_timeout, Duration::from_millis(10_000));
+    assert_eq!(
+        (web.history_queries, web.max_event_streams),
+        (2, 8),
+        "defaults"
+    );
+    assert!(web.allowed_hosts.is_empty());
     assert!(parse(BASE).unwrap().outputs.web.is_none());
     let set = parse(&edited(
         "[outputs.metrics]",
@@ -1702,9 +1708,16 @@ fn the_web_page_defaults_limits_and_listener_clash() {
             web.bind.port(),
             web.max_connections,
             web.header_timeout,
-            web.request_timeout
+            web.request_timeout,
+            web.max_event_streams
         ),
-        (8088, 1, Duration::from_millis(100), Duration::from_secs(60))
+        (
+            8088,
+            1,
+            Duration::from_millis(100),
+            Duration::from_secs(60),
+            1
+        )
     );
     // Each key names itself and its range.
     for (key, value, range) in [
@@ -1712,6 +1725,14 @@ fn the_web_page_defaults_limits_and_listener_clash() {
         ("max_connections", "1025", "1..=1024"),
         ("header_timeout_ms", "99", "100..=60000"),
         ("request_timeout_ms", "60001", "100..=60000"),
+        ("history_queries", "0", "1..=8"),
+        ("history_queries", "9", "1..=8"),
+        ("max_event_streams", "0", "1..=31"),
+        (
+            "max_event_streams",
+            "32",
+            "1..=31 (below outputs.web.max_connections)",
+        ),
     ] {
         let found = problems(&edited(
             "[outputs.metrics]",
@@ -1724,6 +1745,16 @@ fn the_web_page_defaults_limits_and_listener_clash() {
             "{found:?}"
         );
     }
+    assert_problem_like(
+        &edited(
+            "[outputs.metrics]",
+            "[outputs.web]\nallowed_hosts = [\"mill-gw.example\", \"Mill.Example\"]\n\n\
+             [outputs.metrics]",
+        ),
+        "mill.toml: outputs.web.allowed_hosts[1]: \"Mill.Example\" is not allowed (a host \
+         name: 1..=253 characters of lower-case letters",
+        &[],
+    );
     assert_problem_like(
         &edited(
             "[outputs.metrics]",

@@ -24,7 +24,7 @@ use axum::http::{header, HeaderValue};
 use axum::response::IntoResponse;
 use axum::routing::get;
 use axum::Router;
-use millgate_config::Config;
+use millgate_config::{Config, MetricsOutput};
 use tokio::net::TcpListener;
 
 use crate::field::counters::{CanCounters, CanCounts, ChannelCounters, ChannelCountersSnapshot};
@@ -42,6 +42,18 @@ use crate::state::history::HistoryStatus;
 pub const HEAD_TIMEOUT: Duration = Duration::from_secs(5);
 /// Scrapes answered at once; Prometheus sends one at a time.
 pub const MAX_SCRAPES: usize = 16;
+/// A warning when `settings` binds an address other hosts can reach (`/metrics`
+/// shows the plant's figures and the gateway's state without authentication).
+pub fn exposure_warning(settings: &MetricsOutput) -> Option<String> {
+    (!settings.bind.ip().is_loopback()).then(|| {
+        format!(
+            "outputs.metrics.bind: {} accepts clients from other hosts: anyone who reaches it \
+             reads /metrics without authentication (read-only)",
+            settings.bind
+        )
+    })
+}
+
 /// The content type of the text exposition format.
 pub const CONTENT_TYPE: &str = "text/plain; version=0.0.4; charset=utf-8";
 

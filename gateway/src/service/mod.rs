@@ -161,8 +161,8 @@ impl Service {
     }
 
     /// What the configuration exposes that an operator should know: a Modbus server,
-    /// a web page or an OPC UA server reachable from other hosts. `millgate check`
-    /// prints these; the service logs them as warnings at start.
+    /// `/metrics`, a web page or an OPC UA server reachable from other hosts. `millgate
+    /// check` prints these; the service logs them as warnings at start.
     pub fn warnings(&self) -> Vec<String> {
         let outputs = &self.config.outputs;
         #[cfg(feature = "opcua")]
@@ -177,6 +177,12 @@ impl Service {
             .as_ref()
             .and_then(hmi_server::exposure_warning)
             .into_iter()
+            .chain(
+                outputs
+                    .metrics
+                    .as_ref()
+                    .and_then(crate::outputs::metrics::exposure_warning),
+            )
             .chain(outputs.web.as_ref().and_then(web::exposure_warning))
             .chain(opcua)
             .collect()
@@ -252,6 +258,14 @@ impl Service {
         self.counters.clone()
     }
 
+    /// The history file, `None` without `[history]`.
+    pub fn history_path(&self) -> Option<&std::path::Path> {
+        self.config
+            .history
+            .as_ref()
+            .map(|history| history.path.as_path())
+    }
+
     /// The event history (disabled without `[history]`).
     pub fn history(&self) -> History {
         self.history.clone()
@@ -260,16 +274,36 @@ impl Service {
     /// Open the history and publish what it restores (before any reader starts, so
     /// the first bite continues the restored counter), and pool the bites last put
     /// into each driveline's gap pool again (the history is where the pool survives a
-    /// restart).
-    async fn restore(&mut self) {
-        let history = self.history.clone();
-        let run = RunInfo::of(&self.config);
-        let start = move || crate::outputs::history::start(&history, run);
-        let restored = match tokio::task::spawn_blocking(start).await {
-            Ok(restored) => restored,
+    /// restart). While the file exists but cannot be read (another process holds its
+    /// lock, a file system error) this waits, retrying every
+    /// [`crate::outputs::history::writer::REOPEN_PERIOD`], with no output running: no
+    /// counter, bdSeq or replay cursor may start below what the file holds. `false`
+    /// when `shutdown` came first (the history is closed then).
+    async fn restore(&mut self, shutdown: &mut Shutdown) -> bool {
+        let Some(opened) =
+            crate::outputs::history::writer::spawn(&self.history, RunInfo::of(&self.config))
+        else {
+            return true;
+        };
+        let mut waiting = tokio::task::spawn_blocking(move || opened.recv());
+        let restored = tokio::select! {
+            restored = &mut waiting => restored,
+            () = shutdown.recv() => {
+                tracing::info!("stopped while waiting for the history file");
+                let history = self.history.clone();
+                if tokio::task::spawn_blocking(move || history.close()).await.is_err() {
+                    tracing::error!("closing the history failed");
+                }
+                let _ = waiting.await;
+                return false;
+            }
+        };
+        let restored = match restored {
+            Ok(Ok(restored)) => restored,
+            Ok(Err(_)) => return true,
             Err(error) => {
                 tracing::error!(%error, "opening the history failed");
-                return;
+                return true;
             }
         };
         let board = &self.board;
@@ -303,6 +337,7 @@ impl Service {
                 "state restored from the history"
             );
         }
+        true
     }
 
     /// The outage monitor of every source.
@@ -334,7 +369,9 @@ impl Service {
         for warning in self.warnings() {
             tracing::warn!("{warning}");
         }
-        self.restore().await;
+        if !self.restore(&mut shutdown).await {
+            return Ok(());
+        }
         let outage_monitor = self.history.is_enabled().then(|| self.outage_monitor());
         let Service {
             config,

@@ -193,7 +193,13 @@ fn web_page(w: &mut Wiring<'_>, shutdown: &Shutdown) -> Result<Option<OutputTask
     let (Some(settings), Some(listener)) = (&w.config.outputs.web, w.listeners.web.take()) else {
         return Ok(None);
     };
-    let server = WebServer::new(w.config, settings.clone(), Arc::clone(&w.board));
+    let server =
+        WebServer::new(w.config, settings.clone(), Arc::clone(&w.board)).map_err(|error| {
+            ServiceError::Output {
+                output: "maintenance page",
+                reason: format!("cannot start its history query threads: {error}"),
+            }
+        })?;
     let shutdown = shutdown.clone();
     Ok(task("maintenance page", async move {
         server

@@ -221,11 +221,47 @@ impl Setup {
             .find_map(|line| line.strip_prefix(name)?.strip_prefix(' ')?.parse().ok())
     }
 
+    /// `millgate run` as [`Self::spawn`], killed when the guard is dropped.
+    pub(crate) fn spawn_guarded(&self, log: &str) -> KillOnDrop {
+        KillOnDrop(self.spawn(log))
+    }
+
+    /// Stop the devices and remove the scratch folder (the gateway stopped already,
+    /// or its guard kills it).
+    pub(crate) async fn finish(self) {
+        self.devices.stop().await.unwrap();
+        let _ = std::fs::remove_dir_all(&self.scratch);
+    }
+
     pub(crate) async fn stop(self, mut service: Child) {
         let _ = service.kill();
         let _ = service.wait();
         self.devices.stop().await.unwrap();
         let _ = std::fs::remove_dir_all(&self.scratch);
+    }
+}
+
+/// A `millgate run` child killed and reaped when dropped, so a failing test leaves
+/// no gateway behind; derefs to the [`Child`].
+pub(crate) struct KillOnDrop(pub(crate) Child);
+
+impl std::ops::Deref for KillOnDrop {
+    type Target = Child;
+    fn deref(&self) -> &Child {
+        &self.0
+    }
+}
+
+impl std::ops::DerefMut for KillOnDrop {
+    fn deref_mut(&mut self) -> &mut Child {
+        &mut self.0
+    }
+}
+
+impl Drop for KillOnDrop {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
     }
 }
 
@@ -260,7 +296,8 @@ pub(crate) async fn web_ready(port: u16) {
         )
         .await
         {
-            let request = b"GET /api/drivelines HTTP/1.1\r\nhost: l\r\nconnection: close\r\n\r\n";
+            let request =
+                b"GET /api/drivelines HTTP/1.1\r\nhost: localhost\r\nconnection: close\r\n\r\n";
             let mut answer = Vec::new();
             if stream.write_all(request).await.is_ok()
                 && stream.read_to_end(&mut answer).await.is_ok()
