@@ -521,17 +521,27 @@ fn plc_metrics(page: &mut Exposition, plc: &PlcCounters) {
 /// The HMI Modbus server's families.
 fn server_metrics(page: &mut Exposition, counts: &ServerCounts) {
     type ServerCountOf = fn(&ServerCounts) -> u64;
-    let families: [(&str, &str, ServerCountOf); 7] = [
+    let families: [(&str, &str, ServerCountOf); 9] = [
         ("connections", "HMI connections accepted", |c| c.connections),
         (
             "refused_connections",
-            "HMI connections closed at once: max_connections clients were connected",
+            "HMI connections closed at once: the server was full and every connection inside a request",
             |c| c.refused,
+        ),
+        (
+            "evicted_connections",
+            "Idle HMI connections closed to make room for a new one (max_connections or max_connections_per_peer reached)",
+            |c| c.evicted,
         ),
         (
             "idle_closed_connections",
             "HMI connections closed for idling or a request not completed in time",
             |c| c.idle_closed,
+        ),
+        (
+            "silent_closed_connections",
+            "Of those, HMI connections closed for sending no request within 5 s of connecting (or idle_timeout_ms, when shorter)",
+            |c| c.silent_closed,
         ),
         (
             "not_modbus_connections",
