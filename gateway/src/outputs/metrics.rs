@@ -656,7 +656,7 @@ fn history_metrics(page: &mut Exposition, status: &HistoryStatus) {
 
 /// The Sparkplug B edge node's families.
 fn sparkplug_metrics(page: &mut Exposition, counts: &SparkplugCounts) {
-    let scalars: [(&str, Kind, &str, f64); 8] = [
+    let scalars: [(&str, Kind, &str, f64); 10] = [
         (
             "millgate_sparkplug_connected",
             Kind::Gauge,
@@ -702,8 +702,20 @@ fn sparkplug_metrics(page: &mut Exposition, counts: &SparkplugCounts) {
         (
             "millgate_sparkplug_rebirths_total",
             Kind::Counter,
-            "Node Control/Rebirth commands obeyed.",
+            "Rebirths on a Node Control/Rebirth command (at most one per 5 s).",
             counts.rebirths as f64,
+        ),
+        (
+            "millgate_sparkplug_rebirth_requests_total",
+            Kind::Counter,
+            "Node Control/Rebirth commands received (those within 5 s of the last births answered by one rebirth).",
+            counts.rebirth_requests as f64,
+        ),
+        (
+            "millgate_sparkplug_commands_refused_total",
+            Kind::Counter,
+            "NCMDs refused: retained, over 64 KiB or undecodable.",
+            counts.commands_refused as f64,
         ),
     ];
     page.scalars(scalars);
