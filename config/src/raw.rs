@@ -190,6 +190,7 @@ pub(crate) struct RawServerOutput {
     pub bind: String,
     pub unit_id: Option<i64>,
     pub max_connections: Option<i64>,
+    pub max_connections_per_peer: Option<i64>,
     pub idle_timeout_ms: Option<i64>,
     pub allow_remote_commands: Option<bool>,
 }

@@ -777,9 +777,14 @@ pub struct ServerOutput {
     /// Unit identifier the server answers to, 1..=255 (default 1); requests to unit
     /// 255 are answered too, requests to unit 0 (broadcast) never.
     pub unit_id: u8,
-    /// Clients served at once, 1..=64 (default 8); a further connection is closed at
-    /// once.
+    /// Clients served at once, 1..=64 (default 8). A further connection takes the
+    /// place of the connection idle longest (one that never sent a request first); it
+    /// is closed at once only when every connection is inside a request.
     pub max_connections: usize,
+    /// Connections one client address may hold, 1..=`max_connections` (default 4,
+    /// or `max_connections` when smaller); a further one from that address takes the
+    /// place of its own connection idle longest.
+    pub max_connections_per_peer: usize,
     /// A connection without a request for this long is closed, 100..=3600000 ms
     /// (default 60000 ms).
     pub idle_timeout: Duration,

@@ -897,7 +897,28 @@ fn server_limits_and_unit_id() {
     let config = parse(&text).unwrap_or_else(|error| panic!("{error}"));
     let server = config.outputs.server.unwrap();
     assert_eq!(server.max_connections, 2);
+    assert_eq!(
+        server.max_connections_per_peer, 2,
+        "the default, at most max_connections"
+    );
     assert_eq!(server.idle_timeout, Duration::from_millis(500));
+    let defaults = parse(BASE).unwrap_or_else(|error| panic!("{error}"));
+    let default_server = defaults.outputs.server.unwrap();
+    assert_eq!(
+        (
+            default_server.max_connections,
+            default_server.max_connections_per_peer
+        ),
+        (8, 4)
+    );
+    assert_only_problem(
+        &edited(
+            "bind = \"127.0.0.1:5503\"",
+            "bind = \"127.0.0.1:5503\"\nmax_connections = 2\nmax_connections_per_peer = 3",
+        ),
+        "mill.toml: outputs.server.max_connections_per_peer: 3 is not allowed (must be 1..=2, \
+         at most outputs.server.max_connections)",
+    );
     assert!(server.allow_remote_commands);
     assert_only_problem(
         &edited(

@@ -57,7 +57,8 @@ pub struct BiteReport {
     pub window_complete: Instant,
     /// Static torque, peak, TAF and periods.
     pub transient: TransientResult,
-    /// Natural frequencies from the eq. (1) fit, Hz, when it converged.
+    /// Natural frequencies from the eq. (1) fit, Hz, when it converged to frequencies
+    /// the window resolves (above one cycle in the fitted record, below Nyquist).
     pub beta_hz: Option<(f64, f64)>,
     /// The window had gaps, NaN or saturated samples.
     pub degraded: bool,
@@ -387,7 +388,7 @@ impl DrivelineAnalyzer {
             ),
             window_complete,
             transient: analysis.transient,
-            beta_hz: analysis.good_fit().map(|fit| (fit.f1_hz, fit.f2_hz)),
+            beta_hz: analysis.natural_frequencies_hz(),
             degraded,
             wear: self.wear_estimate(&analysis.transient),
             gap,

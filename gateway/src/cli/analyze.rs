@@ -104,7 +104,7 @@ fn transient_settings(rate: f64) -> TransientSettings {
 pub fn run(args: &AnalyzeArgs) -> anyhow::Result<String> {
     let table = csv::read(&args.input).with_context(|| args.input.display().to_string())?;
     let (name, signal) = table
-        .pick(args.channel.as_deref())
+        .pick_torque(args.channel.as_deref())
         .map_err(|e| anyhow::anyhow!("{}: {e}", args.input.display()))?;
     let rate = table
         .sample_rate_hz()

@@ -91,6 +91,23 @@ pub enum CsvError {
         /// Allowed departure from the mean step, %.
         tolerance_percent: f64,
     },
+    /// A torque sample beyond any mill's: a scaling or unit error in the record.
+    #[error(
+        "line {line}, column {column} (`{name}`): torque {value_knm:e} kN*m lies outside \
+         the physical range -{limit_knm:e}..={limit_knm:e} kN*m (a unit or scaling error?)"
+    )]
+    TorqueOutOfRange {
+        /// 1-based line number.
+        line: usize,
+        /// 1-based column number.
+        column: usize,
+        /// Header name of the column.
+        name: String,
+        /// The value, kN*m.
+        value_knm: f64,
+        /// The largest magnitude accepted, kN*m.
+        limit_knm: f64,
+    },
     /// Fewer than two data rows: no sample rate.
     #[error("fewer than two data lines: the sample rate is undefined")]
     TooShort,
@@ -119,6 +136,11 @@ pub struct Table {
 
 /// Largest departure of one time step from the record's mean step, relative.
 pub const UNIFORM_TOLERANCE: f64 = 0.01;
+
+/// Largest torque magnitude a record may hold, kN*m: a hundred times the largest
+/// rolling-mill drive (about 10 MN*m); beyond it the record is mis-scaled, and its
+/// fit would publish numbers of no mill (1e300 overflows the fit's squares).
+pub const MAX_TORQUE_KNM: f64 = 1.0e6;
 
 impl Table {
     /// The sample rate, Hz, of a uniformly sampled record: (rows - 1) / (last time -
@@ -170,6 +192,27 @@ impl Table {
                     )
                 }),
             None => Ok((self.names[0].as_str(), self.channels[0].as_slice())),
+        }
+    }
+
+    /// [`Self::pick`] for a torque channel (kN*m): also refuses a record with a sample
+    /// beyond [`MAX_TORQUE_KNM`], naming its line and column.
+    pub fn pick_torque<'a>(
+        &'a self,
+        name: Option<&'a str>,
+    ) -> Result<(&'a str, &'a [f64]), String> {
+        let (name, values) = self.pick(name)?;
+        let column = 2 + self.names.iter().position(|n| n == name).unwrap_or(0);
+        match values.iter().position(|v| v.abs() > MAX_TORQUE_KNM) {
+            Some(row) => Err(CsvError::TorqueOutOfRange {
+                line: self.lines[row],
+                column,
+                name: name.to_string(),
+                value_knm: values[row],
+                limit_knm: MAX_TORQUE_KNM,
+            }
+            .to_string()),
+            None => Ok((name, values)),
         }
     }
 }
@@ -281,6 +324,20 @@ mod tests {
         assert_eq!(table.channel("b"), Some(&[2.0, 4.0][..]));
         assert_eq!(table.sample_rate_hz(), Ok(2.0));
         assert_eq!(table.lines, [2, 4]);
+    }
+
+    #[test]
+    fn a_torque_beyond_any_mill_is_refused_with_its_line_and_column() {
+        let table = parse("t,speed,torque\n0,1,112\n\n0.5,1,-1.12e302\n").unwrap();
+        let error = table.pick_torque(Some("torque")).unwrap_err();
+        assert!(
+            error.starts_with("line 4, column 3 (`torque`): torque -1.12e302 kN*m lies outside"),
+            "{error}"
+        );
+        assert!(error.contains("-1e6..=1e6 kN*m"), "{error}");
+        // The largest accepted value passes; the plain pick does not look.
+        let table = parse("t,torque\n0,1e6\n0.5,-1e6\n").unwrap();
+        assert!(table.pick_torque(None).is_ok());
     }
 
     #[test]

@@ -12,6 +12,9 @@ use super::{csv, OutputFormat};
 
 /// Smallest load step, in multiples of the record's noise, that makes a bite transient.
 const MIN_STEP_OVER_NOISE: f64 = 10.0;
+/// Smallest load step that is a bite of a mill, kN*m (1 N*m): a record scaled far
+/// below it (1e-223 kN*m) is a unit error, and the fits would run in subnormal numbers.
+const MIN_STEP_KNM: f64 = 1.0e-3;
 
 /// Arguments of `millgate discrepancy`.
 #[derive(Debug, Clone, clap::Args)]
@@ -53,7 +56,7 @@ pub fn run(args: &DiscrepancyArgs) -> anyhow::Result<String> {
     for path in &args.measured {
         let table = csv::read(path).with_context(|| path.display().to_string())?;
         let (_, torque) = table
-            .pick(args.channel.as_deref())
+            .pick_torque(args.channel.as_deref())
             .map_err(anyhow::Error::msg)
             .with_context(|| path.display().to_string())?;
         // Uniform time (the shared reader's check) and a load step to explain.
@@ -140,8 +143,9 @@ pub fn run(args: &DiscrepancyArgs) -> anyhow::Result<String> {
 
 /// Fails unless `torque_knm` holds a bite transient: a load step from its first 5% to
 /// its last 20% of at least [`MIN_STEP_OVER_NOISE`] times its noise (RMS of the first
-/// differences / sqrt 2). A constant record would otherwise be "explained" by the
-/// effect that best fits nothing (`extra_inertia` with a stiffness change of +17 000%).
+/// differences / sqrt 2), and of at least [`MIN_STEP_KNM`]. A constant record would
+/// otherwise be "explained" by the effect that best fits nothing (`extra_inertia` with
+/// a stiffness change of +17 000%).
 fn check_transient(torque_knm: &[f64]) -> Result<(), String> {
     let n = torque_knm.len();
     if n < 20 {
@@ -157,14 +161,20 @@ fn check_transient(torque_knm: &[f64]) -> Result<(), String> {
         .sum::<f64>()
         / (2.0 * (n - 1) as f64))
         .sqrt();
-    if step_knm.abs() > MIN_STEP_OVER_NOISE * noise_knm && step_knm.abs() > 0.0 {
-        Ok(())
-    } else {
+    let stepped = step_knm.abs() > MIN_STEP_OVER_NOISE * noise_knm && step_knm.abs() > 0.0;
+    if !stepped {
         Err(format!(
             "the torque record has no transient: its last 20% lies {step_knm:.3} kN*m from \
              its first 5% (noise {noise_knm:.3} kN*m RMS); the workflow needs a bite, a load \
              step of more than {MIN_STEP_OVER_NOISE} times the noise"
         ))
+    } else if step_knm.abs() < MIN_STEP_KNM {
+        Err(format!(
+            "the torque record's load step is {step_knm:e} kN*m, less than {MIN_STEP_KNM:e} \
+             kN*m: no mill's bite (a unit or scaling error?)"
+        ))
+    } else {
+        Ok(())
     }
 }
 
@@ -188,5 +198,9 @@ mod tests {
             .map(|i| if i < 100 { 0.0 } else { 112.0 } + f64::from(i % 7) - 3.0)
             .collect();
         assert_eq!(check_transient(&bite), Ok(()));
+        // The same bite scaled to 1e-223 kN*m: noise-free enough, but no mill's.
+        let tiny: Vec<f64> = bite.iter().map(|v| v * 1.0e-225).collect();
+        let error = check_transient(&tiny).unwrap_err();
+        assert!(error.contains("less than 1e-3 kN*m"), "{error}");
     }
 }
