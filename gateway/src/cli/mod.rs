@@ -22,6 +22,8 @@
 //! - `millgate history --db FILE [--kind K] [--driveline NAME] [--since T] [--until T]
 //!   --format csv|json|md`: [`history`]
 //! - `millgate report --db FILE --out DIR [--since T] [--until T]`: `report`
+//! - `millgate capture list|export --db FILE [--driveline NAME] [--since T] [--until T]
+//!   ...`: [`capture`] (the captures a history keeps; CSV and Parquet)
 //! - `millgate completions SHELL`, `millgate man [--out DIR]`: [`shell`] (and the
 //!   exit status of every command)
 //!
@@ -30,6 +32,8 @@
 //! `sim-tools`).
 
 pub mod analyze;
+pub mod capture;
+mod capture_parquet;
 pub mod chatter;
 pub mod check;
 pub mod csv;
