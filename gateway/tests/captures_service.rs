@@ -20,7 +20,7 @@ use std::path::Path;
 use std::process::{Child, Command, Output};
 use std::time::Duration;
 
-use common::{until, Setup};
+use common::{free_port, http, until, web_ready, Setup};
 
 use millgate::outputs::history::query::{BiteRow, CaptureRow, Filter, HistoryReader};
 
@@ -80,6 +80,10 @@ fn export(db: &Path, out: &Path, bite: i64, format: &str) -> String {
 async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bites() {
     let setup = Setup::new("captures", "db").await;
     let history = setup.history.clone();
+    let web_port = free_port();
+    setup.append_config(&format!(
+        "\n[outputs.web]\nbind = \"127.0.0.1:{web_port}\"\n"
+    ));
     let plc = setup.plc();
 
     let mut service = Running(setup.spawn("run.log"));
@@ -87,6 +91,24 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
         plc.counter() >= 3
     })
     .await;
+    // The web API lists the driveline's captures and gives one's samples.
+    web_ready(web_port).await;
+    let listed = http(web_port, "GET", "/api/drivelines/F1/captures?limit=2").await;
+    assert_eq!(listed.status, 200, "{}", listed.body);
+    let listed = listed.json();
+    let first = &listed.as_array().unwrap()[0];
+    assert_eq!(first["kind"], "bite");
+    assert_eq!(first["meta"]["channels"][0]["name"], "spindle_top");
+    let id = first["id"].as_i64().unwrap();
+    let one = http(web_port, "GET", &format!("/api/captures/{id}")).await;
+    assert_eq!(one.status, 200, "{}", one.body);
+    let one = one.json();
+    assert_eq!(
+        one["channels"][0]["samples"].as_array().unwrap().len() as i64,
+        first["samples"].as_i64().unwrap()
+    );
+    let missing = http(web_port, "GET", "/api/captures/999999").await;
+    assert_eq!(missing.status, 404, "{}", missing.body);
     let seen = plc.counter();
     until("another bite in the PLC", Duration::from_secs(20), || {
         plc.counter() > seen

@@ -28,7 +28,7 @@ use anyhow::Context as _;
 use serde::{Deserialize, Serialize};
 
 use crate::cli::history::parse_time;
-use crate::outputs::history::captures::{Capture, ChannelMeta};
+use crate::outputs::history::captures::{row_json, Capture, ChannelMeta};
 use crate::outputs::history::query::{CaptureRow, Filter, HistoryReader};
 use crate::outputs::history::HistoryError;
 use crate::state::captures::{BiteWindowAnalysis, CaptureGap};
@@ -293,15 +293,6 @@ fn list(args: &ListArgs) -> anyhow::Result<String> {
         out = serde_json::Value::Array(json).to_string();
     }
     Ok(out)
-}
-
-/// A capture row as JSON, its meta as an object.
-pub fn row_json(row: &CaptureRow) -> serde_json::Value {
-    let mut value = serde_json::to_value(row).unwrap_or_default();
-    if let Ok(meta) = serde_json::from_str::<serde_json::Value>(&row.meta) {
-        value["meta"] = meta;
-    }
-    value
 }
 
 /// Export the captures `args` select; returns the files written.

@@ -249,6 +249,16 @@ pub fn decode(
     Ok(channels)
 }
 
+/// A capture row as JSON, its `meta` as an object (the list `millgate capture list
+/// --format json` and the web API give).
+pub fn row_json(row: &CaptureRow) -> serde_json::Value {
+    let mut value = serde_json::to_value(row).unwrap_or_default();
+    if let Ok(meta) = serde_json::from_str::<serde_json::Value>(&row.meta) {
+        value["meta"] = meta;
+    }
+    value
+}
+
 /// Insert `record` under run `run_id` in `transaction` (the writer's turn): its bite
 /// is the driveline's latest row at the bite's time, inserted before it in the same
 /// transaction or an earlier one.
