@@ -247,7 +247,7 @@ fn sizes(connection: &Connection) -> rusqlite::Result<Sizes> {
 
 /// The captures' retention: age (`history.retention_days`), thinning of ordinary
 /// bites' captures after `thin_after_days` to every `keep_every`-th bite, and the
-/// budget `max_bytes`, kept by deleting the lowest [`KeepClass`] first, oldest first.
+/// budget `max_bytes`, kept by deleting the lowest [`KeepClass`](crate::state::captures::KeepClass) first, oldest first.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CaptureRetention {
     /// Ordinary bites' captures older than this are thinned.
