@@ -1,5 +1,7 @@
 //! Reader of recorded signals: a CSV with a header, first column `t` (s), the other
 //! columns channels (torque in kN*m). Errors name the line (1-based) and the column.
+//! Lines starting with `#` are comments (kept in [`Table::comments`]): a capture
+//! exported by `millgate capture export` says there how the gateway read it.
 
 use std::path::Path;
 
@@ -132,6 +134,8 @@ pub struct Table {
     pub channels: Vec<Vec<f64>>,
     /// 1-based line number of each row in the file (blank lines are skipped).
     pub lines: Vec<usize>,
+    /// The comment lines (`#` and what follows), in order.
+    pub comments: Vec<String>,
 }
 
 /// Largest departure of one time step from the record's mean step, relative.
@@ -226,13 +230,19 @@ pub fn read(path: &Path) -> Result<Table, CsvError> {
     parse(&text)
 }
 
-/// Parses CSV text (comma-separated, cells trimmed, blank lines skipped).
+/// Parses CSV text (comma-separated, cells trimmed, blank lines skipped, `#` lines
+/// kept as comments).
 pub fn parse(text: &str) -> Result<Table, CsvError> {
+    let comments: Vec<String> = text
+        .lines()
+        .filter_map(|l| l.trim().strip_prefix('#'))
+        .map(|comment| comment.trim().to_string())
+        .collect();
     let mut lines = text
         .lines()
         .enumerate()
         .map(|(i, l)| (i + 1, l.trim()))
-        .filter(|(_, l)| !l.is_empty());
+        .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'));
     let (_, header) = lines.next().ok_or(CsvError::Empty)?;
     let header: Vec<String> = header.split(',').map(|c| c.trim().to_string()).collect();
     if header[0] != "t" {
@@ -257,6 +267,7 @@ pub fn parse(text: &str) -> Result<Table, CsvError> {
         time_s: Vec::new(),
         channels: vec![Vec::new(); header.len() - 1],
         lines: Vec::new(),
+        comments,
     };
     for (line, row) in lines {
         let cells: Vec<&str> = row.split(',').map(str::trim).collect();

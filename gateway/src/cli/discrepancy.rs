@@ -1,6 +1,10 @@
 //! `millgate discrepancy --measured FILE.csv [--measured FILE.csv ...] --model MODEL.toml
 //! [--channel NAME] [--report DIR] [--format text|json]`: the model-discrepancy workflow
 //! of [`millgate_sim::discrepancy`] on one or more recorded bites of one driveline.
+//!
+//! `--db history.db --driveline F1 --bites LAST:3` (or `--bites 12,15,19`, the
+//! driveline's bite counters) takes the bites from the captures the gateway kept
+//! instead of CSV files: commissioning from the gateway's own recordings.
 
 use std::path::PathBuf;
 
@@ -23,8 +27,18 @@ pub struct DiscrepancyArgs {
     /// (kN*m), uniformly sampled. Give it once per record; a record holding several
     /// bites (idle torque between them) is split into its bites. One model is fitted to
     /// every bite.
-    #[arg(long, required = true)]
+    #[arg(long, required_unless_present = "db", conflicts_with = "db")]
     pub measured: Vec<PathBuf>,
+    /// Take the bites from this history file's captures (with --driveline, --bites).
+    #[arg(long, requires_all = ["driveline", "bites"])]
+    pub db: Option<PathBuf>,
+    /// The driveline whose captured bites to use (with --db).
+    #[arg(long, requires = "db")]
+    pub driveline: Option<String>,
+    /// Which captured bites (with --db): `LAST:N` (the newest N) or the driveline's
+    /// bite counters, comma-separated (`12,15,19`).
+    #[arg(long, requires = "db")]
+    pub bites: Option<BiteSelection>,
     /// The driveline model (TOML) without the effect to be found; its stiffness may be
     /// from drawings.
     #[arg(long)]
@@ -41,6 +55,116 @@ pub struct DiscrepancyArgs {
     pub format: OutputFormat,
 }
 
+/// Which captured bites to take.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum BiteSelection {
+    /// The newest N bites' captures.
+    Last(u32),
+    /// These bite counters.
+    Counters(Vec<i64>),
+}
+
+impl std::str::FromStr for BiteSelection {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Self, Self::Err> {
+        let wrong =
+            || format!("`{text}`: expected LAST:N (N >= 1) or bite counters such as 12,15,19");
+        if let Some(count) = text
+            .strip_prefix("LAST:")
+            .or_else(|| text.strip_prefix("last:"))
+        {
+            return match count.trim().parse::<u32>() {
+                Ok(n) if n >= 1 => Ok(Self::Last(n)),
+                _ => Err(wrong()),
+            };
+        }
+        let counters: Result<Vec<i64>, _> =
+            text.split(',').map(|c| c.trim().parse::<i64>()).collect();
+        match counters {
+            Ok(counters) if !counters.is_empty() => Ok(Self::Counters(counters)),
+            _ => Err(wrong()),
+        }
+    }
+}
+
+/// The captured bites `selection` names of `driveline` in the history `db`, oldest
+/// first, read as the files would be (the channel `channel`, or the torque).
+fn captured(
+    db: &std::path::Path,
+    driveline: &str,
+    selection: &BiteSelection,
+    channel: Option<&str>,
+) -> anyhow::Result<Vec<Recorded>> {
+    use crate::outputs::history::query::{CaptureRow, Filter, HistoryReader};
+    let reader = HistoryReader::open(db)?;
+    let filter = Filter {
+        name: Some(driveline.to_owned()),
+        ..Filter::default()
+    };
+    let mut rows: Vec<CaptureRow> = Vec::new();
+    reader.for_each(&filter, |row: CaptureRow| -> anyhow::Result<()> {
+        let wanted = match selection {
+            BiteSelection::Last(_) => true,
+            BiteSelection::Counters(counters) => row
+                .bite_counter
+                .is_some_and(|counter| counters.contains(&counter)),
+        };
+        if row.kind == "bite" && wanted {
+            rows.push(row);
+        }
+        Ok(())
+    })?;
+    match selection {
+        BiteSelection::Last(n) => {
+            let keep = rows.len().saturating_sub(*n as usize);
+            rows.drain(..keep);
+            if rows.len() < *n as usize {
+                anyhow::bail!(
+                    "{}: --bites LAST:{n}: {driveline} has {} captured bites",
+                    db.display(),
+                    rows.len()
+                );
+            }
+        }
+        BiteSelection::Counters(counters) => {
+            for counter in counters {
+                if !rows.iter().any(|r| r.bite_counter == Some(*counter)) {
+                    anyhow::bail!(
+                        "{}: --bites: no capture of bite {counter} of {driveline} (see `millgate \
+                         capture list --db {} --driveline {driveline}`)",
+                        db.display(),
+                        db.display()
+                    );
+                }
+            }
+        }
+    }
+    let mut recorded = Vec::with_capacity(rows.len());
+    for row in rows {
+        let capture = reader.capture_of(row)?;
+        let name = format!(
+            "{}#capture {} (bite {} of {driveline})",
+            db.display(),
+            capture.row.id,
+            capture.row.bite_counter.unwrap_or_default()
+        );
+        let torque = match channel {
+            Some(wanted) => capture.channels.iter().find(|c| c.name == wanted),
+            None => capture.channels.first(),
+        }
+        .ok_or_else(|| anyhow::anyhow!("{name}: no channel {}", channel.unwrap_or("")))?;
+        check_transient(&torque.samples).map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
+        recorded.push(Recorded {
+            path: PathBuf::from(name),
+            t0_s: 0.0,
+            sample_rate_hz: capture.row.sample_rate_hz,
+            torque_knm: torque.samples.clone(),
+        });
+    }
+    Ok(recorded)
+}
+
 /// One CSV read: its time column's first value, rate and the chosen channel.
 struct Recorded {
     path: PathBuf,
@@ -52,7 +176,12 @@ struct Recorded {
 /// Runs the workflow, printing progress to stderr; returns the text to print (the
 /// report's Markdown summary, or its JSON).
 pub fn run(args: &DiscrepancyArgs) -> anyhow::Result<String> {
-    let mut recorded = Vec::with_capacity(args.measured.len());
+    let mut recorded = match (&args.db, &args.driveline, &args.bites) {
+        (Some(db), Some(driveline), Some(bites)) => {
+            captured(db, driveline, bites, args.channel.as_deref())?
+        }
+        _ => Vec::with_capacity(args.measured.len()),
+    };
     for path in &args.measured {
         let table = csv::read(path).with_context(|| path.display().to_string())?;
         let (_, torque) = table
