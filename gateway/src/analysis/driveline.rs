@@ -506,6 +506,7 @@ impl DrivelineAnalyzer {
             driveline.static_torque_knm = trusted(Some(t.static_torque_knm));
             driveline.peak_torque_knm = trusted(Some(t.peak_torque_knm));
             driveline.taf = trusted(t.taf);
+            driveline.first_period_s = trusted(t.first_period_s);
             driveline.first_period_shift_s = trusted(t.period_shift_s);
             driveline.beta1_hz = trusted(report.beta_hz.map(|(beta1, _)| beta1));
             driveline.beta2_hz = trusted(report.beta_hz.map(|(_, beta2)| beta2));

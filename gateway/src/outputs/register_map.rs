@@ -174,6 +174,11 @@ pub const ROD_SPAN_LAYOUT: &[Slot] = &[
 pub const NOT_MAPPED: &[(catalogue::SubjectKind, &str, &str)] = &[
     (
         catalogue::SubjectKind::Driveline,
+        "first_period_s",
+        "the PLC acts on period_shift_s; no free register in the block",
+    ),
+    (
+        catalogue::SubjectKind::Driveline,
         "likeliest_coupling",
         "gap_coupling carries the coupling once the bites determine it; no free register in the block",
     ),

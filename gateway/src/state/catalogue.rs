@@ -521,6 +521,14 @@ pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
         "First minus second oscillation period of the last bite",
         |d| real_of(d.first_period_shift_s),
     ),
+    presence(real(
+        "first_period_s",
+        "s",
+        0,
+        Stale::LastUsable,
+        "First oscillation period after the last bite's onset (the paper's T1: it grows with the opened gap)",
+        |d| real_of(d.first_period_s),
+    )),
     real(
         "beta1_hz",
         "Hz",

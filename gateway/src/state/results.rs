@@ -20,6 +20,8 @@ pub struct DrivelineResults {
     pub peak_torque_knm: Option<f64>,
     /// Torque amplification factor of the last bite.
     pub taf: Option<f64>,
+    /// First oscillation period after the last bite's onset, s.
+    pub first_period_s: Option<f64>,
     /// First minus second oscillation period of the last bite, s.
     pub first_period_shift_s: Option<f64>,
     /// First natural frequency identified from the last bite, Hz.

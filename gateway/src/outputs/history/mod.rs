@@ -71,6 +71,7 @@ pub const BITE_COLUMNS: &[(&str, &str)] = &[
     ("peak_torque_knm", "peak_torque_knm"),
     ("taf", "taf"),
     ("period_shift_s", "period_shift_s"),
+    ("first_period_s", "first_period_s"),
     ("beta1_hz", "beta1_hz"),
     ("beta2_hz", "beta2_hz"),
     ("wear_index", "wear_index"),

@@ -184,6 +184,7 @@ pub fn bite_results(row: &BiteRow) -> DrivelineResults {
         static_torque_knm: trusted(Some(row.static_torque_knm)),
         peak_torque_knm: trusted(Some(row.peak_torque_knm)),
         taf: trusted(row.taf),
+        first_period_s: trusted(row.first_period_s),
         first_period_shift_s: trusted(row.period_shift_s),
         beta1_hz: trusted(row.beta1_hz),
         beta2_hz: trusted(row.beta2_hz),
