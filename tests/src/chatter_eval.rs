@@ -20,7 +20,7 @@
 //! - *band RMS*: 100-300 Hz RMS per stand ([`millgate_dsp::band_gain`]), one threshold
 //!   per stand;
 //! - *band gain*: 100-300 Hz RMS over 450-900 Hz RMS per stand, one threshold per stand;
-//! - *paper, calibrated*: the gateway's monitor ([`millgate::analysis::chatter_monitor::ChatterMonitor`],
+//! - *paper, calibrated*: the gateway's monitor ([`millgate::analysis::chatter::ChatterMonitor`],
 //!   its own windows, FFTs and `dsp::chatter`), alarm when `sigma_n <= sigma_min` and
 //!   `K_mean` exceeds the largest `K_mean` of such windows in calibration;
 //! - *paper, K_max 0.25*: the same with the example configuration's `k_max`, and the
@@ -37,7 +37,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
-use millgate::analysis::chatter_monitor::{ChatterMonitor, ChatterUpdate};
+use millgate::analysis::chatter::{ChatterMonitor, ChatterUpdate};
 use millgate_config::Config;
 use millgate_dsp::band_gain::{BandGain, BandGainSettings};
 use millgate_dsp::mode_damping::least_damped;

@@ -19,7 +19,7 @@ use anyhow::{bail, Context};
 use serde::Serialize;
 
 use super::OutputFormat;
-use crate::analysis::chatter_monitor::{ChatterMonitor, ChatterUpdate};
+use crate::analysis::chatter::{ChatterMonitor, ChatterUpdate};
 
 /// Samples per block fed to the monitor, as a Modbus DAQ delivers them.
 const BLOCK: usize = 120;

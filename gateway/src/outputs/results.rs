@@ -73,7 +73,7 @@ pub struct GapResults {
     pub bites_pooled: usize,
 }
 
-/// Latest chatter metrics of one tandem mill (see [`crate::analysis::chatter_monitor`]). `None` = not
+/// Latest chatter metrics of one tandem mill (see [`crate::analysis::chatter`]). `None` = not
 /// valid: not computed yet, or the window restarted after a gap or a stale stand.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct MillResults {
