@@ -4,12 +4,14 @@
 //! speed, the critical speed, the ground truth of a ramp, a run advanced in pieces
 //! against the same run at once, and the schedule file's and run settings' errors.
 
+use millgate_sim::tandem::control::{SlowDownPolicy, SpeedControl};
+use millgate_sim::tandem::online::OnlineMill;
 use millgate_sim::tandem::roots::{critical_speed, Characteristic};
 use millgate_sim::tandem::simulate::{
     simulate, Accelerometer, Excitation, NoiseBurst, RunError, RunSettings, Simulation, SpeedRamp,
     TensionStep,
 };
-use millgate_sim::tandem::truth::{ground_truth, mill_critical_speed};
+use millgate_sim::tandem::truth::{developed_time, ground_truth, mill_critical_speed};
 use millgate_sim::tandem::{PassSchedule, TandemMill};
 
 fn schedule() -> PassSchedule {
@@ -494,5 +496,58 @@ fn a_speed_outside_the_simulations_range_is_refused() -> anyhow::Result<()> {
         error.to_string(),
         "speed factor 0.95 at t = 0.004 s is outside the simulation's speed range 0.9 ..= 0.9"
     );
+    Ok(())
+}
+
+#[test]
+fn the_online_mill_is_the_simulated_ramp_when_nothing_requests_a_slow_down() -> anyhow::Result<()> {
+    // The automation ramps from 90% of the critical speed at 2 m/s^2 to 1.3 times it,
+    // one 48 ms PLC cycle at a time and never asked to slow down: the same run as the
+    // ramp simulated at once (to rounding: the speed passes through m/s), chatter
+    // developing at the same sample.
+    let mill = TandemMill::new(&schedule())?;
+    let critical = mill_critical_speed(&mill)?.speed;
+    let unit = mill.exit_speed(mill.stands().len() - 1, 1.0);
+    let ramp = SpeedRamp {
+        start: 0.9 * critical,
+        end: 1.3 * critical,
+        hold_s: 0.0,
+        accel_m_s2: 2.0,
+    };
+    let run = RunSettings {
+        ramp,
+        excitation: Excitation::default(),
+        sensor: Accelerometer::default(),
+        duration_s: 12.0,
+        seed: 5,
+        internal_rate_hz: None,
+    };
+    let once = simulate(&mill, &run)?;
+    let policy = SlowDownPolicy {
+        accel_m_s2: 2.0,
+        ..SlowDownPolicy::default()
+    };
+    let control = SpeedControl::new(policy, ramp.start * unit, ramp.end * unit)?;
+    let mut online = OnlineMill::new(&mill, &run.setup(), control, 120, ramp.end * unit)?;
+    let mut record = online.record(once.len());
+    let mut largest_swing = 0.0_f64;
+    while record.len() < once.len() {
+        let truth = online.cycle(false, &mut record)?;
+        largest_swing = largest_swing.max(truth.swing);
+    }
+    assert_eq!(online.time_s(), 12.0);
+    for (online, once) in record.acceleration.iter().zip(&once.acceleration) {
+        for (a, b) in online.iter().zip(once) {
+            assert!((a - b).abs() <= 1e-9 * (1.0 + b.abs()), "{a} vs {b}");
+        }
+    }
+    let developed = developed_time(&mill, &once).expect("chatter develops");
+    let online_developed = online.developed_s().expect("developed online");
+    assert!(
+        (online_developed - developed).abs() < 1e-9,
+        "{online_developed} vs {developed}"
+    );
+    assert!(largest_swing > 1.0);
+    assert!(online.control().events().is_empty());
     Ok(())
 }
