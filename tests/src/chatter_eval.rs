@@ -357,8 +357,19 @@ pub fn parallel<T: Sync, R: Send>(
         .collect()
 }
 
-/// The gateway configuration the monitor is built from: one mill of `stands` stands.
+/// The gateway configuration the monitor is built from: one mill of `stands` stands,
+/// the paper's detector with the example's `k_max`.
 pub fn monitor_config(stands: usize) -> anyhow::Result<Config> {
+    monitor_config_with(
+        stands,
+        &format!("k_max = {CONFIGURED_K_MAX}\ndetector = \"paper\"\n"),
+    )
+}
+
+/// One mill of `stands` stands (channels `s0`, `s1`, ... at [`SAMPLE_RATE_HZ`]) with the
+/// race's chatter band and window; `keys` are the rest of its `[[tandem_mills]]` entry
+/// (`k_max` at least).
+pub fn monitor_config_with(stands: usize, keys: &str) -> anyhow::Result<Config> {
     let mut text = String::from(
         "name = \"chatter eval\"\n[[sources.modbus]]\nname = \"daq\"\naddress = \"127.0.0.1:1\"\npoll_period_ms = 20\n",
     );
@@ -372,7 +383,7 @@ pub fn monitor_config(stands: usize) -> anyhow::Result<Config> {
     let names: Vec<String> = (0..stands).map(|s| format!("\"s{s}\"")).collect();
     text += &format!(
         "[[tandem_mills]]\nname = \"TCM\"\nstands = [{}]\nchatter_band_hz = [{}, {}]\n\
-         window_s = {WINDOW_S}\nk_max = {CONFIGURED_K_MAX}\ndetector = \"paper\"\n",
+         window_s = {WINDOW_S}\n{keys}",
         names.join(", "),
         CHATTER_BAND_HZ.0,
         CHATTER_BAND_HZ.1

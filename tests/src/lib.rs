@@ -9,6 +9,7 @@ pub mod counting_allocator;
 pub mod hostile_daq;
 
 pub mod chatter_eval;
+pub mod chatter_loop;
 
 use std::time::{Duration, Instant};
 

@@ -13,6 +13,16 @@
 //! margin) and, for `detector = "paper"`, `k_max`: the largest K_mean seen, moved the
 //! margin of the way to 1.
 //!
+//! **Release level.** The slow-down request clears once the gain ratio stayed below
+//! `slow_down_release` for `slow_down_hold_s`: a release below where stable rolling sits
+//! never clears it, and the mill is held slow (a stand whose gain hardly changes with
+//! speed sits at 1 / (1 + margin) of its threshold and above; the closed loop on the
+//! tandem model showed it). So the command also prints `slow_down_release`: the 99th
+//! percentile of the stable windows' gain ratio plus [`RELEASE_ROOM`], at least
+//! [`RELEASE_FLOOR`] (the configuration's default), and says so when that comes above
+//! [`RELEASE_CEILING`] (then the margin is too small for a release with room below the
+//! alarm: raise `--margin`).
+//!
 //! Refused, with the file and the reason: a recording too short for one gain window; a
 //! recording that shows chatter: a stand whose gain rises above [`CHATTER_FACTOR`]
 //! times its median over the recording; a stand column missing, or a sample rate other
@@ -44,6 +54,12 @@ pub const CHATTER_FACTOR: f64 = 8.0;
 /// A stand's gain above this many times its median is noted (an acceleration's
 /// transient, or the start of chatter: see the module docs).
 pub const NOTE_FACTOR: f64 = 3.0;
+/// Lowest `slow_down_release` printed: the configuration's default.
+pub const RELEASE_FLOOR: f64 = 0.8;
+/// Highest `slow_down_release` printed (the alarm is at 1).
+pub const RELEASE_CEILING: f64 = 0.95;
+/// The release level's room above the stable windows' 99th percentile ratio.
+pub const RELEASE_ROOM: f64 = 0.05;
 
 /// Arguments of `millgate chatter commission`.
 #[derive(Debug, Clone, clap::Args)]
@@ -178,6 +194,16 @@ pub struct Commissioning {
     /// Per stand, the largest band RMS plus the margin, rounded up to 0.001 (what a
     /// band-RMS alarm would be set to).
     pub band_rms_thresholds: Vec<f64>,
+    /// 99th percentile over the stable windows of the largest gain / threshold.
+    pub stable_ratio_p99: f64,
+    /// The release level of the slow-down request for these thresholds (see the
+    /// module docs): `slow_down_release` to paste.
+    pub slow_down_release: f64,
+    /// Whether the release would have to be above [`RELEASE_CEILING`] (a margin too
+    /// small).
+    pub release_cramped: bool,
+    /// The same release for a band-RMS alarm at `band_rms_thresholds`.
+    pub band_rms_release: f64,
     /// Largest K_mean over every window.
     pub largest_k_mean: f64,
     /// For `detector = "paper"`: the largest K_mean moved the margin of the way to 1,
@@ -238,6 +264,9 @@ pub fn commission(
     let mut largest_rms = vec![0.0_f64; stands];
     let mut largest_k_mean = f64::NEG_INFINITY;
     let mut figures = Vec::new();
+    // Every stable window's gains and band RMS per stand, for the release levels.
+    let mut stable_gains: Vec<Vec<f64>> = Vec::new();
+    let mut stable_rms: Vec<Vec<f64>> = Vec::new();
     for recording in recordings {
         let evaluated =
             windows(config, index, recording).with_context(|| recording.name.clone())?;
@@ -302,6 +331,12 @@ pub fn commission(
                 }
             }
         }
+        for window in &full {
+            if let Some(gain) = &window.gain {
+                stable_gains.push(gain.gain.to_vec());
+                stable_rms.push(gain.band_rms.to_vec());
+            }
+        }
         largest_k_mean = evaluated
             .iter()
             .map(|w| w.result.k_mean)
@@ -338,14 +373,23 @@ pub fn commission(
                     .fold(f64::NEG_INFINITY, f64::max),
             })
         });
+    let gain_thresholds: Vec<f64> = largest_gain
+        .iter()
+        .map(|g| up(g * (1.0 + margin)))
+        .collect();
+    let band_rms_thresholds: Vec<f64> =
+        largest_rms.iter().map(|r| up(r * (1.0 + margin))).collect();
+    let (stable_ratio_p99, slow_down_release) = release(&stable_gains, &gain_thresholds);
+    let (_, band_rms_release) = release(&stable_rms, &band_rms_thresholds);
     Ok(Commissioning {
         mill: mill.name.clone(),
         margin_percent,
-        gain_thresholds: largest_gain
-            .iter()
-            .map(|g| up(g * (1.0 + margin)))
-            .collect(),
-        band_rms_thresholds: largest_rms.iter().map(|r| up(r * (1.0 + margin))).collect(),
+        gain_thresholds,
+        band_rms_thresholds,
+        stable_ratio_p99,
+        release_cramped: stable_ratio_p99 + RELEASE_ROOM > RELEASE_CEILING,
+        slow_down_release,
+        band_rms_release,
         largest_k_mean,
         k_max: up(largest_k_mean + margin * (1.0 - largest_k_mean)).min(0.999),
         stands: channels
@@ -364,6 +408,29 @@ pub fn commission(
         speeds,
         recordings: figures,
     })
+}
+
+/// The 99th percentile over `windows` of the largest figure / threshold, and the
+/// release level for it (see the module docs).
+fn release(windows: &[Vec<f64>], thresholds: &[f64]) -> (f64, f64) {
+    let mut ratios: Vec<f64> = windows
+        .iter()
+        .map(|figures| {
+            figures
+                .iter()
+                .zip(thresholds)
+                .map(|(figure, threshold)| figure / threshold)
+                .fold(0.0, f64::max)
+        })
+        .collect();
+    ratios.sort_by(f64::total_cmp);
+    let p99 = ratios
+        .get((ratios.len() as f64 * 0.99) as usize)
+        .or(ratios.last())
+        .copied()
+        .unwrap_or(0.0);
+    let level = ((p99 + RELEASE_ROOM) * 100.0).ceil() / 100.0;
+    (p99, level.clamp(RELEASE_FLOOR, RELEASE_CEILING))
 }
 
 /// `value` rounded up to 0.001, so a printed threshold is never below the computed one.
@@ -454,6 +521,22 @@ fn text(c: &Commissioning) -> String {
         c.mill
     );
     let _ = writeln!(out, "gain_thresholds = {}", toml_list(&c.gain_thresholds));
+    let _ = writeln!(
+        out,
+        "# the request clears below this (stable rolling stayed below {:.3} of the thresholds \
+         in 99% of the windows):",
+        c.stable_ratio_p99
+    );
+    let _ = writeln!(out, "slow_down_release = {:.2}", c.slow_down_release);
+    if c.release_cramped {
+        let _ = writeln!(
+            out,
+            "# warning: a release with room below the alarm would be above {RELEASE_CEILING}: \
+             with these thresholds the request may never clear in stable rolling; raise \
+             --margin (now {}%)",
+            c.margin_percent
+        );
+    }
     let _ = writeln!(
         out,
         "# for detector = \"paper\" (largest K_mean {:.3}, moved {}% of the way to 1):\n\
