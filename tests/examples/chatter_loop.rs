@@ -4,6 +4,7 @@
 //!
 //! ```text
 //! cargo run --release -p millgate-tests --example chatter_loop -- [--quick] [--plot FILE.svg]
+//!     [--delay-cycles N]   # PLC cycles the request takes (default 1, as measured)
 //! ```
 
 use millgate_tests::chatter_loop::{
@@ -13,11 +14,18 @@ use millgate_tests::chatter_loop::{
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().collect();
-    let plan = if args.iter().any(|a| a == "--quick") {
+    let mut plan = if args.iter().any(|a| a == "--quick") {
         LoopPlan::quick()
     } else {
         LoopPlan::full()
     };
+    if let Some(delay) = args
+        .iter()
+        .position(|a| a == "--delay-cycles")
+        .and_then(|i| args.get(i + 1))
+    {
+        plan.delay_cycles = delay.parse()?;
+    }
     let plot_path = args
         .iter()
         .position(|a| a == "--plot")
@@ -53,7 +61,10 @@ fn main() -> anyhow::Result<()> {
         started.elapsed().as_secs_f64()
     );
     let open = open_loop_developed(&plan, &mills, &runs)?;
-    println!("open loop: {}/{} developed", open.0, open.1);
+    println!(
+        "open loop: {}/{} developed; the request read {} PLC cycle(s) after the block",
+        open.0, open.1, plan.delay_cycles
+    );
     let mut rows = Vec::new();
     for detector in Detector::ALL {
         let (score, outcomes) = score(&plan, &mills, &runs, detector)?;

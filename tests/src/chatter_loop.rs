@@ -82,8 +82,10 @@ pub struct LoopPlan {
     pub settle_s: f64,
     /// The highest allowed speed, a fraction of the critical speed.
     pub top: f64,
-    /// Request delay, PLC cycles: from the block that completes a window to the cycle
-    /// whose start the automation reads the request at.
+    /// Request delay, PLC cycles: the automation reads the verdict on the block of
+    /// cycle `k` at the start of cycle `k + 1 + delay_cycles`. Through the gateway over
+    /// Modbus the bit was in the PLC's register 25-27 ms after the DAQ published the
+    /// block and the next scan read it: 1 (`tests/tests/chatter_loop_e2e.rs`).
     pub delay_cycles: usize,
     /// The automation's slow-down (its acceleration and deceleration are drawn per run).
     pub policy: SlowDownPolicy,
@@ -105,7 +107,7 @@ impl LoopPlan {
                 (0.95, 1.1),
                 (1.05, 0.9),
             ],
-            commission_recordings: 4,
+            commission_recordings: 6,
             commission_s: 60.0,
             accelerated: 40,
             stable: 60,
@@ -113,7 +115,7 @@ impl LoopPlan {
             welds: 20,
             settle_s: 20.0,
             top: 0.95,
-            delay_cycles: 3,
+            delay_cycles: 1,
             policy: SlowDownPolicy::default(),
             seed: 27,
             threads: std::thread::available_parallelism().map_or(2, |n| n.get()),
@@ -335,13 +337,20 @@ pub fn mills(plan: &LoopPlan) -> anyhow::Result<Vec<Mill>> {
         let seed = plan.seed ^ mill_seed;
         let mut rng = SmallRng::seed_from_u64(seed);
         let top = plan.top * critical.speed;
+        let ramps = plan.commission_recordings - plan.commission_recordings / 3;
         let recordings = (0..plan.commission_recordings)
             .map(|k| {
-                // Alternately an acceleration to the top speed (at 0.2-2 m/s^2) and
-                // rolling there, each at its own noise level.
-                let accel = log_uniform(&mut rng, 0.2, 2.0);
+                // Accelerations to the top speed, one in each of `ramps` equal steps of
+                // log(0.2..2 m/s^2) (the rates the runs use: the end of an acceleration
+                // raises the gain for a second or two), then a third of the recordings
+                // rolling there; each at its own noise level.
+                let (low, high): (f64, f64) = (0.2_f64.ln(), 2.0_f64.ln());
+                let step = (high - low) / ramps as f64;
+                let accel = rng
+                    .random_range(low + step * k as f64..low + step * (k as f64 + 1.0))
+                    .exp();
                 let noise = log_uniform(&mut rng, 0.5, 2.0);
-                let (ramp, duration_s) = if k % 2 == 0 {
+                let (ramp, duration_s) = if k < ramps {
                     let start = 0.6 * critical.speed;
                     let ramp = SpeedRamp {
                         start,

@@ -37,7 +37,8 @@ fn the_slow_down_request_keeps_accelerated_runs_below_developed_chatter() -> any
                     let shed = event.shed_m_s() * 60.0;
                     let steps = shed / 150.0;
                     assert!(
-                        (steps - steps.round()).abs() < 1e-6 && (1.0..=3.0).contains(&steps.round()),
+                        (steps - steps.round()).abs() < 1e-6
+                            && (1.0..=3.0).contains(&steps.round()),
                         "{run:?}: {event:?}"
                     );
                     // Requested near the critical speed (the gain rises there), not far

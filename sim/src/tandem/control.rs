@@ -1,9 +1,11 @@
 //! The mill's speed automation obeying a chatter slow-down request, as a PLC program
 //! of a tandem mill does it: the operator's setpoint is approached at the normal
-//! acceleration; on the request the mill decelerates at a set rate by a set drop,
-//! holds, drops again if the request persists, and once the request is released waits,
-//! then re-accelerates slowly toward the setpoint. Speeds are the last stand's exit
-//! strip speed, m/s.
+//! acceleration; on the request the mill decelerates at a set rate by a set drop below
+//! the lower of its speed now and its speed `lookback_s` ago (the request comes from a
+//! window of past samples: a mill still accelerating has gained speed since the trouble
+//! began), holds, drops again if the request persists, and once the request is released
+//! waits, then re-accelerates slowly toward the setpoint. Speeds are the last stand's
+//! exit strip speed, m/s.
 //!
 //! ```text
 //!  Operator ──request──▶ SlowingDown ──at target──▶ Holding ──released──▶ Waiting
@@ -17,6 +19,11 @@
 //! Pure and synchronous: the closed loop ([`super::online`]) and the virtual PLC call
 //! [`SpeedControl::step`] once per PLC cycle with the request bit they read.
 
+/// Longest [`SlowDownPolicy::lookback_s`], s.
+pub const MAX_LOOKBACK_S: f64 = 60.0;
+
+use std::collections::VecDeque;
+
 /// How the automation answers a slow-down request (the PLC program's settings).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SlowDownPolicy {
@@ -26,6 +33,9 @@ pub struct SlowDownPolicy {
     pub decel_m_s2: f64,
     /// Speed drop per request, m/s, > 0.
     pub drop_m_s: f64,
+    /// The drop is from the lower of the speed now and the speed this long ago, s, >= 0
+    /// (at most [`MAX_LOOKBACK_S`]).
+    pub lookback_s: f64,
     /// A request still set this long after the lower speed was reached drops the speed
     /// again, s, > 0.
     pub escalate_after_s: f64,
@@ -38,15 +48,16 @@ pub struct SlowDownPolicy {
 }
 
 impl Default for SlowDownPolicy {
-    /// 1 m/s^2 down by 150 m/min, again after 10 s if still requested, 5 s wait after
-    /// the release, back up at 0.2 m/s^2, never below 5 m/s; the operator's ramps at
-    /// 1 m/s^2.
+    /// 1 m/s^2 down to 150 m/min below the speed of 3 s before, again after 5 s if
+    /// still requested, 5 s wait after the release, back up at 0.2 m/s^2, never below
+    /// 5 m/s; the operator's ramps at 1 m/s^2.
     fn default() -> Self {
         SlowDownPolicy {
             accel_m_s2: 1.0,
             decel_m_s2: 1.0,
             drop_m_s: 2.5,
-            escalate_after_s: 10.0,
+            lookback_s: 3.0,
+            escalate_after_s: 5.0,
             resume_after_s: 5.0,
             resume_accel_m_s2: 0.2,
             min_speed_m_s: 5.0,
@@ -93,6 +104,12 @@ impl SlowDownPolicy {
             "> 0 m/s^2",
         )?;
         check("drop_m_s", self.drop_m_s, self.drop_m_s > 0.0, "> 0 m/s")?;
+        check(
+            "lookback_s",
+            self.lookback_s,
+            (0.0..=MAX_LOOKBACK_S).contains(&self.lookback_s),
+            ">= 0 and <= 60 s",
+        )?;
         check(
             "escalate_after_s",
             self.escalate_after_s,
@@ -178,6 +195,8 @@ pub struct SpeedControl {
     mode: Mode,
     time_s: f64,
     events: Vec<SlowDownEvent>,
+    /// (time, speed) at each cycle's start over the last `lookback_s`, oldest first.
+    recent: VecDeque<(f64, f64)>,
 }
 
 impl SpeedControl {
@@ -204,6 +223,7 @@ impl SpeedControl {
             mode: Mode::Operator,
             time_s: 0.0,
             events: Vec::new(),
+            recent: VecDeque::new(),
         })
     }
 
@@ -248,7 +268,16 @@ impl SpeedControl {
     pub fn step(&mut self, dt_s: f64, request: bool) -> SpeedSegment {
         let now = self.time_s;
         let policy = self.policy;
-        let lower = |speed: f64| (speed - policy.drop_m_s).max(policy.min_speed_m_s);
+        self.recent.push_back((now, self.speed_m_s));
+        while self
+            .recent
+            .front()
+            .is_some_and(|&(t, _)| t < now - policy.lookback_s)
+        {
+            self.recent.pop_front();
+        }
+        let before = self.recent.front().map_or(self.speed_m_s, |&(_, v)| v);
+        let lower = |speed: f64| (speed.min(before) - policy.drop_m_s).max(policy.min_speed_m_s);
         match self.mode {
             Mode::Operator | Mode::Waiting { .. } | Mode::Resuming if request => {
                 self.events.push(SlowDownEvent {
@@ -392,6 +421,7 @@ mod tests {
             accel_m_s2: 2.0,
             decel_m_s2: 1.0,
             drop_m_s: 2.0,
+            lookback_s: 0.0,
             escalate_after_s: 3.0,
             resume_after_s: 1.0,
             resume_accel_m_s2: 0.5,
@@ -450,6 +480,18 @@ mod tests {
         let mut control = SpeedControl::new(SlowDownPolicy::default(), 6.0, 6.0).unwrap();
         run(&mut control, 30.0, true);
         assert_eq!(control.speed_m_s(), 5.0);
+    }
+
+    #[test]
+    fn a_request_while_accelerating_drops_below_the_speed_of_the_lookback_before() {
+        // Accelerating at 1 m/s^2 from 20 m/s toward 30: the request comes at 24 m/s,
+        // 3 s after the mill passed 21 m/s; the drop is from there: to 18.5 m/s.
+        let mut control = SpeedControl::new(SlowDownPolicy::default(), 20.0, 30.0).unwrap();
+        run(&mut control, 4.0, false);
+        assert!((control.speed_m_s() - 24.0).abs() < 1e-9);
+        run(&mut control, 10.0, true);
+        let event = control.events()[0];
+        assert!((event.lowest_m_s - 18.5).abs() < 0.05 + 1e-9, "{event:?}");
     }
 
     #[test]
