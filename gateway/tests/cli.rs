@@ -830,6 +830,13 @@ fn chatter_commission_sets_thresholds_that_hold_on_held_out_stable_rolling() {
         out.contains("speeds covered (speed_factor): 0.61 .. 1.04"),
         "{out}"
     );
+    // The release level for these thresholds, within its bounds.
+    let release: f64 = out
+        .lines()
+        .find_map(|l| l.strip_prefix("slow_down_release = "))
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no slow_down_release line in {out}"));
+    assert!((0.8..=0.95).contains(&release), "{release}");
     println!("{out}");
 
     // The thresholds are each stand's largest gain that `millgate chatter` reports for
@@ -892,13 +899,18 @@ fn chatter_commission_sets_thresholds_that_hold_on_held_out_stable_rolling() {
         &pasted,
         format!(
             "{}\n",
-            example.replace(
-                example
-                    .lines()
-                    .find(|l| l.starts_with("gain_thresholds"))
-                    .unwrap(),
-                line,
-            )
+            example
+                .replace(
+                    example
+                        .lines()
+                        .find(|l| l.starts_with("gain_thresholds"))
+                        .unwrap(),
+                    line,
+                )
+                .replace(
+                    "slow_down_release = 0.8",
+                    &format!("slow_down_release = {release}")
+                )
         ),
     )
     .unwrap();

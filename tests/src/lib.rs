@@ -1,7 +1,8 @@
 //! Test support for millgate, in one place: the demo's devices sized for a
 //! configuration ([`demo_devices`]), waiting for a condition ([`wait_for`]), scraping
-//! `/metrics` ([`scrape`]), a scripted hostile DAQ ([`hostile_daq`]) and the
-//! counting allocator of the zero-allocation tests ([`counting_allocator`]). A running gateway is started with
+//! `/metrics` ([`scrape`]), a scripted hostile DAQ ([`hostile_daq`]), the
+//! counting allocator of the zero-allocation tests ([`counting_allocator`]), the chatter
+//! detectors' race ([`chatter_eval`]) and the chatter closed loop ([`chatter_loop`]). A running gateway is started with
 //! `millgate::Service::new(config)?.spawn().await?` ([`millgate::Service::spawn`]);
 //! tolerance comparisons are `millgate_dsp::testing`.
 

@@ -255,14 +255,21 @@ async fn check(scenario: Scenario) -> anyhow::Result<()> {
     let developed = open.ok_or_else(|| anyhow::anyhow!("open loop: no developed chatter"))?;
     let run = closed_loop(mill, scenario).await?;
     let latencies = latencies(&run);
+    let largest_swing = run.rig.cycles.iter().map(|c| c.swing).fold(0.0, f64::max);
     println!(
         "{scenario:?}: critical {critical:.2} m/s; open loop developed at {developed:.2} s; \
-         closed loop: slow-downs {:?}; developed {:?}; {} late cycles; latency from the \
-         block to the PLC register, ms, and cycles to the scan that read it: {latencies:?}",
+         closed loop: slow-downs (s, speed / critical, m/min shed) {:?}; developed {:?}, \
+         largest tension swing {largest_swing:.3} of the developed limit; {} late cycles; \
+         latency from the block to the PLC register, ms, and cycles to the scan that read \
+         it: {latencies:?}",
         run.rig
             .events
             .iter()
-            .map(|e| (e.requested_s, e.speed_at_request_m_s, e.shed_m_s() * 60.0))
+            .map(|e| (
+                e.requested_s,
+                e.speed_at_request_m_s / critical,
+                e.shed_m_s() * 60.0
+            ))
             .collect::<Vec<_>>(),
         run.rig.developed_s,
         run.rig.late
@@ -281,7 +288,6 @@ async fn check(scenario: Scenario) -> anyhow::Result<()> {
         first.shed_m_s() >= SlowDownPolicy::default().drop_m_s - 1e-9,
         "{first:?}"
     );
-    let largest_swing = run.rig.cycles.iter().map(|c| c.swing).fold(0.0, f64::max);
     assert!(largest_swing < 1.0, "tension swing {largest_swing}");
     assert!(!latencies.is_empty(), "no rise of the bit seen");
     Ok(())
