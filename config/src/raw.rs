@@ -202,6 +202,7 @@ pub(crate) struct RawMqttOutput {
     pub replay_batch: Option<i64>,
     pub replay_period_ms: Option<i64>,
     pub password_file: Option<String>,
+    pub password_credential: Option<String>,
     pub tls: Option<RawMqttTls>,
 }
 

@@ -273,6 +273,9 @@ pub fn summary(config: &Config) -> String {
         }
         None => text.push_str("History: none\n"),
     }
+    if let Some(cache) = &config.cache_dir {
+        let _ = writeln!(text, "Cache: {}", cache.display());
+    }
     text
 }
 

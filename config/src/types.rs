@@ -13,8 +13,10 @@ use std::time::Duration;
 pub struct Config {
     /// Plant or mill name, for logs and the HMI.
     pub name: String,
-    /// Folder for files the gateway may rebuild (the wear maps), relative to the
-    /// configuration file; `None`: the user's cache folder (see the gateway).
+    /// Folder for files the gateway may rebuild (the wear maps): `cache_dir`, resolved
+    /// against `$CACHE_DIRECTORY` when systemd sets it, else against the configuration
+    /// file's folder; without `cache_dir`, `$CACHE_DIRECTORY`; `None` (neither): the
+    /// user's cache folder (see the gateway).
     pub cache_dir: Option<PathBuf>,
     /// Modbus TCP DAQs and PLCs that the gateway polls.
     pub modbus_sources: Vec<ModbusSource>,
@@ -40,6 +42,52 @@ impl Config {
         self.channels
             .iter()
             .position(|channel| channel.name == name)
+    }
+
+    /// Every source in the gateway's one source order: the Modbus sources, then the
+    /// CAN sources, each in file order. Source `i` of this order is bit `i` of the
+    /// status registers and the `i`-th source on `/metrics` and the web page.
+    pub fn sources(&self) -> impl Iterator<Item = SourceRef<'_>> + '_ {
+        self.modbus_sources
+            .iter()
+            .map(SourceRef::Modbus)
+            .chain(self.can_sources.iter().map(SourceRef::Can))
+    }
+
+    /// The index in [`Self::sources`] of the source channel `channel` is read from.
+    pub fn source_of_channel(&self, channel: usize) -> usize {
+        match self.channels[channel].source {
+            ChannelSource::ModbusBlock { source, .. }
+            | ChannelSource::ModbusValue { source, .. } => source,
+            ChannelSource::Can { source, .. } => self.modbus_sources.len() + source,
+        }
+    }
+}
+
+/// A source in the order of [`Config::sources`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum SourceRef<'a> {
+    /// A Modbus device.
+    Modbus(&'a ModbusSource),
+    /// A SocketCAN interface.
+    Can(&'a CanSource),
+}
+
+impl SourceRef<'_> {
+    /// The source's name (unique among all sources).
+    pub fn name(&self) -> &str {
+        match self {
+            SourceRef::Modbus(source) => &source.name,
+            SourceRef::Can(source) => &source.name,
+        }
+    }
+
+    /// `modbus` or `can`.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            SourceRef::Modbus(_) => "modbus",
+            SourceRef::Can(_) => "can",
+        }
     }
 }
 
@@ -519,7 +567,8 @@ pub struct MqttOutput {
     /// `group_id`.
     pub primary_host_id: Option<String>,
     /// User name and password for the broker, both or neither; the password from
-    /// `password` or read from `password_file` at load (one trailing newline dropped).
+    /// `password`, or read at load from `password_file` or from the systemd credential
+    /// `password_credential` (one trailing newline dropped).
     pub credentials: Option<(String, String)>,
     /// Store-and-forward: bites replayed from the history per `replay_period`,
     /// 1..=100000 (default 100).
@@ -591,7 +640,8 @@ pub struct MetricsOutput {
 /// at the next start.
 #[derive(Debug, Clone, PartialEq)]
 pub struct History {
-    /// The SQLite file, resolved relative to the configuration file; its folder exists.
+    /// The SQLite file; a relative `path` resolved against `$STATE_DIRECTORY` when
+    /// systemd sets it, else against the configuration file's folder; its folder exists.
     pub path: PathBuf,
     /// Events older than this are deleted, 1..=36500 days (default 400).
     pub retention_days: u32,

@@ -5,8 +5,8 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use millgate_config::{
-    from_toml_str, load, load_uncommissioned, ChannelKind, ChannelSource, ChatterDetectorKind,
-    Config, ConfigError, RegisterTable, ValueType, WordOrder,
+    from_toml_str, from_toml_str_with, load, load_uncommissioned, ChannelKind, ChannelSource,
+    ChatterDetectorKind, Config, ConfigError, RegisterTable, ServiceDirs, ValueType, WordOrder,
 };
 
 fn examples_dir() -> PathBuf {
@@ -1235,6 +1235,171 @@ fn history_path_retention_and_size() {
     assert!(parse(BASE).unwrap().history.is_none());
 }
 
+/// Under systemd (`StateDirectory=`, `CacheDirectory=`, `LoadCredential=`): a relative
+/// history path lands in `$STATE_DIRECTORY`, the cache in `$CACHE_DIRECTORY`, the MQTT
+/// password comes from `$CREDENTIALS_DIRECTORY`; problems name the key and the variable.
+#[test]
+fn systemd_service_folders() {
+    let scratch = Scratch::new("service-dirs");
+    let config_dir = scratch.0.join("etc");
+    let state = scratch.0.join("state");
+    let cache = scratch.0.join("cache");
+    let credentials = scratch.0.join("credentials");
+    for folder in [&config_dir, &state, &cache, &credentials] {
+        std::fs::create_dir_all(folder).unwrap();
+    }
+    let dbc = std::fs::read_to_string(examples_dir().join("mill.dbc")).unwrap();
+    std::fs::write(config_dir.join("mill.dbc"), dbc).unwrap();
+    std::fs::write(credentials.join("mqtt"), "from-systemd\n").unwrap();
+    let systemd = ServiceDirs {
+        state: Some(state.clone()),
+        cache: Some(cache.clone()),
+        credentials: Some(credentials.clone()),
+    };
+    let outside = ServiceDirs::default();
+    let mqtt = "[outputs.mqtt]\nbroker = \"127.0.0.1:1883\"\ngroup_id = \"plant\"\n\
+                node_id = \"f1\"\nusername = \"gw\"\n";
+    let text = |top: &str, history: &str, password: &str| {
+        format!("{top}\n{BASE}\n{mqtt}{password}\n[history]\npath = \"{history}\"\n")
+    };
+    let load = |text: &str, dirs: &ServiceDirs| {
+        from_toml_str_with(text, "mill.toml", &config_dir, dirs).map_err(|error| {
+            error
+                .problems
+                .iter()
+                .map(ToString::to_string)
+                .collect::<Vec<_>>()
+        })
+    };
+
+    let under_systemd = load(
+        &text("", "history.db", "password_credential = \"mqtt\""),
+        &systemd,
+    )
+    .unwrap_or_else(|problems| panic!("{problems:#?}"));
+    let summary = millgate_config::summary(&under_systemd);
+    assert!(
+        summary.contains(&format!("History: {}", state.join("history.db").display()))
+            && summary.contains(&format!("Cache: {}", cache.display())),
+        "{summary}"
+    );
+    assert_eq!(
+        under_systemd.history.unwrap().path,
+        state.join("history.db")
+    );
+    assert_eq!(under_systemd.cache_dir, Some(cache.clone()));
+    assert_eq!(
+        under_systemd.outputs.mqtt.unwrap().credentials,
+        Some(("gw".to_owned(), "from-systemd".to_owned())),
+        "the credential's text without its newline"
+    );
+    // Absolute paths stay; a relative cache_dir is a folder in $CACHE_DIRECTORY.
+    let absolute = state.join("elsewhere.db");
+    let explicit = load(
+        &text(
+            "cache_dir = \"maps\"",
+            &absolute.display().to_string(),
+            "password_credential = \"mqtt\"",
+        ),
+        &systemd,
+    )
+    .unwrap_or_else(|problems| panic!("{problems:#?}"));
+    assert_eq!(explicit.history.unwrap().path, absolute);
+    assert_eq!(explicit.cache_dir, Some(cache.join("maps")));
+
+    // Outside systemd: the configuration's folder, the user's cache folder, and the
+    // credential cannot be read.
+    let plain = load(&text("", "history.db", "password = \"x\""), &outside)
+        .unwrap_or_else(|problems| panic!("{problems:#?}"));
+    assert_eq!(plain.history.unwrap().path, config_dir.join("history.db"));
+    assert_eq!(plain.cache_dir, None);
+    assert_eq!(
+        load(
+            &text("", "history.db", "password_credential = \"mqtt\""),
+            &outside
+        )
+        .unwrap_err(),
+        [
+            "mill.toml: outputs.mqtt.password_credential: $CREDENTIALS_DIRECTORY is not set: \
+             systemd sets it for a unit with LoadCredential=mqtt:FILE \
+             (deploy/millgate.service.d/mqtt-password.conf); outside systemd give \
+             password_file instead"
+        ]
+    );
+
+    // A credential the unit does not load, a name that is not one, two passwords.
+    let missing = load(
+        &text("", "history.db", "password_credential = \"broker\""),
+        &systemd,
+    )
+    .unwrap_err();
+    assert!(
+        missing.len() == 1
+            && missing[0].starts_with(&format!(
+                "mill.toml: outputs.mqtt.password_credential: cannot read credential \"broker\" \
+                 ({}: ",
+                credentials.join("broker").display()
+            ))
+            && missing[0].ends_with(&format!(
+                "; $CREDENTIALS_DIRECTORY is {}; the unit needs LoadCredential=broker:FILE)",
+                credentials.display()
+            )),
+        "{missing:?}"
+    );
+    assert_eq!(
+        load(
+            &text("", "history.db", "password_credential = \"../mqtt\""),
+            &systemd
+        )
+        .unwrap_err(),
+        [
+            "mill.toml: outputs.mqtt.password_credential: \"../mqtt\" is not a credential name \
+             (the ID of LoadCredential=ID:FILE in the unit, a file name without `/`, e.g. \"mqtt\")"
+        ]
+    );
+    assert_eq!(
+        load(
+            &text(
+                "",
+                "history.db",
+                "password_file = \"secret\"\npassword_credential = \"mqtt\""
+            ),
+            &systemd
+        )
+        .unwrap_err(),
+        [
+            "mill.toml: outputs.mqtt.password_credential: not allowed together with \
+             password_file (give one of them)"
+        ]
+    );
+
+    // A history folder that does not exist says where relative paths go.
+    assert_eq!(
+        load(
+            &text("", "data/history.db", "password_credential = \"mqtt\""),
+            &systemd
+        )
+        .unwrap_err(),
+        [format!(
+            "mill.toml: history.path: the folder of \"data/history.db\" does not exist (looked \
+             for {}; create it, writable by the service's user; relative paths are resolved \
+             against $STATE_DIRECTORY ({}))",
+            state.join("data").display(),
+            state.display()
+        )]
+    );
+    assert_eq!(
+        load(&text("", "data/history.db", "password = \"x\""), &outside).unwrap_err(),
+        [format!(
+            "mill.toml: history.path: the folder of \"data/history.db\" does not exist (looked \
+             for {}; create it, writable by the service's user; relative paths are resolved \
+             against the configuration file's folder, or $STATE_DIRECTORY when systemd sets it \
+             (StateDirectory=))",
+            config_dir.join("data").display()
+        )]
+    );
+}
+
 #[test]
 fn mqtt_output_keys_defaults_and_errors() {
     let history = format!(
@@ -1298,7 +1463,7 @@ fn mqtt_output_keys_defaults_and_errors() {
             "mill.toml: outputs.mqtt.client_id: \"\" is not allowed (must be 1..=64 characters)",
             "mill.toml: outputs.mqtt.keep_alive_s: 2 is not allowed (must be 5..=3600 s)",
             "mill.toml: outputs.mqtt.command_qos: 2 is not allowed (must be 0..=1)",
-            "mill.toml: outputs.mqtt.password: missing: username needs password or password_file",
+            "mill.toml: outputs.mqtt.password: missing: username needs password, password_file or password_credential",
         ]
     );
     assert_problem_like(

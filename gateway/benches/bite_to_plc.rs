@@ -15,8 +15,8 @@ use millgate::analysis::Analysis;
 use millgate::field::acquired::Acquired;
 use millgate::field::source_health::SourceHealth;
 use millgate::outputs::plc_writer::PlcWriter;
-use millgate::outputs::publisher::Publisher;
 use millgate::outputs::register_map::{decode_u32, RegisterMap};
+use millgate::state::board::Board;
 use millgate_sim::devices::modbus_bank::ServeOptions;
 use millgate_sim::devices::virtual_plc::VirtualPlc;
 
@@ -44,20 +44,20 @@ async fn main() -> anyhow::Result<()> {
         Duration::from_secs(3600),
         Duration::from_secs(3600),
     ));
-    let publisher = Arc::new(Publisher::new(&config, vec![health]));
+    let board = Arc::new(Board::new(&config, vec![health]));
     let (bites, _) = tokio::sync::broadcast::channel(16);
-    let mut analysis = Analysis::new(&config, Arc::clone(&publisher), bites)?;
+    let mut analysis = Analysis::new(&config, Arc::clone(&board), bites)?;
     let (stop_writer, writer_shutdown) = millgate::shutdown::channel();
-    let writer = tokio::spawn(PlcWriter::new(output, Arc::clone(&publisher)).run(writer_shutdown));
-    let counter = usize::from(
-        publisher
-            .map()
-            .registers()
-            .iter()
-            .find(|r| r.name == "F1.bite_counter")
-            .unwrap()
-            .address,
+    let map = Arc::new(RegisterMap::new(&config));
+    let writer = tokio::spawn(
+        PlcWriter::new(
+            output,
+            (Arc::clone(&map), Arc::clone(&board)),
+            Arc::default(),
+        )
+        .run(writer_shutdown),
     );
+    let counter = usize::from(map.named("F1.bite_counter").unwrap().address);
     // Let the writer connect.
     tokio::time::sleep(Duration::from_millis(300)).await;
 

@@ -20,8 +20,8 @@ use millgate::analysis::Analysis;
 use millgate::field::acquired::Acquired;
 use millgate::field::source_health::SourceHealth;
 use millgate::outputs::plc_writer::PlcWriter;
-use millgate::outputs::publisher::Publisher;
 use millgate::outputs::register_map::RegisterMap;
+use millgate::state::board::Board;
 use millgate_sim::devices::modbus_bank::ServeOptions;
 use millgate_sim::devices::virtual_plc::VirtualPlc;
 use millgate_sim::tandem::simulate::{simulate, Accelerometer, Excitation, RunSettings, SpeedRamp};
@@ -94,7 +94,7 @@ async fn main() -> anyhow::Result<()> {
     )?;
 
     let mut config = config()?;
-    let map = RegisterMap::new(&config);
+    let map = Arc::new(RegisterMap::new(&config));
     let plc = VirtualPlc::new(usize::from(map.len()));
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
     let output = config.outputs.plc.as_mut().expect("a PLC output");
@@ -106,21 +106,20 @@ async fn main() -> anyhow::Result<()> {
         Duration::from_secs(3600),
         Duration::from_secs(3600),
     ));
-    let publisher = Arc::new(Publisher::new(&config, vec![health]));
+    let board = Arc::new(Board::new(&config, vec![health]));
     let (bites, _) = tokio::sync::broadcast::channel(16);
-    let mut analysis = Analysis::new(&config, Arc::clone(&publisher), bites)?;
+    let mut analysis = Analysis::new(&config, Arc::clone(&board), bites)?;
     let (stop_writer, writer_shutdown) = millgate::shutdown::channel();
-    let writer = tokio::spawn(PlcWriter::new(output, Arc::clone(&publisher)).run(writer_shutdown));
-    // The mill's block (flags .. worst stand), what each window changes.
-    let block = |name: &str| {
-        usize::from(
-            map.registers()
-                .iter()
-                .find(|r| r.name == name)
-                .expect("register")
-                .address,
+    let writer = tokio::spawn(
+        PlcWriter::new(
+            output,
+            (Arc::clone(&map), Arc::clone(&board)),
+            Arc::default(),
         )
-    };
+        .run(writer_shutdown),
+    );
+    // The mill's block (flags .. worst stand), what each window changes.
+    let block = |name: &str| usize::from(map.named(name).expect("register").address);
     let (first, last) = (block("TCM.flags"), block("TCM.worst_stand"));
     tokio::time::sleep(Duration::from_millis(300)).await;
 
@@ -131,7 +130,7 @@ async fn main() -> anyhow::Result<()> {
     let mut requested = false;
     for (b, from) in (0..record.len() - BLOCK).step_by(BLOCK).enumerate() {
         tokio::time::sleep_until((start + period * b as u32).into()).await;
-        let evaluations = publisher.results().mills[0].evaluations;
+        let evaluations = board.results().tandem_mills[0].evaluations;
         // The last stand's block completes a window: the clock starts as it is handed
         // to the analysis (the spectra, the gain and the verdict are in the latency).
         let mut window_end = Instant::now();
@@ -145,18 +144,18 @@ async fn main() -> anyhow::Result<()> {
                 received: None,
             });
         }
-        let results = publisher.results();
-        if results.mills[0].evaluations == evaluations {
+        let results = board.results();
+        if results.tandem_mills[0].evaluations == evaluations {
             continue;
         }
-        let expected = publisher.words()[first..=last].to_vec();
+        let expected = map.encode(&results)[first..=last].to_vec();
         while plc.holding()[first..=last] != expected[..] {
             tokio::task::yield_now().await;
             anyhow::ensure!(window_end.elapsed() < Duration::from_secs(5), "no write");
         }
         let latency = window_end.elapsed();
         every.push(latency);
-        let request = results.mills[0].slow_down_request;
+        let request = results.tandem_mills[0].slow_down_request;
         if request && !requested {
             rises.push(latency);
         }

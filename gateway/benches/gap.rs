@@ -17,7 +17,7 @@ use millgate::analysis::gap_estimate::{estimate, GapObservation};
 use millgate::analysis::Analysis;
 use millgate::field::acquired::Acquired;
 use millgate::field::source_health::SourceHealth;
-use millgate::outputs::publisher::Publisher;
+use millgate::state::board::Board;
 use millgate_sim::model::Model;
 use millgate_sim::schedule::{rolling_schedule, BarTiming};
 
@@ -50,9 +50,9 @@ fn main() -> anyhow::Result<()> {
         Duration::from_secs(9),
         Duration::from_secs(9),
     ));
-    let publisher = Arc::new(Publisher::new(&config, vec![health]));
+    let board = Arc::new(Board::new(&config, vec![health]));
     let (bites, _) = tokio::sync::broadcast::channel(64);
-    let mut analysis = Analysis::new(&config, publisher, bites)?;
+    let mut analysis = Analysis::new(&config, board, bites)?;
     let job = analysis.take_gap_map_jobs().remove(0);
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let mut maps = None;

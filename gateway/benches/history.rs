@@ -21,10 +21,11 @@
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use millgate::outputs::history::events::{BiteRecord, HistoryEvent};
-use millgate::outputs::history::time::UtcTime;
-use millgate::outputs::history::{History, RunInfo, QUEUE_CAPACITY};
-use millgate::outputs::results::DrivelineResults;
+use millgate::outputs::history::RunInfo;
+use millgate::state::events::{BiteRecord, HistoryEvent};
+use millgate::state::history::{History, QUEUE_CAPACITY};
+use millgate::state::results::DrivelineResults;
+use millgate::state::time::UtcTime;
 
 const SUSTAINED_BITES: u32 = 200_000;
 const LATENCY_BITES: u32 = 2_000;
@@ -53,7 +54,7 @@ fn bite(n: u32) -> HistoryEvent {
         extra_state: None,
         state: DrivelineResults {
             bite_counter: n,
-            last_bite_unix_s: u32::try_from(time.unix_ms() / 1000).ok(),
+            last_bite_unix_ms: Some(time.unix_ms()),
             static_torque_knm: Some(420.0),
             peak_torque_knm: Some(taf * 420.0),
             taf: Some(taf),
@@ -63,8 +64,8 @@ fn bite(n: u32) -> HistoryEvent {
             wear_index: Some(taf / 1.8 - 1.0),
             wear_trend: Some(0.05),
             last_bite_degraded: false,
-            warning: false,
-            alarm: false,
+            taf_warning: false,
+            taf_alarm: false,
             source_stale: false,
             restored: false,
             ..DrivelineResults::default()
@@ -86,7 +87,7 @@ fn open(path: &Path, max_size_mb: u32) -> History {
         retention_days: 400,
         max_size_mb,
     }));
-    history.start(run_info());
+    millgate::outputs::history::start(&history, run_info());
     history
 }
 

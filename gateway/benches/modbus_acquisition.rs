@@ -19,7 +19,7 @@ use std::time::{Duration, Instant};
 use anyhow::{ensure, Context as _};
 use millgate::field::acquired::Acquired;
 use millgate::field::counters::ChannelCounters;
-use millgate::field::daq_reader::DaqReader;
+use millgate::field::modbus::DaqReader;
 use millgate::field::source_health::SourceHealth;
 use millgate_config::layout::{BLOCK_REGISTERS, MAX_BLOCK_SAMPLES};
 use millgate_config::{ChannelSource, RegisterTable};

@@ -26,11 +26,11 @@ use std::time::{Duration, Instant};
 
 use millgate::analysis::driveline::BiteReport;
 use millgate::analysis::gap_estimate::GapEstimate;
-use millgate::analysis::gap_map::GapMaps;
 use millgate::analysis::Analysis;
 use millgate::field::acquired::Acquired;
 use millgate::field::source_health::SourceHealth;
-use millgate::outputs::publisher::Publisher;
+use millgate::state::board::Board;
+use millgate::state::gap_maps::GapMaps;
 use millgate_sim::model::Model;
 use millgate_sim::schedule::{rolling_schedule, BarTiming};
 
@@ -82,9 +82,9 @@ fn run_case(
         Duration::from_secs(3600),
         Duration::from_secs(3600),
     ));
-    let publisher = Arc::new(Publisher::new(config, vec![health]));
+    let board = Arc::new(Board::new(config, vec![health]));
     let (bites, _) = tokio::sync::broadcast::channel(64);
-    let mut analysis = Analysis::new(config, publisher, bites)?;
+    let mut analysis = Analysis::new(config, board, bites)?;
     analysis.take_gap_map_jobs();
     analysis.install_gap_maps(0, Ok(maps.clone()));
     let schedule = rolling_schedule(model, torques, TIMING, noise, seed)?;
@@ -120,9 +120,9 @@ fn main() -> anyhow::Result<()> {
         Duration::from_secs(1),
         Duration::from_secs(1),
     ));
-    let publisher = Arc::new(Publisher::new(&config, vec![health]));
+    let board = Arc::new(Board::new(&config, vec![health]));
     let (bites, _) = tokio::sync::broadcast::channel(1);
-    let mut analysis = Analysis::new(&config, publisher, bites)?;
+    let mut analysis = Analysis::new(&config, board, bites)?;
     let job = analysis.take_gap_map_jobs().remove(0);
     let started = Instant::now();
     let cancel = std::sync::atomic::AtomicBool::new(false);

@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use clap::Parser;
 use millgate::outputs::history::query::{AlarmRow, BiteRow, Filter, HistoryReader, OutageRow};
-use millgate::outputs::history::time::UtcTime;
+use millgate::state::time::UtcTime;
 
 #[derive(Debug, Parser)]
 struct Args {

@@ -32,14 +32,15 @@ use std::time::Instant;
 
 use anyhow::{bail, Context};
 use clap::Parser;
-use millgate::outputs::history::events::{
-    AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, CommandOrigin, EndedBy, GapEstimate,
-    HistoryEvent, PooledBite, WearState,
-};
-use millgate::outputs::history::time::UtcTime;
 use millgate::outputs::history::writer;
 use millgate::outputs::history::{DrivelineSettings, RunInfo};
-use millgate::outputs::results::DrivelineResults;
+use millgate::state::commands::CommandOrigin;
+use millgate::state::events::{
+    AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, EndedBy, GapEstimate, HistoryEvent, PooledBite,
+    WearState,
+};
+use millgate::state::results::DrivelineResults;
+use millgate::state::time::UtcTime;
 use rusqlite::params;
 
 #[derive(Debug, Parser)]
@@ -193,7 +194,7 @@ fn bite(driveline: &mut Driveline, time_ms: i64, random: &mut Random, out: &mut 
         out.push(alarm(
             at,
             &driveline.name,
-            AlarmKind::WearAlarm,
+            AlarmKind::GapAlarm,
             AlarmEvent::Acknowledged,
             None,
             None,
@@ -248,7 +249,7 @@ fn bite(driveline: &mut Driveline, time_ms: i64, random: &mut Random, out: &mut 
             out.push(alarm(
                 time_ms,
                 &driveline.name,
-                AlarmKind::WearAlarm,
+                AlarmKind::GapAlarm,
                 AlarmEvent::Raised,
                 Some(gap.gap_low_mrad),
                 Some(GAP_ALARM_MRAD),
@@ -303,7 +304,7 @@ fn bite(driveline: &mut Driveline, time_ms: i64, random: &mut Random, out: &mut 
         }),
         state: DrivelineResults {
             bite_counter: driveline.counter,
-            last_bite_unix_s: u32::try_from(time_ms / 1000).ok(),
+            last_bite_unix_ms: Some(time_ms),
             static_torque_knm: Some(static_torque_knm),
             peak_torque_knm: Some(taf * static_torque_knm),
             taf: Some(taf),
@@ -313,8 +314,8 @@ fn bite(driveline: &mut Driveline, time_ms: i64, random: &mut Random, out: &mut 
             wear_index: Some(wear_index),
             wear_trend: Some(wear_trend),
             last_bite_degraded: degraded,
-            warning: taf_warning,
-            alarm: false,
+            taf_warning,
+            taf_alarm: false,
             gap_alarm: driveline.gap_alarm,
             ..DrivelineResults::default()
         },

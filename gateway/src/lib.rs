@@ -7,6 +7,7 @@ pub mod field;
 pub mod outputs;
 pub mod service;
 pub mod shutdown;
+pub mod state;
 pub mod supervision;
 mod warn_limit;
 

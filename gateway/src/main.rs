@@ -3,13 +3,14 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, Parser, Subcommand};
 
 #[derive(Debug, Parser)]
 #[command(
     name = "millgate",
     version,
-    about = "Edge gateway for vibration diagnostics of steel rolling mills"
+    about = "Edge gateway for vibration diagnostics of steel rolling mills",
+    after_long_help = millgate::cli::shell::exit_status_help()
 )]
 struct Cli {
     #[command(subcommand)]
@@ -23,6 +24,11 @@ enum Command {
         /// The configuration file (TOML).
         #[arg(long)]
         config: PathBuf,
+        /// Output format: text (the summary, or the problems on stderr), or one JSON
+        /// document on stdout either way (file, ok, summary, problems, warnings) for
+        /// CI. The exit code is the same.
+        #[arg(long, value_enum, default_value = "text")]
+        format: millgate::cli::OutputFormat,
     },
     /// Run the gateway service until SIGINT or SIGTERM.
     Run {
@@ -30,11 +36,20 @@ enum Command {
         #[arg(long)]
         config: PathBuf,
     },
-    /// Export the register map of a configuration.
+    /// Export the register map of a configuration (0-based PDU addresses: the map's
+    /// offsets and, with a PLC output, register_base + offset).
     Registers {
         /// The configuration file (TOML).
         #[arg(long)]
         config: PathBuf,
+        /// Output format.
+        #[arg(long, value_enum, default_value = "md")]
+        format: millgate::cli::registers::Format,
+    },
+    /// Print the catalogue of published figures: each figure's unit, type, quality
+    /// guard and stale rule, and its register, Sparkplug metric, /metrics family and
+    /// history column.
+    Figures {
         /// Output format.
         #[arg(long, value_enum, default_value = "md")]
         format: millgate::cli::registers::Format,
@@ -64,6 +79,10 @@ enum Command {
     #[cfg(feature = "sim-tools")]
     /// Self-contained demo: a virtual DAQ and PLC on loopback, the gateway between them.
     Demo(millgate::cli::demo::DemoArgs),
+    /// Print the shell completion script (bash, zsh, fish, elvish, powershell).
+    Completions(millgate::cli::shell::CompletionsArgs),
+    /// Print the manual page (roff), or write every command's page into a folder.
+    Man(millgate::cli::shell::ManArgs),
 }
 
 fn init_tracing(default_level: &str) {
@@ -78,13 +97,19 @@ fn init_tracing(default_level: &str) {
         .init();
 }
 
-async fn wait_for_signal() -> std::io::Result<()> {
+/// SIGINT or SIGTERM, handled from the moment this is called (before the service is
+/// spawned: a signal during the start is a stop, never the default action that kills
+/// the process before its final PLC write).
+fn stop_signals() -> std::io::Result<impl std::future::Future<Output = ()>> {
     use tokio::signal::unix::{signal, SignalKind};
     let mut terminate = signal(SignalKind::terminate())?;
-    tokio::select! {
-        result = tokio::signal::ctrl_c() => result,
-        _ = terminate.recv() => Ok(()),
-    }
+    let mut interrupt = signal(SignalKind::interrupt())?;
+    Ok(async move {
+        tokio::select! {
+            _ = interrupt.recv() => {}
+            _ = terminate.recv() => {}
+        }
+    })
 }
 
 /// `millgate run`: fails at once, with the reason and a non-zero exit, when anything
@@ -110,13 +135,12 @@ async fn run_service(config_path: PathBuf) -> anyhow::Result<()> {
     }
     let service = millgate::Service::new(config)
         .map_err(|error| anyhow::anyhow!("{}: {error}", config_path.display()))?;
-    let mut gateway = service.spawn().await?;
-    let signal = wait_for_signal();
+    let signal = stop_signals()?;
     tokio::pin!(signal);
+    let mut gateway = service.spawn().await?;
     tokio::select! {
         ready = gateway.ready() => ready?,
-        received = &mut signal => {
-            received?;
+        () = &mut signal => {
             tracing::info!("shutdown requested before the service was ready");
             gateway.stop().await?;
             return Ok(());
@@ -128,15 +152,14 @@ async fn run_service(config_path: PathBuf) -> anyhow::Result<()> {
     if let Some(period) = watchdog {
         tokio::spawn(millgate::supervision::watchdog(
             gateway.liveness(),
-            gateway.publisher(),
+            gateway.board(),
             period,
             || notify(&[NotifyState::Watchdog]),
             watchdog_shutdown,
         ));
     }
     tokio::select! {
-        received = &mut signal => {
-            received?;
+        () = &mut signal => {
             tracing::info!("shutdown requested");
             notify(&[NotifyState::Stopping]);
             stop_watchdog.trigger();
@@ -187,7 +210,22 @@ fn main() -> ExitCode {
             .expect("cannot start the tokio runtime")
     };
     let result = match cli.command {
-        Command::Check { config } => match millgate::cli::check::check(&config) {
+        Command::Check {
+            config,
+            format: millgate::cli::OutputFormat::Json,
+        } => {
+            let (json, ok) = millgate::cli::check::report_json(&config);
+            println!("{json}");
+            return if ok {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::FAILURE
+            };
+        }
+        Command::Check {
+            config,
+            format: millgate::cli::OutputFormat::Text,
+        } => match millgate::cli::check::check(&config) {
             Ok(summary) => {
                 println!("{}", summary.trim_end());
                 Ok(())
@@ -201,9 +239,28 @@ fn main() -> ExitCode {
             .map_err(anyhow::Error::from)
             .and_then(|config| {
                 let map = millgate::outputs::register_map::RegisterMap::try_new(&config)?;
-                print!("{}", millgate::cli::registers::export(&map, format));
+                let plc_base = config.outputs.plc.as_ref().map(|plc| plc.register_base);
+                print!(
+                    "{}",
+                    millgate::cli::registers::export(&map, plc_base, format)
+                );
                 Ok(())
             }),
+        Command::Figures { format } => {
+            print!("{}", millgate::cli::figures::export(format));
+            Ok(())
+        }
+        Command::Completions(args) => {
+            let script = millgate::cli::shell::completions(Cli::command(), args.shell);
+            std::io::Write::write_all(&mut std::io::stdout(), &script).map_err(Into::into)
+        }
+        Command::Man(args) => match &args.out {
+            Some(folder) => millgate::cli::shell::write_man_pages(Cli::command(), folder)
+                .map(|written| eprintln!("{} manual pages in {}", written.len(), folder.display())),
+            None => millgate::cli::shell::man_page(Cli::command())
+                .and_then(|page| std::io::Write::write_all(&mut std::io::stdout(), &page))
+                .map_err(Into::into),
+        },
         Command::Analyze(args) => {
             init_tracing("warn");
             millgate::cli::analyze::run(&args).map(emit)
@@ -214,7 +271,7 @@ fn main() -> ExitCode {
             init_tracing("warn");
             millgate::cli::wear::run(&args).map(emit)
         }
-        Command::History(args) => millgate::cli::history::run(&args).map(|text| print!("{text}")),
+        Command::History(args) => millgate::cli::history::run(&args),
         #[cfg(feature = "plot")]
         Command::Report(args) => millgate::cli::report::run(&args).map(emit),
         #[cfg(feature = "sim-tools")]

@@ -13,8 +13,8 @@ use std::time::Duration;
 
 use tokio::time::Instant;
 
-use crate::outputs::publisher::Publisher;
 use crate::shutdown::Shutdown;
+use crate::state::board::Board;
 
 /// Longest time the analysis loop waits for samples before it turns anyway (and
 /// counts the turn), so an idle analysis is seen alive.
@@ -66,18 +66,18 @@ pub fn check_watchdog(watchdog: Duration, heartbeat: Duration) -> Result<(), Wat
 }
 
 /// Calls `ping` every quarter of `watchdog` while both the analysis loop (`liveness`)
-/// and the published heartbeat (`publisher`) moved within the last half period; stops
+/// and the published heartbeat (`board`) moved within the last half period; stops
 /// pinging as soon as either stands still, and returns at shutdown.
 pub async fn watchdog(
     liveness: Arc<Liveness>,
-    publisher: Arc<Publisher>,
+    board: Arc<Board>,
     watchdog: Duration,
     mut ping: impl FnMut(),
     mut shutdown: Shutdown,
 ) {
     let check = watchdog / 4;
     let fresh_within = watchdog / 2;
-    let heartbeat = || publisher.results().heartbeat;
+    let heartbeat = || board.results().heartbeat;
     let (mut turns, mut beat) = (liveness.analysis_turns(), heartbeat());
     let (mut turned_at, mut beat_at) = (Instant::now(), Instant::now());
     let mut ticks = tokio::time::interval(check);
@@ -112,7 +112,7 @@ pub async fn watchdog(
 mod tests {
     use super::*;
 
-    fn publisher() -> Arc<Publisher> {
+    fn board() -> Arc<Board> {
         let config = millgate_config::from_toml_str(
             include_str!("../../config/examples/demo.toml"),
             "demo.toml",
@@ -120,19 +120,19 @@ mod tests {
             std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples")),
         )
         .unwrap();
-        Arc::new(Publisher::new(&config, Vec::new()))
+        Arc::new(Board::new(&config, Vec::new()))
     }
 
     #[tokio::test(start_paused = true)]
     async fn pings_only_while_analysis_and_heartbeat_move() {
         let liveness = Arc::new(Liveness::default());
-        let publisher = publisher();
+        let board = board();
         let pings = Arc::new(AtomicU64::new(0));
         let (stop, shutdown) = crate::shutdown::channel();
         let counted = Arc::clone(&pings);
         let task = tokio::spawn(watchdog(
             Arc::clone(&liveness),
-            Arc::clone(&publisher),
+            Arc::clone(&board),
             Duration::from_secs(4),
             move || {
                 counted.fetch_add(1, Ordering::Relaxed);
@@ -143,7 +143,7 @@ mod tests {
         // Both move every 100 ms for 10 s: a ping every second.
         for _ in 0..100 {
             liveness.analysis_turned();
-            publisher.beat();
+            board.beat();
             tokio::time::sleep(Duration::from_millis(100)).await;
         }
         let while_alive = pinged();
@@ -154,7 +154,7 @@ mod tests {
         // The analysis is stuck (no turn) while the heartbeat goes on: pings stop
         // within half the period.
         for _ in 0..50 {
-            publisher.beat();
+            board.beat();
             tokio::time::sleep(Duration::from_millis(100)).await;
         }
         let stuck = pinged() - while_alive;
@@ -162,7 +162,7 @@ mod tests {
         // Back alive, then the outputs stall.
         for _ in 0..30 {
             liveness.analysis_turned();
-            publisher.beat();
+            board.beat();
             tokio::time::sleep(Duration::from_millis(100)).await;
         }
         let back = pinged();

@@ -159,17 +159,45 @@ fn demo_prints_bites_within_two_percent_of_the_simulated_truth() {
             "gap {bite} vs truth {truth}: {said}"
         );
     }
-    // The wear registers filled and valid (quality bits 9 gap_mrad .. 13 bites_pooled).
+    // The wear registers filled and valid (quality bits 9 gap_mrad .. 11 gap_high_mrad,
+    // 13 bites_pooled); the coupling (bit 12) only once the bites name it.
     let quality: u16 = said
         .lines()
         .find(|l| l.contains("F1.quality"))
         .and_then(|l| l.split_whitespace().nth(2)?.parse().ok())
         .expect("quality register printed");
-    assert_eq!(quality & (0b11111 << 9), 0b11111 << 9, "{said}");
+    assert_eq!(quality & (0b10111 << 9), 0b10111 << 9, "{said}");
+    let last_coupling = said
+        .lines()
+        .filter(|l| l.contains(" | "))
+        .filter_map(|l| l.split_whitespace().last())
+        .next_back()
+        .expect("a bite printed");
+    assert_eq!(
+        quality & (1 << 12) != 0,
+        last_coupling.parse::<u16>().is_ok(),
+        "gap_coupling valid exactly when the last bite names a coupling ({last_coupling}): {said}"
+    );
     assert!(
         said.contains("F1.gap_mrad"),
         "register snapshot printed: {said}"
     );
+}
+
+/// The README's text between `<!-- {marker}:begin -->` and `<!-- {marker}:end -->`.
+fn readme_section(marker: &str) -> String {
+    let readme =
+        std::fs::read_to_string(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../README.md"))
+            .unwrap();
+    let begin = format!("<!-- {marker}:begin -->\n");
+    let start = readme
+        .find(&begin)
+        .unwrap_or_else(|| panic!("README has the {marker}:begin marker"))
+        + begin.len();
+    let end = readme
+        .find(&format!("<!-- {marker}:end -->"))
+        .unwrap_or_else(|| panic!("README has the {marker}:end marker"));
+    readme[start..end].to_owned()
 }
 
 #[test]
@@ -184,21 +212,45 @@ fn readme_register_table_is_the_generated_one() {
     ]);
     assert!(output.status.success(), "{}", text(&output));
     let generated = String::from_utf8(output.stdout).unwrap();
-    let readme =
-        std::fs::read_to_string(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../README.md"))
-            .unwrap();
-    let begin = "<!-- registers:begin -->\n";
-    let start = readme
-        .find(begin)
-        .expect("README has the registers:begin marker")
-        + begin.len();
-    let end = readme
-        .find("<!-- registers:end -->")
-        .expect("README has the registers:end marker");
     assert_eq!(
-        &readme[start..end],
+        readme_section("registers"),
         generated,
         "README register table differs: regenerate it with millgate registers --config config/examples/hot-mill.toml --format md"
+    );
+}
+
+#[test]
+fn readme_figure_table_is_the_generated_one_and_the_exports_agree() {
+    let output = millgate(&["figures", "--format", "md"]);
+    assert!(output.status.success(), "{}", text(&output));
+    let generated = String::from_utf8(output.stdout).unwrap();
+    assert_eq!(
+        readme_section("figures"),
+        generated,
+        "README figure table differs: regenerate it with millgate figures --format md"
+    );
+    // The JSON export: one object per catalogue figure, with every output's name.
+    let json = millgate(&["figures", "--format", "json"]);
+    let rows: Vec<serde_json::Value> = serde_json::from_slice(&json.stdout).unwrap();
+    assert_eq!(rows.len(), millgate::state::catalogue::all().len());
+    for row in &rows {
+        for field in [
+            "subject",
+            "key",
+            "register",
+            "sparkplug",
+            "metric",
+            "history",
+        ] {
+            assert!(row[field].is_string(), "{field} of {row}");
+        }
+    }
+    let csv = millgate(&["figures", "--format", "csv"]);
+    let csv = String::from_utf8(csv.stdout).unwrap();
+    assert_eq!(
+        csv.lines().count(),
+        rows.len() + 1,
+        "a header and a row each"
     );
 }
 
@@ -239,7 +291,7 @@ fn registers_export_json_and_csv_have_the_documented_fields() {
     }
     assert!(row(".flags")["description"]
         .as_str()
-        .is_some_and(|d| d.contains("bit3 slow-down request")));
+        .is_some_and(|d| d.contains("bit3 slow_down_request: Slow-down request")));
     for row in &rows {
         for key in [
             "name",
@@ -266,9 +318,249 @@ fn registers_export_json_and_csv_have_the_documented_fields() {
     let csv = String::from_utf8(csv.stdout).unwrap();
     assert_eq!(
         csv.lines().next(),
-        Some("name,address,type,scale,word_order,unit,access,description")
+        Some("name,address,plc_address,type,scale,word_order,unit,access,description")
     );
     assert_eq!(csv.lines().count(), rows.len() + 1);
+    // Absolute PLC addresses beside the offsets: the example writes its map from
+    // holding register 2000 (outputs.plc.register_base), read from the file here.
+    let base: u64 = std::fs::read_to_string(&config)
+        .unwrap()
+        .lines()
+        .find_map(|line| line.strip_prefix("register_base = "))
+        .and_then(|value| value.split_whitespace().next()?.parse().ok())
+        .expect("the example's register_base");
+    for (row, line) in rows.iter().zip(csv.lines().skip(1)) {
+        let offset = row["address"].as_u64().unwrap();
+        assert_eq!(row["plc_address"].as_u64(), Some(base + offset), "{row}");
+        let cells: Vec<&str> = line.splitn(4, ',').collect();
+        assert_eq!(
+            cells[1..3],
+            [offset.to_string(), (base + offset).to_string()]
+        );
+    }
+    // Without a PLC output there is no PLC address.
+    let demo = std::fs::read_to_string(examples().join("demo.toml")).unwrap();
+    let start = demo.find("[outputs.plc]").unwrap();
+    let end = start + demo[start..].find("\n[").unwrap() + 1;
+    let path = write_config("no-plc", &format!("{}{}", &demo[..start], &demo[end..]));
+    let json = millgate(&[
+        "registers",
+        "--config",
+        path.to_str().unwrap(),
+        "--format",
+        "json",
+    ]);
+    assert!(json.status.success(), "{}", text(&json));
+    let rows: Vec<serde_json::Value> = serde_json::from_slice(&json.stdout).unwrap();
+    assert!(
+        rows.iter().all(|row| row["plc_address"].is_null()),
+        "{rows:?}"
+    );
+}
+
+/// `history --format` says what it exports, not the register map's formats.
+#[test]
+fn history_format_help_describes_the_history_export() {
+    let help = millgate(&["history", "--help"]);
+    assert!(help.status.success(), "{}", text(&help));
+    let help = String::from_utf8(help.stdout).unwrap();
+    let formats = &help[help.find("--format").expect("--format in the help")..];
+    assert!(formats.contains("one object per row"), "{formats}");
+    assert!(
+        !formats.contains("register") && !formats.contains("README"),
+        "{formats}"
+    );
+}
+
+/// The exit status of each kind of outcome, as the README's table states it.
+#[test]
+fn exit_codes_are_the_documented_ones() {
+    let readme =
+        std::fs::read_to_string(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../README.md"))
+            .unwrap();
+    for (status, _) in millgate::cli::shell::EXIT_STATUS {
+        assert!(
+            readme.contains(&format!("| {status} |")),
+            "the README's exit status table lists {status}"
+        );
+    }
+    let valid = examples().join("demo.toml");
+    let valid = valid.to_str().unwrap();
+    let broken = write_config("exit-codes", "name = \"x\"\n[[sources.modbus]]\nname = 1\n");
+    let broken = broken.to_str().unwrap();
+    for (args, expected) in [
+        (&["check", "--config", valid][..], 0),
+        (&["--version"][..], 0),
+        (&["check", "--help"][..], 0),
+        (&["check", "--config", broken][..], 1),
+        (&["check", "--config", "/nonexistent/mill.toml"][..], 1),
+        (&["history", "--db", "/nonexistent/h.db"][..], 1),
+        (&["registers", "--config", broken][..], 1),
+        (&[][..], 2),
+        (&["chek", "--config", valid][..], 2),
+        (&["check"][..], 2),
+        (&["check", "--config", valid, "--format", "xml"][..], 2),
+        (&["history", "--db", "h.db", "--kind", "everything"][..], 2),
+    ] {
+        let output = millgate(args);
+        assert_eq!(
+            output.status.code(),
+            Some(expected),
+            "millgate {args:?}: {}",
+            text(&output)
+        );
+        if expected == 2 {
+            let stderr = String::from_utf8_lossy(&output.stderr);
+            assert!(
+                stderr.starts_with("error: ") || stderr.contains("Usage: millgate"),
+                "{args:?}: {stderr}"
+            );
+        }
+    }
+}
+
+#[test]
+fn check_format_json_lists_the_problems_and_warnings_with_their_keys() {
+    let demo = std::fs::read_to_string(examples().join("demo.toml")).unwrap();
+    let bad = demo
+        .replace("torque = \"spindle_top\"", "torque = \"spindel_top\"")
+        .replace("register_base = 0", "register_base = 70000");
+    let path = write_config("json-problems", &bad);
+    let output = millgate(&[
+        "check",
+        "--config",
+        path.to_str().unwrap(),
+        "--format",
+        "json",
+    ]);
+    assert_eq!(output.status.code(), Some(1), "{}", text(&output));
+    let report: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+    assert_eq!(report["ok"], false, "{report}");
+    assert!(report["summary"].is_null(), "{report}");
+    let problems = report["problems"].as_array().unwrap();
+    let mut keys: Vec<&str> = problems.iter().filter_map(|p| p["key"].as_str()).collect();
+    keys.sort_unstable();
+    assert_eq!(
+        keys,
+        ["drivelines[0].torque", "outputs.plc.register_base"],
+        "{report}"
+    );
+    for problem in problems {
+        let (file, key, message) = (
+            problem["file"].as_str().unwrap(),
+            problem["key"].as_str().unwrap(),
+            problem["message"].as_str().unwrap(),
+        );
+        assert!(file.ends_with("mill.toml"), "{problem}");
+        assert_eq!(problem["text"], format!("{file}: {key}: {message}"));
+    }
+    // The text format prints the same lines.
+    let text_output = millgate(&["check", "--config", path.to_str().unwrap()]);
+    let stderr = String::from_utf8_lossy(&text_output.stderr);
+    for problem in problems {
+        assert!(
+            stderr.contains(problem["text"].as_str().unwrap()),
+            "{stderr}"
+        );
+    }
+
+    // A valid file with a warning: exit 0, the summary and the warning's key.
+    let open = demo.replace("bind = \"127.0.0.1:5503\"", "bind = \"0.0.0.0:5503\"");
+    let path = write_config("json-warning", &open);
+    let output = millgate(&[
+        "check",
+        "--config",
+        path.to_str().unwrap(),
+        "--format",
+        "json",
+    ]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output));
+    let report: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+    assert_eq!(report["ok"], true, "{report}");
+    assert!(report["summary"].as_str().unwrap().contains("spindle_top"));
+    assert_eq!(report["problems"], serde_json::json!([]));
+    let warnings = report["warnings"].as_array().unwrap();
+    assert_eq!(warnings.len(), 1, "{report}");
+    assert_eq!(warnings[0]["key"], "outputs.server.bind", "{report}");
+    assert!(warnings[0]["message"]
+        .as_str()
+        .unwrap()
+        .starts_with("0.0.0.0:5503 accepts clients from other hosts"));
+}
+
+/// The bash completion, sourced into a real bash, completes the commands and a
+/// command's options; the manual page, rendered by man, has every command and the
+/// exit status.
+#[test]
+fn completions_and_the_manual_page_work_in_bash_and_man() {
+    let script = millgate(&["completions", "bash"]);
+    assert!(script.status.success(), "{}", text(&script));
+    let dir = std::env::temp_dir().join(format!("millgate-cli-{}-completion", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("millgate.bash");
+    std::fs::write(&path, &script.stdout).unwrap();
+    let complete = |words: &str| {
+        let output = Command::new("bash")
+            .arg("-c")
+            .arg(format!(
+                "source {}; COMP_WORDS=({words}); COMP_CWORD=$((${{#COMP_WORDS[@]}} - 1)); \
+                 COMP_LINE=\"${{COMP_WORDS[*]}}\"; COMP_POINT=${{#COMP_LINE}}; \
+                 _millgate millgate \"${{COMP_WORDS[COMP_CWORD]}}\" \
+                 \"${{COMP_WORDS[COMP_CWORD - 1]}}\"; printf '%s\\n' \"${{COMPREPLY[@]}}\"",
+                path.display()
+            ))
+            .output()
+            .expect("bash");
+        assert!(output.status.success(), "{}", text(&output));
+        String::from_utf8(output.stdout).unwrap()
+    };
+    let completed = complete("millgate ch");
+    let mut commands: Vec<&str> = completed.split_whitespace().collect();
+    commands.sort_unstable();
+    assert_eq!(commands, ["chatter", "check"]);
+    let options = complete("millgate check --");
+    assert!(
+        options.lines().any(|o| o == "--config") && options.lines().any(|o| o == "--format"),
+        "{options}"
+    );
+    let formats = complete("millgate check --format ''");
+    assert_eq!(
+        formats.split_whitespace().collect::<Vec<_>>(),
+        ["text", "json"]
+    );
+
+    let page = millgate(&["man"]);
+    assert!(page.status.success(), "{}", text(&page));
+    let roff = dir.join("millgate.1");
+    std::fs::write(&roff, &page.stdout).unwrap();
+    match Command::new("man")
+        .arg("-l")
+        .arg(&roff)
+        .env("MANWIDTH", "100")
+        .output()
+    {
+        Ok(rendered) if rendered.status.success() => {
+            let rendered = String::from_utf8_lossy(&rendered.stdout);
+            assert!(rendered.contains("EXIT STATUS"), "{rendered}");
+            for command in ["check", "run", "registers", "history", "completions", "man"] {
+                assert!(
+                    rendered.contains(&format!("millgate-{command}(1)")),
+                    "{command}: {rendered}"
+                );
+            }
+        }
+        _ => eprintln!("man not installed: the page is checked as text only"),
+    }
+    let roff_text = String::from_utf8_lossy(&page.stdout);
+    assert!(roff_text.contains(".SH \"EXIT STATUS\""), "{roff_text}");
+    // One page per command into a folder.
+    let folder = dir.join("man1");
+    let written = millgate(&["man", "--out", folder.to_str().unwrap()]);
+    assert!(written.status.success(), "{}", text(&written));
+    for name in ["millgate.1", "millgate-check.1", "millgate-history.1"] {
+        assert!(folder.join(name).is_file(), "{name}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 // Runs a command of the `sim-tools` feature.
@@ -1039,4 +1331,66 @@ fn chatter_commission_sets_thresholds_that_hold_on_held_out_stable_rolling() {
         ),
     );
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `check` under the variables systemd sets for `StateDirectory=`, `CacheDirectory=` and
+/// `LoadCredential=` (as `ExecStartPre=millgate check` runs in the shipped unit): a
+/// relative history path in `$STATE_DIRECTORY`, the cache in `$CACHE_DIRECTORY`, the
+/// MQTT password from `$CREDENTIALS_DIRECTORY`; without them the credential is an
+/// error naming the key and the variable.
+#[test]
+fn check_uses_the_folders_systemd_hands_the_service() {
+    let demo = std::fs::read_to_string(examples().join("demo.toml")).unwrap();
+    let path = write_config(
+        "service-folders",
+        &format!(
+            "{demo}\n[outputs.mqtt]\nbroker = \"127.0.0.1:1883\"\ngroup_id = \"plant\"\n\
+             node_id = \"f1\"\nusername = \"millgate\"\npassword_credential = \"mqtt\"\n\
+             \n[history]\npath = \"history.db\"\n"
+        ),
+    );
+    let folder = path.parent().unwrap();
+    let [state, cache, credentials] = ["state", "cache", "credentials"].map(|name| {
+        let dir = folder.join(name);
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    });
+    std::fs::write(credentials.join("mqtt"), "secret\n").unwrap();
+    let check = |systemd: bool| {
+        let mut command = Command::new(env!("CARGO_BIN_EXE_millgate"));
+        command.args(["check", "--config", path.to_str().unwrap()]);
+        for (variable, dir) in [
+            ("STATE_DIRECTORY", &state),
+            ("CACHE_DIRECTORY", &cache),
+            ("CREDENTIALS_DIRECTORY", &credentials),
+        ] {
+            if systemd {
+                command.env(variable, dir);
+            } else {
+                command.env_remove(variable);
+            }
+        }
+        command.output().expect("run millgate")
+    };
+
+    let output = check(true);
+    let said = text(&output);
+    assert!(output.status.success(), "{said}");
+    assert!(
+        said.contains(&format!("History: {}", state.join("history.db").display()))
+            && said.contains(&format!("Cache: {}", cache.display())),
+        "{said}"
+    );
+    assert!(!state.join("history.db").exists(), "check creates no file");
+
+    let output = check(false);
+    let said = text(&output);
+    assert!(!output.status.success(), "must fail: {said}");
+    assert!(
+        said.contains(
+            "mill.toml: outputs.mqtt.password_credential: $CREDENTIALS_DIRECTORY is not set"
+        ),
+        "names the key and the variable: {said}"
+    );
+    std::fs::remove_dir_all(folder).unwrap();
 }

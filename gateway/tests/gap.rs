@@ -19,15 +19,18 @@ use millgate::analysis::driveline::BiteReport;
 use millgate::analysis::gap_estimate::{
     GapEstimate, GapObservation, SHIFT_FLOOR_S, SHIFT_JUMP_S, TAF_FLOOR,
 };
-use millgate::analysis::gap_map::{GapMapError, GapMaps};
+use millgate::analysis::gap_map::GapMapError;
 use millgate::analysis::gap_monitor::MapsOrigin;
 use millgate::analysis::Analysis;
 use millgate::field::acquired::Acquired;
 use millgate::field::source_health::SourceHealth;
-use millgate::outputs::history::events::CommandOrigin;
-use millgate::outputs::publisher::{Publisher, WearMapState};
-use millgate::outputs::register_map::driveline_flags;
-use millgate::outputs::results::GapResults;
+use millgate::outputs::register_map::{flag_mask, RegisterMap};
+use millgate::state::board::Board;
+use millgate::state::catalogue::DRIVELINE;
+use millgate::state::commands::{Command as GatewayCommand, CommandOrigin};
+use millgate::state::gap_maps::GapMapState;
+use millgate::state::gap_maps::GapMaps;
+use millgate::state::results::GapResults;
 use millgate_sim::discrepancy::{self, split_bites, Effect, Measured, Verdict};
 use millgate_sim::model::Model;
 use millgate_sim::schedule::{rolling_schedule, BarTiming};
@@ -86,15 +89,15 @@ wear = {{ {wear} }}
         .unwrap_or_else(|error| panic!("{error}"))
 }
 
-fn analysis(config: &millgate_config::Config) -> (Analysis, Arc<Publisher>) {
+fn analysis(config: &millgate_config::Config) -> (Analysis, Arc<Board>) {
     let health = Arc::new(SourceHealth::new(
         Duration::from_secs(3600),
         Duration::from_secs(3600),
     ));
-    let publisher = Arc::new(Publisher::new(config, vec![health]));
+    let board = Arc::new(Board::new(config, vec![health]));
     let (bites, _) = tokio::sync::broadcast::channel(64);
-    let analysis = Analysis::new(config, Arc::clone(&publisher), bites).expect("analysis");
-    (analysis, publisher)
+    let analysis = Analysis::new(config, Arc::clone(&board), bites).expect("analysis");
+    (analysis, board)
 }
 
 /// The coarse maps, built once per test process (and cached).
@@ -156,7 +159,7 @@ impl Seeded {
 /// 40-170 kN*m, and whether the gap warning was raised.
 fn case(model: &Model, rng: &mut Seeded, seed: u64) -> (GapEstimate, bool) {
     let config = config(COARSE, "", &scratch("cache"));
-    let (mut analysis, publisher) = analysis(&config);
+    let (mut analysis, board) = analysis(&config);
     analysis.take_gap_map_jobs();
     analysis.install_gap_maps(0, Ok(coarse_maps().clone()));
     let noise = rng.uniform(0.3, 1.0);
@@ -167,7 +170,7 @@ fn case(model: &Model, rng: &mut Seeded, seed: u64) -> (GapEstimate, bool) {
         .and_then(|gap| gap.pooled)
         .expect("an estimate after 10 bites");
     assert_eq!(estimate.bites_pooled, 10);
-    let results = publisher.results();
+    let results = board.results();
     let published = results.drivelines[0].gap.expect("published");
     assert_eq!(published.gap_mrad, estimate.gap_mrad);
     (estimate, results.drivelines[0].gap_warning)
@@ -278,81 +281,69 @@ fn the_wear_state_warns_latches_the_alarm_until_acknowledged_and_the_reset_empti
         ", gap_warning_mrad = 2.0, gap_alarm_mrad = 2.5",
         &scratch("cache"),
     );
-    let (mut analysis, publisher) = analysis(&config);
+    let (mut analysis, board) = analysis(&config);
     analysis.take_gap_map_jobs();
-    let flags = |publisher: &Publisher| {
-        let mut results = publisher.results();
+    let map = RegisterMap::new(&config);
+    let flags = |board: &Board| {
+        let mut results = board.results();
         results.drivelines[0].source_stale = false;
-        let words = publisher.map().encode(&results);
-        let register = publisher
-            .map()
-            .registers()
-            .iter()
-            .find(|r| r.name == "F1.flags")
-            .unwrap();
-        words[usize::from(register.address)]
+        let words = map.encode(&results);
+        words[usize::from(map.named("F1.flags").unwrap().address)]
     };
+    let local = CommandOrigin::Local;
     // Bites before the maps are ready: pooled, no estimate, registers invalid.
     let reports = feed(&mut analysis, &hidden(1, 3.0), &[60.0, 120.0], 0.5, 7);
     assert!(reports
         .iter()
         .all(|r| r.gap.is_some_and(|g| g.pooled.is_none())));
-    assert_eq!(publisher.results().drivelines[0].gap, None);
+    assert_eq!(board.results().drivelines[0].gap, None);
     assert!(matches!(
-        publisher.wear_map(0),
-        Some(WearMapState::Building { .. })
+        board.gap_maps(0),
+        Some(GapMapState::Building { .. })
     ));
     // The maps arrive: the two bites give the estimate at once, and the outputs
     // (the maintenance page) see the maps; a late progress report does not hide them.
     analysis.install_gap_maps(0, Ok(coarse_maps().clone()));
-    publisher.set_wear_map(0, WearMapState::Building { done: 1, total: 2 });
-    assert!(
-        matches!(publisher.wear_map(0), Some(WearMapState::Ready(maps)) if *maps == *coarse_maps())
-    );
-    let gap = publisher.results().drivelines[0]
+    board.set_gap_maps(0, GapMapState::Building { done: 1, total: 2 });
+    assert!(matches!(board.gap_maps(0), Some(GapMapState::Ready(maps)) if *maps == *coarse_maps()));
+    let gap = board.results().drivelines[0]
         .gap
         .expect("estimate once the maps are in");
     assert_eq!(gap.bites_pooled, 2);
     assert!((gap.gap_mrad - 3.0).abs() < 0.3, "{gap:?}");
-    let both = driveline_flags::GAP_WARNING | driveline_flags::GAP_ALARM;
-    assert_eq!(flags(&publisher) & both, both, "3 mrad: warning and alarm");
+    let both = flag_mask(DRIVELINE, "gap_warning") | flag_mask(DRIVELINE, "gap_alarm");
+    assert_eq!(flags(&board) & both, both, "3 mrad: warning and alarm");
 
     // Acknowledged: the alarm clears; the next bite with the gap still there sets it.
-    publisher.acknowledge_alarms(CommandOrigin::Local);
-    assert_eq!(flags(&publisher) & both, driveline_flags::GAP_WARNING);
+    analysis.command(GatewayCommand::AcknowledgeAlarms { origin: local });
+    assert_eq!(flags(&board) & both, flag_mask(DRIVELINE, "gap_warning"));
     feed(&mut analysis, &hidden(1, 3.0), &[90.0], 0.5, 8);
-    assert_eq!(flags(&publisher) & both, both);
-    assert_eq!(
-        publisher.results().drivelines[0].gap.unwrap().bites_pooled,
-        3
-    );
+    assert_eq!(flags(&board) & both, both);
+    assert_eq!(board.results().drivelines[0].gap.unwrap().bites_pooled, 3);
 
     // The coupling is replaced: reset; the pool restarts with the next bite, no gap.
-    publisher.reset_wear_trend(1, CommandOrigin::Local);
-    assert_eq!(
-        publisher.results().drivelines[0].gap,
-        None,
-        "invalid at once"
-    );
+    analysis.command(GatewayCommand::ResetWear {
+        driveline: 0,
+        origin: local,
+    });
+    assert_eq!(board.results().drivelines[0].gap, None, "invalid at once");
     feed(&mut analysis, &hidden(1, 0.0), &[80.0], 0.5, 9);
-    let gap = publisher.results().drivelines[0]
-        .gap
-        .expect("a new estimate");
+    let gap = board.results().drivelines[0].gap.expect("a new estimate");
     assert_eq!(gap.bites_pooled, 1, "only the bite after the reset");
     assert!(gap.gap_mrad < 0.3, "{gap:?}");
     assert_eq!(
-        flags(&publisher) & both,
-        driveline_flags::GAP_ALARM,
+        flags(&board) & both,
+        flag_mask(DRIVELINE, "gap_alarm"),
         "the alarm stays latched"
     );
-    publisher.acknowledge_alarms(CommandOrigin::Local);
-    assert_eq!(flags(&publisher) & both, 0);
+    analysis.command(GatewayCommand::AcknowledgeAlarms { origin: local });
+    assert_eq!(flags(&board) & both, 0);
 }
 
 #[test]
 fn the_pool_saved_as_a_list_of_observations_restores_the_estimate() {
     let config = config(COARSE, "", &scratch("cache"));
-    let (mut analysis, publisher) = analysis(&config);
+    let (mut analysis, board) = analysis(&config);
     analysis.take_gap_map_jobs();
     analysis.install_gap_maps(0, Ok(coarse_maps().clone()));
     feed(
@@ -362,18 +353,18 @@ fn the_pool_saved_as_a_list_of_observations_restores_the_estimate() {
         0.7,
         11,
     );
-    let before = publisher.results().drivelines[0].gap.expect("estimate");
+    let before = board.results().drivelines[0].gap.expect("estimate");
     let saved = serde_json::to_string(&analysis.gap_pool(0).expect("a pool")).unwrap();
 
     // A restart: a new analysis, the pool restored before the maps are in.
-    let (mut restarted, publisher) = self::analysis(&config);
+    let (mut restarted, board) = self::analysis(&config);
     let observations: Vec<GapObservation> = serde_json::from_str(&saved).unwrap();
     assert_eq!(observations.len(), 3);
     restarted.restore_gap_pool(0, observations);
-    assert_eq!(publisher.results().drivelines[0].gap, None, "no maps yet");
+    assert_eq!(board.results().drivelines[0].gap, None, "no maps yet");
     restarted.install_gap_maps(0, Ok(coarse_maps().clone()));
     assert_eq!(
-        publisher.results().drivelines[0].gap,
+        board.results().drivelines[0].gap,
         Some(before),
         "the same estimate"
     );
@@ -431,7 +422,7 @@ fn a_map_that_cannot_be_built_is_named_and_the_driveline_runs_on_with_the_gap_in
         "",
         &scratch("bad-cache"),
     );
-    let (mut analysis, publisher) = analysis(&config);
+    let (mut analysis, board) = analysis(&config);
     let job = analysis.take_gap_map_jobs().remove(0);
     let error = job
         .run(2, &AtomicBool::new(false), &|_, _| {})
@@ -449,11 +440,11 @@ fn a_map_that_cannot_be_built_is_named_and_the_driveline_runs_on_with_the_gap_in
         reports[0].transient.taf.is_some(),
         "bites are still analysed"
     );
-    let results = publisher.results();
+    let results = board.results();
     assert!(results.drivelines[0].taf.is_some());
     assert_eq!(results.drivelines[0].gap, None, "the gap stays invalid");
-    match publisher.wear_map(0) {
-        Some(WearMapState::Failed(why)) => assert!(why.contains("gives no bite window"), "{why}"),
+    match board.gap_maps(0) {
+        Some(GapMapState::Failed(why)) => assert!(why.contains("gives no bite window"), "{why}"),
         other => panic!("{other:?}"),
     }
 }
@@ -461,7 +452,7 @@ fn a_map_that_cannot_be_built_is_named_and_the_driveline_runs_on_with_the_gap_in
 #[test]
 fn wear_settings_that_do_not_fit_the_model_are_named_at_start() {
     let config = config("couplings = [1, 2]", "", &scratch("cache"));
-    let (mut analysis, publisher) = analysis(&config);
+    let (mut analysis, board) = analysis(&config);
     let problems: Vec<String> = analysis
         .wear_problems()
         .iter()
@@ -476,8 +467,8 @@ fn wear_settings_that_do_not_fit_the_model_are_named_at_start() {
         ]
     );
     assert!(analysis.take_gap_map_jobs().is_empty());
-    match publisher.wear_map(0) {
-        Some(WearMapState::Failed(why)) => assert_eq!(why, problems[0]),
+    match board.gap_maps(0) {
+        Some(GapMapState::Failed(why)) => assert_eq!(why, problems[0]),
         other => panic!("{other:?}"),
     }
 }
@@ -719,7 +710,7 @@ fn calibrate_then_monitor(
     let folder = file.parent().expect("report folder").to_owned();
     let mut config = config(COARSE_RANGED, "", &folder);
     config.drivelines[0].model = Some(file.clone());
-    let (mut analysis, publisher) = analysis(&config);
+    let (mut analysis, board) = analysis(&config);
     assert!(analysis.wear_problems().is_empty(), "the file loads");
     let job = analysis.take_gap_map_jobs().remove(0);
     assert_eq!(job.model_file, file);
@@ -737,7 +728,7 @@ fn calibrate_then_monitor(
         noise,
         seed + 1,
     );
-    let estimate = publisher.results().drivelines[0].gap.expect("an estimate");
+    let estimate = board.results().drivelines[0].gap.expect("an estimate");
     let _ = std::fs::remove_dir_all(&folder);
     Calibrated {
         verdict: rep.verdict,

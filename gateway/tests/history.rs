@@ -7,17 +7,20 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Duration;
 
-use millgate::outputs::history::events::{
-    AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, CommandOrigin, EndedBy, GapEstimate,
-    HistoryEvent, PooledBite, WearState,
-};
 use millgate::outputs::history::query::{Filter, HistoryReader};
 use millgate::outputs::history::retention::{Retention, RetentionState};
 use millgate::outputs::history::schema;
-use millgate::outputs::history::time::UtcTime;
-use millgate::outputs::history::{DrivelineSettings, History, HistoryState, RunInfo};
-use millgate::outputs::register_map::{driveline_flags, RegisterMap};
-use millgate::outputs::results::{DrivelineResults, Results};
+use millgate::outputs::history::{DrivelineSettings, RunInfo};
+use millgate::outputs::register_map::{flag_mask, RegisterMap};
+use millgate::state::catalogue::DRIVELINE;
+use millgate::state::commands::CommandOrigin;
+use millgate::state::events::{
+    AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, EndedBy, GapEstimate, HistoryEvent, PooledBite,
+    WearState,
+};
+use millgate::state::history::{History, HistoryState};
+use millgate::state::results::{DrivelineResults, Results};
+use millgate::state::time::UtcTime;
 
 /// A scratch folder removed at the end.
 struct Scratch(PathBuf);
@@ -90,7 +93,7 @@ fn bite(n: u32, time: UtcTime, taf: f64, trend: f64, alarm: bool) -> HistoryEven
         extra_state: (n == 3).then(|| serde_json::json!({"pooled_gap_mrad": 1.5})),
         state: DrivelineResults {
             bite_counter: n,
-            last_bite_unix_s: u32::try_from(time.unix_ms() / 1000).ok(),
+            last_bite_unix_ms: Some(time.unix_ms()),
             static_torque_knm: Some(100.0 + f64::from(n)),
             peak_torque_knm: Some(taf * (100.0 + f64::from(n))),
             taf: Some(taf),
@@ -100,8 +103,8 @@ fn bite(n: u32, time: UtcTime, taf: f64, trend: f64, alarm: bool) -> HistoryEven
             wear_index: Some(taf / 1.8 - 1.0),
             wear_trend: Some(trend),
             last_bite_degraded: n.is_multiple_of(7),
-            warning: taf >= 2.2,
-            alarm,
+            taf_warning: taf >= 2.2,
+            taf_alarm: alarm,
             source_stale: false,
             restored: false,
             ..DrivelineResults::default()
@@ -136,7 +139,7 @@ async fn what_is_recorded_is_read_back_and_restored_at_the_next_start() {
     let scratch = Scratch::new("roundtrip");
     let path = scratch.file("history.db");
     let history = History::new(Some(&config(&path)));
-    let restored = history.start(run_info());
+    let restored = millgate::outputs::history::start(&history, run_info());
     assert!(
         restored.drivelines.is_empty(),
         "a new file restores nothing"
@@ -246,20 +249,17 @@ async fn what_is_recorded_is_read_back_and_restored_at_the_next_start() {
 
     // The second start: the state after the last event, marked restored.
     let history = History::new(Some(&config(&path)));
-    let restored = history.start(run_info());
+    let restored = millgate::outputs::history::start(&history, run_info());
     history.close();
     assert_eq!(restored.drivelines.len(), 1);
     let f1 = &restored.drivelines[0];
     assert_eq!(f1.results.bite_counter, 40);
     assert_eq!(f1.results.wear_trend, None, "the reset came last");
     assert!(f1.gap_pool.is_empty(), "the reset came last");
-    assert!(f1.results.alarm, "the alarm stays latched");
+    assert!(f1.results.taf_alarm, "the alarm stays latched");
     assert!(f1.results.restored);
     assert_eq!(f1.results.taf, bites[39].taf);
-    assert_eq!(
-        f1.results.last_bite_unix_s,
-        Some((at(40).unix_ms() / 1000) as u32)
-    );
+    assert_eq!(f1.results.last_bite_unix_ms, Some(at(40).unix_ms()));
     assert_eq!(
         f1.extra,
         Some(serde_json::json!({"pooled_gap_mrad": 1.5})),
@@ -281,8 +281,8 @@ async fn what_is_recorded_is_read_back_and_restored_at_the_next_start() {
         .unwrap();
     let flags = words[usize::from(flags.address)];
     assert_eq!(
-        flags & (driveline_flags::RESTORED | driveline_flags::ALARM),
-        driveline_flags::RESTORED | driveline_flags::ALARM
+        flags & (flag_mask(DRIVELINE, "restored") | flag_mask(DRIVELINE, "taf_alarm")),
+        flag_mask(DRIVELINE, "restored") | flag_mask(DRIVELINE, "taf_alarm")
     );
     let runs = HistoryReader::open(&path)
         .unwrap()
@@ -297,7 +297,7 @@ async fn the_gap_pool_since_the_last_reset_and_the_gap_alarm_are_restored() {
     let path = scratch.file("history.db");
     let t0 = UtcTime::parse("2026-03-01T08:00:00Z").unwrap();
     let at = |minutes: i64| UtcTime::from_unix_ms(t0.unix_ms() + minutes * 60_000);
-    let start = |history: &History| history.start(run_info());
+    let start = |history: &History| millgate::outputs::history::start(history, run_info());
     let history = History::new(Some(&config(&path)));
     start(&history);
     for n in 1..=16u32 {
@@ -330,7 +330,7 @@ async fn the_gap_pool_since_the_last_reset_and_the_gap_alarm_are_restored() {
         .bites(&Filter::default())
         .unwrap();
     assert_eq!(bites[0].gap_coupling, None, "undetermined");
-    assert_eq!(bites[4].gap_coupling.as_deref(), Some("1"));
+    assert_eq!(bites[4].gap_coupling, Some(1));
     assert_eq!(bites[4].gap_mrad, Some(2.0));
 
     let history = History::new(Some(&config(&path)));
@@ -350,7 +350,7 @@ async fn the_gap_pool_since_the_last_reset_and_the_gap_alarm_are_restored() {
     history.record(HistoryEvent::Alarm(AlarmRecord {
         time: at(17),
         subject: "F1".into(),
-        kind: AlarmKind::WearAlarm,
+        kind: AlarmKind::GapAlarm,
         event: AlarmEvent::Acknowledged,
         origin: Some(CommandOrigin::Local),
         value: None,
@@ -370,7 +370,7 @@ async fn a_run_that_never_stopped_is_marked_unclean_and_its_open_outage_closed()
     let scratch = Scratch::new("unclean");
     let path = scratch.file("history.db");
     let first = History::new(Some(&config(&path)));
-    first.start(run_info());
+    millgate::outputs::history::start(&first, run_info());
     first.record(HistoryEvent::OutageStarted {
         time: UtcTime::now(),
         source: "daq1".into(),
@@ -379,7 +379,7 @@ async fn a_run_that_never_stopped_is_marked_unclean_and_its_open_outage_closed()
     settle(&first).await;
     // No close: as after a kill, the next start finds the run open.
     let second = History::new(Some(&config(&path)));
-    second.start(run_info());
+    millgate::outputs::history::start(&second, run_info());
     second.close();
     let reader = HistoryReader::open(&path).unwrap();
     let runs = reader.runs(&Filter::default()).unwrap();
@@ -396,7 +396,7 @@ async fn debian_sqlite3_and_python_read_the_file() {
     let scratch = Scratch::new("tools");
     let path = scratch.file("history.db");
     let history = History::new(Some(&config(&path)));
-    history.start(run_info());
+    millgate::outputs::history::start(&history, run_info());
     let t0 = UtcTime::parse("2026-05-04T23:59:58.250Z").unwrap();
     for n in 1..=12u32 {
         let time = UtcTime::from_unix_ms(t0.unix_ms() + i64::from(n) * 750);
@@ -448,7 +448,7 @@ async fn a_corrupt_file_is_reported_and_left_alone() {
     let garbage: Vec<u8> = (0..8192u32).map(|i| (i * 7 + 3) as u8).collect();
     std::fs::write(&path, &garbage).unwrap();
     let history = History::new(Some(&config(&path)));
-    let restored = history.start(run_info());
+    let restored = millgate::outputs::history::start(&history, run_info());
     assert!(restored.drivelines.is_empty());
     let status = history.status();
     assert_eq!(status.state, HistoryState::Failing);

@@ -9,14 +9,16 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Duration;
 
-use millgate::outputs::history::events::{
-    BiteRecord, CommandOrigin, GapEstimate, HistoryEvent, WearState,
+use millgate::outputs::history::query::{BiteRow, Filter, HistoryReader};
+use millgate::outputs::history::series::{
+    WearIndexPoint, WearPoint, MAX_SERIES_POINTS, MIN_TREND_BITES,
 };
-use millgate::outputs::history::query::{Filter, HistoryReader};
-use millgate::outputs::history::series::{WearPoint, MAX_SERIES_POINTS, MIN_TREND_BITES};
-use millgate::outputs::history::time::UtcTime;
-use millgate::outputs::history::{DrivelineSettings, History, HistoryError, RunInfo};
-use millgate::outputs::results::DrivelineResults;
+use millgate::outputs::history::{DrivelineSettings, HistoryError, RunInfo};
+use millgate::state::commands::CommandOrigin;
+use millgate::state::events::{BiteRecord, GapEstimate, HistoryEvent, WearState};
+use millgate::state::history::History;
+use millgate::state::results::DrivelineResults;
+use millgate::state::time::UtcTime;
 
 const MINUTE_MS: i64 = 60_000;
 const DAY_MS: i64 = 86_400_000;
@@ -120,6 +122,9 @@ fn bite(n: u32, time: UtcTime) -> HistoryEvent {
         state: DrivelineResults {
             bite_counter: n,
             taf: Some(taf),
+            // A wear index for clean windows, and a trend that moves on its own.
+            wear_index: (!degraded).then_some(taf / 1.3 - 1.0),
+            wear_trend: (!n.is_multiple_of(41)).then_some(0.01 * f64::from(n % 100)),
             ..DrivelineResults::default()
         },
     }))
@@ -145,11 +150,14 @@ fn write_file(folder: &Path) -> PathBuf {
         retention_days: 3650,
         max_size_mb: 1024,
     }));
-    history.start(RunInfo {
-        version: "test".into(),
-        config_name: "series test".into(),
-        drivelines: vec![settings("F1"), settings("F2")],
-    });
+    millgate::outputs::history::start(
+        &history,
+        RunInfo {
+            version: "test".into(),
+            config_name: "series test".into(),
+            drivelines: vec![settings("F1"), settings("F2")],
+        },
+    );
     let mut n = 0;
     let mut reset_done = false;
     let mut time_ms = start().unix_ms();
@@ -212,6 +220,7 @@ fn reference_series(
                 gap_low_mrad: None,
                 gap_high_mrad: None,
                 taf_mean: None,
+                taf_min: None,
                 taf_max: None,
             });
         }
@@ -231,6 +240,7 @@ fn reference_series(
         point.gap_low_mrad = min(point.gap_low_mrad, row.gap_low_mrad);
         point.gap_high_mrad = max(point.gap_high_mrad, row.gap_high_mrad);
         if !row.degraded {
+            point.taf_min = min(point.taf_min, row.taf);
             point.taf_max = max(point.taf_max, row.taf);
         }
     }
@@ -266,9 +276,50 @@ fn assert_same_series(got: &[WearPoint], want: &[WearPoint]) {
         assert_eq!(g.gap_mrad, w.gap_mrad, "gap of {}", g.start);
         assert_eq!(g.gap_low_mrad, w.gap_low_mrad);
         assert_eq!(g.gap_high_mrad, w.gap_high_mrad);
+        assert_eq!(g.taf_min, w.taf_min);
         assert_eq!(g.taf_max, w.taf_max);
         assert_close(g.taf_mean, w.taf_mean, "taf mean");
     }
+}
+
+/// The wear index's buckets rebuilt from every row, as `wear_index_series` documents
+/// them: the buckets of the bites (those of `reference_series`), each with the range
+/// of its bites' wear index and the trend after its last bite that had one.
+fn reference_index_series(
+    reader: &HistoryReader,
+    since: Option<UtcTime>,
+    until: Option<UtcTime>,
+    points: usize,
+) -> Vec<WearIndexPoint> {
+    let bites = all_bites(reader);
+    reference_series(reader, since, until, points)
+        .iter()
+        .filter_map(|bucket| {
+            let rows: Vec<&BiteRow> = bites
+                .iter()
+                .filter(|(ms, _)| (bucket.start.unix_ms()..bucket.end.unix_ms()).contains(ms))
+                .map(|(_, row)| row)
+                .collect();
+            let indexes: Vec<f64> = rows.iter().filter_map(|row| row.wear_index).collect();
+            let index_min = indexes.iter().copied().reduce(f64::min)?;
+            Some(WearIndexPoint {
+                start: bucket.start,
+                end: bucket.end,
+                bites: indexes.len() as u32,
+                index_min,
+                index_max: indexes.iter().copied().reduce(f64::max)?,
+                trend: rows.iter().rev().find_map(|row| row.wear_trend),
+                static_torque_min_knm: rows
+                    .iter()
+                    .map(|row| row.static_torque_knm)
+                    .reduce(f64::min)?,
+                static_torque_max_knm: rows
+                    .iter()
+                    .map(|row| row.static_torque_knm)
+                    .reduce(f64::max)?,
+            })
+        })
+        .collect()
 }
 
 /// Least-squares slope by the two-pass (centred) formula, per week.
@@ -329,6 +380,16 @@ fn series_and_trend_match_computations_without_sql() {
     );
     assert_eq!(ranged[0].start, since);
     assert!(ranged.last().unwrap().end <= until);
+
+    // The wear index in the same buckets (min, max and last are the file's values:
+    // exact).
+    for (since, until, points) in [(None, None, 100), (Some(since), Some(until), 37)] {
+        let index = reader
+            .wear_index_series("F1", since, until, points)
+            .unwrap();
+        assert!(index.len() >= 25, "{} buckets", index.len());
+        assert_eq!(index, reference_index_series(&reader, since, until, points));
+    }
 
     // One point: every bite, the last gap of the file.
     let one = reader.wear_series("F1", None, None, 1).unwrap();

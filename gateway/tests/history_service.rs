@@ -9,7 +9,9 @@
 //!   read-only tmpfs) and a corrupt file: a clear error in the log and on `/metrics`,
 //!   events counted as dropped, and the PLC writes go on; the full disk recovers once
 //!   space is freed. The tmpfs are mounted in a private mount namespace
-//!   (`unshare -rm`, util-linux) that only the service sees.
+//!   (`unshare -rm`, util-linux) that only the service sees;
+//! - a gap past the warning threshold: the PLC's flag, an alarm event in the file and
+//!   on the Alarms page's API, the gap figures on `/metrics` as in the PLC.
 
 mod common;
 
@@ -17,11 +19,12 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command};
 use std::time::Duration;
 
-use common::{terminate, until, Setup};
+use common::{free_port, http, terminate, until, web_ready, Setup};
 
 use millgate::analysis::wear::next_trend;
 use millgate::outputs::history::query::{BiteRow, Filter, HistoryReader};
-use millgate::outputs::register_map::driveline_flags;
+use millgate::outputs::register_map::flag_mask;
+use millgate::state::catalogue::DRIVELINE;
 
 fn bites(history: &Path) -> Vec<BiteRow> {
     HistoryReader::open(history)
@@ -53,7 +56,7 @@ async fn sigkill_loses_no_bite_the_plc_saw_and_the_restart_continues() {
     let in_plc = plc.counter();
     let taf_in_plc = plc.taf();
     assert!(
-        plc.flags() & driveline_flags::ALARM != 0,
+        plc.flags() & flag_mask(DRIVELINE, "taf_alarm") != 0,
         "the alarm latched"
     );
 
@@ -83,7 +86,7 @@ async fn sigkill_loses_no_bite_the_plc_saw_and_the_restart_continues() {
     until(
         "the second run writes the PLC",
         Duration::from_secs(20),
-        || plc.flags() & driveline_flags::RESTORED != 0,
+        || plc.flags() & flag_mask(DRIVELINE, "restored") != 0,
     )
     .await;
     assert_eq!(
@@ -92,7 +95,7 @@ async fn sigkill_loses_no_bite_the_plc_saw_and_the_restart_continues() {
         "the counter restored"
     );
     assert!(
-        plc.flags() & driveline_flags::ALARM != 0,
+        plc.flags() & flag_mask(DRIVELINE, "taf_alarm") != 0,
         "the alarm still latched"
     );
     let restored = before.bite_counter as u32;
@@ -101,12 +104,12 @@ async fn sigkill_loses_no_bite_the_plc_saw_and_the_restart_continues() {
     })
     .await;
     assert_eq!(
-        plc.flags() & driveline_flags::RESTORED,
+        plc.flags() & flag_mask(DRIVELINE, "restored"),
         0,
         "a new bite clears it"
     );
     assert!(
-        plc.flags() & driveline_flags::ALARM != 0,
+        plc.flags() & flag_mask(DRIVELINE, "taf_alarm") != 0,
         "latched until acknowledged"
     );
 
@@ -372,5 +375,121 @@ async fn a_corrupt_file_is_reported_left_alone_and_the_plc_goes_on() {
         garbage,
         "left as it was"
     );
+    setup.stop(service).await;
+}
+
+/// `promtool check metrics` (Debian's `prometheus`, which `scripts/test` installs)
+/// finds no problem in `page` (an HTTP answer: the body is checked).
+fn promtool_passes(page: &str) {
+    use std::io::Write;
+    let body = page.split_once("\r\n\r\n").map_or(page, |(_, body)| body);
+    let mut promtool = Command::new("promtool")
+        .args(["check", "metrics"])
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("promtool is not installed: scripts/test installs it (apt-get install prometheus)");
+    promtool
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(body.as_bytes())
+        .unwrap();
+    let output = promtool.wait_with_output().unwrap();
+    assert!(
+        output.status.success(),
+        "promtool check metrics: {}{}\n{body}",
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr)
+    );
+}
+
+/// A gap past the warning threshold is one truth in every output: the PLC's flag, an
+/// alarm event in the history and on the Alarms page's API, and the gap figures on
+/// `/metrics` equal to the PLC's registers, while `millgate run` runs.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_gap_warning_is_an_alarm_event_and_the_gap_is_on_metrics() {
+    let setup = Setup::new("gap-warning", "db").await;
+    let web_port = free_port();
+    // The demo's gap opens from 1 mrad: a 0.5 mrad warning threshold is crossed by the
+    // first estimate.
+    let text = std::fs::read_to_string(&setup.config)
+        .unwrap()
+        .replace("gap_warning_mrad = 2.0", "gap_warning_mrad = 0.5");
+    assert!(text.contains("gap_warning_mrad = 0.5"), "demo.toml changed");
+    std::fs::write(&setup.config, text).unwrap();
+    setup.append_config(&format!(
+        "\n[outputs.web]\nbind = \"127.0.0.1:{web_port}\"\n"
+    ));
+    let plc = setup.plc();
+    let mut service = setup.spawn("run.log");
+    let warning = flag_mask(DRIVELINE, "gap_warning");
+    until(
+        "the gap warning in the PLC",
+        Duration::from_secs(60),
+        || plc.flags() & warning != 0,
+    )
+    .await;
+
+    // /metrics: the gap figures of the driveline, as the PLC has them. The PLC and the
+    // page are read around the scrape; a bite between them is read again.
+    let label = "{driveline=\"F1\"}";
+    let (gap_in_plc, gap_on_metrics, pooled) = loop {
+        let before = plc.counter();
+        let gap = plc.f32_of("F1.gap_mrad");
+        let page = setup.metrics().await;
+        let value = |name: &str| -> Option<f64> {
+            page.lines()
+                .find_map(|line| line.strip_prefix(&format!("{name}{label} "))?.parse().ok())
+        };
+        let on_metrics = value("millgate_driveline_gap_mrad");
+        let pooled = value("millgate_driveline_bites_pooled");
+        for name in [
+            "millgate_driveline_gap_low_mrad",
+            "millgate_driveline_gap_high_mrad",
+        ] {
+            assert!(value(name).is_some(), "{name} missing: {page}");
+        }
+        assert_eq!(value("millgate_driveline_gap_warning"), Some(1.0), "{page}");
+        if plc.counter() == before {
+            break (gap, on_metrics, pooled);
+        }
+    };
+    assert_eq!(
+        gap_on_metrics.map(|gap| gap as f32),
+        Some(gap_in_plc),
+        "the same gap on /metrics as in the PLC"
+    );
+    assert!(pooled.is_some_and(|n| n >= 1.0), "bites pooled {pooled:?}");
+    // The page follows Prometheus' conventions, as its own linter reads them.
+    promtool_passes(&setup.metrics().await);
+
+    // The Alarms page's API lists the warning, raised, with the gap that raised it.
+    web_ready(web_port).await;
+    let alarms = http(web_port, "GET", "/api/alarms?subject=F1").await.json();
+    let raised = alarms
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|a| a["kind"] == "gap_warning" && a["event"] == "raised")
+        .unwrap_or_else(|| panic!("no gap_warning raised on the Alarms page: {alarms}"));
+    assert_eq!(raised["threshold"], 0.5, "{raised}");
+    assert!(
+        raised["value"].as_f64().is_some_and(|gap| gap >= 0.5),
+        "{raised}"
+    );
+
+    terminate(&mut service);
+    let stored = HistoryReader::open(&setup.history)
+        .unwrap()
+        .alarms(&Filter::default())
+        .unwrap();
+    let in_file: Vec<&str> = stored
+        .iter()
+        .filter(|a| a.kind == "gap_warning")
+        .map(|a| a.event.as_str())
+        .collect();
+    assert_eq!(in_file.first(), Some(&"raised"), "{stored:#?}");
     setup.stop(service).await;
 }

@@ -256,14 +256,33 @@ async fn births_data_rebirth_and_the_will_as_an_independent_host_decodes_them() 
         .collect();
     assert!(node_aliases.is_disjoint(&names.keys().copied().collect()));
     assert_eq!(
-        metric(&dbirth, "static_torque")["properties"]["engUnit"],
+        metric(&dbirth, "static_torque_knm")["properties"]["engUnit"],
         "kN*m"
     );
-    assert_eq!(metric(&dbirth, "beta1")["properties"]["engUnit"], "Hz");
-    assert_eq!(metric(&dbirth, "gap")["properties"]["engUnit"], "mrad");
+    assert_eq!(metric(&dbirth, "beta1_hz")["properties"]["engUnit"], "Hz");
+    assert_eq!(metric(&dbirth, "gap_mrad")["properties"]["engUnit"], "mrad");
     assert_eq!(metric(&dbirth, "gap_alarm")["datatype"], 11, "Boolean");
-    assert_eq!(metric(&dbirth, "static_torque")["datatype"], 10, "Double");
-    assert_eq!(metric(&dbirth, "bite_counter")["datatype"], 7, "UInt32");
+    assert_eq!(
+        metric(&dbirth, "static_torque_knm")["datatype"],
+        10,
+        "Double"
+    );
+    assert_eq!(
+        metric(&dbirth, "bite_counter")["datatype"],
+        8,
+        "UInt64 (Tahu's JavaScript codec reads UInt32 as null)"
+    );
+    // The device's metrics are exactly the catalogue's driveline figures (and the bite
+    // id), named by their keys: what a host sees is what the PLC and the page show.
+    let mut born: Vec<&str> = names.values().map(String::as_str).collect();
+    born.sort_unstable();
+    let mut keys: Vec<&str> = millgate::state::catalogue::DRIVELINE
+        .iter()
+        .map(|f| f.key)
+        .chain(["bite_id"])
+        .collect();
+    keys.sort_unstable();
+    assert_eq!(born, keys);
     let bite_alias = metric(&dbirth, "bite_id")["alias"].as_u64().unwrap();
 
     // Bites: each its own DDATA with the bite id, by alias only, values as in the PLC.
@@ -301,7 +320,7 @@ async fn births_data_rebirth_and_the_will_as_an_independent_host_decodes_them() 
         let taf = by_name(&bites[1].1, "taf").as_f64().unwrap();
         assert_eq!(taf as f32, plc.taf(), "the TAF the PLC has");
         // The pooled gap, once the gap maps are ready (read from the cache or built).
-        if let Some(gap) = by_name(&bites[1].1, "gap").as_f64() {
+        if let Some(gap) = by_name(&bites[1].1, "gap_mrad").as_f64() {
             let words = plc.plc.holding();
             assert_eq!(
                 Some(gap as f32),
@@ -931,19 +950,20 @@ async fn a_rod_mill_is_a_device_with_its_spans_and_worst_margin() {
     }
     let spans = names
         .values()
-        .filter(|n| n.ends_with("/speed_margin"))
+        .filter(|n| n.ends_with("/speed_margin_m_s"))
         .count();
     assert_eq!(spans, mill.spans.len(), "one span<i>/ set per span");
     assert!(names
         .values()
-        .any(|n| n == &format!("span{spans}/worst_exponent")));
+        .any(|n| n == &format!("span{spans}/worst_exponent_per_s")));
     assert_eq!(
-        metric(&dbirth, "worst_margin")["properties"]["engUnit"],
+        metric(&dbirth, "worst_margin_m_s")["properties"]["engUnit"],
         "m/s"
     );
     // Until the mill is evaluated at the speed (the DBIRTH may predate it).
     let start = Instant::now();
-    while values["valid"] != Value::Bool(true) || values["finishing_speed"].as_f64() != Some(speed)
+    while values["invalid"] != Value::Bool(false)
+        || values["finishing_speed_m_s"].as_f64() != Some(speed)
     {
         let left = limit.saturating_sub(start.elapsed());
         let data = host.next_of("DDATA", left.max(Duration::from_millis(1)));
@@ -955,7 +975,7 @@ async fn a_rod_mill_is_a_device_with_its_spans_and_worst_margin() {
     let mut worst: Option<(usize, f64)> = None;
     for (index, status) in expected.iter().enumerate() {
         let value = |field: &str| values[&format!("span{}/{field}", index + 1)].clone();
-        assert_eq!(value("valid"), Value::Bool(true), "span {}", index + 1);
+        assert_eq!(value("invalid"), Value::Bool(false), "span {}", index + 1);
         assert_eq!(
             value("unstable"),
             Value::Bool(!status.stable),
@@ -964,18 +984,18 @@ async fn a_rod_mill_is_a_device_with_its_spans_and_worst_margin() {
         );
         match status.speed_margin_m_s {
             Some(margin) => {
-                let published = value("speed_margin").as_f64().unwrap();
+                let published = value("speed_margin_m_s").as_f64().unwrap();
                 assert!((published - margin).abs() < 1e-9, "{published} vs {margin}");
                 if worst.is_none_or(|(_, w)| margin < w) {
                     worst = Some((index, margin));
                 }
             }
-            None => assert!(value("speed_margin").is_null()),
+            None => assert!(value("speed_margin_m_s").is_null()),
         }
     }
     let (worst_span, worst_margin) = worst.expect("a span with a margin");
     assert_eq!(values["worst_span"].as_u64(), Some(worst_span as u64 + 1));
-    assert_eq!(values["worst_margin"].as_f64(), Some(worst_margin));
+    assert_eq!(values["worst_margin_m_s"].as_f64(), Some(worst_margin));
     assert!(worst_margin < 0.0, "span 2 is in its band at {speed} m/s");
     assert_eq!(values["unstable"], Value::Bool(true));
     terminate(&mut service);

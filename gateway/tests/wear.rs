@@ -9,7 +9,9 @@ use millgate::analysis::driveline::BiteReport;
 use millgate::analysis::Analysis;
 use millgate::field::acquired::Acquired;
 use millgate::field::source_health::SourceHealth;
-use millgate::outputs::publisher::Publisher;
+use millgate::outputs::register_map::RegisterMap;
+use millgate::state::board::Board;
+use millgate::state::commands::{Command, CommandOrigin};
 use millgate_sim::model::Model;
 use millgate_sim::schedule::{rolling_schedule, BarTiming};
 
@@ -41,21 +43,31 @@ fn driveline(gap_rad: f64) -> Model {
     model
 }
 
-/// An analysis task over `config`, its publisher, and the bites it reports when fed
+/// An analysis task over `config`, its board, and the bites it reports when fed
 /// the bars of `static_torques_knm` simulated with `model` (0.5 kN*m RMS noise).
 fn analyse(
     config: &millgate_config::Config,
     model: &Model,
     static_torques_knm: &[f64],
-) -> (Arc<Publisher>, Vec<BiteReport>) {
+) -> (Arc<Board>, Vec<BiteReport>) {
+    let (board, reports, _) = analyse_with(config, model, static_torques_knm);
+    (board, reports)
+}
+
+/// [`analyse`], and the analysis (for its commands).
+fn analyse_with(
+    config: &millgate_config::Config,
+    model: &Model,
+    static_torques_knm: &[f64],
+) -> (Arc<Board>, Vec<BiteReport>, Analysis) {
     let schedule = rolling_schedule(model, static_torques_knm, TIMING, 0.5, 3).expect("schedule");
     let health = Arc::new(SourceHealth::new(
         Duration::from_secs(3600),
         Duration::from_secs(3600),
     ));
-    let publisher = Arc::new(Publisher::new(config, vec![health]));
+    let board = Arc::new(Board::new(config, vec![health]));
     let (bites, _) = tokio::sync::broadcast::channel(64);
-    let mut analysis = Analysis::new(config, Arc::clone(&publisher), bites).expect("analysis");
+    let mut analysis = Analysis::new(config, Arc::clone(&board), bites).expect("analysis");
     let mut reports = Vec::new();
     for block in schedule.torque_knm.chunks(100) {
         reports.extend(analysis.handle(Acquired::Samples {
@@ -65,7 +77,7 @@ fn analyse(
         }));
     }
     assert_eq!(reports.len(), static_torques_knm.len(), "one bite per bar");
-    (publisher, reports)
+    (board, reports, analysis)
 }
 
 fn wear_indices(reports: &[BiteReport]) -> Vec<f64> {
@@ -124,13 +136,14 @@ fn the_gap_weighs_more_at_light_load() {
 
 #[test]
 fn trend_follows_the_index_and_resets() {
-    let (publisher, reports) = analyse(&config(true), &driveline(2e-3), &[112.0, 112.0, 112.0]);
+    let (board, reports, mut analysis) =
+        analyse_with(&config(true), &driveline(2e-3), &[112.0, 112.0, 112.0]);
     let indices = wear_indices(&reports);
     let mut expected = None;
     for index in &indices {
         expected = Some(millgate::analysis::wear::next_trend(expected, *index));
     }
-    let results = publisher.results();
+    let results = board.results();
     let driveline = &results.drivelines[0];
     assert_eq!(driveline.wear_index, indices.last().copied());
     let trend = driveline.wear_trend.expect("trend after three bites");
@@ -146,19 +159,20 @@ fn trend_follows_the_index_and_resets() {
         "{trend} outside {low}..{high}"
     );
 
-    publisher.reset_wear_trend(
-        0b10,
-        millgate::outputs::history::events::CommandOrigin::Local,
-    );
+    let origin = CommandOrigin::Local;
+    analysis.command(Command::ResetWear {
+        driveline: 1,
+        origin,
+    });
     assert!(
-        publisher.results().drivelines[0].wear_trend.is_some(),
-        "bit 1 is another driveline"
+        board.results().drivelines[0].wear_trend.is_some(),
+        "driveline 1 is another driveline"
     );
-    publisher.reset_wear_trend(
-        0b1,
-        millgate::outputs::history::events::CommandOrigin::Local,
-    );
-    let results = publisher.results();
+    analysis.command(Command::ResetWear {
+        driveline: 0,
+        origin,
+    });
+    let results = board.results();
     assert_eq!(results.drivelines[0].wear_trend, None);
     assert_eq!(
         results.drivelines[0].wear_index,
@@ -170,12 +184,12 @@ fn trend_follows_the_index_and_resets() {
 #[test]
 fn without_a_model_the_index_is_invalid_not_zero() {
     let config = config(false);
-    let (publisher, reports) = analyse(&config, &driveline(2e-3), &[112.0]);
+    let (board, reports) = analyse(&config, &driveline(2e-3), &[112.0]);
     assert!(reports[0].wear.is_none());
     assert!(reports[0].transient.taf.is_some(), "TAF is still measured");
-    let map = publisher.map();
+    let map = RegisterMap::new(&config);
     // As published once the source answers (this test has no source).
-    let mut results = publisher.results();
+    let mut results = board.results();
     results.drivelines[0].source_stale = false;
     let words = map.encode(&results);
     let quality = map
@@ -200,9 +214,9 @@ fn a_model_that_does_not_load_is_named_and_the_driveline_runs_without_wear() {
         Duration::from_secs(1),
         Duration::from_secs(1),
     ));
-    let publisher = Arc::new(Publisher::new(&config, vec![health]));
+    let board = Arc::new(Board::new(&config, vec![health]));
     let (bites, _) = tokio::sync::broadcast::channel(1);
-    let mut analysis = Analysis::new(&config, publisher, bites).expect("the driveline still runs");
+    let mut analysis = Analysis::new(&config, board, bites).expect("the driveline still runs");
     let problems: Vec<String> = analysis
         .wear_problems()
         .iter()

@@ -133,7 +133,7 @@ impl Simulator {
     /// chains.
     pub fn new(model: &Model) -> Result<Simulator, ModelError> {
         model.validate("<model>")?;
-        crate::tree::require_chain(model, "<model>", "the time simulation")?;
+        model.require_chain("<model>", "the time simulation")?;
         let inverse_inertia: Vec<f64> = model.masses.iter().map(|m| 1.0 / m.inertia).collect();
         let stiffness: Vec<f64> = model.couplings.iter().map(|c| c.stiffness).collect();
         let damping: Vec<f64> = model.couplings.iter().map(|c| c.damping).collect();

@@ -2,15 +2,17 @@
 //! mass-normalised mode shapes of K x = w^2 M x.
 //!
 //! A tree model is analysed in its default configuration, referred to mass 0's shaft
-//! ([`crate::tree::Tree::modes`] for another configuration). The drive is free (the motor side is not grounded and the PI controller is not part
-//! of K), so the first mode is the rigid-body mode at 0 Hz. Backlash is ignored: the
-//! couplings are taken at their full stiffness.
+//! ([`Tree::modes`], defined here, for another configuration). The drive is free (the
+//! motor side is not grounded and the PI controller is not part of K), so the first
+//! mode is the rigid-body mode at 0 Hz. Backlash is ignored: the couplings are taken
+//! at their full stiffness.
 
 use std::f64::consts::TAU;
 
 use nalgebra::{DMatrix, SymmetricEigen};
 
 use crate::model::Model;
+use crate::tree::Tree;
 
 /// Eigenvalues below this fraction of the largest are rounded to 0 (rigid-body mode).
 const RIGID_BODY_TOLERANCE: f64 = 1.0e-12;
@@ -59,6 +61,13 @@ impl Modes {
     /// mode (rounded to exactly 0).
     pub fn elastic_hz(&self) -> impl Iterator<Item = f64> + '_ {
         self.frequencies_hz.iter().copied().filter(|&f| f > 0.0)
+    }
+}
+
+impl Tree {
+    /// Natural frequencies and mass-normalised mode shapes (referred coordinates).
+    pub fn modes(&self) -> Result<Modes, ModalError> {
+        solve(&self.mass_matrix(), &self.stiffness_matrix())
     }
 }
 

@@ -298,7 +298,7 @@ impl Model {
                 "(speed of the second mass over the first)",
             )?;
         }
-        crate::tree::validate(self, file_name)?;
+        self.validate_topology(&check)?;
         check.non_negative("motor.speed_kp", self.motor.speed_kp, "N*m*s/rad")?;
         check.non_negative("motor.speed_ki", self.motor.speed_ki, "N*m/rad")?;
         check.non_negative("load.static_torque", self.load.static_torque, "kN*m")?;
@@ -350,7 +350,7 @@ impl Model {
     ///
     /// `index` must be a coupling index and `inertia` > 0; the result is validated.
     pub fn split_coupling(&self, index: usize, inertia: f64) -> Result<Model, ModelError> {
-        crate::tree::require_chain(self, "<split>", "splitting a coupling")?;
+        self.require_chain("<split>", "splitting a coupling")?;
         let Some(original) = self.couplings.get(index) else {
             return Err(Checker { file: "<split>" }.error(
                 "coupling",
@@ -405,13 +405,17 @@ impl Model {
             })
     }
 
-    /// The drive in one configuration (`None`: the first one, or every coupling when
-    /// the model has none), referred to the shaft of mass 0.
-    ///
-    /// The model must be valid ([`Model::validate`]); an unknown configuration name is
-    /// an error naming the known ones.
-    pub fn tree(&self, configuration: Option<&str>) -> Result<crate::tree::Tree, ModelError> {
-        crate::tree::build(self, configuration, "<model>")
+    /// Refuses a model that is not a plain chain ([`Model::is_chain`]), for tools that
+    /// need one; `file` labels the error, `purpose` says what needs the chain.
+    pub(crate) fn require_chain(&self, file: &str, purpose: &str) -> Result<(), ModelError> {
+        if self.is_chain() {
+            return Ok(());
+        }
+        Err(Checker { file }.error(
+            "coupling",
+            "a tree, gear ratios or servo configurations",
+            format!("a chain (coupling i joins masses i and i+1, ratio 1, no servo) for {purpose}"),
+        ))
     }
 
     /// Rolling load on the last mass at time `t_s`, N*m (the file gives kN*m).
@@ -423,6 +427,174 @@ impl Model {
                 * 1.0e3
                 * (1.0 - (-self.load.rise_rate * (t_s - self.load.onset)).exp())
         }
+    }
+}
+
+/// The drive's shape: every configuration engages a tree over all masses.
+impl Model {
+    /// Checks that every configuration (or the model itself when it has none) engages
+    /// a tree over all masses, and the names the couplings and configurations use.
+    fn validate_topology(&self, check: &Checker<'_>) -> Result<(), ModelError> {
+        let named = self.couplings.iter().any(|c| c.between.is_some());
+        if named {
+            for (index, mass) in self.masses.iter().enumerate() {
+                if self.masses[..index].iter().any(|m| m.name == mass.name) {
+                    return Err(check.error(
+                        &format!("mass[{index}].name"),
+                        format!("{:?}", mass.name),
+                        "a name no other mass has (couplings name their masses)",
+                    ));
+                }
+            }
+        }
+        self.coupling_ends(check)?;
+        let servos: Vec<&str> = self
+            .couplings
+            .iter()
+            .filter_map(|c| c.servo.as_deref())
+            .collect();
+        if self.configurations.is_empty() {
+            if let Some(index) = self.couplings.iter().position(|c| c.servo.is_some()) {
+                return Err(check.error(
+                    &format!("coupling[{index}].servo"),
+                    format!("{:?}", self.couplings[index].servo.as_deref().unwrap_or("")),
+                    "absent unless the model has [[configuration]] entries that engage servos",
+                ));
+            }
+        }
+        for (index, configuration) in self.configurations.iter().enumerate() {
+            if self.configurations[..index]
+                .iter()
+                .any(|c| c.name == configuration.name)
+            {
+                return Err(check.error(
+                    &format!("configuration[{index}].name"),
+                    format!("{:?}", configuration.name),
+                    "a name no other configuration has",
+                ));
+            }
+            for servo in &configuration.engaged {
+                if !servos.contains(&servo.as_str()) {
+                    return Err(check.error(
+                        &format!("configuration[{index}].engaged"),
+                        format!("{servo:?}"),
+                        format!("a servo named by a coupling (known: {})", servos.join(", ")),
+                    ));
+                }
+            }
+        }
+        if self.configurations.is_empty() {
+            self.engaged_tree(None, check)?;
+        }
+        for index in 0..self.configurations.len() {
+            self.engaged_tree(Some(index), check)?;
+        }
+        Ok(())
+    }
+
+    /// The two mass indices of every coupling.
+    fn coupling_ends(&self, check: &Checker<'_>) -> Result<Vec<(usize, usize)>, ModelError> {
+        let named = self.couplings.iter().any(|c| c.between.is_some());
+        self.couplings
+            .iter()
+            .enumerate()
+            .map(|(index, coupling)| {
+                let key = format!("coupling[{index}].between");
+                let Some([first, second]) = &coupling.between else {
+                    if named {
+                        return Err(check.error(
+                            &key,
+                            "missing",
+                            "two mass names, as every other coupling gives them",
+                        ));
+                    }
+                    return Ok((index, index + 1));
+                };
+                let find = |name: &str| {
+                    self.masses
+                        .iter()
+                        .position(|m| m.name == name)
+                        .ok_or_else(|| {
+                            let known: Vec<String> = self
+                                .masses
+                                .iter()
+                                .map(|m| format!("{:?}", m.name))
+                                .collect();
+                            check.error(
+                                &key,
+                                format!("{name:?}"),
+                                format!("a mass name (known: {})", known.join(", ")),
+                            )
+                        })
+                };
+                let (i, j) = (find(first)?, find(second)?);
+                if i == j {
+                    return Err(check.error(
+                        &key,
+                        format!("[{first:?}, {second:?}]"),
+                        "two different masses",
+                    ));
+                }
+                Ok((i, j))
+            })
+            .collect()
+    }
+
+    /// The couplings configuration `index` engages (`None`: every coupling), each as
+    /// `(coupling, first mass, second mass)` in model order, checked to join all masses
+    /// without a loop.
+    pub(crate) fn engaged_tree(
+        &self,
+        index: Option<usize>,
+        check: &Checker<'_>,
+    ) -> Result<Vec<(usize, usize, usize)>, ModelError> {
+        let ends = self.coupling_ends(check)?;
+        let configuration = index.map(|i| &self.configurations[i]);
+        let context =
+            configuration.map_or(String::new(), |c| format!(" in configuration {:?}", c.name));
+        let engaged: Vec<(usize, usize, usize)> = (0..self.couplings.len())
+            .filter(|&i| match (&self.couplings[i].servo, configuration) {
+                (None, _) => true,
+                (Some(servo), Some(configuration)) => configuration.engaged.contains(servo),
+                (Some(_), None) => false,
+            })
+            .map(|i| (i, ends[i].0, ends[i].1))
+            .collect();
+        let n = self.masses.len();
+        // Union-find: a coupling whose masses are already joined closes a loop.
+        let mut parent: Vec<usize> = (0..n).collect();
+        fn root(parent: &mut [usize], mut i: usize) -> usize {
+            while parent[i] != i {
+                parent[i] = parent[parent[i]];
+                i = parent[i];
+            }
+            i
+        }
+        for &(coupling, i, j) in &engaged {
+            let (ri, rj) = (root(&mut parent, i), root(&mut parent, j));
+            if ri == rj {
+                return Err(check.error(
+                    &format!("coupling[{coupling}].between"),
+                    format!("[{:?}, {:?}]", self.masses[i].name, self.masses[j].name),
+                    format!(
+                        "a tree: these masses are already joined by other couplings{context} (a loop)"
+                    ),
+                ));
+            }
+            parent[ri] = rj;
+        }
+        let drive = root(&mut parent, 0);
+        if let Some(lone) = (1..n).find(|&j| root(&mut parent, j) != drive) {
+            return Err(check.error(
+                &format!("mass[{lone}]"),
+                format!("{:?}", self.masses[lone].name),
+                format!(
+                    "joined to mass[0] {:?} by engaged couplings (none reaches it{context})",
+                    self.masses[0].name
+                ),
+            ));
+        }
+        Ok(engaged)
     }
 }
 

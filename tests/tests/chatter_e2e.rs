@@ -148,9 +148,9 @@ impl Devices {
         MillWords {
             flags: words[at("TCM.flags")],
             quality: words[at("TCM.quality")],
-            sigma_n_hz: f32_at("TCM.sigma_n"),
+            sigma_n_hz: f32_at("TCM.sigma_n_hz"),
             k_mean: f32_at("TCM.k_mean"),
-            chatter_hz: f32_at("TCM.chatter_frequency"),
+            chatter_hz: f32_at("TCM.chatter_frequency_hz"),
             chatter_gain: f32_at("TCM.chatter_gain"),
             gain_ratio: f32_at("TCM.gain_ratio"),
             band_rms_max: f32_at("TCM.band_rms_max"),
@@ -261,7 +261,7 @@ async fn a_ramp_into_chatter_requests_a_slow_down_before_it_develops() -> anyhow
         "{tcm}"
     );
     assert!(
-        stands.contains(&tcm["worst_stand"].as_str().unwrap()),
+        stands.contains(&tcm["worst_stand_channel"].as_str().unwrap()),
         "{tcm}"
     );
     assert_eq!(tcm["slow_down_request"], false, "{tcm}");
@@ -328,7 +328,7 @@ async fn a_ramp_into_chatter_requests_a_slow_down_before_it_develops() -> anyhow
         "{tcm}"
     );
     assert!(
-        stands.contains(&tcm["worst_stand"].as_str().unwrap()),
+        stands.contains(&tcm["worst_stand_channel"].as_str().unwrap()),
         "{tcm}"
     );
     // The request holds while chatter goes on (the PLC drops the speed, not the
@@ -372,10 +372,13 @@ async fn stopped_stand_daq_flags_stale_and_clears_quality() -> anyhow::Result<()
     let mill = devices.mill();
     assert_eq!(mill.flags & STALE, 0, "{mill:?}");
     let page = scrape(metrics).await?;
-    let evaluations = metric(&page, "millgate_chatter_evaluations_total{mill=\"TCM\"}");
+    let evaluations = metric(
+        &page,
+        "millgate_tandem_mill_evaluations_total{tandem_mill=\"TCM\"}",
+    );
     assert!(evaluations.is_some_and(|n| n >= 1.0), "{page}");
     assert!(
-        metric(&page, "millgate_chatter_k_mean{mill=\"TCM\"}").is_some(),
+        metric(&page, "millgate_tandem_mill_k_mean{tandem_mill=\"TCM\"}").is_some(),
         "{page}"
     );
 
@@ -413,11 +416,15 @@ async fn stopped_stand_daq_flags_stale_and_clears_quality() -> anyhow::Result<()
     }
     let page = scrape(metrics).await?;
     assert!(
-        metric(&page, "millgate_chatter_k_mean{mill=\"TCM\"}").is_none(),
+        metric(&page, "millgate_tandem_mill_k_mean{tandem_mill=\"TCM\"}").is_none(),
         "no K_mean gauge while stale: {page}"
     );
     assert!(
-        metric(&page, "millgate_chatter_gain_ratio{mill=\"TCM\"}").is_none(),
+        metric(
+            &page,
+            "millgate_tandem_mill_gain_ratio{tandem_mill=\"TCM\"}"
+        )
+        .is_none(),
         "no gain ratio gauge while stale: {page}"
     );
     // Nor on the maintenance page: stale, no figures.
@@ -426,9 +433,12 @@ async fn stopped_stand_daq_flags_stale_and_clears_quality() -> anyhow::Result<()
     for figure in [
         "gain_ratio",
         "worst_stand",
+        "worst_stand_channel",
         "sigma_n_hz",
         "k_mean",
         "chatter_frequency_hz",
+        "chatter_gain",
+        "band_rms_max",
     ] {
         assert!(tcm[figure].is_null(), "{figure} while stale: {tcm}");
     }

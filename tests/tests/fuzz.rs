@@ -21,12 +21,15 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use millgate::field::can::CanDecoder;
-use millgate::field::modbus_client;
+use millgate::field::modbus::{client, ModbusError};
 use millgate::field::quality::{split_saturated, SaturationLimits};
 use millgate::field::source_health::SourceHealth;
-use millgate::outputs::history::events::CommandOrigin;
+use millgate::outputs::modbus_frame::Served;
 use millgate::outputs::modbus_frame::{self, Policy, Reply};
-use millgate::outputs::publisher::Publisher;
+use millgate::outputs::register_map::RegisterMap;
+use millgate::state::board::Board;
+use millgate::state::commands::CommandOrigin;
+use millgate::state::commands::{Command, CommandReceiver};
 use millgate_config::layout::decode_block;
 use millgate_config::RegisterTable;
 use proptest::prelude::*;
@@ -119,13 +122,20 @@ fn workspace() -> &'static Path {
 
 // ---------------------------------------------------------------- HMI server frames
 
-fn demo_publisher() -> Publisher {
+/// What the demo's HMI server answers from, and the analysis' end of its commands.
+fn demo_served() -> (Served, CommandReceiver) {
     let config = millgate_config::load(&workspace().join("config/examples/demo.toml")).unwrap();
     let health = vec![Arc::new(SourceHealth::new(
         Duration::from_secs(1),
         Duration::from_secs(5),
     ))];
-    Publisher::new(&config, health)
+    let (commands, receiver) = millgate::state::commands::channel();
+    let served = Served {
+        map: Arc::new(RegisterMap::new(&config)),
+        board: Arc::new(Board::new(&config, health)),
+        commands,
+    };
+    (served, receiver)
 }
 
 /// A Modbus TCP request built field by field, biased to the edges.
@@ -220,7 +230,7 @@ fn modbus_seeds() -> Vec<Vec<u8>> {
 /// Feeds `stream` to the server's framing as a connection would (split at `cut`),
 /// answering every whole frame. Checks each answer's shape.
 fn serve_stream(
-    publisher: &Publisher,
+    served: &Served,
     policy: Policy,
     stream: &[u8],
     cut: usize,
@@ -235,7 +245,7 @@ fn serve_stream(
             match modbus_frame::frame_len(&buffer) {
                 Ok(Some(len)) => {
                     prop_assert!(len <= modbus_frame::MAX_FRAME_LEN && len <= buffer.len());
-                    let reply = modbus_frame::respond(publisher, policy, &buffer[..len]);
+                    let reply = modbus_frame::respond(served, policy, &buffer[..len]);
                     if let Reply::Send(bytes) = &reply {
                         prop_assert_eq!(&bytes[..4], &buffer[..4], "transaction echoed");
                         let length = usize::from(u16::from_be_bytes([bytes[4], bytes[5]]));
@@ -260,7 +270,8 @@ fn serve_stream(
 
 #[test]
 fn fuzz_hmi_server_frames() {
-    let publisher = demo_publisher();
+    let (served, receiver) = demo_served();
+    let receiver = std::sync::Mutex::new(receiver);
     let seeds = modbus_seeds();
     let input = prop_oneof![
         prop::collection::vec(modbus_request(), 1..4).prop_map(|frames| frames.concat()),
@@ -285,12 +296,20 @@ fn fuzz_hmi_server_frames() {
             } else {
                 cut % stream.len()
             };
-            serve_stream(&publisher, policy, &stream, cut)
+            let served = serve_stream(&served, policy, &stream, cut);
+            // The analysis' end: take what the frames commanded, each a valid command.
+            let mut receiver = receiver.lock().unwrap_or_else(|e| e.into_inner());
+            while let Ok(command) = receiver.try_recv() {
+                if let Command::ResetWear { driveline, .. } = command {
+                    prop_assert_eq!(driveline, 0, "the demo has one driveline");
+                }
+            }
+            served
         },
     );
     // The commands the fuzzer sent never wrote anything but command registers: every
     // result the map publishes is still unset.
-    let results = publisher.results();
+    let results = served.board.results();
     assert!(results.drivelines[0].taf.is_none() && results.drivelines[0].bite_counter == 0);
 }
 
@@ -343,7 +362,7 @@ fn daq_reply() -> impl Strategy<Value = Vec<u8>> {
         )
 }
 
-/// One poll, as the DAQ reader makes it ([`modbus_client::read_registers`]), of a DAQ
+/// One poll, as the DAQ reader makes it ([`client::read`]), of a DAQ
 /// that answers `reply` and hangs up; a block's registers are then decoded and split
 /// at saturated samples.
 async fn poll_once(reply: &[u8]) -> Result<(), TestCaseError> {
@@ -352,13 +371,17 @@ async fn poll_once(reply: &[u8]) -> Result<(), TestCaseError> {
     daq_io.write_all(reply).await.unwrap();
     daq_io.shutdown().await.unwrap();
     let mut client = tokio_modbus::client::tcp::attach_slave(client_io, tokio_modbus::Slave(1));
-    let read = tokio::time::timeout(
+    let read = client::read(
+        &mut client,
+        (RegisterTable::Input, 0, 122),
         Duration::from_secs(1),
-        modbus_client::read_registers(&mut client, RegisterTable::Input, 0, 122),
     )
     .await;
-    prop_assert!(read.is_ok(), "the client hung on a reply that ended");
-    if let Ok(Ok(Ok(registers))) = read {
+    prop_assert!(
+        !matches!(read, Err(ModbusError::Timeout(_))),
+        "the client hung on a reply that ended"
+    );
+    if let Ok(registers) = read {
         prop_assert_eq!(registers.len(), 122, "only whole replies get through");
         if let Ok(block) = decode_block(&registers) {
             prop_assert!((1..=120).contains(&block.raw.len()));

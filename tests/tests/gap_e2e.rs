@@ -9,7 +9,8 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use millgate::analysis::gap_estimate::GapObservation;
-use millgate::outputs::register_map::{decode_f32, driveline_flags, RegisterMap};
+use millgate::outputs::register_map::{decode_f32, flag_mask, RegisterMap};
+use millgate::state::catalogue::DRIVELINE;
 use millgate_sim::model::Model;
 use millgate_sim::schedule::{rolling_schedule_with_gap, BarTiming};
 use millgate_tests::{demo_devices, wait_for};
@@ -54,7 +55,7 @@ async fn the_plc_gap_register_follows_a_growing_gap_and_survives_a_restart() -> 
     let restart_config = config.clone();
     let devices = demo_devices(&mut config, &schedule).await?;
     let mut gateway = millgate::Service::new(config)?.spawn().await?;
-    let map = gateway.publisher().map().clone();
+    let map = (*gateway.register_map()).clone();
     let plc = devices.plc.clone();
     let quality = address(&map, "F1.quality");
     assert_eq!(
@@ -113,12 +114,12 @@ async fn the_plc_gap_register_follows_a_growing_gap_and_survives_a_restart() -> 
         "the register follows the gap: {before} -> {after}"
     );
     assert_eq!(
-        flags_before & driveline_flags::GAP_WARNING,
+        flags_before & flag_mask(DRIVELINE, "gap_warning"),
         0,
         "1 mrad: no warning"
     );
     assert_ne!(
-        flags_after & driveline_flags::GAP_WARNING,
+        flags_after & flag_mask(DRIVELINE, "gap_warning"),
         0,
         "3 mrad: warning (2 mrad)"
     );

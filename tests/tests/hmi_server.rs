@@ -4,17 +4,19 @@
 
 use std::net::SocketAddr;
 use std::process::Command;
+use std::sync::Arc;
 use std::time::Duration;
 
 use millgate::outputs::register_map::RegisterMap;
 use millgate_sim::devices::demo::setup;
+use millgate_tests::wait_for;
 use tokio_modbus::client::{Context, Reader, Writer};
 use tokio_modbus::prelude::{ExceptionCode, Slave};
 
 struct Running {
     address: SocketAddr,
     map: RegisterMap,
-    publisher: std::sync::Arc<millgate::outputs::publisher::Publisher>,
+    board: std::sync::Arc<millgate::state::board::Board>,
     gateway: millgate::service::RunningService,
 }
 
@@ -32,11 +34,11 @@ async fn gateway(plc: bool) -> anyhow::Result<Running> {
     }
     config.outputs.server.as_mut().unwrap().bind = "127.0.0.1:0".parse()?;
     let gateway = millgate::Service::new(config)?.spawn().await?;
-    let publisher = gateway.publisher();
+    let board = gateway.board();
     Ok(Running {
         address: gateway.bound().server.expect("server configured"),
-        map: publisher.map().clone(),
-        publisher,
+        map: (*gateway.register_map()).clone(),
+        board,
         gateway,
     })
 }
@@ -80,7 +82,7 @@ async fn map_reads_and_command_writes_with_exception_codes() -> anyhow::Result<(
         "no coils"
     );
 
-    running.publisher.update(|r| r.drivelines[0].alarm = true);
+    running.board.update(|r| r.drivelines[0].taf_alarm = true);
     let ack = running
         .map
         .registers()
@@ -94,14 +96,17 @@ async fn map_reads_and_command_writes_with_exception_codes() -> anyhow::Result<(
         "bad command value"
     );
     assert!(
-        running.publisher.results().drivelines[0].alarm,
+        running.board.results().drivelines[0].taf_alarm,
         "rejected write changed nothing"
     );
     hmi.write_single_register(ack, 1).await??;
-    assert!(
-        !running.publisher.results().drivelines[0].alarm,
-        "acknowledged"
-    );
+    let board = Arc::clone(&running.board);
+    wait_for(
+        "acknowledged by the analysis",
+        Duration::from_secs(5),
+        || !board.results().drivelines[0].taf_alarm,
+    )
+    .await;
 
     tokio::time::timeout(Duration::from_secs(10), running.gateway.stop()).await??;
     Ok(())

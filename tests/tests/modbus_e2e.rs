@@ -25,7 +25,7 @@ async fn daq_to_gateway_to_plc_registers_match_simulated_truth() -> anyhow::Resu
     let schedule = demo.schedule;
     let devices = demo_devices(&mut config, &schedule).await?;
     let mut gateway = millgate::Service::new(config.clone())?.spawn().await?;
-    let map = gateway.publisher().map().clone();
+    let map = (*gateway.register_map()).clone();
 
     let mut reports = Vec::new();
     let collected = tokio::time::timeout(Duration::from_secs(20), async {
@@ -65,8 +65,9 @@ async fn daq_to_gateway_to_plc_registers_match_simulated_truth() -> anyhow::Resu
     );
     let taf = f64::from(decode_f32(&plc_words[register(&map, "F1.taf")..]).unwrap());
     let static_knm =
-        f64::from(decode_f32(&plc_words[register(&map, "F1.static_torque")..]).unwrap());
-    let peak_knm = f64::from(decode_f32(&plc_words[register(&map, "F1.peak_torque")..]).unwrap());
+        f64::from(decode_f32(&plc_words[register(&map, "F1.static_torque_knm")..]).unwrap());
+    let peak_knm =
+        f64::from(decode_f32(&plc_words[register(&map, "F1.peak_torque_knm")..]).unwrap());
     assert!(
         (taf - truth.taf).abs() <= 0.02 * truth.taf,
         "PLC TAF {taf} vs truth {}",

@@ -205,7 +205,7 @@ fn frame(unit: u8, pdu: &[u8]) -> Vec<u8> {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn hostile_frames_get_exceptions_and_the_connection_stays_open() -> anyhow::Result<()> {
     let (gateway, address) = server_gateway(8, 60_000).await?;
-    let publisher = gateway.publisher();
+    let board = gateway.board();
     let mut hmi = TcpStream::connect(address).await?;
     let read_status = frame(1, &[0x03, 0x00, 0x01, 0x00, 0x01]);
     let expect = |reply: Option<Vec<u8>>, function: u8, code: u8, what: &str| {
@@ -256,10 +256,10 @@ async fn hostile_frames_get_exceptions_and_the_connection_stays_open() -> anyhow
         "another unit id",
     );
     // A broadcast acknowledge: no reply, no action.
-    publisher.update(|results| results.drivelines[0].alarm = true);
+    board.update(|results| results.drivelines[0].taf_alarm = true);
     let broadcast = exchange(&mut hmi, &frame(0, &[0x06, 0x00, 0x08, 0x00, 0x01])).await?;
     assert_eq!(broadcast, None, "a broadcast is never answered");
-    assert!(publisher.results().drivelines[0].alarm, "nor acted on");
+    assert!(board.results().drivelines[0].taf_alarm, "nor acted on");
     // After all that, the same connection still reads the map.
     let reply = exchange(&mut hmi, &read_status).await?.expect("a reply");
     assert_eq!(&reply[7..9], &[0x03, 0x02], "{reply:02x?}");
@@ -355,6 +355,15 @@ async fn the_metrics_endpoint_reads_the_whole_head_and_refuses_malformed_ones() 
     .await?;
     assert!(split.starts_with("HTTP/1.1 200 OK"), "{split}");
     assert!(split.contains("millgate_heartbeat"));
+    // HEAD: the same answer without the body.
+    let head = ask(
+        metrics,
+        &[b"HEAD /metrics HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"],
+    )
+    .await?;
+    assert!(head.starts_with("HTTP/1.1 200 OK"), "{head}");
+    assert!(head.contains("text/plain; version=0.0.4"), "{head}");
+    assert!(!head.contains("millgate_heartbeat"), "no body: {head}");
     for (request, status) in [
         (&b"GARBAGE\r\n\r\n"[..], "HTTP/1.1 400 Bad Request"),
         (
@@ -370,7 +379,8 @@ async fn the_metrics_endpoint_reads_the_whole_head_and_refuses_malformed_ones() 
         let response = ask(metrics, &[request]).await?;
         assert!(response.starts_with(status), "{request:?}: {response}");
     }
-    let long = [&b"GET /metrics HTTP/1.1\r\nX: "[..], &[b'a'; 9000]].concat();
+    // Past the HTTP stack's 16 KiB head limit.
+    let long = [&b"GET /metrics HTTP/1.1\r\nX: "[..], &[b'a'; 17_000]].concat();
     let response = ask(metrics, &[&long]).await?;
     assert!(response.starts_with("HTTP/1.1 431"), "{response}");
     tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
@@ -394,14 +404,10 @@ async fn a_plc_that_vanishes_and_returns_gets_registers_again() -> anyhow::Resul
     wait_for("first writes", Duration::from_secs(5), || plc.writes() >= 3).await;
     first_life.stop().await?;
     // Gone for 1.5 s: the gateway keeps running, the heartbeat keeps moving.
-    let beat = gateway.publisher().results().heartbeat;
+    let beat = gateway.board().results().heartbeat;
     tokio::time::sleep(Duration::from_millis(1500)).await;
     assert!(!gateway.is_finished());
-    assert_ne!(
-        gateway.publisher().results().heartbeat,
-        beat,
-        "heartbeat moves"
-    );
+    assert_ne!(gateway.board().results().heartbeat, beat, "heartbeat moves");
     let writes = plc.writes();
     let second_life = plc.spawn(
         TcpListener::bind(plc_address).await?,

@@ -124,7 +124,7 @@ async fn pymodbus_hmi_reads_the_map_and_gets_exception_codes() -> anyhow::Result
     config.outputs.server.as_mut().unwrap().bind = "127.0.0.1:0".parse()?;
     let gateway = millgate::Service::new(config)?.spawn().await?;
     let address = gateway.bound().server.unwrap();
-    let map = gateway.publisher().map().clone();
+    let map = (*gateway.register_map()).clone();
     tokio::time::sleep(Duration::from_millis(100)).await;
 
     let args = [

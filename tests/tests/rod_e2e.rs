@@ -13,7 +13,8 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
-use millgate::outputs::register_map::{decode_f32, rod_flags, RegisterMap};
+use millgate::outputs::register_map::{decode_f32, flag_mask, RegisterMap};
+use millgate::state::catalogue::{ROD_MILL, ROD_SPAN};
 use millgate_config::layout::encode_value;
 use millgate_config::WebOutput;
 use millgate_config::{Config, ValueType, WordOrder};
@@ -128,11 +129,11 @@ impl Devices {
             mill_quality: words[at("RSM.quality")],
             configuration: words[at("RSM.configuration")],
             pass: words[at("RSM.pass")],
-            speed_m_s: f32_at(at("RSM.finishing_speed")),
+            speed_m_s: f32_at(at("RSM.finishing_speed_m_s")),
             span_flags: words[span("flags")],
             span_quality: words[span("quality")],
-            margin_m_s: f32_at(span("speed_margin")),
-            exponent_per_s: f32_at(span("worst_exponent")),
+            margin_m_s: f32_at(span("speed_margin_m_s")),
+            exponent_per_s: f32_at(span("worst_exponent_per_s")),
         }
     }
 
@@ -204,7 +205,7 @@ async fn ramp_through_a_tongue_sets_and_clears_the_span_flags() -> anyhow::Resul
         let expected = &setup.status(speed)?[SPAN];
         assert_eq!((words.configuration, words.pass), (0, 1), "{words:?}");
         assert_eq!(
-            words.span_flags & rod_flags::INVALID,
+            words.span_flags & flag_mask(ROD_SPAN, "invalid"),
             0,
             "{speed}: {words:?}"
         );
@@ -222,11 +223,11 @@ async fn ramp_through_a_tongue_sets_and_clears_the_span_flags() -> anyhow::Resul
             "{speed}: {words:?} vs {expected:?}"
         );
         assert_eq!(words.span_quality & 0b111, 0b111, "{speed}: {words:?}");
-        let unstable = words.span_flags & rod_flags::UNSTABLE != 0;
-        let near_tongue = words.span_flags & rod_flags::NEAR_TONGUE != 0;
+        let unstable = words.span_flags & flag_mask(ROD_SPAN, "unstable") != 0;
+        let near_tongue = words.span_flags & flag_mask(ROD_SPAN, "near_tongue") != 0;
         // The mill's bits are the OR of its spans'.
         assert!(
-            !unstable || words.mill_flags & rod_flags::UNSTABLE != 0,
+            !unstable || words.mill_flags & flag_mask(ROD_MILL, "unstable") != 0,
             "{words:?}"
         );
         // The maintenance page: the worst span and its margin as the library gives
@@ -248,9 +249,9 @@ async fn ramp_through_a_tongue_sets_and_clears_the_span_flags() -> anyhow::Resul
             (rod["worst_margin_m_s"].as_f64().unwrap() - worst_margin).abs() < 1e-6,
             "{speed}: {rod}, library {worst_margin}"
         );
-        let state = if words.mill_flags & rod_flags::UNSTABLE != 0 {
+        let state = if words.mill_flags & flag_mask(ROD_MILL, "unstable") != 0 {
             "unstable"
-        } else if words.mill_flags & rod_flags::NEAR_TONGUE != 0 {
+        } else if words.mill_flags & flag_mask(ROD_MILL, "near_tongue") != 0 {
             "near_tongue"
         } else {
             "stable"
@@ -307,20 +308,29 @@ async fn ramp_through_a_tongue_sets_and_clears_the_span_flags() -> anyhow::Resul
         devices.set(configuration, 1, speed);
         wait_for("invalid on bad input", Duration::from_secs(3), || {
             let words = devices.read();
-            words.mill_flags == rod_flags::INVALID
-                && words.span_flags == rod_flags::INVALID
+            words.mill_flags
+                == flag_mask(ROD_MILL, "invalid") | flag_mask(ROD_MILL, "input_refused")
+                && words.span_flags == flag_mask(ROD_SPAN, "invalid")
                 && words.span_quality == 0
                 && words.mill_quality == 0
         })
         .await;
         assert!(!gateway.is_finished());
         let words = devices.at_speed(0, 1, 49.0).await;
-        assert_eq!(words.span_flags & rod_flags::INVALID, 0, "{words:?}");
+        assert_eq!(
+            words.span_flags & flag_mask(ROD_SPAN, "invalid"),
+            0,
+            "{words:?}"
+        );
     }
 
     // The process PLC stops answering: the flags go invalid, never frozen.
     let words = devices.at_speed(0, 1, 51.5).await;
-    assert_ne!(words.span_flags & rod_flags::UNSTABLE, 0, "{words:?}");
+    assert_ne!(
+        words.span_flags & flag_mask(ROD_SPAN, "unstable"),
+        0,
+        "{words:?}"
+    );
     if let Some(running) = devices.process_running.take() {
         running.stop().await?;
     }
@@ -329,7 +339,9 @@ async fn ramp_through_a_tongue_sets_and_clears_the_span_flags() -> anyhow::Resul
         Duration::from_secs(5),
         || {
             let words = devices.read();
-            words.span_flags == rod_flags::INVALID
+            words.span_flags == flag_mask(ROD_SPAN, "invalid")
+                && words.mill_flags
+                    == flag_mask(ROD_MILL, "invalid") | flag_mask(ROD_MILL, "source_stale")
                 && words.span_quality == 0
                 && words.margin_m_s == 0.0
                 && words.mill_quality == 0

@@ -622,8 +622,8 @@ async fn service_survives_the_interface_going_down_and_up() -> Result<()> {
     use millgate::field::source_health::SourceStatus;
     let interface = vcan();
     let gateway = millgate::Service::new(config(&interface)?)?.spawn().await?;
-    let publisher = gateway.publisher();
-    let status = || publisher.results().sources[0];
+    let board = gateway.board();
+    let status = || board.results().sources[0];
 
     send_until(&interface, Duration::from_secs(10), || {
         status() == Some(SourceStatus::Ok)
@@ -1006,7 +1006,7 @@ async fn tandem_chatter_over_can_requests_a_slow_down_before_it_develops() -> Re
     let config = tandem_config(&interface)?;
     let message = message(&config, &[0, 1, 2, 3, 4])?;
     let gateway = millgate::Service::new(config)?.spawn().await?;
-    let publisher = gateway.publisher();
+    let board = gateway.board();
     let node = CanNode::open(&interface)?;
     let sender = tokio::spawn(async move {
         node.run(&message, rows, Duration::from_secs_f64(1.0 / FS))
@@ -1024,15 +1024,15 @@ async fn tandem_chatter_over_can_requests_a_slow_down_before_it_develops() -> Re
         ensure!(
             started.elapsed() < Duration::from_secs(60),
             "no alarm: {:?}",
-            publisher.results().mills[0]
+            board.results().tandem_mills[0]
         );
-        let mill = publisher.results().mills[0].clone();
+        let mill = board.results().tandem_mills[0].clone();
         if mill.evaluations > 0 {
             // Steady frames never restart the window (no gap, no lag).
             ensure!(!mill.source_stale, "window restarted: {mill:?}");
         }
         let at_s = window_end_s(mill.evaluations);
-        if mill.alarm {
+        if mill.chatter_alarm {
             break (at_s, mill);
         }
         if let Some(ratio) = mill.gain_ratio {

@@ -62,7 +62,7 @@ impl Mill {
         Ok(Self {
             devices,
             server: gateway.bound().server.expect("server configured"),
-            map: gateway.publisher().map().clone(),
+            map: (*gateway.register_map()).clone(),
             gateway,
         })
     }
@@ -163,7 +163,16 @@ async fn wear_index_over_modbus_grows_with_the_gap_and_the_trend_resets() -> any
     );
     hmi.write_single_register(reset, 1).await??;
     assert_eq!(hmi.read_holding_registers(reset, 1).await??, vec![0]);
-    let bits = quality(&mut hmi, &worn.map).await?;
+    // The analysis applies the command from its command channel, in order with the
+    // samples: at once, but after the write's answer.
+    let applied = tokio::time::Instant::now();
+    let bits = loop {
+        let bits = quality(&mut hmi, &worn.map).await?;
+        if bits & WEAR_TREND_BIT == 0 || applied.elapsed() > Duration::from_secs(5) {
+            break bits;
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    };
     assert_eq!(bits & WEAR_TREND_BIT, 0, "trend invalid after the reset");
     assert_ne!(bits & WEAR_INDEX_BIT, 0, "the last index stays valid");
     assert_eq!(read_f32(&mut hmi, &worn.map, "F1.wear_trend").await?, 0.0);

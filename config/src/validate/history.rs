@@ -6,6 +6,7 @@ use crate::raw::RawHistory;
 use crate::History;
 
 use super::Checker;
+use super::Written;
 
 /// Days events are kept when `retention_days` is not given: a year and a month, so a
 /// year-on-year comparison of the wear trend still finds last year's month.
@@ -39,27 +40,25 @@ impl Checker<'_> {
         })
     }
 
-    /// A file path relative to the configuration file's directory whose folder
+    /// The history file at `path` (see [`Checker::written_path`]), whose folder
     /// exists; the file itself may not exist yet (it is created at the first start).
-    fn history_path(&mut self, key: &str, relative: &str) -> Option<std::path::PathBuf> {
-        if relative.trim().is_empty() {
+    fn history_path(&mut self, key: &str, path: &str) -> Option<std::path::PathBuf> {
+        if path.trim().is_empty() {
             self.report.push(
                 key,
                 "must not be empty (the SQLite file, e.g. \"history.db\")",
             );
             return None;
         }
-        let path = self.base_dir.join(relative);
-        if path.is_dir() {
+        let (resolved, resolution) = self.written_path(path, Written::History);
+        if resolved.is_dir() {
             self.report.push(
                 key,
-                format!(
-                    "\"{relative}\" is a folder (must be a file, e.g. \"{relative}/history.db\")"
-                ),
+                format!("\"{path}\" is a folder (must be a file, e.g. \"{path}/history.db\")"),
             );
             return None;
         }
-        let folder = match path.parent() {
+        let folder = match resolved.parent() {
             Some(folder) if !folder.as_os_str().is_empty() => folder.to_path_buf(),
             _ => std::path::PathBuf::from("."),
         };
@@ -67,13 +66,13 @@ impl Checker<'_> {
             self.report.push(
                 key,
                 format!(
-                    "the folder of \"{relative}\" does not exist (looked for {}; create it, \
-                     writable by the service's user; paths are relative to the configuration file)",
+                    "the folder of \"{path}\" does not exist (looked for {}; create it, \
+                     writable by the service's user; {resolution})",
                     folder.display()
                 ),
             );
             return None;
         }
-        Some(path)
+        Some(resolved)
     }
 }

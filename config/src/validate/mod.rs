@@ -18,7 +18,17 @@ use can_dbc::Dbc;
 use crate::error::Report;
 use crate::layout::BLOCK_REGISTERS;
 use crate::raw::{RawCanSource, RawConfig, RawModbusSource};
-use crate::{Channel, Config};
+use crate::{Channel, Config, ServiceDirs, CACHE_DIRECTORY};
+
+/// What the gateway writes at a configured path, and so which service folder a
+/// relative path of it is resolved against.
+#[derive(Debug, Clone, Copy)]
+enum Written {
+    /// `history.path`: `$STATE_DIRECTORY` (`StateDirectory=`).
+    History,
+    /// `cache_dir`: `$CACHE_DIRECTORY` (`CacheDirectory=`).
+    Cache,
+}
 
 /// Modbus unit identifier when none is given.
 pub(crate) const DEFAULT_UNIT_ID: i64 = 1;
@@ -57,30 +67,36 @@ pub(crate) enum Purpose {
     Commissioning,
 }
 
-/// Validates `raw` for `purpose`; paths are resolved against `base_dir`.
+/// Validates `raw` for `purpose`; paths are resolved against `base_dir`, those of
+/// files the gateway writes against the service folders `dirs` where set.
 pub(crate) fn validate(
     raw: RawConfig,
     base_dir: &Path,
+    dirs: &ServiceDirs,
     report: &mut Report,
     purpose: Purpose,
 ) -> Option<Config> {
     let mut checker = Checker {
         base_dir,
+        dirs,
         report,
         source_names: HashMap::new(),
         purpose,
     };
     let name = checker.name("name", &raw.name);
     let cache_dir = match raw.cache_dir.as_deref() {
-        None => Some(None),
+        None => Some(dirs.cache.clone()),
         Some(dir) if dir.trim().is_empty() => {
             checker.report.push(
                 "cache_dir",
-                "must not be empty (leave it out for the user's cache folder)",
+                format!(
+                    "must not be empty (leave it out for ${CACHE_DIRECTORY} under systemd, \
+                     else the user's cache folder)"
+                ),
             );
             None
         }
-        Some(dir) => Some(Some(base_dir.join(dir))),
+        Some(dir) => Some(Some(checker.written_path(dir, Written::Cache).0)),
     };
     let modbus_sources: Vec<_> = raw
         .modbus_sources
@@ -200,6 +216,7 @@ impl Names {
 
 struct Checker<'a> {
     base_dir: &'a Path,
+    dirs: &'a ServiceDirs,
     report: &'a mut Report,
     /// Source name -> key of the source that first used it (Modbus and CAN share
     /// one namespace).

@@ -3,10 +3,14 @@
 
 use std::net::SocketAddr;
 use std::ops::RangeInclusive;
+use std::path::Path;
 use std::time::Duration;
 
 use crate::raw::{RawMqttOutput, RawMqttTls, RawOutputs, RawWebOutput};
-use crate::{MetricsOutput, MqttOutput, MqttTls, Outputs, PlcOutput, ServerOutput, WebOutput};
+use crate::{
+    MetricsOutput, MqttOutput, MqttTls, Outputs, PlcOutput, ServerOutput, WebOutput,
+    CREDENTIALS_DIRECTORY,
+};
 
 use super::{
     optional, Checker, DEFAULT_IDLE_TIMEOUT_MS, DEFAULT_MAX_CONNECTIONS, DEFAULT_METRICS_BIND,
@@ -260,21 +264,33 @@ impl Checker<'_> {
         })
     }
 
-    /// `username` with `password` or `password_file` (read now; one trailing newline
-    /// is dropped), or none of them.
+    /// `username` with one of `password`, `password_file` (read now) and
+    /// `password_credential` (read now from `$CREDENTIALS_DIRECTORY`), or none of them.
     fn mqtt_credentials(&mut self, raw: &RawMqttOutput) -> Option<Option<(String, String)>> {
         let key = "outputs.mqtt";
-        let password = match (&raw.password, &raw.password_file) {
-            (Some(_), Some(_)) => {
-                self.report.push(
-                    format!("{key}.password_file"),
-                    "not allowed together with password (give one of them)",
-                );
-                return None;
-            }
-            (Some(password), None) => Some(password.clone()),
-            (None, Some(file)) => Some(self.password_file(&format!("{key}.password_file"), file)?),
-            (None, None) => None,
+        let given: Vec<&str> = [
+            ("password", raw.password.is_some()),
+            ("password_file", raw.password_file.is_some()),
+            ("password_credential", raw.password_credential.is_some()),
+        ]
+        .into_iter()
+        .filter_map(|(name, given)| given.then_some(name))
+        .collect();
+        if let [first, second, ..] = given[..] {
+            self.report.push(
+                format!("{key}.{second}"),
+                format!("not allowed together with {first} (give one of them)"),
+            );
+            return None;
+        }
+        let password = if let Some(password) = &raw.password {
+            Some(password.clone())
+        } else if let Some(file) = &raw.password_file {
+            Some(self.password_file(&format!("{key}.password_file"), file)?)
+        } else if let Some(name) = &raw.password_credential {
+            Some(self.password_credential(&format!("{key}.password_credential"), name)?)
+        } else {
+            None
         };
         match (&raw.username, password) {
             (Some(user), Some(password)) => Some(Some((user.clone(), password))),
@@ -282,7 +298,7 @@ impl Checker<'_> {
             (Some(_), None) => {
                 self.report.push(
                     format!("{key}.password"),
-                    "missing: username needs password or password_file",
+                    "missing: username needs password, password_file or password_credential",
                 );
                 None
             }
@@ -296,18 +312,64 @@ impl Checker<'_> {
         }
     }
 
-    /// The password in the file `relative` (to the configuration file): its text
-    /// without one trailing newline; not empty.
+    /// The password in the file `relative` (to the configuration file).
     fn password_file(&mut self, key: &str, relative: &str) -> Option<String> {
         let path = self.base_dir.join(relative);
-        match std::fs::read_to_string(&path) {
+        self.secret(
+            key,
+            &path,
+            &format!("\"{relative}\""),
+            "paths are relative to the configuration file",
+        )
+    }
+
+    /// The password in the systemd credential `name`: the file of that name in
+    /// `$CREDENTIALS_DIRECTORY` (the unit's `LoadCredential=name:<file>`).
+    fn password_credential(&mut self, key: &str, name: &str) -> Option<String> {
+        if name.is_empty() || name.contains('/') || name == "." || name == ".." {
+            self.report.push(
+                key,
+                format!(
+                    "\"{name}\" is not a credential name (the ID of LoadCredential=ID:FILE in \
+                     the unit, a file name without `/`, e.g. \"mqtt\")"
+                ),
+            );
+            return None;
+        }
+        let Some(folder) = &self.dirs.credentials else {
+            self.report.push(
+                key,
+                format!(
+                    "${CREDENTIALS_DIRECTORY} is not set: systemd sets it for a unit with \
+                     LoadCredential={name}:FILE (deploy/millgate.service.d/mqtt-password.conf); \
+                     outside systemd give password_file instead"
+                ),
+            );
+            return None;
+        };
+        let path = folder.join(name);
+        self.secret(
+            key,
+            &path,
+            &format!("credential \"{name}\""),
+            &format!(
+                "${CREDENTIALS_DIRECTORY} is {}; the unit needs LoadCredential={name}:FILE",
+                folder.display()
+            ),
+        )
+    }
+
+    /// The secret in the file at `path` (`what` names it for problems, `hint` says
+    /// where it was looked for): its text without one trailing newline; not empty.
+    fn secret(&mut self, key: &str, path: &Path, what: &str, hint: &str) -> Option<String> {
+        match std::fs::read_to_string(path) {
             Ok(text) => {
                 let password = text
                     .strip_suffix('\n')
                     .map_or(text.as_str(), |t| t.strip_suffix('\r').unwrap_or(t));
                 if password.is_empty() {
                     self.report
-                        .push(key, format!("\"{relative}\" is empty ({})", path.display()));
+                        .push(key, format!("{what} is empty ({})", path.display()));
                     return None;
                 }
                 Some(password.to_owned())
@@ -315,11 +377,7 @@ impl Checker<'_> {
             Err(error) => {
                 self.report.push(
                     key,
-                    format!(
-                        "cannot read \"{relative}\" ({}: {error}; paths are relative to the \
-                         configuration file)",
-                        path.display()
-                    ),
+                    format!("cannot read {what} ({}: {error}; {hint})", path.display()),
                 );
                 None
             }

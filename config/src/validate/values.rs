@@ -6,7 +6,8 @@ use std::ops::RangeInclusive;
 use std::path::PathBuf;
 use std::time::Duration;
 
-use super::{Checker, Names, DEFAULT_UNIT_ID, PERIOD_RANGE_MS};
+use super::{Checker, Names, Written, DEFAULT_UNIT_ID, PERIOD_RANGE_MS};
+use crate::{CACHE_DIRECTORY, STATE_DIRECTORY};
 
 impl Checker<'_> {
     /// Checks each item of the list at `list_key` with `check`, given the item's key
@@ -162,6 +163,33 @@ impl Checker<'_> {
                 );
                 None
             }
+        }
+    }
+
+    /// `path`, which the gateway writes (`what`), resolved: an absolute path as is, a
+    /// relative one against the service folder systemd set for it (`$STATE_DIRECTORY`,
+    /// `$CACHE_DIRECTORY`), else against the configuration file's folder. Also says
+    /// how relative paths are resolved, for problems.
+    pub(super) fn written_path(&self, path: &str, what: Written) -> (PathBuf, String) {
+        let (folder, variable, setting) = match what {
+            Written::History => (&self.dirs.state, STATE_DIRECTORY, "StateDirectory="),
+            Written::Cache => (&self.dirs.cache, CACHE_DIRECTORY, "CacheDirectory="),
+        };
+        match folder {
+            Some(folder) => (
+                folder.join(path),
+                format!(
+                    "relative paths are resolved against ${variable} ({})",
+                    folder.display()
+                ),
+            ),
+            None => (
+                self.base_dir.join(path),
+                format!(
+                    "relative paths are resolved against the configuration file's folder, \
+                     or ${variable} when systemd sets it ({setting})"
+                ),
+            ),
         }
     }
 

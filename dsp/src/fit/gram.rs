@@ -240,13 +240,7 @@ mod tests {
             ([3.0, 3.5, 0.01, 2.6, 2.0], 1),
             ([20.0, 20.0005, 1e-9, 0.0, 0.0], 1),
         ] {
-            let data = Data {
-                samples: &samples,
-                stride,
-                inverse_scale: 1.0,
-                dt: 1e-3 * stride as f64,
-                positive_only: true,
-            };
+            let data = Data::new(&samples, stride, 1.0, 1e-3 * stride as f64, true);
             let direct = gram_direct(&theta, &data);
             let closed = gram_closed(&theta, data.count(), data.dt);
             for i in 0..BASIS {

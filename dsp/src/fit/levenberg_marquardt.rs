@@ -14,6 +14,10 @@ use crate::linalg::Cholesky5;
 /// Largest ratio of |r0|^2 to the cost accepted in [`evaluate`]: 4 of 16 digits lost.
 const MAX_CANCELLATION: f64 = 1e4;
 
+/// Relative excess of a cost over the record's energy put down to rounding in
+/// [`evaluate`]: far above what 4 lost digits leave, far below a lost solve.
+const MAX_ENERGY_EXCESS: f64 = 1e-9;
+
 /// The variable-projection problem at one nonlinear point.
 #[derive(Clone, Copy)]
 pub(super) struct Evaluation {
@@ -30,7 +34,9 @@ pub(super) struct Evaluation {
 }
 
 /// Solves the linear least squares at `theta`, starting from `reference` (any linear
-/// parameters; the previous solution makes the cost most accurate).
+/// parameters; the previous solution makes the cost most accurate); `None` when the
+/// basis is singular or the solve cannot be trusted (a non-finite result, or a cost
+/// above the record's energy).
 pub(super) fn evaluate(
     theta: Nonlinear,
     reference: &Linear,
@@ -67,10 +73,15 @@ pub(super) fn evaluate(
     for (k, out) in derivative_projections.iter_mut().enumerate() {
         *out = projections[5 + k] - (0..5).map(|j| gram[5 + k][j] * correction[j]).sum::<f64>();
     }
-    let finite = cost.is_finite()
+    // No least-squares cost exceeds the record's energy (the cost of all-zero linear
+    // parameters), but for rounding: above it, the basis was too ill-conditioned for
+    // the solve (a growing mode, e^188 over a record of ones, gave a "converged" fit
+    // with a residual 1e9 times the record's, and a non-finite one on a record of
+    // 1e300: issue 28).
+    let trusted = cost <= data.energy * (1.0 + MAX_ENERGY_EXCESS)
         && linear.iter().all(|v| v.is_finite())
         && derivative_projections.iter().all(|v| v.is_finite());
-    finite.then_some(Evaluation {
+    trusted.then_some(Evaluation {
         theta,
         linear,
         cost,

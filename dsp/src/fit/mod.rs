@@ -32,7 +32,10 @@
 //! largest energy and the load exponential (a10), tried against two fixed rates. A
 //! coarse pass on every `decimation`-th sample converges cheaply; the full record then
 //! needs two or three iterations. All work is done on data scaled to a peak of 1, so
-//! huge inputs do not overflow.
+//! huge inputs do not overflow, and a point whose least-squares cost comes out above
+//! the record's own energy (what all-zero linear parameters leave: a basis that grows
+//! by e^100 and more over the record leaves the solve no correct digit) is rejected,
+//! so the fit never returns a residual larger than the record.
 //!
 //! The files follow those steps: `model` (eq. (1) and the public types), `record` (the
 //! record as fitted, the nonlinear/linear split), `initial_guess` (pencil poles to a start),
@@ -139,18 +142,14 @@ pub fn fit_eq1(samples: &[f64], options: &FitOptions) -> Result<Eq1Fit, FitError
     // Coarse pass: every `stride`-th sample (stride <= the pencil's decimation, so the
     // modes stay well below the coarse Nyquist rate) converges cheaply; the full record
     // then needs only a few iterations.
-    let coarse = Data {
+    let coarse = Data::new(
         samples,
-        stride: decimation,
-        inverse_scale: 1.0 / scale,
-        dt: dt * decimation as f64,
-        positive_only: options.positive_only,
-    };
-    let full = Data {
-        stride: 1,
-        dt,
-        ..coarse
-    };
+        decimation,
+        1.0 / scale,
+        dt * decimation as f64,
+        options.positive_only,
+    );
+    let full = Data::new(samples, 1, 1.0 / scale, dt, options.positive_only);
     let coarse_used = coarse.used();
     let (start, coarse_iterations) = if decimation > 1 && coarse_used >= 4 * PARAMS {
         let initial = initial_guess(&coarse, &poles)?;
@@ -181,7 +180,11 @@ pub fn fit_eq1(samples: &[f64], options: &FitOptions) -> Result<Eq1Fit, FitError
     for index in [0, 1, 2, 3, 8] {
         params[index] *= scale;
     }
-    if params.iter().any(|v| !v.is_finite()) {
+    // The residual is at most the record's (evaluate rejects a cost above its
+    // energy), so in the record's units it overflows only for a record within a few
+    // ulps of f64::MAX.
+    let rms_residual = rms * scale;
+    if params.iter().any(|v| !v.is_finite()) || !rms_residual.is_finite() {
         return Err(FitError::Diverged);
     }
     let zeta = |decay: f64, frequency: f64| {
@@ -207,7 +210,7 @@ pub fn fit_eq1(samples: &[f64], options: &FitOptions) -> Result<Eq1Fit, FitError
         static_torque: params[8],
         rise_per_s: params[9],
         taf,
-        rms_residual: rms * scale,
+        rms_residual,
         iterations,
         status,
         samples_used: used,
@@ -259,6 +262,38 @@ mod tests {
     pub(super) const TABLE1: [f64; PARAMS] = [
         -147.0, 85.0, 191.0, -31.0, 11.99, 20.91, 22.17, 3.65, 112.0, 36.7,
     ];
+
+    /// A record of a constant has no oscillating mode: the pencil's two "modes" are
+    /// noise of the rounding, one at times growing e^188 over the record, and the
+    /// solve on such a basis lost every digit (a "converged" residual 1e74 times the
+    /// record's, infinite on a record of 1e300: issue 28). A fit may fail here, but
+    /// its residual is never above the record's RMS.
+    #[test]
+    fn constant_records_give_no_residual_above_the_record() {
+        let mut fitted = 0;
+        for value in [1.0, 1e300] {
+            for len in 20..400 {
+                for positive_only in [false, true] {
+                    let samples = [value; 400];
+                    let options = FitOptions {
+                        positive_only,
+                        ..FitOptions::new(1000.0)
+                    };
+                    if let Ok(fit) = fit_eq1(&samples[..len], &options) {
+                        fitted += 1;
+                        assert!(
+                            fit.rms_residual <= value * (1.0 + 1e-6),
+                            "{len} samples of {value} (positive only: {positive_only}): \
+                             residual {}",
+                            fit.rms_residual
+                        );
+                    }
+                }
+            }
+        }
+        // Not all refused: the guard rejects lost solves, not constant records.
+        assert!(fitted > 100, "{fitted} fits");
+    }
 
     #[test]
     fn fitted_peak_matches_eq1_sample_by_sample() {

@@ -56,9 +56,10 @@ pub enum FitError {
     Flat,
     /// The initialiser found fewer than two oscillating modes.
     ModesNotFound,
-    /// A decomposition or the normal equations were singular.
+    /// A decomposition or the normal equations were singular, or the least squares
+    /// too ill-conditioned to trust (its residual came out above the record's own).
     Singular,
-    /// The iteration produced non-finite parameters.
+    /// The iteration produced non-finite parameters or residual.
     Diverged,
 }
 
@@ -75,8 +76,11 @@ impl core::fmt::Display for FitError {
             FitError::NonFinite => "a sample is NaN or infinite",
             FitError::Flat => "all samples are zero",
             FitError::ModesNotFound => "fewer than two oscillating modes found in the record",
-            FitError::Singular => "a decomposition or the normal equations were singular",
-            FitError::Diverged => "the iteration produced non-finite parameters",
+            FitError::Singular => {
+                "a decomposition or the normal equations were singular, or too ill-conditioned \
+                 to trust"
+            }
+            FitError::Diverged => "the iteration produced non-finite parameters or residual",
         })
     }
 }

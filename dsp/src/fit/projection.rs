@@ -167,13 +167,13 @@ mod tests {
         // Odd and even counts after the stride, a tail of one and of two samples.
         for (len, stride) in [(203, 1), (202, 1), (203, 3), (202, 4), (201, 4), (30, 7)] {
             for positive_only in [false, true] {
-                let data = Data {
-                    samples: &samples[..len],
+                let data = Data::new(
+                    &samples[..len],
                     stride,
-                    inverse_scale: 1.0 / 300.0,
-                    dt: 1e-3 * stride as f64,
+                    1.0 / 300.0,
+                    1e-3 * stride as f64,
                     positive_only,
-                };
+                );
                 let mut squares = 0.0;
                 let mut expected = [0.0; BASIS];
                 for (n, value) in data.values().enumerate() {

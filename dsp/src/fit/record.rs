@@ -9,9 +9,36 @@ pub(super) struct Data<'a> {
     pub(super) inverse_scale: f64,
     pub(super) dt: f64,
     pub(super) positive_only: bool,
+    /// Sum of the squares of the fitted values (scaled, masked ones out): the cost of
+    /// all-zero linear parameters, so no least-squares cost can exceed it.
+    pub(super) energy: f64,
 }
 
-impl Data<'_> {
+impl<'a> Data<'a> {
+    /// The record `samples` as fitted (see the fields), its energy summed here.
+    pub(super) fn new(
+        samples: &'a [f64],
+        stride: usize,
+        inverse_scale: f64,
+        dt: f64,
+        positive_only: bool,
+    ) -> Self {
+        let mut data = Self {
+            samples,
+            stride,
+            inverse_scale,
+            dt,
+            positive_only,
+            energy: 0.0,
+        };
+        data.energy = data
+            .values()
+            .filter(|v| !positive_only || *v > 0.0)
+            .map(|v| v * v)
+            .sum();
+        data
+    }
+
     /// The samples used, scaled.
     pub(super) fn values(&self) -> impl Iterator<Item = f64> + '_ {
         self.samples

@@ -33,8 +33,9 @@
     return node;
   }
   const badge = (state, text) => el("span", { class: "badge " + state }, text || state.replace("_", " "));
-  const gapText = (g) =>
-    g ? num(g.gap_mrad, 2) + " mrad (" + num(g.low_mrad, 2) + "–" + num(g.high_mrad, 2) + ")" : "–";
+  // A driveline's pooled gap estimate (its gap_mrad, gap_low_mrad, gap_high_mrad).
+  const gapText = (d) =>
+    d.gap_mrad !== null ? num(d.gap_mrad, 2) + " mrad (" + num(d.gap_low_mrad, 2) + "–" + num(d.gap_high_mrad, 2) + ")" : "–";
   const trendText = (t) => (t === null || t === undefined ? "–" : (t >= 0 ? "+" : "") + num(t, 2) + " mrad/week");
   function fill(tbody, rows) {
     tbody.replaceChildren(...rows);
@@ -88,10 +89,10 @@
         const trend = full && full.drivelines.find((f) => f.name === d.name);
         return el("tr", { id: "driveline-" + d.name },
           el("td", {}, el("a", { href: "/drivelines/" + encodeURIComponent(d.name) }, d.name)),
-          el("td", {}, utc(d.last_bite), " ", el("span", { class: "muted" }, ago(d.last_bite))),
+          el("td", {}, utc(d.last_bite_time), " ", el("span", { class: "muted" }, ago(d.last_bite_time))),
           el("td", { class: "bite-counter" }, d.bite_counter),
           el("td", {}, num(d.taf, 3), " ", badge(d.taf_state)),
-          el("td", {}, gapText(d.gap)),
+          el("td", {}, gapText(d)),
           el("td", {}, trendText(trend ? trend.gap_trend_mrad_per_week : null)),
           el("td", {}, badge(d.wear_state), d.source_stale ? badge("stale", "source stale") : null,
             d.restored ? el("span", { class: "muted" }, " restored") : null));
@@ -102,7 +103,7 @@
           el("td", {}, m.name),
           el("td", {}, badge(m.chatter_state)),
           el("td", {}, num(m.gain_ratio, 2)),
-          el("td", {}, m.worst_stand || "–"),
+          el("td", {}, m.worst_stand_channel || "–"),
           el("td", {}, m.chatter_frequency_hz === null ? "–" : num(m.chatter_frequency_hz, 1) + " Hz"),
           el("td", {}, m.slow_down_request ? badge("warning", "requested") : "no"))));
       document.getElementById("rod-section").classList.toggle("hidden", o.rod_mills.length === 0);
@@ -177,15 +178,15 @@
       const data = gapPlot.data.map((s) => Array.from(s));
       for (const d of moved) {
         const i = names.indexOf(d.name);
-        if (i < 0 || !d.gap || !d.last_bite) continue;
-        const t = Date.parse(d.last_bite) / 1000;
+        if (i < 0 || d.gap_mrad === null || !d.last_bite_time) continue;
+        const t = Date.parse(d.last_bite_time) / 1000;
         const last = data[0].length - 1;
         if (last >= 0 && t < data[0][last]) continue; // older than the plot's end
         if (last < 0 || t > data[0][last]) {
           data[0].push(t);
           for (const series of data.slice(1)) series.push(null);
         }
-        data[i + 1][data[0].length - 1] = d.gap.gap_mrad;
+        data[i + 1][data[0].length - 1] = d.gap_mrad;
         gapNote.textContent = "";
       }
       gapPlot.setData(data);
@@ -242,10 +243,10 @@
           el("div", { class: "value" }, value, state ? " " : null, state ? badge(state) : null),
           el("div", { class: "sub" }, sub || ""));
       document.getElementById("cards").replaceChildren(
-        card("Last bite", d.last_bite ? utc(d.last_bite).slice(11) : "–", d.last_bite ? ago(d.last_bite) + " · bite " + d.bite_counter : "no bite yet"),
+        card("Last bite", d.last_bite_time ? utc(d.last_bite_time).slice(11) : "–", d.last_bite_time ? ago(d.last_bite_time) + " · bite " + d.bite_counter : "no bite yet"),
         card("TAF", num(d.taf, 3), "warning " + d.thresholds.taf_warning + " · alarm " + d.thresholds.taf_alarm, d.taf_state),
-        card("Opened gap", d.gap ? num(d.gap.gap_mrad, 2) + " mrad" : "–",
-          d.gap ? "90%: " + num(d.gap.low_mrad, 2) + "–" + num(d.gap.high_mrad, 2) + " mrad · " + d.gap.bites_pooled + " bites"
+        card("Opened gap", d.gap_mrad !== null ? num(d.gap_mrad, 2) + " mrad" : "–",
+          d.gap_mrad !== null ? "90%: " + num(d.gap_low_mrad, 2) + "–" + num(d.gap_high_mrad, 2) + " mrad · " + d.bites_pooled + " bites"
             : (d.has_model ? "no estimate yet" : "no driveline model configured"), d.wear_state),
         card("Gap trend", trendText(d.gap_trend_mrad_per_week), "least squares over 4 weeks, since the last reset"),
         card("Static torque", d.static_torque_knm === null ? "–" : num(d.static_torque_knm, 0) + " kN·m",
@@ -296,7 +297,7 @@
       window.millgatePlots.gap = gapPlot;
     }
 
-    // The wear maps (/api/drivelines/{name}/map) and the coupling whose curves are
+    // The gap maps (/api/drivelines/{name}/map) and the coupling whose curves are
     // drawn: the user's choice, else the one the estimate names (or its likeliest).
     let map = null;
     let chosenCoupling = null;
@@ -378,7 +379,7 @@
         const where = !e ? "no estimate yet"
           : (e.coupling !== coupling.coupling ? "the estimate is on coupling " + e.coupling
             : (e.determined ? "the estimate names this coupling" : "the bites cannot tell the couplings apart; this is the likeliest"));
-        tafNote.textContent = what + "Lines: the wear map of coupling " + coupling.coupling + " \u201c" + coupling.name +
+        tafNote.textContent = what + "Lines: the gap map of coupling " + coupling.coupling + " \u201c" + coupling.name +
           "\u201d (model " + map.model + "), the TAF a bite shows at each opened gap, simulated; " + where + ".";
       } else {
         tafNote.textContent = what + (map ? map.message : "");
@@ -443,22 +444,22 @@
         if (!newBites(now, before).some((x) => x.name === name)) return;
         // The new bite at once from the live figures...
         const liveBite = {
-          time: d.last_bite, bite_counter: d.bite_counter, static_torque_knm: d.static_torque_knm,
-          peak_torque_knm: d.peak_torque_knm, taf: d.taf, period_shift_s: d.first_period_shift_s,
-          gap_mrad: d.gap ? d.gap.gap_mrad : null, gap_low_mrad: d.gap ? d.gap.low_mrad : null,
-          gap_high_mrad: d.gap ? d.gap.high_mrad : null, degraded: d.last_bite_degraded, quality: "live",
+          time: d.last_bite_time, bite_counter: d.bite_counter, static_torque_knm: d.static_torque_knm,
+          peak_torque_knm: d.peak_torque_knm, taf: d.taf, period_shift_s: d.period_shift_s,
+          gap_mrad: d.gap_mrad, gap_low_mrad: d.gap_low_mrad, gap_high_mrad: d.gap_high_mrad,
+          gap_coupling: d.gap_coupling, degraded: d.degraded, quality: "live",
         };
         tbody.prepend(row(liveBite, true));
-        if (gapPlot && d.gap && d.last_bite) {
+        if (gapPlot && d.gap_mrad !== null && d.last_bite_time) {
           const data = gapPlot.data.map((s) => s.slice());
-          data[0].push(Date.parse(d.last_bite) / 1000);
-          data[1].push(d.gap.gap_mrad); data[2].push(d.gap.low_mrad); data[3].push(d.gap.high_mrad);
+          data[0].push(Date.parse(d.last_bite_time) / 1000);
+          data[1].push(d.gap_mrad); data[2].push(d.gap_low_mrad); data[3].push(d.gap_high_mrad);
           data[4].push(info.thresholds.gap_warning_mrad); data[5].push(info.thresholds.gap_alarm_mrad);
           gapPlot.setData(data);
           gapNote.textContent = "";
         }
         // ...then the stored rows and the trend, once the history has them (without
-        // a history, the estimate on the wear map).
+        // a history, the estimate on the gap map).
         if (pending === null) {
           pending = setTimeout(async () => {
             pending = null;
@@ -496,7 +497,7 @@
         note.textContent = error.message;
       }
     }
-    const flags = (o) => JSON.stringify([o.drivelines.map((d) => [d.warning, d.alarm, d.gap_warning, d.gap_alarm]),
+    const flags = (o) => JSON.stringify([o.drivelines.map((d) => [d.taf_warning, d.taf_alarm, d.gap_warning, d.gap_alarm]),
       o.tandem_mills.map((m) => [m.chatter_state])]);
     listeners.push((now, before) => {
       if (before && flags(now) !== flags(before)) setTimeout(refresh, 1000);

@@ -16,17 +16,17 @@ use super::bite_window::{
 };
 use super::error::AnalysisError;
 use super::gap_estimate::{GapEstimate, GapObservation};
-use super::gap_map::{GapMapSpec, GapMaps};
 use super::gap_monitor::{GapBite, GapMapJob, GapMonitor};
 use super::simulated_bite::BiteSimulator;
 use super::wear::{self, WearEstimate, WearReference};
-use crate::outputs::history::events::{
+use crate::state::board::Board;
+use crate::state::events::{
     AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, GapEstimate as RecordedGap, HistoryEvent,
     PooledBite,
 };
-use crate::outputs::history::time::UtcTime;
-use crate::outputs::publisher::Publisher;
-use crate::outputs::results::DrivelineResults;
+use crate::state::gap_maps::{GapMapSpec, GapMaps};
+use crate::state::results::DrivelineResults;
+use crate::state::time::UtcTime;
 
 /// Low-pass cut-off for period measurement of a driveline without a model, Hz: keeps
 /// the first modes (10-30 Hz, domain notes 1.3) and removes measurement noise above
@@ -424,10 +424,11 @@ impl DrivelineAnalyzer {
     /// published with their quality bits clear (registers 0), raise no TAF warning or
     /// alarm, and do not move the wear trend. Nothing computed from data that cannot be
     /// trusted reads as a result.
-    pub(super) fn publish(&self, publisher: &Publisher, report: &BiteReport) {
-        publisher.update_recorded(|results, events| {
+    pub(super) fn publish(&self, board: &Board, report: &BiteReport) {
+        board.update_recorded(|results, events| {
             let driveline = &mut results.drivelines[report.driveline];
-            let (was_warning, was_alarm) = (driveline.warning, driveline.alarm);
+            let (was_warning, was_alarm) = (driveline.taf_warning, driveline.taf_alarm);
+            let time = UtcTime::from_system(report.time);
             let t = &report.transient;
             let valid = !report.degraded;
             let trusted = |value: Option<f64>| value.filter(|_| valid);
@@ -435,11 +436,7 @@ impl DrivelineAnalyzer {
             driveline.degraded_bites = driveline
                 .degraded_bites
                 .wrapping_add(u32::from(report.degraded));
-            driveline.last_bite_unix_s = report
-                .time
-                .duration_since(UNIX_EPOCH)
-                .ok()
-                .and_then(|d| u32::try_from(d.as_secs()).ok());
+            driveline.last_bite_unix_ms = Some(time.unix_ms());
             driveline.static_torque_knm = trusted(Some(t.static_torque_knm));
             driveline.peak_torque_knm = trusted(Some(t.peak_torque_knm));
             driveline.taf = trusted(t.taf);
@@ -448,18 +445,19 @@ impl DrivelineAnalyzer {
             driveline.beta2_hz = trusted(report.beta_hz.map(|(_, beta2)| beta2));
             driveline.last_bite_degraded = report.degraded;
             let taf = trusted(t.taf);
-            driveline.warning = taf.is_some_and(|taf| taf >= self.taf_warning);
-            driveline.alarm |= taf.is_some_and(|taf| taf >= self.taf_alarm);
+            driveline.taf_warning = taf.is_some_and(|taf| taf >= self.taf_warning);
+            driveline.taf_alarm |= taf.is_some_and(|taf| taf >= self.taf_alarm);
             driveline.wear_index = trusted(report.wear.map(|wear| wear.index));
             if let Some(index) = driveline.wear_index {
                 driveline.wear_trend = Some(wear::next_trend(driveline.wear_trend, index));
             }
-            let was_gap_alarm = driveline.gap_alarm;
             let gap = report
                 .gap
                 .and_then(|gap| Some((self.gap.as_ref()?, gap.pooled?)));
+            let mut gap_alarms = Vec::new();
             if let Some((monitor, estimate)) = gap {
-                monitor.publish(driveline, &estimate);
+                let subject = (report.driveline_name.as_str(), time);
+                monitor.publish(driveline, &estimate, subject, &mut gap_alarms);
             }
             driveline.restored = false;
             let record = bite_record(
@@ -468,7 +466,6 @@ impl DrivelineAnalyzer {
                 gap.map(|(monitor, estimate)| monitor.record(&estimate, driveline.gap_alarm)),
             );
             events.push(HistoryEvent::Bite(Box::new(record)));
-            let time = UtcTime::from_system(report.time);
             let alarm = |kind, event, value, threshold| {
                 HistoryEvent::Alarm(AlarmRecord {
                     time,
@@ -480,15 +477,15 @@ impl DrivelineAnalyzer {
                     threshold: Some(threshold),
                 })
             };
-            if driveline.warning != was_warning {
-                let event = if driveline.warning {
+            if driveline.taf_warning != was_warning {
+                let event = if driveline.taf_warning {
                     AlarmEvent::Raised
                 } else {
                     AlarmEvent::Cleared
                 };
                 events.push(alarm(AlarmKind::TafWarning, event, t.taf, self.taf_warning));
             }
-            if driveline.alarm && !was_alarm {
+            if driveline.taf_alarm && !was_alarm {
                 events.push(alarm(
                     AlarmKind::TafAlarm,
                     AlarmEvent::Raised,
@@ -496,23 +493,23 @@ impl DrivelineAnalyzer {
                     self.taf_alarm,
                 ));
             }
-            if let (Some((monitor, estimate)), true) = (gap, driveline.gap_alarm && !was_gap_alarm)
-            {
-                events.push(alarm(
-                    AlarmKind::WearAlarm,
-                    AlarmEvent::Raised,
-                    Some(estimate.gap_low_mrad),
-                    monitor.alarm_mrad(),
-                ));
-            }
+            events.extend(gap_alarms);
         });
     }
 
-    /// Record `estimate` (from maps just installed or a restored pool) in the results.
-    pub(super) fn publish_gap(&self, publisher: &Publisher, estimate: &GapEstimate) {
+    /// Record `estimate` (from maps just installed or a restored pool) in the results,
+    /// with the alarm events it makes.
+    pub(super) fn publish_gap(&self, board: &Board, estimate: &GapEstimate) {
         if let Some(monitor) = &self.gap {
-            publisher
-                .update(|results| monitor.publish(&mut results.drivelines[self.index], estimate));
+            board.update_recorded(|results, events| {
+                let subject = (self.name.as_str(), UtcTime::now());
+                monitor.publish(
+                    &mut results.drivelines[self.index],
+                    estimate,
+                    subject,
+                    events,
+                );
+            });
         }
     }
 

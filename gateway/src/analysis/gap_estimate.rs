@@ -28,7 +28,7 @@
 use millgate_dsp::transient::{TransientResult, TransientSettings};
 use serde::{Deserialize, Serialize};
 
-use super::gap_map::{Cell, GapMaps};
+use crate::state::gap_maps::{Cell, GapMaps};
 
 /// Fine gap steps per map gap step.
 pub const SUBSTEPS: usize = 8;

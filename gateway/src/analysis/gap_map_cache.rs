@@ -1,7 +1,8 @@
 //! Gap maps on disk, so a restart does not rebuild them.
 //!
 //! One JSON file per driveline model and settings in the cache folder
-//! (`cache_dir` in the configuration, else [`default_dir`]): `gap-maps-<hash>.json`,
+//! (`cache_dir` in the configuration, else systemd's `$CACHE_DIRECTORY`, both
+//! resolved by the configuration, else [`default_dir`]): `gap-maps-<hash>.json`,
 //! where `<hash>` is the FNV-1a 64 hash of the **key**, a text holding everything the
 //! maps depend on: the format version, the model as simulated (its TOML with every
 //! backlash 0 and the torque channel's sample rate, so comments and a backlash in the
@@ -16,8 +17,8 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use super::gap_map::{GapMapData, GapMapSpec, GapMaps};
 use super::simulated_bite::BiteSimulator;
+use crate::state::gap_maps::{GapMapData, GapMapSpec, GapMaps};
 
 /// Version of the file format and of what a map point means; part of the key.
 pub const FORMAT_VERSION: u32 = 1;
@@ -80,7 +81,8 @@ pub fn path(dir: &Path, key: &str) -> PathBuf {
     dir.join(format!("gap-maps-{:016x}.json", fnv1a(key)))
 }
 
-/// The cache folder when the configuration names none: `$XDG_CACHE_HOME/millgate`,
+/// The cache folder when the configuration names none and systemd set no
+/// `$CACHE_DIRECTORY`: `$XDG_CACHE_HOME/millgate`,
 /// else `$HOME/.cache/millgate`, else `millgate-cache` in the system's temporary
 /// folder.
 pub fn default_dir() -> PathBuf {

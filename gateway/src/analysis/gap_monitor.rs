@@ -23,11 +23,15 @@ use millgate_config::DrivelineThresholds;
 use millgate_dsp::transient::{TransientResult, TransientSettings};
 
 use super::gap_estimate::{GapEstimate, GapObservation, GapPool};
-use super::gap_map::{build, GapMapError, GapMapSpec, GapMaps};
+use super::gap_map::{build, GapMapError};
 use super::gap_map_cache;
 use super::simulated_bite::BiteSimulator;
-use crate::outputs::history::events::{GapEstimate as RecordedGap, WearState};
-use crate::outputs::results::{DrivelineResults, GapResults};
+use crate::state::events::{
+    AlarmEvent, AlarmKind, AlarmRecord, GapEstimate as RecordedGap, HistoryEvent, WearState,
+};
+use crate::state::gap_maps::{GapMapSpec, GapMaps};
+use crate::state::results::{DrivelineResults, GapResults};
+use crate::state::time::UtcTime;
 
 /// What a bite adds to the gap diagnosis.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -162,7 +166,7 @@ impl GapMapJob {
 pub fn spawn_job(
     job: GapMapJob,
     threads: usize,
-    ready: tokio::sync::mpsc::Sender<super::GapMapsReady>,
+    ready: tokio::sync::mpsc::Sender<GapMapsReady>,
     cancel: Arc<AtomicBool>,
     progress: impl Fn(usize, usize) + Send + Sync + 'static,
 ) -> std::io::Result<std::thread::JoinHandle<()>> {
@@ -189,6 +193,10 @@ pub fn spawn_job(
             let _ = ready.blocking_send((job.driveline, outcome.map(|(maps, _)| maps)));
         })
 }
+
+/// The outcome of a driveline's gap map job, for [`super::Analysis::run`]: the
+/// driveline index and the maps or why there are none.
+pub type GapMapsReady = (usize, Result<GapMaps, GapMapError>);
 
 /// The gap diagnosis state of one driveline in the analysis task.
 #[derive(Debug)]
@@ -254,9 +262,17 @@ impl GapMonitor {
         })
     }
 
-    /// Record `estimate` in a driveline's results: the values, the warning, the
-    /// latched alarm.
-    pub(super) fn publish(&self, results: &mut DrivelineResults, estimate: &GapEstimate) {
+    /// Record `estimate` in the results of driveline `subject`: the values, the
+    /// warning, the latched alarm; and, dated `time`, the alarm events of the warning's
+    /// and the alarm's changes.
+    pub(super) fn publish(
+        &self,
+        results: &mut DrivelineResults,
+        estimate: &GapEstimate,
+        (subject, time): (&str, UtcTime),
+        events: &mut Vec<HistoryEvent>,
+    ) {
+        let (was_warning, was_alarm) = (results.gap_warning, results.gap_alarm);
         results.gap = Some(GapResults {
             gap_mrad: estimate.gap_mrad,
             low_mrad: estimate.gap_low_mrad,
@@ -267,11 +283,38 @@ impl GapMonitor {
         });
         results.gap_warning = estimate.gap_mrad >= self.warning_mrad;
         results.gap_alarm |= estimate.gap_low_mrad >= self.alarm_mrad;
-    }
-
-    /// The gap alarm threshold, mrad.
-    pub(super) fn alarm_mrad(&self) -> f64 {
-        self.alarm_mrad
+        let alarm = |kind, event, value, threshold| {
+            HistoryEvent::Alarm(AlarmRecord {
+                time,
+                subject: subject.to_owned(),
+                kind,
+                event,
+                origin: None,
+                value: Some(value),
+                threshold: Some(threshold),
+            })
+        };
+        if results.gap_warning != was_warning {
+            let event = if results.gap_warning {
+                AlarmEvent::Raised
+            } else {
+                AlarmEvent::Cleared
+            };
+            events.push(alarm(
+                AlarmKind::GapWarning,
+                event,
+                estimate.gap_mrad,
+                self.warning_mrad,
+            ));
+        }
+        if results.gap_alarm && !was_alarm {
+            events.push(alarm(
+                AlarmKind::GapAlarm,
+                AlarmEvent::Raised,
+                estimate.gap_low_mrad,
+                self.alarm_mrad,
+            ));
+        }
     }
 
     /// `estimate` as the history records it, with the alarm latch as published.

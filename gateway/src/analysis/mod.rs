@@ -24,17 +24,15 @@ use millgate_config::Config;
 use tokio::sync::{broadcast, mpsc};
 
 use crate::field::acquired::Acquired;
-use crate::outputs::publisher::{Publisher, WearMapState};
+use crate::state::board::Board;
+use crate::state::commands::{Command, CommandReceiver};
+use crate::state::gap_maps::{GapMapState, GapMaps};
 use crate::supervision::{Liveness, ANALYSIS_TICK};
 use driveline::{BiteReport, DrivelineAnalyzer};
 pub use error::AnalysisError;
 use gap_estimate::GapObservation;
-use gap_map::{GapMapError, GapMaps};
-use gap_monitor::GapMapJob;
-
-/// The outcome of a driveline's gap map job, for [`Analysis::run`]: the driveline
-/// index and the maps or why there are none.
-pub type GapMapsReady = (usize, Result<GapMaps, GapMapError>);
+use gap_map::GapMapError;
+use gap_monitor::{GapMapJob, GapMapsReady};
 
 /// The analysis task: consumes samples until every reader has hung up.
 #[derive(Debug)]
@@ -44,7 +42,7 @@ pub struct Analysis {
     by_torque: Vec<Vec<usize>>,
     /// Per channel: the drivelines it triggers.
     by_trigger: Vec<Vec<usize>>,
-    publisher: Arc<Publisher>,
+    board: Arc<Board>,
     bites: broadcast::Sender<BiteReport>,
     /// Chatter monitors of the tandem mills.
     chatter: chatter::ChatterAnalysis,
@@ -60,7 +58,7 @@ impl Analysis {
     /// [`Self::wear_problems`]).
     pub fn new(
         config: &Config,
-        publisher: Arc<Publisher>,
+        board: Arc<Board>,
         bites: broadcast::Sender<BiteReport>,
     ) -> Result<Self, AnalysisError> {
         let mut by_torque = vec![Vec::new(); config.channels.len()];
@@ -82,16 +80,16 @@ impl Analysis {
         }
         for (index, driveline) in drivelines.iter().enumerate() {
             if let Some(problem) = driveline.wear_problem() {
-                publisher.set_wear_map(index, WearMapState::Failed(problem.to_string()));
+                board.set_gap_maps(index, GapMapState::Failed(problem.to_string()));
             }
         }
-        let chatter = chatter::ChatterAnalysis::new(config, Arc::clone(&publisher))?;
-        let rod_mills = rod_monitor::RodAnalysis::new(config, Arc::clone(&publisher))?;
+        let chatter = chatter::ChatterAnalysis::new(config, Arc::clone(&board))?;
+        let rod_mills = rod_monitor::RodAnalysis::new(config, Arc::clone(&board))?;
         Ok(Self {
             drivelines,
             by_torque,
             by_trigger,
-            publisher,
+            board,
             bites,
             chatter,
             rod_mills,
@@ -136,19 +134,19 @@ impl Analysis {
         let maps = match maps {
             Ok(maps) => {
                 let maps = Arc::new(maps);
-                self.publisher
-                    .set_wear_map(index, WearMapState::Ready(Arc::clone(&maps)));
+                self.board
+                    .set_gap_maps(index, GapMapState::Ready(Arc::clone(&maps)));
                 Some(maps)
             }
             Err(error) => {
                 tracing::error!(driveline = index, %error, "no gap maps: the gap registers stay invalid");
-                self.publisher
-                    .set_wear_map(index, WearMapState::Failed(error.to_string()));
+                self.board
+                    .set_gap_maps(index, GapMapState::Failed(error.to_string()));
                 None
             }
         };
         if let Some(estimate) = driveline.set_gap_maps(maps) {
-            driveline.publish_gap(&self.publisher, &estimate);
+            driveline.publish_gap(&self.board, &estimate);
         }
     }
 
@@ -159,7 +157,7 @@ impl Analysis {
             return;
         };
         if let Some(estimate) = driveline.restore_gap_pool(observations) {
-            driveline.publish_gap(&self.publisher, &estimate);
+            driveline.publish_gap(&self.board, &estimate);
         }
     }
 
@@ -169,16 +167,28 @@ impl Analysis {
         self.drivelines.get(index)?.gap_pool()
     }
 
-    /// Handle one message from a reader; returns the bites it completed.
-    pub fn handle(&mut self, message: Acquired) -> Vec<BiteReport> {
-        let resets = self.publisher.take_wear_resets();
-        if resets != 0 {
-            for (k, driveline) in self.drivelines.iter_mut().enumerate().take(16) {
-                if resets & (1 << k) != 0 {
-                    driveline.reset_gap_pool();
-                }
+    /// Apply a command: acknowledge the latched alarms, or reset a driveline's wear
+    /// (its trend, its gap estimate and the gap pool behind it).
+    pub fn command(&mut self, command: Command) {
+        match command {
+            Command::AcknowledgeAlarms { origin } => {
+                tracing::info!(by = origin.name(), peer = ?origin.peer(), "alarms acknowledged");
+                self.board.acknowledge_alarms(origin);
+            }
+            Command::ResetWear { driveline, origin } => {
+                let Some(analyzer) = self.drivelines.get_mut(driveline) else {
+                    tracing::warn!(driveline, "wear reset of a driveline that does not exist");
+                    return;
+                };
+                tracing::info!(driveline = %self.board.driveline_names()[driveline], by = origin.name(), peer = ?origin.peer(), "wear reset");
+                analyzer.reset_gap_pool();
+                self.board.reset_wear(driveline, origin);
             }
         }
+    }
+
+    /// Handle one message from a reader; returns the bites it completed.
+    pub fn handle(&mut self, message: Acquired) -> Vec<BiteReport> {
         self.chatter.handle(&message);
         self.rod_mills.handle(&message);
         let mut reports = Vec::new();
@@ -207,7 +217,7 @@ impl Analysis {
             }
         }
         for report in &reports {
-            self.drivelines[report.driveline].publish(&self.publisher, report);
+            self.drivelines[report.driveline].publish(&self.board, report);
             tracing::info!(
                 driveline = %report.driveline_name,
                 static_knm = report.transient.static_torque_knm,
@@ -230,20 +240,28 @@ impl Analysis {
     }
 
     /// Run until every sender of `samples` is dropped, installing gap maps as they
-    /// arrive on `maps`, and counting each turn of the loop (a message handled, or
-    /// [`ANALYSIS_TICK`] without one) in `liveness`: a watchdog sees a stuck analysis
-    /// as turns that stop.
+    /// arrive on `maps`, applying commands as they arrive on `commands` (in order with
+    /// the samples: a command given before a bite is in effect at that bite), and
+    /// counting each turn of the loop (a message handled, or [`ANALYSIS_TICK`] without
+    /// one) in `liveness`: a watchdog sees a stuck analysis as turns that stop.
     pub async fn run(
         mut self,
         mut samples: mpsc::Receiver<Acquired>,
         mut maps: mpsc::Receiver<GapMapsReady>,
+        mut commands: CommandReceiver,
         liveness: Arc<Liveness>,
     ) {
         let mut idle = tokio::time::interval(ANALYSIS_TICK);
         idle.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         let mut maps_open = true;
+        let mut commands_open = true;
         loop {
             tokio::select! {
+                biased;
+                command = commands.recv(), if commands_open => match command {
+                    Some(command) => self.command(command),
+                    None => commands_open = false,
+                },
                 message = samples.recv() => match message {
                     Some(message) => {
                         self.handle(message);

@@ -3,7 +3,7 @@
 //!
 //! A `[[rod_mills]]` entry names the rod-mill file, the pass schedule and four PLC
 //! process values, read like every other process value by the Modbus reader
-//! ([`crate::field::daq_reader`]): the active drive configuration (value k selects
+//! ([`crate::field::modbus`]): the active drive configuration (value k selects
 //! `configurations[k]`), the pass number (1-based row of the schedule, which gives
 //! the rod diameters and, without a temperature channel, the rod temperature), the
 //! finishing speed (m/s) and optionally the rod temperature (deg C).
@@ -29,8 +29,8 @@
 //!   are published invalid (quality 0, "invalid" bit), the error is logged once with
 //!   the key, the value and the allowed range, and the monitor carries on with the
 //!   next value. The hysteresis state restarts after invalid input.
-//! - **Stale inputs**: when the source of any input is stale or lost, the publisher
-//!   marks the mill stale ([`crate::outputs::publisher::Publisher`]): every span is
+//! - **Stale inputs**: when the source of any input is stale or lost, the board
+//!   marks the mill stale ([`crate::state::board::Board`]): every span is
 //!   published invalid until the source answers again, never with frozen values.
 
 use std::collections::BTreeMap;
@@ -43,11 +43,8 @@ use millgate_sim::rod::schedule::{self, Pass};
 use millgate_sim::rod::RodError;
 
 use crate::field::acquired::Acquired;
-use crate::outputs::publisher::Publisher;
-use crate::outputs::results::{RodMillResults, RodSpanResults};
-
-/// Spans of one rod mill the register map has room for (a 12-stand block).
-pub const MAX_ROD_SPANS: usize = 11;
+use crate::state::board::Board;
+use crate::state::results::{RodMillResults, RodSpanResults, MAX_ROD_SPANS};
 /// Most pass setups cached per rod mill; the cache is emptied when a new key would
 /// pass it (passes x configurations x temperature steps actually seen).
 pub const MAX_CACHED_SETUPS: usize = 64;
@@ -527,19 +524,16 @@ impl RodMonitor {
 #[derive(Debug)]
 pub struct RodAnalysis {
     monitors: Vec<RodMonitor>,
-    publisher: Arc<Publisher>,
+    board: Arc<Board>,
 }
 
 impl RodAnalysis {
     /// Monitors for every rod mill of `config`.
-    pub fn new(config: &Config, publisher: Arc<Publisher>) -> Result<Self, RodSetupError> {
+    pub fn new(config: &Config, board: Arc<Board>) -> Result<Self, RodSetupError> {
         let monitors = (0..config.rod_mills.len())
             .map(|index| RodMonitor::new(config, index))
             .collect::<Result<_, _>>()?;
-        Ok(Self {
-            monitors,
-            publisher,
-        })
+        Ok(Self { monitors, board })
     }
 
     /// The monitors, in config order.
@@ -554,7 +548,7 @@ impl RodAnalysis {
         };
         for (index, monitor) in self.monitors.iter_mut().enumerate() {
             if let Some(results) = monitor.process_value(channel, value) {
-                self.publisher.update(|published| {
+                self.board.update(|published| {
                     if let Some(slot) = published.rod_mills.get_mut(index) {
                         *slot = results;
                     }

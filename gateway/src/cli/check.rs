@@ -1,9 +1,15 @@
-//! `millgate check --config FILE`: validate a configuration, build everything the
-//! service builds from it, and describe it.
+//! `millgate check --config FILE [--format text|json]`: validate a configuration,
+//! build everything the service builds from it, and describe it.
+//!
+//! `--format json` prints one JSON document on stdout whether the file passes or not
+//! ([`report_json`]), for CI: `{"file", "ok", "summary", "problems", "warnings"}`, each
+//! problem and warning `{"file", "key", "message", "text"}`; the exit code is the
+//! text format's (0 valid, with or without warnings; 1 with problems).
 
 use std::path::Path;
 
 use millgate_config::ConfigError;
+use serde::Serialize;
 
 use crate::service::{Service, ServiceError};
 
@@ -52,6 +58,17 @@ pub enum CheckError {
 /// }
 /// ```
 pub fn check(path: &Path) -> Result<String, CheckError> {
+    let (summary, warnings) = inspect(path)?;
+    let mut report = format!("{}: OK\n{summary}", path.display());
+    for warning in warnings {
+        report.push_str(&format!("warning: {}: {warning}\n", path.display()));
+    }
+    Ok(report)
+}
+
+/// The configuration at `path` loaded and built as `run` builds it: its summary and
+/// the warnings (each `<key path>: <what>`), or what is wrong.
+fn inspect(path: &Path) -> Result<(String, Vec<String>), CheckError> {
     let config = millgate_config::load(path)?;
     let summary = millgate_config::summary(&config);
     let file = path.display().to_string();
@@ -62,11 +79,124 @@ pub fn check(path: &Path) -> Result<String, CheckError> {
             source: Box::new(source),
         },
     })?;
-    let mut report = format!("{}: OK\n{summary}", path.display());
-    for warning in service.warnings() {
-        report.push_str(&format!("warning: {}: {warning}\n", path.display()));
+    Ok((summary, service.warnings()))
+}
+
+/// One problem or warning of [`report_json`].
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct Finding {
+    /// The configuration file as given (or the model file a problem is in, as the
+    /// configuration names it).
+    pub file: String,
+    /// The key path (`drivelines[0].torque`, `outputs.plc.register_base`), or the
+    /// line and column of malformed TOML; `None` for a problem of no one key (a
+    /// listener that cannot bind).
+    pub key: Option<String>,
+    /// What is wrong and what is allowed.
+    pub message: String,
+    /// The line the text format prints: `<file>: <key>: <message>`.
+    pub text: String,
+}
+
+impl Finding {
+    /// A finding of `file` from a `<key path>: <message>` line (as the service's
+    /// errors and warnings read); a line that does not start with a key path is all
+    /// message.
+    fn from_line(file: &str, line: &str) -> Self {
+        let (key, message) = match line.split_once(": ") {
+            Some((key, message)) if is_key_path(key) => (Some(key.to_owned()), message),
+            _ => (None, line),
+        };
+        Finding {
+            file: file.to_owned(),
+            key,
+            message: message.to_owned(),
+            text: format!("{file}: {line}"),
+        }
     }
-    Ok(report)
+}
+
+/// Whether `text` reads as a key path: `drivelines[0].wear.couplings[1]`, or a list
+/// of them (`drivelines, tandem_mills`).
+fn is_key_path(text: &str) -> bool {
+    text.split(", ").all(|key| {
+        key.starts_with(|c: char| c.is_ascii_alphabetic())
+            && key
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || "_.[]".contains(c))
+    })
+}
+
+/// The document `millgate check --format json` prints.
+#[derive(Debug, Serialize)]
+struct JsonReport {
+    file: String,
+    ok: bool,
+    summary: Option<String>,
+    problems: Vec<Finding>,
+    warnings: Vec<Finding>,
+}
+
+/// What [`check`] finds, as one JSON document (pretty-printed) and whether the file
+/// passed (the exit code: 0 when it did). Problems keep the key and the message
+/// apart.
+///
+/// ```no_run
+/// let (json, ok) = millgate::cli::check::report_json(std::path::Path::new("mill.toml"));
+/// println!("{json}");
+/// std::process::exit(if ok { 0 } else { 1 });
+/// ```
+pub fn report_json(path: &Path) -> (String, bool) {
+    let file = path.display().to_string();
+    let report = match inspect(path) {
+        Ok((summary, warnings)) => JsonReport {
+            ok: true,
+            summary: Some(summary),
+            problems: Vec::new(),
+            warnings: warnings
+                .iter()
+                .map(|warning| Finding::from_line(&file, warning))
+                .collect(),
+            file,
+        },
+        Err(error) => JsonReport {
+            ok: false,
+            summary: None,
+            problems: findings(&file, &error),
+            warnings: Vec::new(),
+            file,
+        },
+    };
+    let ok = report.ok;
+    (
+        serde_json::to_string_pretty(&report).unwrap_or_default(),
+        ok,
+    )
+}
+
+/// The problems of `error`, one per line of its text.
+fn findings(file: &str, error: &CheckError) -> Vec<Finding> {
+    match error {
+        CheckError::Config(error) => error
+            .problems
+            .iter()
+            .map(|problem| Finding {
+                file: problem.file.clone(),
+                key: (!problem.key.is_empty()).then(|| problem.key.clone()),
+                message: problem.message.clone(),
+                text: problem.to_string(),
+            })
+            .collect(),
+        CheckError::Service { source, .. } => source
+            .to_string()
+            .lines()
+            .map(|line| Finding::from_line(file, line))
+            .collect(),
+        CheckError::Wear { problems, .. } => problems
+            .iter()
+            .map(|problem| Finding::from_line(file, problem))
+            .collect(),
+    }
 }
 
 #[cfg(test)]
@@ -268,6 +398,34 @@ mod tests {
         let result = check(&path);
         std::fs::remove_dir_all(&directory).expect("remove the temporary directory");
         result
+    }
+
+    #[test]
+    fn a_service_problem_line_keeps_its_key_apart_when_it_starts_with_one() {
+        let finding = Finding::from_line(
+            "mill.toml",
+            "drivelines[0].wear.couplings[1]: 3 is not allowed (must be 0 ..= 1)",
+        );
+        assert_eq!(
+            finding.key.as_deref(),
+            Some("drivelines[0].wear.couplings[1]")
+        );
+        assert_eq!(finding.message, "3 is not allowed (must be 0 ..= 1)");
+        assert_eq!(
+            finding.text,
+            "mill.toml: drivelines[0].wear.couplings[1]: 3 is not allowed (must be 0 ..= 1)"
+        );
+        let listed = Finding::from_line("m.toml", "drivelines, tandem_mills: too many registers");
+        assert_eq!(listed.key.as_deref(), Some("drivelines, tandem_mills"));
+        let sentence = Finding::from_line(
+            "m.toml",
+            "cannot bind the metrics endpoint to 127.0.0.1:9187: Address in use",
+        );
+        assert_eq!(sentence.key, None);
+        assert_eq!(
+            sentence.message,
+            "cannot bind the metrics endpoint to 127.0.0.1:9187: Address in use"
+        );
     }
 
     #[test]

@@ -23,8 +23,8 @@ use millgate_sim::devices::demo::{
 };
 
 use crate::outputs::history::query::HistoryReader;
-use crate::outputs::history::time::UtcTime;
 use crate::outputs::register_map::RegisterMap;
+use crate::state::time::UtcTime;
 
 /// Arguments of `millgate demo`.
 #[derive(Debug, Clone, clap::Args)]
@@ -176,8 +176,10 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         plc_output_address(&config),
         args.duration
     );
-    let mut gateway = crate::Service::new(config.clone())?.spawn().await?;
-    let publisher = gateway.publisher();
+    let service = crate::Service::new(config.clone())?;
+    let map = service.register_map();
+    let mut gateway = service.spawn().await?;
+    let board = gateway.board();
     let history = gateway.history().clone();
     if let Some(web) = gateway.bound().web {
         println!("maintenance page: http://{web}/");
@@ -257,7 +259,7 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         "{printed} bites analysed in {:.1} s",
         started.elapsed().as_secs_f64()
     );
-    let last = publisher.results().drivelines[0].clone();
+    let last = board.results().drivelines[0].clone();
     println!(
         "history: {} ({} events stored; bite counter {}, wear trend {}; \
          `millgate history --db FILE`, `millgate report --db FILE --out DIR` read it)",
@@ -267,14 +269,9 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         last.wear_trend
             .map_or_else(|| "none".to_owned(), |trend| format!("{trend:.4}"))
     );
-    print_registers(publisher.map(), &live);
+    print_registers(&map, &live);
     let status = crate::outputs::register_map::Field::GatewayStatus;
-    if let Some(register) = publisher
-        .map()
-        .registers()
-        .iter()
-        .find(|r| r.field == status)
-    {
+    if let Some(register) = map.registers().iter().find(|r| r.field == status) {
         println!(
             "after shutdown: gateway_status = {:#06b} (bit1 stopped; values flagged, no longer fresh)",
             after_stop[usize::from(register.address)]

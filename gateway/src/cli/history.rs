@@ -9,14 +9,20 @@
 //! Times are UTC: an ISO-8601 date or date and time, or Unix seconds
 //! ([`UtcTime::parse`]); `--since` is inclusive, `--until` exclusive. The columns are
 //! the table's ([`crate::outputs::history::query`]), in the same order in every format.
+//!
+//! The rows are written as they are read, so a year of bites (4 million rows) takes
+//! the memory of one; progress goes to stderr when it is a terminal
+//! ([`crate::cli::progress`]).
 
+use std::io::Write;
 use std::path::PathBuf;
 
-use crate::cli::registers::{csv_field, Format};
+use crate::cli::progress::{percent, Progress};
+use crate::cli::registers::csv_field;
 use crate::outputs::history::query::{
     AlarmRow, BiteRow, ChatterRow, Filter, HistoryReader, OutageRow, Record, RunRow, WearRow,
 };
-use crate::outputs::history::time::UtcTime;
+use crate::state::time::UtcTime;
 
 /// What to export.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -33,6 +39,17 @@ pub enum Kind {
     Chatter,
     /// Gateway starts and stops.
     Runs,
+}
+
+/// Output format of the export.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Format {
+    /// CSV: a header line of the columns, then one line per row.
+    Csv,
+    /// A JSON array, one object per row with the columns as keys.
+    Json,
+    /// A Markdown table: a header of the columns, then one line per row.
+    Md,
 }
 
 /// Arguments of `millgate history`.
@@ -71,8 +88,35 @@ pub fn parse_time(option: &str, text: Option<&str>) -> anyhow::Result<Option<Utc
         .transpose()
 }
 
-/// The export `args` ask for.
-pub fn run(args: &HistoryArgs) -> anyhow::Result<String> {
+/// The export `args` ask for, written to stdout as the rows are read (the memory of
+/// one row, whatever the file's size), with progress on stderr when it is a terminal
+/// ([`Progress`]). A closed stdout (`millgate history ... | head`) ends the export
+/// quietly.
+pub fn run(args: &HistoryArgs) -> anyhow::Result<()> {
+    let stdout = std::io::stdout().lock();
+    match export(args, std::io::BufWriter::with_capacity(1 << 16, stdout)) {
+        Err(error) if is_broken_pipe(&error) => Ok(()),
+        other => other,
+    }
+}
+
+/// Whether `error` is a write to a closed pipe (directly or through serde_json).
+fn is_broken_pipe(error: &anyhow::Error) -> bool {
+    let broken = Some(std::io::ErrorKind::BrokenPipe);
+    error.chain().any(|cause| {
+        cause
+            .downcast_ref::<std::io::Error>()
+            .map(std::io::Error::kind)
+            == broken
+            || cause
+                .downcast_ref::<serde_json::Error>()
+                .and_then(serde_json::Error::io_error_kind)
+                == broken
+    })
+}
+
+/// The export `args` ask for, written to `out`.
+pub fn export(args: &HistoryArgs, out: impl Write) -> anyhow::Result<()> {
     let name = match (args.kind, &args.driveline, &args.source) {
         (Kind::Outages, Some(_), _) => {
             anyhow::bail!("--driveline does not apply to outages (use --source NAME)")
@@ -92,57 +136,78 @@ pub fn run(args: &HistoryArgs) -> anyhow::Result<String> {
         limit: args.limit,
     };
     let reader = HistoryReader::open(&args.db)?;
-    Ok(match args.kind {
-        Kind::Bites => export::<BiteRow>(&reader, &filter, args.format)?,
-        Kind::Wear => export::<WearRow>(&reader, &filter, args.format)?,
-        Kind::Alarms => export::<AlarmRow>(&reader, &filter, args.format)?,
-        Kind::Outages => export::<OutageRow>(&reader, &filter, args.format)?,
-        Kind::Chatter => export::<ChatterRow>(&reader, &filter, args.format)?,
-        Kind::Runs => export::<RunRow>(&reader, &filter, args.format)?,
-    })
+    match args.kind {
+        Kind::Bites => write_rows::<BiteRow>(&reader, &filter, args.format, out),
+        Kind::Wear => write_rows::<WearRow>(&reader, &filter, args.format, out),
+        Kind::Alarms => write_rows::<AlarmRow>(&reader, &filter, args.format, out),
+        Kind::Outages => write_rows::<OutageRow>(&reader, &filter, args.format, out),
+        Kind::Chatter => write_rows::<ChatterRow>(&reader, &filter, args.format, out),
+        Kind::Runs => write_rows::<RunRow>(&reader, &filter, args.format, out),
+    }
 }
 
-fn export<R: Record>(
+/// The rows of `R` that pass `filter`, as read, in `format` to `out`: a CSV (header
+/// line first), a JSON array (one object per line) or a Markdown table.
+fn write_rows<R: Record>(
     reader: &HistoryReader,
     filter: &Filter,
     format: Format,
-) -> anyhow::Result<String> {
-    let rows: Vec<R> = reader.rows(filter)?;
-    Ok(format_rows(&rows, format))
-}
-
-/// `rows` as a CSV (header line first), a JSON array of objects, or a Markdown table.
-pub fn format_rows<R: Record>(rows: &[R], format: Format) -> String {
+    mut out: impl Write,
+) -> anyhow::Result<()> {
+    let mut progress = Progress::on_terminal();
+    let total = reader.count::<R>(filter)?;
     match format {
-        Format::Json => serde_json::to_string_pretty(rows).unwrap_or_default() + "\n",
-        Format::Csv => {
-            let mut out = R::COLUMNS.join(",") + "\n";
-            for row in rows {
+        Format::Json => out.write_all(b"[")?,
+        Format::Csv => writeln!(out, "{}", R::COLUMNS.join(","))?,
+        Format::Md => writeln!(
+            out,
+            "| {} |\n|{}",
+            R::COLUMNS.join(" | "),
+            "---|".repeat(R::COLUMNS.len())
+        )?,
+    }
+    let mut written: u64 = 0;
+    reader.for_each(filter, |row: R| -> anyhow::Result<()> {
+        match format {
+            Format::Json => {
+                out.write_all(if written == 0 { b"\n" } else { b",\n" })?;
+                serde_json::to_writer(&mut out, &row)?;
+            }
+            Format::Csv => {
                 let cells: Vec<String> = row
                     .cells()
                     .iter()
                     .map(|cell| csv_field(&cell.to_string()))
                     .collect();
-                out += &cells.join(",");
-                out.push('\n');
+                writeln!(out, "{}", cells.join(","))?;
             }
-            out
-        }
-        Format::Md => {
-            let mut out = format!(
-                "| {} |\n|{}\n",
-                R::COLUMNS.join(" | "),
-                "---|".repeat(R::COLUMNS.len())
-            );
-            for row in rows {
+            Format::Md => {
                 let cells: Vec<String> = row
                     .cells()
                     .iter()
                     .map(|cell| cell.to_string().replace('|', "\\|"))
                     .collect();
-                out += &format!("| {} |\n", cells.join(" | "));
+                writeln!(out, "| {} |", cells.join(" | "))?;
             }
-            out
         }
+        written += 1;
+        progress.update(|| {
+            format!(
+                "history: {written} of {total} rows of {} ({:.0}%)",
+                R::TABLE,
+                percent(written, total)
+            )
+        });
+        Ok(())
+    })?;
+    if format == Format::Json {
+        out.write_all(if written == 0 { b"]\n" } else { b"\n]\n" })?;
     }
+    out.flush()?;
+    progress.finish(&format!(
+        "history: {written} rows of {} in {:.1} s",
+        R::TABLE,
+        progress.elapsed_s()
+    ));
+    Ok(())
 }

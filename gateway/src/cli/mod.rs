@@ -2,8 +2,9 @@
 //! module with its arguments (a clap `Args` struct) and a `run` returning what to print;
 //! `main` parses the command line and prints.
 //!
-//! - `millgate check --config FILE`: [`check`]
+//! - `millgate check --config FILE [--format text|json]`: [`check`]
 //! - `millgate registers --config FILE --format md|csv|json`: [`registers`]
+//! - `millgate figures --format md|csv|json`: [`figures`]
 //! - `millgate analyze --input FILE.csv [--channel NAME] [--window START,END] [--format text|json]`:
 //!   [`analyze`] (CSV reading in [`csv`])
 //! - `millgate stiffness --inertia Q1,Q2,Q3 (--freq B1,B2 | --stiffness C12,C23)
@@ -25,6 +26,8 @@
 //! - `millgate history --db FILE [--kind K] [--driveline NAME] [--since T] [--until T]
 //!   --format csv|json|md`: [`history`]
 //! - `millgate report --db FILE --out DIR [--since T] [--until T]`: `report`
+//! - `millgate completions SHELL`, `millgate man [--out DIR]`: [`shell`] (and the
+//!   exit status of every command)
 //!
 //! `discrepancy`, `sim`, `rod` and `demo` come with the default `sim-tools` feature (they
 //! need the simulator's virtual devices or plots); `report` with `plot` (part of
@@ -38,12 +41,15 @@ pub mod csv;
 pub mod demo;
 #[cfg(feature = "sim-tools")]
 pub mod discrepancy;
+pub mod figures;
 pub mod history;
+pub mod progress;
 pub mod registers;
 #[cfg(feature = "plot")]
 pub mod report;
 #[cfg(feature = "sim-tools")]
 pub mod rod;
+pub mod shell;
 #[cfg(feature = "sim-tools")]
 pub mod sim;
 pub mod stiffness;

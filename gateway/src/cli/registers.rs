@@ -1,5 +1,11 @@
 //! `millgate registers`: the register map as Markdown, CSV or JSON, from the same
 //! table the gateway encodes with ([`crate::outputs::register_map`]).
+//!
+//! Addresses are Modbus PDU addresses, 0-based (the number in the request frame): the
+//! map's own offsets, which the HMI server serves them at, and, with a PLC output, the
+//! holding registers written in the PLC (`outputs.plc.register_base` + offset). A tool
+//! that counts from 1 (the Modicon 4xxxx notation, mbpoll without `-0`) shows
+//! address 0 as register 1 (40001).
 
 use millgate_config::{ValueType, WordOrder};
 use serde::Serialize;
@@ -21,6 +27,8 @@ pub enum Format {
 struct Row<'a> {
     name: &'a str,
     address: u16,
+    /// `register_base + address` in the PLC; `None` without a PLC output.
+    plc_address: Option<u32>,
     #[serde(rename = "type")]
     value_type: &'static str,
     scale: f64,
@@ -51,10 +59,11 @@ pub fn word_order_name(order: WordOrder) -> &'static str {
     }
 }
 
-fn rows(map: &RegisterMap) -> impl Iterator<Item = Row<'_>> {
-    map.registers().iter().map(|r| Row {
+fn rows(map: &RegisterMap, plc_base: Option<u16>) -> impl Iterator<Item = Row<'_>> {
+    map.registers().iter().map(move |r| Row {
         name: &r.name,
         address: r.address,
+        plc_address: plc_base.map(|base| u32::from(base) + u32::from(r.address)),
         value_type: type_name(r.value_type),
         scale: r.scale,
         word_order: word_order_name(r.word_order),
@@ -74,21 +83,26 @@ pub(crate) fn csv_field(text: &str) -> String {
     }
 }
 
-/// The map of `map` in `format`, addresses as offsets from the map's base.
-pub fn export(map: &RegisterMap, format: Format) -> String {
+/// The map of `map` in `format`: each register's offset from the map's start (the
+/// HMI server's address) and, with `plc_base` (`outputs.plc.register_base`), its
+/// address in the PLC; both 0-based PDU addresses.
+pub fn export(map: &RegisterMap, plc_base: Option<u16>, format: Format) -> String {
+    let plc = |row: &Row<'_>| row.plc_address.map_or(String::new(), |a| a.to_string());
     match format {
         Format::Json => {
-            let rows: Vec<Row<'_>> = rows(map).collect();
+            let rows: Vec<Row<'_>> = rows(map, plc_base).collect();
             serde_json::to_string_pretty(&rows).unwrap_or_default() + "\n"
         }
         Format::Csv => {
-            let mut out =
-                String::from("name,address,type,scale,word_order,unit,access,description\n");
-            for row in rows(map) {
+            let mut out = String::from(
+                "name,address,plc_address,type,scale,word_order,unit,access,description\n",
+            );
+            for row in rows(map, plc_base) {
                 out += &format!(
-                    "{},{},{},{},{},{},{},{}\n",
+                    "{},{},{},{},{},{},{},{},{}\n",
                     csv_field(row.name),
                     row.address,
+                    plc(&row),
                     row.value_type,
                     row.scale,
                     row.word_order,
@@ -101,14 +115,15 @@ pub fn export(map: &RegisterMap, format: Format) -> String {
         }
         Format::Md => {
             let mut out = String::from(
-                "| address | hex | name | type | unit | scale | word order | access | description |\n\
-                 |---|---|---|---|---|---|---|---|---|\n",
+                "| address | hex | PLC address | name | type | unit | scale | word order | access | description |\n\
+                 |---|---|---|---|---|---|---|---|---|---|\n",
             );
-            for row in rows(map) {
+            for row in rows(map, plc_base) {
                 out += &format!(
-                    "| {} | 0x{:04X} | {} | {} | {} | {} | {} | {} | {} |\n",
+                    "| {} | 0x{:04X} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
                     row.address,
                     row.address,
+                    row.plc_address.map_or("-".to_owned(), |a| a.to_string()),
                     row.name,
                     row.value_type,
                     row.unit.replace('*', "\\*"),

@@ -20,9 +20,9 @@ use super::{csv, OutputFormat};
 use crate::analysis::bite_window::analyze_window;
 use crate::analysis::driveline::BiteSetup;
 use crate::analysis::gap_estimate::{estimate, GapEstimate, GapObservation};
-use crate::analysis::gap_map::{GapMapSpec, GapMaps};
 use crate::analysis::gap_map_cache;
 use crate::analysis::gap_monitor::{GapMapJob, MapsOrigin};
+use crate::state::gap_maps::{GapMapSpec, GapMaps};
 
 /// Capture before the trigger, s (the configuration's default).
 const PRE_TRIGGER_S: f64 = 0.1;

@@ -6,7 +6,6 @@ pub mod acquired;
 pub(crate) mod backoff;
 pub mod can;
 pub mod counters;
-pub mod daq_reader;
-pub mod modbus_client;
+pub mod modbus;
 pub mod quality;
 pub mod source_health;

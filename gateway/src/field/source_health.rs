@@ -1,6 +1,6 @@
 //! Liveness of acquisition sources ([`SourceHealth`]): when each last answered and
 //! whether it is connected, from which its [`SourceStatus`] (ok, stale, lost) follows.
-//! Readers report into it; the register map, the publisher and `/metrics` read it.
+//! Readers report into it; the register map, the board and `/metrics` read it.
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};

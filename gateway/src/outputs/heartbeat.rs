@@ -5,19 +5,19 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use crate::outputs::publisher::Publisher;
 use crate::shutdown::Shutdown;
+use crate::state::board::Board;
 
 /// Heartbeat period when no PLC output sets it (the server's HMIs still watch it).
 pub(crate) const HEARTBEAT_WITHOUT_PLC: Duration = Duration::from_secs(1);
 
 /// Moves the heartbeat every [`HEARTBEAT_WITHOUT_PLC`] until shutdown: without a
 /// PLC writer nothing else would, and an HMI would take the gateway for dead.
-pub(crate) async fn beat_without_plc(publisher: Arc<Publisher>, mut shutdown: Shutdown) {
+pub(crate) async fn beat_without_plc(board: Arc<Board>, mut shutdown: Shutdown) {
     let mut ticks = tokio::time::interval(HEARTBEAT_WITHOUT_PLC);
     loop {
         tokio::select! {
-            _ = ticks.tick() => publisher.beat(),
+            _ = ticks.tick() => board.beat(),
             () = shutdown.recv() => break,
         }
     }

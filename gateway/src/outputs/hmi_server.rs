@@ -8,10 +8,13 @@
 //! exception 03; other function codes exception 01. The framing and every answer are
 //! in [`crate::outputs::modbus_frame`].
 //!
-//! Commands: `command.acknowledge_alarms` takes 0 (nothing) or 1 (clear latched
-//! alarms); `command.reset_wear_trend` takes a bitmask of drivelines (bit k = the
-//! k-th driveline in config order, 0 = nothing) and refuses bits of drivelines that
-//! do not exist. Both read back 0. Only loopback clients may write them unless
+//! Commands, handed to the analysis on its command channel: `command.acknowledge_alarms`
+//! takes 0 (nothing) or 1 (clear latched alarms); `command.reset_wear_trend` takes a
+//! bitmask of the first 16 drivelines (bit k = the k-th driveline in config order, 0 =
+//! nothing) and refuses bits of drivelines that do not exist; `command.reset_wear` takes
+//! a driveline's number (1-based, any count of drivelines). All read back 0. A command
+//! the analysis cannot take now gets exception 06 (busy), and 04 while the gateway
+//! stops. Only loopback clients may write them unless
 //! `allow_remote_commands` is set (the registers need no authentication). The
 //! history records who sent a command: the PLC when the client's address is the
 //! configured PLC's, an HMI otherwise.
@@ -34,10 +37,9 @@ use tokio::sync::Semaphore;
 use tokio::task::JoinSet;
 
 use crate::outputs::accept::AcceptFailures;
-use crate::outputs::history::events::CommandOrigin;
-use crate::outputs::modbus_frame::{self, Policy, Reply, MAX_FRAME_LEN};
-use crate::outputs::publisher::Publisher;
+use crate::outputs::modbus_frame::{self, Policy, Reply, Served, MAX_FRAME_LEN};
 use crate::shutdown::Shutdown;
+use crate::state::commands::CommandOrigin;
 use crate::warn_limit::{WarnLimit, WARN_PERIOD};
 
 /// Time a request may take from its first byte to its last.
@@ -121,22 +123,18 @@ pub fn exposure_warning(output: &ServerOutput) -> Option<String> {
 #[derive(Debug)]
 pub struct ModbusServer {
     output: ServerOutput,
-    publisher: Arc<Publisher>,
+    served: Served,
     counters: Arc<ServerCounters>,
     plc_address: Option<String>,
 }
 
 impl ModbusServer {
-    /// A server of `publisher`'s map with the settings of `output`, counting into
-    /// `counters`.
-    pub fn new(
-        output: ServerOutput,
-        publisher: Arc<Publisher>,
-        counters: Arc<ServerCounters>,
-    ) -> Self {
+    /// A server of `served` (its map, the board it encodes, where commands go) with
+    /// the settings of `output`, counting into `counters`.
+    pub fn new(output: ServerOutput, served: Served, counters: Arc<ServerCounters>) -> Self {
         Self {
             output,
-            publisher,
+            served,
             counters,
             plc_address: None,
         }
@@ -184,7 +182,7 @@ impl ModbusServer {
             };
             count(&self.counters.connections);
             let connection = Connection {
-                publisher: Arc::clone(&self.publisher),
+                served: self.served.clone(),
                 counters: Arc::clone(&self.counters),
                 policy: Policy {
                     unit_id: self.output.unit_id,
@@ -211,7 +209,7 @@ impl ModbusServer {
 
 /// One client's connection.
 struct Connection {
-    publisher: Arc<Publisher>,
+    served: Served,
     counters: Arc<ServerCounters>,
     policy: Policy,
     idle_timeout: Duration,
@@ -241,7 +239,7 @@ impl Connection {
                 match modbus_frame::frame_len(&buffer[..filled]) {
                     Ok(Some(len)) => {
                         let reply =
-                            modbus_frame::respond(&self.publisher, self.policy, &buffer[..len]);
+                            modbus_frame::respond(&self.served, self.policy, &buffer[..len]);
                         buffer.copy_within(len..filled, 0);
                         filled -= len;
                         frame_started = None;

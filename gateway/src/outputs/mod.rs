@@ -1,19 +1,20 @@
-//! Outputs: the latest results, the register map that encodes them, and the tasks
-//! that publish it: the PLC writer, the HMI Modbus server and the Prometheus metrics
-//! (and the heartbeat's own task when there is no PLC); the event history that keeps
-//! them across restarts; the maintenance web page.
+//! Outputs: the register map and the tasks that publish the board's results: the PLC
+//! writer, the HMI Modbus server, the Prometheus metrics (and the heartbeat's own task
+//! when there is no PLC), the event history that keeps them across restarts, the
+//! Sparkplug B edge node and the maintenance web page. Each names the figures as the
+//! catalogue does ([`crate::state::catalogue`]); [`figures`] renders the table of
+//! every output's name and type for each figure.
 
 pub(crate) mod accept;
+pub mod figures;
 pub(crate) mod heartbeat;
 pub mod history;
 pub mod hmi_server;
-pub mod http_head;
+pub mod http;
 pub mod metrics;
 pub mod modbus_frame;
 pub mod plc_writer;
-pub mod publisher;
 pub mod register_map;
-pub mod results;
 pub mod sparkplug;
 pub mod web;
 

@@ -27,9 +27,11 @@
 //! | FC 06 / 16 from another host without `allow_remote_commands` | exception 01 |
 //! | any other function code | exception 01 |
 
-use crate::outputs::history::events::CommandOrigin;
-use crate::outputs::publisher::Publisher;
-use crate::outputs::register_map::{Access, Field};
+use std::sync::Arc;
+
+use crate::outputs::register_map::{Access, Field, RegisterMap};
+use crate::state::board::Board;
+use crate::state::commands::{Command, CommandOrigin, CommandRefused, CommandSender};
 
 /// Bytes of the MBAP header: transaction id, protocol id, length, unit id.
 pub const MBAP_HEADER_LEN: usize = 7;
@@ -58,6 +60,10 @@ pub enum Exception {
     IllegalDataAddress = 0x02,
     /// 03: a malformed request (quantity, byte count, length) or a bad command value.
     IllegalDataValue = 0x03,
+    /// 04: the command cannot be carried out: the gateway is stopping.
+    ServerDeviceFailure = 0x04,
+    /// 06: the analysis has too many commands waiting; the client may try again.
+    ServerDeviceBusy = 0x06,
     /// 0B: nothing answers behind this unit id.
     GatewayTargetFailedToRespond = 0x0B,
 }
@@ -127,9 +133,21 @@ pub fn exception_code(reply: &[u8]) -> Option<u8> {
     (reply.len() == MBAP_HEADER_LEN + 2 && reply[7] & 0x80 != 0).then(|| reply[8])
 }
 
+/// What the server answers from: its register map, the board the map encodes, and
+/// where the command registers' writes go.
+#[derive(Debug, Clone)]
+pub struct Served {
+    /// The register map served.
+    pub map: Arc<RegisterMap>,
+    /// The results it encodes.
+    pub board: Arc<Board>,
+    /// The analysis' commands.
+    pub commands: CommandSender,
+}
+
 /// Answer one whole frame (`frame_len` said so) against the published map. Pure
-/// apart from the command side effects on `publisher`.
-pub fn respond(publisher: &Publisher, policy: Policy, frame: &[u8]) -> Reply {
+/// apart from the commands sent to the analysis.
+pub fn respond(served: &Served, policy: Policy, frame: &[u8]) -> Reply {
     let (header, pdu) = frame.split_at(MBAP_HEADER_LEN);
     let unit = header[6];
     if unit == BROADCAST_UNIT {
@@ -139,7 +157,7 @@ pub fn respond(publisher: &Publisher, policy: Policy, frame: &[u8]) -> Reply {
     let answer = if unit != policy.unit_id && unit != ANY_UNIT {
         Err(Exception::GatewayTargetFailedToRespond)
     } else {
-        answer(publisher, policy, function, &pdu[1..])
+        answer(served, policy, function, &pdu[1..])
     };
     let body = match answer {
         Ok(data) => [&[function][..], &data].concat(),
@@ -159,7 +177,7 @@ fn be(bytes: &[u8], at: usize) -> u16 {
 
 /// The response data after the function code, or the exception.
 fn answer(
-    publisher: &Publisher,
+    served: &Served,
     policy: Policy,
     function: u8,
     data: &[u8],
@@ -173,7 +191,7 @@ fn answer(
             if count == 0 || count > MAX_READ_REGISTERS {
                 return Err(Exception::IllegalDataValue);
             }
-            let words = read(publisher, address, count)?;
+            let words = read(served, address, count)?;
             let mut response = vec![(2 * words.len()) as u8];
             response.extend(words.iter().flat_map(|word| word.to_be_bytes()));
             Ok(response)
@@ -185,7 +203,7 @@ fn answer(
             if !policy.commands_allowed {
                 return Err(Exception::IllegalFunction);
             }
-            write(publisher, be(data, 0), &[be(data, 2)], policy.origin)?;
+            write(served, be(data, 0), &[be(data, 2)], policy.origin)?;
             Ok(data.to_vec())
         }
         0x10 => {
@@ -204,15 +222,15 @@ fn answer(
                 return Err(Exception::IllegalFunction);
             }
             let values: Vec<u16> = data[5..].chunks_exact(2).map(|w| be(w, 0)).collect();
-            write(publisher, address, &values, policy.origin)?;
+            write(served, address, &values, policy.origin)?;
             Ok(data[..4].to_vec())
         }
         _ => Err(Exception::IllegalFunction),
     }
 }
 
-fn read(publisher: &Publisher, address: u16, count: u16) -> Result<Vec<u16>, Exception> {
-    let words = publisher.words();
+fn read(served: &Served, address: u16, count: u16) -> Result<Vec<u16>, Exception> {
+    let words = served.map.encode(&served.board.results());
     let start = usize::from(address);
     words
         .get(start..start + usize::from(count))
@@ -221,88 +239,116 @@ fn read(publisher: &Publisher, address: u16, count: u16) -> Result<Vec<u16>, Exc
 }
 
 fn write(
-    publisher: &Publisher,
+    served: &Served,
     address: u16,
     values: &[u16],
     origin: CommandOrigin,
 ) -> Result<(), Exception> {
-    let map = publisher.map();
-    let mut commands = Vec::with_capacity(values.len());
+    let mut writes = Vec::with_capacity(values.len());
     for (offset, &value) in values.iter().enumerate() {
         let target = address
             .checked_add(offset as u16)
             .ok_or(Exception::IllegalDataAddress)?;
-        match map.find(target) {
+        match served.map.find(target) {
             Some(register) if register.access == Access::ReadWrite => {
-                commands.push((register.field, value))
+                writes.push((register.field, value))
             }
             _ => return Err(Exception::IllegalDataAddress),
         }
     }
     // Validate every value before acting on any, so a rejected request changes nothing.
-    let drivelines = publisher.driveline_names().len();
-    if commands
-        .iter()
-        .any(|(field, value)| !command_value_valid(*field, *value, drivelines))
-    {
-        return Err(Exception::IllegalDataValue);
+    let drivelines = served.board.driveline_names().len();
+    let mut commands = Vec::new();
+    for (field, value) in writes {
+        commands.extend(commands_of(field, value, drivelines, origin)?);
     }
-    for (field, value) in commands {
-        match field {
-            Field::AcknowledgeAlarms if value == 1 => {
-                tracing::info!(by = origin.name(), peer = ?origin.peer(), "alarms acknowledged over Modbus");
-                publisher.acknowledge_alarms(origin);
-            }
-            Field::ResetWearTrend if value != 0 => {
-                tracing::info!(
-                    drivelines = format!("{value:#b}"),
-                    by = origin.name(),
-                    peer = ?origin.peer(),
-                    "wear trend reset over Modbus"
-                );
-                publisher.reset_wear_trend(value, origin);
-            }
-            _ => {}
-        }
+    for command in commands {
+        served
+            .commands
+            .send(command)
+            .map_err(|refused| match refused {
+                CommandRefused::Busy => Exception::ServerDeviceBusy,
+                CommandRefused::Stopped => Exception::ServerDeviceFailure,
+            })?;
     }
     Ok(())
 }
 
-/// Whether `value` is a valid write to command register `field` in a map of
-/// `drivelines` drivelines.
-fn command_value_valid(field: Field, value: u16, drivelines: usize) -> bool {
+/// The commands a write of `value` to command register `field` gives in a map of
+/// `drivelines` drivelines (none for 0), or exception 03 for a value it does not take.
+fn commands_of(
+    field: Field,
+    value: u16,
+    drivelines: usize,
+    origin: CommandOrigin,
+) -> Result<Vec<Command>, Exception> {
     match field {
-        Field::AcknowledgeAlarms => value <= 1,
+        Field::AcknowledgeAlarms => match value {
+            0 => Ok(Vec::new()),
+            1 => Ok(vec![Command::AcknowledgeAlarms { origin }]),
+            _ => Err(Exception::IllegalDataValue),
+        },
         Field::ResetWearTrend => {
             let all = if drivelines >= 16 {
                 u16::MAX
             } else {
                 (1u16 << drivelines) - 1
             };
-            value & !all == 0
+            if value & !all != 0 {
+                return Err(Exception::IllegalDataValue);
+            }
+            Ok((0..16)
+                .filter(|k| value & (1 << k) != 0)
+                .map(|driveline| Command::ResetWear { driveline, origin })
+                .collect())
         }
-        _ => false,
+        Field::ResetWear => match usize::from(value) {
+            0 => Ok(Vec::new()),
+            number if number <= drivelines => Ok(vec![Command::ResetWear {
+                driveline: number - 1,
+                origin,
+            }]),
+            _ => Err(Exception::IllegalDataValue),
+        },
+        _ => Err(Exception::IllegalDataAddress),
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::sync::Arc;
 
-    fn publisher() -> Publisher {
-        let config = millgate_config::from_toml_str(
+    fn demo_config() -> millgate_config::Config {
+        millgate_config::from_toml_str(
             include_str!("../../../config/examples/demo.toml"),
             "demo.toml",
             // The demo's driveline model is named relative to the examples folder.
             std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples")),
         )
-        .unwrap();
+        .unwrap()
+    }
+
+    fn board() -> Arc<Board> {
+        let config = demo_config();
         let health = vec![Arc::new(crate::field::source_health::SourceHealth::new(
             std::time::Duration::from_secs(1),
             std::time::Duration::from_secs(5),
         ))];
-        Publisher::new(&config, health)
+        Arc::new(Board::new(&config, health))
+    }
+
+    /// What a server of the demo's map answers from, and the analysis' end of its
+    /// commands.
+    fn served() -> (Served, crate::state::commands::CommandReceiver) {
+        let board = board();
+        let map = Arc::new(RegisterMap::new(&demo_config()));
+        let (commands, receiver) = crate::state::commands::channel();
+        let served = Served {
+            map,
+            board,
+            commands,
+        };
+        (served, receiver)
     }
 
     const POLICY: Policy = Policy {
@@ -322,7 +368,7 @@ mod tests {
 
     fn reply(frame: &[u8]) -> Reply {
         assert_eq!(frame_len(frame), Ok(Some(frame.len())));
-        respond(&publisher(), POLICY, frame)
+        respond(&served().0, POLICY, frame)
     }
 
     #[test]
@@ -369,11 +415,10 @@ mod tests {
         let read = [0x03, 0x00, 0x00, 0x00, 0x01];
         assert_eq!(reply(&frame(0, &read)), Reply::Broadcast);
         // A broadcast acknowledge is not acted on.
-        let publisher = publisher();
-        publisher.update(|results| results.drivelines[0].alarm = true);
+        let (served, mut commands) = served();
         let ack = frame(0, &[0x06, 0x00, 0x08, 0x00, 0x01]);
-        assert_eq!(respond(&publisher, POLICY, &ack), Reply::Broadcast);
-        assert!(publisher.results().drivelines[0].alarm, "broadcast ignored");
+        assert_eq!(respond(&served, POLICY, &ack), Reply::Broadcast);
+        assert!(commands.try_recv().is_err(), "broadcast ignored");
         assert_eq!(reply(&frame(7, &read)).exception(), Some(0x0B));
         assert_eq!(reply(&frame(255, &read)).exception(), None);
         assert_eq!(reply(&frame(1, &read)).exception(), None);
@@ -406,19 +451,66 @@ mod tests {
 
     #[test]
     fn commands_from_clients_not_allowed_are_exception_01() {
-        let publisher = publisher();
-        publisher.update(|results| results.drivelines[0].alarm = true);
+        let (served, mut commands) = served();
         let remote = Policy {
             unit_id: 1,
             commands_allowed: false,
             origin: CommandOrigin::Local,
         };
         let ack = frame(1, &[0x06, 0x00, 0x08, 0x00, 0x01]);
-        assert_eq!(respond(&publisher, remote, &ack).exception(), Some(0x01));
-        assert!(publisher.results().drivelines[0].alarm);
+        assert_eq!(respond(&served, remote, &ack).exception(), Some(0x01));
+        assert!(commands.try_recv().is_err(), "no command sent");
         // Reads are served.
         let read = frame(1, &[0x03, 0x00, 0x00, 0x00, 0x01]);
-        assert_eq!(respond(&publisher, remote, &read).exception(), None);
+        assert_eq!(respond(&served, remote, &read).exception(), None);
+    }
+
+    #[test]
+    fn command_writes_become_commands_in_order_or_exceptions() {
+        let (served, mut commands) = served();
+        // Acknowledge (8), the bitmask reset of driveline 1 (9), the numbered reset of
+        // driveline 1 (10) in one FC 16.
+        let write = frame(1, &[0x10, 0x00, 0x08, 0x00, 0x03, 0x06, 0, 1, 0, 1, 0, 1]);
+        assert_eq!(respond(&served, POLICY, &write).exception(), None);
+        let origin = CommandOrigin::Local;
+        let mut received = Vec::new();
+        while let Ok(command) = commands.try_recv() {
+            received.push(command);
+        }
+        assert_eq!(
+            received,
+            [
+                Command::AcknowledgeAlarms { origin },
+                Command::ResetWear {
+                    driveline: 0,
+                    origin
+                },
+                Command::ResetWear {
+                    driveline: 0,
+                    origin
+                },
+            ]
+        );
+        // The demo has one driveline: number 2 and bit 1 do not exist; nothing is sent.
+        for pdu in [
+            [0x06, 0x00, 0x0A, 0x00, 0x02],
+            [0x06, 0x00, 0x09, 0x00, 0x02],
+            [0x06, 0x00, 0x08, 0x00, 0x02],
+        ] {
+            assert_eq!(
+                respond(&served, POLICY, &frame(1, &pdu)).exception(),
+                Some(0x03)
+            );
+        }
+        assert!(commands.try_recv().is_err());
+        // A full queue is "busy" (06), a stopped analysis "failure" (04).
+        let ack = frame(1, &[0x06, 0x00, 0x08, 0x00, 0x01]);
+        for _ in 0..crate::state::commands::COMMAND_QUEUE {
+            assert_eq!(respond(&served, POLICY, &ack).exception(), None);
+        }
+        assert_eq!(respond(&served, POLICY, &ack).exception(), Some(0x06));
+        drop(commands);
+        assert_eq!(respond(&served, POLICY, &ack).exception(), Some(0x04));
     }
 
     #[test]

@@ -15,6 +15,7 @@
 //! the file, even if the gateway is killed right after. A failing history is not
 //! waited for.
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -22,13 +23,13 @@ use tokio::time::Instant;
 
 use millgate_config::PlcOutput;
 use tokio_modbus::client::Context;
-use tokio_modbus::prelude::ExceptionCode;
 
 use crate::field::backoff::Backoff;
-use crate::field::modbus_client::{self, CheckedError, ConnectError, ReplyMismatch};
-use crate::outputs::publisher::Publisher;
-use crate::outputs::results::GatewayState;
+use crate::field::modbus::{client, ModbusError};
+use crate::outputs::register_map::RegisterMap;
 use crate::shutdown::Shutdown;
+use crate::state::board::Board;
+use crate::state::results::GatewayState;
 use crate::warn_limit::{WarnLimit, WARN_PERIOD};
 
 /// Largest register count of one FC 16 request.
@@ -37,43 +38,98 @@ const MAX_WRITE_REGISTERS: usize = 123;
 /// milliseconds; this bounds a slow disk's delay of the PLC's values).
 pub const HISTORY_WAIT: Duration = Duration::from_millis(500);
 
-/// Why a write to the PLC failed.
-#[derive(Debug, thiserror::Error)]
-pub enum PlcError {
-    /// No TCP connection could be made ("the network failed").
-    #[error("cannot connect to PLC {address}: {source}")]
-    Connect {
-        /// The PLC's `host:port`.
-        address: String,
-        /// Refused, unreachable, unresolvable, ...
-        source: std::io::Error,
-    },
-    /// The PLC did not answer in time.
-    #[error("PLC did not answer within {0:?}")]
-    Timeout(Duration),
-    /// The connection failed or the reply could not be decoded.
-    #[error("PLC transport: {0}")]
-    Transport(#[from] tokio_modbus::Error),
-    /// The PLC's reply does not match the write (another address or count echoed).
-    #[error("PLC reply does not match the write: {0}")]
-    Mismatch(#[from] ReplyMismatch),
-    /// The PLC refused the write: wrong base address, or registers write-protected.
-    #[error("PLC refused the write at register {address}: {exception}")]
-    Refused {
-        /// The first register of the refused request.
-        address: u16,
-        /// The exception code the PLC answered with.
-        #[source]
-        exception: ExceptionCode,
-    },
+/// The reason a failed PLC write is counted under on `/metrics`.
+fn reason(error: &ModbusError) -> PlcFailure {
+    match error {
+        ModbusError::Connect { .. } => PlcFailure::Connect,
+        ModbusError::Timeout(_) => PlcFailure::Timeout,
+        ModbusError::Transport(_) => PlcFailure::Transport,
+        ModbusError::Mismatch(_) => PlcFailure::Mismatch,
+        ModbusError::Exception { .. } => PlcFailure::Refused,
+    }
 }
 
-impl From<CheckedError> for PlcError {
-    fn from(error: CheckedError) -> Self {
-        match error {
-            CheckedError::Transport(error) => PlcError::Transport(error),
-            CheckedError::Mismatch(mismatch) => PlcError::Mismatch(mismatch),
+/// Why a PLC write failed, as counted: the network ("connect", "timeout",
+/// "transport", "mismatch") apart from the PLC saying no ("refused").
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PlcFailure {
+    /// No TCP connection could be made.
+    Connect,
+    /// No answer in time.
+    Timeout,
+    /// The connection failed or the reply was not Modbus.
+    Transport,
+    /// The reply did not match the write.
+    Mismatch,
+    /// The PLC answered with a Modbus exception.
+    Refused,
+}
+
+impl PlcFailure {
+    /// Every reason, in the order of [`PlcCounts::failures`].
+    pub const ALL: [PlcFailure; 5] = [
+        PlcFailure::Connect,
+        PlcFailure::Timeout,
+        PlcFailure::Transport,
+        PlcFailure::Mismatch,
+        PlcFailure::Refused,
+    ];
+
+    /// The `/metrics` label value.
+    pub fn name(self) -> &'static str {
+        match self {
+            PlcFailure::Connect => "connect",
+            PlcFailure::Timeout => "timeout",
+            PlcFailure::Transport => "transport",
+            PlcFailure::Mismatch => "mismatch",
+            PlcFailure::Refused => "refused",
         }
+    }
+}
+
+/// What the PLC writer has done, for `/metrics`.
+#[derive(Debug, Default)]
+pub struct PlcCounters {
+    writes: AtomicU64,
+    failures: [AtomicU64; 5],
+    last_success_ms: AtomicU64,
+}
+
+/// A copy of [`PlcCounters`].
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct PlcCounts {
+    /// Whole maps written.
+    pub writes: u64,
+    /// Failed writes (and connection attempts) per [`PlcFailure::ALL`].
+    pub failures: [u64; 5],
+    /// When the last write went through, ms since the Unix epoch (0: never).
+    pub last_success_unix_ms: u64,
+}
+
+impl PlcCounters {
+    /// Current values.
+    pub fn snapshot(&self) -> PlcCounts {
+        let load = |c: &AtomicU64| c.load(Ordering::Relaxed);
+        PlcCounts {
+            writes: load(&self.writes),
+            failures: self.failures.each_ref().map(load),
+            last_success_unix_ms: load(&self.last_success_ms),
+        }
+    }
+
+    fn written(&self) {
+        self.writes.fetch_add(1, Ordering::Relaxed);
+        let now = crate::state::time::UtcTime::now().unix_ms();
+        self.last_success_ms
+            .store(u64::try_from(now).unwrap_or(0), Ordering::Relaxed);
+    }
+
+    fn failed(&self, error: &ModbusError) {
+        let at = PlcFailure::ALL
+            .iter()
+            .position(|failure| *failure == reason(error))
+            .unwrap_or(0);
+        self.failures[at].fetch_add(1, Ordering::Relaxed);
     }
 }
 
@@ -81,17 +137,26 @@ impl From<CheckedError> for PlcError {
 #[derive(Debug)]
 pub struct PlcWriter {
     output: PlcOutput,
-    publisher: Arc<Publisher>,
+    map: Arc<RegisterMap>,
+    board: Arc<Board>,
+    counters: Arc<PlcCounters>,
     /// Told once the first write was attempted (the service's readiness).
     first_attempt: Option<tokio::sync::watch::Sender<bool>>,
 }
 
 impl PlcWriter {
-    /// A writer of `publisher`'s map to the PLC of `output`.
-    pub fn new(output: PlcOutput, publisher: Arc<Publisher>) -> Self {
+    /// A writer of `board`'s results, encoded by `map`, to the PLC of `output`,
+    /// counting into `counters`.
+    pub fn new(
+        output: PlcOutput,
+        (map, board): (Arc<RegisterMap>, Arc<Board>),
+        counters: Arc<PlcCounters>,
+    ) -> Self {
         Self {
             output,
-            publisher,
+            map,
+            board,
+            counters,
             first_attempt: None,
         }
     }
@@ -103,27 +168,15 @@ impl PlcWriter {
         self
     }
 
-    async fn connect(&self) -> Result<Context, PlcError> {
+    async fn connect(&self) -> Result<Context, ModbusError> {
         let output = &self.output;
-        modbus_client::connect(&output.address, output.unit_id, output.timeout)
-            .await
-            .map_err(|error| match error {
-                ConnectError::Timeout(timeout) => PlcError::Timeout(timeout),
-                ConnectError::Io(error) => PlcError::Connect {
-                    address: output.address.clone(),
-                    source: error,
-                },
-            })
+        client::connect(&output.address, output.unit_id, output.timeout).await
     }
 
-    async fn write(&self, context: &mut Context, words: &[u16]) -> Result<(), PlcError> {
+    async fn write(&self, context: &mut Context, words: &[u16]) -> Result<(), ModbusError> {
         for (i, chunk) in words.chunks(MAX_WRITE_REGISTERS).enumerate() {
             let address = self.output.register_base + (i * MAX_WRITE_REGISTERS) as u16;
-            let request = modbus_client::write_registers(context, address, chunk);
-            tokio::time::timeout(self.output.timeout, request)
-                .await
-                .map_err(|_| PlcError::Timeout(self.output.timeout))??
-                .map_err(|exception| PlcError::Refused { address, exception })?;
+            client::write(context, address, chunk, self.output.timeout).await?;
         }
         Ok(())
     }
@@ -143,10 +196,10 @@ impl PlcWriter {
         loop {
             tokio::select! {
                 _ = ticks.tick() => {}
-                () = self.publisher.changed() => {}
+                () = self.board.changed() => {}
                 () = shutdown.recv() => break,
             }
-            self.publisher.beat();
+            self.board.beat();
             if context.is_none() && Instant::now() >= next_attempt {
                 match self.connect().await {
                     Ok(connected) => {
@@ -154,31 +207,34 @@ impl PlcWriter {
                         context = Some(connected);
                     }
                     Err(error) => {
+                        self.counters.failed(&error);
                         let delay = backoff.next_delay();
                         if let Some(suppressed) = connect_warnings.occurred(Instant::now()) {
-                            tracing::warn!(%error, retry_in = ?delay, suppressed, "PLC unreachable");
+                            tracing::warn!(plc = %self.output.address, %error, retry_in = ?delay, suppressed, "PLC unreachable");
                         }
                         next_attempt = Instant::now() + delay;
                     }
                 }
             }
             if let Some(connected) = context.as_mut() {
-                let words = self.publisher.words();
-                let history = self.publisher.history();
+                let words = self.map.encode(&self.board.results());
+                let history = self.board.history();
                 if !history.wait_settled(history.enqueued(), HISTORY_WAIT).await {
                     tracing::debug!(wait = ?HISTORY_WAIT, "history commit slower than the PLC wait");
                 }
                 match self.write(connected, &words).await {
                     Ok(()) => {
+                        self.counters.written();
                         backoff.reset();
                         connect_warnings.clear();
                         write_warnings.clear();
                     }
                     Err(error) => {
+                        self.counters.failed(&error);
                         if let Some(suppressed) = write_warnings.occurred(Instant::now()) {
-                            tracing::warn!(%error, suppressed, "PLC write failed");
+                            tracing::warn!(plc = %self.output.address, %error, suppressed, "PLC write failed");
                         }
-                        if !matches!(error, PlcError::Refused { .. }) {
+                        if error.needs_reconnect() {
                             context = None;
                             next_attempt = Instant::now() + backoff.next_delay();
                         }
@@ -189,10 +245,10 @@ impl PlcWriter {
                 attempted.send_replace(true);
             }
         }
-        self.publisher
+        self.board
             .update(|results| results.state = GatewayState::Stopped);
-        self.publisher.beat();
-        let words = self.publisher.words();
+        self.board.beat();
+        let words = self.map.encode(&self.board.results());
         let connected = match context {
             Some(connected) => Ok(connected),
             None => self.connect().await,

@@ -1,22 +1,28 @@
-//! The millgate register map: one typed table, in one place.
+//! The millgate register map: one typed table, in one place, derived from the
+//! [`catalogue`].
 //!
 //! Every register the gateway publishes is a [`Register`] built here: its address
 //! (offset from the map's base), type, unit, scale, word order, access and meaning.
-//! Encoding ([`RegisterMap::encode`]) is a pure function of [`Results`]; the PLC
-//! writer, the Modbus server and the `millgate registers` export all use this table.
+//! A block per driveline, tandem mill, rod mill and rod span holds its figures: the
+//! block's `flags` register carries every flag figure at its catalogue bit, its
+//! `quality` register the validity of every value figure at its catalogue bit, and the
+//! layout tables below place each value figure (key, offset, register type); names and
+//! descriptions are the catalogue's. Encoding ([`RegisterMap::encode`]) is a pure
+//! function of [`Results`]; the PLC writer, the Modbus server and the
+//! `millgate registers` export all use this table.
 //!
 //! Conventions: 32-bit values (u32, f32) are big-endian words and bytes (`ABCD`,
 //! the Modbus default); physical value = register value * scale. A value whose
-//! quality bit is 0 is not valid (never computed, or its source is stale): the
-//! registers then hold 0 rather than a frozen old value.
+//! quality bit is 0 is not valid (never computed, or its source is stale: the stale
+//! rule of the catalogue withholds every value a PLC could not tell from a fresh one):
+//! the registers then hold 0 rather than a frozen old value.
 
 use millgate_config::layout::encode_value;
 use millgate_config::{Config, ValueType, WordOrder};
 
-use crate::analysis::rod_monitor::MAX_ROD_SPANS;
-use crate::outputs::results::{
-    DrivelineResults, GatewayState, MillResults, Results, RodMillResults, RodSpanResults,
-};
+use crate::field::source_health::SourceStatus;
+use crate::state::catalogue::{self, Figure, FigureType, Guard, Subject, Value};
+use crate::state::results::{GatewayState, Results, MAX_ROD_SPANS};
 
 /// Whether clients may write a register.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -37,113 +43,17 @@ impl Access {
     }
 }
 
-/// Per-driveline quantities, in register order.
+/// A block of figures: whose they are.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum DrivelineField {
-    /// Warning, alarm, stale and degraded bits ([`driveline_flags`]).
-    Flags,
-    /// Bit i set: value i of the block is valid.
-    Quality,
-    /// Bites analysed since start.
-    BiteCounter,
-    /// Time of the last bite, Unix seconds.
-    LastBiteTime,
-    /// Static torque of the last bite, kN*m.
-    StaticTorque,
-    /// Peak torque of the last bite, kN*m.
-    PeakTorque,
-    /// Torque amplification factor of the last bite.
-    Taf,
-    /// First minus second oscillation period of the last bite, s.
-    PeriodShift,
-    /// First natural frequency from the eq. (1) fit, Hz.
-    Beta1,
-    /// Second natural frequency from the eq. (1) fit, Hz.
-    Beta2,
-    /// TAF-ratio wear index of the last bite (secondary to the gap).
-    WearIndex,
-    /// Wear trend (EWMA of the wear index).
-    WearTrend,
-    /// Opened gap, maximum likelihood, mrad.
-    Gap,
-    /// Lower end of the gap's 90% interval, mrad.
-    GapLow,
-    /// Upper end of the gap's 90% interval, mrad.
-    GapHigh,
-    /// Coupling holding the gap, [`GAP_COUPLING_UNDETERMINED`] when undetermined.
-    GapCoupling,
-    /// Bites pooled into the gap estimate.
-    BitesPooled,
-}
-
-/// `gap_coupling` when the bites cannot tell which coupling holds the gap.
-pub const GAP_COUPLING_UNDETERMINED: u16 = u16::MAX;
-
-/// Per-mill chatter quantities, in register order.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum MillField {
-    /// Warning, alarm and stale bits.
-    Flags,
-    /// Bit i set: value i of the block is valid.
-    Quality,
-    /// RMS difference of adjacent stands' principal frequencies, Hz.
-    SigmaN,
-    /// Mean correlation of adjacent stands' chatter-band vibration.
-    KMean,
-    /// Mean of the stands' principal frequencies in the chatter band, Hz.
-    ChatterFrequency,
-    /// Largest chatter-band gain of any stand.
-    ChatterGain,
-    /// Largest gain / threshold of any stand (>= 1: band-gain alarm).
-    GainRatio,
-    /// Largest chatter-band RMS of any stand.
-    BandRmsMax,
-    /// 1-based stand of the gain ratio.
-    WorstStand,
-}
-
-/// Flag bits of a tandem mill's `flags` register.
-pub mod mill_flags {
-    /// The configured detector's warning in the last window.
-    pub const WARNING: u16 = 1 << 0;
-    /// The configured detector's alarm; latched until acknowledged.
-    pub const ALARM: u16 = 1 << 1;
-    /// A stand's source is stale or the window restarted: values invalid.
-    pub const SOURCE_STALE: u16 = 1 << 2;
-    /// Slow-down request with hysteresis (the PLC decides the speed drop).
-    pub const SLOW_DOWN_REQUEST: u16 = 1 << 3;
-}
-
-/// Per-rod-mill quantities, in register order.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum RodMillField {
-    /// Any span unstable, any near a tongue, inputs invalid ([`rod_flags`]).
-    Flags,
-    /// Bit i set: value i of the block is valid.
-    Quality,
-    /// Configuration input in use (index into the rod mill's `configurations`).
-    Configuration,
-    /// Pass number in use, 1-based.
-    Pass,
-    /// Finishing speed evaluated, m/s.
-    FinishingSpeed,
-    /// Rod temperature of the setup in use, deg C.
-    Temperature,
-}
-
-/// Per-span quantities of a rod mill, in register order.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum RodSpanField {
-    /// Unstable, near tongue, invalid bits ([`rod_flags`]).
-    Flags,
-    /// Bit i set: value i is valid.
-    Quality,
-    /// Finishing-speed margin to the nearest band edge, m/s.
-    SpeedMargin,
-    /// Worst growth exponent of the span's points, 1/s.
-    WorstExponent,
-    /// Configuration input the span was evaluated in.
-    Configuration,
+pub enum Block {
+    /// Driveline k (config order).
+    Driveline(usize),
+    /// Tandem mill k (config order).
+    TandemMill(usize),
+    /// Rod mill k (config order).
+    RodMill(usize),
+    /// Span s (rolling order) of rod mill k.
+    RodSpan(usize, usize),
 }
 
 /// What a register holds.
@@ -161,23 +71,24 @@ pub enum Field {
     SourcesLost,
     /// Command: write 1 to acknowledge latched alarms.
     AcknowledgeAlarms,
-    /// Command: write a bitmask of drivelines (bit k = driveline k) to reset their
-    /// wear trend.
+    /// Command: write a bitmask of the first 16 drivelines (bit k = driveline k) to
+    /// reset their wear.
     ResetWearTrend,
-    /// A quantity of driveline k (config order).
-    Driveline(usize, DrivelineField),
-    /// A quantity of tandem mill k (config order).
-    Mill(usize, MillField),
-    /// A quantity of rod mill k (config order).
-    RodMill(usize, RodMillField),
-    /// A quantity of span s (rolling order) of rod mill k.
-    RodSpan(usize, usize, RodSpanField),
+    /// Command: write a driveline's number (1-based, config order) to reset its wear.
+    ResetWear,
+    /// A block's flag figures, each at its catalogue bit.
+    Flags(Block),
+    /// A block's quality bits: bit i set while the value figure guarded by bit i is
+    /// valid.
+    Quality(Block),
+    /// The block's figure at this index of its catalogue table.
+    Figure(Block, usize),
 }
 
 /// One register (or register pair) of the map.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Register {
-    /// Dotted name, e.g. `F1.taf`.
+    /// Dotted name, e.g. `F1.taf`: the block's name and the figure's catalogue key.
     pub name: String,
     /// Offset from the map's base.
     pub address: u16,
@@ -197,38 +108,6 @@ pub struct Register {
     pub field: Field,
 }
 
-/// Flag bits of a driveline's `flags` register.
-pub mod driveline_flags {
-    /// TAF above the warning threshold at the last bite.
-    pub const WARNING: u16 = 1 << 0;
-    /// TAF above the alarm threshold; latched until acknowledged.
-    pub const ALARM: u16 = 1 << 1;
-    /// The torque channel's source is stale or lost.
-    pub const SOURCE_STALE: u16 = 1 << 2;
-    /// The last bite's window had gaps, NaN or saturated samples: its values are not
-    /// valid (quality bits clear).
-    pub const DEGRADED: u16 = 1 << 3;
-    /// The estimated opened gap is at or above the gap warning threshold.
-    pub const GAP_WARNING: u16 = 1 << 4;
-    /// The gap's 90% interval lay at or above the gap alarm threshold; latched until
-    /// acknowledged.
-    pub const GAP_ALARM: u16 = 1 << 5;
-    /// The values are from before the gateway's last restart (restored from the
-    /// history; `last_bite_time` says when); cleared by the next bite.
-    pub const RESTORED: u16 = 1 << 6;
-}
-
-/// Flag bits of a rod mill's and a rod span's `flags` register.
-pub mod rod_flags {
-    /// The span is unstable (mill: any span), with hysteresis.
-    pub const UNSTABLE: u16 = 1 << 0;
-    /// The span is stable but near a tongue (mill: any span), with hysteresis.
-    pub const NEAR_TONGUE: u16 = 1 << 1;
-    /// No valid result: an input's source is stale or lost, or an input was refused
-    /// (out of range); the other bits are then 0.
-    pub const INVALID: u16 = 1 << 2;
-}
-
 /// Bits of the gateway status register.
 pub mod status_bits {
     /// The gateway is running and publishing fresh results.
@@ -240,12 +119,107 @@ pub mod status_bits {
     pub const SOURCE_PROBLEM: u16 = 1 << 2;
 }
 
+/// A figure's place in its block: catalogue key, offset from the block's start,
+/// register type.
+type Slot = (&'static str, u16, ValueType);
+
+/// Where a driveline block's value figures sit (flags at 0, quality at 1).
+pub const DRIVELINE_LAYOUT: &[Slot] = &[
+    ("bite_counter", 2, ValueType::U32),
+    ("last_bite_time", 4, ValueType::U32),
+    ("static_torque_knm", 6, ValueType::F32),
+    ("peak_torque_knm", 8, ValueType::F32),
+    ("taf", 10, ValueType::F32),
+    ("period_shift_s", 12, ValueType::F32),
+    ("beta1_hz", 14, ValueType::F32),
+    ("beta2_hz", 16, ValueType::F32),
+    ("wear_index", 18, ValueType::F32),
+    ("wear_trend", 20, ValueType::F32),
+    ("gap_mrad", 22, ValueType::F32),
+    ("gap_low_mrad", 24, ValueType::F32),
+    ("gap_high_mrad", 26, ValueType::F32),
+    ("gap_coupling", 28, ValueType::U16),
+    ("bites_pooled", 29, ValueType::U16),
+    ("degraded_bites", 30, ValueType::U32),
+];
+
+/// Where a tandem mill block's value figures sit.
+pub const TANDEM_MILL_LAYOUT: &[Slot] = &[
+    ("sigma_n_hz", 2, ValueType::F32),
+    ("k_mean", 4, ValueType::F32),
+    ("chatter_frequency_hz", 6, ValueType::F32),
+    ("chatter_gain", 8, ValueType::F32),
+    ("gain_ratio", 10, ValueType::F32),
+    ("band_rms_max", 12, ValueType::F32),
+    ("worst_stand", 14, ValueType::U16),
+];
+
+/// Where a rod mill block's own value figures sit (its spans follow).
+pub const ROD_MILL_LAYOUT: &[Slot] = &[
+    ("configuration", 2, ValueType::U16),
+    ("pass", 3, ValueType::U16),
+    ("finishing_speed_m_s", 4, ValueType::F32),
+    ("rod_temperature_c", 6, ValueType::F32),
+];
+
+/// Where a rod span block's value figures sit.
+pub const ROD_SPAN_LAYOUT: &[Slot] = &[
+    ("speed_margin_m_s", 2, ValueType::F32),
+    ("worst_exponent_per_s", 4, ValueType::F32),
+    ("configuration", 6, ValueType::U16),
+];
+
+/// Catalogue figures the register map does not carry, and why: every other figure is
+/// in a block (a test holds the map to this).
+pub const NOT_MAPPED: &[(catalogue::SubjectKind, &str, &str)] = &[
+    (
+        catalogue::SubjectKind::Driveline,
+        "likeliest_coupling",
+        "gap_coupling carries the coupling once the bites determine it; no free register in the block",
+    ),
+    (
+        catalogue::SubjectKind::TandemMill,
+        "evaluations",
+        "a count of windows the PLC does not act on (the heartbeat shows the gateway alive); no free register in the block",
+    ),
+    (
+        catalogue::SubjectKind::RodMill,
+        "evaluations",
+        "a count of evaluations the PLC does not act on; no free register in the block",
+    ),
+    (
+        catalogue::SubjectKind::RodMill,
+        "worst_margin_m_s",
+        "the smallest speed_margin_m_s of the span blocks; no free register in the block",
+    ),
+    (
+        catalogue::SubjectKind::RodMill,
+        "worst_span",
+        "the span of the smallest speed_margin_m_s of the span blocks; no free register in the block",
+    ),
+];
+
+/// The bit of flag figure `key` of `figures` in its block's `flags` register, as a
+/// mask: what a PLC program tests.
+///
+/// ```
+/// use millgate::outputs::register_map::flag_mask;
+/// use millgate::state::catalogue::DRIVELINE;
+/// assert_eq!(flag_mask(DRIVELINE, "gap_warning"), 1 << 4);
+/// ```
+pub fn flag_mask<R>(figures: &[Figure<R>], key: &str) -> u16 {
+    match figures[position(figures, key)].guard {
+        Guard::FlagBit(bit) => 1 << bit,
+        _ => panic!("{key} is not a flag"),
+    }
+}
+
 /// First register of the first driveline block.
 const DRIVELINES_START: u16 = 16;
 /// Registers reserved per driveline block.
 const DRIVELINE_STRIDE: u16 = 32;
-/// Registers reserved per mill block.
-const MILL_STRIDE: u16 = 16;
+/// Registers reserved per tandem mill block.
+const TANDEM_MILL_STRIDE: u16 = 16;
 /// First register of a rod mill's first span, from the rod mill's block start.
 const ROD_SPANS_START: u16 = 8;
 /// Registers per rod span.
@@ -253,24 +227,28 @@ const ROD_SPAN_STRIDE: u16 = 8;
 /// Registers reserved per rod mill block: the mill's own, then [`MAX_ROD_SPANS`] spans.
 const ROD_MILL_STRIDE: u16 = ROD_SPANS_START + ROD_SPAN_STRIDE * MAX_ROD_SPANS as u16;
 
-/// Registers the map of `drivelines` drivelines and `mills` tandem mills spans.
-pub fn span(drivelines: usize, mills: usize) -> u64 {
+/// Registers the map of `config` spans.
+pub fn span_of(config: &Config) -> u64 {
     u64::from(DRIVELINES_START)
-        + u64::from(DRIVELINE_STRIDE) * drivelines as u64
-        + u64::from(MILL_STRIDE) * mills as u64
+        + u64::from(DRIVELINE_STRIDE) * config.drivelines.len() as u64
+        + u64::from(TANDEM_MILL_STRIDE) * config.tandem_mills.len() as u64
+        + u64::from(ROD_MILL_STRIDE) * config.rod_mills.len() as u64
 }
 
 /// A configuration whose register map does not fit the 65 536 registers of a table.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 #[error(
-    "the register map of {drivelines} drivelines and {mills} tandem mills spans {span} \
-     registers, more than the 65535 a Modbus table can address from 0"
+    "the register map of {drivelines} drivelines, {tandem_mills} tandem mills and \
+     {rod_mills} rod mills spans {span} registers, more than the 65535 a Modbus table \
+     can address from 0"
 )]
 pub struct MapTooLarge {
     /// Drivelines configured.
     pub drivelines: usize,
     /// Tandem mills configured.
-    pub mills: usize,
+    pub tandem_mills: usize,
+    /// Rod mills configured.
+    pub rod_mills: usize,
     /// Registers the map would span.
     pub span: u64,
 }
@@ -282,250 +260,271 @@ pub struct RegisterMap {
     len: u16,
 }
 
+/// Registers as they are added.
 struct Builder {
     registers: Vec<Register>,
 }
 
 impl Builder {
-    #[allow(clippy::too_many_arguments)]
-    fn add(
+    /// A read-only register of the global block.
+    fn global(
         &mut self,
         address: u16,
-        name: String,
-        value_type: ValueType,
+        name: &str,
         unit: &'static str,
-        scale: f64,
         access: Access,
-        description: String,
+        description: &str,
         field: Field,
     ) {
         self.registers.push(Register {
-            name,
+            name: name.into(),
             address,
-            value_type,
+            value_type: ValueType::U16,
             unit,
-            scale,
+            scale: 1.0,
             word_order: WordOrder::Abcd,
             access,
-            description,
+            description: description.into(),
             field,
         });
     }
+
+    /// A block of `figures` at `base` named `prefix.<key>`, its descriptions prefixed
+    /// by `context`.
+    fn block<R: Subject>(
+        &mut self,
+        base: u16,
+        prefix: &str,
+        context: &str,
+        block: Block,
+        figures: &[Figure<R>],
+        layout: &[Slot],
+    ) {
+        let mut add = |offset: u16, key: &str, value_type, unit, description: String, field| {
+            self.registers.push(Register {
+                name: format!("{prefix}.{key}"),
+                address: base + offset,
+                value_type,
+                unit,
+                scale: 1.0,
+                word_order: WordOrder::Abcd,
+                access: Access::Read,
+                description: format!("{context}{description}"),
+                field,
+            });
+        };
+        add(
+            0,
+            "flags",
+            ValueType::U16,
+            "bits",
+            flags_description(figures),
+            Field::Flags(block),
+        );
+        add(
+            1,
+            "quality",
+            ValueType::U16,
+            "bits",
+            quality_description(figures, layout),
+            Field::Quality(block),
+        );
+        for &(key, offset, value_type) in layout {
+            let index = position(figures, key);
+            let figure = &figures[index];
+            let unit = match figure.figure_type {
+                FigureType::Time => "s",
+                _ => figure.unit,
+            };
+            let description = match figure.figure_type {
+                FigureType::Time => format!("{}, Unix seconds", figure.description),
+                _ => figure.description.to_owned(),
+            };
+            add(
+                offset,
+                key,
+                value_type,
+                unit,
+                description,
+                Field::Figure(block, index),
+            );
+        }
+    }
+}
+
+/// The index of `key` in `figures` (the layouts name catalogue keys; a test checks
+/// every one exists).
+fn position<R>(figures: &[Figure<R>], key: &str) -> usize {
+    figures
+        .iter()
+        .position(|figure| figure.key == key)
+        .unwrap_or_else(|| panic!("the register layout names {key}, not in the catalogue"))
+}
+
+/// `bit0 <key> (<description>), ...` of the flag figures, by bit.
+fn flags_description<R>(figures: &[Figure<R>]) -> String {
+    let mut flags: Vec<(u8, &Figure<R>)> = figures
+        .iter()
+        .filter_map(|f| match f.guard {
+            Guard::FlagBit(bit) => Some((bit, f)),
+            _ => None,
+        })
+        .collect();
+    flags.sort_by_key(|(bit, _)| *bit);
+    flags
+        .iter()
+        .map(|(bit, f)| format!("bit{bit} {}: {}", f.key, f.description))
+        .collect::<Vec<_>>()
+        .join("; ")
+}
+
+/// `bit i set: value i of this block is valid (0 <key>, ...)` for the block's values.
+fn quality_description<R>(figures: &[Figure<R>], layout: &[Slot]) -> String {
+    let mut bits: Vec<(u8, &str)> = layout
+        .iter()
+        .filter_map(|(key, _, _)| match figures[position(figures, key)].guard {
+            Guard::QualityBit(bit) => Some((bit, *key)),
+            _ => None,
+        })
+        .collect();
+    bits.sort_by_key(|(bit, _)| *bit);
+    let list: Vec<String> = bits
+        .iter()
+        .map(|(bit, key)| format!("{bit} {key}"))
+        .collect();
+    format!(
+        "bit i set: value i of this block is valid ({}); counters are always valid",
+        list.join(", ")
+    )
 }
 
 impl RegisterMap {
     /// The map for `config`, when it fits a Modbus table.
     pub fn try_new(config: &Config) -> Result<Self, MapTooLarge> {
-        let (drivelines, mills) = (config.drivelines.len(), config.tandem_mills.len());
-        let span = span(drivelines, mills);
+        let span = span_of(config);
         if span > u64::from(u16::MAX) {
             return Err(MapTooLarge {
-                drivelines,
-                mills,
+                drivelines: config.drivelines.len(),
+                tandem_mills: config.tandem_mills.len(),
+                rod_mills: config.rod_mills.len(),
                 span,
             });
         }
         Ok(Self::new(config))
     }
 
-    /// The map for `config`: global registers, then one block per driveline, then
-    /// one per tandem mill. The map must fit a Modbus table ([`Self::try_new`] checks;
-    /// `Service::new` refuses a configuration whose map does not).
+    /// The map for `config`: global registers, then one block per driveline, one per
+    /// tandem mill and one per rod mill (with its spans). The map must fit a Modbus
+    /// table ([`Self::try_new`] checks; `Service::new` refuses a configuration whose
+    /// map does not).
     pub fn new(config: &Config) -> Self {
-        use DrivelineField as D;
-        use ValueType::{F32, U16, U32};
         let mut b = Builder {
             registers: Vec::new(),
         };
         let read = Access::Read;
-        b.add(
-            0,
-            "heartbeat".into(),
-            U16,
-            "",
-            1.0,
-            read,
-            "Incremented every PLC write period (every second without a PLC output), whether or not the PLC answers; a PLC or HMI watchdog checks it moves".into(),
-            Field::Heartbeat,
-        );
-        b.add(
-            1,
-            "gateway_status".into(),
-            U16,
-            "bits",
-            1.0,
-            read,
-            "bit0 running, bit1 stopped (an orderly stop: every other register, source bits and flags included, keeps its last running value), bit2 a source is stale or lost".into(),
-            Field::GatewayStatus,
-        );
-        b.add(
+        b.global(0, "heartbeat", "", read, "Incremented every PLC write period (every second without a PLC output), whether or not the PLC answers; a PLC or HMI watchdog checks it moves", Field::Heartbeat);
+        b.global(1, "gateway_status", "bits", read, "bit0 running, bit1 stopped (an orderly stop: every other register, source bits and flags included, keeps its last running value), bit2 a source is stale or lost", Field::GatewayStatus);
+        b.global(
             2,
-            "sources_ok".into(),
-            U16,
+            "sources_ok",
             "bits",
-            1.0,
             read,
-            "bit i: source i answers (sources in config order: Modbus, then CAN)".into(),
+            "bit i: source i answers (sources in config order: Modbus, then CAN)",
             Field::SourcesOk,
         );
-        b.add(
+        b.global(
             3,
-            "sources_stale".into(),
-            U16,
+            "sources_stale",
             "bits",
-            1.0,
             read,
-            "bit i: source i has not answered for longer than its stale time".into(),
+            "bit i: source i has not answered for longer than its stale time",
             Field::SourcesStale,
         );
-        b.add(
+        b.global(
             4,
-            "sources_lost".into(),
-            U16,
+            "sources_lost",
             "bits",
-            1.0,
             read,
-            "bit i: source i is lost (never answered, or silent past its lost time)".into(),
+            "bit i: source i is lost (never answered, or silent past its lost time)",
             Field::SourcesLost,
         );
-        b.add(
+        b.global(
             8,
-            "command.acknowledge_alarms".into(),
-            U16,
+            "command.acknowledge_alarms",
             "",
-            1.0,
             Access::ReadWrite,
-            "Command: write 1 to clear latched alarm bits; reads back 0".into(),
+            "Command: write 1 to clear latched alarm bits; reads back 0",
             Field::AcknowledgeAlarms,
         );
-        b.add(
+        b.global(
             9,
-            "command.reset_wear_trend".into(),
-            U16,
+            "command.reset_wear_trend",
             "bits",
-            1.0,
             Access::ReadWrite,
-            "Command: write a bitmask of drivelines (bit k = k-th driveline in config order; \
-             1 with a single driveline) to restart their wear trend and gap estimate (after \
-             a coupling is replaced); reads back 0"
-                .into(),
+            "Command: write a bitmask of the first 16 drivelines (bit k = k-th driveline in \
+             config order; 1 with a single driveline) to restart their wear trend and gap \
+             estimate (after a coupling is replaced); reads back 0. Drivelines past the 16th: \
+             command.reset_wear",
             Field::ResetWearTrend,
+        );
+        b.global(
+            10,
+            "command.reset_wear",
+            "",
+            Access::ReadWrite,
+            "Command: write a driveline's number (1-based, config order) to restart its wear \
+             trend and gap estimate; reads back 0",
+            Field::ResetWear,
         );
         for (k, driveline) in config.drivelines.iter().enumerate() {
             let base = DRIVELINES_START + DRIVELINE_STRIDE * k as u16;
-            let n = |field: &str| format!("{}.{field}", driveline.name);
-            let f = |field| Field::Driveline(k, field);
-            let fields: [(u16, &str, ValueType, &'static str, &str, DrivelineField); 17] = [
-                (0, "flags", U16, "bits", "bit0 TAF warning, bit1 TAF alarm (latched), bit2 source stale, bit3 last bite degraded (a gap, saturated or non-finite samples in its window: its values are not valid, their quality bits clear), bit4 gap warning, bit5 gap alarm (latched), bit6 values restored from before the last restart (last_bite_time says when; cleared by the next bite)", D::Flags),
-                (1, "quality", U16, "bits", "bit i set: value i of this block is valid (0 last_bite_time, 1 static_torque, 2 peak_torque, 3 taf, 4 period_shift, 5 beta1, 6 beta2, 7 wear_index, 8 wear_trend, 9 gap_mrad, 10 gap_low_mrad, 11 gap_high_mrad, 12 gap_coupling, 13 bites_pooled)", D::Quality),
-                (2, "bite_counter", U32, "", "Bites analysed since start (continued across restarts with a history)", D::BiteCounter),
-                (4, "last_bite_time", U32, "s", "Time of the last bite, Unix seconds", D::LastBiteTime),
-                (6, "static_torque", F32, "kN*m", "Static (settled) rolling torque of the last bite", D::StaticTorque),
-                (8, "peak_torque", F32, "kN*m", "Peak torque of the last bite", D::PeakTorque),
-                (10, "taf", F32, "", "Torque amplification factor of the last bite (peak / static)", D::Taf),
-                (12, "period_shift", F32, "s", "First minus second oscillation period of the last bite", D::PeriodShift),
-                (14, "beta1", F32, "Hz", "First natural frequency identified from the last bite", D::Beta1),
-                (16, "beta2", F32, "Hz", "Second natural frequency identified from the last bite", D::Beta2),
-                (18, "wear_index", F32, "", "Secondary figure: TAF-ratio wear index of the last bite, its TAF / the linear model's TAF - 1 (needs the driveline model)", D::WearIndex),
-                (20, "wear_trend", F32, "", "Secondary figure: mean of the TAF-ratio wear index over bites (EWMA, weight 0.1), reset by command.reset_wear_trend", D::WearTrend),
-                (22, "gap_mrad", F32, "mrad", "Opened gap (total dead-zone width, referred to the rolls), maximum likelihood over the pooled bites (needs the driveline model)", D::Gap),
-                (24, "gap_low_mrad", F32, "mrad", "Lower end of the gap's 90% interval", D::GapLow),
-                (26, "gap_high_mrad", F32, "mrad", "Upper end of the gap's 90% interval", D::GapHigh),
-                (28, "gap_coupling", U16, "", "Coupling holding the gap (model index, 0 = motor side); 65535 = undetermined (the bites cannot tell)", D::GapCoupling),
-                (29, "bites_pooled", U16, "", "Bites pooled into the gap estimate (the last drivelines[].wear.pool_bites; reset by command.reset_wear_trend)", D::BitesPooled),
-            ];
-            for (offset, name, value_type, unit, description, field) in fields {
-                b.add(
-                    base + offset,
-                    n(name),
-                    value_type,
-                    unit,
-                    1.0,
-                    read,
-                    description.into(),
-                    f(field),
-                );
-            }
+            b.block(
+                base,
+                &driveline.name,
+                "",
+                Block::Driveline(k),
+                catalogue::DRIVELINE,
+                DRIVELINE_LAYOUT,
+            );
         }
         let mills_start = DRIVELINES_START + DRIVELINE_STRIDE * config.drivelines.len() as u16;
         for (m, mill) in config.tandem_mills.iter().enumerate() {
-            use MillField as M;
-            let base = mills_start + MILL_STRIDE * m as u16;
-            let fields: [(u16, &str, ValueType, &'static str, &str, MillField); 9] = [
-                (0, "flags", U16, "bits", "Bits of the configured detector (detector key; band gain by default): bit0 chatter warning (band gain: gain_ratio >= slow_down_release; paper: sigma_n <= sigma_min), bit1 chatter alarm (gain_ratio >= 1; paper: both conditions; latched until acknowledged), bit2 source stale or window restarted, bit3 slow-down request (hysteresis: set by the alarm condition, cleared after slow_down_hold_s below slow_down_release; held while stale)", M::Flags),
-                (1, "quality", U16, "bits", "bit i set: value i is valid (0 sigma_n, 1 k_mean, 2 chatter_frequency, 3 chatter_gain, 4 gain_ratio, 5 band_rms_max, 6 worst_stand)", M::Quality),
-                (2, "sigma_n", F32, "Hz", "RMS deviation of the adjacent stands' principal chatter-band frequencies", M::SigmaN),
-                (4, "k_mean", F32, "", "Mean correlation of adjacent stands over the window", M::KMean),
-                (6, "chatter_frequency", F32, "Hz", "Mean principal frequency in the chatter band", M::ChatterFrequency),
-                (8, "chatter_gain", F32, "", "Largest chatter-band gain of any stand: chatter-band RMS / reference-band RMS over gain_window_s", M::ChatterGain),
-                (10, "gain_ratio", F32, "", "Largest gain / gain_thresholds[stand] of any stand: the early-warning figure, >= 1 is the band-gain alarm", M::GainRatio),
-                (12, "band_rms_max", F32, "", "Largest chatter-band RMS of any stand over gain_window_s, in the stand channels' unit", M::BandRmsMax),
-                (14, "worst_stand", U16, "", "Stand of gain_ratio, 1-based in the mill's stands order (0 when not valid)", M::WorstStand),
-            ];
-            for (offset, name, value_type, unit, description, field) in fields {
-                b.add(
-                    base + offset,
-                    format!("{}.{name}", mill.name),
-                    value_type,
-                    unit,
-                    1.0,
-                    read,
-                    description.into(),
-                    Field::Mill(m, field),
-                );
-            }
+            let base = mills_start + TANDEM_MILL_STRIDE * m as u16;
+            b.block(
+                base,
+                &mill.name,
+                "",
+                Block::TandemMill(m),
+                catalogue::TANDEM_MILL,
+                TANDEM_MILL_LAYOUT,
+            );
         }
-        let rods_start = mills_start + MILL_STRIDE * config.tandem_mills.len() as u16;
+        let rods_start = mills_start + TANDEM_MILL_STRIDE * config.tandem_mills.len() as u16;
         for (k, mill) in config.rod_mills.iter().enumerate() {
-            use RodMillField as R;
-            use RodSpanField as S;
             let base = rods_start + ROD_MILL_STRIDE * k as u16;
-            let fields: [(u16, &str, ValueType, &'static str, &str, RodMillField); 6] = [
-                (0, "flags", U16, "bits", "bit0 a span is unstable, bit1 a span is near a tongue, bit2 invalid (an input's source is stale or lost, or an input is out of range)", R::Flags),
-                (1, "quality", U16, "bits", "bit i set: value i is valid (0 configuration, 1 pass, 2 finishing_speed, 3 rod_temperature)", R::Quality),
-                (2, "configuration", U16, "", "Drive configuration in use: the PLC's value, an index into the rod mill's configurations", R::Configuration),
-                (3, "pass", U16, "", "Pass in use: the PLC's pass number (1-based row of the schedule)", R::Pass),
-                (4, "finishing_speed", F32, "m/s", "Finishing speed the spans were evaluated at", R::FinishingSpeed),
-                (6, "rod_temperature", F32, "degC", "Rod temperature of the pass setup in use (rounded to temperature_step_c, or the schedule's)", R::Temperature),
-            ];
-            for (offset, name, value_type, unit, description, field) in fields {
-                b.add(
-                    base + offset,
-                    format!("{}.{name}", mill.name),
-                    value_type,
-                    unit,
-                    1.0,
-                    read,
-                    description.into(),
-                    Field::RodMill(k, field),
-                );
-            }
+            b.block(
+                base,
+                &mill.name,
+                "",
+                Block::RodMill(k),
+                catalogue::ROD_MILL,
+                ROD_MILL_LAYOUT,
+            );
             for span in 0..MAX_ROD_SPANS {
                 let span_base = base + ROD_SPANS_START + ROD_SPAN_STRIDE * span as u16;
-                let fields: [(u16, &str, ValueType, &'static str, &str, RodSpanField); 5] = [
-                    (0, "flags", U16, "bits", "bit0 unstable, bit1 near a tongue (stable, speed margin < near_tongue_m_s), both with hysteresis; bit2 invalid (stale or refused input, or the mill has fewer spans)", S::Flags),
-                    (1, "quality", U16, "bits", "bit i set: value i is valid (0 speed_margin, 1 worst_exponent, 2 configuration)", S::Quality),
-                    (2, "speed_margin", F32, "m/s", "Finishing-speed change to the nearest unstable band edge: > 0 stable, < 0 unstable (the change that stabilises it); invalid when no band lies in the speed range", S::SpeedMargin),
-                    (4, "worst_exponent", F32, "1/s", "Largest growth exponent of the span's points (< 0 decaying)", S::WorstExponent),
-                    (6, "configuration", U16, "", "Drive configuration the span was evaluated in (index into the rod mill's configurations)", S::Configuration),
-                ];
-                for (offset, name, value_type, unit, description, field) in fields {
-                    b.add(
-                        span_base + offset,
-                        format!("{}.span{}.{name}", mill.name, span + 1),
-                        value_type,
-                        unit,
-                        1.0,
-                        read,
-                        format!(
-                            "Span {} (stand {} to {} in rolling order): {description}",
-                            span + 1,
-                            span + 1,
-                            span + 2
-                        ),
-                        Field::RodSpan(k, span, field),
-                    );
-                }
+                b.block(
+                    span_base,
+                    &format!("{}.span{}", mill.name, span + 1),
+                    &format!(
+                        "Span {} (stand {} to {} in rolling order): ",
+                        span + 1,
+                        span + 1,
+                        span + 2
+                    ),
+                    Block::RodSpan(k, span),
+                    catalogue::ROD_SPAN,
+                    ROD_SPAN_LAYOUT,
+                );
             }
         }
         let len = rods_start + ROD_MILL_STRIDE * config.rod_mills.len() as u16;
@@ -555,6 +554,11 @@ impl RegisterMap {
         self.registers.iter().find(|r| r.address == address)
     }
 
+    /// The register named `name` (`F1.taf`).
+    pub fn named(&self, name: &str) -> Option<&Register> {
+        self.registers.iter().find(|r| r.name == name)
+    }
+
     /// The register covering `address` (either word of a 32-bit value).
     pub fn covering(&self, address: u16) -> Option<&Register> {
         self.registers
@@ -581,10 +585,7 @@ impl RegisterMap {
     }
 }
 
-fn bits(
-    results: &Results,
-    pick: impl Fn(crate::field::source_health::SourceStatus) -> bool,
-) -> f64 {
+fn bits(results: &Results, pick: impl Fn(SourceStatus) -> bool) -> f64 {
     let mask = results
         .sources
         .iter()
@@ -595,222 +596,112 @@ fn bits(
     f64::from(mask)
 }
 
-fn value_of(field: Field, results: &Results) -> Option<f64> {
-    use crate::field::source_health::SourceStatus as S;
+/// A good figure as a register value: a time as Unix seconds, everything else as its
+/// number.
+fn register_value(value: Value) -> f64 {
+    match value {
+        Value::Time(ms) => ms.div_euclid(1000) as f64,
+        other => other.as_f64(),
+    }
+}
+
+/// The flags register of `subject`: every flag figure that is set, at its bit.
+fn flags_of<R: Subject>(figures: &[Figure<R>], subject: &R) -> f64 {
+    let flags = figures
+        .iter()
+        .filter_map(|f| match f.guard {
+            Guard::FlagBit(bit) => Some((bit, f.read(subject).good())),
+            _ => None,
+        })
+        .filter(|(_, value)| *value == Some(Value::Bool(true)))
+        .fold(0u16, |flags, (bit, _)| flags | (1 << bit));
+    f64::from(flags)
+}
+
+/// The quality register of `subject`: the bit of every laid-out value figure that is
+/// good (and finite).
+fn quality_of<R: Subject>(figures: &[Figure<R>], layout: &[Slot], subject: &R) -> f64 {
+    let mask = layout
+        .iter()
+        .map(|(key, _, _)| &figures[position(figures, key)])
+        .filter_map(|f| match f.guard {
+            Guard::QualityBit(bit) => Some((bit, f.read(subject).good())),
+            _ => None,
+        })
+        .filter(|(_, value)| value.is_some_and(|v| v.as_f64().is_finite()))
+        .fold(0u16, |mask, (bit, _)| mask | (1 << bit));
+    f64::from(mask)
+}
+
+/// The value of a figure register: the good value, else nothing (the words stay 0).
+fn figure_of<R: Subject>(figures: &[Figure<R>], index: usize, subject: &R) -> Option<f64> {
+    figures[index]
+        .read(subject)
+        .good()
+        .map(register_value)
+        .filter(|v| v.is_finite())
+}
+
+/// What `field` of a block reads, with its subject and tables.
+fn block_value<R: Subject>(
+    field: Field,
+    figures: &[Figure<R>],
+    layout: &[Slot],
+    subject: &R,
+) -> Option<f64> {
     match field {
-        Field::Heartbeat => Some(f64::from(results.heartbeat)),
+        Field::Flags(_) => Some(flags_of(figures, subject)),
+        Field::Quality(_) => Some(quality_of(figures, layout, subject)),
+        Field::Figure(_, index) => figure_of(figures, index, subject),
+        _ => None,
+    }
+}
+
+fn value_of(field: Field, results: &Results) -> Option<f64> {
+    let block = match field {
+        Field::Heartbeat => return Some(f64::from(results.heartbeat)),
         Field::GatewayStatus => {
             let mut status = match results.state {
                 GatewayState::Starting => 0,
                 GatewayState::Running => status_bits::RUNNING,
                 GatewayState::Stopped => status_bits::STOPPED,
             };
-            if results.sources.iter().any(|s| *s != Some(S::Ok)) {
+            if results.sources.iter().any(|s| *s != Some(SourceStatus::Ok)) {
                 status |= status_bits::SOURCE_PROBLEM;
             }
-            Some(f64::from(status))
+            return Some(f64::from(status));
         }
-        Field::SourcesOk => Some(bits(results, |s| s == S::Ok)),
-        Field::SourcesStale => Some(bits(results, |s| s == S::Stale)),
-        Field::SourcesLost => Some(bits(results, |s| s == S::Lost)),
-        Field::AcknowledgeAlarms | Field::ResetWearTrend => Some(0.0),
-        Field::Driveline(k, field) => results
-            .drivelines
-            .get(k)
-            .and_then(|d| driveline_value(d, field)),
-        Field::Mill(m, field) => results
-            .mills
-            .get(m)
-            .and_then(|mill| mill_value(mill, field)),
-        Field::RodMill(k, field) => results
-            .rod_mills
-            .get(k)
-            .and_then(|mill| rod_mill_value(mill, field)),
-        Field::RodSpan(k, span, field) => results
-            .rod_mills
-            .get(k)
-            .and_then(|mill| rod_span_value(mill, span, field)),
-    }
-}
-
-/// Values of a driveline block in quality-bit order.
-fn driveline_quality_values(d: &DrivelineResults) -> [Option<f64>; 14] {
-    let gap = d.gap.as_ref();
-    [
-        d.last_bite_unix_s.map(f64::from),
-        d.static_torque_knm,
-        d.peak_torque_knm,
-        d.taf,
-        d.first_period_shift_s,
-        d.beta1_hz,
-        d.beta2_hz,
-        d.wear_index,
-        d.wear_trend,
-        gap.map(|g| g.gap_mrad),
-        gap.map(|g| g.low_mrad),
-        gap.map(|g| g.high_mrad),
-        gap.map(|g| {
-            g.coupling
-                .and_then(|c| u16::try_from(c).ok())
-                .filter(|&c| c != GAP_COUPLING_UNDETERMINED)
-                .map_or(f64::from(GAP_COUPLING_UNDETERMINED), f64::from)
-        }),
-        gap.map(|g| g.bites_pooled.min(usize::from(u16::MAX)) as f64),
-    ]
-}
-
-fn quality_mask(values: &[Option<f64>]) -> f64 {
-    let mask = values
-        .iter()
-        .enumerate()
-        .filter(|(_, v)| v.is_some_and(f64::is_finite))
-        .fold(0u16, |mask, (i, _)| mask | (1 << i));
-    f64::from(mask)
-}
-
-fn driveline_value(d: &DrivelineResults, field: DrivelineField) -> Option<f64> {
-    use driveline_flags as fl;
-    use DrivelineField as D;
-    let fresh = |v: Option<f64>| v.filter(|_| !d.source_stale);
-    match field {
-        D::Flags => {
-            let flags = [
-                (d.warning, fl::WARNING),
-                (d.alarm, fl::ALARM),
-                (d.source_stale, fl::SOURCE_STALE),
-                (d.last_bite_degraded, fl::DEGRADED),
-                (d.gap_warning, fl::GAP_WARNING),
-                (d.gap_alarm, fl::GAP_ALARM),
-                (d.restored, fl::RESTORED),
-            ]
-            .iter()
-            .filter(|(set, _)| *set)
-            .fold(0, |flags, (_, bit)| flags | bit);
-            Some(f64::from(flags))
-        }
-        D::Quality => {
-            if d.source_stale {
-                Some(0.0)
-            } else {
-                Some(quality_mask(&driveline_quality_values(d)))
-            }
-        }
-        D::BiteCounter => Some(f64::from(d.bite_counter)),
-        D::LastBiteTime => fresh(driveline_quality_values(d)[0]),
-        D::StaticTorque => fresh(d.static_torque_knm),
-        D::PeakTorque => fresh(d.peak_torque_knm),
-        D::Taf => fresh(d.taf),
-        D::PeriodShift => fresh(d.first_period_shift_s),
-        D::Beta1 => fresh(d.beta1_hz),
-        D::Beta2 => fresh(d.beta2_hz),
-        D::WearIndex => fresh(d.wear_index),
-        D::WearTrend => fresh(d.wear_trend),
-        D::Gap => fresh(driveline_quality_values(d)[9]),
-        D::GapLow => fresh(driveline_quality_values(d)[10]),
-        D::GapHigh => fresh(driveline_quality_values(d)[11]),
-        D::GapCoupling => fresh(driveline_quality_values(d)[12]),
-        D::BitesPooled => fresh(driveline_quality_values(d)[13]),
-    }
-}
-
-/// Values of a mill block in quality-bit order.
-fn mill_quality_values(m: &MillResults) -> [Option<f64>; 7] {
-    [
-        m.sigma_n_hz,
-        m.k_mean,
-        m.chatter_frequency_hz,
-        m.chatter_gain,
-        m.gain_ratio,
-        m.band_rms_max,
-        m.worst_stand.map(|stand| stand as f64 + 1.0),
-    ]
-}
-
-fn mill_value(m: &MillResults, field: MillField) -> Option<f64> {
-    use mill_flags as fl;
-    let fresh = |v: Option<f64>| v.filter(|_| !m.source_stale);
-    match field {
-        MillField::Flags => {
-            let flags = [
-                (m.warning, fl::WARNING),
-                (m.alarm, fl::ALARM),
-                (m.source_stale, fl::SOURCE_STALE),
-                (m.slow_down_request, fl::SLOW_DOWN_REQUEST),
-            ]
-            .iter()
-            .filter(|(set, _)| *set)
-            .fold(0, |flags, (_, bit)| flags | bit);
-            Some(f64::from(flags))
-        }
-        MillField::Quality => {
-            if m.source_stale {
-                Some(0.0)
-            } else {
-                Some(quality_mask(&mill_quality_values(m)))
-            }
-        }
-        MillField::SigmaN => fresh(m.sigma_n_hz),
-        MillField::KMean => fresh(m.k_mean),
-        MillField::ChatterFrequency => fresh(m.chatter_frequency_hz),
-        MillField::ChatterGain => fresh(m.chatter_gain),
-        MillField::GainRatio => fresh(m.gain_ratio),
-        MillField::BandRmsMax => fresh(m.band_rms_max),
-        MillField::WorstStand => fresh(mill_quality_values(m)[6]),
-    }
-}
-
-/// The unstable and near-tongue bits of a rod `flags` register.
-fn rod_flag_bits(unstable: bool, near_tongue: bool) -> u16 {
-    let bit = |set: bool, bit: u16| if set { bit } else { 0 };
-    bit(unstable, rod_flags::UNSTABLE) | bit(near_tongue, rod_flags::NEAR_TONGUE)
-}
-
-fn rod_mill_value(m: &RodMillResults, field: RodMillField) -> Option<f64> {
-    use RodMillField as R;
-    let valid = m.valid();
-    let values = [
-        m.configuration.map(f64::from),
-        m.pass.map(f64::from),
-        m.finishing_speed_m_s,
-        m.temperature_c,
-    ];
-    let fresh = |v: Option<f64>| v.filter(|_| valid);
-    match field {
-        R::Flags => {
-            let any = |pick: fn(&RodSpanResults) -> bool| m.spans.iter().any(pick);
-            Some(f64::from(if valid {
-                rod_flag_bits(any(|s| s.unstable), any(|s| s.near_tongue))
-            } else {
-                rod_flags::INVALID
-            }))
-        }
-        R::Quality => Some(if valid { quality_mask(&values) } else { 0.0 }),
-        R::Configuration => fresh(values[0]),
-        R::Pass => fresh(values[1]),
-        R::FinishingSpeed => fresh(values[2]),
-        R::Temperature => fresh(values[3]),
-    }
-}
-
-fn rod_span_value(m: &RodMillResults, span: usize, field: RodSpanField) -> Option<f64> {
-    use RodSpanField as S;
-    let result = m.spans.get(span).filter(|s| s.valid && m.valid());
-    let values = result.map(|s| {
-        [
-            s.speed_margin_m_s,
-            s.worst_exponent_per_s,
-            s.configuration.map(f64::from),
-        ]
-    });
-    match field {
-        S::Flags => Some(f64::from(match result {
-            Some(s) => rod_flag_bits(s.unstable, s.near_tongue),
-            None => rod_flags::INVALID,
-        })),
-        S::Quality => Some(values.map_or(0.0, |v| quality_mask(&v))),
-        S::SpeedMargin => values.and_then(|v| v[0]),
-        S::WorstExponent => values.and_then(|v| v[1]),
-        S::Configuration => values.and_then(|v| v[2]),
+        Field::SourcesOk => return Some(bits(results, |s| s == SourceStatus::Ok)),
+        Field::SourcesStale => return Some(bits(results, |s| s == SourceStatus::Stale)),
+        Field::SourcesLost => return Some(bits(results, |s| s == SourceStatus::Lost)),
+        Field::AcknowledgeAlarms | Field::ResetWearTrend | Field::ResetWear => return Some(0.0),
+        Field::Flags(block) | Field::Quality(block) | Field::Figure(block, _) => block,
+    };
+    match block {
+        Block::Driveline(k) => block_value(
+            field,
+            catalogue::DRIVELINE,
+            DRIVELINE_LAYOUT,
+            results.drivelines.get(k)?,
+        ),
+        Block::TandemMill(m) => block_value(
+            field,
+            catalogue::TANDEM_MILL,
+            TANDEM_MILL_LAYOUT,
+            results.tandem_mills.get(m)?,
+        ),
+        Block::RodMill(k) => block_value(
+            field,
+            catalogue::ROD_MILL,
+            ROD_MILL_LAYOUT,
+            results.rod_mills.get(k)?,
+        ),
+        Block::RodSpan(k, span) => block_value(
+            field,
+            catalogue::ROD_SPAN,
+            ROD_SPAN_LAYOUT,
+            &results.rod_mills.get(k)?.published_span(span),
+        ),
     }
 }
 
@@ -827,18 +718,20 @@ pub fn decode_u32(words: &[u16]) -> Option<u32> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::state::catalogue::Figure;
+    use crate::state::results::{DrivelineResults, TandemMillResults};
+
+    fn example(name: &str) -> Config {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../config/examples")
+            .join(name);
+        millgate_config::load(&path).expect("the example loads")
+    }
 
     /// The map of the tandem example and the address of its mill block.
     fn tandem_map() -> (RegisterMap, usize) {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../config/examples/tandem-5stand.toml");
-        let config = millgate_config::load(&path).expect("the tandem example loads");
-        let map = RegisterMap::new(&config);
-        let flags = map
-            .registers()
-            .iter()
-            .find(|r| r.name == "TCM 2030.flags")
-            .expect("mill block");
+        let map = RegisterMap::new(&example("tandem-5stand.toml"));
+        let flags = map.named("TCM 2030.flags").expect("mill block");
         let base = usize::from(flags.address);
         (map, base)
     }
@@ -847,7 +740,7 @@ mod tests {
     fn mill_block_golden_words() {
         let (map, base) = tandem_map();
         let mut results = Results::new(2, 0, 1);
-        results.mills[0] = MillResults {
+        results.tandem_mills[0] = TandemMillResults {
             evaluations: 9,
             sigma_n_hz: Some(0.5),
             k_mean: Some(0.25),
@@ -856,8 +749,8 @@ mod tests {
             gain_ratio: Some(1.25),
             band_rms_max: Some(2.0),
             worst_stand: Some(3),
-            warning: true,
-            alarm: true,
+            chatter_warning: true,
+            chatter_alarm: true,
             source_stale: false,
             slow_down_request: true,
         };
@@ -872,18 +765,20 @@ mod tests {
         );
 
         // Before the gain's window is full: its values invalid, the spectra's valid.
-        results.mills[0].chatter_gain = None;
-        results.mills[0].gain_ratio = None;
-        results.mills[0].band_rms_max = None;
-        results.mills[0].worst_stand = None;
+        let mill = &mut results.tandem_mills[0];
+        mill.chatter_gain = None;
+        mill.gain_ratio = None;
+        mill.band_rms_max = None;
+        mill.worst_stand = None;
         let words = map.encode(&results);
         assert_eq!(words[base + 1], 0b000_0111);
         assert_eq!(words[base + 8..base + 15], [0; 7]);
 
         // Stale: every value reads 0 with its quality bit clear; the request holds.
-        results.mills[0].gain_ratio = Some(1.25);
-        results.mills[0].source_stale = true;
-        results.mills[0].warning = false;
+        let mill = &mut results.tandem_mills[0];
+        mill.gain_ratio = Some(1.25);
+        mill.source_stale = true;
+        mill.chatter_warning = false;
         let words = map.encode(&results);
         assert_eq!(
             words[base], 0b1110,
@@ -891,5 +786,146 @@ mod tests {
         );
         assert_eq!(words[base + 1], 0);
         assert_eq!(words[base + 2..base + 15], [0; 13]);
+    }
+
+    #[test]
+    fn driveline_block_golden_words_and_the_stale_rule() {
+        let config = example("hot-mill.toml");
+        let map = RegisterMap::new(&config);
+        let base = usize::from(
+            map.named("F1 main drive.flags")
+                .expect("driveline block")
+                .address,
+        );
+        let mut results = Results::new(config.sources().count(), config.drivelines.len(), 0);
+        let driveline = DrivelineResults {
+            bite_counter: 70_000,
+            degraded_bites: 2,
+            last_bite_unix_ms: Some(1_800_000_000_999),
+            taf: Some(1.5),
+            gap: Some(crate::state::results::GapResults {
+                gap_mrad: 2.5,
+                low_mrad: 2.0,
+                high_mrad: 3.0,
+                coupling: None,
+                likeliest_coupling: Some(1),
+                bites_pooled: 12,
+            }),
+            taf_warning: true,
+            restored: true,
+            ..DrivelineResults::default()
+        };
+        results.drivelines[0] = driveline.clone();
+        let words = map.encode(&results);
+        assert_eq!(words[base], 0b100_0001, "taf_warning, restored");
+        // last_bite_time (bit 0), taf (3), gap, interval (9-11), bites_pooled (13): the
+        // coupling is undetermined, bit 12 clear.
+        assert_eq!(words[base + 1], 0b10_1110_0000_1001);
+        assert_eq!(words[base + 2..base + 4], [0x0001, 0x1170], "70 000");
+        // 1 800 000 000 s = 0x6B49D200, whole seconds.
+        assert_eq!(words[base + 4..base + 6], [0x6B49, 0xD200]);
+        assert_eq!(words[base + 10..base + 12], [0x3FC0, 0], "TAF 1.5");
+        assert_eq!(words[base + 22..base + 24], [0x4020, 0], "gap 2.5 mrad");
+        assert_eq!(words[base + 28], 0, "undetermined coupling: no value");
+        assert_eq!(words[base + 29], 12);
+        assert_eq!(words[base + 30..base + 32], [0, 2], "degraded bites");
+
+        // Stale: the last bite's values are withheld (last usable only), counters and
+        // flags stay.
+        results.drivelines[0].source_stale = true;
+        let words = map.encode(&results);
+        assert_eq!(
+            words[base], 0b100_0101,
+            "taf_warning, source_stale, restored"
+        );
+        assert_eq!(words[base + 1], 0);
+        assert_eq!(words[base + 2..base + 4], [0x0001, 0x1170]);
+        assert!(words[base + 4..base + 30].iter().all(|&w| w == 0));
+        assert_eq!(words[base + 30..base + 32], [0, 2]);
+    }
+
+    /// Every figure of `figures` is in `layout`, a flag, or listed in [`NOT_MAPPED`];
+    /// the layout names catalogue keys, fits `stride` and overlaps nothing.
+    fn covers<R: Subject>(figures: &[Figure<R>], layout: &[Slot], stride: u16) {
+        let kind = R::KIND;
+        for figure in figures {
+            let laid_out = layout.iter().any(|(key, _, _)| *key == figure.key);
+            let flag = matches!(figure.guard, Guard::FlagBit(_));
+            let excused = NOT_MAPPED
+                .iter()
+                .any(|(subject, key, _)| *subject == kind && *key == figure.key);
+            assert!(
+                laid_out || flag || excused,
+                "{} figure {} has no register and is not listed in NOT_MAPPED",
+                kind.name(),
+                figure.key
+            );
+            assert!(!(laid_out && excused), "{} is both", figure.key);
+            if laid_out {
+                assert!(
+                    matches!(figure.guard, Guard::QualityBit(_) | Guard::Always),
+                    "{}: a register value needs a quality bit or none",
+                    figure.key
+                );
+            }
+        }
+        let mut used = vec![false; usize::from(stride)];
+        used[0] = true;
+        used[1] = true;
+        for &(key, offset, value_type) in layout {
+            position(figures, key);
+            for word in offset..offset + value_type.register_count() {
+                let slot = used
+                    .get_mut(usize::from(word))
+                    .unwrap_or_else(|| panic!("{key} runs past the block"));
+                assert!(!*slot, "{key} overlaps another register");
+                *slot = true;
+            }
+        }
+    }
+
+    #[test]
+    fn every_catalogue_figure_has_a_register_or_a_reason() {
+        covers(catalogue::DRIVELINE, DRIVELINE_LAYOUT, DRIVELINE_STRIDE);
+        covers(
+            catalogue::TANDEM_MILL,
+            TANDEM_MILL_LAYOUT,
+            TANDEM_MILL_STRIDE,
+        );
+        covers(catalogue::ROD_MILL, ROD_MILL_LAYOUT, ROD_SPANS_START);
+        covers(catalogue::ROD_SPAN, ROD_SPAN_LAYOUT, ROD_SPAN_STRIDE);
+        for (subject, key, _) in NOT_MAPPED {
+            assert!(
+                catalogue::all()
+                    .iter()
+                    .any(|f| f.subject == *subject && f.key == *key),
+                "NOT_MAPPED names {key}, not in the catalogue"
+            );
+        }
+    }
+
+    #[test]
+    fn register_names_are_block_names_and_catalogue_keys() {
+        let map = RegisterMap::new(&example("rod-mill.toml"));
+        let keys: Vec<&str> = catalogue::all().iter().map(|f| f.key).collect();
+        for register in map.registers() {
+            let key = register.name.rsplit('.').next().unwrap_or_default();
+            let global = matches!(
+                register.field,
+                Field::Heartbeat
+                    | Field::GatewayStatus
+                    | Field::SourcesOk
+                    | Field::SourcesStale
+                    | Field::SourcesLost
+                    | Field::AcknowledgeAlarms
+                    | Field::ResetWearTrend
+                    | Field::ResetWear
+            );
+            assert!(
+                global || key == "flags" || key == "quality" || keys.contains(&key),
+                "{} is not named by a catalogue key",
+                register.name
+            );
+        }
     }
 }

@@ -7,8 +7,8 @@ use std::process::{Child, Command, Stdio};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use millgate::outputs::publisher::Publisher;
 use millgate::outputs::sparkplug::{forward, next_bd_seq, SparkplugNode};
+use millgate::state::board::Board;
 use millgate_config::Config;
 
 /// Debian's mosquitto on `127.0.0.1:port`, anonymous, no persistence; killed on drop.
@@ -112,9 +112,9 @@ pub(crate) fn start_node(
     Arc<millgate::outputs::sparkplug::SparkplugStatus>,
     tokio::task::JoinHandle<()>,
 ) {
-    let publisher = Arc::new(Publisher::new(config, Vec::new()));
+    let board = Arc::new(Board::new(config, Vec::new()));
     let history = config.history.as_ref().unwrap().path.clone();
-    let node = SparkplugNode::new(config.outputs.mqtt.clone().unwrap(), history, publisher)
+    let node = SparkplugNode::new(config.outputs.mqtt.clone().unwrap(), history, board)
         .unwrap_or_else(|error| panic!("{error}"));
     let status = node.status();
     let (trigger, shutdown) = millgate::shutdown::channel();

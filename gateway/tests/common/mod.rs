@@ -42,7 +42,12 @@ impl Plc<'_> {
     }
 
     pub(crate) fn taf(&self) -> f32 {
-        decode_f32(&self.plc.holding()[self.at("F1.taf")..]).unwrap_or(f32::NAN)
+        self.f32_of("F1.taf")
+    }
+
+    /// The f32 register `name` as the PLC holds it.
+    pub(crate) fn f32_of(&self, name: &str) -> f32 {
+        decode_f32(&self.plc.holding()[self.at(name)..]).unwrap_or(f32::NAN)
     }
 
     /// Wait until the PLC shows `more` bites beyond what it shows now.

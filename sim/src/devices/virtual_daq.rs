@@ -98,6 +98,14 @@ impl VirtualDaq {
         }
     }
 
+    /// This DAQ with its block sequence at `sequence` (its first block is
+    /// `sequence + 1`), as one that has been running for a while: a restart then sets
+    /// the sequence back by far more than any delay of a reader could advance it.
+    pub fn with_sequence(mut self, sequence: u16) -> Self {
+        self.sequence = sequence;
+        self
+    }
+
     fn span(channel: &DaqChannel) -> u16 {
         match channel.publish {
             Publish::Block => BLOCK_HEADER_REGISTERS + MAX_BLOCK_SAMPLES,

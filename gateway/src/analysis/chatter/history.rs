@@ -1,22 +1,24 @@
 //! The chatter history of one mill: episodes (from the warning condition set to it
-//! cleared, or the window restarted) and the alarm when it latches.
+//! cleared, or the window restarted), the warning raised and cleared, and the alarm
+//! when it latches.
 
 use super::monitor::ChatterUpdate;
-use crate::outputs::history::events::{
+use crate::state::events::{
     AlarmEvent, AlarmKind, AlarmRecord, ChatterWindow, EndedBy, HistoryEvent,
 };
-use crate::outputs::history::time::UtcTime;
-use crate::outputs::results::MillResults;
+use crate::state::results::TandemMillResults;
+use crate::state::time::UtcTime;
 
 /// The history events of one update: an episode starts, goes on or ends with the
-/// warning condition (a window restart ends it too); the alarm is recorded when it
-/// latches.
+/// warning condition (a window restart ends it too); the warning is recorded when it
+/// is raised or cleared, the alarm when it latches (with the gain ratio, or K_mean
+/// for the paper's detector).
 pub(super) fn record_episode(
     events: &mut Vec<HistoryEvent>,
     mill: &str,
     change: &ChatterUpdate,
     (was_warning, was_alarm): (bool, bool),
-    published: &MillResults,
+    published: &TandemMillResults,
 ) {
     let time = UtcTime::now();
     let window = match change {
@@ -28,7 +30,7 @@ pub(super) fn record_episode(
         }),
         _ => None,
     };
-    match (was_warning, published.warning, window) {
+    match (was_warning, published.chatter_warning, window) {
         (false, true, Some(window)) => events.push(HistoryEvent::ChatterStarted {
             time,
             mill: mill.to_owned(),
@@ -49,15 +51,26 @@ pub(super) fn record_episode(
         }),
         _ => {}
     }
-    if published.alarm && !was_alarm {
-        events.push(HistoryEvent::Alarm(AlarmRecord {
+    let alarm = |kind, event| {
+        HistoryEvent::Alarm(AlarmRecord {
             time,
             subject: mill.to_owned(),
-            kind: AlarmKind::ChatterAlarm,
-            event: AlarmEvent::Raised,
+            kind,
+            event,
             origin: None,
-            value: published.k_mean,
+            value: published.gain_ratio.or(published.k_mean),
             threshold: None,
-        }));
+        })
+    };
+    if published.chatter_warning != was_warning {
+        let event = if published.chatter_warning {
+            AlarmEvent::Raised
+        } else {
+            AlarmEvent::Cleared
+        };
+        events.push(alarm(AlarmKind::ChatterWarning, event));
+    }
+    if published.chatter_alarm && !was_alarm {
+        events.push(alarm(AlarmKind::ChatterAlarm, AlarmEvent::Raised));
     }
 }

@@ -289,7 +289,11 @@ impl ChatterMonitor {
     /// the warning and alarm of this window (see [`super::ChatterAnalysis`]); both
     /// false for a restart or a window that could not be evaluated.
     pub fn judge(&self, change: &ChatterUpdate, slow_down: &mut SlowDown) -> Verdict {
-        verdict::judge(self.kind, self.gain(), self.hop_s(), change, slow_down)
+        let evaluated = match change {
+            ChatterUpdate::Evaluated(result) => Some(result),
+            ChatterUpdate::Failed(_) | ChatterUpdate::Restarted(_) => None,
+        };
+        verdict::judge(self.kind, self.gain(), self.hop_s(), evaluated, slow_down)
     }
 
     /// The configured detector's alarm figure for an evaluation with `result`,

@@ -12,8 +12,8 @@ use super::monitor::{ChatterMonitor, ChatterSetupError, ChatterUpdate};
 use super::spectra::chatter_frequency_hz;
 use super::verdict::{SlowDown, Verdict};
 use crate::field::acquired::Acquired;
-use crate::outputs::publisher::Publisher;
-use crate::outputs::results::MillResults;
+use crate::state::board::Board;
+use crate::state::results::TandemMillResults;
 
 /// Every tandem mill's monitor, fed by the analysis task; results go to the
 /// register map (PLC writes, HMI server) and `/metrics`.
@@ -32,12 +32,12 @@ pub struct ChatterAnalysis {
     slow_downs: Vec<SlowDown>,
     /// Per channel: the (mill, stand) pairs it feeds.
     by_channel: Vec<Vec<(usize, usize)>>,
-    publisher: Arc<Publisher>,
+    board: Arc<Board>,
 }
 
 impl ChatterAnalysis {
     /// Monitors for every tandem mill of `config`.
-    pub fn new(config: &Config, publisher: Arc<Publisher>) -> Result<Self, ChatterSetupError> {
+    pub fn new(config: &Config, board: Arc<Board>) -> Result<Self, ChatterSetupError> {
         let mut by_channel = vec![Vec::new(); config.channels.len()];
         let mut monitors = Vec::new();
         for (m, mill) in config.tandem_mills.iter().enumerate() {
@@ -50,7 +50,7 @@ impl ChatterAnalysis {
             slow_downs: monitors.iter().map(ChatterMonitor::slow_down).collect(),
             monitors,
             by_channel,
-            publisher,
+            board,
         })
     }
 
@@ -79,7 +79,7 @@ impl ChatterAnalysis {
             };
             if let Some(change) = change {
                 publish(
-                    &self.publisher,
+                    &self.board,
                     mill,
                     monitor,
                     &mut self.slow_downs[mill],
@@ -93,7 +93,7 @@ impl ChatterAnalysis {
 /// Record one monitor update in the published results, and in the history the
 /// chatter episodes (from the warning condition set to it cleared) and the alarm.
 fn publish(
-    publisher: &Publisher,
+    board: &Board,
     mill: usize,
     monitor: &ChatterMonitor,
     slow_down: &mut SlowDown,
@@ -109,12 +109,12 @@ fn publish(
             "chatter slow-down request changed"
         );
     }
-    publisher.update_recorded(|results, events| {
-        let Some(published) = results.mills.get_mut(mill) else {
+    board.update_recorded(|results, events| {
+        let Some(published) = results.tandem_mills.get_mut(mill) else {
             return;
         };
         let was_flagged = published.source_stale;
-        let (was_warning, was_alarm) = (published.warning, published.alarm);
+        let (was_warning, was_alarm) = (published.chatter_warning, published.chatter_alarm);
         match change {
             ChatterUpdate::Evaluated(result) => {
                 published.evaluations = monitor.evaluations();
@@ -127,8 +127,8 @@ fn publish(
                 published.gain_ratio = gain.and_then(|g| g.ratio).map(|(ratio, _)| ratio);
                 published.worst_stand = gain.and_then(|g| g.ratio).map(|(_, stand)| stand);
                 let Verdict { warning, alarm, .. } = verdict;
-                published.warning = warning;
-                if alarm && !published.alarm {
+                published.chatter_warning = warning;
+                if alarm && !published.chatter_alarm {
                     tracing::warn!(
                         mill = %name,
                         detector = ?monitor.detector(),
@@ -140,7 +140,7 @@ fn publish(
                         "chatter alarm"
                     );
                 }
-                published.alarm |= alarm;
+                published.chatter_alarm |= alarm;
                 published.source_stale = false;
                 if was_flagged {
                     tracing::info!(mill = %name, "chatter window complete again");
@@ -166,7 +166,7 @@ fn publish(
 }
 
 /// Values invalid: never a frozen old value.
-fn clear(published: &mut MillResults) {
+fn clear(published: &mut TandemMillResults) {
     published.sigma_n_hz = None;
     published.k_mean = None;
     published.chatter_frequency_hz = None;
@@ -174,5 +174,5 @@ fn clear(published: &mut MillResults) {
     published.gain_ratio = None;
     published.band_rms_max = None;
     published.worst_stand = None;
-    published.warning = false;
+    published.chatter_warning = false;
 }

@@ -12,7 +12,6 @@ use millgate_config::ChatterDetectorKind;
 use millgate_dsp::chatter::ChatterResult;
 
 use super::gain::GainReading;
-use super::monitor::ChatterUpdate;
 
 /// The configured detector's bits after one update ([`super::ChatterMonitor::judge`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -112,17 +111,18 @@ pub(super) fn alarm_level(
     }
 }
 
-/// Detector `kind`'s verdict on `change`: moves `slow_down` (windows `hop_s` apart)
-/// and returns the warning and alarm of this window; both false for a restart or a
-/// window that could not be evaluated.
+/// Detector `kind`'s verdict on an update that evaluated a window into `evaluated`, or
+/// `None` for one that did not (a restart, a window that could not be evaluated):
+/// moves `slow_down` (windows `hop_s` apart) and returns the warning and alarm of this
+/// window; both false without an evaluation.
 pub(super) fn judge(
     kind: ChatterDetectorKind,
     gain: Option<GainReading>,
     hop_s: f64,
-    change: &ChatterUpdate,
+    evaluated: Option<&ChatterResult>,
     slow_down: &mut SlowDown,
 ) -> Verdict {
-    let ChatterUpdate::Evaluated(result) = change else {
+    let Some(result) = evaluated else {
         slow_down.untrusted();
         return Verdict {
             warning: false,

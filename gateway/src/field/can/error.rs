@@ -13,10 +13,13 @@ pub enum CanError {
         /// CAN sources in the configuration.
         count: usize,
     },
-    /// The running kernel was built without SocketCAN (`socket(AF_CAN)` gives errno 97).
+    /// The running kernel was built without SocketCAN, or the service may not open
+    /// `AF_CAN` sockets (a systemd unit's `RestrictAddressFamilies=` without it):
+    /// `socket(AF_CAN)` gives errno 97 either way.
     #[error(
-        "SocketCAN not available in this kernel (errno 97) for CAN interface `{interface}`; \
-         run the vcan suite through scripts/uml-vcan"
+        "SocketCAN not available in this kernel (errno 97) for CAN interface `{interface}`, \
+         or not to this service (a systemd unit's RestrictAddressFamilies= without AF_CAN); \
+         for the tests, run the vcan suite through scripts/uml-vcan"
     )]
     NoSocketCan {
         /// The interface name.

@@ -14,9 +14,9 @@ use crate::field::counters::ChannelCounters;
 use crate::field::source_health::{SourceHealth, SourceStatus};
 use crate::shutdown::Shutdown;
 
-use super::events::{EndedBy, HistoryEvent};
-use super::time::UtcTime;
-use super::History;
+use crate::state::events::{EndedBy, HistoryEvent};
+use crate::state::history::History;
+use crate::state::time::UtcTime;
 
 /// Time between health checks.
 pub const PERIOD: Duration = Duration::from_millis(250);

@@ -14,10 +14,10 @@ use std::path::{Path, PathBuf};
 use rusqlite::{Connection, OpenFlags};
 use serde::Serialize;
 
+use super::error::{check_file_owner, HistoryError};
 use super::restore::Restored;
 use super::schema::{current_version, SchemaError};
-use super::time::UtcTime;
-use super::HistoryError;
+use crate::state::time::UtcTime;
 
 /// Which rows to read.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
@@ -195,7 +195,7 @@ record! {
         gap_high_mrad: Option<f64>,
         /// The coupling holding the gap (model index, 0 = motor side); `None` when
         /// the bites cannot tell.
-        gap_coupling: Option<String>,
+        gap_coupling: Option<i64>,
         /// Bites pooled into the estimate.
         bites_pooled: Option<i64>,
     }
@@ -234,7 +234,7 @@ record! {
         gap_high_mrad: Option<f64>,
         /// The coupling holding the gap (model index, 0 = motor side); `None` when
         /// the bites cannot tell.
-        gap_coupling: Option<String>,
+        gap_coupling: Option<i64>,
         /// Bites pooled.
         bites_pooled: Option<i64>,
         /// `ok`, `warning`, `alarm`.
@@ -253,7 +253,8 @@ record! {
         time: String,
         /// The driveline or mill.
         subject: String,
-        /// `taf_warning`, `taf_alarm`, `chatter_alarm`, `wear_alarm`.
+        /// The flag's key: `taf_warning`, `taf_alarm`, `gap_warning`, `gap_alarm`,
+        /// `chatter_warning`, `chatter_alarm`.
         kind: String,
         /// `raised`, `cleared`, `acknowledged`.
         event: String,
@@ -364,8 +365,9 @@ pub struct HistoryReader {
 }
 
 impl HistoryReader {
-    /// Open `path` read-only; refuses a file that is not a millgate history or is
-    /// newer than this millgate.
+    /// Open `path` read-only; refuses a file that is not a millgate history (another
+    /// application's SQLite file, or one without a millgate schema) or is newer than
+    /// this millgate.
     pub fn open(path: &Path) -> Result<Self, HistoryError> {
         let sqlite = |source| HistoryError::Sqlite {
             path: path.to_path_buf(),
@@ -376,6 +378,7 @@ impl HistoryReader {
             OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX,
         )
         .map_err(sqlite)?;
+        check_file_owner(&connection, path)?;
         let version: i64 = connection
             .pragma_query_value(None, "user_version", |row| row.get(0))
             .map_err(sqlite)?;
@@ -434,6 +437,42 @@ impl HistoryReader {
 
     /// The rows that pass `filter` in id order, or newest first by time (`newest`).
     fn select<R: Record>(&self, filter: &Filter, newest: bool) -> Result<Vec<R>, HistoryError> {
+        let mut rows = Vec::new();
+        self.visit(filter, newest, |row| {
+            rows.push(row);
+            Ok::<_, HistoryError>(())
+        })?;
+        Ok(rows)
+    }
+
+    /// Hands each row of `R`'s table that passes `filter` to `visit`, in id order, as
+    /// it is read: nothing is kept, so an export of a year of bites needs the memory
+    /// of one row. `visit`'s error ends the reading and is returned.
+    pub fn for_each<R: Record, E: From<HistoryError>>(
+        &self,
+        filter: &Filter,
+        visit: impl FnMut(R) -> Result<(), E>,
+    ) -> Result<(), E> {
+        self.visit(filter, false, visit)
+    }
+
+    /// How many rows of `R`'s table pass `filter` (at most its limit).
+    pub fn count<R: Record>(&self, filter: &Filter) -> Result<u64, HistoryError> {
+        let (conditions, values) = Self::conditions::<R>(filter);
+        let sql = format!("SELECT count(*) FROM {}{conditions}", R::TABLE);
+        let count: i64 = self
+            .connection
+            .query_row(&sql, rusqlite::params_from_iter(values), |row| row.get(0))
+            .map_err(|e| self.error(e))?;
+        let count = u64::try_from(count).unwrap_or(0);
+        Ok(filter
+            .limit
+            .map_or(count, |limit| count.min(u64::from(limit))))
+    }
+
+    /// The `WHERE` clause (empty, or starting with a space) of `filter` on `R`'s
+    /// table, and its values.
+    fn conditions<R: Record>(filter: &Filter) -> (String, Vec<rusqlite::types::Value>) {
         let mut conditions = Vec::new();
         let mut values: Vec<rusqlite::types::Value> = Vec::new();
         let mut condition = |sql: String, value: rusqlite::types::Value| {
@@ -452,11 +491,27 @@ impl HistoryReader {
         if let Some(after) = filter.after_id {
             condition("id >".into(), after.into());
         }
-        let mut sql = format!("SELECT {} FROM {}", R::COLUMNS.join(", "), R::TABLE);
-        if !conditions.is_empty() {
-            sql.push_str(" WHERE ");
-            sql.push_str(&conditions.join(" AND "));
+        if conditions.is_empty() {
+            (String::new(), values)
+        } else {
+            (format!(" WHERE {}", conditions.join(" AND ")), values)
         }
+    }
+
+    /// Hands the rows that pass `filter` to `visit` as they are read, in id order, or
+    /// newest first by time (`newest`).
+    fn visit<R: Record, E: From<HistoryError>>(
+        &self,
+        filter: &Filter,
+        newest: bool,
+        mut visit: impl FnMut(R) -> Result<(), E>,
+    ) -> Result<(), E> {
+        let (conditions, values) = Self::conditions::<R>(filter);
+        let mut sql = format!(
+            "SELECT {} FROM {}{conditions}",
+            R::COLUMNS.join(", "),
+            R::TABLE
+        );
         // Newest by time (then id, for rows of one millisecond): the time indexes
         // give those in order; by id alone SQLite sorted every row of a driveline
         // (a million in a year) to return the last 100.
@@ -469,11 +524,13 @@ impl HistoryReader {
             sql.push_str(&format!(" LIMIT {limit}"));
         }
         let mut statement = self.connection.prepare(&sql).map_err(|e| self.error(e))?;
-        let rows = statement
-            .query_map(rusqlite::params_from_iter(values), R::from_row)
+        let mut rows = statement
+            .query(rusqlite::params_from_iter(values))
             .map_err(|e| self.error(e))?;
-        rows.collect::<rusqlite::Result<Vec<R>>>()
-            .map_err(|e| self.error(e))
+        while let Some(row) = rows.next().map_err(|e| self.error(e))? {
+            visit(R::from_row(row).map_err(|e| self.error(e))?)?;
+        }
+        Ok(())
     }
 
     /// The id of the last bite in the file (0 when there is none).

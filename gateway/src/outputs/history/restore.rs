@@ -9,10 +9,10 @@
 
 use rusqlite::{params, Connection};
 
-use crate::outputs::results::{DrivelineResults, Results};
+use crate::state::results::{DrivelineResults, Results};
 
-use super::events::PooledBite;
-use super::time::UtcTime;
+use crate::state::events::PooledBite;
+use crate::state::time::UtcTime;
 
 /// The restorable state of one driveline, as last recorded.
 #[derive(Debug, Clone, PartialEq)]
@@ -23,7 +23,7 @@ pub struct RestoredDriveline {
     pub updated_at: Option<UtcTime>,
     /// The published results as they were, with `restored` set.
     pub results: DrivelineResults,
-    /// The JSON of [`super::events::BiteRecord::extra_state`], when one was stored.
+    /// The JSON of [`crate::state::events::BiteRecord::extra_state`], when one was stored.
     pub extra: Option<serde_json::Value>,
     /// The bites last put into the gap pool since the last wear reset, oldest first
     /// (at most the largest pool allowed; empty without a gap diagnosis).
@@ -90,7 +90,7 @@ pub(crate) fn read(connection: &Connection) -> rusqlite::Result<Restored> {
     let mut statement = connection.prepare(
         "SELECT driveline, updated_at, bite_counter, last_bite_time, static_torque_knm,
              peak_torque_knm, taf, period_shift_s, beta1_hz, beta2_hz, wear_index, wear_trend,
-             degraded, warning, alarm_latched, extra, gap_alarm_latched
+             degraded, warning, alarm_latched, extra, gap_alarm_latched, gap_warning
          FROM driveline_state ORDER BY driveline",
     )?;
     let drivelines = statement
@@ -102,8 +102,7 @@ pub(crate) fn read(connection: &Connection) -> rusqlite::Result<Restored> {
                 updated_at: time(row.get(1)?),
                 results: DrivelineResults {
                     bite_counter: row.get::<_, i64>(2)?.clamp(0, i64::from(u32::MAX)) as u32,
-                    last_bite_unix_s: last_bite
-                        .and_then(|t| u32::try_from(t.unix_ms().div_euclid(1000)).ok()),
+                    last_bite_unix_ms: last_bite.map(|t| t.unix_ms()),
                     static_torque_knm: row.get(4)?,
                     peak_torque_knm: row.get(5)?,
                     taf: row.get(6)?,
@@ -113,9 +112,10 @@ pub(crate) fn read(connection: &Connection) -> rusqlite::Result<Restored> {
                     wear_index: row.get(10)?,
                     wear_trend: row.get(11)?,
                     last_bite_degraded: row.get(12)?,
-                    warning: row.get(13)?,
-                    alarm: row.get(14)?,
+                    taf_warning: row.get(13)?,
+                    taf_alarm: row.get(14)?,
                     gap_alarm: row.get(16)?,
+                    gap_warning: row.get(17)?,
                     source_stale: false,
                     restored: true,
                     ..DrivelineResults::default()
@@ -159,7 +159,7 @@ impl Restored {
         }
         for restored in &self.mills {
             if let Some(m) = mill_names.iter().position(|n| *n == restored.name) {
-                results.mills[m].alarm = restored.alarm_latched;
+                results.tandem_mills[m].chatter_alarm = restored.alarm_latched;
                 applied += 1;
             }
         }

@@ -18,7 +18,7 @@ use std::time::{Duration, Instant};
 
 use rusqlite::{Connection, OptionalExtension};
 
-use super::time::UtcTime;
+use crate::state::time::UtcTime;
 
 /// Time between retention checks while there is nothing to delete.
 pub const CHECK_PERIOD: Duration = Duration::from_secs(10);

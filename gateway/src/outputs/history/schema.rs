@@ -7,7 +7,7 @@
 //! above the last step) is refused rather than guessed at. (No migration crate
 //! supports rust-version 1.89 today; this table of steps is all the gateway needs.)
 //!
-//! Conventions: times are UTC ISO-8601 text (see [`super::time`]); torques kN*m,
+//! Conventions: times are UTC ISO-8601 text (see [`crate::state::time`]); torques kN*m,
 //! periods s, frequencies Hz, gaps mrad referred to the rolls; booleans 0/1; `NULL`
 //! is "not measured". `run_id` is the gateway run ([`gateway_runs`]) that recorded a
 //! row.
@@ -87,7 +87,7 @@ CREATE TABLE alarms (
     run_id      INTEGER NOT NULL REFERENCES gateway_runs(id),
     time        TEXT NOT NULL,
     subject     TEXT NOT NULL,     -- the driveline or tandem mill
-    kind        TEXT NOT NULL,     -- 'taf_warning', 'taf_alarm', 'chatter_alarm', 'wear_alarm'
+    kind        TEXT NOT NULL,     -- 'taf_warning', 'taf_alarm', 'chatter_alarm', 'wear_alarm' (v6: 'gap_alarm'; also 'gap_warning', 'chatter_warning')
     event       TEXT NOT NULL,     -- 'raised', 'cleared', 'acknowledged'
     origin      TEXT NOT NULL,     -- 'analysis', 'hmi', 'plc', 'local'
     peer        TEXT,              -- the Modbus client that acknowledged
@@ -193,7 +193,32 @@ CREATE INDEX bites_by_driveline_time
 CREATE INDEX wear_resets_by_driveline_time ON wear_estimates(driveline, time)
     WHERE event = 'reset';
 "#,
+    // Version 6: one name and type per figure (the catalogue of published figures).
+    // The coupling holding the gap is an integer (it was its decimal text), the gap
+    // alarm is `gap_alarm` (it was `wear_alarm`), and the gap warning, now an alarm
+    // event like the others, is kept for the restart. Every bite row is rewritten once
+    // (a year of bites: about a minute on an SD card).
+    r#"
+ALTER TABLE bites RENAME COLUMN gap_coupling TO gap_coupling_text;
+ALTER TABLE bites ADD COLUMN gap_coupling INTEGER;
+UPDATE bites SET gap_coupling = CAST(gap_coupling_text AS INTEGER)
+    WHERE gap_coupling_text IS NOT NULL;
+ALTER TABLE bites DROP COLUMN gap_coupling_text;
+ALTER TABLE wear_estimates RENAME COLUMN gap_coupling TO gap_coupling_text;
+ALTER TABLE wear_estimates ADD COLUMN gap_coupling INTEGER;
+UPDATE wear_estimates SET gap_coupling = CAST(gap_coupling_text AS INTEGER)
+    WHERE gap_coupling_text IS NOT NULL;
+ALTER TABLE wear_estimates DROP COLUMN gap_coupling_text;
+UPDATE alarms SET kind = 'gap_alarm' WHERE kind = 'wear_alarm';
+ALTER TABLE driveline_state ADD COLUMN gap_warning INTEGER NOT NULL DEFAULT 0;
+"#,
 ];
+
+/// `PRAGMA application_id` of a millgate history: the bytes "MLGT" (0x4D4C4754), set
+/// on every file the gateway creates or migrates, so `file(1)` and other tools can
+/// tell a history from other SQLite files, and millgate refuses another
+/// application's file rather than adding its tables to it.
+pub const APPLICATION_ID: i64 = 0x4D4C_4754;
 
 /// The schema version this millgate writes.
 pub fn current_version() -> i64 {
@@ -214,20 +239,67 @@ pub enum SchemaError {
         /// The last version this millgate knows.
         known: i64,
     },
+    /// The file is an SQLite database of another application: another
+    /// `application_id`, or tables and no millgate schema version.
+    #[error(
+        "not a millgate history: an SQLite file of another application ({}); \
+         use another file",
+        if *application_id == 0 {
+            "tables, but no millgate schema".to_owned()
+        } else {
+            format!("application_id {application_id:#010x}, millgate's is {APPLICATION_ID:#010x}")
+        }
+    )]
+    Foreign {
+        /// The file's `PRAGMA application_id`.
+        application_id: i64,
+    },
     /// SQLite refused a step (the file is corrupt, read-only, full, ...).
     #[error("migrating the history schema: {0}")]
     Sqlite(#[from] rusqlite::Error),
 }
 
-/// Bring `connection`'s file to [`current_version`] in one transaction; returns the
-/// version it was at (0 for a new file).
+/// Refuses a file that is not a millgate history: one whose `application_id` is
+/// another application's, or (an id of 0, as before millgate set one) that has tables
+/// but no `gateway_runs`. Reads only; call it before anything changes the file.
+pub fn check_owner(connection: &Connection) -> Result<(), SchemaError> {
+    let application_id: i64 =
+        connection.pragma_query_value(None, "application_id", |row| row.get(0))?;
+    if application_id == APPLICATION_ID {
+        return Ok(());
+    }
+    if application_id != 0 {
+        return Err(SchemaError::Foreign { application_id });
+    }
+    let (tables, runs): (i64, i64) = connection.query_row(
+        "SELECT count(*), count(*) FILTER (WHERE name = 'gateway_runs')
+         FROM sqlite_schema WHERE type = 'table'",
+        [],
+        |row| Ok((row.get(0)?, row.get(1)?)),
+    )?;
+    if tables > 0 && runs == 0 {
+        return Err(SchemaError::Foreign { application_id });
+    }
+    Ok(())
+}
+
+/// Bring `connection`'s file to [`current_version`] in one transaction and mark it
+/// as millgate's ([`APPLICATION_ID`]); returns the version it was at (0 for a new
+/// file). Refuses another application's file ([`check_owner`]) and a newer schema.
 pub fn migrate(connection: &mut Connection) -> Result<i64, SchemaError> {
+    check_owner(connection)?;
     let found: i64 = connection.pragma_query_value(None, "user_version", |row| row.get(0))?;
     let known = current_version();
     if found > known {
         return Err(SchemaError::TooNew { found, known });
     }
     if found == known {
+        // A file of a millgate from before the application id.
+        let application_id: i64 =
+            connection.pragma_query_value(None, "application_id", |row| row.get(0))?;
+        if application_id != APPLICATION_ID {
+            connection.pragma_update(None, "application_id", APPLICATION_ID)?;
+        }
         return Ok(found);
     }
     // IMMEDIATE: take the write lock before reading anything, so two processes
@@ -238,6 +310,7 @@ pub fn migrate(connection: &mut Connection) -> Result<i64, SchemaError> {
         transaction.execute_batch(step)?;
     }
     transaction.pragma_update(None, "user_version", known)?;
+    transaction.pragma_update(None, "application_id", APPLICATION_ID)?;
     transaction.commit()?;
     Ok(found)
 }
@@ -362,6 +435,168 @@ mod tests {
             )
             .unwrap();
         assert_eq!(rows, (1, 1.3, "reset".into()));
+    }
+
+    fn application_id(connection: &Connection) -> i64 {
+        connection
+            .pragma_query_value(None, "application_id", |row| row.get(0))
+            .unwrap()
+    }
+
+    #[test]
+    fn new_and_migrated_files_carry_millgate_s_application_id() {
+        let mut new = Connection::open_in_memory().unwrap();
+        migrate(&mut new).unwrap();
+        assert_eq!(application_id(&new), APPLICATION_ID);
+        // A file of an older millgate: version 4 (migrated), and current (marked).
+        for version in [4, current_version()] {
+            let mut old = Connection::open_in_memory().unwrap();
+            for step in &MIGRATIONS[..usize::try_from(version).unwrap()] {
+                old.execute_batch(step).unwrap();
+            }
+            old.pragma_update(None, "user_version", version).unwrap();
+            assert_eq!(application_id(&old), 0);
+            assert_eq!(migrate(&mut old).unwrap(), version);
+            assert_eq!(
+                application_id(&old),
+                APPLICATION_ID,
+                "from version {version}"
+            );
+        }
+    }
+
+    #[test]
+    fn another_application_s_file_is_refused_and_left_alone() {
+        // Fossil's id, and one of no application but with its own tables.
+        for (id, table) in [(0x0F05_5112, None), (0, Some("CREATE TABLE notes (x)"))] {
+            let mut connection = Connection::open_in_memory().unwrap();
+            connection
+                .pragma_update(None, "application_id", id)
+                .unwrap();
+            if let Some(table) = table {
+                connection.execute_batch(table).unwrap();
+            }
+            let error = migrate(&mut connection).unwrap_err();
+            let text = error.to_string();
+            assert!(matches!(error, SchemaError::Foreign { .. }), "{text}");
+            assert!(text.starts_with("not a millgate history"), "{text}");
+            if id != 0 {
+                assert!(text.contains("application_id 0x0f055112"), "{text}");
+            }
+            let tables: i64 = connection
+                .query_row(
+                    "SELECT count(*) FROM sqlite_schema WHERE name = 'bites'",
+                    [],
+                    |row| row.get(0),
+                )
+                .unwrap();
+            assert_eq!(tables, 0, "no millgate table added");
+            assert_eq!(application_id(&connection), id);
+        }
+    }
+
+    #[test]
+    fn version_6_makes_the_coupling_an_integer_and_names_the_gap_alarm() {
+        let mut connection = Connection::open_in_memory().unwrap();
+        for step in &MIGRATIONS[..5] {
+            connection.execute_batch(step).unwrap();
+        }
+        connection.pragma_update(None, "user_version", 5).unwrap();
+        connection
+            .execute_batch(
+                "INSERT INTO gateway_runs (started_at, version, config_name)
+                     VALUES ('2026-01-01T00:00:00.000Z', 't', 't');
+                 INSERT INTO bites (run_id, driveline, time, bite_counter, channel,
+                     static_torque_knm, peak_torque_knm, quality, degraded, gap_mrad,
+                     gap_coupling)
+                     VALUES (1, 'F1', '2026-01-01T00:00:01.000Z', 1, 'c', 400, 520,
+                         'good', 0, 2.5, '1'),
+                            (1, 'F1', '2026-01-01T00:00:02.000Z', 2, 'c', 400, 520,
+                         'good', 0, 2.5, NULL);
+                 INSERT INTO wear_estimates (run_id, driveline, time, event, origin,
+                     gap_coupling) VALUES (1, 'F1', '2026-01-01T00:00:01.000Z', 'bite',
+                     'analysis', '0');
+                 INSERT INTO alarms (run_id, time, subject, kind, event, origin)
+                     VALUES (1, '2026-01-01T00:00:03.000Z', 'F1', 'wear_alarm', 'raised',
+                         'analysis');
+                 INSERT INTO driveline_state (driveline, updated_at, bite_counter,
+                     degraded, warning, alarm_latched)
+                     VALUES ('F1', 't', 2, 0, 0, 0);",
+            )
+            .unwrap();
+        assert_eq!(migrate(&mut connection).unwrap(), 5);
+        let couplings: Vec<(Option<i64>, String)> = connection
+            .prepare("SELECT gap_coupling, typeof(gap_coupling) FROM bites ORDER BY id")
+            .unwrap()
+            .query_map([], |row| Ok((row.get(0)?, row.get(1)?)))
+            .unwrap()
+            .collect::<Result<_, _>>()
+            .unwrap();
+        assert_eq!(
+            couplings,
+            [(Some(1), "integer".into()), (None, "null".into())]
+        );
+        let (wear, kind, gap_warning): (i64, String, i64) = connection
+            .query_row(
+                "SELECT (SELECT gap_coupling FROM wear_estimates),
+                        (SELECT kind FROM alarms),
+                        (SELECT gap_warning FROM driveline_state)",
+                [],
+                |row| Ok((row.get(0)?, row.get(1)?, row.get(2)?)),
+            )
+            .unwrap();
+        assert_eq!((wear, kind.as_str(), gap_warning), (0, "gap_alarm", 0));
+    }
+
+    /// The declared type a catalogue figure's column must have.
+    fn affinity(figure_type: crate::state::catalogue::FigureType) -> &'static str {
+        use crate::state::catalogue::FigureType;
+        match figure_type {
+            FigureType::Real => "REAL",
+            FigureType::Count | FigureType::Index | FigureType::Bool => "INTEGER",
+            FigureType::Time => "TEXT",
+        }
+    }
+
+    #[test]
+    fn the_bite_columns_are_the_catalogue_figures_by_key_and_type() {
+        use crate::outputs::history::BITE_COLUMNS;
+        use crate::state::catalogue::{find, DRIVELINE};
+        let mut connection = Connection::open_in_memory().unwrap();
+        migrate(&mut connection).unwrap();
+        let columns: Vec<(String, String)> = connection
+            .prepare("SELECT name, type FROM pragma_table_info('bites')")
+            .unwrap()
+            .query_map([], |row| Ok((row.get(0)?, row.get(1)?)))
+            .unwrap()
+            .collect::<Result<_, _>>()
+            .unwrap();
+        for (key, column) in BITE_COLUMNS {
+            let figure = find(DRIVELINE, key);
+            let declared = columns
+                .iter()
+                .find(|(name, _)| name == column)
+                .map(|(_, declared)| declared.as_str());
+            assert_eq!(
+                declared,
+                Some(affinity(figure.figure_type)),
+                "bites.{column} for figure {key}"
+            );
+            // Named by the key, but the bite's own time (a figure of the last bite).
+            assert!(
+                column == key || *key == "last_bite_time",
+                "{key} in {column}"
+            );
+        }
+        // A bites column named like a figure is that figure's.
+        for (name, _) in &columns {
+            if DRIVELINE.iter().any(|f| f.key == name) {
+                assert!(
+                    BITE_COLUMNS.iter().any(|(key, _)| key == name),
+                    "bites.{name} is a catalogue key missing from BITE_COLUMNS"
+                );
+            }
+        }
     }
 
     #[test]

@@ -1,5 +1,6 @@
-//! What a page plots over weeks and months: a driveline's gap estimate and TAF in time
-//! buckets ([`HistoryReader::wear_series`]) and the gap's growth per week
+//! What a page or a report plots over weeks and months: a driveline's gap estimate and
+//! TAF in time buckets ([`HistoryReader::wear_series`]), its wear index in the same
+//! buckets ([`HistoryReader::wear_index_series`]) and the gap's growth per week
 //! ([`HistoryReader::gap_trend`]).
 //!
 //! Both are aggregated by SQLite (an aggregate per time bucket over its index range;
@@ -17,12 +18,16 @@ use std::time::Duration;
 use rusqlite::{params, OptionalExtension};
 use serde::Serialize;
 
+use super::error::HistoryError;
 use super::query::HistoryReader;
-use super::time::UtcTime;
-use super::HistoryError;
+use crate::state::time::UtcTime;
 
 /// Most buckets [`HistoryReader::wear_series`] returns.
 pub const MAX_SERIES_POINTS: usize = 10_000;
+
+/// The window before a driveline's last bite its gap trend is fitted to, on the page
+/// and in the report: four weeks.
+pub const TREND_WINDOW: Duration = Duration::from_secs(28 * 86_400);
 
 /// Fewest bites with a gap estimate [`HistoryReader::gap_trend`] fits a slope to.
 pub const MIN_TREND_BITES: u32 = 5;
@@ -49,8 +54,33 @@ pub struct WearPoint {
     /// Mean TAF of the bucket's bites that measured one in a clean window (degraded
     /// windows left out: their TAF is not trusted).
     pub taf_mean: Option<f64>,
+    /// Smallest TAF of those bites.
+    pub taf_min: Option<f64>,
     /// Largest TAF of those bites.
     pub taf_max: Option<f64>,
+}
+
+/// The wear index of the bites of one time bucket of a driveline: `[start, end)`.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct WearIndexPoint {
+    /// The bucket's start (UTC), inclusive.
+    pub start: UtcTime,
+    /// The bucket's end (UTC), exclusive.
+    pub end: UtcTime,
+    /// Bites in the bucket with a wear index.
+    pub bites: u32,
+    /// The smallest wear index of those bites.
+    pub index_min: f64,
+    /// The largest.
+    pub index_max: f64,
+    /// The wear trend after the bucket's last bite that had one.
+    pub trend: Option<f64>,
+    /// The smallest static torque of the bucket's bites (all of them), kN*m: the load
+    /// the wear index was read at (and a TAF plot's torque range, read in the same
+    /// pass).
+    pub static_torque_min_knm: f64,
+    /// The largest.
+    pub static_torque_max_knm: f64,
 }
 
 /// The gap's growth: the least-squares slope of the pooled gap estimate over time.
@@ -118,24 +148,17 @@ impl HistoryReader {
         })
     }
 
-    /// `driveline`'s bites from `since` (inclusive; default its first bite) to `until`
-    /// (exclusive; default just after its last bite) in at most `points` buckets of
-    /// equal length (whole ms), oldest first; buckets without bites are left out.
-    ///
-    /// `points`: 1..=[`MAX_SERIES_POINTS`]. An empty driveline (configured, no bites
-    /// in the range) gives an empty series; a driveline the file does not know is
-    /// [`HistoryError::UnknownDriveline`]; `since` after `until` is an argument error.
-    ///
-    /// Cost: one pass over the range's entries of the `(driveline, time, ...)` index,
-    /// aggregated by SQLite bucket by bucket, plus one index probe per bucket for its
-    /// last gap; no row comes into memory but the buckets'.
-    pub fn wear_series(
+    /// The time buckets of `driveline`'s series from `since` (inclusive; default its
+    /// first bite) to `until` (exclusive; default just after its last bite): at most
+    /// `points` of equal length (whole ms), oldest first; none when it has no bites
+    /// there. Checks the arguments as [`Self::wear_series`] documents.
+    fn buckets(
         &self,
         driveline: &str,
         since: Option<UtcTime>,
         until: Option<UtcTime>,
         points: usize,
-    ) -> Result<Vec<WearPoint>, HistoryError> {
+    ) -> Result<Vec<(UtcTime, UtcTime)>, HistoryError> {
         if !(1..=MAX_SERIES_POINTS).contains(&points) {
             return Err(HistoryError::Argument {
                 name: "points",
@@ -167,6 +190,37 @@ impl HistoryReader {
         // points >= 1 and <= 10 000: the cast is exact.
         let points = points as i64;
         let width_ms = ((span_ms + points - 1) / points).max(1);
+        Ok((0..points)
+            .map(|k| since.unix_ms() + k * width_ms)
+            .take_while(|start_ms| *start_ms < until.unix_ms())
+            .map(|start_ms| {
+                (
+                    UtcTime::from_unix_ms(start_ms),
+                    UtcTime::from_unix_ms((start_ms + width_ms).min(until.unix_ms())),
+                )
+            })
+            .collect())
+    }
+
+    /// `driveline`'s bites from `since` (inclusive; default its first bite) to `until`
+    /// (exclusive; default just after its last bite) in at most `points` buckets of
+    /// equal length (whole ms), oldest first; buckets without bites are left out.
+    ///
+    /// `points`: 1..=[`MAX_SERIES_POINTS`]. An empty driveline (configured, no bites
+    /// in the range) gives an empty series; a driveline the file does not know is
+    /// [`HistoryError::UnknownDriveline`]; `since` after `until` is an argument error.
+    ///
+    /// Cost: one pass over the range's entries of the `(driveline, time, ...)` index,
+    /// aggregated by SQLite bucket by bucket, plus one index probe per bucket for its
+    /// last gap; no row comes into memory but the buckets'.
+    pub fn wear_series(
+        &self,
+        driveline: &str,
+        since: Option<UtcTime>,
+        until: Option<UtcTime>,
+        points: usize,
+    ) -> Result<Vec<WearPoint>, HistoryError> {
+        let buckets = self.buckets(driveline, since, until, points)?;
         let connection = self.connection();
         // One aggregate per bucket over its range of the (driveline, time) index,
         // which holds the columns aggregated (schema version 5): no table page is
@@ -178,6 +232,7 @@ impl HistoryReader {
             .prepare_cached(
                 "SELECT count(*), min(gap_low_mrad), max(gap_high_mrad),
                      avg(CASE WHEN degraded = 0 THEN taf END),
+                     min(CASE WHEN degraded = 0 THEN taf END),
                      max(CASE WHEN degraded = 0 THEN taf END)
                  FROM bites
                  WHERE driveline = ?1 AND time >= ?2 AND time < ?3",
@@ -191,16 +246,10 @@ impl HistoryReader {
             )
             .map_err(|e| self.error(e))?;
         let mut series = Vec::new();
-        for k in 0..points {
-            let start_ms = since.unix_ms() + k * width_ms;
-            if start_ms >= until.unix_ms() {
-                break;
-            }
-            let start = UtcTime::from_unix_ms(start_ms);
-            let end = UtcTime::from_unix_ms((start_ms + width_ms).min(until.unix_ms()));
+        for (start, end) in buckets {
             let (start_text, end_text) = (start.to_string(), end.to_string());
             let range = params![driveline, start_text, end_text];
-            let (bites, gap_low_mrad, gap_high_mrad, taf_mean, taf_max) = bucket
+            let (bites, gap_low_mrad, gap_high_mrad, taf_mean, taf_min, taf_max) = bucket
                 .query_row(range, |row| {
                     Ok((
                         row.get::<_, i64>(0)?,
@@ -208,6 +257,7 @@ impl HistoryReader {
                         row.get::<_, Option<f64>>(2)?,
                         row.get::<_, Option<f64>>(3)?,
                         row.get::<_, Option<f64>>(4)?,
+                        row.get::<_, Option<f64>>(5)?,
                     ))
                 })
                 .map_err(|e| self.error(e))?;
@@ -231,7 +281,75 @@ impl HistoryReader {
                 gap_low_mrad,
                 gap_high_mrad,
                 taf_mean,
+                taf_min,
                 taf_max,
+            });
+        }
+        Ok(series)
+    }
+
+    /// `driveline`'s wear index (TAF / the linear reference's TAF - 1) in the buckets
+    /// of [`Self::wear_series`] (same arguments, same errors): per bucket its range
+    /// over the bites that have one, the wear trend after the last, and the range of
+    /// static torque; buckets without a wear index are left out.
+    ///
+    /// Cost: the wear index is not in the `(driveline, time, ...)` index, so each
+    /// bucket reads its bites' table rows (a year of one driveline: a million).
+    pub fn wear_index_series(
+        &self,
+        driveline: &str,
+        since: Option<UtcTime>,
+        until: Option<UtcTime>,
+        points: usize,
+    ) -> Result<Vec<WearIndexPoint>, HistoryError> {
+        let buckets = self.buckets(driveline, since, until, points)?;
+        let connection = self.connection();
+        let mut bucket = connection
+            .prepare_cached(
+                "SELECT count(wear_index), min(wear_index), max(wear_index),
+                     min(static_torque_knm), max(static_torque_knm)
+                 FROM bites WHERE driveline = ?1 AND time >= ?2 AND time < ?3",
+            )
+            .map_err(|e| self.error(e))?;
+        let mut last_trend = connection
+            .prepare_cached(
+                "SELECT wear_trend FROM bites
+                 WHERE driveline = ?1 AND time >= ?2 AND time < ?3 AND wear_trend IS NOT NULL
+                 ORDER BY time DESC, id DESC LIMIT 1",
+            )
+            .map_err(|e| self.error(e))?;
+        let mut series = Vec::new();
+        for (start, end) in buckets {
+            let (start_text, end_text) = (start.to_string(), end.to_string());
+            let range = params![driveline, start_text, end_text];
+            let (bites, low, high, torque_low, torque_high) = bucket
+                .query_row(range, |row| {
+                    Ok((
+                        row.get::<_, i64>(0)?,
+                        row.get::<_, Option<f64>>(1)?,
+                        row.get::<_, Option<f64>>(2)?,
+                        row.get::<_, Option<f64>>(3)?,
+                        row.get::<_, Option<f64>>(4)?,
+                    ))
+                })
+                .map_err(|e| self.error(e))?;
+            let (Some(index_min), Some(index_max), Some(torque_low), Some(torque_high)) =
+                (low, high, torque_low, torque_high)
+            else {
+                continue;
+            };
+            series.push(WearIndexPoint {
+                start,
+                end,
+                bites: u32::try_from(bites).unwrap_or(u32::MAX),
+                index_min,
+                index_max,
+                trend: last_trend
+                    .query_row(range, |row| row.get(0))
+                    .optional()
+                    .map_err(|e| self.error(e))?,
+                static_torque_min_knm: torque_low,
+                static_torque_max_knm: torque_high,
             });
         }
         Ok(series)

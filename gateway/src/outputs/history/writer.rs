@@ -7,18 +7,24 @@
 //! Between turns the writer runs one bounded retention step when one is due.
 
 use std::path::PathBuf;
-use std::sync::atomic::Ordering;
+
 use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use rusqlite::{params, Connection, OpenFlags, Transaction};
 
-use super::events::{AlarmKind, AlarmRecord, BiteRecord, ChatterWindow, HistoryEvent};
+use super::error::{explain, HistoryError};
 use super::restore::Restored;
 use super::retention::{Retention, RetentionState};
-use super::time::UtcTime;
-use super::{explain, schema, Counters, HistoryError, HistoryState, RunInfo};
+use super::run::RunInfo;
+use super::schema;
+use crate::state::events::{
+    AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, ChatterWindow, HistoryEvent,
+};
+use crate::state::history::History;
+use crate::state::history::{Counters, HistoryState};
+use crate::state::time::UtcTime;
 
 /// Most events committed in one transaction: bounds the time a commit holds the
 /// write lock (a read-only reader never waits for it in WAL mode).
@@ -50,6 +56,9 @@ pub fn connect(path: &std::path::Path) -> Result<Connection, HistoryError> {
     )
     .map_err(sqlite)?;
     connection.busy_timeout(BUSY_TIMEOUT).map_err(sqlite)?;
+    // Another application's SQLite file is refused before anything here changes it
+    // (WAL mode, auto-vacuum, tables).
+    super::error::check_file_owner(&connection, path)?;
     // A new file gets incremental auto-vacuum, so the retention can hand freed pages
     // back to the file system in small steps. It can only be set before the first
     // table and before WAL mode.
@@ -307,7 +316,7 @@ impl Writer {
         if !repeat {
             tracing::error!(
                 error = message,
-                dropped_total = self.counters.dropped_error.load(Ordering::Relaxed),
+                dropped_total = self.counters.dropped_errors(),
                 retry_in = ?REOPEN_PERIOD,
                 "history not stored; the service goes on without it"
             );
@@ -524,7 +533,9 @@ fn insert_bite(
     let time = bite.time.to_string();
     let state = &bite.state;
     let gap = bite.gap.as_ref();
-    let coupling = gap.and_then(|g| g.coupling).map(|c| c.to_string());
+    let coupling = gap
+        .and_then(|g| g.coupling)
+        .and_then(|c| i64::try_from(c).ok());
     transaction
         .prepare_cached(
             "INSERT INTO bites (run_id, driveline, time, bite_counter, channel,
@@ -597,8 +608,9 @@ fn insert_bite(
             "INSERT INTO driveline_state (driveline, updated_at, bite_counter, last_bite_time,
                  static_torque_knm, peak_torque_knm, taf, period_shift_s, beta1_hz, beta2_hz,
                  wear_index, wear_trend, degraded, warning, alarm_latched, extra,
-                 gap_alarm_latched)
-             VALUES (?1, ?2, ?3, ?2, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16)
+                 gap_alarm_latched, gap_warning)
+             VALUES (?1, ?2, ?3, ?2, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16,
+                 ?17)
              ON CONFLICT (driveline) DO UPDATE SET
                  updated_at = excluded.updated_at, bite_counter = excluded.bite_counter,
                  last_bite_time = excluded.last_bite_time,
@@ -609,7 +621,8 @@ fn insert_bite(
                  wear_trend = excluded.wear_trend, degraded = excluded.degraded,
                  warning = excluded.warning, alarm_latched = excluded.alarm_latched,
                  extra = coalesce(excluded.extra, driveline_state.extra),
-                 gap_alarm_latched = excluded.gap_alarm_latched",
+                 gap_alarm_latched = excluded.gap_alarm_latched,
+                 gap_warning = excluded.gap_warning",
         )?
         .execute(params![
             bite.driveline,
@@ -624,10 +637,11 @@ fn insert_bite(
             state.wear_index,
             state.wear_trend,
             state.last_bite_degraded,
-            state.warning,
-            state.alarm,
+            state.taf_warning,
+            state.taf_alarm,
             bite.extra_state.as_ref().map(ToString::to_string),
             state.gap_alarm,
+            state.gap_warning,
         ])?;
     Ok(())
 }
@@ -659,11 +673,11 @@ fn insert_alarm(
             alarm.value,
             alarm.threshold
         ])?;
-    let latched = alarm.event == super::events::AlarmEvent::Raised;
+    let raised = alarm.event == AlarmEvent::Raised;
     match alarm.kind {
         // The bite's own record carries the latch when it raises it; an
         // acknowledgement clears it here.
-        AlarmKind::TafAlarm if !latched => {
+        AlarmKind::TafAlarm if !raised => {
             transaction
                 .prepare_cached(
                     "UPDATE driveline_state SET alarm_latched = 0, updated_at = ?2
@@ -671,7 +685,7 @@ fn insert_alarm(
                 )?
                 .execute(params![alarm.subject, time])?;
         }
-        AlarmKind::WearAlarm if !latched => {
+        AlarmKind::GapAlarm if !raised => {
             transaction
                 .prepare_cached(
                     "UPDATE driveline_state SET gap_alarm_latched = 0, updated_at = ?2
@@ -686,9 +700,48 @@ fn insert_alarm(
                      ON CONFLICT (mill) DO UPDATE SET
                          updated_at = excluded.updated_at, alarm_latched = excluded.alarm_latched",
                 )?
-                .execute(params![alarm.subject, time, latched])?;
+                .execute(params![alarm.subject, time, raised])?;
+        }
+        // A gap warning changes with the estimate, which maps installed or a wear reset
+        // change without a bite.
+        AlarmKind::GapWarning if alarm.event != AlarmEvent::Acknowledged => {
+            transaction
+                .prepare_cached(
+                    "UPDATE driveline_state SET gap_warning = ?3, updated_at = ?2
+                     WHERE driveline = ?1",
+                )?
+                .execute(params![alarm.subject, time, raised])?;
         }
         _ => {}
     }
     Ok(())
+}
+
+/// Open (or create) `history`'s file, bring its schema up to date, record this run and
+/// read what it restores; then start the writer thread. Blocks on file I/O (call it
+/// from a blocking task in async code); does nothing when disabled or started before.
+/// An unusable file is logged and shown on `/metrics`, not returned: the writer
+/// retries it and the service runs on with nothing restored.
+pub fn start(history: &History, run: RunInfo) -> Restored {
+    let Some(ends) = history.take_writer_ends() else {
+        return Restored::default();
+    };
+    let counters = history.counters();
+    let retention = Retention::from_config(&ends.config);
+    let (writer, restored) = Writer::open(ends.config.path, retention, run, counters);
+    let (receiver, settled) = (ends.receiver, ends.settled);
+    let spawned = std::thread::Builder::new()
+        .name("HistoryWriter".into())
+        .spawn(move || writer.run(receiver, settled));
+    match spawned {
+        Ok(handle) => history.set_writer(Some(handle)),
+        Err(error) => {
+            tracing::error!(%error, "cannot start the history writer thread");
+            history
+                .counters()
+                .set_error(format!("cannot start the history writer thread: {error}"));
+            history.set_writer(None);
+        }
+    }
+    restored
 }

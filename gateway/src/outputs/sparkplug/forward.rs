@@ -24,10 +24,10 @@ use std::collections::{BTreeSet, HashMap, VecDeque};
 use std::path::Path;
 
 use crate::outputs::history::query::BiteRow;
-use crate::outputs::history::time::UtcTime;
 use crate::outputs::history::writer::connect;
 use crate::outputs::history::HistoryError;
-use crate::outputs::results::{DrivelineResults, GapResults};
+use crate::state::results::{DrivelineResults, GapResults};
+use crate::state::time::UtcTime;
 
 fn sqlite(path: &Path) -> impl FnOnce(rusqlite::Error) -> HistoryError + '_ {
     move |source| HistoryError::Sqlite {
@@ -171,7 +171,7 @@ pub fn bite_results(row: &BiteRow) -> DrivelineResults {
         gap_mrad,
         low_mrad: row.gap_low_mrad.unwrap_or(gap_mrad),
         high_mrad: row.gap_high_mrad.unwrap_or(gap_mrad),
-        coupling: row.gap_coupling.as_deref().and_then(|c| c.parse().ok()),
+        coupling: row.gap_coupling.and_then(|c| usize::try_from(c).ok()),
         likeliest_coupling: None,
         bites_pooled: row
             .bites_pooled
@@ -180,7 +180,7 @@ pub fn bite_results(row: &BiteRow) -> DrivelineResults {
     });
     DrivelineResults {
         bite_counter: u32::try_from(row.bite_counter).unwrap_or(u32::MAX),
-        last_bite_unix_s: bite_ms(row).and_then(|ms| u32::try_from(ms / 1000).ok()),
+        last_bite_unix_ms: bite_ms(row).and_then(|ms| i64::try_from(ms).ok()),
         static_torque_knm: trusted(Some(row.static_torque_knm)),
         peak_torque_knm: trusted(Some(row.peak_torque_knm)),
         taf: trusted(row.taf),
@@ -298,13 +298,21 @@ mod tests {
             gap_mrad: Some(2.0),
             gap_low_mrad: Some(1.5),
             gap_high_mrad: Some(2.5),
-            gap_coupling: Some("1".into()),
+            gap_coupling: Some(1),
             bites_pooled: Some(12),
         };
         let good = bite_results(&row);
         assert_eq!(good.bite_counter, 7);
         assert_eq!(bite_ms(&row), Some(1_777_939_198_250));
-        assert_eq!(good.last_bite_unix_s, Some(1_777_939_198));
+        assert_eq!(good.last_bite_unix_ms, Some(1_777_939_198_250), "ms kept");
+        // The row gives every figure the history's mapping says it keeps.
+        for (key, _) in crate::outputs::history::BITE_COLUMNS {
+            let figure = crate::state::catalogue::find(crate::state::catalogue::DRIVELINE, key);
+            assert!(
+                figure.read(&good).good().is_some(),
+                "{key} is a bite column but the replayed bite has no value for it"
+            );
+        }
         assert_eq!((good.taf, good.beta2_hz), (Some(1.4), Some(55.0)));
         assert_eq!(good.gap.unwrap().coupling, Some(1));
         let degraded = bite_results(&BiteRow {

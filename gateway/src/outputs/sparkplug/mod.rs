@@ -2,7 +2,10 @@
 //! (`[outputs.mqtt]`).
 //!
 //! - [`payload`]: the Sparkplug B protobuf messages (prost, written by hand).
+//! - [`devices`]: the devices and their metrics, from the catalogue of figures.
 //! - [`node`]: the edge node's messages and sequence numbers, without I/O.
+//! - `status.rs`: the counters `/metrics` shows and why a connection failed;
+//!   `store.rs`: the node's state in the history file (bdSeq, the bites, the cursor).
 //! - The task ([`SparkplugNode::run`]): one MQTT session at a time with `rumqttc`.
 //!   Before each connection it takes the next `bdSeq` from the history file
 //!   ([`next_bd_seq`]) and sets the Will (NDEATH with that bdSeq); at the broker's
@@ -24,29 +27,35 @@
 //! - With `[outputs.mqtt.tls]` the session runs over TLS ([`tls`]); username and
 //!   password go in the CONNECT.
 
+pub mod devices;
 pub mod forward;
 pub mod node;
 pub mod payload;
+mod status;
+mod store;
 pub mod tls;
 
-use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicI64, AtomicU64, AtomicU8, Ordering};
+pub use status::{ConnectFailure, SparkplugCounts, SparkplugStatus};
+pub use store::next_bd_seq;
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicI64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use millgate_config::MqttOutput;
 use rumqttc::{
-    AsyncClient, ConnectReturnCode, ConnectionError, Event, EventLoop, LastWill, MqttOptions,
-    Outgoing, Packet, QoS, TlsConfiguration, Transport,
+    AsyncClient, Event, EventLoop, LastWill, MqttOptions, Outgoing, Packet, QoS, TlsConfiguration,
+    Transport,
 };
 
-use crate::outputs::history::query::{BiteRow, Filter, HistoryReader};
-use crate::outputs::history::writer::connect;
-use crate::outputs::history::HistoryError;
-use crate::outputs::publisher::Publisher;
+use crate::outputs::history::query::{BiteRow, Filter};
+use crate::outputs::history::BITE_COLUMNS;
 use crate::shutdown::Shutdown;
+use crate::state::board::Board;
 use forward::Confirmations;
 use node::EdgeNode;
+use store::{keep_cursor, BiteSource};
 
 /// How often the results are looked at for a new bite.
 const BITE_POLL: Duration = Duration::from_millis(20);
@@ -57,158 +66,15 @@ const CLIENT_QUEUE: usize = 256;
 /// Bites handed to the client and not yet acknowledged, at most: below
 /// [`CLIENT_QUEUE`], so the births and data of the session always find room.
 const MAX_OUTSTANDING: usize = 192;
-/// How often the replay cursor is stored (when it moved) and the backlog counted.
-const CURSOR_PERIOD: Duration = Duration::from_millis(250);
 /// How long a clean stop waits for the PUBACKs of the bites in flight.
 const STOP_ACK_WAIT: Duration = Duration::from_secs(1);
-
-/// The next session number of `node` (`group_id/node_id`) in the history file at
-/// `path`: the last one plus one, modulo 256 (0 for a new node); stored before it is
-/// returned, so the Will and the NBIRTH of the next session always carry a new one.
-pub fn next_bd_seq(path: &Path, node: &str) -> Result<u8, HistoryError> {
-    let connection = connect(path)?;
-    let bd_seq: i64 = connection
-        .query_row(
-            "INSERT INTO sparkplug_node (node, bd_seq, updated_at) VALUES (?1, 0, ?2)
-             ON CONFLICT (node) DO UPDATE SET bd_seq = (bd_seq + 1) % 256,
-                 updated_at = excluded.updated_at
-             RETURNING bd_seq",
-            rusqlite::params![
-                node,
-                crate::outputs::history::time::UtcTime::now().to_string()
-            ],
-            |row| row.get(0),
-        )
-        .map_err(|source| HistoryError::Sqlite {
-            path: path.to_path_buf(),
-            source,
-        })?;
-    Ok(u8::try_from(bd_seq).unwrap_or(0))
-}
-
-/// Why a connection to the broker failed (the log and `/metrics` say which).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum ConnectFailure {
-    /// No answer, connection refused by the host, or the session broke off.
-    Unreachable,
-    /// The TLS handshake failed (an unknown CA, a name mismatch, a certificate the
-    /// broker does not accept).
-    Tls,
-    /// The broker refused the user name and password or the client.
-    NotAuthorised,
-    /// The broker refused the connection for another reason.
-    Refused,
-}
-
-impl ConnectFailure {
-    /// Every kind, in the order of [`SparkplugCounts::failures`].
-    pub const ALL: [Self; 4] = [
-        Self::Unreachable,
-        Self::Tls,
-        Self::NotAuthorised,
-        Self::Refused,
-    ];
-
-    /// The label on `/metrics`.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Unreachable => "unreachable",
-            Self::Tls => "tls",
-            Self::NotAuthorised => "not_authorised",
-            Self::Refused => "refused",
-        }
-    }
-
-    /// The kind of `error`.
-    pub fn of(error: &ConnectionError) -> Self {
-        match error {
-            ConnectionError::Tls(_) => Self::Tls,
-            // A TLS alert after the handshake (TLS 1.3 reports a refused client
-            // certificate there) comes as an I/O error holding the rustls error.
-            ConnectionError::Io(io) if io.get_ref().is_some_and(|e| e.is::<rustls::Error>()) => {
-                Self::Tls
-            }
-            ConnectionError::ConnectionRefused(
-                ConnectReturnCode::BadUserNamePassword | ConnectReturnCode::NotAuthorized,
-            ) => Self::NotAuthorised,
-            ConnectionError::ConnectionRefused(_) => Self::Refused,
-            _ => Self::Unreachable,
-        }
-    }
-
-    /// What to check, for the log.
-    fn hint(self) -> &'static str {
-        match self {
-            Self::Unreachable => "check outputs.mqtt.broker and that the broker runs",
-            Self::Tls => "check outputs.mqtt.tls (ca_file against the broker's certificate and its name, cert_file/key_file against the broker's require_certificate)",
-            Self::NotAuthorised => "not authorised: check outputs.mqtt.username and password (or password_file) against the broker",
-            Self::Refused => "check outputs.mqtt.client_id and the broker's log",
-        }
-    }
-}
-
-/// Counters of the edge node, for `/metrics`.
-#[derive(Debug, Default)]
-pub struct SparkplugStatus {
-    failures: [AtomicU64; 4],
-    connected: AtomicU8,
-    bd_seq: AtomicU8,
-    published: AtomicU64,
-    bites: AtomicU64,
-    connections: AtomicU64,
-    rebirths: AtomicU64,
-    replayed: AtomicU64,
-    backlog: AtomicU64,
-}
-
-/// A snapshot of [`SparkplugStatus`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct SparkplugCounts {
-    /// A session with the broker is up.
-    pub connected: bool,
-    /// The current session's bdSeq.
-    pub bd_seq: u8,
-    /// Messages handed to the broker connection (births, data, deaths).
-    pub published: u64,
-    /// Bites published live as their own DDATA.
-    pub bites: u64,
-    /// Bites replayed from the history, flagged historical.
-    pub replayed: u64,
-    /// Bites in the history the broker has not acknowledged yet.
-    pub backlog: u64,
-    /// Sessions the broker accepted.
-    pub connections: u64,
-    /// Rebirth commands obeyed.
-    pub rebirths: u64,
-    /// Failed connections and lost sessions by [`ConnectFailure`] (in the order of
-    /// [`ConnectFailure::ALL`]).
-    pub failures: [u64; 4],
-}
-
-impl SparkplugStatus {
-    /// The counters now.
-    pub fn counts(&self) -> SparkplugCounts {
-        let load = |c: &AtomicU64| c.load(Ordering::Relaxed);
-        SparkplugCounts {
-            connected: self.connected.load(Ordering::Relaxed) != 0,
-            bd_seq: self.bd_seq.load(Ordering::Relaxed),
-            published: load(&self.published),
-            bites: load(&self.bites),
-            connections: load(&self.connections),
-            rebirths: load(&self.rebirths),
-            replayed: load(&self.replayed),
-            backlog: load(&self.backlog),
-            failures: self.failures.each_ref().map(load),
-        }
-    }
-}
 
 /// The edge node task.
 #[derive(Debug)]
 pub struct SparkplugNode {
     config: MqttOutput,
     history: PathBuf,
-    publisher: Arc<Publisher>,
+    board: Arc<Board>,
     status: Arc<SparkplugStatus>,
     tls: Option<Arc<rustls::ClientConfig>>,
     /// Rod mills: name and span count.
@@ -227,13 +93,13 @@ impl SparkplugNode {
     pub fn new(
         config: MqttOutput,
         history: PathBuf,
-        publisher: Arc<Publisher>,
+        board: Arc<Board>,
     ) -> Result<Self, tls::TlsSetupError> {
         let tls = config.tls.as_ref().map(tls::client_config).transpose()?;
         Ok(Self {
             config,
             history,
-            publisher,
+            board,
             status: Arc::new(SparkplugStatus::default()),
             tls,
             rod_mills: Vec::new(),
@@ -343,7 +209,7 @@ impl SparkplugNode {
         confirmations: &mut Confirmations,
         bites: &mut BiteSource,
     ) -> Option<i64> {
-        let results = self.publisher.results();
+        let results = self.board.results();
         self.publish(client, confirmations, node.births(&results, now_ms()));
         let last = bites.read(|reader| reader.last_bite_id()).await?;
         (last > confirmations.read()).then_some(last)
@@ -375,8 +241,8 @@ impl SparkplugNode {
         let Some(rows) = bites.read(move |reader| reader.bites(&filter)).await else {
             return;
         };
-        let results = self.publisher.results();
-        let names = self.publisher.driveline_names();
+        let results = self.board.results();
+        let names = self.board.driveline_names();
         for row in rows
             .iter()
             .take_while(|row| until.is_none_or(|end| row.id <= end))
@@ -415,7 +281,7 @@ impl SparkplugNode {
         node: &mut EdgeNode,
         index: usize,
         row: &BiteRow,
-        results: &crate::outputs::results::Results,
+        results: &crate::state::results::Results,
         historical: bool,
     ) -> node::Outgoing {
         let time = forward::bite_ms(row).unwrap_or_else(now_ms);
@@ -423,9 +289,15 @@ impl SparkplugNode {
             .drivelines
             .get(index)
             .filter(|live| !historical && i64::from(live.bite_counter) == row.bite_counter);
+        let recorded: Vec<&str> = BITE_COLUMNS.iter().map(|(key, _)| *key).collect();
         match current {
-            Some(live) => node.bite(index, live, time, false),
-            None => node.bite(index, &forward::bite_results(row), time, historical),
+            Some(live) => node.bite(index, live, time, (None, false)),
+            None => node.bite(
+                index,
+                &forward::bite_results(row),
+                time,
+                (Some(&recorded), historical),
+            ),
         }
     }
 
@@ -448,7 +320,7 @@ impl SparkplugNode {
 
     /// Publish until `shutdown`, reconnecting with a new bdSeq after each lost session.
     pub async fn run(self, mut shutdown: Shutdown) {
-        let publisher = Arc::clone(&self.publisher);
+        let board = Arc::clone(&self.board);
         let mut bd_seq = self.next_bd_seq(None).await;
         let mut confirmations = Confirmations::new(self.load_cursor().await);
         // The cursor is stored and the backlog counted by a task of its own: a timer
@@ -468,11 +340,10 @@ impl SparkplugNode {
         let mut node = EdgeNode::new(
             &self.config.group_id,
             &self.config.node_id,
-            publisher.driveline_names(),
-            publisher.mill_names(),
+            (board.driveline_names(), board.tandem_mill_names()),
+            &self.rod_mills,
             bd_seq,
-        )
-        .with_rod_mills(&self.rod_mills);
+        );
         self.status.bd_seq.store(bd_seq, Ordering::Relaxed);
         let (client, mut events) =
             AsyncClient::new(self.options(node.death(now_ms())), CLIENT_QUEUE);
@@ -534,7 +405,7 @@ impl SparkplugNode {
                                 Ok(true) if born => {
                                     tracing::info!("Sparkplug rebirth requested");
                                     self.status.rebirths.fetch_add(1, Ordering::Relaxed);
-                                    let results = publisher.results();
+                                    let results = board.results();
                                     self.publish(&client, &mut confirmations, node.births(&results, now_ms()));
                                 }
                                 Ok(_) => {}
@@ -612,7 +483,7 @@ impl SparkplugNode {
                     self.forward(&client, &mut node, &mut confirmations, &mut bites, Step::Live).await;
                 }
                 _ = data.tick(), if born => {
-                    self.publish(&client, &mut confirmations, node.data(&publisher.results(), now_ms()));
+                    self.publish(&client, &mut confirmations, node.data(&board.results(), now_ms()));
                 }
             }
             confirmed.store(confirmations.confirmed(), Ordering::Relaxed);
@@ -660,99 +531,6 @@ enum Step {
     Replay { batch: usize, end: i64 },
     /// What was recorded after the backlog, live.
     Live,
-}
-
-/// The history file's bites, read on a blocking thread with one read-only
-/// connection, opened when first needed and again after a failure.
-#[derive(Debug)]
-struct BiteSource {
-    path: PathBuf,
-    reader: Option<HistoryReader>,
-    failing: bool,
-}
-
-impl BiteSource {
-    fn new(path: PathBuf) -> Self {
-        Self {
-            path,
-            reader: None,
-            failing: false,
-        }
-    }
-
-    /// `read`'s answer; `None` when the file cannot be read (logged once per failure).
-    async fn read<T: Send + 'static>(
-        &mut self,
-        read: impl FnOnce(&HistoryReader) -> Result<T, HistoryError> + Send + 'static,
-    ) -> Option<T> {
-        let (path, taken) = (self.path.clone(), self.reader.take());
-        let joined = tokio::task::spawn_blocking(move || {
-            let reader = match taken {
-                Some(reader) => reader,
-                None => HistoryReader::open(&path)?,
-            };
-            let value = read(&reader)?;
-            Ok::<_, HistoryError>((reader, value))
-        })
-        .await;
-        match joined {
-            Ok(Ok((reader, value))) => {
-                self.reader = Some(reader);
-                self.failing = false;
-                Some(value)
-            }
-            Ok(Err(error)) => {
-                if !self.failing {
-                    tracing::error!(%error, "Sparkplug: the history's bites cannot be read");
-                }
-                self.failing = true;
-                None
-            }
-            Err(error) => {
-                tracing::error!(%error, "Sparkplug history task failed");
-                None
-            }
-        }
-    }
-}
-
-/// Every [`CURSOR_PERIOD`] until `stop` (and once more then): store the replay cursor
-/// `confirmed` of `node` in the history file `history` when it moved, and count the
-/// backlog after it into `status`.
-async fn keep_cursor(
-    history: PathBuf,
-    node: String,
-    status: Arc<SparkplugStatus>,
-    confirmed: Arc<AtomicI64>,
-    mut stop: tokio::sync::oneshot::Receiver<()>,
-) {
-    let mut bites = BiteSource::new(history.clone());
-    let mut stored = confirmed.load(Ordering::Relaxed);
-    let mut period = tokio::time::interval(CURSOR_PERIOD);
-    loop {
-        let stopping = tokio::select! {
-            _ = &mut stop => true,
-            _ = period.tick() => false,
-        };
-        let cursor = confirmed.load(Ordering::Relaxed);
-        if cursor != stored {
-            let (path, key) = (history.clone(), node.clone());
-            let done =
-                tokio::task::spawn_blocking(move || forward::store_cursor(&path, &key, cursor))
-                    .await;
-            match done {
-                Ok(Ok(())) => stored = cursor,
-                Ok(Err(error)) => tracing::warn!(%error, "Sparkplug replay cursor not stored"),
-                Err(error) => tracing::error!(%error, "Sparkplug cursor task failed"),
-            }
-        }
-        if let Some(backlog) = bites.read(move |reader| reader.bites_after(cursor)).await {
-            status.backlog.store(backlog, Ordering::Relaxed);
-        }
-        if stopping {
-            break;
-        }
-    }
 }
 
 /// Drop what the event loop would send at its next connection.

@@ -4,8 +4,11 @@
 //! a rebirth command. The task in [`super`] moves the messages to the broker.
 //!
 //! Devices: each driveline, each tandem mill and each rod mill, named as in the
-//! configuration. A rod mill's per-span metrics are `span<i>/<name>` (i 1-based in
-//! rolling order), as many spans as its mill file has (fixed at birth).
+//! configuration; their metrics are the catalogue's figures, named by their keys, with
+//! the catalogue's units ([`crate::state::catalogue`]). A rod mill's per-span metrics
+//! are `span<i>/<key>` (i 1-based in rolling order), as many spans as its mill file has
+//! (fixed at birth). A driveline's bite DDATA adds `bite_id`. A value the stale rule
+//! withholds is sent null.
 //! Aliases are unique within the node: the node's metrics first, then each device's in
 //! order. `seq` counts 0..=255 over every message of the session but the NDEATH, and
 //! starts at 0 with each NBIRTH; `bdSeq` (0..=255) is the session number the NBIRTH
@@ -13,10 +16,10 @@
 
 use prost::Message as _;
 
+use super::devices::{columns, values, wire, Column, Device, Kind};
 use super::payload::{DataType, Metric, MetricValue, Payload, PropertySet};
-use crate::outputs::results::{
-    DrivelineResults, MillResults, Results, RodMillResults, RodSpanResults,
-};
+use crate::state::catalogue::{self, Value};
+use crate::state::results::{DrivelineResults, Results};
 
 /// The Sparkplug B topic namespace.
 pub const NAMESPACE: &str = "spBv1.0";
@@ -32,456 +35,14 @@ pub struct Outgoing {
     pub payload: Vec<u8>,
 }
 
-/// A metric's value as millgate has it; `None` is published as `is_null`.
-#[derive(Debug, Clone, Copy, PartialEq)]
-enum Value {
-    U32(u32),
-    U64(u64),
-    F64(f64),
-    Bool(bool),
-    /// ms since the Unix epoch.
-    Time(u64),
-}
-
-impl Value {
-    fn datatype(self) -> DataType {
-        match self {
-            Value::U32(_) => DataType::UInt32,
-            Value::U64(_) => DataType::UInt64,
-            Value::F64(_) => DataType::Double,
-            Value::Bool(_) => DataType::Boolean,
-            Value::Time(_) => DataType::DateTime,
-        }
-    }
-
-    fn wire(self) -> MetricValue {
-        match self {
-            Value::U32(v) => MetricValue::IntValue(v),
-            Value::U64(v) | Value::Time(v) => MetricValue::LongValue(v),
-            Value::F64(v) => MetricValue::DoubleValue(v),
-            Value::Bool(v) => MetricValue::BooleanValue(v),
-        }
-    }
-}
-
-/// A device metric: name, datatype, unit and how to read it from the results.
-struct Def<R> {
-    name: &'static str,
-    datatype: DataType,
-    unit: &'static str,
-    read: fn(&R) -> Option<Value>,
-}
-
-/// A driveline's metrics (the register map's driveline block, with units).
-const DRIVELINE: &[Def<DrivelineResults>] = &[
-    Def {
-        name: "bite_counter",
-        datatype: DataType::UInt32,
-        unit: "",
-        read: |r| Some(Value::U32(r.bite_counter)),
-    },
-    Def {
-        name: "last_bite_time",
-        datatype: DataType::DateTime,
-        unit: "",
-        read: |r| r.last_bite_unix_s.map(|s| Value::Time(u64::from(s) * 1000)),
-    },
-    Def {
-        name: "static_torque",
-        datatype: DataType::Double,
-        unit: "kN*m",
-        read: |r| r.static_torque_knm.map(Value::F64),
-    },
-    Def {
-        name: "peak_torque",
-        datatype: DataType::Double,
-        unit: "kN*m",
-        read: |r| r.peak_torque_knm.map(Value::F64),
-    },
-    Def {
-        name: "taf",
-        datatype: DataType::Double,
-        unit: "",
-        read: |r| r.taf.map(Value::F64),
-    },
-    Def {
-        name: "first_period_shift",
-        datatype: DataType::Double,
-        unit: "s",
-        read: |r| r.first_period_shift_s.map(Value::F64),
-    },
-    Def {
-        name: "beta1",
-        datatype: DataType::Double,
-        unit: "Hz",
-        read: |r| r.beta1_hz.map(Value::F64),
-    },
-    Def {
-        name: "beta2",
-        datatype: DataType::Double,
-        unit: "Hz",
-        read: |r| r.beta2_hz.map(Value::F64),
-    },
-    Def {
-        name: "wear_index",
-        datatype: DataType::Double,
-        unit: "",
-        read: |r| r.wear_index.map(Value::F64),
-    },
-    Def {
-        name: "wear_trend",
-        datatype: DataType::Double,
-        unit: "",
-        read: |r| r.wear_trend.map(Value::F64),
-    },
-    Def {
-        name: "degraded",
-        datatype: DataType::Boolean,
-        unit: "",
-        read: |r| Some(Value::Bool(r.last_bite_degraded)),
-    },
-    Def {
-        name: "warning",
-        datatype: DataType::Boolean,
-        unit: "",
-        read: |r| Some(Value::Bool(r.warning)),
-    },
-    Def {
-        name: "alarm",
-        datatype: DataType::Boolean,
-        unit: "",
-        read: |r| Some(Value::Bool(r.alarm)),
-    },
-    Def {
-        name: "source_stale",
-        datatype: DataType::Boolean,
-        unit: "",
-        read: |r| Some(Value::Bool(r.source_stale)),
-    },
-    Def {
-        name: "restored",
-        datatype: DataType::Boolean,
-        unit: "",
-        read: |r| Some(Value::Bool(r.restored)),
-    },
-    Def {
-        name: "gap",
-        datatype: DataType::Double,
-        unit: "mrad",
-        read: |r| r.gap.as_ref().map(|g| Value::F64(g.gap_mrad)),
-    },
-    Def {
-        name: "gap_low",
-        datatype: DataType::Double,
-        unit: "mrad",
-        read: |r| r.gap.as_ref().map(|g| Value::F64(g.low_mrad)),
-    },
-    Def {
-        name: "gap_high",
-        datatype: DataType::Double,
-        unit: "mrad",
-        read: |r| r.gap.as_ref().map(|g| Value::F64(g.high_mrad)),
-    },
-    Def {
-        // Model index, 0 = motor side; null while undetermined.
-        name: "gap_coupling",
-        datatype: DataType::UInt32,
-        unit: "",
-        read: |r| {
-            let coupling = r.gap.as_ref()?.coupling?;
-            u32::try_from(coupling).ok().map(Value::U32)
-        },
-    },
-    Def {
-        name: "bites_pooled",
-        datatype: DataType::UInt32,
-        unit: "",
-        read: |r| {
-            let pooled = r.gap.as_ref()?.bites_pooled;
-            Some(Value::U32(u32::try_from(pooled).unwrap_or(u32::MAX)))
-        },
-    },
-    Def {
-        name: "gap_warning",
-        datatype: DataType::Boolean,
-        unit: "",
-        read: |r| Some(Value::Bool(r.gap_warning)),
-    },
-    Def {
-        name: "gap_alarm",
-        datatype: DataType::Boolean,
-        unit: "",
-        read: |r| Some(Value::Bool(r.gap_alarm)),
-    },
-];
-
-/// A tandem mill's chatter metrics.
-const MILL: &[Def<MillResults>] = &[
-    Def {
-        name: "evaluations",
-        datatype: DataType::UInt64,
-        unit: "",
-        read: |r| Some(Value::U64(r.evaluations)),
-    },
-    Def {
-        name: "sigma_n",
-        datatype: DataType::Double,
-        unit: "Hz",
-        read: |r| r.sigma_n_hz.map(Value::F64),
-    },
-    Def {
-        name: "k_mean",
-        datatype: DataType::Double,
-        unit: "",
-        read: |r| r.k_mean.map(Value::F64),
-    },
-    Def {
-        name: "chatter_frequency",
-        datatype: DataType::Double,
-        unit: "Hz",
-        read: |r| r.chatter_frequency_hz.map(Value::F64),
-    },
-    Def {
-        name: "warning",
-        datatype: DataType::Boolean,
-        unit: "",
-        read: |r| Some(Value::Bool(r.warning)),
-    },
-    Def {
-        name: "alarm",
-        datatype: DataType::Boolean,
-        unit: "",
-        read: |r| Some(Value::Bool(r.alarm)),
-    },
-    Def {
-        name: "source_stale",
-        datatype: DataType::Boolean,
-        unit: "",
-        read: |r| Some(Value::Bool(r.source_stale)),
-    },
-    Def {
-        name: "chatter_gain",
-        datatype: DataType::Double,
-        unit: "",
-        read: |r| r.chatter_gain.map(Value::F64),
-    },
-    Def {
-        name: "gain_ratio",
-        datatype: DataType::Double,
-        unit: "",
-        read: |r| r.gain_ratio.map(Value::F64),
-    },
-    Def {
-        name: "band_rms_max",
-        datatype: DataType::Double,
-        // In the stand channels' own unit.
-        unit: "",
-        read: |r| r.band_rms_max.map(Value::F64),
-    },
-    Def {
-        name: "worst_stand",
-        datatype: DataType::UInt32,
-        unit: "",
-        // 1-based, as the register.
-        read: |r| {
-            r.worst_stand
-                .map(|stand| Value::U32(u32::try_from(stand + 1).unwrap_or(u32::MAX)))
-        },
-    },
-    Def {
-        name: "slow_down_request",
-        datatype: DataType::Boolean,
-        unit: "",
-        read: |r| Some(Value::Bool(r.slow_down_request)),
-    },
-];
-
-/// Driveline metrics a bite's history row does not keep (flags of the moment): a
-/// replayed bite's DDATA leaves them out rather than claim a value.
-pub const NOT_RECORDED: &[&str] = &[
-    "warning",
-    "alarm",
-    "source_stale",
-    "restored",
-    "gap_warning",
-    "gap_alarm",
-];
-
-/// A rod mill's own metrics. The values of the operating point, the flags and the
-/// worst span are null while the mill is not valid (not evaluated yet, an input
-/// refused or stale).
-const ROD_MILL: &[Def<RodMillResults>] = &[
-    Def {
-        name: "evaluations",
-        datatype: DataType::UInt64,
-        unit: "",
-        read: |r| Some(Value::U64(r.evaluations)),
-    },
-    Def {
-        name: "valid",
-        datatype: DataType::Boolean,
-        unit: "",
-        read: |r| Some(Value::Bool(r.valid())),
-    },
-    Def {
-        name: "input_refused",
-        datatype: DataType::Boolean,
-        unit: "",
-        read: |r| Some(Value::Bool(r.input_refused)),
-    },
-    Def {
-        name: "source_stale",
-        datatype: DataType::Boolean,
-        unit: "",
-        read: |r| Some(Value::Bool(r.source_stale)),
-    },
-    Def {
-        // Index into the rod mill's configurations.
-        name: "configuration",
-        datatype: DataType::UInt32,
-        unit: "",
-        read: |r| valid(r, r.configuration.map(|c| Value::U32(u32::from(c)))),
-    },
-    Def {
-        // 1-based, as the PLC's.
-        name: "pass",
-        datatype: DataType::UInt32,
-        unit: "",
-        read: |r| valid(r, r.pass.map(|p| Value::U32(u32::from(p)))),
-    },
-    Def {
-        name: "finishing_speed",
-        datatype: DataType::Double,
-        unit: "m/s",
-        read: |r| valid(r, r.finishing_speed_m_s.map(Value::F64)),
-    },
-    Def {
-        name: "rod_temperature",
-        datatype: DataType::Double,
-        unit: "degC",
-        read: |r| valid(r, r.temperature_c.map(Value::F64)),
-    },
-    Def {
-        name: "unstable",
-        datatype: DataType::Boolean,
-        unit: "",
-        read: |r| valid(r, Some(Value::Bool(r.spans.iter().any(|s| s.unstable)))),
-    },
-    Def {
-        name: "near_tongue",
-        datatype: DataType::Boolean,
-        unit: "",
-        read: |r| valid(r, Some(Value::Bool(r.spans.iter().any(|s| s.near_tongue)))),
-    },
-    Def {
-        // The smallest speed margin of the valid spans (negative: one is unstable).
-        name: "worst_margin",
-        datatype: DataType::Double,
-        unit: "m/s",
-        read: |r| r.worst_span().map(|(_, margin)| Value::F64(margin)),
-    },
-    Def {
-        // 1-based, as the `span<i>` metrics.
-        name: "worst_span",
-        datatype: DataType::UInt32,
-        unit: "",
-        read: |r| {
-            r.worst_span()
-                .map(|(span, _)| Value::U32(u32::try_from(span + 1).unwrap_or(u32::MAX)))
-        },
-    },
-];
-
-/// A rod mill span's metrics (`span<i>/<name>`), read from the span while it and
-/// its mill are valid, else from an empty span (not valid, flags clear, values null).
-const ROD_SPAN: &[Def<RodSpanResults>] = &[
-    Def {
-        name: "valid",
-        datatype: DataType::Boolean,
-        unit: "",
-        read: |s| Some(Value::Bool(s.valid)),
-    },
-    Def {
-        name: "unstable",
-        datatype: DataType::Boolean,
-        unit: "",
-        read: |s| Some(Value::Bool(s.unstable)),
-    },
-    Def {
-        name: "near_tongue",
-        datatype: DataType::Boolean,
-        unit: "",
-        read: |s| Some(Value::Bool(s.near_tongue)),
-    },
-    Def {
-        name: "speed_margin",
-        datatype: DataType::Double,
-        unit: "m/s",
-        read: |s| s.speed_margin_m_s.map(Value::F64),
-    },
-    Def {
-        name: "worst_exponent",
-        datatype: DataType::Double,
-        unit: "1/s",
-        read: |s| s.worst_exponent_per_s.map(Value::F64),
-    },
-    Def {
-        name: "configuration",
-        datatype: DataType::UInt32,
-        unit: "",
-        read: |s| s.configuration.map(|c| Value::U32(u32::from(c))),
-    },
-];
-
-/// `value` while rod mill `r` is valid, else null.
-fn valid(r: &RodMillResults, value: Option<Value>) -> Option<Value> {
-    value.filter(|_| r.valid())
-}
-
-/// The metric columns of a rod mill with `spans` spans: its own, then each span's.
-fn rod_columns(spans: usize) -> Vec<Column> {
-    let mut out: Vec<Column> = columns(ROD_MILL)
-        .map(|(name, datatype, unit)| (name.to_owned(), datatype, unit))
-        .collect();
-    for span in 1..=spans {
-        out.extend(
-            columns(ROD_SPAN)
-                .map(|(name, datatype, unit)| (format!("span{span}/{name}"), datatype, unit)),
-        );
-    }
-    out
-}
-
-/// The values of `mill` in the order of [`rod_columns`] for `spans` spans.
-fn rod_values(mill: Option<&RodMillResults>, spans: usize) -> Vec<Option<Value>> {
-    let fallback = RodMillResults::default();
-    let mill = mill.unwrap_or(&fallback);
-    let empty = RodSpanResults::default();
-    let mut values = read_all(ROD_MILL, Some(mill));
-    for index in 0..spans {
-        let span = mill
-            .spans
-            .get(index)
-            .filter(|s| s.valid && mill.valid())
-            .unwrap_or(&empty);
-        values.extend(ROD_SPAN.iter().map(|def| (def.read)(span)));
-    }
-    values
-}
-
-/// A metric's name, datatype and unit.
-type Column = (String, DataType, &'static str);
-
-/// The name, datatype and unit of each of `defs`.
-fn columns<R>(
-    defs: &[Def<R>],
-) -> impl Iterator<Item = (&'static str, DataType, &'static str)> + '_ {
-    defs.iter().map(|def| (def.name, def.datatype, def.unit))
-}
-
 /// The bite id metric of a bite's DDATA: the driveline's bite counter after the bite,
 /// which the history keeps across restarts, so (device, bite_id) names a bite once.
 pub const BITE_ID: &str = "bite_id";
+
+/// Longest a driveline's changed values wait for the DDATA of the bite that changed
+/// them (a bite reaches the history, and from it the broker, within milliseconds; a
+/// history that cannot store it must not hold the values back for good).
+pub const BITE_HOLD_MS: u64 = 2000;
 
 /// Node metrics: bdSeq (alias 0) and the rebirth command (alias 1).
 const NODE_METRICS: u64 = 2;
@@ -491,50 +52,67 @@ const NODE_METRICS: u64 = 2;
 pub struct EdgeNode {
     group: String,
     node: String,
-    drivelines: Vec<String>,
-    mills: Vec<String>,
     bd_seq: u8,
     seq: u8,
-    /// What the last birth or data message said, per device and metric.
-    sent_drivelines: Vec<Vec<Option<Value>>>,
-    sent_mills: Vec<Vec<Option<Value>>>,
-    /// Rod mills: name, span count and metric columns.
-    rod_mills: Vec<(String, usize, Vec<Column>)>,
-    sent_rod_mills: Vec<Vec<Option<Value>>>,
+    devices: Vec<Device>,
 }
 
 impl EdgeNode {
-    /// The node `group`/`node` with these devices, in session `bd_seq`.
+    /// The node `group`/`node` with these devices, in session `bd_seq`: the
+    /// drivelines, the tandem mills, then the rod mills (name, span count), each in
+    /// config order.
     pub fn new(
         group: &str,
         node: &str,
-        drivelines: &[String],
-        mills: &[String],
+        (drivelines, tandem_mills): (&[String], &[String]),
+        rod_mills: &[(String, usize)],
         bd_seq: u8,
     ) -> Self {
+        let mut devices = Vec::new();
+        let mut alias = NODE_METRICS;
+        let mut add = |name: &str, kind: Kind, columns: Vec<Column>| {
+            let width = columns.len() as u64;
+            devices.push(Device {
+                name: name.to_owned(),
+                kind,
+                columns,
+                first_alias: alias,
+                sent: Vec::new(),
+                bite_counter: None,
+                held_since: None,
+            });
+            alias += width;
+        };
+        for (k, name) in drivelines.iter().enumerate() {
+            let mut driveline: Vec<Column> = columns(catalogue::DRIVELINE, "").collect();
+            driveline.push(Column {
+                name: BITE_ID.to_owned(),
+                datatype: DataType::UInt64,
+                unit: "",
+            });
+            add(name, Kind::Driveline(k), driveline);
+        }
+        for (k, name) in tandem_mills.iter().enumerate() {
+            add(
+                name,
+                Kind::TandemMill(k),
+                columns(catalogue::TANDEM_MILL, "").collect(),
+            );
+        }
+        for (k, (name, spans)) in rod_mills.iter().enumerate() {
+            let mut rod: Vec<Column> = columns(catalogue::ROD_MILL, "").collect();
+            for span in 1..=*spans {
+                rod.extend(columns(catalogue::ROD_SPAN, &format!("span{span}/")));
+            }
+            add(name, Kind::RodMill(k, *spans), rod);
+        }
         Self {
             group: group.to_owned(),
             node: node.to_owned(),
-            drivelines: drivelines.to_vec(),
-            mills: mills.to_vec(),
             bd_seq,
             seq: 0,
-            sent_drivelines: vec![Vec::new(); drivelines.len()],
-            sent_mills: vec![Vec::new(); mills.len()],
-            rod_mills: Vec::new(),
-            sent_rod_mills: Vec::new(),
+            devices,
         }
-    }
-
-    /// The node with these rod mills as devices too: `(name, span count)`, in config
-    /// order (after the tandem mills).
-    pub fn with_rod_mills(mut self, rod_mills: &[(String, usize)]) -> Self {
-        self.rod_mills = rod_mills
-            .iter()
-            .map(|(name, spans)| (name.clone(), *spans, rod_columns(*spans)))
-            .collect();
-        self.sent_rod_mills = vec![Vec::new(); rod_mills.len()];
-        self
     }
 
     /// This session's bdSeq.
@@ -551,8 +129,11 @@ impl EdgeNode {
         format!("{NAMESPACE}/{}/{kind}/{}", self.group, self.node)
     }
 
-    fn device_topic(&self, kind: &str, device: &str) -> String {
-        format!("{NAMESPACE}/{}/{kind}/{}/{device}", self.group, self.node)
+    fn device_topic(&self, kind: &str, device: usize) -> String {
+        format!(
+            "{NAMESPACE}/{}/{kind}/{}/{}",
+            self.group, self.node, self.devices[device].name
+        )
     }
 
     /// The NCMD topic the node subscribes to.
@@ -566,11 +147,13 @@ impl EdgeNode {
         u64::from(seq)
     }
 
-    fn bd_seq_metric(&self, named: bool) -> Metric {
+    /// The bdSeq metric: Int64, as Sparkplug 3.0 asks of the Will's and the NBIRTH's.
+    fn bd_seq_metric(&self, now_ms: u64) -> Metric {
         Metric {
-            name: named.then(|| "bdSeq".to_owned()),
+            name: Some("bdSeq".to_owned()),
             alias: None,
-            datatype: Some(DataType::UInt64.code()),
+            timestamp: Some(now_ms),
+            datatype: Some(DataType::Int64.code()),
             value: Some(MetricValue::LongValue(u64::from(self.bd_seq))),
             ..Metric::default()
         }
@@ -580,7 +163,7 @@ impl EdgeNode {
     pub fn death(&self, now_ms: u64) -> Outgoing {
         let payload = Payload {
             timestamp: Some(now_ms),
-            metrics: vec![self.bd_seq_metric(true)],
+            metrics: vec![self.bd_seq_metric(now_ms)],
             ..Payload::default()
         };
         Outgoing {
@@ -593,14 +176,17 @@ impl EdgeNode {
     /// datatype, unit, value.
     pub fn births(&mut self, results: &Results, now_ms: u64) -> Vec<Outgoing> {
         self.seq = 0;
-        let mut node_metrics = vec![self.bd_seq_metric(true)];
-        node_metrics.push(Metric {
-            name: Some(REBIRTH.to_owned()),
-            alias: Some(1),
-            datatype: Some(DataType::Boolean.code()),
-            value: Some(MetricValue::BooleanValue(false)),
-            ..Metric::default()
-        });
+        let node_metrics = vec![
+            self.bd_seq_metric(now_ms),
+            Metric {
+                name: Some(REBIRTH.to_owned()),
+                alias: Some(1),
+                timestamp: Some(now_ms),
+                datatype: Some(DataType::Boolean.code()),
+                value: Some(MetricValue::BooleanValue(false)),
+                ..Metric::default()
+            },
+        ];
         let nbirth = Payload {
             timestamp: Some(now_ms),
             metrics: node_metrics,
@@ -611,35 +197,33 @@ impl EdgeNode {
             topic: self.node_topic("NBIRTH"),
             payload: nbirth.encode_to_vec(),
         }];
-        for index in 0..self.drivelines.len() {
-            let values = read_all(DRIVELINE, results.drivelines.get(index));
-            let base = self.driveline_alias(index, 0);
-            let mut metrics = birth_metrics(columns(DRIVELINE), base, &values, now_ms);
-            metrics.push(metric(
-                Some(BITE_ID),
-                base + DRIVELINE.len() as u64,
-                DataType::UInt64,
-                None,
-                now_ms,
-            ));
-            self.sent_drivelines[index] = values;
-            let topic = self.device_topic("DBIRTH", &self.drivelines[index]);
-            out.push(self.device_message(topic, metrics, now_ms));
-        }
-        for index in 0..self.mills.len() {
-            let values = read_all(MILL, results.mills.get(index));
-            let metrics = birth_metrics(columns(MILL), self.mill_alias(index, 0), &values, now_ms);
-            self.sent_mills[index] = values;
-            let topic = self.device_topic("DBIRTH", &self.mills[index]);
-            out.push(self.device_message(topic, metrics, now_ms));
-        }
-        for index in 0..self.rod_mills.len() {
-            let (name, spans, columns) = &self.rod_mills[index];
-            let values = rod_values(results.rod_mills.get(index), *spans);
-            let named = columns.iter().map(|(n, t, u)| (n.as_str(), *t, *u));
-            let metrics = birth_metrics(named, self.rod_mill_alias(index, 0), &values, now_ms);
-            let topic = self.device_topic("DBIRTH", name);
-            self.sent_rod_mills[index] = values;
+        for index in 0..self.devices.len() {
+            let device = &self.devices[index];
+            let mut values = device.values(results);
+            // The bite id is born null: it is only sent with a bite.
+            values.resize(device.columns.len(), None);
+            let metrics = device
+                .columns
+                .iter()
+                .zip(&values)
+                .enumerate()
+                .map(|(at, (column, value))| {
+                    let alias = device.first_alias + at as u64;
+                    let mut metric =
+                        metric(Some(&column.name), alias, column.datatype, *value, now_ms);
+                    if !column.unit.is_empty() {
+                        metric.properties = Some(PropertySet::unit(column.unit));
+                    }
+                    metric
+                })
+                .collect();
+            self.devices[index].sent = values;
+            if let Kind::Driveline(k) = self.devices[index].kind {
+                self.devices[index].bite_counter =
+                    results.drivelines.get(k).map(|d| d.bite_counter);
+                self.devices[index].held_since = None;
+            }
+            let topic = self.device_topic("DBIRTH", index);
             out.push(self.device_message(topic, metrics, now_ms));
         }
         out
@@ -658,98 +242,76 @@ impl EdgeNode {
         }
     }
 
-    /// Alias of driveline `index`'s metric `metric` (the bite id after the others).
-    fn driveline_alias(&self, index: usize, metric: usize) -> u64 {
-        NODE_METRICS + (index * (DRIVELINE.len() + 1) + metric) as u64
-    }
-
-    fn mill_alias(&self, index: usize, metric: usize) -> u64 {
-        let drivelines = self.drivelines.len() * (DRIVELINE.len() + 1);
-        NODE_METRICS + (drivelines + index * MILL.len() + metric) as u64
-    }
-
-    fn rod_mill_alias(&self, index: usize, metric: usize) -> u64 {
-        let before = self.mill_alias(self.mills.len(), 0);
-        let rods: usize = self.rod_mills[..index]
-            .iter()
-            .map(|(_, _, c)| c.len())
-            .sum();
-        before + (rods + metric) as u64
-    }
-
     /// A DDATA per device whose values changed since the last birth or data message,
-    /// with only the changed metrics, by alias.
+    /// with only the changed metrics, by alias. A driveline whose results show a bite
+    /// whose own DDATA has not gone yet waits for it (at most [`BITE_HOLD_MS`]): a host
+    /// sees a bite's DDATA before the values it changed, never after.
     pub fn data(&mut self, results: &Results, now_ms: u64) -> Vec<Outgoing> {
         let mut out = Vec::new();
-        for index in 0..self.drivelines.len() {
-            let values = read_all(DRIVELINE, results.drivelines.get(index));
-            let base = self.driveline_alias(index, 0);
-            let metrics = changed(
-                columns(DRIVELINE),
-                base,
-                &self.sent_drivelines[index],
-                &values,
-                now_ms,
-            );
-            if !metrics.is_empty() {
-                self.sent_drivelines[index] = values;
-                let topic = self.device_topic("DDATA", &self.drivelines[index]);
-                out.push(self.device_message(topic, metrics, now_ms));
+        for index in 0..self.devices.len() {
+            if let Kind::Driveline(k) = self.devices[index].kind {
+                let now = results.drivelines.get(k).map(|d| d.bite_counter);
+                let device = &mut self.devices[index];
+                if now == device.bite_counter {
+                    device.held_since = None;
+                } else {
+                    let since = *device.held_since.get_or_insert(now_ms);
+                    if now_ms.saturating_sub(since) < BITE_HOLD_MS {
+                        continue;
+                    }
+                }
             }
-        }
-        for index in 0..self.mills.len() {
-            let values = read_all(MILL, results.mills.get(index));
-            let base = self.mill_alias(index, 0);
-            let metrics = changed(
-                columns(MILL),
-                base,
-                &self.sent_mills[index],
-                &values,
-                now_ms,
-            );
+            let device = &self.devices[index];
+            let values = device.values(results);
+            let metrics: Vec<Metric> = values
+                .iter()
+                .enumerate()
+                .filter(|(at, value)| device.sent.get(*at) != Some(value))
+                .map(|(at, value)| {
+                    let alias = device.first_alias + at as u64;
+                    metric(None, alias, device.columns[at].datatype, *value, now_ms)
+                })
+                .collect();
             if !metrics.is_empty() {
-                self.sent_mills[index] = values;
-                let topic = self.device_topic("DDATA", &self.mills[index]);
-                out.push(self.device_message(topic, metrics, now_ms));
-            }
-        }
-        for index in 0..self.rod_mills.len() {
-            let (name, spans, columns) = &self.rod_mills[index];
-            let values = rod_values(results.rod_mills.get(index), *spans);
-            let named = columns.iter().map(|(n, t, u)| (n.as_str(), *t, *u));
-            let base = self.rod_mill_alias(index, 0);
-            let metrics = changed(named, base, &self.sent_rod_mills[index], &values, now_ms);
-            if !metrics.is_empty() {
-                let topic = self.device_topic("DDATA", name);
-                self.sent_rod_mills[index] = values;
+                let sent = &mut self.devices[index].sent;
+                sent[..values.len()].copy_from_slice(&values);
+                let topic = self.device_topic("DDATA", index);
                 out.push(self.device_message(topic, metrics, now_ms));
             }
         }
         out
     }
 
-    /// A bite of driveline `index`: its own DDATA with every driveline metric and the
-    /// bite id, timestamped with the bite's time; `historical` flags a value sent
-    /// after the fact (a bite replayed from the history), which carries only what the
-    /// history keeps (not [`NOT_RECORDED`]).
+    /// A bite of driveline `index`: its own DDATA with the bite id and every driveline
+    /// metric (`only`: just these keys, for a bite read back from the history, which
+    /// keeps its values but not the flags of the moment), timestamped with the bite's
+    /// time; `historical` flags a bite sent after the fact (replayed).
     pub fn bite(
         &mut self,
         index: usize,
         after: &DrivelineResults,
         bite_ms: u64,
-        historical: bool,
+        (only, historical): (Option<&[&str]>, bool),
     ) -> Outgoing {
-        let values = read_all(DRIVELINE, Some(after));
-        let base = self.driveline_alias(index, 0);
+        let values = values(catalogue::DRIVELINE, after);
+        let device = self
+            .devices
+            .iter()
+            .position(|d| d.kind == Kind::Driveline(index))
+            .expect("a driveline device per driveline");
+        let (first_alias, columns) = (
+            self.devices[device].first_alias,
+            &self.devices[device].columns,
+        );
         let mut metrics: Vec<Metric> = values
             .iter()
             .enumerate()
-            .filter(|(at, _)| !historical || !NOT_RECORDED.contains(&DRIVELINE[*at].name))
+            .filter(|(at, _)| only.is_none_or(|keys| keys.contains(&catalogue::DRIVELINE[*at].key)))
             .map(|(at, value)| {
                 metric(
                     None,
-                    base + at as u64,
-                    DRIVELINE[at].datatype,
+                    first_alias + at as u64,
+                    columns[at].datatype,
                     *value,
                     bite_ms,
                 )
@@ -757,9 +319,9 @@ impl EdgeNode {
             .collect();
         metrics.push(metric(
             None,
-            base + DRIVELINE.len() as u64,
+            first_alias + values.len() as u64,
             DataType::UInt64,
-            Some(Value::U64(u64::from(after.bite_counter))),
+            Some(Value::Count(u64::from(after.bite_counter))),
             bite_ms,
         ));
         if historical {
@@ -767,9 +329,14 @@ impl EdgeNode {
                 metric.is_historical = Some(true);
             }
         } else {
-            self.sent_drivelines[index] = values;
+            let sent = &mut self.devices[device];
+            sent.bite_counter = Some(after.bite_counter);
+            sent.held_since = None;
+            if only.is_none() {
+                sent.sent[..values.len()].copy_from_slice(&values);
+            }
         }
-        let topic = self.device_topic("DDATA", &self.drivelines[index]);
+        let topic = self.device_topic("DDATA", device);
         self.device_message(topic, metrics, bite_ms)
     }
 }
@@ -796,12 +363,6 @@ pub fn is_rebirth(payload: &[u8]) -> Result<bool, prost::DecodeError> {
     }))
 }
 
-fn read_all<R: Default>(defs: &[Def<R>], results: Option<&R>) -> Vec<Option<Value>> {
-    let fallback = R::default();
-    let results = results.unwrap_or(&fallback);
-    defs.iter().map(|def| (def.read)(results)).collect()
-}
-
 fn metric(
     name: Option<&str>,
     alias: u64,
@@ -809,69 +370,49 @@ fn metric(
     value: Option<Value>,
     now_ms: u64,
 ) -> Metric {
-    debug_assert!(value.is_none_or(|v| v.datatype() == datatype));
     Metric {
         name: name.map(str::to_owned),
         alias: Some(alias),
         timestamp: Some(now_ms),
         datatype: Some(datatype.code()),
         is_null: value.is_none().then_some(true),
-        value: value.map(Value::wire),
+        value: value.map(wire),
         ..Metric::default()
     }
-}
-
-/// Every metric of a device's birth: name, alias, datatype, value, unit.
-fn birth_metrics<'a>(
-    columns: impl Iterator<Item = (&'a str, DataType, &'static str)>,
-    base: u64,
-    values: &[Option<Value>],
-    now_ms: u64,
-) -> Vec<Metric> {
-    columns
-        .zip(values)
-        .enumerate()
-        .map(|(at, ((name, datatype, unit), value))| {
-            let mut metric = metric(Some(name), base + at as u64, datatype, *value, now_ms);
-            if !unit.is_empty() {
-                metric.properties = Some(PropertySet::unit(unit));
-            }
-            metric
-        })
-        .collect()
-}
-
-/// The metrics whose value differs from what was sent, by alias only.
-fn changed<'a>(
-    columns: impl Iterator<Item = (&'a str, DataType, &'static str)>,
-    base: u64,
-    sent: &[Option<Value>],
-    values: &[Option<Value>],
-    now_ms: u64,
-) -> Vec<Metric> {
-    columns
-        .enumerate()
-        .filter(|(at, _)| sent.get(*at) != values.get(*at))
-        .map(|(at, (_, datatype, _))| metric(None, base + at as u64, datatype, values[at], now_ms))
-        .collect()
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::state::results::{RodMillResults, RodSpanResults};
 
     fn decode(out: &Outgoing) -> Payload {
         Payload::decode(out.payload.as_slice()).unwrap()
     }
 
-    fn node() -> EdgeNode {
+    fn node_with(rod_mills: &[(String, usize)]) -> EdgeNode {
         EdgeNode::new(
             "plant",
             "stand-f1",
-            &["F1".into(), "F2".into()],
-            &["tandem".into()],
+            (&["F1".into(), "F2".into()], &["tandem".into()]),
+            rod_mills,
             7,
         )
+    }
+
+    fn node() -> EdgeNode {
+        node_with(&[])
+    }
+
+    /// The alias of driveline `index`'s metric named `name` (`bite_id` after the
+    /// figures).
+    fn driveline_alias(index: usize, name: &str) -> u64 {
+        let width = catalogue::DRIVELINE.len() as u64 + 1;
+        let at = catalogue::DRIVELINE
+            .iter()
+            .position(|f| f.key == name)
+            .map_or(catalogue::DRIVELINE.len(), |at| at) as u64;
+        NODE_METRICS + width * index as u64 + at
     }
 
     #[test]
@@ -897,6 +438,24 @@ mod tests {
             payloads[0].metrics[0].value,
             Some(MetricValue::LongValue(7))
         );
+        // bdSeq is Int64 (Sparkplug 3.0); the node's metrics carry the birth's time.
+        assert_eq!(
+            payloads[0].metrics[0].datatype,
+            Some(DataType::Int64.code())
+        );
+        assert!(payloads[0]
+            .metrics
+            .iter()
+            .all(|m| m.timestamp == Some(1000)));
+        // A device's metrics are the catalogue's figures by key (and the bite id).
+        let names: Vec<&str> = payloads[1]
+            .metrics
+            .iter()
+            .map(|m| m.name.as_deref().unwrap())
+            .collect();
+        let keys: Vec<&str> = catalogue::DRIVELINE.iter().map(|f| f.key).collect();
+        assert_eq!(names[..keys.len()], keys[..]);
+        assert_eq!(names[keys.len()..], [BITE_ID]);
         let mut aliases: Vec<u64> = payloads
             .iter()
             .flat_map(|p| p.metrics.iter().filter_map(|m| m.alias))
@@ -921,7 +480,7 @@ mod tests {
         let mut results = Results::new(1, 2, 1);
         node.births(&results, 1000);
         assert!(node.data(&results, 1100).is_empty(), "nothing changed");
-        results.drivelines[1].alarm = true;
+        results.drivelines[1].taf_alarm = true;
         let data = node.data(&results, 1200);
         assert_eq!(data.len(), 1);
         assert_eq!(data[0].topic, "spBv1.0/plant/DDATA/stand-f1/F2");
@@ -935,7 +494,7 @@ mod tests {
         );
         for n in 0..300u32 {
             results.drivelines[0].bite_counter = n + 1;
-            let bite = node.bite(0, &results.drivelines[0], 5000, false);
+            let bite = node.bite(0, &results.drivelines[0], 5000, (None, false));
             let seq = decode(&bite).seq.unwrap();
             assert_eq!(seq, u64::from((5 + n) % 256));
         }
@@ -948,21 +507,26 @@ mod tests {
         node.births(&results, 1000);
         results.drivelines[1].bite_counter = 9;
         results.drivelines[1].taf = Some(1.3);
-        let payload = decode(&node.bite(1, &results.drivelines[1], 777, true));
+        let recorded = ["bite_counter", "taf"];
+        let payload = decode(&node.bite(1, &results.drivelines[1], 777, (Some(&recorded), true)));
         assert_eq!(payload.timestamp, Some(777));
         assert!(payload
             .metrics
             .iter()
             .all(|m| m.is_historical == Some(true) && m.timestamp == Some(777)));
-        assert_eq!(
-            payload.metrics.len(),
-            DRIVELINE.len() - NOT_RECORDED.len() + 1
-        );
-        let bite_id = node.driveline_alias(1, DRIVELINE.len());
+        assert_eq!(payload.metrics.len(), recorded.len() + 1);
+        let taf = payload
+            .metrics
+            .iter()
+            .find(|m| m.alias == Some(driveline_alias(1, "taf")));
+        assert_eq!(taf.unwrap().value, Some(MetricValue::DoubleValue(1.3)));
+        let bite_id = driveline_alias(1, BITE_ID);
         let id = payload.metrics.iter().find(|m| m.alias == Some(bite_id));
         assert_eq!(id.unwrap().value, Some(MetricValue::LongValue(9)));
-        // A historical bite does not change what DDATA compares with.
-        assert!(node.data(&results, 1100).len() == 1);
+        // A historical bite does not change what DDATA compares with, nor count as the
+        // live bite the results show: its values go once the hold is over.
+        assert!(node.data(&results, 1100).is_empty());
+        assert_eq!(node.data(&results, 1100 + BITE_HOLD_MS).len(), 1);
     }
 
     #[test]
@@ -970,7 +534,7 @@ mod tests {
         let mut node = node();
         let mut results = Results::new(1, 2, 1);
         node.births(&results, 1000);
-        let mill = &mut results.mills[0];
+        let mill = &mut results.tandem_mills[0];
         mill.gain_ratio = Some(1.25);
         mill.worst_stand = Some(3);
         mill.slow_down_request = true;
@@ -984,14 +548,14 @@ mod tests {
             .collect();
         assert_eq!(values.len(), 3, "{values:?}");
         assert!(values.contains(&Some(MetricValue::DoubleValue(1.25))));
-        // 1-based, as the register.
-        assert!(values.contains(&Some(MetricValue::IntValue(4))));
+        // 1-based, as the register; a UInt64 (Tahu's JS codec reads UInt32 as null).
+        assert!(values.contains(&Some(MetricValue::LongValue(4))));
         assert!(values.contains(&Some(MetricValue::BooleanValue(true))));
     }
 
     #[test]
     fn a_rod_mill_publishes_its_worst_span_and_one_set_of_metrics_per_span() {
-        let mut node = node().with_rod_mills(&[("RSM".into(), 3)]);
+        let mut node = node_with(&[("RSM".into(), 3)]);
         let mut results = Results::new(1, 2, 1);
         results.rod_mills = vec![RodMillResults::default()];
         let births: Vec<Payload> = node.births(&results, 1000).iter().map(decode).collect();
@@ -1002,8 +566,11 @@ mod tests {
             .iter()
             .map(|m| m.name.as_deref().unwrap())
             .collect();
-        assert_eq!(names.len(), ROD_MILL.len() + 3 * ROD_SPAN.len());
-        assert!(names.contains(&"worst_margin") && names.contains(&"span3/speed_margin"));
+        assert_eq!(
+            names.len(),
+            catalogue::ROD_MILL.len() + 3 * catalogue::ROD_SPAN.len()
+        );
+        assert!(names.contains(&"worst_margin_m_s") && names.contains(&"span3/speed_margin_m_s"));
         assert!(!names.iter().any(|n| n.starts_with("span4/")), "{names:?}");
         let by_name = |payload: &Payload, name: &str| {
             payload
@@ -1013,14 +580,16 @@ mod tests {
                 .unwrap()
                 .clone()
         };
-        let unit = by_name(rod, "span2/worst_exponent").properties.unwrap();
+        let unit = by_name(rod, "span2/worst_exponent_per_s")
+            .properties
+            .unwrap();
         assert_eq!(unit, PropertySet::unit("1/s"));
         // Not evaluated yet: the worst span and the span values are null.
         assert_eq!(by_name(rod, "worst_span").is_null, Some(true));
-        assert_eq!(by_name(rod, "span1/speed_margin").is_null, Some(true));
+        assert_eq!(by_name(rod, "span1/speed_margin_m_s").is_null, Some(true));
         assert_eq!(
-            by_name(rod, "span1/valid").value,
-            Some(MetricValue::BooleanValue(false))
+            by_name(rod, "span1/invalid").value,
+            Some(MetricValue::BooleanValue(true))
         );
         // Aliases continue after the tandem mill's, unique over the node.
         let mut aliases: Vec<u64> = births
@@ -1065,43 +634,95 @@ mod tests {
                 .map(|m| m.value.clone())
         };
         assert_eq!(
-            value(&rod, "worst_margin"),
+            value(&rod, "worst_margin_m_s"),
             Some(Some(MetricValue::DoubleValue(-0.2)))
         );
         assert_eq!(
             value(&rod, "worst_span"),
-            Some(Some(MetricValue::IntValue(2)))
+            Some(Some(MetricValue::LongValue(2)))
         );
         assert_eq!(
             value(&rod, "unstable"),
             Some(Some(MetricValue::BooleanValue(true)))
         );
         assert_eq!(
-            value(&rod, "span2/speed_margin"),
+            value(&rod, "span2/speed_margin_m_s"),
             Some(Some(MetricValue::DoubleValue(-0.2)))
         );
         assert_eq!(
-            value(&rod, "span1/valid"),
-            Some(Some(MetricValue::BooleanValue(true)))
+            value(&rod, "span1/invalid"),
+            Some(Some(MetricValue::BooleanValue(false)))
         );
-        // Span 3 stays as born: not valid, its margin null (unchanged, so not sent).
-        assert_eq!(value(&rod, "span3/valid"), None);
-        assert_eq!(value(&rod, "span3/speed_margin"), None);
+        // Span 3 stays as born: invalid, its margin null (unchanged, so not sent).
+        assert_eq!(value(&rod, "span3/invalid"), None);
+        assert_eq!(value(&rod, "span3/speed_margin_m_s"), None);
 
         // A stale input: the operating point, the flags and the spans go null/invalid.
         results.rod_mills[0].source_stale = true;
         let stale = decode(&node.data(&results, 1200)[0]);
-        assert_eq!(value(&stale, "worst_margin"), Some(None));
+        assert_eq!(value(&stale, "worst_margin_m_s"), Some(None));
         assert_eq!(value(&stale, "pass"), Some(None));
         assert_eq!(
-            value(&stale, "span2/valid"),
-            Some(Some(MetricValue::BooleanValue(false)))
+            value(&stale, "span2/invalid"),
+            Some(Some(MetricValue::BooleanValue(true)))
         );
-        assert_eq!(value(&stale, "span2/speed_margin"), Some(None));
+        assert_eq!(value(&stale, "span2/speed_margin_m_s"), Some(None));
         assert_eq!(
             value(&stale, "source_stale"),
             Some(Some(MetricValue::BooleanValue(true)))
         );
+    }
+
+    #[test]
+    fn a_bites_changed_values_wait_for_the_bites_own_ddata() {
+        let mut node = node();
+        let mut results = Results::new(1, 2, 1);
+        node.births(&results, 1000);
+        // A degraded bite: the results move before the history has the bite.
+        results.drivelines[0].bite_counter = 1;
+        results.drivelines[0].last_bite_degraded = true;
+        assert!(node.data(&results, 1100).is_empty(), "held for the bite");
+        let bite = decode(&node.bite(0, &results.drivelines[0], 1150, (None, false)));
+        assert!(bite.metrics.len() > 1);
+        assert!(
+            node.data(&results, 1200).is_empty(),
+            "the bite carried the changed values"
+        );
+        // A bite the history never gives: its values go after the hold.
+        results.drivelines[1].bite_counter = 1;
+        results.drivelines[1].taf = Some(1.2);
+        assert!(node.data(&results, 2000).is_empty());
+        assert!(node.data(&results, 2000 + BITE_HOLD_MS - 1).is_empty());
+        let late = node.data(&results, 2000 + BITE_HOLD_MS);
+        assert_eq!(late.len(), 1);
+        assert!(late[0].topic.ends_with("/F2"));
+    }
+
+    #[test]
+    fn a_stale_tandem_mill_sends_no_frozen_chatter_figures() {
+        let mut node = node();
+        let mut results = Results::new(1, 2, 1);
+        let mill = &mut results.tandem_mills[0];
+        mill.evaluations = 4;
+        mill.sigma_n_hz = Some(0.5);
+        mill.k_mean = Some(0.9);
+        node.births(&results, 1000);
+        results.tandem_mills[0].source_stale = true;
+        let data = node.data(&results, 1100);
+        let payload = decode(&data[0]);
+        let sigma_alias = NODE_METRICS
+            + 2 * (catalogue::DRIVELINE.len() as u64 + 1)
+            + catalogue::TANDEM_MILL
+                .iter()
+                .position(|f| f.key == "sigma_n_hz")
+                .unwrap() as u64;
+        let sigma = payload
+            .metrics
+            .iter()
+            .find(|m| m.alias == Some(sigma_alias))
+            .expect("sigma_n sent");
+        assert_eq!(sigma.is_null, Some(true), "withdrawn, not frozen");
+        assert_eq!(sigma.value, None);
     }
 
     #[test]

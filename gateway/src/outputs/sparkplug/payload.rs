@@ -139,6 +139,9 @@ pub enum PropertyValueKind {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(u32)]
 pub enum DataType {
+    /// Signed 64-bit integer (two's complement) in `long_value`: bdSeq, as the
+    /// Sparkplug 3.0 conformance statements ask.
+    Int64 = 4,
     /// Unsigned 32-bit integer in `int_value`.
     UInt32 = 7,
     /// Unsigned 64-bit integer in `long_value`.

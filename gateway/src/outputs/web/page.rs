@@ -7,7 +7,7 @@ use axum::extract::{Path, State};
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{Html, IntoResponse, Response};
 
-use super::WebState;
+use super::shared::WebState;
 
 /// uPlot's version, vendored in `gateway/assets/uplot` (MIT, its LICENSE beside it).
 pub const UPLOT_VERSION: &str = "1.6.32";
@@ -159,7 +159,7 @@ pub(crate) async fn driveline(
          <section><h2>Opened gap over time</h2><div id=\"gap-plot\" class=\"plot\"></div>\
          <p class=\"note\" id=\"gap-note\"></p></section>\n\
          <section><h2>TAF over static torque</h2>\
-         <label class=\"picker hidden\" id=\"taf-coupling-label\">wear map of coupling \
+         <label class=\"picker hidden\" id=\"taf-coupling-label\">gap map of coupling \
          <select id=\"taf-coupling\"></select></label>\
          <div id=\"taf-plot\" class=\"plot\"></div>\
          <p class=\"note\" id=\"taf-note\"></p></section>\n\
@@ -188,6 +188,6 @@ pub(crate) async fn asset(Path(file): Path<String>) -> Response {
             *bytes,
         )
             .into_response(),
-        None => super::api::error(StatusCode::NOT_FOUND, "no such asset"),
+        None => crate::outputs::http::error(StatusCode::NOT_FOUND, "no such asset"),
     }
 }

@@ -1,4 +1,5 @@
-//! The gateway's latest results: what analysis produced, what outputs publish.
+//! The gateway's latest results: what the analysis produced, what the outputs publish
+//! (each figure named and described once in [`super::catalogue`]).
 
 use crate::field::source_health::SourceStatus;
 
@@ -11,8 +12,8 @@ pub struct DrivelineResults {
     /// Of those, degraded bites (gap, saturated or non-finite samples in the window),
     /// whose values were not published.
     pub degraded_bites: u32,
-    /// Time of the last bite, Unix seconds.
-    pub last_bite_unix_s: Option<u32>,
+    /// Time of the last bite, ms since the Unix epoch.
+    pub last_bite_unix_ms: Option<i64>,
     /// Static (settled) torque of the last bite, kN*m.
     pub static_torque_knm: Option<f64>,
     /// Peak torque of the last bite, kN*m.
@@ -35,9 +36,9 @@ pub struct DrivelineResults {
     /// The last bite's window had gaps, NaN or saturated samples: its values are `None`.
     pub last_bite_degraded: bool,
     /// TAF at or above the warning threshold at the last bite.
-    pub warning: bool,
+    pub taf_warning: bool,
     /// TAF reached the alarm threshold; latched until acknowledged.
-    pub alarm: bool,
+    pub taf_alarm: bool,
     /// The pooled estimate of the opened gap; `None` without a model, until the gap
     /// maps are ready and a bite inside them was seen, after a reset.
     pub gap: Option<GapResults>,
@@ -73,10 +74,11 @@ pub struct GapResults {
     pub bites_pooled: usize,
 }
 
-/// Latest chatter metrics of one tandem mill (see [`crate::analysis::chatter`]). `None` = not
-/// valid: not computed yet, or the window restarted after a gap or a stale stand.
+/// Latest chatter figures of one tandem mill (see [`crate::analysis::chatter`]).
+/// `None` = not valid: not computed yet, or the window restarted after a gap or a
+/// stale stand.
 #[derive(Debug, Clone, Default, PartialEq)]
-pub struct MillResults {
+pub struct TandemMillResults {
     /// Windows evaluated since start.
     pub evaluations: u64,
     /// RMS difference of adjacent stands' principal frequencies, Hz.
@@ -95,10 +97,10 @@ pub struct MillResults {
     pub worst_stand: Option<usize>,
     /// The configured detector's warning in the last window (band gain: gain ratio >=
     /// `slow_down_release`; paper: sigma_n <= sigma_min).
-    pub warning: bool,
+    pub chatter_warning: bool,
     /// The configured detector's alarm held in a window (band gain: gain ratio >= 1;
     /// paper: both conditions); latched until acknowledged.
-    pub alarm: bool,
+    pub chatter_alarm: bool,
     /// Slow-down request to the PLC, with hysteresis (set by the alarm condition,
     /// cleared after `slow_down_hold_s` below `slow_down_release`); not latched, and
     /// held while the values are stale.
@@ -107,6 +109,10 @@ pub struct MillResults {
     /// every value is flagged.
     pub source_stale: bool,
 }
+
+/// Spans of one rod mill the outputs have room for (a 12-stand block): the register
+/// map reserves this many span blocks per rod mill.
+pub const MAX_ROD_SPANS: usize = 11;
 
 /// Latest stability of one rod-mill span (see [`crate::analysis::rod_monitor`]).
 /// `valid == false`: no result (inputs missing or refused); published as invalid.
@@ -172,6 +178,17 @@ impl RodMillResults {
             .filter_map(|(index, span)| Some((index, span.speed_margin_m_s?)))
             .min_by(|a, b| a.1.total_cmp(&b.1))
     }
+
+    /// Span `index` as published: its results while it and the mill are valid, else an
+    /// empty span (not valid, flags clear, no values), also for spans the mill file
+    /// does not have.
+    pub fn published_span(&self, index: usize) -> RodSpanResults {
+        self.spans
+            .get(index)
+            .filter(|span| span.valid && self.valid())
+            .cloned()
+            .unwrap_or_default()
+    }
 }
 
 /// The gateway's own state as published in the status register.
@@ -193,25 +210,26 @@ pub struct Results {
     pub state: GatewayState,
     /// Incremented on every write to the PLC.
     pub heartbeat: u16,
-    /// Per source, in config order: Modbus sources first, then CAN sources.
+    /// Per source, in the order of [`millgate_config::Config::sources`].
     pub sources: Vec<Option<SourceStatus>>,
     /// Per driveline, in config order.
     pub drivelines: Vec<DrivelineResults>,
     /// Per tandem mill, in config order.
-    pub mills: Vec<MillResults>,
-    /// Per rod mill, in config order (sized by [`crate::outputs::publisher::Publisher::new`]).
+    pub tandem_mills: Vec<TandemMillResults>,
+    /// Per rod mill, in config order (sized by [`crate::state::board::Board::new`]).
     pub rod_mills: Vec<RodMillResults>,
 }
 
 impl Results {
-    /// Empty results for `sources` sources, `drivelines` drivelines and `mills` mills.
-    pub fn new(sources: usize, drivelines: usize, mills: usize) -> Self {
+    /// Empty results for `sources` sources, `drivelines` drivelines and `tandem_mills`
+    /// tandem mills.
+    pub fn new(sources: usize, drivelines: usize, tandem_mills: usize) -> Self {
         Self {
             state: GatewayState::Starting,
             heartbeat: 0,
             sources: vec![None; sources],
             drivelines: vec![DrivelineResults::default(); drivelines],
-            mills: vec![MillResults::default(); mills],
+            tandem_mills: vec![TandemMillResults::default(); tandem_mills],
             rod_mills: Vec::new(),
         }
     }

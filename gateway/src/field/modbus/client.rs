@@ -1,6 +1,6 @@
 //! What the gateway's Modbus TCP client tasks (the DAQ reader, the PLC writer) share:
-//! connecting with a timeout (tokio-modbus has none), and reads and writes that check
-//! the reply answers the request.
+//! connecting with a timeout (tokio-modbus has none), and reads and writes within a
+//! timeout that check the reply answers the request ([`ModbusError`] for all).
 
 use std::borrow::Cow;
 use std::time::Duration;
@@ -10,25 +10,21 @@ use tokio::net::TcpStream;
 use tokio_modbus::client::{Client, Context};
 use tokio_modbus::prelude::{ExceptionCode, Request, Response, Slave};
 
-/// Why a connection could not be made.
-#[derive(Debug)]
-pub(crate) enum ConnectError {
-    /// No answer within the timeout.
-    Timeout(Duration),
-    /// Refused, unreachable, unresolvable, ...
-    Io(std::io::Error),
-}
+use super::error::{ModbusError, ReplyMismatch};
 
 /// Connect to `address` (`host:port`) within `timeout` and talk to `unit_id`.
 pub(crate) async fn connect(
     address: &str,
     unit_id: u8,
     timeout: Duration,
-) -> Result<Context, ConnectError> {
+) -> Result<Context, ModbusError> {
     let stream = tokio::time::timeout(timeout, TcpStream::connect(address))
         .await
-        .map_err(|_| ConnectError::Timeout(timeout))?
-        .map_err(ConnectError::Io)?;
+        .map_err(|_| ModbusError::Timeout(timeout))?
+        .map_err(|source| ModbusError::Connect {
+            address: address.to_owned(),
+            source,
+        })?;
     // Requests are small and frequent: do not let Nagle hold them back.
     let _ = stream.set_nodelay(true);
     Ok(tokio_modbus::client::tcp::attach_slave(
@@ -37,59 +33,39 @@ pub(crate) async fn connect(
     ))
 }
 
-/// A reply that decoded but does not answer its request: a faulty or hostile device.
-/// The connection is out of step with it and is made again.
-///
-/// tokio-modbus 0.17's `Reader` and `Writer` methods only `debug_assert` these and
-/// panic in a debug build, so the gateway calls [`Client::call`] itself and checks.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
-pub enum ReplyMismatch {
-    /// A read answered with another number of registers than requested.
-    #[error("{answered} registers answered for {requested} requested")]
-    Registers {
-        /// Registers of the request.
-        requested: u16,
-        /// Registers of the reply.
-        answered: usize,
-    },
-    /// A write's reply echoed another address or count than the request's.
-    #[error(
-        "write of {count} registers at {address} echoed as {echoed_count} at {echoed_address}"
-    )]
-    Echo {
-        /// First register of the request.
-        address: u16,
-        /// Registers of the request.
-        count: u16,
-        /// First register the reply names.
-        echoed_address: u16,
-        /// Count the reply names.
-        echoed_count: u16,
-    },
-    /// The reply is of another function than the request (tokio-modbus rejects this;
-    /// kept so no reply can panic).
-    #[error("reply of another function")]
-    Function,
-}
-
 /// What a checked request gives: the transport's error, the reply's mismatch, or the
 /// device's answer (its data, or the exception it refused the request with).
-pub type Checked<T> = Result<Result<T, ExceptionCode>, CheckedError>;
+type Checked<T> = Result<Result<T, ExceptionCode>, ModbusError>;
 
-/// Why a checked request got no usable answer.
-#[derive(Debug, thiserror::Error)]
-pub enum CheckedError {
-    /// The connection failed or the reply could not be decoded.
-    #[error(transparent)]
-    Transport(#[from] tokio_modbus::Error),
-    /// The reply does not answer the request.
-    #[error(transparent)]
-    Mismatch(#[from] ReplyMismatch),
+/// Read `count` registers of `table` from `address` within `timeout`.
+pub async fn read(
+    context: &mut Context,
+    (table, address, count): (RegisterTable, u16, u16),
+    timeout: Duration,
+) -> Result<Vec<u16>, ModbusError> {
+    let request = read_registers(context, table, address, count);
+    let reply = tokio::time::timeout(timeout, request)
+        .await
+        .map_err(|_| ModbusError::Timeout(timeout))??;
+    reply.map_err(|exception| ModbusError::Exception { address, exception })
+}
+
+/// Write `words` (at most 123) from `address` within `timeout`.
+pub async fn write(
+    context: &mut Context,
+    address: u16,
+    words: &[u16],
+    timeout: Duration,
+) -> Result<(), ModbusError> {
+    let reply = tokio::time::timeout(timeout, write_registers(context, address, words))
+        .await
+        .map_err(|_| ModbusError::Timeout(timeout))??;
+    reply.map_err(|exception| ModbusError::Exception { address, exception })
 }
 
 /// Read `count` registers of `table` from `address` (FC 03 or 04); a reply with
 /// another count is a [`ReplyMismatch`], never a panic.
-pub async fn read_registers(
+async fn read_registers(
     context: &mut Context,
     table: RegisterTable,
     address: u16,
@@ -117,7 +93,7 @@ pub async fn read_registers(
 
 /// Write `words` (at most 123) from `address` (FC 16); a reply echoing another
 /// address or count is a [`ReplyMismatch`], never a panic.
-pub async fn write_registers(context: &mut Context, address: u16, words: &[u16]) -> Checked<()> {
+async fn write_registers(context: &mut Context, address: u16, words: &[u16]) -> Checked<()> {
     let count = words.len() as u16;
     let request = Request::WriteMultipleRegisters(address, Cow::Borrowed(words));
     match context.call(request).await? {
@@ -162,7 +138,7 @@ mod tests {
         let mut context = client_answered(&reply).await;
         let read = read_registers(&mut context, RegisterTable::Input, 0, 3).await;
         match read {
-            Err(CheckedError::Mismatch(mismatch)) => assert_eq!(
+            Err(ModbusError::Mismatch(mismatch)) => assert_eq!(
                 mismatch,
                 ReplyMismatch::Registers {
                     requested: 3,
@@ -188,7 +164,7 @@ mod tests {
         let mut context = client_answered(&reply).await;
         let written = write_registers(&mut context, 0, &[7, 8]).await;
         match written {
-            Err(CheckedError::Mismatch(mismatch)) => assert_eq!(
+            Err(ModbusError::Mismatch(mismatch)) => assert_eq!(
                 mismatch,
                 ReplyMismatch::Echo {
                     address: 0,

@@ -1,80 +1,48 @@
-//! What the outputs publish: the latest [`Results`] joined with source health,
-//! encoded through the [`RegisterMap`].
+//! The live results board: the latest [`Results`] the analysis produced, joined with
+//! the sources' health, for every output to read (each encodes them its own way: the
+//! PLC writer and the HMI server through their register map, the others through the
+//! [`super::catalogue`]). The analysis writes it; changes are recorded in the
+//! history under the same lock.
 
-use std::sync::atomic::{AtomicU16, Ordering};
 use std::sync::{Arc, Mutex};
 
-use millgate_config::{ChannelSource, Config};
+use millgate_config::Config;
 
-use crate::analysis::gap_map::GapMaps;
+use super::events::{AlarmEvent, AlarmKind, AlarmRecord, HistoryEvent};
+use super::gap_maps::GapMapState;
+use super::history::History;
+use super::results::Results;
+use super::time::UtcTime;
 use crate::field::source_health::{SourceHealth, SourceStatus};
-use crate::outputs::history::events::{
-    AlarmEvent, AlarmKind, AlarmRecord, CommandOrigin, HistoryEvent,
-};
-use crate::outputs::history::time::UtcTime;
-use crate::outputs::history::History;
-use crate::outputs::register_map::RegisterMap;
-use crate::outputs::results::Results;
+use crate::state::commands::CommandOrigin;
 
 /// Shared between the analysis task (writes results) and the outputs (read them).
 #[derive(Debug)]
-pub struct Publisher {
+pub struct Board {
     results: Mutex<Results>,
     /// Wakes the PLC writer when results change, so a bite is written at once
     /// rather than at the next write period.
     changed: tokio::sync::Notify,
-    map: RegisterMap,
     health: Vec<Arc<SourceHealth>>,
     /// The source statuses of the final image, once the service stops.
     frozen_health: Mutex<Option<Vec<SourceStatus>>>,
     driveline_names: Vec<String>,
-    mill_names: Vec<String>,
-    /// Global source index of each driveline's torque channel.
+    tandem_mill_names: Vec<String>,
+    /// Index in [`Config::sources`] of each driveline's torque channel's source.
     driveline_sources: Vec<usize>,
-    /// Global source indices of each mill's stand channels.
-    mill_sources: Vec<Vec<usize>>,
+    /// Indices of the sources of each tandem mill's stand channels.
+    tandem_mill_sources: Vec<Vec<usize>>,
+    /// Indices of the sources of each rod mill's input channels.
+    rod_mill_sources: Vec<Vec<usize>>,
     /// Where changes are recorded (disabled without `[history]`).
     history: History,
-    /// Global source indices of each rod mill's input channels.
-    rod_mill_sources: Vec<Vec<usize>>,
-    /// Drivelines (bit k = driveline k) whose wear was reset since the analysis last
-    /// looked: it empties their gap pools.
-    wear_resets: AtomicU16,
-    /// Each driveline's gap maps, for the maintenance page's wear map curves.
-    wear_maps: Mutex<Vec<WearMapState>>,
+    /// Each driveline's gap maps, for the outputs that draw them.
+    gap_maps: Mutex<Vec<GapMapState>>,
 }
 
-/// Where a driveline's gap maps are (the analysis holds its own reference; this one
-/// is for the outputs that draw them).
-#[derive(Debug, Clone)]
-pub enum WearMapState {
-    /// The driveline has no model: no maps.
-    NoModel,
-    /// Read from the cache or being built: `done` of `total` simulations.
-    Building {
-        /// Simulations done.
-        done: usize,
-        /// Simulations the build runs (0 until the build reports).
-        total: usize,
-    },
-    /// Ready.
-    Ready(Arc<GapMaps>),
-    /// Will not come: why (the model does not load or fit, the build failed).
-    Failed(String),
-}
-
-/// Global index of a channel's source: Modbus sources first, then CAN sources.
-pub fn source_of_channel(config: &Config, channel: usize) -> usize {
-    match config.channels[channel].source {
-        ChannelSource::ModbusBlock { source, .. } | ChannelSource::ModbusValue { source, .. } => {
-            source
-        }
-        ChannelSource::Can { source, .. } => config.modbus_sources.len() + source,
-    }
-}
-
-impl Publisher {
-    /// A publisher for `config` with one health record per source (Modbus, then CAN).
+impl Board {
+    /// A board for `config` with one health record per source, in the order of
+    /// [`Config::sources`].
     pub fn new(config: &Config, health: Vec<Arc<SourceHealth>>) -> Self {
         let mut results = Results::new(
             health.len(),
@@ -82,50 +50,42 @@ impl Publisher {
             config.tandem_mills.len(),
         );
         results.rod_mills = vec![Default::default(); config.rod_mills.len()];
+        let sources_of = |channels: &mut dyn Iterator<Item = usize>| -> Vec<usize> {
+            channels.map(|c| config.source_of_channel(c)).collect()
+        };
         Self {
             results: Mutex::new(results),
             changed: tokio::sync::Notify::new(),
-            map: RegisterMap::new(config),
             health,
             frozen_health: Mutex::new(None),
             driveline_names: config.drivelines.iter().map(|d| d.name.clone()).collect(),
-            mill_names: config.tandem_mills.iter().map(|m| m.name.clone()).collect(),
+            tandem_mill_names: config.tandem_mills.iter().map(|m| m.name.clone()).collect(),
             driveline_sources: config
                 .drivelines
                 .iter()
-                .map(|d| source_of_channel(config, d.torque))
+                .map(|d| config.source_of_channel(d.torque))
                 .collect(),
-            mill_sources: config
+            tandem_mill_sources: config
                 .tandem_mills
                 .iter()
-                .map(|m| {
-                    m.stands
-                        .iter()
-                        .map(|&c| source_of_channel(config, c))
-                        .collect()
-                })
+                .map(|m| sources_of(&mut m.stands.iter().copied()))
                 .collect(),
-            history: History::disabled(),
             rod_mill_sources: config
                 .rod_mills
                 .iter()
                 .map(|m| {
-                    [Some(m.configuration), Some(m.pass), Some(m.finishing_speed)]
-                        .into_iter()
-                        .chain([m.temperature])
-                        .flatten()
-                        .map(|c| source_of_channel(config, c))
-                        .collect()
+                    let inputs = [m.configuration, m.pass, m.finishing_speed];
+                    sources_of(&mut inputs.into_iter().chain(m.temperature))
                 })
                 .collect(),
-            wear_resets: AtomicU16::new(0),
-            wear_maps: Mutex::new(
+            history: History::disabled(),
+            gap_maps: Mutex::new(
                 config
                     .drivelines
                     .iter()
                     .map(|d| match d.model {
-                        Some(_) => WearMapState::Building { done: 0, total: 0 },
-                        None => WearMapState::NoModel,
+                        Some(_) => GapMapState::Building { done: 0, total: 0 },
+                        None => GapMapState::NoModel,
                     })
                     .collect(),
             ),
@@ -133,24 +93,24 @@ impl Publisher {
     }
 
     /// Driveline `index`'s gap maps.
-    pub fn wear_map(&self, index: usize) -> Option<WearMapState> {
-        crate::lock(&self.wear_maps).get(index).cloned()
+    pub fn gap_maps(&self, index: usize) -> Option<GapMapState> {
+        crate::lock(&self.gap_maps).get(index).cloned()
     }
 
     /// Set driveline `index`'s gap maps (a progress report of a build that has
     /// finished or failed is ignored).
-    pub fn set_wear_map(&self, index: usize, state: WearMapState) {
-        let mut maps = crate::lock(&self.wear_maps);
+    pub fn set_gap_maps(&self, index: usize, state: GapMapState) {
+        let mut maps = crate::lock(&self.gap_maps);
         if let Some(slot) = maps.get_mut(index) {
-            let late = matches!(state, WearMapState::Building { .. })
-                && !matches!(slot, WearMapState::Building { .. });
+            let late = matches!(state, GapMapState::Building { .. })
+                && !matches!(slot, GapMapState::Building { .. });
             if !late {
                 *slot = state;
             }
         }
     }
 
-    /// This publisher recording into `history`.
+    /// This board recording into `history`.
     pub fn with_history(mut self, history: History) -> Self {
         self.history = history;
         self
@@ -161,19 +121,14 @@ impl Publisher {
         &self.history
     }
 
-    /// The register map.
-    pub fn map(&self) -> &RegisterMap {
-        &self.map
-    }
-
     /// Driveline names, in config order.
     pub fn driveline_names(&self) -> &[String] {
         &self.driveline_names
     }
 
     /// Tandem mill names, in config order.
-    pub fn mill_names(&self) -> &[String] {
-        &self.mill_names
+    pub fn tandem_mill_names(&self) -> &[String] {
+        &self.tandem_mill_names
     }
 
     /// Change the results.
@@ -235,7 +190,11 @@ impl Publisher {
             driveline.source_stale = bad(source);
         }
         // A mill is also flagged by its analysis (a gap restarted its window).
-        for (mill, sources) in results.mills.iter_mut().zip(&self.mill_sources) {
+        for (mill, sources) in results
+            .tandem_mills
+            .iter_mut()
+            .zip(&self.tandem_mill_sources)
+        {
             mill.source_stale |= sources.iter().any(bad);
         }
         for (mill, sources) in results.rod_mills.iter_mut().zip(&self.rod_mill_sources) {
@@ -252,43 +211,39 @@ impl Publisher {
         results.heartbeat = results.heartbeat.wrapping_add(1);
     }
 
-    /// Encode the map as published now.
-    pub fn words(&self) -> Vec<u16> {
-        self.map.encode(&self.results())
-    }
-
-    /// Forget the wear trend and the gap estimate of every driveline whose bit is set
-    /// in `drivelines` (bit k = driveline k in config order): the next bite's wear
-    /// index seeds the trend afresh and the gap pool starts empty (the reset-wear-trend
-    /// command, e.g. after a coupling is replaced). The gap alarm stays latched until
-    /// acknowledged. `origin` says who, for the history.
-    pub fn reset_wear_trend(&self, drivelines: u16, origin: CommandOrigin) {
+    /// Forget driveline `index`'s wear trend and gap estimate (the analysis applies a
+    /// [`super::commands::Command::ResetWear`] through this and empties the gap pool it
+    /// holds); `origin` says who, for the history.
+    pub fn reset_wear(&self, index: usize, origin: CommandOrigin) {
         let time = UtcTime::now();
-        self.wear_resets.fetch_or(drivelines, Ordering::Relaxed);
         self.update_recorded(|results, events| {
-            for (k, driveline) in results.drivelines.iter_mut().enumerate().take(16) {
-                if drivelines & (1 << k) != 0 {
-                    driveline.wear_trend = None;
-                    driveline.gap = None;
+            if let Some(driveline) = results.drivelines.get_mut(index) {
+                driveline.wear_trend = None;
+                driveline.gap = None;
+                if driveline.gap_warning {
                     driveline.gap_warning = false;
-                    events.push(HistoryEvent::WearReset {
+                    events.push(HistoryEvent::Alarm(AlarmRecord {
                         time,
-                        driveline: self.driveline_names[k].clone(),
-                        origin,
-                    });
+                        subject: self.driveline_names[index].clone(),
+                        kind: AlarmKind::GapWarning,
+                        event: AlarmEvent::Cleared,
+                        origin: Some(origin),
+                        value: None,
+                        threshold: None,
+                    }));
                 }
+                events.push(HistoryEvent::WearReset {
+                    time,
+                    driveline: self.driveline_names[index].clone(),
+                    origin,
+                });
             }
         });
     }
 
-    /// The drivelines reset since the last call (bit k = driveline k): the analysis
-    /// empties their gap pools.
-    pub fn take_wear_resets(&self) -> u16 {
-        self.wear_resets.swap(0, Ordering::Relaxed)
-    }
-
-    /// Clear latched alarms (the acknowledge command); `origin` says who, for the
-    /// history, which records each alarm that was latched.
+    /// Clear latched alarms (the analysis applies a
+    /// [`super::commands::Command::AcknowledgeAlarms`] through this); `origin` says who,
+    /// for the history, which records each alarm that was latched.
     pub fn acknowledge_alarms(&self, origin: CommandOrigin) {
         let time = UtcTime::now();
         let acknowledged = |subject: &String, kind| {
@@ -304,20 +259,20 @@ impl Publisher {
         };
         self.update_recorded(|results, events| {
             for (driveline, name) in results.drivelines.iter_mut().zip(&self.driveline_names) {
-                if driveline.alarm {
+                if driveline.taf_alarm {
                     events.push(acknowledged(name, AlarmKind::TafAlarm));
                 }
                 if driveline.gap_alarm {
-                    events.push(acknowledged(name, AlarmKind::WearAlarm));
+                    events.push(acknowledged(name, AlarmKind::GapAlarm));
                 }
-                driveline.alarm = false;
+                driveline.taf_alarm = false;
                 driveline.gap_alarm = false;
             }
-            for (mill, name) in results.mills.iter_mut().zip(&self.mill_names) {
-                if mill.alarm {
+            for (mill, name) in results.tandem_mills.iter_mut().zip(&self.tandem_mill_names) {
+                if mill.chatter_alarm {
                     events.push(acknowledged(name, AlarmKind::ChatterAlarm));
                 }
-                mill.alarm = false;
+                mill.chatter_alarm = false;
             }
         });
     }

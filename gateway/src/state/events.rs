@@ -1,43 +1,10 @@
 //! What the history records: one [`HistoryEvent`] per thing that happened, built
-//! where it happened (the analysis for bites, alarms and chatter, the publisher for
-//! commands, the outage monitor for sources) and written by the writer thread.
+//! where it happened (the analysis for bites, alarms, chatter and the commands it
+//! applies, the outage monitor for sources) and written by the history's writer thread.
 
-use std::net::SocketAddr;
-
-use crate::outputs::results::DrivelineResults;
-
+use super::commands::CommandOrigin;
+use super::results::DrivelineResults;
 use super::time::UtcTime;
-
-/// Who gave a command (acknowledge alarms, reset the wear trend).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum CommandOrigin {
-    /// A Modbus client of the gateway's server at the PLC's address
-    /// (`outputs.plc.address`): the PLC program.
-    Plc(SocketAddr),
-    /// Any other Modbus client of the gateway's server: an HMI.
-    Hmi(SocketAddr),
-    /// A call in this process (tests, tools): no client.
-    Local,
-}
-
-impl CommandOrigin {
-    /// `plc`, `hmi` or `local`, as stored.
-    pub fn name(self) -> &'static str {
-        match self {
-            CommandOrigin::Plc(_) => "plc",
-            CommandOrigin::Hmi(_) => "hmi",
-            CommandOrigin::Local => "local",
-        }
-    }
-
-    /// The client's address, when a client sent it.
-    pub fn peer(self) -> Option<SocketAddr> {
-        match self {
-            CommandOrigin::Plc(peer) | CommandOrigin::Hmi(peer) => Some(peer),
-            CommandOrigin::Local => None,
-        }
-    }
-}
 
 /// State of a driveline's wear diagnosis.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -143,7 +110,7 @@ pub struct BiteRecord {
     /// wear index and trend, warning and latched alarm): what a restart restores.
     pub state: DrivelineResults,
     /// Further state a restart restores, as JSON in `driveline_state.extra` (kept when
-    /// `None`), handed back at start in [`super::restore::RestoredDriveline::extra`].
+    /// `None`), handed back at start in [`crate::outputs::history::restore::RestoredDriveline::extra`].
     /// `None` today: the gap pool is restored from the bites' [`BiteRecord::pooled`].
     pub extra_state: Option<serde_json::Value>,
 }
@@ -167,29 +134,55 @@ pub struct AlarmRecord {
     pub threshold: Option<f64>,
 }
 
-/// Which alarm a record is about.
+/// Which alarm or warning a record is about: the key of the flag that carries it
+/// (see [`super::catalogue`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum AlarmKind {
     /// A driveline's TAF at or above its warning threshold (follows each bite).
     TafWarning,
     /// A driveline's TAF reached its alarm threshold (latched).
     TafAlarm,
-    /// A tandem mill's stands synchronized (latched).
-    ChatterAlarm,
+    /// A driveline's estimated opened gap at or above its warning threshold (follows
+    /// each estimate; cleared by a wear reset).
+    GapWarning,
     /// A driveline's gap diagnosis reached its alarm threshold: the pooled gap's 90%
-    /// interval lay at or above it (latched; flags bit 5).
-    WearAlarm,
+    /// interval lay at or above it (latched).
+    GapAlarm,
+    /// A tandem mill's chatter warning (follows each window).
+    ChatterWarning,
+    /// A tandem mill's chatter alarm (latched).
+    ChatterAlarm,
 }
 
 impl AlarmKind {
-    /// As stored.
+    /// Every kind.
+    pub const ALL: [AlarmKind; 6] = [
+        AlarmKind::TafWarning,
+        AlarmKind::TafAlarm,
+        AlarmKind::GapWarning,
+        AlarmKind::GapAlarm,
+        AlarmKind::ChatterWarning,
+        AlarmKind::ChatterAlarm,
+    ];
+
+    /// As stored: the key of the flag.
     pub fn name(self) -> &'static str {
         match self {
             AlarmKind::TafWarning => "taf_warning",
             AlarmKind::TafAlarm => "taf_alarm",
+            AlarmKind::GapWarning => "gap_warning",
+            AlarmKind::GapAlarm => "gap_alarm",
+            AlarmKind::ChatterWarning => "chatter_warning",
             AlarmKind::ChatterAlarm => "chatter_alarm",
-            AlarmKind::WearAlarm => "wear_alarm",
         }
+    }
+
+    /// Whether the alarm latches until acknowledged (else it follows the analysis).
+    pub fn latched(self) -> bool {
+        matches!(
+            self,
+            AlarmKind::TafAlarm | AlarmKind::GapAlarm | AlarmKind::ChatterAlarm
+        )
     }
 }
 

@@ -104,7 +104,7 @@ impl UtcTime {
     /// the history is in UTC, and a silent conversion would hide a mistake.
     ///
     /// ```
-    /// use millgate::outputs::history::time::UtcTime;
+    /// use millgate::state::time::UtcTime;
     /// let t = UtcTime::parse("2026-11-22T16:37:33.123Z").unwrap();
     /// assert_eq!(t.to_string(), "2026-11-22T16:37:33.123Z");
     /// assert_eq!(UtcTime::parse("1970-01-02").unwrap().unix_ms(), 86_400_000);

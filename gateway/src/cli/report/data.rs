@@ -1,0 +1,149 @@
+//! What the report reads of one driveline, without holding its bites: counts and TAF
+//! quantiles, the last gap estimate and its trend, the time series in buckets (the
+//! web page's [`HistoryReader::wear_series`] and the wear index in the same buckets),
+//! and the bites binned over static torque and TAF ([`TafGrid`]).
+
+use super::plots::{range, wear_curves, Curve, TafGrid};
+use crate::cli::progress::{percent, Progress};
+use crate::outputs::history::query::{BiteRow, Filter, HistoryReader, SettingsRow};
+use crate::outputs::history::series::TREND_WINDOW;
+use crate::outputs::history::series::{GapTrend, WearIndexPoint, WearPoint};
+use crate::outputs::history::summary::BiteSummary;
+use crate::state::time::UtcTime;
+
+/// Time buckets of the plots over time: 2 px each of a 900 px wide panel.
+pub(super) const PLOT_BUCKETS: usize = 450;
+
+/// One driveline's part of the report.
+#[derive(Debug)]
+pub(super) struct DrivelineData {
+    /// Counts and TAF quantiles of its bites in the period.
+    pub(super) summary: BiteSummary,
+    /// Its last bite in the period (with the gap estimate after it).
+    pub(super) last: Option<BiteRow>,
+    /// The gap's growth over the four weeks before the period's end (or its last bite).
+    pub(super) trend: Option<GapTrend>,
+    /// Gap and TAF per time bucket.
+    pub(super) wear: Vec<WearPoint>,
+    /// Wear index per time bucket.
+    pub(super) index: Vec<WearIndexPoint>,
+    /// Its settings in the last run that recorded them (thresholds, model).
+    pub(super) setting: Option<SettingsRow>,
+    /// The wear map's curves over its static torque range, or why there are none.
+    pub(super) curves: Result<Vec<Curve>, String>,
+    /// Its bites over static torque and TAF.
+    pub(super) grid: TafGrid,
+}
+
+/// Read `name`'s part of the report for the period `[since, until)` (open ends: all
+/// of the file), showing how far on `progress`.
+pub(super) fn read(
+    reader: &HistoryReader,
+    name: &str,
+    since: Option<UtcTime>,
+    until: Option<UtcTime>,
+    setting: Option<SettingsRow>,
+    progress: &mut Progress,
+) -> anyhow::Result<DrivelineData> {
+    let step = |progress: &mut Progress, what: &str| {
+        progress.update(|| format!("report: {name}: {what}"));
+    };
+    step(progress, "counting bites");
+    let summary = reader.bite_summary(name, since, until)?;
+    let last = reader
+        .newest::<BiteRow>(&Filter {
+            name: Some(name.to_owned()),
+            since,
+            until,
+            after_id: None,
+            limit: Some(1),
+        })?
+        .pop();
+    let known = last.is_some();
+    let trend = if known {
+        reader.gap_trend(name, until, TREND_WINDOW)?
+    } else {
+        None
+    };
+    step(progress, "gap, TAF and wear index over time");
+    let (wear, index) = if known {
+        (
+            reader.wear_series(name, since, until, PLOT_BUCKETS)?,
+            reader.wear_index_series(name, since, until, PLOT_BUCKETS)?,
+        )
+    } else {
+        (Vec::new(), Vec::new())
+    };
+
+    // The torque range: read with the wear index when the driveline has one, else in
+    // a pass of its own.
+    let mut torques = index
+        .iter()
+        .map(|p| (p.static_torque_min_knm, p.static_torque_max_knm))
+        .reduce(|a, b| (a.0.min(b.0), a.1.max(b.1)));
+    if torques.is_none() && known {
+        step(progress, "static torque range");
+        reader.for_each_taf_point(name, since, until, |point| {
+            let torque = point.static_torque_knm;
+            torques = Some(torques.map_or((torque, torque), |(low, high)| {
+                (low.min(torque), high.max(torque))
+            }));
+            Ok::<_, anyhow::Error>(())
+        })?;
+    }
+    let curves = match setting.as_ref().and_then(|s| s.model.as_deref()) {
+        Some(model) => {
+            step(progress, "the wear map's curves");
+            wear_curves(model, torques.unwrap_or((0.0, 1.0)))
+        }
+        None => Ok(Vec::new()),
+    };
+    // The plot's ranges: the clean bites' TAF (the buckets' extremes), the torque
+    // range, the curves and the thresholds. Degraded windows' TAF is not trusted and
+    // does not stretch the plot.
+    let curve_points = || curves.iter().flatten().flat_map(|(_, c)| c.iter());
+    let x_range = range(
+        torques
+            .into_iter()
+            .flat_map(|(low, high)| [low, high])
+            .chain(curve_points().map(|p| p.0)),
+    );
+    let thresholds = setting
+        .as_ref()
+        .map(|s| [s.taf_warning, s.taf_alarm])
+        .into_iter()
+        .flatten();
+    let y_range = range(
+        wear.iter()
+            .flat_map(|p| [p.taf_min, p.taf_max])
+            .flatten()
+            .chain(curve_points().map(|p| p.1))
+            .chain(thresholds),
+    );
+    let mut grid = TafGrid::new(x_range, y_range);
+    if known {
+        let mut seen: u64 = 0;
+        reader.for_each_taf_point(name, since, until, |point| {
+            grid.add(point);
+            seen += 1;
+            progress.update(|| {
+                format!(
+                    "report: {name}: TAF over static torque, {:.0}% of {} bites",
+                    percent(seen, summary.bites),
+                    summary.bites
+                )
+            });
+            Ok::<_, anyhow::Error>(())
+        })?;
+    }
+    Ok(DrivelineData {
+        summary,
+        last,
+        trend,
+        wear,
+        index,
+        setting,
+        curves,
+        grid,
+    })
+}

@@ -1,0 +1,414 @@
+//! The report's SVG plots (plotters): quantities over time in stacked panels
+//! ([`time_svg`]), TAF over static torque with the wear map's curves ([`taf_svg`],
+//! [`wear_curves`]) and lanes of spans over time ([`lanes_svg`]: alarms, availability).
+
+use std::path::Path;
+
+use plotters::prelude::*;
+
+use crate::outputs::history::query::SettingsRow;
+use crate::outputs::history::summary::TafPoint;
+use crate::state::time::UtcTime;
+
+/// Width and height of a plot panel, px.
+const PANEL: (u32, u32) = (900, 300);
+
+/// The time axis of the plots: seconds, minutes, hours or days since the period's
+/// start, whichever gives readable numbers.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct TimeAxis {
+    start: UtcTime,
+    unit_s: f64,
+    pub(super) unit: &'static str,
+    pub(super) span: f64,
+}
+
+impl TimeAxis {
+    pub(super) fn new(start: UtcTime, end: UtcTime) -> Self {
+        let span_s = ((end.unix_ms() - start.unix_ms()) as f64 / 1000.0).max(1.0);
+        let (unit_s, unit) = match span_s {
+            s if s < 300.0 => (1.0, "s"),
+            s if s < 5.0 * 3600.0 => (60.0, "min"),
+            s if s < 5.0 * 86_400.0 => (3600.0, "h"),
+            _ => (86_400.0, "days"),
+        };
+        Self {
+            start,
+            unit_s,
+            unit,
+            span: span_s / unit_s,
+        }
+    }
+
+    pub(super) fn x(&self, time: &str) -> Option<f64> {
+        Some(self.x_of(UtcTime::parse(time).ok()?))
+    }
+
+    /// `time` on the axis.
+    pub(super) fn x_of(&self, time: UtcTime) -> f64 {
+        (time.unix_ms() - self.start.unix_ms()) as f64 / 1000.0 / self.unit_s
+    }
+
+    /// The middle of `[start, end)` on the axis: where a time bucket is drawn.
+    pub(super) fn middle(&self, start: UtcTime, end: UtcTime) -> f64 {
+        (self.x_of(start) + self.x_of(end)) / 2.0
+    }
+
+    fn label(&self) -> String {
+        format!("{} since {} UTC", self.unit, self.start)
+    }
+}
+
+fn drawing<E: std::fmt::Display>(error: E) -> anyhow::Error {
+    anyhow::anyhow!("drawing a report plot: {error}")
+}
+
+pub(super) fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
+    millgate_sim::plot::padded_range(values).unwrap_or((0.0, 1.0))
+}
+
+/// A panel of lines over time: `(label, line)` series and horizontal threshold lines
+/// `(label, value)`; `band` a range `(x, low, high)` drawn shaded, labelled
+/// `band_label`.
+pub(super) struct TimePanel<'a> {
+    pub(super) y_label: &'a str,
+    pub(super) lines: Vec<(&'a str, Vec<(f64, f64)>)>,
+    pub(super) band_label: &'a str,
+    pub(super) band: Vec<(f64, f64, f64)>,
+    pub(super) thresholds: Vec<(&'a str, f64)>,
+}
+
+pub(super) fn time_svg(
+    title: &str,
+    axis: &TimeAxis,
+    panels: &[TimePanel<'_>],
+) -> anyhow::Result<String> {
+    let mut svg = String::new();
+    {
+        let size = (PANEL.0, PANEL.1 * panels.len() as u32 + 40);
+        let root = SVGBackend::with_string(&mut svg, size).into_drawing_area();
+        root.fill(&WHITE).map_err(drawing)?;
+        let root = root.titled(title, ("sans-serif", 20)).map_err(drawing)?;
+        for (area, panel) in root.split_evenly((panels.len(), 1)).iter().zip(panels) {
+            let values = panel
+                .lines
+                .iter()
+                .flat_map(|(_, p)| p.iter().map(|(_, y)| *y))
+                .chain(panel.band.iter().flat_map(|(_, lo, hi)| [*lo, *hi]))
+                .chain(panel.thresholds.iter().map(|(_, v)| *v));
+            let (y_low, y_high) = range(values);
+            let mut chart = ChartBuilder::on(area)
+                .margin(10)
+                .x_label_area_size(35)
+                .y_label_area_size(60)
+                .build_cartesian_2d(0.0..axis.span.max(1e-9), y_low..y_high)
+                .map_err(drawing)?;
+            chart
+                .configure_mesh()
+                .x_desc(axis.label())
+                .y_desc(panel.y_label)
+                .label_style(("sans-serif", 12))
+                .draw()
+                .map_err(drawing)?;
+            if !panel.band.is_empty() {
+                let mut upper: Vec<(f64, f64)> =
+                    panel.band.iter().map(|(x, _, hi)| (*x, *hi)).collect();
+                let lower = panel.band.iter().rev().map(|(x, lo, _)| (*x, *lo));
+                upper.extend(lower);
+                chart
+                    .draw_series(std::iter::once(Polygon::new(
+                        upper,
+                        BLUE.mix(0.15).filled(),
+                    )))
+                    .map_err(drawing)?
+                    .label(panel.band_label)
+                    .legend(|(x, y)| {
+                        Rectangle::new([(x, y - 4), (x + 16, y + 4)], BLUE.mix(0.15).filled())
+                    });
+            }
+            for (index, (label, points)) in panel.lines.iter().enumerate() {
+                let color = Palette99::pick(index + 3).to_rgba();
+                chart
+                    .draw_series(LineSeries::new(points.clone(), color.stroke_width(2)))
+                    .map_err(drawing)?
+                    .label(*label)
+                    .legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 16, y)], color.stroke_width(2))
+                    });
+            }
+            for (index, (label, value)) in panel.thresholds.iter().enumerate() {
+                let color = if index == 0 {
+                    RGBColor(230, 150, 0)
+                } else {
+                    RED
+                };
+                chart
+                    .draw_series(LineSeries::new(
+                        vec![(0.0, *value), (axis.span, *value)],
+                        color.stroke_width(1),
+                    ))
+                    .map_err(drawing)?
+                    .label(format!("{label} {value}"))
+                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], color));
+            }
+            chart
+                .configure_series_labels()
+                .position(SeriesLabelPosition::UpperLeft)
+                .background_style(WHITE.mix(0.8))
+                .border_style(BLACK)
+                .draw()
+                .map_err(drawing)?;
+        }
+        root.present().map_err(drawing)?;
+    }
+    Ok(svg)
+}
+
+/// Cells of [`TafGrid`] across and up: 4.5 by 4 px of a 900 by 450 px plot.
+const GRID: (usize, usize) = (180, 90);
+
+/// Bites binned over static torque (x) and TAF (y) for [`taf_svg`]: a year of bites
+/// drawn as at most 180 x 90 shaded cells instead of a million circles; clean and
+/// degraded windows apart.
+#[derive(Debug, Clone)]
+pub(super) struct TafGrid {
+    x: (f64, f64),
+    y: (f64, f64),
+    clean: Vec<u32>,
+    degraded: Vec<u32>,
+    /// Bites with a TAF outside the ranges (not drawn).
+    pub(super) outside: u64,
+}
+
+impl TafGrid {
+    /// An empty grid over static torque `x` (kN*m) and TAF `y`, each `(low, high)`
+    /// with low < high.
+    pub(super) fn new(x: (f64, f64), y: (f64, f64)) -> Self {
+        Self {
+            x,
+            y,
+            clean: vec![0; GRID.0 * GRID.1],
+            degraded: vec![0; GRID.0 * GRID.1],
+            outside: 0,
+        }
+    }
+
+    /// Count a bite (one without a TAF is not plotted).
+    pub(super) fn add(&mut self, point: TafPoint) {
+        let Some(taf) = point.taf else {
+            return;
+        };
+        let cell = |value: f64, (low, high): (f64, f64), cells: usize| {
+            let at = (value - low) / (high - low) * cells as f64;
+            // The top edge belongs to the last cell.
+            (0.0..=cells as f64)
+                .contains(&at)
+                .then(|| (at as usize).min(cells - 1))
+        };
+        match (
+            cell(point.static_torque_knm, self.x, GRID.0),
+            cell(taf, self.y, GRID.1),
+        ) {
+            (Some(i), Some(j)) => {
+                let cells = if point.degraded {
+                    &mut self.degraded
+                } else {
+                    &mut self.clean
+                };
+                cells[j * GRID.0 + i] += 1;
+            }
+            _ => self.outside += 1,
+        }
+    }
+
+    /// The occupied cells of `cells`: `(x0, y0, x1, y1, count)`.
+    fn occupied<'a>(
+        &'a self,
+        cells: &'a [u32],
+    ) -> impl Iterator<Item = (f64, f64, f64, f64, u32)> + 'a {
+        let width = (self.x.1 - self.x.0) / GRID.0 as f64;
+        let height = (self.y.1 - self.y.0) / GRID.1 as f64;
+        cells
+            .iter()
+            .enumerate()
+            .filter(|(_, count)| **count > 0)
+            .map(move |(index, count)| {
+                let (i, j) = ((index % GRID.0) as f64, (index / GRID.0) as f64);
+                let (x0, y0) = (self.x.0 + i * width, self.y.0 + j * height);
+                (x0, y0, x0 + width, y0 + height, *count)
+            })
+    }
+}
+
+/// TAF over static torque: the bites' cells (shaded by count; degraded windows a
+/// grey dot per cell), the thresholds, the wear map's curves.
+pub(super) fn taf_svg(
+    title: &str,
+    grid: &TafGrid,
+    settings: Option<&SettingsRow>,
+    curves: &[Curve],
+) -> anyhow::Result<String> {
+    let thresholds: Vec<(&str, f64)> = settings
+        .map(|s| vec![("TAF warning", s.taf_warning), ("TAF alarm", s.taf_alarm)])
+        .unwrap_or_default();
+    let (x_range, y_range) = (grid.x, grid.y);
+    let most = grid.clean.iter().max().copied().unwrap_or(0).max(1);
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (PANEL.0, 450)).into_drawing_area();
+        root.fill(&WHITE).map_err(drawing)?;
+        let root = root.titled(title, ("sans-serif", 20)).map_err(drawing)?;
+        let mut chart = ChartBuilder::on(&root)
+            .margin(10)
+            .x_label_area_size(35)
+            .y_label_area_size(60)
+            .build_cartesian_2d(x_range.0..x_range.1, y_range.0..y_range.1)
+            .map_err(drawing)?;
+        chart
+            .configure_mesh()
+            .x_desc("static torque, kN*m")
+            .y_desc("TAF (peak / static)")
+            .label_style(("sans-serif", 12))
+            .draw()
+            .map_err(drawing)?;
+        // Shade by the logarithm of the count: one bite still shows, the densest
+        // cell is darkest.
+        let shade = |count: u32| 0.2 + 0.8 * f64::from(count).ln_1p() / f64::from(most).ln_1p();
+        chart
+            .draw_series(grid.occupied(&grid.clean).map(|(x0, y0, x1, y1, count)| {
+                Rectangle::new([(x0, y0), (x1, y1)], BLUE.mix(shade(count)).filled())
+            }))
+            .map_err(drawing)?
+            .label(format!("bites (shade: bites per cell, darkest {most})"))
+            .legend(|(x, y)| Rectangle::new([(x, y - 4), (x + 8, y + 4)], BLUE.filled()));
+        // Degraded windows as a dot per occupied cell, over the clean bites' shade
+        // (they are few; cells of their own would hide the clean density).
+        let grey = RGBColor(90, 90, 90);
+        chart
+            .draw_series(grid.occupied(&grid.degraded).map(|(x0, y0, x1, y1, _)| {
+                Circle::new(((x0 + x1) / 2.0, (y0 + y1) / 2.0), 1, grey.filled())
+            }))
+            .map_err(drawing)?
+            .label("bites, degraded window (a dot per cell)")
+            .legend(move |(x, y)| Circle::new((x + 4, y), 2, grey.filled()));
+        for (index, (label, curve)) in curves.iter().enumerate() {
+            let color = Palette99::pick(index + 5).to_rgba();
+            chart
+                .draw_series(LineSeries::new(curve.clone(), color.stroke_width(1)))
+                .map_err(drawing)?
+                .label(label.as_str())
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], color));
+        }
+        for (index, (label, value)) in thresholds.iter().enumerate() {
+            let color = if index == 0 {
+                RGBColor(230, 150, 0)
+            } else {
+                RED
+            };
+            chart
+                .draw_series(LineSeries::new(
+                    vec![(x_range.0, *value), (x_range.1, *value)],
+                    color,
+                ))
+                .map_err(drawing)?
+                .label(format!("{label} {value}"))
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], color));
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperRight)
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(drawing)?;
+        root.present().map_err(drawing)?;
+    }
+    Ok(svg)
+}
+
+/// A labelled curve of (x, y) points.
+pub(super) type Curve = (String, Vec<(f64, f64)>);
+
+/// Horizontal bars per row over time: `(row label, [(from, to, color)], [(x, marker color)])`.
+pub(super) type Lane = (String, Vec<(f64, f64, RGBColor)>, Vec<(f64, RGBColor)>);
+
+pub(super) fn lanes_svg(title: &str, axis: &TimeAxis, lanes: &[Lane]) -> anyhow::Result<String> {
+    let mut svg = String::new();
+    {
+        let height = 80 + 28 * lanes.len().max(1) as u32;
+        let root = SVGBackend::with_string(&mut svg, (PANEL.0, height)).into_drawing_area();
+        root.fill(&WHITE).map_err(drawing)?;
+        let root = root.titled(title, ("sans-serif", 20)).map_err(drawing)?;
+        let rows = lanes.len().max(1) as f64;
+        let mut chart = ChartBuilder::on(&root)
+            .margin(10)
+            .x_label_area_size(35)
+            .y_label_area_size(220)
+            .build_cartesian_2d(0.0..axis.span.max(1e-9), -0.5..rows - 0.5)
+            .map_err(drawing)?;
+        let names: Vec<String> = lanes.iter().map(|l| l.0.clone()).collect();
+        chart
+            .configure_mesh()
+            .x_desc(axis.label())
+            .y_labels(lanes.len().max(1))
+            .y_label_formatter(&|y| {
+                let index = y.round();
+                if (y - index).abs() < 0.01 && index >= 0.0 {
+                    names.get(index as usize).cloned().unwrap_or_default()
+                } else {
+                    String::new()
+                }
+            })
+            .disable_y_mesh()
+            .label_style(("sans-serif", 12))
+            .draw()
+            .map_err(drawing)?;
+        for (row, (_, spans, markers)) in lanes.iter().enumerate() {
+            let y = row as f64;
+            chart
+                .draw_series(spans.iter().map(|(from, to, color)| {
+                    Rectangle::new([(*from, y - 0.3), (to.max(*from), y + 0.3)], color.filled())
+                }))
+                .map_err(drawing)?;
+            chart
+                .draw_series(
+                    markers
+                        .iter()
+                        .map(|(x, color)| TriangleMarker::new((*x, y), 6, color.filled())),
+                )
+                .map_err(drawing)?;
+        }
+        root.present().map_err(drawing)?;
+    }
+    Ok(svg)
+}
+
+/// The wear map of the driveline model at `model`, TAF over static torque for gaps of
+/// 0..4 mrad over `torques` (kN*m); why not, when the file cannot be read or simulated.
+pub(super) fn wear_curves(model: &str, torques: (f64, f64)) -> Result<Vec<Curve>, String> {
+    use millgate_sim::wear_map::{wear_map, WearMapSpec};
+    let model = millgate_sim::model::Model::load(Path::new(model)).map_err(|e| e.to_string())?;
+    let (low, high) = (torques.0.max(5.0), torques.1.max(torques.0.max(5.0) + 5.0));
+    let spec = WearMapSpec {
+        static_torques_knm: (0..6)
+            .map(|i| low + (high - low) * f64::from(i) / 5.0)
+            .collect(),
+        backlashes_rad: (0..=4).map(|i| f64::from(i) * 1.0e-3).collect(),
+        coupling: None,
+        period_lowpass_hz: None,
+    };
+    let map = wear_map(&model, &spec, |_, _, _| {}).map_err(|e| e.to_string())?;
+    Ok(map
+        .backlashes_rad()
+        .into_iter()
+        .map(|gap| {
+            let curve = map
+                .rows
+                .iter()
+                .filter(|row| row.backlash_rad == gap)
+                .map(|row| (row.static_torque_knm, row.taf))
+                .collect();
+            (format!("wear map, gap {:.0} mrad", gap * 1e3), curve)
+        })
+        .collect())
+}

@@ -1,0 +1,113 @@
+//! The generated table of published figures: for each figure of the catalogue, its
+//! unit, type, guard and stale rule, and what every output calls it and how it
+//! carries it (register, Sparkplug metric, `/metrics` family, history column, web API
+//! member). `millgate figures` prints it ([`crate::cli::figures`]); the root README
+//! holds it, and a test fails when they differ.
+
+use serde::Serialize;
+
+use crate::outputs::history::BITE_COLUMNS;
+use crate::outputs::metrics;
+use crate::outputs::register_map::{
+    DRIVELINE_LAYOUT, NOT_MAPPED, ROD_MILL_LAYOUT, ROD_SPAN_LAYOUT, TANDEM_MILL_LAYOUT,
+};
+use crate::outputs::sparkplug::devices;
+use crate::state::catalogue::{self, FigureInfo, Guard, SubjectKind};
+
+/// One figure and its names in every output.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FigureRow {
+    /// `driveline`, `tandem_mill`, `rod_mill` or `rod_span`.
+    pub subject: &'static str,
+    /// The catalogue key (also the web API's member and the OPC UA variable).
+    pub key: &'static str,
+    /// Unit (empty for ratios, counts, indices, flags, times).
+    pub unit: &'static str,
+    /// `real`, `count`, `index`, `bool`, `time`.
+    pub figure_type: &'static str,
+    /// What it is.
+    pub description: &'static str,
+    /// `quality bit n`, `flags bit n`, `always` or `has a value`.
+    pub guard: String,
+    /// `withdrawn`, `last usable` or `kept` (see the stale rule).
+    pub stale: &'static str,
+    /// The register (`<block>.<key>`, its offset in the block and type), or why none.
+    pub register: String,
+    /// The Sparkplug metric name and datatype.
+    pub sparkplug: String,
+    /// The `/metrics` family.
+    pub metric: String,
+    /// The history's `bites` column, or why none.
+    pub history: String,
+}
+
+fn register_of(figure: &FigureInfo) -> String {
+    let layout = match figure.subject {
+        SubjectKind::Driveline => DRIVELINE_LAYOUT,
+        SubjectKind::TandemMill => TANDEM_MILL_LAYOUT,
+        SubjectKind::RodMill => ROD_MILL_LAYOUT,
+        SubjectKind::RodSpan => ROD_SPAN_LAYOUT,
+    };
+    if let Some((_, offset, value_type)) = layout.iter().find(|(key, _, _)| *key == figure.key) {
+        return format!("+{offset} {}", value_type.name());
+    }
+    if let Guard::FlagBit(bit) = figure.guard {
+        return format!("flags bit {bit}");
+    }
+    NOT_MAPPED
+        .iter()
+        .find(|(subject, key, _)| *subject == figure.subject && *key == figure.key)
+        .map_or_else(|| "none".to_owned(), |(_, _, why)| format!("none: {why}"))
+}
+
+fn history_of(figure: &FigureInfo) -> String {
+    if figure.subject != SubjectKind::Driveline {
+        return "none: the chatter episodes keep their own summary; rod figures are not kept"
+            .into();
+    }
+    BITE_COLUMNS
+        .iter()
+        .find(|(key, _)| *key == figure.key)
+        .map_or_else(
+            || match figure.alarm {
+                Some(kind) => format!("alarms (kind {})", kind.name()),
+                None => "none: a flag or count of the moment".into(),
+            },
+            |(_, column)| format!("bites.{column}"),
+        )
+}
+
+/// Every figure's row, in catalogue order.
+pub fn rows() -> Vec<FigureRow> {
+    catalogue::all()
+        .iter()
+        .map(|figure| {
+            let sparkplug_name = match figure.subject {
+                SubjectKind::RodSpan => format!("span<i>/{}", figure.key),
+                _ => figure.key.to_owned(),
+            };
+            let metric = metrics::metric_name(figure);
+            FigureRow {
+                subject: figure.subject.name(),
+                key: figure.key,
+                unit: figure.unit,
+                figure_type: figure.figure_type.name(),
+                description: figure.description,
+                guard: match figure.guard {
+                    Guard::QualityBit(bit) => format!("quality bit {bit}"),
+                    Guard::FlagBit(bit) => format!("flags bit {bit}"),
+                    Guard::Always => "always".into(),
+                    Guard::Presence => "has a value".into(),
+                },
+                stale: figure.stale.name(),
+                register: register_of(figure),
+                sparkplug: format!(
+                    "{sparkplug_name} ({:?})",
+                    devices::datatype(figure.figure_type)
+                ),
+                metric,
+                history: history_of(figure),
+            }
+        })
+        .collect()
+}

@@ -1,0 +1,63 @@
+//! What the history records about a run at its start: millgate's version, the
+//! configuration's name and each driveline's settings (for reports).
+
+/// What the history records about this run at its start.
+#[derive(Debug, Clone)]
+pub struct RunInfo {
+    /// millgate's version, stored with the run.
+    pub version: String,
+    /// The configuration's `name`.
+    pub config_name: String,
+    /// Each driveline's settings (table `driveline_settings`).
+    pub drivelines: Vec<DrivelineSettings>,
+}
+
+/// A driveline's settings as the history keeps them for reports.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DrivelineSettings {
+    /// The driveline's name.
+    pub name: String,
+    /// TAF warning threshold.
+    pub taf_warning: f64,
+    /// TAF alarm threshold.
+    pub taf_alarm: f64,
+    /// The driveline model file, as configured.
+    pub model: Option<String>,
+    /// The gap diagnosis' warning threshold, mrad; `None` without a model (no gap
+    /// diagnosis).
+    pub gap_warning_mrad: Option<f64>,
+    /// The gap diagnosis' alarm threshold, mrad; `None` without a model.
+    pub gap_alarm_mrad: Option<f64>,
+}
+
+impl RunInfo {
+    /// The run of `config` with this millgate's version.
+    pub fn of(config: &millgate_config::Config) -> Self {
+        Self {
+            version: env!("CARGO_PKG_VERSION").to_owned(),
+            config_name: config.name.clone(),
+            drivelines: config
+                .drivelines
+                .iter()
+                .map(|driveline| DrivelineSettings {
+                    name: driveline.name.clone(),
+                    taf_warning: driveline.thresholds.taf_warning,
+                    taf_alarm: driveline.thresholds.taf_alarm,
+                    model: driveline
+                        .model
+                        .as_ref()
+                        .map(|path| path.display().to_string()),
+                    // The gap diagnosis runs only with a model.
+                    gap_warning_mrad: driveline
+                        .model
+                        .as_ref()
+                        .map(|_| driveline.thresholds.gap_warning_mrad),
+                    gap_alarm_mrad: driveline
+                        .model
+                        .as_ref()
+                        .map(|_| driveline.thresholds.gap_alarm_mrad),
+                })
+                .collect(),
+        }
+    }
+}

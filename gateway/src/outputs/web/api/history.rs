@@ -1,0 +1,86 @@
+//! What the page reads from the history file: a driveline's bites and wear series,
+//! and the alarm events.
+
+use std::sync::Arc;
+
+use axum::extract::rejection::QueryRejection;
+use axum::extract::{Path, Query, State};
+use axum::Json;
+
+use super::{
+    driveline_index, history_error, with_history, ApiError, Params, LIMIT_DEFAULT, LIMIT_MAX,
+    POINTS_DEFAULT,
+};
+use crate::outputs::history::query::{AlarmRow, BiteRow, Filter, Record};
+use crate::outputs::history::series::{WearPoint, MAX_SERIES_POINTS};
+use crate::outputs::history::HistoryError;
+use crate::outputs::web::shared::WebState;
+
+/// `GET /api/drivelines/{name}/bites?since=&until=&limit=`: the newest `limit` bites
+/// in the range, oldest first.
+pub(crate) async fn bites(
+    State(state): State<Arc<WebState>>,
+    Path(name): Path<String>,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Json<Vec<BiteRow>>, ApiError> {
+    let params = Params::of(query, &["since", "until", "limit"])?;
+    driveline_index(&state, &name)?;
+    Ok(Json(newest(&state, &params, Some(name)).await?))
+}
+
+/// `GET /api/drivelines/{name}/wear?since=&until=&points=`: the gap estimate (last
+/// in each bucket, interval extremes) and TAF (mean, max) in at most `points` time
+/// buckets, oldest first; buckets without bites are left out.
+pub(crate) async fn wear(
+    State(state): State<Arc<WebState>>,
+    Path(name): Path<String>,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Json<Vec<WearPoint>>, ApiError> {
+    let params = Params::of(query, &["since", "until", "points"])?;
+    driveline_index(&state, &name)?;
+    let (since, until) = params.range()?;
+    let max = u32::try_from(MAX_SERIES_POINTS).unwrap_or(u32::MAX);
+    let points = params.count("points", 1..=max, POINTS_DEFAULT)?;
+    let series = with_history(&state, move |reader| {
+        match reader.wear_series(&name, since, until, points as usize) {
+            Ok(series) => Ok(series),
+            Err(HistoryError::UnknownDriveline { .. }) => Ok(Vec::new()),
+            Err(error) => Err(history_error(error)),
+        }
+    })
+    .await?;
+    Ok(Json(series))
+}
+
+/// `GET /api/alarms?since=&until=&limit=&subject=`: the newest `limit` alarm events
+/// in the range, oldest first.
+pub(crate) async fn alarms(
+    State(state): State<Arc<WebState>>,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Json<Vec<AlarmRow>>, ApiError> {
+    let params = Params::of(query, &["since", "until", "limit", "subject"])?;
+    let subject = params.get("subject").map(str::to_owned);
+    Ok(Json(newest(&state, &params, subject).await?))
+}
+
+/// The newest `limit` rows of `name` (all names when `None`) in the parameters'
+/// `since`..`until`, oldest first: what `bites` and `alarms` answer.
+async fn newest<R: Record + Send + 'static>(
+    state: &WebState,
+    params: &Params,
+    name: Option<String>,
+) -> Result<Vec<R>, ApiError> {
+    let (since, until) = params.range()?;
+    let limit = params.count("limit", 1..=LIMIT_MAX, LIMIT_DEFAULT)?;
+    let filter = Filter {
+        name,
+        since,
+        until,
+        after_id: None,
+        limit: Some(limit),
+    };
+    with_history(state, move |reader| {
+        reader.newest(&filter).map_err(history_error)
+    })
+    .await
+}

@@ -1,0 +1,430 @@
+//! The live figures: every driveline, tandem mill, rod mill and source by the
+//! catalogue's keys, with what the history adds (gap trends, outages), and the
+//! server-sent events that carry them to open pages.
+
+use std::convert::Infallible;
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::extract::rejection::QueryRejection;
+use axum::extract::{Path, Query, State};
+use axum::http::{header, HeaderValue};
+use axum::response::sse::{Event, KeepAlive, Sse};
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use serde::Serialize;
+use serde_json::{Map, Value as JsonValue};
+use tokio_stream::wrappers::WatchStream;
+use tokio_stream::{Stream, StreamExt};
+
+use super::{driveline_index, history_error, with_history, ApiError, Params, OUTAGE_WINDOW};
+use crate::field::source_health::SourceStatus;
+use crate::outputs::history::query::{Filter, HistoryReader, OutageRow};
+use crate::outputs::history::series::TREND_WINDOW;
+use crate::outputs::history::HistoryError;
+use crate::outputs::web::shared::{DrivelineInfo, TrendCache, WebState};
+use crate::state::catalogue::{self, Figure, Subject, Value};
+use crate::state::results::{
+    DrivelineResults, GatewayState, Results, RodMillResults, TandemMillResults,
+};
+use crate::state::time::UtcTime;
+
+/// A driveline's thresholds.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct ThresholdsView {
+    /// TAF warning.
+    pub taf_warning: f64,
+    /// TAF alarm.
+    pub taf_alarm: f64,
+    /// Gap warning, mrad.
+    pub gap_warning_mrad: f64,
+    /// Gap alarm, mrad.
+    pub gap_alarm_mrad: f64,
+}
+
+/// The figures of `subject` as JSON, one member per catalogue key: its value while good
+/// or last usable (the page marks a stale source beside it), `null` while it has none.
+/// A time is ISO-8601 UTC text.
+pub fn figures_json<R: Subject>(figures: &[Figure<R>], subject: &R) -> Map<String, JsonValue> {
+    figures
+        .iter()
+        .map(|figure| {
+            let value = match figure.read(subject).usable() {
+                None => JsonValue::Null,
+                Some(Value::Real(v)) => {
+                    serde_json::Number::from_f64(v).map_or(JsonValue::Null, JsonValue::Number)
+                }
+                Some(Value::Count(v) | Value::Index(v)) => JsonValue::from(v),
+                Some(Value::Bool(v)) => JsonValue::Bool(v),
+                Some(Value::Time(ms)) => JsonValue::String(UtcTime::from_unix_ms(ms).to_string()),
+            };
+            (figure.key.to_owned(), value)
+        })
+        .collect()
+}
+
+/// `ok`, `warning` or `alarm` of a warning flag and a (latched) alarm flag.
+fn state_of(warning: bool, alarm: bool) -> &'static str {
+    match (warning, alarm) {
+        (_, true) => "alarm",
+        (true, false) => "warning",
+        _ => "ok",
+    }
+}
+
+/// A driveline's live figures (every catalogue figure by its key) and, on the overview
+/// and its own endpoint, the gap trend from the history.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct DrivelineView {
+    /// Name.
+    pub name: String,
+    /// Whether it has a model (the gap diagnosis runs only with one).
+    pub has_model: bool,
+    /// The catalogue's driveline figures by key ([`catalogue::DRIVELINE`]).
+    #[serde(flatten)]
+    pub figures: Map<String, JsonValue>,
+    /// Gap trend, mrad per week, from the history (least squares over the estimates
+    /// of the 4 weeks before the last bite, after the last wear reset); `None` on
+    /// live updates, without a history or with fewer than 5 estimates.
+    pub gap_trend_mrad_per_week: Option<f64>,
+    /// `ok`, `warning` or `alarm` of the TAF.
+    pub taf_state: &'static str,
+    /// `ok`, `warning`, `alarm` of the gap, or `unknown` without an estimate.
+    pub wear_state: &'static str,
+    /// Thresholds.
+    pub thresholds: ThresholdsView,
+}
+
+impl DrivelineView {
+    fn new(info: &DrivelineInfo, results: &DrivelineResults) -> Self {
+        Self {
+            name: info.name.clone(),
+            has_model: info.has_model,
+            figures: figures_json(catalogue::DRIVELINE, results),
+            gap_trend_mrad_per_week: None,
+            taf_state: state_of(results.taf_warning, results.taf_alarm),
+            wear_state: if results.gap.is_none() && !results.gap_alarm {
+                "unknown"
+            } else {
+                state_of(results.gap_warning, results.gap_alarm)
+            },
+            thresholds: ThresholdsView {
+                taf_warning: info.taf_warning,
+                taf_alarm: info.taf_alarm,
+                gap_warning_mrad: info.gap_warning_mrad,
+                gap_alarm_mrad: info.gap_alarm_mrad,
+            },
+        }
+    }
+}
+
+/// A tandem mill's chatter state and figures (every catalogue figure by its key).
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct TandemMillView {
+    /// Name.
+    pub name: String,
+    /// Stand channels, rolling order.
+    pub stands: Vec<String>,
+    /// `ok`, `warning`, `alarm`, `stale` or `unknown` (no window yet).
+    pub chatter_state: &'static str,
+    /// The stand channel of `worst_stand`.
+    pub worst_stand_channel: Option<String>,
+    /// The catalogue's tandem mill figures by key ([`catalogue::TANDEM_MILL`]): a stale
+    /// stand withdraws the window's (as the PLC gets them).
+    #[serde(flatten)]
+    pub figures: Map<String, JsonValue>,
+}
+
+impl TandemMillView {
+    fn new((name, stands): &(String, Vec<String>), results: &TandemMillResults) -> Self {
+        Self {
+            name: name.clone(),
+            stands: stands.clone(),
+            chatter_state: if results.chatter_alarm {
+                "alarm"
+            } else if results.source_stale {
+                "stale"
+            } else if results.chatter_warning {
+                "warning"
+            } else if results.evaluations == 0 {
+                "unknown"
+            } else {
+                "ok"
+            },
+            worst_stand_channel: results
+                .worst_stand
+                .filter(|_| !results.source_stale)
+                .and_then(|stand| stands.get(stand).cloned()),
+            figures: figures_json(catalogue::TANDEM_MILL, results),
+        }
+    }
+}
+
+/// A rod mill's state, figures and spans.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct RodMillView {
+    /// Name.
+    pub name: String,
+    /// `stable`, `near_tongue`, `unstable`, `refused` (inputs out of range),
+    /// `stale` or `unknown` (not evaluated).
+    pub state: &'static str,
+    /// The catalogue's rod mill figures by key ([`catalogue::ROD_MILL`]).
+    #[serde(flatten)]
+    pub figures: Map<String, JsonValue>,
+    /// Each span's figures ([`catalogue::ROD_SPAN`]), rolling order.
+    pub spans: Vec<Map<String, JsonValue>>,
+}
+
+impl RodMillView {
+    fn new(name: &str, results: &RodMillResults) -> Self {
+        let valid = results.spans.iter().filter(|span| span.valid);
+        let state = if results.source_stale {
+            "stale"
+        } else if results.input_refused {
+            "refused"
+        } else if valid.clone().any(|span| span.unstable) {
+            "unstable"
+        } else if valid.clone().any(|span| span.near_tongue) {
+            "near_tongue"
+        } else if valid.count() == 0 {
+            "unknown"
+        } else {
+            "stable"
+        };
+        Self {
+            name: name.to_owned(),
+            state,
+            figures: figures_json(catalogue::ROD_MILL, results),
+            spans: (0..results.spans.len())
+                .map(|span| figures_json(catalogue::ROD_SPAN, &results.published_span(span)))
+                .collect(),
+        }
+    }
+}
+
+/// A source's status and outages.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct SourceView {
+    /// Name.
+    pub name: String,
+    /// `modbus` or `can`.
+    pub kind: &'static str,
+    /// `ok`, `stale`, `lost` or `unknown`.
+    pub status: &'static str,
+    /// Outages that started in the last 24 h (history only).
+    pub outages_24h: Option<u32>,
+    /// Start of the last outage, UTC ISO-8601 (history only).
+    pub last_outage_start: Option<String>,
+    /// Its end; `None` while it lasts.
+    pub last_outage_end: Option<String>,
+}
+
+/// `/api/overview` (and, without the history parts, each `/api/events` message).
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct Overview {
+    /// The configuration's name.
+    pub name: String,
+    /// `starting`, `running` or `stopped`.
+    pub state: &'static str,
+    /// Whether a history is configured (plots need it).
+    pub history: bool,
+    /// Drivelines, config order.
+    pub drivelines: Vec<DrivelineView>,
+    /// Tandem mills, config order.
+    pub tandem_mills: Vec<TandemMillView>,
+    /// Rod mills, config order.
+    pub rod_mills: Vec<RodMillView>,
+    /// Sources: Modbus, then CAN.
+    pub sources: Vec<SourceView>,
+}
+
+fn live_overview(state: &WebState, results: &Results) -> Overview {
+    Overview {
+        name: state.config_name.clone(),
+        state: match results.state {
+            GatewayState::Starting => "starting",
+            GatewayState::Running => "running",
+            GatewayState::Stopped => "stopped",
+        },
+        history: state.history.is_some(),
+        drivelines: state
+            .drivelines
+            .iter()
+            .zip(&results.drivelines)
+            .map(|(info, results)| DrivelineView::new(info, results))
+            .collect(),
+        tandem_mills: state
+            .tandem_mills
+            .iter()
+            .zip(&results.tandem_mills)
+            .map(|(mill, results)| TandemMillView::new(mill, results))
+            .collect(),
+        rod_mills: state
+            .rod_mills
+            .iter()
+            .zip(&results.rod_mills)
+            .map(|(name, results)| RodMillView::new(name, results))
+            .collect(),
+        sources: state
+            .sources
+            .iter()
+            .zip(&results.sources)
+            .map(|((name, kind), status)| SourceView {
+                name: name.clone(),
+                kind,
+                status: match status {
+                    Some(SourceStatus::Ok) => "ok",
+                    Some(SourceStatus::Stale) => "stale",
+                    Some(SourceStatus::Lost) => "lost",
+                    None => "unknown",
+                },
+                outages_24h: None,
+                last_outage_start: None,
+                last_outage_end: None,
+            })
+            .collect(),
+    }
+}
+
+/// The live overview as `/api/events` sends it.
+pub(crate) fn live_json(state: &WebState) -> String {
+    let overview = live_overview(state, &state.board.results());
+    serde_json::to_string(&overview).unwrap_or_default()
+}
+
+/// Add what the history knows to `overview`: gap trends and source outages.
+fn add_history(
+    reader: &HistoryReader,
+    trends: &TrendCache,
+    overview: &mut Overview,
+) -> Result<(), ApiError> {
+    let now = UtcTime::now();
+    for source in &mut overview.sources {
+        let outages = reader
+            .outages(&Filter {
+                name: Some(source.name.clone()),
+                since: Some(now.minus(OUTAGE_WINDOW)),
+                ..Filter::default()
+            })
+            .map_err(history_error)?;
+        source.outages_24h = Some(u32::try_from(outages.len()).unwrap_or(u32::MAX));
+        let last = reader
+            .newest::<OutageRow>(&Filter {
+                name: Some(source.name.clone()),
+                limit: Some(1),
+                ..Filter::default()
+            })
+            .map_err(history_error)?;
+        if let Some(last) = last.into_iter().next() {
+            source.last_outage_start = Some(last.started_at);
+            source.last_outage_end = last.ended_at;
+        }
+    }
+    for driveline in &mut overview.drivelines {
+        driveline.gap_trend_mrad_per_week = gap_trend(reader, trends, &driveline.name)?;
+    }
+    Ok(())
+}
+
+/// The gap trend of `driveline` over the [`TREND_WINDOW`] before its last bite,
+/// mrad/week, from `trends` when no bite came since; `None` with too few estimates,
+/// or when the file does not know the driveline yet (no run recorded it).
+fn gap_trend(
+    reader: &HistoryReader,
+    trends: &TrendCache,
+    driveline: &str,
+) -> Result<Option<f64>, ApiError> {
+    let Some((_, last)) = reader.bite_span(driveline).map_err(history_error)? else {
+        return Ok(None);
+    };
+    let last_ms = last.unix_ms();
+    if let Some(&(at, trend)) = crate::lock(&trends.0).get(driveline) {
+        if at == last_ms {
+            return Ok(trend);
+        }
+    }
+    let until = UtcTime::from_unix_ms(last_ms + 1);
+    let trend = match reader.gap_trend(driveline, Some(until), TREND_WINDOW) {
+        Ok(trend) => trend.map(|trend| trend.mrad_per_week),
+        Err(HistoryError::UnknownDriveline { .. }) => None,
+        Err(error) => return Err(history_error(error)),
+    };
+    crate::lock(&trends.0).insert(driveline.to_owned(), (last_ms, trend));
+    Ok(trend)
+}
+
+/// The overview with the history's parts when there is a history.
+async fn full_overview(state: &Arc<WebState>) -> Result<Overview, ApiError> {
+    let mut overview = live_overview(state, &state.board.results());
+    if state.history.is_some() {
+        let shared = Arc::clone(state);
+        overview = with_history(state, move |reader| {
+            add_history(reader, &shared.trends, &mut overview)?;
+            Ok(overview)
+        })
+        .await?;
+    }
+    Ok(overview)
+}
+
+/// `GET /api/overview`: every driveline, tandem mill, rod mill and source.
+pub(crate) async fn overview(
+    State(state): State<Arc<WebState>>,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Json<Overview>, ApiError> {
+    Params::of(query, &[])?;
+    Ok(Json(full_overview(&state).await?))
+}
+
+/// `GET /api/drivelines`: every driveline's live figures.
+pub(crate) async fn drivelines(
+    State(state): State<Arc<WebState>>,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Json<Vec<DrivelineView>>, ApiError> {
+    Params::of(query, &[])?;
+    Ok(Json(
+        live_overview(&state, &state.board.results()).drivelines,
+    ))
+}
+
+/// `GET /api/drivelines/{name}`: one driveline with its gap trend.
+pub(crate) async fn driveline(
+    State(state): State<Arc<WebState>>,
+    Path(name): Path<String>,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Json<DrivelineView>, ApiError> {
+    Params::of(query, &[])?;
+    let index = driveline_index(&state, &name)?;
+    let results = state.board.results();
+    let mut view = DrivelineView::new(&state.drivelines[index], &results.drivelines[index]);
+    if state.history.is_some() {
+        let shared = Arc::clone(&state);
+        view = with_history(&state, move |reader| {
+            view.gap_trend_mrad_per_week = gap_trend(reader, &shared.trends, &view.name)?;
+            Ok(view)
+        })
+        .await?;
+    }
+    Ok(Json(view))
+}
+
+/// `GET /api/events`: server-sent events, `event: results` with the live overview
+/// (no history parts) at once and whenever it changes (checked every
+/// [`super::LIVE_PERIOD`]); a comment every 15 s keeps proxies from closing it.
+pub(crate) async fn events(
+    State(state): State<Arc<WebState>>,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Response, ApiError> {
+    Params::of(query, &[])?;
+    let stream: std::pin::Pin<Box<dyn Stream<Item = Result<Event, Infallible>> + Send>> = Box::pin(
+        WatchStream::new(state.live.clone())
+            .map(|json| Ok(Event::default().event("results").data(json.as_str()))),
+    );
+    let mut response = Sse::new(stream)
+        .keep_alive(KeepAlive::new().interval(Duration::from_secs(15)))
+        .into_response();
+    response
+        .headers_mut()
+        .insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+    Ok(response)
+}

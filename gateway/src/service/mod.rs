@@ -1,0 +1,442 @@
+//! The service: reader tasks -> analysis task -> output tasks, and their shutdown.
+//!
+//! Start-up fails loudly: [`Service::new`] refuses what cannot run (a model that does
+//! not load, a register map past register 65535), [`Service::spawn`] what cannot bind,
+//! and once running, an output task that ends (a listener that fails for good) or an
+//! analysis that dies ends the service with the error, so `millgate run` exits
+//! non-zero and its supervisor restarts it.
+
+use std::net::SocketAddr;
+use std::sync::Arc;
+
+use millgate_config::Config;
+use tokio::net::TcpListener;
+use tokio::sync::{broadcast, mpsc, watch};
+
+mod error;
+mod outputs;
+mod readers;
+mod running;
+
+pub use error::ServiceError;
+pub use running::RunningService;
+
+use crate::analysis::driveline::BiteReport;
+use crate::analysis::gap_estimate::GapObservation;
+use crate::analysis::Analysis;
+use crate::field::counters::{CanCounters, ChannelCounters};
+use crate::field::source_health::SourceHealth;
+use crate::outputs::history::outages::{OutageMonitor, WatchedSource};
+use crate::outputs::history::RunInfo;
+use crate::outputs::hmi_server::{self, ServerCounters};
+use crate::outputs::metrics::Acquisition;
+use crate::outputs::register_map::RegisterMap;
+use crate::outputs::web;
+use crate::shutdown::{self, Shutdown};
+use crate::state::board::Board;
+use crate::state::commands::{self, CommandReceiver, CommandSender};
+use crate::state::history::History;
+use crate::state::results::GatewayState;
+use crate::supervision::Liveness;
+
+/// Samples in flight between readers and analysis. At 2 kHz and 100-sample blocks
+/// this is seconds of data per channel: enough to ride out a slow analysis step.
+const SAMPLE_QUEUE: usize = 1024;
+
+/// A configured, not yet running gateway.
+#[derive(Debug)]
+pub struct Service {
+    config: Config,
+    map: Arc<RegisterMap>,
+    board: Arc<Board>,
+    commands: CommandSender,
+    command_receiver: CommandReceiver,
+    counters: Vec<Arc<ChannelCounters>>,
+    health: Vec<Arc<SourceHealth>>,
+    can_counters: Vec<Arc<CanCounters>>,
+    bites: broadcast::Sender<BiteReport>,
+    analysis: Analysis,
+    history: History,
+    server_listener: Option<TcpListener>,
+    metrics_listener: Option<TcpListener>,
+    web_listener: Option<TcpListener>,
+    liveness: Arc<Liveness>,
+    server_counters: Arc<ServerCounters>,
+    /// Set once the PLC writer attempted its first write (at once without a PLC).
+    plc_attempted: watch::Sender<bool>,
+}
+
+/// Addresses the service listens on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Bound {
+    /// The Modbus server for HMIs.
+    pub server: Option<SocketAddr>,
+    /// The Prometheus endpoint.
+    pub metrics: Option<SocketAddr>,
+    /// The maintenance web page.
+    pub web: Option<SocketAddr>,
+}
+
+impl Service {
+    /// Build every task's state from `config`; an error names the key of a setting
+    /// the service cannot run with.
+    pub fn new(config: Config) -> Result<Self, ServiceError> {
+        let map = RegisterMap::try_new(&config)?;
+        let span = map.len();
+        if let Some(plc) = &config.outputs.plc {
+            let end = u32::from(plc.register_base) + u32::from(span) - 1;
+            if end > u32::from(u16::MAX) {
+                return Err(ServiceError::RegisterBase {
+                    base: plc.register_base,
+                    span,
+                    end,
+                    max: u32::from(u16::MAX) + 1 - u32::from(span),
+                });
+            }
+        }
+        let counters = config
+            .channels
+            .iter()
+            .map(|_| Arc::new(ChannelCounters::default()))
+            .collect();
+        let health = readers::source_health(&config);
+        let history = History::new(config.history.as_ref());
+        let board = Arc::new(Board::new(&config, health.clone()).with_history(history.clone()));
+        let (bites, _) = broadcast::channel(64);
+        let analysis = Analysis::new(&config, Arc::clone(&board), bites.clone())?;
+        // A driveline model that does not load, or `wear` settings that do not fit it,
+        // is a configuration error: `run` exits with it at once (and `check` names it)
+        // rather than running on without the wear diagnosis the file asks for.
+        let problems: Vec<String> = analysis
+            .wear_problems()
+            .iter()
+            .map(ToString::to_string)
+            .collect();
+        if !problems.is_empty() {
+            return Err(ServiceError::Wear(problems));
+        }
+        let can_counters = config.can_sources.iter().map(|_| Arc::default()).collect();
+        let (plc_attempted, _) = watch::channel(config.outputs.plc.is_none());
+        let (commands, command_receiver) = commands::channel();
+        Ok(Self {
+            config,
+            map: Arc::new(map),
+            board,
+            commands,
+            command_receiver,
+            counters,
+            health,
+            can_counters,
+            bites,
+            analysis,
+            history,
+            server_listener: None,
+            metrics_listener: None,
+            web_listener: None,
+            liveness: Arc::default(),
+            server_counters: Arc::default(),
+            plc_attempted,
+        })
+    }
+
+    /// What the configuration exposes that an operator should know: a Modbus server
+    /// or a web page reachable from other hosts. `millgate check` prints these; the
+    /// service logs them as warnings at start.
+    pub fn warnings(&self) -> Vec<String> {
+        let outputs = &self.config.outputs;
+        outputs
+            .server
+            .as_ref()
+            .and_then(hmi_server::exposure_warning)
+            .into_iter()
+            .chain(outputs.web.as_ref().and_then(web::exposure_warning))
+            .collect()
+    }
+
+    /// Bind the listening outputs (Modbus server, metrics) now and return their
+    /// addresses; `run` binds them otherwise. Lets callers learn ports chosen by
+    /// the OS (`:0`).
+    pub async fn bind(&mut self) -> Result<Bound, ServiceError> {
+        async fn bind_once(
+            output: &'static str,
+            slot: &mut Option<TcpListener>,
+            address: Option<SocketAddr>,
+        ) -> Result<Option<SocketAddr>, ServiceError> {
+            let Some(address) = address else {
+                return Ok(None);
+            };
+            if slot.is_none() {
+                let listener =
+                    TcpListener::bind(address)
+                        .await
+                        .map_err(|source| ServiceError::Bind {
+                            output,
+                            address,
+                            source,
+                        })?;
+                *slot = Some(listener);
+            }
+            Ok(slot.as_ref().and_then(|l| l.local_addr().ok()))
+        }
+        let outputs = &self.config.outputs;
+        let server = outputs.server.as_ref().map(|s| s.bind);
+        let metrics = outputs.metrics.as_ref().map(|m| m.bind);
+        let web = outputs.web.as_ref().map(|w| w.bind);
+        Ok(Bound {
+            server: bind_once("Modbus server", &mut self.server_listener, server).await?,
+            metrics: bind_once("metrics endpoint", &mut self.metrics_listener, metrics).await?,
+            web: bind_once("maintenance page", &mut self.web_listener, web).await?,
+        })
+    }
+
+    /// Start driveline `index`'s gap pool from `observations` (oldest first), e.g. as
+    /// saved by a history before a restart ([`RunningService`] bites carry each new
+    /// observation). The estimate is published as soon as the gap maps are ready.
+    pub fn restore_gap_pool(&mut self, index: usize, observations: Vec<GapObservation>) {
+        self.analysis.restore_gap_pool(index, observations);
+    }
+
+    /// Bites as they are analysed.
+    pub fn subscribe_bites(&self) -> broadcast::Receiver<BiteReport> {
+        self.bites.subscribe()
+    }
+
+    /// The published results.
+    pub fn board(&self) -> Arc<Board> {
+        Arc::clone(&self.board)
+    }
+
+    /// Where commands to the analysis go.
+    pub fn commands(&self) -> CommandSender {
+        self.commands.clone()
+    }
+
+    /// The register map the PLC writer and the HMI server encode the results with.
+    pub fn register_map(&self) -> Arc<RegisterMap> {
+        Arc::clone(&self.map)
+    }
+
+    /// Per-channel acquisition counters, indexed like `config.channels`.
+    pub fn counters(&self) -> Vec<Arc<ChannelCounters>> {
+        self.counters.clone()
+    }
+
+    /// The event history (disabled without `[history]`).
+    pub fn history(&self) -> History {
+        self.history.clone()
+    }
+
+    /// Open the history and publish what it restores (before any reader starts, so
+    /// the first bite continues the restored counter), and pool the bites last put
+    /// into each driveline's gap pool again (the history is where the pool survives a
+    /// restart).
+    async fn restore(&mut self) {
+        let history = self.history.clone();
+        let run = RunInfo::of(&self.config);
+        let start = move || crate::outputs::history::start(&history, run);
+        let restored = match tokio::task::spawn_blocking(start).await {
+            Ok(restored) => restored,
+            Err(error) => {
+                tracing::error!(%error, "opening the history failed");
+                return;
+            }
+        };
+        let board = &self.board;
+        board.update(|results| {
+            restored.apply(results, board.driveline_names(), board.tandem_mill_names())
+        });
+        for driveline in &restored.drivelines {
+            let index = board
+                .driveline_names()
+                .iter()
+                .position(|name| *name == driveline.name);
+            if let (Some(index), false) = (index, driveline.gap_pool.is_empty()) {
+                let observations = driveline.gap_pool.iter().map(|bite| GapObservation {
+                    static_torque_knm: bite.static_torque_knm,
+                    taf: bite.taf,
+                    taf_sigma: bite.taf_sigma,
+                    period_shift_s: bite.period_shift_s,
+                    period_shift_sigma_s: bite.period_shift_sigma_s,
+                });
+                self.analysis
+                    .restore_gap_pool(index, observations.collect());
+            }
+            tracing::info!(
+                driveline = %driveline.name,
+                bite_counter = driveline.results.bite_counter,
+                wear_trend = ?driveline.results.wear_trend,
+                alarm_latched = driveline.results.taf_alarm,
+                last_bite_ms = ?driveline.results.last_bite_unix_ms,
+                gap_alarm_latched = driveline.results.gap_alarm,
+                gap_pool = driveline.gap_pool.len(),
+                "state restored from the history"
+            );
+        }
+    }
+
+    /// The outage monitor of every source.
+    fn outage_monitor(&self) -> OutageMonitor {
+        let config = &self.config;
+        let sources = config
+            .sources()
+            .zip(&self.health)
+            .enumerate()
+            .map(|(index, (source, health))| WatchedSource {
+                name: source.name().to_owned(),
+                health: Arc::clone(health),
+                channels: (0..config.channels.len())
+                    .filter(|&c| config.source_of_channel(c) == index)
+                    .map(|c| Arc::clone(&self.counters[c]))
+                    .collect(),
+            })
+            .collect();
+        OutageMonitor::new(sources, self.history.clone())
+    }
+
+    /// Run until `shutdown` fires; then stop the readers, let analysis drain what
+    /// they read, and write the final registers with status "stopped" (the source
+    /// statuses as they were while running: an orderly stop is not a fault).
+    ///
+    /// Ends early with an error when an output task or the analysis fails.
+    pub async fn run(mut self, mut shutdown: Shutdown) -> Result<(), ServiceError> {
+        self.bind().await?;
+        for warning in self.warnings() {
+            tracing::warn!("{warning}");
+        }
+        self.restore().await;
+        let outage_monitor = self.history.is_enabled().then(|| self.outage_monitor());
+        let Service {
+            config,
+            map,
+            board,
+            commands,
+            command_receiver,
+            counters,
+            health,
+            can_counters,
+            analysis,
+            history,
+            server_listener,
+            metrics_listener,
+            web_listener,
+            liveness,
+            server_counters,
+            plc_attempted,
+            ..
+        } = self;
+        let rod_mill_spans = analysis.rod_mill_spans();
+        // Readers stop on their own signal, after the final source statuses are kept.
+        let (readers_stop, readers_shutdown) = shutdown::channel();
+        let (samples, samples_rx) = mpsc::channel(SAMPLE_QUEUE);
+        let acquisition = Acquisition {
+            counters,
+            health,
+            can: can_counters,
+        };
+        let mut readers = readers::spawn(&config, &acquisition, samples, readers_shutdown);
+        let analysis_task = readers::spawn_analysis(
+            analysis,
+            (samples_rx, command_receiver),
+            &board,
+            Arc::clone(&liveness),
+        );
+        let analysis_maps = analysis_task.maps;
+        let mut analysis = analysis_task.task;
+
+        // Outputs stop only after analysis has drained, so the last bite is published.
+        // Each returns what ended it; before the stop, any end is a failure.
+        let (outputs_stop, outputs_shutdown) = shutdown::channel();
+        let wiring = outputs::Wiring {
+            config: &config,
+            map,
+            board: Arc::clone(&board),
+            commands,
+            acquisition,
+            server_counters,
+            plc_attempted: Some(plc_attempted),
+            listeners: outputs::Listeners {
+                server: server_listener,
+                metrics: metrics_listener,
+                web: web_listener,
+            },
+            outage_monitor,
+            rod_mill_spans,
+            plc_counters: Arc::default(),
+            sparkplug: None,
+        };
+        let mut outputs = tokio::task::JoinSet::new();
+        for (name, task) in outputs::tasks(wiring, &outputs_shutdown)? {
+            outputs.spawn(async move { (name, task.await) });
+        }
+        board.update(|results| results.state = GatewayState::Running);
+
+        let mut analysis_ended = None;
+        let failure = tokio::select! {
+            () = shutdown.recv() => None,
+            Some(ended) = outputs.join_next() => Some(output_failure(ended)),
+            ended = &mut analysis => {
+                let failure = match &ended {
+                    Ok(()) => ServiceError::Ended,
+                    Err(error) => ServiceError::Output {
+                        output: "analysis",
+                        reason: error.to_string(),
+                    },
+                };
+                analysis_ended = Some(ended);
+                Some(failure)
+            }
+        };
+        if let Some(failure) = &failure {
+            tracing::error!(%failure, "stopping the service");
+        }
+        board.freeze_health();
+        readers_stop.trigger();
+        while readers.join_next().await.is_some() {}
+        analysis_maps.cancel();
+        let analysis_ended = match analysis_ended {
+            Some(ended) => ended,
+            None => analysis.await,
+        };
+        if let Err(error) = analysis_ended {
+            tracing::error!(%error, "analysis task failed");
+        }
+        outputs_stop.trigger();
+        while let Some(ended) = outputs.join_next().await {
+            if let Ok((output, Err(reason))) = ended {
+                tracing::error!(output, %reason, "output failed");
+            }
+        }
+        board.update(|results| results.state = GatewayState::Stopped);
+        // Last: the writer commits what analysis and the outputs recorded.
+        if tokio::task::spawn_blocking(move || history.close())
+            .await
+            .is_err()
+        {
+            tracing::error!("closing the history failed");
+        }
+        tracing::info!("stopped");
+        failure.map_or(Ok(()), Err)
+    }
+}
+
+/// The error of an output task that ended while the service ran.
+fn output_failure(
+    ended: Result<(&'static str, Result<(), String>), tokio::task::JoinError>,
+) -> ServiceError {
+    match ended {
+        Ok((output, Err(reason))) => ServiceError::Output { output, reason },
+        Ok((output, Ok(()))) => ServiceError::Output {
+            output,
+            reason: "it ended on its own".into(),
+        },
+        Err(error) => ServiceError::Output {
+            output: "an output task",
+            reason: error.to_string(),
+        },
+    }
+}
+
+/// Run the gateway for `config` until `shutdown` fires.
+pub async fn run(config: Config, shutdown: Shutdown) -> Result<(), ServiceError> {
+    Service::new(config)?.run(shutdown).await
+}

@@ -1,0 +1,164 @@
+//! The service's input side: the sources' health, the reader tasks (one per Modbus
+//! source, one supervised reader per CAN source) and the analysis task with the gap map
+//! builds it installs.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+use millgate_config::{Config, SourceRef};
+use tokio::sync::mpsc;
+use tokio::task::{JoinHandle, JoinSet};
+
+use crate::analysis::gap_monitor::spawn_job;
+use crate::analysis::Analysis;
+use crate::field::acquired::Acquired;
+use crate::field::can::supervisor::supervise_can;
+use crate::field::modbus::DaqReader;
+use crate::field::source_health::SourceHealth;
+use crate::outputs::metrics::Acquisition;
+use crate::shutdown::Shutdown;
+use crate::state::board::Board;
+use crate::state::commands::CommandReceiver;
+use crate::state::gap_maps::GapMapState;
+use crate::supervision::Liveness;
+
+/// The health of Modbus source `index` of `config`: stale after three poll periods,
+/// two timeouts or two periods of its slowest full block (new data is what keeps a
+/// source fresh), whichever is longest; lost after five times that or 5 s.
+fn modbus_health(config: &Config, index: usize) -> SourceHealth {
+    let source = &config.modbus_sources[index];
+    let slowest_block = config
+        .channels
+        .iter()
+        .filter_map(|channel| match channel.source {
+            millgate_config::ChannelSource::ModbusBlock { source, .. } if source == index => {
+                Some(Duration::from_secs_f64(
+                    f64::from(millgate_config::layout::MAX_BLOCK_SAMPLES) / channel.sample_rate_hz,
+                ))
+            }
+            _ => None,
+        })
+        .max()
+        .unwrap_or_default();
+    let stale_after = (source.poll_period * 3)
+        .max(source.timeout * 2)
+        .max(slowest_block * 2);
+    SourceHealth::new(stale_after, (stale_after * 5).max(Duration::from_secs(5)))
+}
+
+/// A health record per source of `config`, in the order of [`Config::sources`]: a CAN
+/// source is stale after 1 s without a frame, lost after 5 s.
+pub(super) fn source_health(config: &Config) -> Vec<Arc<SourceHealth>> {
+    let mut modbus = 0;
+    config
+        .sources()
+        .map(|source| match source {
+            SourceRef::Modbus(_) => {
+                modbus += 1;
+                Arc::new(modbus_health(config, modbus - 1))
+            }
+            SourceRef::Can(_) => Arc::new(SourceHealth::new(
+                Duration::from_secs(1),
+                Duration::from_secs(5),
+            )),
+        })
+        .collect()
+}
+
+/// Start a reader per source, sending on `samples`, until `shutdown`.
+pub(super) fn spawn(
+    config: &Config,
+    acquisition: &Acquisition,
+    samples: mpsc::Sender<Acquired>,
+    shutdown: Shutdown,
+) -> JoinSet<()> {
+    let mut readers = JoinSet::new();
+    let shared = Arc::new(config.clone());
+    let (mut modbus, mut can) = (0, 0);
+    for (index, source) in config.sources().enumerate() {
+        let health = Arc::clone(&acquisition.health[index]);
+        match source {
+            SourceRef::Modbus(source) => {
+                let reader = DaqReader::new(config, modbus, &acquisition.counters, health);
+                tracing::info!(source = %source.name, address = %source.address, "starting DaqReader");
+                readers.spawn(reader.run(samples.clone(), shutdown.clone()));
+                modbus += 1;
+            }
+            SourceRef::Can(source) => {
+                tracing::info!(source = %source.name, interface = %source.interface, "starting CanReader");
+                readers.spawn(supervise_can(
+                    Arc::clone(&shared),
+                    can,
+                    health,
+                    Arc::clone(&acquisition.can[can]),
+                    samples.clone(),
+                    shutdown.clone(),
+                ));
+                can += 1;
+            }
+        }
+    }
+    readers
+}
+
+/// The analysis task and the gap map builds it waits for.
+pub(super) struct AnalysisTask {
+    /// The task: it ends once every reader has hung up.
+    pub(super) task: JoinHandle<()>,
+    /// The builds.
+    pub(super) maps: MapBuilds,
+}
+
+/// The gap map builds running on threads of their own.
+pub(super) struct MapBuilds(Arc<AtomicBool>);
+
+impl MapBuilds {
+    /// Stop the builds still running.
+    pub(super) fn cancel(&self) {
+        self.0.store(true, Ordering::Relaxed);
+    }
+}
+
+/// Start `analysis` on the readers' `samples` and the `commands`, and the gap map
+/// builds of its drivelines on threads of their own (read from the cache or built
+/// while the service runs; the analysis installs them as they come, `board` shows
+/// their progress).
+pub(super) fn spawn_analysis(
+    mut analysis: Analysis,
+    (samples, commands): (mpsc::Receiver<Acquired>, CommandReceiver),
+    board: &Arc<Board>,
+    liveness: Arc<Liveness>,
+) -> AnalysisTask {
+    let jobs = analysis.take_gap_map_jobs();
+    let (maps_tx, maps_rx) = mpsc::channel(jobs.len().max(1));
+    let cancel_maps = Arc::new(AtomicBool::new(false));
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    for job in jobs {
+        let driveline = job.driveline_name.clone();
+        let index = job.driveline;
+        let progress = {
+            let board = Arc::clone(board);
+            move |done, total| board.set_gap_maps(index, GapMapState::Building { done, total })
+        };
+        let spawned = spawn_job(
+            job,
+            threads,
+            maps_tx.clone(),
+            Arc::clone(&cancel_maps),
+            progress,
+        );
+        if let Err(error) = spawned {
+            tracing::error!(%driveline, %error, "cannot start the gap map build");
+            board.set_gap_maps(
+                index,
+                GapMapState::Failed(format!("cannot start the gap map build: {error}")),
+            );
+        }
+    }
+    drop(maps_tx);
+    AnalysisTask {
+        task: tokio::spawn(analysis.run(samples, maps_rx, commands, liveness)),
+        maps: MapBuilds(cancel_maps),
+    }
+}

@@ -1,0 +1,333 @@
+//! The history's sending side: the handle the analysis, the board (commands) and the
+//! outage monitor record events through, and the counters its writer keeps.
+//!
+//! [`History::record`] puts an event on a bounded queue with `try_send` and never
+//! waits (a full queue drops the event and counts it). The writer thread
+//! ([`crate::outputs::history`]) owns the file; an event counts as stored only once
+//! its transaction has committed: [`History::stored`] counts those,
+//! [`History::wait_settled`] waits until every event recorded so far is committed or
+//! known dropped. The PLC writer waits for that (bounded) before each write, so a bite
+//! the PLC has seen is in the file.
+
+use std::sync::atomic::{AtomicU64, AtomicU8, Ordering};
+use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TrySendError};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use super::events::HistoryEvent;
+use super::time;
+
+/// Events in flight to the writer. A bite every second on ten drivelines fills it in
+/// minutes, not seconds: enough to ride out a slow commit (a busy SD card), small
+/// enough (a few MiB) to bound memory when the store is stuck.
+pub const QUEUE_CAPACITY: usize = 4096;
+
+/// What the history is doing, for `/metrics` and the log.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum HistoryState {
+    /// No `[history]` configured.
+    Disabled,
+    /// The last batch committed (or nothing was written yet and the file is open).
+    Ok,
+    /// The last batch or the last open failed: see [`HistoryStatus::last_error`].
+    Failing,
+}
+
+impl HistoryState {
+    /// Gauge value: 0 disabled, 1 ok, 2 failing.
+    pub fn code(self) -> u8 {
+        match self {
+            HistoryState::Disabled => 0,
+            HistoryState::Ok => 1,
+            HistoryState::Failing => 2,
+        }
+    }
+
+    fn from_code(code: u8) -> Self {
+        match code {
+            1 => HistoryState::Ok,
+            2 => HistoryState::Failing,
+            _ => HistoryState::Disabled,
+        }
+    }
+}
+
+/// A snapshot of the history's counters.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HistoryStatus {
+    /// Disabled, ok or failing.
+    pub state: HistoryState,
+    /// Events handed to the writer.
+    pub enqueued: u64,
+    /// Events committed to the file.
+    pub stored: u64,
+    /// Events dropped because the queue was full.
+    pub dropped_queue_full: u64,
+    /// Events dropped because the file could not take them (open or commit failed).
+    pub dropped_error: u64,
+    /// Transactions committed.
+    pub commits: u64,
+    /// Sum of commit durations (the transaction from BEGIN to COMMIT), s.
+    pub commit_seconds_sum: f64,
+    /// Longest commit since start, s.
+    pub commit_seconds_max: f64,
+    /// Rows deleted by the retention.
+    pub retention_deleted: u64,
+    /// File size at the last retention check, bytes (0 before the first).
+    pub file_bytes: u64,
+    /// The last error, with its time (UTC), while the state is failing or since.
+    pub last_error: Option<(time::UtcTime, String)>,
+}
+
+/// Counters shared by the handle and the writer thread.
+#[derive(Debug, Default)]
+pub(crate) struct Counters {
+    state: AtomicU8,
+    enqueued: AtomicU64,
+    stored: AtomicU64,
+    dropped_queue_full: AtomicU64,
+    dropped_error: AtomicU64,
+    commits: AtomicU64,
+    commit_ns_sum: AtomicU64,
+    commit_ns_max: AtomicU64,
+    retention_deleted: AtomicU64,
+    file_bytes: AtomicU64,
+    last_error: Mutex<Option<(time::UtcTime, String)>>,
+}
+
+impl Counters {
+    pub(crate) fn set_state(&self, state: HistoryState) {
+        self.state.store(state.code(), Ordering::Relaxed);
+    }
+
+    pub(crate) fn state(&self) -> HistoryState {
+        HistoryState::from_code(self.state.load(Ordering::Relaxed))
+    }
+
+    pub(crate) fn set_error(&self, message: String) {
+        *crate::lock(&self.last_error) = Some((time::UtcTime::now(), message));
+        self.set_state(HistoryState::Failing);
+    }
+
+    pub(crate) fn committed(&self, events: u64, took: Duration) {
+        let ns = u64::try_from(took.as_nanos()).unwrap_or(u64::MAX);
+        self.stored.fetch_add(events, Ordering::Relaxed);
+        self.commits.fetch_add(1, Ordering::Relaxed);
+        self.commit_ns_sum.fetch_add(ns, Ordering::Relaxed);
+        self.commit_ns_max.fetch_max(ns, Ordering::Relaxed);
+    }
+
+    pub(crate) fn dropped(&self, events: u64) {
+        self.dropped_error.fetch_add(events, Ordering::Relaxed);
+    }
+
+    /// Events dropped because the file could not take them, so far.
+    pub(crate) fn dropped_errors(&self) -> u64 {
+        self.dropped_error.load(Ordering::Relaxed)
+    }
+
+    pub(crate) fn retention(&self, deleted: u64, file_bytes: u64) {
+        self.retention_deleted.fetch_add(deleted, Ordering::Relaxed);
+        self.file_bytes.store(file_bytes, Ordering::Relaxed);
+    }
+}
+
+/// The queue's sending end and the count of events put on it, changed together so
+/// that the count orders events as the queue does.
+#[derive(Debug)]
+struct Queue {
+    sender: Option<SyncSender<HistoryEvent>>,
+    enqueued: u64,
+}
+
+/// What the writer thread takes from the handle when the file is opened.
+#[derive(Debug)]
+pub(crate) struct WriterEnds {
+    /// The history's settings.
+    pub(crate) config: millgate_config::History,
+    /// The queue's receiving end.
+    pub(crate) receiver: Receiver<HistoryEvent>,
+    /// Events settled (committed or dropped), in queue order.
+    pub(crate) settled: tokio::sync::watch::Sender<u64>,
+}
+
+#[derive(Debug)]
+struct Shared {
+    queue: Mutex<Queue>,
+    counters: Arc<Counters>,
+    /// Events settled (committed or dropped by the writer), in queue order.
+    settled: tokio::sync::watch::Receiver<u64>,
+    /// The writer's ends until the writer side takes them.
+    pending: Mutex<Option<WriterEnds>>,
+    writer: Mutex<Option<std::thread::JoinHandle<()>>>,
+    /// When a full queue was last logged (one warning per minute at most).
+    full_logged: Mutex<Option<Instant>>,
+}
+
+/// The handle everything records through; cheap to clone. A disabled history (no
+/// `[history]`) takes every event and does nothing with it.
+#[derive(Debug, Clone)]
+pub struct History {
+    shared: Arc<Shared>,
+}
+
+impl History {
+    /// A history that records nothing.
+    pub fn disabled() -> Self {
+        Self::new(None)
+    }
+
+    /// The history of `config` (disabled for `None`): events are queued from now on
+    /// and written once [`crate::outputs::history::start`] has opened the file. No file is touched here
+    /// (`millgate check` builds this too).
+    pub fn new(config: Option<&millgate_config::History>) -> Self {
+        let counters = Arc::new(Counters::default());
+        let (settled_tx, settled) = tokio::sync::watch::channel(0);
+        let (sender, pending) = match config {
+            Some(config) => {
+                counters.set_state(HistoryState::Ok);
+                let (sender, receiver) = sync_channel(QUEUE_CAPACITY);
+                let pending = WriterEnds {
+                    config: config.clone(),
+                    receiver,
+                    settled: settled_tx,
+                };
+                (Some(sender), Some(pending))
+            }
+            None => (None, None),
+        };
+        Self {
+            shared: Arc::new(Shared {
+                queue: Mutex::new(Queue {
+                    sender,
+                    enqueued: 0,
+                }),
+                counters,
+                settled,
+                pending: Mutex::new(pending),
+                writer: Mutex::new(None),
+                full_logged: Mutex::new(None),
+            }),
+        }
+    }
+
+    /// The writer's ends (the queue's receiving end, the settled count), once: the
+    /// history's writer side ([`crate::outputs::history::start`]) takes them when it
+    /// opens the file; `None` when disabled or taken before.
+    pub(crate) fn take_writer_ends(&self) -> Option<WriterEnds> {
+        crate::lock(&self.shared.pending).take()
+    }
+
+    /// The counters the writer updates.
+    pub(crate) fn counters(&self) -> Arc<Counters> {
+        Arc::clone(&self.shared.counters)
+    }
+
+    /// The writer thread, joined by [`Self::close`]; `None` when it could not start
+    /// (then nothing more is taken: every later event is dropped and counted).
+    pub(crate) fn set_writer(&self, writer: Option<std::thread::JoinHandle<()>>) {
+        match writer {
+            Some(handle) => *crate::lock(&self.shared.writer) = Some(handle),
+            None => crate::lock(&self.shared.queue).sender = None,
+        }
+    }
+
+    /// Hand `event` to the writer without waiting; `false` when it was dropped (the
+    /// queue is full, or the history is disabled or closed).
+    pub fn record(&self, event: HistoryEvent) -> bool {
+        let mut queue = crate::lock(&self.shared.queue);
+        let Some(sender) = queue.sender.as_ref() else {
+            return false;
+        };
+        match sender.try_send(event) {
+            Ok(()) => {
+                queue.enqueued += 1;
+                self.shared
+                    .counters
+                    .enqueued
+                    .store(queue.enqueued, Ordering::Relaxed);
+                true
+            }
+            Err(TrySendError::Full(_)) => {
+                drop(queue);
+                self.shared
+                    .counters
+                    .dropped_queue_full
+                    .fetch_add(1, Ordering::Relaxed);
+                let mut logged = crate::lock(&self.shared.full_logged);
+                if logged.is_none_or(|at| at.elapsed() > Duration::from_secs(60)) {
+                    *logged = Some(Instant::now());
+                    tracing::warn!(
+                        capacity = QUEUE_CAPACITY,
+                        "history queue full: events dropped (the writer is stuck or too slow)"
+                    );
+                }
+                false
+            }
+            Err(TrySendError::Disconnected(_)) => {
+                self.shared.counters.dropped(1);
+                false
+            }
+        }
+    }
+
+    /// Whether events are kept (a `[history]` is configured).
+    pub fn is_enabled(&self) -> bool {
+        self.shared.counters.state() != HistoryState::Disabled
+    }
+
+    /// Events handed to the writer so far.
+    pub fn enqueued(&self) -> u64 {
+        crate::lock(&self.shared.queue).enqueued
+    }
+
+    /// Events committed to the file so far.
+    pub fn stored(&self) -> u64 {
+        self.shared.counters.stored.load(Ordering::Relaxed)
+    }
+
+    /// Wait until the first `through` events recorded are settled (committed, or
+    /// dropped by a failing writer), at most `limit`; returns whether they are. Returns
+    /// at once when the history is disabled or failing: the PLC must not wait on a
+    /// store that cannot take its events.
+    pub async fn wait_settled(&self, through: u64, limit: Duration) -> bool {
+        if self.shared.counters.state() != HistoryState::Ok {
+            return true;
+        }
+        let mut settled = self.shared.settled.clone();
+        let reached = tokio::time::timeout(limit, settled.wait_for(|&n| n >= through)).await;
+        matches!(reached, Ok(Ok(_)))
+    }
+
+    /// The counters, for `/metrics`.
+    pub fn status(&self) -> HistoryStatus {
+        let c = &self.shared.counters;
+        let load = |counter: &AtomicU64| counter.load(Ordering::Relaxed);
+        HistoryStatus {
+            state: c.state(),
+            enqueued: load(&c.enqueued),
+            stored: load(&c.stored),
+            dropped_queue_full: load(&c.dropped_queue_full),
+            dropped_error: load(&c.dropped_error),
+            commits: load(&c.commits),
+            commit_seconds_sum: load(&c.commit_ns_sum) as f64 * 1e-9,
+            commit_seconds_max: load(&c.commit_ns_max) as f64 * 1e-9,
+            retention_deleted: load(&c.retention_deleted),
+            file_bytes: load(&c.file_bytes),
+            last_error: crate::lock(&c.last_error).clone(),
+        }
+    }
+
+    /// Stop taking events, let the writer commit what is queued, record the stop and
+    /// close the file; waits for the writer thread (blocking: call it from a blocking
+    /// task in async code). Later [`Self::record`]s are dropped.
+    pub fn close(&self) {
+        crate::lock(&self.shared.queue).sender = None;
+        let handle = crate::lock(&self.shared.writer).take();
+        if let Some(handle) = handle {
+            if handle.join().is_err() {
+                tracing::error!("the history writer thread panicked");
+            }
+        }
+    }
+}

@@ -1,0 +1,479 @@
+//! `millgate report` and `millgate history` on two weeks of bites of two drivelines
+//! (a bite every 30 s: 80 636), written through the gateway's own writer inserts:
+//! the report's plots are time buckets and binned cells, not a mark per bite, its
+//! driveline table has the gap columns the file holds, a run killed without a stop
+//! counts as running only until its last recorded event, and both commands stay in
+//! bounded memory (GNU time's peak RSS) and show progress only on a terminal
+//! (`script` gives them one). Another application's SQLite file is refused.
+//! Independent readings of the file come from Debian's `sqlite3`.
+#![cfg(feature = "plot")]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+
+use millgate::outputs::history::schema::APPLICATION_ID;
+use millgate::outputs::history::writer;
+use millgate::outputs::history::{DrivelineSettings, RunInfo};
+use millgate::state::events::{BiteRecord, GapEstimate, HistoryEvent, WearState};
+use millgate::state::results::DrivelineResults;
+use millgate::state::time::UtcTime;
+
+const DAY_MS: i64 = 86_400_000;
+const WEEK_MS: f64 = 7.0 * 86_400_000.0;
+/// Days of bites, the bite period, the day the first run stops.
+const DAYS: i64 = 14;
+const EVERY_MS: i64 = 30_000;
+const FIRST_RUN_DAYS: i64 = 7;
+/// The gap opens at exactly this rate from 0.5 mrad: the report's trend must say it.
+const GROWTH_MRAD_PER_WEEK: f64 = 0.2;
+/// The report's period ends this long after the last bite.
+const AFTER_LAST_MS: i64 = 5 * DAY_MS;
+
+fn millgate(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_millgate"))
+        .args(args)
+        .output()
+        .expect("run millgate")
+}
+
+/// `millgate args` under GNU time: its output and its peak RSS in KiB (`None` when
+/// /usr/bin/time is missing; scripts/test installs it).
+fn millgate_measured(args: &[&str]) -> (Output, Option<u64>) {
+    if !Path::new("/usr/bin/time").is_file() {
+        eprintln!("/usr/bin/time missing (apt install time): peak RSS not checked");
+        return (millgate(args), None);
+    }
+    let report = std::env::temp_dir().join(format!(
+        "millgate-report-rss-{}-{}",
+        std::process::id(),
+        args[0]
+    ));
+    let output = Command::new("/usr/bin/time")
+        .arg("-f")
+        .arg("%M")
+        .arg("-o")
+        .arg(&report)
+        .arg(env!("CARGO_BIN_EXE_millgate"))
+        .args(args)
+        .output()
+        .expect("run millgate under /usr/bin/time");
+    let kib = std::fs::read_to_string(&report)
+        .ok()
+        .and_then(|text| text.trim().parse().ok());
+    let _ = std::fs::remove_file(&report);
+    (output, kib)
+}
+
+fn sqlite3(db: &Path, sql: &str) -> String {
+    let output = Command::new("sqlite3")
+        .arg("-readonly")
+        .arg(db)
+        .arg(sql)
+        .output()
+        .expect("Debian's sqlite3 (apt install sqlite3)");
+    assert!(output.status.success(), "{output:?}");
+    String::from_utf8(output.stdout).unwrap().trim().to_owned()
+}
+
+struct Scratch(PathBuf);
+
+impl Scratch {
+    fn new(name: &str) -> Self {
+        let dir = std::env::temp_dir().join(format!(
+            "millgate-history-report-{}-{name}",
+            std::process::id()
+        ));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        Self(dir)
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+fn start() -> UtcTime {
+    UtcTime::parse("2026-02-01T00:00:00Z").unwrap()
+}
+
+/// A deterministic value in [0, 1).
+fn unit(n: u64) -> f64 {
+    let x = n
+        .wrapping_mul(6_364_136_223_846_793_005)
+        .wrapping_add(1_442_695_040_888_963_407);
+    (x >> 11) as f64 / (1u64 << 53) as f64
+}
+
+fn bite(driveline: &str, n: u32, time_ms: i64) -> HistoryEvent {
+    let weeks = (time_ms - start().unix_ms()) as f64 / WEEK_MS;
+    let gap_mrad = 0.5 + GROWTH_MRAD_PER_WEEK * weeks;
+    let degraded = n.is_multiple_of(211);
+    let static_torque_knm = 300.0 + 300.0 * unit(u64::from(n) * 3);
+    let taf = 1.2 + 0.05 * gap_mrad + 0.1 * unit(u64::from(n) * 7) - 1e-4 * static_torque_knm;
+    HistoryEvent::Bite(Box::new(BiteRecord {
+        driveline: driveline.into(),
+        channel: "spindle".into(),
+        time: UtcTime::from_unix_ms(time_ms),
+        static_torque_knm,
+        peak_torque_knm: taf * static_torque_knm,
+        taf: Some(taf),
+        first_period_s: Some(0.05),
+        second_period_s: Some(0.048),
+        period_shift_s: Some(0.002),
+        beta_hz: None,
+        quality: "good",
+        degraded,
+        reference_taf: Some(1.25),
+        reference_level_knm: Some(400.0),
+        shift_over_linear_s: None,
+        gap: Some(GapEstimate {
+            gap_mrad,
+            gap_low_mrad: gap_mrad - 0.4,
+            gap_high_mrad: gap_mrad + 0.5,
+            coupling: Some(1),
+            bites_pooled: 200,
+            state: WearState::Ok,
+            alarm_latched: false,
+        }),
+        pooled: None,
+        extra_state: None,
+        state: DrivelineResults {
+            bite_counter: n,
+            taf: Some(taf),
+            wear_index: (!degraded).then_some(taf / 1.25 - 1.0),
+            wear_trend: Some(0.001 * f64::from(n % 1000)),
+            ..DrivelineResults::default()
+        },
+    }))
+}
+
+fn run_info() -> RunInfo {
+    RunInfo {
+        version: "test".into(),
+        config_name: "report test mill".into(),
+        drivelines: ["F1", "F2"]
+            .map(|name| DrivelineSettings {
+                name: name.into(),
+                taf_warning: 1.6,
+                taf_alarm: 1.9,
+                model: None,
+                gap_warning_mrad: Some(4.0),
+                gap_alarm_mrad: Some(6.0),
+            })
+            .to_vec(),
+    }
+}
+
+/// Two weeks of bites of F1 and F2 every 30 s: a first run stopped cleanly after
+/// 7 days, a second run killed (no stop recorded) after the last bite. Returns the
+/// file and the last bite's time.
+fn write_history(folder: &Path) -> (PathBuf, UtcTime) {
+    let path = folder.join("history.db");
+    let mut connection = writer::connect(&path).unwrap();
+    let stop_ms = start().unix_ms() + FIRST_RUN_DAYS * DAY_MS;
+    let second_ms = stop_ms + 60_000;
+    let transaction = connection.transaction().unwrap();
+    let mut run_id = writer::insert_run(&transaction, start(), &run_info()).unwrap();
+    let mut counters = [0u32; 2];
+    let mut time_ms = start().unix_ms();
+    let end_ms = start().unix_ms() + DAYS * DAY_MS;
+    let mut last = start();
+    while time_ms < end_ms {
+        if time_ms >= stop_ms && run_id == 1 {
+            transaction
+                .execute(
+                    "UPDATE gateway_runs SET stopped_at = ?1, ended = 'stopped' WHERE id = 1",
+                    [UtcTime::from_unix_ms(stop_ms).to_string()],
+                )
+                .unwrap();
+            time_ms = time_ms.max(second_ms);
+            run_id =
+                writer::insert_run(&transaction, UtcTime::from_unix_ms(second_ms), &run_info())
+                    .unwrap();
+        }
+        for (k, name) in ["F1", "F2"].iter().enumerate() {
+            counters[k] += 1;
+            let at = time_ms + 7_500 * k as i64;
+            writer::insert(&transaction, run_id, &bite(name, counters[k], at)).unwrap();
+            last = UtcTime::from_unix_ms(at);
+        }
+        time_ms += EVERY_MS;
+    }
+    transaction.commit().unwrap();
+    (path, last)
+}
+
+/// The row of `driveline` in the report's driveline table.
+fn table_row<'a>(md: &'a str, driveline: &str) -> Vec<&'a str> {
+    md.lines()
+        .find(|line| line.starts_with(&format!("| {driveline} |")))
+        .unwrap_or_else(|| panic!("no row for {driveline}: {md}"))
+        .trim_matches('|')
+        .split('|')
+        .map(str::trim)
+        .collect()
+}
+
+/// A percentage the report prints after `prefix`.
+fn percent_after(text: &str, prefix: &str) -> f64 {
+    let at = text
+        .find(prefix)
+        .unwrap_or_else(|| panic!("{prefix}: {text}"))
+        + prefix.len();
+    text[at..]
+        .split('%')
+        .next()
+        .and_then(|number| number.trim().parse().ok())
+        .unwrap_or_else(|| panic!("a percentage after {prefix}: {text}"))
+}
+
+#[test]
+fn report_of_two_weeks_of_bites_plots_buckets_and_cells_and_counts_a_killed_run_honestly() {
+    let scratch = Scratch::new("report");
+    let (db, last) = write_history(&scratch.0);
+    let db_arg = db.to_str().unwrap();
+    let until = UtcTime::from_unix_ms(last.unix_ms() + AFTER_LAST_MS);
+    let out = scratch.0.join("report");
+    let (output, peak_kib) = millgate_measured(&[
+        "report",
+        "--db",
+        db_arg,
+        "--out",
+        out.to_str().unwrap(),
+        "--until",
+        &until.to_string(),
+    ]);
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    // Not a terminal: no progress on stderr.
+    assert!(
+        output.stderr.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let bites: u64 = sqlite3(&db, "SELECT count(*) FROM bites").parse().unwrap();
+    assert!(bites > 80_000, "{bites} bites");
+    // Bounded memory: the old report held every bite and an SVG element per bite
+    // (some 1.7 KB a bite: 140 MB here).
+    if let Some(kib) = peak_kib {
+        assert!(
+            kib < 100 * 1024,
+            "report peak RSS {kib} KiB for {bites} bites"
+        );
+    }
+
+    // Plots reduced to what a reader can see: no mark per bite.
+    for name in ["F1", "F2"] {
+        let time = std::fs::read_to_string(out.join(format!("{name}-time.svg"))).unwrap();
+        let taf = std::fs::read_to_string(out.join(format!("{name}-taf.svg"))).unwrap();
+        assert_eq!(time.matches("<circle").count(), 0, "{name}-time.svg");
+        assert!(
+            time.len() < 400_000,
+            "{name}-time.svg: {} bytes",
+            time.len()
+        );
+        // At most a cell per 180 x 90 (clean) and a dot per cell (degraded).
+        assert!(
+            taf.matches("<rect").count() <= 180 * 90 + 50,
+            "{name}-taf.svg"
+        );
+        assert!(
+            taf.matches("<circle").count() <= 180 * 90 + 10,
+            "{name}-taf.svg"
+        );
+        assert!(taf.len() < 2_000_000, "{name}-taf.svg: {} bytes", taf.len());
+    }
+    let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    assert!(html.len() < 5_000_000, "report.html: {} bytes", html.len());
+    assert!(
+        html.contains("<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"),
+        "viewport"
+    );
+
+    // The driveline table: counts and the gap columns against the file.
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    for name in ["F1", "F2"] {
+        let row = table_row(&md, name);
+        let count = sqlite3(
+            &db,
+            &format!("SELECT count(*) FROM bites WHERE driveline = '{name}'"),
+        );
+        let degraded = sqlite3(
+            &db,
+            &format!("SELECT count(*) FROM bites WHERE driveline = '{name}' AND degraded"),
+        );
+        assert_eq!(
+            (row[1], row[2]),
+            (count.as_str(), degraded.as_str()),
+            "{row:?}"
+        );
+        let max = sqlite3(
+            &db,
+            &format!(
+                "SELECT printf('%.3f', max(taf)) FROM bites WHERE driveline = '{name}' \
+                 AND NOT degraded"
+            ),
+        );
+        assert_eq!(row[5], max, "{row:?}");
+        let last_gap = sqlite3(
+            &db,
+            &format!(
+                "SELECT printf('%.2f|%.2f..%.2f|%s', gap_mrad, gap_low_mrad, gap_high_mrad, \
+                 gap_coupling) FROM bites WHERE driveline = '{name}' ORDER BY time DESC LIMIT 1"
+            ),
+        );
+        assert_eq!(row[9..12].join("|"), last_gap, "{row:?}");
+        // The gap opened at exactly 0.2 mrad/week.
+        assert_eq!(row[12], "+0.200", "{row:?}");
+    }
+
+    // The killed run counts as running until its last bite, not to the period's end;
+    // what follows is said to be unknown.
+    let period_ms = (until.unix_ms() - start().unix_ms()) as f64;
+    let second_ms = start().unix_ms() + FIRST_RUN_DAYS * DAY_MS + 60_000;
+    let up_ms = (FIRST_RUN_DAYS * DAY_MS + (last.unix_ms() - second_ms)) as f64;
+    let ran = percent_after(&md, "The gateway ran ");
+    assert!(
+        (ran - 100.0 * up_ms / period_ms).abs() < 0.06,
+        "{ran}: {md}"
+    );
+    assert!(
+        md.contains("(2 runs, 0 ended uncleanly). 1 run(s) have no recorded stop"),
+        "{md}"
+    );
+    let unknown = percent_after(&md, "the next start or the period's end, ");
+    assert!(
+        (unknown - 100.0 * AFTER_LAST_MS as f64 / period_ms).abs() < 0.06,
+        "{unknown}: {md}"
+    );
+    let availability = std::fs::read_to_string(out.join("availability.svg")).unwrap();
+    assert!(
+        availability.contains("#BEBEBE"),
+        "the unknown span drawn grey"
+    );
+}
+
+#[test]
+fn history_streams_two_weeks_of_bites_quits_quietly_on_a_closed_pipe_and_shows_progress_on_a_terminal(
+) {
+    let scratch = Scratch::new("history");
+    let (db, _) = write_history(&scratch.0);
+    let db_arg = db.to_str().unwrap();
+    let (output, peak_kib) = millgate_measured(&["history", "--db", db_arg, "--format", "json"]);
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    assert!(
+        output.stderr.is_empty(),
+        "no progress when stderr is not a terminal"
+    );
+    let count: usize = sqlite3(&db, "SELECT count(*) FROM bites").parse().unwrap();
+    // One object per line between the brackets.
+    let text = String::from_utf8(output.stdout).unwrap();
+    assert_eq!(text.lines().count(), count + 2);
+    let rows: Vec<serde_json::Value> = serde_json::from_str(&text).unwrap();
+    assert_eq!(rows.len(), count);
+    assert_eq!(
+        rows.last().unwrap()["id"].as_i64().map(|id| id.to_string()),
+        Some(sqlite3(&db, "SELECT max(id) FROM bites"))
+    );
+    // The old export held every row and the whole text: some 200 MB here.
+    if let Some(kib) = peak_kib {
+        assert!(
+            kib < 64 * 1024,
+            "history peak RSS {kib} KiB for {count} rows"
+        );
+    }
+
+    // A reader that stops early (`| head`): the export ends without an error.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_millgate"))
+        .args(["history", "--db", db_arg, "--format", "csv"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut head = [0u8; 4096];
+    std::io::Read::read_exact(child.stdout.as_mut().unwrap(), &mut head).unwrap();
+    drop(child.stdout.take());
+    let ended = child.wait_with_output().unwrap();
+    assert!(ended.status.success(), "{ended:?}");
+    assert!(
+        ended.stderr.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&ended.stderr)
+    );
+
+    // On a terminal (script's pseudo-terminal), the last progress line says the total.
+    let terminal = Command::new("script")
+        .args(["-qec"])
+        .arg(format!(
+            "{} history --db {db_arg} --format csv > /dev/null",
+            env!("CARGO_BIN_EXE_millgate")
+        ))
+        .arg("/dev/null")
+        .output()
+        .expect("script (bsdutils)");
+    let shown = String::from_utf8_lossy(&terminal.stdout);
+    assert!(terminal.status.success(), "{shown}");
+    assert!(
+        shown.contains(&format!("history: {count} rows of bites in ")),
+        "{shown}"
+    );
+}
+
+#[test]
+fn another_application_s_sqlite_file_is_refused_and_a_new_history_is_marked() {
+    let scratch = Scratch::new("foreign");
+    let foreign = scratch.0.join("notes.db");
+    sqlite_write(
+        &foreign,
+        "PRAGMA application_id = 1598902094; CREATE TABLE notes (x); INSERT INTO notes VALUES (1);",
+    );
+    let read = millgate(&["history", "--db", foreign.to_str().unwrap()]);
+    let stderr = String::from_utf8_lossy(&read.stderr);
+    assert_eq!(read.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("not a millgate history") && stderr.contains("application_id 0x5f4d4f4e"),
+        "{stderr}"
+    );
+    let error = writer::connect(&foreign).unwrap_err().to_string();
+    assert!(error.contains("not a millgate history"), "{error}");
+    // Left alone: its own table only, no WAL, its rows.
+    assert_eq!(
+        sqlite3(&foreign, "SELECT group_concat(name) FROM sqlite_schema"),
+        "notes"
+    );
+    assert_eq!(sqlite3(&foreign, "PRAGMA journal_mode"), "delete");
+    assert_eq!(sqlite3(&foreign, "SELECT count(*) FROM notes"), "1");
+    // A file without an id but with tables of its own is refused too.
+    let plain = scratch.0.join("plain.db");
+    sqlite_write(&plain, "CREATE TABLE things (x);");
+    let error = writer::connect(&plain).unwrap_err().to_string();
+    assert!(error.contains("not a millgate history"), "{error}");
+
+    // The gateway's new file carries millgate's id, as sqlite3 reads it.
+    let new = scratch.0.join("history.db");
+    drop(writer::connect(&new).unwrap());
+    assert_eq!(
+        sqlite3(&new, "PRAGMA application_id"),
+        APPLICATION_ID.to_string()
+    );
+    assert_eq!(APPLICATION_ID, i64::from_be_bytes(*b"\0\0\0\0MLGT"));
+}
+
+fn sqlite_write(db: &Path, sql: &str) {
+    let output = Command::new("sqlite3")
+        .arg(db)
+        .arg(sql)
+        .output()
+        .expect("Debian's sqlite3");
+    assert!(output.status.success(), "{output:?}");
+}
