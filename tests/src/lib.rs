@@ -1,10 +1,14 @@
 //! Test support for millgate, in one place: the demo's devices sized for a
 //! configuration ([`demo_devices`]), waiting for a condition ([`wait_for`]), scraping
-//! `/metrics` ([`scrape`]), a scripted hostile DAQ ([`hostile_daq`]), the
-//! counting allocator of the zero-allocation tests ([`counting_allocator`]), the chatter
-//! detectors' race ([`chatter_eval`]) and the chatter closed loop ([`chatter_loop`]). A running gateway is started with
-//! `millgate::Service::new(config)?.spawn().await?` ([`millgate::Service::spawn`]);
-//! tolerance comparisons are `millgate_dsp::testing`.
+//! `/metrics` ([`scrape`]), a scripted hostile DAQ ([`hostile_daq`]), the counting
+//! allocator of the zero-allocation tests ([`counting_allocator`]), the chatter
+//! detectors' race ([`chatter_eval`]) and the chatter closed loop offline
+//! ([`chatter_loop`]: the online tandem mill and its automation with the gateway's own
+//! monitor fed each block, the runs of the README's closed-loop table; the real-time
+//! runs through the service are `tests/chatter_loop_e2e.rs` over Modbus and
+//! `tests/vcan.rs` over CAN, on `millgate_sim::devices::tandem_rig`). A running gateway
+//! is started with `millgate::Service::new(config)?.spawn().await?`
+//! ([`millgate::Service::spawn`]); tolerance comparisons are `millgate_dsp::testing`.
 
 pub mod counting_allocator;
 pub mod hostile_daq;
