@@ -281,7 +281,7 @@ fn tandem_example() {
     assert_eq!(mill.reference_band_hz, (450.0, 900.0));
     assert_eq!(mill.gain_window_s, 2.0);
     assert_eq!(mill.gain_thresholds.len(), 5);
-    assert_eq!((mill.slow_down_release, mill.slow_down_hold_s), (0.8, 5.0));
+    assert_eq!((mill.slow_down_release, mill.slow_down_hold_s), (0.88, 5.0));
     let metrics = config.outputs.metrics.as_ref().expect("metrics output");
     assert_eq!(
         metrics.bind.to_string(),

@@ -1200,7 +1200,7 @@ fn chatter_commission_sets_thresholds_that_hold_on_held_out_stable_rolling() {
                     line,
                 )
                 .replace(
-                    "slow_down_release = 0.8",
+                    "slow_down_release = 0.88",
                     &format!("slow_down_release = {release}")
                 )
         ),
