@@ -4,8 +4,8 @@
 //! it and its allowed range), 404 for an unknown driveline or without a history, 503
 //! when the history cannot be read in time.
 //!
-//! [`live`]: the live figures (overview, drivelines) and their server-sent events;
-//! [`history`]: bites, the wear series and alarms from the file; [`maps`]: the gap
+//! `live`: the live figures (overview, drivelines) and their server-sent events;
+//! `history`: bites, the wear series and alarms from the file; `maps`: the gap
 //! maps' curves. This file holds the request plumbing they share.
 
 mod history;
