@@ -19,6 +19,7 @@
 
 use std::path::PathBuf;
 
+#[cfg(feature = "sim-tools")]
 use anyhow::Context;
 use serde::Serialize;
 
