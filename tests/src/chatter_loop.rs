@@ -84,7 +84,7 @@ pub struct LoopPlan {
     pub top: f64,
     /// Request delay, PLC cycles: the automation reads the verdict on the block of
     /// cycle `k` at the start of cycle `k + 1 + delay_cycles`. Through the gateway over
-    /// Modbus the bit was in the PLC's register 25-27 ms after the DAQ published the
+    /// Modbus the bit was in the PLC's register 21-27 ms after the DAQ published the
     /// block and the next scan read it: 1 (`tests/tests/chatter_loop_e2e.rs`).
     pub delay_cycles: usize,
     /// The automation's slow-down (its acceleration and deceleration are drawn per run).
