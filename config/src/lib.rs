@@ -7,6 +7,7 @@ pub mod frame;
 pub mod layout;
 mod parse;
 mod raw;
+pub mod serial;
 mod service_dirs;
 pub mod signal;
 mod summary;
@@ -17,6 +18,7 @@ mod validate;
 use std::path::Path;
 
 pub use error::{ConfigError, Problem};
+pub use serial::{Parity, SerialLine};
 pub use service_dirs::{ServiceDirs, CACHE_DIRECTORY, CREDENTIALS_DIRECTORY, STATE_DIRECTORY};
 pub use summary::summary;
 pub use tls::{TlsFileError, TlsMaterial};

@@ -7,12 +7,19 @@
 
 use serde::Deserialize;
 
-/// `[[sources.modbus]]`: a Modbus TCP device.
+/// `[[sources.modbus]]`: a Modbus TCP device (`address`) or a Modbus RTU device on a
+/// serial line (`device` and the line's settings).
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawModbusSource {
     pub name: String,
-    pub address: String,
+    pub address: Option<String>,
+    pub device: Option<String>,
+    pub baud_rate: Option<i64>,
+    pub parity: Option<String>,
+    pub data_bits: Option<i64>,
+    pub stop_bits: Option<i64>,
+    pub inter_frame_delay_us: Option<i64>,
     pub unit_id: Option<i64>,
     pub poll_period_ms: i64,
     pub timeout_ms: Option<i64>,
@@ -144,6 +151,25 @@ pub(crate) struct RawOutputs {
     pub metrics: Option<RawMetricsOutput>,
     pub mqtt: Option<RawMqttOutput>,
     pub web: Option<RawWebOutput>,
+    pub opcua: Option<RawOpcUaOutput>,
+}
+
+/// `[outputs.opcua]`: the OPC UA server.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawOpcUaOutput {
+    pub bind: Option<String>,
+    pub host: Option<String>,
+    pub security_modes: Option<Vec<String>>,
+    pub pki_dir: Option<String>,
+    pub anonymous: Option<bool>,
+    pub users_file: Option<String>,
+    pub allow_remote_commands: Option<bool>,
+    pub max_connections: Option<i64>,
+    pub max_sessions: Option<i64>,
+    pub max_subscriptions_per_session: Option<i64>,
+    pub max_monitored_items_per_subscription: Option<i64>,
+    pub max_session_timeout_ms: Option<i64>,
 }
 
 /// `[outputs.plc]`.
@@ -183,6 +209,9 @@ pub(crate) struct RawWebOutput {
     pub max_connections: Option<i64>,
     pub header_timeout_ms: Option<i64>,
     pub request_timeout_ms: Option<i64>,
+    pub history_queries: Option<i64>,
+    pub max_event_streams: Option<i64>,
+    pub allowed_hosts: Option<Vec<String>>,
 }
 
 /// `[outputs.mqtt]`: the Sparkplug B edge node.

@@ -27,11 +27,20 @@ pub fn summary(config: &Config) -> String {
     let source_count = config.modbus_sources.len() + config.can_sources.len();
     let _ = writeln!(text, "Sources ({source_count}):");
     for source in &config.modbus_sources {
+        let transport = match &source.serial {
+            None => format!("Modbus TCP {}", source.address),
+            Some(line) => format!(
+                "Modbus RTU {} at {} Bd {}, silence {} us,",
+                source.address,
+                line.baud_rate,
+                line.format(),
+                line.inter_frame_delay.as_micros()
+            ),
+        };
         let _ = writeln!(
             text,
-            "  {}: Modbus TCP {} unit {}, poll every {} ms, timeout {} ms",
+            "  {}: {transport} unit {}, poll every {} ms, timeout {} ms",
             source.name,
-            source.address,
             source.unit_id,
             source.poll_period.as_millis(),
             source.timeout.as_millis()
@@ -206,7 +215,8 @@ pub fn summary(config: &Config) -> String {
         + usize::from(outputs.server.is_some())
         + usize::from(outputs.metrics.is_some())
         + usize::from(outputs.mqtt.is_some())
-        + usize::from(outputs.web.is_some());
+        + usize::from(outputs.web.is_some())
+        + usize::from(outputs.opcua.is_some());
     let _ = writeln!(text, "Outputs ({output_count}):");
     if let Some(plc) = &outputs.plc {
         let _ = writeln!(
@@ -258,6 +268,34 @@ pub fn summary(config: &Config) -> String {
             mqtt.group_id,
             mqtt.node_id,
             mqtt.keep_alive.as_secs()
+        );
+    }
+    if let Some(opcua) = &outputs.opcua {
+        let modes: Vec<_> = opcua.security_modes.iter().map(|m| m.name()).collect();
+        let _ = writeln!(
+            text,
+            "  OPC UA server: {} (listen on {}), security {}, {}{} user(s), at most {} \
+             connections, {} sessions, {} subscriptions per session, {} monitored items per \
+             subscription; certificates in {}; acknowledge from {}",
+            opcua.endpoint_url(),
+            opcua.bind,
+            modes.join(", "),
+            if opcua.anonymous {
+                "anonymous and "
+            } else {
+                ""
+            },
+            opcua.users.len(),
+            opcua.max_connections,
+            opcua.max_sessions,
+            opcua.max_subscriptions_per_session,
+            opcua.max_monitored_items_per_subscription,
+            opcua.pki_dir.display(),
+            if opcua.allow_remote_commands {
+                "loopback clients and signed-in users on any host"
+            } else {
+                "loopback clients only"
+            }
         );
     }
     none_if_empty(&mut text, output_count);

@@ -8,6 +8,8 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration;
 
+use crate::SerialLine;
+
 /// A whole, validated millgate configuration, as returned by [`crate::load`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct Config {
@@ -18,7 +20,7 @@ pub struct Config {
     /// file's folder; without `cache_dir`, `$CACHE_DIRECTORY`; `None` (neither): the
     /// user's cache folder (see the gateway).
     pub cache_dir: Option<PathBuf>,
-    /// Modbus TCP DAQs and PLCs that the gateway polls.
+    /// Modbus DAQs and PLCs that the gateway polls, over TCP or a serial line (RTU).
     pub modbus_sources: Vec<ModbusSource>,
     /// SocketCAN interfaces.
     pub can_sources: Vec<CanSource>,
@@ -91,19 +93,27 @@ impl SourceRef<'_> {
     }
 }
 
-/// A Modbus TCP device polled by the gateway.
+/// A Modbus device polled by the gateway: over TCP, or over a serial line (RTU).
 #[derive(Debug, Clone, PartialEq)]
 pub struct ModbusSource {
     /// Unique among all sources.
     pub name: String,
-    /// `host:port`; resolved at connect time, so a DNS name is kept as written.
+    /// Where the device is. Modbus TCP: `host:port`, resolved at connect time, so a
+    /// DNS name is kept as written. Modbus RTU (`serial` set): the serial device's
+    /// absolute path (the file's `device` key), e.g. `/dev/ttyUSB0`.
     pub address: String,
-    /// Modbus unit identifier (slave id), 0..=255.
+    /// The serial line's settings for a Modbus RTU device (`device` in the file);
+    /// `None` for Modbus TCP (`address`).
+    pub serial: Option<SerialLine>,
+    /// Modbus unit identifier (slave id): 0..=255 over TCP, 1..=247 over RTU (0 is
+    /// the broadcast address, which no device answers).
     pub unit_id: u8,
     /// Time between polls, 1..=60000 ms; shorter than the block period
-    /// (120 samples / sample rate) of every block channel on this source.
+    /// (120 samples / sample rate) of every block channel on this source, and over
+    /// RTU long enough for the line to carry one poll's frames and silences.
     pub poll_period: Duration,
-    /// Time allowed for one request/response, 1..=60000 ms (default 1000 ms).
+    /// Time allowed for one request/response (over RTU the response timeout),
+    /// 1..=60000 ms (default 1000 ms).
     pub timeout: Duration,
 }
 
@@ -503,6 +513,138 @@ pub struct Outputs {
     pub mqtt: Option<MqttOutput>,
     /// The maintenance web page and its JSON API.
     pub web: Option<WebOutput>,
+    /// The OPC UA server.
+    pub opcua: Option<OpcUaOutput>,
+}
+
+/// The OPC UA server (`[outputs.opcua]`): the results as an address space, alarms as
+/// events, an acknowledge method.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OpcUaOutput {
+    /// Address to listen on (default `127.0.0.1:4840`); port 0 picks a free port.
+    pub bind: SocketAddr,
+    /// Host name or IP address clients reach the server at: written into the
+    /// endpoint URL (`opc.tcp://<host>:<port>/`) and the server certificate. Default:
+    /// the `bind` address; required with a wildcard `bind` (0.0.0.0, `[::]`).
+    pub host: String,
+    /// Security modes offered, each an endpoint (default `none` on a loopback bind,
+    /// `sign` and `sign_and_encrypt` otherwise); signing uses Basic256Sha256.
+    pub security_modes: Vec<OpcUaSecurityMode>,
+    /// The server's certificate store: `own/cert.der` and `private/private.pem`
+    /// (created at the first start), `trusted/` (client certificates accepted),
+    /// `rejected/` (client certificates refused, to be moved to `trusted/`).
+    pub pki_dir: PathBuf,
+    /// Whether anonymous sessions are accepted (default true).
+    pub anonymous: bool,
+    /// Users who may sign in with a password, from `users_file` (read at load).
+    pub users: Vec<OpcUaUser>,
+    /// Whether clients on other hosts may call the acknowledge method (default false:
+    /// only loopback clients may; with true, a remote client must also sign in as a
+    /// user of `users_file`).
+    pub allow_remote_commands: bool,
+    /// TCP connections served at once, 1..=256 (default 16); a further one is closed
+    /// at once.
+    pub max_connections: usize,
+    /// Sessions at once, 1..=100 (default 10).
+    pub max_sessions: usize,
+    /// Subscriptions per session, 1..=100 (default 10).
+    pub max_subscriptions_per_session: usize,
+    /// Monitored items per subscription, 1..=100000 (default 1000).
+    pub max_monitored_items_per_subscription: usize,
+    /// Longest session timeout a client may ask for, 1000..=3600000 ms (default
+    /// 60000 ms); a session idle for its timeout is closed.
+    pub max_session_timeout: Duration,
+}
+
+impl OpcUaOutput {
+    /// Default `bind`.
+    pub const DEFAULT_BIND: &'static str = "127.0.0.1:4840";
+    /// Default `max_connections`.
+    pub const DEFAULT_MAX_CONNECTIONS: usize = 16;
+    /// Default `max_sessions`.
+    pub const DEFAULT_MAX_SESSIONS: usize = 10;
+    /// Default `max_subscriptions_per_session`.
+    pub const DEFAULT_MAX_SUBSCRIPTIONS_PER_SESSION: usize = 10;
+    /// Default `max_monitored_items_per_subscription`.
+    pub const DEFAULT_MAX_MONITORED_ITEMS_PER_SUBSCRIPTION: usize = 1000;
+    /// Default `max_session_timeout_ms`.
+    pub const DEFAULT_MAX_SESSION_TIMEOUT_MS: u64 = 60_000;
+    /// Folder name of the default `pki_dir` (under `$STATE_DIRECTORY`, beside the
+    /// history file, or beside the configuration file).
+    pub const DEFAULT_PKI_FOLDER: &'static str = "opcua-pki";
+
+    /// The server on `bind` with `pki_dir`, anonymous access, security mode `none` and
+    /// the defaults of every other key (tests, the demo).
+    pub fn on(bind: SocketAddr, pki_dir: PathBuf) -> Self {
+        Self {
+            bind,
+            host: bind.ip().to_string(),
+            security_modes: vec![OpcUaSecurityMode::None],
+            pki_dir,
+            anonymous: true,
+            users: Vec::new(),
+            allow_remote_commands: false,
+            max_connections: Self::DEFAULT_MAX_CONNECTIONS,
+            max_sessions: Self::DEFAULT_MAX_SESSIONS,
+            max_subscriptions_per_session: Self::DEFAULT_MAX_SUBSCRIPTIONS_PER_SESSION,
+            max_monitored_items_per_subscription:
+                Self::DEFAULT_MAX_MONITORED_ITEMS_PER_SUBSCRIPTION,
+            max_session_timeout: Duration::from_millis(Self::DEFAULT_MAX_SESSION_TIMEOUT_MS),
+        }
+    }
+
+    /// The endpoint URL clients connect to: `opc.tcp://<host>:<port>/` (an IPv6 host in
+    /// brackets).
+    pub fn endpoint_url(&self) -> String {
+        let host = match self.host.parse::<std::net::Ipv6Addr>() {
+            Ok(_) => format!("[{}]", self.host),
+            Err(_) => self.host.clone(),
+        };
+        format!("opc.tcp://{host}:{}/", self.bind.port())
+    }
+}
+
+/// An OPC UA endpoint's message security mode (`security_modes`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OpcUaSecurityMode {
+    /// `none`: neither signed nor encrypted (loopback, or a closed cell network).
+    None,
+    /// `sign`: Basic256Sha256, signed.
+    Sign,
+    /// `sign_and_encrypt`: Basic256Sha256, signed and encrypted.
+    SignAndEncrypt,
+}
+
+impl OpcUaSecurityMode {
+    /// Every mode, in the order endpoints are listed.
+    pub const ALL: [Self; 3] = [Self::None, Self::Sign, Self::SignAndEncrypt];
+
+    /// The spelling in the file.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::None => "none",
+            Self::Sign => "sign",
+            Self::SignAndEncrypt => "sign_and_encrypt",
+        }
+    }
+}
+
+/// A user of the OPC UA server (a line `name:password` of `users_file`).
+#[derive(Clone, PartialEq, Eq)]
+pub struct OpcUaUser {
+    /// User name, 1..=64 characters, no `:`.
+    pub name: String,
+    /// Password, not empty.
+    pub password: String,
+}
+
+impl std::fmt::Debug for OpcUaUser {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("OpcUaUser")
+            .field("name", &self.name)
+            .field("password", &"****")
+            .finish()
+    }
 }
 
 /// The maintenance web page and its JSON API (read-only HTTP/1.1).
@@ -520,8 +662,19 @@ pub struct WebOutput {
     pub header_timeout: Duration,
     /// Time allowed to answer one request (the history queries), 100..=60000 ms
     /// (default 10000 ms); past it the answer is 503. Live updates
-    /// (`/api/events`) are not bounded by it.
+    /// (`/api/events`) are not bounded by it; a query past it is interrupted.
     pub request_timeout: Duration,
+    /// History queries run at once, 1..=8 (default 2), each on a thread of its own
+    /// at the lowest CPU priority; a further request waits up to a second for one,
+    /// then is answered 503 with `Retry-After`.
+    pub history_queries: usize,
+    /// Live-update streams (`/api/events`) open at once, 1..=`max_connections`
+    /// (default 8; at most `max_connections - 1` when that is above 1); a further one is answered 503.
+    pub max_event_streams: usize,
+    /// Host names the page answers to besides IP addresses and `localhost` (a request
+    /// naming another host in its `Host` header is refused 421: DNS rebinding);
+    /// default none. Lower case, letters, digits, `-` and `.`.
+    pub allowed_hosts: Vec<String>,
 }
 
 impl WebOutput {
@@ -531,6 +684,10 @@ impl WebOutput {
     pub const DEFAULT_HEADER_TIMEOUT_MS: u64 = 5_000;
     /// Default `request_timeout`, ms.
     pub const DEFAULT_REQUEST_TIMEOUT_MS: u64 = 10_000;
+    /// Default `history_queries`.
+    pub const DEFAULT_HISTORY_QUERIES: usize = 2;
+    /// Default `max_event_streams`.
+    pub const DEFAULT_MAX_EVENT_STREAMS: usize = 8;
 
     /// The page on `bind` with the defaults of every other key.
     pub fn on(bind: SocketAddr) -> Self {
@@ -539,6 +696,9 @@ impl WebOutput {
             max_connections: Self::DEFAULT_MAX_CONNECTIONS,
             header_timeout: Duration::from_millis(Self::DEFAULT_HEADER_TIMEOUT_MS),
             request_timeout: Duration::from_millis(Self::DEFAULT_REQUEST_TIMEOUT_MS),
+            history_queries: Self::DEFAULT_HISTORY_QUERIES,
+            max_event_streams: Self::DEFAULT_MAX_EVENT_STREAMS,
+            allowed_hosts: Vec::new(),
         }
     }
 }

@@ -6,7 +6,8 @@ use std::time::Duration;
 
 use millgate_config::{
     from_toml_str, from_toml_str_with, load, load_uncommissioned, ChannelKind, ChannelSource,
-    ChatterDetectorKind, Config, ConfigError, RegisterTable, ServiceDirs, ValueType, WordOrder,
+    ChatterDetectorKind, Config, ConfigError, OpcUaSecurityMode, RegisterTable, ServiceDirs,
+    ValueType, WordOrder,
 };
 
 fn examples_dir() -> PathBuf {
@@ -1689,6 +1690,12 @@ fn the_web_page_defaults_limits_and_listener_clash() {
     assert_eq!(web.max_connections, 32);
     assert_eq!(web.header_timeout, Duration::from_millis(5000));
     assert_eq!(web.request_timeout, Duration::from_millis(10_000));
+    assert_eq!(
+        (web.history_queries, web.max_event_streams),
+        (2, 8),
+        "defaults"
+    );
+    assert!(web.allowed_hosts.is_empty());
     assert!(parse(BASE).unwrap().outputs.web.is_none());
     let set = parse(&edited(
         "[outputs.metrics]",
@@ -1702,9 +1709,16 @@ fn the_web_page_defaults_limits_and_listener_clash() {
             web.bind.port(),
             web.max_connections,
             web.header_timeout,
-            web.request_timeout
+            web.request_timeout,
+            web.max_event_streams
         ),
-        (8088, 1, Duration::from_millis(100), Duration::from_secs(60))
+        (
+            8088,
+            1,
+            Duration::from_millis(100),
+            Duration::from_secs(60),
+            1
+        )
     );
     // Each key names itself and its range.
     for (key, value, range) in [
@@ -1712,6 +1726,14 @@ fn the_web_page_defaults_limits_and_listener_clash() {
         ("max_connections", "1025", "1..=1024"),
         ("header_timeout_ms", "99", "100..=60000"),
         ("request_timeout_ms", "60001", "100..=60000"),
+        ("history_queries", "0", "1..=8"),
+        ("history_queries", "9", "1..=8"),
+        ("max_event_streams", "0", "1..=31"),
+        (
+            "max_event_streams",
+            "32",
+            "1..=31 (below outputs.web.max_connections)",
+        ),
     ] {
         let found = problems(&edited(
             "[outputs.metrics]",
@@ -1724,6 +1746,16 @@ fn the_web_page_defaults_limits_and_listener_clash() {
             "{found:?}"
         );
     }
+    assert_problem_like(
+        &edited(
+            "[outputs.metrics]",
+            "[outputs.web]\nallowed_hosts = [\"mill-gw.example\", \"Mill.Example\"]\n\n\
+             [outputs.metrics]",
+        ),
+        "mill.toml: outputs.web.allowed_hosts[1]: \"Mill.Example\" is not allowed (a host \
+         name: 1..=253 characters of lower-case letters",
+        &[],
+    );
     assert_problem_like(
         &edited(
             "[outputs.metrics]",
@@ -1786,4 +1818,190 @@ fn a_mill_to_commission_may_leave_out_its_gain_thresholds() {
         "{error}"
     );
     std::fs::remove_dir_all(&dir).expect("clean up");
+}
+
+/// `BASE` with `[outputs.opcua]` holding `keys`.
+fn with_opcua(keys: &str) -> String {
+    edited(
+        "[outputs.metrics]",
+        &format!("[outputs.opcua]\n{keys}\n\n[outputs.metrics]"),
+    )
+}
+
+#[test]
+fn opcua_defaults_follow_the_bind() {
+    // Loopback: security none, anonymous, certificates beside the configuration
+    // (no history, and no STATE_DIRECTORY in the test's environment).
+    let config = parse(&with_opcua("")).unwrap_or_else(|error| panic!("{error}"));
+    let opcua = config.outputs.opcua.unwrap();
+    assert_eq!(opcua.bind, "127.0.0.1:4840".parse().unwrap());
+    assert_eq!(opcua.host, "127.0.0.1");
+    assert_eq!(opcua.endpoint_url(), "opc.tcp://127.0.0.1:4840/");
+    assert_eq!(opcua.security_modes, [OpcUaSecurityMode::None]);
+    assert!(opcua.anonymous && opcua.users.is_empty() && !opcua.allow_remote_commands);
+    if std::env::var_os("STATE_DIRECTORY").is_none() {
+        assert_eq!(opcua.pki_dir, examples_dir().join("opcua-pki"));
+    }
+    assert_eq!(
+        (
+            opcua.max_connections,
+            opcua.max_sessions,
+            opcua.max_subscriptions_per_session,
+            opcua.max_monitored_items_per_subscription,
+            opcua.max_session_timeout
+        ),
+        (16, 10, 10, 1000, Duration::from_secs(60))
+    );
+    // Another host's reach: signed and encrypted by default; a wildcard needs the
+    // host clients use, and the URL brackets an IPv6 host.
+    let remote = parse(&with_opcua("bind = \"192.168.0.20:4840\""))
+        .unwrap()
+        .outputs
+        .opcua
+        .unwrap();
+    assert_eq!(
+        remote.security_modes,
+        [OpcUaSecurityMode::Sign, OpcUaSecurityMode::SignAndEncrypt]
+    );
+    assert_only_problem(
+        &with_opcua("bind = \"0.0.0.0:4840\""),
+        "mill.toml: outputs.opcua.host: missing: bind 0.0.0.0:4840 listens on every address; \
+         give the host name or IP address clients reach the gateway at (written into the \
+         endpoint URL and the server certificate)",
+    );
+    let v6 = parse(&with_opcua("bind = \"[::]:4841\"\nhost = \"fd00::20\""))
+        .unwrap()
+        .outputs
+        .opcua
+        .unwrap();
+    assert_eq!(v6.endpoint_url(), "opc.tcp://[fd00::20]:4841/");
+}
+
+#[test]
+fn opcua_keys_name_their_range() {
+    for (key, value, range) in [
+        ("max_connections", "0", "1..=256"),
+        ("max_sessions", "101", "1..=100"),
+        ("max_subscriptions_per_session", "0", "1..=100"),
+        (
+            "max_monitored_items_per_subscription",
+            "100001",
+            "1..=100000",
+        ),
+        ("max_session_timeout_ms", "999", "1000..=3600000 ms"),
+    ] {
+        assert_only_problem(
+            &with_opcua(&format!("{key} = {value}")),
+            &format!("mill.toml: outputs.opcua.{key}: {value} is not allowed (must be {range})"),
+        );
+    }
+    assert_only_problem(
+        &with_opcua("security_modes = [\"sign\", \"encrypt\"]"),
+        "mill.toml: outputs.opcua.security_modes[1]: unknown security mode \"encrypt\" \
+         (allowed: none, sign, sign_and_encrypt)",
+    );
+    assert_only_problem(
+        &with_opcua("security_modes = []"),
+        "mill.toml: outputs.opcua.security_modes: [] is not allowed (must list one or more of \
+         none, sign, sign_and_encrypt)",
+    );
+    assert_only_problem(
+        &with_opcua("security_modes = [\"sign\", \"sign\"]"),
+        "mill.toml: outputs.opcua.security_modes[1]: \"sign\" is listed twice",
+    );
+    assert_problem_like(
+        &with_opcua("host = \"gate way\""),
+        "mill.toml: outputs.opcua.host: \"gate way\" is not allowed",
+        &["host name", "IP address"],
+    );
+    assert_only_problem(
+        &with_opcua("anonymous = false"),
+        "mill.toml: outputs.opcua.anonymous: false is not allowed without users_file: no \
+         client could sign in (give users_file, or allow anonymous sessions)",
+    );
+    // The same port as the HMI server.
+    assert_only_problem(
+        &with_opcua("bind = \"127.0.0.1:5503\""),
+        "mill.toml: outputs.opcua.bind: 127.0.0.1:5503 is not allowed: outputs.server.bind \
+         (127.0.0.1:5503) listens on the same port; each listener needs its own port",
+    );
+    assert_problem_like(
+        &with_opcua("endpoint = \"x\""),
+        "mill.toml: ",
+        &["endpoint"],
+    );
+}
+
+#[test]
+fn opcua_users_file_is_read_and_checked() {
+    let scratch = std::env::temp_dir().join(format!("millgate-opcua-users-{}", std::process::id()));
+    std::fs::create_dir_all(&scratch).unwrap();
+    let file = |name: &str, text: &str| {
+        let path = scratch.join(name);
+        std::fs::write(&path, text).unwrap();
+        path.display().to_string()
+    };
+    let good = file(
+        "users",
+        "# operators\noperator:s3cret:with:colons\n\nmaintenance:pw\r\n",
+    );
+    let config = parse(&with_opcua(&format!(
+        "users_file = \"{good}\"\nanonymous = false\npki_dir = \"{}\"",
+        scratch.join("pki").display()
+    )))
+    .unwrap_or_else(|error| panic!("{error}"));
+    let opcua = config.outputs.opcua.unwrap();
+    let users: Vec<(&str, &str)> = opcua
+        .users
+        .iter()
+        .map(|u| (u.name.as_str(), u.password.as_str()))
+        .collect();
+    assert_eq!(
+        users,
+        [("operator", "s3cret:with:colons"), ("maintenance", "pw")]
+    );
+    assert!(!opcua.anonymous);
+    assert_eq!(opcua.pki_dir, scratch.join("pki"));
+    assert!(
+        !format!("{:?}", opcua.users).contains("s3cret"),
+        "passwords stay out of Debug output"
+    );
+
+    let bad = file("bad", "nocolon\n:empty-name\nuser:\nop:a\nop:b\n");
+    let found = problems(&with_opcua(&format!("users_file = \"{bad}\"")));
+    assert_eq!(
+        found,
+        [
+            "mill.toml: outputs.opcua.users_file: bad:1: must be name:password",
+            "mill.toml: outputs.opcua.users_file: bad:2: user name must be 1..=64 characters \
+             before the ':'",
+            "mill.toml: outputs.opcua.users_file: bad:3: password must not be empty",
+            "mill.toml: outputs.opcua.users_file: bad:5: user \"op\" is listed twice",
+        ]
+        .map(|p| p.replace("bad:", &format!("{bad}:")))
+    );
+    let empty = file("empty", "# nobody\n");
+    assert_only_problem(
+        &with_opcua(&format!("users_file = \"{empty}\"")),
+        &format!(
+            "mill.toml: outputs.opcua.users_file: \"{empty}\" lists no user (one \
+             name:password per line)"
+        ),
+    );
+    assert_problem_like(
+        &with_opcua("users_file = \"missing-users\""),
+        "mill.toml: outputs.opcua.users_file: cannot read \"missing-users\"",
+        &["relative to the configuration file"],
+    );
+    assert_problem_like(
+        &with_opcua(&format!("pki_dir = \"{good}\"")),
+        "mill.toml: outputs.opcua.pki_dir: ",
+        &["is a file (must be a folder)"],
+    );
+    assert_problem_like(
+        &with_opcua("pki_dir = \"no/such/folder/pki\""),
+        "mill.toml: outputs.opcua.pki_dir: the folder above \"no/such/folder/pki\" does not exist",
+        &[],
+    );
+    let _ = std::fs::remove_dir_all(&scratch);
 }

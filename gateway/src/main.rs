@@ -54,6 +54,13 @@ enum Command {
         #[arg(long, value_enum, default_value = "md")]
         format: millgate::cli::registers::Format,
     },
+    #[cfg(feature = "opcua")]
+    /// The OPC UA server's address space of a configuration, as a Markdown table.
+    AddressSpace {
+        /// The configuration file (TOML).
+        #[arg(long)]
+        config: PathBuf,
+    },
     /// Export the event history (bites, wear, alarms, outages, chatter, runs).
     History(millgate::cli::history::HistoryArgs),
     #[cfg(feature = "plot")]
@@ -261,6 +268,11 @@ fn main() -> ExitCode {
                 .and_then(|page| std::io::Write::write_all(&mut std::io::stdout(), &page))
                 .map_err(Into::into),
         },
+        #[cfg(feature = "opcua")]
+        Command::AddressSpace { config } => millgate_config::load(&config)
+            .map_err(anyhow::Error::from)
+            .and_then(|config| millgate::cli::address_space::run(&config))
+            .map(|table| print!("{table}")),
         Command::Analyze(args) => {
             init_tracing("warn");
             millgate::cli::analyze::run(&args).map(emit)

@@ -1394,3 +1394,22 @@ fn check_uses_the_folders_systemd_hands_the_service() {
     );
     std::fs::remove_dir_all(folder).unwrap();
 }
+
+/// A millgate built without the `opcua` feature refuses `[outputs.opcua]` and says how
+/// to build one that serves it (with the feature, `tests/opcua.rs` checks `check`).
+#[cfg(not(feature = "opcua"))]
+#[test]
+fn check_without_the_opcua_feature_refuses_the_opcua_output() {
+    let demo = std::fs::read_to_string(examples().join("demo.toml")).unwrap();
+    let path = write_config("opcua", &format!("{demo}\n[outputs.opcua]\n"));
+    let output = millgate(&["check", "--config", path.to_str().unwrap()]);
+    assert!(!output.status.success(), "{}", text(&output));
+    assert!(
+        text(&output).contains(
+            "outputs.opcua: this millgate was built without the OPC UA server (build it with \
+             cargo build --release -p millgate --features opcua)"
+        ),
+        "{}",
+        text(&output)
+    );
+}

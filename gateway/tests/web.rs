@@ -532,7 +532,7 @@ async fn the_api_answers_from_the_live_results_and_the_history_and_refuses_bad_r
     }
     let with_body = http_raw(
         port,
-        b"GET /api/overview HTTP/1.1\r\nhost: l\r\nconnection: close\r\ncontent-length: 5\r\n\r\nhello",
+        b"GET /api/overview HTTP/1.1\r\nhost: localhost\r\nconnection: close\r\ncontent-length: 5\r\n\r\nhello",
     )
     .await;
     assert_eq!(with_body.status, 413);
@@ -541,7 +541,7 @@ async fn the_api_answers_from_the_live_results_and_the_history_and_refuses_bad_r
     assert!(head.body.is_empty());
     // Too large and malformed heads.
     let huge = format!(
-        "GET / HTTP/1.1\r\nhost: l\r\nx-padding: {}\r\nconnection: close\r\n\r\n",
+        "GET / HTTP/1.1\r\nhost: localhost\r\nx-padding: {}\r\nconnection: close\r\n\r\n",
         "a".repeat(20_000)
     );
     assert_eq!(http_raw(port, huge.as_bytes()).await.status, 431);
@@ -572,7 +572,7 @@ async fn the_api_answers_from_the_live_results_and_the_history_and_refuses_bad_r
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn slow_and_excess_connections_are_refused_while_the_modbus_path_answers_and_no_history_is_said(
+async fn slow_connections_are_closed_excess_streams_refused_while_the_modbus_path_answers_and_no_history_is_said(
 ) {
     let setup = Setup::new("web-limits", "history").await;
     let port = free_port();
@@ -584,7 +584,7 @@ async fn slow_and_excess_connections_are_refused_while_the_modbus_path_answers_a
         &setup.config,
         format!(
             "{without_history}\n[outputs.web]\nbind = \"127.0.0.1:{port}\"\nmax_connections = 3\n\
-             header_timeout_ms = 500\n"
+             max_event_streams = 2\nheader_timeout_ms = 500\n"
         ),
     )
     .unwrap();
@@ -633,19 +633,23 @@ async fn slow_and_excess_connections_are_refused_while_the_modbus_path_answers_a
         );
     }
 
-    // Three live pages hold the three connections: the fourth is answered 503.
+    // Two live pages take the two live-update streams (max_event_streams = 2): a
+    // third stream is answered 503 with Retry-After, and the third connection still
+    // serves everything else.
     let mut pages = Vec::new();
-    for _ in 0..3 {
+    for _ in 0..2 {
         let mut page = EventStream::open(port).await;
         page.until(Duration::from_secs(2), |_| true).await;
         pages.push(page);
     }
-    let refused = http(port, "GET", "/api/overview").await;
+    let refused = http(port, "GET", "/api/events").await;
     assert_eq!(refused.status, 503);
+    assert_eq!(refused.header("retry-after"), Some("2"));
     assert!(refused.json()["error"]
         .as_str()
         .unwrap()
-        .contains("too many connections"));
+        .contains("every live-update stream is taken"));
+    assert_eq!(http(port, "GET", "/api/overview").await.status, 200);
     // Meanwhile the PLC gets bites and the Modbus server answers.
     setup.plc().bites_after_now(1).await;
     let mut modbus = TcpStream::connect(("127.0.0.1", setup.server_port))
@@ -662,15 +666,17 @@ async fn slow_and_excess_connections_are_refused_while_the_modbus_path_answers_a
         .expect("a Modbus answer")
         .unwrap();
     assert_eq!(&answer[..9], &[0, 7, 0, 0, 0, 5, 1, 3, 2]);
-    // A page closed frees its connection.
+    // A page closed frees its stream.
     drop(pages.pop());
     let start = Instant::now();
     loop {
-        let answer = http(port, "GET", "/api/overview").await;
-        if answer.status == 200 {
+        let mut page = EventStream::open(port).await;
+        let mut head = [0u8; 12];
+        page.stream.read_exact(&mut head).await.unwrap();
+        if &head == b"HTTP/1.1 200" {
             break;
         }
-        assert!(start.elapsed() < LIVE, "no connection freed");
+        assert!(start.elapsed() < LIVE, "no stream freed");
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
     drop(pages);

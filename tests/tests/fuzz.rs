@@ -2,7 +2,9 @@
 //! on generated inputs, on the stable toolchain (proptest), and none may panic: the HMI
 //! server's frame handling, the DAQ reply decoding (the DAQ reader's checked read
 //! through tokio-modbus's client, then the acquisition layout), CAN frame decoding,
-//! the configuration loader, the CSV reader and the driveline model loader.
+//! the configuration loader, the CSV reader and the driveline model loader; with the
+//! `opcua` feature (`cargo test -p millgate-tests --features opcua --test fuzz`), the
+//! OPC UA server's framing check of what clients send.
 //!
 //! Each harness mixes structure-aware generation (fields of the format, biased to
 //! their edges) with mutation of valid seeds (byte flips, insertions, deletions,
@@ -659,4 +661,118 @@ fn fuzz_model_loader() {
         Ok(())
     });
     println!("fuzz model_loader: {valid} of the inputs were valid models");
+}
+
+// ---------------------------------------------------------------- OPC UA TCP framing
+
+/// One OPC UA TCP message built field by field: message type and chunk type biased to
+/// the known ones, a size field that is right, off by a little, or anything, a body.
+#[cfg(feature = "opcua")]
+fn opcua_message() -> impl Strategy<Value = Vec<u8>> {
+    let kind = prop_oneof![
+        Just(*b"HEL"),
+        Just(*b"OPN"),
+        Just(*b"MSG"),
+        Just(*b"CLO"),
+        Just(*b"ACK"),
+        Just(*b"ERR"),
+        Just(*b"RHE"),
+        any::<[u8; 3]>()
+    ];
+    let chunk = prop_oneof![Just(b'F'), Just(b'C'), Just(b'A'), any::<u8>()];
+    let size = prop_oneof![
+        4 => Just(None),
+        1 => prop_oneof![
+            Just(0u32),
+            Just(7),
+            Just(8),
+            Just(11),
+            Just(12),
+            Just(31),
+            Just(32),
+            Just(4128),
+            Just(4129),
+            Just(65_535),
+            Just(65_536),
+            Just(u32::MAX),
+            any::<u32>()
+        ]
+        .prop_map(Some),
+    ];
+    (
+        kind,
+        chunk,
+        size,
+        prop::collection::vec(any::<u8>(), 0..200),
+    )
+        .prop_map(|(kind, chunk, size, body)| {
+            let mut message = kind.to_vec();
+            message.push(chunk);
+            let size = size.unwrap_or(8 + body.len() as u32);
+            message.extend(size.to_le_bytes());
+            message.extend(body);
+            message
+        })
+}
+
+#[cfg(feature = "opcua")]
+#[test]
+fn fuzz_opcua_frames() {
+    use millgate::outputs::opcua::front::{FrameScanner, Header};
+
+    let hello = {
+        let url = b"opc.tcp://127.0.0.1:4840/";
+        let mut message = b"HELF".to_vec();
+        message.extend((32 + url.len() as u32).to_le_bytes());
+        for word in [0u32, 65_535, 65_535, 0, 0] {
+            message.extend(word.to_le_bytes());
+        }
+        message.extend((url.len() as u32).to_le_bytes());
+        message.extend(url);
+        message
+    };
+    let seed = [hello.clone(), {
+        let mut open = b"OPNF".to_vec();
+        open.extend(132u32.to_le_bytes());
+        open.resize(132, 0x5a);
+        open
+    }]
+    .concat();
+    let built = prop::collection::vec(opcua_message(), 1..6)
+        .prop_map(move |messages| [vec![hello.clone()], messages].concat().concat());
+    let mutated = prop::collection::vec(mutation(), 0..8).prop_map(move |m| mutate(&seed, &m));
+    let input = (prop_oneof![built, mutated], any::<usize>());
+    fuzz("opcua_frames", input, |(stream, split)| {
+        // All at once and in two pieces: the same headers, the same verdict.
+        let scan = |pieces: &[&[u8]]| {
+            let mut scanner = FrameScanner::client(65_535);
+            let mut headers: Vec<Header> = Vec::new();
+            let mut verdict = Ok(());
+            for piece in pieces {
+                verdict = scanner.feed(piece, |header| headers.push(header));
+                if verdict.is_err() {
+                    break;
+                }
+            }
+            (headers, verdict)
+        };
+        let at = split % (stream.len() + 1);
+        let whole = scan(&[&stream]);
+        let split = scan(&[&stream[..at], &stream[at..]]);
+        prop_assert_eq!(&whole, &split);
+        // What it lets through (a header that breaks the framing is refused before it
+        // is reported) is framed as a client may send: a Hello first, then OPN, MSG or
+        // CLO within the buffer.
+        let (headers, _) = whole;
+        for (index, header) in headers.iter().enumerate() {
+            if index == 0 {
+                prop_assert_eq!(&header.message_type, b"HEL");
+                prop_assert!((32..=4128).contains(&header.size));
+            } else {
+                prop_assert!(matches!(&header.message_type, b"OPN" | b"MSG" | b"CLO"));
+                prop_assert!((12..=65_535).contains(&header.size));
+            }
+        }
+        Ok(())
+    });
 }

@@ -50,7 +50,7 @@ impl Checker<'_> {
             );
             return None;
         }
-        let (resolved, resolution) = self.written_path(path, Written::History);
+        let (resolved, resolution) = self.written_path(path, Written::State);
         if resolved.is_dir() {
             self.report.push(
                 key,

@@ -6,7 +6,7 @@
 //! present.
 //!
 //! One file per part of the configuration: `sources`, `channels`, `drivelines`,
-//! `tandem_mills`, `rod_mills`, `outputs`, `history`; `values` holds the checks of
+//! `tandem_mills`, `rod_mills`, `outputs` (with `opcua`), `history`; `values` holds the checks of
 //! single values they share.
 
 use std::collections::HashMap;
@@ -24,8 +24,8 @@ use crate::{Channel, Config, ServiceDirs, CACHE_DIRECTORY};
 /// relative path of it is resolved against.
 #[derive(Debug, Clone, Copy)]
 enum Written {
-    /// `history.path`: `$STATE_DIRECTORY` (`StateDirectory=`).
-    History,
+    /// `history.path`, `outputs.opcua.pki_dir`: `$STATE_DIRECTORY` (`StateDirectory=`).
+    State,
     /// `cache_dir`: `$CACHE_DIRECTORY` (`CacheDirectory=`).
     Cache,
 }
@@ -124,6 +124,7 @@ pub(crate) fn validate(
     );
     checker.register_overlaps(&raw.channels, &channels, &raw.modbus_sources);
     checker.block_poll_periods(&raw.channels, &channels, &raw.modbus_sources);
+    checker.serial_loads(&modbus_sources, &channels);
     let channel_facts = ChannelFacts {
         names: raw
             .channels
@@ -153,7 +154,11 @@ pub(crate) fn validate(
         |mill| &mill.name,
         |checker, key, mill| checker.rod_mill(key, mill, &channel_facts),
     );
-    let outputs = checker.outputs(&raw.outputs, raw.history.is_some());
+    let history_path = raw
+        .history
+        .as_ref()
+        .map(|history| base_dir.join(&history.path));
+    let outputs = checker.outputs(&raw.outputs, history_path.as_deref());
     let history = raw.history.as_ref().map(|history| checker.history(history));
     Some(Config {
         name: name?,
@@ -227,6 +232,7 @@ struct Checker<'a> {
 mod channels;
 mod drivelines;
 mod history;
+mod opcua;
 mod outputs;
 mod rod_mills;
 mod sources;

@@ -1,5 +1,5 @@
 //! `[outputs]`: the PLC writer, the HMI server, the metrics endpoint, the Sparkplug
-//! node and the web page.
+//! node and the web page (the OPC UA server's keys are in `opcua.rs`).
 
 use std::net::SocketAddr;
 use std::ops::RangeInclusive;
@@ -25,11 +25,18 @@ const IDLE_TIMEOUT_RANGE_MS: RangeInclusive<i64> = 100..=3_600_000;
 const WEB_CONNECTIONS_RANGE: RangeInclusive<i64> = 1..=1024;
 /// Allowed `outputs.web.header_timeout_ms` and `request_timeout_ms`.
 const WEB_TIMEOUT_RANGE_MS: RangeInclusive<i64> = 100..=60_000;
+/// Allowed `outputs.web.history_queries`.
+const WEB_HISTORY_QUERIES_RANGE: RangeInclusive<i64> = 1..=8;
 
 impl Checker<'_> {
-    /// `[outputs]`; `history` says whether `[history]` is configured (the MQTT output
-    /// keeps its session number there).
-    pub(super) fn outputs(&mut self, raw: &RawOutputs, history: bool) -> Option<Outputs> {
+    /// `[outputs]`; `history` is the history file when `[history]` is configured (the
+    /// MQTT output keeps its session number there; the OPC UA server's certificates go
+    /// beside it by default).
+    pub(super) fn outputs(
+        &mut self,
+        raw: &RawOutputs,
+        history: Option<&std::path::Path>,
+    ) -> Option<Outputs> {
         let plc = raw.plc.as_ref().map(|plc| {
             let key = "outputs.plc";
             let address = self.host_port(&format!("{key}.address"), &plc.address);
@@ -93,7 +100,9 @@ impl Checker<'_> {
             })
         });
         let web = raw.web.as_ref().map(|web| self.web(web));
+        let opcua = raw.opcua.as_ref().map(|opcua| self.opcua(opcua, history));
         let (server, metrics, web) = (optional(server), optional(metrics), optional(web));
+        let opcua = optional(opcua);
         let listeners: Vec<(&str, SocketAddr)> = [
             (
                 "outputs.server.bind",
@@ -107,18 +116,26 @@ impl Checker<'_> {
                 "outputs.web.bind",
                 web.as_ref().and_then(|w| w.as_ref().map(|w| w.bind)),
             ),
+            (
+                "outputs.opcua.bind",
+                opcua.as_ref().and_then(|o| o.as_ref().map(|o| o.bind)),
+            ),
         ]
         .into_iter()
         .filter_map(|(key, bind)| Some((key, bind?)))
         .collect();
         self.distinct_listeners(&listeners);
-        let mqtt = raw.mqtt.as_ref().map(|mqtt| self.mqtt(mqtt, history));
+        let mqtt = raw
+            .mqtt
+            .as_ref()
+            .map(|mqtt| self.mqtt(mqtt, history.is_some()));
         Some(Outputs {
             plc: optional(plc)?,
             server: server?,
             metrics: metrics?,
             mqtt: optional(mqtt)?,
             web: web?,
+            opcua: opcua?,
         })
     }
 
@@ -154,12 +171,63 @@ impl Checker<'_> {
             raw.request_timeout_ms,
             WebOutput::DEFAULT_REQUEST_TIMEOUT_MS as i64,
         );
+        let history_queries = self.int_in(
+            &format!("{key}.history_queries"),
+            raw.history_queries
+                .unwrap_or(WebOutput::DEFAULT_HISTORY_QUERIES as i64),
+            WEB_HISTORY_QUERIES_RANGE,
+            "",
+        );
+        // An open page holds one stream: the streams leave at least one connection
+        // for everything else.
+        let most_streams = max_connections.map_or(1, |max| (max - 1).max(1));
+        let max_event_streams = self.int_in(
+            &format!("{key}.max_event_streams"),
+            raw.max_event_streams
+                .unwrap_or((WebOutput::DEFAULT_MAX_EVENT_STREAMS as i64).min(most_streams)),
+            1..=most_streams,
+            " (below outputs.web.max_connections)",
+        );
+        let allowed_hosts = self.host_names(
+            &format!("{key}.allowed_hosts"),
+            raw.allowed_hosts.as_deref().unwrap_or_default(),
+        );
         Some(WebOutput {
             bind: bind?,
             max_connections: usize::try_from(max_connections?).ok()?,
             header_timeout: header_timeout?,
             request_timeout: request_timeout?,
+            history_queries: usize::try_from(history_queries?).ok()?,
+            max_event_streams: usize::try_from(max_event_streams?).ok()?,
+            allowed_hosts: allowed_hosts?,
         })
+    }
+
+    /// Host names as a `Host` header gives them: 1..=253 characters of lower-case
+    /// letters, digits, `-` and `.`.
+    fn host_names(&mut self, key: &str, names: &[String]) -> Option<Vec<String>> {
+        let mut valid = Some(Vec::with_capacity(names.len()));
+        for (index, name) in names.iter().enumerate() {
+            let allowed = (1..=253).contains(&name.len())
+                && name.bytes().all(|b| {
+                    b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'-' || b == b'.'
+                });
+            if allowed {
+                if let Some(valid) = valid.as_mut() {
+                    valid.push(name.clone());
+                }
+            } else {
+                self.report.push(
+                    format!("{key}[{index}]"),
+                    format!(
+                        "\"{name}\" is not allowed (a host name: 1..=253 characters of \
+                         lower-case letters, digits, '-' and '.')"
+                    ),
+                );
+                valid = None;
+            }
+        }
+        valid
     }
 
     /// Reports every pair of listeners that cannot both bind: the same port on the

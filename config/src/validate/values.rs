@@ -172,7 +172,7 @@ impl Checker<'_> {
     /// how relative paths are resolved, for problems.
     pub(super) fn written_path(&self, path: &str, what: Written) -> (PathBuf, String) {
         let (folder, variable, setting) = match what {
-            Written::History => (&self.dirs.state, STATE_DIRECTORY, "StateDirectory="),
+            Written::State => (&self.dirs.state, STATE_DIRECTORY, "StateDirectory="),
             Written::Cache => (&self.dirs.cache, CACHE_DIRECTORY, "CacheDirectory="),
         };
         match folder {

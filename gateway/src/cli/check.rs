@@ -1,5 +1,6 @@
 //! `millgate check --config FILE [--format text|json]`: validate a configuration,
-//! build everything the service builds from it, and describe it.
+//! build everything the service builds from it, check the history file when it exists
+//! (SQLite's `quick_check`: a damaged file is a warning), and describe it.
 //!
 //! `--format json` prints one JSON document on stdout whether the file passes or not
 //! ([`report_json`]), for CI: `{"file", "ok", "summary", "problems", "warnings"}`, each
@@ -79,7 +80,26 @@ fn inspect(path: &Path) -> Result<(String, Vec<String>), CheckError> {
             source: Box::new(source),
         },
     })?;
-    Ok((summary, service.warnings()))
+    let mut warnings = service.warnings();
+    warnings.extend(history_warning(&service));
+    Ok((summary, warnings))
+}
+
+/// A warning when the history file exists but is not a sound millgate history
+/// (SQLite's `quick_check` finds damage, another application's file, a newer
+/// schema): the service leaves such a file untouched and runs without it, so this
+/// is a warning for the operator (move it aside), not a reason to refuse the start.
+/// A missing file is created at the first start.
+fn history_warning(service: &Service) -> Option<String> {
+    let history = service.history_path()?;
+    if !history.exists() {
+        return None;
+    }
+    let checked = crate::outputs::history::query::HistoryReader::open(history)
+        .and_then(|reader| reader.quick_check());
+    checked.err().map(|error| {
+        format!("history.path: {error}: the service will not write to it nor restore from it")
+    })
 }
 
 /// One problem or warning of [`report_json`].
@@ -364,6 +384,28 @@ mod tests {
                 && !loopback.contains("warning: "),
             "{loopback}"
         );
+    }
+
+    #[test]
+    fn metrics_reachable_from_other_hosts_is_a_warning() {
+        let metrics = |bind: &str| {
+            check_variant(
+                "demo.toml",
+                "[outputs.server]",
+                &format!("[outputs.metrics]\nbind = \"{bind}\"\n\n[outputs.server]"),
+            )
+            .expect("valid")
+        };
+        let open = metrics("0.0.0.0:9187");
+        assert!(
+            open.contains("warning: ")
+                && open.contains(
+                    "variant.toml: outputs.metrics.bind: 0.0.0.0:9187 accepts clients from \
+                     other hosts"
+                ),
+            "{open}"
+        );
+        assert!(!metrics("127.0.0.1:9187").contains("warning: "));
     }
 
     #[test]

@@ -12,7 +12,9 @@
 //! continues the bite counter, the wear trend and the pooled gap estimate.
 //!
 //! The maintenance page is served while the demo runs (`--web HOST:PORT`, by default
-//! a free loopback port; its address is printed at start).
+//! a free loopback port; its address is printed at start); with the `opcua` feature,
+//! `--opcua HOST:PORT` serves the results over OPC UA too (security none, anonymous,
+//! its certificates in `opcua-pki` beside the history).
 
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -55,6 +57,10 @@ pub struct DemoArgs {
     /// Serve the maintenance page on this address (default: a free loopback port).
     #[arg(long, value_name = "HOST:PORT", default_value = "127.0.0.1:0")]
     pub web: std::net::SocketAddr,
+    /// Serve the results over OPC UA on this address (security none, anonymous).
+    #[cfg(feature = "opcua")]
+    #[arg(long, value_name = "HOST:PORT")]
+    pub opcua: Option<std::net::SocketAddr>,
 }
 
 fn sparkplug_id(id: &str) -> Result<String, String> {
@@ -165,6 +171,14 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         Err(_) => println!("history: {} (new)", history_path.display()),
     }
     config.outputs.web = Some(millgate_config::WebOutput::on(args.web));
+    #[cfg(feature = "opcua")]
+    if let Some(bind) = args.opcua {
+        let pki_dir = history_path
+            .parent()
+            .unwrap_or(std::path::Path::new("."))
+            .join(millgate_config::OpcUaOutput::DEFAULT_PKI_FOLDER);
+        config.outputs.opcua = Some(millgate_config::OpcUaOutput::on(bind, pki_dir));
+    }
     // The PLC holds the whole map and a margin.
     let plc_registers = usize::from(RegisterMap::new(&config).len()) + 16;
     let devices = DemoDevices::start(&mut config, &schedule, plc_registers).await?;
@@ -183,6 +197,9 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
     let history = gateway.history().clone();
     if let Some(web) = gateway.bound().web {
         println!("maintenance page: http://{web}/");
+    }
+    if let Some(opcua) = gateway.bound().opcua {
+        println!("OPC UA server: opc.tcp://{opcua}/ (security none, anonymous)");
     }
     println!(
         "{:>7} {:>12} {:>7} {:>10} {:>7} | {:>10} {:>10} {:>24} {:>9}",

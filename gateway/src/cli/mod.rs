@@ -5,6 +5,8 @@
 //! - `millgate check --config FILE [--format text|json]`: [`check`]
 //! - `millgate registers --config FILE --format md|csv|json`: [`registers`]
 //! - `millgate figures --format md|csv|json`: [`figures`]
+//! - `millgate address-space --config FILE`: `address_space` (the OPC UA server's
+//!   variables as a Markdown table; with the `opcua` feature)
 //! - `millgate analyze --input FILE.csv [--channel NAME] [--window START,END] [--format text|json]`:
 //!   [`analyze`] (CSV reading in [`csv`])
 //! - `millgate stiffness --inertia Q1,Q2,Q3 (--freq B1,B2 | --stiffness C12,C23)
@@ -33,6 +35,8 @@
 //! need the simulator's virtual devices or plots); `report` with `plot` (part of
 //! `sim-tools`).
 
+#[cfg(feature = "opcua")]
+pub mod address_space;
 pub mod analyze;
 pub mod chatter;
 pub mod check;

@@ -1,4 +1,4 @@
-//! Field I/O: the reader tasks that turn DAQ register blocks (Modbus TCP) and CAN
+//! Field I/O: the reader tasks that turn DAQ register blocks (Modbus TCP or RTU) and CAN
 //! frames (SocketCAN) into [`acquired::Acquired`] messages on the bounded channel to
 //! analysis, with their counters and source health.
 

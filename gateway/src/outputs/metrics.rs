@@ -24,7 +24,7 @@ use axum::http::{header, HeaderValue};
 use axum::response::IntoResponse;
 use axum::routing::get;
 use axum::Router;
-use millgate_config::Config;
+use millgate_config::{Config, MetricsOutput};
 use tokio::net::TcpListener;
 
 use crate::field::counters::{CanCounters, CanCounts, ChannelCounters, ChannelCountersSnapshot};
@@ -42,6 +42,18 @@ use crate::state::history::HistoryStatus;
 pub const HEAD_TIMEOUT: Duration = Duration::from_secs(5);
 /// Scrapes answered at once; Prometheus sends one at a time.
 pub const MAX_SCRAPES: usize = 16;
+/// A warning when `settings` binds an address other hosts can reach (`/metrics`
+/// shows the plant's figures and the gateway's state without authentication).
+pub fn exposure_warning(settings: &MetricsOutput) -> Option<String> {
+    (!settings.bind.ip().is_loopback()).then(|| {
+        format!(
+            "outputs.metrics.bind: {} accepts clients from other hosts: anyone who reaches it \
+             reads /metrics without authentication (read-only)",
+            settings.bind
+        )
+    })
+}
+
 /// The content type of the text exposition format.
 pub const CONTENT_TYPE: &str = "text/plain; version=0.0.4; charset=utf-8";
 
@@ -219,6 +231,8 @@ pub struct Metrics {
     server: Option<Arc<ServerCounters>>,
     sparkplug: Option<Arc<SparkplugStatus>>,
     plc: Option<Arc<PlcCounters>>,
+    #[cfg(feature = "opcua")]
+    opcua: Option<crate::outputs::opcua::OpcUaStatus>,
 }
 
 impl Metrics {
@@ -244,6 +258,8 @@ impl Metrics {
             server: None,
             sparkplug: None,
             plc: None,
+            #[cfg(feature = "opcua")]
+            opcua: None,
         }
     }
 
@@ -256,6 +272,13 @@ impl Metrics {
     /// Also show the Sparkplug B edge node's counters.
     pub fn with_sparkplug(mut self, status: Arc<SparkplugStatus>) -> Self {
         self.sparkplug = Some(status);
+        self
+    }
+
+    /// Also show the OPC UA server's counters.
+    #[cfg(feature = "opcua")]
+    pub fn with_opcua(mut self, status: crate::outputs::opcua::OpcUaStatus) -> Self {
+        self.opcua = Some(status);
         self
     }
 
@@ -292,6 +315,10 @@ impl Metrics {
         history_metrics(&mut page, &self.board.history().status());
         if let Some(status) = &self.sparkplug {
             sparkplug_metrics(&mut page, &status.counts());
+        }
+        #[cfg(feature = "opcua")]
+        if let Some(status) = &self.opcua {
+            opcua_metrics(&mut page, &status.counts());
         }
         page.out
     }
@@ -706,6 +733,86 @@ fn sparkplug_metrics(page: &mut Exposition, counts: &SparkplugCounts) {
             .zip(counts.failures)
             .map(|(failure, count)| (vec![("reason", failure.name())], count as f64)),
     );
+}
+
+/// The OPC UA server's families.
+#[cfg(feature = "opcua")]
+fn opcua_metrics(page: &mut Exposition, counts: &crate::outputs::opcua::OpcUaCounts) {
+    let scalars: [(&str, Kind, &str, f64); 12] = [
+        (
+            "millgate_opcua_connections_total",
+            Kind::Counter,
+            "TCP connections the OPC UA server accepted.",
+            counts.connections as f64,
+        ),
+        (
+            "millgate_opcua_connections_refused_total",
+            Kind::Counter,
+            "Connections closed at once because max_connections were open.",
+            counts.refused as f64,
+        ),
+        (
+            "millgate_opcua_malformed_frames_total",
+            Kind::Counter,
+            "Connections closed because the client did not speak OPC UA TCP framing.",
+            counts.malformed_frames as f64,
+        ),
+        (
+            "millgate_opcua_protocol_errors_total",
+            Kind::Counter,
+            "ERR messages the server sent (a message its decoder or secure channel refused).",
+            counts.protocol_errors as f64,
+        ),
+        (
+            "millgate_opcua_identities_refused_total",
+            Kind::Counter,
+            "Sign-ins refused (wrong password, unknown user, anonymous where not allowed).",
+            counts.identities_refused as f64,
+        ),
+        (
+            "millgate_opcua_security_rejected_requests_total",
+            Kind::Counter,
+            "Requests refused for security (certificate, signature, session, access).",
+            counts.security_rejected_requests as f64,
+        ),
+        (
+            "millgate_opcua_rejected_requests_total",
+            Kind::Counter,
+            "Requests answered with a bad service result.",
+            counts.rejected_requests as f64,
+        ),
+        (
+            "millgate_opcua_acknowledgements_total",
+            Kind::Counter,
+            "Acknowledge calls carried out.",
+            counts.acknowledgements as f64,
+        ),
+        (
+            "millgate_opcua_acknowledgements_refused_total",
+            Kind::Counter,
+            "Acknowledge calls the guard refused (a remote host, a read-only user).",
+            counts.acknowledgements_refused as f64,
+        ),
+        (
+            "millgate_opcua_value_changes_total",
+            Kind::Counter,
+            "Variable values changed in the address space.",
+            counts.value_changes as f64,
+        ),
+        (
+            "millgate_opcua_invalid_updates_total",
+            Kind::Counter,
+            "Updates refused (wrong type, a non-finite number given as good).",
+            counts.invalid_updates as f64,
+        ),
+        (
+            "millgate_opcua_events_total",
+            Kind::Counter,
+            "Alarm events sent to clients.",
+            counts.events as f64,
+        ),
+    ];
+    page.scalars(scalars);
 }
 
 /// The process' resources, as Prometheus' client libraries name them, read from

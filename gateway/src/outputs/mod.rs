@@ -1,9 +1,10 @@
 //! Outputs: the register map and the tasks that publish the board's results: the PLC
 //! writer, the HMI Modbus server, the Prometheus metrics (and the heartbeat's own task
 //! when there is no PLC), the event history that keeps them across restarts, the
-//! Sparkplug B edge node and the maintenance web page. Each names the figures as the
-//! catalogue does ([`crate::state::catalogue`]); [`figures`] renders the table of
-//! every output's name and type for each figure.
+//! Sparkplug B edge node, the maintenance web page and the OPC UA server (feature
+//! `opcua`). Each names the figures as the catalogue does
+//! ([`crate::state::catalogue`]); [`figures`] renders the table of every output's name
+//! and type for each figure.
 
 pub(crate) mod accept;
 pub mod figures;
@@ -13,6 +14,8 @@ pub mod hmi_server;
 pub mod http;
 pub mod metrics;
 pub mod modbus_frame;
+#[cfg(feature = "opcua")]
+pub mod opcua;
 pub mod plc_writer;
 pub mod register_map;
 pub mod sparkplug;

@@ -60,6 +60,11 @@ pub struct Service {
     server_listener: Option<TcpListener>,
     metrics_listener: Option<TcpListener>,
     web_listener: Option<TcpListener>,
+    opcua_listener: Option<TcpListener>,
+    /// The OPC UA server, made by [`Service::new`] (its address space and certificate
+    /// store checked there, so `check` reports them).
+    #[cfg(feature = "opcua")]
+    opcua: Option<crate::outputs::opcua::adapter::OpcUaOutputTask>,
     liveness: Arc<Liveness>,
     server_counters: Arc<ServerCounters>,
     /// Set once the PLC writer attempted its first write (at once without a PLC).
@@ -75,6 +80,8 @@ pub struct Bound {
     pub metrics: Option<SocketAddr>,
     /// The maintenance web page.
     pub web: Option<SocketAddr>,
+    /// The OPC UA server.
+    pub opcua: Option<SocketAddr>,
 }
 
 impl Service {
@@ -115,9 +122,20 @@ impl Service {
         if !problems.is_empty() {
             return Err(ServiceError::Wear(problems));
         }
+        let (commands, command_receiver) = commands::channel();
+        #[cfg(feature = "opcua")]
+        let opcua = crate::outputs::opcua::adapter::OpcUaOutputTask::prepare(
+            &config,
+            &analysis.rod_mill_spans(),
+            Arc::clone(&board),
+            commands.clone(),
+        )?;
+        #[cfg(not(feature = "opcua"))]
+        if config.outputs.opcua.is_some() {
+            return Err(ServiceError::OpcUaNotBuilt);
+        }
         let can_counters = config.can_sources.iter().map(|_| Arc::default()).collect();
         let (plc_attempted, _) = watch::channel(config.outputs.plc.is_none());
-        let (commands, command_receiver) = commands::channel();
         Ok(Self {
             config,
             map: Arc::new(map),
@@ -133,23 +151,40 @@ impl Service {
             server_listener: None,
             metrics_listener: None,
             web_listener: None,
+            opcua_listener: None,
+            #[cfg(feature = "opcua")]
+            opcua,
             liveness: Arc::default(),
             server_counters: Arc::default(),
             plc_attempted,
         })
     }
 
-    /// What the configuration exposes that an operator should know: a Modbus server
-    /// or a web page reachable from other hosts. `millgate check` prints these; the
-    /// service logs them as warnings at start.
+    /// What the configuration exposes that an operator should know: a Modbus server,
+    /// `/metrics`, a web page or an OPC UA server reachable from other hosts. `millgate
+    /// check` prints these; the service logs them as warnings at start.
     pub fn warnings(&self) -> Vec<String> {
         let outputs = &self.config.outputs;
+        #[cfg(feature = "opcua")]
+        let opcua = outputs
+            .opcua
+            .as_ref()
+            .and_then(crate::outputs::opcua::exposure_warning);
+        #[cfg(not(feature = "opcua"))]
+        let opcua = None;
         outputs
             .server
             .as_ref()
             .and_then(hmi_server::exposure_warning)
             .into_iter()
+            .chain(
+                outputs
+                    .metrics
+                    .as_ref()
+                    .and_then(crate::outputs::metrics::exposure_warning),
+            )
             .chain(outputs.web.as_ref().and_then(web::exposure_warning))
+            .chain(opcua)
             .collect()
     }
 
@@ -182,10 +217,12 @@ impl Service {
         let server = outputs.server.as_ref().map(|s| s.bind);
         let metrics = outputs.metrics.as_ref().map(|m| m.bind);
         let web = outputs.web.as_ref().map(|w| w.bind);
+        let opcua = outputs.opcua.as_ref().map(|o| o.bind);
         Ok(Bound {
             server: bind_once("Modbus server", &mut self.server_listener, server).await?,
             metrics: bind_once("metrics endpoint", &mut self.metrics_listener, metrics).await?,
             web: bind_once("maintenance page", &mut self.web_listener, web).await?,
+            opcua: bind_once("OPC UA server", &mut self.opcua_listener, opcua).await?,
         })
     }
 
@@ -221,6 +258,14 @@ impl Service {
         self.counters.clone()
     }
 
+    /// The history file, `None` without `[history]`.
+    pub fn history_path(&self) -> Option<&std::path::Path> {
+        self.config
+            .history
+            .as_ref()
+            .map(|history| history.path.as_path())
+    }
+
     /// The event history (disabled without `[history]`).
     pub fn history(&self) -> History {
         self.history.clone()
@@ -229,16 +274,36 @@ impl Service {
     /// Open the history and publish what it restores (before any reader starts, so
     /// the first bite continues the restored counter), and pool the bites last put
     /// into each driveline's gap pool again (the history is where the pool survives a
-    /// restart).
-    async fn restore(&mut self) {
-        let history = self.history.clone();
-        let run = RunInfo::of(&self.config);
-        let start = move || crate::outputs::history::start(&history, run);
-        let restored = match tokio::task::spawn_blocking(start).await {
-            Ok(restored) => restored,
+    /// restart). While the file exists but cannot be read (another process holds its
+    /// lock, a file system error) this waits, retrying every
+    /// [`crate::outputs::history::writer::REOPEN_PERIOD`], with no output running: no
+    /// counter, bdSeq or replay cursor may start below what the file holds. `false`
+    /// when `shutdown` came first (the history is closed then).
+    async fn restore(&mut self, shutdown: &mut Shutdown) -> bool {
+        let Some(opened) =
+            crate::outputs::history::writer::spawn(&self.history, RunInfo::of(&self.config))
+        else {
+            return true;
+        };
+        let mut waiting = tokio::task::spawn_blocking(move || opened.recv());
+        let restored = tokio::select! {
+            restored = &mut waiting => restored,
+            () = shutdown.recv() => {
+                tracing::info!("stopped while waiting for the history file");
+                let history = self.history.clone();
+                if tokio::task::spawn_blocking(move || history.close()).await.is_err() {
+                    tracing::error!("closing the history failed");
+                }
+                let _ = waiting.await;
+                return false;
+            }
+        };
+        let restored = match restored {
+            Ok(Ok(restored)) => restored,
+            Ok(Err(_)) => return true,
             Err(error) => {
                 tracing::error!(%error, "opening the history failed");
-                return;
+                return true;
             }
         };
         let board = &self.board;
@@ -272,6 +337,7 @@ impl Service {
                 "state restored from the history"
             );
         }
+        true
     }
 
     /// The outage monitor of every source.
@@ -303,7 +369,9 @@ impl Service {
         for warning in self.warnings() {
             tracing::warn!("{warning}");
         }
-        self.restore().await;
+        if !self.restore(&mut shutdown).await {
+            return Ok(());
+        }
         let outage_monitor = self.history.is_enabled().then(|| self.outage_monitor());
         let Service {
             config,
@@ -319,6 +387,9 @@ impl Service {
             server_listener,
             metrics_listener,
             web_listener,
+            opcua_listener,
+            #[cfg(feature = "opcua")]
+            opcua,
             liveness,
             server_counters,
             plc_attempted,
@@ -358,11 +429,16 @@ impl Service {
                 server: server_listener,
                 metrics: metrics_listener,
                 web: web_listener,
+                opcua: opcua_listener,
             },
             outage_monitor,
             rod_mill_spans,
             plc_counters: Arc::default(),
             sparkplug: None,
+            #[cfg(feature = "opcua")]
+            opcua,
+            #[cfg(feature = "opcua")]
+            opcua_status: None,
         };
         let mut outputs = tokio::task::JoinSet::new();
         for (name, task) in outputs::tasks(wiring, &outputs_shutdown)? {

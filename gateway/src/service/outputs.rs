@@ -35,6 +35,7 @@ pub(super) struct Listeners {
     pub(super) server: Option<TcpListener>,
     pub(super) metrics: Option<TcpListener>,
     pub(super) web: Option<TcpListener>,
+    pub(super) opcua: Option<TcpListener>,
 }
 
 /// What the outputs are built from.
@@ -54,19 +55,26 @@ pub(super) struct Wiring<'a> {
     pub(super) plc_counters: Arc<PlcCounters>,
     /// The Sparkplug node's status once built, for `/metrics`.
     pub(super) sparkplug: Option<Arc<SparkplugStatus>>,
+    /// The OPC UA server, made by `Service::new`.
+    #[cfg(feature = "opcua")]
+    pub(super) opcua: Option<crate::outputs::opcua::adapter::OpcUaOutputTask>,
+    /// The OPC UA server's status once started, for `/metrics`.
+    #[cfg(feature = "opcua")]
+    pub(super) opcua_status: Option<crate::outputs::opcua::OpcUaStatus>,
 }
 
 /// Builds one output, or none when it is not configured.
 type Builder = fn(&mut Wiring<'_>, &Shutdown) -> Result<Option<OutputTask>, ServiceError>;
 
 /// Every output in start order (`/metrics` last: it shows the others' counters).
-const OUTPUTS: [Builder; 7] = [
+const OUTPUTS: [Builder; 8] = [
     plc_writer,
     heartbeat_without_plc,
     outage_monitor,
     hmi_server,
     sparkplug,
     web_page,
+    opcua,
     metrics,
 ];
 
@@ -185,7 +193,13 @@ fn web_page(w: &mut Wiring<'_>, shutdown: &Shutdown) -> Result<Option<OutputTask
     let (Some(settings), Some(listener)) = (&w.config.outputs.web, w.listeners.web.take()) else {
         return Ok(None);
     };
-    let server = WebServer::new(w.config, settings.clone(), Arc::clone(&w.board));
+    let server =
+        WebServer::new(w.config, settings.clone(), Arc::clone(&w.board)).map_err(|error| {
+            ServiceError::Output {
+                output: "maintenance page",
+                reason: format!("cannot start its history query threads: {error}"),
+            }
+        })?;
     let shutdown = shutdown.clone();
     Ok(task("maintenance page", async move {
         server
@@ -193,6 +207,24 @@ fn web_page(w: &mut Wiring<'_>, shutdown: &Shutdown) -> Result<Option<OutputTask
             .await
             .map_err(|error| error.to_string())
     }))
+}
+
+#[cfg(feature = "opcua")]
+fn opcua(w: &mut Wiring<'_>, shutdown: &Shutdown) -> Result<Option<OutputTask>, ServiceError> {
+    let (Some(opcua), Some(listener)) = (w.opcua.take(), w.listeners.opcua.take()) else {
+        return Ok(None);
+    };
+    tracing::info!("starting the OPC UA server");
+    w.opcua_status = Some(opcua.status());
+    Ok(task("OPC UA server", opcua.run(listener, shutdown.clone())))
+}
+
+/// Without the feature `Service::new` refuses `[outputs.opcua]`, so nothing was bound
+/// and nothing starts.
+#[cfg(not(feature = "opcua"))]
+fn opcua(w: &mut Wiring<'_>, _: &Shutdown) -> Result<Option<OutputTask>, ServiceError> {
+    debug_assert!(w.listeners.opcua.is_none());
+    Ok(None)
 }
 
 fn metrics(w: &mut Wiring<'_>, shutdown: &Shutdown) -> Result<Option<OutputTask>, ServiceError> {
@@ -211,6 +243,10 @@ fn metrics(w: &mut Wiring<'_>, shutdown: &Shutdown) -> Result<Option<OutputTask>
     }
     if let Some(status) = w.sparkplug.clone() {
         metrics = metrics.with_sparkplug(status);
+    }
+    #[cfg(feature = "opcua")]
+    if let Some(status) = w.opcua_status.clone() {
+        metrics = metrics.with_opcua(status);
     }
     let shutdown = shutdown.clone();
     Ok(task("metrics endpoint", async move {

@@ -30,6 +30,8 @@ pub struct RunningService {
     bites: broadcast::Receiver<BiteReport>,
     liveness: Arc<Liveness>,
     plc_attempted: watch::Receiver<bool>,
+    #[cfg(feature = "opcua")]
+    opcua: Option<crate::outputs::opcua::OpcUaStatus>,
     stop: ShutdownTrigger,
     /// The service's task, until its outcome was taken.
     task: Option<JoinHandle<Result<(), ServiceError>>>,
@@ -51,6 +53,8 @@ impl Service {
         let bites = self.subscribe_bites();
         let liveness = Arc::clone(&self.liveness);
         let plc_attempted = self.plc_attempted.subscribe();
+        #[cfg(feature = "opcua")]
+        let opcua = self.opcua.as_ref().map(|opcua| opcua.status());
         let (stop, shutdown) = shutdown::channel();
         let task = tokio::spawn(self.run(shutdown));
         Ok(RunningService {
@@ -63,6 +67,8 @@ impl Service {
             bites,
             liveness,
             plc_attempted,
+            #[cfg(feature = "opcua")]
+            opcua,
             stop,
             task: Some(task),
             ended: None,
@@ -74,6 +80,12 @@ impl RunningService {
     /// The addresses the listening outputs bound (ports the OS chose for `:0`).
     pub fn bound(&self) -> Bound {
         self.bound
+    }
+
+    /// The OPC UA server's counts, with `[outputs.opcua]`.
+    #[cfg(feature = "opcua")]
+    pub fn opcua(&self) -> Option<crate::outputs::opcua::OpcUaStatus> {
+        self.opcua.clone()
     }
 
     /// The published results.

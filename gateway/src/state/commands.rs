@@ -21,15 +21,19 @@ pub enum CommandOrigin {
     Hmi(SocketAddr),
     /// A call in this process (tests, tools): no client.
     Local,
+    /// A client of the OPC UA server (its acknowledge method); its address when the
+    /// connection came through the server's listener.
+    OpcUa(Option<SocketAddr>),
 }
 
 impl CommandOrigin {
-    /// `plc`, `hmi` or `local`, as stored.
+    /// `plc`, `hmi`, `local` or `opcua`, as stored.
     pub fn name(self) -> &'static str {
         match self {
             CommandOrigin::Plc(_) => "plc",
             CommandOrigin::Hmi(_) => "hmi",
             CommandOrigin::Local => "local",
+            CommandOrigin::OpcUa(_) => "opcua",
         }
     }
 
@@ -38,6 +42,7 @@ impl CommandOrigin {
         match self {
             CommandOrigin::Plc(peer) | CommandOrigin::Hmi(peer) => Some(peer),
             CommandOrigin::Local => None,
+            CommandOrigin::OpcUa(peer) => peer,
         }
     }
 }

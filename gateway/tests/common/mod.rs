@@ -12,6 +12,13 @@ use millgate_sim::devices::demo::{setup, DemoDevices};
 use millgate_sim::devices::virtual_plc::VirtualPlc;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
+// The support shared with the end-to-end crate: one file, included by both (`pub`
+// there, where it is the crate's API).
+#[path = "../../../tests/src/net.rs"]
+#[allow(unreachable_pub)]
+mod net;
+pub(crate) use net::{until, HttpAnswer};
+
 pub(crate) fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
 }
@@ -57,15 +64,6 @@ impl Plc<'_> {
             self.counter() >= now + more
         })
         .await;
-    }
-}
-
-/// Poll `done` every 5 ms, at most `limit`.
-pub(crate) async fn until(what: &str, limit: Duration, mut done: impl FnMut() -> bool) {
-    let start = Instant::now();
-    while !done() {
-        assert!(start.elapsed() < limit, "{what}: not within {limit:?}");
-        tokio::time::sleep(Duration::from_millis(5)).await;
     }
 }
 
@@ -213,16 +211,7 @@ impl Setup {
 
     /// The `/metrics` page.
     pub(crate) async fn metrics(&self) -> String {
-        let mut stream = tokio::net::TcpStream::connect(("127.0.0.1", self.metrics_port))
-            .await
-            .unwrap();
-        stream
-            .write_all(b"GET /metrics HTTP/1.0\r\nHost: localhost\r\n\r\n")
-            .await
-            .unwrap();
-        let mut page = String::new();
-        stream.read_to_string(&mut page).await.unwrap();
-        page
+        http(self.metrics_port, "GET", "/metrics").await.body
     }
 
     /// The value of the metric line starting with `name` (with its labels).
@@ -232,11 +221,47 @@ impl Setup {
             .find_map(|line| line.strip_prefix(name)?.strip_prefix(' ')?.parse().ok())
     }
 
+    /// `millgate run` as [`Self::spawn`], killed when the guard is dropped.
+    pub(crate) fn spawn_guarded(&self, log: &str) -> KillOnDrop {
+        KillOnDrop(self.spawn(log))
+    }
+
+    /// Stop the devices and remove the scratch folder (the gateway stopped already,
+    /// or its guard kills it).
+    pub(crate) async fn finish(self) {
+        self.devices.stop().await.unwrap();
+        let _ = std::fs::remove_dir_all(&self.scratch);
+    }
+
     pub(crate) async fn stop(self, mut service: Child) {
         let _ = service.kill();
         let _ = service.wait();
         self.devices.stop().await.unwrap();
         let _ = std::fs::remove_dir_all(&self.scratch);
+    }
+}
+
+/// A `millgate run` child killed and reaped when dropped, so a failing test leaves
+/// no gateway behind; derefs to the [`Child`].
+pub(crate) struct KillOnDrop(pub(crate) Child);
+
+impl std::ops::Deref for KillOnDrop {
+    type Target = Child;
+    fn deref(&self) -> &Child {
+        &self.0
+    }
+}
+
+impl std::ops::DerefMut for KillOnDrop {
+    fn deref_mut(&mut self) -> &mut Child {
+        &mut self.0
+    }
+}
+
+impl Drop for KillOnDrop {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
     }
 }
 
@@ -251,64 +276,14 @@ pub(crate) fn terminate(service: &mut Child) {
     assert!(status.success(), "{status:?}");
 }
 
-/// An HTTP answer: status, headers (names lower-case) and body.
-pub(crate) struct HttpAnswer {
-    pub(crate) status: u16,
-    pub(crate) headers: Vec<(String, String)>,
-    pub(crate) body: String,
-}
-
-impl HttpAnswer {
-    pub(crate) fn header(&self, name: &str) -> Option<&str> {
-        self.headers
-            .iter()
-            .find(|(key, _)| key == name)
-            .map(|(_, value)| value.as_str())
-    }
-
-    pub(crate) fn json(&self) -> serde_json::Value {
-        serde_json::from_str(&self.body).unwrap_or_else(|e| panic!("not JSON ({e}): {}", self.body))
-    }
-}
-
-/// Send `raw` (a whole HTTP/1.1 request) to `127.0.0.1:port` and read the answer
-/// until the server closes (the requests say `connection: close`); within 10 s.
+/// `raw` (a whole HTTP/1.1 request) to `127.0.0.1:port`: [`net::http_raw`].
 pub(crate) async fn http_raw(port: u16, raw: &[u8]) -> HttpAnswer {
-    let exchange = async {
-        let mut stream = tokio::net::TcpStream::connect(("127.0.0.1", port)).await?;
-        stream.write_all(raw).await?;
-        let mut bytes = Vec::new();
-        stream.read_to_end(&mut bytes).await?;
-        std::io::Result::Ok(bytes)
-    };
-    let bytes = tokio::time::timeout(Duration::from_secs(10), exchange)
-        .await
-        .expect("HTTP answer within 10 s")
-        .expect("HTTP exchange");
-    let text = String::from_utf8_lossy(&bytes).into_owned();
-    let (head, body) = text.split_once("\r\n\r\n").unwrap_or((&text, ""));
-    let mut lines = head.lines();
-    let status = lines
-        .next()
-        .and_then(|line| line.split(' ').nth(1))
-        .and_then(|code| code.parse().ok())
-        .unwrap_or_else(|| panic!("no status line in {text:?}"));
-    let headers = lines
-        .filter_map(|line| line.split_once(':'))
-        .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_owned()))
-        .collect();
-    HttpAnswer {
-        status,
-        headers,
-        body: body.to_owned(),
-    }
+    net::http_raw(([127, 0, 0, 1], port).into(), raw).await
 }
 
-/// `method path` on `127.0.0.1:port`.
+/// `method path` on `127.0.0.1:port`: [`net::http`].
 pub(crate) async fn http(port: u16, method: &str, path: &str) -> HttpAnswer {
-    let request =
-        format!("{method} {path} HTTP/1.1\r\nhost: localhost\r\nconnection: close\r\n\r\n");
-    http_raw(port, request.as_bytes()).await
+    net::http(([127, 0, 0, 1], port).into(), method, path).await
 }
 
 /// Wait until the web page on `port` answers (the service is up), at most 30 s.
@@ -321,7 +296,8 @@ pub(crate) async fn web_ready(port: u16) {
         )
         .await
         {
-            let request = b"GET /api/drivelines HTTP/1.1\r\nhost: l\r\nconnection: close\r\n\r\n";
+            let request =
+                b"GET /api/drivelines HTTP/1.1\r\nhost: localhost\r\nconnection: close\r\n\r\n";
             let mut answer = Vec::new();
             if stream.write_all(request).await.is_ok()
                 && stream.read_to_end(&mut answer).await.is_ok()

@@ -1,6 +1,7 @@
-//! What the gateway's Modbus TCP client tasks (the DAQ reader, the PLC writer) share:
-//! connecting with a timeout (tokio-modbus has none), and reads and writes within a
-//! timeout that check the reply answers the request ([`ModbusError`] for all).
+//! What the gateway's Modbus client tasks (the DAQ reader, the PLC writer) share:
+//! connecting over TCP with a timeout (tokio-modbus has none; a serial line is opened
+//! by `rtu.rs`), and reads and writes within a timeout that check the reply answers
+//! the request, over TCP or RTU alike ([`ModbusError`] for all).
 
 use std::borrow::Cow;
 use std::time::Duration;

@@ -1,5 +1,5 @@
-//! The one error type of the gateway's Modbus TCP clients (the DAQ reader and the PLC
-//! writer): the network failed (connect, timeout, transport, a reply out of step), or
+//! The one error type of the gateway's Modbus clients (the DAQ reader over TCP or RTU,
+//! the PLC writer): the network failed (connect, timeout, transport, a reply out of step), or
 //! the device refused (a Modbus exception), kept apart.
 
 use std::time::Duration;
@@ -44,12 +44,13 @@ pub enum ReplyMismatch {
 /// Why a request to a Modbus device got no usable answer.
 #[derive(Debug, thiserror::Error)]
 pub enum ModbusError {
-    /// No TCP connection could be made ("the network failed").
+    /// No TCP connection could be made, or the serial device could not be opened
+    /// ("the network failed").
     #[error("cannot connect to {address}: {source}")]
     Connect {
-        /// The device's `host:port`.
+        /// The device's `host:port`, or its serial device path.
         address: String,
-        /// Refused, unreachable, unresolvable, ...
+        /// Refused, unreachable, unresolvable, no such device, busy, ...
         source: std::io::Error,
     },
     /// The device did not answer in time.

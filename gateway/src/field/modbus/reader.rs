@@ -1,9 +1,12 @@
-//! `DaqReader`: polls one Modbus TCP DAQ in the millgate acquisition layout.
+//! `DaqReader`: polls one Modbus DAQ (TCP, or RTU on a serial line) in the millgate
+//! acquisition layout.
 //!
 //! tokio-modbus has neither timeouts nor reconnects, so every request here is
 //! wrapped in the source's timeout, and any transport error or timeout drops the
-//! connection and reconnects with capped exponential backoff. A device exception
-//! ("the DAQ refused") is counted but keeps the connection.
+//! connection and reconnects with capped exponential backoff (over RTU: the serial
+//! device is closed and opened again, its buffers cleared). A device exception
+//! ("the DAQ refused") is counted but keeps the connection. Over RTU every request
+//! waits out the line's inter-frame silence after the last reply (`rtu.rs`).
 //!
 //! Blocks are tracked by sequence number: a jump of k > 1 means k - 1 blocks were
 //! lost and is passed on as an [`Acquired::Gap`] before the new samples, so the
@@ -31,6 +34,7 @@ use tokio_modbus::client::Context;
 use super::block::{BlockChannel, BlockNews};
 use super::client;
 use super::error::ModbusError;
+use super::rtu::{self, FrameSpacing};
 use crate::field::acquired::Acquired;
 use crate::field::backoff::Backoff;
 use crate::field::counters::ChannelCounters;
@@ -81,6 +85,8 @@ pub struct DaqReader {
     blocks: Vec<BlockChannel>,
     values: Vec<ValueChannel>,
     health: Arc<SourceHealth>,
+    /// Over RTU, the silence between frames on the line; `None` over TCP.
+    spacing: Option<FrameSpacing>,
 }
 
 impl DaqReader {
@@ -128,6 +134,9 @@ impl DaqReader {
         }
         Self {
             name: source.name.clone(),
+            spacing: source
+                .serial
+                .map(|line| FrameSpacing::new(line.inter_frame_delay)),
             source,
             blocks,
             values,
@@ -135,9 +144,16 @@ impl DaqReader {
         }
     }
 
-    async fn connect(&self) -> Result<Context, ModbusError> {
+    async fn connect(&mut self) -> Result<Context, ModbusError> {
         let source = &self.source;
-        client::connect(&source.address, source.unit_id, source.timeout).await
+        match (&source.serial, &mut self.spacing) {
+            (Some(line), Some(spacing)) => {
+                let context = rtu::connect(&source.address, line, source.unit_id)?;
+                spacing.opened();
+                Ok(context)
+            }
+            _ => client::connect(&source.address, source.unit_id, source.timeout).await,
+        }
     }
 
     /// Poll until shutdown, reconnecting as needed. Ends when `shutdown` fires or
@@ -240,18 +256,18 @@ impl DaqReader {
         let mut first_error = None;
         let mut new_data = false;
         for block in &mut self.blocks {
-            let registers =
-                match read(context, (block.table, block.base, BLOCK_REGISTERS), timeout).await {
-                    Ok(registers) => registers,
-                    Err(error) => {
-                        count_error(&block.counters, &error);
-                        if error.needs_reconnect() {
-                            return Err(error);
-                        }
-                        first_error.get_or_insert(error);
-                        continue;
+            let what = (block.table, block.base, BLOCK_REGISTERS);
+            let registers = match read(context, &mut self.spacing, what, timeout).await {
+                Ok(registers) => registers,
+                Err(error) => {
+                    count_error(&block.counters, &error);
+                    if error.needs_reconnect() {
+                        return Err(error);
                     }
-                };
+                    first_error.get_or_insert(error);
+                    continue;
+                }
+            };
             let decoded = match layout::decode_block(&registers) {
                 Ok(decoded) => decoded,
                 Err(error) => {
@@ -277,8 +293,8 @@ impl DaqReader {
         }
         for value in &self.values {
             let count = value.value_type.register_count();
-            let registers = match read(context, (value.table, value.address, count), timeout).await
-            {
+            let what = (value.table, value.address, count);
+            let registers = match read(context, &mut self.spacing, what, timeout).await {
                 Ok(registers) => registers,
                 Err(error) => {
                     count_error(&value.counters, &error);
@@ -356,13 +372,21 @@ fn count_error(counters: &ChannelCounters, error: &DaqError) {
     }
 }
 
-/// [`client::read`] as a poll's error.
+/// [`client::read`] as a poll's error; over RTU (`spacing`) after the line's silence.
 async fn read(
     context: &mut Context,
+    spacing: &mut Option<FrameSpacing>,
     what: (RegisterTable, u16, u16),
     timeout: Duration,
 ) -> Result<Vec<u16>, DaqError> {
-    Ok(client::read(context, what, timeout).await?)
+    if let Some(spacing) = spacing {
+        spacing.before_request().await;
+    }
+    let read = client::read(context, what, timeout).await;
+    if let Some(spacing) = spacing {
+        spacing.after_reply();
+    }
+    Ok(read?)
 }
 
 #[cfg(test)]

@@ -46,6 +46,29 @@ pub enum HistoryError {
     },
 }
 
+impl HistoryError {
+    /// Whether the failure may pass with time (a lock another process holds, the
+    /// disk, the file system, permissions), unlike a file that can never be this
+    /// millgate's history (damaged, another application's, a newer schema) or a bad
+    /// query.
+    pub fn may_pass(&self) -> bool {
+        let sqlite_may_pass = |source: &rusqlite::Error| {
+            !matches!(
+                source.sqlite_error_code(),
+                Some(rusqlite::ErrorCode::NotADatabase | rusqlite::ErrorCode::DatabaseCorrupt)
+            )
+        };
+        match self {
+            HistoryError::Sqlite { source, .. } => sqlite_may_pass(source),
+            HistoryError::Schema {
+                source: schema::SchemaError::Sqlite(source),
+                ..
+            } => sqlite_may_pass(source),
+            _ => false,
+        }
+    }
+}
+
 /// [`schema::check_owner`] as the history's error for the file at `path`: SQLite's own
 /// failure (a corrupt file, say) explained as such, another application's file as a
 /// schema error.

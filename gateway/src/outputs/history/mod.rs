@@ -14,7 +14,14 @@
 //! - **Failures** (a full disk, a read-only folder, a corrupt file): the writer logs
 //!   one clear error, drops what it cannot store (counted), shows the error on
 //!   `/metrics` and tries again (a full disk at the next batch, a file it cannot open
-//!   every [`writer::REOPEN_PERIOD`]); the analysis and the PLC writes go on.
+//!   every [`writer::REOPEN_PERIOD`]); the analysis and the PLC writes go on. A file
+//!   SQLite's `quick_check` finds damaged at an open is not written to. A lock another
+//!   process holds past the busy timeout keeps the batch, tried again (the run keeps
+//!   its row); a file deleted or replaced while open is noticed before each commit,
+//!   and the events go to the file now at the path (a new one), not the unlinked one.
+//! - **Start**: while the file exists but cannot be read (a lock, a file system
+//!   error), the start waits for it (the writer thread hands the restored
+//!   state once read), so no counter starts below what the file holds.
 //! - **Restart**: at start the file's per-driveline and per-mill state tables give the
 //!   bite counters, the wear trend, latched alarms and the last values with their time
 //!   ([`restore`]); restored values carry the driveline's "restored" flag until the

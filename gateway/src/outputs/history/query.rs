@@ -19,6 +19,35 @@ use super::restore::Restored;
 use super::schema::{current_version, SchemaError};
 use crate::state::time::UtcTime;
 
+/// SQLite virtual-machine instructions between two looks at a reader's stop
+/// condition ([`HistoryReader::interrupt_when`]): well under a millisecond of work.
+const QUERY_CHECK_OPS: std::ffi::c_int = 10_000;
+
+/// SQLite's `quick_check` of the file at `path` open on `connection`.
+pub(super) fn quick_check(connection: &Connection, path: &Path) -> Result<(), HistoryError> {
+    let problems = connection
+        .prepare("PRAGMA quick_check(10)")
+        .and_then(|mut statement| {
+            statement
+                .query_map([], |row| row.get::<_, String>(0))?
+                .collect::<rusqlite::Result<Vec<_>>>()
+        })
+        .map_err(|source| HistoryError::Sqlite {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    if problems.len() == 1 && problems[0] == "ok" {
+        return Ok(());
+    }
+    Err(HistoryError::Sqlite {
+        path: path.to_path_buf(),
+        source: rusqlite::Error::SqliteFailure(
+            rusqlite::ffi::Error::new(rusqlite::ffi::SQLITE_CORRUPT),
+            Some(format!("quick_check: {}", problems.join("; "))),
+        ),
+    })
+}
+
 /// Which rows to read.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct Filter {
@@ -407,6 +436,22 @@ impl HistoryReader {
     /// The file.
     pub fn path(&self) -> &Path {
         &self.path
+    }
+
+    /// Interrupt every statement of this reader once `stop` returns true (checked
+    /// every few thousand SQLite instructions): a statement then fails with
+    /// `SQLITE_INTERRUPT` instead of running to its end.
+    pub fn interrupt_when(&mut self, stop: impl FnMut() -> bool + Send + 'static) {
+        // Only fails on a closed connection, which a reader never holds.
+        let _ = self
+            .connection
+            .progress_handler(QUERY_CHECK_OPS, Some(stop));
+    }
+
+    /// SQLite's `quick_check` of the whole file (every page's structure, no index
+    /// contents): `Ok` for a sound file, else the problems SQLite found (at most ten).
+    pub fn quick_check(&self) -> Result<(), HistoryError> {
+        quick_check(&self.connection, &self.path)
     }
 
     /// The read-only connection, for the queries of sibling modules ([`super::series`]).

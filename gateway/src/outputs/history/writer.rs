@@ -36,6 +36,8 @@ pub const REOPEN_PERIOD: Duration = Duration::from_secs(5);
 /// Longest wait of a busy connection on a lock held by another process (a tool
 /// writing the file, a checkpoint), ms.
 const BUSY_TIMEOUT: Duration = Duration::from_secs(2);
+/// Longest wait before a batch kept for a locked file is tried again.
+const RETRY_PERIOD: Duration = Duration::from_millis(500);
 /// Largest WAL kept after a checkpoint, bytes.
 const WAL_SIZE_LIMIT: i64 = 64 * 1024 * 1024;
 /// Repeat an unchanged error in the log at most this often.
@@ -94,6 +96,57 @@ pub fn connect(path: &std::path::Path) -> Result<Connection, HistoryError> {
     Ok(connection)
 }
 
+/// The device and inode of the file at `path`, `None` when there is none.
+fn file_identity(path: &std::path::Path) -> Option<(u64, u64)> {
+    use std::os::unix::fs::MetadataExt;
+    std::fs::metadata(path)
+        .ok()
+        .map(|metadata| (metadata.dev(), metadata.ino()))
+}
+
+/// Mark what the previous run left open as ended by the restart and insert the run
+/// `run` started at `started_at`; its id.
+fn begin_run(
+    connection: &mut Connection,
+    started_at: UtcTime,
+    run: &RunInfo,
+) -> rusqlite::Result<i64> {
+    let now = UtcTime::now().to_string();
+    let transaction = connection.transaction()?;
+    transaction.execute(
+        "UPDATE gateway_runs SET ended = 'unclean' WHERE ended IS NULL",
+        [],
+    )?;
+    for table in ["source_outages", "chatter_episodes"] {
+        transaction.execute(
+            &format!(
+                "UPDATE {table} SET ended_at = ?1, ended_by = 'restart' WHERE ended_at IS NULL"
+            ),
+            [&now],
+        )?;
+    }
+    let run_id = insert_run(&transaction, started_at, run)?;
+    transaction.commit()?;
+    Ok(run_id)
+}
+
+/// Whether `error` says another connection holds the lock (past the busy timeout).
+fn locked(error: &rusqlite::Error) -> bool {
+    matches!(
+        error.sqlite_error_code(),
+        Some(rusqlite::ErrorCode::DatabaseBusy | rusqlite::ErrorCode::DatabaseLocked)
+    )
+}
+
+/// What became of a batch.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Written {
+    /// Committed, or dropped and counted.
+    Settled,
+    /// Kept for another try (the file is locked by another process).
+    Kept,
+}
+
 /// The writer: its connection (when the file is usable), this run's row and the
 /// retention's progress.
 #[derive(Debug)]
@@ -102,7 +155,16 @@ pub(crate) struct Writer {
     run: RunInfo,
     started_at: UtcTime,
     connection: Option<Connection>,
+    /// The file the connection has open (device and inode), to notice it deleted or
+    /// replaced.
+    file: Option<(u64, u64)>,
+    /// This run's row in the open file; `None` until it is confirmed there.
     run_id: Option<i64>,
+    /// This run's row id in the file it was last written to (a reopen of that same
+    /// file finds it again instead of inserting a second row).
+    last_run_id: Option<i64>,
+    /// Whether the file's state was read once (a start restores only once).
+    restored: bool,
     next_open: Instant,
     retention: Retention,
     retention_state: RetentionState,
@@ -144,58 +206,130 @@ pub fn insert_run(
 }
 
 impl Writer {
-    /// Open the file, record this run, and read what it restores. A failure is
-    /// logged and counted; the writer tries again later.
-    pub(crate) fn open(
+    /// A writer for `path`; nothing is opened yet ([`Self::run`] does).
+    pub(crate) fn new(
         path: PathBuf,
         retention: Retention,
         run: RunInfo,
         counters: Arc<Counters>,
-    ) -> (Self, Restored) {
-        let mut writer = Self {
+    ) -> Self {
+        Self {
             path,
             run,
             started_at: UtcTime::now(),
             connection: None,
+            file: None,
             run_id: None,
+            last_run_id: None,
+            restored: false,
             next_open: Instant::now(),
             retention,
             retention_state: RetentionState::default(),
             counters,
             last_logged: None,
-        };
-        let restored = writer.try_open().unwrap_or_default();
-        (writer, restored)
+        }
     }
 
-    /// Connect, close what the last run left open, insert this run; returns the
-    /// restored state. On failure: logged, counted, retried after [`REOPEN_PERIOD`].
-    fn try_open(&mut self) -> Option<Restored> {
+    /// Connect, check the file (`quick_check`), read what it restores (the first
+    /// time only: `Some` then), and record this run in it. A failure to record the
+    /// run (a full disk) keeps the connection: the run is recorded with the next
+    /// batch. Retried after [`REOPEN_PERIOD`] on failure.
+    fn try_open(&mut self) -> Result<Option<Restored>, HistoryError> {
         self.next_open = Instant::now() + REOPEN_PERIOD;
-        let opened = connect(&self.path).and_then(|mut connection| {
-            let restored =
-                super::restore::read(&connection).map_err(|source| self.error(source))?;
-            let run_id = self
-                .begin_run(&mut connection)
-                .map_err(|source| self.error(source))?;
-            Ok((connection, run_id, restored))
-        });
-        match opened {
-            Ok((connection, run_id, restored)) => {
-                tracing::info!(
-                    path = %self.path.display(),
-                    run = run_id,
-                    drivelines_restored = restored.drivelines.len(),
-                    "history open"
-                );
-                self.connection = Some(connection);
-                self.run_id = Some(run_id);
+        let connection = connect(&self.path)?;
+        super::query::quick_check(&connection, &self.path)?;
+        let restored = match self.restored {
+            false => Some(super::restore::read(&connection).map_err(|source| self.error(source))?),
+            true => None,
+        };
+        self.restored = true;
+        self.file = file_identity(&self.path);
+        self.connection = Some(connection);
+        self.run_id = None;
+        match self.confirm_run() {
+            Ok(run_id) => {
+                tracing::info!(path = %self.path.display(), run = run_id, "history open");
                 self.recovered();
-                Some(restored)
             }
             Err(error) => {
+                let message = format!(
+                    "history {}: this run cannot be recorded: {}",
+                    self.path.display(),
+                    explain(&error)
+                );
+                self.failed(&message, 0, false);
+            }
+        }
+        Ok(restored)
+    }
+
+    /// This run's row in the open file: found again (a reopen of the same file), or
+    /// inserted after closing what the previous run left open.
+    fn confirm_run(&mut self) -> rusqlite::Result<i64> {
+        if let Some(run_id) = self.run_id {
+            return Ok(run_id);
+        }
+        let Some(connection) = self.connection.as_mut() else {
+            return Err(rusqlite::Error::InvalidQuery);
+        };
+        let started_at = self.started_at.to_string();
+        let ours = match self.last_run_id {
+            Some(run_id) => connection
+                .query_row(
+                    "SELECT id FROM gateway_runs WHERE id = ?1 AND started_at = ?2",
+                    params![run_id, started_at],
+                    |row| row.get::<_, i64>(0),
+                )
+                .map(Some)
+                .or_else(|error| match error {
+                    rusqlite::Error::QueryReturnedNoRows => Ok(None),
+                    error => Err(error),
+                })?,
+            None => None,
+        };
+        let run_id = match ours {
+            Some(run_id) => run_id,
+            None => begin_run(connection, self.started_at, &self.run)?,
+        };
+        self.run_id = Some(run_id);
+        self.last_run_id = Some(run_id);
+        Ok(run_id)
+    }
+
+    /// Open the file the first time and read what it restores. While the file exists
+    /// but cannot be read for now (locked by another process, a file system error),
+    /// the start waits for it: nothing may count bites before the file's counters are
+    /// known. A file that cannot be a history (damaged, another application's) or
+    /// cannot be created is given up at once: the service runs without what it would
+    /// restore, and the writer tries it again later. `None` when the history was
+    /// closed while waiting; events recorded meanwhile are kept in `batch`.
+    fn open_first(
+        &mut self,
+        events: &Receiver<HistoryEvent>,
+        batch: &mut Vec<HistoryEvent>,
+    ) -> Option<Restored> {
+        loop {
+            let existed = self.path.exists();
+            let error = match self.try_open() {
+                Ok(restored) => return Some(restored.unwrap_or_default()),
+                Err(error) => error,
+            };
+            if !existed || !error.may_pass() {
                 self.failed(&error.to_string(), 0, true);
-                None
+                return Some(Restored::default());
+            }
+            let message = error.to_string();
+            self.counters.set_error(message.clone());
+            tracing::error!(
+                error = message,
+                retry_in = ?REOPEN_PERIOD,
+                "the history file cannot be read: the start waits for it (no bite is \
+                 counted or published before its counters are restored)"
+            );
+            match events.recv_timeout(REOPEN_PERIOD) {
+                Ok(event) => batch.push(event),
+                Err(RecvTimeoutError::Timeout) => {}
+                Err(RecvTimeoutError::Disconnected) => return None,
             }
         }
     }
@@ -207,43 +341,51 @@ impl Writer {
         }
     }
 
-    /// Mark what the previous run left open as ended by the restart and insert this
-    /// run's row (a retry after a failed open keeps the run's start time).
-    fn begin_run(&self, connection: &mut Connection) -> rusqlite::Result<i64> {
-        let now = UtcTime::now().to_string();
-        let transaction = connection.transaction()?;
-        transaction.execute(
-            "UPDATE gateway_runs SET ended = 'unclean' WHERE ended IS NULL",
-            [],
-        )?;
-        for table in ["source_outages", "chatter_episodes"] {
-            transaction.execute(
-                &format!(
-                    "UPDATE {table} SET ended_at = ?1, ended_by = 'restart' WHERE ended_at IS NULL"
-                ),
-                [&now],
-            )?;
-        }
-        let run_id = insert_run(&transaction, self.started_at, &self.run)?;
-        transaction.commit()?;
-        Ok(run_id)
+    /// Whether the open connection's file is still the one at the path (not deleted,
+    /// not replaced by another file).
+    fn same_file(&self) -> bool {
+        self.file.is_some() && file_identity(&self.path) == self.file
     }
 
-    /// Commit until every sender has gone and the queue is empty, then record the
-    /// stop. `settled` counts the events committed or dropped so far, in queue order.
+    /// Open the file (the start waits while it exists but cannot be read: see
+    /// [`Self::open_first`]) and send what it restores on `opened`; then commit
+    /// until every sender has gone and the queue is empty, and record the stop.
+    /// `settled` counts the events committed or dropped so far, in queue order.
+    ///
+    /// A batch the file refuses because another process holds its lock past the
+    /// busy timeout is kept and tried again (at most [`MAX_BATCH`] events kept here;
+    /// meanwhile the queue fills, and past its [`QUEUE_CAPACITY`] events are dropped
+    /// there, counted and logged).
+    ///
+    /// [`QUEUE_CAPACITY`]: crate::state::history::QUEUE_CAPACITY
     pub(crate) fn run(
         mut self,
         events: Receiver<HistoryEvent>,
         settled: tokio::sync::watch::Sender<u64>,
+        opened: std::sync::mpsc::SyncSender<Restored>,
     ) {
         let mut batch = Vec::with_capacity(MAX_BATCH);
+        let Some(restored) = self.open_first(&events, &mut batch) else {
+            return;
+        };
+        let _ = opened.send(restored);
         let mut done = 0u64;
-        loop {
-            let wait = self.retention_state.wait();
-            match events.recv_timeout(wait) {
-                Ok(event) => batch.push(event),
-                Err(RecvTimeoutError::Timeout) => {}
-                Err(RecvTimeoutError::Disconnected) => break,
+        let mut closing = false;
+        while !closing {
+            // A kept batch is retried at the pace of new events, at least every
+            // RETRY_PERIOD.
+            let wait = match batch.is_empty() {
+                true => self.retention_state.wait(),
+                false => RETRY_PERIOD,
+            };
+            if batch.len() < MAX_BATCH {
+                match events.recv_timeout(wait) {
+                    Ok(event) => batch.push(event),
+                    Err(RecvTimeoutError::Timeout) => {}
+                    Err(RecvTimeoutError::Disconnected) => closing = true,
+                }
+            } else {
+                std::thread::sleep(wait);
             }
             while batch.len() < MAX_BATCH {
                 match events.try_recv() {
@@ -252,25 +394,68 @@ impl Writer {
                 }
             }
             if !batch.is_empty() {
-                self.write(&batch);
-                done += batch.len() as u64;
-                batch.clear();
-                settled.send_replace(done);
+                let settled_now = match self.write(&batch) {
+                    Written::Settled => true,
+                    Written::Kept if closing => {
+                        // The last try at the stop: what the lock still keeps out is lost.
+                        self.counters.dropped(batch.len() as u64);
+                        tracing::error!(
+                            events = batch.len(),
+                            "history: events not stored at the stop (the file stayed locked)"
+                        );
+                        true
+                    }
+                    Written::Kept => false,
+                };
+                if settled_now {
+                    done += batch.len() as u64;
+                    batch.clear();
+                    settled.send_replace(done);
+                }
             }
             self.retention_step();
         }
         self.finish();
     }
 
-    /// Write `batch` in one transaction; count it stored or dropped.
-    fn write(&mut self, batch: &[HistoryEvent]) {
+    /// Write `batch` in one transaction: stored, or dropped (counted) when the file
+    /// cannot take it, or kept for another try when another process holds the lock.
+    /// A file deleted or replaced since it was opened is noticed here: an error, and
+    /// the batch goes to the file now at the path (a new one when there is none).
+    fn write(&mut self, batch: &[HistoryEvent]) -> Written {
         let events = batch.len() as u64;
+        if self.connection.is_some() && !self.same_file() {
+            let message = format!(
+                "history {}: the file was deleted or replaced while in use: a new file is \
+                 opened at the path (nothing more goes to the old one)",
+                self.path.display()
+            );
+            self.failed(&message, 0, true);
+            self.next_open = Instant::now();
+        }
         if self.connection.is_none() && Instant::now() >= self.next_open {
-            self.try_open();
+            if let Err(error) = self.try_open() {
+                self.failed(&error.to_string(), 0, true);
+            }
+        }
+        if self.connection.is_some() && self.run_id.is_none() {
+            if let Err(error) = self.confirm_run() {
+                let message = format!(
+                    "history {}: this run cannot be recorded: {}",
+                    self.path.display(),
+                    explain(&error)
+                );
+                if locked(&error) {
+                    self.failed(&format!("{message} (events kept, tried again)"), 0, false);
+                    return Written::Kept;
+                }
+                self.failed(&message, events, false);
+                return Written::Settled;
+            }
         }
         let (Some(connection), Some(run_id)) = (self.connection.as_mut(), self.run_id) else {
             self.counters.dropped(events);
-            return;
+            return Written::Settled;
         };
         let started = Instant::now();
         let written = connection.transaction().and_then(|transaction| {
@@ -285,17 +470,25 @@ impl Writer {
                 if self.counters.state() == HistoryState::Failing {
                     self.recovered();
                 }
+                Written::Settled
             }
             Err(error) => {
-                let full = error.sqlite_error_code() == Some(rusqlite::ErrorCode::DiskFull);
                 let message = format!(
                     "history {}: cannot store {events} events: {}",
                     self.path.display(),
                     explain(&error)
                 );
+                if locked(&error) {
+                    // Another process holds the lock: nothing is wrong with the file or
+                    // the connection; the batch waits for the lock.
+                    self.failed(&format!("{message} (kept, tried again)"), 0, false);
+                    return Written::Kept;
+                }
                 // A full disk may free up with the connection as it is; anything else
                 // (a file made read-only, replaced or damaged) is opened afresh.
+                let full = error.sqlite_error_code() == Some(rusqlite::ErrorCode::DiskFull);
                 self.failed(&message, events, !full);
+                Written::Settled
             }
         }
     }
@@ -307,6 +500,8 @@ impl Writer {
         self.counters.set_error(message.to_owned());
         if reopen {
             self.connection = None;
+            self.file = None;
+            self.run_id = None;
             self.next_open = Instant::now() + REOPEN_PERIOD;
         }
         let repeat = self
@@ -717,22 +912,37 @@ fn insert_alarm(
     Ok(())
 }
 
-/// Open (or create) `history`'s file, bring its schema up to date, record this run and
-/// read what it restores; then start the writer thread. Blocks on file I/O (call it
-/// from a blocking task in async code); does nothing when disabled or started before.
-/// An unusable file is logged and shown on `/metrics`, not returned: the writer
-/// retries it and the service runs on with nothing restored.
+/// Start the writer thread for `history`: it opens (or creates) the file, brings its
+/// schema up to date, records this run and reads what the start restores, then
+/// commits what is recorded. Returns the restored state once read (blocking: call it
+/// from a blocking task in async code); does nothing when disabled or started
+/// before. While the file exists but cannot be read (another process holds it
+/// locked), this waits. A file that cannot be used (damaged, another
+/// application's, a folder that cannot take it) is logged and shown on `/metrics`,
+/// not returned: the writer retries it and the service runs on with nothing restored.
 pub fn start(history: &History, run: RunInfo) -> Restored {
-    let Some(ends) = history.take_writer_ends() else {
-        return Restored::default();
-    };
+    spawn(history, run)
+        .and_then(|opened| opened.recv().ok())
+        .unwrap_or_default()
+}
+
+/// Start the writer thread for `history` (see [`start`]) and return at once; the
+/// restored state comes on the receiver once the file was read. The receiver ends
+/// without one when the history is closed ([`History::close`]) before that: the
+/// file never became readable. `None` when disabled or started before.
+pub(crate) fn spawn(
+    history: &History,
+    run: RunInfo,
+) -> Option<std::sync::mpsc::Receiver<Restored>> {
+    let ends = history.take_writer_ends()?;
     let counters = history.counters();
     let retention = Retention::from_config(&ends.config);
-    let (writer, restored) = Writer::open(ends.config.path, retention, run, counters);
+    let writer = Writer::new(ends.config.path, retention, run, counters);
     let (receiver, settled) = (ends.receiver, ends.settled);
+    let (opened, restored) = std::sync::mpsc::sync_channel(1);
     let spawned = std::thread::Builder::new()
         .name("HistoryWriter".into())
-        .spawn(move || writer.run(receiver, settled));
+        .spawn(move || writer.run(receiver, settled, opened));
     match spawned {
         Ok(handle) => history.set_writer(Some(handle)),
         Err(error) => {
@@ -741,7 +951,8 @@ pub fn start(history: &History, run: RunInfo) -> Restored {
                 .counters()
                 .set_error(format!("cannot start the history writer thread: {error}"));
             history.set_writer(None);
+            return None;
         }
     }
-    restored
+    Some(restored)
 }

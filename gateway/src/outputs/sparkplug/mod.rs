@@ -122,20 +122,52 @@ impl SparkplugNode {
         format!("{}/{}", self.config.group_id, self.config.node_id)
     }
 
-    /// The next bdSeq; when the history file cannot take it, one more than the last in
-    /// memory (logged: a host then may see a bdSeq repeat after a restart).
-    async fn next_bd_seq(&self, last: Option<u8>) -> u8 {
+    /// The next bdSeq from the history file; `None` when the file cannot take it
+    /// (logged as an error when `loud`, else at debug level).
+    async fn stored_bd_seq(&self, loud: bool) -> Option<u8> {
         let (path, key) = (self.history.clone(), self.node_key());
-        let stored = tokio::task::spawn_blocking(move || next_bd_seq(&path, &key)).await;
-        match stored {
-            Ok(Ok(bd_seq)) => bd_seq,
+        match tokio::task::spawn_blocking(move || next_bd_seq(&path, &key)).await {
+            Ok(Ok(bd_seq)) => Some(bd_seq),
+            Ok(Err(error)) if loud => {
+                tracing::error!(%error, "Sparkplug bdSeq not read from the history file");
+                None
+            }
             Ok(Err(error)) => {
-                tracing::error!(%error, "Sparkplug bdSeq not stored; counting in memory");
-                last.map_or(0, |last| last.wrapping_add(1))
+                tracing::debug!(%error, "Sparkplug bdSeq not read from the history file");
+                None
             }
             Err(error) => {
                 tracing::error!(%error, "Sparkplug bdSeq task failed");
-                last.map_or(0, |last| last.wrapping_add(1))
+                None
+            }
+        }
+    }
+
+    /// The next bdSeq; when the history file cannot take it, one more than `last`
+    /// (logged: a host then may see a bdSeq repeat after a restart).
+    async fn next_bd_seq(&self, last: u8) -> u8 {
+        self.stored_bd_seq(true)
+            .await
+            .unwrap_or_else(|| last.wrapping_add(1))
+    }
+
+    /// `read` until it gives a value (every [`RECONNECT_DELAY`]; only the first
+    /// failure is `loud`, logged as an error), `None` when `shutdown` came first: the
+    /// session's first bdSeq and replay cursor come from the file, never from a
+    /// default below what it holds.
+    async fn from_file<T, F: std::future::Future<Output = Option<T>>>(
+        shutdown: &mut Shutdown,
+        mut read: impl FnMut(bool) -> F,
+    ) -> Option<T> {
+        let mut loud = true;
+        loop {
+            if let Some(value) = read(loud).await {
+                return Some(value);
+            }
+            loud = false;
+            tokio::select! {
+                () = shutdown.recv() => return None,
+                () = tokio::time::sleep(RECONNECT_DELAY) => {}
             }
         }
     }
@@ -301,19 +333,23 @@ impl SparkplugNode {
         }
     }
 
-    /// The stored replay cursor (the history's last bite for a new node; 0 when the
-    /// file cannot be read, logged).
-    async fn load_cursor(&self) -> i64 {
+    /// The stored replay cursor (the history's last bite for a new node); `None`
+    /// when the file cannot be read (logged as an error when `loud`).
+    async fn load_cursor(&self, loud: bool) -> Option<i64> {
         let (path, key) = (self.history.clone(), self.node_key());
         match tokio::task::spawn_blocking(move || forward::load_cursor(&path, &key)).await {
-            Ok(Ok(cursor)) => cursor,
+            Ok(Ok(cursor)) => Some(cursor),
+            Ok(Err(error)) if loud => {
+                tracing::error!(%error, "Sparkplug replay cursor not read from the history file");
+                None
+            }
             Ok(Err(error)) => {
-                tracing::error!(%error, "Sparkplug replay cursor not read; starting at the first bite");
-                0
+                tracing::debug!(%error, "Sparkplug replay cursor not read from the history file");
+                None
             }
             Err(error) => {
                 tracing::error!(%error, "Sparkplug cursor task failed");
-                0
+                None
             }
         }
     }
@@ -321,8 +357,16 @@ impl SparkplugNode {
     /// Publish until `shutdown`, reconnecting with a new bdSeq after each lost session.
     pub async fn run(self, mut shutdown: Shutdown) {
         let board = Arc::clone(&self.board);
-        let mut bd_seq = self.next_bd_seq(None).await;
-        let mut confirmations = Confirmations::new(self.load_cursor().await);
+        let Some(mut bd_seq) =
+            Self::from_file(&mut shutdown, |loud| self.stored_bd_seq(loud)).await
+        else {
+            return;
+        };
+        let Some(cursor) = Self::from_file(&mut shutdown, |loud| self.load_cursor(loud)).await
+        else {
+            return;
+        };
+        let mut confirmations = Confirmations::new(cursor);
         // The cursor is stored and the backlog counted by a task of its own: a timer
         // in the select below would cancel the event loop's poll, and a CONNECT in
         // flight with it (the broker then sees the next CONNECT take the session over
@@ -454,7 +498,7 @@ impl SparkplugNode {
                         // A new bdSeq only after a session the broker accepted: a
                         // refused or failed CONNECT never registered its Will.
                         if connected {
-                            bd_seq = self.next_bd_seq(Some(bd_seq)).await;
+                            bd_seq = self.next_bd_seq(bd_seq).await;
                             node.new_session(bd_seq);
                             self.status.bd_seq.store(bd_seq, Ordering::Relaxed);
                             let will = node.death(now_ms());

@@ -26,7 +26,9 @@ pub use shared::{DrivelineInfo, WebState};
 use std::sync::Arc;
 use std::time::Duration;
 
-use axum::http::StatusCode;
+use axum::extract::{Request, State};
+use axum::http::{header, HeaderValue, StatusCode};
+use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use axum::Router;
@@ -51,8 +53,9 @@ pub struct WebServer {
 
 impl WebServer {
     /// A server for `config`'s `[outputs.web]` (`settings`) reading `board` and the
-    /// history file (`config.history`).
-    pub fn new(config: &Config, settings: WebOutput, board: Arc<Board>) -> Self {
+    /// history file (`config.history`), with its history query threads started (an
+    /// error when they cannot be).
+    pub fn new(config: &Config, settings: WebOutput, board: Arc<Board>) -> std::io::Result<Self> {
         let channel = |index: usize| config.channels[index].name.clone();
         let drivelines = config
             .drivelines
@@ -88,16 +91,21 @@ impl WebServer {
             board,
             history: config.history.as_ref().map(|h| h.path.clone()),
             request_timeout: settings.request_timeout,
+            query_slots: Arc::new(tokio::sync::Semaphore::new(settings.history_queries)),
+            query_slot_count: settings.history_queries,
+            queries: shared::QueryThreads::start(settings.history_queries)?,
+            event_streams: Arc::new(tokio::sync::Semaphore::new(settings.max_event_streams)),
+            allowed_hosts: settings.allowed_hosts.clone(),
             live: live_rx,
             trends: shared::TrendCache::default(),
         };
         let state = Arc::new(state);
         live.send_replace(Arc::new(api::live_json(&state)));
-        Self {
+        Ok(Self {
             settings,
             state,
             live,
-        }
+        })
     }
 
     /// Serve `listener` until `shutdown`; an error when accepting fails for good.
@@ -154,6 +162,10 @@ pub(crate) fn router(state: Arc<WebState>) -> Router {
         .route("/api/alarms", get(api::alarms))
         .route("/api/events", get(api::events))
         .fallback(|| async { http::error(StatusCode::NOT_FOUND, "no such page") })
+        .layer(axum::middleware::from_fn_with_state(
+            Arc::clone(&state),
+            known_host,
+        ))
         .with_state(state)
 }
 
@@ -169,8 +181,92 @@ pub fn exposure_warning(settings: &WebOutput) -> Option<String> {
     })
 }
 
+/// `Retry-After` of a 503 answer, s: a busy history or full streams free up in
+/// seconds.
+const RETRY_AFTER_S: &str = "2";
+
 impl IntoResponse for api::ApiError {
     fn into_response(self) -> Response {
-        http::error(self.status, &self.message)
+        let mut response = http::error(self.status, &self.message);
+        if self.status == StatusCode::SERVICE_UNAVAILABLE {
+            response
+                .headers_mut()
+                .insert(header::RETRY_AFTER, HeaderValue::from_static(RETRY_AFTER_S));
+        }
+        response
+    }
+}
+
+/// Refuses (421) a request whose `Host` header names a host the page does not
+/// answer to: against DNS rebinding, where a page from another site reaches the
+/// gateway through a name that resolves to it. IP addresses, `localhost` and
+/// `outputs.web.allowed_hosts` are answered; a request without `Host` (HTTP/1.0) is
+/// too, as no browser sends one.
+async fn known_host(State(state): State<Arc<WebState>>, request: Request, next: Next) -> Response {
+    let host = request
+        .headers()
+        .get(header::HOST)
+        .map(|host| host.to_str().unwrap_or(""));
+    match host {
+        Some(host) if !host_allowed(host, &state.allowed_hosts) => http::error(
+            StatusCode::MISDIRECTED_REQUEST,
+            &format!(
+                "Host \"{}\" is not one this page answers to (an IP address, localhost or \
+                 outputs.web.allowed_hosts)",
+                host.escape_default()
+            ),
+        ),
+        _ => next.run(request).await,
+    }
+}
+
+/// Whether `host` (a `Host` header: a name or address, with an optional port) is an
+/// IP address, `localhost` or one of `allowed` (lower case).
+fn host_allowed(host: &str, allowed: &[String]) -> bool {
+    let name = match host.strip_prefix('[') {
+        Some(bracketed) => {
+            return bracketed
+                .split_once(']')
+                .is_some_and(|(v6, _)| v6.parse::<std::net::Ipv6Addr>().is_ok())
+        }
+        None => host.rsplit_once(':').map_or(host, |(name, _)| name),
+    };
+    let name = name.strip_suffix('.').unwrap_or(name).to_ascii_lowercase();
+    name.parse::<std::net::Ipv4Addr>().is_ok() || name == "localhost" || allowed.contains(&name)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::host_allowed;
+
+    #[test]
+    fn hosts_are_addresses_localhost_or_the_allowed_names() {
+        let allowed = ["mill-gw.plant.example".to_owned()];
+        for host in [
+            "127.0.0.1",
+            "127.0.0.1:8080",
+            "10.1.2.3:80",
+            "[::1]:8080",
+            "[fe80::1]",
+            "localhost",
+            "LOCALHOST:8080",
+            "localhost.",
+            "mill-gw.plant.example",
+            "Mill-GW.plant.example:8080",
+        ] {
+            assert!(host_allowed(host, &allowed), "{host}");
+        }
+        for host in [
+            "",
+            "evil.example",
+            "evil.example:8080",
+            "127.0.0.1.evil.example",
+            "localhost.evil.example",
+            "[::1",
+            "[evil.example]:80",
+            "mill-gw.plant.example.evil.example",
+        ] {
+            assert!(!host_allowed(host, &allowed), "{host}");
+        }
     }
 }

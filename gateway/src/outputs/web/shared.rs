@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
-use tokio::sync::watch;
+use tokio::sync::{watch, Semaphore};
 
 use crate::state::board::Board;
 
@@ -42,6 +42,17 @@ pub struct WebState {
     /// The history file, `None` without `[history]`.
     pub(crate) history: Option<PathBuf>,
     pub(crate) request_timeout: Duration,
+    /// History queries running at once (`outputs.web.history_queries`): a permit is
+    /// held until the query's thread has ended.
+    pub(crate) query_slots: Arc<Semaphore>,
+    /// How many slots there are.
+    pub(crate) query_slot_count: usize,
+    /// The threads the history queries run on, one per slot.
+    pub(crate) queries: QueryThreads,
+    /// Live-update streams open at once (`outputs.web.max_event_streams`).
+    pub(crate) event_streams: Arc<Semaphore>,
+    /// Host names answered besides addresses and `localhost`.
+    pub(crate) allowed_hosts: Vec<String>,
     /// The live results as `/api/events` sends them (JSON), newest.
     pub(crate) live: watch::Receiver<Arc<String>>,
     /// Gap trends as last fitted, per driveline (the API's `gap_trend`).
@@ -58,3 +69,46 @@ pub struct WebState {
 pub(crate) struct TrendCache(
     pub(crate) std::sync::Mutex<std::collections::HashMap<String, (i64, Option<f64>)>>,
 );
+
+/// A history query's work, run on a [`QueryThreads`] thread.
+pub(crate) type QueryJob = Box<dyn FnOnce() + Send>;
+
+/// Nice value of the query threads: the lowest priority, so the page's work never
+/// takes the CPU from the readers and the analysis.
+const QUERY_NICE: i32 = 19;
+
+/// The threads the page's history queries run on: a fixed number, started with the
+/// server at the lowest CPU priority; they end when the server's state is dropped.
+#[derive(Debug)]
+pub(crate) struct QueryThreads(std::sync::mpsc::Sender<QueryJob>);
+
+impl QueryThreads {
+    /// `count` threads named `WebHistoryQuery`.
+    pub(crate) fn start(count: usize) -> std::io::Result<Self> {
+        let (jobs, queue) = std::sync::mpsc::channel::<QueryJob>();
+        let queue = Arc::new(std::sync::Mutex::new(queue));
+        for _ in 0..count {
+            let queue = Arc::clone(&queue);
+            std::thread::Builder::new()
+                .name("WebHistoryQuery".into())
+                .spawn(move || {
+                    if let Err(error) = rustix::process::setpriority_process(None, QUERY_NICE) {
+                        tracing::debug!(%error, "history query thread: priority not lowered");
+                    }
+                    loop {
+                        let job = crate::lock(&queue).recv();
+                        match job {
+                            Ok(job) => job(),
+                            Err(_) => break,
+                        }
+                    }
+                })?;
+        }
+        Ok(Self(jobs))
+    }
+
+    /// Run `job` on the next free thread; `Err` when the threads have ended.
+    pub(crate) fn run(&self, job: QueryJob) -> Result<(), QueryJob> {
+        self.0.send(job).map_err(|refused| refused.0)
+    }
+}

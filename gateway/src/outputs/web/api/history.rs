@@ -4,12 +4,12 @@
 use std::sync::Arc;
 
 use axum::extract::rejection::QueryRejection;
-use axum::extract::{Path, Query, State};
+use axum::extract::{Query, State};
 use axum::Json;
 
 use super::{
-    driveline_index, history_error, with_history, ApiError, Params, LIMIT_DEFAULT, LIMIT_MAX,
-    POINTS_DEFAULT,
+    driveline_index, history_error, with_history, ApiError, DrivelineName, Params, LIMIT_DEFAULT,
+    LIMIT_MAX, POINTS_DEFAULT,
 };
 use crate::outputs::history::query::{AlarmRow, BiteRow, Filter, Record};
 use crate::outputs::history::series::{WearPoint, MAX_SERIES_POINTS};
@@ -20,7 +20,7 @@ use crate::outputs::web::shared::WebState;
 /// in the range, oldest first.
 pub(crate) async fn bites(
     State(state): State<Arc<WebState>>,
-    Path(name): Path<String>,
+    DrivelineName(name): DrivelineName,
     query: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Json<Vec<BiteRow>>, ApiError> {
     let params = Params::of(query, &["since", "until", "limit"])?;
@@ -33,7 +33,7 @@ pub(crate) async fn bites(
 /// buckets, oldest first; buckets without bites are left out.
 pub(crate) async fn wear(
     State(state): State<Arc<WebState>>,
-    Path(name): Path<String>,
+    DrivelineName(name): DrivelineName,
     query: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Json<Vec<WearPoint>>, ApiError> {
     let params = Params::of(query, &["since", "until", "points"])?;

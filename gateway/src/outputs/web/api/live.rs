@@ -3,11 +3,12 @@
 //! server-sent events that carry them to open pages.
 
 use std::convert::Infallible;
+use std::future::Future as _;
 use std::sync::Arc;
 use std::time::Duration;
 
 use axum::extract::rejection::QueryRejection;
-use axum::extract::{Path, Query, State};
+use axum::extract::{Query, State};
 use axum::http::{header, HeaderValue};
 use axum::response::sse::{Event, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
@@ -17,7 +18,9 @@ use serde_json::{Map, Value as JsonValue};
 use tokio_stream::wrappers::WatchStream;
 use tokio_stream::{Stream, StreamExt};
 
-use super::{driveline_index, history_error, with_history, ApiError, Params, OUTAGE_WINDOW};
+use super::{
+    driveline_index, history_error, with_history, ApiError, DrivelineName, Params, OUTAGE_WINDOW,
+};
 use crate::field::source_health::SourceStatus;
 use crate::outputs::history::query::{Filter, HistoryReader, OutageRow};
 use crate::outputs::history::series::TREND_WINDOW;
@@ -390,7 +393,7 @@ pub(crate) async fn drivelines(
 /// `GET /api/drivelines/{name}`: one driveline with its gap trend.
 pub(crate) async fn driveline(
     State(state): State<Arc<WebState>>,
-    Path(name): Path<String>,
+    DrivelineName(name): DrivelineName,
     query: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Json<DrivelineView>, ApiError> {
     Params::of(query, &[])?;
@@ -408,18 +411,47 @@ pub(crate) async fn driveline(
     Ok(Json(view))
 }
 
+/// Longest life of one `/api/events` stream: it then ends, and the page's
+/// `EventSource` opens a new one (after [`EVENT_RETRY`]), so a held stream cannot
+/// keep its slot for ever.
+pub(crate) const EVENT_STREAM_LIFETIME: Duration = Duration::from_secs(600);
+
+/// The reconnection delay an `/api/events` stream asks of its `EventSource`.
+const EVENT_RETRY: Duration = Duration::from_secs(1);
+
 /// `GET /api/events`: server-sent events, `event: results` with the live overview
 /// (no history parts) at once and whenever it changes (checked every
-/// [`super::LIVE_PERIOD`]); a comment every 15 s keeps proxies from closing it.
+/// [`super::LIVE_PERIOD`]); a comment every 15 s keeps proxies from closing it. At
+/// most `outputs.web.max_event_streams` at once (a further one is answered 503 with
+/// `Retry-After`), each for [`EVENT_STREAM_LIFETIME`].
 pub(crate) async fn events(
     State(state): State<Arc<WebState>>,
     query: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Response, ApiError> {
     Params::of(query, &[])?;
-    let stream: std::pin::Pin<Box<dyn Stream<Item = Result<Event, Infallible>> + Send>> = Box::pin(
-        WatchStream::new(state.live.clone())
-            .map(|json| Ok(Event::default().event("results").data(json.as_str()))),
-    );
+    let Ok(slot) = Arc::clone(&state.event_streams).try_acquire_owned() else {
+        return Err(ApiError {
+            status: axum::http::StatusCode::SERVICE_UNAVAILABLE,
+            message: "every live-update stream is taken (outputs.web.max_event_streams)".into(),
+        });
+    };
+    let mut first = true;
+    let updates = WatchStream::new(state.live.clone()).map(move |json| {
+        let event = Event::default().event("results").data(json.as_str());
+        // The first event tells the browser how soon to come back after the end.
+        let event = if std::mem::take(&mut first) {
+            event.retry(EVENT_RETRY)
+        } else {
+            event
+        };
+        Ok(event)
+    });
+    let stream: std::pin::Pin<Box<dyn Stream<Item = Result<Event, Infallible>> + Send>> =
+        Box::pin(Lifetime {
+            updates,
+            end: Box::pin(tokio::time::sleep(EVENT_STREAM_LIFETIME)),
+            _slot: slot,
+        });
     let mut response = Sse::new(stream)
         .keep_alive(KeepAlive::new().interval(Duration::from_secs(15)))
         .into_response();
@@ -427,4 +459,51 @@ pub(crate) async fn events(
         .headers_mut()
         .insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
     Ok(response)
+}
+
+/// A stream of live updates that ends at `end` and holds its stream slot until
+/// dropped (when its connection goes or its answer ends).
+struct Lifetime<S> {
+    updates: S,
+    end: std::pin::Pin<Box<tokio::time::Sleep>>,
+    _slot: tokio::sync::OwnedSemaphorePermit,
+}
+
+impl<S: Stream + Unpin> Stream for Lifetime<S> {
+    type Item = S::Item;
+
+    fn poll_next(
+        mut self: std::pin::Pin<&mut Self>,
+        context: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<Option<S::Item>> {
+        if self.end.as_mut().poll(context).is_ready() {
+            return std::task::Poll::Ready(None);
+        }
+        std::pin::Pin::new(&mut self.updates).poll_next(context)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[tokio::test(start_paused = true)]
+    async fn a_stream_ends_at_its_lifetime_and_frees_its_slot() {
+        let slots = Arc::new(tokio::sync::Semaphore::new(1));
+        let (_live, receiver) = tokio::sync::watch::channel(Arc::new("{}".to_owned()));
+        let mut stream = Lifetime {
+            updates: WatchStream::new(receiver),
+            end: Box::pin(tokio::time::sleep(EVENT_STREAM_LIFETIME)),
+            _slot: Arc::clone(&slots).try_acquire_owned().unwrap(),
+        };
+        assert!(stream.next().await.is_some(), "the current results at once");
+        assert_eq!(slots.available_permits(), 0, "the stream holds its slot");
+        tokio::time::advance(EVENT_STREAM_LIFETIME - Duration::from_secs(1)).await;
+        let pending = tokio::time::timeout(Duration::from_millis(500), stream.next()).await;
+        assert!(pending.is_err(), "nothing new before the end: {pending:?}");
+        tokio::time::advance(Duration::from_secs(1)).await;
+        assert!(stream.next().await.is_none(), "ended at its lifetime");
+        drop(stream);
+        assert_eq!(slots.available_permits(), 1, "the slot is free again");
+    }
 }

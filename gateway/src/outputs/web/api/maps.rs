@@ -4,11 +4,11 @@
 use std::sync::Arc;
 
 use axum::extract::rejection::QueryRejection;
-use axum::extract::{Path, Query, State};
+use axum::extract::{Query, State};
 use axum::Json;
 use serde::Serialize;
 
-use super::{driveline_index, ApiError, Params};
+use super::{driveline_index, ApiError, DrivelineName, Params};
 use crate::outputs::web::shared::WebState;
 use crate::state::gap_maps::{GapMapState, GapMaps};
 use crate::state::results::GapResults;
@@ -137,7 +137,7 @@ impl GapMapView {
 /// them.
 pub(crate) async fn gap_maps(
     State(state): State<Arc<WebState>>,
-    Path(name): Path<String>,
+    DrivelineName(name): DrivelineName,
     query: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Json<GapMapView>, ApiError> {
     Params::of(query, &[])?;

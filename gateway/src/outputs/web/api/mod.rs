@@ -2,10 +2,11 @@
 //!
 //! Every error is `{"error": "..."}` with its status: 400 for a bad parameter (naming
 //! it and its allowed range), 404 for an unknown driveline or without a history, 503
-//! when the history cannot be read in time.
+//! with `Retry-After` when the history cannot be read in time, its query slots are
+//! busy or the live-update streams are all taken.
 //!
-//! `live`: the live figures (overview, drivelines) and their server-sent events;
-//! `history`: bites, the wear series and alarms from the file; `maps`: the gap
+//! `live.rs`: the live figures (overview, drivelines) and their server-sent events;
+//! `history.rs`: bites, the wear series and alarms from the file; `maps.rs`: the gap
 //! maps' curves. This file holds the request plumbing they share.
 
 mod history;
@@ -22,10 +23,13 @@ pub use maps::{CouplingCurves, EstimateCurves, GapMapView, MapCurve};
 
 use std::collections::BTreeSet;
 use std::ops::RangeInclusive;
-use std::time::Duration;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
 
 use axum::extract::rejection::QueryRejection;
-use axum::extract::Query;
+use axum::extract::{FromRequestParts, Path, Query};
+use axum::http::request::Parts;
 use axum::http::StatusCode;
 
 use super::shared::WebState;
@@ -56,6 +60,24 @@ impl ApiError {
             status: StatusCode::BAD_REQUEST,
             message,
         }
+    }
+}
+
+/// The `{name}` of a driveline's route; a name that is not UTF-8 once decoded
+/// (`%ff%fe`) is refused with the API's JSON error, not axum's plain-text one.
+#[derive(Debug)]
+pub(crate) struct DrivelineName(pub(crate) String);
+
+impl<S: Send + Sync> FromRequestParts<S> for DrivelineName {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut Parts, state: &S) -> Result<Self, ApiError> {
+        Path::<String>::from_request_parts(parts, state)
+            .await
+            .map(|Path(name)| Self(name))
+            .map_err(|rejection| {
+                ApiError::bad(format!("driveline name: {}", rejection.body_text()))
+            })
     }
 }
 
@@ -130,9 +152,18 @@ impl Params {
     }
 }
 
-/// Run `work` on a reader of the history file on the blocking pool, within the
-/// request timeout. 404 without a history, 503 when the file cannot be read or the
-/// query takes too long (it then finishes on its own; its result is dropped).
+/// How long a history request waits for a free query slot
+/// (`outputs.web.history_queries`) before it is answered 503.
+pub const SLOT_WAIT: Duration = Duration::from_secs(1);
+
+/// Run `work` on a reader of the history file, in one of the page's query slots,
+/// within the request timeout. The query runs on one of the page's query threads
+/// ([`QueryThreads`](super::shared::QueryThreads): as many as slots, at the lowest
+/// CPU priority, not tokio's blocking pool) and is interrupted by SQLite when its
+/// deadline passes or its request is dropped (the client went away); the slot is
+/// free again only once the query has ended, so the slots bound the work, not only
+/// the requests. 404 without a history; 503 (with `Retry-After`) when no slot frees
+/// within [`SLOT_WAIT`], the file cannot be read or the query takes too long.
 async fn with_history<T: Send + 'static>(
     state: &WebState,
     work: impl FnOnce(&HistoryReader) -> Result<T, ApiError> + Send + 'static,
@@ -147,20 +178,51 @@ async fn with_history<T: Send + 'static>(
         status: StatusCode::SERVICE_UNAVAILABLE,
         message,
     };
-    let query = tokio::task::spawn_blocking(move || {
-        let reader = HistoryReader::open(&path).map_err(|error| ApiError {
-            status: StatusCode::SERVICE_UNAVAILABLE,
-            message: error.to_string(),
-        })?;
-        work(&reader)
+    let slots = Arc::clone(&state.query_slots);
+    let Ok(Ok(slot)) = tokio::time::timeout(SLOT_WAIT, slots.acquire_owned()).await else {
+        return Err(unavailable(format!(
+            "every history query slot is busy (outputs.web.history_queries = {}): try again",
+            state.query_slot_count
+        )));
+    };
+    let deadline = Instant::now() + state.request_timeout;
+    // Set when the request ends before its answer (timeout, client gone): the query's
+    // progress handler then interrupts it.
+    let cancel = Cancel(Arc::new(AtomicBool::new(false)));
+    let stop = Arc::clone(&cancel.0);
+    let (answer, answered) = tokio::sync::oneshot::channel();
+    let job = Box::new(move || {
+        let result = HistoryReader::open(&path)
+            .map_err(history_error)
+            .and_then(|mut reader| {
+                reader.interrupt_when(move || {
+                    stop.load(Ordering::Relaxed) || Instant::now() >= deadline
+                });
+                work(&reader)
+            });
+        let _ = answer.send(result);
+        drop(slot);
     });
-    match tokio::time::timeout(state.request_timeout, query).await {
+    if state.queries.run(job).is_err() {
+        return Err(unavailable("the history query threads have ended".into()));
+    }
+    match tokio::time::timeout(state.request_timeout, answered).await {
         Ok(Ok(answer)) => answer,
         Ok(Err(_)) => Err(unavailable("the history query failed".into())),
         Err(_) => Err(unavailable(format!(
             "the history query took longer than {} ms (outputs.web.request_timeout_ms)",
             state.request_timeout.as_millis()
         ))),
+    }
+}
+
+/// Interrupts a history query when dropped (its request ended, answered or not: an
+/// answered query has finished already).
+struct Cancel(Arc<AtomicBool>);
+
+impl Drop for Cancel {
+    fn drop(&mut self) {
+        self.0.store(true, Ordering::Relaxed);
     }
 }
 

@@ -1,0 +1,19 @@
+//! `millgate address-space --config FILE`: the OPC UA server's address space as a
+//! Markdown table (every variable: node id, type, unit with its UNECE code, range,
+//! description), from the same spec the server publishes.
+
+use millgate_config::Config;
+
+use crate::analysis::rod_monitor::RodMonitor;
+use crate::outputs::opcua::adapter::CatalogueAdapter;
+use crate::outputs::opcua::model::render_markdown;
+
+/// The table of `config`'s address space; an error when a rod mill's file does not
+/// load (its spans are variables).
+pub fn run(config: &Config) -> anyhow::Result<String> {
+    let spans = (0..config.rod_mills.len())
+        .map(|index| Ok(RodMonitor::new(config, index)?.span_names().len()))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let (_, spec) = CatalogueAdapter::new(config, &spans);
+    Ok(render_markdown(&spec))
+}

@@ -1,0 +1,426 @@
+//! The OPC UA server (`[outputs.opcua]`, cargo feature `opcua`): the gateway's figures
+//! as an address space, alarms as events, an acknowledge method. Built on
+//! async-opcua's server (its in-memory node manager, its secure channels, sessions and
+//! subscriptions).
+//!
+//! The server knows nothing of the results types: it publishes an
+//! [`model::AddressSpaceSpec`] and the [`model::Snapshot`]s and
+//! [`model::AlarmEventSpec`]s it is given, and calls an [`nodes::Acknowledger`] when
+//! a client acknowledges. [`adapter`] maps the catalogue and the board to them.
+//!
+//! Files: `model.rs` (the vocabulary and the address space table), `nodes.rs` (the
+//! namespace, the nodes, the acknowledge guard), `events.rs` (alarm events),
+//! `auth.rs` (anonymous and user sign-in), `pki.rs` (the certificate store),
+//! `front.rs` (the listener: connection bound, framing check, client addresses),
+//! `status.rs` (the counters), `error.rs` (why it stopped),
+//! `adapter.rs` (the catalogue to the address space, the board to snapshots and
+//! events).
+
+pub mod adapter;
+mod auth;
+mod error;
+mod events;
+pub mod front;
+pub mod model;
+pub mod nodes;
+mod pki;
+mod status;
+
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+use std::time::Duration;
+
+use millgate_config::{OpcUaOutput, OpcUaSecurityMode};
+use opcua::nodes::Event;
+use opcua::server::node_manager::memory::{InMemoryNodeManager, InMemoryNodeManagerBuilder};
+use opcua::server::{ServerBuilder, ServerEndpoint, ServerHandle, ANONYMOUS_USER_TOKEN_ID};
+use opcua::types::{DataValue, DateTime, MessageSecurityMode, StatusCode, Variant};
+use tokio::net::TcpListener;
+use tokio::sync::{mpsc, watch};
+
+use crate::shutdown::Shutdown;
+
+pub use error::OpcUaError;
+pub use status::{OpcUaCounts, OpcUaStatus};
+
+use front::{ChannelPeers, FrontDoor};
+use model::{AddressSpaceSpec, AlarmEventSpec, Quality, Snapshot, Value, VariableUpdate};
+use nodes::{Acknowledger, CommandGuard, MillgateNodes, MillgateNodesBuilder, NodeIds};
+use status::{count, OpcUaCounters};
+
+/// Largest message a client may send, bytes: async-opcua's receive buffer.
+const MAX_MESSAGE: u32 = u16::MAX as u32;
+/// async-opcua's subscription tick, ms: a subscription publishes on the first tick at
+/// or after its publishing interval, so a 100 ms tick turns a 100 ms interval into
+/// 100 or 200 ms by jitter; a 20 ms one keeps it within 20 ms.
+const SUBSCRIPTION_TICK_MS: u64 = 20;
+/// How long the server may take to come up or to stop.
+const START_STOP_LIMIT: Duration = Duration::from_secs(10);
+
+/// The warning for a server reachable from other hosts, `None` on a loopback bind.
+/// `millgate check` prints it and the service logs it at start.
+pub fn exposure_warning(settings: &OpcUaOutput) -> Option<String> {
+    if settings.bind.ip().is_loopback() {
+        return None;
+    }
+    let mut warning = format!(
+        "outputs.opcua.bind: {} accepts OPC UA clients from other hosts",
+        settings.bind
+    );
+    if settings.security_modes.contains(&OpcUaSecurityMode::None) {
+        warning.push_str(
+            "; outputs.opcua.security_modes has none: messages travel unsigned and \
+             unencrypted (clients are asked to encrypt passwords)",
+        );
+    }
+    if settings.anonymous {
+        warning.push_str("; anonymous clients may read every figure");
+    }
+    if settings.allow_remote_commands {
+        warning.push_str(
+            "; outputs.opcua.allow_remote_commands = true lets a signed-in user on any host \
+             acknowledge alarms",
+        );
+    }
+    Some(warning)
+}
+
+/// The OPC UA server: its settings, what it publishes and who acknowledges.
+pub struct OpcUaServer {
+    settings: OpcUaOutput,
+    spec: Arc<AddressSpaceSpec>,
+    acknowledge: Acknowledger,
+    counters: Arc<OpcUaCounters>,
+    handle: Arc<std::sync::Mutex<Option<ServerHandle>>>,
+}
+
+impl std::fmt::Debug for OpcUaServer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("OpcUaServer")
+            .field("endpoint", &self.settings.endpoint_url())
+            .field("objects", &self.spec.objects.len())
+            .finish()
+    }
+}
+
+impl OpcUaServer {
+    /// A server of `spec` with `settings`; `acknowledge` is called for each acknowledge
+    /// call the guard lets through. The address space is checked now (two nodes with
+    /// one id are refused).
+    pub fn new(
+        settings: OpcUaOutput,
+        spec: AddressSpaceSpec,
+        acknowledge: Acknowledger,
+    ) -> Result<Self, OpcUaError> {
+        NodeIds::new(&spec, 1).map_err(OpcUaError::AddressSpace)?;
+        Ok(Self {
+            settings,
+            spec: Arc::new(spec),
+            acknowledge,
+            counters: Arc::default(),
+            handle: Arc::default(),
+        })
+    }
+
+    /// The counts, now and while it runs.
+    pub fn status(&self) -> OpcUaStatus {
+        OpcUaStatus {
+            counters: Arc::clone(&self.counters),
+            handle: Arc::clone(&self.handle),
+        }
+    }
+
+    /// The application URI (in the certificate and the application description).
+    fn application_uri(&self) -> String {
+        format!("urn:{}:millgate", self.settings.host)
+    }
+
+    /// Serve on `listener` (bound to `settings.bind`) until `shutdown`: `updates` holds
+    /// the latest snapshot (applied at start and at each change), `events` the alarms to
+    /// send. An error when the certificate store, async-opcua or a listener fails.
+    pub async fn run(
+        self,
+        listener: TcpListener,
+        mut updates: watch::Receiver<Snapshot>,
+        mut events: mpsc::Receiver<AlarmEventSpec>,
+        mut shutdown: Shutdown,
+    ) -> Result<(), OpcUaError> {
+        let public = listener.local_addr()?;
+        let pki_dir = self.settings.pki_dir.clone();
+        let (uri, host) = (self.application_uri(), self.settings.host.clone());
+        tokio::task::spawn_blocking(move || pki::prepare(&pki_dir, &uri, &host))
+            .await
+            .map_err(|error| OpcUaError::Server(error.to_string()))??;
+        let peers = Arc::new(ChannelPeers::default());
+        let guard = Arc::new(CommandGuard {
+            allow_remote: self.settings.allow_remote_commands,
+            peers: Arc::clone(&peers),
+            acknowledge: Arc::clone(&self.acknowledge),
+            counters: Arc::clone(&self.counters),
+        });
+        let (server, handle) = self
+            .builder(public.port())
+            .with_node_manager(InMemoryNodeManagerBuilder::new(MillgateNodesBuilder {
+                spec: Arc::clone(&self.spec),
+                guard,
+            }))
+            .build()
+            .map_err(OpcUaError::Server)?;
+        *crate::lock(&self.handle) = Some(handle.clone());
+        let backend_listener = TcpListener::bind((std::net::Ipv4Addr::LOCALHOST, 0)).await?;
+        let backend = backend_listener.local_addr()?;
+        let mut served = tokio::spawn(server.run_with(backend_listener));
+        // async-opcua writes its own listener's port into the endpoint URLs it hands
+        // out: once it has, the front door's port goes there instead.
+        let started = tokio::time::Instant::now();
+        while handle.info().port.load(Ordering::Relaxed) != backend.port() {
+            if served.is_finished() || started.elapsed() > START_STOP_LIMIT {
+                handle.cancel();
+                return Err(OpcUaError::Server("did not start".into()));
+            }
+            tokio::time::sleep(Duration::from_millis(2)).await;
+        }
+        handle.info().port.store(public.port(), Ordering::Relaxed);
+        let nodes = handle
+            .node_managers()
+            .get_of_type::<InMemoryNodeManager<MillgateNodes>>()
+            .ok_or_else(|| OpcUaError::Server("the millgate namespace is missing".into()))?;
+        let ns = handle
+            .get_namespace_index(nodes::NAMESPACE_URI)
+            .ok_or_else(|| OpcUaError::Server("the millgate namespace is missing".into()))?;
+        let ids = NodeIds::new(&self.spec, ns).map_err(OpcUaError::AddressSpace)?;
+        let mut publish = Publish {
+            spec: &self.spec,
+            ids: &ids,
+            nodes: &nodes,
+            handle: &handle,
+            counters: &self.counters,
+            last: Snapshot::default(),
+            event_sequence: 0,
+        };
+        publish.apply(&updates.borrow_and_update());
+        let front = FrontDoor {
+            listener,
+            backend,
+            max_connections: self.settings.max_connections,
+            max_message: MAX_MESSAGE,
+            counters: Arc::clone(&self.counters),
+            peers,
+        };
+        let mut front = tokio::spawn(front.run(shutdown.clone()));
+        tracing::info!(endpoint = %self.settings.endpoint_url(), local = %public, "OPC UA server listening");
+        let ended = loop {
+            tokio::select! {
+                changed = updates.changed() => match changed {
+                    Ok(()) => publish.apply(&updates.borrow_and_update()),
+                    Err(_) => break Ok(()),
+                },
+                Some(alarm) = events.recv() => publish.event(&alarm),
+                () = shutdown.recv() => break Ok(()),
+                ended = &mut served => break Err(OpcUaError::Server(match ended {
+                    Ok(Ok(())) => "ended on its own".into(),
+                    Ok(Err(error)) => error,
+                    Err(error) => error.to_string(),
+                })),
+                ended = &mut front => break match ended {
+                    Ok(Ok(())) => Ok(()),
+                    Ok(Err(error)) => Err(OpcUaError::Io(error)),
+                    Err(error) => Err(OpcUaError::Server(error.to_string())),
+                },
+            }
+        };
+        handle.set_server_state(opcua::types::ServerState::Shutdown);
+        handle.cancel();
+        let _ = tokio::time::timeout(START_STOP_LIMIT, &mut served).await;
+        front.abort();
+        ended
+    }
+
+    /// async-opcua's settings: endpoints, limits, the certificate store, users.
+    fn builder(&self, port: u16) -> ServerBuilder {
+        let settings = &self.settings;
+        let mut builder = ServerBuilder::new()
+            .application_name(format!("millgate {}", self.spec.name))
+            .application_uri(self.application_uri())
+            .product_uri("urn:millgate")
+            .host(settings.host.clone())
+            .port(port)
+            .pki_dir(settings.pki_dir.clone())
+            .create_sample_keypair(false)
+            .trust_client_certs(false)
+            .check_cert_time(true)
+            .discovery_urls(vec![settings.endpoint_url()])
+            .max_sessions(settings.max_sessions)
+            .max_session_timeout_ms(settings.max_session_timeout.as_millis() as u64)
+            .diagnostics_enabled(true)
+            .subscription_poll_interval_ms(SUBSCRIPTION_TICK_MS)
+            .with_authenticator(Arc::new(auth::Users::new(
+                settings.anonymous,
+                settings.users.clone(),
+                Arc::clone(&self.counters),
+            )));
+        let limits = builder.limits_mut();
+        limits.subscriptions.max_subscriptions_per_session = settings.max_subscriptions_per_session;
+        limits.subscriptions.max_monitored_items_per_sub =
+            settings.max_monitored_items_per_subscription;
+        let tokens = [ANONYMOUS_USER_TOKEN_ID.to_owned()];
+        for mode in &settings.security_modes {
+            let mut endpoint = match mode {
+                OpcUaSecurityMode::None => ServerEndpoint::new_none("/", &tokens),
+                OpcUaSecurityMode::Sign => ServerEndpoint::new(
+                    "/",
+                    opcua::crypto::SecurityPolicy::Basic256Sha256,
+                    MessageSecurityMode::Sign,
+                    &tokens,
+                ),
+                OpcUaSecurityMode::SignAndEncrypt => ServerEndpoint::new(
+                    "/",
+                    opcua::crypto::SecurityPolicy::Basic256Sha256,
+                    MessageSecurityMode::SignAndEncrypt,
+                    &tokens,
+                ),
+            };
+            endpoint.password_security_policy = Some(auth::PASSWORD_POLICY.to_string());
+            builder = builder.add_endpoint(mode.name(), endpoint);
+        }
+        builder
+    }
+}
+
+/// The running server's publishing side: snapshots to values, alarms to events.
+struct Publish<'a> {
+    spec: &'a AddressSpaceSpec,
+    ids: &'a NodeIds,
+    nodes: &'a InMemoryNodeManager<MillgateNodes>,
+    handle: &'a ServerHandle,
+    counters: &'a OpcUaCounters,
+    last: Snapshot,
+    event_sequence: u64,
+}
+
+impl Publish<'_> {
+    /// Write what changed since the last snapshot; subscribed clients are notified.
+    fn apply(&mut self, snapshot: &Snapshot) {
+        let now = DateTime::now();
+        let mut changes = Vec::new();
+        for (object, updates) in snapshot.objects.iter().enumerate() {
+            let (Some(specs), Some(ids)) = (
+                self.spec.objects.get(object),
+                self.ids.variables.get(object),
+            ) else {
+                continue;
+            };
+            let last = self.last.objects.get(object);
+            for (variable, update) in updates.iter().enumerate() {
+                let (Some(spec), Some(id)) = (specs.variables.get(variable), ids.get(variable))
+                else {
+                    continue;
+                };
+                if last.and_then(|l| l.get(variable)) == Some(update) {
+                    continue;
+                }
+                let value = self.data_value(spec.datatype, update, now);
+                changes.push((id, value));
+            }
+        }
+        if changes.is_empty() {
+            return;
+        }
+        self.counters
+            .value_changes
+            .fetch_add(changes.len() as u64, Ordering::Relaxed);
+        let written = self.nodes.set_values(
+            self.handle.subscriptions(),
+            changes.into_iter().map(|(id, value)| (id, None, value)),
+        );
+        if let Err(status) = written {
+            tracing::error!(%status, "OPC UA values not written");
+        }
+        self.last = snapshot.clone();
+    }
+
+    /// The DataValue of `update` for a variable of `datatype`: a value only with a
+    /// good or uncertain quality, of the right type and finite.
+    fn data_value(
+        &self,
+        datatype: model::VariableType,
+        update: &VariableUpdate,
+        now: DateTime,
+    ) -> DataValue {
+        let source_time = update.source_time.map_or(now, events::ua_time);
+        let value = match update.value.filter(|_| update.quality.carries_value()) {
+            Some(value) if value.datatype() != datatype || !is_finite(value) => {
+                count(&self.counters.invalid_updates);
+                tracing::error!(?value, expected = datatype.name(), "OPC UA update refused");
+                return DataValue {
+                    value: Some(Variant::Empty),
+                    status: Some(StatusCode::BadTypeMismatch),
+                    source_timestamp: Some(source_time),
+                    server_timestamp: Some(now),
+                    ..Default::default()
+                };
+            }
+            Some(value) => variant(value),
+            // An empty variant rather than none: async-opcua 0.19 reads a variable
+            // without a value as good, whatever its status.
+            None => Variant::Empty,
+        };
+        DataValue {
+            value: Some(value),
+            status: Some(status_code(update.quality)),
+            source_timestamp: Some(source_time),
+            server_timestamp: Some(now),
+            ..Default::default()
+        }
+    }
+
+    /// Send `alarm` from its object: to the clients subscribed to the object's events
+    /// or the Server object's (async-opcua adds those of the Server object).
+    fn event(&mut self, alarm: &AlarmEventSpec) {
+        let Some(source) = self.ids.objects.get(alarm.object) else {
+            tracing::error!(object = alarm.object, "OPC UA alarm of an unknown object");
+            return;
+        };
+        self.event_sequence += 1;
+        let mut id = [0u8; 16];
+        id[..8].copy_from_slice(&self.event_sequence.to_be_bytes());
+        id[8..].copy_from_slice(&DateTime::now().ticks().to_be_bytes());
+        let name = model::object_path(self.spec, alarm.object);
+        let event = events::alarm_event(alarm, source, &name, id);
+        self.handle
+            .subscriptions()
+            .notify_events([(&event as &dyn Event, source)].into_iter());
+        count(&self.counters.events);
+    }
+}
+
+/// A value as an OPC UA variant.
+fn variant(value: Value) -> Variant {
+    match value {
+        Value::Double(value) => Variant::Double(value),
+        Value::Boolean(value) => Variant::Boolean(value),
+        Value::UInt32(value) => Variant::UInt32(value),
+        Value::UInt64(value) => Variant::UInt64(value),
+        Value::DateTime(time) => Variant::from(events::ua_time(time)),
+    }
+}
+
+fn is_finite(value: Value) -> bool {
+    match value {
+        Value::Double(value) => value.is_finite(),
+        _ => true,
+    }
+}
+
+/// The OPC UA status code of `quality`.
+pub fn status_code(quality: Quality) -> StatusCode {
+    match quality {
+        Quality::Good => StatusCode::Good,
+        Quality::UncertainLastUsableValue => StatusCode::UncertainLastUsableValue,
+        Quality::BadWaitingForInitialData => StatusCode::BadWaitingForInitialData,
+        Quality::BadNoCommunication => StatusCode::BadNoCommunication,
+        Quality::BadDeviceFailure => StatusCode::BadDeviceFailure,
+        Quality::BadOutOfRange => StatusCode::BadOutOfRange,
+        Quality::BadNoData => StatusCode::BadNoData,
+    }
+}

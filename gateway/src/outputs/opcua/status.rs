@@ -1,0 +1,121 @@
+//! What the OPC UA server counts: its own counters and async-opcua's diagnostics, for
+//! `/metrics` and tests.
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+
+use opcua::server::ServerHandle;
+use opcua::types::{VariableId, Variant};
+
+/// What the server has seen: counted here, logged where it happens.
+#[derive(Debug, Default)]
+pub(crate) struct OpcUaCounters {
+    pub(super) connections: AtomicU64,
+    pub(super) refused: AtomicU64,
+    pub(super) malformed_frames: AtomicU64,
+    pub(super) protocol_errors: AtomicU64,
+    pub(super) identities_refused: AtomicU64,
+    pub(super) acknowledgements: AtomicU64,
+    pub(super) acknowledgements_refused: AtomicU64,
+    pub(super) value_changes: AtomicU64,
+    pub(super) invalid_updates: AtomicU64,
+    pub(super) events: AtomicU64,
+}
+
+/// A copy of the server's counters and async-opcua's own counts.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct OpcUaCounts {
+    /// TCP connections accepted.
+    pub connections: u64,
+    /// Connections closed at once: `max_connections` were open.
+    pub refused: u64,
+    /// Connections closed because what the client sent was not OPC UA TCP framing.
+    pub malformed_frames: u64,
+    /// ERR messages the server sent: messages its decoder or its secure channel
+    /// refused (a malformed body, an unknown channel, a timeout).
+    pub protocol_errors: u64,
+    /// Sign-ins refused: a wrong password, an unknown user, an anonymous client where
+    /// none is allowed.
+    pub identities_refused: u64,
+    /// Requests the server refused for security: a secure channel it would not open
+    /// (an invalid client certificate or signature), an unknown session, an access
+    /// denied (async-opcua's diagnostics).
+    pub security_rejected_requests: u64,
+    /// Requests the server answered with a bad service result, these included: an
+    /// untrusted client certificate (`Bad_CertificateUntrusted` at CreateSession), a
+    /// refused sign-in (async-opcua's diagnostics).
+    pub rejected_requests: u64,
+    /// Acknowledge calls carried out.
+    pub acknowledgements: u64,
+    /// Acknowledge calls refused by the guard.
+    pub acknowledgements_refused: u64,
+    /// Variable values changed in the address space.
+    pub value_changes: u64,
+    /// Updates refused: a value not of its variable's type, or a non-finite number
+    /// given as good (published as `Bad_TypeMismatch`).
+    pub invalid_updates: u64,
+    /// Alarm events sent.
+    pub events: u64,
+}
+
+impl OpcUaCounters {
+    /// Current values; `handle` adds async-opcua's diagnostics.
+    pub(super) fn snapshot(&self, handle: Option<&ServerHandle>) -> OpcUaCounts {
+        let load = |counter: &AtomicU64| counter.load(Ordering::Relaxed);
+        let diagnostic = |variable: VariableId| {
+            handle
+                .and_then(|h| h.info().summary().get(variable))
+                .and_then(|value| value.value)
+                .and_then(|value| match value {
+                    Variant::UInt32(count) => Some(u64::from(count)),
+                    _ => None,
+                })
+                .unwrap_or(0)
+        };
+        OpcUaCounts {
+            connections: load(&self.connections),
+            refused: load(&self.refused),
+            malformed_frames: load(&self.malformed_frames),
+            protocol_errors: load(&self.protocol_errors),
+            identities_refused: load(&self.identities_refused),
+            security_rejected_requests: diagnostic(
+                VariableId::Server_ServerDiagnostics_ServerDiagnosticsSummary_SecurityRejectedRequestsCount,
+            ),
+            rejected_requests: diagnostic(
+                VariableId::Server_ServerDiagnostics_ServerDiagnosticsSummary_RejectedRequestsCount,
+            ),
+            acknowledgements: load(&self.acknowledgements),
+            acknowledgements_refused: load(&self.acknowledgements_refused),
+            value_changes: load(&self.value_changes),
+            invalid_updates: load(&self.invalid_updates),
+            events: load(&self.events),
+        }
+    }
+}
+
+pub(super) fn count(counter: &AtomicU64) {
+    counter.fetch_add(1, Ordering::Relaxed);
+}
+
+/// The counts of a running server, for `/metrics` and tests.
+#[derive(Clone)]
+pub struct OpcUaStatus {
+    pub(super) counters: Arc<OpcUaCounters>,
+    pub(super) handle: Arc<std::sync::Mutex<Option<ServerHandle>>>,
+}
+
+impl std::fmt::Debug for OpcUaStatus {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("OpcUaStatus")
+            .field("counts", &self.counts())
+            .finish()
+    }
+}
+
+impl OpcUaStatus {
+    /// The counts now.
+    pub fn counts(&self) -> OpcUaCounts {
+        let handle = crate::lock(&self.handle).clone();
+        self.counters.snapshot(handle.as_ref())
+    }
+}

@@ -1,0 +1,925 @@
+//! The OPC UA server against a client that is not ours: Python asyncua 2.1.0
+//! (`opcua_client.py`), with the gateway between the demo's virtual DAQ and PLC.
+//! Checked: the address space (objects, keys, data types, EUInformation by UNECE code,
+//! EURange) and every value against the PLC's registers of the same run; a
+//! subscription receiving a bite; alarm events, the acknowledge method and its guard;
+//! Bad and Uncertain statuses while the DAQ is gone; certificates (an untrusted one
+//! refused and kept in `rejected/`, then trusted) and passwords; hostile streams,
+//! counted, while the service and the PLC writes go on.
+//!
+//! Needs `pip install asyncua==2.1.0` (scripts/test installs it) and the `opcua`
+//! feature: `cargo test -p millgate --features opcua --test opcua`.
+
+mod common;
+
+use std::io::{BufRead, BufReader, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Child, ChildStdin, Command, Stdio};
+use std::sync::mpsc::{Receiver, RecvTimeoutError};
+use std::time::{Duration, Instant};
+
+use millgate::outputs::register_map::{decode_f32, decode_u32, RegisterMap};
+use millgate::service::RunningService;
+use millgate::state::catalogue::{self, FigureType, Guard};
+use millgate_config::{Config, MetricsOutput, OpcUaOutput, OpcUaSecurityMode, OpcUaUser};
+use millgate_sim::devices::demo::{demo_daq, setup};
+use millgate_sim::devices::modbus_bank::{Running, ServeOptions};
+use millgate_sim::devices::virtual_plc::VirtualPlc;
+use serde_json::Value;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream};
+
+/// The Python client: its JSON lines, its stdin for commands; killed on drop.
+struct Peer {
+    child: Child,
+    stdin: ChildStdin,
+    lines: Receiver<Value>,
+}
+
+impl Peer {
+    /// Connect to `url` with `options` of opcua_client.py: `Ok` once the session is
+    /// up, `Err` with the client's `refused` line.
+    fn connect(url: &str, options: &[&str]) -> Result<Self, Value> {
+        let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/opcua_client.py");
+        let mut child = Command::new("python3")
+            .arg(script)
+            .arg(url)
+            .args(options)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .spawn()
+            .expect("python3");
+        let stdin = child.stdin.take().unwrap();
+        let stdout = child.stdout.take().unwrap();
+        let (tx, lines) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines() {
+                let Ok(line) = line else { break };
+                let value: Value = serde_json::from_str(&line)
+                    .unwrap_or_else(|e| panic!("client line {line:?}: {e}"));
+                if tx.send(value).is_err() {
+                    break;
+                }
+            }
+        });
+        let mut peer = Self {
+            child,
+            stdin,
+            lines,
+        };
+        let first = peer.next(Duration::from_secs(60));
+        match first["type"].as_str() {
+            Some("ready") => Ok(peer),
+            Some("refused") => Err(first),
+            _ => panic!("unexpected first line {first}"),
+        }
+    }
+
+    fn next(&mut self, limit: Duration) -> Value {
+        match self.lines.recv_timeout(limit) {
+            Ok(value) => value,
+            Err(RecvTimeoutError::Timeout) => panic!("no line from the client within {limit:?}"),
+            Err(RecvTimeoutError::Disconnected) => panic!("the client script ended"),
+        }
+    }
+
+    /// The next line of `kind`; the lines of other kinds are skipped (and named in
+    /// the panic when none comes in time).
+    fn next_of(&mut self, kind: &str, limit: Duration) -> Value {
+        let start = Instant::now();
+        let mut skipped = Vec::new();
+        loop {
+            let left = limit.saturating_sub(start.elapsed());
+            let line = match self.lines.recv_timeout(left.max(Duration::from_millis(1))) {
+                Ok(line) => line,
+                Err(error) => {
+                    panic!("no {kind} line within {limit:?} ({error}); skipped: {skipped:#?}")
+                }
+            };
+            assert_ne!(line["type"], "error", "{line}");
+            if line["type"] == kind {
+                return line;
+            }
+            skipped.push(line);
+        }
+    }
+
+    fn send(&mut self, command: &str) {
+        writeln!(self.stdin, "{command}").unwrap();
+        self.stdin.flush().unwrap();
+    }
+
+    fn ask(&mut self, command: &str, answer: &str) -> Value {
+        self.send(command);
+        self.next_of(answer, Duration::from_secs(60))
+    }
+}
+
+impl Drop for Peer {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// The gateway between the demo's virtual DAQ (its own task, so it can be stopped) and
+/// PLC, with `[outputs.opcua]`.
+struct Rig {
+    scratch: PathBuf,
+    daq: Option<Running>,
+    plc: VirtualPlc,
+    plc_running: Running,
+    gateway: RunningService,
+    map: RegisterMap,
+    bites: usize,
+    url: String,
+}
+
+impl Rig {
+    /// A schedule of `duration_s` seconds of bars; `edit` changes the configuration
+    /// (`outputs.opcua` is set on a free loopback port with its pki in the scratch
+    /// folder first).
+    async fn start(tag: &str, duration_s: f64, edit: impl FnOnce(&mut Config, &Path)) -> Self {
+        let scratch =
+            std::env::temp_dir().join(format!("millgate-opcua-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&scratch);
+        std::fs::create_dir_all(&scratch).unwrap();
+        let _ = tracing_subscriber::fmt()
+            .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
+            .with_test_writer()
+            .try_init();
+        let demo = setup(duration_s, 0.5, 5).unwrap();
+        let mut config = demo.config;
+        config.outputs.server = None;
+        config.outputs.web = None;
+        let pki = scratch.join("pki");
+        copy_pki(&pki);
+        config.outputs.opcua = Some(OpcUaOutput::on("127.0.0.1:0".parse().unwrap(), pki));
+        edit(&mut config, &scratch);
+        let map = RegisterMap::new(&config);
+        let daq = demo_daq(&config, &demo.schedule).unwrap();
+        let plc = VirtualPlc::new(usize::from(map.len()) + 16);
+        let daq_listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let plc_listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+        config.modbus_sources[0].address = daq_listener.local_addr().unwrap().to_string();
+        config.outputs.plc.as_mut().unwrap().address =
+            plc_listener.local_addr().unwrap().to_string();
+        let daq = daq.spawn(daq_listener, ServeOptions::default());
+        let plc_running = plc.spawn(plc_listener, ServeOptions::default());
+        let settings = config.outputs.opcua.clone().unwrap();
+        let mut gateway = millgate::Service::new(config)
+            .unwrap()
+            .spawn()
+            .await
+            .unwrap();
+        gateway.ready().await.unwrap();
+        let bound = gateway.bound().opcua.expect("the OPC UA server is bound");
+        let url = format!("opc.tcp://{}:{}/", settings.host, bound.port());
+        serving(bound, &url).await;
+        Self {
+            scratch,
+            daq: Some(daq),
+            plc,
+            plc_running,
+            gateway,
+            map,
+            bites: demo.schedule.bites.len(),
+            url,
+        }
+    }
+
+    fn register(&self, name: &str) -> usize {
+        let register = self.map.registers().iter().find(|r| r.name == name);
+        usize::from(
+            register
+                .unwrap_or_else(|| panic!("no register {name}"))
+                .address,
+        )
+    }
+
+    fn u32_at(&self, words: &[u16], name: &str) -> u32 {
+        decode_u32(&words[self.register(name)..]).unwrap()
+    }
+
+    fn f32_at(&self, words: &[u16], name: &str) -> f32 {
+        decode_f32(&words[self.register(name)..]).unwrap()
+    }
+
+    fn bite_counter(&self) -> u32 {
+        self.u32_at(&self.plc.holding(), "F1.bite_counter")
+    }
+
+    /// Wait until the PLC shows every bite of the schedule and then no more for a
+    /// second: the values hold still.
+    async fn wait_schedule_done(&self) {
+        let start = Instant::now();
+        let mut last = (self.bite_counter(), Instant::now());
+        loop {
+            let now = self.bite_counter();
+            if now != last.0 {
+                last = (now, Instant::now());
+            } else if now as usize >= self.bites && last.1.elapsed() > Duration::from_secs(1) {
+                return;
+            }
+            assert!(
+                start.elapsed() < Duration::from_secs(90),
+                "the schedule's {} bites did not reach the PLC (it shows {now})",
+                self.bites
+            );
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    }
+
+    async fn stop(mut self) {
+        tokio::time::timeout(Duration::from_secs(20), self.gateway.stop())
+            .await
+            .expect("the gateway stops")
+            .unwrap();
+        if let Some(daq) = self.daq.take() {
+            daq.stop().await.unwrap();
+        }
+        self.plc_running.stop().await.unwrap();
+        let _ = std::fs::remove_dir_all(&self.scratch);
+    }
+}
+
+/// The `/metrics` page at `address`.
+async fn metrics_page(address: std::net::SocketAddr) -> String {
+    let mut stream = TcpStream::connect(address).await.unwrap();
+    stream
+        .write_all(b"GET /metrics HTTP/1.0\r\nHost: localhost\r\n\r\n")
+        .await
+        .unwrap();
+    let mut page = String::new();
+    stream.read_to_string(&mut page).await.unwrap();
+    page
+}
+
+/// A Hello to `url` at `address`.
+fn hello(url: &str) -> Vec<u8> {
+    let mut body = Vec::new();
+    for word in [0u32, 65_535, 65_535, 0, 0] {
+        body.extend_from_slice(&word.to_le_bytes());
+    }
+    body.extend_from_slice(&(url.len() as u32).to_le_bytes());
+    body.extend_from_slice(url.as_bytes());
+    let mut message = b"HELF".to_vec();
+    message.extend_from_slice(&(8 + body.len() as u32).to_le_bytes());
+    message.extend_from_slice(&body);
+    message
+}
+
+/// Wait until the server at `address` answers a Hello (it makes its certificate
+/// first, at its first start), at most 60 s.
+async fn serving(address: std::net::SocketAddr, url: &str) {
+    let start = Instant::now();
+    let mut stream = TcpStream::connect(address).await.unwrap();
+    stream.write_all(&hello(url)).await.unwrap();
+    let mut answer = [0u8; 4];
+    tokio::time::timeout(Duration::from_secs(60), stream.read_exact(&mut answer))
+        .await
+        .expect("the OPC UA server answers within 60 s")
+        .unwrap();
+    assert_eq!(&answer, b"ACKF", "after {:?}", start.elapsed());
+}
+
+/// A certificate store with the server's certificate made once per test process (an
+/// RSA key takes seconds in a debug build) and copied for each server.
+fn copy_pki(to: &Path) {
+    static MADE: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
+    let made = MADE.get_or_init(|| {
+        let folder =
+            std::env::temp_dir().join(format!("millgate-opcua-pki-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&folder);
+        folder
+    });
+    for sub in ["own", "private", "trusted", "rejected"] {
+        std::fs::create_dir_all(to.join(sub)).unwrap();
+        if let Ok(files) = std::fs::read_dir(made.join(sub)) {
+            for file in files.flatten() {
+                std::fs::copy(file.path(), to.join(sub).join(file.file_name())).unwrap();
+            }
+        }
+    }
+}
+
+/// Keep the server certificate a test's server made for the next servers.
+fn keep_pki(from: &Path) {
+    let made = std::env::temp_dir().join(format!("millgate-opcua-pki-{}", std::process::id()));
+    if made.join("own/cert.der").exists() {
+        return;
+    }
+    for sub in ["own", "private"] {
+        std::fs::create_dir_all(made.join(sub)).unwrap();
+        for file in std::fs::read_dir(from.join(sub)).unwrap().flatten() {
+            std::fs::copy(file.path(), made.join(sub).join(file.file_name())).unwrap();
+        }
+    }
+}
+
+fn variable<'a>(browse: &'a Value, path: &str) -> &'a Value {
+    browse["variables"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|v| v["path"] == path)
+        .unwrap_or_else(|| panic!("no variable {path}"))
+}
+
+/// `value` (a double the server sent) is the PLC's f32 `register`, as rounding to
+/// f32 allows.
+fn same_as_f32(value: &Value, register: f32, what: &str) {
+    let value = value.as_f64().unwrap_or_else(|| panic!("{what}: {value}"));
+    assert_eq!(
+        value as f32, register,
+        "{what}: OPC UA {value}, PLC {register}"
+    );
+}
+
+/// The UNECE common code as EUInformation's unitId, computed here from OPC 10000-8's
+/// rule (the code's bytes, big-endian), apart from the server's code.
+fn unit_id(code: &str) -> i64 {
+    code.bytes().fold(0, |id, byte| (id << 8) | i64::from(byte))
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_address_space_holds_what_the_plc_holds() {
+    let rig = Rig::start("browse", 6.0, |_, _| {}).await;
+    keep_pki(&rig.scratch.join("pki"));
+    rig.wait_schedule_done().await;
+    let mut peer = Peer::connect(&rig.url, &[]).expect("anonymous on loopback");
+    let before = rig.plc.holding();
+    let browse = peer.ask("browse", "browse");
+    let after = rig.plc.holding();
+    assert_eq!(
+        rig.u32_at(&before, "F1.bite_counter"),
+        rig.u32_at(&after, "F1.bite_counter"),
+        "no bite during the browse"
+    );
+    let words = after;
+
+    // The structure: the gateway, its source, the driveline; the method.
+    let objects: Vec<&str> = browse["objects"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|o| o["path"].as_str().unwrap())
+        .collect();
+    for path in [
+        "Gateway",
+        "Sources",
+        "Sources/daq1",
+        "Drivelines",
+        "Drivelines/F1",
+    ] {
+        assert!(objects.contains(&path), "{path} in {objects:?}");
+    }
+    assert_eq!(browse["methods"][0]["path"], "Gateway/AcknowledgeAlarms");
+    // Every figure of the catalogue, by its key (a browse comes in no set order).
+    let mut keys: Vec<&str> = browse["variables"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|v| v["path"].as_str()?.strip_prefix("Drivelines/F1/"))
+        .collect();
+    let mut catalogue: Vec<&str> = catalogue::DRIVELINE.iter().map(|f| f.key).collect();
+    keys.sort_unstable();
+    catalogue.sort_unstable();
+    assert_eq!(keys, catalogue);
+
+    // Types, units (UNECE codes) and ranges.
+    let taf = variable(&browse, "Drivelines/F1/taf");
+    assert_eq!(taf["datatype"], "Double");
+    assert!(taf.get("EngineeringUnits").is_none(), "TAF has no unit");
+    for (path, code, symbol) in [
+        ("Drivelines/F1/static_torque_knm", "B48", "kN·m"),
+        ("Drivelines/F1/peak_torque_knm", "B48", "kN·m"),
+        ("Drivelines/F1/period_shift_s", "SEC", "s"),
+        ("Drivelines/F1/beta1_hz", "HTZ", "Hz"),
+        ("Drivelines/F1/gap_mrad", "C25", "mrad"),
+    ] {
+        let variable = variable(&browse, path);
+        let units = &variable["EngineeringUnits"];
+        assert_eq!(units["unit_id"], unit_id(code), "{path}");
+        assert_eq!(units["display"], symbol, "{path}");
+        assert_eq!(
+            units["namespace"],
+            "http://www.opcfoundation.org/UA/units/un/cefact"
+        );
+        // BaseAnalogType (i=15318): a number with a unit.
+        assert_eq!(variable["type_definition"], "i=15318", "{path}");
+    }
+    for figure in catalogue::DRIVELINE {
+        let expected = match figure.figure_type {
+            FigureType::Real => "Double",
+            FigureType::Count => "UInt64",
+            FigureType::Index => "UInt32",
+            FigureType::Bool => "Boolean",
+            FigureType::Time => "DateTime",
+        };
+        let path = format!("Drivelines/F1/{}", figure.key);
+        assert_eq!(variable(&browse, &path)["datatype"], expected, "{path}");
+    }
+
+    // Every value is the PLC's, and good; figures carry the bite's time.
+    let bite_counter = variable(&browse, "Drivelines/F1/bite_counter");
+    assert_eq!(bite_counter["value"], rig.u32_at(&words, "F1.bite_counter"));
+    assert_eq!(bite_counter["value"].as_u64().unwrap() as usize, rig.bites);
+    let last_bite = rig.u32_at(&words, "F1.last_bite_time");
+    let last_bite_time = variable(&browse, "Drivelines/F1/last_bite_time");
+    assert_eq!(
+        last_bite_time["value"]["unix"].as_f64().unwrap().floor(),
+        f64::from(last_bite),
+        "the PLC has whole seconds"
+    );
+    let flags = words[rig.register("F1.flags")];
+    let quality = words[rig.register("F1.quality")];
+    let mut compared = 0;
+    for figure in catalogue::DRIVELINE {
+        let path = format!("Drivelines/F1/{}", figure.key);
+        let opcua = variable(&browse, &path);
+        match (figure.guard, figure.figure_type) {
+            (Guard::FlagBit(bit), _) => {
+                assert_eq!(opcua["value"], flags & (1 << bit) != 0, "{path}");
+                assert_eq!(opcua["status"], "Good", "{path}");
+            }
+            // The PLC's quality bit clear: no value over OPC UA either.
+            (Guard::QualityBit(bit), _) if quality & (1 << bit) == 0 => {
+                assert_ne!(opcua["status"], "Good", "{path}: {opcua}");
+                assert_eq!(opcua["value"], Value::Null, "{path}: {opcua}");
+            }
+            (Guard::QualityBit(_), FigureType::Real) => {
+                assert_eq!(opcua["status"], "Good", "{path}: {opcua}");
+                assert_eq!(
+                    opcua["source"]["unix"], last_bite_time["value"]["unix"],
+                    "{path}: source time = the bite's"
+                );
+                same_as_f32(
+                    &opcua["value"],
+                    rig.f32_at(&words, &format!("F1.{}", figure.key)),
+                    figure.key,
+                );
+                compared += 1;
+            }
+            (Guard::QualityBit(_), FigureType::Index) => {
+                let register = words[rig.register(&format!("F1.{}", figure.key))];
+                assert_eq!(opcua["value"], u64::from(register), "{path}");
+                compared += 1;
+            }
+            _ => {}
+        }
+    }
+    assert!(compared >= 8, "{compared} figures compared with the PLC");
+    let sources_ok = words[rig.register("sources_ok")];
+    assert_eq!(sources_ok & 1, 1);
+    assert_eq!(variable(&browse, "Sources/daq1/status")["value"], 0);
+    assert_eq!(variable(&browse, "Gateway/sources_ok")["value"], true);
+    assert_eq!(variable(&browse, "Gateway/state")["value"], 1);
+    peer.send("quit");
+    rig.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn subscriptions_get_each_bite_and_alarms_come_as_events() {
+    // TAF thresholds every demo bite passes: the alarm latches at each bite.
+    let rig = Rig::start("events", 40.0, |config, _| {
+        let thresholds = &mut config.drivelines[0].thresholds;
+        thresholds.taf_warning = 1.1;
+        thresholds.taf_alarm = 1.15;
+        config.outputs.metrics = Some(MetricsOutput {
+            bind: "127.0.0.1:0".parse().unwrap(),
+        });
+    })
+    .await;
+    let mut peer = Peer::connect(&rig.url, &[]).expect("anonymous on loopback");
+    peer.ask(
+        "subscribe Drivelines/F1/bite_counter Drivelines/F1/taf",
+        "subscribed",
+    );
+    peer.ask("events", "subscribed");
+    // A bite: the counter's data change carries the PLC's count, the TAF the PLC's
+    // (both come in one publish, in either order, with the bite's time).
+    let seen = rig.bite_counter();
+    let mut tafs = Vec::new();
+    let change = loop {
+        let data = peer.next_of("data", Duration::from_secs(30));
+        if data["path"] == "Drivelines/F1/taf" {
+            tafs.push(data);
+        } else if data["path"] == "Drivelines/F1/bite_counter"
+            && data["value"].as_u64().unwrap() > u64::from(seen)
+        {
+            break data;
+        }
+    };
+    assert_eq!(change["status"], "Good");
+    let counter = change["value"].as_u64().unwrap();
+    let taf = match tafs.iter().find(|taf| taf["source"] == change["source"]) {
+        Some(taf) => taf.clone(),
+        None => loop {
+            let data = peer.next_of("data", Duration::from_secs(10));
+            if data["path"] == "Drivelines/F1/taf" && data["source"] == change["source"] {
+                break data;
+            }
+        },
+    };
+    common::until("the PLC has the bite", Duration::from_secs(5), || {
+        u64::from(rig.bite_counter()) >= counter
+    })
+    .await;
+    if u64::from(rig.bite_counter()) == counter {
+        same_as_f32(
+            &taf["value"],
+            rig.f32_at(&rig.plc.holding(), "F1.taf"),
+            "taf",
+        );
+    }
+
+    // Acknowledge from this host: the latched alarm clears (an event says so, the PLC
+    // flag too), and the next bite raises it again.
+    let ack = peer.ask("ack", "ack");
+    assert_eq!(ack["status"], "Good", "{ack}");
+    let acknowledged = loop {
+        let event = peer.next_of("event", Duration::from_secs(10));
+        if event["fields"]["ConditionName"] == "taf_alarm" {
+            break event;
+        }
+    };
+    let fields = &acknowledged["fields"];
+    assert_eq!(fields["ActiveState/Id"], false, "{fields}");
+    assert_eq!(fields["AckedState/Id"], true, "{fields}");
+    assert_eq!(fields["Severity"], 800);
+    assert_eq!(fields["SourceName"], "Drivelines/F1");
+    assert!(
+        fields["Message"].as_str().unwrap().contains("acknowledged"),
+        "{fields}"
+    );
+    let raised = loop {
+        let event = peer.next_of("event", Duration::from_secs(30));
+        if event["fields"]["ConditionName"] == "taf_alarm" {
+            break event;
+        }
+    };
+    let fields = &raised["fields"];
+    assert_eq!(fields["ActiveState/Id"], true, "{fields}");
+    assert_eq!(fields["AckedState/Id"], false, "{fields}");
+    assert_eq!(fields["Retain"], true);
+    assert!(fields["Message"]
+        .as_str()
+        .unwrap()
+        .starts_with("F1: taf_alarm raised, taf "));
+    let status = rig.gateway.opcua().unwrap().counts();
+    assert_eq!(status.acknowledgements, 1);
+    assert!(status.events >= 2, "{status:?}");
+    // The same counts on /metrics.
+    let page = metrics_page(rig.gateway.bound().metrics.unwrap()).await;
+    assert!(
+        page.contains("\nmillgate_opcua_acknowledgements_total 1\n"),
+        "{page}"
+    );
+    assert!(
+        page.contains("\nmillgate_opcua_connections_total "),
+        "{page}"
+    );
+    peer.send("quit");
+    rig.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stale_source_is_bad_or_uncertain_never_good() {
+    let mut rig = Rig::start("stale", 6.0, |_, _| {}).await;
+    rig.wait_schedule_done().await;
+    let mut peer = Peer::connect(&rig.url, &[]).expect("anonymous on loopback");
+    let counter = rig.bite_counter();
+    let Guard::QualityBit(taf_bit) = catalogue::find(catalogue::DRIVELINE, "taf").guard else {
+        panic!("the TAF has a quality bit");
+    };
+    // The last bite is good, or degraded when the loaded machine made the gateway
+    // miss a DAQ block in its window: OPC UA says what the PLC's quality bit says.
+    let fresh = rig.plc.holding()[rig.register("F1.quality")] & (1 << taf_bit) != 0;
+    let before = peer.ask("read Drivelines/F1/taf", "read");
+    let expected = if fresh { "Good" } else { "BadDeviceFailure" };
+    assert_eq!(before["status"], expected, "{before}");
+    let Guard::FlagBit(bit) = catalogue::find(catalogue::DRIVELINE, "source_stale").guard else {
+        panic!("source_stale is a flag");
+    };
+    let stale_bit = 1 << bit;
+    // The cable pulled: the DAQ stops answering.
+    rig.daq.take().unwrap().stop().await.unwrap();
+    common::until(
+        "the PLC shows the source stale",
+        Duration::from_secs(20),
+        || rig.plc.holding()[rig.register("F1.flags")] & stale_bit != 0,
+    )
+    .await;
+    // The last bite's figures stay true of that bite: their last usable value,
+    // marked so, while the PLC reads them with the quality bit clear; a figure the
+    // bite did not give stays without a value.
+    let expected = if fresh {
+        "UncertainLastUsableValue"
+    } else {
+        "BadNoCommunication"
+    };
+    let start = Instant::now();
+    let taf = loop {
+        let taf = peer.ask("read Drivelines/F1/taf", "read");
+        if taf["status"] == expected || start.elapsed() > Duration::from_secs(5) {
+            break taf;
+        }
+    };
+    assert_eq!(taf["status"], expected, "{taf}");
+    assert_eq!(taf["value"] != Value::Null, fresh, "{taf}");
+    assert_eq!(
+        rig.plc.holding()[rig.register("F1.quality")] & (1 << taf_bit),
+        0,
+        "the PLC's TAF quality bit is clear"
+    );
+    for key in ["gap_mrad", "wear_trend", "last_bite_time"] {
+        let read = peer.ask(&format!("read Drivelines/F1/{key}"), "read");
+        let uncertain = read["status"] == "UncertainLastUsableValue";
+        assert!(
+            uncertain || (read["status"] != "Good" && read["value"] == Value::Null),
+            "{key}: never good while stale: {read}"
+        );
+        assert!(uncertain || key != "last_bite_time", "{key}: {read}");
+    }
+    // Counters say what happened: kept, good.
+    let bites = peer.ask("read Drivelines/F1/bite_counter", "read");
+    assert_eq!(bites["status"], "Good", "{bites}");
+    assert_eq!(bites["value"], counter);
+    let stale = peer.ask("read Drivelines/F1/source_stale", "read");
+    assert_eq!(
+        (&stale["status"], &stale["value"]),
+        (&"Good".into(), &true.into())
+    );
+    let source = peer.ask("read Sources/daq1/status", "read");
+    assert!(matches!(source["value"].as_u64(), Some(1 | 2)), "{source}");
+    peer.send("quit");
+    rig.stop().await;
+}
+
+/// A non-loopback address of this host, if it has one.
+fn host_address() -> Option<std::net::IpAddr> {
+    let socket = std::net::UdpSocket::bind("0.0.0.0:0").ok()?;
+    socket.connect("192.0.2.1:9").ok()?;
+    let ip = socket.local_addr().ok()?.ip();
+    (!ip.is_loopback() && !ip.is_unspecified()).then_some(ip)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn certificates_and_passwords_are_checked() {
+    let users = "operator:s3cret\n";
+    let remote = host_address();
+    let rig = Rig::start("security", 30.0, |config, scratch| {
+        std::fs::write(scratch.join("users"), users).unwrap();
+        let opcua = config.outputs.opcua.as_mut().unwrap();
+        opcua.security_modes = vec![OpcUaSecurityMode::SignAndEncrypt];
+        opcua.anonymous = false;
+        opcua.users = vec![OpcUaUser {
+            name: "operator".into(),
+            password: "s3cret".into(),
+        }];
+        opcua.allow_remote_commands = false;
+        if let Some(ip) = remote {
+            opcua.bind = std::net::SocketAddr::new("0.0.0.0".parse().unwrap(), 0);
+            opcua.host = ip.to_string();
+        }
+    })
+    .await;
+    let pki = rig.scratch.join("pki");
+    let certs = rig.scratch.join("client-certs");
+    let certs = certs.to_str().unwrap();
+    let secure = ["--cert-dir", certs, "--mode", "sign_and_encrypt"];
+    let with_user = |password: &'static str| {
+        [
+            secure.as_slice(),
+            &["--user", "operator", "--password", password],
+        ]
+        .concat()
+    };
+    let status = || rig.gateway.opcua().unwrap().counts();
+
+    // No certificate (security none) is not offered; an unknown certificate is
+    // refused and kept in rejected/ for the operator.
+    let refused = Peer::connect(&rig.url, &[])
+        .err()
+        .expect("no none endpoint");
+    assert!(refused["error"].as_str().is_some());
+    let refused = Peer::connect(&rig.url, &with_user("s3cret"))
+        .err()
+        .expect("an untrusted certificate is refused");
+    assert_eq!(refused["status"], "BadCertificateUntrusted", "{refused}");
+    assert!(status().rejected_requests >= 1, "{:?}", status());
+    let rejected: Vec<PathBuf> = std::fs::read_dir(pki.join("rejected"))
+        .unwrap()
+        .flatten()
+        .map(|f| f.path())
+        .collect();
+    assert_eq!(rejected.len(), 1, "{refused} {rejected:?}");
+    // The operator trusts it: moved from rejected/ to trusted/.
+    let name = rejected[0].file_name().unwrap();
+    std::fs::rename(&rejected[0], pki.join("trusted").join(name)).unwrap();
+
+    // A wrong password, no user: refused and counted.
+    let before = status().identities_refused;
+    let wrong = Peer::connect(&rig.url, &with_user("guess"))
+        .err()
+        .expect("a wrong password is refused");
+    assert!(wrong["error"].as_str().is_some());
+    assert_eq!(status().identities_refused, before + 1, "{:?}", status());
+    let anonymous = Peer::connect(&rig.url, &secure)
+        .err()
+        .expect("anonymous is refused");
+    assert!(
+        anonymous["error"]
+            .as_str()
+            .unwrap()
+            .contains("BadIdentityToken"),
+        "{anonymous}"
+    );
+
+    // The right password over a trusted certificate reads.
+    let mut peer = Peer::connect(&rig.url, &with_user("s3cret")).expect("trusted and signed in");
+    let read = peer.ask("read Gateway/state", "read");
+    assert_eq!(read["value"], 1);
+    // Acknowledge from another host's address needs allow_remote_commands.
+    let ack = peer.ask("ack", "ack");
+    match remote {
+        Some(_) => {
+            assert_eq!(ack["status"], "BadUserAccessDenied", "{ack}");
+            assert_eq!(status().acknowledgements_refused, 1);
+        }
+        None => {
+            eprintln!("no non-loopback address: the remote acknowledge is not tested");
+            assert_eq!(ack["status"], "Good", "{ack}");
+        }
+    }
+    peer.send("quit");
+    rig.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn hostile_streams_are_counted_and_the_service_goes_on() {
+    // Loopback, security none, anonymous and a user.
+    let rig = Rig::start("hostile", 30.0, |config, _| {
+        config.outputs.opcua.as_mut().unwrap().users = vec![OpcUaUser {
+            name: "operator".into(),
+            password: "s3cret".into(),
+        }];
+    })
+    .await;
+    let address = rig.gateway.bound().opcua.unwrap();
+    let exchange = |bytes: Vec<u8>| async move {
+        let mut stream = TcpStream::connect(address).await.unwrap();
+        let _ = stream.write_all(&bytes).await;
+        let mut answer = Vec::new();
+        let _ = tokio::time::timeout(Duration::from_secs(10), stream.read_to_end(&mut answer))
+            .await
+            .expect("the server closes a hostile stream");
+        answer
+    };
+    // Not OPC UA at all; a Hello claiming 2 GB; a good Hello then a chunk of garbage on
+    // a channel never opened; a good Hello then a message too large.
+    let http = exchange(b"GET / HTTP/1.1\r\nHost: x\r\n\r\n".to_vec()).await;
+    assert!(http.starts_with(b"ERRF"), "{http:?}");
+    let mut huge = b"HELF".to_vec();
+    huge.extend_from_slice(&0x7fff_ffffu32.to_le_bytes());
+    huge.extend_from_slice(&[0; 24]);
+    assert!(exchange(huge).await.starts_with(b"ERRF"));
+    let mut garbage = hello(&rig.url);
+    garbage.extend_from_slice(b"MSGF");
+    garbage.extend_from_slice(&64u32.to_le_bytes());
+    garbage.extend((0..56u8).map(|i| i.wrapping_mul(37)));
+    let answer = exchange(garbage).await;
+    assert!(
+        answer.starts_with(b"ACKF"),
+        "the Hello is answered: {answer:?}"
+    );
+    let mut too_large = hello(&rig.url);
+    too_large.extend_from_slice(b"MSGF");
+    too_large.extend_from_slice(&1_000_000u32.to_le_bytes());
+    assert!(exchange(too_large)
+        .await
+        .ends_with(b"out of range (allowed 12..=65535)"));
+    // Random framed junk, from a fixed seed.
+    let mut state = 0x2545_f491_4f6c_dd1du64;
+    for _ in 0..20 {
+        let mut junk = hello(&rig.url);
+        let kind: &[u8; 4] = [b"OPNF", b"MSGF", b"CLOF", b"MSGC"][(state % 4) as usize];
+        let len = 12 + (state >> 8) as usize % 500;
+        junk.extend_from_slice(kind);
+        junk.extend_from_slice(&(len as u32).to_le_bytes());
+        for _ in 8..len {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            junk.push(state as u8);
+        }
+        exchange(junk).await;
+    }
+    let counts = rig.gateway.opcua().unwrap().counts();
+    assert_eq!(counts.malformed_frames, 3, "{counts:?}");
+    assert!(counts.protocol_errors >= 1, "{counts:?}");
+    // The service goes on: a client reads, and bites still reach the PLC.
+    let before = rig.bite_counter();
+    let mut peer = Peer::connect(&rig.url, &["--user", "operator", "--password", "s3cret"])
+        .expect("a good client after the hostile ones, signed in on the none endpoint");
+    assert_eq!(peer.ask("read Gateway/state", "read")["value"], 1);
+    common::until(
+        "a bite after the hostile streams",
+        Duration::from_secs(20),
+        || rig.bite_counter() > before,
+    )
+    .await;
+    peer.send("quit");
+    rig.stop().await;
+}
+
+/// `millgate check` with `[outputs.opcua]`: the summary names the endpoint and the
+/// settings, a non-loopback bind is warned of, a bad value names its key and range.
+#[test]
+fn check_names_the_server_and_warns_of_other_hosts() {
+    let scratch = std::env::temp_dir().join(format!("millgate-opcua-check-{}", std::process::id()));
+    std::fs::create_dir_all(&scratch).unwrap();
+    let repo = common::repo();
+    std::fs::copy(
+        repo.join("config/examples/table2-adjusted.toml"),
+        scratch.join("table2-adjusted.toml"),
+    )
+    .unwrap();
+    let demo = std::fs::read_to_string(repo.join("config/examples/demo.toml")).unwrap();
+    let check = |opcua: &str| {
+        let path = scratch.join("mill.toml");
+        std::fs::write(&path, format!("{demo}\n[outputs.opcua]\n{opcua}\n")).unwrap();
+        let output = Command::new(env!("CARGO_BIN_EXE_millgate"))
+            .args(["check", "--config", path.to_str().unwrap()])
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&output.stdout).to_string()
+            + &String::from_utf8_lossy(&output.stderr);
+        (output.status.success(), text)
+    };
+    let (ok, text) = check("bind = \"127.0.0.1:4841\"");
+    assert!(ok, "{text}");
+    assert!(
+        text.contains(
+            "OPC UA server: opc.tcp://127.0.0.1:4841/ (listen on 127.0.0.1:4841), security none"
+        ),
+        "{text}"
+    );
+    assert!(!text.contains("warning:"), "{text}");
+    // A wildcard bind: the warning, the endpoint at the host clients use.
+    let (ok, text) = check("bind = \"0.0.0.0:4841\"\nhost = \"gateway1\"\nsecurity_modes = [\"none\", \"sign_and_encrypt\"]");
+    assert!(ok, "{text}");
+    assert!(
+        text.contains(
+            "mill.toml: outputs.opcua.bind: 0.0.0.0:4841 accepts OPC UA clients from other \
+             hosts; outputs.opcua.security_modes has none"
+        ),
+        "{text}"
+    );
+    assert!(
+        text.contains("warning: ") && text.contains("OPC UA server: opc.tcp://gateway1:4841/"),
+        "{text}"
+    );
+    let (ok, text) = check("max_sessions = 0");
+    assert!(!ok);
+    assert!(
+        text.contains("outputs.opcua.max_sessions: 0 is not allowed (must be 1..=100)"),
+        "{text}"
+    );
+    let _ = std::fs::remove_dir_all(&scratch);
+}
+
+/// The root README's address space table is `millgate address-space` of the demo's
+/// configuration (a driveline with its model), generated from the spec the server
+/// publishes.
+#[test]
+fn readme_address_space_table_is_generated() {
+    let repo = common::repo();
+    let output = Command::new(env!("CARGO_BIN_EXE_millgate"))
+        .args([
+            "address-space",
+            "--config",
+            repo.join("config/examples/demo.toml").to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(output.status.success());
+    let table = String::from_utf8(output.stdout).unwrap();
+    assert!(table.contains("| `Drivelines/F1/gap_mrad` | Double | mrad (C25) |  |"));
+    let readme = std::fs::read_to_string(repo.join("README.md")).unwrap();
+    let begin = "<!-- address-space:begin -->\n";
+    let start = readme
+        .find(begin)
+        .expect("README has the address-space:begin marker")
+        + begin.len();
+    let end = readme
+        .find("<!-- address-space:end -->")
+        .expect("README has the address-space:end marker");
+    assert_eq!(
+        &readme[start..end],
+        table,
+        "README address space table differs: regenerate it with millgate address-space \
+         --config config/examples/demo.toml"
+    );
+}
