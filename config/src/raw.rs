@@ -190,6 +190,7 @@ pub(crate) struct RawServerOutput {
     pub bind: String,
     pub unit_id: Option<i64>,
     pub max_connections: Option<i64>,
+    pub max_connections_per_peer: Option<i64>,
     pub idle_timeout_ms: Option<i64>,
     pub allow_remote_commands: Option<bool>,
 }
@@ -251,6 +252,10 @@ pub(crate) struct RawHistory {
     pub path: String,
     pub retention_days: Option<i64>,
     pub max_size_mb: Option<i64>,
+    pub captures: Option<bool>,
+    pub captures_max_mb: Option<i64>,
+    pub captures_thin_after_days: Option<i64>,
+    pub captures_keep_every: Option<i64>,
 }
 
 /// The whole document after the schema pass. List elements that failed to

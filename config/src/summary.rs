@@ -232,11 +232,12 @@ pub fn summary(config: &Config) -> String {
     if let Some(server) = &outputs.server {
         let _ = writeln!(
             text,
-            "  Modbus server: listen on {} unit {}, at most {} clients, idle timeout {} ms, \
-             commands from {}",
+            "  Modbus server: listen on {} unit {}, at most {} clients ({} per address), idle \
+             timeout {} ms, commands from {}",
             server.bind,
             server.unit_id,
             server.max_connections,
+            server.max_connections_per_peer,
             server.idle_timeout.as_millis(),
             if server.allow_remote_commands {
                 "any host"

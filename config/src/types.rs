@@ -777,9 +777,14 @@ pub struct ServerOutput {
     /// Unit identifier the server answers to, 1..=255 (default 1); requests to unit
     /// 255 are answered too, requests to unit 0 (broadcast) never.
     pub unit_id: u8,
-    /// Clients served at once, 1..=64 (default 8); a further connection is closed at
-    /// once.
+    /// Clients served at once, 1..=64 (default 8). A further connection takes the
+    /// place of the connection idle longest (one that never sent a request first); it
+    /// is closed at once only when every connection is inside a request.
     pub max_connections: usize,
+    /// Connections one client address may hold, 1..=`max_connections` (default 4,
+    /// or `max_connections` when smaller); a further one from that address takes the
+    /// place of its own connection idle longest.
+    pub max_connections_per_peer: usize,
     /// A connection without a request for this long is closed, 100..=3600000 ms
     /// (default 60000 ms).
     pub idle_timeout: Duration,
@@ -808,4 +813,36 @@ pub struct History {
     /// Largest size of the file's data before the oldest events are deleted,
     /// 1..=1048576 MiB (default 1024).
     pub max_size_mb: u32,
+    /// The captures (bite windows, chatter episodes, manual) kept in the file.
+    pub captures: CaptureSettings,
+}
+
+/// `[history]`'s capture keys: whether the samples behind each bite are kept, and the
+/// budget they are kept within.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CaptureSettings {
+    /// Keep captures at all (default true).
+    pub enabled: bool,
+    /// Largest size of the captures' samples, 1..=`max_size_mb` / 2 MiB (default
+    /// `max_size_mb` / 2): past it the oldest ordinary bites' captures go first, those of
+    /// warning bites next, the important ones (alarm bites) last.
+    pub max_mb: u32,
+    /// Ordinary bites' captures older than this are thinned to every
+    /// `keep_every`-th bite, 1..=36500 days (default 7).
+    pub thin_after_days: u32,
+    /// After `thin_after_days`, an ordinary bite's capture is kept when its bite
+    /// counter is a multiple of this, 1..=1000 (default 10; 1 keeps all).
+    pub keep_every: u32,
+}
+
+impl CaptureSettings {
+    /// The defaults for a file of `max_size_mb` MiB.
+    pub fn defaults(max_size_mb: u32) -> Self {
+        Self {
+            enabled: true,
+            max_mb: (max_size_mb / 2).max(1),
+            thin_after_days: 7,
+            keep_every: 10,
+        }
+    }
 }

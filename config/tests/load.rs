@@ -898,7 +898,28 @@ fn server_limits_and_unit_id() {
     let config = parse(&text).unwrap_or_else(|error| panic!("{error}"));
     let server = config.outputs.server.unwrap();
     assert_eq!(server.max_connections, 2);
+    assert_eq!(
+        server.max_connections_per_peer, 2,
+        "the default, at most max_connections"
+    );
     assert_eq!(server.idle_timeout, Duration::from_millis(500));
+    let defaults = parse(BASE).unwrap_or_else(|error| panic!("{error}"));
+    let default_server = defaults.outputs.server.unwrap();
+    assert_eq!(
+        (
+            default_server.max_connections,
+            default_server.max_connections_per_peer
+        ),
+        (8, 4)
+    );
+    assert_only_problem(
+        &edited(
+            "bind = \"127.0.0.1:5503\"",
+            "bind = \"127.0.0.1:5503\"\nmax_connections = 2\nmax_connections_per_peer = 3",
+        ),
+        "mill.toml: outputs.server.max_connections_per_peer: 3 is not allowed (must be 1..=2, \
+         at most outputs.server.max_connections)",
+    );
     assert!(server.allow_remote_commands);
     assert_only_problem(
         &edited(
@@ -1224,6 +1245,29 @@ fn history_path_retention_and_size() {
         error.to_string(),
         "mill.toml: history.retention_days: 0 is not allowed (must be 1..=36500 days)\n\
          mill.toml: history.max_size_mb: 2000000 is not allowed (must be 1..=1048576 MiB)"
+    );
+    // Captures: on by default with half the file as budget; a budget past half the
+    // file, or thinning to every 0th bite, is refused naming the key.
+    assert_eq!(
+        history.captures,
+        millgate_config::CaptureSettings {
+            enabled: true,
+            max_mb: 512,
+            thin_after_days: 7,
+            keep_every: 10,
+        }
+    );
+    let error = from_toml_str(
+        &with("path = \"h.db\"\nmax_size_mb = 100\ncaptures_max_mb = 60\ncaptures_keep_every = 0"),
+        "mill.toml",
+        &scratch.0,
+    )
+    .unwrap_err();
+    assert_eq!(
+        error.to_string(),
+        "mill.toml: history.captures_max_mb: 60 is not allowed (must be 1..=50 MiB (at most half \
+         of history.max_size_mb))\n\
+         mill.toml: history.captures_keep_every: 0 is not allowed (must be 1..=1000)"
     );
     let error =
         from_toml_str(&with("path = \"h.db\"\nkeep = 3"), "mill.toml", &scratch.0).unwrap_err();

@@ -20,7 +20,10 @@
 //! - **Data gaps** ([`BiteDetector::gap`]): a gap clears the pre-trigger history (the
 //!   window never joins samples across a gap). A gap during a capture **ends the capture
 //!   early**: the event is emitted at once with the samples before the gap and
-//!   `quality.gap = true`.
+//!   `quality.gap = true`. After a gap no trigger fires (level or external) until
+//!   `PRE` usable samples in a row have stayed below the threshold: data resuming while
+//!   the mill is loaded (a bite that began in the gap) is no onset, and a bite after a
+//!   gap has a whole pre-trigger of fresh data.
 //! - **Bad samples**: a non-finite sample is stored as the previous stored value (the
 //!   baseline for the first one) and sets `quality.non_finite`; a sample at or beyond
 //!   the saturation limits sets `quality.saturated`. Neither ever triggers by itself
@@ -158,6 +161,9 @@ pub struct BiteDetectorState<const PRE: usize, const N: usize> {
     last_saturated: Option<u64>,
     dead_remaining: u32,
     fast_baseline_remaining: u32,
+    /// Usable samples below the threshold still needed, in a row, before a trigger
+    /// may fire after a gap (0: none).
+    resync_remaining: u32,
 }
 
 impl<const PRE: usize, const N: usize> BiteDetectorState<PRE, N> {
@@ -169,6 +175,12 @@ impl<const PRE: usize, const N: usize> BiteDetectorState<PRE, N> {
     /// True while the detector waits for a bite.
     pub fn is_armed(&self) -> bool {
         self.phase == Phase::Armed
+    }
+
+    /// True after a gap until a whole pre-trigger of usable samples below the
+    /// threshold has come: no trigger fires meanwhile.
+    pub fn is_resyncing(&self) -> bool {
+        self.resync_remaining > 0
     }
 
     /// Absolute index of the next sample.
@@ -252,14 +264,16 @@ impl<const PRE: usize, const N: usize> BiteDetector<PRE, N> {
             last_saturated: None,
             dead_remaining: 0,
             fast_baseline_remaining: 0,
+            resync_remaining: 0,
         }
     }
 
     /// External trigger: the next processed sample becomes the trigger sample.
     ///
-    /// Returns false (and does nothing) when the detector is not armed.
+    /// Returns false (and does nothing) when the detector is not armed, or is armed
+    /// but still waiting for a whole pre-trigger after a gap.
     pub fn trigger(&self, state: &mut BiteDetectorState<PRE, N>) -> bool {
-        if state.phase == Phase::Armed {
+        if state.phase == Phase::Armed && state.resync_remaining == 0 {
             state.external_pending = true;
             true
         } else {
@@ -269,8 +283,10 @@ impl<const PRE: usize, const N: usize> BiteDetector<PRE, N> {
 
     /// Declares `missing_samples` lost samples (a data gap) before the next sample.
     ///
-    /// Clears the pre-trigger history. During a capture, returns the event cut at the gap
-    /// with `quality.gap` set. The absolute sample index advances by `missing_samples`.
+    /// Clears the pre-trigger history and holds triggers off until `PRE` usable samples
+    /// in a row have stayed below the threshold (data resuming mid-bite is no onset).
+    /// During a capture, returns the event cut at the gap with `quality.gap` set. The
+    /// absolute sample index advances by `missing_samples`.
     pub fn gap(
         &self,
         state: &mut BiteDetectorState<PRE, N>,
@@ -284,6 +300,8 @@ impl<const PRE: usize, const N: usize> BiteDetector<PRE, N> {
             None
         };
         state.history.clear();
+        state.external_pending = false;
+        state.resync_remaining = PRE.max(1) as u32;
         state.sample_index = state.sample_index.saturating_add(missing_samples);
         state.window_start = state.sample_index;
         event
@@ -325,9 +343,23 @@ impl<const PRE: usize, const N: usize> BiteDetector<PRE, N> {
 
         match state.phase {
             Phase::Armed => {
-                let rise = finite
+                let above = finite
                     && state.baseline_valid
                     && torque_knm - state.baseline_knm >= self.settings.threshold_knm;
+                if state.resync_remaining > 0 {
+                    // After a gap: only a whole pre-trigger of usable samples below the
+                    // threshold, in a row, makes the next rise an onset.
+                    state.resync_remaining = if usable && !above {
+                        state.resync_remaining - 1
+                    } else {
+                        PRE.max(1) as u32
+                    };
+                    if above {
+                        state.history.clear();
+                        return None;
+                    }
+                }
+                let rise = above;
                 if rise || state.external_pending {
                     self.start(state, index, stored, rise);
                     return self.maybe_finish(state);

@@ -148,22 +148,53 @@ fn gap_during_capture_ends_the_window_flagged() {
 }
 
 #[test]
-fn gap_before_trigger_clears_history() {
+fn gap_before_trigger_clears_history_and_needs_a_whole_pre_trigger() {
     let detector = detector();
     let mut state = detector.state();
     for _ in 0..1_000 {
         let _ = detector.process(&mut state, 0.0);
     }
     assert!(detector.gap(&mut state, 10).is_none());
+    assert!(state.is_resyncing());
+    // 20 fresh samples are not a pre-trigger: a rise after them is no onset, and the
+    // external trigger is refused too.
     for _ in 0..20 {
         let _ = detector.process(&mut state, 0.0);
     }
+    assert!(!detector.trigger(&mut state));
     let mut events = Vec::new();
     detector.block(&mut state, &[100.0; POST], |e| events.push(e));
+    assert!(events.is_empty(), "{events:?}");
+    // PRE idle samples in a row: the next rise is a bite with a whole pre-trigger.
+    detector.block(&mut state, &[0.0; PRE], |e| events.push(e));
+    assert!(!state.is_resyncing());
+    detector.block(&mut state, &[100.0; POST], |e| events.push(e));
     assert_eq!(events.len(), 1);
-    // Only the 20 contiguous samples after the gap precede the trigger.
-    assert_eq!(events[0].trigger_index, 20);
-    assert_eq!(events[0].trigger_sample, 1_030);
+    assert_eq!(events[0].trigger_index, PRE);
+    assert_eq!(events[0].trigger_sample, (1_030 + POST + PRE) as u64);
+    assert!(events[0].quality.is_good());
+}
+
+/// Issue 30, finding 4: data resuming after an outage while the mill is loaded (the
+/// bite began in the outage) made a "bite" whose window starts loaded: TAF ~1.0,
+/// published as valid. Now it is no onset; the next bar's bite is whole.
+#[test]
+fn data_resuming_loaded_after_a_gap_is_no_bite() {
+    let detector = detector();
+    let mut state = detector.state();
+    let mut events = Vec::new();
+    detector.block(&mut state, &[0.0; 1_000], |e| events.push(e));
+    assert!(detector.gap(&mut state, 2_000).is_none());
+    // Loaded, with a short idle dip and a second rise: still no onset.
+    detector.block(&mut state, &[120.0; 800], |e| events.push(e));
+    detector.block(&mut state, &[0.0; PRE / 2], |e| events.push(e));
+    detector.block(&mut state, &[120.0; 300], |e| events.push(e));
+    assert!(events.is_empty(), "{events:?}");
+    // Unloaded, then the next bar.
+    detector.block(&mut state, &[0.0; 2 * PRE], |e| events.push(e));
+    detector.block(&mut state, &[120.0; POST], |e| events.push(e));
+    assert_eq!(events.len(), 1);
+    assert_eq!(events[0].trigger_index, PRE, "a whole pre-trigger");
     assert!(events[0].quality.is_good());
 }
 

@@ -6,7 +6,13 @@
 //! clock starts when a bite window completes, and stops when the PLC holds the new
 //! bite counter. Prints p50, p99 and max over 1 000 bites.
 //!
+//! With `--history`: the board records into a real history file (the PLC writer then
+//! waits for each bite's commit, as in the service), and the bars alternate between
+//! two analyses of the same driveline, one keeping captures and one not: the same run
+//! gives the latency with the capture on and off (500 bites each).
+//!
 //!     cargo bench -p millgate --bench bite_to_plc
+//!     cargo bench -p millgate --bench bite_to_plc -- --history
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -44,9 +50,35 @@ async fn main() -> anyhow::Result<()> {
         Duration::from_secs(3600),
         Duration::from_secs(3600),
     ));
-    let board = Arc::new(Board::new(&config, vec![health]));
+    let with_history = std::env::args().any(|a| a == "--history");
+    let scratch = std::env::temp_dir().join(format!("millgate-bench-plc-{}", std::process::id()));
+    let history = if with_history {
+        std::fs::create_dir_all(&scratch)?;
+        let settings = millgate_config::History {
+            path: scratch.join("history.db"),
+            retention_days: 400,
+            max_size_mb: 1024,
+            captures: millgate_config::CaptureSettings::defaults(1024),
+        };
+        config.history = Some(settings.clone());
+        let history = millgate::state::history::History::new(Some(&settings));
+        millgate::outputs::history::start(
+            &history,
+            millgate::outputs::history::RunInfo::of(&config),
+        );
+        history
+    } else {
+        millgate::state::history::History::disabled()
+    };
+    let board = Arc::new(Board::new(&config, vec![health]).with_history(history.clone()));
     let (bites, _) = tokio::sync::broadcast::channel(16);
-    let mut analysis = Analysis::new(&config, Arc::clone(&board), bites)?;
+    // Analyses of the same driveline: [captures on, captures off] with a history, one
+    // (captures on only when a history is configured) without.
+    let mut analyses = vec![Analysis::new(&config, Arc::clone(&board), bites.clone())?];
+    if let Some(settings) = config.history.as_mut() {
+        settings.captures.enabled = false;
+        analyses.push(Analysis::new(&config, Arc::clone(&board), bites)?);
+    }
     let (stop_writer, writer_shutdown) = millgate::shutdown::channel();
     let map = Arc::new(RegisterMap::new(&config));
     let writer = tokio::spawn(
@@ -61,9 +93,13 @@ async fn main() -> anyhow::Result<()> {
     // Let the writer connect.
     tokio::time::sleep(Duration::from_millis(300)).await;
 
-    let mut latencies = Vec::with_capacity(BITES);
+    let mut latencies: Vec<Vec<Duration>> = vec![Vec::new(); analyses.len()];
     let mut seen = 0u32;
-    while latencies.len() < BITES {
+    let mut bar_index = 0usize;
+    while latencies.iter().map(Vec::len).sum::<usize>() < BITES {
+        let which = bar_index % analyses.len();
+        bar_index += 1;
+        let analysis = &mut analyses[which];
         for block in bar.chunks(100) {
             let reports = analysis.handle(Acquired::Samples {
                 channel: 0,
@@ -79,7 +115,7 @@ async fn main() -> anyhow::Result<()> {
                         "no write"
                     );
                 }
-                latencies.push(report.window_complete.elapsed());
+                latencies[which].push(report.window_complete.elapsed());
             }
         }
     }
@@ -87,14 +123,23 @@ async fn main() -> anyhow::Result<()> {
     writer.await?;
     running_plc.stop().await?;
 
-    latencies.sort();
-    let at = |q: f64| latencies[((latencies.len() - 1) as f64 * q).round() as usize];
-    println!(
-        "bite window complete -> PLC register written, {} bites: p50 {:.3} ms, p99 {:.3} ms, max {:.3} ms",
-        latencies.len(),
-        at(0.50).as_secs_f64() * 1e3,
-        at(0.99).as_secs_f64() * 1e3,
-        latencies.last().unwrap().as_secs_f64() * 1e3
-    );
+    tokio::task::spawn_blocking(move || history.close()).await?;
+    let _ = std::fs::remove_dir_all(&scratch);
+    for (which, mut latencies) in latencies.into_iter().enumerate() {
+        latencies.sort();
+        let at = |q: f64| latencies[((latencies.len() - 1) as f64 * q).round() as usize];
+        let what = match (with_history, which) {
+            (false, _) => "",
+            (true, 0) => ", history, captures on",
+            (true, _) => ", history, captures off",
+        };
+        println!(
+            "bite window complete -> PLC register written{what}, {} bites: p50 {:.3} ms, p99 {:.3} ms, max {:.3} ms",
+            latencies.len(),
+            at(0.50).as_secs_f64() * 1e3,
+            at(0.99).as_secs_f64() * 1e3,
+            latencies.last().unwrap().as_secs_f64() * 1e3
+        );
+    }
     Ok(())
 }

@@ -86,6 +86,7 @@ fn open(path: &Path, max_size_mb: u32) -> History {
         path: path.to_path_buf(),
         retention_days: 400,
         max_size_mb,
+        captures: millgate_config::CaptureSettings::defaults(max_size_mb),
     }));
     millgate::outputs::history::start(&history, run_info());
     history

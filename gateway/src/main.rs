@@ -63,6 +63,9 @@ enum Command {
     },
     /// Export the event history (bites, wear, alarms, outages, chatter, runs).
     History(millgate::cli::history::HistoryArgs),
+    /// List or export the captures (bite windows, chatter episodes, manual) a history keeps.
+    #[command(subcommand)]
+    Capture(millgate::cli::capture::CaptureCommand),
     #[cfg(feature = "plot")]
     /// Write a maintenance report (Markdown, HTML, SVG plots) from the event history.
     Report(millgate::cli::report::ReportArgs),
@@ -284,6 +287,7 @@ fn main() -> ExitCode {
             millgate::cli::wear::run(&args).map(emit)
         }
         Command::History(args) => millgate::cli::history::run(&args),
+        Command::Capture(command) => millgate::cli::capture::run(&command).map(emit),
         #[cfg(feature = "plot")]
         Command::Report(args) => millgate::cli::report::run(&args).map(emit),
         #[cfg(feature = "sim-tools")]

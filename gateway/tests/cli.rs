@@ -961,6 +961,72 @@ fn sim_tandem_ramp_feeds_chatter_offline() {
 // Runs a command of the `sim-tools` feature.
 #[cfg(feature = "sim-tools")]
 #[test]
+fn analyze_and_discrepancy_refuse_a_record_scaled_beyond_any_mill() {
+    let dir = std::env::temp_dir().join(format!("millgate-cli-{}-scaled", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let model =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../sim/models/table2-adjusted.toml");
+    let csv = dir.join("transient.csv");
+    let simulated = millgate(&[
+        "sim",
+        "transient",
+        "--model",
+        model.to_str().unwrap(),
+        "--noise-rms",
+        "0.5",
+        "--seed",
+        "4",
+        "--out",
+        csv.to_str().unwrap(),
+    ]);
+    assert!(simulated.status.success(), "{}", text(&simulated));
+    // The simulated bite with its torque column multiplied by `factor`.
+    let scaled = |name: &str, factor: f64| {
+        let mut body = String::new();
+        for (i, line) in std::fs::read_to_string(&csv).unwrap().lines().enumerate() {
+            match (i, line.split_once(',')) {
+                (0, _) | (_, None) => body.push_str(line),
+                (_, Some((t, torque))) => {
+                    let torque: f64 = torque.parse().unwrap();
+                    body.push_str(&format!("{t},{:e}", torque * factor));
+                }
+            }
+            body.push('\n');
+        }
+        let path = dir.join(name);
+        std::fs::write(&path, body).unwrap();
+        path
+    };
+    let huge = scaled("huge.csv", 1.0e300);
+    let analyzed = millgate(&["analyze", "--input", huge.to_str().unwrap()]);
+    let message = text(&analyzed);
+    assert!(!analyzed.status.success(), "{message}");
+    assert!(
+        message.contains("huge.csv: line 2, column 2 (`torque`)")
+            && message.contains("outside the physical range"),
+        "{message}"
+    );
+    let tiny = scaled("tiny.csv", 1.0e-225);
+    let output = millgate(&[
+        "discrepancy",
+        "--measured",
+        tiny.to_str().unwrap(),
+        "--model",
+        model.to_str().unwrap(),
+    ]);
+    std::fs::remove_dir_all(&dir).unwrap();
+    let message = text(&output);
+    assert!(!output.status.success(), "{message}");
+    assert!(
+        message.contains("tiny.csv: the torque record's load step is")
+            && message.contains("no mill's bite"),
+        "{message}"
+    );
+}
+
+// Runs a command of the `sim-tools` feature.
+#[cfg(feature = "sim-tools")]
+#[test]
 fn discrepancy_on_a_constant_record_says_there_is_no_transient() {
     let dir = std::env::temp_dir().join(format!("millgate-cli-{}-constant", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();

@@ -52,6 +52,7 @@ fn config(path: &Path) -> millgate_config::History {
         path: path.to_path_buf(),
         retention_days: 400,
         max_size_mb: 1024,
+        captures: millgate_config::CaptureSettings::defaults(1024),
     }
 }
 
@@ -530,6 +531,7 @@ fn retention_deletes_by_age_and_size_in_chunks_and_the_file_shrinks() {
         max_bytes: 1 << 40,
         chunk_rows: 1000,
         vacuum_pages: 64,
+        captures: None,
     };
     let mut state = RetentionState::default();
     let mut steps = 0;
@@ -626,6 +628,7 @@ fn retention_keeps_a_run_while_its_rows_remain() {
         max_bytes: 1 << 40,
         chunk_rows: 500,
         vacuum_pages: 64,
+        captures: None,
     };
     let mut state = RetentionState::default();
     let runs = |connection: &rusqlite::Connection| -> Vec<i64> {

@@ -149,6 +149,7 @@ fn write_file(folder: &Path) -> PathBuf {
         path: path.clone(),
         retention_days: 3650,
         max_size_mb: 1024,
+        captures: millgate_config::CaptureSettings::defaults(1024),
     }));
     millgate::outputs::history::start(
         &history,

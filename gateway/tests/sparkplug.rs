@@ -393,6 +393,122 @@ async fn births_data_rebirth_and_the_will_as_an_independent_host_decodes_them() 
     setup.stop(second).await;
 }
 
+/// Issue 30, findings 6 and 10: a retained undecodable NCMD of 100 KiB (over rumqttc's
+/// default 10 KiB) waiting on the broker made the node reconnect every second with a
+/// new bdSeq, a live one ended the session, each undecodable NCMD logged a warning,
+/// and each of 1 000 Rebirth NCMDs got full births. Now they are refused and counted
+/// in one session, warned once per 10 s, and rebirths come at most once per 5 s.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_and_flooding_commands_neither_end_the_session_nor_multiply_births() {
+    let setup = Setup::new("sparkplug-commands", "db").await;
+    let port = free_port();
+    let _broker = Broker::start(&setup.scratch, port);
+    let mut host = Host::start(port, "plant");
+    host.command("garbage stand-f1 102400 retain");
+    while host.next(Duration::from_secs(10))["sent"] != "garbage" {}
+    setup.append_config(&format!(
+        "\n[outputs.mqtt]\nbroker = \"127.0.0.1:{port}\"\ngroup_id = \"plant\"\nnode_id = \"stand-f1\"\nkeep_alive_s = 5\n"
+    ));
+    let mut service = KilledOnDrop(Some(setup.spawn("run.log")));
+    let limit = Duration::from_secs(30);
+    let nbirth = host.next_of("NBIRTH", limit);
+    assert_eq!(metric(&nbirth, "bdSeq")["value"].as_u64(), Some(0));
+    // The retained NCMD reached the node at its subscription: refused, not fatal.
+    until_metric(
+        &setup,
+        "millgate_sparkplug_commands_refused_total",
+        1.0,
+        limit,
+    )
+    .await;
+    // Fifty live undecodable ones, one of them 100 KiB.
+    host.command("garbage stand-f1 102400");
+    for _ in 0..49 {
+        host.command("garbage stand-f1 7");
+    }
+    let mut sent = 0;
+    while sent < 50 {
+        if host.next(limit)["sent"] == "garbage" {
+            sent += 1;
+        }
+    }
+    until_metric(
+        &setup,
+        "millgate_sparkplug_commands_refused_total",
+        51.0,
+        limit,
+    )
+    .await;
+    // A thousand rebirth commands.
+    host.command("rebirth stand-f1 1000");
+    until_metric(
+        &setup,
+        "millgate_sparkplug_rebirth_requests_total",
+        1000.0,
+        Duration::from_secs(60),
+    )
+    .await;
+    // Answered by the rebirths the interval allows: one at once if the last births
+    // were over 5 s ago, one 5 s later for the requests that came meanwhile.
+    let answered = host.next_of("NBIRTH", limit);
+    assert_eq!(
+        metric(&answered, "bdSeq")["value"].as_u64(),
+        Some(0),
+        "same session"
+    );
+    tokio::time::sleep(millgate::outputs::sparkplug::REBIRTH_INTERVAL * 2).await;
+    let rebirths = setup.metric("millgate_sparkplug_rebirths_total").await;
+    assert!(
+        matches!(rebirths, Some(r) if (1.0..=3.0).contains(&r)),
+        "{rebirths:?} rebirths for 1000 requests"
+    );
+    assert_eq!(
+        setup.metric("millgate_sparkplug_sessions_total").await,
+        Some(1.0),
+        "the session never ended"
+    );
+    assert_eq!(setup.metric("millgate_sparkplug_bd_seq").await, Some(0.0));
+    let log = std::fs::read_to_string(setup.log("run.log")).unwrap();
+    let warnings = log.matches("Sparkplug NCMD refused").count();
+    eprintln!(
+        "1000 rebirth requests: {rebirths:?} rebirths; 51 refused NCMDs: {warnings} warning lines"
+    );
+    assert!(
+        (1..=3).contains(&warnings),
+        "{warnings} warnings for 51 refused NCMDs: {log}"
+    );
+    host.command("clear stand-f1");
+    setup.stop(service.0.take().expect("running")).await;
+}
+
+/// A `millgate run` killed when dropped: a failing test leaves no gateway behind.
+struct KilledOnDrop(Option<Child>);
+
+impl Drop for KilledOnDrop {
+    fn drop(&mut self) {
+        if let Some(mut child) = self.0.take() {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+    }
+}
+
+/// Wait until `/metrics` shows `name` at `value`, at most `limit`.
+async fn until_metric(setup: &Setup, name: &str, value: f64, limit: Duration) {
+    let start = Instant::now();
+    loop {
+        let now = setup.metric(name).await;
+        if now == Some(value) {
+            return;
+        }
+        assert!(
+            start.elapsed() < limit,
+            "{name} {now:?}, not {value} within {limit:?}"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
 #[test]
 fn the_demo_publishes_its_edge_node() {
     let scratch =

@@ -1,9 +1,12 @@
 """A Sparkplug B host for gateway/tests/sparkplug.rs that is not millgate's code:
 paho-mqtt 1.6.1 (the version pysparkplug 0.6.1 requires) subscribes, and the Eclipse Tahu protobuf schema as shipped by
 pysparkplug 0.6.1 (sparkplug_b_pb2) decodes. Prints one JSON line per message on
-spBv1.0/<group>/#; reads commands from stdin: "rebirth <node>" publishes an NCMD
-with Node Control/Rebirth = true; "state <host_id> online|offline" publishes the
-primary host's retained STATE (Sparkplug 3.0 JSON).
+spBv1.0/<group>/#; reads commands from stdin: "rebirth <node> [count]" publishes an
+NCMD with Node Control/Rebirth = true (count times); "garbage <node> <bytes>
+[retain]" an NCMD of that many 0xff bytes (not protobuf), retained if asked;
+"clear <node>" clears a retained NCMD; "state <host_id> online|offline" publishes the
+primary host's retained STATE (Sparkplug 3.0 JSON). A message that is not a
+Sparkplug payload is printed with "undecodable": true and its size.
 
     python3 sparkplug_host.py HOST PORT GROUP [--ca FILE [--cert FILE --key FILE]]
         [--username U --password P]
@@ -72,7 +75,12 @@ def on_subscribe(client, userdata, mid, granted_qos):
 def on_message(client, userdata, message):
     parts = message.topic.split("/")
     payload = Payload()
-    payload.ParseFromString(message.payload)
+    try:
+        payload.ParseFromString(message.payload)
+    except Exception:  # noqa: BLE001 (any protobuf error: not a Sparkplug payload)
+        emit({"topic": message.topic, "type": parts[2], "undecodable": True,
+              "bytes": len(message.payload), "retain": bool(message.retain)})
+        return
     emit(
         {
             "topic": message.topic,
@@ -105,7 +113,17 @@ for line in sys.stdin:
         metric.name = "Node Control/Rebirth"
         metric.datatype = BOOLEAN
         metric.boolean_value = True
-        client.publish(f"spBv1.0/{group}/NCMD/{words[1]}", command.SerializeToString(), qos=1)
+        for _ in range(int(words[2]) if len(words) > 2 else 1):
+            client.publish(f"spBv1.0/{group}/NCMD/{words[1]}", command.SerializeToString(), qos=1)
+    elif words[:1] == ["garbage"]:
+        retain = words[3:4] == ["retain"]
+        info = client.publish(f"spBv1.0/{group}/NCMD/{words[1]}", b"\xff" * int(words[2]), qos=1, retain=retain)
+        info.wait_for_publish()
+        emit({"sent": "garbage"})
+    elif words[:1] == ["clear"]:
+        info = client.publish(f"spBv1.0/{group}/NCMD/{words[1]}", b"", qos=1, retain=True)
+        info.wait_for_publish()
+        emit({"sent": "clear"})
     elif words[:1] == ["state"]:
         state = {"online": words[2] == "online", "timestamp": int(time.time() * 1000)}
         client.publish(f"spBv1.0/STATE/{words[1]}", json.dumps(state), qos=1, retain=True)

@@ -34,6 +34,20 @@ pub enum Reply {
         /// Its raw samples.
         raw: Vec<i16>,
     },
+    /// Answer with a block header announcing this sequence and no samples (n = 0).
+    Empty {
+        /// The block's sequence number.
+        sequence: u16,
+    },
+    /// Answer with this block cut to half the registers asked for.
+    Short {
+        /// The block's sequence number.
+        sequence: u16,
+        /// Its raw samples.
+        raw: Vec<i16>,
+    },
+    /// Answer with this Modbus exception code (e.g. 0x04, server device failure).
+    Exception(u8),
     /// Close the connection without answering.
     Close,
     /// Say nothing (the request is read and left unanswered).
@@ -144,18 +158,41 @@ async fn answer(
         }
         stats.requests.fetch_add(1, Ordering::Relaxed);
         let reply = (script.lock().unwrap_or_else(|p| p.into_inner()))(started.elapsed());
-        let (transaction, sequence, raw) = match reply {
-            Reply::Close => return,
-            Reply::Silence => continue,
-            Reply::Block { sequence, raw } => ([header[0], header[1]], sequence, raw),
-            Reply::WrongTransaction { sequence, raw } => {
-                let wrong = u16::from_be_bytes([header[0], header[1]]).wrapping_add(7);
-                (wrong.to_be_bytes(), sequence, raw)
-            }
-        };
         let function = pdu.first().copied().unwrap_or(0x04);
         let mut words = vec![0u16; usize::from(BLOCK_REGISTERS)];
-        encode_block(sequence, &raw, &mut words);
+        let mut transaction = [header[0], header[1]];
+        match reply {
+            Reply::Close => return,
+            Reply::Silence => continue,
+            Reply::Exception(code) => {
+                let frame = [
+                    header[0],
+                    header[1],
+                    0,
+                    0,
+                    0,
+                    3,
+                    header[6],
+                    function | 0x80,
+                    code,
+                ];
+                if stream.write_all(&frame).await.is_err() {
+                    return;
+                }
+                continue;
+            }
+            Reply::Block { sequence, raw } => encode_block(sequence, &raw, &mut words),
+            Reply::Empty { sequence } => words[0] = sequence,
+            Reply::Short { sequence, raw } => {
+                encode_block(sequence, &raw, &mut words);
+                words.truncate(words.len() / 2);
+            }
+            Reply::WrongTransaction { sequence, raw } => {
+                let wrong = u16::from_be_bytes(transaction).wrapping_add(7);
+                transaction = wrong.to_be_bytes();
+                encode_block(sequence, &raw, &mut words);
+            }
+        }
         let byte_count = (words.len() * 2) as u8;
         let mut frame = vec![transaction[0], transaction[1], 0, 0];
         frame.extend((3 + u16::from(byte_count)).to_be_bytes());

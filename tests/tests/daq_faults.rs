@@ -313,6 +313,27 @@ async fn a_sequence_going_backwards_is_a_restart_and_no_bite_across_it_is_valid(
     Ok(())
 }
 
+/// Issue 30, finding 10: a DAQ whose sequence runs backwards at every block is a
+/// restart at every block, each a gap; before, every bar made a degraded "bite"
+/// (counted as a bite, cut at the next block). Now no trigger fires until a whole
+/// pre-trigger of gap-free data has come, which such a DAQ never gives: no bite.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_sequence_running_backwards_makes_no_bite() -> anyhow::Result<()> {
+    let raw = schedule_raw(6.0)?;
+    let daq = HostileDaq::start(streaming(raw, 100, Duration::from_millis(50), |i| {
+        60_000 - i as u16
+    }))
+    .await?;
+    let (counters, _, bites) = run_against(hostile_config(&daq)?, 5.0).await?;
+    assert!(counters.sequence_restarts >= 20, "{counters:?}");
+    assert!(
+        counters.samples >= 2_000,
+        "the samples flowed: {counters:?}"
+    );
+    assert_eq!(bites, 0, "bites counted from a DAQ running backwards");
+    Ok(())
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn samples_at_full_scale_publish_no_bite_as_valid() -> anyhow::Result<()> {
     // Idle for 0.5 s, then every sample at +full scale (raw 32767): before, a "bite"

@@ -284,10 +284,11 @@ async fn slowloris_and_connection_floods_are_bounded() -> anyhow::Result<()> {
     let mut idle = TcpStream::connect(address).await?;
     let mut trickle = TcpStream::connect(address).await?;
     tokio::time::sleep(Duration::from_millis(50)).await;
-    // A third client is closed at once.
+    // A third client takes the place of the one connected first (neither sent a
+    // request): that one is closed at once.
     let mut third = TcpStream::connect(address).await?;
     let mut byte = [0u8; 1];
-    let closed = tokio::time::timeout(Duration::from_millis(500), third.read(&mut byte)).await;
+    let closed = tokio::time::timeout(Duration::from_millis(500), idle.read(&mut byte)).await;
     assert!(matches!(closed, Ok(Ok(0)) | Ok(Err(_))), "{closed:?}");
     // The trickler sends a request one byte every 100 ms: the request must be whole
     // within the idle time, so it is closed as the idle one is.
@@ -308,23 +309,124 @@ async fn slowloris_and_connection_floods_are_bounded() -> anyhow::Result<()> {
         "slowloris still served after {:?}",
         started.elapsed()
     );
-    let ended = tokio::time::timeout(Duration::from_secs(2), idle.read(&mut byte)).await;
+    // The third never sends a request: closed after the first-request time (here
+    // the idle time).
+    let ended = tokio::time::timeout(Duration::from_secs(2), third.read(&mut byte)).await;
     assert!(
         matches!(ended, Ok(Ok(0)) | Ok(Err(_))),
-        "idle client not closed"
+        "silent client not closed"
     );
     // The slots are free again: a real client is served.
     let mut hmi = TcpStream::connect(address).await?;
     let reply = exchange(&mut hmi, &request).await?.expect("served");
     assert_eq!(&reply[7..9], &[0x03, 0x02]);
     let page = scrape(gateway.bound().metrics.expect("metrics")).await?;
+    for expected in [
+        "millgate_server_refused_connections_total 0",
+        "millgate_server_evicted_connections_total 1",
+        "millgate_server_idle_closed_connections_total 2",
+        "millgate_server_silent_closed_connections_total 1",
+    ] {
+        assert!(page.contains(expected), "{expected}: {page}");
+    }
+    tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
+    Ok(())
+}
+
+/// A connection to `server` from the loopback address `local` (127.0.0.x: each a
+/// peer of its own to the server).
+async fn connect_from(local: [u8; 4], server: SocketAddr) -> anyhow::Result<TcpStream> {
+    let socket = tokio::net::TcpSocket::new_v4()?;
+    socket.bind(SocketAddr::from((local, 0)))?;
+    Ok(socket.connect(server).await?)
+}
+
+/// Whether the server has closed `stream` (within 2 s).
+async fn closed(stream: &mut TcpStream) -> bool {
+    let mut byte = [0u8; 1];
+    let read = tokio::time::timeout(Duration::from_secs(2), stream.read(&mut byte)).await;
+    matches!(read, Ok(Ok(0)) | Ok(Err(_)))
+}
+
+/// Issue 30, finding 5: eight idle connections locked every HMI out for the idle
+/// time, renewable for ever. Now one address holds at most `max_connections_per_peer`
+/// (its own oldest make room), a full server makes room by closing the connection
+/// idle longest, and silent connections are closed after 5 s.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn idle_connections_never_lock_an_hmi_out() -> anyhow::Result<()> {
+    // The defaults: 8 clients, 4 per address, 60 s idle time.
+    let (gateway, address) = server_gateway(8, 60_000).await?;
+    let metrics = gateway.bound().metrics.expect("metrics");
+    // One host opens eight silent connections: it keeps its last four.
+    let mut first_host = Vec::new();
+    for _ in 0..8 {
+        first_host.push(connect_from([127, 0, 0, 2], address).await?);
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    for (k, stream) in first_host.iter_mut().take(4).enumerate() {
+        assert!(
+            closed(stream).await,
+            "connection {k} of the first host kept"
+        );
+    }
+    // A second host opens four more, and makes a request on the first: full.
+    let mut second_host = Vec::new();
+    for _ in 0..4 {
+        second_host.push(connect_from([127, 0, 0, 3], address).await?);
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let request = frame(1, &[0x03, 0x00, 0x01, 0x00, 0x01]);
+    let reply = exchange(&mut second_host[0], &request)
+        .await?
+        .expect("served");
+    assert_eq!(&reply[7..9], &[0x03, 0x02]);
+    // The HMI is served: the oldest silent connection (the first host's fifth) makes
+    // room, not the one that made a request.
+    let mut hmi = TcpStream::connect(address).await?;
+    let reply = exchange(&mut hmi, &request)
+        .await?
+        .expect("the HMI is served");
+    assert_eq!(&reply[7..9], &[0x03, 0x02]);
     assert!(
-        page.contains("millgate_server_refused_connections_total 1"),
-        "{page}"
+        closed(&mut first_host[4]).await,
+        "the oldest silent one kept"
     );
+    let reply = exchange(&mut second_host[0], &request).await?;
     assert!(
-        page.contains("millgate_server_idle_closed_connections_total 2"),
-        "{page}"
+        reply.is_some(),
+        "the connection that made a request was evicted"
+    );
+    let page = scrape(metrics).await?;
+    for expected in [
+        "millgate_server_refused_connections_total 0",
+        "millgate_server_evicted_connections_total 5",
+    ] {
+        assert!(page.contains(expected), "{expected}: {page}");
+    }
+    // Silent connections go after 5 s, not the 60 s idle time: the first host's last
+    // three and the second host's three.
+    let started = Instant::now();
+    loop {
+        let page = scrape(metrics).await?;
+        if page.contains("millgate_server_silent_closed_connections_total 6") {
+            break;
+        }
+        assert!(
+            started.elapsed() < Duration::from_secs(15),
+            "silent connections not closed: {page}"
+        );
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+    for stream in first_host
+        .iter_mut()
+        .skip(5)
+        .chain(second_host.iter_mut().skip(1))
+    {
+        assert!(closed(stream).await, "a silent connection kept");
+    }
+    assert!(
+        !closed(&mut hmi).await,
+        "the HMI that made a request was closed"
     );
     tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
     Ok(())

@@ -3,7 +3,7 @@
 use std::ops::RangeInclusive;
 
 use crate::raw::RawHistory;
-use crate::History;
+use crate::{CaptureSettings, History};
 
 use super::Checker;
 use super::Written;
@@ -33,10 +33,45 @@ impl Checker<'_> {
             MAX_SIZE_MB,
             " MiB",
         );
+        let max_size_mb = u32::try_from(max_size_mb?).ok()?;
+        let captures = self.captures(raw, max_size_mb);
         Some(History {
             path: path?,
             retention_days: u32::try_from(retention_days?).ok()?,
-            max_size_mb: u32::try_from(max_size_mb?).ok()?,
+            max_size_mb,
+            captures: captures?,
+        })
+    }
+
+    /// The capture keys of `[history]` in a file of `max_size_mb` MiB.
+    fn captures(&mut self, raw: &RawHistory, max_size_mb: u32) -> Option<CaptureSettings> {
+        let defaults = CaptureSettings::defaults(max_size_mb);
+        let half = i64::from(max_size_mb / 2).max(1);
+        let max_mb = self.int_in(
+            "history.captures_max_mb",
+            raw.captures_max_mb.unwrap_or(i64::from(defaults.max_mb)),
+            1..=half,
+            " MiB (at most half of history.max_size_mb)",
+        );
+        let thin_after_days = self.int_in(
+            "history.captures_thin_after_days",
+            raw.captures_thin_after_days
+                .unwrap_or(i64::from(defaults.thin_after_days)),
+            RETENTION_DAYS,
+            " days",
+        );
+        let keep_every = self.int_in(
+            "history.captures_keep_every",
+            raw.captures_keep_every
+                .unwrap_or(i64::from(defaults.keep_every)),
+            1..=1000,
+            "",
+        );
+        Some(CaptureSettings {
+            enabled: raw.captures.unwrap_or(defaults.enabled),
+            max_mb: u32::try_from(max_mb?).ok()?,
+            thin_after_days: u32::try_from(thin_after_days?).ok()?,
+            keep_every: u32::try_from(keep_every?).ok()?,
         })
     }
 

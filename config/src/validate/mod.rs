@@ -44,6 +44,9 @@ pub(crate) const DEFAULT_POST_TRIGGER_S: f64 = 0.5;
 const MAX_WINDOW_S: f64 = 10.0;
 /// HMI clients the Modbus server serves at once when `max_connections` is not given.
 pub(crate) const DEFAULT_MAX_CONNECTIONS: usize = 8;
+/// Connections one HMI address may hold when `max_connections_per_peer` is not given
+/// (at most `max_connections`).
+pub(crate) const DEFAULT_MAX_CONNECTIONS_PER_PEER: usize = 4;
 /// Idle time after which the Modbus server closes a connection, when not given, ms.
 pub(crate) const DEFAULT_IDLE_TIMEOUT_MS: u64 = 60_000;
 /// Prometheus endpoint when `[outputs.metrics]` has no `bind`.

@@ -13,8 +13,9 @@ use crate::{
 };
 
 use super::{
-    optional, Checker, DEFAULT_IDLE_TIMEOUT_MS, DEFAULT_MAX_CONNECTIONS, DEFAULT_METRICS_BIND,
-    DEFAULT_TIMEOUT_MS, DEFAULT_UNIT_ID, DEFAULT_WEB_BIND,
+    optional, Checker, DEFAULT_IDLE_TIMEOUT_MS, DEFAULT_MAX_CONNECTIONS,
+    DEFAULT_MAX_CONNECTIONS_PER_PEER, DEFAULT_METRICS_BIND, DEFAULT_TIMEOUT_MS, DEFAULT_UNIT_ID,
+    DEFAULT_WEB_BIND,
 };
 
 /// Most HMI clients `outputs.server.max_connections` may allow.
@@ -77,6 +78,17 @@ impl Checker<'_> {
                 1..=MAX_CONNECTIONS_LIMIT,
                 "",
             );
+            // At most max_connections (its default too when max_connections is
+            // smaller); an invalid max_connections is reported on its own.
+            let most = max_connections.unwrap_or(MAX_CONNECTIONS_LIMIT);
+            let max_connections_per_peer = self.int_in(
+                &format!("{key}.max_connections_per_peer"),
+                server
+                    .max_connections_per_peer
+                    .unwrap_or((DEFAULT_MAX_CONNECTIONS_PER_PEER as i64).min(most)),
+                1..=most,
+                &format!(", at most {key}.max_connections"),
+            );
             let idle_timeout_ms = self.int_in(
                 &format!("{key}.idle_timeout_ms"),
                 server
@@ -89,6 +101,7 @@ impl Checker<'_> {
                 bind: bind?,
                 unit_id: u8::try_from(unit_id?).ok()?,
                 max_connections: usize::try_from(max_connections?).ok()?,
+                max_connections_per_peer: usize::try_from(max_connections_per_peer?).ok()?,
                 idle_timeout: Duration::from_millis(u64::try_from(idle_timeout_ms?).ok()?),
                 allow_remote_commands: server.allow_remote_commands.unwrap_or(false),
             })

@@ -20,6 +20,10 @@ use super::gap_monitor::{GapBite, GapMapJob, GapMonitor};
 use super::simulated_bite::BiteSimulator;
 use super::wear::{self, WearEstimate, WearReference};
 use crate::state::board::Board;
+use crate::state::captures::{
+    unix_ns, BiteWindowAnalysis, CaptureChannel, CaptureGap, CaptureKind, CaptureRecord,
+    CapturedBite, KeepClass,
+};
 use crate::state::events::{
     AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, GapEstimate as RecordedGap, HistoryEvent,
     PooledBite,
@@ -57,7 +61,8 @@ pub struct BiteReport {
     pub window_complete: Instant,
     /// Static torque, peak, TAF and periods.
     pub transient: TransientResult,
-    /// Natural frequencies from the eq. (1) fit, Hz, when it converged.
+    /// Natural frequencies from the eq. (1) fit, Hz, when it converged to frequencies
+    /// the window resolves (above one cycle in the fitted record, below Nyquist).
     pub beta_hz: Option<(f64, f64)>,
     /// The window had gaps, NaN or saturated samples.
     pub degraded: bool,
@@ -67,6 +72,25 @@ pub struct BiteReport {
     /// The bite's gap observation and the gap estimates; `None` without a model, for a
     /// degraded window or a bite without TAF.
     pub gap: Option<GapBite>,
+    /// The window's samples as analysed, when the driveline keeps captures.
+    pub samples: Option<Arc<BiteSamples>>,
+}
+
+/// A bite window's samples as the analysis read them: what its capture keeps.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BiteSamples {
+    /// The torque channel with the window's samples.
+    pub torque: CaptureChannel,
+    /// Time of the window's first sample.
+    pub first_sample: SystemTime,
+    /// That time is counted back from a CAN kernel receive timestamp.
+    pub kernel_time: bool,
+    /// A gap ended the window (the capture's end).
+    pub gap: Option<CaptureGap>,
+    /// Trigger, baseline and the settings it was analysed with.
+    pub analysis: BiteWindowAnalysis,
+    /// Sample rate, Hz.
+    pub sample_rate_hz: f64,
 }
 
 /// Bite detection and analysis of one driveline.
@@ -92,6 +116,8 @@ pub(super) struct DrivelineAnalyzer {
     gap_job: Option<GapMapJob>,
     /// Why a driveline naming a model runs without wear diagnosis.
     wear_problem: Option<AnalysisError>,
+    /// The torque channel as a capture describes it, when captures are kept.
+    capture: Option<CaptureChannel>,
 }
 
 /// How one driveline's bites are detected and analysed, from its configuration and
@@ -299,7 +325,20 @@ impl DrivelineAnalyzer {
             gap,
             gap_job,
             wear_problem,
+            capture: None,
         })
+    }
+
+    /// Keep each bite window's samples for its capture (`[history]` with captures on),
+    /// describing the torque channel as `torque`.
+    pub(super) fn keep_captures(&mut self, torque: &Channel) {
+        self.capture = Some(CaptureChannel {
+            name: torque.name.clone(),
+            unit: torque.unit.clone(),
+            scale: torque.scale,
+            offset: torque.offset,
+            samples: Vec::new(),
+        });
     }
 
     /// Why the driveline runs without wear diagnosis although it names a model.
@@ -350,6 +389,7 @@ impl DrivelineAnalyzer {
         &mut self,
         event: &BiteEvent<WINDOW_CAPACITY>,
         last_sample_time: Option<SystemTime>,
+        ended_by_gap: Option<Option<u64>>,
     ) -> Option<BiteReport> {
         let window_complete = Instant::now();
         let result = analyze_window(
@@ -376,21 +416,47 @@ impl DrivelineAnalyzer {
             .as_mut()
             .filter(|_| !degraded)
             .and_then(|gap| gap.observe(&event.window, &analysis.transient, transient));
+        let time = before(
+            last_sample_time.unwrap_or_else(SystemTime::now),
+            after_trigger,
+        );
+        let samples = self.capture.as_ref().map(|torque| {
+            Arc::new(BiteSamples {
+                torque: CaptureChannel {
+                    samples: event.window.to_vec(),
+                    ..torque.clone()
+                },
+                first_sample: before(time, event.trigger_index as f64 / self.sample_rate_hz),
+                kernel_time: last_sample_time.is_some(),
+                gap: ended_by_gap.map(|missed_samples| CaptureGap {
+                    before_sample: event.window.len(),
+                    missed_samples,
+                }),
+                analysis: BiteWindowAnalysis {
+                    trigger_index: event.trigger_index,
+                    baseline_knm: event.baseline_knm,
+                    onset_knm: self.onset_knm,
+                    period_lowpass_hz: self.transient.period_lowpass_hz,
+                    peak_lowpass_hz: self.transient.peak_lowpass_hz,
+                    settled_fraction: self.transient.settled_fraction,
+                    min_static_knm: self.transient.min_static_knm,
+                },
+                sample_rate_hz: self.sample_rate_hz,
+            })
+        });
         Some(BiteReport {
             driveline: self.index,
             driveline_name: self.name.clone(),
             channel_name: self.channel_name.clone(),
             trigger_sample: event.trigger_sample,
-            time: before(
-                last_sample_time.unwrap_or_else(SystemTime::now),
-                after_trigger,
-            ),
+            time,
             window_complete,
             transient: analysis.transient,
-            beta_hz: analysis.good_fit().map(|fit| (fit.f1_hz, fit.f2_hz)),
+            beta_hz: analysis.natural_frequencies_hz(),
             degraded,
             wear: self.wear_estimate(&analysis.transient),
             gap,
+            samples,
         })
     }
 
@@ -405,14 +471,14 @@ impl DrivelineAnalyzer {
             if let Some(event) = self.detector.process(&mut self.state, value) {
                 let later = (values.len() - 1 - i) as f64 / self.sample_rate_hz;
                 let time = received.map(|last| before(last, later));
-                reports.extend(self.report(&event, time));
+                reports.extend(self.report(&event, time, None));
             }
         }
     }
 
     pub(super) fn gap(&mut self, missed: Option<u64>, reports: &mut Vec<BiteReport>) {
         if let Some(event) = self.detector.gap(&mut self.state, missed.unwrap_or(0)) {
-            reports.extend(self.report(&event, None));
+            reports.extend(self.report(&event, None, Some(missed)));
         }
     }
 
@@ -465,7 +531,28 @@ impl DrivelineAnalyzer {
                 driveline,
                 gap.map(|(monitor, estimate)| monitor.record(&estimate, driveline.gap_alarm)),
             );
+            let bite = CapturedBite {
+                counter: driveline.bite_counter,
+                time,
+            };
             events.push(HistoryEvent::Bite(Box::new(record)));
+            let raised_gap_alarm = gap_alarms.iter().any(|event| {
+                matches!(event, HistoryEvent::Alarm(a) if a.kind == AlarmKind::GapAlarm && a.event == AlarmEvent::Raised)
+            });
+            if report.samples.is_some() {
+                let keep = if taf.is_some_and(|taf| taf >= self.taf_alarm) || raised_gap_alarm {
+                    KeepClass::Important
+                } else if driveline.taf_warning || driveline.gap_warning {
+                    KeepClass::Warning
+                } else {
+                    KeepClass::Ordinary
+                };
+                events.extend(
+                    report
+                        .capture(bite, keep)
+                        .map(|capture| HistoryEvent::Capture(Box::new(capture))),
+                );
+            }
             let alarm = |kind, event, value, threshold| {
                 HistoryEvent::Alarm(AlarmRecord {
                     time,
@@ -571,6 +658,27 @@ fn bite_record(
         }),
         extra_state: None,
         state: state.clone(),
+    }
+}
+
+impl BiteReport {
+    /// The capture of this bite's window as the history keeps it, for the bite
+    /// `bite` of its driveline kept as `keep`; `None` when the driveline keeps no
+    /// captures.
+    pub fn capture(&self, bite: CapturedBite, keep: KeepClass) -> Option<CaptureRecord> {
+        let samples = self.samples.as_ref()?;
+        Some(CaptureRecord {
+            kind: CaptureKind::Bite,
+            subject: self.driveline_name.clone(),
+            bite: Some(bite),
+            first_sample_unix_ns: unix_ns(samples.first_sample),
+            kernel_time: samples.kernel_time,
+            sample_rate_hz: samples.sample_rate_hz,
+            channels: vec![samples.torque.clone()],
+            gaps: samples.gap.into_iter().collect(),
+            analysis: Some(samples.analysis),
+            keep,
+        })
     }
 }
 

@@ -68,11 +68,17 @@ impl Analysis {
             .cache_dir
             .clone()
             .unwrap_or_else(gap_map_cache::default_dir);
+        let captures = config
+            .history
+            .as_ref()
+            .is_some_and(|history| history.captures.enabled);
         for (index, driveline) in config.drivelines.iter().enumerate() {
             let torque = &config.channels[driveline.torque];
-            drivelines.push(DrivelineAnalyzer::new(
-                index, driveline, torque, &cache_dir,
-            )?);
+            let mut analyzer = DrivelineAnalyzer::new(index, driveline, torque, &cache_dir)?;
+            if captures {
+                analyzer.keep_captures(torque);
+            }
+            drivelines.push(analyzer);
             by_torque[driveline.torque].push(index);
             if let Some(trigger) = driveline.metal_in_stand {
                 by_trigger[trigger].push(index);

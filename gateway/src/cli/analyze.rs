@@ -6,6 +6,11 @@
 //! 0.5 s hold-off, 0.1 s before and 0.6 s after the trigger (within the gateway's
 //! window capacity). `t_bite_s` is the load onset: the last sample before the trigger
 //! within [`ONSET_KNM`] of the baseline, where eq. (1) has t = 0.
+//!
+//! A capture exported by `millgate capture export` (its `# millgate capture` line
+//! holds how the gateway read the window) is analysed as the gateway did: one event
+//! with the window's trigger, baseline, onset and transient settings, at the stored
+//! sample rate, so the figures are the ones the gateway published for that bite.
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -17,11 +22,13 @@ use millgate_dsp::fit::{Eq1Fit, FitStatus};
 use millgate_dsp::transient::{TransientQuality, TransientSettings};
 use serde_json::{json, Value};
 
+use super::capture::CaptureHeader;
 use super::csv;
 use super::OutputFormat;
 use crate::analysis::bite_window::{
     analyze_window, WindowAnalysis, PRE_TRIGGER_CAPACITY, WINDOW_CAPACITY,
 };
+use crate::state::captures::BiteWindowAnalysis;
 
 /// Rise above the baseline that marks a bite, kN*m.
 pub const THRESHOLD_KNM: f64 = 20.0;
@@ -104,15 +111,31 @@ fn transient_settings(rate: f64) -> TransientSettings {
 pub fn run(args: &AnalyzeArgs) -> anyhow::Result<String> {
     let table = csv::read(&args.input).with_context(|| args.input.display().to_string())?;
     let (name, signal) = table
-        .pick(args.channel.as_deref())
+        .pick_torque(args.channel.as_deref())
         .map_err(|e| anyhow::anyhow!("{}: {e}", args.input.display()))?;
     let rate = table
         .sample_rate_hz()
         .map_err(|e| anyhow::anyhow!("{}: {e}", args.input.display()))?;
-    let settings = transient_settings(rate);
-    let events = match args.window {
-        Some(window) => vec![analyse_window(&table.time_s, signal, window, &settings)?],
-        None => detect(&table.time_s, signal, rate, &settings)?,
+    let capture = CaptureHeader::from_comments(&table.comments)
+        .transpose()
+        .map_err(|e| anyhow::anyhow!("{}: {e:#}", args.input.display()))?;
+    let bite_window = capture
+        .as_ref()
+        .and_then(|header| Some((header.sample_rate_hz, header.analysis?)))
+        .filter(|_| args.window.is_none());
+    let (rate, events) = match bite_window {
+        Some((rate, analysis)) => (
+            rate,
+            vec![analyse_capture(&table.time_s, signal, rate, &analysis)?],
+        ),
+        None => {
+            let settings = transient_settings(rate);
+            let events = match args.window {
+                Some(window) => vec![analyse_window(&table.time_s, signal, window, &settings)?],
+                None => detect(&table.time_s, signal, rate, &settings)?,
+            };
+            (rate, events)
+        }
     };
     Ok(match args.format {
         OutputFormat::Json => {
@@ -145,6 +168,42 @@ fn analyse_window(
         .with_context(|| format!("analysing {}..{} s", window.start_s, window.end_s))?;
     Ok(Event {
         t_bite_s: time_s.get(first).copied().unwrap_or(window.start_s),
+        analysis,
+    })
+}
+
+/// A captured bite window, analysed with the settings the gateway read it with.
+fn analyse_capture(
+    time_s: &[f64],
+    signal: &[f64],
+    rate: f64,
+    capture: &BiteWindowAnalysis,
+) -> anyhow::Result<Event> {
+    let settings = TransientSettings {
+        sample_rate_hz: rate,
+        period_lowpass_hz: capture.period_lowpass_hz,
+        peak_lowpass_hz: capture.peak_lowpass_hz,
+        settled_fraction: capture.settled_fraction,
+        min_static_knm: capture.min_static_knm,
+        reference_shift_s: None,
+    };
+    if signal.len() > WINDOW_CAPACITY || capture.trigger_index >= signal.len() {
+        bail!(
+            "the capture's window holds {} samples with its trigger at {}; the analysis needs              at most {WINDOW_CAPACITY} and the trigger inside",
+            signal.len(),
+            capture.trigger_index
+        );
+    }
+    let analysis = analyze_window(
+        signal,
+        capture.trigger_index,
+        capture.baseline_knm,
+        capture.onset_knm,
+        &settings,
+    )
+    .context("analysing the captured bite window")?;
+    Ok(Event {
+        t_bite_s: time_s[analysis.fit_start_index],
         analysis,
     })
 }

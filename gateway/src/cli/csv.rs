@@ -1,5 +1,7 @@
 //! Reader of recorded signals: a CSV with a header, first column `t` (s), the other
 //! columns channels (torque in kN*m). Errors name the line (1-based) and the column.
+//! Lines starting with `#` are comments (kept in [`Table::comments`]): a capture
+//! exported by `millgate capture export` says there how the gateway read it.
 
 use std::path::Path;
 
@@ -91,6 +93,23 @@ pub enum CsvError {
         /// Allowed departure from the mean step, %.
         tolerance_percent: f64,
     },
+    /// A torque sample beyond any mill's: a scaling or unit error in the record.
+    #[error(
+        "line {line}, column {column} (`{name}`): torque {value_knm:e} kN*m lies outside \
+         the physical range -{limit_knm:e}..={limit_knm:e} kN*m (a unit or scaling error?)"
+    )]
+    TorqueOutOfRange {
+        /// 1-based line number.
+        line: usize,
+        /// 1-based column number.
+        column: usize,
+        /// Header name of the column.
+        name: String,
+        /// The value, kN*m.
+        value_knm: f64,
+        /// The largest magnitude accepted, kN*m.
+        limit_knm: f64,
+    },
     /// Fewer than two data rows: no sample rate.
     #[error("fewer than two data lines: the sample rate is undefined")]
     TooShort,
@@ -115,10 +134,17 @@ pub struct Table {
     pub channels: Vec<Vec<f64>>,
     /// 1-based line number of each row in the file (blank lines are skipped).
     pub lines: Vec<usize>,
+    /// The comment lines (`#` and what follows), in order.
+    pub comments: Vec<String>,
 }
 
 /// Largest departure of one time step from the record's mean step, relative.
 pub const UNIFORM_TOLERANCE: f64 = 0.01;
+
+/// Largest torque magnitude a record may hold, kN*m: a hundred times the largest
+/// rolling-mill drive (about 10 MN*m); beyond it the record is mis-scaled, and its
+/// fit would publish numbers of no mill (1e300 overflows the fit's squares).
+pub const MAX_TORQUE_KNM: f64 = 1.0e6;
 
 impl Table {
     /// The sample rate, Hz, of a uniformly sampled record: (rows - 1) / (last time -
@@ -172,6 +198,27 @@ impl Table {
             None => Ok((self.names[0].as_str(), self.channels[0].as_slice())),
         }
     }
+
+    /// [`Self::pick`] for a torque channel (kN*m): also refuses a record with a sample
+    /// beyond [`MAX_TORQUE_KNM`], naming its line and column.
+    pub fn pick_torque<'a>(
+        &'a self,
+        name: Option<&'a str>,
+    ) -> Result<(&'a str, &'a [f64]), String> {
+        let (name, values) = self.pick(name)?;
+        let column = 2 + self.names.iter().position(|n| n == name).unwrap_or(0);
+        match values.iter().position(|v| v.abs() > MAX_TORQUE_KNM) {
+            Some(row) => Err(CsvError::TorqueOutOfRange {
+                line: self.lines[row],
+                column,
+                name: name.to_string(),
+                value_knm: values[row],
+                limit_knm: MAX_TORQUE_KNM,
+            }
+            .to_string()),
+            None => Ok((name, values)),
+        }
+    }
 }
 
 /// Reads and parses the CSV at `path`.
@@ -183,13 +230,19 @@ pub fn read(path: &Path) -> Result<Table, CsvError> {
     parse(&text)
 }
 
-/// Parses CSV text (comma-separated, cells trimmed, blank lines skipped).
+/// Parses CSV text (comma-separated, cells trimmed, blank lines skipped, `#` lines
+/// kept as comments).
 pub fn parse(text: &str) -> Result<Table, CsvError> {
+    let comments: Vec<String> = text
+        .lines()
+        .filter_map(|l| l.trim().strip_prefix('#'))
+        .map(|comment| comment.trim().to_string())
+        .collect();
     let mut lines = text
         .lines()
         .enumerate()
         .map(|(i, l)| (i + 1, l.trim()))
-        .filter(|(_, l)| !l.is_empty());
+        .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'));
     let (_, header) = lines.next().ok_or(CsvError::Empty)?;
     let header: Vec<String> = header.split(',').map(|c| c.trim().to_string()).collect();
     if header[0] != "t" {
@@ -214,6 +267,7 @@ pub fn parse(text: &str) -> Result<Table, CsvError> {
         time_s: Vec::new(),
         channels: vec![Vec::new(); header.len() - 1],
         lines: Vec::new(),
+        comments,
     };
     for (line, row) in lines {
         let cells: Vec<&str> = row.split(',').map(str::trim).collect();
@@ -281,6 +335,20 @@ mod tests {
         assert_eq!(table.channel("b"), Some(&[2.0, 4.0][..]));
         assert_eq!(table.sample_rate_hz(), Ok(2.0));
         assert_eq!(table.lines, [2, 4]);
+    }
+
+    #[test]
+    fn a_torque_beyond_any_mill_is_refused_with_its_line_and_column() {
+        let table = parse("t,speed,torque\n0,1,112\n\n0.5,1,-1.12e302\n").unwrap();
+        let error = table.pick_torque(Some("torque")).unwrap_err();
+        assert!(
+            error.starts_with("line 4, column 3 (`torque`): torque -1.12e302 kN*m lies outside"),
+            "{error}"
+        );
+        assert!(error.contains("-1e6..=1e6 kN*m"), "{error}");
+        // The largest accepted value passes; the plain pick does not look.
+        let table = parse("t,torque\n0,1e6\n0.5,-1e6\n").unwrap();
+        assert!(table.pick_torque(None).is_ok());
     }
 
     #[test]

@@ -1,6 +1,10 @@
 //! `millgate discrepancy --measured FILE.csv [--measured FILE.csv ...] --model MODEL.toml
 //! [--channel NAME] [--report DIR] [--format text|json]`: the model-discrepancy workflow
 //! of [`millgate_sim::discrepancy`] on one or more recorded bites of one driveline.
+//!
+//! `--db history.db --driveline F1 --bites LAST:3` (or `--bites 12,15,19`, the
+//! driveline's bite counters) takes the bites from the captures the gateway kept
+//! instead of CSV files: commissioning from the gateway's own recordings.
 
 use std::path::PathBuf;
 
@@ -12,6 +16,9 @@ use super::{csv, OutputFormat};
 
 /// Smallest load step, in multiples of the record's noise, that makes a bite transient.
 const MIN_STEP_OVER_NOISE: f64 = 10.0;
+/// Smallest load step that is a bite of a mill, kN*m (1 N*m): a record scaled far
+/// below it (1e-223 kN*m) is a unit error, and the fits would run in subnormal numbers.
+const MIN_STEP_KNM: f64 = 1.0e-3;
 
 /// Arguments of `millgate discrepancy`.
 #[derive(Debug, Clone, clap::Args)]
@@ -20,8 +27,18 @@ pub struct DiscrepancyArgs {
     /// (kN*m), uniformly sampled. Give it once per record; a record holding several
     /// bites (idle torque between them) is split into its bites. One model is fitted to
     /// every bite.
-    #[arg(long, required = true)]
+    #[arg(long, required_unless_present = "db", conflicts_with = "db")]
     pub measured: Vec<PathBuf>,
+    /// Take the bites from this history file's captures (with --driveline, --bites).
+    #[arg(long, requires_all = ["driveline", "bites"])]
+    pub db: Option<PathBuf>,
+    /// The driveline whose captured bites to use (with --db).
+    #[arg(long, requires = "db")]
+    pub driveline: Option<String>,
+    /// Which captured bites (with --db): `LAST:N` (the newest N) or the driveline's
+    /// bite counters, comma-separated (`12,15,19`).
+    #[arg(long, requires = "db")]
+    pub bites: Option<BiteSelection>,
     /// The driveline model (TOML) without the effect to be found; its stiffness may be
     /// from drawings.
     #[arg(long)]
@@ -38,6 +55,116 @@ pub struct DiscrepancyArgs {
     pub format: OutputFormat,
 }
 
+/// Which captured bites to take.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum BiteSelection {
+    /// The newest N bites' captures.
+    Last(u32),
+    /// These bite counters.
+    Counters(Vec<i64>),
+}
+
+impl std::str::FromStr for BiteSelection {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Self, Self::Err> {
+        let wrong =
+            || format!("`{text}`: expected LAST:N (N >= 1) or bite counters such as 12,15,19");
+        if let Some(count) = text
+            .strip_prefix("LAST:")
+            .or_else(|| text.strip_prefix("last:"))
+        {
+            return match count.trim().parse::<u32>() {
+                Ok(n) if n >= 1 => Ok(Self::Last(n)),
+                _ => Err(wrong()),
+            };
+        }
+        let counters: Result<Vec<i64>, _> =
+            text.split(',').map(|c| c.trim().parse::<i64>()).collect();
+        match counters {
+            Ok(counters) if !counters.is_empty() => Ok(Self::Counters(counters)),
+            _ => Err(wrong()),
+        }
+    }
+}
+
+/// The captured bites `selection` names of `driveline` in the history `db`, oldest
+/// first, read as the files would be (the channel `channel`, or the torque).
+fn captured(
+    db: &std::path::Path,
+    driveline: &str,
+    selection: &BiteSelection,
+    channel: Option<&str>,
+) -> anyhow::Result<Vec<Recorded>> {
+    use crate::outputs::history::query::{CaptureRow, Filter, HistoryReader};
+    let reader = HistoryReader::open(db)?;
+    let filter = Filter {
+        name: Some(driveline.to_owned()),
+        ..Filter::default()
+    };
+    let mut rows: Vec<CaptureRow> = Vec::new();
+    reader.for_each(&filter, |row: CaptureRow| -> anyhow::Result<()> {
+        let wanted = match selection {
+            BiteSelection::Last(_) => true,
+            BiteSelection::Counters(counters) => row
+                .bite_counter
+                .is_some_and(|counter| counters.contains(&counter)),
+        };
+        if row.kind == "bite" && wanted {
+            rows.push(row);
+        }
+        Ok(())
+    })?;
+    match selection {
+        BiteSelection::Last(n) => {
+            let keep = rows.len().saturating_sub(*n as usize);
+            rows.drain(..keep);
+            if rows.len() < *n as usize {
+                anyhow::bail!(
+                    "{}: --bites LAST:{n}: {driveline} has {} captured bites",
+                    db.display(),
+                    rows.len()
+                );
+            }
+        }
+        BiteSelection::Counters(counters) => {
+            for counter in counters {
+                if !rows.iter().any(|r| r.bite_counter == Some(*counter)) {
+                    anyhow::bail!(
+                        "{}: --bites: no capture of bite {counter} of {driveline} (see `millgate \
+                         capture list --db {} --driveline {driveline}`)",
+                        db.display(),
+                        db.display()
+                    );
+                }
+            }
+        }
+    }
+    let mut recorded = Vec::with_capacity(rows.len());
+    for row in rows {
+        let capture = reader.capture_of(row)?;
+        let name = format!(
+            "{}#capture {} (bite {} of {driveline})",
+            db.display(),
+            capture.row.id,
+            capture.row.bite_counter.unwrap_or_default()
+        );
+        let torque = match channel {
+            Some(wanted) => capture.channels.iter().find(|c| c.name == wanted),
+            None => capture.channels.first(),
+        }
+        .ok_or_else(|| anyhow::anyhow!("{name}: no channel {}", channel.unwrap_or("")))?;
+        check_transient(&torque.samples).map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
+        recorded.push(Recorded {
+            path: PathBuf::from(name),
+            t0_s: 0.0,
+            sample_rate_hz: capture.row.sample_rate_hz,
+            torque_knm: torque.samples.clone(),
+        });
+    }
+    Ok(recorded)
+}
+
 /// One CSV read: its time column's first value, rate and the chosen channel.
 struct Recorded {
     path: PathBuf,
@@ -49,11 +176,16 @@ struct Recorded {
 /// Runs the workflow, printing progress to stderr; returns the text to print (the
 /// report's Markdown summary, or its JSON).
 pub fn run(args: &DiscrepancyArgs) -> anyhow::Result<String> {
-    let mut recorded = Vec::with_capacity(args.measured.len());
+    let mut recorded = match (&args.db, &args.driveline, &args.bites) {
+        (Some(db), Some(driveline), Some(bites)) => {
+            captured(db, driveline, bites, args.channel.as_deref())?
+        }
+        _ => Vec::with_capacity(args.measured.len()),
+    };
     for path in &args.measured {
         let table = csv::read(path).with_context(|| path.display().to_string())?;
         let (_, torque) = table
-            .pick(args.channel.as_deref())
+            .pick_torque(args.channel.as_deref())
             .map_err(anyhow::Error::msg)
             .with_context(|| path.display().to_string())?;
         // Uniform time (the shared reader's check) and a load step to explain.
@@ -140,8 +272,9 @@ pub fn run(args: &DiscrepancyArgs) -> anyhow::Result<String> {
 
 /// Fails unless `torque_knm` holds a bite transient: a load step from its first 5% to
 /// its last 20% of at least [`MIN_STEP_OVER_NOISE`] times its noise (RMS of the first
-/// differences / sqrt 2). A constant record would otherwise be "explained" by the
-/// effect that best fits nothing (`extra_inertia` with a stiffness change of +17 000%).
+/// differences / sqrt 2), and of at least [`MIN_STEP_KNM`]. A constant record would
+/// otherwise be "explained" by the effect that best fits nothing (`extra_inertia` with
+/// a stiffness change of +17 000%).
 fn check_transient(torque_knm: &[f64]) -> Result<(), String> {
     let n = torque_knm.len();
     if n < 20 {
@@ -157,14 +290,20 @@ fn check_transient(torque_knm: &[f64]) -> Result<(), String> {
         .sum::<f64>()
         / (2.0 * (n - 1) as f64))
         .sqrt();
-    if step_knm.abs() > MIN_STEP_OVER_NOISE * noise_knm && step_knm.abs() > 0.0 {
-        Ok(())
-    } else {
+    let stepped = step_knm.abs() > MIN_STEP_OVER_NOISE * noise_knm && step_knm.abs() > 0.0;
+    if !stepped {
         Err(format!(
             "the torque record has no transient: its last 20% lies {step_knm:.3} kN*m from \
              its first 5% (noise {noise_knm:.3} kN*m RMS); the workflow needs a bite, a load \
              step of more than {MIN_STEP_OVER_NOISE} times the noise"
         ))
+    } else if step_knm.abs() < MIN_STEP_KNM {
+        Err(format!(
+            "the torque record's load step is {step_knm:e} kN*m, less than {MIN_STEP_KNM:e} \
+             kN*m: no mill's bite (a unit or scaling error?)"
+        ))
+    } else {
+        Ok(())
     }
 }
 
@@ -188,5 +327,9 @@ mod tests {
             .map(|i| if i < 100 { 0.0 } else { 112.0 } + f64::from(i % 7) - 3.0)
             .collect();
         assert_eq!(check_transient(&bite), Ok(()));
+        // The same bite scaled to 1e-223 kN*m: noise-free enough, but no mill's.
+        let tiny: Vec<f64> = bite.iter().map(|v| v * 1.0e-225).collect();
+        let error = check_transient(&tiny).unwrap_err();
+        assert!(error.contains("less than 1e-3 kN*m"), "{error}");
     }
 }

@@ -28,6 +28,8 @@
 //! - `millgate history --db FILE [--kind K] [--driveline NAME] [--since T] [--until T]
 //!   --format csv|json|md`: [`history`]
 //! - `millgate report --db FILE --out DIR [--since T] [--until T]`: `report`
+//! - `millgate capture list|export --db FILE [--driveline NAME] [--since T] [--until T]
+//!   ...`: [`capture`] (the captures a history keeps; CSV and Parquet)
 //! - `millgate completions SHELL`, `millgate man [--out DIR]`: [`shell`] (and the
 //!   exit status of every command)
 //!
@@ -38,6 +40,8 @@
 #[cfg(feature = "opcua")]
 pub mod address_space;
 pub mod analyze;
+pub mod capture;
+mod capture_parquet;
 pub mod chatter;
 pub mod check;
 pub mod csv;

@@ -105,7 +105,7 @@ pub fn run(args: &WearArgs) -> anyhow::Result<String> {
     }
     let table = csv::read(&args.input).with_context(|| input.clone())?;
     let (channel, signal) = table
-        .pick(args.channel.as_deref())
+        .pick_torque(args.channel.as_deref())
         .map_err(|e| anyhow::anyhow!("{input}: {e}"))?;
     let rate = table
         .sample_rate_hz()

@@ -19,22 +19,29 @@
 //! history records who sent a command: the PLC when the client's address is the
 //! configured PLC's, an HMI otherwise.
 //!
-//! Limits: at most `max_connections` clients at once (a further connection is
-//! closed at once); a connection without a request for `idle_timeout` is closed, and
-//! a request must arrive whole within [`FRAME_TIMEOUT`] (at most the idle timeout) of
-//! its first byte, so a client trickling bytes (slowloris) holds a slot for seconds,
-//! not forever. A stream that is not Modbus TCP is closed.
+//! Limits: at most `max_connections` clients at once and `max_connections_per_peer`
+//! from one address. A connection beyond the address' limit takes the place of that
+//! address' own connection idle longest; one beyond `max_connections` takes the place
+//! of the connection idle longest, one that never sent a request first (evicted,
+//! counted); it is closed at once only when every connection is inside a request. So
+//! idle connections, however many, never lock an HMI out. A connection without a
+//! request for `idle_timeout` is closed, one that sent no request within
+//! [`FIRST_REQUEST_TIMEOUT`] (at most the idle timeout) sooner, and a request must
+//! arrive whole within [`FRAME_TIMEOUT`] (at most the idle timeout) of its first byte,
+//! so a client trickling bytes (slowloris) holds a slot for seconds, not forever. A
+//! stream that is not Modbus TCP is closed.
 
 use std::net::{IpAddr, SocketAddr};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
 use millgate_config::ServerOutput;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
-use tokio::sync::Semaphore;
+use tokio::sync::Notify;
 use tokio::task::JoinSet;
+use tokio::time::Instant;
 
 use crate::outputs::accept::AcceptFailures;
 use crate::outputs::modbus_frame::{self, Policy, Reply, Served, MAX_FRAME_LEN};
@@ -44,13 +51,18 @@ use crate::warn_limit::{WarnLimit, WARN_PERIOD};
 
 /// Time a request may take from its first byte to its last.
 pub const FRAME_TIMEOUT: Duration = Duration::from_secs(5);
+/// Time a new connection has for its first request (at most the idle timeout): a
+/// client that connects and stays silent holds a slot this long, not the idle time.
+pub const FIRST_REQUEST_TIMEOUT: Duration = Duration::from_secs(5);
 
 /// What the server has seen, for `/metrics`.
 #[derive(Debug, Default)]
 pub struct ServerCounters {
     connections: AtomicU64,
     refused: AtomicU64,
+    evicted: AtomicU64,
     idle_closed: AtomicU64,
+    silent_closed: AtomicU64,
     not_modbus: AtomicU64,
     requests: AtomicU64,
     exceptions: AtomicU64,
@@ -62,10 +74,17 @@ pub struct ServerCounters {
 pub struct ServerCounts {
     /// Connections accepted and served.
     pub connections: u64,
-    /// Connections closed at once: `max_connections` clients were connected.
+    /// Connections closed at once: the server was full and every connection was
+    /// inside a request.
     pub refused: u64,
+    /// Idle connections closed to make room for a new one (the server or the
+    /// client's address at its limit).
+    pub evicted: u64,
     /// Connections closed for idling, or for a request not completed in time.
     pub idle_closed: u64,
+    /// Of those, connections that never sent a request (closed after
+    /// [`FIRST_REQUEST_TIMEOUT`]).
+    pub silent_closed: u64,
     /// Connections closed because the stream was not Modbus TCP.
     pub not_modbus: u64,
     /// Requests answered (responses and exceptions).
@@ -83,7 +102,9 @@ impl ServerCounters {
         ServerCounts {
             connections: load(&self.connections),
             refused: load(&self.refused),
+            evicted: load(&self.evicted),
             idle_closed: load(&self.idle_closed),
+            silent_closed: load(&self.silent_closed),
             not_modbus: load(&self.not_modbus),
             requests: load(&self.requests),
             exceptions: load(&self.exceptions),
@@ -151,9 +172,13 @@ impl ModbusServer {
     pub async fn run(self, listener: TcpListener, mut shutdown: Shutdown) -> std::io::Result<()> {
         let local = listener.local_addr()?;
         tracing::info!(%local, max_connections = self.output.max_connections, "Modbus server listening");
-        let slots = Arc::new(Semaphore::new(self.output.max_connections));
+        let mut open = OpenConnections::new(
+            self.output.max_connections,
+            self.output.max_connections_per_peer,
+        );
         let mut connections = JoinSet::new();
         let mut refusals = WarnLimit::new(WARN_PERIOD);
+        let mut evictions = WarnLimit::new(WARN_PERIOD);
         let mut accept_failures = AcceptFailures::default();
         let plc_hosts: Vec<IpAddr> = match &self.plc_address {
             Some(address) => tokio::net::lookup_host(address.as_str())
@@ -162,24 +187,44 @@ impl ModbusServer {
                 .unwrap_or_default(),
             None => Vec::new(),
         };
+        let mut next_id = 0u64;
         loop {
             let accepted = tokio::select! {
                 accepted = listener.accept() => accepted,
                 () = shutdown.recv() => break,
-                Some(_) = connections.join_next(), if !connections.is_empty() => continue,
+                Some(ended) = connections.join_next(), if !connections.is_empty() => {
+                    if let Ok(id) = ended {
+                        open.remove(id);
+                    }
+                    continue;
+                }
             };
             let Some((stream, peer)) = accept_failures.check(accepted, "Modbus server").await?
             else {
                 continue;
             };
-            let Ok(slot) = Arc::clone(&slots).try_acquire_owned() else {
-                count(&self.counters.refused);
-                if let Some(suppressed) = refusals.occurred(tokio::time::Instant::now()) {
-                    tracing::warn!(%peer, max = self.output.max_connections, suppressed, "Modbus server full, connection closed");
+            match open.admit(peer.ip()) {
+                Admission::Admitted => {}
+                Admission::Evicted(evicted) => {
+                    count(&self.counters.evicted);
+                    evicted.evict();
+                    if let Some(suppressed) = evictions.occurred(Instant::now()) {
+                        tracing::warn!(%peer, max = self.output.max_connections, max_per_peer = self.output.max_connections_per_peer, suppressed, "Modbus server (or this address) at its limit: the connection idle longest closed for the new one");
+                    }
                 }
-                drop(stream);
-                continue;
-            };
+                Admission::Refused => {
+                    count(&self.counters.refused);
+                    if let Some(suppressed) = refusals.occurred(Instant::now()) {
+                        tracing::warn!(%peer, max = self.output.max_connections, suppressed, "Modbus server full, every connection inside a request: connection closed");
+                    }
+                    drop(stream);
+                    continue;
+                }
+            }
+            let activity = Arc::new(Activity::default());
+            next_id += 1;
+            let id = next_id;
+            open.insert(id, peer.ip(), Arc::clone(&activity));
             count(&self.counters.connections);
             let connection = Connection {
                 served: self.served.clone(),
@@ -195,11 +240,12 @@ impl ModbusServer {
                 },
                 idle_timeout: self.output.idle_timeout,
                 peer,
+                activity,
             };
             let shutdown = shutdown.clone();
             connections.spawn(async move {
                 connection.serve(stream, shutdown).await;
-                drop(slot);
+                id
             });
         }
         connections.shutdown().await;
@@ -214,6 +260,126 @@ struct Connection {
     policy: Policy,
     idle_timeout: Duration,
     peer: SocketAddr,
+    activity: Arc<Activity>,
+}
+
+/// What the accept loop knows of one connection's activity, to choose whom to evict.
+#[derive(Debug)]
+struct Activity {
+    /// When it last completed a request (or connected).
+    last: std::sync::Mutex<Instant>,
+    /// It has sent a request.
+    requested: AtomicBool,
+    /// Part of a request has arrived: not idle, not to be evicted.
+    in_request: AtomicBool,
+    /// Set by the accept loop to close it.
+    evicted: Notify,
+}
+
+impl Default for Activity {
+    fn default() -> Self {
+        Self {
+            last: std::sync::Mutex::new(Instant::now()),
+            requested: AtomicBool::new(false),
+            in_request: AtomicBool::new(false),
+            evicted: Notify::new(),
+        }
+    }
+}
+
+impl Activity {
+    fn last(&self) -> Instant {
+        *self
+            .last
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    /// A request answered.
+    fn answered(&self) {
+        *self
+            .last
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = Instant::now();
+        self.requested.store(true, Ordering::Relaxed);
+    }
+
+    /// Close the connection (its task ends at once).
+    fn evict(&self) {
+        self.evicted.notify_one();
+    }
+}
+
+/// Whether a new connection may be served.
+#[derive(Debug)]
+enum Admission {
+    /// There is room.
+    Admitted,
+    /// There is room once this connection, idle longest, is closed.
+    Evicted(Arc<Activity>),
+    /// Every connection that could make room is inside a request.
+    Refused,
+}
+
+/// The connections being served, by id, with their peer's address.
+#[derive(Debug)]
+struct OpenConnections {
+    max: usize,
+    max_per_peer: usize,
+    open: Vec<(u64, IpAddr, Arc<Activity>)>,
+}
+
+impl OpenConnections {
+    fn new(max: usize, max_per_peer: usize) -> Self {
+        Self {
+            max,
+            max_per_peer: max_per_peer.clamp(1, max.max(1)),
+            open: Vec::with_capacity(max),
+        }
+    }
+
+    /// Whether a connection from `peer` may be served, and whom it evicts: at the
+    /// peer's limit, the peer's own connection idle longest; with the server full,
+    /// a connection that never sent a request (the oldest), else the one idle
+    /// longest. An evicted connection leaves the list at once.
+    fn admit(&mut self, peer: IpAddr) -> Admission {
+        let own = self.open.iter().filter(|(_, ip, _)| *ip == peer).count();
+        let victim = if own >= self.max_per_peer {
+            self.idle_longest(|ip| ip == peer)
+        } else if self.open.len() >= self.max {
+            self.idle_longest(|_| true)
+        } else {
+            return Admission::Admitted;
+        };
+        match victim {
+            Some(index) => Admission::Evicted(self.open.swap_remove(index).2),
+            None => Admission::Refused,
+        }
+    }
+
+    /// The index of the connection of a peer `of` that is not inside a request and
+    /// has (never requested, idle longest) first.
+    fn idle_longest(&self, of: impl Fn(IpAddr) -> bool) -> Option<usize> {
+        self.open
+            .iter()
+            .enumerate()
+            .filter(|(_, (_, ip, activity))| {
+                of(*ip) && !activity.in_request.load(Ordering::Relaxed)
+            })
+            .min_by_key(|(_, (_, _, activity))| {
+                (activity.requested.load(Ordering::Relaxed), activity.last())
+            })
+            .map(|(index, _)| index)
+    }
+
+    fn insert(&mut self, id: u64, peer: IpAddr, activity: Arc<Activity>) {
+        self.open.push((id, peer, activity));
+    }
+
+    /// The connection `id` ended (it may have been evicted already).
+    fn remove(&mut self, id: u64) {
+        self.open.retain(|(open, _, _)| *open != id);
+    }
 }
 
 impl Connection {
@@ -222,6 +388,7 @@ impl Connection {
         tracing::debug!(peer = %self.peer, "HMI connected");
         let ended = tokio::select! {
             ended = self.requests(&mut stream) => ended,
+            () = self.activity.evicted.notified() => "evicted for a new connection",
             () = shutdown.recv() => "server stopping",
         };
         tracing::debug!(peer = %self.peer, ended, "HMI connection ended");
@@ -233,6 +400,7 @@ impl Connection {
         let mut filled = 0;
         let mut frame_started: Option<tokio::time::Instant> = None;
         let frame_timeout = FRAME_TIMEOUT.min(self.idle_timeout);
+        let first_request_timeout = FIRST_REQUEST_TIMEOUT.min(self.idle_timeout);
         loop {
             // Answer every whole frame received so far.
             loop {
@@ -243,6 +411,7 @@ impl Connection {
                         buffer.copy_within(len..filled, 0);
                         filled -= len;
                         frame_started = None;
+                        self.activity.answered();
                         match reply {
                             Reply::Send(bytes) => {
                                 count(&self.counters.requests);
@@ -266,7 +435,15 @@ impl Connection {
             }
             // Idle: the idle timeout from now. Inside a request: its deadline runs from
             // its first byte, however slowly the rest trickles in.
+            let requested = self.activity.requested.load(Ordering::Relaxed);
+            self.activity
+                .in_request
+                .store(filled > 0, Ordering::Relaxed);
             let deadline = match (filled, frame_started) {
+                (0, _) if !requested => {
+                    frame_started = None;
+                    self.activity.last() + first_request_timeout
+                }
                 (0, _) => {
                     frame_started = None;
                     tokio::time::Instant::now() + self.idle_timeout
@@ -281,10 +458,13 @@ impl Connection {
             match tokio::time::timeout_at(deadline, stream.read(&mut buffer[filled..])).await {
                 Err(_) => {
                     count(&self.counters.idle_closed);
-                    return if filled == 0 {
-                        "idle"
-                    } else {
-                        "request not completed in time"
+                    return match (filled, requested) {
+                        (0, false) => {
+                            count(&self.counters.silent_closed);
+                            "no request"
+                        }
+                        (0, true) => "idle",
+                        _ => "request not completed in time",
                     };
                 }
                 Ok(Ok(0)) => return "closed by the client",

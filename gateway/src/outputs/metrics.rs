@@ -548,17 +548,27 @@ fn plc_metrics(page: &mut Exposition, plc: &PlcCounters) {
 /// The HMI Modbus server's families.
 fn server_metrics(page: &mut Exposition, counts: &ServerCounts) {
     type ServerCountOf = fn(&ServerCounts) -> u64;
-    let families: [(&str, &str, ServerCountOf); 7] = [
+    let families: [(&str, &str, ServerCountOf); 9] = [
         ("connections", "HMI connections accepted", |c| c.connections),
         (
             "refused_connections",
-            "HMI connections closed at once: max_connections clients were connected",
+            "HMI connections closed at once: the server was full and every connection inside a request",
             |c| c.refused,
+        ),
+        (
+            "evicted_connections",
+            "Idle HMI connections closed to make room for a new one (max_connections or max_connections_per_peer reached)",
+            |c| c.evicted,
         ),
         (
             "idle_closed_connections",
             "HMI connections closed for idling or a request not completed in time",
             |c| c.idle_closed,
+        ),
+        (
+            "silent_closed_connections",
+            "Of those, HMI connections closed for sending no request within 5 s of connecting (or idle_timeout_ms, when shorter)",
+            |c| c.silent_closed,
         ),
         (
             "not_modbus_connections",
@@ -673,7 +683,7 @@ fn history_metrics(page: &mut Exposition, status: &HistoryStatus) {
 
 /// The Sparkplug B edge node's families.
 fn sparkplug_metrics(page: &mut Exposition, counts: &SparkplugCounts) {
-    let scalars: [(&str, Kind, &str, f64); 8] = [
+    let scalars: [(&str, Kind, &str, f64); 10] = [
         (
             "millgate_sparkplug_connected",
             Kind::Gauge,
@@ -719,8 +729,20 @@ fn sparkplug_metrics(page: &mut Exposition, counts: &SparkplugCounts) {
         (
             "millgate_sparkplug_rebirths_total",
             Kind::Counter,
-            "Node Control/Rebirth commands obeyed.",
+            "Rebirths on a Node Control/Rebirth command (at most one per 5 s).",
             counts.rebirths as f64,
+        ),
+        (
+            "millgate_sparkplug_rebirth_requests_total",
+            Kind::Counter,
+            "Node Control/Rebirth commands received (those within 5 s of the last births answered by one rebirth).",
+            counts.rebirth_requests as f64,
+        ),
+        (
+            "millgate_sparkplug_commands_refused_total",
+            Kind::Counter,
+            "NCMDs refused: retained, over 64 KiB or undecodable.",
+            counts.commands_refused as f64,
         ),
     ];
     page.scalars(scalars);

@@ -252,6 +252,10 @@ pub enum HistoryEvent {
     /// A bite and, when it has wear measures, a wear estimate; updates the
     /// driveline's restorable state.
     Bite(Box<BiteRecord>),
+    /// The samples behind a bite (recorded right after its [`HistoryEvent::Bite`], so
+    /// both are committed before the PLC sees the bite), a chatter episode or a manual
+    /// request.
+    Capture(Box<super::captures::CaptureRecord>),
     /// An alarm or warning changed; a latched alarm's change updates the subject's
     /// restorable state.
     Alarm(AlarmRecord),

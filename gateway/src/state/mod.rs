@@ -5,6 +5,7 @@
 //! read here; neither imports the other.
 
 pub mod board;
+pub mod captures;
 pub mod catalogue;
 pub mod commands;
 pub mod events;

@@ -11,6 +11,7 @@ use millgate_config::{Channel, RegisterTable};
 use crate::field::acquired::Acquired;
 use crate::field::counters::ChannelCounters;
 use crate::field::quality::{self, SaturationLimits};
+use crate::warn_limit::{WarnLimit, WARN_PERIOD};
 
 /// Block periods a sequence may stand still before the stall is counted.
 const STALL_BLOCK_PERIODS: u32 = 3;
@@ -28,6 +29,9 @@ pub(super) struct BlockChannel {
     last: Option<(u16, Instant, u16)>,
     /// The sequence has stood still past [`STALL_BLOCK_PERIODS`] (counted once).
     stalled: bool,
+    /// One warning per period for restarts: a sequence running backwards restarts
+    /// at every block (each counted).
+    restart_warnings: WarnLimit,
     pub(super) counters: Arc<ChannelCounters>,
 }
 
@@ -59,6 +63,7 @@ impl BlockChannel {
             limits: quality::saturation_limits(spec),
             last: None,
             stalled: false,
+            restart_warnings: WarnLimit::new(WARN_PERIOD),
             counters,
         }
     }
@@ -99,12 +104,16 @@ impl BlockChannel {
                 // known from the sequence; the clock estimates it for the analysis's
                 // sample count, and it is not counted as lost blocks.
                 self.counters.restart();
-                tracing::warn!(
-                    channel = self.channel,
-                    from = last_sequence,
-                    to = sequence,
-                    "DAQ block sequence restarted"
-                );
+                let at = tokio::time::Instant::from_std(now);
+                if let Some(suppressed) = self.restart_warnings.occurred(at) {
+                    tracing::warn!(
+                        channel = self.channel,
+                        from = last_sequence,
+                        to = sequence,
+                        suppressed,
+                        "DAQ block sequence restarted"
+                    );
+                }
                 messages.push(Acquired::Gap {
                     channel: self.channel,
                     missed_samples: Some(by_time.saturating_sub(1) * u64::from(count)),
@@ -147,6 +156,7 @@ mod tests {
             },
             last: None,
             stalled: false,
+            restart_warnings: WarnLimit::new(WARN_PERIOD),
             counters: Arc::default(),
         }
     }
@@ -238,6 +248,23 @@ mod tests {
         // It goes on from there as usual.
         let next = messages_of(&mut block, 4901, t0 + Duration::from_millis(200));
         assert_eq!(next.len(), 1);
+    }
+
+    /// Issue 30, finding 10: a sequence running backwards logged a warning per block
+    /// (20 a second); every restart is still counted, one warning per 10 s.
+    #[test]
+    fn a_sequence_running_backwards_warns_once_per_period() {
+        let mut block = channel();
+        let t0 = Instant::now();
+        for k in 0..200u16 {
+            let at = t0 + Duration::from_millis(100 * u64::from(k));
+            block.accept(60_000 - k, &[0; 100], at);
+        }
+        assert_eq!(block.counters.snapshot().sequence_restarts, 199);
+        // 19.9 s of restarts: logged at 0.1 s and 10.1 s (with the 99 between), the
+        // 98 after it suppressed until the next line.
+        let later = tokio::time::Instant::from_std(t0 + Duration::from_secs(30));
+        assert_eq!(block.restart_warnings.occurred(later), Some(98));
     }
 
     fn messages_of(block: &mut BlockChannel, sequence: u16, at: Instant) -> Vec<Acquired> {

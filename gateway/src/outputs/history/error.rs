@@ -35,6 +35,15 @@ pub enum HistoryError {
         /// What is allowed.
         allowed: String,
     },
+    /// A stored capture cannot be read (its meta or samples are damaged, or written
+    /// by a newer millgate).
+    #[error("history {}: {message}", path.display())]
+    Capture {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong, naming the capture.
+        message: String,
+    },
     /// The driveline is neither configured in any run recorded in the file nor has
     /// bites in it.
     #[error("history {}: no driveline \"{name}\" in the file", path.display())]

@@ -36,10 +36,15 @@
 //!   year without holding it (a driveline's TAF quantiles, its bites one by one, when
 //!   a run without a recorded stop was last seen).
 //!
+//! - **Captures** ([`captures`]): the samples behind each bite (and chatter episode,
+//!   and manual request), recorded right after their event and stored in the same
+//!   transaction, deflated; their own budget and thinning in the retention steps.
+//!
 //! Schema: [`schema`]; times: [`crate::state::time`] (UTC ISO-8601 text). The handle
 //! everything records through, [`History`](crate::state::history::History), is the state layer's
 //! ([`crate::state::history`]): this folder is the writer's side and the readers.
 
+pub mod captures;
 mod error;
 pub mod outages;
 pub mod query;

@@ -386,6 +386,45 @@ record! {
     }
 }
 
+record! {
+    /// A capture (table `captures`, schema v7): what, when and how large; its
+    /// samples are read with [`HistoryReader::capture_of`].
+    CaptureRow, "captures", name "subject", time "started_at" {
+        /// Row id: the capture's id.
+        id: i64,
+        /// The gateway run that stored it.
+        run_id: i64,
+        /// `bite`, `chatter`, `manual`.
+        kind: String,
+        /// The driveline, tandem mill or manual request's name.
+        subject: String,
+        /// `bites.id` of its bite (a bite capture, while the bite row is kept).
+        bite_id: Option<i64>,
+        /// The driveline's bite counter after its bite.
+        bite_counter: Option<i64>,
+        /// Its bite's time, UTC, ISO-8601.
+        bite_time: Option<String>,
+        /// The first sample, UTC, ISO-8601 (ms).
+        started_at: String,
+        /// The first sample, ns since the Unix epoch.
+        first_sample_unix_ns: i64,
+        /// Times from the CAN kernel's receive timestamps.
+        kernel_time: bool,
+        /// Sample rate, Hz.
+        sample_rate_hz: f64,
+        /// Samples per channel.
+        samples: i64,
+        /// Length, s.
+        duration_s: f64,
+        /// 0 ordinary bite, 1 warning bite, 2 alarm bite, chatter episode or manual.
+        keep: i64,
+        /// JSON: channels (name, unit, scale, offset, encoding), gaps, analysis.
+        meta: String,
+        /// Size of the stored samples, bytes.
+        bytes: i64,
+    }
+}
+
 /// A read-only connection to a history file.
 #[derive(Debug)]
 pub struct HistoryReader {

@@ -16,7 +16,7 @@
 
 use std::time::{Duration, Instant};
 
-use rusqlite::{Connection, OptionalExtension};
+use rusqlite::{params, Connection, OptionalExtension};
 
 use crate::state::time::UtcTime;
 
@@ -59,7 +59,8 @@ const UNREFERENCED_RUN: &str = "AND ended IS NOT NULL
      AND id < coalesce((SELECT run_id FROM alarms ORDER BY rowid LIMIT 1), id + 1)
      AND id < coalesce((SELECT run_id FROM chatter_episodes ORDER BY rowid LIMIT 1), id + 1)
      AND id < coalesce((SELECT run_id FROM source_outages ORDER BY rowid LIMIT 1), id + 1)
-     AND id < coalesce((SELECT run_id FROM driveline_settings ORDER BY rowid LIMIT 1), id + 1)";
+     AND id < coalesce((SELECT run_id FROM driveline_settings ORDER BY rowid LIMIT 1), id + 1)
+     AND id < coalesce((SELECT min(run_id) FROM captures), id + 1)";
 
 /// Retention settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -72,6 +73,10 @@ pub struct Retention {
     pub chunk_rows: u32,
     /// Most free pages released in one step.
     pub vacuum_pages: u32,
+    /// The captures' thinning and budget (`None`: captures off). Captures are not
+    /// among the events the size limit deletes: they have a budget of their own
+    /// within it, and the important ones are kept longest.
+    pub captures: Option<CaptureRetention>,
 }
 
 /// What one step did.
@@ -132,6 +137,7 @@ impl Retention {
             max_bytes: u64::from(config.max_size_mb) * 1024 * 1024,
             chunk_rows: 500,
             vacuum_pages: 256,
+            captures: CaptureRetention::from_config(config),
         }
     }
 
@@ -176,6 +182,22 @@ impl Retention {
             full_chunk |= rows as u64 >= u64::from(self.chunk_rows);
         }
         transaction.commit()?;
+        if let Some(captures) = &self.captures {
+            let age_cutoff = now.minus(self.max_age).to_string();
+            let step = captures.step(connection, now, &age_cutoff, self.chunk_rows)?;
+            deleted += step.deleted;
+            full_chunk |= step.more;
+        } else {
+            // Captures off: those of earlier runs go with age alone.
+            let age_cutoff = now.minus(self.max_age).to_string();
+            let rows = connection.execute(
+                "DELETE FROM captures WHERE id IN (SELECT id FROM captures
+                 WHERE started_at < ?1 ORDER BY started_at LIMIT ?2)",
+                rusqlite::params![age_cutoff, self.chunk_rows],
+            )?;
+            deleted += rows as u64;
+            full_chunk |= rows as u64 >= u64::from(self.chunk_rows);
+        }
         // A file without incremental auto-vacuum (made by another tool) keeps its
         // free pages and reuses them for new rows: it stops growing, but does not shrink.
         let incremental =
@@ -221,4 +243,100 @@ fn sizes(connection: &Connection) -> rusqlite::Result<Sizes> {
         page_size,
         data: pages.saturating_sub(free_pages) * page_size,
     })
+}
+
+/// The captures' retention: age (`history.retention_days`), thinning of ordinary
+/// bites' captures after `thin_after_days` to every `keep_every`-th bite, and the
+/// budget `max_bytes`, kept by deleting the lowest [`KeepClass`](crate::state::captures::KeepClass) first, oldest first.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CaptureRetention {
+    /// Ordinary bites' captures older than this are thinned.
+    pub thin_after: Duration,
+    /// After that, an ordinary bite's capture stays when its counter is a multiple.
+    pub keep_every: u32,
+    /// Largest size of the captures' blobs, bytes.
+    pub max_bytes: u64,
+}
+
+/// What one capture retention step did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct CaptureStep {
+    /// Captures deleted.
+    pub deleted: u64,
+    /// Work is left for another step.
+    pub more: bool,
+}
+
+impl CaptureRetention {
+    /// The settings of `[history]`, or `None` when captures are off.
+    pub fn from_config(config: &millgate_config::History) -> Option<Self> {
+        let captures = &config.captures;
+        captures.enabled.then(|| Self {
+            thin_after: Duration::from_secs(u64::from(captures.thin_after_days) * 86_400),
+            keep_every: captures.keep_every,
+            max_bytes: u64::from(captures.max_mb) * 1024 * 1024,
+        })
+    }
+
+    /// One bounded step at `now`: at most `chunk` captures deleted by each rule, the
+    /// ones older than `age_cutoff` first.
+    pub fn step(
+        &self,
+        connection: &rusqlite::Connection,
+        now: UtcTime,
+        age_cutoff: &str,
+        chunk: u32,
+    ) -> rusqlite::Result<CaptureStep> {
+        let transaction = connection.unchecked_transaction()?;
+        let mut deleted = transaction.execute(
+            "DELETE FROM captures WHERE id IN (SELECT id FROM captures
+             WHERE started_at < ?1 ORDER BY started_at LIMIT ?2)",
+            params![age_cutoff, chunk],
+        )? as u64;
+        let mut more = deleted >= u64::from(chunk);
+        if self.keep_every > 1 {
+            let thin_cutoff = now.minus(self.thin_after).to_string();
+            let thinned = transaction.execute(
+                "DELETE FROM captures WHERE id IN (SELECT id FROM captures
+                 WHERE keep = 0 AND kind = 'bite' AND started_at < ?1
+                     AND coalesce(bite_counter, 0) % ?2 != 0
+                 ORDER BY keep, id LIMIT ?3)",
+                params![thin_cutoff, self.keep_every, chunk],
+            )? as u64;
+            more |= thinned >= u64::from(chunk);
+            deleted += thinned;
+        }
+        let total: i64 =
+            transaction.query_row("SELECT bytes FROM capture_totals WHERE id = 1", [], |row| {
+                row.get(0)
+            })?;
+        let total = total.max(0) as u64;
+        if total > self.max_bytes {
+            // Delete, lowest class and oldest first, until the captures are at 90% of
+            // the budget (so a full budget is not trimmed again at every capture).
+            let target = (SHRINK_TO * self.max_bytes as f64) as u64;
+            let mut excess = total - target;
+            let mut victims = Vec::new();
+            {
+                let mut select = transaction
+                    .prepare_cached("SELECT id, bytes FROM captures ORDER BY keep, id LIMIT ?1")?;
+                let mut rows = select.query([chunk])?;
+                while let Some(row) = rows.next()? {
+                    if excess == 0 {
+                        break;
+                    }
+                    let (id, bytes): (i64, i64) = (row.get(0)?, row.get(1)?);
+                    victims.push(id);
+                    excess = excess.saturating_sub(bytes.max(0) as u64);
+                }
+            }
+            let mut delete = transaction.prepare_cached("DELETE FROM captures WHERE id = ?1")?;
+            for id in &victims {
+                deleted += delete.execute([id])? as u64;
+            }
+            more |= excess > 0;
+        }
+        transaction.commit()?;
+        Ok(CaptureStep { deleted, more })
+    }
 }

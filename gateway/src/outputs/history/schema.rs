@@ -212,6 +212,57 @@ ALTER TABLE wear_estimates DROP COLUMN gap_coupling_text;
 UPDATE alarms SET kind = 'gap_alarm' WHERE kind = 'wear_alarm';
 ALTER TABLE driveline_state ADD COLUMN gap_warning INTEGER NOT NULL DEFAULT 0;
 "#,
+    // Version 7: captures, the samples behind each bite, chatter episode and manual
+    // request (see `captures.rs`): the row says what and when (the columns a list or a
+    // retention step reads), `meta` how to read the samples (channels, units, scale,
+    // gaps, the bite window's analysis settings; JSON); `capture_data` the samples
+    // (deflated), in a table of their own: a list of a year of captures reads the small
+    // rows only, and two blobs of a bite (~1.7 KiB) share a 4 KiB page (with the row
+    // beside it, one bite's capture took a page of its own). `capture_totals` keeps
+    // the count and bytes of the captures up to date through triggers, so the budget
+    // check reads one row instead of summing a year of rows.
+    r#"
+CREATE TABLE captures (
+    id                   INTEGER PRIMARY KEY,
+    run_id               INTEGER NOT NULL REFERENCES gateway_runs(id),
+    kind                 TEXT NOT NULL,     -- 'bite', 'chatter', 'manual'
+    subject              TEXT NOT NULL,     -- the driveline, tandem mill or request name
+    bite_id              INTEGER,           -- bites.id of the bite (a bite capture)
+    bite_counter         INTEGER,           -- the driveline's bite counter after it
+    bite_time            TEXT,              -- bites.time of the bite
+    started_at           TEXT NOT NULL,     -- the first sample, UTC ISO-8601 (ms)
+    first_sample_unix_ns INTEGER NOT NULL,  -- the first sample, ns since the Unix epoch
+    kernel_time          INTEGER NOT NULL,  -- times from CAN kernel receive timestamps
+    sample_rate_hz       REAL NOT NULL,
+    samples              INTEGER NOT NULL,  -- per channel
+    duration_s           REAL NOT NULL,     -- samples / sample_rate_hz
+    keep                 INTEGER NOT NULL,  -- 0 ordinary bite, 1 warning, 2 alarm/chatter/manual
+    meta                 TEXT NOT NULL,     -- JSON: channels, gaps, analysis settings
+    bytes                INTEGER NOT NULL   -- length of its capture_data.data
+);
+CREATE TABLE capture_data (
+    id   INTEGER PRIMARY KEY,               -- the capture's id
+    data BLOB NOT NULL                      -- the samples, deflated (see meta)
+);
+CREATE INDEX captures_by_subject_time ON captures(subject, started_at);
+CREATE INDEX captures_by_time ON captures(started_at);
+CREATE INDEX captures_by_bite ON captures(bite_id);
+CREATE INDEX captures_by_keep ON captures(keep, id);
+CREATE INDEX captures_by_run ON captures(run_id);
+CREATE TABLE capture_totals (
+    id       INTEGER PRIMARY KEY CHECK (id = 1),
+    captures INTEGER NOT NULL,
+    bytes    INTEGER NOT NULL
+);
+INSERT INTO capture_totals (id, captures, bytes) VALUES (1, 0, 0);
+CREATE TRIGGER captures_added AFTER INSERT ON captures BEGIN
+    UPDATE capture_totals SET captures = captures + 1, bytes = bytes + new.bytes;
+END;
+CREATE TRIGGER captures_deleted AFTER DELETE ON captures BEGIN
+    DELETE FROM capture_data WHERE id = old.id;
+    UPDATE capture_totals SET captures = captures - 1, bytes = bytes - old.bytes;
+END;
+"#,
 ];
 
 /// `PRAGMA application_id` of a millgate history: the bytes "MLGT" (0x4D4C4754), set
@@ -340,6 +391,9 @@ mod tests {
             [
                 "alarms",
                 "bites",
+                "capture_data",
+                "capture_totals",
+                "captures",
                 "chatter_episodes",
                 "driveline_settings",
                 "driveline_state",

@@ -11,7 +11,13 @@
 //!   ([`next_bd_seq`]) and sets the Will (NDEATH with that bdSeq); at the broker's
 //!   CONNACK it subscribes to its NCMD topic and publishes NBIRTH and the DBIRTHs;
 //!   then every bite as its own DDATA at once and the other changed values every
-//!   `data_period`; an NCMD `Node Control/Rebirth` gets the births again. On a clean
+//!   `data_period`; an NCMD `Node Control/Rebirth` gets the births again, at most once
+//!   per [`REBIRTH_INTERVAL`] (requests meanwhile are answered by one rebirth at its
+//!   end). An NCMD that is retained (Sparkplug forbids it), larger than
+//!   [`MAX_COMMAND_BYTES`] or undecodable is refused and counted, and the session goes
+//!   on; the client reads packets up to [`MAX_INCOMING_PACKET`] (a larger one ends the
+//!   session, rumqttc cannot skip it: the next connection then waits twice as long
+//!   as the last, up to a minute, so a retained one cannot run bdSeq away). On a clean
 //!   stop it publishes its NDEATH before disconnecting. Births and data are QoS 0 and
 //!   not retained, the Will QoS 1, as the specification asks.
 //!
@@ -43,6 +49,8 @@ use std::sync::atomic::{AtomicI64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
+use tokio::time::Instant;
+
 use millgate_config::MqttOutput;
 use rumqttc::{
     AsyncClient, Event, EventLoop, LastWill, MqttOptions, Outgoing, Packet, QoS, TlsConfiguration,
@@ -53,6 +61,7 @@ use crate::outputs::history::query::{BiteRow, Filter};
 use crate::outputs::history::BITE_COLUMNS;
 use crate::shutdown::Shutdown;
 use crate::state::board::Board;
+use crate::warn_limit::{WarnLimit, WARN_PERIOD};
 use forward::Confirmations;
 use node::EdgeNode;
 use store::{keep_cursor, BiteSource};
@@ -68,6 +77,17 @@ const CLIENT_QUEUE: usize = 256;
 const MAX_OUTSTANDING: usize = 192;
 /// How long a clean stop waits for the PUBACKs of the bites in flight.
 const STOP_ACK_WAIT: Duration = Duration::from_secs(1);
+/// Largest MQTT packet the node reads, bytes (rumqttc's default, 10 KiB, let one
+/// large NCMD end the session).
+pub const MAX_INCOMING_PACKET: usize = 1 << 20;
+/// Largest packet the node sends, bytes (rumqttc's default).
+const MAX_OUTGOING_PACKET: usize = 10 * 1024;
+/// Largest NCMD payload decoded, bytes (a Rebirth is about 40).
+pub const MAX_COMMAND_BYTES: usize = 64 * 1024;
+/// Shortest time between two rebirths on command.
+pub const REBIRTH_INTERVAL: Duration = Duration::from_secs(5);
+/// Longest wait before connecting again after sessions ended by oversized packets.
+const MAX_OVERSIZE_DELAY: Duration = Duration::from_secs(60);
 
 /// The edge node task.
 #[derive(Debug)]
@@ -181,6 +201,7 @@ impl SparkplugNode {
             .unwrap_or((self.config.broker.as_str(), 1883));
         let mut options = MqttOptions::new(self.config.client_id.clone(), host, port);
         options.set_keep_alive(self.config.keep_alive);
+        options.set_max_packet_size(MAX_INCOMING_PACKET, MAX_OUTGOING_PACKET);
         options.set_clean_session(true);
         options.set_last_will(LastWill::new(
             will.topic,
@@ -354,6 +375,32 @@ impl SparkplugNode {
         }
     }
 
+    /// Whether the NCMD `message` is to be obeyed (`Some` for a rebirth); a retained,
+    /// oversized or undecodable one is refused: counted, warned (once per
+    /// [`WARN_PERIOD`] with the number suppressed), and the session goes on.
+    fn command(&self, message: &rumqttc::Publish, warnings: &mut WarnLimit) -> Option<()> {
+        let refused = if message.retain {
+            Some("retained (Sparkplug NCMDs are never retained): clear it on the broker".to_owned())
+        } else if message.payload.len() > MAX_COMMAND_BYTES {
+            Some(format!(
+                "{} bytes, more than {MAX_COMMAND_BYTES}",
+                message.payload.len()
+            ))
+        } else {
+            match node::is_rebirth(&message.payload) {
+                Ok(rebirth) => return rebirth.then_some(()),
+                Err(error) => Some(format!("undecodable: {error}")),
+            }
+        };
+        if let Some(reason) = refused {
+            self.status.commands_refused.fetch_add(1, Ordering::Relaxed);
+            if let Some(suppressed) = warnings.occurred(Instant::now()) {
+                tracing::warn!(topic = %message.topic, suppressed, "Sparkplug NCMD refused: {reason}");
+            }
+        }
+        None
+    }
+
     /// Publish until `shutdown`, reconnecting with a new bdSeq after each lost session.
     pub async fn run(self, mut shutdown: Shutdown) {
         let board = Arc::clone(&self.board);
@@ -415,12 +462,18 @@ impl SparkplugNode {
         let mut replay = tokio::time::interval(self.config.replay_period);
         replay.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         let mut data = tokio::time::interval(self.config.data_period);
+        // Rebirth on command: asked for since the last births, which were when.
+        let mut rebirth_wanted = false;
+        let mut last_births = Instant::now();
+        let mut command_warnings = WarnLimit::new(WARN_PERIOD);
+        let mut oversize_delay = RECONNECT_DELAY;
         loop {
             tokio::select! {
                 () = shutdown.recv() => break,
                 event = events.poll() => match event {
                     Ok(Event::Incoming(Packet::ConnAck(_))) => {
                         last_failure = None;
+                        rebirth_wanted = false;
                         tracing::info!(broker = %self.config.broker, bd_seq, "Sparkplug session up");
                         connected = true;
                         self.status.connected.store(1, Ordering::Relaxed);
@@ -438,6 +491,7 @@ impl SparkplugNode {
                                 replay_end = self.births(&client, &mut node, &mut confirmations, &mut bites).await;
                                 replay.reset_immediately();
                                 born = true;
+                                last_births = Instant::now();
                             }
                         }
                     }
@@ -445,15 +499,12 @@ impl SparkplugNode {
                     Ok(Event::Outgoing(Outgoing::Publish(pkid))) => confirmations.written(pkid),
                     Ok(Event::Incoming(Packet::Publish(message))) => {
                         if message.topic == node.command_topic() {
-                            match node::is_rebirth(&message.payload) {
-                                Ok(true) if born => {
-                                    tracing::info!("Sparkplug rebirth requested");
-                                    self.status.rebirths.fetch_add(1, Ordering::Relaxed);
-                                    let results = board.results();
-                                    self.publish(&client, &mut confirmations, node.births(&results, now_ms()));
+                            match self.command(&message, &mut command_warnings) {
+                                Some(()) if born => {
+                                    self.status.rebirth_requests.fetch_add(1, Ordering::Relaxed);
+                                    rebirth_wanted = true;
                                 }
-                                Ok(_) => {}
-                                Err(error) => tracing::warn!(%error, "undecodable Sparkplug NCMD"),
+                                _ => {}
                             }
                         } else if state_topic.as_deref() == Some(message.topic.as_str()) {
                             match node::host_online(&message.payload) {
@@ -462,6 +513,7 @@ impl SparkplugNode {
                                     replay_end = self.births(&client, &mut node, &mut confirmations, &mut bites).await;
                                     replay.reset_immediately();
                                     born = true;
+                                    last_births = Instant::now();
                                 }
                                 Some(false) if born => {
                                     // The specification: NDEATH and disconnect; the next
@@ -479,6 +531,18 @@ impl SparkplugNode {
                     Ok(_) => {}
                     Err(error) => {
                         let failure = ConnectFailure::of(&error);
+                        // A packet over the limit (a huge NCMD, retained perhaps, that
+                        // the broker sends at every subscription) ends each session:
+                        // wait longer each time rather than reconnect every second.
+                        let delay = if is_oversize(&error) {
+                            tracing::warn!(%error, limit = MAX_INCOMING_PACKET, next_attempt_s = oversize_delay.as_secs(), "Sparkplug session ended by a packet over the size limit (a retained NCMD on the broker? clear it there)");
+                            let delay = oversize_delay;
+                            oversize_delay = (delay * 2).min(MAX_OVERSIZE_DELAY);
+                            delay
+                        } else {
+                            oversize_delay = RECONNECT_DELAY;
+                            RECONNECT_DELAY
+                        };
                         let slot = ConnectFailure::ALL.iter().position(|&f| f == failure).unwrap_or(0);
                         self.status.failures[slot].fetch_add(1, Ordering::Relaxed);
                         if connected {
@@ -509,7 +573,7 @@ impl SparkplugNode {
                         self.status.connected.store(0, Ordering::Relaxed);
                         tokio::select! {
                             () = shutdown.recv() => break,
-                            () = tokio::time::sleep(RECONNECT_DELAY) => {}
+                            () = tokio::time::sleep(delay) => {}
                         }
                     }
                 },
@@ -525,6 +589,15 @@ impl SparkplugNode {
                 }
                 _ = bite_poll.tick(), if born && replay_end.is_none() => {
                     self.forward(&client, &mut node, &mut confirmations, &mut bites, Step::Live).await;
+                }
+                () = tokio::time::sleep_until(last_births + REBIRTH_INTERVAL), if born && rebirth_wanted => {
+                    // Every request since the last births, answered by one rebirth.
+                    rebirth_wanted = false;
+                    last_births = Instant::now();
+                    tracing::info!("Sparkplug rebirth on command");
+                    self.status.rebirths.fetch_add(1, Ordering::Relaxed);
+                    let results = board.results();
+                    self.publish(&client, &mut confirmations, node.births(&results, now_ms()));
                 }
                 _ = data.tick(), if born => {
                     self.publish(&client, &mut confirmations, node.data(&board.results(), now_ms()));
@@ -575,6 +648,16 @@ enum Step {
     Replay { batch: usize, end: i64 },
     /// What was recorded after the backlog, live.
     Live,
+}
+
+/// Whether `error` is an incoming packet over [`MAX_INCOMING_PACKET`].
+fn is_oversize(error: &rumqttc::ConnectionError) -> bool {
+    matches!(
+        error,
+        rumqttc::ConnectionError::MqttState(rumqttc::StateError::Deserialization(
+            rumqttc::Error::PayloadSizeLimitExceeded(_)
+        ))
+    )
 }
 
 /// Drop what the event loop would send at its next connection.

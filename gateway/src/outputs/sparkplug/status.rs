@@ -76,6 +76,8 @@ pub struct SparkplugStatus {
     pub(super) bites: AtomicU64,
     pub(super) connections: AtomicU64,
     pub(super) rebirths: AtomicU64,
+    pub(super) rebirth_requests: AtomicU64,
+    pub(super) commands_refused: AtomicU64,
     pub(super) replayed: AtomicU64,
     pub(super) backlog: AtomicU64,
 }
@@ -97,8 +99,14 @@ pub struct SparkplugCounts {
     pub backlog: u64,
     /// Sessions the broker accepted.
     pub connections: u64,
-    /// Rebirth commands obeyed.
+    /// Rebirths on command (at most one per
+    /// [`REBIRTH_INTERVAL`](super::REBIRTH_INTERVAL)).
     pub rebirths: u64,
+    /// Rebirth commands received during a session (one rebirth answers all those of
+    /// an interval).
+    pub rebirth_requests: u64,
+    /// NCMDs refused: retained, too large or undecodable.
+    pub commands_refused: u64,
     /// Failed connections and lost sessions by [`ConnectFailure`] (in the order of
     /// [`ConnectFailure::ALL`]).
     pub failures: [u64; 4],
@@ -115,6 +123,8 @@ impl SparkplugStatus {
             bites: load(&self.bites),
             connections: load(&self.connections),
             rebirths: load(&self.rebirths),
+            rebirth_requests: load(&self.rebirth_requests),
+            commands_refused: load(&self.commands_refused),
             replayed: load(&self.replayed),
             backlog: load(&self.backlog),
             failures: self.failures.each_ref().map(load),

@@ -157,6 +157,8 @@ pub(crate) fn router(state: Arc<WebState>) -> Router {
         .route("/api/drivelines", get(api::drivelines))
         .route("/api/drivelines/{name}", get(api::driveline))
         .route("/api/drivelines/{name}/bites", get(api::bites))
+        .route("/api/drivelines/{name}/captures", get(api::captures))
+        .route("/api/captures/{id}", get(api::capture))
         .route("/api/drivelines/{name}/wear", get(api::wear))
         .route("/api/drivelines/{name}/map", get(api::gap_maps))
         .route("/api/alarms", get(api::alarms))

@@ -1,17 +1,17 @@
 //! What the page reads from the history file: a driveline's bites and wear series,
-//! and the alarm events.
+//! the alarm events, and the captures (a driveline's list, one capture's samples).
 
 use std::sync::Arc;
 
-use axum::extract::rejection::QueryRejection;
-use axum::extract::{Query, State};
+use axum::extract::rejection::{PathRejection, QueryRejection};
+use axum::extract::{Path, Query, State};
 use axum::Json;
 
 use super::{
     driveline_index, history_error, with_history, ApiError, DrivelineName, Params, LIMIT_DEFAULT,
     LIMIT_MAX, POINTS_DEFAULT,
 };
-use crate::outputs::history::query::{AlarmRow, BiteRow, Filter, Record};
+use crate::outputs::history::query::{AlarmRow, BiteRow, CaptureRow, Filter, Record};
 use crate::outputs::history::series::{WearPoint, MAX_SERIES_POINTS};
 use crate::outputs::history::HistoryError;
 use crate::outputs::web::shared::WebState;
@@ -26,6 +26,57 @@ pub(crate) async fn bites(
     let params = Params::of(query, &["since", "until", "limit"])?;
     driveline_index(&state, &name)?;
     Ok(Json(newest(&state, &params, Some(name)).await?))
+}
+
+/// `GET /api/drivelines/{name}/captures?since=&until=&limit=`: the newest `limit`
+/// captures of the driveline in the range (their rows, not their samples), oldest
+/// first.
+pub(crate) async fn captures(
+    State(state): State<Arc<WebState>>,
+    DrivelineName(name): DrivelineName,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Json<Vec<serde_json::Value>>, ApiError> {
+    let params = Params::of(query, &["since", "until", "limit"])?;
+    driveline_index(&state, &name)?;
+    let rows: Vec<CaptureRow> = newest(&state, &params, Some(name)).await?;
+    Ok(Json(
+        rows.iter()
+            .map(crate::outputs::history::captures::row_json)
+            .collect(),
+    ))
+}
+
+/// `GET /api/captures/{id}`: one capture with its samples: the row, and per channel
+/// its name, unit and samples (`t` of sample k is k / `sample_rate_hz` s after
+/// `first_sample_unix_ns`). 404 for an id the file does not hold.
+pub(crate) async fn capture(
+    State(state): State<Arc<WebState>>,
+    id: Result<Path<i64>, PathRejection>,
+) -> Result<Json<serde_json::Value>, ApiError> {
+    // A bad id gets the API's JSON error, not axum's plain-text one.
+    let Path(id) =
+        id.map_err(|rejection| ApiError::bad(format!("capture id: {}", rejection.body_text())))?;
+    let capture = with_history(&state, move |reader| {
+        reader.capture(id).map_err(history_error)
+    })
+    .await?
+    .ok_or_else(|| ApiError {
+        status: axum::http::StatusCode::NOT_FOUND,
+        message: format!("no capture {id} in the history"),
+    })?;
+    let mut value = crate::outputs::history::captures::row_json(&capture.row);
+    value["channels"] = capture
+        .channels
+        .iter()
+        .map(|channel| {
+            serde_json::json!({
+                "name": channel.name,
+                "unit": channel.unit,
+                "samples": channel.samples,
+            })
+        })
+        .collect();
+    Ok(Json(value))
 }
 
 /// `GET /api/drivelines/{name}/wear?since=&until=&points=`: the gap estimate (last

@@ -1,0 +1,463 @@
+//! `millgate capture`: list the captures a history file keeps, and export them, one
+//! file per capture.
+//!
+//! ```text
+//! millgate capture list --db FILE [--driveline NAME] [--kind K] [--since T] [--until T]
+//!                       [--format text|json]
+//! millgate capture export --db FILE [--driveline NAME] [--kind K] [--since T] [--until T]
+//!                         [--bite N] [--id N] --format csv|parquet --out DIR
+//! ```
+//!
+//! A CSV export is the format `millgate analyze`, `wear` and `discrepancy` read: a
+//! header `t,<channel>,...` (t in s from the first sample), one line per sample with
+//! the stored values written as the shortest text that reads back to the same `f64`,
+//! and a first comment line `# millgate capture {...}` with what the file cannot say
+//! in columns (the capture's id, subject, bite, the first sample's UTC time in ns,
+//! sample rate, channels' units, scale and offset, gaps, and for a bite how the
+//! gateway read the window). `millgate analyze` reads a bite's window from that line
+//! as the gateway did, so it prints the figures the gateway published for the bite.
+//!
+//! Captures are read and written one at a time: an export of a year-scale file takes
+//! the memory of one capture.
+
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::Context as _;
+use serde::{Deserialize, Serialize};
+
+use crate::cli::history::parse_time;
+use crate::outputs::history::captures::{row_json, Capture, ChannelMeta};
+use crate::outputs::history::query::{CaptureRow, Filter, HistoryReader};
+use crate::outputs::history::HistoryError;
+use crate::state::captures::{BiteWindowAnalysis, CaptureGap};
+
+/// The comment that opens a capture's CSV, before its JSON.
+pub const CSV_HEADER_PREFIX: &str = "millgate capture ";
+
+/// What `millgate capture` does.
+#[derive(Debug, Clone, clap::Subcommand)]
+pub enum CaptureCommand {
+    /// List the captures (one line, or one JSON object, per capture).
+    List(ListArgs),
+    /// Export captures, one file per capture, to a folder.
+    Export(ExportArgs),
+}
+
+/// Which captures: the options `list` and `export` share.
+#[derive(Debug, Clone, clap::Args)]
+pub struct Selection {
+    /// The history file (`history.path` of the configuration).
+    #[arg(long)]
+    pub db: PathBuf,
+    /// Only this driveline's (or tandem mill's, or manual request's) captures.
+    #[arg(long)]
+    pub driveline: Option<String>,
+    /// Only captures of this kind.
+    #[arg(long, value_enum)]
+    pub kind: Option<KindArg>,
+    /// Captures whose first sample is at or after this time (UTC).
+    #[arg(long)]
+    pub since: Option<String>,
+    /// Captures whose first sample is before this time (UTC).
+    #[arg(long)]
+    pub until: Option<String>,
+}
+
+/// A capture kind on the command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum KindArg {
+    /// Bite windows.
+    Bite,
+    /// Chatter episodes.
+    Chatter,
+    /// Manual captures.
+    Manual,
+}
+
+impl KindArg {
+    fn name(self) -> &'static str {
+        match self {
+            KindArg::Bite => "bite",
+            KindArg::Chatter => "chatter",
+            KindArg::Manual => "manual",
+        }
+    }
+}
+
+/// Arguments of `millgate capture list`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct ListArgs {
+    /// Which captures.
+    #[command(flatten)]
+    pub selection: Selection,
+    /// Output format.
+    #[arg(long, value_enum, default_value = "text")]
+    pub format: super::OutputFormat,
+}
+
+/// File format of an export.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ExportFormat {
+    /// CSV, as `millgate analyze`, `wear` and `discrepancy` read.
+    Csv,
+    /// Apache Parquet, the metadata in the file's key-value metadata.
+    Parquet,
+}
+
+/// Arguments of `millgate capture export`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct ExportArgs {
+    /// Which captures.
+    #[command(flatten)]
+    pub selection: Selection,
+    /// Only the capture of this bite (the driveline's bite counter; with --driveline).
+    #[arg(long)]
+    pub bite: Option<i64>,
+    /// Only the capture with this id (as `capture list` shows).
+    #[arg(long)]
+    pub id: Option<i64>,
+    /// File format.
+    #[arg(long, value_enum)]
+    pub format: ExportFormat,
+    /// The folder to write to (created when missing).
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// Runs `millgate capture`; returns what to print.
+pub fn run(command: &CaptureCommand) -> anyhow::Result<String> {
+    match command {
+        CaptureCommand::List(args) => list(args),
+        CaptureCommand::Export(args) => {
+            let written = export(args)?;
+            let mut out = String::new();
+            for path in &written {
+                writeln!(out, "{}", path.display())?;
+            }
+            Ok(out)
+        }
+    }
+}
+
+/// The selection as a filter, after checking its driveline names one in the file.
+fn filter(reader: &HistoryReader, selection: &Selection) -> anyhow::Result<Filter> {
+    if let Some(name) = &selection.driveline {
+        let known = reader.drivelines()?;
+        let captured = reader.count::<CaptureRow>(&Filter {
+            name: Some(name.clone()),
+            limit: Some(1),
+            ..Filter::default()
+        })?;
+        if !known.contains(name) && captured == 0 {
+            return Err(HistoryError::UnknownDriveline {
+                path: reader.path().to_path_buf(),
+                name: name.clone(),
+            }
+            .into());
+        }
+    }
+    Ok(Filter {
+        name: selection.driveline.clone(),
+        since: parse_time("--since", selection.since.as_deref())?,
+        until: parse_time("--until", selection.until.as_deref())?,
+        after_id: None,
+        limit: None,
+    })
+}
+
+/// Visit each capture row of `selection` (and `extra`'s test), in id order; returns
+/// how many were visited.
+fn for_each_row(
+    reader: &HistoryReader,
+    selection: &Selection,
+    extra: impl Fn(&CaptureRow) -> bool,
+    mut visit: impl FnMut(CaptureRow) -> anyhow::Result<()>,
+) -> anyhow::Result<u64> {
+    let filter = filter(reader, selection)?;
+    let kind = selection.kind.map(KindArg::name);
+    let mut visited = 0u64;
+    reader.for_each(&filter, |row: CaptureRow| -> anyhow::Result<()> {
+        if kind.is_none_or(|kind| row.kind == kind) && extra(&row) {
+            visited += 1;
+            visit(row)?;
+        }
+        Ok(())
+    })?;
+    Ok(visited)
+}
+
+/// The error for a selection without captures, with what the file holds.
+fn nothing(reader: &HistoryReader, selection: &Selection) -> anyhow::Error {
+    let (count, _) = reader.capture_totals().unwrap_or((0, 0));
+    let mut what = String::from("no captures");
+    if let Some(kind) = selection.kind {
+        write!(what, " of kind {}", kind.name()).ok();
+    }
+    if let Some(name) = &selection.driveline {
+        write!(what, " of {name}").ok();
+    }
+    if let Some(since) = &selection.since {
+        write!(what, " since {since}").ok();
+    }
+    if let Some(until) = &selection.until {
+        write!(what, " until {until}").ok();
+    }
+    let range = reader
+        .rows::<CaptureRow>(&Filter {
+            limit: Some(1),
+            ..Filter::default()
+        })
+        .ok()
+        .and_then(|rows| rows.into_iter().next())
+        .zip(
+            reader
+                .newest::<CaptureRow>(&Filter {
+                    limit: Some(1),
+                    ..Filter::default()
+                })
+                .ok()
+                .and_then(|rows| rows.into_iter().next()),
+        );
+    let holds = match range {
+        Some((first, last)) => format!(
+            "the file holds {count} captures, from {} to {}",
+            first.started_at, last.started_at
+        ),
+        None => "the file holds no captures".to_owned(),
+    };
+    anyhow::anyhow!("{}: {what} ({holds})", reader.path().display())
+}
+
+fn list(args: &ListArgs) -> anyhow::Result<String> {
+    let reader = HistoryReader::open(&args.selection.db)?;
+    let mut out = String::new();
+    let mut json = Vec::new();
+    if args.format == super::OutputFormat::Text {
+        writeln!(
+            out,
+            "{:>6} {:<8} {:<12} {:>6} {:<24} {:>8} {:>7} {:>9} {:>4} {:>8}  channels",
+            "id",
+            "kind",
+            "subject",
+            "bite",
+            "first sample (UTC)",
+            "span_s",
+            "rate_hz",
+            "samples",
+            "keep",
+            "bytes"
+        )?;
+    }
+    for_each_row(
+        &reader,
+        &args.selection,
+        |_| true,
+        |row| {
+            match args.format {
+                super::OutputFormat::Text => {
+                    let channels = serde_json::from_str::<serde_json::Value>(&row.meta)
+                        .ok()
+                        .and_then(|meta| {
+                            meta["channels"].as_array().map(|channels| {
+                                channels
+                                    .iter()
+                                    .filter_map(|c| c["name"].as_str().map(str::to_owned))
+                                    .collect::<Vec<_>>()
+                                    .join(",")
+                            })
+                        })
+                        .unwrap_or_default();
+                    writeln!(
+                    out,
+                    "{:>6} {:<8} {:<12} {:>6} {:<24} {:>8.3} {:>7} {:>9} {:>4} {:>8}  {channels}",
+                    row.id,
+                    row.kind,
+                    row.subject,
+                    row.bite_counter.map_or("-".to_owned(), |b| b.to_string()),
+                    row.started_at,
+                    row.duration_s,
+                    row.sample_rate_hz,
+                    row.samples,
+                    row.keep,
+                    row.bytes
+                )?;
+                }
+                super::OutputFormat::Json => json.push(row_json(&row)),
+            }
+            Ok(())
+        },
+    )?;
+    if args.format == super::OutputFormat::Json {
+        out = serde_json::Value::Array(json).to_string();
+    }
+    Ok(out)
+}
+
+/// Export the captures `args` select; returns the files written.
+pub fn export(args: &ExportArgs) -> anyhow::Result<Vec<PathBuf>> {
+    if args.bite.is_some() && args.selection.driveline.is_none() {
+        anyhow::bail!("--bite N needs --driveline NAME (bite counters are per driveline)");
+    }
+    let reader = HistoryReader::open(&args.selection.db)?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("--out {}: cannot create the folder", args.out.display()))?;
+    let mut written = Vec::new();
+    let matches = |row: &CaptureRow| {
+        args.bite.is_none_or(|bite| row.bite_counter == Some(bite))
+            && args.id.is_none_or(|id| row.id == id)
+    };
+    for_each_row(&reader, &args.selection, matches, |row| {
+        let config_name = run_config_name(&reader, row.run_id)?;
+        let capture = reader.capture_of(row)?;
+        let header = CaptureHeader::of(&capture, config_name);
+        let path = args.out.join(file_name(&capture, args.format));
+        match args.format {
+            ExportFormat::Csv => write_csv(&capture, &header, &path)?,
+            ExportFormat::Parquet => {
+                super::capture_parquet::write(&capture, &serde_json::to_string(&header)?, &path)?;
+            }
+        }
+        written.push(path);
+        Ok(())
+    })?;
+    if written.is_empty() {
+        let mut error = nothing(&reader, &args.selection);
+        if let Some(bite) = args.bite {
+            error = error.context(format!("--bite {bite}: no capture of that bite"));
+        }
+        if let Some(id) = args.id {
+            error = error.context(format!("--id {id}: no such capture in the selection"));
+        }
+        return Err(error);
+    }
+    Ok(written)
+}
+
+/// `capture-<id>-<subject>-<kind>[-bite<N>].<ext>`.
+pub fn file_name(capture: &Capture, format: ExportFormat) -> String {
+    let row = &capture.row;
+    let subject: String = row
+        .subject
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    let bite = row
+        .bite_counter
+        .map_or(String::new(), |bite| format!("-bite{bite}"));
+    let ext = match format {
+        ExportFormat::Csv => "csv",
+        ExportFormat::Parquet => "parquet",
+    };
+    format!("capture-{}-{subject}-{}{bite}.{ext}", row.id, row.kind)
+}
+
+/// What a capture's file says about it besides its samples: the CSV's first comment
+/// and the Parquet file's key-value metadata (`millgate.capture`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CaptureHeader {
+    /// The capture's id in its history file.
+    pub id: i64,
+    /// `bite`, `chatter`, `manual`.
+    pub kind: String,
+    /// The driveline, tandem mill or request name.
+    pub subject: String,
+    /// The driveline's bite counter after its bite.
+    pub bite_counter: Option<i64>,
+    /// Its bite's time, UTC.
+    pub bite_time: Option<String>,
+    /// The first sample, UTC (ms).
+    pub started_at: String,
+    /// The first sample, ns since the Unix epoch.
+    pub first_sample_unix_ns: i64,
+    /// Times from the CAN kernel's receive timestamps.
+    pub kernel_time: bool,
+    /// Sample rate, Hz.
+    pub sample_rate_hz: f64,
+    /// Channels in column order: name, unit, scale, offset, how stored.
+    pub channels: Vec<ChannelMeta>,
+    /// Where data was lost.
+    pub gaps: Vec<CaptureGap>,
+    /// For a bite: how the gateway read its window.
+    pub analysis: Option<BiteWindowAnalysis>,
+    /// The millgate that stored the capture.
+    pub gateway_version: String,
+    /// The gateway's configuration name (`name`) in the run that stored it.
+    pub config_name: Option<String>,
+}
+
+impl CaptureHeader {
+    /// The header of `capture`.
+    pub fn of(capture: &Capture, config_name: Option<String>) -> Self {
+        let row = &capture.row;
+        Self {
+            id: row.id,
+            kind: row.kind.clone(),
+            subject: row.subject.clone(),
+            bite_counter: row.bite_counter,
+            bite_time: row.bite_time.clone(),
+            started_at: row.started_at.clone(),
+            first_sample_unix_ns: row.first_sample_unix_ns,
+            kernel_time: row.kernel_time,
+            sample_rate_hz: row.sample_rate_hz,
+            channels: capture.meta.channels.clone(),
+            gaps: capture.meta.gaps.clone(),
+            analysis: capture.meta.analysis,
+            gateway_version: capture.meta.version.clone(),
+            config_name,
+        }
+    }
+
+    /// The header in `comments` (a CSV's `#` lines), when one is a capture's.
+    pub fn from_comments(comments: &[String]) -> Option<anyhow::Result<Self>> {
+        let json = comments
+            .iter()
+            .find_map(|comment| comment.strip_prefix(CSV_HEADER_PREFIX))?;
+        Some(serde_json::from_str(json).context("the `# millgate capture` line is not readable"))
+    }
+}
+
+/// The configuration name of run `run_id` (`gateway_runs.config_name`).
+fn run_config_name(reader: &HistoryReader, run_id: i64) -> Result<Option<String>, HistoryError> {
+    let runs = reader.runs(&Filter {
+        after_id: Some(run_id - 1),
+        limit: Some(1),
+        ..Filter::default()
+    })?;
+    Ok(runs
+        .into_iter()
+        .find(|run| run.id == run_id)
+        .map(|run| run.config_name))
+}
+
+/// Write `capture` with its `header` as CSV to `path`.
+fn write_csv(capture: &Capture, header: &CaptureHeader, path: &Path) -> anyhow::Result<()> {
+    let file = std::fs::File::create(path)
+        .with_context(|| format!("{}: cannot create", path.display()))?;
+    let mut out = std::io::BufWriter::new(file);
+    let write = |out: &mut std::io::BufWriter<std::fs::File>| -> std::io::Result<()> {
+        writeln!(
+            out,
+            "# {CSV_HEADER_PREFIX}{}",
+            serde_json::to_string(header).map_err(std::io::Error::other)?
+        )?;
+        let names: Vec<&str> = capture.channels.iter().map(|c| c.name.as_str()).collect();
+        writeln!(out, "t,{}", names.join(","))?;
+        for index in 0..usize::try_from(capture.row.samples).unwrap_or(0) {
+            write!(out, "{}", capture.time_s(index))?;
+            for channel in &capture.channels {
+                write!(out, ",{}", channel.samples[index])?;
+            }
+            writeln!(out)?;
+        }
+        out.flush()
+    };
+    write(&mut out).with_context(|| format!("{}: cannot write", path.display()))
+}

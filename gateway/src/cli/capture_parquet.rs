@@ -1,0 +1,126 @@
+//! A capture as an Apache Parquet file (`millgate capture export --format parquet`):
+//! one row per sample, columns `time` (UTC, ns, a Parquet timestamp), `t` (s from the
+//! first sample) and one `DOUBLE` column per channel with the stored values, in one
+//! row group, snappy-compressed. The file's key-value metadata holds what a data
+//! scientist needs without the gateway: `millgate.capture` (the same JSON as a CSV
+//! export's first line: driveline, bite, channels with units, scale and offset,
+//! sample rate, first sample time, gaps, the window's analysis settings, the gateway's
+//! version), and the most asked of it under keys of their own (`millgate.subject`,
+//! `millgate.kind`, `millgate.bite_counter`, `millgate.sample_rate_hz`,
+//! `millgate.started_at`, `millgate.units`).
+//!
+//! Written with arrow-rs' `parquet` crate without its `arrow` feature (the column
+//! writers alone: the samples are plain `f64` columns, and arrow's array crates would
+//! double the build for no use here).
+
+use std::path::Path;
+use std::sync::Arc;
+
+use anyhow::Context as _;
+use parquet::basic::{Compression, LogicalType, Repetition, TimeUnit, Type as PhysicalType};
+use parquet::data_type::{DoubleType, Int64Type};
+use parquet::file::metadata::KeyValue;
+use parquet::file::properties::WriterProperties;
+use parquet::file::writer::SerializedFileWriter;
+use parquet::schema::types::Type;
+
+use crate::outputs::history::captures::Capture;
+
+/// Write `capture` to `path` as Parquet, with `header` (the capture's header as
+/// JSON, as a CSV export's first line has it) in the metadata.
+pub(super) fn write(capture: &Capture, header: &str, path: &Path) -> anyhow::Result<()> {
+    write_file(capture, header, path)
+        .with_context(|| format!("{}: cannot write Parquet", path.display()))
+}
+
+fn column(name: &str, physical: PhysicalType) -> anyhow::Result<Arc<Type>> {
+    Ok(Arc::new(
+        Type::primitive_type_builder(name, physical)
+            .with_repetition(Repetition::REQUIRED)
+            .build()?,
+    ))
+}
+
+fn write_file(capture: &Capture, header: &str, path: &Path) -> anyhow::Result<()> {
+    let row = &capture.row;
+    let mut fields = vec![
+        Arc::new(
+            Type::primitive_type_builder("time", PhysicalType::INT64)
+                .with_repetition(Repetition::REQUIRED)
+                .with_logical_type(Some(LogicalType::timestamp(true, TimeUnit::NANOS)))
+                .build()?,
+        ),
+        column("t", PhysicalType::DOUBLE)?,
+    ];
+    for channel in &capture.channels {
+        if channel.name == "t" || channel.name == "time" {
+            anyhow::bail!("channel `{}` has the name of a time column", channel.name);
+        }
+        fields.push(column(&channel.name, PhysicalType::DOUBLE)?);
+    }
+    let schema = Arc::new(
+        Type::group_type_builder("capture")
+            .with_fields(fields)
+            .build()?,
+    );
+    let units: serde_json::Map<String, serde_json::Value> = capture
+        .channels
+        .iter()
+        .map(|c| (c.name.clone(), c.unit.clone().into()))
+        .collect();
+    let key = |key: &str, value: String| KeyValue::new(format!("millgate.{key}"), value);
+    let metadata = vec![
+        key("capture", header.to_owned()),
+        key("subject", row.subject.clone()),
+        key("kind", row.kind.clone()),
+        key(
+            "bite_counter",
+            row.bite_counter.map_or(String::new(), |b| b.to_string()),
+        ),
+        key("sample_rate_hz", row.sample_rate_hz.to_string()),
+        key("started_at", row.started_at.clone()),
+        key("units", serde_json::Value::Object(units).to_string()),
+        key("gateway_version", capture.meta.version.clone()),
+    ];
+    let properties = WriterProperties::builder()
+        .set_compression(Compression::SNAPPY)
+        .set_key_value_metadata(Some(metadata))
+        .build();
+    let file = std::fs::File::create(path)?;
+    let mut writer = SerializedFileWriter::new(file, schema, Arc::new(properties))?;
+    let samples = usize::try_from(capture.row.samples).unwrap_or(0);
+    let first_ns = capture.row.first_sample_unix_ns;
+    let rate = capture.row.sample_rate_hz;
+    let times_ns: Vec<i64> = (0..samples)
+        .map(|k| first_ns + (k as f64 * 1e9 / rate).round() as i64)
+        .collect();
+    let times_s: Vec<f64> = (0..samples).map(|k| capture.time_s(k)).collect();
+    let mut group = writer.next_row_group()?;
+    let mut index = 0usize;
+    while let Some(mut column) = group.next_column()? {
+        match index {
+            0 => {
+                column
+                    .typed::<Int64Type>()
+                    .write_batch(&times_ns, None, None)?;
+            }
+            1 => {
+                column
+                    .typed::<DoubleType>()
+                    .write_batch(&times_s, None, None)?;
+            }
+            channel => {
+                column.typed::<DoubleType>().write_batch(
+                    &capture.channels[channel - 2].samples,
+                    None,
+                    None,
+                )?;
+            }
+        }
+        column.close()?;
+        index += 1;
+    }
+    group.close()?;
+    writer.close()?;
+    Ok(())
+}

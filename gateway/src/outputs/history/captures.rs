@@ -1,0 +1,434 @@
+//! Captures in the history file (table `captures`, schema v7): stored by the writer
+//! thread in the same transaction as the bite they belong to, read back by
+//! `millgate capture`, the web page and `millgate discrepancy`, and kept within
+//! `history.captures_max_mb` by the retention's
+//! [`super::retention::CaptureRetention`].
+//!
+//! **Blobs in the SQLite file, not a sibling store.** A bite's capture is a few KiB
+//! (see the gateway's README for the measured size): well inside the sizes where
+//! SQLite reads and writes blobs as fast as separate files or faster, and small enough
+//! to sit beside the bite's row. One file then gives what the bites already have: the
+//! capture commits in the bite's transaction (the PLC writer waits for that commit, so
+//! a bite the PLC has seen has its capture in the file, even after a SIGKILL), one
+//! `PRAGMA integrity_check` covers both, one backup copies both, and the retention
+//! deletes a capture and frees its pages in the same steps as the events. A sibling
+//! folder of files would need its own fsync ordering against the WAL and its own
+//! cleanup of files orphaned by a kill.
+//!
+//! **Encoding** (`meta.format` 1): per channel either raw counts (when every sample
+//! is `count * scale + offset` bit for bit, as a Modbus DAQ's are) as zigzag varints
+//! of the differences between successive counts, or the `f64` values' little-endian
+//! bytes (CAN signals, NaN); the channels' bytes one after the other, deflated.
+//! Decoding gives back the very samples the analysis used.
+
+use std::io::{Read as _, Write as _};
+
+use rusqlite::{params, OptionalExtension, Transaction};
+use serde::{Deserialize, Serialize};
+
+use super::query::{CaptureRow, HistoryReader};
+use super::HistoryError;
+use crate::state::captures::{BiteWindowAnalysis, CaptureChannel, CaptureGap, CaptureRecord};
+
+/// The blob format this millgate writes (`meta.format`).
+pub const FORMAT: u32 = 1;
+
+/// How one channel's samples are stored.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Encoding {
+    /// Raw counts, differences as zigzag varints.
+    Counts,
+    /// `f64` little-endian.
+    Float64,
+}
+
+/// A channel's description in `meta`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ChannelMeta {
+    /// The channel's name and unit, scale and offset.
+    #[serde(flatten)]
+    pub channel: CaptureChannel,
+    /// How its samples are stored.
+    pub encoding: Encoding,
+}
+
+/// The `meta` column: how to read a capture's samples.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CaptureMeta {
+    /// Blob format ([`FORMAT`]).
+    pub format: u32,
+    /// The channels in blob order.
+    pub channels: Vec<ChannelMeta>,
+    /// Where data was lost.
+    pub gaps: Vec<CaptureGap>,
+    /// For a bite window: how the analysis read it.
+    pub analysis: Option<BiteWindowAnalysis>,
+    /// The millgate that stored it.
+    pub version: String,
+}
+
+/// A capture read back: its row and its channels with their samples.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Capture {
+    /// The row (what, when, how large).
+    pub row: CaptureRow,
+    /// How to read it.
+    pub meta: CaptureMeta,
+    /// The channels with their samples, in order.
+    pub channels: Vec<CaptureChannel>,
+}
+
+impl Capture {
+    /// Seconds of sample `index` after the first sample.
+    pub fn time_s(&self, index: usize) -> f64 {
+        index as f64 / self.row.sample_rate_hz
+    }
+}
+
+/// The counts of `channel`'s samples when every one is exactly `count * scale +
+/// offset` (so decoding gives the same `f64`), else `None`.
+fn exact_counts(channel: &CaptureChannel) -> Option<Vec<i64>> {
+    let (scale, offset) = (channel.scale, channel.offset);
+    if !(scale.is_finite() && scale != 0.0 && offset.is_finite()) {
+        return None;
+    }
+    channel
+        .samples
+        .iter()
+        .map(|&value| {
+            let count = ((value - offset) / scale).round();
+            let exact = count.abs() <= 2f64.powi(52) && (count * scale + offset) == value;
+            exact.then_some(count as i64)
+        })
+        .collect()
+}
+
+fn put_varint(out: &mut Vec<u8>, mut value: u64) {
+    while value >= 0x80 {
+        out.push((value as u8) | 0x80);
+        value >>= 7;
+    }
+    out.push(value as u8);
+}
+
+fn get_varint(bytes: &[u8], at: &mut usize) -> Option<u64> {
+    let mut value = 0u64;
+    for shift in (0..64).step_by(7) {
+        let byte = *bytes.get(*at)?;
+        *at += 1;
+        value |= u64::from(byte & 0x7f) << shift;
+        if byte & 0x80 == 0 {
+            return Some(value);
+        }
+    }
+    None
+}
+
+/// The blob and `meta` of `record`.
+pub fn encode(record: &CaptureRecord) -> std::io::Result<(Vec<u8>, CaptureMeta)> {
+    let mut raw = Vec::new();
+    let mut channels = Vec::with_capacity(record.channels.len());
+    for channel in &record.channels {
+        let encoding = match exact_counts(channel) {
+            Some(counts) => {
+                let mut previous = 0i64;
+                for count in counts {
+                    let delta = count.wrapping_sub(previous);
+                    put_varint(&mut raw, ((delta << 1) ^ (delta >> 63)) as u64);
+                    previous = count;
+                }
+                Encoding::Counts
+            }
+            None => {
+                for value in &channel.samples {
+                    raw.extend_from_slice(&value.to_le_bytes());
+                }
+                Encoding::Float64
+            }
+        };
+        channels.push(ChannelMeta {
+            channel: CaptureChannel {
+                samples: Vec::new(),
+                ..channel.clone()
+            },
+            encoding,
+        });
+    }
+    let mut deflate = flate2::write::DeflateEncoder::new(
+        Vec::with_capacity(raw.len() / 2),
+        flate2::Compression::default(),
+    );
+    deflate.write_all(&raw)?;
+    let blob = deflate.finish()?;
+    let meta = CaptureMeta {
+        format: FORMAT,
+        channels,
+        gaps: record.gaps.clone(),
+        analysis: record.analysis,
+        version: env!("CARGO_PKG_VERSION").to_owned(),
+    };
+    Ok((blob, meta))
+}
+
+/// Why a stored capture cannot be read.
+#[derive(Debug, thiserror::Error)]
+pub enum DecodeError {
+    /// The `meta` JSON is not a capture's.
+    #[error("capture {id}: its meta is not readable ({0})", id = .1)]
+    Meta(serde_json::Error, i64),
+    /// A format this millgate does not know.
+    #[error("capture {id}: blob format {format}, this millgate reads {FORMAT}")]
+    Format {
+        /// The capture.
+        id: i64,
+        /// Its format.
+        format: u32,
+    },
+    /// The blob ends early or does not inflate.
+    #[error("capture {id}: the samples are damaged ({why})")]
+    Damaged {
+        /// The capture.
+        id: i64,
+        /// What is wrong.
+        why: String,
+    },
+}
+
+/// The channels of a capture stored as `blob` with `meta`, `samples` per channel.
+pub fn decode(
+    id: i64,
+    meta: &CaptureMeta,
+    samples: usize,
+    blob: &[u8],
+) -> Result<Vec<CaptureChannel>, DecodeError> {
+    if meta.format != FORMAT {
+        return Err(DecodeError::Format {
+            id,
+            format: meta.format,
+        });
+    }
+    let damaged = |why: &str| DecodeError::Damaged {
+        id,
+        why: why.to_owned(),
+    };
+    let mut raw = Vec::new();
+    flate2::read::DeflateDecoder::new(blob)
+        .read_to_end(&mut raw)
+        .map_err(|e| damaged(&e.to_string()))?;
+    let mut at = 0usize;
+    let mut channels = Vec::with_capacity(meta.channels.len());
+    for channel in &meta.channels {
+        let mut values = Vec::with_capacity(samples);
+        match channel.encoding {
+            Encoding::Counts => {
+                let mut count = 0i64;
+                for _ in 0..samples {
+                    let zigzag = get_varint(&raw, &mut at).ok_or_else(|| damaged("ends early"))?;
+                    let delta = ((zigzag >> 1) as i64) ^ -((zigzag & 1) as i64);
+                    count = count.wrapping_add(delta);
+                    values.push(count as f64 * channel.channel.scale + channel.channel.offset);
+                }
+            }
+            Encoding::Float64 => {
+                for _ in 0..samples {
+                    let bytes = raw.get(at..at + 8).ok_or_else(|| damaged("ends early"))?;
+                    at += 8;
+                    values.push(f64::from_le_bytes(bytes.try_into().expect("8 bytes")));
+                }
+            }
+        }
+        channels.push(CaptureChannel {
+            samples: values,
+            ..channel.channel.clone()
+        });
+    }
+    if at != raw.len() {
+        return Err(damaged("bytes left after the last channel"));
+    }
+    Ok(channels)
+}
+
+/// A capture row as JSON, its `meta` as an object (the list `millgate capture list
+/// --format json` and the web API give).
+pub fn row_json(row: &CaptureRow) -> serde_json::Value {
+    let mut value = serde_json::to_value(row).unwrap_or_default();
+    if let Ok(meta) = serde_json::from_str::<serde_json::Value>(&row.meta) {
+        value["meta"] = meta;
+    }
+    value
+}
+
+/// Insert `record` under run `run_id` in `transaction` (the writer's turn): its bite
+/// is the driveline's latest row at the bite's time, inserted before it in the same
+/// transaction or an earlier one.
+pub fn insert(
+    transaction: &Transaction<'_>,
+    run_id: i64,
+    record: &CaptureRecord,
+) -> rusqlite::Result<()> {
+    let (blob, meta) =
+        encode(record).map_err(|e| rusqlite::Error::ToSqlConversionFailure(Box::new(e)))?;
+    let meta = serde_json::to_string(&meta)
+        .map_err(|e| rusqlite::Error::ToSqlConversionFailure(Box::new(e)))?;
+    let bite_id: Option<i64> = match &record.bite {
+        Some(bite) => transaction
+            .prepare_cached(
+                "SELECT id FROM bites WHERE driveline = ?1 AND time = ?2
+                 ORDER BY id DESC LIMIT 1",
+            )?
+            .query_row(params![record.subject, bite.time.to_string()], |row| {
+                row.get(0)
+            })
+            .optional()?,
+        None => None,
+    };
+    let samples = record.samples();
+    transaction
+        .prepare_cached(
+            "INSERT INTO captures (run_id, kind, subject, bite_id, bite_counter, bite_time,
+                 started_at, first_sample_unix_ns, kernel_time, sample_rate_hz, samples,
+                 duration_s, keep, meta, bytes)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15)",
+        )?
+        .execute(params![
+            run_id,
+            record.kind.name(),
+            record.subject,
+            bite_id,
+            record.bite.as_ref().map(|bite| bite.counter),
+            record.bite.as_ref().map(|bite| bite.time.to_string()),
+            record.started_at().to_string(),
+            record.first_sample_unix_ns,
+            record.kernel_time,
+            record.sample_rate_hz,
+            i64::try_from(samples).unwrap_or(i64::MAX),
+            samples as f64 / record.sample_rate_hz,
+            record.keep.code(),
+            meta,
+            i64::try_from(blob.len()).unwrap_or(i64::MAX),
+        ])?;
+    transaction
+        .prepare_cached("INSERT INTO capture_data (id, data) VALUES (?1, ?2)")?
+        .execute(params![transaction.last_insert_rowid(), blob])?;
+    Ok(())
+}
+
+impl HistoryReader {
+    /// The capture with row id `id`, its samples decoded; `None` when there is none.
+    pub fn capture(&self, id: i64) -> Result<Option<Capture>, HistoryError> {
+        let filter = super::query::Filter {
+            after_id: Some(id - 1),
+            limit: Some(1),
+            ..Default::default()
+        };
+        match self.rows::<CaptureRow>(&filter)?.into_iter().next() {
+            Some(row) if row.id == id => self.capture_of(row).map(Some),
+            _ => Ok(None),
+        }
+    }
+
+    /// The samples of the capture `row` describes.
+    pub fn capture_of(&self, row: CaptureRow) -> Result<Capture, HistoryError> {
+        let blob: Vec<u8> = self
+            .connection()
+            .query_row(
+                "SELECT data FROM capture_data WHERE id = ?1",
+                [row.id],
+                |r| r.get(0),
+            )
+            .map_err(|e| self.error(e))?;
+        let damaged = |error: DecodeError| HistoryError::Capture {
+            path: self.path().to_path_buf(),
+            message: error.to_string(),
+        };
+        let meta: CaptureMeta =
+            serde_json::from_str(&row.meta).map_err(|e| damaged(DecodeError::Meta(e, row.id)))?;
+        let samples = usize::try_from(row.samples).unwrap_or(0);
+        let channels = decode(row.id, &meta, samples, &blob).map_err(damaged)?;
+        Ok(Capture {
+            row,
+            meta,
+            channels,
+        })
+    }
+
+    /// The captures' count and bytes (their blobs), from `capture_totals`.
+    pub fn capture_totals(&self) -> Result<(u64, u64), HistoryError> {
+        self.connection()
+            .query_row(
+                "SELECT captures, bytes FROM capture_totals WHERE id = 1",
+                [],
+                |row| Ok((row.get::<_, i64>(0)?, row.get::<_, i64>(1)?)),
+            )
+            .map(|(count, bytes)| (count.max(0) as u64, bytes.max(0) as u64))
+            .map_err(|e| self.error(e))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::state::captures::{CaptureKind, KeepClass};
+
+    fn record(channels: Vec<CaptureChannel>) -> CaptureRecord {
+        CaptureRecord {
+            kind: CaptureKind::Bite,
+            subject: "F1".into(),
+            bite: None,
+            first_sample_unix_ns: 1_700_000_000_123_456_789,
+            kernel_time: false,
+            sample_rate_hz: 2000.0,
+            channels,
+            gaps: vec![],
+            analysis: None,
+            keep: KeepClass::Ordinary,
+        }
+    }
+
+    fn channel(scale: f64, offset: f64, samples: Vec<f64>) -> CaptureChannel {
+        CaptureChannel {
+            name: "torque".into(),
+            unit: "kN*m".into(),
+            scale,
+            offset,
+            samples,
+        }
+    }
+
+    #[test]
+    fn counts_and_floats_come_back_bit_for_bit() {
+        // Counts as a Modbus DAQ gives them (raw * scale + offset), and values that
+        // are not counts of the channel's scale (a CAN signal, a NaN).
+        let counts: Vec<f64> = (0..1400)
+            .map(|i| f64::from(((i as f64 * 0.05).sin() * 9000.0) as i16) * 0.1 + 3.0)
+            .collect();
+        let floats: Vec<f64> = (0..1400)
+            .map(|i| (i as f64 * 0.013).cos() * 123.456_789)
+            .chain([f64::NAN, f64::INFINITY])
+            .collect();
+        for (samples, encoding) in [(counts, Encoding::Counts), (floats, Encoding::Float64)] {
+            let record = record(vec![channel(0.1, 3.0, samples.clone())]);
+            let (blob, meta) = encode(&record).unwrap();
+            assert_eq!(meta.channels[0].encoding, encoding);
+            let back = decode(1, &meta, samples.len(), &blob).unwrap();
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&back[0].samples), bits(&samples));
+        }
+    }
+
+    #[test]
+    fn a_damaged_blob_is_an_error_naming_the_capture() {
+        let record = record(vec![channel(1.0, 0.0, vec![1.0, 2.0, 3.0])]);
+        let (blob, meta) = encode(&record).unwrap();
+        let error = decode(7, &meta, 4, &blob).unwrap_err();
+        assert_eq!(
+            error.to_string(),
+            "capture 7: the samples are damaged (ends early)"
+        );
+        let error = decode(7, &meta, 3, &blob[..blob.len() / 2]).unwrap_err();
+        assert!(error
+            .to_string()
+            .starts_with("capture 7: the samples are damaged"));
+    }
+}

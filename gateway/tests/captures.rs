@@ -1,0 +1,272 @@
+//! Captures in the history file, written as the writer writes them: the retention
+//! keeps them within their budget, deleting ordinary bites' captures first and
+//! keeping every alarm bite's; after `thin_after_days` the ordinary ones are thinned
+//! to every N-th bite; a capture reads back with the samples it was given.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use millgate::outputs::history::query::{CaptureRow, Filter, HistoryReader};
+use millgate::outputs::history::retention::{CaptureRetention, Retention, RetentionState};
+use millgate::outputs::history::writer::{connect, insert, insert_run};
+use millgate::outputs::history::{DrivelineSettings, RunInfo};
+use millgate::state::captures::{
+    BiteWindowAnalysis, CaptureChannel, CaptureKind, CaptureRecord, CapturedBite, KeepClass,
+};
+use millgate::state::events::{BiteRecord, HistoryEvent};
+use millgate::state::results::DrivelineResults;
+use millgate::state::time::UtcTime;
+
+struct Scratch(PathBuf);
+
+impl Scratch {
+    fn new(tag: &str) -> Self {
+        let path = std::env::temp_dir().join(format!(
+            "millgate-captures-{tag}-{}-{}",
+            std::process::id(),
+            UtcTime::now().unix_ms()
+        ));
+        std::fs::create_dir_all(&path).unwrap();
+        Self(path)
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// A deterministic bite window as a 16-bit DAQ gives it: a damped oscillation on a
+/// 100 kN*m step plus noise, counts of 0.01 kN*m.
+fn window(seed: u64) -> Vec<f64> {
+    let mut state = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+    (0..1256)
+        .map(|i| {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            let noise = ((state >> 33) as f64 / f64::from(1u32 << 31) - 0.5) * 0.6;
+            let t = (f64::from(i) - 256.0).max(0.0) / 2000.0;
+            let torque = if i < 256 {
+                0.0
+            } else {
+                100.0 * (1.0 - (-8.0 * t).exp() * (2.0 * std::f64::consts::PI * 12.0 * t).cos())
+            };
+            f64::from(((torque + noise) / 0.01).round() as i16) * 0.01
+        })
+        .collect()
+}
+
+/// Bite `n` of F1 at `time` and its capture, kept as `keep`.
+fn bite_with_capture(n: u32, time: UtcTime, keep: KeepClass) -> [HistoryEvent; 2] {
+    let bite = BiteRecord {
+        driveline: "F1".into(),
+        channel: "torque".into(),
+        time,
+        static_torque_knm: 100.0,
+        peak_torque_knm: 180.0,
+        taf: Some(1.8),
+        first_period_s: None,
+        second_period_s: None,
+        period_shift_s: None,
+        beta_hz: None,
+        quality: "good",
+        degraded: false,
+        reference_taf: None,
+        reference_level_knm: None,
+        shift_over_linear_s: None,
+        gap: None,
+        pooled: None,
+        state: DrivelineResults {
+            bite_counter: n,
+            ..DrivelineResults::default()
+        },
+        extra_state: None,
+    };
+    let capture = CaptureRecord {
+        kind: CaptureKind::Bite,
+        subject: "F1".into(),
+        bite: Some(CapturedBite { counter: n, time }),
+        first_sample_unix_ns: (time.unix_ms() - 128) * 1_000_000,
+        kernel_time: false,
+        sample_rate_hz: 2000.0,
+        channels: vec![CaptureChannel {
+            name: "torque".into(),
+            unit: "kN*m".into(),
+            scale: 0.01,
+            offset: 0.0,
+            samples: window(u64::from(n)),
+        }],
+        gaps: vec![],
+        analysis: Some(BiteWindowAnalysis {
+            trigger_index: 256,
+            baseline_knm: 0.0,
+            onset_knm: 2.0,
+            period_lowpass_hz: 40.0,
+            peak_lowpass_hz: None,
+            settled_fraction: 0.3,
+            min_static_knm: 10.0,
+        }),
+        keep,
+    };
+    [
+        HistoryEvent::Bite(Box::new(bite)),
+        HistoryEvent::Capture(Box::new(capture)),
+    ]
+}
+
+fn run_info() -> RunInfo {
+    RunInfo {
+        version: "test".into(),
+        config_name: "captures".into(),
+        drivelines: vec![DrivelineSettings {
+            name: "F1".into(),
+            taf_warning: 2.2,
+            taf_alarm: 2.6,
+            model: None,
+            gap_warning_mrad: None,
+            gap_alarm_mrad: None,
+        }],
+    }
+}
+
+fn keep_of(n: u32) -> KeepClass {
+    if n.is_multiple_of(50) {
+        KeepClass::Important
+    } else if n.is_multiple_of(7) {
+        KeepClass::Warning
+    } else {
+        KeepClass::Ordinary
+    }
+}
+
+#[test]
+fn a_long_run_stays_within_the_budget_and_keeps_every_alarm_capture() {
+    let scratch = Scratch::new("budget");
+    let path = scratch.0.join("history.db");
+    let mut connection = connect(&path).unwrap();
+    let start = UtcTime::parse("2026-01-01T00:00:00Z").unwrap();
+    let run = insert_run(&connection, start, &run_info()).unwrap();
+    let budget: u64 = 1 << 20;
+    let retention = Retention {
+        max_age: Duration::from_secs(400 * 86_400),
+        max_bytes: 1 << 40,
+        chunk_rows: 500,
+        vacuum_pages: 256,
+        captures: Some(CaptureRetention {
+            thin_after: Duration::from_secs(365 * 86_400),
+            keep_every: 10,
+            max_bytes: budget,
+        }),
+    };
+    let mut state = RetentionState::default();
+    let bites = 3000u32;
+    let mut largest = 0u64;
+    for batch in 0..bites / 100 {
+        let transaction = connection.transaction().unwrap();
+        for n in batch * 100 + 1..=batch * 100 + 100 {
+            let time = UtcTime::from_unix_ms(start.unix_ms() + i64::from(n) * 30_000);
+            for event in bite_with_capture(n, time, keep_of(n)) {
+                insert(&transaction, run, &event).unwrap();
+            }
+        }
+        transaction.commit().unwrap();
+        let now = UtcTime::from_unix_ms(start.unix_ms() + i64::from(batch * 100) * 30_000);
+        while retention.step(&connection, now, &mut state).unwrap().more {}
+        let reader = HistoryReader::open(&path).unwrap();
+        let (_, bytes) = reader.capture_totals().unwrap();
+        largest = largest.max(bytes);
+    }
+    assert!(largest <= budget, "captures reached {largest} bytes");
+    let reader = HistoryReader::open(&path).unwrap();
+    let rows: Vec<CaptureRow> = reader.rows(&Filter::default()).unwrap();
+    let (count, bytes) = reader.capture_totals().unwrap();
+    assert_eq!(
+        count,
+        rows.len() as u64,
+        "the totals follow inserts and deletes"
+    );
+    assert_eq!(bytes, rows.iter().map(|r| r.bytes as u64).sum::<u64>());
+    // 3000 bites of ~1.7 KiB do not fit 1 MiB: ordinary ones went, oldest first.
+    assert!(rows.len() < bites as usize / 2, "{} kept", rows.len());
+    let kept = |n: u32| rows.iter().any(|r| r.bite_counter == Some(i64::from(n)));
+    for n in (50..=bites).step_by(50) {
+        assert!(kept(n), "the capture of alarm bite {n} was deleted");
+    }
+    let ordinary: Vec<i64> = rows
+        .iter()
+        .filter(|r| r.keep == 0)
+        .filter_map(|r| r.bite_counter)
+        .collect();
+    let warnings = rows.iter().filter(|r| r.keep == 1).count();
+    assert!(
+        ordinary.is_empty()
+            || warnings
+                == (1..=bites)
+                    .filter(|n| keep_of(*n) == KeepClass::Warning)
+                    .count(),
+        "warnings go only once no ordinary capture is left"
+    );
+    // What is kept reads back sample for sample.
+    let last = rows.last().unwrap();
+    let capture = reader.capture(last.id).unwrap().unwrap();
+    let n = u32::try_from(last.bite_counter.unwrap()).unwrap();
+    assert_eq!(capture.channels[0].samples, window(u64::from(n)));
+    assert!(reader.capture(last.id + 1000).unwrap().is_none());
+    drop(connection);
+}
+
+#[test]
+fn ordinary_captures_are_thinned_after_some_days_and_the_others_kept() {
+    let scratch = Scratch::new("thin");
+    let path = scratch.0.join("history.db");
+    let mut connection = connect(&path).unwrap();
+    let start = UtcTime::parse("2026-03-01T00:00:00Z").unwrap();
+    let run = insert_run(&connection, start, &run_info()).unwrap();
+    let transaction = connection.transaction().unwrap();
+    for n in 1..=200u32 {
+        let time = UtcTime::from_unix_ms(start.unix_ms() + i64::from(n) * 30_000);
+        for event in bite_with_capture(n, time, keep_of(n)) {
+            insert(&transaction, run, &event).unwrap();
+        }
+    }
+    transaction.commit().unwrap();
+    let retention = Retention {
+        max_age: Duration::from_secs(400 * 86_400),
+        max_bytes: 1 << 40,
+        chunk_rows: 30,
+        vacuum_pages: 256,
+        captures: Some(CaptureRetention {
+            thin_after: Duration::from_secs(7 * 86_400),
+            keep_every: 10,
+            max_bytes: 1 << 30,
+        }),
+    };
+    let mut state = RetentionState::default();
+    // Six days on, nothing is thinned; eight days on, the ordinary ones are.
+    let day = |d: i64| UtcTime::from_unix_ms(start.unix_ms() + d * 86_400_000);
+    while retention
+        .step(&connection, day(6), &mut state)
+        .unwrap()
+        .more
+    {}
+    let reader = HistoryReader::open(&path).unwrap();
+    assert_eq!(reader.capture_totals().unwrap().0, 200);
+    while retention
+        .step(&connection, day(8), &mut state)
+        .unwrap()
+        .more
+    {}
+    let rows: Vec<CaptureRow> = reader.rows(&Filter::default()).unwrap();
+    let mut kept: Vec<i64> = rows.iter().filter_map(|r| r.bite_counter).collect();
+    kept.sort_unstable();
+    let expected: Vec<i64> = (1..=200)
+        .filter(|n| n % 10 == 0 || keep_of(*n as u32) != KeepClass::Ordinary)
+        .collect();
+    assert_eq!(kept, expected);
+    let integrity: String = connection
+        .query_row("PRAGMA integrity_check", [], |row| row.get(0))
+        .unwrap();
+    assert_eq!(integrity, "ok");
+}
