@@ -39,6 +39,18 @@ use error::Report;
 /// # Ok::<(), millgate_config::ConfigError>(())
 /// ```
 pub fn load(path: &Path) -> Result<Config, ConfigError> {
+    load_for(path, validate::Purpose::Service)
+}
+
+/// As [`load`], for commissioning a tandem mill's chatter thresholds: a tandem mill
+/// may leave out `gain_thresholds` (`millgate chatter commission` computes them); its
+/// thresholds are then empty, so its gain ratio is not computed. Everything else is
+/// checked as for the service.
+pub fn load_uncommissioned(path: &Path) -> Result<Config, ConfigError> {
+    load_for(path, validate::Purpose::Commissioning)
+}
+
+fn load_for(path: &Path, purpose: validate::Purpose) -> Result<Config, ConfigError> {
     let file_name = path.display().to_string();
     let text = match std::fs::read_to_string(path) {
         Ok(text) => text,
@@ -49,7 +61,13 @@ pub fn load(path: &Path) -> Result<Config, ConfigError> {
         }
     };
     let base_dir = path.parent().unwrap_or(Path::new("."));
-    from_toml_str_with(&text, &file_name, base_dir, &ServiceDirs::from_env())
+    parse_and_validate(
+        &text,
+        &file_name,
+        base_dir,
+        &ServiceDirs::from_env(),
+        purpose,
+    )
 }
 
 /// Parses and validates configuration `text`; `file_name` names it in problems and
@@ -87,9 +105,19 @@ pub fn from_toml_str_with(
     base_dir: &Path,
     dirs: &ServiceDirs,
 ) -> Result<Config, ConfigError> {
+    parse_and_validate(text, file_name, base_dir, dirs, validate::Purpose::Service)
+}
+
+fn parse_and_validate(
+    text: &str,
+    file_name: &str,
+    base_dir: &Path,
+    dirs: &ServiceDirs,
+    purpose: validate::Purpose,
+) -> Result<Config, ConfigError> {
     let mut report = Report::new(file_name);
     let config = parse::parse(text, &mut report)
-        .and_then(|raw| validate::validate(raw, base_dir, dirs, &mut report));
+        .and_then(|raw| validate::validate(raw, base_dir, dirs, &mut report, purpose));
     report.finish(config)
 }
 

@@ -5,8 +5,9 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use millgate_config::{
-    from_toml_str, from_toml_str_with, load, ChannelKind, ChannelSource, ChatterDetectorKind,
-    Config, ConfigError, OpcUaSecurityMode, RegisterTable, ServiceDirs, ValueType, WordOrder,
+    from_toml_str, from_toml_str_with, load, load_uncommissioned, ChannelKind, ChannelSource,
+    ChatterDetectorKind, Config, ConfigError, OpcUaSecurityMode, RegisterTable, ServiceDirs,
+    ValueType, WordOrder,
 };
 
 fn examples_dir() -> PathBuf {
@@ -281,7 +282,7 @@ fn tandem_example() {
     assert_eq!(mill.reference_band_hz, (450.0, 900.0));
     assert_eq!(mill.gain_window_s, 2.0);
     assert_eq!(mill.gain_thresholds.len(), 5);
-    assert_eq!((mill.slow_down_release, mill.slow_down_hold_s), (0.8, 5.0));
+    assert_eq!((mill.slow_down_release, mill.slow_down_hold_s), (0.88, 5.0));
     let metrics = config.outputs.metrics.as_ref().expect("metrics output");
     assert_eq!(
         metrics.bind.to_string(),
@@ -1824,6 +1825,43 @@ fn the_web_page_defaults_limits_and_listener_clash() {
         "mill.toml: outputs.web.bind: 127.0.0.1:9187 is not allowed: outputs.metrics.bind \
          (127.0.0.1:9187) listens on the same port; each listener needs its own port",
     );
+}
+
+#[test]
+fn a_mill_to_commission_may_leave_out_its_gain_thresholds() {
+    // The example tandem mill without its thresholds: the service refuses it, the
+    // commissioning load takes it (with no thresholds) and still checks the rest.
+    let text = std::fs::read_to_string(examples_dir().join("tandem-5stand.toml")).expect("example");
+    let line = "gain_thresholds = [1.187, 1.492, 2.209, 3.087, 3.327]\n";
+    assert!(text.contains(line));
+    let dir = std::env::temp_dir().join(format!("millgate-commission-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let path = dir.join("mill.toml");
+    std::fs::write(&path, text.replace(line, "")).expect("write");
+    let error = load(&path).expect_err("the service needs thresholds");
+    assert!(
+        error.to_string().contains(
+            "tandem_mills[0].gain_thresholds: missing (the band-gain detector, the default, \
+             needs one alarm threshold per stand, > 0, from stable rolling up to the highest \
+             allowed speed: `millgate chatter commission` computes them"
+        ),
+        "{error}"
+    );
+    let config = load_uncommissioned(&path).unwrap_or_else(|error| panic!("{error}"));
+    assert_eq!(
+        config.tandem_mills[0].detector,
+        ChatterDetectorKind::BandGain
+    );
+    assert!(config.tandem_mills[0].gain_thresholds.is_empty());
+    std::fs::write(&path, text.replace(line, "gain_thresholds = [1.0]\n")).expect("write");
+    let error = load_uncommissioned(&path).expect_err("one threshold for five stands");
+    assert!(
+        error
+            .to_string()
+            .contains("gain_thresholds: 1 values is not allowed (must be one per stand: 5)"),
+        "{error}"
+    );
+    std::fs::remove_dir_all(&dir).expect("clean up");
 }
 
 /// `BASE` with `[outputs.opcua]` holding `keys`.

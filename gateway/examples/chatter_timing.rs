@@ -10,7 +10,7 @@
 
 use std::time::{Duration, Instant};
 
-use millgate::analysis::chatter_monitor::{ChatterMonitor, ChatterUpdate};
+use millgate::analysis::chatter::{ChatterMonitor, ChatterUpdate};
 use millgate_sim::tandem::simulate::{simulate, Accelerometer, Excitation, RunSettings, SpeedRamp};
 use millgate_sim::tandem::{PassSchedule, TandemMill};
 

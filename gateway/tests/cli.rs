@@ -1055,6 +1055,350 @@ fn discrepancy_on_a_constant_record_says_there_is_no_transient() {
     assert!(!message.contains("extra_inertia"), "{message}");
 }
 
+/// `millgate sim tandem` of the example schedule into `dir/name.csv` with the truth
+/// columns (`speed_factor`): `args` after the schedule.
+#[cfg(feature = "sim-tools")]
+fn tandem_record(dir: &std::path::Path, name: &str, args: &[&str]) -> PathBuf {
+    let csv = dir.join(format!("{name}.csv"));
+    let schedule =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../sim/schedules/lu2019-5stand.toml");
+    let mut all = vec!["sim", "tandem", "--schedule", schedule.to_str().unwrap()];
+    all.extend_from_slice(args);
+    all.extend_from_slice(&["--truth", "--out", csv.to_str().unwrap()]);
+    let output = millgate(&all);
+    assert!(output.status.success(), "{}", text(&output));
+    csv
+}
+
+/// The numbers of a TOML line `key = [a, b, ...]` in `out`.
+#[cfg(feature = "sim-tools")]
+fn toml_list(out: &str, key: &str) -> Vec<f64> {
+    let line = out
+        .lines()
+        .find_map(|l| l.strip_prefix(&format!("{key} = [")))
+        .unwrap_or_else(|| panic!("no `{key} = [` line in {out}"));
+    line.trim_end_matches(']')
+        .split(',')
+        .map(|v| v.trim().parse().expect("a number"))
+        .collect()
+}
+
+#[cfg(feature = "sim-tools")]
+#[test]
+fn chatter_commission_sets_thresholds_that_hold_on_held_out_stable_rolling() {
+    // The critical speed of the example schedule is 1.098 (sim/README.md): the highest
+    // allowed speed here is 1.04, 95% of it.
+    let dir = std::env::temp_dir().join(format!("millgate-cli-{}-commission", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let ramp_up = tandem_record(
+        &dir,
+        "ramp-up",
+        &[
+            "--speed",
+            "0.6",
+            "--ramp",
+            "1.04,1.0",
+            "--hold",
+            "2",
+            "--duration",
+            "30",
+            "--seed",
+            "11",
+        ],
+    );
+    let top = tandem_record(
+        &dir,
+        "top",
+        &[
+            "--speed",
+            "1.04",
+            "--duration",
+            "30",
+            "--noise-scale",
+            "1.5",
+            "--seed",
+            "12",
+        ],
+    );
+    // The end of an acceleration to the top speed raises the gain for a second or two:
+    // commissioning records the accelerations too.
+    let slow_ramp = tandem_record(
+        &dir,
+        "slow-ramp",
+        &[
+            "--speed",
+            "0.8",
+            "--ramp",
+            "1.04,0.5",
+            "--hold",
+            "2",
+            "--duration",
+            "30",
+            "--seed",
+            "15",
+        ],
+    );
+    // The mill not yet commissioned: its configuration without thresholds.
+    let example = std::fs::read_to_string(examples().join("tandem-5stand.toml")).unwrap();
+    let config = dir.join("mill.toml");
+    std::fs::write(
+        &config,
+        example
+            .lines()
+            .filter(|l| !l.starts_with("gain_thresholds"))
+            .collect::<Vec<_>>()
+            .join("\n"),
+    )
+    .unwrap();
+    let check = millgate(&["check", "--config", config.to_str().unwrap()]);
+    assert!(!check.status.success(), "{}", text(&check));
+    assert!(
+        text(&check).contains("`millgate chatter commission` computes them"),
+        "{}",
+        text(&check)
+    );
+
+    let commission = |inputs: &[&PathBuf], extra: &[&str]| {
+        let mut args = vec![
+            "chatter",
+            "commission",
+            "--config",
+            config.to_str().unwrap(),
+        ];
+        for input in inputs {
+            args.extend_from_slice(&["--input", input.to_str().unwrap()]);
+        }
+        args.extend_from_slice(extra);
+        millgate(&args)
+    };
+    let output = commission(
+        &[&ramp_up, &top, &slow_ramp],
+        &["--speed-column", "speed_factor"],
+    );
+    assert!(output.status.success(), "{}", text(&output));
+    let out = String::from_utf8_lossy(&output.stdout).to_string();
+    let thresholds = toml_list(&out, "gain_thresholds");
+    assert_eq!(thresholds.len(), 5, "{out}");
+    // 30 s each: windows every 0.25 s once the 2 s gain window is full.
+    assert!(
+        out.starts_with("tandem mill \"TCM 2030\": 3 recording(s), 90.0 s, 333 windows"),
+        "{out}"
+    );
+    assert!(
+        out.contains("speeds covered (speed_factor): 0.61 .. 1.04"),
+        "{out}"
+    );
+    // The release level for these thresholds, within its bounds.
+    let release: f64 = out
+        .lines()
+        .find_map(|l| l.strip_prefix("slow_down_release = "))
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no slow_down_release line in {out}"));
+    assert!((0.8..=0.95).contains(&release), "{release}");
+    println!("{out}");
+
+    // The thresholds are each stand's largest gain that `millgate chatter` reports for
+    // the same recordings, plus 10%, rounded up to 0.001.
+    let mut largest = [0.0_f64; 5];
+    for input in [&ramp_up, &top, &slow_ramp] {
+        let report = millgate(&[
+            "chatter",
+            "--input",
+            input.to_str().unwrap(),
+            "--config",
+            config.to_str().unwrap(),
+            "--format",
+            "json",
+        ]);
+        assert!(report.status.success(), "{}", text(&report));
+        let json: serde_json::Value = serde_json::from_slice(&report.stdout).unwrap();
+        for window in json["windows"].as_array().unwrap() {
+            for (stand, row) in window["stands"].as_array().unwrap().iter().enumerate() {
+                if let Some(gain) = row["gain"].as_f64() {
+                    largest[stand] = largest[stand].max(gain);
+                }
+            }
+        }
+    }
+    for (threshold, largest) in thresholds.iter().zip(largest) {
+        let expected = (largest * 1.1 * 1000.0).ceil() / 1000.0;
+        assert!(
+            (threshold - expected).abs() < 1.5e-3,
+            "{threshold} vs {expected}"
+        );
+        assert!(*threshold >= largest * 1.1 - 1e-12);
+    }
+    let json = commission(
+        &[&ramp_up, &top, &slow_ramp],
+        &["--format", "json", "--margin", "25"],
+    );
+    assert!(json.status.success(), "{}", text(&json));
+    let json: serde_json::Value = serde_json::from_slice(&json.stdout).unwrap();
+    assert_eq!(json["windows"], 333);
+    assert_eq!(json["margin_percent"], 25.0);
+    for (threshold, largest) in json["gain_thresholds"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .zip(largest)
+    {
+        let expected = (largest * 1.25 * 1000.0).ceil() / 1000.0;
+        assert!((threshold.as_f64().unwrap() - expected).abs() < 1.5e-3);
+    }
+
+    // Pasted into the configuration: held-out stable rolling up to the top speed
+    // raises no alarm, a ramp past the critical speed does, before chatter develops.
+    let pasted = dir.join("commissioned.toml");
+    let line = out
+        .lines()
+        .find(|l| l.starts_with("gain_thresholds = ["))
+        .unwrap();
+    std::fs::write(
+        &pasted,
+        format!(
+            "{}\n",
+            example
+                .replace(
+                    example
+                        .lines()
+                        .find(|l| l.starts_with("gain_thresholds"))
+                        .unwrap(),
+                    line,
+                )
+                .replace(
+                    "slow_down_release = 0.88",
+                    &format!("slow_down_release = {release}")
+                )
+        ),
+    )
+    .unwrap();
+    let check = millgate(&["check", "--config", pasted.to_str().unwrap()]);
+    assert!(check.status.success(), "{}", text(&check));
+    let held_out = [
+        tandem_record(
+            &dir,
+            "held-out-1",
+            &[
+                "--speed",
+                "1.04",
+                "--duration",
+                "30",
+                "--noise-scale",
+                "0.7",
+                "--seed",
+                "13",
+            ],
+        ),
+        tandem_record(
+            &dir,
+            "held-out-2",
+            &[
+                "--speed",
+                "0.7",
+                "--ramp",
+                "1.04,1.0",
+                "--hold",
+                "2",
+                "--duration",
+                "30",
+                "--noise-scale",
+                "1.3",
+                "--seed",
+                "14",
+            ],
+        ),
+    ];
+    let first_alarm = |input: &PathBuf| {
+        let report = millgate(&[
+            "chatter",
+            "--input",
+            input.to_str().unwrap(),
+            "--config",
+            pasted.to_str().unwrap(),
+        ]);
+        assert!(report.status.success(), "{}", text(&report));
+        let out = String::from_utf8_lossy(&report.stdout).to_string();
+        out.lines().last().unwrap().to_owned()
+    };
+    for input in &held_out {
+        let last = first_alarm(input);
+        assert!(
+            last.ends_with("first alarm: none"),
+            "{}: {last}",
+            input.display()
+        );
+    }
+    let ramp = tandem_record(
+        &dir,
+        "ramp",
+        &[
+            "--speed",
+            "0.9",
+            "--ramp",
+            "1.5,2.0",
+            "--hold",
+            "6",
+            "--duration",
+            "14",
+            "--seed",
+            "7",
+        ],
+    );
+    let alarm = first_alarm(&ramp);
+    let alarm_s: f64 = alarm
+        .rsplit("first alarm: ")
+        .next()
+        .and_then(|t| t.trim_end_matches(" s").parse().ok())
+        .unwrap_or_else(|| panic!("no alarm: {alarm}"));
+    // Onset 7.25 s, developed 13.42 s (README, the chatter end-to-end row).
+    assert!(alarm_s > 7.25 && alarm_s < 13.42, "{alarm}");
+
+    // Refused, each with the file and the reason, and a non-zero exit.
+    let refused = |inputs: &[&PathBuf], expected: &str| {
+        let output = commission(inputs, &[]);
+        assert!(!output.status.success(), "{}", text(&output));
+        assert!(text(&output).contains(expected), "{}", text(&output));
+    };
+    refused(
+        &[&top, &ramp],
+        &format!(
+            "{}: shows chatter: the chatter-band gain of stand",
+            ramp.display()
+        ),
+    );
+    let short = tandem_record(&dir, "short", &["--speed", "1.0", "--duration", "2"]);
+    refused(
+        &[&short],
+        &format!(
+            "{}: 2.000 s is too short for the gain window: the first gain needs 2.298 s",
+            short.display()
+        ),
+    );
+    let fast = tandem_record(
+        &dir,
+        "fast",
+        &["--speed", "1.0", "--duration", "4", "--sample-rate", "5000"],
+    );
+    refused(
+        &[&top, &fast],
+        &format!(
+            "{}: sample rate 5000.0 Hz from column t, the stand channels sample at 2500 Hz",
+            fast.display()
+        ),
+    );
+    let renamed = dir.join("renamed.csv");
+    let body = std::fs::read_to_string(&top).unwrap();
+    std::fs::write(&renamed, body.replacen("s3_vib", "stand3", 1)).unwrap();
+    refused(
+        &[&renamed],
+        &format!(
+            "{}: line 1: no column `s3_vib` for a stand of tandem mill \"TCM 2030\" (columns: s1_vib, s2_vib, stand3",
+            renamed.display()
+        ),
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// `check` under the variables systemd sets for `StateDirectory=`, `CacheDirectory=` and
 /// `LoadCredential=` (as `ExecStartPre=millgate check` runs in the shipped unit): a
 /// relative history path in `$STATE_DIRECTORY`, the cache in `$CACHE_DIRECTORY`, the

@@ -1,14 +1,17 @@
 //! The physical tandem mill: roll gap and roots against an independent numpy
 //! implementation (`tandem_reference.py`, golden values below), a stand's modes against
 //! the closed form of a two-mass stack, the roots against time simulations at frozen
-//! speed, the critical speed, the ground truth of a ramp, and the schedule file's
-//! errors.
+//! speed, the critical speed, the ground truth of a ramp, a run advanced in pieces
+//! against the same run at once, and the schedule file's and run settings' errors.
 
+use millgate_sim::tandem::control::{SlowDownPolicy, SpeedControl};
+use millgate_sim::tandem::online::OnlineMill;
 use millgate_sim::tandem::roots::{critical_speed, Characteristic};
 use millgate_sim::tandem::simulate::{
-    simulate, Accelerometer, Excitation, RunError, RunSettings, SpeedRamp, TensionStep,
+    simulate, Accelerometer, Excitation, NoiseBurst, RunError, RunSettings, Simulation, SpeedRamp,
+    TensionStep,
 };
-use millgate_sim::tandem::truth::{ground_truth, mill_critical_speed};
+use millgate_sim::tandem::truth::{developed_time, ground_truth, mill_critical_speed};
 use millgate_sim::tandem::{PassSchedule, TandemMill};
 
 fn schedule() -> PassSchedule {
@@ -252,6 +255,7 @@ fn frozen_speed_growth_matches_the_rightmost_root() -> anyhow::Result<()> {
                 entry_mpa: 5.0,
                 exit_mpa: 0.0,
             }],
+            noise_bursts: Vec::new(),
         },
         sensor: quiet(),
         duration_s: 60.0,
@@ -408,4 +412,142 @@ fn run_settings_out_of_range_are_named() {
         error.to_string(),
         "sensor.sample_rate_hz: 100 is not allowed (must be 500 ..= 20000 Hz)"
     );
+}
+
+#[test]
+fn a_run_advanced_in_pieces_is_the_run_advanced_at_once() -> anyhow::Result<()> {
+    // A ramp through the critical speed with every excitation (a tension step and a
+    // noise burst included), advanced once and in pieces of 1 to 700 samples that
+    // cut across the ramp's start, the step and the burst.
+    let mill = TandemMill::new(&schedule())?;
+    let mut excitation = Excitation::default();
+    excitation.tension_steps.push(TensionStep {
+        time_s: 0.61,
+        entry_mpa: 8.0,
+        exit_mpa: -3.0,
+    });
+    excitation.noise_bursts.push(NoiseBurst {
+        time_s: 1.3,
+        duration_s: 0.7,
+        factor: 4.0,
+    });
+    let ramp = SpeedRamp {
+        start: 1.0,
+        end: 1.3,
+        hold_s: 0.8,
+        accel_m_s2: 2.0,
+    };
+    let run = RunSettings {
+        ramp,
+        excitation,
+        sensor: Accelerometer::default(),
+        duration_s: 3.0,
+        seed: 12,
+        internal_rate_hz: None,
+    };
+    let once = simulate(&mill, &run)?;
+    let mut simulation = Simulation::new(&mill, &run.setup())?;
+    let exit_speed = mill.exit_speed(mill.stands().len() - 1, 1.0);
+    let mut pieces = simulation.record(once.len());
+    let sizes = [1, 2, 700, 119, 3, 120, 611, 1];
+    let mut k = 0;
+    while pieces.len() < once.len() {
+        let size = sizes[k % sizes.len()].min(once.len() - pieces.len());
+        simulation.advance(size, |t| ramp.speed_at(t, exit_speed), &mut pieces)?;
+        k += 1;
+        assert_eq!(simulation.samples(), pieces.len());
+    }
+    assert_eq!(simulation.time_s(), 3.0);
+    // Sample by sample, not to a tolerance: the same arithmetic in the same order.
+    assert_eq!(pieces, once);
+    // The burst is in the record: the stands shake harder during it.
+    let rms = |from_s: f64, to_s: f64| {
+        let range = (from_s * 2500.0) as usize..(to_s * 2500.0) as usize;
+        let values = &once.acceleration[0][range];
+        (values.iter().map(|v| v * v).sum::<f64>() / values.len() as f64).sqrt()
+    };
+    assert!(
+        rms(1.4, 2.0) > 2.0 * rms(0.7, 1.3),
+        "{} {}",
+        rms(1.4, 2.0),
+        rms(0.7, 1.3)
+    );
+    Ok(())
+}
+
+#[test]
+fn a_speed_outside_the_simulations_range_is_refused() -> anyhow::Result<()> {
+    let mill = TandemMill::new(&schedule())?;
+    let run = RunSettings {
+        ramp: SpeedRamp::constant(0.9),
+        excitation: Excitation::default(),
+        sensor: Accelerometer::default(),
+        duration_s: 1.0,
+        seed: 1,
+        internal_rate_hz: None,
+    };
+    let mut simulation = Simulation::new(&mill, &run.setup())?;
+    let mut record = simulation.record(10);
+    simulation.advance(10, |_| 0.9, &mut record)?;
+    let error = simulation
+        .advance(10, |_| 0.95, &mut record)
+        .expect_err("above the range");
+    assert_eq!(
+        error.to_string(),
+        "speed factor 0.95 at t = 0.004 s is outside the simulation's speed range 0.9 ..= 0.9"
+    );
+    Ok(())
+}
+
+#[test]
+fn the_online_mill_is_the_simulated_ramp_when_nothing_requests_a_slow_down() -> anyhow::Result<()> {
+    // The automation ramps from 90% of the critical speed at 2 m/s^2 to 1.3 times it,
+    // one 48 ms PLC cycle at a time and never asked to slow down: the same run as the
+    // ramp simulated at once (to rounding: the speed passes through m/s), chatter
+    // developing at the same sample.
+    let mill = TandemMill::new(&schedule())?;
+    let critical = mill_critical_speed(&mill)?.speed;
+    let unit = mill.exit_speed(mill.stands().len() - 1, 1.0);
+    let ramp = SpeedRamp {
+        start: 0.9 * critical,
+        end: 1.3 * critical,
+        hold_s: 0.0,
+        accel_m_s2: 2.0,
+    };
+    let run = RunSettings {
+        ramp,
+        excitation: Excitation::default(),
+        sensor: Accelerometer::default(),
+        duration_s: 12.0,
+        seed: 5,
+        internal_rate_hz: None,
+    };
+    let once = simulate(&mill, &run)?;
+    let policy = SlowDownPolicy {
+        accel_m_s2: 2.0,
+        ..SlowDownPolicy::default()
+    };
+    let control = SpeedControl::new(policy, ramp.start * unit, ramp.end * unit)?;
+    let mut online = OnlineMill::new(&mill, &run.setup(), control, 120, ramp.end * unit)?;
+    let mut record = online.record(once.len());
+    let mut largest_swing = 0.0_f64;
+    while record.len() < once.len() {
+        let truth = online.cycle(false, &mut record)?;
+        largest_swing = largest_swing.max(truth.swing);
+    }
+    assert_eq!(online.time_s(), 12.0);
+    for (online, once) in record.acceleration.iter().zip(&once.acceleration) {
+        for (a, b) in online.iter().zip(once) {
+            assert!((a - b).abs() <= 1e-9 * (1.0 + b.abs()), "{a} vs {b}");
+        }
+    }
+    let developed = developed_time(&mill, &once).expect("chatter develops");
+    let online_developed = online.developed_s().expect("developed online");
+    assert!(
+        (online_developed - developed).abs() < 1e-9,
+        "{online_developed} vs {developed}"
+    );
+    assert!(largest_swing > 1.0);
+    assert!(online.control().events().is_empty());
+    Ok(())
 }

@@ -20,7 +20,7 @@
 //! - *band RMS*: 100-300 Hz RMS per stand ([`millgate_dsp::band_gain`]), one threshold
 //!   per stand;
 //! - *band gain*: 100-300 Hz RMS over 450-900 Hz RMS per stand, one threshold per stand;
-//! - *paper, calibrated*: the gateway's monitor ([`millgate::analysis::chatter_monitor::ChatterMonitor`],
+//! - *paper, calibrated*: the gateway's monitor ([`millgate::analysis::chatter::ChatterMonitor`],
 //!   its own windows, FFTs and `dsp::chatter`), alarm when `sigma_n <= sigma_min` and
 //!   `K_mean` exceeds the largest `K_mean` of such windows in calibration;
 //! - *paper, K_max 0.25*: the same with the example configuration's `k_max`, and the
@@ -37,13 +37,15 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
-use millgate::analysis::chatter_monitor::{ChatterMonitor, ChatterUpdate};
+use millgate::analysis::chatter::{ChatterMonitor, ChatterUpdate};
+use millgate::cli::chatter::commission::{commission, Commissioning};
+use millgate::cli::chatter::recording::{windows, Recording, Window};
 use millgate_config::Config;
 use millgate_dsp::band_gain::{BandGain, BandGainSettings};
 use millgate_dsp::mode_damping::least_damped;
 use millgate_sim::tandem::roots::CriticalSpeed;
 use millgate_sim::tandem::simulate::{
-    simulate, Accelerometer, Excitation, RunSettings, SpeedRamp, TensionStep,
+    simulate, Accelerometer, Excitation, Record, RunSettings, SpeedRamp, TensionStep,
 };
 use millgate_sim::tandem::truth::{ground_truth, mill_critical_speed, GroundTruth};
 use millgate_sim::tandem::{PassSchedule, TandemMill};
@@ -357,8 +359,19 @@ pub fn parallel<T: Sync, R: Send>(
         .collect()
 }
 
-/// The gateway configuration the monitor is built from: one mill of `stands` stands.
+/// The gateway configuration the monitor is built from: one mill of `stands` stands,
+/// the paper's detector with the example's `k_max`.
 pub fn monitor_config(stands: usize) -> anyhow::Result<Config> {
+    monitor_config_with(
+        stands,
+        &format!("k_max = {CONFIGURED_K_MAX}\ndetector = \"paper\"\n"),
+    )
+}
+
+/// One mill of `stands` stands (channels `s0`, `s1`, ... at [`SAMPLE_RATE_HZ`]) with the
+/// race's chatter band and window; `keys` are the rest of its `[[tandem_mills]]` entry
+/// (`k_max` at least).
+pub fn monitor_config_with(stands: usize, keys: &str) -> anyhow::Result<Config> {
     let mut text = String::from(
         "name = \"chatter eval\"\n[[sources.modbus]]\nname = \"daq\"\naddress = \"127.0.0.1:1\"\npoll_period_ms = 20\n",
     );
@@ -372,7 +385,7 @@ pub fn monitor_config(stands: usize) -> anyhow::Result<Config> {
     let names: Vec<String> = (0..stands).map(|s| format!("\"s{s}\"")).collect();
     text += &format!(
         "[[tandem_mills]]\nname = \"TCM\"\nstands = [{}]\nchatter_band_hz = [{}, {}]\n\
-         window_s = {WINDOW_S}\nk_max = {CONFIGURED_K_MAX}\ndetector = \"paper\"\n",
+         window_s = {WINDOW_S}\n{keys}",
         names.join(", "),
         CHATTER_BAND_HZ.0,
         CHATTER_BAND_HZ.1
@@ -381,12 +394,120 @@ pub fn monitor_config(stands: usize) -> anyhow::Result<Config> {
         .map_err(|e| anyhow::anyhow!("{e}"))
 }
 
-/// Simulates one scenario and runs every detector over it (the gateway's monitor only
-/// with `paper`).
-pub fn run(scenario: &Scenario, paper: bool) -> anyhow::Result<RunResult> {
+/// The scenario's mill and its simulated record.
+pub fn simulated(scenario: &Scenario) -> anyhow::Result<(TandemMill, Record)> {
     let base = PassSchedule::example()?.scaled(scenario.friction, scenario.damping);
     let mill = TandemMill::new(&base)?;
     let record = simulate(&mill, &scenario.settings)?;
+    Ok((mill, record))
+}
+
+/// What `millgate chatter commission` makes of the race's calibration runs, and what
+/// the gateway's monitor with its thresholds does in the held-out runs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CommissionedRace {
+    /// The commissioning (thresholds, release, windows) from the calibration runs'
+    /// records after the settling time.
+    pub commissioning: Commissioning,
+    /// Windows of the held-out and confirmation runs after the settling time in which
+    /// the monitor (`detector = "band_gain"`, those thresholds and release) raised its
+    /// alarm: (run index, window end s).
+    pub alarms: Vec<(usize, f64)>,
+    /// Scored hours of those runs.
+    pub hours: f64,
+}
+
+/// Commission the band gain from the calibration runs of `scenarios` with the
+/// command's code (`millgate chatter commission`, margin 10%), then run the gateway's
+/// monitor with the result over every held-out and confirmation run.
+pub fn commissioned_race(
+    plan: &EvalPlan,
+    scenarios: &[Scenario],
+) -> anyhow::Result<CommissionedRace> {
+    let from = (plan.settle_s * SAMPLE_RATE_HZ) as usize;
+    let calibration: Vec<&Scenario> = scenarios
+        .iter()
+        .filter(|s| s.kind == RunKind::Calibration)
+        .collect();
+    let recordings = parallel(plan.threads, &calibration, |scenario| {
+        let (_, record) = simulated(scenario)?;
+        Ok(Recording {
+            name: format!("calibration seed {}", scenario.settings.seed),
+            time_s: (from..record.len())
+                .map(|k| k as f64 / SAMPLE_RATE_HZ)
+                .collect(),
+            stands: record
+                .acceleration
+                .iter()
+                .map(|a| a[from..].to_vec())
+                .collect(),
+            speed: None,
+        })
+    })?;
+    let stands = recordings.first().map_or(0, |r| r.stands.len());
+    let commissioning = commission(
+        &monitor_config_with(
+            stands,
+            &format!("k_max = {CONFIGURED_K_MAX}\ndetector = \"paper\"\n"),
+        )?,
+        0,
+        &recordings,
+        MARGIN * 100.0,
+    )?;
+    let list: Vec<String> = commissioning
+        .gain_thresholds
+        .iter()
+        .map(|t| t.to_string())
+        .collect();
+    let config = monitor_config_with(
+        stands,
+        &format!(
+            "k_max = {CONFIGURED_K_MAX}\ngain_thresholds = [{}]\nslow_down_release = {}\n",
+            list.join(", "),
+            commissioning.slow_down_release
+        ),
+    )?;
+    let held_out: Vec<(usize, &Scenario)> = scenarios
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| matches!(s.kind, RunKind::HeldOut | RunKind::Confirmation))
+        .collect();
+    let alarms = parallel(plan.threads, &held_out, |&(index, scenario)| {
+        let (_, record) = simulated(scenario)?;
+        let windows = monitored_windows(&config, &record)?;
+        Ok(windows
+            .into_iter()
+            .filter(|w| w.t_s >= plan.settle_s && w.verdict.alarm)
+            .map(|w| (index, w.t_s))
+            .collect::<Vec<_>>())
+    })?;
+    Ok(CommissionedRace {
+        commissioning,
+        alarms: alarms.into_iter().flatten().collect(),
+        hours: held_out
+            .iter()
+            .map(|(_, s)| (s.settings.duration_s - plan.settle_s) / 3600.0)
+            .sum(),
+    })
+}
+
+/// `record` through the gateway's monitor of `config` as `millgate chatter` runs it.
+fn monitored_windows(config: &Config, record: &Record) -> anyhow::Result<Vec<Window>> {
+    let recording = Recording {
+        name: "held out".into(),
+        time_s: (0..record.len())
+            .map(|k| k as f64 / SAMPLE_RATE_HZ)
+            .collect(),
+        stands: record.acceleration.clone(),
+        speed: None,
+    };
+    windows(config, 0, &recording)
+}
+
+/// Simulates one scenario and runs every detector over it (the gateway's monitor only
+/// with `paper`).
+pub fn run(scenario: &Scenario, paper: bool) -> anyhow::Result<RunResult> {
+    let (mill, record) = simulated(scenario)?;
     let truth = ground_truth(&mill, &scenario.settings.ramp, &record, scenario.critical);
     // Nothing after developed chatter (+ 2 s) is scored.
     let last = truth

@@ -2,8 +2,13 @@
 //! configuration ([`demo_devices`]), waiting for a condition ([`wait_for`]), HTTP to a
 //! running gateway ([`net`], shared with `gateway/tests`), scraping `/metrics`
 //! ([`scrape`]), a scripted hostile DAQ ([`hostile_daq`]), a serial line with a
-//! pymodbus RTU device on it ([`serial_line`]) and the
-//! counting allocator of the zero-allocation tests ([`counting_allocator`]). A running gateway is started with
+//! pymodbus RTU device on it ([`serial_line`]), the counting allocator of the
+//! zero-allocation tests ([`counting_allocator`]), the chatter detectors' race
+//! ([`chatter_eval`]) and the chatter closed loop offline ([`chatter_loop`]: the online
+//! tandem mill and its automation with the gateway's own monitor fed each block, the
+//! runs of the README's closed-loop table; the real-time runs through the service are
+//! `tests/chatter_loop_e2e.rs` over Modbus and `tests/vcan.rs` over CAN, on
+//! `millgate_sim::devices::tandem_rig`). A running gateway is started with
 //! `millgate::Service::new(config)?.spawn().await?` ([`millgate::Service::spawn`]);
 //! tolerance comparisons are `millgate_dsp::testing`.
 
@@ -12,6 +17,7 @@ pub mod hostile_daq;
 pub mod serial_line;
 
 pub mod chatter_eval;
+pub mod chatter_loop;
 
 // Shared with the gateway's integration tests (`gateway/tests/common` includes the file).
 pub mod net;

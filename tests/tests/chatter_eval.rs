@@ -8,11 +8,13 @@
 //! `quick_race_on_the_nominal_mill` is the small version CI runs.
 
 use millgate_tests::chatter_eval::{
-    parallel, run, scenarios, score, table, versus, Detector, EvalPlan, Figure, RunKind, Score,
-    MARGIN,
+    commissioned_race, parallel, run, scenarios, score, table, versus, CommissionedRace, Detector,
+    EvalPlan, Figure, RunKind, Score, MARGIN,
 };
 
-fn race(plan: &EvalPlan) -> anyhow::Result<Vec<millgate_tests::chatter_eval::Score>> {
+fn race(
+    plan: &EvalPlan,
+) -> anyhow::Result<(Vec<millgate_tests::chatter_eval::Score>, CommissionedRace)> {
     let started = std::time::Instant::now();
     let scenarios = scenarios(plan)?;
     let runs = parallel(plan.threads, &scenarios, |s| run(s, plan.paper))?;
@@ -64,6 +66,21 @@ fn race(plan: &EvalPlan) -> anyhow::Result<Vec<millgate_tests::chatter_eval::Sco
             );
         }
     }
+    // `millgate chatter commission` on the same calibration runs, the gateway's monitor
+    // with its thresholds over the held-out and confirmation runs.
+    let commissioned = commissioned_race(plan, &scenarios)?;
+    println!(
+        "\ncommissioned on the calibration runs ({} windows): gain_thresholds {:?}, \
+         slow_down_release {}; race thresholds {:?}; alarms in {:.2} h of held-out and \
+         confirmation runs: {} {:?}",
+        commissioned.commissioning.windows,
+        commissioned.commissioning.gain_thresholds,
+        commissioned.commissioning.slow_down_release,
+        gain.thresholds,
+        commissioned.hours,
+        commissioned.alarms.len(),
+        commissioned.alarms
+    );
     for run in runs.iter().filter(|r| r.scenario.kind == RunKind::Ramp) {
         println!(
             "ramp f {:.2} d {:.2} noise {:.2} accel {:.2}: critical {:.3}, onset {:?}, developed {:?}",
@@ -76,13 +93,13 @@ fn race(plan: &EvalPlan) -> anyhow::Result<Vec<millgate_tests::chatter_eval::Sco
             run.truth.developed_s
         );
     }
-    Ok(scores)
+    Ok((scores, commissioned))
 }
 
 #[test]
 fn quick_race_on_the_nominal_mill() -> anyhow::Result<()> {
     let plan = EvalPlan::quick();
-    let scores = race(&plan)?;
+    let (scores, commissioned) = race(&plan)?;
     let of = |figure: Figure| {
         scores
             .iter()
@@ -104,12 +121,17 @@ fn quick_race_on_the_nominal_mill() -> anyhow::Result<()> {
             s.after_onset_s
         );
     }
+    // The commissioning command's thresholds from the calibration runs raise no alarm
+    // in the held-out runs either, through the gateway's own monitor.
+    assert_eq!(commissioned.alarms, []);
+    assert!(commissioned.hours > 0.0);
     Ok(())
 }
 
 #[test]
 #[ignore = "release-mode evaluation, about ten minutes: run with --ignored --nocapture"]
 fn full_race() -> anyhow::Result<()> {
-    race(&EvalPlan::full())?;
+    let (_, commissioned) = race(&EvalPlan::full())?;
+    assert_eq!(commissioned.alarms, []);
     Ok(())
 }

@@ -4,7 +4,7 @@
 
 use std::time::{Duration, Instant};
 
-use millgate::analysis::chatter_monitor::{ChatterMonitor, ChatterUpdate};
+use millgate::analysis::chatter::{ChatterMonitor, ChatterUpdate};
 use millgate_sim::tandem::simulate::{simulate, Accelerometer, Excitation, RunSettings, SpeedRamp};
 use millgate_sim::tandem::{PassSchedule, TandemMill};
 use millgate_tests::counting_allocator::{allocations_during, CountingAllocator};

@@ -60,19 +60,31 @@ const MAX_INTERFACE_NAME: usize = 15;
 /// Highest first register of a block: the block must end by register 65535.
 const MAX_BLOCK_BASE: i64 = 65_536 - BLOCK_REGISTERS as i64;
 
-/// Validates `raw`; paths are resolved against `base_dir`, those of files the gateway
-/// writes against the service folders `dirs` where set.
+/// What a configuration is loaded for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Purpose {
+    /// Running the service (or checking it): every key it needs.
+    Service,
+    /// Commissioning a tandem mill's chatter thresholds: `gain_thresholds` may be
+    /// missing (they are what commissioning computes).
+    Commissioning,
+}
+
+/// Validates `raw` for `purpose`; paths are resolved against `base_dir`, those of
+/// files the gateway writes against the service folders `dirs` where set.
 pub(crate) fn validate(
     raw: RawConfig,
     base_dir: &Path,
     dirs: &ServiceDirs,
     report: &mut Report,
+    purpose: Purpose,
 ) -> Option<Config> {
     let mut checker = Checker {
         base_dir,
         dirs,
         report,
         source_names: HashMap::new(),
+        purpose,
     };
     let name = checker.name("name", &raw.name);
     let cache_dir = match raw.cache_dir.as_deref() {
@@ -217,6 +229,7 @@ struct Checker<'a> {
     /// Source name -> key of the source that first used it (Modbus and CAN share
     /// one namespace).
     source_names: HashMap<String, String>,
+    purpose: Purpose,
 }
 
 mod channels;

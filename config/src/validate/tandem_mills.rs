@@ -4,7 +4,7 @@
 use crate::raw::RawTandemMill;
 use crate::{ChannelKind, ChatterDetectorKind, TandemMill};
 
-use super::{ChannelFacts, Checker, MAX_WINDOW_S, STANDS_RANGE};
+use super::{ChannelFacts, Checker, Purpose, MAX_WINDOW_S, STANDS_RANGE};
 
 /// Default gain window, s: the variant that won the race (`tests/src/chatter_eval.rs`).
 const DEFAULT_GAIN_WINDOW_S: f64 = 2.0;
@@ -228,11 +228,12 @@ impl Checker<'_> {
         );
         let thresholds_key = format!("{key}.gain_thresholds");
         let gain_thresholds = match (&raw.gain_thresholds, detector) {
-            (None, Some(ChatterDetectorKind::BandGain)) => {
+            (None, Some(ChatterDetectorKind::BandGain)) if self.purpose == Purpose::Service => {
                 self.report.push(
                     &thresholds_key,
                     "missing (the band-gain detector, the default, needs one alarm threshold \
-                     per stand, > 0, from stable rolling up to the highest allowed speed; or \
+                     per stand, > 0, from stable rolling up to the highest allowed speed: \
+                     `millgate chatter commission` computes them from stable recordings; or \
                      set detector = \"paper\")",
                 );
                 None

@@ -3,7 +3,7 @@
 use millgate_dsp::bite::BiteSettingsError;
 
 use super::bite_window::{PRE_TRIGGER_CAPACITY, WINDOW_CAPACITY};
-use super::chatter_monitor::ChatterSetupError;
+use super::chatter::ChatterSetupError;
 use super::rod_monitor::RodSetupError;
 
 /// A driveline or tandem mill of the configuration that the analysis cannot be built

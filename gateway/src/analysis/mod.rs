@@ -1,13 +1,13 @@
 //! The analysis task: samples in, bite and chatter results out. Only synchronous
 //! `dsp` code runs on the samples; this module routes each reader message to the
 //! drivelines whose torque or trigger it is ([`driveline`]) and to the tandem mills
-//! whose stand it is ([`chatter_monitor`]); process values that carry a rod mill's
+//! whose stand it is ([`chatter`]); process values that carry a rod mill's
 //! operating point go to its span stability monitor ([`rod_monitor`]). The gap maps
 //! of drivelines with a model are built elsewhere ([`gap_monitor::GapMapJob`], on
 //! threads of their own) and installed when ready ([`Analysis::install_gap_maps`]).
 
 pub mod bite_window;
-pub mod chatter_monitor;
+pub mod chatter;
 pub mod driveline;
 mod error;
 pub mod gap_estimate;
@@ -45,7 +45,7 @@ pub struct Analysis {
     board: Arc<Board>,
     bites: broadcast::Sender<BiteReport>,
     /// Chatter monitors of the tandem mills.
-    chatter: chatter_monitor::ChatterAnalysis,
+    chatter: chatter::ChatterAnalysis,
     /// Span stability monitors of the rod mills.
     rod_mills: rod_monitor::RodAnalysis,
 }
@@ -89,7 +89,7 @@ impl Analysis {
                 board.set_gap_maps(index, GapMapState::Failed(problem.to_string()));
             }
         }
-        let chatter = chatter_monitor::ChatterAnalysis::new(config, Arc::clone(&board))?;
+        let chatter = chatter::ChatterAnalysis::new(config, Arc::clone(&board))?;
         let rod_mills = rod_monitor::RodAnalysis::new(config, Arc::clone(&board))?;
         Ok(Self {
             drivelines,

@@ -12,7 +12,11 @@
 //! - `millgate stiffness --inertia Q1,Q2,Q3 (--freq B1,B2 | --stiffness C12,C23)
 //!   [--drawing C12,C23] [--format text|json]`: [`stiffness`]
 //! - `millgate chatter --input STANDS.csv --config MILL.toml [--mill NAME]
-//!   [--format text|json]`: [`chatter`] (the chatter monitor offline, per window)
+//!   [--format text|json] [--plot FILE.svg]`: [`chatter`] (the chatter monitor offline,
+//!   per window, each stand's band RMS and gain)
+//! - `millgate chatter commission --config MILL.toml --input STABLE.csv [--input ...]
+//!   [--mill NAME] [--margin PCT] [--speed-column NAME] [--format text|json]`: the
+//!   mill's `gain_thresholds` from stable recordings ([`chatter::commission`])
 //! - `millgate discrepancy --measured FILE.csv --model MODEL.toml [--channel NAME]
 //!   [--report DIR] [--format text|json]`: `discrepancy`
 //! - `millgate sim transient|modes|wear-map ...`: `sim`

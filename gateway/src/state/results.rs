@@ -76,7 +76,7 @@ pub struct GapResults {
     pub bites_pooled: usize,
 }
 
-/// Latest chatter figures of one tandem mill (see [`crate::analysis::chatter_monitor`]).
+/// Latest chatter figures of one tandem mill (see [`crate::analysis::chatter`]).
 /// `None` = not valid: not computed yet, or the window restarted after a gap or a
 /// stale stand.
 #[derive(Debug, Clone, Default, PartialEq)]

@@ -5,6 +5,10 @@
 //! block of every channel into its buffer and bumps the block's sequence number, as a
 //! real DAQ's firmware would. Process values are refreshed at the same moment with
 //! the signal's value at the end of the block.
+//!
+//! Streaming: a DAQ whose samples are made while it runs (the closed loop, whose mill
+//! is simulated a block at a time) is served with [`VirtualDaq::serve`] and given each
+//! block with [`VirtualDaq::publish`] by its owner, who keeps the time.
 
 use std::future::Future;
 use std::io;
@@ -139,35 +143,29 @@ impl VirtualDaq {
                     .copied()
                     .unwrap_or(0.0)
             };
-            let Placement {
-                table,
-                address,
-                scale,
-                offset,
-            } = channel.placement;
-            let registers = match table {
-                RegisterTable::Input => &mut bank.input,
-                RegisterTable::Holding => &mut bank.holding,
-            };
-            let base = usize::from(address);
-            match channel.publish {
-                Publish::Block => {
-                    let raw: Vec<i16> = (start..end)
-                        .map(|i| layout::to_raw_sample(at(i), scale, offset))
-                        .collect();
-                    layout::encode_block(self.sequence, &raw, &mut registers[base..]);
-                }
-                Publish::Value {
-                    value_type,
-                    word_order,
-                } => {
-                    let raw = (at(end - 1) - offset) / scale;
-                    let (words, used) = layout::encode_value(raw, value_type, word_order);
-                    registers[base..base + used].copy_from_slice(&words[..used]);
-                }
-            }
+            let values: Vec<f64> = (start..end).map(at).collect();
+            write_channel(&mut bank, channel, self.sequence, &values);
         }
         self.next_sample = end;
+    }
+
+    /// Publish one block given by the caller: `blocks[k]` holds the samples (at most
+    /// 120) of the k-th channel, in channel order; the sequence number advances. The
+    /// channels' own signals are not used.
+    pub fn publish(&mut self, blocks: &[&[f64]]) {
+        self.sequence = self.sequence.wrapping_add(1);
+        let mut bank = self.bank.lock();
+        for (channel, values) in self.channels.iter().zip(blocks) {
+            write_channel(&mut bank, channel, self.sequence, values);
+        }
+        self.next_sample += blocks.first().map_or(0, |b| b.len());
+    }
+
+    /// Serve the bank in the background until the handle is stopped, without
+    /// publishing: the owner publishes with [`VirtualDaq::publish`].
+    pub fn serve(&self, listener: TcpListener, options: ServeOptions) -> Running {
+        let bank = self.bank();
+        Running::spawn(|stop| serve(listener, bank, options, stop.wait()))
     }
 
     /// Serve and publish in the background until the handle is stopped.
@@ -194,6 +192,40 @@ impl VirtualDaq {
                 _ = ticks.tick() => self.publish_next_block(),
                 served = &mut server => return served.map_err(io::Error::other)?,
             }
+        }
+    }
+}
+
+/// Write `values` (samples of one block, or the value at its end) of `channel` into
+/// `bank`, with `sequence` for a block.
+fn write_channel(bank: &mut RegisterBank, channel: &DaqChannel, sequence: u16, values: &[f64]) {
+    let Placement {
+        table,
+        address,
+        scale,
+        offset,
+    } = channel.placement;
+    let registers = match table {
+        RegisterTable::Input => &mut bank.input,
+        RegisterTable::Holding => &mut bank.holding,
+    };
+    let base = usize::from(address);
+    match channel.publish {
+        Publish::Block => {
+            let raw: Vec<i16> = values
+                .iter()
+                .map(|&v| layout::to_raw_sample(v, scale, offset))
+                .collect();
+            layout::encode_block(sequence, &raw, &mut registers[base..]);
+        }
+        Publish::Value {
+            value_type,
+            word_order,
+        } => {
+            let last = values.last().copied().unwrap_or(0.0);
+            let raw = (last - offset) / scale;
+            let (words, used) = layout::encode_value(raw, value_type, word_order);
+            registers[base..base + used].copy_from_slice(&words[..used]);
         }
     }
 }
@@ -226,6 +258,16 @@ mod tests {
         assert_eq!(block.values(0.5, 0.0).next(), Some(50.0));
         assert_eq!(daq.samples_published(), 200);
         assert_eq!(daq.block_period(), Duration::from_millis(100));
+        drop(bank);
+        // A block given by the owner replaces the signal's next one.
+        let given: Vec<f64> = (0..100).map(|i| f64::from(i) * -0.5).collect();
+        daq.publish(&[&given]);
+        let bank = daq.bank();
+        let bank = bank.lock();
+        let block = layout::decode_block(&bank.input[10..]).unwrap();
+        assert_eq!(block.sequence, 3);
+        assert_eq!(block.values(0.5, 0.0).nth(7), Some(-3.5));
+        assert_eq!(daq.samples_published(), 300);
     }
 
     #[test]

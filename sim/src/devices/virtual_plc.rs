@@ -31,6 +31,16 @@ impl VirtualPlc {
         self.bank.lock().holding.clone()
     }
 
+    /// Bit `bit` (0 = least significant) of holding register `address`; false beyond
+    /// the table.
+    pub fn holding_bit(&self, address: usize, bit: u16) -> bool {
+        self.bank
+            .lock()
+            .holding
+            .get(address)
+            .is_some_and(|word| word & (1 << bit) != 0)
+    }
+
     /// Write requests served so far.
     pub fn writes(&self) -> u64 {
         self.bank.lock().writes

@@ -11,8 +11,13 @@
 //! - [`roots`]: characteristic roots with the delays, the critical speed.
 //! - [`simulate`]: time simulation with excitation, a speed ramp and accelerometers.
 //! - [`truth`]: the ground truth of a run: critical speed, onset, developed chatter.
+//! - [`control`]: the mill's speed automation obeying a chatter slow-down request.
+//! - [`online`]: the mill simulated one PLC cycle at a time, its speed set by the
+//!   automation while it runs (the closed loop's plant).
 
+pub mod control;
 pub mod linear;
+pub mod online;
 pub mod rollgap;
 pub mod roots;
 pub mod schedule;

@@ -19,7 +19,17 @@
 //! the work roll's angle (speed / radius) and random phases. Incoming gauge: a
 //! first-order low-pass of white noise (RMS and bandwidth). Tension steps: the payoff
 //! and coiler tensions (stand 1's back and the last stand's front) jump by given
-//! amounts at given times.
+//! amounts at given times. Noise bursts: the force noise louder by a factor for a
+//! while (a weld passing the stands), the mill's stability unchanged.
+//!
+//! **Stepping.** [`Simulation`] holds the whole state (rolls, tensions, the ring of
+//! exit gauges, the roll angles, the anti-alias filters, the random sources) and
+//! [`Simulation::advance`] appends the next samples with the speed the caller gives
+//! for them, so a controller can change the speed while the mill runs; [`simulate`]
+//! is one `advance` over a [`SpeedRamp`]. Advanced in pieces, a run is the same run
+//! (`sim/tests/tandem.rs` compares them sample by sample). The speed must stay within
+//! the [`SpeedRange`] the simulation was built for: the internal step is chosen for its
+//! top, the ring of exit gauges sized for its bottom.
 //!
 //! **Accelerometer.** The backup roll's acceleration (the chock moves with it in the
 //! lumped stack), optionally through a 4th-order Butterworth anti-alias low-pass at
@@ -123,6 +133,31 @@ pub struct Excitation {
     pub entry_gauge_bandwidth_hz: f64,
     /// Reel-tension steps, any order.
     pub tension_steps: Vec<TensionStep>,
+    /// Louder force noise for a while (a weld passing the stands), any order.
+    pub noise_bursts: Vec<NoiseBurst>,
+}
+
+/// The force noise on every work roll `factor` times louder from `time_s` for
+/// `duration_s`: an excitation step that leaves the mill's stability as it is (a weld
+/// or a rougher strip section passing the stands, all stands at once).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NoiseBurst {
+    /// Start, s, >= 0.
+    pub time_s: f64,
+    /// Length, s, > 0.
+    pub duration_s: f64,
+    /// Factor on the force-noise density, >= 1.
+    pub factor: f64,
+}
+
+impl Excitation {
+    /// The factor on the force noise at `t_s`: the largest of the bursts then, else 1.
+    pub fn force_noise_factor(&self, t_s: f64) -> f64 {
+        self.noise_bursts
+            .iter()
+            .filter(|b| t_s >= b.time_s && t_s < b.time_s + b.duration_s)
+            .fold(1.0, |factor, b| factor.max(b.factor))
+    }
 }
 
 impl Default for Excitation {
@@ -134,6 +169,7 @@ impl Default for Excitation {
             entry_gauge_rms_m: 4.0e-6,
             entry_gauge_bandwidth_hz: 2.0,
             tension_steps: Vec::new(),
+            noise_bursts: Vec::new(),
         }
     }
 }
@@ -194,6 +230,21 @@ pub enum RunError {
     Eigenvalues {
         /// The speed factor.
         speed: f64,
+    },
+    /// A speed given to [`Simulation::advance`] left the setup's [`SpeedRange`].
+    #[error(
+        "speed factor {speed} at t = {time_s:.3} s is outside the simulation's speed range \
+         {lowest} ..= {highest}"
+    )]
+    Speed {
+        /// When, s.
+        time_s: f64,
+        /// The speed factor asked for.
+        speed: f64,
+        /// Lowest speed factor of the setup.
+        lowest: f64,
+        /// Highest speed factor of the setup.
+        highest: f64,
     },
     /// The state left the finite numbers (a far unstable run).
     #[error(
@@ -286,59 +337,7 @@ impl RunSettings {
             r.accel_m_s2 >= 0.0,
             ">= 0 m/s^2",
         )?;
-        let e = &self.excitation;
-        check(
-            "excitation.force_noise_density",
-            e.force_noise_density,
-            e.force_noise_density >= 0.0,
-            ">= 0 N/sqrt(Hz)",
-        )?;
-        for value in e.eccentricity_m {
-            check("excitation.eccentricity_m", value, value >= 0.0, ">= 0 m")?;
-        }
-        check(
-            "excitation.entry_gauge_rms_m",
-            e.entry_gauge_rms_m,
-            e.entry_gauge_rms_m >= 0.0,
-            ">= 0 m",
-        )?;
-        check(
-            "excitation.entry_gauge_bandwidth_hz",
-            e.entry_gauge_bandwidth_hz,
-            e.entry_gauge_bandwidth_hz > 0.0,
-            "> 0 Hz",
-        )?;
-        for step in &e.tension_steps {
-            check(
-                "tension_steps.time_s",
-                step.time_s,
-                step.time_s >= 0.0,
-                ">= 0 s",
-            )?;
-            check("tension_steps.entry_mpa", step.entry_mpa, true, "finite")?;
-            check("tension_steps.exit_mpa", step.exit_mpa, true, "finite")?;
-        }
-        let s = &self.sensor;
-        check(
-            "sensor.sample_rate_hz",
-            s.sample_rate_hz,
-            (500.0..=20_000.0).contains(&s.sample_rate_hz),
-            "500 ..= 20000 Hz",
-        )?;
-        check(
-            "sensor.noise_rms",
-            s.noise_rms,
-            s.noise_rms >= 0.0,
-            ">= 0 m/s^2",
-        )?;
-        if let Some(rate) = self.internal_rate_hz {
-            check(
-                "internal_rate_hz",
-                rate,
-                (1000.0..=1.0e6).contains(&rate),
-                "1000 ..= 1e6 Hz",
-            )?;
-        }
+        self.setup().validate()?;
         check(
             "duration_s",
             self.duration_s,
@@ -347,6 +346,76 @@ impl RunSettings {
         )?;
         Ok(())
     }
+
+    /// The setup of this run: its speed range is the ramp's.
+    pub fn setup(&self) -> SimulationSetup {
+        SimulationSetup {
+            excitation: self.excitation.clone(),
+            sensor: self.sensor,
+            seed: self.seed,
+            internal_rate_hz: self.internal_rate_hz,
+            speeds: SpeedRange {
+                lowest: self.ramp.lowest(),
+                highest: self.ramp.highest(),
+            },
+        }
+    }
+}
+
+/// Checks the excitation's settings against their ranges.
+fn validate_excitation(e: &Excitation) -> Result<(), RunError> {
+    check(
+        "excitation.force_noise_density",
+        e.force_noise_density,
+        e.force_noise_density >= 0.0,
+        ">= 0 N/sqrt(Hz)",
+    )?;
+    for value in e.eccentricity_m {
+        check("excitation.eccentricity_m", value, value >= 0.0, ">= 0 m")?;
+    }
+    check(
+        "excitation.entry_gauge_rms_m",
+        e.entry_gauge_rms_m,
+        e.entry_gauge_rms_m >= 0.0,
+        ">= 0 m",
+    )?;
+    check(
+        "excitation.entry_gauge_bandwidth_hz",
+        e.entry_gauge_bandwidth_hz,
+        e.entry_gauge_bandwidth_hz > 0.0,
+        "> 0 Hz",
+    )?;
+    for step in &e.tension_steps {
+        check(
+            "tension_steps.time_s",
+            step.time_s,
+            step.time_s >= 0.0,
+            ">= 0 s",
+        )?;
+        check("tension_steps.entry_mpa", step.entry_mpa, true, "finite")?;
+        check("tension_steps.exit_mpa", step.exit_mpa, true, "finite")?;
+    }
+    for burst in &e.noise_bursts {
+        check(
+            "noise_bursts.time_s",
+            burst.time_s,
+            burst.time_s >= 0.0,
+            ">= 0 s",
+        )?;
+        check(
+            "noise_bursts.duration_s",
+            burst.duration_s,
+            burst.duration_s > 0.0,
+            "> 0 s",
+        )?;
+        check(
+            "noise_bursts.factor",
+            burst.factor,
+            burst.factor >= 1.0,
+            ">= 1",
+        )?;
+    }
+    Ok(())
 }
 
 /// The ring of exit-gauge deviations, one row of `stands` values per internal step;
@@ -425,192 +494,413 @@ impl RollAngle {
     }
 }
 
-/// Simulates `mill` under `settings` (see the module docs).
-pub fn simulate(mill: &TandemMill, settings: &RunSettings) -> Result<Record, RunError> {
-    settings.validate()?;
-    let n = mill.stands().len();
-    let len = mill.state_len();
-    let ramp = settings.ramp;
-    let exit_speed = mill.exit_speed(n - 1, 1.0);
-    let fs = settings.sensor.sample_rate_hz;
+/// A run's speeds: the range every speed factor it is driven at stays within. The
+/// internal step is chosen for the highest (the fastest dynamics), the ring of exit
+/// gauges sized for the lowest (the longest transport delay).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SpeedRange {
+    /// Lowest speed factor, > 0.
+    pub lowest: f64,
+    /// Highest speed factor, >= `lowest`.
+    pub highest: f64,
+}
 
-    // Internal rate: >= 10 kHz and h |mu|_max <= 0.8 (RK4 is stable to 2.8).
-    let spectral = spectral_radius(mill, ramp.highest())?;
-    let wanted = settings
-        .internal_rate_hz
-        .unwrap_or(MIN_INTERNAL_RATE_HZ.max(spectral / 0.8));
-    let substeps = (wanted / fs).ceil().max(1.0) as usize;
-    let h = 1.0 / (fs * substeps as f64);
-    let samples = (settings.duration_s * fs).round() as usize;
+/// What a simulation is built with, whatever drives its speed: a [`SpeedRamp`]
+/// ([`simulate`]) or a controller acting while it runs ([`Simulation::advance`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SimulationSetup {
+    /// Excitation.
+    pub excitation: Excitation,
+    /// Measurement.
+    pub sensor: Accelerometer,
+    /// Seed of every random source.
+    pub seed: u64,
+    /// Internal integration rate, Hz; `None` chooses it (see the module docs).
+    pub internal_rate_hz: Option<f64>,
+    /// The speeds the run stays within.
+    pub speeds: SpeedRange,
+}
 
-    let tau_max = mill.delay_s(0, ramp.lowest());
-    let mut history = GaugeHistory::new((tau_max / h).ceil() as usize + 8, n);
+impl SimulationSetup {
+    /// Checks every setting against its range.
+    pub fn validate(&self) -> Result<(), RunError> {
+        let speeds = &self.speeds;
+        check("speeds.lowest", speeds.lowest, speeds.lowest > 0.0, "> 0")?;
+        check(
+            "speeds.highest",
+            speeds.highest,
+            speeds.highest >= speeds.lowest,
+            ">= speeds.lowest",
+        )?;
+        validate_excitation(&self.excitation)?;
+        let s = &self.sensor;
+        check(
+            "sensor.sample_rate_hz",
+            s.sample_rate_hz,
+            (500.0..=20_000.0).contains(&s.sample_rate_hz),
+            "500 ..= 20000 Hz",
+        )?;
+        check(
+            "sensor.noise_rms",
+            s.noise_rms,
+            s.noise_rms >= 0.0,
+            ">= 0 m/s^2",
+        )?;
+        if let Some(rate) = self.internal_rate_hz {
+            check(
+                "internal_rate_hz",
+                rate,
+                (1000.0..=1.0e6).contains(&rate),
+                "1000 ..= 1e6 Hz",
+            )?;
+        }
+        Ok(())
+    }
+}
 
-    let mut rng = SmallRng::seed_from_u64(settings.seed);
-    let excitation = &settings.excitation;
-    let mut angles: Vec<RollAngle> = (0..n)
-        .map(|_| {
-            let [p1, p2] = [rng.random::<f64>() * TAU, rng.random::<f64>() * TAU];
-            RollAngle {
-                cos: 1.0,
-                sin: 0.0,
-                phases: [(p1.cos(), p1.sin()), (p2.cos(), p2.sin())],
-            }
-        })
-        .collect();
-    let radius = mill.roll_radius_m();
-    let force_sigma = excitation.force_noise_density * (0.5 / h).sqrt();
-    let gauge_decay = (-TAU * excitation.entry_gauge_bandwidth_hz * h).exp();
-    let gauge_kick = excitation.entry_gauge_rms_m * (1.0 - gauge_decay * gauge_decay).sqrt();
-    let mut gauge = excitation.entry_gauge_rms_m * rng.sample::<f64, _>(StandardNormal);
-    let mut steps = excitation.tension_steps.clone();
-    steps.sort_by(|a, b| a.time_s.total_cmp(&b.time_s));
-    let boundary = |t: f64| {
-        steps
-            .iter()
-            .take_while(|s| s.time_s <= t)
-            .fold((0.0, 0.0), |(a, b), s| {
-                (a + s.entry_mpa * 1e6, b + s.exit_mpa * 1e6)
+/// A tandem mill simulated step by step: [`Simulation::advance`] appends the next
+/// samples to a record, its speed given by the caller for those samples, the state
+/// (rolls, tensions, delayed gauges, filters, random sources) carried over. A run
+/// advanced in pieces equals the run advanced at once with the same speeds.
+pub struct Simulation {
+    mill: TandemMill,
+    excitation: Excitation,
+    sensor: Accelerometer,
+    speeds: SpeedRange,
+    substeps: usize,
+    /// Internal step, s.
+    h: f64,
+    /// Internal steps done.
+    step: usize,
+    history: GaugeHistory,
+    rng: SmallRng,
+    angles: Vec<RollAngle>,
+    force_sigma: f64,
+    gauge_decay: f64,
+    gauge_kick: f64,
+    gauge: f64,
+    /// The reel-tension steps in time order.
+    tension_steps: Vec<TensionStep>,
+    anti_alias: Cascade<2>,
+    filter_state: Vec<[BiquadState; 2]>,
+    x: Vec<f64>,
+    stage: Vec<f64>,
+    k: [Vec<f64>; 4],
+    gap_now: [f64; MAX_STANDS],
+    /// The last step's end inputs, reused as the next step's start.
+    carried: Option<(f64, Inputs)>,
+}
+
+// By hand: the state vectors and filters are not worth printing.
+impl std::fmt::Debug for Simulation {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Simulation")
+            .field("stands", &self.mill.stands().len())
+            .field("time_s", &self.time_s())
+            .field("substeps", &self.substeps)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Simulation {
+    /// `mill` in its schedule's steady state at t = 0 (all deviations 0), to be run
+    /// under `setup`.
+    pub fn new(mill: &TandemMill, setup: &SimulationSetup) -> Result<Simulation, RunError> {
+        setup.validate()?;
+        let n = mill.stands().len();
+        let len = mill.state_len();
+        let fs = setup.sensor.sample_rate_hz;
+
+        // Internal rate: >= 10 kHz and h |mu|_max <= 0.8 (RK4 is stable to 2.8).
+        let spectral = spectral_radius(mill, setup.speeds.highest)?;
+        let wanted = setup
+            .internal_rate_hz
+            .unwrap_or(MIN_INTERNAL_RATE_HZ.max(spectral / 0.8));
+        let substeps = (wanted / fs).ceil().max(1.0) as usize;
+        let h = 1.0 / (fs * substeps as f64);
+
+        let tau_max = mill.delay_s(0, setup.speeds.lowest);
+        let history = GaugeHistory::new((tau_max / h).ceil() as usize + 8, n);
+
+        let mut rng = SmallRng::seed_from_u64(setup.seed);
+        let excitation = setup.excitation.clone();
+        let angles: Vec<RollAngle> = (0..n)
+            .map(|_| {
+                let [p1, p2] = [rng.random::<f64>() * TAU, rng.random::<f64>() * TAU];
+                RollAngle {
+                    cos: 1.0,
+                    sin: 0.0,
+                    phases: [(p1.cos(), p1.sin()), (p2.cos(), p2.sin())],
+                }
             })
-    };
+            .collect();
+        let force_sigma = excitation.force_noise_density * (0.5 / h).sqrt();
+        let gauge_decay = (-TAU * excitation.entry_gauge_bandwidth_hz * h).exp();
+        let gauge_kick = excitation.entry_gauge_rms_m * (1.0 - gauge_decay * gauge_decay).sqrt();
+        let gauge = excitation.entry_gauge_rms_m * rng.sample::<f64, _>(StandardNormal);
+        let mut tension_steps = excitation.tension_steps.clone();
+        tension_steps.sort_by(|a, b| a.time_s.total_cmp(&b.time_s));
 
-    let anti_alias =
-        Cascade::<2>::butterworth_lowpass(0.4 * fs, fs * substeps as f64).map_err(|_| {
-            RunError::Setting {
+        let anti_alias = Cascade::<2>::butterworth_lowpass(0.4 * fs, fs * substeps as f64)
+            .map_err(|_| RunError::Setting {
                 key: "sensor.sample_rate_hz",
                 value: fs,
                 allowed: "500 ..= 20000 Hz",
-            }
-        })?;
-    let mut filter_state = vec![[BiquadState::default(); 2]; n];
-
-    let mut record = Record {
-        sample_rate_hz: fs,
-        acceleration: vec![Vec::with_capacity(samples); n],
-        speed: Vec::with_capacity(samples),
-        tension_pa: vec![Vec::with_capacity(samples); n - 1],
-    };
-
-    let mut x = vec![0.0; len];
-    let mut stage = vec![0.0; len];
-    let mut k = [
-        vec![0.0; len],
-        vec![0.0; len],
-        vec![0.0; len],
-        vec![0.0; len],
-    ];
-    let amplitudes = excitation.eccentricity_m;
-    let mut gap_now = [0.0; MAX_STANDS];
-    for (slot, angle) in gap_now.iter_mut().zip(&angles) {
-        *slot = angle.eccentricity(amplitudes);
+            })?;
+        let mut gap_now = [0.0; MAX_STANDS];
+        for (slot, angle) in gap_now.iter_mut().zip(&angles) {
+            *slot = angle.eccentricity(excitation.eccentricity_m);
+        }
+        Ok(Simulation {
+            mill: mill.clone(),
+            excitation,
+            sensor: setup.sensor,
+            speeds: setup.speeds,
+            substeps,
+            h,
+            step: 0,
+            history,
+            rng,
+            angles,
+            force_sigma,
+            gauge_decay,
+            gauge_kick,
+            gauge,
+            tension_steps,
+            anti_alias,
+            filter_state: vec![[BiquadState::default(); 2]; n],
+            x: vec![0.0; len],
+            stage: vec![0.0; len],
+            k: [
+                vec![0.0; len],
+                vec![0.0; len],
+                vec![0.0; len],
+                vec![0.0; len],
+            ],
+            gap_now,
+            carried: None,
+        })
     }
-    let mut row = [0.0; MAX_STANDS];
-    let mut carried: Option<(f64, Inputs)> = None;
-    let total_steps = samples * substeps;
-    for step in 0..total_steps {
-        let t = step as f64 * h;
-        // Excitation over this step: noise held, eccentricity and gauge interpolated.
-        let mut force = [0.0; MAX_STANDS];
-        for value in force.iter_mut().take(n) {
-            *value = force_sigma * rng.sample::<f64, _>(StandardNormal);
-        }
-        let speed_start = ramp.speed_at(t, exit_speed);
-        let speed_end = ramp.speed_at(t + h, exit_speed);
-        let mut gap_next = [0.0; MAX_STANDS];
-        for ((slot, angle), model) in gap_next.iter_mut().zip(&mut angles).zip(mill.stands()) {
-            angle.turn(0.5 * (speed_start + speed_end) * model.roll_speed / radius * h);
-            *slot = angle.eccentricity(amplitudes);
-        }
-        let gauge_next = gauge * gauge_decay + gauge_kick * rng.sample::<f64, _>(StandardNormal);
-        let (entry_tension, exit_tension) = boundary(t);
 
-        // Inputs at t, t + h/2 and t + h: the step's start reuses the last step's end
-        // (the delayed gauges only read rows stored before), with this step's noise.
-        let inputs_at = |weight: f64| {
-            let t_stage = t + weight * h;
-            let speed = ramp.speed_at(t_stage, exit_speed);
-            let mut inputs = Inputs {
-                entry_tension_pa: entry_tension,
-                exit_tension_pa: exit_tension,
-                force_n: force,
-                ..Inputs::default()
-            };
-            inputs.entry_thickness_m[0] = gauge + weight * (gauge_next - gauge);
-            for stand in 0..n {
-                inputs.gap_offset_m[stand] =
-                    gap_now[stand] + weight * (gap_next[stand] - gap_now[stand]);
-                if stand + 1 < n {
-                    let delay = mill.delay_s(stand, speed);
-                    inputs.entry_thickness_m[stand + 1] = history.at(stand, (t_stage - delay) / h);
+    /// The simulated mill.
+    pub fn mill(&self) -> &TandemMill {
+        &self.mill
+    }
+
+    /// Time of the next sample, s.
+    pub fn time_s(&self) -> f64 {
+        self.samples() as f64 / self.sensor.sample_rate_hz
+    }
+
+    /// Samples produced so far (per stand).
+    pub fn samples(&self) -> usize {
+        self.step.div_ceil(self.substeps)
+    }
+
+    /// An empty record for this simulation's output, with room for `samples`.
+    pub fn record(&self, samples: usize) -> Record {
+        let n = self.mill.stands().len();
+        Record {
+            sample_rate_hz: self.sensor.sample_rate_hz,
+            acceleration: vec![Vec::with_capacity(samples); n],
+            speed: Vec::with_capacity(samples),
+            tension_pa: vec![Vec::with_capacity(samples); n - 1],
+        }
+    }
+
+    /// Simulate the next `samples` output samples, appending them to `record`;
+    /// `speed(t)` is the speed factor at time `t` (s since the run's start) over
+    /// them, within the setup's [`SpeedRange`].
+    pub fn advance(
+        &mut self,
+        samples: usize,
+        speed: impl Fn(f64) -> f64,
+        record: &mut Record,
+    ) -> Result<(), RunError> {
+        // Disjoint borrows of the state for the hot loop.
+        let Simulation {
+            mill,
+            excitation,
+            sensor,
+            speeds,
+            substeps,
+            h,
+            step: done,
+            history,
+            rng,
+            angles,
+            force_sigma,
+            gauge_decay,
+            gauge_kick,
+            gauge: gauge_state,
+            tension_steps,
+            anti_alias,
+            filter_state,
+            x,
+            stage,
+            k,
+            gap_now: gap_state,
+            carried,
+        } = self;
+        let (substeps, h) = (*substeps, *h);
+        let n = mill.stands().len();
+        let radius = mill.roll_radius_m();
+        let amplitudes = excitation.eccentricity_m;
+        let (lowest, highest) = (speeds.lowest, speeds.highest);
+        let mut row = [0.0; MAX_STANDS];
+        let mut gap_now = *gap_state;
+        let mut gauge = *gauge_state;
+        let first = *done;
+        let mut next = first;
+        let mut failed = None;
+        for step in first..first + samples * substeps {
+            let t = step as f64 * h;
+            // Excitation over this step: noise held, eccentricity and gauge interpolated.
+            let sigma = *force_sigma * excitation.force_noise_factor(t);
+            let mut force = [0.0; MAX_STANDS];
+            for value in force.iter_mut().take(n) {
+                *value = sigma * rng.sample::<f64, _>(StandardNormal);
+            }
+            let speed_start = speed(t);
+            let speed_end = speed(t + h);
+            for value in [speed_start, speed_end] {
+                if !(value >= lowest && value <= highest) {
+                    failed = Some(RunError::Speed {
+                        time_s: t,
+                        speed: value,
+                        lowest,
+                        highest,
+                    });
                 }
             }
-            (speed, inputs)
-        };
-        let start = match carried.take() {
-            Some((speed, inputs)) => (
-                speed,
-                Inputs {
-                    force_n: force,
+            if failed.is_some() {
+                break;
+            }
+            let mut gap_next = [0.0; MAX_STANDS];
+            for ((slot, angle), model) in gap_next
+                .iter_mut()
+                .zip(angles.iter_mut())
+                .zip(mill.stands())
+            {
+                angle.turn(0.5 * (speed_start + speed_end) * model.roll_speed / radius * h);
+                *slot = angle.eccentricity(amplitudes);
+            }
+            let gauge_next =
+                gauge * *gauge_decay + *gauge_kick * rng.sample::<f64, _>(StandardNormal);
+            let (entry_tension, exit_tension) = tension_steps
+                .iter()
+                .take_while(|s| s.time_s <= t)
+                .fold((0.0, 0.0), |(a, b), s| {
+                    (a + s.entry_mpa * 1e6, b + s.exit_mpa * 1e6)
+                });
+
+            // Inputs at t, t + h/2 and t + h: the step's start reuses the last step's
+            // end (the delayed gauges only read rows stored before), with this step's
+            // noise.
+            let inputs_at = |weight: f64| {
+                let t_stage = t + weight * h;
+                let speed = speed(t_stage);
+                let mut inputs = Inputs {
                     entry_tension_pa: entry_tension,
                     exit_tension_pa: exit_tension,
-                    ..inputs
-                },
-            ),
-            None => inputs_at(0.0),
-        };
-        let middle = inputs_at(0.5);
-        let end = inputs_at(1.0);
-        for (s, (weight, &(speed, ref inputs))) in
-            [(0.0, &start), (0.5, &middle), (0.5, &middle), (1.0, &end)]
-                .into_iter()
-                .enumerate()
-        {
-            if s == 0 {
-                stage.copy_from_slice(&x);
-            } else {
-                for ((value, x0), previous) in stage.iter_mut().zip(&x).zip(&k[s - 1]) {
-                    *value = x0 + weight * h * previous;
-                }
-            }
-            mill.derivative(speed, &stage, inputs, &mut k[s]);
-            if s == 0 {
-                // The state at t: keep the exit gauges, feed the accelerometers.
-                for (stand, slot) in row.iter_mut().enumerate().take(n) {
-                    *slot = mill.gap_deviation(&x, inputs, stand);
-                }
-                history.push(&row);
-                let sample_due = step % substeps == 0;
+                    force_n: force,
+                    ..Inputs::default()
+                };
+                inputs.entry_thickness_m[0] = gauge + weight * (gauge_next - gauge);
                 for stand in 0..n {
-                    let acceleration = k[0][TandemMill::work_roll(stand) + 3];
-                    let filtered = if settings.sensor.anti_alias {
-                        anti_alias.process(&mut filter_state[stand], acceleration)
-                    } else {
-                        acceleration
-                    };
-                    if sample_due {
-                        let noise =
-                            settings.sensor.noise_rms * rng.sample::<f64, _>(StandardNormal);
-                        record.acceleration[stand].push(filtered + noise);
+                    inputs.gap_offset_m[stand] =
+                        gap_now[stand] + weight * (gap_next[stand] - gap_now[stand]);
+                    if stand + 1 < n {
+                        let delay = mill.delay_s(stand, speed);
+                        inputs.entry_thickness_m[stand + 1] =
+                            history.at(stand, (t_stage - delay) / h);
                     }
                 }
-                if sample_due {
-                    record.speed.push(speed);
-                    for (j, tension) in record.tension_pa.iter_mut().enumerate() {
-                        tension.push(x[mill.tension(j)]);
+                (speed, inputs)
+            };
+            let start = match carried.take() {
+                Some((speed, inputs)) => (
+                    speed,
+                    Inputs {
+                        force_n: force,
+                        entry_tension_pa: entry_tension,
+                        exit_tension_pa: exit_tension,
+                        ..inputs
+                    },
+                ),
+                None => inputs_at(0.0),
+            };
+            let middle = inputs_at(0.5);
+            let end = inputs_at(1.0);
+            for (s, (weight, &(speed, ref inputs))) in
+                [(0.0, &start), (0.5, &middle), (0.5, &middle), (1.0, &end)]
+                    .into_iter()
+                    .enumerate()
+            {
+                if s == 0 {
+                    stage.copy_from_slice(x);
+                } else {
+                    for ((value, x0), previous) in stage.iter_mut().zip(x.iter()).zip(&k[s - 1]) {
+                        *value = x0 + weight * h * previous;
+                    }
+                }
+                mill.derivative(speed, stage, inputs, &mut k[s]);
+                if s == 0 {
+                    // The state at t: keep the exit gauges, feed the accelerometers.
+                    for (stand, slot) in row.iter_mut().enumerate().take(n) {
+                        *slot = mill.gap_deviation(x, inputs, stand);
+                    }
+                    history.push(&row);
+                    let sample_due = step.is_multiple_of(substeps);
+                    for stand in 0..n {
+                        let acceleration = k[0][TandemMill::work_roll(stand) + 3];
+                        let filtered = if sensor.anti_alias {
+                            anti_alias.process(&mut filter_state[stand], acceleration)
+                        } else {
+                            acceleration
+                        };
+                        if sample_due {
+                            let noise = sensor.noise_rms * rng.sample::<f64, _>(StandardNormal);
+                            record.acceleration[stand].push(filtered + noise);
+                        }
+                    }
+                    if sample_due {
+                        record.speed.push(speed);
+                        for (j, tension) in record.tension_pa.iter_mut().enumerate() {
+                            tension.push(x[mill.tension(j)]);
+                        }
                     }
                 }
             }
+            let [k0, k1, k2, k3] = &*k;
+            for ((((value, a), b), c), d) in x.iter_mut().zip(k0).zip(k1).zip(k2).zip(k3) {
+                *value += h / 6.0 * (a + 2.0 * b + 2.0 * c + d);
+            }
+            if !x.iter().all(|v| v.is_finite()) {
+                failed = Some(RunError::Diverged { time_s: t + h });
+                break;
+            }
+            gap_now = gap_next;
+            gauge = gauge_next;
+            *carried = Some(end);
+            next = step + 1;
         }
-        for i in 0..len {
-            x[i] += h / 6.0 * (k[0][i] + 2.0 * k[1][i] + 2.0 * k[2][i] + k[3][i]);
-        }
-        if !x.iter().all(|v| v.is_finite()) {
-            return Err(RunError::Diverged { time_s: t + h });
-        }
-        gap_now = gap_next;
-        gauge = gauge_next;
-        carried = Some(end);
+        *done = next;
+        *gap_state = gap_now;
+        *gauge_state = gauge;
+        failed.map_or(Ok(()), Err)
     }
+}
+
+/// Simulates `mill` under `settings` (see the module docs).
+pub fn simulate(mill: &TandemMill, settings: &RunSettings) -> Result<Record, RunError> {
+    settings.validate()?;
+    let ramp = settings.ramp;
+    let mut simulation = Simulation::new(mill, &settings.setup())?;
+    let exit_speed = mill.exit_speed(mill.stands().len() - 1, 1.0);
+    let samples = (settings.duration_s * settings.sensor.sample_rate_hz).round() as usize;
+    let mut record = simulation.record(samples);
+    simulation.advance(samples, |t| ramp.speed_at(t, exit_speed), &mut record)?;
     Ok(record)
 }
 

@@ -49,14 +49,46 @@ pub fn ground_truth(
 /// First time an interstand tension deviates by more than
 /// [`DEVELOPED_TENSION_FRACTION`] of its schedule value, s.
 pub fn developed_time(mill: &TandemMill, record: &Record) -> Option<f64> {
+    first_developed(mill, record, 0..record.len()).map(|k| k as f64 / record.sample_rate_hz)
+}
+
+/// The first sample in `range` of `record` where an interstand tension deviates by
+/// more than [`DEVELOPED_TENSION_FRACTION`] of its schedule value.
+pub fn first_developed(
+    mill: &TandemMill,
+    record: &Record,
+    range: std::ops::Range<usize>,
+) -> Option<usize> {
     record
         .tension_pa
         .iter()
         .enumerate()
         .filter_map(|(j, tension)| {
-            let limit = DEVELOPED_TENSION_FRACTION * mill.nominal_tension_pa(j);
-            tension.iter().position(|d| d.abs() > limit)
+            let limit = developed_limit_pa(mill, j);
+            tension[range.clone()].iter().position(|d| d.abs() > limit)
         })
         .min()
-        .map(|k| k as f64 / record.sample_rate_hz)
+        .map(|k| range.start + k)
+}
+
+/// The tension deviation between stands `j` and `j + 1` that counts as developed
+/// chatter, Pa.
+pub fn developed_limit_pa(mill: &TandemMill, interstand: usize) -> f64 {
+    DEVELOPED_TENSION_FRACTION * mill.nominal_tension_pa(interstand)
+}
+
+/// The chatter amplitude of samples `range` of `record`: the largest interstand
+/// tension deviation over its developed limit (above 1: developed chatter).
+pub fn tension_swing(mill: &TandemMill, record: &Record, range: std::ops::Range<usize>) -> f64 {
+    record
+        .tension_pa
+        .iter()
+        .enumerate()
+        .map(|(j, tension)| {
+            let limit = developed_limit_pa(mill, j);
+            tension[range.clone()]
+                .iter()
+                .fold(0.0_f64, |largest, d| largest.max(d.abs() / limit))
+        })
+        .fold(0.0, f64::max)
 }

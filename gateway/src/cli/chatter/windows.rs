@@ -1,39 +1,40 @@
 //! `millgate chatter --input stands.csv --config MILL.toml [--mill NAME] [--format
-//! text|json]`: a recorded (or simulated, `millgate sim tandem`) CSV of a tandem mill's
-//! stand vibrations through the service's own chatter monitor, offline.
+//! text|json] [--plot FILE.svg]`: a recorded (or simulated, `millgate sim tandem`) CSV
+//! of a tandem mill's stand vibrations through the service's own chatter monitor,
+//! offline.
 //!
 //! The CSV's columns are named after the mill's stand channels (`t,s1_vib,...`); its
-//! sample rate must be the channels'. The samples go to
-//! [`ChatterMonitor`] in 120-sample blocks (a Modbus DAQ's), stamped with their own
-//! sample time, and every evaluated window is judged as the service judges it
-//! ([`ChatterMonitor::judge`]): one row per window with per-stand principal frequency
-//! and chatter-band RMS, sigma_n, K_mean, the gain ratio (the early-warning figure) and
-//! the flags; the first warning and alarm times at the end. `--plot FILE.svg` (with the
-//! default `sim-tools` feature) draws the per-stand band RMS, the gain ratio and the
+//! sample rate must be the channels'. The samples go to the monitor in 120-sample
+//! blocks (a Modbus DAQ's), stamped with their own sample time, and every evaluated
+//! window is judged as the service judges it ([`ChatterMonitor::judge`]): one row per
+//! window with per stand the principal frequency, the chatter-band RMS and the
+//! chatter-band gain (what commissioning reads), sigma_n, K_mean, the gain ratio (the
+//! early-warning figure) and the flags; the first warning and alarm times at the end.
+//! The configuration may leave out `gain_thresholds` (a mill not yet commissioned):
+//! the gains are then reported without a ratio. `--plot FILE.svg` (with the default
+//! `sim-tools` feature) draws the per-stand band RMS and gain, the gain ratio and the
 //! flags over time.
+//!
+//! [`ChatterMonitor::judge`]: crate::analysis::chatter::ChatterMonitor::judge
 
 use std::path::PathBuf;
-use std::time::{Duration, Instant};
 
-use anyhow::{bail, Context};
+#[cfg(feature = "sim-tools")]
+use anyhow::Context;
 use serde::Serialize;
 
-use super::OutputFormat;
-use crate::analysis::chatter_monitor::{ChatterMonitor, ChatterUpdate};
+use super::recording::{mill_index, windows, Recording};
+use crate::cli::OutputFormat;
 
-/// Samples per block fed to the monitor, as a Modbus DAQ delivers them.
-const BLOCK: usize = 120;
-/// Largest relative difference between the CSV's and the channels' sample rate.
-const RATE_TOLERANCE: f64 = 0.01;
-
-/// Arguments of `millgate chatter`.
-#[derive(Debug, clap::Args)]
-pub struct ChatterArgs {
+/// Arguments of `millgate chatter` (without a subcommand).
+#[derive(Debug, Clone, clap::Args)]
+pub struct WindowsArgs {
     /// CSV with a header `t,<stand channel>,...` (t in s, accelerations in the
     /// channels' unit).
     #[arg(long)]
     pub input: PathBuf,
-    /// Gateway configuration with the `[[tandem_mills]]` entry.
+    /// Gateway configuration with the `[[tandem_mills]]` entry (`gain_thresholds` may
+    /// be left out).
     #[arg(long)]
     pub config: PathBuf,
     /// Name of the tandem mill (default: the first one).
@@ -42,7 +43,8 @@ pub struct ChatterArgs {
     /// Output format.
     #[arg(long, value_enum, default_value = "text")]
     pub format: OutputFormat,
-    /// Also draw the per-stand band RMS, the gain ratio and the flags over time (SVG).
+    /// Also draw the per-stand band RMS and gain, the gain ratio and the flags over
+    /// time (SVG).
     #[cfg(feature = "sim-tools")]
     #[arg(long)]
     pub plot: Option<PathBuf>,
@@ -55,6 +57,9 @@ pub struct StandRow {
     pub principal_hz: f64,
     /// Chatter-band RMS over the gain's window, channel unit; `None` until it is full.
     pub band_rms: Option<f64>,
+    /// Chatter-band gain (chatter-band RMS / reference-band RMS) over the gain's
+    /// window; `None` until it is full.
+    pub gain: Option<f64>,
 }
 
 /// One evaluated window.
@@ -91,7 +96,7 @@ pub struct ChatterReport {
 }
 
 /// Runs `millgate chatter`: returns what it prints.
-pub fn run(args: &ChatterArgs) -> anyhow::Result<String> {
+pub fn run(args: &WindowsArgs) -> anyhow::Result<String> {
     let report = analyze(args)?;
     #[cfg(feature = "sim-tools")]
     if let Some(path) = &args.plot {
@@ -105,94 +110,39 @@ pub fn run(args: &ChatterArgs) -> anyhow::Result<String> {
 }
 
 /// The report of `args` (see the module docs).
-pub fn analyze(args: &ChatterArgs) -> anyhow::Result<ChatterReport> {
-    let config = millgate_config::load(&args.config)?;
-    let index = match &args.mill {
-        None if config.tandem_mills.is_empty() => {
-            bail!("{}: no [[tandem_mills]]", args.config.display())
-        }
-        None => 0,
-        Some(name) => config
-            .tandem_mills
-            .iter()
-            .position(|m| &m.name == name)
-            .with_context(|| {
-                let names: Vec<_> = config
-                    .tandem_mills
-                    .iter()
-                    .map(|m| m.name.as_str())
-                    .collect();
-                format!(
-                    "--mill {name}: no such tandem mill in {} (mills: {})",
-                    args.config.display(),
-                    names.join(", ")
-                )
-            })?,
-    };
-    let mill = &config.tandem_mills[index];
-    let input = args.input.display();
-    let table = super::csv::read(&args.input).with_context(|| format!("{input}"))?;
-    let mut stands = Vec::new();
-    for &channel in &mill.stands {
-        let name = &config.channels[channel].name;
-        let values = table.channel(name).with_context(|| {
-            format!(
-                "{input}: line 1: no column `{name}` for a stand of tandem mill \"{}\" (columns: {})",
-                mill.name,
-                table.names.join(", ")
-            )
-        })?;
-        stands.push(values);
-    }
-    let rate_hz = config.channels[mill.stands[0]].sample_rate_hz;
-    let csv_rate_hz = table
-        .sample_rate_hz()
-        .map_err(|e| anyhow::anyhow!("{input}: {e}"))?;
-    if (csv_rate_hz / rate_hz - 1.0).abs() > RATE_TOLERANCE {
-        bail!(
-            "{input}: sample rate {csv_rate_hz:.1} Hz from column t, the stand channels sample at \
-             {rate_hz} Hz (must agree within {}%)",
-            RATE_TOLERANCE * 100.0
-        );
-    }
-    let mut monitor = ChatterMonitor::new(&config, index)?;
-    let mut slow_down = monitor.slow_down();
-    let period = Duration::from_secs_f64(BLOCK as f64 / rate_hz);
-    let t0 = Instant::now();
-    let mut windows = Vec::new();
-    for (b, start) in (0..table.time_s.len()).step_by(BLOCK).enumerate() {
-        let end = (start + BLOCK).min(table.time_s.len());
-        for (s, values) in stands.iter().enumerate() {
-            let Some(change) = monitor.samples(s, &values[start..end], t0 + period * b as u32)
-            else {
-                continue;
-            };
-            let verdict = monitor.judge(&change, &mut slow_down);
-            let ChatterUpdate::Evaluated(result) = change else {
-                continue;
-            };
-            let last = usize::try_from(monitor.last_window_end() - 1).unwrap_or(0);
-            let gain = monitor.gain_window();
-            windows.push(WindowRow {
-                t_s: table.time_s[last.min(table.time_s.len() - 1)],
-                stands: result
-                    .stands
-                    .iter()
-                    .enumerate()
-                    .map(|(stand, metrics)| StandRow {
-                        principal_hz: metrics.principal_hz,
-                        band_rms: gain.and_then(|g| g.band_rms.get(stand).copied()),
-                    })
-                    .collect(),
-                sigma_n_hz: result.sigma_n_hz,
-                k_mean: result.k_mean,
-                gain_ratio: monitor.gain().and_then(|g| g.ratio).map(|(ratio, _)| ratio),
-                warning: verdict.warning,
-                alarm: verdict.alarm,
-                slow_down: verdict.slow_down,
-            });
-        }
-    }
+pub fn analyze(args: &WindowsArgs) -> anyhow::Result<ChatterReport> {
+    let config = millgate_config::load_uncommissioned(&args.config)?;
+    let index = mill_index(&config, args.mill.as_deref(), &args.config)?;
+    let recording = Recording::read(&args.input, &config, index, None)?;
+    let windows: Vec<WindowRow> = windows(&config, index, &recording)?
+        .into_iter()
+        .map(|window| WindowRow {
+            t_s: window.t_s,
+            stands: window
+                .result
+                .stands
+                .iter()
+                .enumerate()
+                .map(|(stand, metrics)| StandRow {
+                    principal_hz: metrics.principal_hz,
+                    band_rms: window
+                        .gain
+                        .as_ref()
+                        .and_then(|g| g.band_rms.get(stand).copied()),
+                    gain: window
+                        .gain
+                        .as_ref()
+                        .and_then(|g| g.gain.get(stand).copied()),
+                })
+                .collect(),
+            sigma_n_hz: window.result.sigma_n_hz,
+            k_mean: window.result.k_mean,
+            gain_ratio: window.gain_ratio,
+            warning: window.verdict.warning,
+            alarm: window.verdict.alarm,
+            slow_down: window.verdict.slow_down,
+        })
+        .collect();
     let first = |pick: fn(&WindowRow) -> bool| windows.iter().find(|w| pick(w)).map(|w| w.t_s);
     Ok(ChatterReport {
         first_warning_s: first(|w| w.warning),
@@ -201,24 +151,29 @@ pub fn analyze(args: &ChatterArgs) -> anyhow::Result<ChatterReport> {
     })
 }
 
-/// The report as an SVG: log10 of each stand's band RMS, log10 of the gain ratio (0 is
-/// the alarm level) and the flags (warning 1, alarm 2, slow-down 3 when set).
+/// The report as an SVG: log10 of each stand's band RMS and gain, log10 of the gain
+/// ratio (0 is the alarm level) and the flags (warning 1, alarm 2, slow-down 3 when
+/// set).
 #[cfg(feature = "sim-tools")]
 pub fn plot(report: &ChatterReport) -> anyhow::Result<String> {
     use millgate_sim::plot::time_series_svg;
     let time_s: Vec<f64> = report.windows.iter().map(|w| w.t_s).collect();
     let stands = report.windows.first().map_or(0, |w| w.stands.len());
     let log = |v: Option<f64>| v.filter(|&v| v > 0.0).map(f64::log10);
-    let rms = (0..stands)
-        .map(|s| {
-            let values = report
-                .windows
-                .iter()
-                .map(|w| log(w.stands[s].band_rms))
-                .collect();
-            (format!("stand {}", s + 1), values)
-        })
-        .collect();
+    let per_stand = |pick: fn(&StandRow) -> Option<f64>| {
+        (0..stands)
+            .map(|s| {
+                let values = report
+                    .windows
+                    .iter()
+                    .map(|w| log(pick(&w.stands[s])))
+                    .collect();
+                (format!("stand {}", s + 1), values)
+            })
+            .collect()
+    };
+    let rms = per_stand(|stand| stand.band_rms);
+    let gain = per_stand(|stand| stand.gain);
     let ratio = vec![(
         "gain ratio".to_owned(),
         report.windows.iter().map(|w| log(w.gain_ratio)).collect(),
@@ -241,6 +196,7 @@ pub fn plot(report: &ChatterReport) -> anyhow::Result<String> {
         &time_s,
         &[
             ("log10 chatter-band RMS", rms),
+            ("log10 chatter-band gain", gain),
             ("log10 gain ratio (0 = alarm)", ratio),
             ("flags", flags),
         ],
@@ -254,7 +210,13 @@ fn text(report: &ChatterReport) -> String {
     let stands = report.windows.first().map_or(0, |w| w.stands.len());
     let _ = write!(out, "{:>8}", "t_s");
     for s in 1..=stands {
-        let _ = write!(out, " {:>8} {:>8}", format!("f{s}_hz"), format!("rms{s}"));
+        let _ = write!(
+            out,
+            " {:>8} {:>8} {:>7}",
+            format!("f{s}_hz"),
+            format!("rms{s}"),
+            format!("gain{s}")
+        );
     }
     let _ = writeln!(
         out,
@@ -264,8 +226,9 @@ fn text(report: &ChatterReport) -> String {
     for w in &report.windows {
         let _ = write!(out, "{:>8.3}", w.t_s);
         for stand in &w.stands {
-            let rms = stand.band_rms.map_or("-".to_owned(), |v| format!("{v:.3}"));
-            let _ = write!(out, " {:>8.2} {rms:>8}", stand.principal_hz);
+            let figure = |v: Option<f64>| v.map_or("-".to_owned(), |v| format!("{v:.3}"));
+            let (rms, gain) = (figure(stand.band_rms), figure(stand.gain));
+            let _ = write!(out, " {:>8.2} {rms:>8} {gain:>7}", stand.principal_hz);
         }
         let ratio = w.gain_ratio.map_or("-".to_owned(), |v| format!("{v:.3}"));
         let flags: Vec<&str> = [
@@ -342,7 +305,7 @@ mod tests {
         std::fs::write(&input, record.to_csv(false))?;
         #[cfg(feature = "sim-tools")]
         let plot = input.with_extension("svg");
-        let mut args = ChatterArgs {
+        let mut args = WindowsArgs {
             input: input.clone(),
             config: example(),
             mill: None,
@@ -362,6 +325,35 @@ mod tests {
         assert_eq!(windows[0]["stands"].as_array().map(Vec::len), Some(5));
         let last = &windows[windows.len() - 1];
         assert_eq!(last["slow_down"], serde_json::Value::Bool(true));
+        // Each stand's gain is reported, and the ratio is the largest gain / threshold
+        // of the example's thresholds.
+        let thresholds = [1.187, 1.492, 2.209, 3.087, 3.327];
+        let mut with_gain = 0;
+        for window in windows {
+            let gains: Option<Vec<f64>> = window["stands"]
+                .as_array()
+                .expect("stands")
+                .iter()
+                .map(|stand| stand["gain"].as_f64())
+                .collect();
+            let Some(gains) = gains else {
+                assert!(window["gain_ratio"].is_null(), "{window}");
+                continue;
+            };
+            with_gain += 1;
+            let ratio = gains
+                .iter()
+                .zip(thresholds)
+                .map(|(gain, threshold)| gain / threshold)
+                .fold(0.0, f64::max);
+            let reported = window["gain_ratio"].as_f64().expect("a ratio with gains");
+            assert!((ratio - reported).abs() < 1e-9 * ratio, "{window}");
+        }
+        assert!(
+            with_gain + 9 >= windows.len(),
+            "{with_gain} of {}",
+            windows.len()
+        );
         #[cfg(feature = "sim-tools")]
         {
             let svg = std::fs::read_to_string(&plot)?;

@@ -1,0 +1,75 @@
+//! What the monitor's unit tests share: a monitor of a few stands, sines, and feeding
+//! signals block by block as a DAQ delivers them.
+
+use std::f64::consts::TAU;
+use std::time::{Duration, Instant};
+
+use millgate_dsp::chatter::ChatterResult;
+
+use super::{ChatterMonitor, ChatterUpdate};
+
+/// Sample rate of the test stands, Hz.
+pub(super) const FS: f64 = 2500.0;
+/// Samples per simulated DAQ block: 48 ms.
+pub(super) const BLOCK: usize = 120;
+
+/// A mill of `stands` stands at 2500 Hz, band 100-300 Hz, window 0.5 s.
+pub(super) fn monitor(stands: usize) -> ChatterMonitor {
+    let mut text = String::from(
+        "name = \"t\"\n[[sources.modbus]]\nname = \"daq\"\naddress = \"127.0.0.1:1\"\npoll_period_ms = 20\n",
+    );
+    for s in 0..stands {
+        text += &format!(
+            "[[channels]]\nname = \"s{s}\"\nkind = \"acceleration\"\nunit = \"m/s^2\"\n\
+             sample_rate_hz = {FS}\nsource = {{ modbus = \"daq\", table = \"input\", block = {} }}\n",
+            s * 122
+        );
+    }
+    let names: Vec<String> = (0..stands).map(|s| format!("\"s{s}\"")).collect();
+    // Thresholds 1, 2, 3, ...: the ratio of stand s is its gain / (s + 1).
+    let thresholds: Vec<String> = (1..=stands).map(|s| format!("{s}.0")).collect();
+    text += &format!(
+        "[[tandem_mills]]\nname = \"TCM\"\nstands = [{}]\nchatter_band_hz = [100.0, 300.0]\n\
+         window_s = 0.5\nk_max = 0.25\ngain_thresholds = [{}]\n",
+        names.join(", "),
+        thresholds.join(", ")
+    );
+    let config = millgate_config::from_toml_str(&text, "t.toml", std::path::Path::new("."))
+        .expect("test config");
+    ChatterMonitor::new(&config, 0).expect("monitor")
+}
+
+/// `amplitude sin(2 pi f_hz k / FS + phase)` for `k` in `samples`.
+pub(super) fn sine(
+    f_hz: f64,
+    phase: f64,
+    amplitude: f64,
+    samples: std::ops::Range<usize>,
+) -> Vec<f64> {
+    samples
+        .map(|k| amplitude * (TAU * f_hz * k as f64 / FS + phase).sin())
+        .collect()
+}
+
+/// Feed `signals` (one per stand) block by block, all stands of a block arriving
+/// at the same instant, one block period apart; the evaluations in order.
+pub(super) fn feed(
+    monitor: &mut ChatterMonitor,
+    signals: &[Vec<f64>],
+    t0: Instant,
+) -> Vec<ChatterResult> {
+    let mut results = Vec::new();
+    let period = Duration::from_secs_f64(BLOCK as f64 / FS);
+    for (b, start) in (0..signals[0].len()).step_by(BLOCK).enumerate() {
+        let arrival = t0 + period * b as u32;
+        for (s, signal) in signals.iter().enumerate() {
+            let end = (start + BLOCK).min(signal.len());
+            if let Some(ChatterUpdate::Evaluated(r)) =
+                monitor.samples(s, &signal[start..end], arrival)
+            {
+                results.push(r);
+            }
+        }
+    }
+    results
+}

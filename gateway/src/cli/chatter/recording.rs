@@ -1,0 +1,197 @@
+//! What `millgate chatter` and `millgate chatter commission` share: the mill chosen
+//! from the configuration, a recording of its stands (CSV, or samples in memory), and
+//! the recording through the service's own monitor, window by window.
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context};
+use millgate_config::Config;
+use millgate_dsp::band_gain::BandGainWindow;
+use millgate_dsp::chatter::ChatterResult;
+
+use crate::analysis::chatter::{ChatterMonitor, ChatterUpdate, Verdict};
+
+/// Samples per block fed to the monitor, as a Modbus DAQ delivers them.
+pub const BLOCK: usize = 120;
+/// Largest relative difference between a recording's and the channels' sample rate.
+pub const RATE_TOLERANCE: f64 = 0.01;
+
+/// The index of the tandem mill called `name` in `config` (the first without a
+/// name); the error names the file and the mills there are.
+pub fn mill_index(
+    config: &Config,
+    name: Option<&str>,
+    config_path: &Path,
+) -> anyhow::Result<usize> {
+    match name {
+        None if config.tandem_mills.is_empty() => {
+            bail!("{}: no [[tandem_mills]]", config_path.display())
+        }
+        None => Ok(0),
+        Some(name) => config
+            .tandem_mills
+            .iter()
+            .position(|m| m.name == name)
+            .with_context(|| {
+                let names: Vec<_> = config
+                    .tandem_mills
+                    .iter()
+                    .map(|m| m.name.as_str())
+                    .collect();
+                format!(
+                    "--mill {name}: no such tandem mill in {} (mills: {})",
+                    config_path.display(),
+                    names.join(", ")
+                )
+            }),
+    }
+}
+
+/// One recording of a mill's stands.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Recording {
+    /// Where it comes from (the file, as given), for messages.
+    pub name: String,
+    /// Time of each sample, s.
+    pub time_s: Vec<f64>,
+    /// Per stand of the mill, in its order, the samples (the channels' unit).
+    pub stands: Vec<Vec<f64>>,
+    /// The speed column's name and values, when one was asked for.
+    pub speed: Option<(String, Vec<f64>)>,
+}
+
+impl Recording {
+    /// Reads the CSV at `path` for mill `index` of `config`: a column per stand channel
+    /// (named as the channel), sampled at the channels' rate, and `speed_column` when
+    /// given. Errors name the file and why.
+    pub fn read(
+        path: &Path,
+        config: &Config,
+        index: usize,
+        speed_column: Option<&str>,
+    ) -> anyhow::Result<Recording> {
+        let mill = &config.tandem_mills[index];
+        let input = path.display();
+        let table = super::super::csv::read(path).with_context(|| format!("{input}"))?;
+        let mut stands = Vec::new();
+        for &channel in &mill.stands {
+            let name = &config.channels[channel].name;
+            let values = table.channel(name).with_context(|| {
+                format!(
+                    "{input}: line 1: no column `{name}` for a stand of tandem mill \"{}\" (columns: {})",
+                    mill.name,
+                    table.names.join(", ")
+                )
+            })?;
+            stands.push(values.to_vec());
+        }
+        let speed = match speed_column {
+            None => None,
+            Some(name) => {
+                let values = table.channel(name).with_context(|| {
+                    format!(
+                        "{input}: line 1: no speed column `{name}` (columns: {})",
+                        table.names.join(", ")
+                    )
+                })?;
+                Some((name.to_owned(), values.to_vec()))
+            }
+        };
+        let rate_hz = config.channels[mill.stands[0]].sample_rate_hz;
+        let csv_rate_hz = table
+            .sample_rate_hz()
+            .map_err(|e| anyhow::anyhow!("{input}: {e}"))?;
+        if (csv_rate_hz / rate_hz - 1.0).abs() > RATE_TOLERANCE {
+            bail!(
+                "{input}: sample rate {csv_rate_hz:.1} Hz from column t, the stand channels sample at \
+                 {rate_hz} Hz (must agree within {}%)",
+                RATE_TOLERANCE * 100.0
+            );
+        }
+        Ok(Recording {
+            name: input.to_string(),
+            time_s: table.time_s,
+            stands,
+            speed,
+        })
+    }
+
+    /// Samples in the recording (per stand).
+    pub fn len(&self) -> usize {
+        self.time_s.len()
+    }
+
+    /// True when the recording holds no sample.
+    pub fn is_empty(&self) -> bool {
+        self.time_s.is_empty()
+    }
+
+    /// Length, s (first to last sample).
+    pub fn duration_s(&self) -> f64 {
+        match (self.time_s.first(), self.time_s.last()) {
+            (Some(first), Some(last)) => last - first,
+            _ => 0.0,
+        }
+    }
+}
+
+/// One evaluated window of a recording.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Window {
+    /// Time of the window's last sample, s (the recording's time axis).
+    pub t_s: f64,
+    /// Index of the window's last sample in the recording.
+    pub last_sample: usize,
+    /// The spectra's result (principal frequencies, sigma_n, K_mean).
+    pub result: ChatterResult,
+    /// The band gain's window per stand (band RMS, gain); `None` until it is full.
+    pub gain: Option<BandGainWindow>,
+    /// Largest gain / threshold; `None` until the gain's window is full or without
+    /// thresholds.
+    pub gain_ratio: Option<f64>,
+    /// The configured detector's verdict after this window.
+    pub verdict: Verdict,
+}
+
+/// `recording` through the monitor of mill `index` of `config` in 120-sample blocks
+/// (a Modbus DAQ's), each stamped with its own sample time, every window judged as the
+/// service judges it.
+pub fn windows(
+    config: &Config,
+    index: usize,
+    recording: &Recording,
+) -> anyhow::Result<Vec<Window>> {
+    let mut monitor = ChatterMonitor::new(config, index)?;
+    let mut slow_down = monitor.slow_down();
+    let rate_hz = config.channels[config.tandem_mills[index].stands[0]].sample_rate_hz;
+    let period = Duration::from_secs_f64(BLOCK as f64 / rate_hz);
+    let t0 = Instant::now();
+    let samples = recording.len();
+    let mut windows = Vec::new();
+    for (b, start) in (0..samples).step_by(BLOCK).enumerate() {
+        let end = (start + BLOCK).min(samples);
+        for (s, values) in recording.stands.iter().enumerate() {
+            let Some(change) = monitor.samples(s, &values[start..end], t0 + period * b as u32)
+            else {
+                continue;
+            };
+            let verdict = monitor.judge(&change, &mut slow_down);
+            let ChatterUpdate::Evaluated(result) = change else {
+                continue;
+            };
+            let last = usize::try_from(monitor.last_window_end() - 1)
+                .unwrap_or(0)
+                .min(samples - 1);
+            windows.push(Window {
+                t_s: recording.time_s[last],
+                last_sample: last,
+                result,
+                gain: monitor.gain_window().cloned(),
+                gain_ratio: monitor.gain().and_then(|g| g.ratio).map(|(ratio, _)| ratio),
+                verdict,
+            });
+        }
+    }
+    Ok(windows)
+}

@@ -1,0 +1,320 @@
+//! The chatter closed loop in real time with the gateway in it, over Modbus: the
+//! physical tandem model simulated online one 48 ms PLC cycle at a time
+//! (`sim::devices::tandem_rig`), its chock accelerations streamed by a virtual DAQ, the
+//! service (`millgate::Service`) computing the band gain with thresholds commissioned
+//! on separate stable recordings and writing its register map into a virtual PLC, and
+//! the PLC's program reading the slow-down bit from its own holding registers and
+//! slowing the mill. The same run with the request ignored (open loop) develops
+//! chatter; closed, it does not.
+//!
+//! Each run also measures the request's latency: from the moment the DAQ block that
+//! completed the alarming window was published to the moment the bit was in the PLC's
+//! register (polled every millisecond), and in PLC cycles to the scan that read it: the
+//! delay the offline closed loop (`millgate_tests::chatter_loop`) is run with.
+
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use millgate::outputs::register_map::RegisterMap;
+use millgate_config::{Config, RegisterTable};
+use millgate_sim::devices::modbus_bank::ServeOptions;
+use millgate_sim::devices::tandem_rig::{self, RequestBit, RigRun};
+use millgate_sim::devices::virtual_daq::{DaqChannel, Placement, Publish, VirtualDaq};
+use millgate_sim::devices::virtual_plc::VirtualPlc;
+use millgate_sim::tandem::control::{SlowDownPolicy, SpeedControl};
+use millgate_sim::tandem::online::OnlineMill;
+use millgate_sim::tandem::simulate::{Accelerometer, Excitation, SimulationSetup, SpeedRange};
+use millgate_tests::chatter_loop::{mills, LoopPlan, Mill, CYCLE_SAMPLES};
+use tokio::net::TcpListener;
+
+const FS: f64 = 2500.0;
+/// The slow-down request: bit 3 of the mill's flags register.
+const SLOW_DOWN_BIT: u16 = 3;
+/// Stable rolling before the operator's ramp, s.
+const SETTLE_S: f64 = 6.0;
+
+/// Five stands on one DAQ at 2500 Hz (0.01 m/s^2 per bit), the mill commissioned on
+/// `mill`'s recordings, a PLC output.
+fn config(mill: &Mill) -> anyhow::Result<Config> {
+    let mut text = String::from(
+        "name = \"chatter loop\"\n[[sources.modbus]]\nname = \"daq\"\naddress = \"127.0.0.1:1\"\npoll_period_ms = 20\n",
+    );
+    for stand in 0..5 {
+        text += &format!(
+            "[[channels]]\nname = \"s{}_vib\"\nkind = \"acceleration\"\nunit = \"m/s^2\"\n\
+             scale = 0.01\nsample_rate_hz = {FS}\n\
+             source = {{ modbus = \"daq\", table = \"input\", block = {} }}\n",
+            stand + 1,
+            stand * 122
+        );
+    }
+    let thresholds: Vec<String> = mill.gain_thresholds.iter().map(|t| t.to_string()).collect();
+    text += &format!(
+        "[[tandem_mills]]\nname = \"TCM\"\n\
+         stands = [\"s1_vib\", \"s2_vib\", \"s3_vib\", \"s4_vib\", \"s5_vib\"]\n\
+         chatter_band_hz = [100.0, 300.0]\nwindow_s = 0.5\nk_max = 0.25\n\
+         gain_thresholds = [{}]\nslow_down_release = {}\n\
+         [outputs.plc]\naddress = \"127.0.0.1:1\"\nwrite_period_ms = 50\n",
+        thresholds.join(", "),
+        mill.gain_release
+    );
+    millgate_config::from_toml_str(&text, "chatter-loop.toml", std::path::Path::new("."))
+        .map_err(|e| anyhow::anyhow!("{e}"))
+}
+
+/// One run: the mill held at `start` times its critical speed for [`SETTLE_S`], then
+/// the operator's setpoint at `setpoint` times it, approached at `accel_m_s2`.
+#[derive(Debug, Clone, Copy)]
+struct Scenario {
+    start: f64,
+    setpoint: f64,
+    accel_m_s2: f64,
+    seed: u64,
+    duration_s: f64,
+}
+
+fn online_mill(mill: &Mill, scenario: Scenario) -> anyhow::Result<OnlineMill> {
+    let critical = mill.critical_m_s();
+    let policy = SlowDownPolicy {
+        accel_m_s2: scenario.accel_m_s2,
+        ..SlowDownPolicy::default()
+    };
+    let start = scenario.start * critical;
+    let control = SpeedControl::new(policy, start, start)?;
+    let setup = SimulationSetup {
+        excitation: Excitation::default(),
+        sensor: Accelerometer {
+            sample_rate_hz: FS,
+            ..Accelerometer::default()
+        },
+        seed: scenario.seed,
+        internal_rate_hz: None,
+        speeds: SpeedRange {
+            lowest: 1.0,
+            highest: 1.0,
+        },
+    };
+    Ok(OnlineMill::new(
+        &mill.mill,
+        &setup,
+        control,
+        CYCLE_SAMPLES,
+        scenario.setpoint * critical,
+    )?)
+}
+
+/// The operator: the setpoint after the settling time.
+fn operator(mill: &Mill, scenario: Scenario) -> impl FnMut(f64, &mut SpeedControl) {
+    let setpoint = scenario.setpoint * mill.critical_m_s();
+    move |t_s, control| {
+        if t_s >= SETTLE_S {
+            control.set_setpoint(setpoint);
+        }
+    }
+}
+
+/// The scenario with the request ignored, offline: when chatter develops.
+fn open_loop(mill: &Mill, scenario: Scenario) -> anyhow::Result<Option<f64>> {
+    let mut online = online_mill(mill, scenario)?;
+    let mut operator = operator(mill, scenario);
+    let cycles = (scenario.duration_s / online.cycle_s()).round() as usize;
+    for _ in 0..cycles {
+        operator(online.time_s(), online.control_mut());
+        let mut samples = online.record(CYCLE_SAMPLES);
+        online.cycle(false, &mut samples)?;
+        if online.developed_s().is_some() {
+            break;
+        }
+    }
+    Ok(online.developed_s())
+}
+
+/// What a real-time run through the gateway gave.
+struct LoopRun {
+    rig: RigRun,
+    /// Each rise of the bit in the PLC's register, wall clock.
+    rises: Vec<Instant>,
+}
+
+async fn closed_loop(mill: &Mill, scenario: Scenario) -> anyhow::Result<LoopRun> {
+    let mut config = config(mill)?;
+    let map = RegisterMap::new(&config);
+    let flags = map
+        .registers()
+        .iter()
+        .find(|r| r.name == "TCM.flags")
+        .map(|r| usize::from(r.address))
+        .ok_or_else(|| anyhow::anyhow!("no TCM.flags register"))?;
+    let plc = VirtualPlc::new(usize::from(map.len()) + 16);
+    let channels = (0..5)
+        .map(|stand| DaqChannel {
+            placement: Placement {
+                table: RegisterTable::Input,
+                address: (stand * 122) as u16,
+                scale: 0.01,
+                offset: 0.0,
+            },
+            publish: Publish::Block,
+            signal: Vec::new(),
+        })
+        .collect();
+    let mut daq = VirtualDaq::new(FS, CYCLE_SAMPLES as u16, channels);
+    // A DAQ answers with a block from power-up: the first, at rest, anchors the stands.
+    let rest = vec![0.0; CYCLE_SAMPLES];
+    daq.publish(&[&rest, &rest, &rest, &rest, &rest]);
+    let listener = TcpListener::bind("127.0.0.1:0").await?;
+    config.modbus_sources[0].address = listener.local_addr()?.to_string();
+    let serving_daq = daq.serve(listener, ServeOptions::default());
+    let listener = TcpListener::bind("127.0.0.1:0").await?;
+    if let Some(output) = config.outputs.plc.as_mut() {
+        output.address = listener.local_addr()?.to_string();
+        output.register_base = 0;
+    }
+    let serving_plc = plc.spawn(listener, ServeOptions::default());
+    let gateway = millgate::Service::new(config)?.spawn().await?;
+
+    // The bit's rises in the PLC's register, polled every millisecond.
+    let rises = Arc::new(Mutex::new(Vec::new()));
+    let (stop_watch, mut stopped) = tokio::sync::oneshot::channel::<()>();
+    let watcher = {
+        let (plc, rises) = (plc.clone(), Arc::clone(&rises));
+        tokio::spawn(async move {
+            let mut was = false;
+            loop {
+                let set = plc.holding_bit(flags, SLOW_DOWN_BIT);
+                if set && !was {
+                    rises.lock().map(|mut r| r.push(Instant::now())).ok();
+                }
+                was = set;
+                tokio::select! {
+                    _ = &mut stopped => break,
+                    () = tokio::time::sleep(Duration::from_millis(1)) => {}
+                }
+            }
+        })
+    };
+    let mut online = online_mill(mill, scenario)?;
+    let request = RequestBit {
+        plc: plc.clone(),
+        register: flags,
+        bit: SLOW_DOWN_BIT,
+    };
+    let cycles = (scenario.duration_s / online.cycle_s()).round() as usize;
+    let rig = tandem_rig::run(
+        &mut online,
+        &request,
+        cycles,
+        operator(mill, scenario),
+        async |samples| {
+            let blocks: Vec<&[f64]> = samples.acceleration.iter().map(Vec::as_slice).collect();
+            daq.publish(&blocks);
+            Ok(())
+        },
+    )
+    .await;
+    let _ = stop_watch.send(());
+    watcher.await?;
+    gateway.stop().await?;
+    serving_daq.stop().await?;
+    serving_plc.stop().await?;
+    let rises = rises.lock().map(|r| r.clone()).unwrap_or_default();
+    Ok(LoopRun { rig: rig?, rises })
+}
+
+/// Per rise of the bit: ms from the last block published before it, and the PLC
+/// cycles from that block to the first cycle that read the request (the offline
+/// loop's `delay_cycles`).
+fn latencies(run: &LoopRun) -> Vec<(f64, usize)> {
+    run.rises
+        .iter()
+        .filter_map(|&rise| {
+            let (block, published) = run
+                .rig
+                .cycles
+                .iter()
+                .enumerate()
+                .filter_map(|(k, c)| c.published.map(|p| (k, p)))
+                .rfind(|&(_, p)| p <= rise)?;
+            let read = run
+                .rig
+                .cycles
+                .iter()
+                .skip(block + 1)
+                .position(|c| c.request)?;
+            Some((rise.duration_since(published).as_secs_f64() * 1e3, read))
+        })
+        .collect()
+}
+
+async fn check(scenario: Scenario) -> anyhow::Result<()> {
+    let plan = LoopPlan::quick();
+    let mills = mills(&plan)?;
+    let mill = &mills[0];
+    let critical = mill.critical_m_s();
+    let open = open_loop(mill, scenario)?;
+    let developed = open.ok_or_else(|| anyhow::anyhow!("open loop: no developed chatter"))?;
+    let run = closed_loop(mill, scenario).await?;
+    let latencies = latencies(&run);
+    let largest_swing = run.rig.cycles.iter().map(|c| c.swing).fold(0.0, f64::max);
+    println!(
+        "{scenario:?}: critical {critical:.2} m/s; open loop developed at {developed:.2} s; \
+         closed loop: slow-downs (s, speed / critical, m/min shed) {:?}; developed {:?}, \
+         largest tension swing {largest_swing:.3} of the developed limit; {} late cycles; \
+         latency from the block to the PLC register, ms, and cycles to the scan that read \
+         it: {latencies:?}",
+        run.rig
+            .events
+            .iter()
+            .map(|e| (
+                e.requested_s,
+                e.speed_at_request_m_s / critical,
+                e.shed_m_s() * 60.0
+            ))
+            .collect::<Vec<_>>(),
+        run.rig.developed_s,
+        run.rig.late
+    );
+    assert_eq!(run.rig.developed_s, None, "developed with the loop closed");
+    let first = run
+        .rig
+        .events
+        .first()
+        .ok_or_else(|| anyhow::anyhow!("no slow-down"))?;
+    // Requested near the critical speed, before chatter developed in the open loop, and
+    // the speed then shed by the automation's drop.
+    assert!(first.speed_at_request_m_s > 0.95 * critical, "{first:?}");
+    assert!(first.requested_s < developed, "{first:?}");
+    assert!(
+        first.shed_m_s() >= SlowDownPolicy::default().drop_m_s - 1e-9,
+        "{first:?}"
+    );
+    assert!(largest_swing < 1.0, "tension swing {largest_swing}");
+    assert!(!latencies.is_empty(), "no rise of the bit seen");
+    Ok(())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_fast_ramp_past_the_critical_speed_is_slowed_down_before_chatter_develops(
+) -> anyhow::Result<()> {
+    check(Scenario {
+        start: 0.9,
+        setpoint: 1.3,
+        accel_m_s2: 2.0,
+        seed: 7,
+        duration_s: 20.0,
+    })
+    .await
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_slower_ramp_past_the_critical_speed_is_slowed_down_before_chatter_develops(
+) -> anyhow::Result<()> {
+    check(Scenario {
+        start: 0.85,
+        setpoint: 1.25,
+        accel_m_s2: 1.0,
+        seed: 22,
+        duration_s: 24.0,
+    })
+    .await
+}
