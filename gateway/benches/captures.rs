@@ -25,7 +25,7 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use millgate::analysis::driveline::BiteReport;
+use millgate::analysis::driveline::{bite_record, BiteReport};
 use millgate::analysis::Analysis;
 use millgate::cli::capture::{ExportArgs, ExportFormat, Selection};
 use millgate::field::acquired::Acquired;
@@ -34,7 +34,7 @@ use millgate::outputs::history::writer::{connect, insert, insert_run};
 use millgate::outputs::history::RunInfo;
 use millgate::state::board::Board;
 use millgate::state::captures::{CapturedBite, KeepClass};
-use millgate::state::events::{BiteRecord, HistoryEvent};
+use millgate::state::events::HistoryEvent;
 use millgate::state::history::History;
 use millgate::state::results::DrivelineResults;
 use millgate::state::time::UtcTime;
@@ -93,30 +93,14 @@ fn demo_bites() -> anyhow::Result<Vec<[HistoryEvent; 2]>> {
     Ok(pairs)
 }
 
-/// The history's record of `report` (its measures; the state after it left default).
+/// The history's record of `report` as the analysis makes it (the state after it left
+/// default, no gap estimate).
 fn bite_event(report: &BiteReport) -> HistoryEvent {
-    let t = &report.transient;
-    HistoryEvent::Bite(Box::new(BiteRecord {
-        driveline: report.driveline_name.clone(),
-        channel: report.channel_name.clone(),
-        time: UtcTime::from_system(report.time),
-        static_torque_knm: t.static_torque_knm,
-        peak_torque_knm: t.peak_torque_knm,
-        taf: t.taf,
-        first_period_s: t.first_period_s,
-        second_period_s: t.second_period_s,
-        period_shift_s: t.period_shift_s,
-        beta_hz: report.beta_hz,
-        quality: "good",
-        degraded: report.degraded,
-        reference_taf: None,
-        reference_level_knm: None,
-        shift_over_linear_s: None,
-        gap: None,
-        pooled: None,
-        state: DrivelineResults::default(),
-        extra_state: None,
-    }))
+    HistoryEvent::Bite(Box::new(bite_record(
+        report,
+        &DrivelineResults::default(),
+        None,
+    )))
 }
 
 fn run_info() -> RunInfo {

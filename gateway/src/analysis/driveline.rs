@@ -618,8 +618,9 @@ impl DrivelineAnalyzer {
     }
 }
 
-/// The history's record of `report` with the driveline's published `state` after it.
-fn bite_record(
+/// The history's record of `report` with the driveline's published `state` after it
+/// and its gap estimate (what the analysis records; benches store the same).
+pub fn bite_record(
     report: &BiteReport,
     state: &DrivelineResults,
     gap: Option<RecordedGap>,
