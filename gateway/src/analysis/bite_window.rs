@@ -7,17 +7,17 @@ use millgate_dsp::fit::{fit_eq1, Eq1Fit, FitError, FitOptions, FitStatus};
 use millgate_dsp::transient::{self, TransientError, TransientResult, TransientSettings};
 
 /// Window capacity of a bite, samples (pre + post trigger): 1 s at 2 kHz.
-pub const WINDOW_CAPACITY: usize = 2048;
+pub(crate) const WINDOW_CAPACITY: usize = 2048;
 /// Largest pre-trigger history, samples.
-pub const PRE_TRIGGER_CAPACITY: usize = 256;
+pub(crate) const PRE_TRIGGER_CAPACITY: usize = 256;
 
 /// The bite detector of every driveline (and of its wear reference).
-pub type Detector = BiteDetector<PRE_TRIGGER_CAPACITY, WINDOW_CAPACITY>;
+pub(crate) type Detector = BiteDetector<PRE_TRIGGER_CAPACITY, WINDOW_CAPACITY>;
 pub(crate) type DetectorState = BiteDetectorState<PRE_TRIGGER_CAPACITY, WINDOW_CAPACITY>;
 
 /// What one bite window gives: the transient measures and the eq. (1) fit.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct WindowAnalysis {
+pub(crate) struct WindowAnalysis {
     /// Static torque, peak, TAF and periods of the window.
     pub transient: TransientResult,
     /// The fit of eq. (1) from the load onset on (t = 0 at `fit_start_index`).
@@ -31,7 +31,7 @@ pub struct WindowAnalysis {
 impl WindowAnalysis {
     /// The fit, when it converged (or stalled at a minimum): the natural
     /// frequencies are then trustworthy.
-    pub fn good_fit(&self) -> Option<&Eq1Fit> {
+    pub(crate) fn good_fit(&self) -> Option<&Eq1Fit> {
         self.fit
             .as_ref()
             .ok()
@@ -42,7 +42,7 @@ impl WindowAnalysis {
     /// when both lie in the band the record can resolve, [`Self::resolvable_hz`]: a
     /// fit that puts a mode above Nyquist or slower than one cycle in the record has
     /// fitted noise or a gap's edge, and its frequencies are no measurement.
-    pub fn natural_frequencies_hz(&self) -> Option<(f64, f64)> {
+    pub(crate) fn natural_frequencies_hz(&self) -> Option<(f64, f64)> {
         let fit = self.good_fit()?;
         let (low, high) = self.resolvable_hz(fit.samples_used);
         let resolvable = |f: f64| f >= low && f < high;
@@ -51,7 +51,7 @@ impl WindowAnalysis {
 
     /// The frequencies a record of `samples` resolves, Hz: from one cycle in the record
     /// (fs / samples) up to, not including, Nyquist (fs / 2).
-    pub fn resolvable_hz(&self, samples: usize) -> (f64, f64) {
+    pub(crate) fn resolvable_hz(&self, samples: usize) -> (f64, f64) {
         let fs = self.sample_rate_hz;
         (fs / samples.max(1) as f64, fs / 2.0)
     }
@@ -60,7 +60,7 @@ impl WindowAnalysis {
 /// The transient measures of one window (kN*m) whose bite was detected at
 /// `window[trigger_index]`: what [`analyze_window`] gives without the fit (the wear
 /// maps need only these).
-pub fn window_transient(
+pub(crate) fn window_transient(
     window: &[f64],
     trigger_index: usize,
     baseline_knm: f64,
@@ -75,7 +75,7 @@ pub fn window_transient(
 /// The fit starts at the load onset, found by walking back from the trigger while
 /// the torque stays above the baseline by more than `onset_knm`, so that eq. (1)'s
 /// t = 0 is the start of the load rise, as in the paper's Table 1 record.
-pub fn analyze_window(
+pub(crate) fn analyze_window(
     window: &[f64],
     trigger_index: usize,
     baseline_knm: f64,

@@ -3,7 +3,7 @@
 //! bite, over static torque x opened gap, for every coupling that may carry the gap.
 //!
 //! Each grid point is one bite of the driveline model simulated and analysed as a
-//! measured bite ([`BiteSimulator`]: the model's physics, then the driveline's own bite
+//! measured bite (`BiteSimulator`: the model's physics, then the driveline's own bite
 //! detector and transient analysis with the same settings). A point keeps the static
 //! torque the analysis *measured* (not the simulated load: the estimator looks maps up
 //! by the measured value, as bites give it), the TAF and the first-period shift

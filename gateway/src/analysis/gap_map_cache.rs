@@ -21,12 +21,12 @@ use super::simulated_bite::BiteSimulator;
 use crate::state::gap_maps::{GapMapData, GapMapSpec, GapMaps};
 
 /// Version of the file format and of what a map point means; part of the key.
-pub const FORMAT_VERSION: u32 = 1;
+pub(crate) const FORMAT_VERSION: u32 = 1;
 
 /// Why the cache could not be used (never fatal: the maps are then built and kept in
 /// memory only).
 #[derive(Debug, thiserror::Error)]
-pub enum CacheError {
+pub(crate) enum CacheError {
     /// The cache folder or file could not be read or written.
     #[error("{path}: {source}")]
     Io {
@@ -56,7 +56,7 @@ struct CacheFile {
 }
 
 /// The key of the maps `simulator` builds over `spec`.
-pub fn key(simulator: &BiteSimulator, spec: &GapMapSpec) -> Result<String, CacheError> {
+pub(crate) fn key(simulator: &BiteSimulator, spec: &GapMapSpec) -> Result<String, CacheError> {
     let spec = serde_json::to_string(spec).map_err(|error| CacheError::Format {
         path: "<spec>".into(),
         message: error.to_string(),
@@ -77,7 +77,7 @@ fn fnv1a(text: &str) -> u64 {
 }
 
 /// The file holding the maps of `key` in `dir`.
-pub fn path(dir: &Path, key: &str) -> PathBuf {
+pub(crate) fn path(dir: &Path, key: &str) -> PathBuf {
     dir.join(format!("gap-maps-{:016x}.json", fnv1a(key)))
 }
 
@@ -85,7 +85,7 @@ pub fn path(dir: &Path, key: &str) -> PathBuf {
 /// `$CACHE_DIRECTORY`: `$XDG_CACHE_HOME/millgate`,
 /// else `$HOME/.cache/millgate`, else `millgate-cache` in the system's temporary
 /// folder.
-pub fn default_dir() -> PathBuf {
+pub(crate) fn default_dir() -> PathBuf {
     let from_env = |name: &str| std::env::var_os(name).filter(|value| !value.is_empty());
     if let Some(cache) = from_env("XDG_CACHE_HOME") {
         PathBuf::from(cache).join("millgate")
@@ -98,7 +98,7 @@ pub fn default_dir() -> PathBuf {
 
 /// The maps of `key` from `dir`: `Ok(None)` when there is no file or it holds other
 /// maps (another key).
-pub fn load(dir: &Path, key: &str) -> Result<Option<GapMaps>, CacheError> {
+pub(crate) fn load(dir: &Path, key: &str) -> Result<Option<GapMaps>, CacheError> {
     let file = path(dir, key);
     let text = match std::fs::read_to_string(&file) {
         Ok(text) => text,
@@ -118,7 +118,7 @@ pub fn load(dir: &Path, key: &str) -> Result<Option<GapMaps>, CacheError> {
 }
 
 /// Stores `maps` under `key` in `dir` (created when missing); returns the file.
-pub fn save(dir: &Path, key: &str, maps: &GapMaps) -> Result<PathBuf, CacheError> {
+pub(crate) fn save(dir: &Path, key: &str, maps: &GapMaps) -> Result<PathBuf, CacheError> {
     let io = |path: &Path| {
         let path = path.display().to_string();
         move |source| CacheError::Io { path, source }

@@ -2,7 +2,7 @@
 //! its last bites, the published estimate and the wear state.
 //!
 //! - **Maps** come from a [`GapMapJob`]: the cache when it holds maps for this model
-//!   and these settings ([`super::gap_map_cache`]), else a build on its own threads
+//!   and these settings (`gap_map_cache`), else a build on its own threads
 //!   ([`super::gap_map::build`]). Until they are installed the gap registers stay
 //!   invalid; bites seen meanwhile are pooled and estimated once the maps arrive. A
 //!   build that fails leaves them invalid for good (the error is logged, naming the

@@ -6,16 +6,16 @@
 //! of drivelines with a model are built elsewhere ([`gap_monitor::GapMapJob`], on
 //! threads of their own) and installed when ready ([`Analysis::install_gap_maps`]).
 
-pub mod bite_window;
+pub(crate) mod bite_window;
 pub mod chatter;
 pub mod driveline;
 mod error;
 pub mod gap_estimate;
 pub mod gap_map;
-pub mod gap_map_cache;
+pub(crate) mod gap_map_cache;
 pub mod gap_monitor;
 pub mod rod_monitor;
-pub mod simulated_bite;
+pub(crate) mod simulated_bite;
 pub mod wear;
 
 use std::sync::Arc;

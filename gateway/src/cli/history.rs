@@ -12,7 +12,7 @@
 //!
 //! The rows are written as they are read, so a year of bites (4 million rows) takes
 //! the memory of one; progress goes to stderr when it is a terminal
-//! ([`crate::cli::progress`]).
+//! (`cli::progress`).
 
 use std::io::Write;
 use std::path::PathBuf;
@@ -90,7 +90,7 @@ pub fn parse_time(option: &str, text: Option<&str>) -> anyhow::Result<Option<Utc
 
 /// The export `args` ask for, written to stdout as the rows are read (the memory of
 /// one row, whatever the file's size), with progress on stderr when it is a terminal
-/// ([`Progress`]). A closed stdout (`millgate history ... | head`) ends the export
+/// (`Progress`). A closed stdout (`millgate history ... | head`) ends the export
 /// quietly.
 pub fn run(args: &HistoryArgs) -> anyhow::Result<()> {
     let stdout = std::io::stdout().lock();

@@ -51,7 +51,7 @@ pub mod demo;
 pub mod discrepancy;
 pub mod figures;
 pub mod history;
-pub mod progress;
+pub(crate) mod progress;
 pub mod registers;
 #[cfg(feature = "plot")]
 pub mod report;

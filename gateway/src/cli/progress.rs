@@ -14,7 +14,7 @@ const PERIOD: Duration = Duration::from_secs(1);
 
 /// The progress line of one command.
 #[derive(Debug)]
-pub struct Progress {
+pub(crate) struct Progress {
     shown: bool,
     started: Instant,
     last: Option<Instant>,
@@ -22,7 +22,7 @@ pub struct Progress {
 
 impl Progress {
     /// Progress on stderr when it is a terminal, nothing otherwise.
-    pub fn on_terminal() -> Self {
+    pub(crate) fn on_terminal() -> Self {
         Self {
             shown: std::io::stderr().is_terminal(),
             started: Instant::now(),
@@ -31,13 +31,13 @@ impl Progress {
     }
 
     /// Seconds since the command started.
-    pub fn elapsed_s(&self) -> f64 {
+    pub(crate) fn elapsed_s(&self) -> f64 {
         self.started.elapsed().as_secs_f64()
     }
 
     /// Show the line `status` gives, if a second has passed since the last one shown
     /// (`status` is not called otherwise).
-    pub fn update(&mut self, status: impl FnOnce() -> String) {
+    pub(crate) fn update(&mut self, status: impl FnOnce() -> String) {
         if !self.shown || self.last.is_some_and(|last| last.elapsed() < PERIOD) {
             return;
         }
@@ -49,7 +49,7 @@ impl Progress {
     }
 
     /// End the line with `summary` (the totals); nothing when not shown.
-    pub fn finish(&mut self, summary: &str) {
+    pub(crate) fn finish(&mut self, summary: &str) {
         if self.shown {
             let _ = writeln!(std::io::stderr().lock(), "\r{summary}\x1b[K");
         }
@@ -57,7 +57,7 @@ impl Progress {
 }
 
 /// `part` of `whole` as a percentage, 100 for an empty whole.
-pub fn percent(part: u64, whole: u64) -> f64 {
+pub(crate) fn percent(part: u64, whole: u64) -> f64 {
     if whole == 0 {
         100.0
     } else {

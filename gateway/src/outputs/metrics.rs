@@ -3,7 +3,7 @@
 //! (PLC writes, HMI server, history, Sparkplug), build information and the process'
 //! resources, in the text exposition format (version 0.0.4).
 //!
-//! Served by the gateway's one HTTP stack ([`crate::outputs::http`]: GET and HEAD, a
+//! Served by the gateway's one HTTP stack (`outputs::http`: GET and HEAD, a
 //! bounded accept loop that gives up, and so ends the service, when accepting keeps
 //! failing). The text is written here rather than through a Prometheus client crate:
 //! every family but the process' is derived from state the gateway already keeps (the

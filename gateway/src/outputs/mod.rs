@@ -11,7 +11,7 @@ pub mod figures;
 pub(crate) mod heartbeat;
 pub mod history;
 pub mod hmi_server;
-pub mod http;
+pub(crate) mod http;
 pub mod metrics;
 pub mod modbus_frame;
 #[cfg(feature = "opcua")]

@@ -1,24 +1,24 @@
 //! The maintenance web page and its JSON API (`[outputs.web]`): read-only HTTP/1.1
 //! on axum, for a maintenance engineer's browser and for tools that poll.
 //!
-//! - **Pages** ([`page`]): an overview, one page per driveline and the alarm list,
+//! - **Pages** (`page.rs`): an overview, one page per driveline and the alarm list,
 //!   each a small server-rendered HTML shell that the page's own script
 //!   (`assets/web/app.js`) fills from the JSON API, plotting with the vendored uPlot
 //!   (`assets/uplot`, MIT). Everything is compiled into the binary: no CDN, no fonts.
-//! - **API** ([`api`]): `/api/overview`, `/api/drivelines[/{name}[/bites|/wear|/map]]`,
+//! - **API** (`api/`): `/api/overview`, `/api/drivelines[/{name}[/bites|/wear|/map]]`,
 //!   `/api/alarms` and `/api/events` (server-sent events: the live results, sent when
 //!   they change). Live figures come from the [`Board`]'s snapshot; history
 //!   figures from the history file through a read-only [`HistoryReader`] of the
 //!   request's own, on the blocking pool, bounded by `request_timeout`.
 //! - **Bounded and read-only**: served by the gateway's one HTTP stack
-//!   ([`crate::outputs::http`]: GET and HEAD only, no body, bounded heads, header
+//!   (`outputs::http`: GET and HEAD only, no body, bounded heads, header
 //!   timeout and connections, security headers). None of this runs on the analysis
 //!   task: the server only reads the published snapshot and the file.
 //!
 //! [`HistoryReader`]: crate::outputs::history::query::HistoryReader
 
-pub mod api;
-pub mod page;
+pub(crate) mod api;
+pub(crate) mod page;
 mod shared;
 
 pub use shared::{DrivelineInfo, WebState};

@@ -10,7 +10,7 @@ use axum::response::{Html, IntoResponse, Response};
 use super::shared::WebState;
 
 /// uPlot's version, vendored in `gateway/assets/uplot` (MIT, its LICENSE beside it).
-pub const UPLOT_VERSION: &str = "1.6.32";
+pub(crate) const UPLOT_VERSION: &str = "1.6.32";
 
 /// The assets: path under `/assets/`, content type, bytes, Cache-Control.
 const ASSETS: &[(&str, &str, &[u8], &str)] = &[
@@ -48,7 +48,7 @@ const ASSETS: &[(&str, &str, &[u8], &str)] = &[
 ];
 
 /// `text` with `& < > " '` escaped for HTML text and attribute values.
-pub fn escape(text: &str) -> String {
+pub(crate) fn escape(text: &str) -> String {
     let mut escaped = String::with_capacity(text.len());
     for c in text.chars() {
         match c {

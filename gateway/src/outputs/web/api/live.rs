@@ -34,7 +34,7 @@ use crate::state::time::UtcTime;
 
 /// A driveline's thresholds.
 #[derive(Debug, Clone, Serialize, PartialEq)]
-pub struct ThresholdsView {
+pub(crate) struct ThresholdsView {
     /// TAF warning.
     pub taf_warning: f64,
     /// TAF alarm.
@@ -48,7 +48,10 @@ pub struct ThresholdsView {
 /// The figures of `subject` as JSON, one member per catalogue key: its value while good
 /// or last usable (the page marks a stale source beside it), `null` while it has none.
 /// A time is ISO-8601 UTC text.
-pub fn figures_json<R: Subject>(figures: &[Figure<R>], subject: &R) -> Map<String, JsonValue> {
+pub(crate) fn figures_json<R: Subject>(
+    figures: &[Figure<R>],
+    subject: &R,
+) -> Map<String, JsonValue> {
     figures
         .iter()
         .map(|figure| {
@@ -78,7 +81,7 @@ fn state_of(warning: bool, alarm: bool) -> &'static str {
 /// A driveline's live figures (every catalogue figure by its key) and, on the overview
 /// and its own endpoint, the gap trend from the history.
 #[derive(Debug, Clone, Serialize, PartialEq)]
-pub struct DrivelineView {
+pub(crate) struct DrivelineView {
     /// Name.
     pub name: String,
     /// Whether it has a model (the gap diagnosis runs only with one).
@@ -123,7 +126,7 @@ impl DrivelineView {
 
 /// A tandem mill's chatter state and figures (every catalogue figure by its key).
 #[derive(Debug, Clone, Serialize, PartialEq)]
-pub struct TandemMillView {
+pub(crate) struct TandemMillView {
     /// Name.
     pub name: String,
     /// Stand channels, rolling order.
@@ -165,7 +168,7 @@ impl TandemMillView {
 
 /// A rod mill's state, figures and spans.
 #[derive(Debug, Clone, Serialize, PartialEq)]
-pub struct RodMillView {
+pub(crate) struct RodMillView {
     /// Name.
     pub name: String,
     /// `stable`, `near_tongue`, `unstable`, `refused` (inputs out of range),
@@ -207,7 +210,7 @@ impl RodMillView {
 
 /// A source's status and outages.
 #[derive(Debug, Clone, Serialize, PartialEq)]
-pub struct SourceView {
+pub(crate) struct SourceView {
     /// Name.
     pub name: String,
     /// `modbus` or `can`.
@@ -224,7 +227,7 @@ pub struct SourceView {
 
 /// `/api/overview` (and, without the history parts, each `/api/events` message).
 #[derive(Debug, Clone, Serialize, PartialEq)]
-pub struct Overview {
+pub(crate) struct Overview {
     /// The configuration's name.
     pub name: String,
     /// `starting`, `running` or `stopped`.

@@ -16,7 +16,7 @@ use crate::state::results::GapResults;
 /// One TAF curve of a gap map: TAF over the static torque the analysis measures,
 /// at one opened gap.
 #[derive(Debug, Clone, Serialize, PartialEq)]
-pub struct MapCurve {
+pub(crate) struct MapCurve {
     /// Opened gap, mrad.
     pub gap_mrad: f64,
     /// `[static torque kN*m, TAF]`, static torque ascending.
@@ -34,7 +34,7 @@ impl MapCurve {
 
 /// A coupling's gap map: its curves at every whole mrad.
 #[derive(Debug, Clone, Serialize, PartialEq)]
-pub struct CouplingCurves {
+pub(crate) struct CouplingCurves {
     /// Coupling (model index, 0 = motor side).
     pub coupling: usize,
     /// Its name in the model.
@@ -46,7 +46,7 @@ pub struct CouplingCurves {
 /// The pooled gap estimate on its coupling's map: the curve at the estimate and at
 /// the ends of its 90% interval.
 #[derive(Debug, Clone, Serialize, PartialEq)]
-pub struct EstimateCurves {
+pub(crate) struct EstimateCurves {
     /// The coupling the estimate names, else the likeliest.
     pub coupling: usize,
     /// Whether the estimate names the coupling (else the bites cannot tell the
@@ -62,7 +62,7 @@ pub struct EstimateCurves {
 
 /// A driveline's gap maps as `/api/drivelines/{name}/map` gives them.
 #[derive(Debug, Clone, Serialize, PartialEq)]
-pub struct GapMapView {
+pub(crate) struct GapMapView {
     /// `ready`, `building` (read from the cache or simulated), `failed` or `no_model`.
     pub state: &'static str,
     /// What `state` means here (progress, the failure); `None` when ready.

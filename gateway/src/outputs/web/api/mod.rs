@@ -15,11 +15,7 @@ mod maps;
 
 pub(crate) use history::{alarms, bites, capture, captures, wear};
 pub(crate) use live::{driveline, drivelines, events, live_json, overview};
-pub use live::{
-    figures_json, DrivelineView, Overview, RodMillView, SourceView, TandemMillView, ThresholdsView,
-};
 pub(crate) use maps::gap_maps;
-pub use maps::{CouplingCurves, EstimateCurves, GapMapView, MapCurve};
 
 use std::collections::BTreeSet;
 use std::ops::RangeInclusive;
@@ -36,18 +32,19 @@ use super::shared::WebState;
 use crate::outputs::history::query::HistoryReader;
 use crate::outputs::history::HistoryError;
 use crate::state::time::UtcTime;
+
 /// Default and largest `limit` of `/api/drivelines/{name}/bites` and `/api/alarms`.
-pub const LIMIT_DEFAULT: u32 = 100;
+pub(crate) const LIMIT_DEFAULT: u32 = 100;
 /// Largest `limit`.
-pub const LIMIT_MAX: u32 = 10_000;
+pub(crate) const LIMIT_MAX: u32 = 10_000;
 /// Default `points` of `/api/drivelines/{name}/wear`.
-pub const POINTS_DEFAULT: u32 = 300;
+pub(crate) const POINTS_DEFAULT: u32 = 300;
 /// Outages counted on the overview: those that started in this window.
-pub const OUTAGE_WINDOW: Duration = Duration::from_secs(24 * 3600);
+pub(crate) const OUTAGE_WINDOW: Duration = Duration::from_secs(24 * 3600);
 
 /// A refused request: its status and a sentence saying why.
 #[derive(Debug)]
-pub struct ApiError {
+pub(crate) struct ApiError {
     /// 400, 404, 500 or 503.
     pub status: StatusCode,
     /// What was wrong, naming the parameter and its allowed range.
@@ -154,7 +151,7 @@ impl Params {
 
 /// How long a history request waits for a free query slot
 /// (`outputs.web.history_queries`) before it is answered 503.
-pub const SLOT_WAIT: Duration = Duration::from_secs(1);
+pub(crate) const SLOT_WAIT: Duration = Duration::from_secs(1);
 
 /// Run `work` on a reader of the history file, in one of the page's query slots,
 /// within the request timeout. The query runs on one of the page's query threads
