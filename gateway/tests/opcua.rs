@@ -12,9 +12,9 @@
 
 mod common;
 
-use std::io::{BufRead, BufReader, Write};
+use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::process::{Child, ChildStdin, Command, Stdio};
+use std::process::{Child, ChildStdin, Command};
 use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::time::{Duration, Instant};
 
@@ -40,28 +40,8 @@ impl Peer {
     /// Connect to `url` with `options` of opcua_client.py: `Ok` once the session is
     /// up, `Err` with the client's `refused` line.
     fn connect(url: &str, options: &[&str]) -> Result<Self, Value> {
-        let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/opcua_client.py");
-        let mut child = Command::new("python3")
-            .arg(script)
-            .arg(url)
-            .args(options)
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .spawn()
-            .expect("python3");
-        let stdin = child.stdin.take().unwrap();
-        let stdout = child.stdout.take().unwrap();
-        let (tx, lines) = std::sync::mpsc::channel();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stdout).lines() {
-                let Ok(line) = line else { break };
-                let value: Value = serde_json::from_str(&line)
-                    .unwrap_or_else(|e| panic!("client line {line:?}: {e}"));
-                if tx.send(value).is_err() {
-                    break;
-                }
-            }
-        });
+        let args = [&[url], options].concat();
+        let (child, stdin, lines) = common::json_peer("opcua_client.py", &args);
         let mut peer = Self {
             child,
             stdin,

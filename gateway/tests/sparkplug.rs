@@ -17,8 +17,8 @@ mod backlog;
 mod common;
 
 use std::collections::{HashMap, HashSet};
-use std::io::{BufRead, BufReader, Write};
-use std::path::{Path, PathBuf};
+use std::io::Write;
+use std::path::Path;
 use std::process::{Child, ChildStdin, Command, Stdio};
 use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::time::{Duration, Instant};
@@ -42,27 +42,9 @@ impl Host {
 
     /// The host with more `options` of sparkplug_host.py (TLS, user name).
     fn with_options(port: u16, group: &str, options: &[&str]) -> Self {
-        let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/sparkplug_host.py");
-        let mut child = Command::new("python3")
-            .arg(script)
-            .args(["127.0.0.1", &port.to_string(), group])
-            .args(options)
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .spawn()
-            .expect("python3");
-        let stdin = child.stdin.take().unwrap();
-        let stdout = child.stdout.take().unwrap();
-        let (tx, lines) = std::sync::mpsc::channel();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stdout).lines() {
-                let Ok(line) = line else { break };
-                let value: Value = serde_json::from_str(&line).expect("host JSON");
-                if tx.send(value).is_err() {
-                    break;
-                }
-            }
-        });
+        let port = port.to_string();
+        let args = [&["127.0.0.1", port.as_str(), group], options].concat();
+        let (child, stdin, lines) = common::json_peer("sparkplug_host.py", &args);
         let mut host = Self {
             child,
             stdin,

@@ -67,6 +67,43 @@ impl Plc<'_> {
     }
 }
 
+/// A Python peer (a client or host that is not ours) run as `python3 script args`:
+/// the child, its stdin for commands and its stdout's JSON lines, read on a thread.
+pub(crate) fn json_peer(
+    script: &str,
+    args: &[&str],
+) -> (
+    Child,
+    std::process::ChildStdin,
+    std::sync::mpsc::Receiver<serde_json::Value>,
+) {
+    use std::io::BufRead;
+    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("tests")
+        .join(script);
+    let mut child = Command::new("python3")
+        .arg(script)
+        .args(args)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("python3");
+    let stdin = child.stdin.take().unwrap();
+    let stdout = child.stdout.take().unwrap();
+    let (tx, lines) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in std::io::BufReader::new(stdout).lines() {
+            let Ok(line) = line else { break };
+            let value: serde_json::Value =
+                serde_json::from_str(&line).unwrap_or_else(|e| panic!("peer line {line:?}: {e}"));
+            if tx.send(value).is_err() {
+                break;
+            }
+        }
+    });
+    (child, stdin, lines)
+}
+
 /// A free loopback port, never the same one twice in this process, and below the
 /// kernel's ephemeral range (32768..): a port a test frees for a while (a broker
 /// restarted on it) is not handed to another test's listener meanwhile, as the
