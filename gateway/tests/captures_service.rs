@@ -9,6 +9,8 @@
 //!   gateway stored for that bite, to the printed digits;
 //! - the Parquet export of the same captures holds the same samples as the CSV and
 //!   its metadata (pyarrow reads both, `capture_parquet.py`);
+//! - the web API's download of a capture (`/api/captures/{id}/file`, the page's link)
+//!   is the exported CSV and Parquet file byte for byte, under the export's name;
 //! - `millgate discrepancy --db ... --bites LAST:3` takes the captured bites, names the
 //!   demo's opening gap and writes a calibrated model;
 //! - an export of a range without captures and of an unknown driveline, more bites
@@ -109,6 +111,36 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
     );
     let missing = http(web_port, "GET", "/api/captures/999999").await;
     assert_eq!(missing.status, 404, "{}", missing.body);
+    // Its download, as the page links it: compared with `capture export` below.
+    let download = |format: &'static str| {
+        let path = format!("/api/captures/{id}/file?format={format}");
+        async move {
+            let answer = http(web_port, "GET", &path).await;
+            assert_eq!(answer.status, 200, "{path}: {}", answer.body);
+            answer
+        }
+    };
+    let downloads = [download("csv").await, download("parquet").await];
+    assert_eq!(
+        downloads[0].header("content-type"),
+        Some("text/csv; charset=utf-8")
+    );
+    assert_eq!(
+        downloads[1].header("content-type"),
+        Some("application/vnd.apache.parquet")
+    );
+    let bad = http(
+        web_port,
+        "GET",
+        &format!("/api/captures/{id}/file?format=xls"),
+    )
+    .await;
+    assert_eq!(bad.status, 400, "{}", bad.body);
+    assert!(bad.json()["error"]
+        .as_str()
+        .unwrap()
+        .contains("csv or parquet"));
+    let downloaded_bite = first["bite_counter"].as_i64().unwrap();
     let seen = plc.counter();
     until("another bite in the PLC", Duration::from_secs(20), || {
         plc.counter() > seen
@@ -174,6 +206,18 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
             );
         }
         let parquet = export(db, &out, bite.bite_counter, "parquet");
+        if bite.bite_counter == downloaded_bite {
+            // The page's download is the exported file, byte for byte, under its name.
+            for (answer, path) in downloads.iter().zip([&csv, &parquet]) {
+                let file = String::from_utf8_lossy(&std::fs::read(path).unwrap()).into_owned();
+                assert_eq!(answer.body, file, "{path}");
+                let name = Path::new(path).file_name().unwrap().to_str().unwrap();
+                assert_eq!(
+                    answer.header("content-disposition"),
+                    Some(format!("attachment; filename=\"{name}\"").as_str())
+                );
+            }
+        }
         parquet_pairs.push((csv, parquet));
     }
     assert!(

@@ -358,7 +358,7 @@ pub fn aligned_response(
     model: &Model,
     bite: &super::Measured<'_>,
 ) -> Result<Option<AlignedResponse>, DiscrepancyError> {
-    let template = super::workflow::bite_template(model, bite, 0)?;
+    let template = model_fit::bite_template(model, bite, 0)?;
     let Some((load, cost)) = aligned_load(&template, bite.torque_knm)? else {
         return Ok(None);
     };
@@ -668,12 +668,23 @@ mod tests {
         let relative = response.static_torque_knm / model.load.static_torque - 1.0;
         assert!(relative.abs() < 1e-3, "static torque off by {relative}");
         let step = 1.0 / model.measurement.sample_rate;
-        assert!((response.onset_s - 0.05).abs() <= step, "{}", response.onset_s);
+        assert!(
+            (response.onset_s - 0.05).abs() <= step,
+            "{}",
+            response.onset_s
+        );
         let peak = record.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
-        assert!(response.residual_rms_knm < 1e-3 * peak, "{}", response.residual_rms_knm);
+        assert!(
+            response.residual_rms_knm < 1e-3 * peak,
+            "{}",
+            response.residual_rms_knm
+        );
         // A record without torque is no load step.
         let flat = vec![0.0; record.len()];
-        let flat = super::super::Measured { torque_knm: &flat, ..bite };
+        let flat = super::super::Measured {
+            torque_knm: &flat,
+            ..bite
+        };
         assert_eq!(aligned_response(&handed, &flat).unwrap(), None);
     }
 
