@@ -341,3 +341,112 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
     setup.devices.stop().await.unwrap();
     let _ = std::fs::remove_dir_all(&setup.scratch);
 }
+
+/// `command.manual_capture` over the gateway's Modbus server (tokio-modbus as the
+/// HMI): the next seconds of F1's torque kept as a capture of kind `manual`, as many
+/// samples as the seconds at the channel's rate, and holding, sample for sample, the
+/// window of each bite captured meanwhile (the same samples the analysis saw); a
+/// driveline that does not exist is refused (exception 03) and changes nothing.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_manual_capture_command_keeps_the_next_seconds_of_torque() {
+    use tokio_modbus::client::Writer;
+    let setup = Setup::new("manual-capture", "db").await;
+    let history = setup.history.clone();
+    let plc = setup.plc();
+    let service = Running(setup.spawn("run.log"));
+    until("a bite in the PLC", Duration::from_secs(40), || {
+        plc.counter() >= 1
+    })
+    .await;
+    let server = std::net::SocketAddr::from(([127, 0, 0, 1], setup.server_port));
+    let mut hmi = tokio_modbus::client::tcp::connect_slave(server, tokio_modbus::Slave(1))
+        .await
+        .unwrap();
+    let command = plc.at("command.manual_capture") as u16;
+    let refused = hmi
+        .write_single_register(command, (8 << 8) | 9)
+        .await
+        .unwrap();
+    assert_eq!(
+        refused,
+        Err(tokio_modbus::ExceptionCode::IllegalDataValue),
+        "driveline 9 does not exist"
+    );
+    let seconds = 8u16;
+    let asked_ns = millgate::state::captures::unix_ns(std::time::SystemTime::now());
+    hmi.write_single_register(command, (seconds << 8) | 1)
+        .await
+        .unwrap()
+        .unwrap();
+    let manual = |reader: &HistoryReader| -> Vec<CaptureRow> {
+        let rows: Vec<CaptureRow> = reader.rows(&Filter::default()).unwrap();
+        rows.into_iter().filter(|r| r.kind == "manual").collect()
+    };
+    until(
+        "the manual capture in the file",
+        Duration::from_secs(30),
+        || !manual(&HistoryReader::open(&history).unwrap()).is_empty(),
+    )
+    .await;
+    drop(service);
+
+    let reader = HistoryReader::open(&history).unwrap();
+    let rows = manual(&reader);
+    assert_eq!(rows.len(), 1, "{rows:?}");
+    let row = rows[0].clone();
+    assert_eq!(
+        (row.subject.as_str(), row.bite_counter, row.keep),
+        ("F1", None, 2)
+    );
+    assert_eq!(row.samples as f64, f64::from(seconds) * row.sample_rate_hz);
+    // Its first sample after the command (less one DAQ block's worth of time).
+    assert!(
+        row.first_sample_unix_ns > asked_ns - 1_000_000_000
+            && row.first_sample_unix_ns < asked_ns + 5_000_000_000,
+        "{row:?}"
+    );
+    let capture = reader.capture_of(row.clone()).unwrap();
+    let samples = &capture.channels[0].samples;
+    // The bites captured inside it: each window is a run of the manual samples.
+    let end_ns = row.first_sample_unix_ns + (row.duration_s * 1e9) as i64;
+    let bites: Vec<CaptureRow> = reader
+        .rows::<CaptureRow>(&Filter::default())
+        .unwrap()
+        .into_iter()
+        .filter(|c| c.kind == "bite" && c.sample_rate_hz == row.sample_rate_hz)
+        .filter(|c| {
+            let bite_end = c.first_sample_unix_ns + (c.duration_s * 1e9) as i64;
+            c.first_sample_unix_ns > row.first_sample_unix_ns + 300_000_000
+                && bite_end < end_ns - 300_000_000
+        })
+        .collect();
+    assert!(!bites.is_empty(), "no bite inside the {seconds} s captured");
+    for bite in bites {
+        let window = reader.capture_of(bite.clone()).unwrap().channels[0]
+            .samples
+            .clone();
+        assert_eq!(capture.channels[0].name, "spindle_top");
+        assert!(
+            samples
+                .windows(window.len())
+                .any(|run| run == window.as_slice()),
+            "bite {:?}'s window is not in the manual capture",
+            bite.bite_counter
+        );
+    }
+    // `capture list --kind manual` shows it.
+    let listed = millgate(&[
+        "capture",
+        "list",
+        "--db",
+        history.to_str().unwrap(),
+        "--kind",
+        "manual",
+        "--format",
+        "json",
+    ]);
+    assert!(listed.status.success(), "{}", text(&listed));
+    let listed: serde_json::Value = serde_json::from_slice(&listed.stdout).unwrap();
+    assert_eq!(listed[0]["id"].as_i64(), Some(row.id));
+    setup.finish().await;
+}
