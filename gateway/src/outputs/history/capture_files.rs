@@ -1,7 +1,7 @@
 //! A capture as a file, as `millgate capture export` writes it and the maintenance
 //! page's download serves it: CSV (the format `millgate analyze`, `wear` and
 //! `discrepancy` read, the capture's header in its first comment) or Parquet
-//! ([`capture_parquet`](super::capture_parquet)). One writer for both, so a download
+//! (`capture_parquet.rs`). One writer for both, so a download
 //! is byte for byte the exported file.
 
 use std::io::Write;
