@@ -9,6 +9,8 @@
 //!   gateway stored for that bite, to the printed digits;
 //! - the Parquet export of the same captures holds the same samples as the CSV and
 //!   its metadata (pyarrow reads both, `capture_parquet.py`);
+//! - the web API's download of a capture (`/api/captures/{id}/file`, the page's link)
+//!   is the exported CSV and Parquet file byte for byte, under the export's name;
 //! - `millgate discrepancy --db ... --bites LAST:3` takes the captured bites, names the
 //!   demo's opening gap and writes a calibrated model;
 //! - an export of a range without captures and of an unknown driveline, more bites
@@ -109,6 +111,36 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
     );
     let missing = http(web_port, "GET", "/api/captures/999999").await;
     assert_eq!(missing.status, 404, "{}", missing.body);
+    // Its download, as the page links it: compared with `capture export` below.
+    let download = |format: &'static str| {
+        let path = format!("/api/captures/{id}/file?format={format}");
+        async move {
+            let answer = http(web_port, "GET", &path).await;
+            assert_eq!(answer.status, 200, "{path}: {}", answer.body);
+            answer
+        }
+    };
+    let downloads = [download("csv").await, download("parquet").await];
+    assert_eq!(
+        downloads[0].header("content-type"),
+        Some("text/csv; charset=utf-8")
+    );
+    assert_eq!(
+        downloads[1].header("content-type"),
+        Some("application/vnd.apache.parquet")
+    );
+    let bad = http(
+        web_port,
+        "GET",
+        &format!("/api/captures/{id}/file?format=xls"),
+    )
+    .await;
+    assert_eq!(bad.status, 400, "{}", bad.body);
+    assert!(bad.json()["error"]
+        .as_str()
+        .unwrap()
+        .contains("csv or parquet"));
+    let downloaded_bite = first["bite_counter"].as_i64().unwrap();
     let seen = plc.counter();
     until("another bite in the PLC", Duration::from_secs(20), || {
         plc.counter() > seen
@@ -174,6 +206,18 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
             );
         }
         let parquet = export(db, &out, bite.bite_counter, "parquet");
+        if bite.bite_counter == downloaded_bite {
+            // The page's download is the exported file, byte for byte, under its name.
+            for (answer, path) in downloads.iter().zip([&csv, &parquet]) {
+                let file = String::from_utf8_lossy(&std::fs::read(path).unwrap()).into_owned();
+                assert_eq!(answer.body, file, "{path}");
+                let name = Path::new(path).file_name().unwrap().to_str().unwrap();
+                assert_eq!(
+                    answer.header("content-disposition"),
+                    Some(format!("attachment; filename=\"{name}\"").as_str())
+                );
+            }
+        }
         parquet_pairs.push((csv, parquet));
     }
     assert!(
@@ -296,4 +340,113 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
     drop(service);
     setup.devices.stop().await.unwrap();
     let _ = std::fs::remove_dir_all(&setup.scratch);
+}
+
+/// `command.manual_capture` over the gateway's Modbus server (tokio-modbus as the
+/// HMI): the next seconds of F1's torque kept as a capture of kind `manual`, as many
+/// samples as the seconds at the channel's rate, and holding, sample for sample, the
+/// window of each bite captured meanwhile (the same samples the analysis saw); a
+/// driveline that does not exist is refused (exception 03) and changes nothing.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_manual_capture_command_keeps_the_next_seconds_of_torque() {
+    use tokio_modbus::client::Writer;
+    let setup = Setup::new("manual-capture", "db").await;
+    let history = setup.history.clone();
+    let plc = setup.plc();
+    let service = Running(setup.spawn("run.log"));
+    until("a bite in the PLC", Duration::from_secs(40), || {
+        plc.counter() >= 1
+    })
+    .await;
+    let server = std::net::SocketAddr::from(([127, 0, 0, 1], setup.server_port));
+    let mut hmi = tokio_modbus::client::tcp::connect_slave(server, tokio_modbus::Slave(1))
+        .await
+        .unwrap();
+    let command = plc.at("command.manual_capture") as u16;
+    let refused = hmi
+        .write_single_register(command, (8 << 8) | 9)
+        .await
+        .unwrap();
+    assert_eq!(
+        refused,
+        Err(tokio_modbus::ExceptionCode::IllegalDataValue),
+        "driveline 9 does not exist"
+    );
+    let seconds = 8u16;
+    let asked_ns = millgate::state::captures::unix_ns(std::time::SystemTime::now());
+    hmi.write_single_register(command, (seconds << 8) | 1)
+        .await
+        .unwrap()
+        .unwrap();
+    let manual = |reader: &HistoryReader| -> Vec<CaptureRow> {
+        let rows: Vec<CaptureRow> = reader.rows(&Filter::default()).unwrap();
+        rows.into_iter().filter(|r| r.kind == "manual").collect()
+    };
+    until(
+        "the manual capture in the file",
+        Duration::from_secs(30),
+        || !manual(&HistoryReader::open(&history).unwrap()).is_empty(),
+    )
+    .await;
+    drop(service);
+
+    let reader = HistoryReader::open(&history).unwrap();
+    let rows = manual(&reader);
+    assert_eq!(rows.len(), 1, "{rows:?}");
+    let row = rows[0].clone();
+    assert_eq!(
+        (row.subject.as_str(), row.bite_counter, row.keep),
+        ("F1", None, 2)
+    );
+    assert_eq!(row.samples as f64, f64::from(seconds) * row.sample_rate_hz);
+    // Its first sample after the command (less one DAQ block's worth of time).
+    assert!(
+        row.first_sample_unix_ns > asked_ns - 1_000_000_000
+            && row.first_sample_unix_ns < asked_ns + 5_000_000_000,
+        "{row:?}"
+    );
+    let capture = reader.capture_of(row.clone()).unwrap();
+    let samples = &capture.channels[0].samples;
+    // The bites captured inside it: each window is a run of the manual samples.
+    let end_ns = row.first_sample_unix_ns + (row.duration_s * 1e9) as i64;
+    let bites: Vec<CaptureRow> = reader
+        .rows::<CaptureRow>(&Filter::default())
+        .unwrap()
+        .into_iter()
+        .filter(|c| c.kind == "bite" && c.sample_rate_hz == row.sample_rate_hz)
+        .filter(|c| {
+            let bite_end = c.first_sample_unix_ns + (c.duration_s * 1e9) as i64;
+            c.first_sample_unix_ns > row.first_sample_unix_ns + 300_000_000
+                && bite_end < end_ns - 300_000_000
+        })
+        .collect();
+    assert!(!bites.is_empty(), "no bite inside the {seconds} s captured");
+    for bite in bites {
+        let window = reader.capture_of(bite.clone()).unwrap().channels[0]
+            .samples
+            .clone();
+        assert_eq!(capture.channels[0].name, "spindle_top");
+        assert!(
+            samples
+                .windows(window.len())
+                .any(|run| run == window.as_slice()),
+            "bite {:?}'s window is not in the manual capture",
+            bite.bite_counter
+        );
+    }
+    // `capture list --kind manual` shows it.
+    let listed = millgate(&[
+        "capture",
+        "list",
+        "--db",
+        history.to_str().unwrap(),
+        "--kind",
+        "manual",
+        "--format",
+        "json",
+    ]);
+    assert!(listed.status.success(), "{}", text(&listed));
+    let listed: serde_json::Value = serde_json::from_slice(&listed.stdout).unwrap();
+    assert_eq!(listed[0]["id"].as_i64(), Some(row.id));
+    setup.finish().await;
 }

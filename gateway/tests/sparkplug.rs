@@ -25,6 +25,7 @@ use std::time::{Duration, Instant};
 
 use backlog::Broker;
 use common::{free_port, terminate, Setup};
+use millgate::outputs::history::query::{CaptureRow, Filter, HistoryReader};
 use serde_json::Value;
 
 /// The Python host: its messages as JSON, its stdin for commands.
@@ -262,10 +263,20 @@ async fn births_data_rebirth_and_the_will_as_an_independent_host_decodes_them() 
         .iter()
         .map(|f| f.key)
         .chain(["bite_id"])
+        .chain(
+            millgate::outputs::sparkplug::node::CAPTURE_METRICS
+                .iter()
+                .map(|(name, ..)| *name),
+        )
         .collect();
     keys.sort_unstable();
     assert_eq!(born, keys);
     let bite_alias = metric(&dbirth, "bite_id")["alias"].as_u64().unwrap();
+    assert_eq!(metric(&dbirth, "capture/kind")["datatype"], 12, "String");
+    assert_eq!(
+        metric(&dbirth, "capture/span_s")["properties"]["engUnit"],
+        "s"
+    );
 
     // Bites: each its own DDATA with the bite id, by alias only, values as in the PLC.
     let plc = setup.plc();
@@ -341,6 +352,14 @@ async fn births_data_rebirth_and_the_will_as_an_independent_host_decodes_them() 
         (dbirth_again["type"].as_str(), seq(&dbirth_again)),
         (Some("DBIRTH"), 1)
     );
+    // The birth names the driveline's newest capture: at least the last bite's.
+    let born_capture = metric(&dbirth_again, "capture/id")["value"].as_u64();
+    let last_bite_capture = by_name(&bites[1].1, "capture/id").as_u64();
+    assert!(
+        born_capture.is_some() && born_capture >= last_bite_capture,
+        "{dbirth_again}"
+    );
+    assert_eq!(metric(&dbirth_again, "capture/kind")["value"], "bite");
 
     // seq: every message after an NBIRTH is one more than the one before (mod 256).
     let mut last: Option<u64> = None;
@@ -372,6 +391,52 @@ async fn births_data_rebirth_and_the_will_as_an_independent_host_decodes_them() 
     terminate(&mut second);
     let death = host.next_of("NDEATH", limit);
     assert_eq!(metric(&death, "bdSeq")["value"].as_u64(), Some(bd_seq + 1));
+    // Each bite's DDATA announced its capture as the history file holds it (a
+    // capture the writer committed after its bite's DDATA went is announced by the
+    // next birth only: allowed for one of the two, not both).
+    let reader = HistoryReader::open(&setup.history).unwrap();
+    let captures: Vec<CaptureRow> = reader.rows(&Filter::default()).unwrap();
+    let capture_alias = *names.iter().find(|(_, n)| *n == "capture/id").unwrap().0;
+    let announcing: Vec<&(u64, Value)> = bites
+        .iter()
+        .filter(|(_, data)| {
+            data["metrics"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .any(|m| m["alias"] == capture_alias)
+        })
+        .collect();
+    assert!(
+        !announcing.is_empty(),
+        "no bite DDATA announced its capture"
+    );
+    for (bite_id, data) in announcing {
+        let row = captures
+            .iter()
+            .find(|c| c.bite_counter == Some(*bite_id as i64))
+            .unwrap_or_else(|| panic!("bite {bite_id}: no capture in the file"));
+        let announced = (
+            by_name(data, "capture/id").as_i64(),
+            by_name(data, "capture/kind"),
+            by_name(data, "capture/samples").as_i64(),
+            by_name(data, "capture/bytes").as_i64(),
+            by_name(data, "capture/first_sample").as_i64(),
+            by_name(data, "capture/span_s").as_f64(),
+        );
+        assert_eq!(
+            announced,
+            (
+                Some(row.id),
+                Value::from(row.kind.as_str()),
+                Some(row.samples),
+                Some(row.bytes),
+                Some(row.first_sample_unix_ns / 1_000_000),
+                Some(row.duration_s)
+            ),
+            "bite {bite_id}"
+        );
+    }
     setup.stop(second).await;
 }
 

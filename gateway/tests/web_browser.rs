@@ -1,7 +1,9 @@
 //! The maintenance page in a real browser: Debian's headless chromium driven through
 //! chromedriver (WebDriver, fantoccini) against a real service with a history. The
 //! overview lists the driveline, the driveline page's gap plot is a uPlot canvas with
-//! data, its TAF plot carries the wear map's curves and the estimate's, and a new bite
+//! data, its TAF plot carries the wear map's curves and the estimate's, its bite trace
+//! is a captured bite's samples beside the model's response (the capture and response
+//! APIs' numbers; another row's "plot" switches to that bite), and a new bite
 //! shows on the open overview and driveline page without a reload (the time it took is
 //! printed: the README's "within 2 s" is a figure of a quiet machine, not asserted on a
 //! loaded CI machine).
@@ -159,6 +161,128 @@ async fn until_js(
     }
 }
 
+/// Whether `a` and `b` are the same numbers (to JSON's round trip through the browser).
+fn same_numbers(a: &serde_json::Value, b: &serde_json::Value) -> bool {
+    let (Some(a), Some(b)) = (a.as_array(), b.as_array()) else {
+        return false;
+    };
+    a.len() == b.len()
+        && a.iter()
+            .zip(b)
+            .all(|(x, y)| match (x.as_f64(), y.as_f64()) {
+                (Some(x), Some(y)) => (x - y).abs() <= 1e-12 * x.abs().max(1.0),
+                _ => false,
+            })
+}
+
+/// The driveline page's bite trace: the newest captured bite's torque samples as the
+/// capture API gives them, the model's response as the response API gives it, on the
+/// capture's time grid; the bite's row links its capture's downloads, and its "plot"
+/// button on another bite's row plots that bite's capture.
+async fn trace_is_the_captures_samples_beside_the_model(client: &Client, port: u16) {
+    let long = Duration::from_secs(20);
+    let trace = until_js(
+        client,
+        "const p = window.millgatePlots.trace; \
+         return p ? [p.millgateCapture, p.data, p.series.length] : null;",
+        long,
+        |v| !v.is_null() && v[2].as_u64() == Some(3),
+    )
+    .await;
+    let id = trace[0].as_i64().expect("the plotted capture's id");
+    let capture = common::http(port, "GET", &format!("/api/captures/{id}")).await;
+    assert_eq!(capture.status, 200, "{}", capture.body);
+    let capture = capture.json();
+    assert_eq!(capture["kind"], "bite");
+    let samples = &capture["channels"][0]["samples"];
+    assert!(samples.as_array().unwrap().len() > 100, "{capture}");
+    assert!(
+        same_numbers(&trace[1][1], samples),
+        "the trace is not the capture's samples"
+    );
+    let rate = capture["sample_rate_hz"].as_f64().unwrap();
+    let grid: Vec<f64> = (0..samples.as_array().unwrap().len())
+        .map(|k| k as f64 / rate)
+        .collect();
+    assert!(
+        same_numbers(&trace[1][0], &serde_json::json!(grid)),
+        "time grid"
+    );
+    let response = common::http(port, "GET", &format!("/api/captures/{id}/response")).await;
+    assert_eq!(response.status, 200, "{}", response.body);
+    let response = response.json();
+    assert!(
+        same_numbers(&trace[1][2], &response["response"]["torque_knm"]),
+        "the model's series is not the response API's"
+    );
+    // The aligned model's static torque is the bite's as the gateway measured it
+    // (another computation: the bite detector's settled mean), and the residual is
+    // small beside it (the demo's driveline is near the configured model).
+    let bites = common::http(port, "GET", "/api/drivelines/F1/bites?limit=500").await;
+    let bite_counter = capture["bite_counter"].as_i64().unwrap();
+    let bite = bites
+        .json()
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|b| b["bite_counter"].as_i64() == Some(bite_counter))
+        .cloned()
+        .expect("the plotted bite in the bites API");
+    let measured_knm = bite["static_torque_knm"].as_f64().unwrap();
+    let aligned_knm = response["response"]["static_torque_knm"].as_f64().unwrap();
+    let residual_knm = response["response"]["residual_rms_knm"].as_f64().unwrap();
+    eprintln!(
+        "bite {bite_counter}: static torque {measured_knm:.1} kN*m measured, \
+         {aligned_knm:.1} kN*m aligned; residual {residual_knm:.2} kN*m RMS"
+    );
+    assert!(
+        (aligned_knm / measured_knm - 1.0).abs() < 0.05,
+        "{aligned_knm} vs {measured_knm}"
+    );
+    assert!(residual_knm < 0.1 * measured_knm, "{residual_knm}");
+    // The row links the capture's files; another row's button plots its capture.
+    let links = client
+        .execute(
+            &format!(
+                "const r = document.querySelector('#bites tbody tr[data-bite=\"{bite_counter}\"]'); \
+                 return r ? Array.from(r.querySelectorAll('a')).map((a) => a.getAttribute('href')) : null;"
+            ),
+            vec![],
+        )
+        .await
+        .unwrap();
+    assert_eq!(
+        links,
+        serde_json::json!([
+            format!("/api/captures/{id}/file?format=csv"),
+            format!("/api/captures/{id}/file?format=parquet")
+        ])
+    );
+    let other = client
+        .execute(
+            &format!(
+                "const b = Array.from(document.querySelectorAll('#bites button.plot-capture')) \
+                   .find((b) => Number(b.dataset.capture) !== {id}); \
+                 if (!b) return null; b.click(); return Number(b.dataset.capture);"
+            ),
+            vec![],
+        )
+        .await
+        .unwrap();
+    let other = other.as_i64().expect("a second captured bite in the table");
+    let shown = until_js(
+        client,
+        "const p = window.millgatePlots.trace; return [p.millgateCapture, p.data[1]];",
+        long,
+        |v| v[0].as_i64() == Some(other),
+    )
+    .await;
+    let theirs = common::http(port, "GET", &format!("/api/captures/{other}"))
+        .await
+        .json();
+    assert!(same_numbers(&shown[1], &theirs["channels"][0]["samples"]));
+}
+
 async fn screenshot(client: &Client, name: &str) {
     if let Some(folder) = std::env::var_os("MILLGATE_SCREENSHOTS") {
         let png = client.screenshot().await.expect("screenshot");
@@ -266,6 +390,7 @@ async fn the_pages_list_the_drivelines_plot_the_gap_and_show_a_new_bite_live() {
         canvas[0].as_u64() > Some(300) && canvas[1].as_u64() > Some(100),
         "{canvas}"
     );
+    trace_is_the_captures_samples_beside_the_model(&client, port).await;
     let taf_points = until_js(
         &client,
         "const p = window.millgatePlots.taf; return p ? p.data[0].length : 0;",

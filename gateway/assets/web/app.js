@@ -232,6 +232,11 @@
     const gapNote = document.getElementById("gap-note");
     const tafNote = document.getElementById("taf-note");
     const tbody = document.querySelector("#bites tbody");
+    const traceNode = document.getElementById("trace-plot");
+    const traceNote = document.getElementById("trace-note");
+    let tracePlot = null;
+    let traceShown = null; // the capture id on the trace plot
+    let captureOf = new Map(); // bite counter -> capture id
     let info = null;
     let gapPlot = null;
     let tafPlot = null;
@@ -261,7 +266,74 @@
         el("td", {}, num(b.static_torque_knm, 0) + " kN·m"), el("td", {}, num(b.peak_torque_knm, 0) + " kN·m"),
         el("td", {}, num(b.taf, 3)),
         el("td", {}, b.period_shift_s === null || b.period_shift_s === undefined ? "–" : num(b.period_shift_s * 1000, 2) + " ms"),
-        el("td", {}, gap), el("td", {}, b.degraded ? badge("warning", "degraded") : b.quality));
+        el("td", {}, gap), el("td", {}, b.degraded ? badge("warning", "degraded") : b.quality),
+        captureCell(b));
+    }
+    // The bite's capture: plot it, or download it as the export writes it.
+    function captureCell(b) {
+      const id = captureOf.get(b.bite_counter);
+      if (id === undefined) return el("td", { class: "muted" }, "–");
+      const file = (format) => "/api/captures/" + id + "/file?format=" + format;
+      return el("td", {},
+        el("button", { type: "button", class: "plot-capture", "data-capture": id }, "plot"), " ",
+        el("a", { href: file("csv"), download: "" }, "CSV"), " ",
+        el("a", { href: file("parquet"), download: "" }, "Parquet"));
+    }
+    tbody.addEventListener("click", (event) => {
+      const button = event.target.closest("button.plot-capture");
+      if (button) showTrace(Number(button.dataset.capture));
+    });
+
+    // A bite's torque trace (its capture) beside the model's simulated response at
+    // the bite's static torque (/api/captures/{id}/response), and the residual.
+    async function showTrace(id) {
+      traceShown = id;
+      try {
+        const capture = await getJson("/api/captures/" + id);
+        let response = null;
+        let why = "";
+        if (info.has_model) {
+          try {
+            response = await getJson("/api/captures/" + id + "/response");
+          } catch (error) { why = error.message; }
+        } else {
+          why = "no driveline model configured: no simulated response";
+        }
+        if (traceShown !== id) return; // another bite was chosen meanwhile
+        const channel = capture.channels[0];
+        const rate = capture.sample_rate_hz;
+        const t = channel.samples.map((_, k) => k / rate);
+        const data = [t, channel.samples];
+        const series = [
+          { label: "t, s", value: (u, v) => num(v, 4) },
+          { label: channel.name + " (measured)", stroke: "#1f2933", width: 1.5, points: quiet, value: (u, v) => num(v, 1) + " " + channel.unit },
+        ];
+        if (response) {
+          data.push(response.response.torque_knm);
+          series.push({ label: "model at the bite's static torque", stroke: "#1d4ed8", width: 1.5, dash: [6, 4], points: quiet, value: (u, v) => num(v, 1) + " kN·m" });
+        }
+        const options = {
+          width: plotWidth(traceNode), height: 300,
+          scales: { x: { time: false } },
+          series,
+          axes: [{ label: "time from the capture's first sample, s" }, { label: "torque, " + channel.unit }],
+        };
+        if (tracePlot) tracePlot.destroy();
+        tracePlot = new uPlot(options, data, traceNode);
+        tracePlot.millgateCapture = id;
+        window.millgatePlots.trace = tracePlot;
+        const bite = bites.find((b) => b.bite_counter === capture.bite_counter);
+        const gap = bite && bite.gap_mrad !== null && bite.gap_mrad !== undefined
+          ? "; estimated gap " + num(bite.gap_mrad, 2) + " mrad (" + num(bite.gap_low_mrad, 2) + "–" + num(bite.gap_high_mrad, 2) + ")" : "";
+        traceNote.textContent = "Bite " + capture.bite_counter + " at " + utc(capture.bite_time) + ", capture " + id + ", "
+          + channel.samples.length + " samples at " + rate + " Hz" + gap + ". "
+          + (response ? "Model aligned to the record: static torque " + num(response.response.static_torque_knm, 1)
+            + " kN·m, onset " + num(response.response.onset_s * 1000, 1) + " ms; residual (measured − model) "
+            + num(response.response.residual_rms_knm, 2) + " kN·m RMS: what the model does not explain (a gap, a stiffness off)."
+            : why);
+      } catch (error) {
+        traceNote.textContent = error.message;
+      }
     }
     function table() {
       fill(tbody, bites.slice(-25).reverse().map((b) => row(b, false)));
@@ -405,12 +477,20 @@
     async function loadHistory() {
       try {
         const series = Date.now() - wearAt >= SERIES_PERIOD_MS;
-        const [wear, rows] = await Promise.all([
+        const [wear, rows, captures] = await Promise.all([
           series ? getJson("/api/drivelines/" + encodeURIComponent(name) + "/wear?points=400") : null,
           getJson("/api/drivelines/" + encodeURIComponent(name) + "/bites?limit=500"),
+          getJson("/api/drivelines/" + encodeURIComponent(name) + "/captures?limit=500"),
         ]);
         bites = rows;
+        captureOf = new Map(captures.filter((c) => c.kind === "bite").map((c) => [c.bite_counter, c.id]));
         table();
+        // The newest captured bite's trace until one is chosen.
+        if (traceShown === null) {
+          const newest = bites.slice().reverse().find((b) => captureOf.has(b.bite_counter));
+          if (newest) showTrace(captureOf.get(newest.bite_counter));
+          else traceNote.textContent = "No bite capture in the history yet.";
+        }
         if (wear) {
           wearAt = Date.now();
           drawGap(wear);
@@ -433,7 +513,8 @@
       } else {
         gapNote.textContent = "No history configured: the plots need [history] in the configuration.";
         await loadMap();
-        fill(tbody, [el("tr", {}, el("td", { colspan: 8, class: "muted" }, "no history configured: live figures only"))]);
+        traceNote.textContent = "No history configured: bite captures need [history].";
+        fill(tbody, [el("tr", {}, el("td", { colspan: 9, class: "muted" }, "no history configured: live figures only"))]);
       }
       let pending = null;
       listeners.push((now, before) => {
@@ -474,6 +555,7 @@
       window.addEventListener("resize", () => {
         if (gapPlot) gapPlot.setSize({ width: plotWidth(gapNode), height: 300 });
         if (tafPlot) tafPlot.setSize({ width: plotWidth(tafNode), height: 320 });
+        if (tracePlot) tracePlot.setSize({ width: plotWidth(traceNode), height: 300 });
       });
     }
     start().catch((error) => { gapNote.textContent = error.message; });

@@ -118,6 +118,8 @@ pub(super) struct DrivelineAnalyzer {
     wear_problem: Option<AnalysisError>,
     /// The torque channel as a capture describes it, when captures are kept.
     capture: Option<CaptureChannel>,
+    /// A manual capture being taken (`Command::CaptureTorque`).
+    manual: Option<ManualCapture>,
 }
 
 /// How one driveline's bites are detected and analysed, from its configuration and
@@ -326,6 +328,47 @@ impl DrivelineAnalyzer {
             gap_job,
             wear_problem,
             capture: None,
+            manual: None,
+        })
+    }
+
+    /// Start keeping the next `seconds` s of torque as a manual capture (a capture
+    /// already running starts again); false when captures are not kept.
+    pub(super) fn start_manual_capture(&mut self, seconds: f64) -> bool {
+        if self.capture.is_none() {
+            return false;
+        }
+        self.manual = Some(ManualCapture {
+            remaining: (seconds * self.sample_rate_hz).ceil().max(1.0) as usize,
+            samples: Vec::new(),
+            first_sample: None,
+            kernel_time: false,
+            gaps: Vec::new(),
+        });
+        true
+    }
+
+    /// The manual capture, once its samples are all in.
+    pub(super) fn take_manual_capture(&mut self) -> Option<CaptureRecord> {
+        if self.manual.as_ref()?.remaining > 0 {
+            return None;
+        }
+        let manual = self.manual.take()?;
+        let torque = self.capture.as_ref()?;
+        Some(CaptureRecord {
+            kind: CaptureKind::Manual,
+            subject: self.name.clone(),
+            bite: None,
+            first_sample_unix_ns: unix_ns(manual.first_sample.unwrap_or(UNIX_EPOCH)),
+            kernel_time: manual.kernel_time,
+            sample_rate_hz: self.sample_rate_hz,
+            channels: vec![CaptureChannel {
+                samples: manual.samples,
+                ..torque.clone()
+            }],
+            gaps: manual.gaps,
+            analysis: None,
+            keep: KeepClass::Important,
         })
     }
 
@@ -467,6 +510,19 @@ impl DrivelineAnalyzer {
         received: Option<SystemTime>,
         reports: &mut Vec<BiteReport>,
     ) {
+        if let Some(manual) = self.manual.as_mut() {
+            if manual.first_sample.is_none() {
+                // The first sample's time: the last's, or now's without one (a
+                // Modbus DAQ), moved back over the block.
+                let last = received.unwrap_or_else(SystemTime::now);
+                let span = values.len().saturating_sub(1) as f64 / self.sample_rate_hz;
+                manual.first_sample = Some(before(last, span));
+                manual.kernel_time = received.is_some();
+            }
+            let take = manual.remaining.min(values.len());
+            manual.samples.extend_from_slice(&values[..take]);
+            manual.remaining -= take;
+        }
         for (i, &value) in values.iter().enumerate() {
             if let Some(event) = self.detector.process(&mut self.state, value) {
                 let later = (values.len() - 1 - i) as f64 / self.sample_rate_hz;
@@ -477,6 +533,12 @@ impl DrivelineAnalyzer {
     }
 
     pub(super) fn gap(&mut self, missed: Option<u64>, reports: &mut Vec<BiteReport>) {
+        if let Some(manual) = self.manual.as_mut().filter(|m| !m.samples.is_empty()) {
+            manual.gaps.push(CaptureGap {
+                before_sample: manual.samples.len(),
+                missed_samples: missed,
+            });
+        }
         if let Some(event) = self.detector.gap(&mut self.state, missed.unwrap_or(0)) {
             reports.extend(self.report(&event, None, Some(missed)));
         }
@@ -536,24 +598,21 @@ impl DrivelineAnalyzer {
                 counter: driveline.bite_counter,
                 time,
             };
-            events.push(HistoryEvent::Bite(Box::new(record)));
             let raised_gap_alarm = gap_alarms.iter().any(|event| {
                 matches!(event, HistoryEvent::Alarm(a) if a.kind == AlarmKind::GapAlarm && a.event == AlarmEvent::Raised)
             });
-            if report.samples.is_some() {
-                let keep = if taf.is_some_and(|taf| taf >= self.taf_alarm) || raised_gap_alarm {
-                    KeepClass::Important
-                } else if driveline.taf_warning || driveline.gap_warning {
-                    KeepClass::Warning
-                } else {
-                    KeepClass::Ordinary
-                };
-                events.extend(
-                    report
-                        .capture(bite, keep)
-                        .map(|capture| HistoryEvent::Capture(Box::new(capture))),
-                );
-            }
+            let keep = if taf.is_some_and(|taf| taf >= self.taf_alarm) || raised_gap_alarm {
+                KeepClass::Important
+            } else if driveline.taf_warning || driveline.gap_warning {
+                KeepClass::Warning
+            } else {
+                KeepClass::Ordinary
+            };
+            let capture = report.capture(bite, keep);
+            events.push(match capture {
+                Some(capture) => HistoryEvent::CapturedBite(Box::new(record), Box::new(capture)),
+                None => HistoryEvent::Bite(Box::new(record)),
+            });
             let alarm = |kind, event, value, threshold| {
                 HistoryEvent::Alarm(AlarmRecord {
                     time,
@@ -682,6 +741,21 @@ impl BiteReport {
             keep,
         })
     }
+}
+
+/// A manual capture of a driveline's torque while it is being taken.
+#[derive(Debug)]
+struct ManualCapture {
+    /// Samples still to take.
+    remaining: usize,
+    /// The samples taken.
+    samples: Vec<f64>,
+    /// Time of the first sample.
+    first_sample: Option<SystemTime>,
+    /// Whether that time is the kernel's (CAN).
+    kernel_time: bool,
+    /// Where data was lost.
+    gaps: Vec<CaptureGap>,
 }
 
 /// `time` moved back by `seconds` (>= 0), saturating at the Unix epoch.

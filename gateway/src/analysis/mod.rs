@@ -26,6 +26,7 @@ use tokio::sync::{broadcast, mpsc};
 use crate::field::acquired::Acquired;
 use crate::state::board::Board;
 use crate::state::commands::{Command, CommandReceiver};
+use crate::state::events::HistoryEvent;
 use crate::state::gap_maps::{GapMapState, GapMaps};
 use crate::supervision::{Liveness, ANALYSIS_TICK};
 use driveline::{BiteReport, DrivelineAnalyzer};
@@ -190,6 +191,25 @@ impl Analysis {
                 analyzer.reset_gap_pool();
                 self.board.reset_wear(driveline, origin);
             }
+            Command::CaptureTorque {
+                driveline,
+                seconds,
+                origin,
+            } => {
+                let Some(analyzer) = self.drivelines.get_mut(driveline) else {
+                    tracing::warn!(
+                        driveline,
+                        "manual capture of a driveline that does not exist"
+                    );
+                    return;
+                };
+                let name = &self.board.driveline_names()[driveline];
+                if analyzer.start_manual_capture(f64::from(seconds)) {
+                    tracing::info!(driveline = %name, seconds, by = origin.name(), peer = ?origin.peer(), "manual capture started");
+                } else {
+                    tracing::warn!(driveline = %name, by = origin.name(), "manual capture refused: captures are not kept (no [history])");
+                }
+            }
         }
     }
 
@@ -206,6 +226,12 @@ impl Analysis {
             } => {
                 for &d in &self.by_torque[channel] {
                     self.drivelines[d].samples(&values, received, &mut reports);
+                    if let Some(capture) = self.drivelines[d].take_manual_capture() {
+                        tracing::info!(driveline = %capture.subject, samples = capture.samples(), "manual capture kept");
+                        self.board
+                            .history()
+                            .record(HistoryEvent::Capture(Box::new(capture)));
+                    }
                 }
             }
             Acquired::Gap {

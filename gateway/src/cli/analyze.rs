@@ -118,7 +118,12 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<String> {
         .map_err(|e| anyhow::anyhow!("{}: {e}", args.input.display()))?;
     let capture = CaptureHeader::from_comments(&table.comments)
         .transpose()
-        .map_err(|e| anyhow::anyhow!("{}: {e:#}", args.input.display()))?;
+        .map_err(|e| {
+            anyhow::anyhow!(
+                "{}: the `# millgate capture` line is not readable: {e}",
+                args.input.display()
+            )
+        })?;
     let bite_window = capture
         .as_ref()
         .and_then(|header| Some((header.sample_rate_hz, header.analysis?)))

@@ -21,20 +21,18 @@
 //! the memory of one capture.
 
 use std::fmt::Write as _;
-use std::io::Write as _;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::Context as _;
-use serde::{Deserialize, Serialize};
 
 use crate::cli::history::parse_time;
-use crate::outputs::history::captures::{row_json, Capture, ChannelMeta};
+pub use crate::outputs::history::capture_files::{
+    file_name, CaptureHeader, ExportFormat, CSV_HEADER_PREFIX,
+};
+use crate::outputs::history::capture_files::{run_config_name, write};
+use crate::outputs::history::captures::row_json;
 use crate::outputs::history::query::{CaptureRow, Filter, HistoryReader};
 use crate::outputs::history::HistoryError;
-use crate::state::captures::{BiteWindowAnalysis, CaptureGap};
-
-/// The comment that opens a capture's CSV, before its JSON.
-pub const CSV_HEADER_PREFIX: &str = "millgate capture ";
 
 /// What `millgate capture` does.
 #[derive(Debug, Clone, clap::Subcommand)]
@@ -95,15 +93,6 @@ pub struct ListArgs {
     /// Output format.
     #[arg(long, value_enum, default_value = "text")]
     pub format: super::OutputFormat,
-}
-
-/// File format of an export.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum ExportFormat {
-    /// CSV, as `millgate analyze`, `wear` and `discrepancy` read.
-    Csv,
-    /// Apache Parquet, the metadata in the file's key-value metadata.
-    Parquet,
 }
 
 /// Arguments of `millgate capture export`.
@@ -313,12 +302,9 @@ pub fn export(args: &ExportArgs) -> anyhow::Result<Vec<PathBuf>> {
         let capture = reader.capture_of(row)?;
         let header = CaptureHeader::of(&capture, config_name);
         let path = args.out.join(file_name(&capture, args.format));
-        match args.format {
-            ExportFormat::Csv => write_csv(&capture, &header, &path)?,
-            ExportFormat::Parquet => {
-                super::capture_parquet::write(&capture, &serde_json::to_string(&header)?, &path)?;
-            }
-        }
+        let file = std::fs::File::create(&path)
+            .with_context(|| format!("{}: cannot create", path.display()))?;
+        write(&capture, &header, args.format, file).with_context(|| path.display().to_string())?;
         written.push(path);
         Ok(())
     })?;
@@ -333,131 +319,4 @@ pub fn export(args: &ExportArgs) -> anyhow::Result<Vec<PathBuf>> {
         return Err(error);
     }
     Ok(written)
-}
-
-/// `capture-<id>-<subject>-<kind>[-bite<N>].<ext>`.
-pub fn file_name(capture: &Capture, format: ExportFormat) -> String {
-    let row = &capture.row;
-    let subject: String = row
-        .subject
-        .chars()
-        .map(|c| {
-            if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect();
-    let bite = row
-        .bite_counter
-        .map_or(String::new(), |bite| format!("-bite{bite}"));
-    let ext = match format {
-        ExportFormat::Csv => "csv",
-        ExportFormat::Parquet => "parquet",
-    };
-    format!("capture-{}-{subject}-{}{bite}.{ext}", row.id, row.kind)
-}
-
-/// What a capture's file says about it besides its samples: the CSV's first comment
-/// and the Parquet file's key-value metadata (`millgate.capture`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct CaptureHeader {
-    /// The capture's id in its history file.
-    pub id: i64,
-    /// `bite`, `chatter`, `manual`.
-    pub kind: String,
-    /// The driveline, tandem mill or request name.
-    pub subject: String,
-    /// The driveline's bite counter after its bite.
-    pub bite_counter: Option<i64>,
-    /// Its bite's time, UTC.
-    pub bite_time: Option<String>,
-    /// The first sample, UTC (ms).
-    pub started_at: String,
-    /// The first sample, ns since the Unix epoch.
-    pub first_sample_unix_ns: i64,
-    /// Times from the CAN kernel's receive timestamps.
-    pub kernel_time: bool,
-    /// Sample rate, Hz.
-    pub sample_rate_hz: f64,
-    /// Channels in column order: name, unit, scale, offset, how stored.
-    pub channels: Vec<ChannelMeta>,
-    /// Where data was lost.
-    pub gaps: Vec<CaptureGap>,
-    /// For a bite: how the gateway read its window.
-    pub analysis: Option<BiteWindowAnalysis>,
-    /// The millgate that stored the capture.
-    pub gateway_version: String,
-    /// The gateway's configuration name (`name`) in the run that stored it.
-    pub config_name: Option<String>,
-}
-
-impl CaptureHeader {
-    /// The header of `capture`.
-    pub fn of(capture: &Capture, config_name: Option<String>) -> Self {
-        let row = &capture.row;
-        Self {
-            id: row.id,
-            kind: row.kind.clone(),
-            subject: row.subject.clone(),
-            bite_counter: row.bite_counter,
-            bite_time: row.bite_time.clone(),
-            started_at: row.started_at.clone(),
-            first_sample_unix_ns: row.first_sample_unix_ns,
-            kernel_time: row.kernel_time,
-            sample_rate_hz: row.sample_rate_hz,
-            channels: capture.meta.channels.clone(),
-            gaps: capture.meta.gaps.clone(),
-            analysis: capture.meta.analysis,
-            gateway_version: capture.meta.version.clone(),
-            config_name,
-        }
-    }
-
-    /// The header in `comments` (a CSV's `#` lines), when one is a capture's.
-    pub fn from_comments(comments: &[String]) -> Option<anyhow::Result<Self>> {
-        let json = comments
-            .iter()
-            .find_map(|comment| comment.strip_prefix(CSV_HEADER_PREFIX))?;
-        Some(serde_json::from_str(json).context("the `# millgate capture` line is not readable"))
-    }
-}
-
-/// The configuration name of run `run_id` (`gateway_runs.config_name`).
-fn run_config_name(reader: &HistoryReader, run_id: i64) -> Result<Option<String>, HistoryError> {
-    let runs = reader.runs(&Filter {
-        after_id: Some(run_id - 1),
-        limit: Some(1),
-        ..Filter::default()
-    })?;
-    Ok(runs
-        .into_iter()
-        .find(|run| run.id == run_id)
-        .map(|run| run.config_name))
-}
-
-/// Write `capture` with its `header` as CSV to `path`.
-fn write_csv(capture: &Capture, header: &CaptureHeader, path: &Path) -> anyhow::Result<()> {
-    let file = std::fs::File::create(path)
-        .with_context(|| format!("{}: cannot create", path.display()))?;
-    let mut out = std::io::BufWriter::new(file);
-    let write = |out: &mut std::io::BufWriter<std::fs::File>| -> std::io::Result<()> {
-        writeln!(
-            out,
-            "# {CSV_HEADER_PREFIX}{}",
-            serde_json::to_string(header).map_err(std::io::Error::other)?
-        )?;
-        let names: Vec<&str> = capture.channels.iter().map(|c| c.name.as_str()).collect();
-        writeln!(out, "t,{}", names.join(","))?;
-        for index in 0..usize::try_from(capture.row.samples).unwrap_or(0) {
-            write!(out, "{}", capture.time_s(index))?;
-            for channel in &capture.channels {
-                write!(out, ",{}", channel.samples[index])?;
-            }
-            writeln!(out)?;
-        }
-        out.flush()
-    };
-    write(&mut out).with_context(|| format!("{}: cannot write", path.display()))
 }

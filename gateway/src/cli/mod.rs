@@ -41,7 +41,6 @@
 pub mod address_space;
 pub mod analyze;
 pub mod capture;
-mod capture_parquet;
 pub mod chatter;
 pub mod check;
 pub mod csv;

@@ -12,7 +12,9 @@
 //! takes 0 (nothing) or 1 (clear latched alarms); `command.reset_wear_trend` takes a
 //! bitmask of the first 16 drivelines (bit k = the k-th driveline in config order, 0 =
 //! nothing) and refuses bits of drivelines that do not exist; `command.reset_wear` takes
-//! a driveline's number (1-based, any count of drivelines). All read back 0. A command
+//! a driveline's number (1-based, any count of drivelines); `command.manual_capture`
+//! takes seconds * 256 + a driveline's number (both 1..=255; 0 seconds: 10 s) and keeps
+//! the next seconds of its torque as a capture of kind `manual`. All read back 0. A command
 //! the analysis cannot take now gets exception 06 (busy), and 04 while the gateway
 //! stops. Only loopback clients may write them unless
 //! `allow_remote_commands` is set (the registers need no authentication). The

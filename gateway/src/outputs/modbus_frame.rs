@@ -310,9 +310,28 @@ fn commands_of(
             }]),
             _ => Err(Exception::IllegalDataValue),
         },
+        Field::ManualCapture => {
+            let [seconds, number] = value.to_be_bytes();
+            match usize::from(number) {
+                0 if value == 0 => Ok(Vec::new()),
+                number if (1..=drivelines).contains(&number) => Ok(vec![Command::CaptureTorque {
+                    driveline: number - 1,
+                    seconds: if seconds == 0 {
+                        MANUAL_CAPTURE_DEFAULT_S
+                    } else {
+                        u16::from(seconds)
+                    },
+                    origin,
+                }]),
+                _ => Err(Exception::IllegalDataValue),
+            }
+        }
         _ => Err(Exception::IllegalDataAddress),
     }
 }
+
+/// Seconds of a manual capture whose command leaves them 0.
+pub const MANUAL_CAPTURE_DEFAULT_S: u16 = 10;
 
 #[cfg(test)]
 mod tests {
@@ -491,11 +510,29 @@ mod tests {
                 },
             ]
         );
-        // The demo has one driveline: number 2 and bit 1 do not exist; nothing is sent.
+        // A manual capture (11): 3 s of driveline 1; the high byte 0 is 10 s.
+        for (pdu, seconds) in [
+            ([0x06, 0x00, 0x0B, 0x03, 0x01], 3),
+            ([0x06, 0x00, 0x0B, 0x00, 0x01], MANUAL_CAPTURE_DEFAULT_S),
+        ] {
+            assert_eq!(respond(&served, POLICY, &frame(1, &pdu)).exception(), None);
+            assert_eq!(
+                commands.try_recv().ok(),
+                Some(Command::CaptureTorque {
+                    driveline: 0,
+                    seconds,
+                    origin
+                })
+            );
+        }
+        // The demo has one driveline: number 2 and bit 1 do not exist, a capture needs
+        // a driveline; nothing is sent.
         for pdu in [
             [0x06, 0x00, 0x0A, 0x00, 0x02],
             [0x06, 0x00, 0x09, 0x00, 0x02],
             [0x06, 0x00, 0x08, 0x00, 0x02],
+            [0x06, 0x00, 0x0B, 0x00, 0x02],
+            [0x06, 0x00, 0x0B, 0x05, 0x00],
         ] {
             assert_eq!(
                 respond(&served, POLICY, &frame(1, &pdu)).exception(),

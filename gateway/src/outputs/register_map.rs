@@ -76,6 +76,9 @@ pub enum Field {
     ResetWearTrend,
     /// Command: write a driveline's number (1-based, config order) to reset its wear.
     ResetWear,
+    /// Command: write seconds * 256 + a driveline's number (both 1..=255) to keep the
+    /// next seconds of its torque as a manual capture.
+    ManualCapture,
     /// A block's flag figures, each at its catalogue bit.
     Flags(Block),
     /// A block's quality bits: bit i set while the value figure guarded by bit i is
@@ -481,6 +484,16 @@ impl RegisterMap {
              trend and gap estimate; reads back 0",
             Field::ResetWear,
         );
+        b.global(
+            11,
+            "command.manual_capture",
+            "",
+            Access::ReadWrite,
+            "Command: write seconds * 256 + a driveline's number (both 1..=255; 0 in the \
+             high byte: 10 s) to keep the next seconds of its torque as a capture of kind \
+             manual (with [history]); reads back 0",
+            Field::ManualCapture,
+        );
         for (k, driveline) in config.drivelines.iter().enumerate() {
             let base = DRIVELINES_START + DRIVELINE_STRIDE * k as u16;
             b.block(
@@ -679,7 +692,10 @@ fn value_of(field: Field, results: &Results) -> Option<f64> {
         Field::SourcesOk => return Some(bits(results, |s| s == SourceStatus::Ok)),
         Field::SourcesStale => return Some(bits(results, |s| s == SourceStatus::Stale)),
         Field::SourcesLost => return Some(bits(results, |s| s == SourceStatus::Lost)),
-        Field::AcknowledgeAlarms | Field::ResetWearTrend | Field::ResetWear => return Some(0.0),
+        Field::AcknowledgeAlarms
+        | Field::ResetWearTrend
+        | Field::ResetWear
+        | Field::ManualCapture => return Some(0.0),
         Field::Flags(block) | Field::Quality(block) | Field::Figure(block, _) => block,
     };
     match block {
@@ -925,6 +941,7 @@ mod tests {
                     | Field::AcknowledgeAlarms
                     | Field::ResetWearTrend
                     | Field::ResetWear
+                    | Field::ManualCapture
             );
             assert!(
                 global || key == "flags" || key == "quality" || keys.contains(&key),

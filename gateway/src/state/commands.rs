@@ -64,6 +64,16 @@ pub enum Command {
         /// Who.
         origin: CommandOrigin,
     },
+    /// Keep the next `seconds` s of driveline `driveline`'s torque as a capture of
+    /// kind `manual` (with captures kept: `[history]`).
+    CaptureTorque {
+        /// The driveline, index in config order.
+        driveline: usize,
+        /// How long, s (1..=255).
+        seconds: u16,
+        /// Who.
+        origin: CommandOrigin,
+    },
 }
 
 /// Why a command was not taken.

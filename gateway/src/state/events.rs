@@ -252,9 +252,12 @@ pub enum HistoryEvent {
     /// A bite and, when it has wear measures, a wear estimate; updates the
     /// driveline's restorable state.
     Bite(Box<BiteRecord>),
-    /// The samples behind a bite (recorded right after its [`HistoryEvent::Bite`], so
-    /// both are committed before the PLC sees the bite), a chatter episode or a manual
-    /// request.
+    /// A bite with the samples behind it: one event, so the writer commits both in
+    /// one transaction (a crash never leaves a bite without its capture) and before
+    /// the PLC sees the bite.
+    CapturedBite(Box<BiteRecord>, Box<super::captures::CaptureRecord>),
+    /// The samples of a chatter episode or a manual request (a bite's go with it in
+    /// [`HistoryEvent::CapturedBite`]).
     Capture(Box<super::captures::CaptureRecord>),
     /// An alarm or warning changed; a latched alarm's change updates the subject's
     /// restorable state.

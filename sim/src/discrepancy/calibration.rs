@@ -311,18 +311,69 @@ fn aligned(
     let mut out = values.clone();
     for (b, bite) in bites.iter().enumerate() {
         let model = values.model_for(&bite.template, b);
-        let (onset_s, scale, _) = align(&model, bite.measured)?.ok_or(DiscrepancyError::Bite {
-            bite: b,
-            problem: BiteProblem::NoLoadStep,
-        })?;
         *simulations += 1;
-        out.loads[b] = BiteLoad {
+        out.loads[b] = aligned_load(&model, bite.measured)?
+            .ok_or(DiscrepancyError::Bite {
+                bite: b,
+                problem: BiteProblem::NoLoadStep,
+            })?
+            .0;
+    }
+    Ok(out)
+}
+
+/// The load of `model` (its rise rate kept) whose response best lines up with the
+/// record `y` ([`align`]), and the remaining sum of squares, (kN*m)^2; `None` when the
+/// record is not a load step.
+fn aligned_load(model: &Model, y: &[f64]) -> Result<Option<(BiteLoad, f64)>, DiscrepancyError> {
+    Ok(align(model, y)?.map(|(onset_s, scale, cost)| {
+        let load = BiteLoad {
             static_torque_knm: (model.load.static_torque * scale).max(1.0e-3),
             rise_rate_per_s: model.load.rise_rate,
             onset_s,
         };
+        (load, cost)
+    }))
+}
+
+/// A model's response to one measured bite, as the calibration first aligns it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct AlignedResponse {
+    /// The bite's static torque as the alignment measures it, kN*m.
+    pub static_torque_knm: f64,
+    /// The load's onset after the record's first sample, s.
+    pub onset_s: f64,
+    /// RMS of the record minus the response, kN*m: the discrepancy left.
+    pub residual_rms_knm: f64,
+    /// The simulated torque on the record's sample grid, kN*m.
+    pub torque_knm: Vec<f64>,
+}
+
+/// The response of `model` (unchanged: its stiffness, damping and rise rate) to the
+/// measured bite `bite`: the model sampled on the bite's grid, its onset and static
+/// torque aligned to the record as the calibration's first step does ([`align`]), and
+/// simulated. `None` when the record is not a load step. What `millgate discrepancy`
+/// starts from, for one bite, shown beside the record.
+pub fn aligned_response(
+    model: &Model,
+    bite: &super::Measured<'_>,
+) -> Result<Option<AlignedResponse>, DiscrepancyError> {
+    let template = model_fit::bite_template(model, bite, 0)?;
+    let Some((load, cost)) = aligned_load(&template, bite.torque_knm)? else {
+        return Ok(None);
+    };
+    let loaded = LinearValues {
+        loads: vec![load],
+        ..LinearValues::of(&template, 1)
     }
-    Ok(out)
+    .model_for(&template, 0);
+    let torque_knm = Simulator::new(&loaded)?.run().torque_knm;
+    Ok(Some(AlignedResponse {
+        static_torque_knm: load.static_torque_knm,
+        onset_s: load.onset_s,
+        residual_rms_knm: (cost / bite.torque_knm.len() as f64).sqrt(),
+        torque_knm,
+    }))
 }
 
 /// Onset (s), load scale and the remaining sum of squares ((kN*m)^2) of the best
@@ -595,6 +646,46 @@ mod tests {
             .map(|&c| Coupling::linear("c", c, 1.0e4))
             .collect();
         model
+    }
+
+    #[test]
+    fn the_aligned_response_finds_a_simulated_bites_load_and_leaves_no_residual() {
+        // A bite simulated by the model itself at a load the model file does not hold:
+        // the response must find that load and explain the record to rounding.
+        let mut model =
+            Model::from_toml_str(include_str!("../../models/table2-adjusted.toml"), "t2").unwrap();
+        let handed = model.clone();
+        model.load.static_torque *= 1.7;
+        model.load.onset = 0.05;
+        let record = Simulator::new(&model).unwrap().run().torque_knm;
+        let bite = super::super::Measured {
+            t0_s: 0.0,
+            sample_rate_hz: model.measurement.sample_rate,
+            torque_knm: &record,
+        };
+        let response = aligned_response(&handed, &bite).unwrap().unwrap();
+        assert_eq!(response.torque_knm.len(), record.len());
+        let relative = response.static_torque_knm / model.load.static_torque - 1.0;
+        assert!(relative.abs() < 1e-3, "static torque off by {relative}");
+        let step = 1.0 / model.measurement.sample_rate;
+        assert!(
+            (response.onset_s - 0.05).abs() <= step,
+            "{}",
+            response.onset_s
+        );
+        let peak = record.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
+        assert!(
+            response.residual_rms_knm < 1e-3 * peak,
+            "{}",
+            response.residual_rms_knm
+        );
+        // A record without torque is no load step.
+        let flat = vec![0.0; record.len()];
+        let flat = super::super::Measured {
+            torque_knm: &flat,
+            ..bite
+        };
+        assert_eq!(aligned_response(&handed, &flat).unwrap(), None);
     }
 
     fn elastic_modes(model: &Model) -> Vec<f64> {

@@ -27,6 +27,7 @@ use crate::model::{Model, ModelError};
 
 use super::effects::{Effect, Range};
 use super::levenberg_marquardt::{minimise, LmSettings, Residuals};
+use super::{BiteProblem, DiscrepancyError, Measured, MIN_SAMPLES};
 
 /// Onset parameter unit, s.
 const ONSET_UNIT_S: f64 = 1.0e-3;
@@ -556,4 +557,30 @@ impl Residuals for Problem<'_> {
 /// everywhere (a hard clamp would leave a fit stuck at the bound).
 fn soft_bound(q: f64, limit: f64) -> f64 {
     limit * (q / limit).tanh()
+}
+
+/// Checks bite `b` (0-based, for the error) and returns `model` sampled on its grid:
+/// its sample rate, its length.
+pub fn bite_template(
+    model: &Model,
+    bite: &Measured<'_>,
+    b: usize,
+) -> Result<Model, DiscrepancyError> {
+    let fail = |problem| DiscrepancyError::Bite { bite: b, problem };
+    let fs = bite.sample_rate_hz;
+    let m = bite.torque_knm.len();
+    if !(fs.is_finite() && fs > 0.0) {
+        return Err(fail(BiteProblem::SampleRate(fs)));
+    }
+    if m < MIN_SAMPLES {
+        return Err(fail(BiteProblem::TooShort(m)));
+    }
+    if let Some(k) = bite.torque_knm.iter().position(|v| !v.is_finite()) {
+        return Err(fail(BiteProblem::NotFinite(k)));
+    }
+    let mut template = model.clone();
+    template.measurement.sample_rate = fs;
+    template.measurement.duration = m as f64 / fs;
+    template.validate("<model>")?;
+    Ok(template)
 }

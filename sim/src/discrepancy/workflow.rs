@@ -11,11 +11,11 @@ use super::calibration::{self, Calibration};
 use super::decision::{self, FurtherRecord, Verdict};
 use super::effects::Effect;
 use super::features::{self, Feature};
-use super::model_fit::{BiteRecord, Fitted};
+use super::model_fit::{self, BiteRecord, Fitted};
 use super::noise::noise_rms;
 use super::search::{self, Candidate, FittedCandidate};
 use super::windows::{self, BiteTiming, Disagreement};
-use super::{BiteProblem, DiscrepancyError, Measured, Progress, Step, MIN_SAMPLES};
+use super::{DiscrepancyError, Measured, Progress, Step};
 
 /// How the workflow runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -321,24 +321,8 @@ fn bite_records<'a>(
     }
     let mut records = Vec::with_capacity(bites.len());
     for (b, bite) in bites.iter().enumerate() {
-        let fail = |problem| DiscrepancyError::Bite { bite: b, problem };
-        let fs = bite.sample_rate_hz;
-        let m = bite.torque_knm.len();
-        if !(fs.is_finite() && fs > 0.0) {
-            return Err(fail(BiteProblem::SampleRate(fs)));
-        }
-        if m < MIN_SAMPLES {
-            return Err(fail(BiteProblem::TooShort(m)));
-        }
-        if let Some(k) = bite.torque_knm.iter().position(|v| !v.is_finite()) {
-            return Err(fail(BiteProblem::NotFinite(k)));
-        }
-        let mut template = model.clone();
-        template.measurement.sample_rate = fs;
-        template.measurement.duration = m as f64 / fs;
-        template.validate("<model>")?;
         records.push(BiteRecord {
-            template,
+            template: model_fit::bite_template(model, bite, b)?,
             measured: bite.torque_knm,
         });
     }

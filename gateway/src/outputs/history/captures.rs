@@ -328,6 +328,21 @@ impl HistoryReader {
         }
     }
 
+    /// The captures of the bites with row ids `first..=last` (`bites.id`), in id order.
+    pub fn bite_captures(&self, first: i64, last: i64) -> Result<Vec<CaptureRow>, HistoryError> {
+        use super::query::Record as _;
+        let sql = format!(
+            "SELECT {} FROM captures WHERE bite_id BETWEEN ?1 AND ?2 ORDER BY id",
+            CaptureRow::COLUMNS.join(", ")
+        );
+        let read = || -> rusqlite::Result<Vec<CaptureRow>> {
+            let mut statement = self.connection().prepare_cached(&sql)?;
+            let rows = statement.query_map([first, last], CaptureRow::from_row)?;
+            rows.collect()
+        };
+        read().map_err(|e| self.error(e))
+    }
+
     /// The samples of the capture `row` describes.
     pub fn capture_of(&self, row: CaptureRow) -> Result<Capture, HistoryError> {
         let blob: Vec<u8> = self

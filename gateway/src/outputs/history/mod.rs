@@ -44,6 +44,8 @@
 //! everything records through, [`History`](crate::state::history::History), is the state layer's
 //! ([`crate::state::history`]): this folder is the writer's side and the readers.
 
+pub mod capture_files;
+mod capture_parquet;
 pub mod captures;
 mod error;
 pub mod outages;

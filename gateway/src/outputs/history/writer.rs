@@ -594,6 +594,10 @@ pub fn insert(
 ) -> rusqlite::Result<()> {
     match event {
         HistoryEvent::Bite(bite) => insert_bite(transaction, run_id, bite),
+        HistoryEvent::CapturedBite(bite, capture) => {
+            insert_bite(transaction, run_id, bite)?;
+            super::captures::insert(transaction, run_id, capture)
+        }
         HistoryEvent::Capture(capture) => super::captures::insert(transaction, run_id, capture),
         HistoryEvent::Alarm(alarm) => insert_alarm(transaction, run_id, alarm),
         HistoryEvent::WearReset {

@@ -57,13 +57,13 @@ use rumqttc::{
     Transport,
 };
 
-use crate::outputs::history::query::{BiteRow, Filter};
-use crate::outputs::history::BITE_COLUMNS;
+use crate::outputs::history::query::{BiteRow, CaptureRow, Filter};
+use crate::outputs::history::{HistoryError, BITE_COLUMNS};
 use crate::shutdown::Shutdown;
 use crate::state::board::Board;
 use crate::warn_limit::{WarnLimit, WARN_PERIOD};
 use forward::Confirmations;
-use node::EdgeNode;
+use node::{CaptureNotice, EdgeNode};
 use store::{keep_cursor, BiteSource};
 
 /// How often the results are looked at for a new bite.
@@ -262,8 +262,13 @@ impl SparkplugNode {
         confirmations: &mut Confirmations,
         bites: &mut BiteSource,
     ) -> Option<i64> {
+        let captures = newest_captures(bites, self.board.driveline_names().to_vec()).await;
         let results = self.board.results();
-        self.publish(client, confirmations, node.births(&results, now_ms()));
+        self.publish(
+            client,
+            confirmations,
+            node.births(&results, &captures, now_ms()),
+        );
         let last = bites.read(|reader| reader.last_bite_id()).await?;
         (last > confirmations.read()).then_some(last)
     }
@@ -291,7 +296,18 @@ impl SparkplugNode {
             limit: Some(limit),
             ..Filter::default()
         };
-        let Some(rows) = bites.read(move |reader| reader.bites(&filter)).await else {
+        // The bites and their captures, in one read.
+        let read = bites
+            .read(move |reader| {
+                let rows = reader.bites(&filter)?;
+                let captures = match (rows.first(), rows.last()) {
+                    (Some(first), Some(last)) => reader.bite_captures(first.id, last.id)?,
+                    _ => Vec::new(),
+                };
+                Ok((rows, captures))
+            })
+            .await;
+        let Some((rows, captures)) = read else {
             return;
         };
         let results = self.board.results();
@@ -301,7 +317,12 @@ impl SparkplugNode {
             .take_while(|row| until.is_none_or(|end| row.id <= end))
         {
             if let Some(index) = names.iter().position(|name| *name == row.driveline) {
-                let message = self.bite_message(node, index, row, &results, historical);
+                let capture = captures
+                    .iter()
+                    .find(|c| c.bite_id == Some(row.id))
+                    .map(capture_notice);
+                let message =
+                    self.bite_message(node, index, row, &results, (historical, capture.as_ref()));
                 if !self.send(
                     client,
                     confirmations,
@@ -335,7 +356,7 @@ impl SparkplugNode {
         index: usize,
         row: &BiteRow,
         results: &crate::state::results::Results,
-        historical: bool,
+        (historical, capture): (bool, Option<&CaptureNotice>),
     ) -> node::Outgoing {
         let time = forward::bite_ms(row).unwrap_or_else(now_ms);
         let current = results
@@ -344,12 +365,13 @@ impl SparkplugNode {
             .filter(|live| !historical && i64::from(live.bite_counter) == row.bite_counter);
         let recorded: Vec<&str> = BITE_COLUMNS.iter().map(|(key, _)| *key).collect();
         match current {
-            Some(live) => node.bite(index, live, time, (None, false)),
+            Some(live) => node.bite(index, live, time, (None, false), capture),
             None => node.bite(
                 index,
                 &forward::bite_results(row),
                 time,
                 (Some(&recorded), historical),
+                capture,
             ),
         }
     }
@@ -596,8 +618,9 @@ impl SparkplugNode {
                     last_births = Instant::now();
                     tracing::info!("Sparkplug rebirth on command");
                     self.status.rebirths.fetch_add(1, Ordering::Relaxed);
+                    let captures = newest_captures(&mut bites, board.driveline_names().to_vec()).await;
                     let results = board.results();
-                    self.publish(&client, &mut confirmations, node.births(&results, now_ms()));
+                    self.publish(&client, &mut confirmations, node.births(&results, &captures, now_ms()));
                 }
                 _ = data.tick(), if born => {
                     self.publish(&client, &mut confirmations, node.data(&board.results(), now_ms()));
@@ -664,4 +687,42 @@ fn is_oversize(error: &rumqttc::ConnectionError) -> bool {
 fn drop_pending(events: &mut EventLoop) {
     events.clean();
     events.pending.clear();
+}
+
+/// A capture row as the node announces it.
+fn capture_notice(row: &CaptureRow) -> CaptureNotice {
+    let count = |v: i64| u64::try_from(v).unwrap_or(0);
+    CaptureNotice {
+        id: count(row.id),
+        kind: row.kind.clone(),
+        samples: count(row.samples),
+        first_sample_ms: count(row.first_sample_unix_ns / 1_000_000),
+        span_s: row.duration_s,
+        bytes: count(row.bytes),
+    }
+}
+
+/// The newest capture of each driveline (`names`, in order) in the history, for the
+/// births; none where the file cannot be read.
+async fn newest_captures(bites: &mut BiteSource, names: Vec<String>) -> Vec<Option<CaptureNotice>> {
+    let count = names.len();
+    bites
+        .read(move |reader| {
+            names
+                .into_iter()
+                .map(|name| {
+                    let filter = Filter {
+                        name: Some(name),
+                        limit: Some(1),
+                        ..Filter::default()
+                    };
+                    Ok(reader
+                        .newest::<CaptureRow>(&filter)?
+                        .first()
+                        .map(capture_notice))
+                })
+                .collect::<Result<Vec<_>, HistoryError>>()
+        })
+        .await
+        .unwrap_or_else(|| vec![None; count])
 }

@@ -39,6 +39,70 @@ pub struct Outgoing {
 /// which the history keeps across restarts, so (device, bite_id) names a bite once.
 pub const BITE_ID: &str = "bite_id";
 
+/// The capture metrics of a driveline device, after [`BITE_ID`]: name, datatype,
+/// unit. A bite's DDATA carries its capture's (when the history holds it); the birth
+/// the driveline's newest capture's (null without one).
+pub const CAPTURE_METRICS: [(&str, DataType, &str); 6] = [
+    ("capture/id", DataType::UInt64, ""),
+    ("capture/kind", DataType::String, ""),
+    ("capture/samples", DataType::UInt64, ""),
+    ("capture/first_sample", DataType::DateTime, ""),
+    ("capture/span_s", DataType::Double, "s"),
+    ("capture/bytes", DataType::UInt64, "B"),
+];
+
+/// A capture as the node announces it: which (its id in the history file: fetch it
+/// at `/api/captures/{id}`), what kind, its samples per channel, time span and size.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CaptureNotice {
+    /// The capture's id in the history file.
+    pub id: u64,
+    /// `bite`, `chatter` or `manual`.
+    pub kind: String,
+    /// Samples per channel.
+    pub samples: u64,
+    /// The first sample, ms since the Unix epoch.
+    pub first_sample_ms: u64,
+    /// From the first sample to the last, s.
+    pub span_s: f64,
+    /// Its samples' size in the file, bytes.
+    pub bytes: u64,
+}
+
+impl CaptureNotice {
+    /// The values of [`CAPTURE_METRICS`], in order.
+    fn values(&self) -> [MetricValue; 6] {
+        [
+            MetricValue::LongValue(self.id),
+            MetricValue::StringValue(self.kind.clone()),
+            MetricValue::LongValue(self.samples),
+            MetricValue::LongValue(self.first_sample_ms),
+            MetricValue::DoubleValue(self.span_s),
+            MetricValue::LongValue(self.bytes),
+        ]
+    }
+
+    /// Its metrics from alias `first_alias` on (null ones for `None`), timestamped
+    /// `ms`, named when `named` (a birth).
+    fn metrics(notice: Option<&Self>, first_alias: u64, ms: u64, named: bool) -> Vec<Metric> {
+        let values = notice.map(Self::values);
+        CAPTURE_METRICS
+            .iter()
+            .enumerate()
+            .map(|(at, (name, datatype, unit))| Metric {
+                name: named.then(|| (*name).to_owned()),
+                alias: Some(first_alias + at as u64),
+                timestamp: Some(ms),
+                datatype: Some(datatype.code()),
+                is_null: values.is_none().then_some(true),
+                value: values.as_ref().map(|v| v[at].clone()),
+                properties: (named && !unit.is_empty()).then(|| PropertySet::unit(unit)),
+                ..Metric::default()
+            })
+            .collect()
+    }
+}
+
 /// Longest a driveline's changed values wait for the DDATA of the bite that changed
 /// them (a bite reaches the history, and from it the broker, within milliseconds; a
 /// history that cannot store it must not hold the values back for good).
@@ -70,7 +134,8 @@ impl EdgeNode {
     ) -> Self {
         let mut devices = Vec::new();
         let mut alias = NODE_METRICS;
-        let mut add = |name: &str, kind: Kind, columns: Vec<Column>| {
+        // `extra`: aliases kept after the columns (a driveline's capture metrics).
+        let mut add = |name: &str, kind: Kind, columns: Vec<Column>, extra: u64| {
             let width = columns.len() as u64;
             devices.push(Device {
                 name: name.to_owned(),
@@ -81,7 +146,7 @@ impl EdgeNode {
                 bite_counter: None,
                 held_since: None,
             });
-            alias += width;
+            alias += width + extra;
         };
         for (k, name) in drivelines.iter().enumerate() {
             let mut driveline: Vec<Column> = columns(catalogue::DRIVELINE, "").collect();
@@ -90,13 +155,16 @@ impl EdgeNode {
                 datatype: DataType::UInt64,
                 unit: "",
             });
-            add(name, Kind::Driveline(k), driveline);
+            // The capture metrics' aliases follow (not columns: they are no figures).
+            let extra = CAPTURE_METRICS.len() as u64;
+            add(name, Kind::Driveline(k), driveline, extra);
         }
         for (k, name) in tandem_mills.iter().enumerate() {
             add(
                 name,
                 Kind::TandemMill(k),
                 columns(catalogue::TANDEM_MILL, "").collect(),
+                0,
             );
         }
         for (k, (name, spans)) in rod_mills.iter().enumerate() {
@@ -104,7 +172,7 @@ impl EdgeNode {
             for span in 1..=*spans {
                 rod.extend(columns(catalogue::ROD_SPAN, &format!("span{span}/")));
             }
-            add(name, Kind::RodMill(k, *spans), rod);
+            add(name, Kind::RodMill(k, *spans), rod, 0);
         }
         Self {
             group: group.to_owned(),
@@ -173,8 +241,14 @@ impl EdgeNode {
     }
 
     /// NBIRTH (seq 0) and a DBIRTH per device with every metric: name, alias,
-    /// datatype, unit, value.
-    pub fn births(&mut self, results: &Results, now_ms: u64) -> Vec<Outgoing> {
+    /// datatype, unit, value; a driveline's with its newest capture (`captures`, by
+    /// driveline index).
+    pub fn births(
+        &mut self,
+        results: &Results,
+        captures: &[Option<CaptureNotice>],
+        now_ms: u64,
+    ) -> Vec<Outgoing> {
         self.seq = 0;
         let node_metrics = vec![
             self.bd_seq_metric(now_ms),
@@ -202,7 +276,7 @@ impl EdgeNode {
             let mut values = device.values(results);
             // The bite id is born null: it is only sent with a bite.
             values.resize(device.columns.len(), None);
-            let metrics = device
+            let mut metrics: Vec<Metric> = device
                 .columns
                 .iter()
                 .zip(&values)
@@ -217,6 +291,11 @@ impl EdgeNode {
                     metric
                 })
                 .collect();
+            if let Kind::Driveline(k) = device.kind {
+                let capture = captures.get(k).and_then(Option::as_ref);
+                let first = device.first_alias + device.columns.len() as u64;
+                metrics.extend(CaptureNotice::metrics(capture, first, now_ms, true));
+            }
             self.devices[index].sent = values;
             if let Kind::Driveline(k) = self.devices[index].kind {
                 self.devices[index].bite_counter =
@@ -285,13 +364,15 @@ impl EdgeNode {
     /// A bite of driveline `index`: its own DDATA with the bite id and every driveline
     /// metric (`only`: just these keys, for a bite read back from the history, which
     /// keeps its values but not the flags of the moment), timestamped with the bite's
-    /// time; `historical` flags a bite sent after the fact (replayed).
+    /// time; `historical` flags a bite sent after the fact (replayed). `capture`: the
+    /// bite's capture, announced in the same DDATA.
     pub fn bite(
         &mut self,
         index: usize,
         after: &DrivelineResults,
         bite_ms: u64,
         (only, historical): (Option<&[&str]>, bool),
+        capture: Option<&CaptureNotice>,
     ) -> Outgoing {
         let values = values(catalogue::DRIVELINE, after);
         let device = self
@@ -324,6 +405,10 @@ impl EdgeNode {
             Some(Value::Count(u64::from(after.bite_counter))),
             bite_ms,
         ));
+        if capture.is_some() {
+            let first = first_alias + values.len() as u64 + 1;
+            metrics.extend(CaptureNotice::metrics(capture, first, bite_ms, false));
+        }
         if historical {
             for metric in &mut metrics {
                 metric.is_historical = Some(true);
@@ -407,7 +492,7 @@ mod tests {
     /// The alias of driveline `index`'s metric named `name` (`bite_id` after the
     /// figures).
     fn driveline_alias(index: usize, name: &str) -> u64 {
-        let width = catalogue::DRIVELINE.len() as u64 + 1;
+        let width = catalogue::DRIVELINE.len() as u64 + 1 + CAPTURE_METRICS.len() as u64;
         let at = catalogue::DRIVELINE
             .iter()
             .position(|f| f.key == name)
@@ -419,7 +504,7 @@ mod tests {
     fn births_come_in_order_with_seq_from_0_and_unique_aliases() {
         let mut node = node();
         let results = Results::new(1, 2, 1);
-        let births = node.births(&results, 1000);
+        let births = node.births(&results, &[], 1000);
         let topics: Vec<&str> = births.iter().map(|m| m.topic.as_str()).collect();
         assert_eq!(
             topics,
@@ -447,7 +532,8 @@ mod tests {
             .metrics
             .iter()
             .all(|m| m.timestamp == Some(1000)));
-        // A device's metrics are the catalogue's figures by key (and the bite id).
+        // A device's metrics are the catalogue's figures by key (and the bite id and
+        // the capture metrics).
         let names: Vec<&str> = payloads[1]
             .metrics
             .iter()
@@ -455,7 +541,10 @@ mod tests {
             .collect();
         let keys: Vec<&str> = catalogue::DRIVELINE.iter().map(|f| f.key).collect();
         assert_eq!(names[..keys.len()], keys[..]);
-        assert_eq!(names[keys.len()..], [BITE_ID]);
+        let after: Vec<&str> = std::iter::once(BITE_ID)
+            .chain(CAPTURE_METRICS.iter().map(|(name, ..)| *name))
+            .collect();
+        assert_eq!(names[keys.len()..], after[..]);
         let mut aliases: Vec<u64> = payloads
             .iter()
             .flat_map(|p| p.metrics.iter().filter_map(|m| m.alias))
@@ -478,7 +567,7 @@ mod tests {
     fn data_carries_only_changed_metrics_by_alias_and_seq_wraps() {
         let mut node = node();
         let mut results = Results::new(1, 2, 1);
-        node.births(&results, 1000);
+        node.births(&results, &[], 1000);
         assert!(node.data(&results, 1100).is_empty(), "nothing changed");
         results.drivelines[1].taf_alarm = true;
         let data = node.data(&results, 1200);
@@ -494,7 +583,7 @@ mod tests {
         );
         for n in 0..300u32 {
             results.drivelines[0].bite_counter = n + 1;
-            let bite = node.bite(0, &results.drivelines[0], 5000, (None, false));
+            let bite = node.bite(0, &results.drivelines[0], 5000, (None, false), None);
             let seq = decode(&bite).seq.unwrap();
             assert_eq!(seq, u64::from((5 + n) % 256));
         }
@@ -504,11 +593,17 @@ mod tests {
     fn a_historical_bite_is_flagged_and_leaves_out_what_the_history_lacks() {
         let mut node = node();
         let mut results = Results::new(1, 2, 1);
-        node.births(&results, 1000);
+        node.births(&results, &[], 1000);
         results.drivelines[1].bite_counter = 9;
         results.drivelines[1].taf = Some(1.3);
         let recorded = ["bite_counter", "taf"];
-        let payload = decode(&node.bite(1, &results.drivelines[1], 777, (Some(&recorded), true)));
+        let payload = decode(&node.bite(
+            1,
+            &results.drivelines[1],
+            777,
+            (Some(&recorded), true),
+            None,
+        ));
         assert_eq!(payload.timestamp, Some(777));
         assert!(payload
             .metrics
@@ -533,7 +628,7 @@ mod tests {
     fn a_tandem_mill_publishes_its_early_warning_and_slow_down_request() {
         let mut node = node();
         let mut results = Results::new(1, 2, 1);
-        node.births(&results, 1000);
+        node.births(&results, &[], 1000);
         let mill = &mut results.tandem_mills[0];
         mill.gain_ratio = Some(1.25);
         mill.worst_stand = Some(3);
@@ -558,7 +653,11 @@ mod tests {
         let mut node = node_with(&[("RSM".into(), 3)]);
         let mut results = Results::new(1, 2, 1);
         results.rod_mills = vec![RodMillResults::default()];
-        let births: Vec<Payload> = node.births(&results, 1000).iter().map(decode).collect();
+        let births: Vec<Payload> = node
+            .births(&results, &[], 1000)
+            .iter()
+            .map(decode)
+            .collect();
         assert_eq!(births.len(), 5, "NBIRTH, F1, F2, tandem, RSM");
         let rod = &births[4];
         let names: Vec<&str> = rod
@@ -677,12 +776,12 @@ mod tests {
     fn a_bites_changed_values_wait_for_the_bites_own_ddata() {
         let mut node = node();
         let mut results = Results::new(1, 2, 1);
-        node.births(&results, 1000);
+        node.births(&results, &[], 1000);
         // A degraded bite: the results move before the history has the bite.
         results.drivelines[0].bite_counter = 1;
         results.drivelines[0].last_bite_degraded = true;
         assert!(node.data(&results, 1100).is_empty(), "held for the bite");
-        let bite = decode(&node.bite(0, &results.drivelines[0], 1150, (None, false)));
+        let bite = decode(&node.bite(0, &results.drivelines[0], 1150, (None, false), None));
         assert!(bite.metrics.len() > 1);
         assert!(
             node.data(&results, 1200).is_empty(),
@@ -699,6 +798,73 @@ mod tests {
     }
 
     #[test]
+    fn a_capture_is_announced_in_its_bites_ddata_and_the_birth() {
+        let mut node = node();
+        let results = Results::new(1, 2, 1);
+        let notice = CaptureNotice {
+            id: 42,
+            kind: "bite".to_owned(),
+            samples: 1200,
+            first_sample_ms: 1_700_000_000_123,
+            span_s: 0.5995,
+            bytes: 1699,
+        };
+        let expected = |metrics: &[Metric], index: usize| {
+            let value = |name: &str| {
+                let at = CAPTURE_METRICS
+                    .iter()
+                    .position(|(n, ..)| *n == name)
+                    .unwrap();
+                let alias = driveline_alias(index, BITE_ID) + 1 + at as u64;
+                metrics
+                    .iter()
+                    .find(|m| m.alias == Some(alias))
+                    .and_then(|m| m.value.clone())
+            };
+            assert_eq!(value("capture/id"), Some(MetricValue::LongValue(42)));
+            assert_eq!(
+                value("capture/kind"),
+                Some(MetricValue::StringValue("bite".to_owned()))
+            );
+            assert_eq!(value("capture/samples"), Some(MetricValue::LongValue(1200)));
+            assert_eq!(
+                value("capture/first_sample"),
+                Some(MetricValue::LongValue(1_700_000_000_123))
+            );
+            assert_eq!(
+                value("capture/span_s"),
+                Some(MetricValue::DoubleValue(0.5995))
+            );
+            assert_eq!(value("capture/bytes"), Some(MetricValue::LongValue(1699)));
+        };
+        // The birth: the second driveline's newest capture; the first has none (null).
+        let births: Vec<Payload> = node
+            .births(&results, &[None, Some(notice.clone())], 1000)
+            .iter()
+            .map(decode)
+            .collect();
+        expected(&births[2].metrics, 1);
+        let first = driveline_alias(0, BITE_ID) + 1;
+        let nulls = births[1]
+            .metrics
+            .iter()
+            .filter(|m| m.alias.is_some_and(|a| a >= first && a < first + 6))
+            .filter(|m| m.is_null == Some(true) && m.value.is_none())
+            .count();
+        assert_eq!(nulls, CAPTURE_METRICS.len());
+        // A bite's DDATA with its capture, by alias.
+        let bite = decode(&node.bite(
+            1,
+            &results.drivelines[1],
+            2000,
+            (None, false),
+            Some(&notice),
+        ));
+        expected(&bite.metrics, 1);
+        assert!(bite.metrics.iter().all(|m| m.name.is_none()));
+    }
+
+    #[test]
     fn a_stale_tandem_mill_sends_no_frozen_chatter_figures() {
         let mut node = node();
         let mut results = Results::new(1, 2, 1);
@@ -706,12 +872,12 @@ mod tests {
         mill.evaluations = 4;
         mill.sigma_n_hz = Some(0.5);
         mill.k_mean = Some(0.9);
-        node.births(&results, 1000);
+        node.births(&results, &[], 1000);
         results.tandem_mills[0].source_stale = true;
         let data = node.data(&results, 1100);
         let payload = decode(&data[0]);
         let sigma_alias = NODE_METRICS
-            + 2 * (catalogue::DRIVELINE.len() as u64 + 1)
+            + 2 * (catalogue::DRIVELINE.len() as u64 + 1 + CAPTURE_METRICS.len() as u64)
             + catalogue::TANDEM_MILL
                 .iter()
                 .position(|f| f.key == "sigma_n_hz")

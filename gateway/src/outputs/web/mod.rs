@@ -5,7 +5,9 @@
 //!   each a small server-rendered HTML shell that the page's own script
 //!   (`assets/web/app.js`) fills from the JSON API, plotting with the vendored uPlot
 //!   (`assets/uplot`, MIT). Everything is compiled into the binary: no CDN, no fonts.
-//! - **API** (`api/`): `/api/overview`, `/api/drivelines[/{name}[/bites|/wear|/map]]`,
+//! - **API** (`api/`): `/api/overview`,
+//!   `/api/drivelines[/{name}[/bites|/captures|/wear|/map]]`,
+//!   `/api/captures/{id}[/file|/response]`,
 //!   `/api/alarms` and `/api/events` (server-sent events: the live results, sent when
 //!   they change). Live figures come from the [`Board`]'s snapshot; history
 //!   figures from the history file through a read-only [`HistoryReader`] of the
@@ -67,6 +69,11 @@ impl WebServer {
                 gap_warning_mrad: d.thresholds.gap_warning_mrad,
                 gap_alarm_mrad: d.thresholds.gap_alarm_mrad,
                 has_model: d.model.is_some(),
+                model: d.model.as_ref().and_then(|path| {
+                    // The analysis reports a model that does not load (no wear
+                    // diagnosis); the page then shows no simulated response.
+                    millgate_sim::model::Model::load(path).ok().map(Arc::new)
+                }),
             })
             .collect();
         let (live, live_rx) = watch::channel(Arc::new(String::new()));
@@ -159,6 +166,8 @@ pub(crate) fn router(state: Arc<WebState>) -> Router {
         .route("/api/drivelines/{name}/bites", get(api::bites))
         .route("/api/drivelines/{name}/captures", get(api::captures))
         .route("/api/captures/{id}", get(api::capture))
+        .route("/api/captures/{id}/file", get(api::capture_file))
+        .route("/api/captures/{id}/response", get(api::capture_response))
         .route("/api/drivelines/{name}/wear", get(api::wear))
         .route("/api/drivelines/{name}/map", get(api::gap_maps))
         .route("/api/alarms", get(api::alarms))

@@ -163,10 +163,12 @@ pub(crate) async fn driveline(
          <select id=\"taf-coupling\"></select></label>\
          <div id=\"taf-plot\" class=\"plot\"></div>\
          <p class=\"note\" id=\"taf-note\"></p></section>\n\
+         <section><h2>Bite trace</h2><div id=\"trace-plot\" class=\"plot\"></div>\
+         <p class=\"note\" id=\"trace-note\"></p></section>\n\
          <section><h2>Last bites</h2><table id=\"bites\" class=\"grid\"><thead><tr>\
          <th>Time (UTC)</th><th>Bite</th><th>Static torque</th><th>Peak torque</th><th>TAF</th>\
-         <th>Period shift</th><th>Gap (90% interval)</th><th>Quality</th></tr></thead>\
-         <tbody></tbody></table></section>"
+         <th>Period shift</th><th>Gap (90% interval)</th><th>Quality</th><th>Capture</th>\
+         </tr></thead><tbody></tbody></table></section>"
     );
     layout(
         &state,

@@ -24,6 +24,8 @@ pub struct DrivelineInfo {
     pub gap_alarm_mrad: f64,
     /// Whether it has a model (the gap diagnosis runs only with one).
     pub has_model: bool,
+    /// The model, when it loads: the simulated response beside a bite's capture.
+    pub model: Option<Arc<millgate_sim::model::Model>>,
 }
 
 /// Everything the handlers share.

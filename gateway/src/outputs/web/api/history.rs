@@ -5,12 +5,18 @@ use std::sync::Arc;
 
 use axum::extract::rejection::{PathRejection, QueryRejection};
 use axum::extract::{Path, Query, State};
+use axum::http::{header, HeaderValue, StatusCode};
+use axum::response::{IntoResponse, Response};
 use axum::Json;
+use millgate_sim::discrepancy::calibration::aligned_response;
+use millgate_sim::discrepancy::Measured;
 
 use super::{
     driveline_index, history_error, with_history, ApiError, DrivelineName, Params, LIMIT_DEFAULT,
     LIMIT_MAX, POINTS_DEFAULT,
 };
+use crate::outputs::history::capture_files::{self, CaptureHeader, ExportFormat};
+use crate::outputs::history::captures::Capture;
 use crate::outputs::history::query::{AlarmRow, BiteRow, CaptureRow, Filter, Record};
 use crate::outputs::history::series::{WearPoint, MAX_SERIES_POINTS};
 use crate::outputs::history::HistoryError;
@@ -54,16 +60,8 @@ pub(crate) async fn capture(
     id: Result<Path<i64>, PathRejection>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
     // A bad id gets the API's JSON error, not axum's plain-text one.
-    let Path(id) =
-        id.map_err(|rejection| ApiError::bad(format!("capture id: {}", rejection.body_text())))?;
-    let capture = with_history(&state, move |reader| {
-        reader.capture(id).map_err(history_error)
-    })
-    .await?
-    .ok_or_else(|| ApiError {
-        status: axum::http::StatusCode::NOT_FOUND,
-        message: format!("no capture {id} in the history"),
-    })?;
+    let id = capture_id(id)?;
+    let capture = with_history(&state, move |reader| read_capture(reader, id)).await?;
     let mut value = crate::outputs::history::captures::row_json(&capture.row);
     value["channels"] = capture
         .channels
@@ -77,6 +75,135 @@ pub(crate) async fn capture(
         })
         .collect();
     Ok(Json(value))
+}
+
+/// The `{id}` of a capture's route; a bad one gets the API's JSON error, not axum's
+/// plain-text one.
+fn capture_id(id: Result<Path<i64>, PathRejection>) -> Result<i64, ApiError> {
+    let Path(id) =
+        id.map_err(|rejection| ApiError::bad(format!("capture id: {}", rejection.body_text())))?;
+    Ok(id)
+}
+
+/// Capture `id` of the file; 404 when the file does not hold it.
+fn read_capture(
+    reader: &crate::outputs::history::query::HistoryReader,
+    id: i64,
+) -> Result<Capture, ApiError> {
+    reader
+        .capture(id)
+        .map_err(history_error)?
+        .ok_or_else(|| ApiError {
+            status: StatusCode::NOT_FOUND,
+            message: format!("no capture {id} in the history"),
+        })
+}
+
+/// `GET /api/captures/{id}/file?format=csv|parquet`: the capture as the file
+/// `millgate capture export --id {id} --format ...` writes (the same writer, byte for
+/// byte), as a download named as the export names it. Written in memory: one
+/// capture, its size bounded by the capture settings.
+pub(crate) async fn capture_file(
+    State(state): State<Arc<WebState>>,
+    id: Result<Path<i64>, PathRejection>,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Response, ApiError> {
+    let id = capture_id(id)?;
+    let params = Params::of(query, &["format"])?;
+    let format = match params.get("format") {
+        Some("csv") | None => ExportFormat::Csv,
+        Some("parquet") => ExportFormat::Parquet,
+        Some(other) => {
+            return Err(ApiError::bad(format!(
+                "format `{other}`: expected csv or parquet"
+            )))
+        }
+    };
+    let (name, bytes) = with_history(&state, move |reader| {
+        let capture = read_capture(reader, id)?;
+        let config_name =
+            capture_files::run_config_name(reader, capture.row.run_id).map_err(history_error)?;
+        let header = CaptureHeader::of(&capture, config_name);
+        let mut bytes = Vec::new();
+        capture_files::write(&capture, &header, format, &mut bytes).map_err(|error| ApiError {
+            status: StatusCode::INTERNAL_SERVER_ERROR,
+            message: format!("capture {id}: {error}"),
+        })?;
+        Ok((capture_files::file_name(&capture, format), bytes))
+    })
+    .await?;
+    let content_type = match format {
+        ExportFormat::Csv => "text/csv; charset=utf-8",
+        ExportFormat::Parquet => "application/vnd.apache.parquet",
+    };
+    // The name holds ASCII letters, digits, `-`, `_` and `.` only (`file_name`).
+    let disposition = HeaderValue::from_str(&format!("attachment; filename=\"{name}\""))
+        .map_err(|_| ApiError::bad(format!("capture {id}: no file name")))?;
+    Ok((
+        [
+            (header::CONTENT_TYPE, HeaderValue::from_static(content_type)),
+            (header::CONTENT_DISPOSITION, disposition),
+        ],
+        bytes,
+    )
+        .into_response())
+}
+
+/// `GET /api/captures/{id}/response`: the driveline model's simulated response to a
+/// bite's capture, beside its measured torque (the capture's first channel, as
+/// `millgate discrepancy` takes it): the model as configured (`drivelines[].model`),
+/// its onset and static torque aligned to the record as the discrepancy workflow's
+/// calibration starts
+/// ([`aligned_response`](millgate_sim::discrepancy::calibration::aligned_response)),
+/// and the residual left (RMS). 404 for an unknown id, 409 for a capture that is no
+/// bite of a driveline with a model, or whose record is no load step.
+pub(crate) async fn capture_response(
+    State(state): State<Arc<WebState>>,
+    id: Result<Path<i64>, PathRejection>,
+) -> Result<Json<serde_json::Value>, ApiError> {
+    let id = capture_id(id)?;
+    let web = Arc::clone(&state);
+    with_history(&state, move |reader| {
+        let capture = read_capture(reader, id)?;
+        let conflict = |why: String| ApiError {
+            status: StatusCode::CONFLICT,
+            message: format!("capture {id}: {why}"),
+        };
+        let row = &capture.row;
+        if row.kind != "bite" {
+            return Err(conflict(format!("a {} capture, not a bite's", row.kind)));
+        }
+        let model = web
+            .drivelines
+            .iter()
+            .find(|d| d.name == row.subject)
+            .and_then(|d| d.model.as_deref())
+            .ok_or_else(|| conflict(format!("{} has no driveline model", row.subject)))?;
+        let torque = capture
+            .channels
+            .first()
+            .ok_or_else(|| conflict("no channel".to_owned()))?;
+        let measured = Measured {
+            t0_s: 0.0,
+            sample_rate_hz: row.sample_rate_hz,
+            torque_knm: &torque.samples,
+        };
+        let response = aligned_response(model, &measured)
+            .map_err(|error| conflict(format!("the model cannot simulate this bite: {error}")))?
+            .ok_or_else(|| conflict("the record is no load step".to_owned()))?;
+        Ok(serde_json::json!({
+            "capture_id": id,
+            "driveline": row.subject,
+            "bite_counter": row.bite_counter,
+            "channel": torque.name,
+            "unit": torque.unit,
+            "sample_rate_hz": row.sample_rate_hz,
+            "measured": torque.samples,
+            "response": response,
+        }))
+    })
+    .await
+    .map(Json)
 }
 
 /// `GET /api/drivelines/{name}/wear?since=&until=&points=`: the gap estimate (last

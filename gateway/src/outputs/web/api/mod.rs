@@ -13,7 +13,7 @@ mod history;
 mod live;
 mod maps;
 
-pub(crate) use history::{alarms, bites, capture, captures, wear};
+pub(crate) use history::{alarms, bites, capture, capture_file, capture_response, captures, wear};
 pub(crate) use live::{driveline, drivelines, events, live_json, overview};
 pub(crate) use maps::gap_maps;
 

@@ -13,10 +13,9 @@
 //! writers alone: the samples are plain `f64` columns, and arrow's array crates would
 //! double the build for no use here).
 
-use std::path::Path;
+use std::io::Write;
 use std::sync::Arc;
 
-use anyhow::Context as _;
 use parquet::basic::{Compression, LogicalType, Repetition, TimeUnit, Type as PhysicalType};
 use parquet::data_type::{DoubleType, Int64Type};
 use parquet::file::metadata::KeyValue;
@@ -24,16 +23,13 @@ use parquet::file::properties::WriterProperties;
 use parquet::file::writer::SerializedFileWriter;
 use parquet::schema::types::Type;
 
-use crate::outputs::history::captures::Capture;
+use super::captures::Capture;
+use parquet::errors::ParquetError;
 
-/// Write `capture` to `path` as Parquet, with `header` (the capture's header as
-/// JSON, as a CSV export's first line has it) in the metadata.
-pub(super) fn write(capture: &Capture, header: &str, path: &Path) -> anyhow::Result<()> {
-    write_file(capture, header, path)
-        .with_context(|| format!("{}: cannot write Parquet", path.display()))
-}
+/// The time columns before the channels.
+pub(super) const TIME_COLUMNS: [&str; 2] = ["time", "t"];
 
-fn column(name: &str, physical: PhysicalType) -> anyhow::Result<Arc<Type>> {
+fn column(name: &str, physical: PhysicalType) -> Result<Arc<Type>, ParquetError> {
     Ok(Arc::new(
         Type::primitive_type_builder(name, physical)
             .with_repetition(Repetition::REQUIRED)
@@ -41,21 +37,25 @@ fn column(name: &str, physical: PhysicalType) -> anyhow::Result<Arc<Type>> {
     ))
 }
 
-fn write_file(capture: &Capture, header: &str, path: &Path) -> anyhow::Result<()> {
+/// Write `capture` to `out` as Parquet, with `header` (the capture's header as JSON,
+/// as a CSV export's first line has it) in the metadata. Its channels' names are
+/// not the time columns' (`time`, `t`): [`TIME_COLUMNS`].
+pub(super) fn write<W: Write + Send>(
+    capture: &Capture,
+    header: &str,
+    out: W,
+) -> Result<(), ParquetError> {
     let row = &capture.row;
     let mut fields = vec![
         Arc::new(
-            Type::primitive_type_builder("time", PhysicalType::INT64)
+            Type::primitive_type_builder(TIME_COLUMNS[0], PhysicalType::INT64)
                 .with_repetition(Repetition::REQUIRED)
                 .with_logical_type(Some(LogicalType::timestamp(true, TimeUnit::NANOS)))
                 .build()?,
         ),
-        column("t", PhysicalType::DOUBLE)?,
+        column(TIME_COLUMNS[1], PhysicalType::DOUBLE)?,
     ];
     for channel in &capture.channels {
-        if channel.name == "t" || channel.name == "time" {
-            anyhow::bail!("channel `{}` has the name of a time column", channel.name);
-        }
         fields.push(column(&channel.name, PhysicalType::DOUBLE)?);
     }
     let schema = Arc::new(
@@ -86,8 +86,7 @@ fn write_file(capture: &Capture, header: &str, path: &Path) -> anyhow::Result<()
         .set_compression(Compression::SNAPPY)
         .set_key_value_metadata(Some(metadata))
         .build();
-    let file = std::fs::File::create(path)?;
-    let mut writer = SerializedFileWriter::new(file, schema, Arc::new(properties))?;
+    let mut writer = SerializedFileWriter::new(out, schema, Arc::new(properties))?;
     let samples = usize::try_from(capture.row.samples).unwrap_or(0);
     let first_ns = capture.row.first_sample_unix_ns;
     let rate = capture.row.sample_rate_hz;
