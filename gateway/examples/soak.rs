@@ -602,7 +602,7 @@ struct Summary {
     rss_growth_kib: i64,
     fds: (usize, usize),
     missed: f64,
-    bites: f64,
+    bites: u64,
     degraded: usize,
     not_in_history: usize,
     not_at_plc: usize,
@@ -867,7 +867,7 @@ async fn run_point(options: &Options, drivelines: usize, stands: usize) -> anyho
             .iter()
             .fold((usize::MAX, 0), |(lo, hi), s| (lo.min(s.1), hi.max(s.1))),
         missed: metric_sum(&final_metrics, "millgate_channel_blocks_missed_total") - missed_from,
-        bites: counted.values().map(|&c| f64::from(c)).sum(),
+        bites: counted.values().map(|&c| u64::from(c)).sum(),
         degraded: bites.in_history.values().filter(|(_, d)| *d).count(),
         not_in_history,
         not_at_plc,
