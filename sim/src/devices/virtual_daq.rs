@@ -253,8 +253,8 @@ mod tests {
         let mut daq = VirtualDaq::new(1000.0, 4, vec![channel]).looped();
         daq.publish_next_block();
         daq.publish_next_block();
-        let bank = daq.bank();
-        let block = layout::decode_block(&bank.lock().input).unwrap();
+        let input = daq.bank().lock().input.clone();
+        let block = layout::decode_block(&input).unwrap();
         assert_eq!(
             block.values(1.0, 0.0).collect::<Vec<_>>(),
             [2.0, 3.0, 1.0, 2.0]
