@@ -603,6 +603,13 @@ async fn watch_stalls(stall: Arc<AtomicU64>) {
     }
 }
 
+/// Whether the quantile `q` of `sorted` is below `limit` (true without a value: no
+/// bite measured, as at a load point without drivelines).
+fn quantile_below(sorted: &[f64], q: f64, limit: f64) -> bool {
+    let value = quantile(sorted, q);
+    value.is_nan() || value < limit
+}
+
 fn quantile(sorted: &[f64], q: f64) -> f64 {
     if sorted.is_empty() {
         return f64::NAN;
@@ -637,7 +644,7 @@ impl Summary {
             && self.not_in_history == 0
             && self.not_at_plc == 0
             && self.answers_failed == 0
-            && !(quantile(&self.latencies_ms, 0.99) >= p99_limit_ms)
+            && quantile_below(&self.latencies_ms, 0.99, p99_limit_ms)
     }
 }
 
