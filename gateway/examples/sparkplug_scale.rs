@@ -23,6 +23,9 @@
 //! example's folder), `--data-period-ms` of the nodes (default 1000). The configs use
 //! the demo's without its model (no wear maps: a small config, quick to start).
 
+#[path = "support/mosquitto.rs"]
+mod mosquitto;
+
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -31,6 +34,7 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use millgate::outputs::register_map::{decode_u32, RegisterMap};
 use millgate::outputs::sparkplug::payload::{MetricValue, Payload};
 use millgate_sim::devices::demo::{setup, DemoDevices};
+use mosquitto::Mosquitto;
 use prost::Message as _;
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 
@@ -168,30 +172,6 @@ struct Gateway {
     child: Child,
 }
 
-fn mosquitto(folder: &Path, port: u16) -> Result<Child, String> {
-    let config = folder.join("mosquitto.conf");
-    std::fs::write(
-        &config,
-        format!("listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n"),
-    )
-    .map_err(|e| e.to_string())?;
-    let child = Command::new("mosquitto")
-        .arg("-c")
-        .arg(&config)
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .map_err(|e| format!("mosquitto (apt install mosquitto): {e}"))?;
-    let start = Instant::now();
-    while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
-        if start.elapsed() > Duration::from_secs(10) {
-            return Err("mosquitto does not listen".into());
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    Ok(child)
-}
-
 fn percentile(sorted: &[i64], p: f64) -> i64 {
     if sorted.is_empty() {
         return 0;
@@ -207,7 +187,7 @@ async fn main() -> Result<(), String> {
     let _ = std::fs::remove_dir_all(&scratch);
     std::fs::create_dir_all(&scratch).map_err(|e| e.to_string())?;
     let port = free_port();
-    let mut broker = mosquitto(&scratch, port)?;
+    let broker = Mosquitto::start(&scratch, port)?;
     println!(
         "mosquitto on 127.0.0.1:{port}; {} gateways; {} s after every node is born",
         options.gateways, options.seconds
@@ -394,8 +374,7 @@ async fn main() -> Result<(), String> {
     for gateway in gateways {
         let _ = gateway.devices.stop().await;
     }
-    let _ = broker.kill();
-    let _ = broker.wait();
+    drop(broker);
 
     let mut sorted = host.latencies_ms.clone();
     sorted.sort_unstable();

@@ -10,6 +10,7 @@ use std::io;
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::SystemTime;
 
 use tokio::net::{TcpListener, TcpStream};
 use tokio_modbus::prelude::{ExceptionCode, Request, Response, SlaveRequest};
@@ -26,6 +27,20 @@ pub struct RegisterBank {
     pub holding_writable: bool,
     /// Number of successful write requests (FC 06 / FC 16) served.
     pub writes: u64,
+    /// When `Some`, every successful write is also recorded here with its time (a
+    /// virtual PLC watched by a latency benchmark; whoever reads it drains it).
+    pub write_log: Option<Vec<WriteRecord>>,
+}
+
+/// One successful write to the holding registers, as recorded in the write log.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct WriteRecord {
+    /// When the server applied it (the wall clock, as a PLC would stamp it).
+    pub time: SystemTime,
+    /// First register written.
+    pub address: u16,
+    /// The words written from `address` on.
+    pub words: Vec<u16>,
 }
 
 impl RegisterBank {
@@ -36,6 +51,7 @@ impl RegisterBank {
             holding: vec![0; holding_len],
             holding_writable,
             writes: 0,
+            write_log: None,
         }
     }
 
@@ -62,6 +78,13 @@ impl RegisterBank {
             .ok_or(ExceptionCode::IllegalDataAddress)?;
         target.copy_from_slice(words);
         self.writes += 1;
+        if let Some(log) = self.write_log.as_mut() {
+            log.push(WriteRecord {
+                time: SystemTime::now(),
+                address,
+                words: words.to_vec(),
+            });
+        }
         Ok(())
     }
 
@@ -264,10 +287,18 @@ mod tests {
         );
         assert_eq!(bank.holding, vec![0, 0, 9, 8]);
         assert_eq!(bank.writes, 1);
+        assert_eq!(bank.write_log, None, "no log unless asked for");
+        bank.write_log = Some(Vec::new());
         let too_far = std::borrow::Cow::Owned(vec![1, 1]);
         assert_eq!(
             bank.handle(&Request::WriteMultipleRegisters(3, too_far)),
             Err(ExceptionCode::IllegalDataAddress)
         );
+        let before = SystemTime::now();
+        bank.handle(&Request::WriteSingleRegister(1, 5)).unwrap();
+        let log = bank.write_log.as_ref().unwrap();
+        assert_eq!(log.len(), 1, "only the write that was applied: {log:?}");
+        assert_eq!((log[0].address, log[0].words.as_slice()), (1, &[5][..]));
+        assert!(log[0].time >= before);
     }
 }

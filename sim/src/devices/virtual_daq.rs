@@ -68,6 +68,7 @@ pub struct VirtualDaq {
     samples_per_block: u16,
     next_sample: usize,
     sequence: u16,
+    looped: bool,
 }
 
 impl VirtualDaq {
@@ -95,6 +96,7 @@ impl VirtualDaq {
             samples_per_block,
             next_sample: 0,
             sequence: 0,
+            looped: false,
         }
     }
 
@@ -103,6 +105,13 @@ impl VirtualDaq {
     /// the sequence back by far more than any delay of a reader could advance it.
     pub fn with_sequence(mut self, sequence: u16) -> Self {
         self.sequence = sequence;
+        self
+    }
+
+    /// This DAQ playing each channel's signal over and over instead of holding its
+    /// last value (a long run from a short signal: load benchmarks and soaks).
+    pub fn looped(mut self) -> Self {
+        self.looped = true;
         self
     }
 
@@ -135,13 +144,14 @@ impl VirtualDaq {
         self.sequence = self.sequence.wrapping_add(1);
         let mut bank = self.bank.lock();
         for channel in &self.channels {
+            let signal = &channel.signal;
             let at = |i: usize| {
-                channel
-                    .signal
-                    .get(i)
-                    .or(channel.signal.last())
-                    .copied()
-                    .unwrap_or(0.0)
+                let i = if self.looped && !signal.is_empty() {
+                    i % signal.len()
+                } else {
+                    i
+                };
+                signal.get(i).or(signal.last()).copied().unwrap_or(0.0)
             };
             let values: Vec<f64> = (start..end).map(at).collect();
             write_channel(&mut bank, channel, self.sequence, &values);
@@ -268,6 +278,29 @@ mod tests {
         assert_eq!(block.sequence, 3);
         assert_eq!(block.values(0.5, 0.0).nth(7), Some(-3.5));
         assert_eq!(daq.samples_published(), 300);
+    }
+
+    #[test]
+    fn a_looped_daq_plays_its_signal_again() {
+        let channel = DaqChannel {
+            placement: Placement {
+                table: RegisterTable::Input,
+                address: 0,
+                scale: 1.0,
+                offset: 0.0,
+            },
+            publish: Publish::Block,
+            signal: vec![1.0, 2.0, 3.0],
+        };
+        let mut daq = VirtualDaq::new(1000.0, 4, vec![channel]).looped();
+        daq.publish_next_block();
+        daq.publish_next_block();
+        let input = daq.bank().lock().input.clone();
+        let block = layout::decode_block(&input).unwrap();
+        assert_eq!(
+            block.values(1.0, 0.0).collect::<Vec<_>>(),
+            [2.0, 3.0, 1.0, 2.0]
+        );
     }
 
     #[test]

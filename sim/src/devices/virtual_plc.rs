@@ -5,7 +5,7 @@ use std::io;
 
 use tokio::net::TcpListener;
 
-use super::modbus_bank::{serve, RegisterBank, Running, ServeOptions, SharedBank};
+use super::modbus_bank::{serve, RegisterBank, Running, ServeOptions, SharedBank, WriteRecord};
 
 /// A virtual PLC with `holding_len` writable holding registers.
 #[derive(Debug, Clone)]
@@ -19,6 +19,24 @@ impl VirtualPlc {
         Self {
             bank: SharedBank::new(RegisterBank::new(0, holding_len, true)),
         }
+    }
+
+    /// This PLC recording the time and words of every write (see
+    /// [`VirtualPlc::take_write_log`]).
+    pub fn logging_writes(self) -> Self {
+        self.bank.lock().write_log = Some(Vec::new());
+        self
+    }
+
+    /// The writes recorded since the last call (empty unless logging: see
+    /// [`VirtualPlc::logging_writes`]), oldest first.
+    pub fn take_write_log(&self) -> Vec<WriteRecord> {
+        self.bank
+            .lock()
+            .write_log
+            .as_mut()
+            .map(std::mem::take)
+            .unwrap_or_default()
     }
 
     /// The register bank, for inspection by tests and the demo.
