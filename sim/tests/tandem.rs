@@ -286,6 +286,33 @@ fn critical_speed_of_the_example_and_its_friction_sensitivity() -> anyhow::Resul
     Ok(())
 }
 
+/// Every schedule in `sim/schedules/` loads, rolls stably at its own speed (the
+/// critical speed factor its comment states, from the characteristic roots) and
+/// chatters at a plausible third-octave frequency.
+#[test]
+fn every_schedule_is_stable_at_its_own_speed() -> anyhow::Result<()> {
+    let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/schedules");
+    let mut seen = Vec::new();
+    for entry in std::fs::read_dir(dir)? {
+        let path = entry?.path();
+        let schedule = PassSchedule::load(&path)?;
+        let critical = mill_critical_speed(&TandemMill::new(&schedule)?)?;
+        let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("?");
+        println!("{name}: {critical:?}");
+        let stated = match name {
+            "lu2019-5stand.toml" => 1.098,
+            "heavy-5stand.toml" => 1.190,
+            "tinplate-5stand.toml" => 1.084,
+            other => anyhow::bail!("{other}: a schedule this test does not know"),
+        };
+        assert!((critical.speed - stated).abs() < 0.005, "{name}: {critical:?}");
+        assert!((100.0..250.0).contains(&critical.frequency_hz), "{name}: {critical:?}");
+        seen.push(name.to_owned());
+    }
+    assert_eq!(seen.len(), 3, "{seen:?}");
+    Ok(())
+}
+
 #[test]
 fn a_ramp_through_the_critical_speed_has_onset_then_developed_chatter() -> anyhow::Result<()> {
     let mill = TandemMill::new(&schedule())?;

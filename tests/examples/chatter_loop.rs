@@ -1,4 +1,5 @@
-//! The chatter closed loop's figures (`millgate_tests::chatter_loop`): five mills, 40
+//! The chatter closed loop's figures (`millgate_tests::chatter_loop`): seven mills on
+//! three pass schedules, 40
 //! accelerated runs open and closed loop, an hour of stable rolling at the highest
 //! allowed speed and 20 welds per detector, and the plot of one closed-loop run.
 //!
@@ -34,10 +35,11 @@ fn main() -> anyhow::Result<()> {
     let mills = mills(&plan)?;
     for m in &mills {
         println!(
-            "mill friction x{} damping x{}: critical {:.2} m/s ({:.0} m/min, factor {:.3}, {:.1} Hz); \
+            "mill {} friction x{} damping x{}: critical {:.2} m/s ({:.0} m/min, factor {:.3}, {:.1} Hz); \
              gain_thresholds {:?} release {}, band RMS {:?} release {}, k_max {}",
-            m.friction,
-            m.damping,
+            m.plan.schedule,
+            m.plan.friction,
+            m.plan.damping,
             m.critical_m_s(),
             m.critical_m_s() * 60.0,
             m.critical.speed,

@@ -5,8 +5,9 @@
 //! [`LoopPlan::delay_cycles`] PLC cycles later (the latency measured through the
 //! gateway over Modbus in `tests/tests/chatter_loop_e2e.rs`).
 //!
-//! **Mills.** Each mill is the example schedule with its friction and stack damping
-//! scaled ([`LoopPlan::mills`]), its critical speed from the characteristic roots, and
+//! **Mills.** Each mill is a pass schedule of `sim/schedules/` (Lu et al.'s 2.0 -> 0.2
+//! mm, a heavy gauge 3.0 -> 0.8 mm, a tinplate 1.8 -> 0.18 mm) with its friction and
+//! stack damping scaled ([`LoopPlan::mills`]), its critical speed from the characteristic roots, and
 //! its own thresholds from `millgate chatter commission`'s code
 //! ([`millgate::cli::chatter::commission::commission`]) on recordings of its stable
 //! rolling made for that only: accelerations from 60% of the critical speed to the
@@ -64,8 +65,8 @@ pub const MARGIN_PERCENT: f64 = 10.0;
 /// How many runs of each kind, and how.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LoopPlan {
-    /// (friction, damping) factors of the example schedule: one mill each.
-    pub mills: Vec<(f64, f64)>,
+    /// The mills: one each.
+    pub mills: Vec<MillPlan>,
     /// Commissioning recordings per mill, each `commission_s` long after the settling.
     pub commission_recordings: usize,
     /// Length of a commissioning recording after the settling time, s.
@@ -96,16 +97,18 @@ pub struct LoopPlan {
 }
 
 impl LoopPlan {
-    /// The README's figures: five mills, 40 accelerated runs, an hour of stable rolling
+    /// The README's figures: seven mills on three schedules, 40 accelerated runs, an hour of stable rolling
     /// and 20 welds per detector.
     pub fn full() -> LoopPlan {
         LoopPlan {
             mills: vec![
-                (1.0, 1.0),
-                (0.9, 0.95),
-                (1.1, 1.05),
-                (0.95, 1.1),
-                (1.05, 0.9),
+                MillPlan::new("lu2019-5stand.toml", 1.0, 1.0),
+                MillPlan::new("lu2019-5stand.toml", 0.9, 0.95),
+                MillPlan::new("lu2019-5stand.toml", 1.1, 1.05),
+                MillPlan::new("heavy-5stand.toml", 1.0, 1.0),
+                MillPlan::new("heavy-5stand.toml", 0.95, 1.1),
+                MillPlan::new("tinplate-5stand.toml", 1.0, 1.0),
+                MillPlan::new("tinplate-5stand.toml", 1.05, 0.9),
             ],
             commission_recordings: 6,
             commission_s: 60.0,
@@ -126,7 +129,7 @@ impl LoopPlan {
     /// runs, two stable runs and a weld, the band-gain detector.
     pub fn quick() -> LoopPlan {
         LoopPlan {
-            mills: vec![(1.0, 1.0)],
+            mills: vec![MillPlan::new("lu2019-5stand.toml", 1.0, 1.0)],
             commission_recordings: 3,
             commission_s: 30.0,
             accelerated: 3,
@@ -137,6 +140,37 @@ impl LoopPlan {
             threads: 2,
             ..LoopPlan::full()
         }
+    }
+}
+
+/// A mill of the plan: a pass schedule of `sim/schedules/` with its friction and stack
+/// damping scaled.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MillPlan {
+    /// The schedule's file name in `sim/schedules/`.
+    pub schedule: &'static str,
+    /// Friction factor.
+    pub friction: f64,
+    /// Stack damping factor.
+    pub damping: f64,
+}
+
+impl MillPlan {
+    /// The schedule `schedule` (a file name in `sim/schedules/`) scaled.
+    pub fn new(schedule: &'static str, friction: f64, damping: f64) -> MillPlan {
+        MillPlan {
+            schedule,
+            friction,
+            damping,
+        }
+    }
+
+    /// The scaled schedule.
+    pub fn load(&self) -> anyhow::Result<PassSchedule> {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../sim/schedules")
+            .join(self.schedule);
+        Ok(PassSchedule::load(path)?.scaled(self.friction, self.damping))
     }
 }
 
@@ -168,10 +202,8 @@ impl Detector {
 /// A mill and its commissioned thresholds.
 #[derive(Debug, Clone)]
 pub struct Mill {
-    /// Friction factor.
-    pub friction: f64,
-    /// Stack damping factor.
-    pub damping: f64,
+    /// Its schedule and factors.
+    pub plan: MillPlan,
     /// The linearised mill.
     pub mill: TandemMill,
     /// Its critical speed.
@@ -328,12 +360,17 @@ fn excitation(run: &Run) -> Excitation {
 
 /// The mills of `plan` with their critical speeds and commissioned thresholds.
 pub fn mills(plan: &LoopPlan) -> anyhow::Result<Vec<Mill>> {
-    let base = PassSchedule::example()?;
-    parallel(plan.threads, &plan.mills, |&(friction, damping)| {
-        let mill = TandemMill::new(&base.scaled(friction, damping))?;
+    parallel(plan.threads, &plan.mills, |mill_plan| {
+        let mill = TandemMill::new(&mill_plan.load()?)?;
         let critical = mill_critical_speed(&mill)?;
         let unit_m_s = mill.exit_speed(mill.stands().len() - 1, 1.0);
-        let mill_seed = (((friction * 1000.0) as u64) << 20) | ((damping * 1000.0) as u64);
+        let schedule_seed = mill_plan
+            .schedule
+            .bytes()
+            .fold(0u64, |h, b| h.wrapping_mul(31).wrapping_add(u64::from(b)));
+        let mill_seed = (((mill_plan.friction * 1000.0) as u64) << 20)
+            | ((mill_plan.damping * 1000.0) as u64)
+            | (schedule_seed << 40);
         let seed = plan.seed ^ mill_seed;
         let mut rng = SmallRng::seed_from_u64(seed);
         let top = plan.top * critical.speed;
@@ -412,8 +449,7 @@ pub fn mills(plan: &LoopPlan) -> anyhow::Result<Vec<Mill>> {
             MARGIN_PERCENT,
         )?;
         Ok(Mill {
-            friction,
-            damping,
+            plan: mill_plan.clone(),
             mill,
             critical,
             unit_m_s,
