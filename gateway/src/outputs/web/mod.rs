@@ -20,6 +20,7 @@
 //! [`HistoryReader`]: crate::outputs::history::query::HistoryReader
 
 pub(crate) mod api;
+mod encoding;
 pub(crate) mod page;
 mod shared;
 
@@ -160,6 +161,7 @@ pub(crate) fn router(state: Arc<WebState>) -> Router {
         .route("/drivelines/{name}", get(page::driveline))
         .route("/alarms", get(page::alarms))
         .route("/assets/{file}", get(page::asset))
+        .route("/favicon.ico", get(page::favicon))
         .route("/api/overview", get(api::overview))
         .route("/api/drivelines", get(api::drivelines))
         .route("/api/drivelines/{name}", get(api::driveline))
@@ -173,6 +175,7 @@ pub(crate) fn router(state: Arc<WebState>) -> Router {
         .route("/api/alarms", get(api::alarms))
         .route("/api/events", get(api::events))
         .fallback(|| async { http::error(StatusCode::NOT_FOUND, "no such page") })
+        .layer(axum::middleware::from_fn(encoding::compress))
         .layer(axum::middleware::from_fn_with_state(
             Arc::clone(&state),
             known_host,
