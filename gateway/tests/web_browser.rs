@@ -363,7 +363,10 @@ async fn pages_fit_a_phone_and_plots_are_described(client: &Client, port: u16, s
     ];
     for (url, filled) in &pages {
         client.goto(url).await.unwrap();
-        until_js(client, filled, long, |v| v == &serde_json::Value::Bool(true)).await;
+        until_js(client, filled, long, |v| {
+            v == &serde_json::Value::Bool(true)
+        })
+        .await;
         let measured = client.execute(MEASURE, vec![]).await.unwrap();
         let (width, inner) = (measured[0].as_u64(), measured[1].as_u64());
         eprintln!("{url} at {PHONE_WIDTH} px: {measured}");
@@ -389,7 +392,12 @@ async fn pages_fit_a_phone_and_plots_are_described(client: &Client, port: u16, s
         .unwrap();
     let captions = captions.as_array().unwrap();
     assert!(!captions.is_empty());
-    assert!(captions.iter().all(|c| c.as_str().is_some_and(|c| !c.is_empty())), "{captions:?}");
+    assert!(
+        captions
+            .iter()
+            .all(|c| c.as_str().is_some_and(|c| !c.is_empty())),
+        "{captions:?}"
+    );
 }
 
 async fn screenshot(client: &Client, name: &str) {

@@ -105,8 +105,8 @@ pub(crate) async fn compress(request: Request, next: Next) -> Response {
     if !worth {
         return Response::from_parts(parts, body);
     }
-    let Ok(bytes) = axum::body::to_bytes(body, usize::try_from(MAX_BYTES).unwrap_or(usize::MAX))
-        .await
+    let Ok(bytes) =
+        axum::body::to_bytes(body, usize::try_from(MAX_BYTES).unwrap_or(usize::MAX)).await
     else {
         return crate::outputs::http::error(
             StatusCode::INTERNAL_SERVER_ERROR,
@@ -175,10 +175,7 @@ impl Asset {
     /// The answer to a request with `headers`: the gzipped form when accepted, 304
     /// when `If-None-Match` names the form's ETag (or is `*`).
     pub(crate) fn answer(&self, headers: &HeaderMap) -> Response {
-        let gzipped = self
-            .gzipped
-            .as_ref()
-            .filter(|_| accepts_gzip(headers));
+        let gzipped = self.gzipped.as_ref().filter(|_| accepts_gzip(headers));
         let etag = if gzipped.is_some() {
             &self.etag_gzip
         } else {
@@ -258,7 +255,14 @@ mod tests {
                 "{accepted}"
             );
         }
-        for refused in ["", "identity", "br, deflate", "gzip;q=0", "*, gzip;q=0", "*;q=0"] {
+        for refused in [
+            "",
+            "identity",
+            "br, deflate",
+            "gzip;q=0",
+            "*, gzip;q=0",
+            "*;q=0",
+        ] {
             assert!(
                 !accepts_gzip(&with(header::ACCEPT_ENCODING, refused)),
                 "{refused}"
@@ -281,7 +285,11 @@ mod tests {
                 "{matching}"
             );
         }
-        for other in ["\"0123456789abcdee\"", "\"0123456789abcdef-gzip\"", "0123456789abcdef"] {
+        for other in [
+            "\"0123456789abcdee\"",
+            "\"0123456789abcdef-gzip\"",
+            "0123456789abcdef",
+        ] {
             assert!(
                 !none_match(&with(header::IF_NONE_MATCH, other), etag),
                 "{other}"

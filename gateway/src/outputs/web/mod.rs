@@ -5,6 +5,8 @@
 //!   each a small server-rendered HTML shell that the page's own script
 //!   (`assets/web/app.js`) fills from the JSON API, plotting with the vendored uPlot
 //!   (`assets/uplot`, MIT). Everything is compiled into the binary: no CDN, no fonts.
+//! - **Encoding** (`encoding.rs`): text answers gzipped by `Accept-Encoding`, the
+//!   assets with strong ETags and 304 on `If-None-Match`.
 //! - **API** (`api/`): `/api/overview`,
 //!   `/api/drivelines[/{name}[/bites|/captures|/wear|/map]]`,
 //!   `/api/captures/{id}[/file|/response]`,
