@@ -352,7 +352,11 @@ async fn pages_fit_a_phone_and_plots_are_described(client: &Client, port: u16, s
             "return document.querySelectorAll('#alarms tbody tr').length > 0;",
         ),
         (
-            format!("{base}/drivelines/no-such-driveline-with-a-long-name"),
+            // A name longer than the screen, without a place to break.
+            format!(
+                "{base}/drivelines/{}",
+                "NoSuchDrivelineWithANameLongerThanAPhone".repeat(2)
+            ),
             "return document.readyState === 'complete';",
         ),
         (
