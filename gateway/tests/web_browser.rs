@@ -20,6 +20,7 @@
 
 mod common;
 
+use std::os::unix::process::CommandExt as _;
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -37,7 +38,9 @@ fn which(program: &str) -> Option<PathBuf> {
     })
 }
 
-/// chromedriver on a free loopback port, killed on drop.
+/// chromedriver on a free loopback port in a process group of its own, which is killed
+/// on drop: the chromium it started goes too, also when a failing test never closed
+/// its session.
 struct Driver {
     child: Child,
     port: u16,
@@ -45,7 +48,8 @@ struct Driver {
 
 impl Drop for Driver {
     fn drop(&mut self) {
-        let _ = self.child.kill();
+        let group = rustix::process::Pid::from_child(&self.child);
+        let _ = rustix::process::kill_process_group(group, rustix::process::Signal::KILL);
         let _ = self.child.wait();
     }
 }
@@ -54,6 +58,7 @@ async fn start_driver(chromedriver: &PathBuf) -> Driver {
     let port = free_port();
     let child = Command::new(chromedriver)
         .args([format!("--port={port}"), "--allowed-ips=127.0.0.1".into()])
+        .process_group(0)
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .spawn()
@@ -423,7 +428,7 @@ async fn the_pages_list_the_drivelines_plot_the_gap_and_show_a_new_bite_live() {
     let setup = Setup::new("web-browser", "history").await;
     let port = free_port();
     setup.append_config(&format!("\n[outputs.web]\nbind = \"127.0.0.1:{port}\"\n"));
-    let service = setup.spawn("web-browser.log");
+    let service = setup.spawn_guarded("web-browser.log");
     web_ready(port).await;
     let plc = setup.plc();
     plc.bites_after_now(2).await;
@@ -576,5 +581,6 @@ async fn the_pages_list_the_drivelines_plot_the_gap_and_show_a_new_bite_live() {
     pages_fit_a_phone_and_plots_are_described(&client, port, &setup).await;
     client.close().await.unwrap();
     drop(driver);
-    setup.stop(service).await;
+    drop(service);
+    setup.finish().await;
 }
