@@ -2,7 +2,8 @@
 //! virtual DAQ and PLC) over real HTTP on loopback: the JSON API's answers and
 //! limits, the security headers, requests refused (bad parameters, methods, bodies,
 //! oversized, malformed and slow requests), the connection limit with the Modbus
-//! path answering meanwhile, live updates, and the page without a history.
+//! path answering meanwhile, live updates, and the page without a history; gzip and
+//! the assets' ETags as curl(1) sees them.
 
 mod common;
 
@@ -304,6 +305,206 @@ impl EventStream {
     }
 }
 
+/// An answer as curl(1) got it: status, headers (names lower-case) and the body's
+/// bytes as sent (curl decodes nothing without `--compressed`).
+struct Curled {
+    status: u16,
+    headers: Vec<(String, String)>,
+    body: Vec<u8>,
+}
+
+impl Curled {
+    fn header(&self, name: &str) -> Option<&str> {
+        self.headers
+            .iter()
+            .find(|(key, _)| key == name)
+            .map(|(_, value)| value.as_str())
+    }
+}
+
+/// `GET path` on the page's port with curl and the request headers `headers`; at
+/// most `max_time` s (the event stream does not end by itself).
+fn curl(port: u16, path: &str, headers: &[&str], max_time: u32) -> Curled {
+    let mut command = std::process::Command::new("curl");
+    command.args(["-sS", "-i", "--max-time", &max_time.to_string()]);
+    for header in headers {
+        command.args(["-H", header]);
+    }
+    let output = command
+        .arg(format!("http://127.0.0.1:{port}{path}"))
+        .output()
+        .expect("curl (scripts/test installs it)");
+    let raw = &output.stdout;
+    let split = raw
+        .windows(4)
+        .position(|w| w == b"\r\n\r\n")
+        .unwrap_or_else(|| panic!("{path}: no answer from curl: {output:?}"));
+    let head = String::from_utf8_lossy(&raw[..split]).into_owned();
+    let mut lines = head.lines();
+    let status = lines
+        .next()
+        .and_then(|line| line.split(' ').nth(1))
+        .and_then(|code| code.parse().ok())
+        .unwrap_or_else(|| panic!("{path}: no status line in {head:?}"));
+    Curled {
+        status,
+        headers: lines
+            .filter_map(|line| line.split_once(':'))
+            .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_owned()))
+            .collect(),
+        body: raw[split + 4..].to_vec(),
+    }
+}
+
+/// `bytes` unpacked by gzip(1), not by the flate2 the server packs with.
+fn gunzip(bytes: &[u8]) -> Vec<u8> {
+    use std::io::Write as _;
+    let mut child = std::process::Command::new("gzip")
+        .arg("-dc")
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .expect("gzip");
+    child.stdin.take().unwrap().write_all(bytes).unwrap();
+    let output = child.wait_with_output().unwrap();
+    assert!(output.status.success(), "gzip -dc: {output:?}");
+    output.stdout
+}
+
+/// Text answers come gzipped to a client that accepts it (and the bytes unpack to the
+/// plain answer), plain to one that does not, each marked `Vary: Accept-Encoding`; the
+/// event stream is never packed; the assets carry strong ETags (one per form) that
+/// `If-None-Match` turns into 304, while a changed tag gets the whole asset; the
+/// pages say `no-cache` and the API's live JSON `no-store`, neither with a validator;
+/// the favicon is served.
+async fn compressed_and_validated(port: u16) {
+    const GZIP: &str = "Accept-Encoding: gzip, deflate, br";
+    for path in [
+        "/",
+        "/drivelines/F1",
+        "/alarms",
+        "/assets/app.js",
+        "/assets/app.css",
+        "/assets/uPlot-1.6.32.min.js",
+        "/api/overview",
+        "/api/drivelines/F1/bites?limit=500",
+    ] {
+        // A live answer may change between two requests: compared when the plain
+        // answers before and after the packed one are the same.
+        let mut compared = false;
+        for _ in 0..10 {
+            let before = curl(port, path, &[], 10);
+            let packed = curl(port, path, &[GZIP], 10);
+            let after = curl(port, path, &[], 10);
+            assert_eq!((before.status, packed.status), (200, 200), "{path}");
+            assert_eq!(before.header("content-encoding"), None, "{path}");
+            assert_eq!(packed.header("content-encoding"), Some("gzip"), "{path}");
+            for answer in [&before, &packed] {
+                assert!(
+                    answer
+                        .header("vary")
+                        .is_some_and(|vary| vary.to_ascii_lowercase().contains("accept-encoding")),
+                    "{path}: {:?}",
+                    answer.headers
+                );
+            }
+            assert!(packed.body.len() < before.body.len(), "{path}");
+            if before.body == after.body {
+                assert!(
+                    gunzip(&packed.body) == before.body,
+                    "{path}: unpacked differs"
+                );
+                eprintln!(
+                    "{path}: {} bytes, {} gzipped",
+                    before.body.len(),
+                    packed.body.len()
+                );
+                compared = true;
+                break;
+            }
+        }
+        assert!(compared, "{path} changed at every try");
+    }
+    // The live-update stream goes as it is, even to a gzip client.
+    let events = curl(port, "/api/events", &[GZIP], 1);
+    assert_eq!(events.status, 200);
+    assert!(events
+        .header("content-type")
+        .is_some_and(|t| t.starts_with("text/event-stream")));
+    assert_eq!(events.header("content-encoding"), None);
+    // Pages and the API: no validator; the pages are revalidated, the API not stored.
+    for (path, cache) in [("/", "no-cache"), ("/api/overview", "no-store")] {
+        let answer = curl(port, path, &[], 10);
+        assert_eq!(answer.header("cache-control"), Some(cache), "{path}");
+        assert_eq!(answer.header("etag"), None, "{path}");
+    }
+    // The assets' validators.
+    let vendored = std::fs::read(common::repo().join("gateway/assets/web/app.js")).unwrap();
+    let plain = curl(port, "/assets/app.js", &[], 10);
+    let packed = curl(port, "/assets/app.js", &[GZIP], 10);
+    assert_eq!(plain.body, vendored);
+    let (tag, packed_tag) = (
+        plain.header("etag").expect("an ETag").to_owned(),
+        packed.header("etag").expect("an ETag").to_owned(),
+    );
+    assert!(tag.starts_with('"') && tag.ends_with('"'), "strong: {tag}");
+    assert!(packed_tag.starts_with('"'), "strong: {packed_tag}");
+    assert_ne!(tag, packed_tag, "one tag per form");
+    let css_tag = curl(port, "/assets/app.css", &[], 10);
+    assert_ne!(
+        css_tag.header("etag"),
+        Some(tag.as_str()),
+        "one tag per asset"
+    );
+    for (accept, etag) in [(None, &tag), (Some(GZIP), &packed_tag)] {
+        let mut headers = vec![format!("If-None-Match: {etag}")];
+        headers.extend(accept.map(str::to_owned));
+        let headers: Vec<&str> = headers.iter().map(String::as_str).collect();
+        let again = curl(port, "/assets/app.js", &headers, 10);
+        assert_eq!(again.status, 304, "{headers:?}");
+        assert!(again.body.is_empty());
+        assert_eq!(again.header("etag"), Some(etag.as_str()));
+        // A changed tag (another build's asset) gets the whole asset.
+        let changed = format!(
+            "If-None-Match: \"0000000000000000\", W/{}x\"",
+            &etag[..etag.len() - 1]
+        );
+        let mut headers = vec![changed.as_str()];
+        headers.extend(accept);
+        let whole = curl(port, "/assets/app.js", &headers, 10);
+        assert_eq!(whole.status, 200, "{headers:?}");
+        let body = if accept.is_some() {
+            gunzip(&whole.body)
+        } else {
+            whole.body
+        };
+        assert!(body == vendored, "{headers:?}");
+    }
+    // The plain form's tag does not validate the gzipped form.
+    let other_form = curl(
+        port,
+        "/assets/app.js",
+        &[&format!("If-None-Match: {tag}"), GZIP],
+        10,
+    );
+    assert_eq!(other_form.status, 200);
+    // The icon, where browsers look for it and where the pages link it.
+    let icon = std::fs::read(common::repo().join("gateway/assets/web/favicon.svg")).unwrap();
+    for path in ["/favicon.ico", "/assets/favicon.svg"] {
+        let answer = curl(port, path, &[], 10);
+        assert_eq!(answer.status, 200, "{path}");
+        assert_eq!(
+            answer.header("content-type"),
+            Some("image/svg+xml"),
+            "{path}"
+        );
+        assert!(answer.body == icon, "{path}");
+    }
+    let page = curl(port, "/", &[], 10);
+    assert!(String::from_utf8_lossy(&page.body)
+        .contains("<link rel=\"icon\" href=\"/assets/favicon.svg\" type=\"image/svg+xml\">"));
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_api_answers_from_the_live_results_and_the_history_and_refuses_bad_requests() {
     let setup = Setup::new("web-api", "history").await;
@@ -342,6 +543,7 @@ async fn the_api_answers_from_the_live_results_and_the_history_and_refuses_bad_r
     assert!(driveline_page.body.contains("id=\"gap-plot\""));
     assert_eq!(http(port, "GET", "/drivelines/F9").await.status, 404);
     assert_eq!(http(port, "GET", "/nothing").await.status, 404);
+    compressed_and_validated(port).await;
 
     // The overview against the PLC and the file (outages read before and after: a
     // loaded machine may see the source stall at the start).

@@ -6,7 +6,9 @@
 //! APIs' numbers; another row's "plot" switches to that bite), and a new bite
 //! shows on the open overview and driveline page without a reload (the time it took is
 //! printed: the README's "within 2 s" is a figure of a quiet machine, not asserted on a
-//! loaded CI machine).
+//! loaded CI machine). Then, in the same browser at a phone's 390 px, every page and the
+//! `report` command's `report.html` fit the width (no sideways scrolling), and each
+//! plot has a text alternative that gives its figures.
 //!
 //! Every read of the page is one script call (`until_js`): the live updates re-render
 //! the tables, so an element found in one WebDriver call can be stale in the next.
@@ -18,6 +20,7 @@
 
 mod common;
 
+use std::os::unix::process::CommandExt as _;
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -35,7 +38,9 @@ fn which(program: &str) -> Option<PathBuf> {
     })
 }
 
-/// chromedriver on a free loopback port, killed on drop.
+/// chromedriver on a free loopback port in a process group of its own, which is killed
+/// on drop: the chromium it started goes too, also when a failing test never closed
+/// its session.
 struct Driver {
     child: Child,
     port: u16,
@@ -43,7 +48,8 @@ struct Driver {
 
 impl Drop for Driver {
     fn drop(&mut self) {
-        let _ = self.child.kill();
+        let group = rustix::process::Pid::from_child(&self.child);
+        let _ = rustix::process::kill_process_group(group, rustix::process::Signal::KILL);
         let _ = self.child.wait();
     }
 }
@@ -52,6 +58,7 @@ async fn start_driver(chromedriver: &PathBuf) -> Driver {
     let port = free_port();
     let child = Command::new(chromedriver)
         .args([format!("--port={port}"), "--allowed-ips=127.0.0.1".into()])
+        .process_group(0)
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .spawn()
@@ -283,6 +290,125 @@ async fn trace_is_the_captures_samples_beside_the_model(client: &Client, port: u
     assert!(same_numbers(&shown[1], &theirs["channels"][0]["samples"]));
 }
 
+/// A phone's viewport width, CSS px (an iPhone 12 to 15's).
+const PHONE_WIDTH: u32 = 390;
+
+/// Measures the open page in one script call (a live update cannot re-render it
+/// between two reads): the document's width, the viewport's, the elements that
+/// stick out of the viewport (outside a box that scrolls them), and each plot's role
+/// and accessible name. The sections hidden for want of such mills (tandem, rod) are
+/// shown while it measures: their tables' headers are among the widest rows.
+const MEASURE: &str = "const hidden = Array.from(document.querySelectorAll('.hidden')); \
+    hidden.forEach((e) => e.classList.remove('hidden')); \
+    const inner = window.innerWidth; \
+    const width = document.documentElement.scrollWidth; \
+    const clipped = (e) => { \
+      for (let a = e.parentElement; a; a = a.parentElement) { \
+        if (['auto', 'scroll', 'hidden'].includes(getComputedStyle(a).overflowX)) return true; \
+      } \
+      return false; \
+    }; \
+    const out = Array.from(document.body.querySelectorAll('*')) \
+      .filter((e) => e.getBoundingClientRect().right > inner + 0.5 && !clipped(e)) \
+      .slice(0, 8) \
+      .map((e) => e.tagName.toLowerCase() + (e.id ? '#' + e.id : '') \
+        + (e.className && e.className.baseVal === undefined ? '.' + e.className : '') \
+        + ' ' + Math.round(e.getBoundingClientRect().right)); \
+    hidden.forEach((e) => e.classList.add('hidden')); \
+    const plots = Array.from(document.querySelectorAll('.plot')) \
+      .map((p) => [p.id, p.getAttribute('role'), p.getAttribute('aria-label')]); \
+    return [width, inner, out, plots];";
+
+/// At a phone's width every page, and `report.html` of the test's history, shows no
+/// horizontal overflow: `document.documentElement.scrollWidth <= window.innerWidth`
+/// (tables scroll in their own box, plots are as wide as the screen, the menu and long
+/// names wrap). And every plot on the pages is `role="img"` with a name that gives its
+/// figures (a drawn plot's, not the shell's placeholder).
+async fn pages_fit_a_phone_and_plots_are_described(client: &Client, port: u16, setup: &Setup) {
+    let long = Duration::from_secs(20);
+    let report = setup.scratch.join("report");
+    let made = Command::new(env!("CARGO_BIN_EXE_millgate"))
+        .args(["report", "--db"])
+        .arg(&setup.history)
+        .arg("--out")
+        .arg(&report)
+        .output()
+        .expect("run millgate report");
+    assert!(made.status.success(), "{made:?}");
+    client.set_window_size(PHONE_WIDTH, 844).await.unwrap();
+    let base = format!("http://127.0.0.1:{port}");
+    // Each page, and when it is filled: its tables' rows and its plots drawn.
+    let pages = [
+        (
+            format!("{base}/"),
+            "return !!document.querySelector('#driveline-F1') \
+               && !!window.millgatePlots.overviewGap \
+               && document.querySelectorAll('#sources tbody tr').length > 0;",
+        ),
+        (
+            format!("{base}/drivelines/F1"),
+            "const p = window.millgatePlots; \
+             return !!(p.gap && p.taf && p.trace) \
+               && document.querySelectorAll('#bites tbody tr').length > 0 \
+               && document.querySelectorAll('#cards .card').length > 0;",
+        ),
+        (
+            format!("{base}/alarms"),
+            "return document.querySelectorAll('#alarms tbody tr').length > 0;",
+        ),
+        (
+            // A name longer than the screen, without a place to break.
+            format!(
+                "{base}/drivelines/{}",
+                "NoSuchDrivelineWithANameLongerThanAPhone".repeat(2)
+            ),
+            "return document.readyState === 'complete';",
+        ),
+        (
+            format!("file://{}", report.join("report.html").display()),
+            "return document.readyState === 'complete' \
+               && document.querySelectorAll('figure svg').length > 0;",
+        ),
+    ];
+    for (url, filled) in &pages {
+        client.goto(url).await.unwrap();
+        until_js(client, filled, long, |v| {
+            v == &serde_json::Value::Bool(true)
+        })
+        .await;
+        let measured = client.execute(MEASURE, vec![]).await.unwrap();
+        let (width, inner) = (measured[0].as_u64(), measured[1].as_u64());
+        eprintln!("{url} at {PHONE_WIDTH} px: {measured}");
+        assert_eq!(inner, Some(u64::from(PHONE_WIDTH)), "{url}: {measured}");
+        assert!(width <= inner, "{url} overflows sideways: {measured}");
+        for plot in measured[3].as_array().unwrap() {
+            assert_eq!(plot[1], "img", "{url}: {plot}");
+            let name = plot[2].as_str().unwrap_or("");
+            assert!(
+                !name.contains("not drawn yet") && name.contains(|c: char| c.is_ascii_digit()),
+                "{url}: plot without a description of its figures: {plot}"
+            );
+        }
+    }
+    // The report's plots are figures with a caption.
+    let captions = client
+        .execute(
+            "return Array.from(document.querySelectorAll('figure')) \
+               .map((f) => f.querySelector('figcaption') ? f.querySelector('figcaption').textContent : '');",
+            vec![],
+        )
+        .await
+        .unwrap();
+    let captions = captions.as_array().unwrap();
+    assert!(!captions.is_empty());
+    assert!(
+        captions
+            .iter()
+            .all(|c| c.as_str().is_some_and(|c| !c.is_empty())),
+        "{captions:?}"
+    );
+}
+
 async fn screenshot(client: &Client, name: &str) {
     if let Some(folder) = std::env::var_os("MILLGATE_SCREENSHOTS") {
         let png = client.screenshot().await.expect("screenshot");
@@ -302,7 +428,7 @@ async fn the_pages_list_the_drivelines_plot_the_gap_and_show_a_new_bite_live() {
     let setup = Setup::new("web-browser", "history").await;
     let port = free_port();
     setup.append_config(&format!("\n[outputs.web]\nbind = \"127.0.0.1:{port}\"\n"));
-    let service = setup.spawn("web-browser.log");
+    let service = setup.spawn_guarded("web-browser.log");
     web_ready(port).await;
     let plc = setup.plc();
     plc.bites_after_now(2).await;
@@ -452,7 +578,9 @@ async fn the_pages_list_the_drivelines_plot_the_gap_and_show_a_new_bite_live() {
     }
     screenshot(&client, "maintenance-driveline.png").await;
 
+    pages_fit_a_phone_and_plots_are_described(&client, port, &setup).await;
     client.close().await.unwrap();
     drop(driver);
-    setup.stop(service).await;
+    drop(service);
+    setup.finish().await;
 }

@@ -11,7 +11,8 @@
 
   // ---- formatting -------------------------------------------------------------
   const num = (v, digits) => (v === null || v === undefined ? "–" : Number(v).toFixed(digits));
-  const utc = (text) => (text ? text.replace("T", " ").replace(/\.\d+Z$|Z$/, "") : "–");
+  // Every time on the pages is UTC and says so: "2026-11-27 08:14:03 UTC".
+  const utc = (text) => (text ? text.replace("T", " ").replace(/\.\d+Z$|Z$/, "") + " UTC" : "–");
   function ago(text) {
     if (!text) return "";
     const s = Math.max(0, (Date.now() - Date.parse(text)) / 1000);
@@ -77,8 +78,36 @@
   // between are appended from the live figures.
   const SERIES_PERIOD_MS = 5 * 60 * 1000;
 
+  // A plot as wide as its box (a phone's too), never narrower than 200 px.
   function plotWidth(node) {
-    return Math.max(320, node.clientWidth || 800);
+    return Math.max(200, node.clientWidth || 800);
+  }
+  // A plot's text alternative (its node is role="img"): what it shows, in numbers.
+  function describe(node, text) {
+    node.setAttribute("aria-label", text);
+  }
+  // "a to b unit" over the values that are numbers, or null when there are none.
+  function rangeText(values, digits, unit) {
+    const numbers = values.filter((v) => v !== null && v !== undefined && Number.isFinite(v));
+    if (numbers.length === 0) return null;
+    const low = numbers.reduce((a, b) => Math.min(a, b));
+    const high = numbers.reduce((a, b) => Math.max(a, b));
+    return num(low, digits) + " to " + num(high, digits) + (unit ? " " + unit : "");
+  }
+  // The time span of a plot's x values (Unix s), UTC.
+  function timeSpan(xs) {
+    if (xs.length === 0) return "no time yet";
+    return "from " + timeLabel(null, xs[0]) + " to " + timeLabel(null, xs[xs.length - 1]);
+  }
+  // What a gap-over-time plot shows: per series (index i of data) its estimates' range.
+  function gapSummary(title, data, names) {
+    const parts = names.map((label, i) => {
+      const values = data[i + 1] || [];
+      const range = rangeText(values, 2, "mrad");
+      const count = values.filter((v) => v !== null && v !== undefined).length;
+      return label + ": " + (range ? count + " estimates, " + range : "no estimate");
+    });
+    return title + ", " + timeSpan(data[0]) + "; " + parts.join("; ") + ".";
   }
 
   // ---- overview -----------------------------------------------------------------
@@ -132,11 +161,13 @@
     async function drawGaps(o) {
       if (!o.history) {
         gapNote.textContent = "No history configured: the plot needs [history] in the configuration.";
+        describe(gapNode, "Opened gap over time: not drawn, " + gapNote.textContent);
         return;
       }
       const models = o.drivelines.filter((d) => d.has_model);
       if (models.length === 0) {
         gapNote.textContent = "No driveline has a model configured: no gap estimates.";
+        describe(gapNode, "Opened gap over time: not drawn, " + gapNote.textContent);
         return;
       }
       const series = await Promise.all(models.map((d) =>
@@ -155,6 +186,7 @@
       if (gapPlot) gapPlot.destroy();
       gapPlot = new uPlot(options, data, gapNode);
       window.millgatePlots.overviewGap = gapPlot;
+      describe(gapNode, gapSummary("Opened gap of each driveline over time", data, models.map((d) => d.name)));
       gapNote.textContent = data[0].length ? "" : "No gap estimate in the history yet.";
     }
     let gapsAt = 0;
@@ -190,7 +222,11 @@
         gapNote.textContent = "";
       }
       gapPlot.setData(data);
+      describe(gapNode, gapSummary("Opened gap of each driveline over time", data, names));
     }
+    window.addEventListener("resize", () => {
+      if (gapPlot) gapPlot.setSize({ width: plotWidth(gapNode), height: 260 });
+    });
     let pending = null;
     listeners.push((now, before) => {
       render(now);
@@ -222,7 +258,7 @@
   const timeIncrs = [1, 2, 5, 10, 15, 30, 60, 120, 300, 600, 900, 1800, 3600, 7200, 14400, 21600,
     43200, 86400, 172800, 604800, 2592000, 7776000, 31536000];
   const utcDate = (ts) => uPlot.tzDate(new Date(ts * 1e3), "Etc/UTC");
-  const timeLabel = (u, v) => (v === null ? "–" : new Date(v * 1000).toISOString().slice(0, 19).replace("T", " "));
+  const timeLabel = (u, v) => (v === null ? "–" : utc(new Date(v * 1000).toISOString()));
   const colours = ["#1d4ed8", "#0f766e", "#7c3aed", "#c2410c", "#be185d", "#4d7c0f", "#0369a1", "#a16207"];
 
   function drivelinePage() {
@@ -322,6 +358,11 @@
         tracePlot = new uPlot(options, data, traceNode);
         tracePlot.millgateCapture = id;
         window.millgatePlots.trace = tracePlot;
+        describe(traceNode, "Torque trace of bite " + capture.bite_counter + " (capture " + id + "): "
+          + channel.samples.length + " samples over " + num(channel.samples.length / rate, 3) + " s, measured "
+          + rangeText(channel.samples, 1, channel.unit)
+          + (response ? "; the model's response at the bite's static torque " + rangeText(response.response.torque_knm, 1, "kN·m")
+            + ", residual " + num(response.response.residual_rms_knm, 2) + " kN·m RMS" : "") + ".");
         const bite = bites.find((b) => b.bite_counter === capture.bite_counter);
         const gap = bite && bite.gap_mrad !== null && bite.gap_mrad !== undefined
           ? "; estimated gap " + num(bite.gap_mrad, 2) + " mrad (" + num(bite.gap_low_mrad, 2) + "–" + num(bite.gap_high_mrad, 2) + ")" : "";
@@ -367,6 +408,12 @@
       if (gapPlot) gapPlot.destroy();
       gapPlot = new uPlot(options, data, gapNode);
       window.millgatePlots.gap = gapPlot;
+      describeGap();
+    }
+    function describeGap() {
+      const t = info.thresholds;
+      describe(gapNode, gapSummary("Opened gap of " + name + " over time", gapPlot.data, ["gap"])
+        + " Warning at " + t.gap_warning_mrad + " mrad, alarm at " + t.gap_alarm_mrad + " mrad.");
     }
 
     // The gap maps (/api/drivelines/{name}/map) and the coupling whose curves are
@@ -445,6 +492,14 @@
       tafPlot = new uPlot(options, uPlot.join(tables), tafNode);
       window.millgatePlots.taf = tafPlot;
       tafPlot.millgateCoupling = coupling ? coupling.coupling : null;
+      const estimate = coupling && map.estimate && map.estimate.coupling === coupling.coupling
+        ? " Estimated opened gap " + num(map.estimate.gap.gap_mrad, 2) + " mrad (90%: " + num(map.estimate.low.gap_mrad, 2)
+          + " to " + num(map.estimate.high.gap_mrad, 2) + ")." : "";
+      describe(tafNode, "TAF over static torque of " + points.length + " measured bites"
+        + (points.length ? ": TAF " + rangeText(points.map((p) => p[1]), 3) + " at " + rangeText(points.map((p) => p[0]), 0, "kN·m") : "")
+        + ". Warning at TAF " + t.taf_warning + ", alarm at " + t.taf_alarm + "."
+        + (coupling ? " Lines: the gap map of coupling " + coupling.coupling + ", gaps "
+          + rangeText(coupling.curves.map((c) => c.gap_mrad), 0, "mrad") + "." : "") + estimate);
       const what = "Points: the measured bites" + (bites.length ? " (newest " + bites.length + ")" : " (none in the history yet)") + ". ";
       if (coupling) {
         const e = map.estimate;
@@ -489,7 +544,10 @@
         if (traceShown === null) {
           const newest = bites.slice().reverse().find((b) => captureOf.has(b.bite_counter));
           if (newest) showTrace(captureOf.get(newest.bite_counter));
-          else traceNote.textContent = "No bite capture in the history yet.";
+          else {
+            traceNote.textContent = "No bite capture in the history yet.";
+            describe(traceNode, "Bite trace: not drawn, " + traceNote.textContent);
+          }
         }
         if (wear) {
           wearAt = Date.now();
@@ -512,8 +570,10 @@
         await loadHistory();
       } else {
         gapNote.textContent = "No history configured: the plots need [history] in the configuration.";
+        describe(gapNode, "Opened gap over time: not drawn, " + gapNote.textContent);
         await loadMap();
         traceNote.textContent = "No history configured: bite captures need [history].";
+        describe(traceNode, "Bite trace: not drawn, " + traceNote.textContent);
         fill(tbody, [el("tr", {}, el("td", { colspan: 9, class: "muted" }, "no history configured: live figures only"))]);
       }
       let pending = null;
@@ -537,6 +597,7 @@
           data[1].push(d.gap_mrad); data[2].push(d.gap_low_mrad); data[3].push(d.gap_high_mrad);
           data[4].push(info.thresholds.gap_warning_mrad); data[5].push(info.thresholds.gap_alarm_mrad);
           gapPlot.setData(data);
+          describeGap();
           gapNote.textContent = "";
         }
         // ...then the stored rows and the trend, once the history has them (without

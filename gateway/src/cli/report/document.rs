@@ -60,10 +60,11 @@ pub fn html(title: &str, blocks: &[Block]) -> String {
         "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">\
          <meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\
          <title>{}</title>\n\
-         <style>body{{font-family:sans-serif;max-width:960px;margin:2em auto;color:#222}}\
-         table{{border-collapse:collapse;margin:1em 0}}td,th{{border:1px solid #bbb;\
-         padding:2px 8px;text-align:left}}figure{{margin:1em 0}}svg{{max-width:100%;\
-         height:auto}}</style></head><body>\n",
+         <style>body{{font-family:sans-serif;max-width:960px;margin:2em auto;padding:0 8px;\
+         color:#222}}h1,h2,h3,p,figcaption{{overflow-wrap:anywhere}}\
+         .scroll{{overflow-x:auto}}table{{border-collapse:collapse;margin:1em 0}}\
+         td,th{{border:1px solid #bbb;padding:2px 8px;text-align:left}}figure{{margin:1em 0}}\
+         svg{{max-width:100%;height:auto}}</style></head><body>\n",
         escape(title)
     );
     for block in blocks {
@@ -75,7 +76,8 @@ pub fn html(title: &str, blocks: &[Block]) -> String {
                 let _ = writeln!(out, "<p>{}</p>", escape(text));
             }
             Block::Table(header, rows) => {
-                out.push_str("<table><tr>");
+                // A table wider than a phone scrolls in its own box.
+                out.push_str("<div class=\"scroll\" tabindex=\"0\"><table><tr>");
                 for cell in header {
                     let _ = write!(out, "<th>{}</th>", escape(cell));
                 }
@@ -87,7 +89,7 @@ pub fn html(title: &str, blocks: &[Block]) -> String {
                     }
                     out.push_str("</tr>\n");
                 }
-                out.push_str("</table>\n");
+                out.push_str("</table></div>\n");
             }
             Block::Figure { title, svg, .. } => {
                 // The SVG document without its XML declaration, inline.

@@ -5,6 +5,8 @@
 //!   each a small server-rendered HTML shell that the page's own script
 //!   (`assets/web/app.js`) fills from the JSON API, plotting with the vendored uPlot
 //!   (`assets/uplot`, MIT). Everything is compiled into the binary: no CDN, no fonts.
+//! - **Encoding** (`encoding.rs`): text answers gzipped by `Accept-Encoding`, the
+//!   assets with strong ETags and 304 on `If-None-Match`.
 //! - **API** (`api/`): `/api/overview`,
 //!   `/api/drivelines[/{name}[/bites|/captures|/wear|/map]]`,
 //!   `/api/captures/{id}[/file|/response]`,
@@ -20,6 +22,7 @@
 //! [`HistoryReader`]: crate::outputs::history::query::HistoryReader
 
 pub(crate) mod api;
+mod encoding;
 pub(crate) mod page;
 mod shared;
 
@@ -160,6 +163,7 @@ pub(crate) fn router(state: Arc<WebState>) -> Router {
         .route("/drivelines/{name}", get(page::driveline))
         .route("/alarms", get(page::alarms))
         .route("/assets/{file}", get(page::asset))
+        .route("/favicon.ico", get(page::favicon))
         .route("/api/overview", get(api::overview))
         .route("/api/drivelines", get(api::drivelines))
         .route("/api/drivelines/{name}", get(api::driveline))
@@ -173,6 +177,7 @@ pub(crate) fn router(state: Arc<WebState>) -> Router {
         .route("/api/alarms", get(api::alarms))
         .route("/api/events", get(api::events))
         .fallback(|| async { http::error(StatusCode::NOT_FOUND, "no such page") })
+        .layer(axum::middleware::from_fn(encoding::compress))
         .layer(axum::middleware::from_fn_with_state(
             Arc::clone(&state),
             known_host,

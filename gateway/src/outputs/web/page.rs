@@ -1,51 +1,65 @@
 //! The pages: small HTML shells (names escaped, no inline script or style) that the
 //! page's own script fills from the API, and the assets compiled into the binary.
 
-use std::sync::Arc;
+use std::sync::{Arc, LazyLock};
 
 use axum::extract::{Path, State};
-use axum::http::{header, HeaderValue, StatusCode};
+use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
 use axum::response::{Html, IntoResponse, Response};
 
+use super::encoding::Asset;
 use super::shared::WebState;
 
 /// uPlot's version, vendored in `gateway/assets/uplot` (MIT, its LICENSE beside it).
 pub(crate) const UPLOT_VERSION: &str = "1.6.32";
 
-/// The assets: path under `/assets/`, content type, bytes, Cache-Control.
-const ASSETS: &[(&str, &str, &[u8], &str)] = &[
-    (
-        "app.js",
-        "text/javascript; charset=utf-8",
-        include_bytes!("../../../assets/web/app.js"),
-        "no-cache",
-    ),
-    (
-        "app.css",
-        "text/css; charset=utf-8",
-        include_bytes!("../../../assets/web/app.css"),
-        "no-cache",
-    ),
-    // Named with their version: a browser may keep them for a day.
-    (
-        "uPlot-1.6.32.min.js",
-        "text/javascript; charset=utf-8",
-        include_bytes!("../../../assets/uplot/uPlot.iife.min.js"),
-        "public, max-age=86400",
-    ),
-    (
-        "uPlot-1.6.32.min.css",
-        "text/css; charset=utf-8",
-        include_bytes!("../../../assets/uplot/uPlot.min.css"),
-        "public, max-age=86400",
-    ),
-    (
-        "uPlot-LICENSE.txt",
-        "text/plain; charset=utf-8",
-        include_bytes!("../../../assets/uplot/LICENSE"),
-        "public, max-age=86400",
-    ),
-];
+/// The assets: path under `/assets/`, content type, bytes, Cache-Control; each with
+/// its gzipped form and their ETags, made on first use.
+static ASSETS: LazyLock<[Asset; 6]> = LazyLock::new(|| {
+    [
+        Asset::new(
+            "app.js",
+            "text/javascript; charset=utf-8",
+            include_bytes!("../../../assets/web/app.js"),
+            "no-cache",
+        ),
+        Asset::new(
+            "app.css",
+            "text/css; charset=utf-8",
+            include_bytes!("../../../assets/web/app.css"),
+            "no-cache",
+        ),
+        Asset::new(
+            FAVICON,
+            "image/svg+xml",
+            include_bytes!("../../../assets/web/favicon.svg"),
+            "no-cache",
+        ),
+        // Named with their version: a browser may keep them for a day.
+        Asset::new(
+            "uPlot-1.6.32.min.js",
+            "text/javascript; charset=utf-8",
+            include_bytes!("../../../assets/uplot/uPlot.iife.min.js"),
+            "public, max-age=86400",
+        ),
+        Asset::new(
+            "uPlot-1.6.32.min.css",
+            "text/css; charset=utf-8",
+            include_bytes!("../../../assets/uplot/uPlot.min.css"),
+            "public, max-age=86400",
+        ),
+        Asset::new(
+            "uPlot-LICENSE.txt",
+            "text/plain; charset=utf-8",
+            include_bytes!("../../../assets/uplot/LICENSE"),
+            "public, max-age=86400",
+        ),
+    ]
+});
+
+/// The page's icon under `/assets/` (also answered at `/favicon.ico`, where browsers
+/// look without a `<link rel=icon>`, e.g. on the JSON API).
+const FAVICON: &str = "favicon.svg";
 
 /// `text` with `& < > " '` escaped for HTML text and attribute values.
 pub(crate) fn escape(text: &str) -> String {
@@ -79,6 +93,7 @@ fn layout(state: &WebState, title: &str, page: &str, driveline: &str, body: &str
         "<!doctype html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n\
          <meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n\
          <title>{title} · {plant} · millgate</title>\n\
+         <link rel=\"icon\" href=\"/assets/{FAVICON}\" type=\"image/svg+xml\">\n\
          <link rel=\"stylesheet\" href=\"/assets/uPlot-{UPLOT_VERSION}.min.css\">\n\
          <link rel=\"stylesheet\" href=\"/assets/app.css\">\n\
          <script src=\"/assets/uPlot-{UPLOT_VERSION}.min.js\" defer></script>\n\
@@ -104,25 +119,25 @@ fn layout(state: &WebState, title: &str, page: &str, driveline: &str, body: &str
 
 const OVERVIEW: &str = r#"<h1>Overview</h1>
 <section><h2>Drivelines</h2>
-<table id="drivelines" class="grid"><thead><tr><th>Driveline</th><th>Last bite</th><th>Bites</th>
+<div class="scroll" tabindex="0"><table id="drivelines" class="grid"><thead><tr><th>Driveline</th><th>Last bite</th><th>Bites</th>
 <th>TAF</th><th>Opened gap (90% interval)</th><th>Gap trend</th><th>Wear</th></tr></thead>
-<tbody></tbody></table></section>
-<section><h2>Opened gap over time</h2><div id="overview-gap-plot" class="plot"></div>
+<tbody></tbody></table></div></section>
+<section><h2>Opened gap over time</h2><div id="overview-gap-plot" class="plot" role="img" aria-label="Opened gap over time: not drawn yet"></div>
 <p class="note" id="overview-gap-note"></p></section>
 <section id="mills-section"><h2>Tandem mills</h2>
-<table id="mills" class="grid"><thead><tr><th>Mill</th><th>Chatter</th><th>Early warning (gain / threshold)</th>
-<th>Worst stand</th><th>Chatter frequency</th><th>Slow-down request</th></tr></thead><tbody></tbody></table></section>
+<div class="scroll" tabindex="0"><table id="mills" class="grid"><thead><tr><th>Mill</th><th>Chatter</th><th>Early warning (gain / threshold)</th>
+<th>Worst stand</th><th>Chatter frequency</th><th>Slow-down request</th></tr></thead><tbody></tbody></table></div></section>
 <section id="rod-section"><h2>Rod mills</h2>
-<table id="rods" class="grid"><thead><tr><th>Mill</th><th>State</th><th>Worst span</th><th>Speed margin</th>
-<th>Pass</th><th>Finishing speed</th></tr></thead><tbody></tbody></table></section>
+<div class="scroll" tabindex="0"><table id="rods" class="grid"><thead><tr><th>Mill</th><th>State</th><th>Worst span</th><th>Speed margin</th>
+<th>Pass</th><th>Finishing speed</th></tr></thead><tbody></tbody></table></div></section>
 <section><h2>Sources</h2>
-<table id="sources" class="grid"><thead><tr><th>Source</th><th>Kind</th><th>Status</th><th>Outages (24 h)</th>
-<th>Last outage</th></tr></thead><tbody></tbody></table></section>"#;
+<div class="scroll" tabindex="0"><table id="sources" class="grid"><thead><tr><th>Source</th><th>Kind</th><th>Status</th><th>Outages (24 h)</th>
+<th>Last outage</th></tr></thead><tbody></tbody></table></div></section>"#;
 
 const ALARMS: &str = r#"<h1>Alarms</h1>
 <p class="note" id="alarms-note"></p>
-<table id="alarms" class="grid"><thead><tr><th>Time (UTC)</th><th>Subject</th><th>Alarm</th><th>Event</th>
-<th>By</th><th>Value</th><th>Threshold</th></tr></thead><tbody></tbody></table>"#;
+<div class="scroll" tabindex="0"><table id="alarms" class="grid"><thead><tr><th>Time</th><th>Subject</th><th>Alarm</th><th>Event</th>
+<th>By</th><th>Value</th><th>Threshold</th></tr></thead><tbody></tbody></table></div>"#;
 
 /// `GET /`: the overview.
 pub(crate) async fn overview(State(state): State<Arc<WebState>>) -> Response {
@@ -156,19 +171,22 @@ pub(crate) async fn driveline(
     let name = escape(&info.name);
     let body = format!(
         "<h1>Driveline {name}</h1>\n<div id=\"cards\" class=\"cards\"></div>\n\
-         <section><h2>Opened gap over time</h2><div id=\"gap-plot\" class=\"plot\"></div>\
+         <section><h2>Opened gap over time</h2><div id=\"gap-plot\" class=\"plot\" role=\"img\" \
+         aria-label=\"Opened gap over time: not drawn yet\"></div>\
          <p class=\"note\" id=\"gap-note\"></p></section>\n\
          <section><h2>TAF over static torque</h2>\
          <label class=\"picker hidden\" id=\"taf-coupling-label\">gap map of coupling \
          <select id=\"taf-coupling\"></select></label>\
-         <div id=\"taf-plot\" class=\"plot\"></div>\
+         <div id=\"taf-plot\" class=\"plot\" role=\"img\" \
+         aria-label=\"TAF over static torque: not drawn yet\"></div>\
          <p class=\"note\" id=\"taf-note\"></p></section>\n\
-         <section><h2>Bite trace</h2><div id=\"trace-plot\" class=\"plot\"></div>\
+         <section><h2>Bite trace</h2><div id=\"trace-plot\" class=\"plot\" role=\"img\" \
+         aria-label=\"Bite trace: not drawn yet\"></div>\
          <p class=\"note\" id=\"trace-note\"></p></section>\n\
-         <section><h2>Last bites</h2><table id=\"bites\" class=\"grid\"><thead><tr>\
-         <th>Time (UTC)</th><th>Bite</th><th>Static torque</th><th>Peak torque</th><th>TAF</th>\
+         <section><h2>Last bites</h2><div class=\"scroll\" tabindex=\"0\"><table id=\"bites\" class=\"grid\"><thead><tr>\
+         <th>Time</th><th>Bite</th><th>Static torque</th><th>Peak torque</th><th>TAF</th>\
          <th>Period shift</th><th>Gap (90% interval)</th><th>Quality</th><th>Capture</th>\
-         </tr></thead><tbody></tbody></table></section>"
+         </tr></thead><tbody></tbody></table></div></section>"
     );
     layout(
         &state,
@@ -179,17 +197,16 @@ pub(crate) async fn driveline(
     )
 }
 
-/// `GET /assets/{file}`: the script, the style sheet and uPlot.
-pub(crate) async fn asset(Path(file): Path<String>) -> Response {
-    match ASSETS.iter().find(|(name, ..)| *name == file) {
-        Some((_, content_type, bytes, cache)) => (
-            [
-                (header::CONTENT_TYPE, HeaderValue::from_static(content_type)),
-                (header::CACHE_CONTROL, HeaderValue::from_static(cache)),
-            ],
-            *bytes,
-        )
-            .into_response(),
+/// `GET /assets/{file}`: the script, the style sheet, the icon and uPlot (gzipped
+/// when accepted; 304 for a matching `If-None-Match`).
+pub(crate) async fn asset(Path(file): Path<String>, headers: HeaderMap) -> Response {
+    match ASSETS.iter().find(|asset| asset.name == file) {
+        Some(asset) => asset.answer(&headers),
         None => crate::outputs::http::error(StatusCode::NOT_FOUND, "no such asset"),
     }
+}
+
+/// `GET /favicon.ico`: the page's icon (an SVG).
+pub(crate) async fn favicon(headers: HeaderMap) -> Response {
+    asset(Path(FAVICON.to_owned()), headers).await
 }
