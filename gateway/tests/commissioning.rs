@@ -105,7 +105,7 @@ impl Rig {
             rng.uniform(0.0, 1.0);
         }
         let gap_mrad = rng.uniform(1.5, 5.0);
-        let coupling = usize::from(seed % 2 == 0);
+        let coupling = usize::from(seed.is_multiple_of(2));
         let noise_knm = rng.uniform(0.3, 1.0);
         let shift = rng.uniform(-15.0, 15.0);
         let torques: Vec<f64> = CALIBRATION_KNM
