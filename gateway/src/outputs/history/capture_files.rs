@@ -224,3 +224,63 @@ fn write_csv(
     out.flush()?;
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use rusqlite::Connection;
+
+    use super::{run_config, RunConfig};
+    use crate::outputs::history::query::HistoryReader;
+    use crate::outputs::history::schema::{migrate, APPLICATION_ID, MIGRATIONS};
+
+    /// A file left at schema version 7 (no `config_hash`) is read as it is: the run's
+    /// name, no hash; migrated to version 8, a run recorded with its hash gives it.
+    #[test]
+    fn a_run_s_configuration_hash_is_read_from_version_8_on() {
+        let folder = std::env::temp_dir().join(format!(
+            "millgate-run-config-{}-{}",
+            std::process::id(),
+            crate::state::time::UtcTime::now().unix_ms()
+        ));
+        std::fs::create_dir_all(&folder).unwrap();
+        let path = folder.join("history.db");
+        let mut connection = Connection::open(&path).unwrap();
+        for step in &MIGRATIONS[..7] {
+            connection.execute_batch(step).unwrap();
+        }
+        connection.pragma_update(None, "user_version", 7).unwrap();
+        connection
+            .pragma_update(None, "application_id", APPLICATION_ID)
+            .unwrap();
+        connection
+            .execute_batch(
+                "INSERT INTO gateway_runs (started_at, version, config_name)
+                     VALUES ('2026-01-01T00:00:00.000Z', 'old', 'F mill');",
+            )
+            .unwrap();
+        let old = |path| run_config(&HistoryReader::open(path).unwrap(), 1).unwrap();
+        assert_eq!(
+            old(&path),
+            RunConfig {
+                name: Some("F mill".into()),
+                hash: None
+            }
+        );
+        assert_eq!(migrate(&mut connection).unwrap(), 7);
+        connection
+            .execute_batch(
+                "INSERT INTO gateway_runs (started_at, version, config_name, config_hash)
+                     VALUES ('2026-01-02T00:00:00.000Z', 'new', 'F mill', 'abc123');",
+            )
+            .unwrap();
+        let reader = HistoryReader::open(&path).unwrap();
+        assert_eq!(run_config(&reader, 1).unwrap().hash, None);
+        assert_eq!(
+            run_config(&reader, 2).unwrap().hash.as_deref(),
+            Some("abc123")
+        );
+        assert_eq!(run_config(&reader, 3).unwrap(), RunConfig::default());
+        drop((reader, connection));
+        let _ = std::fs::remove_dir_all(&folder);
+    }
+}
