@@ -4,6 +4,7 @@
 mod dbc;
 mod error;
 pub mod frame;
+mod hash;
 pub mod layout;
 mod parse;
 mod raw;
@@ -117,7 +118,11 @@ fn parse_and_validate(
 ) -> Result<Config, ConfigError> {
     let mut report = Report::new(file_name);
     let config = parse::parse(text, &mut report)
-        .and_then(|raw| validate::validate(raw, base_dir, dirs, &mut report, purpose));
+        .and_then(|raw| validate::validate(raw, base_dir, dirs, &mut report, purpose))
+        .map(|config| Config {
+            hash: hash::canonical_hash(text),
+            ..config
+        });
     report.finish(config)
 }
 

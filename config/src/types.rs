@@ -36,6 +36,12 @@ pub struct Config {
     pub outputs: Outputs,
     /// The event history file; `None` keeps no history.
     pub history: Option<History>,
+    /// SHA-256 (64 lower-case hex digits) of the file's canonical TOML: its tables
+    /// with every key sorted, written back by `toml` (comments, blank lines, key order
+    /// and number spelling do not count; a default written out does). The history
+    /// stores it with each run and the capture exports carry it, so an export names
+    /// the configuration that produced it (`millgate check --format json` prints it).
+    pub hash: String,
 }
 
 impl Config {

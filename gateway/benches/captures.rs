@@ -107,6 +107,7 @@ fn run_info() -> RunInfo {
     RunInfo {
         version: "bench".into(),
         config_name: "captures bench".into(),
+        config_hash: String::new(),
         drivelines: Vec::new(),
     }
 }

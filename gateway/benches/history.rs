@@ -77,6 +77,7 @@ fn run_info() -> RunInfo {
     RunInfo {
         version: "bench".into(),
         config_name: "history bench".into(),
+        config_hash: String::new(),
         drivelines: Vec::new(),
     }
 }

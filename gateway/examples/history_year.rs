@@ -342,6 +342,7 @@ fn begin_run(
     let run = RunInfo {
         version: env!("CARGO_PKG_VERSION").to_owned(),
         config_name: "Year fixture mill".into(),
+        config_hash: String::new(),
         drivelines: drivelines
             .iter()
             .map(|driveline| DrivelineSettings {

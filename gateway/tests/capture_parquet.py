@@ -1,11 +1,13 @@
 """Read millgate capture exports with pyarrow: each Parquet file holds the samples of
 the CSV export of the same capture and the capture's metadata.
 
-Usage: capture_parquet.py CSV PARQUET [CSV PARQUET ...]. Exits non-zero with the
-first difference.
+Usage: capture_parquet.py CSV PARQUET [CSV PARQUET ...]. With MILLGATE_CONFIG_HASH
+set, each file's configuration hash (the CSV header's `config_hash`, the Parquet
+file's `millgate.config_hash`) must be it. Exits non-zero with the first difference.
 """
 
 import json
+import os
 import sys
 
 import pyarrow.parquet as pq
@@ -34,6 +36,11 @@ def check(csv_path, parquet_path):
     assert meta["millgate.subject"] == header["subject"]
     assert meta["millgate.kind"] == header["kind"]
     assert float(meta["millgate.sample_rate_hz"]) == header["sample_rate_hz"]
+    assert meta["millgate.gateway_version"] == header["gateway_version"]
+    expected_hash = os.environ.get("MILLGATE_CONFIG_HASH")
+    if expected_hash is not None:
+        assert header.get("config_hash") == expected_hash, (header, expected_hash)
+        assert meta.get("millgate.config_hash") == expected_hash, (meta, expected_hash)
     units = json.loads(meta["millgate.units"])
     for channel in header["channels"]:
         assert units[channel["name"]] == channel["unit"], (units, channel)

@@ -120,6 +120,7 @@ fn run_info() -> RunInfo {
     RunInfo {
         version: "test".into(),
         config_name: "captures".into(),
+        config_hash: String::new(),
         drivelines: vec![DrivelineSettings {
             name: "F1".into(),
             taf_warning: 2.2,
@@ -269,4 +270,112 @@ fn ordinary_captures_are_thinned_after_some_days_and_the_others_kept() {
         .query_row("PRAGMA integrity_check", [], |row| row.get(0))
         .unwrap();
     assert_eq!(integrity, "ok");
+}
+
+/// `millgate report` draws the captured torque of each driveline's last alarm bites
+/// (`ALARM_TRACES`), newest first, each its own SVG named by the capture's id with
+/// the command that exports it; the bites' own captures, not others: the trace's
+/// envelope spans the window's lowest to highest sample (the plot's y range is
+/// padded around exactly those).
+#[cfg(feature = "plot")]
+#[test]
+fn the_report_draws_the_last_alarm_bites_captured_traces() {
+    use millgate::cli::report::ALARM_TRACES;
+    let scratch = Scratch::new("report");
+    let path = scratch.0.join("history.db");
+    let mut connection = connect(&path).unwrap();
+    let start = UtcTime::parse("2026-03-01T00:00:00Z").unwrap();
+    let run = insert_run(&connection, start, &run_info()).unwrap();
+    let transaction = connection.transaction().unwrap();
+    for n in 1..=400u32 {
+        let time = UtcTime::from_unix_ms(start.unix_ms() + i64::from(n) * 30_000);
+        for event in bite_with_capture(n, time, keep_of(n)) {
+            insert(&transaction, run, &event).unwrap();
+        }
+    }
+    transaction.commit().unwrap();
+    drop(connection);
+    let reader = HistoryReader::open(&path).unwrap();
+    let rows: Vec<CaptureRow> = reader.rows(&Filter::default()).unwrap();
+    // The alarm bites (every 50th), newest first: the last ALARM_TRACES of them.
+    let mut alarms: Vec<&CaptureRow> = rows.iter().filter(|r| r.keep == 2).collect();
+    assert_eq!(alarms.len(), 8);
+    alarms.reverse();
+    let expected: Vec<&CaptureRow> = alarms.into_iter().take(ALARM_TRACES as usize).collect();
+
+    let out = scratch.0.join("report");
+    let report = std::process::Command::new(env!("CARGO_BIN_EXE_millgate"))
+        .args(["report", "--db", path.to_str().unwrap()])
+        .args(["--out", out.to_str().unwrap(), "--until", "2026-03-02"])
+        .output()
+        .unwrap();
+    assert!(
+        report.status.success(),
+        "{}",
+        String::from_utf8_lossy(&report.stderr)
+    );
+    let markdown = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let traces: Vec<&str> = markdown
+        .lines()
+        .filter(|l| l.contains("](F1-capture-"))
+        .collect();
+    assert_eq!(traces.len(), expected.len(), "{markdown}");
+    for (line, row) in traces.iter().zip(&expected) {
+        let file = format!("F1-capture-{}.svg", row.id);
+        assert!(
+            line.contains(&format!(
+                "alarm bite {} at {} UTC, capture {}",
+                row.bite_counter.unwrap(),
+                row.bite_time.as_deref().unwrap(),
+                row.id
+            )) && line.contains(&file),
+            "{line}"
+        );
+        let svg = std::fs::read_to_string(out.join(&file)).unwrap();
+        // The trace: the longest polyline (the mesh, the trigger and the legend are
+        // lines of two points).
+        let points = svg
+            .split("<polyline")
+            .skip(1)
+            .filter_map(|p| p.split("points=\"").nth(1)?.split('"').next())
+            .max_by_key(|p| p.len())
+            .unwrap();
+        let ys: Vec<f64> = points
+            .split_whitespace()
+            .map(|p| p.split(',').nth(1).unwrap().parse().unwrap())
+            .collect();
+        // Computed here from the window: each column's lowest and highest sample in
+        // the order they came (a column of the plot's 450).
+        let samples = window(u64::try_from(row.bite_counter.unwrap()).unwrap());
+        let per_column = samples.len().div_ceil(450);
+        let mut envelope = Vec::new();
+        for chunk in samples.chunks(per_column) {
+            let low = (0..chunk.len()).min_by(|&a, &b| chunk[a].total_cmp(&chunk[b]));
+            let high = (0..chunk.len()).max_by(|&a, &b| chunk[a].total_cmp(&chunk[b]));
+            let (low, high) = (low.unwrap(), high.unwrap());
+            envelope.push(chunk[low.min(high)]);
+            if low != high {
+                envelope.push(chunk[low.max(high)]);
+            }
+        }
+        assert_eq!(ys.len(), envelope.len(), "points");
+        assert!(ys.len() <= 900);
+        // The pixels are the values on a linear axis, to the pixel.
+        let (lowest, highest) = envelope
+            .iter()
+            .fold((f64::MAX, f64::MIN), |(l, h), &v| (l.min(v), h.max(v)));
+        let at = |value: f64| envelope.iter().position(|&v| v == value).unwrap();
+        let (y_low, y_high) = (ys[at(lowest)], ys[at(highest)]);
+        for (y, value) in ys.iter().zip(&envelope) {
+            let expected = y_low + (y_high - y_low) * (value - lowest) / (highest - lowest);
+            assert!((y - expected).abs() <= 1.0, "{y} for {value}: {expected}");
+        }
+    }
+    assert!(
+        markdown.contains(&format!(
+            "millgate capture export --db {} --id ID",
+            path.display()
+        )),
+        "{markdown}"
+    );
 }

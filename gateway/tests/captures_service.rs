@@ -14,7 +14,9 @@
 //! - `millgate discrepancy --db ... --bites LAST:3` takes the captured bites, names the
 //!   demo's opening gap and writes a calibrated model;
 //! - an export of a range without captures and of an unknown driveline, more bites
-//!   than were captured: clear errors.
+//!   than were captured, an export to a full disk (a 16 KiB tmpfs in a private mount
+//!   namespace, `unshare -rm`): clear errors naming what and why, and no half-written
+//!   file left.
 
 mod common;
 
@@ -225,10 +227,24 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
         "no fit compared"
     );
 
-    // pyarrow reads the Parquet files: the CSV's samples and the metadata.
+    // pyarrow reads the Parquet files: the CSV's samples and the metadata, with the
+    // hash of the configuration the service ran, as `millgate check` prints it.
+    let checked = millgate(&[
+        "check",
+        "--config",
+        setup.config.to_str().unwrap(),
+        "--format",
+        "json",
+    ]);
+    assert!(checked.status.success(), "{}", text(&checked));
+    let checked: serde_json::Value = serde_json::from_slice(&checked.stdout).unwrap();
+    let config_hash = checked["config_hash"].as_str().unwrap().to_owned();
+    assert_eq!(config_hash.len(), 64, "{checked}");
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/capture_parquet.py");
     let mut python = Command::new("python3");
-    python.arg(&script);
+    python
+        .arg(&script)
+        .env("MILLGATE_CONFIG_HASH", &config_hash);
     for (csv, parquet) in &parquet_pairs {
         python.args([csv, parquet]);
     }
@@ -323,6 +339,44 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
         text(&unknown).contains("no driveline \"F9\" in the file"),
         "{}",
         text(&unknown)
+    );
+    // An export to a full disk: the file and the reason named, nothing half-written.
+    let full = setup.scratch.join("full");
+    std::fs::create_dir_all(&full).unwrap();
+    let exported = Command::new("unshare")
+        .args([
+            "-rm",
+            "sh",
+            "-c",
+            "mount -t tmpfs -o size=16k tmpfs \"$1\" && shift && \"$@\"; code=$?; \
+             ls -A \"$0\"; exit $code",
+        ])
+        .arg(&full)
+        .arg(&full)
+        .arg(env!("CARGO_BIN_EXE_millgate"))
+        .args(["capture", "export", "--db", db.to_str().unwrap()])
+        .args(["--format", "csv", "--out", full.to_str().unwrap()])
+        .output()
+        .expect("unshare (util-linux)");
+    assert!(!exported.status.success(), "{}", text(&exported));
+    let said = text(&exported);
+    assert!(
+        said.contains(&format!("{}/capture-", full.display()))
+            && said.contains("not exported (the part written was removed)")
+            && said.contains("No space left on device"),
+        "{said}"
+    );
+    // The file that did not fit is not among those `ls -A` found in the tmpfs after.
+    let prefix = format!("{}/", full.display());
+    let failed = said
+        .split(&prefix)
+        .nth(1)
+        .and_then(|rest| rest.split(':').next())
+        .unwrap();
+    let left = String::from_utf8_lossy(&exported.stdout).into_owned();
+    assert!(
+        failed.starts_with("capture-") && !left.lines().any(|name| name == failed),
+        "{failed} left in {left}"
     );
     let listed = millgate(&[
         "capture",

@@ -60,6 +60,7 @@ fn run_info() -> RunInfo {
     RunInfo {
         version: "test".into(),
         config_name: "Test mill".into(),
+        config_hash: String::new(),
         drivelines: vec![DrivelineSettings {
             name: "F1".into(),
             taf_warning: 2.2,

@@ -154,6 +154,7 @@ fn run_info() -> RunInfo {
     RunInfo {
         version: "test".into(),
         config_name: "report test mill".into(),
+        config_hash: String::new(),
         drivelines: ["F1", "F2"]
             .map(|name| DrivelineSettings {
                 name: name.into(),

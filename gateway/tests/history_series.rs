@@ -156,6 +156,7 @@ fn write_file(folder: &Path) -> PathBuf {
         RunInfo {
             version: "test".into(),
             config_name: "series test".into(),
+            config_hash: String::new(),
             drivelines: vec![settings("F1"), settings("F2")],
         },
     );

@@ -299,6 +299,12 @@ async fn a_full_disk_is_reported_the_plc_goes_on_and_storing_resumes_when_space_
     assert_eq!(state, 2.0, "failing");
     assert!(dropped >= 1.0, "{dropped}");
     assert!(error.contains("the disk is full"), "{error}");
+    // The bites' captures went with them, counted as such.
+    let captures_dropped = setup
+        .metric("millgate_history_captures_dropped_total")
+        .await
+        .unwrap();
+    assert!(captures_dropped >= 1.0, "{captures_dropped}");
     let log = std::fs::read_to_string(setup.log("run.log")).unwrap();
     assert!(log.contains("the disk is full"), "{log}");
 

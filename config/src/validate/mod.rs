@@ -174,6 +174,8 @@ pub(crate) fn validate(
         rod_mills: rod_mills.into_iter().collect::<Option<_>>()?,
         outputs: outputs?,
         history: optional(history)?,
+        // The text's, set by `parse_and_validate`, which has it.
+        hash: String::new(),
     })
 }
 

@@ -29,7 +29,7 @@ use crate::cli::history::parse_time;
 pub use crate::outputs::history::capture_files::{
     file_name, CaptureHeader, ExportFormat, CSV_HEADER_PREFIX,
 };
-use crate::outputs::history::capture_files::{run_config_name, write};
+use crate::outputs::history::capture_files::{run_config, write};
 use crate::outputs::history::captures::row_json;
 use crate::outputs::history::query::{CaptureRow, Filter, HistoryReader};
 use crate::outputs::history::HistoryError;
@@ -298,13 +298,21 @@ pub fn export(args: &ExportArgs) -> anyhow::Result<Vec<PathBuf>> {
             && args.id.is_none_or(|id| row.id == id)
     };
     for_each_row(&reader, &args.selection, matches, |row| {
-        let config_name = run_config_name(&reader, row.run_id)?;
+        let run = run_config(&reader, row.run_id)?;
         let capture = reader.capture_of(row)?;
-        let header = CaptureHeader::of(&capture, config_name);
+        let header = CaptureHeader::of(&capture, run);
         let path = args.out.join(file_name(&capture, args.format));
         let file = std::fs::File::create(&path)
             .with_context(|| format!("{}: cannot create", path.display()))?;
-        write(&capture, &header, args.format, file).with_context(|| path.display().to_string())?;
+        if let Err(error) = write(&capture, &header, args.format, file) {
+            // No half-written file left behind (a full disk): only whole captures.
+            let _ = std::fs::remove_file(&path);
+            return Err(anyhow::Error::new(error).context(format!(
+                "{}: capture {} not exported (the part written was removed)",
+                path.display(),
+                capture.row.id
+            )));
+        }
         written.push(path);
         Ok(())
     })?;

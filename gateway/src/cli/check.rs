@@ -3,7 +3,10 @@
 //! (SQLite's `quick_check`: a damaged file is a warning), and describe it.
 //!
 //! `--format json` prints one JSON document on stdout whether the file passes or not
-//! ([`report_json`]), for CI: `{"file", "ok", "summary", "problems", "warnings"}`, each
+//! ([`report_json`]), for CI: `{"file", "ok", "summary", "config_hash", "problems",
+//! "warnings"}` (`config_hash`: [`millgate_config::Config::hash`], the hash the
+//! history stores with each run and the capture exports carry; null when the file
+//! does not load), each
 //! problem and warning `{"file", "key", "message", "text"}`; the exit code is the
 //! text format's (0 valid, with or without warnings; 1 with problems).
 
@@ -59,7 +62,7 @@ pub enum CheckError {
 /// }
 /// ```
 pub fn check(path: &Path) -> Result<String, CheckError> {
-    let (summary, warnings) = inspect(path)?;
+    let (summary, warnings, _) = inspect(path)?;
     let mut report = format!("{}: OK\n{summary}", path.display());
     for warning in warnings {
         report.push_str(&format!("warning: {}: {warning}\n", path.display()));
@@ -68,10 +71,11 @@ pub fn check(path: &Path) -> Result<String, CheckError> {
 }
 
 /// The configuration at `path` loaded and built as `run` builds it: its summary and
-/// the warnings (each `<key path>: <what>`), or what is wrong.
-fn inspect(path: &Path) -> Result<(String, Vec<String>), CheckError> {
+/// the warnings (each `<key path>: <what>`) and its hash, or what is wrong.
+fn inspect(path: &Path) -> Result<(String, Vec<String>, String), CheckError> {
     let config = millgate_config::load(path)?;
     let summary = millgate_config::summary(&config);
+    let hash = config.hash.clone();
     let file = path.display().to_string();
     let service = Service::new(config).map_err(|source| match source {
         ServiceError::Wear(problems) => CheckError::Wear { file, problems },
@@ -82,7 +86,7 @@ fn inspect(path: &Path) -> Result<(String, Vec<String>), CheckError> {
     })?;
     let mut warnings = service.warnings();
     warnings.extend(history_warning(&service));
-    Ok((summary, warnings))
+    Ok((summary, warnings, hash))
 }
 
 /// A warning when the history file exists but is not a sound millgate history
@@ -153,6 +157,7 @@ struct JsonReport {
     file: String,
     ok: bool,
     summary: Option<String>,
+    config_hash: Option<String>,
     problems: Vec<Finding>,
     warnings: Vec<Finding>,
 }
@@ -169,9 +174,10 @@ struct JsonReport {
 pub fn report_json(path: &Path) -> (String, bool) {
     let file = path.display().to_string();
     let report = match inspect(path) {
-        Ok((summary, warnings)) => JsonReport {
+        Ok((summary, warnings, hash)) => JsonReport {
             ok: true,
             summary: Some(summary),
+            config_hash: Some(hash),
             problems: Vec::new(),
             warnings: warnings
                 .iter()
@@ -182,6 +188,7 @@ pub fn report_json(path: &Path) -> (String, bool) {
         Err(error) => JsonReport {
             ok: false,
             summary: None,
+            config_hash: None,
             problems: findings(&file, &error),
             warnings: Vec::new(),
             file,

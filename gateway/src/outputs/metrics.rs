@@ -666,6 +666,12 @@ fn history_metrics(page: &mut Exposition, status: &HistoryStatus) {
             (vec![("reason", "error")], status.dropped_error as f64),
         ],
     );
+    page.scalar(
+        "millgate_history_captures_dropped_total",
+        Kind::Counter,
+        "Captures (a bite's window with its bite, a chatter episode, a manual request) not stored: the queue was full or the file could not take them; never announced, as nothing reads them from the file.",
+        status.captures_dropped as f64,
+    );
     let last = status.last_error.as_ref();
     page.family(
         "millgate_history_last_error_info",

@@ -322,3 +322,11 @@ pub enum HistoryEvent {
         ended_by: EndedBy,
     },
 }
+
+impl HistoryEvent {
+    /// Whether the event carries a capture's samples (a bite's, a chatter episode's,
+    /// a manual request's): the history counts those it could not store.
+    pub fn holds_capture(&self) -> bool {
+        matches!(self, Self::CapturedBite(..) | Self::Capture(_))
+    }
+}

@@ -65,6 +65,9 @@ pub struct HistoryStatus {
     pub dropped_queue_full: u64,
     /// Events dropped because the file could not take them (open or commit failed).
     pub dropped_error: u64,
+    /// Captures among the dropped events (queue full or error): never in the file,
+    /// so never announced (Sparkplug and the web API read the file).
+    pub captures_dropped: u64,
     /// Transactions committed.
     pub commits: u64,
     /// Sum of commit durations (the transaction from BEGIN to COMMIT), s.
@@ -87,6 +90,7 @@ pub(crate) struct Counters {
     stored: AtomicU64,
     dropped_queue_full: AtomicU64,
     dropped_error: AtomicU64,
+    captures_dropped: AtomicU64,
     commits: AtomicU64,
     commit_ns_sum: AtomicU64,
     commit_ns_max: AtomicU64,
@@ -117,8 +121,17 @@ impl Counters {
         self.commit_ns_max.fetch_max(ns, Ordering::Relaxed);
     }
 
-    pub(crate) fn dropped(&self, events: u64) {
-        self.dropped_error.fetch_add(events, Ordering::Relaxed);
+    /// `events` could not be stored (the file could not take them).
+    pub(crate) fn dropped(&self, events: &[HistoryEvent]) {
+        self.dropped_error
+            .fetch_add(events.len() as u64, Ordering::Relaxed);
+        self.captures_lost(events);
+    }
+
+    fn captures_lost(&self, events: &[HistoryEvent]) {
+        let captures = events.iter().filter(|e| e.holds_capture()).count();
+        self.captures_dropped
+            .fetch_add(captures as u64, Ordering::Relaxed);
     }
 
     /// Events dropped because the file could not take them, so far.
@@ -248,12 +261,11 @@ impl History {
                     .store(queue.enqueued, Ordering::Relaxed);
                 true
             }
-            Err(TrySendError::Full(_)) => {
+            Err(TrySendError::Full(event)) => {
                 drop(queue);
-                self.shared
-                    .counters
-                    .dropped_queue_full
-                    .fetch_add(1, Ordering::Relaxed);
+                let counters = &self.shared.counters;
+                counters.dropped_queue_full.fetch_add(1, Ordering::Relaxed);
+                counters.captures_lost(std::slice::from_ref(&event));
                 let mut logged = crate::lock(&self.shared.full_logged);
                 if logged.is_none_or(|at| at.elapsed() > Duration::from_secs(60)) {
                     *logged = Some(Instant::now());
@@ -264,8 +276,8 @@ impl History {
                 }
                 false
             }
-            Err(TrySendError::Disconnected(_)) => {
-                self.shared.counters.dropped(1);
+            Err(TrySendError::Disconnected(event)) => {
+                self.shared.counters.dropped(std::slice::from_ref(&event));
                 false
             }
         }
@@ -309,6 +321,7 @@ impl History {
             stored: load(&c.stored),
             dropped_queue_full: load(&c.dropped_queue_full),
             dropped_error: load(&c.dropped_error),
+            captures_dropped: load(&c.captures_dropped),
             commits: load(&c.commits),
             commit_seconds_sum: load(&c.commit_ns_sum) as f64 * 1e-9,
             commit_seconds_max: load(&c.commit_ns_max) as f64 * 1e-9,

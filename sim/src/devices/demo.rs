@@ -184,8 +184,18 @@ impl DemoDevices {
         schedule: &Schedule,
         plc_registers: usize,
     ) -> Result<Self, DemoError> {
-        let io = |what| move |source| DemoError::Io { what, source };
         let daq = demo_daq(config, schedule)?;
+        Self::start_with(config, daq, plc_registers).await
+    }
+
+    /// As [`DemoDevices::start`], with the caller's DAQ (a rig of its own, such as
+    /// [`demo_daq`] on another schedule, [`VirtualDaq::looped`]).
+    pub async fn start_with(
+        config: &mut Config,
+        daq: VirtualDaq,
+        plc_registers: usize,
+    ) -> Result<Self, DemoError> {
+        let io = |what| move |source| DemoError::Io { what, source };
         let plc = VirtualPlc::new(plc_registers);
         let daq_listener = TcpListener::bind("127.0.0.1:0")
             .await

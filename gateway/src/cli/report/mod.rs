@@ -15,6 +15,11 @@
 //!   180 x 90 cells shaded by count (degraded windows grey), with the thresholds and,
 //!   when the driveline's model file (as configured) can be read, the wear map's
 //!   curves for gaps of 0..4 mrad over the measured torque range;
+//! - per driveline `<name>-capture-<id>.svg`: the captured torque of each of its last
+//!   [`ALARM_TRACES`] alarm bites in the period (newest first; the history keeps
+//!   alarm bites' captures longest), reduced to 450 columns of lowest and highest
+//!   samples with the trigger marked, each with the capture's id and the
+//!   `millgate capture export` command that writes its samples;
 //! - `alarms.svg`: the alarm timeline (raised, cleared, acknowledged; latched spans);
 //! - `availability.svg`: when the gateway ran (and, for a run without a recorded
 //!   stop, from its last recorded event on, that the file cannot tell), each
@@ -52,6 +57,9 @@ use crate::state::time::UtcTime;
 
 /// Alarm rows listed in the report's table (all are in the timeline plot).
 const ALARM_TABLE_ROWS: usize = 200;
+
+/// Alarm bites whose captured trace the report draws, per driveline: the newest.
+pub const ALARM_TRACES: u32 = 5;
 
 /// Arguments of `millgate report`.
 #[derive(Debug, Clone, clap::Args)]
@@ -327,6 +335,7 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<String> {
                 data.grid.outside
             )));
         }
+        alarm_traces(&reader, args, name, (since, until), &mut blocks)?;
     }
 
     blocks.push(Block::Heading(2, "Alarm timeline".into()));
@@ -554,4 +563,42 @@ fn file_stem(name: &str) -> String {
             }
         })
         .collect()
+}
+
+/// The captured traces of `name`'s last [`ALARM_TRACES`] alarm bites in `period`,
+/// read one capture at a time.
+fn alarm_traces(
+    reader: &HistoryReader,
+    args: &ReportArgs,
+    name: &str,
+    (since, until): (Option<UtcTime>, Option<UtcTime>),
+    blocks: &mut Vec<Block>,
+) -> anyhow::Result<()> {
+    let rows = reader.alarm_bite_captures(name, since, until, ALARM_TRACES)?;
+    if rows.is_empty() {
+        return Ok(());
+    }
+    blocks.push(Block::Text(format!(
+        "The captured torque of the last {} alarm bites (at most {ALARM_TRACES} per \
+         driveline, newest first), each reduced to the lowest and highest sample of \
+         450 columns; `millgate capture export --db {} --id ID --format csv --out DIR` \
+         (or `parquet`) writes a capture's samples.",
+        rows.len(),
+        args.db.display()
+    )));
+    for row in rows {
+        let (id, bite, time) = (row.id, row.bite_counter, row.bite_time.clone());
+        let capture = reader.capture_of(row)?;
+        let title = format!(
+            "{name}: alarm bite {} at {} UTC, capture {id}",
+            bite.map_or("-".into(), |b| b.to_string()),
+            time.unwrap_or_default()
+        );
+        blocks.push(Block::Figure {
+            svg: plots::trace_svg(&title, &capture)?,
+            file: format!("{}-capture-{id}.svg", file_stem(name)),
+            title,
+        });
+    }
+    Ok(())
 }

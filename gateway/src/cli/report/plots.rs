@@ -1,11 +1,13 @@
 //! The report's SVG plots (plotters): quantities over time in stacked panels
 //! ([`time_svg`]), TAF over static torque with the wear map's curves ([`taf_svg`],
-//! [`wear_curves`]) and lanes of spans over time ([`lanes_svg`]: alarms, availability).
+//! [`wear_curves`]), lanes of spans over time ([`lanes_svg`]: alarms, availability)
+//! and an alarm bite's captured torque ([`trace_svg`]).
 
 use std::path::Path;
 
 use plotters::prelude::*;
 
+use crate::outputs::history::captures::Capture;
 use crate::outputs::history::query::SettingsRow;
 use crate::outputs::history::summary::TafPoint;
 use crate::state::time::UtcTime;
@@ -378,6 +380,87 @@ pub(super) fn lanes_svg(title: &str, axis: &TimeAxis, lanes: &[Lane]) -> anyhow:
                 )
                 .map_err(drawing)?;
         }
+        root.present().map_err(drawing)?;
+    }
+    Ok(svg)
+}
+
+/// Columns a captured trace is reduced to: each column's lowest and highest sample,
+/// what a reader can see at the plot's width (a bite window is about 1 300 samples).
+const TRACE_COLUMNS: usize = 450;
+
+/// A capture's first channel (an alarm bite's torque) over time from its first
+/// sample, reduced to [`TRACE_COLUMNS`] columns of lowest and highest samples (every
+/// peak stays visible), with the trigger marked when the capture says where it was.
+pub(super) fn trace_svg(title: &str, capture: &Capture) -> anyhow::Result<String> {
+    let Some(channel) = capture.channels.first() else {
+        anyhow::bail!("capture {} has no channel", capture.row.id);
+    };
+    let samples = &channel.samples;
+    let per_column = samples.len().div_ceil(TRACE_COLUMNS).max(1);
+    // Each column's lowest and highest sample, in the order they came.
+    let mut envelope = Vec::with_capacity(2 * TRACE_COLUMNS);
+    for (column, chunk) in samples.chunks(per_column).enumerate() {
+        let finite = chunk
+            .iter()
+            .enumerate()
+            .filter(|(_, v)| v.is_finite())
+            .map(|(i, &v)| (column * per_column + i, v));
+        let low = finite.clone().min_by(|a, b| a.1.total_cmp(&b.1));
+        let high = finite.max_by(|a, b| a.1.total_cmp(&b.1));
+        let (Some(low), Some(high)) = (low, high) else {
+            continue;
+        };
+        let (first, second) = if low.0 <= high.0 {
+            (low, high)
+        } else {
+            (high, low)
+        };
+        envelope.push((capture.time_s(first.0), first.1));
+        if second.0 != first.0 {
+            envelope.push((capture.time_s(second.0), second.1));
+        }
+    }
+    let (low, high) = range(envelope.iter().map(|p| p.1));
+    let span_s = capture.time_s(samples.len()).max(1e-9);
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, PANEL).into_drawing_area();
+        root.fill(&WHITE).map_err(drawing)?;
+        let root = root.titled(title, ("sans-serif", 18)).map_err(drawing)?;
+        let mut chart = ChartBuilder::on(&root)
+            .margin(10)
+            .x_label_area_size(35)
+            .y_label_area_size(60)
+            .build_cartesian_2d(0.0..span_s, low..high)
+            .map_err(drawing)?;
+        chart
+            .configure_mesh()
+            .x_desc("s from the first sample")
+            .y_desc(format!("{}, {}", channel.name, channel.unit))
+            .label_style(("sans-serif", 12))
+            .draw()
+            .map_err(drawing)?;
+        chart
+            .draw_series(LineSeries::new(envelope, &BLUE))
+            .map_err(drawing)?
+            .label("captured torque")
+            .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], BLUE));
+        if let Some(analysis) = &capture.meta.analysis {
+            let t = capture.time_s(analysis.trigger_index);
+            chart
+                .draw_series(LineSeries::new([(t, low), (t, high)], RED.mix(0.6)))
+                .map_err(drawing)?
+                .label("trigger")
+                .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], RED.mix(0.6)));
+        }
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .label_font(("sans-serif", 12))
+            .draw()
+            .map_err(drawing)?;
         root.present().map_err(drawing)?;
     }
     Ok(svg)

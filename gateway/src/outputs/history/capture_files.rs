@@ -6,10 +6,11 @@
 
 use std::io::Write;
 
+use rusqlite::OptionalExtension;
 use serde::{Deserialize, Serialize};
 
 use super::captures::{Capture, ChannelMeta};
-use super::query::{Filter, HistoryReader};
+use super::query::HistoryReader;
 use super::HistoryError;
 use crate::state::captures::{BiteWindowAnalysis, CaptureGap};
 
@@ -95,11 +96,24 @@ pub struct CaptureHeader {
     pub gateway_version: String,
     /// The gateway's configuration name (`name`) in the run that stored it.
     pub config_name: Option<String>,
+    /// That configuration's hash ([`millgate_config::Config::hash`]); `None` for a
+    /// run recorded before schema version 8.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub config_hash: Option<String>,
+}
+
+/// The configuration a run was started with, as its history row keeps it.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct RunConfig {
+    /// The configuration's `name`.
+    pub name: Option<String>,
+    /// Its hash; `None` before schema version 8.
+    pub hash: Option<String>,
 }
 
 impl CaptureHeader {
     /// The header of `capture`.
-    pub fn of(capture: &Capture, config_name: Option<String>) -> Self {
+    pub fn of(capture: &Capture, run: RunConfig) -> Self {
         let row = &capture.row;
         Self {
             id: row.id,
@@ -115,7 +129,8 @@ impl CaptureHeader {
             gaps: capture.meta.gaps.clone(),
             analysis: capture.meta.analysis,
             gateway_version: capture.meta.version.clone(),
-            config_name,
+            config_name: run.name,
+            config_hash: run.hash,
         }
     }
 
@@ -128,20 +143,37 @@ impl CaptureHeader {
     }
 }
 
-/// The configuration name of run `run_id` (`gateway_runs.config_name`).
-pub fn run_config_name(
-    reader: &HistoryReader,
-    run_id: i64,
-) -> Result<Option<String>, HistoryError> {
-    let runs = reader.runs(&Filter {
-        after_id: Some(run_id - 1),
-        limit: Some(1),
-        ..Filter::default()
-    })?;
-    Ok(runs
-        .into_iter()
-        .find(|run| run.id == run_id)
-        .map(|run| run.config_name))
+/// The configuration name and hash of run `run_id` (`gateway_runs`).
+pub fn run_config(reader: &HistoryReader, run_id: i64) -> Result<RunConfig, HistoryError> {
+    let connection = reader.connection();
+    let sqlite = |source| HistoryError::Sqlite {
+        path: reader.path().to_path_buf(),
+        source,
+    };
+    // A file of schema version 7 or older, read as it is, has no hash column.
+    let has_hash: bool = connection
+        .query_row(
+            "SELECT count(*) > 0 FROM pragma_table_info('gateway_runs')
+             WHERE name = 'config_hash'",
+            [],
+            |row| row.get(0),
+        )
+        .map_err(sqlite)?;
+    let query = if has_hash {
+        "SELECT config_name, config_hash FROM gateway_runs WHERE id = ?1"
+    } else {
+        "SELECT config_name, NULL FROM gateway_runs WHERE id = ?1"
+    };
+    let found = connection
+        .query_row(query, [run_id], |row| {
+            Ok(RunConfig {
+                name: row.get(0)?,
+                hash: row.get(1)?,
+            })
+        })
+        .optional()
+        .map_err(sqlite)?;
+    Ok(found.unwrap_or_default())
 }
 
 /// Write `capture` with its `header` to `out` in `format`.
@@ -162,7 +194,8 @@ pub fn write<W: Write + Send>(
                 return Err(CaptureFileError::ChannelName(channel.name.clone()));
             }
             let json = serde_json::to_string(header).map_err(std::io::Error::other)?;
-            Ok(super::capture_parquet::write(capture, &json, out)?)
+            let hash = header.config_hash.as_deref();
+            Ok(super::capture_parquet::write(capture, &json, hash, out)?)
         }
     }
 }
@@ -190,4 +223,64 @@ fn write_csv(
     }
     out.flush()?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use rusqlite::Connection;
+
+    use super::{run_config, RunConfig};
+    use crate::outputs::history::query::HistoryReader;
+    use crate::outputs::history::schema::{migrate, APPLICATION_ID, MIGRATIONS};
+
+    /// A file left at schema version 7 (no `config_hash`) is read as it is: the run's
+    /// name, no hash; migrated to version 8, a run recorded with its hash gives it.
+    #[test]
+    fn a_run_s_configuration_hash_is_read_from_version_8_on() {
+        let folder = std::env::temp_dir().join(format!(
+            "millgate-run-config-{}-{}",
+            std::process::id(),
+            crate::state::time::UtcTime::now().unix_ms()
+        ));
+        std::fs::create_dir_all(&folder).unwrap();
+        let path = folder.join("history.db");
+        let mut connection = Connection::open(&path).unwrap();
+        for step in &MIGRATIONS[..7] {
+            connection.execute_batch(step).unwrap();
+        }
+        connection.pragma_update(None, "user_version", 7).unwrap();
+        connection
+            .pragma_update(None, "application_id", APPLICATION_ID)
+            .unwrap();
+        connection
+            .execute_batch(
+                "INSERT INTO gateway_runs (started_at, version, config_name)
+                     VALUES ('2026-01-01T00:00:00.000Z', 'old', 'F mill');",
+            )
+            .unwrap();
+        let old = |path| run_config(&HistoryReader::open(path).unwrap(), 1).unwrap();
+        assert_eq!(
+            old(&path),
+            RunConfig {
+                name: Some("F mill".into()),
+                hash: None
+            }
+        );
+        assert_eq!(migrate(&mut connection).unwrap(), 7);
+        connection
+            .execute_batch(
+                "INSERT INTO gateway_runs (started_at, version, config_name, config_hash)
+                     VALUES ('2026-01-02T00:00:00.000Z', 'new', 'F mill', 'abc123');",
+            )
+            .unwrap();
+        let reader = HistoryReader::open(&path).unwrap();
+        assert_eq!(run_config(&reader, 1).unwrap().hash, None);
+        assert_eq!(
+            run_config(&reader, 2).unwrap().hash.as_deref(),
+            Some("abc123")
+        );
+        assert_eq!(run_config(&reader, 3).unwrap(), RunConfig::default());
+        drop((reader, connection));
+        let _ = std::fs::remove_dir_all(&folder);
+    }
 }

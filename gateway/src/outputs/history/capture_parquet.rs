@@ -7,7 +7,8 @@
 //! sample rate, first sample time, gaps, the window's analysis settings, the gateway's
 //! version), and the most asked of it under keys of their own (`millgate.subject`,
 //! `millgate.kind`, `millgate.bite_counter`, `millgate.sample_rate_hz`,
-//! `millgate.started_at`, `millgate.units`).
+//! `millgate.started_at`, `millgate.units`, `millgate.gateway_version`, and
+//! `millgate.config_hash` when the run recorded it).
 //!
 //! Written with arrow-rs' `parquet` crate without its `arrow` feature (the column
 //! writers alone: the samples are plain `f64` columns, and arrow's array crates would
@@ -38,11 +39,13 @@ fn column(name: &str, physical: PhysicalType) -> Result<Arc<Type>, ParquetError>
 }
 
 /// Write `capture` to `out` as Parquet, with `header` (the capture's header as JSON,
-/// as a CSV export's first line has it) in the metadata. Its channels' names are
-/// not the time columns' (`time`, `t`): [`TIME_COLUMNS`].
+/// as a CSV export's first line has it) and `config_hash` (its run's configuration
+/// hash, when known) in the metadata. Its channels' names are not the time columns'
+/// (`time`, `t`): [`TIME_COLUMNS`].
 pub(super) fn write<W: Write + Send>(
     capture: &Capture,
     header: &str,
+    config_hash: Option<&str>,
     out: W,
 ) -> Result<(), ParquetError> {
     let row = &capture.row;
@@ -69,7 +72,7 @@ pub(super) fn write<W: Write + Send>(
         .map(|c| (c.name.clone(), c.unit.clone().into()))
         .collect();
     let key = |key: &str, value: String| KeyValue::new(format!("millgate.{key}"), value);
-    let metadata = vec![
+    let mut metadata = vec![
         key("capture", header.to_owned()),
         key("subject", row.subject.clone()),
         key("kind", row.kind.clone()),
@@ -82,6 +85,7 @@ pub(super) fn write<W: Write + Send>(
         key("units", serde_json::Value::Object(units).to_string()),
         key("gateway_version", capture.meta.version.clone()),
     ];
+    metadata.extend(config_hash.map(|hash| key("config_hash", hash.to_owned())));
     let properties = WriterProperties::builder()
         .set_compression(Compression::SNAPPY)
         .set_key_value_metadata(Some(metadata))

@@ -28,7 +28,10 @@ use serde::{Deserialize, Serialize};
 
 use super::query::{CaptureRow, HistoryReader};
 use super::HistoryError;
-use crate::state::captures::{BiteWindowAnalysis, CaptureChannel, CaptureGap, CaptureRecord};
+use crate::state::captures::{
+    BiteWindowAnalysis, CaptureChannel, CaptureGap, CaptureRecord, KeepClass,
+};
+use crate::state::time::UtcTime;
 
 /// The blob format this millgate writes (`meta.format`).
 pub const FORMAT: u32 = 1;
@@ -338,6 +341,41 @@ impl HistoryReader {
         let read = || -> rusqlite::Result<Vec<CaptureRow>> {
             let mut statement = self.connection().prepare_cached(&sql)?;
             let rows = statement.query_map([first, last], CaptureRow::from_row)?;
+            rows.collect()
+        };
+        read().map_err(|e| self.error(e))
+    }
+
+    /// The newest `limit` captures of `subject`'s alarm bites (kind `bite`, kept
+    /// longest: a TAF alarm, or the bite that raised the gap alarm) whose first sample
+    /// is in `since..until` (either open), newest first.
+    pub fn alarm_bite_captures(
+        &self,
+        subject: &str,
+        since: Option<UtcTime>,
+        until: Option<UtcTime>,
+        limit: u32,
+    ) -> Result<Vec<CaptureRow>, HistoryError> {
+        use super::query::Record as _;
+        let sql = format!(
+            "SELECT {} FROM captures
+             WHERE subject = ?1 AND kind = 'bite' AND keep = ?2
+                 AND started_at >= ?3 AND (?4 IS NULL OR started_at < ?4)
+             ORDER BY started_at DESC, id DESC LIMIT ?5",
+            CaptureRow::COLUMNS.join(", ")
+        );
+        let read = || -> rusqlite::Result<Vec<CaptureRow>> {
+            let mut statement = self.connection().prepare_cached(&sql)?;
+            let rows = statement.query_map(
+                params![
+                    subject,
+                    KeepClass::Important.code(),
+                    since.map_or(String::new(), |t| t.to_string()),
+                    until.map(|t| t.to_string()),
+                    limit
+                ],
+                CaptureRow::from_row,
+            )?;
             rows.collect()
         };
         read().map_err(|e| self.error(e))

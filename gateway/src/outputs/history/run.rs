@@ -1,5 +1,5 @@
 //! What the history records about a run at its start: millgate's version, the
-//! configuration's name and each driveline's settings (for reports).
+//! configuration's name and hash, and each driveline's settings (for reports).
 
 /// What the history records about this run at its start.
 #[derive(Debug, Clone)]
@@ -8,6 +8,8 @@ pub struct RunInfo {
     pub version: String,
     /// The configuration's `name`.
     pub config_name: String,
+    /// The configuration's hash ([`millgate_config::Config::hash`]).
+    pub config_hash: String,
     /// Each driveline's settings (table `driveline_settings`).
     pub drivelines: Vec<DrivelineSettings>,
 }
@@ -36,6 +38,7 @@ impl RunInfo {
         Self {
             version: env!("CARGO_PKG_VERSION").to_owned(),
             config_name: config.name.clone(),
+            config_hash: config.hash.clone(),
             drivelines: config
                 .drivelines
                 .iter()

@@ -263,6 +263,12 @@ CREATE TRIGGER captures_deleted AFTER DELETE ON captures BEGIN
     UPDATE capture_totals SET captures = captures - 1, bytes = bytes - old.bytes;
 END;
 "#,
+    // Version 8: the configuration's hash with each run (SHA-256 of its canonical
+    // TOML, `millgate_config::Config::hash`), so a capture's export names the
+    // configuration that produced it; NULL for runs recorded before.
+    r#"
+ALTER TABLE gateway_runs ADD COLUMN config_hash TEXT;
+"#,
 ];
 
 /// `PRAGMA application_id` of a millgate history: the bytes "MLGT" (0x4D4C4754), set

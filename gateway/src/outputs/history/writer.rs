@@ -181,8 +181,9 @@ pub fn insert_run(
 ) -> rusqlite::Result<i64> {
     let started_at = started_at.to_string();
     connection.execute(
-        "INSERT INTO gateway_runs (started_at, version, config_name) VALUES (?1, ?2, ?3)",
-        params![started_at, run.version, run.config_name],
+        "INSERT INTO gateway_runs (started_at, version, config_name, config_hash)
+             VALUES (?1, ?2, ?3, ?4)",
+        params![started_at, run.version, run.config_name, run.config_hash],
     )?;
     let run_id = connection.last_insert_rowid();
     for driveline in &run.drivelines {
@@ -257,7 +258,7 @@ impl Writer {
                     self.path.display(),
                     explain(&error)
                 );
-                self.failed(&message, 0, false);
+                self.failed(&message, &[], false);
             }
         }
         Ok(restored)
@@ -315,7 +316,7 @@ impl Writer {
                 Err(error) => error,
             };
             if !existed || !error.may_pass() {
-                self.failed(&error.to_string(), 0, true);
+                self.failed(&error.to_string(), &[], true);
                 return Some(Restored::default());
             }
             let message = error.to_string();
@@ -398,7 +399,7 @@ impl Writer {
                     Written::Settled => true,
                     Written::Kept if closing => {
                         // The last try at the stop: what the lock still keeps out is lost.
-                        self.counters.dropped(batch.len() as u64);
+                        self.counters.dropped(&batch);
                         tracing::error!(
                             events = batch.len(),
                             "history: events not stored at the stop (the file stayed locked)"
@@ -430,12 +431,12 @@ impl Writer {
                  opened at the path (nothing more goes to the old one)",
                 self.path.display()
             );
-            self.failed(&message, 0, true);
+            self.failed(&message, &[], true);
             self.next_open = Instant::now();
         }
         if self.connection.is_none() && Instant::now() >= self.next_open {
             if let Err(error) = self.try_open() {
-                self.failed(&error.to_string(), 0, true);
+                self.failed(&error.to_string(), &[], true);
             }
         }
         if self.connection.is_some() && self.run_id.is_none() {
@@ -446,15 +447,15 @@ impl Writer {
                     explain(&error)
                 );
                 if locked(&error) {
-                    self.failed(&format!("{message} (events kept, tried again)"), 0, false);
+                    self.failed(&format!("{message} (events kept, tried again)"), &[], false);
                     return Written::Kept;
                 }
-                self.failed(&message, events, false);
+                self.failed(&message, batch, false);
                 return Written::Settled;
             }
         }
         let (Some(connection), Some(run_id)) = (self.connection.as_mut(), self.run_id) else {
-            self.counters.dropped(events);
+            self.counters.dropped(batch);
             return Written::Settled;
         };
         let started = Instant::now();
@@ -481,21 +482,22 @@ impl Writer {
                 if locked(&error) {
                     // Another process holds the lock: nothing is wrong with the file or
                     // the connection; the batch waits for the lock.
-                    self.failed(&format!("{message} (kept, tried again)"), 0, false);
+                    self.failed(&format!("{message} (kept, tried again)"), &[], false);
                     return Written::Kept;
                 }
                 // A full disk may free up with the connection as it is; anything else
                 // (a file made read-only, replaced or damaged) is opened afresh.
                 let full = error.sqlite_error_code() == Some(rusqlite::ErrorCode::DiskFull);
-                self.failed(&message, events, !full);
+                self.failed(&message, batch, !full);
                 Written::Settled
             }
         }
     }
 
     /// Record a failure: counters, state, a log line unless the same one was logged
-    /// within [`ERROR_LOG_PERIOD`]; `reopen` drops the connection.
-    fn failed(&mut self, message: &str, dropped: u64, reopen: bool) {
+    /// within [`ERROR_LOG_PERIOD`]; `dropped` are the events lost; `reopen` drops the
+    /// connection.
+    fn failed(&mut self, message: &str, dropped: &[HistoryEvent], reopen: bool) {
         self.counters.dropped(dropped);
         self.counters.set_error(message.to_owned());
         if reopen {

@@ -121,9 +121,8 @@ pub(crate) async fn capture_file(
     };
     let (name, bytes) = with_history(&state, move |reader| {
         let capture = read_capture(reader, id)?;
-        let config_name =
-            capture_files::run_config_name(reader, capture.row.run_id).map_err(history_error)?;
-        let header = CaptureHeader::of(&capture, config_name);
+        let run = capture_files::run_config(reader, capture.row.run_id).map_err(history_error)?;
+        let header = CaptureHeader::of(&capture, run);
         let mut bytes = Vec::new();
         capture_files::write(&capture, &header, format, &mut bytes).map_err(|error| ApiError {
             status: StatusCode::INTERNAL_SERVER_ERROR,
