@@ -305,8 +305,14 @@ fn every_schedule_is_stable_at_its_own_speed() -> anyhow::Result<()> {
             "tinplate-5stand.toml" => 1.084,
             other => anyhow::bail!("{other}: a schedule this test does not know"),
         };
-        assert!((critical.speed - stated).abs() < 0.005, "{name}: {critical:?}");
-        assert!((100.0..250.0).contains(&critical.frequency_hz), "{name}: {critical:?}");
+        assert!(
+            (critical.speed - stated).abs() < 0.005,
+            "{name}: {critical:?}"
+        );
+        assert!(
+            (100.0..250.0).contains(&critical.frequency_hz),
+            "{name}: {critical:?}"
+        );
         seen.push(name.to_owned());
     }
     assert_eq!(seen.len(), 3, "{seen:?}");
