@@ -28,7 +28,9 @@ use serde::{Deserialize, Serialize};
 
 use super::query::{CaptureRow, HistoryReader};
 use super::HistoryError;
-use crate::state::captures::{BiteWindowAnalysis, CaptureChannel, CaptureGap, CaptureRecord};
+use crate::state::captures::{
+    BiteWindowAnalysis, CaptureChannel, CaptureGap, CaptureRecord, ChatterEpisode,
+};
 
 /// The blob format this millgate writes (`meta.format`).
 pub const FORMAT: u32 = 1;
@@ -64,6 +66,9 @@ pub struct CaptureMeta {
     pub gaps: Vec<CaptureGap>,
     /// For a bite window: how the analysis read it.
     pub analysis: Option<BiteWindowAnalysis>,
+    /// For a chatter episode: where the warning sits (absent in other kinds').
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub episode: Option<ChatterEpisode>,
     /// The millgate that stored it.
     pub version: String,
 }
@@ -166,6 +171,7 @@ pub fn encode(record: &CaptureRecord) -> std::io::Result<(Vec<u8>, CaptureMeta)>
         channels,
         gaps: record.gaps.clone(),
         analysis: record.analysis,
+        episode: record.episode,
         version: env!("CARGO_PKG_VERSION").to_owned(),
     };
     Ok((blob, meta))
@@ -397,6 +403,7 @@ mod tests {
             channels,
             gaps: vec![],
             analysis: None,
+            episode: None,
             keep: KeepClass::Ordinary,
         }
     }
