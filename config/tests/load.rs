@@ -795,7 +795,11 @@ fn band_gain_keys() {
     assert_eq!(mill.reference_band_hz, (400.0, 1500.0));
     assert_eq!(mill.slow_down_hold_s, 0.0);
     assert_eq!(
-        (mill.capture_before_s, mill.capture_after_s, mill.capture_max_s),
+        (
+            mill.capture_before_s,
+            mill.capture_after_s,
+            mill.capture_max_s
+        ),
         (5.0, 2.0, 120.0),
         "the capture keys' defaults"
     );

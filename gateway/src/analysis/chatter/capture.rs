@@ -1,8 +1,11 @@
 //! [`EpisodeRecorder`]: one tandem mill's chatter-episode captures. Every stand's
 //! samples go through a ring on the monitor's common sample axis (sized from
 //! `capture_before_s`, allocated once); when the warning is raised the ring's last
-//! `capture_before_s` (rounded up to whole hops, so the capture's windows fall on the
-//! monitor's grid) start the capture, which then grows until `capture_after_s` after
+//! `capture_before_s` start the capture, rounded up to whole hops plus one DAQ block
+//! ([`ANCHOR_BLOCK`]): a monitor reading the capture (`millgate chatter --input`)
+//! anchors its stands on their first block and starts its windows after it, so its
+//! windows then fall on the gateway's, and it warns at the same window. The capture
+//! then grows until `capture_after_s` after
 //! the window that cleared the warning, or until `capture_max_s` (cut, and marked so).
 //! Samples lost on a stand, or a stand re-anchored on the axis, end the capture there
 //! (the gap marked). The finished capture goes to the history as a
@@ -17,6 +20,11 @@ use super::monitor::ChatterMonitor;
 use crate::state::captures::{
     unix_ns, CaptureChannel, CaptureGap, CaptureKind, CaptureRecord, ChatterEpisode, KeepClass,
 };
+
+/// Samples a capture holds before its first whole hop: the largest DAQ block
+/// ([`millgate_config::layout::MAX_BLOCK_SAMPLES`]), the block `millgate chatter` feeds
+/// its monitor and anchors the stands on (see the module docs).
+pub const ANCHOR_BLOCK: usize = millgate_config::layout::MAX_BLOCK_SAMPLES as usize;
 
 /// One mill's episode captures (see the module docs).
 #[derive(Debug)]
@@ -78,7 +86,7 @@ impl EpisodeRecorder {
         // The pre-trigger part rounded up to whole hops, and the stands' spread on the
         // axis: at most the largest lag, a window and a hop (how far a stand may run
         // ahead of the window that raised the warning).
-        let ring = (before + hop) + window + hop + samples(MAX_STAND_LAG_S);
+        let ring = ANCHOR_BLOCK as i64 + (before + hop) + window + hop + samples(MAX_STAND_LAG_S);
         Self {
             mill: mill.name.clone(),
             sample_rate_hz: fs,
@@ -180,8 +188,11 @@ impl EpisodeRecorder {
         let latest = self.next.iter().flatten().copied().max().unwrap_or(0);
         let held_from = latest - self.rings[0].len() as i64;
         let lower = self.valid_from.max(held_from);
-        let hops = ((self.before + self.hop - 1) / self.hop).min((window_end - lower) / self.hop);
-        let start = window_end - hops.max(0) * self.hop;
+        let lead = ANCHOR_BLOCK as i64;
+        let hops = ((self.before + self.hop - 1) / self.hop)
+            .min((window_end - lead - lower).div_euclid(self.hop))
+            .max(0);
+        let start = (window_end - hops * self.hop - lead).max(lower.min(window_end));
         let samples = self
             .rings
             .iter()

@@ -31,6 +31,7 @@ mod testing;
 mod verdict;
 
 pub use align::{RestartCause, MAX_STAND_LAG_S};
+pub use capture::ANCHOR_BLOCK;
 pub use gain::GainReading;
 pub use monitor::{ChatterMonitor, ChatterSetupError, ChatterUpdate, MIN_WINDOW_SAMPLES};
 pub use publish::ChatterAnalysis;

@@ -7,9 +7,9 @@ use std::time::Instant;
 
 use millgate_config::Config;
 
+use super::align::RestartCause;
 use super::capture::EpisodeRecorder;
 use super::history::record_episode;
-use super::align::RestartCause;
 use super::monitor::{ChatterMonitor, ChatterSetupError, ChatterUpdate};
 use super::spectra::chatter_frequency_hz;
 use super::verdict::{SlowDown, Verdict};
