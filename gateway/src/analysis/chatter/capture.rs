@@ -291,3 +291,161 @@ fn shifted(time: SystemTime, seconds: f64) -> SystemTime {
     };
     moved.unwrap_or(UNIX_EPOCH).max(UNIX_EPOCH)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const FS: f64 = 2500.0;
+    const BLOCK: usize = 120;
+
+    /// Two stands at 2500 Hz, window 0.5 s (hop 625), 0.2 s before, 0.1 s after,
+    /// at most 1 s.
+    fn recorder() -> EpisodeRecorder {
+        let mut text = String::from(
+            "name = \"t\"\n[[sources.modbus]]\nname = \"daq\"\naddress = \"127.0.0.1:1\"\npoll_period_ms = 20\n",
+        );
+        for s in 0..2 {
+            text += &format!(
+                "[[channels]]\nname = \"s{s}\"\nkind = \"acceleration\"\nunit = \"m/s^2\"\n\
+                 scale = 0.5\nsample_rate_hz = {FS}\n\
+                 source = {{ modbus = \"daq\", table = \"input\", block = {} }}\n",
+                s * 122
+            );
+        }
+        text += "[[tandem_mills]]\nname = \"TCM\"\nstands = [\"s0\", \"s1\"]\n\
+                 chatter_band_hz = [100.0, 300.0]\nwindow_s = 0.5\nk_max = 0.25\n\
+                 gain_thresholds = [1.0, 1.0]\ncapture_before_s = 0.2\n\
+                 capture_after_s = 0.1\ncapture_max_s = 1.0\n";
+        let config = millgate_config::from_toml_str(&text, "t.toml", std::path::Path::new("."))
+            .expect("test config");
+        let monitor = ChatterMonitor::new(&config, 0).expect("monitor");
+        EpisodeRecorder::new(&config, 0, &monitor)
+    }
+
+    /// Stand `stand`'s sample at common index `index`: tells both apart.
+    fn value(stand: usize, index: i64) -> f64 {
+        stand as f64 * 1e6 + index as f64
+    }
+
+    /// Blocks `blocks` (both stands each), the captures they completed.
+    fn feed(recorder: &mut EpisodeRecorder, blocks: std::ops::Range<i64>) -> Vec<CaptureRecord> {
+        let mut done = Vec::new();
+        for b in blocks {
+            for stand in 0..2 {
+                let first = b * BLOCK as i64;
+                let values: Vec<f64> = (first..first + BLOCK as i64)
+                    .map(|i| value(stand, i))
+                    .collect();
+                done.extend(recorder.samples(stand, first + BLOCK as i64, &values, None));
+            }
+        }
+        done
+    }
+
+    fn check_samples(capture: &CaptureRecord, start: i64) {
+        for (stand, channel) in capture.channels.iter().enumerate() {
+            assert_eq!(channel.name, format!("s{stand}"));
+            assert_eq!(channel.scale, 0.5);
+            for (k, &sample) in channel.samples.iter().enumerate() {
+                assert_eq!(sample, value(stand, start + k as i64), "stand {stand}, {k}");
+            }
+        }
+    }
+
+    #[test]
+    fn an_episode_spans_whole_hops_and_a_block_before_the_warning_to_after_it_clears() {
+        let mut recorder = recorder();
+        assert!(feed(&mut recorder, 0..30).is_empty());
+        // Raised by the window ending at 3000 (the stands are at 3600).
+        assert!(recorder.warning(true, 3000).is_none());
+        assert!(feed(&mut recorder, 30..36).is_empty());
+        assert!(recorder.warning(false, 4250).is_none());
+        // 0.1 s after: up to 4500, in with block 37 (4440..4560).
+        assert!(feed(&mut recorder, 36..37).is_empty());
+        let done = feed(&mut recorder, 37..38);
+        assert_eq!(done.len(), 1, "complete once every stand reached the end");
+        let capture = &done[0];
+        // 500 samples before, rounded up to a hop (625), and the anchoring block.
+        let start = 3000 - 625 - ANCHOR_BLOCK as i64;
+        assert_eq!(capture.kind, CaptureKind::Chatter);
+        assert_eq!(capture.keep, KeepClass::Important);
+        assert_eq!(capture.subject, "TCM");
+        assert_eq!(capture.samples() as i64, 4500 - start);
+        assert!(capture.gaps.is_empty());
+        check_samples(capture, start);
+        assert_eq!(
+            capture.episode,
+            Some(ChatterEpisode {
+                warning_sample: (3000 - start) as usize,
+                cleared_sample: Some((4250 - start) as usize),
+                window_samples: 1250,
+                hop_samples: 625,
+                cut: false,
+            })
+        );
+        // A second episode is captured on its own.
+        assert!(recorder.warning(true, 5000).is_none());
+        assert!(feed(&mut recorder, 41..60).is_empty());
+    }
+
+    #[test]
+    fn an_episode_longer_than_the_maximum_is_cut_and_says_so() {
+        let mut recorder = recorder();
+        feed(&mut recorder, 0..30);
+        recorder.warning(true, 3000);
+        let done = feed(&mut recorder, 30..60);
+        assert_eq!(done.len(), 1);
+        let start = 3000 - 625 - ANCHOR_BLOCK as i64;
+        assert_eq!(done[0].samples(), 2500, "capture_max_s = 1 s");
+        check_samples(&done[0], start);
+        let episode = done[0].episode.expect("episode");
+        assert!(episode.cut);
+        assert_eq!(episode.cleared_sample, None);
+        // Clearing later starts nothing, finishes nothing.
+        assert!(recorder.warning(false, 7000).is_none());
+    }
+
+    #[test]
+    fn lost_samples_end_the_capture_with_the_gap_marked_and_nothing_older_is_kept() {
+        let mut recorder = recorder();
+        feed(&mut recorder, 0..30);
+        recorder.warning(true, 3000);
+        feed(&mut recorder, 30..33);
+        let capture = recorder.lost(Some(7)).expect("the capture ends at the gap");
+        let start = 3000 - 625 - ANCHOR_BLOCK as i64;
+        assert_eq!(capture.samples() as i64, 33 * BLOCK as i64 - start);
+        assert_eq!(
+            capture.gaps,
+            vec![CaptureGap {
+                before_sample: capture.samples(),
+                missed_samples: Some(7),
+            }]
+        );
+        assert!(!capture.episode.expect("episode").cut);
+        check_samples(&capture, start);
+        // A warning soon after the gap: the capture starts after it, still on the
+        // hop grid of the warning window (whole hops and the block).
+        feed(&mut recorder, 33..50);
+        recorder.warning(true, 5500);
+        // The stands are at 6000, past 5500 + 250: complete at once.
+        let done: Vec<_> = recorder.warning(false, 5500).into_iter().collect();
+        let start = 5500 - 625 - ANCHOR_BLOCK as i64;
+        assert!(start >= 33 * BLOCK as i64);
+        assert_eq!(done.len(), 1);
+        check_samples(&done[0], start);
+        // Only 625 + 120 samples since the gap at 3960: the pre-trigger part is cut
+        // to them (no hop before 5500 - 120 - 625 = 4755 would fit after 3960 + 625).
+        let mut recorder = self::recorder();
+        feed(&mut recorder, 0..30);
+        recorder.lost(None);
+        feed(&mut recorder, 30..36);
+        recorder.warning(true, 4320);
+        assert!(recorder.warning(false, 4320).is_none());
+        let done = feed(&mut recorder, 36..40);
+        assert_eq!(done.len(), 1);
+        let episode = done[0].episode.expect("episode");
+        assert_eq!(episode.warning_sample, ANCHOR_BLOCK, "no whole hop after the gap");
+        check_samples(&done[0], 4320 - ANCHOR_BLOCK as i64);
+    }
+}
