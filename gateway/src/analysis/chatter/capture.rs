@@ -10,6 +10,10 @@
 //! Samples lost on a stand, or a stand re-anchored on the axis, end the capture there
 //! (the gap marked). The finished capture goes to the history as a
 //! [`CaptureRecord`] of kind `chatter`, kept longest; nothing here waits.
+//!
+//! On request (`Command::CaptureStands`) the recorder also keeps the stands' next
+//! seconds, from the most advanced stand's next sample on, as a capture of kind
+//! `manual` (stable rolling for `millgate chatter commission --db`).
 
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
@@ -50,6 +54,8 @@ pub(super) struct EpisodeRecorder {
     /// whether that time is the kernel's.
     clock: Option<(i64, SystemTime, bool)>,
     episode: Option<Episode>,
+    /// A manual capture of the stands being taken (`Command::CaptureStands`).
+    manual: Option<Episode>,
 }
 
 /// A capture being taken.
@@ -57,8 +63,8 @@ pub(super) struct EpisodeRecorder {
 struct Episode {
     /// Common index of the capture's first sample.
     start: i64,
-    /// Window end that raised the warning.
-    warning_end: i64,
+    /// Window end that raised the warning (`None`: a manual capture).
+    warning_end: Option<i64>,
     /// Window end that cleared it.
     cleared_end: Option<i64>,
     /// Common index one past the capture's last sample, as known so far.
@@ -114,6 +120,7 @@ impl EpisodeRecorder {
             valid_from: 0,
             clock: None,
             episode: None,
+            manual: None,
         }
     }
 
@@ -126,8 +133,10 @@ impl EpisodeRecorder {
         next: i64,
         values: &[f64],
         received: Option<SystemTime>,
-    ) -> Option<CaptureRecord> {
-        let ring = self.rings.get_mut(stand)?;
+    ) -> Vec<CaptureRecord> {
+        let Some(ring) = self.rings.get_mut(stand) else {
+            return Vec::new();
+        };
         let first = next - values.len() as i64;
         let len = ring.len() as i64;
         for (index, &value) in (first..).zip(values) {
@@ -143,29 +152,70 @@ impl EpisodeRecorder {
             received.unwrap_or_else(SystemTime::now),
             received.is_some(),
         ));
-        let episode = self.episode.as_mut()?;
-        let kept = &mut episode.samples[stand];
-        for (index, &value) in (first..).zip(values) {
-            // In order, no repeats, nothing past the end.
-            if index == episode.start + kept.len() as i64 && index < episode.end {
-                kept.push(value);
+        for capture in [&mut self.episode, &mut self.manual].into_iter().flatten() {
+            let kept = &mut capture.samples[stand];
+            for (index, &value) in (first..).zip(values) {
+                // In order, no repeats, nothing past the end.
+                if index == capture.start + kept.len() as i64 && index < capture.end {
+                    kept.push(value);
+                }
             }
         }
-        self.finish_when_complete()
+        let mut done: Vec<CaptureRecord> = self.finish_when_complete().into_iter().collect();
+        if self.manual.as_ref().is_some_and(Episode::complete) {
+            done.extend(self.manual.take().map(|manual| {
+                let length = (manual.end - manual.start) as usize;
+                self.record(manual, length, Vec::new())
+            }));
+        }
+        done
+    }
+
+    /// Keep the stands' next `seconds` s as a capture of kind `manual` (a manual
+    /// capture already running starts again).
+    pub(super) fn start_manual(&mut self, seconds: f64) {
+        let start = self.next.iter().flatten().copied().max().unwrap_or(0);
+        let (first_sample, kernel_time) = self.time_of(start);
+        self.manual = Some(Episode {
+            start,
+            warning_end: None,
+            cleared_end: None,
+            end: start + (seconds * self.sample_rate_hz).ceil().max(1.0) as i64,
+            samples: vec![Vec::new(); self.rings.len()],
+            first_sample,
+            kernel_time,
+        });
+    }
+
+    /// When the sample at common index `index` was taken (from the latest sample's
+    /// time), and whether that is the kernel's time.
+    fn time_of(&self, index: i64) -> (SystemTime, bool) {
+        match self.clock {
+            Some((latest, time, kernel)) => {
+                let seconds = (index - latest) as f64 / self.sample_rate_hz;
+                (shifted(time, seconds), kernel)
+            }
+            None => (SystemTime::now(), false),
+        }
     }
 
     /// Samples were lost (`missed` of them when known), or a stand moved on the axis:
     /// nothing before the stands' latest sample is kept, and a capture being taken
     /// ends there with the gap marked.
-    pub(super) fn lost(&mut self, missed: Option<u64>) -> Option<CaptureRecord> {
+    pub(super) fn lost(&mut self, missed: Option<u64>) -> Vec<CaptureRecord> {
         self.valid_from = self.next.iter().flatten().copied().max().unwrap_or(0);
-        let episode = self.episode.take()?;
-        let complete = episode.samples.iter().map(Vec::len).min().unwrap_or(0);
-        let gap = CaptureGap {
-            before_sample: complete,
-            missed_samples: missed,
-        };
-        Some(self.record(episode, complete, vec![gap]))
+        [self.episode.take(), self.manual.take()]
+            .into_iter()
+            .flatten()
+            .map(|capture| {
+                let complete = capture.samples.iter().map(Vec::len).min().unwrap_or(0);
+                let gap = CaptureGap {
+                    before_sample: complete,
+                    missed_samples: missed,
+                };
+                self.record(capture, complete, vec![gap])
+            })
+            .collect()
     }
 
     /// The monitor's latest window, ending at common index `window_end`, left the
@@ -204,17 +254,11 @@ impl EpisodeRecorder {
                     .collect()
             })
             .collect();
-        let (first_sample, kernel_time) = match self.clock {
-            Some((index, time, kernel)) => {
-                let seconds = (index - start) as f64 / self.sample_rate_hz;
-                (shifted(time, -seconds), kernel)
-            }
-            None => (SystemTime::now(), false),
-        };
+        let (first_sample, kernel_time) = self.time_of(start);
         tracing::info!(mill = %self.mill, "chatter episode capture started");
         self.episode = Some(Episode {
             start,
-            warning_end: window_end,
+            warning_end: Some(window_end),
             cleared_end: None,
             end: start + self.max,
             samples,
@@ -225,20 +269,16 @@ impl EpisodeRecorder {
 
     /// The capture, once every stand has its samples up to the end.
     fn finish_when_complete(&mut self) -> Option<CaptureRecord> {
-        let episode = self.episode.as_ref()?;
-        let length = episode.end - episode.start;
-        if episode
-            .samples
-            .iter()
-            .any(|kept| (kept.len() as i64) < length)
-        {
+        if !self.episode.as_ref()?.complete() {
             return None;
         }
         let episode = self.episode.take()?;
-        Some(self.record(episode, length as usize, Vec::new()))
+        let length = (episode.end - episode.start) as usize;
+        Some(self.record(episode, length, Vec::new()))
     }
 
-    /// The record of `episode`'s first `length` samples per stand.
+    /// The record of `episode`'s first `length` samples per stand (a chatter episode,
+    /// or a manual capture).
     fn record(&self, episode: Episode, length: usize, gaps: Vec<CaptureGap>) -> CaptureRecord {
         let index = |end: i64| usize::try_from(end - episode.start).unwrap_or(0);
         let cleared = episode
@@ -249,7 +289,11 @@ impl EpisodeRecorder {
                 .cleared_end
                 .is_none_or(|cleared| cleared + self.after > episode.start + self.max);
         CaptureRecord {
-            kind: CaptureKind::Chatter,
+            kind: if episode.warning_end.is_some() {
+                CaptureKind::Chatter
+            } else {
+                CaptureKind::Manual
+            },
             subject: self.mill.clone(),
             bite: None,
             first_sample_unix_ns: unix_ns(episode.first_sample),
@@ -269,8 +313,8 @@ impl EpisodeRecorder {
                 .collect(),
             gaps,
             analysis: None,
-            episode: Some(ChatterEpisode {
-                warning_sample: index(episode.warning_end),
+            episode: episode.warning_end.map(|warning_end| ChatterEpisode {
+                warning_sample: index(warning_end),
                 cleared_sample: cleared.map(index),
                 window_samples: self.window as usize,
                 hop_samples: self.hop as usize,
@@ -278,6 +322,14 @@ impl EpisodeRecorder {
             }),
             keep: KeepClass::Important,
         }
+    }
+}
+
+impl Episode {
+    /// Every stand has its samples up to the end.
+    fn complete(&self) -> bool {
+        let length = self.end - self.start;
+        self.samples.iter().all(|kept| kept.len() as i64 >= length)
     }
 }
 
@@ -412,7 +464,7 @@ mod tests {
         feed(&mut recorder, 0..30);
         recorder.warning(true, 3000);
         feed(&mut recorder, 30..33);
-        let capture = recorder.lost(Some(7)).expect("the capture ends at the gap");
+        let capture = recorder.lost(Some(7)).pop().expect("the capture ends at the gap");
         let start = 3000 - 625 - ANCHOR_BLOCK as i64;
         assert_eq!(capture.samples() as i64, 33 * BLOCK as i64 - start);
         assert_eq!(

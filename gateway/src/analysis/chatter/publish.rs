@@ -70,6 +70,18 @@ impl ChatterAnalysis {
         })
     }
 
+    /// Keep mill `mill`'s stands' next `seconds` s as a capture of kind `manual`;
+    /// false when the mill does not exist or captures are not kept.
+    pub fn start_manual_capture(&mut self, mill: usize, seconds: f64) -> bool {
+        match self.captures.get_mut(mill) {
+            Some(Some(recorder)) => {
+                recorder.start_manual(seconds);
+                true
+            }
+            _ => false,
+        }
+    }
+
     /// The monitors, in config order.
     pub fn monitors(&self) -> &[ChatterMonitor] {
         &self.monitors
@@ -110,7 +122,9 @@ impl ChatterAnalysis {
                     change
                 }
                 Acquired::Gap { missed_samples, .. } => {
-                    done.extend(recorder.as_mut().and_then(|r| r.lost(*missed_samples)));
+                    if let Some(recorder) = recorder.as_mut() {
+                        done.extend(recorder.lost(*missed_samples));
+                    }
                     monitor.gap(stand, *missed_samples)
                 }
                 Acquired::ProcessValue { .. } => None,
@@ -134,7 +148,7 @@ impl ChatterAnalysis {
     }
 }
 
-/// Hand a finished chatter-episode capture to the history (never waits: a full
+/// Hand a finished chatter-episode (or manual) capture to the history (never waits: a full
 /// queue drops and counts it, as for every event).
 fn keep(board: &Board, capture: CaptureRecord) {
     tracing::info!(
@@ -142,7 +156,8 @@ fn keep(board: &Board, capture: CaptureRecord) {
         samples = capture.samples(),
         stands = capture.channels.len(),
         cut = capture.episode.is_some_and(|e| e.cut),
-        "chatter episode capture kept"
+        kind = capture.kind.name(),
+        "tandem mill capture kept"
     );
     board
         .history()
