@@ -16,6 +16,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use millgate::outputs::register_map::RegisterMap;
+use millgate::state::commands::{Command, CommandOrigin};
 use millgate_config::layout::to_raw_sample;
 use millgate_config::{Config, RegisterTable};
 use millgate_sim::devices::modbus_bank::ServeOptions;
@@ -33,6 +34,9 @@ const FS: f64 = 2500.0;
 const SLOW_DOWN_BIT: u16 = 3;
 /// Stable rolling before the operator's ramp, s.
 const SETTLE_S: f64 = 6.0;
+/// The manual capture of the stands taken at the start of a run with a history, s
+/// (within the stable rolling before the ramp).
+const MANUAL_CAPTURE_S: u16 = 4;
 
 /// Five stands on one DAQ at 2500 Hz (0.01 m/s^2 per bit), the mill commissioned on
 /// `mill`'s recordings, a PLC output.
@@ -221,7 +225,25 @@ async fn closed_loop(
         &mut online,
         &request,
         cycles,
-        operator(mill, scenario),
+        {
+            // With a history, 1 s into the stable rolling before the ramp, a manual
+            // capture of the stands.
+            let mut manual = history.is_some().then(|| gateway.commands());
+            let mut operate = operator(mill, scenario);
+            move |t_s, control: &mut SpeedControl| {
+                if t_s >= 1.0 {
+                    if let Some(commands) = manual.take() {
+                        let sent = commands.send(Command::CaptureStands {
+                            mill: 0,
+                            seconds: MANUAL_CAPTURE_S,
+                            origin: CommandOrigin::Local,
+                        });
+                        assert_eq!(sent, Ok(()), "manual capture command");
+                    }
+                }
+                operate(t_s, control)
+            }
+        },
         async |samples| {
             let blocks: Vec<&[f64]> = samples.acceleration.iter().map(Vec::as_slice).collect();
             daq.publish(&blocks);
@@ -354,6 +376,7 @@ async fn a_slower_ramp_past_the_critical_speed_is_slowed_down_before_chatter_dev
 async fn a_chatter_episode_is_captured_as_the_daq_sent_it_and_reproduces_its_warning(
 ) -> anyhow::Result<()> {
     use millgate::cli::capture::{export, ExportArgs, KindArg, Selection};
+    use millgate::cli::chatter::commission::CommissionArgs;
     use millgate::cli::chatter::windows::{analyze, WindowsArgs};
     use millgate::outputs::history::capture_files::ExportFormat;
     use millgate::outputs::history::query::{CaptureRow, Filter, HistoryReader};
@@ -379,6 +402,21 @@ async fn a_chatter_episode_is_captured_as_the_daq_sent_it_and_reproduces_its_war
     let rows: Vec<CaptureRow> = reader.rows(&Filter::default())?;
     let chatter: Vec<&CaptureRow> = rows.iter().filter(|r| r.kind == "chatter").collect();
     assert_eq!(chatter.len(), 1, "chatter captures: {rows:?}");
+    let manual: Vec<&CaptureRow> = rows.iter().filter(|r| r.kind == "manual").collect();
+    assert_eq!(manual.len(), 1, "manual captures: {rows:?}");
+    assert_eq!(manual[0].subject, "TCM");
+    // Its seconds whole, or ended by a gap (a block lost on this loaded machine) and
+    // saying so.
+    let manual_capture = reader.capture_of(manual[0].clone())?;
+    println!(
+        "manual capture: {} samples, gaps {:?}",
+        manual[0].samples, manual_capture.meta.gaps
+    );
+    match manual_capture.meta.gaps[..] {
+        [] => assert_eq!(manual[0].samples, i64::from(MANUAL_CAPTURE_S) * FS as i64),
+        [gap] => assert_eq!(gap.before_sample as i64, manual[0].samples),
+        _ => panic!("{:?}", manual_capture.meta.gaps),
+    }
     let capture = reader.capture_of(chatter[0].clone())?;
     let episode = capture
         .meta
@@ -461,6 +499,31 @@ async fn a_chatter_episode_is_captured_as_the_daq_sent_it_and_reproduces_its_war
         .ok_or_else(|| anyhow::anyhow!("no warning"))?;
     println!("millgate chatter on the export: first warning {warned:.4} s");
     assert_eq!(warned, (episode.warning_sample - 1) as f64 / FS);
+
+    // `millgate chatter commission` from the captures: the manual one of the stable
+    // rolling gives thresholds; the chatter episode is refused (the loop slowed the
+    // mill before chatter grew past the CSVs' chatter factor: refused as an episode).
+    let commission = |ids: String| {
+        millgate::cli::chatter::commission::run(&CommissionArgs {
+            config: dir.join("mill.toml"),
+            inputs: Vec::new(),
+            db: Some(db.clone()),
+            captures: Some(ids.parse().expect("ids")),
+            mill: None,
+            margin: 10.0,
+            speed_column: None,
+            format: millgate::cli::OutputFormat::Text,
+        })
+    };
+    let printed = commission(manual[0].id.to_string())?;
+    println!("commissioned from capture {}:\n{printed}", manual[0].id);
+    assert!(printed.contains("gain_thresholds = ["), "{printed}");
+    let refused = commission(format!("{},{}", manual[0].id, chatter[0].id))
+        .expect_err("the chatter episode is refused");
+    assert!(
+        format!("{refused:#}").contains(&format!("#capture {}: a chatter episode", chatter[0].id)),
+        "{refused:#}"
+    );
     std::fs::remove_dir_all(&dir)?;
     Ok(())
 }

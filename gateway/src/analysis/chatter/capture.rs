@@ -464,7 +464,10 @@ mod tests {
         feed(&mut recorder, 0..30);
         recorder.warning(true, 3000);
         feed(&mut recorder, 30..33);
-        let capture = recorder.lost(Some(7)).pop().expect("the capture ends at the gap");
+        let capture = recorder
+            .lost(Some(7))
+            .pop()
+            .expect("the capture ends at the gap");
         let start = 3000 - 625 - ANCHOR_BLOCK as i64;
         assert_eq!(capture.samples() as i64, 33 * BLOCK as i64 - start);
         assert_eq!(
@@ -497,7 +500,10 @@ mod tests {
         let done = feed(&mut recorder, 36..40);
         assert_eq!(done.len(), 1);
         let episode = done[0].episode.expect("episode");
-        assert_eq!(episode.warning_sample, ANCHOR_BLOCK, "no whole hop after the gap");
+        assert_eq!(
+            episode.warning_sample, ANCHOR_BLOCK,
+            "no whole hop after the gap"
+        );
         check_samples(&done[0], 4320 - ANCHOR_BLOCK as i64);
     }
 }
