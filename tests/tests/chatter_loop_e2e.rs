@@ -370,8 +370,11 @@ async fn a_slower_ramp_past_the_critical_speed_is_slowed_down_before_chatter_dev
 /// from whole hops over `capture_before_s` (5 s) before the window that raised the
 /// warning to `capture_after_s` (2 s) after the one that cleared it, every stand's
 /// samples equal to the counts the DAQ published (at one common offset: the stands
-/// aligned), and its CSV export through `millgate chatter --input` warns at the
-/// capture's warning window.
+/// aligned), its CSV export through `millgate chatter --input` warns at the
+/// capture's warning window, and its Parquet export holds the CSV's samples and header
+/// (pyarrow). A manual capture of the stands taken 1 s into the stable rolling
+/// commissions thresholds (`millgate chatter commission --db --captures`), which
+/// refuses the episode's capture.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_chatter_episode_is_captured_as_the_daq_sent_it_and_reproduces_its_warning(
 ) -> anyhow::Result<()> {
@@ -485,6 +488,44 @@ async fn a_chatter_episode_is_captured_as_the_daq_sent_it_and_reproduces_its_war
         out: out.clone(),
     })?;
     assert_eq!(files.len(), 1);
+    // The Parquet export holds the CSV's samples, a column per stand, and the header
+    // with the episode (pyarrow reads both: the bite captures' script).
+    let parquet = export(&ExportArgs {
+        selection: Selection {
+            db: db.clone(),
+            driveline: Some("TCM".into()),
+            kind: Some(KindArg::Chatter),
+            since: None,
+            until: None,
+        },
+        bite: None,
+        id: None,
+        format: ExportFormat::Parquet,
+        out: out.clone(),
+    })?;
+    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../gateway/tests/capture_parquet.py");
+    let checked = std::process::Command::new("python3")
+        .arg(&script)
+        .arg(&files[0])
+        .arg(&parquet[0])
+        .output()?;
+    assert!(
+        checked.status.success(),
+        "{}{}",
+        String::from_utf8_lossy(&checked.stdout),
+        String::from_utf8_lossy(&checked.stderr)
+    );
+    let csv = std::fs::read_to_string(&files[0])?;
+    assert!(
+        csv.lines().nth(1) == Some("t,s1_vib,s2_vib,s3_vib,s4_vib,s5_vib")
+            && csv
+                .lines()
+                .next()
+                .is_some_and(|l| l.contains("\"episode\":{\"warning_sample\"")),
+        "{}",
+        csv.lines().take(2).collect::<Vec<_>>().join("\n")
+    );
     let config_path = dir.join("mill.toml");
     std::fs::write(&config_path, config_text(mill, None))?;
     let report = analyze(&WindowsArgs {
