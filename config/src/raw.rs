@@ -123,6 +123,9 @@ pub(crate) struct RawTandemMill {
     pub gain_thresholds: Option<Vec<f64>>,
     pub slow_down_release: Option<f64>,
     pub slow_down_hold_s: Option<f64>,
+    pub capture_before_s: Option<f64>,
+    pub capture_after_s: Option<f64>,
+    pub capture_max_s: Option<f64>,
 }
 
 /// `[[rod_mills]]`: a rod mill checked online against the Mathieu tongues.

@@ -453,6 +453,14 @@ pub struct TandemMill {
     /// Time the alarm figure must stay below the release level before the slow-down
     /// request clears, s, >= 0 and <= 600 (default 5).
     pub slow_down_hold_s: f64,
+    /// Chatter-episode captures (with `[history]`): stand samples kept before the
+    /// warning is raised, s, >= 0 and <= 60 (default 5).
+    pub capture_before_s: f64,
+    /// Stand samples kept after the warning clears, s, >= 0 and <= 60 (default 2).
+    pub capture_after_s: f64,
+    /// Longest chatter-episode capture, s, > `capture_before_s` and <= 600 (default
+    /// 120): a longer episode's capture is cut there and says so.
+    pub capture_max_s: f64,
 }
 
 /// The chatter detector that raises a tandem mill's alarm (`detector` key).

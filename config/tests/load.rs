@@ -794,6 +794,15 @@ fn band_gain_keys() {
     assert!(mill.gain_thresholds.is_empty());
     assert_eq!(mill.reference_band_hz, (400.0, 1500.0));
     assert_eq!(mill.slow_down_hold_s, 0.0);
+    assert_eq!(
+        (
+            mill.capture_before_s,
+            mill.capture_after_s,
+            mill.capture_max_s
+        ),
+        (5.0, 2.0, 120.0),
+        "the capture keys' defaults"
+    );
 
     let key = "mill.toml: tandem_mills[0].";
     for (from, to, problem) in [
@@ -807,6 +816,9 @@ fn band_gain_keys() {
         ("gain_thresholds = [1.2, 1.5]", "gain_thresholds = [1.2, 1.5]\ngain_window_s = 0.0", "gain_window_s: 0 is not allowed (must be > 0 and <= 10 s)"),
         ("gain_thresholds = [1.2, 1.5]", "gain_thresholds = [1.2, 1.5]\nslow_down_release = 1.0", "slow_down_release: 1 is not allowed (must be > 0 and < 1"),
         ("gain_thresholds = [1.2, 1.5]", "gain_thresholds = [1.2, 1.5]\nslow_down_hold_s = -1.0", "slow_down_hold_s: -1 is not allowed (must be >= 0 and <= 600 s)"),
+        ("gain_thresholds = [1.2, 1.5]", "gain_thresholds = [1.2, 1.5]\ncapture_before_s = 61.0", "capture_before_s: 61 is not allowed (must be >= 0 and <= 60 s)"),
+        ("gain_thresholds = [1.2, 1.5]", "gain_thresholds = [1.2, 1.5]\ncapture_after_s = -0.5", "capture_after_s: -0.5 is not allowed (must be >= 0 and <= 60 s)"),
+        ("gain_thresholds = [1.2, 1.5]", "gain_thresholds = [1.2, 1.5]\ncapture_before_s = 10.0\ncapture_max_s = 8.0", "capture_max_s: 8 is not allowed (must be > capture_before_s (10 s) and <= 600 s)"),
     ] {
         assert_problem_like(&edited(from, to), &format!("{key}{problem}"), &[]);
     }

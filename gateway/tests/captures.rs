@@ -108,6 +108,7 @@ fn bite_with_capture(n: u32, time: UtcTime, keep: KeepClass) -> [HistoryEvent; 2
             settled_fraction: 0.3,
             min_static_knm: 10.0,
         }),
+        episode: None,
         keep,
     };
     [

@@ -16,6 +16,8 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use millgate::outputs::register_map::RegisterMap;
+use millgate::state::commands::{Command, CommandOrigin};
+use millgate_config::layout::to_raw_sample;
 use millgate_config::{Config, RegisterTable};
 use millgate_sim::devices::modbus_bank::ServeOptions;
 use millgate_sim::devices::tandem_rig::{self, RequestBit, RigRun};
@@ -32,10 +34,20 @@ const FS: f64 = 2500.0;
 const SLOW_DOWN_BIT: u16 = 3;
 /// Stable rolling before the operator's ramp, s.
 const SETTLE_S: f64 = 6.0;
+/// The manual capture of the stands taken at the start of a run with a history, s
+/// (within the stable rolling before the ramp).
+const MANUAL_CAPTURE_S: u16 = 4;
 
 /// Five stands on one DAQ at 2500 Hz (0.01 m/s^2 per bit), the mill commissioned on
 /// `mill`'s recordings, a PLC output.
-fn config(mill: &Mill) -> anyhow::Result<Config> {
+fn config(mill: &Mill, history: Option<&std::path::Path>) -> anyhow::Result<Config> {
+    let text = config_text(mill, history);
+    millgate_config::from_toml_str(&text, "chatter-loop.toml", std::path::Path::new("."))
+        .map_err(|e| anyhow::anyhow!("{e}"))
+}
+
+/// [`config`]'s text.
+fn config_text(mill: &Mill, history: Option<&std::path::Path>) -> String {
     let mut text = String::from(
         "name = \"chatter loop\"\n[[sources.modbus]]\nname = \"daq\"\naddress = \"127.0.0.1:1\"\npoll_period_ms = 20\n",
     );
@@ -58,8 +70,10 @@ fn config(mill: &Mill) -> anyhow::Result<Config> {
         thresholds.join(", "),
         mill.gain_release
     );
-    millgate_config::from_toml_str(&text, "chatter-loop.toml", std::path::Path::new("."))
-        .map_err(|e| anyhow::anyhow!("{e}"))
+    if let Some(path) = history {
+        text += &format!("[history]\npath = {:?}\n", path.display().to_string());
+    }
+    text
 }
 
 /// One run: the mill held at `start` times its critical speed for [`SETTLE_S`], then
@@ -134,10 +148,16 @@ struct LoopRun {
     rig: RigRun,
     /// Each rise of the bit in the PLC's register, wall clock.
     rises: Vec<Instant>,
+    /// Per stand, the raw counts the DAQ published, in order (the rest block first).
+    sent: Vec<Vec<i16>>,
 }
 
-async fn closed_loop(mill: &Mill, scenario: Scenario) -> anyhow::Result<LoopRun> {
-    let mut config = config(mill)?;
+async fn closed_loop(
+    mill: &Mill,
+    scenario: Scenario,
+    history: Option<&std::path::Path>,
+) -> anyhow::Result<LoopRun> {
+    let mut config = config(mill, history)?;
     let map = RegisterMap::new(&config);
     let flags = map
         .registers()
@@ -162,6 +182,7 @@ async fn closed_loop(mill: &Mill, scenario: Scenario) -> anyhow::Result<LoopRun>
     // A DAQ answers with a block from power-up: the first, at rest, anchors the stands.
     let rest = vec![0.0; CYCLE_SAMPLES];
     daq.publish(&[&rest, &rest, &rest, &rest, &rest]);
+    let mut sent: Vec<Vec<i16>> = vec![vec![0; CYCLE_SAMPLES]; 5];
     let listener = TcpListener::bind("127.0.0.1:0").await?;
     config.modbus_sources[0].address = listener.local_addr()?.to_string();
     let serving_daq = daq.serve(listener, ServeOptions::default());
@@ -204,10 +225,31 @@ async fn closed_loop(mill: &Mill, scenario: Scenario) -> anyhow::Result<LoopRun>
         &mut online,
         &request,
         cycles,
-        operator(mill, scenario),
+        {
+            // With a history, 1 s into the stable rolling before the ramp, a manual
+            // capture of the stands.
+            let mut manual = history.is_some().then(|| gateway.commands());
+            let mut operate = operator(mill, scenario);
+            move |t_s, control: &mut SpeedControl| {
+                if t_s >= 1.0 {
+                    if let Some(commands) = manual.take() {
+                        let sent = commands.send(Command::CaptureStands {
+                            mill: 0,
+                            seconds: MANUAL_CAPTURE_S,
+                            origin: CommandOrigin::Local,
+                        });
+                        assert_eq!(sent, Ok(()), "manual capture command");
+                    }
+                }
+                operate(t_s, control)
+            }
+        },
         async |samples| {
             let blocks: Vec<&[f64]> = samples.acceleration.iter().map(Vec::as_slice).collect();
             daq.publish(&blocks);
+            for (counts, block) in sent.iter_mut().zip(&blocks) {
+                counts.extend(block.iter().map(|&v| to_raw_sample(v, 0.01, 0.0)));
+            }
             Ok(())
         },
     )
@@ -218,7 +260,11 @@ async fn closed_loop(mill: &Mill, scenario: Scenario) -> anyhow::Result<LoopRun>
     serving_daq.stop().await?;
     serving_plc.stop().await?;
     let rises = rises.lock().map(|r| r.clone()).unwrap_or_default();
-    Ok(LoopRun { rig: rig?, rises })
+    Ok(LoopRun {
+        rig: rig?,
+        rises,
+        sent,
+    })
 }
 
 /// Per rise of the bit: ms from the last block published before it, and the PLC
@@ -253,7 +299,7 @@ async fn check(scenario: Scenario) -> anyhow::Result<()> {
     let critical = mill.critical_m_s();
     let open = open_loop(mill, scenario)?;
     let developed = open.ok_or_else(|| anyhow::anyhow!("open loop: no developed chatter"))?;
-    let run = closed_loop(mill, scenario).await?;
+    let run = closed_loop(mill, scenario, None).await?;
     let latencies = latencies(&run);
     let largest_swing = run.rig.cycles.iter().map(|c| c.swing).fold(0.0, f64::max);
     println!(
@@ -317,4 +363,208 @@ async fn a_slower_ramp_past_the_critical_speed_is_slowed_down_before_chatter_dev
         duration_s: 24.0,
     })
     .await
+}
+
+/// The chatter-episode capture through the service: the fast ramp with a history,
+/// slowed down by the loop so the warning clears; one capture of kind `chatter` spans
+/// from whole hops over `capture_before_s` (5 s) before the window that raised the
+/// warning to `capture_after_s` (2 s) after the one that cleared it, every stand's
+/// samples equal to the counts the DAQ published (at one common offset: the stands
+/// aligned), its CSV export through `millgate chatter --input` warns at the
+/// capture's warning window, and its Parquet export holds the CSV's samples and header
+/// (pyarrow). A manual capture of the stands taken 1 s into the stable rolling
+/// commissions thresholds (`millgate chatter commission --db --captures`), which
+/// refuses the episode's capture.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_chatter_episode_is_captured_as_the_daq_sent_it_and_reproduces_its_warning(
+) -> anyhow::Result<()> {
+    use millgate::cli::capture::{export, ExportArgs, KindArg, Selection};
+    use millgate::cli::chatter::commission::CommissionArgs;
+    use millgate::cli::chatter::windows::{analyze, WindowsArgs};
+    use millgate::outputs::history::capture_files::ExportFormat;
+    use millgate::outputs::history::query::{CaptureRow, Filter, HistoryReader};
+
+    let plan = LoopPlan::quick();
+    let mills = mills(&plan)?;
+    let mill = &mills[0];
+    let scenario = Scenario {
+        start: 0.9,
+        setpoint: 1.3,
+        accel_m_s2: 2.0,
+        seed: 7,
+        duration_s: 24.0,
+    };
+    let dir = std::env::temp_dir().join(format!("millgate-chatter-capture-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir)?;
+    let db = dir.join("history.db");
+    let run = closed_loop(mill, scenario, Some(&db)).await?;
+    assert!(!run.rig.events.is_empty(), "no slow-down: no episode");
+
+    let reader = HistoryReader::open(&db)?;
+    let rows: Vec<CaptureRow> = reader.rows(&Filter::default())?;
+    let chatter: Vec<&CaptureRow> = rows.iter().filter(|r| r.kind == "chatter").collect();
+    assert_eq!(chatter.len(), 1, "chatter captures: {rows:?}");
+    let manual: Vec<&CaptureRow> = rows.iter().filter(|r| r.kind == "manual").collect();
+    assert_eq!(manual.len(), 1, "manual captures: {rows:?}");
+    assert_eq!(manual[0].subject, "TCM");
+    // Its seconds whole, or ended by a gap (a block lost on this loaded machine) and
+    // saying so.
+    let manual_capture = reader.capture_of(manual[0].clone())?;
+    println!(
+        "manual capture: {} samples, gaps {:?}",
+        manual[0].samples, manual_capture.meta.gaps
+    );
+    match manual_capture.meta.gaps[..] {
+        [] => assert_eq!(manual[0].samples, i64::from(MANUAL_CAPTURE_S) * FS as i64),
+        [gap] => assert_eq!(gap.before_sample as i64, manual[0].samples),
+        _ => panic!("{:?}", manual_capture.meta.gaps),
+    }
+    let capture = reader.capture_of(chatter[0].clone())?;
+    let episode = capture
+        .meta
+        .episode
+        .expect("a chatter capture says where its warning is");
+    println!(
+        "chatter capture: {:?}, {} samples, {episode:?}",
+        capture.row.started_at, capture.row.samples
+    );
+    assert_eq!(capture.row.subject, "TCM");
+    assert_eq!(capture.row.sample_rate_hz, FS);
+    assert_eq!(capture.channels.len(), 5);
+    assert!(capture.meta.gaps.is_empty(), "{:?}", capture.meta.gaps);
+    assert!(!episode.cut);
+    let hop = episode.hop_samples;
+    let before = (5.0 * FS).ceil() as usize;
+    // 5 s in whole hops and the anchoring block before the warning; fewer whole hops
+    // only when the stands restarted in the meantime (a block lost or re-anchored on
+    // this loaded machine: the capture keeps nothing from before a restart).
+    let lead = millgate::analysis::chatter::ANCHOR_BLOCK;
+    assert_eq!((episode.warning_sample - lead) % hop, 0, "{episode:?}");
+    assert!(
+        episode.warning_sample <= before.div_ceil(hop) * hop + lead,
+        "{episode:?}"
+    );
+    let cleared = episode.cleared_sample.expect("the warning cleared");
+    assert!(cleared > episode.warning_sample);
+    assert_eq!(
+        capture.row.samples as usize,
+        cleared + (2.0 * FS).ceil() as usize
+    );
+    // Every stand as the DAQ sent it, at one offset into what it sent.
+    let counts = |samples: &[f64]| -> Vec<i16> {
+        samples
+            .iter()
+            .map(|&v| to_raw_sample(v, 0.01, 0.0))
+            .collect()
+    };
+    let first = counts(&capture.channels[0].samples);
+    let offset = (0..=run.sent[0].len() - first.len())
+        .find(|&at| run.sent[0][at..at + first.len()] == first[..])
+        .ok_or_else(|| anyhow::anyhow!("stand 1's capture is not a run of what the DAQ sent"))?;
+    for (stand, channel) in capture.channels.iter().enumerate() {
+        assert_eq!(channel.name, format!("s{}_vib", stand + 1));
+        assert_eq!(
+            counts(&channel.samples)[..],
+            run.sent[stand][offset..offset + first.len()],
+            "stand {}",
+            stand + 1
+        );
+    }
+
+    // Exported, and through `millgate chatter`: the warning at the same window.
+    let out = dir.join("export");
+    let files = export(&ExportArgs {
+        selection: Selection {
+            db: db.clone(),
+            driveline: Some("TCM".into()),
+            kind: Some(KindArg::Chatter),
+            since: None,
+            until: None,
+        },
+        bite: None,
+        id: None,
+        format: ExportFormat::Csv,
+        out: out.clone(),
+    })?;
+    assert_eq!(files.len(), 1);
+    // The Parquet export holds the CSV's samples, a column per stand, and the header
+    // with the episode (pyarrow reads both: the bite captures' script).
+    let parquet = export(&ExportArgs {
+        selection: Selection {
+            db: db.clone(),
+            driveline: Some("TCM".into()),
+            kind: Some(KindArg::Chatter),
+            since: None,
+            until: None,
+        },
+        bite: None,
+        id: None,
+        format: ExportFormat::Parquet,
+        out: out.clone(),
+    })?;
+    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../gateway/tests/capture_parquet.py");
+    let checked = std::process::Command::new("python3")
+        .arg(&script)
+        .arg(&files[0])
+        .arg(&parquet[0])
+        .output()?;
+    assert!(
+        checked.status.success(),
+        "{}{}",
+        String::from_utf8_lossy(&checked.stdout),
+        String::from_utf8_lossy(&checked.stderr)
+    );
+    let csv = std::fs::read_to_string(&files[0])?;
+    assert!(
+        csv.lines().nth(1) == Some("t,s1_vib,s2_vib,s3_vib,s4_vib,s5_vib")
+            && csv
+                .lines()
+                .next()
+                .is_some_and(|l| l.contains("\"episode\":{\"warning_sample\"")),
+        "{}",
+        csv.lines().take(2).collect::<Vec<_>>().join("\n")
+    );
+    let config_path = dir.join("mill.toml");
+    std::fs::write(&config_path, config_text(mill, None))?;
+    let report = analyze(&WindowsArgs {
+        input: files[0].clone(),
+        config: config_path,
+        mill: None,
+        format: millgate::cli::OutputFormat::Json,
+        plot: None,
+    })?;
+    let warned = report
+        .first_warning_s
+        .ok_or_else(|| anyhow::anyhow!("no warning"))?;
+    println!("millgate chatter on the export: first warning {warned:.4} s");
+    assert_eq!(warned, (episode.warning_sample - 1) as f64 / FS);
+
+    // `millgate chatter commission` from the captures: the manual one of the stable
+    // rolling gives thresholds; the chatter episode is refused (the loop slowed the
+    // mill before chatter grew past the CSVs' chatter factor: refused as an episode).
+    let commission = |ids: String| {
+        millgate::cli::chatter::commission::run(&CommissionArgs {
+            config: dir.join("mill.toml"),
+            inputs: Vec::new(),
+            db: Some(db.clone()),
+            captures: Some(ids.parse().expect("ids")),
+            mill: None,
+            margin: 10.0,
+            speed_column: None,
+            format: millgate::cli::OutputFormat::Text,
+        })
+    };
+    let printed = commission(manual[0].id.to_string())?;
+    println!("commissioned from capture {}:\n{printed}", manual[0].id);
+    assert!(printed.contains("gain_thresholds = ["), "{printed}");
+    let refused = commission(format!("{},{}", manual[0].id, chatter[0].id))
+        .expect_err("the chatter episode is refused");
+    assert!(
+        format!("{refused:#}").contains(&format!("#capture {}: a chatter episode", chatter[0].id)),
+        "{refused:#}"
+    );
+    std::fs::remove_dir_all(&dir)?;
+    Ok(())
 }

@@ -14,6 +14,17 @@ const DEFAULT_SLOW_DOWN_RELEASE: f64 = 0.8;
 const DEFAULT_SLOW_DOWN_HOLD_S: f64 = 5.0;
 /// Longest slow-down hold, s.
 const MAX_SLOW_DOWN_HOLD_S: f64 = 600.0;
+/// Default stand samples kept before a chatter warning, s.
+const DEFAULT_CAPTURE_BEFORE_S: f64 = 5.0;
+/// Default stand samples kept after a chatter warning clears, s.
+const DEFAULT_CAPTURE_AFTER_S: f64 = 2.0;
+/// Longest time kept before or after an episode, s.
+const MAX_CAPTURE_AROUND_S: f64 = 60.0;
+/// Default longest chatter-episode capture, s.
+const DEFAULT_CAPTURE_MAX_S: f64 = 120.0;
+/// Largest `capture_max_s`, s (10 minutes of 8 stands at 10 kHz is 384 MB of `f64`:
+/// the bound on what one episode may hold in memory).
+const MAX_CAPTURE_MAX_S: f64 = 600.0;
 
 /// The band-gain and slow-down keys of one mill, each `None` when reported.
 struct GainKeys {
@@ -133,6 +144,7 @@ impl Checker<'_> {
             sample_rate_hz,
             stands_ok.then_some(stands.len()),
         );
+        let (capture_before_s, capture_after_s, capture_max_s) = self.capture_keys(key, raw);
         Some(TandemMill {
             name: name?,
             stands: stands_ok.then_some(stands)?,
@@ -145,7 +157,48 @@ impl Checker<'_> {
             gain_thresholds: gain.gain_thresholds?,
             slow_down_release: gain.slow_down_release?,
             slow_down_hold_s: gain.slow_down_hold_s?,
+            capture_before_s: capture_before_s?,
+            capture_after_s: capture_after_s?,
+            capture_max_s: capture_max_s?,
         })
+    }
+
+    /// `capture_before_s`, `capture_after_s` and `capture_max_s` of the mill at `key`.
+    fn capture_keys(
+        &mut self,
+        key: &str,
+        raw: &RawTandemMill,
+    ) -> (Option<f64>, Option<f64>, Option<f64>) {
+        let around = |checker: &mut Self, name: &str, value: Option<f64>, default: f64| {
+            let value = value.unwrap_or(default);
+            checker.float(
+                &format!("{key}.{name}"),
+                value,
+                (0.0..=MAX_CAPTURE_AROUND_S).contains(&value),
+                &format!(">= 0 and <= {MAX_CAPTURE_AROUND_S} s"),
+            )
+        };
+        let before = around(
+            self,
+            "capture_before_s",
+            raw.capture_before_s,
+            DEFAULT_CAPTURE_BEFORE_S,
+        );
+        let after = around(
+            self,
+            "capture_after_s",
+            raw.capture_after_s,
+            DEFAULT_CAPTURE_AFTER_S,
+        );
+        let max = raw.capture_max_s.unwrap_or(DEFAULT_CAPTURE_MAX_S);
+        let floor = before.unwrap_or(0.0);
+        let max = self.float(
+            &format!("{key}.capture_max_s"),
+            max,
+            max > floor && max <= MAX_CAPTURE_MAX_S,
+            &format!("> capture_before_s ({floor} s) and <= {MAX_CAPTURE_MAX_S} s"),
+        );
+        (before, after, max)
     }
 
     /// `detector`, `reference_band_hz`, `gain_window_s`, `gain_thresholds`,

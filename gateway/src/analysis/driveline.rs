@@ -368,6 +368,7 @@ impl DrivelineAnalyzer {
             }],
             gaps: manual.gaps,
             analysis: None,
+            episode: None,
             keep: KeepClass::Important,
         })
     }
@@ -738,6 +739,7 @@ impl BiteReport {
             channels: vec![samples.torque.clone()],
             gaps: samples.gap.into_iter().collect(),
             analysis: Some(samples.analysis),
+            episode: None,
             keep,
         })
     }

@@ -210,6 +210,17 @@ impl Analysis {
                     tracing::warn!(driveline = %name, by = origin.name(), "manual capture refused: captures are not kept (no [history])");
                 }
             }
+            Command::CaptureStands {
+                mill,
+                seconds,
+                origin,
+            } => {
+                if self.chatter.start_manual_capture(mill, f64::from(seconds)) {
+                    tracing::info!(mill, seconds, by = origin.name(), peer = ?origin.peer(), "manual capture of the stands started");
+                } else {
+                    tracing::warn!(mill, by = origin.name(), "manual capture of the stands refused: no such tandem mill, or captures are not kept (no [history])");
+                }
+            }
         }
     }
 

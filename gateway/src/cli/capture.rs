@@ -50,7 +50,7 @@ pub struct Selection {
     #[arg(long)]
     pub db: PathBuf,
     /// Only this driveline's (or tandem mill's, or manual request's) captures.
-    #[arg(long)]
+    #[arg(long, visible_alias = "mill")]
     pub driveline: Option<String>,
     /// Only captures of this kind.
     #[arg(long, value_enum)]

@@ -258,9 +258,10 @@ fn write(
     }
     // Validate every value before acting on any, so a rejected request changes nothing.
     let drivelines = served.board.driveline_names().len();
+    let mills = served.board.results().tandem_mills.len();
     let mut commands = Vec::new();
     for (field, value) in writes {
-        commands.extend(commands_of(field, value, drivelines, origin)?);
+        commands.extend(commands_of(field, value, (drivelines, mills), origin)?);
     }
     for command in commands {
         served
@@ -275,11 +276,12 @@ fn write(
 }
 
 /// The commands a write of `value` to command register `field` gives in a map of
-/// `drivelines` drivelines (none for 0), or exception 03 for a value it does not take.
+/// `drivelines` drivelines and `mills` tandem mills (none for 0), or exception 03 for a
+/// value it does not take.
 fn commands_of(
     field: Field,
     value: u16,
-    drivelines: usize,
+    (drivelines, mills): (usize, usize),
     origin: CommandOrigin,
 ) -> Result<Vec<Command>, Exception> {
     match field {
@@ -312,17 +314,26 @@ fn commands_of(
         },
         Field::ManualCapture => {
             let [seconds, number] = value.to_be_bytes();
+            let seconds = if seconds == 0 {
+                MANUAL_CAPTURE_DEFAULT_S
+            } else {
+                u16::from(seconds)
+            };
             match usize::from(number) {
                 0 if value == 0 => Ok(Vec::new()),
                 number if (1..=drivelines).contains(&number) => Ok(vec![Command::CaptureTorque {
                     driveline: number - 1,
-                    seconds: if seconds == 0 {
-                        MANUAL_CAPTURE_DEFAULT_S
-                    } else {
-                        u16::from(seconds)
-                    },
+                    seconds,
                     origin,
                 }]),
+                // After the drivelines, the tandem mills: their stands.
+                number if (drivelines + 1..=drivelines + mills).contains(&number) => {
+                    Ok(vec![Command::CaptureStands {
+                        mill: number - drivelines - 1,
+                        seconds,
+                        origin,
+                    }])
+                }
                 _ => Err(Exception::IllegalDataValue),
             }
         }
@@ -482,6 +493,29 @@ mod tests {
         // Reads are served.
         let read = frame(1, &[0x03, 0x00, 0x00, 0x00, 0x01]);
         assert_eq!(respond(&served, remote, &read).exception(), None);
+    }
+
+    #[test]
+    fn a_manual_capture_past_the_drivelines_numbers_a_tandem_mill() {
+        let origin = CommandOrigin::Local;
+        let capture = |value| commands_of(Field::ManualCapture, value, (1, 2), origin);
+        assert_eq!(
+            capture(0x0302),
+            Ok(vec![Command::CaptureStands {
+                mill: 0,
+                seconds: 3,
+                origin
+            }])
+        );
+        assert_eq!(
+            capture(0x0003),
+            Ok(vec![Command::CaptureStands {
+                mill: 1,
+                seconds: MANUAL_CAPTURE_DEFAULT_S,
+                origin
+            }])
+        );
+        assert_eq!(capture(0x0304), Err(Exception::IllegalDataValue));
     }
 
     #[test]

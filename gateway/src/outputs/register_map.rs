@@ -491,7 +491,8 @@ impl RegisterMap {
             Access::ReadWrite,
             "Command: write seconds * 256 + a driveline's number (both 1..=255; 0 in the \
              high byte: 10 s) to keep the next seconds of its torque as a capture of kind \
-             manual (with [history]); reads back 0",
+             manual (with [history]); numbers after the drivelines' name the tandem mills \
+             in order (all their stands); reads back 0",
             Field::ManualCapture,
         );
         for (k, driveline) in config.drivelines.iter().enumerate() {

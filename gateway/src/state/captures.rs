@@ -103,6 +103,25 @@ pub struct BiteWindowAnalysis {
     pub min_static_knm: f64,
 }
 
+/// Where the warning sits in a chatter-episode capture: what `millgate chatter
+/// --input` and the tandem mill's page need to find the episode's windows again.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ChatterEpisode {
+    /// Index one past the last sample of the window that raised the warning (the
+    /// capture starts a whole number of hops before it, so its windows fall on the
+    /// monitor's grid).
+    pub warning_sample: usize,
+    /// Index one past the last sample of the window that cleared it; `None` when
+    /// the capture was cut before.
+    pub cleared_sample: Option<usize>,
+    /// Samples per analysis window.
+    pub window_samples: usize,
+    /// Samples per hop between windows.
+    pub hop_samples: usize,
+    /// The episode ran past `capture_max_s`: the capture ends there.
+    pub cut: bool,
+}
+
 /// The bite a capture belongs to.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CapturedBite {
@@ -134,6 +153,8 @@ pub struct CaptureRecord {
     pub gaps: Vec<CaptureGap>,
     /// For a bite window: how the analysis read it.
     pub analysis: Option<BiteWindowAnalysis>,
+    /// For a chatter episode: where the warning sits.
+    pub episode: Option<ChatterEpisode>,
     /// How long it is kept under the budget.
     pub keep: KeepClass,
 }

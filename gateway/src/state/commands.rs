@@ -74,6 +74,16 @@ pub enum Command {
         /// Who.
         origin: CommandOrigin,
     },
+    /// Keep the next `seconds` s of every stand of tandem mill `mill` as a capture of
+    /// kind `manual` (with captures kept: `[history]`).
+    CaptureStands {
+        /// The tandem mill, index in config order.
+        mill: usize,
+        /// How long, s (1..=255).
+        seconds: u16,
+        /// Who.
+        origin: CommandOrigin,
+    },
 }
 
 /// Why a command was not taken.

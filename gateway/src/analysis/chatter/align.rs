@@ -150,6 +150,11 @@ impl Alignment {
         self.next_end
     }
 
+    /// Common index one past stand `stand`'s latest sample, once anchored.
+    pub(super) fn stand_next_index(&self, stand: usize) -> Option<i64> {
+        self.stands.get(stand)?.next_index()
+    }
+
     /// Stand `stand`'s sample at common index `index` (still in its ring).
     pub(super) fn sample(&self, stand: usize, index: i64) -> f64 {
         self.stands[stand].sample(index)

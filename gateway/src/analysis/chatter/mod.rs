@@ -16,9 +16,11 @@
 //! - `monitor`: [`ChatterMonitor`], one mill's monitor built from the configuration;
 //! - `publish`: [`ChatterAnalysis`], every mill's monitor fed by the analysis task,
 //!   each update published;
-//! - `history`: the chatter episodes and alarms recorded in the history.
+//! - `history`: the chatter episodes and alarms recorded in the history;
+//! - `capture`: each episode's stand samples kept as a capture (`EpisodeRecorder`).
 
 mod align;
+mod capture;
 mod gain;
 mod history;
 mod monitor;
@@ -29,6 +31,7 @@ mod testing;
 mod verdict;
 
 pub use align::{RestartCause, MAX_STAND_LAG_S};
+pub use capture::ANCHOR_BLOCK;
 pub use gain::GainReading;
 pub use monitor::{ChatterMonitor, ChatterSetupError, ChatterUpdate, MIN_WINDOW_SAMPLES};
 pub use publish::ChatterAnalysis;

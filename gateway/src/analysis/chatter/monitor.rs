@@ -285,6 +285,12 @@ impl ChatterMonitor {
         self.aligned.next_end() - self.hop as i64
     }
 
+    /// Common index one past stand `stand`'s latest sample (on the axis of
+    /// [`Self::last_window_end`]), once the stand is anchored.
+    pub fn stand_next_index(&self, stand: usize) -> Option<i64> {
+        self.aligned.stand_next_index(stand)
+    }
+
     /// The configured detector's verdict on one update: moves `slow_down` and returns
     /// the warning and alarm of this window (see [`super::ChatterAnalysis`]); both
     /// false for a restart or a window that could not be evaluated.

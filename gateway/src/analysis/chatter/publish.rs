@@ -7,12 +7,16 @@ use std::time::Instant;
 
 use millgate_config::Config;
 
+use super::align::RestartCause;
+use super::capture::EpisodeRecorder;
 use super::history::record_episode;
 use super::monitor::{ChatterMonitor, ChatterSetupError, ChatterUpdate};
 use super::spectra::chatter_frequency_hz;
 use super::verdict::{SlowDown, Verdict};
 use crate::field::acquired::Acquired;
 use crate::state::board::Board;
+use crate::state::captures::CaptureRecord;
+use crate::state::events::HistoryEvent;
 use crate::state::results::TandemMillResults;
 
 /// Every tandem mill's monitor, fed by the analysis task; results go to the
@@ -30,6 +34,8 @@ pub struct ChatterAnalysis {
     monitors: Vec<ChatterMonitor>,
     /// Per mill, the slow-down request.
     slow_downs: Vec<SlowDown>,
+    /// Per mill, its chatter-episode captures (with `[history]` and captures on).
+    captures: Vec<Option<EpisodeRecorder>>,
     /// Per channel: the (mill, stand) pairs it feeds.
     by_channel: Vec<Vec<(usize, usize)>>,
     board: Arc<Board>,
@@ -46,12 +52,34 @@ impl ChatterAnalysis {
                 by_channel[channel].push((m, s));
             }
         }
+        let keep_captures = config
+            .history
+            .as_ref()
+            .is_some_and(|history| history.captures.enabled);
+        let captures = monitors
+            .iter()
+            .enumerate()
+            .map(|(m, monitor)| keep_captures.then(|| EpisodeRecorder::new(config, m, monitor)))
+            .collect();
         Ok(Self {
             slow_downs: monitors.iter().map(ChatterMonitor::slow_down).collect(),
+            captures,
             monitors,
             by_channel,
             board,
         })
+    }
+
+    /// Keep mill `mill`'s stands' next `seconds` s as a capture of kind `manual`;
+    /// false when the mill does not exist or captures are not kept.
+    pub fn start_manual_capture(&mut self, mill: usize, seconds: f64) -> bool {
+        match self.captures.get_mut(mill) {
+            Some(Some(recorder)) => {
+                recorder.start_manual(seconds);
+                true
+            }
+            _ => false,
+        }
     }
 
     /// The monitors, in config order.
@@ -72,33 +100,80 @@ impl ChatterAnalysis {
         let now = Instant::now();
         for &(mill, stand) in stands {
             let monitor = &mut self.monitors[mill];
+            let recorder = &mut self.captures[mill];
+            let mut done = Vec::new();
             let change = match message {
-                Acquired::Samples { values, .. } => monitor.samples(stand, values, now),
-                Acquired::Gap { missed_samples, .. } => monitor.gap(stand, *missed_samples),
+                Acquired::Samples {
+                    values, received, ..
+                } => {
+                    let change = monitor.samples(stand, values, now);
+                    if let Some((recorder, next)) = recorder
+                        .as_mut()
+                        .zip(monitor.stand_next_index(stand))
+                        .filter(|_| !values.is_empty())
+                    {
+                        done.extend(recorder.samples(stand, next, values, *received));
+                        if let Some(ChatterUpdate::Restarted(RestartCause::Realigned { .. })) =
+                            change
+                        {
+                            done.extend(recorder.lost(None));
+                        }
+                    }
+                    change
+                }
+                Acquired::Gap { missed_samples, .. } => {
+                    if let Some(recorder) = recorder.as_mut() {
+                        done.extend(recorder.lost(*missed_samples));
+                    }
+                    monitor.gap(stand, *missed_samples)
+                }
                 Acquired::ProcessValue { .. } => None,
             };
             if let Some(change) = change {
-                publish(
+                let warning = publish(
                     &self.board,
                     mill,
                     monitor,
                     &mut self.slow_downs[mill],
                     &change,
                 );
+                if let Some(recorder) = recorder.as_mut() {
+                    done.extend(recorder.warning(warning, monitor.last_window_end()));
+                }
+            }
+            for capture in done {
+                keep(&self.board, capture);
             }
         }
     }
 }
 
+/// Hand a finished chatter-episode (or manual) capture to the history (never waits: a full
+/// queue drops and counts it, as for every event).
+fn keep(board: &Board, capture: CaptureRecord) {
+    tracing::info!(
+        mill = %capture.subject,
+        samples = capture.samples(),
+        stands = capture.channels.len(),
+        cut = capture.episode.is_some_and(|e| e.cut),
+        kind = capture.kind.name(),
+        "tandem mill capture kept"
+    );
+    board
+        .history()
+        .record(HistoryEvent::Capture(Box::new(capture)));
+}
+
 /// Record one monitor update in the published results, and in the history the
 /// chatter episodes (from the warning condition set to it cleared) and the alarm.
+/// Returns the warning as published.
 fn publish(
     board: &Board,
     mill: usize,
     monitor: &ChatterMonitor,
     slow_down: &mut SlowDown,
     change: &ChatterUpdate,
-) {
+) -> bool {
     let name = monitor.name();
     let was_requested = slow_down.requested();
     let verdict = monitor.judge(change, slow_down);
@@ -163,6 +238,7 @@ fn publish(
         published.slow_down_request = verdict.slow_down;
         record_episode(events, name, change, (was_warning, was_alarm), published);
     });
+    verdict.warning
 }
 
 /// Values invalid: never a frozen old value.

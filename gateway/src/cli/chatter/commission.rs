@@ -70,8 +70,17 @@ pub struct CommissionArgs {
     pub config: PathBuf,
     /// A CSV of stable rolling, header `t,<stand channel>,...` (as `millgate chatter`
     /// reads); once per recording.
-    #[arg(long = "input", required = true)]
+    #[arg(long = "input", required_unless_present = "db")]
     pub inputs: Vec<PathBuf>,
+    /// Also take recordings from this history file's captures of the mill's stands
+    /// (with --captures).
+    #[arg(long, requires = "captures")]
+    pub db: Option<PathBuf>,
+    /// Which captures (with --db): `LAST:N` (the mill's newest N) or capture ids,
+    /// comma-separated (`12,15`); manual captures of stable rolling, or chatter-free
+    /// ones (a capture that shows chatter is refused as a CSV is).
+    #[arg(long, requires = "db")]
+    pub captures: Option<CaptureSelection>,
     /// Name of the tandem mill (default: the first one).
     #[arg(long)]
     pub mill: Option<String>,
@@ -225,16 +234,155 @@ pub struct Commissioning {
 pub fn run(args: &CommissionArgs) -> anyhow::Result<String> {
     let config = millgate_config::load_uncommissioned(&args.config)?;
     let index = mill_index(&config, args.mill.as_deref(), &args.config)?;
-    let recordings = args
+    let mut recordings = args
         .inputs
         .iter()
         .map(|path| Recording::read(path, &config, index, args.speed_column.as_deref()))
         .collect::<anyhow::Result<Vec<_>>>()?;
+    if let (Some(db), Some(selection)) = (&args.db, &args.captures) {
+        recordings.extend(captured(db, &config, index, selection)?);
+    }
     let commissioning = commission(&config, index, &recordings, args.margin)?;
     Ok(match args.format {
         OutputFormat::Json => serde_json::to_string_pretty(&commissioning)? + "\n",
         OutputFormat::Text => text(&commissioning),
     })
+}
+
+/// Which captures `--captures` names.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum CaptureSelection {
+    /// The mill's newest N captures.
+    Last(u32),
+    /// These capture ids.
+    Ids(Vec<i64>),
+}
+
+impl std::str::FromStr for CaptureSelection {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Self, Self::Err> {
+        let wrong = || format!("`{text}`: expected LAST:N (N >= 1) or capture ids such as 12,15");
+        if let Some(count) = text
+            .strip_prefix("LAST:")
+            .or_else(|| text.strip_prefix("last:"))
+        {
+            return match count.trim().parse::<u32>() {
+                Ok(n) if n >= 1 => Ok(Self::Last(n)),
+                _ => Err(wrong()),
+            };
+        }
+        let ids: Result<Vec<i64>, _> = text.split(',').map(|c| c.trim().parse::<i64>()).collect();
+        match ids {
+            Ok(ids) if !ids.is_empty() => Ok(Self::Ids(ids)),
+            _ => Err(wrong()),
+        }
+    }
+}
+
+/// The captures of mill `index` of `config` that `selection` names in the history
+/// `db`, oldest first, as recordings of its stands (each named `db#capture ID`).
+/// Errors name the file and the capture: one that is not the mill's, lacks a stand, or
+/// is a chatter episode (the chatter check of [`commission`] then runs on the rest).
+fn captured(
+    db: &std::path::Path,
+    config: &millgate_config::Config,
+    index: usize,
+    selection: &CaptureSelection,
+) -> anyhow::Result<Vec<Recording>> {
+    use crate::outputs::history::query::{CaptureRow, Filter, HistoryReader};
+    let mill = &config.tandem_mills[index];
+    let reader = HistoryReader::open(db)?;
+    let mut rows: Vec<CaptureRow> = Vec::new();
+    reader.for_each(
+        &Filter::default(),
+        |row: CaptureRow| -> anyhow::Result<()> {
+            let wanted = match selection {
+                CaptureSelection::Last(_) => row.subject == mill.name,
+                CaptureSelection::Ids(ids) => ids.contains(&row.id),
+            };
+            if wanted {
+                rows.push(row);
+            }
+            Ok(())
+        },
+    )?;
+    match selection {
+        CaptureSelection::Last(n) => {
+            if rows.len() < *n as usize {
+                anyhow::bail!(
+                    "{}: --captures LAST:{n}: tandem mill \"{}\" has {} captures",
+                    db.display(),
+                    mill.name,
+                    rows.len()
+                );
+            }
+            rows.drain(..rows.len() - *n as usize);
+        }
+        CaptureSelection::Ids(ids) => {
+            for id in ids {
+                match rows.iter().find(|r| r.id == *id) {
+                    None => anyhow::bail!(
+                        "{}: --captures: no capture {id} (see `millgate capture list --db {}`)",
+                        db.display(),
+                        db.display()
+                    ),
+                    Some(row) if row.subject != mill.name => anyhow::bail!(
+                        "{}: --captures: capture {id} is of \"{}\", not of tandem mill \"{}\"",
+                        db.display(),
+                        row.subject,
+                        mill.name
+                    ),
+                    Some(_) => {}
+                }
+            }
+        }
+    }
+    let mut recordings = Vec::with_capacity(rows.len());
+    for row in rows {
+        if row.kind == "chatter" {
+            // The gateway warned in it: not stable rolling, however far it developed
+            // (a slowed-down episode may stay below the chatter factor).
+            anyhow::bail!(
+                "{}#capture {}: a chatter episode (the gateway warned at {}): commission from \
+                 stable rolling only (manual captures of the stands, `command.manual_capture`)",
+                db.display(),
+                row.id,
+                row.started_at
+            );
+        }
+        let capture = reader.capture_of(row)?;
+        let name = format!("{}#capture {}", db.display(), capture.row.id);
+        let rate_hz = config.channels[mill.stands[0]].sample_rate_hz;
+        if (capture.row.sample_rate_hz / rate_hz - 1.0).abs() > super::recording::RATE_TOLERANCE {
+            anyhow::bail!(
+                "{name}: sampled at {} Hz, the stand channels sample at {rate_hz} Hz",
+                capture.row.sample_rate_hz
+            );
+        }
+        let mut stands = Vec::with_capacity(mill.stands.len());
+        for &channel in &mill.stands {
+            let wanted = &config.channels[channel].name;
+            let found = capture
+                .channels
+                .iter()
+                .find(|c| c.name == *wanted)
+                .ok_or_else(|| {
+                    anyhow::anyhow!(
+                        "{name}: no channel `{wanted}` for a stand of \"{}\"",
+                        mill.name
+                    )
+                })?;
+            stands.push(found.samples.clone());
+        }
+        recordings.push(Recording {
+            name,
+            time_s: (0..stands[0].len()).map(|k| capture.time_s(k)).collect(),
+            stands,
+            speed: None,
+        });
+    }
+    Ok(recordings)
 }
 
 /// Commission mill `index` of `config` from stable `recordings` with `margin_percent`

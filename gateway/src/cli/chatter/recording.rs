@@ -12,8 +12,10 @@ use millgate_dsp::chatter::ChatterResult;
 
 use crate::analysis::chatter::{ChatterMonitor, ChatterUpdate, Verdict};
 
-/// Samples per block fed to the monitor, as a Modbus DAQ delivers them.
-pub const BLOCK: usize = 120;
+/// Samples per block fed to the monitor, as a Modbus DAQ delivers them (the largest
+/// block; a chatter capture starts one such block before its whole hops, so its
+/// windows here fall on the gateway's).
+pub const BLOCK: usize = crate::analysis::chatter::ANCHOR_BLOCK;
 /// Largest relative difference between a recording's and the channels' sample rate.
 pub const RATE_TOLERANCE: f64 = 0.01;
 

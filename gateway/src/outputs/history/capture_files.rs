@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 use super::captures::{Capture, ChannelMeta};
 use super::query::HistoryReader;
 use super::HistoryError;
-use crate::state::captures::{BiteWindowAnalysis, CaptureGap};
+use crate::state::captures::{BiteWindowAnalysis, CaptureGap, ChatterEpisode};
 
 /// Why a capture could not be written as a file.
 #[derive(Debug, thiserror::Error)]
@@ -92,6 +92,9 @@ pub struct CaptureHeader {
     pub gaps: Vec<CaptureGap>,
     /// For a bite: how the gateway read its window.
     pub analysis: Option<BiteWindowAnalysis>,
+    /// For a chatter episode: where the warning sits (absent in other kinds').
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub episode: Option<ChatterEpisode>,
     /// The millgate that stored the capture.
     pub gateway_version: String,
     /// The gateway's configuration name (`name`) in the run that stored it.
@@ -128,6 +131,7 @@ impl CaptureHeader {
             channels: capture.meta.channels.clone(),
             gaps: capture.meta.gaps.clone(),
             analysis: capture.meta.analysis,
+            episode: capture.meta.episode,
             gateway_version: capture.meta.version.clone(),
             config_name: run.name,
             config_hash: run.hash,

@@ -29,7 +29,7 @@ use serde::{Deserialize, Serialize};
 use super::query::{CaptureRow, HistoryReader};
 use super::HistoryError;
 use crate::state::captures::{
-    BiteWindowAnalysis, CaptureChannel, CaptureGap, CaptureRecord, KeepClass,
+    BiteWindowAnalysis, CaptureChannel, CaptureGap, CaptureRecord, ChatterEpisode, KeepClass,
 };
 use crate::state::time::UtcTime;
 
@@ -67,6 +67,9 @@ pub struct CaptureMeta {
     pub gaps: Vec<CaptureGap>,
     /// For a bite window: how the analysis read it.
     pub analysis: Option<BiteWindowAnalysis>,
+    /// For a chatter episode: where the warning sits (absent in other kinds').
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub episode: Option<ChatterEpisode>,
     /// The millgate that stored it.
     pub version: String,
 }
@@ -169,6 +172,7 @@ pub fn encode(record: &CaptureRecord) -> std::io::Result<(Vec<u8>, CaptureMeta)>
         channels,
         gaps: record.gaps.clone(),
         analysis: record.analysis,
+        episode: record.episode,
         version: env!("CARGO_PKG_VERSION").to_owned(),
     };
     Ok((blob, meta))
@@ -435,6 +439,7 @@ mod tests {
             channels,
             gaps: vec![],
             analysis: None,
+            episode: None,
             keep: KeepClass::Ordinary,
         }
     }

@@ -262,7 +262,7 @@ impl SparkplugNode {
         confirmations: &mut Confirmations,
         bites: &mut BiteSource,
     ) -> Option<i64> {
-        let captures = newest_captures(bites, self.board.driveline_names().to_vec()).await;
+        let captures = newest_captures(bites, capture_subjects(&self.board)).await;
         let results = self.board.results();
         self.publish(
             client,
@@ -344,6 +344,54 @@ impl SparkplugNode {
         if let (Some(end), true) = (until, rows.is_empty()) {
             // Nothing left up to `end`: the retention deleted the rest meanwhile.
             confirmations.read_up_to(end);
+        }
+    }
+
+    /// Announce on its tandem mill's device each capture of a tandem mill stored
+    /// after `cursor` (at the first call, the newest capture's id: the births carry
+    /// the older ones), at most [`MAX_OUTSTANDING`] per call.
+    async fn announce_mill_captures(
+        &self,
+        client: &AsyncClient,
+        node: &mut EdgeNode,
+        confirmations: &mut Confirmations,
+        bites: &mut BiteSource,
+        cursor: &mut Option<i64>,
+    ) {
+        let mills = self.board.tandem_mill_names().to_vec();
+        if mills.is_empty() {
+            return;
+        }
+        let after = *cursor;
+        let limit = u32::try_from(MAX_OUTSTANDING).unwrap_or(u32::MAX);
+        let read = bites
+            .read(move |reader| match after {
+                None => {
+                    let newest = reader.newest::<CaptureRow>(&Filter {
+                        limit: Some(1),
+                        ..Filter::default()
+                    })?;
+                    Ok((newest.first().map_or(0, |row| row.id), Vec::new()))
+                }
+                Some(after) => {
+                    let rows = reader.rows::<CaptureRow>(&Filter {
+                        after_id: Some(after),
+                        limit: Some(limit),
+                        ..Filter::default()
+                    })?;
+                    Ok((rows.last().map_or(after, |row| row.id), rows))
+                }
+            })
+            .await;
+        let Some((last, rows)) = read else {
+            return;
+        };
+        *cursor = Some(last);
+        for row in rows {
+            if let Some(mill) = mills.iter().position(|name| *name == row.subject) {
+                let message = node.mill_capture(mill, &capture_notice(&row), now_ms());
+                self.send(client, confirmations, message, QoS::AtMostOnce, None);
+            }
         }
     }
 
@@ -479,6 +527,8 @@ impl SparkplugNode {
         let mut replay_end: Option<i64> = None;
         let replay_batch = usize::try_from(self.config.replay_batch).unwrap_or(usize::MAX);
         let mut bite_poll = tokio::time::interval(BITE_POLL);
+        // The last capture looked at for the tandem mills' announcements.
+        let mut announced: Option<i64> = None;
         // Paced from each session's births (reset there); a late batch delays the
         // next ones rather than bursting.
         let mut replay = tokio::time::interval(self.config.replay_period);
@@ -611,6 +661,7 @@ impl SparkplugNode {
                 }
                 _ = bite_poll.tick(), if born && replay_end.is_none() => {
                     self.forward(&client, &mut node, &mut confirmations, &mut bites, Step::Live).await;
+                    self.announce_mill_captures(&client, &mut node, &mut confirmations, &mut bites, &mut announced).await;
                 }
                 () = tokio::time::sleep_until(last_births + REBIRTH_INTERVAL), if born && rebirth_wanted => {
                     // Every request since the last births, answered by one rebirth.
@@ -618,7 +669,7 @@ impl SparkplugNode {
                     last_births = Instant::now();
                     tracing::info!("Sparkplug rebirth on command");
                     self.status.rebirths.fetch_add(1, Ordering::Relaxed);
-                    let captures = newest_captures(&mut bites, board.driveline_names().to_vec()).await;
+                    let captures = newest_captures(&mut bites, capture_subjects(&board)).await;
                     let results = board.results();
                     self.publish(&client, &mut confirmations, node.births(&results, &captures, now_ms()));
                 }
@@ -702,8 +753,16 @@ fn capture_notice(row: &CaptureRow) -> CaptureNotice {
     }
 }
 
-/// The newest capture of each driveline (`names`, in order) in the history, for the
-/// births; none where the file cannot be read.
+/// The names whose newest capture the births carry: the drivelines', then the
+/// tandem mills', in order.
+fn capture_subjects(board: &Board) -> Vec<String> {
+    let mut names = board.driveline_names().to_vec();
+    names.extend_from_slice(board.tandem_mill_names());
+    names
+}
+
+/// The newest capture of each driveline or tandem mill (`names`, in order) in the
+/// history, for the births; none where the file cannot be read.
 async fn newest_captures(bites: &mut BiteSource, names: Vec<String>) -> Vec<Option<CaptureNotice>> {
     let count = names.len();
     bites

@@ -39,9 +39,11 @@ pub struct Outgoing {
 /// which the history keeps across restarts, so (device, bite_id) names a bite once.
 pub const BITE_ID: &str = "bite_id";
 
-/// The capture metrics of a driveline device, after [`BITE_ID`]: name, datatype,
-/// unit. A bite's DDATA carries its capture's (when the history holds it); the birth
-/// the driveline's newest capture's (null without one).
+/// The capture metrics of a driveline device, after [`BITE_ID`], and of a tandem mill
+/// device, after its figures: name, datatype, unit. A bite's DDATA carries its
+/// capture's (when the history holds it), a DDATA of its own each chatter episode's or
+/// manual capture of a tandem mill's stands; the birth the device's newest capture's
+/// (null without one).
 pub const CAPTURE_METRICS: [(&str, DataType, &str); 6] = [
     ("capture/id", DataType::UInt64, ""),
     ("capture/kind", DataType::String, ""),
@@ -164,7 +166,7 @@ impl EdgeNode {
                 name,
                 Kind::TandemMill(k),
                 columns(catalogue::TANDEM_MILL, "").collect(),
-                0,
+                CAPTURE_METRICS.len() as u64,
             );
         }
         for (k, (name, spans)) in rod_mills.iter().enumerate() {
@@ -241,8 +243,8 @@ impl EdgeNode {
     }
 
     /// NBIRTH (seq 0) and a DBIRTH per device with every metric: name, alias,
-    /// datatype, unit, value; a driveline's with its newest capture (`captures`, by
-    /// driveline index).
+    /// datatype, unit, value; a driveline's and a tandem mill's with its newest capture
+    /// (`captures`: the drivelines' in order, then the tandem mills').
     pub fn births(
         &mut self,
         results: &Results,
@@ -291,8 +293,13 @@ impl EdgeNode {
                     metric
                 })
                 .collect();
-            if let Kind::Driveline(k) = device.kind {
-                let capture = captures.get(k).and_then(Option::as_ref);
+            let captured = match device.kind {
+                Kind::Driveline(k) => Some(k),
+                Kind::TandemMill(k) => Some(results.drivelines.len() + k),
+                Kind::RodMill(..) => None,
+            };
+            if let Some(at) = captured {
+                let capture = captures.get(at).and_then(Option::as_ref);
                 let first = device.first_alias + device.columns.len() as u64;
                 metrics.extend(CaptureNotice::metrics(capture, first, now_ms, true));
             }
@@ -423,6 +430,22 @@ impl EdgeNode {
         }
         let topic = self.device_topic("DDATA", device);
         self.device_message(topic, metrics, bite_ms)
+    }
+}
+
+impl EdgeNode {
+    /// The DDATA announcing `capture`, one of tandem mill `mill`'s (a chatter episode
+    /// or a manual capture of its stands): its capture metrics, timestamped `now_ms`.
+    pub fn mill_capture(&mut self, mill: usize, capture: &CaptureNotice, now_ms: u64) -> Outgoing {
+        let device = self
+            .devices
+            .iter()
+            .position(|d| d.kind == Kind::TandemMill(mill))
+            .expect("a tandem mill device per tandem mill");
+        let first = self.devices[device].first_alias + self.devices[device].columns.len() as u64;
+        let metrics = CaptureNotice::metrics(Some(capture), first, now_ms, false);
+        let topic = self.device_topic("DDATA", device);
+        self.device_message(topic, metrics, now_ms)
     }
 }
 
@@ -646,6 +669,63 @@ mod tests {
         // 1-based, as the register; a UInt64 (Tahu's JS codec reads UInt32 as null).
         assert!(values.contains(&Some(MetricValue::LongValue(4))));
         assert!(values.contains(&Some(MetricValue::BooleanValue(true))));
+    }
+
+    #[test]
+    fn a_tandem_mill_is_born_with_its_newest_capture_and_announces_each_new_one() {
+        let mut node = node();
+        let results = Results::new(1, 2, 1);
+        let notice = |id: u64, kind: &str| CaptureNotice {
+            id,
+            kind: kind.into(),
+            samples: 32_620,
+            first_sample_ms: 1_700_000_000_000,
+            span_s: 13.048,
+            bytes: 120_000,
+        };
+        // The drivelines' newest captures first (none), then the tandem mill's.
+        let births: Vec<Payload> = node
+            .births(&results, &[None, None, Some(notice(7, "manual"))], 1000)
+            .iter()
+            .map(decode)
+            .collect();
+        let tandem = &births[3];
+        let named = |payload: &Payload, name: &str| {
+            payload
+                .metrics
+                .iter()
+                .find(|m| m.name.as_deref() == Some(name))
+                .cloned()
+                .unwrap_or_else(|| panic!("no {name}"))
+        };
+        assert_eq!(
+            named(tandem, "capture/id").value,
+            Some(MetricValue::LongValue(7))
+        );
+        let kind_alias = named(tandem, "capture/kind").alias;
+        let span_alias = named(tandem, "capture/span_s").alias;
+        assert_eq!(
+            named(&births[1], "capture/id").is_null,
+            Some(true),
+            "F1 has none"
+        );
+        // A chatter episode's capture: a DDATA of its own on the mill's device, by alias.
+        let message = node.mill_capture(0, &notice(8, "chatter"), 2000);
+        assert_eq!(message.topic, "spBv1.0/plant/DDATA/stand-f1/tandem");
+        let data = decode(&message);
+        assert_eq!(data.metrics.len(), CAPTURE_METRICS.len());
+        let by_alias = |alias| {
+            data.metrics
+                .iter()
+                .find(|m| m.alias == alias)
+                .and_then(|m| m.value.clone())
+        };
+        assert_eq!(
+            by_alias(kind_alias),
+            Some(MetricValue::StringValue("chatter".into()))
+        );
+        assert_eq!(by_alias(span_alias), Some(MetricValue::DoubleValue(13.048)));
+        assert!(data.metrics.iter().all(|m| m.name.is_none()));
     }
 
     #[test]
