@@ -21,10 +21,10 @@
 mod common;
 
 use std::path::Path;
-use std::process::{Child, Command, Output};
+use std::process::{Child, Command};
 use std::time::Duration;
 
-use common::{free_port, http, until, web_ready, Setup};
+use common::{free_port, http, millgate, text, until, web_ready, Setup};
 
 use millgate::outputs::history::query::{BiteRow, CaptureRow, Filter, HistoryReader};
 
@@ -36,21 +36,6 @@ impl Drop for Running {
         let _ = self.0.kill();
         let _ = self.0.wait();
     }
-}
-
-fn millgate(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_millgate"))
-        .args(args)
-        .output()
-        .expect("run millgate")
-}
-
-fn text(output: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&output.stdout),
-        String::from_utf8_lossy(&output.stderr)
-    )
 }
 
 /// `value` as `millgate analyze` prints it with `digits` decimals.

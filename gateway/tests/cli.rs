@@ -1,18 +1,10 @@
 //! The `millgate` binary as a user runs it.
 
+mod common;
+
+use common::{millgate, text};
 use std::path::PathBuf;
-use std::process::{Command, Output};
-
-fn millgate(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_millgate"))
-        .args(args)
-        .output()
-        .expect("run millgate")
-}
-
-fn text(output: &Output) -> String {
-    String::from_utf8_lossy(&output.stdout).to_string() + &String::from_utf8_lossy(&output.stderr)
-}
+use std::process::Command;
 
 fn examples() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/examples")

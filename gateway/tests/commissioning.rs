@@ -28,10 +28,10 @@
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{free_port, repo, until, KillOnDrop, Plc};
+use common::{free_port, millgate, repo, text, until, KillOnDrop, Plc, Seeded};
 use millgate::outputs::history::query::{BiteRow, Filter, HistoryReader};
 use millgate::outputs::register_map::RegisterMap;
 use millgate_sim::devices::demo::{demo_daq, DemoDevices};
@@ -56,35 +56,6 @@ const TIMING: BarTiming = BarTiming {
 
 fn models() -> PathBuf {
     repo().join("sim/models")
-}
-
-fn millgate(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_millgate"))
-        .args(args)
-        .stdin(Stdio::null())
-        .output()
-        .expect("run millgate")
-}
-
-fn text(output: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&output.stdout),
-        String::from_utf8_lossy(&output.stderr)
-    )
-}
-
-/// A small seeded generator for the cases (xorshift64*).
-struct Seeded(u64);
-
-impl Seeded {
-    fn uniform(&mut self, low: f64, high: f64) -> f64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        let unit = (self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64;
-        low + (high - low) * unit
-    }
 }
 
 /// The rig of one seed: the true driveline's schedule, gap-free for [`FRESH_BARS`]

@@ -9,12 +9,15 @@
 //! a debug build); `cargo run --release -p millgate --example gap_evaluation` runs the
 //! same evaluation on the service's default maps over many more seeded cases.
 
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+
 use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, OnceLock};
 use std::time::Duration;
 
+use common::{millgate, text, Seeded};
 use millgate::analysis::driveline::BiteReport;
 use millgate::analysis::gap_estimate::{
     GapEstimate, GapObservation, SHIFT_FLOOR_S, SHIFT_JUMP_S, TAF_FLOOR,
@@ -140,19 +143,6 @@ fn feed(
     }
     assert_eq!(reports.len(), torques.len(), "one bite per bar");
     reports
-}
-
-/// A small seeded generator for the cases (xorshift64*).
-struct Seeded(u64);
-
-impl Seeded {
-    fn uniform(&mut self, low: f64, high: f64) -> f64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        let unit = (self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64;
-        low + (high - low) * unit
-    }
 }
 
 /// One seeded case: the pooled estimate after 10 bites at static torques spread over
@@ -471,17 +461,6 @@ fn wear_settings_that_do_not_fit_the_model_are_named_at_start() {
         Some(GapMapState::Failed(why)) => assert_eq!(why, problems[0]),
         other => panic!("{other:?}"),
     }
-}
-
-fn millgate(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_millgate"))
-        .args(args)
-        .output()
-        .expect("run millgate")
-}
-
-fn text(output: &Output) -> String {
-    String::from_utf8_lossy(&output.stdout).to_string() + &String::from_utf8_lossy(&output.stderr)
 }
 
 /// Bars of `torques` with `gap_mrad` in the spindles written as a `t,torque` CSV.

@@ -4,17 +4,13 @@
 //! writes the Markdown, the offline HTML and the SVG plots; bad input is a clear error.
 #![cfg(feature = "sim-tools")]
 
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 
+use common::millgate;
 use millgate::analysis::wear::next_trend;
-
-fn millgate(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_millgate"))
-        .args(args)
-        .output()
-        .expect("run millgate")
-}
 
 fn ok(args: &[&str]) -> String {
     let output = millgate(args);

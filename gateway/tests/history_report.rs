@@ -8,9 +8,12 @@
 //! Independent readings of the file come from Debian's `sqlite3`.
 #![cfg(feature = "plot")]
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
+use common::millgate;
 use millgate::outputs::history::schema::APPLICATION_ID;
 use millgate::outputs::history::writer;
 use millgate::outputs::history::{DrivelineSettings, RunInfo};
@@ -28,13 +31,6 @@ const FIRST_RUN_DAYS: i64 = 7;
 const GROWTH_MRAD_PER_WEEK: f64 = 0.2;
 /// The report's period ends this long after the last bite.
 const AFTER_LAST_MS: i64 = 5 * DAY_MS;
-
-fn millgate(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_millgate"))
-        .args(args)
-        .output()
-        .expect("run millgate")
-}
 
 /// `millgate args` under GNU time: its output and its peak RSS in KiB (`None` when
 /// /usr/bin/time is missing; scripts/test installs it).

@@ -1,19 +1,10 @@
 //! `millgate rod ...` as a user runs it: results on the examples, and bad input
 //! reported with the file, line or key and the allowed range, with a non-zero exit.
 
+mod common;
+
+use common::{millgate, text};
 use std::path::PathBuf;
-use std::process::{Command, Output};
-
-fn millgate(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_millgate"))
-        .args(args)
-        .output()
-        .expect("run millgate")
-}
-
-fn text(output: &Output) -> String {
-    String::from_utf8_lossy(&output.stdout).to_string() + &String::from_utf8_lossy(&output.stderr)
-}
 
 fn rod_examples() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../sim/models/rod")

@@ -378,7 +378,7 @@ async fn a_slower_ramp_past_the_critical_speed_is_slowed_down_before_chatter_dev
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_chatter_episode_is_captured_as_the_daq_sent_it_and_reproduces_its_warning(
 ) -> anyhow::Result<()> {
-    use millgate::cli::capture::{export, ExportArgs, KindArg, Selection};
+    use millgate::cli::capture::{export, ExportArgs, KindArg, Picked, Selection};
     use millgate::cli::chatter::commission::CommissionArgs;
     use millgate::cli::chatter::windows::{analyze, WindowsArgs};
     use millgate::outputs::history::capture_files::ExportFormat;
@@ -549,7 +549,7 @@ async fn a_chatter_episode_is_captured_as_the_daq_sent_it_and_reproduces_its_war
             config: dir.join("mill.toml"),
             inputs: Vec::new(),
             db: Some(db.clone()),
-            captures: Some(ids.parse().expect("ids")),
+            captures: Some(Picked::captures(&ids).expect("ids")),
             mill: None,
             margin: 10.0,
             speed_column: None,

@@ -34,6 +34,49 @@ use crate::outputs::history::captures::row_json;
 use crate::outputs::history::query::{CaptureRow, Filter, HistoryReader};
 use crate::outputs::history::HistoryError;
 
+/// Which captured rows a command takes: `LAST:N` (the newest N) or numbers,
+/// comma-separated (`12,15,19`): `discrepancy --bites` (bite counters) and
+/// `chatter commission --captures` (capture ids).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Picked {
+    /// The newest N.
+    Last(u32),
+    /// These numbers.
+    Numbers(Vec<i64>),
+}
+
+impl Picked {
+    /// `text` read as `LAST:N` or `numbers` (what the numbers are, for the error).
+    fn parse(text: &str, numbers: &str) -> Result<Picked, String> {
+        let wrong = || format!("`{text}`: expected LAST:N (N >= 1) or {numbers}");
+        if let Some(count) = text
+            .strip_prefix("LAST:")
+            .or_else(|| text.strip_prefix("last:"))
+        {
+            return match count.trim().parse::<u32>() {
+                Ok(n) if n >= 1 => Ok(Picked::Last(n)),
+                _ => Err(wrong()),
+            };
+        }
+        let listed: Result<Vec<i64>, _> =
+            text.split(',').map(|c| c.trim().parse::<i64>()).collect();
+        match listed {
+            Ok(listed) if !listed.is_empty() => Ok(Picked::Numbers(listed)),
+            _ => Err(wrong()),
+        }
+    }
+
+    /// `--bites`: `LAST:N` or bite counters.
+    pub fn bites(text: &str) -> Result<Picked, String> {
+        Picked::parse(text, "bite counters such as 12,15,19")
+    }
+
+    /// `--captures`: `LAST:N` or capture ids.
+    pub fn captures(text: &str) -> Result<Picked, String> {
+        Picked::parse(text, "capture ids such as 12,15")
+    }
+}
+
 /// What `millgate capture` does.
 #[derive(Debug, Clone, clap::Subcommand)]
 pub enum CaptureCommand {

@@ -12,6 +12,7 @@ use anyhow::Context as _;
 use millgate_sim::discrepancy::{self, report, split_bites, DiscrepancyError, Measured, Progress};
 use millgate_sim::model::Model;
 
+use super::capture::Picked;
 use super::{csv, OutputFormat};
 
 /// Smallest load step, in multiples of the record's noise, that makes a bite transient.
@@ -37,8 +38,8 @@ pub struct DiscrepancyArgs {
     pub driveline: Option<String>,
     /// Which captured bites (with --db): `LAST:N` (the newest N) or the driveline's
     /// bite counters, comma-separated (`12,15,19`).
-    #[arg(long, requires = "db")]
-    pub bites: Option<BiteSelection>,
+    #[arg(long, requires = "db", value_parser = Picked::bites)]
+    pub bites: Option<Picked>,
     /// The driveline model (TOML) without the effect to be found; its stiffness may be
     /// from drawings.
     #[arg(long)]
@@ -55,45 +56,12 @@ pub struct DiscrepancyArgs {
     pub format: OutputFormat,
 }
 
-/// Which captured bites to take.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum BiteSelection {
-    /// The newest N bites' captures.
-    Last(u32),
-    /// These bite counters.
-    Counters(Vec<i64>),
-}
-
-impl std::str::FromStr for BiteSelection {
-    type Err = String;
-
-    fn from_str(text: &str) -> Result<Self, Self::Err> {
-        let wrong =
-            || format!("`{text}`: expected LAST:N (N >= 1) or bite counters such as 12,15,19");
-        if let Some(count) = text
-            .strip_prefix("LAST:")
-            .or_else(|| text.strip_prefix("last:"))
-        {
-            return match count.trim().parse::<u32>() {
-                Ok(n) if n >= 1 => Ok(Self::Last(n)),
-                _ => Err(wrong()),
-            };
-        }
-        let counters: Result<Vec<i64>, _> =
-            text.split(',').map(|c| c.trim().parse::<i64>()).collect();
-        match counters {
-            Ok(counters) if !counters.is_empty() => Ok(Self::Counters(counters)),
-            _ => Err(wrong()),
-        }
-    }
-}
-
 /// The captured bites `selection` names of `driveline` in the history `db`, oldest
 /// first, read as the files would be (the channel `channel`, or the torque).
 fn captured(
     db: &std::path::Path,
     driveline: &str,
-    selection: &BiteSelection,
+    selection: &Picked,
     channel: Option<&str>,
 ) -> anyhow::Result<Vec<Recorded>> {
     use crate::outputs::history::query::{CaptureRow, Filter, HistoryReader};
@@ -105,8 +73,8 @@ fn captured(
     let mut rows: Vec<CaptureRow> = Vec::new();
     reader.for_each(&filter, |row: CaptureRow| -> anyhow::Result<()> {
         let wanted = match selection {
-            BiteSelection::Last(_) => true,
-            BiteSelection::Counters(counters) => row
+            Picked::Last(_) => true,
+            Picked::Numbers(counters) => row
                 .bite_counter
                 .is_some_and(|counter| counters.contains(&counter)),
         };
@@ -116,7 +84,7 @@ fn captured(
         Ok(())
     })?;
     match selection {
-        BiteSelection::Last(n) => {
+        Picked::Last(n) => {
             let keep = rows.len().saturating_sub(*n as usize);
             rows.drain(..keep);
             if rows.len() < *n as usize {
@@ -127,7 +95,7 @@ fn captured(
                 );
             }
         }
-        BiteSelection::Counters(counters) => {
+        Picked::Numbers(counters) => {
             for counter in counters {
                 if !rows.iter().any(|r| r.bite_counter == Some(*counter)) {
                     anyhow::bail!(

@@ -19,6 +19,34 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 mod net;
 pub(crate) use net::{until, HttpAnswer};
 
+/// `millgate args`, run to its end (no standard input).
+pub(crate) fn millgate(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_millgate"))
+        .args(args)
+        .stdin(Stdio::null())
+        .output()
+        .expect("run millgate")
+}
+
+/// What a run printed: its standard output, then its standard error.
+pub(crate) fn text(output: &std::process::Output) -> String {
+    String::from_utf8_lossy(&output.stdout).to_string() + &String::from_utf8_lossy(&output.stderr)
+}
+
+/// A small seeded generator for test cases (xorshift64*).
+pub(crate) struct Seeded(pub(crate) u64);
+
+impl Seeded {
+    /// The next draw, uniform in [low, high).
+    pub(crate) fn uniform(&mut self, low: f64, high: f64) -> f64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        let unit = (self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64;
+        low + (high - low) * unit
+    }
+}
+
 pub(crate) fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
 }

@@ -42,6 +42,7 @@ use anyhow::Context;
 use serde::Serialize;
 
 use super::recording::{mill_index, windows, Recording, BLOCK};
+use crate::cli::capture::Picked;
 use crate::cli::OutputFormat;
 
 /// The margin when `--margin` is not given, percent.
@@ -79,8 +80,8 @@ pub struct CommissionArgs {
     /// Which captures (with --db): `LAST:N` (the mill's newest N) or capture ids,
     /// comma-separated (`12,15`); manual captures of stable rolling, or chatter-free
     /// ones (a capture that shows chatter is refused as a CSV is).
-    #[arg(long, requires = "db")]
-    pub captures: Option<CaptureSelection>,
+    #[arg(long, requires = "db", value_parser = Picked::captures)]
+    pub captures: Option<Picked>,
     /// Name of the tandem mill (default: the first one).
     #[arg(long)]
     pub mill: Option<String>,
@@ -249,37 +250,6 @@ pub fn run(args: &CommissionArgs) -> anyhow::Result<String> {
     })
 }
 
-/// Which captures `--captures` names.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum CaptureSelection {
-    /// The mill's newest N captures.
-    Last(u32),
-    /// These capture ids.
-    Ids(Vec<i64>),
-}
-
-impl std::str::FromStr for CaptureSelection {
-    type Err = String;
-
-    fn from_str(text: &str) -> Result<Self, Self::Err> {
-        let wrong = || format!("`{text}`: expected LAST:N (N >= 1) or capture ids such as 12,15");
-        if let Some(count) = text
-            .strip_prefix("LAST:")
-            .or_else(|| text.strip_prefix("last:"))
-        {
-            return match count.trim().parse::<u32>() {
-                Ok(n) if n >= 1 => Ok(Self::Last(n)),
-                _ => Err(wrong()),
-            };
-        }
-        let ids: Result<Vec<i64>, _> = text.split(',').map(|c| c.trim().parse::<i64>()).collect();
-        match ids {
-            Ok(ids) if !ids.is_empty() => Ok(Self::Ids(ids)),
-            _ => Err(wrong()),
-        }
-    }
-}
-
 /// The captures of mill `index` of `config` that `selection` names in the history
 /// `db`, oldest first, as recordings of its stands (each named `db#capture ID`).
 /// Errors name the file and the capture: one that is not the mill's, lacks a stand, or
@@ -288,7 +258,7 @@ fn captured(
     db: &std::path::Path,
     config: &millgate_config::Config,
     index: usize,
-    selection: &CaptureSelection,
+    selection: &Picked,
 ) -> anyhow::Result<Vec<Recording>> {
     use crate::outputs::history::query::{CaptureRow, Filter, HistoryReader};
     let mill = &config.tandem_mills[index];
@@ -298,8 +268,8 @@ fn captured(
         &Filter::default(),
         |row: CaptureRow| -> anyhow::Result<()> {
             let wanted = match selection {
-                CaptureSelection::Last(_) => row.subject == mill.name,
-                CaptureSelection::Ids(ids) => ids.contains(&row.id),
+                Picked::Last(_) => row.subject == mill.name,
+                Picked::Numbers(ids) => ids.contains(&row.id),
             };
             if wanted {
                 rows.push(row);
@@ -308,7 +278,7 @@ fn captured(
         },
     )?;
     match selection {
-        CaptureSelection::Last(n) => {
+        Picked::Last(n) => {
             if rows.len() < *n as usize {
                 anyhow::bail!(
                     "{}: --captures LAST:{n}: tandem mill \"{}\" has {} captures",
@@ -319,7 +289,7 @@ fn captured(
             }
             rows.drain(..rows.len() - *n as usize);
         }
-        CaptureSelection::Ids(ids) => {
+        Picked::Numbers(ids) => {
             for id in ids {
                 match rows.iter().find(|r| r.id == *id) {
                     None => anyhow::bail!(
