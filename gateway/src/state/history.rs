@@ -109,6 +109,12 @@ impl Counters {
         self.set_state(HistoryState::Failing);
     }
 
+    /// Events handed to the writer so far (the writer compares it with what it took,
+    /// to see whether anything is queued).
+    pub(crate) fn enqueued(&self) -> u64 {
+        self.enqueued.load(Ordering::Relaxed)
+    }
+
     pub(crate) fn committed(&self, events: u64, took: Duration) {
         let ns = u64::try_from(took.as_nanos()).unwrap_or(u64::MAX);
         self.stored.fetch_add(events, Ordering::Relaxed);
