@@ -9,13 +9,21 @@
 //! writer appends to the WAL while it runs. The writer keeps its own automatic
 //! checkpoint at [`FALLBACK_CHECKPOINT_PAGES`], far above what the WAL reaches between
 //! two of these, so the WAL stays bounded should this thread fail.
+//!
+//! A checkpoint that fails (a full disk: the database file cannot grow, while the
+//! commits may still fit in the WAL's room) makes the history's state failing, with
+//! the reason, until one succeeds again.
 
 use std::path::PathBuf;
 use std::sync::mpsc::{sync_channel, RecvTimeoutError, SyncSender};
+use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::Duration;
 
 use rusqlite::{Connection, OpenFlags};
+
+use super::error::explain;
+use crate::state::history::{Counters, HistoryState};
 
 /// Time between two checkpoints.
 pub(super) const CHECKPOINT_PERIOD: Duration = Duration::from_millis(500);
@@ -43,14 +51,14 @@ impl Checkpointer {
     /// Start checkpointing the file at `path` (a file that does not exist yet is
     /// opened once it does). `None` when the thread cannot be started: the writer's
     /// automatic checkpoint then does the work.
-    pub(super) fn start(path: PathBuf) -> Option<Self> {
+    pub(super) fn start(path: PathBuf, counters: Arc<Counters>) -> Option<Self> {
         let (stop, stopped) = sync_channel::<()>(0);
         let thread = std::thread::Builder::new()
             .name("HistoryCheckpointer".into())
             .spawn(move || {
                 let mut open: Option<(Connection, Option<(u64, u64)>)> = None;
                 while let Err(RecvTimeoutError::Timeout) = stopped.recv_timeout(CHECKPOINT_PERIOD) {
-                    checkpoint(&path, &mut open);
+                    checkpoint(&path, &mut open, &counters);
                 }
             });
         match thread {
@@ -78,8 +86,13 @@ impl Drop for Checkpointer {
 }
 
 /// One passive checkpoint of the file at `path`, on the connection in `open`
-/// (opened again when the file at the path is another one than it has open).
-fn checkpoint(path: &std::path::Path, open: &mut Option<(Connection, Option<(u64, u64)>)>) {
+/// (opened again when the file at the path is another one than it has open); its
+/// failure or success again on `counters` and in the log.
+fn checkpoint(
+    path: &std::path::Path,
+    open: &mut Option<(Connection, Option<(u64, u64)>)>,
+    counters: &Counters,
+) {
     let identity = file_identity(path);
     if identity.is_none() {
         *open = None;
@@ -101,8 +114,26 @@ fn checkpoint(path: &std::path::Path, open: &mut Option<(Connection, Option<(u64
     let done = connection.query_row("PRAGMA wal_checkpoint(PASSIVE)", [], |row| {
         row.get::<_, i64>(0)
     });
-    if let Err(error) = done {
-        tracing::debug!(%error, path = %path.display(), "history checkpoint failed; tried again");
-        *open = None;
+    match done {
+        Ok(_) => {
+            if counters.checkpointed(None) {
+                counters.set_state(HistoryState::Ok);
+                tracing::info!(path = %path.display(), "history stored again (checkpoints succeed again)");
+            }
+        }
+        Err(error) => {
+            let message = format!(
+                "history {}: checkpoint failed (the last commits stay in the WAL): {}",
+                path.display(),
+                explain(&error)
+            );
+            if counters.checkpointed(Some(message.clone())) {
+                tracing::error!(
+                    error = message,
+                    "history checkpoints fail; tried again every 0.5 s"
+                );
+            }
+            *open = None;
+        }
     }
 }

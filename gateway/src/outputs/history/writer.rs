@@ -391,7 +391,8 @@ impl Writer {
         };
         let _ = opened.send(restored);
         // Stopped (and its connection closed) after the writer's, at the return.
-        let _checkpointer = super::checkpoint::Checkpointer::start(self.path.clone());
+        let _checkpointer =
+            super::checkpoint::Checkpointer::start(self.path.clone(), Arc::clone(&self.counters));
         let mut done = 0u64;
         let mut closing = false;
         while !closing {
@@ -545,6 +546,11 @@ impl Writer {
     }
 
     fn recovered(&mut self) {
+        self.last_logged = None;
+        // A failing checkpoint keeps the state failing until one succeeds.
+        if self.counters.checkpoint_failing() {
+            return;
+        }
         if self.counters.state() == HistoryState::Failing {
             tracing::info!(path = %self.path.display(), "history stored again");
         }
