@@ -8,7 +8,7 @@
 //!   it). The writer thread ([`writer`]) owns the only read-write connection (WAL,
 //!   `synchronous` as `history.synchronous` sets it, NORMAL by default) and commits
 //!   whatever is queued in one transaction (group commit); a thread of its own
-//!   checkpoints the WAL ([`checkpoint`]). An event counts as stored only once its transaction has committed:
+//!   checkpoints the WAL (`checkpoint.rs`). An event counts as stored only once its transaction has committed:
 //!   [`History::stored`](crate::state::history::History::stored) counts those, [`History::wait_settled`](crate::state::history::History::wait_settled) waits until every
 //!   event recorded so far is committed or known dropped. The PLC writer waits for
 //!   that (bounded) before each write, so a bite the PLC has seen is in the file.

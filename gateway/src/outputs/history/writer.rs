@@ -6,9 +6,10 @@
 //! committed in WAL mode: with `history.synchronous = "normal"` (the default) once the
 //! WAL holds it (it survives a crash or kill of the gateway; a power cut may lose the
 //! commits since the last checkpoint), with `"full"` once the WAL is synced to disk.
-//! Checkpoints run on a thread of their own ([`super::checkpoint`]). Between turns,
-//! only while nothing is queued, the writer runs one bounded retention step when one
-//! is due; an event recorded meanwhile interrupts it (see [`MAX_INTERRUPTED_STEPS`]).
+//! Checkpoints run on a thread of their own (`checkpoint.rs`). Between turns, only
+//! while nothing is queued, the writer runs one bounded retention step when one is
+//! due; an event recorded meanwhile interrupts it (after 20 steps interrupted in a
+//! row, one runs to its end).
 
 use std::path::PathBuf;
 
