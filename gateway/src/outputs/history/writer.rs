@@ -556,7 +556,6 @@ impl Writer {
             tracing::info!(path = %self.path.display(), "history stored again");
         }
         self.counters.set_state(HistoryState::Ok);
-        self.last_logged = None;
     }
 
     /// One retention step when one is due and no event is queued beyond the `taken`
