@@ -259,6 +259,7 @@ pub(crate) struct RawHistory {
     pub captures_max_mb: Option<i64>,
     pub captures_thin_after_days: Option<i64>,
     pub captures_keep_every: Option<i64>,
+    pub synchronous: Option<String>,
 }
 
 /// The whole document after the schema pass. List elements that failed to

@@ -829,6 +829,35 @@ pub struct History {
     pub max_size_mb: u32,
     /// The captures (bite windows, chatter episodes, manual) kept in the file.
     pub captures: CaptureSettings,
+    /// When a commit counts as durable (`synchronous`, default `normal`).
+    pub synchronous: Synchronous,
+}
+
+/// `history.synchronous`: how far a commit is on disk before the PLC sees what it holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Synchronous {
+    /// `normal`: a commit is in the operating system's write-ahead log file, synced at
+    /// each checkpoint: it survives a crash or kill of the gateway, but a power cut may
+    /// lose the last commits since the last checkpoint (SQLite's WAL with
+    /// `synchronous=NORMAL`).
+    #[default]
+    Normal,
+    /// `full`: every commit is synced to the disk before it counts (`synchronous=FULL`):
+    /// a power cut loses nothing committed, at the cost of an `fsync` per commit.
+    Full,
+}
+
+impl Synchronous {
+    /// Both settings.
+    pub const ALL: [Self; 2] = [Self::Normal, Self::Full];
+
+    /// The spelling in the file (and SQLite's name of the pragma's value).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Normal => "normal",
+            Self::Full => "full",
+        }
+    }
 }
 
 /// `[history]`'s capture keys: whether the samples behind each bite are kept, and the

@@ -1281,6 +1281,29 @@ fn history_path_retention_and_size() {
          of history.max_size_mb))\n\
          mill.toml: history.captures_keep_every: 0 is not allowed (must be 1..=1000)"
     );
+    // Commits: synchronous=NORMAL by default, FULL when asked; anything else refused
+    // with the allowed spellings.
+    assert_eq!(history.synchronous, millgate_config::Synchronous::Normal);
+    let full = from_toml_str(
+        &with("path = \"h.db\"\nsynchronous = \"full\""),
+        "mill.toml",
+        &scratch.0,
+    )
+    .unwrap_or_else(|error| panic!("{error}"));
+    assert_eq!(
+        full.history.map(|h| h.synchronous),
+        Some(millgate_config::Synchronous::Full)
+    );
+    let error = from_toml_str(
+        &with("path = \"h.db\"\nsynchronous = \"off\""),
+        "mill.toml",
+        &scratch.0,
+    )
+    .unwrap_err();
+    assert_eq!(
+        error.to_string(),
+        "mill.toml: history.synchronous: unknown setting \"off\" (allowed: normal, full)"
+    );
     let error =
         from_toml_str(&with("path = \"h.db\"\nkeep = 3"), "mill.toml", &scratch.0).unwrap_err();
     assert!(

@@ -9,10 +9,13 @@
 //! With `--history`: the board records into a real history file (the PLC writer then
 //! waits for each bite's commit, as in the service), and the bars alternate between
 //! two analyses of the same driveline, one keeping captures and one not: the same run
-//! gives the latency with the capture on and off (500 bites each).
+//! gives the latency with the capture on and off (500 bites each). The history's
+//! commits are as `history.synchronous`'s default (`normal`) sets them, or with
+//! `--synchronous full` synced to disk each.
 //!
 //!     cargo bench -p millgate --bench bite_to_plc
 //!     cargo bench -p millgate --bench bite_to_plc -- --history
+//!     cargo bench -p millgate --bench bite_to_plc -- --history --synchronous full
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -50,7 +53,18 @@ async fn main() -> anyhow::Result<()> {
         Duration::from_secs(3600),
         Duration::from_secs(3600),
     ));
-    let with_history = std::env::args().any(|a| a == "--history");
+    let args: Vec<String> = std::env::args().collect();
+    let with_history = args.iter().any(|a| a == "--history");
+    let synchronous = match args.iter().position(|a| a == "--synchronous") {
+        Some(at) => {
+            let text = args.get(at + 1).map(String::as_str).unwrap_or_default();
+            *millgate_config::Synchronous::ALL
+                .iter()
+                .find(|s| s.name() == text)
+                .ok_or_else(|| anyhow::anyhow!("--synchronous: normal or full, not {text:?}"))?
+        }
+        None => millgate_config::Synchronous::default(),
+    };
     let scratch = std::env::temp_dir().join(format!("millgate-bench-plc-{}", std::process::id()));
     let history = if with_history {
         std::fs::create_dir_all(&scratch)?;
@@ -59,6 +73,7 @@ async fn main() -> anyhow::Result<()> {
             retention_days: 400,
             max_size_mb: 1024,
             captures: millgate_config::CaptureSettings::defaults(1024),
+            synchronous,
         };
         config.history = Some(settings.clone());
         let history = millgate::state::history::History::new(Some(&settings));
@@ -123,15 +138,24 @@ async fn main() -> anyhow::Result<()> {
     writer.await?;
     running_plc.stop().await?;
 
+    let status = history.status();
+    if with_history {
+        println!(
+            "history commits: {}, mean {:.3} ms, max {:.3} ms (BEGIN to COMMIT on the writer thread)",
+            status.commits,
+            status.commit_seconds_sum * 1e3 / status.commits.max(1) as f64,
+            status.commit_seconds_max * 1e3
+        );
+    }
     tokio::task::spawn_blocking(move || history.close()).await?;
     let _ = std::fs::remove_dir_all(&scratch);
     for (which, mut latencies) in latencies.into_iter().enumerate() {
         latencies.sort();
         let at = |q: f64| latencies[((latencies.len() - 1) as f64 * q).round() as usize];
         let what = match (with_history, which) {
-            (false, _) => "",
-            (true, 0) => ", history, captures on",
-            (true, _) => ", history, captures off",
+            (false, _) => String::new(),
+            (true, 0) => format!(", history ({}), captures on", synchronous.name()),
+            (true, _) => format!(", history ({}), captures off", synchronous.name()),
         };
         println!(
             "bite window complete -> PLC register written{what}, {} bites: p50 {:.3} ms, p99 {:.3} ms, max {:.3} ms",

@@ -53,6 +53,7 @@ fn demo_bites() -> anyhow::Result<Vec<[HistoryEvent; 2]>> {
         retention_days: 400,
         max_size_mb: 1024,
         captures: millgate_config::CaptureSettings::defaults(1024),
+        synchronous: millgate_config::Synchronous::default(),
     });
     let torque = config.channels[config.drivelines[0].torque].clone();
     let health = Arc::new(SourceHealth::new(
@@ -136,6 +137,7 @@ async fn store(
             max_mb: 500_000,
             ..millgate_config::CaptureSettings::defaults(1_000_000)
         },
+        synchronous: millgate_config::Synchronous::default(),
     };
     let history = History::new(Some(&config));
     millgate::outputs::history::start(&history, run_info());

@@ -88,6 +88,7 @@ fn open(path: &Path, max_size_mb: u32) -> History {
         retention_days: 400,
         max_size_mb,
         captures: millgate_config::CaptureSettings::defaults(max_size_mb),
+        synchronous: millgate_config::Synchronous::default(),
     }));
     millgate::outputs::history::start(&history, run_info());
     history

@@ -53,6 +53,7 @@ fn config(path: &Path) -> millgate_config::History {
         retention_days: 400,
         max_size_mb: 1024,
         captures: millgate_config::CaptureSettings::defaults(1024),
+        synchronous: millgate_config::Synchronous::default(),
     }
 }
 

@@ -150,6 +150,7 @@ fn write_file(folder: &Path) -> PathBuf {
         retention_days: 3650,
         max_size_mb: 1024,
         captures: millgate_config::CaptureSettings::defaults(1024),
+        synchronous: millgate_config::Synchronous::default(),
     }));
     millgate::outputs::history::start(
         &history,

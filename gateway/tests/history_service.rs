@@ -295,9 +295,20 @@ async fn a_full_disk_is_reported_the_plc_goes_on_and_storing_resumes_when_space_
         assert_eq!(full.raw_os_error(), Some(28), "ENOSPC: {full}");
     }
     plc.bites_after_now(2).await;
-    let (state, dropped, error) = history_metrics(&setup).await;
+    // Reported failing: a commit that needs the WAL to grow fails (its events are
+    // dropped and counted), and a checkpoint that needs the database file to grow
+    // fails. Commits that fit in the room the WAL has (it is reused after each
+    // checkpoint) are still stored, so events need not be dropped yet.
+    // The checkpoint runs within 0.5 s of the commit the PLC saw.
+    let waited = std::time::Instant::now();
+    let (state, error) = loop {
+        let (state, _dropped, error) = history_metrics(&setup).await;
+        if state == 2.0 || waited.elapsed() > std::time::Duration::from_secs(20) {
+            break (state, error);
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+    };
     assert_eq!(state, 2.0, "failing");
-    assert!(dropped >= 1.0, "{dropped}");
     assert!(error.contains("the disk is full"), "{error}");
     // The bites' captures went with them, counted as such.
     let captures_dropped = setup

@@ -528,6 +528,55 @@ async fn bad_and_flooding_commands_neither_end_the_session_nor_multiply_births()
     setup.stop(service.0.take().expect("running")).await;
 }
 
+/// Issue 30, leftover of finding 6: a retained NCMD over the client's packet limit
+/// (1 MiB; rumqttc refuses a packet by its header and ends the connection, it cannot
+/// skip it) ended every session, the node reconnecting with backoff and a new bdSeq
+/// each time for as long as the message stayed on the broker. Now the session after
+/// the first clears the retained message before it subscribes: two sessions in all,
+/// and the second obeys a Rebirth.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_retained_ncmd_over_the_packet_limit_ends_one_session_only() {
+    let setup = Setup::new("sparkplug-oversize", "db").await;
+    let port = free_port();
+    let _broker = Broker::start(&setup.scratch, port);
+    let mut host = Host::start(port, "plant");
+    let oversize = millgate::outputs::sparkplug::MAX_INCOMING_PACKET * 2;
+    host.command(&format!("garbage stand-f1 {oversize} retain"));
+    while host.next(Duration::from_secs(10))["sent"] != "garbage" {}
+    setup.append_config(&format!(
+        "\n[outputs.mqtt]\nbroker = \"127.0.0.1:{port}\"\ngroup_id = \"plant\"\nnode_id = \"stand-f1\"\nkeep_alive_s = 5\n"
+    ));
+    let mut service = KilledOnDrop(Some(setup.spawn("run.log")));
+    let limit = Duration::from_secs(30);
+    // The first session's births may or may not get out before the packet ends it.
+    let born = |host: &mut Host| loop {
+        let nbirth = host.next_of("NBIRTH", limit);
+        let bd_seq = metric(&nbirth, "bdSeq")["value"].as_u64();
+        if bd_seq != Some(0) {
+            break bd_seq;
+        }
+    };
+    assert_eq!(born(&mut host), Some(1), "the second session");
+    until_metric(&setup, "millgate_sparkplug_sessions_total", 2.0, limit).await;
+    // The old code's sessions came 1, 2 and 4 s apart: a third by now.
+    tokio::time::sleep(Duration::from_secs(8)).await;
+    assert_eq!(
+        setup.metric("millgate_sparkplug_sessions_total").await,
+        Some(2.0),
+        "the second session stays up"
+    );
+    assert_eq!(setup.metric("millgate_sparkplug_bd_seq").await, Some(1.0));
+    host.command("rebirth stand-f1");
+    assert_eq!(born(&mut host), Some(1), "a rebirth in the same session");
+    let log = std::fs::read_to_string(setup.log("run.log")).unwrap();
+    assert_eq!(
+        log.matches("clearing any retained NCMD").count(),
+        1,
+        "{log}"
+    );
+    setup.stop(service.0.take().expect("running")).await;
+}
+
 /// A `millgate run` killed when dropped: a failing test leaves no gateway behind.
 struct KilledOnDrop(Option<Child>);
 

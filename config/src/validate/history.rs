@@ -3,7 +3,7 @@
 use std::ops::RangeInclusive;
 
 use crate::raw::RawHistory;
-use crate::{CaptureSettings, History};
+use crate::{CaptureSettings, History, Synchronous};
 
 use super::Checker;
 use super::Written;
@@ -35,11 +35,22 @@ impl Checker<'_> {
         );
         let max_size_mb = u32::try_from(max_size_mb?).ok()?;
         let captures = self.captures(raw, max_size_mb);
+        let synchronous = match &raw.synchronous {
+            Some(text) => self.choice(
+                "history.synchronous",
+                "setting",
+                text,
+                &Synchronous::ALL,
+                Synchronous::name,
+            ),
+            None => Some(Synchronous::default()),
+        };
         Some(History {
             path: path?,
             retention_days: u32::try_from(retention_days?).ok()?,
             max_size_mb,
             captures: captures?,
+            synchronous: synchronous?,
         })
     }
 

@@ -135,6 +135,7 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         retention_days: 400,
         max_size_mb: 1024,
         captures: millgate_config::CaptureSettings::defaults(1024),
+        synchronous: millgate_config::Synchronous::default(),
     });
     if let Some(broker) = args.mqtt {
         config.outputs.mqtt = Some(millgate_config::MqttOutput {

@@ -33,6 +33,7 @@ use crate::outputs::hmi_server::{ServerCounters, ServerCounts};
 use crate::outputs::http::{self, Limits};
 use crate::outputs::plc_writer::{PlcCounters, PlcFailure};
 use crate::outputs::sparkplug::{ConnectFailure, SparkplugCounts, SparkplugStatus};
+use crate::outputs::web::QuerySlots;
 use crate::shutdown::Shutdown;
 use crate::state::board::Board;
 use crate::state::catalogue::{self, Figure, FigureInfo, FigureType, Subject, Value};
@@ -231,6 +232,7 @@ pub struct Metrics {
     server: Option<Arc<ServerCounters>>,
     sparkplug: Option<Arc<SparkplugStatus>>,
     plc: Option<Arc<PlcCounters>>,
+    web_slots: Option<Arc<QuerySlots>>,
     #[cfg(feature = "opcua")]
     opcua: Option<crate::outputs::opcua::OpcUaStatus>,
 }
@@ -258,6 +260,7 @@ impl Metrics {
             server: None,
             sparkplug: None,
             plc: None,
+            web_slots: None,
             #[cfg(feature = "opcua")]
             opcua: None,
         }
@@ -288,6 +291,12 @@ impl Metrics {
         self
     }
 
+    /// Also show the maintenance page's history query slots.
+    pub fn with_web(mut self, slots: Arc<QuerySlots>) -> Self {
+        self.web_slots = Some(slots);
+        self
+    }
+
     /// The page, in the Prometheus text format.
     pub fn render(&self) -> String {
         let mut page = Exposition::default();
@@ -313,6 +322,9 @@ impl Metrics {
             f64::from(self.board.results().heartbeat),
         );
         history_metrics(&mut page, &self.board.history().status());
+        if let Some(slots) = &self.web_slots {
+            web_metrics(&mut page, slots);
+        }
         if let Some(status) = &self.sparkplug {
             sparkplug_metrics(&mut page, &status.counts());
         }
@@ -595,6 +607,31 @@ fn server_metrics(page: &mut Exposition, counts: &ServerCounts) {
             value(counts) as f64,
         );
     }
+}
+
+/// The maintenance page's history query slots: how many, how many held, and the
+/// requests refused because none freed in time.
+fn web_metrics(page: &mut Exposition, slots: &QuerySlots) {
+    page.scalars([
+        (
+            "millgate_web_history_query_slots",
+            Kind::Gauge,
+            "History query slots of the maintenance page (outputs.web.history_queries).",
+            slots.limit() as f64,
+        ),
+        (
+            "millgate_web_history_query_slots_in_use",
+            Kind::Gauge,
+            "History query slots held by a running query.",
+            slots.in_use() as f64,
+        ),
+        (
+            "millgate_web_history_queries_refused_total",
+            Kind::Counter,
+            "Maintenance page requests answered 503 because no history query slot freed within 1 s.",
+            slots.refused() as f64,
+        ),
+    ]);
 }
 
 /// The history's families: state, events stored and dropped, commits, retention,
@@ -974,6 +1011,58 @@ mod tests {
             .with_plc(Arc::default())
             .with_sparkplug(Arc::default())
             .render()
+    }
+
+    /// A query slot held shows as in use, a request that found none free as refused,
+    /// and the page still passes promtool.
+    #[tokio::test(start_paused = true)]
+    async fn held_query_slots_show() {
+        let config = example("hot-mill.toml");
+        let slots = Arc::new(QuerySlots::new(1));
+        let metrics = Metrics::new(
+            &config,
+            Acquisition {
+                counters: config.channels.iter().map(|_| Arc::default()).collect(),
+                health: Vec::new(),
+                can: Vec::new(),
+            },
+            Arc::new(Board::new(&config, Vec::new())),
+            &[],
+        )
+        .with_web(Arc::clone(&slots));
+        let sample = |page: &str, name: &str| -> String {
+            page.lines()
+                .find_map(|line| line.strip_prefix(&format!("{name} ")))
+                .unwrap_or_else(|| panic!("no {name} in\n{page}"))
+                .to_owned()
+        };
+        let page = metrics.render();
+        assert_eq!(sample(&page, "millgate_web_history_query_slots"), "1");
+        assert_eq!(
+            sample(&page, "millgate_web_history_query_slots_in_use"),
+            "0"
+        );
+        let held = slots
+            .acquire(Duration::from_secs(1))
+            .await
+            .expect("a free slot");
+        assert!(slots.acquire(Duration::from_secs(1)).await.is_none());
+        let page = metrics.render();
+        assert_eq!(
+            sample(&page, "millgate_web_history_query_slots_in_use"),
+            "1"
+        );
+        assert_eq!(
+            sample(&page, "millgate_web_history_queries_refused_total"),
+            "1"
+        );
+        promtool_passes(&page);
+        drop(held);
+        let page = metrics.render();
+        assert_eq!(
+            sample(&page, "millgate_web_history_query_slots_in_use"),
+            "0"
+        );
     }
 
     /// `promtool check metrics` (Debian's `prometheus`, installed by `scripts/test`)

@@ -435,6 +435,7 @@ impl Service {
             rod_mill_spans,
             plc_counters: Arc::default(),
             sparkplug: None,
+            web_slots: None,
             #[cfg(feature = "opcua")]
             opcua,
             #[cfg(feature = "opcua")]

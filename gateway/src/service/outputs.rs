@@ -18,7 +18,7 @@ use crate::outputs::modbus_frame::Served;
 use crate::outputs::plc_writer::{PlcCounters, PlcWriter};
 use crate::outputs::register_map::RegisterMap;
 use crate::outputs::sparkplug::{SparkplugNode, SparkplugStatus};
-use crate::outputs::web::WebServer;
+use crate::outputs::web::{QuerySlots, WebServer};
 use crate::shutdown::Shutdown;
 use crate::state::board::Board;
 use crate::state::commands::CommandSender;
@@ -55,6 +55,8 @@ pub(super) struct Wiring<'a> {
     pub(super) plc_counters: Arc<PlcCounters>,
     /// The Sparkplug node's status once built, for `/metrics`.
     pub(super) sparkplug: Option<Arc<SparkplugStatus>>,
+    /// The maintenance page's history query slots once built, for `/metrics`.
+    pub(super) web_slots: Option<Arc<QuerySlots>>,
     /// The OPC UA server, made by `Service::new`.
     #[cfg(feature = "opcua")]
     pub(super) opcua: Option<crate::outputs::opcua::adapter::OpcUaOutputTask>,
@@ -200,6 +202,7 @@ fn web_page(w: &mut Wiring<'_>, shutdown: &Shutdown) -> Result<Option<OutputTask
                 reason: format!("cannot start its history query threads: {error}"),
             }
         })?;
+    w.web_slots = Some(server.query_slots());
     let shutdown = shutdown.clone();
     Ok(task("maintenance page", async move {
         server
@@ -243,6 +246,9 @@ fn metrics(w: &mut Wiring<'_>, shutdown: &Shutdown) -> Result<Option<OutputTask>
     }
     if let Some(status) = w.sparkplug.clone() {
         metrics = metrics.with_sparkplug(status);
+    }
+    if let Some(slots) = w.web_slots.clone() {
+        metrics = metrics.with_web(slots);
     }
     #[cfg(feature = "opcua")]
     if let Some(status) = w.opcua_status.clone() {

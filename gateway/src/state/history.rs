@@ -9,7 +9,7 @@
 //! known dropped. The PLC writer waits for that (bounded) before each write, so a bite
 //! the PLC has seen is in the file.
 
-use std::sync::atomic::{AtomicU64, AtomicU8, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicU8, Ordering};
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -97,6 +97,8 @@ pub(crate) struct Counters {
     retention_deleted: AtomicU64,
     file_bytes: AtomicU64,
     last_error: Mutex<Option<(time::UtcTime, String)>>,
+    /// The last checkpoint failed (the state stays failing until one succeeds).
+    checkpoint_failing: AtomicBool,
 }
 
 impl Counters {
@@ -111,6 +113,27 @@ impl Counters {
     pub(crate) fn set_error(&self, message: String) {
         *crate::lock(&self.last_error) = Some((time::UtcTime::now(), message));
         self.set_state(HistoryState::Failing);
+    }
+
+    /// Whether the last checkpoint failed.
+    pub(crate) fn checkpoint_failing(&self) -> bool {
+        self.checkpoint_failing.load(Ordering::Relaxed)
+    }
+
+    /// A checkpoint failed (`Some`, why: the state is failing until one succeeds) or
+    /// succeeded (`None`); whether that changes what the last one did.
+    pub(crate) fn checkpointed(&self, failure: Option<String>) -> bool {
+        let failing = failure.is_some();
+        if let Some(message) = failure {
+            self.set_error(message);
+        }
+        self.checkpoint_failing.swap(failing, Ordering::Relaxed) != failing
+    }
+
+    /// Events handed to the writer so far (the writer compares it with what it took,
+    /// to see whether anything is queued).
+    pub(crate) fn enqueued(&self) -> u64 {
+        self.enqueued.load(Ordering::Relaxed)
     }
 
     pub(crate) fn committed(&self, events: u64, took: Duration) {

@@ -6,8 +6,9 @@
 //!   outage monitor record through: [`History::record`](crate::state::history::History::record) puts an event on a bounded
 //!   queue with `try_send` and never waits (a full queue drops the event and counts
 //!   it). The writer thread ([`writer`]) owns the only read-write connection (WAL,
-//!   `synchronous=FULL`) and commits whatever is queued in one transaction (group
-//!   commit). An event counts as stored only once its transaction has committed:
+//!   `synchronous` as `history.synchronous` sets it, NORMAL by default) and commits
+//!   whatever is queued in one transaction (group commit); a thread of its own
+//!   checkpoints the WAL (`checkpoint.rs`). An event counts as stored only once its transaction has committed:
 //!   [`History::stored`](crate::state::history::History::stored) counts those, [`History::wait_settled`](crate::state::history::History::wait_settled) waits until every
 //!   event recorded so far is committed or known dropped. The PLC writer waits for
 //!   that (bounded) before each write, so a bite the PLC has seen is in the file.
@@ -47,6 +48,7 @@
 pub mod capture_files;
 mod capture_parquet;
 pub mod captures;
+mod checkpoint;
 mod error;
 pub mod outages;
 pub mod query;

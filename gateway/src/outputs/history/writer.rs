@@ -3,8 +3,13 @@
 //!
 //! Each turn takes every event queued (up to [`MAX_BATCH`]) and writes them in one
 //! transaction; the counters say an event is stored only after that transaction has
-//! committed with `synchronous=FULL` in WAL mode, i.e. after the WAL is on disk.
-//! Between turns the writer runs one bounded retention step when one is due.
+//! committed in WAL mode: with `history.synchronous = "normal"` (the default) once the
+//! WAL holds it (it survives a crash or kill of the gateway; a power cut may lose the
+//! commits since the last checkpoint), with `"full"` once the WAL is synced to disk.
+//! Checkpoints run on a thread of their own (`checkpoint.rs`). Between turns, only
+//! while nothing is queued, the writer runs one bounded retention step when one is
+//! due; an event recorded meanwhile interrupts it (after 20 steps interrupted in a
+//! row, one runs to its end).
 
 use std::path::PathBuf;
 
@@ -14,6 +19,7 @@ use std::time::{Duration, Instant};
 
 use rusqlite::{params, Connection, OpenFlags, Transaction};
 
+use super::checkpoint::file_identity;
 use super::error::{explain, HistoryError};
 use super::restore::Restored;
 use super::retention::{Retention, RetentionState};
@@ -42,6 +48,13 @@ const RETRY_PERIOD: Duration = Duration::from_millis(500);
 const WAL_SIZE_LIMIT: i64 = 64 * 1024 * 1024;
 /// Repeat an unchanged error in the log at most this often.
 const ERROR_LOG_PERIOD: Duration = Duration::from_secs(60);
+/// SQLite instructions between two looks, during a retention step, at whether an
+/// event was recorded (well under a millisecond of work).
+const RETENTION_CHECK_OPS: std::ffi::c_int = 1_000;
+/// Retention steps interrupted in a row by recorded events after which the next one
+/// runs to its end: under a load that never leaves the queue empty for a step's
+/// length, the file is still trimmed (a step is bounded: [`Retention`]'s chunks).
+const MAX_INTERRUPTED_STEPS: u32 = 20;
 
 /// Open `path` read-write (creating it), in WAL mode with `synchronous=FULL`, and
 /// bring its schema up to date.
@@ -94,14 +107,6 @@ pub fn connect(path: &std::path::Path) -> Result<Connection, HistoryError> {
         source,
     })?;
     Ok(connection)
-}
-
-/// The device and inode of the file at `path`, `None` when there is none.
-fn file_identity(path: &std::path::Path) -> Option<(u64, u64)> {
-    use std::os::unix::fs::MetadataExt;
-    std::fs::metadata(path)
-        .ok()
-        .map(|metadata| (metadata.dev(), metadata.ino()))
 }
 
 /// Mark what the previous run left open as ended by the restart and insert the run
@@ -168,6 +173,9 @@ pub(crate) struct Writer {
     next_open: Instant,
     retention: Retention,
     retention_state: RetentionState,
+    /// Retention steps interrupted in a row by recorded events.
+    retention_interrupted: u32,
+    synchronous: millgate_config::Synchronous,
     counters: Arc<Counters>,
     last_logged: Option<(Instant, String)>,
 }
@@ -209,13 +217,12 @@ pub fn insert_run(
 impl Writer {
     /// A writer for `path`; nothing is opened yet ([`Self::run`] does).
     pub(crate) fn new(
-        path: PathBuf,
-        retention: Retention,
+        config: &millgate_config::History,
         run: RunInfo,
         counters: Arc<Counters>,
     ) -> Self {
         Self {
-            path,
+            path: config.path.clone(),
             run,
             started_at: UtcTime::now(),
             connection: None,
@@ -224,8 +231,10 @@ impl Writer {
             last_run_id: None,
             restored: false,
             next_open: Instant::now(),
-            retention,
+            retention: Retention::from_config(config),
             retention_state: RetentionState::default(),
+            retention_interrupted: 0,
+            synchronous: config.synchronous,
             counters,
             last_logged: None,
         }
@@ -238,6 +247,19 @@ impl Writer {
     fn try_open(&mut self) -> Result<Option<Restored>, HistoryError> {
         self.next_open = Instant::now() + REOPEN_PERIOD;
         let connection = connect(&self.path)?;
+        // `connect` leaves `synchronous=FULL` (the other writers of the file, rare,
+        // keep it); the checkpointer thread checkpoints, this connection only past the
+        // fallback.
+        connection
+            .pragma_update(None, "synchronous", self.synchronous.name())
+            .and_then(|()| {
+                connection.pragma_update(
+                    None,
+                    "wal_autocheckpoint",
+                    super::checkpoint::FALLBACK_CHECKPOINT_PAGES,
+                )
+            })
+            .map_err(|source| self.error(source))?;
         super::query::quick_check(&connection, &self.path)?;
         let restored = match self.restored {
             false => Some(super::restore::read(&connection).map_err(|source| self.error(source))?),
@@ -370,6 +392,9 @@ impl Writer {
             return;
         };
         let _ = opened.send(restored);
+        // Stopped (and its connection closed) after the writer's, at the return.
+        let _checkpointer =
+            super::checkpoint::Checkpointer::start(self.path.clone(), Arc::clone(&self.counters));
         let mut done = 0u64;
         let mut closing = false;
         while !closing {
@@ -414,7 +439,9 @@ impl Writer {
                     settled.send_replace(done);
                 }
             }
-            self.retention_step();
+            if batch.is_empty() {
+                self.retention_step(done);
+            }
         }
         self.finish();
     }
@@ -522,26 +549,54 @@ impl Writer {
     }
 
     fn recovered(&mut self) {
+        self.last_logged = None;
+        // A failing checkpoint keeps the state failing until one succeeds.
+        if self.counters.checkpoint_failing() {
+            return;
+        }
         if self.counters.state() == HistoryState::Failing {
             tracing::info!(path = %self.path.display(), "history stored again");
         }
         self.counters.set_state(HistoryState::Ok);
-        self.last_logged = None;
     }
 
-    /// One retention step when one is due.
-    fn retention_step(&mut self) {
-        let Some(connection) = self.connection.as_ref() else {
+    /// One retention step when one is due and no event is queued beyond the `taken`
+    /// the writer has taken: an event recorded during the step interrupts it (its
+    /// transaction rolls back, and the step is tried again after that event's commit),
+    /// unless [`MAX_INTERRUPTED_STEPS`] steps were interrupted in a row.
+    fn retention_step(&mut self, taken: u64) {
+        let counters = Arc::clone(&self.counters);
+        self.retention_step_unless(move || counters.enqueued() > taken);
+    }
+
+    /// [`Self::retention_step`] with `queued` saying whether an event waits: looked at
+    /// before the step, and during it every [`RETENTION_CHECK_OPS`] instructions.
+    fn retention_step_unless(&mut self, mut queued: impl FnMut() -> bool + Send + 'static) {
+        let Some(connection) = self.connection.as_mut() else {
             return;
         };
-        if !self.retention_state.due() {
+        if !self.retention_state.due() || queued() {
             return;
         }
-        match self
+        if self.retention_interrupted < MAX_INTERRUPTED_STEPS {
+            // Only fails on a closed connection, which the writer never holds.
+            let _ = connection.progress_handler(RETENTION_CHECK_OPS, Some(queued));
+        }
+        let step = self
             .retention
-            .step(connection, UtcTime::now(), &mut self.retention_state)
-        {
-            Ok(step) => self.counters.retention(step.deleted, step.file_bytes),
+            .step(connection, UtcTime::now(), &mut self.retention_state);
+        let _ = connection.progress_handler(RETENTION_CHECK_OPS, None::<fn() -> bool>);
+        match step {
+            Ok(step) => {
+                self.retention_interrupted = 0;
+                self.counters.retention(step.deleted, step.file_bytes);
+            }
+            Err(error)
+                if error.sqlite_error_code() == Some(rusqlite::ErrorCode::OperationInterrupted) =>
+            {
+                // Still due: tried again once the queue is empty.
+                self.retention_interrupted += 1;
+            }
             Err(error) => {
                 let message = format!(
                     "history {}: retention failed: {}",
@@ -943,8 +998,7 @@ pub(crate) fn spawn(
 ) -> Option<std::sync::mpsc::Receiver<Restored>> {
     let ends = history.take_writer_ends()?;
     let counters = history.counters();
-    let retention = Retention::from_config(&ends.config);
-    let writer = Writer::new(ends.config.path, retention, run, counters);
+    let writer = Writer::new(&ends.config, run, counters);
     let (receiver, settled) = (ends.receiver, ends.settled);
     let (opened, restored) = std::sync::mpsc::sync_channel(1);
     let spawned = std::thread::Builder::new()
@@ -962,4 +1016,100 @@ pub(crate) fn spawn(
         }
     }
     Some(restored)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A writer on a new file whose retention (1 day, 500 rows a step) has 3 000 bites
+    /// of ten days ago to delete, with its step due; the file's folder, to remove.
+    fn writer_with_old_bites(name: &str) -> (Writer, PathBuf) {
+        let folder =
+            std::env::temp_dir().join(format!("millgate-writer-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&folder);
+        std::fs::create_dir_all(&folder).unwrap();
+        let config = millgate_config::History {
+            path: folder.join("history.db"),
+            retention_days: 1,
+            max_size_mb: 1024,
+            captures: millgate_config::CaptureSettings::defaults(1024),
+            synchronous: millgate_config::Synchronous::default(),
+        };
+        let run = RunInfo {
+            version: "test".into(),
+            config_name: "test".into(),
+            drivelines: Vec::new(),
+        };
+        let mut writer = Writer::new(&config, run, Arc::default());
+        writer.try_open().unwrap();
+        let start = UtcTime::now().minus(Duration::from_secs(10 * 86_400));
+        writer
+            .connection
+            .as_ref()
+            .unwrap()
+            .execute(
+                "WITH RECURSIVE n(i) AS (SELECT 0 UNION ALL SELECT i + 1 FROM n WHERE i < 2999)
+                 INSERT INTO bites (run_id, driveline, time, bite_counter, channel,
+                     static_torque_knm, peak_torque_knm, taf, quality, degraded)
+                 SELECT ?2, 'F1', strftime('%Y-%m-%dT%H:%M:%fZ', ?1, '+' || i || ' minutes'),
+                     i, 'torque', 100.0, 200.0, 2.0, 'good', 0 FROM n",
+                params![start.to_string(), writer.run_id.unwrap()],
+            )
+            .unwrap();
+        std::thread::sleep(super::super::retention::BUSY_PERIOD);
+        assert!(writer.retention_state.due());
+        (writer, folder)
+    }
+
+    fn bites(writer: &Writer) -> i64 {
+        writer
+            .connection
+            .as_ref()
+            .unwrap()
+            .query_row("SELECT count(*) FROM bites", [], |row| row.get(0))
+            .unwrap()
+    }
+
+    #[test]
+    fn a_queued_event_keeps_a_due_retention_step_from_starting() {
+        let (mut writer, folder) = writer_with_old_bites("queued");
+        writer.retention_step_unless(|| true);
+        assert_eq!(bites(&writer), 3000, "no step while an event waits");
+        assert!(writer.retention_state.due());
+        writer.retention_step_unless(|| false);
+        assert_eq!(bites(&writer), 2500, "one chunk once the queue is empty");
+        drop(writer);
+        std::fs::remove_dir_all(folder).unwrap();
+    }
+
+    /// An event recorded once the step has started (the condition is false when the
+    /// step begins, true from then on) interrupts it: nothing deleted, still due;
+    /// after `MAX_INTERRUPTED_STEPS` such steps the next one runs to its end.
+    #[test]
+    fn an_event_recorded_during_a_step_interrupts_it_until_too_many_were() {
+        let (mut writer, folder) = writer_with_old_bites("interrupted");
+        let arriving = || {
+            let mut looks = 0u32;
+            move || {
+                looks += 1;
+                looks > 1
+            }
+        };
+        for interrupted in 1..=MAX_INTERRUPTED_STEPS {
+            writer.retention_step_unless(arriving());
+            assert_eq!(bites(&writer), 3000, "step {interrupted} rolled back");
+            assert_eq!(writer.retention_interrupted, interrupted);
+            assert!(writer.retention_state.due(), "tried again");
+        }
+        writer.retention_step_unless(arriving());
+        assert_eq!(
+            bites(&writer),
+            2500,
+            "the step after too many interrupted ones"
+        );
+        assert_eq!(writer.retention_interrupted, 0);
+        drop(writer);
+        std::fs::remove_dir_all(folder).unwrap();
+    }
 }

@@ -15,9 +15,12 @@
 //!   per [`REBIRTH_INTERVAL`] (requests meanwhile are answered by one rebirth at its
 //!   end). An NCMD that is retained (Sparkplug forbids it), larger than
 //!   [`MAX_COMMAND_BYTES`] or undecodable is refused and counted, and the session goes
-//!   on; the client reads packets up to [`MAX_INCOMING_PACKET`] (a larger one ends the
-//!   session, rumqttc cannot skip it: the next connection then waits twice as long
-//!   as the last, up to a minute, so a retained one cannot run bdSeq away). On a clean
+//!   on; the client reads packets up to [`MAX_INCOMING_PACKET`]. A larger one ends the
+//!   session: rumqttc refuses a packet by its header and ends the connection, it cannot
+//!   skip the packet. The next connection then waits twice as long as the last, up to
+//!   a minute, and first clears any retained message on the node's NCMD topic (an
+//!   empty retained publish, before it subscribes), so a retained oversized NCMD ends
+//!   one session, not every one. On a clean
 //!   stop it publishes its NDEATH before disconnecting. Births and data are QoS 0 and
 //!   not retained, the Will QoS 1, as the specification asks.
 //!
@@ -539,6 +542,9 @@ impl SparkplugNode {
         let mut last_births = Instant::now();
         let mut command_warnings = WarnLimit::new(WARN_PERIOD);
         let mut oversize_delay = RECONNECT_DELAY;
+        // Set by a packet over the size limit: the next session clears its NCMD topic's
+        // retained message before subscribing.
+        let mut clear_retained_command = false;
         loop {
             tokio::select! {
                 () = shutdown.recv() => break,
@@ -550,6 +556,14 @@ impl SparkplugNode {
                         connected = true;
                         self.status.connected.store(1, Ordering::Relaxed);
                         self.status.connections.fetch_add(1, Ordering::Relaxed);
+                        if std::mem::take(&mut clear_retained_command) {
+                            // The broker handles a client's packets in order: the
+                            // retained message is gone before the subscription.
+                            tracing::warn!(topic = node.command_topic(), "clearing any retained NCMD on the broker (a packet over the size limit ended the last session; NCMDs are never retained)");
+                            if let Err(error) = client.try_publish(node.command_topic(), QoS::AtLeastOnce, true, Vec::new()) {
+                                tracing::warn!(%error, "Sparkplug retained NCMD clear not queued");
+                            }
+                        }
                         if let Err(error) = client.try_subscribe(node.command_topic(), command_qos) {
                             tracing::warn!(%error, "Sparkplug NCMD subscription not queued");
                         }
@@ -610,6 +624,7 @@ impl SparkplugNode {
                             tracing::warn!(%error, limit = MAX_INCOMING_PACKET, next_attempt_s = oversize_delay.as_secs(), "Sparkplug session ended by a packet over the size limit (a retained NCMD on the broker? clear it there)");
                             let delay = oversize_delay;
                             oversize_delay = (delay * 2).min(MAX_OVERSIZE_DELAY);
+                            clear_retained_command = true;
                             delay
                         } else {
                             oversize_delay = RECONNECT_DELAY;

@@ -26,7 +26,7 @@ mod encoding;
 pub(crate) mod page;
 mod shared;
 
-pub use shared::{DrivelineInfo, WebState};
+pub use shared::{DrivelineInfo, QuerySlots, WebState};
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -101,8 +101,7 @@ impl WebServer {
             board,
             history: config.history.as_ref().map(|h| h.path.clone()),
             request_timeout: settings.request_timeout,
-            query_slots: Arc::new(tokio::sync::Semaphore::new(settings.history_queries)),
-            query_slot_count: settings.history_queries,
+            query_slots: Arc::new(QuerySlots::new(settings.history_queries)),
             queries: shared::QueryThreads::start(settings.history_queries)?,
             event_streams: Arc::new(tokio::sync::Semaphore::new(settings.max_event_streams)),
             allowed_hosts: settings.allowed_hosts.clone(),
@@ -116,6 +115,11 @@ impl WebServer {
             state,
             live,
         })
+    }
+
+    /// The history query slots, for `/metrics`.
+    pub fn query_slots(&self) -> Arc<QuerySlots> {
+        Arc::clone(&self.state.query_slots)
     }
 
     /// Serve `listener` until `shutdown`; an error when accepting fails for good.

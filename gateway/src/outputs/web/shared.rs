@@ -2,10 +2,11 @@
 //! history file, the live results and the kept gap trends.
 
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-use tokio::sync::{watch, Semaphore};
+use tokio::sync::{watch, OwnedSemaphorePermit, Semaphore};
 
 use crate::state::board::Board;
 
@@ -44,11 +45,9 @@ pub struct WebState {
     /// The history file, `None` without `[history]`.
     pub(crate) history: Option<PathBuf>,
     pub(crate) request_timeout: Duration,
-    /// History queries running at once (`outputs.web.history_queries`): a permit is
+    /// History queries running at once (`outputs.web.history_queries`): a slot is
     /// held until the query's thread has ended.
-    pub(crate) query_slots: Arc<Semaphore>,
-    /// How many slots there are.
-    pub(crate) query_slot_count: usize,
+    pub(crate) query_slots: Arc<QuerySlots>,
     /// The threads the history queries run on, one per slot.
     pub(crate) queries: QueryThreads,
     /// Live-update streams open at once (`outputs.web.max_event_streams`).
@@ -71,6 +70,53 @@ pub struct WebState {
 pub(crate) struct TrendCache(
     pub(crate) std::sync::Mutex<std::collections::HashMap<String, (i64, Option<f64>)>>,
 );
+
+/// The page's history query slots (`outputs.web.history_queries`) and the requests
+/// that found none free, for `/metrics`.
+#[derive(Debug)]
+pub struct QuerySlots {
+    free: Arc<Semaphore>,
+    limit: usize,
+    refused: AtomicU64,
+}
+
+impl QuerySlots {
+    /// `limit` slots, all free.
+    pub fn new(limit: usize) -> Self {
+        Self {
+            free: Arc::new(Semaphore::new(limit)),
+            limit,
+            refused: AtomicU64::new(0),
+        }
+    }
+
+    /// A free slot, waiting at most `wait` for one; `None` (counted as refused) when
+    /// none frees in time. The slot is free again when the permit is dropped.
+    pub async fn acquire(&self, wait: Duration) -> Option<OwnedSemaphorePermit> {
+        match tokio::time::timeout(wait, Arc::clone(&self.free).acquire_owned()).await {
+            Ok(Ok(permit)) => Some(permit),
+            _ => {
+                self.refused.fetch_add(1, Ordering::Relaxed);
+                None
+            }
+        }
+    }
+
+    /// How many slots there are.
+    pub fn limit(&self) -> usize {
+        self.limit
+    }
+
+    /// Slots held by a query now.
+    pub fn in_use(&self) -> usize {
+        self.limit.saturating_sub(self.free.available_permits())
+    }
+
+    /// Requests answered 503 because no slot freed in time, since start.
+    pub fn refused(&self) -> u64 {
+        self.refused.load(Ordering::Relaxed)
+    }
+}
 
 /// A history query's work, run on a [`QueryThreads`] thread.
 pub(crate) type QueryJob = Box<dyn FnOnce() + Send>;

@@ -175,11 +175,10 @@ async fn with_history<T: Send + 'static>(
         status: StatusCode::SERVICE_UNAVAILABLE,
         message,
     };
-    let slots = Arc::clone(&state.query_slots);
-    let Ok(Ok(slot)) = tokio::time::timeout(SLOT_WAIT, slots.acquire_owned()).await else {
+    let Some(slot) = state.query_slots.acquire(SLOT_WAIT).await else {
         return Err(unavailable(format!(
             "every history query slot is busy (outputs.web.history_queries = {}): try again",
-            state.query_slot_count
+            state.query_slots.limit()
         )));
     };
     let deadline = Instant::now() + state.request_timeout;
