@@ -21,7 +21,7 @@
 mod common;
 
 use std::path::Path;
-use std::process::{Child, Command};
+use std::process::Command;
 use std::time::Duration;
 
 use common::{free_port, http, millgate, text, until, web_ready, Setup};
@@ -29,15 +29,6 @@ use common::{free_port, http, millgate, text, until, web_ready, Setup};
 use millgate::outputs::history::query::{BiteRow, CaptureRow, Filter, HistoryReader};
 
 /// A service killed when the test ends, however it ends.
-struct Running(Child);
-
-impl Drop for Running {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
 /// `value` as `millgate analyze` prints it with `digits` decimals.
 fn printed(value: Option<f64>, digits: usize) -> String {
     value.map_or_else(|| "-".to_owned(), |v| format!("{v:.digits$}"))
@@ -75,7 +66,7 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
     ));
     let plc = setup.plc();
 
-    let mut service = Running(setup.spawn("run.log"));
+    let mut service = setup.spawn("run.log");
     until("3 bites in the PLC", Duration::from_secs(40), || {
         plc.counter() >= 3
     })
@@ -133,8 +124,8 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
         plc.counter() > seen
     })
     .await;
-    service.0.kill().unwrap();
-    service.0.wait().unwrap();
+    service.kill().unwrap();
+    service.wait().unwrap();
     let in_plc = i64::from(plc.counter());
 
     // Every bite the PLC saw has its capture, linked to its bite row.
@@ -392,7 +383,7 @@ async fn a_manual_capture_command_keeps_the_next_seconds_of_torque() {
     let setup = Setup::new("manual-capture", "db").await;
     let history = setup.history.clone();
     let plc = setup.plc();
-    let service = Running(setup.spawn("run.log"));
+    let service = setup.spawn("run.log");
     until("a bite in the PLC", Duration::from_secs(40), || {
         plc.counter() >= 1
     })

@@ -102,7 +102,7 @@ fn log_contains(setup: &Setup, log: &str, text: &str) -> bool {
 async fn a_start_while_another_process_holds_the_file_continues_its_counters() {
     let setup = Setup::new("locked-start", "db").await;
     let plc = setup.plc();
-    let mut first = setup.spawn_guarded("first.log");
+    let mut first = setup.spawn("first.log");
     plc.bites_after_now(2).await;
     terminate(&mut first);
     let before = counters(&setup.history);
@@ -111,7 +111,7 @@ async fn a_start_while_another_process_holds_the_file_continues_its_counters() {
 
     // Another process holds the file while the service starts.
     let lock = Locker::hold(&setup.history, "EXCLUSIVE");
-    let mut second = setup.spawn_guarded("second.log");
+    let mut second = setup.spawn("second.log");
     until("the service meets the lock", BITES, || {
         log_contains(&setup, "second.log", "database is locked")
     })
@@ -143,7 +143,7 @@ async fn a_start_while_another_process_holds_the_file_continues_its_counters() {
 async fn a_write_lock_held_over_several_bites_loses_none_the_plc_saw() {
     let setup = Setup::new("locked-run", "db").await;
     let plc = setup.plc();
-    let mut service = setup.spawn_guarded("run.log");
+    let mut service = setup.spawn("run.log");
     plc.bites_after_now(2).await;
 
     let lock = Locker::hold(&setup.history, "IMMEDIATE");
@@ -187,7 +187,7 @@ async fn a_write_lock_held_over_several_bites_loses_none_the_plc_saw() {
 async fn a_history_file_deleted_while_running_is_noticed_and_a_new_one_started() {
     let setup = Setup::new("deleted", "db").await;
     let plc = setup.plc();
-    let mut service = setup.spawn_guarded("run.log");
+    let mut service = setup.spawn("run.log");
     plc.bites_after_now(1).await;
     let deleted_at = plc.counter();
     for suffix in ["", "-wal", "-shm"] {
@@ -220,7 +220,7 @@ async fn a_history_file_deleted_while_running_is_noticed_and_a_new_one_started()
 async fn a_partly_damaged_file_is_named_by_check_and_left_alone_by_the_service() {
     let setup = Setup::new("damaged", "db").await;
     let plc = setup.plc();
-    let mut first = setup.spawn_guarded("first.log");
+    let mut first = setup.spawn("first.log");
     plc.bites_after_now(2).await;
     terminate(&mut first);
     // Every third page after the first (the header) garbled.
@@ -253,7 +253,7 @@ async fn a_partly_damaged_file_is_named_by_check_and_left_alone_by_the_service()
         "{said}"
     );
 
-    let mut service = setup.spawn_guarded("run.log");
+    let mut service = setup.spawn("run.log");
     plc.bites_after_now(1).await;
     assert_eq!(setup.metric("millgate_history_state").await, Some(2.0));
     assert!(log_contains(

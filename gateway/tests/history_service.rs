@@ -16,10 +16,10 @@
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command};
+use std::process::Command;
 use std::time::Duration;
 
-use common::{free_port, http, terminate, until, web_ready, Setup};
+use common::{free_port, http, terminate, until, web_ready, KillOnDrop, Setup};
 
 use millgate::analysis::wear::next_trend;
 use millgate::outputs::history::query::{BiteRow, Filter, HistoryReader};
@@ -242,9 +242,9 @@ async fn history_metrics(setup: &Setup) -> (f64, f64, String) {
 /// the log name the file and say why, the bites are counted as dropped.
 async fn unusable_history_is_reported_and_the_plc_goes_on(
     setup: &Setup,
-    mut service: Child,
+    mut service: KillOnDrop,
     why: &str,
-) -> Child {
+) -> KillOnDrop {
     let plc = setup.plc();
     plc.bites_after_now(2).await;
     let (state, dropped, error) = history_metrics(setup).await;

@@ -456,7 +456,7 @@ async fn bad_and_flooding_commands_neither_end_the_session_nor_multiply_births()
     setup.append_config(&format!(
         "\n[outputs.mqtt]\nbroker = \"127.0.0.1:{port}\"\ngroup_id = \"plant\"\nnode_id = \"stand-f1\"\nkeep_alive_s = 5\n"
     ));
-    let mut service = KilledOnDrop(Some(setup.spawn("run.log")));
+    let service = setup.spawn("run.log");
     let limit = Duration::from_secs(30);
     let nbirth = host.next_of("NBIRTH", limit);
     assert_eq!(metric(&nbirth, "bdSeq")["value"].as_u64(), Some(0));
@@ -525,7 +525,7 @@ async fn bad_and_flooding_commands_neither_end_the_session_nor_multiply_births()
         "{warnings} warnings for 51 refused NCMDs: {log}"
     );
     host.command("clear stand-f1");
-    setup.stop(service.0.take().expect("running")).await;
+    setup.stop(service).await;
 }
 
 /// Issue 30, leftover of finding 6: a retained NCMD over the client's packet limit
@@ -546,7 +546,7 @@ async fn a_retained_ncmd_over_the_packet_limit_ends_one_session_only() {
     setup.append_config(&format!(
         "\n[outputs.mqtt]\nbroker = \"127.0.0.1:{port}\"\ngroup_id = \"plant\"\nnode_id = \"stand-f1\"\nkeep_alive_s = 5\n"
     ));
-    let mut service = KilledOnDrop(Some(setup.spawn("run.log")));
+    let service = setup.spawn("run.log");
     let limit = Duration::from_secs(30);
     // The first session's births may or may not get out before the packet ends it.
     let born = |host: &mut Host| loop {
@@ -574,21 +574,10 @@ async fn a_retained_ncmd_over_the_packet_limit_ends_one_session_only() {
         1,
         "{log}"
     );
-    setup.stop(service.0.take().expect("running")).await;
+    setup.stop(service).await;
 }
 
 /// A `millgate run` killed when dropped: a failing test leaves no gateway behind.
-struct KilledOnDrop(Option<Child>);
-
-impl Drop for KilledOnDrop {
-    fn drop(&mut self) {
-        if let Some(mut child) = self.0.take() {
-            let _ = child.kill();
-            let _ = child.wait();
-        }
-    }
-}
-
 /// Wait until `/metrics` shows `name` at `value`, at most `limit`.
 async fn until_metric(setup: &Setup, name: &str, value: f64, limit: Duration) {
     let start = Instant::now();

@@ -428,7 +428,7 @@ async fn the_pages_list_the_drivelines_plot_the_gap_and_show_a_new_bite_live() {
     let setup = Setup::new("web-browser", "history").await;
     let port = free_port();
     setup.append_config(&format!("\n[outputs.web]\nbind = \"127.0.0.1:{port}\"\n"));
-    let service = setup.spawn_guarded("web-browser.log");
+    let service = setup.spawn("web-browser.log");
     web_ready(port).await;
     let plc = setup.plc();
     plc.bites_after_now(2).await;

@@ -125,7 +125,7 @@ async fn abandoned_history_queries_are_bounded_in_work_and_sigterm_stops_during_
         "\n[outputs.web]\nbind = \"127.0.0.1:{port}\"\nhistory_queries = {SLOTS}\n\
          request_timeout_ms = 3000\n"
     ));
-    let mut service = setup.spawn_guarded("run.log");
+    let mut service = setup.spawn("run.log");
     web_ready(port).await;
     setup.plc().bites_after_now(1).await;
     let pid = service.id();
@@ -245,7 +245,7 @@ async fn streams_are_limited_slow_headers_do_not_lock_clients_out_and_hosts_are_
          max_event_streams = 3\nheader_timeout_ms = 60000\n\
          allowed_hosts = [\"mill-gw.plant.example\"]\n"
     ));
-    let service = setup.spawn_guarded("run.log");
+    let service = setup.spawn("run.log");
     web_ready(port).await;
 
     // Three streams are taken; a fourth is refused.

@@ -238,13 +238,13 @@ impl Setup {
     }
 
     /// `millgate run` on the configuration, its log in the scratch folder.
-    pub(crate) fn spawn(&self, log: &str) -> Child {
+    pub(crate) fn spawn(&self, log: &str) -> KillOnDrop {
         self.spawn_in_namespace(log, None)
     }
 
     /// `millgate run` in its own user and mount namespace where a tmpfs with `options`
     /// is mounted on the history's folder, or directly for `None`.
-    pub(crate) fn spawn_in_namespace(&self, log: &str, tmpfs: Option<&str>) -> Child {
+    pub(crate) fn spawn_in_namespace(&self, log: &str, tmpfs: Option<&str>) -> KillOnDrop {
         let log = std::fs::File::create(self.log(log)).unwrap();
         let millgate = env!("CARGO_BIN_EXE_millgate");
         let config = self.config.to_str().unwrap();
@@ -271,6 +271,7 @@ impl Setup {
             .stdout(Stdio::null())
             .stderr(log)
             .spawn()
+            .map(KillOnDrop)
             .expect("start millgate run")
     }
 
@@ -286,11 +287,6 @@ impl Setup {
             .find_map(|line| line.strip_prefix(name)?.strip_prefix(' ')?.parse().ok())
     }
 
-    /// `millgate run` as [`Self::spawn`], killed when the guard is dropped.
-    pub(crate) fn spawn_guarded(&self, log: &str) -> KillOnDrop {
-        KillOnDrop(self.spawn(log))
-    }
-
     /// Stop the devices and remove the scratch folder (the gateway stopped already,
     /// or its guard kills it).
     pub(crate) async fn finish(self) {
@@ -298,9 +294,8 @@ impl Setup {
         let _ = std::fs::remove_dir_all(&self.scratch);
     }
 
-    pub(crate) async fn stop(self, mut service: Child) {
-        let _ = service.kill();
-        let _ = service.wait();
+    pub(crate) async fn stop(self, service: KillOnDrop) {
+        drop(service);
         self.devices.stop().await.unwrap();
         let _ = std::fs::remove_dir_all(&self.scratch);
     }

@@ -1040,6 +1040,7 @@ mod tests {
             version: "test".into(),
             config_name: "test".into(),
             drivelines: Vec::new(),
+            config_hash: String::new(),
         };
         let mut writer = Writer::new(&config, run, Arc::default());
         writer.try_open().unwrap();
