@@ -300,22 +300,29 @@ async fn a_full_disk_is_reported_the_plc_goes_on_and_storing_resumes_when_space_
     // fails. Commits that fit in the room the WAL has (it is reused after each
     // checkpoint) are still stored, so events need not be dropped yet.
     // The checkpoint runs within 0.5 s of the commit the PLC saw.
+    // Once the WAL's room is used, a commit fails: wait for a dropped event too.
     let waited = std::time::Instant::now();
-    let (state, error) = loop {
-        let (state, _dropped, error) = history_metrics(&setup).await;
-        if state == 2.0 || waited.elapsed() > std::time::Duration::from_secs(20) {
-            break (state, error);
+    let (state, dropped, error) = loop {
+        let (state, dropped, error) = history_metrics(&setup).await;
+        if (state == 2.0 && dropped >= 1.0)
+            || waited.elapsed() > std::time::Duration::from_secs(40)
+        {
+            break (state, dropped, error);
         }
         tokio::time::sleep(std::time::Duration::from_millis(100)).await;
     };
     assert_eq!(state, 2.0, "failing");
     assert!(error.contains("the disk is full"), "{error}");
-    // The bites' captures went with them, counted as such.
+    assert!(dropped >= 1.0, "no commit failed in 40 s on a full disk");
+    // The dropped bites' captures went with them, counted as such.
     let captures_dropped = setup
         .metric("millgate_history_captures_dropped_total")
         .await
         .unwrap();
-    assert!(captures_dropped >= 1.0, "{captures_dropped}");
+    assert!(
+        (1.0..=dropped).contains(&captures_dropped),
+        "captures dropped {captures_dropped} of {dropped} events"
+    );
     let log = std::fs::read_to_string(setup.log("run.log")).unwrap();
     assert!(log.contains("the disk is full"), "{log}");
 
