@@ -304,8 +304,7 @@ async fn a_full_disk_is_reported_the_plc_goes_on_and_storing_resumes_when_space_
     let waited = std::time::Instant::now();
     let (state, dropped, error) = loop {
         let (state, dropped, error) = history_metrics(&setup).await;
-        if (state == 2.0 && dropped >= 1.0)
-            || waited.elapsed() > std::time::Duration::from_secs(40)
+        if (state == 2.0 && dropped >= 1.0) || waited.elapsed() > std::time::Duration::from_secs(40)
         {
             break (state, dropped, error);
         }
