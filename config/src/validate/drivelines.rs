@@ -2,7 +2,9 @@
 //! driveline model file.
 
 use crate::raw::{RawDriveline, RawWear};
-use crate::{BiteSettings, ChannelKind, ChannelSource, Driveline, DrivelineThresholds, WearSettings};
+use crate::{
+    BiteSettings, ChannelKind, ChannelSource, Driveline, DrivelineThresholds, WearSettings,
+};
 
 use super::{
     optional, ChannelFacts, Checker, DEFAULT_POST_TRIGGER_S, DEFAULT_PRE_TRIGGER_S, MAX_WINDOW_S,

@@ -446,6 +446,7 @@ mod tests {
             scale,
             offset,
             samples,
+            timing: None,
         }
     }
 
