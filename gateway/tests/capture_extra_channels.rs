@@ -263,3 +263,137 @@ print("ok", len(args) // 2)
     assert!(checked.status.success(), "{}", text(&checked));
     setup.finish().await;
 }
+
+/// The analysis alone (no service), blocks dated as a CAN reader dates them: a bite
+/// is held until the current's block that covers its window comes in, and its capture
+/// holds the current's samples for the torque's rows exactly; without the current it
+/// is released when its bound has passed, the missing tail marked.
+#[tokio::test]
+async fn a_bite_waits_for_its_extra_channel_at_most_its_bound() {
+    use std::sync::Arc;
+    use std::time::{Instant, SystemTime};
+
+    use millgate::analysis::Analysis;
+    use millgate::field::acquired::Acquired;
+    use millgate::field::source_health::SourceHealth;
+    use millgate::state::board::Board;
+    use millgate::state::captures::{CapturedBite, KeepClass};
+    use millgate::state::time::UtcTime;
+
+    let demo = millgate_sim::devices::demo::setup(30.0, 0.5, 5).unwrap();
+    let mut config = demo.config;
+    config.history = Some(millgate_config::History {
+        path: std::env::temp_dir().join("unused-history.db"),
+        retention_days: 400,
+        max_size_mb: 1024,
+        captures: millgate_config::CaptureSettings::defaults(1024),
+    });
+    let mut current = config.channels[0].clone();
+    current.name = "motor_current".into();
+    current.unit = "A".into();
+    current.scale = CURRENT_SCALE_A;
+    if let ChannelSource::ModbusBlock { base, .. } = &mut current.source {
+        *base = CURRENT_BLOCK;
+    }
+    config.channels.push(current);
+    config.drivelines[0].extra_channels = vec![1];
+    let health = Arc::new(SourceHealth::new(
+        Duration::from_secs(3600),
+        Duration::from_secs(3600),
+    ));
+    let board = Arc::new(Board::new(&config, vec![health]));
+    let (bites, _) = tokio::sync::broadcast::channel(16);
+    let mut analysis = Analysis::new(&config, board, bites).unwrap();
+
+    let fs = config.channels[0].sample_rate_hz;
+    let torque: Vec<f64> = demo
+        .schedule
+        .torque_knm
+        .iter()
+        .map(|&t| served(t, 0.01))
+        .collect();
+    let current: Vec<f64> = demo
+        .schedule
+        .torque_knm
+        .iter()
+        .map(|&t| served(motor_current_a(t), CURRENT_SCALE_A))
+        .collect();
+    let start = SystemTime::now();
+    let dated = |end: usize| Some(start + Duration::from_secs_f64((end - 1) as f64 / fs));
+    let block = usize::from(SAMPLES_PER_BLOCK);
+    let first_bar_end = (demo.schedule.bites[1].onset_sample / block - 1) * block;
+    let mut released = Vec::new();
+    for at in (0..first_bar_end).step_by(block) {
+        let end = at + block;
+        let held = analysis.handle(Acquired::Samples {
+            channel: 0,
+            values: torque[at..end].to_vec(),
+            received: dated(end),
+        });
+        assert!(held.is_empty(), "a bite released before the current came");
+        released.extend(analysis.handle(Acquired::Samples {
+            channel: 1,
+            values: current[at..end].to_vec(),
+            received: dated(end),
+        }));
+    }
+    assert_eq!(released.len(), 1, "the first bar's bite");
+    let capture = |report: &millgate::analysis::driveline::BiteReport| {
+        report
+            .capture(
+                CapturedBite {
+                    counter: 1,
+                    time: UtcTime::now(),
+                },
+                KeepClass::Ordinary,
+            )
+            .unwrap()
+    };
+    let record = capture(&released[0]);
+    assert_eq!(record.channels.len(), 2);
+    let rows = record.channels[0].samples.clone();
+    let at = position_of(&rows, &torque).unwrap();
+    assert_eq!(record.channels[1].name, "motor_current");
+    assert_eq!(record.channels[1].samples, current[at..at + rows.len()]);
+    let timing = record.channels[1].timing.unwrap();
+    assert_eq!((timing.first_row, timing.end_row), (0, rows.len()));
+    assert!((timing.first_sample_unix_ns - record.first_sample_unix_ns).abs() < 1_000);
+
+    // The second bar, its current stopping two blocks after the bite's onset: held,
+    // then released at its bound with the current's tail missing.
+    let second_bar_end = (demo.schedule.bites[2].onset_sample / block - 1) * block;
+    let current_stops = demo.schedule.bites[1].onset_sample + 2 * block;
+    let mut held = Vec::new();
+    for at in (first_bar_end..second_bar_end).step_by(block) {
+        let end = at + block;
+        held.extend(analysis.handle(Acquired::Samples {
+            channel: 0,
+            values: torque[at..end].to_vec(),
+            received: dated(end),
+        }));
+        if end <= current_stops {
+            held.extend(analysis.handle(Acquired::Samples {
+                channel: 1,
+                values: current[at..end].to_vec(),
+                received: dated(end),
+            }));
+        }
+    }
+    assert!(held.is_empty(), "released without waiting");
+    assert!(analysis.release_held(Instant::now(), false).is_empty());
+    let late = analysis.release_held(Instant::now() + Duration::from_secs(1), false);
+    assert_eq!(late.len(), 1);
+    let record = capture(&late[0]);
+    let rows = record.channels[0].samples.clone();
+    let at = position_of(&rows, &torque).unwrap();
+    let timing = record.channels[1].timing.unwrap();
+    let end_row = current_stops / block * block - at;
+    assert_eq!(
+        (timing.first_row, timing.end_row),
+        (0, end_row),
+        "{timing:?}"
+    );
+    let samples = &record.channels[1].samples;
+    assert_eq!(samples[..end_row], current[at..at + end_row]);
+    assert!(samples[end_row..].iter().all(|s| s.is_nan()));
+}
