@@ -71,6 +71,7 @@ pub(crate) struct RawDriveline {
     pub name: String,
     pub torque: String,
     pub metal_in_stand: Option<String>,
+    pub extra_channels: Option<Vec<String>>,
     pub model: Option<String>,
     pub bite: RawBite,
     pub thresholds: RawThresholds,

@@ -350,6 +350,10 @@ pub struct Driveline {
     pub torque: usize,
     /// Index into [`Config::channels`] of an optional "metal in stand" trigger.
     pub metal_in_stand: Option<usize>,
+    /// Indices into [`Config::channels`] of other sampled channels kept in each bite's
+    /// capture beside the torque (motor current, speed, ...): distinct, not the torque
+    /// channel, block or CAN channels at the torque channel's sample rate.
+    pub extra_channels: Vec<usize>,
     /// Optional driveline model file (sim model TOML), relative to the config file.
     pub model: Option<PathBuf>,
     /// Bite detection.

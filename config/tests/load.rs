@@ -2084,3 +2084,47 @@ fn opcua_users_file_is_read_and_checked() {
     );
     let _ = std::fs::remove_dir_all(&scratch);
 }
+
+/// `BASE` with `drivelines[0].extra_channels = <list>`.
+fn with_extra_channels(list: &str) -> String {
+    edited(
+        "metal_in_stand = \"metal_in\"\n",
+        &format!("metal_in_stand = \"metal_in\"\nextra_channels = {list}\n"),
+    )
+}
+
+#[test]
+fn extra_channels_are_resolved_in_order() {
+    let config = parse(&with_extra_channels("[\"spindle_bottom\"]")).unwrap();
+    assert_eq!(config.drivelines[0].extra_channels, vec![1]);
+    assert!(parse(BASE).unwrap().drivelines[0].extra_channels.is_empty());
+}
+
+#[test]
+fn bad_extra_channels_are_named_with_the_allowed_values() {
+    assert_only_problem(
+        &with_extra_channels("[\"motor_curent\"]"),
+        "mill.toml: drivelines[0].extra_channels[0]: unknown channel \"motor_curent\" \
+         (known: spindle_top, spindle_bottom, metal_in, acc0, acc1)",
+    );
+    assert_only_problem(
+        &with_extra_channels("[\"spindle_top\"]"),
+        "mill.toml: drivelines[0].extra_channels[0]: \"spindle_top\" is the driveline's \
+         torque channel, captured already",
+    );
+    assert_only_problem(
+        &with_extra_channels("[\"spindle_bottom\", \"spindle_bottom\"]"),
+        "mill.toml: drivelines[0].extra_channels[1]: \"spindle_bottom\" is named already at \
+         extra_channels[0]",
+    );
+    assert_problem_like(
+        &with_extra_channels("[\"metal_in\"]"),
+        "mill.toml: drivelines[0].extra_channels[0]: channel \"metal_in\" is a register value",
+        &["Modbus block or CAN channel"],
+    );
+    assert_only_problem(
+        &with_extra_channels("[\"acc0\"]"),
+        "mill.toml: drivelines[0].extra_channels[0]: channel \"acc0\" samples at 4000 Hz, \
+         the torque channel at 2000 Hz (extra channels must share the torque's sample rate)",
+    );
+}

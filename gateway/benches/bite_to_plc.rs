@@ -13,9 +13,16 @@
 //! commits are as `history.synchronous`'s default (`normal`) sets them, or with
 //! `--synchronous full` synced to disk each.
 //!
+//! With `--extra-channels` (implies `--history`): the first analysis's driveline also
+//! names an extra channel (a motor current, a second block channel at the torque's
+//! rate, its block handed to the analysis right after the torque's, as a DAQ polled
+//! for both gives them), so each bite is held until the current's block covers its
+//! window; the second analysis keeps captures without it: the latency the hold adds.
+//!
 //!     cargo bench -p millgate --bench bite_to_plc
 //!     cargo bench -p millgate --bench bite_to_plc -- --history
 //!     cargo bench -p millgate --bench bite_to_plc -- --history --synchronous full
+//!     cargo bench -p millgate --bench bite_to_plc -- --extra-channels
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -54,7 +61,8 @@ async fn main() -> anyhow::Result<()> {
         Duration::from_secs(3600),
     ));
     let args: Vec<String> = std::env::args().collect();
-    let with_history = args.iter().any(|a| a == "--history");
+    let with_extra = args.iter().any(|a| a == "--extra-channels");
+    let with_history = with_extra || args.iter().any(|a| a == "--history");
     let synchronous = match args.iter().position(|a| a == "--synchronous") {
         Some(at) => {
             let text = args.get(at + 1).map(String::as_str).unwrap_or_default();
@@ -65,6 +73,19 @@ async fn main() -> anyhow::Result<()> {
         }
         None => millgate_config::Synchronous::default(),
     };
+    let current_channel = config.channels.len();
+    let mut extra_config = config.clone();
+    if with_extra {
+        let mut current = config.channels[0].clone();
+        current.name = "motor_current".into();
+        current.unit = "A".into();
+        current.kind = millgate_config::ChannelKind::ProcessValue;
+        if let millgate_config::ChannelSource::ModbusBlock { base, .. } = &mut current.source {
+            *base = 122;
+        }
+        extra_config.channels.push(current);
+        extra_config.drivelines[0].extra_channels = vec![current_channel];
+    }
     let scratch = std::env::temp_dir().join(format!("millgate-bench-plc-{}", std::process::id()));
     let history = if with_history {
         std::fs::create_dir_all(&scratch)?;
@@ -76,6 +97,7 @@ async fn main() -> anyhow::Result<()> {
             synchronous,
         };
         config.history = Some(settings.clone());
+        extra_config.history = Some(settings.clone());
         let history = millgate::state::history::History::new(Some(&settings));
         millgate::outputs::history::start(
             &history,
@@ -85,13 +107,18 @@ async fn main() -> anyhow::Result<()> {
     } else {
         millgate::state::history::History::disabled()
     };
-    let board = Arc::new(Board::new(&config, vec![health]).with_history(history.clone()));
+    let board = Arc::new(Board::new(&extra_config, vec![health]).with_history(history.clone()));
     let (bites, _) = tokio::sync::broadcast::channel(16);
-    // Analyses of the same driveline: [captures on, captures off] with a history, one
+    // Analyses of the same driveline: [captures on, captures off] with a history,
+    // [captures with the extra channel, captures without] with extra channels, one
     // (captures on only when a history is configured) without.
-    let mut analyses = vec![Analysis::new(&config, Arc::clone(&board), bites.clone())?];
+    let mut analyses = vec![Analysis::new(
+        &extra_config,
+        Arc::clone(&board),
+        bites.clone(),
+    )?];
     if let Some(settings) = config.history.as_mut() {
-        settings.captures.enabled = false;
+        settings.captures.enabled = with_extra;
         analyses.push(Analysis::new(&config, Arc::clone(&board), bites)?);
     }
     let (stop_writer, writer_shutdown) = millgate::shutdown::channel();
@@ -116,11 +143,18 @@ async fn main() -> anyhow::Result<()> {
         bar_index += 1;
         let analysis = &mut analyses[which];
         for block in bar.chunks(100) {
-            let reports = analysis.handle(Acquired::Samples {
+            let mut reports = analysis.handle(Acquired::Samples {
                 channel: 0,
                 values: block.to_vec(),
                 received: None,
             });
+            if with_extra && which == 0 {
+                reports.extend(analysis.handle(Acquired::Samples {
+                    channel: current_channel,
+                    values: block.iter().map(|t| 80.0 + 3.2 * t).collect(),
+                    received: None,
+                }));
+            }
             for report in reports {
                 seen += 1;
                 while decode_u32(&plc.bank().lock().holding[counter..]) != Some(seen) {
@@ -154,6 +188,14 @@ async fn main() -> anyhow::Result<()> {
         let at = |q: f64| latencies[((latencies.len() - 1) as f64 * q).round() as usize];
         let what = match (with_history, which) {
             (false, _) => String::new(),
+            (true, 0) if with_extra => format!(
+                ", history ({}), captures with an extra channel",
+                synchronous.name()
+            ),
+            (true, _) if with_extra => format!(
+                ", history ({}), captures without extra channels",
+                synchronous.name()
+            ),
             (true, 0) => format!(", history ({}), captures on", synchronous.name()),
             (true, _) => format!(", history ({}), captures off", synchronous.name()),
         };

@@ -97,6 +97,7 @@ fn bite_with_capture(n: u32, time: UtcTime, keep: KeepClass) -> [HistoryEvent; 2
             scale: 0.01,
             offset: 0.0,
             samples: window(u64::from(n)),
+            timing: None,
         }],
         gaps: vec![],
         analysis: Some(BiteWindowAnalysis {

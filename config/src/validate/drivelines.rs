@@ -2,7 +2,9 @@
 //! driveline model file.
 
 use crate::raw::{RawDriveline, RawWear};
-use crate::{BiteSettings, ChannelKind, Driveline, DrivelineThresholds, WearSettings};
+use crate::{
+    BiteSettings, ChannelKind, ChannelSource, Driveline, DrivelineThresholds, WearSettings,
+};
 
 use super::{
     optional, ChannelFacts, Checker, DEFAULT_POST_TRIGGER_S, DEFAULT_PRE_TRIGGER_S, MAX_WINDOW_S,
@@ -39,6 +41,7 @@ impl Checker<'_> {
                 ChannelKind::ProcessValue,
             )
         }));
+        let extra_channels = self.extra_channels(key, raw, facts, torque);
         let model = optional(
             raw.model
                 .as_ref()
@@ -108,6 +111,7 @@ impl Checker<'_> {
             name: name?,
             torque: torque?,
             metal_in_stand: metal_in_stand?,
+            extra_channels: extra_channels?,
             model: model?,
             bite: BiteSettings {
                 threshold_knm: threshold_knm?,
@@ -122,6 +126,85 @@ impl Checker<'_> {
             },
             wear: wear?,
         })
+    }
+
+    /// `drivelines[i].extra_channels`: each a known sampled channel (a Modbus block or
+    /// CAN signal, any kind) other than the torque channel, named once, at the torque
+    /// channel's sample rate (a capture's rows are the torque's samples).
+    fn extra_channels(
+        &mut self,
+        key: &str,
+        raw: &RawDriveline,
+        facts: &ChannelFacts<'_>,
+        torque: Option<usize>,
+    ) -> Option<Vec<usize>> {
+        let mut indices = Vec::new();
+        let mut valid = true;
+        for (position, name) in raw.extra_channels.iter().flatten().enumerate() {
+            let entry = format!("{key}.extra_channels[{position}]");
+            let Some(index) = facts.names.iter().position(|known| known == name) else {
+                self.report.push(
+                    &entry,
+                    format!(
+                        "unknown channel \"{name}\" ({})",
+                        super::known_list(&facts.names)
+                    ),
+                );
+                valid = false;
+                continue;
+            };
+            if Some(index) == torque || *name == raw.torque {
+                self.report.push(
+                    &entry,
+                    format!("\"{name}\" is the driveline's torque channel, captured already"),
+                );
+                valid = false;
+                continue;
+            }
+            if let Some(first) = raw.extra_channels.iter().flatten().position(|n| n == name) {
+                if first < position {
+                    self.report.push(
+                        &entry,
+                        format!("\"{name}\" is named already at extra_channels[{first}]"),
+                    );
+                    valid = false;
+                    continue;
+                }
+            }
+            // A channel that failed validation has been reported already.
+            let Some(channel) = facts.channels[index].as_ref() else {
+                valid = false;
+                continue;
+            };
+            if matches!(channel.source, ChannelSource::ModbusValue { .. }) {
+                self.report.push(
+                    &entry,
+                    format!(
+                        "channel \"{name}\" is a register value (one value per poll): name a \
+                         Modbus block or CAN channel"
+                    ),
+                );
+                valid = false;
+                continue;
+            }
+            let torque_rate = torque
+                .and_then(|torque| facts.channels[torque].as_ref())
+                .map(|torque| torque.sample_rate_hz);
+            if let Some(rate) = torque_rate.filter(|&rate| rate != channel.sample_rate_hz) {
+                self.report.push(
+                    &entry,
+                    format!(
+                        "channel \"{name}\" samples at {} Hz, the torque channel at {rate} Hz \
+                         (extra channels must share the torque's sample rate)",
+                        channel.sample_rate_hz
+                    ),
+                );
+                valid = false;
+                continue;
+            }
+            indices.push(index);
+        }
+        valid.then_some(indices)
     }
 
     /// `drivelines[i].wear`, every key optional.

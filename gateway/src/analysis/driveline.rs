@@ -4,7 +4,7 @@
 
 use std::path::Path;
 use std::sync::Arc;
-use std::time::{Instant, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use millgate_config::{Channel, Driveline};
 use millgate_dsp::bite::{BiteEvent, BiteSettings};
@@ -15,6 +15,7 @@ use super::bite_window::{
     analyze_window, Detector, DetectorState, PRE_TRIGGER_CAPACITY, WINDOW_CAPACITY,
 };
 use super::error::AnalysisError;
+use super::extra_channels::ExtraRing;
 use super::gap_estimate::{GapEstimate, GapObservation};
 use super::gap_monitor::{GapBite, GapMapJob, GapMonitor};
 use super::simulated_bite::BiteSimulator;
@@ -55,7 +56,8 @@ pub struct BiteReport {
     pub trigger_sample: u64,
     /// Wall-clock time of the trigger: counted back from the receive time of the
     /// window's last sample when the reader gave one (CAN kernel timestamps), else
-    /// from when the window completed here.
+    /// from when the block that completed the window was handled here (its last
+    /// sample taken then, the window's last one period by period before it).
     pub time: SystemTime,
     /// When the window's last sample was handed to analysis (before the analysis ran).
     pub window_complete: Instant,
@@ -91,6 +93,9 @@ pub struct BiteSamples {
     pub analysis: BiteWindowAnalysis,
     /// Sample rate, Hz.
     pub sample_rate_hz: f64,
+    /// The driveline's extra channels over the window, row for row with the torque
+    /// (filled when the bite is released to the history).
+    pub extra: Vec<CaptureChannel>,
 }
 
 /// Bite detection and analysis of one driveline.
@@ -120,6 +125,8 @@ pub(super) struct DrivelineAnalyzer {
     capture: Option<CaptureChannel>,
     /// A manual capture being taken (`Command::CaptureTorque`).
     manual: Option<ManualCapture>,
+    /// The extra channels' latest samples, when captures are kept.
+    extras: Vec<ExtraRing>,
 }
 
 /// How one driveline's bites are detected and analysed, from its configuration and
@@ -329,6 +336,7 @@ impl DrivelineAnalyzer {
             wear_problem,
             capture: None,
             manual: None,
+            extras: Vec::new(),
         })
     }
 
@@ -375,14 +383,76 @@ impl DrivelineAnalyzer {
 
     /// Keep each bite window's samples for its capture (`[history]` with captures on),
     /// describing the torque channel as `torque`.
-    pub(super) fn keep_captures(&mut self, torque: &Channel) {
-        self.capture = Some(CaptureChannel {
-            name: torque.name.clone(),
-            unit: torque.unit.clone(),
-            scale: torque.scale,
-            offset: torque.offset,
+    /// With `extra` (the driveline's `extra_channels`), each kept in a ring of
+    /// `ring_capacity` samples for the bites' captures.
+    pub(super) fn keep_captures(
+        &mut self,
+        torque: &Channel,
+        extra: &[&Channel],
+        ring_capacity: usize,
+    ) {
+        let describe = |channel: &Channel| CaptureChannel {
+            name: channel.name.clone(),
+            unit: channel.unit.clone(),
+            scale: channel.scale,
+            offset: channel.offset,
             samples: Vec::new(),
-        });
+            timing: None,
+        };
+        self.capture = Some(describe(torque));
+        self.extras = extra
+            .iter()
+            .map(|channel| ExtraRing::new(describe(channel), channel.sample_rate_hz, ring_capacity))
+            .collect();
+    }
+
+    /// Samples of extra channel `extra` (its position in `extra_channels`), the last
+    /// received at `received` (when known).
+    pub(super) fn extra_samples(
+        &mut self,
+        extra: usize,
+        values: &[f64],
+        received: Option<SystemTime>,
+    ) {
+        if let Some(ring) = self.extras.get_mut(extra) {
+            ring.push(values, received);
+        }
+    }
+
+    /// Samples of extra channel `extra` were lost.
+    pub(super) fn extra_gap(&mut self, extra: usize) {
+        if let Some(ring) = self.extras.get_mut(extra) {
+            ring.gap();
+        }
+    }
+
+    /// Whether every extra channel has samples up to the end of `report`'s window
+    /// (true without extra channels or captures).
+    pub(super) fn extras_reach_window_end(&self, report: &BiteReport) -> bool {
+        let Some(samples) = &report.samples else {
+            return true;
+        };
+        let rows = samples.torque.samples.len().saturating_sub(1);
+        let end =
+            samples.first_sample + Duration::from_secs_f64(rows as f64 / samples.sample_rate_hz);
+        self.extras.iter().all(|ring| ring.reaches(end))
+    }
+
+    /// Put the extra channels over `report`'s window into its capture (what the rings
+    /// hold of it: missing rows are NaN, see [`ExtraRing::capture`]).
+    pub(super) fn capture_extras(&self, report: &mut BiteReport) {
+        if self.extras.is_empty() {
+            return;
+        }
+        if let Some(samples) = report.samples.as_mut() {
+            let samples = Arc::make_mut(samples);
+            let rows = samples.torque.samples.len();
+            samples.extra = self
+                .extras
+                .iter()
+                .map(|ring| ring.capture(samples.first_sample, rows))
+                .collect();
+        }
     }
 
     /// Why the driveline runs without wear diagnosis although it names a model.
@@ -427,12 +497,14 @@ impl DrivelineAnalyzer {
         }
     }
 
-    /// The report of a completed window whose last sample was received at
-    /// `last_sample_time` (now when unknown).
+    /// The report of a completed window whose last sample was taken at
+    /// `last_sample_time` (now when unknown), a time counted back from a kernel
+    /// receive timestamp when `kernel_time`.
     fn report(
         &mut self,
         event: &BiteEvent<WINDOW_CAPACITY>,
         last_sample_time: Option<SystemTime>,
+        kernel_time: bool,
         ended_by_gap: Option<Option<u64>>,
     ) -> Option<BiteReport> {
         let window_complete = Instant::now();
@@ -471,7 +543,7 @@ impl DrivelineAnalyzer {
                     ..torque.clone()
                 },
                 first_sample: before(time, event.trigger_index as f64 / self.sample_rate_hz),
-                kernel_time: last_sample_time.is_some(),
+                kernel_time,
                 gap: ended_by_gap.map(|missed_samples| CaptureGap {
                     before_sample: event.window.len(),
                     missed_samples,
@@ -486,6 +558,7 @@ impl DrivelineAnalyzer {
                     min_static_knm: self.transient.min_static_knm,
                 },
                 sample_rate_hz: self.sample_rate_hz,
+                extra: Vec::new(),
             })
         });
         Some(BiteReport {
@@ -526,9 +599,13 @@ impl DrivelineAnalyzer {
         }
         for (i, &value) in values.iter().enumerate() {
             if let Some(event) = self.detector.process(&mut self.state, value) {
+                // The window's last sample is `later` before the block's last: dated
+                // from its receive time, or (a Modbus DAQ) from now, as the extra
+                // channels' samples are.
                 let later = (values.len() - 1 - i) as f64 / self.sample_rate_hz;
-                let time = received.map(|last| before(last, later));
-                reports.extend(self.report(&event, time, None));
+                let last = received.unwrap_or_else(SystemTime::now);
+                let time = before(last, later);
+                reports.extend(self.report(&event, Some(time), received.is_some(), None));
             }
         }
     }
@@ -541,7 +618,7 @@ impl DrivelineAnalyzer {
             });
         }
         if let Some(event) = self.detector.gap(&mut self.state, missed.unwrap_or(0)) {
-            reports.extend(self.report(&event, None, Some(missed)));
+            reports.extend(self.report(&event, None, false, Some(missed)));
         }
     }
 
@@ -736,7 +813,10 @@ impl BiteReport {
             first_sample_unix_ns: unix_ns(samples.first_sample),
             kernel_time: samples.kernel_time,
             sample_rate_hz: samples.sample_rate_hz,
-            channels: vec![samples.torque.clone()],
+            channels: std::iter::once(&samples.torque)
+                .chain(&samples.extra)
+                .cloned()
+                .collect(),
             gaps: samples.gap.into_iter().collect(),
             analysis: Some(samples.analysis),
             episode: None,

@@ -10,6 +10,7 @@ pub(crate) mod bite_window;
 pub mod chatter;
 pub mod driveline;
 mod error;
+mod extra_channels;
 pub mod gap_estimate;
 pub mod gap_map;
 pub(crate) mod gap_map_cache;
@@ -19,6 +20,7 @@ pub(crate) mod simulated_bite;
 pub mod wear;
 
 use std::sync::Arc;
+use std::time::{Duration, Instant};
 
 use millgate_config::Config;
 use tokio::sync::{broadcast, mpsc};
@@ -43,6 +45,13 @@ pub struct Analysis {
     by_torque: Vec<Vec<usize>>,
     /// Per channel: the drivelines it triggers.
     by_trigger: Vec<Vec<usize>>,
+    /// Per channel: the drivelines whose extra channel it is, with its position in
+    /// their `extra_channels`.
+    by_extra: Vec<Vec<(usize, usize)>>,
+    /// Per driveline: how long a bite waits for its extra channels.
+    extra_hold: Vec<Duration>,
+    /// Bites waiting for their extra channels, in the order they completed.
+    held: Vec<HeldBite>,
     board: Arc<Board>,
     bites: broadcast::Sender<BiteReport>,
     /// Chatter monitors of the tandem mills.
@@ -64,6 +73,8 @@ impl Analysis {
     ) -> Result<Self, AnalysisError> {
         let mut by_torque = vec![Vec::new(); config.channels.len()];
         let mut by_trigger = vec![Vec::new(); config.channels.len()];
+        let mut by_extra = vec![Vec::new(); config.channels.len()];
+        let mut extra_hold = Vec::new();
         let mut drivelines = Vec::new();
         let cache_dir = config
             .cache_dir
@@ -76,9 +87,25 @@ impl Analysis {
         for (index, driveline) in config.drivelines.iter().enumerate() {
             let torque = &config.channels[driveline.torque];
             let mut analyzer = DrivelineAnalyzer::new(index, driveline, torque, &cache_dir)?;
+            let hold = extra_channel_hold(config, &driveline.extra_channels);
             if captures {
-                analyzer.keep_captures(torque);
+                let extra: Vec<_> = driveline
+                    .extra_channels
+                    .iter()
+                    .map(|&channel| &config.channels[channel])
+                    .collect();
+                let window_s = driveline.bite.pre_trigger_s + driveline.bite.post_trigger_s;
+                // The window, the hold, and as much again for a channel ahead of the
+                // torque by up to the hold.
+                let ring = ((window_s + 2.0 * hold.as_secs_f64()) * torque.sample_rate_hz).ceil()
+                    as usize
+                    + 1;
+                analyzer.keep_captures(torque, &extra, ring);
+                for (position, &channel) in driveline.extra_channels.iter().enumerate() {
+                    by_extra[channel].push((index, position));
+                }
             }
+            extra_hold.push(hold);
             drivelines.push(analyzer);
             by_torque[driveline.torque].push(index);
             if let Some(trigger) = driveline.metal_in_stand {
@@ -96,6 +123,9 @@ impl Analysis {
             drivelines,
             by_torque,
             by_trigger,
+            by_extra,
+            extra_hold,
+            held: Vec::new(),
             board,
             bites,
             chatter,
@@ -224,7 +254,10 @@ impl Analysis {
         }
     }
 
-    /// Handle one message from a reader; returns the bites it completed.
+    /// Handle one message from a reader; returns the bites it released: published
+    /// and recorded. A bite of a driveline with extra channels is held until every
+    /// one has samples up to the end of its window, or its hold bound passes
+    /// ([`Self::release_held`]); any other bite is released at once.
     pub fn handle(&mut self, message: Acquired) -> Vec<BiteReport> {
         self.chatter.handle(&message);
         self.rod_mills.handle(&message);
@@ -235,6 +268,9 @@ impl Analysis {
                 values,
                 received,
             } => {
+                for &(d, extra) in &self.by_extra[channel] {
+                    self.drivelines[d].extra_samples(extra, &values, received);
+                }
                 for &d in &self.by_torque[channel] {
                     self.drivelines[d].samples(&values, received, &mut reports);
                     if let Some(capture) = self.drivelines[d].take_manual_capture() {
@@ -249,6 +285,9 @@ impl Analysis {
                 channel,
                 missed_samples,
             } => {
+                for &(d, extra) in &self.by_extra[channel] {
+                    self.drivelines[d].extra_gap(extra);
+                }
                 for &d in &self.by_torque[channel] {
                     self.drivelines[d].gap(missed_samples, &mut reports);
                 }
@@ -259,7 +298,34 @@ impl Analysis {
                 }
             }
         }
-        for report in &reports {
+        let now = Instant::now();
+        self.held.extend(reports.into_iter().map(|report| HeldBite {
+            deadline: report.window_complete + self.extra_hold[report.driveline],
+            report,
+        }));
+        self.release_held(now, false)
+    }
+
+    /// Release the held bites (in the order they completed, per driveline) whose
+    /// extra channels reach the end of their window, whose bound has passed at `now`,
+    /// or all when `all`: their captures take what the rings hold, and they are
+    /// published and recorded. Returns them.
+    pub fn release_held(&mut self, now: Instant, all: bool) -> Vec<BiteReport> {
+        let mut released = Vec::new();
+        let mut waiting: Vec<usize> = Vec::new();
+        for mut held in std::mem::take(&mut self.held) {
+            let driveline = &self.drivelines[held.report.driveline];
+            let ready =
+                all || now >= held.deadline || driveline.extras_reach_window_end(&held.report);
+            if !ready || waiting.contains(&held.report.driveline) {
+                waiting.push(held.report.driveline);
+                self.held.push(held);
+                continue;
+            }
+            driveline.capture_extras(&mut held.report);
+            released.push(held.report);
+        }
+        for report in &released {
             self.drivelines[report.driveline].publish(&self.board, report);
             tracing::info!(
                 driveline = %report.driveline_name,
@@ -279,7 +345,7 @@ impl Analysis {
             // Nobody listening is fine: the demo and tests subscribe, the service need not.
             let _ = self.bites.send(report.clone());
         }
-        reports
+        released
     }
 
     /// Run until every sender of `samples` is dropped, installing gap maps as they
@@ -315,9 +381,43 @@ impl Analysis {
                     Some((index, result)) => self.install_gap_maps(index, result),
                     None => maps_open = false,
                 },
-                _ = idle.tick() => {}
+                _ = idle.tick() => {
+                    self.release_held(Instant::now(), false);
+                }
             }
             liveness.analysis_turned();
         }
+        // The readers are gone: no more extra samples will come.
+        self.release_held(Instant::now(), true);
     }
+}
+
+/// A bite waiting for its driveline's extra channels.
+#[derive(Debug)]
+struct HeldBite {
+    /// The bite, analysed.
+    report: BiteReport,
+    /// When it is released whatever the extra channels hold.
+    deadline: Instant,
+}
+
+/// Least time a bite waits for its extra channels.
+const MIN_EXTRA_HOLD: Duration = Duration::from_millis(200);
+
+/// How long a bite of a driveline with `extra_channels` (indices into
+/// `config.channels`) waits for them: for each, the larger of [`MIN_EXTRA_HOLD`] and
+/// two poll periods of its Modbus source (a block that was not ready at one poll is
+/// read at the next); the largest over the channels; zero without any.
+fn extra_channel_hold(config: &Config, extra_channels: &[usize]) -> Duration {
+    extra_channels
+        .iter()
+        .map(|&channel| match config.channels[channel].source {
+            millgate_config::ChannelSource::ModbusBlock { source, .. }
+            | millgate_config::ChannelSource::ModbusValue { source, .. } => {
+                (2 * config.modbus_sources[source].poll_period).max(MIN_EXTRA_HOLD)
+            }
+            _ => MIN_EXTRA_HOLD,
+        })
+        .max()
+        .unwrap_or(Duration::ZERO)
 }

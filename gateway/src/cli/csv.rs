@@ -5,6 +5,8 @@
 
 use std::path::Path;
 
+use crate::outputs::history::capture_files::CaptureHeader;
+
 /// A CSV that cannot be used; every variant names where.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum CsvError {
@@ -262,6 +264,20 @@ pub fn parse(text: &str) -> Result<Table, CsvError> {
             });
         }
     }
+    // A capture's extra channels (`drivelines[].extra_channels`) may lack samples at
+    // the window's ends: an empty cell there reads as NaN.
+    let may_be_empty: Vec<bool> = {
+        let extra: Vec<String> = match CaptureHeader::from_comments(&comments) {
+            Some(Ok(capture)) => capture
+                .channels
+                .into_iter()
+                .filter(|meta| meta.channel.timing.is_some())
+                .map(|meta| meta.channel.name)
+                .collect(),
+            _ => Vec::new(),
+        };
+        header.iter().map(|name| extra.contains(name)).collect()
+    };
     let mut table = Table {
         names: header[1..].to_vec(),
         time_s: Vec::new(),
@@ -282,6 +298,10 @@ pub fn parse(text: &str) -> Result<Table, CsvError> {
             let column = index + 1;
             let cell = match cells.get(index) {
                 Some(cell) if !cell.is_empty() => *cell,
+                Some(_) if may_be_empty[index] => {
+                    table.channels[index - 1].push(f64::NAN);
+                    continue;
+                }
                 _ => {
                     return Err(CsvError::MissingColumn {
                         line,

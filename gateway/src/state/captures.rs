@@ -71,6 +71,29 @@ pub struct CaptureChannel {
     /// stores them in the blob).
     #[serde(skip)]
     pub samples: Vec<f64>,
+    /// The channel's own timing when it was captured beside another channel (a
+    /// driveline's `extra_channels` beside its torque); `None`: the capture's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub timing: Option<ChannelTiming>,
+}
+
+/// The own timing of a channel captured beside the channel that sets a capture's rows
+/// (a bite's extra channel beside its torque). Row `k` holds the channel's sample
+/// nearest in time to the capture's row `k`; rows outside `first_row..end_row` hold no
+/// sample (NaN; an empty cell in CSV): data the gateway no longer or not yet held.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ChannelTiming {
+    /// Time of the channel's sample in row `first_row`, ns since the Unix epoch (UTC).
+    pub first_sample_unix_ns: i64,
+    /// The channel's sample rate, Hz.
+    pub sample_rate_hz: f64,
+    /// Whether that time comes from the kernel's receive timestamps (CAN).
+    pub kernel_time: bool,
+    /// First row holding a sample of the channel.
+    pub first_row: usize,
+    /// One past the last row holding a sample; below the capture's length when the
+    /// channel's data had not arrived when the bite's hold ended (a gap at the end).
+    pub end_row: usize,
 }
 
 /// Data lost inside or at the end of a capture.

@@ -167,6 +167,22 @@ impl Setup {
     /// `/metrics` endpoint and the history at `folder/history.db` (`folder` relative to
     /// the scratch folder).
     pub(crate) async fn new(tag: &str, folder: &str) -> Self {
+        Self::with_daq(tag, folder, |config, schedule| {
+            millgate_sim::devices::demo::demo_daq(config, schedule).unwrap()
+        })
+        .await
+    }
+
+    /// As [`Self::new`], with the virtual DAQ `daq` makes from the demo's
+    /// configuration and schedule (a DAQ serving more channels than the torque).
+    pub(crate) async fn with_daq(
+        tag: &str,
+        folder: &str,
+        daq: impl FnOnce(
+            &millgate_config::Config,
+            &millgate_sim::schedule::Schedule,
+        ) -> millgate_sim::devices::virtual_daq::VirtualDaq,
+    ) -> Self {
         let scratch =
             std::env::temp_dir().join(format!("millgate-history-{tag}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&scratch);
@@ -175,7 +191,8 @@ impl Setup {
         let demo = setup(60.0, 0.5, 5).unwrap();
         let mut config = demo.config;
         let map = RegisterMap::new(&config);
-        let devices = DemoDevices::start(&mut config, &demo.schedule, usize::from(map.len()) + 16)
+        let daq = daq(&config, &demo.schedule);
+        let devices = DemoDevices::start_with(&mut config, daq, usize::from(map.len()) + 16)
             .await
             .unwrap();
         let (server_port, metrics_port) = (free_port(), free_port());

@@ -112,6 +112,7 @@ impl EpisodeRecorder {
                         scale: channel.scale,
                         offset: channel.offset,
                         samples: Vec::new(),
+                        timing: None,
                     }
                 })
                 .collect(),

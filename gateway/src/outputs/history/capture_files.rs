@@ -221,7 +221,13 @@ fn write_csv(
     for index in 0..usize::try_from(capture.row.samples).unwrap_or(0) {
         write!(out, "{}", capture.time_s(index))?;
         for channel in &capture.channels {
-            write!(out, ",{}", channel.samples[index])?;
+            let sample = channel.samples[index];
+            if sample.is_nan() && channel.timing.is_some() {
+                // An extra channel's row without a sample: an empty cell.
+                write!(out, ",")?;
+            } else {
+                write!(out, ",{sample}")?;
+            }
         }
         writeln!(out)?;
     }

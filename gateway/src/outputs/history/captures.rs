@@ -451,6 +451,7 @@ mod tests {
             scale,
             offset,
             samples,
+            timing: None,
         }
     }
 

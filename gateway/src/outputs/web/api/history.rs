@@ -54,7 +54,9 @@ pub(crate) async fn captures(
 
 /// `GET /api/captures/{id}`: one capture with its samples: the row, and per channel
 /// its name, unit and samples (`t` of sample k is k / `sample_rate_hz` s after
-/// `first_sample_unix_ns`). 404 for an id the file does not hold.
+/// `first_sample_unix_ns`), and a driveline's extra channel's own `timing` (null for
+/// the torque; its rows without a sample are null). 404 for an id the file does not
+/// hold.
 pub(crate) async fn capture(
     State(state): State<Arc<WebState>>,
     id: Result<Path<i64>, PathRejection>,
@@ -71,6 +73,7 @@ pub(crate) async fn capture(
                 "name": channel.name,
                 "unit": channel.unit,
                 "samples": channel.samples,
+                "timing": channel.timing,
             })
         })
         .collect();
