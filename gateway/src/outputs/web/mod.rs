@@ -1,7 +1,8 @@
 //! The maintenance web page and its JSON API (`[outputs.web]`): read-only HTTP/1.1
 //! on axum, for a maintenance engineer's browser and for tools that poll.
 //!
-//! - **Pages** (`page.rs`): an overview, one page per driveline and the alarm list,
+//! - **Pages** (`page.rs`): an overview, one page per driveline and per tandem mill
+//!   (its captured chatter episodes) and the alarm list,
 //!   each a small server-rendered HTML shell that the page's own script
 //!   (`assets/web/app.js`) fills from the JSON API, plotting with the vendored uPlot
 //!   (`assets/uplot`, MIT). Everything is compiled into the binary: no CDN, no fonts.
@@ -9,7 +10,8 @@
 //!   assets with strong ETags and 304 on `If-None-Match`.
 //! - **API** (`api/`): `/api/overview`,
 //!   `/api/drivelines[/{name}[/bites|/captures|/wear|/map]]`,
-//!   `/api/captures/{id}[/file|/response]`,
+//!   `/api/tandem_mills/{name}/captures`,
+//!   `/api/captures/{id}[/file|/response|/bands]`,
 //!   `/api/alarms` and `/api/events` (server-sent events: the live results, sent when
 //!   they change). Live figures come from the [`Board`]'s snapshot; history
 //!   figures from the history file through a read-only [`HistoryReader`] of the
@@ -108,6 +110,7 @@ impl WebServer {
             allowed_hosts: settings.allowed_hosts.clone(),
             live: live_rx,
             trends: shared::TrendCache::default(),
+            capture_bands: shared::BandsHook::default(),
         };
         let state = Arc::new(state);
         live.send_replace(Arc::new(api::live_json(&state)));
@@ -116,6 +119,14 @@ impl WebServer {
             state,
             live,
         })
+    }
+
+    /// The band analysis of tandem mills' captures (`/api/captures/{id}/bands`), given
+    /// by the service (the outputs import no analysis); without it that route
+    /// answers 409.
+    pub fn with_capture_bands(self, analyse: crate::state::captures::CaptureBandsFn) -> Self {
+        let _ = self.state.capture_bands.0.set(analyse);
+        self
     }
 
     /// Serve `listener` until `shutdown`; an error when accepting fails for good.
@@ -161,6 +172,7 @@ pub(crate) fn router(state: Arc<WebState>) -> Router {
     Router::new()
         .route("/", get(page::overview))
         .route("/drivelines/{name}", get(page::driveline))
+        .route("/tandem_mills/{name}", get(page::tandem_mill))
         .route("/alarms", get(page::alarms))
         .route("/assets/{file}", get(page::asset))
         .route("/favicon.ico", get(page::favicon))
@@ -172,6 +184,8 @@ pub(crate) fn router(state: Arc<WebState>) -> Router {
         .route("/api/captures/{id}", get(api::capture))
         .route("/api/captures/{id}/file", get(api::capture_file))
         .route("/api/captures/{id}/response", get(api::capture_response))
+        .route("/api/captures/{id}/bands", get(api::capture_bands))
+        .route("/api/tandem_mills/{name}/captures", get(api::tandem_mill_captures))
         .route("/api/drivelines/{name}/wear", get(api::wear))
         .route("/api/drivelines/{name}/map", get(api::gap_maps))
         .route("/api/alarms", get(api::alarms))

@@ -6,13 +6,16 @@
 //! busy or the live-update streams are all taken.
 //!
 //! `live.rs`: the live figures (overview, drivelines) and their server-sent events;
-//! `history.rs`: bites, the wear series and alarms from the file; `maps.rs`: the gap
+//! `history.rs`: bites, the wear series and alarms from the file; `episodes.rs`: a
+//! tandem mill's captures and their band signals and spectra; `maps.rs`: the gap
 //! maps' curves. This file holds the request plumbing they share.
 
+mod episodes;
 mod history;
 mod live;
 mod maps;
 
+pub(crate) use episodes::{capture_bands, tandem_mill_captures};
 pub(crate) use history::{alarms, bites, capture, capture_file, capture_response, captures, wear};
 pub(crate) use live::{driveline, drivelines, events, live_json, overview};
 pub(crate) use maps::gap_maps;
