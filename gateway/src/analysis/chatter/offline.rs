@@ -202,7 +202,10 @@ mod tests {
         // Parseval: the PSD integrates to the sine's power A^2 / 2 (the mean removed).
         let power: f64 = psd.iter().sum::<f64>() * step;
         let expected = amplitude * amplitude / 2.0;
-        assert!((power / expected - 1.0).abs() < 0.02, "{power} vs {expected}");
+        assert!(
+            (power / expected - 1.0).abs() < 0.02,
+            "{power} vs {expected}"
+        );
         assert!(welch_psd(&samples[..100], fs, n).is_none());
     }
 }

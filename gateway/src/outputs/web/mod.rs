@@ -185,7 +185,10 @@ pub(crate) fn router(state: Arc<WebState>) -> Router {
         .route("/api/captures/{id}/file", get(api::capture_file))
         .route("/api/captures/{id}/response", get(api::capture_response))
         .route("/api/captures/{id}/bands", get(api::capture_bands))
-        .route("/api/tandem_mills/{name}/captures", get(api::tandem_mill_captures))
+        .route(
+            "/api/tandem_mills/{name}/captures",
+            get(api::tandem_mill_captures),
+        )
         .route("/api/drivelines/{name}/wear", get(api::wear))
         .route("/api/drivelines/{name}/map", get(api::gap_maps))
         .route("/api/alarms", get(api::alarms))

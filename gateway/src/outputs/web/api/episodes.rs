@@ -69,11 +69,7 @@ pub(crate) async fn capture_bands(
             .capture_bands
             .get()
             .ok_or_else(|| conflict("no band analysis in this server".into()))?;
-        let stands: Vec<Vec<f64>> = capture
-            .channels
-            .iter()
-            .map(|c| c.samples.clone())
-            .collect();
+        let stands: Vec<Vec<f64>> = capture.channels.iter().map(|c| c.samples.clone()).collect();
         let episode = capture.meta.episode.as_ref();
         let bands = analyse(mill, row.sample_rate_hz, &stands, episode).map_err(conflict)?;
         let band: Vec<serde_json::Value> = bands
@@ -132,7 +128,8 @@ fn envelope(x: &[f64], y: &[f64], points: usize) -> (Vec<f64>, Vec<f64>, Vec<f64
     for (xs, ys) in x.chunks(per).zip(y.chunks(per)) {
         out.0.push(xs[0]);
         out.1.push(ys.iter().copied().fold(f64::INFINITY, f64::min));
-        out.2.push(ys.iter().copied().fold(f64::NEG_INFINITY, f64::max));
+        out.2
+            .push(ys.iter().copied().fold(f64::NEG_INFINITY, f64::max));
     }
     out
 }
