@@ -52,6 +52,13 @@
   const live = document.getElementById("live");
   let lastLive = null;
   const listeners = [];
+  let stream = null;
+  // A page left for another (kept in the back/forward cache) gives its stream up: a
+  // browser holds 6 connections per host, and such idle streams would take them all.
+  window.addEventListener("pagehide", () => stream && stream.close());
+  window.addEventListener("pageshow", (event) => {
+    if (event.persisted) connect();
+  });
   function connect() {
     const source = new EventSource("/api/events");
     source.addEventListener("results", (event) => {
@@ -62,6 +69,7 @@
       live.className = "live on";
       for (const listener of listeners) listener(now, before);
     });
+    stream = source;
     source.onerror = () => {
       live.textContent = "reconnecting";
       live.className = "live off";
