@@ -48,6 +48,40 @@
     return answer;
   }
 
+  // A "capture" button after `after` (a node), when the gateway takes manual captures
+  // through its API (outputs.web.allow_commands, told by /api/overview): it asks for
+  // the next `seconds` of `subject` (a driveline's torque or a tandem mill's stands)
+  // and says what the gateway answered; `done` runs once the span has passed.
+  async function offerCapture(subject, after, seconds, done) {
+    let overview;
+    try {
+      overview = await getJson("/api/overview");
+    } catch (error) { return; }
+    if (!overview.allow_commands) return;
+    const said = el("span", { class: "muted", id: "capture-said" });
+    const button = el("button", { type: "button", class: "plot-capture", id: "capture-request" },
+      "capture the next " + seconds + " s");
+    button.addEventListener("click", async () => {
+      button.disabled = true;
+      try {
+        const response = await fetch("/api/captures", {
+          method: "POST",
+          headers: { "Content-Type": "application/json", Accept: "application/json" },
+          body: JSON.stringify({ subject, seconds }),
+        });
+        const answer = await response.json();
+        if (!response.ok) throw new Error(answer.error || response.statusText);
+        said.textContent = " asked: the next " + answer.seconds + " s of " + answer.subject
+          + " are kept as a manual capture (listed once they have passed).";
+        setTimeout(() => { button.disabled = false; done(); }, answer.seconds * 1000 + 2000);
+      } catch (error) {
+        said.textContent = " " + error.message;
+        button.disabled = false;
+      }
+    });
+    after.after(el("p", { class: "note" }, button, said));
+  }
+
   // ---- live updates -------------------------------------------------------------
   const live = document.getElementById("live");
   let lastLive = null;
@@ -628,6 +662,7 @@
       });
     }
     start().catch((error) => { gapNote.textContent = error.message; });
+    offerCapture(name, traceNote, 10, loadHistory);
   }
 
   // ---- tandem mill ----------------------------------------------------------------
@@ -766,6 +801,7 @@
       if (spectrumPlot) spectrumPlot.setSize({ width: plotWidth(spectrumNode), height: 300 });
     });
     load();
+    offerCapture(mill, note, 10, load);
   }
 
   // ---- alarms -------------------------------------------------------------------

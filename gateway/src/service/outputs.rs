@@ -202,10 +202,12 @@ fn web_page(w: &mut Wiring<'_>, shutdown: &Shutdown) -> Result<Option<OutputTask
         })?;
     // The page plots a tandem mill's captured episode with the monitor's own code.
     let config = Arc::new(w.config.clone());
-    let server = server.with_capture_bands(Arc::new(move |mill, rate_hz, stands, episode| {
-        crate::analysis::chatter::episode_bands(&config, mill, rate_hz, stands, episode)
-            .map_err(|error| error.to_string())
-    }));
+    let server = server
+        .with_commands(w.commands.clone())
+        .with_capture_bands(Arc::new(move |mill, rate_hz, stands, episode| {
+            crate::analysis::chatter::episode_bands(&config, mill, rate_hz, stands, episode)
+                .map_err(|error| error.to_string())
+        }));
     let shutdown = shutdown.clone();
     Ok(task("maintenance page", async move {
         server

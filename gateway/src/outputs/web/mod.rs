@@ -18,7 +18,9 @@
 //!   request's own, on the blocking pool, bounded by `request_timeout`.
 //! - **Bounded and read-only**: served by the gateway's one HTTP stack
 //!   (`outputs::http`: GET and HEAD only, no body, bounded heads, header
-//!   timeout and connections, security headers). None of this runs on the analysis
+//!   timeout and connections, security headers). The one exception is
+//!   `POST /api/captures` (a manual capture), refused unless
+//!   `outputs.web.allow_commands`. None of this runs on the analysis
 //!   task: the server only reads the published snapshot and the file.
 //!
 //! [`HistoryReader`]: crate::outputs::history::query::HistoryReader
@@ -111,6 +113,8 @@ impl WebServer {
             live: live_rx,
             trends: shared::TrendCache::default(),
             capture_bands: shared::BandsHook::default(),
+            allow_commands: settings.allow_commands,
+            commands: std::sync::OnceLock::new(),
         };
         let state = Arc::new(state);
         live.send_replace(Arc::new(api::live_json(&state)));
@@ -129,9 +133,17 @@ impl WebServer {
         self
     }
 
+    /// The analysis' command channel, for `POST /api/captures` (taken only with
+    /// `outputs.web.allow_commands`).
+    pub fn with_commands(self, commands: crate::state::commands::CommandSender) -> Self {
+        let _ = self.state.commands.set(commands);
+        self
+    }
+
     /// Serve `listener` until `shutdown`; an error when accepting fails for good.
     pub async fn run(self, listener: TcpListener, shutdown: Shutdown) -> std::io::Result<()> {
         let limits = Limits {
+            post_paths: &["/api/captures"],
             max_connections: self.settings.max_connections,
             header_timeout: self.settings.header_timeout,
         };
@@ -181,6 +193,7 @@ pub(crate) fn router(state: Arc<WebState>) -> Router {
         .route("/api/drivelines/{name}", get(api::driveline))
         .route("/api/drivelines/{name}/bites", get(api::bites))
         .route("/api/drivelines/{name}/captures", get(api::captures))
+        .route("/api/captures", axum::routing::post(api::request_capture))
         .route("/api/captures/{id}", get(api::capture))
         .route("/api/captures/{id}/file", get(api::capture_file))
         .route("/api/captures/{id}/response", get(api::capture_response))

@@ -62,6 +62,10 @@ pub struct WebState {
     pub(crate) trends: TrendCache,
     /// The band analysis of a tandem mill's capture, once the service gave it.
     pub(crate) capture_bands: BandsHook,
+    /// `outputs.web.allow_commands`: whether `POST /api/captures` is taken.
+    pub(crate) allow_commands: bool,
+    /// The analysis' command channel, once the service gave it.
+    pub(crate) commands: std::sync::OnceLock<crate::state::commands::CommandSender>,
 }
 
 /// The band analysis of a tandem mill's capture (`analysis::chatter::episode_bands`,
