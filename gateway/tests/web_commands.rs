@@ -29,6 +29,10 @@ async fn post(
     http_raw(port, raw.as_bytes()).await
 }
 
+/// A refused request: path, `Host`, content type, body; the status and words of its
+/// error.
+type Refusal<'a> = (&'a str, &'a str, Option<&'a str>, String, u16, &'a str);
+
 /// The answer's status and its JSON `error` (empty when there is none).
 fn refusal(answer: &HttpAnswer) -> (u16, String) {
     let error = serde_json::from_str::<serde_json::Value>(&answer.body)
@@ -75,7 +79,7 @@ async fn a_capture_asked_through_the_api_is_refused_unless_allowed_and_kept_when
         overview_allows(&http(port, "GET", "/api/overview").await),
         Some(true)
     );
-    let refusals: [(&str, &str, Option<&str>, String, u16, &str); 10] = [
+    let refusals: [Refusal<'_>; 10] = [
         (
             "/api/captures",
             "127.0.0.1",

@@ -88,7 +88,7 @@ pub(crate) fn write_chatter_capture(db: &Path, mill: &str) -> anyhow::Result<()>
         cut: false,
     };
     {
-        let mut connection = connect(&db)?;
+        let mut connection = connect(db)?;
         let start = UtcTime::parse("2026-11-27T08:00:00Z").map_err(anyhow::Error::msg)?;
         let run = insert_run(
             &connection,

@@ -173,7 +173,11 @@ pub fn welch_psd(samples: &[f64], sample_rate_hz: f64, segment: usize) -> Option
         }
         segments += 1;
     }
-    let last = if segment % 2 == 0 { bins - 1 } else { bins };
+    let last = if segment.is_multiple_of(2) {
+        bins - 1
+    } else {
+        bins
+    };
     for (k, p) in psd.iter_mut().enumerate() {
         *p /= segments as f64;
         if k > 0 && k < last {
