@@ -10,7 +10,8 @@
 //! `report` command's `report.html` fit the width (no sideways scrolling), and each
 //! plot has a text alternative that gives its figures. A tandem mill's page plots a
 //! chatter episode written into the history before the start: the band RMS and the
-//! spectra as `/api/captures/{id}/bands` gives them.
+//! spectra as `/api/captures/{id}/bands` gives them; its "capture" button (with
+//! `allow_commands`) has the gateway accept a manual capture of the stands.
 //!
 //! Every read of the page is one script call (`until_js`): the live updates re-render
 //! the tables, so an element found in one WebDriver call can be stale in the next.
@@ -350,6 +351,22 @@ async fn episode_plots_are_the_bands_api(client: &Client, port: u16) {
             "{peak}: {shown}"
         );
     }
+    // The capture button (allow_commands) asks the gateway through POST /api/captures.
+    let said = until_js(
+        client,
+        "const b = document.getElementById('capture-request'); \
+         if (!b) return null; \
+         if (!window.asked) { window.asked = true; b.click(); } \
+         return document.getElementById('capture-said').textContent;",
+        Duration::from_secs(20),
+        |v| v.as_str().is_some_and(|t| !t.is_empty()),
+    )
+    .await;
+    assert!(
+        said.as_str()
+            .is_some_and(|t| t.contains("asked: the next 10 s of TCM")),
+        "{said}"
+    );
 }
 
 /// A phone's viewport width, CSS px (an iPhone 12 to 15's).
@@ -495,7 +512,10 @@ async fn the_pages_list_the_drivelines_plot_the_gap_and_show_a_new_bite_live() {
     };
     let setup = Setup::new("web-browser", "history").await;
     let port = free_port();
-    setup.append_config(&format!("\n[outputs.web]\nbind = \"127.0.0.1:{port}\"\n"));
+    // With manual captures through the API: the pages offer the button.
+    setup.append_config(&format!(
+        "\n[outputs.web]\nbind = \"127.0.0.1:{port}\"\nallow_commands = true\n"
+    ));
     // A tandem mill (its DAQ absent) with a chatter episode already in the history.
     write_chatter_capture(&setup.history, "TCM").expect("write the episode");
     setup.append_config(&format!(

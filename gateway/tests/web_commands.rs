@@ -172,6 +172,9 @@ async fn a_capture_asked_through_the_api_is_refused_unless_allowed_and_kept_when
             body.len()
         );
     }
+    let get = http(port, "GET", "/api/captures").await;
+    assert_eq!(refusal(&get).0, 405, "{}", get.body);
+    assert!(get.body.contains("POST only"), "{}", get.body);
     let history = setup.history.clone();
     let manual = move || -> Vec<CaptureRow> {
         let rows: Vec<CaptureRow> = HistoryReader::open(&history)

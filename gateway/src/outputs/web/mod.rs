@@ -193,7 +193,15 @@ pub(crate) fn router(state: Arc<WebState>) -> Router {
         .route("/api/drivelines/{name}", get(api::driveline))
         .route("/api/drivelines/{name}/bites", get(api::bites))
         .route("/api/drivelines/{name}/captures", get(api::captures))
-        .route("/api/captures", axum::routing::post(api::request_capture))
+        .route(
+            "/api/captures",
+            axum::routing::post(api::request_capture).fallback(|| async {
+                http::error(
+                    StatusCode::METHOD_NOT_ALLOWED,
+                    "POST only: {\"subject\": NAME, \"seconds\": S} asks for a manual capture",
+                )
+            }),
+        )
         .route("/api/captures/{id}", get(api::capture))
         .route("/api/captures/{id}/file", get(api::capture_file))
         .route("/api/captures/{id}/response", get(api::capture_response))
