@@ -229,8 +229,13 @@ pub fn exposure_warning(settings: &WebOutput) -> Option<String> {
     (!settings.bind.ip().is_loopback()).then(|| {
         format!(
             "outputs.web.bind: {} accepts clients from other hosts: anyone who reaches it \
-             reads the maintenance page and its API without authentication (read-only)",
-            settings.bind
+             reads the maintenance page and its API without authentication ({})",
+            settings.bind,
+            if settings.allow_commands {
+                "and, with allow_commands, asks for manual captures"
+            } else {
+                "read-only"
+            }
         )
     })
 }
