@@ -217,6 +217,7 @@ pub(crate) struct RawWebOutput {
     pub history_queries: Option<i64>,
     pub max_event_streams: Option<i64>,
     pub allowed_hosts: Option<Vec<String>>,
+    pub allow_commands: Option<bool>,
 }
 
 /// `[outputs.mqtt]`: the Sparkplug B edge node.

@@ -693,6 +693,9 @@ pub struct WebOutput {
     /// naming another host in its `Host` header is refused 421: DNS rebinding);
     /// default none. Lower case, letters, digits, `-` and `.`.
     pub allowed_hosts: Vec<String>,
+    /// Whether `POST /api/captures` takes manual-capture requests (default false:
+    /// the page and its API are read-only, and the request is refused 403).
+    pub allow_commands: bool,
 }
 
 impl WebOutput {
@@ -717,6 +720,7 @@ impl WebOutput {
             history_queries: Self::DEFAULT_HISTORY_QUERIES,
             max_event_streams: Self::DEFAULT_MAX_EVENT_STREAMS,
             allowed_hosts: Vec::new(),
+            allow_commands: false,
         }
     }
 }

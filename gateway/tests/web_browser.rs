@@ -8,7 +8,10 @@
 //! printed: the README's "within 2 s" is a figure of a quiet machine, not asserted on a
 //! loaded CI machine). Then, in the same browser at a phone's 390 px, every page and the
 //! `report` command's `report.html` fit the width (no sideways scrolling), and each
-//! plot has a text alternative that gives its figures.
+//! plot has a text alternative that gives its figures. A tandem mill's page plots a
+//! chatter episode written into the history before the start: the band RMS and the
+//! spectra as `/api/captures/{id}/bands` gives them; its "capture" button (with
+//! `allow_commands`) has the gateway accept a manual capture of the stands.
 //!
 //! Every read of the page is one script call (`until_js`): the live updates re-render
 //! the tables, so an element found in one WebDriver call can be stale in the next.
@@ -25,6 +28,7 @@ use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
+use common::episode::{mill_config, write_chatter_capture};
 use common::{free_port, web_ready, Plc, Setup};
 use fantoccini::{Client, ClientBuilder};
 use hyper_util::client::legacy::connect::HttpConnector;
@@ -290,6 +294,81 @@ async fn trace_is_the_captures_samples_beside_the_model(client: &Client, port: u
     assert!(same_numbers(&shown[1], &theirs["channels"][0]["samples"]));
 }
 
+/// The tandem mill's page: its episode listed with its downloads, and plotted: the
+/// band plot's series are the stands' band RMS as `/api/captures/{id}/bands` gives
+/// it, the spectra plot's the stands' PSD, and their descriptions give the peaks.
+async fn episode_plots_are_the_bands_api(client: &Client, port: u16) {
+    client
+        .goto(&format!("http://127.0.0.1:{port}/tandem_mills/TCM"))
+        .await
+        .unwrap();
+    let shown = until_js(
+        client,
+        "const p = window.millgatePlots; \
+         const rows = document.querySelectorAll('#episodes tbody tr'); \
+         return p.band && p.spectrum && rows.length > 0 \
+           ? [p.band.millgateCapture, p.band.data, p.spectrum.data, \
+              document.getElementById('spectrum-plot').getAttribute('aria-label'), \
+              rows[0].querySelector('a').getAttribute('href'), rows.length] : null;",
+        Duration::from_secs(20),
+        |v| !v.is_null(),
+    )
+    .await;
+    let id = shown[0].as_i64().expect("the plotted capture's id");
+    assert_eq!(shown[5].as_u64(), Some(1), "{shown}");
+    assert_eq!(
+        shown[4].as_str(),
+        Some(format!("/api/captures/{id}/file?format=csv").as_str())
+    );
+    let bands = common::http(port, "GET", &format!("/api/captures/{id}/bands")).await;
+    let bands: serde_json::Value = serde_json::from_str(&bands.body).unwrap();
+    assert!(
+        same_numbers(&shown[1][0], &bands["band_rms"][0]["t_s"]),
+        "{shown}"
+    );
+    assert!(
+        same_numbers(&shown[2][0], &bands["spectra"][0]["frequency_hz"]),
+        "{shown}"
+    );
+    for stand in 0..3 {
+        assert!(
+            same_numbers(&shown[1][stand + 1], &bands["band_rms"][stand]["max"]),
+            "band RMS of stand {stand}: {} vs {}",
+            shown[1][stand + 1],
+            bands["band_rms"][stand]["max"]
+        );
+        assert!(same_numbers(
+            &shown[2][stand + 1],
+            &bands["spectra"][stand]["max"]
+        ));
+        let peak = format!(
+            "s{}_vib peak at {:.1} Hz",
+            stand + 1,
+            bands["spectra"][stand]["peak_hz"].as_f64().unwrap()
+        );
+        assert!(
+            shown[3].as_str().unwrap().contains(&peak),
+            "{peak}: {shown}"
+        );
+    }
+    // The capture button (allow_commands) asks the gateway through POST /api/captures.
+    let said = until_js(
+        client,
+        "const b = document.getElementById('capture-request'); \
+         if (!b) return null; \
+         if (!window.asked) { window.asked = true; b.click(); } \
+         return document.getElementById('capture-said').textContent;",
+        Duration::from_secs(20),
+        |v| v.as_str().is_some_and(|t| !t.is_empty()),
+    )
+    .await;
+    assert!(
+        said.as_str()
+            .is_some_and(|t| t.contains("asked: the next 10 s of TCM")),
+        "{said}"
+    );
+}
+
 /// A phone's viewport width, CSS px (an iPhone 12 to 15's).
 const PHONE_WIDTH: u32 = 390;
 
@@ -351,6 +430,12 @@ async fn pages_fit_a_phone_and_plots_are_described(client: &Client, port: u16, s
              return !!(p.gap && p.taf && p.trace) \
                && document.querySelectorAll('#bites tbody tr').length > 0 \
                && document.querySelectorAll('#cards .card').length > 0;",
+        ),
+        (
+            format!("{base}/tandem_mills/TCM"),
+            "const p = window.millgatePlots; \
+             return !!(p.band && p.spectrum) \
+               && document.querySelectorAll('#episodes tbody tr').length > 0;",
         ),
         (
             format!("{base}/alarms"),
@@ -427,7 +512,16 @@ async fn the_pages_list_the_drivelines_plot_the_gap_and_show_a_new_bite_live() {
     };
     let setup = Setup::new("web-browser", "history").await;
     let port = free_port();
-    setup.append_config(&format!("\n[outputs.web]\nbind = \"127.0.0.1:{port}\"\n"));
+    // With manual captures through the API: the pages offer the button.
+    setup.append_config(&format!(
+        "\n[outputs.web]\nbind = \"127.0.0.1:{port}\"\nallow_commands = true\n"
+    ));
+    // A tandem mill (its DAQ absent) with a chatter episode already in the history.
+    write_chatter_capture(&setup.history, "TCM").expect("write the episode");
+    setup.append_config(&format!(
+        "[[sources.modbus]]\nname = \"tcm\"\naddress = \"127.0.0.1:1\"\npoll_period_ms = 20\n{}",
+        mill_config("tcm", "TCM")
+    ));
     let service = setup.spawn("web-browser.log");
     web_ready(port).await;
     let plc = setup.plc();
@@ -578,6 +672,7 @@ async fn the_pages_list_the_drivelines_plot_the_gap_and_show_a_new_bite_live() {
     }
     screenshot(&client, "maintenance-driveline.png").await;
 
+    episode_plots_are_the_bands_api(&client, port).await;
     pages_fit_a_phone_and_plots_are_described(&client, port, &setup).await;
     client.close().await.unwrap();
     drop(driver);

@@ -213,6 +213,7 @@ impl Checker<'_> {
             history_queries: usize::try_from(history_queries?).ok()?,
             max_event_streams: usize::try_from(max_event_streams?).ok()?,
             allowed_hosts: allowed_hosts?,
+            allow_commands: raw.allow_commands.unwrap_or(false),
         })
     }
 

@@ -48,10 +48,51 @@
     return answer;
   }
 
+  // A "capture" button after `after` (a node), when the gateway takes manual captures
+  // through its API (outputs.web.allow_commands, told by /api/overview): it asks for
+  // the next `seconds` of `subject` (a driveline's torque or a tandem mill's stands)
+  // and says what the gateway answered; `done` runs once the span has passed.
+  async function offerCapture(subject, after, seconds, done) {
+    let overview;
+    try {
+      overview = await getJson("/api/overview");
+    } catch (error) { return; }
+    if (!overview.allow_commands) return;
+    const said = el("span", { class: "muted", id: "capture-said" });
+    const button = el("button", { type: "button", class: "plot-capture", id: "capture-request" },
+      "capture the next " + seconds + " s");
+    button.addEventListener("click", async () => {
+      button.disabled = true;
+      try {
+        const response = await fetch("/api/captures", {
+          method: "POST",
+          headers: { "Content-Type": "application/json", Accept: "application/json" },
+          body: JSON.stringify({ subject, seconds }),
+        });
+        const answer = await response.json();
+        if (!response.ok) throw new Error(answer.error || response.statusText);
+        said.textContent = " asked: the next " + answer.seconds + " s of " + answer.subject
+          + " are kept as a manual capture (listed once they have passed).";
+        setTimeout(() => { button.disabled = false; done(); }, answer.seconds * 1000 + 2000);
+      } catch (error) {
+        said.textContent = " " + error.message;
+        button.disabled = false;
+      }
+    });
+    after.after(el("p", { class: "note" }, button, said));
+  }
+
   // ---- live updates -------------------------------------------------------------
   const live = document.getElementById("live");
   let lastLive = null;
   const listeners = [];
+  let stream = null;
+  // A page left for another (kept in the back/forward cache) gives its stream up: a
+  // browser holds 6 connections per host, and such idle streams would take them all.
+  window.addEventListener("pagehide", () => stream && stream.close());
+  window.addEventListener("pageshow", (event) => {
+    if (event.persisted) connect();
+  });
   function connect() {
     const source = new EventSource("/api/events");
     source.addEventListener("results", (event) => {
@@ -62,6 +103,7 @@
       live.className = "live on";
       for (const listener of listeners) listener(now, before);
     });
+    stream = source;
     source.onerror = () => {
       live.textContent = "reconnecting";
       live.className = "live off";
@@ -129,7 +171,7 @@
       document.getElementById("mills-section").classList.toggle("hidden", o.tandem_mills.length === 0);
       fill(document.querySelector("#mills tbody"), o.tandem_mills.map((m) =>
         el("tr", {},
-          el("td", {}, m.name),
+          el("td", {}, el("a", { href: "/tandem_mills/" + encodeURIComponent(m.name) }, m.name)),
           el("td", {}, badge(m.chatter_state)),
           el("td", {}, num(m.gain_ratio, 2)),
           el("td", {}, m.worst_stand_channel || "–"),
@@ -620,6 +662,146 @@
       });
     }
     start().catch((error) => { gapNote.textContent = error.message; });
+    offerCapture(name, traceNote, 10, loadHistory);
+  }
+
+  // ---- tandem mill ----------------------------------------------------------------
+  // A mill's captures (chatter episodes, manual captures of its stands) and, for the
+  // one chosen, the stands' chatter-band RMS over time (the monitor's own band-pass)
+  // and their spectra around the warning (/api/captures/{id}/bands).
+  function tandemMillPage() {
+    const mill = driveline; // the page's subject
+    const tbody = document.querySelector("#episodes tbody");
+    const note = document.getElementById("episodes-note");
+    const bandNode = document.getElementById("band-plot");
+    const bandNote = document.getElementById("band-note");
+    const spectrumNode = document.getElementById("spectrum-plot");
+    const spectrumNote = document.getElementById("spectrum-note");
+    let bandPlot = null;
+    let spectrumPlot = null;
+    let shown = null;
+
+    function row(c) {
+      const episode = c.meta && c.meta.episode;
+      const at = (index) => (index === null || index === undefined ? "–" : num(index / c.sample_rate_hz, 2) + " s");
+      const file = (format) => "/api/captures/" + c.id + "/file?format=" + format;
+      return el("tr", { "data-capture": c.id },
+        el("td", {}, utc(c.started_at)), el("td", {}, c.kind),
+        el("td", {}, num(c.duration_s, 1) + " s"),
+        el("td", {}, episode ? at(episode.warning_sample) : "–"),
+        el("td", {}, episode ? (episode.cut ? "cut" : at(episode.cleared_sample)) : "–"),
+        el("td", {},
+          el("button", { type: "button", class: "plot-capture", "data-capture": c.id }, "plot"), " ",
+          el("a", { href: file("csv"), download: "" }, "CSV"), " ",
+          el("a", { href: file("parquet"), download: "" }, "Parquet")));
+    }
+    tbody.addEventListener("click", (event) => {
+      const button = event.target.closest("button.plot-capture");
+      if (button) show(Number(button.dataset.capture));
+    });
+
+    // A vertical line at each of `marks` ([x, colour, label]) over the plot.
+    const markLines = (marks) => ({
+      hooks: {
+        draw: [(u) => {
+          const ctx = u.ctx;
+          for (const [x, colour] of marks) {
+            if (x === null || x === undefined) continue;
+            const px = Math.round(u.valToPos(x, "x", true));
+            ctx.save();
+            ctx.strokeStyle = colour;
+            ctx.setLineDash([5, 4]);
+            ctx.lineWidth = 2;
+            ctx.beginPath();
+            ctx.moveTo(px, u.bbox.top);
+            ctx.lineTo(px, u.bbox.top + u.bbox.height);
+            ctx.stroke();
+            ctx.restore();
+          }
+        }],
+      },
+    });
+
+    async function show(id) {
+      shown = id;
+      try {
+        const b = await getJson("/api/captures/" + id + "/bands");
+        if (shown !== id) return;
+        const unit = b.unit || "";
+        // Band RMS over time: the buckets' largest values, one series per stand.
+        const t = b.band_rms.length ? b.band_rms[0].t_s : [];
+        const data = [t, ...b.band_rms.map((s) => s.max)];
+        const series = [{ label: "t, s", value: (u, v) => num(v, 2) }, ...b.stands.map((name, i) => ({
+          label: name, stroke: colours[i % colours.length], width: 1.5, points: quiet,
+          value: (u, v) => num(v, 4) + " " + unit }))];
+        const marks = [[b.warning_s, "#b45309"], [b.cleared_s, "#15803d"]];
+        if (bandPlot) bandPlot.destroy();
+        bandPlot = new uPlot({
+          width: plotWidth(bandNode), height: 300, scales: { x: { time: false } }, series,
+          axes: [{ label: "time from the capture's first sample, s" }, { label: "band RMS, " + unit }],
+          plugins: [markLines(marks)],
+        }, data, bandNode);
+        bandPlot.millgateCapture = id;
+        bandPlot.millgateBands = b;
+        window.millgatePlots.band = bandPlot;
+        const largest = b.band_rms.map((s, i) => b.stands[i] + " up to " + num(s.largest, 4) + " " + unit);
+        const marked = (b.warning_s !== null ? "; warning at " + num(b.warning_s, 2) + " s" : "")
+          + (b.cleared_s !== null ? ", cleared at " + num(b.cleared_s, 2) + " s" : "");
+        describe(bandNode, "Chatter-band RMS (" + num(b.chatter_band_hz[0], 0) + "–" + num(b.chatter_band_hz[1], 0)
+          + " Hz) of capture " + id + " over " + t.length + " points"
+          + (t.length ? " from " + num(t[0], 2) + " to " + num(t[t.length - 1], 2) + " s" : "") + ": "
+          + largest.join("; ") + marked + ".");
+        bandNote.textContent = b.kind + " capture " + id + " of " + b.stands.length + " stands at " + b.sample_rate_hz
+          + " Hz; the monitor's band-pass RMS over its gain window after each window" + marked + ".";
+
+        // Spectra: PSD per stand (largest in each bucket), the chatter band marked.
+        const spectra = b.spectra;
+        const f = spectra.length ? spectra[0].frequency_hz : [];
+        const sdata = [f, ...spectra.map((s) => s.max)];
+        const sseries = [{ label: "f, Hz", value: (u, v) => num(v, 1) }, ...b.stands.map((name, i) => ({
+          label: name, stroke: colours[i % colours.length], width: 1.5, points: quiet,
+          value: (u, v) => (v === null ? "–" : v.toExponential(2)) }))];
+        if (spectrumPlot) spectrumPlot.destroy();
+        spectrumPlot = new uPlot({
+          width: plotWidth(spectrumNode), height: 300, scales: { x: { time: false }, y: { distr: 3 } },
+          series: sseries,
+          axes: [{ label: "frequency, Hz" }, { label: "PSD, " + unit + "²/Hz" }],
+          plugins: [markLines([[b.chatter_band_hz[0], "#b91c1c"], [b.chatter_band_hz[1], "#b91c1c"]])],
+        }, sdata, spectrumNode);
+        spectrumPlot.millgateCapture = id;
+        window.millgatePlots.spectrum = spectrumPlot;
+        const peaks = spectra.map((s, i) => b.stands[i] + " peak at " + num(s.peak_hz, 1) + " Hz");
+        const span = num(b.spectrum_span_s[0], 2) + " to " + num(b.spectrum_span_s[1], 2) + " s";
+        describe(spectrumNode, spectra.length
+          ? "Spectra (Welch PSD) of capture " + id + " from " + span + ", " + f.length + " points up to "
+            + num(f[f.length - 1], 0) + " Hz, chatter band " + num(b.chatter_band_hz[0], 0) + "–"
+            + num(b.chatter_band_hz[1], 0) + " Hz marked: " + peaks.join("; ") + "."
+          : "Spectra: not drawn, the span " + span + " is shorter than one window.");
+        spectrumNote.textContent = "Welch PSD of the samples from " + span + " (segments of the monitor's window, "
+          + (spectra.length ? num(spectra[0].frequency_step_hz, 2) + " Hz apart" : "none") + "); chatter band marked in red.";
+      } catch (error) {
+        bandNote.textContent = error.message;
+      }
+    }
+
+    async function load() {
+      try {
+        const rows = await getJson("/api/tandem_mills/" + encodeURIComponent(mill) + "/captures?limit=100");
+        note.textContent = rows.length ? rows.length + " captures, newest first: plot one, or download it." : "No captures of this mill in the history.";
+        fill(tbody, rows.slice().reverse().map(row));
+        const episodes = rows.filter((c) => c.kind === "chatter");
+        const first = episodes.length ? episodes[episodes.length - 1] : rows[rows.length - 1];
+        if (first && shown === null) show(first.id);
+      } catch (error) {
+        note.textContent = error.message;
+      }
+    }
+    window.addEventListener("resize", () => {
+      if (bandPlot) bandPlot.setSize({ width: plotWidth(bandNode), height: 300 });
+      if (spectrumPlot) spectrumPlot.setSize({ width: plotWidth(spectrumNode), height: 300 });
+    });
+    load();
+    offerCapture(mill, note, 10, load);
   }
 
   // ---- alarms -------------------------------------------------------------------
@@ -650,6 +832,7 @@
 
   if (page === "overview") overviewPage();
   else if (page === "driveline") drivelinePage();
+  else if (page === "tandem_mill") tandemMillPage();
   else if (page === "alarms") alarmsPage();
   connect();
 })();

@@ -1,7 +1,9 @@
 //! The gateway's one HTTP stack, shared by the maintenance page and `/metrics`:
 //! read-only HTTP/1.1 on hyper and axum, served by a bounded accept loop.
 //!
-//! - GET and HEAD only (405 otherwise), no request body (413), the head within
+//! - GET and HEAD only (405 otherwise), no request body (413), except POST on the
+//!   paths a server names in [`Limits::post_paths`] (the page's manual-capture
+//!   request, whose handler checks and bounds its body); the head within
 //!   16 KiB (431) and within the listener's header timeout (the connection
 //!   is closed: a slow client cannot hold it).
 //! - At most `max_connections` connections. When all are taken, a new one evicts an
@@ -72,6 +74,9 @@ pub(crate) struct Limits {
     pub(crate) max_connections: usize,
     /// Time a client has to send a request head.
     pub(crate) header_timeout: Duration,
+    /// Paths that also take POST, with a body (their handler bounds it); every other
+    /// path is read-only.
+    pub(crate) post_paths: &'static [&'static str],
 }
 
 /// `{"error": message}` with `status`.
@@ -92,7 +97,10 @@ pub(crate) async fn serve(
     limits: Limits,
     mut shutdown: Shutdown,
 ) -> std::io::Result<()> {
-    let router = router.layer(axum::middleware::from_fn(read_only));
+    let router = router.layer(axum::middleware::from_fn_with_state(
+        limits.post_paths,
+        read_only,
+    ));
     let local = listener.local_addr()?;
     tracing::info!(%local, max_connections = limits.max_connections, "{name} listening");
     let slots = Arc::new(Semaphore::new(limits.max_connections));
@@ -194,7 +202,11 @@ async fn serve_connection(
     let activity = registry.add(peer.ip());
     let tracked = Arc::clone(&activity);
     let router = router.layer(axum::middleware::from_fn(
-        move |request: Request, next: Next| {
+        move |mut request: Request, next: Next| {
+            // The client's address, for a handler that records who asked.
+            request
+                .extensions_mut()
+                .insert(axum::extract::ConnectInfo(peer));
             let busy = Busy::new(Arc::clone(&tracked));
             async move {
                 let response = next.run(request).await;
@@ -346,15 +358,27 @@ impl http_body::Body for TrackedBody {
 
 /// Refuses what a read-only server does not take (any method but GET and HEAD: 405;
 /// a request body: 413), then adds [`security_headers`] to the answer.
-async fn read_only(request: Request, next: Next) -> Response {
-    let mut response = if request.method() != Method::GET && request.method() != Method::HEAD {
+async fn read_only(
+    axum::extract::State(post_paths): axum::extract::State<&'static [&'static str]>,
+    request: Request,
+    next: Next,
+) -> Response {
+    let postable = post_paths.contains(&request.uri().path());
+    let mut response = if postable && request.method() == Method::POST {
+        next.run(request).await
+    } else if request.method() != Method::GET && request.method() != Method::HEAD {
         let mut refused = error(
             StatusCode::METHOD_NOT_ALLOWED,
             "read-only: only GET and HEAD are allowed",
         );
+        let allow = if postable {
+            "GET, HEAD, POST"
+        } else {
+            "GET, HEAD"
+        };
         refused
             .headers_mut()
-            .insert(header::ALLOW, HeaderValue::from_static("GET, HEAD"));
+            .insert(header::ALLOW, HeaderValue::from_static(allow));
         refused
     } else if has_body(&request) {
         error(StatusCode::PAYLOAD_TOO_LARGE, "a request here has no body")

@@ -516,6 +516,7 @@ impl Metrics {
     /// connections at once; an error when accepting fails for good.
     pub async fn run(self, listener: TcpListener, shutdown: Shutdown) -> std::io::Result<()> {
         let limits = Limits {
+            post_paths: &[],
             max_connections: MAX_SCRAPES,
             header_timeout: HEAD_TIMEOUT,
         };

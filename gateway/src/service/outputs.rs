@@ -202,6 +202,14 @@ fn web_page(w: &mut Wiring<'_>, shutdown: &Shutdown) -> Result<Option<OutputTask
                 reason: format!("cannot start its history query threads: {error}"),
             }
         })?;
+    // The page plots a tandem mill's captured episode with the monitor's own code.
+    let config = Arc::new(w.config.clone());
+    let server = server
+        .with_commands(w.commands.clone())
+        .with_capture_bands(Arc::new(move |mill, rate_hz, stands, episode| {
+            crate::analysis::chatter::episode_bands(&config, mill, rate_hz, stands, episode)
+                .map_err(|error| error.to_string())
+        }));
     w.web_slots = Some(server.query_slots());
     let shutdown = shutdown.clone();
     Ok(task("maintenance page", async move {

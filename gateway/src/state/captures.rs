@@ -9,6 +9,8 @@
 //! `count * scale + offset` bit for bit (a Modbus DAQ's samples), the `f64` values
 //! otherwise, so an export gives back the very samples the analysis used.
 
+use std::sync::Arc;
+
 use serde::{Deserialize, Serialize};
 
 use super::time::UtcTime;
@@ -201,3 +203,42 @@ pub fn unix_ns(time: std::time::SystemTime) -> i64 {
         Err(before) => -i64::try_from(before.duration().as_nanos()).unwrap_or(i64::MAX),
     }
 }
+
+/// What the tandem mill's page plots of a chatter or manual capture of its stands:
+/// the chatter monitor's band signal over time and the spectra around the warning
+/// (computed by `analysis::chatter::episode_bands`; the web layer gets the function
+/// as a [`CaptureBandsFn`] from the service, as it imports no analysis).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CaptureBands {
+    /// The mill's chatter band, Hz (low, high).
+    pub chatter_band_hz: (f64, f64),
+    /// End of each evaluated window with a full band-gain window, s after the
+    /// capture's first sample.
+    pub window_end_s: Vec<f64>,
+    /// Per stand, the chatter-band RMS over the band gain's window
+    /// (`gain_window_s`) at each of `window_end_s` (the stands' unit).
+    pub band_rms: Vec<Vec<f64>>,
+    /// The samples the spectra average: from, to, s after the first sample.
+    pub spectrum_span_s: (f64, f64),
+    /// Per stand, the spectrum of that span (empty when it is shorter than a
+    /// window).
+    pub spectra: Vec<StandSpectrum>,
+}
+
+/// One stand's power spectral density (Welch).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct StandSpectrum {
+    /// Frequency of bin k: k * this, Hz.
+    pub frequency_step_hz: f64,
+    /// One-sided PSD per bin, unit² / Hz.
+    pub psd: Vec<f64>,
+}
+
+/// The band analysis of a capture of tandem mill `mill` (index in the
+/// configuration): its stands' samples at a sample rate, Hz, and the episode; an
+/// error names why the mill's monitor cannot be built.
+pub type CaptureBandsFn = Arc<
+    dyn Fn(usize, f64, &[Vec<f64>], Option<&ChatterEpisode>) -> Result<CaptureBands, String>
+        + Send
+        + Sync,
+>;

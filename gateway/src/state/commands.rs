@@ -24,23 +24,29 @@ pub enum CommandOrigin {
     /// A client of the OPC UA server (its acknowledge method); its address when the
     /// connection came through the server's listener.
     OpcUa(Option<SocketAddr>),
+    /// A client of the maintenance page's API (`POST /api/captures`, with
+    /// `outputs.web.allow_commands`), its address.
+    Web(SocketAddr),
 }
 
 impl CommandOrigin {
-    /// `plc`, `hmi`, `local` or `opcua`, as stored.
+    /// `plc`, `hmi`, `local`, `opcua` or `web`, as stored.
     pub fn name(self) -> &'static str {
         match self {
             CommandOrigin::Plc(_) => "plc",
             CommandOrigin::Hmi(_) => "hmi",
             CommandOrigin::Local => "local",
             CommandOrigin::OpcUa(_) => "opcua",
+            CommandOrigin::Web(_) => "web",
         }
     }
 
     /// The client's address, when a client sent it.
     pub fn peer(self) -> Option<SocketAddr> {
         match self {
-            CommandOrigin::Plc(peer) | CommandOrigin::Hmi(peer) => Some(peer),
+            CommandOrigin::Plc(peer) | CommandOrigin::Hmi(peer) | CommandOrigin::Web(peer) => {
+                Some(peer)
+            }
             CommandOrigin::Local => None,
             CommandOrigin::OpcUa(peer) => peer,
         }

@@ -17,13 +17,16 @@
 //! - `publish`: [`ChatterAnalysis`], every mill's monitor fed by the analysis task,
 //!   each update published;
 //! - `history`: the chatter episodes and alarms recorded in the history;
-//! - `capture`: each episode's stand samples kept as a capture (`EpisodeRecorder`).
+//! - `capture`: each episode's stand samples kept as a capture (`EpisodeRecorder`);
+//! - `offline`: a recording through the monitor window by window (the chatter tools,
+//!   the page's band signals and spectra of a captured episode).
 
 mod align;
 mod capture;
 mod gain;
 mod history;
 mod monitor;
+mod offline;
 mod publish;
 mod spectra;
 #[cfg(test)]
@@ -34,6 +37,7 @@ pub use align::{RestartCause, MAX_STAND_LAG_S};
 pub use capture::ANCHOR_BLOCK;
 pub use gain::GainReading;
 pub use monitor::{ChatterMonitor, ChatterSetupError, ChatterUpdate, MIN_WINDOW_SAMPLES};
+pub use offline::{episode_bands, welch_psd, windows, Window, SPECTRUM_WINDOWS_EACH_SIDE};
 pub use publish::ChatterAnalysis;
 pub use spectra::chatter_frequency_hz;
 pub use verdict::{SlowDown, Verdict};

@@ -3,14 +3,11 @@
 //! the recording through the service's own monitor, window by window.
 
 use std::path::Path;
-use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
 use millgate_config::Config;
-use millgate_dsp::band_gain::BandGainWindow;
-use millgate_dsp::chatter::ChatterResult;
 
-use crate::analysis::chatter::{ChatterMonitor, ChatterUpdate, Verdict};
+pub use crate::analysis::chatter::Window;
 
 /// Samples per block fed to the monitor, as a Modbus DAQ delivers them (the largest
 /// block; a chatter capture starts one such block before its whole hops, so its
@@ -138,62 +135,18 @@ impl Recording {
     }
 }
 
-/// One evaluated window of a recording.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Window {
-    /// Time of the window's last sample, s (the recording's time axis).
-    pub t_s: f64,
-    /// Index of the window's last sample in the recording.
-    pub last_sample: usize,
-    /// The spectra's result (principal frequencies, sigma_n, K_mean).
-    pub result: ChatterResult,
-    /// The band gain's window per stand (band RMS, gain); `None` until it is full.
-    pub gain: Option<BandGainWindow>,
-    /// Largest gain / threshold; `None` until the gain's window is full or without
-    /// thresholds.
-    pub gain_ratio: Option<f64>,
-    /// The configured detector's verdict after this window.
-    pub verdict: Verdict,
-}
-
 /// `recording` through the monitor of mill `index` of `config` in 120-sample blocks
 /// (a Modbus DAQ's), each stamped with its own sample time, every window judged as the
-/// service judges it.
+/// service judges it ([`crate::analysis::chatter::windows`]).
 pub fn windows(
     config: &Config,
     index: usize,
     recording: &Recording,
 ) -> anyhow::Result<Vec<Window>> {
-    let mut monitor = ChatterMonitor::new(config, index)?;
-    let mut slow_down = monitor.slow_down();
-    let rate_hz = config.channels[config.tandem_mills[index].stands[0]].sample_rate_hz;
-    let period = Duration::from_secs_f64(BLOCK as f64 / rate_hz);
-    let t0 = Instant::now();
-    let samples = recording.len();
-    let mut windows = Vec::new();
-    for (b, start) in (0..samples).step_by(BLOCK).enumerate() {
-        let end = (start + BLOCK).min(samples);
-        for (s, values) in recording.stands.iter().enumerate() {
-            let Some(change) = monitor.samples(s, &values[start..end], t0 + period * b as u32)
-            else {
-                continue;
-            };
-            let verdict = monitor.judge(&change, &mut slow_down);
-            let ChatterUpdate::Evaluated(result) = change else {
-                continue;
-            };
-            let last = usize::try_from(monitor.last_window_end() - 1)
-                .unwrap_or(0)
-                .min(samples - 1);
-            windows.push(Window {
-                t_s: recording.time_s[last],
-                last_sample: last,
-                result,
-                gain: monitor.gain_window().cloned(),
-                gain_ratio: monitor.gain().and_then(|g| g.ratio).map(|(ratio, _)| ratio),
-                verdict,
-            });
-        }
-    }
-    Ok(windows)
+    Ok(crate::analysis::chatter::windows(
+        config,
+        index,
+        &recording.time_s,
+        &recording.stands,
+    )?)
 }

@@ -1,7 +1,8 @@
 //! The maintenance web page and its JSON API (`[outputs.web]`): read-only HTTP/1.1
 //! on axum, for a maintenance engineer's browser and for tools that poll.
 //!
-//! - **Pages** (`page.rs`): an overview, one page per driveline and the alarm list,
+//! - **Pages** (`page.rs`): an overview, one page per driveline and per tandem mill
+//!   (its captured chatter episodes) and the alarm list,
 //!   each a small server-rendered HTML shell that the page's own script
 //!   (`assets/web/app.js`) fills from the JSON API, plotting with the vendored uPlot
 //!   (`assets/uplot`, MIT). Everything is compiled into the binary: no CDN, no fonts.
@@ -9,14 +10,17 @@
 //!   assets with strong ETags and 304 on `If-None-Match`.
 //! - **API** (`api/`): `/api/overview`,
 //!   `/api/drivelines[/{name}[/bites|/captures|/wear|/map]]`,
-//!   `/api/captures/{id}[/file|/response]`,
+//!   `/api/tandem_mills/{name}/captures`,
+//!   `/api/captures/{id}[/file|/response|/bands]`,
 //!   `/api/alarms` and `/api/events` (server-sent events: the live results, sent when
 //!   they change). Live figures come from the [`Board`]'s snapshot; history
 //!   figures from the history file through a read-only [`HistoryReader`] of the
 //!   request's own, on the blocking pool, bounded by `request_timeout`.
 //! - **Bounded and read-only**: served by the gateway's one HTTP stack
 //!   (`outputs::http`: GET and HEAD only, no body, bounded heads, header
-//!   timeout and connections, security headers). None of this runs on the analysis
+//!   timeout and connections, security headers). The one exception is
+//!   `POST /api/captures` (a manual capture), refused unless
+//!   `outputs.web.allow_commands`. None of this runs on the analysis
 //!   task: the server only reads the published snapshot and the file.
 //!
 //! [`HistoryReader`]: crate::outputs::history::query::HistoryReader
@@ -107,6 +111,9 @@ impl WebServer {
             allowed_hosts: settings.allowed_hosts.clone(),
             live: live_rx,
             trends: shared::TrendCache::default(),
+            capture_bands: shared::BandsHook::default(),
+            allow_commands: settings.allow_commands,
+            commands: std::sync::OnceLock::new(),
         };
         let state = Arc::new(state);
         live.send_replace(Arc::new(api::live_json(&state)));
@@ -122,9 +129,25 @@ impl WebServer {
         Arc::clone(&self.state.query_slots)
     }
 
+    /// The band analysis of tandem mills' captures (`/api/captures/{id}/bands`), given
+    /// by the service (the outputs import no analysis); without it that route
+    /// answers 409.
+    pub fn with_capture_bands(self, analyse: crate::state::captures::CaptureBandsFn) -> Self {
+        let _ = self.state.capture_bands.0.set(analyse);
+        self
+    }
+
+    /// The analysis' command channel, for `POST /api/captures` (taken only with
+    /// `outputs.web.allow_commands`).
+    pub fn with_commands(self, commands: crate::state::commands::CommandSender) -> Self {
+        let _ = self.state.commands.set(commands);
+        self
+    }
+
     /// Serve `listener` until `shutdown`; an error when accepting fails for good.
     pub async fn run(self, listener: TcpListener, shutdown: Shutdown) -> std::io::Result<()> {
         let limits = Limits {
+            post_paths: &["/api/captures"],
             max_connections: self.settings.max_connections,
             header_timeout: self.settings.header_timeout,
         };
@@ -165,6 +188,7 @@ pub(crate) fn router(state: Arc<WebState>) -> Router {
     Router::new()
         .route("/", get(page::overview))
         .route("/drivelines/{name}", get(page::driveline))
+        .route("/tandem_mills/{name}", get(page::tandem_mill))
         .route("/alarms", get(page::alarms))
         .route("/assets/{file}", get(page::asset))
         .route("/favicon.ico", get(page::favicon))
@@ -173,9 +197,23 @@ pub(crate) fn router(state: Arc<WebState>) -> Router {
         .route("/api/drivelines/{name}", get(api::driveline))
         .route("/api/drivelines/{name}/bites", get(api::bites))
         .route("/api/drivelines/{name}/captures", get(api::captures))
+        .route(
+            "/api/captures",
+            axum::routing::post(api::request_capture).fallback(|| async {
+                http::error(
+                    StatusCode::METHOD_NOT_ALLOWED,
+                    "POST only: {\"subject\": NAME, \"seconds\": S} asks for a manual capture",
+                )
+            }),
+        )
         .route("/api/captures/{id}", get(api::capture))
         .route("/api/captures/{id}/file", get(api::capture_file))
         .route("/api/captures/{id}/response", get(api::capture_response))
+        .route("/api/captures/{id}/bands", get(api::capture_bands))
+        .route(
+            "/api/tandem_mills/{name}/captures",
+            get(api::tandem_mill_captures),
+        )
         .route("/api/drivelines/{name}/wear", get(api::wear))
         .route("/api/drivelines/{name}/map", get(api::gap_maps))
         .route("/api/alarms", get(api::alarms))
@@ -195,8 +233,13 @@ pub fn exposure_warning(settings: &WebOutput) -> Option<String> {
     (!settings.bind.ip().is_loopback()).then(|| {
         format!(
             "outputs.web.bind: {} accepts clients from other hosts: anyone who reaches it \
-             reads the maintenance page and its API without authentication (read-only)",
-            settings.bind
+             reads the maintenance page and its API without authentication ({})",
+            settings.bind,
+            if settings.allow_commands {
+                "and, with allow_commands, asks for manual captures"
+            } else {
+                "read-only"
+            }
         )
     })
 }

@@ -78,7 +78,7 @@ pub(crate) fn escape(text: &str) -> String {
 }
 
 /// A whole page: `title` and `body` (already escaped), the page kind and driveline
-/// for the script.
+/// (or tandem mill) for the script.
 fn layout(state: &WebState, title: &str, page: &str, driveline: &str, body: &str) -> Response {
     let plant = escape(&state.config_name);
     let nav: String = state
@@ -88,6 +88,10 @@ fn layout(state: &WebState, title: &str, page: &str, driveline: &str, body: &str
             let name = escape(&d.name);
             format!("<a href=\"/drivelines/{name}\">{name}</a>")
         })
+        .chain(state.tandem_mills.iter().map(|(mill, _)| {
+            let name = escape(mill);
+            format!("<a href=\"/tandem_mills/{name}\">{name}</a>")
+        }))
         .collect();
     let html = format!(
         "<!doctype html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n\
@@ -192,6 +196,48 @@ pub(crate) async fn driveline(
         &state,
         &format!("Driveline {name}"),
         "driveline",
+        &name,
+        &body,
+    )
+}
+
+/// `GET /tandem_mills/{name}`: one tandem mill's captured episodes, or 404.
+pub(crate) async fn tandem_mill(
+    State(state): State<Arc<WebState>>,
+    Path(name): Path<String>,
+) -> Response {
+    let Some((mill, _)) = state.tandem_mills.iter().find(|(mill, _)| *mill == name) else {
+        let mut page = layout(
+            &state,
+            "Not found",
+            "missing",
+            "",
+            &format!(
+                "<h1>No tandem mill “{}”</h1><p><a href=\"/\">Back to the overview</a></p>",
+                escape(&name)
+            ),
+        );
+        *page.status_mut() = StatusCode::NOT_FOUND;
+        return page;
+    };
+    let name = escape(mill);
+    let body = format!(
+        "<h1>Tandem mill {name}</h1>\n\
+         <section><h2>Episodes and captures</h2><p class=\"note\" id=\"episodes-note\"></p>\
+         <div class=\"scroll\" tabindex=\"0\"><table id=\"episodes\" class=\"grid\"><thead><tr>\
+         <th>Start</th><th>Kind</th><th>Length</th><th>Warning</th><th>Cleared</th>\
+         <th>Capture</th></tr></thead><tbody></tbody></table></div></section>\n\
+         <section><h2>Chatter-band signal</h2><div id=\"band-plot\" class=\"plot\" role=\"img\" \
+         aria-label=\"Chatter-band signal: not drawn yet\"></div>\
+         <p class=\"note\" id=\"band-note\"></p></section>\n\
+         <section><h2>Spectra around the warning</h2><div id=\"spectrum-plot\" class=\"plot\" \
+         role=\"img\" aria-label=\"Spectra around the warning: not drawn yet\"></div>\
+         <p class=\"note\" id=\"spectrum-note\"></p></section>"
+    );
+    layout(
+        &state,
+        &format!("Tandem mill {name}"),
+        "tandem_mill",
         &name,
         &body,
     )

@@ -9,6 +9,7 @@ use std::time::Duration;
 use tokio::sync::{watch, OwnedSemaphorePermit, Semaphore};
 
 use crate::state::board::Board;
+use crate::state::captures::CaptureBandsFn;
 
 /// What the configuration says about a driveline, for the pages.
 #[derive(Debug, Clone)]
@@ -58,6 +59,32 @@ pub struct WebState {
     pub(crate) live: watch::Receiver<Arc<String>>,
     /// Gap trends as last fitted, per driveline (the API's `gap_trend`).
     pub(crate) trends: TrendCache,
+    /// The band analysis of a tandem mill's capture, once the service gave it.
+    pub(crate) capture_bands: BandsHook,
+    /// `outputs.web.allow_commands`: whether `POST /api/captures` is taken.
+    pub(crate) allow_commands: bool,
+    /// The analysis' command channel, once the service gave it.
+    pub(crate) commands: std::sync::OnceLock<crate::state::commands::CommandSender>,
+}
+
+/// The band analysis of a tandem mill's capture (`analysis::chatter::episode_bands`,
+/// given by the service), set once.
+#[derive(Default)]
+pub(crate) struct BandsHook(pub(crate) std::sync::OnceLock<CaptureBandsFn>);
+
+// By hand: a function has no Debug.
+impl std::fmt::Debug for BandsHook {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_tuple("BandsHook")
+            .field(&self.0.get().is_some())
+            .finish()
+    }
+}
+
+impl BandsHook {
+    pub(crate) fn get(&self) -> Option<&CaptureBandsFn> {
+        self.0.get()
+    }
 }
 
 /// Gap trends as last fitted, per driveline: the time of the last bite (Unix ms) they

@@ -82,14 +82,14 @@ pub(crate) async fn capture(
 
 /// The `{id}` of a capture's route; a bad one gets the API's JSON error, not axum's
 /// plain-text one.
-fn capture_id(id: Result<Path<i64>, PathRejection>) -> Result<i64, ApiError> {
+pub(super) fn capture_id(id: Result<Path<i64>, PathRejection>) -> Result<i64, ApiError> {
     let Path(id) =
         id.map_err(|rejection| ApiError::bad(format!("capture id: {}", rejection.body_text())))?;
     Ok(id)
 }
 
 /// Capture `id` of the file; 404 when the file does not hold it.
-fn read_capture(
+pub(super) fn read_capture(
     reader: &crate::outputs::history::query::HistoryReader,
     id: i64,
 ) -> Result<Capture, ApiError> {
@@ -245,7 +245,7 @@ pub(crate) async fn alarms(
 
 /// The newest `limit` rows of `name` (all names when `None`) in the parameters'
 /// `since`..`until`, oldest first: what `bites` and `alarms` answer.
-async fn newest<R: Record + Send + 'static>(
+pub(super) async fn newest<R: Record + Send + 'static>(
     state: &WebState,
     params: &Params,
     name: Option<String>,

@@ -234,6 +234,9 @@ pub(crate) struct Overview {
     pub state: &'static str,
     /// Whether a history is configured (plots need it).
     pub history: bool,
+    /// Whether `POST /api/captures` takes manual captures
+    /// (`outputs.web.allow_commands`, with a history).
+    pub allow_commands: bool,
     /// Drivelines, config order.
     pub drivelines: Vec<DrivelineView>,
     /// Tandem mills, config order.
@@ -253,6 +256,9 @@ fn live_overview(state: &WebState, results: &Results) -> Overview {
             GatewayState::Stopped => "stopped",
         },
         history: state.history.is_some(),
+        allow_commands: state.allow_commands
+            && state.history.is_some()
+            && state.commands.get().is_some(),
         drivelines: state
             .drivelines
             .iter()

@@ -6,13 +6,19 @@
 //! busy or the live-update streams are all taken.
 //!
 //! `live.rs`: the live figures (overview, drivelines) and their server-sent events;
-//! `history.rs`: bites, the wear series and alarms from the file; `maps.rs`: the gap
+//! `history.rs`: bites, the wear series and alarms from the file; `episodes.rs`: a
+//! tandem mill's captures and their band signals and spectra; `commands.rs`: the
+//! manual-capture request (POST); `maps.rs`: the gap
 //! maps' curves. This file holds the request plumbing they share.
 
+mod commands;
+mod episodes;
 mod history;
 mod live;
 mod maps;
 
+pub(crate) use commands::request_capture;
+pub(crate) use episodes::{capture_bands, tandem_mill_captures};
 pub(crate) use history::{alarms, bites, capture, capture_file, capture_response, captures, wear};
 pub(crate) use live::{driveline, drivelines, events, live_json, overview};
 pub(crate) use maps::gap_maps;
@@ -52,7 +58,7 @@ pub(crate) struct ApiError {
 }
 
 impl ApiError {
-    fn bad(message: String) -> Self {
+    pub(super) fn bad(message: String) -> Self {
         Self {
             status: StatusCode::BAD_REQUEST,
             message,

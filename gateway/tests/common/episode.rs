@@ -1,0 +1,130 @@
+//! A synthetic chatter episode of three stands, stored as the history's writer stores
+//! a capture: shared by gateway/tests/web_episodes.rs (the API against numpy) and
+//! gateway/tests/web_browser.rs (the tandem mill's page).
+
+use std::path::Path;
+
+use millgate::outputs::history::writer::{connect, insert, insert_run};
+use millgate::outputs::history::RunInfo;
+use millgate::state::captures::{
+    CaptureChannel, CaptureKind, CaptureRecord, ChatterEpisode, KeepClass,
+};
+use millgate::state::events::HistoryEvent;
+use millgate::state::time::UtcTime;
+
+pub(crate) const FS: f64 = 2500.0;
+/// The band gain's window (`gain_window_s`, the default), s.
+pub(crate) const GAIN_WINDOW_S: f64 = 2.0;
+/// The capture's length, s.
+pub(crate) const LENGTH_S: f64 = 12.0;
+/// The chatter tone of stand `s`, Hz (on the spectra's 2 Hz grid, in the 100..300 Hz
+/// band).
+pub(crate) fn tone_hz(stand: usize) -> f64 {
+    180.0 + 20.0 * stand as f64
+}
+/// Amplitude of stand `s`'s chatter tone at `t`, m/s^2: low, growing from 4 s to 8 s,
+/// falling back by 10 s.
+pub(crate) fn amplitude(stand: usize, t: f64) -> f64 {
+    let top = 0.5 + 0.1 * stand as f64;
+    let low = 0.05;
+    match t {
+        t if t < 4.0 => low,
+        t if t < 8.0 => low + (top - low) * (t - 4.0) / 4.0,
+        t if t < 10.0 => top - (top - low) * (t - 8.0) / 2.0,
+        _ => low,
+    }
+}
+
+/// Stand `stand`'s samples as a 0.01 m/s^2-per-count DAQ gives them: the chatter
+/// tone, a 30 Hz roll-eccentricity tone (outside the band) and a little noise.
+pub(crate) fn stand_samples(stand: usize) -> Vec<f64> {
+    let mut state = 0x9e37_79b9_7f4a_7c15u64 ^ stand as u64;
+    let n = (LENGTH_S * FS) as usize;
+    (0..n)
+        .map(|k| {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            let noise = ((state >> 33) as f64 / f64::from(1u32 << 31) - 0.5) * 0.02;
+            let t = k as f64 / FS;
+            let phase = std::f64::consts::TAU * t;
+            let value = amplitude(stand, t) * (phase * tone_hz(stand)).sin()
+                + 0.1 * (phase * 30.0 + stand as f64).sin()
+                + noise;
+            (value / 0.01).round() * 0.01
+        })
+        .collect()
+}
+
+/// The stand channels' configuration (3 stands `s1_vib`..`s3_vib` at [`FS`] on Modbus
+/// source `source`) and tandem mill `mill` over them (band 100..300 Hz, 0.5 s windows).
+pub(crate) fn mill_config(source: &str, mill: &str) -> String {
+    let mut text = String::new();
+    for stand in 0..3 {
+        text += &format!(
+            "[[channels]]\nname = \"s{}_vib\"\nkind = \"acceleration\"\nunit = \"m/s^2\"\n\
+             scale = 0.01\nsample_rate_hz = {FS}\n\
+             source = {{ modbus = \"{source}\", table = \"input\", block = {} }}\n",
+            stand + 1,
+            stand * 122
+        );
+    }
+    text + &format!(
+        "[[tandem_mills]]\nname = \"{mill}\"\nstands = [\"s1_vib\", \"s2_vib\", \"s3_vib\"]\n\
+         chatter_band_hz = [100.0, 300.0]\nwindow_s = 0.5\nk_max = 0.25\n\
+         gain_thresholds = [2.0, 2.0, 2.0]\n"
+    )
+}
+
+/// The episode's capture of tandem mill `mill` (warning at 6 s, cleared at 10.5 s),
+/// written into the history file `db` (created when missing) under a run of its own.
+pub(crate) fn write_chatter_capture(db: &Path, mill: &str) -> anyhow::Result<()> {
+    let window = (0.5 * FS) as usize;
+    let episode = ChatterEpisode {
+        warning_sample: (6.0 * FS) as usize,
+        cleared_sample: Some((10.5 * FS) as usize),
+        window_samples: window,
+        hop_samples: window / 2,
+        cut: false,
+    };
+    {
+        let mut connection = connect(db)?;
+        let start = UtcTime::parse("2026-11-27T08:00:00Z").map_err(anyhow::Error::msg)?;
+        let run = insert_run(
+            &connection,
+            start,
+            &RunInfo {
+                version: "test".into(),
+                config_name: "episodes".into(),
+                config_hash: String::new(),
+                drivelines: vec![],
+            },
+        )?;
+        let capture = CaptureRecord {
+            kind: CaptureKind::Chatter,
+            subject: mill.into(),
+            bite: None,
+            first_sample_unix_ns: start.unix_ms() * 1_000_000,
+            kernel_time: false,
+            sample_rate_hz: FS,
+            channels: (0..3)
+                .map(|s| CaptureChannel {
+                    name: format!("s{}_vib", s + 1),
+                    unit: "m/s^2".into(),
+                    scale: 0.01,
+                    offset: 0.0,
+                    samples: stand_samples(s),
+                    timing: None,
+                })
+                .collect(),
+            gaps: vec![],
+            analysis: None,
+            episode: Some(episode),
+            keep: KeepClass::Important,
+        };
+        let transaction = connection.transaction()?;
+        insert(&transaction, run, &HistoryEvent::Capture(Box::new(capture)))?;
+        transaction.commit()?;
+    }
+    Ok(())
+}

@@ -1,0 +1,148 @@
+//! A tandem mill's captured episode on the page's API, through the service: a chatter
+//! capture of three stands written with the history's writer, then served by
+//! `millgate::Service`'s web page. `/api/tandem_mills/{name}/captures` lists it, and
+//! `/api/captures/{id}/bands` gives the monitor's chatter-band RMS and the stands'
+//! spectra around the warning, checked against numpy on the capture's CSV download
+//! (`capture_bands.py`: an FFT band-pass RMS and a Welch PSD of its own) and against
+//! the signal's own figures (the in-band sine's RMS, its frequency).
+
+mod common;
+
+use std::path::PathBuf;
+
+use common::episode::{amplitude, mill_config, tone_hz, write_chatter_capture, FS, GAIN_WINDOW_S};
+use common::{free_port, http, web_ready};
+
+fn config_text(history: &std::path::Path, web_port: u16) -> String {
+    String::from(
+        "name = \"episodes\"\n[[sources.modbus]]\nname = \"daq\"\naddress = \"127.0.0.1:1\"\npoll_period_ms = 20\n",
+    ) + &mill_config("daq", "TCM")
+        + &format!(
+            "[history]\npath = {:?}\n[outputs.web]\nbind = \"127.0.0.1:{web_port}\"\n",
+            history.display().to_string()
+        )
+}
+
+struct Scratch(PathBuf);
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_episodes_band_signal_and_spectra_match_numpy_on_its_csv() -> anyhow::Result<()> {
+    let scratch =
+        Scratch(std::env::temp_dir().join(format!("millgate-web-episodes-{}", std::process::id())));
+    let _ = std::fs::remove_dir_all(&scratch.0);
+    std::fs::create_dir_all(&scratch.0)?;
+    let db = scratch.0.join("history.db");
+    write_chatter_capture(&db, "TCM")?;
+
+    let port = free_port();
+    let config = millgate_config::from_toml_str(
+        &config_text(&db, port),
+        "episodes.toml",
+        std::path::Path::new("."),
+    )
+    .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let service = millgate::Service::new(config)?.spawn().await?;
+    web_ready(port).await;
+
+    let list = http(port, "GET", "/api/tandem_mills/TCM/captures").await;
+    assert_eq!(list.status, 200, "{}", list.body);
+    let rows: Vec<serde_json::Value> = serde_json::from_str(&list.body)?;
+    assert_eq!(rows.len(), 1, "{rows:?}");
+    assert_eq!(rows[0]["kind"], "chatter");
+    let id = rows[0]["id"].as_i64().expect("an id");
+    let unknown = http(port, "GET", "/api/tandem_mills/XYZ/captures").await;
+    assert_eq!(unknown.status, 404, "{}", unknown.body);
+    assert!(unknown.body.contains("TCM"), "{}", unknown.body);
+
+    // Every point (no bucketing: the spectra have 626 bins, the band 40-odd windows).
+    let bands = http(
+        port,
+        "GET",
+        &format!("/api/captures/{id}/bands?points=5000"),
+    )
+    .await;
+    assert_eq!(bands.status, 200, "{}", bands.body);
+    let bands_json: serde_json::Value = serde_json::from_str(&bands.body)?;
+    let csv = http(port, "GET", &format!("/api/captures/{id}/file?format=csv")).await;
+    assert_eq!(csv.status, 200);
+    let bucketed = http(port, "GET", &format!("/api/captures/{id}/bands?points=50")).await;
+    let bucketed: serde_json::Value = serde_json::from_str(&bucketed.body)?;
+    let bad = http(port, "GET", &format!("/api/captures/{id}/bands?points=1")).await;
+    assert_eq!(bad.status, 400, "{}", bad.body);
+    service.stop().await?;
+
+    // The signal's own figures: the spectra peak at each stand's tone; the band RMS
+    // at its largest is the tone's RMS near its top amplitude.
+    for stand in 0..3 {
+        let spectrum = &bands_json["spectra"][stand];
+        assert_eq!(
+            spectrum["peak_hz"].as_f64(),
+            Some(tone_hz(stand)),
+            "{spectrum}"
+        );
+        let largest = bands_json["band_rms"][stand]["largest"].as_f64().unwrap();
+        // The tone's RMS over the gain window (2 s) ending at each window's end.
+        let tone_rms = |end_s: f64| {
+            let n = (GAIN_WINDOW_S * FS) as usize;
+            let power: f64 = (0..n)
+                .map(|k| amplitude(stand, end_s - k as f64 / FS).powi(2) / 2.0)
+                .sum();
+            (power / n as f64).sqrt()
+        };
+        let top = bands_json["band_rms"][stand]["t_s"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter_map(serde_json::Value::as_f64)
+            .map(tone_rms)
+            .fold(0.0, f64::max);
+        assert!(
+            (largest / top - 1.0).abs() < 0.1,
+            "stand {stand}: band RMS up to {largest}, the tone's over the gain window {top}"
+        );
+        let max = &bucketed["spectra"][stand]["max"];
+        assert!(max.as_array().unwrap().len() <= 50, "bucketed: {max}");
+        let peak = max
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter_map(serde_json::Value::as_f64)
+            .fold(0.0, f64::max);
+        let psd_peak = spectrum["max"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter_map(serde_json::Value::as_f64)
+            .fold(0.0, f64::max);
+        assert_eq!(peak, psd_peak, "the envelope keeps the peak");
+    }
+    assert_eq!(bands_json["warning_s"].as_f64(), Some(6.0));
+    assert_eq!(bands_json["cleared_s"].as_f64(), Some(10.5));
+
+    // numpy on the CSV download.
+    let csv_path = scratch.0.join("capture.csv");
+    std::fs::write(&csv_path, csv.body)?;
+    let bands_path = scratch.0.join("bands.json");
+    std::fs::write(&bands_path, &bands.body)?;
+    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/capture_bands.py");
+    let checked = std::process::Command::new("python3")
+        .arg(&script)
+        .arg(&csv_path)
+        .arg(&bands_path)
+        .arg(GAIN_WINDOW_S.to_string())
+        .output()?;
+    println!("{}", String::from_utf8_lossy(&checked.stdout));
+    assert!(
+        checked.status.success(),
+        "{}{}",
+        String::from_utf8_lossy(&checked.stdout),
+        String::from_utf8_lossy(&checked.stderr)
+    );
+    Ok(())
+}
