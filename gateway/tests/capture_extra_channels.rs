@@ -15,11 +15,10 @@
 
 mod common;
 
-use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Command;
 use std::time::Duration;
 
-use common::{terminate, until, Setup};
+use common::{export_bite, millgate, terminate, text, until, Setup};
 use millgate::outputs::history::query::{BiteRow, Filter, HistoryReader};
 use millgate_config::layout::to_raw_sample;
 use millgate_config::ChannelSource;
@@ -39,41 +38,6 @@ fn motor_current_a(torque_knm: f64) -> f64 {
 /// `value` as the gateway reads it back from a block of counts at `scale`.
 fn served(value: f64, scale: f64) -> f64 {
     f64::from(to_raw_sample(value, scale, 0.0)) * scale
-}
-
-fn millgate(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_millgate"))
-        .args(args)
-        .output()
-        .expect("run millgate")
-}
-
-fn text(output: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&output.stdout),
-        String::from_utf8_lossy(&output.stderr)
-    )
-}
-
-fn export(db: &Path, out: &Path, bite: i64, format: &str) -> String {
-    let bite = bite.to_string();
-    let output = millgate(&[
-        "capture",
-        "export",
-        "--db",
-        db.to_str().unwrap(),
-        "--driveline",
-        "F1",
-        "--bite",
-        &bite,
-        "--format",
-        format,
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(output.status.success(), "{}", text(&output));
-    String::from_utf8_lossy(&output.stdout).trim().to_owned()
 }
 
 /// Where `run` starts in `signal` (the only place: the simulated torque is noisy).
@@ -161,7 +125,7 @@ async fn extra_channel_columns_are_what_the_daq_served() {
     let block = usize::from(SAMPLES_PER_BLOCK);
     let mut pairs = Vec::new();
     for bite in &bites {
-        let csv = export(&db, &out, bite.bite_counter, "csv");
+        let csv = export_bite(&db, &out, bite.bite_counter, "csv");
         let table = std::fs::read_to_string(&csv).unwrap();
         let mut lines = table.lines().filter(|l| !l.starts_with('#'));
         assert_eq!(lines.next(), Some("t,spindle_top,motor_current"));
@@ -232,7 +196,7 @@ async fn extra_channel_columns_are_what_the_daq_served() {
         if let Some(taf) = bite.taf {
             assert!(printed.contains(&format!("taf = {taf:.3}")), "{printed}");
         }
-        pairs.push((csv, export(&db, &out, bite.bite_counter, "parquet")));
+        pairs.push((csv, export_bite(&db, &out, bite.bite_counter, "parquet")));
     }
 
     // pyarrow: both columns in the Parquet file, equal to the CSV's, with units.

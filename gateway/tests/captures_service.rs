@@ -24,36 +24,13 @@ use std::path::Path;
 use std::process::Command;
 use std::time::Duration;
 
-use common::{free_port, http, millgate, text, until, web_ready, Setup};
+use common::{export_bite, free_port, http, millgate, text, until, web_ready, Setup};
 
 use millgate::outputs::history::query::{BiteRow, CaptureRow, Filter, HistoryReader};
 
-/// A service killed when the test ends, however it ends.
 /// `value` as `millgate analyze` prints it with `digits` decimals.
 fn printed(value: Option<f64>, digits: usize) -> String {
     value.map_or_else(|| "-".to_owned(), |v| format!("{v:.digits$}"))
-}
-
-fn export(db: &Path, out: &Path, bite: i64, format: &str) -> String {
-    let bite = bite.to_string();
-    let output = millgate(&[
-        "capture",
-        "export",
-        "--db",
-        db.to_str().unwrap(),
-        "--driveline",
-        "F1",
-        "--bite",
-        &bite,
-        "--format",
-        format,
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(output.status.success(), "{}", text(&output));
-    let path = String::from_utf8_lossy(&output.stdout).trim().to_owned();
-    assert!(Path::new(&path).is_file(), "{path}");
-    path
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -159,7 +136,7 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
     let db = history.as_path();
     let mut parquet_pairs = Vec::new();
     for bite in bites.iter().filter(|b| b.bite_counter <= in_plc) {
-        let csv = export(db, &out, bite.bite_counter, "csv");
+        let csv = export_bite(db, &out, bite.bite_counter, "csv");
         let analyzed = millgate(&["analyze", "--input", &csv]);
         assert!(analyzed.status.success(), "{}", text(&analyzed));
         let printed_text = String::from_utf8_lossy(&analyzed.stdout).into_owned();
@@ -183,7 +160,7 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
                 bite.bite_counter
             );
         }
-        let parquet = export(db, &out, bite.bite_counter, "parquet");
+        let parquet = export_bite(db, &out, bite.bite_counter, "parquet");
         if bite.bite_counter == downloaded_bite {
             // The page's download is the exported file, byte for byte, under its name.
             for (answer, path) in downloads.iter().zip([&csv, &parquet]) {

@@ -35,6 +35,35 @@ pub(crate) fn text(output: &std::process::Output) -> String {
     String::from_utf8_lossy(&output.stdout).to_string() + &String::from_utf8_lossy(&output.stderr)
 }
 
+/// `millgate capture export` of F1's bite `bite` from `db` to `out` as `format`: the
+/// file written (checked to exist).
+pub(crate) fn export_bite(
+    db: &std::path::Path,
+    out: &std::path::Path,
+    bite: i64,
+    format: &str,
+) -> String {
+    let bite = bite.to_string();
+    let output = millgate(&[
+        "capture",
+        "export",
+        "--db",
+        db.to_str().unwrap(),
+        "--driveline",
+        "F1",
+        "--bite",
+        &bite,
+        "--format",
+        format,
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(output.status.success(), "{}", text(&output));
+    let path = String::from_utf8_lossy(&output.stdout).trim().to_owned();
+    assert!(std::path::Path::new(&path).is_file(), "{path}");
+    path
+}
+
 /// A small seeded generator for test cases (xorshift64*).
 pub(crate) struct Seeded(pub(crate) u64);
 

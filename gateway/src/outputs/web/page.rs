@@ -153,24 +153,29 @@ pub(crate) async fn alarms(State(state): State<Arc<WebState>>) -> Response {
     layout(&state, "Alarms", "alarms", "", ALARMS)
 }
 
+/// The 404 page of a `what` (driveline, tandem mill) named `name` that is not configured.
+fn not_found(state: &WebState, what: &str, name: &str) -> Response {
+    let mut page = layout(
+        state,
+        "Not found",
+        "missing",
+        "",
+        &format!(
+            "<h1>No {what} “{}”</h1><p><a href=\"/\">Back to the overview</a></p>",
+            escape(name)
+        ),
+    );
+    *page.status_mut() = StatusCode::NOT_FOUND;
+    page
+}
+
 /// `GET /drivelines/{name}`: one driveline, or 404.
 pub(crate) async fn driveline(
     State(state): State<Arc<WebState>>,
     Path(name): Path<String>,
 ) -> Response {
     let Some(info) = state.drivelines.iter().find(|d| d.name == name) else {
-        let mut page = layout(
-            &state,
-            "Not found",
-            "missing",
-            "",
-            &format!(
-                "<h1>No driveline “{}”</h1><p><a href=\"/\">Back to the overview</a></p>",
-                escape(&name)
-            ),
-        );
-        *page.status_mut() = StatusCode::NOT_FOUND;
-        return page;
+        return not_found(&state, "driveline", &name);
     };
     let name = escape(&info.name);
     let body = format!(
@@ -207,18 +212,7 @@ pub(crate) async fn tandem_mill(
     Path(name): Path<String>,
 ) -> Response {
     let Some((mill, _)) = state.tandem_mills.iter().find(|(mill, _)| *mill == name) else {
-        let mut page = layout(
-            &state,
-            "Not found",
-            "missing",
-            "",
-            &format!(
-                "<h1>No tandem mill “{}”</h1><p><a href=\"/\">Back to the overview</a></p>",
-                escape(&name)
-            ),
-        );
-        *page.status_mut() = StatusCode::NOT_FOUND;
-        return page;
+        return not_found(&state, "tandem mill", &name);
     };
     let name = escape(mill);
     let body = format!(
