@@ -109,7 +109,7 @@ uml_write_runner() {
     shift 5
     cat >"$script" <<EOF
 #!/bin/sh
-cd "$folder" || exit 1
+cd "$folder" || { echo "the guest cannot enter $folder" >>"$work/output"; exit 1; }
 export $environment RUST_BACKTRACE=1
 for binary in $*; do
     echo "== \$binary" >>"$work/output"
