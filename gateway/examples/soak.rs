@@ -2,7 +2,7 @@
 //! optionally pinned to one core with `taskset`) watching N drivelines at 2 kHz and M
 //! tandem-mill stands at 2.5 or 10 kHz streamed by virtual DAQs, with the history,
 //! the web page, `/metrics`, the HMI server and a Sparkplug B node (into a local
-//! Debian `mosquitto`) on. Captures do not exist yet, so none are taken.
+//! Debian `mosquitto`) on; the history keeps every bite's capture (its default).
 //!
 //! - Drivelines: the demo's simulated bars (`millgate_sim::devices::demo`, the Table 2
 //!   driveline with a growing spindle gap, a bite about every 2.1 s), each driveline's
@@ -14,12 +14,17 @@
 //!   polled at a third of the block period (at most 20 ms).
 //! - Every sample period: an HMI reads the first 48 registers, a web client GETs `/`
 //!   and `/api/overview`, a Prometheus scrape of `/metrics`.
-//! - Bite -> PLC: the virtual PLC records the time of every write; the latency of a
-//!   bite is the write that first holds its bite counter less the moment its window
-//!   completed, which is the bite's time in the history (ms, rounded down, so the
-//!   latency is an upper bound by < 1 ms) plus the window after the trigger. So the
-//!   latency covers the analysis, the history commit the PLC writer waits for and the
-//!   Modbus write (not the DAQ poll before it, up to 20 ms, as `bite_to_plc`).
+//! - Bite -> PLC: the virtual PLC records the time of every write, the torque DAQs
+//!   the time and sequence of every read. The latency of a bite is the write that first
+//!   holds its bite counter less the answer that delivered the block completing its
+//!   window: the last delivery of its channel before the write, when the window's last
+//!   sample (the bite's time in the history plus the window after the trigger) is
+//!   within a block period of it; otherwise (a write more than a block after) from
+//!   that last sample, an upper bound. So the latency covers the gateway's reading of
+//!   the answer, the analysis, the history commit the PLC writer waits for and the
+//!   Modbus write, not the wait for the DAQ's block to fill and be polled (up to 50 +
+//!   20 ms here), which is the DAQ's; the summary also gives the latency from the
+//!   window's last sample, that wait included.
 //!
 //! Each load point prints its samples (RSS, descriptors, threads, CPU, bites, blocks
 //! missed, answers) and a summary row; a load point passes with no block missed after
@@ -49,7 +54,7 @@
 #[path = "support/mosquitto.rs"]
 mod mosquitto;
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpListener as StdListener, TcpStream};
 use std::path::{Path, PathBuf};
@@ -64,7 +69,7 @@ use millgate::state::time::UtcTime;
 use millgate_config::layout::BLOCK_REGISTERS;
 use millgate_config::RegisterTable;
 use millgate_sim::devices::demo::setup;
-use millgate_sim::devices::modbus_bank::{Running, ServeOptions};
+use millgate_sim::devices::modbus_bank::{ReadRecord, Running, ServeOptions, SharedBank};
 use millgate_sim::devices::virtual_daq::{DaqChannel, Placement, Publish, VirtualDaq};
 use millgate_sim::devices::virtual_plc::VirtualPlc;
 use mosquitto::Mosquitto;
@@ -320,6 +325,7 @@ fn daqs(
     rate_hz: f64,
     block: u16,
     channels: Vec<GeneratedChannel>,
+    log_reads: bool,
     config: &mut String,
     listeners: &mut Vec<(VirtualDaq, std::net::TcpListener)>,
 ) -> anyhow::Result<()> {
@@ -346,7 +352,13 @@ fn daqs(
             daq_channel.placement.address = base;
             played.push(daq_channel);
         }
-        listeners.push((VirtualDaq::new(rate_hz, block, played).looped(), listener));
+        let device = VirtualDaq::new(rate_hz, block, played).looped();
+        let device = if log_reads {
+            device.logging_reads()
+        } else {
+            device
+        };
+        listeners.push((device, listener));
         daq += 1;
     }
     Ok(())
@@ -418,6 +430,7 @@ fn load_point(
         DRIVELINE_RATE_HZ,
         DRIVELINE_BLOCK,
         torque_channels,
+        true,
         &mut config,
         &mut listeners,
     )?;
@@ -440,6 +453,7 @@ fn load_point(
         tandem_rate_hz,
         STAND_BLOCK,
         stand_channels,
+        false,
         &mut config,
         &mut listeners,
     )?;
@@ -497,12 +511,52 @@ struct Bites {
     /// (driveline, bite counter) -> the bite's time and whether it is degraded.
     in_history: HashMap<(usize, u32), (UtcTime, bool)>,
     last_history_id: i64,
-    /// Latencies of the bites after the warm-up, ms.
+    /// Per driveline: the last block sequence its DAQ answered a read of its channel
+    /// with, and the times of the answers that brought a new block (its deliveries),
+    /// oldest first, those of the last [`Bites::DELIVERIES_KEPT`].
+    deliveries: Vec<(Option<u16>, VecDeque<SystemTime>)>,
+    /// Latencies of the bites after the warm-up, from the delivery of the block that
+    /// completed the window, ms.
     latencies_ms: Vec<f64>,
+    /// The same bites' latencies from their window's last sample, ms: an upper bound
+    /// that includes the wait for the rest of the block and for the poll.
+    from_sample_ms: Vec<f64>,
+    /// Bites whose block could not be told from the deliveries (a write more than a
+    /// block period after it): their latency is the upper bound.
+    unattributed: usize,
     measured: std::collections::HashSet<(usize, u32)>,
 }
 
 impl Bites {
+    /// How long block deliveries are kept: past the sample period that measures the
+    /// bites they completed.
+    const DELIVERIES_KEPT: Duration = Duration::from_secs(300);
+
+    /// Takes the reads torque DAQ `daq` answered: a read of a channel's block with a
+    /// sequence not read before delivered that block.
+    fn daq_reads(&mut self, daq: usize, reads: Vec<ReadRecord>) {
+        for read in reads {
+            let driveline = daq * CHANNELS_PER_DAQ + usize::from(read.address / BLOCK_REGISTERS);
+            if self.deliveries.len() <= driveline {
+                self.deliveries
+                    .resize(driveline + 1, (None, VecDeque::new()));
+            }
+            let (last, times) = &mut self.deliveries[driveline];
+            if *last != Some(read.first_word) {
+                *last = Some(read.first_word);
+                times.push_back(read.time);
+            }
+        }
+        let Some(keep) = SystemTime::now().checked_sub(Self::DELIVERIES_KEPT) else {
+            return;
+        };
+        for (_, times) in &mut self.deliveries {
+            while times.front().is_some_and(|&time| time < keep) {
+                times.pop_front();
+            }
+        }
+    }
+
     /// Takes the PLC's new writes into a copy of its registers (a map longer than
     /// one request is written in several, and a counter may straddle two): where a
     /// driveline's bite counter rises, every counter up to the new one is at the PLC
@@ -566,7 +620,12 @@ impl Bites {
 
     /// Latencies of the bites both at the PLC and in the history, timed after
     /// `measured_from`, not yet measured.
-    fn measure(&mut self, measured_from: SystemTime, after_trigger: Duration) {
+    fn measure(
+        &mut self,
+        measured_from: SystemTime,
+        after_trigger: Duration,
+        block_period: Duration,
+    ) {
         for (key, (time, _)) in &self.in_history {
             if self.measured.contains(key) {
                 continue;
@@ -579,10 +638,32 @@ impl Bites {
             if complete < measured_from {
                 continue;
             }
-            let latency = written
-                .duration_since(complete)
-                .map_or_else(|early| -early.duration().as_secs_f64(), |d| d.as_secs_f64());
-            self.latencies_ms.push(latency * 1e3);
+            let ms_since = |from: SystemTime| {
+                written
+                    .duration_since(from)
+                    .map_or_else(|early| -early.duration().as_secs_f64(), |d| d.as_secs_f64())
+                    * 1e3
+            };
+            self.from_sample_ms.push(ms_since(complete));
+            // The block that completed the window: the last delivered before the write,
+            // when the window's last sample is in it. The gateway dates a block's last
+            // sample at its arrival and the others back from it, so the window's last
+            // sample is at most a block period (and the history's rounding down to the
+            // ms) before the delivery; an earlier one was in an earlier block.
+            let block = self
+                .deliveries
+                .get(key.0)
+                .and_then(|(_, times)| times.iter().rev().find(|&&time| time <= *written))
+                .filter(|&&delivered| {
+                    complete + block_period + Duration::from_millis(1) >= delivered
+                });
+            match block {
+                Some(&delivered) => self.latencies_ms.push(ms_since(delivered)),
+                None => {
+                    self.unattributed += 1;
+                    self.latencies_ms.push(ms_since(complete));
+                }
+            }
         }
     }
 }
@@ -635,7 +716,11 @@ struct Summary {
     answers_failed: usize,
     answers: usize,
     sparkplug_bites: f64,
+    /// Sorted, from the delivery of the block that completed the window.
     latencies_ms: Vec<f64>,
+    /// Sorted, from the window's last sample (upper bounds).
+    from_sample_ms: Vec<f64>,
+    unattributed: usize,
 }
 
 impl Summary {
@@ -687,6 +772,13 @@ async fn run_point(options: &Options, drivelines: usize, stands: usize) -> anyho
 
     let plc = VirtualPlc::new(usize::from(map.len())).logging_writes();
     let mut devices: Vec<Running> = Vec::new();
+    // The torque DAQs (the first ones) log their reads: the deliveries of the blocks.
+    let torque_banks: Vec<SharedBank> = point
+        .daqs
+        .iter()
+        .take(drivelines.div_ceil(CHANNELS_PER_DAQ))
+        .map(|(daq, _)| daq.bank())
+        .collect();
     for (daq, listener) in point.daqs {
         listener.set_nonblocking(true)?;
         devices.push(daq.spawn(
@@ -752,6 +844,7 @@ async fn run_point(options: &Options, drivelines: usize, stands: usize) -> anyho
     let after_trigger = Duration::from_secs_f64(
         ((POST_TRIGGER_S * DRIVELINE_RATE_HZ).round() - 1.0) / DRIVELINE_RATE_HZ,
     );
+    let block_period = Duration::from_secs_f64(f64::from(DRIVELINE_BLOCK) / DRIVELINE_RATE_HZ);
     let mut bites = Bites::default();
     let mut hmi: Option<tokio_modbus::client::Context> = None;
     let started = Instant::now();
@@ -779,16 +872,20 @@ async fn run_point(options: &Options, drivelines: usize, stands: usize) -> anyho
         // The blocking work (HTTP, /proc, the history file) off the runtime's workers,
         // which the virtual DAQs publish on: a stalled DAQ skips blocks.
         let (web, metrics) = (point.web, point.metrics);
-        let (history_path, plc_now, counters_now, names_now) = (
+        let (history_path, plc_now, counters_now, names_now, banks_now) = (
             history.clone(),
             plc.clone(),
             counters.clone(),
             names.clone(),
+            torque_banks.clone(),
         );
         let (returned, figures, failures, metrics_text) =
             tokio::task::spawn_blocking(move || -> anyhow::Result<_> {
                 let figures = process_figures(pid);
                 let (failures, metrics_text) = web_answers(web, metrics);
+                for (daq, bank) in banks_now.iter().enumerate() {
+                    bites.daq_reads(daq, bank.take_read_log());
+                }
                 bites.plc_writes(&plc_now, &counters_now);
                 if history_path.exists() {
                     bites.history(&history_path, &names_now)?;
@@ -817,7 +914,7 @@ async fn run_point(options: &Options, drivelines: usize, stands: usize) -> anyho
             measured_from = Some((SystemTime::now(), cpu_s, missed));
         }
         if let Some((from, _, _)) = measured_from {
-            bites.measure(from, after_trigger);
+            bites.measure(from, after_trigger, block_period);
         }
         let mut sorted = bites.latencies_ms.clone();
         sorted.sort_by(f64::total_cmp);
@@ -848,10 +945,13 @@ async fn run_point(options: &Options, drivelines: usize, stands: usize) -> anyho
     let final_metrics = get(point.metrics, "/metrics")
         .map(|(_, body)| body)
         .unwrap_or(last_metrics);
+    for (daq, bank) in torque_banks.iter().enumerate() {
+        bites.daq_reads(daq, bank.take_read_log());
+    }
     bites.plc_writes(&plc, &counters);
     bites.history(&history, &names)?;
     let (from, cpu_from, missed_from) = measured_from.context("no sample after the warm-up")?;
-    bites.measure(from, after_trigger);
+    bites.measure(from, after_trigger, block_period);
     drop(gateway);
     stall_watch.abort();
     for device in devices {
@@ -885,6 +985,8 @@ async fn run_point(options: &Options, drivelines: usize, stands: usize) -> anyho
     );
     let mut latencies_ms = bites.latencies_ms;
     latencies_ms.sort_by(f64::total_cmp);
+    let mut from_sample_ms = bites.from_sample_ms;
+    from_sample_ms.sort_by(f64::total_cmp);
     Ok(Summary {
         drivelines,
         stands,
@@ -905,6 +1007,8 @@ async fn run_point(options: &Options, drivelines: usize, stands: usize) -> anyho
         answers,
         sparkplug_bites: metric_sum(&final_metrics, "millgate_sparkplug_bites_published_total"),
         latencies_ms,
+        from_sample_ms,
+        unattributed: bites.unattributed,
     })
 }
 
@@ -975,10 +1079,16 @@ fn print_table(summaries: &[Summary], p99_limit_ms: f64) {
             if s.passed(p99_limit_ms) { "yes" } else { "no" },
         );
         println!(
-            "    {} bites measured, {} degraded, {} Sparkplug bite DDATAs",
+            "    {} bites measured, {} degraded, {} Sparkplug bite DDATAs; from the window's \
+             last sample (block and poll wait included) p50 {:.2} ms, p99 {:.2} ms, max {:.2} \
+             ms; {} bites not told from their block (measured from the last sample)",
             l.len(),
             s.degraded,
-            s.sparkplug_bites
+            s.sparkplug_bites,
+            quantile(&s.from_sample_ms, 0.5),
+            quantile(&s.from_sample_ms, 0.99),
+            s.from_sample_ms.last().copied().unwrap_or(f64::NAN),
+            s.unattributed,
         );
     }
 }

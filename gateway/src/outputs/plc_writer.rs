@@ -1,8 +1,13 @@
 //! `PlcWriter`: writes the register map into the PLC's holding registers (FC 16).
 //!
 //! Every write period, and at once whenever the results change (a bite was
-//! analysed, an alarm acknowledged), the heartbeat is incremented and the whole map is written
-//! at the configured base, in chunks of at most 123 registers (the FC 16 limit).
+//! analysed, an alarm acknowledged), the heartbeat is incremented and the map is
+//! written at the configured base: the whole map every write period, and on a change
+//! only the blocks (the global registers, a driveline's, a mill's) that differ from
+//! the last write that went through, so a bite reaches the PLC in one or two requests
+//! whatever the number of drivelines. After a failed write, a reconnect or a start the
+//! next write is whole. Requests hold whole blocks, up to 123 registers (the FC 16
+//! limit): a PLC never holds part of a block's new values beside the rest's old ones.
 //! A PLC that is unreachable, or whose connection fails, is retried with capped
 //! exponential backoff, which starts again from its initial delay only after a write
 //! went through (a PLC that accepts and closes is not retried every period); the
@@ -15,6 +20,7 @@
 //! the file, even if the gateway is killed right after. A failing history is not
 //! waited for.
 
+use std::ops::Range;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
@@ -37,6 +43,25 @@ const MAX_WRITE_REGISTERS: usize = 123;
 /// Longest wait for the history to commit what a write shows (a commit takes
 /// milliseconds; this bounds a slow disk's delay of the PLC's values).
 pub const HISTORY_WAIT: Duration = Duration::from_millis(500);
+
+/// The FC 16 requests (ranges from the map's start) that write the `blocks` for which
+/// `send` is true: blocks next to each other share a request up to
+/// [`MAX_WRITE_REGISTERS`]; a block is never split.
+fn requests(blocks: &[Range<u16>], mut send: impl FnMut(&Range<u16>) -> bool) -> Vec<Range<u16>> {
+    let mut requests: Vec<Range<u16>> = Vec::new();
+    for block in blocks.iter().filter(|&block| send(block)) {
+        match requests.last_mut() {
+            Some(last)
+                if last.end == block.start
+                    && usize::from(block.end - last.start) <= MAX_WRITE_REGISTERS =>
+            {
+                last.end = block.end;
+            }
+            _ => requests.push(block.clone()),
+        }
+    }
+    requests
+}
 
 /// The reason a failed PLC write is counted under on `/metrics`.
 fn reason(error: &ModbusError) -> PlcFailure {
@@ -173,10 +198,23 @@ impl PlcWriter {
         client::connect(&output.address, output.unit_id, output.timeout).await
     }
 
-    async fn write(&self, context: &mut Context, words: &[u16]) -> Result<(), ModbusError> {
-        for (i, chunk) in words.chunks(MAX_WRITE_REGISTERS).enumerate() {
-            let address = self.output.register_base + (i * MAX_WRITE_REGISTERS) as u16;
-            client::write(context, address, chunk, self.output.timeout).await?;
+    /// Write the registers of `requests` (ranges of `words`, from the map's start),
+    /// one FC 16 request each.
+    async fn write(
+        &self,
+        context: &mut Context,
+        words: &[u16],
+        requests: &[Range<u16>],
+    ) -> Result<(), ModbusError> {
+        for request in requests {
+            let range = usize::from(request.start)..usize::from(request.end);
+            // A request is at most 123 registers (`requests` packs blocks so); chunked
+            // all the same, so that no map could make an oversized request.
+            for (i, chunk) in words[range].chunks(MAX_WRITE_REGISTERS).enumerate() {
+                let address =
+                    self.output.register_base + request.start + (i * MAX_WRITE_REGISTERS) as u16;
+                client::write(context, address, chunk, self.output.timeout).await?;
+            }
         }
         Ok(())
     }
@@ -193,12 +231,15 @@ impl PlcWriter {
         let mut write_warnings = WarnLimit::new(WARN_PERIOD);
         let mut ticks = tokio::time::interval(self.output.write_period);
         ticks.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        // The map as the PLC holds it after the last write that went through (None
+        // before the first, after a failure or a reconnect: the next write is whole).
+        let mut at_plc: Option<Vec<u16>> = None;
         loop {
-            tokio::select! {
-                _ = ticks.tick() => {}
-                () = self.board.changed() => {}
+            let period = tokio::select! {
+                _ = ticks.tick() => true,
+                () = self.board.changed() => false,
                 () = shutdown.recv() => break,
-            }
+            };
             self.board.beat();
             if context.is_none() && Instant::now() >= next_attempt {
                 match self.connect().await {
@@ -222,8 +263,16 @@ impl PlcWriter {
                 if !history.wait_settled(history.enqueued(), HISTORY_WAIT).await {
                     tracing::debug!(wait = ?HISTORY_WAIT, "history commit slower than the PLC wait");
                 }
-                match self.write(connected, &words).await {
+                let requests = match at_plc.as_deref().filter(|_| !period) {
+                    Some(held) => requests(self.map.blocks(), |block| {
+                        let block = usize::from(block.start)..usize::from(block.end);
+                        words[block.clone()] != held[block]
+                    }),
+                    None => requests(self.map.blocks(), |_| true),
+                };
+                match self.write(connected, &words, &requests).await {
                     Ok(()) => {
+                        at_plc = Some(words);
                         self.counters.written();
                         backoff.reset();
                         connect_warnings.clear();
@@ -234,6 +283,7 @@ impl PlcWriter {
                         if let Some(suppressed) = write_warnings.occurred(Instant::now()) {
                             tracing::warn!(plc = %self.output.address, %error, suppressed, "PLC write failed");
                         }
+                        at_plc = None;
                         if error.needs_reconnect() {
                             context = None;
                             next_attempt = Instant::now() + backoff.next_delay();
@@ -253,13 +303,149 @@ impl PlcWriter {
             Some(connected) => Ok(connected),
             None => self.connect().await,
         };
+        let whole = requests(self.map.blocks(), |_| true);
         let written = match connected {
-            Ok(mut connected) => self.write(&mut connected, &words).await,
+            Ok(mut connected) => self.write(&mut connected, &words, &whole).await,
             Err(error) => Err(error),
         };
         match written {
             Ok(()) => tracing::info!("final registers written, status stopped"),
             Err(error) => tracing::warn!(%error, "final PLC write failed"),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::field::source_health::SourceHealth;
+    use crate::outputs::register_map::decode_u32;
+    use millgate_sim::devices::modbus_bank::ServeOptions;
+    use millgate_sim::devices::virtual_plc::VirtualPlc;
+
+    /// Blocks of `lengths` registers from 0 on.
+    fn tile(lengths: &[u16]) -> Vec<Range<u16>> {
+        let mut blocks: Vec<Range<u16>> = Vec::new();
+        for &length in lengths {
+            let start = blocks.last().map_or(0, |b| b.end);
+            blocks.push(start..start + length);
+        }
+        blocks
+    }
+
+    #[test]
+    fn requests_pack_whole_blocks_up_to_the_fc16_limit() {
+        let blocks = tile(&[16, 32, 32, 32, 32, 32, 96]);
+        assert_eq!(
+            requests(&blocks, |_| true),
+            vec![0..112, 112..176, 176..272]
+        );
+        let chosen = [0, 80, 112];
+        assert_eq!(
+            requests(&blocks, |b| chosen.contains(&b.start)),
+            vec![0..16, 80..144],
+            "blocks apart are apart, neighbours share a request"
+        );
+        assert_eq!(requests(&blocks, |_| false), Vec::<Range<u16>>::new());
+    }
+
+    /// With 8 drivelines (a map of several requests), a bite of one driveline is
+    /// written as the global registers and that driveline's block only, and leaves the
+    /// PLC holding the whole map as encoded; the first write was the whole map.
+    #[tokio::test]
+    async fn a_change_writes_the_blocks_that_changed_and_the_periodic_write_all() {
+        let path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/examples/demo.toml");
+        let mut config = millgate_config::load(&path).expect("the demo configuration");
+        let first = config.drivelines[0].clone();
+        config.drivelines = (0..8)
+            .map(|k| millgate_config::Driveline {
+                name: format!("D{k}"),
+                ..first.clone()
+            })
+            .collect();
+        let map = Arc::new(RegisterMap::new(&config));
+        assert!(usize::from(map.len()) > 2 * MAX_WRITE_REGISTERS);
+        let base = 100u16;
+        let plc = VirtualPlc::new(usize::from(base + map.len())).logging_writes();
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let mut output = config
+            .outputs
+            .plc
+            .clone()
+            .expect("the demo has a PLC output");
+        output.address = listener.local_addr().unwrap().to_string();
+        output.register_base = base;
+        output.write_period = Duration::from_secs(3600);
+        let running = plc.clone().spawn(listener, ServeOptions::default());
+        let health = Arc::new(SourceHealth::new(
+            Duration::from_secs(3600),
+            Duration::from_secs(3600),
+        ));
+        let board = Arc::new(Board::new(&config, vec![health]));
+        let (stop, shutdown) = crate::shutdown::channel();
+        let writer = tokio::spawn(
+            PlcWriter::new(
+                output,
+                (Arc::clone(&map), Arc::clone(&board)),
+                Arc::default(),
+            )
+            .run(shutdown),
+        );
+        // The writes of one write, as (first register from the map's start, count).
+        let next_write = || async {
+            let deadline = Instant::now() + Duration::from_secs(10);
+            loop {
+                let log = plc.take_write_log();
+                if !log.is_empty() {
+                    // Let the rest of this write's requests arrive.
+                    tokio::time::sleep(Duration::from_millis(200)).await;
+                    return log
+                        .into_iter()
+                        .chain(plc.take_write_log())
+                        .map(|w| (w.address - base, w.words.len()))
+                        .collect::<Vec<_>>();
+                }
+                assert!(Instant::now() < deadline, "no write in 10 s");
+                tokio::time::sleep(Duration::from_millis(5)).await;
+            }
+        };
+        let whole = next_write().await;
+        assert_eq!(
+            whole.iter().map(|w| w.1).sum::<usize>(),
+            usize::from(map.len())
+        );
+        assert!(whole.len() > 2, "several requests: {whole:?}");
+        for (start, count) in &whole {
+            let end = start + *count as u16;
+            assert!(
+                map.blocks().iter().any(|b| b.start == *start)
+                    && map.blocks().iter().any(|b| b.end == end),
+                "a request of whole blocks: {start}..{end}"
+            );
+        }
+
+        board.update(|results| results.drivelines[5].bite_counter = 7);
+        let after_bite = next_write().await;
+        let block = map.blocks()[1 + 5].clone();
+        assert_eq!(
+            after_bite,
+            vec![
+                (0, usize::from(map.blocks()[0].end)),
+                (block.start, block.len())
+            ],
+            "the globals (heartbeat) and driveline D5's block"
+        );
+        let counter = usize::from(base + map.named("D5.bite_counter").unwrap().address);
+        let held = plc.holding();
+        assert_eq!(decode_u32(&held[counter..counter + 2]), Some(7));
+        assert_eq!(
+            held[usize::from(base)..],
+            map.encode(&board.results())[..],
+            "the PLC holds the whole map as encoded"
+        );
+        stop.trigger();
+        writer.await.unwrap();
+        running.stop().await.unwrap();
     }
 }

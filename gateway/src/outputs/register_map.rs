@@ -17,6 +17,8 @@
 //! rule of the catalogue withholds every value a PLC could not tell from a fresh one):
 //! the registers then hold 0 rather than a frozen old value.
 
+use std::ops::Range;
+
 use millgate_config::layout::encode_value;
 use millgate_config::{Config, ValueType, WordOrder};
 
@@ -266,6 +268,8 @@ pub struct MapTooLarge {
 pub struct RegisterMap {
     registers: Vec<Register>,
     len: u16,
+    /// The global registers, then each subject's block: see [`RegisterMap::blocks`].
+    blocks: Vec<Range<u16>>,
 }
 
 /// Registers as they are added.
@@ -547,15 +551,41 @@ impl RegisterMap {
             }
         }
         let len = rods_start + ROD_MILL_STRIDE * config.rod_mills.len() as u16;
+        let strides = std::iter::once(DRIVELINES_START)
+            .chain(std::iter::repeat_n(
+                DRIVELINE_STRIDE,
+                config.drivelines.len(),
+            ))
+            .chain(std::iter::repeat_n(
+                TANDEM_MILL_STRIDE,
+                config.tandem_mills.len(),
+            ))
+            .chain(std::iter::repeat_n(ROD_MILL_STRIDE, config.rod_mills.len()));
+        let mut blocks: Vec<Range<u16>> = Vec::new();
+        for stride in strides {
+            let start = blocks.last().map_or(0, |b| b.end);
+            blocks.push(start..start + stride);
+        }
+        debug_assert_eq!(blocks.last().map(|b| b.end), Some(len));
         Self {
             registers: b.registers,
             len,
+            blocks,
         }
     }
 
     /// The registers, by address.
     pub fn registers(&self) -> &[Register] {
         &self.registers
+    }
+
+    /// The map's blocks in address order, contiguous from 0 to [`Self::len`]: the
+    /// global registers, then each driveline's, tandem mill's and rod mill's block (a
+    /// rod mill's with its spans), at most 96 registers each. A block is what one
+    /// subject's figures, flags and quality occupy, so the PLC writer never splits one
+    /// across two requests.
+    pub fn blocks(&self) -> &[Range<u16>] {
+        &self.blocks
     }
 
     /// Number of registers the map spans (including reserved ones, which read 0).
@@ -756,6 +786,61 @@ mod tests {
         let flags = map.named("TCM 2030.flags").expect("mill block");
         let base = usize::from(flags.address);
         (map, base)
+    }
+
+    #[test]
+    fn blocks_tile_the_map_and_each_holds_one_subject_within_a_request() {
+        let mut config = example("hot-mill.toml");
+        config.drivelines.extend(example("demo.toml").drivelines);
+        config.tandem_mills = example("tandem-5stand.toml").tandem_mills;
+        config.rod_mills = example("rod-mill.toml").rod_mills;
+        let map = RegisterMap::new(&config);
+        let blocks = map.blocks();
+        assert_eq!(
+            blocks.len(),
+            1 + config.drivelines.len() + config.tandem_mills.len() + config.rod_mills.len()
+        );
+        assert_eq!(blocks[0].start, 0);
+        assert_eq!(blocks.last().unwrap().end, map.len());
+        for pair in blocks.windows(2) {
+            assert_eq!(pair[0].end, pair[1].start, "contiguous: {blocks:?}");
+        }
+        // 123: the most one FC 16 request writes.
+        assert!(blocks.iter().all(|b| b.len() <= 123), "{blocks:?}");
+        for register in map.registers() {
+            let end = register.address + register.value_type.register_count();
+            let block = blocks
+                .iter()
+                .position(|b| b.contains(&register.address))
+                .unwrap_or_else(|| panic!("{} in no block", register.name));
+            assert!(
+                end <= blocks[block].end,
+                "{} straddles two blocks",
+                register.name
+            );
+            // One subject per block: the globals in the first, a subject's registers
+            // (a rod mill's spans with it) in its own.
+            let subject = register.name.split('.').next().unwrap();
+            let owner = match block {
+                0 => None,
+                k if k <= config.drivelines.len() => Some(&config.drivelines[k - 1].name),
+                k if k <= config.drivelines.len() + config.tandem_mills.len() => {
+                    Some(&config.tandem_mills[k - 1 - config.drivelines.len()].name)
+                }
+                k => Some(
+                    &config.rod_mills[k - 1 - config.drivelines.len() - config.tandem_mills.len()]
+                        .name,
+                ),
+            };
+            match owner {
+                Some(name) => assert_eq!(subject, name.as_str(), "{}", register.name),
+                None => assert!(
+                    register.address < DRIVELINES_START,
+                    "{} among the globals",
+                    register.name
+                ),
+            }
+        }
     }
 
     #[test]

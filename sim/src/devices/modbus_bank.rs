@@ -30,6 +30,21 @@ pub struct RegisterBank {
     /// When `Some`, every successful write is also recorded here with its time (a
     /// virtual PLC watched by a latency benchmark; whoever reads it drains it).
     pub write_log: Option<Vec<WriteRecord>>,
+    /// When `Some`, every successful input-register read (FC 04) is also recorded
+    /// here with its time and first word (a virtual DAQ watched by a latency
+    /// benchmark: a block's first word is its sequence; whoever reads it drains it).
+    pub read_log: Option<Vec<ReadRecord>>,
+}
+
+/// One successful input-register read, as recorded in the read log.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ReadRecord {
+    /// When the server answered it.
+    pub time: SystemTime,
+    /// First register read.
+    pub address: u16,
+    /// The value of that register in the answer.
+    pub first_word: u16,
 }
 
 /// One successful write to the holding registers, as recorded in the write log.
@@ -52,6 +67,7 @@ impl RegisterBank {
             holding_writable,
             writes: 0,
             write_log: None,
+            read_log: None,
         }
     }
 
@@ -92,7 +108,15 @@ impl RegisterBank {
     pub fn handle(&mut self, request: &Request<'_>) -> Result<Response, ExceptionCode> {
         match request {
             Request::ReadInputRegisters(address, count) => {
-                Self::read(&self.input, *address, *count).map(Response::ReadInputRegisters)
+                let words = Self::read(&self.input, *address, *count)?;
+                if let Some(log) = self.read_log.as_mut() {
+                    log.push(ReadRecord {
+                        time: SystemTime::now(),
+                        address: *address,
+                        first_word: words[0],
+                    });
+                }
+                Ok(Response::ReadInputRegisters(words))
             }
             Request::ReadHoldingRegisters(address, count) => {
                 Self::read(&self.holding, *address, *count).map(Response::ReadHoldingRegisters)
@@ -127,6 +151,26 @@ impl SharedBank {
         self.0
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    /// The writes recorded since the last call (empty unless logging: see
+    /// [`RegisterBank::write_log`]), oldest first.
+    pub fn take_write_log(&self) -> Vec<WriteRecord> {
+        self.lock()
+            .write_log
+            .as_mut()
+            .map(std::mem::take)
+            .unwrap_or_default()
+    }
+
+    /// The reads recorded since the last call (empty unless logging: see
+    /// [`RegisterBank::read_log`]), oldest first.
+    pub fn take_read_log(&self) -> Vec<ReadRecord> {
+        self.lock()
+            .read_log
+            .as_mut()
+            .map(std::mem::take)
+            .unwrap_or_default()
     }
 }
 
@@ -299,6 +343,22 @@ mod tests {
         let log = bank.write_log.as_ref().unwrap();
         assert_eq!(log.len(), 1, "only the write that was applied: {log:?}");
         assert_eq!((log[0].address, log[0].words.as_slice()), (1, &[5][..]));
+        assert!(log[0].time >= before);
+    }
+
+    #[test]
+    fn input_reads_are_logged_with_their_first_word_when_asked() {
+        let mut bank = RegisterBank::new(4, 0, false);
+        bank.input = vec![7, 8, 9, 10];
+        bank.handle(&Request::ReadInputRegisters(1, 2)).unwrap();
+        assert_eq!(bank.read_log, None, "no log unless asked for");
+        bank.read_log = Some(Vec::new());
+        let before = SystemTime::now();
+        assert!(bank.handle(&Request::ReadInputRegisters(3, 2)).is_err());
+        bank.handle(&Request::ReadInputRegisters(2, 2)).unwrap();
+        let log = bank.read_log.as_ref().unwrap();
+        assert_eq!(log.len(), 1, "only the read that was answered: {log:?}");
+        assert_eq!((log[0].address, log[0].first_word), (2, 9));
         assert!(log[0].time >= before);
     }
 }

@@ -122,6 +122,13 @@ impl VirtualDaq {
         }
     }
 
+    /// This DAQ recording the time and first word (a block's sequence) of every read
+    /// of its input registers (drained through [`SharedBank::take_read_log`]).
+    pub fn logging_reads(self) -> Self {
+        self.bank.lock().read_log = Some(Vec::new());
+        self
+    }
+
     /// The register bank, for inspection by tests.
     pub fn bank(&self) -> SharedBank {
         self.bank.clone()

@@ -31,12 +31,7 @@ impl VirtualPlc {
     /// The writes recorded since the last call (empty unless logging: see
     /// [`VirtualPlc::logging_writes`]), oldest first.
     pub fn take_write_log(&self) -> Vec<WriteRecord> {
-        self.bank
-            .lock()
-            .write_log
-            .as_mut()
-            .map(std::mem::take)
-            .unwrap_or_default()
+        self.bank.take_write_log()
     }
 
     /// The register bank, for inspection by tests and the demo.
