@@ -23,6 +23,7 @@ use std::time::Duration;
 use rusqlite::{Connection, OpenFlags};
 
 use super::error::explain;
+use super::schema::APPLICATION_ID;
 use crate::state::history::{Counters, HistoryState};
 
 /// Time between two checkpoints.
@@ -87,7 +88,9 @@ impl Drop for Checkpointer {
 
 /// One passive checkpoint of the file at `path`, on the connection in `open`
 /// (opened again when the file at the path is another one than it has open); its
-/// failure or success again on `counters` and in the log.
+/// failure or success again on `counters` and in the log. A file that is not (or not
+/// yet) a millgate history is left alone: the writer refuses another application's
+/// file, and its WAL is not this thread's to copy.
 fn checkpoint(
     path: &std::path::Path,
     open: &mut Option<(Connection, Option<(u64, u64)>)>,
@@ -105,6 +108,11 @@ fn checkpoint(
             OpenFlags::SQLITE_OPEN_READ_WRITE | OpenFlags::SQLITE_OPEN_NO_MUTEX,
         )
         .ok()
+        .filter(|connection| {
+            connection
+                .query_row("PRAGMA application_id", [], |row| row.get::<_, i64>(0))
+                .is_ok_and(|id| id == APPLICATION_ID)
+        })
         .map(|connection| (connection, identity));
     }
     let Some((connection, _)) = open.as_ref() else {
@@ -135,5 +143,61 @@ fn checkpoint(
             }
             *open = None;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A WAL-mode file whose last rows are still in its WAL (no automatic
+    /// checkpoint), with `application_id` `id`; the connection keeps the WAL.
+    fn file_with_wal(path: &std::path::Path, id: i64) -> Connection {
+        let db = Connection::open(path).unwrap();
+        db.pragma_update(None, "journal_mode", "wal").unwrap();
+        db.pragma_update(None, "wal_autocheckpoint", 0).unwrap();
+        db.pragma_update(None, "application_id", id).unwrap();
+        db.execute_batch("CREATE TABLE t (x BLOB); PRAGMA wal_checkpoint(TRUNCATE);")
+            .unwrap();
+        for _ in 0..50 {
+            db.execute("INSERT INTO t VALUES (zeroblob(4000))", [])
+                .unwrap();
+        }
+        db
+    }
+
+    #[test]
+    fn another_applications_file_is_not_checkpointed_a_history_is() {
+        let folder =
+            std::env::temp_dir().join(format!("millgate-checkpoint-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&folder);
+        std::fs::create_dir_all(&folder).unwrap();
+        let counters = Counters::default();
+        let mut open = None;
+
+        let foreign = folder.join("foreign.db");
+        let _keep = file_with_wal(&foreign, 0x1234_5678);
+        let size = std::fs::metadata(&foreign).unwrap().len();
+        checkpoint(&foreign, &mut open, &counters);
+        assert!(
+            open.is_none(),
+            "another application's file is not kept open"
+        );
+        assert_eq!(
+            std::fs::metadata(&foreign).unwrap().len(),
+            size,
+            "its WAL was not copied into it"
+        );
+
+        let ours = folder.join("history.db");
+        let _keep = file_with_wal(&ours, APPLICATION_ID);
+        let size = std::fs::metadata(&ours).unwrap().len();
+        checkpoint(&ours, &mut open, &counters);
+        assert!(open.is_some());
+        assert!(
+            std::fs::metadata(&ours).unwrap().len() > size + 100_000,
+            "a history's WAL is copied into it"
+        );
+        std::fs::remove_dir_all(&folder).unwrap();
     }
 }
