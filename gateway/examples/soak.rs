@@ -32,10 +32,11 @@
 //! answering every time, and bite -> PLC p99 under `--p99-limit-ms` (5 ms). A sweep (`--drivelines
 //! 4,8,16`: lists are stepped together, a single value is held) stops at the first
 //! point that fails. The bench's own virtual DAQs publish on its tokio timers: the
-//! `stall` column is the bench's longest timer lateness in the sample period; a stall
+//! `stall_ms` column is the bench's longest timer lateness in the sample period; a stall
 //! near a block period (50 ms) makes a DAQ skip a block, which the gateway counts as
 //! missed though it did not fall behind (run the bench pinned to the other core:
-//! `taskset -c 0`).
+//! `taskset -c 0`); `bench_%` is the bench's own CPU (its DAQs, PLC and clients, not
+//! mosquitto) in the sample period, of one core.
 //!
 //! ```sh
 //! cargo build --release -p millgate --bin millgate --example soak
@@ -826,7 +827,7 @@ async fn run_point(options: &Options, drivelines: usize, stands: usize) -> anyho
             .map_or(String::new(), |cpu| format!(" on core {cpu}"))
     );
     println!(
-        "{:>6} {:>8} {:>4} {:>4} {:>6} {:>6} {:>5} {:>6} {:>5} {:>6} {:>7}",
+        "{:>6} {:>8} {:>4} {:>4} {:>6} {:>6} {:>5} {:>6} {:>5} {:>6} {:>7} {:>8} {:>7}",
         "t_s",
         "rss_kib",
         "fds",
@@ -837,7 +838,9 @@ async fn run_point(options: &Options, drivelines: usize, stands: usize) -> anyho
         "missed",
         "fails",
         "p99_ms",
-        "mqtt"
+        "mqtt",
+        "stall_ms",
+        "bench_%"
     );
 
     let history = folder.join("history.db");
@@ -850,6 +853,7 @@ async fn run_point(options: &Options, drivelines: usize, stands: usize) -> anyho
     let started = Instant::now();
     let mut measured_from: Option<(SystemTime, f64, f64)> = None;
     let mut last_cpu = (Instant::now(), 0.0);
+    let mut bench_cpu = (Instant::now(), 0.0);
     let mut samples: Vec<(u64, usize)> = Vec::new();
     let (mut answers, mut answers_failed) = (0, 0);
     let mut last_metrics = String::new();
@@ -879,9 +883,10 @@ async fn run_point(options: &Options, drivelines: usize, stands: usize) -> anyho
             names.clone(),
             torque_banks.clone(),
         );
-        let (returned, figures, failures, metrics_text) =
+        let (returned, (figures, bench), failures, metrics_text) =
             tokio::task::spawn_blocking(move || -> anyhow::Result<_> {
                 let figures = process_figures(pid);
+                let bench = process_figures(std::process::id());
                 let (failures, metrics_text) = web_answers(web, metrics);
                 for (daq, bank) in banks_now.iter().enumerate() {
                     bites.daq_reads(daq, bank.take_read_log());
@@ -890,7 +895,7 @@ async fn run_point(options: &Options, drivelines: usize, stands: usize) -> anyho
                 if history_path.exists() {
                     bites.history(&history_path, &names_now)?;
                 }
-                Ok((bites, figures, failures, metrics_text))
+                Ok((bites, (figures, bench), failures, metrics_text))
             })
             .await??;
         bites = returned;
@@ -910,6 +915,9 @@ async fn run_point(options: &Options, drivelines: usize, stands: usize) -> anyho
         let bite_total = metric_sum(&last_metrics, "millgate_driveline_bites_total");
         let cpu_percent = (cpu_s - last_cpu.1) / last_cpu.0.elapsed().as_secs_f64() * 100.0;
         last_cpu = (Instant::now(), cpu_s);
+        let bench_s = bench.map_or(f64::NAN, |figures| figures.3);
+        let bench_percent = (bench_s - bench_cpu.1) / bench_cpu.0.elapsed().as_secs_f64() * 100.0;
+        bench_cpu = (Instant::now(), bench_s);
         if warm && measured_from.is_none() {
             measured_from = Some((SystemTime::now(), cpu_s, missed));
         }
@@ -919,7 +927,7 @@ async fn run_point(options: &Options, drivelines: usize, stands: usize) -> anyho
         let mut sorted = bites.latencies_ms.clone();
         sorted.sort_by(f64::total_cmp);
         println!(
-            "{:>6.0} {:>8} {:>4} {:>4} {:>6.1} {:>6} {:>5} {:>6} {:>5} {:>6.2} {:>7} {:>8.1}",
+            "{:>6.0} {:>8} {:>4} {:>4} {:>6.1} {:>6} {:>5} {:>6} {:>5} {:>6.2} {:>7} {:>8.1} {:>7.1}",
             started.elapsed().as_secs_f64(),
             rss,
             fds,
@@ -932,6 +940,7 @@ async fn run_point(options: &Options, drivelines: usize, stands: usize) -> anyho
             quantile(&sorted, 0.99),
             metric_sum(&last_metrics, "millgate_sparkplug_bites_published_total"),
             stall.swap(0, Ordering::Relaxed) as f64 / 1e3,
+            bench_percent,
         );
         if warm {
             samples.push((rss, fds));
