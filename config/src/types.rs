@@ -785,7 +785,8 @@ pub struct PlcOutput {
     pub unit_id: u8,
     /// First holding register of the millgate map in the PLC (default 0).
     pub register_base: u16,
-    /// Time between writes, 1..=60000 ms.
+    /// Time between writes of the whole map, 1..=60000 ms (a change is written at once,
+    /// as the blocks that changed).
     pub write_period: Duration,
     /// Time allowed for one write, 1..=60000 ms (default 1000 ms).
     pub timeout: Duration,

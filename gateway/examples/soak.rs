@@ -5,8 +5,10 @@
 //! Debian `mosquitto`) on; the history keeps every bite's capture (its default).
 //!
 //! - Drivelines: the demo's simulated bars (`millgate_sim::devices::demo`, the Table 2
-//!   driveline with a growing spindle gap, a bite about every 2.1 s), each driveline's
-//!   copy started 0.2 s after the previous one's, the demo's model for the wear and gap
+//!   driveline with a growing spindle gap, a bite every 2.0 s), each driveline's
+//!   copy started 0.2 s after the previous one's (so the bites fall on 10 phases of
+//!   the bar: about N / 10 complete in the same block, a harsher case than a train
+//!   whose stands bite one after another), the demo's model for the wear and gap
 //!   diagnosis; 8 torque channels per DAQ (blocks of 100 samples, polled every 20 ms).
 //! - Tandem mills of up to 5 stands, one accelerometer per stand: seeded Gaussian noise
 //!   (2 m/s^2 RMS) looped, the band-gain chatter detector of
