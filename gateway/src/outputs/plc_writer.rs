@@ -234,6 +234,7 @@ impl PlcWriter {
         // The map as the PLC holds it after the last write that went through (None
         // before the first, after a failure or a reconnect: the next write is whole).
         let mut at_plc: Option<Vec<u16>> = None;
+        let whole = requests(self.map.blocks(), |_| true);
         loop {
             let period = tokio::select! {
                 _ = ticks.tick() => true,
@@ -263,14 +264,15 @@ impl PlcWriter {
                 if !history.wait_settled(history.enqueued(), HISTORY_WAIT).await {
                     tracing::debug!(wait = ?HISTORY_WAIT, "history commit slower than the PLC wait");
                 }
-                let requests = match at_plc.as_deref().filter(|_| !period) {
-                    Some(held) => requests(self.map.blocks(), |block| {
+                // On a change, the blocks that differ from what the PLC holds.
+                let changed = at_plc.as_deref().filter(|_| !period).map(|held| {
+                    requests(self.map.blocks(), |block| {
                         let block = usize::from(block.start)..usize::from(block.end);
                         words[block.clone()] != held[block]
-                    }),
-                    None => requests(self.map.blocks(), |_| true),
-                };
-                match self.write(connected, &words, &requests).await {
+                    })
+                });
+                let requests = changed.as_ref().unwrap_or(&whole);
+                match self.write(connected, &words, requests).await {
                     Ok(()) => {
                         at_plc = Some(words);
                         self.counters.written();
@@ -303,7 +305,6 @@ impl PlcWriter {
             Some(connected) => Ok(connected),
             None => self.connect().await,
         };
-        let whole = requests(self.map.blocks(), |_| true);
         let written = match connected {
             Ok(mut connected) => self.write(&mut connected, &words, &whole).await,
             Err(error) => Err(error),
