@@ -30,8 +30,8 @@ use std::time::Duration;
 use millgate::analysis::Analysis;
 use millgate::field::acquired::Acquired;
 use millgate::field::source_health::SourceHealth;
-use millgate::outputs::plc_writer::PlcWriter;
-use millgate::outputs::register_map::{decode_u32, RegisterMap};
+use millgate::outputs::modbus::plc_writer::PlcWriter;
+use millgate::outputs::modbus::register_map::{decode_u32, RegisterMap};
 use millgate::state::board::Board;
 use millgate_sim::devices::modbus_bank::ServeOptions;
 use millgate_sim::devices::virtual_plc::VirtualPlc;
@@ -99,10 +99,7 @@ async fn main() -> anyhow::Result<()> {
         config.history = Some(settings.clone());
         extra_config.history = Some(settings.clone());
         let history = millgate::state::history::History::new(Some(&settings));
-        millgate::outputs::history::start(
-            &history,
-            millgate::outputs::history::RunInfo::of(&config),
-        );
+        millgate::history::start(&history, millgate::history::RunInfo::of(&config));
         history
     } else {
         millgate::state::history::History::disabled()

@@ -30,8 +30,8 @@ use millgate::analysis::Analysis;
 use millgate::cli::capture::{ExportArgs, ExportFormat, Selection};
 use millgate::field::acquired::Acquired;
 use millgate::field::source_health::SourceHealth;
-use millgate::outputs::history::writer::{connect, insert, insert_run};
-use millgate::outputs::history::RunInfo;
+use millgate::history::writer::{connect, insert, insert_run};
+use millgate::history::RunInfo;
 use millgate::state::board::Board;
 use millgate::state::captures::{CapturedBite, KeepClass};
 use millgate::state::events::HistoryEvent;
@@ -140,7 +140,7 @@ async fn store(
         synchronous: millgate_config::Synchronous::default(),
     };
     let history = History::new(Some(&config));
-    millgate::outputs::history::start(&history, run_info());
+    millgate::history::start(&history, run_info());
     let started = Instant::now();
     for n in 0..STORED_BITES {
         let pair = &bites[n % bites.len()];
@@ -241,7 +241,7 @@ async fn main() -> anyhow::Result<()> {
     let blob_mean = bites
         .iter()
         .filter_map(|[_, capture]| match capture {
-            HistoryEvent::Capture(c) => millgate::outputs::history::captures::encode(c)
+            HistoryEvent::Capture(c) => millgate::history::captures::encode(c)
                 .ok()
                 .map(|(blob, _)| blob.len()),
             _ => None,

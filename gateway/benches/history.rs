@@ -21,7 +21,7 @@
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use millgate::outputs::history::RunInfo;
+use millgate::history::RunInfo;
 use millgate::state::events::{BiteRecord, HistoryEvent};
 use millgate::state::history::{History, QUEUE_CAPACITY};
 use millgate::state::results::DrivelineResults;
@@ -90,7 +90,7 @@ fn open(path: &Path, max_size_mb: u32) -> History {
         captures: millgate_config::CaptureSettings::defaults(max_size_mb),
         synchronous: millgate_config::Synchronous::default(),
     }));
-    millgate::outputs::history::start(&history, run_info());
+    millgate::history::start(&history, run_info());
     history
 }
 
@@ -169,7 +169,7 @@ async fn commit_latency(folder: &Path) {
 
 /// Fill `path` by SQL with recent bites and their wear estimates to `mb` MiB.
 fn fill(path: &Path, mb: u64) {
-    let connection = millgate::outputs::history::writer::connect(path).unwrap();
+    let connection = millgate::history::writer::connect(path).unwrap();
     connection
         .execute(
             "INSERT INTO gateway_runs (started_at, stopped_at, ended, version, config_name)

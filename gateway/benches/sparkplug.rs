@@ -106,7 +106,7 @@ fn folder(tag: &str) -> PathBuf {
 /// Append `count` bites after the file's last (bite counters go on) in one
 /// transaction.
 fn append_bites(path: &Path, count: u32) {
-    let connection = millgate::outputs::history::writer::connect(path).unwrap();
+    let connection = millgate::history::writer::connect(path).unwrap();
     connection
         .execute(
             "WITH RECURSIVE n(i) AS (SELECT 1 UNION ALL SELECT i + 1 FROM n WHERE i < ?1),

@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use clap::Parser;
-use millgate::outputs::history::query::{AlarmRow, BiteRow, Filter, HistoryReader, OutageRow};
+use millgate::history::query::{AlarmRow, BiteRow, Filter, HistoryReader, OutageRow};
 use millgate::state::time::UtcTime;
 
 #[derive(Debug, Parser)]

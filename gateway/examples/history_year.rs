@@ -32,8 +32,8 @@ use std::time::Instant;
 
 use anyhow::{bail, Context};
 use clap::Parser;
-use millgate::outputs::history::writer;
-use millgate::outputs::history::{DrivelineSettings, RunInfo};
+use millgate::history::writer;
+use millgate::history::{DrivelineSettings, RunInfo};
 use millgate::state::commands::CommandOrigin;
 use millgate::state::events::{
     AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, EndedBy, GapEstimate, HistoryEvent, PooledBite,

@@ -67,7 +67,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime};
 
 use anyhow::{bail, Context as _};
-use millgate::outputs::register_map::{decode_u32, RegisterMap};
+use millgate::outputs::modbus::register_map::{decode_u32, RegisterMap};
 use millgate::state::time::UtcTime;
 use millgate_config::layout::BLOCK_REGISTERS;
 use millgate_config::RegisterTable;

@@ -31,7 +31,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use millgate::outputs::register_map::{decode_u32, RegisterMap};
+use millgate::outputs::modbus::register_map::{decode_u32, RegisterMap};
 use millgate::outputs::sparkplug::payload::{MetricValue, Payload};
 use millgate_sim::devices::demo::{setup, DemoDevices};
 use mosquitto::Mosquitto;

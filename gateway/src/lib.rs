@@ -4,6 +4,7 @@
 pub mod analysis;
 pub mod cli;
 pub mod field;
+pub mod history;
 pub mod outputs;
 pub mod service;
 pub mod shutdown;

@@ -131,13 +131,10 @@ fn stop_signals() -> std::io::Result<impl std::future::Future<Output = ()>> {
 async fn run_service(config_path: PathBuf) -> anyhow::Result<()> {
     use sd_notify::NotifyState;
     let config = millgate_config::load(&config_path)?;
-    let heartbeat = config
-        .outputs
-        .plc
-        .as_ref()
-        .map_or(millgate::outputs::heartbeat_period_without_plc(), |plc| {
-            plc.write_period
-        });
+    let heartbeat = config.outputs.plc.as_ref().map_or(
+        millgate::outputs::modbus::heartbeat_period_without_plc(),
+        |plc| plc.write_period,
+    );
     let watchdog = sd_notify::watchdog_enabled();
     if let Some(period) = watchdog {
         millgate::supervision::check_watchdog(period, heartbeat)
@@ -248,7 +245,7 @@ fn main() -> ExitCode {
         Command::Registers { config, format } => millgate_config::load(&config)
             .map_err(anyhow::Error::from)
             .and_then(|config| {
-                let map = millgate::outputs::register_map::RegisterMap::try_new(&config)?;
+                let map = millgate::outputs::modbus::register_map::RegisterMap::try_new(&config)?;
                 let plc_base = config.outputs.plc.as_ref().map(|plc| plc.register_base);
                 print!(
                     "{}",

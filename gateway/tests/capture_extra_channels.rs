@@ -19,7 +19,7 @@ use std::process::Command;
 use std::time::Duration;
 
 use common::{export_bite, millgate, terminate, text, until, Setup};
-use millgate::outputs::history::query::{BiteRow, Filter, HistoryReader};
+use millgate::history::query::{BiteRow, Filter, HistoryReader};
 use millgate_config::layout::to_raw_sample;
 use millgate_config::ChannelSource;
 use millgate_sim::devices::demo::SAMPLES_PER_BLOCK;

@@ -6,10 +6,10 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
-use millgate::outputs::history::query::{CaptureRow, Filter, HistoryReader};
-use millgate::outputs::history::retention::{CaptureRetention, Retention, RetentionState};
-use millgate::outputs::history::writer::{connect, insert, insert_run};
-use millgate::outputs::history::{DrivelineSettings, RunInfo};
+use millgate::history::query::{CaptureRow, Filter, HistoryReader};
+use millgate::history::retention::{CaptureRetention, Retention, RetentionState};
+use millgate::history::writer::{connect, insert, insert_run};
+use millgate::history::{DrivelineSettings, RunInfo};
 use millgate::state::captures::{
     BiteWindowAnalysis, CaptureChannel, CaptureKind, CaptureRecord, CapturedBite, KeepClass,
 };

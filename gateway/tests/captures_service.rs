@@ -26,7 +26,7 @@ use std::time::Duration;
 
 use common::{export_bite, free_port, http, millgate, text, until, web_ready, Setup};
 
-use millgate::outputs::history::query::{BiteRow, CaptureRow, Filter, HistoryReader};
+use millgate::history::query::{BiteRow, CaptureRow, Filter, HistoryReader};
 
 /// `value` as `millgate analyze` prints it with `digits` decimals.
 fn printed(value: Option<f64>, digits: usize) -> String {

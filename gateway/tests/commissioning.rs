@@ -32,8 +32,8 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use common::{free_port, millgate, repo, text, until, KillOnDrop, Plc, Seeded};
-use millgate::outputs::history::query::{BiteRow, Filter, HistoryReader};
-use millgate::outputs::register_map::RegisterMap;
+use millgate::history::query::{BiteRow, Filter, HistoryReader};
+use millgate::outputs::modbus::register_map::RegisterMap;
 use millgate_sim::devices::demo::{demo_daq, DemoDevices};
 use millgate_sim::model::Model;
 use millgate_sim::schedule::{rolling_schedule_with_gap, BarTiming, Schedule};

@@ -27,7 +27,7 @@ use millgate::analysis::gap_monitor::MapsOrigin;
 use millgate::analysis::Analysis;
 use millgate::field::acquired::Acquired;
 use millgate::field::source_health::SourceHealth;
-use millgate::outputs::register_map::{flag_mask, RegisterMap};
+use millgate::outputs::modbus::register_map::{flag_mask, RegisterMap};
 use millgate::state::board::Board;
 use millgate::state::catalogue::DRIVELINE;
 use millgate::state::commands::{Command as GatewayCommand, CommandOrigin};

@@ -7,11 +7,11 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Duration;
 
-use millgate::outputs::history::query::{Filter, HistoryReader};
-use millgate::outputs::history::retention::{Retention, RetentionState};
-use millgate::outputs::history::schema;
-use millgate::outputs::history::{DrivelineSettings, RunInfo};
-use millgate::outputs::register_map::{flag_mask, RegisterMap};
+use millgate::history::query::{Filter, HistoryReader};
+use millgate::history::retention::{Retention, RetentionState};
+use millgate::history::schema;
+use millgate::history::{DrivelineSettings, RunInfo};
+use millgate::outputs::modbus::register_map::{flag_mask, RegisterMap};
 use millgate::state::catalogue::DRIVELINE;
 use millgate::state::commands::CommandOrigin;
 use millgate::state::events::{
@@ -142,7 +142,7 @@ async fn what_is_recorded_is_read_back_and_restored_at_the_next_start() {
     let scratch = Scratch::new("roundtrip");
     let path = scratch.file("history.db");
     let history = History::new(Some(&config(&path)));
-    let restored = millgate::outputs::history::start(&history, run_info());
+    let restored = millgate::history::start(&history, run_info());
     assert!(
         restored.drivelines.is_empty(),
         "a new file restores nothing"
@@ -252,7 +252,7 @@ async fn what_is_recorded_is_read_back_and_restored_at_the_next_start() {
 
     // The second start: the state after the last event, marked restored.
     let history = History::new(Some(&config(&path)));
-    let restored = millgate::outputs::history::start(&history, run_info());
+    let restored = millgate::history::start(&history, run_info());
     history.close();
     assert_eq!(restored.drivelines.len(), 1);
     let f1 = &restored.drivelines[0];
@@ -300,7 +300,7 @@ async fn the_gap_pool_since_the_last_reset_and_the_gap_alarm_are_restored() {
     let path = scratch.file("history.db");
     let t0 = UtcTime::parse("2026-03-01T08:00:00Z").unwrap();
     let at = |minutes: i64| UtcTime::from_unix_ms(t0.unix_ms() + minutes * 60_000);
-    let start = |history: &History| millgate::outputs::history::start(history, run_info());
+    let start = |history: &History| millgate::history::start(history, run_info());
     let history = History::new(Some(&config(&path)));
     start(&history);
     for n in 1..=16u32 {
@@ -373,7 +373,7 @@ async fn a_run_that_never_stopped_is_marked_unclean_and_its_open_outage_closed()
     let scratch = Scratch::new("unclean");
     let path = scratch.file("history.db");
     let first = History::new(Some(&config(&path)));
-    millgate::outputs::history::start(&first, run_info());
+    millgate::history::start(&first, run_info());
     first.record(HistoryEvent::OutageStarted {
         time: UtcTime::now(),
         source: "daq1".into(),
@@ -382,7 +382,7 @@ async fn a_run_that_never_stopped_is_marked_unclean_and_its_open_outage_closed()
     settle(&first).await;
     // No close: as after a kill, the next start finds the run open.
     let second = History::new(Some(&config(&path)));
-    millgate::outputs::history::start(&second, run_info());
+    millgate::history::start(&second, run_info());
     second.close();
     let reader = HistoryReader::open(&path).unwrap();
     let runs = reader.runs(&Filter::default()).unwrap();
@@ -399,7 +399,7 @@ async fn debian_sqlite3_and_python_read_the_file() {
     let scratch = Scratch::new("tools");
     let path = scratch.file("history.db");
     let history = History::new(Some(&config(&path)));
-    millgate::outputs::history::start(&history, run_info());
+    millgate::history::start(&history, run_info());
     let t0 = UtcTime::parse("2026-05-04T23:59:58.250Z").unwrap();
     for n in 1..=12u32 {
         let time = UtcTime::from_unix_ms(t0.unix_ms() + i64::from(n) * 750);
@@ -451,7 +451,7 @@ async fn a_corrupt_file_is_reported_and_left_alone() {
     let garbage: Vec<u8> = (0..8192u32).map(|i| (i * 7 + 3) as u8).collect();
     std::fs::write(&path, &garbage).unwrap();
     let history = History::new(Some(&config(&path)));
-    let restored = millgate::outputs::history::start(&history, run_info());
+    let restored = millgate::history::start(&history, run_info());
     assert!(restored.drivelines.is_empty());
     let status = history.status();
     assert_eq!(status.state, HistoryState::Failing);
@@ -514,7 +514,7 @@ fn fill(connection: &rusqlite::Connection, start: UtcTime, count: u32) {
 fn retention_deletes_by_age_and_size_in_chunks_and_the_file_shrinks() {
     let scratch = Scratch::new("retention");
     let path = scratch.file("history.db");
-    let connection = millgate::outputs::history::writer::connect(&path).unwrap();
+    let connection = millgate::history::writer::connect(&path).unwrap();
     let now = UtcTime::parse("2026-06-01T00:00:00Z").unwrap();
     // 12 000 bites, one a minute: 8.3 days up to `now`.
     let start = now.minus(Duration::from_secs(12_000 * 60));
@@ -599,7 +599,7 @@ fn retention_deletes_by_age_and_size_in_chunks_and_the_file_shrinks() {
 fn retention_keeps_a_run_while_its_rows_remain() {
     let scratch = Scratch::new("retention-runs");
     let path = scratch.file("history.db");
-    let connection = millgate::outputs::history::writer::connect(&path).unwrap();
+    let connection = millgate::history::writer::connect(&path).unwrap();
     let now = UtcTime::parse("2026-06-01T00:00:00Z").unwrap();
     let day = |d: u64| now.minus(Duration::from_secs(d * 86_400)).to_string();
     for (started, ended) in [(day(10), "stopped"), (day(2), "unclean")] {

@@ -14,9 +14,9 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
 use common::millgate;
-use millgate::outputs::history::schema::APPLICATION_ID;
-use millgate::outputs::history::writer;
-use millgate::outputs::history::{DrivelineSettings, RunInfo};
+use millgate::history::schema::APPLICATION_ID;
+use millgate::history::writer;
+use millgate::history::{DrivelineSettings, RunInfo};
 use millgate::state::events::{BiteRecord, GapEstimate, HistoryEvent, WearState};
 use millgate::state::results::DrivelineResults;
 use millgate::state::time::UtcTime;

@@ -9,11 +9,9 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Duration;
 
-use millgate::outputs::history::query::{BiteRow, Filter, HistoryReader};
-use millgate::outputs::history::series::{
-    WearIndexPoint, WearPoint, MAX_SERIES_POINTS, MIN_TREND_BITES,
-};
-use millgate::outputs::history::{DrivelineSettings, HistoryError, RunInfo};
+use millgate::history::query::{BiteRow, Filter, HistoryReader};
+use millgate::history::series::{WearIndexPoint, WearPoint, MAX_SERIES_POINTS, MIN_TREND_BITES};
+use millgate::history::{DrivelineSettings, HistoryError, RunInfo};
 use millgate::state::commands::CommandOrigin;
 use millgate::state::events::{BiteRecord, GapEstimate, HistoryEvent, WearState};
 use millgate::state::history::History;
@@ -152,7 +150,7 @@ fn write_file(folder: &Path) -> PathBuf {
         captures: millgate_config::CaptureSettings::defaults(1024),
         synchronous: millgate_config::Synchronous::default(),
     }));
-    millgate::outputs::history::start(
+    millgate::history::start(
         &history,
         RunInfo {
             version: "test".into(),
@@ -187,7 +185,7 @@ fn write_file(folder: &Path) -> PathBuf {
 }
 
 /// F1's bites as (Unix ms, row), read through the plain row API (no aggregation).
-fn all_bites(reader: &HistoryReader) -> Vec<(i64, millgate::outputs::history::query::BiteRow)> {
+fn all_bites(reader: &HistoryReader) -> Vec<(i64, millgate::history::query::BiteRow)> {
     reader
         .bites(&Filter {
             name: Some("F1".into()),

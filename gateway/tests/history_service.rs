@@ -22,8 +22,8 @@ use std::time::Duration;
 use common::{free_port, http, terminate, until, web_ready, KillOnDrop, Setup};
 
 use millgate::analysis::wear::next_trend;
-use millgate::outputs::history::query::{BiteRow, Filter, HistoryReader};
-use millgate::outputs::register_map::flag_mask;
+use millgate::history::query::{BiteRow, Filter, HistoryReader};
+use millgate::outputs::modbus::register_map::flag_mask;
 use millgate::state::catalogue::DRIVELINE;
 
 fn bites(history: &Path) -> Vec<BiteRow> {

@@ -18,7 +18,7 @@ use std::process::{Child, ChildStdin, Command};
 use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::time::{Duration, Instant};
 
-use millgate::outputs::register_map::{decode_f32, decode_u32, RegisterMap};
+use millgate::outputs::modbus::register_map::{decode_f32, decode_u32, RegisterMap};
 use millgate::service::RunningService;
 use millgate::state::catalogue::{self, FigureType, Guard};
 use millgate_config::{Config, MetricsOutput, OpcUaOutput, OpcUaSecurityMode, OpcUaUser};

@@ -25,7 +25,7 @@ use std::time::{Duration, Instant};
 
 use backlog::Broker;
 use common::{free_port, terminate, Setup};
-use millgate::outputs::history::query::{CaptureRow, Filter, HistoryReader};
+use millgate::history::query::{CaptureRow, Filter, HistoryReader};
 use serde_json::Value;
 
 /// The Python host: its messages as JSON, its stdin for commands.
@@ -317,7 +317,9 @@ async fn births_data_rebirth_and_the_will_as_an_independent_host_decodes_them() 
             let words = plc.plc.holding();
             assert_eq!(
                 Some(gap as f32),
-                millgate::outputs::register_map::decode_f32(&words[plc.at("F1.gap_mrad")..]),
+                millgate::outputs::modbus::register_map::decode_f32(
+                    &words[plc.at("F1.gap_mrad")..]
+                ),
                 "the gap the PLC has"
             );
         }

@@ -40,7 +40,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use common::{http, repo, web_ready, Plc};
-use millgate::outputs::register_map::RegisterMap;
+use millgate::outputs::modbus::register_map::RegisterMap;
 use millgate::outputs::sparkplug::payload::{MetricValue, Payload};
 use millgate_sim::devices::demo::{setup, DemoDevices};
 use prost::Message as _;

@@ -9,7 +9,7 @@ use millgate::analysis::driveline::BiteReport;
 use millgate::analysis::Analysis;
 use millgate::field::acquired::Acquired;
 use millgate::field::source_health::SourceHealth;
-use millgate::outputs::register_map::RegisterMap;
+use millgate::outputs::modbus::register_map::RegisterMap;
 use millgate::state::board::Board;
 use millgate::state::commands::{Command, CommandOrigin};
 use millgate_sim::model::Model;

@@ -10,8 +10,8 @@ mod common;
 use std::time::{Duration, Instant};
 
 use common::{free_port, http, http_raw, web_ready, HttpAnswer, Setup};
-use millgate::outputs::history::query::{BiteRow, Filter, HistoryReader};
-use millgate::outputs::history::series::TREND_WINDOW;
+use millgate::history::query::{BiteRow, Filter, HistoryReader};
+use millgate::history::series::TREND_WINDOW;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 

@@ -10,7 +10,7 @@ mod common;
 use std::time::Duration;
 
 use common::{free_port, http, http_raw, terminate, until, web_ready, HttpAnswer, Setup};
-use millgate::outputs::history::query::{CaptureRow, Filter, HistoryReader};
+use millgate::history::query::{CaptureRow, Filter, HistoryReader};
 
 /// `POST path` with `body`, `content_type` when given, and `Host: host`.
 async fn post(

@@ -32,7 +32,7 @@ const LIVE: Duration = Duration::from_secs(15);
 /// A history of [`FIXTURE_BITES`] bites of F1 (schema by the gateway's own
 /// `connect`, rows by SQLite), its counter at the last one.
 fn year_of_bites(path: &Path) {
-    let connection = millgate::outputs::history::writer::connect(path).unwrap();
+    let connection = millgate::history::writer::connect(path).unwrap();
     connection
         .execute_batch(&format!(
             "BEGIN;

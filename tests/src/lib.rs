@@ -23,7 +23,7 @@ pub mod chatter_loop;
 pub mod net;
 pub use net::until as wait_for;
 
-use millgate::outputs::register_map::RegisterMap;
+use millgate::outputs::modbus::register_map::RegisterMap;
 use millgate_config::Config;
 use millgate_sim::devices::demo::DemoDevices;
 use millgate_sim::schedule::Schedule;

@@ -6,7 +6,7 @@
 
 use std::time::{Duration, Instant};
 
-use millgate::outputs::register_map::{decode_f32, RegisterMap};
+use millgate::outputs::modbus::register_map::{decode_f32, RegisterMap};
 use millgate_config::{Config, RegisterTable};
 use millgate_sim::devices::modbus_bank::{Running, ServeOptions};
 use millgate_sim::devices::virtual_daq::{DaqChannel, Placement, Publish, VirtualDaq};

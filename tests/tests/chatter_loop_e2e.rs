@@ -15,7 +15,7 @@
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use millgate::outputs::register_map::RegisterMap;
+use millgate::outputs::modbus::register_map::RegisterMap;
 use millgate::state::commands::{Command, CommandOrigin};
 use millgate_config::layout::to_raw_sample;
 use millgate_config::{Config, RegisterTable};
@@ -381,8 +381,8 @@ async fn a_chatter_episode_is_captured_as_the_daq_sent_it_and_reproduces_its_war
     use millgate::cli::capture::{export, ExportArgs, KindArg, Picked, Selection};
     use millgate::cli::chatter::commission::CommissionArgs;
     use millgate::cli::chatter::windows::{analyze, WindowsArgs};
-    use millgate::outputs::history::capture_files::ExportFormat;
-    use millgate::outputs::history::query::{CaptureRow, Filter, HistoryReader};
+    use millgate::history::capture_files::ExportFormat;
+    use millgate::history::query::{CaptureRow, Filter, HistoryReader};
 
     let plan = LoopPlan::quick();
     let mills = mills(&plan)?;

@@ -26,9 +26,9 @@ use millgate::field::can::CanDecoder;
 use millgate::field::modbus::{client, ModbusError};
 use millgate::field::quality::{split_saturated, SaturationLimits};
 use millgate::field::source_health::SourceHealth;
-use millgate::outputs::modbus_frame::Served;
-use millgate::outputs::modbus_frame::{self, Policy, Reply};
-use millgate::outputs::register_map::RegisterMap;
+use millgate::outputs::modbus::frame::Served;
+use millgate::outputs::modbus::frame::{self, Policy, Reply};
+use millgate::outputs::modbus::register_map::RegisterMap;
 use millgate::state::board::Board;
 use millgate::state::commands::CommandOrigin;
 use millgate::state::commands::{Command, CommandReceiver};
@@ -244,10 +244,10 @@ fn serve_stream(
     ] {
         buffer.extend_from_slice(chunk);
         loop {
-            match modbus_frame::frame_len(&buffer) {
+            match frame::frame_len(&buffer) {
                 Ok(Some(len)) => {
-                    prop_assert!(len <= modbus_frame::MAX_FRAME_LEN && len <= buffer.len());
-                    let reply = modbus_frame::respond(served, policy, &buffer[..len]);
+                    prop_assert!(len <= frame::MAX_FRAME_LEN && len <= buffer.len());
+                    let reply = frame::respond(served, policy, &buffer[..len]);
                     if let Reply::Send(bytes) = &reply {
                         prop_assert_eq!(&bytes[..4], &buffer[..4], "transaction echoed");
                         let length = usize::from(u16::from_be_bytes([bytes[4], bytes[5]]));
@@ -570,7 +570,9 @@ fn fuzz_config_loader() {
                 valid += 1;
                 // What check and the register export do with a valid file.
                 let _ = millgate_config::summary(&config);
-                if let Ok(map) = millgate::outputs::register_map::RegisterMap::try_new(&config) {
+                if let Ok(map) =
+                    millgate::outputs::modbus::register_map::RegisterMap::try_new(&config)
+                {
                     prop_assert!(map.len() >= 16);
                 }
             }

@@ -9,7 +9,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use millgate::analysis::gap_estimate::GapObservation;
-use millgate::outputs::register_map::{decode_f32, flag_mask, RegisterMap};
+use millgate::outputs::modbus::register_map::{decode_f32, flag_mask, RegisterMap};
 use millgate::state::catalogue::DRIVELINE;
 use millgate_sim::model::Model;
 use millgate_sim::schedule::{rolling_schedule_with_gap, BarTiming};
@@ -82,7 +82,7 @@ async fn the_plc_gap_register_follows_a_growing_gap_and_survives_a_restart() -> 
             Duration::from_secs(15),
             || {
                 let words = plc.holding();
-                millgate::outputs::register_map::decode_u32(&words[counter..])
+                millgate::outputs::modbus::register_map::decode_u32(&words[counter..])
                     == Some(bar as u32 + 1)
                     && words[quality] & GAP_QUALITY == GAP_QUALITY
             },

@@ -7,7 +7,7 @@ use std::process::Command;
 use std::sync::Arc;
 use std::time::Duration;
 
-use millgate::outputs::register_map::RegisterMap;
+use millgate::outputs::modbus::register_map::RegisterMap;
 use millgate_sim::devices::demo::setup;
 use millgate_tests::wait_for;
 use tokio_modbus::client::{Context, Reader, Writer};

@@ -4,7 +4,7 @@
 
 use std::time::Duration;
 
-use millgate::outputs::register_map::{decode_f32, decode_u32, RegisterMap};
+use millgate::outputs::modbus::register_map::{decode_f32, decode_u32, RegisterMap};
 use millgate_sim::devices::demo::setup;
 use millgate_tests::demo_devices;
 

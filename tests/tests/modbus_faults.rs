@@ -5,7 +5,7 @@
 
 use std::time::Duration;
 
-use millgate::outputs::register_map::RegisterMap;
+use millgate::outputs::modbus::register_map::RegisterMap;
 use millgate_sim::devices::demo::setup;
 use millgate_sim::devices::modbus_bank::ServeOptions;
 use millgate_sim::devices::virtual_plc::VirtualPlc;

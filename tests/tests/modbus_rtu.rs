@@ -271,7 +271,7 @@ async fn garbage_and_silence_on_the_line_are_counted_and_the_plc_writes_go_on() 
         &pair.gateway,
         &format!("\n[outputs.plc]\naddress = \"{plc_address}\"\nwrite_period_ms = 100\n"),
     )?;
-    let map = millgate::outputs::register_map::RegisterMap::new(&config);
+    let map = millgate::outputs::modbus::register_map::RegisterMap::new(&config);
     let plc = VirtualPlc::new(usize::from(map.len()));
     let running_plc = plc.spawn(plc_listener, ServeOptions::default());
 

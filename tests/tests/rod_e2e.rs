@@ -13,7 +13,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
-use millgate::outputs::register_map::{decode_f32, flag_mask, RegisterMap};
+use millgate::outputs::modbus::register_map::{decode_f32, flag_mask, RegisterMap};
 use millgate::state::catalogue::{ROD_MILL, ROD_SPAN};
 use millgate_config::layout::encode_value;
 use millgate_config::WebOutput;

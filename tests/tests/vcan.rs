@@ -1086,7 +1086,7 @@ async fn tandem_chatter_over_can_requests_a_slow_down_before_it_develops() -> Re
 #[ignore = "needs SocketCAN vcan0: run scripts/uml-vcan"]
 async fn tandem_chatter_closed_loop_over_can_keeps_the_mill_below_developed_chatter() -> Result<()>
 {
-    use millgate::outputs::register_map::RegisterMap;
+    use millgate::outputs::modbus::register_map::RegisterMap;
     use millgate_sim::devices::modbus_bank::ServeOptions;
     use millgate_sim::devices::tandem_rig::{self, RequestBit};
     use millgate_sim::devices::virtual_plc::VirtualPlc;

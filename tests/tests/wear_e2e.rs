@@ -9,7 +9,7 @@ use std::process::Command;
 use std::time::Duration;
 
 use millgate::analysis::driveline::BiteReport;
-use millgate::outputs::register_map::{decode_f32, RegisterMap};
+use millgate::outputs::modbus::register_map::{decode_f32, RegisterMap};
 use millgate::service::RunningService;
 use millgate_sim::devices::demo::DemoDevices;
 use millgate_sim::model::Model;
@@ -99,7 +99,7 @@ async fn wait_bites(hmi: &mut Context, map: &RegisterMap, count: u32) -> anyhow:
     tokio::time::timeout(Duration::from_secs(5), async {
         loop {
             let words = hmi.read_holding_registers(counter, 2).await??;
-            if millgate::outputs::register_map::decode_u32(&words) == Some(count) {
+            if millgate::outputs::modbus::register_map::decode_u32(&words) == Some(count) {
                 return anyhow::Ok(());
             }
             tokio::time::sleep(Duration::from_millis(20)).await;

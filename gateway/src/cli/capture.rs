@@ -26,13 +26,13 @@ use std::path::PathBuf;
 use anyhow::Context as _;
 
 use crate::cli::history::parse_time;
-pub use crate::outputs::history::capture_files::{
+pub use crate::history::capture_files::{
     file_name, CaptureHeader, ExportFormat, CSV_HEADER_PREFIX,
 };
-use crate::outputs::history::capture_files::{run_config, write};
-use crate::outputs::history::captures::row_json;
-use crate::outputs::history::query::{CaptureRow, Filter, HistoryReader};
-use crate::outputs::history::HistoryError;
+use crate::history::capture_files::{run_config, write};
+use crate::history::captures::row_json;
+use crate::history::query::{CaptureRow, Filter, HistoryReader};
+use crate::history::HistoryError;
 
 /// Which captured rows a command takes: `LAST:N` (the newest N) or numbers,
 /// comma-separated (`12,15,19`): `discrepancy --bites` (bite counters) and

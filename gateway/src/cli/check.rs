@@ -99,8 +99,8 @@ fn history_warning(service: &Service) -> Option<String> {
     if !history.exists() {
         return None;
     }
-    let checked = crate::outputs::history::query::HistoryReader::open(history)
-        .and_then(|reader| reader.quick_check());
+    let checked =
+        crate::history::query::HistoryReader::open(history).and_then(|reader| reader.quick_check());
     checked.err().map(|error| {
         format!("history.path: {error}: the service will not write to it nor restore from it")
     })

@@ -5,7 +5,7 @@
 
 use std::path::Path;
 
-use crate::outputs::history::capture_files::CaptureHeader;
+use crate::history::capture_files::CaptureHeader;
 
 /// A CSV that cannot be used; every variant names where.
 #[derive(Debug, thiserror::Error, PartialEq)]

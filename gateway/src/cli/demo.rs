@@ -24,8 +24,8 @@ use millgate_sim::devices::demo::{
     setup, DemoDevices, DemoSetup, BARS_PER_CYCLE, GAP_COUPLING, SAMPLES_PER_BLOCK,
 };
 
-use crate::outputs::history::query::HistoryReader;
-use crate::outputs::register_map::RegisterMap;
+use crate::history::query::HistoryReader;
+use crate::outputs::modbus::register_map::RegisterMap;
 use crate::state::time::UtcTime;
 
 /// Arguments of `millgate demo`.
@@ -289,7 +289,7 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
             .map_or_else(|| "none".to_owned(), |trend| format!("{trend:.4}"))
     );
     print_registers(&map, &live);
-    let status = crate::outputs::register_map::Field::GatewayStatus;
+    let status = crate::outputs::modbus::register_map::Field::GatewayStatus;
     if let Some(register) = map.registers().iter().find(|r| r.field == status) {
         println!(
             "after shutdown: gateway_status = {:#06b} (bit1 stopped; values flagged, no longer fresh)",

@@ -64,7 +64,7 @@ fn captured(
     selection: &Picked,
     channel: Option<&str>,
 ) -> anyhow::Result<Vec<Recorded>> {
-    use crate::outputs::history::query::{CaptureRow, Filter, HistoryReader};
+    use crate::history::query::{CaptureRow, Filter, HistoryReader};
     let reader = HistoryReader::open(db)?;
     let filter = Filter {
         name: Some(driveline.to_owned()),

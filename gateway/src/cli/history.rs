@@ -8,7 +8,7 @@
 //!
 //! Times are UTC: an ISO-8601 date or date and time, or Unix seconds
 //! ([`UtcTime::parse`]); `--since` is inclusive, `--until` exclusive. The columns are
-//! the table's ([`crate::outputs::history::query`]), in the same order in every format.
+//! the table's ([`crate::history::query`]), in the same order in every format.
 //!
 //! The rows are written as they are read, so a year of bites (4 million rows) takes
 //! the memory of one; progress goes to stderr when it is a terminal
@@ -19,7 +19,7 @@ use std::path::PathBuf;
 
 use crate::cli::progress::{percent, Progress};
 use crate::cli::registers::csv_field;
-use crate::outputs::history::query::{
+use crate::history::query::{
     AlarmRow, BiteRow, ChatterRow, Filter, HistoryReader, OutageRow, Record, RunRow, WearRow,
 };
 use crate::state::time::UtcTime;

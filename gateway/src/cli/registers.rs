@@ -1,5 +1,5 @@
 //! `millgate registers`: the register map as Markdown, CSV or JSON, from the same
-//! table the gateway encodes with ([`crate::outputs::register_map`]).
+//! table the gateway encodes with ([`crate::outputs::modbus::register_map`]).
 //!
 //! Addresses are Modbus PDU addresses, 0-based (the number in the request frame): the
 //! map's own offsets, which the HMI server serves them at, and, with a PLC output, the
@@ -10,7 +10,7 @@
 use millgate_config::{ValueType, WordOrder};
 use serde::Serialize;
 
-use crate::outputs::register_map::RegisterMap;
+use crate::outputs::modbus::register_map::RegisterMap;
 
 /// Output format of the export.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]

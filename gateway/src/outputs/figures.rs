@@ -6,9 +6,9 @@
 
 use serde::Serialize;
 
-use crate::outputs::history::BITE_COLUMNS;
+use crate::history::BITE_COLUMNS;
 use crate::outputs::metrics;
-use crate::outputs::register_map::{
+use crate::outputs::modbus::register_map::{
     DRIVELINE_LAYOUT, NOT_MAPPED, ROD_MILL_LAYOUT, ROD_SPAN_LAYOUT, TANDEM_MILL_LAYOUT,
 };
 use crate::outputs::sparkplug::devices;

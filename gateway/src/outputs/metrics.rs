@@ -29,9 +29,9 @@ use tokio::net::TcpListener;
 
 use crate::field::counters::{CanCounters, CanCounts, ChannelCounters, ChannelCountersSnapshot};
 use crate::field::source_health::SourceHealth;
-use crate::outputs::hmi_server::{ServerCounters, ServerCounts};
 use crate::outputs::http::{self, Limits};
-use crate::outputs::plc_writer::{PlcCounters, PlcFailure};
+use crate::outputs::modbus::hmi_server::{ServerCounters, ServerCounts};
+use crate::outputs::modbus::plc_writer::{PlcCounters, PlcFailure};
 use crate::outputs::sparkplug::{ConnectFailure, SparkplugCounts, SparkplugStatus};
 use crate::outputs::web::QuerySlots;
 use crate::shutdown::Shutdown;

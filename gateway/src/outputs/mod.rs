@@ -8,21 +8,10 @@
 
 pub(crate) mod accept;
 pub mod figures;
-pub(crate) mod heartbeat;
-pub mod history;
-pub mod hmi_server;
 pub(crate) mod http;
 pub mod metrics;
-pub mod modbus_frame;
+pub mod modbus;
 #[cfg(feature = "opcua")]
 pub mod opcua;
-pub mod plc_writer;
-pub mod register_map;
 pub mod sparkplug;
 pub mod web;
-
-/// How often the heartbeat moves when there is no PLC output (the PLC writer moves
-/// it every write period otherwise).
-pub fn heartbeat_period_without_plc() -> std::time::Duration {
-    heartbeat::HEARTBEAT_WITHOUT_PLC
-}

@@ -1,7 +1,7 @@
 //! Why the service could not start, or a task of it failed.
 
 use crate::analysis::AnalysisError;
-use crate::outputs::register_map::MapTooLarge;
+use crate::outputs::modbus::register_map::MapTooLarge;
 
 /// Why the service could not start, or its task failed.
 #[derive(Debug, thiserror::Error)]

@@ -26,11 +26,11 @@ use crate::analysis::gap_estimate::GapObservation;
 use crate::analysis::Analysis;
 use crate::field::counters::{CanCounters, ChannelCounters};
 use crate::field::source_health::SourceHealth;
-use crate::outputs::history::outages::{OutageMonitor, WatchedSource};
-use crate::outputs::history::RunInfo;
-use crate::outputs::hmi_server::{self, ServerCounters};
+use crate::history::outages::{OutageMonitor, WatchedSource};
+use crate::history::RunInfo;
 use crate::outputs::metrics::Acquisition;
-use crate::outputs::register_map::RegisterMap;
+use crate::outputs::modbus::hmi_server::{self, ServerCounters};
+use crate::outputs::modbus::register_map::RegisterMap;
 use crate::outputs::web;
 use crate::shutdown::{self, Shutdown};
 use crate::state::board::Board;
@@ -276,12 +276,11 @@ impl Service {
     /// into each driveline's gap pool again (the history is where the pool survives a
     /// restart). While the file exists but cannot be read (another process holds its
     /// lock, a file system error) this waits, retrying every
-    /// [`crate::outputs::history::writer::REOPEN_PERIOD`], with no output running: no
+    /// [`crate::history::writer::REOPEN_PERIOD`], with no output running: no
     /// counter, bdSeq or replay cursor may start below what the file holds. `false`
     /// when `shutdown` came first (the history is closed then).
     async fn restore(&mut self, shutdown: &mut Shutdown) -> bool {
-        let Some(opened) =
-            crate::outputs::history::writer::spawn(&self.history, RunInfo::of(&self.config))
+        let Some(opened) = crate::history::writer::spawn(&self.history, RunInfo::of(&self.config))
         else {
             return true;
         };

@@ -10,7 +10,7 @@ use super::error::ServiceError;
 use super::{Bound, Service};
 use crate::analysis::driveline::BiteReport;
 use crate::field::counters::ChannelCounters;
-use crate::outputs::register_map::RegisterMap;
+use crate::outputs::modbus::register_map::RegisterMap;
 use crate::shutdown::{self, ShutdownTrigger};
 use crate::state::board::Board;
 use crate::state::commands::CommandSender;

@@ -2,7 +2,7 @@
 //! analysis builds a [`CaptureRecord`] for each bite window (and each chatter episode,
 //! and each manual request) and records it on the history's queue beside the event it
 //! belongs to; the history's writer compresses and stores it
-//! ([`crate::outputs::history::captures`]).
+//! ([`crate::history::captures`]).
 //!
 //! Samples are kept exactly as the analysis saw them (engineering units, `f64`), with
 //! each channel's scale and offset: the writer stores raw counts when every sample is

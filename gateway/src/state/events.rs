@@ -110,7 +110,7 @@ pub struct BiteRecord {
     /// wear index and trend, warning and latched alarm): what a restart restores.
     pub state: DrivelineResults,
     /// Further state a restart restores, as JSON in `driveline_state.extra` (kept when
-    /// `None`), handed back at start in [`crate::outputs::history::restore::RestoredDriveline::extra`].
+    /// `None`), handed back at start in [`crate::history::restore::RestoredDriveline::extra`].
     /// `None` today: the gap pool is restored from the bites' [`BiteRecord::pooled`].
     pub extra_state: Option<serde_json::Value>,
 }

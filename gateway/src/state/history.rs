@@ -3,7 +3,7 @@
 //!
 //! [`History::record`] puts an event on a bounded queue with `try_send` and never
 //! waits (a full queue drops the event and counts it). The writer thread
-//! ([`crate::outputs::history`]) owns the file; an event counts as stored only once
+//! ([`crate::history`]) owns the file; an event counts as stored only once
 //! its transaction has committed: [`History::stored`] counts those,
 //! [`History::wait_settled`] waits until every event recorded so far is committed or
 //! known dropped. The PLC writer waits for that (bounded) before each write, so a bite
@@ -214,7 +214,7 @@ impl History {
     }
 
     /// The history of `config` (disabled for `None`): events are queued from now on
-    /// and written once [`crate::outputs::history::start`] has opened the file. No file is touched here
+    /// and written once [`crate::history::start`] has opened the file. No file is touched here
     /// (`millgate check` builds this too).
     pub fn new(config: Option<&millgate_config::History>) -> Self {
         let counters = Arc::new(Counters::default());
@@ -248,7 +248,7 @@ impl History {
     }
 
     /// The writer's ends (the queue's receiving end, the settled count), once: the
-    /// history's writer side ([`crate::outputs::history::start`]) takes them when it
+    /// history's writer side ([`crate::history::start`]) takes them when it
     /// opens the file; `None` when disabled or taken before.
     pub(crate) fn take_writer_ends(&self) -> Option<WriterEnds> {
         crate::lock(&self.shared.pending).take()

@@ -78,7 +78,7 @@ pub(crate) fn node_config(port: u16, group: &str, history: &Path, extra: &str) -
 /// 1..=count, 10 ms apart from 2026-01-01T00:00:00.010Z) and the replay cursor of
 /// node `<group>/f1` before the first: all of them are its backlog.
 pub(crate) fn write_backlog(path: &Path, group: &str, count: u32) {
-    let connection = millgate::outputs::history::writer::connect(path).unwrap();
+    let connection = millgate::history::writer::connect(path).unwrap();
     connection
         .execute(
             "INSERT INTO gateway_runs (id, started_at, version, config_name)

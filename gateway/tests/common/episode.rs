@@ -4,8 +4,8 @@
 
 use std::path::Path;
 
-use millgate::outputs::history::writer::{connect, insert, insert_run};
-use millgate::outputs::history::RunInfo;
+use millgate::history::writer::{connect, insert, insert_run};
+use millgate::history::RunInfo;
 use millgate::state::captures::{
     CaptureChannel, CaptureKind, CaptureRecord, ChatterEpisode, KeepClass,
 };

@@ -9,7 +9,7 @@ use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use millgate::outputs::register_map::{decode_f32, decode_u32, RegisterMap};
+use millgate::outputs::modbus::register_map::{decode_f32, decode_u32, RegisterMap};
 use millgate_sim::devices::demo::{setup, DemoDevices};
 use millgate_sim::devices::virtual_plc::VirtualPlc;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};

@@ -260,7 +260,7 @@ fn captured(
     index: usize,
     selection: &Picked,
 ) -> anyhow::Result<Vec<Recording>> {
-    use crate::outputs::history::query::{CaptureRow, Filter, HistoryReader};
+    use crate::history::query::{CaptureRow, Filter, HistoryReader};
     let mill = &config.tandem_mills[index];
     let reader = HistoryReader::open(db)?;
     let mut rows: Vec<CaptureRow> = Vec::new();

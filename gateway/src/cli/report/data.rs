@@ -5,10 +5,10 @@
 
 use super::plots::{range, wear_curves, Curve, TafGrid};
 use crate::cli::progress::{percent, Progress};
-use crate::outputs::history::query::{BiteRow, Filter, HistoryReader, SettingsRow};
-use crate::outputs::history::series::TREND_WINDOW;
-use crate::outputs::history::series::{GapTrend, WearIndexPoint, WearPoint};
-use crate::outputs::history::summary::BiteSummary;
+use crate::history::query::{BiteRow, Filter, HistoryReader, SettingsRow};
+use crate::history::series::TREND_WINDOW;
+use crate::history::series::{GapTrend, WearIndexPoint, WearPoint};
+use crate::history::summary::BiteSummary;
 use crate::state::time::UtcTime;
 
 /// Time buckets of the plots over time: 2 px each of a 900 px wide panel.

@@ -35,7 +35,7 @@
 //! binning of bites), `spans` (run and alarm spans on the time axis); this file
 //! assembles the report.
 //!
-//! [`wear_series`]: crate::outputs::history::query::HistoryReader::wear_series
+//! [`wear_series`]: crate::history::query::HistoryReader::wear_series
 
 mod data;
 mod document;
@@ -52,7 +52,7 @@ use spans::{alarm_spans, at_time, clip, run_spans};
 
 use crate::cli::history::parse_time;
 use crate::cli::progress::Progress;
-use crate::outputs::history::query::{AlarmRow, Filter, HistoryReader, OutageRow};
+use crate::history::query::{AlarmRow, Filter, HistoryReader, OutageRow};
 use crate::state::time::UtcTime;
 
 /// Alarm rows listed in the report's table (all are in the timeline plot).

@@ -7,9 +7,9 @@ use std::path::Path;
 
 use plotters::prelude::*;
 
-use crate::outputs::history::captures::Capture;
-use crate::outputs::history::query::SettingsRow;
-use crate::outputs::history::summary::TafPoint;
+use crate::history::captures::Capture;
+use crate::history::query::SettingsRow;
+use crate::history::summary::TafPoint;
 use crate::state::time::UtcTime;
 
 /// Width and height of a plot panel, px.

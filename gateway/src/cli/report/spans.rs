@@ -4,7 +4,7 @@
 use plotters::style::RGBColor;
 
 use super::plots::TimeAxis;
-use crate::outputs::history::query::{AlarmRow, HistoryReader, RunRow};
+use crate::history::query::{AlarmRow, HistoryReader, RunRow};
 use crate::state::time::UtcTime;
 
 /// Overlap of `[from, to)` with the axis' period, in axis units.

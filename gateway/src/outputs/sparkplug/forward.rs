@@ -23,9 +23,9 @@
 use std::collections::{BTreeSet, HashMap, VecDeque};
 use std::path::Path;
 
-use crate::outputs::history::query::BiteRow;
-use crate::outputs::history::writer::connect;
-use crate::outputs::history::HistoryError;
+use crate::history::query::BiteRow;
+use crate::history::writer::connect;
+use crate::history::HistoryError;
 use crate::state::results::{DrivelineResults, GapResults};
 use crate::state::time::UtcTime;
 
@@ -307,7 +307,7 @@ mod tests {
         assert_eq!(bite_ms(&row), Some(1_777_939_198_250));
         assert_eq!(good.last_bite_unix_ms, Some(1_777_939_198_250), "ms kept");
         // The row gives every figure the history's mapping says it keeps.
-        for (key, _) in crate::outputs::history::BITE_COLUMNS {
+        for (key, _) in crate::history::BITE_COLUMNS {
             let figure = crate::state::catalogue::find(crate::state::catalogue::DRIVELINE, key);
             assert!(
                 figure.read(&good).good().is_some(),

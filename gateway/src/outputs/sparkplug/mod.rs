@@ -60,8 +60,8 @@ use rumqttc::{
     Transport,
 };
 
-use crate::outputs::history::query::{BiteRow, CaptureRow, Filter};
-use crate::outputs::history::{HistoryError, BITE_COLUMNS};
+use crate::history::query::{BiteRow, CaptureRow, Filter};
+use crate::history::{HistoryError, BITE_COLUMNS};
 use crate::shutdown::Shutdown;
 use crate::state::board::Board;
 use crate::warn_limit::{WarnLimit, WARN_PERIOD};

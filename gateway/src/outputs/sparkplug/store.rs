@@ -9,9 +9,9 @@ use std::time::Duration;
 
 use super::forward;
 use super::status::SparkplugStatus;
-use crate::outputs::history::query::HistoryReader;
-use crate::outputs::history::writer::connect;
-use crate::outputs::history::HistoryError;
+use crate::history::query::HistoryReader;
+use crate::history::writer::connect;
+use crate::history::HistoryError;
 
 /// How often the replay cursor is stored (when it moved) and the backlog counted.
 const CURSOR_PERIOD: Duration = Duration::from_millis(250);

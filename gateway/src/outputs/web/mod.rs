@@ -23,7 +23,7 @@
 //!   `outputs.web.allow_commands`. None of this runs on the analysis
 //!   task: the server only reads the published snapshot and the file.
 //!
-//! [`HistoryReader`]: crate::outputs::history::query::HistoryReader
+//! [`HistoryReader`]: crate::history::query::HistoryReader
 
 pub(crate) mod api;
 mod encoding;

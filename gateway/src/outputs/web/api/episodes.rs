@@ -11,8 +11,8 @@ use axum::Json;
 
 use super::history::{capture_id, newest, read_capture};
 use super::{ApiError, DrivelineName, Params, POINTS_DEFAULT};
-use crate::outputs::history::query::CaptureRow;
-use crate::outputs::history::series::MAX_SERIES_POINTS;
+use crate::history::query::CaptureRow;
+use crate::history::series::MAX_SERIES_POINTS;
 use crate::outputs::web::shared::WebState;
 
 /// `GET /api/tandem_mills/{name}/captures?since=&until=&limit=`: the newest `limit`
@@ -28,7 +28,7 @@ pub(crate) async fn tandem_mill_captures(
     let rows: Vec<CaptureRow> = newest(&state, &params, Some(name)).await?;
     Ok(Json(
         rows.iter()
-            .map(crate::outputs::history::captures::row_json)
+            .map(crate::history::captures::row_json)
             .collect(),
     ))
 }

@@ -15,11 +15,11 @@ use super::{
     driveline_index, history_error, with_history, ApiError, DrivelineName, Params, LIMIT_DEFAULT,
     LIMIT_MAX, POINTS_DEFAULT,
 };
-use crate::outputs::history::capture_files::{self, CaptureHeader, ExportFormat};
-use crate::outputs::history::captures::Capture;
-use crate::outputs::history::query::{AlarmRow, BiteRow, CaptureRow, Filter, Record};
-use crate::outputs::history::series::{WearPoint, MAX_SERIES_POINTS};
-use crate::outputs::history::HistoryError;
+use crate::history::capture_files::{self, CaptureHeader, ExportFormat};
+use crate::history::captures::Capture;
+use crate::history::query::{AlarmRow, BiteRow, CaptureRow, Filter, Record};
+use crate::history::series::{WearPoint, MAX_SERIES_POINTS};
+use crate::history::HistoryError;
 use crate::outputs::web::shared::WebState;
 
 /// `GET /api/drivelines/{name}/bites?since=&until=&limit=`: the newest `limit` bites
@@ -47,7 +47,7 @@ pub(crate) async fn captures(
     let rows: Vec<CaptureRow> = newest(&state, &params, Some(name)).await?;
     Ok(Json(
         rows.iter()
-            .map(crate::outputs::history::captures::row_json)
+            .map(crate::history::captures::row_json)
             .collect(),
     ))
 }
@@ -64,7 +64,7 @@ pub(crate) async fn capture(
     // A bad id gets the API's JSON error, not axum's plain-text one.
     let id = capture_id(id)?;
     let capture = with_history(&state, move |reader| read_capture(reader, id)).await?;
-    let mut value = crate::outputs::history::captures::row_json(&capture.row);
+    let mut value = crate::history::captures::row_json(&capture.row);
     value["channels"] = capture
         .channels
         .iter()
@@ -90,7 +90,7 @@ pub(super) fn capture_id(id: Result<Path<i64>, PathRejection>) -> Result<i64, Ap
 
 /// Capture `id` of the file; 404 when the file does not hold it.
 pub(super) fn read_capture(
-    reader: &crate::outputs::history::query::HistoryReader,
+    reader: &crate::history::query::HistoryReader,
     id: i64,
 ) -> Result<Capture, ApiError> {
     reader

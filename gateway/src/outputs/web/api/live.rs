@@ -22,9 +22,9 @@ use super::{
     driveline_index, history_error, with_history, ApiError, DrivelineName, Params, OUTAGE_WINDOW,
 };
 use crate::field::source_health::SourceStatus;
-use crate::outputs::history::query::{Filter, HistoryReader, OutageRow};
-use crate::outputs::history::series::TREND_WINDOW;
-use crate::outputs::history::HistoryError;
+use crate::history::query::{Filter, HistoryReader, OutageRow};
+use crate::history::series::TREND_WINDOW;
+use crate::history::HistoryError;
 use crate::outputs::web::shared::{DrivelineInfo, TrendCache, WebState};
 use crate::state::catalogue::{self, Figure, Subject, Value};
 use crate::state::results::{

@@ -35,8 +35,8 @@ use axum::http::request::Parts;
 use axum::http::StatusCode;
 
 use super::shared::WebState;
-use crate::outputs::history::query::HistoryReader;
-use crate::outputs::history::HistoryError;
+use crate::history::query::HistoryReader;
+use crate::history::HistoryError;
 use crate::state::time::UtcTime;
 
 /// Default and largest `limit` of `/api/drivelines/{name}/bites` and `/api/alarms`.

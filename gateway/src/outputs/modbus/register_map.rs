@@ -213,7 +213,7 @@ pub const NOT_MAPPED: &[(catalogue::SubjectKind, &str, &str)] = &[
 /// mask: what a PLC program tests.
 ///
 /// ```
-/// use millgate::outputs::register_map::flag_mask;
+/// use millgate::outputs::modbus::register_map::flag_mask;
 /// use millgate::state::catalogue::DRIVELINE;
 /// assert_eq!(flag_mask(DRIVELINE, "gap_warning"), 1 << 4);
 /// ```

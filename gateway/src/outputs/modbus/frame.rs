@@ -29,7 +29,7 @@
 
 use std::sync::Arc;
 
-use crate::outputs::register_map::{Access, Field, RegisterMap};
+use crate::outputs::modbus::register_map::{Access, Field, RegisterMap};
 use crate::state::board::Board;
 use crate::state::commands::{Command, CommandOrigin, CommandRefused, CommandSender};
 
@@ -350,7 +350,7 @@ mod tests {
 
     fn demo_config() -> millgate_config::Config {
         millgate_config::from_toml_str(
-            include_str!("../../../config/examples/demo.toml"),
+            include_str!("../../../../config/examples/demo.toml"),
             "demo.toml",
             // The demo's driveline model is named relative to the examples folder.
             std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples")),

@@ -32,7 +32,7 @@ use tokio_modbus::client::Context;
 
 use crate::field::backoff::Backoff;
 use crate::field::modbus::{client, ModbusError};
-use crate::outputs::register_map::RegisterMap;
+use crate::outputs::modbus::register_map::RegisterMap;
 use crate::shutdown::Shutdown;
 use crate::state::board::Board;
 use crate::state::results::GatewayState;
@@ -320,7 +320,7 @@ impl PlcWriter {
 mod tests {
     use super::*;
     use crate::field::source_health::SourceHealth;
-    use crate::outputs::register_map::decode_u32;
+    use crate::outputs::modbus::register_map::decode_u32;
     use millgate_sim::devices::modbus_bank::ServeOptions;
     use millgate_sim::devices::virtual_plc::VirtualPlc;
 

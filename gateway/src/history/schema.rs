@@ -620,7 +620,7 @@ mod tests {
 
     #[test]
     fn the_bite_columns_are_the_catalogue_figures_by_key_and_type() {
-        use crate::outputs::history::BITE_COLUMNS;
+        use crate::history::BITE_COLUMNS;
         use crate::state::catalogue::{find, DRIVELINE};
         let mut connection = Connection::open_in_memory().unwrap();
         migrate(&mut connection).unwrap();

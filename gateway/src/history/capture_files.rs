@@ -240,8 +240,8 @@ mod tests {
     use rusqlite::Connection;
 
     use super::{run_config, RunConfig};
-    use crate::outputs::history::query::HistoryReader;
-    use crate::outputs::history::schema::{migrate, APPLICATION_ID, MIGRATIONS};
+    use crate::history::query::HistoryReader;
+    use crate::history::schema::{migrate, APPLICATION_ID, MIGRATIONS};
 
     /// A file left at schema version 7 (no `config_hash`) is read as it is: the run's
     /// name, no hash; migrated to version 8, a run recorded with its hash gives it.

@@ -6,7 +6,7 @@
 //! past the map, or a write that touches anything but a command register, gets
 //! exception 02 (illegal data address); a bad command value or a malformed request
 //! exception 03; other function codes exception 01. The framing and every answer are
-//! in [`crate::outputs::modbus_frame`].
+//! in [`crate::outputs::modbus::frame`].
 //!
 //! Commands, handed to the analysis on its command channel: `command.acknowledge_alarms`
 //! takes 0 (nothing) or 1 (clear latched alarms); `command.reset_wear_trend` takes a
@@ -46,7 +46,7 @@ use tokio::task::JoinSet;
 use tokio::time::Instant;
 
 use crate::outputs::accept::AcceptFailures;
-use crate::outputs::modbus_frame::{self, Policy, Reply, Served, MAX_FRAME_LEN};
+use crate::outputs::modbus::frame::{self, Policy, Reply, Served, MAX_FRAME_LEN};
 use crate::shutdown::Shutdown;
 use crate::state::commands::CommandOrigin;
 use crate::warn_limit::{WarnLimit, WARN_PERIOD};
@@ -406,10 +406,9 @@ impl Connection {
         loop {
             // Answer every whole frame received so far.
             loop {
-                match modbus_frame::frame_len(&buffer[..filled]) {
+                match frame::frame_len(&buffer[..filled]) {
                     Ok(Some(len)) => {
-                        let reply =
-                            modbus_frame::respond(&self.served, self.policy, &buffer[..len]);
+                        let reply = frame::respond(&self.served, self.policy, &buffer[..len]);
                         buffer.copy_within(len..filled, 0);
                         filled -= len;
                         frame_started = None;
@@ -417,7 +416,7 @@ impl Connection {
                         match reply {
                             Reply::Send(bytes) => {
                                 count(&self.counters.requests);
-                                if modbus_frame::exception_code(&bytes).is_some() {
+                                if frame::exception_code(&bytes).is_some() {
                                     count(&self.counters.exceptions);
                                 }
                                 if stream.write_all(&bytes).await.is_err() {

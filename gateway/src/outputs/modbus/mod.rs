@@ -1,0 +1,16 @@
+//! The Modbus outputs, mirroring `field/modbus/`: the [register map](register_map)
+//! derived from the catalogue, the [PLC writer](plc_writer) (FC 16 to the PLC), the
+//! [HMI server](hmi_server) (reads and command registers), the [frame](frame) codec
+//! they share, and the [heartbeat](heartbeat)'s own task when there is no PLC.
+
+pub mod frame;
+pub(crate) mod heartbeat;
+pub mod hmi_server;
+pub mod plc_writer;
+pub mod register_map;
+
+/// How often the heartbeat moves when there is no PLC output (the PLC writer moves
+/// it every write period otherwise).
+pub fn heartbeat_period_without_plc() -> std::time::Duration {
+    heartbeat::HEARTBEAT_WITHOUT_PLC
+}
