@@ -8,11 +8,8 @@ use serde::Serialize;
 
 use crate::history::BITE_COLUMNS;
 use crate::outputs::metrics;
-use crate::outputs::modbus::register_map::{
-    DRIVELINE_LAYOUT, NOT_MAPPED, ROD_MILL_LAYOUT, ROD_SPAN_LAYOUT, TANDEM_MILL_LAYOUT,
-};
 use crate::outputs::sparkplug::devices;
-use crate::state::catalogue::{self, FigureInfo, Guard, SubjectKind};
+use crate::state::catalogue::{self, FigureInfo, Guard, Register, SubjectKind};
 
 /// One figure and its names in every output.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -42,22 +39,22 @@ pub struct FigureRow {
 }
 
 fn register_of(figure: &FigureInfo) -> String {
-    let layout = match figure.subject {
-        SubjectKind::Driveline => DRIVELINE_LAYOUT,
-        SubjectKind::TandemMill => TANDEM_MILL_LAYOUT,
-        SubjectKind::RodMill => ROD_MILL_LAYOUT,
-        SubjectKind::RodSpan => ROD_SPAN_LAYOUT,
-    };
-    if let Some((_, offset, value_type)) = layout.iter().find(|(key, _, _)| *key == figure.key) {
-        return format!("+{offset} {}", value_type.name());
+    match (figure.register, figure.guard) {
+        (
+            Register::At {
+                page,
+                offset,
+                value_type,
+            },
+            _,
+        ) => match page {
+            0 => format!("+{offset} {}", value_type.name()),
+            _ => format!("extension +{offset} {}", value_type.name()),
+        },
+        (Register::Flag, Guard::FlagBit(bit)) => format!("flags bit {bit}"),
+        (Register::NotMapped(why), _) => format!("none: {why}"),
+        (Register::Flag, _) => "none".to_owned(),
     }
-    if let Guard::FlagBit(bit) = figure.guard {
-        return format!("flags bit {bit}");
-    }
-    NOT_MAPPED
-        .iter()
-        .find(|(subject, key, _)| *subject == figure.subject && *key == figure.key)
-        .map_or_else(|| "none".to_owned(), |(_, _, why)| format!("none: {why}"))
 }
 
 fn history_of(figure: &FigureInfo) -> String {

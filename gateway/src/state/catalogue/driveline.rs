@@ -1,0 +1,298 @@
+//! A driveline's figures: its last bite's and the gap diagnosis'.
+
+use millgate_config::ValueType::{F32, U16, U32};
+
+use super::{
+    at, counter_at, index_of, real_of, to_count, to_flag, to_index, to_real, to_time, unmapped,
+    Columns, FigureType, Stale, Value,
+};
+use super::{AlarmKind, DrivelineResults, Figure};
+use crate::state::results::GapResults;
+
+/// The table's figure type.
+type F = Figure<DrivelineResults>;
+
+/// A driveline's figures: its last bite's and the gap diagnosis'.
+pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
+    // Prometheus refuses a type in a name (`_counter_total`).
+    F::count(
+        "bite_counter",
+        counter_at(2, U32),
+        "Bites analysed since start (continued across restarts with a history)",
+        |d| Some(Value::Count(u64::from(d.bite_counter))),
+    )
+    .metric("millgate_driveline_bites_total")
+    .kept(Columns::both("bite_counter"), |d, v| {
+        d.bite_counter = u32::try_from(to_count(v)).unwrap_or(u32::MAX)
+    }),
+    F::count(
+        "degraded_bites",
+        counter_at(30, U32),
+        "Of those, degraded bites: a gap, saturated or non-finite samples in the window (their values are not published)",
+        |d| Some(Value::Count(u64::from(d.degraded_bites))),
+    ),
+    F::real(
+        "last_bite_time",
+        "",
+        at(4, U32, 0),
+        Stale::LastUsable,
+        "Time of the last bite",
+        |d| d.last_bite_unix_ms.map(Value::Time),
+    )
+    .typed(FigureType::Time)
+    .kept(
+        Columns {
+            bite: Some("time"),
+            state: Some("last_bite_time"),
+        },
+        |d, v| d.last_bite_unix_ms = to_time(v),
+    ),
+    F::real(
+        "static_torque_knm",
+        "kN*m",
+        at(6, F32, 1),
+        Stale::LastUsable,
+        "Static (settled) rolling torque of the last bite",
+        |d| real_of(d.static_torque_knm),
+    )
+    .from_window()
+    .kept(Columns::both("static_torque_knm"), |d, v| {
+        d.static_torque_knm = to_real(v)
+    }),
+    F::real(
+        "peak_torque_knm",
+        "kN*m",
+        at(8, F32, 2),
+        Stale::LastUsable,
+        "Peak torque of the last bite",
+        |d| real_of(d.peak_torque_knm),
+    )
+    .from_window()
+    .kept(Columns::both("peak_torque_knm"), |d, v| {
+        d.peak_torque_knm = to_real(v)
+    }),
+    F::real(
+        "taf",
+        "",
+        at(10, F32, 3),
+        Stale::LastUsable,
+        "Torque amplification factor of the last bite (peak / static)",
+        |d| real_of(d.taf),
+    )
+    .from_window()
+    .kept(Columns::both("taf"), |d, v| d.taf = to_real(v)),
+    F::real(
+        "period_shift_s",
+        "s",
+        at(12, F32, 4),
+        Stale::LastUsable,
+        "First minus second oscillation period of the last bite",
+        |d| real_of(d.first_period_shift_s),
+    )
+    .from_window()
+    .kept(Columns::both("period_shift_s"), |d, v| {
+        d.first_period_shift_s = to_real(v)
+    }),
+    F::real(
+        "first_period_s",
+        "s",
+        unmapped("the PLC acts on period_shift_s; no free register in the block"),
+        Stale::LastUsable,
+        "First oscillation period after the last bite's onset (the paper's T1: it grows with the opened gap)",
+        |d| real_of(d.first_period_s),
+    )
+    .from_window()
+    .kept(Columns::bite("first_period_s"), |d, v| {
+        d.first_period_s = to_real(v)
+    }),
+    F::real(
+        "beta1_hz",
+        "Hz",
+        at(14, F32, 5),
+        Stale::LastUsable,
+        "First natural frequency identified from the last bite (eq. (1) fit)",
+        |d| real_of(d.beta1_hz),
+    )
+    .from_window()
+    .kept(Columns::both("beta1_hz"), |d, v| d.beta1_hz = to_real(v)),
+    F::real(
+        "beta2_hz",
+        "Hz",
+        at(16, F32, 6),
+        Stale::LastUsable,
+        "Second natural frequency identified from the last bite (eq. (1) fit)",
+        |d| real_of(d.beta2_hz),
+    )
+    .from_window()
+    .kept(Columns::both("beta2_hz"), |d, v| d.beta2_hz = to_real(v)),
+    F::real(
+        "wear_index",
+        "",
+        at(18, F32, 7),
+        Stale::LastUsable,
+        "Secondary figure: TAF-ratio wear index of the last bite, its TAF / the linear model's TAF - 1 (needs the driveline model)",
+        |d| real_of(d.wear_index),
+    )
+    .from_window()
+    .kept(Columns::both("wear_index"), |d, v| d.wear_index = to_real(v)),
+    F::real(
+        "wear_trend",
+        "",
+        at(20, F32, 8),
+        Stale::LastUsable,
+        "Secondary figure: mean of the TAF-ratio wear index over bites (EWMA, weight 0.1) since start or the last wear reset",
+        |d| real_of(d.wear_trend),
+    )
+    .kept(Columns::both("wear_trend"), |d, v| d.wear_trend = to_real(v)),
+    // The gap's figures are set back in this order: the estimate, then what fills it.
+    F::real(
+        "gap_mrad",
+        "mrad",
+        at(22, F32, 9),
+        Stale::LastUsable,
+        "Opened gap (total dead-zone width, referred to the rolls), maximum likelihood over the pooled bites (needs the driveline model)",
+        |d| real_of(d.gap.map(|g| g.gap_mrad)),
+    )
+    .kept(Columns::bite("gap_mrad"), |d, v| {
+        d.gap = to_real(v).map(|gap_mrad| GapResults {
+            gap_mrad,
+            low_mrad: gap_mrad,
+            high_mrad: gap_mrad,
+            coupling: None,
+            likeliest_coupling: None,
+            bites_pooled: 0,
+        })
+    }),
+    F::real(
+        "gap_low_mrad",
+        "mrad",
+        at(24, F32, 10),
+        Stale::LastUsable,
+        "Lower end of the gap's 90% interval",
+        |d| real_of(d.gap.map(|g| g.low_mrad)),
+    )
+    .kept(Columns::bite("gap_low_mrad"), |d, v| {
+        if let (Some(gap), Some(low)) = (d.gap.as_mut(), to_real(v)) {
+            gap.low_mrad = low;
+        }
+    }),
+    F::real(
+        "gap_high_mrad",
+        "mrad",
+        at(26, F32, 11),
+        Stale::LastUsable,
+        "Upper end of the gap's 90% interval",
+        |d| real_of(d.gap.map(|g| g.high_mrad)),
+    )
+    .kept(Columns::bite("gap_high_mrad"), |d, v| {
+        if let (Some(gap), Some(high)) = (d.gap.as_mut(), to_real(v)) {
+            gap.high_mrad = high;
+        }
+    }),
+    F::real(
+        "gap_coupling",
+        "",
+        at(28, U16, 12),
+        Stale::LastUsable,
+        "Coupling holding the gap (model index, 0 = motor side); no value while the bites cannot tell the couplings apart (gap_mrad is valid then)",
+        |d| index_of(d.gap.and_then(|g| g.coupling)),
+    )
+    .typed(FigureType::Index)
+    .kept(Columns::bite("gap_coupling"), |d, v| {
+        if let Some(gap) = d.gap.as_mut() {
+            gap.coupling = to_index(v);
+        }
+    }),
+    F::real(
+        "likeliest_coupling",
+        "",
+        unmapped("gap_coupling carries the coupling once the bites determine it; no free register in the block"),
+        Stale::LastUsable,
+        "The likeliest coupling to hold the gap (model index), named whether or not the bites tell the couplings apart",
+        |d| index_of(d.gap.and_then(|g| g.likeliest_coupling)),
+    )
+    .typed(FigureType::Index),
+    F::real(
+        "bites_pooled",
+        "",
+        at(29, U16, 13),
+        Stale::LastUsable,
+        "Bites pooled into the gap estimate (the last drivelines[].wear.pool_bites since the last wear reset)",
+        |d| d.gap.map(|g| Value::Count(g.bites_pooled as u64)),
+    )
+    .typed(FigureType::Count)
+    .kept(Columns::bite("bites_pooled"), |d, v| {
+        if let Some(gap) = d.gap.as_mut() {
+            gap.bites_pooled = usize::try_from(to_count(v)).unwrap_or(usize::MAX);
+        }
+    }),
+    F::flag(
+        "taf_warning",
+        0,
+        Stale::Kept,
+        Some(AlarmKind::TafWarning),
+        "TAF at or above the warning threshold at the last bite",
+        |d| Some(Value::Bool(d.taf_warning)),
+    )
+    .kept(Columns::state("warning"), |d, v| d.taf_warning = to_flag(v)),
+    F::flag(
+        "taf_alarm",
+        1,
+        Stale::Kept,
+        Some(AlarmKind::TafAlarm),
+        "TAF reached the alarm threshold; latched until acknowledged",
+        |d| Some(Value::Bool(d.taf_alarm)),
+    )
+    .kept(Columns::state("alarm_latched"), |d, v| {
+        d.taf_alarm = to_flag(v)
+    }),
+    F::flag(
+        "source_stale",
+        2,
+        Stale::Kept,
+        None,
+        "The torque channel's source is stale or lost: the last bite's values are only its last usable ones",
+        |d| Some(Value::Bool(d.source_stale)),
+    ),
+    F::flag(
+        "degraded",
+        3,
+        Stale::Kept,
+        None,
+        "The last bite's window had a gap, saturated or non-finite samples: its values are not valid",
+        |d| Some(Value::Bool(d.last_bite_degraded)),
+    )
+    .kept(Columns::both("degraded"), |d, v| {
+        d.last_bite_degraded = to_flag(v)
+    }),
+    F::flag(
+        "gap_warning",
+        4,
+        Stale::Kept,
+        Some(AlarmKind::GapWarning),
+        "The estimated opened gap is at or above the gap warning threshold",
+        |d| Some(Value::Bool(d.gap_warning)),
+    )
+    .kept(Columns::state("gap_warning"), |d, v| {
+        d.gap_warning = to_flag(v)
+    }),
+    F::flag(
+        "gap_alarm",
+        5,
+        Stale::Kept,
+        Some(AlarmKind::GapAlarm),
+        "The gap's 90% interval lay at or above the gap alarm threshold; latched until acknowledged",
+        |d| Some(Value::Bool(d.gap_alarm)),
+    )
+    .kept(Columns::state("gap_alarm_latched"), |d, v| {
+        d.gap_alarm = to_flag(v)
+    }),
+    F::flag(
+        "restored",
+        6,
+        Stale::Kept,
+        None,
+        "The values are from before the gateway's last restart (restored from the history; last_bite_time says when); cleared by the next bite",
+        |d| Some(Value::Bool(d.restored)),
+    ),
+];

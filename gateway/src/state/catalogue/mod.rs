@@ -1,0 +1,813 @@
+//! The catalogue of published figures: every figure the gateway publishes exists here
+//! once, with its key, unit, type, description, the bit that guards it and what a
+//! stale source does to it. Every output is derived from it: the register map, the
+//! Sparkplug births and data, the `/metrics` families, the web API and the OPC UA
+//! address space name each figure by its key; the history keeps a figure in the
+//! columns it names here and sets it back at a start through it (see
+//! [`mappings`](crate::outputs::figures) for the generated table).
+//!
+//! # One declaration per figure
+//!
+//! A figure is declared once, in its subject's table ([`DRIVELINE`], [`TANDEM_MILL`],
+//! [`ROD_MILL`], [`ROD_SPAN`]): its key, unit and description; its [`Slot`] in the
+//! register map together with the bit that guards it ([`at`], [`ext`], [`counter_at`],
+//! [`unmapped`]); the stale rule; how to read it from the results; and, when the
+//! history keeps it, its [`Columns`] and how a start sets it back. The outputs iterate
+//! the tables: adding a figure is its declaration, its computation, and a migration
+//! when it gets a history column.
+//!
+//! # The stale rule, decided once
+//!
+//! A source is *stale* when it has not answered for longer than its stale time (or is
+//! lost). What that does to a figure depends on what the figure describes
+//! ([`Stale`]):
+//!
+//! - a figure of **the mill now** (a tandem mill's chatter window, a rod mill's
+//!   operating point and span margins) is **withdrawn**: no output shows a value for
+//!   it until the source answers again;
+//! - a figure of **the last bite** (its torques, TAF, periods, frequencies, the wear
+//!   index and the gap pooled from past bites) stays true of that bite: it is its
+//!   **last usable value**, shown as such where an output can say so (the web page
+//!   beside a "source stale" mark, OPC UA as `Uncertain_LastUsableValue`) and
+//!   withheld where it cannot (the PLC registers and the HMI read 0 with the quality
+//!   bit clear, Sparkplug sends null, `/metrics` leaves the sample out): a PLC never
+//!   acts on a value it cannot tell from a fresh one;
+//! - counters and flags (bite counters, latched alarms, the stale flag itself) are
+//!   **kept**: they say what happened, not what is measured.
+//!
+//! A figure that was never computed, or that its bite could not give (a degraded
+//! window, no model, an undetermined coupling), has no value in any output.
+
+use millgate_config::ValueType;
+
+use super::events::AlarmKind;
+use super::results::{DrivelineResults, RodMillResults, RodSpanResults, TandemMillResults};
+
+mod driveline;
+mod rod_mill;
+mod tandem_mill;
+
+pub use driveline::DRIVELINE;
+pub use rod_mill::{ROD_MILL, ROD_SPAN};
+pub use tandem_mill::TANDEM_MILL;
+
+/// What a figure's value is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FigureType {
+    /// A real number in the figure's unit.
+    Real,
+    /// A count of events (non-negative, only grows until a restart or wrap).
+    Count,
+    /// A small non-negative integer naming something (a coupling, a stand, a span, a
+    /// pass, a configuration); 1-based where the description says so.
+    Index,
+    /// A flag.
+    Bool,
+    /// An instant: milliseconds since the Unix epoch, UTC.
+    Time,
+}
+
+impl FigureType {
+    /// `real`, `count`, `index`, `bool`, `time`.
+    pub fn name(self) -> &'static str {
+        match self {
+            FigureType::Real => "real",
+            FigureType::Count => "count",
+            FigureType::Index => "index",
+            FigureType::Bool => "bool",
+            FigureType::Time => "time",
+        }
+    }
+}
+
+/// What says whether a figure's value may be used.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Guard {
+    /// Bit `n` of the block's `quality` register is set while the value is valid.
+    QualityBit(u8),
+    /// The figure is bit `n` of the block's `flags` register.
+    FlagBit(u8),
+    /// Always valid (counters).
+    Always,
+    /// Valid while it has a value; no register bit (a figure the register map does not
+    /// carry).
+    Presence,
+}
+
+/// What a stale source does to a figure (see the module's documentation).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stale {
+    /// A figure of the mill now: withdrawn while its source is stale.
+    Withdrawn,
+    /// A figure of the last bite: stays as its last usable value.
+    LastUsable,
+    /// A counter or a flag: unaffected.
+    Kept,
+}
+
+impl Stale {
+    /// `withdrawn`, `last usable`, `kept`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Stale::Withdrawn => "withdrawn",
+            Stale::LastUsable => "last usable",
+            Stale::Kept => "kept",
+        }
+    }
+}
+
+/// A figure's value.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Value {
+    /// [`FigureType::Real`].
+    Real(f64),
+    /// [`FigureType::Count`].
+    Count(u64),
+    /// [`FigureType::Index`].
+    Index(u64),
+    /// [`FigureType::Bool`].
+    Bool(bool),
+    /// [`FigureType::Time`]: ms since the Unix epoch.
+    Time(i64),
+}
+
+impl Value {
+    /// As a number (a flag is 0 or 1; a time in ms since the epoch).
+    pub fn as_f64(self) -> f64 {
+        match self {
+            Value::Real(v) => v,
+            Value::Count(v) | Value::Index(v) => v as f64,
+            Value::Bool(v) => f64::from(u8::from(v)),
+            Value::Time(ms) => ms as f64,
+        }
+    }
+
+    fn figure_type(self) -> FigureType {
+        match self {
+            Value::Real(_) => FigureType::Real,
+            Value::Count(_) => FigureType::Count,
+            Value::Index(_) => FigureType::Index,
+            Value::Bool(_) => FigureType::Bool,
+            Value::Time(_) => FigureType::Time,
+        }
+    }
+}
+
+/// Why a figure has no value.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NoValue {
+    /// Never computed, or not given by its bite or window (degraded, no model,
+    /// undetermined, inputs refused).
+    NotAvailable,
+    /// Withdrawn: its source is stale.
+    SourceStale,
+}
+
+/// How far a figure's value may be trusted, by the stale rule.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Quality {
+    /// Valid and current.
+    Good,
+    /// The last bite's value while the source is stale ([`Stale::LastUsable`]).
+    LastUsable,
+    /// No value.
+    Bad(NoValue),
+}
+
+/// A figure read from the results with the stale rule applied.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Reading {
+    /// The value, unless [`Quality::Bad`].
+    pub value: Option<Value>,
+    /// Its quality.
+    pub quality: Quality,
+}
+
+impl Reading {
+    /// The value while [`Quality::Good`]: what outputs that cannot mark a last usable
+    /// value publish (the PLC registers, Sparkplug, `/metrics`).
+    pub fn good(&self) -> Option<Value> {
+        self.value.filter(|_| self.quality == Quality::Good)
+    }
+
+    /// The value while good or last usable: what the web page shows (beside the stale
+    /// mark).
+    pub fn usable(&self) -> Option<Value> {
+        self.value
+    }
+}
+
+/// The kinds of things figures describe.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SubjectKind {
+    /// A driveline, analysed at each bite.
+    Driveline,
+    /// A tandem cold mill, watched for chatter.
+    TandemMill,
+    /// A rod mill, its spans checked against the Mathieu tongues.
+    RodMill,
+    /// One span (two stands) of a rod mill.
+    RodSpan,
+}
+
+impl SubjectKind {
+    /// `driveline`, `tandem_mill`, `rod_mill`, `rod_span`: the `/metrics` prefix and
+    /// label.
+    pub fn name(self) -> &'static str {
+        match self {
+            SubjectKind::Driveline => "driveline",
+            SubjectKind::TandemMill => "tandem_mill",
+            SubjectKind::RodMill => "rod_mill",
+            SubjectKind::RodSpan => "rod_span",
+        }
+    }
+}
+
+/// Results that figures are read from.
+pub trait Subject: Default {
+    /// What they describe.
+    const KIND: SubjectKind;
+    /// Whether a source they are computed from is stale.
+    fn source_stale(&self) -> bool;
+}
+
+impl Subject for DrivelineResults {
+    const KIND: SubjectKind = SubjectKind::Driveline;
+    fn source_stale(&self) -> bool {
+        self.source_stale
+    }
+}
+
+impl Subject for TandemMillResults {
+    const KIND: SubjectKind = SubjectKind::TandemMill;
+    fn source_stale(&self) -> bool {
+        self.source_stale
+    }
+}
+
+impl Subject for RodMillResults {
+    const KIND: SubjectKind = SubjectKind::RodMill;
+    fn source_stale(&self) -> bool {
+        self.source_stale
+    }
+}
+
+impl Subject for RodSpanResults {
+    const KIND: SubjectKind = SubjectKind::RodSpan;
+    /// A span is read through [`RodMillResults::published_span`], which is empty (no
+    /// values) while its mill's source is stale.
+    fn source_stale(&self) -> bool {
+        false
+    }
+}
+
+/// Where a figure sits in the register map.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Register {
+    /// A value at `offset` of its subject's block (`page` 0) or of the subject's
+    /// extension block (`page` 1, after every block: figures added since the map's
+    /// first layout), as `value_type`.
+    At {
+        /// 0: the subject's block; 1: its extension block.
+        page: u8,
+        /// Offset from the page's first register (0 is the flags register, 1 the
+        /// quality register).
+        offset: u16,
+        /// How it is encoded.
+        value_type: ValueType,
+    },
+    /// A bit of the block's `flags` register (its [`Guard::FlagBit`]).
+    Flag,
+    /// Not in the register map, and why.
+    NotMapped(&'static str),
+}
+
+/// A figure's register and the guard that says when its value may be used there:
+/// declared together ([`at`], [`ext`], [`counter_at`], [`unmapped`],
+/// [`unmapped_counter`]), so a value cannot lose its quality bit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Slot {
+    /// Where it sits.
+    pub register: Register,
+    /// What guards it.
+    pub guard: Guard,
+}
+
+/// At `offset` of the subject's block as `value_type`, valid while bit `quality_bit`
+/// of the block's quality register is set.
+pub const fn at(offset: u16, value_type: ValueType, quality_bit: u8) -> Slot {
+    Slot {
+        register: Register::At {
+            page: 0,
+            offset,
+            value_type,
+        },
+        guard: Guard::QualityBit(quality_bit),
+    }
+}
+
+/// At `offset` of the subject's extension block as `value_type`, valid while bit
+/// `quality_bit` of the extension block's quality register is set.
+pub const fn ext(offset: u16, value_type: ValueType, quality_bit: u8) -> Slot {
+    Slot {
+        register: Register::At {
+            page: 1,
+            offset,
+            value_type,
+        },
+        guard: Guard::QualityBit(quality_bit),
+    }
+}
+
+/// A counter at `offset` of the subject's block: always valid.
+pub const fn counter_at(offset: u16, value_type: ValueType) -> Slot {
+    Slot {
+        register: Register::At {
+            page: 0,
+            offset,
+            value_type,
+        },
+        guard: Guard::Always,
+    }
+}
+
+/// Not in the register map (`why`): valid while it has a value.
+pub const fn unmapped(why: &'static str) -> Slot {
+    Slot {
+        register: Register::NotMapped(why),
+        guard: Guard::Presence,
+    }
+}
+
+/// A counter not in the register map (`why`): always valid.
+pub const fn unmapped_counter(why: &'static str) -> Slot {
+    Slot {
+        register: Register::NotMapped(why),
+        guard: Guard::Always,
+    }
+}
+
+/// Where the history keeps a figure: its column in the `bites` table (a figure of
+/// each bite) and in its subject's state table (what a start restores), by name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Columns {
+    /// The column of table `bites` (drivelines).
+    pub bite: Option<&'static str>,
+    /// The column of the subject's state table (`driveline_state`, `mill_state`).
+    pub state: Option<&'static str>,
+}
+
+impl Columns {
+    /// Column `name` of the bite rows and of the state rows.
+    pub const fn both(name: &'static str) -> Self {
+        Self {
+            bite: Some(name),
+            state: Some(name),
+        }
+    }
+
+    /// Column `name` of the bite rows only: the history keeps each bite's value, a
+    /// start does not restore it.
+    pub const fn bite(name: &'static str) -> Self {
+        Self {
+            bite: Some(name),
+            state: None,
+        }
+    }
+
+    /// Column `name` of the state rows only (a flag a start restores).
+    pub const fn state(name: &'static str) -> Self {
+        Self {
+            bite: None,
+            state: Some(name),
+        }
+    }
+}
+
+/// What the catalogue says of a figure, whatever its subject.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Spec {
+    /// The name every output uses: `taf`, `gap_mrad`, ...
+    pub key: &'static str,
+    /// Unit of a real value (`kN*m`, `Hz`, `s`, `mrad`, `m/s`, `1/s`, `degC`), empty
+    /// for ratios, counts, indices, flags and times.
+    pub unit: &'static str,
+    /// Its type.
+    pub figure_type: FigureType,
+    /// One or two sentences for the documentation and every output's description.
+    pub description: &'static str,
+    /// The bit that guards it.
+    pub guard: Guard,
+    /// Where it sits in the register map (declared with its guard: [`Slot`]).
+    pub register: Register,
+    /// What a stale source does to it.
+    pub stale: Stale,
+    /// The range the value lies in, where one is known (OPC UA's EURange).
+    pub range: Option<(f64, f64)>,
+    /// For a warning or alarm flag: the alarm kind the history records its changes as.
+    pub alarm: Option<AlarmKind>,
+    /// The name on `/metrics` when the rule (`millgate_<subject>_<key>`) gives a
+    /// name Prometheus' conventions refuse.
+    pub metric: Option<&'static str>,
+    /// Where the history keeps it (none: a flag or count of the moment).
+    pub columns: Columns,
+    /// Measured on the bite's window: not a result when the window is degraded (a
+    /// bite row keeps what a degraded window measured, flagged `degraded`; nothing
+    /// publishes it).
+    pub from_window: bool,
+}
+
+impl Spec {
+    /// Whether the figure only grows (until a restart without a history, or a wrap):
+    /// a Prometheus counter. A count that can fall (the bites pooled) is not.
+    pub fn is_counter(&self) -> bool {
+        self.figure_type == FigureType::Count && self.guard == Guard::Always
+    }
+}
+
+/// One published figure of results `R`: its [`Spec`] (reached through `Deref`), how
+/// to read it and, when the history keeps it, how to set it back.
+#[derive(Debug)]
+pub struct Figure<R> {
+    /// What the catalogue says of it.
+    pub spec: Spec,
+    value: fn(&R) -> Option<Value>,
+    set: Option<fn(&mut R, Option<Value>)>,
+}
+
+impl<R> std::ops::Deref for Figure<R> {
+    type Target = Spec;
+    fn deref(&self) -> &Spec {
+        &self.spec
+    }
+}
+
+impl<R> Figure<R> {
+    const fn new(
+        key: &'static str,
+        unit: &'static str,
+        figure_type: FigureType,
+        slot: Slot,
+        stale: Stale,
+        description: &'static str,
+        value: fn(&R) -> Option<Value>,
+    ) -> Self {
+        Figure {
+            spec: Spec {
+                key,
+                unit,
+                figure_type,
+                description,
+                guard: slot.guard,
+                register: slot.register,
+                stale,
+                range: None,
+                alarm: None,
+                metric: None,
+                columns: Columns {
+                    bite: None,
+                    state: None,
+                },
+                from_window: false,
+            },
+            value,
+            set: None,
+        }
+    }
+
+    /// This figure with values of `figure_type` (a real figure that is an index, a
+    /// count or a time).
+    const fn typed(mut self, figure_type: FigureType) -> Self {
+        self.spec.figure_type = figure_type;
+        self
+    }
+
+    /// This figure with its values in `low..=high`.
+    const fn range(mut self, low: f64, high: f64) -> Self {
+        self.spec.range = Some((low, high));
+        self
+    }
+
+    /// This figure named `name` on `/metrics`.
+    const fn metric(mut self, name: &'static str) -> Self {
+        self.spec.metric = Some(name);
+        self
+    }
+
+    /// This figure, measured on the bite's window.
+    const fn from_window(mut self) -> Self {
+        self.spec.from_window = true;
+        self
+    }
+
+    /// This figure kept in the history's `columns`, set back by `set` (setters run in
+    /// catalogue order: a figure that makes a value others fill comes first).
+    const fn kept(mut self, columns: Columns, set: fn(&mut R, Option<Value>)) -> Self {
+        self.spec.columns = columns;
+        self.set = Some(set);
+        self
+    }
+
+    /// The value of `subject` as it is, without the stale rule: what the history
+    /// stores.
+    pub fn value(&self, subject: &R) -> Option<Value> {
+        (self.value)(subject)
+    }
+
+    /// Set the figure of `subject` to `value` (from the history); `false` when the
+    /// history does not keep it (nothing changed).
+    pub fn set(&self, subject: &mut R, value: Option<Value>) -> bool {
+        match self.set {
+            Some(set) => {
+                set(subject, value);
+                true
+            }
+            None => false,
+        }
+    }
+}
+
+impl<R: Subject> Figure<R> {
+    /// The figure of `subject` with the stale rule applied.
+    pub fn read(&self, subject: &R) -> Reading {
+        let value = (self.value)(subject);
+        debug_assert!(value.is_none_or(|v| v.figure_type() == self.figure_type));
+        let stale = subject.source_stale();
+        match value {
+            None => Reading {
+                value: None,
+                quality: Quality::Bad(if stale {
+                    NoValue::SourceStale
+                } else {
+                    NoValue::NotAvailable
+                }),
+            },
+            Some(value) if !stale || self.stale == Stale::Kept => Reading {
+                value: Some(value),
+                quality: Quality::Good,
+            },
+            Some(value) if self.stale == Stale::LastUsable => Reading {
+                value: Some(value),
+                quality: Quality::LastUsable,
+            },
+            Some(_) => Reading {
+                value: None,
+                quality: Quality::Bad(NoValue::SourceStale),
+            },
+        }
+    }
+
+    /// The figure with its subject, without its reader.
+    pub fn info(&self) -> FigureInfo {
+        FigureInfo {
+            subject: R::KIND,
+            spec: self.spec,
+        }
+    }
+}
+
+/// A figure with its subject and without its reader, for tables that span subjects
+/// (its [`Spec`] reached through `Deref`).
+#[derive(Debug, Clone, Copy)]
+pub struct FigureInfo {
+    /// What it describes.
+    pub subject: SubjectKind,
+    /// What the catalogue says of it.
+    pub spec: Spec,
+}
+
+impl std::ops::Deref for FigureInfo {
+    type Target = Spec;
+    fn deref(&self) -> &Spec {
+        &self.spec
+    }
+}
+
+/// Every figure of every subject, in catalogue order: drivelines, tandem mills, rod
+/// mills, rod spans.
+pub fn all() -> Vec<FigureInfo> {
+    DRIVELINE
+        .iter()
+        .map(Figure::info)
+        .chain(TANDEM_MILL.iter().map(Figure::info))
+        .chain(ROD_MILL.iter().map(Figure::info))
+        .chain(ROD_SPAN.iter().map(Figure::info))
+        .collect()
+}
+
+/// The figure of `R` called `key`.
+pub fn find<R: Subject + 'static>(figures: &'static [Figure<R>], key: &str) -> &'static Figure<R> {
+    figures
+        .iter()
+        .find(|figure| figure.key == key)
+        .unwrap_or_else(|| panic!("no {} figure {key}", R::KIND.name()))
+}
+
+/// The flag of `figures` that carries alarm `kind`, if these figures have it.
+pub fn alarm_flag<R>(figures: &'static [Figure<R>], kind: AlarmKind) -> Option<&'static Figure<R>> {
+    figures.iter().find(|figure| figure.alarm == Some(kind))
+}
+
+impl<R> Figure<R> {
+    /// A real figure in `unit`, at `slot`.
+    pub(super) const fn real(
+        key: &'static str,
+        unit: &'static str,
+        slot: Slot,
+        stale: Stale,
+        description: &'static str,
+        value: fn(&R) -> Option<Value>,
+    ) -> Self {
+        Self::new(key, unit, FigureType::Real, slot, stale, description, value)
+    }
+
+    /// A flag at bit `bit` of its block's flags register.
+    pub(super) const fn flag(
+        key: &'static str,
+        bit: u8,
+        stale: Stale,
+        alarm: Option<AlarmKind>,
+        description: &'static str,
+        value: fn(&R) -> Option<Value>,
+    ) -> Self {
+        let slot = Slot {
+            register: Register::Flag,
+            guard: Guard::FlagBit(bit),
+        };
+        let mut figure = Self::new(key, "", FigureType::Bool, slot, stale, description, value);
+        figure.spec.range = Some((0.0, 1.0));
+        figure.spec.alarm = alarm;
+        figure
+    }
+
+    /// A count of events at `slot` (a counter's: [`counter_at`], [`unmapped_counter`]).
+    pub(super) const fn count(
+        key: &'static str,
+        slot: Slot,
+        description: &'static str,
+        value: fn(&R) -> Option<Value>,
+    ) -> Self {
+        Self::new(
+            key,
+            "",
+            FigureType::Count,
+            slot,
+            Stale::Kept,
+            description,
+            value,
+        )
+    }
+}
+
+fn real_of(value: Option<f64>) -> Option<Value> {
+    value.map(Value::Real)
+}
+
+fn index_of(value: Option<usize>) -> Option<Value> {
+    value.map(|v| Value::Index(v as u64))
+}
+
+/// A stored value as a real number.
+fn to_real(value: Option<Value>) -> Option<f64> {
+    match value {
+        Some(Value::Real(v)) => Some(v),
+        _ => None,
+    }
+}
+
+/// A stored value as an index.
+fn to_index(value: Option<Value>) -> Option<usize> {
+    match value {
+        Some(Value::Index(v)) => usize::try_from(v).ok(),
+        _ => None,
+    }
+}
+
+/// A stored value as a count (0 without one).
+fn to_count(value: Option<Value>) -> u64 {
+    match value {
+        Some(Value::Count(v)) => v,
+        _ => 0,
+    }
+}
+
+/// A stored value as a flag (clear without one).
+fn to_flag(value: Option<Value>) -> bool {
+    value == Some(Value::Bool(true))
+}
+
+/// A stored value as a time, ms since the Unix epoch.
+fn to_time(value: Option<Value>) -> Option<i64> {
+    match value {
+        Some(Value::Time(ms)) => Some(ms),
+        _ => None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn keys_unique<R>(figures: &[Figure<R>]) {
+        let mut keys: Vec<&str> = figures.iter().map(|f| f.key).collect();
+        keys.sort_unstable();
+        let before = keys.len();
+        keys.dedup();
+        assert_eq!(keys.len(), before, "duplicate keys");
+    }
+
+    fn bits_unique<R>(figures: &[Figure<R>]) {
+        let page = |figure: &Figure<R>| match figure.register {
+            Register::At { page, .. } => page,
+            _ => 0,
+        };
+        for on in 0..2 {
+            for pick in [
+                |g: Guard| matches!(g, Guard::QualityBit(_)).then_some(g),
+                |g: Guard| matches!(g, Guard::FlagBit(_)).then_some(g),
+            ] {
+                let mut bits: Vec<Guard> = figures
+                    .iter()
+                    .filter(|f| page(f) == on)
+                    .filter_map(|f| pick(f.guard))
+                    .collect();
+                bits.sort_by_key(|guard| format!("{guard:?}"));
+                let before = bits.len();
+                bits.dedup();
+                assert_eq!(bits.len(), before, "a bit guards two figures");
+                assert!(bits.len() <= 16, "more than a register's bits");
+            }
+        }
+    }
+
+    #[test]
+    fn keys_and_bits_are_unique_per_subject() {
+        keys_unique(DRIVELINE);
+        keys_unique(TANDEM_MILL);
+        keys_unique(ROD_MILL);
+        keys_unique(ROD_SPAN);
+        bits_unique(DRIVELINE);
+        bits_unique(TANDEM_MILL);
+        bits_unique(ROD_MILL);
+        bits_unique(ROD_SPAN);
+    }
+
+    #[test]
+    fn a_real_figure_names_its_unit_in_its_key() {
+        // Habit 15: units in names where a mix-up is likely.
+        for figure in all() {
+            if figure.unit.is_empty() {
+                continue;
+            }
+            let suffix = match figure.unit {
+                "kN*m" => "_knm",
+                "Hz" => "_hz",
+                "s" => "_s",
+                "mrad" => "_mrad",
+                "m/s" => "_m_s",
+                "1/s" => "_per_s",
+                "degC" => "_c",
+                other => panic!("unit {other} has no key suffix"),
+            };
+            assert!(figure.key.ends_with(suffix), "{}", figure.key);
+        }
+    }
+
+    #[test]
+    fn the_stale_rule_withdraws_keeps_or_marks_last_usable() {
+        let mut driveline = DrivelineResults {
+            taf: Some(1.4),
+            bite_counter: 3,
+            taf_alarm: true,
+            ..DrivelineResults::default()
+        };
+        let taf = find(DRIVELINE, "taf");
+        assert_eq!(taf.read(&driveline).good(), Some(Value::Real(1.4)));
+        driveline.source_stale = true;
+        let reading = taf.read(&driveline);
+        assert_eq!(reading.quality, Quality::LastUsable);
+        assert_eq!(reading.good(), None);
+        assert_eq!(reading.usable(), Some(Value::Real(1.4)));
+        let counter = find(DRIVELINE, "bite_counter").read(&driveline);
+        assert_eq!(counter.good(), Some(Value::Count(3)));
+        let alarm = find(DRIVELINE, "taf_alarm").read(&driveline);
+        assert_eq!(alarm.good(), Some(Value::Bool(true)));
+        let gap = find(DRIVELINE, "gap_mrad").read(&driveline);
+        assert_eq!(gap.quality, Quality::Bad(NoValue::SourceStale));
+
+        let mut mill = TandemMillResults {
+            sigma_n_hz: Some(0.5),
+            ..TandemMillResults::default()
+        };
+        let sigma = find(TANDEM_MILL, "sigma_n_hz");
+        assert_eq!(sigma.read(&mill).quality, Quality::Good);
+        mill.source_stale = true;
+        let reading = sigma.read(&mill);
+        assert_eq!(reading.quality, Quality::Bad(NoValue::SourceStale));
+        assert_eq!(
+            reading.usable(),
+            None,
+            "a window of a stale mill is withdrawn"
+        );
+    }
+}

@@ -1,0 +1,112 @@
+//! A tandem mill's chatter figures, of its last window.
+
+use millgate_config::ValueType::{F32, U16};
+
+use super::{at, index_of, real_of, to_flag, unmapped_counter, Columns, FigureType, Stale, Value};
+use super::{AlarmKind, Figure, TandemMillResults};
+
+/// The table's figure type.
+type F = Figure<TandemMillResults>;
+
+/// A tandem mill's chatter figures, of its last window.
+pub const TANDEM_MILL: &[Figure<TandemMillResults>] = &[
+    F::count(
+        "evaluations",
+        unmapped_counter("a count of windows the PLC does not act on (the heartbeat shows the gateway alive); no free register in the block"),
+        "Chatter windows evaluated since start",
+        |m| Some(Value::Count(m.evaluations)),
+    ),
+    F::real(
+        "sigma_n_hz",
+        "Hz",
+        at(2, F32, 0),
+        Stale::Withdrawn,
+        "RMS deviation of the adjacent stands' principal chatter-band frequencies",
+        |m| real_of(m.sigma_n_hz),
+    ),
+    F::real(
+            "k_mean",
+            "",
+            at(4, F32, 1),
+            Stale::Withdrawn,
+            "Mean correlation of adjacent stands' chatter-band vibration over the window",
+            |m| real_of(m.k_mean),
+        )
+    .range(-1.0, 1.0),
+    F::real(
+        "chatter_frequency_hz",
+        "Hz",
+        at(6, F32, 2),
+        Stale::Withdrawn,
+        "Mean principal frequency of the stands in the chatter band",
+        |m| real_of(m.chatter_frequency_hz),
+    ),
+    F::real(
+        "chatter_gain",
+        "",
+        at(8, F32, 3),
+        Stale::Withdrawn,
+        "Largest chatter-band gain of any stand: chatter-band RMS / reference-band RMS over gain_window_s",
+        |m| real_of(m.chatter_gain),
+    ),
+    F::real(
+        "gain_ratio",
+        "",
+        at(10, F32, 4),
+        Stale::Withdrawn,
+        "Largest gain / gain_thresholds[stand] of any stand: the early-warning figure, >= 1 is the band-gain alarm",
+        |m| real_of(m.gain_ratio),
+    ),
+    F::real(
+        "band_rms_max",
+        "",
+        at(12, F32, 5),
+        Stale::Withdrawn,
+        "Largest chatter-band RMS of any stand over gain_window_s, in the stand channels' unit",
+        |m| real_of(m.band_rms_max),
+    ),
+    F::real(
+            "worst_stand",
+            "",
+            at(14, U16, 6),
+            Stale::Withdrawn,
+            "Stand of gain_ratio, 1-based in the mill's stands order",
+            |m| index_of(m.worst_stand.map(|stand| stand + 1)),
+        )
+    .typed(FigureType::Index),
+    F::flag(
+        "chatter_warning",
+        0,
+        Stale::Kept,
+        Some(AlarmKind::ChatterWarning),
+        "The configured detector's warning in the last window (band gain: gain_ratio >= slow_down_release; paper: sigma_n <= sigma_min)",
+        |m| Some(Value::Bool(m.chatter_warning)),
+    ),
+    F::flag(
+        "chatter_alarm",
+        1,
+        Stale::Kept,
+        Some(AlarmKind::ChatterAlarm),
+        "The configured detector's alarm held in a window (band gain: gain_ratio >= 1; paper: both conditions); latched until acknowledged",
+        |m| Some(Value::Bool(m.chatter_alarm)),
+    )
+    .kept(Columns::state("alarm_latched"), |m, v| {
+        m.chatter_alarm = to_flag(v)
+    }),
+    F::flag(
+        "source_stale",
+        2,
+        Stale::Kept,
+        None,
+        "A stand's source is stale or lost, or the window restarted after a gap: the window's figures are withdrawn",
+        |m| Some(Value::Bool(m.source_stale)),
+    ),
+    F::flag(
+        "slow_down_request",
+        3,
+        Stale::Kept,
+        None,
+        "Slow-down request to the PLC, with hysteresis (set by the alarm condition, cleared after slow_down_hold_s below slow_down_release; held while stale): the PLC decides the speed drop",
+        |m| Some(Value::Bool(m.slow_down_request)),
+    ),
+];
