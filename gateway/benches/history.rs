@@ -33,44 +33,29 @@ const LATENCY_BITES: u32 = 2_000;
 fn bite(n: u32) -> HistoryEvent {
     let time = UtcTime::now();
     let taf = 1.8 + f64::from(n % 100) * 0.01;
-    HistoryEvent::Bite(Box::new(BiteRecord {
-        driveline: format!("F{}", n % 7 + 1),
-        channel: "spindle_top".into(),
+    let mut record = BiteRecord::clean(
+        &format!("F{}", n % 7 + 1),
+        "spindle_top",
         time,
-        static_torque_knm: 420.0,
-        peak_torque_knm: taf * 420.0,
-        taf: Some(taf),
-        first_period_s: Some(0.05),
-        second_period_s: Some(0.048),
-        period_shift_s: Some(0.002),
-        beta_hz: Some((12.0, 21.0)),
-        quality: "good",
-        degraded: false,
-        reference_taf: Some(1.8),
-        reference_level_knm: Some(400.0),
-        shift_over_linear_s: Some(0.001),
-        gap: None,
-        pooled: None,
-        extra_state: None,
-        state: DrivelineResults {
+        DrivelineResults {
             bite_counter: n,
-            last_bite_unix_ms: Some(time.unix_ms()),
             static_torque_knm: Some(420.0),
             peak_torque_knm: Some(taf * 420.0),
             taf: Some(taf),
+            first_period_s: Some(0.05),
             first_period_shift_s: Some(0.002),
             beta1_hz: Some(12.0),
             beta2_hz: Some(21.0),
             wear_index: Some(taf / 1.8 - 1.0),
             wear_trend: Some(0.05),
-            last_bite_degraded: false,
-            taf_warning: false,
-            taf_alarm: false,
-            source_stale: false,
-            restored: false,
             ..DrivelineResults::default()
         },
-    }))
+    );
+    record.second_period_s = Some(0.048);
+    record.reference_taf = Some(1.8);
+    record.reference_level_knm = Some(400.0);
+    record.shift_over_linear_s = Some(0.001);
+    HistoryEvent::Bite(Box::new(record))
 }
 
 fn run_info() -> RunInfo {

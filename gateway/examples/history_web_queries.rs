@@ -80,7 +80,7 @@ fn main() -> anyhow::Result<()> {
         })?
         .pop()
         .with_context(|| format!("no bites of {name} in {}", db.display()))?
-        .time;
+        .time();
     let last = UtcTime::parse(&last_bite)?;
     let drivelines = reader.drivelines()?;
     drop(reader);

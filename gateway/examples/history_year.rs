@@ -3,7 +3,7 @@
 //!
 //! The file is made as the gateway makes it: the schema by the gateway's own
 //! `writer::connect` (WAL, migrations), every event by the writer's own
-//! `writer::insert` (bite rows, wear estimates, the restorable state, alarms,
+//! `rows::insert` (bite rows, wear estimates, the restorable state, alarms,
 //! outages), in transactions of 50 000 events. Only the run rows (`gateway_runs`,
 //! `driveline_settings`) are written here by SQL, because the writer dates a run at
 //! its own start and these runs lie in the past.
@@ -36,10 +36,9 @@ use millgate::history::writer;
 use millgate::history::{DrivelineSettings, RunInfo};
 use millgate::state::commands::CommandOrigin;
 use millgate::state::events::{
-    AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, EndedBy, GapEstimate, HistoryEvent, PooledBite,
-    WearState,
+    AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, EndedBy, HistoryEvent, PooledBite, WearState,
 };
-use millgate::state::results::DrivelineResults;
+use millgate::state::results::{DrivelineResults, GapResults};
 use millgate::state::time::UtcTime;
 use rusqlite::params;
 
@@ -223,15 +222,17 @@ fn bite(driveline: &mut Driveline, time_ms: i64, random: &mut Random, out: &mut 
         } else {
             WearState::Ok
         };
-        GapEstimate {
-            gap_mrad,
-            gap_low_mrad,
-            gap_high_mrad: gap_mrad + half_width,
-            coupling: Some(1),
-            bites_pooled: pooled as usize,
+        (
+            GapResults {
+                gap_mrad,
+                low_mrad: gap_low_mrad,
+                high_mrad: gap_mrad + half_width,
+                coupling: Some(1),
+                likeliest_coupling: None,
+                bites_pooled: pooled as usize,
+            },
             state,
-            alarm_latched: false,
-        }
+        )
     });
     let wear_index = taf / 1.25 - 1.0;
     let wear_trend = match driveline.wear_trend {
@@ -242,8 +243,8 @@ fn bite(driveline: &mut Driveline, time_ms: i64, random: &mut Random, out: &mut 
     let time = UtcTime::from_unix_ms(time_ms);
     // The wear alarm latches until acknowledged (the gap warning is a flag, not an
     // alarm record).
-    if let Some(gap) = &gap {
-        if gap.state == WearState::Alarm && !driveline.gap_alarm {
+    if let Some((gap, state)) = &gap {
+        if *state == WearState::Alarm && !driveline.gap_alarm {
             driveline.gap_alarm = true;
             driveline.gap_ack_at_ms = Some(time_ms + DAY_MS);
             out.push(alarm(
@@ -251,7 +252,7 @@ fn bite(driveline: &mut Driveline, time_ms: i64, random: &mut Random, out: &mut 
                 &driveline.name,
                 AlarmKind::GapAlarm,
                 AlarmEvent::Raised,
-                Some(gap.gap_low_mrad),
+                Some(gap.low_mrad),
                 Some(GAP_ALARM_MRAD),
             ));
         }
@@ -275,26 +276,40 @@ fn bite(driveline: &mut Driveline, time_ms: i64, random: &mut Random, out: &mut 
     }
     let first_period_s = 0.052 + 0.0004 * true_gap + 0.0002 * random.normal();
     let second_period_s = 0.049 + 0.0002 * random.normal();
-    let gap = gap.map(|gap| GapEstimate {
-        alarm_latched: driveline.gap_alarm,
-        ..gap
-    });
+    let state = DrivelineResults {
+        bite_counter: driveline.counter,
+        last_bite_unix_ms: Some(time_ms),
+        static_torque_knm: Some(static_torque_knm),
+        peak_torque_knm: Some(taf * static_torque_knm),
+        taf: Some(taf),
+        first_period_s: Some(first_period_s),
+        first_period_shift_s: Some(first_period_s - second_period_s),
+        beta1_hz: Some(1.0 / first_period_s),
+        beta2_hz: Some(1.0 / second_period_s),
+        wear_index: Some(wear_index),
+        wear_trend: Some(wear_trend),
+        last_bite_degraded: degraded,
+        taf_warning,
+        taf_alarm: false,
+        gap: gap.map(|(gap, _)| gap),
+        gap_alarm: driveline.gap_alarm,
+        ..DrivelineResults::default()
+    };
     out.push(HistoryEvent::Bite(Box::new(BiteRecord {
         driveline: driveline.name.clone(),
         channel: format!("{}_spindle", driveline.name.to_lowercase()),
         time,
-        static_torque_knm,
-        peak_torque_knm: taf * static_torque_knm,
-        taf: Some(taf),
-        first_period_s: Some(first_period_s),
+        figures: DrivelineResults {
+            beta1_hz: state.beta1_hz.filter(|_| !degraded),
+            beta2_hz: state.beta2_hz.filter(|_| !degraded),
+            ..state.clone()
+        },
         second_period_s: Some(second_period_s),
-        period_shift_s: Some(first_period_s - second_period_s),
-        beta_hz: (!degraded).then(|| (1.0 / first_period_s, 1.0 / second_period_s)),
         quality: "good",
-        degraded,
         reference_taf: Some(1.25),
         reference_level_knm: Some(450.0),
         shift_over_linear_s: Some(0.0004 * true_gap),
+        gap_state: gap.map(|(_, state)| state),
         pooled: (!degraded).then_some(PooledBite {
             static_torque_knm,
             taf,
@@ -302,25 +317,7 @@ fn bite(driveline: &mut Driveline, time_ms: i64, random: &mut Random, out: &mut 
             period_shift_s: Some(first_period_s - second_period_s),
             period_shift_sigma_s: 0.0003,
         }),
-        state: DrivelineResults {
-            bite_counter: driveline.counter,
-            last_bite_unix_ms: Some(time_ms),
-            static_torque_knm: Some(static_torque_knm),
-            peak_torque_knm: Some(taf * static_torque_knm),
-            taf: Some(taf),
-            first_period_shift_s: Some(first_period_s - second_period_s),
-            beta1_hz: Some(1.0 / first_period_s),
-            beta2_hz: Some(1.0 / second_period_s),
-            wear_index: Some(wear_index),
-            wear_trend: Some(wear_trend),
-            last_bite_degraded: degraded,
-            taf_warning,
-            taf_alarm: false,
-            gap_alarm: driveline.gap_alarm,
-            ..DrivelineResults::default()
-        },
-        gap,
-        extra_state: None,
+        state,
     })));
 }
 
@@ -474,7 +471,7 @@ fn write(
     }
     let transaction = connection.transaction()?;
     for event in events.iter() {
-        writer::insert(&transaction, run_id, event)?;
+        millgate::history::rows::insert(&transaction, run_id, event)?;
     }
     transaction.commit()?;
     events.clear();

@@ -125,7 +125,7 @@ async fn extra_channel_columns_are_what_the_daq_served() {
     let block = usize::from(SAMPLES_PER_BLOCK);
     let mut pairs = Vec::new();
     for bite in &bites {
-        let csv = export_bite(&db, &out, bite.bite_counter, "csv");
+        let csv = export_bite(&db, &out, bite.figures.bite_counter, "csv");
         let table = std::fs::read_to_string(&csv).unwrap();
         let mut lines = table.lines().filter(|l| !l.starts_with('#'));
         assert_eq!(lines.next(), Some("t,spindle_top,motor_current"));
@@ -136,7 +136,7 @@ async fn extra_channel_columns_are_what_the_daq_served() {
         let current: Vec<Option<f64>> = rows.iter().map(|r| r[2]).collect();
         // The torque column: the DAQ's samples, as before.
         let at = position_of(&torque, &served_torque)
-            .unwrap_or_else(|| panic!("bite {}: torque not served", bite.bite_counter));
+            .unwrap_or_else(|| panic!("bite {}: torque not served", bite.figures.bite_counter));
         // The current: the rows holding a sample are one run of what the DAQ served.
         let first_row = current.iter().position(Option::is_some).unwrap();
         let end_row = current.iter().rposition(Option::is_some).unwrap() + 1;
@@ -148,19 +148,19 @@ async fn extra_channel_columns_are_what_the_daq_served() {
             (first_row, end_row),
             (0, torque.len()),
             "bite {}: the hold waits for the current",
-            bite.bite_counter
+            bite.figures.bite_counter
         );
         let current_at = position_of(&held, &served_current)
-            .unwrap_or_else(|| panic!("bite {}: current not served", bite.bite_counter));
+            .unwrap_or_else(|| panic!("bite {}: current not served", bite.figures.bite_counter));
         let offset = current_at as i64 - (at + first_row) as i64;
         assert!(
             offset.unsigned_abs() as usize <= block,
             "bite {}: the current is {offset} samples off the torque",
-            bite.bite_counter
+            bite.figures.bite_counter
         );
         eprintln!(
             "bite {}: current offset {offset} samples, rows {first_row}..{end_row} of {}",
-            bite.bite_counter,
+            bite.figures.bite_counter,
             torque.len()
         );
         // The header gives the current's unit and own timing.
@@ -187,16 +187,20 @@ async fn extra_channel_columns_are_what_the_daq_served() {
         let printed = String::from_utf8_lossy(&analyzed.stdout).into_owned();
         let expected = format!(
             "static_torque = {:.2} kN*m, peak_torque = {:.2} kN*m",
-            bite.static_torque_knm, bite.peak_torque_knm,
+            bite.figures.static_torque_knm.unwrap(),
+            bite.figures.peak_torque_knm.unwrap(),
         );
         assert!(
             printed.contains(&expected),
             "expected `{expected}` in\n{printed}"
         );
-        if let Some(taf) = bite.taf {
+        if let Some(taf) = bite.figures.taf {
             assert!(printed.contains(&format!("taf = {taf:.3}")), "{printed}");
         }
-        pairs.push((csv, export_bite(&db, &out, bite.bite_counter, "parquet")));
+        pairs.push((
+            csv,
+            export_bite(&db, &out, bite.figures.bite_counter, "parquet"),
+        ));
     }
 
     // pyarrow: both columns in the Parquet file, equal to the CSV's, with units.

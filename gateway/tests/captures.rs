@@ -8,7 +8,8 @@ use std::time::Duration;
 
 use millgate::history::query::{CaptureRow, Filter, HistoryReader};
 use millgate::history::retention::{CaptureRetention, Retention, RetentionState};
-use millgate::history::writer::{connect, insert, insert_run};
+use millgate::history::rows::insert;
+use millgate::history::writer::{connect, insert_run};
 use millgate::history::{DrivelineSettings, RunInfo};
 use millgate::state::captures::{
     BiteWindowAnalysis, CaptureChannel, CaptureKind, CaptureRecord, CapturedBite, KeepClass,
@@ -60,30 +61,18 @@ fn window(seed: u64) -> Vec<f64> {
 
 /// Bite `n` of F1 at `time` and its capture, kept as `keep`.
 fn bite_with_capture(n: u32, time: UtcTime, keep: KeepClass) -> [HistoryEvent; 2] {
-    let bite = BiteRecord {
-        driveline: "F1".into(),
-        channel: "torque".into(),
+    let bite = BiteRecord::clean(
+        "F1",
+        "torque",
         time,
-        static_torque_knm: 100.0,
-        peak_torque_knm: 180.0,
-        taf: Some(1.8),
-        first_period_s: None,
-        second_period_s: None,
-        period_shift_s: None,
-        beta_hz: None,
-        quality: "good",
-        degraded: false,
-        reference_taf: None,
-        reference_level_knm: None,
-        shift_over_linear_s: None,
-        gap: None,
-        pooled: None,
-        state: DrivelineResults {
+        DrivelineResults {
             bite_counter: n,
+            static_torque_knm: Some(100.0),
+            peak_torque_knm: Some(180.0),
+            taf: Some(1.8),
             ..DrivelineResults::default()
         },
-        extra_state: None,
-    };
+    );
     let capture = CaptureRecord {
         kind: CaptureKind::Bite,
         subject: "F1".into(),

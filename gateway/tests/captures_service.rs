@@ -112,7 +112,7 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
     for counter in 1..=in_plc {
         let bite = bites
             .iter()
-            .find(|b| b.bite_counter == counter)
+            .find(|b| i64::from(b.figures.bite_counter) == counter)
             .unwrap_or_else(|| panic!("bite {counter} is not in the file"));
         let capture = captures
             .iter()
@@ -121,8 +121,8 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
         assert_eq!(capture.kind, "bite");
         assert_eq!(capture.subject, "F1");
         assert_eq!(capture.bite_id, Some(bite.id));
-        assert_eq!(capture.bite_time.as_deref(), Some(bite.time.as_str()));
-        assert!(capture.started_at <= bite.time, "{capture:?} {bite:?}");
+        assert_eq!(capture.bite_time.as_deref(), Some(bite.time().as_str()));
+        assert!(capture.started_at <= bite.time(), "{capture:?} {bite:?}");
         assert!(capture.samples > 100 && capture.bytes > 0, "{capture:?}");
     }
     let sqlite3 = Command::new("sqlite3")
@@ -135,33 +135,36 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
     let out = setup.scratch.join("export");
     let db = history.as_path();
     let mut parquet_pairs = Vec::new();
-    for bite in bites.iter().filter(|b| b.bite_counter <= in_plc) {
-        let csv = export_bite(db, &out, bite.bite_counter, "csv");
+    for bite in bites
+        .iter()
+        .filter(|b| i64::from(b.figures.bite_counter) <= in_plc)
+    {
+        let csv = export_bite(db, &out, bite.figures.bite_counter, "csv");
         let analyzed = millgate(&["analyze", "--input", &csv]);
         assert!(analyzed.status.success(), "{}", text(&analyzed));
         let printed_text = String::from_utf8_lossy(&analyzed.stdout).into_owned();
         assert!(printed_text.contains("1 event(s)"), "{printed_text}");
         let expected = format!(
             "static_torque = {:.2} kN*m, peak_torque = {:.2} kN*m, taf = {}",
-            bite.static_torque_knm,
-            bite.peak_torque_knm,
-            printed(bite.taf, 3)
+            bite.figures.static_torque_knm.unwrap(),
+            bite.figures.peak_torque_knm.unwrap(),
+            printed(bite.figures.taf, 3)
         );
         assert!(
             printed_text.contains(&expected),
             "bite {}: expected `{expected}` in\n{printed_text}",
-            bite.bite_counter
+            bite.figures.bite_counter
         );
-        if let (Some(f1), Some(f2)) = (bite.beta1_hz, bite.beta2_hz) {
+        if let (Some(f1), Some(f2)) = (bite.figures.beta1_hz, bite.figures.beta2_hz) {
             let fit = format!("f1_hz = {f1:.3}, f2_hz = {f2:.3}");
             assert!(
                 printed_text.contains(&fit),
                 "bite {}: expected `{fit}` in\n{printed_text}",
-                bite.bite_counter
+                bite.figures.bite_counter
             );
         }
-        let parquet = export_bite(db, &out, bite.bite_counter, "parquet");
-        if bite.bite_counter == downloaded_bite {
+        let parquet = export_bite(db, &out, bite.figures.bite_counter, "parquet");
+        if i64::from(bite.figures.bite_counter) == downloaded_bite {
             // The page's download is the exported file, byte for byte, under its name.
             for (answer, path) in downloads.iter().zip([&csv, &parquet]) {
                 let file = String::from_utf8_lossy(&std::fs::read(path).unwrap()).into_owned();
@@ -176,7 +179,7 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
         parquet_pairs.push((csv, parquet));
     }
     assert!(
-        bites.iter().any(|b| b.beta1_hz.is_some()),
+        bites.iter().any(|b| b.figures.beta1_hz.is_some()),
         "no fit compared"
     );
 

@@ -205,7 +205,7 @@ impl Phase<'_> {
             let start = Instant::now();
             while recorded(self.history)
                 .last()
-                .and_then(|b| b.gap_mrad)
+                .and_then(|b| b.figures.gap.map(|g| g.gap_mrad))
                 .is_none()
             {
                 assert!(
@@ -362,10 +362,10 @@ fn describe(seed: u64, case: &Case) -> String {
     let gap = |b: &BiteRow| {
         format!(
             "{:.3} [{:.3}, {:.3}] coupling {:?}",
-            b.gap_mrad.unwrap_or(f64::NAN),
-            b.gap_low_mrad.unwrap_or(f64::NAN),
-            b.gap_high_mrad.unwrap_or(f64::NAN),
-            b.gap_coupling
+            b.figures.gap.map(|g| g.gap_mrad).unwrap_or(f64::NAN),
+            b.figures.gap.map(|g| g.low_mrad).unwrap_or(f64::NAN),
+            b.figures.gap.map(|g| g.high_mrad).unwrap_or(f64::NAN),
+            b.figures.gap.and_then(|g| g.coupling)
         )
     };
     let stiffness: Vec<String> = case
@@ -393,11 +393,16 @@ fn assert_commissioned(seed: u64, case: &Case) {
         case.stiffness_error.iter().all(|e| e.abs() < 0.01),
         "calibration off: {said}"
     );
-    let estimate = case.calibrated.gap_mrad.expect("an estimate");
+    let estimate = case
+        .calibrated
+        .figures
+        .gap
+        .map(|g| g.gap_mrad)
+        .expect("an estimate");
     assert!(within_bound(estimate, case.rig.gap_mrad), "{said}");
     assert_eq!(
-        case.calibrated.bites_pooled,
-        Some(POOL_BITES as i64),
+        case.calibrated.figures.gap.map(|g| g.bites_pooled),
+        Some(POOL_BITES),
         "{said}"
     );
 }
@@ -425,13 +430,15 @@ async fn commissioning_over_seeds() {
         let truth = case.rig.gap_mrad;
         within[0] += usize::from(
             case.calibrated
-                .gap_mrad
+                .figures
+                .gap
+                .map(|g| g.gap_mrad)
                 .is_some_and(|g| within_bound(g, truth)),
         );
         within[1] += usize::from(
             case.uncalibrated
                 .as_ref()
-                .and_then(|b| b.gap_mrad)
+                .and_then(|b| b.figures.gap.map(|g| g.gap_mrad))
                 .is_some_and(|g| within_bound(g, truth)),
         );
         cases.push((seed, case));

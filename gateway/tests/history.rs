@@ -15,11 +15,11 @@ use millgate::outputs::modbus::register_map::{flag_mask, RegisterMap};
 use millgate::state::catalogue::DRIVELINE;
 use millgate::state::commands::CommandOrigin;
 use millgate::state::events::{
-    AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, EndedBy, GapEstimate, HistoryEvent, PooledBite,
-    WearState,
+    AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, EndedBy, HistoryEvent, PooledBite, StateRecord,
+    SubjectResults, WearState,
 };
 use millgate::state::history::{History, HistoryState};
-use millgate::state::results::{DrivelineResults, Results};
+use millgate::state::results::{DrivelineResults, GapResults, Results};
 use millgate::state::time::UtcTime;
 
 /// A scratch folder removed at the end.
@@ -75,43 +75,38 @@ fn run_info() -> RunInfo {
 
 /// Bite `n` (1-based) of F1 at `time`, with the state after it.
 fn bite(n: u32, time: UtcTime, taf: f64, trend: f64, alarm: bool) -> HistoryEvent {
+    let state = DrivelineResults {
+        bite_counter: n,
+        last_bite_unix_ms: Some(time.unix_ms()),
+        static_torque_knm: Some(100.0 + f64::from(n)),
+        peak_torque_knm: Some(taf * (100.0 + f64::from(n))),
+        taf: Some(taf),
+        first_period_s: Some(0.05),
+        first_period_shift_s: Some(0.002),
+        beta1_hz: Some(12.0),
+        beta2_hz: Some(21.0),
+        wear_index: Some(taf / 1.8 - 1.0),
+        wear_trend: Some(trend),
+        last_bite_degraded: n.is_multiple_of(7),
+        taf_warning: taf >= 2.2,
+        taf_alarm: alarm,
+        source_stale: false,
+        restored: false,
+        ..DrivelineResults::default()
+    };
     HistoryEvent::Bite(Box::new(BiteRecord {
         driveline: "F1".into(),
         channel: "spindle_top".into(),
         time,
-        static_torque_knm: 100.0 + f64::from(n),
-        peak_torque_knm: taf * (100.0 + f64::from(n)),
-        taf: Some(taf),
-        first_period_s: Some(0.05),
+        figures: state.clone(),
         second_period_s: Some(0.048),
-        period_shift_s: Some(0.002),
-        beta_hz: Some((12.0, 21.0)),
         quality: "good",
-        degraded: n.is_multiple_of(7),
         reference_taf: Some(1.8),
         reference_level_knm: Some(100.0),
         shift_over_linear_s: None,
-        gap: None,
+        gap_state: None,
         pooled: pooled(n, taf),
-        extra_state: (n == 3).then(|| serde_json::json!({"pooled_gap_mrad": 1.5})),
-        state: DrivelineResults {
-            bite_counter: n,
-            last_bite_unix_ms: Some(time.unix_ms()),
-            static_torque_knm: Some(100.0 + f64::from(n)),
-            peak_torque_knm: Some(taf * (100.0 + f64::from(n))),
-            taf: Some(taf),
-            first_period_shift_s: Some(0.002),
-            beta1_hz: Some(12.0),
-            beta2_hz: Some(21.0),
-            wear_index: Some(taf / 1.8 - 1.0),
-            wear_trend: Some(trend),
-            last_bite_degraded: n.is_multiple_of(7),
-            taf_warning: taf >= 2.2,
-            taf_alarm: alarm,
-            source_stale: false,
-            restored: false,
-            ..DrivelineResults::default()
-        },
+        state,
     }))
 }
 
@@ -149,11 +144,16 @@ async fn what_is_recorded_is_read_back_and_restored_at_the_next_start() {
     );
     let t0 = UtcTime::parse("2026-03-01T08:00:00Z").unwrap();
     let mut trend = 0.0;
+    let mut last = None;
     for n in 1..=40u32 {
         let taf = 1.9 + f64::from(n % 5) * 0.2;
         trend += 0.1 * (taf / 1.8 - 1.0 - trend);
         let time = UtcTime::from_unix_ms(t0.unix_ms() + i64::from(n) * 60_000);
-        assert!(history.record(bite(n, time, taf, trend, n >= 10)));
+        let event = bite(n, time, taf, trend, n >= 10);
+        if let HistoryEvent::Bite(record) = &event {
+            last = Some(record.state.clone());
+        }
+        assert!(history.record(event));
     }
     let at = |minutes: i64| UtcTime::from_unix_ms(t0.unix_ms() + minutes * 60_000);
     history.record(HistoryEvent::Alarm(AlarmRecord {
@@ -171,6 +171,15 @@ async fn what_is_recorded_is_read_back_and_restored_at_the_next_start() {
         driveline: "F1".into(),
         origin: CommandOrigin::Hmi(hmi),
     });
+    // The state after the reset, as the board records it with the reset.
+    history.record(HistoryEvent::State(StateRecord {
+        time: at(41),
+        subject: "F1".into(),
+        results: SubjectResults::Driveline(DrivelineResults {
+            wear_trend: None,
+            ..last.expect("40 bites")
+        }),
+    }));
     history.record(HistoryEvent::OutageStarted {
         time: at(42),
         source: "daq1".into(),
@@ -186,7 +195,7 @@ async fn what_is_recorded_is_read_back_and_restored_at_the_next_start() {
         ended_by: EndedBy::Recovered,
     });
     settle(&history).await;
-    assert_eq!(history.stored(), 45);
+    assert_eq!(history.stored(), 46);
     let status = history.status();
     assert_eq!(status.state, HistoryState::Ok);
     assert!(status.commits >= 1 && status.commits <= 45, "{status:?}");
@@ -197,12 +206,15 @@ async fn what_is_recorded_is_read_back_and_restored_at_the_next_start() {
     let bites = reader.bites(&Filter::default()).unwrap();
     assert_eq!(bites.len(), 40);
     assert_eq!(
-        bites.iter().map(|b| b.bite_counter).collect::<Vec<_>>(),
+        bites
+            .iter()
+            .map(|b| b.figures.bite_counter)
+            .collect::<Vec<_>>(),
         (1..=40).collect::<Vec<_>>()
     );
-    assert_eq!(bites[4].time, "2026-03-01T08:05:00.000Z");
-    assert_eq!(bites[4].taf, Some(1.9));
-    assert!(bites[6].degraded && !bites[5].degraded);
+    assert_eq!(bites[4].time(), "2026-03-01T08:05:00.000Z");
+    assert_eq!(bites[4].figures.taf, Some(1.9));
+    assert!(bites[6].figures.last_bite_degraded && !bites[5].figures.last_bite_degraded);
     let window = Filter {
         name: Some("F1".into()),
         since: Some(at(10)),
@@ -212,7 +224,9 @@ async fn what_is_recorded_is_read_back_and_restored_at_the_next_start() {
     };
     let page = reader.bites(&window).unwrap();
     assert_eq!(
-        page.iter().map(|b| b.bite_counter).collect::<Vec<_>>(),
+        page.iter()
+            .map(|b| b.figures.bite_counter)
+            .collect::<Vec<_>>(),
         [10, 11, 12, 13, 14]
     );
     let next = reader
@@ -222,7 +236,7 @@ async fn what_is_recorded_is_read_back_and_restored_at_the_next_start() {
         })
         .unwrap();
     assert_eq!(
-        next[0].bite_counter, 15,
+        next[0].figures.bite_counter, 15,
         "paging by id goes on where it stopped"
     );
     let wear = reader.wear(&Filter::default()).unwrap();
@@ -261,13 +275,11 @@ async fn what_is_recorded_is_read_back_and_restored_at_the_next_start() {
     assert!(f1.gap_pool.is_empty(), "the reset came last");
     assert!(f1.results.taf_alarm, "the alarm stays latched");
     assert!(f1.results.restored);
-    assert_eq!(f1.results.taf, bites[39].taf);
+    assert_eq!(f1.results.taf, bites[39].figures.taf);
     assert_eq!(f1.results.last_bite_unix_ms, Some(at(40).unix_ms()));
-    assert_eq!(
-        f1.extra,
-        Some(serde_json::json!({"pooled_gap_mrad": 1.5})),
-        "the extra state of bite 3 is kept by later bites without one"
-    );
+    // Every figure the catalogue keeps in the state row, the first period too.
+    assert_eq!(f1.results.first_period_s, Some(0.05));
+    assert_eq!(f1.results.beta2_hz, bites[39].figures.beta2_hz);
     // In the register map: the restored bit with valid values.
     let demo = millgate_sim::devices::demo::setup(1.0, 0.5, 1).unwrap();
     let mut config_f1 = demo.config;
@@ -306,15 +318,17 @@ async fn the_gap_pool_since_the_last_reset_and_the_gap_alarm_are_restored() {
     for n in 1..=16u32 {
         let mut event = bite(n, at(i64::from(n)), 2.0, 0.1, false);
         if let HistoryEvent::Bite(record) = &mut event {
-            record.gap = Some(GapEstimate {
+            let gap = GapResults {
                 gap_mrad: 1.5 + f64::from(n) * 0.1,
-                gap_low_mrad: 1.2,
-                gap_high_mrad: 2.9,
+                low_mrad: 1.2,
+                high_mrad: 2.9,
                 coupling: (n > 2).then_some(1),
+                likeliest_coupling: None,
                 bites_pooled: n as usize,
-                state: WearState::Warning,
-                alarm_latched: n >= 12,
-            });
+            };
+            record.figures.gap = Some(gap);
+            record.state.gap = Some(gap);
+            record.gap_state = Some(WearState::Warning);
             record.state.gap_alarm = n >= 12;
         }
         history.record(event);
@@ -332,9 +346,13 @@ async fn the_gap_pool_since_the_last_reset_and_the_gap_alarm_are_restored() {
         .unwrap()
         .bites(&Filter::default())
         .unwrap();
-    assert_eq!(bites[0].gap_coupling, None, "undetermined");
-    assert_eq!(bites[4].gap_coupling, Some(1));
-    assert_eq!(bites[4].gap_mrad, Some(2.0));
+    assert_eq!(
+        bites[0].figures.gap.and_then(|g| g.coupling),
+        None,
+        "undetermined"
+    );
+    assert_eq!(bites[4].figures.gap.and_then(|g| g.coupling), Some(1));
+    assert_eq!(bites[4].figures.gap.map(|g| g.gap_mrad), Some(2.0));
 
     let history = History::new(Some(&config(&path)));
     let restored = start(&history);
@@ -346,10 +364,14 @@ async fn the_gap_pool_since_the_last_reset_and_the_gap_alarm_are_restored() {
         "the bites after the reset, oldest first"
     );
     assert!(f1.results.gap_alarm, "the gap alarm stays latched");
-    assert!(
-        f1.results.gap.is_none(),
-        "the estimate comes back from the pool"
+    // The last estimate is restored with the state (the pool estimates again once the
+    // maps are ready).
+    let gap = f1.results.gap.expect("the last estimate is restored");
+    assert_eq!(
+        (gap.gap_mrad, gap.low_mrad, gap.high_mrad),
+        (1.5 + 16.0 * 0.1, 1.2, 2.9)
     );
+    assert_eq!((gap.coupling, gap.bites_pooled), (Some(1), 16));
     history.record(HistoryEvent::Alarm(AlarmRecord {
         time: at(17),
         subject: "F1".into(),
@@ -358,6 +380,16 @@ async fn the_gap_pool_since_the_last_reset_and_the_gap_alarm_are_restored() {
         origin: Some(CommandOrigin::Local),
         value: None,
         threshold: None,
+    }));
+    // With the state after it, as the board records an acknowledgement.
+    history.record(HistoryEvent::State(StateRecord {
+        time: at(17),
+        subject: "F1".into(),
+        results: SubjectResults::Driveline(DrivelineResults {
+            gap_alarm: false,
+            restored: false,
+            ..f1.results.clone()
+        }),
     }));
     settle(&history).await;
     history.close();

@@ -17,8 +17,8 @@ use common::millgate;
 use millgate::history::schema::APPLICATION_ID;
 use millgate::history::writer;
 use millgate::history::{DrivelineSettings, RunInfo};
-use millgate::state::events::{BiteRecord, GapEstimate, HistoryEvent, WearState};
-use millgate::state::results::DrivelineResults;
+use millgate::state::events::{BiteRecord, HistoryEvent, WearState};
+use millgate::state::results::{DrivelineResults, GapResults};
 use millgate::state::time::UtcTime;
 
 const DAY_MS: i64 = 86_400_000;
@@ -109,40 +109,42 @@ fn bite(driveline: &str, n: u32, time_ms: i64) -> HistoryEvent {
     let degraded = n.is_multiple_of(211);
     let static_torque_knm = 300.0 + 300.0 * unit(u64::from(n) * 3);
     let taf = 1.2 + 0.05 * gap_mrad + 0.1 * unit(u64::from(n) * 7) - 1e-4 * static_torque_knm;
+    let state = DrivelineResults {
+        bite_counter: n,
+        taf: Some(taf),
+        wear_index: (!degraded).then_some(taf / 1.25 - 1.0),
+        wear_trend: Some(0.001 * f64::from(n % 1000)),
+        ..DrivelineResults::default()
+    };
     HistoryEvent::Bite(Box::new(BiteRecord {
         driveline: driveline.into(),
         channel: "spindle".into(),
         time: UtcTime::from_unix_ms(time_ms),
-        static_torque_knm,
-        peak_torque_knm: taf * static_torque_knm,
-        taf: Some(taf),
-        first_period_s: Some(0.05),
+        figures: DrivelineResults {
+            last_bite_unix_ms: Some(time_ms),
+            static_torque_knm: Some(static_torque_knm),
+            peak_torque_knm: Some(taf * static_torque_knm),
+            first_period_s: Some(0.05),
+            first_period_shift_s: Some(0.002),
+            last_bite_degraded: degraded,
+            gap: Some(GapResults {
+                gap_mrad,
+                low_mrad: gap_mrad - 0.4,
+                high_mrad: gap_mrad + 0.5,
+                coupling: Some(1),
+                likeliest_coupling: None,
+                bites_pooled: 200,
+            }),
+            ..state.clone()
+        },
         second_period_s: Some(0.048),
-        period_shift_s: Some(0.002),
-        beta_hz: None,
         quality: "good",
-        degraded,
         reference_taf: Some(1.25),
         reference_level_knm: Some(400.0),
         shift_over_linear_s: None,
-        gap: Some(GapEstimate {
-            gap_mrad,
-            gap_low_mrad: gap_mrad - 0.4,
-            gap_high_mrad: gap_mrad + 0.5,
-            coupling: Some(1),
-            bites_pooled: 200,
-            state: WearState::Ok,
-            alarm_latched: false,
-        }),
+        gap_state: Some(WearState::Ok),
         pooled: None,
-        extra_state: None,
-        state: DrivelineResults {
-            bite_counter: n,
-            taf: Some(taf),
-            wear_index: (!degraded).then_some(taf / 1.25 - 1.0),
-            wear_trend: Some(0.001 * f64::from(n % 1000)),
-            ..DrivelineResults::default()
-        },
+        state,
     }))
 }
 
@@ -194,7 +196,8 @@ fn write_history(folder: &Path) -> (PathBuf, UtcTime) {
         for (k, name) in ["F1", "F2"].iter().enumerate() {
             counters[k] += 1;
             let at = time_ms + 7_500 * k as i64;
-            writer::insert(&transaction, run_id, &bite(name, counters[k], at)).unwrap();
+            millgate::history::rows::insert(&transaction, run_id, &bite(name, counters[k], at))
+                .unwrap();
             last = UtcTime::from_unix_ms(at);
         }
         time_ms += EVERY_MS;

@@ -13,9 +13,9 @@ use millgate::history::query::{BiteRow, Filter, HistoryReader};
 use millgate::history::series::{WearIndexPoint, WearPoint, MAX_SERIES_POINTS, MIN_TREND_BITES};
 use millgate::history::{DrivelineSettings, HistoryError, RunInfo};
 use millgate::state::commands::CommandOrigin;
-use millgate::state::events::{BiteRecord, GapEstimate, HistoryEvent, WearState};
+use millgate::state::events::{BiteRecord, HistoryEvent, WearState};
 use millgate::state::history::History;
-use millgate::state::results::DrivelineResults;
+use millgate::state::results::{DrivelineResults, GapResults};
 use millgate::state::time::UtcTime;
 
 const MINUTE_MS: i64 = 60_000;
@@ -90,41 +90,44 @@ fn bite(n: u32, time: UtcTime) -> HistoryEvent {
         1.3 + 0.1 * noise(u64::from(n) + 7_777)
     };
     let static_torque_knm = 400.0 + 50.0 * noise(u64::from(n) + 99);
+    let state = DrivelineResults {
+        bite_counter: n,
+        taf: Some(taf),
+        // A wear index for clean windows, and a trend that moves on its own.
+        wear_index: (!degraded).then_some(taf / 1.3 - 1.0),
+        wear_trend: (!n.is_multiple_of(41)).then_some(0.01 * f64::from(n % 100)),
+        ..DrivelineResults::default()
+    };
     HistoryEvent::Bite(Box::new(BiteRecord {
         driveline: "F1".into(),
         channel: "spindle_top".into(),
         time,
-        static_torque_knm,
-        peak_torque_knm: taf * static_torque_knm,
-        taf: (!n.is_multiple_of(53)).then_some(taf),
-        first_period_s: Some(0.05),
+        figures: DrivelineResults {
+            last_bite_unix_ms: Some(time.unix_ms()),
+            static_torque_knm: Some(static_torque_knm),
+            peak_torque_knm: Some(taf * static_torque_knm),
+            taf: (!n.is_multiple_of(53)).then_some(taf),
+            first_period_s: Some(0.05),
+            first_period_shift_s: Some(0.002),
+            last_bite_degraded: degraded,
+            gap: (!pool_filling).then(|| GapResults {
+                gap_mrad,
+                low_mrad: gap_mrad - 0.3 - 0.1 * noise(u64::from(n) + 5),
+                high_mrad: gap_mrad + 0.4 + 0.1 * noise(u64::from(n) + 11),
+                coupling: Some(1),
+                likeliest_coupling: None,
+                bites_pooled: 20,
+            }),
+            ..state.clone()
+        },
         second_period_s: Some(0.048),
-        period_shift_s: Some(0.002),
-        beta_hz: None,
         quality: "good",
-        degraded,
         reference_taf: Some(1.3),
         reference_level_knm: Some(400.0),
         shift_over_linear_s: None,
-        gap: (!pool_filling).then(|| GapEstimate {
-            gap_mrad,
-            gap_low_mrad: gap_mrad - 0.3 - 0.1 * noise(u64::from(n) + 5),
-            gap_high_mrad: gap_mrad + 0.4 + 0.1 * noise(u64::from(n) + 11),
-            coupling: Some(1),
-            bites_pooled: 20,
-            state: WearState::Ok,
-            alarm_latched: false,
-        }),
+        gap_state: (!pool_filling).then_some(WearState::Ok),
         pooled: None,
-        extra_state: None,
-        state: DrivelineResults {
-            bite_counter: n,
-            taf: Some(taf),
-            // A wear index for clean windows, and a trend that moves on its own.
-            wear_index: (!degraded).then_some(taf / 1.3 - 1.0),
-            wear_trend: (!n.is_multiple_of(41)).then_some(0.01 * f64::from(n % 100)),
-            ..DrivelineResults::default()
-        },
+        state,
     }))
 }
 
@@ -193,7 +196,7 @@ fn all_bites(reader: &HistoryReader) -> Vec<(i64, millgate::history::query::Bite
         })
         .unwrap()
         .into_iter()
-        .map(|row| (UtcTime::parse(&row.time).unwrap().unix_ms(), row))
+        .map(|row| (UtcTime::parse(&row.time()).unwrap().unix_ms(), row))
         .collect()
 }
 
@@ -227,8 +230,8 @@ fn reference_series(
         }
         let point = series.last_mut().unwrap();
         point.bites += 1;
-        if row.gap_mrad.is_some() {
-            point.gap_mrad = row.gap_mrad;
+        if row.figures.gap.map(|g| g.gap_mrad).is_some() {
+            point.gap_mrad = row.figures.gap.map(|g| g.gap_mrad);
         }
         let min = |a: Option<f64>, b: Option<f64>| match (a, b) {
             (Some(a), Some(b)) => Some(a.min(b)),
@@ -238,11 +241,11 @@ fn reference_series(
             (Some(a), Some(b)) => Some(a.max(b)),
             (a, b) => a.or(b),
         };
-        point.gap_low_mrad = min(point.gap_low_mrad, row.gap_low_mrad);
-        point.gap_high_mrad = max(point.gap_high_mrad, row.gap_high_mrad);
-        if !row.degraded {
-            point.taf_min = min(point.taf_min, row.taf);
-            point.taf_max = max(point.taf_max, row.taf);
+        point.gap_low_mrad = min(point.gap_low_mrad, row.figures.gap.map(|g| g.low_mrad));
+        point.gap_high_mrad = max(point.gap_high_mrad, row.figures.gap.map(|g| g.high_mrad));
+        if !row.figures.last_bite_degraded {
+            point.taf_min = min(point.taf_min, row.figures.taf);
+            point.taf_max = max(point.taf_max, row.figures.taf);
         }
     }
     // Mean TAF in a second pass, per bucket.
@@ -250,9 +253,10 @@ fn reference_series(
         let tafs: Vec<f64> = bites
             .iter()
             .filter(|(ms, row)| {
-                (point.start.unix_ms()..point.end.unix_ms()).contains(ms) && !row.degraded
+                (point.start.unix_ms()..point.end.unix_ms()).contains(ms)
+                    && !row.figures.last_bite_degraded
             })
-            .filter_map(|(_, row)| row.taf)
+            .filter_map(|(_, row)| row.figures.taf)
             .collect();
         point.taf_mean = (!tafs.is_empty()).then(|| tafs.iter().sum::<f64>() / tafs.len() as f64);
     }
@@ -301,7 +305,10 @@ fn reference_index_series(
                 .filter(|(ms, _)| (bucket.start.unix_ms()..bucket.end.unix_ms()).contains(ms))
                 .map(|(_, row)| row)
                 .collect();
-            let indexes: Vec<f64> = rows.iter().filter_map(|row| row.wear_index).collect();
+            let indexes: Vec<f64> = rows
+                .iter()
+                .filter_map(|row| row.figures.wear_index)
+                .collect();
             let index_min = indexes.iter().copied().reduce(f64::min)?;
             Some(WearIndexPoint {
                 start: bucket.start,
@@ -309,14 +316,14 @@ fn reference_index_series(
                 bites: indexes.len() as u32,
                 index_min,
                 index_max: indexes.iter().copied().reduce(f64::max)?,
-                trend: rows.iter().rev().find_map(|row| row.wear_trend),
+                trend: rows.iter().rev().find_map(|row| row.figures.wear_trend),
                 static_torque_min_knm: rows
                     .iter()
-                    .map(|row| row.static_torque_knm)
+                    .filter_map(|row| row.figures.static_torque_knm)
                     .reduce(f64::min)?,
                 static_torque_max_knm: rows
                     .iter()
-                    .map(|row| row.static_torque_knm)
+                    .filter_map(|row| row.figures.static_torque_knm)
                     .reduce(f64::max)?,
             })
         })
@@ -398,7 +405,10 @@ fn series_and_trend_match_computations_without_sql() {
     assert_eq!(one[0].bites as usize, bites.len());
     assert_eq!(
         one[0].gap_mrad,
-        bites.iter().rev().find_map(|(_, row)| row.gap_mrad)
+        bites
+            .iter()
+            .rev()
+            .find_map(|(_, row)| row.figures.gap.map(|g| g.gap_mrad))
     );
     assert_same_series(&one, &reference_series(&reader, None, None, 1));
 
@@ -421,7 +431,7 @@ fn series_and_trend_match_computations_without_sql() {
     let after: Vec<(i64, f64)> = bites
         .iter()
         .filter(|(ms, _)| *ms > reset_time().unix_ms())
-        .filter_map(|(ms, row)| row.gap_mrad.map(|gap| (*ms, gap)))
+        .filter_map(|(ms, row)| row.figures.gap.map(|g| g.gap_mrad).map(|gap| (*ms, gap)))
         .collect();
     assert_eq!(trend.bites as usize, after.len());
     assert_eq!(trend.since.unix_ms(), after[0].0);
@@ -446,7 +456,7 @@ fn series_and_trend_match_computations_without_sql() {
     let window: Vec<(i64, f64)> = bites
         .iter()
         .filter(|(ms, _)| (until_11.unix_ms() - 3 * DAY_MS..until_11.unix_ms()).contains(ms))
-        .filter_map(|(ms, row)| row.gap_mrad.map(|gap| (*ms, gap)))
+        .filter_map(|(ms, row)| row.figures.gap.map(|g| g.gap_mrad).map(|gap| (*ms, gap)))
         .collect();
     assert_eq!(before.bites as usize, window.len());
     assert!((before.mrad_per_week - reference_slope(&window)).abs() < 1e-9);
@@ -461,7 +471,7 @@ fn series_and_trend_match_computations_without_sql() {
         .iter()
         .filter(|(ms, row)| {
             (reset_time().unix_ms() + 1..just_after.unix_ms()).contains(ms)
-                && row.gap_mrad.is_some()
+                && row.figures.gap.map(|g| g.gap_mrad).is_some()
         })
         .count();
     assert!(estimates < MIN_TREND_BITES as usize, "{estimates}");

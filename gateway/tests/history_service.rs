@@ -61,7 +61,10 @@ async fn sigkill_loses_no_bite_the_plc_saw_and_the_restart_continues() {
     );
 
     let stored = bites(&history);
-    let counters: Vec<i64> = stored.iter().map(|b| b.bite_counter).collect();
+    let counters: Vec<i64> = stored
+        .iter()
+        .map(|b| i64::from(b.figures.bite_counter))
+        .collect();
     for counter in 1..=i64::from(in_plc) {
         assert!(
             counters.contains(&counter),
@@ -70,12 +73,15 @@ async fn sigkill_loses_no_bite_the_plc_saw_and_the_restart_continues() {
     }
     let last_seen = stored
         .iter()
-        .find(|b| b.bite_counter == i64::from(in_plc))
+        .find(|b| b.figures.bite_counter == in_plc)
         .unwrap();
-    assert_eq!(last_seen.taf.map(|taf| taf as f32), Some(taf_in_plc));
+    assert_eq!(
+        last_seen.figures.taf.map(|taf| taf as f32),
+        Some(taf_in_plc)
+    );
     let before = stored.last().unwrap().clone();
     assert!(
-        before.wear_trend.is_some(),
+        before.figures.wear_trend.is_some(),
         "the driveline model gives a trend"
     );
 
@@ -91,14 +97,14 @@ async fn sigkill_loses_no_bite_the_plc_saw_and_the_restart_continues() {
     .await;
     assert_eq!(
         plc.counter(),
-        before.bite_counter as u32,
+        before.figures.bite_counter as u32,
         "the counter restored"
     );
     assert!(
         plc.flags() & flag_mask(DRIVELINE, "taf_alarm") != 0,
         "the alarm still latched"
     );
-    let restored = before.bite_counter as u32;
+    let restored = before.figures.bite_counter as u32;
     until("a bite after the restart", Duration::from_secs(20), || {
         plc.counter() > restored
     })
@@ -120,7 +126,9 @@ async fn sigkill_loses_no_bite_the_plc_saw_and_the_restart_continues() {
         Duration::from_secs(20),
         || {
             bites(&history).iter().any(|b| {
-                b.bite_counter > before.bite_counter && b.wear_index.is_some() && !b.degraded
+                b.figures.bite_counter > before.figures.bite_counter
+                    && b.figures.wear_index.is_some()
+                    && !b.figures.last_bite_degraded
             })
         },
     )
@@ -129,11 +137,11 @@ async fn sigkill_loses_no_bite_the_plc_saw_and_the_restart_continues() {
     assert!(after.iter().all(|b| b.run_id >= before.run_id));
     let resumed: Vec<&BiteRow> = after
         .iter()
-        .filter(|b| b.bite_counter > before.bite_counter)
+        .filter(|b| b.figures.bite_counter > before.figures.bite_counter)
         .collect();
     assert_eq!(
-        resumed[0].bite_counter,
-        before.bite_counter + 1,
+        resumed[0].figures.bite_counter,
+        before.figures.bite_counter + 1,
         "the counter continues"
     );
     // The gap pool continues: the first estimate of the second run pools the first
@@ -141,35 +149,43 @@ async fn sigkill_loses_no_bite_the_plc_saw_and_the_restart_continues() {
     let pooled_before = stored
         .iter()
         .rev()
-        .find_map(|b| b.bites_pooled)
+        .find_map(|b| b.figures.gap.map(|g| g.bites_pooled))
         .expect("the first run estimated the gap");
     until(
         "a gap estimate of the second run",
         Duration::from_secs(20),
         || {
-            bites(&history)
-                .iter()
-                .any(|b| b.bite_counter > before.bite_counter && b.bites_pooled.is_some())
+            bites(&history).iter().any(|b| {
+                b.figures.bite_counter > before.figures.bite_counter
+                    && b.figures.gap.map(|g| g.bites_pooled).is_some()
+            })
         },
     )
     .await;
     let after = bites(&history);
     let first_estimate = after
         .iter()
-        .find(|b| b.bite_counter > before.bite_counter && b.bites_pooled.is_some())
+        .find(|b| {
+            b.figures.bite_counter > before.figures.bite_counter
+                && b.figures.gap.map(|g| g.bites_pooled).is_some()
+        })
         .unwrap();
     assert_eq!(
-        first_estimate.bites_pooled,
+        first_estimate.figures.gap.map(|g| g.bites_pooled),
         Some((pooled_before + 1).min(5)),
         "the pool survived the restart (first run's last estimate pooled {pooled_before})"
     );
-    let mut trend = before.wear_trend;
+    let mut trend = before.figures.wear_trend;
     for bite in resumed {
-        let expected = match (bite.wear_index, bite.degraded) {
+        let expected = match (bite.figures.wear_index, bite.figures.last_bite_degraded) {
             (Some(index), false) => Some(next_trend(trend, index)),
             _ => trend,
         };
-        assert_eq!(bite.wear_trend, expected, "bite {}", bite.bite_counter);
+        assert_eq!(
+            bite.figures.wear_trend, expected,
+            "bite {}",
+            bite.figures.bite_counter
+        );
         trend = expected;
     }
 

@@ -167,15 +167,18 @@ async fn wear_map_on_the_page(port: u16, setup: &Setup) {
     let pooled = gap["bites_pooled"].as_u64().unwrap() as u32;
     let (mut to_estimate, mut to_linear) = (Vec::new(), Vec::new());
     for bite in newest_bites(setup, pooled) {
-        let (Some(taf), false) = (bite.taf, bite.degraded) else {
+        let (Some(taf), Some(s), false) = (
+            bite.figures.taf,
+            bite.figures.static_torque_knm,
+            bite.figures.last_bite_degraded,
+        ) else {
             continue;
         };
-        let s = bite.static_torque_knm;
         if let (Some(on_estimate), Some(on_linear)) = (at(curve, s), at(linear, s)) {
             eprintln!(
                 "bite {}: static {s:.0} kN*m, TAF {taf:.3}; map at {:.2} mrad {on_estimate:.3}, \
                  linear {on_linear:.3}",
-                bite.bite_counter,
+                bite.figures.bite_counter,
                 mrad(&estimate["gap"])
             );
             to_estimate.push((taf - on_estimate).abs());
@@ -613,7 +616,7 @@ async fn the_api_answers_from_the_live_results_and_the_history_and_refuses_bad_r
     );
     assert_eq!(last["driveline"], "F1");
     // A time range: every row inside it.
-    let first_time = stored[0].time.clone();
+    let first_time = stored[0].time().clone();
     let ranged = http(
         port,
         "GET",

@@ -26,8 +26,8 @@ use crate::state::captures::{
     CapturedBite, KeepClass,
 };
 use crate::state::events::{
-    AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, GapEstimate as RecordedGap, HistoryEvent,
-    PooledBite,
+    AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, HistoryEvent, PooledBite, StateRecord,
+    SubjectResults, WearState,
 };
 use crate::state::gap_maps::{GapMapSpec, GapMaps};
 use crate::state::results::DrivelineResults;
@@ -643,13 +643,7 @@ impl DrivelineAnalyzer {
                 .degraded_bites
                 .wrapping_add(u32::from(report.degraded));
             driveline.last_bite_unix_ms = Some(time.unix_ms());
-            driveline.static_torque_knm = trusted(Some(t.static_torque_knm));
-            driveline.peak_torque_knm = trusted(Some(t.peak_torque_knm));
-            driveline.taf = trusted(t.taf);
-            driveline.first_period_s = trusted(t.first_period_s);
-            driveline.first_period_shift_s = trusted(t.period_shift_s);
-            driveline.beta1_hz = trusted(report.beta_hz.map(|(beta1, _)| beta1));
-            driveline.beta2_hz = trusted(report.beta_hz.map(|(_, beta2)| beta2));
+            window_figures(driveline, report, valid);
             driveline.last_bite_degraded = report.degraded;
             let taf = trusted(t.taf);
             driveline.taf_warning = taf.is_some_and(|taf| taf >= self.taf_warning);
@@ -670,7 +664,7 @@ impl DrivelineAnalyzer {
             let record = bite_record(
                 report,
                 driveline,
-                gap.map(|(monitor, estimate)| monitor.record(&estimate, driveline.gap_alarm)),
+                gap.map(|(monitor, estimate)| monitor.verdict(&estimate)),
             );
             let bite = CapturedBite {
                 counter: driveline.bite_counter,
@@ -727,13 +721,14 @@ impl DrivelineAnalyzer {
     pub(super) fn publish_gap(&self, board: &Board, estimate: &GapEstimate) {
         if let Some(monitor) = &self.gap {
             board.update_recorded(|results, events| {
-                let subject = (self.name.as_str(), UtcTime::now());
-                monitor.publish(
-                    &mut results.drivelines[self.index],
-                    estimate,
-                    subject,
-                    events,
-                );
+                let time = UtcTime::now();
+                let driveline = &mut results.drivelines[self.index];
+                monitor.publish(driveline, estimate, (self.name.as_str(), time), events);
+                events.push(HistoryEvent::State(StateRecord {
+                    time,
+                    subject: self.name.clone(),
+                    results: SubjectResults::Driveline(driveline.clone()),
+                }));
             });
         }
     }
@@ -755,36 +750,49 @@ impl DrivelineAnalyzer {
     }
 }
 
+/// What `report`'s window measured, as figures of `driveline`: its torques, TAF,
+/// periods and natural frequencies, each only while `valid` (a degraded window's are
+/// no values where they are published; the bite's row keeps them).
+fn window_figures(driveline: &mut DrivelineResults, report: &BiteReport, valid: bool) {
+    let t = &report.transient;
+    let trusted = |value: Option<f64>| value.filter(|_| valid);
+    driveline.static_torque_knm = trusted(Some(t.static_torque_knm));
+    driveline.peak_torque_knm = trusted(Some(t.peak_torque_knm));
+    driveline.taf = trusted(t.taf);
+    driveline.first_period_s = trusted(t.first_period_s);
+    driveline.first_period_shift_s = trusted(t.period_shift_s);
+    driveline.beta1_hz = trusted(report.beta_hz.map(|(beta1, _)| beta1));
+    driveline.beta2_hz = trusted(report.beta_hz.map(|(_, beta2)| beta2));
+}
+
 /// The history's record of `report` with the driveline's published `state` after it
-/// and its gap estimate (what the analysis records; benches store the same).
+/// and, when the bite gave a gap estimate, its verdict (what the analysis records;
+/// benches store the same).
 pub fn bite_record(
     report: &BiteReport,
     state: &DrivelineResults,
-    gap: Option<RecordedGap>,
+    gap_state: Option<WearState>,
 ) -> BiteRecord {
     let t = &report.transient;
     let reference = report.wear.map(|wear| wear.reference);
+    let mut figures = state.clone();
+    window_figures(&mut figures, report, true);
+    figures.gap = figures.gap.filter(|_| gap_state.is_some());
     BiteRecord {
         driveline: report.driveline_name.clone(),
         channel: report.channel_name.clone(),
         time: UtcTime::from_system(report.time),
-        static_torque_knm: t.static_torque_knm,
-        peak_torque_knm: t.peak_torque_knm,
-        taf: t.taf,
-        first_period_s: t.first_period_s,
+        figures,
         second_period_s: t.second_period_s,
-        period_shift_s: t.period_shift_s,
-        beta_hz: report.beta_hz,
         quality: match t.quality {
             TransientQuality::Good => "good",
             TransientQuality::FewCrossings => "few_crossings",
             TransientQuality::LowStatic => "low_static",
         },
-        degraded: report.degraded,
         reference_taf: reference.map(|r| r.taf),
         reference_level_knm: reference.map(|r| r.level_knm),
         shift_over_linear_s: report.wear.and_then(|wear| wear.shift_excess_s),
-        gap,
+        gap_state,
         pooled: report.gap.map(|gap| {
             let o = gap.observation;
             PooledBite {
@@ -795,7 +803,6 @@ pub fn bite_record(
                 period_shift_sigma_s: o.period_shift_sigma_s,
             }
         }),
-        extra_state: None,
         state: state.clone(),
     }
 }

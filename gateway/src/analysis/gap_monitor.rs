@@ -26,9 +26,7 @@ use super::gap_estimate::{GapEstimate, GapObservation, GapPool};
 use super::gap_map::{build, GapMapError};
 use super::gap_map_cache;
 use super::simulated_bite::BiteSimulator;
-use crate::state::events::{
-    AlarmEvent, AlarmKind, AlarmRecord, GapEstimate as RecordedGap, HistoryEvent, WearState,
-};
+use crate::state::events::{AlarmEvent, AlarmKind, AlarmRecord, HistoryEvent, WearState};
 use crate::state::gap_maps::{GapMapSpec, GapMaps};
 use crate::state::results::{DrivelineResults, GapResults};
 use crate::state::time::UtcTime;
@@ -317,23 +315,14 @@ impl GapMonitor {
         }
     }
 
-    /// `estimate` as the history records it, with the alarm latch as published.
-    pub(super) fn record(&self, estimate: &GapEstimate, alarm_latched: bool) -> RecordedGap {
-        let state = if estimate.gap_low_mrad >= self.alarm_mrad {
+    /// `estimate` against the thresholds, as the history records it.
+    pub(super) fn verdict(&self, estimate: &GapEstimate) -> WearState {
+        if estimate.gap_low_mrad >= self.alarm_mrad {
             WearState::Alarm
         } else if estimate.gap_mrad >= self.warning_mrad {
             WearState::Warning
         } else {
             WearState::Ok
-        };
-        RecordedGap {
-            gap_mrad: estimate.gap_mrad,
-            gap_low_mrad: estimate.gap_low_mrad,
-            gap_high_mrad: estimate.gap_high_mrad,
-            coupling: estimate.coupling,
-            bites_pooled: estimate.bites_pooled,
-            state,
-            alarm_latched,
         }
     }
 }

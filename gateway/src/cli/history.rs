@@ -158,12 +158,12 @@ fn write_rows<R: Record>(
     let total = reader.count::<R>(filter)?;
     match format {
         Format::Json => out.write_all(b"[")?,
-        Format::Csv => writeln!(out, "{}", R::COLUMNS.join(","))?,
+        Format::Csv => writeln!(out, "{}", R::columns().join(","))?,
         Format::Md => writeln!(
             out,
             "| {} |\n|{}",
-            R::COLUMNS.join(" | "),
-            "---|".repeat(R::COLUMNS.len())
+            R::columns().join(" | "),
+            "---|".repeat(R::columns().len())
         )?,
     }
     let mut written: u64 = 0;

@@ -340,7 +340,7 @@ impl HistoryReader {
         use super::query::Record as _;
         let sql = format!(
             "SELECT {} FROM captures WHERE bite_id BETWEEN ?1 AND ?2 ORDER BY id",
-            CaptureRow::COLUMNS.join(", ")
+            CaptureRow::columns().join(", ")
         );
         let read = || -> rusqlite::Result<Vec<CaptureRow>> {
             let mut statement = self.connection().prepare_cached(&sql)?;
@@ -366,7 +366,7 @@ impl HistoryReader {
              WHERE subject = ?1 AND kind = 'bite' AND keep = ?2
                  AND started_at >= ?3 AND (?4 IS NULL OR started_at < ?4)
              ORDER BY started_at DESC, id DESC LIMIT ?5",
-            CaptureRow::COLUMNS.join(", ")
+            CaptureRow::columns().join(", ")
         );
         let read = || -> rusqlite::Result<Vec<CaptureRow>> {
             let mut statement = self.connection().prepare_cached(&sql)?;

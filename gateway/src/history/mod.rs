@@ -23,8 +23,14 @@
 //! - **Start**: while the file exists but cannot be read (a lock, a file system
 //!   error), the start waits for it (the writer thread hands the restored
 //!   state once read), so no counter starts below what the file holds.
-//! - **Restart**: at start the file's per-driveline and per-mill state tables give the
-//!   bite counters, the wear trend, latched alarms and the last values with their time
+//! - **Rows from the catalogue** ([`rows`], `figures.rs`): a bite row keeps the
+//!   catalogue's figures that name a bite column, a subject's state row those that
+//!   name a state column, written and read back by those names; a figure added to the
+//!   catalogue with a column (and the migration that adds it) is stored, exported and
+//!   restored with no edit here.
+//! - **Restart**: at start the file's per-driveline and per-mill state tables give
+//!   every figure with a state column: the bite counters, the last bite's values with
+//!   their time, the wear trend and the gap estimate, warnings and latched alarms
 //!   ([`restore`]); restored values carry the driveline's "restored" flag until the
 //!   next bite.
 //! - **Retention** ([`retention`]): events older than `history.retention_days`, and the
@@ -45,15 +51,18 @@
 //! everything records through, [`History`](crate::state::history::History), is the state layer's
 //! ([`crate::state::history`]): this folder is the writer's side and the readers.
 
+mod bite_row;
 pub mod capture_files;
 mod capture_parquet;
 pub mod captures;
 mod checkpoint;
 mod error;
+pub mod figures;
 pub mod outages;
 pub mod query;
 pub mod restore;
 pub mod retention;
+pub mod rows;
 mod run;
 pub mod schema;
 pub mod series;
@@ -63,27 +72,3 @@ pub mod writer;
 pub use error::HistoryError;
 pub use run::{DrivelineSettings, RunInfo};
 pub use writer::start;
-
-/// The driveline figures a bite row keeps ([`crate::state::catalogue::DRIVELINE`]'s
-/// keys) and the column of table `bites` each is in: the history's mapping from the
-/// catalogue. The other driveline figures are flags of the moment (the alarms table
-/// records their changes) or counters of the run. A test holds the schema to it.
-pub const BITE_COLUMNS: &[(&str, &str)] = &[
-    ("bite_counter", "bite_counter"),
-    ("last_bite_time", "time"),
-    ("static_torque_knm", "static_torque_knm"),
-    ("peak_torque_knm", "peak_torque_knm"),
-    ("taf", "taf"),
-    ("period_shift_s", "period_shift_s"),
-    ("first_period_s", "first_period_s"),
-    ("beta1_hz", "beta1_hz"),
-    ("beta2_hz", "beta2_hz"),
-    ("wear_index", "wear_index"),
-    ("wear_trend", "wear_trend"),
-    ("gap_mrad", "gap_mrad"),
-    ("gap_low_mrad", "gap_low_mrad"),
-    ("gap_high_mrad", "gap_high_mrad"),
-    ("gap_coupling", "gap_coupling"),
-    ("bites_pooled", "bites_pooled"),
-    ("degraded", "degraded"),
-];

@@ -6,7 +6,7 @@
 //! one a web page or an MQTT store-and-forward replay builds on: page with
 //! [`Filter::after_id`] and [`Filter::limit`] (ids grow with every stored row, so
 //! the last id read is where to go on from). Each row type lists its columns in
-//! [`Record::COLUMNS`] and gives its cells in that order ([`Record::cells`]); JSON
+//! [`Record::columns`] and gives its cells in that order ([`Record::cells`]); JSON
 //! comes from its `Serialize` implementation with the same names.
 
 use std::path::{Path, PathBuf};
@@ -14,6 +14,7 @@ use std::path::{Path, PathBuf};
 use rusqlite::{Connection, OpenFlags};
 use serde::Serialize;
 
+pub use super::bite_row::{trusted, BiteRow};
 use super::error::{check_file_owner, HistoryError};
 use super::restore::Restored;
 use super::schema::{current_version, SchemaError};
@@ -130,14 +131,14 @@ pub trait Record: Sized + Serialize {
     /// The table.
     const TABLE: &'static str;
     /// The columns read, in order (the struct's fields).
-    const COLUMNS: &'static [&'static str];
+    fn columns() -> &'static [&'static str];
     /// The column [`Filter::name`] matches.
     const NAME_COLUMN: &'static str;
     /// The column [`Filter::since`] and [`Filter::until`] compare.
     const TIME_COLUMN: &'static str;
-    /// The row from a result row of [`Self::COLUMNS`].
+    /// The row from a result row of [`Self::columns`].
     fn from_row(row: &rusqlite::Row<'_>) -> rusqlite::Result<Self>;
-    /// The values, in [`Self::COLUMNS`] order.
+    /// The values, in [`Self::columns`] order.
     fn cells(&self) -> Vec<Cell>;
 }
 
@@ -158,7 +159,9 @@ macro_rules! record {
 
         impl Record for $name {
             const TABLE: &'static str = $table;
-            const COLUMNS: &'static [&'static str] = &[$(stringify!($field)),*];
+            fn columns() -> &'static [&'static str] {
+                &[$(stringify!($field)),*]
+            }
             const NAME_COLUMN: &'static str = $name_column;
             const TIME_COLUMN: &'static str = $time_column;
 
@@ -171,63 +174,6 @@ macro_rules! record {
             }
         }
     };
-}
-
-record! {
-    /// A bite (table `bites`); torques kN*m, periods s, frequencies Hz, gaps mrad.
-    BiteRow, "bites", name "driveline", time "time" {
-        /// Row id.
-        id: i64,
-        /// The gateway run that recorded it.
-        run_id: i64,
-        /// Driveline name.
-        driveline: String,
-        /// UTC, ISO-8601.
-        time: String,
-        /// The driveline's bite counter after this bite.
-        bite_counter: i64,
-        /// Torque channel.
-        channel: String,
-        /// Static torque, kN*m.
-        static_torque_knm: f64,
-        /// Peak torque, kN*m.
-        peak_torque_knm: f64,
-        /// Peak / static.
-        taf: Option<f64>,
-        /// First period, s.
-        first_period_s: Option<f64>,
-        /// Second period, s.
-        second_period_s: Option<f64>,
-        /// First minus second period, s.
-        period_shift_s: Option<f64>,
-        /// First natural frequency (eq. (1) fit), Hz.
-        beta1_hz: Option<f64>,
-        /// Second natural frequency, Hz.
-        beta2_hz: Option<f64>,
-        /// `good`, `few_crossings`, `low_static`.
-        quality: String,
-        /// The window had gaps, NaN or saturation.
-        degraded: bool,
-        /// TAF / linear reference TAF - 1.
-        wear_index: Option<f64>,
-        /// Wear trend after this bite.
-        wear_trend: Option<f64>,
-        /// The linear reference's TAF.
-        reference_taf: Option<f64>,
-        /// Measured minus reference first-period shift, s.
-        shift_over_linear_s: Option<f64>,
-        /// Pooled gap estimate, mrad (gap diagnosis).
-        gap_mrad: Option<f64>,
-        /// Its interval's lower end, mrad.
-        gap_low_mrad: Option<f64>,
-        /// Its interval's upper end, mrad.
-        gap_high_mrad: Option<f64>,
-        /// The coupling holding the gap (model index, 0 = motor side); `None` when
-        /// the bites cannot tell.
-        gap_coupling: Option<i64>,
-        /// Bites pooled into the estimate.
-        bites_pooled: Option<i64>,
-    }
 }
 
 record! {
@@ -593,7 +539,7 @@ impl HistoryReader {
         let (conditions, values) = Self::conditions::<R>(filter);
         let mut sql = format!(
             "SELECT {} FROM {}{conditions}",
-            R::COLUMNS.join(", "),
+            R::columns().join(", "),
             R::TABLE
         );
         // Newest by time (then id, for rows of one millisecond): the time indexes

@@ -1,7 +1,8 @@
-//! What a start restores from the history: per driveline the bite counter, the last
-//! bite's values with their time, the wear index and trend, the warning, the latched
-//! TAF and gap alarms, and the bites last put into the gap pool (the service pools
-//! them again); per tandem mill the latched chatter alarm.
+//! What a start restores from the history: per driveline every figure the catalogue
+//! keeps in its state row (the bite counter, the last bite's values with their time,
+//! the wear index and trend, the gap estimate, the warnings, the latched TAF and gap
+//! alarms) and the bites last put into the gap pool (the service pools them again);
+//! per tandem mill its state row's figures (the latched chatter alarm).
 //!
 //! Restored values are published with the driveline's `restored` flag (flags bit 6)
 //! until the next bite replaces them: they are valid measurements, but from before
@@ -9,9 +10,9 @@
 
 use rusqlite::{params, Connection};
 
-use crate::state::results::{DrivelineResults, Results};
-
+use super::figures::{read_states, restore_onto, StateRow};
 use crate::state::events::PooledBite;
+use crate::state::results::{DrivelineResults, Results, TandemMillResults};
 use crate::state::time::UtcTime;
 
 /// The restorable state of one driveline, as last recorded.
@@ -23,8 +24,6 @@ pub struct RestoredDriveline {
     pub updated_at: Option<UtcTime>,
     /// The published results as they were, with `restored` set.
     pub results: DrivelineResults,
-    /// The JSON of [`crate::state::events::BiteRecord::extra_state`], when one was stored.
-    pub extra: Option<serde_json::Value>,
     /// The bites last put into the gap pool since the last wear reset, oldest first
     /// (at most the largest pool allowed; empty without a gap diagnosis).
     pub gap_pool: Vec<PooledBite>,
@@ -63,81 +62,32 @@ fn gap_pool(connection: &Connection, driveline: &str) -> rusqlite::Result<Vec<Po
     Ok(pool)
 }
 
-/// The restorable state of one tandem mill.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct RestoredMill {
-    /// The mill's name.
-    pub name: String,
-    /// The chatter alarm was latched.
-    pub alarm_latched: bool,
-}
-
 /// Everything a start restores.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Restored {
     /// Per driveline found in the file.
     pub drivelines: Vec<RestoredDriveline>,
-    /// Per tandem mill found in the file.
-    pub mills: Vec<RestoredMill>,
-}
-
-fn time(text: Option<String>) -> Option<UtcTime> {
-    text.and_then(|text| UtcTime::parse(&text).ok())
+    /// Per tandem mill found in the file: its state row's figures.
+    pub mills: Vec<StateRow<TandemMillResults>>,
 }
 
 /// Read the state tables of a migrated file.
 pub(crate) fn read(connection: &Connection) -> rusqlite::Result<Restored> {
-    let mut statement = connection.prepare(
-        "SELECT driveline, updated_at, bite_counter, last_bite_time, static_torque_knm,
-             peak_torque_knm, taf, period_shift_s, beta1_hz, beta2_hz, wear_index, wear_trend,
-             degraded, warning, alarm_latched, extra, gap_alarm_latched, gap_warning
-         FROM driveline_state ORDER BY driveline",
-    )?;
-    let drivelines = statement
-        .query_map([], |row| {
-            let last_bite = time(row.get(3)?);
-            let extra: Option<String> = row.get(15)?;
+    let drivelines = read_states::<DrivelineResults>(connection)?
+        .into_iter()
+        .map(|row| {
             Ok(RestoredDriveline {
-                name: row.get(0)?,
-                updated_at: time(row.get(1)?),
+                gap_pool: gap_pool(connection, &row.name)?,
+                name: row.name,
+                updated_at: row.updated_at,
                 results: DrivelineResults {
-                    bite_counter: row.get::<_, i64>(2)?.clamp(0, i64::from(u32::MAX)) as u32,
-                    last_bite_unix_ms: last_bite.map(|t| t.unix_ms()),
-                    static_torque_knm: row.get(4)?,
-                    peak_torque_knm: row.get(5)?,
-                    taf: row.get(6)?,
-                    first_period_shift_s: row.get(7)?,
-                    beta1_hz: row.get(8)?,
-                    beta2_hz: row.get(9)?,
-                    wear_index: row.get(10)?,
-                    wear_trend: row.get(11)?,
-                    last_bite_degraded: row.get(12)?,
-                    taf_warning: row.get(13)?,
-                    taf_alarm: row.get(14)?,
-                    gap_alarm: row.get(16)?,
-                    gap_warning: row.get(17)?,
-                    source_stale: false,
                     restored: true,
-                    ..DrivelineResults::default()
+                    ..row.results
                 },
-                extra: extra.and_then(|text| serde_json::from_str(&text).ok()),
-                gap_pool: Vec::new(),
             })
-        })?
+        })
         .collect::<rusqlite::Result<Vec<_>>>()?;
-    let mut drivelines = drivelines;
-    for driveline in &mut drivelines {
-        driveline.gap_pool = gap_pool(connection, &driveline.name)?;
-    }
-    let mills = connection
-        .prepare("SELECT mill, alarm_latched FROM mill_state ORDER BY mill")?
-        .query_map([], |row| {
-            Ok(RestoredMill {
-                name: row.get(0)?,
-                alarm_latched: row.get(1)?,
-            })
-        })?
-        .collect::<rusqlite::Result<Vec<_>>>()?;
+    let mills = read_states::<TandemMillResults>(connection)?;
     Ok(Restored { drivelines, mills })
 }
 
@@ -159,7 +109,7 @@ impl Restored {
         }
         for restored in &self.mills {
             if let Some(m) = mill_names.iter().position(|n| *n == restored.name) {
-                results.tandem_mills[m].chatter_alarm = restored.alarm_latched;
+                restore_onto(&restored.results, &mut results.tandem_mills[m]);
                 applied += 1;
             }
         }

@@ -269,6 +269,18 @@ END;
     r#"
 ALTER TABLE gateway_runs ADD COLUMN config_hash TEXT;
 "#,
+    // Version 9: the state row keeps every figure of the last bite a start restores
+    // (the catalogue's state columns): the first period and the gap estimate, which
+    // were read back only once the gap maps were ready to pool the last bites again.
+    // NULL in a row written before: restored as no value.
+    r#"
+ALTER TABLE driveline_state ADD COLUMN first_period_s REAL;
+ALTER TABLE driveline_state ADD COLUMN gap_mrad REAL;
+ALTER TABLE driveline_state ADD COLUMN gap_low_mrad REAL;
+ALTER TABLE driveline_state ADD COLUMN gap_high_mrad REAL;
+ALTER TABLE driveline_state ADD COLUMN gap_coupling INTEGER;
+ALTER TABLE driveline_state ADD COLUMN bites_pooled INTEGER;
+"#,
 ];
 
 /// `PRAGMA application_id` of a millgate history: the bytes "MLGT" (0x4D4C4754), set
@@ -618,44 +630,71 @@ mod tests {
         }
     }
 
-    #[test]
-    fn the_bite_columns_are_the_catalogue_figures_by_key_and_type() {
-        use crate::history::BITE_COLUMNS;
-        use crate::state::catalogue::{find, DRIVELINE};
-        let mut connection = Connection::open_in_memory().unwrap();
-        migrate(&mut connection).unwrap();
-        let columns: Vec<(String, String)> = connection
-            .prepare("SELECT name, type FROM pragma_table_info('bites')")
+    /// The declared columns of `table`: name and type.
+    fn declared(connection: &Connection, table: &str) -> Vec<(String, String)> {
+        connection
+            .prepare("SELECT name, type FROM pragma_table_info(?1)")
             .unwrap()
-            .query_map([], |row| Ok((row.get(0)?, row.get(1)?)))
+            .query_map([table], |row| Ok((row.get(0)?, row.get(1)?)))
             .unwrap()
             .collect::<Result<_, _>>()
-            .unwrap();
-        for (key, column) in BITE_COLUMNS {
-            let figure = find(DRIVELINE, key);
+            .unwrap()
+    }
+
+    /// Every column a figure of `figures` names in `table` (`column` picks the bite or
+    /// the state column) exists with its type's affinity.
+    fn holds<R>(
+        connection: &Connection,
+        table: &str,
+        figures: &[crate::state::catalogue::Figure<R>],
+        column: fn(&crate::state::catalogue::Columns) -> Option<&'static str>,
+    ) {
+        let columns = declared(connection, table);
+        for figure in figures {
+            let Some(name) = column(&figure.columns) else {
+                continue;
+            };
             let declared = columns
                 .iter()
-                .find(|(name, _)| name == column)
+                .find(|(column, _)| column == name)
                 .map(|(_, declared)| declared.as_str());
             assert_eq!(
                 declared,
                 Some(affinity(figure.figure_type)),
-                "bites.{column} for figure {key}"
-            );
-            // Named by the key, but the bite's own time (a figure of the last bite).
-            assert!(
-                column == key || *key == "last_bite_time",
-                "{key} in {column}"
+                "{table}.{name} for figure {}",
+                figure.key
             );
         }
+    }
+
+    #[test]
+    fn the_catalogue_columns_exist_with_their_figures_types() {
+        use crate::state::catalogue::{DRIVELINE, TANDEM_MILL};
+        let mut connection = Connection::open_in_memory().unwrap();
+        migrate(&mut connection).unwrap();
+        holds(&connection, "bites", DRIVELINE, |c| c.bite);
+        holds(&connection, "driveline_state", DRIVELINE, |c| c.state);
+        holds(&connection, "mill_state", TANDEM_MILL, |c| c.state);
         // A bites column named like a figure is that figure's.
-        for (name, _) in &columns {
-            if DRIVELINE.iter().any(|f| f.key == name) {
-                assert!(
-                    BITE_COLUMNS.iter().any(|(key, _)| key == name),
-                    "bites.{name} is a catalogue key missing from BITE_COLUMNS"
+        for (name, _) in declared(&connection, "bites") {
+            if let Some(figure) = DRIVELINE.iter().find(|f| f.key == name) {
+                assert_eq!(
+                    figure.columns.bite,
+                    Some(name.as_str()),
+                    "bites.{name} is figure {name}'s column"
                 );
             }
+        }
+        // Every bites column is read back: the row's own, a figure's, or the gap
+        // pool's (read by the restore).
+        let reader_columns =
+            <crate::history::query::BiteRow as crate::history::query::Record>::columns();
+        for (name, _) in declared(&connection, "bites") {
+            assert!(
+                reader_columns.contains(&name.as_str())
+                    || ["gap_taf_sigma", "gap_period_shift_sigma_s"].contains(&name.as_str()),
+                "bites.{name} is neither exported nor the gap pool's"
+            );
         }
     }
 

@@ -6,7 +6,6 @@
 
 use serde::Serialize;
 
-use crate::history::BITE_COLUMNS;
 use crate::outputs::metrics;
 use crate::outputs::sparkplug::devices;
 use crate::state::catalogue::{self, FigureInfo, Guard, Register, SubjectKind};
@@ -58,20 +57,27 @@ fn register_of(figure: &FigureInfo) -> String {
 }
 
 fn history_of(figure: &FigureInfo) -> String {
-    if figure.subject != SubjectKind::Driveline {
-        return "none: the chatter episodes keep their own summary; rod figures are not kept"
-            .into();
+    let mut kept = Vec::new();
+    if let Some(column) = figure.columns.bite {
+        kept.push(format!("bites.{column}"));
     }
-    BITE_COLUMNS
-        .iter()
-        .find(|(key, _)| *key == figure.key)
-        .map_or_else(
-            || match figure.alarm {
-                Some(kind) => format!("alarms (kind {})", kind.name()),
-                None => "none: a flag or count of the moment".into(),
-            },
-            |(_, column)| format!("bites.{column}"),
-        )
+    if let Some(kind) = figure.alarm {
+        kept.push(format!("alarms (kind {})", kind.name()));
+    }
+    if let Some(column) = figure.columns.state {
+        let table = match figure.subject {
+            SubjectKind::Driveline => "driveline_state",
+            _ => "mill_state",
+        };
+        kept.push(format!("restored from {table}.{column}"));
+    }
+    match (kept.is_empty(), figure.subject) {
+        (false, _) => kept.join("; "),
+        (true, SubjectKind::Driveline) => "none: a flag or count of the moment".into(),
+        (true, _) => {
+            "none: the chatter episodes keep their own summary; rod figures are not kept".into()
+        }
+    }
 }
 
 /// Every figure's row, in catalogue order.

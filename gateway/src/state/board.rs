@@ -8,7 +8,10 @@ use std::sync::{Arc, Mutex};
 
 use millgate_config::Config;
 
-use super::events::{AlarmEvent, AlarmKind, AlarmRecord, HistoryEvent};
+use super::catalogue::{Subject, Value};
+use super::events::{
+    AlarmEvent, AlarmKind, AlarmRecord, HistoryEvent, StateRecord, SubjectResults,
+};
 use super::gap_maps::GapMapState;
 use super::history::History;
 use super::results::Results;
@@ -237,43 +240,77 @@ impl Board {
                     driveline: self.driveline_names[index].clone(),
                     origin,
                 });
+                events.push(state_record(
+                    time,
+                    &self.driveline_names[index],
+                    SubjectResults::Driveline(driveline.clone()),
+                ));
             }
         });
     }
 
     /// Clear latched alarms (the analysis applies a
     /// [`super::commands::Command::AcknowledgeAlarms`] through this); `origin` says who,
-    /// for the history, which records each alarm that was latched.
+    /// for the history, which records each alarm that was latched and the state of
+    /// each subject after it.
     pub fn acknowledge_alarms(&self, origin: CommandOrigin) {
         let time = UtcTime::now();
-        let acknowledged = |subject: &String, kind| {
-            HistoryEvent::Alarm(AlarmRecord {
+        self.update_recorded(|results, events| {
+            for (driveline, name) in results.drivelines.iter_mut().zip(&self.driveline_names) {
+                if acknowledge(driveline, name, (time, origin), events) {
+                    events.push(state_record(
+                        time,
+                        name,
+                        SubjectResults::Driveline(driveline.clone()),
+                    ));
+                }
+            }
+            for (mill, name) in results.tandem_mills.iter_mut().zip(&self.tandem_mill_names) {
+                if acknowledge(mill, name, (time, origin), events) {
+                    events.push(state_record(
+                        time,
+                        name,
+                        SubjectResults::TandemMill(mill.clone()),
+                    ));
+                }
+            }
+        });
+    }
+}
+
+fn state_record(time: UtcTime, subject: &str, results: SubjectResults) -> HistoryEvent {
+    HistoryEvent::State(StateRecord {
+        time,
+        subject: subject.to_owned(),
+        results,
+    })
+}
+
+/// Clear the latched alarms of `subject` (its catalogue flags that latch), recording
+/// each one that was set as acknowledged by `origin` at `time`; whether any was.
+fn acknowledge<R: Subject>(
+    subject: &mut R,
+    name: &str,
+    (time, origin): (UtcTime, CommandOrigin),
+    events: &mut Vec<HistoryEvent>,
+) -> bool {
+    let mut any = false;
+    for figure in R::FIGURES.iter().filter(|figure| figure.latched) {
+        let Some(kind) = figure.alarm else { continue };
+        if figure.value(subject) == Some(Value::Bool(true)) {
+            let cleared = figure.set(subject, Some(Value::Bool(false)));
+            debug_assert!(cleared, "{}: a latched flag needs its setter", figure.key);
+            events.push(HistoryEvent::Alarm(AlarmRecord {
                 time,
-                subject: subject.clone(),
+                subject: name.to_owned(),
                 kind,
                 event: AlarmEvent::Acknowledged,
                 origin: Some(origin),
                 value: None,
                 threshold: None,
-            })
-        };
-        self.update_recorded(|results, events| {
-            for (driveline, name) in results.drivelines.iter_mut().zip(&self.driveline_names) {
-                if driveline.taf_alarm {
-                    events.push(acknowledged(name, AlarmKind::TafAlarm));
-                }
-                if driveline.gap_alarm {
-                    events.push(acknowledged(name, AlarmKind::GapAlarm));
-                }
-                driveline.taf_alarm = false;
-                driveline.gap_alarm = false;
-            }
-            for (mill, name) in results.tandem_mills.iter_mut().zip(&self.tandem_mill_names) {
-                if mill.chatter_alarm {
-                    events.push(acknowledged(name, AlarmKind::ChatterAlarm));
-                }
-                mill.chatter_alarm = false;
-            }
-        });
+            }));
+            any = true;
+        }
     }
+    any
 }

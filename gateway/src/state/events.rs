@@ -2,8 +2,9 @@
 //! where it happened (the analysis for bites, alarms, chatter and the commands it
 //! applies, the outage monitor for sources) and written by the history's writer thread.
 
+pub use super::catalogue::AlarmKind;
 use super::commands::CommandOrigin;
-use super::results::DrivelineResults;
+use super::results::{DrivelineResults, TandemMillResults};
 use super::time::UtcTime;
 
 /// State of a driveline's wear diagnosis.
@@ -26,29 +27,6 @@ impl WearState {
             WearState::Alarm => "alarm",
         }
     }
-}
-
-/// The gap diagnosis of a driveline at one bite: the opened gap pooled over recent
-/// bites, with its 90% interval (`analysis::gap_estimate::GapEstimate` as published;
-/// `None` in [`BiteRecord::gap`] while the gap maps are not ready, and for drivelines
-/// without a model).
-#[derive(Debug, Clone, PartialEq)]
-pub struct GapEstimate {
-    /// The pooled gap estimate, mrad referred to the rolls.
-    pub gap_mrad: f64,
-    /// Lower end of its 90% interval, mrad.
-    pub gap_low_mrad: f64,
-    /// Upper end of its 90% interval, mrad.
-    pub gap_high_mrad: f64,
-    /// The coupling holding the gap (model index, 0 = motor side), `None` when the
-    /// bites cannot tell. Stored as its decimal text in the `gap_coupling` columns.
-    pub coupling: Option<usize>,
-    /// Bites pooled into the estimate.
-    pub bites_pooled: usize,
-    /// Ok, warning or alarm against the gap thresholds.
-    pub state: WearState,
-    /// The wear alarm is latched (until acknowledged).
-    pub alarm_latched: bool,
 }
 
 /// A bite's entry in its driveline's gap pool: what the gap diagnosis needs to pool
@@ -75,44 +53,82 @@ pub struct BiteRecord {
     pub driveline: String,
     /// The torque channel's name.
     pub channel: String,
-    /// When the bite happened.
+    /// When the bite happened (`figures.last_bite_unix_ms`).
     pub time: UtcTime,
-    /// Static torque, kN*m.
-    pub static_torque_knm: f64,
-    /// Peak torque, kN*m.
-    pub peak_torque_knm: f64,
-    /// Peak / static, when measured.
-    pub taf: Option<f64>,
-    /// First oscillation period, s.
-    pub first_period_s: Option<f64>,
+    /// The bite's own figures, as its row in the history keeps them (the catalogue's
+    /// figures with a bite column): what its window measured, also from a degraded
+    /// window (flagged `last_bite_degraded`; such values are not published), the wear
+    /// index and trend after it, the gap estimate it gave (`None` when it gave none),
+    /// its counter and its time.
+    pub figures: DrivelineResults,
     /// Second oscillation period, s.
     pub second_period_s: Option<f64>,
-    /// First minus second period, s.
-    pub period_shift_s: Option<f64>,
-    /// Natural frequencies from the eq. (1) fit, Hz, when it converged.
-    pub beta_hz: Option<(f64, f64)>,
     /// `good`, `few_crossings` or `low_static` (the transient analysis' quality).
     pub quality: &'static str,
-    /// The window had gaps, NaN or saturated samples.
-    pub degraded: bool,
     /// TAF of the linear reference the wear index was computed against.
     pub reference_taf: Option<f64>,
     /// Static torque level the reference was simulated at, kN*m.
     pub reference_level_knm: Option<f64>,
     /// Measured minus reference first-period shift, s.
     pub shift_over_linear_s: Option<f64>,
-    /// The gap diagnosis after this bite (see [`GapEstimate`]).
-    pub gap: Option<GapEstimate>,
+    /// The gap estimate of `figures` against the gap thresholds, when the bite gave
+    /// one.
+    pub gap_state: Option<WearState>,
     /// What this bite put into the driveline's gap pool (`None`: nothing, e.g. no
     /// model, no TAF or a degraded window): a restart pools the last ones again.
     pub pooled: Option<PooledBite>,
     /// The driveline's published results after this bite (counter, last values,
-    /// wear index and trend, warning and latched alarm): what a restart restores.
+    /// wear index and trend, gap estimate, warnings and latched alarms): what a restart
+    /// restores (the catalogue's figures with a state column).
     pub state: DrivelineResults,
-    /// Further state a restart restores, as JSON in `driveline_state.extra` (kept when
-    /// `None`), handed back at start in [`crate::history::restore::RestoredDriveline::extra`].
-    /// `None` today: the gap pool is restored from the bites' [`BiteRecord::pooled`].
-    pub extra_state: Option<serde_json::Value>,
+}
+
+impl BiteRecord {
+    /// A clean bite of `driveline` on `channel` at `time` whose row keeps what was
+    /// published after it (`state`; its time set to `time`): quality good, no second
+    /// period, wear reference, gap verdict or pool entry (set them on the result).
+    pub fn clean(driveline: &str, channel: &str, time: UtcTime, state: DrivelineResults) -> Self {
+        let state = DrivelineResults {
+            last_bite_unix_ms: Some(time.unix_ms()),
+            ..state
+        };
+        Self {
+            driveline: driveline.to_owned(),
+            channel: channel.to_owned(),
+            time,
+            figures: state.clone(),
+            second_period_s: None,
+            quality: "good",
+            reference_taf: None,
+            reference_level_knm: None,
+            shift_over_linear_s: None,
+            gap_state: None,
+            pooled: None,
+            state,
+        }
+    }
+}
+
+/// A subject's restorable results after a change that is not a bite (an
+/// acknowledgement, a wear reset, a gap estimate from maps just installed, a chatter
+/// alarm): the history writes them to its state row.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StateRecord {
+    /// When.
+    pub time: UtcTime,
+    /// The driveline or tandem mill.
+    pub subject: String,
+    /// Its results after the change.
+    pub results: SubjectResults,
+}
+
+/// The results of a subject whose state the history keeps.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SubjectResults {
+    /// A driveline's.
+    Driveline(DrivelineResults),
+    /// A tandem mill's.
+    TandemMill(TandemMillResults),
 }
 
 /// A change of an alarm or warning.
@@ -132,58 +148,6 @@ pub struct AlarmRecord {
     pub value: Option<f64>,
     /// The threshold it crossed.
     pub threshold: Option<f64>,
-}
-
-/// Which alarm or warning a record is about: the key of the flag that carries it
-/// (see [`super::catalogue`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum AlarmKind {
-    /// A driveline's TAF at or above its warning threshold (follows each bite).
-    TafWarning,
-    /// A driveline's TAF reached its alarm threshold (latched).
-    TafAlarm,
-    /// A driveline's estimated opened gap at or above its warning threshold (follows
-    /// each estimate; cleared by a wear reset).
-    GapWarning,
-    /// A driveline's gap diagnosis reached its alarm threshold: the pooled gap's 90%
-    /// interval lay at or above it (latched).
-    GapAlarm,
-    /// A tandem mill's chatter warning (follows each window).
-    ChatterWarning,
-    /// A tandem mill's chatter alarm (latched).
-    ChatterAlarm,
-}
-
-impl AlarmKind {
-    /// Every kind.
-    pub const ALL: [AlarmKind; 6] = [
-        AlarmKind::TafWarning,
-        AlarmKind::TafAlarm,
-        AlarmKind::GapWarning,
-        AlarmKind::GapAlarm,
-        AlarmKind::ChatterWarning,
-        AlarmKind::ChatterAlarm,
-    ];
-
-    /// As stored: the key of the flag.
-    pub fn name(self) -> &'static str {
-        match self {
-            AlarmKind::TafWarning => "taf_warning",
-            AlarmKind::TafAlarm => "taf_alarm",
-            AlarmKind::GapWarning => "gap_warning",
-            AlarmKind::GapAlarm => "gap_alarm",
-            AlarmKind::ChatterWarning => "chatter_warning",
-            AlarmKind::ChatterAlarm => "chatter_alarm",
-        }
-    }
-
-    /// Whether the alarm latches until acknowledged (else it follows the analysis).
-    pub fn latched(self) -> bool {
-        matches!(
-            self,
-            AlarmKind::TafAlarm | AlarmKind::GapAlarm | AlarmKind::ChatterAlarm
-        )
-    }
 }
 
 /// What happened to an alarm.
@@ -259,9 +223,11 @@ pub enum HistoryEvent {
     /// The samples of a chatter episode or a manual request (a bite's go with it in
     /// [`HistoryEvent::CapturedBite`]).
     Capture(Box<super::captures::CaptureRecord>),
-    /// An alarm or warning changed; a latched alarm's change updates the subject's
-    /// restorable state.
+    /// An alarm or warning changed (the subject's state after it comes as a
+    /// [`HistoryEvent::State`] or with its bite).
     Alarm(AlarmRecord),
+    /// A subject's restorable state changed outside a bite.
+    State(StateRecord),
     /// The wear trend of a driveline was reset by a command.
     WearReset {
         /// When.

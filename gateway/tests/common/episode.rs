@@ -4,7 +4,8 @@
 
 use std::path::Path;
 
-use millgate::history::writer::{connect, insert, insert_run};
+use millgate::history::rows::insert;
+use millgate::history::writer::{connect, insert_run};
 use millgate::history::RunInfo;
 use millgate::state::captures::{
     CaptureChannel, CaptureKind, CaptureRecord, ChatterEpisode, KeepClass,

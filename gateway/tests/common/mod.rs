@@ -40,7 +40,7 @@ pub(crate) fn text(output: &std::process::Output) -> String {
 pub(crate) fn export_bite(
     db: &std::path::Path,
     out: &std::path::Path,
-    bite: i64,
+    bite: u32,
     format: &str,
 ) -> String {
     let bite = bite.to_string();

@@ -1,10 +1,11 @@
 //! The chatter history of one mill: episodes (from the warning condition set to it
 //! cleared, or the window restarted), the warning raised and cleared, and the alarm
-//! when it latches.
+//! when it latches (with the mill's state after it).
 
 use super::monitor::ChatterUpdate;
 use crate::state::events::{
-    AlarmEvent, AlarmKind, AlarmRecord, ChatterWindow, EndedBy, HistoryEvent,
+    AlarmEvent, AlarmKind, AlarmRecord, ChatterWindow, EndedBy, HistoryEvent, StateRecord,
+    SubjectResults,
 };
 use crate::state::results::TandemMillResults;
 use crate::state::time::UtcTime;
@@ -72,5 +73,11 @@ pub(super) fn record_episode(
     }
     if published.chatter_alarm && !was_alarm {
         events.push(alarm(AlarmKind::ChatterAlarm, AlarmEvent::Raised));
+        // The latch is the mill's restorable state.
+        events.push(HistoryEvent::State(StateRecord {
+            time,
+            subject: mill.to_owned(),
+            results: SubjectResults::TandemMill(published.clone()),
+        }));
     }
 }

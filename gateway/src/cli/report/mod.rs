@@ -173,7 +173,7 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<String> {
         .zip(&read)
         .map(|(name, data)| {
             let now = state.drivelines.iter().find(|d| &d.name == name);
-            let gap = data.last.as_ref().filter(|b| b.gap_mrad.is_some());
+            let gap = data.last.as_ref().and_then(|b| b.figures.gap);
             vec![
                 name.clone(),
                 data.summary.bites.to_string(),
@@ -190,12 +190,16 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<String> {
                     }
                 }),
                 now.map_or("-".into(), |d| d.results.bite_counter.to_string()),
-                fmt(gap.and_then(|b| b.gap_mrad), 2),
-                gap.map_or("-".into(), |b| {
-                    format!("{}..{}", fmt(b.gap_low_mrad, 2), fmt(b.gap_high_mrad, 2))
+                fmt(gap.map(|g| g.gap_mrad), 2),
+                gap.map_or("-".into(), |g| {
+                    format!(
+                        "{}..{}",
+                        fmt(Some(g.low_mrad), 2),
+                        fmt(Some(g.high_mrad), 2)
+                    )
                 }),
-                gap.map_or("-".into(), |b| {
-                    b.gap_coupling
+                gap.map_or("-".into(), |g| {
+                    g.coupling
                         .map_or_else(|| "undetermined".into(), |c| c.to_string())
                 }),
                 data.trend

@@ -1,7 +1,7 @@
-//! The Modbus outputs, mirroring `field/modbus/`: the [register map](register_map)
-//! derived from the catalogue, the [PLC writer](plc_writer) (FC 16 to the PLC), the
-//! [HMI server](hmi_server) (reads and command registers), the [frame](frame) codec
-//! they share, and the [heartbeat](heartbeat)'s own task when there is no PLC.
+//! The Modbus outputs, mirroring `field/modbus/`: the [`register_map`] derived from
+//! the catalogue, the [`plc_writer`] (FC 16 to the PLC), the [`hmi_server`] (reads and
+//! command registers), the [`frame`] codec they share, and the heartbeat's own task
+//! when there is no PLC.
 
 pub mod frame;
 pub(crate) mod heartbeat;

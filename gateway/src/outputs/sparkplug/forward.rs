@@ -23,10 +23,8 @@
 use std::collections::{BTreeSet, HashMap, VecDeque};
 use std::path::Path;
 
-use crate::history::query::BiteRow;
 use crate::history::writer::connect;
 use crate::history::HistoryError;
-use crate::state::results::{DrivelineResults, GapResults};
 use crate::state::time::UtcTime;
 
 fn sqlite(path: &Path) -> impl FnOnce(rusqlite::Error) -> HistoryError + '_ {
@@ -162,47 +160,6 @@ impl Confirmations {
     }
 }
 
-/// A bite row as driveline results, for its DDATA: values from a degraded window are
-/// not trusted (as the analysis publishes them); what the row does not keep (the
-/// alarm flags) is left at its default and not published ([`super::node`]).
-pub fn bite_results(row: &BiteRow) -> DrivelineResults {
-    let trusted = |value: Option<f64>| value.filter(|_| !row.degraded);
-    let gap = row.gap_mrad.map(|gap_mrad| GapResults {
-        gap_mrad,
-        low_mrad: row.gap_low_mrad.unwrap_or(gap_mrad),
-        high_mrad: row.gap_high_mrad.unwrap_or(gap_mrad),
-        coupling: row.gap_coupling.and_then(|c| usize::try_from(c).ok()),
-        likeliest_coupling: None,
-        bites_pooled: row
-            .bites_pooled
-            .and_then(|n| usize::try_from(n).ok())
-            .unwrap_or(0),
-    });
-    DrivelineResults {
-        bite_counter: u32::try_from(row.bite_counter).unwrap_or(u32::MAX),
-        last_bite_unix_ms: bite_ms(row).and_then(|ms| i64::try_from(ms).ok()),
-        static_torque_knm: trusted(Some(row.static_torque_knm)),
-        peak_torque_knm: trusted(Some(row.peak_torque_knm)),
-        taf: trusted(row.taf),
-        first_period_s: trusted(row.first_period_s),
-        first_period_shift_s: trusted(row.period_shift_s),
-        beta1_hz: trusted(row.beta1_hz),
-        beta2_hz: trusted(row.beta2_hz),
-        wear_index: row.wear_index,
-        wear_trend: row.wear_trend,
-        last_bite_degraded: row.degraded,
-        gap,
-        ..DrivelineResults::default()
-    }
-}
-
-/// The bite's time, ms since the Unix epoch (`None` when the row's text is not a
-/// time).
-pub fn bite_ms(row: &BiteRow) -> Option<u64> {
-    let time = UtcTime::parse(&row.time).ok()?;
-    u64::try_from(time.unix_ms()).ok()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -271,56 +228,5 @@ mod tests {
         assert_eq!(load_cursor(&path, "plant/f1").unwrap(), 9);
         drop(connection);
         let _ = std::fs::remove_dir_all(&folder);
-    }
-
-    #[test]
-    fn a_degraded_row_publishes_no_untrusted_values() {
-        let row = BiteRow {
-            id: 3,
-            run_id: 1,
-            driveline: "F1".into(),
-            time: "2026-05-04T23:59:58.250Z".into(),
-            bite_counter: 7,
-            channel: "torque".into(),
-            static_torque_knm: 400.0,
-            peak_torque_knm: 560.0,
-            taf: Some(1.4),
-            first_period_s: Some(0.05),
-            second_period_s: Some(0.048),
-            period_shift_s: Some(0.002),
-            beta1_hz: Some(19.0),
-            beta2_hz: Some(55.0),
-            quality: "good".into(),
-            degraded: false,
-            wear_index: Some(0.1),
-            wear_trend: Some(0.05),
-            reference_taf: Some(1.27),
-            shift_over_linear_s: None,
-            gap_mrad: Some(2.0),
-            gap_low_mrad: Some(1.5),
-            gap_high_mrad: Some(2.5),
-            gap_coupling: Some(1),
-            bites_pooled: Some(12),
-        };
-        let good = bite_results(&row);
-        assert_eq!(good.bite_counter, 7);
-        assert_eq!(bite_ms(&row), Some(1_777_939_198_250));
-        assert_eq!(good.last_bite_unix_ms, Some(1_777_939_198_250), "ms kept");
-        // The row gives every figure the history's mapping says it keeps.
-        for (key, _) in crate::history::BITE_COLUMNS {
-            let figure = crate::state::catalogue::find(crate::state::catalogue::DRIVELINE, key);
-            assert!(
-                figure.read(&good).good().is_some(),
-                "{key} is a bite column but the replayed bite has no value for it"
-            );
-        }
-        assert_eq!((good.taf, good.beta2_hz), (Some(1.4), Some(55.0)));
-        assert_eq!(good.gap.unwrap().coupling, Some(1));
-        let degraded = bite_results(&BiteRow {
-            degraded: true,
-            ..row
-        });
-        assert_eq!((degraded.taf, degraded.static_torque_knm), (None, None));
-        assert!(degraded.last_bite_degraded);
     }
 }

@@ -61,7 +61,7 @@ use rumqttc::{
 };
 
 use crate::history::query::{BiteRow, CaptureRow, Filter};
-use crate::history::{HistoryError, BITE_COLUMNS};
+use crate::history::HistoryError;
 use crate::shutdown::Shutdown;
 use crate::state::board::Board;
 use crate::warn_limit::{WarnLimit, WARN_PERIOD};
@@ -409,17 +409,26 @@ impl SparkplugNode {
         results: &crate::state::results::Results,
         (historical, capture): (bool, Option<&CaptureNotice>),
     ) -> node::Outgoing {
-        let time = forward::bite_ms(row).unwrap_or_else(now_ms);
+        let time = row
+            .figures
+            .last_bite_unix_ms
+            .and_then(|ms| u64::try_from(ms).ok())
+            .unwrap_or_else(now_ms);
         let current = results
             .drivelines
             .get(index)
-            .filter(|live| !historical && i64::from(live.bite_counter) == row.bite_counter);
-        let recorded: Vec<&str> = BITE_COLUMNS.iter().map(|(key, _)| *key).collect();
+            .filter(|live| !historical && live.bite_counter == row.figures.bite_counter);
+        // What a bite row keeps: the catalogue's figures with a bite column.
+        let recorded: Vec<&str> = crate::state::catalogue::DRIVELINE
+            .iter()
+            .filter(|figure| figure.columns.bite.is_some())
+            .map(|figure| figure.key)
+            .collect();
         match current {
             Some(live) => node.bite(index, live, time, (None, false), capture),
             None => node.bite(
                 index,
-                &forward::bite_results(row),
+                &crate::history::query::trusted(row),
                 time,
                 (Some(&recorded), historical),
                 capture,

@@ -55,7 +55,7 @@ pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
         "Static (settled) rolling torque of the last bite",
         |d| real_of(d.static_torque_knm),
     )
-    .from_window()
+    .measured_on_window()
     .kept(Columns::both("static_torque_knm"), |d, v| {
         d.static_torque_knm = to_real(v)
     }),
@@ -67,7 +67,7 @@ pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
         "Peak torque of the last bite",
         |d| real_of(d.peak_torque_knm),
     )
-    .from_window()
+    .measured_on_window()
     .kept(Columns::both("peak_torque_knm"), |d, v| {
         d.peak_torque_knm = to_real(v)
     }),
@@ -79,7 +79,7 @@ pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
         "Torque amplification factor of the last bite (peak / static)",
         |d| real_of(d.taf),
     )
-    .from_window()
+    .measured_on_window()
     .kept(Columns::both("taf"), |d, v| d.taf = to_real(v)),
     F::real(
         "period_shift_s",
@@ -89,7 +89,7 @@ pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
         "First minus second oscillation period of the last bite",
         |d| real_of(d.first_period_shift_s),
     )
-    .from_window()
+    .measured_on_window()
     .kept(Columns::both("period_shift_s"), |d, v| {
         d.first_period_shift_s = to_real(v)
     }),
@@ -101,8 +101,8 @@ pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
         "First oscillation period after the last bite's onset (the paper's T1: it grows with the opened gap)",
         |d| real_of(d.first_period_s),
     )
-    .from_window()
-    .kept(Columns::bite("first_period_s"), |d, v| {
+    .measured_on_window()
+    .kept(Columns::both("first_period_s"), |d, v| {
         d.first_period_s = to_real(v)
     }),
     F::real(
@@ -113,7 +113,7 @@ pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
         "First natural frequency identified from the last bite (eq. (1) fit)",
         |d| real_of(d.beta1_hz),
     )
-    .from_window()
+    .measured_on_window()
     .kept(Columns::both("beta1_hz"), |d, v| d.beta1_hz = to_real(v)),
     F::real(
         "beta2_hz",
@@ -123,7 +123,7 @@ pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
         "Second natural frequency identified from the last bite (eq. (1) fit)",
         |d| real_of(d.beta2_hz),
     )
-    .from_window()
+    .measured_on_window()
     .kept(Columns::both("beta2_hz"), |d, v| d.beta2_hz = to_real(v)),
     F::real(
         "wear_index",
@@ -133,7 +133,7 @@ pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
         "Secondary figure: TAF-ratio wear index of the last bite, its TAF / the linear model's TAF - 1 (needs the driveline model)",
         |d| real_of(d.wear_index),
     )
-    .from_window()
+    .measured_on_window()
     .kept(Columns::both("wear_index"), |d, v| d.wear_index = to_real(v)),
     F::real(
         "wear_trend",
@@ -153,7 +153,7 @@ pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
         "Opened gap (total dead-zone width, referred to the rolls), maximum likelihood over the pooled bites (needs the driveline model)",
         |d| real_of(d.gap.map(|g| g.gap_mrad)),
     )
-    .kept(Columns::bite("gap_mrad"), |d, v| {
+    .kept(Columns::both("gap_mrad"), |d, v| {
         d.gap = to_real(v).map(|gap_mrad| GapResults {
             gap_mrad,
             low_mrad: gap_mrad,
@@ -171,7 +171,7 @@ pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
         "Lower end of the gap's 90% interval",
         |d| real_of(d.gap.map(|g| g.low_mrad)),
     )
-    .kept(Columns::bite("gap_low_mrad"), |d, v| {
+    .kept(Columns::both("gap_low_mrad"), |d, v| {
         if let (Some(gap), Some(low)) = (d.gap.as_mut(), to_real(v)) {
             gap.low_mrad = low;
         }
@@ -184,7 +184,7 @@ pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
         "Upper end of the gap's 90% interval",
         |d| real_of(d.gap.map(|g| g.high_mrad)),
     )
-    .kept(Columns::bite("gap_high_mrad"), |d, v| {
+    .kept(Columns::both("gap_high_mrad"), |d, v| {
         if let (Some(gap), Some(high)) = (d.gap.as_mut(), to_real(v)) {
             gap.high_mrad = high;
         }
@@ -198,7 +198,7 @@ pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
         |d| index_of(d.gap.and_then(|g| g.coupling)),
     )
     .typed(FigureType::Index)
-    .kept(Columns::bite("gap_coupling"), |d, v| {
+    .kept(Columns::both("gap_coupling"), |d, v| {
         if let Some(gap) = d.gap.as_mut() {
             gap.coupling = to_index(v);
         }
@@ -221,7 +221,7 @@ pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
         |d| d.gap.map(|g| Value::Count(g.bites_pooled as u64)),
     )
     .typed(FigureType::Count)
-    .kept(Columns::bite("bites_pooled"), |d, v| {
+    .kept(Columns::both("bites_pooled"), |d, v| {
         if let Some(gap) = d.gap.as_mut() {
             gap.bites_pooled = usize::try_from(to_count(v)).unwrap_or(usize::MAX);
         }
@@ -243,6 +243,7 @@ pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
         "TAF reached the alarm threshold; latched until acknowledged",
         |d| Some(Value::Bool(d.taf_alarm)),
     )
+    .latched()
     .kept(Columns::state("alarm_latched"), |d, v| {
         d.taf_alarm = to_flag(v)
     }),
@@ -284,6 +285,7 @@ pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
         "The gap's 90% interval lay at or above the gap alarm threshold; latched until acknowledged",
         |d| Some(Value::Bool(d.gap_alarm)),
     )
+    .latched()
     .kept(Columns::state("gap_alarm_latched"), |d, v| {
         d.gap_alarm = to_flag(v)
     }),

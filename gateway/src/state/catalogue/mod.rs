@@ -40,13 +40,14 @@
 
 use millgate_config::ValueType;
 
-use super::events::AlarmKind;
 use super::results::{DrivelineResults, RodMillResults, RodSpanResults, TandemMillResults};
 
+mod alarms;
 mod driveline;
 mod rod_mill;
 mod tandem_mill;
 
+pub use alarms::AlarmKind;
 pub use driveline::DRIVELINE;
 pub use rod_mill::{ROD_MILL, ROD_SPAN};
 pub use tandem_mill::TANDEM_MILL;
@@ -224,15 +225,18 @@ impl SubjectKind {
 }
 
 /// Results that figures are read from.
-pub trait Subject: Default {
+pub trait Subject: Default + 'static {
     /// What they describe.
     const KIND: SubjectKind;
+    /// Their figures, in catalogue order.
+    const FIGURES: &'static [Figure<Self>];
     /// Whether a source they are computed from is stale.
     fn source_stale(&self) -> bool;
 }
 
 impl Subject for DrivelineResults {
     const KIND: SubjectKind = SubjectKind::Driveline;
+    const FIGURES: &'static [Figure<Self>] = DRIVELINE;
     fn source_stale(&self) -> bool {
         self.source_stale
     }
@@ -240,6 +244,7 @@ impl Subject for DrivelineResults {
 
 impl Subject for TandemMillResults {
     const KIND: SubjectKind = SubjectKind::TandemMill;
+    const FIGURES: &'static [Figure<Self>] = TANDEM_MILL;
     fn source_stale(&self) -> bool {
         self.source_stale
     }
@@ -247,6 +252,7 @@ impl Subject for TandemMillResults {
 
 impl Subject for RodMillResults {
     const KIND: SubjectKind = SubjectKind::RodMill;
+    const FIGURES: &'static [Figure<Self>] = ROD_MILL;
     fn source_stale(&self) -> bool {
         self.source_stale
     }
@@ -254,6 +260,7 @@ impl Subject for RodMillResults {
 
 impl Subject for RodSpanResults {
     const KIND: SubjectKind = SubjectKind::RodSpan;
+    const FIGURES: &'static [Figure<Self>] = ROD_SPAN;
     /// A span is read through [`RodMillResults::published_span`], which is empty (no
     /// values) while its mill's source is stale.
     fn source_stale(&self) -> bool {
@@ -366,15 +373,6 @@ impl Columns {
         }
     }
 
-    /// Column `name` of the bite rows only: the history keeps each bite's value, a
-    /// start does not restore it.
-    pub const fn bite(name: &'static str) -> Self {
-        Self {
-            bite: Some(name),
-            state: None,
-        }
-    }
-
     /// Column `name` of the state rows only (a flag a start restores).
     pub const fn state(name: &'static str) -> Self {
         Self {
@@ -406,6 +404,9 @@ pub struct Spec {
     pub range: Option<(f64, f64)>,
     /// For a warning or alarm flag: the alarm kind the history records its changes as.
     pub alarm: Option<AlarmKind>,
+    /// An alarm flag that stays set until acknowledged (the PLC's or HMI's command,
+    /// the page, OPC UA); else it follows the analysis.
+    pub latched: bool,
     /// The name on `/metrics` when the rule (`millgate_<subject>_<key>`) gives a
     /// name Prometheus' conventions refuse.
     pub metric: Option<&'static str>,
@@ -463,6 +464,7 @@ impl<R> Figure<R> {
                 stale,
                 range: None,
                 alarm: None,
+                latched: false,
                 metric: None,
                 columns: Columns {
                     bite: None,
@@ -494,8 +496,14 @@ impl<R> Figure<R> {
         self
     }
 
+    /// This flag, latched until acknowledged.
+    const fn latched(mut self) -> Self {
+        self.spec.latched = true;
+        self
+    }
+
     /// This figure, measured on the bite's window.
-    const fn from_window(mut self) -> Self {
+    const fn measured_on_window(mut self) -> Self {
         self.spec.from_window = true;
         self
     }

@@ -90,6 +90,7 @@ pub const TANDEM_MILL: &[Figure<TandemMillResults>] = &[
         "The configured detector's alarm held in a window (band gain: gain_ratio >= 1; paper: both conditions); latched until acknowledged",
         |m| Some(Value::Bool(m.chatter_alarm)),
     )
+    .latched()
     .kept(Columns::state("alarm_latched"), |m, v| {
         m.chatter_alarm = to_flag(v)
     }),

@@ -1,0 +1,256 @@
+//! The catalogue's figures in the history file: each figure's value as an SQL value and
+//! back, the state table of each subject kind, and the statements derived from the
+//! catalogue's [`Columns`](crate::state::catalogue::Columns): the state rows' upsert
+//! and read-back (what a start restores), and the figure columns of a bite row.
+//!
+//! A figure the catalogue declares with a column is written, read back and restored
+//! through here, by its column's name; a new one needs its declaration and a
+//! migration that adds the column ([`super::schema`]), nothing here.
+
+use rusqlite::types::{Value as SqlValue, ValueRef};
+use rusqlite::{Connection, Transaction};
+
+use crate::state::catalogue::{Figure, FigureType, Subject, Value};
+use crate::state::results::{DrivelineResults, TandemMillResults};
+use crate::state::time::UtcTime;
+
+/// A figure's value as stored: reals as REAL, counts, indices and flags as INTEGER
+/// (flags 0/1), times as UTC ISO-8601 text; no value as NULL.
+pub(crate) fn to_sql(value: Option<Value>) -> SqlValue {
+    match value {
+        None => SqlValue::Null,
+        Some(Value::Real(v)) => SqlValue::Real(v),
+        Some(Value::Count(v)) | Some(Value::Index(v)) => {
+            i64::try_from(v).map_or(SqlValue::Null, SqlValue::Integer)
+        }
+        Some(Value::Bool(v)) => SqlValue::Integer(i64::from(v)),
+        Some(Value::Time(ms)) => SqlValue::Text(UtcTime::from_unix_ms(ms).to_string()),
+    }
+}
+
+/// A stored value as a figure of `figure_type`: `None` for NULL and for what does not
+/// read as that type (a negative count, a time that is not one).
+pub(crate) fn from_sql(figure_type: FigureType, value: ValueRef<'_>) -> Option<Value> {
+    match (figure_type, value) {
+        (_, ValueRef::Null) => None,
+        (FigureType::Real, ValueRef::Real(v)) => Some(Value::Real(v)),
+        (FigureType::Real, ValueRef::Integer(v)) => Some(Value::Real(v as f64)),
+        (FigureType::Count, ValueRef::Integer(v)) => u64::try_from(v).ok().map(Value::Count),
+        (FigureType::Index, ValueRef::Integer(v)) => u64::try_from(v).ok().map(Value::Index),
+        // The gap coupling was its decimal text before schema v6.
+        (FigureType::Index, ValueRef::Text(text)) => std::str::from_utf8(text)
+            .ok()
+            .and_then(|text| text.trim().parse().ok())
+            .map(Value::Index),
+        (FigureType::Bool, ValueRef::Integer(v)) => Some(Value::Bool(v != 0)),
+        (FigureType::Time, ValueRef::Text(text)) => std::str::from_utf8(text)
+            .ok()
+            .and_then(|text| UtcTime::parse(text).ok())
+            .map(|time| Value::Time(time.unix_ms())),
+        _ => None,
+    }
+}
+
+/// Results whose figures the history keeps in a state row per subject: what a start
+/// restores.
+pub(crate) trait Kept: Subject + Clone {
+    /// The state table.
+    const STATE_TABLE: &'static str;
+    /// Its key column: the subject's name.
+    const KEY: &'static str;
+}
+
+impl Kept for DrivelineResults {
+    const STATE_TABLE: &'static str = "driveline_state";
+    const KEY: &'static str = "driveline";
+}
+
+impl Kept for TandemMillResults {
+    const STATE_TABLE: &'static str = "mill_state";
+    const KEY: &'static str = "mill";
+}
+
+/// The figures of `R` with a state column, and the column.
+fn state_columns<R: Kept>() -> impl Iterator<Item = (&'static Figure<R>, &'static str)> {
+    R::FIGURES
+        .iter()
+        .filter_map(|figure| Some((figure, figure.columns.state?)))
+}
+
+/// The figures of a driveline with a bite column, and the column.
+pub(crate) fn bite_columns(
+) -> impl Iterator<Item = (&'static Figure<DrivelineResults>, &'static str)> {
+    DrivelineResults::FIGURES
+        .iter()
+        .filter_map(|figure| Some((figure, figure.columns.bite?)))
+}
+
+/// Write `results` as subject `name`'s state row at `time` (inserted, or its kept
+/// columns replaced).
+pub(crate) fn upsert_state<R: Kept>(
+    transaction: &Transaction<'_>,
+    name: &str,
+    time: UtcTime,
+    results: &R,
+) -> rusqlite::Result<()> {
+    let columns: Vec<&str> = state_columns::<R>().map(|(_, column)| column).collect();
+    let placeholders: Vec<String> = (3..3 + columns.len()).map(|i| format!("?{i}")).collect();
+    let updates: Vec<String> = columns
+        .iter()
+        .map(|column| format!("{column} = excluded.{column}"))
+        .collect();
+    let sql = format!(
+        "INSERT INTO {table} ({key}, updated_at, {columns}) VALUES (?1, ?2, {placeholders})
+         ON CONFLICT ({key}) DO UPDATE SET updated_at = excluded.updated_at, {updates}",
+        table = R::STATE_TABLE,
+        key = R::KEY,
+        columns = columns.join(", "),
+        placeholders = placeholders.join(", "),
+        updates = updates.join(", "),
+    );
+    let mut values = vec![
+        SqlValue::Text(name.to_owned()),
+        SqlValue::Text(time.to_string()),
+    ];
+    values.extend(state_columns::<R>().map(|(figure, _)| to_sql(figure.value(results))));
+    transaction
+        .prepare_cached(&sql)?
+        .execute(rusqlite::params_from_iter(values))?;
+    Ok(())
+}
+
+/// One subject's state row as read back.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StateRow<R> {
+    /// The subject's name (matched against the configuration's).
+    pub name: String,
+    /// When the row was last written.
+    pub updated_at: Option<UtcTime>,
+    /// The kept figures set back, every other at its default.
+    pub results: R,
+}
+
+/// Every state row of `R`'s table, by name, with each kept figure set back.
+pub(crate) fn read_states<R: Kept>(connection: &Connection) -> rusqlite::Result<Vec<StateRow<R>>> {
+    let columns: Vec<&str> = state_columns::<R>().map(|(_, column)| column).collect();
+    let sql = format!(
+        "SELECT {key}, updated_at, {columns} FROM {table} ORDER BY {key}",
+        key = R::KEY,
+        columns = columns.join(", "),
+        table = R::STATE_TABLE,
+    );
+    let mut statement = connection.prepare(&sql)?;
+    let rows = statement.query_map([], |row| {
+        let mut results = R::default();
+        for (i, (figure, _)) in state_columns::<R>().enumerate() {
+            figure.set(
+                &mut results,
+                from_sql(figure.figure_type, row.get_ref(2 + i)?),
+            );
+        }
+        let updated_at: Option<String> = row.get(1)?;
+        Ok(StateRow {
+            name: row.get(0)?,
+            updated_at: updated_at.and_then(|text| UtcTime::parse(&text).ok()),
+            results,
+        })
+    })?;
+    rows.collect()
+}
+
+/// Copy the kept figures of `from` onto `to` (what a start restores of a subject whose
+/// other figures are its own).
+pub(crate) fn restore_onto<R: Kept>(from: &R, to: &mut R) {
+    for (figure, _) in state_columns::<R>() {
+        figure.set(to, figure.value(from));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::state::catalogue::DRIVELINE;
+
+    #[test]
+    fn every_figure_type_reads_back_as_it_was_written() {
+        let values = [
+            (FigureType::Real, Value::Real(1.25)),
+            (FigureType::Count, Value::Count(70_000)),
+            (FigureType::Index, Value::Index(2)),
+            (FigureType::Bool, Value::Bool(true)),
+            (FigureType::Bool, Value::Bool(false)),
+            (FigureType::Time, Value::Time(1_777_939_198_250)),
+        ];
+        for (figure_type, value) in values {
+            let stored = to_sql(Some(value));
+            let back = from_sql(figure_type, ValueRef::from(&stored));
+            assert_eq!(back, Some(value), "{figure_type:?}");
+        }
+        assert_eq!(from_sql(FigureType::Real, ValueRef::Null), None);
+        assert_eq!(
+            from_sql(FigureType::Count, ValueRef::Integer(-1)),
+            None,
+            "a negative count is no count"
+        );
+        assert_eq!(
+            from_sql(FigureType::Time, ValueRef::Text(b"yesterday")),
+            None,
+            "text that is no time is no time"
+        );
+    }
+
+    #[test]
+    fn a_state_row_restores_every_kept_figure() {
+        let mut connection = Connection::open_in_memory().unwrap();
+        super::super::schema::migrate(&mut connection).unwrap();
+        // Every kept figure of a driveline with a value unlike its default.
+        let written = DrivelineResults {
+            bite_counter: 41,
+            last_bite_unix_ms: Some(1_777_939_198_250),
+            static_torque_knm: Some(400.0),
+            peak_torque_knm: Some(560.0),
+            taf: Some(1.4),
+            first_period_s: Some(0.05),
+            first_period_shift_s: Some(0.002),
+            beta1_hz: Some(19.0),
+            beta2_hz: Some(55.0),
+            wear_index: Some(0.1),
+            wear_trend: Some(0.05),
+            gap: Some(crate::state::results::GapResults {
+                gap_mrad: 2.0,
+                low_mrad: 1.5,
+                high_mrad: 2.5,
+                coupling: Some(1),
+                likeliest_coupling: None,
+                bites_pooled: 12,
+            }),
+            last_bite_degraded: true,
+            taf_warning: true,
+            taf_alarm: true,
+            gap_warning: true,
+            gap_alarm: true,
+            ..DrivelineResults::default()
+        };
+        let transaction = connection.transaction().unwrap();
+        upsert_state(&transaction, "F1", UtcTime::from_unix_ms(5), &written).unwrap();
+        transaction.commit().unwrap();
+        let rows = read_states::<DrivelineResults>(&connection).unwrap();
+        assert_eq!(rows.len(), 1);
+        assert_eq!(rows[0].name, "F1");
+        assert_eq!(rows[0].updated_at, Some(UtcTime::from_unix_ms(5)));
+        for figure in DRIVELINE.iter().filter(|f| f.columns.state.is_some()) {
+            assert_eq!(
+                figure.value(&rows[0].results),
+                figure.value(&written),
+                "{} is restored",
+                figure.key
+            );
+            assert_ne!(
+                figure.value(&written),
+                figure.value(&DrivelineResults::default()),
+                "{}: the test sets it",
+                figure.key
+            );
+        }
+    }
+}

@@ -1,0 +1,276 @@
+//! What each event writes: its rows and the subject's state row, in the writer's
+//! transaction. The figures' columns come from the catalogue ([`super::figures`]);
+//! what a bite row keeps beside them (its channel, second period, quality, the wear
+//! reference, what it put into the gap pool) is listed here.
+
+use rusqlite::types::Value as SqlValue;
+use rusqlite::{params, Transaction};
+
+use super::figures::{bite_columns, to_sql, upsert_state};
+use crate::state::events::{
+    AlarmRecord, BiteRecord, ChatterWindow, HistoryEvent, StateRecord, SubjectResults,
+};
+
+/// Insert one event as the writer does (its rows, its state row) in `transaction`
+/// under the run `run_id`; bulk loads (the year fixture, `examples/history_year.rs`)
+/// call it in transactions of their own.
+pub fn insert(
+    transaction: &Transaction<'_>,
+    run_id: i64,
+    event: &HistoryEvent,
+) -> rusqlite::Result<()> {
+    match event {
+        HistoryEvent::Bite(bite) => insert_bite(transaction, run_id, bite),
+        HistoryEvent::CapturedBite(bite, capture) => {
+            insert_bite(transaction, run_id, bite)?;
+            super::captures::insert(transaction, run_id, capture)
+        }
+        HistoryEvent::Capture(capture) => super::captures::insert(transaction, run_id, capture),
+        HistoryEvent::Alarm(alarm) => insert_alarm(transaction, run_id, alarm),
+        HistoryEvent::State(state) => insert_state(transaction, state),
+        HistoryEvent::WearReset {
+            time,
+            driveline,
+            origin,
+        } => {
+            transaction
+                .prepare_cached(
+                    "INSERT INTO wear_estimates (run_id, driveline, time, event, origin, peer)
+                     VALUES (?1, ?2, ?3, 'reset', ?4, ?5)",
+                )?
+                .execute(params![
+                    run_id,
+                    driveline,
+                    time.to_string(),
+                    origin.name(),
+                    origin.peer().map(|peer| peer.to_string())
+                ])?;
+            Ok(())
+        }
+        HistoryEvent::ChatterStarted { time, mill, window } => {
+            transaction
+                .prepare_cached(
+                    "INSERT INTO chatter_episodes (run_id, mill, started_at, windows,
+                         min_sigma_n_hz, max_k_mean, frequency_hz, alarm)
+                     VALUES (?1, ?2, ?3, 1, ?4, ?5, ?6, ?7)",
+                )?
+                .execute(params![
+                    run_id,
+                    mill,
+                    time.to_string(),
+                    window.sigma_n_hz,
+                    window.k_mean,
+                    window.frequency_hz,
+                    window.synchronized
+                ])?;
+            Ok(())
+        }
+        HistoryEvent::ChatterWindow { mill, window } => chatter_window(transaction, mill, window),
+        HistoryEvent::ChatterEnded {
+            time,
+            mill,
+            ended_by,
+        } => {
+            transaction
+                .prepare_cached(
+                    "UPDATE chatter_episodes SET ended_at = ?2, ended_by = ?3
+                     WHERE mill = ?1 AND ended_at IS NULL",
+                )?
+                .execute(params![mill, time.to_string(), ended_by.name()])?;
+            Ok(())
+        }
+        HistoryEvent::OutageStarted {
+            time,
+            source,
+            status,
+        } => {
+            transaction
+                .prepare_cached(
+                    "INSERT INTO source_outages (run_id, source, started_at, worst_status, blocks_missed)
+                     VALUES (?1, ?2, ?3, ?4, 0)",
+                )?
+                .execute(params![run_id, source, time.to_string(), status])?;
+            Ok(())
+        }
+        HistoryEvent::OutageWorse { source } => {
+            transaction
+                .prepare_cached(
+                    "UPDATE source_outages SET worst_status = 'lost'
+                     WHERE source = ?1 AND ended_at IS NULL",
+                )?
+                .execute([source])?;
+            Ok(())
+        }
+        HistoryEvent::OutageEnded {
+            time,
+            source,
+            blocks_missed,
+            ended_by,
+        } => {
+            transaction
+                .prepare_cached(
+                    "UPDATE source_outages SET ended_at = ?2, ended_by = ?3, blocks_missed = ?4
+                     WHERE source = ?1 AND ended_at IS NULL",
+                )?
+                .execute(params![
+                    source,
+                    time.to_string(),
+                    ended_by.name(),
+                    i64::try_from(*blocks_missed).unwrap_or(i64::MAX)
+                ])?;
+            Ok(())
+        }
+    }
+}
+
+fn chatter_window(
+    transaction: &Transaction<'_>,
+    mill: &str,
+    window: &ChatterWindow,
+) -> rusqlite::Result<()> {
+    transaction
+        .prepare_cached(
+            "UPDATE chatter_episodes SET windows = windows + 1,
+                 min_sigma_n_hz = min(coalesce(min_sigma_n_hz, ?2), ?2),
+                 max_k_mean = max(coalesce(max_k_mean, ?3), ?3),
+                 frequency_hz = coalesce(?4, frequency_hz),
+                 alarm = max(alarm, ?5)
+             WHERE mill = ?1 AND ended_at IS NULL",
+        )?
+        .execute(params![
+            mill,
+            window.sigma_n_hz,
+            window.k_mean,
+            window.frequency_hz,
+            window.synchronized
+        ])?;
+    Ok(())
+}
+
+/// The columns of a bite row beside the catalogue's figures, in the order
+/// [`bite_facts`] gives their values (the last two: what the bite put into the gap
+/// pool, which a restart pools again).
+const BITE_FACTS: [&str; 9] = [
+    "run_id",
+    "driveline",
+    "channel",
+    "second_period_s",
+    "quality",
+    "reference_taf",
+    "shift_over_linear_s",
+    "gap_taf_sigma",
+    "gap_period_shift_sigma_s",
+];
+
+fn bite_facts(run_id: i64, bite: &BiteRecord) -> Vec<SqlValue> {
+    let real = |value: Option<f64>| value.map_or(SqlValue::Null, SqlValue::Real);
+    vec![
+        SqlValue::Integer(run_id),
+        SqlValue::Text(bite.driveline.clone()),
+        SqlValue::Text(bite.channel.clone()),
+        real(bite.second_period_s),
+        SqlValue::Text(bite.quality.to_owned()),
+        real(bite.reference_taf),
+        real(bite.shift_over_linear_s),
+        real(bite.pooled.map(|p| p.taf_sigma)),
+        real(bite.pooled.map(|p| p.period_shift_sigma_s)),
+    ]
+}
+
+/// The bite's row (its figures by the catalogue's bite columns), its wear estimate
+/// when it has wear measures, and its driveline's state row.
+fn insert_bite(
+    transaction: &Transaction<'_>,
+    run_id: i64,
+    bite: &BiteRecord,
+) -> rusqlite::Result<()> {
+    let columns: Vec<&str> = BITE_FACTS
+        .into_iter()
+        .chain(bite_columns().map(|(_, column)| column))
+        .collect();
+    let placeholders: Vec<String> = (1..=columns.len()).map(|i| format!("?{i}")).collect();
+    let mut values = bite_facts(run_id, bite);
+    values.extend(bite_columns().map(|(figure, _)| to_sql(figure.value(&bite.figures))));
+    transaction
+        .prepare_cached(&format!(
+            "INSERT INTO bites ({}) VALUES ({})",
+            columns.join(", "),
+            placeholders.join(", ")
+        ))?
+        .execute(rusqlite::params_from_iter(values))?;
+    let time = bite.time.to_string();
+    let state = &bite.state;
+    let gap = bite.figures.gap.filter(|_| bite.gap_state.is_some());
+    if state.wear_index.is_some() || gap.is_some() {
+        transaction
+            .prepare_cached(
+                "INSERT INTO wear_estimates (run_id, driveline, time, event, origin,
+                     wear_index, wear_trend, reference_taf, reference_level_knm,
+                     shift_over_linear_s, gap_mrad, gap_low_mrad, gap_high_mrad, gap_coupling,
+                     bites_pooled, state, alarm_latched)
+                 VALUES (?1, ?2, ?3, 'bite', 'analysis', ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12,
+                     ?13, ?14, ?15)",
+            )?
+            .execute(params![
+                run_id,
+                bite.driveline,
+                time,
+                state.wear_index,
+                state.wear_trend,
+                bite.reference_taf,
+                bite.reference_level_knm,
+                bite.shift_over_linear_s,
+                gap.map(|g| g.gap_mrad),
+                gap.map(|g| g.low_mrad),
+                gap.map(|g| g.high_mrad),
+                gap.and_then(|g| g.coupling)
+                    .and_then(|c| i64::try_from(c).ok()),
+                gap.and_then(|g| i64::try_from(g.bites_pooled).ok()),
+                bite.gap_state.map(|state| state.name()),
+                gap.map(|_| state.gap_alarm),
+            ])?;
+    }
+    upsert_state(transaction, &bite.driveline, bite.time, state)
+}
+
+/// The alarm's row (the subject's state after it comes as its own event).
+fn insert_alarm(
+    transaction: &Transaction<'_>,
+    run_id: i64,
+    alarm: &AlarmRecord,
+) -> rusqlite::Result<()> {
+    let origin = alarm.origin.map_or("analysis", |origin| origin.name());
+    let peer = alarm
+        .origin
+        .and_then(|origin| origin.peer())
+        .map(|peer| peer.to_string());
+    transaction
+        .prepare_cached(
+            "INSERT INTO alarms (run_id, time, subject, kind, event, origin, peer, value, threshold)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
+        )?
+        .execute(params![
+            run_id,
+            alarm.time.to_string(),
+            alarm.subject,
+            alarm.kind.name(),
+            alarm.event.name(),
+            origin,
+            peer,
+            alarm.value,
+            alarm.threshold
+        ])?;
+    Ok(())
+}
+
+/// The subject's state row.
+fn insert_state(transaction: &Transaction<'_>, state: &StateRecord) -> rusqlite::Result<()> {
+    match &state.results {
+        SubjectResults::Driveline(results) => {
+            upsert_state(transaction, &state.subject, state.time, results)
+        }
+        SubjectResults::TandemMill(results) => {
+            upsert_state(transaction, &state.subject, state.time, results)
+        }
+    }
+}
