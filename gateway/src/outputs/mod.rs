@@ -4,7 +4,8 @@
 //! Sparkplug B edge node, the maintenance web page and the OPC UA server (feature
 //! `opcua`). Each names the figures as the catalogue does
 //! ([`crate::state::catalogue`]); [`figures`] renders the table of every output's name
-//! and type for each figure.
+//! and type for each figure. Each writes its own counters' `/metrics` families (the
+//! `metrics.rs` beside it), which [`metrics`] serves.
 
 pub(crate) mod accept;
 pub mod figures;

@@ -24,11 +24,11 @@ pub use running::RunningService;
 use crate::analysis::driveline::BiteReport;
 use crate::analysis::gap_estimate::GapObservation;
 use crate::analysis::Analysis;
+use crate::field::counters::Acquisition;
 use crate::field::counters::{CanCounters, ChannelCounters};
 use crate::field::source_health::SourceHealth;
 use crate::history::outages::{OutageMonitor, WatchedSource};
 use crate::history::RunInfo;
-use crate::outputs::metrics::Acquisition;
 use crate::outputs::modbus::hmi_server::{self, ServerCounters};
 use crate::outputs::modbus::register_map::RegisterMap;
 use crate::outputs::web;
@@ -433,12 +433,9 @@ impl Service {
             outage_monitor,
             rod_mill_spans,
             plc_counters: Arc::default(),
-            sparkplug: None,
-            web_slots: None,
             #[cfg(feature = "opcua")]
             opcua,
-            #[cfg(feature = "opcua")]
-            opcua_status: None,
+            metrics: Vec::new(),
         };
         let mut outputs = tokio::task::JoinSet::new();
         for (name, task) in outputs::tasks(wiring, &outputs_shutdown)? {

@@ -12,7 +12,8 @@
 //! namespace, the nodes, the acknowledge guard), `events.rs` (alarm events),
 //! `auth.rs` (anonymous and user sign-in), `pki.rs` (the certificate store),
 //! `front.rs` (the listener: connection bound, framing check, client addresses),
-//! `status.rs` (the counters), `error.rs` (why it stopped),
+//! `status.rs` (the counters), `metrics.rs` (their `/metrics` families), `error.rs`
+//! (why it stopped),
 //! `adapter.rs` (the catalogue to the address space, the board to snapshots and
 //! events).
 
@@ -21,6 +22,7 @@ mod auth;
 mod error;
 mod events;
 pub mod front;
+mod metrics;
 pub mod model;
 pub mod nodes;
 mod pki;
