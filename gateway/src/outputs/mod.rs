@@ -12,7 +12,9 @@ pub mod figures;
 pub(crate) mod http;
 pub mod metrics;
 pub mod modbus;
-#[cfg(feature = "opcua")]
+/// The OPC UA server; built without the `opcua` feature, its stand-in
+/// (`opcua_not_built.rs`: the same names, refusing `[outputs.opcua]`).
+#[cfg_attr(not(feature = "opcua"), path = "opcua_not_built.rs")]
 pub mod opcua;
 pub mod sparkplug;
 pub mod web;

@@ -21,6 +21,7 @@ use crate::outputs::modbus::hmi_server::{ModbusServer, ServerCounters};
 use crate::outputs::modbus::metrics::HeartbeatFamily;
 use crate::outputs::modbus::plc_writer::{PlcCounters, PlcWriter};
 use crate::outputs::modbus::register_map::RegisterMap;
+use crate::outputs::opcua::OpcUaOutputTask;
 use crate::outputs::sparkplug::SparkplugNode;
 use crate::outputs::web::WebServer;
 use crate::shutdown::Shutdown;
@@ -58,8 +59,7 @@ pub(super) struct Wiring<'a> {
     /// The PLC writer's counters, for `/metrics`.
     pub(super) plc_counters: Arc<PlcCounters>,
     /// The OPC UA server, made by `Service::new`.
-    #[cfg(feature = "opcua")]
-    pub(super) opcua: Option<crate::outputs::opcua::adapter::OpcUaOutputTask>,
+    pub(super) opcua: Option<OpcUaOutputTask>,
     /// The `/metrics` families of the outputs built so far that start on demand, in
     /// build order: each builder adds its own.
     pub(super) metrics: Vec<Arc<dyn Families>>,
@@ -221,7 +221,8 @@ fn web_page(w: &mut Wiring<'_>, shutdown: &Shutdown) -> Result<Option<OutputTask
     }))
 }
 
-#[cfg(feature = "opcua")]
+/// The OPC UA server (made by `Service::new`; a millgate built without the `opcua`
+/// feature refused `[outputs.opcua]` there, so it has none).
 fn opcua(w: &mut Wiring<'_>, shutdown: &Shutdown) -> Result<Option<OutputTask>, ServiceError> {
     let (Some(opcua), Some(listener)) = (w.opcua.take(), w.listeners.opcua.take()) else {
         return Ok(None);
@@ -229,14 +230,6 @@ fn opcua(w: &mut Wiring<'_>, shutdown: &Shutdown) -> Result<Option<OutputTask>, 
     tracing::info!("starting the OPC UA server");
     w.metrics.push(Arc::new(opcua.status()));
     Ok(task("OPC UA server", opcua.run(listener, shutdown.clone())))
-}
-
-/// Without the feature `Service::new` refuses `[outputs.opcua]`, so nothing was bound
-/// and nothing starts.
-#[cfg(not(feature = "opcua"))]
-fn opcua(w: &mut Wiring<'_>, _: &Shutdown) -> Result<Option<OutputTask>, ServiceError> {
-    debug_assert!(w.listeners.opcua.is_none());
-    Ok(None)
 }
 
 fn metrics(w: &mut Wiring<'_>, shutdown: &Shutdown) -> Result<Option<OutputTask>, ServiceError> {
