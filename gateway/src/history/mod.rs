@@ -50,6 +50,7 @@ mod capture_parquet;
 pub mod captures;
 mod checkpoint;
 mod error;
+mod metrics;
 pub mod outages;
 pub mod query;
 pub mod restore;
