@@ -3,6 +3,7 @@
 
 pub mod analysis;
 pub mod cli;
+pub mod exposition;
 pub mod field;
 pub mod history;
 pub mod outputs;

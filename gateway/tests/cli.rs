@@ -176,19 +176,20 @@ fn demo_prints_bites_within_two_percent_of_the_simulated_truth() {
     );
 }
 
-/// The README's text between `<!-- {marker}:begin -->` and `<!-- {marker}:end -->`.
-fn readme_section(marker: &str) -> String {
-    let readme =
-        std::fs::read_to_string(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../README.md"))
-            .unwrap();
+/// The text of `docs/{page}` between `<!-- {marker}:begin -->` and `<!-- {marker}:end -->`.
+fn readme_section(page: &str, marker: &str) -> String {
+    let readme = std::fs::read_to_string(
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(format!("../docs/{page}")),
+    )
+    .unwrap();
     let begin = format!("<!-- {marker}:begin -->\n");
     let start = readme
         .find(&begin)
-        .unwrap_or_else(|| panic!("README has the {marker}:begin marker"))
+        .unwrap_or_else(|| panic!("docs/{page} has the {marker}:begin marker"))
         + begin.len();
     let end = readme
         .find(&format!("<!-- {marker}:end -->"))
-        .unwrap_or_else(|| panic!("README has the {marker}:end marker"));
+        .unwrap_or_else(|| panic!("docs/{page} has the {marker}:end marker"));
     readme[start..end].to_owned()
 }
 
@@ -205,9 +206,9 @@ fn readme_register_table_is_the_generated_one() {
     assert!(output.status.success(), "{}", text(&output));
     let generated = String::from_utf8(output.stdout).unwrap();
     assert_eq!(
-        readme_section("registers"),
+        readme_section("register-map.md", "registers"),
         generated,
-        "README register table differs: regenerate it with millgate registers --config config/examples/hot-mill.toml --format md"
+        "docs/register-map.md register table differs: regenerate it with millgate registers --config config/examples/hot-mill.toml --format md"
     );
 }
 
@@ -217,9 +218,9 @@ fn readme_figure_table_is_the_generated_one_and_the_exports_agree() {
     assert!(output.status.success(), "{}", text(&output));
     let generated = String::from_utf8(output.stdout).unwrap();
     assert_eq!(
-        readme_section("figures"),
+        readme_section("figures.md", "figures"),
         generated,
-        "README figure table differs: regenerate it with millgate figures --format md"
+        "docs/figures.md figure table differs: regenerate it with millgate figures --format md"
     );
     // The JSON export: one object per catalogue figure, with every output's name.
     let json = millgate(&["figures", "--format", "json"]);
@@ -364,16 +365,16 @@ fn history_format_help_describes_the_history_export() {
     );
 }
 
-/// The exit status of each kind of outcome, as the README's table states it.
+/// The exit status of each kind of outcome, as docs/usage.md's table states it.
 #[test]
 fn exit_codes_are_the_documented_ones() {
     let readme =
-        std::fs::read_to_string(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../README.md"))
+        std::fs::read_to_string(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../docs/usage.md"))
             .unwrap();
     for (status, _) in millgate::cli::shell::EXIT_STATUS {
         assert!(
             readme.contains(&format!("| {status} |")),
-            "the README's exit status table lists {status}"
+            "docs/usage.md's exit status table lists {status}"
         );
     }
     let valid = examples().join("demo.toml");

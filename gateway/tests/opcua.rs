@@ -870,7 +870,7 @@ fn check_names_the_server_and_warns_of_other_hosts() {
     let _ = std::fs::remove_dir_all(&scratch);
 }
 
-/// The root README's address space table is `millgate address-space` of the demo's
+/// docs/opcua.md's address space table is `millgate address-space` of the demo's
 /// configuration (a driveline with its model), generated from the spec the server
 /// publishes.
 #[test]
@@ -887,19 +887,19 @@ fn readme_address_space_table_is_generated() {
     assert!(output.status.success());
     let table = String::from_utf8(output.stdout).unwrap();
     assert!(table.contains("| `Drivelines/F1/gap_mrad` | Double | mrad (C25) |  |"));
-    let readme = std::fs::read_to_string(repo.join("README.md")).unwrap();
+    let readme = std::fs::read_to_string(repo.join("docs/opcua.md")).unwrap();
     let begin = "<!-- address-space:begin -->\n";
     let start = readme
         .find(begin)
-        .expect("README has the address-space:begin marker")
+        .expect("docs/opcua.md has the address-space:begin marker")
         + begin.len();
     let end = readme
         .find("<!-- address-space:end -->")
-        .expect("README has the address-space:end marker");
+        .expect("docs/opcua.md has the address-space:end marker");
     assert_eq!(
         &readme[start..end],
         table,
-        "README address space table differs: regenerate it with millgate address-space \
+        "docs/opcua.md address space table differs: regenerate it with millgate address-space \
          --config config/examples/demo.toml"
     );
 }

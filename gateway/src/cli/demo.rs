@@ -57,10 +57,9 @@ pub struct DemoArgs {
     /// Serve the maintenance page on this address (default: a free loopback port).
     #[arg(long, value_name = "HOST:PORT", default_value = "127.0.0.1:0")]
     pub web: std::net::SocketAddr,
-    /// Serve the results over OPC UA on this address (security none, anonymous).
-    #[cfg(feature = "opcua")]
-    #[arg(long, value_name = "HOST:PORT")]
-    pub opcua: Option<std::net::SocketAddr>,
+    /// The OPC UA server (`--opcua`, with the `opcua` feature).
+    #[command(flatten)]
+    pub opcua: crate::outputs::opcua::DemoOption,
 }
 
 fn sparkplug_id(id: &str) -> Result<String, String> {
@@ -173,14 +172,8 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         Err(_) => println!("history: {} (new)", history_path.display()),
     }
     config.outputs.web = Some(millgate_config::WebOutput::on(args.web));
-    #[cfg(feature = "opcua")]
-    if let Some(bind) = args.opcua {
-        let pki_dir = history_path
-            .parent()
-            .unwrap_or(std::path::Path::new("."))
-            .join(millgate_config::OpcUaOutput::DEFAULT_PKI_FOLDER);
-        config.outputs.opcua = Some(millgate_config::OpcUaOutput::on(bind, pki_dir));
-    }
+    let folder = history_path.parent().unwrap_or(std::path::Path::new("."));
+    args.opcua.apply(&mut config, folder);
     // The PLC holds the whole map and a margin.
     let plc_registers = usize::from(RegisterMap::new(&config).len()) + 16;
     let devices = DemoDevices::start(&mut config, &schedule, plc_registers).await?;

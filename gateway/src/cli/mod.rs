@@ -37,7 +37,6 @@
 //! need the simulator's virtual devices or plots); `report` with `plot` (part of
 //! `sim-tools`).
 
-#[cfg(feature = "opcua")]
 pub mod address_space;
 pub mod analyze;
 pub mod capture;

@@ -15,7 +15,7 @@ use crate::outputs::modbus::register_map::RegisterMap;
 /// Output format of the export.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Format {
-    /// A Markdown table (the README's).
+    /// A Markdown table (docs/register-map.md's).
     Md,
     /// CSV with a header line.
     Csv,

@@ -1,7 +1,7 @@
 //! The command line's conventions: shell completions (`millgate completions SHELL`,
 //! clap_complete), manual pages (`millgate man [--out DIR]`, clap_mangen) and the
 //! exit status every command follows ([`EXIT_STATUS`]), which `millgate --help`, the
-//! manual page and the README state.
+//! manual page and docs/usage.md state.
 //!
 //! ```text
 //! millgate completions bash > /etc/bash_completion.d/millgate

@@ -1,9 +1,24 @@
 //! Acquisition counters, shared by the reader tasks (which count) with the register
 //! map and `/metrics` (which read snapshots): per channel ([`ChannelCounters`]) and per
-//! CAN source ([`CanCounters`]).
+//! CAN source ([`CanCounters`]), gathered with the sources' health in [`Acquisition`].
 
 use std::sync::atomic::{AtomicU64, AtomicU8, Ordering};
+use std::sync::Arc;
 use std::time::{Duration, SystemTime};
+
+use super::source_health::SourceHealth;
+
+/// Where the acquisition counters come from: per channel, per source (in the order of
+/// `Config::sources`) and per CAN source.
+#[derive(Debug, Clone)]
+pub struct Acquisition {
+    /// Per channel, indexed like `config.channels`.
+    pub counters: Vec<Arc<ChannelCounters>>,
+    /// Per source.
+    pub health: Vec<Arc<SourceHealth>>,
+    /// Per CAN source.
+    pub can: Vec<Arc<CanCounters>>,
+}
 
 /// Per-channel acquisition counters. Monotonic; read with [`ChannelCounters::snapshot`].
 #[derive(Debug, Default)]

@@ -58,6 +58,7 @@ pub mod captures;
 mod checkpoint;
 mod error;
 pub mod figures;
+mod metrics;
 pub mod outages;
 pub mod query;
 pub mod restore;

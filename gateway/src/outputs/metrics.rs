@@ -1,7 +1,9 @@
-//! Prometheus `/metrics`: the catalogue's figures per driveline, tandem mill, rod mill
-//! and span, the acquisition counters per channel and source, the outputs' own counters
-//! (PLC writes, HMI server, history, Sparkplug), build information and the process'
-//! resources, in the text exposition format (version 0.0.4).
+//! Prometheus `/metrics`: build information, the process' resources and the
+//! catalogue's figures per driveline, tandem mill, rod mill and span, followed by the
+//! families each part writes of its own counters ([`Families`]: the acquisition's in
+//! `field/metrics.rs`, the history's in `history/metrics.rs`, each output's in the
+//! `metrics.rs` beside it), in the text exposition format (version 0.0.4, written by
+//! [`crate::exposition`]).
 //!
 //! Served by the gateway's one HTTP stack (`outputs::http`: GET and HEAD, a
 //! bounded accept loop that gives up, and so ends the service, when accepting keeps
@@ -16,7 +18,6 @@
 //! stale rule's "good"), so a withdrawn or last-usable value is a missing series, never
 //! a frozen one.
 
-use std::fmt::Write as _;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -27,17 +28,11 @@ use axum::Router;
 use millgate_config::{Config, MetricsOutput};
 use tokio::net::TcpListener;
 
-use crate::field::counters::{CanCounters, CanCounts, ChannelCounters, ChannelCountersSnapshot};
-use crate::field::source_health::SourceHealth;
+use crate::exposition::{Exposition, Families, Kind, Labels};
 use crate::outputs::http::{self, Limits};
-use crate::outputs::modbus::hmi_server::{ServerCounters, ServerCounts};
-use crate::outputs::modbus::plc_writer::{PlcCounters, PlcFailure};
-use crate::outputs::sparkplug::{ConnectFailure, SparkplugCounts, SparkplugStatus};
-use crate::outputs::web::QuerySlots;
 use crate::shutdown::Shutdown;
 use crate::state::board::Board;
 use crate::state::catalogue::{self, Figure, FigureInfo, FigureType, Subject, Value};
-use crate::state::history::HistoryStatus;
 
 /// Time a client has to send its whole request head.
 pub const HEAD_TIMEOUT: Duration = Duration::from_secs(5);
@@ -57,84 +52,6 @@ pub fn exposure_warning(settings: &MetricsOutput) -> Option<String> {
 
 /// The content type of the text exposition format.
 pub const CONTENT_TYPE: &str = "text/plain; version=0.0.4; charset=utf-8";
-
-/// Prometheus' metric type of a family.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Kind {
-    Counter,
-    Gauge,
-}
-
-/// A page of the exposition format being written.
-#[derive(Debug, Default)]
-struct Exposition {
-    out: String,
-}
-
-/// A sample's labels: `(name, value)` pairs.
-type Labels<'a> = Vec<(&'static str, &'a str)>;
-
-impl Exposition {
-    /// One family: HELP, TYPE and one sample per row.
-    fn family<'a>(
-        &mut self,
-        name: &str,
-        kind: Kind,
-        help: &str,
-        samples: impl IntoIterator<Item = (Labels<'a>, f64)>,
-    ) {
-        let kind = match kind {
-            Kind::Counter => "counter",
-            Kind::Gauge => "gauge",
-        };
-        let help = help.replace('\\', "\\\\").replace('\n', "\\n");
-        let _ = writeln!(self.out, "# HELP {name} {help}");
-        let _ = writeln!(self.out, "# TYPE {name} {kind}");
-        for (labels, value) in samples {
-            let _ = write!(self.out, "{name}");
-            if !labels.is_empty() {
-                let labels: Vec<String> = labels
-                    .iter()
-                    .map(|(label, value)| format!("{label}=\"{}\"", escape(value)))
-                    .collect();
-                let _ = write!(self.out, "{{{}}}", labels.join(","));
-            }
-            let _ = writeln!(self.out, " {}", number(value));
-        }
-    }
-
-    /// A family of one sample without labels.
-    fn scalar(&mut self, name: &str, kind: Kind, help: &str, value: f64) {
-        self.family(name, kind, help, [(Vec::new(), value)]);
-    }
-
-    /// A family of one sample without labels per `(name, kind, help, value)`.
-    fn scalars<'a>(&mut self, rows: impl IntoIterator<Item = (&'a str, Kind, &'a str, f64)>) {
-        for (name, kind, help, value) in rows {
-            self.scalar(name, kind, help, value);
-        }
-    }
-}
-
-/// A sample value as Prometheus reads it.
-fn number(value: f64) -> String {
-    if value.is_nan() {
-        "NaN".into()
-    } else if value.is_infinite() {
-        if value > 0.0 { "+Inf" } else { "-Inf" }.into()
-    } else if value.fract() == 0.0 && value.abs() < 1e15 {
-        format!("{value:.0}")
-    } else {
-        format!("{value:?}")
-    }
-}
-
-fn escape(label: &str) -> String {
-    label
-        .replace('\\', "\\\\")
-        .replace('"', "\\\"")
-        .replace('\n', "\\n")
-}
 
 /// Key suffixes of units Prometheus writes out in base units (its linter refuses the
 /// abbreviations `s` and `m`): `(unit, key suffix, metric suffix)`.
@@ -207,99 +124,41 @@ fn catalogue_families<R: Subject>(
     }
 }
 
-/// Where the acquisition counters come from: per channel, per source (in the order of
-/// [`Config::sources`]) and per CAN source.
-#[derive(Debug, Clone)]
-pub struct Acquisition {
-    /// Per channel, indexed like `config.channels`.
-    pub counters: Vec<Arc<ChannelCounters>>,
-    /// Per source.
-    pub health: Vec<Arc<SourceHealth>>,
-    /// Per CAN source.
-    pub can: Vec<Arc<CanCounters>>,
-}
-
-/// What the metrics page shows.
+/// What the metrics page shows: the build, the process, the catalogue's figures, then
+/// the families of each part added with [`Metrics::with`], in that order.
 #[derive(Debug)]
 pub struct Metrics {
-    channel_names: Vec<String>,
-    source_names: Vec<String>,
-    can_names: Vec<String>,
     rod_span_names: Vec<Vec<String>>,
-    acquisition: Acquisition,
     board: Arc<Board>,
     rod_mill_names: Vec<String>,
-    server: Option<Arc<ServerCounters>>,
-    sparkplug: Option<Arc<SparkplugStatus>>,
-    plc: Option<Arc<PlcCounters>>,
-    web_slots: Option<Arc<QuerySlots>>,
-    #[cfg(feature = "opcua")]
-    opcua: Option<crate::outputs::opcua::OpcUaStatus>,
+    families: Vec<Arc<dyn Families>>,
 }
 
 impl Metrics {
-    /// The page for `config`: its `acquisition` counters and the results of `board`;
-    /// `rod_mill_spans` is each rod mill's span count.
-    pub fn new(
-        config: &Config,
-        acquisition: Acquisition,
-        board: Arc<Board>,
-        rod_mill_spans: &[usize],
-    ) -> Self {
+    /// The page for `config`: the results of `board`; `rod_mill_spans` is each rod
+    /// mill's span count.
+    pub fn new(config: &Config, board: Arc<Board>, rod_mill_spans: &[usize]) -> Self {
         Self {
-            channel_names: config.channels.iter().map(|c| c.name.clone()).collect(),
-            source_names: config.sources().map(|s| s.name().to_owned()).collect(),
-            can_names: config.can_sources.iter().map(|s| s.name.clone()).collect(),
             rod_span_names: rod_mill_spans
                 .iter()
                 .map(|&spans| (1..=spans).map(|span| span.to_string()).collect())
                 .collect(),
             rod_mill_names: config.rod_mills.iter().map(|m| m.name.clone()).collect(),
-            acquisition,
             board,
-            server: None,
-            sparkplug: None,
-            plc: None,
-            web_slots: None,
-            #[cfg(feature = "opcua")]
-            opcua: None,
+            families: Vec::new(),
         }
     }
 
-    /// Show the HMI server's counters too.
-    pub fn with_server(mut self, counters: Arc<ServerCounters>) -> Self {
-        self.server = Some(counters);
-        self
-    }
-
-    /// Also show the Sparkplug B edge node's counters.
-    pub fn with_sparkplug(mut self, status: Arc<SparkplugStatus>) -> Self {
-        self.sparkplug = Some(status);
-        self
-    }
-
-    /// Also show the OPC UA server's counters.
-    #[cfg(feature = "opcua")]
-    pub fn with_opcua(mut self, status: crate::outputs::opcua::OpcUaStatus) -> Self {
-        self.opcua = Some(status);
-        self
-    }
-
-    /// Also show the PLC writer's counters.
-    pub fn with_plc(mut self, counters: Arc<PlcCounters>) -> Self {
-        self.plc = Some(counters);
-        self
-    }
-
-    /// Also show the maintenance page's history query slots.
-    pub fn with_web(mut self, slots: Arc<QuerySlots>) -> Self {
-        self.web_slots = Some(slots);
+    /// Also show `families` (a field source's, the history's or an output's counters),
+    /// after those added before.
+    pub fn with(mut self, families: Arc<dyn Families>) -> Self {
+        self.families.push(families);
         self
     }
 
     /// The page, in the Prometheus text format.
     pub fn render(&self) -> String {
-        let mut page = Exposition::default();
+        let mut page = Exposition::new();
         page.family(
             "millgate_build_info",
             Kind::Gauge,
@@ -308,31 +167,10 @@ impl Metrics {
         );
         process_metrics(&mut page);
         self.figures(&mut page);
-        self.acquisition(&mut page);
-        if let Some(plc) = &self.plc {
-            plc_metrics(&mut page, plc);
+        for families in &self.families {
+            families.write_families(&mut page);
         }
-        if let Some(server) = &self.server {
-            server_metrics(&mut page, &server.snapshot());
-        }
-        page.scalar(
-            "millgate_heartbeat",
-            Kind::Gauge,
-            "Heartbeat written to the PLC.",
-            f64::from(self.board.results().heartbeat),
-        );
-        history_metrics(&mut page, &self.board.history().status());
-        if let Some(slots) = &self.web_slots {
-            web_metrics(&mut page, slots);
-        }
-        if let Some(status) = &self.sparkplug {
-            sparkplug_metrics(&mut page, &status.counts());
-        }
-        #[cfg(feature = "opcua")]
-        if let Some(status) = &self.opcua {
-            opcua_metrics(&mut page, &status.counts());
-        }
-        page.out
+        page.into_text()
     }
 
     /// The catalogue's figures of every driveline, tandem mill, rod mill and span.
@@ -379,115 +217,6 @@ impl Metrics {
         catalogue_families(page, catalogue::ROD_SPAN, &span_rows);
     }
 
-    /// Per channel, per source and per CAN source.
-    fn acquisition(&self, page: &mut Exposition) {
-        let snapshots: Vec<_> = self
-            .acquisition
-            .counters
-            .iter()
-            .map(|c| c.snapshot())
-            .collect();
-        type CounterOf = fn(&ChannelCountersSnapshot) -> u64;
-        let counters: [(&str, &str, CounterOf); 8] = [
-            ("blocks_read", "Blocks or frames decoded", |s| s.blocks_read),
-            ("blocks_missed", "Blocks lost, from sequence gaps", |s| {
-                s.blocks_missed
-            }),
-            ("samples", "Samples passed to analysis", |s| s.samples),
-            ("timeouts", "Requests without an answer in time", |s| {
-                s.timeouts
-            }),
-            (
-                "errors",
-                "Transport errors, device exceptions and malformed replies",
-                |s| s.errors,
-            ),
-            (
-                "saturated_samples",
-                "Samples at the converter's limits, replaced by gaps",
-                |s| s.saturated_samples,
-            ),
-            (
-                "sequence_restarts",
-                "Block sequences that went backwards or jumped past the elapsed time (DAQ restarts)",
-                |s| s.sequence_restarts,
-            ),
-            (
-                "sequence_stalls",
-                "Times the block sequence stood still for 3 block periods while the DAQ answered",
-                |s| s.sequence_stalls,
-            ),
-        ];
-        for (name, help, value) in counters {
-            let samples = self
-                .channel_names
-                .iter()
-                .zip(&snapshots)
-                .map(|(channel, s)| (vec![("channel", channel.as_str())], value(s) as f64));
-            page.family(
-                &format!("millgate_channel_{name}_total"),
-                Kind::Counter,
-                &format!("{help}."),
-                samples,
-            );
-        }
-        let sources = || {
-            self.source_names
-                .iter()
-                .zip(&self.acquisition.health)
-                .map(|(name, health)| (vec![("source", name.as_str())], health))
-        };
-        page.family(
-            "millgate_source_status",
-            Kind::Gauge,
-            "Source status: 0 ok, 1 stale, 2 lost.",
-            sources().map(|(labels, health)| (labels, f64::from(health.status().code()))),
-        );
-        page.family(
-            "millgate_source_connects_total",
-            Kind::Counter,
-            "Successful connections.",
-            sources().map(|(labels, health)| (labels, health.connects() as f64)),
-        );
-        let can: Vec<CanCounts> = self.acquisition.can.iter().map(|c| c.snapshot()).collect();
-        type CanOf = fn(&CanCounts) -> f64;
-        let per_can_source: [(&str, Kind, &str, CanOf); 14] = [
-            ("millgate_can_frames_total", Kind::Counter, "CAN frames received.", |c| c.frames as f64),
-            ("millgate_can_decoded_frames_total", Kind::Counter, "CAN data frames decoded into samples.", |c| c.decoded as f64),
-            ("millgate_can_unknown_id_frames_total", Kind::Counter, "CAN data frames with an id no channel uses.", |c| c.unknown_id as f64),
-            ("millgate_can_bad_length_frames_total", Kind::Counter, "CAN data frames too short for their signals.", |c| c.bad_length as f64),
-            ("millgate_can_remote_frames_total", Kind::Counter, "CAN remote frames.", |c| c.remote_frames as f64),
-            ("millgate_can_error_frames_total", Kind::Counter, "CAN error frames.", |c| c.error_frames as f64),
-            ("millgate_can_error_passive_frames_total", Kind::Counter, "CAN error frames reporting error passive.", |c| c.error_passive as f64),
-            ("millgate_can_bus_off_frames_total", Kind::Counter, "CAN error frames reporting bus off.", |c| c.bus_off as f64),
-            ("millgate_can_bad_size_reads_total", Kind::Counter, "CAN socket reads neither a classic nor an FD frame.", |c| c.bad_size as f64),
-            ("millgate_can_saturated_samples_total", Kind::Counter, "CAN signal values at the end of their raw range (saturated or not available), passed on as gaps.", |c| c.saturated_samples as f64),
-            ("millgate_can_kernel_drops_total", Kind::Counter, "CAN frames the kernel dropped because the socket receive queue was full (SO_RXQ_OVFL); each drop marks a gap.", |c| c.kernel_drops as f64),
-            ("millgate_can_kernel_timestamps_total", Kind::Counter, "CAN frames that carried a kernel receive timestamp (SO_TIMESTAMPNS); the others are dated on arrival.", |c| c.kernel_timestamps as f64),
-            ("millgate_can_receive_latency_seconds_total", Kind::Counter, "Sum of the delays from kernel receive timestamp to the reader handling the frame, s.", |c| c.receive_latency_sum_ns as f64 * 1e-9),
-            ("millgate_can_receive_latency_max_seconds", Kind::Gauge, "Largest delay from kernel receive timestamp to the reader handling the frame, s.", |c| c.receive_latency_max_ns as f64 * 1e-9),
-        ];
-        for (name, kind, help, value) in per_can_source {
-            let samples = self
-                .can_names
-                .iter()
-                .zip(&can)
-                .map(|(source, counts)| (vec![("source", source.as_str())], value(counts)));
-            page.family(name, kind, help, samples);
-        }
-        page.family(
-            "millgate_can_bus_state",
-            Kind::Gauge,
-            "Last reported bus state: 0 error active, 1 error passive, 2 bus off.",
-            self.can_names.iter().zip(&can).map(|(source, c)| {
-                (
-                    vec![("source", source.as_str())],
-                    f64::from(c.bus_state.code()),
-                )
-            }),
-        );
-    }
-
     /// The routes: `GET`/`HEAD /metrics`, 404 elsewhere.
     fn router(self: Arc<Self>) -> Router {
         Router::new()
@@ -529,356 +258,6 @@ impl Metrics {
         )
         .await
     }
-}
-
-/// The PLC writer's families: writes, failures by reason, the last success.
-fn plc_metrics(page: &mut Exposition, plc: &PlcCounters) {
-    let counts = plc.snapshot();
-    page.scalar(
-        "millgate_plc_writes_total",
-        Kind::Counter,
-        "Register maps written to the PLC.",
-        counts.writes as f64,
-    );
-    page.family(
-        "millgate_plc_write_failures_total",
-        Kind::Counter,
-        "Failed PLC connections and writes, by reason: connect, timeout, transport, mismatch (the network) or refused (a Modbus exception from the PLC).",
-        PlcFailure::ALL
-            .iter()
-            .zip(counts.failures)
-            .map(|(reason, n)| (vec![("reason", reason.name())], n as f64)),
-    );
-    page.family(
-        "millgate_plc_last_write_success_timestamp_seconds",
-        Kind::Gauge,
-        "When a register map last reached the PLC, Unix seconds (no sample before the first).",
-        (counts.last_success_unix_ms > 0)
-            .then(|| (Vec::new(), counts.last_success_unix_ms as f64 / 1000.0)),
-    );
-}
-
-/// The HMI Modbus server's families.
-fn server_metrics(page: &mut Exposition, counts: &ServerCounts) {
-    type ServerCountOf = fn(&ServerCounts) -> u64;
-    let families: [(&str, &str, ServerCountOf); 9] = [
-        ("connections", "HMI connections accepted", |c| c.connections),
-        (
-            "refused_connections",
-            "HMI connections closed at once: the server was full and every connection inside a request",
-            |c| c.refused,
-        ),
-        (
-            "evicted_connections",
-            "Idle HMI connections closed to make room for a new one (max_connections or max_connections_per_peer reached)",
-            |c| c.evicted,
-        ),
-        (
-            "idle_closed_connections",
-            "HMI connections closed for idling or a request not completed in time",
-            |c| c.idle_closed,
-        ),
-        (
-            "silent_closed_connections",
-            "Of those, HMI connections closed for sending no request within 5 s of connecting (or idle_timeout_ms, when shorter)",
-            |c| c.silent_closed,
-        ),
-        (
-            "not_modbus_connections",
-            "HMI connections closed because the stream was not Modbus TCP",
-            |c| c.not_modbus,
-        ),
-        ("requests", "HMI requests answered", |c| c.requests),
-        (
-            "exceptions",
-            "HMI requests answered with a Modbus exception",
-            |c| c.exceptions,
-        ),
-        (
-            "broadcasts",
-            "HMI broadcast requests (unit 0), never answered nor acted on",
-            |c| c.broadcasts,
-        ),
-    ];
-    for (name, help, value) in families {
-        page.scalar(
-            &format!("millgate_server_{name}_total"),
-            Kind::Counter,
-            &format!("{help}."),
-            value(counts) as f64,
-        );
-    }
-}
-
-/// The maintenance page's history query slots: how many, how many held, and the
-/// requests refused because none freed in time.
-fn web_metrics(page: &mut Exposition, slots: &QuerySlots) {
-    page.scalars([
-        (
-            "millgate_web_history_query_slots",
-            Kind::Gauge,
-            "History query slots of the maintenance page (outputs.web.history_queries).",
-            slots.limit() as f64,
-        ),
-        (
-            "millgate_web_history_query_slots_in_use",
-            Kind::Gauge,
-            "History query slots held by a running query.",
-            slots.in_use() as f64,
-        ),
-        (
-            "millgate_web_history_queries_refused_total",
-            Kind::Counter,
-            "Maintenance page requests answered 503 because no history query slot freed within 1 s.",
-            slots.refused() as f64,
-        ),
-    ]);
-}
-
-/// The history's families: state, events stored and dropped, commits, retention,
-/// the file's size and the last error (an info metric with the message as label, and
-/// its time).
-fn history_metrics(page: &mut Exposition, status: &HistoryStatus) {
-    let scalars: [(&str, Kind, &str, f64); 8] = [
-        (
-            "millgate_history_state",
-            Kind::Gauge,
-            "Event history: 0 disabled, 1 ok, 2 failing (see millgate_history_last_error_info).",
-            f64::from(status.state.code()),
-        ),
-        (
-            "millgate_history_events_stored_total",
-            Kind::Counter,
-            "Events committed to the history file.",
-            status.stored as f64,
-        ),
-        (
-            "millgate_history_queue_events",
-            Kind::Gauge,
-            "Events waiting for the history writer.",
-            status
-                .enqueued
-                .saturating_sub(status.stored + status.dropped_error) as f64,
-        ),
-        (
-            "millgate_history_commits_total",
-            Kind::Counter,
-            "History transactions committed (each a group of events).",
-            status.commits as f64,
-        ),
-        (
-            "millgate_history_commit_seconds_total",
-            Kind::Counter,
-            "Time spent in history transactions, s.",
-            status.commit_seconds_sum,
-        ),
-        (
-            "millgate_history_commit_max_seconds",
-            Kind::Gauge,
-            "Longest history transaction since start, s.",
-            status.commit_seconds_max,
-        ),
-        (
-            "millgate_history_retention_deleted_total",
-            Kind::Counter,
-            "Rows deleted by the history's retention (age and size).",
-            status.retention_deleted as f64,
-        ),
-        (
-            "millgate_history_file_bytes",
-            Kind::Gauge,
-            "Size of the history file at the last retention check, bytes.",
-            status.file_bytes as f64,
-        ),
-    ];
-    page.scalars(scalars);
-    page.family(
-        "millgate_history_events_dropped_total",
-        Kind::Counter,
-        "Events not stored: the queue was full, or the file could not take them.",
-        [
-            (
-                vec![("reason", "queue_full")],
-                status.dropped_queue_full as f64,
-            ),
-            (vec![("reason", "error")], status.dropped_error as f64),
-        ],
-    );
-    page.scalar(
-        "millgate_history_captures_dropped_total",
-        Kind::Counter,
-        "Captures (a bite's window with its bite, a chatter episode, a manual request) not stored: the queue was full or the file could not take them; never announced, as nothing reads them from the file.",
-        status.captures_dropped as f64,
-    );
-    let last = status.last_error.as_ref();
-    page.family(
-        "millgate_history_last_error_info",
-        Kind::Gauge,
-        "The history's last error: the message is the label (always 1; no sample before the first error).",
-        last.map(|(_, message)| (vec![("error", message.as_str())], 1.0)),
-    );
-    page.family(
-        "millgate_history_last_error_timestamp_seconds",
-        Kind::Gauge,
-        "When the history's last error happened, Unix seconds.",
-        last.map(|(time, _)| (Vec::new(), time.unix_s())),
-    );
-}
-
-/// The Sparkplug B edge node's families.
-fn sparkplug_metrics(page: &mut Exposition, counts: &SparkplugCounts) {
-    let scalars: [(&str, Kind, &str, f64); 10] = [
-        (
-            "millgate_sparkplug_connected",
-            Kind::Gauge,
-            "1 while a session with the MQTT broker is up.",
-            f64::from(u8::from(counts.connected)),
-        ),
-        (
-            "millgate_sparkplug_bd_seq",
-            Kind::Gauge,
-            "The current session's Sparkplug bdSeq (0..=255).",
-            f64::from(counts.bd_seq),
-        ),
-        (
-            "millgate_sparkplug_messages_published_total",
-            Kind::Counter,
-            "Sparkplug messages handed to the broker connection.",
-            counts.published as f64,
-        ),
-        (
-            "millgate_sparkplug_bites_published_total",
-            Kind::Counter,
-            "Bites published live as their own DDATA.",
-            counts.bites as f64,
-        ),
-        (
-            "millgate_sparkplug_replayed_total",
-            Kind::Counter,
-            "Bites replayed from the history as DDATA flagged historical.",
-            counts.replayed as f64,
-        ),
-        (
-            "millgate_sparkplug_backlog_bites",
-            Kind::Gauge,
-            "Bites in the history the broker has not confirmed (PUBACK) yet.",
-            counts.backlog as f64,
-        ),
-        (
-            "millgate_sparkplug_sessions_total",
-            Kind::Counter,
-            "Sessions the MQTT broker accepted.",
-            counts.connections as f64,
-        ),
-        (
-            "millgate_sparkplug_rebirths_total",
-            Kind::Counter,
-            "Rebirths on a Node Control/Rebirth command (at most one per 5 s).",
-            counts.rebirths as f64,
-        ),
-        (
-            "millgate_sparkplug_rebirth_requests_total",
-            Kind::Counter,
-            "Node Control/Rebirth commands received (those within 5 s of the last births answered by one rebirth).",
-            counts.rebirth_requests as f64,
-        ),
-        (
-            "millgate_sparkplug_commands_refused_total",
-            Kind::Counter,
-            "NCMDs refused: retained, over 64 KiB or undecodable.",
-            counts.commands_refused as f64,
-        ),
-    ];
-    page.scalars(scalars);
-    page.family(
-        "millgate_sparkplug_connect_failures_total",
-        Kind::Counter,
-        "Failed connections to the MQTT broker and lost sessions, by reason (unreachable, tls, not_authorised, refused).",
-        ConnectFailure::ALL
-            .iter()
-            .zip(counts.failures)
-            .map(|(failure, count)| (vec![("reason", failure.name())], count as f64)),
-    );
-}
-
-/// The OPC UA server's families.
-#[cfg(feature = "opcua")]
-fn opcua_metrics(page: &mut Exposition, counts: &crate::outputs::opcua::OpcUaCounts) {
-    let scalars: [(&str, Kind, &str, f64); 12] = [
-        (
-            "millgate_opcua_connections_total",
-            Kind::Counter,
-            "TCP connections the OPC UA server accepted.",
-            counts.connections as f64,
-        ),
-        (
-            "millgate_opcua_connections_refused_total",
-            Kind::Counter,
-            "Connections closed at once because max_connections were open.",
-            counts.refused as f64,
-        ),
-        (
-            "millgate_opcua_malformed_frames_total",
-            Kind::Counter,
-            "Connections closed because the client did not speak OPC UA TCP framing.",
-            counts.malformed_frames as f64,
-        ),
-        (
-            "millgate_opcua_protocol_errors_total",
-            Kind::Counter,
-            "ERR messages the server sent (a message its decoder or secure channel refused).",
-            counts.protocol_errors as f64,
-        ),
-        (
-            "millgate_opcua_identities_refused_total",
-            Kind::Counter,
-            "Sign-ins refused (wrong password, unknown user, anonymous where not allowed).",
-            counts.identities_refused as f64,
-        ),
-        (
-            "millgate_opcua_security_rejected_requests_total",
-            Kind::Counter,
-            "Requests refused for security (certificate, signature, session, access).",
-            counts.security_rejected_requests as f64,
-        ),
-        (
-            "millgate_opcua_rejected_requests_total",
-            Kind::Counter,
-            "Requests answered with a bad service result.",
-            counts.rejected_requests as f64,
-        ),
-        (
-            "millgate_opcua_acknowledgements_total",
-            Kind::Counter,
-            "Acknowledge calls carried out.",
-            counts.acknowledgements as f64,
-        ),
-        (
-            "millgate_opcua_acknowledgements_refused_total",
-            Kind::Counter,
-            "Acknowledge calls the guard refused (a remote host, a read-only user).",
-            counts.acknowledgements_refused as f64,
-        ),
-        (
-            "millgate_opcua_value_changes_total",
-            Kind::Counter,
-            "Variable values changed in the address space.",
-            counts.value_changes as f64,
-        ),
-        (
-            "millgate_opcua_invalid_updates_total",
-            Kind::Counter,
-            "Updates refused (wrong type, a non-finite number given as good).",
-            counts.invalid_updates as f64,
-        ),
-        (
-            "millgate_opcua_events_total",
-            Kind::Counter,
-            "Alarm events sent to clients.",
-            counts.events as f64,
-        ),
-    ];
-    page.scalars(scalars);
 }
 
 /// The process' resources, as Prometheus' client libraries name them, read from
@@ -964,15 +343,14 @@ fn boot_time() -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn numbers_are_written_as_prometheus_reads_them() {
-        assert_eq!(number(3.0), "3");
-        assert_eq!(number(0.25), "0.25");
-        assert_eq!(number(1e300), "1e300");
-        assert_eq!(number(f64::NAN), "NaN");
-        assert_eq!(number(f64::NEG_INFINITY), "-Inf");
-    }
+    use crate::field::counters::Acquisition;
+    use crate::field::metrics::AcquisitionFamilies;
+    use crate::field::source_health::SourceHealth;
+    use crate::outputs::modbus::hmi_server::ServerCounters;
+    use crate::outputs::modbus::metrics::HeartbeatFamily;
+    use crate::outputs::modbus::plc_writer::PlcCounters;
+    use crate::outputs::sparkplug::SparkplugStatus;
+    use crate::outputs::web::QuerySlots;
 
     fn example(name: &str) -> Config {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -1007,10 +385,16 @@ mod tests {
             health,
             can: config.can_sources.iter().map(|_| Arc::default()).collect(),
         };
-        Metrics::new(config, acquisition, board, spans)
-            .with_server(Arc::default())
-            .with_plc(Arc::default())
-            .with_sparkplug(Arc::default())
+        let plc: Arc<PlcCounters> = Arc::default();
+        let server: Arc<ServerCounters> = Arc::default();
+        let sparkplug: Arc<SparkplugStatus> = Arc::default();
+        Metrics::new(config, Arc::clone(&board), spans)
+            .with(Arc::new(AcquisitionFamilies::new(config, acquisition)))
+            .with(plc)
+            .with(server)
+            .with(Arc::new(HeartbeatFamily::new(Arc::clone(&board))))
+            .with(Arc::new(board.history().clone()))
+            .with(sparkplug)
             .render()
     }
 
@@ -1020,17 +404,8 @@ mod tests {
     async fn held_query_slots_show() {
         let config = example("hot-mill.toml");
         let slots = Arc::new(QuerySlots::new(1));
-        let metrics = Metrics::new(
-            &config,
-            Acquisition {
-                counters: config.channels.iter().map(|_| Arc::default()).collect(),
-                health: Vec::new(),
-                can: Vec::new(),
-            },
-            Arc::new(Board::new(&config, Vec::new())),
-            &[],
-        )
-        .with_web(Arc::clone(&slots));
+        let metrics = Metrics::new(&config, Arc::new(Board::new(&config, Vec::new())), &[])
+            .with(Arc::clone(&slots) as Arc<dyn Families>);
         let sample = |page: &str, name: &str| -> String {
             page.lines()
                 .find_map(|line| line.strip_prefix(&format!("{name} ")))

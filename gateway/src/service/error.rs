@@ -56,16 +56,10 @@ pub enum ServiceError {
     /// The Sparkplug B edge node's TLS files cannot be used.
     #[error("the Sparkplug B edge node cannot start: {0}")]
     SparkplugTls(#[from] crate::outputs::sparkplug::tls::TlsSetupError),
-    /// The OPC UA server cannot be built or started.
-    #[cfg(feature = "opcua")]
+    /// The OPC UA server cannot be built or started (or, built without the `opcua`
+    /// feature, `[outputs.opcua]` is configured).
     #[error(transparent)]
     OpcUa(#[from] crate::outputs::opcua::OpcUaError),
-    /// `[outputs.opcua]` in a millgate built without the `opcua` feature.
-    #[error(
-        "outputs.opcua: this millgate was built without the OPC UA server (build it with \
-         cargo build --release -p millgate --features opcua)"
-    )]
-    OpcUaNotBuilt,
     /// The service's task panicked or was cancelled.
     #[error("the service task failed: {0}")]
     Task(#[from] tokio::task::JoinError),

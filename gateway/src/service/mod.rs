@@ -24,13 +24,14 @@ pub use running::RunningService;
 use crate::analysis::driveline::BiteReport;
 use crate::analysis::gap_estimate::GapObservation;
 use crate::analysis::Analysis;
+use crate::field::counters::Acquisition;
 use crate::field::counters::{CanCounters, ChannelCounters};
 use crate::field::source_health::SourceHealth;
 use crate::history::outages::{OutageMonitor, WatchedSource};
 use crate::history::RunInfo;
-use crate::outputs::metrics::Acquisition;
 use crate::outputs::modbus::hmi_server::{self, ServerCounters};
 use crate::outputs::modbus::register_map::RegisterMap;
+use crate::outputs::opcua::{self, OpcUaOutputTask};
 use crate::outputs::web;
 use crate::shutdown::{self, Shutdown};
 use crate::state::board::Board;
@@ -63,8 +64,7 @@ pub struct Service {
     opcua_listener: Option<TcpListener>,
     /// The OPC UA server, made by [`Service::new`] (its address space and certificate
     /// store checked there, so `check` reports them).
-    #[cfg(feature = "opcua")]
-    opcua: Option<crate::outputs::opcua::adapter::OpcUaOutputTask>,
+    opcua: Option<OpcUaOutputTask>,
     liveness: Arc<Liveness>,
     server_counters: Arc<ServerCounters>,
     /// Set once the PLC writer attempted its first write (at once without a PLC).
@@ -123,17 +123,12 @@ impl Service {
             return Err(ServiceError::Wear(problems));
         }
         let (commands, command_receiver) = commands::channel();
-        #[cfg(feature = "opcua")]
-        let opcua = crate::outputs::opcua::adapter::OpcUaOutputTask::prepare(
+        let opcua = OpcUaOutputTask::prepare(
             &config,
             &analysis.rod_mill_spans(),
             Arc::clone(&board),
             commands.clone(),
         )?;
-        #[cfg(not(feature = "opcua"))]
-        if config.outputs.opcua.is_some() {
-            return Err(ServiceError::OpcUaNotBuilt);
-        }
         let can_counters = config.can_sources.iter().map(|_| Arc::default()).collect();
         let (plc_attempted, _) = watch::channel(config.outputs.plc.is_none());
         Ok(Self {
@@ -152,7 +147,6 @@ impl Service {
             metrics_listener: None,
             web_listener: None,
             opcua_listener: None,
-            #[cfg(feature = "opcua")]
             opcua,
             liveness: Arc::default(),
             server_counters: Arc::default(),
@@ -165,13 +159,7 @@ impl Service {
     /// check` prints these; the service logs them as warnings at start.
     pub fn warnings(&self) -> Vec<String> {
         let outputs = &self.config.outputs;
-        #[cfg(feature = "opcua")]
-        let opcua = outputs
-            .opcua
-            .as_ref()
-            .and_then(crate::outputs::opcua::exposure_warning);
-        #[cfg(not(feature = "opcua"))]
-        let opcua = None;
+        let opcua = outputs.opcua.as_ref().and_then(opcua::exposure_warning);
         outputs
             .server
             .as_ref()
@@ -387,7 +375,6 @@ impl Service {
             metrics_listener,
             web_listener,
             opcua_listener,
-            #[cfg(feature = "opcua")]
             opcua,
             liveness,
             server_counters,
@@ -433,12 +420,8 @@ impl Service {
             outage_monitor,
             rod_mill_spans,
             plc_counters: Arc::default(),
-            sparkplug: None,
-            web_slots: None,
-            #[cfg(feature = "opcua")]
             opcua,
-            #[cfg(feature = "opcua")]
-            opcua_status: None,
+            metrics: Vec::new(),
         };
         let mut outputs = tokio::task::JoinSet::new();
         for (name, task) in outputs::tasks(wiring, &outputs_shutdown)? {

@@ -10,15 +10,20 @@ use tokio::net::TcpListener;
 use tokio::sync::watch;
 
 use super::error::ServiceError;
+use crate::exposition::Families;
+use crate::field::counters::Acquisition;
+use crate::field::metrics::AcquisitionFamilies;
 use crate::history::outages::OutageMonitor;
-use crate::outputs::metrics::{Acquisition, Metrics};
+use crate::outputs::metrics::Metrics;
 use crate::outputs::modbus::frame::Served;
 use crate::outputs::modbus::heartbeat;
 use crate::outputs::modbus::hmi_server::{ModbusServer, ServerCounters};
+use crate::outputs::modbus::metrics::HeartbeatFamily;
 use crate::outputs::modbus::plc_writer::{PlcCounters, PlcWriter};
 use crate::outputs::modbus::register_map::RegisterMap;
-use crate::outputs::sparkplug::{SparkplugNode, SparkplugStatus};
-use crate::outputs::web::{QuerySlots, WebServer};
+use crate::outputs::opcua::OpcUaOutputTask;
+use crate::outputs::sparkplug::SparkplugNode;
+use crate::outputs::web::WebServer;
 use crate::shutdown::Shutdown;
 use crate::state::board::Board;
 use crate::state::commands::CommandSender;
@@ -53,29 +58,25 @@ pub(super) struct Wiring<'a> {
     pub(super) rod_mill_spans: Vec<usize>,
     /// The PLC writer's counters, for `/metrics`.
     pub(super) plc_counters: Arc<PlcCounters>,
-    /// The Sparkplug node's status once built, for `/metrics`.
-    pub(super) sparkplug: Option<Arc<SparkplugStatus>>,
-    /// The maintenance page's history query slots once built, for `/metrics`.
-    pub(super) web_slots: Option<Arc<QuerySlots>>,
     /// The OPC UA server, made by `Service::new`.
-    #[cfg(feature = "opcua")]
-    pub(super) opcua: Option<crate::outputs::opcua::adapter::OpcUaOutputTask>,
-    /// The OPC UA server's status once started, for `/metrics`.
-    #[cfg(feature = "opcua")]
-    pub(super) opcua_status: Option<crate::outputs::opcua::OpcUaStatus>,
+    pub(super) opcua: Option<OpcUaOutputTask>,
+    /// The `/metrics` families of the outputs built so far that start on demand, in
+    /// build order: each builder adds its own.
+    pub(super) metrics: Vec<Arc<dyn Families>>,
 }
 
 /// Builds one output, or none when it is not configured.
 type Builder = fn(&mut Wiring<'_>, &Shutdown) -> Result<Option<OutputTask>, ServiceError>;
 
-/// Every output in start order (`/metrics` last: it shows the others' counters).
+/// Every output in start order (`/metrics` last: it shows the families the outputs
+/// before it added, in this order).
 const OUTPUTS: [Builder; 8] = [
     plc_writer,
     heartbeat_without_plc,
     outage_monitor,
     hmi_server,
-    sparkplug,
     web_page,
+    sparkplug,
     opcua,
     metrics,
 ];
@@ -183,7 +184,7 @@ fn sparkplug(w: &mut Wiring<'_>, shutdown: &Shutdown) -> Result<Option<OutputTas
         .collect();
     let node = SparkplugNode::new(mqtt.clone(), history.path.clone(), Arc::clone(&w.board))?
         .with_rod_mills(rod_mills);
-    w.sparkplug = Some(node.status());
+    w.metrics.push(node.status());
     let shutdown = shutdown.clone();
     Ok(task("Sparkplug B edge node", async move {
         node.run(shutdown).await;
@@ -210,7 +211,7 @@ fn web_page(w: &mut Wiring<'_>, shutdown: &Shutdown) -> Result<Option<OutputTask
             crate::analysis::chatter::episode_bands(&config, mill, rate_hz, stands, episode)
                 .map_err(|error| error.to_string())
         }));
-    w.web_slots = Some(server.query_slots());
+    w.metrics.push(server.query_slots());
     let shutdown = shutdown.clone();
     Ok(task("maintenance page", async move {
         server
@@ -220,47 +221,35 @@ fn web_page(w: &mut Wiring<'_>, shutdown: &Shutdown) -> Result<Option<OutputTask
     }))
 }
 
-#[cfg(feature = "opcua")]
+/// The OPC UA server (made by `Service::new`; a millgate built without the `opcua`
+/// feature refused `[outputs.opcua]` there, so it has none).
 fn opcua(w: &mut Wiring<'_>, shutdown: &Shutdown) -> Result<Option<OutputTask>, ServiceError> {
     let (Some(opcua), Some(listener)) = (w.opcua.take(), w.listeners.opcua.take()) else {
         return Ok(None);
     };
     tracing::info!("starting the OPC UA server");
-    w.opcua_status = Some(opcua.status());
+    w.metrics.push(Arc::new(opcua.status()));
     Ok(task("OPC UA server", opcua.run(listener, shutdown.clone())))
-}
-
-/// Without the feature `Service::new` refuses `[outputs.opcua]`, so nothing was bound
-/// and nothing starts.
-#[cfg(not(feature = "opcua"))]
-fn opcua(w: &mut Wiring<'_>, _: &Shutdown) -> Result<Option<OutputTask>, ServiceError> {
-    debug_assert!(w.listeners.opcua.is_none());
-    Ok(None)
 }
 
 fn metrics(w: &mut Wiring<'_>, shutdown: &Shutdown) -> Result<Option<OutputTask>, ServiceError> {
     let Some(listener) = w.listeners.metrics.take() else {
         return Ok(None);
     };
-    let mut metrics = Metrics::new(
-        w.config,
-        w.acquisition.clone(),
-        Arc::clone(&w.board),
-        &w.rod_mill_spans,
-    )
-    .with_server(Arc::clone(&w.server_counters));
+    // The acquisition's, the PLC writer's, the HMI server's (counted with or without
+    // one), the heartbeat's and the history's, then those the outputs built added.
+    let mut metrics = Metrics::new(w.config, Arc::clone(&w.board), &w.rod_mill_spans).with(
+        Arc::new(AcquisitionFamilies::new(w.config, w.acquisition.clone())),
+    );
     if w.config.outputs.plc.is_some() {
-        metrics = metrics.with_plc(Arc::clone(&w.plc_counters));
+        metrics = metrics.with(w.plc_counters.clone());
     }
-    if let Some(status) = w.sparkplug.clone() {
-        metrics = metrics.with_sparkplug(status);
-    }
-    if let Some(slots) = w.web_slots.clone() {
-        metrics = metrics.with_web(slots);
-    }
-    #[cfg(feature = "opcua")]
-    if let Some(status) = w.opcua_status.clone() {
-        metrics = metrics.with_opcua(status);
+    metrics = metrics
+        .with(w.server_counters.clone())
+        .with(Arc::new(HeartbeatFamily::new(Arc::clone(&w.board))))
+        .with(Arc::new(w.board.history().clone()));
+    for families in w.metrics.drain(..) {
+        metrics = metrics.with(families);
     }
     let shutdown = shutdown.clone();
     Ok(task("metrics endpoint", async move {

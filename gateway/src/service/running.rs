@@ -30,7 +30,6 @@ pub struct RunningService {
     bites: broadcast::Receiver<BiteReport>,
     liveness: Arc<Liveness>,
     plc_attempted: watch::Receiver<bool>,
-    #[cfg(feature = "opcua")]
     opcua: Option<crate::outputs::opcua::OpcUaStatus>,
     stop: ShutdownTrigger,
     /// The service's task, until its outcome was taken.
@@ -53,7 +52,6 @@ impl Service {
         let bites = self.subscribe_bites();
         let liveness = Arc::clone(&self.liveness);
         let plc_attempted = self.plc_attempted.subscribe();
-        #[cfg(feature = "opcua")]
         let opcua = self.opcua.as_ref().map(|opcua| opcua.status());
         let (stop, shutdown) = shutdown::channel();
         let task = tokio::spawn(self.run(shutdown));
@@ -67,7 +65,6 @@ impl Service {
             bites,
             liveness,
             plc_attempted,
-            #[cfg(feature = "opcua")]
             opcua,
             stop,
             task: Some(task),
@@ -83,7 +80,6 @@ impl RunningService {
     }
 
     /// The OPC UA server's counts, with `[outputs.opcua]`.
-    #[cfg(feature = "opcua")]
     pub fn opcua(&self) -> Option<crate::outputs::opcua::OpcUaStatus> {
         self.opcua.clone()
     }

@@ -6,6 +6,7 @@
 pub mod frame;
 pub(crate) mod heartbeat;
 pub mod hmi_server;
+pub mod metrics;
 pub mod plc_writer;
 pub mod register_map;
 

@@ -12,19 +12,29 @@
 //! namespace, the nodes, the acknowledge guard), `events.rs` (alarm events),
 //! `auth.rs` (anonymous and user sign-in), `pki.rs` (the certificate store),
 //! `front.rs` (the listener: connection bound, framing check, client addresses),
-//! `status.rs` (the counters), `error.rs` (why it stopped),
-//! `adapter.rs` (the catalogue to the address space, the board to snapshots and
-//! events).
+//! `status.rs` (the counters), `metrics.rs` (their `/metrics` families), `error.rs`
+//! (why it stopped), `adapter.rs` (the catalogue to the address space, the board to
+//! snapshots and events), `tools.rs` (what the command line uses: the address space
+//! table, the demo's `--opcua`).
+//!
+//! The rest of the gateway (the service, `millgate check`, `millgate address-space`,
+//! the demo's `--opcua`) uses only this module's face: [`OpcUaOutputTask`],
+//! [`OpcUaStatus`], [`OpcUaError`], [`exposure_warning`], [`address_space_table`] and
+//! [`DemoOption`]. A millgate built without the feature gets the same names from
+//! `outputs/opcua_not_built.rs`, which refuses `[outputs.opcua]`, so no other file
+//! needs a `#[cfg(feature = "opcua")]`.
 
 pub mod adapter;
 mod auth;
 mod error;
 mod events;
 pub mod front;
+mod metrics;
 pub mod model;
 pub mod nodes;
 mod pki;
 mod status;
+mod tools;
 
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
@@ -40,8 +50,10 @@ use tokio::sync::{mpsc, watch};
 
 use crate::shutdown::Shutdown;
 
+pub use adapter::OpcUaOutputTask;
 pub use error::OpcUaError;
 pub use status::{OpcUaCounts, OpcUaStatus};
+pub use tools::{address_space_table, DemoOption};
 
 use front::{ChannelPeers, FrontDoor};
 use model::{AddressSpaceSpec, AlarmEventSpec, Quality, Snapshot, Value, VariableUpdate};

@@ -38,6 +38,7 @@
 
 pub mod devices;
 pub mod forward;
+mod metrics;
 pub mod node;
 pub mod payload;
 mod status;

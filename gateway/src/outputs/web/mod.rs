@@ -27,6 +27,7 @@
 
 pub(crate) mod api;
 mod encoding;
+mod metrics;
 pub(crate) mod page;
 mod shared;
 

@@ -1,0 +1,86 @@
+//! The OPC UA server's `/metrics` families: connections, framing and protocol
+//! errors, refused sign-ins and requests, acknowledgements, value changes and events.
+
+use super::OpcUaStatus;
+use crate::exposition::{Exposition, Families, Kind};
+
+impl Families for OpcUaStatus {
+    fn write_families(&self, page: &mut Exposition) {
+        let counts = &self.counts();
+        let scalars: [(&str, Kind, &str, f64); 12] = [
+            (
+                "millgate_opcua_connections_total",
+                Kind::Counter,
+                "TCP connections the OPC UA server accepted.",
+                counts.connections as f64,
+            ),
+            (
+                "millgate_opcua_connections_refused_total",
+                Kind::Counter,
+                "Connections closed at once because max_connections were open.",
+                counts.refused as f64,
+            ),
+            (
+                "millgate_opcua_malformed_frames_total",
+                Kind::Counter,
+                "Connections closed because the client did not speak OPC UA TCP framing.",
+                counts.malformed_frames as f64,
+            ),
+            (
+                "millgate_opcua_protocol_errors_total",
+                Kind::Counter,
+                "ERR messages the server sent (a message its decoder or secure channel refused).",
+                counts.protocol_errors as f64,
+            ),
+            (
+                "millgate_opcua_identities_refused_total",
+                Kind::Counter,
+                "Sign-ins refused (wrong password, unknown user, anonymous where not allowed).",
+                counts.identities_refused as f64,
+            ),
+            (
+                "millgate_opcua_security_rejected_requests_total",
+                Kind::Counter,
+                "Requests refused for security (certificate, signature, session, access).",
+                counts.security_rejected_requests as f64,
+            ),
+            (
+                "millgate_opcua_rejected_requests_total",
+                Kind::Counter,
+                "Requests answered with a bad service result.",
+                counts.rejected_requests as f64,
+            ),
+            (
+                "millgate_opcua_acknowledgements_total",
+                Kind::Counter,
+                "Acknowledge calls carried out.",
+                counts.acknowledgements as f64,
+            ),
+            (
+                "millgate_opcua_acknowledgements_refused_total",
+                Kind::Counter,
+                "Acknowledge calls the guard refused (a remote host, a read-only user).",
+                counts.acknowledgements_refused as f64,
+            ),
+            (
+                "millgate_opcua_value_changes_total",
+                Kind::Counter,
+                "Variable values changed in the address space.",
+                counts.value_changes as f64,
+            ),
+            (
+                "millgate_opcua_invalid_updates_total",
+                Kind::Counter,
+                "Updates refused (wrong type, a non-finite number given as good).",
+                counts.invalid_updates as f64,
+            ),
+            (
+                "millgate_opcua_events_total",
+                Kind::Counter,
+                "Alarm events sent to clients.",
+                counts.events as f64,
+            ),
+        ];
+        page.scalars(scalars);
+    }
+}
