@@ -185,6 +185,7 @@ pub(crate) struct RawPlcOutput {
     pub register_base: Option<i64>,
     pub write_period_ms: i64,
     pub timeout_ms: Option<i64>,
+    pub extension_blocks: Option<bool>,
 }
 
 /// `[outputs.server]`.

@@ -221,12 +221,17 @@ pub fn summary(config: &Config) -> String {
     if let Some(plc) = &outputs.plc {
         let _ = writeln!(
             text,
-            "  PLC: {} unit {}, holding registers from {}, write every {} ms, timeout {} ms",
+            "  PLC: {} unit {}, holding registers from {}, write every {} ms, timeout {} ms{}",
             plc.address,
             plc.unit_id,
             plc.register_base,
             plc.write_period.as_millis(),
-            plc.timeout.as_millis()
+            plc.timeout.as_millis(),
+            if plc.extension_blocks {
+                ", with the extension blocks"
+            } else {
+                ""
+            }
         );
     }
     if let Some(server) = &outputs.server {

@@ -790,6 +790,10 @@ pub struct PlcOutput {
     pub write_period: Duration,
     /// Time allowed for one write, 1..=60000 ms (default 1000 ms).
     pub timeout: Duration,
+    /// Whether the extension blocks (the figures added since the map's first layout,
+    /// after every block) are written too (default false: a PLC whose area was sized
+    /// for the first layout gets exactly what it got before).
+    pub extension_blocks: bool,
 }
 
 /// The gateway's own Modbus TCP server.

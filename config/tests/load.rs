@@ -173,6 +173,7 @@ fn base_is_valid_and_takes_defaults() {
     let plc = config.outputs.plc.as_ref().expect("plc output");
     assert_eq!((plc.unit_id, plc.register_base), (1, 0));
     assert_eq!(plc.timeout, Duration::from_millis(1000));
+    assert!(!plc.extension_blocks, "the first layout only, by default");
     let server = config.outputs.server.as_ref().expect("server output");
     assert_eq!(server.unit_id, 1);
     assert_eq!(server.max_connections, 8);
@@ -556,6 +557,26 @@ fn integer_ranges() {
             "write_period_ms = 100\nregister_base = 70000",
         ),
         "mill.toml: outputs.plc.register_base: 70000 is not allowed (must be 0..=65535)",
+    );
+}
+
+#[test]
+fn the_plc_gets_the_extension_blocks_when_asked_and_a_wrong_type_is_named() {
+    let config = parse(&edited(
+        "write_period_ms = 100",
+        "write_period_ms = 100\nextension_blocks = true",
+    ))
+    .unwrap_or_else(|error| panic!("{error}"));
+    assert!(config.outputs.plc.unwrap().extension_blocks);
+    let problems = problems(&edited(
+        "write_period_ms = 100",
+        "write_period_ms = 100\nextension_blocks = \"yes\"",
+    ));
+    assert!(
+        problems
+            .iter()
+            .any(|p| p.contains("outputs.plc.extension_blocks")),
+        "{problems:?}"
     );
 }
 

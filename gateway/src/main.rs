@@ -246,10 +246,9 @@ fn main() -> ExitCode {
             .map_err(anyhow::Error::from)
             .and_then(|config| {
                 let map = millgate::outputs::modbus::register_map::RegisterMap::try_new(&config)?;
-                let plc_base = config.outputs.plc.as_ref().map(|plc| plc.register_base);
                 print!(
                     "{}",
-                    millgate::cli::registers::export(&map, plc_base, format)
+                    millgate::cli::registers::export(&map, config.outputs.plc.as_ref(), format)
                 );
                 Ok(())
             }),

@@ -1172,6 +1172,7 @@ async fn tandem_chatter_closed_loop_over_can_keeps_the_mill_below_developed_chat
         register_base: 0,
         write_period: Duration::from_millis(50),
         timeout: Duration::from_secs(1),
+        extension_blocks: false,
     });
     let serving_plc = plc.spawn(listener, ServeOptions::default());
     let message = message(&config, &[0, 1, 2, 3, 4])?;

@@ -59,6 +59,7 @@ impl Checker<'_> {
                 register_base: u16::try_from(register_base?).ok()?,
                 write_period: write_period?,
                 timeout: timeout?,
+                extension_blocks: plc.extension_blocks.unwrap_or(false),
             })
         });
         let server = raw.server.as_ref().map(|server| {

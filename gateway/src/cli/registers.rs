@@ -7,7 +7,7 @@
 //! that counts from 1 (the Modicon 4xxxx notation, mbpoll without `-0`) shows
 //! address 0 as register 1 (40001).
 
-use millgate_config::{ValueType, WordOrder};
+use millgate_config::{PlcOutput, ValueType, WordOrder};
 use serde::Serialize;
 
 use crate::outputs::modbus::register_map::RegisterMap;
@@ -59,11 +59,14 @@ pub fn word_order_name(order: WordOrder) -> &'static str {
     }
 }
 
-fn rows(map: &RegisterMap, plc_base: Option<u16>) -> impl Iterator<Item = Row<'_>> {
+fn rows<'a>(map: &'a RegisterMap, plc: Option<&PlcOutput>) -> impl Iterator<Item = Row<'a>> {
+    let written = plc.map(|plc| (plc.register_base, map.plc_span(plc.extension_blocks)));
     map.registers().iter().map(move |r| Row {
         name: &r.name,
         address: r.address,
-        plc_address: plc_base.map(|base| u32::from(base) + u32::from(r.address)),
+        plc_address: written
+            .filter(|(_, span)| r.address < *span)
+            .map(|(base, _)| u32::from(base) + u32::from(r.address)),
         value_type: type_name(r.value_type),
         scale: r.scale,
         word_order: word_order_name(r.word_order),
@@ -84,20 +87,21 @@ pub(crate) fn csv_field(text: &str) -> String {
 }
 
 /// The map of `map` in `format`: each register's offset from the map's start (the
-/// HMI server's address) and, with `plc_base` (`outputs.plc.register_base`), its
-/// address in the PLC; both 0-based PDU addresses.
-pub fn export(map: &RegisterMap, plc_base: Option<u16>, format: Format) -> String {
+/// HMI server's address) and, with `plc` (`[outputs.plc]`), its address in the PLC
+/// (`register_base` + offset; none for an extension block the PLC is not written);
+/// both 0-based PDU addresses.
+pub fn export(map: &RegisterMap, output: Option<&PlcOutput>, format: Format) -> String {
     let plc = |row: &Row<'_>| row.plc_address.map_or(String::new(), |a| a.to_string());
     match format {
         Format::Json => {
-            let rows: Vec<Row<'_>> = rows(map, plc_base).collect();
+            let rows: Vec<Row<'_>> = rows(map, output).collect();
             serde_json::to_string_pretty(&rows).unwrap_or_default() + "\n"
         }
         Format::Csv => {
             let mut out = String::from(
                 "name,address,plc_address,type,scale,word_order,unit,access,description\n",
             );
-            for row in rows(map, plc_base) {
+            for row in rows(map, output) {
                 out += &format!(
                     "{},{},{},{},{},{},{},{},{}\n",
                     csv_field(row.name),
@@ -118,7 +122,7 @@ pub fn export(map: &RegisterMap, plc_base: Option<u16>, format: Format) -> Strin
                 "| address | hex | PLC address | name | type | unit | scale | word order | access | description |\n\
                  |---|---|---|---|---|---|---|---|---|---|\n",
             );
-            for row in rows(map, plc_base) {
+            for row in rows(map, output) {
                 out += &format!(
                     "| {} | 0x{:04X} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
                     row.address,

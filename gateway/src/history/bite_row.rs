@@ -11,7 +11,7 @@ use std::sync::OnceLock;
 use serde::ser::{Serialize, SerializeMap, Serializer};
 
 use super::figures::{bite_columns, from_sql};
-use super::query::{Cell, Record, ToCell};
+use super::record::{Cell, Record, ToCell};
 use crate::state::catalogue::Value;
 use crate::state::results::DrivelineResults;
 use crate::state::time::UtcTime;

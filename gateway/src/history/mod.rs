@@ -61,6 +61,7 @@ pub mod figures;
 mod metrics;
 pub mod outages;
 pub mod query;
+mod record;
 pub mod restore;
 pub mod retention;
 pub mod rows;

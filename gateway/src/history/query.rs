@@ -16,6 +16,7 @@ use serde::Serialize;
 
 pub use super::bite_row::{trusted, BiteRow};
 use super::error::{check_file_owner, HistoryError};
+pub use super::record::{Cell, Record, ToCell};
 use super::restore::Restored;
 use super::schema::{current_version, SchemaError};
 use crate::state::time::UtcTime;
@@ -63,83 +64,6 @@ pub struct Filter {
     pub after_id: Option<i64>,
     /// At most this many rows.
     pub limit: Option<u32>,
-}
-
-/// One value of a row, for CSV and Markdown exports.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Cell {
-    /// No value (`NULL`).
-    Null,
-    /// An integer (counts, ids, booleans as 0/1).
-    Integer(i64),
-    /// A measured value.
-    Real(f64),
-    /// Text (names, times).
-    Text(String),
-}
-
-impl std::fmt::Display for Cell {
-    /// Empty for `Null`; reals as the shortest text that reads back to the same f64.
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Cell::Null => Ok(()),
-            Cell::Integer(value) => write!(f, "{value}"),
-            Cell::Real(value) => write!(f, "{value}"),
-            Cell::Text(text) => f.write_str(text),
-        }
-    }
-}
-
-/// Conversion of a row field to a [`Cell`].
-pub trait ToCell {
-    /// The cell.
-    fn to_cell(&self) -> Cell;
-}
-
-impl ToCell for i64 {
-    fn to_cell(&self) -> Cell {
-        Cell::Integer(*self)
-    }
-}
-
-impl ToCell for f64 {
-    fn to_cell(&self) -> Cell {
-        Cell::Real(*self)
-    }
-}
-
-impl ToCell for bool {
-    fn to_cell(&self) -> Cell {
-        Cell::Integer(i64::from(*self))
-    }
-}
-
-impl ToCell for String {
-    fn to_cell(&self) -> Cell {
-        Cell::Text(self.clone())
-    }
-}
-
-impl<T: ToCell> ToCell for Option<T> {
-    fn to_cell(&self) -> Cell {
-        self.as_ref().map_or(Cell::Null, ToCell::to_cell)
-    }
-}
-
-/// A row type of one table.
-pub trait Record: Sized + Serialize {
-    /// The table.
-    const TABLE: &'static str;
-    /// The columns read, in order (the struct's fields).
-    fn columns() -> &'static [&'static str];
-    /// The column [`Filter::name`] matches.
-    const NAME_COLUMN: &'static str;
-    /// The column [`Filter::since`] and [`Filter::until`] compare.
-    const TIME_COLUMN: &'static str;
-    /// The row from a result row of [`Self::columns`].
-    fn from_row(row: &rusqlite::Row<'_>) -> rusqlite::Result<Self>;
-    /// The values, in [`Self::columns`] order.
-    fn cells(&self) -> Vec<Cell>;
 }
 
 /// Declares a row struct of `table` with its [`Record`] implementation: one place

@@ -89,8 +89,8 @@ impl Service {
     /// the service cannot run with.
     pub fn new(config: Config) -> Result<Self, ServiceError> {
         let map = RegisterMap::try_new(&config)?;
-        let span = map.len();
         if let Some(plc) = &config.outputs.plc {
+            let span = map.plc_span(plc.extension_blocks);
             let end = u32::from(plc.register_base) + u32::from(span) - 1;
             if end > u32::from(u16::MAX) {
                 return Err(ServiceError::RegisterBase {

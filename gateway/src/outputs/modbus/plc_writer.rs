@@ -234,7 +234,8 @@ impl PlcWriter {
         // The map as the PLC holds it after the last write that went through (None
         // before the first, after a failure or a reconnect: the next write is whole).
         let mut at_plc: Option<Vec<u16>> = None;
-        let whole = requests(self.map.blocks(), |_| true);
+        let blocks = self.map.plc_blocks(self.output.extension_blocks);
+        let whole = requests(blocks, |_| true);
         loop {
             let period = tokio::select! {
                 _ = ticks.tick() => true,
@@ -266,7 +267,7 @@ impl PlcWriter {
                 }
                 // On a change, the blocks that differ from what the PLC holds.
                 let changed = at_plc.as_deref().filter(|_| !period).map(|held| {
-                    requests(self.map.blocks(), |block| {
+                    requests(blocks, |block| {
                         let block = usize::from(block.start)..usize::from(block.end);
                         words[block.clone()] != held[block]
                     })
@@ -355,6 +356,19 @@ mod tests {
     /// PLC holding the whole map as encoded; the first write was the whole map.
     #[tokio::test]
     async fn a_change_writes_the_blocks_that_changed_and_the_periodic_write_all() {
+        change_and_period(false).await;
+    }
+
+    /// With `extension_blocks` the whole map, extension blocks too, goes to the PLC.
+    #[tokio::test]
+    async fn with_extension_blocks_the_plc_gets_the_whole_map() {
+        change_and_period(true).await;
+    }
+
+    /// The test above with `outputs.plc.extension_blocks` = `extension`: the PLC's area
+    /// is exactly what it is written (the first layout without it: a write past it
+    /// would be refused).
+    async fn change_and_period(extension: bool) {
         let path =
             std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/examples/demo.toml");
         let mut config = millgate_config::load(&path).expect("the demo configuration");
@@ -368,7 +382,9 @@ mod tests {
         let map = Arc::new(RegisterMap::new(&config));
         assert!(usize::from(map.len()) > 2 * MAX_WRITE_REGISTERS);
         let base = 100u16;
-        let plc = VirtualPlc::new(usize::from(base + map.len())).logging_writes();
+        let span = map.plc_span(extension);
+        assert_eq!(span < map.len(), !extension, "the map has extension blocks");
+        let plc = VirtualPlc::new(usize::from(base + span)).logging_writes();
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
         let mut output = config
             .outputs
@@ -378,6 +394,7 @@ mod tests {
         output.address = listener.local_addr().unwrap().to_string();
         output.register_base = base;
         output.write_period = Duration::from_secs(3600);
+        output.extension_blocks = extension;
         let running = plc.clone().spawn(listener, ServeOptions::default());
         let health = Arc::new(SourceHealth::new(
             Duration::from_secs(3600),
@@ -412,10 +429,7 @@ mod tests {
             }
         };
         let whole = next_write().await;
-        assert_eq!(
-            whole.iter().map(|w| w.1).sum::<usize>(),
-            usize::from(map.len())
-        );
+        assert_eq!(whole.iter().map(|w| w.1).sum::<usize>(), usize::from(span));
         assert!(whole.len() > 2, "several requests: {whole:?}");
         for (start, count) in &whole {
             let end = start + *count as u16;
@@ -442,8 +456,8 @@ mod tests {
         assert_eq!(decode_u32(&held[counter..counter + 2]), Some(7));
         assert_eq!(
             held[usize::from(base)..],
-            map.encode(&board.results())[..],
-            "the PLC holds the whole map as encoded"
+            map.encode(&board.results())[..usize::from(span)],
+            "the PLC holds what it is written of the map, as encoded"
         );
         stop.trigger();
         writer.await.unwrap();

@@ -208,8 +208,10 @@ pub struct MapTooLarge {
 pub struct RegisterMap {
     registers: Vec<Register>,
     len: u16,
-    /// Where the extension blocks start ([`Self::base_len`]).
+    /// Where the extension blocks start ([`Self::plc_blocks`]).
     base_len: u16,
+    /// How many of [`Self::blocks`] come before the extension blocks.
+    base_blocks: usize,
     /// The global registers, then each subject's block: see [`RegisterMap::blocks`].
     blocks: Vec<Range<u16>>,
 }
@@ -546,6 +548,7 @@ impl RegisterMap {
             blocks.push(start..start + stride);
         }
         let len = blocks.last().map_or(0, |b| b.end);
+        let base_blocks = blocks.iter().filter(|b| b.end <= base_len).count();
         debug_assert_eq!(u64::from(len), span_of(config));
         let mut registers = b.registers;
         registers.sort_by_key(|register| register.address);
@@ -553,6 +556,7 @@ impl RegisterMap {
             registers,
             len,
             base_len,
+            base_blocks,
             blocks,
         }
     }
@@ -569,6 +573,28 @@ impl RegisterMap {
     /// across two requests.
     pub fn blocks(&self) -> &[Range<u16>] {
         &self.blocks
+    }
+
+    /// The blocks written to a PLC: every block with `extension` (the
+    /// `outputs.plc.extension_blocks` key), else those of the map's first layout,
+    /// which end where the extension blocks start ([`Self::plc_span`]). The extension
+    /// blocks hold the figures declared on a subject's extension page (page 1 of
+    /// [`catalogue::Register::At`]), after every other block, so that no address of
+    /// the first layout moves and a PLC sized for it gets what it got before.
+    pub fn plc_blocks(&self, extension: bool) -> &[Range<u16>] {
+        match extension {
+            true => &self.blocks,
+            false => &self.blocks[..self.base_blocks],
+        }
+    }
+
+    /// The registers written to a PLC: [`Self::len`] with `extension`, else the first
+    /// layout's.
+    pub fn plc_span(&self, extension: bool) -> u16 {
+        match extension {
+            true => self.len,
+            false => self.base_len,
+        }
     }
 
     /// Number of registers the map spans (including reserved ones, which read 0).
@@ -760,10 +786,13 @@ mod tests {
         config.rod_mills = example("rod-mill.toml").rod_mills;
         let map = RegisterMap::new(&config);
         let blocks = map.blocks();
-        assert_eq!(
-            blocks.len(),
-            1 + config.drivelines.len() + config.tandem_mills.len() + config.rod_mills.len()
-        );
+        // The first layout's blocks, then each driveline's extension block.
+        let first =
+            1 + config.drivelines.len() + config.tandem_mills.len() + config.rod_mills.len();
+        assert_eq!(blocks.len(), first + config.drivelines.len());
+        assert_eq!(map.plc_blocks(false), &blocks[..first]);
+        assert_eq!(map.plc_blocks(true), blocks);
+        assert_eq!(map.plc_span(false), blocks[first - 1].end);
         assert_eq!(blocks[0].start, 0);
         assert_eq!(blocks.last().unwrap().end, map.len());
         for pair in blocks.windows(2) {
@@ -791,10 +820,11 @@ mod tests {
                 k if k <= config.drivelines.len() + config.tandem_mills.len() => {
                     Some(&config.tandem_mills[k - 1 - config.drivelines.len()].name)
                 }
-                k => Some(
+                k if k < first => Some(
                     &config.rod_mills[k - 1 - config.drivelines.len() - config.tandem_mills.len()]
                         .name,
                 ),
+                k => Some(&config.drivelines[k - first].name),
             };
             match owner {
                 Some(name) => assert_eq!(subject, name.as_str(), "{}", register.name),
@@ -913,6 +943,38 @@ mod tests {
         assert_eq!(words[base + 2..base + 4], [0x0001, 0x1170]);
         assert!(words[base + 4..base + 30].iter().all(|&w| w == 0));
         assert_eq!(words[base + 30..base + 32], [0, 2]);
+    }
+
+    #[test]
+    fn the_extension_block_holds_the_figures_declared_on_it_after_every_block() {
+        let config = example("hot-mill.toml");
+        let map = RegisterMap::new(&config);
+        let quality = map
+            .named("F1 main drive.extension_quality")
+            .expect("the driveline's extension block")
+            .address;
+        assert_eq!(quality, map.plc_span(false) + 1, "after the first layout");
+        let q = usize::from(quality);
+        let mut results = Results::new(config.sources().count(), config.drivelines.len(), 0);
+        results.drivelines[0] = DrivelineResults {
+            first_period_s: Some(0.0625),
+            gap: Some(crate::state::results::GapResults {
+                gap_mrad: 2.5,
+                low_mrad: 2.0,
+                high_mrad: 3.0,
+                coupling: None,
+                likeliest_coupling: Some(2),
+                bites_pooled: 12,
+            }),
+            ..DrivelineResults::default()
+        };
+        let words = map.encode(&results);
+        assert_eq!(words[q], 0b11, "first_period_s, likeliest_coupling valid");
+        // 0.0625 = 0x3D800000 (f32 ABCD).
+        assert_eq!(words[q + 1..q + 4], [0x3D80, 0, 2]);
+        results.drivelines[0].source_stale = true;
+        let words = map.encode(&results);
+        assert_eq!(words[q..q + 4], [0; 4], "withheld while stale");
     }
 
     /// Every figure of `figures` has a register with a guard that fits it, or a

@@ -1,11 +1,10 @@
-//! The alarms and warnings: each is a flag of the catalogue ([`Spec::alarm`]), whose
-//! key is the alarm's name in every output and the history, and which says whether
-//! it latches ([`Spec::latched`]).
-
-use super::{Spec, DRIVELINE, TANDEM_MILL};
+//! The alarms and warnings: each is a flag of the catalogue
+//! ([`Spec::alarm`](super::Spec::alarm)), whose key is the alarm's name in every
+//! output and the history, and which says whether it latches
+//! ([`Spec::latched`](super::Spec::latched)).
 
 /// Which alarm or warning a record is about: the flag that carries it (see
-/// [`Spec::alarm`]).
+/// [`Spec::alarm`](super::Spec::alarm)).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum AlarmKind {
     /// A driveline's TAF at or above its warning threshold (follows each bite).
@@ -24,31 +23,10 @@ pub enum AlarmKind {
     ChatterAlarm,
 }
 
-impl AlarmKind {
-    /// The flag that carries it.
-    fn flag(self) -> &'static Spec {
-        DRIVELINE
-            .iter()
-            .map(|figure| &figure.spec)
-            .chain(TANDEM_MILL.iter().map(|figure| &figure.spec))
-            .find(|spec| spec.alarm == Some(self))
-            .unwrap_or_else(|| panic!("no catalogue flag carries {self:?}"))
-    }
-
-    /// As stored and published: the key of its flag.
-    pub fn name(self) -> &'static str {
-        self.flag().key
-    }
-
-    /// Whether the alarm latches until acknowledged (else it follows the analysis).
-    pub fn latched(self) -> bool {
-        self.flag().latched
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::state::catalogue::{DRIVELINE, TANDEM_MILL};
 
     #[test]
     fn every_kind_is_one_flag_and_latching_is_said_in_its_description() {

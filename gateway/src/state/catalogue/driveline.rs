@@ -2,11 +2,11 @@
 
 use millgate_config::ValueType::{F32, U16, U32};
 
-use super::{
-    at, counter_at, index_of, real_of, to_count, to_flag, to_index, to_real, to_time, unmapped,
-    Columns, FigureType, Stale, Value,
+use super::declare::{
+    at, counter_at, ext, index_of, real_of, to_count, to_flag, to_index, to_real, to_time,
 };
 use super::{AlarmKind, DrivelineResults, Figure};
+use super::{Columns, FigureType, Stale, Value};
 use crate::state::results::GapResults;
 
 /// The table's figure type.
@@ -96,7 +96,7 @@ pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
     F::real(
         "first_period_s",
         "s",
-        unmapped("the PLC acts on period_shift_s; no free register in the block"),
+        ext(2, F32, 0),
         Stale::LastUsable,
         "First oscillation period after the last bite's onset (the paper's T1: it grows with the opened gap)",
         |d| real_of(d.first_period_s),
@@ -206,7 +206,7 @@ pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
     F::real(
         "likeliest_coupling",
         "",
-        unmapped("gap_coupling carries the coupling once the bites determine it; no free register in the block"),
+        ext(4, U16, 1),
         Stale::LastUsable,
         "The likeliest coupling to hold the gap (model index), named whether or not the bites tell the couplings apart",
         |d| index_of(d.gap.and_then(|g| g.likeliest_coupling)),

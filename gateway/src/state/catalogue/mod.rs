@@ -10,8 +10,8 @@
 //!
 //! A figure is declared once, in its subject's table ([`DRIVELINE`], [`TANDEM_MILL`],
 //! [`ROD_MILL`], [`ROD_SPAN`]): its key, unit and description; its [`Slot`] in the
-//! register map together with the bit that guards it ([`at`], [`ext`], [`counter_at`],
-//! [`unmapped`]); the stale rule; how to read it from the results; and, when the
+//! register map together with the bit that guards it (`at`, `ext`, `counter_at`,
+//! `unmapped`); the stale rule; how to read it from the results; and, when the
 //! history keeps it, its [`Columns`] and how a start sets it back. The outputs iterate
 //! the tables: adding a figure is its declaration, its computation, and a migration
 //! when it gets a history column.
@@ -43,6 +43,7 @@ use millgate_config::ValueType;
 use super::results::{DrivelineResults, RodMillResults, RodSpanResults, TandemMillResults};
 
 mod alarms;
+mod declare;
 mod driveline;
 mod rod_mill;
 mod tandem_mill;
@@ -290,68 +291,14 @@ pub enum Register {
 }
 
 /// A figure's register and the guard that says when its value may be used there:
-/// declared together ([`at`], [`ext`], [`counter_at`], [`unmapped`],
-/// [`unmapped_counter`]), so a value cannot lose its quality bit.
+/// declared together (`at`, `ext`, `counter_at`, `unmapped`, `unmapped_counter` in
+/// the tables), so a value cannot lose its quality bit.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Slot {
     /// Where it sits.
     pub register: Register,
     /// What guards it.
     pub guard: Guard,
-}
-
-/// At `offset` of the subject's block as `value_type`, valid while bit `quality_bit`
-/// of the block's quality register is set.
-pub const fn at(offset: u16, value_type: ValueType, quality_bit: u8) -> Slot {
-    Slot {
-        register: Register::At {
-            page: 0,
-            offset,
-            value_type,
-        },
-        guard: Guard::QualityBit(quality_bit),
-    }
-}
-
-/// At `offset` of the subject's extension block as `value_type`, valid while bit
-/// `quality_bit` of the extension block's quality register is set.
-pub const fn ext(offset: u16, value_type: ValueType, quality_bit: u8) -> Slot {
-    Slot {
-        register: Register::At {
-            page: 1,
-            offset,
-            value_type,
-        },
-        guard: Guard::QualityBit(quality_bit),
-    }
-}
-
-/// A counter at `offset` of the subject's block: always valid.
-pub const fn counter_at(offset: u16, value_type: ValueType) -> Slot {
-    Slot {
-        register: Register::At {
-            page: 0,
-            offset,
-            value_type,
-        },
-        guard: Guard::Always,
-    }
-}
-
-/// Not in the register map (`why`): valid while it has a value.
-pub const fn unmapped(why: &'static str) -> Slot {
-    Slot {
-        register: Register::NotMapped(why),
-        guard: Guard::Presence,
-    }
-}
-
-/// A counter not in the register map (`why`): always valid.
-pub const fn unmapped_counter(why: &'static str) -> Slot {
-    Slot {
-        register: Register::NotMapped(why),
-        guard: Guard::Always,
-    }
 }
 
 /// Where the history keeps a figure: its column in the `bites` table (a figure of
@@ -362,24 +309,6 @@ pub struct Columns {
     pub bite: Option<&'static str>,
     /// The column of the subject's state table (`driveline_state`, `mill_state`).
     pub state: Option<&'static str>,
-}
-
-impl Columns {
-    /// Column `name` of the bite rows and of the state rows.
-    pub const fn both(name: &'static str) -> Self {
-        Self {
-            bite: Some(name),
-            state: Some(name),
-        }
-    }
-
-    /// Column `name` of the state rows only (a flag a start restores).
-    pub const fn state(name: &'static str) -> Self {
-        Self {
-            bite: None,
-            state: Some(name),
-        }
-    }
 }
 
 /// What the catalogue says of a figure, whatever its subject.
@@ -444,78 +373,6 @@ impl<R> std::ops::Deref for Figure<R> {
 }
 
 impl<R> Figure<R> {
-    const fn new(
-        key: &'static str,
-        unit: &'static str,
-        figure_type: FigureType,
-        slot: Slot,
-        stale: Stale,
-        description: &'static str,
-        value: fn(&R) -> Option<Value>,
-    ) -> Self {
-        Figure {
-            spec: Spec {
-                key,
-                unit,
-                figure_type,
-                description,
-                guard: slot.guard,
-                register: slot.register,
-                stale,
-                range: None,
-                alarm: None,
-                latched: false,
-                metric: None,
-                columns: Columns {
-                    bite: None,
-                    state: None,
-                },
-                from_window: false,
-            },
-            value,
-            set: None,
-        }
-    }
-
-    /// This figure with values of `figure_type` (a real figure that is an index, a
-    /// count or a time).
-    const fn typed(mut self, figure_type: FigureType) -> Self {
-        self.spec.figure_type = figure_type;
-        self
-    }
-
-    /// This figure with its values in `low..=high`.
-    const fn range(mut self, low: f64, high: f64) -> Self {
-        self.spec.range = Some((low, high));
-        self
-    }
-
-    /// This figure named `name` on `/metrics`.
-    const fn metric(mut self, name: &'static str) -> Self {
-        self.spec.metric = Some(name);
-        self
-    }
-
-    /// This flag, latched until acknowledged.
-    const fn latched(mut self) -> Self {
-        self.spec.latched = true;
-        self
-    }
-
-    /// This figure, measured on the bite's window.
-    const fn measured_on_window(mut self) -> Self {
-        self.spec.from_window = true;
-        self
-    }
-
-    /// This figure kept in the history's `columns`, set back by `set` (setters run in
-    /// catalogue order: a figure that makes a value others fill comes first).
-    const fn kept(mut self, columns: Columns, set: fn(&mut R, Option<Value>)) -> Self {
-        self.spec.columns = columns;
-        self.set = Some(set);
-        self
-    }
-
     /// The value of `subject` as it is, without the stale rule: what the history
     /// stores.
     pub fn value(&self, subject: &R) -> Option<Value> {
@@ -611,104 +468,26 @@ pub fn find<R: Subject + 'static>(figures: &'static [Figure<R>], key: &str) -> &
         .unwrap_or_else(|| panic!("no {} figure {key}", R::KIND.name()))
 }
 
-/// The flag of `figures` that carries alarm `kind`, if these figures have it.
-pub fn alarm_flag<R>(figures: &'static [Figure<R>], kind: AlarmKind) -> Option<&'static Figure<R>> {
-    figures.iter().find(|figure| figure.alarm == Some(kind))
-}
-
-impl<R> Figure<R> {
-    /// A real figure in `unit`, at `slot`.
-    pub(super) const fn real(
-        key: &'static str,
-        unit: &'static str,
-        slot: Slot,
-        stale: Stale,
-        description: &'static str,
-        value: fn(&R) -> Option<Value>,
-    ) -> Self {
-        Self::new(key, unit, FigureType::Real, slot, stale, description, value)
+/// An alarm kind's name and latching are its flag's ([`Spec::alarm`]).
+impl AlarmKind {
+    /// The flag that carries it.
+    fn flag(self) -> &'static Spec {
+        DRIVELINE
+            .iter()
+            .map(|figure| &figure.spec)
+            .chain(TANDEM_MILL.iter().map(|figure| &figure.spec))
+            .find(|spec| spec.alarm == Some(self))
+            .unwrap_or_else(|| panic!("no catalogue flag carries {self:?}"))
     }
 
-    /// A flag at bit `bit` of its block's flags register.
-    pub(super) const fn flag(
-        key: &'static str,
-        bit: u8,
-        stale: Stale,
-        alarm: Option<AlarmKind>,
-        description: &'static str,
-        value: fn(&R) -> Option<Value>,
-    ) -> Self {
-        let slot = Slot {
-            register: Register::Flag,
-            guard: Guard::FlagBit(bit),
-        };
-        let mut figure = Self::new(key, "", FigureType::Bool, slot, stale, description, value);
-        figure.spec.range = Some((0.0, 1.0));
-        figure.spec.alarm = alarm;
-        figure
+    /// As stored and published: the key of its flag.
+    pub fn name(self) -> &'static str {
+        self.flag().key
     }
 
-    /// A count of events at `slot` (a counter's: [`counter_at`], [`unmapped_counter`]).
-    pub(super) const fn count(
-        key: &'static str,
-        slot: Slot,
-        description: &'static str,
-        value: fn(&R) -> Option<Value>,
-    ) -> Self {
-        Self::new(
-            key,
-            "",
-            FigureType::Count,
-            slot,
-            Stale::Kept,
-            description,
-            value,
-        )
-    }
-}
-
-fn real_of(value: Option<f64>) -> Option<Value> {
-    value.map(Value::Real)
-}
-
-fn index_of(value: Option<usize>) -> Option<Value> {
-    value.map(|v| Value::Index(v as u64))
-}
-
-/// A stored value as a real number.
-fn to_real(value: Option<Value>) -> Option<f64> {
-    match value {
-        Some(Value::Real(v)) => Some(v),
-        _ => None,
-    }
-}
-
-/// A stored value as an index.
-fn to_index(value: Option<Value>) -> Option<usize> {
-    match value {
-        Some(Value::Index(v)) => usize::try_from(v).ok(),
-        _ => None,
-    }
-}
-
-/// A stored value as a count (0 without one).
-fn to_count(value: Option<Value>) -> u64 {
-    match value {
-        Some(Value::Count(v)) => v,
-        _ => 0,
-    }
-}
-
-/// A stored value as a flag (clear without one).
-fn to_flag(value: Option<Value>) -> bool {
-    value == Some(Value::Bool(true))
-}
-
-/// A stored value as a time, ms since the Unix epoch.
-fn to_time(value: Option<Value>) -> Option<i64> {
-    match value {
-        Some(Value::Time(ms)) => Some(ms),
-        _ => None,
+    /// Whether the alarm latches until acknowledged (else it follows the analysis).
+    pub fn latched(self) -> bool {
+        self.flag().latched
     }
 }
 

@@ -2,8 +2,9 @@
 
 use millgate_config::ValueType::{F32, U16};
 
-use super::{at, real_of, unmapped, unmapped_counter, FigureType, Stale, Value};
+use super::declare::{at, real_of, unmapped, unmapped_counter};
 use super::{Figure, RodMillResults, RodSpanResults};
+use super::{FigureType, Stale, Value};
 
 /// The rod mill table's figure type.
 type Mill = Figure<RodMillResults>;

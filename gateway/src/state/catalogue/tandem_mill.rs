@@ -2,8 +2,9 @@
 
 use millgate_config::ValueType::{F32, U16};
 
-use super::{at, index_of, real_of, to_flag, unmapped_counter, Columns, FigureType, Stale, Value};
+use super::declare::{at, index_of, real_of, to_flag, unmapped_counter};
 use super::{AlarmKind, Figure, TandemMillResults};
+use super::{Columns, FigureType, Stale, Value};
 
 /// The table's figure type.
 type F = Figure<TandemMillResults>;

@@ -1,0 +1,81 @@
+//! What a row type of the history's tables is ([`Record`]): its table, columns and
+//! filters, and its values as export cells ([`Cell`]).
+
+use serde::Serialize;
+
+/// One value of a row, for CSV and Markdown exports.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Cell {
+    /// No value (`NULL`).
+    Null,
+    /// An integer (counts, ids, booleans as 0/1).
+    Integer(i64),
+    /// A measured value.
+    Real(f64),
+    /// Text (names, times).
+    Text(String),
+}
+
+impl std::fmt::Display for Cell {
+    /// Empty for `Null`; reals as the shortest text that reads back to the same f64.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Cell::Null => Ok(()),
+            Cell::Integer(value) => write!(f, "{value}"),
+            Cell::Real(value) => write!(f, "{value}"),
+            Cell::Text(text) => f.write_str(text),
+        }
+    }
+}
+
+/// Conversion of a row field to a [`Cell`].
+pub trait ToCell {
+    /// The cell.
+    fn to_cell(&self) -> Cell;
+}
+
+impl ToCell for i64 {
+    fn to_cell(&self) -> Cell {
+        Cell::Integer(*self)
+    }
+}
+
+impl ToCell for f64 {
+    fn to_cell(&self) -> Cell {
+        Cell::Real(*self)
+    }
+}
+
+impl ToCell for bool {
+    fn to_cell(&self) -> Cell {
+        Cell::Integer(i64::from(*self))
+    }
+}
+
+impl ToCell for String {
+    fn to_cell(&self) -> Cell {
+        Cell::Text(self.clone())
+    }
+}
+
+impl<T: ToCell> ToCell for Option<T> {
+    fn to_cell(&self) -> Cell {
+        self.as_ref().map_or(Cell::Null, ToCell::to_cell)
+    }
+}
+
+/// A row type of one table.
+pub trait Record: Sized + Serialize {
+    /// The table.
+    const TABLE: &'static str;
+    /// The columns read, in order (the struct's fields).
+    fn columns() -> &'static [&'static str];
+    /// The column [`Filter::name`](super::query::Filter::name) matches.
+    const NAME_COLUMN: &'static str;
+    /// The column [`Filter::since`](super::query::Filter::since) and [`Filter::until`](super::query::Filter::until) compare.
+    const TIME_COLUMN: &'static str;
+    /// The row from a result row of [`Self::columns`].
+    fn from_row(row: &rusqlite::Row<'_>) -> rusqlite::Result<Self>;
+    /// The values, in [`Self::columns`] order.
+    fn cells(&self) -> Vec<Cell>;
+}
