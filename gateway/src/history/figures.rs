@@ -167,7 +167,7 @@ pub(crate) fn restore_onto<R: Kept>(from: &R, to: &mut R) {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::state::catalogue::DRIVELINE;
 
@@ -199,38 +199,29 @@ mod tests {
         );
     }
 
+    /// A value of each figure of `R` that the history keeps, unlike its default, set
+    /// in catalogue order (as a start sets them back).
+    pub(crate) fn every_kept_figure_set<R: Subject>(kept: impl Fn(&Figure<R>) -> bool) -> R {
+        let mut results = R::default();
+        for (i, figure) in R::FIGURES.iter().filter(|f| kept(f)).enumerate() {
+            let i = i as u64 + 1;
+            let value = match figure.figure_type {
+                FigureType::Real => Value::Real(0.25 + i as f64),
+                FigureType::Count => Value::Count(40 + i),
+                FigureType::Index => Value::Index(i),
+                FigureType::Bool => Value::Bool(true),
+                FigureType::Time => Value::Time(1_777_939_198_250 + i as i64),
+            };
+            assert!(figure.set(&mut results, Some(value)), "{}", figure.key);
+        }
+        results
+    }
+
     #[test]
     fn a_state_row_restores_every_kept_figure() {
         let mut connection = Connection::open_in_memory().unwrap();
         super::super::schema::migrate(&mut connection).unwrap();
-        // Every kept figure of a driveline with a value unlike its default.
-        let written = DrivelineResults {
-            bite_counter: 41,
-            last_bite_unix_ms: Some(1_777_939_198_250),
-            static_torque_knm: Some(400.0),
-            peak_torque_knm: Some(560.0),
-            taf: Some(1.4),
-            first_period_s: Some(0.05),
-            first_period_shift_s: Some(0.002),
-            beta1_hz: Some(19.0),
-            beta2_hz: Some(55.0),
-            wear_index: Some(0.1),
-            wear_trend: Some(0.05),
-            gap: Some(crate::state::results::GapResults {
-                gap_mrad: 2.0,
-                low_mrad: 1.5,
-                high_mrad: 2.5,
-                coupling: Some(1),
-                likeliest_coupling: None,
-                bites_pooled: 12,
-            }),
-            last_bite_degraded: true,
-            taf_warning: true,
-            taf_alarm: true,
-            gap_warning: true,
-            gap_alarm: true,
-            ..DrivelineResults::default()
-        };
+        let written: DrivelineResults = every_kept_figure_set(|f| f.columns.state.is_some());
         let transaction = connection.transaction().unwrap();
         upsert_state(&transaction, "F1", UtcTime::from_unix_ms(5), &written).unwrap();
         transaction.commit().unwrap();
@@ -252,5 +243,12 @@ mod tests {
                 figure.key
             );
         }
+        // A mill's too.
+        let mill: TandemMillResults = every_kept_figure_set(|f| f.columns.state.is_some());
+        let transaction = connection.transaction().unwrap();
+        upsert_state(&transaction, "TCM", UtcTime::from_unix_ms(6), &mill).unwrap();
+        transaction.commit().unwrap();
+        let rows = read_states::<TandemMillResults>(&connection).unwrap();
+        assert_eq!(rows[0].results, mill);
     }
 }
