@@ -49,6 +49,13 @@ impl WindowAnalysis {
         (resolvable(fit.f1_hz) && resolvable(fit.f2_hz)).then_some((fit.f1_hz, fit.f2_hz))
     }
 
+    /// The first mode's damping ratio of the eq. (1) fit, given with its natural
+    /// frequencies ([`Self::natural_frequencies_hz`]).
+    pub(crate) fn first_mode_damping(&self) -> Option<f64> {
+        self.natural_frequencies_hz()?;
+        self.good_fit().map(|fit| fit.zeta1)
+    }
+
     /// The frequencies a record of `samples` resolves, Hz: from one cycle in the record
     /// (fs / samples) up to, not including, Nyquist (fs / 2).
     pub(crate) fn resolvable_hz(&self, samples: usize) -> (f64, f64) {

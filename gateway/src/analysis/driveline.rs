@@ -66,6 +66,8 @@ pub struct BiteReport {
     /// Natural frequencies from the eq. (1) fit, Hz, when it converged to frequencies
     /// the window resolves (above one cycle in the fitted record, below Nyquist).
     pub beta_hz: Option<(f64, f64)>,
+    /// The first mode's damping ratio of that fit, with `beta_hz`.
+    pub first_mode_damping: Option<f64>,
     /// The window had gaps, NaN or saturated samples.
     pub degraded: bool,
     /// TAF-ratio wear index against the linear reference; `None` without a driveline
@@ -570,6 +572,7 @@ impl DrivelineAnalyzer {
             window_complete,
             transient: analysis.transient,
             beta_hz: analysis.natural_frequencies_hz(),
+            first_mode_damping: analysis.first_mode_damping(),
             degraded,
             wear: self.wear_estimate(&analysis.transient),
             gap,
@@ -763,6 +766,7 @@ fn window_figures(driveline: &mut DrivelineResults, report: &BiteReport, valid: 
     driveline.first_period_shift_s = trusted(t.period_shift_s);
     driveline.beta1_hz = trusted(report.beta_hz.map(|(beta1, _)| beta1));
     driveline.beta2_hz = trusted(report.beta_hz.map(|(_, beta2)| beta2));
+    driveline.first_mode_damping = trusted(report.first_mode_damping);
 }
 
 /// The history's record of `report` with the driveline's published `state` after it

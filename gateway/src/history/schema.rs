@@ -281,6 +281,12 @@ ALTER TABLE driveline_state ADD COLUMN gap_high_mrad REAL;
 ALTER TABLE driveline_state ADD COLUMN gap_coupling INTEGER;
 ALTER TABLE driveline_state ADD COLUMN bites_pooled INTEGER;
 "#,
+    // Version 10: the first mode's damping ratio of each bite (eq. (1) fit), kept with
+    // the bite and restored with the state. NULL for bites recorded before.
+    r#"
+ALTER TABLE bites ADD COLUMN first_mode_damping REAL;
+ALTER TABLE driveline_state ADD COLUMN first_mode_damping REAL;
+"#,
 ];
 
 /// `PRAGMA application_id` of a millgate history: the bytes "MLGT" (0x4D4C4754), set

@@ -28,6 +28,8 @@ pub struct DrivelineResults {
     pub beta1_hz: Option<f64>,
     /// Second natural frequency identified from the last bite, Hz.
     pub beta2_hz: Option<f64>,
+    /// Damping ratio of the first mode identified from the last bite (with `beta1_hz`).
+    pub first_mode_damping: Option<f64>,
     /// TAF-ratio wear index of the last bite (a secondary figure beside the gap):
     /// measured TAF / linear reference TAF - 1 (0 = like the linear reference; grows
     /// with opened backlash). `None` without a model.

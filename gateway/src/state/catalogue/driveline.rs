@@ -126,6 +126,18 @@ pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
     .measured_on_window()
     .kept(Columns::both("beta2_hz"), |d, v| d.beta2_hz = to_real(v)),
     F::real(
+        "first_mode_damping",
+        "",
+        ext(5, F32, 2),
+        Stale::LastUsable,
+        "Damping ratio of the first mode identified from the last bite (eq. (1) fit: decay / sqrt(decay^2 + (2 pi beta1)^2)), given with beta1_hz",
+        |d| real_of(d.first_mode_damping),
+    )
+    .measured_on_window()
+    .kept(Columns::both("first_mode_damping"), |d, v| {
+        d.first_mode_damping = to_real(v)
+    }),
+    F::real(
         "wear_index",
         "",
         at(18, F32, 7),
