@@ -620,7 +620,11 @@ async fn run_stops_on_sigterm_with_a_final_stopped_write() {
     use millgate_sim::devices::modbus_bank::ServeOptions;
     use millgate_sim::devices::virtual_plc::VirtualPlc;
 
-    let plc = VirtualPlc::new(64);
+    // The demo's PLC is written the whole map, extension blocks too.
+    let demo_map = millgate::outputs::modbus::register_map::RegisterMap::new(
+        &millgate_config::load(&examples().join("demo.toml")).unwrap(),
+    );
+    let plc = VirtualPlc::new(usize::from(demo_map.plc_span(true)));
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let plc_address = listener.local_addr().unwrap();
     let running_plc = plc.spawn(listener, ServeOptions::default());

@@ -148,7 +148,9 @@ async fn readiness_watchdog_and_an_orderly_stop_under_a_service_manager() {
     let daq = demo_daq(&demo.config, &demo.schedule)
         .unwrap()
         .spawn(daq_listener, ServeOptions::default());
-    let plc = VirtualPlc::new(64);
+    // The demo's PLC is written the whole map, extension blocks too.
+    let map = millgate::outputs::modbus::register_map::RegisterMap::new(&demo.config);
+    let plc = VirtualPlc::new(usize::from(map.plc_span(true)));
     let plc_listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let plc_address = plc_listener.local_addr().unwrap();
     let running_plc = plc.spawn(plc_listener, ServeOptions::default());
