@@ -331,7 +331,8 @@ mod tests {
 
     #[test]
     fn a_register_base_that_runs_the_map_past_65535_is_reported() {
-        // The demo's map spans 48 registers: base 65500 would end at 65547.
+        // The demo's map spans 80 registers with its extension block, which the demo's
+        // PLC is written: base 65500 would end at 65579.
         let error = check_variant("demo.toml", "register_base = 0", "register_base = 65500")
             .expect_err("map past 65535");
         assert_eq!(
@@ -340,11 +341,11 @@ mod tests {
                 .rsplit_once("variant.toml: ")
                 .map(|(_, tail)| tail),
             Some(
-                "outputs.plc.register_base: 65500 is not allowed: the register map spans 48 \
-                 registers and would end at register 65547, past 65535 (must be 0..=65488)"
+                "outputs.plc.register_base: 65500 is not allowed: the register map spans 80 \
+                 registers and would end at register 65579, past 65535 (must be 0..=65456)"
             )
         );
-        assert!(check_variant("demo.toml", "register_base = 0", "register_base = 65488").is_ok());
+        assert!(check_variant("demo.toml", "register_base = 0", "register_base = 65456").is_ok());
     }
 
     #[test]
