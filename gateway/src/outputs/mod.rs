@@ -12,8 +12,8 @@ pub mod figures;
 pub(crate) mod http;
 pub mod metrics;
 pub mod modbus;
-/// The OPC UA server; built without the `opcua` feature, its stand-in
-/// (`opcua_not_built.rs`: the same names, refusing `[outputs.opcua]`).
+// The OPC UA server; built without the `opcua` feature, its stand-in
+// (`opcua_not_built.rs`: the same names, refusing `[outputs.opcua]`).
 #[cfg_attr(not(feature = "opcua"), path = "opcua_not_built.rs")]
 pub mod opcua;
 pub mod sparkplug;

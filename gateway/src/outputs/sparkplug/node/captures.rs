@@ -6,7 +6,7 @@ use super::{EdgeNode, Outgoing};
 use crate::outputs::sparkplug::devices::Kind;
 use crate::outputs::sparkplug::payload::{DataType, Metric, MetricValue, PropertySet};
 
-/// The capture metrics of a driveline device, after [`BITE_ID`], and of a tandem mill
+/// The capture metrics of a driveline device, after [`BITE_ID`](super::BITE_ID), and of a tandem mill
 /// device, after its figures: name, datatype, unit. A bite's DDATA carries its
 /// capture's (when the history holds it), a DDATA of its own each chatter episode's or
 /// manual capture of a tandem mill's stands; the birth the device's newest capture's
