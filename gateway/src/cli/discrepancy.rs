@@ -13,7 +13,8 @@ use millgate_sim::discrepancy::{self, report, split_bites, DiscrepancyError, Mea
 use millgate_sim::model::Model;
 
 use super::capture::Picked;
-use super::{csv, OutputFormat};
+use super::OutputFormat;
+use crate::records::csv;
 
 /// Smallest load step, in multiples of the record's noise, that makes a bite transient.
 const MIN_STEP_OVER_NOISE: f64 = 10.0;

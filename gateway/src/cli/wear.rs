@@ -16,12 +16,13 @@ use millgate_config::{BiteSettings, WearSettings};
 use millgate_sim::model::Model;
 use serde_json::{json, Value};
 
-use super::{csv, OutputFormat};
+use super::OutputFormat;
 use crate::analysis::bite_window::analyze_window;
 use crate::analysis::driveline::BiteSetup;
 use crate::analysis::gap_estimate::{estimate, GapEstimate, GapObservation};
 use crate::analysis::gap_map_cache;
 use crate::analysis::gap_monitor::{GapMapJob, MapsOrigin};
+use crate::records::csv;
 use crate::state::gap_maps::{GapMapSpec, GapMaps};
 
 /// Capture before the trigger, s (the configuration's default).
