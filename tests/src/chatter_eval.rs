@@ -38,8 +38,7 @@ use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use millgate::analysis::chatter::commission::{commission, Commissioning};
-use millgate::analysis::chatter::{windows, ChatterMonitor, ChatterUpdate, Window};
-use millgate::records::Recording;
+use millgate::analysis::chatter::{windows, ChatterMonitor, ChatterUpdate, Recording, Window};
 use millgate_config::Config;
 use millgate_dsp::band_gain::{BandGain, BandGainSettings};
 use millgate_dsp::mode_damping::least_damped;

@@ -37,8 +37,7 @@ use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
 use millgate::analysis::chatter::commission::commission;
-use millgate::analysis::chatter::{ChatterMonitor, ChatterUpdate};
-use millgate::records::Recording;
+use millgate::analysis::chatter::{ChatterMonitor, ChatterUpdate, Recording};
 use millgate_config::Config;
 use millgate_sim::tandem::control::{SlowDownEvent, SlowDownPolicy, SpeedControl};
 use millgate_sim::tandem::online::{OnlineError, OnlineMill};

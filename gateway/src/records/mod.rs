@@ -10,5 +10,3 @@
 
 pub mod csv;
 pub mod stands;
-
-pub use stands::Recording;

@@ -1,13 +1,14 @@
-//! A recording of a tandem mill's stands: the samples `millgate chatter` and
-//! `millgate chatter commission` run through the mill's monitor, read from a CSV
-//! (a column per stand channel, named as the channel) or from a capture the history
-//! keeps.
+//! A recording of a tandem mill's stands ([`Recording`]): the samples `millgate
+//! chatter` and `millgate chatter commission` run through the mill's monitor, read
+//! from a CSV (a column per stand channel, named as the channel) or from a capture the
+//! history keeps.
 
 use std::path::Path;
 
 use millgate_config::Config;
 
 use super::csv::{self, CsvError};
+use crate::analysis::chatter::Recording;
 use crate::history::captures::Capture;
 
 /// Largest relative difference between a recording's and the channels' sample rate.
@@ -96,138 +97,105 @@ pub enum RecordingError {
     },
 }
 
-/// One recording of a mill's stands.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Recording {
-    /// Where it comes from (the file, as given), for messages.
-    pub name: String,
-    /// Time of each sample, s.
-    pub time_s: Vec<f64>,
-    /// Per stand of the mill, in its order, the samples (the channels' unit).
-    pub stands: Vec<Vec<f64>>,
-    /// The speed column's name and values, when one was asked for.
-    pub speed: Option<(String, Vec<f64>)>,
-}
-
-impl Recording {
-    /// Reads the CSV at `path` for mill `index` of `config`: a column per stand channel
-    /// (named as the channel), sampled at the channels' rate, and `speed_column` when
-    /// given. Errors name the file and why.
-    pub fn read(
-        path: &Path,
-        config: &Config,
-        index: usize,
-        speed_column: Option<&str>,
-    ) -> Result<Recording, RecordingError> {
-        let mill = &config.tandem_mills[index];
-        let recording = path.display().to_string();
-        let table = csv::read(path).map_err(|source| RecordingError::Csv {
-            recording: recording.clone(),
-            source,
-        })?;
-        let mut stands = Vec::new();
-        for &channel in &mill.stands {
-            let name = &config.channels[channel].name;
+/// Reads the CSV at `path` for mill `index` of `config`: a column per stand channel
+/// (named as the channel), sampled at the channels' rate, and `speed_column` when
+/// given. Errors name the file and why.
+pub fn read(
+    path: &Path,
+    config: &Config,
+    index: usize,
+    speed_column: Option<&str>,
+) -> Result<Recording, RecordingError> {
+    let mill = &config.tandem_mills[index];
+    let recording = path.display().to_string();
+    let table = csv::read(path).map_err(|source| RecordingError::Csv {
+        recording: recording.clone(),
+        source,
+    })?;
+    let mut stands = Vec::new();
+    for &channel in &mill.stands {
+        let name = &config.channels[channel].name;
+        let values = table
+            .channel(name)
+            .ok_or_else(|| RecordingError::NoStandColumn {
+                recording: recording.clone(),
+                column: name.clone(),
+                mill: mill.name.clone(),
+                columns: table.names.join(", "),
+            })?;
+        stands.push(values.to_vec());
+    }
+    let speed = match speed_column {
+        None => None,
+        Some(name) => {
             let values = table
                 .channel(name)
-                .ok_or_else(|| RecordingError::NoStandColumn {
+                .ok_or_else(|| RecordingError::NoSpeedColumn {
                     recording: recording.clone(),
-                    column: name.clone(),
-                    mill: mill.name.clone(),
+                    column: name.to_owned(),
                     columns: table.names.join(", "),
                 })?;
-            stands.push(values.to_vec());
+            Some((name.to_owned(), values.to_vec()))
         }
-        let speed = match speed_column {
-            None => None,
-            Some(name) => {
-                let values = table
-                    .channel(name)
-                    .ok_or_else(|| RecordingError::NoSpeedColumn {
-                        recording: recording.clone(),
-                        column: name.to_owned(),
-                        columns: table.names.join(", "),
-                    })?;
-                Some((name.to_owned(), values.to_vec()))
-            }
-        };
-        let rate_hz = config.channels[mill.stands[0]].sample_rate_hz;
-        let csv_rate_hz = table
-            .sample_rate_hz()
-            .map_err(|error| RecordingError::Uneven {
-                recording: recording.clone(),
-                error,
+    };
+    let rate_hz = config.channels[mill.stands[0]].sample_rate_hz;
+    let csv_rate_hz = table
+        .sample_rate_hz()
+        .map_err(|error| RecordingError::Uneven {
+            recording: recording.clone(),
+            error,
+        })?;
+    if (csv_rate_hz / rate_hz - 1.0).abs() > RATE_TOLERANCE {
+        return Err(RecordingError::CsvRate {
+            recording,
+            csv_rate_hz,
+            rate_hz,
+        });
+    }
+    Ok(Recording {
+        name: recording,
+        time_s: table.time_s,
+        stands,
+        speed,
+    })
+}
+
+/// The stands of mill `index` of `config` in `capture`, named `name`: a channel per
+/// stand channel (named as the channel), sampled at the channels' rate. Errors
+/// name the capture and why.
+pub fn from_capture(
+    name: String,
+    capture: &Capture,
+    config: &Config,
+    index: usize,
+) -> Result<Recording, RecordingError> {
+    let mill = &config.tandem_mills[index];
+    let rate_hz = config.channels[mill.stands[0]].sample_rate_hz;
+    if (capture.row.sample_rate_hz / rate_hz - 1.0).abs() > RATE_TOLERANCE {
+        return Err(RecordingError::CaptureRate {
+            recording: name,
+            capture_rate_hz: capture.row.sample_rate_hz,
+            rate_hz,
+        });
+    }
+    let mut stands = Vec::with_capacity(mill.stands.len());
+    for &channel in &mill.stands {
+        let wanted = &config.channels[channel].name;
+        let found = capture
+            .channels
+            .iter()
+            .find(|c| c.name == *wanted)
+            .ok_or_else(|| RecordingError::NoStandChannel {
+                recording: name.clone(),
+                channel: wanted.clone(),
+                mill: mill.name.clone(),
             })?;
-        if (csv_rate_hz / rate_hz - 1.0).abs() > RATE_TOLERANCE {
-            return Err(RecordingError::CsvRate {
-                recording,
-                csv_rate_hz,
-                rate_hz,
-            });
-        }
-        Ok(Recording {
-            name: recording,
-            time_s: table.time_s,
-            stands,
-            speed,
-        })
+        stands.push(found.samples.clone());
     }
-
-    /// The stands of mill `index` of `config` in `capture`, named `name`: a channel per
-    /// stand channel (named as the channel), sampled at the channels' rate. Errors
-    /// name the capture and why.
-    pub fn from_capture(
-        name: String,
-        capture: &Capture,
-        config: &Config,
-        index: usize,
-    ) -> Result<Recording, RecordingError> {
-        let mill = &config.tandem_mills[index];
-        let rate_hz = config.channels[mill.stands[0]].sample_rate_hz;
-        if (capture.row.sample_rate_hz / rate_hz - 1.0).abs() > RATE_TOLERANCE {
-            return Err(RecordingError::CaptureRate {
-                recording: name,
-                capture_rate_hz: capture.row.sample_rate_hz,
-                rate_hz,
-            });
-        }
-        let mut stands = Vec::with_capacity(mill.stands.len());
-        for &channel in &mill.stands {
-            let wanted = &config.channels[channel].name;
-            let found = capture
-                .channels
-                .iter()
-                .find(|c| c.name == *wanted)
-                .ok_or_else(|| RecordingError::NoStandChannel {
-                    recording: name.clone(),
-                    channel: wanted.clone(),
-                    mill: mill.name.clone(),
-                })?;
-            stands.push(found.samples.clone());
-        }
-        Ok(Recording {
-            name,
-            time_s: (0..stands[0].len()).map(|k| capture.time_s(k)).collect(),
-            stands,
-            speed: None,
-        })
-    }
-
-    /// Samples in the recording (per stand).
-    pub fn len(&self) -> usize {
-        self.time_s.len()
-    }
-
-    /// True when the recording holds no sample.
-    pub fn is_empty(&self) -> bool {
-        self.time_s.is_empty()
-    }
-
-    /// Length, s (first to last sample).
-    pub fn duration_s(&self) -> f64 {
-        match (self.time_s.first(), self.time_s.last()) {
-            (Some(first), Some(last)) => last - first,
-            _ => 0.0,
-        }
-    }
+    Ok(Recording {
+        name,
+        time_s: (0..stands[0].len()).map(|k| capture.time_s(k)).collect(),
+        stands,
+        speed: None,
+    })
 }

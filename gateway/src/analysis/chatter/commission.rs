@@ -39,8 +39,7 @@ use serde::Serialize;
 
 use super::capture::ANCHOR_BLOCK;
 use super::monitor::ChatterSetupError;
-use super::offline::{windows, Window};
-use crate::records::Recording;
+use super::offline::{windows, Recording, Window};
 
 /// The margin when none is given, percent.
 pub const DEFAULT_MARGIN_PERCENT: f64 = 10.0;

@@ -40,7 +40,9 @@ pub use align::{RestartCause, MAX_STAND_LAG_S};
 pub use capture::ANCHOR_BLOCK;
 pub use gain::GainReading;
 pub use monitor::{ChatterMonitor, ChatterSetupError, ChatterUpdate, MIN_WINDOW_SAMPLES};
-pub use offline::{episode_bands, welch_psd, windows, Window, SPECTRUM_WINDOWS_EACH_SIDE};
+pub use offline::{
+    episode_bands, welch_psd, windows, Recording, Window, SPECTRUM_WINDOWS_EACH_SIDE,
+};
 pub use publish::ChatterAnalysis;
 pub use spectra::chatter_frequency_hz;
 pub use verdict::{SlowDown, Verdict};

@@ -7,8 +7,7 @@ use std::time::{Duration, Instant};
 
 use millgate_dsp::chatter::ChatterResult;
 
-use super::{ChatterMonitor, ChatterUpdate};
-use crate::records::Recording;
+use super::{ChatterMonitor, ChatterUpdate, Recording};
 
 /// Sample rate of the test stands, Hz.
 pub(super) const FS: f64 = 2500.0;

@@ -22,10 +22,11 @@ use super::mill::mill_index;
 use crate::analysis::chatter::commission::{
     commission, Commissioning, DEFAULT_MARGIN_PERCENT, NOTE_FACTOR, RELEASE_CEILING,
 };
+use crate::analysis::chatter::Recording;
 use crate::cli::capture::Picked;
 use crate::cli::OutputFormat;
 use crate::history::query::{CaptureRow, Filter, HistoryReader};
-use crate::records::Recording;
+use crate::records::stands;
 
 /// Arguments of `millgate chatter commission`.
 #[derive(Debug, Clone, clap::Args)]
@@ -69,7 +70,7 @@ pub fn run(args: &CommissionArgs) -> anyhow::Result<String> {
     let mut recordings = args
         .inputs
         .iter()
-        .map(|path| Recording::read(path, &config, index, args.speed_column.as_deref()))
+        .map(|path| stands::read(path, &config, index, args.speed_column.as_deref()))
         .collect::<Result<Vec<_>, _>>()?;
     if let (Some(db), Some(selection)) = (&args.db, &args.captures) {
         recordings.extend(captured(db, &config, index, selection)?);
@@ -109,7 +110,7 @@ fn captured(
         }
         let capture = reader.capture_of(row)?;
         let name = format!("{}#capture {}", db.display(), capture.row.id);
-        recordings.push(Recording::from_capture(name, &capture, config, index)?);
+        recordings.push(stands::from_capture(name, &capture, config, index)?);
     }
     Ok(recordings)
 }

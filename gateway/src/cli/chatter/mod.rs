@@ -4,7 +4,7 @@
 //! ([`commission`]). Both read a [`Recording`] of the mill's stands and choose the
 //! mill with `--mill` (`mill`).
 //!
-//! [`Recording`]: crate::records::Recording
+//! [`Recording`]: crate::analysis::chatter::Recording
 
 pub mod commission;
 mod mill;
