@@ -7,6 +7,7 @@ pub mod exposition;
 pub mod field;
 pub mod history;
 pub mod outputs;
+pub mod records;
 pub mod service;
 pub mod shutdown;
 pub mod state;

@@ -37,9 +37,8 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
-use millgate::analysis::chatter::{ChatterMonitor, ChatterUpdate};
-use millgate::cli::chatter::commission::{commission, Commissioning};
-use millgate::cli::chatter::recording::{windows, Recording, Window};
+use millgate::analysis::chatter::commission::{commission, Commissioning};
+use millgate::analysis::chatter::{windows, ChatterMonitor, ChatterUpdate, Recording, Window};
 use millgate_config::Config;
 use millgate_dsp::band_gain::{BandGain, BandGainSettings};
 use millgate_dsp::mode_damping::least_damped;
@@ -493,15 +492,10 @@ pub fn commissioned_race(
 
 /// `record` through the gateway's monitor of `config` as `millgate chatter` runs it.
 fn monitored_windows(config: &Config, record: &Record) -> anyhow::Result<Vec<Window>> {
-    let recording = Recording {
-        name: "held out".into(),
-        time_s: (0..record.len())
-            .map(|k| k as f64 / SAMPLE_RATE_HZ)
-            .collect(),
-        stands: record.acceleration.clone(),
-        speed: None,
-    };
-    windows(config, 0, &recording)
+    let time_s: Vec<f64> = (0..record.len())
+        .map(|k| k as f64 / SAMPLE_RATE_HZ)
+        .collect();
+    Ok(windows(config, 0, &time_s, &record.acceleration)?)
 }
 
 /// Simulates one scenario and runs every detector over it (the gateway's monitor only

@@ -9,7 +9,7 @@
 //! mm, a heavy gauge 3.0 -> 0.8 mm, a tinplate 1.8 -> 0.18 mm) with its friction and
 //! stack damping scaled ([`LoopPlan::mills`]), its critical speed from the characteristic roots, and
 //! its own thresholds from `millgate chatter commission`'s code
-//! ([`millgate::cli::chatter::commission::commission`]) on recordings of its stable
+//! ([`millgate::analysis::chatter::commission::commission`]) on recordings of its stable
 //! rolling made for that only: accelerations from 60% of the critical speed to the
 //! highest allowed speed ([`LoopPlan::top`] of the critical speed) and rolling there.
 //!
@@ -36,9 +36,8 @@
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
-use millgate::analysis::chatter::{ChatterMonitor, ChatterUpdate};
-use millgate::cli::chatter::commission::commission;
-use millgate::cli::chatter::recording::Recording;
+use millgate::analysis::chatter::commission::commission;
+use millgate::analysis::chatter::{ChatterMonitor, ChatterUpdate, Recording};
 use millgate_config::Config;
 use millgate_sim::tandem::control::{SlowDownEvent, SlowDownPolicy, SpeedControl};
 use millgate_sim::tandem::online::{OnlineError, OnlineMill};

@@ -591,7 +591,7 @@ fn fuzz_config_loader() {
 
 #[test]
 fn fuzz_csv_reader() {
-    use millgate::cli::csv;
+    use millgate::records::csv;
     let cell = prop_oneof![
         "-?[0-9]{1,4}(\\.[0-9]{1,4})?",
         Just(String::new()),

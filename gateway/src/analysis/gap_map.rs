@@ -147,21 +147,41 @@ pub fn build(
     cancel: &AtomicBool,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<GapMaps, GapMapError> {
-    let torques = spec.static_torques_knm.len();
-    // Item k: torque k % torques; row k / torques: 0 the linear row, then per
-    // coupling its gaps from the second on.
+    let points = simulate(simulator, spec, model_file, threads, cancel, progress)?;
+    let maps = coupling_maps(simulator, spec, model_file, &points)?;
+    Ok(GapMaps::new(GapMapData {
+        model_name: simulator.linear_model().name.clone(),
+        spec: spec.clone(),
+        maps,
+    }))
+}
+
+/// The gap of row `row` of `spec`'s grid: none for 0 (the linear row), then per
+/// coupling its gaps from the second on.
+fn grid_gap(spec: &GapMapSpec, row: usize) -> Option<Gap> {
     let gaps_per_coupling = spec.gaps_rad.len() - 1;
+    (row > 0).then(|| {
+        let coupling = spec.couplings[(row - 1) / gaps_per_coupling];
+        let width_rad = spec.gaps_rad[1 + (row - 1) % gaps_per_coupling];
+        Gap {
+            coupling,
+            width_rad,
+        }
+    })
+}
+
+/// Every point of `spec`'s grid simulated (see [`build`]), in grid order: item k at
+/// torque k % torques of row k / torques ([`grid_gap`]).
+fn simulate(
+    simulator: &BiteSimulator,
+    spec: &GapMapSpec,
+    model_file: &str,
+    threads: usize,
+    cancel: &AtomicBool,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Vec<MapPoint>, GapMapError> {
+    let torques = spec.static_torques_knm.len();
     let total = spec.simulations();
-    let gap_of = |row: usize| -> Option<Gap> {
-        (row > 0).then(|| {
-            let coupling = spec.couplings[(row - 1) / gaps_per_coupling];
-            let width_rad = spec.gaps_rad[1 + (row - 1) % gaps_per_coupling];
-            Gap {
-                coupling,
-                width_rad,
-            }
-        })
-    };
     let results: Vec<Mutex<Option<MapPoint>>> = (0..total).map(|_| Mutex::new(None)).collect();
     let next = AtomicUsize::new(0);
     let done = AtomicUsize::new(0);
@@ -176,7 +196,7 @@ pub fn build(
             return;
         }
         let static_knm = spec.static_torques_knm[item % torques];
-        match simulator.bite(static_knm, gap_of(item / torques)) {
+        match simulator.bite(static_knm, grid_gap(spec, item / torques)) {
             Ok(bite) => {
                 *crate::lock(&results[item]) = Some(MapPoint {
                     static_knm: bite.transient.static_torque_knm,
@@ -212,11 +232,23 @@ pub fn build(
     if cancel.load(Ordering::Relaxed) {
         return Err(GapMapError::Cancelled);
     }
-    let points: Vec<MapPoint> = results
+    results
         .into_iter()
         .map(|slot| slot.into_inner().unwrap_or_else(|e| e.into_inner()))
         .collect::<Option<_>>()
-        .ok_or(GapMapError::Cancelled)?;
+        .ok_or(GapMapError::Cancelled)
+}
+
+/// Per coupling of `spec`, its map from the grid's `points` (the linear row, then its
+/// gaps' rows); every row's measured static torques must rise.
+fn coupling_maps(
+    simulator: &BiteSimulator,
+    spec: &GapMapSpec,
+    model_file: &str,
+    points: &[MapPoint],
+) -> Result<Vec<CouplingMap>, GapMapError> {
+    let torques = spec.static_torques_knm.len();
+    let gaps_per_coupling = spec.gaps_rad.len() - 1;
     let row = |index: usize| points[index * torques..(index + 1) * torques].to_vec();
     let linear = row(0);
     let mut maps = Vec::with_capacity(spec.couplings.len());
@@ -240,9 +272,5 @@ pub fn build(
             rows,
         });
     }
-    Ok(GapMaps::new(GapMapData {
-        model_name: simulator.linear_model().name.clone(),
-        spec: spec.clone(),
-        maps,
-    }))
+    Ok(maps)
 }

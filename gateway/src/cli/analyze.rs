@@ -22,12 +22,12 @@ use millgate_dsp::fit::{Eq1Fit, FitStatus};
 use millgate_dsp::transient::{TransientQuality, TransientSettings};
 use serde_json::{json, Value};
 
-use super::capture::CaptureHeader;
-use super::csv;
 use super::OutputFormat;
 use crate::analysis::bite_window::{
     analyze_window, WindowAnalysis, PRE_TRIGGER_CAPACITY, WINDOW_CAPACITY,
 };
+use crate::history::capture_files::CaptureHeader;
+use crate::records::csv;
 use crate::state::captures::BiteWindowAnalysis;
 
 /// Rise above the baseline that marks a bite, kN*m.

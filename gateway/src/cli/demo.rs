@@ -16,7 +16,7 @@
 //! `--opcua HOST:PORT` serves the results over OPC UA too (security none, anonymous,
 //! its certificates in `opcua-pki` beside the history).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use millgate_config::Config;
@@ -24,8 +24,12 @@ use millgate_sim::devices::demo::{
     setup, DemoDevices, DemoSetup, BARS_PER_CYCLE, GAP_COUPLING, SAMPLES_PER_BLOCK,
 };
 
+use millgate_sim::schedule::{BiteTruth, Schedule};
+
+use crate::analysis::driveline::BiteReport;
 use crate::history::query::HistoryReader;
 use crate::outputs::modbus::register_map::RegisterMap;
+use crate::service::{Bound, RunningService};
 use crate::state::time::UtcTime;
 
 /// Arguments of `millgate demo`.
@@ -129,8 +133,60 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         schedule,
     } = setup(args.duration, args.noise_rms, args.seed)?;
     let history_path = history_file(&args)?;
+    configure_outputs(&mut config, &args, &history_path);
+    if let Some(broker) = args.mqtt {
+        println!(
+            "Sparkplug B: edge node {}/{} on mqtt://{broker} (topics spBv1.0/{}/#)",
+            args.group, args.node, args.group
+        );
+    }
+    print_history(&history_path);
+    // The PLC holds the whole map and a margin.
+    let plc_registers = usize::from(RegisterMap::new(&config).len()) + 16;
+    let devices = DemoDevices::start(&mut config, &schedule, plc_registers).await?;
+    println!(
+        "millgate demo: virtual DAQ at {} ({} Hz, blocks of {SAMPLES_PER_BLOCK}), virtual PLC at {}, {} s",
+        config.modbus_sources[0].address,
+        schedule.sample_rate_hz,
+        plc_output_address(&config),
+        args.duration
+    );
+    let service = crate::Service::new(config.clone())?;
+    let map = service.register_map();
+    let mut gateway = service.spawn().await?;
+    let board = gateway.board();
+    let history = gateway.history().clone();
+    print_addresses(gateway.bound());
+    let started = Instant::now();
+    let printed = print_bites(&mut gateway, &schedule, args.duration, started).await;
+    let live = devices.plc.holding();
+    gateway.stop().await?;
+    let after_stop = devices.plc.holding();
+    devices.stop().await?;
+    println!(
+        "{printed} bites analysed in {:.1} s",
+        started.elapsed().as_secs_f64()
+    );
+    let last = board.results().drivelines[0].clone();
+    println!(
+        "history: {} ({} events stored; bite counter {}, wear trend {}; \
+         `millgate history --db FILE`, `millgate report --db FILE --out DIR` read it)",
+        history_path.display(),
+        history.stored(),
+        last.bite_counter,
+        last.wear_trend
+            .map_or_else(|| "none".to_owned(), |trend| format!("{trend:.4}"))
+    );
+    print_registers(&map, &live);
+    print_status_after_stop(&map, &after_stop);
+    Ok(())
+}
+
+/// The demo's outputs in `config`: the history at `history_path`, Sparkplug with
+/// `--mqtt`, the maintenance page, OPC UA with `--opcua`.
+fn configure_outputs(config: &mut Config, args: &DemoArgs, history_path: &Path) {
     config.history = Some(millgate_config::History {
-        path: history_path.clone(),
+        path: history_path.to_path_buf(),
         retention_days: 400,
         max_size_mb: 1024,
         captures: millgate_config::CaptureSettings::defaults(1024),
@@ -151,12 +207,15 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
             replay_period: Duration::from_millis(100),
             tls: None,
         });
-        println!(
-            "Sparkplug B: edge node {}/{} on mqtt://{broker} (topics spBv1.0/{}/#)",
-            args.group, args.node, args.group
-        );
     }
-    match HistoryReader::open(&history_path).and_then(|reader| reader.state()) {
+    config.outputs.web = Some(millgate_config::WebOutput::on(args.web));
+    let folder = history_path.parent().unwrap_or(Path::new("."));
+    args.opcua.apply(config, folder);
+}
+
+/// The history file, and what a run on it continues.
+fn print_history(history_path: &Path) {
+    match HistoryReader::open(history_path).and_then(|reader| reader.state()) {
         Ok(state) => match state.drivelines.first() {
             Some(before) => println!(
                 "history: {} (continuing: bite counter {}, wear trend {})",
@@ -171,31 +230,26 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         },
         Err(_) => println!("history: {} (new)", history_path.display()),
     }
-    config.outputs.web = Some(millgate_config::WebOutput::on(args.web));
-    let folder = history_path.parent().unwrap_or(std::path::Path::new("."));
-    args.opcua.apply(&mut config, folder);
-    // The PLC holds the whole map and a margin.
-    let plc_registers = usize::from(RegisterMap::new(&config).len()) + 16;
-    let devices = DemoDevices::start(&mut config, &schedule, plc_registers).await?;
+}
 
-    println!(
-        "millgate demo: virtual DAQ at {} ({} Hz, blocks of {SAMPLES_PER_BLOCK}), virtual PLC at {}, {} s",
-        config.modbus_sources[0].address,
-        schedule.sample_rate_hz,
-        plc_output_address(&config),
-        args.duration
-    );
-    let service = crate::Service::new(config.clone())?;
-    let map = service.register_map();
-    let mut gateway = service.spawn().await?;
-    let board = gateway.board();
-    let history = gateway.history().clone();
-    if let Some(web) = gateway.bound().web {
+/// Where the maintenance page and the OPC UA server listen.
+fn print_addresses(bound: Bound) {
+    if let Some(web) = bound.web {
         println!("maintenance page: http://{web}/");
     }
-    if let Some(opcua) = gateway.bound().opcua {
+    if let Some(opcua) = bound.opcua {
         println!("OPC UA server: opc.tcp://{opcua}/ (security none, anonymous)");
     }
+}
+
+/// Print each bite `gateway` analyses beside its truth in `schedule` for `duration_s`
+/// s, with the time since `started`; returns how many.
+async fn print_bites(
+    gateway: &mut RunningService,
+    schedule: &Schedule,
+    duration_s: f64,
+    started: Instant,
+) -> usize {
     println!(
         "{:>7} {:>12} {:>7} {:>10} {:>7} | {:>10} {:>10} {:>24} {:>9}",
         "time s",
@@ -208,9 +262,7 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         "pooled gap (90%), mrad",
         "coupling"
     );
-
-    let started = Instant::now();
-    let deadline = tokio::time::sleep(Duration::from_secs_f64(args.duration));
+    let deadline = tokio::time::sleep(Duration::from_secs_f64(duration_s));
     tokio::pin!(deadline);
     let mut printed = 0usize;
     // The bars repeat their static torques but not their gap: a bite is the nearest
@@ -221,75 +273,73 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
             () = &mut deadline => break,
             bite = gateway.bites().recv() => {
                 let Ok(bite) = bite else { continue };
-                let t = &bite.transient;
-                let taf = t.taf.unwrap_or(f64::NAN);
-                let truth = schedule.next_truth(next_bar, BARS_PER_CYCLE, t.static_torque_knm);
+                let truth = schedule.next_truth(
+                    next_bar,
+                    BARS_PER_CYCLE,
+                    bite.transient.static_torque_knm,
+                );
                 if let Some((index, _)) = truth {
                     next_bar = index + 1;
                 }
-                let truth = truth.map(|(_, truth)| truth);
-                let truth_taf = truth.map_or(f64::NAN, |truth| truth.taf);
-                let truth_gap = truth.map_or(f64::NAN, |truth| truth.backlash_rad[GAP_COUPLING] * 1e3);
-                let (this_bite, pooled, coupling) = match bite.gap {
-                    None => ("-".to_owned(), "-".to_owned(), String::new()),
-                    Some(gap) => match (gap.bite, gap.pooled) {
-                        (Some(single), Some(pooled)) => (
-                            format!("{:.2}", single.gap_mrad),
-                            format!(
-                                "{:.2} ({:.2} .. {:.2})",
-                                pooled.gap_mrad, pooled.gap_low_mrad, pooled.gap_high_mrad
-                            ),
-                            pooled
-                                .coupling
-                                .map_or_else(|| "undet.".to_owned(), |c| c.to_string()),
-                        ),
-                        _ => ("-".to_owned(), "maps building".to_owned(), String::new()),
-                    },
-                };
-                println!(
-                    "{:>7.2} {:>12.2} {:>7.3} {:>10.3} {:>6.2}% | {:>10.2} {:>10} {:>24} {:>9}{}",
-                    started.elapsed().as_secs_f64(),
-                    t.static_torque_knm,
-                    taf,
-                    truth_taf,
-                    100.0 * (taf - truth_taf) / truth_taf,
-                    truth_gap,
-                    this_bite,
-                    pooled,
-                    coupling,
-                    if bite.degraded { "  (degraded window)" } else { "" },
-                );
+                let elapsed_s = started.elapsed().as_secs_f64();
+                println!("{}", bite_row(&bite, truth.map(|(_, truth)| truth), elapsed_s));
                 printed += 1;
             }
         }
     }
-    let live = devices.plc.holding();
-    gateway.stop().await?;
-    let after_stop = devices.plc.holding();
-    devices.stop().await?;
-    println!(
-        "{printed} bites analysed in {:.1} s",
-        started.elapsed().as_secs_f64()
-    );
-    let last = board.results().drivelines[0].clone();
-    println!(
-        "history: {} ({} events stored; bite counter {}, wear trend {}; \
-         `millgate history --db FILE`, `millgate report --db FILE --out DIR` read it)",
-        history_path.display(),
-        history.stored(),
-        last.bite_counter,
-        last.wear_trend
-            .map_or_else(|| "none".to_owned(), |trend| format!("{trend:.4}"))
-    );
-    print_registers(&map, &live);
+    printed
+}
+
+/// The printed row of `bite`, `elapsed_s` s into the demo, beside its `truth`.
+fn bite_row(bite: &BiteReport, truth: Option<&BiteTruth>, elapsed_s: f64) -> String {
+    let t = &bite.transient;
+    let taf = t.taf.unwrap_or(f64::NAN);
+    let truth_taf = truth.map_or(f64::NAN, |truth| truth.taf);
+    let truth_gap = truth.map_or(f64::NAN, |truth| truth.backlash_rad[GAP_COUPLING] * 1e3);
+    let (this_bite, pooled, coupling) = match bite.gap {
+        None => ("-".to_owned(), "-".to_owned(), String::new()),
+        Some(gap) => match (gap.bite, gap.pooled) {
+            (Some(single), Some(pooled)) => (
+                format!("{:.2}", single.gap_mrad),
+                format!(
+                    "{:.2} ({:.2} .. {:.2})",
+                    pooled.gap_mrad, pooled.gap_low_mrad, pooled.gap_high_mrad
+                ),
+                pooled
+                    .coupling
+                    .map_or_else(|| "undet.".to_owned(), |c| c.to_string()),
+            ),
+            _ => ("-".to_owned(), "maps building".to_owned(), String::new()),
+        },
+    };
+    format!(
+        "{:>7.2} {:>12.2} {:>7.3} {:>10.3} {:>6.2}% | {:>10.2} {:>10} {:>24} {:>9}{}",
+        elapsed_s,
+        t.static_torque_knm,
+        taf,
+        truth_taf,
+        100.0 * (taf - truth_taf) / truth_taf,
+        truth_gap,
+        this_bite,
+        pooled,
+        coupling,
+        if bite.degraded {
+            "  (degraded window)"
+        } else {
+            ""
+        },
+    )
+}
+
+/// The gateway status word the PLC holds in `words` after the gateway stopped.
+fn print_status_after_stop(map: &RegisterMap, words: &[u16]) {
     let status = crate::outputs::modbus::register_map::Field::GatewayStatus;
     if let Some(register) = map.registers().iter().find(|r| r.field == status) {
         println!(
             "after shutdown: gateway_status = {:#06b} (bit1 stopped; values flagged, no longer fresh)",
-            after_stop[usize::from(register.address)]
+            words[usize::from(register.address)]
         );
     }
-    Ok(())
 }
 
 fn plc_output_address(config: &Config) -> String {

@@ -6,14 +6,17 @@
 //! driveline's bite counters) takes the bites from the captures the gateway kept
 //! instead of CSV files: commissioning from the gateway's own recordings.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context as _;
-use millgate_sim::discrepancy::{self, report, split_bites, DiscrepancyError, Measured, Progress};
+use millgate_sim::discrepancy::{
+    self, report, split_bites, DiscrepancyError, Measured, Progress, Report,
+};
 use millgate_sim::model::Model;
 
 use super::capture::Picked;
-use super::{csv, OutputFormat};
+use super::OutputFormat;
+use crate::records::csv;
 
 /// Smallest load step, in multiples of the record's noise, that makes a bite transient.
 const MIN_STEP_OVER_NOISE: f64 = 10.0;
@@ -151,28 +154,50 @@ pub fn run(args: &DiscrepancyArgs) -> anyhow::Result<String> {
         _ => Vec::with_capacity(args.measured.len()),
     };
     for path in &args.measured {
+        recorded.push(Recorded::read(path, args.channel.as_deref())?);
+    }
+    let model = Model::load(&args.model)?;
+    let (bites, sources) = split(&recorded);
+    let report = explain(&bites, &sources, &model)?;
+    if let Some(dir) = &args.report {
+        for path in report::write(&report, dir)? {
+            eprintln!("discrepancy: wrote {}", path.display());
+        }
+    }
+    Ok(match args.format {
+        OutputFormat::Json => serde_json::to_string_pretty(&report)?,
+        OutputFormat::Text => report::summary(&report),
+    })
+}
+
+impl Recorded {
+    /// The CSV at `path`, its torque in `channel` (the first without one): uniform
+    /// time (the shared reader's check) and a load step to explain.
+    fn read(path: &Path, channel: Option<&str>) -> anyhow::Result<Self> {
         let table = csv::read(path).with_context(|| path.display().to_string())?;
         let (_, torque) = table
-            .pick_torque(args.channel.as_deref())
+            .pick_torque(channel)
             .map_err(anyhow::Error::msg)
             .with_context(|| path.display().to_string())?;
-        // Uniform time (the shared reader's check) and a load step to explain.
         let sample_rate_hz = table
             .sample_rate_hz()
             .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
         check_transient(torque).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-        recorded.push(Recorded {
-            path: path.clone(),
+        Ok(Self {
+            path: path.to_path_buf(),
             t0_s: table.time_s[0],
             sample_rate_hz,
             torque_knm: torque.to_vec(),
-        });
+        })
     }
-    let model = Model::load(&args.model)?;
-    // Every bite and the file it came from.
+}
+
+/// Every bite of the `recorded` files, and the file each came from; a file of more
+/// than one bite is said on stderr.
+fn split(recorded: &[Recorded]) -> (Vec<Measured<'_>>, Vec<&PathBuf>) {
     let mut bites = Vec::new();
     let mut sources = Vec::new();
-    for record in &recorded {
+    for record in recorded {
         let whole = Measured {
             t0_s: record.t0_s,
             sample_rate_hz: record.sample_rate_hz,
@@ -194,8 +219,14 @@ pub fn run(args: &DiscrepancyArgs) -> anyhow::Result<String> {
         sources.extend(std::iter::repeat_n(&record.path, found.len()));
         bites.extend(found);
     }
+    (bites, sources)
+}
+
+/// The discrepancy workflow on `bites` (from the files `sources`) against `model`,
+/// its progress on stderr; an error about a bite names its file.
+fn explain(bites: &[Measured<'_>], sources: &[&PathBuf], model: &Model) -> anyhow::Result<Report> {
     let started = std::time::Instant::now();
-    let outcome = discrepancy::run(&bites, &model, |progress| match progress {
+    let outcome = discrepancy::run(bites, model, |progress| match progress {
         Progress::Step(step) => eprintln!(
             "discrepancy: {step} ({:.1} s)",
             started.elapsed().as_secs_f64()
@@ -227,15 +258,7 @@ pub fn run(args: &DiscrepancyArgs) -> anyhow::Result<String> {
         started.elapsed().as_secs_f64(),
         report.simulations
     );
-    if let Some(dir) = &args.report {
-        for path in report::write(&report, dir)? {
-            eprintln!("discrepancy: wrote {}", path.display());
-        }
-    }
-    Ok(match args.format {
-        OutputFormat::Json => serde_json::to_string_pretty(&report)?,
-        OutputFormat::Text => report::summary(&report),
-    })
+    Ok(report)
 }
 
 /// Fails unless `torque_knm` holds a bite transient: a load step from its first 5% to

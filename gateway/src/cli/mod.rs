@@ -8,7 +8,7 @@
 //! - `millgate address-space --config FILE`: `address_space` (the OPC UA server's
 //!   variables as a Markdown table; with the `opcua` feature)
 //! - `millgate analyze --input FILE.csv [--channel NAME] [--window START,END] [--format text|json]`:
-//!   [`analyze`] (CSV reading in [`csv`])
+//!   [`analyze`] (the CSV read by [`crate::records::csv`])
 //! - `millgate stiffness --inertia Q1,Q2,Q3 (--freq B1,B2 | --stiffness C12,C23)
 //!   [--drawing C12,C23] [--format text|json]`: [`stiffness`]
 //! - `millgate chatter --input STANDS.csv --config MILL.toml [--mill NAME]
@@ -42,7 +42,6 @@ pub mod analyze;
 pub mod capture;
 pub mod chatter;
 pub mod check;
-pub mod csv;
 #[cfg(feature = "sim-tools")]
 pub mod demo;
 #[cfg(feature = "sim-tools")]

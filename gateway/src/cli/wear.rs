@@ -16,12 +16,13 @@ use millgate_config::{BiteSettings, WearSettings};
 use millgate_sim::model::Model;
 use serde_json::{json, Value};
 
-use super::{csv, OutputFormat};
+use super::OutputFormat;
 use crate::analysis::bite_window::analyze_window;
 use crate::analysis::driveline::BiteSetup;
 use crate::analysis::gap_estimate::{estimate, GapEstimate, GapObservation};
 use crate::analysis::gap_map_cache;
 use crate::analysis::gap_monitor::{GapMapJob, MapsOrigin};
+use crate::records::csv;
 use crate::state::gap_maps::{GapMapSpec, GapMaps};
 
 /// Capture before the trigger, s (the configuration's default).
@@ -83,26 +84,7 @@ struct Bite {
 /// Runs the command, printing progress to stderr; returns the text to print.
 pub fn run(args: &WearArgs) -> anyhow::Result<String> {
     let input = args.input.display().to_string();
-    if !(args.threshold_knm.is_finite() && args.threshold_knm > 0.0) {
-        bail!(
-            "--threshold-knm {} is not allowed (must be > 0 kN*m)",
-            args.threshold_knm
-        );
-    }
-    let steps = args.max_gap_mrad / args.gap_step_mrad;
-    if !(args.max_gap_mrad > 0.0 && args.max_gap_mrad <= 100.0) {
-        bail!(
-            "--max-gap-mrad {} is not allowed (must be > 0 and <= 100 mrad)",
-            args.max_gap_mrad
-        );
-    }
-    if !(args.gap_step_mrad > 0.0 && (1.0..=400.0).contains(&steps)) {
-        bail!(
-            "--gap-step-mrad {} is not allowed (must be > 0 mrad, at most --max-gap-mrad and \
-             at least --max-gap-mrad / 400)",
-            args.gap_step_mrad
-        );
-    }
+    check_numbers(args)?;
     let table = csv::read(&args.input).with_context(|| input.clone())?;
     let (channel, signal) = table
         .pick_torque(args.channel.as_deref())
@@ -127,23 +109,7 @@ pub fn run(args: &WearArgs) -> anyhow::Result<String> {
             args.threshold_knm
         );
     }
-    let (low, high) = bites
-        .iter()
-        .map(|bite| bite.observation.static_torque_knm)
-        .fold((f64::INFINITY, 0.0_f64), |(lo, hi), s| {
-            (lo.min(s), hi.max(s))
-        });
-    let wear = WearSettings {
-        static_torque_knm: Some((
-            ((1.0 - RANGE_MARGIN) * low).max(args.threshold_knm),
-            (1.0 + RANGE_MARGIN) * high,
-        )),
-        pool_bites: usize::from(args.pool),
-        gap_step_mrad: args.gap_step_mrad,
-        max_gap_mrad: args.max_gap_mrad,
-        ..WearSettings::default()
-    };
-    let spec = GapMapSpec::new(0, &wear, &model, args.threshold_knm)?;
+    let spec = GapMapSpec::new(0, &wear_settings(args, &bites), &model, args.threshold_knm)?;
     let cache_dir = args
         .cache_dir
         .clone()
@@ -186,6 +152,52 @@ pub fn run(args: &WearArgs) -> anyhow::Result<String> {
 /// bite soon after the record's start still gets the full pre-trigger capture: the
 /// static torque is averaged over the end of the window, and a shorter window would
 /// average over a different part of the response than the maps' bites.
+/// Refuses a `--threshold-knm`, `--max-gap-mrad` or `--gap-step-mrad` out of range.
+fn check_numbers(args: &WearArgs) -> anyhow::Result<()> {
+    if !(args.threshold_knm.is_finite() && args.threshold_knm > 0.0) {
+        bail!(
+            "--threshold-knm {} is not allowed (must be > 0 kN*m)",
+            args.threshold_knm
+        );
+    }
+    let steps = args.max_gap_mrad / args.gap_step_mrad;
+    if !(args.max_gap_mrad > 0.0 && args.max_gap_mrad <= 100.0) {
+        bail!(
+            "--max-gap-mrad {} is not allowed (must be > 0 and <= 100 mrad)",
+            args.max_gap_mrad
+        );
+    }
+    if !(args.gap_step_mrad > 0.0 && (1.0..=400.0).contains(&steps)) {
+        bail!(
+            "--gap-step-mrad {} is not allowed (must be > 0 mrad, at most --max-gap-mrad and \
+             at least --max-gap-mrad / 400)",
+            args.gap_step_mrad
+        );
+    }
+    Ok(())
+}
+
+/// The wear settings of the maps for `bites`: their static torque range with a
+/// margin (not below `--threshold-knm`), the pool and the gap grid of `args`.
+fn wear_settings(args: &WearArgs, bites: &[Bite]) -> WearSettings {
+    let (low, high) = bites
+        .iter()
+        .map(|bite| bite.observation.static_torque_knm)
+        .fold((f64::INFINITY, 0.0_f64), |(lo, hi), s| {
+            (lo.min(s), hi.max(s))
+        });
+    WearSettings {
+        static_torque_knm: Some((
+            ((1.0 - RANGE_MARGIN) * low).max(args.threshold_knm),
+            (1.0 + RANGE_MARGIN) * high,
+        )),
+        pool_bites: usize::from(args.pool),
+        gap_step_mrad: args.gap_step_mrad,
+        max_gap_mrad: args.max_gap_mrad,
+        ..WearSettings::default()
+    }
+}
+
 fn detect(time_s: &[f64], signal: &[f64], setup: &BiteSetup) -> Vec<Bite> {
     let rate = setup.transient.sample_rate_hz;
     let pad = ((PRE_TRIGGER_S + IDLE_MARGIN_S) * rate).ceil() as usize;

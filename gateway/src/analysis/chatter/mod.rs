@@ -19,10 +19,13 @@
 //! - `history`: the chatter episodes and alarms recorded in the history;
 //! - `capture`: each episode's stand samples kept as a capture (`EpisodeRecorder`);
 //! - `offline`: a recording through the monitor window by window (the chatter tools,
-//!   the page's band signals and spectra of a captured episode).
+//!   the page's band signals and spectra of a captured episode);
+//! - [`commission`]: the mill's thresholds from recordings of its stable rolling
+//!   (`millgate chatter commission`).
 
 mod align;
 mod capture;
+pub mod commission;
 mod gain;
 mod history;
 mod monitor;
@@ -30,14 +33,16 @@ mod offline;
 mod publish;
 mod spectra;
 #[cfg(test)]
-mod testing;
+pub(crate) mod testing;
 mod verdict;
 
 pub use align::{RestartCause, MAX_STAND_LAG_S};
 pub use capture::ANCHOR_BLOCK;
 pub use gain::GainReading;
 pub use monitor::{ChatterMonitor, ChatterSetupError, ChatterUpdate, MIN_WINDOW_SAMPLES};
-pub use offline::{episode_bands, welch_psd, windows, Window, SPECTRUM_WINDOWS_EACH_SIDE};
+pub use offline::{
+    episode_bands, welch_psd, windows, Recording, Window, SPECTRUM_WINDOWS_EACH_SIDE,
+};
 pub use publish::ChatterAnalysis;
 pub use spectra::chatter_frequency_hz;
 pub use verdict::{SlowDown, Verdict};

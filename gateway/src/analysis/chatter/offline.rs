@@ -18,6 +18,40 @@ use super::monitor::{ChatterMonitor, ChatterSetupError, ChatterUpdate};
 use super::verdict::Verdict;
 use crate::state::captures::{CaptureBands, ChatterEpisode, StandSpectrum};
 
+/// One recording of a tandem mill's stands (read by [`crate::records::stands`] from
+/// a CSV or a capture, or simulated by the experiments).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Recording {
+    /// Where it comes from (the file, as given), for messages.
+    pub name: String,
+    /// Time of each sample, s.
+    pub time_s: Vec<f64>,
+    /// Per stand of the mill, in its order, the samples (the channels' unit).
+    pub stands: Vec<Vec<f64>>,
+    /// The speed column's name and values, when one was asked for.
+    pub speed: Option<(String, Vec<f64>)>,
+}
+
+impl Recording {
+    /// Samples in the recording (per stand).
+    pub fn len(&self) -> usize {
+        self.time_s.len()
+    }
+
+    /// True when the recording holds no sample.
+    pub fn is_empty(&self) -> bool {
+        self.time_s.is_empty()
+    }
+
+    /// Length, s (first to last sample).
+    pub fn duration_s(&self) -> f64 {
+        match (self.time_s.first(), self.time_s.last()) {
+            (Some(first), Some(last)) => last - first,
+            _ => 0.0,
+        }
+    }
+}
+
 /// One evaluated window of a recording.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Window {

@@ -1,12 +1,13 @@
-//! What the monitor's unit tests share: a monitor of a few stands, sines, and feeding
-//! signals block by block as a DAQ delivers them.
+//! What the chatter unit tests share: a monitor of a few stands, sines, and feeding
+//! signals block by block as a DAQ delivers them; the example tandem mill and a
+//! recording of its stands.
 
 use std::f64::consts::TAU;
 use std::time::{Duration, Instant};
 
 use millgate_dsp::chatter::ChatterResult;
 
-use super::{ChatterMonitor, ChatterUpdate};
+use super::{ChatterMonitor, ChatterUpdate, Recording};
 
 /// Sample rate of the test stands, Hz.
 pub(super) const FS: f64 = 2500.0;
@@ -72,4 +73,29 @@ pub(super) fn feed(
         }
     }
     results
+}
+
+/// The example tandem mill (five stands at 2500 Hz, window 0.5 s, gain 2 s), its
+/// thresholds left out.
+pub(crate) fn example_tandem() -> millgate_config::Config {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../config/examples/tandem-5stand.toml");
+    millgate_config::load_uncommissioned(&path).expect("example")
+}
+
+/// `samples` of a chatter-band line (180 Hz) over a reference-band line (620 Hz) on
+/// each of the example mill's five stands, the chatter line `amplitude(t)`, named
+/// `lines.csv`.
+pub(crate) fn lines_recording(samples: usize, amplitude: impl Fn(f64) -> f64) -> Recording {
+    let time_s: Vec<f64> = (0..samples).map(|k| k as f64 / 2500.0).collect();
+    let signal: Vec<f64> = time_s
+        .iter()
+        .map(|&t| amplitude(t) * (TAU * 180.0 * t).sin() + 0.5 * (TAU * 620.0 * t).sin())
+        .collect();
+    Recording {
+        name: "lines.csv".into(),
+        time_s,
+        stands: vec![signal; 5],
+        speed: None,
+    }
 }

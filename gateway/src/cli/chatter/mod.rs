@@ -1,10 +1,13 @@
 //! `millgate chatter`: a tandem mill's recorded stand vibrations through the service's
 //! own chatter monitor, offline, window by window ([`windows`]); and
 //! `millgate chatter commission`: the mill's alarm thresholds from stable recordings
-//! ([`commission`]). What both read and run is in [`recording`].
+//! ([`commission`]). Both read a [`Recording`] of the mill's stands and choose the
+//! mill with `--mill` (`mill`).
+//!
+//! [`Recording`]: crate::analysis::chatter::Recording
 
 pub mod commission;
-pub mod recording;
+mod mill;
 pub mod windows;
 
 use anyhow::bail;

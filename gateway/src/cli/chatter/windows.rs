@@ -23,8 +23,10 @@ use std::path::PathBuf;
 use anyhow::Context;
 use serde::Serialize;
 
-use super::recording::{mill_index, windows, Recording};
+use super::mill::mill_index;
+use crate::analysis::chatter::windows;
 use crate::cli::OutputFormat;
+use crate::records::stands;
 
 /// Arguments of `millgate chatter` (without a subcommand).
 #[derive(Debug, Clone, clap::Args)]
@@ -113,8 +115,8 @@ pub fn run(args: &WindowsArgs) -> anyhow::Result<String> {
 pub fn analyze(args: &WindowsArgs) -> anyhow::Result<ChatterReport> {
     let config = millgate_config::load_uncommissioned(&args.config)?;
     let index = mill_index(&config, args.mill.as_deref(), &args.config)?;
-    let recording = Recording::read(&args.input, &config, index, None)?;
-    let windows: Vec<WindowRow> = windows(&config, index, &recording)?
+    let recording = stands::read(&args.input, &config, index, None)?;
+    let windows: Vec<WindowRow> = windows(&config, index, &recording.time_s, &recording.stands)?
         .into_iter()
         .map(|window| WindowRow {
             t_s: window.t_s,

@@ -45,10 +45,7 @@ pub(super) fn read(
     setting: Option<SettingsRow>,
     progress: &mut Progress,
 ) -> anyhow::Result<DrivelineData> {
-    let step = |progress: &mut Progress, what: &str| {
-        progress.update(|| format!("report: {name}: {what}"));
-    };
-    step(progress, "counting bites");
+    step(progress, name, "counting bites");
     let summary = reader.bite_summary(name, since, until)?;
     let last = reader
         .newest::<BiteRow>(&Filter {
@@ -65,7 +62,7 @@ pub(super) fn read(
     } else {
         None
     };
-    step(progress, "gap, TAF and wear index over time");
+    step(progress, name, "gap, TAF and wear index over time");
     let (wear, index) = if known {
         (
             reader.wear_series(name, since, until, PLOT_BUCKETS)?,
@@ -74,67 +71,24 @@ pub(super) fn read(
     } else {
         (Vec::new(), Vec::new())
     };
-
-    // The torque range: read with the wear index when the driveline has one, else in
-    // a pass of its own.
-    let mut torques = index
-        .iter()
-        .map(|p| (p.static_torque_min_knm, p.static_torque_max_knm))
-        .reduce(|a, b| (a.0.min(b.0), a.1.max(b.1)));
-    if torques.is_none() && known {
-        step(progress, "static torque range");
-        reader.for_each_taf_point(name, since, until, |point| {
-            let torque = point.static_torque_knm;
-            torques = Some(torques.map_or((torque, torque), |(low, high)| {
-                (low.min(torque), high.max(torque))
-            }));
-            Ok::<_, anyhow::Error>(())
-        })?;
-    }
+    let torques = match torque_range(&index) {
+        None if known => {
+            step(progress, name, "static torque range");
+            torque_pass(reader, name, since, until)?
+        }
+        torques => torques,
+    };
     let curves = match setting.as_ref().and_then(|s| s.model.as_deref()) {
         Some(model) => {
-            step(progress, "the wear map's curves");
+            step(progress, name, "the wear map's curves");
             wear_curves(model, torques.unwrap_or((0.0, 1.0)))
         }
         None => Ok(Vec::new()),
     };
-    // The plot's ranges: the clean bites' TAF (the buckets' extremes), the torque
-    // range, the curves and the thresholds. Degraded windows' TAF is not trusted and
-    // does not stretch the plot.
-    let curve_points = || curves.iter().flatten().flat_map(|(_, c)| c.iter());
-    let x_range = range(
-        torques
-            .into_iter()
-            .flat_map(|(low, high)| [low, high])
-            .chain(curve_points().map(|p| p.0)),
-    );
-    let thresholds = setting
-        .as_ref()
-        .map(|s| [s.taf_warning, s.taf_alarm])
-        .into_iter()
-        .flatten();
-    let y_range = range(
-        wear.iter()
-            .flat_map(|p| [p.taf_min, p.taf_max])
-            .flatten()
-            .chain(curve_points().map(|p| p.1))
-            .chain(thresholds),
-    );
-    let mut grid = TafGrid::new(x_range, y_range);
+    let mut grid = empty_grid(torques, &curves, &wear, setting.as_ref());
     if known {
-        let mut seen: u64 = 0;
-        reader.for_each_taf_point(name, since, until, |point| {
-            grid.add(point);
-            seen += 1;
-            progress.update(|| {
-                format!(
-                    "report: {name}: TAF over static torque, {:.0}% of {} bites",
-                    percent(seen, summary.bites),
-                    summary.bites
-                )
-            });
-            Ok::<_, anyhow::Error>(())
-        })?;
+        let bites = summary.bites;
+        bin_bites(reader, name, (since, until), bites, &mut grid, progress)?;
     }
     Ok(DrivelineData {
         summary,
@@ -146,4 +100,90 @@ pub(super) fn read(
         curves,
         grid,
     })
+}
+
+/// Show on `progress` that the report reads `what` of driveline `name`.
+fn step(progress: &mut Progress, name: &str, what: &str) {
+    progress.update(|| format!("report: {name}: {what}"));
+}
+
+/// The static torque range of the wear index's buckets (none without a wear index).
+fn torque_range(index: &[WearIndexPoint]) -> Option<(f64, f64)> {
+    index
+        .iter()
+        .map(|p| (p.static_torque_min_knm, p.static_torque_max_knm))
+        .reduce(|a, b| (a.0.min(b.0), a.1.max(b.1)))
+}
+
+/// The static torque range of `name`'s bites in `[since, until)`, in a pass over them.
+fn torque_pass(
+    reader: &HistoryReader,
+    name: &str,
+    since: Option<UtcTime>,
+    until: Option<UtcTime>,
+) -> anyhow::Result<Option<(f64, f64)>> {
+    let mut torques: Option<(f64, f64)> = None;
+    reader.for_each_taf_point(name, since, until, |point| {
+        let torque = point.static_torque_knm;
+        torques = Some(torques.map_or((torque, torque), |(low, high)| {
+            (low.min(torque), high.max(torque))
+        }));
+        Ok::<_, anyhow::Error>(())
+    })?;
+    Ok(torques)
+}
+
+/// The TAF-over-torque grid without bites, over the plot's ranges: the torque range,
+/// the clean bites' TAF (the buckets' extremes in `wear`), the `curves` and the
+/// thresholds in `setting`. Degraded windows' TAF is not trusted and does not stretch
+/// the plot.
+fn empty_grid(
+    torques: Option<(f64, f64)>,
+    curves: &Result<Vec<Curve>, String>,
+    wear: &[WearPoint],
+    setting: Option<&SettingsRow>,
+) -> TafGrid {
+    let curve_points = || curves.iter().flatten().flat_map(|(_, c)| c.iter());
+    let x_range = range(
+        torques
+            .into_iter()
+            .flat_map(|(low, high)| [low, high])
+            .chain(curve_points().map(|p| p.0)),
+    );
+    let thresholds = setting
+        .map(|s| [s.taf_warning, s.taf_alarm])
+        .into_iter()
+        .flatten();
+    let y_range = range(
+        wear.iter()
+            .flat_map(|p| [p.taf_min, p.taf_max])
+            .flatten()
+            .chain(curve_points().map(|p| p.1))
+            .chain(thresholds),
+    );
+    TafGrid::new(x_range, y_range)
+}
+
+/// Bin `name`'s `bites` bites in `period` into `grid`, showing how far on `progress`.
+fn bin_bites(
+    reader: &HistoryReader,
+    name: &str,
+    (since, until): (Option<UtcTime>, Option<UtcTime>),
+    bites: u64,
+    grid: &mut TafGrid,
+    progress: &mut Progress,
+) -> anyhow::Result<()> {
+    let mut seen: u64 = 0;
+    reader.for_each_taf_point(name, since, until, |point| {
+        grid.add(point);
+        seen += 1;
+        progress.update(|| {
+            format!(
+                "report: {name}: TAF over static torque, {:.0}% of {bites} bites",
+                percent(seen, bites),
+            )
+        });
+        Ok::<_, anyhow::Error>(())
+    })?;
+    Ok(())
 }

@@ -26,6 +26,11 @@ pub enum Block {
     },
 }
 
+/// A table cell of `value` with `digits` decimals, `-` for none.
+pub(super) fn fmt(value: Option<f64>, digits: usize) -> String {
+    value.map_or_else(|| "-".to_owned(), |v| format!("{v:.digits$}"))
+}
+
 /// The report as Markdown, figures linked to their files.
 pub fn markdown(blocks: &[Block]) -> String {
     let mut out = String::new();

@@ -246,7 +246,30 @@ pub fn parse(text: &str) -> Result<Table, CsvError> {
         .map(|(i, l)| (i + 1, l.trim()))
         .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'));
     let (_, header) = lines.next().ok_or(CsvError::Empty)?;
-    let header: Vec<String> = header.split(',').map(|c| c.trim().to_string()).collect();
+    let header = parse_header(header)?;
+    let columns = Columns {
+        may_be_empty: may_be_empty(&header, &comments),
+        header,
+    };
+    let mut table = Table {
+        names: columns.header[1..].to_vec(),
+        time_s: Vec::new(),
+        channels: vec![Vec::new(); columns.header.len() - 1],
+        lines: Vec::new(),
+        comments,
+    };
+    for (line, row) in lines {
+        columns.push_row(&mut table, line, row)?;
+    }
+    if table.time_s.len() < 2 {
+        return Err(CsvError::TooShort);
+    }
+    Ok(table)
+}
+
+/// The header line's names: `t` first, at least one channel, none twice.
+fn parse_header(line: &str) -> Result<Vec<String>, CsvError> {
+    let header: Vec<String> = line.split(',').map(|c| c.trim().to_string()).collect();
     if header[0] != "t" {
         return Err(CsvError::TimeColumn {
             found: header[0].clone(),
@@ -264,28 +287,37 @@ pub fn parse(text: &str) -> Result<Table, CsvError> {
             });
         }
     }
-    // A capture's extra channels (`drivelines[].extra_channels`) may lack samples at
-    // the window's ends: an empty cell there reads as NaN.
-    let may_be_empty: Vec<bool> = {
-        let extra: Vec<String> = match CaptureHeader::from_comments(&comments) {
-            Some(Ok(capture)) => capture
-                .channels
-                .into_iter()
-                .filter(|meta| meta.channel.timing.is_some())
-                .map(|meta| meta.channel.name)
-                .collect(),
-            _ => Vec::new(),
-        };
-        header.iter().map(|name| extra.contains(name)).collect()
+    Ok(header)
+}
+
+/// Per column of `header`, whether a cell may be empty: a capture's extra channels
+/// (`drivelines[].extra_channels`, named in its header `comments`) may lack samples at
+/// the window's ends, and an empty cell there reads as NaN.
+fn may_be_empty(header: &[String], comments: &[String]) -> Vec<bool> {
+    let extra: Vec<String> = match CaptureHeader::from_comments(comments) {
+        Some(Ok(capture)) => capture
+            .channels
+            .into_iter()
+            .filter(|meta| meta.channel.timing.is_some())
+            .map(|meta| meta.channel.name)
+            .collect(),
+        _ => Vec::new(),
     };
-    let mut table = Table {
-        names: header[1..].to_vec(),
-        time_s: Vec::new(),
-        channels: vec![Vec::new(); header.len() - 1],
-        lines: Vec::new(),
-        comments,
-    };
-    for (line, row) in lines {
+    header.iter().map(|name| extra.contains(name)).collect()
+}
+
+/// The columns of a CSV: the header's names, and which may hold empty cells.
+struct Columns {
+    /// The header's names, `t` first.
+    header: Vec<String>,
+    /// Per column, whether an empty cell reads as NaN.
+    may_be_empty: Vec<bool>,
+}
+
+impl Columns {
+    /// Add data line `line`, `row`, to `table`.
+    fn push_row(&self, table: &mut Table, line: usize, row: &str) -> Result<(), CsvError> {
+        let header = &self.header;
         let cells: Vec<&str> = row.split(',').map(str::trim).collect();
         if cells.len() > header.len() {
             return Err(CsvError::ExtraColumn {
@@ -298,7 +330,7 @@ pub fn parse(text: &str) -> Result<Table, CsvError> {
             let column = index + 1;
             let cell = match cells.get(index) {
                 Some(cell) if !cell.is_empty() => *cell,
-                Some(_) if may_be_empty[index] => {
+                Some(_) if self.may_be_empty[index] => {
                     table.channels[index - 1].push(f64::NAN);
                     continue;
                 }
@@ -321,26 +353,29 @@ pub fn parse(text: &str) -> Result<Table, CsvError> {
                     value: cell.to_string(),
                 })?;
             if index == 0 {
-                if let Some(&previous_s) = table.time_s.last() {
-                    if value <= previous_s {
-                        return Err(CsvError::NonMonotonicTime {
-                            line,
-                            time_s: value,
-                            previous_s,
-                        });
-                    }
-                }
-                table.time_s.push(value);
-                table.lines.push(line);
+                push_time(table, line, value)?;
             } else {
                 table.channels[index - 1].push(value);
             }
         }
+        Ok(())
     }
-    if table.time_s.len() < 2 {
-        return Err(CsvError::TooShort);
+}
+
+/// Add the time `time_s` of data line `line` to `table`: after the previous line's.
+fn push_time(table: &mut Table, line: usize, time_s: f64) -> Result<(), CsvError> {
+    if let Some(&previous_s) = table.time_s.last() {
+        if time_s <= previous_s {
+            return Err(CsvError::NonMonotonicTime {
+                line,
+                time_s,
+                previous_s,
+            });
+        }
     }
-    Ok(table)
+    table.time_s.push(time_s);
+    table.lines.push(line);
+    Ok(())
 }
 
 #[cfg(test)]

@@ -1,0 +1,184 @@
+//! The analyser of one driveline ([`DrivelineAnalyzer`]): built from the
+//! configuration and the driveline's model, what it holds between bites, and its gap
+//! pool and captures as the analysis task asks for them.
+
+use std::path::Path;
+use std::sync::Arc;
+use std::time::SystemTime;
+
+use millgate_config::{Channel, Driveline};
+use millgate_dsp::transient::TransientSettings;
+
+use super::capture::Captures;
+use super::setup::{BiteSetup, ModelParts, WearDiagnosis};
+use crate::analysis::bite_window::{Detector, DetectorState};
+use crate::analysis::error::AnalysisError;
+use crate::analysis::gap_estimate::{GapEstimate, GapObservation};
+use crate::analysis::gap_monitor::{GapMapJob, GapMonitor};
+use crate::analysis::wear::WearReference;
+use crate::state::captures::CaptureRecord;
+use crate::state::gap_maps::GapMaps;
+
+/// Bite detection and analysis of one driveline.
+#[derive(Debug)]
+pub(crate) struct DrivelineAnalyzer {
+    /// Index of the driveline in the configuration.
+    pub(super) index: usize,
+    /// The driveline's name.
+    pub(super) name: String,
+    /// The torque channel's name.
+    pub(super) channel_name: String,
+    /// The torque channel's sample rate, Hz.
+    pub(super) sample_rate_hz: f64,
+    /// The bite detector.
+    pub(super) detector: Detector,
+    /// Its state.
+    pub(super) state: DetectorState,
+    /// The transient analysis settings.
+    pub(super) transient: TransientSettings,
+    /// TAF warning threshold.
+    pub(super) taf_warning: f64,
+    /// TAF alarm threshold (latched).
+    pub(super) taf_alarm: f64,
+    /// Rise above the baseline that marks the load onset for the fit, kN*m.
+    pub(super) onset_knm: f64,
+    /// The "metal in stand" trigger was high at its last value.
+    trigger_high: bool,
+    /// Linear references, when the driveline has a model file.
+    pub(super) wear: Option<WearReference>,
+    /// The gap diagnosis, when the driveline has a model file.
+    pub(super) gap: Option<GapMonitor>,
+    /// The maps to build, until the service takes the job.
+    gap_job: Option<GapMapJob>,
+    /// Why a driveline naming a model runs without wear diagnosis.
+    wear_problem: Option<AnalysisError>,
+    /// What is kept for the captures.
+    pub(super) captures: Captures,
+}
+
+impl DrivelineAnalyzer {
+    /// The analyser of driveline `index` measured on `torque`; its gap maps (when it
+    /// has a model) are left to build as a [`GapMapJob`] with the cache in `cache_dir`.
+    /// A model that does not load or does not fit the `wear` settings is not an error
+    /// here: the driveline runs without wear diagnosis and [`Self::wear_problem`] says
+    /// why.
+    pub(crate) fn new(
+        index: usize,
+        driveline: &Driveline,
+        torque: &Channel,
+        cache_dir: &Path,
+    ) -> Result<Self, AnalysisError> {
+        let (parts, wear_problem) = ModelParts::of(index, driveline);
+        let setup = BiteSetup::of(index, driveline, torque, parts.as_ref().map(|p| &p.model))?;
+        let diagnosis = parts
+            .zip(driveline.model.as_deref())
+            .map(|model| WearDiagnosis::new(index, driveline, model, &setup, cache_dir));
+        let (wear, gap, gap_job) = match diagnosis {
+            Some(d) => (Some(d.wear), Some(d.gap), Some(d.gap_job)),
+            None => (None, None, None),
+        };
+        Ok(Self {
+            index,
+            name: driveline.name.clone(),
+            channel_name: torque.name.clone(),
+            sample_rate_hz: torque.sample_rate_hz,
+            state: setup.detector.state(),
+            detector: setup.detector,
+            transient: setup.transient,
+            taf_warning: driveline.thresholds.taf_warning,
+            taf_alarm: driveline.thresholds.taf_alarm,
+            onset_knm: setup.onset_knm,
+            trigger_high: false,
+            wear,
+            gap,
+            gap_job,
+            wear_problem,
+            captures: Captures::new(torque.sample_rate_hz),
+        })
+    }
+
+    /// Keep each bite window's samples for its capture (`[history]` with captures on),
+    /// describing the torque channel as `torque`.
+    /// With `extra` (the driveline's `extra_channels`), each kept in a ring of
+    /// `ring_capacity` samples for the bites' captures.
+    pub(crate) fn keep_captures(
+        &mut self,
+        torque: &Channel,
+        extra: &[&Channel],
+        ring_capacity: usize,
+    ) {
+        self.captures.keep(torque, extra, ring_capacity);
+    }
+
+    /// Start keeping the next `seconds` s of torque as a manual capture (a capture
+    /// already running starts again); false when captures are not kept.
+    pub(crate) fn start_manual_capture(&mut self, seconds: f64) -> bool {
+        self.captures.start_manual(seconds)
+    }
+
+    /// The manual capture, once its samples are all in.
+    pub(crate) fn take_manual_capture(&mut self) -> Option<CaptureRecord> {
+        self.captures.take_manual(&self.name)
+    }
+
+    /// Samples of extra channel `extra` (its position in `extra_channels`), the last
+    /// received at `received` (when known).
+    pub(crate) fn extra_samples(
+        &mut self,
+        extra: usize,
+        values: &[f64],
+        received: Option<SystemTime>,
+    ) {
+        self.captures.extra_samples(extra, values, received);
+    }
+
+    /// Samples of extra channel `extra` were lost.
+    pub(crate) fn extra_gap(&mut self, extra: usize) {
+        self.captures.extra_gap(extra);
+    }
+
+    /// Why the driveline runs without wear diagnosis although it names a model.
+    pub(crate) fn wear_problem(&self) -> Option<&AnalysisError> {
+        self.wear_problem.as_ref()
+    }
+
+    /// The build of the gap maps, once (the service runs it off the analysis task).
+    pub(crate) fn take_gap_map_job(&mut self) -> Option<GapMapJob> {
+        self.gap_job.take()
+    }
+
+    /// Install the gap maps (or note they failed); returns the pooled estimate of the
+    /// bites seen so far, to publish.
+    pub(crate) fn set_gap_maps(&mut self, maps: Option<Arc<GapMaps>>) -> Option<GapEstimate> {
+        self.gap.as_mut()?.set_maps(maps)
+    }
+
+    /// Replace the gap pool by `observations` (oldest first; restored from history).
+    pub(crate) fn restore_gap_pool(
+        &mut self,
+        observations: Vec<GapObservation>,
+    ) -> Option<GapEstimate> {
+        self.gap.as_mut()?.restore(observations)
+    }
+
+    /// The gap pool's saved form, when the driveline has a model.
+    pub(crate) fn gap_pool(&self) -> Option<Vec<GapObservation>> {
+        self.gap.as_ref().map(GapMonitor::observations)
+    }
+
+    /// Empty the gap pool (the reset command).
+    pub(crate) fn reset_gap_pool(&mut self) {
+        if let Some(monitor) = &mut self.gap {
+            monitor.reset();
+        }
+    }
+
+    /// "Metal in stand": a rising edge through 0.5 triggers a capture.
+    pub(crate) fn trigger_value(&mut self, value: f64) {
+        let high = value > 0.5;
+        if high && !self.trigger_high {
+            self.detector.trigger(&mut self.state);
+        }
+        self.trigger_high = high;
+    }
+}

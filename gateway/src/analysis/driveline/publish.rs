@@ -1,0 +1,227 @@
+//! A driveline's bite reports into the published results and the history, under the
+//! board's lock: the figures (none of a degraded bite), the wear trend, the gap
+//! estimate, the bite's record with its capture, and the warning and alarm changes.
+
+use millgate_dsp::transient::TransientQuality;
+
+use super::analyzer::DrivelineAnalyzer;
+use super::report::BiteReport;
+use crate::analysis::gap_estimate::GapEstimate;
+use crate::analysis::wear;
+use crate::state::board::Board;
+use crate::state::captures::{CapturedBite, KeepClass};
+use crate::state::events::{
+    AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, HistoryEvent, PooledBite, StateRecord,
+    SubjectResults, WearState,
+};
+use crate::state::results::DrivelineResults;
+use crate::state::time::UtcTime;
+
+impl DrivelineAnalyzer {
+    /// Record `report`, a bite of this driveline, in the published results and the
+    /// history (the bite, and its warning and alarm changes).
+    ///
+    /// A degraded bite (its window held a gap, a saturated or a non-finite sample) is
+    /// counted and dated, and flagged degraded, but its values are not valid: they are
+    /// published with their quality bits clear (registers 0), raise no TAF warning or
+    /// alarm, and do not move the wear trend. Nothing computed from data that cannot be
+    /// trusted reads as a result.
+    pub(crate) fn publish(&self, board: &Board, report: &BiteReport) {
+        board.update_recorded(|results, events| {
+            let driveline = &mut results.drivelines[report.driveline];
+            let was = (driveline.taf_warning, driveline.taf_alarm);
+            let time = UtcTime::from_system(report.time);
+            let taf = self.publish_figures(driveline, report, time);
+            let gap = report
+                .gap
+                .and_then(|gap| Some((self.gap.as_ref()?, gap.pooled?)));
+            let mut gap_alarms = Vec::new();
+            if let Some((monitor, estimate)) = gap {
+                let subject = (report.driveline_name.as_str(), time);
+                monitor.publish(driveline, &estimate, subject, &mut gap_alarms);
+            }
+            driveline.restored = false;
+            let record = bite_record(
+                report,
+                driveline,
+                gap.map(|(monitor, estimate)| monitor.verdict(&estimate)),
+            );
+            let keep = self.keep_class(driveline, taf, &gap_alarms);
+            let bite = CapturedBite {
+                counter: driveline.bite_counter,
+                time,
+            };
+            events.push(match report.capture(bite, keep) {
+                Some(capture) => HistoryEvent::CapturedBite(Box::new(record), Box::new(capture)),
+                None => HistoryEvent::Bite(Box::new(record)),
+            });
+            self.taf_alarms(report, driveline, was, time, events);
+            events.extend(gap_alarms);
+        });
+    }
+
+    /// Count and date `report`, a bite at `time`, in `driveline`'s results and publish
+    /// its figures, the TAF warning and alarm and the wear trend (none from a degraded
+    /// bite); returns its TAF when it can be trusted.
+    fn publish_figures(
+        &self,
+        driveline: &mut DrivelineResults,
+        report: &BiteReport,
+        time: UtcTime,
+    ) -> Option<f64> {
+        let t = &report.transient;
+        let valid = !report.degraded;
+        let trusted = |value: Option<f64>| value.filter(|_| valid);
+        driveline.bite_counter = driveline.bite_counter.wrapping_add(1);
+        driveline.degraded_bites = driveline
+            .degraded_bites
+            .wrapping_add(u32::from(report.degraded));
+        driveline.last_bite_unix_ms = Some(time.unix_ms());
+        window_figures(driveline, report, valid);
+        driveline.last_bite_degraded = report.degraded;
+        let taf = trusted(t.taf);
+        driveline.taf_warning = taf.is_some_and(|taf| taf >= self.taf_warning);
+        driveline.taf_alarm |= taf.is_some_and(|taf| taf >= self.taf_alarm);
+        driveline.wear_index = trusted(report.wear.map(|wear| wear.index));
+        if let Some(index) = driveline.wear_index {
+            driveline.wear_trend = Some(wear::next_trend(driveline.wear_trend, index));
+        }
+        taf
+    }
+
+    /// How long the history keeps the capture of a bite with the trusted `taf`, after
+    /// which `driveline`'s results are as published with `gap_alarms`.
+    fn keep_class(
+        &self,
+        driveline: &DrivelineResults,
+        taf: Option<f64>,
+        gap_alarms: &[HistoryEvent],
+    ) -> KeepClass {
+        let raised_gap_alarm = gap_alarms.iter().any(|event| {
+            matches!(event, HistoryEvent::Alarm(a) if a.kind == AlarmKind::GapAlarm && a.event == AlarmEvent::Raised)
+        });
+        if taf.is_some_and(|taf| taf >= self.taf_alarm) || raised_gap_alarm {
+            KeepClass::Important
+        } else if driveline.taf_warning || driveline.gap_warning {
+            KeepClass::Warning
+        } else {
+            KeepClass::Ordinary
+        }
+    }
+
+    /// Into `events`, the TAF warning's change and the TAF alarm's raising by
+    /// `report`, a bite at `time`, from the warning and alarm `was` before it to
+    /// `driveline`'s now.
+    fn taf_alarms(
+        &self,
+        report: &BiteReport,
+        driveline: &DrivelineResults,
+        (was_warning, was_alarm): (bool, bool),
+        time: UtcTime,
+        events: &mut Vec<HistoryEvent>,
+    ) {
+        let taf = report.transient.taf;
+        let alarm = |kind, event, threshold| {
+            HistoryEvent::Alarm(AlarmRecord {
+                time,
+                subject: report.driveline_name.clone(),
+                kind,
+                event,
+                origin: None,
+                value: taf,
+                threshold: Some(threshold),
+            })
+        };
+        if driveline.taf_warning != was_warning {
+            let event = if driveline.taf_warning {
+                AlarmEvent::Raised
+            } else {
+                AlarmEvent::Cleared
+            };
+            events.push(alarm(AlarmKind::TafWarning, event, self.taf_warning));
+        }
+        if driveline.taf_alarm && !was_alarm {
+            events.push(alarm(
+                AlarmKind::TafAlarm,
+                AlarmEvent::Raised,
+                self.taf_alarm,
+            ));
+        }
+    }
+
+    /// Record `estimate` (from maps just installed or a restored pool) in the results,
+    /// with the alarm events it makes.
+    pub(crate) fn publish_gap(&self, board: &Board, estimate: &GapEstimate) {
+        if let Some(monitor) = &self.gap {
+            board.update_recorded(|results, events| {
+                let time = UtcTime::now();
+                let driveline = &mut results.drivelines[self.index];
+                monitor.publish(driveline, estimate, (self.name.as_str(), time), events);
+                events.push(HistoryEvent::State(StateRecord {
+                    time,
+                    subject: self.name.clone(),
+                    results: SubjectResults::Driveline(driveline.clone()),
+                }));
+            });
+        }
+    }
+}
+
+/// What `report`'s window measured, as figures of `driveline`: its torques, TAF,
+/// periods, natural frequencies and first mode's damping, each only while `valid` (a
+/// degraded window's are no values where they are published; the bite's row keeps
+/// them).
+fn window_figures(driveline: &mut DrivelineResults, report: &BiteReport, valid: bool) {
+    let t = &report.transient;
+    let trusted = |value: Option<f64>| value.filter(|_| valid);
+    driveline.static_torque_knm = trusted(Some(t.static_torque_knm));
+    driveline.peak_torque_knm = trusted(Some(t.peak_torque_knm));
+    driveline.taf = trusted(t.taf);
+    driveline.first_period_s = trusted(t.first_period_s);
+    driveline.first_period_shift_s = trusted(t.period_shift_s);
+    driveline.beta1_hz = trusted(report.beta_hz.map(|(beta1, _)| beta1));
+    driveline.beta2_hz = trusted(report.beta_hz.map(|(_, beta2)| beta2));
+    driveline.first_mode_damping = trusted(report.first_mode_damping);
+}
+
+/// The history's record of `report` with the driveline's published `state` after it
+/// and, when the bite gave a gap estimate, its verdict (what the analysis records;
+/// benches store the same).
+pub fn bite_record(
+    report: &BiteReport,
+    state: &DrivelineResults,
+    gap_state: Option<WearState>,
+) -> BiteRecord {
+    let t = &report.transient;
+    let reference = report.wear.map(|wear| wear.reference);
+    let mut figures = state.clone();
+    window_figures(&mut figures, report, true);
+    figures.gap = figures.gap.filter(|_| gap_state.is_some());
+    BiteRecord {
+        driveline: report.driveline_name.clone(),
+        channel: report.channel_name.clone(),
+        time: UtcTime::from_system(report.time),
+        figures,
+        second_period_s: t.second_period_s,
+        quality: match t.quality {
+            TransientQuality::Good => "good",
+            TransientQuality::FewCrossings => "few_crossings",
+            TransientQuality::LowStatic => "low_static",
+        },
+        reference_taf: reference.map(|r| r.taf),
+        reference_level_knm: reference.map(|r| r.level_knm),
+        shift_over_linear_s: report.wear.and_then(|wear| wear.shift_excess_s),
+        gap_state,
+        pooled: report.gap.map(|gap| {
+            let o = gap.observation;
+            PooledBite {
+                static_torque_knm: o.static_torque_knm,
+                taf: o.taf,
+                taf_sigma: o.taf_sigma,
+                period_shift_s: o.period_shift_s,
+                period_shift_sigma_s: o.period_shift_sigma_s,
+            }
+        }),
+        state: state.clone(),
+    }
+}
