@@ -44,7 +44,9 @@ use millgate_sim::rod::RodError;
 
 use crate::field::acquired::Acquired;
 use crate::state::board::Board;
+use crate::state::events::{AlarmKind, AlarmRecord};
 use crate::state::results::{RodMillResults, RodSpanResults, MAX_ROD_SPANS};
+use crate::state::time::UtcTime;
 /// Most pass setups cached per rod mill; the cache is emptied when a new key would
 /// pass it (passes x configurations x temperature steps actually seen).
 pub const MAX_CACHED_SETUPS: usize = 64;
@@ -524,6 +526,8 @@ impl RodMonitor {
 #[derive(Debug)]
 pub struct RodAnalysis {
     monitors: Vec<RodMonitor>,
+    /// The rod mills' names, for the history.
+    names: Vec<String>,
     board: Arc<Board>,
 }
 
@@ -533,7 +537,11 @@ impl RodAnalysis {
         let monitors = (0..config.rod_mills.len())
             .map(|index| RodMonitor::new(config, index))
             .collect::<Result<_, _>>()?;
-        Ok(Self { monitors, board })
+        Ok(Self {
+            monitors,
+            names: config.rod_mills.iter().map(|m| m.name.clone()).collect(),
+            board,
+        })
     }
 
     /// The monitors, in config order.
@@ -548,8 +556,17 @@ impl RodAnalysis {
         };
         for (index, monitor) in self.monitors.iter_mut().enumerate() {
             if let Some(results) = monitor.process_value(channel, value) {
-                self.board.update(|published| {
+                let name = &self.names[index];
+                self.board.update_recorded(|published, events| {
                     if let Some(slot) = published.rod_mills.get_mut(index) {
+                        // A span going unstable or near a tongue, and back, is an alarm
+                        // event (the history keeps it, OPC UA sends it).
+                        events.extend(AlarmRecord::flag_changes(
+                            (&*slot, &results),
+                            &[AlarmKind::Unstable, AlarmKind::NearTongue],
+                            (name, UtcTime::now()),
+                            results.worst_span().map(|(_, margin)| margin),
+                        ));
                         *slot = results;
                     }
                 });

@@ -1,6 +1,9 @@
-//! The outage monitor: a task that watches every source's health and records an
-//! outage from the moment a source is not ok (stale or lost) until it answers again,
-//! with the blocks its channels lost meanwhile.
+//! The outage monitor: a task that watches every source's health, signals each change
+//! of a source's status (a source goes stale with no event: only time tells, so the
+//! outputs learn it here, through the change signal), and records an outage from the
+//! moment a source is not ok (stale or lost) until it answers again, with the blocks
+//! its channels lost meanwhile. It runs with or without a history file: the alarm
+//! stream carries the outages either way.
 //!
 //! A source that has not answered yet at start is given [`START_GRACE`] before its
 //! outage is recorded (from the start): connecting takes a moment. The blocks lost are
@@ -76,11 +79,19 @@ impl OutageMonitor {
         let started = Instant::now();
         let started_at = UtcTime::now();
         let mut outages: Vec<Outage> = self.sources.iter().map(|_| Outage::None).collect();
+        let signal = self.history.signal();
+        let mut statuses: Vec<SourceStatus> =
+            self.sources.iter().map(|s| s.health.status()).collect();
         let mut ticks = tokio::time::interval(PERIOD);
         loop {
             tokio::select! {
                 _ = ticks.tick() => {}
                 () = shutdown.recv() => return,
+            }
+            let now: Vec<SourceStatus> = self.sources.iter().map(|s| s.health.status()).collect();
+            if now != statuses {
+                signal.results_changed();
+                statuses = now;
             }
             let in_grace = started.elapsed() < START_GRACE;
             for (source, outage) in self.sources.iter().zip(&mut outages) {

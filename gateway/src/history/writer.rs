@@ -383,7 +383,7 @@ impl Writer {
     pub(crate) fn run(
         mut self,
         events: Receiver<HistoryEvent>,
-        settled: tokio::sync::watch::Sender<u64>,
+        signal: crate::state::changes::Signal,
         opened: std::sync::mpsc::SyncSender<Restored>,
     ) {
         let mut batch = Vec::with_capacity(MAX_BATCH);
@@ -435,7 +435,7 @@ impl Writer {
                 if settled_now {
                     done += batch.len() as u64;
                     batch.clear();
-                    settled.send_replace(done);
+                    signal.settled(done);
                 }
             }
             if batch.is_empty() {
@@ -665,11 +665,11 @@ pub(crate) fn spawn(
     let ends = history.take_writer_ends()?;
     let counters = history.counters();
     let writer = Writer::new(&ends.config, run, counters);
-    let (receiver, settled) = (ends.receiver, ends.settled);
+    let (receiver, signal) = (ends.receiver, ends.signal);
     let (opened, restored) = std::sync::mpsc::sync_channel(1);
     let spawned = std::thread::Builder::new()
         .name("HistoryWriter".into())
-        .spawn(move || writer.run(receiver, settled, opened));
+        .spawn(move || writer.run(receiver, signal, opened));
     match spawned {
         Ok(handle) => history.set_writer(Some(handle)),
         Err(error) => {

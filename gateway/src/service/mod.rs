@@ -359,7 +359,7 @@ impl Service {
         if !self.restore(&mut shutdown).await {
             return Ok(());
         }
-        let outage_monitor = self.history.is_enabled().then(|| self.outage_monitor());
+        let outage_monitor = Some(self.outage_monitor());
         let Service {
             config,
             map,

@@ -9,6 +9,7 @@ use std::sync::{Arc, Mutex};
 use millgate_config::Config;
 
 use super::catalogue::{Subject, Value};
+use super::changes::{Changes, Signal};
 use super::events::{
     AlarmEvent, AlarmKind, AlarmRecord, HistoryEvent, StateRecord, SubjectResults,
 };
@@ -23,9 +24,8 @@ use crate::state::commands::CommandOrigin;
 #[derive(Debug)]
 pub struct Board {
     results: Mutex<Results>,
-    /// Wakes the PLC writer when results change, so a bite is written at once
-    /// rather than at the next write period.
-    changed: tokio::sync::Notify,
+    /// The change signal every output waits on (its history's: [`Self::with_history`]).
+    signal: Signal,
     health: Vec<Arc<SourceHealth>>,
     /// The source statuses of the final image, once the service stops.
     frozen_health: Mutex<Option<Vec<SourceStatus>>>,
@@ -58,7 +58,7 @@ impl Board {
         };
         Self {
             results: Mutex::new(results),
-            changed: tokio::sync::Notify::new(),
+            signal: Signal::default(),
             health,
             frozen_health: Mutex::new(None),
             driveline_names: config.drivelines.iter().map(|d| d.name.clone()).collect(),
@@ -113,8 +113,10 @@ impl Board {
         }
     }
 
-    /// This board recording into `history`.
+    /// This board recording into `history`, signalling its changes on the history's
+    /// signal (so one [`Changes`] sees the results and what the history stored).
     pub fn with_history(mut self, history: History) -> Self {
+        self.signal = history.signal();
         self.history = history;
         self
     }
@@ -154,14 +156,14 @@ impl Board {
             self.history.record(event);
         }
         drop(results);
-        self.changed.notify_one();
+        self.signal.results_changed();
         value
     }
 
-    /// Wait until the results change (returns at once if they changed since the
-    /// last wait).
-    pub async fn changed(&self) {
-        self.changed.notified().await;
+    /// A waiter on the change signal that has seen everything up to now: what every
+    /// output waits on (see [`super::changes`]).
+    pub fn changes(&self) -> Changes {
+        self.signal.subscribe()
     }
 
     /// A copy of the results with current source health applied.
@@ -207,7 +209,7 @@ impl Board {
 
     /// Increment the heartbeat counter (each PLC write period, or each second
     /// without a PLC output), so a watchdog sees the gateway alive.
-    /// Not a change of the results: waiters on [`Self::changed`] are not woken (the
+    /// Not a change of the results: waiters on [`Self::changes`] are not woken (the
     /// PLC writer beats on each write and would wake itself).
     pub fn beat(&self) {
         let mut results = crate::lock(&self.results);

@@ -3,6 +3,7 @@
 //! applies, the outage monitor for sources) and written by the history's writer thread.
 
 pub use super::catalogue::AlarmKind;
+use super::catalogue::{Figure, Subject, Value};
 use super::commands::CommandOrigin;
 use super::results::{DrivelineResults, TandemMillResults};
 use super::time::UtcTime;
@@ -150,6 +151,39 @@ pub struct AlarmRecord {
     pub threshold: Option<f64>,
 }
 
+impl AlarmRecord {
+    /// The changes of the flags of `R` that carry one of `kinds`, from `was` to `is`
+    /// (raised or cleared by the analysis), about `subject` at `time`, with `value`
+    /// (what moved them: a gain ratio, a speed margin).
+    pub fn flag_changes<R: Subject>(
+        (was, is): (&R, &R),
+        kinds: &[AlarmKind],
+        (subject, time): (&str, UtcTime),
+        value: Option<f64>,
+    ) -> Vec<HistoryEvent> {
+        let set = |figure: &Figure<R>, r: &R| figure.value(r) == Some(Value::Bool(true));
+        R::FIGURES
+            .iter()
+            .filter_map(|figure| Some((figure, figure.alarm.filter(|k| kinds.contains(k))?)))
+            .filter(|(figure, _)| set(figure, was) != set(figure, is))
+            .map(|(figure, kind)| {
+                HistoryEvent::Alarm(AlarmRecord {
+                    time,
+                    subject: subject.to_owned(),
+                    kind,
+                    event: match set(figure, is) {
+                        true => AlarmEvent::Raised,
+                        false => AlarmEvent::Cleared,
+                    },
+                    origin: None,
+                    value,
+                    threshold: None,
+                })
+            })
+            .collect()
+    }
+}
+
 /// What happened to an alarm.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum AlarmEvent {
@@ -294,5 +328,17 @@ impl HistoryEvent {
     /// a manual request's): the history counts those it could not store.
     pub fn holds_capture(&self) -> bool {
         matches!(self, Self::CapturedBite(..) | Self::Capture(_))
+    }
+
+    /// Whether the event belongs to the alarm stream ([`super::history::History::alarms`]):
+    /// an alarm's change or a source outage's.
+    pub fn is_alarm_stream(&self) -> bool {
+        matches!(
+            self,
+            Self::Alarm(_)
+                | Self::OutageStarted { .. }
+                | Self::OutageWorse { .. }
+                | Self::OutageEnded { .. }
+        )
     }
 }

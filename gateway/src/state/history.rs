@@ -14,6 +14,9 @@ use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+use tokio::sync::broadcast;
+
+use super::changes::Signal;
 use super::events::HistoryEvent;
 use super::time;
 
@@ -21,6 +24,10 @@ use super::time;
 /// minutes, not seconds: enough to ride out a slow commit (a busy SD card), small
 /// enough (a few MiB) to bound memory when the store is stuck.
 pub const QUEUE_CAPACITY: usize = 4096;
+
+/// Alarm and outage events a receiver of [`History::alarms`] may fall behind by: far
+/// more than a burst of bites raises (each raises at most a few).
+pub const ALARM_STREAM_CAPACITY: usize = 1024;
 
 /// What the history is doing, for `/metrics` and the log.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -183,16 +190,19 @@ pub(crate) struct WriterEnds {
     pub(crate) config: millgate_config::History,
     /// The queue's receiving end.
     pub(crate) receiver: Receiver<HistoryEvent>,
-    /// Events settled (committed or dropped), in queue order.
-    pub(crate) settled: tokio::sync::watch::Sender<u64>,
+    /// Where the writer says how many events are settled (committed or dropped), in
+    /// queue order.
+    pub(crate) signal: Signal,
 }
 
 #[derive(Debug)]
 struct Shared {
     queue: Mutex<Queue>,
     counters: Arc<Counters>,
-    /// Events settled (committed or dropped by the writer), in queue order.
-    settled: tokio::sync::watch::Receiver<u64>,
+    /// The change signal: the writer's settled events, the board's results.
+    signal: Signal,
+    /// The alarm stream: every alarm and outage event recorded (also without a file).
+    alarms: broadcast::Sender<HistoryEvent>,
     /// The writer's ends until the writer side takes them.
     pending: Mutex<Option<WriterEnds>>,
     writer: Mutex<Option<std::thread::JoinHandle<()>>>,
@@ -218,7 +228,7 @@ impl History {
     /// (`millgate check` builds this too).
     pub fn new(config: Option<&millgate_config::History>) -> Self {
         let counters = Arc::new(Counters::default());
-        let (settled_tx, settled) = tokio::sync::watch::channel(0);
+        let signal = Signal::default();
         let (sender, pending) = match config {
             Some(config) => {
                 counters.set_state(HistoryState::Ok);
@@ -226,7 +236,7 @@ impl History {
                 let pending = WriterEnds {
                     config: config.clone(),
                     receiver,
-                    settled: settled_tx,
+                    signal: signal.clone(),
                 };
                 (Some(sender), Some(pending))
             }
@@ -239,7 +249,8 @@ impl History {
                     enqueued: 0,
                 }),
                 counters,
-                settled,
+                signal,
+                alarms: broadcast::channel(ALARM_STREAM_CAPACITY).0,
                 pending: Mutex::new(pending),
                 writer: Mutex::new(None),
                 full_logged: Mutex::new(None),
@@ -271,6 +282,10 @@ impl History {
     /// Hand `event` to the writer without waiting; `false` when it was dropped (the
     /// queue is full, or the history is disabled or closed).
     pub fn record(&self, event: HistoryEvent) -> bool {
+        if event.is_alarm_stream() {
+            // No receiver (no OPC UA server) is no error.
+            let _ = self.shared.alarms.send(event.clone());
+        }
         let mut queue = crate::lock(&self.shared.queue);
         let Some(sender) = queue.sender.as_ref() else {
             return false;
@@ -329,9 +344,23 @@ impl History {
         if self.shared.counters.state() != HistoryState::Ok {
             return true;
         }
-        let mut settled = self.shared.settled.clone();
-        let reached = tokio::time::timeout(limit, settled.wait_for(|&n| n >= through)).await;
-        matches!(reached, Ok(Ok(_)))
+        let mut changes = self.shared.signal.subscribe();
+        tokio::time::timeout(limit, changes.settled_through(through))
+            .await
+            .is_ok()
+    }
+
+    /// The change signal this history's writer reports to (the board reports the
+    /// results' changes to the same one: [`crate::state::board::Board::with_history`]).
+    pub fn signal(&self) -> Signal {
+        self.shared.signal.clone()
+    }
+
+    /// The alarm stream: every alarm and source outage event recorded from now on, as
+    /// the history stores it (also without a `[history]` file). A receiver that falls
+    /// more than [`ALARM_STREAM_CAPACITY`] events behind is told how many it missed.
+    pub fn alarms(&self) -> broadcast::Receiver<HistoryEvent> {
+        self.shared.alarms.subscribe()
     }
 
     /// The counters, for `/metrics`.

@@ -16,8 +16,9 @@ use super::verdict::{SlowDown, Verdict};
 use crate::field::acquired::Acquired;
 use crate::state::board::Board;
 use crate::state::captures::CaptureRecord;
-use crate::state::events::HistoryEvent;
+use crate::state::events::{AlarmKind, AlarmRecord, HistoryEvent};
 use crate::state::results::TandemMillResults;
+use crate::state::time::UtcTime;
 
 /// Every tandem mill's monitor, fed by the analysis task; results go to the
 /// register map (PLC writes, HMI server) and `/metrics`.
@@ -189,6 +190,7 @@ fn publish(
             return;
         };
         let was_flagged = published.source_stale;
+        let was = published.clone();
         let (was_warning, was_alarm) = (published.chatter_warning, published.chatter_alarm);
         match change {
             ChatterUpdate::Evaluated(result) => {
@@ -237,6 +239,12 @@ fn publish(
         }
         published.slow_down_request = verdict.slow_down;
         record_episode(events, name, change, (was_warning, was_alarm), published);
+        events.extend(AlarmRecord::flag_changes(
+            (&was, &*published),
+            &[AlarmKind::SlowDownRequest],
+            (name, UtcTime::now()),
+            published.gain_ratio,
+        ));
     });
     verdict.warning
 }

@@ -234,12 +234,13 @@ impl PlcWriter {
         // The map as the PLC holds it after the last write that went through (None
         // before the first, after a failure or a reconnect: the next write is whole).
         let mut at_plc: Option<Vec<u16>> = None;
+        let mut changes = self.board.changes();
         let blocks = self.map.plc_blocks(self.output.extension_blocks);
         let whole = requests(blocks, |_| true);
         loop {
             let period = tokio::select! {
                 _ = ticks.tick() => true,
-                () = self.board.changed() => false,
+                _ = changes.results() => false,
                 () = shutdown.recv() => break,
             };
             self.board.beat();

@@ -17,45 +17,27 @@
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use millgate_config::Config;
-use tokio::sync::{mpsc, watch};
+use tokio::sync::{broadcast, mpsc, watch};
 
 use crate::field::source_health::SourceStatus;
 use crate::shutdown::Shutdown;
 use crate::state::board::Board;
 use crate::state::catalogue::{self, Figure, FigureType, NoValue, Reading, Subject};
 use crate::state::commands::{Command, CommandOrigin, CommandSender};
+use crate::state::events::HistoryEvent;
 use crate::state::results::{
     DrivelineResults, GatewayState, Results, RodMillResults, TandemMillResults,
 };
 
+use super::alarms::EventObjects;
 use super::model::{
     AddressSpaceSpec, AlarmEventSpec, ObjectKind, ObjectSpec, Quality, Snapshot, Unit, Value,
     VariableSpec, VariableType, VariableUpdate,
 };
 use super::nodes::Acknowledger;
 
-/// How often the board is read: the server's subscriptions sample no faster
-/// (async-opcua's subscription tick and the clients' usual 100 ms interval).
-pub const FEED_PERIOD: Duration = Duration::from_millis(100);
 /// Alarm events waiting for the server; more are dropped (counted and logged).
 pub const EVENT_QUEUE: usize = 256;
-
-/// Severity of warnings (OPC UA: medium).
-const WARNING_SEVERITY: u16 = 500;
-/// Severity of latched alarms and unstable spans (OPC UA: medium high).
-const ALARM_SEVERITY: u16 = 800;
-/// Severity of a stale source.
-const STALE_SEVERITY: u16 = 600;
-/// Severity of a lost source and of the slow-down request.
-const LOST_SEVERITY: u16 = 700;
-
-/// Flags that are events without being alarms the history records (those come from
-/// the catalogue's `alarm`): key and severity.
-const OTHER_EVENTS: [(&str, u16); 3] = [
-    ("slow_down_request", LOST_SEVERITY),
-    ("unstable", ALARM_SEVERITY),
-    ("near_tongue", WARNING_SEVERITY),
-];
 
 /// The OPC UA unit of a catalogue unit; `None` for none (ratios, counts, flags,
 /// times). A test checks every catalogue unit has one.
@@ -342,6 +324,25 @@ impl CatalogueAdapter {
         (adapter, spec)
     }
 
+    /// The objects the alarm stream's events are about, by name.
+    fn event_objects(&self) -> EventObjects {
+        let named = |names: &[String], objects: &[usize]| -> Vec<(String, usize)> {
+            names.iter().cloned().zip(objects.iter().copied()).collect()
+        };
+        let rods: Vec<usize> = self
+            .layout
+            .rod_mills
+            .iter()
+            .map(|(mill, _)| *mill)
+            .collect();
+        EventObjects::new(
+            named(&self.driveline_names, &self.layout.drivelines),
+            named(&self.tandem_names, &self.layout.tandem_mills),
+            named(&self.rod_names, &rods),
+            named(&self.source_names, &self.layout.sources),
+        )
+    }
+
     /// Every variable's state in `results`, seen at `now`.
     pub fn snapshot(&mut self, results: &Results, now: SystemTime) -> Snapshot {
         let layout = &self.layout;
@@ -404,75 +405,6 @@ impl CatalogueAdapter {
         }
         Snapshot { objects: snapshot }
     }
-
-    /// The alarms raised, cleared or acknowledged between `before` and `after`, seen
-    /// at `now`: the catalogue's alarm flags, the slow-down request, a rod mill's
-    /// unstable and near-tongue flags, and sources going stale or lost. A driveline's
-    /// raised alarm is dated by its bite, anything else `now`.
-    pub fn events(
-        &self,
-        before: &Results,
-        after: &Results,
-        now: SystemTime,
-    ) -> Vec<AlarmEventSpec> {
-        let mut events = Vec::new();
-        let verb = |active: bool, latched: bool| match (active, latched) {
-            (true, _) => "raised",
-            (false, true) => "acknowledged",
-            (false, false) => "cleared",
-        };
-        for (k, (was, is)) in before.sources.iter().zip(&after.sources).enumerate() {
-            let name = &self.source_names[k];
-            for (status, kind, severity) in [
-                (SourceStatus::Stale, "source_stale", STALE_SEVERITY),
-                (SourceStatus::Lost, "source_lost", LOST_SEVERITY),
-            ] {
-                let (was, is) = (*was == Some(status), *is == Some(status));
-                if was != is {
-                    events.push(AlarmEventSpec {
-                        object: self.layout.sources[k],
-                        kind: kind.into(),
-                        severity,
-                        message: format!("{name}: {kind} {}", verb(is, false)),
-                        active: is,
-                        unacknowledged: false,
-                        time: now,
-                    });
-                }
-            }
-        }
-        let empty = DrivelineResults::default();
-        for (k, &object) in self.layout.drivelines.iter().enumerate() {
-            let is = after.drivelines.get(k).unwrap_or(&empty);
-            let was = before.drivelines.get(k).unwrap_or(&empty);
-            let raised = is.last_bite_unix_ms.map_or(now, unix_ms);
-            let context = context(catalogue::DRIVELINE, is, &["taf", "gap_mrad"]);
-            let subject = (
-                self.driveline_names[k].as_str(),
-                object,
-                raised,
-                context.as_str(),
-            );
-            flag_events(catalogue::DRIVELINE, was, is, subject, now, &mut events);
-        }
-        let empty = TandemMillResults::default();
-        for (m, &object) in self.layout.tandem_mills.iter().enumerate() {
-            let is = after.tandem_mills.get(m).unwrap_or(&empty);
-            let was = before.tandem_mills.get(m).unwrap_or(&empty);
-            let context = context(catalogue::TANDEM_MILL, is, &["gain_ratio", "worst_stand"]);
-            let subject = (self.tandem_names[m].as_str(), object, now, context.as_str());
-            flag_events(catalogue::TANDEM_MILL, was, is, subject, now, &mut events);
-        }
-        let empty = RodMillResults::default();
-        for (k, (object, _)) in self.layout.rod_mills.iter().enumerate() {
-            let is = after.rod_mills.get(k).unwrap_or(&empty);
-            let was = before.rod_mills.get(k).unwrap_or(&empty);
-            let context = context(catalogue::ROD_MILL, is, &["worst_span", "worst_margin_m_s"]);
-            let subject = (self.rod_names[k].as_str(), *object, now, context.as_str());
-            flag_events(catalogue::ROD_MILL, was, is, subject, now, &mut events);
-        }
-        events
-    }
 }
 
 /// When the evaluations last changed: `now` if they did since `seen`.
@@ -487,70 +419,6 @@ fn seen(
     seen.1
 }
 
-/// `, key value unit` for each of `keys` of `subject` that has a good value.
-fn context<R: Subject + 'static>(
-    figures: &'static [Figure<R>],
-    subject: &R,
-    keys: &[&str],
-) -> String {
-    keys.iter()
-        .filter_map(|key| {
-            let figure = catalogue::find(figures, key);
-            let value = figure.read(subject).good()?;
-            let unit = if figure.unit.is_empty() {
-                String::new()
-            } else {
-                format!(" {}", figure.unit)
-            };
-            Some(match value {
-                catalogue::Value::Real(v) => format!(", {key} {v:.2}{unit}"),
-                other => format!(", {key} {}{unit}", other.as_f64()),
-            })
-        })
-        .collect()
-}
-
-/// The events of `figures`' event flags changing from `was` to `is`; `subject` is the
-/// object's name, index, the time a raised flag is dated by and the message's context.
-fn flag_events<R: Subject>(
-    figures: &[Figure<R>],
-    was: &R,
-    is: &R,
-    (name, object, raised, context): (&str, usize, SystemTime, &str),
-    now: SystemTime,
-    events: &mut Vec<AlarmEventSpec>,
-) {
-    for figure in figures {
-        let (severity, latched) = match figure.alarm {
-            Some(kind) if kind.latched() => (ALARM_SEVERITY, true),
-            Some(_) => (WARNING_SEVERITY, false),
-            None => match OTHER_EVENTS.iter().find(|(key, _)| *key == figure.key) {
-                Some(&(_, severity)) => (severity, false),
-                None => continue,
-            },
-        };
-        let set = |r: &R| figure.read(r).usable() == Some(catalogue::Value::Bool(true));
-        let (before, active) = (set(was), set(is));
-        if before == active {
-            continue;
-        }
-        let verb = match (active, latched) {
-            (true, _) => "raised",
-            (false, true) => "acknowledged",
-            (false, false) => "cleared",
-        };
-        events.push(AlarmEventSpec {
-            object,
-            kind: figure.key.into(),
-            severity,
-            message: format!("{name}: {} {verb}{context}", figure.key),
-            active,
-            unacknowledged: latched && active,
-            time: if active { raised } else { now },
-        });
-    }
-}
-
 /// The acknowledge method's action: clear the latched alarms, as an OPC UA client's
 /// command to the analysis (which records it in the history).
 pub fn acknowledger(commands: CommandSender) -> Acknowledger {
@@ -562,41 +430,52 @@ pub fn acknowledger(commands: CommandSender) -> Acknowledger {
     })
 }
 
-/// Read the board every [`FEED_PERIOD`] into `updates` (when it changed) and the
-/// alarms' transitions into `events`, until `shutdown`.
+/// Feed the server until `shutdown`: a snapshot of the board into `updates` at each
+/// change of the results (the server's subscriptions sample it), and the alarm
+/// stream's events into `events`.
 async fn feed(
     mut adapter: CatalogueAdapter,
     board: std::sync::Arc<Board>,
+    mut alarms: broadcast::Receiver<HistoryEvent>,
     updates: watch::Sender<Snapshot>,
     events: mpsc::Sender<AlarmEventSpec>,
     mut shutdown: Shutdown,
 ) {
-    let mut before = board.results();
-    let mut tick = tokio::time::interval(FEED_PERIOD);
-    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut changes = board.changes();
+    let mut objects = adapter.event_objects();
     let mut dropped = 0u64;
     loop {
         tokio::select! {
-            _ = tick.tick() => {}
+            _ = changes.results() => {
+                let snapshot = adapter.snapshot(&board.results(), SystemTime::now());
+                updates.send_if_modified(|current| {
+                    let changed = *current != snapshot;
+                    if changed {
+                        *current = snapshot;
+                    }
+                    changed
+                });
+            }
+            event = alarms.recv() => {
+                let event = match event {
+                    Ok(event) => event,
+                    Err(broadcast::error::RecvError::Lagged(missed)) => {
+                        dropped += missed;
+                        tracing::warn!(dropped, "OPC UA alarm events missed: the server is behind");
+                        continue;
+                    }
+                    // The history handle outlives the service: no more events.
+                    Err(broadcast::error::RecvError::Closed) => std::future::pending().await,
+                };
+                for spec in objects.events(&event, &board.results()) {
+                    if events.try_send(spec).is_err() {
+                        dropped += 1;
+                        tracing::warn!(dropped, "OPC UA alarm event dropped: the server is behind");
+                    }
+                }
+            }
             () = shutdown.recv() => break,
         }
-        let results = board.results();
-        let now = SystemTime::now();
-        let snapshot = adapter.snapshot(&results, now);
-        updates.send_if_modified(|current| {
-            let changed = *current != snapshot;
-            if changed {
-                *current = snapshot;
-            }
-            changed
-        });
-        for event in adapter.events(&before, &results, now) {
-            if events.try_send(event).is_err() {
-                dropped += 1;
-                tracing::warn!(dropped, "OPC UA alarm event dropped: the server is behind");
-            }
-        }
-        before = results;
     }
 }
 
@@ -606,6 +485,8 @@ pub struct OpcUaOutputTask {
     server: super::OpcUaServer,
     adapter: CatalogueAdapter,
     board: std::sync::Arc<Board>,
+    /// The alarm stream, subscribed when the output was prepared (before any event).
+    alarms: broadcast::Receiver<HistoryEvent>,
 }
 
 impl std::fmt::Debug for OpcUaOutputTask {
@@ -631,10 +512,12 @@ impl OpcUaOutputTask {
         };
         let (adapter, spec) = CatalogueAdapter::new(config, rod_spans);
         let server = super::OpcUaServer::new(settings.clone(), spec, acknowledger(commands))?;
+        let alarms = board.history().alarms();
         Ok(Some(Self {
             server,
             adapter,
             board,
+            alarms,
         }))
     }
 
@@ -654,11 +537,12 @@ impl OpcUaOutputTask {
             server,
             mut adapter,
             board,
+            alarms,
         } = self;
         let initial = adapter.snapshot(&board.results(), SystemTime::now());
         let (updates, updates_rx) = watch::channel(initial);
         let (events, events_rx) = mpsc::channel(EVENT_QUEUE);
-        let feeding = feed(adapter, board, updates, events, shutdown.clone());
+        let feeding = feed(adapter, board, alarms, updates, events, shutdown.clone());
         let serving = server.run(listener, updates_rx, events_rx, shutdown);
         tokio::pin!(serving);
         let served = tokio::select! {
@@ -803,15 +687,25 @@ mod tests {
     }
 
     #[test]
-    fn alarm_transitions_become_events() {
+    fn the_alarm_streams_events_become_events_of_their_objects() {
+        use super::super::alarms::{ALARM_SEVERITY, WARNING_SEVERITY};
+        use crate::state::events::{AlarmEvent, AlarmKind, AlarmRecord};
+        use crate::state::time::UtcTime;
         let (adapter, spec) = demo();
-        let now = UNIX_EPOCH + Duration::from_secs(1_800_000_000);
-        let quiet = {
-            let mut results = bitten();
-            results.drivelines[0].taf_alarm = false;
-            results
+        let mut objects = adapter.event_objects();
+        let at = UtcTime::from_unix_ms(BITE_MS);
+        let alarm = |kind, event| {
+            HistoryEvent::Alarm(AlarmRecord {
+                time: at,
+                subject: "F1".into(),
+                kind,
+                event,
+                origin: None,
+                value: Some(1.4),
+                threshold: Some(1.35),
+            })
         };
-        let raised = adapter.events(&quiet, &bitten(), now);
+        let raised = objects.events(&alarm(AlarmKind::TafAlarm, AlarmEvent::Raised), &bitten());
         assert_eq!(raised.len(), 1, "{raised:?}");
         let event = &raised[0];
         assert_eq!(spec.objects[event.object].name, "F1");
@@ -823,18 +717,65 @@ mod tests {
             event.message,
             "F1: taf_alarm raised, taf 1.40, gap_mrad 2.00 mrad"
         );
-        let acknowledged = adapter.events(&bitten(), &quiet, now);
+        let acknowledged = objects.events(
+            &alarm(AlarmKind::TafAlarm, AlarmEvent::Acknowledged),
+            &bitten(),
+        );
         assert_eq!(acknowledged.len(), 1);
         assert!(!acknowledged[0].active && !acknowledged[0].unacknowledged);
-        assert_eq!(acknowledged[0].time, now);
         assert!(acknowledged[0].message.contains("acknowledged"));
-        // A source going stale, from the source's object.
-        let mut stale = bitten();
-        stale.sources = vec![Some(SourceStatus::Stale)];
-        let events = adapter.events(&bitten(), &stale, now);
+        let warning = objects.events(&alarm(AlarmKind::TafWarning, AlarmEvent::Raised), &bitten());
+        assert_eq!(
+            (warning[0].severity, warning[0].unacknowledged),
+            (WARNING_SEVERITY, false)
+        );
+        // A source going stale, then lost, then back: from the source's object.
+        let source = spec
+            .objects
+            .iter()
+            .position(|o| o.kind == ObjectKind::Source)
+            .unwrap();
+        let name = spec.objects[source].name.clone();
+        let started = HistoryEvent::OutageStarted {
+            time: at,
+            source: name.clone(),
+            status: "stale",
+        };
+        let events = objects.events(&started, &bitten());
         assert_eq!(events.len(), 1);
-        assert_eq!(events[0].kind, "source_stale");
-        assert_eq!(spec.objects[events[0].object].kind, ObjectKind::Source);
-        assert!(adapter.events(&bitten(), &bitten(), now).is_empty());
+        assert_eq!(
+            (events[0].object, events[0].kind.as_str()),
+            (source, "source_stale")
+        );
+        assert!(events[0].active);
+        let worse = objects.events(
+            &HistoryEvent::OutageWorse {
+                source: name.clone(),
+            },
+            &bitten(),
+        );
+        let kinds: Vec<(&str, bool)> = worse.iter().map(|e| (e.kind.as_str(), e.active)).collect();
+        assert_eq!(kinds, [("source_stale", false), ("source_lost", true)]);
+        let ended = HistoryEvent::OutageEnded {
+            time: at,
+            source: name,
+            blocks_missed: 3,
+            ended_by: crate::state::events::EndedBy::Recovered,
+        };
+        let kinds: Vec<(String, bool)> = objects
+            .events(&ended, &bitten())
+            .into_iter()
+            .map(|e| (e.kind, e.active))
+            .collect();
+        assert_eq!(kinds, [("source_lost".to_owned(), false)]);
+        // An alarm of a subject the address space does not have: nothing.
+        let stranger = HistoryEvent::Alarm(AlarmRecord {
+            subject: "F9".into(),
+            ..match alarm(AlarmKind::TafAlarm, AlarmEvent::Raised) {
+                HistoryEvent::Alarm(record) => record,
+                _ => unreachable!(),
+            }
+        });
+        assert!(objects.events(&stranger, &bitten()).is_empty());
     }
 }

@@ -25,6 +25,7 @@
 //! needs a `#[cfg(feature = "opcua")]`.
 
 pub mod adapter;
+mod alarms;
 mod auth;
 mod error;
 mod events;

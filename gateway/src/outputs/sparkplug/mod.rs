@@ -70,8 +70,6 @@ use forward::Confirmations;
 use node::{CaptureNotice, EdgeNode};
 use store::{keep_cursor, BiteSource};
 
-/// How often the results are looked at for a new bite.
-const BITE_POLL: Duration = Duration::from_millis(20);
 /// Wait before connecting again after a failed connection.
 const RECONNECT_DELAY: Duration = Duration::from_secs(1);
 /// Requests the MQTT client queues for its event loop.
@@ -539,7 +537,8 @@ impl SparkplugNode {
         // While replaying: the last bite id of the backlog.
         let mut replay_end: Option<i64> = None;
         let replay_batch = usize::try_from(self.config.replay_batch).unwrap_or(usize::MAX);
-        let mut bite_poll = tokio::time::interval(BITE_POLL);
+        // Bites go out as the history stores them: woken by its settled events.
+        let mut stored = board.changes();
         // The last capture looked at for the tandem mills' announcements.
         let mut announced: Option<i64> = None;
         // Paced from each session's births (reset there); a late batch delays the
@@ -684,7 +683,7 @@ impl SparkplugNode {
                         replay_end = None;
                     }
                 }
-                _ = bite_poll.tick(), if born && replay_end.is_none() => {
+                _ = stored.settled(), if born && replay_end.is_none() => {
                     self.forward(&client, &mut node, &mut confirmations, &mut bites, Step::Live).await;
                     self.announce_mill_captures(&client, &mut node, &mut confirmations, &mut bites, &mut announced).await;
                 }

@@ -50,7 +50,8 @@ use crate::outputs::http::{self, Limits};
 use crate::shutdown::Shutdown;
 use crate::state::board::Board;
 
-/// How often the live results are compared with what `/api/events` last sent.
+/// The shortest time between two live updates of `/api/events`: changes that come
+/// faster are sent together in the next.
 pub const LIVE_PERIOD: Duration = Duration::from_millis(200);
 
 /// The web page server.
@@ -166,20 +167,21 @@ impl WebServer {
     }
 }
 
-/// Compare the live results with what `/api/events` last sent every [`LIVE_PERIOD`],
-/// and send them when they changed.
+/// At each change of the results (at most one per [`LIVE_PERIOD`]: the changes in
+/// between are coalesced), send the live results to `/api/events` when they differ from
+/// what it last sent.
 async fn live_updates(
     state: &WebState,
     live: &watch::Sender<Arc<String>>,
 ) -> std::convert::Infallible {
-    let mut tick = tokio::time::interval(LIVE_PERIOD);
-    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut changes = state.board.changes();
     loop {
-        tick.tick().await;
+        changes.results().await;
         let json = api::live_json(state);
         if **live.borrow() != json {
             live.send_replace(Arc::new(json));
         }
+        tokio::time::sleep(LIVE_PERIOD).await;
     }
 }
 

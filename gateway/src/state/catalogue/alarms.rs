@@ -21,12 +21,18 @@ pub enum AlarmKind {
     ChatterWarning,
     /// A tandem mill's chatter alarm (latched).
     ChatterAlarm,
+    /// A tandem mill's slow-down request to the PLC (follows its hysteresis).
+    SlowDownRequest,
+    /// A rod mill's span is unstable (follows the evaluations, with hysteresis).
+    Unstable,
+    /// A rod mill's span is near a tongue (follows the evaluations, with hysteresis).
+    NearTongue,
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::state::catalogue::{DRIVELINE, TANDEM_MILL};
+    use crate::state::catalogue::{DRIVELINE, ROD_MILL, ROD_SPAN, TANDEM_MILL};
 
     #[test]
     fn every_kind_is_one_flag_and_latching_is_said_in_its_description() {
@@ -37,18 +43,23 @@ mod tests {
             AlarmKind::GapAlarm,
             AlarmKind::ChatterWarning,
             AlarmKind::ChatterAlarm,
+            AlarmKind::SlowDownRequest,
+            AlarmKind::Unstable,
+            AlarmKind::NearTongue,
         ];
         for kind in kinds {
             let carriers = DRIVELINE
                 .iter()
                 .map(|figure| &figure.spec)
                 .chain(TANDEM_MILL.iter().map(|figure| &figure.spec))
+                .chain(ROD_MILL.iter().map(|figure| &figure.spec))
+                .chain(ROD_SPAN.iter().map(|figure| &figure.spec))
                 .filter(|spec| spec.alarm == Some(kind))
                 .count();
             assert_eq!(carriers, 1, "{kind:?}");
             assert_eq!(
                 kind.latched(),
-                kind.flag()
+                kind.flag().1
                     .description
                     .contains("latched until acknowledged"),
                 "{kind:?}"

@@ -470,24 +470,34 @@ pub fn find<R: Subject + 'static>(figures: &'static [Figure<R>], key: &str) -> &
 
 /// An alarm kind's name and latching are its flag's ([`Spec::alarm`]).
 impl AlarmKind {
-    /// The flag that carries it.
-    fn flag(self) -> &'static Spec {
+    /// The flag that carries it, and its subject.
+    fn flag(self) -> (SubjectKind, &'static Spec) {
         DRIVELINE
             .iter()
-            .map(|figure| &figure.spec)
-            .chain(TANDEM_MILL.iter().map(|figure| &figure.spec))
-            .find(|spec| spec.alarm == Some(self))
+            .map(|figure| (SubjectKind::Driveline, &figure.spec))
+            .chain(
+                TANDEM_MILL
+                    .iter()
+                    .map(|f| (SubjectKind::TandemMill, &f.spec)),
+            )
+            .chain(ROD_MILL.iter().map(|f| (SubjectKind::RodMill, &f.spec)))
+            .find(|(_, spec)| spec.alarm == Some(self))
             .unwrap_or_else(|| panic!("no catalogue flag carries {self:?}"))
     }
 
     /// As stored and published: the key of its flag.
     pub fn name(self) -> &'static str {
-        self.flag().key
+        self.flag().1.key
     }
 
     /// Whether the alarm latches until acknowledged (else it follows the analysis).
     pub fn latched(self) -> bool {
-        self.flag().latched
+        self.flag().1.latched
+    }
+
+    /// What it is about: a driveline, a tandem mill or a rod mill.
+    pub fn subject(self) -> SubjectKind {
+        self.flag().0
     }
 }
 

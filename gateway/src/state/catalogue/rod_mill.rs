@@ -3,7 +3,7 @@
 use millgate_config::ValueType::{F32, U16};
 
 use super::declare::{at, real_of, unmapped, unmapped_counter};
-use super::{Figure, RodMillResults, RodSpanResults};
+use super::{AlarmKind, Figure, RodMillResults, RodSpanResults};
 use super::{FigureType, Stale, Value};
 
 /// The rod mill table's figure type.
@@ -78,7 +78,7 @@ pub const ROD_MILL: &[Figure<RodMillResults>] = &[
         "unstable",
         0,
         Stale::Withdrawn,
-        None,
+        Some(AlarmKind::Unstable),
         "A span is unstable (with hysteresis)",
         |r| rod_value(r, Some(Value::Bool(r.spans.iter().any(|s| s.unstable)))),
     ),
@@ -86,7 +86,7 @@ pub const ROD_MILL: &[Figure<RodMillResults>] = &[
         "near_tongue",
         1,
         Stale::Withdrawn,
-        None,
+        Some(AlarmKind::NearTongue),
         "A span is stable but near a tongue (speed margin < near_tongue_m_s, with hysteresis)",
         |r| rod_value(r, Some(Value::Bool(r.spans.iter().any(|s| s.near_tongue)))),
     ),

@@ -107,7 +107,7 @@ pub const TANDEM_MILL: &[Figure<TandemMillResults>] = &[
         "slow_down_request",
         3,
         Stale::Kept,
-        None,
+        Some(AlarmKind::SlowDownRequest),
         "Slow-down request to the PLC, with hysteresis (set by the alarm condition, cleared after slow_down_hold_s below slow_down_release; held while stale): the PLC decides the speed drop",
         |m| Some(Value::Bool(m.slow_down_request)),
     ),

@@ -429,7 +429,7 @@ pub(crate) const EVENT_STREAM_LIFETIME: Duration = Duration::from_secs(600);
 const EVENT_RETRY: Duration = Duration::from_secs(1);
 
 /// `GET /api/events`: server-sent events, `event: results` with the live overview
-/// (no history parts) at once and whenever it changes (checked every
+/// (no history parts) at once and whenever it changes (at most one update per
 /// [`super::LIVE_PERIOD`]); a comment every 15 s keeps proxies from closing it. At
 /// most `outputs.web.max_event_streams` at once (a further one is answered 503 with
 /// `Retry-After`), each for [`EVENT_STREAM_LIFETIME`].
