@@ -12,6 +12,8 @@ pub mod service;
 pub mod shutdown;
 pub mod state;
 pub mod supervision;
+#[cfg(test)]
+mod testing;
 mod warn_limit;
 
 pub use service::{run, Service};

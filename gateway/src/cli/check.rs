@@ -230,11 +230,7 @@ fn findings(file: &str, error: &CheckError) -> Vec<Finding> {
 mod tests {
     use super::*;
 
-    fn example(name: &str) -> std::path::PathBuf {
-        Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../config/examples")
-            .join(name)
-    }
+    use crate::testing::example;
 
     #[test]
     fn accepts_each_example_and_summarises_it() {

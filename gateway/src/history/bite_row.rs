@@ -81,9 +81,9 @@ enum Column {
     Figure(usize),
 }
 
-/// The row's own columns (not figures of the catalogue).
-const OWN: [&str; 8] = [
-    "id",
+/// A bite row's own columns (not figures of the catalogue), as written: its id
+/// aside, what [`BiteRow`] reads back beside the figures (`rows.rs` writes them).
+pub(super) const OWN_COLUMNS: [&str; 7] = [
     "run_id",
     "driveline",
     "channel",
@@ -92,6 +92,11 @@ const OWN: [&str; 8] = [
     "reference_taf",
     "shift_over_linear_s",
 ];
+
+/// Whether `name` is one of the row's own columns (not a figure of the catalogue).
+fn own(name: &str) -> bool {
+    name == "id" || OWN_COLUMNS.contains(&name)
+}
 
 /// Every column, in export order, with its name.
 fn layout() -> &'static [(&'static str, Column)] {
@@ -105,7 +110,7 @@ fn layout() -> &'static [(&'static str, Column)] {
         let mut layout: Vec<(&'static str, Column)> = FIRST_ORDER
             .iter()
             .map(|&name| {
-                let column = match OWN.contains(&name) {
+                let column = match own(name) {
                     true => Column::Own(name),
                     false => figure(name).unwrap_or_else(|| {
                         panic!("bites.{name} is neither the row's nor a catalogue figure's")
@@ -152,7 +157,7 @@ impl BiteRow {
             "quality" => self.quality.to_cell(),
             "reference_taf" => self.reference_taf.to_cell(),
             "shift_over_linear_s" => self.shift_over_linear_s.to_cell(),
-            other => unreachable!("{other} is not one of OWN"),
+            other => unreachable!("{other} is not one of the row's own columns"),
         }
     }
 

@@ -6,6 +6,7 @@
 use rusqlite::types::Value as SqlValue;
 use rusqlite::{params, Transaction};
 
+use super::bite_row::OWN_COLUMNS;
 use super::figures::{bite_columns, to_sql, upsert_state};
 use crate::state::events::{
     AlarmRecord, BiteRecord, ChatterWindow, HistoryEvent, StateRecord, SubjectResults,
@@ -148,16 +149,16 @@ fn chatter_window(
 }
 
 /// The columns of a bite row beside the catalogue's figures, in the order
-/// [`bite_facts`] gives their values (the last two: what the bite put into the gap
-/// pool, which a restart pools again).
+/// [`bite_facts`] gives their values: the row's own (as read back) and what the bite
+/// put into the gap pool, which a restart pools again.
 const BITE_FACTS: [&str; 9] = [
-    "run_id",
-    "driveline",
-    "channel",
-    "second_period_s",
-    "quality",
-    "reference_taf",
-    "shift_over_linear_s",
+    OWN_COLUMNS[0],
+    OWN_COLUMNS[1],
+    OWN_COLUMNS[2],
+    OWN_COLUMNS[3],
+    OWN_COLUMNS[4],
+    OWN_COLUMNS[5],
+    OWN_COLUMNS[6],
     "gap_taf_sigma",
     "gap_period_shift_sigma_s",
 ];

@@ -352,12 +352,7 @@ mod tests {
     use crate::outputs::sparkplug::SparkplugStatus;
     use crate::outputs::web::QuerySlots;
 
-    fn example(name: &str) -> Config {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../config/examples")
-            .join(name);
-        millgate_config::load(&path).expect("the example loads")
-    }
+    use crate::testing::example_config as example;
 
     /// The page of `config`'s gateway whose results `set` filled.
     fn page_of(

@@ -79,6 +79,21 @@ pub struct CaptureChannel {
     pub timing: Option<ChannelTiming>,
 }
 
+impl CaptureChannel {
+    /// `channel` of the configuration as a capture describes it, with no samples yet
+    /// and the capture's timing.
+    pub fn described(channel: &millgate_config::Channel) -> Self {
+        Self {
+            name: channel.name.clone(),
+            unit: channel.unit.clone(),
+            scale: channel.scale,
+            offset: channel.offset,
+            samples: Vec::new(),
+            timing: None,
+        }
+    }
+}
+
 /// The own timing of a channel captured beside the channel that sets a capture's rows
 /// (a bite's extra channel beside its torque). Row `k` holds the channel's sample
 /// nearest in time to the capture's row `k`; rows outside `first_row..end_row` hold no

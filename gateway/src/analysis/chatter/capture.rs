@@ -104,17 +104,7 @@ impl EpisodeRecorder {
             channels: mill
                 .stands
                 .iter()
-                .map(|&c| {
-                    let channel = &config.channels[c];
-                    CaptureChannel {
-                        name: channel.name.clone(),
-                        unit: channel.unit.clone(),
-                        scale: channel.scale,
-                        offset: channel.offset,
-                        samples: Vec::new(),
-                        timing: None,
-                    }
-                })
+                .map(|&c| CaptureChannel::described(&config.channels[c]))
                 .collect(),
             rings: vec![vec![0.0; ring.max(1) as usize]; mill.stands.len()],
             next: vec![None; mill.stands.len()],

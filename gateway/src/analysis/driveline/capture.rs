@@ -108,14 +108,7 @@ impl Captures {
     /// with `extra` (the driveline's `extra_channels`), each kept in a ring of
     /// `ring_capacity` samples.
     pub(super) fn keep(&mut self, torque: &Channel, extra: &[&Channel], ring_capacity: usize) {
-        let describe = |channel: &Channel| CaptureChannel {
-            name: channel.name.clone(),
-            unit: channel.unit.clone(),
-            scale: channel.scale,
-            offset: channel.offset,
-            samples: Vec::new(),
-            timing: None,
-        };
+        let describe = CaptureChannel::described;
         self.torque = Some(describe(torque));
         self.extras = extra
             .iter()

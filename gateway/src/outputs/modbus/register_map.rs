@@ -763,12 +763,7 @@ mod tests {
     use crate::state::catalogue::Figure;
     use crate::state::results::{DrivelineResults, TandemMillResults};
 
-    fn example(name: &str) -> Config {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../config/examples")
-            .join(name);
-        millgate_config::load(&path).expect("the example loads")
-    }
+    use crate::testing::example_config as example;
 
     /// The map of the tandem example and the address of its mill block.
     fn tandem_map() -> (RegisterMap, usize) {
