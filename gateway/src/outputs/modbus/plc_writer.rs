@@ -370,9 +370,7 @@ mod tests {
     /// is exactly what it is written (the first layout without it: a write past it
     /// would be refused).
     async fn change_and_period(extension: bool) {
-        let path =
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/examples/demo.toml");
-        let mut config = millgate_config::load(&path).expect("the demo configuration");
+        let mut config = crate::testing::example_config("demo.toml");
         let first = config.drivelines[0].clone();
         config.drivelines = (0..8)
             .map(|k| millgate_config::Driveline {
