@@ -96,83 +96,96 @@ impl OutageMonitor {
             let in_grace = started.elapsed() < START_GRACE;
             for (source, outage) in self.sources.iter().zip(&mut outages) {
                 let status = source.health.status();
-                let answered_once = source.health.connects() > 0;
-                *outage = match (std::mem::replace(outage, Outage::None), status) {
-                    (Outage::None, SourceStatus::Ok) => Outage::None,
-                    (Outage::None, _) if in_grace && !answered_once => Outage::None,
-                    (Outage::None, status) => {
-                        self.history.record(HistoryEvent::OutageStarted {
-                            time: if answered_once {
-                                UtcTime::now()
-                            } else {
-                                started_at
-                            },
-                            source: source.name.clone(),
-                            status: status.name(),
-                        });
-                        Outage::Open {
-                            lost: status == SourceStatus::Lost,
-                            blocks_missed_at_start: source.blocks_missed(),
-                        }
-                    }
-                    (
-                        Outage::Open {
-                            blocks_missed_at_start,
-                            ..
-                        },
-                        SourceStatus::Ok,
-                    ) => Outage::Recovering {
-                        at: UtcTime::now(),
-                        blocks_missed_at_start,
-                    },
-                    (
-                        Outage::Open {
-                            lost,
-                            blocks_missed_at_start,
-                        },
-                        status,
-                    ) => {
-                        let now_lost = status == SourceStatus::Lost;
-                        if now_lost && !lost {
-                            self.history.record(HistoryEvent::OutageWorse {
-                                source: source.name.clone(),
-                            });
-                        }
-                        Outage::Open {
-                            lost: lost || now_lost,
-                            blocks_missed_at_start,
-                        }
-                    }
-                    (
-                        Outage::Recovering {
-                            at,
-                            blocks_missed_at_start,
-                        },
-                        SourceStatus::Ok,
-                    ) => {
-                        self.history.record(HistoryEvent::OutageEnded {
-                            time: at,
-                            source: source.name.clone(),
-                            blocks_missed: source
-                                .blocks_missed()
-                                .saturating_sub(blocks_missed_at_start),
-                            ended_by: EndedBy::Recovered,
-                        });
-                        Outage::None
-                    }
-                    // Lost again before the outage was closed: it goes on.
-                    (
-                        Outage::Recovering {
-                            blocks_missed_at_start,
-                            ..
-                        },
-                        status,
-                    ) => Outage::Open {
-                        lost: status == SourceStatus::Lost,
-                        blocks_missed_at_start,
-                    },
-                };
+                let was = std::mem::replace(outage, Outage::None);
+                *outage = self.next(source, was, status, (in_grace, started_at));
             }
+        }
+    }
+
+    /// `source`'s outage after `outage` with the source now `status` (recording what
+    /// happened); `in_grace` while the start's grace lasts, `started_at` the start.
+    fn next(
+        &self,
+        source: &WatchedSource,
+        outage: Outage,
+        status: SourceStatus,
+        (in_grace, started_at): (bool, UtcTime),
+    ) -> Outage {
+        let answered_once = source.health.connects() > 0;
+        match (outage, status) {
+            (Outage::None, SourceStatus::Ok) => Outage::None,
+            (Outage::None, _) if in_grace && !answered_once => Outage::None,
+            (Outage::None, status) => {
+                self.history.record(HistoryEvent::OutageStarted {
+                    time: if answered_once {
+                        UtcTime::now()
+                    } else {
+                        started_at
+                    },
+                    source: source.name.clone(),
+                    status: status.name(),
+                });
+                Outage::Open {
+                    lost: status == SourceStatus::Lost,
+                    blocks_missed_at_start: source.blocks_missed(),
+                }
+            }
+            (
+                Outage::Open {
+                    blocks_missed_at_start,
+                    ..
+                },
+                SourceStatus::Ok,
+            ) => Outage::Recovering {
+                at: UtcTime::now(),
+                blocks_missed_at_start,
+            },
+            (
+                Outage::Open {
+                    lost,
+                    blocks_missed_at_start,
+                },
+                status,
+            ) => {
+                let now_lost = status == SourceStatus::Lost;
+                if now_lost && !lost {
+                    self.history.record(HistoryEvent::OutageWorse {
+                        source: source.name.clone(),
+                    });
+                }
+                Outage::Open {
+                    lost: lost || now_lost,
+                    blocks_missed_at_start,
+                }
+            }
+            (
+                Outage::Recovering {
+                    at,
+                    blocks_missed_at_start,
+                },
+                SourceStatus::Ok,
+            ) => {
+                self.history.record(HistoryEvent::OutageEnded {
+                    time: at,
+                    source: source.name.clone(),
+                    blocks_missed: source
+                        .blocks_missed()
+                        .saturating_sub(blocks_missed_at_start),
+                    ended_by: EndedBy::Recovered,
+                });
+                Outage::None
+            }
+            // Lost again before the outage was closed: it goes on.
+            (
+                Outage::Recovering {
+                    blocks_missed_at_start,
+                    ..
+                },
+                status,
+            ) => Outage::Open {
+                lost: status == SourceStatus::Lost,
+                blocks_missed_at_start,
+            },
         }
     }
 }

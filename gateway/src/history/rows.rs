@@ -48,12 +48,28 @@ pub fn insert(
                 ])?;
             Ok(())
         }
+        HistoryEvent::ChatterStarted { .. }
+        | HistoryEvent::ChatterWindow { .. }
+        | HistoryEvent::ChatterEnded { .. } => insert_chatter(transaction, run_id, event),
+        HistoryEvent::OutageStarted { .. }
+        | HistoryEvent::OutageWorse { .. }
+        | HistoryEvent::OutageEnded { .. } => insert_outage(transaction, run_id, event),
+    }
+}
+
+/// A chatter episode's start, window or end.
+fn insert_chatter(
+    transaction: &Transaction<'_>,
+    run_id: i64,
+    event: &HistoryEvent,
+) -> rusqlite::Result<()> {
+    match event {
         HistoryEvent::ChatterStarted { time, mill, window } => {
             transaction
                 .prepare_cached(
                     "INSERT INTO chatter_episodes (run_id, mill, started_at, windows,
-                         min_sigma_n_hz, max_k_mean, frequency_hz, alarm)
-                     VALUES (?1, ?2, ?3, 1, ?4, ?5, ?6, ?7)",
+                     min_sigma_n_hz, max_k_mean, frequency_hz, alarm)
+                 VALUES (?1, ?2, ?3, 1, ?4, ?5, ?6, ?7)",
                 )?
                 .execute(params![
                     run_id,
@@ -75,29 +91,40 @@ pub fn insert(
             transaction
                 .prepare_cached(
                     "UPDATE chatter_episodes SET ended_at = ?2, ended_by = ?3
-                     WHERE mill = ?1 AND ended_at IS NULL",
+                 WHERE mill = ?1 AND ended_at IS NULL",
                 )?
                 .execute(params![mill, time.to_string(), ended_by.name()])?;
             Ok(())
         }
+        _ => Ok(()),
+    }
+}
+
+/// A source outage's start, worsening or end.
+fn insert_outage(
+    transaction: &Transaction<'_>,
+    run_id: i64,
+    event: &HistoryEvent,
+) -> rusqlite::Result<()> {
+    match event {
         HistoryEvent::OutageStarted {
             time,
             source,
             status,
         } => {
             transaction
-                .prepare_cached(
-                    "INSERT INTO source_outages (run_id, source, started_at, worst_status, blocks_missed)
-                     VALUES (?1, ?2, ?3, ?4, 0)",
-                )?
-                .execute(params![run_id, source, time.to_string(), status])?;
+            .prepare_cached(
+                "INSERT INTO source_outages (run_id, source, started_at, worst_status, blocks_missed)
+                 VALUES (?1, ?2, ?3, ?4, 0)",
+            )?
+            .execute(params![run_id, source, time.to_string(), status])?;
             Ok(())
         }
         HistoryEvent::OutageWorse { source } => {
             transaction
                 .prepare_cached(
                     "UPDATE source_outages SET worst_status = 'lost'
-                     WHERE source = ?1 AND ended_at IS NULL",
+                 WHERE source = ?1 AND ended_at IS NULL",
                 )?
                 .execute([source])?;
             Ok(())
@@ -111,7 +138,7 @@ pub fn insert(
             transaction
                 .prepare_cached(
                     "UPDATE source_outages SET ended_at = ?2, ended_by = ?3, blocks_missed = ?4
-                     WHERE source = ?1 AND ended_at IS NULL",
+                 WHERE source = ?1 AND ended_at IS NULL",
                 )?
                 .execute(params![
                     source,
@@ -121,6 +148,7 @@ pub fn insert(
                 ])?;
             Ok(())
         }
+        _ => Ok(()),
     }
 }
 

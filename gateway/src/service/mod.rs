@@ -359,6 +359,17 @@ impl Service {
         if !self.restore(&mut shutdown).await {
             return Ok(());
         }
+        let mut started = self.start()?;
+        let failure = started.until_failure(&mut shutdown).await;
+        if let Some(failure) = &failure {
+            tracing::error!(%failure, "stopping the service");
+        }
+        started.stop().await;
+        failure.map_or(Ok(()), Err)
+    }
+
+    /// Spawn the readers, the analysis and every output; the gateway is running.
+    fn start(self) -> Result<Started, ServiceError> {
         let outage_monitor = Some(self.outage_monitor());
         let Service {
             config,
@@ -390,16 +401,13 @@ impl Service {
             health,
             can: can_counters,
         };
-        let mut readers = readers::spawn(&config, &acquisition, samples, readers_shutdown);
+        let readers = readers::spawn(&config, &acquisition, samples, readers_shutdown);
         let analysis_task = readers::spawn_analysis(
             analysis,
             (samples_rx, command_receiver),
             &board,
             Arc::clone(&liveness),
         );
-        let analysis_maps = analysis_task.maps;
-        let mut analysis = analysis_task.task;
-
         // Outputs stop only after analysis has drained, so the last bite is published.
         // Each returns what ended it; before the stop, any end is a failure.
         let (outputs_stop, outputs_shutdown) = shutdown::channel();
@@ -428,12 +436,42 @@ impl Service {
             outputs.spawn(async move { (name, task.await) });
         }
         board.update(|results| results.state = GatewayState::Running);
+        Ok(Started {
+            board,
+            history,
+            readers,
+            readers_stop,
+            analysis_maps: analysis_task.maps,
+            analysis: analysis_task.task,
+            analysis_ended: None,
+            outputs,
+            outputs_stop,
+        })
+    }
+}
 
-        let mut analysis_ended = None;
-        let failure = tokio::select! {
+/// A started service's tasks, in the order they stop.
+struct Started {
+    board: Arc<Board>,
+    history: History,
+    readers: tokio::task::JoinSet<()>,
+    readers_stop: shutdown::ShutdownTrigger,
+    analysis_maps: readers::MapBuilds,
+    analysis: tokio::task::JoinHandle<()>,
+    /// How the analysis ended, when it ended before the stop.
+    analysis_ended: Option<Result<(), tokio::task::JoinError>>,
+    outputs: tokio::task::JoinSet<(&'static str, Result<(), String>)>,
+    outputs_stop: shutdown::ShutdownTrigger,
+}
+
+impl Started {
+    /// Run until `shutdown` fires (`None`) or an output or the analysis ends (the
+    /// failure: before the stop, any end is one).
+    async fn until_failure(&mut self, shutdown: &mut Shutdown) -> Option<ServiceError> {
+        tokio::select! {
             () = shutdown.recv() => None,
-            Some(ended) = outputs.join_next() => Some(output_failure(ended)),
-            ended = &mut analysis => {
+            Some(ended) = self.outputs.join_next() => Some(output_failure(ended)),
+            ended = &mut self.analysis => {
                 let failure = match &ended {
                     Ok(()) => ServiceError::Ended,
                     Err(error) => ServiceError::Output {
@@ -441,13 +479,27 @@ impl Service {
                         reason: error.to_string(),
                     },
                 };
-                analysis_ended = Some(ended);
+                self.analysis_ended = Some(ended);
                 Some(failure)
             }
-        };
-        if let Some(failure) = &failure {
-            tracing::error!(%failure, "stopping the service");
         }
+    }
+
+    /// Stop the readers (the source statuses kept as they were), let the analysis
+    /// drain what they read, stop the outputs (the PLC gets its last write) and close
+    /// the history last, so it commits what analysis and the outputs recorded.
+    async fn stop(self) {
+        let Started {
+            board,
+            history,
+            mut readers,
+            readers_stop,
+            analysis_maps,
+            analysis,
+            analysis_ended,
+            mut outputs,
+            outputs_stop,
+        } = self;
         board.freeze_health();
         readers_stop.trigger();
         while readers.join_next().await.is_some() {}
@@ -466,7 +518,6 @@ impl Service {
             }
         }
         board.update(|results| results.state = GatewayState::Stopped);
-        // Last: the writer commits what analysis and the outputs recorded.
         if tokio::task::spawn_blocking(move || history.close())
             .await
             .is_err()
@@ -474,7 +525,6 @@ impl Service {
             tracing::error!("closing the history failed");
         }
         tracing::info!("stopped");
-        failure.map_or(Ok(()), Err)
     }
 }
 
