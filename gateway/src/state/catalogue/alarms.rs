@@ -59,7 +59,8 @@ mod tests {
             assert_eq!(carriers, 1, "{kind:?}");
             assert_eq!(
                 kind.latched(),
-                kind.flag().1
+                kind.flag()
+                    .1
                     .description
                     .contains("latched until acknowledged"),
                 "{kind:?}"
