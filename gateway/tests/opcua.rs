@@ -389,17 +389,26 @@ async fn the_address_space_holds_what_the_plc_holds() {
         // BaseAnalogType (i=15318): a number with a unit.
         assert_eq!(variable["type_definition"], "i=15318", "{path}");
     }
+    let datatype = |figure_type| match figure_type {
+        FigureType::Real => "Double",
+        FigureType::Count => "UInt64",
+        FigureType::Index | FigureType::State(_) | FigureType::Sequence => "UInt32",
+        FigureType::Bool => "Boolean",
+        FigureType::Time => "DateTime",
+    };
     for figure in catalogue::DRIVELINE {
-        let expected = match figure.figure_type {
-            FigureType::Real => "Double",
-            FigureType::Count => "UInt64",
-            FigureType::Index => "UInt32",
-            FigureType::Bool => "Boolean",
-            FigureType::Time => "DateTime",
-        };
         let path = format!("Drivelines/F1/{}", figure.key);
+        let expected = datatype(figure.figure_type);
         assert_eq!(variable(&browse, &path)["datatype"], expected, "{path}");
     }
+    // The gateway's: `state` and `heartbeat` UInt32, `sources_ok` Boolean, as before.
+    for figure in catalogue::GATEWAY {
+        let path = format!("Gateway/{}", figure.key);
+        let expected = datatype(figure.figure_type);
+        assert_eq!(variable(&browse, &path)["datatype"], expected, "{path}");
+    }
+    assert_eq!(variable(&browse, "Gateway/state")["datatype"], "UInt32");
+    assert_eq!(variable(&browse, "Gateway/heartbeat")["datatype"], "UInt32");
 
     // Every value is the PLC's, and good; figures carry the bite's time.
     let bite_counter = variable(&browse, "Drivelines/F1/bite_counter");

@@ -333,8 +333,8 @@ fn bite_row(bite: &BiteReport, truth: Option<&BiteTruth>, elapsed_s: f64) -> Str
 
 /// The gateway status word the PLC holds in `words` after the gateway stopped.
 fn print_status_after_stop(map: &RegisterMap, words: &[u16]) {
-    let status = crate::outputs::modbus::register_map::Field::GatewayStatus;
-    if let Some(register) = map.registers().iter().find(|r| r.field == status) {
+    let (_, status) = crate::outputs::modbus::register_map::GATEWAY_STATUS;
+    if let Some(register) = map.named(status) {
         println!(
             "after shutdown: gateway_status = {:#06b} (bit1 stopped; values flagged, no longer fresh)",
             words[usize::from(register.address)]

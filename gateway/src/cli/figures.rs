@@ -19,7 +19,7 @@ pub fn export(format: Format) -> String {
                     row.subject,
                     row.key,
                     row.unit,
-                    row.figure_type,
+                    &row.figure_type,
                     &row.guard,
                     row.stale,
                     &row.register,
@@ -45,7 +45,7 @@ fn markdown(rows: &[FigureRow]) -> String {
     );
     for row in rows {
         out += &format!(
-            "| {} | `{}` | {} | {} | {} | {} | {} | `{}` | `{}` | {} | {} |\n",
+            "| {} | `{}` | {} | {} | {} | {} | {} | {} | `{}` | {} | {} |\n",
             row.subject,
             row.key,
             row.unit.replace('*', "\\*"),
@@ -53,11 +53,20 @@ fn markdown(rows: &[FigureRow]) -> String {
             row.guard,
             row.stale,
             row.register,
-            row.sparkplug,
+            code_or_reason(&row.sparkplug),
             row.metric,
             row.history,
             row.description.replace('|', "\\|"),
         );
     }
     out
+}
+
+/// A name as code; a reason why there is none (`none: ...`) as text.
+fn code_or_reason(name: &str) -> String {
+    if name.starts_with("none") {
+        name.to_owned()
+    } else {
+        format!("`{name}`")
+    }
 }

@@ -1,6 +1,7 @@
 //! The acquisition's `/metrics` families: per channel (blocks, samples, timeouts,
-//! errors, saturation, sequence faults), per source (status, connects) and per CAN
-//! source (frames by kind, kernel drops and timestamps, receive latency, bus state).
+//! errors, saturation, sequence faults), per source (connects; its status is the
+//! catalogue's, `outputs::metrics`) and per CAN source (frames by kind, kernel drops
+//! and timestamps, receive latency, bus state).
 
 use millgate_config::Config;
 
@@ -81,23 +82,16 @@ impl Families for AcquisitionFamilies {
                 samples,
             );
         }
-        let sources = || {
-            self.source_names
-                .iter()
-                .zip(&self.acquisition.health)
-                .map(|(name, health)| (vec![("source", name.as_str())], health))
-        };
-        page.family(
-            "millgate_source_status",
-            Kind::Gauge,
-            "Source status: 0 ok, 1 stale, 2 lost.",
-            sources().map(|(labels, health)| (labels, f64::from(health.status().code()))),
-        );
+        let sources = self
+            .source_names
+            .iter()
+            .zip(&self.acquisition.health)
+            .map(|(name, health)| (vec![("source", name.as_str())], health));
         page.family(
             "millgate_source_connects_total",
             Kind::Counter,
             "Successful connections.",
-            sources().map(|(labels, health)| (labels, health.connects() as f64)),
+            sources.map(|(labels, health)| (labels, health.connects() as f64)),
         );
         let can: Vec<CanCounts> = self.acquisition.can.iter().map(|c| c.snapshot()).collect();
         type CanOf = fn(&CanCounts) -> f64;

@@ -14,8 +14,8 @@ use crate::state::catalogue::{Figure, FigureType, Subject, Value};
 use crate::state::results::{DrivelineResults, TandemMillResults};
 use crate::state::time::UtcTime;
 
-/// A figure's value as stored: reals as REAL, counts, indices and flags as INTEGER
-/// (flags 0/1), times as UTC ISO-8601 text; no value as NULL.
+/// A figure's value as stored: reals as REAL, counts, indices, states (their index)
+/// and flags as INTEGER (flags 0/1), times as UTC ISO-8601 text; no value as NULL.
 pub(crate) fn to_sql(value: Option<Value>) -> SqlValue {
     match value {
         None => SqlValue::Null,
@@ -35,8 +35,14 @@ pub(crate) fn from_sql(figure_type: FigureType, value: ValueRef<'_>) -> Option<V
         (_, ValueRef::Null) => None,
         (FigureType::Real, ValueRef::Real(v)) => Some(Value::Real(v)),
         (FigureType::Real, ValueRef::Integer(v)) => Some(Value::Real(v as f64)),
-        (FigureType::Count, ValueRef::Integer(v)) => u64::try_from(v).ok().map(Value::Count),
+        (FigureType::Count | FigureType::Sequence, ValueRef::Integer(v)) => {
+            u64::try_from(v).ok().map(Value::Count)
+        }
         (FigureType::Index, ValueRef::Integer(v)) => u64::try_from(v).ok().map(Value::Index),
+        (FigureType::State(names), ValueRef::Integer(v)) => usize::try_from(v)
+            .ok()
+            .filter(|&index| index < names.len())
+            .map(|index| Value::Index(index as u64)),
         // The gap coupling was its decimal text before schema v6.
         (FigureType::Index, ValueRef::Text(text)) => std::str::from_utf8(text)
             .ok()
@@ -180,6 +186,8 @@ pub(crate) mod tests {
             (FigureType::Bool, Value::Bool(true)),
             (FigureType::Bool, Value::Bool(false)),
             (FigureType::Time, Value::Time(1_777_939_198_250)),
+            (FigureType::State(&["off", "on"]), Value::Index(1)),
+            (FigureType::Sequence, Value::Count(65_535)),
         ];
         for (figure_type, value) in values {
             let stored = to_sql(Some(value));
@@ -197,6 +205,11 @@ pub(crate) mod tests {
             None,
             "text that is no time is no time"
         );
+        assert_eq!(
+            from_sql(FigureType::State(&["off", "on"]), ValueRef::Integer(2)),
+            None,
+            "a state past the names is no state"
+        );
     }
 
     /// A value of each figure of `R` that the history keeps, unlike its default, set
@@ -211,6 +224,8 @@ pub(crate) mod tests {
                 FigureType::Index => Value::Index(i),
                 FigureType::Bool => Value::Bool(true),
                 FigureType::Time => Value::Time(1_777_939_198_250 + i as i64),
+                FigureType::State(names) => Value::Index(i % names.len() as u64),
+                FigureType::Sequence => Value::Count(i),
             };
             assert!(figure.set(&mut results, Some(value)), "{}", figure.key);
         }

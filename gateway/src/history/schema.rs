@@ -632,6 +632,7 @@ mod tests {
         match figure_type {
             FigureType::Real => "REAL",
             FigureType::Count | FigureType::Index | FigureType::Bool => "INTEGER",
+            FigureType::State(_) | FigureType::Sequence => "INTEGER",
             FigureType::Time => "TEXT",
         }
     }

@@ -7,27 +7,31 @@
 use serde::Serialize;
 
 use crate::outputs::metrics;
+use crate::outputs::modbus::register_map::{source_bits_name, GATEWAY_STATUS};
 use crate::outputs::sparkplug::devices;
-use crate::state::catalogue::{self, FigureInfo, Guard, Register, SubjectKind};
+use crate::state::catalogue::{self, FigureInfo, FigureType, Guard, Register, SubjectKind};
 
 /// One figure and its names in every output.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct FigureRow {
-    /// `driveline`, `tandem_mill`, `rod_mill` or `rod_span`.
+    /// `gateway`, `source`, `driveline`, `tandem_mill`, `rod_mill` or `rod_span`.
     pub subject: &'static str,
     /// The catalogue key (also the web API's member and the OPC UA variable).
     pub key: &'static str,
     /// Unit (empty for ratios, counts, indices, flags, times).
     pub unit: &'static str,
-    /// `real`, `count`, `index`, `bool`, `time`.
-    pub figure_type: &'static str,
+    /// `real`, `count`, `index`, `bool`, `time`, `sequence`, or `state` with its
+    /// values (`state: 0 starting, 1 running, 2 stopped`).
+    pub figure_type: String,
     /// What it is.
     pub description: &'static str,
     /// `quality bit n`, `flags bit n`, `always` or `has a value`.
     pub guard: String,
     /// `withdrawn`, `last usable` or `kept` (see the stale rule).
     pub stale: &'static str,
-    /// The register (`<block>.<key>`, its offset in the block and type), or why none.
+    /// The register (its offset in the block and type; the gateway's: its address, its
+    /// flags in `gateway_status`; a source's flag: bit i of a global register), or why
+    /// none.
     pub register: String,
     /// The Sparkplug metric name and datatype.
     pub sparkplug: String,
@@ -39,6 +43,23 @@ pub struct FigureRow {
 
 fn register_of(figure: &FigureInfo) -> String {
     match (figure.register, figure.guard) {
+        (
+            Register::At {
+                offset, value_type, ..
+            },
+            _,
+        ) if figure.subject == SubjectKind::Gateway => {
+            format!("{} ({offset}) {}", figure.key, value_type.name())
+        }
+        (Register::Flag, Guard::FlagBit(bit)) if figure.subject == SubjectKind::Gateway => {
+            format!("{} ({}) bit {bit}", GATEWAY_STATUS.1, GATEWAY_STATUS.0)
+        }
+        (Register::IndexBit { address }, _) => {
+            format!(
+                "{} ({address}) bit <source index>",
+                source_bits_name(figure.key)
+            )
+        }
         (
             Register::At {
                 page,
@@ -74,9 +95,19 @@ fn history_of(figure: &FigureInfo) -> String {
     match (kept.is_empty(), figure.subject) {
         (false, _) => kept.join("; "),
         (true, SubjectKind::Driveline) => "none: a flag or count of the moment".into(),
+        (true, SubjectKind::Gateway) => "none: gateway_runs keeps each run's start and stop".into(),
+        (true, SubjectKind::Source) => "none: source_outages keeps each stale or lost spell".into(),
         (true, _) => {
             "none: the chatter episodes keep their own summary; rod figures are not kept".into()
         }
+    }
+}
+
+/// The type's name; a state's with its values.
+fn type_of(figure_type: FigureType) -> String {
+    match figure_type.state_values() {
+        Some(values) => format!("{}: {values}", figure_type.name()),
+        None => figure_type.name().to_owned(),
     }
 }
 
@@ -85,16 +116,25 @@ pub fn rows() -> Vec<FigureRow> {
     catalogue::all()
         .iter()
         .map(|figure| {
-            let sparkplug_name = match figure.subject {
-                SubjectKind::RodSpan => format!("span<i>/{}", figure.key),
-                _ => figure.key.to_owned(),
+            let sparkplug = match figure.subject {
+                SubjectKind::Gateway | SubjectKind::Source => {
+                    "none: not published (the node's birth and death say whether it is online)"
+                        .to_owned()
+                }
+                subject => {
+                    let name = match subject {
+                        SubjectKind::RodSpan => format!("span<i>/{}", figure.key),
+                        _ => figure.key.to_owned(),
+                    };
+                    format!("{name} ({:?})", devices::datatype(figure.figure_type))
+                }
             };
             let metric = metrics::metric_name(figure);
             FigureRow {
                 subject: figure.subject.name(),
                 key: figure.key,
                 unit: figure.unit,
-                figure_type: figure.figure_type.name(),
+                figure_type: type_of(figure.figure_type),
                 description: figure.description,
                 guard: match figure.guard {
                     Guard::QualityBit(bit) => format!("quality bit {bit}"),
@@ -104,10 +144,7 @@ pub fn rows() -> Vec<FigureRow> {
                 },
                 stale: figure.stale.name(),
                 register: register_of(figure),
-                sparkplug: format!(
-                    "{sparkplug_name} ({:?})",
-                    devices::datatype(figure.figure_type)
-                ),
+                sparkplug,
                 metric,
                 history: history_of(figure),
             }

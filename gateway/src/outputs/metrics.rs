@@ -1,5 +1,6 @@
 //! Prometheus `/metrics`: build information, the process' resources and the
-//! catalogue's figures per driveline, tandem mill, rod mill and span, followed by the
+//! catalogue's figures of the gateway, per source, driveline, tandem mill, rod mill
+//! and span, followed by the
 //! families each part writes of its own counters ([`Families`]: the acquisition's in
 //! `field/metrics.rs`, the history's in `history/metrics.rs`, each output's in the
 //! `metrics.rs` beside it), in the text exposition format (version 0.0.4, written by
@@ -128,6 +129,7 @@ fn catalogue_families<R: Subject>(
 /// the families of each part added with [`Metrics::with`], in that order.
 #[derive(Debug)]
 pub struct Metrics {
+    source_names: Vec<String>,
     rod_span_names: Vec<Vec<String>>,
     board: Arc<Board>,
     rod_mill_names: Vec<String>,
@@ -139,6 +141,7 @@ impl Metrics {
     /// mill's span count.
     pub fn new(config: &Config, board: Arc<Board>, rod_mill_spans: &[usize]) -> Self {
         Self {
+            source_names: config.sources().map(|s| s.name().to_owned()).collect(),
             rod_span_names: rod_mill_spans
                 .iter()
                 .map(|&spans| (1..=spans).map(|span| span.to_string()).collect())
@@ -173,9 +176,25 @@ impl Metrics {
         page.into_text()
     }
 
-    /// The catalogue's figures of every driveline, tandem mill, rod mill and span.
+    /// The catalogue's figures of the gateway and of every source, driveline, tandem
+    /// mill, rod mill and span.
     fn figures(&self, page: &mut Exposition) {
         let results = self.board.results();
+        catalogue_families(
+            page,
+            catalogue::GATEWAY,
+            &[(Vec::new(), &results.gateway())],
+        );
+        let sources: Vec<_> = (0..self.source_names.len())
+            .map(|k| results.source(k))
+            .collect();
+        let source_rows: Vec<(Labels<'_>, _)> = self
+            .source_names
+            .iter()
+            .zip(&sources)
+            .map(|(name, s)| (vec![("source", name.as_str())], s))
+            .collect();
+        catalogue_families(page, catalogue::SOURCE, &source_rows);
         let drivelines: Vec<(Labels<'_>, _)> = self
             .board
             .driveline_names()
@@ -347,7 +366,6 @@ mod tests {
     use crate::field::metrics::AcquisitionFamilies;
     use crate::field::source_health::SourceHealth;
     use crate::outputs::modbus::hmi_server::ServerCounters;
-    use crate::outputs::modbus::metrics::HeartbeatFamily;
     use crate::outputs::modbus::plc_writer::PlcCounters;
     use crate::outputs::sparkplug::SparkplugStatus;
     use crate::outputs::web::QuerySlots;
@@ -387,7 +405,6 @@ mod tests {
             .with(Arc::new(AcquisitionFamilies::new(config, acquisition)))
             .with(plc)
             .with(server)
-            .with(Arc::new(HeartbeatFamily::new(Arc::clone(&board))))
             .with(Arc::new(board.history().clone()))
             .with(sparkplug)
             .render()
@@ -531,5 +548,31 @@ mod tests {
             metric_name(&time.info()),
             "millgate_driveline_last_bite_timestamp_seconds"
         );
+    }
+
+    /// The gateway's and the sources' families keep the names, types and labels they
+    /// had before the catalogue held them: `millgate_heartbeat` a gauge (it wraps at
+    /// 65535), `millgate_source_status{source=...}` 0 ok, 1 stale, 2 lost.
+    #[test]
+    fn the_heartbeat_is_a_gauge_and_the_source_status_is_labelled_by_source() {
+        let config = example("hot-mill.toml");
+        let page = page_of(&config, &[], |results| results.heartbeat = 65_535);
+        promtool_passes(&page);
+        assert!(page.contains("# TYPE millgate_heartbeat gauge\n"), "{page}");
+        assert!(page.contains("\nmillgate_heartbeat 65535\n"), "{page}");
+        assert!(
+            page.contains("# TYPE millgate_source_status gauge\n"),
+            "{page}"
+        );
+        let source = config.sources().next().expect("a source").name().to_owned();
+        // page_of's sources have answered: ok.
+        let ok = format!("\nmillgate_source_status{{source=\"{source}\"}} 0\n");
+        assert!(page.contains(&ok), "{ok} missing:\n{page}");
+        let flag = format!("\nmillgate_source_ok{{source=\"{source}\"}} 1\n");
+        assert!(page.contains(&flag), "{flag} missing:\n{page}");
+        assert_eq!(page.matches("# TYPE millgate_heartbeat ").count(), 1);
+        assert_eq!(page.matches("# TYPE millgate_source_status ").count(), 1);
+        // A new figure of the gateway: its state, 0 starting.
+        assert!(page.contains("\nmillgate_gateway_state 0\n"), "{page}");
     }
 }

@@ -18,7 +18,6 @@ use crate::outputs::metrics::Metrics;
 use crate::outputs::modbus::frame::Served;
 use crate::outputs::modbus::heartbeat;
 use crate::outputs::modbus::hmi_server::{ModbusServer, ServerCounters};
-use crate::outputs::modbus::metrics::HeartbeatFamily;
 use crate::outputs::modbus::plc_writer::{PlcCounters, PlcWriter};
 use crate::outputs::modbus::register_map::RegisterMap;
 use crate::outputs::opcua::OpcUaOutputTask;
@@ -237,7 +236,7 @@ fn metrics(w: &mut Wiring<'_>, shutdown: &Shutdown) -> Result<Option<OutputTask>
         return Ok(None);
     };
     // The acquisition's, the PLC writer's, the HMI server's (counted with or without
-    // one), the heartbeat's and the history's, then those the outputs built added.
+    // one) and the history's, then those the outputs built added.
     let mut metrics = Metrics::new(w.config, Arc::clone(&w.board), &w.rod_mill_spans).with(
         Arc::new(AcquisitionFamilies::new(w.config, w.acquisition.clone())),
     );
@@ -246,7 +245,6 @@ fn metrics(w: &mut Wiring<'_>, shutdown: &Shutdown) -> Result<Option<OutputTask>
     }
     metrics = metrics
         .with(w.server_counters.clone())
-        .with(Arc::new(HeartbeatFamily::new(Arc::clone(&w.board))))
         .with(Arc::new(w.board.history().clone()));
     for families in w.metrics.drain(..) {
         metrics = metrics.with(families);

@@ -207,6 +207,24 @@ pub enum GatewayState {
     Stopped,
 }
 
+/// The gateway's own figures, as [`Results`] holds them ([`Results::gateway`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct GatewayResults {
+    /// Starting, running or stopped.
+    pub state: GatewayState,
+    /// Incremented on every write to the PLC (every second without a PLC output).
+    pub heartbeat: u16,
+    /// Every source answers (ok); also true without sources.
+    pub sources_ok: bool,
+}
+
+/// One source's figures, as [`Results`] holds them ([`Results::source`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct SourceResults {
+    /// Its status; `None` before the first.
+    pub status: Option<SourceStatus>,
+}
+
 /// Everything the outputs publish.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Results {
@@ -225,6 +243,23 @@ pub struct Results {
 }
 
 impl Results {
+    /// The gateway's own figures ([`super::catalogue::GATEWAY`]).
+    pub fn gateway(&self) -> GatewayResults {
+        GatewayResults {
+            state: self.state,
+            heartbeat: self.heartbeat,
+            sources_ok: self.sources.iter().all(|s| *s == Some(SourceStatus::Ok)),
+        }
+    }
+
+    /// Source `index`'s figures ([`super::catalogue::SOURCE`]); no status for a source
+    /// the results do not have.
+    pub fn source(&self, index: usize) -> SourceResults {
+        SourceResults {
+            status: self.sources.get(index).copied().flatten(),
+        }
+    }
+
     /// Empty results for `sources` sources, `drivelines` drivelines and `tandem_mills`
     /// tandem mills.
     pub fn new(sources: usize, drivelines: usize, tandem_mills: usize) -> Self {

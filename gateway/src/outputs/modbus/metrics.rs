@@ -1,12 +1,10 @@
-//! The Modbus outputs' `/metrics` families: the PLC writer's writes and failures, the
-//! HMI server's connections and requests, and the heartbeat written to the PLC.
-
-use std::sync::Arc;
+//! The Modbus outputs' `/metrics` families: the PLC writer's writes and failures and
+//! the HMI server's connections and requests (the heartbeat written to the PLC is the
+//! catalogue's, `outputs::metrics`).
 
 use super::hmi_server::{ServerCounters, ServerCounts};
 use super::plc_writer::{PlcCounters, PlcFailure};
 use crate::exposition::{Exposition, Families, Kind};
-use crate::state::board::Board;
 
 impl Families for PlcCounters {
     /// Writes, failures by reason, the last success.
@@ -89,30 +87,5 @@ impl Families for ServerCounters {
                 value(counts) as f64,
             );
         }
-    }
-}
-
-/// The heartbeat written to the PLC (by the PLC writer, or by its own task without a
-/// PLC), as the board holds it.
-#[derive(Debug)]
-pub struct HeartbeatFamily {
-    board: Arc<Board>,
-}
-
-impl HeartbeatFamily {
-    /// The heartbeat of `board`'s results.
-    pub fn new(board: Arc<Board>) -> Self {
-        Self { board }
-    }
-}
-
-impl Families for HeartbeatFamily {
-    fn write_families(&self, page: &mut Exposition) {
-        page.scalar(
-            "millgate_heartbeat",
-            Kind::Gauge,
-            "Heartbeat written to the PLC.",
-            f64::from(self.board.results().heartbeat),
-        );
     }
 }

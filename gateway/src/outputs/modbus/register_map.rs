@@ -3,6 +3,9 @@
 //!
 //! Every register the gateway publishes is a [`Register`] built here: its address
 //! (offset from the map's base), type, unit, scale, word order, access and meaning.
+//! The global registers hold the gateway's figures (the heartbeat, its flags register
+//! `gateway_status`), a register per source flag (bit i for source i: `sources_ok`,
+//! `sources_stale`, `sources_lost`) and the command registers.
 //! A block per driveline, tandem mill, rod mill and rod span holds its figures: the
 //! block's `flags` register carries every flag figure at its catalogue bit, its
 //! `quality` register the validity of every value figure at its catalogue bit, and the
@@ -22,9 +25,8 @@ use std::ops::Range;
 use millgate_config::layout::encode_value;
 use millgate_config::{Config, ValueType, WordOrder};
 
-use crate::field::source_health::SourceStatus;
 use crate::state::catalogue::{self, Figure, FigureType, Guard, Subject, Value};
-use crate::state::results::{GatewayState, Results, MAX_ROD_SPANS};
+use crate::state::results::{Results, MAX_ROD_SPANS};
 
 /// Whether clients may write a register.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -48,6 +50,8 @@ impl Access {
 /// A block of figures: whose they are.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Block {
+    /// The gateway: the global registers (its flags register is `gateway_status`).
+    Gateway,
     /// Driveline k (config order).
     Driveline(usize),
     /// Tandem mill k (config order).
@@ -61,16 +65,8 @@ pub enum Block {
 /// What a register holds.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Field {
-    /// Incremented every write period.
-    Heartbeat,
-    /// Running, stopped, source problem bits ([`status_bits`]).
-    GatewayStatus,
-    /// Bit i: source i answers.
-    SourcesOk,
-    /// Bit i: source i is stale.
-    SourcesStale,
-    /// Bit i: source i is lost.
-    SourcesLost,
+    /// Bit i: source i's flag at this index of [`catalogue::SOURCE`] is set.
+    SourceBits(usize),
     /// Command: write 1 to acknowledge latched alarms.
     AcknowledgeAlarms,
     /// Command: write a bitmask of the first 16 drivelines (bit k = driveline k) to
@@ -113,16 +109,9 @@ pub struct Register {
     pub field: Field,
 }
 
-/// Bits of the gateway status register.
-pub mod status_bits {
-    /// The gateway is running and publishing fresh results.
-    pub const RUNNING: u16 = 1 << 0;
-    /// The gateway has stopped in order; every other register keeps its last running
-    /// value (source bits included) and will not change.
-    pub const STOPPED: u16 = 1 << 1;
-    /// At least one source is stale or lost.
-    pub const SOURCE_PROBLEM: u16 = 1 << 2;
-}
+/// The gateway's flags register (its [`catalogue::GATEWAY`] flags at their bits):
+/// address and name.
+pub const GATEWAY_STATUS: (u16, &str) = (1, "gateway_status");
 
 /// The bit of flag figure `key` of `figures` in its block's `flags` register, as a
 /// mask: what a PLC program tests.
@@ -221,11 +210,57 @@ struct Builder {
     registers: Vec<Register>,
 }
 
+/// The name of a source flag's register: `sources_<key>`.
+pub(crate) fn source_bits_name(key: &str) -> String {
+    format!("sources_{key}")
+}
+
 impl Builder {
-    /// A read-only register of the global block.
+    /// The global registers of the catalogue: the gateway's figures at their offsets
+    /// (its block is the global registers, from 0), its flags register
+    /// [`GATEWAY_STATUS`], and a register per source flag, bit i for source i.
+    fn gateway_and_sources(&mut self) {
+        let figures = catalogue::GATEWAY;
+        let (address, name) = GATEWAY_STATUS;
+        let description = flags_description(figures);
+        let flags = Field::Flags(Block::Gateway);
+        let word = (address, ValueType::U16);
+        self.global(word, name, "bits", Access::Read, &description, flags);
+        for (index, figure) in figures.iter().enumerate() {
+            if let Some(slot) = slot_on(figure, 0) {
+                let field = Field::Figure(Block::Gateway, index);
+                let description = figure.description;
+                self.global(
+                    slot,
+                    figure.key,
+                    figure.unit,
+                    Access::Read,
+                    description,
+                    field,
+                );
+            }
+        }
+        for (index, figure) in catalogue::SOURCE.iter().enumerate() {
+            if let catalogue::Register::IndexBit { address } = figure.register {
+                self.global(
+                    (address, ValueType::U16),
+                    &source_bits_name(figure.key),
+                    "bits",
+                    Access::Read,
+                    &format!(
+                        "bit i for source i in config order (Modbus, then CAN; the first 16): {}",
+                        figure.description
+                    ),
+                    Field::SourceBits(index),
+                );
+            }
+        }
+    }
+
+    /// A register of the global block at `address` as `value_type`.
     fn global(
         &mut self,
-        address: u16,
+        (address, value_type): (u16, ValueType),
         name: &str,
         unit: &'static str,
         access: Access,
@@ -235,7 +270,7 @@ impl Builder {
         self.registers.push(Register {
             name: name.into(),
             address,
-            value_type: ValueType::U16,
+            value_type,
             unit,
             scale: 1.0,
             word_order: WordOrder::Abcd,
@@ -396,35 +431,9 @@ impl RegisterMap {
         let mut b = Builder {
             registers: Vec::new(),
         };
-        let read = Access::Read;
-        b.global(0, "heartbeat", "", read, "Incremented every PLC write period (every second without a PLC output), whether or not the PLC answers; a PLC or HMI watchdog checks it moves", Field::Heartbeat);
-        b.global(1, "gateway_status", "bits", read, "bit0 running, bit1 stopped (an orderly stop: every other register, source bits and flags included, keeps its last running value), bit2 a source is stale or lost", Field::GatewayStatus);
+        b.gateway_and_sources();
         b.global(
-            2,
-            "sources_ok",
-            "bits",
-            read,
-            "bit i: source i answers (sources in config order: Modbus, then CAN)",
-            Field::SourcesOk,
-        );
-        b.global(
-            3,
-            "sources_stale",
-            "bits",
-            read,
-            "bit i: source i has not answered for longer than its stale time",
-            Field::SourcesStale,
-        );
-        b.global(
-            4,
-            "sources_lost",
-            "bits",
-            read,
-            "bit i: source i is lost (never answered, or silent past its lost time)",
-            Field::SourcesLost,
-        );
-        b.global(
-            8,
+            (8, ValueType::U16),
             "command.acknowledge_alarms",
             "",
             Access::ReadWrite,
@@ -432,7 +441,7 @@ impl RegisterMap {
             Field::AcknowledgeAlarms,
         );
         b.global(
-            9,
+            (9, ValueType::U16),
             "command.reset_wear_trend",
             "bits",
             Access::ReadWrite,
@@ -443,7 +452,7 @@ impl RegisterMap {
             Field::ResetWearTrend,
         );
         b.global(
-            10,
+            (10, ValueType::U16),
             "command.reset_wear",
             "",
             Access::ReadWrite,
@@ -452,7 +461,7 @@ impl RegisterMap {
             Field::ResetWear,
         );
         b.global(
-            11,
+            (11, ValueType::U16),
             "command.manual_capture",
             "",
             Access::ReadWrite,
@@ -643,14 +652,13 @@ impl RegisterMap {
     }
 }
 
-fn bits(results: &Results, pick: impl Fn(SourceStatus) -> bool) -> f64 {
-    let mask = results
-        .sources
-        .iter()
-        .enumerate()
-        .take(16)
-        .filter(|(_, status)| status.is_some_and(&pick))
-        .fold(0u16, |mask, (i, _)| mask | (1 << i));
+/// Bit i for source i (the first 16) while its flag `index` of [`catalogue::SOURCE`]
+/// is set.
+fn source_bits(results: &Results, index: usize) -> f64 {
+    let flag = &catalogue::SOURCE[index];
+    let mask = (0..results.sources.len().min(16))
+        .filter(|&i| flag.read(&results.source(i)).good() == Some(Value::Bool(true)))
+        .fold(0u16, |mask, i| mask | (1 << i));
     f64::from(mask)
 }
 
@@ -712,21 +720,7 @@ fn block_value<R: Subject>(field: Field, figures: &[Figure<R>], subject: &R) -> 
 
 fn value_of(field: Field, results: &Results) -> Option<f64> {
     let block = match field {
-        Field::Heartbeat => return Some(f64::from(results.heartbeat)),
-        Field::GatewayStatus => {
-            let mut status = match results.state {
-                GatewayState::Starting => 0,
-                GatewayState::Running => status_bits::RUNNING,
-                GatewayState::Stopped => status_bits::STOPPED,
-            };
-            if results.sources.iter().any(|s| *s != Some(SourceStatus::Ok)) {
-                status |= status_bits::SOURCE_PROBLEM;
-            }
-            return Some(f64::from(status));
-        }
-        Field::SourcesOk => return Some(bits(results, |s| s == SourceStatus::Ok)),
-        Field::SourcesStale => return Some(bits(results, |s| s == SourceStatus::Stale)),
-        Field::SourcesLost => return Some(bits(results, |s| s == SourceStatus::Lost)),
+        Field::SourceBits(index) => return Some(source_bits(results, index)),
         Field::AcknowledgeAlarms
         | Field::ResetWearTrend
         | Field::ResetWear
@@ -734,6 +728,7 @@ fn value_of(field: Field, results: &Results) -> Option<f64> {
         Field::Flags(block) | Field::Quality(block, _) | Field::Figure(block, _) => block,
     };
     match block {
+        Block::Gateway => block_value(field, catalogue::GATEWAY, &results.gateway()),
         Block::Driveline(k) => block_value(field, catalogue::DRIVELINE, results.drivelines.get(k)?),
         Block::TandemMill(m) => {
             block_value(field, catalogue::TANDEM_MILL, results.tandem_mills.get(m)?)
@@ -760,6 +755,7 @@ pub fn decode_u32(words: &[u16]) -> Option<u32> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::field::source_health::SourceStatus;
     use crate::state::catalogue::Figure;
     use crate::state::results::{DrivelineResults, TandemMillResults};
 
@@ -1025,6 +1021,12 @@ mod tests {
                 (catalogue::Register::Flag, guard) => {
                     assert!(matches!(guard, Guard::FlagBit(_)), "{}", figure.key)
                 }
+                (catalogue::Register::IndexBit { .. }, _) => {
+                    panic!(
+                        "{}: a block's figure as a global register's bit",
+                        figure.key
+                    )
+                }
                 (catalogue::Register::NotMapped(why), guard) => {
                     assert!(
                         !why.is_empty(),
@@ -1059,23 +1061,123 @@ mod tests {
         let keys: Vec<&str> = catalogue::all().iter().map(|f| f.key).collect();
         for register in map.registers() {
             let key = register.name.rsplit('.').next().unwrap_or_default();
-            let global = matches!(
-                register.field,
-                Field::Heartbeat
-                    | Field::GatewayStatus
-                    | Field::SourcesOk
-                    | Field::SourcesStale
-                    | Field::SourcesLost
-                    | Field::AcknowledgeAlarms
-                    | Field::ResetWearTrend
-                    | Field::ResetWear
-                    | Field::ManualCapture
-            );
-            assert!(
-                global || key == "flags" || QUALITY.contains(&key) || keys.contains(&key),
-                "{} is not named by a catalogue key",
-                register.name
-            );
+            let named = match register.field {
+                Field::AcknowledgeAlarms
+                | Field::ResetWearTrend
+                | Field::ResetWear
+                | Field::ManualCapture => register.name.starts_with("command."),
+                Field::Flags(Block::Gateway) => register.name == GATEWAY_STATUS.1,
+                Field::SourceBits(index) => {
+                    register.name == source_bits_name(catalogue::SOURCE[index].key)
+                }
+                _ => key == "flags" || QUALITY.contains(&key) || keys.contains(&key),
+            };
+            assert!(named, "{} is not named by a catalogue key", register.name);
+        }
+    }
+
+    /// The global registers, as a PLC has always read them: heartbeat 0,
+    /// `gateway_status` 1 (bit0 running, bit1 stopped, bit2 a source not ok),
+    /// `sources_ok` 2, `sources_stale` 3, `sources_lost` 4 (bit i: source i), the
+    /// commands at 8..=11; nothing else below the first block.
+    #[test]
+    fn the_global_registers_golden_words() {
+        let map = RegisterMap::new(&example("hot-mill.toml"));
+        let globals: Vec<(u16, &str, &str)> = map
+            .registers()
+            .iter()
+            .filter(|r| r.address < DRIVELINES_START)
+            .map(|r| (r.address, r.name.as_str(), r.unit))
+            .collect();
+        assert_eq!(
+            globals,
+            [
+                (0, "heartbeat", ""),
+                (1, "gateway_status", "bits"),
+                (2, "sources_ok", "bits"),
+                (3, "sources_stale", "bits"),
+                (4, "sources_lost", "bits"),
+                (8, "command.acknowledge_alarms", ""),
+                (9, "command.reset_wear_trend", "bits"),
+                (10, "command.reset_wear", ""),
+                (11, "command.manual_capture", ""),
+            ]
+        );
+        assert!(map
+            .registers()
+            .iter()
+            .filter(|r| r.address < DRIVELINES_START)
+            .all(|r| r.value_type == ValueType::U16));
+        let mut results = Results::new(5, 1, 0);
+        assert_eq!(map.encode(&results)[..5], [0, 0b100, 0, 0, 0], "starting");
+        results.state = crate::state::results::GatewayState::Running;
+        results.heartbeat = 65_535;
+        let (ok, stale, lost) = (SourceStatus::Ok, SourceStatus::Stale, SourceStatus::Lost);
+        results.sources = [ok, stale, lost, ok, ok].map(Some).to_vec();
+        let words = map.encode(&results);
+        assert_eq!(words[..5], [65_535, 0b101, 0b11001, 0b10, 0b100]);
+        results.sources = vec![Some(ok); 5];
+        results.state = crate::state::results::GatewayState::Stopped;
+        assert_eq!(map.encode(&results)[..5], [65_535, 0b010, 0b11111, 0, 0]);
+        assert_eq!(
+            flag_mask(catalogue::GATEWAY, "source_problem"),
+            0b100,
+            "as PLC programs test it"
+        );
+    }
+
+    /// The gateway's and the sources' figures are the global registers': each has a
+    /// register (the gateway's block from 0, its flags in `gateway_status`, a source's
+    /// flag a bit of a global register) or a reason, below the first block and apart
+    /// from the command registers.
+    #[test]
+    fn every_gateway_and_source_figure_has_a_global_register_or_a_reason() {
+        let commands = 8..12;
+        let mut used = vec![GATEWAY_STATUS.0];
+        for figure in catalogue::GATEWAY {
+            match (figure.register, figure.guard) {
+                (catalogue::Register::At { page, offset, .. }, Guard::Always) => {
+                    assert_eq!(page, 0, "{}", figure.key);
+                    used.push(offset);
+                }
+                (catalogue::Register::Flag, Guard::FlagBit(bit)) => {
+                    assert!(bit < 16, "{}", figure.key)
+                }
+                (catalogue::Register::NotMapped(why), Guard::Presence) => {
+                    assert!(!why.is_empty(), "gateway {} needs a reason", figure.key)
+                }
+                other => panic!("gateway {}: {other:?}", figure.key),
+            }
+        }
+        for figure in catalogue::SOURCE {
+            match (figure.register, figure.guard) {
+                (catalogue::Register::IndexBit { address }, Guard::Presence) => {
+                    assert_eq!(figure.figure_type, FigureType::Bool, "{}", figure.key);
+                    used.push(address);
+                }
+                (catalogue::Register::NotMapped(why), Guard::Presence) => {
+                    assert!(!why.is_empty(), "source {} needs a reason", figure.key)
+                }
+                other => panic!("source {}: {other:?}", figure.key),
+            }
+        }
+        let mut unique = used.clone();
+        unique.sort_unstable();
+        unique.dedup();
+        assert_eq!(
+            unique.len(),
+            used.len(),
+            "two figures at one address: {used:?}"
+        );
+        for address in used {
+            assert!(address < DRIVELINES_START && !commands.contains(&address));
+        }
+        let map = RegisterMap::new(&example("hot-mill.toml"));
+        for (index, figure) in catalogue::SOURCE.iter().enumerate() {
+            if let catalogue::Register::IndexBit { address } = figure.register {
+                let register = map.find(address).expect("a register");
+                assert_eq!(register.field, Field::SourceBits(index));
+            }
         }
     }
 }

@@ -2,9 +2,10 @@
 //! the board's results as its snapshots and the alarm flags' changes as its events:
 //! the one file that knows both the catalogue and the server's vocabulary.
 //!
-//! Every figure of a driveline, tandem mill, rod mill and rod span is a variable named
-//! by its catalogue key, typed and described as the catalogue says; the gateway's own
-//! state and each source's status are objects of their own. A figure's status follows
+//! Every figure of the gateway, a source, a driveline, tandem mill, rod mill and rod
+//! span is a variable of its object named by its catalogue key, typed and described
+//! as the catalogue says (`Gateway/state`, `Sources/<name>/status`,
+//! `Drivelines/<name>/taf`). A figure's status follows
 //! the catalogue's stale rule, as every output does: a good value is `Good`, the last
 //! bite's value while its source is stale is `Uncertain_LastUsableValue` (with the
 //! value), a figure withdrawn by a stale source is `Bad_NoCommunication` (no value),
@@ -19,15 +20,12 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use millgate_config::Config;
 use tokio::sync::{broadcast, mpsc, watch};
 
-use crate::field::source_health::SourceStatus;
 use crate::shutdown::Shutdown;
 use crate::state::board::Board;
 use crate::state::catalogue::{self, Figure, FigureType, NoValue, Reading, Subject};
 use crate::state::commands::{Command, CommandOrigin, CommandSender};
 use crate::state::events::HistoryEvent;
-use crate::state::results::{
-    DrivelineResults, GatewayState, Results, RodMillResults, TandemMillResults,
-};
+use crate::state::results::{DrivelineResults, Results, RodMillResults, TandemMillResults};
 
 use super::alarms::EventObjects;
 use super::model::{
@@ -54,24 +52,26 @@ fn unit(catalogue_unit: &str) -> Option<Unit> {
     }
 }
 
-/// The OPC UA type of a catalogue type: counts as UInt64 (they only grow), indices as
-/// UInt32.
+/// The OPC UA type of a catalogue type: counts as UInt64 (they only grow), indices,
+/// states (their value's index) and the heartbeat's sequence as UInt32.
 fn datatype(figure_type: FigureType) -> VariableType {
     match figure_type {
         FigureType::Real => VariableType::Double,
         FigureType::Count => VariableType::UInt64,
-        FigureType::Index => VariableType::UInt32,
+        FigureType::Index | FigureType::State(_) | FigureType::Sequence => VariableType::UInt32,
         FigureType::Bool => VariableType::Boolean,
         FigureType::Time => VariableType::DateTime,
     }
 }
 
-/// A catalogue value as an OPC UA value; a non-finite number has none.
-fn value(value: catalogue::Value) -> Option<Value> {
+/// A catalogue value as an OPC UA value of `datatype`; a non-finite number has none.
+fn value(datatype: VariableType, value: catalogue::Value) -> Option<Value> {
     match value {
         catalogue::Value::Real(v) => v.is_finite().then_some(Value::Double(v)),
-        catalogue::Value::Count(v) => Some(Value::UInt64(v)),
-        catalogue::Value::Index(v) => Some(Value::UInt32(u32::try_from(v).unwrap_or(u32::MAX))),
+        catalogue::Value::Count(v) | catalogue::Value::Index(v) => Some(match datatype {
+            VariableType::UInt64 => Value::UInt64(v),
+            _ => Value::UInt32(u32::try_from(v).unwrap_or(u32::MAX)),
+        }),
         catalogue::Value::Bool(v) => Some(Value::Boolean(v)),
         catalogue::Value::Time(ms) => Some(Value::DateTime(unix_ms(ms))),
     }
@@ -82,13 +82,17 @@ fn unix_ms(ms: i64) -> SystemTime {
     UNIX_EPOCH + Duration::from_millis(u64::try_from(ms).unwrap_or(0))
 }
 
-/// The variables of `figures`, in catalogue order.
+/// The variables of `figures`, in catalogue order; a state's description says which
+/// number is which state.
 fn variables<R>(figures: &[Figure<R>]) -> Vec<VariableSpec> {
     figures
         .iter()
         .map(|figure| VariableSpec {
             key: figure.key.into(),
-            description: figure.description.into(),
+            description: match figure.figure_type.state_values() {
+                Some(values) => format!("{}; as a number: {values}", figure.description),
+                None => figure.description.into(),
+            },
             unit: unit(figure.unit),
             datatype: datatype(figure.figure_type),
             // A flag's 0..1 is its type, not an engineering range.
@@ -99,10 +103,15 @@ fn variables<R>(figures: &[Figure<R>]) -> Vec<VariableSpec> {
         .collect()
 }
 
-/// A reading as an update: `why` says why a value is missing when the catalogue only
-/// says "not available".
-fn update(reading: Reading, time: Option<SystemTime>, why: Quality) -> VariableUpdate {
-    let converted = reading.value.and_then(value);
+/// A reading as an update of a variable of `datatype`: `why` says why a value is
+/// missing when the catalogue only says "not available".
+fn update(
+    reading: Reading,
+    datatype: VariableType,
+    time: Option<SystemTime>,
+    why: Quality,
+) -> VariableUpdate {
+    let converted = reading.value.and_then(|v| value(datatype, v));
     match (reading.quality, converted) {
         (catalogue::Quality::Good, Some(v)) => VariableUpdate::good(v, time),
         (catalogue::Quality::LastUsable, Some(v)) => VariableUpdate {
@@ -128,7 +137,10 @@ fn updates<R: Subject>(
 ) -> Vec<VariableUpdate> {
     figures
         .iter()
-        .map(|figure| update(figure.read(subject), time, why))
+        .map(|figure| {
+            let datatype = datatype(figure.figure_type);
+            update(figure.read(subject), datatype, time, why)
+        })
         .collect()
 }
 
@@ -191,35 +203,12 @@ impl CatalogueAdapter {
     /// The mapping of `config`'s figures, its rod mills having `rod_spans` spans each;
     /// and the address space it fills.
     pub fn new(config: &Config, rod_spans: &[usize]) -> (Self, AddressSpaceSpec) {
-        let flag = |key: &str, description: &str| VariableSpec {
-            key: key.into(),
-            description: description.into(),
-            unit: None,
-            datatype: VariableType::Boolean,
-            range: None,
-        };
         let mut objects = vec![ObjectSpec {
             name: "Gateway".into(),
             kind: ObjectKind::Gateway,
             parent: None,
             description: "The gateway's own state".into(),
-            variables: vec![
-                VariableSpec {
-                    key: "state".into(),
-                    description: "0 starting, 1 running, 2 stopped (an orderly stop: every other value keeps its last running value)".into(),
-                    unit: None,
-                    datatype: VariableType::UInt32,
-                    range: Some((0.0, 2.0)),
-                },
-                VariableSpec {
-                    key: "heartbeat".into(),
-                    description: "Incremented every PLC write period (every second without a PLC output); a watchdog checks it moves".into(),
-                    unit: None,
-                    datatype: VariableType::UInt32,
-                    range: None,
-                },
-                flag("sources_ok", "Every source answers"),
-            ],
+            variables: variables(catalogue::GATEWAY),
         }];
         let mut push = |object: ObjectSpec| {
             objects.push(object);
@@ -234,13 +223,7 @@ impl CatalogueAdapter {
                     kind: ObjectKind::Source,
                     parent: None,
                     description: "A field source (Modbus or CAN)".into(),
-                    variables: vec![VariableSpec {
-                        key: "status".into(),
-                        description: "0 ok (answering), 1 stale (no good answer for longer than its stale time), 2 lost".into(),
-                        unit: None,
-                        datatype: VariableType::UInt32,
-                        range: Some((0.0, 2.0)),
-                    }],
+                    variables: variables(catalogue::SOURCE),
                 })
             })
             .collect();
@@ -356,22 +339,12 @@ impl CatalogueAdapter {
                 .map(|(_, spans)| 1 + spans.len())
                 .sum::<usize>();
         let mut snapshot = vec![Vec::new(); objects];
-        let good = |value| VariableUpdate::good(value, None);
-        let sources_ok = results.sources.iter().all(|s| *s == Some(SourceStatus::Ok));
-        snapshot[0] = vec![
-            good(Value::UInt32(match results.state {
-                GatewayState::Starting => 0,
-                GatewayState::Running => 1,
-                GatewayState::Stopped => 2,
-            })),
-            good(Value::UInt32(u32::from(results.heartbeat))),
-            good(Value::Boolean(sources_ok)),
-        ];
-        for (&index, status) in layout.sources.iter().zip(&results.sources) {
-            snapshot[index] = vec![match status {
-                Some(status) => good(Value::UInt32(u32::from(status.code()))),
-                None => VariableUpdate::missing(Quality::BadWaitingForInitialData),
-            }];
+        // The gateway's figures always have a value.
+        let gateway = results.gateway();
+        snapshot[0] = updates(catalogue::GATEWAY, &gateway, None, Quality::BadNoData);
+        for (k, &index) in layout.sources.iter().enumerate() {
+            let waiting = Quality::BadWaitingForInitialData;
+            snapshot[index] = updates(catalogue::SOURCE, &results.source(k), None, waiting);
         }
         let empty = DrivelineResults::default();
         for (k, &index) in layout.drivelines.iter().enumerate() {
@@ -556,6 +529,7 @@ impl OpcUaOutputTask {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::field::source_health::SourceStatus;
     use crate::state::results::GapResults;
 
     fn demo() -> (CatalogueAdapter, AddressSpaceSpec) {
@@ -619,6 +593,66 @@ mod tests {
                 figure.unit
             );
         }
+    }
+
+    /// `Gateway/state`, `Gateway/heartbeat`, `Gateway/sources_ok` and each source's
+    /// `status` keep the types and ranges they had before the catalogue held them; the
+    /// flags are new variables beside them.
+    #[test]
+    fn the_gateway_and_source_variables_keep_their_types_and_values() {
+        let (mut adapter, spec) = demo();
+        let source = spec
+            .objects
+            .iter()
+            .position(|o| o.kind == ObjectKind::Source)
+            .expect("a source");
+        let variable = |object: usize, key: &str| {
+            let at = spec.objects[object]
+                .variables
+                .iter()
+                .position(|v| v.key == key)
+                .unwrap_or_else(|| panic!("no {key}"));
+            (at, spec.objects[object].variables[at].clone())
+        };
+        let kinds = [
+            (0, "state", VariableType::UInt32, Some((0.0, 2.0))),
+            (0, "heartbeat", VariableType::UInt32, None),
+            (0, "sources_ok", VariableType::Boolean, None),
+            (0, "stopped", VariableType::Boolean, None),
+            (source, "status", VariableType::UInt32, Some((0.0, 2.0))),
+            (source, "lost", VariableType::Boolean, None),
+        ];
+        for (object, key, datatype, range) in kinds {
+            let (_, spec) = variable(object, key);
+            assert_eq!((spec.datatype, spec.range), (datatype, range), "{key}");
+        }
+        assert!(variable(0, "state")
+            .1
+            .description
+            .ends_with("0 starting, 1 running, 2 stopped"));
+
+        let mut results = Results::new(1, 1, 0);
+        let snapshot = adapter.snapshot(&results, SystemTime::now());
+        let read =
+            |snapshot: &Snapshot, object, key| snapshot.objects[object][variable(object, key).0];
+        assert_eq!(
+            read(&snapshot, source, "status"),
+            VariableUpdate::missing(Quality::BadWaitingForInitialData),
+            "no status yet"
+        );
+        results.state = crate::state::results::GatewayState::Running;
+        results.heartbeat = 65_535;
+        results.sources = vec![Some(SourceStatus::Stale)];
+        let snapshot = adapter.snapshot(&results, SystemTime::now());
+        let good = |value| VariableUpdate::good(value, None);
+        assert_eq!(read(&snapshot, 0, "state"), good(Value::UInt32(1)));
+        assert_eq!(read(&snapshot, 0, "heartbeat"), good(Value::UInt32(65_535)));
+        assert_eq!(
+            read(&snapshot, 0, "sources_ok"),
+            good(Value::Boolean(false))
+        );
+        assert_eq!(read(&snapshot, source, "status"), good(Value::UInt32(1)));
+        assert_eq!(read(&snapshot, source, "stale"), good(Value::Boolean(true)));
     }
 
     #[test]

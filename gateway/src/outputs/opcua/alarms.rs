@@ -120,7 +120,9 @@ impl EventObjects {
                 let keys = ["worst_span", "worst_margin_m_s"];
                 (object, context(results.rod_mills.get(k), &keys))
             }
-            SubjectKind::RodSpan => return None,
+            // No alarm kind is a span's, the gateway's or a source's (a source's
+            // outages are events of their own).
+            SubjectKind::RodSpan | SubjectKind::Gateway | SubjectKind::Source => return None,
         };
         let active = alarm.event == AlarmEvent::Raised;
         Some(AlarmEventSpec {

@@ -35,6 +35,12 @@ pub(super) const fn ext(offset: u16, value_type: ValueType, quality_bit: u8) -> 
 
 /// A counter at `offset` of the subject's block: always valid.
 pub(super) const fn counter_at(offset: u16, value_type: ValueType) -> Slot {
+    always_at(offset, value_type)
+}
+
+/// At `offset` of the subject's block (the gateway's: the global registers), always
+/// valid: the heartbeat.
+pub(super) const fn always_at(offset: u16, value_type: ValueType) -> Slot {
     Slot {
         register: Register::At {
             page: 0,
@@ -42,6 +48,15 @@ pub(super) const fn counter_at(offset: u16, value_type: ValueType) -> Slot {
             value_type,
         },
         guard: Guard::Always,
+    }
+}
+
+/// Bit *i* of global register `address` for the subject of index *i*: valid while it
+/// has a value.
+pub(super) const fn index_bit(address: u16) -> Slot {
+    Slot {
+        register: Register::IndexBit { address },
+        guard: Guard::Presence,
     }
 }
 
@@ -179,9 +194,37 @@ impl<R> Figure<R> {
             register: Register::Flag,
             guard: Guard::FlagBit(bit),
         };
+        let mut figure = Self::flag_at(key, slot, stale, description, value);
+        figure.spec.alarm = alarm;
+        figure
+    }
+
+    /// A flag at `slot` that is not a bit of its block's flags register (a source's:
+    /// [`index_bit`]).
+    pub(super) const fn flag_at(
+        key: &'static str,
+        slot: Slot,
+        stale: Stale,
+        description: &'static str,
+        value: fn(&R) -> Option<Value>,
+    ) -> Self {
         let mut figure = Self::new(key, "", FigureType::Bool, slot, stale, description, value);
         figure.spec.range = Some((0.0, 1.0));
-        figure.spec.alarm = alarm;
+        figure
+    }
+
+    /// One of the named `states` (its value the index of its name, in `0..states.len()`),
+    /// at `slot`; kept while a source is stale.
+    pub(super) const fn state(
+        key: &'static str,
+        states: &'static [&'static str],
+        slot: Slot,
+        description: &'static str,
+        value: fn(&R) -> Option<Value>,
+    ) -> Self {
+        let figure_type = FigureType::State(states);
+        let mut figure = Self::new(key, "", figure_type, slot, Stale::Kept, description, value);
+        figure.spec.range = Some((0.0, (states.len() - 1) as f64));
         figure
     }
 

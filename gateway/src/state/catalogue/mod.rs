@@ -8,8 +8,8 @@
 //!
 //! # One declaration per figure
 //!
-//! A figure is declared once, in its subject's table ([`DRIVELINE`], [`TANDEM_MILL`],
-//! [`ROD_MILL`], [`ROD_SPAN`]): its key, unit and description; its [`Slot`] in the
+//! A figure is declared once, in its subject's table ([`GATEWAY`], [`SOURCE`],
+//! [`DRIVELINE`], [`TANDEM_MILL`], [`ROD_MILL`], [`ROD_SPAN`]): its key, unit and description; its [`Slot`] in the
 //! register map together with the bit that guards it (`at`, `ext`, `counter_at`,
 //! `unmapped`); the stale rule; how to read it from the results; and, when the
 //! history keeps it, its [`Columns`] and how a start sets it back. The outputs iterate
@@ -40,17 +40,24 @@
 
 use millgate_config::ValueType;
 
-use super::results::{DrivelineResults, RodMillResults, RodSpanResults, TandemMillResults};
+use super::results::{
+    DrivelineResults, GatewayResults, RodMillResults, RodSpanResults, SourceResults,
+    TandemMillResults,
+};
 
 mod alarms;
 mod declare;
 mod driveline;
+mod gateway;
 mod rod_mill;
+mod source;
 mod tandem_mill;
 
 pub use alarms::AlarmKind;
 pub use driveline::DRIVELINE;
+pub use gateway::GATEWAY;
 pub use rod_mill::{ROD_MILL, ROD_SPAN};
+pub use source::SOURCE;
 pub use tandem_mill::TANDEM_MILL;
 
 /// What a figure's value is.
@@ -67,10 +74,17 @@ pub enum FigureType {
     Bool,
     /// An instant: milliseconds since the Unix epoch, UTC.
     Time,
+    /// One of these named states: the value is the index of its name (an
+    /// [`Value::Index`]), the name is what a page shows and OPC UA's EnumStrings carry.
+    State(&'static [&'static str]),
+    /// A number that steps by one and wraps (the 16-bit heartbeat, a [`Value::Count`]):
+    /// what matters is that it moves, not how far; not a count of events (a gauge on
+    /// `/metrics`, whose counters would read each wrap as a restart).
+    Sequence,
 }
 
 impl FigureType {
-    /// `real`, `count`, `index`, `bool`, `time`.
+    /// `real`, `count`, `index`, `bool`, `time`, `state`, `sequence`.
     pub fn name(self) -> &'static str {
         match self {
             FigureType::Real => "real",
@@ -78,6 +92,36 @@ impl FigureType {
             FigureType::Index => "index",
             FigureType::Bool => "bool",
             FigureType::Time => "time",
+            FigureType::State(_) => "state",
+            FigureType::Sequence => "sequence",
+        }
+    }
+
+    /// A [`FigureType::State`]'s values with their names: `0 starting, 1 running, 2
+    /// stopped`; `None` for another type.
+    pub fn state_values(self) -> Option<String> {
+        match self {
+            FigureType::State(names) => {
+                let values: Vec<String> = names
+                    .iter()
+                    .enumerate()
+                    .map(|(value, name)| format!("{value} {name}"))
+                    .collect();
+                Some(values.join(", "))
+            }
+            _ => None,
+        }
+    }
+
+    /// The name of state `index` of a [`FigureType::State`]; `None` for another type or
+    /// an index past its names.
+    pub fn state_name(self, index: u64) -> Option<&'static str> {
+        match self {
+            FigureType::State(names) => usize::try_from(index)
+                .ok()
+                .and_then(|index| names.get(index))
+                .copied(),
+            _ => None,
         }
     }
 }
@@ -89,10 +133,11 @@ pub enum Guard {
     QualityBit(u8),
     /// The figure is bit `n` of the block's `flags` register.
     FlagBit(u8),
-    /// Always valid (counters).
+    /// Always valid (counters, the heartbeat).
     Always,
-    /// Valid while it has a value; no register bit (a figure the register map does not
-    /// carry).
+    /// Valid while it has a value; no quality or flags bit of a block (a figure the
+    /// register map does not carry, or a source's flag: a bit of a global register by
+    /// the source's index, [`Register::IndexBit`]).
     Presence,
 }
 
@@ -123,9 +168,9 @@ impl Stale {
 pub enum Value {
     /// [`FigureType::Real`].
     Real(f64),
-    /// [`FigureType::Count`].
+    /// [`FigureType::Count`], [`FigureType::Sequence`].
     Count(u64),
-    /// [`FigureType::Index`].
+    /// [`FigureType::Index`], [`FigureType::State`] (the index of its name).
     Index(u64),
     /// [`FigureType::Bool`].
     Bool(bool),
@@ -144,13 +189,19 @@ impl Value {
         }
     }
 
-    fn figure_type(self) -> FigureType {
-        match self {
-            Value::Real(_) => FigureType::Real,
-            Value::Count(_) => FigureType::Count,
-            Value::Index(_) => FigureType::Index,
-            Value::Bool(_) => FigureType::Bool,
-            Value::Time(_) => FigureType::Time,
+    /// Whether this is a value of `figure_type` (a state's: an index of its names).
+    fn fits(self, figure_type: FigureType) -> bool {
+        match (self, figure_type) {
+            (Value::Index(index), FigureType::State(names)) => {
+                usize::try_from(index).is_ok_and(|index| index < names.len())
+            }
+            (Value::Count(_), FigureType::Sequence) => true,
+            (Value::Real(_), FigureType::Real)
+            | (Value::Count(_), FigureType::Count)
+            | (Value::Index(_), FigureType::Index)
+            | (Value::Bool(_), FigureType::Bool)
+            | (Value::Time(_), FigureType::Time) => true,
+            _ => false,
         }
     }
 }
@@ -210,17 +261,24 @@ pub enum SubjectKind {
     RodMill,
     /// One span (two stands) of a rod mill.
     RodSpan,
+    /// The gateway itself (one).
+    Gateway,
+    /// A field source (a Modbus DAQ or PLC, a CAN interface), one per configured
+    /// source in config order (Modbus, then CAN).
+    Source,
 }
 
 impl SubjectKind {
-    /// `driveline`, `tandem_mill`, `rod_mill`, `rod_span`: the `/metrics` prefix and
-    /// label.
+    /// `driveline`, `tandem_mill`, `rod_mill`, `rod_span`, `gateway`, `source`: the
+    /// `/metrics` prefix and label.
     pub fn name(self) -> &'static str {
         match self {
             SubjectKind::Driveline => "driveline",
             SubjectKind::TandemMill => "tandem_mill",
             SubjectKind::RodMill => "rod_mill",
             SubjectKind::RodSpan => "rod_span",
+            SubjectKind::Gateway => "gateway",
+            SubjectKind::Source => "source",
         }
     }
 }
@@ -269,6 +327,24 @@ impl Subject for RodSpanResults {
     }
 }
 
+impl Subject for GatewayResults {
+    const KIND: SubjectKind = SubjectKind::Gateway;
+    const FIGURES: &'static [Figure<Self>] = GATEWAY;
+    /// The gateway's figures describe the gateway, which is never stale.
+    fn source_stale(&self) -> bool {
+        false
+    }
+}
+
+impl Subject for SourceResults {
+    const KIND: SubjectKind = SubjectKind::Source;
+    const FIGURES: &'static [Figure<Self>] = SOURCE;
+    /// A source's figures say how stale it is: they are never withdrawn for it.
+    fn source_stale(&self) -> bool {
+        false
+    }
+}
+
 /// Where a figure sits in the register map.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Register {
@@ -284,8 +360,15 @@ pub enum Register {
         /// How it is encoded.
         value_type: ValueType,
     },
-    /// A bit of the block's `flags` register (its [`Guard::FlagBit`]).
+    /// A bit of the block's `flags` register (its [`Guard::FlagBit`]; the gateway's
+    /// flags register is the global register `gateway_status`).
     Flag,
+    /// Bit *i* of global register `address` for the subject of index *i* (a source's
+    /// flag: source *i* in config order; sources past the 16th have no bit).
+    IndexBit {
+        /// The global register (below the first driveline block).
+        address: u16,
+    },
     /// Not in the register map, and why.
     NotMapped(&'static str),
 }
@@ -396,7 +479,7 @@ impl<R: Subject> Figure<R> {
     /// The figure of `subject` with the stale rule applied.
     pub fn read(&self, subject: &R) -> Reading {
         let value = (self.value)(subject);
-        debug_assert!(value.is_none_or(|v| v.figure_type() == self.figure_type));
+        debug_assert!(value.is_none_or(|v| v.fits(self.figure_type)));
         let stale = subject.source_stale();
         match value {
             None => Reading {
@@ -419,6 +502,15 @@ impl<R: Subject> Figure<R> {
                 value: None,
                 quality: Quality::Bad(NoValue::SourceStale),
             },
+        }
+    }
+
+    /// The name of a [`FigureType::State`] figure's state in `subject` (while it has a
+    /// usable value): what a page shows.
+    pub fn state_name(&self, subject: &R) -> Option<&'static str> {
+        match self.read(subject).usable()? {
+            Value::Index(index) => self.figure_type.state_name(index),
+            _ => None,
         }
     }
 
@@ -448,12 +540,14 @@ impl std::ops::Deref for FigureInfo {
     }
 }
 
-/// Every figure of every subject, in catalogue order: drivelines, tandem mills, rod
-/// mills, rod spans.
+/// Every figure of every subject, in catalogue order: the gateway, the sources,
+/// drivelines, tandem mills, rod mills, rod spans.
 pub fn all() -> Vec<FigureInfo> {
-    DRIVELINE
+    GATEWAY
         .iter()
         .map(Figure::info)
+        .chain(SOURCE.iter().map(Figure::info))
+        .chain(DRIVELINE.iter().map(Figure::info))
         .chain(TANDEM_MILL.iter().map(Figure::info))
         .chain(ROD_MILL.iter().map(Figure::info))
         .chain(ROD_SPAN.iter().map(Figure::info))
@@ -539,10 +633,14 @@ mod tests {
 
     #[test]
     fn keys_and_bits_are_unique_per_subject() {
+        keys_unique(GATEWAY);
+        keys_unique(SOURCE);
         keys_unique(DRIVELINE);
         keys_unique(TANDEM_MILL);
         keys_unique(ROD_MILL);
         keys_unique(ROD_SPAN);
+        bits_unique(GATEWAY);
+        bits_unique(SOURCE);
         bits_unique(DRIVELINE);
         bits_unique(TANDEM_MILL);
         bits_unique(ROD_MILL);
@@ -567,6 +665,48 @@ mod tests {
                 other => panic!("unit {other} has no key suffix"),
             };
             assert!(figure.key.ends_with(suffix), "{}", figure.key);
+        }
+    }
+
+    #[test]
+    fn the_gateway_and_each_source_read_from_the_results() {
+        use crate::field::source_health::SourceStatus;
+        use crate::state::results::{GatewayState, Results};
+        let mut results = Results::new(3, 0, 0);
+        results.state = GatewayState::Running;
+        results.heartbeat = 65_535;
+        results.sources = vec![Some(SourceStatus::Ok), Some(SourceStatus::Stale), None];
+        let gateway = results.gateway();
+        let state = find(GATEWAY, "state");
+        assert_eq!(state.read(&gateway).good(), Some(Value::Index(1)));
+        assert_eq!(state.state_name(&gateway), Some("running"));
+        assert_eq!(state.range, Some((0.0, 2.0)));
+        let read = |key| find(GATEWAY, key).read(&gateway).good();
+        assert_eq!(read("heartbeat"), Some(Value::Count(65_535)));
+        assert_eq!(read("running"), Some(Value::Bool(true)));
+        assert_eq!(read("stopped"), Some(Value::Bool(false)));
+        assert_eq!(read("sources_ok"), Some(Value::Bool(false)));
+        assert_eq!(read("source_problem"), Some(Value::Bool(true)));
+
+        let status = find(SOURCE, "status");
+        let stale = results.source(1);
+        assert_eq!(status.read(&stale).good(), Some(Value::Index(1)));
+        assert_eq!(status.state_name(&stale), Some("stale"));
+        assert_eq!(
+            find(SOURCE, "stale").read(&stale).good(),
+            Some(Value::Bool(true))
+        );
+        assert_eq!(
+            find(SOURCE, "ok").read(&stale).good(),
+            Some(Value::Bool(false))
+        );
+        // Before its first status, and past the sources: no value at all.
+        for unknown in [results.source(2), results.source(3)] {
+            for figure in SOURCE {
+                let reading = figure.read(&unknown);
+                assert_eq!(reading.quality, Quality::Bad(NoValue::NotAvailable));
+            }
+            assert_eq!(status.state_name(&unknown), None);
         }
     }
 

@@ -21,15 +21,12 @@ use tokio_stream::{Stream, StreamExt};
 use super::{
     driveline_index, history_error, with_history, ApiError, DrivelineName, Params, OUTAGE_WINDOW,
 };
-use crate::field::source_health::SourceStatus;
 use crate::history::query::{Filter, HistoryReader, OutageRow};
 use crate::history::series::TREND_WINDOW;
 use crate::history::HistoryError;
 use crate::outputs::web::shared::{DrivelineInfo, TrendCache, WebState};
 use crate::state::catalogue::{self, Figure, Subject, Value};
-use crate::state::results::{
-    DrivelineResults, GatewayState, Results, RodMillResults, TandemMillResults,
-};
+use crate::state::results::{DrivelineResults, Results, RodMillResults, TandemMillResults};
 use crate::state::time::UtcTime;
 
 /// A driveline's thresholds.
@@ -215,7 +212,8 @@ pub(crate) struct SourceView {
     pub name: String,
     /// `modbus` or `can`.
     pub kind: &'static str,
-    /// `ok`, `stale`, `lost` or `unknown`.
+    /// `ok`, `stale`, `lost` (the catalogue's source `status`) or `unknown` (no status
+    /// yet).
     pub status: &'static str,
     /// Outages that started in the last 24 h (history only).
     pub outages_24h: Option<u32>,
@@ -230,7 +228,7 @@ pub(crate) struct SourceView {
 pub(crate) struct Overview {
     /// The configuration's name.
     pub name: String,
-    /// `starting`, `running` or `stopped`.
+    /// `starting`, `running` or `stopped`: the catalogue's gateway `state`.
     pub state: &'static str,
     /// Whether a history is configured (plots need it).
     pub history: bool,
@@ -248,13 +246,13 @@ pub(crate) struct Overview {
 }
 
 fn live_overview(state: &WebState, results: &Results) -> Overview {
+    let gateway_state = catalogue::find(catalogue::GATEWAY, "state");
+    let source_status = catalogue::find(catalogue::SOURCE, "status");
     Overview {
         name: state.config_name.clone(),
-        state: match results.state {
-            GatewayState::Starting => "starting",
-            GatewayState::Running => "running",
-            GatewayState::Stopped => "stopped",
-        },
+        state: gateway_state
+            .state_name(&results.gateway())
+            .unwrap_or("unknown"),
         history: state.history.is_some(),
         allow_commands: state.allow_commands
             && state.history.is_some()
@@ -280,16 +278,13 @@ fn live_overview(state: &WebState, results: &Results) -> Overview {
         sources: state
             .sources
             .iter()
-            .zip(&results.sources)
-            .map(|((name, kind), status)| SourceView {
+            .zip(0..results.sources.len())
+            .map(|((name, kind), k)| SourceView {
                 name: name.clone(),
                 kind,
-                status: match status {
-                    Some(SourceStatus::Ok) => "ok",
-                    Some(SourceStatus::Stale) => "stale",
-                    Some(SourceStatus::Lost) => "lost",
-                    None => "unknown",
-                },
+                status: source_status
+                    .state_name(&results.source(k))
+                    .unwrap_or("unknown"),
                 outages_24h: None,
                 last_outage_start: None,
                 last_outage_end: None,
