@@ -3,8 +3,8 @@
 //! physical effect the model lacks, add it, and show the residual shrink.
 //!
 //! Steps of [`run`] (one module each):
-//! 1. **Noise** ([`noise`]): the white-noise RMS of each bite from its fourth
-//!    differences.
+//! 1. **Noise** ([`millgate_dsp::noise`]): the white-noise RMS of each bite from its
+//!    fourth differences.
 //! 2. **Calibration** ([`calibration`], [`identify`]): align each bite (onset, static
 //!    torque); identify beta1, beta2 on the part of each bite where the couplings stay
 //!    loaded past their gaps, and the paper's way on the whole transient; turn the
@@ -49,7 +49,6 @@ pub mod features;
 pub mod identify;
 pub mod levenberg_marquardt;
 pub mod model_fit;
-pub mod noise;
 #[cfg(feature = "plot")]
 pub mod report;
 pub mod search;

@@ -11,7 +11,8 @@
 //! before it, within three times the moving mean's noise, less the smoothing. A record
 //! with one bite comes back whole.
 
-use super::noise::noise_rms;
+use millgate_dsp::noise::noise_rms;
+
 use super::Measured;
 
 /// Half-width of the moving mean, s.

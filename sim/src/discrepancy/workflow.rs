@@ -2,6 +2,7 @@
 
 use std::collections::BTreeMap;
 
+use millgate_dsp::noise::noise_rms;
 use serde::{Serialize, Serializer};
 
 use crate::model::Model;
@@ -12,7 +13,6 @@ use super::decision::{self, FurtherRecord, Verdict};
 use super::effects::Effect;
 use super::features::{self, Feature};
 use super::model_fit::{self, BiteRecord, Fitted};
-use super::noise::noise_rms;
 use super::search::{self, Candidate, FittedCandidate};
 use super::windows::{self, BiteTiming, Disagreement};
 use super::{DiscrepancyError, Measured, Progress, Step};
