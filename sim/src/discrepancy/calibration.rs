@@ -169,9 +169,48 @@ pub fn calibrate(
     simulations: &mut usize,
 ) -> Result<Calibrated, DiscrepancyError> {
     let template = &bites[0].template;
-    let drawings: Vec<f64> = template.couplings.iter().map(|c| c.stiffness).collect();
     let prior = aligned(bites, &LinearValues::of(template, bites.len()), simulations)?;
+    let identified = identifications(bites, &prior, noise_rms);
+    let starts = stiffness_starts(bites, &prior, &identified, simulations)?;
+    let fits = fitted_starts(bites, &prior, starts, simulations)?;
+    let Some((_, best, _)) = fits.first() else {
+        return Err(DiscrepancyError::NoStiffnessStart);
+    };
+    let best = best.clone();
+    let mut anchors = identified_anchors(&fits, &identified);
+    anchors.push(best.linear.clone());
+    let transient = identified
+        .iter()
+        .find(|id| id.window == IdentificationWindow::Transient && id.bite == 0);
+    Ok(Calibrated {
+        calibration: Calibration {
+            beta1_hz: transient.map(|id| id.beta1_hz),
+            beta2_hz: transient.map(|id| id.beta2_hz),
+            identified,
+            stiffness_trials: fits.into_iter().map(|(t, _, _)| t).collect(),
+            adjustments: Vec::new(),
+            rmse: best.rmse(),
+        },
+        best,
+        anchors,
+    })
+}
 
+/// A start of the stiffness fit: where it comes from, the identification it was
+/// computed from (index), the stiffness of each coupling (N*m/rad).
+type Start = (TrialSource, Option<usize>, Vec<f64>);
+
+/// A fitted start: its trial as reported, the fit, the start's stiffness.
+type FittedStart = (StiffnessTrial, Fitted, Vec<f64>);
+
+/// The natural frequencies identified in each bite (aligned by `prior`): eq. (1) on
+/// the transient from the onset, and the loaded part's modes (with the bite's noise
+/// RMS, kN*m).
+fn identifications(
+    bites: &[BiteRecord<'_>],
+    prior: &LinearValues,
+    noise_rms: &[f64],
+) -> Vec<Identification> {
     let mut identified = Vec::new();
     for (b, bite) in bites.iter().enumerate() {
         let fs = bite.template.measurement.sample_rate;
@@ -198,8 +237,22 @@ pub fn calibrate(
             });
         }
     }
+    identified
+}
 
-    let mut starts: Vec<(TrialSource, Option<usize>, Vec<f64>)> = Vec::new();
+/// The distinct stiffness starts: each identification's roots (eq. (2) for three
+/// masses, a modal update otherwise; loaded part first, implausible roots left out),
+/// the drawings, then a grid; a start within [`SAME_START`] of an earlier one is left
+/// out.
+fn stiffness_starts(
+    bites: &[BiteRecord<'_>],
+    prior: &LinearValues,
+    identified: &[Identification],
+    simulations: &mut usize,
+) -> Result<Vec<Start>, DiscrepancyError> {
+    let template = &bites[0].template;
+    let drawings: Vec<f64> = template.couplings.iter().map(|c| c.stiffness).collect();
+    let mut starts: Vec<Start> = Vec::new();
     let mut add = |source, identification, stiffness: Vec<f64>| {
         let same = |other: &Vec<f64>| {
             other
@@ -238,11 +291,21 @@ pub fn calibrate(
         }
     }
     add(TrialSource::Model, None, drawings.clone());
-    for stiffness in grid_starts(bites, &prior, simulations)? {
+    for stiffness in grid_starts(bites, prior, simulations)? {
         add(TrialSource::Grid, None, stiffness);
     }
+    Ok(starts)
+}
 
-    let mut fits: Vec<(StiffnessTrial, Fitted, Vec<f64>)> = Vec::with_capacity(starts.len());
+/// Each start fitted (aligned by `prior` first), best (lowest cost) first; starts
+/// whose fit fails are left out.
+fn fitted_starts(
+    bites: &[BiteRecord<'_>],
+    prior: &LinearValues,
+    starts: Vec<Start>,
+    simulations: &mut usize,
+) -> Result<Vec<FittedStart>, DiscrepancyError> {
+    let mut fits: Vec<FittedStart> = Vec::with_capacity(starts.len());
     for (source, identification, stiffness) in starts {
         let start = aligned(bites, &prior.with_stiffness(&stiffness), simulations)?;
         let mut problem = Problem::new(bites, start, None)?;
@@ -258,20 +321,20 @@ pub fn calibrate(
         fits.push((trial, fit, stiffness));
     }
     fits.sort_by(|a, b| a.1.cost.total_cmp(&b.1.cost));
-    let Some((_, best, _)) = fits.first() else {
-        return Err(DiscrepancyError::NoStiffnessStart);
-    };
-    let best = best.clone();
-    // Identified stiffness: from the loaded part if any (a gap biases the whole
-    // transient's), each distinct start with its fit's loads and damping, best-fitting
-    // first (fits are sorted); the two roots of eq. (2) can fit a record with an
-    // effect about equally, so both are kept. Then the best linear fit.
+    Ok(fits)
+}
+
+/// Identified stiffness: from the loaded part if any (a gap biases the whole
+/// transient's), each distinct start with its fit's loads and damping, best-fitting
+/// first (`fits` are sorted), at most [`IDENTIFIED_ANCHORS`]; the two roots of eq. (2)
+/// can fit a record with an effect about equally, so both are kept.
+fn identified_anchors(fits: &[FittedStart], identified: &[Identification]) -> Vec<LinearValues> {
     let mut anchors: Vec<LinearValues> = Vec::new();
     for window in [
         IdentificationWindow::Loaded,
         IdentificationWindow::Transient,
     ] {
-        for (trial, fit, stiffness) in &fits {
+        for (trial, fit, stiffness) in fits {
             let Some(i) = trial.identification else {
                 continue;
             };
@@ -283,22 +346,7 @@ pub fn calibrate(
             break;
         }
     }
-    anchors.push(best.linear.clone());
-    let transient = identified
-        .iter()
-        .find(|id| id.window == IdentificationWindow::Transient && id.bite == 0);
-    Ok(Calibrated {
-        calibration: Calibration {
-            beta1_hz: transient.map(|id| id.beta1_hz),
-            beta2_hz: transient.map(|id| id.beta2_hz),
-            identified,
-            stiffness_trials: fits.into_iter().map(|(t, _, _)| t).collect(),
-            adjustments: Vec::new(),
-            rmse: best.rmse(),
-        },
-        best,
-        anchors,
-    })
+    anchors
 }
 
 /// `values` with every bite's onset and static torque aligned to its record (the rise
