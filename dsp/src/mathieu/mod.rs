@@ -112,17 +112,6 @@ impl Mathieu {
         Ok(class.eigenvalue(q, index))
     }
 
-    /// Monodromy trace `Delta(a, q)` over one period pi of the undamped equation,
-    /// converged by step doubling until the finer value's estimated error (the change
-    /// / 63) is within the tolerance relative to the terms summed (>= 2,
-    /// larger where they cancel), or until the change stops shrinking below 1e-9 of
-    /// them (rounding, not truncation, is left).
-    pub fn trace(&self, a: f64, q: f64) -> Result<f64, MathieuError> {
-        let a = check_a(a)?;
-        let q = check_q(q)?;
-        Ok(self.converged_trace(a, q)?.0)
-    }
-
     /// Growth exponent per unit `t` of `x'' + 2c x' + (a - 2q cos 2t) x = 0`:
     /// `ln |largest Floquet multiplier| / pi`; > 0 means unstable.
     ///
@@ -254,7 +243,6 @@ mod tests {
         assert_eq!(m.characteristic_a(1, 100.5), Err(MathieuError::Q));
         assert_eq!(m.exponent(f64::NAN, 1.0, 0.0), Err(MathieuError::A));
         assert_eq!(m.exponent(1.0, 1.0, -0.1), Err(MathieuError::Damping));
-        assert_eq!(Mathieu::new(0.0, 100), Err(MathieuError::Settings));
         let mut text = heapless::String::<128>::new();
         core::fmt::write(&mut text, format_args!("{}", MathieuError::Q)).unwrap();
         assert_eq!(text.as_str(), "Mathieu q must be finite with |q| <= 100");

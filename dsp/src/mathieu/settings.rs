@@ -15,7 +15,7 @@ pub const MAX_ABS_A: f64 = 1.0e4;
 pub const MAX_DAMPING: f64 = 10.0;
 
 /// Largest relative change of the trace taken as rounding when it stops shrinking with
-/// doubled steps (see [`Mathieu::trace`]).
+/// doubled steps (see `Mathieu::converged_trace`).
 pub(super) const ROUNDING_FLOOR: f64 = 1.0e-9;
 
 /// Why a Mathieu computation was refused or failed.
@@ -29,8 +29,6 @@ pub enum MathieuError {
     A,
     /// The damping `c` is not finite or outside `0..=`[`MAX_DAMPING`].
     Damping,
-    /// The tolerance is not in `1e-14..=1e-6` or the step limit is below 64.
-    Settings,
     /// The monodromy trace did not converge within the step limit.
     NotConverged,
 }
@@ -50,10 +48,6 @@ impl fmt::Display for MathieuError {
             MathieuError::Damping => write!(
                 f,
                 "Mathieu damping c must be finite and in 0..={MAX_DAMPING}"
-            ),
-            MathieuError::Settings => write!(
-                f,
-                "Mathieu solver tolerance must be in 1e-14..=1e-6 and the step limit >= 64"
             ),
             MathieuError::NotConverged => write!(
                 f,
@@ -79,20 +73,6 @@ impl Default for Mathieu {
             tolerance: 1.0e-12,
             max_steps: 8192,
         }
-    }
-}
-
-impl Mathieu {
-    /// Solver with `tolerance` on the monodromy trace (relative to the terms summed,
-    /// see [`Mathieu::trace`]; `1e-14..=1e-6`) and at most `max_steps` Magnus steps per half period (>= 64).
-    pub fn new(tolerance: f64, max_steps: usize) -> Result<Mathieu, MathieuError> {
-        if !(1.0e-14..=1.0e-6).contains(&tolerance) || max_steps < 64 {
-            return Err(MathieuError::Settings);
-        }
-        Ok(Mathieu {
-            tolerance,
-            max_steps,
-        })
     }
 }
 

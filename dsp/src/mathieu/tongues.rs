@@ -230,7 +230,7 @@ mod tests {
                 }
                 let largest = (1..200)
                     .map(|k| lo + width * f64::from(k) / 200.0)
-                    .map(|a| mu_from_trace(m.trace(a, q).unwrap()))
+                    .map(|a| mu_from_trace(m.converged_trace(a, q).unwrap().0))
                     .fold(0.0, f64::max);
                 assert!(largest < c, "order {order} q {q}: mu {largest} >= c {c}");
             }
