@@ -19,13 +19,14 @@ pub struct BiteSettings {
 pub struct Driveline {
     /// Unique among drivelines.
     pub name: String,
-    /// Index into [`Config::channels`] of the torque channel.
+    /// Index into [`Config::channels`](crate::Config::channels) of the torque channel.
     pub torque: usize,
-    /// Index into [`Config::channels`] of an optional "metal in stand" trigger.
+    /// Index into [`Config::channels`](crate::Config::channels) of an optional "metal in
+    /// stand" trigger.
     pub metal_in_stand: Option<usize>,
-    /// Indices into [`Config::channels`] of other sampled channels kept in each bite's
-    /// capture beside the torque (motor current, speed, ...): distinct, not the torque
-    /// channel, block or CAN channels at the torque channel's sample rate.
+    /// Indices into [`Config::channels`](crate::Config::channels) of other sampled channels
+    /// kept in each bite's capture beside the torque (motor current, speed, ...): distinct,
+    /// not the torque channel, block or CAN channels at the torque channel's sample rate.
     pub extra_channels: Vec<usize>,
     /// Optional driveline model file (sim model TOML), relative to the config file.
     pub model: Option<PathBuf>,
@@ -90,9 +91,9 @@ impl Default for WearSettings {
 
 impl DrivelineThresholds {
     /// Default gap warning threshold, mrad.
-    pub const DEFAULT_GAP_WARNING_MRAD: f64 = 2.0;
+    pub(crate) const DEFAULT_GAP_WARNING_MRAD: f64 = 2.0;
     /// Default gap alarm threshold, mrad.
-    pub const DEFAULT_GAP_ALARM_MRAD: f64 = 4.0;
+    pub(crate) const DEFAULT_GAP_ALARM_MRAD: f64 = 4.0;
 }
 
 /// A tandem cold mill watched for chatter.
@@ -100,8 +101,9 @@ impl DrivelineThresholds {
 pub struct TandemMill {
     /// Unique among tandem mills.
     pub name: String,
-    /// Indices into [`Config::channels`] of the stands' vibration channels, in rolling
-    /// order; 2..=8 distinct acceleration channels sharing one sample rate.
+    /// Indices into [`Config::channels`](crate::Config::channels) of the stands' vibration
+    /// channels, in rolling order; 2..=8 distinct acceleration channels sharing one sample
+    /// rate.
     pub stands: Vec<usize>,
     /// Chatter band, Hz: (low, high), 0 < low < high < half of every stand's sample rate.
     pub chatter_band_hz: (f64, f64),
@@ -165,20 +167,20 @@ pub struct RodMill {
     /// Pass schedule CSV (rod diameters and temperature per pass), relative to the
     /// config file.
     pub schedule: PathBuf,
-    /// Index into [`Config::channels`] of the process value carrying the active drive
-    /// configuration: value k (an integer 0..configurations.len()) selects
-    /// `configurations[k]`.
+    /// Index into [`Config::channels`](crate::Config::channels) of the process value
+    /// carrying the active drive configuration: value k (an integer
+    /// 0..configurations.len()) selects `configurations[k]`.
     pub configuration: usize,
     /// Drive configuration names (of the mill's drive) by PLC value, 1..=64 names.
     pub configurations: Vec<String>,
-    /// Index into [`Config::channels`] of the process value carrying the pass number:
-    /// k (1-based) selects the k-th row of the schedule.
+    /// Index into [`Config::channels`](crate::Config::channels) of the process value
+    /// carrying the pass number: k (1-based) selects the k-th row of the schedule.
     pub pass: usize,
-    /// Index into [`Config::channels`] of the finishing speed, m/s (rod speed out of
-    /// the last stand).
+    /// Index into [`Config::channels`](crate::Config::channels) of the finishing speed, m/s
+    /// (rod speed out of the last stand).
     pub finishing_speed: usize,
-    /// Index into [`Config::channels`] of the rod temperature, deg C; without it the
-    /// schedule's temperature of the pass is used.
+    /// Index into [`Config::channels`](crate::Config::channels) of the rod temperature,
+    /// deg C; without it the schedule's temperature of the pass is used.
     pub temperature: Option<usize>,
     /// A stable span whose speed margin is below this is "near a tongue", m/s, > 0
     /// (default 2).

@@ -63,17 +63,17 @@ pub struct OpcUaOutput {
 
 impl OpcUaOutput {
     /// Default `bind`.
-    pub const DEFAULT_BIND: &'static str = "127.0.0.1:4840";
+    pub(crate) const DEFAULT_BIND: &'static str = "127.0.0.1:4840";
     /// Default `max_connections`.
-    pub const DEFAULT_MAX_CONNECTIONS: usize = 16;
+    pub(crate) const DEFAULT_MAX_CONNECTIONS: usize = 16;
     /// Default `max_sessions`.
-    pub const DEFAULT_MAX_SESSIONS: usize = 10;
+    pub(crate) const DEFAULT_MAX_SESSIONS: usize = 10;
     /// Default `max_subscriptions_per_session`.
-    pub const DEFAULT_MAX_SUBSCRIPTIONS_PER_SESSION: usize = 10;
+    pub(crate) const DEFAULT_MAX_SUBSCRIPTIONS_PER_SESSION: usize = 10;
     /// Default `max_monitored_items_per_subscription`.
-    pub const DEFAULT_MAX_MONITORED_ITEMS_PER_SUBSCRIPTION: usize = 1000;
+    pub(crate) const DEFAULT_MAX_MONITORED_ITEMS_PER_SUBSCRIPTION: usize = 1000;
     /// Default `max_session_timeout_ms`.
-    pub const DEFAULT_MAX_SESSION_TIMEOUT_MS: u64 = 60_000;
+    pub(crate) const DEFAULT_MAX_SESSION_TIMEOUT_MS: u64 = 60_000;
     /// Folder name of the default `pki_dir` (under `$STATE_DIRECTORY`, beside the
     /// history file, or beside the configuration file).
     pub const DEFAULT_PKI_FOLDER: &'static str = "opcua-pki";
@@ -122,7 +122,7 @@ pub enum OpcUaSecurityMode {
 
 impl OpcUaSecurityMode {
     /// Every mode, in the order endpoints are listed.
-    pub const ALL: [Self; 3] = [Self::None, Self::Sign, Self::SignAndEncrypt];
+    pub(crate) const ALL: [Self; 3] = [Self::None, Self::Sign, Self::SignAndEncrypt];
 
     /// The spelling in the file.
     pub fn name(self) -> &'static str {
@@ -187,15 +187,15 @@ pub struct WebOutput {
 
 impl WebOutput {
     /// Default `max_connections`.
-    pub const DEFAULT_MAX_CONNECTIONS: usize = 32;
+    pub(crate) const DEFAULT_MAX_CONNECTIONS: usize = 32;
     /// Default `header_timeout`, ms.
-    pub const DEFAULT_HEADER_TIMEOUT_MS: u64 = 5_000;
+    pub(crate) const DEFAULT_HEADER_TIMEOUT_MS: u64 = 5_000;
     /// Default `request_timeout`, ms.
-    pub const DEFAULT_REQUEST_TIMEOUT_MS: u64 = 10_000;
+    pub(crate) const DEFAULT_REQUEST_TIMEOUT_MS: u64 = 10_000;
     /// Default `history_queries`.
-    pub const DEFAULT_HISTORY_QUERIES: usize = 2;
+    pub(crate) const DEFAULT_HISTORY_QUERIES: usize = 2;
     /// Default `max_event_streams`.
-    pub const DEFAULT_MAX_EVENT_STREAMS: usize = 8;
+    pub(crate) const DEFAULT_MAX_EVENT_STREAMS: usize = 8;
 
     /// The page on `bind` with the defaults of every other key.
     pub fn on(bind: SocketAddr) -> Self {

@@ -53,7 +53,7 @@ pub enum ChannelKind {
 
 impl ChannelKind {
     /// Every kind, in the order the documentation lists them.
-    pub const ALL: [ChannelKind; 3] = [
+    pub(crate) const ALL: [ChannelKind; 3] = [
         ChannelKind::Torque,
         ChannelKind::Acceleration,
         ChannelKind::ProcessValue,
@@ -61,7 +61,7 @@ impl ChannelKind {
 
     /// The spelling used in configuration files: `torque`, `acceleration`,
     /// `process_value`.
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             ChannelKind::Torque => "torque",
             ChannelKind::Acceleration => "acceleration",
@@ -81,10 +81,10 @@ pub enum RegisterTable {
 
 impl RegisterTable {
     /// Both tables.
-    pub const ALL: [RegisterTable; 2] = [RegisterTable::Input, RegisterTable::Holding];
+    pub(crate) const ALL: [RegisterTable; 2] = [RegisterTable::Input, RegisterTable::Holding];
 
     /// The spelling used in configuration files: `input`, `holding`.
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             RegisterTable::Input => "input",
             RegisterTable::Holding => "holding",
@@ -109,7 +109,7 @@ pub enum ValueType {
 
 impl ValueType {
     /// Every type.
-    pub const ALL: [ValueType; 5] = [
+    pub(crate) const ALL: [ValueType; 5] = [
         ValueType::U16,
         ValueType::I16,
         ValueType::U32,
@@ -157,7 +157,7 @@ pub enum WordOrder {
 
 impl WordOrder {
     /// Every order.
-    pub const ALL: [WordOrder; 4] = [
+    pub(crate) const ALL: [WordOrder; 4] = [
         WordOrder::Abcd,
         WordOrder::Cdab,
         WordOrder::Badc,
@@ -165,7 +165,7 @@ impl WordOrder {
     ];
 
     /// The spelling used in configuration files: `ABCD`, `CDAB`, `BADC`, `DCBA`.
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             WordOrder::Abcd => "ABCD",
             WordOrder::Cdab => "CDAB",
@@ -181,7 +181,7 @@ pub enum ChannelSource {
     /// A block buffer in the millgate acquisition layout (see the README):
     /// `base+0` sequence, `base+1` count n, `base+2..base+2+n` i16 samples.
     ModbusBlock {
-        /// Index into [`Config::modbus_sources`].
+        /// Index into [`Config::modbus_sources`](crate::Config::modbus_sources).
         source: usize,
         /// Input or holding registers.
         table: RegisterTable,
@@ -191,7 +191,7 @@ pub enum ChannelSource {
     },
     /// A scalar process value in plain registers.
     ModbusValue {
-        /// Index into [`Config::modbus_sources`].
+        /// Index into [`Config::modbus_sources`](crate::Config::modbus_sources).
         source: usize,
         /// Input or holding registers.
         table: RegisterTable,
@@ -206,7 +206,7 @@ pub enum ChannelSource {
     /// load time. The DBC's factor and offset give the engineering value; the
     /// channel's own `scale`/`offset` are then 1 and 0.
     Can {
-        /// Index into [`Config::can_sources`].
+        /// Index into [`Config::can_sources`](crate::Config::can_sources).
         source: usize,
         /// Message name in the DBC.
         message: String,
