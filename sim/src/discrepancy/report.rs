@@ -17,11 +17,11 @@ pub const MODEL_FILE: &str = "extended-model.toml";
 /// effect removed).
 pub const CALIBRATED_MODEL_FILE: &str = "calibrated-model.toml";
 /// The plot.
-pub const PLOT_FILE: &str = "discrepancy.svg";
+pub(crate) const PLOT_FILE: &str = "discrepancy.svg";
 /// The summary.
-pub const SUMMARY_FILE: &str = "summary.md";
+pub(crate) const SUMMARY_FILE: &str = "summary.md";
 /// The JSON report.
-pub const JSON_FILE: &str = "report.json";
+pub(crate) const JSON_FILE: &str = "report.json";
 
 /// Why the report folder could not be written.
 #[derive(Debug, thiserror::Error)]

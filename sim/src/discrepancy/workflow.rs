@@ -36,21 +36,21 @@ impl Default for Settings {
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct BiteSummary {
     /// Time of the bite record's first sample, s.
-    pub t0_s: f64,
+    pub(crate) t0_s: f64,
     /// Samples in the bite record.
-    pub samples: usize,
+    pub(crate) samples: usize,
     /// White-noise RMS estimated from the bite, kN*m.
-    pub noise_rms: f64,
+    pub(crate) noise_rms: f64,
     /// Fitted static torque, kN*m (of the extended model, or the linear one).
-    pub static_torque_knm: f64,
+    pub(crate) static_torque_knm: f64,
     /// Fitted load rise rate, 1/s.
-    pub rise_rate_per_s: f64,
+    pub(crate) rise_rate_per_s: f64,
     /// Fitted onset from the bite record's first sample, s.
-    pub onset_s: f64,
+    pub(crate) onset_s: f64,
     /// RMS residual of the calibrated linear model on this bite, kN*m.
-    pub rmse_before: f64,
+    pub(crate) rmse_before: f64,
     /// RMS residual of the extended model on this bite, kN*m.
-    pub rmse_after: f64,
+    pub(crate) rmse_after: f64,
 }
 
 /// The workflow's result; serialises to the documented JSON.
@@ -59,13 +59,13 @@ pub struct Report {
     /// How the linear model was calibrated.
     pub calibration: Calibration,
     /// White-noise RMS over every bite (RMS of the bites' estimates, by samples), kN*m.
-    pub noise_rms: f64,
+    pub(crate) noise_rms: f64,
     /// Each bite: noise, fitted load, residuals.
-    pub bites: Vec<BiteSummary>,
+    pub(crate) bites: Vec<BiteSummary>,
     /// Where the calibrated linear model departs from the bites.
-    pub disagreement: Vec<Disagreement>,
+    pub(crate) disagreement: Vec<Disagreement>,
     /// Transient features of each bite and of the calibrated linear model.
-    pub features: Vec<Feature>,
+    pub(crate) features: Vec<Feature>,
     /// What the bites show.
     pub verdict: Verdict,
     /// The named effect (the best of the rivals when they cannot be told apart), or
@@ -86,9 +86,9 @@ pub struct Report {
     pub candidates: Vec<Candidate>,
     /// The other candidates within the BIC margin of the named one (empty unless
     /// `cannot_tell`).
-    pub alternatives: Vec<Candidate>,
+    pub(crate) alternatives: Vec<Candidate>,
     /// The further record that would tell the best two apart, when they cannot be.
-    pub tell_apart: Option<FurtherRecord>,
+    pub(crate) tell_apart: Option<FurtherRecord>,
     /// Simulations of one bite run in all.
     pub simulations: usize,
     /// The series and models behind the report.

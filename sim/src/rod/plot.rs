@@ -238,7 +238,7 @@ fn draw_passes(
 
 /// Renders the Campbell chart of one pass (see the module docs).
 pub fn campbell_svg(setup: &PassSetup) -> Result<String, PlotError> {
-    let mill = setup.mill();
+    let mill = &setup.mill;
     let (v_lo, v_hi) = setup.speed_range_m_s;
     let speeds: Vec<f64> = (0..=CURVE_POINTS)
         .map(|k| v_lo + (v_hi - v_lo) * k as f64 / CURVE_POINTS as f64)
@@ -294,7 +294,7 @@ pub fn campbell_svg(setup: &PassSetup) -> Result<String, PlotError> {
 
 /// Rod frequencies of every span and mode at `speeds`.
 fn rod_curves(setup: &PassSetup, speeds: &[f64]) -> Vec<RodCurve> {
-    let mill = setup.mill();
+    let mill = &setup.mill;
     let moving = mill.rod.moving_rod;
     let mut rod_curves: Vec<RodCurve> = Vec::new();
     for (index, span) in setup.spans.iter().enumerate() {
@@ -318,7 +318,7 @@ fn draw_eccentricity(
     setup: &PassSetup,
     speeds: &[f64],
 ) -> Result<(), PlotError> {
-    let mill = setup.mill();
+    let mill = &setup.mill;
     let grey = BLACK.mix(0.35);
     for (stand, share) in setup.stand_shares.iter().enumerate() {
         let diameter = mill.stands[stand].roll_diameter_m;
@@ -383,7 +383,7 @@ fn draw_rod_curves(
     setup: &PassSetup,
     rod_curves: &[RodCurve],
 ) -> Result<(), PlotError> {
-    let mill = setup.mill();
+    let mill = &setup.mill;
     for (span, mode, curve) in rod_curves {
         let color = Palette99::pick(*span).to_rgba();
         let name = &mill.spans[setup.spans[*span].span].name;

@@ -54,7 +54,7 @@ pub fn load(path: impl AsRef<Path>) -> Result<Vec<Pass>, RodError> {
 }
 
 /// Parses schedule CSV text; `file` labels errors.
-pub fn parse(text: &str, file: &str) -> Result<Vec<Pass>, RodError> {
+pub(crate) fn parse(text: &str, file: &str) -> Result<Vec<Pass>, RodError> {
     let mut rows = text
         .lines()
         .enumerate()

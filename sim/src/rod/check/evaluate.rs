@@ -17,27 +17,27 @@ pub struct PointReport {
     /// Source label.
     pub source: String,
     /// The source itself.
-    pub excitation: Source,
+    pub(crate) excitation: Source,
     /// Rod natural frequency of this mode, Hz.
     pub f_rod_hz: f64,
     /// Pulsation frequency Theta, Hz.
     pub theta_hz: f64,
     /// Mathieu a = 4 omega^2 / Theta^2.
-    pub a: f64,
+    pub(crate) a: f64,
     /// Mathieu q = 2 g P / (L^2 rho A Theta^2).
     pub q: f64,
     /// Damping c = zeta sqrt(a), per unit Mathieu time.
-    pub c: f64,
+    pub(crate) c: f64,
     /// Order of the nearest damped tongue (`None` beyond the resolved range).
-    pub tongue: Option<u8>,
+    pub(crate) tongue: Option<u8>,
     /// Inside it.
-    pub inside: Option<bool>,
+    pub(crate) inside: Option<bool>,
     /// Growth exponent, 1/s (negative: decays); `None` beyond the resolved range.
     pub exponent_per_s: Option<f64>,
     /// Stable (exponent <= 0).
     pub stable: bool,
     /// Signed distance in a to the nearest damped tongue edge (> 0 stable).
-    pub margin_a: Option<f64>,
+    pub(crate) margin_a: Option<f64>,
     /// Finishing-speed change to the nearest band edge of this point, m/s (`None`:
     /// no band within the speed range).
     pub speed_change_m_s: Option<f64>,
@@ -49,14 +49,14 @@ pub struct SpanReport {
     /// `upstream - downstream`.
     pub span: String,
     /// Rod diameter in the span, mm.
-    pub diameter_mm: f64,
+    pub(crate) diameter_mm: f64,
     /// Rod speed in the span, m/s.
-    pub rod_speed_m_s: f64,
+    pub(crate) rod_speed_m_s: f64,
     /// Rod speed over the span's critical speed (reported whether or not the moving-rod
     /// term is on).
     pub v_over_v_crit: f64,
     /// Euler load of the span, N.
-    pub euler_load_n: f64,
+    pub(crate) euler_load_n: f64,
     /// Every mode and source.
     pub points: Vec<PointReport>,
     /// No point is unstable.
@@ -67,27 +67,27 @@ pub struct SpanReport {
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct PassReport {
     /// Pass name.
-    pub pass: String,
+    pub(crate) pass: String,
     /// Configuration name.
-    pub configuration: String,
+    pub(crate) configuration: String,
     /// Finishing speed evaluated, m/s.
-    pub finishing_speed_m_s: f64,
+    pub(crate) finishing_speed_m_s: f64,
     /// The configuration's finishing-speed range, m/s.
-    pub speed_range_m_s: (f64, f64),
+    pub(crate) speed_range_m_s: (f64, f64),
     /// Rod temperature, deg C.
-    pub temperature_c: f64,
+    pub(crate) temperature_c: f64,
     /// Young's modulus at it, Pa.
-    pub modulus_pa: f64,
+    pub(crate) modulus_pa: f64,
     /// Every span.
     pub spans: Vec<SpanReport>,
     /// No point of any span is unstable.
-    pub stable: bool,
+    pub(crate) stable: bool,
     /// Largest growth exponent of any point, 1/s.
-    pub worst_exponent_per_s: Option<f64>,
+    pub(crate) worst_exponent_per_s: Option<f64>,
     /// Finishing speeds to avoid in this pass's geometry, m/s.
-    pub avoid: Vec<AvoidBand>,
+    pub(crate) avoid: Vec<AvoidBand>,
     /// Points unstable at every speed of the range (no speed change helps).
-    pub unstable_at_every_speed: Vec<String>,
+    pub(crate) unstable_at_every_speed: Vec<String>,
 }
 
 impl PassSetup {

@@ -78,7 +78,7 @@ impl PassSetup {
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ScheduleReport {
     /// The mill's name.
-    pub mill: String,
+    pub(crate) mill: String,
     /// Every pass, in schedule order.
     pub passes: Vec<PassReport>,
     /// Per configuration: speed range, torsional modes, and the bands each of its
@@ -90,11 +90,11 @@ pub struct ScheduleReport {
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ConfigurationReport {
     /// Configuration name.
-    pub name: String,
+    pub(crate) name: String,
     /// Finishing-speed range of the gearbox in it, m/s.
-    pub speed_range_m_s: (f64, f64),
+    pub(crate) speed_range_m_s: (f64, f64),
     /// Torsional natural frequencies of the drive in it, Hz.
-    pub torsional_hz: Vec<f64>,
+    pub(crate) torsional_hz: Vec<f64>,
     /// For each pass rolled in it, the finishing speeds to avoid.
     pub passes: Vec<PassBands>,
 }
@@ -105,7 +105,7 @@ pub struct PassBands {
     /// Pass name.
     pub pass: String,
     /// Bands, m/s, ascending.
-    pub avoid: Vec<AvoidBand>,
+    pub(crate) avoid: Vec<AvoidBand>,
     /// Points unstable at every speed of the range.
     pub unstable_at_every_speed: Vec<String>,
 }

@@ -29,19 +29,20 @@ pub struct AvoidBand {
 /// pass's setup side by side and rebuild only the setup when the pass changes.
 #[derive(Debug, Clone)]
 pub struct PassSetup {
-    pub(super) mill: Arc<RodMill>,
+    /// The mill this pass runs on.
+    pub(crate) mill: Arc<RodMill>,
     /// The pass as given.
     pub pass: Pass,
     /// Index of its configuration in [`RodMill::configurations`].
-    pub configuration: usize,
+    pub(crate) configuration: usize,
     /// The configuration's finishing-speed range, m/s.
     pub speed_range_m_s: (f64, f64),
     /// The pass's finishing speed, m/s.
     pub finishing_speed_m_s: f64,
     /// Young's modulus at the pass's temperature, Pa.
-    pub modulus_pa: f64,
+    pub(crate) modulus_pa: f64,
     /// Rod exit speed of each stand over the finishing speed.
-    pub stand_shares: Vec<f64>,
+    pub(crate) stand_shares: Vec<f64>,
     /// Every span.
     pub spans: Vec<SpanSetup>,
     /// Union of the sources' bands that end or start inside the speed range (a change
@@ -49,7 +50,7 @@ pub struct PassSetup {
     pub avoid: Vec<AvoidBand>,
     /// `span / mode / source` of every point unstable over the whole speed range (a
     /// torsional source without the moving-rod term: no speed helps).
-    pub unstable_at_every_speed: Vec<String>,
+    pub(crate) unstable_at_every_speed: Vec<String>,
 }
 
 /// The Mathieu point of one source at one speed.
@@ -63,11 +64,6 @@ pub(super) struct Operating {
 }
 
 impl PassSetup {
-    /// The mill this pass runs on.
-    pub fn mill(&self) -> &RodMill {
-        &self.mill
-    }
-
     /// Mathieu point of `source` in `span` at finishing speed `speed`.
     pub(super) fn operating(
         &self,

@@ -34,7 +34,7 @@ pub struct SourceSetup {
     /// The source.
     pub source: Source,
     /// Label for reports (`torsion 31.8 Hz`, `stand 2 roll 1x`).
-    pub label: String,
+    pub(crate) label: String,
     /// Pulsation amplitude P, N.
     pub pulsation_n: f64,
     /// Finishing-speed intervals (m/s) within the configuration's range where this
@@ -46,11 +46,11 @@ pub struct SourceSetup {
 #[derive(Debug, Clone, PartialEq)]
 pub struct SpanSetup {
     /// Index of the span in the mill.
-    pub span: usize,
+    pub(crate) span: usize,
     /// The rod in this span (section, modulus, tension, ends).
     pub beam: Beam,
     /// Rod speed in the span over the finishing speed.
-    pub speed_share: f64,
+    pub(crate) speed_share: f64,
     /// Every mode and source.
     pub sources: Vec<SourceSetup>,
 }

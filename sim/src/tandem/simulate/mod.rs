@@ -46,7 +46,7 @@ mod simulation;
 pub use record::Record;
 pub use settings::{
     Accelerometer, Excitation, NoiseBurst, RunError, RunSettings, SimulationSetup, SpeedRamp,
-    SpeedRange, TensionStep, MAX_DURATION_S, MIN_INTERNAL_RATE_HZ,
+    SpeedRange, TensionStep, MAX_DURATION_S,
 };
 pub use simulation::Simulation;
 

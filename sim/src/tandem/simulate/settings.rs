@@ -2,7 +2,7 @@
 //! accelerometers, the seed; their ranges and the errors of a run.
 
 /// Lowest internal integration rate, Hz.
-pub const MIN_INTERNAL_RATE_HZ: f64 = 10_000.0;
+pub(super) const MIN_INTERNAL_RATE_HZ: f64 = 10_000.0;
 /// Longest run, s.
 pub const MAX_DURATION_S: f64 = 3600.0;
 
@@ -106,7 +106,7 @@ pub struct NoiseBurst {
 
 impl Excitation {
     /// The factor on the force noise at `t_s`: the largest of the bursts then, else 1.
-    pub fn force_noise_factor(&self, t_s: f64) -> f64 {
+    pub(crate) fn force_noise_factor(&self, t_s: f64) -> f64 {
         self.noise_bursts
             .iter()
             .filter(|b| t_s >= b.time_s && t_s < b.time_s + b.duration_s)
@@ -225,7 +225,7 @@ fn check(key: &'static str, value: f64, ok: bool, allowed: &'static str) -> Resu
 
 impl RunSettings {
     /// Checks every setting against its range.
-    pub fn validate(&self) -> Result<(), RunError> {
+    pub(crate) fn validate(&self) -> Result<(), RunError> {
         let r = &self.ramp;
         check("ramp.start", r.start, r.start > 0.0, "> 0")?;
         check("ramp.end", r.end, r.end > 0.0, "> 0")?;
@@ -347,7 +347,7 @@ pub struct SimulationSetup {
 
 impl SimulationSetup {
     /// Checks every setting against its range.
-    pub fn validate(&self) -> Result<(), RunError> {
+    pub(crate) fn validate(&self) -> Result<(), RunError> {
         let speeds = &self.speeds;
         check("speeds.lowest", speeds.lowest, speeds.lowest > 0.0, "> 0")?;
         check(

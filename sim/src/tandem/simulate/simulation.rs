@@ -74,7 +74,7 @@ impl Simulation {
     }
 
     /// The simulated mill.
-    pub fn mill(&self) -> &TandemMill {
+    pub(crate) fn mill(&self) -> &TandemMill {
         &self.mill
     }
 
