@@ -30,7 +30,7 @@ use error::Report;
 /// Reads, parses and validates the configuration file at `path`.
 ///
 /// Relative paths inside the file (`dbc`, `model`) are resolved against the file's
-/// directory; the folders systemd hands a service ([`ServiceDirs::from_env`]) place
+/// directory; the folders systemd hands a service (`ServiceDirs::from_env`) place
 /// the history file, the cache and the MQTT password credential (see
 /// [`from_toml_str_with`]). Problems are reported against `path` as given.
 ///

@@ -12,39 +12,39 @@ use serde::Deserialize;
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawModbusSource {
-    pub name: String,
-    pub address: Option<String>,
-    pub device: Option<String>,
-    pub baud_rate: Option<i64>,
-    pub parity: Option<String>,
-    pub data_bits: Option<i64>,
-    pub stop_bits: Option<i64>,
-    pub inter_frame_delay_us: Option<i64>,
-    pub unit_id: Option<i64>,
-    pub poll_period_ms: i64,
-    pub timeout_ms: Option<i64>,
+    pub(crate) name: String,
+    pub(crate) address: Option<String>,
+    pub(crate) device: Option<String>,
+    pub(crate) baud_rate: Option<i64>,
+    pub(crate) parity: Option<String>,
+    pub(crate) data_bits: Option<i64>,
+    pub(crate) stop_bits: Option<i64>,
+    pub(crate) inter_frame_delay_us: Option<i64>,
+    pub(crate) unit_id: Option<i64>,
+    pub(crate) poll_period_ms: i64,
+    pub(crate) timeout_ms: Option<i64>,
 }
 
 /// `[[sources.can]]`: a SocketCAN interface and its DBC file.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawCanSource {
-    pub name: String,
-    pub interface: String,
-    pub dbc: String,
+    pub(crate) name: String,
+    pub(crate) interface: String,
+    pub(crate) dbc: String,
 }
 
 /// `[[channels]]`: one measured channel.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawChannel {
-    pub name: String,
-    pub kind: String,
-    pub unit: String,
-    pub scale: Option<f64>,
-    pub offset: Option<f64>,
-    pub sample_rate_hz: Option<f64>,
-    pub source: RawChannelSource,
+    pub(crate) name: String,
+    pub(crate) kind: String,
+    pub(crate) unit: String,
+    pub(crate) scale: Option<f64>,
+    pub(crate) offset: Option<f64>,
+    pub(crate) sample_rate_hz: Option<f64>,
+    pub(crate) source: RawChannelSource,
 }
 
 /// `channels[].source`: one inline table covering the three source forms; which keys
@@ -52,231 +52,231 @@ pub(crate) struct RawChannel {
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawChannelSource {
-    pub modbus: Option<String>,
-    pub can: Option<String>,
-    pub table: Option<String>,
-    pub block: Option<i64>,
-    pub address: Option<i64>,
+    pub(crate) modbus: Option<String>,
+    pub(crate) can: Option<String>,
+    pub(crate) table: Option<String>,
+    pub(crate) block: Option<i64>,
+    pub(crate) address: Option<i64>,
     #[serde(rename = "type")]
-    pub value_type: Option<String>,
-    pub word_order: Option<String>,
-    pub message: Option<String>,
-    pub signal: Option<String>,
+    pub(crate) value_type: Option<String>,
+    pub(crate) word_order: Option<String>,
+    pub(crate) message: Option<String>,
+    pub(crate) signal: Option<String>,
 }
 
 /// `[[drivelines]]`: a hot-mill driveline.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawDriveline {
-    pub name: String,
-    pub torque: String,
-    pub metal_in_stand: Option<String>,
-    pub extra_channels: Option<Vec<String>>,
-    pub model: Option<String>,
-    pub bite: RawBite,
-    pub thresholds: RawThresholds,
-    pub wear: Option<RawWear>,
+    pub(crate) name: String,
+    pub(crate) torque: String,
+    pub(crate) metal_in_stand: Option<String>,
+    pub(crate) extra_channels: Option<Vec<String>>,
+    pub(crate) model: Option<String>,
+    pub(crate) bite: RawBite,
+    pub(crate) thresholds: RawThresholds,
+    pub(crate) wear: Option<RawWear>,
 }
 
 /// `drivelines[].wear`: the gap diagnosis against the driveline model.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawWear {
-    pub couplings: Option<Vec<i64>>,
-    pub max_gap_mrad: Option<f64>,
-    pub gap_step_mrad: Option<f64>,
-    pub static_torque_knm: Option<Vec<f64>>,
-    pub torque_points: Option<i64>,
-    pub pool_bites: Option<i64>,
+    pub(crate) couplings: Option<Vec<i64>>,
+    pub(crate) max_gap_mrad: Option<f64>,
+    pub(crate) gap_step_mrad: Option<f64>,
+    pub(crate) static_torque_knm: Option<Vec<f64>>,
+    pub(crate) torque_points: Option<i64>,
+    pub(crate) pool_bites: Option<i64>,
 }
 
 /// `drivelines[].bite`.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawBite {
-    pub threshold_knm: f64,
-    pub pre_trigger_s: Option<f64>,
-    pub post_trigger_s: Option<f64>,
+    pub(crate) threshold_knm: f64,
+    pub(crate) pre_trigger_s: Option<f64>,
+    pub(crate) post_trigger_s: Option<f64>,
 }
 
 /// `drivelines[].thresholds`.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawThresholds {
-    pub taf_warning: f64,
-    pub taf_alarm: f64,
-    pub gap_warning_mrad: Option<f64>,
-    pub gap_alarm_mrad: Option<f64>,
+    pub(crate) taf_warning: f64,
+    pub(crate) taf_alarm: f64,
+    pub(crate) gap_warning_mrad: Option<f64>,
+    pub(crate) gap_alarm_mrad: Option<f64>,
 }
 
 /// `[[tandem_mills]]`: a tandem cold mill.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawTandemMill {
-    pub name: String,
-    pub stands: Vec<String>,
-    pub chatter_band_hz: Vec<f64>,
-    pub window_s: f64,
-    pub k_max: f64,
-    pub detector: Option<String>,
-    pub reference_band_hz: Option<Vec<f64>>,
-    pub gain_window_s: Option<f64>,
-    pub gain_thresholds: Option<Vec<f64>>,
-    pub slow_down_release: Option<f64>,
-    pub slow_down_hold_s: Option<f64>,
-    pub capture_before_s: Option<f64>,
-    pub capture_after_s: Option<f64>,
-    pub capture_max_s: Option<f64>,
+    pub(crate) name: String,
+    pub(crate) stands: Vec<String>,
+    pub(crate) chatter_band_hz: Vec<f64>,
+    pub(crate) window_s: f64,
+    pub(crate) k_max: f64,
+    pub(crate) detector: Option<String>,
+    pub(crate) reference_band_hz: Option<Vec<f64>>,
+    pub(crate) gain_window_s: Option<f64>,
+    pub(crate) gain_thresholds: Option<Vec<f64>>,
+    pub(crate) slow_down_release: Option<f64>,
+    pub(crate) slow_down_hold_s: Option<f64>,
+    pub(crate) capture_before_s: Option<f64>,
+    pub(crate) capture_after_s: Option<f64>,
+    pub(crate) capture_max_s: Option<f64>,
 }
 
 /// `[[rod_mills]]`: a rod mill checked online against the Mathieu tongues.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawRodMill {
-    pub name: String,
-    pub mill: String,
-    pub schedule: String,
-    pub configuration: String,
-    pub configurations: Vec<String>,
-    pub pass: String,
-    pub finishing_speed: String,
-    pub temperature: Option<String>,
-    pub near_tongue_m_s: Option<f64>,
-    pub hysteresis_m_s: Option<f64>,
-    pub temperature_step_c: Option<f64>,
+    pub(crate) name: String,
+    pub(crate) mill: String,
+    pub(crate) schedule: String,
+    pub(crate) configuration: String,
+    pub(crate) configurations: Vec<String>,
+    pub(crate) pass: String,
+    pub(crate) finishing_speed: String,
+    pub(crate) temperature: Option<String>,
+    pub(crate) near_tongue_m_s: Option<f64>,
+    pub(crate) hysteresis_m_s: Option<f64>,
+    pub(crate) temperature_step_c: Option<f64>,
 }
 
 /// `[outputs]`.
 #[derive(Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawOutputs {
-    pub plc: Option<RawPlcOutput>,
-    pub server: Option<RawServerOutput>,
-    pub metrics: Option<RawMetricsOutput>,
-    pub mqtt: Option<RawMqttOutput>,
-    pub web: Option<RawWebOutput>,
-    pub opcua: Option<RawOpcUaOutput>,
+    pub(crate) plc: Option<RawPlcOutput>,
+    pub(crate) server: Option<RawServerOutput>,
+    pub(crate) metrics: Option<RawMetricsOutput>,
+    pub(crate) mqtt: Option<RawMqttOutput>,
+    pub(crate) web: Option<RawWebOutput>,
+    pub(crate) opcua: Option<RawOpcUaOutput>,
 }
 
 /// `[outputs.opcua]`: the OPC UA server.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawOpcUaOutput {
-    pub bind: Option<String>,
-    pub host: Option<String>,
-    pub security_modes: Option<Vec<String>>,
-    pub pki_dir: Option<String>,
-    pub anonymous: Option<bool>,
-    pub users_file: Option<String>,
-    pub allow_remote_commands: Option<bool>,
-    pub max_connections: Option<i64>,
-    pub max_sessions: Option<i64>,
-    pub max_subscriptions_per_session: Option<i64>,
-    pub max_monitored_items_per_subscription: Option<i64>,
-    pub max_session_timeout_ms: Option<i64>,
+    pub(crate) bind: Option<String>,
+    pub(crate) host: Option<String>,
+    pub(crate) security_modes: Option<Vec<String>>,
+    pub(crate) pki_dir: Option<String>,
+    pub(crate) anonymous: Option<bool>,
+    pub(crate) users_file: Option<String>,
+    pub(crate) allow_remote_commands: Option<bool>,
+    pub(crate) max_connections: Option<i64>,
+    pub(crate) max_sessions: Option<i64>,
+    pub(crate) max_subscriptions_per_session: Option<i64>,
+    pub(crate) max_monitored_items_per_subscription: Option<i64>,
+    pub(crate) max_session_timeout_ms: Option<i64>,
 }
 
 /// `[outputs.plc]`.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawPlcOutput {
-    pub address: String,
-    pub unit_id: Option<i64>,
-    pub register_base: Option<i64>,
-    pub write_period_ms: i64,
-    pub timeout_ms: Option<i64>,
-    pub extension_blocks: Option<bool>,
+    pub(crate) address: String,
+    pub(crate) unit_id: Option<i64>,
+    pub(crate) register_base: Option<i64>,
+    pub(crate) write_period_ms: i64,
+    pub(crate) timeout_ms: Option<i64>,
+    pub(crate) extension_blocks: Option<bool>,
 }
 
 /// `[outputs.server]`.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawServerOutput {
-    pub bind: String,
-    pub unit_id: Option<i64>,
-    pub max_connections: Option<i64>,
-    pub max_connections_per_peer: Option<i64>,
-    pub idle_timeout_ms: Option<i64>,
-    pub allow_remote_commands: Option<bool>,
+    pub(crate) bind: String,
+    pub(crate) unit_id: Option<i64>,
+    pub(crate) max_connections: Option<i64>,
+    pub(crate) max_connections_per_peer: Option<i64>,
+    pub(crate) idle_timeout_ms: Option<i64>,
+    pub(crate) allow_remote_commands: Option<bool>,
 }
 
 /// `[outputs.metrics]`.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawMetricsOutput {
-    pub bind: Option<String>,
+    pub(crate) bind: Option<String>,
 }
 
 /// `[outputs.web]`: the maintenance web page.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawWebOutput {
-    pub bind: Option<String>,
-    pub max_connections: Option<i64>,
-    pub header_timeout_ms: Option<i64>,
-    pub request_timeout_ms: Option<i64>,
-    pub history_queries: Option<i64>,
-    pub max_event_streams: Option<i64>,
-    pub allowed_hosts: Option<Vec<String>>,
-    pub allow_commands: Option<bool>,
+    pub(crate) bind: Option<String>,
+    pub(crate) max_connections: Option<i64>,
+    pub(crate) header_timeout_ms: Option<i64>,
+    pub(crate) request_timeout_ms: Option<i64>,
+    pub(crate) history_queries: Option<i64>,
+    pub(crate) max_event_streams: Option<i64>,
+    pub(crate) allowed_hosts: Option<Vec<String>>,
+    pub(crate) allow_commands: Option<bool>,
 }
 
 /// `[outputs.mqtt]`: the Sparkplug B edge node.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawMqttOutput {
-    pub broker: String,
-    pub group_id: String,
-    pub node_id: String,
-    pub client_id: Option<String>,
-    pub keep_alive_s: Option<i64>,
-    pub data_period_ms: Option<i64>,
-    pub command_qos: Option<i64>,
-    pub primary_host_id: Option<String>,
-    pub username: Option<String>,
-    pub password: Option<String>,
-    pub replay_batch: Option<i64>,
-    pub replay_period_ms: Option<i64>,
-    pub password_file: Option<String>,
-    pub password_credential: Option<String>,
-    pub tls: Option<RawMqttTls>,
+    pub(crate) broker: String,
+    pub(crate) group_id: String,
+    pub(crate) node_id: String,
+    pub(crate) client_id: Option<String>,
+    pub(crate) keep_alive_s: Option<i64>,
+    pub(crate) data_period_ms: Option<i64>,
+    pub(crate) command_qos: Option<i64>,
+    pub(crate) primary_host_id: Option<String>,
+    pub(crate) username: Option<String>,
+    pub(crate) password: Option<String>,
+    pub(crate) replay_batch: Option<i64>,
+    pub(crate) replay_period_ms: Option<i64>,
+    pub(crate) password_file: Option<String>,
+    pub(crate) password_credential: Option<String>,
+    pub(crate) tls: Option<RawMqttTls>,
 }
 
 /// `[outputs.mqtt.tls]`: TLS to the broker.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawMqttTls {
-    pub ca_file: String,
-    pub cert_file: Option<String>,
-    pub key_file: Option<String>,
+    pub(crate) ca_file: String,
+    pub(crate) cert_file: Option<String>,
+    pub(crate) key_file: Option<String>,
 }
 
 /// `[history]`: the event history file.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawHistory {
-    pub path: String,
-    pub retention_days: Option<i64>,
-    pub max_size_mb: Option<i64>,
-    pub captures: Option<bool>,
-    pub captures_max_mb: Option<i64>,
-    pub captures_thin_after_days: Option<i64>,
-    pub captures_keep_every: Option<i64>,
-    pub synchronous: Option<String>,
+    pub(crate) path: String,
+    pub(crate) retention_days: Option<i64>,
+    pub(crate) max_size_mb: Option<i64>,
+    pub(crate) captures: Option<bool>,
+    pub(crate) captures_max_mb: Option<i64>,
+    pub(crate) captures_thin_after_days: Option<i64>,
+    pub(crate) captures_keep_every: Option<i64>,
+    pub(crate) synchronous: Option<String>,
 }
 
 /// The whole document after the schema pass. List elements that failed to
 /// deserialize are absent, but then validation does not run (see [`crate::parse`]).
 #[derive(Debug, Default)]
 pub(crate) struct RawConfig {
-    pub name: String,
-    pub cache_dir: Option<String>,
-    pub modbus_sources: Vec<RawModbusSource>,
-    pub can_sources: Vec<RawCanSource>,
-    pub channels: Vec<RawChannel>,
-    pub drivelines: Vec<RawDriveline>,
-    pub tandem_mills: Vec<RawTandemMill>,
-    pub rod_mills: Vec<RawRodMill>,
-    pub outputs: RawOutputs,
-    pub history: Option<RawHistory>,
+    pub(crate) name: String,
+    pub(crate) cache_dir: Option<String>,
+    pub(crate) modbus_sources: Vec<RawModbusSource>,
+    pub(crate) can_sources: Vec<RawCanSource>,
+    pub(crate) channels: Vec<RawChannel>,
+    pub(crate) drivelines: Vec<RawDriveline>,
+    pub(crate) tandem_mills: Vec<RawTandemMill>,
+    pub(crate) rod_mills: Vec<RawRodMill>,
+    pub(crate) outputs: RawOutputs,
+    pub(crate) history: Option<RawHistory>,
 }

@@ -13,10 +13,10 @@ use std::fmt;
 use std::time::Duration;
 
 /// Above this rate the inter-frame silence is a fixed [`FIXED_INTER_FRAME_DELAY`].
-pub const FIXED_DELAY_ABOVE_BAUD: u32 = 19_200;
+pub(crate) const FIXED_DELAY_ABOVE_BAUD: u32 = 19_200;
 
 /// The inter-frame silence above [`FIXED_DELAY_ABOVE_BAUD`]: 1.75 ms.
-pub const FIXED_INTER_FRAME_DELAY: Duration = Duration::from_micros(1750);
+pub(crate) const FIXED_INTER_FRAME_DELAY: Duration = Duration::from_micros(1750);
 
 /// Bytes of a read request (FC 03 or 04): unit, function, address (2), count (2), CRC (2).
 pub const READ_REQUEST_BYTES: u32 = 8;
@@ -40,10 +40,10 @@ pub enum Parity {
 
 impl Parity {
     /// Every parity, in the order the documentation lists them.
-    pub const ALL: [Parity; 3] = [Parity::None, Parity::Even, Parity::Odd];
+    pub(crate) const ALL: [Parity; 3] = [Parity::None, Parity::Even, Parity::Odd];
 
     /// The spelling in configuration files: `none`, `even`, `odd`.
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             Parity::None => "none",
             Parity::Even => "even",
@@ -73,13 +73,13 @@ pub struct SerialLine {
     /// Stop bits per character, 1 or 2.
     pub stop_bits: u8,
     /// Silence kept between the end of one frame and the start of the next: at least
-    /// [`SerialLine::min_inter_frame_delay`].
+    /// `SerialLine::min_inter_frame_delay`.
     pub inter_frame_delay: Duration,
 }
 
 impl SerialLine {
     /// Bits of one character on the line: start, data, parity, stop.
-    pub fn character_bits(&self) -> u32 {
+    pub(crate) fn character_bits(&self) -> u32 {
         character_bits(self.parity, self.data_bits, self.stop_bits)
     }
 
@@ -109,7 +109,7 @@ impl SerialLine {
 
     /// The specification's shortest inter-frame silence at `baud_rate` for characters
     /// of `character_bits` bits: 3.5 character times, 1.75 ms above 19 200 Bd.
-    pub fn min_inter_frame_delay(baud_rate: u32, character_bits: u32) -> Duration {
+    pub(crate) fn min_inter_frame_delay(baud_rate: u32, character_bits: u32) -> Duration {
         if baud_rate > FIXED_DELAY_ABOVE_BAUD {
             FIXED_INTER_FRAME_DELAY
         } else {
@@ -120,25 +120,25 @@ impl SerialLine {
 
 /// Bits of one character: a start bit, `data_bits`, a parity bit unless none,
 /// `stop_bits`.
-pub fn character_bits(parity: Parity, data_bits: u8, stop_bits: u8) -> u32 {
+pub(crate) fn character_bits(parity: Parity, data_bits: u8, stop_bits: u8) -> u32 {
     1 + u32::from(data_bits) + u32::from(parity != Parity::None) + u32::from(stop_bits)
 }
 
 /// What one poll of an RTU source asks of its line: the reads (registers each), at
 /// the line's character format and silences, repeated every poll period.
 #[derive(Debug, Clone, PartialEq)]
-pub struct PollLoad {
+pub(crate) struct PollLoad {
     /// The line.
-    pub line: SerialLine,
+    pub(crate) line: SerialLine,
     /// Registers of each read of one poll (a block channel reads the whole block).
-    pub reads: Vec<u16>,
+    pub(crate) reads: Vec<u16>,
     /// Time between polls.
-    pub poll_period: Duration,
+    pub(crate) poll_period: Duration,
 }
 
 impl PollLoad {
     /// Bytes of one poll's frames: each read's request and response.
-    pub fn frame_bytes(&self) -> u32 {
+    pub(crate) fn frame_bytes(&self) -> u32 {
         self.reads
             .iter()
             .map(|&registers| READ_REQUEST_BYTES + read_response_bytes(registers))
@@ -146,38 +146,38 @@ impl PollLoad {
     }
 
     /// Silences of one poll: one after each request and after each response.
-    pub fn silences(&self) -> u32 {
+    pub(crate) fn silences(&self) -> u32 {
         2 * self.reads.len() as u32
     }
 
     /// One silence in bit times (fractional: 4.0104 ms at 9600 Bd is 38.5 bits).
-    pub fn silence_bits(&self) -> f64 {
+    pub(crate) fn silence_bits(&self) -> f64 {
         self.line.inter_frame_delay.as_secs_f64() * f64::from(self.line.baud_rate)
     }
 
     /// Bit times one poll holds the line: frames plus silences.
-    pub fn bits_per_poll(&self) -> f64 {
+    pub(crate) fn bits_per_poll(&self) -> f64 {
         f64::from(self.frame_bytes() * self.line.character_bits())
             + f64::from(self.silences()) * self.silence_bits()
     }
 
     /// Polls per second.
-    pub fn polls_per_second(&self) -> f64 {
+    pub(crate) fn polls_per_second(&self) -> f64 {
         1.0 / self.poll_period.as_secs_f64()
     }
 
     /// Bit times per second the plan needs; the line carries `baud_rate`.
-    pub fn bits_per_second(&self) -> f64 {
+    pub(crate) fn bits_per_second(&self) -> f64 {
         self.bits_per_poll() * self.polls_per_second()
     }
 
     /// Whether the line can carry the plan.
-    pub fn fits(&self) -> bool {
+    pub(crate) fn fits(&self) -> bool {
         self.bits_per_second() <= f64::from(self.line.baud_rate)
     }
 
     /// Time one poll holds the line: the shortest poll period the line allows.
-    pub fn poll_time(&self) -> Duration {
+    pub(crate) fn poll_time(&self) -> Duration {
         Duration::from_secs_f64(self.bits_per_poll() / f64::from(self.line.baud_rate))
     }
 }

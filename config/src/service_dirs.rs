@@ -42,7 +42,7 @@ pub const CREDENTIALS_DIRECTORY: &str = "CREDENTIALS_DIRECTORY";
 
 impl ServiceDirs {
     /// The folders from this process's environment.
-    pub fn from_env() -> Self {
+    pub(crate) fn from_env() -> Self {
         Self::from_vars(|name| std::env::var_os(name))
     }
 

@@ -38,9 +38,9 @@ pub struct SignalLayout {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct FrameTooShort {
     /// Bytes the signal needs, counted from the start of the frame.
-    pub needed: usize,
+    pub(crate) needed: usize,
     /// Bytes the buffer has.
-    pub len: usize,
+    pub(crate) len: usize,
 }
 
 impl fmt::Display for FrameTooShort {
@@ -108,7 +108,7 @@ impl SignalLayout {
     /// Reads the signal's raw bits (not sign-extended, not scaled), right-aligned.
     ///
     /// `None` when `data` is too short or `size` is outside 1..=64.
-    pub fn decode_raw(&self, data: &[u8]) -> Option<u64> {
+    pub(crate) fn decode_raw(&self, data: &[u8]) -> Option<u64> {
         let window = self.window()?;
         let bytes = data.get(window.first_byte..window.first_byte + window.byte_count)?;
         let word = self.read_window(bytes);

@@ -3,7 +3,7 @@
 use std::fmt::Write as _;
 
 use crate::layout::BLOCK_REGISTERS;
-use crate::{ChannelSource, Config};
+use crate::{ChannelSource, Config, OpcUaOutput, Outputs};
 
 /// Lists sources, channels (with where each comes from), drivelines, tandem mills
 /// and outputs, one item per line under a heading per section.
@@ -23,7 +23,18 @@ pub fn summary(config: &Config) -> String {
     let mut text = String::new();
     // Writing to a String cannot fail; the results are ignored on purpose.
     let _ = writeln!(text, "{}", config.name);
+    sources(&mut text, config);
+    channels(&mut text, config);
+    drivelines(&mut text, config);
+    tandem_mills(&mut text, config);
+    rod_mills(&mut text, config);
+    outputs(&mut text, &config.outputs);
+    history(&mut text, config);
+    text
+}
 
+/// The Modbus and CAN sources, one a line.
+fn sources(text: &mut String, config: &Config) {
     let source_count = config.modbus_sources.len() + config.can_sources.len();
     let _ = writeln!(text, "Sources ({source_count}):");
     for source in &config.modbus_sources {
@@ -55,54 +66,14 @@ pub fn summary(config: &Config) -> String {
             source.dbc.display()
         );
     }
-    none_if_empty(&mut text, source_count);
+    none_if_empty(text, source_count);
+}
 
+/// The channels, one a line, with where each comes from.
+fn channels(text: &mut String, config: &Config) {
     let _ = writeln!(text, "Channels ({}):", config.channels.len());
     for channel in &config.channels {
-        let origin = match &channel.source {
-            ChannelSource::ModbusBlock {
-                source,
-                table,
-                base,
-            } => format!(
-                "{} {} registers {}..={} (sample block)",
-                config.modbus_sources[*source].name,
-                table.name(),
-                base,
-                u32::from(*base) + u32::from(BLOCK_REGISTERS) - 1
-            ),
-            ChannelSource::ModbusValue {
-                source,
-                table,
-                address,
-                value_type,
-                word_order,
-            } => format!(
-                "{} {} register {} ({} {})",
-                config.modbus_sources[*source].name,
-                table.name(),
-                address,
-                value_type.name(),
-                word_order.name()
-            ),
-            ChannelSource::Can {
-                source,
-                message,
-                signal,
-                signal_layout,
-            } => format!(
-                "{} {} {} (id {:#x}{})",
-                config.can_sources[*source].name,
-                message,
-                signal,
-                signal_layout.frame_id,
-                if signal_layout.extended {
-                    ", extended"
-                } else {
-                    ""
-                }
-            ),
-        };
+        let origin = channel_origin(config, &channel.source);
         let _ = writeln!(
             text,
             "  {}: {} [{}] at {} Hz, value = raw * {} + {}, from {}",
@@ -115,8 +86,59 @@ pub fn summary(config: &Config) -> String {
             origin
         );
     }
-    none_if_empty(&mut text, config.channels.len());
+    none_if_empty(text, config.channels.len());
+}
 
+/// Where a channel's values come from: the source, and the register, block or signal.
+fn channel_origin(config: &Config, source: &ChannelSource) -> String {
+    match source {
+        ChannelSource::ModbusBlock {
+            source,
+            table,
+            base,
+        } => format!(
+            "{} {} registers {}..={} (sample block)",
+            config.modbus_sources[*source].name,
+            table.name(),
+            base,
+            u32::from(*base) + u32::from(BLOCK_REGISTERS) - 1
+        ),
+        ChannelSource::ModbusValue {
+            source,
+            table,
+            address,
+            value_type,
+            word_order,
+        } => format!(
+            "{} {} register {} ({} {})",
+            config.modbus_sources[*source].name,
+            table.name(),
+            address,
+            value_type.name(),
+            word_order.name()
+        ),
+        ChannelSource::Can {
+            source,
+            message,
+            signal,
+            signal_layout,
+        } => format!(
+            "{} {} {} (id {:#x}{})",
+            config.can_sources[*source].name,
+            message,
+            signal,
+            signal_layout.frame_id,
+            if signal_layout.extended {
+                ", extended"
+            } else {
+                ""
+            }
+        ),
+    }
+}
+
+/// The drivelines, one a line: torque, bite detection, thresholds, model.
+fn drivelines(text: &mut String, config: &Config) {
     let _ = writeln!(text, "Drivelines ({}):", config.drivelines.len());
     for driveline in &config.drivelines {
         let trigger = match driveline.metal_in_stand {
@@ -148,8 +170,11 @@ pub fn summary(config: &Config) -> String {
         }
         text.push('\n');
     }
-    none_if_empty(&mut text, config.drivelines.len());
+    none_if_empty(text, config.drivelines.len());
+}
 
+/// The tandem mills, two lines each: stands and band, then the alarm.
+fn tandem_mills(text: &mut String, config: &Config) {
     let _ = writeln!(text, "Tandem mills ({}):", config.tandem_mills.len());
     for mill in &config.tandem_mills {
         let stands: Vec<_> = mill
@@ -184,8 +209,11 @@ pub fn summary(config: &Config) -> String {
             mill.slow_down_release, mill.slow_down_hold_s
         );
     }
-    none_if_empty(&mut text, config.tandem_mills.len());
+    none_if_empty(text, config.tandem_mills.len());
+}
 
+/// The rod mills, one a line (the heading only when there is one).
+fn rod_mills(text: &mut String, config: &Config) {
     // Listed only when present, so summaries of other mills stay as they were.
     if !config.rod_mills.is_empty() {
         let _ = writeln!(text, "Rod mills ({}):", config.rod_mills.len());
@@ -209,8 +237,10 @@ pub fn summary(config: &Config) -> String {
             mill.hysteresis_m_s
         );
     }
+}
 
-    let outputs = &config.outputs;
+/// The outputs configured, one a line.
+fn outputs(text: &mut String, outputs: &Outputs) {
     let output_count = usize::from(outputs.plc.is_some())
         + usize::from(outputs.server.is_some())
         + usize::from(outputs.metrics.is_some())
@@ -218,6 +248,15 @@ pub fn summary(config: &Config) -> String {
         + usize::from(outputs.web.is_some())
         + usize::from(outputs.opcua.is_some());
     let _ = writeln!(text, "Outputs ({output_count}):");
+    plc_and_servers(text, outputs);
+    if let Some(opcua) = &outputs.opcua {
+        opcua_line(text, opcua);
+    }
+    none_if_empty(text, output_count);
+}
+
+/// The PLC, the Modbus server, `/metrics`, the maintenance page and Sparkplug B.
+fn plc_and_servers(text: &mut String, outputs: &Outputs) {
     if let Some(plc) = &outputs.plc {
         let _ = writeln!(
             text,
@@ -276,35 +315,40 @@ pub fn summary(config: &Config) -> String {
             mqtt.keep_alive.as_secs()
         );
     }
-    if let Some(opcua) = &outputs.opcua {
-        let modes: Vec<_> = opcua.security_modes.iter().map(|m| m.name()).collect();
-        let _ = writeln!(
-            text,
-            "  OPC UA server: {} (listen on {}), security {}, {}{} user(s), at most {} \
-             connections, {} sessions, {} subscriptions per session, {} monitored items per \
-             subscription; certificates in {}; acknowledge from {}",
-            opcua.endpoint_url(),
-            opcua.bind,
-            modes.join(", "),
-            if opcua.anonymous {
-                "anonymous and "
-            } else {
-                ""
-            },
-            opcua.users.len(),
-            opcua.max_connections,
-            opcua.max_sessions,
-            opcua.max_subscriptions_per_session,
-            opcua.max_monitored_items_per_subscription,
-            opcua.pki_dir.display(),
-            if opcua.allow_remote_commands {
-                "loopback clients and signed-in users on any host"
-            } else {
-                "loopback clients only"
-            }
-        );
-    }
-    none_if_empty(&mut text, output_count);
+}
+
+/// The OPC UA server: endpoint, security, users, limits, certificates, commands.
+fn opcua_line(text: &mut String, opcua: &OpcUaOutput) {
+    let modes: Vec<_> = opcua.security_modes.iter().map(|m| m.name()).collect();
+    let _ = writeln!(
+        text,
+        "  OPC UA server: {} (listen on {}), security {}, {}{} user(s), at most {} \
+         connections, {} sessions, {} subscriptions per session, {} monitored items per \
+         subscription; certificates in {}; acknowledge from {}",
+        opcua.endpoint_url(),
+        opcua.bind,
+        modes.join(", "),
+        if opcua.anonymous {
+            "anonymous and "
+        } else {
+            ""
+        },
+        opcua.users.len(),
+        opcua.max_connections,
+        opcua.max_sessions,
+        opcua.max_subscriptions_per_session,
+        opcua.max_monitored_items_per_subscription,
+        opcua.pki_dir.display(),
+        if opcua.allow_remote_commands {
+            "loopback clients and signed-in users on any host"
+        } else {
+            "loopback clients only"
+        }
+    );
+}
+
+/// The history file (or none) and the cache folder.
+fn history(text: &mut String, config: &Config) {
     match &config.history {
         Some(history) => {
             let _ = writeln!(
@@ -320,7 +364,6 @@ pub fn summary(config: &Config) -> String {
     if let Some(cache) = &config.cache_dir {
         let _ = writeln!(text, "Cache: {}", cache.display());
     }
-    text
 }
 
 fn none_if_empty(text: &mut String, count: usize) {

@@ -23,11 +23,11 @@ pub struct TlsMaterial {
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct TlsFileError {
     /// The key under `[outputs.mqtt.tls]`.
-    pub key: &'static str,
+    pub(crate) key: &'static str,
     /// The file, as resolved against the configuration file's folder.
-    pub path: PathBuf,
+    pub(crate) path: PathBuf,
     /// Why, one line.
-    pub why: String,
+    pub(crate) why: String,
 }
 
 impl fmt::Display for TlsFileError {

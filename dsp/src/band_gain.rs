@@ -151,7 +151,7 @@ pub struct BandGainWindow {
     /// Chatter-band RMS per stand (input units).
     pub band_rms: Vec<f64, MAX_STANDS>,
     /// Reference-band RMS per stand (input units).
-    pub reference_rms: Vec<f64, MAX_STANDS>,
+    pub(crate) reference_rms: Vec<f64, MAX_STANDS>,
     /// Chatter-band RMS / reference-band RMS per stand (0 when the reference is 0).
     pub gain: Vec<f64, MAX_STANDS>,
 }
@@ -193,11 +193,6 @@ impl BandGain {
             chatter,
             reference,
         })
-    }
-
-    /// The validated settings.
-    pub fn settings(&self) -> &BandGainSettings {
-        &self.settings
     }
 
     /// A fresh state.

@@ -134,6 +134,20 @@ pub struct BiteDetector<const PRE: usize, const N: usize> {
     settings: BiteSettings,
 }
 
+/// One input sample as the detector sees it.
+#[derive(Clone, Copy, Debug)]
+struct Sample {
+    /// Its index since the state was created.
+    index: u64,
+    torque_knm: f64,
+    finite: bool,
+    /// Finite and not saturated.
+    usable: bool,
+    /// The value kept in the history and window (the last stored one for a
+    /// non-finite sample).
+    stored: f64,
+}
+
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Phase {
     Armed,
@@ -314,6 +328,27 @@ impl<const PRE: usize, const N: usize> BiteDetector<PRE, N> {
         state: &mut BiteDetectorState<PRE, N>,
         torque_knm: f64,
     ) -> Option<BiteEvent<N>> {
+        let sample = self.classify(state, torque_knm);
+        match state.phase {
+            Phase::Armed => self.armed(state, sample),
+            Phase::Capturing => {
+                // The capacity check in `new` guarantees room; a full window hands back.
+                if state.window.push(sample.stored).is_err() {
+                    return Some(self.finish(state));
+                }
+                self.maybe_finish(state)
+            }
+            Phase::Dead => {
+                self.dead(state, sample);
+                None
+            }
+        }
+    }
+
+    /// Counts the sample, flags it (non-finite, saturated), sets the first baseline
+    /// from it when usable, and chooses the value stored for it.
+    #[inline]
+    fn classify(&self, state: &mut BiteDetectorState<PRE, N>, torque_knm: f64) -> Sample {
         let index = state.sample_index;
         state.sample_index = index.wrapping_add(1);
         let finite = torque_knm.is_finite();
@@ -340,76 +375,86 @@ impl<const PRE: usize, const N: usize> BiteDetector<PRE, N> {
             state.last_stored_knm
         };
         state.last_stored_knm = stored;
+        Sample {
+            index,
+            torque_knm,
+            finite,
+            usable,
+            stored,
+        }
+    }
 
-        match state.phase {
-            Phase::Armed => {
-                let above = finite
-                    && state.baseline_valid
-                    && torque_knm - state.baseline_knm >= self.settings.threshold_knm;
-                if state.resync_remaining > 0 {
-                    // After a gap: only a whole pre-trigger of usable samples below the
-                    // threshold, in a row, makes the next rise an onset.
-                    state.resync_remaining = if usable && !above {
-                        state.resync_remaining - 1
-                    } else {
-                        PRE.max(1) as u32
-                    };
-                    if above {
-                        state.history.clear();
-                        return None;
-                    }
-                }
-                let rise = above;
-                if rise || state.external_pending {
-                    self.start(state, index, stored, rise);
-                    return self.maybe_finish(state);
-                }
-                if usable {
-                    if state.baseline_knm - torque_knm >= self.settings.threshold_knm {
-                        // A fall below the baseline by a whole threshold: the baseline
-                        // was a loaded level (start mid-bar), not the zero. Zero drift is
-                        // far slower than that, so take the new level at once and track
-                        // fast for one slow time constant while the torque settles.
-                        state.baseline_knm = torque_knm;
-                        state.fast_baseline_remaining = self.fast_baseline_samples();
-                    } else {
-                        let alpha = if state.fast_baseline_remaining > 0 {
-                            state.fast_baseline_remaining -= 1;
-                            libm::fmin(1.0, FAST_BASELINE_FACTOR * self.settings.baseline_alpha)
-                        } else {
-                            self.settings.baseline_alpha
-                        };
-                        state.baseline_knm += alpha * (torque_knm - state.baseline_knm);
-                    }
-                }
-                if state.history.is_empty() {
-                    state.window_start = index;
-                } else if state.history.is_full() {
-                    state.window_start = state.window_start.wrapping_add(1);
-                }
-                state.history.write(stored);
-                None
+    /// Armed: a rise by the threshold (or a pending external trigger) starts a
+    /// capture; otherwise the baseline follows a usable sample and the pre-trigger
+    /// history keeps it.
+    #[inline]
+    fn armed(&self, state: &mut BiteDetectorState<PRE, N>, sample: Sample) -> Option<BiteEvent<N>> {
+        let above = sample.finite
+            && state.baseline_valid
+            && sample.torque_knm - state.baseline_knm >= self.settings.threshold_knm;
+        if state.resync_remaining > 0 {
+            // After a gap: only a whole pre-trigger of usable samples below the
+            // threshold, in a row, makes the next rise an onset.
+            state.resync_remaining = if sample.usable && !above {
+                state.resync_remaining - 1
+            } else {
+                PRE.max(1) as u32
+            };
+            if above {
+                state.history.clear();
+                return None;
             }
-            Phase::Capturing => {
-                // The capacity check in `new` guarantees room; a full window hands back.
-                if state.window.push(stored).is_err() {
-                    return Some(self.finish(state));
-                }
-                self.maybe_finish(state)
-            }
-            Phase::Dead => {
-                state.dead_remaining = state.dead_remaining.saturating_sub(1);
-                if state.dead_remaining == 0
-                    && usable
-                    && libm::fabs(torque_knm - state.baseline_knm) <= self.settings.rearm_knm
-                {
-                    state.phase = Phase::Armed;
-                    state.history.clear();
-                    state.history.write(stored);
-                    state.window_start = index;
-                }
-                None
-            }
+        }
+        if above || state.external_pending {
+            self.start(state, sample.index, sample.stored, above);
+            return self.maybe_finish(state);
+        }
+        if sample.usable {
+            self.track_baseline(state, sample.torque_knm);
+        }
+        if state.history.is_empty() {
+            state.window_start = sample.index;
+        } else if state.history.is_full() {
+            state.window_start = state.window_start.wrapping_add(1);
+        }
+        state.history.write(sample.stored);
+        None
+    }
+
+    /// Moves the baseline towards a usable idle sample `torque_knm`.
+    #[inline]
+    fn track_baseline(&self, state: &mut BiteDetectorState<PRE, N>, torque_knm: f64) {
+        if state.baseline_knm - torque_knm >= self.settings.threshold_knm {
+            // A fall below the baseline by a whole threshold: the baseline was a
+            // loaded level (start mid-bar), not the zero. Zero drift is far slower
+            // than that, so take the new level at once and track fast for one slow
+            // time constant while the torque settles.
+            state.baseline_knm = torque_knm;
+            state.fast_baseline_remaining = self.fast_baseline_samples();
+        } else {
+            let alpha = if state.fast_baseline_remaining > 0 {
+                state.fast_baseline_remaining -= 1;
+                libm::fmin(1.0, FAST_BASELINE_FACTOR * self.settings.baseline_alpha)
+            } else {
+                self.settings.baseline_alpha
+            };
+            state.baseline_knm += alpha * (torque_knm - state.baseline_knm);
+        }
+    }
+
+    /// Dead time after a capture: re-armed once it is over and a usable sample is back
+    /// near the baseline.
+    #[inline]
+    fn dead(&self, state: &mut BiteDetectorState<PRE, N>, sample: Sample) {
+        state.dead_remaining = state.dead_remaining.saturating_sub(1);
+        if state.dead_remaining == 0
+            && sample.usable
+            && libm::fabs(sample.torque_knm - state.baseline_knm) <= self.settings.rearm_knm
+        {
+            state.phase = Phase::Armed;
+            state.history.clear();
+            state.history.write(sample.stored);
+            state.window_start = sample.index;
         }
     }
 

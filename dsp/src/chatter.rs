@@ -146,11 +146,6 @@ impl ChatterDetector {
         Ok(Self { settings })
     }
 
-    /// The validated settings.
-    pub fn settings(&self) -> &ChatterSettings {
-        &self.settings
-    }
-
     /// Metrics of one window over `stands` (2..=8, adjacent in rolling order).
     ///
     /// `frequency_step_hz` is the bin spacing of the spectra (sample rate / FFT length).
@@ -250,7 +245,7 @@ impl ChatterDetector {
 /// Pearson correlation of two equally long finite signals; 0 if either is constant.
 ///
 /// Each signal is scaled by its peak magnitude first, so huge values do not overflow.
-pub fn pearson(x: &[f64], y: &[f64]) -> f64 {
+pub(crate) fn pearson(x: &[f64], y: &[f64]) -> f64 {
     let n = x.len().min(y.len());
     if n < 2 {
         return 0.0;

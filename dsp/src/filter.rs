@@ -1,7 +1,7 @@
 //! Biquad (second-order IIR) sections and cascades: Butterworth low- and high-pass by
 //! the bilinear transform with the cutoff prewarped, so the -3 dB point is exact.
 //!
-//! Coefficients ([`Biquad`], [`Cascade`]) are built once and shared; the state
+//! Coefficients (`Biquad`, [`Cascade`]) are built once and shared; the state
 //! ([`BiquadState`], one per section) is what the hot path mutates. Direct form I:
 //! `y = b0 x + b1 x1 + b2 x2 - a1 y1 - a2 y2`.
 
@@ -32,7 +32,7 @@ impl core::error::Error for FilterError {}
 
 /// Coefficients of one second-order section (a0 normalised to 1).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Biquad {
+pub(crate) struct Biquad {
     b0: f64,
     b1: f64,
     b2: f64,
@@ -40,7 +40,7 @@ pub struct Biquad {
     a2: f64,
 }
 
-/// State of one [`Biquad`]: the last two inputs and outputs.
+/// State of one `Biquad`: the last two inputs and outputs.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct BiquadState {
     x1: f64,
@@ -51,14 +51,18 @@ pub struct BiquadState {
 
 /// Quality factor of section `k` (0-based) of a Butterworth filter of order
 /// `2 * sections`: `1 / (2 cos((2k + 1) pi / (4 sections)))`.
-pub fn butterworth_q(sections: usize, k: usize) -> f64 {
+pub(crate) fn butterworth_q(sections: usize, k: usize) -> f64 {
     let angle = (2 * k + 1) as f64 * PI / (4 * sections.max(1)) as f64;
     0.5 / libm::cos(angle)
 }
 
 impl Biquad {
     /// Low-pass with -3 dB at `cutoff_hz` for `q = 1 / sqrt(2)` (Butterworth section).
-    pub fn lowpass(cutoff_hz: f64, sample_rate_hz: f64, q: f64) -> Result<Self, FilterError> {
+    pub(crate) fn lowpass(
+        cutoff_hz: f64,
+        sample_rate_hz: f64,
+        q: f64,
+    ) -> Result<Self, FilterError> {
         let k = prewarp(cutoff_hz, sample_rate_hz, q)?;
         let norm = 1.0 / (1.0 + k / q + k * k);
         let b0 = k * k * norm;
@@ -72,7 +76,11 @@ impl Biquad {
     }
 
     /// High-pass with -3 dB at `cutoff_hz` for `q = 1 / sqrt(2)` (Butterworth section).
-    pub fn highpass(cutoff_hz: f64, sample_rate_hz: f64, q: f64) -> Result<Self, FilterError> {
+    pub(crate) fn highpass(
+        cutoff_hz: f64,
+        sample_rate_hz: f64,
+        q: f64,
+    ) -> Result<Self, FilterError> {
         let k = prewarp(cutoff_hz, sample_rate_hz, q)?;
         let norm = 1.0 / (1.0 + k / q + k * k);
         Ok(Self {
@@ -86,7 +94,7 @@ impl Biquad {
 
     /// One output sample.
     #[inline]
-    pub fn process(&self, state: &mut BiquadState, x: f64) -> f64 {
+    pub(crate) fn process(&self, state: &mut BiquadState, x: f64) -> f64 {
         let y = self.b0 * x + self.b1 * state.x1 + self.b2 * state.x2
             - self.a1 * state.y1
             - self.a2 * state.y2;
@@ -99,7 +107,7 @@ impl Biquad {
 
     /// Zero-phase filtering in place: forward, then backward, each pass started in the
     /// steady state of its first sample (no start-up transient; unit DC gain kept).
-    pub fn filtfilt(&self, data: &mut [f64]) {
+    pub(crate) fn filtfilt(&self, data: &mut [f64]) {
         let pass = |samples: &mut dyn Iterator<Item = &mut f64>| {
             let mut state = None;
             for sample in samples {
@@ -113,7 +121,7 @@ impl Biquad {
 
     /// The state of a filter that has seen the constant `x` forever (no start-up
     /// transient for a signal starting at `x`).
-    pub fn settled(&self, x: f64) -> BiquadState {
+    pub(crate) fn settled(&self, x: f64) -> BiquadState {
         let gain = (self.b0 + self.b1 + self.b2) / (1.0 + self.a1 + self.a2);
         BiquadState {
             x1: x,
@@ -154,17 +162,15 @@ impl<const N: usize> Cascade<N> {
     }
 
     /// Butterworth high-pass of order `2 N`, -3 dB at `cutoff_hz`.
-    pub fn butterworth_highpass(cutoff_hz: f64, sample_rate_hz: f64) -> Result<Self, FilterError> {
+    pub(crate) fn butterworth_highpass(
+        cutoff_hz: f64,
+        sample_rate_hz: f64,
+    ) -> Result<Self, FilterError> {
         let mut sections = [Biquad::highpass(cutoff_hz, sample_rate_hz, 0.5)?; N];
         for (k, section) in sections.iter_mut().enumerate() {
             *section = Biquad::highpass(cutoff_hz, sample_rate_hz, butterworth_q(N, k))?;
         }
         Ok(Self { sections })
-    }
-
-    /// The sections, in order.
-    pub fn sections(&self) -> &[Biquad; N] {
-        &self.sections
     }
 
     /// One output sample through every section.

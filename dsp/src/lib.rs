@@ -10,6 +10,7 @@ pub mod fit;
 mod linalg;
 pub mod mathieu;
 pub mod mode_damping;
+pub mod noise;
 pub mod pencil;
 pub mod stiffness;
 pub mod testing;

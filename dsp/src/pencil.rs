@@ -15,7 +15,7 @@
 //! decay = -ln|z| / dt, frequency = arg(z) / (2 pi dt).
 
 use heapless::Vec;
-use nalgebra::SMatrix;
+use nalgebra::{Complex, SMatrix};
 
 use crate::linalg::{general_eigenvalues, peak_magnitude, symmetric_eigen};
 
@@ -81,6 +81,18 @@ pub fn poles(
     sample_rate_hz: f64,
     decimation: usize,
 ) -> Result<Vec<Pole, MODEL_ORDER>, PencilError> {
+    let scale = check(samples, sample_rate_hz, decimation)?;
+    let gram = hankel_gram(samples, decimation, 1.0 / scale / decimation as f64);
+    let eigenvalues = shift_eigenvalues(gram)?;
+    Ok(continuous_poles(
+        &eigenvalues,
+        decimation as f64 / sample_rate_hz,
+    ))
+}
+
+/// Checks the rate, the decimation and the record (long enough, finite, not all zero);
+/// its peak magnitude.
+fn check(samples: &[f64], sample_rate_hz: f64, decimation: usize) -> Result<f64, PencilError> {
     if !(sample_rate_hz.is_finite() && sample_rate_hz > 0.0) {
         return Err(PencilError::SampleRateHz);
     }
@@ -97,13 +109,21 @@ pub fn poles(
     if scale == 0.0 {
         return Err(PencilError::Flat);
     }
-    let inverse_scale = 1.0 / scale / decimation as f64;
+    Ok(scale)
+}
 
-    // Gram matrix Y^T Y of the Hankel matrix Y (rows: windows of PENCIL_COLUMNS
-    // consecutive decimated samples x[r..r + C], r = 0..R). It is Toeplitz up to end
-    // corrections, G[i + 1][j + 1] = G[i][j] - x[i] x[j] + x[R + i] x[R + j], so only its
-    // first row is summed over the record (C products per sample, not C (C + 1) / 2)
-    // and the rest follows from the first and last C samples.
+/// Gram matrix Y^T Y of the Hankel matrix Y of the record decimated by `decimation`
+/// (block sums times `inverse_scale`); rows of Y: windows of PENCIL_COLUMNS consecutive
+/// decimated samples x[r..r + C], r = 0..R.
+///
+/// It is Toeplitz up to end corrections, G[i + 1][j + 1] = G[i][j] - x[i] x[j] +
+/// x[R + i] x[R + j], so only its first row is summed over the record (C products per
+/// sample, not C (C + 1) / 2) and the rest follows from the first and last C samples.
+fn hankel_gram(
+    samples: &[f64],
+    decimation: usize,
+    inverse_scale: f64,
+) -> SMatrix<f64, PENCIL_COLUMNS, PENCIL_COLUMNS> {
     let mut first_row = [0.0_f64; PENCIL_COLUMNS];
     let mut head = [0.0_f64; PENCIL_COLUMNS];
     // Ring of the last C samples, stored twice so a window is one contiguous slice.
@@ -143,6 +163,14 @@ pub fn poles(
             gram[(i, j)] = gram[(j, i)];
         }
     }
+    gram
+}
+
+/// The discrete poles: eigenvalues of the shift-invariance operator of the signal
+/// subspace (the eigenvectors of the MODEL_ORDER largest eigenvalues of `gram`).
+fn shift_eigenvalues(
+    gram: SMatrix<f64, PENCIL_COLUMNS, PENCIL_COLUMNS>,
+) -> Result<[Complex<f64>; MODEL_ORDER], PencilError> {
     // Eigenvectors of Y^T Y = right singular vectors of Y; eigenvalues = sigma^2.
     let (values, vectors) = symmetric_eigen(gram.into()).ok_or(PencilError::Decomposition)?;
     if values.iter().any(|s| !s.is_finite()) {
@@ -168,10 +196,13 @@ pub fn poles(
     if psi.iter().any(|v| !v.is_finite()) {
         return Err(PencilError::Decomposition);
     }
-    let eigenvalues =
-        general_eigenvalues(psi.transpose().into()).ok_or(PencilError::Decomposition)?;
+    general_eigenvalues(psi.transpose().into()).ok_or(PencilError::Decomposition)
+}
 
-    let dt = decimation as f64 / sample_rate_hz;
+/// The poles of discrete `eigenvalues` `dt` seconds apart: complex pairs once
+/// (positive frequency), those within 10% of the Nyquist frequency or not finite left
+/// out.
+fn continuous_poles(eigenvalues: &[Complex<f64>], dt: f64) -> Vec<Pole, MODEL_ORDER> {
     let nyquist_hz = 0.5 / dt;
     let mut result = Vec::new();
     for z in eigenvalues.iter() {
@@ -189,7 +220,7 @@ pub fn poles(
             });
         }
     }
-    Ok(result)
+    result
 }
 
 #[cfg(test)]

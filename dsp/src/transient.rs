@@ -379,16 +379,68 @@ pub fn analyze<const N: usize>(
     baseline_knm: f64,
     settings: &TransientSettings,
 ) -> Result<TransientResult, TransientError> {
+    let cutoffs = check_settings(settings)?;
+    check_window::<N>(window, trigger_index, baseline_knm)?;
+    let rate = settings.sample_rate_hz;
+    let mut buffer = [0.0_f64; N];
+    let data = &mut buffer[..window.len()];
+    for (out, &value) in data.iter_mut().zip(window) {
+        *out = value - baseline_knm;
+    }
+    let static_torque_knm = settled_mean(data, settings.settled_fraction, trigger_index);
+    let (peak_offset, peak_torque_knm) = peak_after(data, trigger_index, cutoffs.peak, rate);
+    if !static_torque_knm.is_finite() || !peak_torque_knm.is_finite() {
+        // Samples near f64::MAX overflow the mean or the filter.
+        return Err(TransientError::NonFinite);
+    }
+    let dt = 1.0 / rate;
+    let mut result = TransientResult {
+        static_torque_knm,
+        peak_torque_knm,
+        peak_time_s: peak_offset as f64 * dt,
+        taf: None,
+        rise_time_s: None,
+        first_period_s: None,
+        second_period_s: None,
+        period_shift_s: None,
+        shift_excess_s: None,
+        quality: TransientQuality::LowStatic,
+    };
+    if static_torque_knm < settings.min_static_knm {
+        return Ok(result);
+    }
+    let taf = peak_torque_knm / static_torque_knm;
+    result.taf = taf.is_finite().then_some(taf);
+    let scratch = &mut data[trigger_index..];
+    let (crossings, found) = oscillation_crossings(
+        &window[trigger_index..],
+        baseline_knm,
+        scratch,
+        rate,
+        cutoffs.period,
+    );
+    set_periods(&mut result, crossings, found, settings.reference_shift_s);
+    Ok(result)
+}
+
+/// The checked low-pass cutoffs of the settings, Hz.
+struct Cutoffs {
+    period: f64,
+    peak: Option<f64>,
+}
+
+/// Checks the settings, field by field in their order.
+fn check_settings(settings: &TransientSettings) -> Result<Cutoffs, TransientError> {
     let rate = settings.sample_rate_hz;
     if !(rate.is_finite() && rate > 0.0) {
         return Err(TransientError::SampleRateHz);
     }
-    let period_cutoff = check_cutoff(
+    let period = check_cutoff(
         settings.period_lowpass_hz,
         rate,
         TransientError::PeriodLowpassHz,
     )?;
-    let peak_cutoff = match settings.peak_lowpass_hz {
+    let peak = match settings.peak_lowpass_hz {
         Some(cutoff) => Some(check_cutoff(cutoff, rate, TransientError::PeakLowpassHz)?),
         None => None,
     };
@@ -401,6 +453,15 @@ pub fn analyze<const N: usize>(
     if settings.reference_shift_s.is_some_and(|s| !s.is_finite()) {
         return Err(TransientError::ReferenceShiftS);
     }
+    Ok(Cutoffs { period, peak })
+}
+
+/// Checks the window: at most `N` finite samples, at least 4 from the trigger on.
+fn check_window<const N: usize>(
+    window: &[f64],
+    trigger_index: usize,
+    baseline_knm: f64,
+) -> Result<(), TransientError> {
     if window.len() > N {
         return Err(TransientError::WindowLength);
     }
@@ -413,82 +474,80 @@ pub fn analyze<const N: usize>(
     if !baseline_knm.is_finite() || window.iter().any(|v| !v.is_finite()) {
         return Err(TransientError::NonFinite);
     }
+    Ok(())
+}
 
-    let len = window.len();
-    let mut buffer = [0.0_f64; N];
-    let data = &mut buffer[..len];
-    for (out, &value) in data.iter_mut().zip(window) {
-        *out = value - baseline_knm;
-    }
+/// Static torque: the mean of the settled tail (`settled_fraction` of the window, at
+/// least one sample, none before the trigger).
+fn settled_mean(data: &[f64], settled_fraction: f64, trigger_index: usize) -> f64 {
+    let len = data.len();
+    let tail = ((len as f64 * settled_fraction) as usize).clamp(1, len - trigger_index);
+    data[len - tail..].iter().sum::<f64>() / tail as f64
+}
 
-    // Static torque: mean of the settled tail (raw samples).
-    let tail = ((len as f64 * settings.settled_fraction) as usize).clamp(1, len - trigger_index);
-    let static_torque_knm = data[len - tail..].iter().sum::<f64>() / tail as f64;
-
-    // Peak after the trigger, optionally on the smoothed signal.
-    if let Some(cutoff) = peak_cutoff {
+/// The peak after the trigger (its offset from the trigger and its value), on the
+/// signal low-passed at `cutoff_hz` in place when given.
+fn peak_after(
+    data: &mut [f64],
+    trigger_index: usize,
+    cutoff_hz: Option<f64>,
+    rate: f64,
+) -> (usize, f64) {
+    if let Some(cutoff) = cutoff_hz {
         lowpass_filtfilt(data, cutoff, rate);
     }
-    let (peak_offset, peak_torque_knm) =
-        data[trigger_index..]
-            .iter()
-            .enumerate()
-            .fold((0, f64::NEG_INFINITY), |best, (i, &v)| {
-                if v > best.1 {
-                    (i, v)
-                } else {
-                    best
-                }
-            });
-    if !static_torque_knm.is_finite() || !peak_torque_knm.is_finite() {
-        // Samples near f64::MAX overflow the mean or the filter.
-        return Err(TransientError::NonFinite);
-    }
+    data[trigger_index..]
+        .iter()
+        .enumerate()
+        .fold((0, f64::NEG_INFINITY), |best, (i, &v)| {
+            if v > best.1 {
+                (i, v)
+            } else {
+                best
+            }
+        })
+}
+
+/// Up-crossings of the oscillation about the fitted load-rise trend in `post` (the
+/// window from the trigger on): a first pass on the raw samples gives the period, the
+/// second fits the trend to their one-period moving average, where the oscillation no
+/// longer pulls it.
+fn oscillation_crossings(
+    post: &[f64],
+    baseline_knm: f64,
+    scratch: &mut [f64],
+    rate: f64,
+    cutoff_hz: f64,
+) -> ([f64; 3], usize) {
     let dt = 1.0 / rate;
-    let peak_time_s = peak_offset as f64 * dt;
-
-    let finite_or_none = |v: f64| if v.is_finite() { Some(v) } else { None };
-    let mut result = TransientResult {
-        static_torque_knm,
-        peak_torque_knm,
-        peak_time_s,
-        taf: None,
-        rise_time_s: None,
-        first_period_s: None,
-        second_period_s: None,
-        period_shift_s: None,
-        shift_excess_s: None,
-        quality: TransientQuality::LowStatic,
-    };
-    if static_torque_knm < settings.min_static_knm {
-        return Ok(result);
+    let raw_trend = LoadTrend::fit(post, baseline_knm, dt, cutoff_hz);
+    let (crossings, found) =
+        crossings_about(post, baseline_knm, &raw_trend, scratch, rate, cutoff_hz);
+    if found < 2 {
+        return (crossings, found);
     }
-    result.taf = finite_or_none(peak_torque_knm / static_torque_knm);
-
-    // Periods from up-crossings of the oscillation about the fitted load-rise trend:
-    // a first pass on the raw samples gives the period, the second fits the trend to
-    // their one-period moving average, where the oscillation no longer pulls it.
-    let post = &window[trigger_index..];
-    let scratch = &mut data[trigger_index..];
-    let raw_trend = LoadTrend::fit(post, baseline_knm, dt, period_cutoff);
-    let (mut crossings, mut found) =
-        crossings_about(post, baseline_knm, &raw_trend, scratch, rate, period_cutoff);
-    if found >= 2 {
-        let period_s = (crossings[found - 1] - crossings[0]) / (found - 1) as f64;
-        if let Some(trend) =
-            LoadTrend::fit_averaged(post, baseline_knm, dt, period_cutoff, period_s, scratch)
-        {
-            (crossings, found) =
-                crossings_about(post, baseline_knm, &trend, scratch, rate, period_cutoff);
-        }
+    let period_s = (crossings[found - 1] - crossings[0]) / (found - 1) as f64;
+    match LoadTrend::fit_averaged(post, baseline_knm, dt, cutoff_hz, period_s, scratch) {
+        Some(trend) => crossings_about(post, baseline_knm, &trend, scratch, rate, cutoff_hz),
+        None => (crossings, found),
     }
+}
+
+/// The rise time, periods and shift from the first `found` up-crossings (s), and the
+/// quality they allow.
+fn set_periods(
+    result: &mut TransientResult,
+    crossings: [f64; 3],
+    found: usize,
+    reference_shift_s: Option<f64>,
+) {
     result.rise_time_s = (found >= 1).then_some(crossings[0]);
     if found < 3 {
         result.quality = TransientQuality::FewCrossings;
         if found == 2 {
             result.first_period_s = Some(crossings[1] - crossings[0]);
         }
-        return Ok(result);
+        return;
     }
     let first = crossings[1] - crossings[0];
     let second = crossings[2] - crossings[1];
@@ -496,11 +555,8 @@ pub fn analyze<const N: usize>(
     result.first_period_s = Some(first);
     result.second_period_s = Some(second);
     result.period_shift_s = Some(shift);
-    result.shift_excess_s = settings
-        .reference_shift_s
-        .map(|reference| shift - reference);
+    result.shift_excess_s = reference_shift_s.map(|reference| shift - reference);
     result.quality = TransientQuality::Good;
-    Ok(result)
 }
 
 #[cfg(test)]

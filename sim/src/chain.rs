@@ -42,7 +42,7 @@ use crate::model::{Model, ModelError};
 pub const FRICTION_SPEED: f64 = 2.0e-3;
 
 /// Integration steps per period of the fastest possible motion (h = 1 / (50 f_bound)).
-pub const STEPS_PER_FASTEST_PERIOD: f64 = 50.0;
+pub(crate) const STEPS_PER_FASTEST_PERIOD: f64 = 50.0;
 
 /// Largest number of RK4 steps per output sample the automatic choice may use.
 const MAX_SUBSTEPS: usize = 1 << 20;
@@ -179,7 +179,7 @@ impl Simulator {
     /// NaN. For fits that try parameter values at which the fixed step is unstable or a
     /// gap chatters: such a run ends early instead of hunting crossings of an exploding
     /// state.
-    pub fn with_divergence_limit(mut self, limit_knm: f64) -> Simulator {
+    pub(crate) fn with_divergence_limit(mut self, limit_knm: f64) -> Simulator {
         self.divergence_limit_knm = limit_knm;
         self
     }
@@ -202,7 +202,7 @@ impl Simulator {
     /// `F / FRICTION_SPEED` to the damping; hardening adds `3 k3 e^2` to the stiffness
     /// at a deflection `e` of four times the static load's (a bound, not a guarantee,
     /// for transients with TAF up to 4). A lagged channel adds the eigenvalue `1 / lag`.
-    pub fn frequency_bound_hz(&self) -> f64 {
+    pub(crate) fn frequency_bound_hz(&self) -> f64 {
         let n = self.inverse_inertia.len();
         let mut k_norm: f64 = 0.0;
         let mut c_norm: f64 = 0.0;

@@ -12,5 +12,5 @@ pub mod plot;
 pub mod rod;
 pub mod schedule;
 pub mod tandem;
-pub mod tree;
+pub(crate) mod tree;
 pub mod wear_map;

@@ -2,7 +2,7 @@
 //! mass-normalised mode shapes of K x = w^2 M x.
 //!
 //! A tree model is analysed in its default configuration, referred to mass 0's shaft
-//! ([`Tree::modes`], defined here, for another configuration). The drive is free (the
+//! (`Tree::modes`, defined here, for another configuration). The drive is free (the
 //! motor side is not grounded and the PI controller is not part of K), so the first
 //! mode is the rigid-body mode at 0 Hz. Backlash is ignored: the couplings are taken
 //! at their full stiffness.
@@ -59,7 +59,7 @@ impl Modes {
 
     /// The elastic natural frequencies, Hz, ascending: every one but the rigid-body
     /// mode (rounded to exactly 0).
-    pub fn elastic_hz(&self) -> impl Iterator<Item = f64> + '_ {
+    pub(crate) fn elastic_hz(&self) -> impl Iterator<Item = f64> + '_ {
         self.frequencies_hz.iter().copied().filter(|&f| f > 0.0)
     }
 }

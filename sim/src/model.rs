@@ -7,11 +7,11 @@
 //! names the two masses it joins (`between`), may cross a gear stage (`ratio`), and may
 //! be engaged only by a servo coupling (`servo`) in some of the named configurations
 //! (`[[configuration]]`). [`Model::tree`] refers one configuration's engaged couplings
-//! and every inertia to the shaft of mass 0 (see [`crate::tree`]).
+//! and every inertia to the shaft of mass 0 (see `tree`).
 //!
 //! Every field is in SI units except the load torque, which is in kN*m as in the
 //! paper's tables. A [`Model`] returned by [`Model::from_toml_str`] or [`Model::load`]
-//! has passed [`Model::validate`]; code that builds a model by hand should call it too.
+//! has passed `Model::validate`; code that builds a model by hand should call it too.
 //!
 //! The extensions used by the model-discrepancy workflow (cubic hardening and
 //! Coulomb-like friction per coupling, a first-order lag of the measured channel) are
@@ -25,7 +25,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 /// Largest number of output samples a model may ask for (duration * sample rate).
-pub const MAX_OUTPUT_SAMPLES: f64 = 1.0e8;
+pub(crate) const MAX_OUTPUT_SAMPLES: f64 = 1.0e8;
 
 /// A torsional driveline model: masses ordered motor first, rolls last.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -61,10 +61,10 @@ pub struct Model {
 #[serde(deny_unknown_fields)]
 pub struct Configuration {
     /// Name used by schedules and commands; unique.
-    pub name: String,
+    pub(crate) name: String,
     /// The servo couplings engaged (names used in `coupling[i].servo`); every coupling
     /// of another servo is disengaged, couplings without a servo are always engaged.
-    pub engaged: Vec<String>,
+    pub(crate) engaged: Vec<String>,
 }
 
 /// One lumped rotating mass.
@@ -266,7 +266,7 @@ impl Model {
     /// a tree in every configuration).
     ///
     /// `file_name` only labels the error. The first problem found is reported.
-    pub fn validate(&self, file_name: &str) -> Result<(), ModelError> {
+    pub(crate) fn validate(&self, file_name: &str) -> Result<(), ModelError> {
         let check = Checker { file: file_name };
         if self.masses.len() < 2 {
             return Err(check.error("mass", self.masses.len(), "at least 2 entries"));
@@ -416,17 +416,6 @@ impl Model {
             "a tree, gear ratios or servo configurations",
             format!("a chain (coupling i joins masses i and i+1, ratio 1, no servo) for {purpose}"),
         ))
-    }
-
-    /// Rolling load on the last mass at time `t_s`, N*m (the file gives kN*m).
-    pub fn load_torque_nm(&self, t_s: f64) -> f64 {
-        if t_s < self.load.onset {
-            0.0
-        } else {
-            self.load.static_torque
-                * 1.0e3
-                * (1.0 - (-self.load.rise_rate * (t_s - self.load.onset)).exp())
-        }
     }
 }
 

@@ -235,7 +235,7 @@ pub fn curves_svg(plot: &CurvesPlot) -> Result<String, PlotError> {
 
 /// One panel of [`time_series_svg`]: y-axis label and named series, one value per
 /// time point (`None` = not valid there, a break in the curve).
-pub type TimePanel<'a> = (&'a str, Vec<(String, Vec<Option<f64>>)>);
+pub(crate) type TimePanel<'a> = (&'a str, Vec<(String, Vec<Option<f64>>)>);
 
 /// Renders curves over time as an SVG document, panels stacked (one x axis, s).
 /// Used by `millgate chatter --plot`.

@@ -142,7 +142,7 @@ pub fn rolling_schedule_with_gap(
 /// rate; onset and duration come from `timing`), at the first model's sample rate, noise
 /// as [`rolling_schedule`]: bites of a driveline whose effect or load differs per bar.
 /// At least one model.
-pub fn rolling_schedule_of(
+pub(crate) fn rolling_schedule_of(
     models: &[Model],
     timing: BarTiming,
     noise_rms_knm: f64,

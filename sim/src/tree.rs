@@ -26,40 +26,40 @@ use crate::model::{Checker, Model, ModelError};
 
 /// One engaged coupling of a [`Tree`], referred to mass 0's shaft.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Edge {
+pub(crate) struct Edge {
     /// Index of the coupling in the model (`coupling[i]`).
-    pub coupling: usize,
+    pub(crate) coupling: usize,
     /// Index of its first mass.
-    pub first: usize,
+    pub(crate) first: usize,
     /// Index of its second mass.
-    pub second: usize,
+    pub(crate) second: usize,
     /// Referred stiffness `C n_first^2`, N*m/rad.
-    pub stiffness: f64,
+    pub(crate) stiffness: f64,
     /// Referred damping `h n_first^2`, N*m*s/rad.
-    pub damping: f64,
+    pub(crate) damping: f64,
 }
 
 /// A drive in one configuration, referred to the shaft of mass 0.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Tree {
     /// The configuration's name (`None` for a model without configurations).
-    pub configuration: Option<String>,
+    pub(crate) configuration: Option<String>,
     /// Referred inertias `J_j n_j^2`, kg*m^2, one per mass.
     pub inertias: Vec<f64>,
     /// Speed of each mass over mass 0's (`n_j`; 1 for mass 0).
     pub speed_ratios: Vec<f64>,
     /// The engaged couplings, in model order; one fewer than the masses.
-    pub edges: Vec<Edge>,
+    pub(crate) edges: Vec<Edge>,
 }
 
 impl Tree {
     /// Mass matrix diag(referred inertias), kg*m^2.
-    pub fn mass_matrix(&self) -> DMatrix<f64> {
+    pub(crate) fn mass_matrix(&self) -> DMatrix<f64> {
         DMatrix::from_diagonal(&DVector::from_vec(self.inertias.clone()))
     }
 
     /// Stiffness matrix of the engaged couplings (referred), N*m/rad.
-    pub fn stiffness_matrix(&self) -> DMatrix<f64> {
+    pub(crate) fn stiffness_matrix(&self) -> DMatrix<f64> {
         let n = self.inertias.len();
         let mut matrix = DMatrix::zeros(n, n);
         for edge in &self.edges {
@@ -77,7 +77,7 @@ impl Model {
     /// The drive in one configuration (`None`: the first one, or every coupling when
     /// the model has none), referred to the shaft of mass 0.
     ///
-    /// The model must be valid ([`Model::validate`]); an unknown configuration name is
+    /// The model must be valid (`Model::validate`); an unknown configuration name is
     /// an error naming the known ones.
     pub fn tree(&self, configuration: Option<&str>) -> Result<Tree, ModelError> {
         let check = Checker { file: "<model>" };

@@ -25,7 +25,7 @@ use crate::modal::{self, ModalError};
 use crate::model::{Model, ModelError};
 
 /// Longest record (samples) the period analysis accepts.
-pub const MAX_RECORD_SAMPLES: usize = 16_384;
+pub(crate) const MAX_RECORD_SAMPLES: usize = 16_384;
 
 /// Fraction of the record (from its end) averaged for the settled level.
 const SETTLED_FRACTION: f64 = 0.3;
@@ -57,7 +57,7 @@ pub struct WearMapRow {
     /// First oscillation period after the bite, s (`None` if too few crossings).
     pub first_period_s: Option<f64>,
     /// Second oscillation period, s.
-    pub second_period_s: Option<f64>,
+    pub(crate) second_period_s: Option<f64>,
     /// First minus second period, s.
     pub period_shift_s: Option<f64>,
 }

@@ -178,6 +178,30 @@ impl Checker<'_> {
             ],
             "a Modbus source (message and signal name CAN signals)",
         );
+        let source = self.modbus_source_index(key, source_name, sources);
+        let table = self.register_table(key, raw);
+        match (raw.block, raw.address) {
+            (Some(base), None) => self.block_source(key, raw, base, source, table),
+            (None, Some(address)) => self.value_source(key, raw, address, source, table),
+            _ => {
+                self.report.push(
+                    key,
+                    "must give exactly one of block = <first register> (a millgate sample \
+                     block) or address = <register> (a single value)",
+                );
+                None
+            }
+        }
+    }
+
+    /// The index of Modbus source `source_name`, reporting an unknown one (with a hint
+    /// when it names a CAN source).
+    fn modbus_source_index(
+        &mut self,
+        key: &str,
+        source_name: &str,
+        sources: &Sources<'_>,
+    ) -> Option<usize> {
         let source = sources
             .modbus
             .iter()
@@ -201,7 +225,12 @@ impl Checker<'_> {
                 ),
             );
         }
-        let table = match &raw.table {
+        source
+    }
+
+    /// `table`: `input` or `holding`.
+    fn register_table(&mut self, key: &str, raw: &RawChannelSource) -> Option<RegisterTable> {
+        match &raw.table {
             Some(table) => self.choice(
                 &format!("{key}.table"),
                 "register table",
@@ -216,66 +245,74 @@ impl Checker<'_> {
                 );
                 None
             }
+        }
+    }
+
+    /// A millgate sample block starting at register `base` of `source`'s `table`.
+    fn block_source(
+        &mut self,
+        key: &str,
+        raw: &RawChannelSource,
+        base: i64,
+        source: Option<usize>,
+        table: Option<RegisterTable>,
+    ) -> Option<ChannelSource> {
+        self.not_applicable(
+            key,
+            &[
+                ("type", raw.value_type.is_some()),
+                ("word_order", raw.word_order.is_some()),
+            ],
+            "a block (block samples are i16 in the millgate layout)",
+        );
+        let base = self.int_in(&format!("{key}.block"), base, 0..=MAX_BLOCK_BASE, "")?;
+        Some(ChannelSource::ModbusBlock {
+            source: source?,
+            table: table?,
+            base: u16::try_from(base).ok()?,
+        })
+    }
+
+    /// A single value at register `address` of `source`'s `table`, with its type and
+    /// word order.
+    fn value_source(
+        &mut self,
+        key: &str,
+        raw: &RawChannelSource,
+        address: i64,
+        source: Option<usize>,
+        table: Option<RegisterTable>,
+    ) -> Option<ChannelSource> {
+        let value_type = match &raw.value_type {
+            Some(text) => self.choice(
+                &format!("{key}.type"),
+                "value type",
+                text,
+                &ValueType::ALL,
+                ValueType::name,
+            ),
+            None => Some(ValueType::U16),
         };
-        let channel_source = match (raw.block, raw.address) {
-            (Some(base), None) => {
-                self.not_applicable(
-                    key,
-                    &[
-                        ("type", raw.value_type.is_some()),
-                        ("word_order", raw.word_order.is_some()),
-                    ],
-                    "a block (block samples are i16 in the millgate layout)",
-                );
-                let base = self.int_in(&format!("{key}.block"), base, 0..=MAX_BLOCK_BASE, "")?;
-                ChannelSource::ModbusBlock {
-                    source: source?,
-                    table: table?,
-                    base: u16::try_from(base).ok()?,
-                }
-            }
-            (None, Some(address)) => {
-                let value_type = match &raw.value_type {
-                    Some(text) => self.choice(
-                        &format!("{key}.type"),
-                        "value type",
-                        text,
-                        &ValueType::ALL,
-                        ValueType::name,
-                    ),
-                    None => Some(ValueType::U16),
-                };
-                let word_order = match &raw.word_order {
-                    Some(text) => self.choice(
-                        &format!("{key}.word_order"),
-                        "word order",
-                        text,
-                        &WordOrder::ALL,
-                        WordOrder::name,
-                    ),
-                    None => Some(WordOrder::Abcd),
-                };
-                let value_type = value_type?;
-                let last = 65_535 - i64::from(value_type.register_count()) + 1;
-                let address = self.int_in(&format!("{key}.address"), address, 0..=last, "")?;
-                ChannelSource::ModbusValue {
-                    source: source?,
-                    table: table?,
-                    address: u16::try_from(address).ok()?,
-                    value_type,
-                    word_order: word_order?,
-                }
-            }
-            _ => {
-                self.report.push(
-                    key,
-                    "must give exactly one of block = <first register> (a millgate sample \
-                     block) or address = <register> (a single value)",
-                );
-                return None;
-            }
+        let word_order = match &raw.word_order {
+            Some(text) => self.choice(
+                &format!("{key}.word_order"),
+                "word order",
+                text,
+                &WordOrder::ALL,
+                WordOrder::name,
+            ),
+            None => Some(WordOrder::Abcd),
         };
-        Some(channel_source)
+        let value_type = value_type?;
+        let last = 65_535 - i64::from(value_type.register_count()) + 1;
+        let address = self.int_in(&format!("{key}.address"), address, 0..=last, "")?;
+        Some(ChannelSource::ModbusValue {
+            source: source?,
+            table: table?,
+            address: u16::try_from(address).ok()?,
+            value_type,
+            word_order: word_order?,
+        })
     }
 
     pub(super) fn can_channel_source(

@@ -47,6 +47,23 @@ impl Checker<'_> {
                 .as_ref()
                 .map(|model| self.existing_file(&format!("{key}.model"), model)),
         );
+        let bite = self.bite(key, raw);
+        let thresholds = self.thresholds(key, raw);
+        let wear = self.wear(&format!("{key}.wear"), raw.wear.as_ref());
+        Some(Driveline {
+            name: name?,
+            torque: torque?,
+            metal_in_stand: metal_in_stand?,
+            extra_channels: extra_channels?,
+            model: model?,
+            bite: bite?,
+            thresholds: thresholds?,
+            wear: wear?,
+        })
+    }
+
+    /// `drivelines[i].bite`: the rise that marks a bite and the capture around it.
+    fn bite(&mut self, key: &str, raw: &RawDriveline) -> Option<BiteSettings> {
         let bite_key = format!("{key}.bite");
         let threshold_knm = self.float(
             &format!("{bite_key}.threshold_knm"),
@@ -68,6 +85,16 @@ impl Checker<'_> {
             post_trigger_s > 0.0 && post_trigger_s <= MAX_WINDOW_S,
             &format!("> 0 and <= {MAX_WINDOW_S} s"),
         );
+        Some(BiteSettings {
+            threshold_knm: threshold_knm?,
+            pre_trigger_s: pre_trigger_s?,
+            post_trigger_s: post_trigger_s?,
+        })
+    }
+
+    /// `drivelines[i].thresholds`: TAF and gap warning and alarm levels, each alarm at
+    /// least its warning.
+    fn thresholds(&mut self, key: &str, raw: &RawDriveline) -> Option<DrivelineThresholds> {
         let thresholds_key = format!("{key}.thresholds");
         let taf_warning = raw.thresholds.taf_warning;
         let taf_warning = self.float(
@@ -106,25 +133,11 @@ impl Checker<'_> {
                 gap_warning.unwrap_or(DEFAULT_GAP_WARNING_MRAD)
             ),
         );
-        let wear = self.wear(&format!("{key}.wear"), raw.wear.as_ref());
-        Some(Driveline {
-            name: name?,
-            torque: torque?,
-            metal_in_stand: metal_in_stand?,
-            extra_channels: extra_channels?,
-            model: model?,
-            bite: BiteSettings {
-                threshold_knm: threshold_knm?,
-                pre_trigger_s: pre_trigger_s?,
-                post_trigger_s: post_trigger_s?,
-            },
-            thresholds: DrivelineThresholds {
-                taf_warning: taf_warning?,
-                taf_alarm: taf_alarm?,
-                gap_warning_mrad: gap_warning?,
-                gap_alarm_mrad: gap_alarm?,
-            },
-            wear: wear?,
+        Some(DrivelineThresholds {
+            taf_warning: taf_warning?,
+            taf_alarm: taf_alarm?,
+            gap_warning_mrad: gap_warning?,
+            gap_alarm_mrad: gap_alarm?,
         })
     }
 

@@ -11,14 +11,16 @@
 
 use std::collections::HashMap;
 use std::ops::RangeInclusive;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use can_dbc::Dbc;
 
 use crate::error::Report;
 use crate::layout::BLOCK_REGISTERS;
 use crate::raw::{RawCanSource, RawConfig, RawModbusSource};
-use crate::{Channel, Config, ServiceDirs, CACHE_DIRECTORY};
+use crate::{
+    Channel, Config, Driveline, ModbusSource, RodMill, ServiceDirs, TandemMill, CACHE_DIRECTORY,
+};
 
 /// What the gateway writes at a configured path, and so which service folder a
 /// relative path of it is resolved against.
@@ -87,20 +89,7 @@ pub(crate) fn validate(
         purpose,
     };
     let name = checker.name("name", &raw.name);
-    let cache_dir = match raw.cache_dir.as_deref() {
-        None => Some(dirs.cache.clone()),
-        Some(dir) if dir.trim().is_empty() => {
-            checker.report.push(
-                "cache_dir",
-                format!(
-                    "must not be empty (leave it out for ${CACHE_DIRECTORY} under systemd, \
-                     else the user's cache folder)"
-                ),
-            );
-            None
-        }
-        Some(dir) => Some(Some(checker.written_path(dir, Written::Cache).0)),
-    };
+    let cache_dir = cache_dir(&mut checker, raw.cache_dir.as_deref());
     let modbus_sources: Vec<_> = raw
         .modbus_sources
         .iter()
@@ -118,16 +107,7 @@ pub(crate) fn validate(
         can: &raw.can_sources,
         dbcs: &dbcs,
     };
-    let channels = checker.named_list(
-        "channels",
-        "channel",
-        &raw.channels,
-        |channel| &channel.name,
-        |checker, key, channel| checker.channel(key, channel, &sources),
-    );
-    checker.register_overlaps(&raw.channels, &channels, &raw.modbus_sources);
-    checker.block_poll_periods(&raw.channels, &channels, &raw.modbus_sources);
-    checker.serial_loads(&modbus_sources, &channels);
+    let channels = channels(&mut checker, &raw, &sources, &modbus_sources);
     let channel_facts = ChannelFacts {
         names: raw
             .channels
@@ -136,27 +116,7 @@ pub(crate) fn validate(
             .collect(),
         channels: &channels,
     };
-    let drivelines = checker.named_list(
-        "drivelines",
-        "driveline",
-        &raw.drivelines,
-        |driveline| &driveline.name,
-        |checker, key, driveline| checker.driveline(key, driveline, &channel_facts),
-    );
-    let tandem_mills = checker.named_list(
-        "tandem_mills",
-        "tandem mill",
-        &raw.tandem_mills,
-        |mill| &mill.name,
-        |checker, key, mill| checker.tandem_mill(key, mill, &channel_facts),
-    );
-    let rod_mills = checker.named_list(
-        "rod_mills",
-        "rod mill",
-        &raw.rod_mills,
-        |mill| &mill.name,
-        |checker, key, mill| checker.rod_mill(key, mill, &channel_facts),
-    );
+    let watched = watched(&mut checker, &raw, &channel_facts);
     let history_path = raw
         .history
         .as_ref()
@@ -169,14 +129,96 @@ pub(crate) fn validate(
         modbus_sources: modbus_sources.into_iter().collect::<Option<_>>()?,
         can_sources: can_sources.into_iter().collect::<Option<_>>()?,
         channels: channels.into_iter().collect::<Option<_>>()?,
-        drivelines: drivelines.into_iter().collect::<Option<_>>()?,
-        tandem_mills: tandem_mills.into_iter().collect::<Option<_>>()?,
-        rod_mills: rod_mills.into_iter().collect::<Option<_>>()?,
+        drivelines: watched.drivelines.into_iter().collect::<Option<_>>()?,
+        tandem_mills: watched.tandem_mills.into_iter().collect::<Option<_>>()?,
+        rod_mills: watched.rod_mills.into_iter().collect::<Option<_>>()?,
         outputs: outputs?,
         history: optional(history)?,
         // The text's, set by `parse_and_validate`, which has it.
         hash: String::new(),
     })
+}
+
+/// `cache_dir`: `None` when reported; `Some(None)` leaves it to the service folder
+/// (`dirs.cache`) or the user's cache folder.
+fn cache_dir(checker: &mut Checker<'_>, raw: Option<&str>) -> Option<Option<PathBuf>> {
+    let dirs = checker.dirs;
+    match raw {
+        None => Some(dirs.cache.clone()),
+        Some(dir) if dir.trim().is_empty() => {
+            checker.report.push(
+                "cache_dir",
+                format!(
+                    "must not be empty (leave it out for ${CACHE_DIRECTORY} under systemd, \
+                     else the user's cache folder)"
+                ),
+            );
+            None
+        }
+        Some(dir) => Some(Some(checker.written_path(dir, Written::Cache).0)),
+    }
+}
+
+/// `[[channels]]`, then the checks across them: overlapping registers, block poll
+/// periods, the serial lines' load.
+fn channels(
+    checker: &mut Checker<'_>,
+    raw: &RawConfig,
+    sources: &Sources<'_>,
+    modbus_sources: &[Option<ModbusSource>],
+) -> Vec<Option<Channel>> {
+    let channels = checker.named_list(
+        "channels",
+        "channel",
+        &raw.channels,
+        |channel| &channel.name,
+        |checker, key, channel| checker.channel(key, channel, sources),
+    );
+    checker.register_overlaps(&raw.channels, &channels, &raw.modbus_sources);
+    checker.block_poll_periods(&raw.channels, &channels, &raw.modbus_sources);
+    checker.serial_loads(modbus_sources, &channels);
+    channels
+}
+
+/// What is watched, each `None` where reported.
+struct Watched {
+    drivelines: Vec<Option<Driveline>>,
+    tandem_mills: Vec<Option<TandemMill>>,
+    rod_mills: Vec<Option<RodMill>>,
+}
+
+/// What is watched: `[[drivelines]]`, `[[tandem_mills]]` and `[[rod_mills]]`.
+fn watched(
+    checker: &mut Checker<'_>,
+    raw: &RawConfig,
+    channel_facts: &ChannelFacts<'_>,
+) -> Watched {
+    let drivelines = checker.named_list(
+        "drivelines",
+        "driveline",
+        &raw.drivelines,
+        |driveline| &driveline.name,
+        |checker, key, driveline| checker.driveline(key, driveline, channel_facts),
+    );
+    let tandem_mills = checker.named_list(
+        "tandem_mills",
+        "tandem mill",
+        &raw.tandem_mills,
+        |mill| &mill.name,
+        |checker, key, mill| checker.tandem_mill(key, mill, channel_facts),
+    );
+    let rod_mills = checker.named_list(
+        "rod_mills",
+        "rod mill",
+        &raw.rod_mills,
+        |mill| &mill.name,
+        |checker, key, mill| checker.rod_mill(key, mill, channel_facts),
+    );
+    Watched {
+        drivelines,
+        tandem_mills,
+        rod_mills,
+    }
 }
 
 /// The raw sources and the parsed DBC of each CAN source (`None` when unreadable).

@@ -1,5 +1,6 @@
 //! `[outputs.opcua]`: the OPC UA server's address, security, users and limits.
 
+use std::net::SocketAddr;
 use std::ops::RangeInclusive;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -36,6 +37,15 @@ fn default_pki_dir(state: Option<&Path>, history: Option<&Path>, base_dir: &Path
     folder.join(OpcUaOutput::DEFAULT_PKI_FOLDER)
 }
 
+/// The server's limits, each `None` when reported.
+struct Limits {
+    connections: Option<usize>,
+    sessions: Option<usize>,
+    subscriptions: Option<usize>,
+    monitored_items: Option<usize>,
+    session_timeout_ms: Option<usize>,
+}
+
 impl Checker<'_> {
     /// `[outputs.opcua]`; `history` is the history file (resolved), where the default
     /// `pki_dir` goes when `$STATE_DIRECTORY` is not set.
@@ -49,30 +59,8 @@ impl Checker<'_> {
             &format!("{key}.bind"),
             raw.bind.as_deref().unwrap_or(OpcUaOutput::DEFAULT_BIND),
         );
-        let host = match (&raw.host, bind) {
-            (Some(host), _) => self.opcua_host(&format!("{key}.host"), host),
-            (None, Some(bind)) if bind.ip().is_unspecified() => {
-                self.report.push(
-                    format!("{key}.host"),
-                    format!(
-                        "missing: bind {bind} listens on every address; give the host name or \
-                         IP address clients reach the gateway at (written into the endpoint \
-                         URL and the server certificate)"
-                    ),
-                );
-                None
-            }
-            (None, Some(bind)) => Some(bind.ip().to_string()),
-            (None, None) => None,
-        };
-        let security_modes = match (&raw.security_modes, bind) {
-            (Some(modes), _) => self.opcua_security_modes(&format!("{key}.security_modes"), modes),
-            (None, Some(bind)) if bind.ip().is_loopback() => Some(vec![OpcUaSecurityMode::None]),
-            (None, _) => Some(vec![
-                OpcUaSecurityMode::Sign,
-                OpcUaSecurityMode::SignAndEncrypt,
-            ]),
-        };
+        let host = self.opcua_endpoint_host(key, raw, bind);
+        let security_modes = self.opcua_modes(key, raw, bind);
         let pki_dir = match &raw.pki_dir {
             Some(dir) => self.opcua_pki_dir(&format!("{key}.pki_dir"), dir),
             None => Some(default_pki_dir(
@@ -93,50 +81,7 @@ impl Checker<'_> {
                  (give users_file, or allow anonymous sessions)",
             );
         }
-        let mut limit = |name: &str, value: Option<i64>, default: usize, range, unit: &str| {
-            self.int_in(
-                &format!("{key}.{name}"),
-                value.unwrap_or(default as i64),
-                range,
-                unit,
-            )
-            .and_then(|value| usize::try_from(value).ok())
-        };
-        let max_connections = limit(
-            "max_connections",
-            raw.max_connections,
-            OpcUaOutput::DEFAULT_MAX_CONNECTIONS,
-            CONNECTIONS_RANGE,
-            "",
-        );
-        let max_sessions = limit(
-            "max_sessions",
-            raw.max_sessions,
-            OpcUaOutput::DEFAULT_MAX_SESSIONS,
-            SESSIONS_RANGE,
-            "",
-        );
-        let max_subscriptions = limit(
-            "max_subscriptions_per_session",
-            raw.max_subscriptions_per_session,
-            OpcUaOutput::DEFAULT_MAX_SUBSCRIPTIONS_PER_SESSION,
-            SUBSCRIPTIONS_RANGE,
-            "",
-        );
-        let max_monitored_items = limit(
-            "max_monitored_items_per_subscription",
-            raw.max_monitored_items_per_subscription,
-            OpcUaOutput::DEFAULT_MAX_MONITORED_ITEMS_PER_SUBSCRIPTION,
-            MONITORED_ITEMS_RANGE,
-            "",
-        );
-        let max_session_timeout_ms = limit(
-            "max_session_timeout_ms",
-            raw.max_session_timeout_ms,
-            OpcUaOutput::DEFAULT_MAX_SESSION_TIMEOUT_MS as usize,
-            SESSION_TIMEOUT_RANGE_MS,
-            " ms",
-        );
+        let limits = self.opcua_limits(key, raw);
         if !anonymous && raw.users_file.is_none() {
             return None;
         }
@@ -148,12 +93,112 @@ impl Checker<'_> {
             anonymous,
             users: users?,
             allow_remote_commands: raw.allow_remote_commands.unwrap_or(false),
-            max_connections: max_connections?,
-            max_sessions: max_sessions?,
-            max_subscriptions_per_session: max_subscriptions?,
-            max_monitored_items_per_subscription: max_monitored_items?,
-            max_session_timeout: Duration::from_millis(max_session_timeout_ms? as u64),
+            max_connections: limits.connections?,
+            max_sessions: limits.sessions?,
+            max_subscriptions_per_session: limits.subscriptions?,
+            max_monitored_items_per_subscription: limits.monitored_items?,
+            max_session_timeout: Duration::from_millis(limits.session_timeout_ms? as u64),
         })
+    }
+
+    /// `host`: as given, or the bind address's when it is not the unspecified one
+    /// (which clients cannot reach).
+    fn opcua_endpoint_host(
+        &mut self,
+        key: &str,
+        raw: &RawOpcUaOutput,
+        bind: Option<SocketAddr>,
+    ) -> Option<String> {
+        match (&raw.host, bind) {
+            (Some(host), _) => self.opcua_host(&format!("{key}.host"), host),
+            (None, Some(bind)) if bind.ip().is_unspecified() => {
+                self.report.push(
+                    format!("{key}.host"),
+                    format!(
+                        "missing: bind {bind} listens on every address; give the host name or \
+                         IP address clients reach the gateway at (written into the endpoint \
+                         URL and the server certificate)"
+                    ),
+                );
+                None
+            }
+            (None, Some(bind)) => Some(bind.ip().to_string()),
+            (None, None) => None,
+        }
+    }
+
+    /// `security_modes`: as given, else none on loopback and sign, sign-and-encrypt
+    /// elsewhere.
+    fn opcua_modes(
+        &mut self,
+        key: &str,
+        raw: &RawOpcUaOutput,
+        bind: Option<SocketAddr>,
+    ) -> Option<Vec<OpcUaSecurityMode>> {
+        match (&raw.security_modes, bind) {
+            (Some(modes), _) => self.opcua_security_modes(&format!("{key}.security_modes"), modes),
+            (None, Some(bind)) if bind.ip().is_loopback() => Some(vec![OpcUaSecurityMode::None]),
+            (None, _) => Some(vec![
+                OpcUaSecurityMode::Sign,
+                OpcUaSecurityMode::SignAndEncrypt,
+            ]),
+        }
+    }
+
+    /// The connection, session, subscription, monitored-item and session-timeout
+    /// limits, each in its range (defaults from [`OpcUaOutput`]).
+    fn opcua_limits(&mut self, key: &str, raw: &RawOpcUaOutput) -> Limits {
+        let mut limit = |name: &str, value: Option<i64>, default: usize, range, unit: &str| {
+            self.int_in(
+                &format!("{key}.{name}"),
+                value.unwrap_or(default as i64),
+                range,
+                unit,
+            )
+            .and_then(|value| usize::try_from(value).ok())
+        };
+        let connections = limit(
+            "max_connections",
+            raw.max_connections,
+            OpcUaOutput::DEFAULT_MAX_CONNECTIONS,
+            CONNECTIONS_RANGE,
+            "",
+        );
+        let sessions = limit(
+            "max_sessions",
+            raw.max_sessions,
+            OpcUaOutput::DEFAULT_MAX_SESSIONS,
+            SESSIONS_RANGE,
+            "",
+        );
+        let subscriptions = limit(
+            "max_subscriptions_per_session",
+            raw.max_subscriptions_per_session,
+            OpcUaOutput::DEFAULT_MAX_SUBSCRIPTIONS_PER_SESSION,
+            SUBSCRIPTIONS_RANGE,
+            "",
+        );
+        let monitored_items = limit(
+            "max_monitored_items_per_subscription",
+            raw.max_monitored_items_per_subscription,
+            OpcUaOutput::DEFAULT_MAX_MONITORED_ITEMS_PER_SUBSCRIPTION,
+            MONITORED_ITEMS_RANGE,
+            "",
+        );
+        let session_timeout_ms = limit(
+            "max_session_timeout_ms",
+            raw.max_session_timeout_ms,
+            OpcUaOutput::DEFAULT_MAX_SESSION_TIMEOUT_MS as usize,
+            SESSION_TIMEOUT_RANGE_MS,
+            " ms",
+        );
+        Limits {
+            connections,
+            sessions,
+            subscriptions,
+            monitored_items,
+            session_timeout_ms,
+        }
     }
 
     /// A host name or IP address for the endpoint URL: letters, digits, `.`, `-`, or an

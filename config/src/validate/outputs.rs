@@ -6,7 +6,9 @@ use std::ops::RangeInclusive;
 use std::path::Path;
 use std::time::Duration;
 
-use crate::raw::{RawMqttOutput, RawMqttTls, RawOutputs, RawWebOutput};
+use crate::raw::{
+    RawMqttOutput, RawMqttTls, RawOutputs, RawPlcOutput, RawServerOutput, RawWebOutput,
+};
 use crate::{
     MetricsOutput, MqttOutput, MqttTls, Outputs, PlcOutput, ServerOutput, WebOutput,
     CREDENTIALS_DIRECTORY,
@@ -38,75 +40,8 @@ impl Checker<'_> {
         raw: &RawOutputs,
         history: Option<&std::path::Path>,
     ) -> Option<Outputs> {
-        let plc = raw.plc.as_ref().map(|plc| {
-            let key = "outputs.plc";
-            let address = self.host_port(&format!("{key}.address"), &plc.address);
-            let unit_id = self.unit_id(&format!("{key}.unit_id"), plc.unit_id);
-            let register_base = self.int_in(
-                &format!("{key}.register_base"),
-                plc.register_base.unwrap_or(0),
-                0..=65_535,
-                "",
-            );
-            let write_period = self.period(&format!("{key}.write_period_ms"), plc.write_period_ms);
-            let timeout = self.period(
-                &format!("{key}.timeout_ms"),
-                plc.timeout_ms.unwrap_or(DEFAULT_TIMEOUT_MS),
-            );
-            Some(PlcOutput {
-                address: address?,
-                unit_id: unit_id?,
-                register_base: u16::try_from(register_base?).ok()?,
-                write_period: write_period?,
-                timeout: timeout?,
-                extension_blocks: plc.extension_blocks.unwrap_or(false),
-            })
-        });
-        let server = raw.server.as_ref().map(|server| {
-            let key = "outputs.server";
-            let bind = self.bind(&format!("{key}.bind"), &server.bind);
-            let unit_id = self.int_in(
-                &format!("{key}.unit_id"),
-                server.unit_id.unwrap_or(DEFAULT_UNIT_ID),
-                1..=255,
-                "; 0 is the broadcast address, which a server never answers",
-            );
-            let max_connections = self.int_in(
-                &format!("{key}.max_connections"),
-                server
-                    .max_connections
-                    .unwrap_or(DEFAULT_MAX_CONNECTIONS as i64),
-                1..=MAX_CONNECTIONS_LIMIT,
-                "",
-            );
-            // At most max_connections (its default too when max_connections is
-            // smaller); an invalid max_connections is reported on its own.
-            let most = max_connections.unwrap_or(MAX_CONNECTIONS_LIMIT);
-            let max_connections_per_peer = self.int_in(
-                &format!("{key}.max_connections_per_peer"),
-                server
-                    .max_connections_per_peer
-                    .unwrap_or((DEFAULT_MAX_CONNECTIONS_PER_PEER as i64).min(most)),
-                1..=most,
-                &format!(", at most {key}.max_connections"),
-            );
-            let idle_timeout_ms = self.int_in(
-                &format!("{key}.idle_timeout_ms"),
-                server
-                    .idle_timeout_ms
-                    .unwrap_or(DEFAULT_IDLE_TIMEOUT_MS as i64),
-                IDLE_TIMEOUT_RANGE_MS,
-                " ms",
-            );
-            Some(ServerOutput {
-                bind: bind?,
-                unit_id: u8::try_from(unit_id?).ok()?,
-                max_connections: usize::try_from(max_connections?).ok()?,
-                max_connections_per_peer: usize::try_from(max_connections_per_peer?).ok()?,
-                idle_timeout: Duration::from_millis(u64::try_from(idle_timeout_ms?).ok()?),
-                allow_remote_commands: server.allow_remote_commands.unwrap_or(false),
-            })
-        });
+        let plc = raw.plc.as_ref().map(|plc| self.plc(plc));
+        let server = raw.server.as_ref().map(|server| self.server(server));
         let metrics = raw.metrics.as_ref().map(|metrics| {
             let bind = metrics.bind.as_deref().unwrap_or(DEFAULT_METRICS_BIND);
             Some(MetricsOutput {
@@ -150,6 +85,79 @@ impl Checker<'_> {
             mqtt: optional(mqtt)?,
             web: web?,
             opcua: opcua?,
+        })
+    }
+
+    /// `[outputs.plc]`: the PLC the gateway writes, where, how often.
+    fn plc(&mut self, plc: &RawPlcOutput) -> Option<PlcOutput> {
+        let key = "outputs.plc";
+        let address = self.host_port(&format!("{key}.address"), &plc.address);
+        let unit_id = self.unit_id(&format!("{key}.unit_id"), plc.unit_id);
+        let register_base = self.int_in(
+            &format!("{key}.register_base"),
+            plc.register_base.unwrap_or(0),
+            0..=65_535,
+            "",
+        );
+        let write_period = self.period(&format!("{key}.write_period_ms"), plc.write_period_ms);
+        let timeout = self.period(
+            &format!("{key}.timeout_ms"),
+            plc.timeout_ms.unwrap_or(DEFAULT_TIMEOUT_MS),
+        );
+        Some(PlcOutput {
+            address: address?,
+            unit_id: unit_id?,
+            register_base: u16::try_from(register_base?).ok()?,
+            write_period: write_period?,
+            timeout: timeout?,
+            extension_blocks: plc.extension_blocks.unwrap_or(false),
+        })
+    }
+
+    /// `[outputs.server]`: the HMI's Modbus server, its unit and connection limits.
+    fn server(&mut self, server: &RawServerOutput) -> Option<ServerOutput> {
+        let key = "outputs.server";
+        let bind = self.bind(&format!("{key}.bind"), &server.bind);
+        let unit_id = self.int_in(
+            &format!("{key}.unit_id"),
+            server.unit_id.unwrap_or(DEFAULT_UNIT_ID),
+            1..=255,
+            "; 0 is the broadcast address, which a server never answers",
+        );
+        let max_connections = self.int_in(
+            &format!("{key}.max_connections"),
+            server
+                .max_connections
+                .unwrap_or(DEFAULT_MAX_CONNECTIONS as i64),
+            1..=MAX_CONNECTIONS_LIMIT,
+            "",
+        );
+        // At most max_connections (its default too when max_connections is
+        // smaller); an invalid max_connections is reported on its own.
+        let most = max_connections.unwrap_or(MAX_CONNECTIONS_LIMIT);
+        let max_connections_per_peer = self.int_in(
+            &format!("{key}.max_connections_per_peer"),
+            server
+                .max_connections_per_peer
+                .unwrap_or((DEFAULT_MAX_CONNECTIONS_PER_PEER as i64).min(most)),
+            1..=most,
+            &format!(", at most {key}.max_connections"),
+        );
+        let idle_timeout_ms = self.int_in(
+            &format!("{key}.idle_timeout_ms"),
+            server
+                .idle_timeout_ms
+                .unwrap_or(DEFAULT_IDLE_TIMEOUT_MS as i64),
+            IDLE_TIMEOUT_RANGE_MS,
+            " ms",
+        );
+        Some(ServerOutput {
+            bind: bind?,
+            unit_id: u8::try_from(unit_id?).ok()?,
+            max_connections: usize::try_from(max_connections?).ok()?,
+            max_connections_per_peer: usize::try_from(max_connections_per_peer?).ok()?,
+            idle_timeout: Duration::from_millis(u64::try_from(idle_timeout_ms?).ok()?),
+            allow_remote_commands: server.allow_remote_commands.unwrap_or(false),
         })
     }
 

@@ -2,7 +2,7 @@
 //! correlation threshold.
 
 use crate::raw::RawTandemMill;
-use crate::{ChannelKind, ChatterDetectorKind, TandemMill};
+use crate::{Channel, ChannelKind, ChatterDetectorKind, TandemMill};
 
 use super::{ChannelFacts, Checker, Purpose, MAX_WINDOW_S, STANDS_RANGE};
 
@@ -44,82 +44,12 @@ impl Checker<'_> {
         facts: &ChannelFacts<'_>,
     ) -> Option<TandemMill> {
         let name = self.name(&format!("{key}.name"), &raw.name);
-        let stands_key = format!("{key}.stands");
-        let mut stands_ok = true;
-        if !STANDS_RANGE.contains(&raw.stands.len()) {
-            self.report.push(
-                &stands_key,
-                format!(
-                    "{} stands is not allowed (must be {}..={} stand channels)",
-                    raw.stands.len(),
-                    STANDS_RANGE.start(),
-                    STANDS_RANGE.end()
-                ),
-            );
-            stands_ok = false;
-        }
-        let mut stands = Vec::with_capacity(raw.stands.len());
-        for (position, stand) in raw.stands.iter().enumerate() {
-            let stand_key = format!("{stands_key}[{position}]");
-            if raw.stands[..position].contains(stand) {
-                self.report
-                    .push(stand_key, format!("channel \"{stand}\" is listed twice"));
-                stands_ok = false;
-                continue;
-            }
-            match self.channel_ref(&stand_key, stand, facts, ChannelKind::Acceleration) {
-                Some(index) => stands.push(index),
-                None => stands_ok = false,
-            }
-        }
-        // One chatter window spans all stands sample for sample: one rate for all.
-        let resolved = || {
-            stands
-                .iter()
-                .filter_map(|&index| facts.channels[index].as_ref())
-        };
-        if let Some(first) = resolved().next() {
-            if let Some(other) = resolved().find(|c| c.sample_rate_hz != first.sample_rate_hz) {
-                self.report.push(
-                    &stands_key,
-                    format!(
-                        "stand channels \"{}\" ({} Hz) and \"{}\" ({} Hz) sample at different \
-                         rates (must share one: the stands are compared sample for sample)",
-                        first.name, first.sample_rate_hz, other.name, other.sample_rate_hz
-                    ),
-                );
-                stands_ok = false;
-            }
-        }
-        let band_key = format!("{key}.chatter_band_hz");
-        let band = match raw.chatter_band_hz[..] {
-            [low, high] if low.is_finite() && high.is_finite() && 0.0 < low && low < high => {
-                Some((low, high))
-            }
-            _ => {
-                self.report.push(
-                    &band_key,
-                    format!(
-                        "{:?} is not allowed (must be [low, high] with 0 < low < high, Hz)",
-                        raw.chatter_band_hz
-                    ),
-                );
-                None
-            }
-        };
-        if let Some(((_, high), channel)) = band.zip(resolved().next()) {
-            let nyquist_hz = channel.sample_rate_hz / 2.0;
-            if high >= nyquist_hz {
-                self.report.push(
-                    &band_key,
-                    format!(
-                        "upper edge {high} Hz is not allowed (must be < {nyquist_hz} Hz, half \
-                         the {} Hz sample rate of stand channel \"{}\")",
-                        channel.sample_rate_hz, channel.name
-                    ),
-                );
-            }
-        }
+        let (stands, stands_ok) = self.stand_channels(key, raw, facts);
+        let first = stands
+            .iter()
+            .filter_map(|&index| facts.channels[index].as_ref())
+            .next();
+        let band = self.chatter_band(key, raw, first);
         let window_s = self.float(
             &format!("{key}.window_s"),
             raw.window_s,
@@ -132,7 +62,7 @@ impl Checker<'_> {
             raw.k_max > 0.0 && raw.k_max < 1.0,
             "> 0 and < 1, a correlation coefficient; typically 0.2..0.3",
         );
-        let sample_rate_hz = resolved().next().map(|c| c.sample_rate_hz);
+        let sample_rate_hz = first.map(|c| c.sample_rate_hz);
         // The gain's keys are checked against a chatter band and stand list that passed
         // (so one mistake is reported once).
         let checked_band =
@@ -161,6 +91,105 @@ impl Checker<'_> {
             capture_after_s: capture_after_s?,
             capture_max_s: capture_max_s?,
         })
+    }
+
+    /// The mill's stand channels (indices of those that resolve) and whether the list
+    /// passed: a count in range, no channel twice, every one an acceleration channel,
+    /// one sample rate for all (one chatter window spans all stands sample for
+    /// sample).
+    fn stand_channels(
+        &mut self,
+        key: &str,
+        raw: &RawTandemMill,
+        facts: &ChannelFacts<'_>,
+    ) -> (Vec<usize>, bool) {
+        let stands_key = format!("{key}.stands");
+        let mut stands_ok = true;
+        if !STANDS_RANGE.contains(&raw.stands.len()) {
+            self.report.push(
+                &stands_key,
+                format!(
+                    "{} stands is not allowed (must be {}..={} stand channels)",
+                    raw.stands.len(),
+                    STANDS_RANGE.start(),
+                    STANDS_RANGE.end()
+                ),
+            );
+            stands_ok = false;
+        }
+        let mut stands = Vec::with_capacity(raw.stands.len());
+        for (position, stand) in raw.stands.iter().enumerate() {
+            let stand_key = format!("{stands_key}[{position}]");
+            if raw.stands[..position].contains(stand) {
+                self.report
+                    .push(stand_key, format!("channel \"{stand}\" is listed twice"));
+                stands_ok = false;
+                continue;
+            }
+            match self.channel_ref(&stand_key, stand, facts, ChannelKind::Acceleration) {
+                Some(index) => stands.push(index),
+                None => stands_ok = false,
+            }
+        }
+        let resolved = || {
+            stands
+                .iter()
+                .filter_map(|&index| facts.channels[index].as_ref())
+        };
+        if let Some(first) = resolved().next() {
+            if let Some(other) = resolved().find(|c| c.sample_rate_hz != first.sample_rate_hz) {
+                self.report.push(
+                    &stands_key,
+                    format!(
+                        "stand channels \"{}\" ({} Hz) and \"{}\" ({} Hz) sample at different \
+                         rates (must share one: the stands are compared sample for sample)",
+                        first.name, first.sample_rate_hz, other.name, other.sample_rate_hz
+                    ),
+                );
+                stands_ok = false;
+            }
+        }
+        (stands, stands_ok)
+    }
+
+    /// `chatter_band_hz` of the mill at `key`: `[low, high]`, 0 < low < high, the
+    /// upper edge below half the sample rate of `first`, its first stand channel.
+    fn chatter_band(
+        &mut self,
+        key: &str,
+        raw: &RawTandemMill,
+        first: Option<&Channel>,
+    ) -> Option<(f64, f64)> {
+        let band_key = format!("{key}.chatter_band_hz");
+        let band = match raw.chatter_band_hz[..] {
+            [low, high] if low.is_finite() && high.is_finite() && 0.0 < low && low < high => {
+                Some((low, high))
+            }
+            _ => {
+                self.report.push(
+                    &band_key,
+                    format!(
+                        "{:?} is not allowed (must be [low, high] with 0 < low < high, Hz)",
+                        raw.chatter_band_hz
+                    ),
+                );
+                None
+            }
+        };
+        if let Some(((_, high), channel)) = band.zip(first) {
+            let nyquist_hz = channel.sample_rate_hz / 2.0;
+            if high >= nyquist_hz {
+                self.report.push(
+                    &band_key,
+                    format!(
+                        "upper edge {high} Hz is not allowed (must be < {nyquist_hz} Hz, half \
+                         the {} Hz sample rate of stand channel \"{}\")",
+                        channel.sample_rate_hz, channel.name
+                    ),
+                );
+            }
+        }
+        band
     }
 
     /// `capture_before_s`, `capture_after_s` and `capture_max_s` of the mill at `key`.
@@ -213,7 +242,43 @@ impl Checker<'_> {
         sample_rate_hz: Option<f64>,
         stands: Option<usize>,
     ) -> GainKeys {
-        let detector = match raw.detector.as_deref() {
+        let detector = self.detector(key, raw);
+        let reference_band_hz = self.reference_band(key, raw, band, sample_rate_hz);
+        let gain_window = raw.gain_window_s.unwrap_or(DEFAULT_GAIN_WINDOW_S);
+        let gain_window_s = self.float(
+            &format!("{key}.gain_window_s"),
+            gain_window,
+            gain_window > 0.0 && gain_window <= MAX_WINDOW_S,
+            &format!("> 0 and <= {MAX_WINDOW_S} s"),
+        );
+        let gain_thresholds = self.gain_thresholds(key, raw, detector, stands);
+        let release = raw.slow_down_release.unwrap_or(DEFAULT_SLOW_DOWN_RELEASE);
+        let slow_down_release = self.float(
+            &format!("{key}.slow_down_release"),
+            release,
+            release > 0.0 && release < 1.0,
+            "> 0 and < 1, a fraction of the alarm level",
+        );
+        let hold = raw.slow_down_hold_s.unwrap_or(DEFAULT_SLOW_DOWN_HOLD_S);
+        let slow_down_hold_s = self.float(
+            &format!("{key}.slow_down_hold_s"),
+            hold,
+            (0.0..=MAX_SLOW_DOWN_HOLD_S).contains(&hold),
+            &format!(">= 0 and <= {MAX_SLOW_DOWN_HOLD_S} s"),
+        );
+        GainKeys {
+            detector,
+            reference_band_hz,
+            gain_window_s,
+            gain_thresholds,
+            slow_down_release,
+            slow_down_hold_s,
+        }
+    }
+
+    /// `detector` of the mill at `key`: `band_gain` (the default) or `paper`.
+    fn detector(&mut self, key: &str, raw: &RawTandemMill) -> Option<ChatterDetectorKind> {
+        match raw.detector.as_deref() {
             None | Some("band_gain") => Some(ChatterDetectorKind::BandGain),
             Some("paper") => Some(ChatterDetectorKind::Paper),
             Some(other) => {
@@ -223,7 +288,19 @@ impl Checker<'_> {
                 );
                 None
             }
-        };
+        }
+    }
+
+    /// `reference_band_hz` of the mill at `key` (default 1.5 to 3 times the upper edge
+    /// of `band`, its checked chatter band): `[low, high]` above the chatter band and
+    /// below half `sample_rate_hz`.
+    fn reference_band(
+        &mut self,
+        key: &str,
+        raw: &RawTandemMill,
+        band: Option<(f64, f64)>,
+        sample_rate_hz: Option<f64>,
+    ) -> Option<(f64, f64)> {
         let reference_key = format!("{key}.reference_band_hz");
         let reference_band_hz = match (raw.reference_band_hz.as_deref(), band) {
             (None, Some((_, high))) => Some((1.5 * high, 3.0 * high)),
@@ -243,7 +320,7 @@ impl Checker<'_> {
                 None
             }
         };
-        let reference_band_hz = reference_band_hz.filter(|&(low, high)| {
+        reference_band_hz.filter(|&(low, high)| {
             if let Some((_, chatter_high)) = band.filter(|&(_, chatter_high)| low < chatter_high) {
                 self.report.push(
                     &reference_key,
@@ -271,16 +348,20 @@ impl Checker<'_> {
                 return false;
             }
             true
-        });
-        let gain_window = raw.gain_window_s.unwrap_or(DEFAULT_GAIN_WINDOW_S);
-        let gain_window_s = self.float(
-            &format!("{key}.gain_window_s"),
-            gain_window,
-            gain_window > 0.0 && gain_window <= MAX_WINDOW_S,
-            &format!("> 0 and <= {MAX_WINDOW_S} s"),
-        );
+        })
+    }
+
+    /// `gain_thresholds` of the mill at `key`: one per stand (`stands`, when known), each
+    /// > 0; needed by the band-gain `detector` in service, empty when left out otherwise.
+    fn gain_thresholds(
+        &mut self,
+        key: &str,
+        raw: &RawTandemMill,
+        detector: Option<ChatterDetectorKind>,
+        stands: Option<usize>,
+    ) -> Option<Vec<f64>> {
         let thresholds_key = format!("{key}.gain_thresholds");
-        let gain_thresholds = match (&raw.gain_thresholds, detector) {
+        match (&raw.gain_thresholds, detector) {
             (None, Some(ChatterDetectorKind::BandGain)) if self.purpose == Purpose::Service => {
                 self.report.push(
                     &thresholds_key,
@@ -317,28 +398,6 @@ impl Checker<'_> {
                 }
                 ok.then(|| values.clone())
             }
-        };
-        let release = raw.slow_down_release.unwrap_or(DEFAULT_SLOW_DOWN_RELEASE);
-        let slow_down_release = self.float(
-            &format!("{key}.slow_down_release"),
-            release,
-            release > 0.0 && release < 1.0,
-            "> 0 and < 1, a fraction of the alarm level",
-        );
-        let hold = raw.slow_down_hold_s.unwrap_or(DEFAULT_SLOW_DOWN_HOLD_S);
-        let slow_down_hold_s = self.float(
-            &format!("{key}.slow_down_hold_s"),
-            hold,
-            (0.0..=MAX_SLOW_DOWN_HOLD_S).contains(&hold),
-            &format!(">= 0 and <= {MAX_SLOW_DOWN_HOLD_S} s"),
-        );
-        GainKeys {
-            detector,
-            reference_band_hz,
-            gain_window_s,
-            gain_thresholds,
-            slow_down_release,
-            slow_down_hold_s,
         }
     }
 }

@@ -20,17 +20,39 @@ pub(super) struct Guess {
     rise_from_pencil: bool,
 }
 
+/// Largest basis: the constant and one function per pencil pole (a complex pair's two
+/// count as its two poles).
+const MAX_BASIS: usize = 1 + pencil::MODEL_ORDER;
+
+/// Basis slot -> (pole index, is sine); slot 0 is the constant (`usize::MAX`).
+type Slots = heapless::Vec<(usize, bool), MAX_BASIS>;
+
 /// Chooses the initial a5..a8 and a10 from the pencil poles.
 pub(super) fn initial_guess(data: &Data<'_>, poles: &[pencil::Pole]) -> Result<Guess, FitError> {
-    const MAX_BASIS: usize = 1 + pencil::MODEL_ORDER;
-    let dt = data.dt;
     let duration = data.duration_s();
-    // Basis slot -> (pole index, is sine); slot 0 is the constant.
-    let mut rotors = [Rotor::new(0.0, 0.0, dt); pencil::MODEL_ORDER];
-    let mut slots: heapless::Vec<(usize, bool), MAX_BASIS> = heapless::Vec::new();
+    let slots = basis_slots(poles, duration);
+    let coefficients = amplitudes(data, poles, &slots)?;
+    let (first, second) = strongest_modes(poles, &slots, &coefficients, duration)?;
+    let load = load_rate(poles, &slots, &coefficients);
+    Ok(Guess {
+        theta: [
+            first.frequency_hz,
+            second.frequency_hz,
+            first.decay_per_s,
+            second.decay_per_s,
+            load.unwrap_or(10.0 / duration),
+        ],
+        rise_from_pencil: load.is_some(),
+    })
+}
+
+/// The basis: the constant, each oscillating pole's cosine and sine, each real pole
+/// fast enough (decaying by more than e^0.5 over the record of `duration` s) to be
+/// told from the constant.
+fn basis_slots(poles: &[pencil::Pole], duration: f64) -> Slots {
+    let mut slots = Slots::new();
     let _ = slots.push((usize::MAX, false));
     for (k, pole) in poles.iter().enumerate() {
-        rotors[k] = Rotor::new(pole.decay_per_s, pole.frequency_hz, dt);
         if pole.frequency_hz > 0.0 {
             let _ = slots.push((k, false));
             let _ = slots.push((k, true));
@@ -38,6 +60,21 @@ pub(super) fn initial_guess(data: &Data<'_>, poles: &[pencil::Pole]) -> Result<G
             // Slower real poles are indistinguishable from the constant: dropped.
             let _ = slots.push((k, false));
         }
+    }
+    slots
+}
+
+/// Linear least-squares coefficients of the basis `slots` over the record (the
+/// normal equations accumulated sample by sample); unused slots are 0.
+fn amplitudes(
+    data: &Data<'_>,
+    poles: &[pencil::Pole],
+    slots: &Slots,
+) -> Result<SVector<f64, MAX_BASIS>, FitError> {
+    let dt = data.dt;
+    let mut rotors = [Rotor::new(0.0, 0.0, dt); pencil::MODEL_ORDER];
+    for (rotor, pole) in rotors.iter_mut().zip(poles) {
+        *rotor = Rotor::new(pole.decay_per_s, pole.frequency_hz, dt);
     }
     let mut ata = [[0.0_f64; MAX_BASIS]; MAX_BASIS];
     let mut atb = [0.0_f64; MAX_BASIS];
@@ -75,62 +112,76 @@ pub(super) fn initial_guess(data: &Data<'_>, poles: &[pencil::Pole]) -> Result<G
         }
     });
     let b = SVector::<f64, MAX_BASIS>::from_fn(|i, _| if i < used { atb[i] } else { 0.0 });
-    let coefficients = a.lu().solve(&b).ok_or(FitError::Singular)?;
-    let constant = coefficients[0];
+    a.lu().solve(&b).ok_or(FitError::Singular)
+}
 
-    // Energy of each oscillating candidate over the record; best two kept.
-    let mut best: [(f64, usize); 2] = [(-1.0, usize::MAX); 2];
-    let mut load: Option<(f64, f64)> = None;
-    let mut slot = 1;
-    while slot < used {
-        let (k, _) = slots[slot];
-        let pole = poles[k];
-        if pole.frequency_hz > 0.0 {
-            let (c, s) = (coefficients[slot], coefficients[slot + 1]);
-            let rate = 2.0 * pole.decay_per_s;
-            let weight = if libm::fabs(rate * duration) < 1e-9 {
-                duration
-            } else {
-                (1.0 - libm::exp(-rate * duration)) / rate
-            };
-            let energy = (c * c + s * s) * weight;
-            if energy.is_finite() {
-                if energy > best[0].0 {
-                    best[1] = best[0];
-                    best[0] = (energy, k);
-                } else if energy > best[1].0 {
-                    best[1] = (energy, k);
-                }
-            }
-            slot += 2;
+/// The basis slots that start a pole (an oscillating pole's cosine, a real pole), with
+/// the pole.
+fn pole_slots<'p>(
+    poles: &'p [pencil::Pole],
+    slots: &'p Slots,
+) -> impl Iterator<Item = (usize, pencil::Pole)> + 'p {
+    slots
+        .iter()
+        .enumerate()
+        .skip(1)
+        .filter(|(_, &(_, sine))| !sine)
+        .map(|(slot, &(k, _))| (slot, poles[k]))
+}
+
+/// The two oscillating poles of largest energy over the record of `duration` s, lower
+/// frequency first.
+fn strongest_modes(
+    poles: &[pencil::Pole],
+    slots: &Slots,
+    coefficients: &SVector<f64, MAX_BASIS>,
+    duration: f64,
+) -> Result<(pencil::Pole, pencil::Pole), FitError> {
+    let mut best: [(f64, Option<pencil::Pole>); 2] = [(-1.0, None); 2];
+    for (slot, pole) in pole_slots(poles, slots).filter(|(_, pole)| pole.frequency_hz > 0.0) {
+        let (c, s) = (coefficients[slot], coefficients[slot + 1]);
+        let rate = 2.0 * pole.decay_per_s;
+        let weight = if libm::fabs(rate * duration) < 1e-9 {
+            duration
         } else {
-            // The load term is -a9 exp(-a10 t): opposite sign to the constant.
-            let c = coefficients[slot];
-            if c * constant < 0.0 && load.is_none_or(|(m, _)| libm::fabs(c) > m) {
-                load = Some((libm::fabs(c), pole.decay_per_s));
+            (1.0 - libm::exp(-rate * duration)) / rate
+        };
+        let energy = (c * c + s * s) * weight;
+        if energy.is_finite() {
+            if energy > best[0].0 {
+                best[1] = best[0];
+                best[0] = (energy, Some(pole));
+            } else if energy > best[1].0 {
+                best[1] = (energy, Some(pole));
             }
-            slot += 1;
         }
     }
-    if best[1].1 == usize::MAX {
+    let [(_, Some(one)), (_, Some(other))] = best else {
         return Err(FitError::ModesNotFound);
-    }
-    let (first, second) = if poles[best[0].1].frequency_hz <= poles[best[1].1].frequency_hz {
-        (poles[best[0].1], poles[best[1].1])
-    } else {
-        (poles[best[1].1], poles[best[0].1])
     };
-    let rise = load.map_or(10.0 / duration, |(_, decay)| decay);
-    Ok(Guess {
-        theta: [
-            first.frequency_hz,
-            second.frequency_hz,
-            first.decay_per_s,
-            second.decay_per_s,
-            rise,
-        ],
-        rise_from_pencil: load.is_some(),
+    Ok(if one.frequency_hz <= other.frequency_hz {
+        (one, other)
+    } else {
+        (other, one)
     })
+}
+
+/// The decay rate of the largest real pole whose amplitude has the sign of a load
+/// rise: the load term is -a9 exp(-a10 t), opposite in sign to the constant.
+fn load_rate(
+    poles: &[pencil::Pole],
+    slots: &Slots,
+    coefficients: &SVector<f64, MAX_BASIS>,
+) -> Option<f64> {
+    let constant = coefficients[0];
+    let mut load: Option<(f64, f64)> = None;
+    for (slot, pole) in pole_slots(poles, slots).filter(|(_, pole)| pole.frequency_hz <= 0.0) {
+        let c = coefficients[slot];
+        if c * constant < 0.0 && load.is_none_or(|(m, _)| libm::fabs(c) > m) {
+            load = Some((libm::fabs(c), pole.decay_per_s));
+        }
+    }
+    load.map(|(_, decay)| decay)
 }
 
 /// Evaluates `guess` with a10 at 8 / T and 24 / T (T the record length), and as

@@ -52,12 +52,10 @@ mod projection;
 mod record;
 mod recurrence;
 
-use core::f64::consts::PI;
-
 use crate::linalg::peak_magnitude;
 use crate::pencil::{self, MIN_DECIMATED_SAMPLES};
 use initial_guess::{best_rise, initial_guess};
-use levenberg_marquardt::{evaluate, levenberg_marquardt};
+use levenberg_marquardt::{evaluate, levenberg_marquardt, Evaluation};
 pub use model::{eq1, Eq1Fit, FitError, FitOptions, FitStatus, PARAMS};
 use record::{Data, LINEAR_INDEX, NONLINEAR_INDEX};
 use recurrence::{Pair, PairRotor, Rotor};
@@ -98,6 +96,45 @@ const COARSE_TOLERANCE: f64 = 1e-3;
 /// assert!((fit.f1_hz - 11.99).abs() < 1e-6 && (fit.f2_hz - 20.91).abs() < 1e-6);
 /// ```
 pub fn fit_eq1(samples: &[f64], options: &FitOptions) -> Result<Eq1Fit, FitError> {
+    check_options(options)?;
+    let (scale, used) = check_samples(samples, options.positive_only)?;
+    let rate = options.sample_rate_hz;
+    let dt = 1.0 / rate;
+    let decimation = (samples.len() / (2 * MIN_DECIMATED_SAMPLES))
+        .min((rate / (4.0 * options.max_mode_hz)) as usize)
+        .max(1);
+    let poles = pencil::poles(samples, rate, decimation).map_err(|e| match e {
+        pencil::PencilError::TooFewSamples => FitError::TooFewSamples,
+        _ => FitError::Singular,
+    })?;
+    let full = Data::new(samples, 1, 1.0 / scale, dt, options.positive_only);
+    let (start, coarse_iterations) =
+        starting_point(samples, &full, &poles, decimation, scale, options)?;
+    let (point, rms, iterations, status) = levenberg_marquardt(start, &full, used, options)?;
+    let params = unscaled_params(&point, scale);
+    // The residual is at most the record's (evaluate rejects a cost above its
+    // energy), so in the record's units it overflows only for a record within a few
+    // ulps of f64::MAX.
+    let rms_residual = rms * scale;
+    if params.iter().any(|v| !v.is_finite()) || !rms_residual.is_finite() {
+        return Err(FitError::Diverged);
+    }
+    let taf = fitted_peak(&params, samples.len(), dt)
+        .filter(|_| params[8] > 0.0)
+        .map(|peak| peak / params[8])
+        .filter(|v| v.is_finite());
+    Ok(Eq1Fit::new(
+        params,
+        taf,
+        rms_residual,
+        iterations + coarse_iterations,
+        status,
+        used,
+    ))
+}
+
+/// Checks the options, field by field in their order.
+fn check_options(options: &FitOptions) -> Result<(), FitError> {
     let rate = options.sample_rate_hz;
     if !(rate.is_finite() && rate > 0.0) {
         return Err(FitError::SampleRateHz);
@@ -111,6 +148,13 @@ pub fn fit_eq1(samples: &[f64], options: &FitOptions) -> Result<Eq1Fit, FitError
     if !(options.tolerance > 0.0 && options.tolerance < 0.1) {
         return Err(FitError::Tolerance);
     }
+    Ok(())
+}
+
+/// The record's peak magnitude (the fit's scale) and the number of samples fitted
+/// (those above zero with `positive_only`), once the record is long enough, finite and
+/// not all zero.
+fn check_samples(samples: &[f64], positive_only: bool) -> Result<(f64, usize), FitError> {
     if samples.len() < MIN_DECIMATED_SAMPLES {
         return Err(FitError::TooFewSamples);
     }
@@ -121,7 +165,7 @@ pub fn fit_eq1(samples: &[f64], options: &FitOptions) -> Result<Eq1Fit, FitError
     if scale == 0.0 {
         return Err(FitError::Flat);
     }
-    let used = if options.positive_only {
+    let used = if positive_only {
         samples.iter().filter(|&&v| v > 0.0).count()
     } else {
         samples.len()
@@ -129,19 +173,25 @@ pub fn fit_eq1(samples: &[f64], options: &FitOptions) -> Result<Eq1Fit, FitError
     if used < 2 * PARAMS {
         return Err(FitError::TooFewSamples);
     }
+    Ok((scale, used))
+}
 
-    let dt = 1.0 / rate;
-    let decimation = (samples.len() / (2 * MIN_DECIMATED_SAMPLES))
-        .min((rate / (4.0 * options.max_mode_hz)) as usize)
-        .max(1);
-    let poles = pencil::poles(samples, rate, decimation).map_err(|e| match e {
-        pencil::PencilError::TooFewSamples => FitError::TooFewSamples,
-        _ => FitError::Singular,
-    })?;
-
-    // Coarse pass: every `stride`-th sample (stride <= the pencil's decimation, so the
-    // modes stay well below the coarse Nyquist rate) converges cheaply; the full record
-    // then needs only a few iterations.
+/// The full record's starting point from the pencil `poles`, and the iterations spent
+/// on it.
+///
+/// Coarse pass: every `decimation`-th sample (at most the pencil's decimation, so the
+/// modes stay well below the coarse Nyquist rate) converges cheaply; the full record
+/// then needs only a few iterations. A record too short for it starts from the
+/// initial guess on the full record.
+fn starting_point(
+    samples: &[f64],
+    full: &Data<'_>,
+    poles: &[pencil::Pole],
+    decimation: usize,
+    scale: f64,
+    options: &FitOptions,
+) -> Result<(Evaluation, u32), FitError> {
+    let dt = full.dt;
     let coarse = Data::new(
         samples,
         decimation,
@@ -149,10 +199,9 @@ pub fn fit_eq1(samples: &[f64], options: &FitOptions) -> Result<Eq1Fit, FitError
         dt * decimation as f64,
         options.positive_only,
     );
-    let full = Data::new(samples, 1, 1.0 / scale, dt, options.positive_only);
     let coarse_used = coarse.used();
     let (start, coarse_iterations) = if decimation > 1 && coarse_used >= 4 * PARAMS {
-        let initial = initial_guess(&coarse, &poles)?;
+        let initial = initial_guess(&coarse, poles)?;
         let initial = best_rise(initial, &coarse).ok_or(FitError::Singular)?;
         // The coarse optimum differs from the full one by the noise anyway (a relative
         // cost of about PARAMS / coarse_used): converging it further is wasted.
@@ -164,11 +213,14 @@ pub fn fit_eq1(samples: &[f64], options: &FitOptions) -> Result<Eq1Fit, FitError
             levenberg_marquardt(initial, &coarse, coarse_used, &coarse_options)?;
         ((point.theta, point.linear), iterations)
     } else {
-        ((initial_guess(&full, &poles)?.theta, [0.0; 5]), 0)
+        ((initial_guess(full, poles)?.theta, [0.0; 5]), 0)
     };
-    let start = evaluate(start.0, &start.1, &full).ok_or(FitError::Singular)?;
-    let (point, rms, iterations, status) = levenberg_marquardt(start, &full, used, options)?;
-    let iterations = iterations + coarse_iterations;
+    let start = evaluate(start.0, &start.1, full).ok_or(FitError::Singular)?;
+    Ok((start, coarse_iterations))
+}
+
+/// The parameters a1..a10 of `point` in canonical order, in the record's units.
+fn unscaled_params(point: &Evaluation, scale: f64) -> [f64; PARAMS] {
     let mut params = [0.0; PARAMS];
     for (&index, value) in NONLINEAR_INDEX.iter().zip(point.theta) {
         params[index] = value;
@@ -180,41 +232,7 @@ pub fn fit_eq1(samples: &[f64], options: &FitOptions) -> Result<Eq1Fit, FitError
     for index in [0, 1, 2, 3, 8] {
         params[index] *= scale;
     }
-    // The residual is at most the record's (evaluate rejects a cost above its
-    // energy), so in the record's units it overflows only for a record within a few
-    // ulps of f64::MAX.
-    let rms_residual = rms * scale;
-    if params.iter().any(|v| !v.is_finite()) || !rms_residual.is_finite() {
-        return Err(FitError::Diverged);
-    }
-    let zeta = |decay: f64, frequency: f64| {
-        let norm = libm::hypot(decay, 2.0 * PI * frequency);
-        if norm > 0.0 {
-            decay / norm
-        } else {
-            0.0
-        }
-    };
-    let taf = fitted_peak(&params, samples.len(), dt)
-        .filter(|_| params[8] > 0.0)
-        .map(|peak| peak / params[8])
-        .filter(|v| v.is_finite());
-    Ok(Eq1Fit {
-        params,
-        f1_hz: params[4],
-        f2_hz: params[5],
-        decay1_per_s: params[6],
-        decay2_per_s: params[7],
-        zeta1: zeta(params[6], params[4]),
-        zeta2: zeta(params[7], params[5]),
-        static_torque: params[8],
-        rise_per_s: params[9],
-        taf,
-        rms_residual,
-        iterations,
-        status,
-        samples_used: used,
-    })
+    params
 }
 
 /// Largest value of the fitted curve over `len` samples, by the same recurrences.

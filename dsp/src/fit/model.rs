@@ -131,6 +131,47 @@ pub struct Eq1Fit {
     pub samples_used: usize,
 }
 
+impl Eq1Fit {
+    /// The fit of parameters `params` (paper order, in the record's units), with the
+    /// fitted curve's `taf`, the residual's RMS and how the iteration went.
+    pub(super) fn new(
+        params: [f64; PARAMS],
+        taf: Option<f64>,
+        rms_residual: f64,
+        iterations: u32,
+        status: FitStatus,
+        samples_used: usize,
+    ) -> Eq1Fit {
+        Eq1Fit {
+            params,
+            f1_hz: params[4],
+            f2_hz: params[5],
+            decay1_per_s: params[6],
+            decay2_per_s: params[7],
+            zeta1: damping_ratio(params[6], params[4]),
+            zeta2: damping_ratio(params[7], params[5]),
+            static_torque: params[8],
+            rise_per_s: params[9],
+            taf,
+            rms_residual,
+            iterations,
+            status,
+            samples_used,
+        }
+    }
+}
+
+/// Damping ratio of a mode decaying at `decay` (1/s) at `frequency` (Hz): `decay /
+/// |decay + i 2 pi frequency|`, 0 for a mode that neither decays nor oscillates.
+fn damping_ratio(decay: f64, frequency: f64) -> f64 {
+    let norm = libm::hypot(decay, 2.0 * PI * frequency);
+    if norm > 0.0 {
+        decay / norm
+    } else {
+        0.0
+    }
+}
+
 /// Evaluates eq. (1) with parameters `params` (paper order) at time `t_s` (s).
 pub fn eq1(params: &[f64; PARAMS], t_s: f64) -> f64 {
     let [a1, a2, a3, a4, a5, a6, a7, a8, a9, a10] = *params;

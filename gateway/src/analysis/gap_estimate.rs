@@ -99,7 +99,7 @@ impl GapObservation {
     ) -> Option<Self> {
         let taf = transient.taf?;
         let rate = settings.sample_rate_hz;
-        let noise = millgate_sim::discrepancy::noise::noise_rms(window);
+        let noise = millgate_dsp::noise::noise_rms(window);
         let static_knm = transient.static_torque_knm;
         let tail = ((window.len() as f64 * settings.settled_fraction) as usize).max(1);
         let static_sigma = noise / (tail as f64).sqrt();

@@ -142,16 +142,6 @@ impl CanMessage {
         self.frame_id
     }
 
-    /// Frame payload length, bytes (0..=64).
-    pub fn len(&self) -> usize {
-        self.len
-    }
-
-    /// True for a message without payload bytes.
-    pub fn is_empty(&self) -> bool {
-        self.len == 0
-    }
-
     /// Payload for one value per signal, in engineering units; unused bits are 0.
     pub fn encode(&self, values: &[f64]) -> Result<Vec<u8>, CanNodeError> {
         if values.len() != self.signals.len() {
@@ -257,7 +247,11 @@ impl CanNode {
     }
 
     /// Encodes `values` (one per signal of `message`) and sends the frame.
-    pub async fn send(&self, message: &CanMessage, values: &[f64]) -> Result<(), CanNodeError> {
+    pub(crate) async fn send(
+        &self,
+        message: &CanMessage,
+        values: &[f64],
+    ) -> Result<(), CanNodeError> {
         self.send_frames(&[message.frame(values)?]).await
     }
 
@@ -345,7 +339,7 @@ mod tests {
             signal(0x200, false, 64, 24),
         ])
         .expect("valid message");
-        assert_eq!(message.len(), 64);
+        assert_eq!(message.len, 64);
         let data = message.encode(&[1.234, -0.5]).expect("two values");
         assert_eq!(&data[..5], &[0x00, 0xd2, 0x04, 0x0c, 0xfe]);
         assert!(data[5..].iter().all(|&byte| byte == 0));
@@ -371,7 +365,7 @@ mod tests {
     #[test]
     fn frame_length_covers_signals_beyond_the_declared_length() {
         let message = CanMessage::new(vec![signal(0x101, false, 2, 16)]).expect("valid");
-        assert_eq!(message.len(), 4);
+        assert_eq!(message.len, 4);
     }
 
     #[test]

@@ -20,20 +20,20 @@ use tokio_modbus::server::tcp::Server;
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct RegisterBank {
     /// Input registers, FC 04.
-    pub input: Vec<u16>,
+    pub(crate) input: Vec<u16>,
     /// Holding registers, FC 03 / 06 / 16.
     pub holding: Vec<u16>,
     /// Whether clients may write holding registers.
-    pub holding_writable: bool,
+    pub(crate) holding_writable: bool,
     /// Number of successful write requests (FC 06 / FC 16) served.
-    pub writes: u64,
+    pub(crate) writes: u64,
     /// When `Some`, every successful write is also recorded here with its time (a
     /// virtual PLC watched by a latency benchmark; whoever reads it drains it).
-    pub write_log: Option<Vec<WriteRecord>>,
+    pub(crate) write_log: Option<Vec<WriteRecord>>,
     /// When `Some`, every successful input-register read (FC 04) is also recorded
     /// here with its time and first word (a virtual DAQ watched by a latency
     /// benchmark: a block's first word is its sequence; whoever reads it drains it).
-    pub read_log: Option<Vec<ReadRecord>>,
+    pub(crate) read_log: Option<Vec<ReadRecord>>,
 }
 
 /// One successful input-register read, as recorded in the read log.
@@ -60,7 +60,7 @@ pub struct WriteRecord {
 
 impl RegisterBank {
     /// A bank of zeroed tables.
-    pub fn new(input_len: usize, holding_len: usize, holding_writable: bool) -> Self {
+    pub(crate) fn new(input_len: usize, holding_len: usize, holding_writable: bool) -> Self {
         Self {
             input: vec![0; input_len],
             holding: vec![0; holding_len],
@@ -105,7 +105,7 @@ impl RegisterBank {
     }
 
     /// Answer one Modbus request against the bank.
-    pub fn handle(&mut self, request: &Request<'_>) -> Result<Response, ExceptionCode> {
+    pub(crate) fn handle(&mut self, request: &Request<'_>) -> Result<Response, ExceptionCode> {
         match request {
             Request::ReadInputRegisters(address, count) => {
                 let words = Self::read(&self.input, *address, *count)?;
@@ -141,7 +141,7 @@ pub struct SharedBank(Arc<Mutex<RegisterBank>>);
 
 impl SharedBank {
     /// Share `bank`.
-    pub fn new(bank: RegisterBank) -> Self {
+    pub(crate) fn new(bank: RegisterBank) -> Self {
         Self(Arc::new(Mutex::new(bank)))
     }
 
@@ -155,7 +155,7 @@ impl SharedBank {
 
     /// The writes recorded since the last call (empty unless logging: see
     /// [`RegisterBank::write_log`]), oldest first.
-    pub fn take_write_log(&self) -> Vec<WriteRecord> {
+    pub(crate) fn take_write_log(&self) -> Vec<WriteRecord> {
         self.lock()
             .write_log
             .as_mut()
@@ -164,7 +164,7 @@ impl SharedBank {
     }
 
     /// The reads recorded since the last call (empty unless logging: see
-    /// [`RegisterBank::read_log`]), oldest first.
+    /// `RegisterBank::read_log`), oldest first.
     pub fn take_read_log(&self) -> Vec<ReadRecord> {
         self.lock()
             .read_log
@@ -203,7 +203,7 @@ pub struct Running {
 impl Running {
     /// Spawn `run`, handing it the future that completes when [`Running::stop`] is
     /// called (or the handle is dropped).
-    pub fn spawn<F>(run: impl FnOnce(StopSignal) -> F) -> Self
+    pub(crate) fn spawn<F>(run: impl FnOnce(StopSignal) -> F) -> Self
     where
         F: Future<Output = io::Result<()>> + Send + 'static,
     {
@@ -224,11 +224,11 @@ impl Running {
 
 /// Completes when the owning [`Running`] is stopped or dropped.
 #[derive(Debug)]
-pub struct StopSignal(tokio::sync::oneshot::Receiver<()>);
+pub(crate) struct StopSignal(tokio::sync::oneshot::Receiver<()>);
 
 impl StopSignal {
     /// Wait for the stop request.
-    pub async fn wait(self) {
+    pub(crate) async fn wait(self) {
         let _ = self.0.await;
     }
 }
@@ -262,7 +262,7 @@ impl tokio_modbus::server::Service for BankService {
 }
 
 /// Serve `bank` on `listener` until `shutdown` completes.
-pub async fn serve(
+pub(crate) async fn serve(
     listener: TcpListener,
     bank: SharedBank,
     options: ServeOptions,

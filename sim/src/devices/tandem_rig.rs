@@ -34,7 +34,7 @@ pub struct RequestBit {
 
 impl RequestBit {
     /// The request as the PLC's registers hold it now.
-    pub fn read(&self) -> bool {
+    pub(crate) fn read(&self) -> bool {
         self.plc.holding_bit(self.register, self.bit)
     }
 }
@@ -54,9 +54,9 @@ pub enum RigError {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RigCycle {
     /// Simulated time at the cycle's end, s.
-    pub t_s: f64,
+    pub(crate) t_s: f64,
     /// Exit speed at the cycle's end, m/s.
-    pub speed_m_s: f64,
+    pub(crate) speed_m_s: f64,
     /// The request as the PLC read it for this cycle.
     pub request: bool,
     /// Chatter amplitude over the cycle (tension swing over its developed limit).
@@ -119,7 +119,7 @@ pub async fn run(
         let requested = request.read();
         let time_s = mill.time_s();
         operator(time_s, mill.control_mut());
-        let mut samples = mill.record(mill.cycle_samples());
+        let mut samples = mill.record(mill.cycle_samples);
         let truth = match mill.cycle(requested, &mut samples) {
             Ok(truth) => truth,
             Err(OnlineError::Run(RunError::Diverged { .. })) => break,

@@ -135,17 +135,12 @@ impl VirtualDaq {
     }
 
     /// Time between two blocks.
-    pub fn block_period(&self) -> Duration {
+    pub(crate) fn block_period(&self) -> Duration {
         Duration::from_secs_f64(f64::from(self.samples_per_block) / self.sample_rate_hz)
     }
 
-    /// Index of the next sample to publish (samples published so far per channel).
-    pub fn samples_published(&self) -> usize {
-        self.next_sample
-    }
-
     /// Publish the next block of every channel and advance the sequence number.
-    pub fn publish_next_block(&mut self) {
+    pub(crate) fn publish_next_block(&mut self) {
         let start = self.next_sample;
         let end = start + usize::from(self.samples_per_block);
         self.sequence = self.sequence.wrapping_add(1);
@@ -192,7 +187,7 @@ impl VirtualDaq {
 
     /// Serve the DAQ on `listener` and publish a block every block period until
     /// `shutdown` completes.
-    pub async fn run(
+    pub(crate) async fn run(
         mut self,
         listener: TcpListener,
         options: ServeOptions,
@@ -273,7 +268,7 @@ mod tests {
         assert_eq!(block.sequence, 2);
         assert_eq!(block.raw.len(), 100);
         assert_eq!(block.values(0.5, 0.0).next(), Some(50.0));
-        assert_eq!(daq.samples_published(), 200);
+        assert_eq!(daq.next_sample, 200);
         assert_eq!(daq.block_period(), Duration::from_millis(100));
         drop(bank);
         // A block given by the owner replaces the signal's next one.
@@ -284,7 +279,7 @@ mod tests {
         let block = layout::decode_block(&bank.input[10..]).unwrap();
         assert_eq!(block.sequence, 3);
         assert_eq!(block.values(0.5, 0.0).nth(7), Some(-3.5));
-        assert_eq!(daq.samples_published(), 300);
+        assert_eq!(daq.next_sample, 300);
     }
 
     #[test]

@@ -66,7 +66,7 @@ impl VirtualPlc {
     }
 
     /// Serve until `shutdown` completes.
-    pub async fn run(
+    pub(crate) async fn run(
         self,
         listener: TcpListener,
         options: ServeOptions,

@@ -1,14 +1,14 @@
 //! Calibration of the linear model to the measured bites.
 //!
 //! 1. **Alignment**: per bite, the onset and load scale that best line the model's
-//!    response up with the record ([`align`]).
+//!    response up with the record (`align`).
 //! 2. **Identification**: per bite, beta1 and beta2 from the part where the couplings
-//!    stay loaded ([`identify::loaded_modes`]), which a gap, friction or a sensor lag
+//!    stay loaded (`identify::loaded_modes`), which a gap, friction or a sensor lag
 //!    do not bias, and by the paper's eq. (1) fit on the whole transient (reported; a
 //!    gap biases it).
 //! 3. **Stiffness starts**: every root of eq. (2) for each identification (three
 //!    masses), or a regularised modal update (N masses), within a factor
-//!    [`MAX_LOG_RATIO`](super::model_fit::MAX_LOG_RATIO) of the drawings; the model's own
+//!    of 10 (`MAX_LOG_RATIO`) of the drawings; the model's own
 //!    stiffness; and the best points of a global search over stiffness within a factor
 //!    [`GRID_FACTOR`] of the drawings (`grid_starts`), for when no identification
 //!    gives a root (a coupling stuck by friction leaves one mode in the loaded part).
@@ -16,7 +16,7 @@
 //!    onset by Levenberg-Marquardt from each start (loads re-aligned to it); the best is
 //!    the calibrated linear model. Inertias and the motor's controller are trusted.
 //!
-//! What it hands the candidate search ([`Calibrated::anchors`]): the identified
+//! What it hands the candidate search (`Calibrated::anchors`): the identified
 //! stiffness with its fits' loads, and the best linear fit. A linear fit to a record
 //! with a gap bends its stiffness to mimic the gap; the loaded part's stiffness does not.
 
@@ -75,7 +75,7 @@ pub enum TrialSource {
 
 impl IdentificationWindow {
     /// The name used in JSON and reports.
-    pub fn key(self) -> &'static str {
+    pub(crate) fn key(self) -> &'static str {
         match self {
             IdentificationWindow::Transient => "transient",
             IdentificationWindow::Loaded => "loaded",
@@ -85,7 +85,7 @@ impl IdentificationWindow {
 
 impl TrialSource {
     /// The name used in JSON and reports.
-    pub fn key(self) -> &'static str {
+    pub(crate) fn key(self) -> &'static str {
         match self {
             TrialSource::Eq2 => "eq2",
             TrialSource::ModalUpdate => "modal_update",
@@ -113,19 +113,19 @@ pub struct StiffnessTrial {
 
 /// One adjusted quantity of the calibration.
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct Adjustment {
+pub(crate) struct Adjustment {
     /// Model key, e.g. `coupling[0].stiffness`.
-    pub key: String,
+    pub(crate) key: String,
     /// The bite, for a load quantity; null for the driveline's own.
-    pub bite: Option<usize>,
+    pub(crate) bite: Option<usize>,
     /// Unit of the values.
-    pub unit: &'static str,
+    pub(crate) unit: &'static str,
     /// Value in the given model.
-    pub model: f64,
+    pub(crate) model: f64,
     /// Calibrated value.
-    pub calibrated: f64,
+    pub(crate) calibrated: f64,
     /// Change, percent of the model value (null when the model value is 0).
-    pub change_percent: Option<f64>,
+    pub(crate) change_percent: Option<f64>,
 }
 
 /// The calibrated linear model and how it was reached.
@@ -133,45 +133,84 @@ pub struct Adjustment {
 pub struct Calibration {
     /// First natural frequency identified on the first bite's whole transient (the
     /// paper's way), Hz.
-    pub beta1_hz: Option<f64>,
+    pub(crate) beta1_hz: Option<f64>,
     /// Second natural frequency identified on the first bite's whole transient, Hz.
-    pub beta2_hz: Option<f64>,
+    pub(crate) beta2_hz: Option<f64>,
     /// Every identification made.
     pub identified: Vec<Identification>,
     /// The stiffness starts tried, best first.
     pub stiffness_trials: Vec<StiffnessTrial>,
     /// Every calibrated quantity against the model's value.
-    pub adjustments: Vec<Adjustment>,
+    pub(crate) adjustments: Vec<Adjustment>,
     /// RMS residual of the calibrated linear model over every bite, kN*m.
-    pub rmse: f64,
+    pub(crate) rmse: f64,
 }
 
 /// What [`calibrate`] found.
 #[derive(Debug, Clone)]
-pub struct Calibrated {
+pub(crate) struct Calibrated {
     /// The calibration as reported (adjustments filled in by the caller).
-    pub calibration: Calibration,
+    pub(crate) calibration: Calibration,
     /// The best linear fit.
-    pub best: Fitted,
+    pub(crate) best: Fitted,
     /// Where to start the candidate search from: the identified stiffness (up to
     /// [`IDENTIFIED_ANCHORS`] starts, loaded part first) with their fits' loads and
     /// damping, and the best linear fit.
-    pub anchors: Vec<LinearValues>,
+    pub(crate) anchors: Vec<LinearValues>,
 }
 
 /// Identified stiffness starts handed to the candidate search, at most.
-pub const IDENTIFIED_ANCHORS: usize = 2;
+pub(crate) const IDENTIFIED_ANCHORS: usize = 2;
 
 /// Calibrates the linear model to `bites` (each with its noise RMS, kN*m).
-pub fn calibrate(
+pub(crate) fn calibrate(
     bites: &[BiteRecord<'_>],
     noise_rms: &[f64],
     simulations: &mut usize,
 ) -> Result<Calibrated, DiscrepancyError> {
     let template = &bites[0].template;
-    let drawings: Vec<f64> = template.couplings.iter().map(|c| c.stiffness).collect();
     let prior = aligned(bites, &LinearValues::of(template, bites.len()), simulations)?;
+    let identified = identifications(bites, &prior, noise_rms);
+    let starts = stiffness_starts(bites, &prior, &identified, simulations)?;
+    let fits = fitted_starts(bites, &prior, starts, simulations)?;
+    let Some((_, best, _)) = fits.first() else {
+        return Err(DiscrepancyError::NoStiffnessStart);
+    };
+    let best = best.clone();
+    let mut anchors = identified_anchors(&fits, &identified);
+    anchors.push(best.linear.clone());
+    let transient = identified
+        .iter()
+        .find(|id| id.window == IdentificationWindow::Transient && id.bite == 0);
+    Ok(Calibrated {
+        calibration: Calibration {
+            beta1_hz: transient.map(|id| id.beta1_hz),
+            beta2_hz: transient.map(|id| id.beta2_hz),
+            identified,
+            stiffness_trials: fits.into_iter().map(|(t, _, _)| t).collect(),
+            adjustments: Vec::new(),
+            rmse: best.rmse(),
+        },
+        best,
+        anchors,
+    })
+}
 
+/// A start of the stiffness fit: where it comes from, the identification it was
+/// computed from (index), the stiffness of each coupling (N*m/rad).
+type Start = (TrialSource, Option<usize>, Vec<f64>);
+
+/// A fitted start: its trial as reported, the fit, the start's stiffness.
+type FittedStart = (StiffnessTrial, Fitted, Vec<f64>);
+
+/// The natural frequencies identified in each bite (aligned by `prior`): eq. (1) on
+/// the transient from the onset, and the loaded part's modes (with the bite's noise
+/// RMS, kN*m).
+fn identifications(
+    bites: &[BiteRecord<'_>],
+    prior: &LinearValues,
+    noise_rms: &[f64],
+) -> Vec<Identification> {
     let mut identified = Vec::new();
     for (b, bite) in bites.iter().enumerate() {
         let fs = bite.template.measurement.sample_rate;
@@ -198,8 +237,22 @@ pub fn calibrate(
             });
         }
     }
+    identified
+}
 
-    let mut starts: Vec<(TrialSource, Option<usize>, Vec<f64>)> = Vec::new();
+/// The distinct stiffness starts: each identification's roots (eq. (2) for three
+/// masses, a modal update otherwise; loaded part first, implausible roots left out),
+/// the drawings, then a grid; a start within [`SAME_START`] of an earlier one is left
+/// out.
+fn stiffness_starts(
+    bites: &[BiteRecord<'_>],
+    prior: &LinearValues,
+    identified: &[Identification],
+    simulations: &mut usize,
+) -> Result<Vec<Start>, DiscrepancyError> {
+    let template = &bites[0].template;
+    let drawings: Vec<f64> = template.couplings.iter().map(|c| c.stiffness).collect();
+    let mut starts: Vec<Start> = Vec::new();
     let mut add = |source, identification, stiffness: Vec<f64>| {
         let same = |other: &Vec<f64>| {
             other
@@ -238,11 +291,21 @@ pub fn calibrate(
         }
     }
     add(TrialSource::Model, None, drawings.clone());
-    for stiffness in grid_starts(bites, &prior, simulations)? {
+    for stiffness in grid_starts(bites, prior, simulations)? {
         add(TrialSource::Grid, None, stiffness);
     }
+    Ok(starts)
+}
 
-    let mut fits: Vec<(StiffnessTrial, Fitted, Vec<f64>)> = Vec::with_capacity(starts.len());
+/// Each start fitted (aligned by `prior` first), best (lowest cost) first; starts
+/// whose fit fails are left out.
+fn fitted_starts(
+    bites: &[BiteRecord<'_>],
+    prior: &LinearValues,
+    starts: Vec<Start>,
+    simulations: &mut usize,
+) -> Result<Vec<FittedStart>, DiscrepancyError> {
+    let mut fits: Vec<FittedStart> = Vec::with_capacity(starts.len());
     for (source, identification, stiffness) in starts {
         let start = aligned(bites, &prior.with_stiffness(&stiffness), simulations)?;
         let mut problem = Problem::new(bites, start, None)?;
@@ -258,20 +321,20 @@ pub fn calibrate(
         fits.push((trial, fit, stiffness));
     }
     fits.sort_by(|a, b| a.1.cost.total_cmp(&b.1.cost));
-    let Some((_, best, _)) = fits.first() else {
-        return Err(DiscrepancyError::NoStiffnessStart);
-    };
-    let best = best.clone();
-    // Identified stiffness: from the loaded part if any (a gap biases the whole
-    // transient's), each distinct start with its fit's loads and damping, best-fitting
-    // first (fits are sorted); the two roots of eq. (2) can fit a record with an
-    // effect about equally, so both are kept. Then the best linear fit.
+    Ok(fits)
+}
+
+/// Identified stiffness: from the loaded part if any (a gap biases the whole
+/// transient's), each distinct start with its fit's loads and damping, best-fitting
+/// first (`fits` are sorted), at most [`IDENTIFIED_ANCHORS`]; the two roots of eq. (2)
+/// can fit a record with an effect about equally, so both are kept.
+fn identified_anchors(fits: &[FittedStart], identified: &[Identification]) -> Vec<LinearValues> {
     let mut anchors: Vec<LinearValues> = Vec::new();
     for window in [
         IdentificationWindow::Loaded,
         IdentificationWindow::Transient,
     ] {
-        for (trial, fit, stiffness) in &fits {
+        for (trial, fit, stiffness) in fits {
             let Some(i) = trial.identification else {
                 continue;
             };
@@ -283,22 +346,7 @@ pub fn calibrate(
             break;
         }
     }
-    anchors.push(best.linear.clone());
-    let transient = identified
-        .iter()
-        .find(|id| id.window == IdentificationWindow::Transient && id.bite == 0);
-    Ok(Calibrated {
-        calibration: Calibration {
-            beta1_hz: transient.map(|id| id.beta1_hz),
-            beta2_hz: transient.map(|id| id.beta2_hz),
-            identified,
-            stiffness_trials: fits.into_iter().map(|(t, _, _)| t).collect(),
-            adjustments: Vec::new(),
-            rmse: best.rmse(),
-        },
-        best,
-        anchors,
-    })
+    anchors
 }
 
 /// `values` with every bite's onset and static torque aligned to its record (the rise
@@ -340,18 +388,18 @@ fn aligned_load(model: &Model, y: &[f64]) -> Result<Option<(BiteLoad, f64)>, Dis
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct AlignedResponse {
     /// The bite's static torque as the alignment measures it, kN*m.
-    pub static_torque_knm: f64,
+    pub(crate) static_torque_knm: f64,
     /// The load's onset after the record's first sample, s.
-    pub onset_s: f64,
+    pub(crate) onset_s: f64,
     /// RMS of the record minus the response, kN*m: the discrepancy left.
-    pub residual_rms_knm: f64,
+    pub(crate) residual_rms_knm: f64,
     /// The simulated torque on the record's sample grid, kN*m.
-    pub torque_knm: Vec<f64>,
+    pub(crate) torque_knm: Vec<f64>,
 }
 
 /// The response of `model` (unchanged: its stiffness, damping and rise rate) to the
 /// measured bite `bite`: the model sampled on the bite's grid, its onset and static
-/// torque aligned to the record as the calibration's first step does ([`align`]), and
+/// torque aligned to the record as the calibration's first step does (`align`), and
 /// simulated. `None` when the record is not a load step. What `millgate discrepancy`
 /// starts from, for one bite, shown beside the record.
 pub fn aligned_response(
@@ -384,7 +432,7 @@ pub fn aligned_response(
 /// the response to a load starting at 0 delayed by `o`; and a linear chain's response
 /// is proportional to the static load. One simulation from onset 0 is shifted over
 /// every sample and scaled by least squares.
-pub fn align(model: &Model, y: &[f64]) -> Result<Option<(f64, f64, f64)>, DiscrepancyError> {
+pub(crate) fn align(model: &Model, y: &[f64]) -> Result<Option<(f64, f64, f64)>, DiscrepancyError> {
     let fs = model.measurement.sample_rate;
     let mut at_zero = model.clone();
     at_zero.load.onset = 0.0;
@@ -420,11 +468,11 @@ pub fn align(model: &Model, y: &[f64]) -> Result<Option<(f64, f64, f64)>, Discre
 }
 
 /// Grid points per coupling of the global stiffness search.
-pub const GRID_POINTS: usize = 9;
+pub(crate) const GRID_POINTS: usize = 9;
 /// The global search spans the drawing stiffness divided and multiplied by this.
 pub const GRID_FACTOR: f64 = 5.0;
 /// Couplings up to which the global search runs (GRID_POINTS^couplings points).
-pub const GRID_MAX_COUPLINGS: usize = 3;
+pub(crate) const GRID_MAX_COUPLINGS: usize = 3;
 /// Minima of the global search kept as starts.
 const GRID_STARTS: usize = 2;
 
@@ -562,7 +610,7 @@ fn modal_update(template: &Model, drawing: &[f64], identified_hz: &[f64; 2]) -> 
 }
 
 /// First elastic natural frequency of `model`, Hz (1 Hz if none is found).
-pub fn first_mode_hz(model: &Model) -> f64 {
+pub(crate) fn first_mode_hz(model: &Model) -> f64 {
     modal::modes(model)
         .ok()
         .and_then(|m| m.elastic_hz().next())
@@ -570,7 +618,7 @@ pub fn first_mode_hz(model: &Model) -> f64 {
 }
 
 /// Every calibrated quantity against the value in `model`.
-pub fn adjustments(model: &Model, calibrated: &LinearValues) -> Vec<Adjustment> {
+pub(crate) fn adjustments(model: &Model, calibrated: &LinearValues) -> Vec<Adjustment> {
     let entry = |key: &str, bite, unit, before: f64, after: f64| Adjustment {
         key: key.to_owned(),
         bite,

@@ -37,11 +37,11 @@ pub const NOISE_KNM: (f64, f64) = (0.2, 2.0);
 pub const DRAWING_FACTOR: (f64, f64) = (1.3, 4.0);
 /// Gap widths, rad.
 pub const BACKLASH_RAD: (f64, f64) = (1.0e-3, 5.0e-3);
-/// Gap widths of the [`Recorded::Schedule`] cases, rad: a big gap already open when the
+/// Gap widths of the `Recorded::Schedule` cases, rad: a big gap already open when the
 /// record was taken (the wear diagnosis's calibration records).
 pub const SCHEDULE_BACKLASH_RAD: (f64, f64) = (3.0e-3, 5.0e-3);
 /// Timing of each bar of a [`Recorded::Schedule`] case.
-pub const SCHEDULE_TIMING: BarTiming = BarTiming {
+pub(crate) const SCHEDULE_TIMING: BarTiming = BarTiming {
     idle_s: 0.3,
     rolling_s: 0.7,
 };
@@ -53,7 +53,7 @@ pub struct Hidden {
     pub effect: Effect,
     /// Its coupling, or `None` for the measured channel.
     pub location: Option<usize>,
-    /// Its size, in the unit of [`Effect::parameter_key`].
+    /// Its size, in the unit of `Effect::parameter_key`.
     pub value: f64,
 }
 
@@ -70,7 +70,7 @@ pub enum Handed {
 
 /// How a case's bites were recorded.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Recorded {
+pub(crate) enum Recorded {
     /// Each bite its own record of 0.6 s, from before the rise into the settled part.
     Separate,
     /// One record of a rolling schedule ([`SCHEDULE_TIMING`]: idle, bite, rolling, a
@@ -89,11 +89,11 @@ pub struct HiddenCase {
     /// Where the handed stiffness comes from.
     pub handed_from: Handed,
     /// How the bites were recorded.
-    pub recorded: Recorded,
+    pub(crate) recorded: Recorded,
     /// Noise RMS added to every bite, kN*m.
     pub noise_rms: f64,
     /// Seed of the noise (bite `b` uses `seed + b`).
-    pub seed: u64,
+    pub(crate) seed: u64,
     /// The true linear driveline.
     pub truth: Model,
     /// The model handed to the workflow (no effect; maybe other stiffness).
@@ -106,9 +106,9 @@ pub struct HiddenCase {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Record {
     /// Sample times, s.
-    pub t_s: Vec<f64>,
+    pub(crate) t_s: Vec<f64>,
     /// Torque, kN*m.
-    pub torque_knm: Vec<f64>,
+    pub(crate) torque_knm: Vec<f64>,
     /// Sample rate, Hz.
     pub sample_rate_hz: f64,
 }
@@ -126,7 +126,7 @@ impl Record {
 
 impl HiddenCase {
     /// The truth with the hidden effect, under bite `bite`'s load.
-    pub fn true_model(&self, bite: usize) -> Result<Model, ModelError> {
+    pub(crate) fn true_model(&self, bite: usize) -> Result<Model, ModelError> {
         let mut model = self.truth.clone();
         model.load = self.loads[bite].clone();
         match self.hidden {
@@ -177,7 +177,7 @@ impl HiddenCase {
     }
 
     /// Simulates every bite of the truth with the hidden effect and adds the seeded
-    /// noise; a [`Recorded::Schedule`] case's bites are split from one record (as many
+    /// noise; a `Recorded::Schedule` case's bites are split from one record (as many
     /// as [`split_bites`] finds).
     pub fn records(&self) -> Result<Vec<Record>, ModelError> {
         if self.recorded == Recorded::Schedule {
@@ -273,7 +273,7 @@ const DESIGNS: [Design; 37] = {
 ///
 /// The truth is the Table 2 adjusted driveline with each coupling's stiffness scaled by
 /// up to 20% either way (the paper's adjusted values for `PaperDrawings` cases), bites
-/// of 0.6 s at 2 kHz (or split from a rolling schedule, [`Recorded::Schedule`]) with
+/// of 0.6 s at 2 kHz (or split from a rolling schedule, `Recorded::Schedule`) with
 /// static torque in [`STATIC_TORQUE_KNM`] (several bites spread over it), onset 30-80 ms,
 /// rise rate 25-50/s, noise in [`NOISE_KNM`]. Sizes: gaps in [`BACKLASH_RAD`]
 /// ([`SCHEDULE_BACKLASH_RAD`] in schedule cases); hardening adding 15-50% of the linear torque at the largest static

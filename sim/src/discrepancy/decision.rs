@@ -25,7 +25,7 @@ pub const BIC_MARGIN: f64 = 10.0;
 
 /// Static torques tried for a further bite, as multiples of the largest static torque
 /// of the bites given.
-pub const FURTHER_TORQUE_FACTORS: [f64; 3] = [0.35, 0.6, 1.5];
+pub(crate) const FURTHER_TORQUE_FACTORS: [f64; 3] = [0.35, 0.6, 1.5];
 
 /// What the bites show.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -42,7 +42,7 @@ keyed!(Verdict);
 
 impl Verdict {
     /// The name used in JSON and reports.
-    pub fn key(self) -> &'static str {
+    pub(crate) fn key(self) -> &'static str {
         match self {
             Verdict::Named => "named",
             Verdict::None => "none",
@@ -53,39 +53,39 @@ impl Verdict {
 
 /// A further record that would tell two candidates apart.
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct FurtherRecord {
+pub(crate) struct FurtherRecord {
     /// Static torque of the further bite, kN*m.
-    pub static_torque_knm: f64,
+    pub(crate) static_torque_knm: f64,
     /// The coupling whose torque to record (0-based).
-    pub measured_coupling: usize,
+    pub(crate) measured_coupling: usize,
     /// RMS difference of the two candidates' responses on that record, kN*m.
-    pub difference_rms_knm: f64,
+    pub(crate) difference_rms_knm: f64,
     /// That difference over the noise of the bites given.
-    pub noise_multiple: f64,
+    pub(crate) noise_multiple: f64,
     /// The advice in words.
-    pub advice: String,
+    pub(crate) advice: String,
 }
 
 /// The decision and the linear model it was made against.
 #[derive(Debug, Clone)]
-pub struct Decision {
+pub(crate) struct Decision {
     /// What the bites show.
-    pub verdict: Verdict,
+    pub(crate) verdict: Verdict,
     /// Index of the named (best) candidate, unless `none`.
-    pub named: Option<usize>,
+    pub(crate) named: Option<usize>,
     /// Indices of the candidates within [`BIC_MARGIN`] of the best.
-    pub rivals: Vec<usize>,
+    pub(crate) rivals: Vec<usize>,
     /// The calibrated linear model (refitted from the best candidate when that did
     /// better).
-    pub linear: Fitted,
+    pub(crate) linear: Fitted,
     /// BIC of the calibrated linear model.
-    pub bic_linear: f64,
+    pub(crate) bic_linear: f64,
     /// Simulations of one bite spent on the refit.
-    pub simulations: usize,
+    pub(crate) simulations: usize,
 }
 
 /// Decides among `candidates` (best first) against the calibrated `linear` fit.
-pub fn decide(
+pub(crate) fn decide(
     bites: &[BiteRecord<'_>],
     candidates: &[FittedCandidate],
     linear: Fitted,
@@ -132,7 +132,7 @@ pub fn decide(
 /// ([`FURTHER_TORQUE_FACTORS`] of the largest given), or the torque of another coupling
 /// at the largest static torque given. Both candidates' first-bite models are simulated
 /// on it; `noise_rms` (kN*m) scales the difference.
-pub fn tell_apart(
+pub(crate) fn tell_apart(
     a: &FittedCandidate,
     b: &FittedCandidate,
     noise_rms: f64,
@@ -207,7 +207,7 @@ fn largest_load(models: &[Model]) -> Option<&Model> {
 }
 
 /// An effect and where, in words.
-pub fn describe(effect: &Effect, location: Option<usize>) -> String {
+pub(crate) fn describe(effect: &Effect, location: Option<usize>) -> String {
     match location {
         Some(i) => format!("{effect} in coupling {i}"),
         None => effect.to_string(),

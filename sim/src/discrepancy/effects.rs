@@ -22,7 +22,7 @@ keyed!(Effect);
 
 impl Effect {
     /// Every effect, in the order the search tries them.
-    pub const ALL: [Effect; 5] = [
+    pub(crate) const ALL: [Effect; 5] = [
         Effect::Backlash,
         Effect::SensorLag,
         Effect::Hardening,
@@ -42,7 +42,7 @@ impl Effect {
     }
 
     /// JSON key of the effect's parameter (its unit is in the key).
-    pub fn parameter_key(self) -> &'static str {
+    pub(crate) fn parameter_key(self) -> &'static str {
         match self {
             Effect::Backlash => "width_rad",
             Effect::SensorLag => "tau_s",
@@ -55,17 +55,17 @@ impl Effect {
     /// Whether the model with the effect is still linear (an extra inertia, a sensor
     /// lag): such an effect stays in the calibrated linear model, the others (what wear
     /// changes: a gap, hardening, friction) are removed from it.
-    pub fn is_linear(self) -> bool {
+    pub(crate) fn is_linear(self) -> bool {
         matches!(self, Effect::SensorLag | Effect::ExtraInertia)
     }
 
     /// Whether the effect sits in a coupling (otherwise it has no location).
-    pub fn per_coupling(self) -> bool {
+    pub(crate) fn per_coupling(self) -> bool {
         !matches!(self, Effect::SensorLag)
     }
 
     /// The locations to try in `model`: every coupling, or the single `None`.
-    pub fn locations(self, model: &Model) -> Vec<Option<usize>> {
+    pub(crate) fn locations(self, model: &Model) -> Vec<Option<usize>> {
         if self.per_coupling() {
             (0..model.couplings.len()).map(Some).collect()
         } else {
@@ -82,7 +82,12 @@ impl Effect {
     /// extra inertia, the first oscillation period `T1` for the lag. A gap is allowed up
     /// to 8 static twists: at a low static torque a worn coupling's gap can be several
     /// times its twist.
-    pub fn range(self, model: &Model, location: Option<usize>, first_period_s: f64) -> Range {
+    pub(crate) fn range(
+        self,
+        model: &Model,
+        location: Option<usize>,
+        first_period_s: f64,
+    ) -> Range {
         let static_nm = model.load.static_torque * 1.0e3;
         let coupling = location.and_then(|i| model.couplings.get(i));
         let static_twist = coupling.map_or(0.0, |c| static_nm / c.stiffness);
@@ -109,7 +114,7 @@ impl Effect {
     }
 
     /// `model` with this effect of size `value` (parameter units) at `location`.
-    pub fn apply(
+    pub(crate) fn apply(
         self,
         model: &Model,
         location: Option<usize>,
@@ -131,16 +136,16 @@ impl Effect {
 
 /// Allowed values of an effect parameter, `low < high`, both > 0.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Range {
+pub(crate) struct Range {
     /// Smallest value, parameter units.
-    pub low: f64,
+    pub(crate) low: f64,
     /// Largest value, parameter units.
-    pub high: f64,
+    pub(crate) high: f64,
 }
 
 impl Range {
     /// `count` log-spaced values strictly inside the range.
-    pub fn starts(&self, count: usize) -> Vec<f64> {
+    pub(crate) fn starts(&self, count: usize) -> Vec<f64> {
         let ratio = self.high / self.low;
         (0..count)
             .map(|k| self.low * ratio.powf((k as f64 + 0.5) / count as f64))
@@ -149,14 +154,14 @@ impl Range {
 
     /// The unbounded coordinate of `value`: the logit of its position between
     /// `ln(low)` and `ln(high)` (values outside are taken 1e-9 inside the ends).
-    pub fn unsquash(&self, value: f64) -> f64 {
+    pub(crate) fn unsquash(&self, value: f64) -> f64 {
         let position =
             ((value / self.low).ln() / (self.high / self.low).ln()).clamp(1.0e-9, 1.0 - 1.0e-9);
         (position / (1.0 - position)).ln()
     }
 
     /// The value at unbounded coordinate `q`: always strictly inside the range.
-    pub fn squash(&self, q: f64) -> f64 {
+    pub(crate) fn squash(&self, q: f64) -> f64 {
         let position = 1.0 / (1.0 + (-q).exp());
         self.low * (self.high / self.low).powf(position)
     }

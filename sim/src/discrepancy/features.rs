@@ -9,7 +9,7 @@ use crate::wear_map::MAX_RECORD_SAMPLES;
 
 /// Which transient feature (its unit is in its name).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum FeatureName {
+pub(crate) enum FeatureName {
     /// Torque amplification factor: peak / static torque.
     Taf,
     /// Peak torque, kN*m.
@@ -38,7 +38,7 @@ keyed!(FeatureName);
 
 impl FeatureName {
     /// The name used in JSON and reports.
-    pub fn key(self) -> &'static str {
+    pub(crate) fn key(self) -> &'static str {
         match self {
             FeatureName::Taf => "taf",
             FeatureName::PeakKnm => "peak_knm",
@@ -57,15 +57,15 @@ impl FeatureName {
 
 /// One transient feature of one bite, measured and modelled.
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct Feature {
+pub(crate) struct Feature {
     /// The bite, 0-based in the order given.
-    pub bite: usize,
+    pub(crate) bite: usize,
     /// Which feature.
-    pub name: FeatureName,
+    pub(crate) name: FeatureName,
     /// Value in the measured record.
-    pub measured: Option<f64>,
+    pub(crate) measured: Option<f64>,
     /// Value in the model's response.
-    pub model: Option<f64>,
+    pub(crate) model: Option<f64>,
 }
 
 /// The features of the domain notes for a measured record and a model response.
@@ -77,7 +77,7 @@ pub struct Feature {
 /// positive excursion about the fitted load rise divided by the largest negative one,
 /// and the delay is the lag (s) of the record behind the model that best aligns the
 /// rise from the bite to the first peak.
-pub fn compare(
+pub(crate) fn compare(
     bite: usize,
     measured: &[f64],
     model: &[f64],

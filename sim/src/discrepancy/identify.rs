@@ -25,13 +25,13 @@ use nalgebra::{DMatrix, DVector};
 use super::levenberg_marquardt::{minimise, FnResiduals, LmSettings};
 
 /// The loaded part starts after the last sample below this fraction of the static level.
-pub const LOADED_FRACTION: f64 = 0.25;
+pub(crate) const LOADED_FRACTION: f64 = 0.25;
 
 /// A start is accepted when the fit's RMS residual is at most this multiple of the noise.
-pub const LINEAR_RESIDUAL_FACTOR: f64 = 1.25;
+pub(crate) const LINEAR_RESIDUAL_FACTOR: f64 = 1.25;
 
 /// Shortest loaded part fitted, s (about three periods of a 12 Hz mode).
-pub const MIN_LOADED_S: f64 = 0.25;
+pub(crate) const MIN_LOADED_S: f64 = 0.25;
 
 /// Later starts are tried in steps of this length, s.
 const START_STEP_S: f64 = 0.025;
@@ -47,13 +47,13 @@ const DECAY_RANGE: (f64, f64) = (0.05, 500.0);
 
 /// Two damped modes fitted to a stretch of record.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ModeFit {
+pub(crate) struct ModeFit {
     /// Undamped natural frequencies `sqrt(f_d^2 + (d / 2 pi)^2)`, Hz, ascending.
-    pub natural_hz: [f64; 2],
+    pub(crate) natural_hz: [f64; 2],
     /// Decay rates of the two modes, 1/s.
-    pub decay_per_s: [f64; 2],
+    pub(crate) decay_per_s: [f64; 2],
     /// RMS residual of the fit, kN*m.
-    pub rms_residual: f64,
+    pub(crate) rms_residual: f64,
 }
 
 /// Fits the loaded part of one bite: `samples` from the record's first sample at
@@ -61,7 +61,7 @@ pub struct ModeFit {
 ///
 /// Returns the start index of the fitted stretch and the fit, or `None` when the record
 /// never stays loaded for [`MIN_LOADED_S`] or no fit converges.
-pub fn loaded_modes(
+pub(crate) fn loaded_modes(
     samples: &[f64],
     sample_rate_hz: f64,
     onset_index: usize,
@@ -112,7 +112,7 @@ fn static_level(samples: &[f64]) -> Option<f64> {
 /// Fits two damped modes, a constant and a decaying exponential to `samples` (t = 0 at
 /// the first), started from the matrix pencil's poles; the best fit over the pairs of
 /// oscillating poles it finds.
-pub fn fit_modes(samples: &[f64], sample_rate_hz: f64) -> Option<ModeFit> {
+pub(crate) fn fit_modes(samples: &[f64], sample_rate_hz: f64) -> Option<ModeFit> {
     let decimation = ((sample_rate_hz / (4.0 * MAX_MODE_HZ)).floor() as usize).max(1);
     let poles = pencil::poles(samples, sample_rate_hz, decimation).ok()?;
     let oscillating: Vec<(f64, f64)> = poles

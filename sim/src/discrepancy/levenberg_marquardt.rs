@@ -18,19 +18,19 @@ use nalgebra::{DMatrix, DVector};
 
 /// Settings of [`minimise`].
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct LmSettings {
+pub(crate) struct LmSettings {
     /// Iteration limit (accepted or rejected steps), >= 1.
-    pub max_iterations: usize,
+    pub(crate) max_iterations: usize,
     /// Stop when a step lowers the cost by less than this fraction of it.
-    pub cost_tolerance: f64,
+    pub(crate) cost_tolerance: f64,
     /// Forward-difference step in parameter space.
-    pub difference_step: f64,
+    pub(crate) difference_step: f64,
     /// Largest change of any one parameter in one step (steps are scaled down to it),
     /// so trial points stay where the model can still be evaluated cheaply.
-    pub max_step: f64,
+    pub(crate) max_step: f64,
     /// Accepted steps between finite-difference Jacobians, >= 1 (1: no Broyden
     /// updates).
-    pub jacobian_refresh: usize,
+    pub(crate) jacobian_refresh: usize,
 }
 
 impl Default for LmSettings {
@@ -47,15 +47,15 @@ impl Default for LmSettings {
 
 /// Result of [`minimise`].
 #[derive(Debug, Clone, PartialEq)]
-pub struct LmResult {
+pub(crate) struct LmResult {
     /// Parameters at the lowest cost found.
-    pub params: Vec<f64>,
+    pub(crate) params: Vec<f64>,
     /// Sum of squared residuals there.
-    pub cost: f64,
+    pub(crate) cost: f64,
 }
 
 /// A least-squares problem: a residual vector of fixed length and its Jacobian.
-pub trait Residuals {
+pub(crate) trait Residuals {
     /// Length of the residual vector.
     fn residual_count(&self) -> usize;
 
@@ -92,11 +92,11 @@ pub trait Residuals {
 }
 
 /// A closure `residuals(p, out) -> bool` with `len` residuals, as a [`Residuals`].
-pub struct FnResiduals<F> {
+pub(crate) struct FnResiduals<F> {
     /// Length of the residual vector.
-    pub len: usize,
+    pub(crate) len: usize,
     /// The residual function (see [`Residuals::evaluate`]).
-    pub function: F,
+    pub(crate) function: F,
 }
 
 impl<F> std::fmt::Debug for FnResiduals<F> {
@@ -118,7 +118,11 @@ impl<F: FnMut(&[f64], &mut [f64]) -> bool> Residuals for FnResiduals<F> {
 }
 
 /// Minimises `sum residuals(p)^2` from `start`.
-pub fn minimise(start: &[f64], settings: &LmSettings, problem: &mut impl Residuals) -> LmResult {
+pub(crate) fn minimise(
+    start: &[f64],
+    settings: &LmSettings,
+    problem: &mut impl Residuals,
+) -> LmResult {
     let n = start.len();
     let m = problem.residual_count();
     let mut params = start.to_vec();
@@ -227,7 +231,7 @@ fn broyden(jacobian: &mut DMatrix<f64>, step: &DVector<f64>, before: &[f64], aft
 }
 
 /// Sum of squares of `values`.
-pub fn sum_of_squares(values: &[f64]) -> f64 {
+pub(crate) fn sum_of_squares(values: &[f64]) -> f64 {
     values.iter().map(|v| v * v).sum()
 }
 

@@ -3,23 +3,23 @@
 //! physical effect the model lacks, add it, and show the residual shrink.
 //!
 //! Steps of [`run`] (one module each):
-//! 1. **Noise** ([`noise`]): the white-noise RMS of each bite from its fourth
-//!    differences.
-//! 2. **Calibration** ([`calibration`], [`identify`]): align each bite (onset, static
+//! 1. **Noise** ([`millgate_dsp::noise`]): the white-noise RMS of each bite from its
+//!    fourth differences.
+//! 2. **Calibration** ([`calibration`], `identify`): align each bite (onset, static
 //!    torque); identify beta1, beta2 on the part of each bite where the couplings stay
 //!    loaded past their gaps, and the paper's way on the whole transient; turn the
 //!    loaded-part frequencies into stiffness (eq. (2), every root, or a modal update for
 //!    N masses); fit stiffness, damping and each bite's load by Levenberg-Marquardt from
-//!    each start ([`model_fit`], [`levenberg_marquardt`]). Inertias and the motor's controller are trusted.
-//! 3. **Disagreement** ([`windows`], [`features`]): residual windows above the noise
+//!    each start (`model_fit`, `levenberg_marquardt`). Inertias and the motor's controller are trusted.
+//! 3. **Disagreement** (`windows`, `features`): residual windows above the noise
 //!    and the transient features of record and model, per bite.
-//! 4. **Candidate search** ([`search`], [`effects`]): every effect at every location,
+//! 4. **Candidate search** (`search`, `effects`): every effect at every location,
 //!    fitted jointly with the stiffness, damping and loads from several starts, one model
 //!    for every bite; ranked by BIC.
-//! 5. **Decision** ([`decision`]): named, `none`, or cannot tell (two candidates within
+//! 5. **Decision** (`decision`): named, `none`, or cannot tell (two candidates within
 //!    the BIC margin, with the further record that would tell them apart).
 //!
-//! [`split`] cuts a record holding several bites into one record per bite; [`report`]
+//! `split` cuts a record holding several bites into one record per bite; [`report`]
 //! writes the report folder (extended and calibrated models, plot, summary, JSON);
 //! [`cases`] generates records with a hidden effect for testing, from the simulator.
 
@@ -43,18 +43,17 @@ macro_rules! keyed {
 
 pub mod calibration;
 pub mod cases;
-pub mod decision;
-pub mod effects;
-pub mod features;
-pub mod identify;
-pub mod levenberg_marquardt;
-pub mod model_fit;
-pub mod noise;
+pub(crate) mod decision;
+pub(crate) mod effects;
+pub(crate) mod features;
+pub(crate) mod identify;
+pub(crate) mod levenberg_marquardt;
+pub(crate) mod model_fit;
 #[cfg(feature = "plot")]
 pub mod report;
-pub mod search;
-pub mod split;
-pub mod windows;
+pub(crate) mod search;
+pub(crate) mod split;
+pub(crate) mod windows;
 mod workflow;
 
 use crate::modal::ModalError;
@@ -62,7 +61,6 @@ use crate::model::ModelError;
 
 pub use decision::{Verdict, BIC_MARGIN};
 pub use effects::Effect;
-pub use search::Candidate;
 pub use split::split_bites;
 pub use workflow::{run, run_with, BiteSeries, BiteSummary, Report, Series, Settings};
 
@@ -142,7 +140,7 @@ keyed!(Step);
 
 impl Step {
     /// The name shown in progress lines.
-    pub fn key(self) -> &'static str {
+    pub(crate) fn key(self) -> &'static str {
         match self {
             Step::Noise => "noise",
             Step::Calibration => "calibration",

@@ -57,7 +57,7 @@ const DIVERGENCE_FACTOR: f64 = 20.0;
 /// Largest |ln ratio| a stiffness, static torque or rise rate may move from its anchor
 /// in one fit (a factor of 10): the calibration's starts are within a factor 10 of the
 /// drawings, and a fit needs no more room than that around its start.
-pub const MAX_LOG_RATIO: f64 = std::f64::consts::LN_10;
+pub(crate) const MAX_LOG_RATIO: f64 = std::f64::consts::LN_10;
 
 /// Largest |ln ratio| a damping may move from its anchor (a factor of 100): model
 /// damping is often a guess.
@@ -65,7 +65,7 @@ const MAX_LOG_DAMPING_RATIO: f64 = 2.0 * std::f64::consts::LN_10;
 
 /// Levenberg-Marquardt settings of the simulation fits: the Jacobian (one simulation per
 /// parameter) carried by Broyden updates over up to four accepted steps.
-pub const FIT_SETTINGS: LmSettings = LmSettings {
+pub(crate) const FIT_SETTINGS: LmSettings = LmSettings {
     max_iterations: 40,
     cost_tolerance: 1.0e-7,
     difference_step: 1.0e-6,
@@ -78,28 +78,28 @@ const LOAD_PARAMETERS: usize = 3;
 
 /// One measured bite as the fits see it.
 #[derive(Debug, Clone)]
-pub struct BiteRecord<'a> {
+pub(crate) struct BiteRecord<'a> {
     /// The handed model, sampled at the bite's rate over its length.
-    pub template: Model,
+    pub(crate) template: Model,
     /// The measured torque, kN*m, from the bite record's first sample.
-    pub measured: &'a [f64],
+    pub(crate) measured: &'a [f64],
 }
 
 /// The load of one bite.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct BiteLoad {
+pub(crate) struct BiteLoad {
     /// Static rolling torque, kN*m, > 0.
-    pub static_torque_knm: f64,
+    pub(crate) static_torque_knm: f64,
     /// Load rise rate, 1/s, > 0.
-    pub rise_rate_per_s: f64,
+    pub(crate) rise_rate_per_s: f64,
     /// Onset of the load rise from the bite record's first sample, s, >= 0.
-    pub onset_s: f64,
+    pub(crate) onset_s: f64,
 }
 
 impl BiteLoad {
     /// The load written in `model` (a zero static torque becomes 1 N*m so its logarithm
     /// exists).
-    pub fn of(model: &Model) -> BiteLoad {
+    pub(crate) fn of(model: &Model) -> BiteLoad {
         BiteLoad {
             static_torque_knm: model.load.static_torque.max(1.0e-3),
             rise_rate_per_s: model.load.rise_rate,
@@ -110,20 +110,20 @@ impl BiteLoad {
 
 /// Values of the linear model's calibrated quantities.
 #[derive(Debug, Clone, PartialEq)]
-pub struct LinearValues {
+pub(crate) struct LinearValues {
     /// Coupling stiffness, N*m/rad, one per coupling (shared by the bites).
-    pub stiffness: Vec<f64>,
+    pub(crate) stiffness: Vec<f64>,
     /// Coupling damping, N*m*s/rad, one per coupling, > 0 (shared by the bites).
-    pub damping: Vec<f64>,
+    pub(crate) damping: Vec<f64>,
     /// Load of each bite.
-    pub loads: Vec<BiteLoad>,
+    pub(crate) loads: Vec<BiteLoad>,
 }
 
 impl LinearValues {
     /// The values written in `model`, its load repeated for `bites` bites; a zero
     /// damping becomes a small positive one so its logarithm exists (1e-6 of the
     /// stiffness, s).
-    pub fn of(model: &Model, bites: usize) -> LinearValues {
+    pub(crate) fn of(model: &Model, bites: usize) -> LinearValues {
         LinearValues {
             stiffness: model.couplings.iter().map(|c| c.stiffness).collect(),
             damping: model
@@ -136,7 +136,7 @@ impl LinearValues {
     }
 
     /// `model` with the shared values and the load of bite `bite` written in.
-    pub fn model_for(&self, model: &Model, bite: usize) -> Model {
+    pub(crate) fn model_for(&self, model: &Model, bite: usize) -> Model {
         let mut out = model.clone();
         for (coupling, (&stiffness, &damping)) in out
             .couplings
@@ -154,7 +154,7 @@ impl LinearValues {
     }
 
     /// The same values with `stiffness` instead.
-    pub fn with_stiffness(&self, stiffness: &[f64]) -> LinearValues {
+    pub(crate) fn with_stiffness(&self, stiffness: &[f64]) -> LinearValues {
         LinearValues {
             stiffness: stiffness.to_vec(),
             ..self.clone()
@@ -164,54 +164,54 @@ impl LinearValues {
 
 /// An effect being fitted: which, where, its range.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct EffectSlot {
+pub(crate) struct EffectSlot {
     /// The effect.
-    pub effect: Effect,
+    pub(crate) effect: Effect,
     /// Its coupling, or `None` for the measured channel.
-    pub location: Option<usize>,
+    pub(crate) location: Option<usize>,
     /// Allowed parameter values.
-    pub range: Range,
+    pub(crate) range: Range,
 }
 
 impl EffectSlot {
     /// `model` with this effect of size `value` applied.
-    pub fn apply(&self, model: &Model, value: f64) -> Result<Model, ModelError> {
+    pub(crate) fn apply(&self, model: &Model, value: f64) -> Result<Model, ModelError> {
         self.effect.apply(model, self.location, value)
     }
 }
 
 /// The outcome of one fit.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Fitted {
+pub(crate) struct Fitted {
     /// Calibrated linear quantities.
-    pub linear: LinearValues,
+    pub(crate) linear: LinearValues,
     /// Fitted effect size (parameter units), when an effect was fitted.
-    pub effect_value: Option<f64>,
+    pub(crate) effect_value: Option<f64>,
     /// The fitted model of each bite (linear values written, effect applied).
-    pub models: Vec<Model>,
+    pub(crate) models: Vec<Model>,
     /// Sum of squared residuals over every bite, (kN*m)^2.
-    pub cost: f64,
+    pub(crate) cost: f64,
     /// Sum of squared residuals of each bite, (kN*m)^2.
-    pub bite_costs: Vec<f64>,
+    pub(crate) bite_costs: Vec<f64>,
     /// Simulated measured channel of each bite's model, kN*m.
-    pub simulated: Vec<Vec<f64>>,
+    pub(crate) simulated: Vec<Vec<f64>>,
     /// Simulations of one bite spent.
-    pub simulations: usize,
+    pub(crate) simulations: usize,
 }
 
 impl Fitted {
     /// Number of residuals (samples over every bite).
-    pub fn samples(&self) -> usize {
+    pub(crate) fn samples(&self) -> usize {
         self.simulated.iter().map(Vec::len).sum()
     }
 
     /// RMS residual over every bite, kN*m.
-    pub fn rmse(&self) -> f64 {
+    pub(crate) fn rmse(&self) -> f64 {
         (self.cost / self.samples().max(1) as f64).sqrt()
     }
 
     /// RMS residual of each bite, kN*m.
-    pub fn bite_rmse(&self) -> Vec<f64> {
+    pub(crate) fn bite_rmse(&self) -> Vec<f64> {
         self.bite_costs
             .iter()
             .zip(&self.simulated)
@@ -221,7 +221,7 @@ impl Fitted {
 
     /// Bayesian information criterion with `parameters` fitted parameters: each bite's
     /// own noise level, `sum_b m_b ln(RSS_b / m_b) + k ln(m)` (Gaussian residuals).
-    pub fn bic(&self, parameters: usize) -> f64 {
+    pub(crate) fn bic(&self, parameters: usize) -> f64 {
         let total = self.samples() as f64;
         let fit: f64 = self
             .bite_costs
@@ -239,7 +239,7 @@ impl Fitted {
 /// A model fitted to measured bites: the templates, the anchors of the parameters and
 /// what is free. Counts the simulations it runs.
 #[derive(Debug)]
-pub struct Problem<'a> {
+pub(crate) struct Problem<'a> {
     bites: &'a [BiteRecord<'a>],
     anchor: LinearValues,
     effect: Option<(EffectSlot, f64)>,
@@ -259,7 +259,7 @@ pub struct Problem<'a> {
 impl<'a> Problem<'a> {
     /// A problem around `anchor` (one load per bite), optionally with an effect starting
     /// at `effect_start`.
-    pub fn new(
+    pub(crate) fn new(
         bites: &'a [BiteRecord<'a>],
         anchor: LinearValues,
         effect: Option<(EffectSlot, f64)>,
@@ -338,12 +338,12 @@ impl<'a> Problem<'a> {
 
     /// Number of fitted parameters: the shared ones, and static torque, rise rate and
     /// onset per bite.
-    pub fn parameter_count(&self) -> usize {
+    pub(crate) fn parameter_count(&self) -> usize {
         self.shared_count() + LOAD_PARAMETERS * self.bites.len()
     }
 
     /// Simulations of one bite run so far.
-    pub fn simulations(&self) -> usize {
+    pub(crate) fn simulations(&self) -> usize {
         self.simulations
     }
 
@@ -457,14 +457,17 @@ impl<'a> Problem<'a> {
 
     /// Levenberg-Marquardt from the anchors with [`FIT_SETTINGS`]; see
     /// [`Problem::solve_with`].
-    pub fn solve(&mut self) -> Result<Option<Fitted>, ModelError> {
+    pub(crate) fn solve(&mut self) -> Result<Option<Fitted>, ModelError> {
         self.solve_with(&FIT_SETTINGS)
     }
 
     /// Levenberg-Marquardt from the anchors; `None` when the point reached has no model
     /// (a hardening that leaves no positive linear stiffness; the start always has one,
     /// and only evaluated points are accepted, so this is a guard, not an outcome).
-    pub fn solve_with(&mut self, settings: &LmSettings) -> Result<Option<Fitted>, ModelError> {
+    pub(crate) fn solve_with(
+        &mut self,
+        settings: &LmSettings,
+    ) -> Result<Option<Fitted>, ModelError> {
         let result = minimise(&vec![0.0; self.parameter_count()], settings, self);
         let Some((linear, effect_value)) = self.decode(&result.params) else {
             return Ok(None);
@@ -561,7 +564,7 @@ fn soft_bound(q: f64, limit: f64) -> f64 {
 
 /// Checks bite `b` (0-based, for the error) and returns `model` sampled on its grid:
 /// its sample rate, its length.
-pub fn bite_template(
+pub(crate) fn bite_template(
     model: &Model,
     bite: &Measured<'_>,
     b: usize,

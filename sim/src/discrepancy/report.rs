@@ -17,11 +17,11 @@ pub const MODEL_FILE: &str = "extended-model.toml";
 /// effect removed).
 pub const CALIBRATED_MODEL_FILE: &str = "calibrated-model.toml";
 /// The plot.
-pub const PLOT_FILE: &str = "discrepancy.svg";
+pub(crate) const PLOT_FILE: &str = "discrepancy.svg";
 /// The summary.
-pub const SUMMARY_FILE: &str = "summary.md";
+pub(crate) const SUMMARY_FILE: &str = "summary.md";
 /// The JSON report.
-pub const JSON_FILE: &str = "report.json";
+pub(crate) const JSON_FILE: &str = "report.json";
 
 /// Why the report folder could not be written.
 #[derive(Debug, thiserror::Error)]
@@ -131,6 +131,23 @@ pub fn write(report: &Report, dir: &Path) -> Result<Vec<PathBuf>, ReportError> {
 pub fn summary(report: &Report) -> String {
     let mut text = String::new();
     let _ = writeln!(text, "# Model discrepancy\n");
+    verdict(&mut text, report);
+    let _ = writeln!(
+        text,
+        "Residual RMS {:.3} kN*m before (calibrated linear model), {:.3} kN*m after; \
+         noise in the record {:.3} kN*m.\n",
+        report.rmse_before, report.rmse_after, report.noise_rms
+    );
+    bites_table(&mut text, report);
+    calibration(&mut text, report);
+    disagreement(&mut text, report);
+    candidates(&mut text, report);
+    text
+}
+
+/// The verdict: the missing effect and its size, or the rivals that cannot be told
+/// apart and how to tell them.
+fn verdict(text: &mut String, report: &Report) {
     let effect = report.effect.map_or("none", |e| e.key());
     let location = report
         .location
@@ -172,12 +189,10 @@ pub fn summary(report: &Report) -> String {
             let _ = writeln!(text, "**Missing effect: {effect}{location}** {sizes}\n");
         }
     }
-    let _ = writeln!(
-        text,
-        "Residual RMS {:.3} kN*m before (calibrated linear model), {:.3} kN*m after; \
-         noise in the record {:.3} kN*m.\n",
-        report.rmse_before, report.rmse_after, report.noise_rms
-    );
+}
+
+/// Each bite's noise, load and residuals.
+fn bites_table(text: &mut String, report: &Report) {
     let _ = writeln!(text, "## Bites\n");
     let _ = writeln!(
         text,
@@ -198,6 +213,10 @@ pub fn summary(report: &Report) -> String {
             bite.rmse_after
         );
     }
+}
+
+/// How the linear model was calibrated: identifications and adjustments.
+fn calibration(text: &mut String, report: &Report) {
     let _ = writeln!(text, "\n## Calibration of the linear model\n");
     if let (Some(b1), Some(b2)) = (report.calibration.beta1_hz, report.calibration.beta2_hz) {
         let _ = writeln!(
@@ -233,6 +252,10 @@ pub fn summary(report: &Report) -> String {
             a.key, bite, a.unit, a.model, a.calibrated, change
         );
     }
+}
+
+/// Where the linear model disagrees, and the transient features compared.
+fn disagreement(text: &mut String, report: &Report) {
     let _ = writeln!(text, "\n## Where the linear model disagrees\n");
     if report.disagreement.is_empty() {
         let _ = writeln!(text, "Nowhere above {DISAGREEMENT_FACTOR}x the noise.");
@@ -261,6 +284,10 @@ pub fn summary(report: &Report) -> String {
             show(f.model)
         );
     }
+}
+
+/// Every candidate against the linear model, and the naming rule.
+fn candidates(text: &mut String, report: &Report) {
     let _ = writeln!(text, "\n## Candidates (best first)\n");
     let _ = writeln!(text, "| effect | coupling | size | RMS kN*m | BIC |");
     let _ = writeln!(text, "|---|---|---|---|---|");
@@ -286,7 +313,6 @@ pub fn summary(report: &Report) -> String {
         "\nAn effect is named when its BIC is more than {BIC_MARGIN} below the linear \
          model's; two effects within {BIC_MARGIN} of each other cannot be told apart."
     );
-    text
 }
 
 /// One plot panel: its area, y-axis label and the lines (values, colour, legend).

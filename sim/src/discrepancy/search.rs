@@ -21,7 +21,7 @@ use super::model_fit::{BiteRecord, EffectSlot, Fitted, LinearValues, Problem, FI
 use super::DiscrepancyError;
 
 /// Starting sizes tried per candidate and anchor before its fit.
-pub const STARTS: usize = 5;
+pub(crate) const STARTS: usize = 5;
 
 /// Full fits per candidate, from the best short fits.
 const FULL_FITS: usize = 3;
@@ -41,35 +41,35 @@ pub struct Candidate {
     /// RMS residual over every bite, kN*m.
     pub rmse: f64,
     /// RMS residual of each bite, kN*m.
-    pub bite_rmse: Vec<f64>,
+    pub(crate) bite_rmse: Vec<f64>,
     /// Bayesian information criterion (lower is better).
     pub bic: f64,
 }
 
 /// A candidate fitted: what is reported and the fit behind it.
 #[derive(Debug, Clone)]
-pub struct FittedCandidate {
+pub(crate) struct FittedCandidate {
     /// What is reported.
-    pub candidate: Candidate,
+    pub(crate) candidate: Candidate,
     /// The fit.
-    pub fit: Fitted,
+    pub(crate) fit: Fitted,
 }
 
 /// One effect at one location to fit: its slot (the range the fit may use) and the
 /// starting sizes from each anchor.
 #[derive(Debug, Clone, PartialEq)]
-pub struct SlotPlan {
+pub(crate) struct SlotPlan {
     /// The effect, its location, and the union of the anchors' ranges.
-    pub slot: EffectSlot,
+    pub(crate) slot: EffectSlot,
     /// Starting sizes per anchor ([`STARTS`] log-spaced over that anchor's range).
-    pub starts: Vec<Vec<f64>>,
+    pub(crate) starts: Vec<Vec<f64>>,
 }
 
 /// Every effect at every location, with its sizes relative to each anchor's driveline
 /// at the largest static torque of the bites (an anchor may be far off: a misled
 /// identification, a linear fit bent by the effect); `first_period_s` is the first
 /// oscillation period (for the lag's range).
-pub fn plans(
+pub(crate) fn plans(
     bites: &[BiteRecord<'_>],
     anchors: &[LinearValues],
     first_period_s: f64,
@@ -116,7 +116,7 @@ pub fn plans(
 /// Fits every planned slot from every anchor on `threads` worker threads (at least 1);
 /// `on_fitted(done, total, candidate)` hears each as it is done. Returns the candidates
 /// best (lowest BIC) first and the simulations of one bite spent.
-pub fn search(
+pub(crate) fn search(
     bites: &[BiteRecord<'_>],
     anchors: &[LinearValues],
     plans: &[SlotPlan],

@@ -11,26 +11,27 @@
 //! before it, within three times the moving mean's noise, less the smoothing. A record
 //! with one bite comes back whole.
 
-use super::noise::noise_rms;
+use millgate_dsp::noise::noise_rms;
+
 use super::Measured;
 
 /// Half-width of the moving mean, s.
-pub const SMOOTHING_S: f64 = 0.01;
+pub(crate) const SMOOTHING_S: f64 = 0.01;
 /// Share of the loaded level above which the torque counts as loaded.
-pub const LOADED_FRACTION: f64 = 0.1;
+pub(crate) const LOADED_FRACTION: f64 = 0.1;
 /// Loaded stretches closer than this are one bite, s.
-pub const MERGE_GAP_S: f64 = 0.15;
+pub(crate) const MERGE_GAP_S: f64 = 0.15;
 /// Shortest bite, s.
-pub const MIN_BITE_S: f64 = 0.2;
+pub(crate) const MIN_BITE_S: f64 = 0.2;
 /// Idle kept before a bite's rise, s.
-pub const PRE_BITE_S: f64 = 0.1;
+pub(crate) const PRE_BITE_S: f64 = 0.1;
 /// A bite's unloading is found where the torque last stood at this share of its settled
 /// level (the record ends before, where the unloading began).
-pub const UNLOAD_FRACTION: f64 = 0.9;
+pub(crate) const UNLOAD_FRACTION: f64 = 0.9;
 /// The unloading began at the last point that stood as high as the moving mean over
 /// this stretch before it, s: the moving mean's width (longer, an oscillation decaying
 /// from higher crests before would carry the point back into the transient).
-pub const LOOKBACK_S: f64 = 2.0 * SMOOTHING_S;
+pub(crate) const LOOKBACK_S: f64 = 2.0 * SMOOTHING_S;
 
 /// The bites of `record`, each as its own record (times kept); `record` itself when it
 /// holds one bite or none.

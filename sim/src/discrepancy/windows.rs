@@ -8,14 +8,14 @@ use serde::Serialize;
 /// Over the [`WINDOW_S`] window (50 samples at 2 kHz) the RMS of pure white noise
 /// scatters by about 1 / sqrt(2 * 50) = 10%, so 1.5x the noise is five of those
 /// deviations away: noise alone does not reach it.
-pub const DISAGREEMENT_FACTOR: f64 = 1.5;
+pub(crate) const DISAGREEMENT_FACTOR: f64 = 1.5;
 
 /// Length of the moving-RMS window, s (at least 20 samples are used).
-pub const WINDOW_S: f64 = 0.025;
+pub(crate) const WINDOW_S: f64 = 0.025;
 
 /// What differs most in a disagreement window.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Label {
+pub(crate) enum Label {
     /// The load rise: the record starts rising earlier or later than the model.
     Delay,
     /// The first peak.
@@ -32,7 +32,7 @@ keyed!(Label);
 
 impl Label {
     /// The name used in JSON and reports.
-    pub fn key(self) -> &'static str {
+    pub(crate) fn key(self) -> &'static str {
         match self {
             Label::Delay => "delay",
             Label::Peak => "peak",
@@ -45,38 +45,38 @@ impl Label {
 
 /// One stretch of time where the model's residual exceeds the noise.
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct Disagreement {
+pub(crate) struct Disagreement {
     /// The bite, 0-based in the order given.
-    pub bite: usize,
+    pub(crate) bite: usize,
     /// Start, s (the bite record's time base).
-    pub t_start_s: f64,
+    pub(crate) t_start_s: f64,
     /// End, s.
-    pub t_end_s: f64,
+    pub(crate) t_end_s: f64,
     /// What differs most there.
-    pub feature: Label,
+    pub(crate) feature: Label,
     /// RMS of the residual over the window, kN*m.
-    pub residual_rms: f64,
+    pub(crate) residual_rms: f64,
 }
 
 /// Where a bite is on its record's time grid.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct BiteTiming {
+pub(crate) struct BiteTiming {
     /// The bite, 0-based in the order given.
-    pub bite: usize,
+    pub(crate) bite: usize,
     /// Time of the record's first sample, s.
-    pub t0_s: f64,
+    pub(crate) t0_s: f64,
     /// Sample rate, Hz.
-    pub sample_rate_hz: f64,
+    pub(crate) sample_rate_hz: f64,
     /// Sample of the load onset.
-    pub onset_index: usize,
+    pub(crate) onset_index: usize,
     /// The first oscillation period, samples.
-    pub period_samples: usize,
+    pub(crate) period_samples: usize,
 }
 
 /// Windows where the moving RMS of `measured - model` exceeds
 /// [`DISAGREEMENT_FACTOR`] times `noise` (windows closer than one window length are
 /// merged), each labelled with the feature that differs there.
-pub fn disagreements(
+pub(crate) fn disagreements(
     measured: &[f64],
     model: &[f64],
     noise: f64,

@@ -2,6 +2,7 @@
 
 use std::collections::BTreeMap;
 
+use millgate_dsp::noise::noise_rms;
 use serde::{Serialize, Serializer};
 
 use crate::model::Model;
@@ -12,7 +13,6 @@ use super::decision::{self, FurtherRecord, Verdict};
 use super::effects::Effect;
 use super::features::{self, Feature};
 use super::model_fit::{self, BiteRecord, Fitted};
-use super::noise::noise_rms;
 use super::search::{self, Candidate, FittedCandidate};
 use super::windows::{self, BiteTiming, Disagreement};
 use super::{DiscrepancyError, Measured, Progress, Step};
@@ -36,21 +36,21 @@ impl Default for Settings {
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct BiteSummary {
     /// Time of the bite record's first sample, s.
-    pub t0_s: f64,
+    pub(crate) t0_s: f64,
     /// Samples in the bite record.
-    pub samples: usize,
+    pub(crate) samples: usize,
     /// White-noise RMS estimated from the bite, kN*m.
-    pub noise_rms: f64,
+    pub(crate) noise_rms: f64,
     /// Fitted static torque, kN*m (of the extended model, or the linear one).
-    pub static_torque_knm: f64,
+    pub(crate) static_torque_knm: f64,
     /// Fitted load rise rate, 1/s.
-    pub rise_rate_per_s: f64,
+    pub(crate) rise_rate_per_s: f64,
     /// Fitted onset from the bite record's first sample, s.
-    pub onset_s: f64,
+    pub(crate) onset_s: f64,
     /// RMS residual of the calibrated linear model on this bite, kN*m.
-    pub rmse_before: f64,
+    pub(crate) rmse_before: f64,
     /// RMS residual of the extended model on this bite, kN*m.
-    pub rmse_after: f64,
+    pub(crate) rmse_after: f64,
 }
 
 /// The workflow's result; serialises to the documented JSON.
@@ -59,13 +59,13 @@ pub struct Report {
     /// How the linear model was calibrated.
     pub calibration: Calibration,
     /// White-noise RMS over every bite (RMS of the bites' estimates, by samples), kN*m.
-    pub noise_rms: f64,
+    pub(crate) noise_rms: f64,
     /// Each bite: noise, fitted load, residuals.
-    pub bites: Vec<BiteSummary>,
+    pub(crate) bites: Vec<BiteSummary>,
     /// Where the calibrated linear model departs from the bites.
-    pub disagreement: Vec<Disagreement>,
+    pub(crate) disagreement: Vec<Disagreement>,
     /// Transient features of each bite and of the calibrated linear model.
-    pub features: Vec<Feature>,
+    pub(crate) features: Vec<Feature>,
     /// What the bites show.
     pub verdict: Verdict,
     /// The named effect (the best of the rivals when they cannot be told apart), or
@@ -86,9 +86,9 @@ pub struct Report {
     pub candidates: Vec<Candidate>,
     /// The other candidates within the BIC margin of the named one (empty unless
     /// `cannot_tell`).
-    pub alternatives: Vec<Candidate>,
+    pub(crate) alternatives: Vec<Candidate>,
     /// The further record that would tell the best two apart, when they cannot be.
-    pub tell_apart: Option<FurtherRecord>,
+    pub(crate) tell_apart: Option<FurtherRecord>,
     /// Simulations of one bite run in all.
     pub simulations: usize,
     /// The series and models behind the report.
@@ -169,47 +169,13 @@ pub fn run_with(
 
     progress(Progress::Step(Step::Noise));
     let noise: Vec<f64> = bites.iter().map(|b| noise_rms(b.torque_knm)).collect();
-    let total_samples: usize = bites.iter().map(|b| b.torque_knm.len()).sum();
-    let pooled_noise = (bites
-        .iter()
-        .zip(&noise)
-        .map(|(b, n)| n * n * b.torque_knm.len() as f64)
-        .sum::<f64>()
-        / total_samples as f64)
-        .sqrt();
 
     progress(Progress::Step(Step::Calibration));
     let calibrated = calibration::calibrate(&records, &noise, &mut simulations)?;
-    let f1 = calibrated
-        .calibration
-        .identified
-        .iter()
-        .find(|id| id.window == calibration::IdentificationWindow::Loaded)
-        .map_or_else(
-            || calibration::first_mode_hz(&calibrated.best.models[0]),
-            |id| id.beta1_hz,
-        );
+    let f1 = loaded_first_mode_hz(&calibrated);
 
     progress(Progress::Step(Step::Disagreement));
-    let mut disagreement = Vec::new();
-    let mut feature_list = Vec::new();
-    let lowpass_hz = default_period_lowpass_hz(&calibrated.best.models[0])?;
-    for (b, bite) in bites.iter().enumerate() {
-        let fs = bite.sample_rate_hz;
-        let y = bite.torque_knm;
-        let linear = &calibrated.best.simulated[b];
-        let onset_index =
-            ((calibrated.best.linear.loads[b].onset_s * fs).ceil() as usize).min(y.len() - 1);
-        let timing = BiteTiming {
-            bite: b,
-            t0_s: bite.t0_s,
-            sample_rate_hz: fs,
-            onset_index,
-            period_samples: (fs / f1).round() as usize,
-        };
-        disagreement.extend(windows::disagreements(y, linear, noise[b], &timing));
-        feature_list.extend(features::compare(b, y, linear, fs, onset_index, lowpass_hz));
-    }
+    let (disagreement, features) = disagreements(bites, &calibrated.best, &noise, f1)?;
 
     progress(Progress::Step(Step::Search));
     let plans = search::plans(&records, &calibrated.anchors, 1.0 / f1);
@@ -233,6 +199,100 @@ pub fn run_with(
     progress(Progress::Step(Step::Decision));
     let decision = decision::decide(&records, &candidates, calibrated.best)?;
     simulations += decision.simulations;
+    let findings = Findings {
+        calibration: calibrated.calibration,
+        noise,
+        disagreement,
+        features,
+        candidates,
+        decision,
+        simulations,
+    };
+    report(bites, model, &records, findings)
+}
+
+/// What the steps found, for the report.
+struct Findings {
+    calibration: Calibration,
+    /// Each bite's noise RMS, kN*m.
+    noise: Vec<f64>,
+    disagreement: Vec<Disagreement>,
+    features: Vec<Feature>,
+    /// Every candidate, best first.
+    candidates: Vec<FittedCandidate>,
+    decision: decision::Decision,
+    /// Simulations of one bite run in all.
+    simulations: usize,
+}
+
+/// The first natural frequency of the calibrated driveline, Hz: identified on the
+/// loaded part of a bite, else the best linear model's.
+fn loaded_first_mode_hz(calibrated: &calibration::Calibrated) -> f64 {
+    calibrated
+        .calibration
+        .identified
+        .iter()
+        .find(|id| id.window == calibration::IdentificationWindow::Loaded)
+        .map_or_else(
+            || calibration::first_mode_hz(&calibrated.best.models[0]),
+            |id| id.beta1_hz,
+        )
+}
+
+/// Where the calibrated linear fit `linear` departs from each bite (windows above its
+/// `noise`), and the bites' transient features against the model's; `f1` (Hz) sets
+/// the period.
+fn disagreements(
+    bites: &[Measured],
+    linear: &Fitted,
+    noise: &[f64],
+    f1: f64,
+) -> Result<(Vec<Disagreement>, Vec<Feature>), DiscrepancyError> {
+    let mut disagreement = Vec::new();
+    let mut feature_list = Vec::new();
+    let lowpass_hz = default_period_lowpass_hz(&linear.models[0])?;
+    for (b, bite) in bites.iter().enumerate() {
+        let fs = bite.sample_rate_hz;
+        let y = bite.torque_knm;
+        let onset_index = ((linear.linear.loads[b].onset_s * fs).ceil() as usize).min(y.len() - 1);
+        let timing = BiteTiming {
+            bite: b,
+            t0_s: bite.t0_s,
+            sample_rate_hz: fs,
+            onset_index,
+            period_samples: (fs / f1).round() as usize,
+        };
+        let simulated = &linear.simulated[b];
+        disagreement.extend(windows::disagreements(y, simulated, noise[b], &timing));
+        feature_list.extend(features::compare(
+            b,
+            y,
+            simulated,
+            fs,
+            onset_index,
+            lowpass_hz,
+        ));
+    }
+    Ok((disagreement, feature_list))
+}
+
+/// The report of `findings` on `bites` with the handed `model`.
+fn report(
+    bites: &[Measured],
+    model: &Model,
+    records: &[BiteRecord<'_>],
+    findings: Findings,
+) -> Result<Report, DiscrepancyError> {
+    let Findings {
+        mut calibration,
+        noise,
+        disagreement,
+        features,
+        candidates,
+        decision,
+        simulations,
+    } = findings;
+    let pooled_noise = pooled_noise(bites, &noise);
     let named: Option<&FittedCandidate> = decision.named.map(|i| &candidates[i]);
     let tell_apart = match (named, decision.rivals.first()) {
         (Some(best), Some(&rival)) => decision::tell_apart(best, &candidates[rival], pooled_noise)?,
@@ -240,50 +300,12 @@ pub fn run_with(
     };
     let linear = &decision.linear;
     let after: &Fitted = named.map_or(linear, |c| &c.fit);
-
     let mut parameters = BTreeMap::new();
     if let Some(c) = named {
         parameters.insert(c.candidate.effect.parameter_key(), c.candidate.value);
     }
-    let summaries = bites
-        .iter()
-        .enumerate()
-        .map(|(b, bite)| {
-            let load = after.linear.loads[b];
-            let rmse = |fit: &Fitted| (fit.bite_costs[b] / bite.torque_knm.len() as f64).sqrt();
-            BiteSummary {
-                t0_s: bite.t0_s,
-                samples: bite.torque_knm.len(),
-                noise_rms: noise[b],
-                static_torque_knm: load.static_torque_knm,
-                rise_rate_per_s: load.rise_rate_per_s,
-                onset_s: load.onset_s,
-                rmse_before: rmse(linear),
-                rmse_after: rmse(after),
-            }
-        })
-        .collect();
-    let series = Series {
-        bites: bites
-            .iter()
-            .enumerate()
-            .map(|(b, bite)| BiteSeries {
-                t_s: (0..bite.torque_knm.len())
-                    .map(|k| bite.t0_s + k as f64 / bite.sample_rate_hz)
-                    .collect(),
-                measured: bite.torque_knm.to_vec(),
-                linear: linear.simulated[b].clone(),
-                extended: after.simulated[b].clone(),
-            })
-            .collect(),
-        linear_model: Some(linear.models[0].clone()),
-        extended_model: named.map(|c| c.fit.models[0].clone()),
-        calibrated_model: Some(match named {
-            Some(c) => calibrated_linear(c, &records[0].template)?,
-            None => linear.models[0].clone(),
-        }),
-    };
-    let mut calibration = calibrated.calibration;
+    let summaries = bite_summaries(bites, &noise, linear, after);
+    let series = series(bites, linear, named, &records[0].template)?;
     calibration.adjustments = calibration::adjustments(model, &linear.linear);
     calibration.rmse = linear.rmse();
     Ok(Report {
@@ -291,7 +313,7 @@ pub fn run_with(
         noise_rms: pooled_noise,
         bites: summaries,
         disagreement,
-        features: feature_list,
+        features,
         verdict: decision.verdict,
         effect: named.map(|c| c.candidate.effect),
         location: named.and_then(|c| c.candidate.location),
@@ -308,6 +330,78 @@ pub fn run_with(
         candidates: candidates.into_iter().map(|c| c.candidate).collect(),
         simulations,
         series,
+    })
+}
+
+/// White-noise RMS over every bite: the RMS of the bites' estimates `noise`,
+/// weighted by their samples, kN*m.
+fn pooled_noise(bites: &[Measured], noise: &[f64]) -> f64 {
+    let total_samples: usize = bites.iter().map(|b| b.torque_knm.len()).sum();
+    (bites
+        .iter()
+        .zip(noise)
+        .map(|(b, n)| n * n * b.torque_knm.len() as f64)
+        .sum::<f64>()
+        / total_samples as f64)
+        .sqrt()
+}
+
+/// Each bite's noise, fitted load and residuals before (`linear`) and `after`.
+fn bite_summaries(
+    bites: &[Measured],
+    noise: &[f64],
+    linear: &Fitted,
+    after: &Fitted,
+) -> Vec<BiteSummary> {
+    bites
+        .iter()
+        .enumerate()
+        .map(|(b, bite)| {
+            let load = after.linear.loads[b];
+            let rmse = |fit: &Fitted| (fit.bite_costs[b] / bite.torque_knm.len() as f64).sqrt();
+            BiteSummary {
+                t0_s: bite.t0_s,
+                samples: bite.torque_knm.len(),
+                noise_rms: noise[b],
+                static_torque_knm: load.static_torque_knm,
+                rise_rate_per_s: load.rise_rate_per_s,
+                onset_s: load.onset_s,
+                rmse_before: rmse(linear),
+                rmse_after: rmse(after),
+            }
+        })
+        .collect()
+}
+
+/// The series behind the report: each bite measured, the calibrated linear model's and
+/// the extended (the `named` candidate's) response; the models (first bite's load, on
+/// the first bite's `template`).
+fn series(
+    bites: &[Measured],
+    linear: &Fitted,
+    named: Option<&FittedCandidate>,
+    template: &Model,
+) -> Result<Series, DiscrepancyError> {
+    let after: &Fitted = named.map_or(linear, |c| &c.fit);
+    Ok(Series {
+        bites: bites
+            .iter()
+            .enumerate()
+            .map(|(b, bite)| BiteSeries {
+                t_s: (0..bite.torque_knm.len())
+                    .map(|k| bite.t0_s + k as f64 / bite.sample_rate_hz)
+                    .collect(),
+                measured: bite.torque_knm.to_vec(),
+                linear: linear.simulated[b].clone(),
+                extended: after.simulated[b].clone(),
+            })
+            .collect(),
+        linear_model: Some(linear.models[0].clone()),
+        extended_model: named.map(|c| c.fit.models[0].clone()),
+        calibrated_model: Some(match named {
+            Some(c) => calibrated_linear(c, template)?,
+            None => linear.models[0].clone(),
+        }),
     })
 }
 

@@ -53,7 +53,7 @@ const CLAMPED: [(f64, f64); 10] = [
 ];
 
 /// Largest bending mode handled per span.
-pub const MAX_MODES: usize = CLAMPED.len();
+pub(crate) const MAX_MODES: usize = CLAMPED.len();
 
 /// A rod span with one pass's section and modulus.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -79,12 +79,12 @@ impl Beam {
     }
 
     /// Bending stiffness EI, N*m^2.
-    pub fn bending_stiffness(&self) -> f64 {
+    pub(crate) fn bending_stiffness(&self) -> f64 {
         self.modulus_pa * PI * self.diameter_m.powi(4) / 64.0
     }
 
     /// `(beta_m L, g_m)` of mode `m` (1..=10).
-    pub fn mode_constants(&self, mode: usize) -> (f64, f64) {
+    pub(crate) fn mode_constants(&self, mode: usize) -> (f64, f64) {
         match self.ends {
             Ends::Pinned => {
                 let x = mode as f64 * PI;
@@ -95,19 +95,19 @@ impl Beam {
     }
 
     /// Euler load `P_E = beta_1^4 EI / (g_1 L^2)`, N (module docs).
-    pub fn euler_load_n(&self) -> f64 {
+    pub(crate) fn euler_load_n(&self) -> f64 {
         let (beta, g) = self.mode_constants(1);
         beta.powi(4) * self.bending_stiffness() / (g * self.length_m * self.length_m)
     }
 
     /// Critical axial speed `sqrt((P_E + T0) / (rho A))`, m/s.
-    pub fn critical_speed_m_s(&self) -> f64 {
+    pub(crate) fn critical_speed_m_s(&self) -> f64 {
         ((self.euler_load_n() + self.tension_n) / self.mass_per_length()).sqrt()
     }
 
     /// `omega_m^2` (rad^2/s^2) at axial rod speed `speed_m_s` (0 without the moving-rod
     /// term); <= 0 when the effective tension buckles the mode.
-    pub fn omega_squared(&self, mode: usize, speed_m_s: f64) -> f64 {
+    pub(crate) fn omega_squared(&self, mode: usize, speed_m_s: f64) -> f64 {
         let (beta, g) = self.mode_constants(mode);
         let l2 = self.length_m * self.length_m;
         let mass = self.mass_per_length();
@@ -121,7 +121,7 @@ impl Beam {
     }
 
     /// `q` per unit `P / Theta^2`: `2 g_m / (L^2 rho A)`, so `q = this * P / Theta^2`.
-    pub fn q_factor(&self, mode: usize) -> f64 {
+    pub(crate) fn q_factor(&self, mode: usize) -> f64 {
         let (_, g) = self.mode_constants(mode);
         2.0 * g / (self.length_m * self.length_m * self.mass_per_length())
     }

@@ -47,7 +47,7 @@ use crate::model::{parse_toml, read_text, Checker, Model};
 /// Largest pulsation ratio epsilon accepted: with `q / a <= epsilon / 2` the points
 /// beyond the resolved Mathieu range (|a| > 1e4 or |q| > 100) lie at tongue orders
 /// near 100, where tongues are narrower than 1e-100 (taken as stable).
-pub const MAX_EPSILON: f64 = 0.5;
+pub(crate) const MAX_EPSILON: f64 = 0.5;
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -110,41 +110,41 @@ struct SpanFile {
 /// One point of the modulus table.
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct ModulusPoint {
+pub(crate) struct ModulusPoint {
     /// Rod temperature, deg C.
-    pub temperature_c: f64,
+    pub(crate) temperature_c: f64,
     /// Young's modulus at that temperature, Pa, > 0.
-    pub modulus_pa: f64,
+    pub(crate) modulus_pa: f64,
 }
 
 /// The rod's material, damping and excitation settings.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RodSettings {
     /// Density, kg/m^3.
-    pub density_kg_m3: f64,
+    pub(crate) density_kg_m3: f64,
     /// Modal damping ratio zeta of every bending mode.
     pub damping_ratio: f64,
     /// Bending modes per span, 1..=10.
     pub modes: usize,
     /// Pulsation amplitude P / (P_E + T0) of each excitation source.
-    pub epsilon: f64,
+    pub(crate) epsilon: f64,
     /// Whether the axial rod speed lowers the effective tension (`T0 - rho A V^2`).
-    pub moving_rod: bool,
+    pub(crate) moving_rod: bool,
     /// Drive modes whose participation in a span is below this pump nothing there.
-    pub min_participation: f64,
+    pub(crate) min_participation: f64,
     /// E(T), temperature strictly increasing.
-    pub modulus: Vec<ModulusPoint>,
+    pub(crate) modulus: Vec<ModulusPoint>,
 }
 
 /// A stand: its rolls' drive mass and diameter.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Stand {
+pub(crate) struct Stand {
     /// Name used by spans and reports.
-    pub name: String,
+    pub(crate) name: String,
     /// Index of the drive mass carrying its rolls.
-    pub mass: usize,
+    pub(crate) mass: usize,
     /// Working roll diameter, m.
-    pub roll_diameter_m: f64,
+    pub(crate) roll_diameter_m: f64,
 }
 
 /// A span between consecutive stands.
@@ -153,15 +153,15 @@ pub struct Span {
     /// `"<upstream> - <downstream>"`.
     pub name: String,
     /// Index of the upstream stand (the span carries its exit section).
-    pub upstream: usize,
+    pub(crate) upstream: usize,
     /// Index of the downstream stand (`upstream + 1`).
-    pub downstream: usize,
+    pub(crate) downstream: usize,
     /// Free length between the roll gaps, m.
-    pub length_m: f64,
+    pub(crate) length_m: f64,
     /// End conditions.
-    pub ends: Ends,
+    pub(crate) ends: Ends,
     /// Setup tension T0, N.
-    pub tension_n: f64,
+    pub(crate) tension_n: f64,
 }
 
 /// The drive in one configuration: its modes and finishing-speed range.
@@ -172,9 +172,9 @@ pub struct ConfigurationModes {
     /// Finishing speed at the motor's minimum and maximum speed, m/s.
     pub speed_range_m_s: (f64, f64),
     /// Elastic natural frequencies, Hz, ascending (the rigid mode left out).
-    pub frequencies_hz: Vec<f64>,
+    pub(crate) frequencies_hz: Vec<f64>,
     /// Per elastic mode, the unit-norm shape's entry at each stand's mass.
-    pub stand_shapes: Vec<Vec<f64>>,
+    pub(crate) stand_shapes: Vec<Vec<f64>>,
 }
 
 /// A validated rod-mill file.
@@ -184,20 +184,18 @@ pub struct RodMill {
     pub name: String,
     /// The mill file as given (for messages).
     pub file: String,
-    /// The drive model.
-    pub drive: Model,
     /// Motor speed range, rpm (min, max).
-    pub motor_rpm: (f64, f64),
+    pub(crate) motor_rpm: (f64, f64),
     /// Rod material, damping and excitation settings.
     pub rod: RodSettings,
     /// Stands in rolling order; the last is the finishing stand.
-    pub stands: Vec<Stand>,
+    pub(crate) stands: Vec<Stand>,
     /// Spans between consecutive stands.
     pub spans: Vec<Span>,
     /// Every configuration of the drive (one, `"default"`, when it has none).
     pub configurations: Vec<ConfigurationModes>,
     /// The Mathieu solver (default tolerance).
-    pub mathieu: Mathieu,
+    pub(crate) mathieu: Mathieu,
 }
 
 impl RodMill {
@@ -243,7 +241,6 @@ impl RodMill {
         Ok(RodMill {
             name: raw.name,
             file: file_name.to_owned(),
-            drive,
             motor_rpm: (raw.motor.speed_min_rpm, raw.motor.speed_max_rpm),
             rod,
             stands,
@@ -262,7 +259,7 @@ impl RodMill {
     }
 
     /// Young's modulus at `temperature_c` (linear in the table), or `None` outside it.
-    pub fn modulus_pa(&self, temperature_c: f64) -> Option<f64> {
+    pub(crate) fn modulus_pa(&self, temperature_c: f64) -> Option<f64> {
         let table = &self.rod.modulus;
         if !temperature_c.is_finite() {
             return None;

@@ -8,7 +8,7 @@
 //!
 //! - **torsional modes of the drive** in which the span's two stands swing by
 //!   different amounts: the drive's modal analysis in the pass's configuration (a tree
-//!   of gear stages, [`crate::tree`]) gives each mode's unit-norm shape; its
+//!   of gear stages, `tree`) gives each mode's unit-norm shape; its
 //!   participation in a span is `|phi_up - phi_down| / sqrt(2)` (1 when the two stands
 //!   swing fully against each other, as stands 1 and 2 do at 31.8 Hz in Table 3);
 //! - **roll eccentricity** of either stand, at 1x and 2x its roll speed.

@@ -54,147 +54,196 @@ pub fn load(path: impl AsRef<Path>) -> Result<Vec<Pass>, RodError> {
 }
 
 /// Parses schedule CSV text; `file` labels errors.
-pub fn parse(text: &str, file: &str) -> Result<Vec<Pass>, RodError> {
-    let error = |line: usize, key: &str, message: String| RodError::Schedule {
-        file: file.to_owned(),
-        line,
-        key: key.to_owned(),
-        message,
-    };
+pub(crate) fn parse(text: &str, file: &str) -> Result<Vec<Pass>, RodError> {
     let mut rows = text
         .lines()
         .enumerate()
         .map(|(index, line)| (index + 1, line.trim()))
         .filter(|(_, line)| !line.is_empty() && !line.starts_with('#'));
     let Some((header_line, header)) = rows.next() else {
-        return Err(error(
+        return Err(schedule_error(
+            file,
             1,
             "(header)",
             "the file has no header row".to_owned(),
         ));
     };
-    let columns: Vec<&str> = header.split(',').map(str::trim).collect();
-    for (index, column) in columns.iter().enumerate() {
-        if !REQUIRED.contains(column) && !OPTIONAL.contains(column) {
-            return Err(error(
-                header_line,
-                "(header)",
-                format!(
-                    "unknown column {column:?} (allowed: {}, {})",
-                    REQUIRED.join(", "),
-                    OPTIONAL.join(", ")
-                ),
-            ));
-        }
-        if columns[..index].contains(column) {
-            return Err(error(
-                header_line,
-                "(header)",
-                format!("column {column:?} twice"),
-            ));
-        }
-    }
-    for required in REQUIRED {
-        if !columns.contains(&required) {
-            return Err(error(
-                header_line,
-                "(header)",
-                format!("missing column {required:?}"),
-            ));
-        }
-    }
-    if !OPTIONAL.iter().any(|c| columns.contains(c)) {
-        return Err(error(
-            header_line,
-            "(header)",
-            "needs finishing_speed_m_s or stand_speeds_m_s".to_owned(),
-        ));
-    }
-    let mut passes = Vec::new();
-    for (line, row) in rows {
-        let fields: Vec<&str> = row.split(',').map(str::trim).collect();
-        if fields.len() != columns.len() {
-            return Err(error(
-                line,
-                "(row)",
-                format!("{} fields, the header has {}", fields.len(), columns.len()),
-            ));
-        }
-        let field = |name: &str| {
-            columns
-                .iter()
-                .position(|c| *c == name)
-                .map(|i| fields[i])
-                .filter(|f| !f.is_empty())
-        };
-        let number = |name: &str, text: &str, unit: &str| -> Result<f64, RodError> {
-            text.parse::<f64>()
-                .ok()
-                .filter(|v| v.is_finite())
-                .ok_or_else(|| error(line, name, format!("{text:?} is not a number ({unit})")))
-        };
-        let positive = |name: &str, value: f64, unit: &str| -> Result<f64, RodError> {
-            if value > 0.0 {
-                Ok(value)
-            } else {
-                Err(error(
-                    line,
-                    name,
-                    format!("{value} is not allowed (must be > 0 {unit})"),
-                ))
-            }
-        };
-        let list = |name: &str, text: &str, unit: &str| -> Result<Vec<f64>, RodError> {
-            text.split(';')
-                .map(|item| positive(name, number(name, item.trim(), unit)?, unit))
-                .collect()
-        };
-        let required =
-            |name: &str| field(name).ok_or_else(|| error(line, name, "empty".to_owned()));
-        let name = required("pass")?.to_owned();
-        let configuration = required("configuration")?.to_owned();
-        let temperature_c = number("temperature_c", required("temperature_c")?, "deg C")?;
-        let diameters_m = list("diameters_mm", required("diameters_mm")?, "mm")?
-            .into_iter()
-            .map(|mm| mm / 1.0e3)
-            .collect();
-        let finishing_speed_m_s = field("finishing_speed_m_s")
-            .map(|text| {
-                positive(
-                    "finishing_speed_m_s",
-                    number("finishing_speed_m_s", text, "m/s")?,
-                    "m/s",
-                )
-            })
-            .transpose()?;
-        let stand_speeds_m_s = field("stand_speeds_m_s")
-            .map(|text| list("stand_speeds_m_s", text, "m/s"))
-            .transpose()?;
-        if finishing_speed_m_s.is_some() == stand_speeds_m_s.is_some() {
-            return Err(error(
-                line,
-                "finishing_speed_m_s",
-                "give either finishing_speed_m_s or stand_speeds_m_s (exactly one)".to_owned(),
-            ));
-        }
-        passes.push(Pass {
-            name,
-            configuration,
-            temperature_c,
-            diameters_m,
-            finishing_speed_m_s,
-            stand_speeds_m_s,
-            origin: format!("{file}:{line}"),
-        });
-    }
+    let columns = header_columns(file, header_line, header)?;
+    let passes = rows
+        .map(|(line, row)| Row::new(file, line, row, &columns)?.pass())
+        .collect::<Result<Vec<Pass>, RodError>>()?;
     if passes.is_empty() {
-        return Err(error(
+        return Err(schedule_error(
+            file,
             header_line,
             "(row)",
             "the schedule has no pass".to_owned(),
         ));
     }
     Ok(passes)
+}
+
+/// The error at `line` of `file`, for `key`.
+fn schedule_error(file: &str, line: usize, key: &str, message: String) -> RodError {
+    RodError::Schedule {
+        file: file.to_owned(),
+        line,
+        key: key.to_owned(),
+        message,
+    }
+}
+
+/// The header's columns: each known and once, every required one, and a speed
+/// column.
+fn header_columns<'a>(
+    file: &str,
+    header_line: usize,
+    header: &'a str,
+) -> Result<Vec<&'a str>, RodError> {
+    let error = |message: String| schedule_error(file, header_line, "(header)", message);
+    let columns: Vec<&str> = header.split(',').map(str::trim).collect();
+    for (index, column) in columns.iter().enumerate() {
+        if !REQUIRED.contains(column) && !OPTIONAL.contains(column) {
+            return Err(error(format!(
+                "unknown column {column:?} (allowed: {}, {})",
+                REQUIRED.join(", "),
+                OPTIONAL.join(", ")
+            )));
+        }
+        if columns[..index].contains(column) {
+            return Err(error(format!("column {column:?} twice")));
+        }
+    }
+    for required in REQUIRED {
+        if !columns.contains(&required) {
+            return Err(error(format!("missing column {required:?}")));
+        }
+    }
+    if !OPTIONAL.iter().any(|c| columns.contains(c)) {
+        return Err(error(
+            "needs finishing_speed_m_s or stand_speeds_m_s".to_owned(),
+        ));
+    }
+    Ok(columns)
+}
+
+/// One data row: its fields under the header's columns.
+struct Row<'a> {
+    file: &'a str,
+    line: usize,
+    columns: &'a [&'a str],
+    fields: Vec<&'a str>,
+}
+
+impl<'a> Row<'a> {
+    /// The fields of `row` at `line`, one per column.
+    fn new(
+        file: &'a str,
+        line: usize,
+        row: &'a str,
+        columns: &'a [&'a str],
+    ) -> Result<Row<'a>, RodError> {
+        let fields: Vec<&str> = row.split(',').map(str::trim).collect();
+        if fields.len() != columns.len() {
+            return Err(schedule_error(
+                file,
+                line,
+                "(row)",
+                format!("{} fields, the header has {}", fields.len(), columns.len()),
+            ));
+        }
+        Ok(Row {
+            file,
+            line,
+            columns,
+            fields,
+        })
+    }
+
+    /// The pass of this row.
+    fn pass(&self) -> Result<Pass, RodError> {
+        let name = self.required("pass")?.to_owned();
+        let configuration = self.required("configuration")?.to_owned();
+        let temperature_c =
+            self.number("temperature_c", self.required("temperature_c")?, "deg C")?;
+        let diameters_m = self
+            .list("diameters_mm", self.required("diameters_mm")?, "mm")?
+            .into_iter()
+            .map(|mm| mm / 1.0e3)
+            .collect();
+        let finishing_speed_m_s = self
+            .field("finishing_speed_m_s")
+            .map(|text| {
+                self.positive(
+                    "finishing_speed_m_s",
+                    self.number("finishing_speed_m_s", text, "m/s")?,
+                    "m/s",
+                )
+            })
+            .transpose()?;
+        let stand_speeds_m_s = self
+            .field("stand_speeds_m_s")
+            .map(|text| self.list("stand_speeds_m_s", text, "m/s"))
+            .transpose()?;
+        if finishing_speed_m_s.is_some() == stand_speeds_m_s.is_some() {
+            return Err(self.error(
+                "finishing_speed_m_s",
+                "give either finishing_speed_m_s or stand_speeds_m_s (exactly one)".to_owned(),
+            ));
+        }
+        Ok(Pass {
+            name,
+            configuration,
+            temperature_c,
+            diameters_m,
+            finishing_speed_m_s,
+            stand_speeds_m_s,
+            origin: format!("{}:{}", self.file, self.line),
+        })
+    }
+
+    fn error(&self, key: &str, message: String) -> RodError {
+        schedule_error(self.file, self.line, key, message)
+    }
+
+    /// The field of column `name`, `None` when there is no such column or it is empty.
+    fn field(&self, name: &str) -> Option<&'a str> {
+        self.columns
+            .iter()
+            .position(|c| *c == name)
+            .map(|i| self.fields[i])
+            .filter(|f| !f.is_empty())
+    }
+
+    /// The field of column `name`, which must not be empty.
+    fn required(&self, name: &str) -> Result<&'a str, RodError> {
+        self.field(name)
+            .ok_or_else(|| self.error(name, "empty".to_owned()))
+    }
+
+    /// `text` as a finite number (in `unit`).
+    fn number(&self, name: &str, text: &str, unit: &str) -> Result<f64, RodError> {
+        text.parse::<f64>()
+            .ok()
+            .filter(|v| v.is_finite())
+            .ok_or_else(|| self.error(name, format!("{text:?} is not a number ({unit})")))
+    }
+
+    /// `value` when > 0.
+    fn positive(&self, name: &str, value: f64, unit: &str) -> Result<f64, RodError> {
+        if value > 0.0 {
+            Ok(value)
+        } else {
+            Err(self.error(name, format!("{value} is not allowed (must be > 0 {unit})")))
+        }
+    }
+
+    /// `text` as `;`-separated positive numbers.
+    fn list(&self, name: &str, text: &str, unit: &str) -> Result<Vec<f64>, RodError> {
+        text.split(';')
+            .map(|item| self.positive(name, self.number(name, item.trim(), unit)?, unit))
+            .collect()
+    }
 }
 
 #[cfg(test)]

@@ -17,7 +17,7 @@
 //! Each request that starts a deceleration from `Operator`, `Waiting` or `Resuming` is
 //! one [`SlowDownEvent`]; a further drop while it is still requested belongs to it.
 //! Pure and synchronous: the closed loop ([`super::online`]) and the virtual PLC call
-//! [`SpeedControl::step`] once per PLC cycle with the request bit they read.
+//! `SpeedControl::step` once per PLC cycle with the request bit they read.
 
 /// Longest [`SlowDownPolicy::lookback_s`], s.
 pub const MAX_LOOKBACK_S: f64 = 60.0;
@@ -70,16 +70,16 @@ impl Default for SlowDownPolicy {
 #[error("{key}: {value} is not allowed (must be {allowed})")]
 pub struct PolicyError {
     /// The setting, e.g. `decel_m_s2`.
-    pub key: &'static str,
+    pub(crate) key: &'static str,
     /// Its value.
-    pub value: f64,
+    pub(crate) value: f64,
     /// The allowed range with its unit.
-    pub allowed: &'static str,
+    pub(crate) allowed: &'static str,
 }
 
 impl SlowDownPolicy {
     /// Checks every setting against its range.
-    pub fn validate(&self) -> Result<(), PolicyError> {
+    pub(crate) fn validate(&self) -> Result<(), PolicyError> {
         let check = |key, value: f64, ok: bool, allowed| {
             if ok && value.is_finite() {
                 Ok(())
@@ -139,7 +139,7 @@ impl SlowDownPolicy {
 
 /// What the automation is doing.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Mode {
+pub(crate) enum Mode {
     /// Following the operator's setpoint.
     Operator,
     /// Decelerating to `target_m_s` on a request.
@@ -169,7 +169,7 @@ pub struct SlowDownEvent {
     /// Speed then, m/s.
     pub speed_at_request_m_s: f64,
     /// Lowest speed during the event, m/s.
-    pub lowest_m_s: f64,
+    pub(crate) lowest_m_s: f64,
     /// Speed drops: 1, plus one per escalation.
     pub drops: u32,
     /// When the request was released, s (`None`: not within the event).
@@ -228,33 +228,23 @@ impl SpeedControl {
     }
 
     /// The policy.
-    pub fn policy(&self) -> &SlowDownPolicy {
+    pub(crate) fn policy(&self) -> &SlowDownPolicy {
         &self.policy
     }
 
     /// The speed now, m/s.
-    pub fn speed_m_s(&self) -> f64 {
+    pub(crate) fn speed_m_s(&self) -> f64 {
         self.speed_m_s
     }
 
     /// The operator's setpoint, m/s.
-    pub fn setpoint_m_s(&self) -> f64 {
+    pub(crate) fn setpoint_m_s(&self) -> f64 {
         self.setpoint_m_s
     }
 
     /// The operator sets a new speed (followed in `Operator` mode and when resuming).
     pub fn set_setpoint(&mut self, setpoint_m_s: f64) {
         self.setpoint_m_s = setpoint_m_s;
-    }
-
-    /// What the automation is doing.
-    pub fn mode(&self) -> Mode {
-        self.mode
-    }
-
-    /// Time since the start, s.
-    pub fn time_s(&self) -> f64 {
-        self.time_s
     }
 
     /// The slow-downs so far, oldest first.
@@ -265,7 +255,7 @@ impl SpeedControl {
     /// One PLC cycle of `dt_s`: the request bit as read at its start moves the mode,
     /// then the speed moves for `dt_s`. Returns how: at its rate from the speed at the
     /// cycle's start until the speed at its end.
-    pub fn step(&mut self, dt_s: f64, request: bool) -> SpeedSegment {
+    pub(crate) fn step(&mut self, dt_s: f64, request: bool) -> SpeedSegment {
         let now = self.time_s;
         let policy = self.policy;
         self.recent.push_back((now, self.speed_m_s));
@@ -358,15 +348,15 @@ impl SpeedControl {
 /// The speed over one cycle: from `from_m_s` at `rate_m_s2` until `to_m_s`, reached
 /// `reach_s` into the cycle, then held.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct SpeedSegment {
+pub(crate) struct SpeedSegment {
     /// Speed at the cycle's start, m/s.
-    pub from_m_s: f64,
+    pub(crate) from_m_s: f64,
     /// Speed at the cycle's end, m/s.
-    pub to_m_s: f64,
+    pub(crate) to_m_s: f64,
     /// Signed rate, m/s^2 (0 when the speed holds).
-    pub rate_m_s2: f64,
+    pub(crate) rate_m_s2: f64,
     /// When `to_m_s` is reached, s after the cycle's start.
-    pub reach_s: f64,
+    pub(crate) reach_s: f64,
 }
 
 impl SpeedSegment {
@@ -393,7 +383,7 @@ impl SpeedSegment {
     }
 
     /// The speed `s_into` seconds into the cycle, m/s.
-    pub fn at(&self, s_into: f64) -> f64 {
+    pub(crate) fn at(&self, s_into: f64) -> f64 {
         if s_into >= self.reach_s {
             self.to_m_s
         } else {
@@ -436,10 +426,10 @@ mod tests {
         let speeds = run(&mut control, 2.5, true);
         assert!((speeds[19] - 23.0).abs() < 1e-9, "{}", speeds[19]);
         assert_eq!(speeds[39], 22.0);
-        assert!(matches!(control.mode(), Mode::Holding { .. }));
+        assert!(matches!(control.mode, Mode::Holding { .. }));
         // Still requested 3 s after reaching 22 m/s: down again to 20.
         run(&mut control, 3.0, true);
-        assert!(matches!(control.mode(), Mode::SlowingDown { .. }));
+        assert!(matches!(control.mode, Mode::SlowingDown { .. }));
         run(&mut control, 2.5, true);
         assert!((control.speed_m_s() - 20.0).abs() < 1e-9);
         // Released: 1 s at 20, then up at 0.5 m/s^2 to 24 (8 s).
@@ -448,7 +438,7 @@ mod tests {
         let speeds = run(&mut control, 4.0, false);
         assert!((speeds[79] - 22.0).abs() < 1e-6, "{}", speeds[79]);
         run(&mut control, 4.5, false);
-        assert_eq!(control.mode(), Mode::Operator);
+        assert_eq!(control.mode, Mode::Operator);
         assert_eq!(control.speed_m_s(), 24.0);
 
         let events = control.events();
@@ -468,7 +458,7 @@ mod tests {
         run(&mut control, 1.0, true);
         run(&mut control, 3.0, true);
         run(&mut control, 7.0, false);
-        assert_eq!(control.mode(), Mode::Resuming);
+        assert_eq!(control.mode, Mode::Resuming);
         let resuming_at = control.speed_m_s();
         assert!(resuming_at > 17.5 && resuming_at < 20.0, "{resuming_at}");
         run(&mut control, 0.05, true);

@@ -37,19 +37,19 @@ use super::schedule::PassSchedule;
 use crate::model::{Checker, ModelError};
 
 /// Most stands (the chatter detectors take up to 8).
-pub const MAX_STANDS: usize = 8;
+pub(crate) const MAX_STANDS: usize = 8;
 
 /// One stand's linearisation.
 #[derive(Debug, Clone, PartialEq)]
 pub struct StandModel {
     /// Entry thickness H at the schedule, m.
-    pub entry_m: f64,
+    pub(crate) entry_m: f64,
     /// Exit thickness h at the schedule, m.
-    pub exit_m: f64,
+    pub(crate) exit_m: f64,
     /// Work-roll speed at speed factor 1, m/s.
-    pub roll_speed: f64,
+    pub(crate) roll_speed: f64,
     /// Back and front tension stress at the schedule, Pa.
-    pub tension_pa: [f64; 2],
+    pub(crate) tension_pa: [f64; 2],
     /// The roll gap at the schedule.
     pub gap: RollGap,
     /// Force and forward-slip partials.
@@ -84,29 +84,29 @@ struct FlowCoefficients {
 
 /// Excitation and boundary inputs at one instant.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct Inputs {
+pub(crate) struct Inputs {
     /// Entry thickness deviation dH per stand, m: stand 0's is the incoming gauge, stand
     /// i's the deviation stand i - 1 put out one transport delay earlier.
-    pub entry_thickness_m: [f64; MAX_STANDS],
+    pub(crate) entry_thickness_m: [f64; MAX_STANDS],
     /// Roll-gap deviation from eccentricity per stand, m (adds to `2 y_w`).
-    pub gap_offset_m: [f64; MAX_STANDS],
+    pub(crate) gap_offset_m: [f64; MAX_STANDS],
     /// Force noise on each work roll, N.
-    pub force_n: [f64; MAX_STANDS],
+    pub(crate) force_n: [f64; MAX_STANDS],
     /// Deviation of the first stand's back (payoff reel) tension, Pa.
-    pub entry_tension_pa: f64,
+    pub(crate) entry_tension_pa: f64,
     /// Deviation of the last stand's front (coiler) tension, Pa.
-    pub exit_tension_pa: f64,
+    pub(crate) exit_tension_pa: f64,
 }
 
 /// A delayed term of the linear system: `x' += column * 2 x[source](t - delay)`.
 #[derive(Debug, Clone, PartialEq)]
-pub struct DelayedCoupling {
+pub(crate) struct DelayedCoupling {
     /// Transport delay, s.
-    pub delay_s: f64,
+    pub(crate) delay_s: f64,
     /// State index of the work-roll displacement whose gap is carried (`2 y_w`).
-    pub source: usize,
+    pub(crate) source: usize,
     /// Effect of a unit entry-thickness deviation (1 m) of the next stand on `x'`.
-    pub column: DVector<f64>,
+    pub(crate) column: DVector<f64>,
 }
 
 /// The linear delay system `x' = A x + sum_k column_k 2 x[source_k](t - delay_k)` at one
@@ -114,11 +114,11 @@ pub struct DelayedCoupling {
 #[derive(Debug, Clone, PartialEq)]
 pub struct LinearSystem {
     /// Speed factor it was built for.
-    pub speed: f64,
+    pub(crate) speed: f64,
     /// Undelayed system matrix (SI state, see the module docs).
-    pub a: DMatrix<f64>,
+    pub(crate) a: DMatrix<f64>,
     /// One delayed coupling per interstand, in stand order.
-    pub delayed: Vec<DelayedCoupling>,
+    pub(crate) delayed: Vec<DelayedCoupling>,
 }
 
 /// A tandem mill linearised about its schedule (speed enters at evaluation).
@@ -200,18 +200,18 @@ impl TandemMill {
     }
 
     /// Number of states: 4 per stand and one tension per interstand.
-    pub fn state_len(&self) -> usize {
+    pub(crate) fn state_len(&self) -> usize {
         5 * self.stands.len() - 1
     }
 
     /// State index of stand `i`'s work-roll displacement (backup roll `+ 1`, their
     /// velocities `+ 2`, `+ 3`).
-    pub fn work_roll(stand: usize) -> usize {
+    pub(crate) fn work_roll(stand: usize) -> usize {
         4 * stand
     }
 
     /// State index of the tension between stands `j` and `j + 1`.
-    pub fn tension(&self, interstand: usize) -> usize {
+    pub(crate) fn tension(&self, interstand: usize) -> usize {
         4 * self.stands.len() + interstand
     }
 
@@ -222,28 +222,28 @@ impl TandemMill {
     }
 
     /// Transport delay from stand `j` to stand `j + 1` at speed factor `speed`, s.
-    pub fn delay_s(&self, interstand: usize, speed: f64) -> f64 {
+    pub(crate) fn delay_s(&self, interstand: usize, speed: f64) -> f64 {
         self.interstand_m / self.exit_speed(interstand, speed)
     }
 
     /// Work-roll radius, m.
-    pub fn roll_radius_m(&self) -> f64 {
+    pub(crate) fn roll_radius_m(&self) -> f64 {
         self.roll_radius_m
     }
 
     /// Nominal tension stress between stands `j` and `j + 1`, Pa.
-    pub fn nominal_tension_pa(&self, interstand: usize) -> f64 {
+    pub(crate) fn nominal_tension_pa(&self, interstand: usize) -> f64 {
         self.stands[interstand].tension_pa[1]
     }
 
     /// The exit-gauge deviation of stand `i`: `2 y_w + e`, m.
-    pub fn gap_deviation(&self, state: &[f64], inputs: &Inputs, stand: usize) -> f64 {
+    pub(crate) fn gap_deviation(&self, state: &[f64], inputs: &Inputs, stand: usize) -> f64 {
         2.0 * state[Self::work_roll(stand)] + inputs.gap_offset_m[stand]
     }
 
     /// `x'` at speed factor `speed` for state `x` and `inputs` (see the module docs).
     /// `x` and `dx` have [`TandemMill::state_len`] entries.
-    pub fn derivative(&self, speed: f64, x: &[f64], inputs: &Inputs, dx: &mut [f64]) {
+    pub(crate) fn derivative(&self, speed: f64, x: &[f64], inputs: &Inputs, dx: &mut [f64]) {
         let n = self.stands.len();
         let st = &self.stack;
         let mut speed_out = [0.0; MAX_STANDS];
@@ -288,7 +288,7 @@ impl TandemMill {
     }
 
     /// The linear delay system at speed factor `speed` (> 0), built from
-    /// [`TandemMill::derivative`] with unit states and inputs, so the time simulation
+    /// `TandemMill::derivative` with unit states and inputs, so the time simulation
     /// and the characteristic roots use the same equations.
     pub fn linear_system(&self, speed: f64) -> LinearSystem {
         let len = self.state_len();

@@ -5,9 +5,9 @@
 //! and accelerometers on the backup-roll chocks; the characteristic roots, the critical
 //! speed and the ground truth of a run (onset, developed chatter).
 //!
-//! - [`schedule`]: the pass schedule file (TOML).
+//! - `schedule`: the pass schedule file (TOML).
 //! - [`rollgap`]: quasi-static roll gap (Hill, Hitchcock, Bland-Ford) and its partials.
-//! - [`linear`]: the linearised mill, `x' = A(s) x + delayed terms + inputs`.
+//! - `linear`: the linearised mill, `x' = A(s) x + delayed terms + inputs`.
 //! - [`roots`]: characteristic roots with the delays, the critical speed.
 //! - [`simulate`]: time simulation with excitation, a speed ramp and accelerometers.
 //! - [`truth`]: the ground truth of a run: critical speed, onset, developed chatter.
@@ -16,11 +16,11 @@
 //!   automation while it runs (the closed loop's plant).
 
 pub mod control;
-pub mod linear;
+pub(crate) mod linear;
 pub mod online;
 pub mod rollgap;
 pub mod roots;
-pub mod schedule;
+pub(crate) mod schedule;
 pub mod simulate;
 pub mod truth;
 

@@ -1,9 +1,9 @@
 //! A tandem mill simulated online, one PLC cycle at a time: the speed automation
 //! ([`super::control::SpeedControl`]) reads the slow-down request and moves the speed,
 //! then the physics ([`super::simulate::Simulation`]) runs the cycle at that speed (at
-//! the automation's rate until its new speed, [`super::control::SpeedSegment`]), with the
+//! the automation's rate until its new speed, `control::SpeedSegment`), with the
 //! truth kept on the way: the chatter amplitude (the largest interstand tension swing
-//! over its developed limit, [`super::truth::tension_swing`]) and when chatter first
+//! over its developed limit, `truth::tension_swing`) and when chatter first
 //! developed.
 
 use super::control::{PolicyError, SpeedControl};
@@ -44,13 +44,14 @@ pub struct OnlineMill {
     /// Exit speed at speed factor 1, m/s.
     unit_m_s: f64,
     sample_rate_hz: f64,
-    cycle_samples: usize,
+    /// Output samples per cycle.
+    pub(crate) cycle_samples: usize,
     developed_s: Option<f64>,
 }
 
 impl OnlineMill {
     /// `mill` under `setup`, its speed set by `control` every `cycle_samples` output
-    /// samples. `setup.speeds` is replaced by [`OnlineMill::speed_range`] up to
+    /// samples. `setup.speeds` is replaced by `OnlineMill::speed_range` up to
     /// `top_speed_m_s` (the highest setpoint the run will see).
     pub fn new(
         mill: &TandemMill,
@@ -79,7 +80,11 @@ impl OnlineMill {
 
     /// The speed factors `control` can reach with setpoints up to `top_speed_m_s`:
     /// from its floor (or its speed now, if lower) to the top (or its speed now).
-    pub fn speed_range(control: &SpeedControl, top_speed_m_s: f64, unit_m_s: f64) -> SpeedRange {
+    pub(crate) fn speed_range(
+        control: &SpeedControl,
+        top_speed_m_s: f64,
+        unit_m_s: f64,
+    ) -> SpeedRange {
         let speed = control.speed_m_s();
         SpeedRange {
             lowest: control.policy().min_speed_m_s.min(speed) / unit_m_s,
@@ -95,16 +100,6 @@ impl OnlineMill {
     /// The automation, to change the operator's setpoint (within the top speed).
     pub fn control_mut(&mut self) -> &mut SpeedControl {
         &mut self.control
-    }
-
-    /// Exit speed at speed factor 1, m/s.
-    pub fn unit_speed_m_s(&self) -> f64 {
-        self.unit_m_s
-    }
-
-    /// Output samples per cycle.
-    pub fn cycle_samples(&self) -> usize {
-        self.cycle_samples
     }
 
     /// Length of a cycle, s.

@@ -53,11 +53,11 @@ pub struct RollGap {
     /// Forward slip f: exit strip speed = roll speed (1 + f).
     pub forward_slip: f64,
     /// Hitchcock's flattened roll radius R', m.
-    pub flattened_radius_m: f64,
+    pub(crate) flattened_radius_m: f64,
     /// Contact length l = sqrt(R' dh), m.
-    pub contact_length_m: f64,
+    pub(crate) contact_length_m: f64,
     /// Neutral point to exit plane x_n = R' phi_n, m.
-    pub neutral_point_m: f64,
+    pub(crate) neutral_point_m: f64,
 }
 
 /// Partial derivatives of force and forward slip, in the order entry thickness (per m),
@@ -168,7 +168,7 @@ pub fn roll_gap(pass: &Pass) -> Result<RollGap, RollGapError> {
 }
 
 /// The roll gap of `pass` and its partial derivatives (central differences).
-pub fn partials(pass: &Pass) -> Result<(RollGap, GapPartials), RollGapError> {
+pub(crate) fn partials(pass: &Pass) -> Result<(RollGap, GapPartials), RollGapError> {
     let gap = roll_gap(pass)?;
     let thickness_step = 1e-4 * (pass.entry_m - pass.exit_m);
     let tension_step = 1e-4 * pass.flow_stress_pa;

@@ -48,12 +48,6 @@ impl Root {
             frequency_hz: lambda.im.abs() / std::f64::consts::TAU,
         }
     }
-
-    /// Damping ratio `-real / |lambda|` (negative when growing).
-    pub fn damping_ratio(&self) -> f64 {
-        let omega = std::f64::consts::TAU * self.frequency_hz;
-        -self.real_per_s / self.real_per_s.hypot(omega)
-    }
 }
 
 /// Why the roots could not be found.
@@ -87,7 +81,7 @@ pub enum RootsError {
     },
 }
 
-/// The characteristic function of one [`LinearSystem`], ready for evaluation.
+/// The characteristic function of one `LinearSystem`, ready for evaluation.
 #[derive(Debug)]
 pub struct Characteristic {
     m: usize,
@@ -240,7 +234,7 @@ impl Characteristic {
     }
 
     /// `d/dlambda ln det(lambda I - A - sum B_k e^(-lambda tau_k))`.
-    pub fn log_derivative(&self, lambda: C64) -> Option<C64> {
+    pub(crate) fn log_derivative(&self, lambda: C64) -> Option<C64> {
         let (mut k, k_prime, poles) = self.loop_difference(lambda, true);
         let m = self.m;
         let (determinant, pivots) = small_lu(&mut k, m);
@@ -274,7 +268,7 @@ impl Characteristic {
     }
 
     /// The root Newton's method reaches from `start`, if it converges.
-    pub fn newton(&self, start: C64) -> Option<C64> {
+    pub(crate) fn newton(&self, start: C64) -> Option<C64> {
         let tau_max = self.delays.iter().fold(0.0_f64, |a, &b| a.max(b));
         // At most one chain spacing per step, so a start stays near its own root.
         let max_step = std::f64::consts::TAU / tau_max.max(1e-3);

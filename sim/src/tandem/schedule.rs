@@ -14,11 +14,11 @@ use super::rollgap::{roll_gap, Pass, RollGap};
 use crate::model::{parse_toml, read_text, Checker, ModelError};
 
 /// Fewest and most stands a schedule may have (the chatter detectors take up to 8).
-pub const STANDS: std::ops::RangeInclusive<usize> = 2..=8;
+pub(crate) const STANDS: std::ops::RangeInclusive<usize> = 2..=8;
 
 /// Largest allowed mismatch of the mass flow (exit thickness x exit speed) of any
 /// stand against the last one, as a fraction.
-pub const MASS_FLOW_TOLERANCE: f64 = 0.05;
+pub(crate) const MASS_FLOW_TOLERANCE: f64 = 0.05;
 
 /// The text of `sim/schedules/lu2019-5stand.toml`.
 const EXAMPLE: &str = include_str!("../../schedules/lu2019-5stand.toml");
@@ -28,13 +28,13 @@ const EXAMPLE: &str = include_str!("../../schedules/lu2019-5stand.toml");
 #[serde(deny_unknown_fields)]
 pub struct PassSchedule {
     /// Free-text name.
-    pub name: String,
+    pub(crate) name: String,
     /// Distance between neighbouring stands (length of free strip), m, > 0.
-    pub interstand_distance: f64,
+    pub(crate) interstand_distance: f64,
     /// The strip.
     pub strip: Strip,
     /// The work rolls (shared by every stand).
-    pub rolls: Rolls,
+    pub(crate) rolls: Rolls,
     /// The top half of each stand's vertical roll stack (shared by every stand).
     pub stack: Stack,
     /// The stands in rolling order, 2 to 8.
@@ -47,7 +47,7 @@ pub struct PassSchedule {
 #[serde(deny_unknown_fields)]
 pub struct Strip {
     /// Width, m, > 0.
-    pub width: f64,
+    pub(crate) width: f64,
     /// Young's modulus (the free strip between stands is a spring), Pa, > 0.
     pub youngs_modulus: f64,
 }
@@ -55,13 +55,13 @@ pub struct Strip {
 /// The work rolls.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct Rolls {
+pub(crate) struct Rolls {
     /// Work-roll radius, m, > 0.
-    pub work_roll_radius: f64,
+    pub(crate) work_roll_radius: f64,
     /// Young's modulus of the rolls (Hitchcock's flattening), Pa, > 0.
-    pub youngs_modulus: f64,
+    pub(crate) youngs_modulus: f64,
     /// Poisson's ratio of the rolls, in [0, 0.5).
-    pub poisson_ratio: f64,
+    pub(crate) poisson_ratio: f64,
 }
 
 /// The top half of a symmetric 4-high stand: work roll on backup roll on housing.
@@ -87,20 +87,20 @@ pub struct Stack {
 #[serde(deny_unknown_fields)]
 pub struct StandPass {
     /// Entry thickness, mm, > exit; equal to the previous stand's exit.
-    pub entry_mm: f64,
+    pub(crate) entry_mm: f64,
     /// Exit thickness, mm, > 0.
-    pub exit_mm: f64,
+    pub(crate) exit_mm: f64,
     /// Back tension stress, MPa, >= 0 and below the flow stress; equal to the previous
     /// stand's front tension.
-    pub back_tension_mpa: f64,
+    pub(crate) back_tension_mpa: f64,
     /// Front tension stress, MPa, >= 0 and below the flow stress.
-    pub front_tension_mpa: f64,
+    pub(crate) front_tension_mpa: f64,
     /// Coulomb friction coefficient in the roll gap, in (0, 0.5].
-    pub friction: f64,
+    pub(crate) friction: f64,
     /// Work-roll surface speed at the schedule's speed, m/s, > 0.
-    pub roll_speed: f64,
+    pub(crate) roll_speed: f64,
     /// Mean flow stress of the strip in this pass, MPa, > 0.
-    pub flow_stress_mpa: f64,
+    pub(crate) flow_stress_mpa: f64,
 }
 
 impl PassSchedule {
@@ -132,7 +132,7 @@ impl PassSchedule {
     ///
     /// # Panics
     /// If `index` is not a stand index.
-    pub fn pass(&self, index: usize) -> Pass {
+    pub(crate) fn pass(&self, index: usize) -> Pass {
         let stand = &self.stands[index];
         Pass {
             entry_m: stand.entry_mm * 1e-3,
@@ -163,7 +163,7 @@ impl PassSchedule {
     /// Checks every value against its range, the stands against each other (thickness
     /// and tension continuity, mass flow) and every roll gap. The first problem found is
     /// reported; `file_name` only labels it.
-    pub fn validate(&self, file_name: &str) -> Result<(), ModelError> {
+    pub(crate) fn validate(&self, file_name: &str) -> Result<(), ModelError> {
         let check = Checker { file: file_name };
         check.positive("interstand_distance", self.interstand_distance, "m")?;
         check.positive("strip.width", self.strip.width, "m")?;
@@ -236,7 +236,7 @@ impl PassSchedule {
     }
 
     /// The roll gap of every stand; an invalid gap is an error naming the stand.
-    pub fn roll_gaps(&self, file_name: &str) -> Result<Vec<RollGap>, ModelError> {
+    pub(crate) fn roll_gaps(&self, file_name: &str) -> Result<Vec<RollGap>, ModelError> {
         (0..self.stands.len())
             .map(|index| {
                 roll_gap(&self.pass(index)).map_err(|problem| {

@@ -17,7 +17,7 @@ pub const SEARCH_SPEEDS: (f64, f64) = (0.2, 4.0);
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GroundTruth {
     /// The mill's critical speed.
-    pub critical: CriticalSpeed,
+    pub(crate) critical: CriticalSpeed,
     /// When the ramp passes the critical speed, s (None: it never does).
     pub onset_s: Option<f64>,
     /// When an interstand tension first deviates by more than
@@ -54,7 +54,7 @@ pub fn developed_time(mill: &TandemMill, record: &Record) -> Option<f64> {
 
 /// The first sample in `range` of `record` where an interstand tension deviates by
 /// more than [`DEVELOPED_TENSION_FRACTION`] of its schedule value.
-pub fn first_developed(
+pub(crate) fn first_developed(
     mill: &TandemMill,
     record: &Record,
     range: std::ops::Range<usize>,
@@ -73,13 +73,17 @@ pub fn first_developed(
 
 /// The tension deviation between stands `j` and `j + 1` that counts as developed
 /// chatter, Pa.
-pub fn developed_limit_pa(mill: &TandemMill, interstand: usize) -> f64 {
+pub(crate) fn developed_limit_pa(mill: &TandemMill, interstand: usize) -> f64 {
     DEVELOPED_TENSION_FRACTION * mill.nominal_tension_pa(interstand)
 }
 
 /// The chatter amplitude of samples `range` of `record`: the largest interstand
 /// tension deviation over its developed limit (above 1: developed chatter).
-pub fn tension_swing(mill: &TandemMill, record: &Record, range: std::ops::Range<usize>) -> f64 {
+pub(crate) fn tension_swing(
+    mill: &TandemMill,
+    record: &Record,
+    range: std::ops::Range<usize>,
+) -> f64 {
     record
         .tension_pa
         .iter()

@@ -1,0 +1,115 @@
+//! Validated configuration: what the rest of millgate sees.
+//!
+//! Everything here has been checked by [`crate::load`]: names are unique, references
+//! resolve to indices, durations and rates are positive, and units are SI
+//! (seconds, hertz) except torque, which stays in kN*m as in files and registers.
+
+mod history;
+mod mills;
+mod outputs;
+mod sources;
+
+use std::path::PathBuf;
+
+pub use history::{CaptureSettings, History, Synchronous};
+pub use mills::{
+    BiteSettings, ChatterDetectorKind, Driveline, DrivelineThresholds, RodMill, TandemMill,
+    WearSettings,
+};
+pub use outputs::{
+    MetricsOutput, MqttOutput, MqttTls, OpcUaOutput, OpcUaSecurityMode, OpcUaUser, Outputs,
+    PlcOutput, ServerOutput, WebOutput,
+};
+pub use sources::{
+    CanSource, Channel, ChannelKind, ChannelSource, ModbusSource, RegisterTable, ValueType,
+    WordOrder,
+};
+
+/// A whole, validated millgate configuration, as returned by [`crate::load`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct Config {
+    /// Plant or mill name, for logs and the HMI.
+    pub name: String,
+    /// Folder for files the gateway may rebuild (the wear maps): `cache_dir`, resolved
+    /// against `$CACHE_DIRECTORY` when systemd sets it, else against the configuration
+    /// file's folder; without `cache_dir`, `$CACHE_DIRECTORY`; `None` (neither): the
+    /// user's cache folder (see the gateway).
+    pub cache_dir: Option<PathBuf>,
+    /// Modbus DAQs and PLCs that the gateway polls, over TCP or a serial line (RTU).
+    pub modbus_sources: Vec<ModbusSource>,
+    /// SocketCAN interfaces.
+    pub can_sources: Vec<CanSource>,
+    /// Measured channels, in file order.
+    pub channels: Vec<Channel>,
+    /// Hot-mill drivelines analysed at each metal biting.
+    pub drivelines: Vec<Driveline>,
+    /// Tandem mills watched for chatter.
+    pub tandem_mills: Vec<TandemMill>,
+    /// Rod mills whose rod spans are checked against the Mathieu tongues online.
+    pub rod_mills: Vec<RodMill>,
+    /// Where results go.
+    pub outputs: Outputs,
+    /// The event history file; `None` keeps no history.
+    pub history: Option<History>,
+    /// SHA-256 (64 lower-case hex digits) of the file's canonical TOML: its tables
+    /// with every key sorted, written back by `toml` (comments, blank lines, key order
+    /// and number spelling do not count; a default written out does). The history
+    /// stores it with each run and the capture exports carry it, so an export names
+    /// the configuration that produced it (`millgate check --format json` prints it).
+    pub hash: String,
+}
+
+impl Config {
+    /// Index into [`Config::channels`] of the channel called `name`.
+    pub fn channel_index(&self, name: &str) -> Option<usize> {
+        self.channels
+            .iter()
+            .position(|channel| channel.name == name)
+    }
+
+    /// Every source in the gateway's one source order: the Modbus sources, then the
+    /// CAN sources, each in file order. Source `i` of this order is bit `i` of the
+    /// status registers and the `i`-th source on `/metrics` and the web page.
+    pub fn sources(&self) -> impl Iterator<Item = SourceRef<'_>> + '_ {
+        self.modbus_sources
+            .iter()
+            .map(SourceRef::Modbus)
+            .chain(self.can_sources.iter().map(SourceRef::Can))
+    }
+
+    /// The index in [`Self::sources`] of the source channel `channel` is read from.
+    pub fn source_of_channel(&self, channel: usize) -> usize {
+        match self.channels[channel].source {
+            ChannelSource::ModbusBlock { source, .. }
+            | ChannelSource::ModbusValue { source, .. } => source,
+            ChannelSource::Can { source, .. } => self.modbus_sources.len() + source,
+        }
+    }
+}
+
+/// A source in the order of [`Config::sources`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum SourceRef<'a> {
+    /// A Modbus device.
+    Modbus(&'a ModbusSource),
+    /// A SocketCAN interface.
+    Can(&'a CanSource),
+}
+
+impl SourceRef<'_> {
+    /// The source's name (unique among all sources).
+    pub fn name(&self) -> &str {
+        match self {
+            SourceRef::Modbus(source) => &source.name,
+            SourceRef::Can(source) => &source.name,
+        }
+    }
+
+    /// `modbus` or `can`.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            SourceRef::Modbus(_) => "modbus",
+            SourceRef::Can(_) => "can",
+        }
+    }
+}
