@@ -2,7 +2,9 @@
 //! error, asserting on the message (file, key path, value, what is allowed).
 
 use std::path::{Path, PathBuf};
+
 use std::time::Duration;
+use tempfile::TempDir;
 
 use millgate_config::{
     from_toml_str, from_toml_str_with, load, load_uncommissioned, ChannelKind, ChannelSource,
@@ -1086,26 +1088,17 @@ fn can_channels() {
     );
 }
 
-/// A scratch directory removed on drop.
-struct Scratch(PathBuf);
-
-impl Scratch {
-    fn new(tag: &str) -> Self {
-        let path =
-            std::env::temp_dir().join(format!("millgate-config-{tag}-{}", std::process::id()));
-        std::fs::create_dir_all(&path).expect("create a scratch directory");
-        Scratch(path)
-    }
-
-    fn write(&self, name: &str, contents: &str) {
-        std::fs::write(self.0.join(name), contents).expect("write a scratch file");
-    }
+/// A scratch directory `millgate-config-<tag>-XXXXXX`, removed on drop.
+fn scratch(tag: &str) -> TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("millgate-config-{tag}-"))
+        .tempdir()
+        .expect("create a scratch directory")
 }
 
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
+/// Write `contents` as `name` in `scratch`.
+fn write(scratch: &TempDir, name: &str, contents: &str) {
+    std::fs::write(scratch.path().join(name), contents).expect("write a scratch file");
 }
 
 const SMALL_DBC: &str = r#"VERSION ""
@@ -1137,10 +1130,10 @@ fn can_config(signal: (&str, &str)) -> String {
 
 #[test]
 fn unsupported_dbc_signals() {
-    let scratch = Scratch::new("dbc");
-    scratch.write("small.dbc", SMALL_DBC);
+    let scratch = scratch("dbc");
+    write(&scratch, "small.dbc", SMALL_DBC);
     let problems_of = |signal| {
-        from_toml_str(&can_config(signal), "mill.toml", &scratch.0)
+        from_toml_str(&can_config(signal), "mill.toml", scratch.path())
             .expect_err("unsupported")
             .to_string()
     };
@@ -1161,15 +1154,15 @@ fn unsupported_dbc_signals() {
 
 #[test]
 fn dbc_file_problems_name_the_file() {
-    let scratch = Scratch::new("baddbc");
+    let scratch = scratch("baddbc");
     assert_problem_like_in(
-        &scratch.0,
+        scratch.path(),
         &can_config(("M", "S")),
         "mill.toml: sources.can[0].dbc: file \"small.dbc\" not found",
     );
-    scratch.write("small.dbc", "VERSION \"\"\nBO_ nonsense here\n");
+    write(&scratch, "small.dbc", "VERSION \"\"\nBO_ nonsense here\n");
     assert_problem_like_in(
-        &scratch.0,
+        scratch.path(),
         &can_config(("M", "S")),
         "mill.toml: sources.can[0].dbc: DBC file \"small.dbc\": cannot parse: ",
     );
@@ -1188,14 +1181,17 @@ fn assert_problem_like_in(base_dir: &Path, text: &str, start: &str) {
 
 #[test]
 fn model_path_is_relative_to_the_file_and_must_exist() {
-    let scratch = Scratch::new("model");
-    std::fs::copy(examples_dir().join("mill.dbc"), scratch.0.join("mill.dbc"))
-        .expect("copy the DBC");
+    let scratch = scratch("model");
+    std::fs::copy(
+        examples_dir().join("mill.dbc"),
+        scratch.path().join("mill.dbc"),
+    )
+    .expect("copy the DBC");
     let text = edited(
         "metal_in_stand = \"metal_in\"",
         "metal_in_stand = \"metal_in\"\nmodel = \"f1-model.toml\"",
     );
-    let error = from_toml_str(&text, "mill.toml", &scratch.0).expect_err("no model yet");
+    let error = from_toml_str(&text, "mill.toml", scratch.path()).expect_err("no model yet");
     assert_eq!(error.problems.len(), 1, "{error}");
     assert!(
         error
@@ -1203,12 +1199,12 @@ fn model_path_is_relative_to_the_file_and_must_exist() {
             .starts_with("mill.toml: drivelines[0].model: file \"f1-model.toml\" not found"),
         "{error}"
     );
-    scratch.write("f1-model.toml", "");
+    write(&scratch, "f1-model.toml", "");
     let config =
-        from_toml_str(&text, "mill.toml", &scratch.0).unwrap_or_else(|error| panic!("{error}"));
+        from_toml_str(&text, "mill.toml", scratch.path()).unwrap_or_else(|error| panic!("{error}"));
     assert_eq!(
         config.drivelines[0].model,
-        Some(scratch.0.join("f1-model.toml"))
+        Some(scratch.path().join("f1-model.toml"))
     );
 }
 
@@ -1236,11 +1232,15 @@ fn every_problem_is_listed_at_once() {
 
 #[test]
 fn history_path_retention_and_size() {
-    let scratch = Scratch::new("history");
+    let scratch = scratch("history");
     let dbc = std::fs::read_to_string(examples_dir().join("mill.dbc")).unwrap();
-    scratch.write("mill.dbc", &dbc);
+    write(&scratch, "mill.dbc", &dbc);
     let with = |history: &str| format!("{BASE}\n[history]\n{history}\n");
-    let config = from_toml_str(&with("path = \"data/history.db\""), "mill.toml", &scratch.0);
+    let config = from_toml_str(
+        &with("path = \"data/history.db\""),
+        "mill.toml",
+        scratch.path(),
+    );
     let problems: Vec<String> = config
         .expect_err("the folder does not exist")
         .problems
@@ -1255,13 +1255,17 @@ fn history_path_retention_and_size() {
         "{}",
         problems[0]
     );
-    std::fs::create_dir_all(scratch.0.join("data")).unwrap();
-    let config = from_toml_str(&with("path = \"data/history.db\""), "mill.toml", &scratch.0)
-        .unwrap_or_else(|error| panic!("{error}"));
+    std::fs::create_dir_all(scratch.path().join("data")).unwrap();
+    let config = from_toml_str(
+        &with("path = \"data/history.db\""),
+        "mill.toml",
+        scratch.path(),
+    )
+    .unwrap_or_else(|error| panic!("{error}"));
     let history = config.history.expect("history configured");
-    assert_eq!(history.path, scratch.0.join("data/history.db"));
+    assert_eq!(history.path, scratch.path().join("data/history.db"));
     assert_eq!((history.retention_days, history.max_size_mb), (400, 1024));
-    let error = from_toml_str(&with("path = \"data\""), "mill.toml", &scratch.0).unwrap_err();
+    let error = from_toml_str(&with("path = \"data\""), "mill.toml", scratch.path()).unwrap_err();
     assert!(
         error
             .to_string()
@@ -1271,7 +1275,7 @@ fn history_path_retention_and_size() {
     let error = from_toml_str(
         &with("path = \"h.db\"\nretention_days = 0\nmax_size_mb = 2000000"),
         "mill.toml",
-        &scratch.0,
+        scratch.path(),
     )
     .unwrap_err();
     assert_eq!(
@@ -1293,7 +1297,7 @@ fn history_path_retention_and_size() {
     let error = from_toml_str(
         &with("path = \"h.db\"\nmax_size_mb = 100\ncaptures_max_mb = 60\ncaptures_keep_every = 0"),
         "mill.toml",
-        &scratch.0,
+        scratch.path(),
     )
     .unwrap_err();
     assert_eq!(
@@ -1308,7 +1312,7 @@ fn history_path_retention_and_size() {
     let full = from_toml_str(
         &with("path = \"h.db\"\nsynchronous = \"full\""),
         "mill.toml",
-        &scratch.0,
+        scratch.path(),
     )
     .unwrap_or_else(|error| panic!("{error}"));
     assert_eq!(
@@ -1318,15 +1322,19 @@ fn history_path_retention_and_size() {
     let error = from_toml_str(
         &with("path = \"h.db\"\nsynchronous = \"off\""),
         "mill.toml",
-        &scratch.0,
+        scratch.path(),
     )
     .unwrap_err();
     assert_eq!(
         error.to_string(),
         "mill.toml: history.synchronous: unknown setting \"off\" (allowed: normal, full)"
     );
-    let error =
-        from_toml_str(&with("path = \"h.db\"\nkeep = 3"), "mill.toml", &scratch.0).unwrap_err();
+    let error = from_toml_str(
+        &with("path = \"h.db\"\nkeep = 3"),
+        "mill.toml",
+        scratch.path(),
+    )
+    .unwrap_err();
     assert!(
         error
             .to_string()
@@ -1341,11 +1349,11 @@ fn history_path_retention_and_size() {
 /// password comes from `$CREDENTIALS_DIRECTORY`; problems name the key and the variable.
 #[test]
 fn systemd_service_folders() {
-    let scratch = Scratch::new("service-dirs");
-    let config_dir = scratch.0.join("etc");
-    let state = scratch.0.join("state");
-    let cache = scratch.0.join("cache");
-    let credentials = scratch.0.join("credentials");
+    let scratch = scratch("service-dirs");
+    let config_dir = scratch.path().join("etc");
+    let state = scratch.path().join("state");
+    let cache = scratch.path().join("cache");
+    let credentials = scratch.path().join("credentials");
     for folder in [&config_dir, &state, &cache, &credentials] {
         std::fs::create_dir_all(folder).unwrap();
     }
@@ -1576,8 +1584,8 @@ fn mqtt_output_keys_defaults_and_errors() {
 
 #[test]
 fn mqtt_credentials_and_tls_files() {
-    let scratch = std::env::temp_dir().join(format!("millgate-mqtt-tls-{}", std::process::id()));
-    std::fs::create_dir_all(&scratch).unwrap();
+    let folder = scratch("mqtt-tls");
+    let scratch = folder.path();
     let file = |name: &str, text: &str| {
         let path = scratch.join(name);
         std::fs::write(&path, text).unwrap();
@@ -1699,7 +1707,6 @@ fn mqtt_credentials_and_tls_files() {
         "mill.toml: outputs.mqtt.tls.ca: unknown field `ca`",
         &["ca_file"],
     );
-    let _ = std::fs::remove_dir_all(&scratch);
 }
 
 #[test]
@@ -1890,8 +1897,8 @@ fn a_mill_to_commission_may_leave_out_its_gain_thresholds() {
     let text = std::fs::read_to_string(examples_dir().join("tandem-5stand.toml")).expect("example");
     let line = "gain_thresholds = [1.187, 1.492, 2.209, 3.087, 3.327]\n";
     assert!(text.contains(line));
-    let dir = std::env::temp_dir().join(format!("millgate-commission-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).expect("temp dir");
+    let folder = scratch("commission");
+    let dir = folder.path();
     let path = dir.join("mill.toml");
     std::fs::write(&path, text.replace(line, "")).expect("write");
     let error = load(&path).expect_err("the service needs thresholds");
@@ -1917,7 +1924,6 @@ fn a_mill_to_commission_may_leave_out_its_gain_thresholds() {
             .contains("gain_thresholds: 1 values is not allowed (must be one per stand: 5)"),
         "{error}"
     );
-    std::fs::remove_dir_all(&dir).expect("clean up");
 }
 
 /// `BASE` with `[outputs.opcua]` holding `keys`.
@@ -2034,8 +2040,8 @@ fn opcua_keys_name_their_range() {
 
 #[test]
 fn opcua_users_file_is_read_and_checked() {
-    let scratch = std::env::temp_dir().join(format!("millgate-opcua-users-{}", std::process::id()));
-    std::fs::create_dir_all(&scratch).unwrap();
+    let folder = scratch("opcua-users");
+    let scratch = folder.path();
     let file = |name: &str, text: &str| {
         let path = scratch.join(name);
         std::fs::write(&path, text).unwrap();
@@ -2103,7 +2109,6 @@ fn opcua_users_file_is_read_and_checked() {
         "mill.toml: outputs.opcua.pki_dir: the folder above \"no/such/folder/pki\" does not exist",
         &[],
     );
-    let _ = std::fs::remove_dir_all(&scratch);
 }
 
 /// `BASE` with `drivelines[0].extra_channels = <list>`.

@@ -19,14 +19,14 @@
 //!
 //!     cargo bench -p millgate --bench sparkplug
 
-#[path = "../tests/common/backlog.rs"]
-mod backlog;
-
 use std::collections::HashSet;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 use millgate::outputs::sparkplug::payload::{MetricValue, Payload};
+use millgate_tests::kit::broker::Broker;
+use millgate_tests::kit::scratch;
+use millgate_tests::kit::sparkplug as backlog;
 use prost::Message as _;
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 
@@ -93,16 +93,6 @@ impl Subscriber {
     }
 }
 
-fn folder(tag: &str) -> PathBuf {
-    let folder = std::env::temp_dir().join(format!(
-        "millgate-bench-sparkplug-{tag}-{}",
-        std::process::id()
-    ));
-    let _ = std::fs::remove_dir_all(&folder);
-    std::fs::create_dir_all(&folder).unwrap();
-    folder
-}
-
 /// Append `count` bites after the file's last (bite counters go on) in one
 /// transaction.
 fn append_bites(path: &Path, count: u32) {
@@ -137,8 +127,8 @@ fn check(ids: &HashSet<u64>, first: u64, count: u32, historical: usize, want_his
 }
 
 async fn live(port: u16) {
-    let folder = folder("live");
-    let history = folder.join("history.db");
+    let folder = scratch("bench-sparkplug-live");
+    let history = folder.path().join("history.db");
     backlog::write_backlog(&history, "plant", 1);
     let config = backlog::node_config(port, "plant", &history, "");
     let mut subscriber = Subscriber::start(port).await;
@@ -161,13 +151,12 @@ async fn live(port: u16) {
     stop.trigger();
     task.await.unwrap();
     let _ = subscriber.client.disconnect().await;
-    let _ = std::fs::remove_dir_all(&folder);
 }
 
 /// The replay of a backlog with `pacing` (config keys; empty: the defaults).
 async fn replay(port: u16, name: &str, pacing: &str) {
-    let folder = folder(name);
-    let history = folder.join("history.db");
+    let folder = scratch(&format!("bench-sparkplug-{}", name));
+    let history = folder.path().join("history.db");
     let written = Instant::now();
     backlog::write_backlog(&history, "plant", BACKLOG_BITES);
     println!(
@@ -203,7 +192,6 @@ async fn replay(port: u16, name: &str, pacing: &str) {
     stop.trigger();
     task.await.unwrap();
     let _ = subscriber.client.disconnect().await;
-    let _ = std::fs::remove_dir_all(&folder);
 }
 
 fn main() {
@@ -212,9 +200,9 @@ fn main() {
         .enable_all()
         .build()
         .unwrap();
-    let folder = folder("broker");
+    let folder = scratch("bench-sparkplug-broker");
     let port = free_port();
-    let _broker = backlog::Broker::start(&folder, port);
+    let _broker = Broker::start(folder.path(), port);
     runtime.block_on(async {
         live(port).await;
         replay(
@@ -225,5 +213,4 @@ fn main() {
         .await;
         replay(port, "defaults", "").await;
     });
-    let _ = std::fs::remove_dir_all(&folder);
 }

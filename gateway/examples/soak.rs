@@ -54,9 +54,6 @@
 //! `--p99-limit-ms` (5), `--keep-going` (step on after a failed point), `--millgate`
 //! the binary (the one beside this example's folder).
 
-#[path = "support/mosquitto.rs"]
-mod mosquitto;
-
 use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpListener as StdListener, TcpStream};
@@ -75,7 +72,7 @@ use millgate_sim::devices::demo::setup;
 use millgate_sim::devices::modbus_bank::{ReadRecord, Running, ServeOptions, SharedBank};
 use millgate_sim::devices::virtual_daq::{DaqChannel, Placement, Publish, VirtualDaq};
 use millgate_sim::devices::virtual_plc::VirtualPlc;
-use mosquitto::Mosquitto;
+use millgate_tests::kit::broker::Broker as Mosquitto;
 use rand::SeedableRng as _;
 use rand_distr::Distribution as _;
 use tokio_modbus::client::Reader;
@@ -744,7 +741,7 @@ async fn run_point(options: &Options, drivelines: usize, stands: usize) -> anyho
     let _ = std::fs::remove_dir_all(&folder);
     std::fs::create_dir_all(&folder)?;
     let broker_port = free_port()?.port();
-    let broker = Mosquitto::start(&folder, broker_port).map_err(anyhow::Error::msg)?;
+    let broker = Mosquitto::try_start(&folder, broker_port).map_err(anyhow::Error::msg)?;
     let point = load_point(
         &folder,
         drivelines,

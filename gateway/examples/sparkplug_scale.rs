@@ -23,9 +23,6 @@
 //! example's folder), `--data-period-ms` of the nodes (default 1000). The configs use
 //! the demo's without its model (no wear maps: a small config, quick to start).
 
-#[path = "support/mosquitto.rs"]
-mod mosquitto;
-
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -34,7 +31,7 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use millgate::outputs::modbus::register_map::{decode_u32, RegisterMap};
 use millgate::outputs::sparkplug::payload::{MetricValue, Payload};
 use millgate_sim::devices::demo::{setup, DemoDevices};
-use mosquitto::Mosquitto;
+use millgate_tests::kit::broker::Broker as Mosquitto;
 use prost::Message as _;
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 
@@ -187,7 +184,7 @@ async fn main() -> Result<(), String> {
     let _ = std::fs::remove_dir_all(&scratch);
     std::fs::create_dir_all(&scratch).map_err(|e| e.to_string())?;
     let port = free_port();
-    let broker = Mosquitto::start(&scratch, port)?;
+    let broker = Mosquitto::try_start(&scratch, port)?;
     println!(
         "mosquitto on 127.0.0.1:{port}; {} gateways; {} s after every node is born",
         options.gateways, options.seconds

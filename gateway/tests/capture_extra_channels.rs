@@ -18,7 +18,7 @@ mod common;
 use std::process::Command;
 use std::time::Duration;
 
-use common::{export_bite, millgate, terminate, text, until, Setup};
+use common::{millgate, terminate, text, wait_for, Setup, MILLGATE};
 use millgate::history::query::{BiteRow, Filter, HistoryReader};
 use millgate_config::layout::to_raw_sample;
 use millgate_config::ChannelSource;
@@ -53,7 +53,7 @@ fn position_of(run: &[f64], signal: &[f64]) -> Option<usize> {
 async fn extra_channel_columns_are_what_the_daq_served() {
     let mut served_torque = Vec::new();
     let mut served_current = Vec::new();
-    let setup = Setup::with_daq("extra-channels", "db", |config, schedule| {
+    let setup = Setup::with_daq(MILLGATE, "extra-channels", "db", |config, schedule| {
         let torque = &config.channels[config.drivelines[0].torque];
         let ChannelSource::ModbusBlock { table, base, .. } = torque.source else {
             panic!("the demo's torque is a block channel");
@@ -111,7 +111,7 @@ async fn extra_channel_columns_are_what_the_daq_served() {
 
     let plc = setup.plc();
     let mut service = setup.spawn("run.log");
-    until("3 bites in the PLC", Duration::from_secs(40), || {
+    wait_for("3 bites in the PLC", Duration::from_secs(40), || {
         plc.counter() >= 3
     })
     .await;
@@ -125,7 +125,7 @@ async fn extra_channel_columns_are_what_the_daq_served() {
     let block = usize::from(SAMPLES_PER_BLOCK);
     let mut pairs = Vec::new();
     for bite in &bites {
-        let csv = export_bite(&db, &out, bite.figures.bite_counter, "csv");
+        let csv = MILLGATE.export_bite(&db, &out, bite.figures.bite_counter, "csv");
         let table = std::fs::read_to_string(&csv).unwrap();
         let mut lines = table.lines().filter(|l| !l.starts_with('#'));
         assert_eq!(lines.next(), Some("t,spindle_top,motor_current"));
@@ -199,7 +199,7 @@ async fn extra_channel_columns_are_what_the_daq_served() {
         }
         pairs.push((
             csv,
-            export_bite(&db, &out, bite.figures.bite_counter, "parquet"),
+            MILLGATE.export_bite(&db, &out, bite.figures.bite_counter, "parquet"),
         ));
     }
 

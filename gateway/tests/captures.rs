@@ -3,7 +3,6 @@
 //! keeping every alarm bite's; after `thin_after_days` the ordinary ones are thinned
 //! to every N-th bite; a capture reads back with the samples it was given.
 
-use std::path::PathBuf;
 use std::time::Duration;
 
 use millgate::history::query::{CaptureRow, Filter, HistoryReader};
@@ -17,26 +16,7 @@ use millgate::state::captures::{
 use millgate::state::events::{BiteRecord, HistoryEvent};
 use millgate::state::results::DrivelineResults;
 use millgate::state::time::UtcTime;
-
-struct Scratch(PathBuf);
-
-impl Scratch {
-    fn new(tag: &str) -> Self {
-        let path = std::env::temp_dir().join(format!(
-            "millgate-captures-{tag}-{}-{}",
-            std::process::id(),
-            UtcTime::now().unix_ms()
-        ));
-        std::fs::create_dir_all(&path).unwrap();
-        Self(path)
-    }
-}
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
+use millgate_tests::kit::scratch;
 
 /// A deterministic bite window as a 16-bit DAQ gives it: a damped oscillation on a
 /// 100 kN*m step plus noise, counts of 0.01 kN*m.
@@ -135,8 +115,8 @@ fn keep_of(n: u32) -> KeepClass {
 
 #[test]
 fn a_long_run_stays_within_the_budget_and_keeps_every_alarm_capture() {
-    let scratch = Scratch::new("budget");
-    let path = scratch.0.join("history.db");
+    let scratch = scratch("captures-budget");
+    let path = scratch.path().join("history.db");
     let mut connection = connect(&path).unwrap();
     let start = UtcTime::parse("2026-01-01T00:00:00Z").unwrap();
     let run = insert_run(&connection, start, &run_info()).unwrap();
@@ -211,8 +191,8 @@ fn a_long_run_stays_within_the_budget_and_keeps_every_alarm_capture() {
 
 #[test]
 fn ordinary_captures_are_thinned_after_some_days_and_the_others_kept() {
-    let scratch = Scratch::new("thin");
-    let path = scratch.0.join("history.db");
+    let scratch = scratch("captures-thin");
+    let path = scratch.path().join("history.db");
     let mut connection = connect(&path).unwrap();
     let start = UtcTime::parse("2026-03-01T00:00:00Z").unwrap();
     let run = insert_run(&connection, start, &run_info()).unwrap();
@@ -272,8 +252,8 @@ fn ordinary_captures_are_thinned_after_some_days_and_the_others_kept() {
 #[test]
 fn the_report_draws_the_last_alarm_bites_captured_traces() {
     use millgate::cli::report::ALARM_TRACES;
-    let scratch = Scratch::new("report");
-    let path = scratch.0.join("history.db");
+    let scratch = scratch("captures-report");
+    let path = scratch.path().join("history.db");
     let mut connection = connect(&path).unwrap();
     let start = UtcTime::parse("2026-03-01T00:00:00Z").unwrap();
     let run = insert_run(&connection, start, &run_info()).unwrap();
@@ -294,7 +274,7 @@ fn the_report_draws_the_last_alarm_bites_captured_traces() {
     alarms.reverse();
     let expected: Vec<&CaptureRow> = alarms.into_iter().take(ALARM_TRACES as usize).collect();
 
-    let out = scratch.0.join("report");
+    let out = scratch.path().join("report");
     let report = std::process::Command::new(env!("CARGO_BIN_EXE_millgate"))
         .args(["report", "--db", path.to_str().unwrap()])
         .args(["--out", out.to_str().unwrap(), "--until", "2026-03-02"])

@@ -24,7 +24,7 @@ use std::path::Path;
 use std::process::Command;
 use std::time::Duration;
 
-use common::{export_bite, free_port, http, millgate, text, until, web_ready, Setup};
+use common::{free_port, http, millgate, text, wait_for, web_ready, Setup, MILLGATE};
 
 use millgate::history::query::{BiteRow, CaptureRow, Filter, HistoryReader};
 
@@ -35,7 +35,7 @@ fn printed(value: Option<f64>, digits: usize) -> String {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bites() {
-    let setup = Setup::new("captures", "db").await;
+    let setup = Setup::new(MILLGATE, "captures", "db").await;
     let history = setup.history.clone();
     let web_port = free_port();
     setup.append_config(&format!(
@@ -44,7 +44,7 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
     let plc = setup.plc();
 
     let mut service = setup.spawn("run.log");
-    until("3 bites in the PLC", Duration::from_secs(40), || {
+    wait_for("3 bites in the PLC", Duration::from_secs(40), || {
         plc.counter() >= 3
     })
     .await;
@@ -97,7 +97,7 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
         .contains("csv or parquet"));
     let downloaded_bite = first["bite_counter"].as_i64().unwrap();
     let seen = plc.counter();
-    until("another bite in the PLC", Duration::from_secs(20), || {
+    wait_for("another bite in the PLC", Duration::from_secs(20), || {
         plc.counter() > seen
     })
     .await;
@@ -139,7 +139,7 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
         .iter()
         .filter(|b| i64::from(b.figures.bite_counter) <= in_plc)
     {
-        let csv = export_bite(db, &out, bite.figures.bite_counter, "csv");
+        let csv = MILLGATE.export_bite(db, &out, bite.figures.bite_counter, "csv");
         let analyzed = millgate(&["analyze", "--input", &csv]);
         assert!(analyzed.status.success(), "{}", text(&analyzed));
         let printed_text = String::from_utf8_lossy(&analyzed.stdout).into_owned();
@@ -163,7 +163,7 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
                 bite.figures.bite_counter
             );
         }
-        let parquet = export_bite(db, &out, bite.figures.bite_counter, "parquet");
+        let parquet = MILLGATE.export_bite(db, &out, bite.figures.bite_counter, "parquet");
         if i64::from(bite.figures.bite_counter) == downloaded_bite {
             // The page's download is the exported file, byte for byte, under its name.
             for (answer, path) in downloads.iter().zip([&csv, &parquet]) {
@@ -196,7 +196,7 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
     let checked: serde_json::Value = serde_json::from_slice(&checked.stdout).unwrap();
     let config_hash = checked["config_hash"].as_str().unwrap().to_owned();
     assert_eq!(config_hash.len(), 64, "{checked}");
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/capture_parquet.py");
+    let script = common::peer("capture_parquet.py");
     let mut python = Command::new("python3");
     python
         .arg(&script)
@@ -347,9 +347,7 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
     assert_eq!(listed.as_array().unwrap().len(), captures.len());
     assert_eq!(listed[0]["meta"]["channels"][0]["unit"], "kN*m");
 
-    drop(service);
-    setup.devices.stop().await.unwrap();
-    let _ = std::fs::remove_dir_all(&setup.scratch);
+    setup.stop(service).await;
 }
 
 /// `command.manual_capture` over the gateway's Modbus server (tokio-modbus as the
@@ -360,11 +358,11 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_manual_capture_command_keeps_the_next_seconds_of_torque() {
     use tokio_modbus::client::Writer;
-    let setup = Setup::new("manual-capture", "db").await;
+    let setup = Setup::new(MILLGATE, "manual-capture", "db").await;
     let history = setup.history.clone();
     let plc = setup.plc();
     let service = setup.spawn("run.log");
-    until("a bite in the PLC", Duration::from_secs(40), || {
+    wait_for("a bite in the PLC", Duration::from_secs(40), || {
         plc.counter() >= 1
     })
     .await;
@@ -392,7 +390,7 @@ async fn a_manual_capture_command_keeps_the_next_seconds_of_torque() {
         let rows: Vec<CaptureRow> = reader.rows(&Filter::default()).unwrap();
         rows.into_iter().filter(|r| r.kind == "manual").collect()
     };
-    until(
+    wait_for(
         "the manual capture in the file",
         Duration::from_secs(30),
         || !manual(&HistoryReader::open(&history).unwrap()).is_empty(),

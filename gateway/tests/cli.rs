@@ -2,7 +2,7 @@
 
 mod common;
 
-use common::{millgate, text};
+use common::{millgate, scratch, text, TempDir, MILLGATE};
 use std::path::PathBuf;
 use std::process::Command;
 
@@ -10,11 +10,11 @@ fn examples() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/examples")
 }
 
-/// Writes `body` as `mill.toml` in a fresh folder beside a copy of the demo's
-/// driveline model (which the demo configuration names).
-fn write_config(name: &str, body: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("millgate-cli-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+/// Writes `body` as `mill.toml` in a scratch folder beside a copy of the demo's
+/// driveline model (which the demo configuration names); the folder and the file.
+fn write_config(name: &str, body: &str) -> (TempDir, PathBuf) {
+    let folder = scratch(&format!("cli-{name}"));
+    let dir = folder.path();
     std::fs::copy(
         examples().join("table2-adjusted.toml"),
         dir.join("table2-adjusted.toml"),
@@ -22,7 +22,7 @@ fn write_config(name: &str, body: &str) -> PathBuf {
     .unwrap();
     let path = dir.join("mill.toml");
     std::fs::write(&path, body).unwrap();
-    path
+    (folder, path)
 }
 
 #[test]
@@ -48,7 +48,7 @@ fn check_names_the_key_and_the_known_channels_of_a_misspelt_name() {
         demo, misspelt,
         "the demo config names spindle_top as the torque"
     );
-    let path = write_config("misspelt", &misspelt);
+    let (_folder, path) = write_config("misspelt", &misspelt);
     let output = millgate(&["check", "--config", path.to_str().unwrap()]);
     let said = text(&output);
     assert!(!output.status.success(), "must fail: {said}");
@@ -77,7 +77,7 @@ fn check_builds_the_driveline_model_and_names_the_model_file_and_key() {
         "model = \"bad-model.toml\"",
     );
     assert_ne!(demo, with_model, "the demo driveline names its model");
-    let path = write_config("bad-model", &with_model);
+    let (_folder, path) = write_config("bad-model", &with_model);
     let model_path = path.with_file_name("bad-model.toml");
     std::fs::write(&model_path, malformed).unwrap();
     let output = millgate(&["check", "--config", path.to_str().unwrap()]);
@@ -103,7 +103,7 @@ fn check_builds_the_driveline_model_and_names_the_model_file_and_key() {
 
 #[test]
 fn check_names_the_line_of_malformed_toml() {
-    let path = write_config("malformed", "name = \"x\"\n\n[[channels]\nname = 1\n");
+    let (_folder, path) = write_config("malformed", "name = \"x\"\n\n[[channels]\nname = 1\n");
     let output = millgate(&["check", "--config", path.to_str().unwrap()]);
     let said = text(&output);
     assert!(!output.status.success(), "must fail: {said}");
@@ -335,7 +335,7 @@ fn registers_export_json_and_csv_have_the_documented_fields() {
     let demo = std::fs::read_to_string(examples().join("demo.toml")).unwrap();
     let start = demo.find("[outputs.plc]").unwrap();
     let end = start + demo[start..].find("\n[").unwrap() + 1;
-    let path = write_config("no-plc", &format!("{}{}", &demo[..start], &demo[end..]));
+    let (_folder, path) = write_config("no-plc", &format!("{}{}", &demo[..start], &demo[end..]));
     let json = millgate(&[
         "registers",
         "--config",
@@ -379,7 +379,8 @@ fn exit_codes_are_the_documented_ones() {
     }
     let valid = examples().join("demo.toml");
     let valid = valid.to_str().unwrap();
-    let broken = write_config("exit-codes", "name = \"x\"\n[[sources.modbus]]\nname = 1\n");
+    let (_folder, broken) =
+        write_config("exit-codes", "name = \"x\"\n[[sources.modbus]]\nname = 1\n");
     let broken = broken.to_str().unwrap();
     for (args, expected) in [
         (&["check", "--config", valid][..], 0),
@@ -418,7 +419,7 @@ fn check_format_json_lists_the_problems_and_warnings_with_their_keys() {
     let bad = demo
         .replace("torque = \"spindle_top\"", "torque = \"spindel_top\"")
         .replace("register_base = 0", "register_base = 70000");
-    let path = write_config("json-problems", &bad);
+    let (_folder, path) = write_config("json-problems", &bad);
     let output = millgate(&[
         "check",
         "--config",
@@ -459,7 +460,7 @@ fn check_format_json_lists_the_problems_and_warnings_with_their_keys() {
 
     // A valid file with a warning: exit 0, the summary and the warning's key.
     let open = demo.replace("bind = \"127.0.0.1:5503\"", "bind = \"0.0.0.0:5503\"");
-    let path = write_config("json-warning", &open);
+    let (_folder, path) = write_config("json-warning", &open);
     let output = millgate(&[
         "check",
         "--config",
@@ -488,8 +489,8 @@ fn check_format_json_lists_the_problems_and_warnings_with_their_keys() {
 fn completions_and_the_manual_page_work_in_bash_and_man() {
     let script = millgate(&["completions", "bash"]);
     assert!(script.status.success(), "{}", text(&script));
-    let dir = std::env::temp_dir().join(format!("millgate-cli-{}-completion", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let scratch = scratch("cli-completion");
+    let dir = scratch.path();
     let path = dir.join("millgate.bash");
     std::fs::write(&path, &script.stdout).unwrap();
     let complete = |words: &str| {
@@ -553,15 +554,14 @@ fn completions_and_the_manual_page_work_in_bash_and_man() {
     for name in ["millgate.1", "millgate-check.1", "millgate-history.1"] {
         assert!(folder.join(name).is_file(), "{name}");
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 // Runs a command of the `sim-tools` feature.
 #[cfg(feature = "sim-tools")]
 #[test]
 fn analyze_finds_the_bite_of_a_simulated_transient_and_stiffness_inverts_table2() {
-    let dir = std::env::temp_dir().join(format!("millgate-cli-{}-analyze", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let scratch = scratch("cli-analyze");
+    let dir = scratch.path();
     let csv = dir.join("transient.csv");
     let model =
         PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../sim/models/table2-adjusted.toml");
@@ -634,8 +634,9 @@ async fn run_stops_on_sigterm_with_a_final_stopped_write() {
         .replace("127.0.0.1:5020", "127.0.0.1:1")
         .replace("127.0.0.1:5502", &plc_address.to_string())
         .replace("127.0.0.1:5503", "127.0.0.1:0");
-    let path = write_config("sigterm", &config);
-    let child = Command::new(env!("CARGO_BIN_EXE_millgate"))
+    let (_folder, path) = write_config("sigterm", &config);
+    let child = MILLGATE
+        .command()
         .args(["run", "--config", path.to_str().unwrap()])
         .stderr(std::process::Stdio::piped())
         .spawn()
@@ -701,8 +702,8 @@ fn gap_record(dir: &std::path::Path, name: &str, static_knm: f64, seed: u32) -> 
 #[cfg(feature = "sim-tools")]
 #[test]
 fn discrepancy_splits_a_record_of_two_bites_and_finds_a_gap_from_drawing_stiffness() {
-    let dir = std::env::temp_dir().join(format!("millgate-cli-{}-discrepancy", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let scratch = scratch("cli-discrepancy");
+    let dir = scratch.path();
     let models = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../sim/models");
     // The "measured" driveline: the adjusted Table 2 model with a 2 mrad gap in the
     // spindle, two bites in one record (idle, bite, unloading ramp, idle, bite); the
@@ -714,7 +715,7 @@ fn discrepancy_splits_a_record_of_two_bites_and_finds_a_gap_from_drawing_stiffne
         k += 1;
     };
     for (i, (static_knm, seed)) in [(112.0, 9), (60.0, 10)].into_iter().enumerate() {
-        let csv = gap_record(&dir, &format!("bite{i}"), static_knm, seed);
+        let csv = gap_record(dir, &format!("bite{i}"), static_knm, seed);
         let values: Vec<f64> = std::fs::read_to_string(csv)
             .unwrap()
             .lines()
@@ -815,8 +816,8 @@ fn discrepancy_splits_a_record_of_two_bites_and_finds_a_gap_from_drawing_stiffne
 #[cfg(feature = "sim-tools")]
 #[test]
 fn discrepancy_takes_several_records_and_names_the_file_of_a_bad_bite() {
-    let dir = std::env::temp_dir().join(format!("millgate-cli-{}-bad-bite", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let scratch = scratch("cli-bad-bite");
+    let dir = scratch.path();
     // A load step of 400 samples, then one of 90: the second is too short, and the
     // error comes before any fit.
     let write = |name: &str, samples: usize| {
@@ -855,8 +856,8 @@ fn discrepancy_takes_several_records_and_names_the_file_of_a_bad_bite() {
 #[cfg(feature = "sim-tools")]
 #[test]
 fn discrepancy_names_the_line_of_a_non_uniform_time_column() {
-    let dir = std::env::temp_dir().join(format!("millgate-cli-{}-nonuniform", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let scratch = scratch("cli-nonuniform");
+    let dir = scratch.path();
     let csv = dir.join("bad.csv");
     let mut body = String::from("t,torque\n");
     for k in 0..400 {
@@ -885,8 +886,8 @@ fn discrepancy_names_the_line_of_a_non_uniform_time_column() {
 
 #[test]
 fn sim_tandem_ramp_feeds_chatter_offline() {
-    let dir = std::env::temp_dir().join(format!("millgate-cli-{}-chatter", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let scratch = scratch("cli-chatter");
+    let dir = scratch.path();
     let csv = dir.join("stands.csv");
     let schedule =
         PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../sim/schedules/lu2019-5stand.toml");
@@ -952,15 +953,14 @@ fn sim_tandem_ramp_feeds_chatter_offline() {
         "{}",
         text(&missing)
     );
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 // Runs a command of the `sim-tools` feature.
 #[cfg(feature = "sim-tools")]
 #[test]
 fn analyze_and_discrepancy_refuse_a_record_scaled_beyond_any_mill() {
-    let dir = std::env::temp_dir().join(format!("millgate-cli-{}-scaled", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let scratch = scratch("cli-scaled");
+    let dir = scratch.path();
     let model =
         PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../sim/models/table2-adjusted.toml");
     let csv = dir.join("transient.csv");
@@ -1011,7 +1011,6 @@ fn analyze_and_discrepancy_refuse_a_record_scaled_beyond_any_mill() {
         "--model",
         model.to_str().unwrap(),
     ]);
-    std::fs::remove_dir_all(&dir).unwrap();
     let message = text(&output);
     assert!(!output.status.success(), "{message}");
     assert!(
@@ -1025,8 +1024,8 @@ fn analyze_and_discrepancy_refuse_a_record_scaled_beyond_any_mill() {
 #[cfg(feature = "sim-tools")]
 #[test]
 fn discrepancy_on_a_constant_record_says_there_is_no_transient() {
-    let dir = std::env::temp_dir().join(format!("millgate-cli-{}-constant", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let scratch = scratch("cli-constant");
+    let dir = scratch.path();
     let csv = dir.join("constant.csv");
     let mut body = String::from("t,torque\n");
     for k in 0..1200 {
@@ -1042,7 +1041,6 @@ fn discrepancy_on_a_constant_record_says_there_is_no_transient() {
         "--model",
         model.to_str().unwrap(),
     ]);
-    std::fs::remove_dir_all(&dir).unwrap();
     assert!(!output.status.success());
     let message = text(&output);
     assert!(
@@ -1085,10 +1083,10 @@ fn toml_list(out: &str, key: &str) -> Vec<f64> {
 fn chatter_commission_sets_thresholds_that_hold_on_held_out_stable_rolling() {
     // The critical speed of the example schedule is 1.098 (sim/README.md): the highest
     // allowed speed here is 1.04, 95% of it.
-    let dir = std::env::temp_dir().join(format!("millgate-cli-{}-commission", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let scratch = scratch("cli-commission");
+    let dir = scratch.path();
     let ramp_up = tandem_record(
-        &dir,
+        dir,
         "ramp-up",
         &[
             "--speed",
@@ -1104,7 +1102,7 @@ fn chatter_commission_sets_thresholds_that_hold_on_held_out_stable_rolling() {
         ],
     );
     let top = tandem_record(
-        &dir,
+        dir,
         "top",
         &[
             "--speed",
@@ -1120,7 +1118,7 @@ fn chatter_commission_sets_thresholds_that_hold_on_held_out_stable_rolling() {
     // The end of an acceleration to the top speed raises the gain for a second or two:
     // commissioning records the accelerations too.
     let slow_ramp = tandem_record(
-        &dir,
+        dir,
         "slow-ramp",
         &[
             "--speed",
@@ -1273,7 +1271,7 @@ fn chatter_commission_sets_thresholds_that_hold_on_held_out_stable_rolling() {
     assert!(check.status.success(), "{}", text(&check));
     let held_out = [
         tandem_record(
-            &dir,
+            dir,
             "held-out-1",
             &[
                 "--speed",
@@ -1287,7 +1285,7 @@ fn chatter_commission_sets_thresholds_that_hold_on_held_out_stable_rolling() {
             ],
         ),
         tandem_record(
-            &dir,
+            dir,
             "held-out-2",
             &[
                 "--speed",
@@ -1326,7 +1324,7 @@ fn chatter_commission_sets_thresholds_that_hold_on_held_out_stable_rolling() {
         );
     }
     let ramp = tandem_record(
-        &dir,
+        dir,
         "ramp",
         &[
             "--speed",
@@ -1363,7 +1361,7 @@ fn chatter_commission_sets_thresholds_that_hold_on_held_out_stable_rolling() {
             ramp.display()
         ),
     );
-    let short = tandem_record(&dir, "short", &["--speed", "1.0", "--duration", "2"]);
+    let short = tandem_record(dir, "short", &["--speed", "1.0", "--duration", "2"]);
     refused(
         &[&short],
         &format!(
@@ -1372,7 +1370,7 @@ fn chatter_commission_sets_thresholds_that_hold_on_held_out_stable_rolling() {
         ),
     );
     let fast = tandem_record(
-        &dir,
+        dir,
         "fast",
         &["--speed", "1.0", "--duration", "4", "--sample-rate", "5000"],
     );
@@ -1393,7 +1391,6 @@ fn chatter_commission_sets_thresholds_that_hold_on_held_out_stable_rolling() {
             renamed.display()
         ),
     );
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// `check` under the variables systemd sets for `StateDirectory=`, `CacheDirectory=` and
@@ -1404,7 +1401,7 @@ fn chatter_commission_sets_thresholds_that_hold_on_held_out_stable_rolling() {
 #[test]
 fn check_uses_the_folders_systemd_hands_the_service() {
     let demo = std::fs::read_to_string(examples().join("demo.toml")).unwrap();
-    let path = write_config(
+    let (_folder, path) = write_config(
         "service-folders",
         &format!(
             "{demo}\n[outputs.mqtt]\nbroker = \"127.0.0.1:1883\"\ngroup_id = \"plant\"\n\
@@ -1420,7 +1417,7 @@ fn check_uses_the_folders_systemd_hands_the_service() {
     });
     std::fs::write(credentials.join("mqtt"), "secret\n").unwrap();
     let check = |systemd: bool| {
-        let mut command = Command::new(env!("CARGO_BIN_EXE_millgate"));
+        let mut command = MILLGATE.command();
         command.args(["check", "--config", path.to_str().unwrap()]);
         for (variable, dir) in [
             ("STATE_DIRECTORY", &state),
@@ -1455,7 +1452,6 @@ fn check_uses_the_folders_systemd_hands_the_service() {
         ),
         "names the key and the variable: {said}"
     );
-    std::fs::remove_dir_all(folder).unwrap();
 }
 
 /// A millgate built without the `opcua` feature refuses `[outputs.opcua]` and says how
@@ -1464,7 +1460,7 @@ fn check_uses_the_folders_systemd_hands_the_service() {
 #[test]
 fn check_without_the_opcua_feature_refuses_the_opcua_output() {
     let demo = std::fs::read_to_string(examples().join("demo.toml")).unwrap();
-    let path = write_config("opcua", &format!("{demo}\n[outputs.opcua]\n"));
+    let (_folder, path) = write_config("opcua", &format!("{demo}\n[outputs.opcua]\n"));
     let output = millgate(&["check", "--config", path.to_str().unwrap()]);
     assert!(!output.status.success(), "{}", text(&output));
     assert!(

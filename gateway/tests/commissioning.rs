@@ -31,7 +31,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{free_port, millgate, repo, text, until, KillOnDrop, Plc, Seeded};
+use common::{free_port, millgate, repo, scratch, text, wait_for, KillOnDrop, Plc, Seeded};
 use millgate::history::query::{BiteRow, Filter, HistoryReader};
 use millgate::outputs::modbus::register_map::RegisterMap;
 use millgate_sim::devices::demo::{demo_daq, DemoDevices};
@@ -182,7 +182,8 @@ impl Phase<'_> {
         let before = recorded(self.history).len() as u32;
         let log = std::fs::File::create(self.scratch.join(format!("{}.log", self.name))).unwrap();
         let service = KillOnDrop(
-            Command::new(env!("CARGO_BIN_EXE_millgate"))
+            common::MILLGATE
+                .command()
                 .args(["run", "--config", file.to_str().unwrap()])
                 .env("RUST_LOG", "info")
                 .stdout(Stdio::null())
@@ -195,7 +196,7 @@ impl Phase<'_> {
             map: &map,
         };
         // The bite counter goes on from the history's.
-        until(
+        wait_for(
             &format!("{}: {bites} bites in the PLC", self.name),
             Duration::from_secs(60 + 5 * u64::from(bites)),
             || plc.counter() >= before + bites,
@@ -263,18 +264,14 @@ fn monitored(history: &Path) -> BiteRow {
 
 async fn commission(seed: u64, contrast: bool) -> Case {
     let rig = Rig::new(seed);
-    let scratch = std::env::temp_dir().join(format!(
-        "millgate-commissioning-{}-{seed}",
-        std::process::id()
-    ));
-    let _ = std::fs::remove_dir_all(&scratch);
-    std::fs::create_dir_all(&scratch).unwrap();
+    let folder = scratch(&format!("commissioning-{seed}"));
+    let scratch = folder.path();
     let drawings = models().join("table2-drawings.toml");
     let history = scratch.join("history.db");
 
     // 1. Installed with the drawings' model on the fresh coupling: its bites captured.
     Phase {
-        scratch: &scratch,
+        scratch,
         name: "fresh",
         model: &drawings,
         history: &history,
@@ -327,7 +324,7 @@ async fn commission(seed: u64, contrast: bool) -> Case {
 
     // 3. Monitoring with the calibrated model after the gap opened.
     Phase {
-        scratch: &scratch,
+        scratch,
         name: "calibrated",
         model: &calibrated_file,
         history: &history,
@@ -337,7 +334,7 @@ async fn commission(seed: u64, contrast: bool) -> Case {
     let calibrated = monitored(&history);
     let uncalibrated = if contrast {
         Phase {
-            scratch: &scratch,
+            scratch,
             name: "drawings",
             model: &drawings,
             history: &uncalibrated_history,
@@ -348,7 +345,6 @@ async fn commission(seed: u64, contrast: bool) -> Case {
     } else {
         None
     };
-    let _ = std::fs::remove_dir_all(&scratch);
     Case {
         rig,
         effect: found["effect"].to_string(),

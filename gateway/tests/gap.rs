@@ -17,7 +17,7 @@ use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, OnceLock};
 use std::time::Duration;
 
-use common::{millgate, text, Seeded};
+use common::{millgate, scratch, text, Seeded, TempDir};
 use millgate::analysis::driveline::BiteReport;
 use millgate::analysis::gap_estimate::{
     GapEstimate, GapObservation, SHIFT_FLOOR_S, SHIFT_JUMP_S, TAF_FLOOR,
@@ -50,9 +50,12 @@ const COARSE: &str = "gap_step_mrad = 0.25, torque_points = 10";
 const COARSE_RANGED: &str =
     "gap_step_mrad = 0.25, torque_points = 10, static_torque_knm = [28.0, 224.0]";
 
-/// A scratch folder of this test process.
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("millgate-gap-{}-{name}", std::process::id()));
+/// The folder `name` that the tests of this process share (the coarse maps' cache is
+/// built once; the command line's records): under one scratch folder of the process,
+/// which a static holds, so it is left for the system's temporary-folder cleaning.
+fn shared(name: &str) -> PathBuf {
+    static ROOT: OnceLock<TempDir> = OnceLock::new();
+    let dir = ROOT.get_or_init(|| scratch("gap")).path().join(name);
     std::fs::create_dir_all(&dir).expect("scratch folder");
     dir
 }
@@ -107,7 +110,7 @@ fn analysis(config: &millgate_config::Config) -> (Analysis, Arc<Board>) {
 fn coarse_maps() -> &'static GapMaps {
     static MAPS: OnceLock<GapMaps> = OnceLock::new();
     MAPS.get_or_init(|| {
-        let (mut analysis, _) = analysis(&config(COARSE, "", &scratch("cache")));
+        let (mut analysis, _) = analysis(&config(COARSE, "", &shared("cache")));
         let job = analysis.take_gap_map_jobs().remove(0);
         let (maps, _) = job
             .run(2, &AtomicBool::new(false), &|_, _| {})
@@ -148,7 +151,7 @@ fn feed(
 /// One seeded case: the pooled estimate after 10 bites at static torques spread over
 /// 40-170 kN*m, and whether the gap warning was raised.
 fn case(model: &Model, rng: &mut Seeded, seed: u64) -> (GapEstimate, bool) {
-    let config = config(COARSE, "", &scratch("cache"));
+    let config = config(COARSE, "", &shared("cache"));
     let (mut analysis, board) = analysis(&config);
     analysis.take_gap_map_jobs();
     analysis.install_gap_maps(0, Ok(coarse_maps().clone()));
@@ -218,7 +221,7 @@ fn the_stated_uncertainty_matches_the_scatter_over_noise() {
     // 40 bars at the same static torque, 1 kN*m of noise: the spread of TAF and shift
     // over the bars against the standard deviations each bite states from its own
     // window's noise.
-    let config = config(COARSE, "", &scratch("cache"));
+    let config = config(COARSE, "", &shared("cache"));
     let (mut analysis, _) = analysis(&config);
     analysis.take_gap_map_jobs();
     let reports = feed(&mut analysis, &hidden(1, 2.0), &[50.0; 40], 1.0, 21);
@@ -269,7 +272,7 @@ fn the_wear_state_warns_latches_the_alarm_until_acknowledged_and_the_reset_empti
     let config = config(
         &format!("{COARSE}, pool_bites = 3"),
         ", gap_warning_mrad = 2.0, gap_alarm_mrad = 2.5",
-        &scratch("cache"),
+        &shared("cache"),
     );
     let (mut analysis, board) = analysis(&config);
     analysis.take_gap_map_jobs();
@@ -332,7 +335,7 @@ fn the_wear_state_warns_latches_the_alarm_until_acknowledged_and_the_reset_empti
 
 #[test]
 fn the_pool_saved_as_a_list_of_observations_restores_the_estimate() {
-    let config = config(COARSE, "", &scratch("cache"));
+    let config = config(COARSE, "", &shared("cache"));
     let (mut analysis, board) = analysis(&config);
     analysis.take_gap_map_jobs();
     analysis.install_gap_maps(0, Ok(coarse_maps().clone()));
@@ -362,11 +365,11 @@ fn the_pool_saved_as_a_list_of_observations_restores_the_estimate() {
 
 #[test]
 fn maps_come_from_the_cache_after_a_restart_and_a_changed_model_is_rebuilt() {
-    let cache = scratch("restart-cache");
+    let cache = scratch("gap-restart-cache");
     let config = config(
         "gap_step_mrad = 1.0, max_gap_mrad = 2, torque_points = 3",
         "",
-        &cache,
+        cache.path(),
     );
     let job = || analysis(&config).0.take_gap_map_jobs().remove(0);
     let cancel = AtomicBool::new(false);
@@ -377,7 +380,7 @@ fn maps_come_from_the_cache_after_a_restart_and_a_changed_model_is_rebuilt() {
     else {
         panic!("built and saved: {origin:?}");
     };
-    assert!(file.starts_with(&cache), "{}", file.display());
+    assert!(file.starts_with(cache.path()), "{}", file.display());
     let (cached, origin) = job()
         .run(2, &cancel, &|_, _| panic!("no simulation"))
         .expect("cached");
@@ -386,7 +389,7 @@ fn maps_come_from_the_cache_after_a_restart_and_a_changed_model_is_rebuilt() {
 
     // Another model (damping changed): another key, another file.
     let text = std::fs::read_to_string(PathBuf::from(MODELS).join("table2-adjusted.toml")).unwrap();
-    let other = cache.join("other.toml");
+    let other = cache.path().join("other.toml");
     std::fs::write(&other, text.replace("damping = 5.0e3", "damping = 6.0e3")).unwrap();
     let mut config = config.clone();
     config.drivelines[0].model = Some(other);
@@ -407,10 +410,11 @@ fn maps_come_from_the_cache_after_a_restart_and_a_changed_model_is_rebuilt() {
 fn a_map_that_cannot_be_built_is_named_and_the_driveline_runs_on_with_the_gap_invalid() {
     // Static torques below the bite threshold (20 kN*m): the simulated bites never
     // trigger the detector.
+    let cache = scratch("gap-bad-cache");
     let config = config(
         "static_torque_knm = [5, 15], torque_points = 3, max_gap_mrad = 1, gap_step_mrad = 0.5",
         "",
-        &scratch("bad-cache"),
+        cache.path(),
     );
     let (mut analysis, board) = analysis(&config);
     let job = analysis.take_gap_map_jobs().remove(0);
@@ -441,7 +445,7 @@ fn a_map_that_cannot_be_built_is_named_and_the_driveline_runs_on_with_the_gap_in
 
 #[test]
 fn wear_settings_that_do_not_fit_the_model_are_named_at_start() {
-    let config = config("couplings = [1, 2]", "", &scratch("cache"));
+    let config = config("couplings = [1, 2]", "", &shared("cache"));
     let (mut analysis, board) = analysis(&config);
     let problems: Vec<String> = analysis
         .wear_problems()
@@ -473,7 +477,7 @@ fn record(name: &str, torques: &[f64], gap_mrad: f64) -> String {
             k as f64 / schedule.sample_rate_hz
         ));
     }
-    let path = scratch("cli").join(name);
+    let path = shared("cli").join(name);
     std::fs::write(&path, csv).unwrap();
     path.to_str().unwrap().to_owned()
 }
@@ -482,8 +486,8 @@ fn record(name: &str, torques: &[f64], gap_mrad: f64) -> String {
 fn millgate_wear_reports_each_bite_and_the_pooled_gap_as_json_and_plots_it() {
     let input = record("bites.csv", &[60.0, 140.0, 90.0], 2.5);
     let model = format!("{MODELS}/table2-adjusted.toml");
-    let cache = scratch("cli-cache");
-    let plot = scratch("cli").join("wear.svg");
+    let cache = scratch("gap-cli-cache");
+    let plot = shared("cli").join("wear.svg");
     let output = millgate(&[
         "wear",
         "--input",
@@ -497,7 +501,7 @@ fn millgate_wear_reports_each_bite_and_the_pooled_gap_as_json_and_plots_it() {
         "--max-gap-mrad",
         "5",
         "--cache-dir",
-        cache.to_str().unwrap(),
+        cache.path().to_str().unwrap(),
         "--plot",
         plot.to_str().unwrap(),
     ]);
@@ -578,7 +582,7 @@ fn millgate_wear_reports_each_bite_and_the_pooled_gap_as_json_and_plots_it() {
         "--max-gap-mrad",
         "5",
         "--cache-dir",
-        cache.to_str().unwrap(),
+        cache.path().to_str().unwrap(),
     ]);
     let said = text(&output);
     assert!(output.status.success(), "{said}");
@@ -591,7 +595,7 @@ fn millgate_wear_reports_each_bite_and_the_pooled_gap_as_json_and_plots_it() {
 
 #[test]
 fn millgate_wear_names_the_file_of_a_record_without_bites_and_of_a_bad_model() {
-    let quiet = scratch("cli").join("quiet.csv");
+    let quiet = shared("cli").join("quiet.csv");
     let mut csv = String::from("t,torque\n");
     for k in 0..2000 {
         csv.push_str(&format!("{},{}\n", k as f64 / 2000.0, 0.1 * (k % 7) as f64));
@@ -612,7 +616,7 @@ fn millgate_wear_names_the_file_of_a_record_without_bites_and_of_a_bad_model() {
         "{said}"
     );
 
-    let bad = scratch("cli").join("bad-model.toml");
+    let bad = shared("cli").join("bad-model.toml");
     std::fs::write(
         &bad,
         "name = \"x\"\n[[mass]]\nname = \"m\"\ninertia = -3.0\n",
@@ -647,8 +651,8 @@ fn truth() -> Model {
 /// fresh coupling), one bite per static torque of `torques` (noise 0.5 kN*m), run
 /// through the discrepancy workflow with the drawings' model (C12 three times too
 /// stiff); the report folder is written as `millgate discrepancy --report` writes it.
-/// Returns the report and its `calibrated-model.toml`.
-fn calibrate(gap_mrad: f64, torques: &[f64], seed: u64) -> (discrepancy::Report, PathBuf) {
+/// Returns the report, its folder and its `calibrated-model.toml`.
+fn calibrate(gap_mrad: f64, torques: &[f64], seed: u64) -> (discrepancy::Report, TempDir, PathBuf) {
     let drawings = Model::load(PathBuf::from(MODELS).join("table2-drawings.toml")).expect("model");
     let mut recorded = truth();
     recorded.couplings[1].backlash = gap_mrad * 1e-3;
@@ -663,9 +667,12 @@ fn calibrate(gap_mrad: f64, torques: &[f64], seed: u64) -> (discrepancy::Report,
     let settings = discrepancy::Settings { threads: 2 };
     let rep = discrepancy::run_with(&bites, &drawings, &settings, |_| {})
         .unwrap_or_else(|error| panic!("{error}"));
-    let folder = scratch(&format!("calibrated-{seed}"));
-    discrepancy::report::write(&rep, &folder).unwrap_or_else(|error| panic!("{error}"));
-    (rep, folder.join(discrepancy::report::CALIBRATED_MODEL_FILE))
+    let folder = scratch(&format!("gap-calibrated-{seed}"));
+    discrepancy::report::write(&rep, folder.path()).unwrap_or_else(|error| panic!("{error}"));
+    let file = folder
+        .path()
+        .join(discrepancy::report::CALIBRATED_MODEL_FILE);
+    (rep, folder, file)
 }
 
 /// The path end to end: [`calibrate`], then step (3): `calibrated-model.toml` is the
@@ -678,7 +685,7 @@ fn calibrate_then_monitor(
     truth_mrad: f64,
     seed: u64,
 ) -> Calibrated {
-    let (rep, file) = calibrate(calibration_gap_mrad, calibration_torques, seed);
+    let (rep, folder, file) = calibrate(calibration_gap_mrad, calibration_torques, seed);
     let calibrated = Model::load(&file).unwrap_or_else(|error| panic!("{error}"));
     let stiffness_error = calibrated
         .couplings
@@ -686,8 +693,7 @@ fn calibrate_then_monitor(
         .zip(&truth().couplings)
         .map(|(c, t)| c.stiffness / t.stiffness - 1.0)
         .collect();
-    let folder = file.parent().expect("report folder").to_owned();
-    let mut config = config(COARSE_RANGED, "", &folder);
+    let mut config = config(COARSE_RANGED, "", folder.path());
     config.drivelines[0].model = Some(file.clone());
     let (mut analysis, board) = analysis(&config);
     assert!(analysis.wear_problems().is_empty(), "the file loads");
@@ -708,7 +714,6 @@ fn calibrate_then_monitor(
         seed + 1,
     );
     let estimate = board.results().drivelines[0].gap.expect("an estimate");
-    let _ = std::fs::remove_dir_all(&folder);
     Calibrated {
         verdict: rep.verdict,
         effect: rep.effect,
@@ -836,17 +841,16 @@ fn calibrated_models_over_seeds() {
 
 /// The maps (coarse grid) of `model`, built through a driveline configured with it.
 fn maps_of(model: &Model, name: &str) -> GapMaps {
-    let folder = scratch(name);
-    let file = folder.join("model.toml");
+    let folder = scratch(&format!("gap-{name}"));
+    let file = folder.path().join("model.toml");
     std::fs::write(&file, model.to_toml_string().expect("model as TOML")).unwrap();
-    let mut config = config(COARSE_RANGED, "", &folder);
+    let mut config = config(COARSE_RANGED, "", folder.path());
     config.drivelines[0].model = Some(file);
     let (mut analysis, _) = analysis(&config);
     let job = analysis.take_gap_map_jobs().remove(0);
     let (maps, _) = job
         .run(2, &AtomicBool::new(false), &|_, _| {})
         .unwrap_or_else(|error| panic!("{error}"));
-    let _ = std::fs::remove_dir_all(&folder);
     maps
 }
 
@@ -867,10 +871,9 @@ fn model_error_allowance_from_the_calibration_error() {
     let (mut taf, mut shift) = (Vec::new(), Vec::new());
     for k in 0..calibrations {
         let shifted = CALIBRATION_KNM.map(|t| t + 10.0 * k as f64 - 15.0);
-        let (_, file) = calibrate(0.0, &shifted, 5000 + 10 * k);
+        let (_, _folder, file) = calibrate(0.0, &shifted, 5000 + 10 * k);
         let calibrated = Model::load(&file).unwrap_or_else(|error| panic!("{error}"));
         let maps = maps_of(&calibrated, &format!("allowance-{k}"));
-        let _ = std::fs::remove_dir_all(file.parent().expect("report folder"));
         for (a, b) in base.maps().iter().zip(maps.maps()) {
             for (ra, rb) in a.rows.iter().zip(&b.rows) {
                 for (pa, pb) in ra.iter().zip(rb) {

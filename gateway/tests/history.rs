@@ -3,7 +3,7 @@
 //! counters, wear trend, latched alarms and last values, the retention keeps the file
 //! within its size and age, and an unusable file is reported, not fatal.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 use std::time::Duration;
 
@@ -21,31 +21,7 @@ use millgate::state::events::{
 use millgate::state::history::{History, HistoryState};
 use millgate::state::results::{DrivelineResults, GapResults, Results};
 use millgate::state::time::UtcTime;
-
-/// A scratch folder removed at the end.
-struct Scratch(PathBuf);
-
-impl Scratch {
-    fn new(tag: &str) -> Self {
-        let path = std::env::temp_dir().join(format!(
-            "millgate-history-{tag}-{}-{}",
-            std::process::id(),
-            UtcTime::now().unix_ms()
-        ));
-        std::fs::create_dir_all(&path).unwrap();
-        Self(path)
-    }
-
-    fn file(&self, name: &str) -> PathBuf {
-        self.0.join(name)
-    }
-}
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
+use millgate_tests::kit::scratch;
 
 fn config(path: &Path) -> millgate_config::History {
     millgate_config::History {
@@ -134,8 +110,8 @@ async fn settle(history: &History) {
 
 #[tokio::test]
 async fn what_is_recorded_is_read_back_and_restored_at_the_next_start() {
-    let scratch = Scratch::new("roundtrip");
-    let path = scratch.file("history.db");
+    let scratch = scratch("history-roundtrip");
+    let path = scratch.path().join("history.db");
     let history = History::new(Some(&config(&path)));
     let restored = millgate::history::start(&history, run_info());
     assert!(
@@ -308,8 +284,8 @@ async fn what_is_recorded_is_read_back_and_restored_at_the_next_start() {
 
 #[tokio::test]
 async fn the_gap_pool_since_the_last_reset_and_the_gap_alarm_are_restored() {
-    let scratch = Scratch::new("gap-pool");
-    let path = scratch.file("history.db");
+    let scratch = scratch("history-gap-pool");
+    let path = scratch.path().join("history.db");
     let t0 = UtcTime::parse("2026-03-01T08:00:00Z").unwrap();
     let at = |minutes: i64| UtcTime::from_unix_ms(t0.unix_ms() + minutes * 60_000);
     let start = |history: &History| millgate::history::start(history, run_info());
@@ -402,8 +378,8 @@ async fn the_gap_pool_since_the_last_reset_and_the_gap_alarm_are_restored() {
 
 #[tokio::test]
 async fn a_run_that_never_stopped_is_marked_unclean_and_its_open_outage_closed() {
-    let scratch = Scratch::new("unclean");
-    let path = scratch.file("history.db");
+    let scratch = scratch("history-unclean");
+    let path = scratch.path().join("history.db");
     let first = History::new(Some(&config(&path)));
     millgate::history::start(&first, run_info());
     first.record(HistoryEvent::OutageStarted {
@@ -428,8 +404,8 @@ async fn a_run_that_never_stopped_is_marked_unclean_and_its_open_outage_closed()
 
 #[tokio::test]
 async fn debian_sqlite3_and_python_read_the_file() {
-    let scratch = Scratch::new("tools");
-    let path = scratch.file("history.db");
+    let scratch = scratch("history-tools");
+    let path = scratch.path().join("history.db");
     let history = History::new(Some(&config(&path)));
     millgate::history::start(&history, run_info());
     let t0 = UtcTime::parse("2026-05-04T23:59:58.250Z").unwrap();
@@ -454,7 +430,7 @@ async fn debian_sqlite3_and_python_read_the_file() {
         line,
         "12|78|2026-05-04T23:59:59.000Z|2026-05-05T00:00:07.250Z|2026-05-05 00:00:07.250|2.12"
     );
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/history_read.py");
+    let script = millgate_tests::kit::peers::peer("history_read.py");
     let python = Command::new("python3")
         .arg(&script)
         .arg(&path)
@@ -478,8 +454,8 @@ async fn debian_sqlite3_and_python_read_the_file() {
 
 #[tokio::test]
 async fn a_corrupt_file_is_reported_and_left_alone() {
-    let scratch = Scratch::new("corrupt");
-    let path = scratch.file("history.db");
+    let scratch = scratch("history-corrupt");
+    let path = scratch.path().join("history.db");
     let garbage: Vec<u8> = (0..8192u32).map(|i| (i * 7 + 3) as u8).collect();
     std::fs::write(&path, &garbage).unwrap();
     let history = History::new(Some(&config(&path)));
@@ -544,8 +520,8 @@ fn fill(connection: &rusqlite::Connection, start: UtcTime, count: u32) {
 
 #[test]
 fn retention_deletes_by_age_and_size_in_chunks_and_the_file_shrinks() {
-    let scratch = Scratch::new("retention");
-    let path = scratch.file("history.db");
+    let scratch = scratch("history-retention");
+    let path = scratch.path().join("history.db");
     let connection = millgate::history::writer::connect(&path).unwrap();
     let now = UtcTime::parse("2026-06-01T00:00:00Z").unwrap();
     // 12 000 bites, one a minute: 8.3 days up to `now`.
@@ -629,8 +605,8 @@ fn retention_deletes_by_age_and_size_in_chunks_and_the_file_shrinks() {
 /// every step succeeds, and the run goes with its last bite.
 #[test]
 fn retention_keeps_a_run_while_its_rows_remain() {
-    let scratch = Scratch::new("retention-runs");
-    let path = scratch.file("history.db");
+    let scratch = scratch("history-retention-runs");
+    let path = scratch.path().join("history.db");
     let connection = millgate::history::writer::connect(&path).unwrap();
     let now = UtcTime::parse("2026-06-01T00:00:00Z").unwrap();
     let day = |d: u64| now.minus(Duration::from_secs(d * 86_400)).to_string();

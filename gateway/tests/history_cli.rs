@@ -9,7 +9,7 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use common::millgate;
+use common::{millgate, scratch};
 use millgate::analysis::wear::next_trend;
 
 fn ok(args: &[&str]) -> String {
@@ -33,16 +33,10 @@ fn sqlite3(db: &Path, sql: &str) -> String {
     String::from_utf8(output.stdout).unwrap().trim().to_owned()
 }
 
-fn scratch() -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("millgate-history-cli-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
 #[test]
 fn two_demo_runs_continue_and_history_and_report_read_the_file() {
-    let dir = scratch();
+    let scratch = scratch("history-cli");
+    let dir = scratch.path();
     let db = dir.join("history.db");
     let db_arg = db.to_str().unwrap();
 
@@ -182,5 +176,4 @@ fn two_demo_runs_continue_and_history_and_report_read_the_file() {
         stderr.contains("--since") && stderr.contains("yesterday"),
         "{stderr}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -17,7 +17,7 @@ use std::path::Path;
 use std::process::{Child, ChildStdin, Command, Stdio};
 use std::time::Duration;
 
-use common::{terminate, until, Setup};
+use common::{terminate, wait_for, Setup, MILLGATE};
 
 /// Longest wait for what the service does within a bite or two: a hang guard.
 const BITES: Duration = Duration::from_secs(60);
@@ -100,7 +100,7 @@ fn log_contains(setup: &Setup, log: &str, text: &str) -> bool {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_start_while_another_process_holds_the_file_continues_its_counters() {
-    let setup = Setup::new("locked-start", "db").await;
+    let setup = Setup::new(MILLGATE, "locked-start", "db").await;
     let plc = setup.plc();
     let mut first = setup.spawn("first.log");
     plc.bites_after_now(2).await;
@@ -112,7 +112,7 @@ async fn a_start_while_another_process_holds_the_file_continues_its_counters() {
     // Another process holds the file while the service starts.
     let lock = Locker::hold(&setup.history, "EXCLUSIVE");
     let mut second = setup.spawn("second.log");
-    until("the service meets the lock", BITES, || {
+    wait_for("the service meets the lock", BITES, || {
         log_contains(&setup, "second.log", "database is locked")
     })
     .await;
@@ -141,7 +141,7 @@ async fn a_start_while_another_process_holds_the_file_continues_its_counters() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_write_lock_held_over_several_bites_loses_none_the_plc_saw() {
-    let setup = Setup::new("locked-run", "db").await;
+    let setup = Setup::new(MILLGATE, "locked-run", "db").await;
     let plc = setup.plc();
     let mut service = setup.spawn("run.log");
     plc.bites_after_now(2).await;
@@ -162,7 +162,7 @@ async fn a_write_lock_held_over_several_bites_loses_none_the_plc_saw() {
     );
     lock.release();
     plc.bites_after_now(1).await;
-    until("stored again", BITES, || {
+    wait_for("stored again", BITES, || {
         log_contains(&setup, "run.log", "history stored again")
     })
     .await;
@@ -185,7 +185,7 @@ async fn a_write_lock_held_over_several_bites_loses_none_the_plc_saw() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_history_file_deleted_while_running_is_noticed_and_a_new_one_started() {
-    let setup = Setup::new("deleted", "db").await;
+    let setup = Setup::new(MILLGATE, "deleted", "db").await;
     let plc = setup.plc();
     let mut service = setup.spawn("run.log");
     plc.bites_after_now(1).await;
@@ -195,8 +195,8 @@ async fn a_history_file_deleted_while_running_is_noticed_and_a_new_one_started()
         let _ = std::fs::remove_file(path);
     }
     plc.bites_after_now(2).await;
-    until("a new file at the path", BITES, || setup.history.exists()).await;
-    until("the deletion in the log", BITES, || {
+    wait_for("a new file at the path", BITES, || setup.history.exists()).await;
+    wait_for("the deletion in the log", BITES, || {
         log_contains(&setup, "run.log", "was deleted or replaced while in use")
     })
     .await;
@@ -218,7 +218,7 @@ async fn a_history_file_deleted_while_running_is_noticed_and_a_new_one_started()
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_partly_damaged_file_is_named_by_check_and_left_alone_by_the_service() {
-    let setup = Setup::new("damaged", "db").await;
+    let setup = Setup::new(MILLGATE, "damaged", "db").await;
     let plc = setup.plc();
     let mut first = setup.spawn("first.log");
     plc.bites_after_now(2).await;
@@ -237,7 +237,8 @@ async fn a_partly_damaged_file_is_named_by_check_and_left_alone_by_the_service()
         .write_all(&bytes)
         .unwrap();
 
-    let check = Command::new(env!("CARGO_BIN_EXE_millgate"))
+    let check = common::MILLGATE
+        .command()
         .args(["check", "--config"])
         .arg(&setup.config)
         .output()

@@ -13,7 +13,7 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
-use common::millgate;
+use common::{millgate, scratch, MILLGATE};
 use millgate::history::schema::APPLICATION_ID;
 use millgate::history::writer;
 use millgate::history::{DrivelineSettings, RunInfo};
@@ -39,24 +39,20 @@ fn millgate_measured(args: &[&str]) -> (Output, Option<u64>) {
         eprintln!("/usr/bin/time missing (apt install time): peak RSS not checked");
         return (millgate(args), None);
     }
-    let report = std::env::temp_dir().join(format!(
-        "millgate-report-rss-{}-{}",
-        std::process::id(),
-        args[0]
-    ));
+    let folder = scratch("report-rss");
+    let report = folder.path().join("peak-rss");
     let output = Command::new("/usr/bin/time")
         .arg("-f")
         .arg("%M")
         .arg("-o")
         .arg(&report)
-        .arg(env!("CARGO_BIN_EXE_millgate"))
+        .arg(MILLGATE.0)
         .args(args)
         .output()
         .expect("run millgate under /usr/bin/time");
     let kib = std::fs::read_to_string(&report)
         .ok()
         .and_then(|text| text.trim().parse().ok());
-    let _ = std::fs::remove_file(&report);
     (output, kib)
 }
 
@@ -69,26 +65,6 @@ fn sqlite3(db: &Path, sql: &str) -> String {
         .expect("Debian's sqlite3 (apt install sqlite3)");
     assert!(output.status.success(), "{output:?}");
     String::from_utf8(output.stdout).unwrap().trim().to_owned()
-}
-
-struct Scratch(PathBuf);
-
-impl Scratch {
-    fn new(name: &str) -> Self {
-        let dir = std::env::temp_dir().join(format!(
-            "millgate-history-report-{}-{name}",
-            std::process::id()
-        ));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        Self(dir)
-    }
-}
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
 }
 
 fn start() -> UtcTime {
@@ -232,11 +208,11 @@ fn percent_after(text: &str, prefix: &str) -> f64 {
 
 #[test]
 fn report_of_two_weeks_of_bites_plots_buckets_and_cells_and_counts_a_killed_run_honestly() {
-    let scratch = Scratch::new("report");
-    let (db, last) = write_history(&scratch.0);
+    let scratch = scratch("history-report-report");
+    let (db, last) = write_history(scratch.path());
     let db_arg = db.to_str().unwrap();
     let until = UtcTime::from_unix_ms(last.unix_ms() + AFTER_LAST_MS);
-    let out = scratch.0.join("report");
+    let out = scratch.path().join("report");
     let (output, peak_kib) = millgate_measured(&[
         "report",
         "--db",
@@ -362,8 +338,8 @@ fn report_of_two_weeks_of_bites_plots_buckets_and_cells_and_counts_a_killed_run_
 #[test]
 fn history_streams_two_weeks_of_bites_quits_quietly_on_a_closed_pipe_and_shows_progress_on_a_terminal(
 ) {
-    let scratch = Scratch::new("history");
-    let (db, _) = write_history(&scratch.0);
+    let scratch = scratch("history-report-history");
+    let (db, _) = write_history(scratch.path());
     let db_arg = db.to_str().unwrap();
     let (output, peak_kib) = millgate_measured(&["history", "--db", db_arg, "--format", "json"]);
     assert!(
@@ -394,7 +370,8 @@ fn history_streams_two_weeks_of_bites_quits_quietly_on_a_closed_pipe_and_shows_p
     }
 
     // A reader that stops early (`| head`): the export ends without an error.
-    let mut child = Command::new(env!("CARGO_BIN_EXE_millgate"))
+    let mut child = common::MILLGATE
+        .command()
         .args(["history", "--db", db_arg, "--format", "csv"])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -431,8 +408,8 @@ fn history_streams_two_weeks_of_bites_quits_quietly_on_a_closed_pipe_and_shows_p
 
 #[test]
 fn another_application_s_sqlite_file_is_refused_and_a_new_history_is_marked() {
-    let scratch = Scratch::new("foreign");
-    let foreign = scratch.0.join("notes.db");
+    let scratch = scratch("history-report-foreign");
+    let foreign = scratch.path().join("notes.db");
     sqlite_write(
         &foreign,
         "PRAGMA application_id = 1598902094; CREATE TABLE notes (x); INSERT INTO notes VALUES (1);",
@@ -454,13 +431,13 @@ fn another_application_s_sqlite_file_is_refused_and_a_new_history_is_marked() {
     assert_eq!(sqlite3(&foreign, "PRAGMA journal_mode"), "delete");
     assert_eq!(sqlite3(&foreign, "SELECT count(*) FROM notes"), "1");
     // A file without an id but with tables of its own is refused too.
-    let plain = scratch.0.join("plain.db");
+    let plain = scratch.path().join("plain.db");
     sqlite_write(&plain, "CREATE TABLE things (x);");
     let error = writer::connect(&plain).unwrap_err().to_string();
     assert!(error.contains("not a millgate history"), "{error}");
 
     // The gateway's new file carries millgate's id, as sqlite3 reads it.
-    let new = scratch.0.join("history.db");
+    let new = scratch.path().join("history.db");
     drop(writer::connect(&new).unwrap());
     assert_eq!(
         sqlite3(&new, "PRAGMA application_id"),

@@ -17,6 +17,7 @@ use millgate::state::events::{BiteRecord, HistoryEvent, WearState};
 use millgate::state::history::History;
 use millgate::state::results::{DrivelineResults, GapResults};
 use millgate::state::time::UtcTime;
+use millgate_tests::kit::scratch;
 
 const MINUTE_MS: i64 = 60_000;
 const DAY_MS: i64 = 86_400_000;
@@ -32,27 +33,6 @@ const RESET_DAY: i64 = 12;
 /// Gap growth before and after the reset, mrad/week.
 const GROWTH_BEFORE: f64 = 0.5;
 const GROWTH_AFTER: f64 = 0.8;
-
-/// A scratch folder removed at the end.
-struct Scratch(PathBuf);
-
-impl Scratch {
-    fn new(tag: &str) -> Self {
-        let path = std::env::temp_dir().join(format!(
-            "millgate-series-{tag}-{}-{}",
-            std::process::id(),
-            UtcTime::now().unix_ms()
-        ));
-        std::fs::create_dir_all(&path).unwrap();
-        Self(path)
-    }
-}
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
 
 fn start() -> UtcTime {
     UtcTime::parse("2026-03-01T00:00:00Z").unwrap()
@@ -345,8 +325,8 @@ fn reference_slope(points: &[(i64, f64)]) -> f64 {
 
 #[test]
 fn series_and_trend_match_computations_without_sql() {
-    let scratch = Scratch::new("all");
-    let path = write_file(&scratch.0);
+    let scratch = scratch("series-all");
+    let path = write_file(scratch.path());
     let reader = HistoryReader::open(&path).unwrap();
     let bites = all_bites(&reader);
     assert!(bites.len() > 1500, "{} bites", bites.len());
@@ -521,8 +501,8 @@ print(repr(float(numpy.polyfit(x - x[0], y, 1)[0])))
 
 #[test]
 fn empty_unknown_and_bad_arguments() {
-    let scratch = Scratch::new("edges");
-    let path = write_file(&scratch.0);
+    let scratch = scratch("series-edges");
+    let path = write_file(scratch.path());
     let reader = HistoryReader::open(&path).unwrap();
 
     // F2 is configured, without bites.

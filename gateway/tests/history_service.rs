@@ -19,7 +19,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Duration;
 
-use common::{free_port, http, terminate, until, web_ready, KillOnDrop, Setup};
+use common::{free_port, http, terminate, wait_for, web_ready, KillOnDrop, Setup, MILLGATE};
 
 use millgate::analysis::wear::next_trend;
 use millgate::history::query::{BiteRow, Filter, HistoryReader};
@@ -35,19 +35,19 @@ fn bites(history: &Path) -> Vec<BiteRow> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sigkill_loses_no_bite_the_plc_saw_and_the_restart_continues() {
-    let setup = Setup::new("kill", "db").await;
+    let setup = Setup::new(MILLGATE, "kill", "db").await;
     let history = setup.history.clone();
     let server_port = setup.server_port;
     let plc = setup.plc();
 
     // First run: killed the moment the PLC shows its 4th bite.
     let mut first = setup.spawn("first.log");
-    until("3 bites in the PLC", Duration::from_secs(40), || {
+    wait_for("3 bites in the PLC", Duration::from_secs(40), || {
         plc.counter() >= 3
     })
     .await;
     let seen = plc.counter();
-    until("another bite in the PLC", Duration::from_secs(20), || {
+    wait_for("another bite in the PLC", Duration::from_secs(20), || {
         plc.counter() > seen
     })
     .await;
@@ -89,7 +89,7 @@ async fn sigkill_loses_no_bite_the_plc_saw_and_the_restart_continues() {
     let mut second = setup.spawn("second.log");
     // The PLC still holds the killed run's last write; the second run's first writes
     // are the ones with the restored flag.
-    until(
+    wait_for(
         "the second run writes the PLC",
         Duration::from_secs(20),
         || plc.flags() & flag_mask(DRIVELINE, "restored") != 0,
@@ -105,7 +105,7 @@ async fn sigkill_loses_no_bite_the_plc_saw_and_the_restart_continues() {
         "the alarm still latched"
     );
     let restored = before.figures.bite_counter as u32;
-    until("a bite after the restart", Duration::from_secs(20), || {
+    wait_for("a bite after the restart", Duration::from_secs(20), || {
         plc.counter() > restored
     })
     .await;
@@ -121,7 +121,7 @@ async fn sigkill_loses_no_bite_the_plc_saw_and_the_restart_continues() {
 
     // The trend goes on from the restored value: the first bite of the second run
     // with a wear index (not degraded) moved it by one EWMA step.
-    until(
+    wait_for(
         "a bite of the second run with a wear index",
         Duration::from_secs(20),
         || {
@@ -151,7 +151,7 @@ async fn sigkill_loses_no_bite_the_plc_saw_and_the_restart_continues() {
         .rev()
         .find_map(|b| b.figures.gap.map(|g| g.bites_pooled))
         .expect("the first run estimated the gap");
-    until(
+    wait_for(
         "a gap estimate of the second run",
         Duration::from_secs(20),
         || {
@@ -202,7 +202,7 @@ async fn sigkill_loses_no_bite_the_plc_saw_and_the_restart_continues() {
             .unwrap()
             .unwrap();
     }
-    until(
+    wait_for(
         "the acknowledgement in the file",
         Duration::from_secs(10),
         || {
@@ -280,7 +280,7 @@ async fn unusable_history_is_reported_and_the_plc_goes_on(
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_full_disk_is_reported_the_plc_goes_on_and_storing_resumes_when_space_is_freed() {
-    let setup = Setup::new("full", "tmpfs").await;
+    let setup = Setup::new(MILLGATE, "full", "tmpfs").await;
     let service = setup.spawn_in_namespace("run.log", Some("size=4m"));
     let plc = setup.plc();
     plc.bites_after_now(1).await;
@@ -386,7 +386,7 @@ async fn a_full_disk_is_reported_the_plc_goes_on_and_storing_resumes_when_space_
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_read_only_folder_is_reported_and_the_plc_goes_on() {
-    let setup = Setup::new("readonly", "ro").await;
+    let setup = Setup::new(MILLGATE, "readonly", "ro").await;
     let service = setup.spawn_in_namespace("run.log", Some("ro,size=1m"));
     let service = unusable_history_is_reported_and_the_plc_goes_on(
         &setup,
@@ -399,7 +399,7 @@ async fn a_read_only_folder_is_reported_and_the_plc_goes_on() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_corrupt_file_is_reported_left_alone_and_the_plc_goes_on() {
-    let setup = Setup::new("corrupt", "db").await;
+    let setup = Setup::new(MILLGATE, "corrupt", "db").await;
     let garbage: Vec<u8> = (0..8192u32).map(|i| (i * 7 + 3) as u8).collect();
     std::fs::write(&setup.history, &garbage).unwrap();
     let service = setup.spawn("run.log");
@@ -449,7 +449,7 @@ fn promtool_passes(page: &str) {
 /// `/metrics` equal to the PLC's registers, while `millgate run` runs.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_gap_warning_is_an_alarm_event_and_the_gap_is_on_metrics() {
-    let setup = Setup::new("gap-warning", "db").await;
+    let setup = Setup::new(MILLGATE, "gap-warning", "db").await;
     let web_port = free_port();
     // The demo's gap opens from 1 mrad: a 0.5 mrad warning threshold is crossed by the
     // first estimate.
@@ -464,7 +464,7 @@ async fn a_gap_warning_is_an_alarm_event_and_the_gap_is_on_metrics() {
     let plc = setup.plc();
     let mut service = setup.spawn("run.log");
     let warning = flag_mask(DRIVELINE, "gap_warning");
-    until(
+    wait_for(
         "the gap warning in the PLC",
         Duration::from_secs(60),
         || plc.flags() & warning != 0,

@@ -14,7 +14,7 @@ mod common;
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::process::{Child, ChildStdin, Command};
+use std::process::ChildStdin;
 use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::time::{Duration, Instant};
 
@@ -31,7 +31,7 @@ use tokio::net::{TcpListener, TcpStream};
 
 /// The Python client: its JSON lines, its stdin for commands; killed on drop.
 struct Peer {
-    child: Child,
+    _child: common::KillOnDrop,
     stdin: ChildStdin,
     lines: Receiver<Value>,
 }
@@ -41,9 +41,9 @@ impl Peer {
     /// up, `Err` with the client's `refused` line.
     fn connect(url: &str, options: &[&str]) -> Result<Self, Value> {
         let args = [&[url], options].concat();
-        let (child, stdin, lines) = common::json_peer("opcua_client.py", &args);
+        let (child, stdin, lines) = common::json_peer(&common::peer("opcua_client.py"), &args);
         let mut peer = Self {
-            child,
+            _child: child,
             stdin,
             lines,
         };
@@ -95,17 +95,11 @@ impl Peer {
     }
 }
 
-impl Drop for Peer {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
 /// The gateway between the demo's virtual DAQ (its own task, so it can be stopped) and
 /// PLC, with `[outputs.opcua]`.
 struct Rig {
     scratch: PathBuf,
+    _folder: common::TempDir,
     daq: Option<Running>,
     plc: VirtualPlc,
     plc_running: Running,
@@ -120,10 +114,8 @@ impl Rig {
     /// (`outputs.opcua` is set on a free loopback port with its pki in the scratch
     /// folder first).
     async fn start(tag: &str, duration_s: f64, edit: impl FnOnce(&mut Config, &Path)) -> Self {
-        let scratch =
-            std::env::temp_dir().join(format!("millgate-opcua-{tag}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&scratch);
-        std::fs::create_dir_all(&scratch).unwrap();
+        let folder = common::scratch(&format!("opcua-{tag}"));
+        let scratch = folder.path().to_path_buf();
         let _ = tracing_subscriber::fmt()
             .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
             .with_test_writer()
@@ -158,6 +150,7 @@ impl Rig {
         serving(bound, &url).await;
         Self {
             scratch,
+            _folder: folder,
             daq: Some(daq),
             plc,
             plc_running,
@@ -219,7 +212,6 @@ impl Rig {
             daq.stop().await.unwrap();
         }
         self.plc_running.stop().await.unwrap();
-        let _ = std::fs::remove_dir_all(&self.scratch);
     }
 }
 
@@ -263,16 +255,17 @@ async fn serving(address: std::net::SocketAddr, url: &str) {
     assert_eq!(&answer, b"ACKF", "after {:?}", start.elapsed());
 }
 
-/// A certificate store with the server's certificate made once per test process (an
-/// RSA key takes seconds in a debug build) and copied for each server.
+/// Where the server certificate made once per test process (an RSA key takes seconds
+/// in a debug build) is kept for the next servers: a scratch folder that a static
+/// holds, so it is left for the system's temporary-folder cleaning.
+fn made_pki() -> &'static Path {
+    static MADE: std::sync::OnceLock<common::TempDir> = std::sync::OnceLock::new();
+    MADE.get_or_init(|| common::scratch("opcua-pki")).path()
+}
+
+/// A certificate store with the server's certificate (once made) copied for a server.
 fn copy_pki(to: &Path) {
-    static MADE: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
-    let made = MADE.get_or_init(|| {
-        let folder =
-            std::env::temp_dir().join(format!("millgate-opcua-pki-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&folder);
-        folder
-    });
+    let made = made_pki();
     for sub in ["own", "private", "trusted", "rejected"] {
         std::fs::create_dir_all(to.join(sub)).unwrap();
         if let Ok(files) = std::fs::read_dir(made.join(sub)) {
@@ -285,7 +278,7 @@ fn copy_pki(to: &Path) {
 
 /// Keep the server certificate a test's server made for the next servers.
 fn keep_pki(from: &Path) {
-    let made = std::env::temp_dir().join(format!("millgate-opcua-pki-{}", std::process::id()));
+    let made = made_pki();
     if made.join("own/cert.der").exists() {
         return;
     }
@@ -511,7 +504,7 @@ async fn subscriptions_get_each_bite_and_alarms_come_as_events() {
             }
         },
     };
-    common::until("the PLC has the bite", Duration::from_secs(5), || {
+    common::wait_for("the PLC has the bite", Duration::from_secs(5), || {
         u64::from(rig.bite_counter()) >= counter
     })
     .await;
@@ -594,7 +587,7 @@ async fn a_stale_source_is_bad_or_uncertain_never_good() {
     let stale_bit = 1 << bit;
     // The cable pulled: the DAQ stops answering.
     rig.daq.take().unwrap().stop().await.unwrap();
-    common::until(
+    common::wait_for(
         "the PLC shows the source stale",
         Duration::from_secs(20),
         || rig.plc.holding()[rig.register("F1.flags")] & stale_bit != 0,
@@ -813,7 +806,7 @@ async fn hostile_streams_are_counted_and_the_service_goes_on() {
     let mut peer = Peer::connect(&rig.url, &["--user", "operator", "--password", "s3cret"])
         .expect("a good client after the hostile ones, signed in on the none endpoint");
     assert_eq!(peer.ask("read Gateway/state", "read")["value"], 1);
-    common::until(
+    common::wait_for(
         "a bite after the hostile streams",
         Duration::from_secs(20),
         || rig.bite_counter() > before,
@@ -827,8 +820,8 @@ async fn hostile_streams_are_counted_and_the_service_goes_on() {
 /// settings, a non-loopback bind is warned of, a bad value names its key and range.
 #[test]
 fn check_names_the_server_and_warns_of_other_hosts() {
-    let scratch = std::env::temp_dir().join(format!("millgate-opcua-check-{}", std::process::id()));
-    std::fs::create_dir_all(&scratch).unwrap();
+    let folder = common::scratch("opcua-check");
+    let scratch = folder.path();
     let repo = common::repo();
     std::fs::copy(
         repo.join("config/examples/table2-adjusted.toml"),
@@ -839,7 +832,8 @@ fn check_names_the_server_and_warns_of_other_hosts() {
     let check = |opcua: &str| {
         let path = scratch.join("mill.toml");
         std::fs::write(&path, format!("{demo}\n[outputs.opcua]\n{opcua}\n")).unwrap();
-        let output = Command::new(env!("CARGO_BIN_EXE_millgate"))
+        let output = common::MILLGATE
+            .command()
             .args(["check", "--config", path.to_str().unwrap()])
             .output()
             .unwrap();
@@ -876,7 +870,6 @@ fn check_names_the_server_and_warns_of_other_hosts() {
         text.contains("outputs.opcua.max_sessions: 0 is not allowed (must be 1..=100)"),
         "{text}"
     );
-    let _ = std::fs::remove_dir_all(&scratch);
 }
 
 /// docs/opcua.md's address space table is `millgate address-space` of the demo's
@@ -885,7 +878,8 @@ fn check_names_the_server_and_warns_of_other_hosts() {
 #[test]
 fn readme_address_space_table_is_generated() {
     let repo = common::repo();
-    let output = Command::new(env!("CARGO_BIN_EXE_millgate"))
+    let output = common::MILLGATE
+        .command()
         .args([
             "address-space",
             "--config",

@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{millgate, text};
+use common::{millgate, scratch, text, TempDir};
 use std::path::PathBuf;
 
 fn rod_examples() -> PathBuf {
@@ -14,16 +14,11 @@ fn example(name: &str) -> String {
     rod_examples().join(name).to_str().unwrap().to_owned()
 }
 
-/// A scratch directory for this test.
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("millgate-rod-cli-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-/// Writes `body` as `file` in the scratch directory `name`; returns its path.
-fn write(name: &str, file: &str, body: &str) -> String {
-    let path = scratch(name).join(file);
+/// Writes `body` as `file` in the folder `name` of the scratch folder; returns its path.
+fn write(scratch: &TempDir, name: &str, file: &str, body: &str) -> String {
+    let folder = scratch.path().join(name);
+    std::fs::create_dir_all(&folder).unwrap();
+    let path = folder.join(file);
     std::fs::write(&path, body).unwrap();
     path.to_str().unwrap().to_owned()
 }
@@ -33,13 +28,13 @@ fn schedule_text() -> String {
 }
 
 /// The example mill with its drive taken from `drive` (a path).
-fn mill_with_drive(name: &str, drive: &str) -> String {
+fn mill_with_drive(scratch: &TempDir, name: &str, drive: &str) -> String {
     let mill = std::fs::read_to_string(rod_examples().join("rsm-mill.toml")).unwrap();
     let mill = mill.replace(
         "drive = \"../rsm-drive.toml\"",
         &format!("drive = {drive:?}"),
     );
-    write(name, "mill.toml", &mill)
+    write(scratch, name, "mill.toml", &mill)
 }
 
 fn failure(args: &[&str]) -> String {
@@ -101,7 +96,8 @@ fn floquet_prints_the_exponent_and_stability() {
 fn check_reports_every_pass_and_writes_the_plots() {
     let mill = example("rsm-mill.toml");
     let schedule = example("rsm-schedule.csv");
-    let plots = scratch("plots");
+    let scratch = scratch("rod-cli-plots");
+    let plots = scratch.path();
     let output = millgate(&[
         "rod",
         "check",
@@ -157,6 +153,7 @@ fn check_reports_every_pass_and_writes_the_plots() {
 fn bad_schedules_name_the_line_column_and_range() {
     let mill = example("rsm-mill.toml");
     let original = schedule_text();
+    let scratch = scratch("rod-cli-schedules");
     let cases = [
         (
             "negative",
@@ -182,7 +179,7 @@ fn bad_schedules_name_the_line_column_and_range() {
     ];
     for (name, body, expected) in cases {
         assert_ne!(body, original, "{name}");
-        let schedule = write(name, "schedule.csv", &body);
+        let schedule = write(&scratch, name, "schedule.csv", &body);
         let said = failure(&["rod", "check", "--mill", &mill, "--schedule", &schedule]);
         assert!(said.contains(expected), "{name}: {said}");
     }
@@ -195,16 +192,17 @@ fn a_drive_with_a_loop_or_a_disconnected_mass_is_refused_with_its_key() {
     )
     .unwrap();
     let schedule = example("rsm-schedule.csv");
+    let scratch = scratch("rod-cli-drives");
     let looped = drive.replace(
         "engaged = [\"M3\", \"M5\"]",
         "engaged = [\"M3\", \"M4\", \"M5\"]",
     );
-    let path = write("loop", "drive.toml", &looped);
+    let path = write(&scratch, "loop", "drive.toml", &looped);
     let said = failure(&[
         "rod",
         "check",
         "--mill",
-        &mill_with_drive("loop", &path),
+        &mill_with_drive(&scratch, "loop", &path),
         "--schedule",
         &schedule,
     ]);
@@ -213,12 +211,12 @@ fn a_drive_with_a_loop_or_a_disconnected_mass_is_refused_with_its_key() {
         "{said}"
     );
     let cut = drive.replace("engaged = [\"M4\", \"M6\"]", "engaged = [\"M4\"]");
-    let path = write("cut", "drive.toml", &cut);
+    let path = write(&scratch, "cut", "drive.toml", &cut);
     let said = failure(&[
         "rod",
         "check",
         "--mill",
-        &mill_with_drive("cut", &path),
+        &mill_with_drive(&scratch, "cut", &path),
         "--schedule",
         &schedule,
     ]);
@@ -236,7 +234,9 @@ fn a_drive_with_a_loop_or_a_disconnected_mass_is_refused_with_its_key() {
 fn bad_mill_values_and_mathieu_arguments_name_the_key_and_range() {
     let mill = std::fs::read_to_string(rod_examples().join("rsm-mill.toml")).unwrap();
     let body = mill.replacen("roll_diameter = 0.228", "roll_diameter = -0.228", 1);
+    let scratch = scratch("rod-cli-mill");
     let path = write(
+        &scratch,
         "roll",
         "mill.toml",
         &body.replace("../rsm-drive.toml", &example("../rsm-drive.toml")),

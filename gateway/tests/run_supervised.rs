@@ -6,19 +6,15 @@
 //! systemd's `NOTIFY_SOCKET`.
 
 use std::os::unix::net::UnixDatagram;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output, Stdio};
+
+use millgate_tests::kit::scratch;
 use std::time::{Duration, Instant};
 
 use millgate_sim::devices::demo::{demo_daq, setup};
 use millgate_sim::devices::modbus_bank::ServeOptions;
 use millgate_sim::devices::virtual_plc::VirtualPlc;
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("millgate-run-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
 
 /// The demo configuration, its driveline model named by absolute path so the text
 /// works from any folder.
@@ -63,7 +59,8 @@ fn run_exits_at_once_when_a_listener_cannot_bind() {
     // server and no error until SIGINT.
     let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
     let port = taken.local_addr().unwrap().port();
-    let dir = scratch("bind");
+    let scratch = scratch("run-bind");
+    let dir = scratch.path();
     let path = dir.join("mill.toml");
     std::fs::write(
         &path,
@@ -84,12 +81,12 @@ fn run_exits_at_once_when_a_listener_cannot_bind() {
         "{logs}"
     );
     assert!(took < Duration::from_secs(5), "took {took:?}");
-    std::fs::remove_dir_all(dir).unwrap();
 }
 
 #[test]
 fn run_exits_at_once_when_a_model_does_not_load() {
-    let dir = scratch("model");
+    let scratch = scratch("run-model");
+    let dir = scratch.path();
     std::fs::write(dir.join("broken.toml"), "[[mass]]\ninertia = -3\n").unwrap();
     let path = dir.join("mill.toml");
     std::fs::write(
@@ -115,7 +112,6 @@ fn run_exits_at_once_when_a_model_does_not_load() {
         "{logs}"
     );
     assert!(took < Duration::from_secs(5), "took {took:?}");
-    std::fs::remove_dir_all(dir).unwrap();
 }
 
 /// Datagrams received on `socket` until `until` says stop or `limit` passes.
@@ -155,7 +151,8 @@ async fn readiness_watchdog_and_an_orderly_stop_under_a_service_manager() {
     let plc_address = plc_listener.local_addr().unwrap();
     let running_plc = plc.spawn(plc_listener, ServeOptions::default());
 
-    let dir = scratch("notify");
+    let scratch = scratch("run-notify");
+    let dir = scratch.path();
     let path = dir.join("mill.toml");
     std::fs::write(
         &path,
@@ -231,5 +228,4 @@ async fn readiness_watchdog_and_an_orderly_stop_under_a_service_manager() {
     assert_eq!(after[16] & 0b100, 0, "F1 flags: no source stale");
     running_plc.stop().await.unwrap();
     daq.stop().await.unwrap();
-    std::fs::remove_dir_all(dir).unwrap();
 }

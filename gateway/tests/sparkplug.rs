@@ -12,25 +12,24 @@
 //! Needs `apt install mosquitto` and `pip install pysparkplug==0.6.1` (with paho-mqtt 1.6.1)
 //! (scripts/test installs them).
 
-#[path = "common/backlog.rs"]
-mod backlog;
 mod common;
 
 use std::collections::{HashMap, HashSet};
 use std::io::Write;
 use std::path::Path;
-use std::process::{Child, ChildStdin, Command, Stdio};
+use std::process::{ChildStdin, Command, Stdio};
 use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::time::{Duration, Instant};
 
-use backlog::Broker;
-use common::{free_port, terminate, Setup};
+use common::broker::Broker;
+use common::sparkplug as backlog;
+use common::{free_port, terminate, Setup, MILLGATE};
 use millgate::history::query::{CaptureRow, Filter, HistoryReader};
 use serde_json::Value;
 
 /// The Python host: its messages as JSON, its stdin for commands.
 struct Host {
-    child: Child,
+    _child: common::KillOnDrop,
     stdin: ChildStdin,
     lines: Receiver<Value>,
     seen: Vec<Value>,
@@ -45,9 +44,9 @@ impl Host {
     fn with_options(port: u16, group: &str, options: &[&str]) -> Self {
         let port = port.to_string();
         let args = [&["127.0.0.1", port.as_str(), group], options].concat();
-        let (child, stdin, lines) = common::json_peer("sparkplug_host.py", &args);
+        let (child, stdin, lines) = common::json_peer(&common::peer("sparkplug_host.py"), &args);
         let mut host = Self {
-            child,
+            _child: child,
             stdin,
             lines,
             seen: Vec::new(),
@@ -84,13 +83,6 @@ impl Host {
     fn command(&mut self, line: &str) {
         writeln!(self.stdin, "{line}").unwrap();
         self.stdin.flush().unwrap();
-    }
-}
-
-impl Drop for Host {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
     }
 }
 
@@ -196,7 +188,7 @@ fn seq(message: &Value) -> u64 {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn births_data_rebirth_and_the_will_as_an_independent_host_decodes_them() {
-    let setup = Setup::new("sparkplug", "db").await;
+    let setup = Setup::new(MILLGATE, "sparkplug", "db").await;
     let port = free_port();
     let _broker = Broker::start(&setup.scratch, port);
     let mut host = Host::start(port, "plant");
@@ -294,7 +286,7 @@ async fn births_data_rebirth_and_the_will_as_an_independent_host_decodes_them() 
             bites.push((id["value"].as_u64().unwrap(), data.clone()));
         }
     }
-    common::until("the PLC shows the bites", limit, || {
+    common::wait_for("the PLC shows the bites", limit, || {
         u64::from(plc.counter()) >= bites[1].0
     })
     .await;
@@ -449,7 +441,7 @@ async fn births_data_rebirth_and_the_will_as_an_independent_host_decodes_them() 
 /// in one session, warned once per 10 s, and rebirths come at most once per 5 s.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn bad_and_flooding_commands_neither_end_the_session_nor_multiply_births() {
-    let setup = Setup::new("sparkplug-commands", "db").await;
+    let setup = Setup::new(MILLGATE, "sparkplug-commands", "db").await;
     let port = free_port();
     let _broker = Broker::start(&setup.scratch, port);
     let mut host = Host::start(port, "plant");
@@ -463,13 +455,9 @@ async fn bad_and_flooding_commands_neither_end_the_session_nor_multiply_births()
     let nbirth = host.next_of("NBIRTH", limit);
     assert_eq!(metric(&nbirth, "bdSeq")["value"].as_u64(), Some(0));
     // The retained NCMD reached the node at its subscription: refused, not fatal.
-    until_metric(
-        &setup,
-        "millgate_sparkplug_commands_refused_total",
-        1.0,
-        limit,
-    )
-    .await;
+    setup
+        .until_metric("millgate_sparkplug_commands_refused_total", 1.0, limit)
+        .await;
     // Fifty live undecodable ones, one of them 100 KiB.
     host.command("garbage stand-f1 102400");
     for _ in 0..49 {
@@ -481,22 +469,18 @@ async fn bad_and_flooding_commands_neither_end_the_session_nor_multiply_births()
             sent += 1;
         }
     }
-    until_metric(
-        &setup,
-        "millgate_sparkplug_commands_refused_total",
-        51.0,
-        limit,
-    )
-    .await;
+    setup
+        .until_metric("millgate_sparkplug_commands_refused_total", 51.0, limit)
+        .await;
     // A thousand rebirth commands.
     host.command("rebirth stand-f1 1000");
-    until_metric(
-        &setup,
-        "millgate_sparkplug_rebirth_requests_total",
-        1000.0,
-        Duration::from_secs(60),
-    )
-    .await;
+    setup
+        .until_metric(
+            "millgate_sparkplug_rebirth_requests_total",
+            1000.0,
+            Duration::from_secs(60),
+        )
+        .await;
     // Answered by the rebirths the interval allows: one at once if the last births
     // were over 5 s ago, one 5 s later for the requests that came meanwhile.
     let answered = host.next_of("NBIRTH", limit);
@@ -538,7 +522,7 @@ async fn bad_and_flooding_commands_neither_end_the_session_nor_multiply_births()
 /// and the second obeys a Rebirth.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_retained_ncmd_over_the_packet_limit_ends_one_session_only() {
-    let setup = Setup::new("sparkplug-oversize", "db").await;
+    let setup = Setup::new(MILLGATE, "sparkplug-oversize", "db").await;
     let port = free_port();
     let _broker = Broker::start(&setup.scratch, port);
     let mut host = Host::start(port, "plant");
@@ -559,7 +543,9 @@ async fn a_retained_ncmd_over_the_packet_limit_ends_one_session_only() {
         }
     };
     assert_eq!(born(&mut host), Some(1), "the second session");
-    until_metric(&setup, "millgate_sparkplug_sessions_total", 2.0, limit).await;
+    setup
+        .until_metric("millgate_sparkplug_sessions_total", 2.0, limit)
+        .await;
     // The old code's sessions came 1, 2 and 4 s apart: a third by now.
     tokio::time::sleep(Duration::from_secs(8)).await;
     assert_eq!(
@@ -579,35 +565,17 @@ async fn a_retained_ncmd_over_the_packet_limit_ends_one_session_only() {
     setup.stop(service).await;
 }
 
-/// A `millgate run` killed when dropped: a failing test leaves no gateway behind.
-/// Wait until `/metrics` shows `name` at `value`, at most `limit`.
-async fn until_metric(setup: &Setup, name: &str, value: f64, limit: Duration) {
-    let start = Instant::now();
-    loop {
-        let now = setup.metric(name).await;
-        if now == Some(value) {
-            return;
-        }
-        assert!(
-            start.elapsed() < limit,
-            "{name} {now:?}, not {value} within {limit:?}"
-        );
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
-}
-
 #[test]
 fn the_demo_publishes_its_edge_node() {
-    let scratch =
-        std::env::temp_dir().join(format!("millgate-sparkplug-demo-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&scratch);
-    std::fs::create_dir_all(&scratch).unwrap();
+    let folder = common::scratch("sparkplug-demo");
+    let scratch = folder.path();
     let port = free_port();
-    let _broker = Broker::start(&scratch, port);
+    let _broker = Broker::start(scratch, port);
     let mut host = Host::start(port, "demo-plant");
     let broker = format!("127.0.0.1:{port}");
     let history = scratch.join("history.db");
-    let demo = Command::new(env!("CARGO_BIN_EXE_millgate"))
+    let demo = MILLGATE
+        .command()
         .args([
             "demo",
             "--duration",
@@ -646,18 +614,18 @@ fn the_demo_publishes_its_edge_node() {
         )),
         "{stdout}"
     );
-    let bad = Command::new(env!("CARGO_BIN_EXE_millgate"))
+    let bad = MILLGATE
+        .command()
         .args(["demo", "--mqtt", &broker, "--node", "a/b"])
         .output()
         .unwrap();
     assert!(!bad.status.success());
     assert!(String::from_utf8_lossy(&bad.stderr).contains("\"a/b\" is not allowed"));
-    let _ = std::fs::remove_dir_all(&scratch);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn no_birth_before_the_primary_host_is_online_and_its_offline_ends_the_session() {
-    let setup = Setup::new("sparkplug-state", "db").await;
+    let setup = Setup::new(MILLGATE, "sparkplug-state", "db").await;
     let port = free_port();
     let _broker = Broker::start(&setup.scratch, port);
     let mut host = Host::start(port, "plant");
@@ -666,7 +634,7 @@ async fn no_birth_before_the_primary_host_is_online_and_its_offline_ends_the_ses
     ));
     let mut service = setup.spawn("run.log");
     // Connected (the /metrics gauge) but silent while the host has no STATE.
-    common::until("connected", Duration::from_secs(20), || {
+    common::wait_for("connected", Duration::from_secs(20), || {
         std::fs::read_to_string(setup.log("run.log"))
             .unwrap()
             .contains("Sparkplug session up")
@@ -735,7 +703,7 @@ async fn no_birth_before_the_primary_host_is_online_and_its_offline_ends_the_ses
             .is_some_and(|n| n >= replayed.len() as f64),
         "replayed on /metrics"
     );
-    common::until("the backlog confirmed", limit, || {
+    common::wait_for("the backlog confirmed", limit, || {
         let page = std::fs::read_to_string(setup.log("second.log")).unwrap();
         page.contains("Sparkplug backlog replayed")
     })
@@ -746,7 +714,7 @@ async fn no_birth_before_the_primary_host_is_online_and_its_offline_ends_the_ses
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn after_a_broker_restart_the_node_is_born_again_with_the_next_bd_seq() {
-    let setup = Setup::new("sparkplug-restart", "db").await;
+    let setup = Setup::new(MILLGATE, "sparkplug-restart", "db").await;
     let port = free_port();
     let mut broker = Broker::start(&setup.scratch, port);
     let mut host = Host::start(port, "plant");
@@ -793,12 +761,10 @@ async fn after_a_broker_restart_the_node_is_born_again_with_the_next_bd_seq() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_backlog_is_replayed_historical_in_order_at_the_configured_pace() {
-    let scratch =
-        std::env::temp_dir().join(format!("millgate-sparkplug-pace-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&scratch);
-    std::fs::create_dir_all(&scratch).unwrap();
+    let folder = common::scratch("sparkplug-pace");
+    let scratch = folder.path();
     let port = free_port();
-    let _broker = Broker::start(&scratch, port);
+    let _broker = Broker::start(scratch, port);
     // A group of its own: free_port() may hand another test's broker port out too.
     let mut host = Host::start(port, "pace");
     let history = scratch.join("history.db");
@@ -832,7 +798,7 @@ async fn a_backlog_is_replayed_historical_in_order_at_the_configured_pace() {
     let ddata: Vec<&Value> = host.seen.iter().filter(|m| m["type"] == "DDATA").collect();
     assert_eq!(ddata[0]["timestamp"], 1_767_225_600_010u64);
     assert_eq!(ddata[1]["timestamp"], 1_767_225_600_020u64);
-    common::until("the cursor confirmed", limit, || {
+    common::wait_for("the cursor confirmed", limit, || {
         status.counts().backlog == 0 && status.counts().replayed == u64::from(BITES)
     })
     .await;
@@ -868,7 +834,7 @@ fn certificates(folder: &Path) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn over_tls_with_a_password_and_a_client_certificate_and_clear_errors_when_refused() {
-    let setup = Setup::new("sparkplug-tls", "db").await;
+    let setup = Setup::new(MILLGATE, "sparkplug-tls", "db").await;
     let folder = &setup.scratch;
     certificates(folder);
     let passwords = folder.join("passwords");
@@ -990,7 +956,7 @@ async fn over_tls_with_a_password_and_a_client_certificate_and_clear_errors_when
             .unwrap()
             .contains(text)
     };
-    common::until("the TLS failure in the log", limit, || {
+    common::wait_for("the TLS failure in the log", limit, || {
         logged("wrong-ca.log", "Sparkplug broker connection failed")
     })
     .await;
@@ -1025,7 +991,7 @@ async fn over_tls_with_a_password_and_a_client_certificate_and_clear_errors_when
         &format!("ca_file = \"{}\"", file("ca.pem")),
     );
     let mut service = setup.spawn("password.log");
-    common::until("the refusal in the log", limit, || {
+    common::wait_for("the refusal in the log", limit, || {
         logged("password.log", "Sparkplug broker connection failed")
     })
     .await;
@@ -1077,10 +1043,8 @@ async fn a_rod_mill_is_a_device_with_its_spans_and_worst_margin() {
     use millgate_sim::rod::mill::RodMill;
     use millgate_sim::rod::schedule;
 
-    let scratch =
-        std::env::temp_dir().join(format!("millgate-sparkplug-rod-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&scratch);
-    std::fs::create_dir_all(&scratch).unwrap();
+    let folder = common::scratch("sparkplug-rod");
+    let scratch = folder.path();
     let models = common::repo().join("sim/models/rod");
     // Pass P1 (table3) at 51.5 m/s: inside span 2's band (50.8-52.3 m/s).
     let speed = 51.5;
@@ -1105,7 +1069,7 @@ async fn a_rod_mill_is_a_device_with_its_spans_and_worst_margin() {
     let process_address = listener.local_addr().unwrap();
     let process_running = process.spawn(listener, ServeOptions::default());
     let port = free_port();
-    let _broker = Broker::start(&scratch, port);
+    let _broker = Broker::start(scratch, port);
     let mut host = Host::start(port, "rods");
     let config = scratch.join("rod.toml");
     std::fs::write(
@@ -1132,7 +1096,8 @@ async fn a_rod_mill_is_a_device_with_its_spans_and_worst_margin() {
     )
     .unwrap();
     let log = std::fs::File::create(scratch.join("run.log")).unwrap();
-    let mut service = Command::new(env!("CARGO_BIN_EXE_millgate"))
+    let mut service = MILLGATE
+        .command()
         .args(["run", "--config"])
         .arg(&config)
         .env("RUST_LOG", "info")
@@ -1203,5 +1168,4 @@ async fn a_rod_mill_is_a_device_with_its_spans_and_worst_margin() {
     assert_eq!(values["unstable"], Value::Bool(true));
     terminate(&mut service);
     process_running.stop().await.unwrap();
-    let _ = std::fs::remove_dir_all(&scratch);
 }

@@ -9,7 +9,7 @@ mod common;
 
 use std::time::{Duration, Instant};
 
-use common::{free_port, http, http_raw, web_ready, HttpAnswer, Setup};
+use common::{free_port, http, http_raw, web_ready, HttpAnswer, Setup, MILLGATE};
 use millgate::history::query::{BiteRow, Filter, HistoryReader};
 use millgate::history::series::TREND_WINDOW;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -510,7 +510,7 @@ async fn compressed_and_validated(port: u16) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_api_answers_from_the_live_results_and_the_history_and_refuses_bad_requests() {
-    let setup = Setup::new("web-api", "history").await;
+    let setup = Setup::new(MILLGATE, "web-api", "history").await;
     let port = free_port();
     setup.append_config(&format!("\n[outputs.web]\nbind = \"127.0.0.1:{port}\"\n"));
     let service = setup.spawn("web-api.log");
@@ -779,7 +779,7 @@ async fn the_api_answers_from_the_live_results_and_the_history_and_refuses_bad_r
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn slow_connections_are_closed_excess_streams_refused_while_the_modbus_path_answers_and_no_history_is_said(
 ) {
-    let setup = Setup::new("web-limits", "history").await;
+    let setup = Setup::new(MILLGATE, "web-limits", "history").await;
     let port = free_port();
     // Without [history]: live figures only.
     let text = std::fs::read_to_string(&setup.config).unwrap();

@@ -28,8 +28,9 @@ use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::episode::{mill_config, write_chatter_capture};
-use common::{free_port, web_ready, Plc, Setup};
+use common::episode::{stands, write_chatter_capture};
+use common::tandem::modbus_source;
+use common::{free_port, web_ready, Plc, Setup, MILLGATE};
 use fantoccini::{Client, ClientBuilder};
 use hyper_util::client::legacy::connect::HttpConnector;
 
@@ -406,7 +407,8 @@ const MEASURE: &str = "const hidden = Array.from(document.querySelectorAll('.hid
 async fn pages_fit_a_phone_and_plots_are_described(client: &Client, port: u16, setup: &Setup) {
     let long = Duration::from_secs(20);
     let report = setup.scratch.join("report");
-    let made = Command::new(env!("CARGO_BIN_EXE_millgate"))
+    let made = common::MILLGATE
+        .command()
         .args(["report", "--db"])
         .arg(&setup.history)
         .arg("--out")
@@ -510,7 +512,7 @@ async fn the_pages_list_the_drivelines_plot_the_gap_and_show_a_new_bite_live() {
         );
         return;
     };
-    let setup = Setup::new("web-browser", "history").await;
+    let setup = Setup::new(MILLGATE, "web-browser", "history").await;
     let port = free_port();
     // With manual captures through the API: the pages offer the button.
     setup.append_config(&format!(
@@ -518,10 +520,7 @@ async fn the_pages_list_the_drivelines_plot_the_gap_and_show_a_new_bite_live() {
     ));
     // A tandem mill (its DAQ absent) with a chatter episode already in the history.
     write_chatter_capture(&setup.history, "TCM").expect("write the episode");
-    setup.append_config(&format!(
-        "[[sources.modbus]]\nname = \"tcm\"\naddress = \"127.0.0.1:1\"\npoll_period_ms = 20\n{}",
-        mill_config("tcm", "TCM")
-    ));
+    setup.append_config(&(modbus_source("tcm") + &stands("tcm", "TCM").toml()));
     let service = setup.spawn("web-browser.log");
     web_ready(port).await;
     let plc = setup.plc();

@@ -9,7 +9,9 @@ mod common;
 
 use std::time::Duration;
 
-use common::{free_port, http, http_raw, terminate, until, web_ready, HttpAnswer, Setup};
+use common::{
+    free_port, http, http_raw, terminate, wait_for, web_ready, HttpAnswer, Setup, MILLGATE,
+};
 use millgate::history::query::{CaptureRow, Filter, HistoryReader};
 
 /// `POST path` with `body`, `content_type` when given, and `Host: host`.
@@ -48,7 +50,7 @@ fn overview_allows(answer: &HttpAnswer) -> Option<bool> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_capture_asked_through_the_api_is_refused_unless_allowed_and_kept_when_it_is() {
-    let setup = Setup::new("web-commands", "db").await;
+    let setup = Setup::new(MILLGATE, "web-commands", "db").await;
     let port = free_port();
     let web = format!("\n[outputs.web]\nbind = \"127.0.0.1:{port}\"\n");
     let json = Some("application/json");
@@ -195,7 +197,7 @@ async fn a_capture_asked_through_the_api_is_refused_unless_allowed_and_kept_when
     let answer: serde_json::Value = serde_json::from_str(&accepted.body).unwrap();
     assert_eq!(answer["kind"], "manual");
     assert_eq!(answer["seconds"], 3);
-    until(
+    wait_for(
         "the manual capture in the file",
         Duration::from_secs(30),
         || !manual().is_empty(),

@@ -8,36 +8,24 @@
 
 mod common;
 
-use std::path::PathBuf;
-
-use common::episode::{amplitude, mill_config, tone_hz, write_chatter_capture, FS, GAIN_WINDOW_S};
-use common::{free_port, http, web_ready};
+use common::episode::{amplitude, stands, tone_hz, write_chatter_capture, FS, GAIN_WINDOW_S};
+use common::tandem::modbus_source;
+use common::{free_port, http, peer, scratch, web_ready};
 
 fn config_text(history: &std::path::Path, web_port: u16) -> String {
-    String::from(
-        "name = \"episodes\"\n[[sources.modbus]]\nname = \"daq\"\naddress = \"127.0.0.1:1\"\npoll_period_ms = 20\n",
-    ) + &mill_config("daq", "TCM")
+    String::from("name = \"episodes\"\n")
+        + &modbus_source("daq")
+        + &stands("daq", "TCM").toml()
         + &format!(
             "[history]\npath = {:?}\n[outputs.web]\nbind = \"127.0.0.1:{web_port}\"\n",
             history.display().to_string()
         )
 }
 
-struct Scratch(PathBuf);
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_episodes_band_signal_and_spectra_match_numpy_on_its_csv() -> anyhow::Result<()> {
-    let scratch =
-        Scratch(std::env::temp_dir().join(format!("millgate-web-episodes-{}", std::process::id())));
-    let _ = std::fs::remove_dir_all(&scratch.0);
-    std::fs::create_dir_all(&scratch.0)?;
-    let db = scratch.0.join("history.db");
+    let scratch = scratch("web-episodes");
+    let db = scratch.path().join("history.db");
     write_chatter_capture(&db, "TCM")?;
 
     let port = free_port();
@@ -126,11 +114,11 @@ async fn an_episodes_band_signal_and_spectra_match_numpy_on_its_csv() -> anyhow:
     assert_eq!(bands_json["cleared_s"].as_f64(), Some(10.5));
 
     // numpy on the CSV download.
-    let csv_path = scratch.0.join("capture.csv");
+    let csv_path = scratch.path().join("capture.csv");
     std::fs::write(&csv_path, csv.body)?;
-    let bands_path = scratch.0.join("bands.json");
+    let bands_path = scratch.path().join("bands.json");
     std::fs::write(&bands_path, &bands.body)?;
-    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/capture_bands.py");
+    let script = peer("capture_bands.py");
     let checked = std::process::Command::new("python3")
         .arg(&script)
         .arg(&csv_path)

@@ -18,7 +18,7 @@ use std::net::SocketAddr;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use common::{free_port, http, http_raw, terminate, web_ready, Setup};
+use common::{free_port, http, http_raw, terminate, web_ready, Setup, MILLGATE};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpSocket, TcpStream};
 
@@ -118,7 +118,7 @@ fn attack(
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn abandoned_history_queries_are_bounded_in_work_and_sigterm_stops_during_them() {
-    let setup = Setup::new("web-work", "db").await;
+    let setup = Setup::new(MILLGATE, "web-work", "db").await;
     year_of_bites(&setup.history);
     let port = free_port();
     setup.append_config(&format!(
@@ -238,7 +238,7 @@ async fn connect_from(local: &str, port: u16) -> TcpStream {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn streams_are_limited_slow_headers_do_not_lock_clients_out_and_hosts_are_checked() {
-    let setup = Setup::new("web-held", "db").await;
+    let setup = Setup::new(MILLGATE, "web-held", "db").await;
     let port = free_port();
     setup.append_config(&format!(
         "\n[outputs.web]\nbind = \"127.0.0.1:{port}\"\nmax_connections = 8\n\

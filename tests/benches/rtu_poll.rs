@@ -24,7 +24,7 @@ use millgate::field::counters::ChannelCounters;
 use millgate::field::modbus::DaqReader;
 use millgate::field::source_health::SourceHealth;
 use millgate_config::serial::{read_response_bytes, READ_REQUEST_BYTES};
-use millgate_tests::serial_line::{PacedLine, RtuDevice, SPEED_REGISTER};
+use millgate_tests::kit::serial_line::{PacedLine, RtuDevice, SPEED_REGISTER};
 
 const UNIT: u8 = 3;
 /// How long each case polls after its first read.

@@ -1,4 +1,4 @@
-//! The chatter closed loop's figures (`millgate_tests::chatter_loop`): seven mills on
+//! The chatter closed loop's figures (`millgate_tests::experiments::chatter_loop`): seven mills on
 //! three pass schedules, 40
 //! accelerated runs open and closed loop, an hour of stable rolling at the highest
 //! allowed speed and 20 welds per detector, and the plot of one closed-loop run.
@@ -8,7 +8,7 @@
 //!     [--delay-cycles N]   # PLC cycles the request takes (default 1, as measured)
 //! ```
 
-use millgate_tests::chatter_loop::{
+use millgate_tests::experiments::chatter_loop::{
     mills, open_loop_developed, plot, run_loop, runs, score, table_row, Detector, LoopPlan,
     Scenario, TABLE_HEADER,
 };

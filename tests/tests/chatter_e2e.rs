@@ -11,19 +11,12 @@ use millgate_config::{Config, RegisterTable};
 use millgate_sim::devices::modbus_bank::{Running, ServeOptions};
 use millgate_sim::devices::virtual_daq::{DaqChannel, Placement, Publish, VirtualDaq};
 use millgate_sim::devices::virtual_plc::VirtualPlc;
-use millgate_sim::tandem::roots::CriticalSpeed;
-use millgate_sim::tandem::simulate::{simulate, Accelerometer, Excitation, RunSettings, SpeedRamp};
-use millgate_sim::tandem::truth::{ground_truth, mill_critical_speed, GroundTruth};
-use millgate_sim::tandem::{PassSchedule, TandemMill};
-use millgate_tests::{scrape, wait_for, web_overview};
+use millgate_tests::kit::tandem::{modbus_source, reference_ramp, RampRun, Stands, FS};
+use millgate_tests::kit::{scrape, wait_for, web_overview};
 use tokio::net::TcpListener;
 
-const FS: f64 = 2500.0;
 /// 48 ms blocks, as the example configuration's DAQ.
 const SAMPLES_PER_BLOCK: u16 = 120;
-const K_MAX: f64 = 0.25;
-/// The band-gain thresholds the race set on this model (tandem-5stand.toml).
-const GAIN_THRESHOLDS: &str = "[1.187, 1.492, 2.209, 3.087, 3.327]";
 
 const WARNING: u16 = 1 << 0;
 const ALARM: u16 = 1 << 1;
@@ -34,69 +27,19 @@ const SPECTRA_VALID: u16 = 0b111;
 /// Quality of every value, the gain's included (its 2 s window is full).
 const ALL_VALID: u16 = 0b111_1111;
 
-/// Five stands at 2500 Hz, each on DAQ `daq_of_stand[i]` (0 or 1), window 0.5 s.
+/// Five stands at 2500 Hz, each on DAQ `daq_of_stand[i]` (0 or 1), window 0.5 s, the
+/// race's thresholds; a PLC, `/metrics` and the web page.
 fn config(daq_of_stand: [usize; 5]) -> anyhow::Result<Config> {
-    let mut text = String::from("name = \"chatter e2e\"\n");
-    for daq in 0..2 {
-        text += &format!(
-            "[[sources.modbus]]\nname = \"daq{daq}\"\naddress = \"127.0.0.1:1\"\npoll_period_ms = 20\n"
-        );
-    }
-    for (stand, daq) in daq_of_stand.iter().enumerate() {
-        text += &format!(
-            "[[channels]]\nname = \"s{}_vib\"\nkind = \"acceleration\"\nunit = \"m/s^2\"\n\
-             scale = 0.01\nsample_rate_hz = {FS}\n\
-             source = {{ modbus = \"daq{daq}\", table = \"input\", block = {} }}\n",
-            stand + 1,
-            stand * 122
-        );
-    }
-    text += &format!(
-        "[[tandem_mills]]\nname = \"TCM\"\n\
-         stands = [\"s1_vib\", \"s2_vib\", \"s3_vib\", \"s4_vib\", \"s5_vib\"]\n\
-         chatter_band_hz = [100.0, 300.0]\nwindow_s = 0.5\nk_max = {K_MAX}\n\
-         gain_thresholds = {GAIN_THRESHOLDS}\n\
-         [outputs.plc]\naddress = \"127.0.0.1:1\"\nwrite_period_ms = 50\n\
-         [outputs.metrics]\nbind = \"127.0.0.1:0\"\n\
-         [outputs.web]\nbind = \"127.0.0.1:0\"\n"
-    );
+    let daqs = daq_of_stand.map(|daq| format!("daq{daq}"));
+    let text = String::from("name = \"chatter e2e\"\n")
+        + &modbus_source("daq0")
+        + &modbus_source("daq1")
+        + &Stands::on_daqs(&daqs.each_ref().map(String::as_str)).toml()
+        + "[outputs.plc]\naddress = \"127.0.0.1:1\"\nwrite_period_ms = 50\n\
+           [outputs.metrics]\nbind = \"127.0.0.1:0\"\n\
+           [outputs.web]\nbind = \"127.0.0.1:0\"\n";
     millgate_config::from_toml_str(&text, "chatter-e2e.toml", std::path::Path::new("."))
         .map_err(|e| anyhow::anyhow!("{e}"))
-}
-
-/// `duration_s` of the five stands' chock acceleration (m/s^2): `hold_s` at
-/// `start` times the critical speed, then a ramp of the exit speed at 2 m/s^2 to 1.5x
-/// it; the model's critical speed and truth.
-fn stand_signals(
-    start: f64,
-    hold_s: f64,
-    duration_s: f64,
-    seed: u64,
-) -> anyhow::Result<(Vec<Vec<f64>>, CriticalSpeed, GroundTruth)> {
-    let mill = TandemMill::new(&PassSchedule::example()?)?;
-    let critical = mill_critical_speed(&mill)?;
-    let ramp = SpeedRamp {
-        start: start * critical.speed,
-        end: 1.5 * critical.speed,
-        hold_s,
-        accel_m_s2: 2.0,
-    };
-    let record = simulate(
-        &mill,
-        &RunSettings {
-            ramp,
-            excitation: Excitation::default(),
-            sensor: Accelerometer {
-                sample_rate_hz: FS,
-                ..Accelerometer::default()
-            },
-            duration_s,
-            seed,
-            internal_rate_hz: None,
-        },
-    )?;
-    let truth = ground_truth(&mill, &ramp, &record, critical);
-    Ok((record.acceleration, critical, truth))
 }
 
 /// A DAQ publishing the stands in `stands` (indices into `signals`) at their blocks.
@@ -192,7 +135,11 @@ async fn a_ramp_into_chatter_requests_a_slow_down_before_it_develops() -> anyhow
     // chatter develops (a tension swing past half its schedule value) ~6 s later and the
     // DAQ's +-327 m/s^2 range clips it.
     // The band gain alarmed before developed in 60 of 60 ramps of the race.
-    let (signals, critical, truth) = stand_signals(0.9, 6.0, 18.0, 7)?;
+    let RampRun {
+        acceleration: signals,
+        critical,
+        truth,
+    } = reference_ramp(0.9, 6.0, 18.0, 7)?;
     let onset = truth.onset_s.expect("the ramp passes the critical speed");
     let developed = truth.developed_s.expect("chatter develops");
     let mut config = config([0; 5])?;
@@ -353,7 +300,7 @@ async fn a_ramp_into_chatter_requests_a_slow_down_before_it_develops() -> anyhow
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn stopped_stand_daq_flags_stale_and_clears_quality() -> anyhow::Result<()> {
     // Stable rolling at 80% of the critical speed (the ramp starts after the run).
-    let (signals, _, _) = stand_signals(0.8, 40.0, 30.0, 22)?;
+    let signals = reference_ramp(0.8, 40.0, 30.0, 22)?.acceleration;
     // Stands 1-4 on DAQ 0, stand 5 on DAQ 1.
     let mut config = config([0, 0, 0, 0, 1])?;
     let daqs = vec![daq(&signals, &[0, 1, 2, 3]), daq(&signals, &[4])];

@@ -1,5 +1,5 @@
 //! The chatter detectors' race on the physical tandem model (see
-//! `millgate_tests::chatter_eval` for the runs, detectors and scoring).
+//! `millgate_tests::experiments::chatter_eval` for the runs, detectors and scoring).
 //!
 //! ```text
 //! cargo test --release -p millgate-tests --test chatter_eval -- --ignored --nocapture
@@ -7,14 +7,17 @@
 //! prints the issue's table (60 calibration, 60 held-out stable runs, 60 ramps);
 //! `quick_race_on_the_nominal_mill` is the small version CI runs.
 
-use millgate_tests::chatter_eval::{
+use millgate_tests::experiments::chatter_eval::{
     commissioned_race, parallel, run, scenarios, score, table, versus, CommissionedRace, Detector,
     EvalPlan, Figure, RunKind, Score, MARGIN,
 };
 
 fn race(
     plan: &EvalPlan,
-) -> anyhow::Result<(Vec<millgate_tests::chatter_eval::Score>, CommissionedRace)> {
+) -> anyhow::Result<(
+    Vec<millgate_tests::experiments::chatter_eval::Score>,
+    CommissionedRace,
+)> {
     let started = std::time::Instant::now();
     let scenarios = scenarios(plan)?;
     let runs = parallel(plan.threads, &scenarios, |s| run(s, plan.paper))?;

@@ -1,5 +1,5 @@
 //! The chatter closed loop on the physical tandem model, the small deterministic version
-//! CI runs (`millgate_tests::chatter_loop::LoopPlan::quick`: the nominal mill, three
+//! CI runs (`millgate_tests::experiments::chatter_loop::LoopPlan::quick`: the nominal mill, three
 //! accelerated runs and two stable runs at the highest allowed speed, the band-gain
 //! detector with thresholds commissioned on separate stable recordings). The README's
 //! table comes from the full plan:
@@ -8,7 +8,7 @@
 //! cargo run --release -p millgate-tests --example chatter_loop -- --plot docs/img/chatter-closed-loop.svg
 //! ```
 
-use millgate_tests::chatter_loop::{
+use millgate_tests::experiments::chatter_loop::{
     mills, open_loop_developed, runs, score, Detector, LoopPlan, Scenario,
 };
 

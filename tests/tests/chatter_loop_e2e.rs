@@ -10,7 +10,7 @@
 //! Each run also measures the request's latency: from the moment the DAQ block that
 //! completed the alarming window was published to the moment the bit was in the PLC's
 //! register (polled every millisecond), and in PLC cycles to the scan that read it: the
-//! delay the offline closed loop (`millgate_tests::chatter_loop`) is run with.
+//! delay the offline closed loop (`millgate_tests::experiments::chatter_loop`) is run with.
 
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -26,10 +26,12 @@ use millgate_sim::devices::virtual_plc::VirtualPlc;
 use millgate_sim::tandem::control::{SlowDownPolicy, SpeedControl};
 use millgate_sim::tandem::online::OnlineMill;
 use millgate_sim::tandem::simulate::{Accelerometer, Excitation, SimulationSetup, SpeedRange};
-use millgate_tests::chatter_loop::{mills, LoopPlan, Mill, CYCLE_SAMPLES};
+use millgate_tests::experiments::chatter_loop::{mills, LoopPlan, Mill, CYCLE_SAMPLES};
+use millgate_tests::kit::peers::peer;
+use millgate_tests::kit::scratch;
+use millgate_tests::kit::tandem::{modbus_source, Stands, FS};
 use tokio::net::TcpListener;
 
-const FS: f64 = 2500.0;
 /// The slow-down request: bit 3 of the mill's flags register.
 const SLOW_DOWN_BIT: u16 = 3;
 /// Stable rolling before the operator's ramp, s.
@@ -48,28 +50,13 @@ fn config(mill: &Mill, history: Option<&std::path::Path>) -> anyhow::Result<Conf
 
 /// [`config`]'s text.
 fn config_text(mill: &Mill, history: Option<&std::path::Path>) -> String {
-    let mut text = String::from(
-        "name = \"chatter loop\"\n[[sources.modbus]]\nname = \"daq\"\naddress = \"127.0.0.1:1\"\npoll_period_ms = 20\n",
-    );
-    for stand in 0..5 {
-        text += &format!(
-            "[[channels]]\nname = \"s{}_vib\"\nkind = \"acceleration\"\nunit = \"m/s^2\"\n\
-             scale = 0.01\nsample_rate_hz = {FS}\n\
-             source = {{ modbus = \"daq\", table = \"input\", block = {} }}\n",
-            stand + 1,
-            stand * 122
-        );
-    }
-    let thresholds: Vec<String> = mill.gain_thresholds.iter().map(|t| t.to_string()).collect();
-    text += &format!(
-        "[[tandem_mills]]\nname = \"TCM\"\n\
-         stands = [\"s1_vib\", \"s2_vib\", \"s3_vib\", \"s4_vib\", \"s5_vib\"]\n\
-         chatter_band_hz = [100.0, 300.0]\nwindow_s = 0.5\nk_max = 0.25\n\
-         gain_thresholds = [{}]\nslow_down_release = {}\n\
-         [outputs.plc]\naddress = \"127.0.0.1:1\"\nwrite_period_ms = 50\n",
-        thresholds.join(", "),
-        mill.gain_release
-    );
+    let stands = Stands::modbus(5, "daq")
+        .thresholds(&mill.gain_thresholds)
+        .keys(&format!("slow_down_release = {}", mill.gain_release));
+    let mut text = String::from("name = \"chatter loop\"\n")
+        + &modbus_source("daq")
+        + &stands.toml()
+        + "[outputs.plc]\naddress = \"127.0.0.1:1\"\nwrite_period_ms = 50\n";
     if let Some(path) = history {
         text += &format!("[history]\npath = {:?}\n", path.display().to_string());
     }
@@ -394,9 +381,8 @@ async fn a_chatter_episode_is_captured_as_the_daq_sent_it_and_reproduces_its_war
         seed: 7,
         duration_s: 24.0,
     };
-    let dir = std::env::temp_dir().join(format!("millgate-chatter-capture-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir)?;
+    let scratch = scratch("chatter-capture");
+    let dir = scratch.path();
     let db = dir.join("history.db");
     let run = closed_loop(mill, scenario, Some(&db)).await?;
     assert!(!run.rig.events.is_empty(), "no slow-down: no episode");
@@ -503,8 +489,7 @@ async fn a_chatter_episode_is_captured_as_the_daq_sent_it_and_reproduces_its_war
         format: ExportFormat::Parquet,
         out: out.clone(),
     })?;
-    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../gateway/tests/capture_parquet.py");
+    let script = peer("capture_parquet.py");
     let checked = std::process::Command::new("python3")
         .arg(&script)
         .arg(&files[0])
@@ -565,6 +550,5 @@ async fn a_chatter_episode_is_captured_as_the_daq_sent_it_and_reproduces_its_war
         format!("{refused:#}").contains(&format!("#capture {}: a chatter episode", chatter[0].id)),
         "{refused:#}"
     );
-    std::fs::remove_dir_all(&dir)?;
     Ok(())
 }

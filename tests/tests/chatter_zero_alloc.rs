@@ -5,54 +5,23 @@
 use std::time::{Duration, Instant};
 
 use millgate::analysis::chatter::{ChatterMonitor, ChatterUpdate};
-use millgate_sim::tandem::simulate::{simulate, Accelerometer, Excitation, RunSettings, SpeedRamp};
-use millgate_sim::tandem::{PassSchedule, TandemMill};
-use millgate_tests::counting_allocator::{allocations_during, CountingAllocator};
+use millgate_tests::kit::counting_allocator::{allocations_during, CountingAllocator};
+use millgate_tests::kit::tandem::{modbus_source, reference_ramp, Stands, FS};
 
 #[global_allocator]
 static GLOBAL: CountingAllocator = CountingAllocator;
 
-const FS: f64 = 2500.0;
 const BLOCK: usize = 120;
 
 #[test]
 fn samples_gaps_and_evaluations_allocate_nothing() -> anyhow::Result<()> {
-    let text = format!(
-        "name = \"t\"\n[[sources.modbus]]\nname = \"daq\"\naddress = \"127.0.0.1:1\"\npoll_period_ms = 20\n\
-         [[channels]]\nname = \"a\"\nkind = \"acceleration\"\nunit = \"g\"\nsample_rate_hz = {FS}\n\
-         source = {{ modbus = \"daq\", table = \"input\", block = 0 }}\n\
-         [[channels]]\nname = \"b\"\nkind = \"acceleration\"\nunit = \"g\"\nsample_rate_hz = {FS}\n\
-         source = {{ modbus = \"daq\", table = \"input\", block = 122 }}\n\
-         [[channels]]\nname = \"c\"\nkind = \"acceleration\"\nunit = \"g\"\nsample_rate_hz = {FS}\n\
-         source = {{ modbus = \"daq\", table = \"input\", block = 244 }}\n\
-         [[tandem_mills]]\nname = \"TCM\"\nstands = [\"a\", \"b\", \"c\"]\n\
-         chatter_band_hz = [100.0, 300.0]\nwindow_s = 0.5\nk_max = 0.25\n\
-         gain_thresholds = [2.209, 3.087, 3.327]\n"
-    );
+    let text =
+        String::from("name = \"t\"\n") + &modbus_source("daq") + &Stands::modbus(3, "daq").toml();
     let config = millgate_config::from_toml_str(&text, "t.toml", std::path::Path::new("."))
         .map_err(|e| anyhow::anyhow!("{e}"))?;
     let mut monitor = ChatterMonitor::new(&config, 0)?;
-    // The physical model's last three stands: stable, then a ramp into chatter.
-    let mill = TandemMill::new(&PassSchedule::example()?)?;
-    let record = simulate(
-        &mill,
-        &RunSettings {
-            ramp: SpeedRamp {
-                start: 1.0,
-                end: 1.4,
-                hold_s: 3.0,
-                accel_m_s2: 2.0,
-            },
-            excitation: Excitation::default(),
-            sensor: Accelerometer {
-                sample_rate_hz: FS,
-                ..Accelerometer::default()
-            },
-            duration_s: 10.0,
-            seed: 3,
-            internal_rate_hz: None,
-        },
-    )?;
+    // The reference ramp's last three stands: stable, then a ramp into chatter.
+    let record = reference_ramp(0.9, 3.0, 10.0, 3)?;
     let signals = &record.acceleration[2..];
     let t0 = Instant::now();
     let period = Duration::from_secs_f64(BLOCK as f64 / FS);

@@ -9,7 +9,7 @@ use millgate::field::source_health::SourceStatus;
 use millgate_config::{Config, RegisterTable};
 use millgate_sim::devices::modbus_bank::{Running, ServeOptions};
 use millgate_sim::devices::virtual_daq::{DaqChannel, Placement, Publish, VirtualDaq};
-use millgate_tests::{scrape, wait_for};
+use millgate_tests::kit::{scrape, wait_for};
 use tokio::net::TcpListener;
 
 const SAMPLES_PER_BLOCK: u16 = 100;
@@ -126,7 +126,7 @@ async fn daq_restart_goes_stale_then_ok_and_counts_the_gap() -> anyhow::Result<(
 
 use millgate::field::counters::ChannelCountersSnapshot;
 use millgate_config::layout::to_raw_sample;
-use millgate_tests::hostile_daq::{streaming, HostileDaq, Reply};
+use millgate_tests::kit::hostile_daq::{streaming, HostileDaq, Reply};
 
 /// The demo configuration reading `daq` (timeout 300 ms), no PLC, no server.
 fn hostile_config(daq: &HostileDaq) -> anyhow::Result<Config> {

@@ -10,7 +10,7 @@ use std::time::{Duration, SystemTime};
 
 use millgate::analysis::driveline::BiteReport;
 use millgate_config::layout::to_raw_sample;
-use millgate_tests::hostile_daq::{HostileDaq, Reply};
+use millgate_tests::kit::hostile_daq::{HostileDaq, Reply};
 
 /// Samples per DAQ block and the block period of the demo's DAQ (2 kHz).
 const PER_BLOCK: usize = 100;

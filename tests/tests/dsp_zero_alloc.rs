@@ -8,7 +8,7 @@ use millgate_dsp::bite::{BiteDetector, BiteSettings};
 use millgate_dsp::fit::{eq1, fit_eq1, FitOptions};
 use millgate_dsp::noise::noise_rms;
 use millgate_dsp::transient::{analyze, TransientSettings};
-use millgate_tests::counting_allocator::{allocations_during, CountingAllocator};
+use millgate_tests::kit::counting_allocator::{allocations_during, CountingAllocator};
 
 #[global_allocator]
 static GLOBAL: CountingAllocator = CountingAllocator;

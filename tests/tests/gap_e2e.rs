@@ -13,7 +13,7 @@ use millgate::outputs::modbus::register_map::{decode_f32, flag_mask, RegisterMap
 use millgate::state::catalogue::DRIVELINE;
 use millgate_sim::model::Model;
 use millgate_sim::schedule::{rolling_schedule_with_gap, BarTiming};
-use millgate_tests::{demo_devices, wait_for};
+use millgate_tests::kit::{demo_devices, scratch, wait_for};
 
 const MODEL: &str = concat!(
     env!("CARGO_MANIFEST_DIR"),
@@ -43,7 +43,8 @@ fn f32_at(words: &[u16], map: &RegisterMap, name: &str) -> f64 {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_plc_gap_register_follows_a_growing_gap_and_survives_a_restart() -> anyhow::Result<()> {
-    let cache = std::env::temp_dir().join(format!("millgate-gap-e2e-{}", std::process::id()));
+    let scratch = scratch("gap-e2e");
+    let cache = scratch.path().to_path_buf();
     let model = Model::load(MODEL)?;
     let torques: Vec<f64> = BARS.iter().map(|bar| bar.0).collect();
     let gaps: Vec<f64> = BARS.iter().map(|bar| bar.1 * 1e-3).collect();
@@ -148,6 +149,5 @@ async fn the_plc_gap_register_follows_a_growing_gap_and_survives_a_restart() -> 
     );
     tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
     devices.stop().await?;
-    let _ = std::fs::remove_dir_all(&cache);
     Ok(())
 }

@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use millgate::outputs::modbus::register_map::RegisterMap;
 use millgate_sim::devices::demo::setup;
-use millgate_tests::wait_for;
+use millgate_tests::kit::wait_for;
 use tokio_modbus::client::{Context, Reader, Writer};
 use tokio_modbus::prelude::{ExceptionCode, Slave};
 

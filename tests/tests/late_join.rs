@@ -5,7 +5,7 @@
 use std::time::Duration;
 
 use millgate_sim::devices::demo::setup;
-use millgate_tests::demo_devices;
+use millgate_tests::kit::demo_devices;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn joining_mid_bar_measures_the_following_bites_from_the_true_zero() -> anyhow::Result<()> {

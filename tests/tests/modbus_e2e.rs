@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use millgate::outputs::modbus::register_map::{decode_f32, decode_u32, RegisterMap};
 use millgate_sim::devices::demo::setup;
-use millgate_tests::demo_devices;
+use millgate_tests::kit::demo_devices;
 
 fn register(map: &RegisterMap, name: &str) -> usize {
     let found = map.registers().iter().find(|r| r.name == name);

@@ -9,7 +9,7 @@ use millgate::outputs::modbus::register_map::RegisterMap;
 use millgate_sim::devices::demo::setup;
 use millgate_sim::devices::modbus_bank::ServeOptions;
 use millgate_sim::devices::virtual_plc::VirtualPlc;
-use millgate_tests::{scrape, wait_for};
+use millgate_tests::kit::{scrape, wait_for};
 use std::time::Instant;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};

@@ -22,10 +22,10 @@ use millgate::field::source_health::{SourceHealth, SourceStatus};
 use millgate_config::Config;
 use millgate_sim::devices::modbus_bank::ServeOptions;
 use millgate_sim::devices::virtual_plc::VirtualPlc;
-use millgate_tests::serial_line::{
+use millgate_tests::kit::serial_line::{
     next_sample, unix_now, PtyPair, RtuDevice, BLOCK_SAMPLES, COUNT_REGISTER, SPEED_REGISTER,
 };
-use millgate_tests::wait_for;
+use millgate_tests::kit::wait_for;
 use tokio::net::TcpListener;
 
 const UNIT: u8 = 7;

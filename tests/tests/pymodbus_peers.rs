@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use millgate::outputs::modbus::register_map::{decode_f32, decode_u32, RegisterMap};
 use millgate_sim::devices::demo::setup;
-use millgate_tests::demo_devices;
+use millgate_tests::kit::demo_devices;
 
 fn peer(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))

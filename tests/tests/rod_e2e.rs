@@ -23,7 +23,7 @@ use millgate_sim::devices::virtual_plc::VirtualPlc;
 use millgate_sim::rod::check::PassSetup;
 use millgate_sim::rod::mill::RodMill;
 use millgate_sim::rod::schedule;
-use millgate_tests::{wait_for, web_overview};
+use millgate_tests::kit::{wait_for, web_overview};
 use tokio::net::TcpListener;
 
 /// Holding registers of the process PLC: configuration (u16), pass (u16), finishing

@@ -21,6 +21,7 @@ use millgate::field::counters::CanCounts;
 use millgate_config::{ChannelSource, Config};
 use millgate_dsp::testing::assert_isclose;
 use millgate_sim::devices::can_node::{CanMessage, CanNode};
+use millgate_tests::kit::tandem::Stands;
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
@@ -915,29 +916,13 @@ async fn kernel_drops_are_counted_and_marked_as_a_gap() -> Result<()> {
     Ok(())
 }
 
-/// The race's band-gain thresholds of the simulated five-stand mill.
-const TANDEM_GAIN_THRESHOLDS: &str = "[1.187, 1.492, 2.209, 3.087, 3.327]";
-
 /// A five-stand tandem mill whose chock accelerometers come over CAN FD
 /// (`config/examples/tandem-chocks.dbc`, one sample of every stand per frame).
 fn tandem_config(interface: &str) -> Result<Config> {
-    let mut text = format!(
+    let text = format!(
         "name = \"tandem over CAN\"\n\n[[sources.can]]\nname = \"chock_can\"\n\
          interface = \"{interface}\"\ndbc = \"tandem-chocks.dbc\"\n\n"
-    );
-    for stand in 1..=5 {
-        text += &format!(
-            "[[channels]]\nname = \"s{stand}_vib\"\nkind = \"acceleration\"\nunit = \"m/s^2\"\n\
-             sample_rate_hz = 2500.0\n\
-             source = {{ can = \"chock_can\", message = \"StandChocks\", signal = \"S{stand}Vib\" }}\n\n"
-        );
-    }
-    text += &format!(
-        "[[tandem_mills]]\nname = \"TCM\"\n\
-         stands = [\"s1_vib\", \"s2_vib\", \"s3_vib\", \"s4_vib\", \"s5_vib\"]\n\
-         chatter_band_hz = [100.0, 300.0]\nwindow_s = 0.5\nk_max = 0.25\n\
-         gain_thresholds = {TANDEM_GAIN_THRESHOLDS}\n"
-    );
+    ) + &Stands::can(5, "chock_can", "StandChocks").toml();
     millgate_config::from_toml_str(&text, "tandem-can.toml", &examples_dir())
         .map_err(|e| anyhow::anyhow!("{e}"))
 }
@@ -961,42 +946,18 @@ fn tandem_chocks_dbc_resolves_five_stands_in_one_fd_frame() -> Result<()> {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 #[ignore = "needs SocketCAN vcan0: run scripts/uml-vcan"]
 async fn tandem_chatter_over_can_requests_a_slow_down_before_it_develops() -> Result<()> {
-    use millgate_sim::tandem::simulate::{
-        simulate, Accelerometer, Excitation, RunSettings, SpeedRamp,
-    };
-    use millgate_sim::tandem::truth::{ground_truth, mill_critical_speed};
-    use millgate_sim::tandem::{PassSchedule, TandemMill};
-    const FS: f64 = 2500.0;
+    use millgate_tests::kit::tandem::{reference_ramp, RampRun, FS};
     // The physical model: 6 s at 90% of the critical speed, then a 2 m/s^2 ramp
     // (the Modbus end-to-end test's run, tests/tests/chatter_e2e.rs).
-    let mill = TandemMill::new(&PassSchedule::example()?)?;
-    let critical = mill_critical_speed(&mill)?;
-    let ramp = SpeedRamp {
-        start: 0.9 * critical.speed,
-        end: 1.5 * critical.speed,
-        hold_s: 6.0,
-        accel_m_s2: 2.0,
-    };
-    let record = simulate(
-        &mill,
-        &RunSettings {
-            ramp,
-            excitation: Excitation::default(),
-            sensor: Accelerometer {
-                sample_rate_hz: FS,
-                ..Accelerometer::default()
-            },
-            duration_s: 16.0,
-            seed: 7,
-            internal_rate_hz: None,
-        },
-    )?;
-    let truth = ground_truth(&mill, &ramp, &record, critical);
+    let RampRun {
+        acceleration: signals,
+        truth,
+        ..
+    } = reference_ramp(0.9, 6.0, 16.0, 7)?;
     let onset = truth
         .onset_s
         .context("the ramp passes the critical speed")?;
     let developed = truth.developed_s.context("chatter develops")?;
-    let signals = record.acceleration;
     // The DBC's range, as a real node would clip.
     let rows: Vec<[f64; 5]> = (0..signals[0].len())
         .map(|k| std::array::from_fn(|s| signals[s][k].clamp(-327.68, 327.67)))
@@ -1093,7 +1054,7 @@ async fn tandem_chatter_closed_loop_over_can_keeps_the_mill_below_developed_chat
     use millgate_sim::tandem::control::{SlowDownPolicy, SpeedControl};
     use millgate_sim::tandem::online::OnlineMill;
     use millgate_sim::tandem::simulate::{Accelerometer, Excitation, SimulationSetup, SpeedRange};
-    use millgate_tests::chatter_loop::{mills, LoopPlan, CYCLE_SAMPLES};
+    use millgate_tests::experiments::chatter_loop::{mills, LoopPlan, CYCLE_SAMPLES};
     // The closed loop of tests/tests/chatter_loop_e2e.rs with the stand accelerations on
     // CAN FD (one frame per sample of the five stands): the nominal mill, thresholds
     // commissioned on separate stable recordings, 6 s at 90% of the critical speed,

@@ -14,7 +14,7 @@ use millgate::service::RunningService;
 use millgate_sim::devices::demo::DemoDevices;
 use millgate_sim::model::Model;
 use millgate_sim::schedule::{rolling_schedule, BarTiming};
-use millgate_tests::demo_devices;
+use millgate_tests::kit::demo_devices;
 use tokio_modbus::client::{Context, Reader, Writer};
 use tokio_modbus::prelude::{ExceptionCode, Slave};
 

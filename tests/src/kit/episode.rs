@@ -4,6 +4,7 @@
 
 use std::path::Path;
 
+use super::tandem::Stands;
 use millgate::history::rows::insert;
 use millgate::history::writer::{connect, insert_run};
 use millgate::history::RunInfo;
@@ -13,19 +14,19 @@ use millgate::state::captures::{
 use millgate::state::events::HistoryEvent;
 use millgate::state::time::UtcTime;
 
-pub(crate) const FS: f64 = 2500.0;
+pub use super::tandem::FS;
 /// The band gain's window (`gain_window_s`, the default), s.
-pub(crate) const GAIN_WINDOW_S: f64 = 2.0;
+pub const GAIN_WINDOW_S: f64 = 2.0;
 /// The capture's length, s.
-pub(crate) const LENGTH_S: f64 = 12.0;
+pub const LENGTH_S: f64 = 12.0;
 /// The chatter tone of stand `s`, Hz (on the spectra's 2 Hz grid, in the 100..300 Hz
 /// band).
-pub(crate) fn tone_hz(stand: usize) -> f64 {
+pub fn tone_hz(stand: usize) -> f64 {
     180.0 + 20.0 * stand as f64
 }
 /// Amplitude of stand `s`'s chatter tone at `t`, m/s^2: low, growing from 4 s to 8 s,
 /// falling back by 10 s.
-pub(crate) fn amplitude(stand: usize, t: f64) -> f64 {
+pub fn amplitude(stand: usize, t: f64) -> f64 {
     let top = 0.5 + 0.1 * stand as f64;
     let low = 0.05;
     match t {
@@ -38,7 +39,7 @@ pub(crate) fn amplitude(stand: usize, t: f64) -> f64 {
 
 /// Stand `stand`'s samples as a 0.01 m/s^2-per-count DAQ gives them: the chatter
 /// tone, a 30 Hz roll-eccentricity tone (outside the band) and a little noise.
-pub(crate) fn stand_samples(stand: usize) -> Vec<f64> {
+pub fn stand_samples(stand: usize) -> Vec<f64> {
     let mut state = 0x9e37_79b9_7f4a_7c15u64 ^ stand as u64;
     let n = (LENGTH_S * FS) as usize;
     (0..n)
@@ -57,29 +58,15 @@ pub(crate) fn stand_samples(stand: usize) -> Vec<f64> {
         .collect()
 }
 
-/// The stand channels' configuration (3 stands `s1_vib`..`s3_vib` at [`FS`] on Modbus
-/// source `source`) and tandem mill `mill` over them (band 100..300 Hz, 0.5 s windows).
-pub(crate) fn mill_config(source: &str, mill: &str) -> String {
-    let mut text = String::new();
-    for stand in 0..3 {
-        text += &format!(
-            "[[channels]]\nname = \"s{}_vib\"\nkind = \"acceleration\"\nunit = \"m/s^2\"\n\
-             scale = 0.01\nsample_rate_hz = {FS}\n\
-             source = {{ modbus = \"{source}\", table = \"input\", block = {} }}\n",
-            stand + 1,
-            stand * 122
-        );
-    }
-    text + &format!(
-        "[[tandem_mills]]\nname = \"{mill}\"\nstands = [\"s1_vib\", \"s2_vib\", \"s3_vib\"]\n\
-         chatter_band_hz = [100.0, 300.0]\nwindow_s = 0.5\nk_max = 0.25\n\
-         gain_thresholds = [2.0, 2.0, 2.0]\n"
-    )
+/// The episode's three stands (`s1_vib`..`s3_vib` at [`FS`] on Modbus source `source`)
+/// and tandem mill `mill` over them, every band-gain threshold 2.
+pub fn stands(source: &str, mill: &str) -> Stands {
+    Stands::modbus(3, source).mill(mill).thresholds(&[2.0; 3])
 }
 
 /// The episode's capture of tandem mill `mill` (warning at 6 s, cleared at 10.5 s),
 /// written into the history file `db` (created when missing) under a run of its own.
-pub(crate) fn write_chatter_capture(db: &Path, mill: &str) -> anyhow::Result<()> {
+pub fn write_chatter_capture(db: &Path, mill: &str) -> anyhow::Result<()> {
     let window = (0.5 * FS) as usize;
     let episode = ChatterEpisode {
         warning_sample: (6.0 * FS) as usize,

@@ -6,7 +6,7 @@
 //! A test binary installs it and measures a closure:
 //!
 //! ```ignore
-//! use millgate_tests::counting_allocator::{allocations_during, CountingAllocator};
+//! use millgate_tests::kit::counting_allocator::{allocations_during, CountingAllocator};
 //!
 //! #[global_allocator]
 //! static GLOBAL: CountingAllocator = CountingAllocator;

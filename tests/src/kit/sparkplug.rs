@@ -1,68 +1,19 @@
-//! Debian's mosquitto, and a Sparkplug edge node run in-process against a history
-//! file holding a backlog: shared by gateway/tests/sparkplug.rs and
-//! gateway/benches/sparkplug.rs.
+//! A Sparkplug edge node run in-process against a history file holding a backlog:
+//! shared by gateway/tests/sparkplug.rs and gateway/benches/sparkplug.rs (the broker
+//! is [`super::broker::Broker`]).
 
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::path::Path;
 use std::sync::Arc;
-use std::time::{Duration, Instant};
 
 use millgate::outputs::sparkplug::{forward, next_bd_seq, SparkplugNode};
 use millgate::state::board::Board;
 use millgate_config::Config;
 
-/// Debian's mosquitto on `127.0.0.1:port`, anonymous, no persistence; killed on drop.
-pub(crate) struct Broker(Child);
-
-impl Broker {
-    pub(crate) fn start(folder: &Path, port: u16) -> Self {
-        Self::with_listeners(
-            folder,
-            port,
-            &format!("listener {port} 127.0.0.1\nallow_anonymous true\n"),
-        )
-    }
-
-    /// mosquitto with the `listeners` configuration, no persistence; returns once
-    /// `port` accepts connections.
-    pub(crate) fn with_listeners(folder: &Path, port: u16, listeners: &str) -> Self {
-        let config = folder.join("mosquitto.conf");
-        std::fs::write(&config, format!("{listeners}\npersistence false\n")).unwrap();
-        let binary = ["/usr/sbin/mosquitto", "mosquitto"]
-            .into_iter()
-            .find(|b| Path::new(b).exists())
-            .unwrap_or("mosquitto");
-        let child = Command::new(binary)
-            .arg("-c")
-            .arg(&config)
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("Debian's mosquitto (apt install mosquitto)");
-        let start = Instant::now();
-        while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
-            assert!(
-                start.elapsed() < Duration::from_secs(10),
-                "mosquitto not listening"
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        Self(child)
-    }
-}
-
-impl Drop for Broker {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
 /// The demo's configuration (one driveline, F1) with `[outputs.mqtt]` on
 /// `127.0.0.1:port` as `<group>/f1` and the history at `history`; `extra` goes into
 /// `[outputs.mqtt]` (pacing keys).
-pub(crate) fn node_config(port: u16, group: &str, history: &Path, extra: &str) -> Config {
-    let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
+pub fn node_config(port: u16, group: &str, history: &Path, extra: &str) -> Config {
+    let repo = super::repo();
     let text = std::fs::read_to_string(repo.join("config/examples/demo.toml")).unwrap()
         + &format!(
             "\n[outputs.mqtt]\nbroker = \"127.0.0.1:{port}\"\ngroup_id = \"{group}\"\n\
@@ -77,7 +28,7 @@ pub(crate) fn node_config(port: u16, group: &str, history: &Path, extra: &str) -
 /// A new history file at `path` with `count` bites of driveline F1 (bite counters
 /// 1..=count, 10 ms apart from 2026-01-01T00:00:00.010Z) and the replay cursor of
 /// node `<group>/f1` before the first: all of them are its backlog.
-pub(crate) fn write_backlog(path: &Path, group: &str, count: u32) {
+pub fn write_backlog(path: &Path, group: &str, count: u32) {
     let connection = millgate::history::writer::connect(path).unwrap();
     connection
         .execute(
@@ -105,7 +56,7 @@ pub(crate) fn write_backlog(path: &Path, group: &str, count: u32) {
 
 /// The node of `config` started on the current tokio runtime; trigger the returned
 /// handle to stop it.
-pub(crate) fn start_node(
+pub fn start_node(
     config: &Config,
 ) -> (
     millgate::shutdown::ShutdownTrigger,

@@ -10,7 +10,6 @@
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
 /// Samples in each of the device's blocks (one every 100 ms: 200 Hz).
@@ -35,7 +34,8 @@ pub fn next_sample(value: i64) -> i64 {
 #[derive(Debug)]
 pub struct PtyPair {
     socat: Child,
-    folder: PathBuf,
+    /// Removed when dropped, after socat.
+    _folder: super::scratch::TempDir,
     /// The gateway's end (a symbolic link to its `/dev/pts/N`).
     pub gateway: PathBuf,
     /// The device's end.
@@ -46,15 +46,9 @@ impl PtyPair {
     /// Starts socat with the two ends as links in a new temporary folder; waits
     /// until both exist.
     pub fn open() -> anyhow::Result<Self> {
-        static PAIRS: AtomicUsize = AtomicUsize::new(0);
-        let folder = std::env::temp_dir().join(format!(
-            "millgate-rtu-{}-{}",
-            std::process::id(),
-            PAIRS.fetch_add(1, Ordering::Relaxed)
-        ));
-        std::fs::create_dir_all(&folder)?;
-        let gateway = folder.join("gateway");
-        let device = folder.join("device");
+        let folder = super::scratch::scratch("rtu");
+        let gateway = folder.path().join("gateway");
+        let device = folder.path().join("device");
         let end = |path: &Path| format!("pty,raw,echo=0,link={}", path.display());
         let socat = Command::new("socat")
             .args([end(&device), end(&gateway)])
@@ -67,7 +61,7 @@ impl PtyPair {
             })?;
         let pair = Self {
             socat,
-            folder,
+            _folder: folder,
             gateway,
             device,
         };
@@ -87,7 +81,6 @@ impl Drop for PtyPair {
     fn drop(&mut self) {
         let _ = self.socat.kill();
         let _ = self.socat.wait();
-        let _ = std::fs::remove_dir_all(&self.folder);
     }
 }
 
@@ -128,9 +121,7 @@ impl RtuDevice {
         (baud, stop_bits, unit): (u32, u8, u8),
         rest: &[String],
     ) -> anyhow::Result<Self> {
-        let script = Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("peers")
-            .join("pymodbus_rtu_device.py");
+        let script = super::peers::peer("pymodbus_rtu_device.py");
         let mut child = Command::new("python3")
             .arg(script)
             .arg(device)

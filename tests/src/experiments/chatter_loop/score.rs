@@ -1,0 +1,177 @@
+//! The loop's scores and the README's closed-loop table; a run's plot.
+
+use millgate_sim::tandem::control::SlowDownEvent;
+
+use super::run::run_loop;
+use super::{Detector, LoopPlan, Mill, Outcome, Run, Scenario};
+use crate::experiments::chatter_eval::{parallel, quartiles};
+
+/// One detector's closed-loop figures.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LoopScore {
+    /// The detector.
+    pub detector: Detector,
+    /// Accelerated runs that developed chatter with the loop closed.
+    pub developed: usize,
+    /// Accelerated runs.
+    pub accelerated: usize,
+    /// Slow-downs in the accelerated runs that did not develop chatter.
+    pub events: Vec<SlowDownEvent>,
+    /// Per event, the time below the speed at the request, s: until it was back, or
+    /// the next request, or the run's end.
+    pub reduced_s: Vec<f64>,
+    /// False slow-downs in the stable runs' scored time, and those hours.
+    pub false_stable: (usize, f64),
+    /// Weld runs with a slow-down in their scored time, and weld runs.
+    pub false_welds: (usize, usize),
+}
+
+/// The time each event of `outcome` spent below its speed at the request, s.
+pub fn reduced_times(outcome: &Outcome) -> Vec<f64> {
+    outcome
+        .events
+        .iter()
+        .enumerate()
+        .map(|(k, event)| {
+            let end = outcome
+                .events
+                .get(k + 1)
+                .map_or(outcome.duration_s, |next| next.requested_s);
+            event.recovered_s.unwrap_or(end).min(end) - event.requested_s
+        })
+        .collect()
+}
+
+/// Every closed-loop figure of `detector` over `runs` (the open loop's in
+/// [`open_loop_developed`]).
+pub fn score(
+    plan: &LoopPlan,
+    mills: &[Mill],
+    runs: &[Run],
+    detector: Detector,
+) -> anyhow::Result<(LoopScore, Vec<Outcome>)> {
+    let outcomes = parallel(plan.threads, runs, |run| {
+        run_loop(plan, &mills[run.mill], run, Some(detector), false)
+    })?;
+    let mut score = LoopScore {
+        detector,
+        developed: 0,
+        accelerated: 0,
+        events: Vec::new(),
+        reduced_s: Vec::new(),
+        false_stable: (0, 0.0),
+        false_welds: (0, 0),
+    };
+    for (run, outcome) in runs.iter().zip(&outcomes) {
+        match run.scenario {
+            Scenario::Accelerated { .. } => {
+                score.accelerated += 1;
+                if outcome.developed_s.is_some() {
+                    score.developed += 1;
+                } else {
+                    score.events.extend_from_slice(&outcome.events);
+                    score.reduced_s.extend(reduced_times(outcome));
+                }
+            }
+            Scenario::Stable { .. } => {
+                score.false_stable.0 += outcome.events_from(plan.settle_s);
+                score.false_stable.1 += (outcome.duration_s - plan.settle_s) / 3600.0;
+            }
+            Scenario::Weld { .. } => {
+                score.false_welds.0 += usize::from(outcome.events_from(plan.settle_s) > 0);
+                score.false_welds.1 += 1;
+            }
+        }
+    }
+    Ok((score, outcomes))
+}
+
+/// Accelerated runs of `runs` that develop chatter with the request ignored, and how
+/// many accelerated runs there are.
+pub fn open_loop_developed(
+    plan: &LoopPlan,
+    mills: &[Mill],
+    runs: &[Run],
+) -> anyhow::Result<(usize, usize)> {
+    let accelerated: Vec<&Run> = runs
+        .iter()
+        .filter(|r| matches!(r.scenario, Scenario::Accelerated { .. }))
+        .collect();
+    let outcomes = parallel(plan.threads, &accelerated, |run| {
+        run_loop(plan, &mills[run.mill], run, None, false)
+    })?;
+    Ok((
+        outcomes.iter().filter(|o| o.developed_s.is_some()).count(),
+        outcomes.len(),
+    ))
+}
+
+/// The README's table row of `score` (open loop: `open` developed of `of`).
+pub fn table_row(score: &LoopScore, open: (usize, usize)) -> String {
+    let shed: Vec<f64> = score.events.iter().map(|e| e.shed_m_s() * 60.0).collect();
+    let (s1, s2, s3) = quartiles(&shed);
+    let (r1, r2, r3) = quartiles(&score.reduced_s);
+    let per_run = score.events.len() as f64 / (score.accelerated - score.developed).max(1) as f64;
+    let max_shed = shed.iter().copied().fold(0.0, f64::max);
+    format!(
+        "| {} | {}/{} | {}/{} | {} ({per_run:.1} per run) | {s2:.0} [{s1:.0}, {s3:.0}], max {max_shed:.0} | {r2:.1} [{r1:.1}, {r3:.1}] | {:.1} ({} in {:.2} h) | {}/{} |",
+        score.detector.name(),
+        score.developed,
+        score.accelerated,
+        open.0,
+        open.1,
+        score.events.len(),
+        score.false_stable.0 as f64 / score.false_stable.1.max(1e-9),
+        score.false_stable.0,
+        score.false_stable.1,
+        score.false_welds.0,
+        score.false_welds.1,
+    )
+}
+
+/// The table's header.
+pub const TABLE_HEADER: &str = "| detector | developed, closed loop | developed, open loop | slow-downs in runs kept below developed | speed shed per slow-down, m/min: median [IQR] | time below the speed at the request, s: median [IQR] | false slow-downs / h at the top speed | welds with a slow-down |\n|---|---|---|---|---|---|---|---|";
+
+/// The SVG of a traced closed-loop run: speed (m/min, the critical speed dashed as a
+/// flat line), the detector's figure over its alarm level, the request, and the
+/// chatter amplitude (tension swing over its developed limit; 1 = developed).
+pub fn plot(outcome: &Outcome, critical_m_min: f64, title: &str) -> anyhow::Result<String> {
+    use millgate_sim::plot::time_series_svg;
+    let time_s: Vec<f64> = outcome.trace.iter().map(|r| r.t_s).collect();
+    let speed = vec![
+        (
+            "exit speed".to_owned(),
+            outcome.trace.iter().map(|r| Some(r.speed_m_min)).collect(),
+        ),
+        (
+            "critical speed".to_owned(),
+            outcome.trace.iter().map(|_| Some(critical_m_min)).collect(),
+        ),
+    ];
+    let level = vec![(
+        "gain ratio (1 = alarm)".to_owned(),
+        outcome.trace.iter().map(|r| r.level).collect(),
+    )];
+    let request = vec![(
+        "slow-down request seen by the PLC".to_owned(),
+        outcome
+            .trace
+            .iter()
+            .map(|r| Some(if r.request { 1.0 } else { 0.0 }))
+            .collect(),
+    )];
+    let swing = vec![(
+        "tension swing / developed limit".to_owned(),
+        outcome.trace.iter().map(|r| Some(r.swing)).collect(),
+    )];
+    Ok(time_series_svg(
+        title,
+        &time_s,
+        &[
+            ("speed, m/min", speed),
+            ("gain ratio", level),
+            ("request", request),
+            ("chatter amplitude", swing),
+        ],
+    )?)
+}

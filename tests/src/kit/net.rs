@@ -1,0 +1,187 @@
+//! Waiting for a condition ([`wait_for`]), loopback ports ([`free_port`]) and HTTP to a
+//! running gateway: its page ([`web_ready`], [`web_overview`]), its `/metrics`
+//! ([`scrape`]), any request ([`http`], [`http_raw`]) to a port or an address.
+
+use std::net::SocketAddr;
+use std::time::{Duration, Instant};
+
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
+/// Poll `done` every 5 ms until it holds; panic naming `what` after `limit`.
+pub async fn wait_for(what: &str, limit: Duration, mut done: impl FnMut() -> bool) {
+    let start = Instant::now();
+    while !done() {
+        assert!(start.elapsed() < limit, "{what}: not within {limit:?}");
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+}
+
+/// An HTTP answer: status, headers (names lower-case) and body.
+#[derive(Debug)]
+pub struct HttpAnswer {
+    /// The status code.
+    pub status: u16,
+    /// The headers, names lower-case, in order.
+    pub headers: Vec<(String, String)>,
+    /// The body, as text.
+    pub body: String,
+}
+
+impl HttpAnswer {
+    /// The first header called `name` (lower-case).
+    pub fn header(&self, name: &str) -> Option<&str> {
+        self.headers
+            .iter()
+            .find(|(key, _)| key == name)
+            .map(|(_, value)| value.as_str())
+    }
+
+    /// The body as JSON; panics with the body when it is not.
+    pub fn json(&self) -> serde_json::Value {
+        serde_json::from_str(&self.body).unwrap_or_else(|e| panic!("not JSON ({e}): {}", self.body))
+    }
+}
+
+/// Where a request goes: a port on `127.0.0.1` (`u16`) or an address.
+pub trait Endpoint {
+    /// The address.
+    fn address(&self) -> SocketAddr;
+}
+
+impl Endpoint for u16 {
+    fn address(&self) -> SocketAddr {
+        SocketAddr::from(([127, 0, 0, 1], *self))
+    }
+}
+
+impl Endpoint for SocketAddr {
+    fn address(&self) -> SocketAddr {
+        *self
+    }
+}
+
+/// Send `raw` (a whole HTTP/1.x request) to `to` and read the answer until the server
+/// closes (the request says `connection: close`, or is HTTP/1.0); within 10 s.
+pub async fn http_raw(to: impl Endpoint, raw: &[u8]) -> HttpAnswer {
+    let address = to.address();
+    let exchange = async {
+        let mut stream = tokio::net::TcpStream::connect(address).await?;
+        stream.write_all(raw).await?;
+        let mut bytes = Vec::new();
+        stream.read_to_end(&mut bytes).await?;
+        std::io::Result::Ok(bytes)
+    };
+    let bytes = tokio::time::timeout(Duration::from_secs(10), exchange)
+        .await
+        .expect("HTTP answer within 10 s")
+        .expect("HTTP exchange");
+    let text = String::from_utf8_lossy(&bytes).into_owned();
+    let (head, body) = text.split_once("\r\n\r\n").unwrap_or((&text, ""));
+    let mut lines = head.lines();
+    let status = lines
+        .next()
+        .and_then(|line| line.split(' ').nth(1))
+        .and_then(|code| code.parse().ok())
+        .unwrap_or_else(|| panic!("no status line in {text:?}"));
+    let headers = lines
+        .filter_map(|line| line.split_once(':'))
+        .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_owned()))
+        .collect();
+    HttpAnswer {
+        status,
+        headers,
+        body: body.to_owned(),
+    }
+}
+
+/// `method path` on `to`.
+pub async fn http(to: impl Endpoint, method: &str, path: &str) -> HttpAnswer {
+    let request =
+        format!("{method} {path} HTTP/1.1\r\nhost: localhost\r\nconnection: close\r\n\r\n");
+    http_raw(to, request.as_bytes()).await
+}
+
+/// The maintenance page's `/api/overview` at `to`, as JSON.
+pub async fn web_overview(to: impl Endpoint) -> anyhow::Result<serde_json::Value> {
+    let answer = http(to, "GET", "/api/overview").await;
+    anyhow::ensure!(answer.status == 200, "/api/overview: {}", answer.body);
+    Ok(serde_json::from_str(&answer.body)?)
+}
+
+/// GET /metrics as Prometheus does; checks the status and that every metric family's
+/// samples sit in one block after its `# TYPE` line ([`exposition_blocks`]).
+pub async fn scrape(to: impl Endpoint) -> anyhow::Result<String> {
+    let answer = http(to, "GET", "/metrics").await;
+    anyhow::ensure!(answer.status == 200, "/metrics: {}", answer.body);
+    exposition_blocks(&answer.body).map_err(anyhow::Error::msg)?;
+    Ok(answer.body)
+}
+
+/// Wait until the web page on `to` answers `/api/drivelines` (the service is up), at
+/// most 30 s.
+pub async fn web_ready(to: impl Endpoint) {
+    let address = to.address();
+    let start = Instant::now();
+    loop {
+        if let Ok(Ok(mut stream)) = tokio::time::timeout(
+            Duration::from_secs(1),
+            tokio::net::TcpStream::connect(address),
+        )
+        .await
+        {
+            let request =
+                b"GET /api/drivelines HTTP/1.1\r\nhost: localhost\r\nconnection: close\r\n\r\n";
+            let mut answer = Vec::new();
+            if stream.write_all(request).await.is_ok()
+                && stream.read_to_end(&mut answer).await.is_ok()
+                && answer.starts_with(b"HTTP/1.1 200")
+            {
+                return;
+            }
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "web page not up within 30 s"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+/// A free loopback port, never the same one twice in this process, and below the
+/// kernel's ephemeral range (32768..): a port a test frees for a while (a broker
+/// restarted on it) is not handed to another test's listener meanwhile, as the
+/// kernel's `:0` can do.
+pub fn free_port() -> u16 {
+    use std::sync::atomic::{AtomicU16, Ordering};
+    const PER_PROCESS: u16 = 60;
+    static NEXT: AtomicU16 = AtomicU16::new(0);
+    let base = 20_000 + u16::try_from(std::process::id() % 200).unwrap() * PER_PROCESS;
+    loop {
+        let port = base + NEXT.fetch_add(1, Ordering::Relaxed) % PER_PROCESS;
+        if std::net::TcpListener::bind(("127.0.0.1", port)).is_ok() {
+            return port;
+        }
+    }
+}
+
+/// Whether every metric family's samples on a `/metrics` page sit in one block after
+/// its `# TYPE` line (the exposition format's rule, which strict parsers enforce);
+/// what breaks it.
+pub fn exposition_blocks(page: &str) -> Result<(), String> {
+    let mut seen = std::collections::HashSet::new();
+    let mut current = "";
+    for line in page.lines().filter(|l| !l.is_empty()) {
+        if let Some(rest) = line.strip_prefix("# TYPE ") {
+            current = rest.split(' ').next().unwrap_or_default();
+            if !seen.insert(current.to_owned()) {
+                return Err(format!("family {current} twice"));
+            }
+        } else if !line.starts_with('#') {
+            let name = line.split(['{', ' ']).next().unwrap_or_default();
+            if name != current {
+                return Err(format!("sample {line:?} outside its family block"));
+            }
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,47 @@
+//! Python peers: clients, hosts and readers that are not ours (paho-mqtt's Sparkplug
+//! host, asyncua's OPC UA client, pymodbus' PLC and devices, pyarrow and numpy
+//! readers), kept in `tests/peers/` ([`peer`]); [`json_peer`] runs one that talks
+//! JSON lines.
+
+use std::path::{Path, PathBuf};
+use std::process::{ChildStdin, Command, Stdio};
+use std::sync::mpsc::Receiver;
+
+use super::cli::KillOnDrop;
+
+/// The peer script `name` (`sparkplug_host.py`) in `tests/peers/`.
+pub fn peer(name: &str) -> PathBuf {
+    let path = super::repo().join("tests/peers").join(name);
+    assert!(path.is_file(), "no peer {}", path.display());
+    path
+}
+
+/// `python3 script args` (`script` a path, [`peer`]): the child (killed when dropped), its
+/// stdin for commands and its stdout's JSON lines, read on a thread.
+pub fn json_peer(
+    script: &Path,
+    args: &[&str],
+) -> (KillOnDrop, ChildStdin, Receiver<serde_json::Value>) {
+    use std::io::BufRead;
+    let mut child = Command::new("python3")
+        .arg(script)
+        .args(args)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("python3");
+    let stdin = child.stdin.take().unwrap();
+    let stdout = child.stdout.take().unwrap();
+    let (tx, lines) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in std::io::BufReader::new(stdout).lines() {
+            let Ok(line) = line else { break };
+            let value: serde_json::Value =
+                serde_json::from_str(&line).unwrap_or_else(|e| panic!("peer line {line:?}: {e}"));
+            if tx.send(value).is_err() {
+                break;
+            }
+        }
+    });
+    (KillOnDrop(child), stdin, lines)
+}

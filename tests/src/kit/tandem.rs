@@ -1,0 +1,215 @@
+//! The simulated tandem mill as the chatter tests use it: the reference ramp through
+//! the critical speed ([`reference_ramp`]) and the configuration of N stand
+//! accelerometers with a tandem mill over them ([`Stands`]).
+
+use millgate_sim::tandem::roots::CriticalSpeed;
+use millgate_sim::tandem::simulate::{simulate, Accelerometer, Excitation, RunSettings, SpeedRamp};
+use millgate_sim::tandem::truth::{ground_truth, mill_critical_speed, GroundTruth};
+use millgate_sim::tandem::{PassSchedule, TandemMill};
+
+/// The stand accelerometers' sample rate, Hz.
+pub const FS: f64 = 2500.0;
+/// The band-gain thresholds the race set on the five stands of
+/// [`PassSchedule::example`] (`config/examples/tandem-5stand.toml`).
+pub const GAIN_THRESHOLDS: [f64; 5] = [1.187, 1.492, 2.209, 3.087, 3.327];
+/// The example configuration's `k_max`.
+pub const K_MAX: f64 = 0.25;
+
+/// A run of the five-stand mill of [`PassSchedule::example`]: the stands' chock
+/// acceleration (m/s^2, at [`FS`]), the mill's critical speed and the run's truth.
+#[derive(Debug)]
+pub struct RampRun {
+    /// Per stand, the chock acceleration, m/s^2.
+    pub acceleration: Vec<Vec<f64>>,
+    /// The mill's critical speed.
+    pub critical: CriticalSpeed,
+    /// When chatter set on and developed.
+    pub truth: GroundTruth,
+}
+
+/// The reference ramp: `duration_s` of the example mill rolling `hold_s` at `start`
+/// times its critical speed, then its exit speed ramped at 2 m/s^2 to 1.5 times it;
+/// the default excitation and accelerometer at [`FS`], noise seeded with `seed`.
+pub fn reference_ramp(
+    start: f64,
+    hold_s: f64,
+    duration_s: f64,
+    seed: u64,
+) -> anyhow::Result<RampRun> {
+    let mill = TandemMill::new(&PassSchedule::example()?)?;
+    let critical = mill_critical_speed(&mill)?;
+    let ramp = SpeedRamp {
+        start: start * critical.speed,
+        end: 1.5 * critical.speed,
+        hold_s,
+        accel_m_s2: 2.0,
+    };
+    let record = simulate(
+        &mill,
+        &RunSettings {
+            ramp,
+            excitation: Excitation::default(),
+            sensor: Accelerometer {
+                sample_rate_hz: FS,
+                ..Accelerometer::default()
+            },
+            duration_s,
+            seed,
+            internal_rate_hz: None,
+        },
+    )?;
+    let truth = ground_truth(&mill, &ramp, &record, critical);
+    Ok(RampRun {
+        acceleration: record.acceleration,
+        critical,
+        truth,
+    })
+}
+
+/// Where the stands' samples come from.
+#[derive(Debug, Clone)]
+enum Wiring {
+    /// Stand `i` on the Modbus source `daqs[i]`, its block at input register `122 i`,
+    /// 0.01 m/s^2 a count.
+    Modbus(Vec<String>),
+    /// Stand `i` as signal `S{i+1}Vib` of the CAN source's message (scaled by its DBC).
+    Can { source: String, message: String },
+}
+
+/// N stand accelerometers `s1_vib`..`sN_vib` (acceleration, m/s^2, [`FS`]) and one
+/// tandem mill over them (`TCM`, band 100-300 Hz, 0.5 s windows; unless [`Self::bare`],
+/// `k_max` 0.25 and the reference band-gain thresholds of the last N stands): the
+/// configuration's `[[channels]]` and `[[tandem_mills]]` entries ([`Self::toml`]), the
+/// sources declared elsewhere.
+#[derive(Debug, Clone)]
+pub struct Stands {
+    wiring: Wiring,
+    count: usize,
+    mill: String,
+    /// `k_max` and `gain_thresholds`, unless bare.
+    detector: Option<(f64, Vec<f64>)>,
+    keys: String,
+}
+
+impl Stands {
+    /// `count` stands (1..=5) on the Modbus source `daq`.
+    pub fn modbus(count: usize, daq: &str) -> Self {
+        Self::on_daqs(&vec![daq; count])
+    }
+
+    /// One stand on each of the Modbus sources `daqs` (in stand order; a source may
+    /// serve several stands).
+    pub fn on_daqs(daqs: &[&str]) -> Self {
+        Self::new(
+            Wiring::Modbus(daqs.iter().map(|daq| (*daq).to_owned()).collect()),
+            daqs.len(),
+        )
+    }
+
+    /// `count` stands as signals `S1Vib`.. of `message` on the CAN source `source`.
+    pub fn can(count: usize, source: &str, message: &str) -> Self {
+        let wiring = Wiring::Can {
+            source: source.to_owned(),
+            message: message.to_owned(),
+        };
+        Self::new(wiring, count)
+    }
+
+    fn new(wiring: Wiring, count: usize) -> Self {
+        let detector = GAIN_THRESHOLDS
+            .len()
+            .checked_sub(count)
+            .map(|first| (K_MAX, GAIN_THRESHOLDS[first..].to_vec()));
+        Self {
+            wiring,
+            count,
+            mill: "TCM".to_owned(),
+            detector,
+            keys: String::new(),
+        }
+    }
+
+    /// The stand count.
+    pub fn count(&self) -> usize {
+        self.count
+    }
+
+    /// The stands' channel names, `s1_vib`..
+    pub fn names(&self) -> Vec<String> {
+        (1..=self.count()).map(|s| format!("s{s}_vib")).collect()
+    }
+
+    /// The mill's name (`TCM` unless set).
+    pub fn mill(mut self, name: &str) -> Self {
+        name.clone_into(&mut self.mill);
+        self
+    }
+
+    /// The mill's band-gain thresholds, one per stand (`k_max` 0.25).
+    pub fn thresholds(mut self, thresholds: &[f64]) -> Self {
+        assert_eq!(thresholds.len(), self.count(), "one threshold per stand");
+        self.detector = Some((K_MAX, thresholds.to_vec()));
+        self
+    }
+
+    /// Without `k_max` and `gain_thresholds`: [`Self::keys`] gives the detector's.
+    pub fn bare(mut self) -> Self {
+        self.detector = None;
+        self
+    }
+
+    /// More keys of the mill's `[[tandem_mills]]` entry (`slow_down_release = 1.05`).
+    pub fn keys(mut self, keys: &str) -> Self {
+        self.keys.push_str(keys.trim_end());
+        self.keys.push('\n');
+        self
+    }
+
+    /// The `[[channels]]` of the stands, then the mill's `[[tandem_mills]]` entry.
+    pub fn toml(&self) -> String {
+        let mut text = String::new();
+        for (stand, name) in self.names().iter().enumerate() {
+            let source = match &self.wiring {
+                Wiring::Modbus(daqs) => format!(
+                    "scale = 0.01\nsource = {{ modbus = \"{}\", table = \"input\", block = {} }}",
+                    daqs[stand],
+                    stand * 122
+                ),
+                Wiring::Can { source, message } => format!(
+                    "source = {{ can = \"{source}\", message = \"{message}\", signal = \"S{}Vib\" }}",
+                    stand + 1
+                ),
+            };
+            text += &format!(
+                "[[channels]]\nname = \"{name}\"\nkind = \"acceleration\"\nunit = \"m/s^2\"\n\
+                 sample_rate_hz = {FS}\n{source}\n\n"
+            );
+        }
+        let list = |items: Vec<String>| items.join(", ");
+        let quoted = self.names().iter().map(|n| format!("\"{n}\"")).collect();
+        let detector = self
+            .detector
+            .as_ref()
+            .map_or(String::new(), |(k_max, thresholds)| {
+                let thresholds = thresholds.iter().map(|t| format!("{t:?}")).collect();
+                format!(
+                    "k_max = {k_max}\ngain_thresholds = [{}]\n",
+                    list(thresholds)
+                )
+            });
+        text + &format!(
+            "[[tandem_mills]]\nname = \"{}\"\nstands = [{}]\n\
+             chatter_band_hz = [100.0, 300.0]\nwindow_s = 0.5\n{detector}{}\n",
+            self.mill,
+            list(quoted),
+            self.keys
+        )
+    }
+}
+
+/// A Modbus TCP source `name` (to be pointed at its device), polled every 20 ms.
+pub fn modbus_source(name: &str) -> String {
+    format!(
+        "[[sources.modbus]]\nname = \"{name}\"\naddress = \"127.0.0.1:1\"\npoll_period_ms = 20\n\n"
+    )
+}
