@@ -482,14 +482,16 @@ async fn bad_and_flooding_commands_neither_end_the_session_nor_multiply_births()
         )
         .await;
     // Answered by the rebirths the interval allows: one at once if the last births
-    // were over 5 s ago, one 5 s later for the requests that came meanwhile.
+    // were over 5 s ago, one at the interval's end for the requests that came
+    // meanwhile (their spacing is the paused-clock test of
+    // `outputs::sparkplug::timers`). Before, each request got full births: hundreds
+    // by the time the thousandth request is counted.
     let answered = host.next_of("NBIRTH", limit);
     assert_eq!(
         metric(&answered, "bdSeq")["value"].as_u64(),
         Some(0),
         "same session"
     );
-    tokio::time::sleep(millgate::outputs::sparkplug::REBIRTH_INTERVAL * 2).await;
     let rebirths = setup.metric("millgate_sparkplug_rebirths_total").await;
     assert!(
         matches!(rebirths, Some(r) if (1.0..=3.0).contains(&r)),
@@ -546,16 +548,19 @@ async fn a_retained_ncmd_over_the_packet_limit_ends_one_session_only() {
     setup
         .until_metric("millgate_sparkplug_sessions_total", 2.0, limit)
         .await;
-    // The old code's sessions came 1, 2 and 4 s apart: a third by now.
-    tokio::time::sleep(Duration::from_secs(8)).await;
+    // The second session subscribed after clearing the retained NCMD: a Rebirth sent
+    // now reaches it through that subscription. Had the message stayed, the broker
+    // would have sent it at the subscription, before the Rebirth, ending the session
+    // (the old code's next session came 2 s later, with bdSeq 2). The waits between
+    // such sessions are the paused-clock tests of `outputs::sparkplug::timers`.
+    host.command("rebirth stand-f1");
+    assert_eq!(born(&mut host), Some(1), "a rebirth in the same session");
     assert_eq!(
         setup.metric("millgate_sparkplug_sessions_total").await,
         Some(2.0),
         "the second session stays up"
     );
     assert_eq!(setup.metric("millgate_sparkplug_bd_seq").await, Some(1.0));
-    host.command("rebirth stand-f1");
-    assert_eq!(born(&mut host), Some(1), "a rebirth in the same session");
     let log = std::fs::read_to_string(setup.log("run.log")).unwrap();
     assert_eq!(
         log.matches("clearing any retained NCMD").count(),

@@ -138,13 +138,35 @@ fn hostile_config(daq: &HostileDaq) -> anyhow::Result<Config> {
     Ok(config)
 }
 
+/// What a run against a hostile DAQ ends with: the channel's counters, the source's
+/// status and the bites counted.
+type RunEnd = (ChannelCountersSnapshot, Option<SourceStatus>, u64);
+
 /// Run a gateway on `config` for `seconds`; its counters and source status at the end.
-async fn run_against(
-    config: Config,
-    seconds: f64,
-) -> anyhow::Result<(ChannelCountersSnapshot, Option<SourceStatus>, u64)> {
+async fn run_against(config: Config, seconds: f64) -> anyhow::Result<RunEnd> {
     let gateway = millgate::Service::new(config)?.spawn().await?;
     tokio::time::sleep(Duration::from_secs_f64(seconds)).await;
+    end_run(gateway).await
+}
+
+/// Run a gateway on `config` until `done` holds of its channel's counters and its
+/// source's status (`what`, at most 10 s); its counters and status then.
+async fn run_until(
+    config: Config,
+    what: &str,
+    mut done: impl FnMut(&ChannelCountersSnapshot, Option<SourceStatus>) -> bool,
+) -> anyhow::Result<RunEnd> {
+    let gateway = millgate::Service::new(config)?.spawn().await?;
+    let counters = gateway.counters()[0].clone();
+    let board = gateway.board();
+    wait_for(what, Duration::from_secs(10), || {
+        done(&counters.snapshot(), board.results().sources[0])
+    })
+    .await;
+    end_run(gateway).await
+}
+
+async fn end_run(gateway: millgate::service::RunningService) -> anyhow::Result<RunEnd> {
     assert!(!gateway.is_finished(), "the gateway kept running");
     let counters = gateway.counters()[0].snapshot();
     let results = gateway.board().results();
@@ -153,6 +175,8 @@ async fn run_against(
     Ok((counters, results.sources[0], bites))
 }
 
+/// The one real-time run of the reconnect backoff (its spacing is the paused-clock
+/// tests of `field::modbus::reader`).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_daq_that_accepts_and_closes_is_retried_with_backoff_not_a_storm() -> anyhow::Result<()> {
     // A real DAQ at its client limit accepts and closes at once. The backoff used to
@@ -184,11 +208,20 @@ async fn wrong_transaction_ids_and_silence_are_counted_and_retried_with_backoff(
         ("no answer", Reply::Silence),
     ] {
         let daq = HostileDaq::start(move |_| reply.clone()).await?;
-        let (counters, status, _) = run_against(hostile_config(&daq)?, 3.0).await?;
+        // Two connections failed (a reconnect, then a failure on it): the timeouts of
+        // a silent DAQ and the backoff's spacing are the paused-clock tests of
+        // `field::modbus::reader`.
+        let stats = daq.stats();
+        let (counters, status, _) = run_until(hostile_config(&daq)?, what, |counters, status| {
+            stats.connections() >= 2
+                && counters.errors + counters.timeouts >= 2
+                && status == Some(SourceStatus::Lost)
+        })
+        .await?;
         let connections = daq.stats().connections();
         assert!(
             (2..=8).contains(&connections),
-            "{what}: {connections} connections in 3 s"
+            "{what}: {connections} connections, not a storm"
         );
         assert_eq!(counters.samples, 0, "{what}: nothing passed on");
         assert!(
@@ -319,12 +352,19 @@ async fn a_sequence_going_backwards_is_a_restart_and_no_bite_across_it_is_valid(
 /// pre-trigger of gap-free data has come, which such a DAQ never gives: no bite.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_sequence_running_backwards_makes_no_bite() -> anyhow::Result<()> {
+    let demo = millgate_sim::devices::demo::setup(6.0, 0.0, 1)?;
     let raw = schedule_raw(6.0)?;
     let daq = HostileDaq::start(streaming(raw, 100, Duration::from_millis(50), |i| {
         60_000 - i as u16
     }))
     .await?;
-    let (counters, _, bites) = run_against(hostile_config(&daq)?, 5.0).await?;
+    // Until the first two bars have streamed (each made a bite before).
+    let third_bar = demo.schedule.bites[2].onset_sample as u64;
+    let (counters, _, bites) =
+        run_until(hostile_config(&daq)?, "two bars streamed", |counters, _| {
+            counters.samples >= third_bar
+        })
+        .await?;
     assert!(counters.sequence_restarts >= 20, "{counters:?}");
     assert!(
         counters.samples >= 2_000,

@@ -1,9 +1,12 @@
 //! Liveness of acquisition sources ([`SourceHealth`]): when each last answered and
 //! whether it is connected, from which its [`SourceStatus`] (ok, stale, lost) follows.
-//! Readers report into it; the register map, the board and `/metrics` read it.
+//! Readers report into it; the register map, the board and `/metrics` read it. Its
+//! times are tokio's clock (the system's monotonic clock, or a test's paused one).
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::time::{Duration, Instant};
+use std::time::Duration;
+
+use tokio::time::Instant;
 
 /// What the gateway knows of a source right now.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -87,6 +87,10 @@ pub struct DaqReader {
     health: Arc<SourceHealth>,
     /// Over RTU, the silence between frames on the line; `None` over TCP.
     spacing: Option<FrameSpacing>,
+    /// The unit tests' DAQ: connections made in memory, so the reconnect and stale
+    /// timing run on a paused clock (`tests` below).
+    #[cfg(test)]
+    connector: Option<tests::Connector>,
 }
 
 impl DaqReader {
@@ -141,10 +145,16 @@ impl DaqReader {
             blocks,
             values,
             health,
+            #[cfg(test)]
+            connector: None,
         }
     }
 
     async fn connect(&mut self) -> Result<Context, ModbusError> {
+        #[cfg(test)]
+        if let Some(connector) = &mut self.connector {
+            return Ok(connector.connect());
+        }
         let source = &self.source;
         match (&source.serial, &mut self.spacing) {
             (Some(line), Some(spacing)) => {
@@ -391,7 +401,250 @@ async fn read(
 
 #[cfg(test)]
 mod tests {
+    //! The reconnect backoff and the source's stale and lost timing on a paused clock:
+    //! the reader runs as in the service, its DAQ in memory (a [`Connector`] instead
+    //! of the source's address), so every wait is the code's own timer. The real-time
+    //! end-to-end runs are `tests/tests/daq_faults.rs` (a DAQ that accepts and closes,
+    //! a frozen sequence, the cable pulled).
+
+    use std::sync::Mutex;
+
+    use tokio::io::{AsyncReadExt, AsyncWriteExt, DuplexStream};
+    use tokio::time::Instant;
+    use tokio_modbus::prelude::Slave;
+
     use super::*;
+    use crate::field::source_health::SourceStatus;
+
+    /// What the in-memory DAQ does on one connection.
+    #[derive(Debug, Clone, Copy)]
+    pub(super) enum Daq {
+        /// Accepts and closes at once (a DAQ at its client limit).
+        Closes,
+        /// Reads every request and never answers.
+        Silent,
+        /// Answers every poll with the block of the moment: a new one every
+        /// [`BLOCK_PERIOD`] since the test began, the same one from `frozen_at` on;
+        /// closes at the first request `closes_after` or more into the connection.
+        Streams {
+            frozen_at: Duration,
+            closes_after: Duration,
+        },
+    }
+
+    /// A DAQ that streams for ever.
+    const STREAMS: Daq = Daq::Streams {
+        frozen_at: Duration::MAX,
+        closes_after: Duration::MAX,
+    };
+
+    /// 100 samples at the test channel's 2 kHz.
+    const BLOCK_PERIOD: Duration = Duration::from_millis(50);
+
+    /// The reader's connections: the `n`-th made in memory with `script[n]` (the last
+    /// entry for the ones after), the time of each noted.
+    pub(super) struct Connector {
+        script: Vec<Daq>,
+        start: Instant,
+        made: Arc<Mutex<Vec<Instant>>>,
+    }
+
+    impl std::fmt::Debug for Connector {
+        fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            f.debug_struct("Connector")
+                .field("script", &self.script)
+                .finish_non_exhaustive()
+        }
+    }
+
+    impl Connector {
+        pub(super) fn connect(&mut self) -> Context {
+            let mut made = self.made.lock().unwrap();
+            let daq = self.script[made.len().min(self.script.len() - 1)];
+            made.push(Instant::now());
+            let (gateway, device) = tokio::io::duplex(4096);
+            tokio::spawn(serve(device, daq, self.start));
+            tokio_modbus::client::tcp::attach_slave(gateway, Slave(1))
+        }
+    }
+
+    /// The DAQ's end of one connection.
+    async fn serve(mut device: DuplexStream, daq: Daq, start: Instant) {
+        let (frozen_at, closes_after) = match daq {
+            Daq::Closes => return,
+            Daq::Silent => {
+                let _ = device.read_to_end(&mut Vec::new()).await;
+                return;
+            }
+            Daq::Streams {
+                frozen_at,
+                closes_after,
+            } => (frozen_at, closes_after),
+        };
+        let connected = Instant::now();
+        loop {
+            let mut header = [0u8; 7];
+            if device.read_exact(&mut header).await.is_err() {
+                return;
+            }
+            let length = usize::from(u16::from_be_bytes([header[4], header[5]]));
+            let mut pdu = vec![0u8; length.saturating_sub(1)];
+            if device.read_exact(&mut pdu).await.is_err() || connected.elapsed() >= closes_after {
+                return;
+            }
+            let blocks = start.elapsed().min(frozen_at).as_nanos() / BLOCK_PERIOD.as_nanos();
+            let mut words = vec![0u16; usize::from(BLOCK_REGISTERS)];
+            layout::encode_block(1 + blocks as u16, &[0; 100], &mut words);
+            let bytes = (words.len() * 2) as u8;
+            let mut frame = vec![header[0], header[1], 0, 0];
+            frame.extend((3 + u16::from(bytes)).to_be_bytes());
+            frame.extend([header[6], pdu[0], bytes]);
+            frame.extend(words.iter().flat_map(|word| word.to_be_bytes()));
+            if device.write_all(&frame).await.is_err() {
+                return;
+            }
+        }
+    }
+
+    /// A reader of one 2 kHz block channel (polled every 20 ms, 300 ms timeout) on
+    /// `script`'s DAQs, its samples drained; the times of its connections and its
+    /// source's health (stale after 200 ms, lost after 1 s), until `shutdown` fires.
+    fn reader(
+        script: Vec<Daq>,
+        shutdown: Shutdown,
+    ) -> (
+        Arc<Mutex<Vec<Instant>>>,
+        Arc<SourceHealth>,
+        Arc<ChannelCounters>,
+    ) {
+        let text = "name = \"t\"\n[[sources.modbus]]\nname = \"daq\"\naddress = \"127.0.0.1:1\"\n\
+                    poll_period_ms = 20\ntimeout_ms = 300\n[[channels]]\nname = \"a\"\n\
+                    kind = \"acceleration\"\nunit = \"m/s^2\"\nsample_rate_hz = 2000\n\
+                    source = { modbus = \"daq\", table = \"input\", block = 0 }\n";
+        let config = millgate_config::from_toml_str(text, "t.toml", std::path::Path::new("."))
+            .unwrap_or_else(|error| panic!("{error}"));
+        let counters = Arc::new(ChannelCounters::default());
+        let health = Arc::new(SourceHealth::new(
+            Duration::from_millis(200),
+            Duration::from_secs(1),
+        ));
+        let mut reader = DaqReader::new(
+            &config,
+            0,
+            std::slice::from_ref(&counters),
+            Arc::clone(&health),
+        );
+        let made = Arc::new(Mutex::new(Vec::new()));
+        reader.connector = Some(Connector {
+            script,
+            start: Instant::now(),
+            made: Arc::clone(&made),
+        });
+        let (samples, mut drain) = mpsc::channel(64);
+        tokio::spawn(async move { while drain.recv().await.is_some() {} });
+        tokio::spawn(reader.run(samples, shutdown));
+        (made, health, counters)
+    }
+
+    /// The gaps between the connections made, ms.
+    fn spacing_ms(made: &Mutex<Vec<Instant>>) -> Vec<u128> {
+        let made = made.lock().unwrap();
+        made.windows(2)
+            .map(|pair| (pair[1] - pair[0]).as_millis())
+            .collect()
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_daq_that_accepts_and_closes_is_retried_with_a_doubling_backoff_to_5_s() {
+        let (_stop, shutdown) = crate::shutdown::channel();
+        let (made, health, _) = reader(vec![Daq::Closes], shutdown);
+        tokio::time::sleep(Duration::from_secs(20)).await;
+        // Each attempt fails at once: the attempts are the backoff apart, not a storm.
+        assert_eq!(
+            spacing_ms(&made),
+            [100, 200, 400, 800, 1600, 3200, 5000, 5000]
+        );
+        assert_eq!(health.connects(), 9, "every attempt connected");
+        assert_eq!(health.status(), SourceStatus::Lost, "never answered");
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_silent_daq_times_out_each_connection_then_backs_off() {
+        let (_stop, shutdown) = crate::shutdown::channel();
+        let (made, health, counters) = reader(vec![Daq::Silent], shutdown);
+        tokio::time::sleep(Duration::from_millis(3500)).await;
+        // The request's 300 ms timeout, then the backoff.
+        assert_eq!(spacing_ms(&made), [400, 500, 700, 1100]);
+        assert_eq!(counters.snapshot().timeouts, 5);
+        assert_eq!(health.status(), SourceStatus::Lost);
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn new_data_restarts_the_backoff_and_a_connect_alone_does_not() {
+        let (_stop, shutdown) = crate::shutdown::channel();
+        let half_a_second = Daq::Streams {
+            frozen_at: Duration::MAX,
+            closes_after: Duration::from_millis(490),
+        };
+        let script = vec![
+            Daq::Closes,
+            Daq::Closes,
+            Daq::Closes,
+            half_a_second,
+            Daq::Closes,
+        ];
+        let (made, health, _) = reader(script, shutdown);
+        tokio::time::sleep(Duration::from_secs(2)).await;
+        // Connects at 0, 0.1, 0.3 and 0.7 s: the backoff grew over three connects. The
+        // fourth brought data until it closed at its poll of 1.2 s; the next attempts
+        // start from 100 ms again.
+        assert_eq!(spacing_ms(&made), [100, 200, 400, 600, 200, 400]);
+        assert_eq!(
+            health.status(),
+            SourceStatus::Stale,
+            "new data until 1.16 s: stale, not yet lost"
+        );
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_streaming_daq_is_polled_on_one_connection_and_stays_ok() {
+        let (_stop, shutdown) = crate::shutdown::channel();
+        let (made, health, counters) = reader(vec![STREAMS], shutdown);
+        tokio::time::sleep(Duration::from_millis(1990)).await;
+        assert_eq!(made.lock().unwrap().len(), 1);
+        assert_eq!(health.status(), SourceStatus::Ok);
+        assert_eq!(
+            counters.snapshot().blocks_read,
+            40,
+            "blocks 1..=40 by 1.98 s"
+        );
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_frozen_daq_goes_stale_after_its_stale_time_and_lost_after_its_lost_time() {
+        let (_stop, shutdown) = crate::shutdown::channel();
+        let frozen_at = Duration::from_millis(1000);
+        let daq = Daq::Streams {
+            frozen_at,
+            closes_after: Duration::MAX,
+        };
+        let (made, health, counters) = reader(vec![daq], shutdown);
+        let start = Instant::now();
+        // The last new block is the one of 1.000 s, read at the first poll after it.
+        tokio::time::sleep_until(start + frozen_at).await;
+        assert_eq!(health.status(), SourceStatus::Ok);
+        tokio::time::sleep_until(start + frozen_at + Duration::from_millis(190)).await;
+        assert_eq!(health.status(), SourceStatus::Ok, "within the stale time");
+        tokio::time::sleep_until(start + frozen_at + Duration::from_millis(230)).await;
+        assert_eq!(health.status(), SourceStatus::Stale, "past the stale time");
+        tokio::time::sleep_until(start + frozen_at + Duration::from_millis(990)).await;
+        assert_eq!(health.status(), SourceStatus::Stale, "within the lost time");
+        tokio::time::sleep_until(start + frozen_at + Duration::from_millis(1030)).await;
+        assert_eq!(health.status(), SourceStatus::Lost, "past the lost time");
+        // The DAQ kept answering: one connection, its blocks read once each.
+        assert_eq!(made.lock().unwrap().len(), 1);
+        assert_eq!(counters.snapshot().blocks_read, 21, "blocks 1..=21");
+    }
 
     #[test]
     fn polls_keep_their_grid_and_do_not_burst_after_a_late_one() {

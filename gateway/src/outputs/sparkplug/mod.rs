@@ -43,6 +43,7 @@ pub mod node;
 pub mod payload;
 mod status;
 mod store;
+mod timers;
 pub mod tls;
 
 pub use status::{ConnectFailure, SparkplugCounts, SparkplugStatus};
@@ -69,9 +70,9 @@ use crate::warn_limit::{WarnLimit, WARN_PERIOD};
 use forward::Confirmations;
 use node::{CaptureNotice, EdgeNode};
 use store::{keep_cursor, BiteSource};
+pub use timers::REBIRTH_INTERVAL;
+use timers::{Rebirths, Reconnect, RECONNECT_DELAY};
 
-/// Wait before connecting again after a failed connection.
-const RECONNECT_DELAY: Duration = Duration::from_secs(1);
 /// Requests the MQTT client queues for its event loop.
 const CLIENT_QUEUE: usize = 256;
 /// Bites handed to the client and not yet acknowledged, at most: below
@@ -86,10 +87,6 @@ pub const MAX_INCOMING_PACKET: usize = 1 << 20;
 const MAX_OUTGOING_PACKET: usize = 10 * 1024;
 /// Largest NCMD payload decoded, bytes (a Rebirth is about 40).
 pub const MAX_COMMAND_BYTES: usize = 64 * 1024;
-/// Shortest time between two rebirths on command.
-pub const REBIRTH_INTERVAL: Duration = Duration::from_secs(5);
-/// Longest wait before connecting again after sessions ended by oversized packets.
-const MAX_OVERSIZE_DELAY: Duration = Duration::from_secs(60);
 
 /// The edge node task.
 #[derive(Debug)]
@@ -546,11 +543,9 @@ impl SparkplugNode {
         let mut replay = tokio::time::interval(self.config.replay_period);
         replay.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         let mut data = tokio::time::interval(self.config.data_period);
-        // Rebirth on command: asked for since the last births, which were when.
-        let mut rebirth_wanted = false;
-        let mut last_births = Instant::now();
+        let mut rebirths = Rebirths::new();
         let mut command_warnings = WarnLimit::new(WARN_PERIOD);
-        let mut oversize_delay = RECONNECT_DELAY;
+        let mut reconnect = Reconnect::new();
         // Set by a packet over the size limit: the next session clears its NCMD topic's
         // retained message before subscribing.
         let mut clear_retained_command = false;
@@ -560,7 +555,7 @@ impl SparkplugNode {
                 event = events.poll() => match event {
                     Ok(Event::Incoming(Packet::ConnAck(_))) => {
                         last_failure = None;
-                        rebirth_wanted = false;
+                        rebirths.forget();
                         tracing::info!(broker = %self.config.broker, bd_seq, "Sparkplug session up");
                         connected = true;
                         self.status.connected.store(1, Ordering::Relaxed);
@@ -586,7 +581,7 @@ impl SparkplugNode {
                                 replay_end = self.births(&client, &mut node, &mut confirmations, &mut bites).await;
                                 replay.reset_immediately();
                                 born = true;
-                                last_births = Instant::now();
+                                rebirths.born();
                             }
                         }
                     }
@@ -597,7 +592,7 @@ impl SparkplugNode {
                             match self.command(&message, &mut command_warnings) {
                                 Some(()) if born => {
                                     self.status.rebirth_requests.fetch_add(1, Ordering::Relaxed);
-                                    rebirth_wanted = true;
+                                    rebirths.requested();
                                 }
                                 _ => {}
                             }
@@ -608,7 +603,7 @@ impl SparkplugNode {
                                     replay_end = self.births(&client, &mut node, &mut confirmations, &mut bites).await;
                                     replay.reset_immediately();
                                     born = true;
-                                    last_births = Instant::now();
+                                    rebirths.born();
                                 }
                                 Some(false) if born => {
                                     // The specification: NDEATH and disconnect; the next
@@ -629,16 +624,12 @@ impl SparkplugNode {
                         // A packet over the limit (a huge NCMD, retained perhaps, that
                         // the broker sends at every subscription) ends each session:
                         // wait longer each time rather than reconnect every second.
-                        let delay = if is_oversize(&error) {
-                            tracing::warn!(%error, limit = MAX_INCOMING_PACKET, next_attempt_s = oversize_delay.as_secs(), "Sparkplug session ended by a packet over the size limit (a retained NCMD on the broker? clear it there)");
-                            let delay = oversize_delay;
-                            oversize_delay = (delay * 2).min(MAX_OVERSIZE_DELAY);
+                        let oversize = is_oversize(&error);
+                        let delay = reconnect.delay(oversize);
+                        if oversize {
+                            tracing::warn!(%error, limit = MAX_INCOMING_PACKET, next_attempt_s = delay.as_secs(), "Sparkplug session ended by a packet over the size limit (a retained NCMD on the broker? clear it there)");
                             clear_retained_command = true;
-                            delay
-                        } else {
-                            oversize_delay = RECONNECT_DELAY;
-                            RECONNECT_DELAY
-                        };
+                        }
                         let slot = ConnectFailure::ALL.iter().position(|&f| f == failure).unwrap_or(0);
                         self.status.failures[slot].fetch_add(1, Ordering::Relaxed);
                         if connected {
@@ -687,10 +678,9 @@ impl SparkplugNode {
                     self.forward(&client, &mut node, &mut confirmations, &mut bites, Step::Live).await;
                     self.announce_mill_captures(&client, &mut node, &mut confirmations, &mut bites, &mut announced).await;
                 }
-                () = tokio::time::sleep_until(last_births + REBIRTH_INTERVAL), if born && rebirth_wanted => {
+                () = tokio::time::sleep_until(rebirths.due()), if born && rebirths.wanted() => {
                     // Every request since the last births, answered by one rebirth.
-                    rebirth_wanted = false;
-                    last_births = Instant::now();
+                    rebirths.born();
                     tracing::info!("Sparkplug rebirth on command");
                     self.status.rebirths.fetch_add(1, Ordering::Relaxed);
                     let captures = newest_captures(&mut bites, capture_subjects(&board)).await;
