@@ -33,6 +33,11 @@ uml_install_missing() {
     apt-get install -y -qq "${missing[@]}" >/dev/null
 }
 
+# The selection scripts/test builds its tests with (stage 4: the workspace with the OPC
+# UA server's feature): the suites take their executables from that one build, so a CI
+# run compiles nothing again.
+uml_test_selection=(--workspace --features millgate/opcua,millgate-tests/opcua)
+
 # Builds the test targets of `cargo test ARGS... --no-run` on the host (compiling in
 # the guest is slow) and prints the executables of the integration test $1 among
 # them, one a line.
