@@ -147,7 +147,7 @@ pub struct TandemMill {
 pub enum ChatterDetectorKind {
     /// `"band_gain"` (the default): chatter-band RMS over reference-band RMS per stand
     /// against `gain_thresholds`; the detector that warned earliest at zero false
-    /// alarms in the tandem-model race (`tests/src/chatter_eval.rs`).
+    /// alarms in the tandem-model race (`tests/src/experiments/chatter_eval/`).
     #[default]
     BandGain,
     /// `"paper"`: the synchronization conditions (sigma_n <= sigma_min and K_mean >=

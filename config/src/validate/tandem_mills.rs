@@ -6,7 +6,7 @@ use crate::{Channel, ChannelKind, ChatterDetectorKind, TandemMill};
 
 use super::{ChannelFacts, Checker, Purpose, MAX_WINDOW_S, STANDS_RANGE};
 
-/// Default gain window, s: the variant that won the race (`tests/src/chatter_eval.rs`).
+/// Default gain window, s: the variant that won the race (`tests/src/experiments/chatter_eval/`).
 const DEFAULT_GAIN_WINDOW_S: f64 = 2.0;
 /// Default release level of the slow-down request, fraction of the alarm level.
 const DEFAULT_SLOW_DOWN_RELEASE: f64 = 0.8;

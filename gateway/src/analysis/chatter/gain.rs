@@ -8,7 +8,7 @@
 //! while the gain's longer window refills after a restart. With `gain_thresholds` the
 //! largest `gain[s] / threshold[s]` is the mill's gain ratio: 1 is the alarm level of
 //! the band-gain detector, the default (it warned earliest at zero false alarms in the
-//! tandem-model race, `tests/src/chatter_eval.rs`).
+//! tandem-model race, `tests/src/experiments/chatter_eval/`).
 
 use millgate_dsp::band_gain::{BandGain, BandGainState, BandGainWindow};
 use millgate_dsp::chatter::MAX_STANDS;
