@@ -13,8 +13,9 @@
 //! `auth.rs` (anonymous and user sign-in), `pki.rs` (the certificate store),
 //! `front.rs` (the listener: connection bound, framing check, client addresses),
 //! `status.rs` (the counters), `metrics.rs` (their `/metrics` families), `error.rs`
-//! (why it stopped), `adapter.rs` (the catalogue to the address space, the board to
-//! snapshots and events), `tools.rs` (what the command line uses: the address space
+//! (why it stopped), `adapter/` (the catalogue to the address space, the board to
+//! snapshots; the task that feeds the server), `alarms.rs` (the alarm stream to
+//! events), `tools.rs` (what the command line uses: the address space
 //! table, the demo's `--opcua`).
 //!
 //! The rest of the gateway (the service, `millgate check`, `millgate address-space`,
