@@ -1,5 +1,5 @@
 //! `millgate figures`: the catalogue of published figures with every output's name
-//! for each ([`crate::outputs::figures`]), as Markdown (docs/figures.md's table), CSV or
+//! for each (`crate::outputs::figures`), as Markdown (docs/figures.md's table), CSV or
 //! JSON.
 
 use crate::cli::registers::{csv_field, Format};

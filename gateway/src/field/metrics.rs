@@ -10,7 +10,7 @@ use crate::exposition::{Exposition, Families, Kind};
 
 /// The acquisition's counters with the names of the channels and sources they count.
 #[derive(Debug)]
-pub struct AcquisitionFamilies {
+pub(crate) struct AcquisitionFamilies {
     channel_names: Vec<String>,
     source_names: Vec<String>,
     can_names: Vec<String>,
@@ -19,7 +19,7 @@ pub struct AcquisitionFamilies {
 
 impl AcquisitionFamilies {
     /// The families of `config`'s channels and sources, counted in `acquisition`.
-    pub fn new(config: &Config, acquisition: Acquisition) -> Self {
+    pub(crate) fn new(config: &Config, acquisition: Acquisition) -> Self {
         Self {
             channel_names: config.channels.iter().map(|c| c.name.clone()).collect(),
             source_names: config.sources().map(|s| s.name().to_owned()).collect(),

@@ -6,7 +6,7 @@ pub mod acquired;
 pub(crate) mod backoff;
 pub mod can;
 pub mod counters;
-pub mod metrics;
+pub(crate) mod metrics;
 pub mod modbus;
 pub mod quality;
 pub mod source_health;

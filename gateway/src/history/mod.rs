@@ -31,7 +31,7 @@
 //! - **Restart**: at start the file's per-driveline and per-mill state tables give
 //!   every figure with a state column: the bite counters, the last bite's values with
 //!   their time, the wear trend and the gap estimate, warnings and latched alarms
-//!   ([`restore`]); restored values carry the driveline's "restored" flag until the
+//!   (`restore`); restored values carry the driveline's "restored" flag until the
 //!   next bite.
 //! - **Retention** ([`retention`]): events older than `history.retention_days`, and the
 //!   oldest events while the data passes `history.max_size_mb`, are deleted in chunks
@@ -39,7 +39,7 @@
 //! - **Reading** ([`query`]): [`query::HistoryReader`] opens its own read-only
 //!   connection; `millgate history` and `millgate report` use it. [`series`] adds
 //!   what a page plots over months: the gap and TAF in time buckets and the gap's
-//!   trend per week, aggregated by SQLite; [`summary`] what a report reads over a
+//!   trend per week, aggregated by SQLite; `summary` what a report reads over a
 //!   year without holding it (a driveline's TAF quantiles, its bites one by one, when
 //!   a run without a recorded stop was last seen).
 //!
@@ -57,18 +57,18 @@ mod capture_parquet;
 pub mod captures;
 mod checkpoint;
 mod error;
-pub mod figures;
+pub(crate) mod figures;
 mod metrics;
-pub mod outages;
+pub(crate) mod outages;
 pub mod query;
 mod record;
-pub mod restore;
+pub(crate) mod restore;
 pub mod retention;
 pub mod rows;
 mod run;
 pub mod schema;
 pub mod series;
-pub mod summary;
+pub(crate) mod summary;
 pub mod writer;
 
 pub use error::HistoryError;

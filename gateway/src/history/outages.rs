@@ -22,13 +22,13 @@ use crate::state::history::History;
 use crate::state::time::UtcTime;
 
 /// Time between health checks.
-pub const PERIOD: Duration = Duration::from_millis(250);
+pub(crate) const PERIOD: Duration = Duration::from_millis(250);
 /// Time a source may take to answer first after the gateway starts.
-pub const START_GRACE: Duration = Duration::from_secs(10);
+pub(crate) const START_GRACE: Duration = Duration::from_secs(10);
 
 /// One source watched.
 #[derive(Debug)]
-pub struct WatchedSource {
+pub(crate) struct WatchedSource {
     /// Its name.
     pub name: String,
     /// Its health.
@@ -53,7 +53,7 @@ enum Outage {
 
 /// Watches the sources and records their outages.
 #[derive(Debug)]
-pub struct OutageMonitor {
+pub(crate) struct OutageMonitor {
     sources: Vec<WatchedSource>,
     history: History,
 }
@@ -69,13 +69,13 @@ impl WatchedSource {
 
 impl OutageMonitor {
     /// A monitor of `sources` recording into `history`.
-    pub fn new(sources: Vec<WatchedSource>, history: History) -> Self {
+    pub(crate) fn new(sources: Vec<WatchedSource>, history: History) -> Self {
         Self { sources, history }
     }
 
     /// Check every [`PERIOD`] until shutdown; outages still open then are closed by
     /// the history's stop.
-    pub async fn run(self, mut shutdown: Shutdown) {
+    pub(crate) async fn run(self, mut shutdown: Shutdown) {
         let started = Instant::now();
         let started_at = UtcTime::now();
         let mut outages: Vec<Outage> = self.sources.iter().map(|_| Outage::None).collect();

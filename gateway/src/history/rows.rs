@@ -1,5 +1,5 @@
 //! What each event writes: its rows and the subject's state row, in the writer's
-//! transaction. The figures' columns come from the catalogue ([`super::figures`]);
+//! transaction. The figures' columns come from the catalogue (`super::figures`);
 //! what a bite row keeps beside them (its channel, second period, quality, the wear
 //! reference, what it put into the gap pool) is listed here.
 

@@ -52,7 +52,7 @@ fn bounds(since: Option<UtcTime>, until: Option<UtcTime>) -> (String, String) {
 
 impl HistoryReader {
     /// `driveline`'s bites at or after `since` and before `until` (open ends: all):
-    /// counts and TAF quantiles ([`BiteSummary`]). Unknown drivelines have no bites.
+    /// counts and TAF quantiles (`BiteSummary`). Unknown drivelines have no bites.
     ///
     /// Cost: the `(driveline, time, degraded, taf, ...)` index alone, one pass for the
     /// counts and one in TAF order.

@@ -13,7 +13,7 @@ use crate::state::catalogue::{self, FigureInfo, FigureType, Guard, Register, Sub
 
 /// One figure and its names in every output.
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct FigureRow {
+pub(crate) struct FigureRow {
     /// `gateway`, `source`, `driveline`, `tandem_mill`, `rod_mill` or `rod_span`.
     pub subject: &'static str,
     /// The catalogue key (also the web API's member and the OPC UA variable).
@@ -112,7 +112,7 @@ fn type_of(figure_type: FigureType) -> String {
 }
 
 /// Every figure's row, in catalogue order.
-pub fn rows() -> Vec<FigureRow> {
+pub(crate) fn rows() -> Vec<FigureRow> {
     catalogue::all()
         .iter()
         .map(|figure| {

@@ -36,12 +36,12 @@ use crate::state::board::Board;
 use crate::state::catalogue::{self, Figure, FigureInfo, FigureType, Subject, Value};
 
 /// Time a client has to send its whole request head.
-pub const HEAD_TIMEOUT: Duration = Duration::from_secs(5);
+pub(crate) const HEAD_TIMEOUT: Duration = Duration::from_secs(5);
 /// Scrapes answered at once; Prometheus sends one at a time.
-pub const MAX_SCRAPES: usize = 16;
+pub(crate) const MAX_SCRAPES: usize = 16;
 /// A warning when `settings` binds an address other hosts can reach (`/metrics`
 /// shows the plant's figures and the gateway's state without authentication).
-pub fn exposure_warning(settings: &MetricsOutput) -> Option<String> {
+pub(crate) fn exposure_warning(settings: &MetricsOutput) -> Option<String> {
     (!settings.bind.ip().is_loopback()).then(|| {
         format!(
             "outputs.metrics.bind: {} accepts clients from other hosts: anyone who reaches it \
@@ -52,7 +52,7 @@ pub fn exposure_warning(settings: &MetricsOutput) -> Option<String> {
 }
 
 /// The content type of the text exposition format.
-pub const CONTENT_TYPE: &str = "text/plain; version=0.0.4; charset=utf-8";
+pub(crate) const CONTENT_TYPE: &str = "text/plain; version=0.0.4; charset=utf-8";
 
 /// Key suffixes of units Prometheus writes out in base units (its linter refuses the
 /// abbreviations `s` and `m`): `(unit, key suffix, metric suffix)`.
@@ -66,7 +66,7 @@ const PROMETHEUS_UNITS: [(&str, &str, &str); 3] = [
 /// Prometheus' base-unit words: `_seconds`, `_meters_per_second`, `_per_second`), a
 /// counter with `_total`, a time as `..._timestamp_seconds`, unless the catalogue
 /// names it.
-pub fn metric_name(figure: &FigureInfo) -> String {
+pub(crate) fn metric_name(figure: &FigureInfo) -> String {
     if let Some(name) = figure.metric {
         return name.to_owned();
     }
@@ -128,7 +128,7 @@ fn catalogue_families<R: Subject>(
 /// What the metrics page shows: the build, the process, the catalogue's figures, then
 /// the families of each part added with [`Metrics::with`], in that order.
 #[derive(Debug)]
-pub struct Metrics {
+pub(crate) struct Metrics {
     source_names: Vec<String>,
     rod_span_names: Vec<Vec<String>>,
     board: Arc<Board>,
@@ -139,7 +139,7 @@ pub struct Metrics {
 impl Metrics {
     /// The page for `config`: the results of `board`; `rod_mill_spans` is each rod
     /// mill's span count.
-    pub fn new(config: &Config, board: Arc<Board>, rod_mill_spans: &[usize]) -> Self {
+    pub(crate) fn new(config: &Config, board: Arc<Board>, rod_mill_spans: &[usize]) -> Self {
         Self {
             source_names: config.sources().map(|s| s.name().to_owned()).collect(),
             rod_span_names: rod_mill_spans
@@ -154,13 +154,13 @@ impl Metrics {
 
     /// Also show `families` (a field source's, the history's or an output's counters),
     /// after those added before.
-    pub fn with(mut self, families: Arc<dyn Families>) -> Self {
+    pub(crate) fn with(mut self, families: Arc<dyn Families>) -> Self {
         self.families.push(families);
         self
     }
 
     /// The page, in the Prometheus text format.
-    pub fn render(&self) -> String {
+    pub(crate) fn render(&self) -> String {
         let mut page = Exposition::new();
         page.family(
             "millgate_build_info",
@@ -262,7 +262,11 @@ impl Metrics {
 
     /// Serve `/metrics` on `listener` until shutdown, at most [`MAX_SCRAPES`]
     /// connections at once; an error when accepting fails for good.
-    pub async fn run(self, listener: TcpListener, shutdown: Shutdown) -> std::io::Result<()> {
+    pub(crate) async fn run(
+        self,
+        listener: TcpListener,
+        shutdown: Shutdown,
+    ) -> std::io::Result<()> {
         let limits = Limits {
             post_paths: &[],
             max_connections: MAX_SCRAPES,

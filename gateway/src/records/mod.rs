@@ -5,8 +5,8 @@
 //! - [`csv`]: a recorded signal as a CSV with a header, first column `t` (s), the
 //!   other columns channels (a capture exported by `millgate capture export` among
 //!   them);
-//! - [`stands`]: a recording of a tandem mill's stands, read from such a CSV or from a
+//! - `stands`: a recording of a tandem mill's stands, read from such a CSV or from a
 //!   capture the history keeps.
 
 pub mod csv;
-pub mod stands;
+pub(crate) mod stands;

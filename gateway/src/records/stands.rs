@@ -12,11 +12,11 @@ use crate::analysis::chatter::Recording;
 use crate::history::captures::Capture;
 
 /// Largest relative difference between a recording's and the channels' sample rate.
-pub const RATE_TOLERANCE: f64 = 0.01;
+pub(crate) const RATE_TOLERANCE: f64 = 0.01;
 
 /// A recording that does not fit the mill; every variant names the recording first.
 #[derive(Debug, thiserror::Error)]
-pub enum RecordingError {
+pub(crate) enum RecordingError {
     /// The CSV cannot be read.
     #[error("{recording}")]
     Csv {
@@ -100,7 +100,7 @@ pub enum RecordingError {
 /// Reads the CSV at `path` for mill `index` of `config`: a column per stand channel
 /// (named as the channel), sampled at the channels' rate, and `speed_column` when
 /// given. Errors name the file and why.
-pub fn read(
+pub(crate) fn read(
     path: &Path,
     config: &Config,
     index: usize,
@@ -163,7 +163,7 @@ pub fn read(
 /// The stands of mill `index` of `config` in `capture`, named `name`: a channel per
 /// stand channel (named as the channel), sampled at the channels' rate. Errors
 /// name the capture and why.
-pub fn from_capture(
+pub(crate) fn from_capture(
     name: String,
     capture: &Capture,
     config: &Config,

@@ -114,7 +114,7 @@ impl Board {
     }
 
     /// This board recording into `history`, signalling its changes on the history's
-    /// signal (so one [`Changes`] sees the results and what the history stored).
+    /// signal (so one `Changes` sees the results and what the history stored).
     pub fn with_history(mut self, history: History) -> Self {
         self.signal = history.signal();
         self.history = history;
@@ -161,7 +161,7 @@ impl Board {
     }
 
     /// A waiter on the change signal that has seen everything up to now: what every
-    /// output waits on (see [`super::changes`]).
+    /// output waits on (see `super::changes`).
     pub fn changes(&self) -> Changes {
         self.signal.subscribe()
     }

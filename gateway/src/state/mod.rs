@@ -7,7 +7,7 @@
 pub mod board;
 pub mod captures;
 pub mod catalogue;
-pub mod changes;
+pub(crate) mod changes;
 pub mod commands;
 pub mod events;
 pub mod gap_maps;

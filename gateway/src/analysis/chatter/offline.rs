@@ -18,7 +18,7 @@ use super::monitor::{ChatterMonitor, ChatterSetupError, ChatterUpdate};
 use super::verdict::Verdict;
 use crate::state::captures::{CaptureBands, ChatterEpisode, StandSpectrum};
 
-/// One recording of a tandem mill's stands (read by [`crate::records::stands`] from
+/// One recording of a tandem mill's stands (read by `crate::records::stands` from
 /// a CSV or a capture, or simulated by the experiments).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Recording {

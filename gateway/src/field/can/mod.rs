@@ -25,16 +25,16 @@
 //! gets an [`Acquired::Gap`] at that point: the dropped frames' ids are unknown, so
 //! no channel may be joined across it.
 //!
-//! The work is split by job: [`decode`] (frame -> channel values, pure), `batch`
+//! The work is split by job: `decode` (frame -> channel values, pure), `batch`
 //! (values of a batch of frames -> [`Acquired`] messages), `socket` (opening the
 //! interface, reading a batch of frames with their kernel timestamps and drop counts
-//! in one `recvmmsg`), [`reader`] (the [`CanReader`] task) and `supervisor`
+//! in one `recvmmsg`), `reader` (the [`CanReader`] task) and `supervisor`
 //! (reopening an interface that went away, for the service).
 
 pub(crate) mod batch;
-pub mod decode;
+pub(crate) mod decode;
 mod error;
-pub mod reader;
+pub(crate) mod reader;
 pub(crate) mod socket;
 pub(crate) mod supervisor;
 

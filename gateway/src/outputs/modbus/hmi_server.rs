@@ -52,14 +52,14 @@ use crate::state::commands::CommandOrigin;
 use crate::warn_limit::{WarnLimit, WARN_PERIOD};
 
 /// Time a request may take from its first byte to its last.
-pub const FRAME_TIMEOUT: Duration = Duration::from_secs(5);
+pub(crate) const FRAME_TIMEOUT: Duration = Duration::from_secs(5);
 /// Time a new connection has for its first request (at most the idle timeout): a
 /// client that connects and stays silent holds a slot this long, not the idle time.
-pub const FIRST_REQUEST_TIMEOUT: Duration = Duration::from_secs(5);
+pub(crate) const FIRST_REQUEST_TIMEOUT: Duration = Duration::from_secs(5);
 
 /// What the server has seen, for `/metrics`.
 #[derive(Debug, Default)]
-pub struct ServerCounters {
+pub(crate) struct ServerCounters {
     connections: AtomicU64,
     refused: AtomicU64,
     evicted: AtomicU64,
@@ -73,7 +73,7 @@ pub struct ServerCounters {
 
 /// A copy of [`ServerCounters`].
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct ServerCounts {
+pub(crate) struct ServerCounts {
     /// Connections accepted and served.
     pub connections: u64,
     /// Connections closed at once: the server was full and every connection was
@@ -99,7 +99,7 @@ pub struct ServerCounts {
 
 impl ServerCounters {
     /// Current values.
-    pub fn snapshot(&self) -> ServerCounts {
+    pub(crate) fn snapshot(&self) -> ServerCounts {
         let load = |counter: &AtomicU64| counter.load(Ordering::Relaxed);
         ServerCounts {
             connections: load(&self.connections),
@@ -121,7 +121,7 @@ fn count(counter: &AtomicU64) {
 
 /// The warning for a server whose bind address reaches other hosts, `None` on a
 /// loopback bind. `millgate check` prints it and the service logs it at start.
-pub fn exposure_warning(output: &ServerOutput) -> Option<String> {
+pub(crate) fn exposure_warning(output: &ServerOutput) -> Option<String> {
     if output.bind.ip().is_loopback() {
         return None;
     }
@@ -144,7 +144,7 @@ pub fn exposure_warning(output: &ServerOutput) -> Option<String> {
 
 /// The gateway's Modbus TCP server.
 #[derive(Debug)]
-pub struct ModbusServer {
+pub(crate) struct ModbusServer {
     output: ServerOutput,
     served: Served,
     counters: Arc<ServerCounters>,
@@ -154,7 +154,7 @@ pub struct ModbusServer {
 impl ModbusServer {
     /// A server of `served` (its map, the board it encodes, where commands go) with
     /// the settings of `output`, counting into `counters`.
-    pub fn new(output: ServerOutput, served: Served, counters: Arc<ServerCounters>) -> Self {
+    pub(crate) fn new(output: ServerOutput, served: Served, counters: Arc<ServerCounters>) -> Self {
         Self {
             output,
             served,
@@ -165,13 +165,17 @@ impl ModbusServer {
 
     /// Commands from a client at the host of `plc_address` (`host:port`, the PLC
     /// output's) are recorded as the PLC's.
-    pub fn with_plc_address(mut self, plc_address: Option<String>) -> Self {
+    pub(crate) fn with_plc_address(mut self, plc_address: Option<String>) -> Self {
         self.plc_address = plc_address;
         self
     }
 
     /// Serve on `listener` until shutdown; an error when accepting fails for good.
-    pub async fn run(self, listener: TcpListener, mut shutdown: Shutdown) -> std::io::Result<()> {
+    pub(crate) async fn run(
+        self,
+        listener: TcpListener,
+        mut shutdown: Shutdown,
+    ) -> std::io::Result<()> {
         let local = listener.local_addr()?;
         tracing::info!(%local, max_connections = self.output.max_connections, "Modbus server listening");
         let mut open = OpenConnections::new(

@@ -1,12 +1,12 @@
 //! The Modbus outputs, mirroring `field/modbus/`: the [`register_map`] derived from
-//! the catalogue, the [`plc_writer`] (FC 16 to the PLC), the [`hmi_server`] (reads and
+//! the catalogue, the [`plc_writer`] (FC 16 to the PLC), the `hmi_server` (reads and
 //! command registers), the [`frame`] codec they share, and the heartbeat's own task
 //! when there is no PLC.
 
 pub mod frame;
 pub(crate) mod heartbeat;
-pub mod hmi_server;
-pub mod metrics;
+pub(crate) mod hmi_server;
+pub(crate) mod metrics;
 pub mod plc_writer;
 pub mod register_map;
 

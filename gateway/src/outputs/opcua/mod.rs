@@ -5,8 +5,8 @@
 //!
 //! The server knows nothing of the results types: it publishes an
 //! [`model::AddressSpaceSpec`] and the [`model::Snapshot`]s and
-//! [`model::AlarmEventSpec`]s it is given, and calls an [`nodes::Acknowledger`] when
-//! a client acknowledges. [`adapter`] maps the catalogue and the board to them.
+//! [`model::AlarmEventSpec`]s it is given, and calls an `nodes::Acknowledger` when
+//! a client acknowledges. `adapter` maps the catalogue and the board to them.
 //!
 //! Files: `model.rs` (the vocabulary and the address space table), `nodes.rs` (the
 //! namespace, the nodes, the acknowledge guard), `events.rs` (alarm events),
@@ -19,13 +19,13 @@
 //! table, the demo's `--opcua`).
 //!
 //! The rest of the gateway (the service, `millgate check`, `millgate address-space`,
-//! the demo's `--opcua`) uses only this module's face: [`OpcUaOutputTask`],
+//! the demo's `--opcua`) uses only this module's face: `OpcUaOutputTask`,
 //! [`OpcUaStatus`], [`OpcUaError`], [`exposure_warning`], [`address_space_table`] and
 //! [`DemoOption`]. A millgate built without the feature gets the same names from
 //! `outputs/opcua_not_built.rs`, which refuses `[outputs.opcua]`, so no other file
 //! needs a `#[cfg(feature = "opcua")]`.
 
-pub mod adapter;
+pub(crate) mod adapter;
 mod alarms;
 mod auth;
 mod error;
@@ -33,7 +33,7 @@ mod events;
 pub mod front;
 mod metrics;
 pub mod model;
-pub mod nodes;
+pub(crate) mod nodes;
 mod pki;
 mod status;
 mod tools;
@@ -52,7 +52,7 @@ use tokio::sync::{mpsc, watch};
 
 use crate::shutdown::Shutdown;
 
-pub use adapter::OpcUaOutputTask;
+pub(crate) use adapter::OpcUaOutputTask;
 pub use error::OpcUaError;
 pub use status::{OpcUaCounts, OpcUaStatus};
 pub use tools::{address_space_table, DemoOption};

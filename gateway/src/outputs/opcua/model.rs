@@ -1,7 +1,7 @@
 //! The OPC UA server's own vocabulary, independent of the results types: what the
 //! address space holds ([`AddressSpaceSpec`]), what changes in it ([`Snapshot`] of
 //! [`VariableUpdate`]s) and the alarms it sends as events ([`AlarmEventSpec`]). A
-//! mapping from the gateway's catalogue builds these ([`super::adapter`]); the
+//! mapping from the gateway's catalogue builds these (`super::adapter`); the
 //! server knows nothing else.
 
 use std::fmt::Write as _;

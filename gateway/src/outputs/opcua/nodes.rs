@@ -32,16 +32,16 @@ use super::model::{
 use super::status::{count, OpcUaCounters};
 
 /// The millgate namespace's URI.
-pub const NAMESPACE_URI: &str = "urn:millgate:results";
+pub(crate) const NAMESPACE_URI: &str = "urn:millgate:results";
 /// The root object's browse name and node id.
 pub(crate) const ROOT: &str = "Millgate";
 /// The acknowledge method's browse name (a component of the gateway object).
-pub const ACKNOWLEDGE_METHOD: &str = "AcknowledgeAlarms";
+pub(crate) const ACKNOWLEDGE_METHOD: &str = "AcknowledgeAlarms";
 /// EUInformation's namespace for UNECE codes (OPC 10000-8, 5.6.3).
 const UNECE_NAMESPACE: &str = "http://www.opcfoundation.org/UA/units/un/cefact";
 
 /// What the acknowledge method calls once the guard let a call through.
-pub type Acknowledger = Arc<dyn Fn(Acknowledgement) + Send + Sync>;
+pub(crate) type Acknowledger = Arc<dyn Fn(Acknowledgement) + Send + Sync>;
 
 /// The node ids of the spec's objects and variables in namespace `ns`.
 #[derive(Debug, Clone)]

@@ -10,7 +10,7 @@ use crate::state::results::Results;
 /// The Sparkplug datatype of a catalogue figure type. Counts, indices and states (their
 /// value's index) go as UInt64: Tahu's JavaScript codec (2.x) decodes every UInt32
 /// metric as null (its open bug), and a UInt64 holds every count the gateway keeps.
-pub fn datatype(figure_type: FigureType) -> DataType {
+pub(crate) fn datatype(figure_type: FigureType) -> DataType {
     match figure_type {
         FigureType::Real => DataType::Double,
         FigureType::Count | FigureType::Sequence => DataType::UInt64,

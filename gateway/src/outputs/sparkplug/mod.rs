@@ -2,7 +2,7 @@
 //! (`[outputs.mqtt]`).
 //!
 //! - [`payload`]: the Sparkplug B protobuf messages (prost, written by hand).
-//! - [`devices`]: the devices and their metrics, from the catalogue of figures.
+//! - `devices`: the devices and their metrics, from the catalogue of figures.
 //! - [`node`]: the edge node's messages and sequence numbers, without I/O.
 //! - `status.rs`: the counters `/metrics` shows and why a connection failed;
 //!   `store.rs`: the node's state in the history file (bdSeq, the bites, the cursor).
@@ -35,10 +35,10 @@
 //!   broker or the primary host was away, are replayed flagged historical after the
 //!   next births, paced ([`forward`]).
 //!
-//! - With `[outputs.mqtt.tls]` the session runs over TLS ([`tls`]); username and
+//! - With `[outputs.mqtt.tls]` the session runs over TLS (`tls`); username and
 //!   password go in the CONNECT.
 
-pub mod devices;
+pub(crate) mod devices;
 pub mod forward;
 mod metrics;
 pub mod node;
@@ -48,7 +48,7 @@ mod session;
 mod status;
 mod store;
 mod timers;
-pub mod tls;
+pub(crate) mod tls;
 
 pub use status::{ConnectFailure, SparkplugCounts, SparkplugStatus};
 pub use store::next_bd_seq;

@@ -40,7 +40,7 @@ pub enum TlsSetupError {
 /// The client configuration of `tls`: the broker is checked against `ca_file` (and
 /// its name or IP address against the broker address); with `cert_file`/`key_file`,
 /// the gateway also presents its certificate.
-pub fn client_config(tls: &MqttTls) -> Result<Arc<ClientConfig>, TlsSetupError> {
+pub(crate) fn client_config(tls: &MqttTls) -> Result<Arc<ClientConfig>, TlsSetupError> {
     let material = tls.read()?;
     let mut roots = RootCertStore::empty();
     for certificate in material.ca {

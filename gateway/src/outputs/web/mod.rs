@@ -31,7 +31,7 @@ mod metrics;
 pub(crate) mod page;
 mod shared;
 
-pub use shared::{DrivelineInfo, QuerySlots, WebState};
+pub(crate) use shared::{DrivelineInfo, QuerySlots, WebState};
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -52,11 +52,11 @@ use crate::state::board::Board;
 
 /// The shortest time between two live updates of `/api/events`: changes that come
 /// faster are sent together in the next.
-pub const LIVE_PERIOD: Duration = Duration::from_millis(200);
+pub(crate) const LIVE_PERIOD: Duration = Duration::from_millis(200);
 
 /// The web page server.
 #[derive(Debug)]
-pub struct WebServer {
+pub(crate) struct WebServer {
     settings: WebOutput,
     state: Arc<WebState>,
     live: watch::Sender<Arc<String>>,
@@ -66,7 +66,11 @@ impl WebServer {
     /// A server for `config`'s `[outputs.web]` (`settings`) reading `board` and the
     /// history file (`config.history`), with its history query threads started (an
     /// error when they cannot be).
-    pub fn new(config: &Config, settings: WebOutput, board: Arc<Board>) -> std::io::Result<Self> {
+    pub(crate) fn new(
+        config: &Config,
+        settings: WebOutput,
+        board: Arc<Board>,
+    ) -> std::io::Result<Self> {
         let channel = |index: usize| config.channels[index].name.clone();
         let drivelines = config
             .drivelines
@@ -127,27 +131,34 @@ impl WebServer {
     }
 
     /// The history query slots, for `/metrics`.
-    pub fn query_slots(&self) -> Arc<QuerySlots> {
+    pub(crate) fn query_slots(&self) -> Arc<QuerySlots> {
         Arc::clone(&self.state.query_slots)
     }
 
     /// The band analysis of tandem mills' captures (`/api/captures/{id}/bands`), given
     /// by the service (the outputs import no analysis); without it that route
     /// answers 409.
-    pub fn with_capture_bands(self, analyse: crate::state::captures::CaptureBandsFn) -> Self {
+    pub(crate) fn with_capture_bands(
+        self,
+        analyse: crate::state::captures::CaptureBandsFn,
+    ) -> Self {
         let _ = self.state.capture_bands.0.set(analyse);
         self
     }
 
     /// The analysis' command channel, for `POST /api/captures` (taken only with
     /// `outputs.web.allow_commands`).
-    pub fn with_commands(self, commands: crate::state::commands::CommandSender) -> Self {
+    pub(crate) fn with_commands(self, commands: crate::state::commands::CommandSender) -> Self {
         let _ = self.state.commands.set(commands);
         self
     }
 
     /// Serve `listener` until `shutdown`; an error when accepting fails for good.
-    pub async fn run(self, listener: TcpListener, shutdown: Shutdown) -> std::io::Result<()> {
+    pub(crate) async fn run(
+        self,
+        listener: TcpListener,
+        shutdown: Shutdown,
+    ) -> std::io::Result<()> {
         let limits = Limits {
             post_paths: &["/api/captures"],
             max_connections: self.settings.max_connections,
@@ -232,7 +243,7 @@ pub(crate) fn router(state: Arc<WebState>) -> Router {
 
 /// A warning when `settings` binds an address other hosts can reach (the page
 /// shows the plant's state without authentication).
-pub fn exposure_warning(settings: &WebOutput) -> Option<String> {
+pub(crate) fn exposure_warning(settings: &WebOutput) -> Option<String> {
     (!settings.bind.ip().is_loopback()).then(|| {
         format!(
             "outputs.web.bind: {} accepts clients from other hosts: anyone who reaches it \

@@ -13,7 +13,7 @@ use crate::state::captures::CaptureBandsFn;
 
 /// What the configuration says about a driveline, for the pages.
 #[derive(Debug, Clone)]
-pub struct DrivelineInfo {
+pub(crate) struct DrivelineInfo {
     /// Its name.
     pub name: String,
     /// TAF warning and alarm thresholds.
@@ -32,7 +32,7 @@ pub struct DrivelineInfo {
 
 /// Everything the handlers share.
 #[derive(Debug)]
-pub struct WebState {
+pub(crate) struct WebState {
     /// The configuration's name.
     pub(crate) config_name: String,
     pub(crate) drivelines: Vec<DrivelineInfo>,
@@ -101,7 +101,7 @@ pub(crate) struct TrendCache(
 /// The page's history query slots (`outputs.web.history_queries`) and the requests
 /// that found none free, for `/metrics`.
 #[derive(Debug)]
-pub struct QuerySlots {
+pub(crate) struct QuerySlots {
     free: Arc<Semaphore>,
     limit: usize,
     refused: AtomicU64,
@@ -109,7 +109,7 @@ pub struct QuerySlots {
 
 impl QuerySlots {
     /// `limit` slots, all free.
-    pub fn new(limit: usize) -> Self {
+    pub(crate) fn new(limit: usize) -> Self {
         Self {
             free: Arc::new(Semaphore::new(limit)),
             limit,
@@ -119,7 +119,7 @@ impl QuerySlots {
 
     /// A free slot, waiting at most `wait` for one; `None` (counted as refused) when
     /// none frees in time. The slot is free again when the permit is dropped.
-    pub async fn acquire(&self, wait: Duration) -> Option<OwnedSemaphorePermit> {
+    pub(crate) async fn acquire(&self, wait: Duration) -> Option<OwnedSemaphorePermit> {
         match tokio::time::timeout(wait, Arc::clone(&self.free).acquire_owned()).await {
             Ok(Ok(permit)) => Some(permit),
             _ => {
@@ -130,17 +130,17 @@ impl QuerySlots {
     }
 
     /// How many slots there are.
-    pub fn limit(&self) -> usize {
+    pub(crate) fn limit(&self) -> usize {
         self.limit
     }
 
     /// Slots held by a query now.
-    pub fn in_use(&self) -> usize {
+    pub(crate) fn in_use(&self) -> usize {
         self.limit.saturating_sub(self.free.available_permits())
     }
 
     /// Requests answered 503 because no slot freed in time, since start.
-    pub fn refused(&self) -> u64 {
+    pub(crate) fn refused(&self) -> u64 {
         self.refused.load(Ordering::Relaxed)
     }
 }

@@ -4,7 +4,7 @@
 //! Sparkplug births and data, the `/metrics` families, the web API and the OPC UA
 //! address space name each figure by its key; the history keeps a figure in the
 //! columns it names here and sets it back at a start through it (see
-//! [`mappings`](crate::outputs::figures) for the generated table).
+//! `mappings` for the generated table).
 //!
 //! # One declaration per figure
 //!

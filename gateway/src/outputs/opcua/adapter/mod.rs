@@ -247,7 +247,7 @@ impl Objects {
 /// What the mapping needs of the configuration, and when it saw each mill's
 /// evaluations change.
 #[derive(Debug, Clone)]
-pub struct CatalogueAdapter {
+pub(crate) struct CatalogueAdapter {
     layout: Layout,
     source_names: Vec<String>,
     driveline_names: Vec<String>,
@@ -262,7 +262,7 @@ pub struct CatalogueAdapter {
 impl CatalogueAdapter {
     /// The mapping of `config`'s figures, its rod mills having `rod_spans` spans each;
     /// and the address space it fills.
-    pub fn new(config: &Config, rod_spans: &[usize]) -> (Self, AddressSpaceSpec) {
+    pub(crate) fn new(config: &Config, rod_spans: &[usize]) -> (Self, AddressSpaceSpec) {
         let mut objects = Objects(Vec::new());
         objects.add(
             ("Gateway", None),
@@ -336,7 +336,7 @@ impl CatalogueAdapter {
     }
 
     /// Every variable's state in `results`, seen at `now`.
-    pub fn snapshot(&mut self, results: &Results, now: SystemTime) -> Snapshot {
+    pub(crate) fn snapshot(&mut self, results: &Results, now: SystemTime) -> Snapshot {
         let layout = &self.layout;
         let objects = 1
             + layout.sources.len()
@@ -403,7 +403,7 @@ fn seen(
 
 mod task;
 
-pub use task::{acknowledger, OpcUaOutputTask, EVENT_QUEUE};
+pub(crate) use task::OpcUaOutputTask;
 
 #[cfg(test)]
 mod tests;

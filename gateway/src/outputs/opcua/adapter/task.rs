@@ -16,11 +16,11 @@ use crate::state::commands::{Command, CommandOrigin, CommandSender};
 use crate::state::events::HistoryEvent;
 
 /// Alarm events waiting for the server; more are dropped (counted and logged).
-pub const EVENT_QUEUE: usize = 256;
+pub(crate) const EVENT_QUEUE: usize = 256;
 
 /// The acknowledge method's action: clear the latched alarms, as an OPC UA client's
 /// command to the analysis (which records it in the history).
-pub fn acknowledger(commands: CommandSender) -> Acknowledger {
+pub(crate) fn acknowledger(commands: CommandSender) -> Acknowledger {
     std::sync::Arc::new(move |acknowledgement| {
         let origin = CommandOrigin::OpcUa(acknowledgement.peer);
         if let Err(error) = commands.send(Command::AcknowledgeAlarms { origin }) {
@@ -80,7 +80,7 @@ async fn feed(
 
 /// The OPC UA output as the service runs it: the server of `config`'s figures and the
 /// feed from the board.
-pub struct OpcUaOutputTask {
+pub(crate) struct OpcUaOutputTask {
     server: super::super::OpcUaServer,
     adapter: CatalogueAdapter,
     board: std::sync::Arc<Board>,
@@ -100,7 +100,7 @@ impl OpcUaOutputTask {
     /// The OPC UA output of `config` (`None` without `[outputs.opcua]`), its rod mills
     /// having `rod_spans` spans; an error when its address space or its certificate
     /// store cannot be made.
-    pub fn prepare(
+    pub(crate) fn prepare(
         config: &Config,
         rod_spans: &[usize],
         board: std::sync::Arc<Board>,
@@ -122,13 +122,13 @@ impl OpcUaOutputTask {
     }
 
     /// The server's counts.
-    pub fn status(&self) -> super::super::OpcUaStatus {
+    pub(crate) fn status(&self) -> super::super::OpcUaStatus {
         self.server.status()
     }
 
     /// Serve on `listener` and feed the server until `shutdown`; what ended the
     /// server (an error before the shutdown is a failure).
-    pub async fn run(
+    pub(crate) async fn run(
         self,
         listener: tokio::net::TcpListener,
         shutdown: Shutdown,
