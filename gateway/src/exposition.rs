@@ -25,7 +25,7 @@ pub enum Kind {
 }
 
 /// A sample's labels: `(name, value)` pairs; the values are escaped when written.
-pub type Labels<'a> = Vec<(&'static str, &'a str)>;
+pub(crate) type Labels<'a> = Vec<(&'static str, &'a str)>;
 
 /// What writes its own families onto the `/metrics` page: a field source's, the
 /// history's or an output's counters. The page asks each for its families at every
@@ -99,14 +99,17 @@ impl Exposition {
     }
 
     /// A family of one sample without labels per `(name, kind, help, value)`.
-    pub fn scalars<'a>(&mut self, rows: impl IntoIterator<Item = (&'a str, Kind, &'a str, f64)>) {
+    pub(crate) fn scalars<'a>(
+        &mut self,
+        rows: impl IntoIterator<Item = (&'a str, Kind, &'a str, f64)>,
+    ) {
         for (name, kind, help, value) in rows {
             self.scalar(name, kind, help, value);
         }
     }
 
     /// The page's text.
-    pub fn into_text(self) -> String {
+    pub(crate) fn into_text(self) -> String {
         self.out
     }
 }

@@ -30,7 +30,7 @@ impl ShutdownTrigger {
 
 impl Shutdown {
     /// Whether shutdown was requested.
-    pub fn is_shutdown(&self) -> bool {
+    pub(crate) fn is_shutdown(&self) -> bool {
         *self.0.borrow()
     }
 

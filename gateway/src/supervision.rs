@@ -32,7 +32,7 @@ impl Liveness {
     }
 
     /// Turns of the analysis loop so far.
-    pub fn analysis_turns(&self) -> u64 {
+    pub(crate) fn analysis_turns(&self) -> u64 {
         self.analysis_turns.load(Ordering::Relaxed)
     }
 }

@@ -34,7 +34,7 @@ use crate::state::gap_maps::{Cell, GapMaps};
 pub const SUBSTEPS: usize = 8;
 /// Half the 0.90 quantile of chi2 with one degree of freedom: the drop in
 /// log-likelihood that bounds the 90% interval.
-pub const INTERVAL_LOGLIK: f64 = 2.705_543_454_095_404 / 2.0;
+pub(crate) const INTERVAL_LOGLIK: f64 = 2.705_543_454_095_404 / 2.0;
 /// Log-likelihood by which the best coupling must beat every other to be named (ln 100).
 pub const COUPLING_LOGLIK: f64 = 4.605_170_185_988_091;
 /// Model error of the TAF beyond the interpolation estimate (standard deviation): what
@@ -92,7 +92,7 @@ fn filtered(rms: f64, cutoff_hz: Option<f64>, rate_hz: f64) -> f64 {
 impl GapObservation {
     /// The observation of a bite whose window (kN*m, as captured) gave `transient` with
     /// `settings`; `None` without a TAF.
-    pub fn from_window(
+    pub(crate) fn from_window(
         window: &[f64],
         transient: &TransientResult,
         settings: &TransientSettings,

@@ -161,7 +161,7 @@ impl GapMapJob {
 /// machine while the service already runs), reporting `progress(done, total)` per
 /// simulation and sending the outcome on `ready`; the build stops early once
 /// `cancel` is set.
-pub fn spawn_job(
+pub(crate) fn spawn_job(
     job: GapMapJob,
     threads: usize,
     ready: tokio::sync::mpsc::Sender<GapMapsReady>,
@@ -194,7 +194,7 @@ pub fn spawn_job(
 
 /// The outcome of a driveline's gap map job, for [`super::Analysis::run`]: the
 /// driveline index and the maps or why there are none.
-pub type GapMapsReady = (usize, Result<GapMaps, GapMapError>);
+pub(crate) type GapMapsReady = (usize, Result<GapMaps, GapMapError>);
 
 /// The gap diagnosis state of one driveline in the analysis task.
 #[derive(Debug)]

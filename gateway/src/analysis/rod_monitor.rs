@@ -268,7 +268,7 @@ impl RodMonitor {
     }
 
     /// The mill's span names, in rolling order.
-    pub fn span_names(&self) -> Vec<String> {
+    pub(crate) fn span_names(&self) -> Vec<String> {
         self.mill
             .spans
             .iter()
@@ -524,7 +524,7 @@ impl RodMonitor {
 
 /// The rod monitors of every rod mill, publishing into the results.
 #[derive(Debug)]
-pub struct RodAnalysis {
+pub(crate) struct RodAnalysis {
     monitors: Vec<RodMonitor>,
     /// The rod mills' names, for the history.
     names: Vec<String>,
@@ -533,7 +533,7 @@ pub struct RodAnalysis {
 
 impl RodAnalysis {
     /// Monitors for every rod mill of `config`.
-    pub fn new(config: &Config, board: Arc<Board>) -> Result<Self, RodSetupError> {
+    pub(crate) fn new(config: &Config, board: Arc<Board>) -> Result<Self, RodSetupError> {
         let monitors = (0..config.rod_mills.len())
             .map(|index| RodMonitor::new(config, index))
             .collect::<Result<_, _>>()?;
@@ -545,12 +545,12 @@ impl RodAnalysis {
     }
 
     /// The monitors, in config order.
-    pub fn monitors(&self) -> &[RodMonitor] {
+    pub(crate) fn monitors(&self) -> &[RodMonitor] {
         &self.monitors
     }
 
     /// Route a reader message: process values that are a rod mill's input.
-    pub fn handle(&mut self, message: &Acquired) {
+    pub(crate) fn handle(&mut self, message: &Acquired) {
         let Acquired::ProcessValue { channel, value } = *message else {
             return;
         };

@@ -85,7 +85,7 @@ pub fn next_trend(trend: Option<f64>, index: f64) -> f64 {
 
 /// Linear references of one driveline, cached by static torque level.
 #[derive(Debug, Clone)]
-pub struct WearReference {
+pub(crate) struct WearReference {
     simulator: BiteSimulator,
     cache: BTreeMap<i64, Reference>,
 }
@@ -93,7 +93,7 @@ pub struct WearReference {
 impl WearReference {
     /// References for a driveline whose bites `simulator` simulates and analyses like
     /// its measured ones (the linear model: no gap).
-    pub fn new(simulator: BiteSimulator) -> Self {
+    pub(crate) fn new(simulator: BiteSimulator) -> Self {
         Self {
             simulator,
             cache: BTreeMap::new(),
@@ -102,18 +102,13 @@ impl WearReference {
 
     /// The cache level of `static_knm`: the nearest multiple of
     /// [`STATIC_TORQUE_STEP_KNM`], at least one step.
-    pub fn level_of(static_knm: f64) -> i64 {
+    pub(crate) fn level_of(static_knm: f64) -> i64 {
         ((static_knm / STATIC_TORQUE_STEP_KNM).round() as i64).max(1)
-    }
-
-    /// Number of cached levels.
-    pub fn cached_levels(&self) -> usize {
-        self.cache.len()
     }
 
     /// The reference for a bite of static torque `static_knm`, kN*m: from the cache,
     /// or simulated at its level and cached.
-    pub fn reference(&mut self, static_knm: f64) -> Result<Reference, SimulatedBiteError> {
+    pub(crate) fn reference(&mut self, static_knm: f64) -> Result<Reference, SimulatedBiteError> {
         let level = Self::level_of(static_knm);
         if let Some(reference) = self.cache.get(&level) {
             return Ok(*reference);
@@ -128,7 +123,7 @@ impl WearReference {
 
     /// The wear measures of a bite of static torque `static_knm` (kN*m), TAF `taf`
     /// and first-period shift `period_shift_s` (s).
-    pub fn estimate(
+    pub(crate) fn estimate(
         &mut self,
         static_knm: f64,
         taf: f64,

@@ -26,9 +26,8 @@ use std::path::PathBuf;
 use anyhow::Context as _;
 
 use crate::cli::history::parse_time;
-pub use crate::history::capture_files::{
-    file_name, CaptureHeader, ExportFormat, CSV_HEADER_PREFIX,
-};
+pub(crate) use crate::history::capture_files::CaptureHeader;
+pub use crate::history::capture_files::{file_name, ExportFormat};
 use crate::history::capture_files::{run_config, write};
 use crate::history::captures::row_json;
 use crate::history::query::{CaptureRow, Filter, HistoryReader};

@@ -108,7 +108,7 @@ fn history_warning(service: &Service) -> Option<String> {
 
 /// One problem or warning of [`report_json`].
 #[derive(Debug, Clone, PartialEq, Eq, Serialize)]
-pub struct Finding {
+pub(crate) struct Finding {
     /// The configuration file as given (or the model file a problem is in, as the
     /// configuration names it).
     pub file: String,

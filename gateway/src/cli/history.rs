@@ -83,7 +83,7 @@ pub struct HistoryArgs {
 }
 
 /// `--since` / `--until` as a time, naming the option in the error.
-pub fn parse_time(option: &str, text: Option<&str>) -> anyhow::Result<Option<UtcTime>> {
+pub(crate) fn parse_time(option: &str, text: Option<&str>) -> anyhow::Result<Option<UtcTime>> {
     text.map(|text| UtcTime::parse(text).map_err(|error| anyhow::anyhow!("{option}: {error}")))
         .transpose()
 }

@@ -39,7 +39,7 @@ struct Row<'a> {
 }
 
 /// `u16`, `i16`, ... as written in configurations and exports.
-pub fn type_name(value_type: ValueType) -> &'static str {
+pub(crate) fn type_name(value_type: ValueType) -> &'static str {
     match value_type {
         ValueType::U16 => "u16",
         ValueType::I16 => "i16",
@@ -50,7 +50,7 @@ pub fn type_name(value_type: ValueType) -> &'static str {
 }
 
 /// `ABCD`, `CDAB`, ...
-pub fn word_order_name(order: WordOrder) -> &'static str {
+pub(crate) fn word_order_name(order: WordOrder) -> &'static str {
     match order {
         WordOrder::Abcd => "ABCD",
         WordOrder::Cdab => "CDAB",

@@ -260,7 +260,7 @@ pub fn tandem(args: &TandemArgs) -> anyhow::Result<String> {
 }
 
 /// The text `millgate sim modes` prints for the model at `path`.
-pub fn modes_report(path: &std::path::Path, format: ModesFormat) -> anyhow::Result<String> {
+pub(crate) fn modes_report(path: &std::path::Path, format: ModesFormat) -> anyhow::Result<String> {
     let model = Model::load(path)?;
     let modes = modal::modes(&model)?;
     let shapes: Vec<Vec<f64>> = (0..modes.frequencies_hz.len())

@@ -31,7 +31,7 @@ pub struct SaturationLimits {
 
 impl SaturationLimits {
     /// No limits: nothing is saturated.
-    pub const NONE: Self = Self {
+    pub(crate) const NONE: Self = Self {
         low: f64::NEG_INFINITY,
         high: f64::INFINITY,
     };

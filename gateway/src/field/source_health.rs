@@ -83,7 +83,7 @@ impl SourceHealth {
     }
 
     /// Status at `now`.
-    pub fn status_at(&self, now: Instant) -> SourceStatus {
+    pub(crate) fn status_at(&self, now: Instant) -> SourceStatus {
         let last_good_ms = self.last_good_ms.load(Ordering::Relaxed);
         if last_good_ms == 0 {
             return SourceStatus::Lost;

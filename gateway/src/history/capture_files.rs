@@ -29,7 +29,7 @@ pub enum CaptureFileError {
 }
 
 /// The comment that opens a capture's CSV, before its JSON.
-pub const CSV_HEADER_PREFIX: &str = "millgate capture ";
+pub(crate) const CSV_HEADER_PREFIX: &str = "millgate capture ";
 
 /// File format of an export.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -139,7 +139,7 @@ impl CaptureHeader {
     }
 
     /// The header in `comments` (a CSV's `#` lines), when one is a capture's.
-    pub fn from_comments(comments: &[String]) -> Option<Result<Self, serde_json::Error>> {
+    pub(crate) fn from_comments(comments: &[String]) -> Option<Result<Self, serde_json::Error>> {
         let json = comments
             .iter()
             .find_map(|comment| comment.strip_prefix(CSV_HEADER_PREFIX))?;
@@ -148,7 +148,7 @@ impl CaptureHeader {
 }
 
 /// The configuration name and hash of run `run_id` (`gateway_runs`).
-pub fn run_config(reader: &HistoryReader, run_id: i64) -> Result<RunConfig, HistoryError> {
+pub(crate) fn run_config(reader: &HistoryReader, run_id: i64) -> Result<RunConfig, HistoryError> {
     let connection = reader.connection();
     let sqlite = |source| HistoryError::Sqlite {
         path: reader.path().to_path_buf(),

@@ -258,7 +258,7 @@ pub fn decode(
 
 /// A capture row as JSON, its `meta` as an object (the list `millgate capture list
 /// --format json` and the web API give).
-pub fn row_json(row: &CaptureRow) -> serde_json::Value {
+pub(crate) fn row_json(row: &CaptureRow) -> serde_json::Value {
     let mut value = serde_json::to_value(row).unwrap_or_default();
     if let Ok(meta) = serde_json::from_str::<serde_json::Value>(&row.meta) {
         value["meta"] = meta;
@@ -336,7 +336,11 @@ impl HistoryReader {
     }
 
     /// The captures of the bites with row ids `first..=last` (`bites.id`), in id order.
-    pub fn bite_captures(&self, first: i64, last: i64) -> Result<Vec<CaptureRow>, HistoryError> {
+    pub(crate) fn bite_captures(
+        &self,
+        first: i64,
+        last: i64,
+    ) -> Result<Vec<CaptureRow>, HistoryError> {
         use super::query::Record as _;
         let sql = format!(
             "SELECT {} FROM captures WHERE bite_id BETWEEN ?1 AND ?2 ORDER BY id",
@@ -353,7 +357,7 @@ impl HistoryReader {
     /// The newest `limit` captures of `subject`'s alarm bites (kind `bite`, kept
     /// longest: a TAF alarm, or the bite that raised the gap alarm) whose first sample
     /// is in `since..until` (either open), newest first.
-    pub fn alarm_bite_captures(
+    pub(crate) fn alarm_bite_captures(
         &self,
         subject: &str,
         since: Option<UtcTime>,

@@ -60,7 +60,7 @@ impl HistoryError {
     /// disk, the file system, permissions), unlike a file that can never be this
     /// millgate's history (damaged, another application's, a newer schema) or a bad
     /// query.
-    pub fn may_pass(&self) -> bool {
+    pub(crate) fn may_pass(&self) -> bool {
         let sqlite_may_pass = |source: &rusqlite::Error| {
             !matches!(
                 source.sqlite_error_code(),

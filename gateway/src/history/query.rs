@@ -16,7 +16,8 @@ use serde::Serialize;
 
 pub use super::bite_row::{trusted, BiteRow};
 use super::error::{check_file_owner, HistoryError};
-pub use super::record::{Cell, Record, ToCell};
+pub(crate) use super::record::ToCell;
+pub use super::record::{Cell, Record};
 use super::restore::Restored;
 use super::schema::{current_version, SchemaError};
 use crate::state::time::UtcTime;
@@ -488,7 +489,7 @@ impl HistoryReader {
     }
 
     /// The id of the last bite in the file (0 when there is none).
-    pub fn last_bite_id(&self) -> Result<i64, HistoryError> {
+    pub(crate) fn last_bite_id(&self) -> Result<i64, HistoryError> {
         self.connection
             .query_row("SELECT coalesce(max(id), 0) FROM bites", [], |row| {
                 row.get(0)
@@ -497,7 +498,7 @@ impl HistoryReader {
     }
 
     /// How many bites have an id above `id`.
-    pub fn bites_after(&self, id: i64) -> Result<u64, HistoryError> {
+    pub(crate) fn bites_after(&self, id: i64) -> Result<u64, HistoryError> {
         let count: i64 = self
             .connection
             .query_row("SELECT count(*) FROM bites WHERE id > ?1", [id], |row| {

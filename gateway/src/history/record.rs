@@ -29,7 +29,7 @@ impl std::fmt::Display for Cell {
 }
 
 /// Conversion of a row field to a [`Cell`].
-pub trait ToCell {
+pub(crate) trait ToCell {
     /// The cell.
     fn to_cell(&self) -> Cell;
 }

@@ -131,7 +131,7 @@ impl RetentionState {
 impl Retention {
     /// The settings of `[history]`: 500 rows and 256 pages (1 MiB at 4 KiB pages)
     /// per step.
-    pub fn from_config(config: &millgate_config::History) -> Self {
+    pub(crate) fn from_config(config: &millgate_config::History) -> Self {
         Self {
             max_age: Duration::from_secs(u64::from(config.retention_days) * 86_400),
             max_bytes: u64::from(config.max_size_mb) * 1024 * 1024,
@@ -269,7 +269,7 @@ pub struct CaptureStep {
 
 impl CaptureRetention {
     /// The settings of `[history]`, or `None` when captures are off.
-    pub fn from_config(config: &millgate_config::History) -> Option<Self> {
+    pub(crate) fn from_config(config: &millgate_config::History) -> Option<Self> {
         let captures = &config.captures;
         captures.enabled.then(|| Self {
             thin_after: Duration::from_secs(u64::from(captures.thin_after_days) * 86_400),

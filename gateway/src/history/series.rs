@@ -120,7 +120,10 @@ impl HistoryReader {
 
     /// The first and the last bite's time of `driveline`, `None` without bites (nor
     /// for a driveline the file does not know); two look-ups in an index.
-    pub fn bite_span(&self, driveline: &str) -> Result<Option<(UtcTime, UtcTime)>, HistoryError> {
+    pub(crate) fn bite_span(
+        &self,
+        driveline: &str,
+    ) -> Result<Option<(UtcTime, UtcTime)>, HistoryError> {
         let span: (Option<String>, Option<String>) = self
             .connection()
             .prepare_cached(

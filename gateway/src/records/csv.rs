@@ -203,7 +203,7 @@ impl Table {
 
     /// [`Self::pick`] for a torque channel (kN*m): also refuses a record with a sample
     /// beyond [`MAX_TORQUE_KNM`], naming its line and column.
-    pub fn pick_torque<'a>(
+    pub(crate) fn pick_torque<'a>(
         &'a self,
         name: Option<&'a str>,
     ) -> Result<(&'a str, &'a [f64]), String> {

@@ -222,7 +222,7 @@ impl Service {
     }
 
     /// Bites as they are analysed.
-    pub fn subscribe_bites(&self) -> broadcast::Receiver<BiteReport> {
+    pub(crate) fn subscribe_bites(&self) -> broadcast::Receiver<BiteReport> {
         self.bites.subscribe()
     }
 

@@ -127,12 +127,12 @@ impl Board {
     }
 
     /// Driveline names, in config order.
-    pub fn driveline_names(&self) -> &[String] {
+    pub(crate) fn driveline_names(&self) -> &[String] {
         &self.driveline_names
     }
 
     /// Tandem mill names, in config order.
-    pub fn tandem_mill_names(&self) -> &[String] {
+    pub(crate) fn tandem_mill_names(&self) -> &[String] {
         &self.tandem_mill_names
     }
 
@@ -145,7 +145,7 @@ impl Board {
     /// the history, under one lock: whoever reads the results after this call finds
     /// the events already counted in [`History::enqueued`], which is what lets the
     /// PLC writer wait until a bite it writes is stored.
-    pub fn update_recorded<T>(
+    pub(crate) fn update_recorded<T>(
         &self,
         change: impl FnOnce(&mut Results, &mut Vec<HistoryEvent>) -> T,
     ) -> T {
@@ -176,7 +176,7 @@ impl Board {
     /// Keep the source statuses as they are now in every later image: the readers are
     /// about to stop, and a source they stop reading is not a source gone stale. The
     /// final image of an orderly stop shows the sources as they were while running.
-    pub fn freeze_health(&self) {
+    pub(crate) fn freeze_health(&self) {
         let statuses = self.health.iter().map(|h| h.status()).collect();
         *crate::lock(&self.frozen_health) = Some(statuses);
     }

@@ -98,7 +98,7 @@ impl Changes {
     }
 
     /// Wait until the history has settled its first `through` events.
-    pub async fn settled_through(&mut self, through: u64) {
+    pub(crate) async fn settled_through(&mut self, through: u64) {
         let reached = self
             .receiver
             .wait_for(|version| version.settled >= through)

@@ -155,7 +155,7 @@ impl AlarmRecord {
     /// The changes of the flags of `R` that carry one of `kinds`, from `was` to `is`
     /// (raised or cleared by the analysis), about `subject` at `time`, with `value`
     /// (what moved them: a gain ratio, a speed margin).
-    pub fn flag_changes<R: Subject>(
+    pub(crate) fn flag_changes<R: Subject>(
         (was, is): (&R, &R),
         kinds: &[AlarmKind],
         (subject, time): (&str, UtcTime),
@@ -326,13 +326,13 @@ pub enum HistoryEvent {
 impl HistoryEvent {
     /// Whether the event carries a capture's samples (a bite's, a chatter episode's,
     /// a manual request's): the history counts those it could not store.
-    pub fn holds_capture(&self) -> bool {
+    pub(crate) fn holds_capture(&self) -> bool {
         matches!(self, Self::CapturedBite(..) | Self::Capture(_))
     }
 
     /// Whether the event belongs to the alarm stream ([`super::history::History::alarms`]):
     /// an alarm's change or a source outage's.
-    pub fn is_alarm_stream(&self) -> bool {
+    pub(crate) fn is_alarm_stream(&self) -> bool {
         matches!(
             self,
             Self::Alarm(_)

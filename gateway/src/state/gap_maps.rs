@@ -135,7 +135,7 @@ impl GapMaps {
     }
 
     /// The static torque range every row covers, kN*m (measured values).
-    pub fn static_range_knm(&self) -> (f64, f64) {
+    pub(crate) fn static_range_knm(&self) -> (f64, f64) {
         let mut range = (f64::NEG_INFINITY, f64::INFINITY);
         for map in &self.data.maps {
             for row in &map.rows {
@@ -164,7 +164,7 @@ impl GapMaps {
 impl GapMaps {
     /// The linear driveline (gap 0) at static torque `static_knm`: TAF and first-period
     /// shift (s, when the map has it); `None` outside the map.
-    pub fn linear_at(&self, static_knm: f64) -> Option<(f64, Option<f64>)> {
+    pub(crate) fn linear_at(&self, static_knm: f64) -> Option<(f64, Option<f64>)> {
         let cell = self.cells(0, static_knm)?.into_iter().next()?;
         let [a, b] = cell.points;
         let shift = a
@@ -175,7 +175,7 @@ impl GapMaps {
     }
 
     /// The index (in spec order) of coupling `coupling`'s map.
-    pub fn index_of(&self, coupling: usize) -> Option<usize> {
+    pub(crate) fn index_of(&self, coupling: usize) -> Option<usize> {
         self.data
             .maps
             .iter()
@@ -184,7 +184,7 @@ impl GapMaps {
 
     /// [`Self::taf_curve`]s of map `index` at every whole mrad up to the largest gap
     /// row: (gap in mrad, curve), gap 0 first.
-    pub fn whole_mrad_curves(&self, index: usize) -> Vec<(u32, Vec<(f64, f64)>)> {
+    pub(crate) fn whole_mrad_curves(&self, index: usize) -> Vec<(u32, Vec<(f64, f64)>)> {
         let max_mrad = self.gaps_rad().last().copied().unwrap_or(0.0) * 1e3;
         // Rows are exact multiples of the step: 8 mrad may come out as 7.999...
         let whole = (max_mrad + 1e-9).floor() as u32;

@@ -321,11 +321,6 @@ impl History {
         }
     }
 
-    /// Whether events are kept (a `[history]` is configured).
-    pub fn is_enabled(&self) -> bool {
-        self.shared.counters.state() != HistoryState::Disabled
-    }
-
     /// Events handed to the writer so far.
     pub fn enqueued(&self) -> u64 {
         crate::lock(&self.shared.queue).enqueued

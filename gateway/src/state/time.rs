@@ -76,7 +76,7 @@ impl UtcTime {
     }
 
     /// Seconds since the Unix epoch.
-    pub fn unix_s(self) -> f64 {
+    pub(crate) fn unix_s(self) -> f64 {
         self.unix_ms as f64 / 1000.0
     }
 

@@ -42,9 +42,9 @@ use super::monitor::ChatterSetupError;
 use super::offline::{windows, Recording, Window};
 
 /// The margin when none is given, percent.
-pub const DEFAULT_MARGIN_PERCENT: f64 = 10.0;
+pub(crate) const DEFAULT_MARGIN_PERCENT: f64 = 10.0;
 /// Largest allowed margin, percent.
-pub const MAX_MARGIN_PERCENT: f64 = 200.0;
+pub(crate) const MAX_MARGIN_PERCENT: f64 = 200.0;
 /// A stand's gain above this many times its median over a recording means the
 /// recording shows chatter (see the module docs for where the factor comes from).
 pub const CHATTER_FACTOR: f64 = 8.0;

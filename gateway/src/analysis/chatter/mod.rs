@@ -36,10 +36,11 @@ mod spectra;
 pub(crate) mod testing;
 mod verdict;
 
-pub use align::{RestartCause, MAX_STAND_LAG_S};
+pub use align::MAX_STAND_LAG_S;
 pub use capture::ANCHOR_BLOCK;
 pub use gain::GainReading;
-pub use monitor::{ChatterMonitor, ChatterSetupError, ChatterUpdate, MIN_WINDOW_SAMPLES};
+pub(crate) use monitor::ChatterSetupError;
+pub use monitor::{ChatterMonitor, ChatterUpdate, MIN_WINDOW_SAMPLES};
 pub use offline::{
     episode_bands, welch_psd, windows, Recording, Window, SPECTRUM_WINDOWS_EACH_SIDE,
 };

@@ -287,7 +287,7 @@ impl ChatterMonitor {
 
     /// Common index one past stand `stand`'s latest sample (on the axis of
     /// [`Self::last_window_end`]), once the stand is anchored.
-    pub fn stand_next_index(&self, stand: usize) -> Option<i64> {
+    pub(crate) fn stand_next_index(&self, stand: usize) -> Option<i64> {
         self.aligned.stand_next_index(stand)
     }
 

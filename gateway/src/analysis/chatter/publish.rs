@@ -73,7 +73,7 @@ impl ChatterAnalysis {
 
     /// Keep mill `mill`'s stands' next `seconds` s as a capture of kind `manual`;
     /// false when the mill does not exist or captures are not kept.
-    pub fn start_manual_capture(&mut self, mill: usize, seconds: f64) -> bool {
+    pub(crate) fn start_manual_capture(&mut self, mill: usize, seconds: f64) -> bool {
         match self.captures.get_mut(mill) {
             Some(Some(recorder)) => {
                 recorder.start_manual(seconds);

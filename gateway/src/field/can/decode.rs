@@ -23,7 +23,7 @@ mod error_bits {
 
 /// The bus state an error frame reports, if it reports one: bus off, error passive,
 /// or back to error active (controller restarted or recovered).
-pub fn bus_state_of_error_frame(class_bits: u32, data: &[u8]) -> Option<BusState> {
+pub(crate) fn bus_state_of_error_frame(class_bits: u32, data: &[u8]) -> Option<BusState> {
     use error_bits::*;
     let controller = if class_bits & CRTL != 0 {
         data.get(1).copied().unwrap_or(0)
@@ -144,7 +144,8 @@ impl CanDecoder {
     }
 
     /// Number of channels the decoder fills.
-    pub fn channel_count(&self) -> usize {
+    #[cfg(test)]
+    fn channel_count(&self) -> usize {
         self.messages
             .values()
             .map(|message| message.signals.len())

@@ -38,7 +38,7 @@ pub(crate) mod reader;
 pub(crate) mod socket;
 pub(crate) mod supervisor;
 
-pub use decode::{bus_state_of_error_frame, CanDecoder, FrameOutcome};
+pub use decode::{CanDecoder, FrameOutcome};
 pub use error::CanError;
 pub use reader::CanReader;
 

@@ -72,14 +72,14 @@ impl CanReader {
 
     /// Report every batch of frames read to `health` (the source is then "ok"
     /// while frames arrive).
-    pub fn with_health(mut self, health: Arc<SourceHealth>) -> Self {
+    pub(crate) fn with_health(mut self, health: Arc<SourceHealth>) -> Self {
         self.health = Some(health);
         self
     }
 
     /// Count into `counters` instead of the reader's own (a supervisor keeps one
     /// set per source across reopens).
-    pub fn with_counters(mut self, counters: Arc<CanCounters>) -> Self {
+    pub(crate) fn with_counters(mut self, counters: Arc<CanCounters>) -> Self {
         self.counters = counters;
         self
     }

@@ -77,7 +77,7 @@ pub enum ModbusError {
 impl ModbusError {
     /// Whether the connection must be dropped and made again: the network failed. A
     /// refusal keeps it.
-    pub fn needs_reconnect(&self) -> bool {
+    pub(crate) fn needs_reconnect(&self) -> bool {
         !matches!(self, ModbusError::Exception { .. })
     }
 }

@@ -44,7 +44,7 @@ use crate::warn_limit::{WarnLimit, WARN_PERIOD};
 
 /// Why one poll of a DAQ failed.
 #[derive(Debug, thiserror::Error)]
-pub enum DaqError {
+pub(crate) enum DaqError {
     /// The request failed: the network, or the device refused.
     #[error(transparent)]
     Modbus(#[from] ModbusError),

@@ -34,22 +34,22 @@ use crate::state::board::Board;
 use crate::state::commands::{Command, CommandOrigin, CommandRefused, CommandSender};
 
 /// Bytes of the MBAP header: transaction id, protocol id, length, unit id.
-pub const MBAP_HEADER_LEN: usize = 7;
+pub(crate) const MBAP_HEADER_LEN: usize = 7;
 /// Largest MBAP length field accepted: the unit id and an FC 16 PDU of 125 registers
 /// (257). The protocol's own limit is 254 (a 253-byte PDU); reading a little more
 /// lets an FC 16 of 124 or 125 registers, over its 123-register limit, be answered
 /// with exception 03 rather than by closing the connection.
-pub const MAX_MBAP_LENGTH: usize = 257;
+pub(crate) const MAX_MBAP_LENGTH: usize = 257;
 /// Largest Modbus TCP frame, bytes.
 pub const MAX_FRAME_LEN: usize = 6 + MAX_MBAP_LENGTH;
 /// Largest register count of one read request (FC 03 / 04).
-pub const MAX_READ_REGISTERS: u16 = 125;
+pub(crate) const MAX_READ_REGISTERS: u16 = 125;
 /// Largest register count of one FC 16 request.
 pub const MAX_WRITE_REGISTERS: u16 = 123;
 /// The unit id of a broadcast.
-pub const BROADCAST_UNIT: u8 = 0;
+pub(crate) const BROADCAST_UNIT: u8 = 0;
 /// The unit id a Modbus TCP device answers whatever its configured id (TCP guide).
-pub const ANY_UNIT: u8 = 255;
+pub(crate) const ANY_UNIT: u8 = 255;
 
 /// A Modbus exception code the server answers with.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -129,7 +129,7 @@ impl Reply {
 }
 
 /// The exception code of a reply frame, `None` for a normal response.
-pub fn exception_code(reply: &[u8]) -> Option<u8> {
+pub(crate) fn exception_code(reply: &[u8]) -> Option<u8> {
     (reply.len() == MBAP_HEADER_LEN + 2 && reply[7] & 0x80 != 0).then(|| reply[8])
 }
 
@@ -342,7 +342,7 @@ fn commands_of(
 }
 
 /// Seconds of a manual capture whose command leaves them 0.
-pub const MANUAL_CAPTURE_DEFAULT_S: u16 = 10;
+pub(crate) const MANUAL_CAPTURE_DEFAULT_S: u16 = 10;
 
 #[cfg(test)]
 mod tests {

@@ -188,7 +188,7 @@ impl PlcWriter {
 
     /// Send `true` on `attempted` once the first write was attempted (connected or
     /// not, written or not).
-    pub fn on_first_attempt(mut self, attempted: tokio::sync::watch::Sender<bool>) -> Self {
+    pub(crate) fn on_first_attempt(mut self, attempted: tokio::sync::watch::Sender<bool>) -> Self {
         self.first_attempt = Some(attempted);
         self
     }

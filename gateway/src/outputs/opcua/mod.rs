@@ -54,7 +54,7 @@ use crate::shutdown::Shutdown;
 
 pub(crate) use adapter::OpcUaOutputTask;
 pub use error::OpcUaError;
-pub use status::{OpcUaCounts, OpcUaStatus};
+pub use status::OpcUaStatus;
 pub use tools::{address_space_table, DemoOption};
 
 use front::{ChannelPeers, FrontDoor};
@@ -427,7 +427,7 @@ fn is_finite(value: Value) -> bool {
 }
 
 /// The OPC UA status code of `quality`.
-pub fn status_code(quality: Quality) -> StatusCode {
+pub(crate) fn status_code(quality: Quality) -> StatusCode {
     match quality {
         Quality::Good => StatusCode::Good,
         Quality::UncertainLastUsableValue => StatusCode::UncertainLastUsableValue,

@@ -123,19 +123,19 @@ pub struct Unit {
 
 impl Unit {
     /// kN·m, torque.
-    pub const KILONEWTON_METRE: Unit = Unit::new("B48", "kN·m", "kilonewton metre");
+    pub(crate) const KILONEWTON_METRE: Unit = Unit::new("B48", "kN·m", "kilonewton metre");
     /// Hz.
-    pub const HERTZ: Unit = Unit::new("HTZ", "Hz", "hertz");
+    pub(crate) const HERTZ: Unit = Unit::new("HTZ", "Hz", "hertz");
     /// s.
-    pub const SECOND: Unit = Unit::new("SEC", "s", "second");
+    pub(crate) const SECOND: Unit = Unit::new("SEC", "s", "second");
     /// mrad, the driveline gap.
-    pub const MILLIRADIAN: Unit = Unit::new("C25", "mrad", "milliradian");
+    pub(crate) const MILLIRADIAN: Unit = Unit::new("C25", "mrad", "milliradian");
     /// m/s, the rod speed.
-    pub const METRE_PER_SECOND: Unit = Unit::new("MTS", "m/s", "metre per second");
+    pub(crate) const METRE_PER_SECOND: Unit = Unit::new("MTS", "m/s", "metre per second");
     /// 1/s, growth exponents.
-    pub const RECIPROCAL_SECOND: Unit = Unit::new("C97", "s⁻¹", "reciprocal second");
+    pub(crate) const RECIPROCAL_SECOND: Unit = Unit::new("C97", "s⁻¹", "reciprocal second");
     /// °C, the rod temperature.
-    pub const DEGREE_CELSIUS: Unit = Unit::new("CEL", "°C", "degree Celsius");
+    pub(crate) const DEGREE_CELSIUS: Unit = Unit::new("CEL", "°C", "degree Celsius");
 
     const fn new(unece_code: &'static str, symbol: &'static str, name: &'static str) -> Self {
         Self {
@@ -212,7 +212,7 @@ pub enum Quality {
 
 impl Quality {
     /// Whether a value goes with this quality (only good and uncertain ones carry one).
-    pub fn carries_value(self) -> bool {
+    pub(crate) fn carries_value(self) -> bool {
         matches!(self, Quality::Good | Quality::UncertainLastUsableValue)
     }
 }
@@ -291,7 +291,7 @@ pub struct Acknowledgement {
 /// The address space as a Markdown table: one row per variable with its path below
 /// the root (its node id's string is `Millgate/` and the path), type, unit (UNECE
 /// code), range and description.
-pub fn render_markdown(spec: &AddressSpaceSpec) -> String {
+pub(crate) fn render_markdown(spec: &AddressSpaceSpec) -> String {
     let mut text = String::from(
         "| variable (below `Millgate/`) | type | unit (UNECE code) | range | description |\n\
          |---|---|---|---|---|\n",
@@ -320,7 +320,7 @@ pub fn render_markdown(spec: &AddressSpaceSpec) -> String {
 /// An object's path from the root: its folder (or its parent's path) and its name,
 /// `/`-separated (`Drivelines/F1`, `RodMills/R1/span1`, `Gateway`); the string
 /// identifier of its node id.
-pub fn object_path(spec: &AddressSpaceSpec, index: usize) -> String {
+pub(crate) fn object_path(spec: &AddressSpaceSpec, index: usize) -> String {
     let object = &spec.objects[index];
     match (object.parent, object.kind.folder()) {
         (Some(parent), _) if parent < index => {

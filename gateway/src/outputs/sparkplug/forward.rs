@@ -111,7 +111,7 @@ impl Confirmations {
     }
 
     /// Bites handed to the client and not yet acknowledged.
-    pub fn outstanding(&self) -> usize {
+    pub(crate) fn outstanding(&self) -> usize {
         self.outstanding.len()
     }
 
@@ -124,7 +124,7 @@ impl Confirmations {
     }
 
     /// Rows up to `row` were read and handed over or skipped (another driveline).
-    pub fn read_up_to(&mut self, row: i64) {
+    pub(crate) fn read_up_to(&mut self, row: i64) {
         self.read = self.read.max(row);
         self.update();
     }
@@ -152,7 +152,7 @@ impl Confirmations {
     }
 
     /// The session is gone: what it did not confirm is read again in the next one.
-    pub fn session_lost(&mut self) {
+    pub(crate) fn session_lost(&mut self) {
         self.queued.clear();
         self.written.clear();
         self.outstanding.clear();

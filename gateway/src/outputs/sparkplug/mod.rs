@@ -117,7 +117,7 @@ impl SparkplugNode {
 
     /// The node with these rod mills as devices: `(name, span count)` in config order
     /// (the span count from the mill file; it fixes the `span<i>` metrics at birth).
-    pub fn with_rod_mills(mut self, rod_mills: Vec<(String, usize)>) -> Self {
+    pub(crate) fn with_rod_mills(mut self, rod_mills: Vec<(String, usize)>) -> Self {
         self.rod_mills = rod_mills;
         self
     }

@@ -99,7 +99,7 @@ impl FigureType {
 
     /// A [`FigureType::State`]'s values with their names: `0 starting, 1 running, 2
     /// stopped`; `None` for another type.
-    pub fn state_values(self) -> Option<String> {
+    pub(crate) fn state_values(self) -> Option<String> {
         match self {
             FigureType::State(names) => {
                 let values: Vec<String> = names
@@ -115,7 +115,7 @@ impl FigureType {
 
     /// The name of state `index` of a [`FigureType::State`]; `None` for another type or
     /// an index past its names.
-    pub fn state_name(self, index: u64) -> Option<&'static str> {
+    pub(crate) fn state_name(self, index: u64) -> Option<&'static str> {
         match self {
             FigureType::State(names) => usize::try_from(index)
                 .ok()
@@ -433,7 +433,7 @@ pub struct Spec {
 impl Spec {
     /// Whether the figure only grows (until a restart without a history, or a wrap):
     /// a Prometheus counter. A count that can fall (the bites pooled) is not.
-    pub fn is_counter(&self) -> bool {
+    pub(crate) fn is_counter(&self) -> bool {
         self.figure_type == FigureType::Count && self.guard == Guard::Always
     }
 }
@@ -507,7 +507,7 @@ impl<R: Subject> Figure<R> {
 
     /// The name of a [`FigureType::State`] figure's state in `subject` (while it has a
     /// usable value): what a page shows.
-    pub fn state_name(&self, subject: &R) -> Option<&'static str> {
+    pub(crate) fn state_name(&self, subject: &R) -> Option<&'static str> {
         match self.read(subject).usable()? {
             Value::Index(index) => self.figure_type.state_name(index),
             _ => None,

@@ -12,7 +12,7 @@ impl EdgeNode {
     /// NBIRTH (seq 0) and a DBIRTH per device with every metric: name, alias,
     /// datatype, unit, value; a driveline's and a tandem mill's with its newest capture
     /// (`captures`: the drivelines' in order, then the tandem mills').
-    pub fn births(
+    pub(crate) fn births(
         &mut self,
         results: &Results,
         captures: &[Option<CaptureNotice>],

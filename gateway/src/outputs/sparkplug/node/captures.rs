@@ -23,7 +23,7 @@ pub const CAPTURE_METRICS: [(&str, DataType, &str); 6] = [
 /// A capture as the node announces it: which (its id in the history file: fetch it
 /// at `/api/captures/{id}`), what kind, its samples per channel, time span and size.
 #[derive(Debug, Clone, PartialEq)]
-pub struct CaptureNotice {
+pub(crate) struct CaptureNotice {
     /// The capture's id in the history file.
     pub id: u64,
     /// `bite`, `chatter` or `manual`.
@@ -80,7 +80,12 @@ impl CaptureNotice {
 impl EdgeNode {
     /// The DDATA announcing `capture`, one of tandem mill `mill`'s (a chatter episode
     /// or a manual capture of its stands): its capture metrics, timestamped `now_ms`.
-    pub fn mill_capture(&mut self, mill: usize, capture: &CaptureNotice, now_ms: u64) -> Outgoing {
+    pub(crate) fn mill_capture(
+        &mut self,
+        mill: usize,
+        capture: &CaptureNotice,
+        now_ms: u64,
+    ) -> Outgoing {
         let device = self
             .devices
             .iter()

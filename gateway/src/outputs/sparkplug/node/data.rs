@@ -17,7 +17,7 @@ impl EdgeNode {
     /// with only the changed metrics, by alias. A driveline whose results show a bite
     /// whose own DDATA has not gone yet waits for it (at most [`BITE_HOLD_MS`]): a host
     /// sees a bite's DDATA before the values it changed, never after.
-    pub fn data(&mut self, results: &Results, now_ms: u64) -> Vec<Outgoing> {
+    pub(crate) fn data(&mut self, results: &Results, now_ms: u64) -> Vec<Outgoing> {
         let mut out = Vec::new();
         for index in 0..self.devices.len() {
             if let Kind::Driveline(k) = self.devices[index].kind {
@@ -58,7 +58,7 @@ impl EdgeNode {
     /// keeps its values but not the flags of the moment), timestamped with the bite's
     /// time; `historical` flags a bite sent after the fact (replayed). `capture`: the
     /// bite's capture, announced in the same DDATA.
-    pub fn bite(
+    pub(crate) fn bite(
         &mut self,
         index: usize,
         after: &DrivelineResults,

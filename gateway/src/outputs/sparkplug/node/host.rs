@@ -8,23 +8,23 @@ use crate::outputs::sparkplug::payload::{MetricValue, Payload};
 use super::NAMESPACE;
 
 /// The node metric a host sets to `true` in an NCMD to ask for the births again.
-pub const REBIRTH: &str = "Node Control/Rebirth";
+pub(crate) const REBIRTH: &str = "Node Control/Rebirth";
 
 /// The topic a primary host application publishes its STATE on (Sparkplug 3.0).
-pub fn state_topic(host_id: &str) -> String {
+pub(crate) fn state_topic(host_id: &str) -> String {
     format!("{NAMESPACE}/STATE/{host_id}")
 }
 
 /// Whether a STATE payload (`{"online": true, "timestamp": ...}`) says the host is
 /// online; `None` when it is not such JSON.
-pub fn host_online(payload: &[u8]) -> Option<bool> {
+pub(crate) fn host_online(payload: &[u8]) -> Option<bool> {
     let state: serde_json::Value = serde_json::from_slice(payload).ok()?;
     state.get("online")?.as_bool()
 }
 
 /// Whether an NCMD payload asks for a rebirth (`Node Control/Rebirth` = true, by
 /// name or by its alias).
-pub fn is_rebirth(payload: &[u8]) -> Result<bool, prost::DecodeError> {
+pub(crate) fn is_rebirth(payload: &[u8]) -> Result<bool, prost::DecodeError> {
     let payload = Payload::decode(payload)?;
     Ok(payload.metrics.iter().any(|metric| {
         let named = metric.name.as_deref() == Some(REBIRTH) || metric.alias == Some(1);

@@ -24,9 +24,10 @@ mod captures;
 mod data;
 mod host;
 
-pub use captures::{CaptureNotice, CAPTURE_METRICS};
+pub(crate) use captures::CaptureNotice;
+pub use captures::CAPTURE_METRICS;
 pub use data::BITE_HOLD_MS;
-pub use host::{host_online, is_rebirth, state_topic, REBIRTH};
+pub(crate) use host::{host_online, is_rebirth, state_topic, REBIRTH};
 
 use prost::Message as _;
 
@@ -35,11 +36,11 @@ use super::payload::{DataType, Metric, MetricValue, Payload};
 use crate::state::catalogue::{self, Value};
 
 /// The Sparkplug B topic namespace.
-pub const NAMESPACE: &str = "spBv1.0";
+pub(crate) const NAMESPACE: &str = "spBv1.0";
 
 /// One MQTT message to publish.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Outgoing {
+pub(crate) struct Outgoing {
     /// The topic.
     pub topic: String,
     /// The encoded [`Payload`].
@@ -55,7 +56,7 @@ const NODE_METRICS: u64 = 2;
 
 /// The edge node of one session.
 #[derive(Debug)]
-pub struct EdgeNode {
+pub(crate) struct EdgeNode {
     group: String,
     node: String,
     bd_seq: u8,
@@ -67,7 +68,7 @@ impl EdgeNode {
     /// The node `group`/`node` with these devices, in session `bd_seq`: the
     /// drivelines, the tandem mills, then the rod mills (name, span count), each in
     /// config order.
-    pub fn new(
+    pub(crate) fn new(
         group: &str,
         node: &str,
         (drivelines, tandem_mills): (&[String], &[String]),
@@ -125,13 +126,8 @@ impl EdgeNode {
         }
     }
 
-    /// This session's bdSeq.
-    pub fn bd_seq(&self) -> u8 {
-        self.bd_seq
-    }
-
     /// A new MQTT session: the next bdSeq (the caller persists it before connecting).
-    pub fn new_session(&mut self, bd_seq: u8) {
+    pub(crate) fn new_session(&mut self, bd_seq: u8) {
         self.bd_seq = bd_seq;
     }
 
@@ -147,7 +143,7 @@ impl EdgeNode {
     }
 
     /// The NCMD topic the node subscribes to.
-    pub fn command_topic(&self) -> String {
+    pub(crate) fn command_topic(&self) -> String {
         self.node_topic("NCMD")
     }
 
@@ -170,7 +166,7 @@ impl EdgeNode {
     }
 
     /// The Will: NDEATH with this session's bdSeq (no seq).
-    pub fn death(&self, now_ms: u64) -> Outgoing {
+    pub(crate) fn death(&self, now_ms: u64) -> Outgoing {
         let payload = Payload {
             timestamp: Some(now_ms),
             metrics: vec![self.bd_seq_metric(now_ms)],
