@@ -36,6 +36,7 @@
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 
+use millgate::analysis::chatter::Recording;
 use millgate_config::Config;
 use millgate_sim::tandem::roots::CriticalSpeed;
 use millgate_sim::tandem::simulate::{
@@ -389,4 +390,21 @@ pub fn simulated(scenario: &Scenario) -> anyhow::Result<(TandemMill, Record)> {
     let mill = TandemMill::new(&base)?;
     let record = simulate(&mill, &scenario.settings)?;
     Ok((mill, record))
+}
+
+/// The stands' accelerations of `record` from sample `from` on (the settling left
+/// out), as the recording `name` that commissioning and the monitors read.
+pub fn recording_from(name: String, record: &Record, from: usize) -> Recording {
+    Recording {
+        name,
+        time_s: (from..record.len())
+            .map(|k| k as f64 / SAMPLE_RATE_HZ)
+            .collect(),
+        stands: record
+            .acceleration
+            .iter()
+            .map(|a| a[from..].to_vec())
+            .collect(),
+        speed: None,
+    }
 }

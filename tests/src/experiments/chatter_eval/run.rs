@@ -5,7 +5,7 @@
 use std::time::{Duration, Instant};
 
 use millgate::analysis::chatter::commission::{commission, Commissioning};
-use millgate::analysis::chatter::{windows, ChatterMonitor, ChatterUpdate, Recording, Window};
+use millgate::analysis::chatter::{windows, ChatterMonitor, ChatterUpdate, Window};
 use millgate_config::Config;
 use millgate_dsp::band_gain::{BandGain, BandGainSettings};
 use millgate_dsp::mode_damping::least_damped;
@@ -13,9 +13,9 @@ use millgate_sim::tandem::simulate::Record;
 use millgate_sim::tandem::truth::ground_truth;
 
 use super::{
-    monitor_config, monitor_config_with, parallel, simulated, EvalPlan, Figures, PaperFigures,
-    RunKind, RunResult, Scenario, BLOCK, CHATTER_BAND_HZ, CONFIGURED_K_MAX, LONG_WINDOW_S, MARGIN,
-    PENCIL_DECIMATION, REFERENCE_BAND_HZ, SAMPLE_RATE_HZ, WINDOW_S,
+    monitor_config, monitor_config_with, parallel, recording_from, simulated, EvalPlan, Figures,
+    PaperFigures, RunKind, RunResult, Scenario, BLOCK, CHATTER_BAND_HZ, CONFIGURED_K_MAX,
+    LONG_WINDOW_S, MARGIN, PENCIL_DECIMATION, REFERENCE_BAND_HZ, SAMPLE_RATE_HZ, WINDOW_S,
 };
 
 /// What `millgate chatter commission` makes of the race's calibration runs, and what
@@ -47,18 +47,11 @@ pub fn commissioned_race(
         .collect();
     let recordings = parallel(plan.threads, &calibration, |scenario| {
         let (_, record) = simulated(scenario)?;
-        Ok(Recording {
-            name: format!("calibration seed {}", scenario.settings.seed),
-            time_s: (from..record.len())
-                .map(|k| k as f64 / SAMPLE_RATE_HZ)
-                .collect(),
-            stands: record
-                .acceleration
-                .iter()
-                .map(|a| a[from..].to_vec())
-                .collect(),
-            speed: None,
-        })
+        Ok(recording_from(
+            format!("calibration seed {}", scenario.settings.seed),
+            &record,
+            from,
+        ))
     })?;
     let stands = recordings.first().map_or(0, |r| r.stands.len());
     let commissioning = commission(

@@ -2,7 +2,6 @@
 //! and the runs drawn over them ([`runs`]).
 
 use millgate::analysis::chatter::commission::commission;
-use millgate::analysis::chatter::Recording;
 use millgate_sim::tandem::simulate::{
     simulate, Accelerometer, Excitation, NoiseBurst, RunSettings, SpeedRamp,
 };
@@ -12,7 +11,9 @@ use rand::rngs::SmallRng;
 use rand::{Rng, SeedableRng};
 
 use super::{LoopPlan, Mill, Run, Scenario, MARGIN_PERCENT, STANDS};
-use crate::experiments::chatter_eval::{monitor_config_with, parallel, SAMPLE_RATE_HZ};
+use crate::experiments::chatter_eval::{
+    monitor_config_with, parallel, recording_from, SAMPLE_RATE_HZ,
+};
 
 /// The mills of `plan` with their critical speeds and commissioned thresholds.
 pub fn mills(plan: &LoopPlan) -> anyhow::Result<Vec<Mill>> {
@@ -75,18 +76,7 @@ pub fn mills(plan: &LoopPlan) -> anyhow::Result<Vec<Mill>> {
                 )?;
                 // The settling time is not part of the recording.
                 let from = (plan.settle_s * SAMPLE_RATE_HZ) as usize;
-                Ok(Recording {
-                    name: format!("commissioning {k}"),
-                    time_s: (from..record.len())
-                        .map(|i| i as f64 / SAMPLE_RATE_HZ)
-                        .collect(),
-                    stands: record
-                        .acceleration
-                        .iter()
-                        .map(|a| a[from..].to_vec())
-                        .collect(),
-                    speed: None,
-                })
+                Ok(recording_from(format!("commissioning {k}"), &record, from))
             })
             .collect::<anyhow::Result<Vec<_>>>()?;
         let gain = commission(
