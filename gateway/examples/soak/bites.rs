@@ -2,7 +2,7 @@
 //! counters the PLC received, the bites the history stored, and the quantiles of the
 //! latencies between them.
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::path::Path;
 use std::time::{Duration, SystemTime};
 
@@ -13,7 +13,7 @@ use millgate_config::layout::BLOCK_REGISTERS;
 use millgate_sim::devices::modbus_bank::ReadRecord;
 use millgate_sim::devices::virtual_plc::VirtualPlc;
 
-use crate::daqs::CHANNELS_PER_DAQ;
+use crate::daqs::{CHANNELS_PER_DAQ, DRIVELINE_BLOCK, DRIVELINE_RATE_HZ, POST_TRIGGER_S};
 
 /// Bite counters seen at the PLC and in the history, and the latencies between them.
 #[derive(Default)]
@@ -23,9 +23,9 @@ pub(crate) struct Bites {
     /// Per driveline: the last bite counter the PLC held.
     plc_counter: Vec<u32>,
     /// (driveline, bite counter) -> the first write holding it.
-    pub(crate) at_plc: HashMap<(usize, u32), SystemTime>,
+    at_plc: HashMap<(usize, u32), SystemTime>,
     /// (driveline, bite counter) -> the bite's time and whether it is degraded.
-    pub(crate) in_history: HashMap<(usize, u32), (UtcTime, bool)>,
+    in_history: HashMap<(usize, u32), (UtcTime, bool)>,
     last_history_id: i64,
     /// Per driveline: the last block sequence its DAQ answered a read of its channel
     /// with, and the times of the answers that brought a new block (its deliveries),
@@ -140,12 +140,13 @@ impl Bites {
 
     /// Latencies of the bites both at the PLC and in the history, timed after
     /// `measured_from`, not yet measured.
-    pub(crate) fn measure(
-        &mut self,
-        measured_from: SystemTime,
-        after_trigger: Duration,
-        block_period: Duration,
-    ) {
+    pub(crate) fn measure(&mut self, measured_from: SystemTime) {
+        // The window's last sample after the bite's time (the trigger), and the torque
+        // DAQs' block period.
+        let after_trigger = Duration::from_secs_f64(
+            ((POST_TRIGGER_S * DRIVELINE_RATE_HZ).round() - 1.0) / DRIVELINE_RATE_HZ,
+        );
+        let block_period = Duration::from_secs_f64(f64::from(DRIVELINE_BLOCK) / DRIVELINE_RATE_HZ);
         for (key, (time, _)) in &self.in_history {
             if self.measured.contains(key) {
                 continue;
@@ -186,6 +187,28 @@ impl Bites {
             }
         }
     }
+
+    /// The bites in the history marked degraded.
+    pub(crate) fn degraded(&self) -> usize {
+        self.in_history
+            .values()
+            .filter(|(_, degraded)| *degraded)
+            .count()
+    }
+
+    /// Of the bites `counted` (per driveline, its bites 1 to the count): how many are
+    /// not in the history, and how many not at the PLC.
+    pub(crate) fn missing(&self, counted: &BTreeMap<usize, u32>) -> (usize, usize) {
+        let mut not_in_history = 0;
+        let mut not_at_plc = 0;
+        for (&driveline, &count) in counted {
+            for bite in 1..=count {
+                not_in_history += usize::from(!self.in_history.contains_key(&(driveline, bite)));
+                not_at_plc += usize::from(!self.at_plc.contains_key(&(driveline, bite)));
+            }
+        }
+        (not_in_history, not_at_plc)
+    }
 }
 
 /// Whether the quantile `q` of `sorted` is below `limit` (true without a value: no
@@ -195,6 +218,7 @@ pub(crate) fn quantile_below(sorted: &[f64], q: f64, limit: f64) -> bool {
     value.is_nan() || value < limit
 }
 
+/// The quantile `q` (0 to 1) of `sorted`: the nearest sample, NaN without one.
 pub(crate) fn quantile(sorted: &[f64], q: f64) -> f64 {
     if sorted.is_empty() {
         return f64::NAN;

@@ -112,6 +112,8 @@ pub(crate) struct LoadPoint {
     pub(crate) web: SocketAddr,
 }
 
+/// Generates the configuration of a load point in `folder` (beside a copy of the
+/// demo's model) and binds the DAQs it reads, the PLC and the gateway's ports.
 pub(crate) fn load_point(
     folder: &Path,
     drivelines: usize,
@@ -124,29 +126,7 @@ pub(crate) fn load_point(
         .with_context(|| format!("copying {}", model.display()))?;
     let mut config = format!("name = \"load bench: {drivelines} drivelines, {stands} stands\"\n\n");
     let mut listeners = Vec::new();
-
-    let bars = setup(BARS_S, 0.5, 1)?.schedule.torque_knm;
-    let stagger = (STAGGER_S * DRIVELINE_RATE_HZ) as usize;
-    let mut torque_channels = Vec::new();
-    let mut driveline_tables = String::new();
-    for k in 0..drivelines {
-        let mut signal = bars.clone();
-        signal.rotate_right((k * stagger) % bars.len());
-        torque_channels.push(GeneratedChannel {
-            toml: format!(
-                "[[channels]]\nname = \"d{k}_torque\"\nkind = \"torque\"\nunit = \"kN*m\"\n\
-                 scale = 0.01\nsample_rate_hz = {DRIVELINE_RATE_HZ:.1}\nsource = SOURCE\n\n"
-            ),
-            daq_channel: block_channel(signal),
-        });
-        driveline_tables.push_str(&format!(
-            "[[drivelines]]\nname = \"D{k}\"\ntorque = \"d{k}_torque\"\n\
-             model = \"table2-adjusted.toml\"\n\
-             bite = {{ threshold_knm = 20.0, pre_trigger_s = 0.1, post_trigger_s = {POST_TRIGGER_S} }}\n\
-             thresholds = {{ taf_warning = 2.2, taf_alarm = 2.6, gap_warning_mrad = 2.0, gap_alarm_mrad = 4.0 }}\n\
-             wear = {{ pool_bites = 5, gap_step_mrad = 0.25, torque_points = 12 }}\n\n"
-        ));
-    }
+    let (torque_channels, driveline_tables) = driveline_channels(drivelines)?;
     daqs(
         "torque_daq",
         DRIVELINE_RATE_HZ,
@@ -156,44 +136,17 @@ pub(crate) fn load_point(
         &mut config,
         &mut listeners,
     )?;
-
-    let noise = rand_distr::Normal::new(0.0, STAND_NOISE_RMS)?;
-    let mut stand_channels = Vec::new();
-    for s in 0..stands {
-        let mut rng = rand::rngs::StdRng::seed_from_u64(1000 + s as u64);
-        let length = (STAND_NOISE_S * tandem_rate_hz) as usize;
-        stand_channels.push(GeneratedChannel {
-            toml: format!(
-                "[[channels]]\nname = \"s{s}_vib\"\nkind = \"acceleration\"\nunit = \"m/s^2\"\n\
-                 scale = 0.01\nsample_rate_hz = {tandem_rate_hz:.1}\nsource = SOURCE\n\n"
-            ),
-            daq_channel: block_channel((0..length).map(|_| noise.sample(&mut rng)).collect()),
-        });
-    }
     daqs(
         "stand_daq",
         tandem_rate_hz,
         STAND_BLOCK,
-        stand_channels,
+        stand_channels(stands, tandem_rate_hz)?,
         false,
         &mut config,
         &mut listeners,
     )?;
     config.push_str(&driveline_tables);
-    for (mill, first) in (0..stands).step_by(STANDS_PER_MILL).enumerate() {
-        let names: Vec<String> = (first..stands.min(first + STANDS_PER_MILL))
-            .map(|s| format!("\"s{s}_vib\""))
-            .collect();
-        let thresholds = vec!["3.0"; names.len()].join(", ");
-        config.push_str(&format!(
-            "[[tandem_mills]]\nname = \"TCM{mill}\"\nstands = [{}]\n\
-             chatter_band_hz = [100.0, 300.0]\nwindow_s = 0.5\nk_max = 0.25\n\
-             detector = \"band_gain\"\nreference_band_hz = [450.0, 900.0]\n\
-             gain_window_s = 2.0\ngain_thresholds = [{thresholds}]\n\
-             slow_down_release = 0.8\nslow_down_hold_s = 5.0\n\n",
-            names.join(", ")
-        ));
-    }
+    config.push_str(&tandem_mill_tables(stands));
 
     let plc_listener = StdListener::bind("127.0.0.1:0")?;
     let (server, metrics, web) = (free_port()?, free_port()?, free_port()?);
@@ -219,4 +172,72 @@ pub(crate) fn load_point(
         metrics,
         web,
     })
+}
+
+/// The drivelines' torque channels, each a copy of the demo's bars `STAGGER_S` later
+/// than the one before, and their `[[drivelines]]` tables.
+fn driveline_channels(drivelines: usize) -> anyhow::Result<(Vec<GeneratedChannel>, String)> {
+    let bars = setup(BARS_S, 0.5, 1)?.schedule.torque_knm;
+    let stagger = (STAGGER_S * DRIVELINE_RATE_HZ) as usize;
+    let mut torque_channels = Vec::new();
+    let mut driveline_tables = String::new();
+    for k in 0..drivelines {
+        let mut signal = bars.clone();
+        signal.rotate_right((k * stagger) % bars.len());
+        torque_channels.push(GeneratedChannel {
+            toml: format!(
+                "[[channels]]\nname = \"d{k}_torque\"\nkind = \"torque\"\nunit = \"kN*m\"\n\
+                 scale = 0.01\nsample_rate_hz = {DRIVELINE_RATE_HZ:.1}\nsource = SOURCE\n\n"
+            ),
+            daq_channel: block_channel(signal),
+        });
+        driveline_tables.push_str(&format!(
+            "[[drivelines]]\nname = \"D{k}\"\ntorque = \"d{k}_torque\"\n\
+             model = \"table2-adjusted.toml\"\n\
+             bite = {{ threshold_knm = 20.0, pre_trigger_s = 0.1, post_trigger_s = {POST_TRIGGER_S} }}\n\
+             thresholds = {{ taf_warning = 2.2, taf_alarm = 2.6, gap_warning_mrad = 2.0, gap_alarm_mrad = 4.0 }}\n\
+             wear = {{ pool_bites = 5, gap_step_mrad = 0.25, torque_points = 12 }}\n\n"
+        ));
+    }
+    Ok((torque_channels, driveline_tables))
+}
+
+/// The stands' accelerometer channels: `STAND_NOISE_S` of Gaussian noise each, seeded
+/// by the stand's number.
+fn stand_channels(stands: usize, tandem_rate_hz: f64) -> anyhow::Result<Vec<GeneratedChannel>> {
+    let noise = rand_distr::Normal::new(0.0, STAND_NOISE_RMS)?;
+    let mut stand_channels = Vec::new();
+    for s in 0..stands {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(1000 + s as u64);
+        let length = (STAND_NOISE_S * tandem_rate_hz) as usize;
+        stand_channels.push(GeneratedChannel {
+            toml: format!(
+                "[[channels]]\nname = \"s{s}_vib\"\nkind = \"acceleration\"\nunit = \"m/s^2\"\n\
+                 scale = 0.01\nsample_rate_hz = {tandem_rate_hz:.1}\nsource = SOURCE\n\n"
+            ),
+            daq_channel: block_channel((0..length).map(|_| noise.sample(&mut rng)).collect()),
+        });
+    }
+    Ok(stand_channels)
+}
+
+/// The `[[tandem_mills]]` tables: the stands in mills of `STANDS_PER_MILL`, the last
+/// one with the rest.
+fn tandem_mill_tables(stands: usize) -> String {
+    let mut tables = String::new();
+    for (mill, first) in (0..stands).step_by(STANDS_PER_MILL).enumerate() {
+        let names: Vec<String> = (first..stands.min(first + STANDS_PER_MILL))
+            .map(|s| format!("\"s{s}_vib\""))
+            .collect();
+        let thresholds = vec!["3.0"; names.len()].join(", ");
+        tables.push_str(&format!(
+            "[[tandem_mills]]\nname = \"TCM{mill}\"\nstands = [{}]\n\
+             chatter_band_hz = [100.0, 300.0]\nwindow_s = 0.5\nk_max = 0.25\n\
+             detector = \"band_gain\"\nreference_band_hz = [450.0, 900.0]\n\
+             gain_window_s = 2.0\ngain_thresholds = [{thresholds}]\n\
+             slow_down_release = 0.8\nslow_down_hold_s = 5.0\n\n",
+            names.join(", ")
+        ));
+    }
+    tables
 }

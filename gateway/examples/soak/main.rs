@@ -59,9 +59,10 @@ mod daqs;
 mod options;
 mod point;
 mod probe;
+mod samples;
 mod summary;
 
-use crate::options::{load_points, options};
+use crate::options::Options;
 use crate::point::run_point;
 use crate::summary::print_table;
 
@@ -69,9 +70,9 @@ use crate::summary::print_table;
 // other waits on the gateway.
 #[tokio::main(flavor = "multi_thread", worker_threads = 2)]
 async fn main() -> anyhow::Result<()> {
-    let options = options()?;
+    let options = Options::from_args()?;
     let mut summaries = Vec::new();
-    for (drivelines, stands) in load_points(&options)? {
+    for (drivelines, stands) in options.load_points()? {
         let summary = run_point(&options, drivelines, stands).await?;
         let passed = summary.passed(options.p99_limit_ms);
         summaries.push(summary);

@@ -9,6 +9,7 @@ use anyhow::{bail, Context as _};
 /// The largest bite -> PLC p99 a load point passes with by default, ms.
 const P99_LIMIT_MS: f64 = 5.0;
 
+/// The command line's options (their defaults: the module docs of `main.rs`).
 pub(crate) struct Options {
     pub(crate) duration: Duration,
     pub(crate) every: Duration,
@@ -22,32 +23,51 @@ pub(crate) struct Options {
     pub(crate) millgate: PathBuf,
 }
 
-pub(crate) fn options() -> anyhow::Result<Options> {
-    let mut options = Options {
-        duration: Duration::from_secs(600),
-        every: Duration::from_secs(10),
-        warm_up: Duration::from_secs(15),
-        drivelines: vec![1],
-        tandem_stands: vec![0],
-        tandem_rate_hz: 2500.0,
-        cpu: None,
-        p99_limit_ms: P99_LIMIT_MS,
-        keep_going: false,
-        millgate: std::env::current_exe()?
-            .parent()
-            .and_then(Path::parent)
-            .map(|dir| dir.join("millgate"))
-            .context("no folder above the example")?,
-    };
-    let mut args = std::env::args().skip(1);
-    while let Some(arg) = args.next() {
-        if arg == "--keep-going" {
-            options.keep_going = true;
-            continue;
+impl Options {
+    /// The options of this process's command line, checked.
+    pub(crate) fn from_args() -> anyhow::Result<Options> {
+        let mut options = Options {
+            duration: Duration::from_secs(600),
+            every: Duration::from_secs(10),
+            warm_up: Duration::from_secs(15),
+            drivelines: vec![1],
+            tandem_stands: vec![0],
+            tandem_rate_hz: 2500.0,
+            cpu: None,
+            p99_limit_ms: P99_LIMIT_MS,
+            keep_going: false,
+            millgate: std::env::current_exe()?
+                .parent()
+                .and_then(Path::parent)
+                .map(|dir| dir.join("millgate"))
+                .context("no folder above the example")?,
+        };
+        let mut args = std::env::args().skip(1);
+        while let Some(arg) = args.next() {
+            if arg == "--keep-going" {
+                options.keep_going = true;
+                continue;
+            }
+            let value = args
+                .next()
+                .with_context(|| format!("{arg} needs a value"))?;
+            options.set(&arg, value)?;
         }
-        let value = args
-            .next()
-            .with_context(|| format!("{arg} needs a value"))?;
+        if !options.millgate.is_file() {
+            bail!(
+                "{}: no millgate binary (build it: cargo build --release -p millgate \
+                 --bin millgate)",
+                options.millgate.display()
+            );
+        }
+        if options.warm_up >= options.duration {
+            bail!("--warm-up must be shorter than --duration");
+        }
+        Ok(options)
+    }
+
+    /// Sets option `arg` (one that takes a value) to `value`, checked.
+    fn set(&mut self, arg: &str, value: String) -> anyhow::Result<()> {
         let seconds = |least: f64| -> anyhow::Result<Duration> {
             let s: f64 = value
                 .parse()
@@ -67,53 +87,45 @@ pub(crate) fn options() -> anyhow::Result<Options> {
                 })
                 .collect()
         };
-        match arg.as_str() {
-            "--duration" => options.duration = seconds(1.0)?,
-            "--every" => options.every = seconds(1.0)?,
-            "--warm-up" => options.warm_up = seconds(0.0)?,
-            "--drivelines" => options.drivelines = counts()?,
-            "--tandem-stands" => options.tandem_stands = counts()?,
+        match arg {
+            "--duration" => self.duration = seconds(1.0)?,
+            "--every" => self.every = seconds(1.0)?,
+            "--warm-up" => self.warm_up = seconds(0.0)?,
+            "--drivelines" => self.drivelines = counts()?,
+            "--tandem-stands" => self.tandem_stands = counts()?,
             "--tandem-rate-hz" => {
-                options.tandem_rate_hz = match value.as_str() {
+                self.tandem_rate_hz = match value.as_str() {
                     "2500" => 2500.0,
                     "10000" => 10000.0,
                     _ => bail!("--tandem-rate-hz: {value} is not allowed (2500 or 10000)"),
                 }
             }
-            "--cpu" => options.cpu = Some(value),
+            "--cpu" => self.cpu = Some(value),
             "--p99-limit-ms" => {
-                options.p99_limit_ms = value
+                self.p99_limit_ms = value
                     .parse()
                     .ok()
                     .filter(|ms: &f64| ms.is_finite() && *ms > 0.0)
                     .with_context(|| format!("--p99-limit-ms: {value:?} is not a time > 0 ms"))?
             }
-            "--millgate" => options.millgate = PathBuf::from(&value),
+            "--millgate" => self.millgate = PathBuf::from(&value),
             _ => bail!(
                 "unknown option {arg} (allowed: --duration, --every, --warm-up, --drivelines, \
                  --tandem-stands, --tandem-rate-hz, --cpu, --p99-limit-ms, --keep-going, --millgate)"
             ),
         }
+        Ok(())
     }
-    if !options.millgate.is_file() {
-        bail!(
-            "{}: no millgate binary (build it: cargo build --release -p millgate --bin millgate)",
-            options.millgate.display()
-        );
-    }
-    if options.warm_up >= options.duration {
-        bail!("--warm-up must be shorter than --duration");
-    }
-    Ok(options)
-}
 
-/// The load points: the lists stepped together, a single value held.
-pub(crate) fn load_points(options: &Options) -> anyhow::Result<Vec<(usize, usize)>> {
-    let (n, m) = (&options.drivelines, &options.tandem_stands);
-    let steps = n.len().max(m.len());
-    let at = |list: &Vec<usize>, i: usize| if list.len() == 1 { list[0] } else { list[i] };
-    if (n.len() != 1 && n.len() != steps) || (m.len() != 1 && m.len() != steps) {
-        bail!("--drivelines and --tandem-stands: lists of equal length, or one value");
+    /// The load points (drivelines, stands): the lists stepped together, a single value
+    /// held.
+    pub(crate) fn load_points(&self) -> anyhow::Result<Vec<(usize, usize)>> {
+        let (n, m) = (&self.drivelines, &self.tandem_stands);
+        let steps = n.len().max(m.len());
+        let at = |list: &Vec<usize>, i: usize| if list.len() == 1 { list[0] } else { list[i] };
+        if (n.len() != 1 && n.len() != steps) || (m.len() != 1 && m.len() != steps) {
+            bail!("--drivelines and --tandem-stands: lists of equal length, or one value");
+        }
+        Ok((0..steps).map(|i| (at(n, i), at(m, i))).collect())
     }
-    Ok((0..steps).map(|i| (at(n, i), at(m, i))).collect())
 }

@@ -19,8 +19,19 @@ pub(crate) fn free_port() -> anyhow::Result<SocketAddr> {
     Ok(StdListener::bind("127.0.0.1:0")?.local_addr()?)
 }
 
-/// VmRSS (KiB), threads, open descriptors and CPU time (s, all threads) of `pid`.
-pub(crate) fn process_figures(pid: u32) -> anyhow::Result<(u64, u64, usize, f64)> {
+/// What `/proc` tells of a process.
+pub(crate) struct ProcessFigures {
+    /// Resident set (VmRSS), KiB.
+    pub(crate) rss_kib: u64,
+    pub(crate) threads: u64,
+    /// Open file descriptors.
+    pub(crate) fds: usize,
+    /// CPU time of all its threads, user and system, s.
+    pub(crate) cpu_s: f64,
+}
+
+/// The figures of process `pid`.
+pub(crate) fn process_figures(pid: u32) -> anyhow::Result<ProcessFigures> {
     let status = std::fs::read_to_string(format!("/proc/{pid}/status"))?;
     let field = |name: &str| -> anyhow::Result<u64> {
         let line = status
@@ -47,12 +58,12 @@ pub(crate) fn process_figures(pid: u32) -> anyhow::Result<(u64, u64, usize, f64)
         .take(2)
         .map(str::parse)
         .collect::<Result<_, _>>()?;
-    Ok((
-        field("VmRSS:")?,
-        field("Threads:")?,
+    Ok(ProcessFigures {
+        rss_kib: field("VmRSS:")?,
+        threads: field("Threads:")?,
         fds,
-        ticks.iter().sum::<f64>() / USER_HZ,
-    ))
+        cpu_s: ticks.iter().sum::<f64>() / USER_HZ,
+    })
 }
 
 /// One HTTP/1.1 GET over a new connection: the status and the body.
