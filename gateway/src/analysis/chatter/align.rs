@@ -12,12 +12,22 @@
 //! count. This catches a stand whose first block was one newer than the others' (the
 //! DAQ published between two reads of one poll) and re-anchors a stand after a gap of
 //! unknown length.
+//!
+//! Arrival times jitter (the reader's and the analysis' scheduling, a source sending in
+//! bursts), so they place a stand no finer than [`MIN_ANCHOR_STEP_S`]: the rounding
+//! step is the first message's length in whole messages of at least that long. A DAQ
+//! block of 120 samples at 2.5 kHz (48 ms) is one step; a CAN reader's few frames are
+//! many, so their jitter does not move the stand and restart the window.
 
 use std::time::Instant;
 
 /// Largest lag of one stand behind the most advanced one, s: more means its source
 /// has stopped delivering, and the mill's values are flagged and the window restarted.
 pub const MAX_STAND_LAG_S: f64 = 0.5;
+
+/// Shortest step by which arrival times move a stand on the common axis, s (see the
+/// module docs).
+pub(super) const MIN_ANCHOR_STEP_S: f64 = 0.02;
 
 /// Why the mill's window restarted.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -70,7 +80,8 @@ pub(super) enum Realigned {
 struct Anchor {
     /// Earliest (arrival time - samples counted / fs) seen, s since the mill's epoch.
     origin_s: f64,
-    /// Samples per block: the length of the first message after anchoring.
+    /// The rounding step, samples: the length of the first message after anchoring,
+    /// in whole messages of at least [`MIN_ANCHOR_STEP_S`].
     block: i64,
     /// Added to the count to give the common sample index.
     offset: i64,
@@ -197,7 +208,7 @@ impl Alignment {
         let origin_s = arrival.saturating_duration_since(epoch).as_secs_f64() - through;
         let reference = *self.reference_origin_s.get_or_insert(origin_s);
         let previous = stream.anchor;
-        let block = previous.map_or(len as i64, |a| a.block).max(1);
+        let block = previous.map_or_else(|| anchor_step(len, fs), |a| a.block);
         let origin_s = previous.map_or(origin_s, |a| a.origin_s.min(origin_s));
         let blocks = ((origin_s - reference) * fs / block as f64).round() as i64;
         let offset = blocks * block;
@@ -281,6 +292,14 @@ impl Alignment {
         self.next_end = end + hop;
         Some(end)
     }
+}
+
+/// The anchoring step of a stand whose first message has `len` samples at `fs` Hz:
+/// whole messages, at least [`MIN_ANCHOR_STEP_S`] long.
+fn anchor_step(len: usize, fs: f64) -> i64 {
+    let len = (len as i64).max(1);
+    let messages = (MIN_ANCHOR_STEP_S * fs / len as f64).ceil().max(1.0) as i64;
+    len * messages
 }
 
 #[cfg(test)]
@@ -392,5 +411,37 @@ mod tests {
         let r = results.last().expect("evaluations after realignment");
         assert!(r.k_mean > 0.95, "K_mean {}", r.k_mean);
         assert!(r.synchronized);
+    }
+
+    #[test]
+    fn small_messages_with_jittery_arrivals_are_not_realigned() {
+        // A CAN reader's messages of 4 samples (1.6 ms), the first read 5 ms late and
+        // the others up to 3 ms late: the stands share every frame, nothing moves.
+        let mut monitor = monitor(2);
+        let signal = sine(50.0, 0.0, 1.0, 0..4000);
+        let t0 = Instant::now();
+        let mut evaluated = 0;
+        for (m, values) in signal.chunks(4).enumerate() {
+            let late_us = if m == 0 {
+                5000
+            } else {
+                (m as u64 * 7919) % 3000
+            };
+            let at = t0
+                + Duration::from_secs_f64((m + 1) as f64 * 4.0 / FS)
+                + Duration::from_micros(late_us);
+            for s in 0..2 {
+                match monitor.samples(s, values, at) {
+                    Some(ChatterUpdate::Restarted(cause)) if m > 0 => {
+                        panic!("message {m}: restarted ({cause})")
+                    }
+                    Some(ChatterUpdate::Evaluated(_)) => evaluated += 1,
+                    _ => {}
+                }
+            }
+        }
+        assert!(evaluated > 0);
+        assert_eq!(anchor_step(4, FS), 52);
+        assert_eq!(anchor_step(BLOCK, FS), BLOCK as i64);
     }
 }
