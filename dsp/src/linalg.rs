@@ -29,7 +29,7 @@ pub(crate) fn peak_magnitude(samples: &[f64]) -> (f64, bool) {
 #[derive(Clone, Copy)]
 pub(crate) struct Cholesky5 {
     lower: [[f64; 5]; 5],
-    /// 1 / L[i][i].
+    /// 1 / `L[i][i]`.
     inverse_diagonal: [f64; 5],
 }
 

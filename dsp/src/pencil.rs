@@ -116,8 +116,8 @@ fn check(samples: &[f64], sample_rate_hz: f64, decimation: usize) -> Result<f64,
 /// (block sums times `inverse_scale`); rows of Y: windows of PENCIL_COLUMNS consecutive
 /// decimated samples x[r..r + C], r = 0..R.
 ///
-/// It is Toeplitz up to end corrections, G[i + 1][j + 1] = G[i][j] - x[i] x[j] +
-/// x[R + i] x[R + j], so only its first row is summed over the record (C products per
+/// It is Toeplitz up to end corrections, `G[i + 1][j + 1] = G[i][j] - x[i] x[j] +
+/// x[R + i] x[R + j]`, so only its first row is summed over the record (C products per
 /// sample, not C (C + 1) / 2) and the rest follows from the first and last C samples.
 fn hankel_gram(
     samples: &[f64],

@@ -254,7 +254,7 @@ impl Checker<'_> {
     }
 
     /// Reports every pair of listeners that cannot both bind: the same port on the
-    /// same address, or on an address and the wildcard (0.0.0.0 or [::]) of the same
+    /// same address, or on an address and the wildcard (`0.0.0.0` or `[::]`) of the same
     /// family. Port 0 (the OS picks a free port) never clashes.
     fn distinct_listeners(&mut self, listeners: &[(&str, SocketAddr)]) {
         for (index, (key, address)) in listeners.iter().enumerate() {

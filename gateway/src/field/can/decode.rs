@@ -10,7 +10,7 @@ use millgate_config::{ChannelSource, Config};
 use crate::field::counters::BusState;
 use crate::field::quality::{saturation_limits, SaturationLimits};
 
-/// Error-frame class bits in the CAN id and controller status bits in data[1]
+/// Error-frame class bits in the CAN id and controller status bits in `data[1]`
 /// (linux/can/error.h).
 mod error_bits {
     pub(super) const CRTL: u32 = 0x0004;

@@ -19,7 +19,7 @@ const EAFNOSUPPORT: i32 = 97;
 /// `errno` ENODEV: no network interface of that name.
 const ENODEV: i32 = 19;
 /// Most frames read by one `recvmmsg` call and decoded into one batch of
-/// [`Acquired::Samples`] messages. Its headers are set up for every call (see
+/// [`Acquired::Samples`](crate::field::acquired::Acquired::Samples) messages. Its headers are set up for every call (see
 /// [`receive_batch`]), so a larger batch costs more per wake-up on a quiet bus; 64
 /// already cuts the system calls of a backlog 64-fold.
 pub(crate) const MAX_FRAMES_PER_BATCH: usize = 64;

@@ -99,7 +99,7 @@ impl PassSetup {
 
     /// Growth exponent per unit Mathieu time, `None` beyond the resolved range (there:
     /// a buckled rod, a < -1e4, counts as unstable, anything else as stable; see
-    /// [`super::mill::MAX_EPSILON`]).
+    /// [`crate::rod::mill::MAX_EPSILON`]).
     pub(super) fn exponent(
         &self,
         point: &Operating,

@@ -129,7 +129,7 @@ impl Builder {
 
     /// Page `page` of a block of `figures` at `base` named `prefix.<key>`, its
     /// descriptions prefixed by `context`: page 0 holds the flags and quality
-    /// registers and the figures declared [`Register::At`] page 0; page 1 (the
+    /// registers and the figures declared [`Register::At`](crate::state::catalogue::Register::At) page 0; page 1 (the
     /// extension block) its own quality register and the figures declared on it.
     #[allow(clippy::too_many_arguments)]
     fn block<R: Subject>(

@@ -156,7 +156,7 @@ pub(crate) async fn capture_file(
 /// `millgate discrepancy` takes it): the model as configured (`drivelines[].model`),
 /// its onset and static torque aligned to the record as the discrepancy workflow's
 /// calibration starts
-/// ([`aligned_response`](millgate_sim::discrepancy::calibration::aligned_response)),
+/// ([`millgate_sim::discrepancy::calibration::aligned_response`]),
 /// and the residual left (RMS). 404 for an unknown id, 409 for a capture that is no
 /// bite of a driveline with a model, or whose record is no load step.
 pub(crate) async fn capture_response(

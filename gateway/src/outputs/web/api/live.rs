@@ -425,7 +425,7 @@ const EVENT_RETRY: Duration = Duration::from_secs(1);
 
 /// `GET /api/events`: server-sent events, `event: results` with the live overview
 /// (no history parts) at once and whenever it changes (at most one update per
-/// [`super::LIVE_PERIOD`]); a comment every 15 s keeps proxies from closing it. At
+/// [`crate::outputs::web::LIVE_PERIOD`]); a comment every 15 s keeps proxies from closing it. At
 /// most `outputs.web.max_event_streams` at once (a further one is answered 503 with
 /// `Retry-After`), each for [`EVENT_STREAM_LIFETIME`].
 pub(crate) async fn events(
