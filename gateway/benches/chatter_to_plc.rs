@@ -24,7 +24,7 @@ use millgate::outputs::modbus::register_map::RegisterMap;
 use millgate::state::board::Board;
 use millgate_sim::devices::modbus_bank::ServeOptions;
 use millgate_sim::devices::virtual_plc::VirtualPlc;
-use millgate_sim::tandem::simulate::{simulate, Accelerometer, Excitation, RunSettings, SpeedRamp};
+use millgate_sim::tandem::simulate::{simulate, Accelerometer, RunSettings};
 use millgate_sim::tandem::truth::mill_critical_speed;
 use millgate_sim::tandem::{PassSchedule, TandemMill};
 
@@ -76,22 +76,9 @@ fn percentiles(mut values: Vec<Duration>) -> String {
 async fn main() -> anyhow::Result<()> {
     let mill = TandemMill::new(&PassSchedule::example()?)?;
     let critical = mill_critical_speed(&mill)?.speed;
-    let record = simulate(
-        &mill,
-        &RunSettings {
-            ramp: SpeedRamp {
-                start: 0.9 * critical,
-                end: 1.5 * critical,
-                hold_s: HOLD_S,
-                accel_m_s2: 2.0,
-            },
-            excitation: Excitation::default(),
-            sensor: Accelerometer::default(),
-            duration_s: DURATION_S,
-            seed: 9,
-            internal_rate_hz: None,
-        },
-    )?;
+    let rate_hz = Accelerometer::default().sample_rate_hz;
+    let settings = RunSettings::reference_ramp(critical, 0.9, HOLD_S, DURATION_S, rate_hz, 9);
+    let record = simulate(&mill, &settings)?;
 
     let mut config = config()?;
     let map = Arc::new(RegisterMap::new(&config));

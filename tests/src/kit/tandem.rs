@@ -3,7 +3,7 @@
 //! accelerometers with a tandem mill over them ([`Stands`]).
 
 use millgate_sim::tandem::roots::CriticalSpeed;
-use millgate_sim::tandem::simulate::{simulate, Accelerometer, Excitation, RunSettings, SpeedRamp};
+use millgate_sim::tandem::simulate::{simulate, RunSettings};
 use millgate_sim::tandem::truth::{ground_truth, mill_critical_speed, GroundTruth};
 use millgate_sim::tandem::{PassSchedule, TandemMill};
 
@@ -38,27 +38,9 @@ pub fn reference_ramp(
 ) -> anyhow::Result<RampRun> {
     let mill = TandemMill::new(&PassSchedule::example()?)?;
     let critical = mill_critical_speed(&mill)?;
-    let ramp = SpeedRamp {
-        start: start * critical.speed,
-        end: 1.5 * critical.speed,
-        hold_s,
-        accel_m_s2: 2.0,
-    };
-    let record = simulate(
-        &mill,
-        &RunSettings {
-            ramp,
-            excitation: Excitation::default(),
-            sensor: Accelerometer {
-                sample_rate_hz: FS,
-                ..Accelerometer::default()
-            },
-            duration_s,
-            seed,
-            internal_rate_hz: None,
-        },
-    )?;
-    let truth = ground_truth(&mill, &ramp, &record, critical);
+    let settings = RunSettings::reference_ramp(critical.speed, start, hold_s, duration_s, FS, seed);
+    let record = simulate(&mill, &settings)?;
+    let truth = ground_truth(&mill, &settings.ramp, &record, critical);
     Ok(RampRun {
         acceleration: record.acceleration,
         critical,

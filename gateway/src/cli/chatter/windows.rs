@@ -263,9 +263,7 @@ fn text(report: &ChatterReport) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use millgate_sim::tandem::simulate::{
-        simulate, Accelerometer, Excitation, RunSettings, SpeedRamp,
-    };
+    use millgate_sim::tandem::simulate::{simulate, RunSettings};
     use millgate_sim::tandem::truth::{ground_truth, mill_critical_speed};
     use millgate_sim::tandem::{PassSchedule, TandemMill};
 
@@ -279,27 +277,9 @@ mod tests {
         // critical speed, then 2 m/s^2, as the end-to-end tests.
         let mill = TandemMill::new(&PassSchedule::example()?)?;
         let critical = mill_critical_speed(&mill)?;
-        let ramp = SpeedRamp {
-            start: 0.9 * critical.speed,
-            end: 1.5 * critical.speed,
-            hold_s: 6.0,
-            accel_m_s2: 2.0,
-        };
-        let record = simulate(
-            &mill,
-            &RunSettings {
-                ramp,
-                excitation: Excitation::default(),
-                sensor: Accelerometer {
-                    sample_rate_hz: 2500.0,
-                    ..Accelerometer::default()
-                },
-                duration_s: 14.0,
-                seed: 7,
-                internal_rate_hz: None,
-            },
-        )?;
-        let truth = ground_truth(&mill, &ramp, &record, critical);
+        let settings = RunSettings::reference_ramp(critical.speed, 0.9, 6.0, 14.0, 2500.0, 7);
+        let record = simulate(&mill, &settings)?;
+        let truth = ground_truth(&mill, &settings.ramp, &record, critical);
         let onset = truth.onset_s.expect("onset");
         let developed = truth.developed_s.expect("developed");
         let input =

@@ -224,6 +224,36 @@ fn check(key: &'static str, value: f64, ok: bool, allowed: &'static str) -> Resu
 }
 
 impl RunSettings {
+    /// The chatter tests' reference ramp on a mill whose critical speed factor is
+    /// `critical`: `hold_s` at `start` times it, then 2 m/s^2 up to 1.5 times it, the
+    /// default excitation, an accelerometer at `sample_rate_hz`, `duration_s` long,
+    /// seeded with `seed`.
+    pub fn reference_ramp(
+        critical: f64,
+        start: f64,
+        hold_s: f64,
+        duration_s: f64,
+        sample_rate_hz: f64,
+        seed: u64,
+    ) -> RunSettings {
+        RunSettings {
+            ramp: SpeedRamp {
+                start: start * critical,
+                end: 1.5 * critical,
+                hold_s,
+                accel_m_s2: 2.0,
+            },
+            excitation: Excitation::default(),
+            sensor: Accelerometer {
+                sample_rate_hz,
+                ..Accelerometer::default()
+            },
+            duration_s,
+            seed,
+            internal_rate_hz: None,
+        }
+    }
+
     /// Checks every setting against its range.
     pub(crate) fn validate(&self) -> Result<(), RunError> {
         let r = &self.ramp;
