@@ -216,8 +216,11 @@ impl WebOutput {
 /// as devices to an MQTT broker (`spBv1.0/<group_id>/.../<node_id>[/<device>]`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct MqttOutput {
-    /// Broker `host:port`, port 1..=65535; resolved at connect time.
-    pub broker: String,
+    /// The MQTT servers, `host:port` each (port 1..=65535, resolved at connect time),
+    /// 1..=16 of them, none twice: `brokers`, or the single `broker`. The node connects
+    /// to the first that answers and, when a connection fails or a session ends, moves
+    /// on to the next (after the last, the first again).
+    pub brokers: Vec<String>,
     /// Sparkplug group id: non-empty, none of `/ + #`.
     pub group_id: String,
     /// Sparkplug edge node id: non-empty, none of `/ + #`.
