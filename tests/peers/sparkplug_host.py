@@ -12,7 +12,9 @@ Sparkplug payload is printed with "undecodable": true and its size.
         [--username U --password P]
 
 With --ca the host connects over TLS (the broker checked against FILE; --cert and
---key for a broker that requires a client certificate).
+--key for a broker that requires a client certificate). With --dots-as-slashes (for
+RabbitMQ 3.10, which delivers a topic's "." as "/") a topic starting "spBv1/0/" is read
+as "spBv1.0/" and its record says "rewritten": true.
 """
 
 import argparse
@@ -36,6 +38,7 @@ arguments.add_argument("--cert")
 arguments.add_argument("--key")
 arguments.add_argument("--username")
 arguments.add_argument("--password")
+arguments.add_argument("--dots-as-slashes", action="store_true")
 options = arguments.parse_args()
 host, port, group = options.host, options.port, options.group
 lock = threading.Lock()
@@ -73,17 +76,22 @@ def on_subscribe(client, userdata, mid, granted_qos):
 
 
 def on_message(client, userdata, message):
-    parts = message.topic.split("/")
+    topic = message.topic
+    rewritten = options.dots_as_slashes and topic.startswith("spBv1/0/")
+    if rewritten:
+        topic = "spBv1.0/" + topic[len("spBv1/0/"):]
+    parts = topic.split("/")
     payload = Payload()
     try:
         payload.ParseFromString(message.payload)
     except Exception:  # noqa: BLE001 (any protobuf error: not a Sparkplug payload)
-        emit({"topic": message.topic, "type": parts[2], "undecodable": True,
+        emit({"topic": topic, "type": parts[2], "undecodable": True,
               "bytes": len(message.payload), "retain": bool(message.retain)})
         return
     emit(
         {
-            "topic": message.topic,
+            "topic": topic,
+            "rewritten": rewritten,
             "type": parts[2],
             "node": parts[3],
             "device": parts[4] if len(parts) > 4 else None,
