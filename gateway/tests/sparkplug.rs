@@ -7,10 +7,13 @@
 //! values, the rebirth command, the Will at SIGKILL and the next session's bdSeq;
 //! store-and-forward: after a broker outage, a primary host outage and a gateway
 //! killed during one, every bite arrives once live or flagged historical, the
-//! historical ones first; the replay's pacing.
+//! historical ones first; the replay's pacing. A server set (`brokers`): the node
+//! moves on when its server is killed mid-stream (two independent mosquittos; a
+//! three-node RabbitMQ cluster, the host application on another node) or when the
+//! primary host is offline on its server, and no bite is lost.
 //!
-//! Needs `apt install mosquitto` and `pip install pysparkplug==0.6.1` (with paho-mqtt 1.6.1)
-//! (scripts/test installs them).
+//! Needs `apt install mosquitto rabbitmq-server` and `pip install pysparkplug==0.6.1`
+//! (with paho-mqtt 1.6.1) (scripts/test installs them).
 
 mod common;
 
@@ -1370,4 +1373,61 @@ async fn with_two_independent_brokers_the_node_moves_to_the_other() {
         2,
         "one session on each broker: {sessions:?}"
     );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_primary_host_offline_on_one_server_sends_the_node_to_the_next() {
+    let setup = Setup::new(MILLGATE, "sparkplug-host-elsewhere", "db").await;
+    let ports = [free_port(), free_port()];
+    let mut brokers = Vec::new();
+    for (name, port) in ["first", "second"].into_iter().zip(ports) {
+        let folder = setup.scratch.join(name);
+        std::fs::create_dir_all(&folder).unwrap();
+        brokers.push(Broker::start(&folder, port));
+    }
+    // The primary host left the first server (its retained STATE says offline there)
+    // and is online on the second.
+    let mut away = Host::start(ports[0], "plant");
+    let mut present = Host::start(ports[1], "plant");
+    away.command("state scada offline");
+    present.command("state scada online");
+    for host in [&mut away, &mut present] {
+        while host.next(Duration::from_secs(10))["sent"] != "state" {}
+    }
+    setup.append_config(&format!(
+        "\n[outputs.mqtt]\nbrokers = [\"127.0.0.1:{}\", \"127.0.0.1:{}\"]\ngroup_id = \"plant\"\nnode_id = \"f1\"\nprimary_host_id = \"scada\"\n",
+        ports[0], ports[1]
+    ));
+    let mut service = setup.spawn("run.log");
+    let limit = Duration::from_secs(30);
+    let nbirth = present.next_of("NBIRTH", limit);
+    // The first server's session ended unborn: its bdSeq is used up, the births go
+    // out with the next.
+    assert_eq!(metric(&nbirth, "bdSeq")["value"].as_u64(), Some(1));
+    assert!(
+        setup
+            .log_text("run.log")
+            .contains("primary host offline on this MQTT server: moving on to the next"),
+        "{}",
+        setup.log_text("run.log")
+    );
+    let in_second = format!(
+        "millgate_sparkplug_server_in_use{{server=\"127.0.0.1:{}\"}}",
+        ports[1]
+    );
+    assert_eq!(setup.metric(&in_second).await, Some(1.0));
+    assert_eq!(
+        setup
+            .metric("millgate_sparkplug_server_switches_total")
+            .await,
+        Some(1.0)
+    );
+    while let Ok(message) = away.lines.try_recv() {
+        assert_ne!(
+            message["type"], "NBIRTH",
+            "no birth where the host is offline"
+        );
+    }
+    terminate(&mut service);
+    setup.stop(service).await;
 }

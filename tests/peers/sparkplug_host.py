@@ -5,7 +5,8 @@ spBv1.0/<group>/#; reads commands from stdin: "rebirth <node> [count]" publishes
 NCMD with Node Control/Rebirth = true (count times); "garbage <node> <bytes>
 [retain]" an NCMD of that many 0xff bytes (not protobuf), retained if asked;
 "clear <node>" clears a retained NCMD; "state <host_id> online|offline" publishes the
-primary host's retained STATE (Sparkplug 3.0 JSON). A message that is not a
+primary host's retained STATE (Sparkplug 3.0 JSON). Each of the last three prints
+{"sent": ...} once the broker has it. A message that is not a
 Sparkplug payload is printed with "undecodable": true and its size.
 
     python3 sparkplug_host.py HOST PORT GROUP [--ca FILE [--cert FILE --key FILE]]
@@ -134,5 +135,7 @@ for line in sys.stdin:
         emit({"sent": "clear"})
     elif words[:1] == ["state"]:
         state = {"online": words[2] == "online", "timestamp": int(time.time() * 1000)}
-        client.publish(f"spBv1.0/STATE/{words[1]}", json.dumps(state), qos=1, retain=True)
+        info = client.publish(f"spBv1.0/STATE/{words[1]}", json.dumps(state), qos=1, retain=True)
+        info.wait_for_publish()
+        emit({"sent": "state"})
 client.loop_stop()
