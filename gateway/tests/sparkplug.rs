@@ -1349,16 +1349,26 @@ async fn killing_the_cluster_node_of_the_session_loses_no_bite() {
     );
 }
 
+/// Two independent mosquittos (no bridge, nothing shared), each with its folder in
+/// `setup`'s scratch folder: their ports, and the brokers (drop one to kill it).
+fn two_brokers(setup: &Setup) -> ([u16; 2], Vec<Option<Broker>>) {
+    let ports = [free_port(), free_port()];
+    let brokers = ["first", "second"]
+        .into_iter()
+        .zip(ports)
+        .map(|(name, port)| {
+            let folder = setup.scratch.join(name);
+            std::fs::create_dir_all(&folder).unwrap();
+            Some(Broker::start(&folder, port))
+        })
+        .collect();
+    (ports, brokers)
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn with_two_independent_brokers_the_node_moves_to_the_other() {
     let setup = Setup::new(MILLGATE, "sparkplug-two-brokers", "db").await;
-    let ports = [free_port(), free_port()];
-    let mut brokers = Vec::new();
-    for (name, port) in ["first", "second"].into_iter().zip(ports) {
-        let folder = setup.scratch.join(name);
-        std::fs::create_dir_all(&folder).unwrap();
-        brokers.push(Some(Broker::start(&folder, port)));
-    }
+    let (ports, mut brokers) = two_brokers(&setup);
     // A host application on each broker: they share nothing.
     let hosts = vec![
         Host::start(ports[0], "plant"),
@@ -1378,13 +1388,7 @@ async fn with_two_independent_brokers_the_node_moves_to_the_other() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_primary_host_offline_on_one_server_sends_the_node_to_the_next() {
     let setup = Setup::new(MILLGATE, "sparkplug-host-elsewhere", "db").await;
-    let ports = [free_port(), free_port()];
-    let mut brokers = Vec::new();
-    for (name, port) in ["first", "second"].into_iter().zip(ports) {
-        let folder = setup.scratch.join(name);
-        std::fs::create_dir_all(&folder).unwrap();
-        brokers.push(Broker::start(&folder, port));
-    }
+    let (ports, _brokers) = two_brokers(&setup);
     // The primary host left the first server (its retained STATE says offline there)
     // and is online on the second.
     let mut away = Host::start(ports[0], "plant");
