@@ -1605,6 +1605,20 @@ fn mqtt_server_list_for_failover() {
         ["10.0.0.1:1883", "[::1]:1884", "mq3.local:1883"],
         "in the order given"
     );
+    let summary = millgate_config::summary(
+        &parse(&with("brokers = [\"10.0.0.1:1883\", \"10.0.0.2:1883\"]")).unwrap(),
+    );
+    assert!(
+        summary.contains(
+            "Sparkplug B: brokers 10.0.0.1:1883, 10.0.0.2:1883 (failover in this order) as client"
+        ),
+        "{summary}"
+    );
+    let single = millgate_config::summary(&parse(&with("broker = \"10.0.0.1:1883\"")).unwrap());
+    assert!(
+        single.contains("Sparkplug B: broker 10.0.0.1:1883 as client"),
+        "{single}"
+    );
     assert_eq!(
         problems(&with("brokers = [\"a:1883\", \"b\", \"a:1883\", \"c:0\"]")),
         [
