@@ -315,6 +315,9 @@ impl<'a> Session<'a> {
         let task = self.task;
         let broker = self.broker().to_owned();
         let failure = ConnectFailure::of(error);
+        // A session that was up, or a new kind of failure, is logged at info or above;
+        // the same failure again (every server down) at debug.
+        let news = self.connected || self.last_failure != Some(failure);
         // A packet over the limit (a huge NCMD, retained perhaps, that the broker
         // sends at every subscription) ends each session: wait longer each time rather
         // than reconnect every second.
@@ -331,7 +334,7 @@ impl<'a> Session<'a> {
         task.status.failures[slot].fetch_add(1, Ordering::Relaxed);
         if self.connected {
             tracing::warn!(%error, %broker, "Sparkplug session ended");
-        } else if self.last_failure != Some(failure) {
+        } else if news {
             tracing::warn!(%error, %broker, reason = failure.name(), "Sparkplug broker connection failed, retrying every {} s: {}", RECONNECT_DELAY.as_secs(), failure.hint());
         } else {
             tracing::debug!(%error, %broker, "Sparkplug broker connection failed again");
@@ -355,7 +358,12 @@ impl<'a> Session<'a> {
         if servers > 1 {
             self.server = (self.server + 1) % servers;
             task.status.switched_to(self.server);
-            tracing::info!(from = %broker, to = %self.broker(), next_attempt_ms = delay.as_millis(), "Sparkplug moving on to the next MQTT server");
+            let next = self.broker();
+            if news {
+                tracing::info!(from = %broker, to = %next, next_attempt_ms = delay.as_millis(), "Sparkplug moving on to the next MQTT server");
+            } else {
+                tracing::debug!(from = %broker, to = %next, "Sparkplug moving on to the next MQTT server");
+            }
         }
         // The next CONNECT's server and Will (this session's bdSeq).
         self.events.mqtt_options = task.options(self.server, self.node.death(now_ms()));
