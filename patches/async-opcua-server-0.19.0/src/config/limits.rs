@@ -42,6 +42,11 @@ pub struct Limits {
     /// Maximum number of registered sessions before new ones are rejected.
     #[serde(default = "defaults::max_sessions")]
     pub max_sessions: usize,
+    /// (millgate patch) When `max_sessions` are registered, a new session takes the
+    /// place of the session idle longest if it has been idle at least this long, ms
+    /// (a client that dropped its connection without CloseSession). 0: never.
+    #[serde(default)]
+    pub evict_idle_session_ms: u64,
 }
 
 impl Default for Limits {
@@ -60,6 +65,7 @@ impl Default for Limits {
             max_query_continuation_points: defaults::max_query_continuation_points(),
             operational: OperationalLimits::default(),
             max_sessions: defaults::max_sessions(),
+            evict_idle_session_ms: 0,
         }
     }
 }
@@ -104,6 +110,20 @@ pub struct SubscriptionLimits {
     /// Maximum number of queued notifications per subscription. 0 for unlimited.
     #[serde(default = "defaults::max_queued_notifications")]
     pub max_queued_notifications: usize,
+    /// (millgate patch) Longest lifetime of a subscription without publish requests
+    /// (publishing interval x lifetime count), ms; the interval and the counts are
+    /// revised to fit, so a subscription left behind by a closed session expires
+    /// within it. 0 for unlimited.
+    #[serde(default)]
+    pub max_lifetime_ms: f64,
+    /// (millgate patch) Subscriptions on the server, all sessions together (those of
+    /// closed sessions until they expire included). 0 for unlimited.
+    #[serde(default)]
+    pub max_subscriptions: usize,
+    /// (millgate patch) Monitored items on the server, all sessions together. 0 for
+    /// unlimited.
+    #[serde(default)]
+    pub max_monitored_items: usize,
 }
 
 impl Default for SubscriptionLimits {
@@ -122,6 +142,9 @@ impl Default for SubscriptionLimits {
             max_lifetime_count: defaults::max_lifetime_count(),
             max_notifications_per_publish: defaults::max_notifications_per_publish(),
             max_queued_notifications: defaults::max_queued_notifications(),
+            max_lifetime_ms: 0.0,
+            max_subscriptions: 0,
+            max_monitored_items: 0,
         }
     }
 }
@@ -364,6 +387,7 @@ mod tests {
                 max_history_continuation_points: 500,
                 max_query_continuation_points: 500,
                 max_sessions: 20,
+                evict_idle_session_ms: 0,
                 subscriptions: SubscriptionLimits {
                     max_subscriptions_per_session: 100,
                     max_pending_publish_requests: 20,
@@ -377,6 +401,9 @@ mod tests {
                     max_lifetime_count: 90_000,
                     max_notifications_per_publish: 0,
                     max_queued_notifications: 20,
+                    max_lifetime_ms: 0.0,
+                    max_subscriptions: 0,
+                    max_monitored_items: 0,
                 },
                 operational: OperationalLimits {
                     max_nodes_per_translate_browse_paths_to_node_ids: 100,

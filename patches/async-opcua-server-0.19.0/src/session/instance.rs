@@ -139,6 +139,11 @@ impl Session {
     }
 
     /// Get the session timeout deadline.
+    /// (millgate patch) The session's timeout.
+    pub(crate) fn timeout(&self) -> Duration {
+        self.session_timeout
+    }
+
     pub fn deadline(&self) -> Instant {
         **self.last_service_request.load() + self.session_timeout
     }

@@ -11,7 +11,7 @@ use opcua_core::{comms::secure_channel::SecureChannel, trace_read_lock, trace_wr
 use opcua_crypto::{random, CertificateStore, SecurityPolicy};
 use parking_lot::RwLock;
 use tokio::sync::Notify;
-use tracing::{error, info};
+use tracing::{error, info, warn};
 
 use crate::{identity_token::IdentityToken, info::ServerInfo};
 use opcua_types::{
@@ -68,7 +68,7 @@ impl SessionManager {
         request: &CreateSessionRequest,
     ) -> Result<CreateSessionResponse, StatusCode> {
         if self.sessions.len() >= self.info.config.limits.max_sessions {
-            return Err(StatusCode::BadTooManySessions);
+            self.evict_idlest_session()?;
         }
 
         // TODO: Auditing and diagnostics.
@@ -212,6 +212,30 @@ impl SessionManager {
                 StatusCode::BadUnexpectedError,
                 "Client signature verification failed, session has no client certificate",
             ))
+        }
+    }
+
+    /// (millgate patch) Close the session idle longest, if it has been idle at least
+    /// `evict_idle_session_ms`, to make room; `BadTooManySessions` otherwise.
+    fn evict_idlest_session(&mut self) -> Result<(), StatusCode> {
+        let min_idle = self.info.config.limits.evict_idle_session_ms;
+        let now = Instant::now();
+        let idlest = self
+            .sessions
+            .iter()
+            .map(|(id, s)| {
+                let s = s.read();
+                let idle = now.saturating_duration_since(s.deadline() - s.timeout());
+                (idle, id.clone())
+            })
+            .max_by_key(|(idle, _)| *idle);
+        match idlest {
+            Some((idle, id)) if min_idle > 0 && idle >= Duration::from_millis(min_idle) => {
+                warn!("Session {id} idle for {idle:?} closed to make room for a new session");
+                self.expire_session(&id);
+                Ok(())
+            }
+            _ => Err(StatusCode::BadTooManySessions),
         }
     }
 

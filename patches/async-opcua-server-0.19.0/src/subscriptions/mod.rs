@@ -115,6 +115,21 @@ impl SubscriptionCache {
         }
     }
 
+    /// (millgate patch) The subscriptions and monitored items on the server, all
+    /// sessions together (closed sessions' included until they expire).
+    pub fn counts(&self) -> (usize, usize) {
+        let lck = trace_read_lock!(self.inner);
+        Self::totals(&lck)
+    }
+
+    fn totals(inner: &SubscriptionCacheInner) -> (usize, usize) {
+        inner
+            .session_subscriptions
+            .values()
+            .map(|s| s.lock().counts())
+            .fold((0, 0), |(s, i), (ds, di)| (s + ds, i + di))
+    }
+
     /// Get the `SessionSubscriptions` object for a single session by its numeric ID.
     pub fn get_session_subscriptions(
         &self,
@@ -228,6 +243,11 @@ impl SubscriptionCache {
         context: &RequestContext,
     ) -> Result<CreateSubscriptionResponse, StatusCode> {
         let mut lck = trace_write_lock!(self.inner);
+        if self.limits.max_subscriptions > 0
+            && Self::totals(&lck).0 >= self.limits.max_subscriptions
+        {
+            return Err(StatusCode::BadTooManySubscriptions);
+        }
         let cache = lck
             .session_subscriptions
             .entry(session_id)

@@ -515,6 +515,16 @@ impl SessionSubscriptions {
         } else {
             requested_lifetime_count
         };
+        let limits = &info.config.limits.subscriptions;
+        if limits.max_lifetime_ms > 0.0 {
+            // (millgate patch) interval x lifetime count within max_lifetime_ms, the
+            // lifetime count still at least three keep-alive counts.
+            let interval = revised_publishing_interval.min(limits.max_lifetime_ms / 3.0);
+            let lifetime = (limits.max_lifetime_ms / interval).floor().max(3.0) as u32;
+            let lifetime = revised_lifetime_count.min(lifetime);
+            let keep_alive = revised_max_keep_alive_count.min(lifetime / 3).max(1);
+            return (interval, keep_alive, lifetime.max(keep_alive * 3));
+        }
         (
             revised_publishing_interval,
             revised_max_keep_alive_count,
@@ -805,6 +815,12 @@ impl SessionSubscriptions {
 
     pub(super) fn user_token(&self) -> &PersistentSessionKey {
         &self.user_token
+    }
+
+    /// (millgate patch) The subscriptions and monitored items held.
+    pub(super) fn counts(&self) -> (usize, usize) {
+        let items = self.subscriptions.values().map(|s| s.len()).sum();
+        (self.subscriptions.len(), items)
     }
 
     pub(super) fn get_monitored_item_count(&self, subscription_id: u32) -> Option<usize> {

@@ -172,6 +172,11 @@ pub(crate) async fn create_monitored_items(
     if max_per_sub > 0 && max_per_sub < len + items_to_create.len() {
         return service_fault!(request, StatusCode::BadTooManyMonitoredItems);
     }
+    // (millgate patch) The server's bound, all sessions together.
+    let max_total = request.info.config.limits.subscriptions.max_monitored_items;
+    if max_total > 0 && max_total < request.subscriptions.counts().1 + items_to_create.len() {
+        return service_fault!(request, StatusCode::BadTooManyMonitoredItems);
+    }
 
     // Try to get EURange for each item with a percent deadband filter.
     let mut items_needing_deadband = Vec::new();
