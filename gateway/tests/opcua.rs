@@ -1304,6 +1304,10 @@ async fn subscriptions_left_behind_are_bounded_and_expire() {
     );
     let counts = rig.gateway.opcua().unwrap().counts();
     assert_eq!((counts.subscriptions, counts.monitored_items), (30, 20_000));
+    assert_eq!(
+        counts.orphaned_subscriptions, 30,
+        "every session was closed"
+    );
     // The service goes on: bites reach the PLC, a client reads.
     let before = rig.bite_counter();
     common::wait_for("a bite after the orphans", Duration::from_secs(30), || {

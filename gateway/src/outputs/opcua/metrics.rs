@@ -7,7 +7,7 @@ use crate::exposition::{Exposition, Families, Kind};
 impl Families for OpcUaStatus {
     fn write_families(&self, page: &mut Exposition) {
         let counts = &self.counts();
-        let scalars: [(&str, Kind, &str, f64); 18] = [
+        let scalars: [(&str, Kind, &str, f64); 19] = [
             (
                 "millgate_opcua_connections_total",
                 Kind::Counter,
@@ -97,6 +97,12 @@ impl Families for OpcUaStatus {
                 Kind::Gauge,
                 "Monitored items on the server.",
                 counts.monitored_items as f64,
+            ),
+            (
+                "millgate_opcua_orphaned_subscriptions",
+                Kind::Gauge,
+                "Subscriptions of closed or expired sessions, kept until they expire.",
+                counts.orphaned_subscriptions as f64,
             ),
             (
                 "millgate_opcua_value_changes_total",

@@ -69,6 +69,9 @@ pub struct OpcUaCounts {
     pub subscriptions: u64,
     /// Monitored items on the server now.
     pub monitored_items: u64,
+    /// Subscriptions of closed or expired sessions now (left behind, until they
+    /// expire).
+    pub orphaned_subscriptions: u64,
     /// Variable values changed in the address space.
     pub value_changes: u64,
     /// Updates refused: a value not of its variable's type, or a non-finite number
@@ -94,6 +97,7 @@ impl OpcUaCounters {
         };
         let (subscriptions, monitored_items) =
             handle.map_or((0, 0), |h| h.subscriptions().counts());
+        let orphaned_subscriptions = handle.map_or(0, |h| h.subscriptions().orphans());
         OpcUaCounts {
             connections: load(&self.connections),
             refused: load(&self.refused),
@@ -114,6 +118,7 @@ impl OpcUaCounters {
             rejected_certificates_removed: load(&self.rejected_certificates_removed),
             subscriptions: subscriptions as u64,
             monitored_items: monitored_items as u64,
+            orphaned_subscriptions: orphaned_subscriptions as u64,
             value_changes: load(&self.value_changes),
             invalid_updates: load(&self.invalid_updates),
             events: load(&self.events),

@@ -139,6 +139,11 @@ impl Session {
     }
 
     /// Get the session timeout deadline.
+    /// (millgate patch) Whether the session was closed (or expired).
+    pub(crate) fn is_closed(&self) -> bool {
+        self.is_closed
+    }
+
     /// (millgate patch) The session's timeout.
     pub(crate) fn timeout(&self) -> Duration {
         self.session_timeout

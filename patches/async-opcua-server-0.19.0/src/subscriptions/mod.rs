@@ -122,6 +122,25 @@ impl SubscriptionCache {
         Self::totals(&lck)
     }
 
+    /// (millgate patch) The subscriptions of sessions that were closed or expired:
+    /// left behind, until they expire. A session whose lock is held elsewhere at the
+    /// moment is not looked at (no lock is waited for under the cache's).
+    pub fn orphans(&self) -> usize {
+        let lck = trace_read_lock!(self.inner);
+        lck.session_subscriptions
+            .values()
+            .map(|s| {
+                let s = s.lock();
+                let closed = s.session().try_read().is_some_and(|session| session.is_closed());
+                if closed {
+                    s.counts().0
+                } else {
+                    0
+                }
+            })
+            .sum()
+    }
+
     fn totals(inner: &SubscriptionCacheInner) -> (usize, usize) {
         inner
             .session_subscriptions
