@@ -4,11 +4,12 @@
 //! - a bound on connections (`max_connections`), shared fairly: a client (an IP
 //!   address) holds at most half of them, the last free one is kept for a client with
 //!   none yet, and when there is no room the connection idle longest (at least
-//!   [`EVICT_IDLE`]) is closed to make room ([`admit`]); else the new one is closed;
+//!   `EVICT_IDLE`, 10 s) is closed to make room (`admit`); else the new one is closed;
 //! - a bound on what a connection costs the server: the relay stops reading a client
-//!   with [`MAX_IN_FLIGHT`] requests unanswered (async-opcua reads on and queues the
-//!   answers without bound); where `none` is not a security mode, a channel without
-//!   security carries [`DISCOVERY_REQUESTS`] requests (discovery) and is closed;
+//!   with `MAX_IN_FLIGHT` (32) requests unanswered (async-opcua reads on and queues
+//!   the answers without bound); where `none` is not a security mode, a channel
+//!   without security carries `DISCOVERY_REQUESTS` (4) requests (discovery) and is
+//!   closed;
 //! - a check of the OPC UA TCP framing of what clients send ([`FrameScanner`]: the
 //!   first message a Hello, known message and chunk types, sizes within the server's
 //!   receive buffer); a stream that breaks it gets an `ERR` message and is closed, and
