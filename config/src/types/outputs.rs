@@ -47,8 +47,10 @@ pub struct OpcUaOutput {
     /// only loopback clients may; with true, a remote client must also sign in as a
     /// user of `users_file`).
     pub allow_remote_commands: bool,
-    /// TCP connections served at once, 1..=256 (default 16); a further one is closed
-    /// at once.
+    /// TCP connections served at once, 1..=256 (default 16): a client address holds
+    /// at most half, the last free one is kept for a new address, and when all are
+    /// taken the connection idle longest (10 s at least) makes room; else a further
+    /// one is closed at once.
     pub max_connections: usize,
     /// Sessions at once, 1..=100 (default 10).
     pub max_sessions: usize,
