@@ -202,7 +202,40 @@ pub enum DecodeError {
     },
 }
 
+/// Most values (samples of all channels together) a stored capture may hold: 2^27,
+/// 1 GiB as `f64`, above the largest capture the configuration allows (a tandem mill's
+/// `capture_max_s` of 600 s of 40 stands at 2.5 kHz is 60 M values; 8 stands at
+/// 10 kHz, 48 M). A row that claims more is damaged: decoding refuses it before
+/// allocating anything.
+pub const MAX_CAPTURE_VALUES: u64 = 1 << 27;
+
+/// Longest zigzag varint of a count difference, bytes (64 bits, 7 per byte).
+const MAX_VARINT_BYTES: u64 = 10;
+
+/// The fewest and the most bytes `meta`'s channels take before deflating with
+/// `samples` samples each; `None` when the row claims more than
+/// [`MAX_CAPTURE_VALUES`].
+fn raw_size_bounds(meta: &CaptureMeta, samples: usize) -> Option<(u64, u64)> {
+    let samples = u64::try_from(samples).ok()?;
+    let channels = u64::try_from(meta.channels.len()).ok()?;
+    if samples.checked_mul(channels)? > MAX_CAPTURE_VALUES {
+        return None;
+    }
+    Some(meta.channels.iter().fold((0, 0), |(least, most), channel| {
+        let (low, high) = match channel.encoding {
+            Encoding::Counts => (1, MAX_VARINT_BYTES),
+            Encoding::Float64 => (8, 8),
+        };
+        (least + low * samples, most + high * samples)
+    }))
+}
+
 /// The channels of a capture stored as `blob` with `meta`, `samples` per channel.
+///
+/// A damaged row costs no more memory than a sound one of its size: `samples` is
+/// checked against [`MAX_CAPTURE_VALUES`] and the blob inflates at most to the bytes
+/// that many samples can take (a deflate bomb stops there), and nothing is sized
+/// from `samples` before the inflated bytes are known to hold them.
 pub fn decode(
     id: i64,
     meta: &CaptureMeta,
@@ -219,10 +252,26 @@ pub fn decode(
         id,
         why: why.to_owned(),
     };
+    let (least, most) = raw_size_bounds(meta, samples).ok_or_else(|| {
+        damaged(&format!(
+            "{samples} samples of {} channels claimed, over the {MAX_CAPTURE_VALUES} values \
+             a capture can hold",
+            meta.channels.len()
+        ))
+    })?;
     let mut raw = Vec::new();
     flate2::read::DeflateDecoder::new(blob)
+        .take(most + 1)
         .read_to_end(&mut raw)
         .map_err(|e| damaged(&e.to_string()))?;
+    if raw.len() as u64 > most {
+        return Err(damaged(&format!(
+            "it inflates past the {most} bytes {samples} samples can take"
+        )));
+    }
+    if (raw.len() as u64) < least {
+        return Err(damaged("ends early"));
+    }
     let mut at = 0usize;
     let mut channels = Vec::with_capacity(meta.channels.len());
     for channel in &meta.channels {
@@ -493,5 +542,47 @@ mod tests {
         assert!(error
             .to_string()
             .starts_with("capture 7: the samples are damaged"));
+    }
+
+    /// A row whose `samples` says 2^40 (the audit's damaged copy aborted the gateway
+    /// allocating 8 TiB for it) is refused before anything is sized from it.
+    #[test]
+    fn a_row_claiming_more_samples_than_a_capture_holds_is_refused_before_allocating() {
+        let record = record(vec![channel(1.0, 0.0, vec![1.0, 2.0, 3.0])]);
+        let (blob, meta) = encode(&record).unwrap();
+        let error = decode(7, &meta, 1 << 40, &blob).unwrap_err();
+        assert_eq!(
+            error.to_string(),
+            "capture 7: the samples are damaged (1099511627776 samples of 1 channels \
+             claimed, over the 134217728 values a capture can hold)"
+        );
+        // Within the bound but more than the blob holds: ends early, before the
+        // channel's buffer is sized.
+        let error = decode(7, &meta, 100_000_000, &blob).unwrap_err();
+        assert_eq!(
+            error.to_string(),
+            "capture 7: the samples are damaged (ends early)"
+        );
+    }
+
+    /// A deflate bomb (64 MiB of zeros, 64 KiB deflated) under a row of 1 000 samples
+    /// stops inflating at the 10 000 bytes 1 000 count samples can take.
+    #[test]
+    fn a_deflate_bomb_stops_inflating_at_what_its_samples_can_take() {
+        let record = record(vec![channel(1.0, 0.0, vec![0.0; 1000])]);
+        let (_, meta) = encode(&record).unwrap();
+        let mut bomb = flate2::write::DeflateEncoder::new(Vec::new(), flate2::Compression::best());
+        let zeros = vec![0u8; 1 << 20];
+        for _ in 0..64 {
+            bomb.write_all(&zeros).unwrap();
+        }
+        let bomb = bomb.finish().unwrap();
+        assert!(bomb.len() < 100_000, "{} bytes deflated", bomb.len());
+        let error = decode(7, &meta, 1000, &bomb).unwrap_err();
+        assert_eq!(
+            error.to_string(),
+            "capture 7: the samples are damaged (it inflates past the 10000 bytes 1000 \
+             samples can take)"
+        );
     }
 }
