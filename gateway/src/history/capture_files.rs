@@ -180,6 +180,21 @@ pub(crate) fn run_config(reader: &HistoryReader, run_id: i64) -> Result<RunConfi
     Ok(found.unwrap_or_default())
 }
 
+/// Whether `capture` can be written in `format` (a Parquet file's channel may not
+/// have a time column's name): checked before anything is written.
+pub(crate) fn check_writable(
+    capture: &Capture,
+    format: ExportFormat,
+) -> Result<(), CaptureFileError> {
+    let time_column = |name: &str| super::capture_parquet::TIME_COLUMNS.contains(&name);
+    match capture.channels.iter().find(|c| time_column(&c.name)) {
+        Some(channel) if format == ExportFormat::Parquet => {
+            Err(CaptureFileError::ChannelName(channel.name.clone()))
+        }
+        _ => Ok(()),
+    }
+}
+
 /// Write `capture` with its `header` to `out` in `format`.
 pub fn write<W: Write + Send>(
     capture: &Capture,
@@ -187,16 +202,10 @@ pub fn write<W: Write + Send>(
     format: ExportFormat,
     out: W,
 ) -> Result<(), CaptureFileError> {
+    check_writable(capture, format)?;
     match format {
         ExportFormat::Csv => write_csv(capture, header, out),
         ExportFormat::Parquet => {
-            if let Some(channel) = capture
-                .channels
-                .iter()
-                .find(|c| super::capture_parquet::TIME_COLUMNS.contains(&c.name.as_str()))
-            {
-                return Err(CaptureFileError::ChannelName(channel.name.clone()));
-            }
             let json = serde_json::to_string(header).map_err(std::io::Error::other)?;
             let hash = header.config_hash.as_deref();
             Ok(super::capture_parquet::write(capture, &json, hash, out)?)

@@ -1,7 +1,7 @@
 //! A capture as an Apache Parquet file (`millgate capture export --format parquet`):
 //! one row per sample, columns `time` (UTC, ns, a Parquet timestamp), `t` (s from the
-//! first sample) and one `DOUBLE` column per channel with the stored values, in one
-//! row group, snappy-compressed. The file's key-value metadata holds what a data
+//! first sample) and one `DOUBLE` column per channel with the stored values, in
+//! row groups of 65 536 rows, snappy-compressed. The file's key-value metadata holds what a data
 //! scientist needs without the gateway: `millgate.capture` (the same JSON as a CSV
 //! export's first line: driveline, bite, channels with units, scale and offset,
 //! sample rate, first sample time, gaps, the window's analysis settings, the gateway's
@@ -26,6 +26,10 @@ use parquet::schema::types::Type;
 
 use super::captures::Capture;
 use parquet::errors::ParquetError;
+
+/// Rows of one row group: 2^16, a few MiB of columns for the largest captures (a
+/// bite window, about 1 300 samples, is one group).
+const ROW_GROUP_ROWS: usize = 1 << 16;
 
 /// The time columns before the channels.
 pub(super) const TIME_COLUMNS: [&str; 2] = ["time", "t"];
@@ -94,36 +98,42 @@ pub(super) fn write<W: Write + Send>(
     let samples = usize::try_from(capture.row.samples).unwrap_or(0);
     let first_ns = capture.row.first_sample_unix_ns;
     let rate = capture.row.sample_rate_hz;
-    let times_ns: Vec<i64> = (0..samples)
-        .map(|k| first_ns + (k as f64 * 1e9 / rate).round() as i64)
-        .collect();
-    let times_s: Vec<f64> = (0..samples).map(|k| capture.time_s(k)).collect();
-    let mut group = writer.next_row_group()?;
-    let mut index = 0usize;
-    while let Some(mut column) = group.next_column()? {
-        match index {
-            0 => {
-                column
-                    .typed::<Int64Type>()
-                    .write_batch(&times_ns, None, None)?;
+    // Row groups of ROW_GROUP_ROWS: the writer holds one group's columns (and the
+    // time columns are made one group at a time), not the whole capture's again.
+    for start in (0..samples).step_by(ROW_GROUP_ROWS) {
+        let rows = start..samples.min(start + ROW_GROUP_ROWS);
+        let times_ns: Vec<i64> = rows
+            .clone()
+            .map(|k| first_ns + (k as f64 * 1e9 / rate).round() as i64)
+            .collect();
+        let times_s: Vec<f64> = rows.clone().map(|k| capture.time_s(k)).collect();
+        let mut group = writer.next_row_group()?;
+        let mut index = 0usize;
+        while let Some(mut column) = group.next_column()? {
+            match index {
+                0 => {
+                    column
+                        .typed::<Int64Type>()
+                        .write_batch(&times_ns, None, None)?;
+                }
+                1 => {
+                    column
+                        .typed::<DoubleType>()
+                        .write_batch(&times_s, None, None)?;
+                }
+                channel => {
+                    column.typed::<DoubleType>().write_batch(
+                        &capture.channels[channel - 2].samples[rows.clone()],
+                        None,
+                        None,
+                    )?;
+                }
             }
-            1 => {
-                column
-                    .typed::<DoubleType>()
-                    .write_batch(&times_s, None, None)?;
-            }
-            channel => {
-                column.typed::<DoubleType>().write_batch(
-                    &capture.channels[channel - 2].samples,
-                    None,
-                    None,
-                )?;
-            }
+            column.close()?;
+            index += 1;
         }
-        column.close()?;
-        index += 1;
+        group.close()?;
     }
-    group.close()?;
     writer.close()?;
     Ok(())
 }

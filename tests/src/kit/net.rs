@@ -75,22 +75,54 @@ pub async fn http_raw(to: impl Endpoint, raw: &[u8]) -> HttpAnswer {
         .await
         .expect("HTTP answer within 10 s")
         .expect("HTTP exchange");
-    let text = String::from_utf8_lossy(&bytes).into_owned();
-    let (head, body) = text.split_once("\r\n\r\n").unwrap_or((&text, ""));
+    let split = bytes
+        .windows(4)
+        .position(|w| w == b"\r\n\r\n")
+        .map_or((bytes.len(), bytes.len()), |at| (at, at + 4));
+    let head = String::from_utf8_lossy(&bytes[..split.0]).into_owned();
     let mut lines = head.lines();
     let status = lines
         .next()
         .and_then(|line| line.split(' ').nth(1))
         .and_then(|code| code.parse().ok())
-        .unwrap_or_else(|| panic!("no status line in {text:?}"));
-    let headers = lines
+        .unwrap_or_else(|| panic!("no status line in {head:?}"));
+    let headers: Vec<(String, String)> = lines
         .filter_map(|line| line.split_once(':'))
         .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_owned()))
         .collect();
+    let chunked = headers
+        .iter()
+        .any(|(k, v)| k == "transfer-encoding" && v.eq_ignore_ascii_case("chunked"));
+    let body = &bytes[split.1..];
+    let body = match chunked {
+        true => dechunk(body),
+        false => body.to_vec(),
+    };
     HttpAnswer {
         status,
         headers,
-        body: body.to_owned(),
+        body: String::from_utf8_lossy(&body).into_owned(),
+    }
+}
+
+/// The body of a chunked HTTP/1.1 answer (RFC 9112 7.1); panics on a malformed one,
+/// or on one cut short (no last chunk: the server ended the answer early).
+fn dechunk(mut chunked: &[u8]) -> Vec<u8> {
+    let mut body = Vec::new();
+    loop {
+        let line_end = chunked
+            .windows(2)
+            .position(|w| w == b"\r\n")
+            .expect("a chunk size line (the answer was cut short)");
+        let line = std::str::from_utf8(&chunked[..line_end]).expect("chunk size");
+        let size = usize::from_str_radix(line.split(';').next().unwrap().trim(), 16)
+            .unwrap_or_else(|_| panic!("chunk size {line:?}"));
+        chunked = &chunked[line_end + 2..];
+        if size == 0 {
+            return body;
+        }
+        body.extend_from_slice(&chunked[..size]);
+        chunked = &chunked[size + 2..];
     }
 }
 

@@ -173,7 +173,15 @@ impl QueryThreads {
                     loop {
                         let job = crate::lock(&queue).recv();
                         match job {
-                            Ok(job) => job(),
+                            // A job that panics (a bug) ends its request, not the
+                            // thread: the slots keep their threads.
+                            Ok(job) => {
+                                if std::panic::catch_unwind(std::panic::AssertUnwindSafe(job))
+                                    .is_err()
+                                {
+                                    tracing::error!("a history query panicked");
+                                }
+                            }
                             Err(_) => break,
                         }
                     }

@@ -12,8 +12,8 @@ use millgate_sim::discrepancy::calibration::aligned_response;
 use millgate_sim::discrepancy::Measured;
 
 use super::{
-    driveline_index, history_error, with_history, ApiError, DrivelineName, Params, LIMIT_DEFAULT,
-    LIMIT_MAX, POINTS_DEFAULT,
+    driveline_index, history_error, with_history, with_history_streamed, ApiError, BodyWriter,
+    DrivelineName, Params, LIMIT_DEFAULT, LIMIT_MAX, POINTS_DEFAULT,
 };
 use crate::history::capture_files::{self, CaptureHeader, ExportFormat};
 use crate::history::captures::Capture;
@@ -56,28 +56,65 @@ pub(crate) async fn captures(
 /// its name, unit and samples (`t` of sample k is k / `sample_rate_hz` s after
 /// `first_sample_unix_ns`), and a driveline's extra channel's own `timing` (null for
 /// the torque; its rows without a sample are null). 404 for an id the file does not
-/// hold.
+/// hold. Written as it is sent, in the query slot (a manual capture of 40 stands for
+/// 255 s is 25 M samples: built whole, its JSON took about 40 bytes a sample).
 pub(crate) async fn capture(
     State(state): State<Arc<WebState>>,
     id: Result<Path<i64>, PathRejection>,
-) -> Result<Json<serde_json::Value>, ApiError> {
+) -> Result<Response, ApiError> {
     // A bad id gets the API's JSON error, not axum's plain-text one.
     let id = capture_id(id)?;
-    let capture = with_history(&state, move |reader| read_capture(reader, id)).await?;
-    let mut value = crate::history::captures::row_json(&capture.row);
-    value["channels"] = capture
-        .channels
-        .iter()
-        .map(|channel| {
-            serde_json::json!({
-                "name": channel.name,
-                "unit": channel.unit,
-                "samples": channel.samples,
-                "timing": channel.timing,
-            })
-        })
-        .collect();
-    Ok(Json(value))
+    let ((), body) = with_history_streamed(&state, move |reader| {
+        let capture = read_capture(reader, id)?;
+        let write: BodyWriter = Box::new(move |out| {
+            serde_json::to_writer(out, &CaptureJson::of(&capture)).map_err(std::io::Error::from)
+        });
+        Ok(((), write))
+    })
+    .await?;
+    Ok((
+        [(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static("application/json"),
+        )],
+        body,
+    )
+        .into_response())
+}
+
+/// A capture as `GET /api/captures/{id}` answers it: its row's keys and `channels`.
+#[derive(serde::Serialize)]
+struct CaptureJson<'a> {
+    #[serde(flatten)]
+    row: serde_json::Value,
+    channels: Vec<ChannelJson<'a>>,
+}
+
+/// A channel of [`CaptureJson`].
+#[derive(serde::Serialize)]
+struct ChannelJson<'a> {
+    name: &'a str,
+    unit: &'a str,
+    samples: &'a [f64],
+    timing: &'a Option<crate::state::captures::ChannelTiming>,
+}
+
+impl<'a> CaptureJson<'a> {
+    fn of(capture: &'a Capture) -> Self {
+        Self {
+            row: crate::history::captures::row_json(&capture.row),
+            channels: capture
+                .channels
+                .iter()
+                .map(|channel| ChannelJson {
+                    name: &channel.name,
+                    unit: &channel.unit,
+                    samples: &channel.samples,
+                    timing: &channel.timing,
+                })
+                .collect(),
+        }
+    }
 }
 
 /// The `{id}` of a capture's route; a bad one gets the API's JSON error, not axum's
@@ -88,14 +125,21 @@ pub(super) fn capture_id(id: Result<Path<i64>, PathRejection>) -> Result<i64, Ap
     Ok(id)
 }
 
-/// Capture `id` of the file; 404 when the file does not hold it.
+/// Capture `id` of the file; 404 when the file does not hold it, 500 when its stored
+/// samples are damaged (no use trying again).
 pub(super) fn read_capture(
     reader: &crate::history::query::HistoryReader,
     id: i64,
 ) -> Result<Capture, ApiError> {
     reader
         .capture(id)
-        .map_err(history_error)?
+        .map_err(|error| match error {
+            HistoryError::Capture { .. } => ApiError {
+                status: StatusCode::INTERNAL_SERVER_ERROR,
+                message: error.to_string(),
+            },
+            error => history_error(error),
+        })?
         .ok_or_else(|| ApiError {
             status: StatusCode::NOT_FOUND,
             message: format!("no capture {id} in the history"),
@@ -104,8 +148,8 @@ pub(super) fn read_capture(
 
 /// `GET /api/captures/{id}/file?format=csv|parquet`: the capture as the file
 /// `millgate capture export --id {id} --format ...` writes (the same writer, byte for
-/// byte), as a download named as the export names it. Written in memory: one
-/// capture, its size bounded by the capture settings.
+/// byte), as a download named as the export names it. Written as it is sent, in the
+/// query slot: the memory it takes is the capture's samples, not its file.
 pub(crate) async fn capture_file(
     State(state): State<Arc<WebState>>,
     id: Result<Path<i64>, PathRejection>,
@@ -122,16 +166,19 @@ pub(crate) async fn capture_file(
             )))
         }
     };
-    let (name, bytes) = with_history(&state, move |reader| {
+    let (name, body) = with_history_streamed(&state, move |reader| {
         let capture = read_capture(reader, id)?;
         let run = capture_files::run_config(reader, capture.row.run_id).map_err(history_error)?;
         let header = CaptureHeader::of(&capture, run);
-        let mut bytes = Vec::new();
-        capture_files::write(&capture, &header, format, &mut bytes).map_err(|error| ApiError {
+        capture_files::check_writable(&capture, format).map_err(|error| ApiError {
             status: StatusCode::INTERNAL_SERVER_ERROR,
             message: format!("capture {id}: {error}"),
         })?;
-        Ok((capture_files::file_name(&capture, format), bytes))
+        let name = capture_files::file_name(&capture, format);
+        let write: BodyWriter = Box::new(move |out| {
+            capture_files::write(&capture, &header, format, out).map_err(std::io::Error::other)
+        });
+        Ok((name, write))
     })
     .await?;
     let content_type = match format {
@@ -146,7 +193,7 @@ pub(crate) async fn capture_file(
             (header::CONTENT_TYPE, HeaderValue::from_static(content_type)),
             (header::CONTENT_DISPOSITION, disposition),
         ],
-        bytes,
+        body,
     )
         .into_response())
 }

@@ -171,6 +171,116 @@ async fn with_history<T: Send + 'static>(
     state: &WebState,
     work: impl FnOnce(&HistoryReader) -> Result<T, ApiError> + Send + 'static,
 ) -> Result<T, ApiError> {
+    with_history_then(
+        state,
+        move |reader| work(reader).map(|answer| (answer, ())),
+        drop,
+    )
+    .await
+}
+
+/// An answer's body written on the query thread after its head was answered.
+type BodyWriter = Box<dyn FnOnce(&mut (dyn std::io::Write + Send)) -> std::io::Result<()> + Send>;
+
+/// Bytes of a streamed answer sent at a time.
+const STREAM_CHUNK: usize = 64 * 1024;
+/// Chunks of a streamed answer waiting for the client at most: with
+/// [`STREAM_CHUNK`], what a slow client costs the gateway.
+const STREAM_QUEUE: usize = 4;
+
+/// [`with_history`] for an answer too large to build in memory: `work` gives the
+/// head (the answer's own figures) and a writer of the body, which then runs on the
+/// same query thread, in the same slot, sending the body in [`STREAM_CHUNK`]s as the
+/// client takes them (at most [`STREAM_QUEUE`] waiting). A client that takes no chunk
+/// within the request timeout, or goes away, ends the writing and frees the slot; an
+/// error while writing cuts the answer short (the client sees it incomplete).
+async fn with_history_streamed<T: Send + 'static>(
+    state: &WebState,
+    work: impl FnOnce(&HistoryReader) -> Result<(T, BodyWriter), ApiError> + Send + 'static,
+) -> Result<(T, axum::body::Body), ApiError> {
+    let (chunks, body) = tokio::sync::mpsc::channel(STREAM_QUEUE);
+    let sink = ChunkSink {
+        chunks,
+        pending: Vec::with_capacity(STREAM_CHUNK),
+        runtime: tokio::runtime::Handle::current(),
+        patience: state.request_timeout,
+    };
+    let head = with_history_then(state, work, move |write: BodyWriter| {
+        let mut sink = sink;
+        let written = write(&mut sink).and_then(|()| sink.flush_pending());
+        if let Err(error) = written {
+            // The client sees the answer end early; it may have gone already.
+            let _ = sink.send(Err(error));
+        }
+    })
+    .await?;
+    let body = axum::body::Body::from_stream(tokio_stream::wrappers::ReceiverStream::new(body));
+    Ok((head, body))
+}
+
+/// Where a streamed answer's body is written, on a query thread: chunks to the
+/// response's stream.
+struct ChunkSink {
+    chunks: tokio::sync::mpsc::Sender<std::io::Result<axum::body::Bytes>>,
+    pending: Vec<u8>,
+    runtime: tokio::runtime::Handle,
+    /// How long a chunk waits for the client.
+    patience: Duration,
+}
+
+impl ChunkSink {
+    fn send(&self, chunk: std::io::Result<axum::body::Bytes>) -> std::io::Result<()> {
+        // The timeout is made inside the runtime's context (its timer is there).
+        let sent = self
+            .runtime
+            .block_on(async { tokio::time::timeout(self.patience, self.chunks.send(chunk)).await });
+        match sent {
+            Ok(Ok(())) => Ok(()),
+            Ok(Err(_)) => Err(std::io::Error::new(
+                std::io::ErrorKind::BrokenPipe,
+                "the client went away",
+            )),
+            Err(_) => Err(std::io::Error::new(
+                std::io::ErrorKind::TimedOut,
+                "the client took nothing within the request timeout",
+            )),
+        }
+    }
+
+    fn flush_pending(&mut self) -> std::io::Result<()> {
+        if self.pending.is_empty() {
+            return Ok(());
+        }
+        let chunk = std::mem::replace(&mut self.pending, Vec::with_capacity(STREAM_CHUNK));
+        self.send(Ok(chunk.into()))
+    }
+}
+
+impl std::io::Write for ChunkSink {
+    fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+        let room = STREAM_CHUNK - self.pending.len();
+        let taken = bytes.len().min(room);
+        self.pending.extend_from_slice(&bytes[..taken]);
+        if self.pending.len() == STREAM_CHUNK {
+            self.flush_pending()?;
+        }
+        Ok(taken)
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        // Chunks go when full or at the end: a flush of a writer inside (a CSV
+        // writer's buffer) must not send small chunks.
+        Ok(())
+    }
+}
+
+/// [`with_history`] whose `work` gives the answer and something `then` does with it on
+/// the query thread, in the slot, once the answer was handed over.
+async fn with_history_then<T: Send + 'static, R: Send + 'static>(
+    state: &WebState,
+    work: impl FnOnce(&HistoryReader) -> Result<(T, R), ApiError> + Send + 'static,
+    then: impl FnOnce(R) + Send + 'static,
+) -> Result<T, ApiError> {
     let Some(path) = state.history.clone() else {
         return Err(ApiError {
             status: StatusCode::NOT_FOUND,
@@ -202,7 +312,16 @@ async fn with_history<T: Send + 'static>(
                 });
                 work(&reader)
             });
-        let _ = answer.send(result);
+        match result {
+            Ok((head, rest)) => {
+                if answer.send(Ok(head)).is_ok() {
+                    then(rest);
+                }
+            }
+            Err(error) => {
+                let _ = answer.send(Err(error));
+            }
+        }
         drop(slot);
     });
     if state.queries.run(job).is_err() {
