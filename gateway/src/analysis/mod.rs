@@ -237,7 +237,7 @@ impl Analysis {
                 if analyzer.start_manual_capture(f64::from(seconds)) {
                     tracing::info!(driveline = %name, seconds, by = origin.name(), peer = ?origin.peer(), "manual capture started");
                 } else {
-                    tracing::warn!(driveline = %name, by = origin.name(), "manual capture refused: captures are not kept (no [history])");
+                    tracing::warn!(driveline = %name, by = origin.name(), "manual capture refused: captures are not kept (no [history], or history.captures = false)");
                 }
             }
             Command::CaptureStands {
@@ -248,7 +248,7 @@ impl Analysis {
                 if self.chatter.start_manual_capture(mill, f64::from(seconds)) {
                     tracing::info!(mill, seconds, by = origin.name(), peer = ?origin.peer(), "manual capture of the stands started");
                 } else {
-                    tracing::warn!(mill, by = origin.name(), "manual capture of the stands refused: no such tandem mill, or captures are not kept (no [history])");
+                    tracing::warn!(mill, by = origin.name(), "manual capture of the stands refused: no such tandem mill, or captures are not kept (no [history], or history.captures = false)");
                 }
             }
         }

@@ -88,6 +88,21 @@ pub(crate) fn parse_time(option: &str, text: Option<&str>) -> anyhow::Result<Opt
         .transpose()
 }
 
+/// `--since` and `--until` as times, `--since` before `--until` when both are given
+/// (a range with nothing in it is a mistake, not an empty answer).
+pub(crate) fn parse_range(
+    since: Option<&str>,
+    until: Option<&str>,
+) -> anyhow::Result<(Option<UtcTime>, Option<UtcTime>)> {
+    let (since, until) = (parse_time("--since", since)?, parse_time("--until", until)?);
+    if let (Some(since), Some(until)) = (since, until) {
+        if since >= until {
+            anyhow::bail!("--since ({since}) must be before --until ({until})");
+        }
+    }
+    Ok((since, until))
+}
+
 /// The export `args` ask for, written to stdout as the rows are read (the memory of
 /// one row, whatever the file's size), with progress on stderr when it is a terminal
 /// (`Progress`). A closed stdout (`millgate history ... | head`) ends the export

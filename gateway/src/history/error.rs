@@ -16,6 +16,13 @@ pub enum HistoryError {
         #[source]
         source: rusqlite::Error,
     },
+    /// The path names a folder, not a file.
+    #[error("history {}: a folder, not a history file (give the file, e.g. {})",
+        path.display(), path.join("history.db").display())]
+    Folder {
+        /// The folder.
+        path: PathBuf,
+    },
     /// The schema could not be brought up to date.
     #[error("history {}: {source}", path.display())]
     Schema {

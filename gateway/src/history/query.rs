@@ -312,6 +312,12 @@ impl HistoryReader {
             path: path.to_path_buf(),
             source,
         };
+        if path.is_dir() {
+            // SQLite opens a folder and fails at the first read ("disk I/O error").
+            return Err(HistoryError::Folder {
+                path: path.to_path_buf(),
+            });
+        }
         let connection = Connection::open_with_flags(
             path,
             OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX,

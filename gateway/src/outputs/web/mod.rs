@@ -110,6 +110,7 @@ impl WebServer {
                 .collect(),
             board,
             history: config.history.as_ref().map(|h| h.path.clone()),
+            captures_kept: config.history.as_ref().is_some_and(|h| h.captures.enabled),
             request_timeout: settings.request_timeout,
             query_slots: Arc::new(QuerySlots::new(settings.history_queries)),
             queries: shared::QueryThreads::start(settings.history_queries)?,

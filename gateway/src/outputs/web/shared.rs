@@ -45,6 +45,8 @@ pub(crate) struct WebState {
     pub(crate) board: Arc<Board>,
     /// The history file, `None` without `[history]`.
     pub(crate) history: Option<PathBuf>,
+    /// Whether captures are kept (`[history]` with `history.captures = true`).
+    pub(crate) captures_kept: bool,
     pub(crate) request_timeout: Duration,
     /// History queries running at once (`outputs.web.history_queries`): a slot is
     /// held until the query's thread has ended.

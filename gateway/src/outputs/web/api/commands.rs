@@ -48,7 +48,7 @@ fn refused(status: StatusCode, message: String) -> ApiError {
 /// in the history once the span has passed). 403 without `outputs.web.allow_commands`,
 /// 415 without a JSON content type, 413 for a body over [`MAX_COMMAND_BODY`] bytes,
 /// 400 for a body that is no such object, an unknown subject or seconds out of
-/// range, 409 without a history, 503 when the analysis is busy or stopped.
+/// range, 409 without a history or with `history.captures = false`, 503 when the analysis is busy or stopped.
 pub(crate) async fn request_capture(
     State(state): State<Arc<WebState>>,
     Extension(ConnectInfo(peer)): Extension<ConnectInfo<SocketAddr>>,
@@ -130,6 +130,12 @@ pub(crate) async fn request_capture(
         return Err(refused(
             StatusCode::CONFLICT,
             "no history configured: captures are not kept (add [history])".into(),
+        ));
+    }
+    if !state.captures_kept {
+        return Err(refused(
+            StatusCode::CONFLICT,
+            "captures are not kept (history.captures = false)".into(),
         ));
     }
     commands.send(command).map_err(|error: CommandRefused| {
