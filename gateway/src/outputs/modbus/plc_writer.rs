@@ -15,6 +15,12 @@
 //! so the first write after it appears is fresh. Repeating warnings are rate-limited.
 //! On shutdown a last write publishes the "stopped" status.
 //!
+//! Before its first write the writer reads each driveline's bite counter back from the
+//! PLC: while no bite of this run has been counted, a counter the PLC holds above the
+//! restored one is continued (the history can lack bites the PLC saw: a full disk or
+//! a read-only folder stopped storing them), so the PLC never sees its counter go
+//! back and bite numbers repeat.
+//!
 //! With a history, each write first waits (at most [`HISTORY_WAIT`]) until the
 //! events recorded before the map was read are committed: a bite the PLC sees is in
 //! the file, even if the gateway is killed right after. A failing history is not
@@ -27,7 +33,8 @@ use std::time::Duration;
 
 use tokio::time::Instant;
 
-use millgate_config::PlcOutput;
+use millgate_config::layout::decode_value;
+use millgate_config::{PlcOutput, RegisterTable};
 use tokio_modbus::client::Context;
 
 use crate::field::backoff::Backoff;
@@ -219,6 +226,74 @@ impl PlcWriter {
         Ok(())
     }
 
+    /// Continue each driveline's bite counter from what the PLC holds, when that is
+    /// more than the board's and the board's is still `at_start` (no bite counted in
+    /// this run yet). A read that fails leaves the counters as they are.
+    async fn continue_counters(&self, context: &mut Context, at_start: &[u32]) {
+        for (index, name) in self.board.driveline_names().iter().enumerate() {
+            let register_name = format!("{name}.bite_counter");
+            let Some(register) = self
+                .map
+                .registers()
+                .iter()
+                .find(|r| r.name == register_name)
+            else {
+                continue;
+            };
+            let address = self.output.register_base + register.address;
+            let count = register.value_type.register_count();
+            let read = client::read(
+                context,
+                (RegisterTable::Holding, address, count),
+                self.output.timeout,
+            )
+            .await;
+            let words = match read {
+                Ok(words) => words,
+                Err(error) => {
+                    tracing::debug!(%error, driveline = %name, "the PLC's bite counter not read back");
+                    continue;
+                }
+            };
+            let Some(held) = decode_value(&words, register.value_type, register.word_order)
+                .and_then(|value| u32::try_from(value as i64).ok())
+            else {
+                continue;
+            };
+            // Looked at first: an update, even one that changes nothing, is a change
+            // the writers act on.
+            let counter = self
+                .board
+                .results()
+                .drivelines
+                .get(index)
+                .map(|d| d.bite_counter);
+            if counter
+                .is_none_or(|counter| held <= counter || at_start.get(index) != Some(&counter))
+            {
+                continue;
+            }
+            let raised = self.board.update(|results| {
+                let driveline = results.drivelines.get_mut(index)?;
+                let untouched = at_start.get(index) == Some(&driveline.bite_counter);
+                (untouched && held > driveline.bite_counter).then(|| {
+                    let restored = driveline.bite_counter;
+                    driveline.bite_counter = held;
+                    restored
+                })
+            });
+            if let Some(restored) = raised {
+                tracing::warn!(
+                    driveline = %name,
+                    restored,
+                    plc = held,
+                    "bite counter continued from the PLC's: the history lacks bites the PLC \
+                     saw (it could not store them)"
+                );
+            }
+        }
+    }
+
     /// Write every period until shutdown, then write the final "stopped" map.
     ///
     /// The heartbeat moves every period even while the PLC is unreachable (the map is
@@ -237,6 +312,15 @@ impl PlcWriter {
         let mut changes = self.board.changes();
         let blocks = self.map.plc_blocks(self.output.extension_blocks);
         let whole = requests(blocks, |_| true);
+        // The counters as restored: the PLC's are continued only while they are.
+        let at_start: Vec<u32> = self
+            .board
+            .results()
+            .drivelines
+            .iter()
+            .map(|d| d.bite_counter)
+            .collect();
+        let mut counters_read = false;
         loop {
             let period = tokio::select! {
                 _ = ticks.tick() => true,
@@ -261,6 +345,10 @@ impl PlcWriter {
                 }
             }
             if let Some(connected) = context.as_mut() {
+                if !counters_read {
+                    self.continue_counters(connected, &at_start).await;
+                    counters_read = true;
+                }
                 let words = self.map.encode(&self.board.results());
                 let history = self.board.history();
                 if !history.wait_settled(history.enqueued(), HISTORY_WAIT).await {
