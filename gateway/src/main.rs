@@ -30,7 +30,8 @@ enum Command {
         #[arg(long, value_enum, default_value = "text")]
         format: millgate::cli::OutputFormat,
     },
-    /// Run the gateway service until SIGINT or SIGTERM.
+    /// Run the gateway service until SIGINT or SIGTERM (SIGHUP checks the
+    /// configuration file again and says what a restart would change).
     Run {
         /// The configuration file (TOML).
         #[arg(long)]
@@ -149,17 +150,29 @@ async fn run_service(config_path: PathBuf) -> anyhow::Result<()> {
         millgate::supervision::check_watchdog(period, heartbeat)
             .map_err(|error| anyhow::anyhow!("{}: {error}", config_path.display()))?;
     }
+    let running = config.clone();
     let service = millgate::Service::new(config)
         .map_err(|error| anyhow::anyhow!("{}: {error}", config_path.display()))?;
     let signal = stop_signals()?;
     tokio::pin!(signal);
+    let mut hang_up = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::hangup())?;
+    let reload = || {
+        use millgate::service::reload::{reload, Reload};
+        match reload(&running, &config_path) {
+            outcome @ Reload::Unchanged => tracing::info!("{outcome}"),
+            outcome => tracing::warn!("{outcome}"),
+        }
+    };
     let mut gateway = service.spawn().await?;
-    tokio::select! {
-        ready = gateway.ready() => ready?,
-        () = &mut signal => {
-            tracing::info!("shutdown requested before the service was ready");
-            gateway.stop().await?;
-            return Ok(());
+    loop {
+        tokio::select! {
+            ready = gateway.ready() => break ready?,
+            () = &mut signal => {
+                tracing::info!("shutdown requested before the service was ready");
+                gateway.stop().await?;
+                return Ok(());
+            }
+            Some(()) = hang_up.recv() => reload(),
         }
     }
     tracing::info!("ready");
@@ -174,17 +187,24 @@ async fn run_service(config_path: PathBuf) -> anyhow::Result<()> {
             watchdog_shutdown,
         ));
     }
-    tokio::select! {
-        () = &mut signal => {
-            tracing::info!("shutdown requested");
-            notify(&[NotifyState::Stopping]);
-            stop_watchdog.trigger();
-            gateway.stop().await?;
-            Ok(())
-        }
-        ended = gateway.finished() => {
-            stop_watchdog.trigger();
-            Err(ended.err().unwrap_or(millgate::service::ServiceError::Ended).into())
+    loop {
+        tokio::select! {
+            () = &mut signal => {
+                tracing::info!("shutdown requested");
+                notify(&[NotifyState::Stopping]);
+                stop_watchdog.trigger();
+                gateway.stop().await?;
+                return Ok(());
+            }
+            ended = gateway.finished() => {
+                stop_watchdog.trigger();
+                return Err(ended.err().unwrap_or(millgate::service::ServiceError::Ended).into());
+            }
+            Some(()) = hang_up.recv() => {
+                notify(&[NotifyState::Reloading]);
+                reload();
+                notify(&[NotifyState::Ready]);
+            }
         }
     }
 }

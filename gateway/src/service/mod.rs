@@ -16,6 +16,7 @@ use tokio::sync::{broadcast, mpsc, watch};
 mod error;
 mod outputs;
 mod readers;
+pub mod reload;
 mod running;
 
 pub use error::ServiceError;
