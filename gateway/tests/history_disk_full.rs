@@ -19,6 +19,7 @@ use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use common::{wait_for, KillOnDrop, Setup, MILLGATE};
+use millgate::history::query::{Filter, HistoryReader};
 use millgate::outputs::modbus::register_map::decode_u32;
 
 /// A user and mount namespace with a tmpfs of `size` on `folder`, held by a `sleep`.
@@ -203,6 +204,96 @@ async fn a_full_disk_loses_nothing_stored_and_the_counter_never_goes_back() {
     })
     .await;
     assert_eq!(sqlite(&holder, history, "PRAGMA integrity_check"), "ok");
+    common::terminate(&mut second);
+    setup.stop(second).await;
+    drop(holder);
+}
+
+/// A user and mount namespace where `folder` is bound onto itself read-only, held by
+/// a `sleep`.
+fn namespace_with_read_only(folder: &Path) -> KillOnDrop {
+    Command::new("unshare")
+        .args([
+            "-rm",
+            "sh",
+            "-c",
+            "mount --bind \"$1\" \"$1\" && mount -o remount,bind,ro \"$1\" && exec sleep 600",
+            "sh",
+            folder.to_str().unwrap(),
+        ])
+        .stdin(Stdio::null())
+        .spawn()
+        .map(KillOnDrop)
+        .expect("unshare (util-linux)")
+}
+
+/// Killed, then started with the history's folder read-only (round-4 audit finding
+/// 4b: the writer never recovered once it was writable, and the counter went back):
+/// the start restores the counters it can read, the PLC's counter never goes back,
+/// and once the folder is writable again storing resumes within the writer's reopen
+/// period.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_start_on_a_read_only_folder_recovers_when_it_is_writable_again() {
+    let setup = Setup::new(MILLGATE, "read-only-start", "db").await;
+    let folder = setup.history.parent().unwrap().to_path_buf();
+    let plc = setup.plc();
+    let mut first = setup.spawn("first.log");
+    plc.bites_after_now(2).await;
+    first.kill().unwrap();
+    first.wait().unwrap();
+    let in_plc = plc.counter();
+
+    let holder = namespace_with_read_only(&folder);
+    wait_for(
+        "the folder bound read-only",
+        Duration::from_secs(10),
+        || {
+            std::fs::read_to_string(format!("/proc/{}/mountinfo", holder.id()))
+                .is_ok_and(|mounts| mounts.contains(folder.to_str().unwrap()))
+        },
+    )
+    .await;
+    let mut second = spawn_inside(&setup, &holder, "second.log");
+    let mut lowest = u32::MAX;
+    wait_for("a bite of the second run", Duration::from_secs(60), || {
+        let now = plc.counter();
+        lowest = lowest.min(now);
+        now > in_plc
+    })
+    .await;
+    assert!(
+        lowest >= in_plc,
+        "the PLC's counter went back from {in_plc} to {lowest}"
+    );
+    assert_eq!(
+        plc.counter(),
+        in_plc + 1,
+        "the next bite continues the PLC's"
+    );
+    assert_eq!(setup.metric("millgate_history_state").await, Some(2.0));
+
+    // Writable again: storing resumes.
+    let remounted = inside(&holder, "mount")
+        .args(["-o", "remount,bind,rw", folder.to_str().unwrap()])
+        .status()
+        .unwrap();
+    assert!(remounted.success());
+    let resumed_from = plc.counter();
+    let resumed = || {
+        HistoryReader::open(&setup.history)
+            .and_then(|reader| reader.bites(&Filter::default()))
+            .is_ok_and(|bites| bites.iter().any(|b| b.figures.bite_counter > resumed_from))
+    };
+    let waited = std::time::Instant::now();
+    while !resumed() {
+        assert!(
+            waited.elapsed() < Duration::from_secs(60),
+            "storing did not resume within 60 s: {}",
+            setup.log_text("second.log")
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    assert_eq!(setup.metric("millgate_history_state").await, Some(1.0));
     common::terminate(&mut second);
     setup.stop(second).await;
     drop(holder);

@@ -142,6 +142,11 @@ fn locked(error: &rusqlite::Error) -> bool {
     )
 }
 
+/// Whether `error` says the disk is full.
+fn disk_full(error: &rusqlite::Error) -> bool {
+    error.sqlite_error_code() == Some(rusqlite::ErrorCode::DiskFull)
+}
+
 /// What became of a batch.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Written {
@@ -279,7 +284,10 @@ impl Writer {
                     self.path.display(),
                     explain(&error)
                 );
-                self.failed(&message, &[], false);
+                // A full disk may free up under this connection; a file SQLite could
+                // open only read-only (a read-only folder or file system) stays so
+                // until it is opened again.
+                self.failed(&message, &[], !disk_full(&error));
             }
         }
         Ok(restored)
@@ -476,7 +484,7 @@ impl Writer {
                     self.failed(&format!("{message} (events kept, tried again)"), &[], false);
                     return Written::Kept;
                 }
-                self.failed(&message, batch, false);
+                self.failed(&message, batch, !disk_full(&error));
                 return Written::Settled;
             }
         }
@@ -513,8 +521,7 @@ impl Writer {
                 }
                 // A full disk may free up with the connection as it is; anything else
                 // (a file made read-only, replaced or damaged) is opened afresh.
-                let full = error.sqlite_error_code() == Some(rusqlite::ErrorCode::DiskFull);
-                self.failed(&message, batch, !full);
+                self.failed(&message, batch, !disk_full(&error));
                 Written::Settled
             }
         }
