@@ -284,10 +284,10 @@ impl Writer {
                     self.path.display(),
                     explain(&error)
                 );
-                // A full disk may free up under this connection; a file SQLite could
-                // open only read-only (a read-only folder or file system) stays so
-                // until it is opened again.
-                self.failed(&message, &[], !disk_full(&error));
+                // A full disk may free up and a lock be released under this
+                // connection; a file SQLite could open only read-only (a read-only
+                // folder or file system) stays so until it is opened again.
+                self.failed(&message, &[], !(disk_full(&error) || locked(&error)));
             }
         }
         Ok(restored)
