@@ -6,6 +6,7 @@ pub mod cli;
 pub mod exposition;
 pub mod field;
 pub mod history;
+pub mod logging;
 pub mod outputs;
 pub mod records;
 pub mod service;

@@ -100,14 +100,17 @@ enum Command {
 /// causes (an INFO per connection and session, a WARN per notification a slow
 /// subscriber's queue drops: thousands a second in the round-4 audit) stay out of
 /// the journal; the gateway's own OPC UA lines are rate-limited and counted.
-/// `RUST_LOG` replaces them.
+/// `RUST_LOG` replaces them (tokio-modbus' lines stay off either way unless it names
+/// them: [`millgate::logging::filter`]).
 const QUIET_DEPENDENCIES: &str =
     "opcua_server=warn,opcua_server::subscriptions=error,opcua_core=warn";
 
 fn init_tracing(default_level: &str) {
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
-        tracing_subscriber::EnvFilter::new(format!("{default_level},{QUIET_DEPENDENCIES}"))
-    });
+    let rust_log = std::env::var("RUST_LOG").ok();
+    let filter = millgate::logging::filter(
+        rust_log.as_deref(),
+        &format!("{default_level},{QUIET_DEPENDENCIES}"),
+    );
     // Colours only on a terminal: journald and log files get plain text.
     let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
     tracing_subscriber::fmt()

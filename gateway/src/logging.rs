@@ -1,0 +1,76 @@
+//! The log filter of the `millgate` commands: `RUST_LOG` when set, else the command's
+//! level; with either, tokio-modbus' own per-frame lines are left out unless
+//! `RUST_LOG` names it. Its RTU codec logs a WARN for every frame a device garbles
+//! (a device appending junk made one per poll); the gateway reports each failed
+//! request itself, counted on `/metrics` and rate-limited in the log.
+
+use tracing_subscriber::EnvFilter;
+
+/// The crate whose log lines are left out unless asked for.
+const QUIET: &str = "tokio_modbus";
+
+/// The filter for `rust_log` (the `RUST_LOG` variable, when set and valid) or
+/// `default_level`.
+pub fn filter(rust_log: Option<&str>, default_level: &str) -> EnvFilter {
+    let asked = rust_log.and_then(|text| EnvFilter::try_new(text).ok().map(|f| (text, f)));
+    match asked {
+        Some((text, filter)) if text.contains(QUIET) => filter,
+        Some((_, filter)) => filter.add_directive(quiet()),
+        None => EnvFilter::new(default_level).add_directive(quiet()),
+    }
+}
+
+fn quiet() -> tracing_subscriber::filter::Directive {
+    format!("{QUIET}=off").parse().expect("a valid directive")
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::{Arc, Mutex};
+
+    use super::filter;
+
+    /// The lines `filter` lets through of a WARN from tokio-modbus' RTU codec and one
+    /// from the gateway.
+    fn logged(filter: tracing_subscriber::EnvFilter) -> String {
+        let buffer = Arc::new(Mutex::new(Vec::<u8>::new()));
+        let writer = {
+            let buffer = Arc::clone(&buffer);
+            move || Writer(Arc::clone(&buffer))
+        };
+        let subscriber = tracing_subscriber::fmt()
+            .with_env_filter(filter)
+            .with_writer(writer)
+            .with_ansi(false)
+            .finish();
+        tracing::subscriber::with_default(subscriber, || {
+            tracing::warn!(target: "tokio_modbus::codec::rtu", "Failed to decode response frame");
+            tracing::warn!(target: "millgate::field::modbus::reader", "DAQ reply rejected");
+        });
+        let text = String::from_utf8(buffer.lock().unwrap().clone()).unwrap();
+        text
+    }
+
+    struct Writer(Arc<Mutex<Vec<u8>>>);
+
+    impl std::io::Write for Writer {
+        fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+            self.0.lock().unwrap().extend_from_slice(bytes);
+            Ok(bytes.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn tokio_modbus_frames_are_quiet_unless_asked_for() {
+        for filter in [filter(None, "info"), filter(Some("info"), "warn")] {
+            let text = logged(filter);
+            assert!(text.contains("DAQ reply rejected"), "{text}");
+            assert!(!text.contains("Failed to decode"), "{text}");
+        }
+        let text = logged(filter(Some("info,tokio_modbus=warn"), "warn"));
+        assert!(text.contains("Failed to decode"), "asked for: {text}");
+    }
+}
