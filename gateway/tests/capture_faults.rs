@@ -295,3 +295,39 @@ async fn capture_commands_name_what_is_wrong() {
     );
     setup.stop(service).await;
 }
+
+/// 40 `POST /api/captures` in a row from one client (round-4 audit finding 8): two
+/// log lines each before (the web API's and the analysis'); now the first of each,
+/// the rest counted in the next line logged.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_loop_of_capture_requests_is_logged_once_per_period() {
+    let setup = Setup::new(MILLGATE, "capture-flood", "db").await;
+    let web_port = free_port();
+    setup.append_config(&format!(
+        "\n[outputs.web]\nbind = \"127.0.0.1:{web_port}\"\nallow_commands = true\n"
+    ));
+    let mut service = setup.spawn("run.log");
+    web_ready(web_port).await;
+    let body = r#"{"subject": "F1", "seconds": 5}"#;
+    let request = format!(
+        "POST /api/captures HTTP/1.1\r\nhost: localhost\r\nconnection: close\r\n\
+         content-type: application/json\r\ncontent-length: {}\r\n\r\n{body}",
+        body.len()
+    );
+    for _ in 0..40 {
+        let answer = http_raw(web_port, request.as_bytes()).await;
+        assert_eq!(answer.status, 202, "{}", answer.body);
+    }
+    // The analysis takes each command within its next turn.
+    tokio::time::sleep(std::time::Duration::from_millis(500)).await;
+    terminate(&mut service);
+    let log = setup.log_text("run.log");
+    let lines = |text: &str| log.lines().filter(|line| line.contains(text)).count();
+    assert_eq!(
+        lines("manual capture asked through the web API"),
+        1,
+        "{log}"
+    );
+    assert_eq!(lines("manual capture started"), 1, "{log}");
+    setup.stop(service).await;
+}

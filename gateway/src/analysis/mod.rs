@@ -31,6 +31,7 @@ use crate::state::commands::{Command, CommandReceiver};
 use crate::state::events::HistoryEvent;
 use crate::state::gap_maps::{GapMapState, GapMaps};
 use crate::supervision::{Liveness, ANALYSIS_TICK};
+use crate::warn_limit::{WarnLimit, WARN_PERIOD};
 use driveline::{BiteReport, DrivelineAnalyzer};
 pub use error::AnalysisError;
 use gap_estimate::GapObservation;
@@ -58,6 +59,11 @@ pub struct Analysis {
     chatter: chatter::ChatterAnalysis,
     /// Span stability monitors of the rod mills.
     rod_mills: rod_monitor::RodAnalysis,
+    /// The commands' log lines, per kind (acknowledge, wear reset, capture of a
+    /// driveline, of the stands): a client may send them in a loop (the web API, an
+    /// HMI, OPC UA), so each kind logs its first, then one line per period with how
+    /// many it stands for. The history records each with its origin.
+    command_logs: [WarnLimit; 4],
 }
 
 impl Analysis {
@@ -130,6 +136,7 @@ impl Analysis {
             bites,
             chatter,
             rod_mills,
+            command_logs: std::array::from_fn(|_| WarnLimit::new(WARN_PERIOD)),
         })
     }
 
@@ -207,9 +214,19 @@ impl Analysis {
     /// Apply a command: acknowledge the latched alarms, or reset a driveline's wear
     /// (its trend, its gap estimate and the gap pool behind it).
     pub fn command(&mut self, command: Command) {
+        let kind = match &command {
+            Command::AcknowledgeAlarms { .. } => 0,
+            Command::ResetWear { .. } => 1,
+            Command::CaptureTorque { .. } => 2,
+            Command::CaptureStands { .. } => 3,
+        };
+        // `None`: this line is left out (counted in the next one logged).
+        let log = self.command_logs[kind].occurred(tokio::time::Instant::now());
         match command {
             Command::AcknowledgeAlarms { origin } => {
-                tracing::info!(by = origin.name(), peer = ?origin.peer(), "alarms acknowledged");
+                if let Some(suppressed) = log {
+                    tracing::info!(by = origin.name(), peer = ?origin.peer(), suppressed, "alarms acknowledged");
+                }
                 self.board.acknowledge_alarms(origin);
             }
             Command::ResetWear { driveline, origin } => {
@@ -217,7 +234,9 @@ impl Analysis {
                     tracing::warn!(driveline, "wear reset of a driveline that does not exist");
                     return;
                 };
-                tracing::info!(driveline = %self.board.driveline_names()[driveline], by = origin.name(), peer = ?origin.peer(), "wear reset");
+                if let Some(suppressed) = log {
+                    tracing::info!(driveline = %self.board.driveline_names()[driveline], by = origin.name(), peer = ?origin.peer(), suppressed, "wear reset");
+                }
                 analyzer.reset_gap_pool();
                 self.board.reset_wear(driveline, origin);
             }
@@ -234,10 +253,15 @@ impl Analysis {
                     return;
                 };
                 let name = &self.board.driveline_names()[driveline];
-                if analyzer.start_manual_capture(f64::from(seconds)) {
-                    tracing::info!(driveline = %name, seconds, by = origin.name(), peer = ?origin.peer(), "manual capture started");
-                } else {
-                    tracing::warn!(driveline = %name, by = origin.name(), "manual capture refused: captures are not kept (no [history], or history.captures = false)");
+                let started = analyzer.start_manual_capture(f64::from(seconds));
+                match (log, started) {
+                    (None, _) => {}
+                    (Some(suppressed), true) => {
+                        tracing::info!(driveline = %name, seconds, by = origin.name(), peer = ?origin.peer(), suppressed, "manual capture started")
+                    }
+                    (Some(suppressed), false) => {
+                        tracing::warn!(driveline = %name, by = origin.name(), suppressed, "manual capture refused: captures are not kept (no [history], or history.captures = false)")
+                    }
                 }
             }
             Command::CaptureStands {
@@ -245,10 +269,11 @@ impl Analysis {
                 seconds,
                 origin,
             } => {
-                if self.chatter.start_manual_capture(mill, f64::from(seconds)) {
-                    tracing::info!(mill, seconds, by = origin.name(), peer = ?origin.peer(), "manual capture of the stands started");
-                } else {
-                    tracing::warn!(mill, by = origin.name(), "manual capture of the stands refused: no such tandem mill, or captures are not kept (no [history], or history.captures = false)");
+                let started = self.chatter.start_manual_capture(mill, f64::from(seconds));
+                match (log, started) {
+                    (None, _) => {}
+                    (Some(suppressed), true) => tracing::info!(mill, seconds, by = origin.name(), peer = ?origin.peer(), suppressed, "manual capture of the stands started"),
+                    (Some(suppressed), false) => tracing::warn!(mill, by = origin.name(), suppressed, "manual capture of the stands refused: no such tandem mill, or captures are not kept (no [history], or history.captures = false)"),
                 }
             }
         }

@@ -121,6 +121,9 @@ impl WebServer {
             capture_bands: shared::BandsHook::default(),
             allow_commands: settings.allow_commands,
             commands: std::sync::OnceLock::new(),
+            command_log: std::sync::Mutex::new(crate::warn_limit::WarnLimit::new(
+                crate::warn_limit::WARN_PERIOD,
+            )),
         };
         let state = Arc::new(state);
         live.send_replace(Arc::new(api::live_json(&state)));

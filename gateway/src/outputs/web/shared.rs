@@ -67,6 +67,9 @@ pub(crate) struct WebState {
     pub(crate) allow_commands: bool,
     /// The analysis' command channel, once the service gave it.
     pub(crate) commands: std::sync::OnceLock<crate::state::commands::CommandSender>,
+    /// The log line of `POST /api/captures`: the first, then one per period with how
+    /// many it stands for (a client may post in a loop).
+    pub(crate) command_log: std::sync::Mutex<crate::warn_limit::WarnLimit>,
 }
 
 /// The band analysis of a tandem mill's capture (`analysis::chatter::episode_bands`,

@@ -141,7 +141,10 @@ pub(crate) async fn request_capture(
     commands.send(command).map_err(|error: CommandRefused| {
         refused(StatusCode::SERVICE_UNAVAILABLE, error.to_string())
     })?;
-    tracing::info!(%peer, subject, seconds, "manual capture asked through the web API");
+    let logged = crate::lock(&state.command_log).occurred(tokio::time::Instant::now());
+    if let Some(suppressed) = logged {
+        tracing::info!(%peer, subject, seconds, suppressed, "manual capture asked through the web API");
+    }
     Ok((
         StatusCode::ACCEPTED,
         Json(serde_json::json!({
