@@ -242,6 +242,17 @@ async fn large_and_damaged_captures_are_served_within_bounds_or_refused() {
     setup.stop(service).await;
 }
 
+/// `POST /api/captures` of 5 s of F1 to the page at `web_port`.
+async fn ask_for_capture(web_port: u16) -> common::HttpAnswer {
+    let body = r#"{"subject": "F1", "seconds": 5}"#;
+    let request = format!(
+        "POST /api/captures HTTP/1.1\r\nhost: localhost\r\nconnection: close\r\n\
+         content-type: application/json\r\ncontent-length: {}\r\n\r\n{body}",
+        body.len()
+    );
+    http_raw(web_port, request.as_bytes()).await
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn capture_commands_name_what_is_wrong() {
     let setup = Setup::new(MILLGATE, "capture-small", "db").await;
@@ -253,13 +264,7 @@ async fn capture_commands_name_what_is_wrong() {
     ));
     let mut service = setup.spawn("run.log");
     web_ready(web_port).await;
-    let body = r#"{"subject": "F1", "seconds": 5}"#;
-    let request = format!(
-        "POST /api/captures HTTP/1.1\r\nhost: localhost\r\nconnection: close\r\n\
-         content-type: application/json\r\ncontent-length: {}\r\n\r\n{body}",
-        body.len()
-    );
-    let answer = http_raw(web_port, request.as_bytes()).await;
+    let answer = ask_for_capture(web_port).await;
     assert_eq!(answer.status, 409, "{}", answer.body);
     assert!(
         answer.body.contains("history.captures = false"),
@@ -308,14 +313,8 @@ async fn a_loop_of_capture_requests_is_logged_once_per_period() {
     ));
     let mut service = setup.spawn("run.log");
     web_ready(web_port).await;
-    let body = r#"{"subject": "F1", "seconds": 5}"#;
-    let request = format!(
-        "POST /api/captures HTTP/1.1\r\nhost: localhost\r\nconnection: close\r\n\
-         content-type: application/json\r\ncontent-length: {}\r\n\r\n{body}",
-        body.len()
-    );
     for _ in 0..40 {
-        let answer = http_raw(web_port, request.as_bytes()).await;
+        let answer = ask_for_capture(web_port).await;
         assert_eq!(answer.status, 202, "{}", answer.body);
     }
     // The analysis takes each command within its next turn.

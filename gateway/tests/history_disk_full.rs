@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use common::{wait_for, KillOnDrop, Setup, MILLGATE};
+use common::{fill_file_system, wait_for, KillOnDrop, Plc, Setup, MILLGATE};
 use millgate::history::query::{Filter, HistoryReader};
 use millgate::outputs::modbus::register_map::decode_u32;
 
@@ -57,15 +57,28 @@ fn inside(holder: &KillOnDrop, program: &str) -> Command {
 
 /// `millgate run` on `setup`'s configuration inside `holder`'s namespaces.
 fn spawn_inside(setup: &Setup, holder: &KillOnDrop, log: &str) -> KillOnDrop {
-    let log = std::fs::File::create(setup.log(log)).unwrap();
-    inside(holder, MILLGATE.0)
-        .args(["run", "--config", setup.config.to_str().unwrap()])
-        .env("RUST_LOG", "info")
-        .stdout(Stdio::null())
-        .stderr(log)
-        .spawn()
-        .map(KillOnDrop)
-        .expect("start millgate run")
+    setup.spawn_command(inside(holder, MILLGATE.0), log)
+}
+
+/// Wait for a bite after the PLC showed `in_plc`, sampling the PLC's counter
+/// meanwhile: it never went below `in_plc`, and the bite continues it.
+async fn next_bite_continues(plc: &Plc<'_>, in_plc: u32) {
+    let mut lowest = u32::MAX;
+    wait_for("a bite of the second run", Duration::from_secs(60), || {
+        let now = plc.counter();
+        lowest = lowest.min(now);
+        now > in_plc
+    })
+    .await;
+    assert!(
+        lowest >= in_plc,
+        "the PLC's counter went back from {in_plc} to {lowest}"
+    );
+    assert_eq!(
+        plc.counter(),
+        in_plc + 1,
+        "the next bite continues the PLC's"
+    );
 }
 
 /// `sql` on the history as Debian's `sqlite3` reads it inside the namespace.
@@ -114,17 +127,7 @@ async fn a_full_disk_loses_nothing_stored_and_the_counter_never_goes_back() {
 
     // Fill the tmpfs.
     let filler = seen.join("filler");
-    {
-        use std::io::Write;
-        let mut file = std::fs::File::create(&filler).unwrap();
-        let block = vec![0u8; 64 * 1024];
-        let full = loop {
-            if let Err(error) = file.write_all(&block) {
-                break error;
-            }
-        };
-        assert_eq!(full.raw_os_error(), Some(28), "ENOSPC: {full}");
-    }
+    fill_file_system(&filler);
     // Storing fails: the history says why.
     wait_for(
         "a bite dropped for the full disk",
@@ -172,23 +175,7 @@ async fn a_full_disk_loses_nothing_stored_and_the_counter_never_goes_back() {
     );
 
     let mut second = spawn_inside(&setup, &holder, "second.log");
-    // Sample the PLC's counter until a bite of the second run: never below in_plc.
-    let mut lowest = u32::MAX;
-    wait_for("a bite of the second run", Duration::from_secs(60), || {
-        let now = plc.counter();
-        lowest = lowest.min(now);
-        now > in_plc
-    })
-    .await;
-    assert!(
-        lowest >= in_plc,
-        "the PLC's counter went back from {in_plc} to {lowest} (the file held {stored})"
-    );
-    assert_eq!(
-        plc.counter(),
-        in_plc + 1,
-        "the next bite continues the PLC's"
-    );
+    next_bite_continues(&plc, in_plc).await;
 
     // Space again: storing resumes, the bites from now on are in the file.
     std::fs::remove_file(&filler).unwrap();
@@ -254,22 +241,7 @@ async fn a_start_on_a_read_only_folder_recovers_when_it_is_writable_again() {
     )
     .await;
     let mut second = spawn_inside(&setup, &holder, "second.log");
-    let mut lowest = u32::MAX;
-    wait_for("a bite of the second run", Duration::from_secs(60), || {
-        let now = plc.counter();
-        lowest = lowest.min(now);
-        now > in_plc
-    })
-    .await;
-    assert!(
-        lowest >= in_plc,
-        "the PLC's counter went back from {in_plc} to {lowest}"
-    );
-    assert_eq!(
-        plc.counter(),
-        in_plc + 1,
-        "the next bite continues the PLC's"
-    );
+    next_bite_continues(&plc, in_plc).await;
     assert_eq!(setup.metric("millgate_history_state").await, Some(2.0));
 
     // Writable again: storing resumes.

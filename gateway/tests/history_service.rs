@@ -19,7 +19,9 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Duration;
 
-use common::{free_port, http, terminate, wait_for, web_ready, KillOnDrop, Setup, MILLGATE};
+use common::{
+    fill_file_system, free_port, http, terminate, wait_for, web_ready, KillOnDrop, Setup, MILLGATE,
+};
 
 use millgate::analysis::wear::next_trend;
 use millgate::history::query::{BiteRow, Filter, HistoryReader};
@@ -299,17 +301,7 @@ async fn a_full_disk_is_reported_the_plc_goes_on_and_storing_resumes_when_space_
 
     // Fill the tmpfs.
     let filler = folder.join("filler");
-    {
-        use std::io::Write;
-        let mut file = std::fs::File::create(&filler).unwrap();
-        let block = vec![0u8; 64 * 1024];
-        let full = loop {
-            if let Err(error) = file.write_all(&block) {
-                break error;
-            }
-        };
-        assert_eq!(full.raw_os_error(), Some(28), "ENOSPC: {full}");
-    }
+    fill_file_system(&filler);
     plc.bites_after_now(2).await;
     // Reported failing: a commit that needs the WAL to grow fails (its events are
     // dropped and counted), and a checkpoint that needs the database file to grow

@@ -12,3 +12,17 @@ pub fn scratch(tag: &str) -> TempDir {
         .tempdir()
         .expect("a scratch folder under the temporary folder")
 }
+
+/// Write zeros into the new file `filler` until its file system is full (a small
+/// tmpfs); panics unless the write that stopped failed with ENOSPC.
+pub fn fill_file_system(filler: &std::path::Path) {
+    use std::io::Write;
+    let mut file = std::fs::File::create(filler).unwrap();
+    let block = vec![0u8; 64 * 1024];
+    let full = loop {
+        if let Err(error) = file.write_all(&block) {
+            break error;
+        }
+    };
+    assert_eq!(full.raw_os_error(), Some(28), "ENOSPC: {full}");
+}

@@ -206,9 +206,7 @@ impl Setup {
     /// `millgate run` in its own user and mount namespace where a tmpfs with `options`
     /// is mounted on the history's folder, or directly for `None`.
     pub fn spawn_in_namespace(&self, log: &str, tmpfs: Option<&str>) -> KillOnDrop {
-        let log = std::fs::File::create(self.log(log)).unwrap();
-        let config = self.config.to_str().unwrap();
-        let mut command = match tmpfs {
+        let command = match tmpfs {
             Some(options) => {
                 let mut command = Command::new("unshare");
                 command.args([
@@ -225,8 +223,16 @@ impl Setup {
             }
             None => self.millgate.command(),
         };
+        self.spawn_command(command, log)
+    }
+
+    /// `command` (the `millgate` binary, or a program that runs it: `unshare`,
+    /// `nsenter`) given `run --config` on the configuration, its log in the scratch
+    /// folder.
+    pub fn spawn_command(&self, mut command: Command, log: &str) -> KillOnDrop {
+        let log = std::fs::File::create(self.log(log)).unwrap();
         command
-            .args(["run", "--config", config])
+            .args(["run", "--config", self.config.to_str().unwrap()])
             .env("RUST_LOG", "info")
             .stdout(Stdio::null())
             .stderr(log)
