@@ -149,14 +149,25 @@ impl Board {
         &self,
         change: impl FnOnce(&mut Results, &mut Vec<HistoryEvent>) -> T,
     ) -> T {
+        self.update_recorded_if(|results, events| (change(results, events), true))
+    }
+
+    /// As [`Self::update_recorded`], waking the outputs only when `change` says it
+    /// changed the results (the `bool` it returns).
+    fn update_recorded_if<T>(
+        &self,
+        change: impl FnOnce(&mut Results, &mut Vec<HistoryEvent>) -> (T, bool),
+    ) -> T {
         let mut results = crate::lock(&self.results);
         let mut events = Vec::new();
-        let value = change(&mut results, &mut events);
+        let (value, changed) = change(&mut results, &mut events);
         for event in events {
             self.history.record(event);
         }
         drop(results);
-        self.signal.results_changed();
+        if changed {
+            self.signal.results_changed();
+        }
         value
     }
 
@@ -257,7 +268,9 @@ impl Board {
     /// each subject after it.
     pub fn acknowledge_alarms(&self, origin: CommandOrigin) {
         let time = UtcTime::now();
-        self.update_recorded(|results, events| {
+        // Nothing latched, nothing changes: the outputs are not woken (an acknowledge
+        // sent in a loop made a PLC write each).
+        self.update_recorded_if(|results, events| {
             for (driveline, name) in results.drivelines.iter_mut().zip(&self.driveline_names) {
                 if acknowledge(driveline, name, (time, origin), events) {
                     events.push(state_record(
@@ -276,6 +289,7 @@ impl Board {
                     ));
                 }
             }
+            ((), !events.is_empty())
         });
     }
 }
@@ -315,4 +329,35 @@ fn acknowledge<R: Subject>(
         }
     }
     any
+}
+
+#[cfg(test)]
+mod tests {
+    use std::time::Duration;
+
+    use super::*;
+
+    /// Whether the results changed within a second.
+    async fn woken(changes: &mut Changes) -> bool {
+        tokio::time::timeout(Duration::from_secs(1), changes.results())
+            .await
+            .is_ok()
+    }
+
+    /// An acknowledge with no alarm latched changes nothing and wakes no output (the
+    /// round-4 audit's acknowledges in a loop made 2 300 PLC writes a second); one
+    /// with an alarm latched clears it and wakes them.
+    #[tokio::test(start_paused = true)]
+    async fn an_acknowledge_wakes_the_outputs_only_when_it_clears_an_alarm() {
+        let config = crate::testing::example_config("demo.toml");
+        let board = Board::new(&config, Vec::new());
+        let mut changes = board.changes();
+        board.acknowledge_alarms(CommandOrigin::Local);
+        assert!(!woken(&mut changes).await, "nothing latched: no change");
+        board.update(|results| results.drivelines[0].taf_alarm = true);
+        assert!(woken(&mut changes).await);
+        board.acknowledge_alarms(CommandOrigin::Local);
+        assert!(woken(&mut changes).await, "an alarm cleared: a change");
+        assert!(!board.results().drivelines[0].taf_alarm);
+    }
 }
