@@ -230,6 +230,8 @@ fn bite(driveline: &mut Driveline, time_ms: i64, random: &mut Random, out: &mut 
                 coupling: Some(1),
                 likeliest_coupling: None,
                 bites_pooled: pooled as usize,
+                growth: None,
+                forecast: None,
             },
             state,
         )
@@ -310,6 +312,7 @@ fn bite(driveline: &mut Driveline, time_ms: i64, random: &mut Random, out: &mut 
         reference_level_knm: Some(450.0),
         shift_over_linear_s: Some(0.0004 * true_gap),
         gap_state: gap.map(|(_, state)| state),
+        gap_trend: None,
         pooled: (!degraded).then_some(PooledBite {
             static_torque_knm,
             taf,

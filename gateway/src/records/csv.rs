@@ -1,7 +1,9 @@
 //! Reader of recorded signals: a CSV with a header, first column `t` (s), the other
 //! columns channels (torque in kN*m). Errors name the line (1-based) and the column.
 //! Lines starting with `#` are comments (kept in [`Table::comments`]): a capture
-//! exported by `millgate capture export` says there how the gateway read it.
+//! exported by `millgate capture export` says there how the gateway read it, and a
+//! `# reset` line marks a wear reset between the rows around it ([`Table::resets`]).
+//! A record of bites recorded apart jumps in time between them ([`Table::segments`]).
 
 use std::path::Path;
 
@@ -138,7 +140,25 @@ pub struct Table {
     pub lines: Vec<usize>,
     /// The comment lines (`#` and what follows), in order.
     pub comments: Vec<String>,
+    /// Rows (indices into `time_s`) before which a `# reset` comment stands: a wear
+    /// reset (the coupling was replaced) between the bites before and after it.
+    pub resets: Vec<usize>,
 }
+
+/// A record of bites recorded apart: runs of uniformly sampled rows (`ranges`, row
+/// indices), separated by jumps in time of at least [`SEGMENT_JUMP_S`], every run at
+/// the same sample rate.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Segments {
+    /// The sample rate of every run, Hz.
+    pub rate_hz: f64,
+    /// The runs, in order.
+    pub ranges: Vec<std::ops::Range<usize>>,
+}
+
+/// A time step at least this long starts a new segment of a record (bites recorded
+/// hours or days apart), s; a shorter step off the sample period is missing rows.
+pub const SEGMENT_JUMP_S: f64 = 10.0;
 
 /// Largest departure of one time step from the record's mean step, relative.
 pub const UNIFORM_TOLERANCE: f64 = 0.01;
@@ -174,6 +194,51 @@ impl Table {
             }),
             None => Ok((n - 1) as f64 / (self.time_s[n - 1] - self.time_s[0])),
         }
+    }
+
+    /// The record's segments ([`Segments`]): split where `t` jumps by at least
+    /// [`SEGMENT_JUMP_S`]; every other step must lie within [`UNIFORM_TOLERANCE`] of
+    /// the median of those steps, else the error names the line after the odd step.
+    pub fn segments(&self) -> Result<Segments, CsvError> {
+        let steps: Vec<f64> = self.time_s.windows(2).map(|p| p[1] - p[0]).collect();
+        let mut inside: Vec<f64> = steps
+            .iter()
+            .copied()
+            .filter(|&step| step < SEGMENT_JUMP_S)
+            .collect();
+        if inside.is_empty() {
+            return Err(CsvError::TooShort);
+        }
+        inside.sort_by(f64::total_cmp);
+        let median_step_s = inside[inside.len() / 2];
+        let mut ranges = Vec::new();
+        let mut start = 0;
+        for (k, &step) in steps.iter().enumerate() {
+            if step >= SEGMENT_JUMP_S {
+                ranges.push(start..k + 1);
+                start = k + 1;
+            } else if (step / median_step_s - 1.0).abs() > UNIFORM_TOLERANCE {
+                return Err(CsvError::NonUniformTime {
+                    line: self.lines[k + 1],
+                    step_s: step,
+                    median_step_s,
+                    tolerance_percent: UNIFORM_TOLERANCE * 100.0,
+                });
+            }
+        }
+        ranges.push(start..self.time_s.len());
+        let (rows, span) =
+            ranges
+                .iter()
+                .filter(|range| range.len() > 1)
+                .fold((0, 0.0), |(rows, span), range| {
+                    let duration = self.time_s[range.end - 1] - self.time_s[range.start];
+                    (rows + range.len() - 1, span + duration)
+                });
+        Ok(Segments {
+            rate_hz: rows as f64 / span,
+            ranges,
+        })
     }
 
     /// The channel called `name`, if any.
@@ -257,6 +322,7 @@ pub fn parse(text: &str) -> Result<Table, CsvError> {
         channels: vec![Vec::new(); columns.header.len() - 1],
         lines: Vec::new(),
         comments,
+        resets: reset_rows(text),
     };
     for (line, row) in lines {
         columns.push_row(&mut table, line, row)?;
@@ -265,6 +331,23 @@ pub fn parse(text: &str) -> Result<Table, CsvError> {
         return Err(CsvError::TooShort);
     }
     Ok(table)
+}
+
+/// The data rows before which a `# reset` comment stands (the header is not a row).
+fn reset_rows(text: &str) -> Vec<usize> {
+    let mut lines_seen = 0_usize;
+    let mut resets = Vec::new();
+    for line in text.lines().map(str::trim).filter(|l| !l.is_empty()) {
+        match line.strip_prefix('#') {
+            Some(comment) if comment.trim().eq_ignore_ascii_case("reset") => {
+                resets.push(lines_seen.saturating_sub(1));
+            }
+            Some(_) => {}
+            None => lines_seen += 1,
+        }
+    }
+    resets.dedup();
+    resets
 }
 
 /// The header line's names: `t` first, at least one channel, none twice.
