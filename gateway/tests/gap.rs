@@ -32,6 +32,7 @@ use millgate::state::commands::{Command as GatewayCommand, CommandOrigin};
 use millgate::state::gap_maps::GapMapState;
 use millgate::state::gap_maps::GapMaps;
 use millgate::state::results::GapResults;
+use millgate::state::time::UtcTime;
 use millgate_sim::discrepancy::{self, split_bites, Effect, Measured, Verdict};
 use millgate_sim::model::Model;
 use millgate_sim::schedule::{rolling_schedule, BarTiming};
@@ -637,6 +638,106 @@ fn millgate_wear_reports_each_bite_and_the_trend_gap_as_json_and_plots_it() {
         said.contains("too few bites for a trend (3 since the last reset; needs 5)"),
         "{said}"
     );
+}
+
+/// A record of bites made days apart, `t` in Unix seconds: per bite (day, static
+/// torque, gap in coupling 1) one bar of its own, a `# reset` line before bite
+/// `reset_before` when given.
+fn dated_record(name: &str, bites: &[(f64, f64, f64)], reset_before: Option<usize>) -> String {
+    const T0_S: f64 = 1_780_000_000.0;
+    let mut csv = String::from("# bites of F1, one bar each, recorded days apart\nt,torque\n");
+    for (n, &(day, torque, gap_mrad)) in bites.iter().enumerate() {
+        if reset_before == Some(n) {
+            csv.push_str("# reset\n");
+        }
+        let schedule =
+            rolling_schedule(&hidden(1, gap_mrad), &[torque], TIMING, 0.5, 40 + n as u64).unwrap();
+        for (k, value) in schedule.torque_knm.iter().enumerate() {
+            let t = T0_S + day * 86_400.0 + k as f64 / schedule.sample_rate_hz;
+            csv.push_str(&format!("{t:.6},{value:.4}\n"));
+        }
+    }
+    let path = shared("cli").join(name);
+    std::fs::write(&path, csv).unwrap();
+    path.to_str().unwrap().to_owned()
+}
+
+/// `millgate wear` on `input` with the tests' coarse maps, JSON.
+fn wear_json(input: &str, extra: &[&str]) -> serde_json::Value {
+    let model = format!("{MODELS}/table2-adjusted.toml");
+    let cache = shared("cli-cache");
+    let mut args = vec![
+        "wear",
+        "--input",
+        input,
+        "--model",
+        &model,
+        "--format",
+        "json",
+        "--gap-step-mrad",
+        "0.25",
+        "--max-gap-mrad",
+        "5",
+        "--cache-dir",
+        cache.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    let output = millgate(&args);
+    assert!(output.status.success(), "{}", text(&output));
+    serde_json::from_slice(&output.stdout).expect("JSON on stdout")
+}
+
+#[test]
+fn millgate_wear_forecasts_the_alarm_from_bites_recorded_days_apart() {
+    // The gap opens 0.05 mrad a day from 1 mrad; a bite every other day for four
+    // weeks, at static torques over the maps' range. The truth reaches 3.5 mrad on
+    // day 50: 22 days after the last bite (day 28).
+    let bites: Vec<(f64, f64, f64)> = (0..15)
+        .map(|n| {
+            let day = 2.0 * f64::from(n);
+            (day, 60.0 + 100.0 * f64::from(n % 5) / 4.0, 1.0 + 0.05 * day)
+        })
+        .collect();
+    let input = dated_record("weeks.csv", &bites, None);
+    let value = wear_json(&input, &["--alarm-mrad", "3.5"]);
+    assert_eq!(value["segments"], 15, "one segment per bite");
+    assert_eq!(value["bites_pooled"], 15);
+    let inside = |low: &str, high: &str, truth: f64| {
+        let (low, high) = (value[low].as_f64().unwrap(), value[high].as_f64().unwrap());
+        assert!(
+            low <= truth && truth <= high,
+            "{low} .. {high} against {truth}: {value}"
+        );
+    };
+    inside("gap_low_mrad", "gap_high_mrad", 1.0 + 0.05 * 28.0);
+    inside("trend_low_mrad_per_day", "trend_high_mrad_per_day", 0.05);
+    let forecast = &value["forecast"];
+    assert_eq!(forecast["state"], "forecast", "{forecast}");
+    assert_eq!(forecast["alarm_mrad"], 3.5);
+    let days = forecast["days"].as_f64().unwrap();
+    let (early, late) = (
+        forecast["days_low"].as_f64().unwrap(),
+        forecast["days_high"].as_f64().unwrap(),
+    );
+    assert!(
+        early <= 22.0 && 22.0 <= late && early <= days && days <= late,
+        "{forecast}"
+    );
+    assert!((days - 22.0).abs() <= 0.2 * 22.0, "within 20%: {forecast}");
+    // Unix seconds: a date, the last bite's day plus the days.
+    let date = forecast["date"].as_str().expect("a date");
+    let last_bite = 1_780_000_000_000_i64 + 28 * 86_400_000;
+    let expected = UtcTime::from_unix_ms(last_bite + (days * 86_400_000.0).round() as i64);
+    assert_eq!(&date[..10], &expected.to_string()[..10], "{forecast}");
+
+    // A wear reset before the 11th bite: the trend restarts with five bites.
+    let input = dated_record("weeks-reset.csv", &bites, Some(10));
+    let value = wear_json(&input, &["--alarm-mrad", "3.5"]);
+    assert_eq!(
+        (value["resets"].as_u64(), value["bites_pooled"].as_u64()),
+        (Some(1), Some(5))
+    );
+    assert_eq!(value["bites"][10]["after_reset"], true);
 }
 
 #[test]

@@ -43,6 +43,8 @@ pub struct GapTrend {
     state: WearTrendState,
     /// The model coupling of hypothesis k; empty until the maps are known.
     couplings: Vec<usize>,
+    /// The fingerprint of the maps the bites were folded against.
+    maps: Option<u64>,
     /// Time of the first bite folded in since the last reset, ms since the Unix epoch.
     first_bite_unix_ms: Option<i64>,
     /// Time of the last bite folded in, ms since the Unix epoch.
@@ -70,6 +72,7 @@ impl GapTrend {
             state: trend.state(0)?,
             trend,
             couplings: Vec::new(),
+            maps: None,
             first_bite_unix_ms: None,
             last_bite_unix_ms: None,
         })
@@ -96,9 +99,17 @@ impl GapTrend {
             .map(|map| map.coupling)
             .take(MAX_COUPLINGS)
             .collect();
-        if couplings != self.couplings {
-            // New maps (or the first): the hypotheses are theirs.
+        if self.maps != Some(maps.fingerprint()) || couplings != self.couplings {
+            // Other maps (another model, other settings): bites folded against the old
+            // ones do not compare with the next; the trend starts again.
+            if self.state.bites > 0 {
+                tracing::warn!(
+                    bites = self.state.bites,
+                    "the gap maps changed (another model or settings): the wear trend starts again"
+                );
+            }
             self.couplings = couplings;
+            self.maps = Some(maps.fingerprint());
             self.reset();
         }
         let Some(noise) = fine_loglik(maps, observation, Allowance::Trend) else {
@@ -148,6 +159,34 @@ impl GapTrend {
         self.first_bite_unix_ms.get_or_insert(unix_ms);
         self.last_bite_unix_ms = Some(unix_ms);
         Ok(Folded::Folded { jumped })
+    }
+
+    /// Fold in a bite whose gap was measured elsewhere, as a Gaussian (mean mrad,
+    /// variance mrad^2) for the single coupling `coupling`: a history fixture or a
+    /// record diagnosed by another tool. The model floor is taken as 0.
+    pub fn fold_gaussian(
+        &mut self,
+        coupling: usize,
+        (mean_mrad, var_mrad2): (f64, f64),
+        unix_ms: i64,
+    ) -> Result<Folded, TrendError> {
+        if self.couplings != [coupling] || self.maps.is_some() {
+            self.couplings = vec![coupling];
+            self.maps = None;
+            self.reset();
+        }
+        let unix_ms = unix_ms.max(self.last_bite_unix_ms.unwrap_or(i64::MIN));
+        self.trend
+            .predict(&mut self.state, unix_ms as f64 / MS_PER_DAY)?;
+        let outcome = self
+            .trend
+            .update_gaussian(&mut self.state, 0, mean_mrad, var_mrad2)?;
+        self.trend.finish_bite(&mut self.state, None);
+        self.first_bite_unix_ms.get_or_insert(unix_ms);
+        self.last_bite_unix_ms = Some(unix_ms);
+        Ok(Folded::Folded {
+            jumped: outcome.jumped,
+        })
     }
 
     /// The trend's estimate: the gap at the last bite, its growth and the forecast of
@@ -236,6 +275,7 @@ impl GapTrend {
         let saved = SavedTrend {
             version: SAVED_VERSION,
             couplings: self.couplings.clone(),
+            maps: self.maps.map(|fingerprint| format!("{fingerprint:016x}")),
             first_bite_unix_ms: self.first_bite_unix_ms,
             last_bite_unix_ms: self.last_bite_unix_ms,
             t_last_days: self.state.t_last_days,
@@ -268,8 +308,15 @@ impl GapTrend {
         state.bites = saved.bites;
         state.floor2_mrad2 = saved.floor2_mrad2;
         state.floor_measured = saved.floor_measured;
+        let maps = match saved.maps {
+            Some(text) => {
+                Some(u64::from_str_radix(&text, 16).map_err(|_| RestoreError::Maps(text.clone()))?)
+            }
+            None => None,
+        };
         self.state = state;
         self.couplings = saved.couplings;
+        self.maps = maps;
         self.first_bite_unix_ms = saved.first_bite_unix_ms;
         self.last_bite_unix_ms = saved.last_bite_unix_ms;
         Ok(())
@@ -300,6 +347,9 @@ pub enum RestoreError {
     /// More hypotheses than couplings named, or than a trend holds.
     #[error("saved wear trend with {0} hypotheses for its couplings")]
     Couplings(usize),
+    /// The maps' fingerprint is not one.
+    #[error("saved wear trend with maps fingerprint {0:?}")]
+    Maps(String),
     /// The filter refused the state.
     #[error("saved wear trend refused: {0}")]
     Trend(#[from] TrendError),
@@ -312,6 +362,8 @@ struct SavedTrend {
     version: u32,
     /// The model coupling of each hypothesis.
     couplings: Vec<usize>,
+    /// The maps' fingerprint (hex), `None` for Gaussian observations.
+    maps: Option<String>,
     /// Time of the first bite since the last reset, ms since the Unix epoch.
     first_bite_unix_ms: Option<i64>,
     /// Time of the last bite, ms since the Unix epoch.

@@ -531,6 +531,45 @@ mod tests {
     }
 
     #[test]
+    fn bites_recorded_days_apart_are_segments_and_reset_comments_are_kept() {
+        // Three bursts of 2 kHz samples, in Unix seconds, hours and days apart; a wear
+        // reset before the third.
+        let mut text = String::from("# recorded on F1\nt,a\n");
+        let starts = [1_780_000_000.0, 1_780_003_600.0, 1_780_172_800.0];
+        for (n, start) in starts.iter().enumerate() {
+            if n == 2 {
+                text.push_str("# reset\n");
+            }
+            for k in 0..100 {
+                text.push_str(&format!("{:.6},1\n", start + f64::from(k) * 5.0e-4));
+            }
+        }
+        let table = parse(&text).unwrap();
+        let segments = table.segments().unwrap();
+        assert_eq!(segments.ranges, [0..100, 100..200, 200..300]);
+        assert!((segments.rate_hz - 2000.0).abs() < 0.01, "{segments:?}");
+        assert_eq!(table.resets, [200], "the row after the comment");
+        assert_eq!(table.comments, ["recorded on F1", "reset"]);
+        // Rows missing inside a segment are still an error naming the line.
+        let gap = text.replacen(&format!("{:.6},1\n", starts[1] + 50.0 * 5.0e-4), "", 1);
+        let error = parse(&gap).unwrap().segments().unwrap_err();
+        assert!(
+            matches!(error, CsvError::NonUniformTime { line: 153, .. }),
+            "{error}"
+        );
+        // A segment at another rate: the odd step is named too.
+        let mut other = text.clone();
+        other.push_str(&format!(
+            "{:.6},1\n{:.6},1\n",
+            1_780_300_000.0, 1_780_300_000.001
+        ));
+        assert!(matches!(
+            parse(&other).unwrap().segments(),
+            Err(CsvError::NonUniformTime { line: 305, .. })
+        ));
+    }
+
+    #[test]
     fn errors_name_line_and_column() {
         assert_eq!(
             parse("t,a\n0,1\n0.1\n"),
