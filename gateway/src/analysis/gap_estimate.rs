@@ -310,22 +310,6 @@ pub fn fine_loglik(
         .collect()
 }
 
-/// The mean and variance (mrad, mrad^2) of the gap under `loglik` on `grid` with a flat
-/// prior: what one bite alone says (the variance includes the grid's step^2 / 12).
-pub fn moments(grid: GapGrid, loglik: &[f64]) -> (f64, f64) {
-    let top = loglik.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    let (mut sum, mut first, mut second) = (0.0, 0.0, 0.0);
-    for (k, &value) in loglik.iter().enumerate().take(grid.len) {
-        let (w, gap) = ((value - top).exp(), grid.at(k));
-        sum += w;
-        first += w * gap;
-        second += w * gap * gap;
-    }
-    let mean = first / sum;
-    let variance = (second / sum - mean * mean).max(0.0) + grid.step_mrad.powi(2) / 12.0;
-    (mean, variance)
-}
-
 /// The estimate from one bite against `maps` (with its whole allowance); `None` when
 /// the bite lies outside the maps' static torque range.
 pub fn estimate(maps: &GapMaps, observation: &GapObservation) -> Option<GapEstimate> {

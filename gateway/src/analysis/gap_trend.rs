@@ -20,7 +20,7 @@ use millgate_dsp::wear_trend::{
 };
 use serde::{Deserialize, Serialize};
 
-use super::gap_estimate::{fine_grid, fine_loglik, loglik_at, moments, Allowance, GapObservation};
+use super::gap_estimate::{fine_grid, fine_loglik, loglik_at, Allowance, GapObservation};
 use crate::state::gap_maps::GapMaps;
 use crate::state::results::{
     ConePoint, ForecastState, GapCone, GapForecast, GapGrowth, GapResults, CONE_POINTS,
@@ -28,6 +28,14 @@ use crate::state::results::{
 
 /// Fewest bites since the last wear reset for a trend and a forecast.
 pub const MIN_TREND_BITES: u32 = millgate_dsp::wear_trend::MIN_BITES;
+
+/// A trend whose growth is not [`EARLY_GROWTH_SD`] standard deviations clear of 0
+/// forecasts nothing before its bites span this many days.
+pub const MIN_TREND_SPAN_DAYS: f64 = 7.0;
+
+/// Standard deviations by which a trend shorter than [`MIN_TREND_SPAN_DAYS`] must
+/// show its growth clear of 0 to forecast (one-sided 0.13% by chance on a stable gap).
+pub const EARLY_GROWTH_SD: f64 = 3.0;
 
 /// How far back the fitted growth line is drawn at most, days.
 const CONE_BACK_DAYS: f64 = 28.0;
@@ -131,11 +139,7 @@ impl GapTrend {
         let mut local = vec![0.0; fine.len];
         let mut jumped = false;
         for (k, loglik) in noise.iter().enumerate().take(self.couplings.len()) {
-            let (mean_mrad, var_mrad2) = moments(fine, loglik);
-            let bite = BiteMoments {
-                mean_mrad,
-                var_mrad2,
-            };
+            let bite = BiteMoments::from_loglik(fine, loglik)?;
             let grid = self.trend.grid(&self.state, k, fine);
             let values = if grid == fine {
                 loglik.as_slice()
@@ -151,10 +155,14 @@ impl GapTrend {
         }
         // The model floor in gap units: what the whole allowance adds to the bite's
         // variance on the likeliest coupling.
-        let floor2 = whole.get(likeliest).map(|whole| {
-            let noise_variance = moments(fine, &noise[likeliest]).1;
-            (moments(fine, whole).1 - noise_variance).max(0.0)
-        });
+        let floor2 = match whole.get(likeliest) {
+            Some(whole) => {
+                let noise = BiteMoments::from_loglik(fine, &noise[likeliest])?;
+                let whole = BiteMoments::from_loglik(fine, whole)?;
+                Some((whole.var_mrad2 - noise.var_mrad2).max(0.0))
+            }
+            None => None,
+        };
         self.trend.finish_bite(&mut self.state, floor2);
         self.first_bite_unix_ms.get_or_insert(unix_ms);
         self.last_bite_unix_ms = Some(unix_ms);
@@ -207,8 +215,30 @@ impl GapTrend {
         })
     }
 
-    /// `forecast` as published, dated from the last bite, with its cone.
+    /// `forecast` as published, dated from the last bite, with its cone. A trend of
+    /// less than [`MIN_TREND_SPAN_DAYS`] whose growth is not [`EARLY_GROWTH_SD`]
+    /// standard deviations clear of 0 has too few bites: its early end would only say
+    /// how little is known yet, and a 90% interval clear of 0 by chance (one bite in
+    /// twenty on a stable gap) would forecast a growth that is not there (after every
+    /// wear reset, a near alarm to a PLC that acts on it).
     fn published(&self, forecast: &Forecast, estimate: &TrendEstimate) -> Option<GapForecast> {
+        let span_days = self
+            .first_bite_unix_ms
+            .zip(self.last_bite_unix_ms)
+            .map_or(0.0, |(first, last)| (last - first) as f64 / MS_PER_DAY);
+        let forecasting = matches!(
+            forecast.reason,
+            ForecastReason::Forecast | ForecastReason::NotGrowing | ForecastReason::BeyondHorizon
+        );
+        if forecasting && span_days < MIN_TREND_SPAN_DAYS && !growth_clear(estimate) {
+            let too_few = Forecast {
+                reason: ForecastReason::TooFewBites,
+                days: None,
+                days_low: None,
+                days_high: None,
+            };
+            return self.published(&too_few, estimate);
+        }
         let state = match forecast.reason {
             ForecastReason::Forecast => ForecastState::Forecast,
             ForecastReason::AtAlarm => ForecastState::AtAlarm,
@@ -320,6 +350,21 @@ impl GapTrend {
         self.first_bite_unix_ms = saved.first_bite_unix_ms;
         self.last_bite_unix_ms = saved.last_bite_unix_ms;
         Ok(())
+    }
+}
+
+/// Whether `estimate`'s growth is [`EARLY_GROWTH_SD`] standard deviations above 0.
+fn growth_clear(estimate: &TrendEstimate) -> bool {
+    match (
+        estimate.rate_mrad_per_day,
+        estimate.rate_low_mrad_per_day,
+        estimate.rate_high_mrad_per_day,
+    ) {
+        (Some(rate), Some(low), Some(high)) => {
+            let sd = (high - low) / (2.0 * millgate_dsp::wear_trend::Z90);
+            rate > EARLY_GROWTH_SD * sd
+        }
+        _ => false,
     }
 }
 

@@ -28,7 +28,7 @@ use crate::analysis::driveline::BiteSetup;
 use crate::analysis::gap_estimate::{estimate, GapObservation};
 use crate::analysis::gap_map_cache;
 use crate::analysis::gap_monitor::{GapMapJob, MapsOrigin};
-use crate::analysis::gap_trend::{GapTrend, MIN_TREND_BITES};
+use crate::analysis::gap_trend::{GapTrend, EARLY_GROWTH_SD, MIN_TREND_BITES, MIN_TREND_SPAN_DAYS};
 use crate::history::query::{Filter, HistoryReader};
 use crate::records::csv;
 use crate::state::gap_maps::{GapMapSpec, GapMaps};
@@ -337,7 +337,9 @@ impl Outlook {
                 self.alarm_mrad, self.horizon_days
             )),
             ForecastState::TooFewBites => Some(format!(
-                "too few bites for a trend ({bites} since the last reset; needs {MIN_TREND_BITES})"
+                "too few bites for a trend ({bites} since the last reset; needs {MIN_TREND_BITES}, \
+                 and {MIN_TREND_SPAN_DAYS} days of them unless the growth is \
+                 {EARLY_GROWTH_SD} standard deviations clear of 0)"
             )),
         }
     }

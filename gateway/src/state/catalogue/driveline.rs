@@ -287,7 +287,7 @@ pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
         "gap_forecast",
         ForecastState::NAMES,
         ext(21, U16, 10),
-        "What the gap forecast says: forecast (days_to_gap_alarm given), at_alarm (the gap is at thresholds.gap_alarm_mrad), not_growing (the growth's interval holds 0), beyond_horizon (growing, the crossing beyond drivelines[].wear.horizon_days), too_few_bites (fewer than 5 bites since the last wear reset)",
+        "What the gap forecast says: forecast (days_to_gap_alarm given), at_alarm (the gap is at thresholds.gap_alarm_mrad), not_growing (the growth's interval holds 0), beyond_horizon (growing, the crossing beyond drivelines[].wear.horizon_days), too_few_bites (fewer than 5 bites since the last wear reset, or under 7 days of them while the growth is not 3 standard deviations clear of 0)",
         |d| forecast(d).map(|f| Value::Index(f.state as u64)),
     )
     .kept(Columns::both("gap_forecast"), |d, v| {
