@@ -158,10 +158,8 @@ impl Phase<'_> {
             )
             .replace(
                 "wear = { gap_step_mrad = 0.25, torque_points = 12 }",
-                &format!(
-                    "wear = {{ gap_step_mrad = 0.25, \
-                     torque_points = 10, static_torque_knm = [28.0, 224.0] }}"
-                ),
+                "wear = { gap_step_mrad = 0.25, \
+                 torque_points = 10, static_torque_knm = [28.0, 224.0] }",
             )
             .replacen(
                 "\n[[sources.modbus]]",

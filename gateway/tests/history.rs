@@ -152,10 +152,10 @@ async fn what_is_recorded_is_read_back_and_restored_at_the_next_start() {
     history.record(HistoryEvent::State(StateRecord {
         time: at(41),
         subject: "F1".into(),
-        results: SubjectResults::Driveline(DrivelineResults {
+        results: SubjectResults::Driveline(Box::new(DrivelineResults {
             wear_trend: None,
             ..last.expect("40 bites")
-        }),
+        })),
     }));
     history.record(HistoryEvent::OutageStarted {
         time: at(42),
@@ -375,11 +375,11 @@ async fn the_gap_trend_and_bites_since_the_last_reset_and_the_gap_alarm_are_rest
     history.record(HistoryEvent::State(StateRecord {
         time: at(17),
         subject: "F1".into(),
-        results: SubjectResults::Driveline(DrivelineResults {
+        results: SubjectResults::Driveline(Box::new(DrivelineResults {
             gap_alarm: false,
             restored: false,
             ..f1.results.clone()
-        }),
+        })),
     }));
     settle(&history).await;
     history.close();

@@ -306,7 +306,7 @@ fn insert_alarm(
 fn insert_state(transaction: &Transaction<'_>, state: &StateRecord) -> rusqlite::Result<()> {
     match &state.results {
         SubjectResults::Driveline(results) => {
-            upsert_state(transaction, &state.subject, state.time, results)
+            upsert_state(transaction, &state.subject, state.time, results.as_ref())
         }
         SubjectResults::TandemMill(results) => {
             upsert_state(transaction, &state.subject, state.time, results)

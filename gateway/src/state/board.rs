@@ -245,7 +245,7 @@ impl Board {
                 events.push(state_record(
                     time,
                     &self.driveline_names[index],
-                    SubjectResults::Driveline(driveline.clone()),
+                    SubjectResults::Driveline(Box::new(driveline.clone())),
                 ));
             }
         });
@@ -263,7 +263,7 @@ impl Board {
                     events.push(state_record(
                         time,
                         name,
-                        SubjectResults::Driveline(driveline.clone()),
+                        SubjectResults::Driveline(Box::new(driveline.clone())),
                     ));
                 }
             }

@@ -131,8 +131,8 @@ pub struct StateRecord {
 /// The results of a subject whose state the history keeps.
 #[derive(Debug, Clone, PartialEq)]
 pub enum SubjectResults {
-    /// A driveline's.
-    Driveline(DrivelineResults),
+    /// A driveline's (boxed: its gap forecast's cone makes it the largest by far).
+    Driveline(Box<DrivelineResults>),
     /// A tandem mill's.
     TandemMill(TandemMillResults),
 }

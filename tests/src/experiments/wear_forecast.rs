@@ -214,16 +214,7 @@ pub struct Outcome {
 /// Run `case` through the service's analysis with `maps` and the configuration of
 /// `plan` (the model in `models`).
 pub fn run(case: &Case, plan: &Plan, maps: &GapMaps, models: &Path) -> anyhow::Result<Outcome> {
-    let config = config(plan, models)?;
-    let board = Arc::new(Board::new(
-        &config,
-        vec![Arc::new(SourceHealth::new(
-            Duration::from_secs(9),
-            Duration::from_secs(9),
-        ))],
-    ));
-    let (bites, _) = tokio::sync::broadcast::channel(16);
-    let mut analysis = Analysis::new(&config, board, bites)?;
+    let mut analysis = analysis(&config(plan, models)?)?;
     analysis.take_gap_map_jobs();
     analysis.install_gap_maps(0, Ok(maps.clone()));
     let mut model = Model::load(models.join("table2-adjusted.toml"))?;
@@ -319,6 +310,15 @@ fn config(plan: &Plan, models: &Path) -> anyhow::Result<millgate_config::Config>
     Ok(millgate_config::from_toml_str(&text, "demo.toml", models)?)
 }
 
+/// The service's analysis of `config` (its one source healthy, nobody listening to
+/// its bites).
+fn analysis(config: &millgate_config::Config) -> anyhow::Result<Analysis> {
+    let health = SourceHealth::new(Duration::from_secs(9), Duration::from_secs(9));
+    let board = Arc::new(Board::new(config, vec![Arc::new(health)]));
+    let (bites, _) = tokio::sync::broadcast::channel(16);
+    Ok(Analysis::new(config, board, bites)?)
+}
+
 /// The seed of bite `n` of `case`'s noise.
 fn case_seed(case: &Case, n: usize) -> u64 {
     (case.index as u64) << 32 | n as u64
@@ -328,16 +328,7 @@ fn case_seed(case: &Case, n: usize) -> u64 {
 pub fn maps(plan: &Plan, models: &Path, cache: &Path) -> anyhow::Result<GapMaps> {
     let mut config = config(plan, models)?;
     config.cache_dir = Some(cache.to_path_buf());
-    let board = Arc::new(Board::new(
-        &config,
-        vec![Arc::new(SourceHealth::new(
-            Duration::from_secs(9),
-            Duration::from_secs(9),
-        ))],
-    ));
-    let (bites, _) = tokio::sync::broadcast::channel(1);
-    let mut analysis = Analysis::new(&config, board, bites)?;
-    let job = analysis.take_gap_map_jobs().remove(0);
+    let job = analysis(&config)?.take_gap_map_jobs().remove(0);
     let (maps, _) = job.run(plan.threads, &AtomicBool::new(false), &|_, _| {})?;
     Ok(maps)
 }

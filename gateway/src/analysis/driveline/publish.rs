@@ -160,7 +160,7 @@ impl DrivelineAnalyzer {
                 events.push(HistoryEvent::State(StateRecord {
                     time,
                     subject: self.name.clone(),
-                    results: SubjectResults::Driveline(driveline.clone()),
+                    results: SubjectResults::Driveline(Box::new(driveline.clone())),
                 }));
             });
         }
