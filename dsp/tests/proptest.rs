@@ -173,6 +173,11 @@ proptest! {
                         shape[0] * 1e-3 - (shape[1] * 1e-3).abs() * (g - shape[2] * 1e-2).powi(2)
                     })
                     .collect();
+                if let Ok(own) = BiteMoments::from_loglik(grid, &ll) {
+                    prop_assert!(own.mean_mrad.is_finite() && own.var_mrad2.is_finite());
+                    prop_assert!(own.var_mrad2 > 0.0);
+                    prop_assert!(own.mean_mrad >= grid.first_mrad - 1e-9 && own.mean_mrad <= grid.last_mrad() + 1e-9);
+                }
                 let bite = BiteMoments { mean_mrad: mean, var_mrad2: var };
                 let before = state;
                 let outcome = if choice % 3 == 0 {

@@ -59,19 +59,7 @@ impl Bite {
 
     /// The flat-prior posterior on the fine grid.
     fn moments(&self, coupling: usize) -> BiteMoments {
-        let ll = self.on(coupling, FINE);
-        let top = ll.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
-        let w: Vec<f64> = ll.iter().map(|v| (v - top).exp()).collect();
-        let sum: f64 = w.iter().sum();
-        let mean = (0..FINE.len).map(|i| w[i] * FINE.at(i)).sum::<f64>() / sum;
-        let var = (0..FINE.len)
-            .map(|i| w[i] * (FINE.at(i) - mean).powi(2))
-            .sum::<f64>()
-            / sum;
-        BiteMoments {
-            mean_mrad: mean,
-            var_mrad2: var,
-        }
+        BiteMoments::from_loglik(FINE, &self.on(coupling, FINE)).unwrap()
     }
 }
 
@@ -716,4 +704,37 @@ fn the_covariance_stays_symmetric_positive_semidefinite_over_a_million_updates()
     for (k, h) in state.hypotheses[..2].iter().enumerate() {
         assert!((h.gap_mrad - truth - 0.3 * k as f64).abs() < 0.05, "{h:?}");
     }
+}
+
+#[test]
+fn bite_moments_leave_the_outlier_floor_out() {
+    // One measure: a Gaussian peak of sd 0.03 mrad at 2 mrad over a 2% uniform floor.
+    let sd = 0.03;
+    let ll: Vec<f64> = (0..FINE.len)
+        .map(|i| {
+            let z = (FINE.at(i) - 2.0) / sd;
+            (0.98 * (-0.5 * z * z).exp() / (sd * 2.5066) + 0.02 / 8.0).ln()
+        })
+        .collect();
+    let m = BiteMoments::from_loglik(FINE, &ll).unwrap();
+    assert!((m.mean_mrad - 2.0).abs() < 1e-6, "{m:?}");
+    let expected = sd * sd + FINE.step_mrad * FINE.step_mrad / 12.0;
+    assert!(
+        (m.var_mrad2 / expected - 1.0).abs() < 0.02,
+        "{m:?} vs {expected}"
+    );
+    // All points: the floor's mass (~2%) spread over 8 mrad dominates.
+    let top = ll.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let w: Vec<f64> = ll.iter().map(|v| (v - top).exp()).collect();
+    let total: f64 = w.iter().sum();
+    let mean = (0..FINE.len).map(|i| w[i] * FINE.at(i)).sum::<f64>() / total;
+    let var = (0..FINE.len)
+        .map(|i| w[i] * (FINE.at(i) - mean).powi(2))
+        .sum::<f64>()
+        / total;
+    assert!(var > 50.0 * m.var_mrad2, "{var}");
+    assert_eq!(
+        BiteMoments::from_loglik(FINE, &ll[1..]),
+        Err(TrendError::GridLength)
+    );
 }
