@@ -52,8 +52,8 @@
 //! accelerate), the late side none (`q = 0`: wear seldom slows). A symmetric cone held the
 //! true crossing in 51-55% of the prototype's forecasts, the asymmetric one in 85-91%.
 //!
-//! The parameters are the ones that met the issue's goals in the design study's
-//! prototype (`/work/briefs/design37.md` §3: 48 simulated drivelines, four growth laws,
+//! The parameters are the ones that met the issue's goals in the Python prototype of
+//! issue 37's design study (48 simulated drivelines, four growth laws,
 //! shifts, weekends and outages; crossing coverage 87-90%, median error 8-12% of the
 //! time to the crossing, no false near alarm on a stable gap).
 //!
