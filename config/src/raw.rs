@@ -229,7 +229,8 @@ pub(crate) struct RawWebOutput {
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawMqttOutput {
-    pub(crate) broker: String,
+    pub(crate) broker: Option<String>,
+    pub(crate) brokers: Option<Vec<String>>,
     pub(crate) group_id: String,
     pub(crate) node_id: String,
     pub(crate) client_id: Option<String>,

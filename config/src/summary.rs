@@ -305,10 +305,13 @@ fn plc_and_servers(text: &mut String, outputs: &Outputs) {
         );
     }
     if let Some(mqtt) = &outputs.mqtt {
+        let servers = match &mqtt.brokers[..] {
+            [broker] => format!("broker {broker}"),
+            brokers => format!("brokers {} (failover in this order)", brokers.join(", ")),
+        };
         let _ = writeln!(
             text,
-            "  Sparkplug B: broker {} as client {}, edge node {}/{}, keep-alive {} s",
-            mqtt.broker,
+            "  Sparkplug B: {servers} as client {}, edge node {}/{}, keep-alive {} s",
             mqtt.client_id,
             mqtt.group_id,
             mqtt.node_id,

@@ -1536,7 +1536,7 @@ fn mqtt_output_keys_defaults_and_errors() {
     let minimal = "broker = \"127.0.0.1:1883\"\ngroup_id = \"plant\"\nnode_id = \"f1\"";
     let config = parse(&with(minimal)).unwrap();
     let mqtt = config.outputs.mqtt.expect("mqtt configured");
-    assert_eq!(mqtt.broker, "127.0.0.1:1883");
+    assert_eq!(mqtt.brokers, ["127.0.0.1:1883"]);
     assert_eq!(mqtt.client_id, "millgate-plant-f1");
     assert_eq!(mqtt.keep_alive, std::time::Duration::from_secs(30));
     assert_eq!(mqtt.data_period, std::time::Duration::from_millis(1000));
@@ -1596,6 +1596,70 @@ fn mqtt_output_keys_defaults_and_errors() {
         &with(&format!("{minimal}\nqos = 1")),
         "mill.toml: outputs.mqtt.qos: unknown field `qos`",
         &["command_qos"],
+    );
+}
+
+#[test]
+fn mqtt_server_list_for_failover() {
+    let history = format!(
+        "\n[history]\npath = \"{}\"\n",
+        std::env::temp_dir().join("h.db").display()
+    );
+    let with = |servers: &str| {
+        format!(
+            "{BASE}\n[outputs.mqtt]\n{servers}\ngroup_id = \"plant\"\nnode_id = \"f1\"\n{history}"
+        )
+    };
+    let listed = parse(&with(
+        "brokers = [\"10.0.0.1:1883\", \"[::1]:1884\", \"mq3.local:1883\"]",
+    ))
+    .unwrap()
+    .outputs
+    .mqtt
+    .unwrap();
+    assert_eq!(
+        listed.brokers,
+        ["10.0.0.1:1883", "[::1]:1884", "mq3.local:1883"],
+        "in the order given"
+    );
+    let summary = millgate_config::summary(
+        &parse(&with("brokers = [\"10.0.0.1:1883\", \"10.0.0.2:1883\"]")).unwrap(),
+    );
+    assert!(
+        summary.contains(
+            "Sparkplug B: brokers 10.0.0.1:1883, 10.0.0.2:1883 (failover in this order) as client"
+        ),
+        "{summary}"
+    );
+    let single = millgate_config::summary(&parse(&with("broker = \"10.0.0.1:1883\"")).unwrap());
+    assert!(
+        single.contains("Sparkplug B: broker 10.0.0.1:1883 as client"),
+        "{single}"
+    );
+    assert_eq!(
+        problems(&with("brokers = [\"a:1883\", \"b\", \"a:1883\", \"c:0\"]")),
+        [
+            "mill.toml: outputs.mqtt.brokers[1]: \"b\" is not allowed (must be host:port with a port 1..=65535, e.g. 192.168.0.10:502 or plc1.local:502)",
+            "mill.toml: outputs.mqtt.brokers[2]: \"a:1883\" is listed already at brokers[0]",
+            "mill.toml: outputs.mqtt.brokers[3]: \"c:0\" is not allowed (must be host:port with a port 1..=65535, e.g. 192.168.0.10:502 or plc1.local:502)",
+        ]
+    );
+    assert_only_problem(
+        &with("brokers = []"),
+        "mill.toml: outputs.mqtt.brokers: 0 servers are not allowed (must be 1..=16 \"host:port\" strings)",
+    );
+    let seventeen: Vec<String> = (1..=17).map(|k| format!("\"m{k}:1883\"")).collect();
+    assert_only_problem(
+        &with(&format!("brokers = [{}]", seventeen.join(", "))),
+        "mill.toml: outputs.mqtt.brokers: 17 servers are not allowed (must be 1..=16 \"host:port\" strings)",
+    );
+    assert_only_problem(
+        &with("broker = \"a:1883\"\nbrokers = [\"b:1883\"]"),
+        "mill.toml: outputs.mqtt.brokers: not allowed together with broker (give one of them: brokers for a list)",
+    );
+    assert_only_problem(
+        &with(""),
+        "mill.toml: outputs.mqtt.broker: missing: give broker = \"host:port\" or brokers = [\"host:port\", ...]",
     );
 }
 

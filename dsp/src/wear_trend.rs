@@ -52,8 +52,8 @@
 //! accelerate), the late side none (`q = 0`: wear seldom slows). A symmetric cone held the
 //! true crossing in 51-55% of the prototype's forecasts, the asymmetric one in 85-91%.
 //!
-//! The parameters are the ones that met the issue's goals in the design study's
-//! prototype (`/work/briefs/design37.md` §3: 48 simulated drivelines, four growth laws,
+//! The parameters are the ones that met the issue's goals in the Python prototype of
+//! issue 37's design study (48 simulated drivelines, four growth laws,
 //! shifts, weekends and outages; crossing coverage 87-90%, median error 8-12% of the
 //! time to the crossing, no false near alarm on a stable gap).
 //!
@@ -109,7 +109,7 @@ pub const ADAPT_Z2_CLIP: f64 = 25.0;
 /// EWMA weight of the model floor. Without the floor the current-gap interval held the
 /// truth on 55% of days in the prototype, with it 96%.
 pub const FLOOR_WEIGHT: f64 = 0.02;
-/// Forecast horizon of [`WearTrend::new`]'s callers' default, days.
+/// The usual forecast horizon, days (a configuration's default).
 pub const DEFAULT_HORIZON_DAYS: f64 = 365.0;
 /// Longest horizon [`WearTrend::new`] accepts, days (100 years).
 pub const MAX_HORIZON_DAYS: f64 = 36_525.0;
@@ -266,19 +266,9 @@ impl BiteMoments {
         let weight = |v: f64, floor: f64| (libm::exp(v - top) - floor).max(0.0);
         let peaked = loglik.iter().any(|&v| weight(v, floor) > 0.0);
         let floor = if peaked { floor } else { 0.0 };
-        let (mut sum, mut first, mut second) = (0.0, 0.0, 0.0);
-        for (i, &v) in loglik.iter().enumerate() {
-            let w = weight(v, floor);
-            // Moments about the grid's first point, as in the update.
-            let offset = grid.step_mrad * i as f64;
-            sum += w;
-            first += w * offset;
-            second += w * offset * offset;
-        }
-        let mean_offset = first / sum;
-        let var = (second / sum - mean_offset * mean_offset).max(0.0);
+        let (_, mean, var) = weighted_moments(grid, |i| weight(loglik[i], floor));
         Ok(Self {
-            mean_mrad: grid.first_mrad + mean_offset,
+            mean_mrad: mean,
             var_mrad2: var + grid.step_mrad * grid.step_mrad / 12.0,
         })
     }
@@ -354,6 +344,18 @@ pub struct WearTrendState {
     pub floor2_mrad2: f64,
     /// Whether `floor2_mrad2` has been measured since the reset.
     pub floor_measured: bool,
+}
+
+impl WearTrendState {
+    /// No hypothesis, no bite.
+    pub const EMPTY: Self = Self {
+        hypotheses: [Hypothesis::EMPTY; MAX_COUPLINGS],
+        couplings: 0,
+        t_last_days: None,
+        bites: 0,
+        floor2_mrad2: 0.0,
+        floor_measured: false,
+    };
 }
 
 /// The published gap and growth.
@@ -506,14 +508,7 @@ impl WearTrend {
 
     /// A fresh state for `couplings` hypotheses (0 ..= [`MAX_COUPLINGS`]).
     pub fn state(&self, couplings: usize) -> Result<WearTrendState, TrendError> {
-        let mut state = WearTrendState {
-            hypotheses: [Hypothesis::EMPTY; MAX_COUPLINGS],
-            couplings: 0,
-            t_last_days: None,
-            bites: 0,
-            floor2_mrad2: 0.0,
-            floor_measured: false,
-        };
+        let mut state = WearTrendState::EMPTY;
         self.reset(&mut state, couplings)?;
         Ok(state)
     }
@@ -525,12 +520,8 @@ impl WearTrend {
             return Err(TrendError::Couplings);
         }
         *state = WearTrendState {
-            hypotheses: [Hypothesis::EMPTY; MAX_COUPLINGS],
             couplings,
-            t_last_days: None,
-            bites: 0,
-            floor2_mrad2: 0.0,
-            floor_measured: false,
+            ..WearTrendState::EMPTY
         };
         Ok(())
     }
@@ -1055,9 +1046,16 @@ fn grid_moments(
         .map(exponent)
         .filter(|v| v.is_finite())
         .fold(f64::NEG_INFINITY, f64::max);
+    let (sum, mean, var) = weighted_moments(grid, |i| libm::exp(exponent(i) - top));
+    (top, sum, mean, var)
+}
+
+/// The sum of the weights `weight(i)` (>= 0, some > 0) over the grid and the weighted
+/// mean and variance of the gap.
+fn weighted_moments(grid: GapGrid, weight: impl Fn(usize) -> f64) -> (f64, f64, f64) {
     let (mut sum, mut first, mut second) = (0.0, 0.0, 0.0);
     for i in 0..grid.len {
-        let w = libm::exp(exponent(i) - top);
+        let w = weight(i);
         // Moments about the grid's first point: no cancellation for gaps far from 0.
         let offset = grid.step_mrad * i as f64;
         sum += w;
@@ -1066,7 +1064,7 @@ fn grid_moments(
     }
     let mean_offset = first / sum;
     let var = (second / sum - mean_offset * mean_offset).max(0.0);
-    (top, sum, grid.first_mrad + mean_offset, var)
+    (sum, grid.first_mrad + mean_offset, var)
 }
 
 /// A Gaussian observation `(mean, var)` of the gap: `L_k` gains its predictive

@@ -4,7 +4,8 @@
 //! likelihood has. The filter sees only the per-point log-likelihoods on its grids.
 
 use millgate_dsp::wear_trend::{
-    BiteMoments, ForecastReason, GapGrid, Phase, TrendError, WearTrend, WearTrendState, Z90,
+    BiteMoments, ForecastReason, GapGrid, Phase, TrendError, TrendEstimate, WearTrend,
+    WearTrendState, Z90,
 };
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
@@ -97,6 +98,15 @@ fn inside(value: f64, low: f64, high: f64) -> bool {
     low <= value && value <= high
 }
 
+/// Whether the estimate's growth interval holds `rate` (mrad/day).
+fn rate_holds(e: &TrendEstimate, rate: f64) -> bool {
+    inside(
+        rate,
+        e.rate_low_mrad_per_day.unwrap(),
+        e.rate_high_mrad_per_day.unwrap(),
+    )
+}
+
 #[test]
 fn a_linear_ramp_is_recovered_with_gap_and_rate_in_their_intervals() {
     let trend = WearTrend::new(365.0).unwrap();
@@ -113,11 +123,7 @@ fn a_linear_ramp_is_recovered_with_gap_and_rate_in_their_intervals() {
             let e = trend.estimate(&state).unwrap();
             days += 1;
             held += inside(truth(t), e.gap_low_mrad, e.gap_high_mrad) as usize;
-            rate_held += inside(
-                0.03,
-                e.rate_low_mrad_per_day.unwrap(),
-                e.rate_high_mrad_per_day.unwrap(),
-            ) as usize;
+            rate_held += rate_holds(&e, 0.03) as usize;
         }
     }
     let e = trend.estimate(&state).unwrap();
@@ -166,14 +172,7 @@ fn a_constant_gap_shows_no_growth_and_no_forecast() {
     }
     let e = trend.estimate(&state).unwrap();
     assert!(inside(1.7, e.gap_low_mrad, e.gap_high_mrad), "{e:?}");
-    assert!(
-        inside(
-            0.0,
-            e.rate_low_mrad_per_day.unwrap(),
-            e.rate_high_mrad_per_day.unwrap()
-        ),
-        "{e:?}"
-    );
+    assert!(rate_holds(&e, 0.0), "{e:?}");
     let f = trend.forecast(&state, 4.0);
     assert!(
         matches!(
@@ -230,14 +229,7 @@ fn a_weekend_and_an_outage_widen_the_prediction_and_the_trend_carries_on() {
     let e = trend.estimate(&state).unwrap();
     let t = state.t_last_days.unwrap();
     assert!(inside(truth(t), e.gap_low_mrad, e.gap_high_mrad), "{e:?}");
-    assert!(
-        inside(
-            0.04,
-            e.rate_low_mrad_per_day.unwrap(),
-            e.rate_high_mrad_per_day.unwrap()
-        ),
-        "{e:?}"
-    );
+    assert!(rate_holds(&e, 0.04), "{e:?}");
 }
 
 #[test]
@@ -295,14 +287,7 @@ fn a_jump_of_the_gap_reopens_the_hypothesis_and_is_followed() {
     assert_eq!(bites_to_jump, 10, "the tenth far bite reopens");
     let e = trend.estimate(&state).unwrap();
     assert!(inside(2.5, e.gap_low_mrad, e.gap_high_mrad), "{e:?}");
-    assert!(
-        inside(
-            0.0,
-            e.rate_low_mrad_per_day.unwrap(),
-            e.rate_high_mrad_per_day.unwrap()
-        ),
-        "{e:?}"
-    );
+    assert!(rate_holds(&e, 0.0), "{e:?}");
 }
 
 #[test]
@@ -325,11 +310,7 @@ fn the_demo_time_scale_is_followed_from_the_second_bite() {
     let e = trend.estimate(&state).unwrap();
     let r = e.rate_mrad_per_day.unwrap();
     assert!((r / rate - 1.0).abs() < 0.05, "{} mrad/s", r / day_s);
-    assert!(inside(
-        rate,
-        e.rate_low_mrad_per_day.unwrap(),
-        e.rate_high_mrad_per_day.unwrap()
-    ));
+    assert!(rate_holds(&e, rate));
     // The alarm at 4 mrad comes 10 s after the last bar (3 mrad).
     let f = trend.forecast(&state, 4.0);
     assert_eq!(f.reason, ForecastReason::Forecast);

@@ -95,9 +95,18 @@ enum Command {
     Man(millgate::cli::shell::ManArgs),
 }
 
+/// Directives added to the default log level: async-opcua's lines that any client
+/// causes (an INFO per connection and session, a WARN per notification a slow
+/// subscriber's queue drops: thousands a second in the round-4 audit) stay out of
+/// the journal; the gateway's own OPC UA lines are rate-limited and counted.
+/// `RUST_LOG` replaces them.
+const QUIET_DEPENDENCIES: &str =
+    "opcua_server=warn,opcua_server::subscriptions=error,opcua_core=warn";
+
 fn init_tracing(default_level: &str) {
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_level));
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
+        tracing_subscriber::EnvFilter::new(format!("{default_level},{QUIET_DEPENDENCIES}"))
+    });
     // Colours only on a terminal: journald and log files get plain text.
     let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
     tracing_subscriber::fmt()

@@ -913,3 +913,488 @@ fn readme_address_space_table_is_generated() {
          --config config/examples/demo.toml"
     );
 }
+
+// The round-4 audit's OPC UA findings (issue 41): what one client can cost the server.
+
+/// SecurityPolicy None.
+const POLICY_NONE: &str = "http://opcfoundation.org/UA/SecurityPolicy#None";
+
+/// An OPC UA string (or byte string) on the wire: its length, its bytes.
+fn ua_string(bytes: &mut Vec<u8>, value: Option<&[u8]>) {
+    match value {
+        Some(value) => {
+            bytes.extend_from_slice(&(value.len() as i32).to_le_bytes());
+            bytes.extend_from_slice(value);
+        }
+        None => bytes.extend_from_slice(&(-1i32).to_le_bytes()),
+    }
+}
+
+/// A RequestHeader without a session (OPC 10000-4, 7.33).
+fn request_header(bytes: &mut Vec<u8>, handle: u32) {
+    bytes.extend_from_slice(&[0, 0]); // authenticationToken: null NodeId
+    bytes.extend_from_slice(&0i64.to_le_bytes()); // timestamp
+    bytes.extend_from_slice(&handle.to_le_bytes());
+    bytes.extend_from_slice(&0u32.to_le_bytes()); // returnDiagnostics
+    ua_string(bytes, None); // auditEntryId
+    bytes.extend_from_slice(&10_000u32.to_le_bytes()); // timeoutHint
+    bytes.extend_from_slice(&[0, 0, 0]); // additionalHeader: empty extension object
+}
+
+/// A message of `kind` (`OPNF`, `MSGF`) around `body`.
+fn framed(kind: &[u8; 4], body: &[u8]) -> Vec<u8> {
+    let mut message = kind.to_vec();
+    message.extend_from_slice(&(8 + body.len() as u32).to_le_bytes());
+    message.extend_from_slice(body);
+    message
+}
+
+/// A raw OPC UA TCP client that is not asyncua, for what asyncua will not do: a
+/// secure channel of SecurityPolicy None, then sessionless requests (GetEndpoints)
+/// written without reading the answers, or a silent connection held open.
+struct RawChannel {
+    stream: TcpStream,
+    channel: u32,
+    token: u32,
+    sequence: u32,
+    url: String,
+}
+
+impl RawChannel {
+    /// Hello and a channel without security, from the loopback address `from`; an
+    /// error when the server closes the connection instead.
+    async fn open(
+        address: std::net::SocketAddr,
+        url: &str,
+        from: [u8; 4],
+    ) -> std::io::Result<Self> {
+        let socket = tokio::net::TcpSocket::new_v4()?;
+        socket.bind((std::net::Ipv4Addr::from(from), 0).into())?;
+        let mut stream = socket.connect(address).await?;
+        stream.write_all(&hello(url)).await?;
+        let ack = Self::read_message(&mut stream).await?;
+        if !ack.starts_with(b"ACKF") {
+            return Err(std::io::Error::other(format!("no ACK: {ack:?}")));
+        }
+        let mut body = 0u32.to_le_bytes().to_vec(); // secure channel id: none yet
+        ua_string(&mut body, Some(POLICY_NONE.as_bytes()));
+        ua_string(&mut body, None); // senderCertificate
+        ua_string(&mut body, None); // receiverCertificateThumbprint
+        body.extend_from_slice(&1u32.to_le_bytes()); // sequence number
+        body.extend_from_slice(&1u32.to_le_bytes()); // request id
+        body.extend_from_slice(&[1, 0]);
+        body.extend_from_slice(&446u16.to_le_bytes()); // OpenSecureChannelRequest
+        request_header(&mut body, 1);
+        body.extend_from_slice(&0u32.to_le_bytes()); // clientProtocolVersion
+        body.extend_from_slice(&0u32.to_le_bytes()); // requestType: Issue
+        body.extend_from_slice(&1u32.to_le_bytes()); // securityMode: None
+        ua_string(&mut body, Some(&[])); // clientNonce
+        body.extend_from_slice(&600_000u32.to_le_bytes()); // requestedLifetime
+        stream.write_all(&framed(b"OPNF", &body)).await?;
+        let answer = Self::read_message(&mut stream).await?;
+        if !answer.starts_with(b"OPNF") {
+            return Err(std::io::Error::other(format!("no OPN: {answer:?}")));
+        }
+        // The token id: after the security header, sequence header, type id and
+        // response header (with no diagnostics, string table or additional header),
+        // the protocol version and channel id.
+        let word = |at: usize| u32::from_le_bytes(answer[at..at + 4].try_into().unwrap());
+        let channel = word(8);
+        let mut at = 12;
+        for _ in 0..3 {
+            let len = i32::from_le_bytes(answer[at..at + 4].try_into().unwrap());
+            at += 4 + len.max(0) as usize;
+        }
+        at += 8 + 4; // sequence header, type id
+        at += 8 + 4 + 4 + 1 + 4 + 3; // response header
+        assert_eq!(word(at + 4), channel, "the token's channel id");
+        let token = word(at + 8);
+        Ok(Self {
+            stream,
+            channel,
+            token,
+            sequence: 1,
+            url: url.to_owned(),
+        })
+    }
+
+    /// One message (its header included).
+    async fn read_message(stream: &mut TcpStream) -> std::io::Result<Vec<u8>> {
+        let mut message = vec![0u8; 8];
+        stream.read_exact(&mut message).await?;
+        let size = u32::from_le_bytes(message[4..8].try_into().unwrap()) as usize;
+        message.resize(size.max(8), 0);
+        stream.read_exact(&mut message[8..]).await?;
+        Ok(message)
+    }
+
+    /// The next message the server sends, at most 10 s away.
+    async fn answer(&mut self) -> std::io::Result<Vec<u8>> {
+        tokio::time::timeout(
+            Duration::from_secs(10),
+            Self::read_message(&mut self.stream),
+        )
+        .await
+        .map_err(std::io::Error::other)?
+    }
+
+    /// A GetEndpoints request on the channel.
+    fn get_endpoints(&mut self) -> Vec<u8> {
+        self.sequence += 1;
+        let mut body = Vec::new();
+        for word in [self.channel, self.token, self.sequence, self.sequence] {
+            body.extend_from_slice(&word.to_le_bytes());
+        }
+        body.extend_from_slice(&[1, 0]);
+        body.extend_from_slice(&428u16.to_le_bytes()); // GetEndpointsRequest
+        request_header(&mut body, self.sequence);
+        ua_string(&mut body, Some(self.url.as_bytes()));
+        body.extend_from_slice(&(-1i32).to_le_bytes()); // localeIds
+        body.extend_from_slice(&(-1i32).to_le_bytes()); // profileUris
+        framed(b"MSGF", &body)
+    }
+}
+
+/// opcua_abuse.py with `args`: its JSON lines; killed on drop.
+fn abuse(args: &[&str]) -> (common::KillOnDrop, Receiver<Value>) {
+    let (child, _stdin, lines) = common::json_peer(&common::peer("opcua_abuse.py"), args);
+    (child, lines)
+}
+
+fn abuse_line(lines: &Receiver<Value>, limit: Duration) -> Value {
+    lines
+        .recv_timeout(limit)
+        .unwrap_or_else(|error| panic!("no line from opcua_abuse.py within {limit:?}: {error}"))
+}
+
+/// The resident memory of process `pid`, KiB.
+fn rss_kib(pid: u32) -> u64 {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
+    let line = status.lines().find(|l| l.starts_with("VmRSS:")).unwrap();
+    line.split_whitespace().nth(1).unwrap().parse().unwrap()
+}
+
+/// Finding 1: requests written without ever reading the answers. async-opcua reads
+/// them on and queues the answers without bound (1.5 GB in 27 s in the audit); the
+/// front door stops reading a client with 32 requests unanswered. Against `millgate
+/// demo --opcua` (its own process, so its memory is the gateway's alone).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_client_that_never_reads_cannot_grow_the_server() {
+    let folder = common::scratch("opcua-unread");
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let address: std::net::SocketAddr = ([127, 0, 0, 1], port).into();
+    let history = folder.path().join("history.db");
+    let demo = common::KillOnDrop(
+        common::MILLGATE
+            .command()
+            .args(["demo", "--duration", "300", "--opcua", &address.to_string()])
+            .args(["--history", history.to_str().unwrap()])
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let url = format!("opc.tcp://127.0.0.1:{port}/");
+    let started = Instant::now();
+    while TcpStream::connect(address).await.is_err() {
+        assert!(
+            started.elapsed() < Duration::from_secs(60),
+            "the demo serves"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    serving(address, &url).await;
+    let mut raw = RawChannel::open(address, &url, [127, 0, 0, 1])
+        .await
+        .expect("a channel without security on a none endpoint");
+    let before = rss_kib(demo.id());
+    let started = Instant::now();
+    let mut sent = 0usize;
+    // In batches of 100 for 30 s, or until the socket stays blocked 10 s (a debug
+    // build of async-opcua reads slowly: the socket blocks for seconds at a time
+    // while it still reads on).
+    let mut batch: Vec<u8> = Vec::new();
+    let mut written = 0;
+    let mut blocked_since: Option<Instant> = None;
+    while started.elapsed() < Duration::from_secs(30) {
+        if written == batch.len() {
+            batch = (0..100).flat_map(|_| raw.get_endpoints()).collect();
+            written = 0;
+            sent += 100;
+        }
+        let write = raw.stream.write(&batch[written..]);
+        match tokio::time::timeout(Duration::from_secs(1), write).await {
+            Ok(Ok(n)) => {
+                written += n;
+                blocked_since = None;
+            }
+            Ok(Err(error)) => panic!("the server closed the connection: {error}"),
+            Err(_) => {
+                let since = *blocked_since.get_or_insert_with(Instant::now);
+                if since.elapsed() >= Duration::from_secs(10) {
+                    break;
+                }
+            }
+        }
+    }
+    let elapsed = started.elapsed();
+    // A fresh client is served while the stalled one holds its connection.
+    let mut peer = Peer::connect(&url, &[]).expect("a fresh client");
+    assert_eq!(peer.ask("read Gateway/state", "read")["value"], 1);
+    let grown_mib = rss_kib(demo.id()).saturating_sub(before) / 1024;
+    eprintln!("unread requests: {sent} written in {elapsed:?}; resident memory +{grown_mib} MiB");
+    assert!(
+        grown_mib < 32,
+        "{sent} requests never read grew the gateway by {grown_mib} MiB"
+    );
+    peer.send("quit");
+    drop((raw, demo));
+}
+
+/// Finding 1, hardened: where `none` is not a security mode, a channel without
+/// security is for discovery: 4 requests, then an ERR and the connection closed.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_channel_without_security_carries_only_discovery_when_none_is_not_offered() {
+    let rig = Rig::start("discovery", 20.0, |config, _| {
+        let opcua = config.outputs.opcua.as_mut().unwrap();
+        opcua.security_modes = vec![OpcUaSecurityMode::SignAndEncrypt];
+        opcua.anonymous = false;
+    })
+    .await;
+    let address = rig.gateway.bound().opcua.unwrap();
+    let mut raw = RawChannel::open(address, &rig.url, [127, 0, 0, 1])
+        .await
+        .expect("discovery opens a channel without security");
+    for request in 1..=4 {
+        let message = raw.get_endpoints();
+        raw.stream.write_all(&message).await.unwrap();
+        let answer = raw.answer().await.unwrap();
+        assert!(answer.starts_with(b"MSGF"), "request {request}: {answer:?}");
+    }
+    let message = raw.get_endpoints();
+    raw.stream.write_all(&message).await.unwrap();
+    let answer = raw.answer().await.expect("an ERR before the close");
+    assert!(answer.starts_with(b"ERRF"), "the fifth request: {answer:?}");
+    let status = u32::from_le_bytes(answer[8..12].try_into().unwrap());
+    assert_eq!(
+        opcua::types::StatusCode::from(status),
+        opcua::types::StatusCode::BadSecurityPolicyRejected
+    );
+    let mut rest = Vec::new();
+    let closed = tokio::time::timeout(Duration::from_secs(10), raw.stream.read_to_end(&mut rest));
+    assert!(closed.await.is_ok(), "the connection is closed");
+    assert_eq!(rig.gateway.opcua().unwrap().counts().discovery_closed, 1);
+    rig.stop().await;
+}
+
+/// Finding 5: slots. A client (an address) holds at most half the connections, the
+/// last free one is kept for a client with none, and a connection idle 10 s makes
+/// room for a new client when all are taken.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn one_client_cannot_hold_every_connection() {
+    let rig = Rig::start("slots", 60.0, |config, _| {
+        config.outputs.opcua.as_mut().unwrap().max_connections = 4;
+    })
+    .await;
+    let address = rig.gateway.bound().opcua.unwrap();
+    let mut holder = Vec::new();
+    for _ in 0..4 {
+        if let Ok(channel) = RawChannel::open(address, &rig.url, [127, 0, 0, 2]).await {
+            holder.push(channel);
+        }
+    }
+    assert_eq!(holder.len(), 2, "a client holds half of 4 connections");
+    let mut other = Vec::new();
+    for _ in 0..2 {
+        if let Ok(channel) = RawChannel::open(address, &rig.url, [127, 0, 0, 3]).await {
+            other.push(channel);
+        }
+    }
+    assert_eq!(
+        other.len(),
+        1,
+        "the last free connection is kept for a new client"
+    );
+    let mut peer = Peer::connect(&rig.url, &[]).expect("a new client gets the last one");
+    assert_eq!(peer.ask("read Gateway/state", "read")["value"], 1);
+    // All four taken: a fifth client waits until the idlest connection (the
+    // holder's first) has been silent 10 s, and takes its place.
+    let started = Instant::now();
+    let newcomer = loop {
+        if let Ok(channel) = RawChannel::open(address, &rig.url, [127, 0, 0, 4]).await {
+            break channel;
+        }
+        assert!(
+            started.elapsed() < Duration::from_secs(30),
+            "no room made for a new client in 30 s"
+        );
+        tokio::time::sleep(Duration::from_millis(500)).await;
+    };
+    let counts = rig.gateway.opcua().unwrap().counts();
+    assert_eq!(counts.evicted, 1, "{counts:?}");
+    assert!(counts.refused >= 3, "{counts:?}");
+    let closing = holder[0].answer().await.expect("an ERR to the evicted one");
+    assert!(closing.starts_with(b"ERRF"), "{closing:?}");
+    assert_eq!(
+        peer.ask("read Gateway/state", "read")["value"],
+        1,
+        "the active client stays"
+    );
+    peer.send("quit");
+    drop((holder, other, newcomer));
+    rig.stop().await;
+}
+
+/// Finding 5, sessions: a client that took every session and vanished without
+/// CloseSession held them for the whole session timeout (60 s); a session idle 10 s
+/// makes room for a new one.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sessions_of_a_vanished_client_make_room() {
+    let rig = Rig::start("sessions", 90.0, |config, _| {
+        config.outputs.opcua.as_mut().unwrap().max_sessions = 2;
+    })
+    .await;
+    let (holder, lines) = abuse(&["hold-sessions", &rig.url, "2"]);
+    let held = abuse_line(&lines, Duration::from_secs(60));
+    assert_eq!(held["sessions"], 2, "{held}");
+    drop(holder);
+    let started = Instant::now();
+    let mut peer = loop {
+        match Peer::connect(&rig.url, &[]) {
+            Ok(peer) => break peer,
+            Err(refused) => assert!(
+                started.elapsed() < Duration::from_secs(30),
+                "no session 30 s after the holder vanished: {refused}"
+            ),
+        }
+        tokio::time::sleep(Duration::from_secs(1)).await;
+    };
+    eprintln!("a session after {:?}", started.elapsed());
+    assert_eq!(peer.ask("read Gateway/state", "read")["value"], 1);
+    peer.send("quit");
+    rig.stop().await;
+}
+
+/// Finding 2: subscriptions left behind by sessions closed with DeleteSubscriptions
+/// = false, with a publishing interval of an hour: bounded in number (all sessions
+/// together) and in monitored items, and revised to expire within 10 minutes.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn subscriptions_left_behind_are_bounded_and_expire() {
+    let rig = Rig::start("orphans", 120.0, |config, _| {
+        config.outputs.opcua.as_mut().unwrap().max_sessions = 3;
+    })
+    .await;
+    let (_abuser, lines) = abuse(&["orphans", &rig.url, "4", "10", "1000"]);
+    let done = abuse_line(&lines, Duration::from_secs(240));
+    eprintln!("{done}");
+    let revised = &done["revised"];
+    let lifetime_ms =
+        revised["interval_ms"].as_f64().unwrap() * revised["lifetime"].as_f64().unwrap();
+    assert!(lifetime_ms <= 600_000.0, "revised {revised}");
+    assert!(
+        revised["lifetime"].as_u64().unwrap() >= 3 * revised["keep_alive"].as_u64().unwrap(),
+        "{revised}"
+    );
+    assert_eq!(done["created"]["subscriptions"], 30, "{done}");
+    assert_eq!(
+        done["refused"]["subscription BadTooManySubscriptions"], 10,
+        "{done}"
+    );
+    assert_eq!(done["created"]["items"], 20_000, "{done}");
+    assert!(
+        done["refused"]["items BadTooManyMonitoredItems"].as_u64() >= Some(1000),
+        "{done}"
+    );
+    let counts = rig.gateway.opcua().unwrap().counts();
+    assert_eq!((counts.subscriptions, counts.monitored_items), (30, 20_000));
+    assert_eq!(
+        counts.orphaned_subscriptions, 30,
+        "every session was closed"
+    );
+    // The service goes on: bites reach the PLC, a client reads.
+    let before = rig.bite_counter();
+    common::wait_for("a bite after the orphans", Duration::from_secs(30), || {
+        rig.bite_counter() > before
+    })
+    .await;
+    rig.stop().await;
+}
+
+/// Finding 10: browse continuation points a session may hold (async-opcua allows
+/// 5 000, each keeping the rest of a browse).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn continuation_points_are_bounded() {
+    let rig = Rig::start("points", 20.0, |_, _| {}).await;
+    let (_abuser, lines) = abuse(&["browse-points", &rig.url, "25"]);
+    let done = abuse_line(&lines, Duration::from_secs(60));
+    assert_eq!(done["results"]["continuation_points"], 10, "{done}");
+    assert_eq!(done["results"]["BadNoContinuationPoints"], 15, "{done}");
+    rig.stop().await;
+}
+
+/// Finding 6: a refused client certificate is kept in `pki_dir/rejected/` for the
+/// operator; any client can send one, so only the newest 64 are kept.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn rejected_certificates_are_bounded() {
+    let rig = Rig::start("rejected", 60.0, |config, _| {
+        let opcua = config.outputs.opcua.as_mut().unwrap();
+        opcua.security_modes = vec![OpcUaSecurityMode::SignAndEncrypt];
+    })
+    .await;
+    let certs = rig.scratch.join("strangers");
+    let (_abuser, lines) = abuse(&["rejected", &rig.url, "80", certs.to_str().unwrap()]);
+    let done = abuse_line(&lines, Duration::from_secs(240));
+    assert_eq!(done["results"]["BadCertificateUntrusted"], 80, "{done}");
+    let rejected = rig.scratch.join("pki/rejected");
+    let files = || std::fs::read_dir(&rejected).unwrap().count();
+    common::wait_for("rejected/ trimmed to 64", Duration::from_secs(10), || {
+        files() == 64
+    })
+    .await;
+    let counts = rig.gateway.opcua().unwrap().counts();
+    assert_eq!(counts.rejected_certificates_removed, 16, "{counts:?}");
+    rig.stop().await;
+}
+
+/// Finding 7: each acknowledge writes the PLC's HMI registers; one a second is
+/// carried out, the others are refused with `Bad_TooManyOperations` and counted.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn acknowledges_are_paced() {
+    let rig = Rig::start("paced", 20.0, |_, _| {}).await;
+    let mut peer = Peer::connect(&rig.url, &[]).expect("anonymous on loopback");
+    let started = Instant::now();
+    let statuses: Vec<String> = (0..10)
+        .map(|_| {
+            peer.ask("ack", "ack")["status"]
+                .as_str()
+                .unwrap()
+                .to_owned()
+        })
+        .collect();
+    let elapsed = started.elapsed();
+    let good = statuses.iter().filter(|s| *s == "Good").count();
+    assert_eq!(statuses[0], "Good", "{statuses:?}");
+    assert!(
+        good as u64 <= elapsed.as_secs() + 1,
+        "{good} acknowledges carried out in {elapsed:?}: {statuses:?}"
+    );
+    assert!(
+        statuses
+            .iter()
+            .all(|s| s == "Good" || s == "BadTooManyOperations"),
+        "{statuses:?}"
+    );
+    let counts = rig.gateway.opcua().unwrap().counts();
+    assert_eq!(counts.acknowledgements, good as u64, "{counts:?}");
+    assert_eq!(
+        counts.acknowledgements_limited,
+        10 - good as u64,
+        "{counts:?}"
+    );
+    peer.send("quit");
+    rig.stop().await;
+}

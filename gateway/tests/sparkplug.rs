@@ -7,10 +7,13 @@
 //! values, the rebirth command, the Will at SIGKILL and the next session's bdSeq;
 //! store-and-forward: after a broker outage, a primary host outage and a gateway
 //! killed during one, every bite arrives once live or flagged historical, the
-//! historical ones first; the replay's pacing.
+//! historical ones first; the replay's pacing. A server set (`brokers`): the node
+//! moves on when its server is killed mid-stream (two independent mosquittos; a
+//! three-node RabbitMQ cluster, the host application on another node) or when the
+//! primary host is offline on its server, and no bite is lost.
 //!
-//! Needs `apt install mosquitto` and `pip install pysparkplug==0.6.1` (with paho-mqtt 1.6.1)
-//! (scripts/test installs them).
+//! Needs `apt install mosquitto rabbitmq-server` and `pip install pysparkplug==0.6.1`
+//! (with paho-mqtt 1.6.1) (scripts/test installs them).
 
 mod common;
 
@@ -1173,4 +1176,262 @@ async fn a_rod_mill_is_a_device_with_its_spans_and_worst_margin() {
     assert_eq!(values["unstable"], Value::Bool(true));
     terminate(&mut service);
     process_running.stop().await.unwrap();
+}
+
+/// The failover run shared by the server-set tests: `millgate run` with `brokers` on
+/// `ports` (in this order, `extra` more keys of `[outputs.mqtt]`) and every bite the PLC saw reaching `hosts` (each a host
+/// application subscribed on one server; their messages are read in this order, as
+/// the node moves from server to server). Once the first server has the node's
+/// session and a bite went out, `kill` stops it mid-stream; the node moves on to the
+/// next server that answers, born again with the next bdSeq, and replays flagged
+/// historical what no server confirmed. Returns the sessions' bites and every message
+/// the hosts saw, for more checks.
+/// What `hosts` have seen, one after the other.
+fn seen(hosts: &[Host]) -> Vec<Value> {
+    hosts.iter().flat_map(|h| h.seen.clone()).collect()
+}
+
+/// Read `hosts` (each in turn, 100 ms each) until `found` finds something in what they
+/// have seen, at most `limit`.
+fn read_until<T>(
+    hosts: &mut [Host],
+    what: &str,
+    limit: Duration,
+    found: impl Fn(&[Value]) -> Option<T>,
+) -> T {
+    let start = Instant::now();
+    loop {
+        if let Some(value) = found(&seen(hosts)) {
+            return value;
+        }
+        assert!(start.elapsed() < limit, "no {what} within {limit:?}");
+        for host in hosts.iter_mut() {
+            if let Ok(value) = host.lines.recv_timeout(Duration::from_millis(100)) {
+                host.seen.push(value);
+            }
+        }
+    }
+}
+
+/// The `n`th NBIRTH (0-based) among `seen`.
+fn nth_birth(seen: &[Value], n: usize) -> Option<Value> {
+    seen.iter()
+        .filter(|m| m["type"] == "NBIRTH")
+        .nth(n)
+        .cloned()
+}
+
+/// Whether a bite of F1 after `after` is among `seen`.
+fn bite_after(seen: &[Value], bite_alias: u64, after: u64) -> Option<()> {
+    let sessions = bites_by_session(seen, bite_alias);
+    sessions
+        .iter()
+        .flatten()
+        .any(|&(id, _)| id > after)
+        .then_some(())
+}
+
+/// The failover run shared by the server-set tests: `millgate run` with `brokers` on
+/// `ports` (in this order, `extra` more keys of `[outputs.mqtt]`) and every bite the
+/// PLC saw reaching `hosts` (host applications subscribed on servers that stay up, or
+/// one per server; their messages are read in this order, as the node moves on).
+/// Once a server has the node's session and a bite went out, `kill` stops that server
+/// (its index in `ports`) mid-stream; the node moves on to the next server that
+/// answers, born again with the next bdSeq, and replays flagged historical what no
+/// server confirmed. Returns the sessions' bites and every message the hosts saw.
+async fn failover_keeps_every_bite(
+    setup: Setup,
+    ports: &[u16],
+    extra: &str,
+    mut hosts: Vec<Host>,
+    kill: impl FnOnce(usize),
+) -> (Vec<Vec<(u64, bool)>>, Vec<Value>) {
+    let servers: Vec<String> = ports.iter().map(|p| format!("\"127.0.0.1:{p}\"")).collect();
+    setup.append_config(&format!(
+        "\n[outputs.mqtt]\nbrokers = [{}]\ngroup_id = \"plant\"\nnode_id = \"f1\"\nkeep_alive_s = 5\n{extra}\n",
+        servers.join(", ")
+    ));
+    let in_use =
+        |port: u16| format!("millgate_sparkplug_server_in_use{{server=\"127.0.0.1:{port}\"}}");
+    let mut service = setup.spawn("run.log");
+    let limit = Duration::from_secs(60);
+    let nbirth = read_until(&mut hosts, "NBIRTH", limit, |seen| nth_birth(seen, 0));
+    let bd_seq = metric(&nbirth, "bdSeq")["value"].as_u64().unwrap();
+    let dbirth = read_until(&mut hosts, "DBIRTH", limit, |seen| {
+        seen.iter()
+            .find(|m| m["type"] == "DBIRTH" && m["device"] == "F1")
+            .cloned()
+    });
+    let bite_alias = metric(&dbirth, "bite_id")["alias"].as_u64().unwrap();
+    let mut used = None;
+    for (index, &port) in ports.iter().enumerate() {
+        if setup.metric(&in_use(port)).await == Some(1.0) {
+            used = Some(index);
+        }
+    }
+    let used = used.unwrap_or_else(|| panic!("no server in use:\n{}", setup.log_text("run.log")));
+
+    // Mid-stream: a bite has just gone out, the next ones follow at the demo's pace.
+    let plc = setup.plc();
+    plc.bites_after_now(1).await;
+    let last = u64::from(plc.counter());
+    read_until(&mut hosts, "the bite", limit, |seen| {
+        bite_after(seen, bite_alias, last - 1)
+    });
+    let switches = setup
+        .metric("millgate_sparkplug_server_switches_total")
+        .await;
+    kill(used);
+    plc.bites_after_now(1).await;
+
+    // Born again on another server, with the next bdSeq and seq from 0.
+    let next_birth = read_until(&mut hosts, "second NBIRTH", limit, |seen| {
+        nth_birth(seen, 1)
+    });
+    assert_eq!(
+        metric(&next_birth, "bdSeq")["value"].as_u64(),
+        Some(bd_seq + 1),
+        "{next_birth}"
+    );
+    assert_eq!(seq(&next_birth), 0);
+    let last_at_birth = u64::from(plc.counter());
+    read_until(&mut hosts, "a bite after the birth", limit, |seen| {
+        bite_after(seen, bite_alias, last_at_birth)
+    });
+    let sessions = bites_by_session(&seen(&hosts), bite_alias);
+    assert_every_bite_once(&sessions, last_at_birth + 1);
+
+    // /metrics: another server in use, the switches, the time without one.
+    assert_eq!(setup.metric(&in_use(ports[used])).await, Some(0.0));
+    assert_eq!(
+        setup.metric("millgate_sparkplug_connected").await,
+        Some(1.0)
+    );
+    let now = setup
+        .metric("millgate_sparkplug_server_switches_total")
+        .await;
+    assert!(
+        now.zip(switches).is_some_and(|(now, before)| now > before),
+        "{switches:?} -> {now:?}"
+    );
+    let without = setup
+        .metric("millgate_sparkplug_without_broker_seconds_total")
+        .await;
+    assert!(without.is_some_and(|s| s > 0.0), "{without:?}");
+    terminate(&mut service);
+    setup.stop(service).await;
+    (sessions, seen(&hosts))
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn killing_the_cluster_node_of_the_session_loses_no_bite() {
+    let setup = Setup::new(MILLGATE, "sparkplug-cluster", "db").await;
+    let mut cluster = common::cluster::RabbitCluster::start(&setup.scratch);
+    let ports = cluster.mqtt_ports().to_vec();
+    // The node knows the first two nodes, the host application is on the third. The
+    // node's NCMD subscription at QoS 0: RabbitMQ 3.10 keeps a QoS 1 subscription's
+    // queue on the node of the first session, and refuses the resubscription on the
+    // others while that node is down (docs/sparkplug.md).
+    let host = Host::with_options(ports[2], "plant", &["--dots-as-slashes"]);
+    let (sessions, seen) =
+        failover_keeps_every_bite(setup, &ports[..2], "command_qos = 0", vec![host], |node| {
+            cluster.kill(node)
+        })
+        .await;
+    assert!(sessions.len() >= 2, "{sessions:?}");
+    // RabbitMQ 3.10 delivers `spBv1.0/...` as `spBv1/0/...` (docs/sparkplug.md): a
+    // plant's host needs a broker that keeps the topic.
+    assert!(
+        seen.iter()
+            .filter(|m| m.get("type").is_some())
+            .all(|m| m["rewritten"] == true),
+        "RabbitMQ keeps the topics now: update docs/sparkplug.md"
+    );
+}
+
+/// Two independent mosquittos (no bridge, nothing shared), each with its folder in
+/// `setup`'s scratch folder: their ports, and the brokers (drop one to kill it).
+fn two_brokers(setup: &Setup) -> ([u16; 2], Vec<Option<Broker>>) {
+    let ports = [free_port(), free_port()];
+    let brokers = ["first", "second"]
+        .into_iter()
+        .zip(ports)
+        .map(|(name, port)| {
+            let folder = setup.scratch.join(name);
+            std::fs::create_dir_all(&folder).unwrap();
+            Some(Broker::start(&folder, port))
+        })
+        .collect();
+    (ports, brokers)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn with_two_independent_brokers_the_node_moves_to_the_other() {
+    let setup = Setup::new(MILLGATE, "sparkplug-two-brokers", "db").await;
+    let (ports, mut brokers) = two_brokers(&setup);
+    // A host application on each broker: they share nothing.
+    let hosts = vec![
+        Host::start(ports[0], "plant"),
+        Host::start(ports[1], "plant"),
+    ];
+    let (sessions, _) = failover_keeps_every_bite(setup, &ports, "", hosts, |broker| {
+        brokers[broker] = None;
+    })
+    .await;
+    assert_eq!(
+        sessions.len(),
+        2,
+        "one session on each broker: {sessions:?}"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_primary_host_offline_on_one_server_sends_the_node_to_the_next() {
+    let setup = Setup::new(MILLGATE, "sparkplug-host-elsewhere", "db").await;
+    let (ports, _brokers) = two_brokers(&setup);
+    // The primary host left the first server (its retained STATE says offline there)
+    // and is online on the second.
+    let mut away = Host::start(ports[0], "plant");
+    let mut present = Host::start(ports[1], "plant");
+    away.command("state scada offline");
+    present.command("state scada online");
+    for host in [&mut away, &mut present] {
+        while host.next(Duration::from_secs(10))["sent"] != "state" {}
+    }
+    setup.append_config(&format!(
+        "\n[outputs.mqtt]\nbrokers = [\"127.0.0.1:{}\", \"127.0.0.1:{}\"]\ngroup_id = \"plant\"\nnode_id = \"f1\"\nprimary_host_id = \"scada\"\n",
+        ports[0], ports[1]
+    ));
+    let mut service = setup.spawn("run.log");
+    let limit = Duration::from_secs(30);
+    let nbirth = present.next_of("NBIRTH", limit);
+    // The first server's session ended unborn: its bdSeq is used up, the births go
+    // out with the next.
+    assert_eq!(metric(&nbirth, "bdSeq")["value"].as_u64(), Some(1));
+    assert!(
+        setup
+            .log_text("run.log")
+            .contains("primary host offline on this MQTT server: moving on to the next"),
+        "{}",
+        setup.log_text("run.log")
+    );
+    let in_second = format!(
+        "millgate_sparkplug_server_in_use{{server=\"127.0.0.1:{}\"}}",
+        ports[1]
+    );
+    assert_eq!(setup.metric(&in_second).await, Some(1.0));
+    assert_eq!(
+        setup
+            .metric("millgate_sparkplug_server_switches_total")
+            .await,
+        Some(1.0)
+    );
+    while let Ok(message) = away.lines.try_recv() {
+        assert_ne!(
+            message["type"], "NBIRTH",
+            "no birth where the host is offline"
+        );
+    }
+    terminate(&mut service);
+    setup.stop(service).await;
 }

@@ -5,14 +5,17 @@ spBv1.0/<group>/#; reads commands from stdin: "rebirth <node> [count]" publishes
 NCMD with Node Control/Rebirth = true (count times); "garbage <node> <bytes>
 [retain]" an NCMD of that many 0xff bytes (not protobuf), retained if asked;
 "clear <node>" clears a retained NCMD; "state <host_id> online|offline" publishes the
-primary host's retained STATE (Sparkplug 3.0 JSON). A message that is not a
+primary host's retained STATE (Sparkplug 3.0 JSON). Each of the last three prints
+{"sent": ...} once the broker has it. A message that is not a
 Sparkplug payload is printed with "undecodable": true and its size.
 
     python3 sparkplug_host.py HOST PORT GROUP [--ca FILE [--cert FILE --key FILE]]
         [--username U --password P]
 
 With --ca the host connects over TLS (the broker checked against FILE; --cert and
---key for a broker that requires a client certificate).
+--key for a broker that requires a client certificate). With --dots-as-slashes (for
+RabbitMQ 3.10, which delivers a topic's "." as "/") a topic starting "spBv1/0/" is read
+as "spBv1.0/" and its record says "rewritten": true.
 """
 
 import argparse
@@ -36,6 +39,7 @@ arguments.add_argument("--cert")
 arguments.add_argument("--key")
 arguments.add_argument("--username")
 arguments.add_argument("--password")
+arguments.add_argument("--dots-as-slashes", action="store_true")
 options = arguments.parse_args()
 host, port, group = options.host, options.port, options.group
 lock = threading.Lock()
@@ -73,17 +77,22 @@ def on_subscribe(client, userdata, mid, granted_qos):
 
 
 def on_message(client, userdata, message):
-    parts = message.topic.split("/")
+    topic = message.topic
+    rewritten = options.dots_as_slashes and topic.startswith("spBv1/0/")
+    if rewritten:
+        topic = "spBv1.0/" + topic[len("spBv1/0/"):]
+    parts = topic.split("/")
     payload = Payload()
     try:
         payload.ParseFromString(message.payload)
     except Exception:  # noqa: BLE001 (any protobuf error: not a Sparkplug payload)
-        emit({"topic": message.topic, "type": parts[2], "undecodable": True,
+        emit({"topic": topic, "type": parts[2], "undecodable": True,
               "bytes": len(message.payload), "retain": bool(message.retain)})
         return
     emit(
         {
-            "topic": message.topic,
+            "topic": topic,
+            "rewritten": rewritten,
             "type": parts[2],
             "node": parts[3],
             "device": parts[4] if len(parts) > 4 else None,
@@ -126,5 +135,7 @@ for line in sys.stdin:
         emit({"sent": "clear"})
     elif words[:1] == ["state"]:
         state = {"online": words[2] == "online", "timestamp": int(time.time() * 1000)}
-        client.publish(f"spBv1.0/STATE/{words[1]}", json.dumps(state), qos=1, retain=True)
+        info = client.publish(f"spBv1.0/STATE/{words[1]}", json.dumps(state), qos=1, retain=True)
+        info.wait_for_publish()
+        emit({"sent": "state"})
 client.loop_stop()

@@ -3,7 +3,8 @@
 //! over more than 1e6 samples with several bites) must allocate nothing. Only the
 //! measuring thread is counted: the test harness allocates on its own threads. The
 //! bites' noise level (`noise_rms`) is measured with them. The wear trend (predict,
-//! grid, update, estimate, forecast, band) over a year of bites is measured too.
+//! grid, bite moments, update, estimate, forecast, band) over a year of bites is
+//! measured too.
 
 use millgate_dsp::bite::{BiteDetector, BiteSettings};
 use millgate_dsp::fit::{eq1, fit_eq1, FitOptions};
@@ -163,6 +164,7 @@ fn wear_trend_never_allocates() {
     let trend = WearTrend::new(365.0).unwrap();
     let mut state = trend.state(2).unwrap();
     let mut ll = [0.0; 513];
+    let mut fine_ll = [0.0; 513];
     let (mut jumps, mut forecasts, mut days_sum) = (0, 0, 0.0);
     let ((), allocations) = allocations_during(|| {
         // A year, 20 bites a day on weekdays; the gap grows 0.01 mrad/day from 1 mrad.
@@ -181,10 +183,11 @@ fn wear_trend_never_allocates() {
                 for (j, v) in ll[..grid.len].iter_mut().enumerate() {
                     *v = -0.5 * ((observed - grid.at(j)) / 0.05).powi(2);
                 }
-                let bite = BiteMoments {
-                    mean_mrad: observed,
-                    var_mrad2: 0.0025,
-                };
+                // The bite's own moments on the fine grid, as the gateway does.
+                for (j, v) in fine_ll.iter_mut().enumerate() {
+                    *v = -0.5 * ((observed - FINE.at(j)) / 0.05).powi(2);
+                }
+                let bite = BiteMoments::from_loglik(FINE, &fine_ll).unwrap();
                 let outcome = trend.update(&mut state, k, grid, &ll[..grid.len], bite);
                 jumps += outcome.unwrap().jumped as usize;
             }

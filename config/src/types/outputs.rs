@@ -47,8 +47,10 @@ pub struct OpcUaOutput {
     /// only loopback clients may; with true, a remote client must also sign in as a
     /// user of `users_file`).
     pub allow_remote_commands: bool,
-    /// TCP connections served at once, 1..=256 (default 16); a further one is closed
-    /// at once.
+    /// TCP connections served at once, 1..=256 (default 16): a client address holds
+    /// at most half, the last free one is kept for a new address, and when all are
+    /// taken the connection idle longest (10 s at least) makes room; else a further
+    /// one is closed at once.
     pub max_connections: usize,
     /// Sessions at once, 1..=100 (default 10).
     pub max_sessions: usize,
@@ -216,8 +218,11 @@ impl WebOutput {
 /// as devices to an MQTT broker (`spBv1.0/<group_id>/.../<node_id>[/<device>]`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct MqttOutput {
-    /// Broker `host:port`, port 1..=65535; resolved at connect time.
-    pub broker: String,
+    /// The MQTT servers, `host:port` each (port 1..=65535, resolved at connect time),
+    /// 1..=16 of them, none twice: `brokers`, or the single `broker`. The node connects
+    /// to the first that answers and, when a connection fails or a session ends, moves
+    /// on to the next (after the last, the first again).
+    pub brokers: Vec<String>,
     /// Sparkplug group id: non-empty, none of `/ + #`.
     pub group_id: String,
     /// Sparkplug edge node id: non-empty, none of `/ + #`.

@@ -24,6 +24,8 @@ use super::{
 const MAX_CONNECTIONS_LIMIT: i64 = 64;
 /// Allowed `outputs.server.idle_timeout_ms`.
 const IDLE_TIMEOUT_RANGE_MS: RangeInclusive<i64> = 100..=3_600_000;
+/// Most MQTT servers `outputs.mqtt.brokers` may list.
+const MAX_MQTT_SERVERS: usize = 16;
 /// Allowed `outputs.web.max_connections`.
 const WEB_CONNECTIONS_RANGE: RangeInclusive<i64> = 1..=1024;
 /// Allowed `outputs.web.header_timeout_ms` and `request_timeout_ms`.
@@ -281,7 +283,7 @@ impl Checker<'_> {
 
     fn mqtt(&mut self, raw: &RawMqttOutput, history: bool) -> Option<MqttOutput> {
         let key = "outputs.mqtt";
-        let broker = self.host_port(&format!("{key}.broker"), &raw.broker);
+        let brokers = self.mqtt_servers(raw);
         let group_id = self.sparkplug_id(&format!("{key}.group_id"), &raw.group_id);
         let node_id = self.sparkplug_id(&format!("{key}.node_id"), &raw.node_id);
         let client_id = match &raw.client_id {
@@ -340,7 +342,7 @@ impl Checker<'_> {
             raw.replay_period_ms.unwrap_or(100),
         );
         Some(MqttOutput {
-            broker: broker?,
+            brokers: brokers?,
             group_id: group_id?,
             node_id: node_id?,
             client_id: client_id?,
@@ -353,6 +355,57 @@ impl Checker<'_> {
             replay_period: replay_period?,
             tls: tls?,
         })
+    }
+
+    /// The MQTT servers: `brokers` (1..=[`MAX_MQTT_SERVERS`], none twice) or `broker`,
+    /// one of them; each `host:port`.
+    fn mqtt_servers(&mut self, raw: &RawMqttOutput) -> Option<Vec<String>> {
+        let key = "outputs.mqtt";
+        match (&raw.broker, &raw.brokers) {
+            (Some(broker), None) => Some(vec![self.host_port(&format!("{key}.broker"), broker)?]),
+            (None, Some(brokers)) => {
+                if brokers.is_empty() || brokers.len() > MAX_MQTT_SERVERS {
+                    self.report.push(
+                        format!("{key}.brokers"),
+                        format!(
+                            "{} servers are not allowed (must be 1..={MAX_MQTT_SERVERS} \
+                             \"host:port\" strings)",
+                            brokers.len()
+                        ),
+                    );
+                    return None;
+                }
+                let mut servers = Vec::with_capacity(brokers.len());
+                for (index, broker) in brokers.iter().enumerate() {
+                    let entry = format!("{key}.brokers[{index}]");
+                    if let Some(first) = brokers[..index].iter().position(|b| b == broker) {
+                        self.report.push(
+                            entry,
+                            format!("\"{broker}\" is listed already at brokers[{first}]"),
+                        );
+                        continue;
+                    }
+                    if let Some(server) = self.host_port(&entry, broker) {
+                        servers.push(server);
+                    }
+                }
+                (servers.len() == brokers.len()).then_some(servers)
+            }
+            (Some(_), Some(_)) => {
+                self.report.push(
+                    format!("{key}.brokers"),
+                    "not allowed together with broker (give one of them: brokers for a list)",
+                );
+                None
+            }
+            (None, None) => {
+                self.report.push(
+                    format!("{key}.broker"),
+                    "missing: give broker = \"host:port\" or brokers = [\"host:port\", ...]",
+                );
+                None
+            }
+        }
     }
 
     /// `username` with one of `password`, `password_file` (read now) and

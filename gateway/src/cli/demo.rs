@@ -194,7 +194,7 @@ fn configure_outputs(config: &mut Config, args: &DemoArgs, history_path: &Path) 
     });
     if let Some(broker) = args.mqtt {
         config.outputs.mqtt = Some(millgate_config::MqttOutput {
-            broker: broker.to_string(),
+            brokers: vec![broker.to_string()],
             client_id: format!("millgate-{}-{}", args.group, args.node),
             group_id: args.group.clone(),
             node_id: args.node.clone(),

@@ -404,7 +404,7 @@ mod tests {
         };
         let plc: Arc<PlcCounters> = Arc::default();
         let server: Arc<ServerCounters> = Arc::default();
-        let sparkplug: Arc<SparkplugStatus> = Arc::default();
+        let sparkplug = Arc::new(SparkplugStatus::for_servers(vec!["127.0.0.1:1883".into()]));
         Metrics::new(config, Arc::clone(&board), spans)
             .with(Arc::new(AcquisitionFamilies::new(config, acquisition)))
             .with(plc)

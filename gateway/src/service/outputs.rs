@@ -173,7 +173,7 @@ fn sparkplug(w: &mut Wiring<'_>, shutdown: &Shutdown) -> Result<Option<OutputTas
     let (Some(mqtt), Some(history)) = (&w.config.outputs.mqtt, &w.config.history) else {
         return Ok(None);
     };
-    tracing::info!(broker = %mqtt.broker, group = %mqtt.group_id, node = %mqtt.node_id, "starting the Sparkplug B edge node");
+    tracing::info!(brokers = ?mqtt.brokers, group = %mqtt.group_id, node = %mqtt.node_id, "starting the Sparkplug B edge node");
     let rod_mills = w
         .config
         .rod_mills

@@ -14,7 +14,8 @@
 //!   configuration of N stand accelerometers with a tandem mill over them.
 //! - [`episode`]: a synthetic chatter episode stored as a capture.
 //! - [`broker`], [`sparkplug`]: Debian's mosquitto; a Sparkplug node in-process
-//!   against a history holding a backlog.
+//!   against a history holding a backlog. [`cluster`]: a three-node `nats-server`
+//!   cluster with MQTT, for the failover tests.
 //! - [`peers`]: the Python peers in `tests/peers/`, talking JSON lines.
 //! - [`hostile_daq`]: a scripted Modbus TCP DAQ for the faults real ones show.
 //! - [`serial_line`]: a pseudo-terminal pair and a pymodbus RTU device on it.
@@ -25,6 +26,7 @@
 
 pub mod broker;
 pub mod cli;
+pub mod cluster;
 pub mod counting_allocator;
 pub mod episode;
 pub mod hostile_daq;

@@ -7,7 +7,7 @@ use crate::exposition::{Exposition, Families, Kind};
 impl Families for OpcUaStatus {
     fn write_families(&self, page: &mut Exposition) {
         let counts = &self.counts();
-        let scalars: [(&str, Kind, &str, f64); 12] = [
+        let scalars: [(&str, Kind, &str, f64); 19] = [
             (
                 "millgate_opcua_connections_total",
                 Kind::Counter,
@@ -19,6 +19,18 @@ impl Families for OpcUaStatus {
                 Kind::Counter,
                 "Connections closed at once because max_connections were open.",
                 counts.refused as f64,
+            ),
+            (
+                "millgate_opcua_connections_evicted_total",
+                Kind::Counter,
+                "Idle connections closed to make room for a new client.",
+                counts.evicted as f64,
+            ),
+            (
+                "millgate_opcua_discovery_channels_closed_total",
+                Kind::Counter,
+                "Channels without security closed after discovery (security none not configured).",
+                counts.discovery_closed as f64,
             ),
             (
                 "millgate_opcua_malformed_frames_total",
@@ -61,6 +73,36 @@ impl Families for OpcUaStatus {
                 Kind::Counter,
                 "Acknowledge calls the guard refused (a remote host, a read-only user).",
                 counts.acknowledgements_refused as f64,
+            ),
+            (
+                "millgate_opcua_acknowledgements_limited_total",
+                Kind::Counter,
+                "Acknowledge calls refused: one was carried out less than a second before.",
+                counts.acknowledgements_limited as f64,
+            ),
+            (
+                "millgate_opcua_rejected_certificates_removed_total",
+                Kind::Counter,
+                "Refused client certificates removed from pki_dir/rejected/ to keep its bound.",
+                counts.rejected_certificates_removed as f64,
+            ),
+            (
+                "millgate_opcua_subscriptions",
+                Kind::Gauge,
+                "Subscriptions on the server, closed sessions' included until they expire.",
+                counts.subscriptions as f64,
+            ),
+            (
+                "millgate_opcua_monitored_items",
+                Kind::Gauge,
+                "Monitored items on the server.",
+                counts.monitored_items as f64,
+            ),
+            (
+                "millgate_opcua_orphaned_subscriptions",
+                Kind::Gauge,
+                "Subscriptions of closed or expired sessions, kept until they expire.",
+                counts.orphaned_subscriptions as f64,
             ),
             (
                 "millgate_opcua_value_changes_total",

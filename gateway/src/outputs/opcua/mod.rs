@@ -51,6 +51,7 @@ use tokio::net::TcpListener;
 use tokio::sync::{mpsc, watch};
 
 use crate::shutdown::Shutdown;
+use crate::warn_limit::{WarnLimit, WARN_PERIOD};
 
 pub(crate) use adapter::OpcUaOutputTask;
 pub use error::OpcUaError;
@@ -70,6 +71,18 @@ const MAX_MESSAGE: u32 = u16::MAX as u32;
 const SUBSCRIPTION_TICK_MS: u64 = 20;
 /// How long the server may take to come up or to stop.
 const START_STOP_LIMIT: Duration = Duration::from_secs(10);
+/// Longest a subscription lives without publish requests (publishing interval x
+/// lifetime count, revised to fit): a subscription left behind by a closed session
+/// is gone after it (round-4 audit, finding 2).
+const MAX_SUBSCRIPTION_LIFETIME: Duration = Duration::from_secs(600);
+/// Monitored items on the server, all sessions together, unless
+/// `max_monitored_items_per_subscription` is larger (about 1.5 kB each).
+const MAX_MONITORED_ITEMS: usize = 20_000;
+/// Continuation points a session may hold (browse, history, query): each keeps the
+/// rest of a result until the client asks for it (async-opcua allows 5 000).
+const MAX_CONTINUATION_POINTS: usize = 10;
+/// How often `pki_dir/rejected/` is trimmed to [`pki::MAX_REJECTED`] files.
+const REJECTED_TRIM_PERIOD: Duration = Duration::from_secs(1);
 
 /// The warning for a server reachable from other hosts, `None` on a loopback bind.
 /// `millgate check` prints it and the service logs it at start.
@@ -171,6 +184,7 @@ impl OpcUaServer {
             peers: Arc::clone(&peers),
             acknowledge: Arc::clone(&self.acknowledge),
             counters: Arc::clone(&self.counters),
+            pace: std::sync::Mutex::default(),
         });
         let (server, handle) = self
             .builder(public.port())
@@ -218,13 +232,21 @@ impl OpcUaServer {
             backend,
             max_connections: self.settings.max_connections,
             max_message: MAX_MESSAGE,
+            none_allowed: self
+                .settings
+                .security_modes
+                .contains(&OpcUaSecurityMode::None),
             counters: Arc::clone(&self.counters),
             peers,
         };
         let mut front = tokio::spawn(front.run(shutdown.clone()));
         tracing::info!(endpoint = %self.settings.endpoint_url(), local = %public, "OPC UA server listening");
+        let mut trim = tokio::time::interval(REJECTED_TRIM_PERIOD);
+        trim.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        let mut trim_problems = WarnLimit::new(WARN_PERIOD);
         let ended = loop {
             tokio::select! {
+                _ = trim.tick() => self.trim_rejected(&mut trim_problems).await,
                 changed = updates.changed() => match changed {
                     Ok(()) => publish.apply(&updates.borrow_and_update()),
                     Err(_) => break Ok(()),
@@ -248,6 +270,32 @@ impl OpcUaServer {
         let _ = tokio::time::timeout(START_STOP_LIMIT, &mut served).await;
         front.abort();
         ended
+    }
+
+    /// Keep `pki_dir/rejected/` within [`pki::MAX_REJECTED`] files, the oldest removed.
+    async fn trim_rejected(&self, problems: &mut WarnLimit) {
+        let pki_dir = self.settings.pki_dir.clone();
+        let trimmed =
+            tokio::task::spawn_blocking(move || pki::trim_rejected(&pki_dir, pki::MAX_REJECTED))
+                .await;
+        let now = tokio::time::Instant::now();
+        match trimmed {
+            Ok(Ok(0)) => {}
+            Ok(Ok(removed)) => {
+                self.counters
+                    .rejected_certificates_removed
+                    .fetch_add(removed as u64, Ordering::Relaxed);
+                if let Some(suppressed) = problems.occurred(now) {
+                    tracing::warn!(removed, suppressed, keep = pki::MAX_REJECTED, "OPC UA: the oldest refused client certificates removed from pki_dir/rejected/");
+                }
+            }
+            Ok(Err(error)) => {
+                if let Some(suppressed) = problems.occurred(now) {
+                    tracing::warn!(%error, suppressed, "OPC UA: pki_dir/rejected/ not trimmed");
+                }
+            }
+            Err(error) => tracing::error!(%error, "OPC UA: pki_dir/rejected/ trimming failed"),
+        }
     }
 
     /// async-opcua's settings: endpoints, limits, the certificate store, users.
@@ -277,6 +325,19 @@ impl OpcUaServer {
         limits.subscriptions.max_subscriptions_per_session = settings.max_subscriptions_per_session;
         limits.subscriptions.max_monitored_items_per_sub =
             settings.max_monitored_items_per_subscription;
+        // The bounds of the kept patch (patches/README.md): all sessions' subscriptions
+        // (closed sessions' too, until they expire) and monitored items together, the
+        // lifetime of a subscription nobody publishes, the idle session that makes
+        // room for a new one when all are taken.
+        limits.subscriptions.max_subscriptions =
+            settings.max_sessions * settings.max_subscriptions_per_session;
+        limits.subscriptions.max_monitored_items =
+            MAX_MONITORED_ITEMS.max(settings.max_monitored_items_per_subscription);
+        limits.subscriptions.max_lifetime_ms = MAX_SUBSCRIPTION_LIFETIME.as_millis() as f64;
+        limits.evict_idle_session_ms = front::EVICT_IDLE.as_millis() as u64;
+        limits.max_browse_continuation_points = MAX_CONTINUATION_POINTS;
+        limits.max_history_continuation_points = MAX_CONTINUATION_POINTS;
+        limits.max_query_continuation_points = MAX_CONTINUATION_POINTS;
         let tokens = [ANONYMOUS_USER_TOKEN_ID.to_owned()];
         for mode in &settings.security_modes {
             let mut endpoint = match mode {

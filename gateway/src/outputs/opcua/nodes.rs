@@ -8,7 +8,8 @@
 //! `ns=<millgate>;s=Drivelines/F1/taf`.
 
 use std::collections::HashSet;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
 
 use async_trait::async_trait;
 use opcua::nodes::{EventNotifier, MethodBuilder, NodeType, ObjectBuilder, VariableBuilder};
@@ -30,6 +31,8 @@ use super::model::{
     object_path, Acknowledgement, AddressSpaceSpec, ObjectKind, Unit, VariableType,
 };
 use super::status::{count, OpcUaCounters};
+use crate::warn_limit::{WarnLimit, WARN_PERIOD};
+use tokio::time::Instant;
 
 /// The millgate namespace's URI.
 pub(crate) const NAMESPACE_URI: &str = "urn:millgate:results";
@@ -95,13 +98,36 @@ impl NodeIds {
     }
 }
 
+/// Least time between two acknowledges carried out: each one writes the PLC's HMI
+/// registers (round-4 audit, finding 7: 2 300 writes a second from one client).
+pub(crate) const ACKNOWLEDGE_INTERVAL: Duration = Duration::from_secs(1);
+
 /// Who may acknowledge: a client on this host, or, with `allow_remote`, a signed-in
-/// user anywhere.
+/// user anywhere; at most one acknowledge per [`ACKNOWLEDGE_INTERVAL`].
 pub(crate) struct CommandGuard {
     pub(crate) allow_remote: bool,
     pub(crate) peers: Arc<ChannelPeers>,
     pub(crate) acknowledge: Acknowledger,
     pub(crate) counters: Arc<OpcUaCounters>,
+    pub(crate) pace: Mutex<Pace>,
+}
+
+/// When the last acknowledge was carried out, and the rate limits of the lines that
+/// refusals log.
+pub(crate) struct Pace {
+    last: Option<Instant>,
+    refused: WarnLimit,
+    limited: WarnLimit,
+}
+
+impl Default for Pace {
+    fn default() -> Self {
+        Self {
+            last: None,
+            refused: WarnLimit::new(WARN_PERIOD),
+            limited: WarnLimit::new(WARN_PERIOD),
+        }
+    }
 }
 
 impl CommandGuard {
@@ -114,22 +140,38 @@ impl CommandGuard {
         // A channel the front door did not open came through the server's loopback
         // listener: a process on this host.
         let local = peer.is_none_or(|peer| peer.ip().is_loopback());
-        if local || (self.allow_remote && user.is_some()) {
-            count(&self.counters.acknowledgements);
-            tracing::info!(peer = ?peer, user = ?user, "alarms acknowledged over OPC UA");
-            (self.acknowledge)(Acknowledgement { peer, user });
-            StatusCode::Good
-        } else {
+        let now = Instant::now();
+        let mut pace = crate::lock(&self.pace);
+        if !(local || (self.allow_remote && user.is_some())) {
             count(&self.counters.acknowledgements_refused);
-            tracing::warn!(
-                peer = ?peer,
-                user = ?user,
-                allow_remote_commands = self.allow_remote,
-                "OPC UA acknowledge refused: a client on another host needs \
-                 outputs.opcua.allow_remote_commands = true and a user of users_file"
-            );
-            StatusCode::BadUserAccessDenied
+            if let Some(suppressed) = pace.refused.occurred(now) {
+                tracing::warn!(
+                    peer = ?peer,
+                    user = ?user,
+                    allow_remote_commands = self.allow_remote,
+                    suppressed,
+                    "OPC UA acknowledge refused: a client on another host needs \
+                     outputs.opcua.allow_remote_commands = true and a user of users_file"
+                );
+            }
+            return StatusCode::BadUserAccessDenied;
         }
+        if pace
+            .last
+            .is_some_and(|last| now.duration_since(last) < ACKNOWLEDGE_INTERVAL)
+        {
+            count(&self.counters.acknowledgements_limited);
+            if let Some(suppressed) = pace.limited.occurred(now) {
+                tracing::warn!(peer = ?peer, user = ?user, suppressed, "OPC UA acknowledge refused: one was carried out less than a second ago");
+            }
+            return StatusCode::BadTooManyOperations;
+        }
+        pace.last = Some(now);
+        drop(pace);
+        count(&self.counters.acknowledgements);
+        tracing::info!(peer = ?peer, user = ?user, "alarms acknowledged over OPC UA");
+        (self.acknowledge)(Acknowledgement { peer, user });
+        StatusCode::Good
     }
 }
 

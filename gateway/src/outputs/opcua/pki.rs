@@ -112,3 +112,66 @@ fn restrict(key_path: &Path) -> std::io::Result<()> {
     }
     Ok(())
 }
+
+/// Refused client certificates kept in `rejected/` (the newest; about 1 kB each):
+/// any client can add one, with no credentials (round-4 audit, finding 6).
+pub(crate) const MAX_REJECTED: usize = 64;
+
+/// Remove the oldest files of `pki_dir/rejected/` (by modification time, then name)
+/// beyond `keep`; the number removed.
+pub(crate) fn trim_rejected(pki_dir: &Path, keep: usize) -> std::io::Result<usize> {
+    let mut files = Vec::new();
+    for entry in std::fs::read_dir(pki_dir.join("rejected"))? {
+        let entry = entry?;
+        let metadata = entry.metadata()?;
+        if metadata.is_file() {
+            files.push((metadata.modified()?, entry.path()));
+        }
+    }
+    if files.len() <= keep {
+        return Ok(0);
+    }
+    files.sort();
+    let extra = files.len() - keep;
+    for (_, path) in &files[..extra] {
+        std::fs::remove_file(path)?;
+    }
+    Ok(extra)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn trimming_keeps_the_newest_rejected() {
+        let folder = std::env::temp_dir().join(format!("millgate-trim-{}", std::process::id()));
+        let rejected = folder.join("rejected");
+        std::fs::create_dir_all(&rejected).unwrap();
+        let start = std::time::SystemTime::now() - std::time::Duration::from_secs(100);
+        for i in 0..10u64 {
+            let path = rejected.join(format!("client {i}.der"));
+            std::fs::write(&path, [0u8; 8]).unwrap();
+            let file = std::fs::File::options().write(true).open(&path).unwrap();
+            file.set_modified(start + std::time::Duration::from_secs(i))
+                .unwrap();
+        }
+        assert_eq!(trim_rejected(&folder, 4).unwrap(), 6);
+        let mut left: Vec<_> = std::fs::read_dir(&rejected)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .collect();
+        left.sort();
+        assert_eq!(
+            left,
+            [
+                "client 6.der",
+                "client 7.der",
+                "client 8.der",
+                "client 9.der"
+            ]
+        );
+        assert_eq!(trim_rejected(&folder, 4).unwrap(), 0);
+        std::fs::remove_dir_all(&folder).unwrap();
+    }
+}

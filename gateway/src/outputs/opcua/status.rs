@@ -12,11 +12,15 @@ use opcua::types::{VariableId, Variant};
 pub(crate) struct OpcUaCounters {
     pub(super) connections: AtomicU64,
     pub(super) refused: AtomicU64,
+    pub(super) evicted: AtomicU64,
+    pub(super) discovery_closed: AtomicU64,
     pub(super) malformed_frames: AtomicU64,
     pub(super) protocol_errors: AtomicU64,
     pub(super) identities_refused: AtomicU64,
     pub(super) acknowledgements: AtomicU64,
     pub(super) acknowledgements_refused: AtomicU64,
+    pub(super) acknowledgements_limited: AtomicU64,
+    pub(super) rejected_certificates_removed: AtomicU64,
     pub(super) value_changes: AtomicU64,
     pub(super) invalid_updates: AtomicU64,
     pub(super) events: AtomicU64,
@@ -27,8 +31,14 @@ pub(crate) struct OpcUaCounters {
 pub struct OpcUaCounts {
     /// TCP connections accepted.
     pub connections: u64,
-    /// Connections closed at once: `max_connections` were open.
+    /// Connections closed at once: `max_connections` were open and none idle, or
+    /// the client held half of them.
     pub refused: u64,
+    /// Idle connections closed to make room for a new client.
+    pub evicted: u64,
+    /// Channels without security closed after their discovery requests (where
+    /// `none` is not a security mode).
+    pub discovery_closed: u64,
     /// Connections closed because what the client sent was not OPC UA TCP framing.
     pub malformed_frames: u64,
     /// ERR messages the server sent: messages its decoder or its secure channel
@@ -49,6 +59,19 @@ pub struct OpcUaCounts {
     pub acknowledgements: u64,
     /// Acknowledge calls refused by the guard.
     pub acknowledgements_refused: u64,
+    /// Acknowledge calls refused because one was carried out less than a second
+    /// before (`Bad_TooManyOperations`).
+    pub acknowledgements_limited: u64,
+    /// Refused client certificates removed from `pki_dir/rejected/`, the oldest
+    /// first, to keep it within its bound.
+    pub rejected_certificates_removed: u64,
+    /// Subscriptions on the server now, closed sessions' included until they expire.
+    pub subscriptions: u64,
+    /// Monitored items on the server now.
+    pub monitored_items: u64,
+    /// Subscriptions of closed or expired sessions now (left behind, until they
+    /// expire).
+    pub orphaned_subscriptions: u64,
     /// Variable values changed in the address space.
     pub value_changes: u64,
     /// Updates refused: a value not of its variable's type, or a non-finite number
@@ -72,9 +95,14 @@ impl OpcUaCounters {
                 })
                 .unwrap_or(0)
         };
+        let (subscriptions, monitored_items) =
+            handle.map_or((0, 0), |h| h.subscriptions().counts());
+        let orphaned_subscriptions = handle.map_or(0, |h| h.subscriptions().orphans());
         OpcUaCounts {
             connections: load(&self.connections),
             refused: load(&self.refused),
+            evicted: load(&self.evicted),
+            discovery_closed: load(&self.discovery_closed),
             malformed_frames: load(&self.malformed_frames),
             protocol_errors: load(&self.protocol_errors),
             identities_refused: load(&self.identities_refused),
@@ -86,6 +114,11 @@ impl OpcUaCounters {
             ),
             acknowledgements: load(&self.acknowledgements),
             acknowledgements_refused: load(&self.acknowledgements_refused),
+            acknowledgements_limited: load(&self.acknowledgements_limited),
+            rejected_certificates_removed: load(&self.rejected_certificates_removed),
+            subscriptions: subscriptions as u64,
+            monitored_items: monitored_items as u64,
+            orphaned_subscriptions: orphaned_subscriptions as u64,
             value_changes: load(&self.value_changes),
             invalid_updates: load(&self.invalid_updates),
             events: load(&self.events),

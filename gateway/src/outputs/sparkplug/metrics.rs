@@ -1,6 +1,7 @@
 //! The Sparkplug B edge node's `/metrics` families: the session, messages and bites
-//! published and replayed, the backlog, rebirths, refused commands and connection
-//! failures by reason.
+//! published and replayed, the backlog, rebirths, refused commands, connection
+//! failures by reason, and the server set: the server in use, the switches, the time
+//! without a broker.
 
 use super::{ConnectFailure, SparkplugStatus};
 use crate::exposition::{Exposition, Families, Kind};
@@ -8,12 +9,24 @@ use crate::exposition::{Exposition, Families, Kind};
 impl Families for SparkplugStatus {
     fn write_families(&self, page: &mut Exposition) {
         let counts = &self.counts();
-        let scalars: [(&str, Kind, &str, f64); 10] = [
+        let scalars: [(&str, Kind, &str, f64); 12] = [
             (
                 "millgate_sparkplug_connected",
                 Kind::Gauge,
                 "1 while a session with the MQTT broker is up.",
                 f64::from(u8::from(counts.connected)),
+            ),
+            (
+                "millgate_sparkplug_server_switches_total",
+                Kind::Counter,
+                "Moves to the next MQTT server of outputs.mqtt.brokers, after a failed connection or a lost session.",
+                counts.switches as f64,
+            ),
+            (
+                "millgate_sparkplug_without_broker_seconds_total",
+                Kind::Counter,
+                "Time without a session with any MQTT server since the start, the current outage included.",
+                counts.without_broker.as_secs_f64(),
             ),
             (
                 "millgate_sparkplug_bd_seq",
@@ -71,6 +84,17 @@ impl Families for SparkplugStatus {
             ),
         ];
         page.scalars(scalars);
+        page.family(
+            "millgate_sparkplug_server_in_use",
+            Kind::Gauge,
+            "1 for the MQTT server the node is connected or connecting to, 0 for the others of the list.",
+            self.servers.iter().enumerate().map(|(index, server)| {
+                (
+                    vec![("server", server.as_str())],
+                    f64::from(u8::from(index == counts.server)),
+                )
+            }),
+        );
         page.family(
             "millgate_sparkplug_connect_failures_total",
             Kind::Counter,

@@ -37,6 +37,13 @@
 //!
 //! - With `[outputs.mqtt.tls]` the session runs over TLS (`tls`); username and
 //!   password go in the CONNECT.
+//!
+//! - A server set (`brokers`): the node connects to the first server; a failed
+//!   connection, a lost session or (with `primary_host_id`) the primary host offline
+//!   on this server moves it on to the next, after the usual wait (after the last, the
+//!   first again). Each session on another server is a new session: a new bdSeq and
+//!   Will, new births, and the replay of what no server confirmed. TLS and credentials
+//!   are shared by every server of the list.
 
 pub(crate) mod devices;
 pub mod forward;
@@ -105,11 +112,12 @@ impl SparkplugNode {
         board: Arc<Board>,
     ) -> Result<Self, tls::TlsSetupError> {
         let tls = config.tls.as_ref().map(tls::client_config).transpose()?;
+        let status = Arc::new(SparkplugStatus::for_servers(config.brokers.clone()));
         Ok(Self {
             config,
             history,
             board,
-            status: Arc::new(SparkplugStatus::default()),
+            status,
             tls,
             rod_mills: Vec::new(),
         })
@@ -181,13 +189,13 @@ impl SparkplugNode {
         }
     }
 
-    fn options(&self, will: node::Outgoing) -> MqttOptions {
-        let (host, port) = self
-            .config
-            .broker
+    /// The connection to server `server` of the list, with `will` as the Will.
+    fn options(&self, server: usize, will: node::Outgoing) -> MqttOptions {
+        let broker = self.config.brokers[server % self.config.brokers.len()].as_str();
+        let (host, port) = broker
             .rsplit_once(':')
             .map(|(host, port)| (host.trim_matches(['[', ']']), port.parse().unwrap_or(1883)))
-            .unwrap_or((self.config.broker.as_str(), 1883));
+            .unwrap_or((broker, 1883));
         let mut options = MqttOptions::new(self.config.client_id.clone(), host, port);
         options.set_keep_alive(self.config.keep_alive);
         options.set_max_packet_size(MAX_INCOMING_PACKET, MAX_OUTGOING_PACKET);

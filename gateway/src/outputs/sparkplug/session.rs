@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicI64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-use rumqttc::{AsyncClient, Event, EventLoop, LastWill, Outgoing, Packet, QoS};
+use rumqttc::{AsyncClient, Event, EventLoop, Outgoing, Packet, QoS};
 use tokio::time::{Instant, Interval};
 
 use super::forward::Confirmations;
@@ -69,6 +69,8 @@ pub(super) struct Session<'a> {
     confirmations: Confirmations,
     bites: BiteSource,
     bd_seq: u8,
+    /// The server in use: its index in `brokers`.
+    server: usize,
     command_qos: QoS,
     /// The primary host's STATE topic, with `primary_host_id`.
     state_topic: Option<String>,
@@ -110,7 +112,9 @@ impl<'a> Session<'a> {
             bd_seq,
         );
         task.status.bd_seq.store(bd_seq, Ordering::Relaxed);
-        let (client, events) = AsyncClient::new(task.options(node.death(now_ms())), CLIENT_QUEUE);
+        task.status.session_down();
+        let (client, events) =
+            AsyncClient::new(task.options(0, node.death(now_ms())), CLIENT_QUEUE);
         let mut replay = tokio::time::interval(config.replay_period);
         replay.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         Self {
@@ -121,6 +125,7 @@ impl<'a> Session<'a> {
             confirmations,
             bites: BiteSource::new(task.history.clone()),
             bd_seq,
+            server: 0,
             command_qos: if config.command_qos == 0 {
                 QoS::AtMostOnce
             } else {
@@ -189,10 +194,9 @@ impl<'a> Session<'a> {
         let task = self.task;
         self.last_failure = None;
         self.rebirths.forget();
-        tracing::info!(broker = %task.config.broker, bd_seq = self.bd_seq, "Sparkplug session up");
+        tracing::info!(broker = %self.broker(), bd_seq = self.bd_seq, "Sparkplug session up");
         self.connected = true;
-        task.status.connected.store(1, Ordering::Relaxed);
-        task.status.connections.fetch_add(1, Ordering::Relaxed);
+        task.status.session_up();
         let command_topic = self.node.command_topic();
         if std::mem::take(&mut self.clear_retained_command) {
             // The broker handles a client's packets in order: the retained message is
@@ -268,6 +272,12 @@ impl<'a> Session<'a> {
                 let _ = self.client.try_disconnect();
                 self.born = false;
             }
+            Some(false) if self.task.config.brokers.len() > 1 => {
+                // Sparkplug 3.0: with several servers, a primary host offline on this
+                // one sends the node on to the next.
+                tracing::warn!(?host, broker = %self.broker(), "primary host offline on this MQTT server: moving on to the next");
+                let _ = self.client.try_disconnect();
+            }
             Some(_) => {}
             None => tracing::warn!(topic = %message.topic, "unreadable Sparkplug STATE"),
         }
@@ -303,8 +313,11 @@ impl<'a> Session<'a> {
     /// had accepted. Returns the wait before the next connection.
     async fn lost(&mut self, error: &rumqttc::ConnectionError) -> Duration {
         let task = self.task;
-        let broker = &task.config.broker;
+        let broker = self.broker().to_owned();
         let failure = ConnectFailure::of(error);
+        // A session that was up, or a new kind of failure, is logged at info or above;
+        // the same failure again (every server down) at debug.
+        let news = self.connected || self.last_failure != Some(failure);
         // A packet over the limit (a huge NCMD, retained perhaps, that the broker
         // sends at every subscription) ends each session: wait longer each time rather
         // than reconnect every second.
@@ -321,7 +334,7 @@ impl<'a> Session<'a> {
         task.status.failures[slot].fetch_add(1, Ordering::Relaxed);
         if self.connected {
             tracing::warn!(%error, %broker, "Sparkplug session ended");
-        } else if self.last_failure != Some(failure) {
+        } else if news {
             tracing::warn!(%error, %broker, reason = failure.name(), "Sparkplug broker connection failed, retrying every {} s: {}", RECONNECT_DELAY.as_secs(), failure.hint());
         } else {
             tracing::debug!(%error, %broker, "Sparkplug broker connection failed again");
@@ -339,18 +352,30 @@ impl<'a> Session<'a> {
             self.bd_seq = task.next_bd_seq(self.bd_seq).await;
             self.node.new_session(self.bd_seq);
             task.status.bd_seq.store(self.bd_seq, Ordering::Relaxed);
-            let will = self.node.death(now_ms());
-            self.events.mqtt_options.set_last_will(LastWill::new(
-                will.topic,
-                will.payload,
-                QoS::AtLeastOnce,
-                false,
-            ));
         }
+        // With a server set, the next connection goes to the next server.
+        let servers = task.config.brokers.len();
+        if servers > 1 {
+            self.server = (self.server + 1) % servers;
+            task.status.switched_to(self.server);
+            let next = self.broker();
+            if news {
+                tracing::info!(from = %broker, to = %next, next_attempt_ms = delay.as_millis(), "Sparkplug moving on to the next MQTT server");
+            } else {
+                tracing::debug!(from = %broker, to = %next, "Sparkplug moving on to the next MQTT server");
+            }
+        }
+        // The next CONNECT's server and Will (this session's bdSeq).
+        self.events.mqtt_options = task.options(self.server, self.node.death(now_ms()));
         self.connected = false;
         self.born = false;
-        task.status.connected.store(0, Ordering::Relaxed);
+        task.status.session_down();
         delay
+    }
+
+    /// The server in use, `host:port`.
+    fn broker(&self) -> &str {
+        &self.task.config.brokers[self.server]
     }
 
     /// The next batch of the backlog, flagged historical; the replay ends with it.

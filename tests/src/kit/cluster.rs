@@ -1,0 +1,189 @@
+//! A clustered MQTT broker for the failover tests: Debian's `rabbitmq-server` (3.10)
+//! with its MQTT plugin, three nodes on loopback (`n0@localhost` ..) joined by the
+//! classic peer discovery, with an `epmd` of their own on a port of the test's; their
+//! data, logs and Erlang cookie in a folder of the caller's. Every process is a child
+//! of the test (the nodes run `erl` in the foreground), killed when the cluster is
+//! dropped.
+//!
+//! What it does, measured with paho against 3.10.8 (docs/sparkplug.md, "Server sets"):
+//! a QoS 1 message published on one node reaches a QoS 1 subscriber on another, in
+//! order, also across the kill of the publisher's node, and a client connects to
+//! another node at once after the kill. But retained messages are kept by the node
+//! they were published on (a subscriber on another node does not get them), the Will
+//! of a client of a killed node is never sent, and a topic's `.` comes back as `/`
+//! (MQTT `/` is AMQP `.` inside RabbitMQ, and 3.10 does not map a `.` back), so
+//! `spBv1.0/...` reaches subscribers as `spBv1/0/...`.
+//! (Debian's other clustered broker, `nats-server` 2.9.10, refuses any topic with a
+//! `.`, so every Sparkplug topic.)
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// How long the cluster may take to form (measured: about 20 s on a 2-core machine).
+const FORM_LIMIT: Duration = Duration::from_secs(90);
+/// The nodes of the cluster.
+const NODES: usize = 3;
+/// Where Debian installs the scripts that run the broker as the calling user
+/// (`/usr/sbin/rabbitmq-server` switches to the `rabbitmq` user).
+const SCRIPTS: &str = "/usr/lib/rabbitmq/bin";
+
+/// A running three-node cluster.
+#[derive(Debug)]
+pub struct RabbitCluster {
+    nodes: Vec<Option<Child>>,
+    epmd: Child,
+    mqtt_ports: Vec<u16>,
+}
+
+impl RabbitCluster {
+    /// The cluster with its files in `folder`; returns once every node accepts MQTT
+    /// connections and the first sees all three running. Panics when it cannot start
+    /// (a test's setup).
+    pub fn start(folder: &Path) -> Self {
+        let epmd_port = super::free_port();
+        let epmd = Command::new("epmd")
+            .args(["-port", &epmd_port.to_string()])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap_or_else(|e| panic!("epmd (apt install rabbitmq-server): {e}"));
+        let mqtt_ports: Vec<u16> = (0..NODES).map(|_| super::free_port()).collect();
+        let mut cluster = Self {
+            nodes: Vec::new(),
+            epmd,
+            mqtt_ports,
+        };
+        let start = Instant::now();
+        wait_for_port(epmd_port, start, folder);
+        let home = folder.join("rabbit-home");
+        std::fs::create_dir_all(&home).unwrap();
+        let cookie = home.join(".erlang.cookie");
+        std::fs::write(&cookie, "millgate-failover-test").unwrap();
+        std::fs::set_permissions(&cookie, std::os::unix::fs::PermissionsExt::from_mode(0o400))
+            .unwrap();
+        std::fs::write(folder.join("enabled_plugins"), "[rabbitmq_mqtt].\n").unwrap();
+        let peers: String = (0..NODES)
+            .map(|n| {
+                format!(
+                    "cluster_formation.classic_config.nodes.{} = n{n}@localhost\n",
+                    n + 1
+                )
+            })
+            .collect();
+        for node in 0..NODES {
+            let config = folder.join(format!("rabbit-n{node}.conf"));
+            std::fs::write(
+                &config,
+                format!(
+                    "listeners.tcp.default = 127.0.0.1:{amqp}\n\
+                     mqtt.listeners.tcp.default = 127.0.0.1:{mqtt}\n\
+                     mqtt.allow_anonymous = true\n\
+                     cluster_formation.peer_discovery_backend = classic_config\n{peers}",
+                    amqp = super::free_port(),
+                    mqtt = cluster.mqtt_ports[node],
+                ),
+            )
+            .unwrap();
+            let child = rabbit_command(folder, &home, epmd_port, node, "rabbitmq-server")
+                .env("RABBITMQ_CONFIG_FILE", &config)
+                .env(
+                    "RABBITMQ_ENABLED_PLUGINS_FILE",
+                    folder.join("enabled_plugins"),
+                )
+                .env("RABBITMQ_DIST_PORT", super::free_port().to_string())
+                .env("RABBITMQ_MNESIA_BASE", folder.join("rabbit-mnesia"))
+                .env("RABBITMQ_LOG_BASE", folder.join("rabbit-log"))
+                // `erl` in the foreground, in place of the script (no proxy process
+                // to outlive a kill), without reading its input.
+                .env("RABBITMQ_ALLOW_INPUT", "true")
+                .env("RABBITMQ_SERVER_ADDITIONAL_ERL_ARGS", "-noinput")
+                .stdin(Stdio::null())
+                .stdout(Stdio::null())
+                .stderr(Stdio::null())
+                .spawn()
+                .unwrap_or_else(|e| panic!("rabbitmq-server (apt install rabbitmq-server): {e}"));
+            cluster.nodes.push(Some(child));
+        }
+        for &port in &cluster.mqtt_ports {
+            wait_for_port(port, start, folder);
+        }
+        let left = FORM_LIMIT.saturating_sub(start.elapsed()).as_secs().max(1);
+        let formed = rabbit_command(folder, &home, epmd_port, 0, "rabbitmqctl")
+            .args([
+                "-n",
+                "n0@localhost",
+                "await_online_nodes",
+                &NODES.to_string(),
+                "--timeout",
+            ])
+            .arg((left * 1000).to_string())
+            .stdin(Stdio::null())
+            .output()
+            .expect("rabbitmqctl");
+        assert!(
+            formed.status.success(),
+            "the RabbitMQ cluster did not form: {} (logs in {})",
+            String::from_utf8_lossy(&formed.stderr),
+            folder.join("rabbit-log").display()
+        );
+        cluster
+    }
+
+    /// The MQTT port of each node.
+    pub fn mqtt_ports(&self) -> &[u16] {
+        &self.mqtt_ports
+    }
+
+    /// Kill node `node` (SIGKILL: no clean shutdown, no Will for its clients).
+    pub fn kill(&mut self, node: usize) {
+        if let Some(mut child) = self.nodes[node].take() {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+    }
+}
+
+/// `script` of Debian's RabbitMQ for node `node` (`n<node>@localhost`), with the
+/// cluster's cookie (in `home`) and epmd, and no system-wide environment file.
+fn rabbit_command(
+    folder: &Path,
+    home: &Path,
+    epmd_port: u16,
+    node: usize,
+    script: &str,
+) -> Command {
+    let mut command = Command::new(PathBuf::from(SCRIPTS).join(script));
+    command
+        .env("HOME", home)
+        .env("ERL_EPMD_PORT", epmd_port.to_string())
+        .env("RABBITMQ_NODENAME", format!("n{node}@localhost"))
+        .env("RABBITMQ_CONF_ENV_FILE", "/dev/null")
+        .env(
+            "RABBITMQ_PID_FILE",
+            folder.join(format!("rabbit-n{node}.pid")),
+        );
+    command
+}
+
+/// Wait until loopback `port` accepts connections, within [`FORM_LIMIT`] of `start`.
+fn wait_for_port(port: u16, start: Instant, folder: &Path) {
+    while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+        assert!(
+            start.elapsed() < FORM_LIMIT,
+            "port {port} of the RabbitMQ cluster not open within {FORM_LIMIT:?} (logs in {})",
+            folder.display()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+impl Drop for RabbitCluster {
+    fn drop(&mut self) {
+        for node in 0..self.nodes.len() {
+            self.kill(node);
+        }
+        let _ = self.epmd.kill();
+        let _ = self.epmd.wait();
+    }
+}
