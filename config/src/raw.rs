@@ -87,7 +87,11 @@ pub(crate) struct RawWear {
     pub(crate) gap_step_mrad: Option<f64>,
     pub(crate) static_torque_knm: Option<Vec<f64>>,
     pub(crate) torque_points: Option<i64>,
+    /// Deprecated (the gap is a wear trend over every bite since the last reset, not
+    /// a pool of the last N): still accepted and checked (1..=1000) for one release,
+    /// without effect.
     pub(crate) pool_bites: Option<i64>,
+    pub(crate) horizon_days: Option<f64>,
 }
 
 /// `drivelines[].bite`.

@@ -161,11 +161,11 @@ fn drivelines(text: &mut String, config: &Config) {
         if let Some(model) = &driveline.model {
             let _ = write!(
                 text,
-                ", model {} (gap warning {} mrad, alarm {} mrad, last {} bites pooled)",
+                ", model {} (gap warning {} mrad, alarm {} mrad, forecast over {} days)",
                 model.display(),
                 driveline.thresholds.gap_warning_mrad,
                 driveline.thresholds.gap_alarm_mrad,
-                driveline.wear.pool_bites
+                driveline.wear.horizon_days
             );
         }
         text.push('\n');

@@ -170,7 +170,7 @@ fn base_is_valid_and_takes_defaults() {
     assert_eq!(wear.couplings, None, "every coupling of the model");
     assert_eq!((wear.max_gap_mrad, wear.gap_step_mrad), (8.0, 0.125));
     assert_eq!(wear.static_torque_knm, None, "from the model");
-    assert_eq!((wear.torque_points, wear.pool_bites), (16, 20));
+    assert_eq!((wear.torque_points, wear.horizon_days), (16, 365.0));
     assert_eq!(config.cache_dir, None, "the user's cache folder");
     let plc = config.outputs.plc.as_ref().expect("plc output");
     assert_eq!((plc.unit_id, plc.register_base), (1, 0));
@@ -689,7 +689,8 @@ fn wear_settings_and_gap_thresholds() {
         "taf_warning = 2.2, taf_alarm = 2.6 }",
         "taf_warning = 2.2, taf_alarm = 2.6, gap_warning_mrad = 1.5, gap_alarm_mrad = 3 }\n\
          wear = { couplings = [1], max_gap_mrad = 6, gap_step_mrad = 0.25, \
-         static_torque_knm = [30, 200], torque_points = 8, pool_bites = 10 }",
+         static_torque_knm = [30, 200], torque_points = 8, pool_bites = 10, \
+         horizon_days = 90 }",
     )
     .replacen(
         "name = \"Test mill\"",
@@ -705,7 +706,8 @@ fn wear_settings_and_gap_thresholds() {
     assert_eq!(driveline.wear.gap_step_mrad, 0.25);
     assert_eq!(driveline.wear.static_torque_knm, Some((30.0, 200.0)));
     assert_eq!(driveline.wear.torque_points, 8);
-    assert_eq!(driveline.wear.pool_bites, 10);
+    // pool_bites is deprecated: accepted, checked, without effect.
+    assert_eq!(driveline.wear.horizon_days, 90.0);
     assert_eq!(config.cache_dir, Some(examples_dir().join("cache")));
 
     let wear = |table: &str| {
@@ -746,6 +748,10 @@ fn wear_settings_and_gap_thresholds() {
     assert_only_problem(
         &wear("pool_bites = 0"),
         "mill.toml: drivelines[0].wear.pool_bites: 0 is not allowed (must be 1..=1000 bites)",
+    );
+    assert_only_problem(
+        &wear("horizon_days = 0.5"),
+        "mill.toml: drivelines[0].wear.horizon_days: 0.5 is not allowed (must be >= 1 and <= 3650 days)",
     );
     assert_problem_like(
         &wear("pool = 3"),
@@ -1205,6 +1211,17 @@ fn model_path_is_relative_to_the_file_and_must_exist() {
     assert_eq!(
         config.drivelines[0].model,
         Some(scratch.path().join("f1-model.toml"))
+    );
+    // With a model, the gap alarm must lie inside the maps (they end at max_gap_mrad).
+    let beyond = text.replacen(
+        "taf_warning = 2.2, taf_alarm = 2.6",
+        "taf_warning = 2.2, taf_alarm = 2.6, gap_alarm_mrad = 8",
+        1,
+    );
+    let error = from_toml_str(&beyond, "mill.toml", scratch.path()).expect_err("alarm at the end");
+    assert_eq!(
+        error.to_string(),
+        "mill.toml: drivelines[0].thresholds.gap_alarm_mrad: 8 mrad is not allowed (must be < drivelines[0].wear.max_gap_mrad = 8 mrad: the gap maps end there)"
     );
 }
 

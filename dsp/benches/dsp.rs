@@ -1,5 +1,6 @@
-//! Throughput of the streaming bite detector, time per eq. (1) fit, and time per
-//! chatter window (band gain, mode damping) of 5 stands.
+//! Throughput of the streaming bite detector, time per eq. (1) fit, time per chatter
+//! window (band gain, mode damping) of 5 stands, and the wear trend's time per bite
+//! (two hypotheses on 65-point local grids) and per forecast.
 //!
 //! Run: `cargo bench -p millgate-dsp --bench dsp`.
 
@@ -125,5 +126,82 @@ fn chatter_window(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, detector, fit, chatter_window);
+/// The wear trend after 60 days of 20 bites a day (gap growing 0.02 mrad/day, two
+/// hypotheses): one bite's predict + two 65-point grid updates + finish, and one
+/// forecast (both cone sides scanned and bisected).
+fn wear_trend(c: &mut Criterion) {
+    use millgate_dsp::wear_trend::{BiteMoments, GapGrid, WearTrend, WearTrendState};
+
+    const FINE: GapGrid = GapGrid {
+        first_mrad: 0.0,
+        step_mrad: 0.015_625,
+        len: 513,
+    };
+    let trend = WearTrend::new(365.0).unwrap();
+    let mut rng = StdRng::seed_from_u64(3);
+    let noise = Normal::new(0.0, 0.05).unwrap();
+    let mut ll = vec![0.0; FINE.len];
+    let mut bite = |trend: &WearTrend, state: &mut WearTrendState, t: f64, gap: f64| {
+        trend.predict(state, t).unwrap();
+        for k in 0..2 {
+            let grid = trend.grid(state, k, FINE);
+            let observed = gap + 0.4 * k as f64 + noise.sample(&mut rng);
+            for (i, v) in ll[..grid.len].iter_mut().enumerate() {
+                *v = -0.5 * ((observed - grid.at(i)) / 0.05).powi(2);
+            }
+            let moments = BiteMoments {
+                mean_mrad: observed,
+                var_mrad2: 0.0025,
+            };
+            trend
+                .update(state, k, grid, &ll[..grid.len], moments)
+                .unwrap();
+        }
+        trend.finish_bite(state, Some(1e-4));
+    };
+    let mut state = trend.state(2).unwrap();
+    for i in 0..1200 {
+        let t = i as f64 / 20.0;
+        bite(&trend, &mut state, t, 1.0 + 0.02 * t);
+    }
+    assert_eq!(trend.grid(&state, 0, FINE).len, 65, "local grids");
+    // The likelihoods of one bite on the two local grids, computed once: the bench
+    // times the trend, not the test likelihood.
+    let grids = [trend.grid(&state, 0, FINE), trend.grid(&state, 1, FINE)];
+    let lls: Vec<Vec<f64>> = grids
+        .iter()
+        .enumerate()
+        .map(|(k, g)| {
+            let observed = 2.2 + 0.4 * k as f64;
+            (0..g.len)
+                .map(|i| -0.5 * ((observed - g.at(i)) / 0.05).powi(2))
+                .collect()
+        })
+        .collect();
+    let t_next = 60.0;
+    let mut group = c.benchmark_group("wear_trend");
+    group.bench_function("bite_2_hypotheses_65_points", |b| {
+        b.iter(|| {
+            let mut s = state;
+            trend.predict(&mut s, black_box(t_next)).unwrap();
+            for k in 0..2 {
+                let moments = BiteMoments {
+                    mean_mrad: 2.2 + 0.4 * k as f64,
+                    var_mrad2: 0.0025,
+                };
+                trend
+                    .update(&mut s, k, grids[k], black_box(&lls[k]), moments)
+                    .unwrap();
+            }
+            trend.finish_bite(&mut s, None);
+            black_box(s.hypotheses[0].gap_mrad)
+        })
+    });
+    group.bench_function("forecast", |b| {
+        b.iter(|| black_box(trend.forecast(black_box(&state), 4.0)))
+    });
+    group.finish();
+}
+
+criterion_group!(benches, detector, fit, chatter_window, wear_trend);
 criterion_main!(benches);

@@ -15,3 +15,4 @@ pub mod pencil;
 pub mod stiffness;
 pub mod testing;
 pub mod transient;
+pub mod wear_trend;

@@ -6,6 +6,7 @@ use millgate_dsp::chatter::{ChatterDetector, ChatterSettings, StandWindow};
 use millgate_dsp::fit::{fit_eq1, FitOptions};
 use millgate_dsp::stiffness::{forward, inverse, Inertias, NaturalFrequencies, Stiffness};
 use millgate_dsp::transient::{analyze, TransientSettings};
+use millgate_dsp::wear_trend::{BiteMoments, GapGrid, WearTrend};
 use proptest::prelude::*;
 
 /// Any f64 including NaN, infinities, huge and tiny values.
@@ -137,6 +138,77 @@ proptest! {
         if let Ok(roots) = inverse(&q, &beta, Some(&c)) {
             for root in &roots {
                 prop_assert!(root.c12_nm_per_rad.is_finite() && root.c23_nm_per_rad.is_finite());
+            }
+        }
+    }
+
+    #[test]
+    fn wear_trend_outputs_are_finite_for_finite_input(
+        steps in prop::collection::vec(
+            (0.0..3.0_f64, prop::collection::vec(-1e3..1e3_f64, 3), -10.0..20.0_f64, 0.0..2.0_f64, any::<u8>()),
+            0..60,
+        ),
+        couplings in 0..4usize,
+        alarm in -5.0..50.0_f64,
+    ) {
+        let fine = GapGrid { first_mrad: 0.0, step_mrad: 0.125, len: 65 };
+        let trend = WearTrend::new(365.0).unwrap();
+        let mut state = trend.state(couplings).unwrap();
+        let mut t = 0.0;
+        for (dt, shape, mean, var, choice) in steps {
+            // Steps of 0 (same time), tiny and long; any time error leaves the state as is.
+            t += if choice % 5 == 0 { 0.0 } else if choice % 5 == 1 { dt * 1e-7 } else { dt * dt * dt };
+            let before = state;
+            if trend.predict(&mut state, t).is_err() {
+                prop_assert_eq!(state, before);
+                continue;
+            }
+            for k in 0..couplings {
+                let grid = trend.grid(&state, k, fine);
+                prop_assert!(grid.first_mrad >= 0.0 && grid.last_mrad() <= fine.last_mrad() + 1e-9);
+                // A quadratic log-likelihood of any curvature and centre, or a flat one.
+                let ll: Vec<f64> = (0..grid.len)
+                    .map(|i| {
+                        let g = grid.at(i);
+                        shape[0] * 1e-3 - (shape[1] * 1e-3).abs() * (g - shape[2] * 1e-2).powi(2)
+                    })
+                    .collect();
+                if let Ok(own) = BiteMoments::from_loglik(grid, &ll) {
+                    prop_assert!(own.mean_mrad.is_finite() && own.var_mrad2.is_finite());
+                    prop_assert!(own.var_mrad2 > 0.0);
+                    prop_assert!(own.mean_mrad >= grid.first_mrad - 1e-9 && own.mean_mrad <= grid.last_mrad() + 1e-9);
+                }
+                let bite = BiteMoments { mean_mrad: mean, var_mrad2: var };
+                let before = state;
+                let outcome = if choice % 3 == 0 {
+                    trend.update_gaussian(&mut state, k, mean, var + 1e-6)
+                } else {
+                    trend.update(&mut state, k, grid, &ll, bite)
+                };
+                if outcome.is_err() {
+                    prop_assert_eq!(state, before);
+                }
+            }
+            trend.finish_bite(&mut state, (choice % 4 == 0).then_some(var * 1e-2));
+            for h in &state.hypotheses[..couplings] {
+                prop_assert!(h.gap_mrad.is_finite() && h.rate_mrad_per_day.is_finite() && h.loglik.is_finite());
+                prop_assert!(h.p.iter().flatten().all(|v| v.is_finite()));
+                prop_assert!(h.p[0][0] > 0.0 && h.p[1][1] >= 0.0 && h.p[0][1] == h.p[1][0]);
+            }
+            if let Some(e) = trend.estimate(&state) {
+                prop_assert!(e.gap_mrad.is_finite() && e.gap_low_mrad.is_finite() && e.gap_high_mrad.is_finite());
+                prop_assert!(e.gap_low_mrad >= 0.0 && e.gap_low_mrad <= e.gap_high_mrad);
+                prop_assert!(finite_opt(e.rate_mrad_per_day) && finite_opt(e.rate_low_mrad_per_day));
+                prop_assert!(finite_opt(e.rate_high_mrad_per_day));
+            }
+            let f = trend.forecast(&state, alarm);
+            prop_assert!(finite_opt(f.days) && finite_opt(f.days_low) && finite_opt(f.days_high));
+            for days in [f.days, f.days_low, f.days_high].into_iter().flatten() {
+                prop_assert!((0.0..=365.0).contains(&days));
+            }
+            if let Some(band) = trend.band(&state, dt * 100.0) {
+                prop_assert!(band.mean_mrad.is_finite() && band.high_mrad.is_finite() && band.low_mrad.is_finite());
+                prop_assert!(band.low_mrad >= 0.0 && band.high_mrad >= band.mean_mrad);
             }
         }
     }

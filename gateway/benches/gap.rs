@@ -1,5 +1,6 @@
 //! Cost of the gap diagnosis: building a driveline's gap maps (the service's default
-//! grid, no cache) and estimating the gap of a bite (alone and pooled with 19 more).
+//! grid, no cache), estimating the gap of one bite, folding a bite into the wear trend,
+//! and the trend's estimate with its forecast.
 //!
 //!     cargo bench -p millgate --bench gap
 //!
@@ -14,6 +15,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use millgate::analysis::gap_estimate::{estimate, GapObservation};
+use millgate::analysis::gap_trend::GapTrend;
 use millgate::analysis::Analysis;
 use millgate::field::acquired::Acquired;
 use millgate::field::source_health::SourceHealth;
@@ -100,17 +102,29 @@ fn main() -> anyhow::Result<()> {
     }
     assert_eq!(observations.len(), 20);
     let mut single = Vec::with_capacity(ROUNDS);
-    let mut pooled = Vec::with_capacity(ROUNDS);
+    let mut folds = Vec::with_capacity(ROUNDS);
+    let mut forecasts = Vec::with_capacity(ROUNDS);
+    let mut trend = GapTrend::new(365.0)?;
+    // A bite every 2 minutes: the trend's filters narrow, the local grids take over.
+    let t0_ms = 1_780_000_000_000_i64;
     for round in 0..ROUNDS {
         let observation = observations[round % observations.len()];
         let started = Instant::now();
-        std::hint::black_box(estimate(&maps, std::hint::black_box(&[observation])));
+        std::hint::black_box(estimate(&maps, std::hint::black_box(&observation)));
         single.push(started.elapsed());
         let started = Instant::now();
-        std::hint::black_box(estimate(&maps, std::hint::black_box(&observations)));
-        pooled.push(started.elapsed());
+        let time = t0_ms + 120_000 * round as i64;
+        std::hint::black_box(trend.fold(&maps, std::hint::black_box(&observation), time))?;
+        folds.push(started.elapsed());
+        let started = Instant::now();
+        std::hint::black_box(trend.results(std::hint::black_box(4.0)));
+        forecasts.push(started.elapsed());
     }
     println!("estimate of one bite: {}", quantiles(single));
-    println!("estimate of 20 pooled bites: {}", quantiles(pooled));
+    println!("one bite folded into the wear trend: {}", quantiles(folds));
+    println!(
+        "the trend's estimate, forecast and cone: {}",
+        quantiles(forecasts)
+    );
     Ok(())
 }

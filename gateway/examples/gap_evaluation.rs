@@ -25,12 +25,12 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use millgate::analysis::driveline::BiteReport;
-use millgate::analysis::gap_estimate::GapEstimate;
 use millgate::analysis::Analysis;
 use millgate::field::acquired::Acquired;
 use millgate::field::source_health::SourceHealth;
 use millgate::state::board::Board;
 use millgate::state::gap_maps::GapMaps;
+use millgate::state::results::GapResults;
 use millgate_sim::model::Model;
 use millgate_sim::schedule::{rolling_schedule, BarTiming};
 
@@ -77,7 +77,7 @@ fn run_case(
     torques: &[f64],
     noise: f64,
     seed: u64,
-) -> anyhow::Result<(Vec<BiteReport>, Option<GapEstimate>)> {
+) -> anyhow::Result<(Vec<BiteReport>, Option<GapResults>)> {
     let health = Arc::new(SourceHealth::new(
         Duration::from_secs(3600),
         Duration::from_secs(3600),
@@ -96,7 +96,10 @@ fn run_case(
             received: None,
         }));
     }
-    let last = reports.last().and_then(|r| r.gap).and_then(|g| g.pooled);
+    let last = reports
+        .last()
+        .and_then(|r| r.gap.as_ref())
+        .and_then(|g| g.trend);
     Ok((reports, last))
 }
 
@@ -166,12 +169,12 @@ fn main() -> anyhow::Result<()> {
             "{case:3} {:>8} {truth_mrad:6.3} {noise:5.2} | {:6.3} {:6.3} {:6.3} {:>9} {}",
             coupling.map_or("-".into(), |c| c.to_string()),
             estimate.gap_mrad,
-            estimate.gap_low_mrad,
-            estimate.gap_high_mrad,
+            estimate.low_mrad,
+            estimate.high_mrad,
             estimate.coupling.map_or("undet.".into(), |c| c.to_string()),
             estimate.bites_pooled
         );
-        let inside = estimate.gap_low_mrad <= truth_mrad && truth_mrad <= estimate.gap_high_mrad;
+        let inside = estimate.low_mrad <= truth_mrad && truth_mrad <= estimate.high_mrad;
         if coupling.is_some() {
             gapped += 1;
             errors.push(estimate.gap_mrad - truth_mrad);
@@ -184,7 +187,7 @@ fn main() -> anyhow::Result<()> {
             }
         } else {
             null_cases += 1;
-            null_ok += usize::from(estimate.gap_high_mrad < 0.5);
+            null_ok += usize::from(estimate.high_mrad < 0.5);
             null_warned +=
                 usize::from(estimate.gap_mrad >= config.drivelines[0].thresholds.gap_warning_mrad);
         }

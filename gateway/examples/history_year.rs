@@ -14,7 +14,9 @@
 //!   static torque; 0.2 % degraded windows;
 //! - a gap growing over weeks (0.1-0.3 mrad/week, a coupling's own rate) and reset
 //!   when the coupling is changed (every 9-16 weeks, a wear reset from the HMI), with
-//!   the pooled estimate and its 90 % interval on every bite once 20 bites are pooled;
+//!   the pooled estimate and its 90 % interval on every bite once 20 bites are pooled,
+//!   and the gateway's wear trend of those estimates (growth, forecast of the 4 mrad
+//!   alarm, the trend's saved form in the state row);
 //! - a latched wear alarm when the gap's interval passes 4 mrad, acknowledged from
 //!   the HMI a day later; TAF warnings raised and cleared at 1.55;
 //! - a gateway restart every 30 days (a new run, the last ones unclean at times) and
@@ -32,6 +34,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Context};
 use clap::Parser;
+use millgate::analysis::gap_trend::GapTrend;
 use millgate::history::writer;
 use millgate::history::{DrivelineSettings, RunInfo};
 use millgate::state::commands::CommandOrigin;
@@ -114,6 +117,8 @@ struct Driveline {
     next_change_ms: i64,
     bites_since_reset: u32,
     wear_trend: Option<f64>,
+    /// The gap's wear trend, as the gateway keeps it (fed the bites' gap estimates).
+    gap_trend: GapTrend,
     gap_alarm: bool,
     gap_ack_at_ms: Option<i64>,
     taf_warning: bool,
@@ -133,6 +138,7 @@ impl Driveline {
             next_change_ms: start_ms + (random.uniform(3.0, 16.0) * WEEK_MS) as i64,
             bites_since_reset: 0,
             wear_trend: None,
+            gap_trend: GapTrend::new(365.0).expect("a valid horizon"),
             gap_alarm: false,
             gap_ack_at_ms: None,
             taf_warning: false,
@@ -188,6 +194,7 @@ fn bite(driveline: &mut Driveline, time_ms: i64, random: &mut Random, out: &mut 
         driveline.next_change_ms = time_ms + (random.uniform(9.0, 16.0) * WEEK_MS) as i64;
         driveline.bites_since_reset = 0;
         driveline.wear_trend = None;
+        driveline.gap_trend.reset();
     }
     if let Some(at) = driveline.gap_ack_at_ms.filter(|&at| time_ms >= at) {
         out.push(alarm(
@@ -214,6 +221,13 @@ fn bite(driveline: &mut Driveline, time_ms: i64, random: &mut Random, out: &mut 
         // The pooled estimate scatters less the more bites it pools.
         let half_width = 0.25 + 3.0 / f64::from(pooled).sqrt();
         let gap_mrad = (true_gap + 0.03 * random.normal()).max(0.0);
+        // The bite's own gap into the trend (0.03 mrad, as it scatters): the growth and
+        // the forecast the state keeps.
+        let trend = driveline
+            .gap_trend
+            .fold_gaussian(1, (gap_mrad, 0.03 * 0.03), time_ms)
+            .ok()
+            .and_then(|_| driveline.gap_trend.results(GAP_ALARM_MRAD));
         let gap_low_mrad = (gap_mrad - half_width).max(0.0);
         let state = if gap_low_mrad >= GAP_ALARM_MRAD {
             WearState::Alarm
@@ -230,6 +244,8 @@ fn bite(driveline: &mut Driveline, time_ms: i64, random: &mut Random, out: &mut 
                 coupling: Some(1),
                 likeliest_coupling: None,
                 bites_pooled: pooled as usize,
+                growth: trend.and_then(|t| t.growth),
+                forecast: trend.and_then(|t| t.forecast),
             },
             state,
         )
@@ -310,6 +326,7 @@ fn bite(driveline: &mut Driveline, time_ms: i64, random: &mut Random, out: &mut 
         reference_level_knm: Some(450.0),
         shift_over_linear_s: Some(0.0004 * true_gap),
         gap_state: gap.map(|(_, state)| state),
+        gap_trend: gap.is_some().then(|| driveline.gap_trend.saved()),
         pooled: (!degraded).then_some(PooledBite {
             static_torque_knm,
             taf,

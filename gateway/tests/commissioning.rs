@@ -45,9 +45,10 @@ const FRESH_BARS: usize = 3;
 const CALIBRATION_KNM: [f64; FRESH_BARS] = [60.0, 110.0, 160.0];
 /// Bars with the gap open, at static torques spread over 40-170 kN*m.
 const GAPPED_BARS: usize = 10;
-/// Bites the gap diagnosis pools (`wear.pool_bites`): the monitored estimate is read
-/// once this many bites of the gapped coupling were analysed.
-const POOL_BITES: usize = 10;
+/// Bites of the gapped coupling monitored with each model: the estimate is read after
+/// the last. The wear trend starts again with each model (its maps differ), so it
+/// holds these bites only.
+const MONITORED_BITES: usize = 11;
 /// The demo's bar timing.
 const TIMING: BarTiming = BarTiming {
     idle_s: 0.6,
@@ -122,7 +123,7 @@ impl Rig {
 
 /// One `millgate run` against a DAQ looping over `schedule`: the demo's configuration
 /// with `model`, the history at `history`, coarse gap maps over 28-224 kN*m (a
-/// calibrated model's load is its first bite's) pooling [`POOL_BITES`]; runs until
+/// calibrated model's load is its first bite's) with the wear trend; runs until
 /// the PLC shows `bites` more bites than the history held at its start (and the last
 /// of them carries a gap estimate when `gap` is asked), then is stopped.
 struct Phase<'a> {
@@ -156,11 +157,9 @@ impl Phase<'_> {
                 &format!("model = \"{}\"", self.model.display()),
             )
             .replace(
-                "wear = { pool_bites = 5, gap_step_mrad = 0.25, torque_points = 12 }",
-                &format!(
-                    "wear = {{ pool_bites = {POOL_BITES}, gap_step_mrad = 0.25, \
-                     torque_points = 10, static_torque_knm = [28.0, 224.0] }}"
-                ),
+                "wear = { gap_step_mrad = 0.25, torque_points = 12 }",
+                "wear = { gap_step_mrad = 0.25, \
+                 torque_points = 10, static_torque_knm = [28.0, 224.0] }",
             )
             .replacen(
                 "\n[[sources.modbus]]",
@@ -173,7 +172,7 @@ impl Phase<'_> {
             + &format!("\n[history]\npath = \"{}\"\n", self.history.display());
         assert!(
             text.contains(&self.model.display().to_string())
-                && text.contains(&format!("pool_bites = {POOL_BITES}"))
+                && text.contains("static_torque_knm = [28.0, 224.0]")
                 && text.contains("cache_dir"),
             "config/examples/demo.toml changed: the test's edits no longer apply"
         );
@@ -252,13 +251,13 @@ fn within_bound(estimate_mrad: f64, truth_mrad: f64) -> bool {
     (estimate_mrad - truth_mrad).abs() <= (0.15 * truth_mrad).max(0.3)
 }
 
-/// The last `POOL_BITES` bites of `history` all from the monitored run, the last
-/// with its pooled estimate.
+/// The last `MONITORED_BITES` bites of `history` all from the monitored run, the
+/// last with its trend's estimate.
 fn monitored(history: &Path) -> BiteRow {
     let bites = recorded(history);
     let last = bites.last().expect("bites").clone();
     let same_run = bites.iter().rev().take_while(|b| b.run_id == last.run_id);
-    assert!(same_run.count() >= POOL_BITES, "{bites:?}");
+    assert!(same_run.count() >= MONITORED_BITES, "{bites:?}");
     last
 }
 
@@ -329,7 +328,7 @@ async fn commission(seed: u64, contrast: bool) -> Case {
         model: &calibrated_file,
         history: &history,
     }
-    .run(&rig.gapped, POOL_BITES as u32 + 1, true)
+    .run(&rig.gapped, MONITORED_BITES as u32, true)
     .await;
     let calibrated = monitored(&history);
     let uncalibrated = if contrast {
@@ -339,7 +338,7 @@ async fn commission(seed: u64, contrast: bool) -> Case {
             model: &drawings,
             history: &uncalibrated_history,
         }
-        .run(&rig.gapped, POOL_BITES as u32 + 1, true)
+        .run(&rig.gapped, MONITORED_BITES as u32, true)
         .await;
         Some(monitored(&uncalibrated_history))
     } else {
@@ -398,7 +397,7 @@ fn assert_commissioned(seed: u64, case: &Case) {
     assert!(within_bound(estimate, case.rig.gap_mrad), "{said}");
     assert_eq!(
         case.calibrated.figures.gap.map(|g| g.bites_pooled),
-        Some(POOL_BITES),
+        Some(MONITORED_BITES),
         "{said}"
     );
 }

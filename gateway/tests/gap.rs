@@ -1,8 +1,8 @@
 //! The gap diagnosis against the physics: bars of the Table 2 driveline simulated with a
 //! hidden gap (`millgate_sim` chain physics, the rolling schedule of the virtual DAQ),
 //! fed sample by sample through the service's analysis (bite detector, transient
-//! analysis, observation, pooled estimate against maps built at start), compared with
-//! the truth; the maps' cache, the pool's saved form, the wear state, bad input, and
+//! analysis, observation, the wear trend against maps built at start), compared with
+//! the truth; the maps' cache, the trend's saved form, the wear state, bad input, and
 //! `millgate wear` as a user runs it.
 //!
 //! The maps here are coarse (0.25 mrad, 10 static torques: about a second to build in
@@ -19,9 +19,7 @@ use std::time::Duration;
 
 use common::{millgate, scratch, text, Seeded, TempDir};
 use millgate::analysis::driveline::BiteReport;
-use millgate::analysis::gap_estimate::{
-    GapEstimate, GapObservation, SHIFT_FLOOR_S, SHIFT_JUMP_S, TAF_FLOOR,
-};
+use millgate::analysis::gap_estimate::{GapObservation, SHIFT_FLOOR_S, SHIFT_JUMP_S, TAF_FLOOR};
 use millgate::analysis::gap_map::GapMapError;
 use millgate::analysis::gap_monitor::MapsOrigin;
 use millgate::analysis::Analysis;
@@ -34,6 +32,7 @@ use millgate::state::commands::{Command as GatewayCommand, CommandOrigin};
 use millgate::state::gap_maps::GapMapState;
 use millgate::state::gap_maps::GapMaps;
 use millgate::state::results::GapResults;
+use millgate::state::time::UtcTime;
 use millgate_sim::discrepancy::{self, split_bites, Effect, Measured, Verdict};
 use millgate_sim::model::Model;
 use millgate_sim::schedule::{rolling_schedule, BarTiming};
@@ -96,6 +95,7 @@ wear = {{ {wear} }}
 }
 
 fn analysis(config: &millgate_config::Config) -> (Analysis, Arc<Board>) {
+    let _ = tracing_subscriber::fmt().with_test_writer().try_init();
     let health = Arc::new(SourceHealth::new(
         Duration::from_secs(3600),
         Duration::from_secs(3600),
@@ -148,9 +148,9 @@ fn feed(
     reports
 }
 
-/// One seeded case: the pooled estimate after 10 bites at static torques spread over
+/// One seeded case: the trend's estimate after 10 bites at static torques spread over
 /// 40-170 kN*m, and whether the gap warning was raised.
-fn case(model: &Model, rng: &mut Seeded, seed: u64) -> (GapEstimate, bool) {
+fn case(model: &Model, rng: &mut Seeded, seed: u64) -> (GapResults, bool) {
     let config = config(COARSE, "", &shared("cache"));
     let (mut analysis, board) = analysis(&config);
     analysis.take_gap_map_jobs();
@@ -160,7 +160,8 @@ fn case(model: &Model, rng: &mut Seeded, seed: u64) -> (GapEstimate, bool) {
     let reports = feed(&mut analysis, model, &torques, noise, seed);
     let estimate = reports[9]
         .gap
-        .and_then(|gap| gap.pooled)
+        .as_ref()
+        .and_then(|gap| gap.trend)
         .expect("an estimate after 10 bites");
     assert_eq!(estimate.bites_pooled, 10);
     let results = board.results();
@@ -181,7 +182,7 @@ fn the_gap_is_found_in_mrad_with_an_interval_that_holds_the_truth_and_the_right_
         let error = estimate.gap_mrad - truth;
         println!(
             "coupling {coupling}, gap {truth:.3} mrad: estimate {:.3} ({:.3} .. {:.3}) mrad, coupling {:?}",
-            estimate.gap_mrad, estimate.gap_low_mrad, estimate.gap_high_mrad, estimate.coupling
+            estimate.gap_mrad, estimate.low_mrad, estimate.high_mrad, estimate.coupling
         );
         assert!(
             error.abs() <= (0.15 * truth).max(0.3),
@@ -193,7 +194,7 @@ fn the_gap_is_found_in_mrad_with_an_interval_that_holds_the_truth_and_the_right_
                 "the coupling named is the one with the gap: {estimate:?}"
             );
         }
-        covered += usize::from(estimate.gap_low_mrad <= truth && truth <= estimate.gap_high_mrad);
+        covered += usize::from(estimate.low_mrad <= truth && truth <= estimate.high_mrad);
         errors.push(error);
     }
     errors.sort_by(f64::total_cmp);
@@ -210,7 +211,7 @@ fn without_a_gap_the_interval_stays_below_half_a_milliradian_and_nothing_is_rais
     for index in 0..3 {
         let (estimate, warning) = case(&hidden(0, 0.0), &mut rng, 200 + index);
         println!("no gap: {estimate:?}");
-        assert!(estimate.gap_high_mrad < 0.5, "{estimate:?}");
+        assert!(estimate.high_mrad < 0.5, "{estimate:?}");
         assert_eq!(estimate.coupling, None, "no gap, no coupling: {estimate:?}");
         assert!(!warning, "no warning without a gap");
     }
@@ -227,7 +228,7 @@ fn the_stated_uncertainty_matches_the_scatter_over_noise() {
     let reports = feed(&mut analysis, &hidden(1, 2.0), &[50.0; 40], 1.0, 21);
     let observations: Vec<GapObservation> = reports
         .iter()
-        .map(|r| r.gap.expect("observation").observation)
+        .map(|r| r.gap.as_ref().expect("observation").observation)
         .collect();
     let spread = |values: &[f64]| {
         let mean = values.iter().sum::<f64>() / values.len() as f64;
@@ -268,9 +269,9 @@ fn the_stated_uncertainty_matches_the_scatter_over_noise() {
 }
 
 #[test]
-fn the_wear_state_warns_latches_the_alarm_until_acknowledged_and_the_reset_empties_the_pool() {
+fn the_wear_state_warns_latches_the_alarm_until_acknowledged_and_the_reset_restarts_the_trend() {
     let config = config(
-        &format!("{COARSE}, pool_bites = 3"),
+        COARSE,
         ", gap_warning_mrad = 2.0, gap_alarm_mrad = 2.5",
         &shared("cache"),
     );
@@ -284,11 +285,11 @@ fn the_wear_state_warns_latches_the_alarm_until_acknowledged_and_the_reset_empti
         words[usize::from(map.named("F1.flags").unwrap().address)]
     };
     let local = CommandOrigin::Local;
-    // Bites before the maps are ready: pooled, no estimate, registers invalid.
+    // Bites before the maps are ready: held, no estimate, registers invalid.
     let reports = feed(&mut analysis, &hidden(1, 3.0), &[60.0, 120.0], 0.5, 7);
     assert!(reports
         .iter()
-        .all(|r| r.gap.is_some_and(|g| g.pooled.is_none())));
+        .all(|r| r.gap.as_ref().is_some_and(|g| g.trend.is_none())));
     assert_eq!(board.results().drivelines[0].gap, None);
     assert!(matches!(
         board.gap_maps(0),
@@ -314,7 +315,7 @@ fn the_wear_state_warns_latches_the_alarm_until_acknowledged_and_the_reset_empti
     assert_eq!(flags(&board) & both, both);
     assert_eq!(board.results().drivelines[0].gap.unwrap().bites_pooled, 3);
 
-    // The coupling is replaced: reset; the pool restarts with the next bite, no gap.
+    // The coupling is replaced: reset; the trend restarts with the next bite, no gap.
     analysis.command(GatewayCommand::ResetWear {
         driveline: 0,
         origin: local,
@@ -334,12 +335,12 @@ fn the_wear_state_warns_latches_the_alarm_until_acknowledged_and_the_reset_empti
 }
 
 #[test]
-fn the_pool_saved_as_a_list_of_observations_restores_the_estimate() {
+fn the_trend_saved_by_a_history_continues_after_a_restart() {
     let config = config(COARSE, "", &shared("cache"));
     let (mut analysis, board) = analysis(&config);
     analysis.take_gap_map_jobs();
     analysis.install_gap_maps(0, Ok(coarse_maps().clone()));
-    feed(
+    let reports = feed(
         &mut analysis,
         &hidden(0, 2.5),
         &[50.0, 140.0, 75.0],
@@ -347,19 +348,38 @@ fn the_pool_saved_as_a_list_of_observations_restores_the_estimate() {
         11,
     );
     let before = board.results().drivelines[0].gap.expect("estimate");
-    let saved = serde_json::to_string(&analysis.gap_pool(0).expect("a pool")).unwrap();
-
-    // A restart: a new analysis, the pool restored before the maps are in.
-    let (mut restarted, board) = self::analysis(&config);
-    let observations: Vec<GapObservation> = serde_json::from_str(&saved).unwrap();
-    assert_eq!(observations.len(), 3);
-    restarted.restore_gap_pool(0, observations);
-    assert_eq!(board.results().drivelines[0].gap, None, "no maps yet");
-    restarted.install_gap_maps(0, Ok(coarse_maps().clone()));
+    let saved = analysis.gap_trend(0).expect("a trend");
     assert_eq!(
-        board.results().drivelines[0].gap,
-        Some(before),
-        "the same estimate"
+        reports[2].gap.as_ref().and_then(|g| g.saved.as_deref()),
+        Some(saved.as_str()),
+        "each bite hands the history the trend after it"
+    );
+
+    // A restart: a new analysis, the trend restored before the maps are in; it is
+    // published at once (it needs no maps), the same estimate.
+    let (mut restarted, board) = self::analysis(&config);
+    restarted.restore_gap_trend(0, Some(&saved), Vec::new());
+    assert_eq!(board.results().drivelines[0].gap, Some(before));
+    assert_eq!(restarted.gap_trend(0).as_deref(), Some(saved.as_str()));
+
+    // Without a saved trend (a history from before it kept one), the bites since the
+    // last reset are folded in again once the maps are in.
+    let (mut replayed, board) = self::analysis(&config);
+    let bites: Vec<(i64, GapObservation)> = reports
+        .iter()
+        .map(|r| {
+            let time = millgate::state::time::UtcTime::from_system(r.time).unix_ms();
+            (time, r.gap.as_ref().expect("observed").observation)
+        })
+        .collect();
+    replayed.restore_gap_trend(0, Some("{\"version\": 99}"), bites);
+    assert_eq!(board.results().drivelines[0].gap, None, "no maps yet");
+    replayed.install_gap_maps(0, Ok(coarse_maps().clone()));
+    let again = board.results().drivelines[0].gap.expect("folded in again");
+    assert_eq!(again.bites_pooled, 3);
+    assert!(
+        (again.gap_mrad - before.gap_mrad).abs() < 1e-6,
+        "{again:?} {before:?}"
     );
 }
 
@@ -368,7 +388,8 @@ fn maps_come_from_the_cache_after_a_restart_and_a_changed_model_is_rebuilt() {
     let cache = scratch("gap-restart-cache");
     let config = config(
         "gap_step_mrad = 1.0, max_gap_mrad = 2, torque_points = 3",
-        "",
+        // The alarm inside the small maps (they end at 2 mrad).
+        ", gap_warning_mrad = 1.0, gap_alarm_mrad = 1.5",
         cache.path(),
     );
     let job = || analysis(&config).0.take_gap_map_jobs().remove(0);
@@ -413,7 +434,7 @@ fn a_map_that_cannot_be_built_is_named_and_the_driveline_runs_on_with_the_gap_in
     let cache = scratch("gap-bad-cache");
     let config = config(
         "static_torque_knm = [5, 15], torque_points = 3, max_gap_mrad = 1, gap_step_mrad = 0.5",
-        "",
+        ", gap_warning_mrad = 0.5, gap_alarm_mrad = 0.8",
         cache.path(),
     );
     let (mut analysis, board) = analysis(&config);
@@ -483,7 +504,7 @@ fn record(name: &str, torques: &[f64], gap_mrad: f64) -> String {
 }
 
 #[test]
-fn millgate_wear_reports_each_bite_and_the_pooled_gap_as_json_and_plots_it() {
+fn millgate_wear_reports_each_bite_and_the_trend_gap_as_json_and_plots_it() {
     let input = record("bites.csv", &[60.0, 140.0, 90.0], 2.5);
     let model = format!("{MODELS}/table2-adjusted.toml");
     let cache = scratch("gap-cli-cache");
@@ -524,10 +545,28 @@ fn millgate_wear_reports_each_bite_and_the_pooled_gap_as_json_and_plots_it() {
             "bites",
             "bites_pooled",
             "coupling",
+            "forecast",
             "gap_high_mrad",
             "gap_low_mrad",
-            "gap_mrad"
+            "gap_mrad",
+            "likeliest_coupling",
+            "resets",
+            "segments",
+            "trend_high_mrad_per_day",
+            "trend_low_mrad_per_day",
+            "trend_mrad_per_day"
         ]
+    );
+    // Three bites: the gap, no trend to forecast from.
+    let forecast = &value["forecast"];
+    assert_eq!(forecast["state"], "too_few_bites", "{forecast}");
+    assert_eq!(forecast["days"], serde_json::Value::Null);
+    assert!(
+        forecast["reason"]
+            .as_str()
+            .unwrap()
+            .contains("3 since the last reset; needs 5"),
+        "{forecast}"
     );
     let bites = value["bites"].as_array().unwrap();
     assert_eq!(bites.len(), 3);
@@ -541,11 +580,13 @@ fn millgate_wear_reports_each_bite_and_the_pooled_gap_as_json_and_plots_it() {
         assert_eq!(
             keys,
             [
+                "after_reset",
                 "gap_mrad",
                 "shift_over_linear_s",
                 "static_torque",
                 "t_bite_s",
-                "taf"
+                "taf",
+                "trend_gap_mrad"
             ]
         );
         let measured = bite["static_torque"].as_f64().unwrap();
@@ -568,7 +609,8 @@ fn millgate_wear_reports_each_bite_and_the_pooled_gap_as_json_and_plots_it() {
         "the SVG"
     );
 
-    // The second run reads the maps from the cache; --pool 1 keeps the last bite.
+    // The second run reads the maps from the cache; --pool is deprecated, without
+    // effect.
     let output = millgate(&[
         "wear",
         "--input",
@@ -588,9 +630,114 @@ fn millgate_wear_reports_each_bite_and_the_pooled_gap_as_json_and_plots_it() {
     assert!(output.status.success(), "{said}");
     assert!(said.contains("gap maps from"), "{said}");
     assert!(
-        said.contains("1 bite(s) pooled") && said.contains("coupling 1"),
+        said.contains("3 bite(s) in the trend") && said.contains("coupling 1"),
         "{said}"
     );
+    assert!(said.contains("--pool is deprecated"), "{said}");
+    assert!(
+        said.contains("too few bites for a trend (3 since the last reset; needs 5)"),
+        "{said}"
+    );
+}
+
+/// A record of bites made days apart, `t` in Unix seconds: per bite (day, static
+/// torque, gap in coupling 1) one bar of its own, a `# reset` line before bite
+/// `reset_before` when given.
+fn dated_record(name: &str, bites: &[(f64, f64, f64)], reset_before: Option<usize>) -> String {
+    const T0_S: f64 = 1_780_000_000.0;
+    let mut csv = String::from("# bites of F1, one bar each, recorded days apart\nt,torque\n");
+    for (n, &(day, torque, gap_mrad)) in bites.iter().enumerate() {
+        if reset_before == Some(n) {
+            csv.push_str("# reset\n");
+        }
+        let schedule =
+            rolling_schedule(&hidden(1, gap_mrad), &[torque], TIMING, 0.5, 40 + n as u64).unwrap();
+        for (k, value) in schedule.torque_knm.iter().enumerate() {
+            let t = T0_S + day * 86_400.0 + k as f64 / schedule.sample_rate_hz;
+            csv.push_str(&format!("{t:.6},{value:.4}\n"));
+        }
+    }
+    let path = shared("cli").join(name);
+    std::fs::write(&path, csv).unwrap();
+    path.to_str().unwrap().to_owned()
+}
+
+/// `millgate wear` on `input` with the tests' coarse maps, JSON.
+fn wear_json(input: &str, extra: &[&str]) -> serde_json::Value {
+    let model = format!("{MODELS}/table2-adjusted.toml");
+    let cache = shared("cli-cache");
+    let mut args = vec![
+        "wear",
+        "--input",
+        input,
+        "--model",
+        &model,
+        "--format",
+        "json",
+        "--gap-step-mrad",
+        "0.25",
+        "--max-gap-mrad",
+        "5",
+        "--cache-dir",
+        cache.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    let output = millgate(&args);
+    assert!(output.status.success(), "{}", text(&output));
+    serde_json::from_slice(&output.stdout).expect("JSON on stdout")
+}
+
+#[test]
+fn millgate_wear_forecasts_the_alarm_from_bites_recorded_days_apart() {
+    // The gap opens 0.05 mrad a day from 1 mrad; a bite every other day for four
+    // weeks, at static torques over the maps' range. The truth reaches 3.5 mrad on
+    // day 50: 22 days after the last bite (day 28).
+    let bites: Vec<(f64, f64, f64)> = (0..15)
+        .map(|n| {
+            let day = 2.0 * f64::from(n);
+            (day, 60.0 + 100.0 * f64::from(n % 5) / 4.0, 1.0 + 0.05 * day)
+        })
+        .collect();
+    let input = dated_record("weeks.csv", &bites, None);
+    let value = wear_json(&input, &["--alarm-mrad", "3.5"]);
+    assert_eq!(value["segments"], 15, "one segment per bite");
+    assert_eq!(value["bites_pooled"], 15);
+    let inside = |low: &str, high: &str, truth: f64| {
+        let (low, high) = (value[low].as_f64().unwrap(), value[high].as_f64().unwrap());
+        assert!(
+            low <= truth && truth <= high,
+            "{low} .. {high} against {truth}: {value}"
+        );
+    };
+    inside("gap_low_mrad", "gap_high_mrad", 1.0 + 0.05 * 28.0);
+    inside("trend_low_mrad_per_day", "trend_high_mrad_per_day", 0.05);
+    let forecast = &value["forecast"];
+    assert_eq!(forecast["state"], "forecast", "{forecast}");
+    assert_eq!(forecast["alarm_mrad"], 3.5);
+    let days = forecast["days"].as_f64().unwrap();
+    let (early, late) = (
+        forecast["days_low"].as_f64().unwrap(),
+        forecast["days_high"].as_f64().unwrap(),
+    );
+    assert!(
+        early <= 22.0 && 22.0 <= late && early <= days && days <= late,
+        "{forecast}"
+    );
+    assert!((days - 22.0).abs() <= 0.2 * 22.0, "within 20%: {forecast}");
+    // Unix seconds: a date, the last bite's day plus the days.
+    let date = forecast["date"].as_str().expect("a date");
+    let last_bite = 1_780_000_000_000_i64 + 28 * 86_400_000;
+    let expected = UtcTime::from_unix_ms(last_bite + (days * 86_400_000.0).round() as i64);
+    assert_eq!(&date[..10], &expected.to_string()[..10], "{forecast}");
+
+    // A wear reset before the 11th bite: the trend restarts with five bites.
+    let input = dated_record("weeks-reset.csv", &bites, Some(10));
+    let value = wear_json(&input, &["--alarm-mrad", "3.5"]);
+    assert_eq!(
+        (value["resets"].as_u64(), value["bites_pooled"].as_u64()),
+        (Some(1), Some(5))
+    );
+    assert_eq!(value["bites"][10]["after_reset"], true);
 }
 
 #[test]

@@ -81,6 +81,7 @@ fn bite(n: u32, time: UtcTime, taf: f64, trend: f64, alarm: bool) -> HistoryEven
         reference_level_knm: Some(100.0),
         shift_over_linear_s: None,
         gap_state: None,
+        gap_trend: None,
         pooled: pooled(n, taf),
         state,
     }))
@@ -151,10 +152,10 @@ async fn what_is_recorded_is_read_back_and_restored_at_the_next_start() {
     history.record(HistoryEvent::State(StateRecord {
         time: at(41),
         subject: "F1".into(),
-        results: SubjectResults::Driveline(DrivelineResults {
+        results: SubjectResults::Driveline(Box::new(DrivelineResults {
             wear_trend: None,
             ..last.expect("40 bites")
-        }),
+        })),
     }));
     history.record(HistoryEvent::OutageStarted {
         time: at(42),
@@ -248,7 +249,8 @@ async fn what_is_recorded_is_read_back_and_restored_at_the_next_start() {
     let f1 = &restored.drivelines[0];
     assert_eq!(f1.results.bite_counter, 40);
     assert_eq!(f1.results.wear_trend, None, "the reset came last");
-    assert!(f1.gap_pool.is_empty(), "the reset came last");
+    assert!(f1.gap_bites.is_empty(), "the reset came last");
+    assert_eq!(f1.gap_trend, None, "the reset came last");
     assert!(f1.results.taf_alarm, "the alarm stays latched");
     assert!(f1.results.restored);
     assert_eq!(f1.results.taf, bites[39].figures.taf);
@@ -283,7 +285,7 @@ async fn what_is_recorded_is_read_back_and_restored_at_the_next_start() {
 }
 
 #[tokio::test]
-async fn the_gap_pool_since_the_last_reset_and_the_gap_alarm_are_restored() {
+async fn the_gap_trend_and_bites_since_the_last_reset_and_the_gap_alarm_are_restored() {
     let scratch = scratch("history-gap-pool");
     let path = scratch.path().join("history.db");
     let t0 = UtcTime::parse("2026-03-01T08:00:00Z").unwrap();
@@ -301,11 +303,15 @@ async fn the_gap_pool_since_the_last_reset_and_the_gap_alarm_are_restored() {
                 coupling: (n > 2).then_some(1),
                 likeliest_coupling: None,
                 bites_pooled: n as usize,
+                growth: None,
+                forecast: None,
             };
             record.figures.gap = Some(gap);
             record.state.gap = Some(gap);
             record.gap_state = Some(WearState::Warning);
             record.state.gap_alarm = n >= 12;
+            // The history keeps the trend's saved form as the analysis hands it over.
+            record.gap_trend = Some(format!("{{\"trend after bite\": {n}}}"));
         }
         history.record(event);
         if n == 5 {
@@ -335,9 +341,17 @@ async fn the_gap_pool_since_the_last_reset_and_the_gap_alarm_are_restored() {
     let f1 = &restored.drivelines[0];
     let expected: Vec<PooledBite> = (6..=16).filter_map(|n| pooled(n, 2.0)).collect();
     assert_eq!(expected.len(), 9, "bites 7 and 14 were degraded");
+    let (times, kept): (Vec<i64>, Vec<PooledBite>) = f1.gap_bites.iter().copied().unzip();
+    assert_eq!(kept, expected, "the bites after the reset, oldest first");
+    let expected_times: Vec<i64> = (6..=16)
+        .filter(|&n| pooled(n, 2.0).is_some())
+        .map(|n| at(i64::from(n)).unix_ms())
+        .collect();
+    assert_eq!(times, expected_times, "with their times");
     assert_eq!(
-        f1.gap_pool, expected,
-        "the bites after the reset, oldest first"
+        f1.gap_trend.as_deref(),
+        Some("{\"trend after bite\": 16}"),
+        "the last bite's saved trend"
     );
     assert!(f1.results.gap_alarm, "the gap alarm stays latched");
     // The last estimate is restored with the state (the pool estimates again once the
@@ -361,11 +375,11 @@ async fn the_gap_pool_since_the_last_reset_and_the_gap_alarm_are_restored() {
     history.record(HistoryEvent::State(StateRecord {
         time: at(17),
         subject: "F1".into(),
-        results: SubjectResults::Driveline(DrivelineResults {
+        results: SubjectResults::Driveline(Box::new(DrivelineResults {
             gap_alarm: false,
             restored: false,
             ..f1.results.clone()
-        }),
+        })),
     }));
     settle(&history).await;
     history.close();
@@ -373,7 +387,8 @@ async fn the_gap_pool_since_the_last_reset_and_the_gap_alarm_are_restored() {
     let restored = start(&history);
     history.close();
     assert!(!restored.drivelines[0].results.gap_alarm, "acknowledged");
-    assert_eq!(restored.drivelines[0].gap_pool, expected);
+    assert_eq!(restored.drivelines[0].gap_bites.len(), expected.len());
+    assert!(restored.drivelines[0].gap_trend.is_some());
 }
 
 #[tokio::test]

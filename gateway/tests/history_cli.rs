@@ -135,6 +135,56 @@ fn two_demo_runs_continue_and_history_and_report_read_the_file() {
         .collect();
     assert_eq!(ended, ["stopped", "stopped"]);
 
+    // The wear trend: the second run continued the first's (one trend over every
+    // bite with a gap estimate since the start, none reset), and `millgate wear --db`
+    // reads what the service kept after its last bite.
+    let with_gap: usize = sqlite3(&db, "SELECT count(*) FROM bites WHERE gap_mrad IS NOT NULL")
+        .parse()
+        .unwrap();
+    assert!(
+        with_gap >= 3,
+        "the demo's maps come from its cache: {first}"
+    );
+    let wear: serde_json::Value = serde_json::from_str(&ok(&[
+        "wear",
+        "--db",
+        db_arg,
+        "--driveline",
+        "F1",
+        "--format",
+        "json",
+    ]))
+    .unwrap();
+    assert_eq!(
+        wear["bites_pooled"].as_u64(),
+        Some(with_gap as u64),
+        "{wear}"
+    );
+    let kept: f64 = sqlite3(
+        &db,
+        "SELECT gap_mrad FROM driveline_state WHERE driveline = 'F1'",
+    )
+    .parse()
+    .unwrap();
+    assert!(
+        (wear["gap_mrad"].as_f64().unwrap() - kept).abs() < 1e-9,
+        "{wear} against {kept}"
+    );
+    assert_eq!(
+        wear["forecast"]["alarm_mrad"], 4.0,
+        "the run's gap_alarm_mrad"
+    );
+    assert!(
+        wear["trend_mrad_per_day"].as_f64().unwrap() > 0.0,
+        "the demo's gap grows: {wear}"
+    );
+    let unknown = millgate(&["wear", "--db", db_arg, "--driveline", "F9"]);
+    let stderr = String::from_utf8_lossy(&unknown.stderr);
+    assert!(
+        !unknown.status.success() && stderr.contains("no driveline `F9` (drivelines: F1)"),
+        "{stderr}"
+    );
+
     // The report.
     let out = dir.join("report");
     ok(&["report", "--db", db_arg, "--out", out.to_str().unwrap()]);

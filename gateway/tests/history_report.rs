@@ -110,6 +110,8 @@ fn bite(driveline: &str, n: u32, time_ms: i64) -> HistoryEvent {
                 coupling: Some(1),
                 likeliest_coupling: None,
                 bites_pooled: 200,
+                growth: None,
+                forecast: None,
             }),
             ..state.clone()
         },
@@ -119,6 +121,7 @@ fn bite(driveline: &str, n: u32, time_ms: i64) -> HistoryEvent {
         reference_level_knm: Some(400.0),
         shift_over_linear_s: None,
         gap_state: Some(WearState::Ok),
+        gap_trend: None,
         pooled: None,
         state,
     }))

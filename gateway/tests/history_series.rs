@@ -97,6 +97,8 @@ fn bite(n: u32, time: UtcTime) -> HistoryEvent {
                 coupling: Some(1),
                 likeliest_coupling: None,
                 bites_pooled: 20,
+                growth: None,
+                forecast: None,
             }),
             ..state.clone()
         },
@@ -106,6 +108,7 @@ fn bite(n: u32, time: UtcTime) -> HistoryEvent {
         reference_level_knm: Some(400.0),
         shift_over_linear_s: None,
         gap_state: (!pool_filling).then_some(WearState::Ok),
+        gap_trend: None,
         pooled: None,
         state,
     }))

@@ -370,6 +370,7 @@ async fn the_address_space_holds_what_the_plc_holds() {
         ("Drivelines/F1/period_shift_s", "SEC", "s"),
         ("Drivelines/F1/beta1_hz", "HTZ", "Hz"),
         ("Drivelines/F1/gap_mrad", "C25", "mrad"),
+        ("Drivelines/F1/days_to_gap_alarm", "DAY", "d"),
     ] {
         let variable = variable(&browse, path);
         let units = &variable["EngineeringUnits"];
@@ -382,6 +383,12 @@ async fn the_address_space_holds_what_the_plc_holds() {
         // BaseAnalogType (i=15318): a number with a unit.
         assert_eq!(variable["type_definition"], "i=15318", "{path}");
     }
+    // The growth: no UNECE code, unitId -1 ("not available") and the symbol.
+    let growth = &variable(&browse, "Drivelines/F1/gap_growth_mrad_per_day")["EngineeringUnits"];
+    assert_eq!(
+        (growth["unit_id"].as_i64(), &growth["display"]),
+        (Some(-1), &serde_json::json!("mrad/d"))
+    );
     let datatype = |figure_type| match figure_type {
         FigureType::Real => "Double",
         FigureType::Count => "UInt64",

@@ -13,4 +13,5 @@ pub mod rod;
 pub mod schedule;
 pub mod tandem;
 pub(crate) mod tree;
+pub mod wear_growth;
 pub mod wear_map;

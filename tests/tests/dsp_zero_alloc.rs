@@ -2,7 +2,9 @@
 //! system one, and the measured section (detector + transient analysis + eq. (1) fit
 //! over more than 1e6 samples with several bites) must allocate nothing. Only the
 //! measuring thread is counted: the test harness allocates on its own threads. The
-//! bites' noise level (`noise_rms`) is measured with them.
+//! bites' noise level (`noise_rms`) is measured with them. The wear trend (predict,
+//! grid, bite moments, update, estimate, forecast, band) over a year of bites is
+//! measured too.
 
 use millgate_dsp::bite::{BiteDetector, BiteSettings};
 use millgate_dsp::fit::{eq1, fit_eq1, FitOptions};
@@ -148,6 +150,64 @@ fn chatter_band_gain_and_mode_damping_never_allocate() {
         "{}",
         gain_sum / windows as f64
     );
+}
+
+#[test]
+fn wear_trend_never_allocates() {
+    use millgate_dsp::wear_trend::{BiteMoments, ForecastReason, GapGrid, WearTrend};
+
+    const FINE: GapGrid = GapGrid {
+        first_mrad: 0.0,
+        step_mrad: 0.015_625,
+        len: 513,
+    };
+    let trend = WearTrend::new(365.0).unwrap();
+    let mut state = trend.state(2).unwrap();
+    let mut ll = [0.0; 513];
+    let mut fine_ll = [0.0; 513];
+    let (mut jumps, mut forecasts, mut days_sum) = (0, 0, 0.0);
+    let ((), allocations) = allocations_during(|| {
+        // A year, 20 bites a day on weekdays; the gap grows 0.01 mrad/day from 1 mrad.
+        for i in 0..365 * 20_usize {
+            let t = (i / 20) as f64 + (i % 20) as f64 * 0.04;
+            if (t as usize) % 7 >= 5 {
+                continue;
+            }
+            // Deterministic pseudo-noise of +-0.05 mrad.
+            let noise = ((i * 7).wrapping_mul(2_654_435_761) >> 7) % 1000;
+            let gap = 1.0 + 0.01 * t + (noise as f64 / 1000.0 - 0.5) * 0.1;
+            trend.predict(&mut state, t).unwrap();
+            for k in 0..2 {
+                let grid = trend.grid(&state, k, FINE);
+                let observed = gap + 0.5 * k as f64;
+                for (j, v) in ll[..grid.len].iter_mut().enumerate() {
+                    *v = -0.5 * ((observed - grid.at(j)) / 0.05).powi(2);
+                }
+                // The bite's own moments on the fine grid, as the gateway does.
+                for (j, v) in fine_ll.iter_mut().enumerate() {
+                    *v = -0.5 * ((observed - FINE.at(j)) / 0.05).powi(2);
+                }
+                let bite = BiteMoments::from_loglik(FINE, &fine_ll).unwrap();
+                let outcome = trend.update(&mut state, k, grid, &ll[..grid.len], bite);
+                jumps += outcome.unwrap().jumped as usize;
+            }
+            trend.finish_bite(&mut state, Some(1e-4));
+            let forecast = trend.forecast(&state, 4.0);
+            if forecast.reason == ForecastReason::Forecast {
+                forecasts += 1;
+                days_sum += forecast.days.unwrap();
+            }
+            let _ = std::hint::black_box((trend.estimate(&state), trend.band(&state, 30.0)));
+        }
+    });
+
+    assert_eq!(allocations, 0);
+    assert_eq!(jumps, 0);
+    // The forecasts are real: most of the 5 200 bites give one, of a plausible size (4 mrad at day
+    // 300 from a gap growing from 1 mrad).
+    assert!(forecasts > 3000, "{forecasts}");
+    let mean_days = days_sum / forecasts as f64;
+    assert!(mean_days > 50.0 && mean_days < 300.0, "{mean_days}");
 }
 
 #[test]

@@ -8,7 +8,6 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
-use millgate::analysis::gap_estimate::GapObservation;
 use millgate::outputs::modbus::register_map::{decode_f32, flag_mask, RegisterMap};
 use millgate::state::catalogue::DRIVELINE;
 use millgate_sim::model::Model;
@@ -23,8 +22,8 @@ const TIMING: BarTiming = BarTiming {
     idle_s: 0.5,
     rolling_s: 0.8,
 };
-/// Bars: static torque (kN*m) and the gap in the spindles (mrad).
-const BARS: [(f64, f64); 4] = [(60.0, 1.0), (140.0, 1.0), (50.0, 3.0), (110.0, 3.0)];
+/// Bars: static torque (kN*m) and the gap in the spindles (mrad), growing 0.7 mrad a bar.
+const BARS: [(f64, f64); 4] = [(60.0, 1.0), (140.0, 1.7), (50.0, 2.4), (110.0, 3.1)];
 /// Quality bits of gap_mrad .. bites_pooled.
 const GAP_QUALITY: u16 = 0b11111 << 9;
 
@@ -51,7 +50,6 @@ async fn the_plc_gap_register_follows_a_growing_gap_and_survives_a_restart() -> 
     let schedule = rolling_schedule_with_gap(&model, &torques, TIMING, 0.5, 13, 1, &gaps)?;
     let mut config = millgate_sim::devices::demo::setup(1.0, 0.5, 1)?.config;
     config.drivelines[0].model = Some(PathBuf::from(MODEL));
-    config.drivelines[0].wear.pool_bites = 2;
     config.cache_dir = Some(cache.clone());
     let restart_config = config.clone();
     let devices = demo_devices(&mut config, &schedule).await?;
@@ -65,17 +63,17 @@ async fn the_plc_gap_register_follows_a_growing_gap_and_survives_a_restart() -> 
         "invalid until the maps are in"
     );
 
-    let mut observations: Vec<GapObservation> = Vec::new();
+    let mut saved = None;
     let mut seen = Vec::new();
     for (bar, &(_, gap_mrad)) in BARS.iter().enumerate() {
         let bite = tokio::time::timeout(Duration::from_secs(10), gateway.bites().recv()).await??;
-        let gap = bite.gap.unwrap_or_else(|| {
+        let gap = bite.gap.as_ref().unwrap_or_else(|| {
             panic!(
                 "bar {bar}: no gap observation (degraded window: {})",
                 bite.degraded
             )
         });
-        observations.push(gap.observation);
+        saved = gap.saved.clone().or(saved);
         // The maps may still be building at the first bites: wait for the register.
         let counter = address(&map, "F1.bite_counter");
         wait_for(
@@ -97,43 +95,47 @@ async fn the_plc_gap_register_follows_a_growing_gap_and_survives_a_restart() -> 
         );
         println!("bar {bar}: truth {gap_mrad} mrad, PLC {published:.3} ({low:.3} .. {high:.3})");
         seen.push((gap_mrad, published, words[address(&map, "F1.flags")]));
-        if bar % 2 == 1 {
-            // Both pooled bites had this gap.
-            assert!(
-                (published - gap_mrad).abs() < 0.3,
-                "bar {bar}: {published} vs {gap_mrad}"
-            );
-            assert!(low <= published && published <= high);
-            assert_eq!(words[address(&map, "F1.gap_coupling")], 1, "the spindles");
-            assert_eq!(words[address(&map, "F1.bites_pooled")], 2);
-        }
+        // The trend follows the growing gap: its interval holds the truth at every bite.
+        assert!(
+            (published - gap_mrad).abs() < 0.3,
+            "bar {bar}: {published} vs {gap_mrad}"
+        );
+        assert!(
+            low <= gap_mrad && gap_mrad <= high,
+            "bar {bar}: {low} .. {high} vs {gap_mrad}"
+        );
+        assert_eq!(words[address(&map, "F1.gap_coupling")], 1, "the spindles");
+        assert_eq!(
+            usize::from(words[address(&map, "F1.bites_pooled")]),
+            bar + 1
+        );
     }
     let (_, before, flags_before) = seen[1];
     let (_, after, flags_after) = seen[3];
     assert!(
-        after > before + 1.5,
+        after > before + 1.0,
         "the register follows the gap: {before} -> {after}"
     );
     assert_eq!(
         flags_before & flag_mask(DRIVELINE, "gap_warning"),
         0,
-        "1 mrad: no warning"
+        "1.7 mrad: no warning"
     );
     assert_ne!(
         flags_after & flag_mask(DRIVELINE, "gap_warning"),
         0,
-        "3 mrad: warning (2 mrad)"
+        "3.1 mrad: warning (2 mrad)"
     );
     tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
     devices.stop().await?;
 
-    // Restart: the pooled bites restored (as a history does), the maps from the cache,
-    // a DAQ with idle torque only: the same estimate without a new bite.
+    // Restart: the trend's saved form restored (as a history does), the maps from the
+    // cache, a DAQ with idle torque only: the same estimate without a new bite.
     let mut config = restart_config;
     let idle = rolling_schedule_with_gap(&model, &[], TIMING, 0.5, 14, 1, &[])?;
     let devices = demo_devices(&mut config, &idle).await?;
     let mut service = millgate::Service::new(config)?;
-    service.restore_gap_pool(0, observations[observations.len() - 2..].to_vec());
+    service.restore_gap_trend(0, saved.as_deref(), Vec::new());
     let gateway = service.spawn().await?;
     let plc = devices.plc.clone();
     wait_for(
@@ -143,10 +145,7 @@ async fn the_plc_gap_register_follows_a_growing_gap_and_survives_a_restart() -> 
     )
     .await;
     let restored = f32_at(&plc.holding(), &map, "F1.gap_mrad");
-    assert_eq!(
-        restored, after,
-        "the same pooled estimate after the restart"
-    );
+    assert_eq!(restored, after, "the same estimate after the restart");
     tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
     devices.stop().await?;
     Ok(())

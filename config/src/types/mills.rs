@@ -54,7 +54,7 @@ pub struct DrivelineThresholds {
 }
 
 /// The gap diagnosis of a driveline with a model: which couplings may carry the gap,
-/// the wear maps' grid and the pool of bites.
+/// the wear maps' grid and the forecast's horizon.
 #[derive(Debug, Clone, PartialEq)]
 pub struct WearSettings {
     /// Couplings (model indices, motor side first) that may carry the gap, distinct;
@@ -71,8 +71,9 @@ pub struct WearSettings {
     /// Static torques of the maps' grid (geometric spacing over the range), 3..=64
     /// (default 16).
     pub torque_points: usize,
-    /// Bites pooled into the gap estimate (the last N), 1..=1000 (default 20).
-    pub pool_bites: usize,
+    /// How far ahead the gap forecast looks, calendar days, in [1, 3650] (default
+    /// 365): a crossing later than this is reported as beyond the horizon.
+    pub horizon_days: f64,
 }
 
 impl Default for WearSettings {
@@ -84,7 +85,7 @@ impl Default for WearSettings {
             gap_step_mrad: 0.125,
             static_torque_knm: None,
             torque_points: 16,
-            pool_bites: 20,
+            horizon_days: 365.0,
         }
     }
 }

@@ -14,6 +14,8 @@ use super::{
 const DEFAULT_GAP_WARNING_MRAD: f64 = DrivelineThresholds::DEFAULT_GAP_WARNING_MRAD;
 /// Gap alarm threshold when none is given, mrad.
 const DEFAULT_GAP_ALARM_MRAD: f64 = DrivelineThresholds::DEFAULT_GAP_ALARM_MRAD;
+/// Longest forecast horizon allowed, days (ten years).
+const MAX_HORIZON_DAYS: f64 = 3650.0;
 /// Largest `max_gap_mrad` allowed, mrad.
 const MAX_MAX_GAP_MRAD: f64 = 100.0;
 /// Most gap steps of a wear map.
@@ -50,6 +52,20 @@ impl Checker<'_> {
         let bite = self.bite(key, raw);
         let thresholds = self.thresholds(key, raw);
         let wear = self.wear(&format!("{key}.wear"), raw.wear.as_ref());
+        if let (Some(_), Some(thresholds), Some(wear)) = (&raw.model, &thresholds, &wear) {
+            // The maps end at max_gap_mrad: the likelihood is flat beyond, so neither
+            // the alarm nor its forecast could be told there.
+            if thresholds.gap_alarm_mrad >= wear.max_gap_mrad {
+                self.report.push(
+                    format!("{key}.thresholds.gap_alarm_mrad"),
+                    format!(
+                        "{} mrad is not allowed (must be < {key}.wear.max_gap_mrad = {} mrad: the gap maps end there)",
+                        thresholds.gap_alarm_mrad, wear.max_gap_mrad
+                    ),
+                );
+                return None;
+            }
+        }
         Some(Driveline {
             name: name?,
             torque: torque?,
@@ -230,6 +246,7 @@ impl Checker<'_> {
             static_torque_knm: None,
             torque_points: None,
             pool_bites: None,
+            horizon_days: None,
         };
         let raw = raw.unwrap_or(&empty);
         let couplings = match &raw.couplings {
@@ -275,11 +292,18 @@ impl Checker<'_> {
             3..=64,
             "",
         );
-        let pool = self.int_in(
-            &format!("{key}.pool_bites"),
-            raw.pool_bites.unwrap_or(defaults.pool_bites as i64),
-            1..=1000,
-            " bites",
+        // Deprecated, without effect: checked as before so a configuration that loaded
+        // still loads, and a wrong value is still named.
+        let pool = match raw.pool_bites {
+            Some(bites) => self.int_in(&format!("{key}.pool_bites"), bites, 1..=1000, " bites"),
+            None => Some(0),
+        };
+        let horizon = raw.horizon_days.unwrap_or(defaults.horizon_days);
+        let horizon = self.float(
+            &format!("{key}.horizon_days"),
+            horizon,
+            (1.0..=MAX_HORIZON_DAYS).contains(&horizon),
+            &format!(">= 1 and <= {MAX_HORIZON_DAYS} days"),
         );
         Some(WearSettings {
             couplings: couplings?,
@@ -287,7 +311,7 @@ impl Checker<'_> {
             gap_step_mrad: step?,
             static_torque_knm: range?,
             torque_points: usize::try_from(points?).ok()?,
-            pool_bites: usize::try_from(pool?).ok()?,
+            horizon_days: pool.and(horizon)?,
         })
     }
 

@@ -196,7 +196,7 @@ fn driveline_channels(drivelines: usize) -> anyhow::Result<(Vec<GeneratedChannel
              model = \"table2-adjusted.toml\"\n\
              bite = {{ threshold_knm = 20.0, pre_trigger_s = 0.1, post_trigger_s = {POST_TRIGGER_S} }}\n\
              thresholds = {{ taf_warning = 2.2, taf_alarm = 2.6, gap_warning_mrad = 2.0, gap_alarm_mrad = 4.0 }}\n\
-             wear = {{ pool_bites = 5, gap_step_mrad = 0.25, torque_points = 12 }}\n\n"
+             wear = {{ gap_step_mrad = 0.25, torque_points = 12 }}\n\n"
         ));
     }
     Ok((torque_channels, driveline_tables))

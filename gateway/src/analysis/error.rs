@@ -47,6 +47,15 @@ pub enum AnalysisError {
         #[source]
         source: BiteSettingsError,
     },
+    /// The wear trend refused the driveline's `wear.horizon_days`.
+    #[error("drivelines[{index}].wear.horizon_days: {source}")]
+    WearTrend {
+        /// Index of the driveline in the configuration.
+        index: usize,
+        /// What the trend refused.
+        #[source]
+        source: millgate_dsp::wear_trend::TrendError,
+    },
     /// The driveline's `wear` settings do not fit its model (the message names the
     /// key).
     #[error("{source}")]

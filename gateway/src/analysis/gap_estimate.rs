@@ -1,5 +1,6 @@
-//! The opened gap of a driveline from its bites: per bite a likelihood over (coupling,
-//! gap) against the gap maps, pooled over the last bites.
+//! What one bite tells about the opened gap of a driveline: a likelihood over
+//! (coupling, gap) against the gap maps. The wear trend ([`super::gap_trend`]) folds
+//! these bite after bite into an estimate that follows the gap as it grows.
 //!
 //! - **Observation** ([`GapObservation`]): a bite's static torque, TAF and first-period
 //!   shift, each with its standard deviation from the window's own noise (the white-noise
@@ -16,17 +17,20 @@
 //!   more than [`SHIFT_JUMP_S`], the point's shift likelihood is the mixture of the
 //!   corners' (the bite is on one branch or the other) rather than an interpolated value
 //!   no bite ever shows.
-//! - **Pooled estimate** ([`estimate`]): the log-likelihoods of the pooled bites are
-//!   summed. The gap is the maximum of the sum; the 90% interval holds every gap whose
-//!   log-likelihood is within chi2(1, 0.90) / 2 of it (a likelihood-ratio interval,
-//!   which reaches 0 when the data allow no gap); the coupling is the best one when its
-//!   best beats every other coupling's by [`COUPLING_LOGLIK`] (a likelihood ratio of 100),
-//!   else undetermined, and the interval then spans every coupling's gaps within reach.
-//! - **Pool** ([`GapPool`]): the last N observations in a plain list, which is also its
-//!   saved form: [`GapPool::observations`] and [`GapPool::from_observations`].
+//!   The likelihood is given with one of two [`Allowance`]s: with the model floor (one
+//!   bite on its own) or without it (what the trend folds in; it carries the floor
+//!   beside the filter).
+//! - **One bite's estimate** ([`estimate`]): the gap is the maximum of the
+//!   log-likelihood; the 90% interval holds every gap whose log-likelihood is within
+//!   chi2(1, 0.90) / 2 of it (a likelihood-ratio interval, which reaches 0 when the
+//!   data allow no gap); the coupling is the best one when its best beats every other
+//!   coupling's by [`COUPLING_LOGLIK`] (a likelihood ratio of 100), else undetermined,
+//!   and the interval then spans every coupling's gaps within reach.
 
 use millgate_dsp::transient::{TransientResult, TransientSettings};
 use serde::{Deserialize, Serialize};
+
+use millgate_dsp::wear_trend::GapGrid;
 
 use crate::state::gap_maps::{Cell, GapMaps};
 
@@ -65,7 +69,7 @@ const FILTFILT_NOISE_GAIN: f64 =
 const MIN_AMPLITUDE_FRACTION: f64 = 0.05;
 
 /// What one bite tells about the gap: its measures and their standard deviations.
-/// Torque kN*m, times s. The pool's saved form is a list of these.
+/// Torque kN*m, times s. The history keeps these per bite.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct GapObservation {
     /// Static (settled) torque, kN*m.
@@ -126,7 +130,7 @@ impl GapObservation {
     }
 }
 
-/// The gap estimate from one or more bites.
+/// The gap estimate from one bite.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct GapEstimate {
     /// Opened gap, maximum likelihood, mrad.
@@ -139,8 +143,6 @@ pub struct GapEstimate {
     pub coupling: Option<usize>,
     /// The likeliest coupling (model index), named or not.
     pub likeliest_coupling: usize,
-    /// Bites the estimate pools (those inside the maps' static torque range).
-    pub bites_pooled: usize,
 }
 
 /// Log of a Gaussian density of `residual` with variance `variance`.
@@ -153,46 +155,65 @@ fn robust(log_density: f64, span: f64) -> f64 {
     ((1.0 - OUTLIER_WEIGHT) * log_density.exp() + OUTLIER_WEIGHT / span).ln()
 }
 
-/// Adds the log-likelihood of `observation` on the fine gap grid of one coupling
-/// (`cells`: the map at the bite's static torque, one per gap row) to `sum`. The map's
-/// and model's errors (interpolation, floors) are the same for every pooled bite, so
-/// they do not average out: each of the `pooled` bites carries their variance
-/// `pooled` times, which leaves it whole in the pooled estimate.
-fn add_loglik(cells: &[Cell], observation: &GapObservation, pooled: usize, sum: &mut [f64]) {
-    let common = pooled as f64;
-    let taf_variance = observation.taf_sigma.powi(2) + common * TAF_FLOOR.powi(2);
-    let shift_variance = observation.period_shift_sigma_s.powi(2) + common * SHIFT_FLOOR_S.powi(2);
-    for (k, slot) in sum.iter_mut().enumerate() {
-        let (row, sub) = (k / SUBSTEPS, k % SUBSTEPS);
-        let (lower, upper, weight) = match cells.get(row + 1) {
-            Some(next) => (&cells[row], next, sub as f64 / SUBSTEPS as f64),
-            None => (&cells[row], &cells[row], 0.0),
-        };
-        // Bilinear weights of the corners: (gap row, torque neighbour, weight); each
-        // row has its own torque weight (its measured static torques differ a little).
-        let corners = [
-            (lower, 0, (1.0 - weight) * (1.0 - lower.weight)),
-            (lower, 1, (1.0 - weight) * lower.weight),
-            (upper, 0, weight * (1.0 - upper.weight)),
-            (upper, 1, weight * upper.weight),
-        ];
-        let taf = lerp(lower.taf(), upper.taf(), weight);
-        let taf_floor = corners
-            .iter()
-            .map(|&(cell, side, w)| w * cell.taf_floor[side])
-            .sum::<f64>();
-        let mut loglik = robust(
-            log_gauss(
-                observation.taf - taf,
-                taf_variance + common * taf_floor * taf_floor,
-            ),
-            TAF_OUTLIER_SPAN,
-        );
-        if let Some(measured) = observation.period_shift_s {
-            loglik += shift_loglik(measured, shift_variance, common, &corners);
+/// Which errors a bite's likelihood allows for besides the bite's own noise.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Allowance {
+    /// The noise and the maps' interpolation error: what the wear trend folds in bite
+    /// after bite. The model floor is systematic (it does not average out over bites),
+    /// so the trend carries it beside the filter, on its published intervals.
+    Trend,
+    /// Also the model floor ([`TAF_FLOOR`], [`SHIFT_FLOOR_S`]): one bite on its own.
+    Whole,
+}
+
+impl Allowance {
+    /// The model floors' variances (TAF, shift s^2) this allowance adds.
+    fn model_floors(self) -> (f64, f64) {
+        match self {
+            Self::Trend => (0.0, 0.0),
+            Self::Whole => (TAF_FLOOR.powi(2), SHIFT_FLOOR_S.powi(2)),
         }
-        *slot += loglik;
     }
+}
+
+/// The log-likelihood of `observation` at the gap `weight` of the way from gap row
+/// `row` to the next of one coupling's map (`cells`: the map at the bite's static
+/// torque, one per gap row), with `allowance`.
+fn point_loglik(
+    cells: &[Cell],
+    observation: &GapObservation,
+    allowance: Allowance,
+    row: usize,
+    weight: f64,
+) -> f64 {
+    let (taf_model, shift_model) = allowance.model_floors();
+    let taf_variance = observation.taf_sigma.powi(2) + taf_model;
+    let shift_variance = observation.period_shift_sigma_s.powi(2) + shift_model;
+    let (lower, upper, weight) = match cells.get(row + 1) {
+        Some(next) => (&cells[row], next, weight),
+        None => (&cells[row], &cells[row], 0.0),
+    };
+    // Bilinear weights of the corners: (gap row, torque neighbour, weight); each
+    // row has its own torque weight (its measured static torques differ a little).
+    let corners = [
+        (lower, 0, (1.0 - weight) * (1.0 - lower.weight)),
+        (lower, 1, (1.0 - weight) * lower.weight),
+        (upper, 0, weight * (1.0 - upper.weight)),
+        (upper, 1, weight * upper.weight),
+    ];
+    let taf = lerp(lower.taf(), upper.taf(), weight);
+    let taf_floor = corners
+        .iter()
+        .map(|&(cell, side, w)| w * cell.taf_floor[side])
+        .sum::<f64>();
+    let mut loglik = robust(
+        log_gauss(observation.taf - taf, taf_variance + taf_floor * taf_floor),
+        TAF_OUTLIER_SPAN,
+    );
+    if let Some(measured) = observation.period_shift_s {
+        loglik += shift_loglik(measured, shift_variance, &corners);
+    }
+    loglik
 }
 
 fn lerp(a: f64, b: f64, weight: f64) -> f64 {
@@ -201,12 +222,7 @@ fn lerp(a: f64, b: f64, weight: f64) -> f64 {
 
 /// The shift term at one point whose map corners are `corners` (cell, torque side,
 /// bilinear weight): 0 when a corner in use has no shift.
-fn shift_loglik(
-    measured: f64,
-    variance: f64,
-    common: f64,
-    corners: &[(&Cell, usize, f64); 4],
-) -> f64 {
+fn shift_loglik(measured: f64, variance: f64, corners: &[(&Cell, usize, f64); 4]) -> f64 {
     let mut values = [0.0; 4];
     let (mut low, mut high) = (f64::INFINITY, f64::NEG_INFINITY);
     let (mut value, mut floor) = (0.0, 0.0);
@@ -223,7 +239,7 @@ fn shift_loglik(
         value += weight * shift;
         floor += weight * cell.shift_floor_s[side];
     }
-    let variance = variance + common * floor * floor;
+    let variance = variance + floor * floor;
     let density = if high - low <= SHIFT_JUMP_S {
         log_gauss(measured - value, variance).exp()
     } else {
@@ -236,55 +252,70 @@ fn shift_loglik(
     ((1.0 - OUTLIER_WEIGHT) * density + OUTLIER_WEIGHT / SHIFT_OUTLIER_SPAN_S).ln()
 }
 
-/// The summed log-likelihood of `observations` per coupling (maps' order) on the fine
-/// gap grid ([`fine_gaps_rad`]), and how many observations were inside the maps.
-pub fn loglik(maps: &GapMaps, observations: &[GapObservation]) -> (Vec<Vec<f64>>, usize) {
-    let points = fine_points(maps);
-    let mut sums = vec![vec![0.0; points]; maps.maps().len()];
-    let inside: Vec<(&GapObservation, Vec<Vec<Cell>>)> = observations
-        .iter()
-        .filter_map(|observation| {
-            let cells: Option<Vec<Vec<Cell>>> = (0..maps.maps().len())
-                .map(|index| maps.cells(index, observation.static_torque_knm))
-                .collect();
-            Some((observation, cells?))
-        })
-        .collect();
-    let pooled = inside.len();
-    for (observation, cells) in &inside {
-        for (cells, sum) in cells.iter().zip(&mut sums) {
-            add_loglik(cells, observation, pooled, sum);
-        }
+/// Coupling `index`'s log-likelihood of `observation` at the gaps of `grid` (mrad)
+/// into `out` (its first `grid.len` slots), with `allowance`; `false` when the bite's
+/// static torque is outside the maps. Gaps beyond the maps take the last row's values.
+pub fn loglik_at(
+    maps: &GapMaps,
+    index: usize,
+    observation: &GapObservation,
+    grid: GapGrid,
+    allowance: Allowance,
+    out: &mut [f64],
+) -> bool {
+    let Some(cells) = maps.cells(index, observation.static_torque_knm) else {
+        return false;
+    };
+    let step_mrad = map_step_mrad(maps);
+    for (k, slot) in out.iter_mut().take(grid.len).enumerate() {
+        let rows = (grid.at(k) / step_mrad).max(0.0);
+        let row = (rows.floor() as usize).min(cells.len() - 1);
+        *slot = point_loglik(&cells, observation, allowance, row, rows - row as f64);
     }
-    (sums, pooled)
+    true
 }
 
-fn fine_points(maps: &GapMaps) -> usize {
-    (maps.gaps_rad().len() - 1) * SUBSTEPS + 1
-}
-
-/// The fine gap grid of [`loglik`], rad.
-pub fn fine_gaps_rad(maps: &GapMaps) -> Vec<f64> {
+/// The maps' gap step, mrad.
+fn map_step_mrad(maps: &GapMaps) -> f64 {
     let gaps = maps.gaps_rad();
-    (0..fine_points(maps))
-        .map(|k| {
-            let (row, sub) = (k / SUBSTEPS, k % SUBSTEPS);
-            match gaps.get(row + 1) {
-                Some(next) => lerp(gaps[row], *next, sub as f64 / SUBSTEPS as f64),
-                None => gaps[row],
-            }
+    gaps.get(1)
+        .map_or(f64::INFINITY, |next| (next - gaps[0]) * 1e3)
+}
+
+/// The maps' fine gap grid ([`SUBSTEPS`] points per map step, from 0 to the largest
+/// gap), mrad.
+pub fn fine_grid(maps: &GapMaps) -> GapGrid {
+    let gaps = maps.gaps_rad();
+    GapGrid {
+        first_mrad: gaps[0] * 1e3,
+        step_mrad: map_step_mrad(maps) / SUBSTEPS as f64,
+        len: (gaps.len() - 1) * SUBSTEPS + 1,
+    }
+}
+
+/// The log-likelihood of `observation` per coupling (maps' order) on the fine grid
+/// ([`fine_grid`]) with `allowance`; `None` when the bite's static torque is outside
+/// the maps.
+pub fn fine_loglik(
+    maps: &GapMaps,
+    observation: &GapObservation,
+    allowance: Allowance,
+) -> Option<Vec<Vec<f64>>> {
+    let grid = fine_grid(maps);
+    (0..maps.maps().len())
+        .map(|index| {
+            let mut out = vec![0.0; grid.len];
+            loglik_at(maps, index, observation, grid, allowance, &mut out).then_some(out)
         })
         .collect()
 }
 
-/// The pooled estimate of `observations` against `maps`; `None` when no observation
-/// lies inside the maps' static torque range.
-pub fn estimate(maps: &GapMaps, observations: &[GapObservation]) -> Option<GapEstimate> {
-    let (sums, pooled) = loglik(maps, observations);
-    if pooled == 0 {
-        return None;
-    }
-    let gaps = fine_gaps_rad(maps);
+/// The estimate from one bite against `maps` (with its whole allowance); `None` when
+/// the bite lies outside the maps' static torque range.
+pub fn estimate(maps: &GapMaps, observation: &GapObservation) -> Option<GapEstimate> {
+    let sums = fine_loglik(maps, observation, Allowance::Whole)?;
+    let grid = fine_grid(maps);
+    let gaps: Vec<f64> = (0..grid.len).map(|k| grid.at(k) * 1e-3).collect();
     let best_of = |sum: &[f64]| {
         sum.iter()
             .copied()
@@ -327,7 +358,6 @@ pub fn estimate(maps: &GapMaps, observations: &[GapObservation]) -> Option<GapEs
         gap_high_mrad: high * 1e3,
         coupling: determined.then(|| maps.maps()[winner].coupling),
         likeliest_coupling: maps.maps()[winner].coupling,
-        bites_pooled: pooled,
     })
 }
 
@@ -361,110 +391,9 @@ fn interval(sum: &[f64], gaps: &[f64], threshold: f64) -> (f64, f64) {
     (low, high)
 }
 
-/// The last N bites' observations of a driveline.
-#[derive(Debug, Clone, PartialEq)]
-pub struct GapPool {
-    capacity: usize,
-    /// Oldest first.
-    observations: Vec<GapObservation>,
-}
-
-impl GapPool {
-    /// An empty pool of the last `capacity` bites (at least 1).
-    pub fn new(capacity: usize) -> Self {
-        Self::from_observations(capacity, Vec::new())
-    }
-
-    /// A pool restored from its saved form (oldest first); keeps the last `capacity`.
-    pub fn from_observations(
-        capacity: usize,
-        observations: impl IntoIterator<Item = GapObservation>,
-    ) -> Self {
-        let capacity = capacity.max(1);
-        let mut pool = Self {
-            capacity,
-            observations: Vec::with_capacity(capacity),
-        };
-        for observation in observations {
-            pool.push(observation);
-        }
-        pool
-    }
-
-    /// The saved form: the observations, oldest first.
-    pub fn observations(&self) -> Vec<GapObservation> {
-        self.observations.clone()
-    }
-
-    /// Adds the newest observation, dropping the oldest beyond the capacity.
-    pub fn push(&mut self, observation: GapObservation) {
-        if self.observations.len() == self.capacity {
-            self.observations.remove(0);
-        }
-        self.observations.push(observation);
-    }
-
-    /// Forgets every observation (a coupling was replaced).
-    pub fn clear(&mut self) {
-        self.observations.clear();
-    }
-
-    /// Observations held.
-    pub fn len(&self) -> usize {
-        self.observations.len()
-    }
-
-    /// Whether the pool is empty.
-    pub fn is_empty(&self) -> bool {
-        self.observations.is_empty()
-    }
-
-    /// Most observations held.
-    pub fn capacity(&self) -> usize {
-        self.capacity
-    }
-
-    /// The pooled estimate against `maps`.
-    pub fn estimate(&self, maps: &GapMaps) -> Option<GapEstimate> {
-        estimate(maps, &self.observations)
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn observation(static_torque_knm: f64) -> GapObservation {
-        GapObservation {
-            static_torque_knm,
-            taf: 1.2,
-            taf_sigma: 0.01,
-            period_shift_s: Some(-0.01),
-            period_shift_sigma_s: 1e-3,
-        }
-    }
-
-    #[test]
-    fn the_pool_keeps_the_last_n_and_restores_from_its_saved_form() {
-        let mut pool = GapPool::new(3);
-        for k in 0..5 {
-            pool.push(observation(f64::from(k)));
-        }
-        let saved = pool.observations();
-        let kept: Vec<f64> = saved.iter().map(|o| o.static_torque_knm).collect();
-        assert_eq!(kept, [2.0, 3.0, 4.0]);
-        assert_eq!(GapPool::from_observations(3, saved.clone()), pool);
-        let smaller = GapPool::from_observations(2, saved);
-        let kept: Vec<f64> = smaller
-            .observations()
-            .iter()
-            .map(|o| o.static_torque_knm)
-            .collect();
-        assert_eq!(kept, [3.0, 4.0], "a smaller pool keeps the newest");
-        pool.clear();
-        assert!(pool.is_empty() && pool.capacity() == 3);
-        assert_eq!(GapPool::new(0).capacity(), 1);
-    }
 
     #[test]
     fn the_interval_ends_where_the_log_likelihood_crosses_the_threshold() {

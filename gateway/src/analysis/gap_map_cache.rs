@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use super::simulated_bite::BiteSimulator;
-use crate::state::gap_maps::{GapMapData, GapMapSpec, GapMaps};
+use crate::state::gap_maps::{fnv1a, GapMapData, GapMapSpec, GapMaps};
 
 /// Version of the file format and of what a map point means; part of the key.
 pub(crate) const FORMAT_VERSION: u32 = 1;
@@ -65,15 +65,6 @@ pub(crate) fn key(simulator: &BiteSimulator, spec: &GapMapSpec) -> Result<String
         "millgate gap maps, format {FORMAT_VERSION}\n{}\nspec {spec}\n",
         simulator.describe()?
     ))
-}
-
-/// FNV-1a, 64 bits: a hash that stays the same across Rust releases (std's
-/// `DefaultHasher` does not promise to), for file names only; the stored key catches
-/// collisions. Hand-rolled: six lines against a new dependency.
-fn fnv1a(text: &str) -> u64 {
-    text.bytes().fold(0xcbf2_9ce4_8422_2325, |hash, byte| {
-        (hash ^ u64::from(byte)).wrapping_mul(0x0000_0100_0000_01b3)
-    })
 }
 
 /// The file holding the maps of `key` in `dir`.

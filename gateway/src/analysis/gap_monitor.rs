@@ -1,19 +1,25 @@
-//! One driveline's gap diagnosis: its maps (built off the analysis task), the pool of
-//! its last bites, the published estimate and the wear state.
+//! One driveline's gap diagnosis: its maps (built off the analysis task), the wear
+//! trend of its bites, the published estimate and forecast, and the wear state.
 //!
 //! - **Maps** come from a [`GapMapJob`]: the cache when it holds maps for this model
 //!   and these settings (`gap_map_cache`), else a build on its own threads
 //!   ([`super::gap_map::build`]). Until they are installed the gap registers stay
-//!   invalid; bites seen meanwhile are pooled and estimated once the maps arrive. A
-//!   build that fails leaves them invalid for good (the error is logged, naming the
-//!   model file).
-//! - **Wear state**: warning while the estimated gap (maximum likelihood) is at or
-//!   above `thresholds.gap_warning_mrad`; alarm, latched until acknowledged
+//!   invalid; bites seen meanwhile are held (at most [`MAX_PENDING`], the newest) and
+//!   folded into the trend once the maps arrive. A build that fails leaves them invalid
+//!   for good (the error is logged, naming the model file).
+//! - **Trend** ([`super::gap_trend`]): every bite since the last wear reset, in time
+//!   order: the gap at the last bite with its 90% interval, its growth, and the days
+//!   until it reaches `thresholds.gap_alarm_mrad`.
+//! - **Wear state**: warning while the estimated gap is at or above
+//!   `thresholds.gap_warning_mrad`; alarm, latched until acknowledged
 //!   (`command.acknowledge_alarms`), once the whole 90% interval is at or above
-//!   `thresholds.gap_alarm_mrad` (the gap is that large with 95% confidence).
+//!   `thresholds.gap_alarm_mrad` (the gap is that large with 95% confidence). The
+//!   forecast says when the gap itself reaches the threshold: the alarm bit follows
+//!   later, once the interval's low end is there too.
 //! - **Reset** (`command.reset_wear_trend`, e.g. after a coupling was replaced): the
-//!   pool is emptied and the estimate invalid until the next bite.
+//!   trend starts again with the next bite; the estimate is invalid until then.
 
+use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
@@ -21,10 +27,12 @@ use std::time::Instant;
 
 use millgate_config::DrivelineThresholds;
 use millgate_dsp::transient::{TransientResult, TransientSettings};
+use millgate_dsp::wear_trend::TrendError;
 
-use super::gap_estimate::{GapEstimate, GapObservation, GapPool};
+use super::gap_estimate::{GapEstimate, GapObservation};
 use super::gap_map::{build, GapMapError};
 use super::gap_map_cache;
+use super::gap_trend::{Folded, GapTrend};
 use super::simulated_bite::BiteSimulator;
 use crate::state::events::{AlarmEvent, AlarmKind, AlarmRecord, HistoryEvent, WearState};
 use crate::state::gap_maps::{GapMapSpec, GapMaps};
@@ -32,15 +40,17 @@ use crate::state::results::{DrivelineResults, GapResults};
 use crate::state::time::UtcTime;
 
 /// What a bite adds to the gap diagnosis.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct GapBite {
-    /// The bite's measures and their uncertainty (what a history stores to restore the
-    /// pool).
+    /// The bite's measures and their uncertainty (what a history stores to fold it
+    /// in again).
     pub observation: GapObservation,
     /// The estimate from this bite alone, once the maps are ready.
     pub bite: Option<GapEstimate>,
-    /// The pooled estimate after this bite, once the maps are ready.
-    pub pooled: Option<GapEstimate>,
+    /// The trend's estimate and forecast after this bite, once the maps are ready.
+    pub trend: Option<GapResults>,
+    /// The trend's saved form after this bite (JSON), for the history.
+    pub saved: Option<String>,
 }
 
 /// Where installed maps came from.
@@ -196,68 +206,134 @@ pub(crate) fn spawn_job(
 /// driveline index and the maps or why there are none.
 pub(crate) type GapMapsReady = (usize, Result<GapMaps, GapMapError>);
 
+/// The most bites held while the maps are not ready (the newest are kept).
+pub(crate) const MAX_PENDING: usize = 1000;
+
 /// The gap diagnosis state of one driveline in the analysis task.
 #[derive(Debug)]
 pub(super) struct GapMonitor {
     maps: Option<Arc<GapMaps>>,
-    pool: GapPool,
+    trend: GapTrend,
+    /// Bites seen before the maps, oldest first: (time ms since the epoch, measures).
+    pending: VecDeque<(i64, GapObservation)>,
+    name: String,
     warning_mrad: f64,
     alarm_mrad: f64,
 }
 
 impl GapMonitor {
-    /// A monitor pooling the last `pool_bites` bites, with the driveline's thresholds.
-    pub(super) fn new(thresholds: &DrivelineThresholds, pool_bites: usize) -> Self {
-        Self {
+    /// The monitor of driveline `name` with its thresholds, forecasting up to
+    /// `horizon_days`.
+    pub(super) fn new(
+        name: &str,
+        thresholds: &DrivelineThresholds,
+        horizon_days: f64,
+    ) -> Result<Self, TrendError> {
+        Ok(Self {
             maps: None,
-            pool: GapPool::new(pool_bites),
+            trend: GapTrend::new(horizon_days)?,
+            pending: VecDeque::new(),
+            name: name.to_owned(),
             warning_mrad: thresholds.gap_warning_mrad,
             alarm_mrad: thresholds.gap_alarm_mrad,
+        })
+    }
+
+    /// Install the maps (`None`: they failed and will not come); the trend's estimate
+    /// after folding in the bites held meanwhile.
+    pub(super) fn set_maps(&mut self, maps: Option<Arc<GapMaps>>) -> Option<GapResults> {
+        self.maps = maps;
+        let maps = self.maps.clone()?;
+        while let Some((time, observation)) = self.pending.pop_front() {
+            self.fold(&maps, &observation, time);
+        }
+        self.results()
+    }
+
+    /// The trend's estimate and forecast; `None` before a bite was folded in.
+    pub(super) fn results(&self) -> Option<GapResults> {
+        self.trend.results(self.alarm_mrad)
+    }
+
+    /// Continue the trend `saved` (a restart), when it fits; `false` when it does not
+    /// (another format, or unreadable: the caller folds the bites in again).
+    pub(super) fn restore_trend(&mut self, saved: &str) -> bool {
+        match self.trend.restore(saved) {
+            Ok(()) => true,
+            Err(error) => {
+                tracing::warn!(driveline = %self.name, %error, "saved wear trend not usable: folding the last bites in again");
+                false
+            }
         }
     }
 
-    /// Install the maps (`None`: they failed and will not come); the pooled estimate
-    /// of the bites held.
-    pub(super) fn set_maps(&mut self, maps: Option<Arc<GapMaps>>) -> Option<GapEstimate> {
-        self.maps = maps;
-        self.estimate()
+    /// Fold in `bites` (time ms since the epoch, measures; oldest first) as a restart
+    /// does without a saved trend; held until the maps are ready.
+    pub(super) fn restore_bites(&mut self, bites: Vec<(i64, GapObservation)>) {
+        self.trend.reset();
+        self.pending.clear();
+        for (time, observation) in bites {
+            self.hold_or_fold(time, observation);
+        }
     }
 
-    fn estimate(&self) -> Option<GapEstimate> {
-        self.pool.estimate(self.maps.as_deref()?)
-    }
-
-    /// Replace the pool by `observations`; the estimate, when the maps are ready.
-    pub(super) fn restore(&mut self, observations: Vec<GapObservation>) -> Option<GapEstimate> {
-        self.pool = GapPool::from_observations(self.pool.capacity(), observations);
-        self.estimate()
-    }
-
-    /// The pool's saved form.
-    pub(super) fn observations(&self) -> Vec<GapObservation> {
-        self.pool.observations()
-    }
-
-    /// Empty the pool.
+    /// Forget every bite (the wear reset).
     pub(super) fn reset(&mut self) {
-        self.pool.clear();
+        self.trend.reset();
+        self.pending.clear();
     }
 
-    /// Pool a bite whose window (kN*m) gave `transient` with `settings`.
+    /// The trend's saved form (JSON).
+    pub(super) fn saved(&self) -> String {
+        self.trend.saved()
+    }
+
+    /// Fold in a bite at `time` (ms since the epoch) whose window (kN*m) gave
+    /// `transient` with `settings`.
     pub(super) fn observe(
         &mut self,
         window: &[f64],
         transient: &TransientResult,
         settings: &TransientSettings,
+        time: i64,
     ) -> Option<GapBite> {
         let observation = GapObservation::from_window(window, transient, settings)?;
-        self.pool.push(observation);
+        self.hold_or_fold(time, observation);
         let maps = self.maps.as_deref();
+        let trend = maps.and_then(|_| self.results());
         Some(GapBite {
             observation,
-            bite: maps.and_then(|maps| super::gap_estimate::estimate(maps, &[observation])),
-            pooled: maps.and_then(|maps| self.pool.estimate(maps)),
+            bite: maps.and_then(|maps| super::gap_estimate::estimate(maps, &observation)),
+            saved: trend.map(|_| self.saved()),
+            trend,
         })
+    }
+
+    /// Fold `observation` in when the maps are ready, else hold it.
+    fn hold_or_fold(&mut self, time: i64, observation: GapObservation) {
+        match self.maps.clone() {
+            Some(maps) => self.fold(&maps, &observation, time),
+            None => {
+                if self.pending.len() == MAX_PENDING {
+                    self.pending.pop_front();
+                }
+                self.pending.push_back((time, observation));
+            }
+        }
+    }
+
+    /// Fold one bite into the trend; what it refuses is logged.
+    fn fold(&mut self, maps: &GapMaps, observation: &GapObservation, time: i64) {
+        match self.trend.fold(maps, observation, time) {
+            Ok(Folded::Folded { jumped: true }) => tracing::warn!(
+                driveline = %self.name,
+                "the gap stepped: the wear trend reopened (a coupling changed without a wear reset? reset the wear trend)"
+            ),
+            Ok(_) => {}
+            Err(error) => {
+                tracing::warn!(driveline = %self.name, %error, "bite not folded into the wear trend")
+            }
+        }
     }
 
     /// Record `estimate` in the results of driveline `subject`: the values, the
@@ -266,21 +342,14 @@ impl GapMonitor {
     pub(super) fn publish(
         &self,
         results: &mut DrivelineResults,
-        estimate: &GapEstimate,
+        estimate: &GapResults,
         (subject, time): (&str, UtcTime),
         events: &mut Vec<HistoryEvent>,
     ) {
         let (was_warning, was_alarm) = (results.gap_warning, results.gap_alarm);
-        results.gap = Some(GapResults {
-            gap_mrad: estimate.gap_mrad,
-            low_mrad: estimate.gap_low_mrad,
-            high_mrad: estimate.gap_high_mrad,
-            coupling: estimate.coupling,
-            likeliest_coupling: Some(estimate.likeliest_coupling),
-            bites_pooled: estimate.bites_pooled,
-        });
+        results.gap = Some(*estimate);
         results.gap_warning = estimate.gap_mrad >= self.warning_mrad;
-        results.gap_alarm |= estimate.gap_low_mrad >= self.alarm_mrad;
+        results.gap_alarm |= estimate.low_mrad >= self.alarm_mrad;
         let alarm = |kind, event, value, threshold| {
             HistoryEvent::Alarm(AlarmRecord {
                 time,
@@ -309,15 +378,15 @@ impl GapMonitor {
             events.push(alarm(
                 AlarmKind::GapAlarm,
                 AlarmEvent::Raised,
-                estimate.gap_low_mrad,
+                estimate.low_mrad,
                 self.alarm_mrad,
             ));
         }
     }
 
     /// `estimate` against the thresholds, as the history records it.
-    pub(super) fn verdict(&self, estimate: &GapEstimate) -> WearState {
-        if estimate.gap_low_mrad >= self.alarm_mrad {
+    pub(super) fn verdict(&self, estimate: &GapResults) -> WearState {
+        if estimate.low_mrad >= self.alarm_mrad {
             WearState::Alarm
         } else if estimate.gap_mrad >= self.warning_mrad {
             WearState::Warning

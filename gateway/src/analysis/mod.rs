@@ -15,6 +15,7 @@ pub mod gap_estimate;
 pub mod gap_map;
 pub(crate) mod gap_map_cache;
 pub mod gap_monitor;
+pub mod gap_trend;
 pub mod rod_monitor;
 pub(crate) mod simulated_bite;
 pub mod wear;
@@ -169,8 +170,8 @@ impl Analysis {
     }
 
     /// Install driveline `index`'s gap maps, or note that they failed (logged with
-    /// the error, the gap registers stay invalid); publishes the estimate of the bites
-    /// pooled meanwhile.
+    /// the error, the gap registers stay invalid); publishes the trend's estimate of
+    /// the bites seen meanwhile.
     pub fn install_gap_maps(&mut self, index: usize, maps: Result<GapMaps, GapMapError>) {
         let Some(driveline) = self.drivelines.get_mut(index) else {
             return;
@@ -194,25 +195,31 @@ impl Analysis {
         }
     }
 
-    /// Replace driveline `index`'s gap pool by `observations` (oldest first), as a
-    /// history restores it at start; publishes the estimate once the maps are ready.
-    pub fn restore_gap_pool(&mut self, index: usize, observations: Vec<GapObservation>) {
+    /// Continue driveline `index`'s wear trend as a history restores it at start: its
+    /// saved form, or when there is none or it does not fit, `bites` folded in again
+    /// (time ms since the epoch, measures; oldest first); publishes the estimate once
+    /// the maps are ready.
+    pub fn restore_gap_trend(
+        &mut self,
+        index: usize,
+        saved: Option<&str>,
+        bites: Vec<(i64, GapObservation)>,
+    ) {
         let Some(driveline) = self.drivelines.get_mut(index) else {
             return;
         };
-        if let Some(estimate) = driveline.restore_gap_pool(observations) {
+        if let Some(estimate) = driveline.restore_gap_trend(saved, bites) {
             driveline.publish_gap(&self.board, &estimate);
         }
     }
 
-    /// Driveline `index`'s gap pool in its saved form (oldest first); `None` without
-    /// a model.
-    pub fn gap_pool(&self, index: usize) -> Option<Vec<GapObservation>> {
-        self.drivelines.get(index)?.gap_pool()
+    /// Driveline `index`'s wear trend in its saved form; `None` without a model.
+    pub fn gap_trend(&self, index: usize) -> Option<String> {
+        self.drivelines.get(index)?.gap_trend()
     }
 
     /// Apply a command: acknowledge the latched alarms, or reset a driveline's wear
-    /// (its trend, its gap estimate and the gap pool behind it).
+    /// (its TAF-ratio trend, its gap estimate and the gap's wear trend behind it).
     pub fn command(&mut self, command: Command) {
         let kind = match &command {
             Command::AcknowledgeAlarms { .. } => 0,
@@ -237,7 +244,7 @@ impl Analysis {
                 if let Some(suppressed) = log {
                     tracing::info!(driveline = %self.board.driveline_names()[driveline], by = origin.name(), peer = ?origin.peer(), suppressed, "wear reset");
                 }
-                analyzer.reset_gap_pool();
+                analyzer.reset_gap_trend();
                 self.board.reset_wear(driveline, origin);
             }
             Command::CaptureTorque {
@@ -352,6 +359,7 @@ impl Analysis {
         }
         for report in &released {
             self.drivelines[report.driveline].publish(&self.board, report);
+            let trend = report.gap.as_ref().and_then(|gap| gap.trend);
             tracing::info!(
                 driveline = %report.driveline_name,
                 static_knm = report.transient.static_torque_knm,
@@ -361,10 +369,12 @@ impl Analysis {
                 degraded = report.degraded,
                 wear_index = ?report.wear.map(|wear| wear.index),
                 shift_over_linear_s = ?report.wear.and_then(|wear| wear.shift_excess_s),
-                gap_mrad = ?report.gap.and_then(|gap| gap.pooled).map(|e| e.gap_mrad),
-                gap_low_mrad = ?report.gap.and_then(|gap| gap.pooled).map(|e| e.gap_low_mrad),
-                gap_high_mrad = ?report.gap.and_then(|gap| gap.pooled).map(|e| e.gap_high_mrad),
-                gap_coupling = ?report.gap.and_then(|gap| gap.pooled).map(|e| e.coupling),
+                gap_mrad = ?trend.map(|e| e.gap_mrad),
+                gap_low_mrad = ?trend.map(|e| e.low_mrad),
+                gap_high_mrad = ?trend.map(|e| e.high_mrad),
+                gap_coupling = ?trend.map(|e| e.coupling),
+                gap_growth_mrad_per_day = ?trend.and_then(|e| e.growth).map(|g| g.mrad_per_day),
+                days_to_gap_alarm = ?trend.and_then(|e| e.forecast).and_then(|f| f.days),
                 "bite"
             );
             // Nobody listening is fine: the demo and tests subscribe, the service need not.

@@ -291,8 +291,8 @@ mod tests {
     fn wear_settings_that_do_not_fit_the_model_are_reported_with_their_key() {
         let error = check_variant(
             "demo.toml",
-            "wear = { pool_bites = 5",
-            "wear = { couplings = [0, 3], pool_bites = 5",
+            "wear = { gap_step_mrad",
+            "wear = { couplings = [0, 3], gap_step_mrad",
         )
         .expect_err("the model has couplings 0 and 1");
         let text = error.to_string();

@@ -251,7 +251,7 @@ async fn print_bites(
     started: Instant,
 ) -> usize {
     println!(
-        "{:>7} {:>12} {:>7} {:>10} {:>7} | {:>10} {:>10} {:>24} {:>9}",
+        "{:>7} {:>12} {:>7} {:>10} {:>7} | {:>10} {:>10} {:>24} {:>9} {:>14} {:>22}",
         "time s",
         "static kN*m",
         "TAF",
@@ -259,8 +259,10 @@ async fn print_bites(
         "error",
         "gap truth",
         "this bite",
-        "pooled gap (90%), mrad",
-        "coupling"
+        "trend gap (90%), mrad",
+        "coupling",
+        "growth mrad/s",
+        "alarm in s (90%)"
     );
     let deadline = tokio::time::sleep(Duration::from_secs_f64(duration_s));
     tokio::pin!(deadline);
@@ -296,24 +298,45 @@ fn bite_row(bite: &BiteReport, truth: Option<&BiteTruth>, elapsed_s: f64) -> Str
     let taf = t.taf.unwrap_or(f64::NAN);
     let truth_taf = truth.map_or(f64::NAN, |truth| truth.taf);
     let truth_gap = truth.map_or(f64::NAN, |truth| truth.backlash_rad[GAP_COUPLING] * 1e3);
-    let (this_bite, pooled, coupling) = match bite.gap {
-        None => ("-".to_owned(), "-".to_owned(), String::new()),
-        Some(gap) => match (gap.bite, gap.pooled) {
-            (Some(single), Some(pooled)) => (
-                format!("{:.2}", single.gap_mrad),
-                format!(
-                    "{:.2} ({:.2} .. {:.2})",
-                    pooled.gap_mrad, pooled.gap_low_mrad, pooled.gap_high_mrad
-                ),
-                pooled
-                    .coupling
-                    .map_or_else(|| "undet.".to_owned(), |c| c.to_string()),
+    let gap = bite.gap.as_ref();
+    let this_bite = gap.and_then(|gap| gap.bite).map_or_else(
+        || "-".to_owned(),
+        |single| format!("{:.2}", single.gap_mrad),
+    );
+    // The demo compresses months of wear into seconds: growth and forecast in seconds.
+    let (trend, coupling, growth, alarm) = match gap.and_then(|gap| gap.trend) {
+        None if gap.is_some() => (
+            "maps building".to_owned(),
+            String::new(),
+            String::new(),
+            String::new(),
+        ),
+        None => ("-".to_owned(), String::new(), String::new(), String::new()),
+        Some(trend) => (
+            format!(
+                "{:.2} ({:.2} .. {:.2})",
+                trend.gap_mrad, trend.low_mrad, trend.high_mrad
             ),
-            _ => ("-".to_owned(), "maps building".to_owned(), String::new()),
-        },
+            trend
+                .coupling
+                .map_or_else(|| "undet.".to_owned(), |c| c.to_string()),
+            trend.growth.map_or_else(
+                || "-".to_owned(),
+                |g| format!("{:.3}", g.mrad_per_day / SECONDS_PER_DAY),
+            ),
+            trend.forecast.map_or_else(String::new, |f| match f.days {
+                Some(days) => format!(
+                    "{:.1} ({} .. {})",
+                    days * SECONDS_PER_DAY,
+                    seconds(f.days_low),
+                    seconds(f.days_high)
+                ),
+                None => f.state.name().to_owned(),
+            }),
+        ),
     };
     format!(
-        "{:>7.2} {:>12.2} {:>7.3} {:>10.3} {:>6.2}% | {:>10.2} {:>10} {:>24} {:>9}{}",
+        "{:>7.2} {:>12.2} {:>7.3} {:>10.3} {:>6.2}% | {:>10.2} {:>10} {:>24} {:>9} {:>14} {:>22}{}",
         elapsed_s,
         t.static_torque_knm,
         taf,
@@ -321,13 +344,26 @@ fn bite_row(bite: &BiteReport, truth: Option<&BiteTruth>, elapsed_s: f64) -> Str
         100.0 * (taf - truth_taf) / truth_taf,
         truth_gap,
         this_bite,
-        pooled,
+        trend,
         coupling,
+        growth,
+        alarm,
         if bite.degraded {
             "  (degraded window)"
         } else {
             ""
         },
+    )
+}
+
+/// Seconds per day: the demo's wear runs in seconds.
+const SECONDS_PER_DAY: f64 = 86_400.0;
+
+/// `days` in seconds, `-` without.
+fn seconds(days: Option<f64>) -> String {
+    days.map_or_else(
+        || "-".to_owned(),
+        |days| format!("{:.1}", days * SECONDS_PER_DAY),
     )
 }
 

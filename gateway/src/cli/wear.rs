@@ -1,14 +1,20 @@
-//! `millgate wear --input FILE.csv --model MODEL.toml [--channel NAME] [--pool N]
-//! [--format text|json] [--plot FILE.svg]`: the service's gap diagnosis on a recording.
+//! `millgate wear --input FILE.csv --model MODEL.toml [--channel NAME] [--alarm-mrad X]
+//! [--horizon-days D] [--format text|json] [--plot FILE.svg]`, or `millgate wear --db
+//! FILE --driveline NAME`: the service's gap diagnosis and wear forecast on a record, or
+//! from a history.
 //!
 //! The same code as the service: bites are detected and analysed with a driveline's
 //! setup ([`BiteSetup`]: the default capture, 0.1 s before and 0.5 s after the trigger,
 //! and `--threshold-knm`), the gap maps of the model are built by the same job (cached
 //! like the service's, progress on stderr) over the static torques the record's bites
-//! span, and the last `--pool` bites are pooled into one estimate.
+//! span, and every bite is folded into the wear trend ([`GapTrend`]) in time order.
+//! A record may hold bites recorded apart: `t` then jumps (by at least
+//! [`csv::SEGMENT_JUMP_S`]) between uniformly sampled runs, and `t` in Unix seconds
+//! (UTC, after 2000) dates the forecast; a `# reset` comment line marks a wear reset.
+//! With `--db` the trend the service kept after its last bite is read back.
 
 use std::fmt::Write as _;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 use anyhow::{bail, Context as _};
@@ -19,11 +25,15 @@ use serde_json::{json, Value};
 use super::OutputFormat;
 use crate::analysis::bite_window::analyze_window;
 use crate::analysis::driveline::BiteSetup;
-use crate::analysis::gap_estimate::{estimate, GapEstimate, GapObservation};
+use crate::analysis::gap_estimate::{estimate, GapObservation};
 use crate::analysis::gap_map_cache;
 use crate::analysis::gap_monitor::{GapMapJob, MapsOrigin};
+use crate::analysis::gap_trend::{GapTrend, EARLY_GROWTH_SD, MIN_TREND_BITES, MIN_TREND_SPAN_DAYS};
+use crate::history::query::{Filter, HistoryReader};
 use crate::records::csv;
 use crate::state::gap_maps::{GapMapSpec, GapMaps};
+use crate::state::results::{ForecastState, GapForecast, GapResults};
+use crate::state::time::UtcTime;
 
 /// Capture before the trigger, s (the configuration's default).
 const PRE_TRIGGER_S: f64 = 0.1;
@@ -39,20 +49,35 @@ const IDLE_LEVEL_SAMPLES: usize = 20;
 
 /// Arguments of `millgate wear`.
 #[derive(Debug, Clone, clap::Args)]
+#[command(group(clap::ArgGroup::new("from").required(true).args(["input", "db"])))]
 pub struct WearArgs {
-    /// Recorded bites: CSV with a header, first column `t` (s), other columns torque
-    /// (kN*m).
-    #[arg(long)]
-    pub input: PathBuf,
+    /// Recorded bites: CSV with a header, first column `t` (s; Unix seconds date the
+    /// forecast), other columns torque (kN*m).
+    #[arg(long, requires = "model", conflicts_with = "db")]
+    pub input: Option<PathBuf>,
     /// The driveline model (TOML) to diagnose against, as `drivelines[].model`.
     #[arg(long)]
-    pub model: PathBuf,
+    pub model: Option<PathBuf>,
+    /// A history file: the wear trend the service kept for `--driveline`.
+    #[arg(long, requires = "driveline")]
+    pub db: Option<PathBuf>,
+    /// The driveline of `--db`.
+    #[arg(long, requires = "db")]
+    pub driveline: Option<String>,
     /// Channel to use (default: the first after `t`).
     #[arg(long)]
     pub channel: Option<String>,
-    /// Bites pooled into the estimate: the last N of the record.
-    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u16).range(1..=1000))]
-    pub pool: u16,
+    /// Deprecated, no effect: the gap is now the wear trend of every bite (accepted
+    /// for one release).
+    #[arg(long, hide = true, value_parser = clap::value_parser!(u16).range(1..=1000))]
+    pub pool: Option<u16>,
+    /// The gap alarm the forecast is for, mrad (`thresholds.gap_alarm_mrad`; with
+    /// `--db` the history's last run's, else 4).
+    #[arg(long)]
+    pub alarm_mrad: Option<f64>,
+    /// How far ahead the forecast looks, days (`wear.horizon_days`).
+    #[arg(long, default_value_t = WearSettings::default().horizon_days)]
+    pub horizon_days: f64,
     /// Rise above the baseline that marks a bite, kN*m.
     #[arg(long, default_value_t = 20.0)]
     pub threshold_knm: f64,
@@ -75,24 +100,49 @@ pub struct WearArgs {
     pub plot: Option<PathBuf>,
 }
 
+/// The gap alarm when neither `--alarm-mrad` nor a history says (the configuration's
+/// default `thresholds.gap_alarm_mrad`).
+const DEFAULT_ALARM_MRAD: f64 = 4.0;
+
+/// `t` at or after this (2000-01-01T00:00:00Z) is read as Unix seconds: the forecast
+/// gets a date.
+const UNIX_SECONDS_FROM: f64 = 946_684_800.0;
+
 /// One bite of the record.
 struct Bite {
     t_bite_s: f64,
     observation: GapObservation,
+    /// A wear reset stands between the bite before and this one.
+    after_reset: bool,
+    /// The trend after this bite.
+    trend: Option<GapResults>,
 }
 
 /// Runs the command, printing progress to stderr; returns the text to print.
 pub fn run(args: &WearArgs) -> anyhow::Result<String> {
-    let input = args.input.display().to_string();
     check_numbers(args)?;
-    let table = csv::read(&args.input).with_context(|| input.clone())?;
+    if args.pool.is_some() {
+        eprintln!("wear: --pool is deprecated and has no effect (the gap is the wear trend of every bite)");
+    }
+    match (&args.input, &args.model, &args.db, &args.driveline) {
+        (Some(input), Some(model), _, _) => from_record(args, input, model),
+        (_, _, Some(db), Some(driveline)) => from_history(args, db, driveline),
+        _ => bail!("give --input FILE --model MODEL, or --db FILE --driveline NAME"),
+    }
+}
+
+/// The diagnosis of the record `input` against the model file `model_file`.
+fn from_record(args: &WearArgs, input: &Path, model_file: &Path) -> anyhow::Result<String> {
+    let input = input.display().to_string();
+    let table = csv::read(Path::new(&input)).with_context(|| input.clone())?;
     let (channel, signal) = table
         .pick_torque(args.channel.as_deref())
         .map_err(|e| anyhow::anyhow!("{input}: {e}"))?;
-    let rate = table
-        .sample_rate_hz()
+    let segments = table
+        .segments()
         .map_err(|e| anyhow::anyhow!("{input}: {e}"))?;
-    let model = Model::load(&args.model)?;
+    let rate = segments.rate_hz;
+    let model = Model::load(model_file)?;
     let capture = BiteSettings {
         threshold_knm: args.threshold_knm,
         pre_trigger_s: PRE_TRIGGER_S,
@@ -101,7 +151,20 @@ pub fn run(args: &WearArgs) -> anyhow::Result<String> {
     let unlimited = (f64::NEG_INFINITY, f64::INFINITY);
     let setup = BiteSetup::new(0, &input, &capture, rate, unlimited, Some(&model))
         .map_err(|e| anyhow::anyhow!("{input}: {e}"))?;
-    let bites = detect(&table.time_s, signal, &setup);
+    let reset_times: Vec<f64> = table
+        .resets
+        .iter()
+        .filter_map(|&row| table.time_s.get(row).copied())
+        .collect();
+    let mut bites = Vec::new();
+    for range in &segments.ranges {
+        bites.extend(detect(
+            &table.time_s[range.clone()],
+            &signal[range.clone()],
+            &setup,
+        ));
+    }
+    mark_resets(&mut bites, &reset_times);
     if bites.is_empty() {
         bail!(
             "{input}: no bite in channel `{channel}` (no analysable rise of {} kN*m above the \
@@ -117,33 +180,260 @@ pub fn run(args: &WearArgs) -> anyhow::Result<String> {
     let job = GapMapJob::new(
         0,
         &input,
-        &args.model,
+        model_file,
         setup.simulator(&model),
         spec,
         &cache_dir,
     );
     let maps = build_maps(&job)?;
-    let observations: Vec<GapObservation> = bites.iter().map(|b| b.observation).collect();
-    let pooled = &observations[observations.len().saturating_sub(usize::from(args.pool))..];
-    let result = estimate(&maps, pooled);
+    let alarm_mrad = args.alarm_mrad.unwrap_or(DEFAULT_ALARM_MRAD);
+    let mut trend = GapTrend::new(args.horizon_days)?;
+    for bite in &mut bites {
+        if bite.after_reset {
+            trend.reset();
+        }
+        let unix_ms = (bite.t_bite_s * 1e3).round() as i64;
+        if let Err(error) = trend.fold(&maps, &bite.observation, unix_ms) {
+            bail!("{input}: the bite at t = {} s: {error}", bite.t_bite_s);
+        }
+        bite.trend = trend.results(alarm_mrad);
+    }
+    let dated = bites
+        .first()
+        .is_some_and(|bite| bite.t_bite_s >= UNIX_SECONDS_FROM);
+    let outlook = Outlook {
+        results: trend.results(alarm_mrad),
+        alarm_mrad,
+        horizon_days: args.horizon_days,
+        dated,
+    };
     #[cfg(feature = "sim-tools")]
     if let Some(path) = &args.plot {
-        let svg = plot(&maps, &model, &observations, result.as_ref())?;
+        let observations: Vec<GapObservation> = bites.iter().map(|b| b.observation).collect();
+        let svg = plot(&maps, &model, &observations, outlook.results.as_ref())?;
         std::fs::write(path, svg).with_context(|| format!("writing {}", path.display()))?;
         eprintln!("wear: wrote {}", path.display());
     }
     Ok(match args.format {
-        OutputFormat::Json => json_report(&maps, &bites, result.as_ref()).to_string(),
-        OutputFormat::Text => text_report(
-            &input,
-            channel,
-            rate,
-            &model,
-            &maps,
-            &bites,
-            result.as_ref(),
-        )?,
+        OutputFormat::Json => {
+            let mut report = outlook.json();
+            report["bites"] = bites_json(&maps, &bites);
+            report["segments"] = json!(segments.ranges.len());
+            report["resets"] = json!(bites.iter().filter(|b| b.after_reset).count());
+            report.to_string()
+        }
+        OutputFormat::Text => {
+            let mut out = bites_text(
+                &input,
+                channel,
+                rate,
+                &model,
+                &maps,
+                &bites,
+                segments.ranges.len(),
+            )?;
+            out.push_str(&outlook.text(&model_coupling_names(&model)));
+            out
+        }
     })
+}
+
+/// The wear trend `driveline` of the history `db` kept after its last bite.
+fn from_history(args: &WearArgs, db: &Path, driveline: &str) -> anyhow::Result<String> {
+    let reader = HistoryReader::open(db)?;
+    let state = reader.state()?;
+    let file = db.display();
+    let Some(restored) = state.drivelines.iter().find(|d| d.name == driveline) else {
+        let names: Vec<String> = state.drivelines.iter().map(|d| d.name.clone()).collect();
+        bail!(
+            "{file}: no driveline `{driveline}` (drivelines: {})",
+            names.join(", ")
+        );
+    };
+    let Some(saved) = &restored.gap_trend else {
+        bail!(
+            "{file}: no wear trend kept for `{driveline}` (no bite with a gap estimate since \
+             its last wear reset, or a history written before schema version 11: the \
+             gateway keeps it from its next bite on)"
+        );
+    };
+    let alarm_mrad = match args.alarm_mrad {
+        Some(alarm) => alarm,
+        None => {
+            let filter = Filter {
+                name: Some(driveline.to_owned()),
+                ..Filter::default()
+            };
+            reader
+                .settings(&filter)?
+                .last()
+                .and_then(|settings| settings.gap_alarm_mrad)
+                .unwrap_or(DEFAULT_ALARM_MRAD)
+        }
+    };
+    let mut trend = GapTrend::new(args.horizon_days)?;
+    trend
+        .restore(saved)
+        .map_err(|error| anyhow::anyhow!("{file}: the wear trend of `{driveline}`: {error}"))?;
+    let outlook = Outlook {
+        results: trend.results(alarm_mrad),
+        alarm_mrad,
+        horizon_days: args.horizon_days,
+        dated: true,
+    };
+    Ok(match args.format {
+        OutputFormat::Json => outlook.json().to_string(),
+        OutputFormat::Text => {
+            let mut out = format!(
+                "{file}: driveline {driveline}, wear trend after the bite of {}\n",
+                trend
+                    .last_bite_unix_ms()
+                    .map_or("-".into(), |ms| UtcTime::from_unix_ms(ms).to_string())
+            );
+            out.push_str(&outlook.text(&[]));
+            out
+        }
+    })
+}
+
+/// Mark the first bite after each reset time.
+fn mark_resets(bites: &mut [Bite], reset_times: &[f64]) {
+    for &reset in reset_times {
+        if let Some(bite) = bites.iter_mut().find(|bite| bite.t_bite_s >= reset) {
+            bite.after_reset = true;
+        }
+    }
+}
+
+/// The coupling names of `model`, by index.
+fn model_coupling_names(model: &Model) -> Vec<String> {
+    model.couplings.iter().map(|c| c.name.clone()).collect()
+}
+
+/// The trend's gap, growth and forecast, as the command reports them.
+struct Outlook {
+    results: Option<GapResults>,
+    alarm_mrad: f64,
+    horizon_days: f64,
+    /// Whether times are dates (Unix seconds), so the forecast has a date.
+    dated: bool,
+}
+
+impl Outlook {
+    /// Why the forecast gives no days (`None` when it gives them).
+    fn reason(&self) -> Option<String> {
+        let forecast = self.results.as_ref().and_then(|r| r.forecast);
+        let Some(forecast) = forecast else {
+            return Some("no estimate: no bite inside the maps".into());
+        };
+        let bites = self.results.map_or(0, |r| r.bites_pooled);
+        match forecast.state {
+            ForecastState::Forecast | ForecastState::AtAlarm => None,
+            ForecastState::NotGrowing => {
+                Some("the gap is not growing: the growth's 90% interval holds 0".into())
+            }
+            ForecastState::BeyondHorizon => Some(format!(
+                "growing, but the gap reaches {} mrad beyond the horizon of {} days",
+                self.alarm_mrad, self.horizon_days
+            )),
+            ForecastState::TooFewBites => Some(format!(
+                "too few bites for a trend ({bites} since the last reset; needs {MIN_TREND_BITES}, \
+                 and {MIN_TREND_SPAN_DAYS} days of them unless the growth is \
+                 {EARLY_GROWTH_SD} standard deviations clear of 0)"
+            )),
+        }
+    }
+
+    fn date(&self, forecast: &GapForecast) -> Option<String> {
+        forecast
+            .date_unix_ms
+            .filter(|_| self.dated)
+            .map(|ms| UtcTime::from_unix_ms(ms).to_string())
+    }
+
+    fn json(&self) -> Value {
+        let r = self.results.as_ref();
+        let growth = r.and_then(|r| r.growth);
+        let forecast = r.and_then(|r| r.forecast);
+        json!({
+            "gap_mrad": r.map(|e| e.gap_mrad),
+            "gap_low_mrad": r.map(|e| e.low_mrad),
+            "gap_high_mrad": r.map(|e| e.high_mrad),
+            "coupling": r.and_then(|e| e.coupling),
+            "likeliest_coupling": r.and_then(|e| e.likeliest_coupling),
+            "bites_pooled": r.map_or(0, |e| e.bites_pooled),
+            "trend_mrad_per_day": growth.map(|g| g.mrad_per_day),
+            "trend_low_mrad_per_day": growth.map(|g| g.low_mrad_per_day),
+            "trend_high_mrad_per_day": growth.map(|g| g.high_mrad_per_day),
+            "forecast": {
+                "alarm_mrad": self.alarm_mrad,
+                "horizon_days": self.horizon_days,
+                "state": forecast.map(|f| f.state.name()),
+                "days": forecast.and_then(|f| f.days),
+                "days_low": forecast.and_then(|f| f.days_low),
+                "days_high": forecast.and_then(|f| f.days_high),
+                "date": forecast.and_then(|f| self.date(&f)),
+                "reason": self.reason(),
+            },
+        })
+    }
+
+    fn text(&self, couplings: &[String]) -> String {
+        let Some(e) = &self.results else {
+            return "no estimate: no bite inside the maps\n".into();
+        };
+        let mut out = String::new();
+        let coupling = match e.coupling {
+            Some(c) => match couplings.get(c) {
+                Some(name) => format!("in coupling {c} \"{name}\""),
+                None => format!("in coupling {c}"),
+            },
+            None => "coupling undetermined (the bites cannot tell the couplings apart)".into(),
+        };
+        let _ = writeln!(
+            out,
+            "opened gap {:.2} mrad (90% interval {:.2} .. {:.2} mrad) {coupling}; {} bite(s) in the trend",
+            e.gap_mrad, e.low_mrad, e.high_mrad, e.bites_pooled
+        );
+        if let Some(g) = e.growth {
+            let _ = writeln!(
+                out,
+                "growth {:.4} mrad/day (90% interval {:.4} .. {:.4})",
+                g.mrad_per_day, g.low_mrad_per_day, g.high_mrad_per_day
+            );
+        }
+        match (e.forecast, self.reason()) {
+            (Some(f), None) => {
+                let _ = writeln!(
+                    out,
+                    "gap alarm {} mrad in {} days (90% interval {} .. {} days){}",
+                    self.alarm_mrad,
+                    optional(f.days, 1.0, 1),
+                    optional(f.days_low, 1.0, 1),
+                    f.days_high.map_or_else(
+                        || format!("beyond {}", self.horizon_days),
+                        |d| format!("{d:.1}")
+                    ),
+                    self.date(&f)
+                        .map_or(String::new(), |date| format!(", expected {date}"))
+                );
+            }
+            (forecast, Some(reason)) => {
+                let early = forecast
+                    .and_then(|f| f.days_low)
+                    .map_or(String::new(), |d| {
+                        format!(" (it may reach it in {d:.1} days at the earliest)")
+                    });
+                let _ = writeln!(
+                    out,
+                    "no gap alarm forecast ({} mrad): {reason}{early}",
+                    self.alarm_mrad
+                );
+            }
+            (None, None) => {}
+        }
+        out
+    }
 }
 
 /// Every analysable bite of `signal` with its observation; the load onset as time.
@@ -154,6 +444,20 @@ pub fn run(args: &WearArgs) -> anyhow::Result<String> {
 /// average over a different part of the response than the maps' bites.
 /// Refuses a `--threshold-knm`, `--max-gap-mrad` or `--gap-step-mrad` out of range.
 fn check_numbers(args: &WearArgs) -> anyhow::Result<()> {
+    if let Some(alarm) = args.alarm_mrad {
+        if !(alarm > 0.0 && (args.input.is_none() || alarm < args.max_gap_mrad)) {
+            bail!(
+                "--alarm-mrad {alarm} is not allowed (must be > 0 mrad and < --max-gap-mrad = {} mrad: the gap maps end there)",
+                args.max_gap_mrad
+            );
+        }
+    }
+    if !(1.0..=3650.0).contains(&args.horizon_days) {
+        bail!(
+            "--horizon-days {} is not allowed (must be >= 1 and <= 3650 days)",
+            args.horizon_days
+        );
+    }
     if !(args.threshold_knm.is_finite() && args.threshold_knm > 0.0) {
         bail!(
             "--threshold-knm {} is not allowed (must be > 0 kN*m)",
@@ -178,7 +482,7 @@ fn check_numbers(args: &WearArgs) -> anyhow::Result<()> {
 }
 
 /// The wear settings of the maps for `bites`: their static torque range with a
-/// margin (not below `--threshold-knm`), the pool and the gap grid of `args`.
+/// margin (not below `--threshold-knm`) and the gap grid of `args`.
 fn wear_settings(args: &WearArgs, bites: &[Bite]) -> WearSettings {
     let (low, high) = bites
         .iter()
@@ -191,7 +495,6 @@ fn wear_settings(args: &WearArgs, bites: &[Bite]) -> WearSettings {
             ((1.0 - RANGE_MARGIN) * low).max(args.threshold_knm),
             (1.0 + RANGE_MARGIN) * high,
         )),
-        pool_bites: usize::from(args.pool),
         gap_step_mrad: args.gap_step_mrad,
         max_gap_mrad: args.max_gap_mrad,
         ..WearSettings::default()
@@ -250,6 +553,8 @@ fn detect(time_s: &[f64], signal: &[f64], setup: &BiteSetup) -> Vec<Bite> {
         bites.push(Bite {
             t_bite_s: time(start + analysis.fit_start_index),
             observation,
+            after_reset: false,
+            trend: None,
         });
     }
     bites
@@ -293,7 +598,8 @@ fn shift_over_linear_s(maps: &GapMaps, observation: &GapObservation) -> Option<f
     Some(observation.period_shift_s? - linear?)
 }
 
-fn json_report(maps: &GapMaps, bites: &[Bite], result: Option<&GapEstimate>) -> Value {
+/// Each bite: its measures, its gap alone, and the trend's gap after it.
+fn bites_json(maps: &GapMaps, bites: &[Bite]) -> Value {
     let bites: Vec<Value> = bites
         .iter()
         .map(|bite| {
@@ -303,71 +609,56 @@ fn json_report(maps: &GapMaps, bites: &[Bite], result: Option<&GapEstimate>) -> 
                 "static_torque": o.static_torque_knm,
                 "taf": o.taf,
                 "shift_over_linear_s": shift_over_linear_s(maps, o),
-                "gap_mrad": estimate(maps, &[*o]).map(|e| e.gap_mrad),
+                "gap_mrad": estimate(maps, o).map(|e| e.gap_mrad),
+                "trend_gap_mrad": bite.trend.map(|t| t.gap_mrad),
+                "after_reset": bite.after_reset,
             })
         })
         .collect();
-    json!({
-        "bites": bites,
-        "gap_mrad": result.map(|e| e.gap_mrad),
-        "gap_low_mrad": result.map(|e| e.gap_low_mrad),
-        "gap_high_mrad": result.map(|e| e.gap_high_mrad),
-        "coupling": result.and_then(|e| e.coupling),
-        "bites_pooled": result.map_or(0, |e| e.bites_pooled),
-    })
+    Value::Array(bites)
 }
 
 fn optional(value: Option<f64>, scale: f64, digits: usize) -> String {
     value.map_or_else(|| "-".into(), |v| format!("{:.digits$}", v * scale))
 }
 
-fn text_report(
+fn bites_text(
     input: &str,
     channel: &str,
     rate: f64,
     model: &Model,
     maps: &GapMaps,
     bites: &[Bite],
-    result: Option<&GapEstimate>,
+    segments: usize,
 ) -> anyhow::Result<String> {
     let mut out = String::new();
     writeln!(
         out,
-        "{input}: channel {channel}, {rate:.1} Hz, {} bite(s); model \"{}\"",
+        "{input}: channel {channel}, {rate:.1} Hz, {} bite(s) in {segments} segment(s); model \"{}\"",
         bites.len(),
         model.name
     )?;
     writeln!(
         out,
-        "{:>4} {:>9} {:>12} {:>7} {:>21} {:>9}",
-        "bite", "t_bite_s", "static kN*m", "TAF", "shift over linear ms", "gap mrad"
+        "{:>4} {:>14} {:>12} {:>7} {:>21} {:>9} {:>11}",
+        "bite", "t_bite_s", "static kN*m", "TAF", "shift over linear ms", "gap mrad", "trend mrad"
     )?;
     for (index, bite) in bites.iter().enumerate() {
+        if bite.after_reset {
+            writeln!(out, "---- wear reset")?;
+        }
         let o = &bite.observation;
         writeln!(
             out,
-            "{:>4} {:>9.4} {:>12.2} {:>7.4} {:>21} {:>9}",
+            "{:>4} {:>14.4} {:>12.2} {:>7.4} {:>21} {:>9} {:>11}",
             index + 1,
             bite.t_bite_s,
             o.static_torque_knm,
             o.taf,
             optional(shift_over_linear_s(maps, o), 1e3, 2),
-            optional(estimate(maps, &[*o]).map(|e| e.gap_mrad), 1.0, 2)
+            optional(estimate(maps, o).map(|e| e.gap_mrad), 1.0, 2),
+            optional(bite.trend.map(|t| t.gap_mrad), 1.0, 2)
         )?;
-    }
-    match result {
-        Some(e) => {
-            let coupling = match e.coupling {
-                Some(c) => format!("in coupling {c} \"{}\"", model.couplings[c].name),
-                None => "coupling undetermined (the bites cannot tell the couplings apart)".into(),
-            };
-            writeln!(
-                out,
-                "opened gap {:.2} mrad (90% interval {:.2} .. {:.2} mrad) {coupling}; {} bite(s) pooled",
-                e.gap_mrad, e.gap_low_mrad, e.gap_high_mrad, e.bites_pooled
-            )?;
-        }
-        None => writeln!(out, "no estimate: no bite inside the maps")?,
     }
     Ok(out)
 }
@@ -379,10 +670,12 @@ fn plot(
     maps: &GapMaps,
     model: &Model,
     observations: &[GapObservation],
-    result: Option<&GapEstimate>,
+    result: Option<&GapResults>,
 ) -> anyhow::Result<String> {
     use millgate_sim::plot::{curves_svg, CurvesPlot};
-    let coupling = result.map_or(maps.maps()[0].coupling, |e| e.likeliest_coupling);
+    let coupling = result
+        .and_then(|e| e.likeliest_coupling)
+        .unwrap_or(maps.maps()[0].coupling);
     let index = maps.index_of(coupling).unwrap_or(0);
     let curves = maps
         .whole_mrad_curves(index)
@@ -393,7 +686,7 @@ fn plot(
         (
             format!(
                 "estimated {:.2} mrad ({:.2} .. {:.2})",
-                e.gap_mrad, e.gap_low_mrad, e.gap_high_mrad
+                e.gap_mrad, e.low_mrad, e.high_mrad
             ),
             maps.taf_curve(index, e.gap_mrad * 1e-3),
         )

@@ -1,7 +1,8 @@
 //! What a start restores from the history: per driveline every figure the catalogue
 //! keeps in its state row (the bite counter, the last bite's values with their time,
-//! the wear index and trend, the gap estimate, the warnings, the latched TAF and gap
-//! alarms) and the bites last put into the gap pool (the service pools them again);
+//! the wear index and trend, the gap estimate and forecast, the warnings, the latched
+//! TAF and gap alarms), the gap's wear trend in its saved form (the service continues
+//! it) and the last bites since the wear reset (folded in again without a saved trend);
 //! per tandem mill its state row's figures (the latched chatter alarm).
 //!
 //! Restored values are published with the driveline's `restored` flag (flags bit 6)
@@ -24,23 +25,26 @@ pub struct RestoredDriveline {
     pub updated_at: Option<UtcTime>,
     /// The published results as they were, with `restored` set.
     pub results: DrivelineResults,
-    /// The bites last put into the gap pool since the last wear reset, oldest first
-    /// (at most the largest pool allowed; empty without a gap diagnosis).
-    pub gap_pool: Vec<PooledBite>,
+    /// The gap's wear trend after the last bite, in its saved form (`None`: no bite
+    /// since the last wear reset, no gap diagnosis, or a file from before version 11).
+    pub gap_trend: Option<String>,
+    /// The last bites since the last wear reset that the gap diagnosis saw, oldest
+    /// first, with their times (ms since the epoch), for a trend that cannot be
+    /// continued from its saved form: at most [`MAX_GAP_BITES`].
+    pub gap_bites: Vec<(i64, PooledBite)>,
 }
 
-/// The most bites a gap pool holds (the largest `drivelines[].wear.pool_bites`
-/// allowed): the pool keeps the last `pool_bites` of those restored.
-const MAX_POOL_BITES: i64 = 1000;
+/// The most bites a start folds into a wear trend again when it has no saved form.
+const MAX_GAP_BITES: i64 = 1000;
 
-/// The last [`MAX_POOL_BITES`] bites `driveline` put into its gap pool since its last
+/// The last [`MAX_GAP_BITES`] bites `driveline`'s gap diagnosis saw since its last
 /// wear reset, oldest first. By time (the `(driveline, time)` index walked back from
 /// the newest), not by id: by id SQLite sorted every bite of the driveline first (2.8 s
 /// at start on a year of bites).
-fn gap_pool(connection: &Connection, driveline: &str) -> rusqlite::Result<Vec<PooledBite>> {
-    let mut pool = connection
+fn gap_bites(connection: &Connection, driveline: &str) -> rusqlite::Result<Vec<(i64, PooledBite)>> {
+    let mut bites = connection
         .prepare_cached(
-            "SELECT static_torque_knm, taf, gap_taf_sigma, period_shift_s,
+            "SELECT time, static_torque_knm, taf, gap_taf_sigma, period_shift_s,
                  gap_period_shift_sigma_s
              FROM bites
              WHERE driveline = ?1 AND gap_taf_sigma IS NOT NULL AND taf IS NOT NULL
@@ -48,18 +52,36 @@ fn gap_pool(connection: &Connection, driveline: &str) -> rusqlite::Result<Vec<Po
                      WHERE driveline = ?1 AND event = 'reset'), '')
              ORDER BY time DESC, id DESC LIMIT ?2",
         )?
-        .query_map(params![driveline, MAX_POOL_BITES], |row| {
-            Ok(PooledBite {
-                static_torque_knm: row.get(0)?,
-                taf: row.get(1)?,
-                taf_sigma: row.get(2)?,
-                period_shift_s: row.get(3)?,
-                period_shift_sigma_s: row.get::<_, Option<f64>>(4)?.unwrap_or(0.0),
-            })
+        .query_map(params![driveline, MAX_GAP_BITES], |row| {
+            let time: String = row.get(0)?;
+            let time = UtcTime::parse(&time).map_err(|error| {
+                rusqlite::Error::FromSqlConversionFailure(
+                    0,
+                    rusqlite::types::Type::Text,
+                    error.into(),
+                )
+            })?;
+            Ok((
+                time.unix_ms(),
+                PooledBite {
+                    static_torque_knm: row.get(1)?,
+                    taf: row.get(2)?,
+                    taf_sigma: row.get(3)?,
+                    period_shift_s: row.get(4)?,
+                    period_shift_sigma_s: row.get::<_, Option<f64>>(5)?.unwrap_or(0.0),
+                },
+            ))
         })?
         .collect::<rusqlite::Result<Vec<_>>>()?;
-    pool.reverse();
-    Ok(pool)
+    bites.reverse();
+    Ok(bites)
+}
+
+/// The saved wear trend of `driveline` (`None` when there is none).
+fn gap_trend(connection: &Connection, driveline: &str) -> rusqlite::Result<Option<String>> {
+    connection
+        .prepare_cached("SELECT gap_trend FROM driveline_state WHERE driveline = ?1")?
+        .query_row(params![driveline], |row| row.get(0))
 }
 
 /// Everything a start restores.
@@ -77,7 +99,8 @@ pub(crate) fn read(connection: &Connection) -> rusqlite::Result<Restored> {
         .into_iter()
         .map(|row| {
             Ok(RestoredDriveline {
-                gap_pool: gap_pool(connection, &row.name)?,
+                gap_trend: gap_trend(connection, &row.name)?,
+                gap_bites: gap_bites(connection, &row.name)?,
                 name: row.name,
                 updated_at: row.updated_at,
                 results: DrivelineResults {

@@ -46,6 +46,10 @@ pub fn insert(
                     origin.name(),
                     origin.peer().map(|peer| peer.to_string())
                 ])?;
+            // The trend starts again with the next bite.
+            transaction
+                .prepare_cached("UPDATE driveline_state SET gap_trend = NULL WHERE driveline = ?1")?
+                .execute(params![driveline])?;
             Ok(())
         }
         HistoryEvent::ChatterStarted { .. }
@@ -259,7 +263,13 @@ fn insert_bite(
                 gap.map(|_| state.gap_alarm),
             ])?;
     }
-    upsert_state(transaction, &bite.driveline, bite.time, state)
+    upsert_state(transaction, &bite.driveline, bite.time, state)?;
+    if let Some(trend) = &bite.gap_trend {
+        transaction
+            .prepare_cached("UPDATE driveline_state SET gap_trend = ?2 WHERE driveline = ?1")?
+            .execute(params![bite.driveline, trend])?;
+    }
+    Ok(())
 }
 
 /// The alarm's row (the subject's state after it comes as its own event).
@@ -296,7 +306,7 @@ fn insert_alarm(
 fn insert_state(transaction: &Transaction<'_>, state: &StateRecord) -> rusqlite::Result<()> {
     match &state.results {
         SubjectResults::Driveline(results) => {
-            upsert_state(transaction, &state.subject, state.time, results)
+            upsert_state(transaction, &state.subject, state.time, results.as_ref())
         }
         SubjectResults::TandemMill(results) => {
             upsert_state(transaction, &state.subject, state.time, results)

@@ -287,6 +287,30 @@ ALTER TABLE driveline_state ADD COLUMN bites_pooled INTEGER;
 ALTER TABLE bites ADD COLUMN first_mode_damping REAL;
 ALTER TABLE driveline_state ADD COLUMN first_mode_damping REAL;
 "#,
+    // Version 11: the gap's wear trend. Each bite and the state row keep the growth
+    // with its interval and the forecast of the gap alarm (gap_forecast: 0 forecast,
+    // 1 at_alarm, 2 not_growing, 3 beyond_horizon, 4 too_few_bites); the state row
+    // keeps the trend's saved form (JSON), which a start continues. NULL before: a
+    // start without a saved trend folds the last bites since the wear reset in again.
+    r#"
+ALTER TABLE bites ADD COLUMN gap_growth_mrad_per_day REAL;
+ALTER TABLE bites ADD COLUMN gap_growth_low_mrad_per_day REAL;
+ALTER TABLE bites ADD COLUMN gap_growth_high_mrad_per_day REAL;
+ALTER TABLE bites ADD COLUMN gap_forecast INTEGER;
+ALTER TABLE bites ADD COLUMN days_to_gap_alarm REAL;
+ALTER TABLE bites ADD COLUMN days_to_gap_alarm_low REAL;
+ALTER TABLE bites ADD COLUMN days_to_gap_alarm_high REAL;
+ALTER TABLE bites ADD COLUMN gap_alarm_date TEXT;
+ALTER TABLE driveline_state ADD COLUMN gap_growth_mrad_per_day REAL;
+ALTER TABLE driveline_state ADD COLUMN gap_growth_low_mrad_per_day REAL;
+ALTER TABLE driveline_state ADD COLUMN gap_growth_high_mrad_per_day REAL;
+ALTER TABLE driveline_state ADD COLUMN gap_forecast INTEGER;
+ALTER TABLE driveline_state ADD COLUMN days_to_gap_alarm REAL;
+ALTER TABLE driveline_state ADD COLUMN days_to_gap_alarm_low REAL;
+ALTER TABLE driveline_state ADD COLUMN days_to_gap_alarm_high REAL;
+ALTER TABLE driveline_state ADD COLUMN gap_alarm_date TEXT;
+ALTER TABLE driveline_state ADD COLUMN gap_trend TEXT;
+"#,
 ];
 
 /// `PRAGMA application_id` of a millgate history: the bytes "MLGT" (0x4D4C4754), set

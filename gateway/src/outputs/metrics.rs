@@ -500,6 +500,8 @@ mod tests {
                 coupling: Some(1),
                 likeliest_coupling: Some(1),
                 bites_pooled: 12,
+                growth: None,
+                forecast: None,
             });
         });
         let tandem = example("tandem-5stand.toml");

@@ -1,7 +1,9 @@
 //! Reader of recorded signals: a CSV with a header, first column `t` (s), the other
 //! columns channels (torque in kN*m). Errors name the line (1-based) and the column.
 //! Lines starting with `#` are comments (kept in [`Table::comments`]): a capture
-//! exported by `millgate capture export` says there how the gateway read it.
+//! exported by `millgate capture export` says there how the gateway read it, and a
+//! `# reset` line marks a wear reset between the rows around it ([`Table::resets`]).
+//! A record of bites recorded apart jumps in time between them ([`Table::segments`]).
 
 use std::path::Path;
 
@@ -138,7 +140,25 @@ pub struct Table {
     pub lines: Vec<usize>,
     /// The comment lines (`#` and what follows), in order.
     pub comments: Vec<String>,
+    /// Rows (indices into `time_s`) before which a `# reset` comment stands: a wear
+    /// reset (the coupling was replaced) between the bites before and after it.
+    pub resets: Vec<usize>,
 }
+
+/// A record of bites recorded apart: runs of uniformly sampled rows (`ranges`, row
+/// indices), separated by jumps in time of at least [`SEGMENT_JUMP_S`], every run at
+/// the same sample rate.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Segments {
+    /// The sample rate of every run, Hz.
+    pub rate_hz: f64,
+    /// The runs, in order.
+    pub ranges: Vec<std::ops::Range<usize>>,
+}
+
+/// A time step at least this long starts a new segment of a record (bites recorded
+/// hours or days apart), s; a shorter step off the sample period is missing rows.
+pub const SEGMENT_JUMP_S: f64 = 10.0;
 
 /// Largest departure of one time step from the record's mean step, relative.
 pub const UNIFORM_TOLERANCE: f64 = 0.01;
@@ -174,6 +194,51 @@ impl Table {
             }),
             None => Ok((n - 1) as f64 / (self.time_s[n - 1] - self.time_s[0])),
         }
+    }
+
+    /// The record's segments ([`Segments`]): split where `t` jumps by at least
+    /// [`SEGMENT_JUMP_S`]; every other step must lie within [`UNIFORM_TOLERANCE`] of
+    /// the median of those steps, else the error names the line after the odd step.
+    pub fn segments(&self) -> Result<Segments, CsvError> {
+        let steps: Vec<f64> = self.time_s.windows(2).map(|p| p[1] - p[0]).collect();
+        let mut inside: Vec<f64> = steps
+            .iter()
+            .copied()
+            .filter(|&step| step < SEGMENT_JUMP_S)
+            .collect();
+        if inside.is_empty() {
+            return Err(CsvError::TooShort);
+        }
+        inside.sort_by(f64::total_cmp);
+        let median_step_s = inside[inside.len() / 2];
+        let mut ranges = Vec::new();
+        let mut start = 0;
+        for (k, &step) in steps.iter().enumerate() {
+            if step >= SEGMENT_JUMP_S {
+                ranges.push(start..k + 1);
+                start = k + 1;
+            } else if (step / median_step_s - 1.0).abs() > UNIFORM_TOLERANCE {
+                return Err(CsvError::NonUniformTime {
+                    line: self.lines[k + 1],
+                    step_s: step,
+                    median_step_s,
+                    tolerance_percent: UNIFORM_TOLERANCE * 100.0,
+                });
+            }
+        }
+        ranges.push(start..self.time_s.len());
+        let (rows, span) =
+            ranges
+                .iter()
+                .filter(|range| range.len() > 1)
+                .fold((0, 0.0), |(rows, span), range| {
+                    let duration = self.time_s[range.end - 1] - self.time_s[range.start];
+                    (rows + range.len() - 1, span + duration)
+                });
+        Ok(Segments {
+            rate_hz: rows as f64 / span,
+            ranges,
+        })
     }
 
     /// The channel called `name`, if any.
@@ -257,6 +322,7 @@ pub fn parse(text: &str) -> Result<Table, CsvError> {
         channels: vec![Vec::new(); columns.header.len() - 1],
         lines: Vec::new(),
         comments,
+        resets: reset_rows(text),
     };
     for (line, row) in lines {
         columns.push_row(&mut table, line, row)?;
@@ -265,6 +331,23 @@ pub fn parse(text: &str) -> Result<Table, CsvError> {
         return Err(CsvError::TooShort);
     }
     Ok(table)
+}
+
+/// The data rows before which a `# reset` comment stands (the header is not a row).
+fn reset_rows(text: &str) -> Vec<usize> {
+    let mut lines_seen = 0_usize;
+    let mut resets = Vec::new();
+    for line in text.lines().map(str::trim).filter(|l| !l.is_empty()) {
+        match line.strip_prefix('#') {
+            Some(comment) if comment.trim().eq_ignore_ascii_case("reset") => {
+                resets.push(lines_seen.saturating_sub(1));
+            }
+            Some(_) => {}
+            None => lines_seen += 1,
+        }
+    }
+    resets.dedup();
+    resets
 }
 
 /// The header line's names: `t` first, at least one channel, none twice.
@@ -445,6 +528,45 @@ mod tests {
         );
         let uniform = parse("t,a\n0,1\n0.0005,1\n0.001,1\n").unwrap();
         assert!((uniform.sample_rate_hz().unwrap() - 2000.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn bites_recorded_days_apart_are_segments_and_reset_comments_are_kept() {
+        // Three bursts of 2 kHz samples, in Unix seconds, hours and days apart; a wear
+        // reset before the third.
+        let mut text = String::from("# recorded on F1\nt,a\n");
+        let starts = [1_780_000_000.0, 1_780_003_600.0, 1_780_172_800.0];
+        for (n, start) in starts.iter().enumerate() {
+            if n == 2 {
+                text.push_str("# reset\n");
+            }
+            for k in 0..100 {
+                text.push_str(&format!("{:.6},1\n", start + f64::from(k) * 5.0e-4));
+            }
+        }
+        let table = parse(&text).unwrap();
+        let segments = table.segments().unwrap();
+        assert_eq!(segments.ranges, [0..100, 100..200, 200..300]);
+        assert!((segments.rate_hz - 2000.0).abs() < 0.01, "{segments:?}");
+        assert_eq!(table.resets, [200], "the row after the comment");
+        assert_eq!(table.comments, ["recorded on F1", "reset"]);
+        // Rows missing inside a segment are still an error naming the line.
+        let gap = text.replacen(&format!("{:.6},1\n", starts[1] + 50.0 * 5.0e-4), "", 1);
+        let error = parse(&gap).unwrap().segments().unwrap_err();
+        assert!(
+            matches!(error, CsvError::NonUniformTime { line: 153, .. }),
+            "{error}"
+        );
+        // A segment at another rate: the odd step is named too.
+        let mut other = text.clone();
+        other.push_str(&format!(
+            "{:.6},1\n{:.6},1\n",
+            1_780_300_000.0, 1_780_300_000.001
+        ));
+        assert!(matches!(
+            parse(&other).unwrap().segments(),
+            Err(CsvError::NonUniformTime { line: 305, .. })
+        ));
     }
 
     #[test]

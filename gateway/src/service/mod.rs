@@ -215,11 +215,17 @@ impl Service {
         })
     }
 
-    /// Start driveline `index`'s gap pool from `observations` (oldest first), e.g. as
-    /// saved by a history before a restart ([`RunningService`] bites carry each new
-    /// observation). The estimate is published as soon as the gap maps are ready.
-    pub fn restore_gap_pool(&mut self, index: usize, observations: Vec<GapObservation>) {
-        self.analysis.restore_gap_pool(index, observations);
+    /// Continue driveline `index`'s wear trend from its saved form, e.g. as a history
+    /// kept it before a restart ([`RunningService`] bites carry each new one), or when
+    /// there is none, from `bites` (time ms since the epoch, measures; oldest first)
+    /// folded in again. The estimate is published as soon as the gap maps are ready.
+    pub fn restore_gap_trend(
+        &mut self,
+        index: usize,
+        saved: Option<&str>,
+        bites: Vec<(i64, GapObservation)>,
+    ) {
+        self.analysis.restore_gap_trend(index, saved, bites);
     }
 
     /// Bites as they are analysed.
@@ -303,16 +309,21 @@ impl Service {
                 .driveline_names()
                 .iter()
                 .position(|name| *name == driveline.name);
-            if let (Some(index), false) = (index, driveline.gap_pool.is_empty()) {
-                let observations = driveline.gap_pool.iter().map(|bite| GapObservation {
-                    static_torque_knm: bite.static_torque_knm,
-                    taf: bite.taf,
-                    taf_sigma: bite.taf_sigma,
-                    period_shift_s: bite.period_shift_s,
-                    period_shift_sigma_s: bite.period_shift_sigma_s,
+            let saved = driveline.gap_trend.as_deref();
+            if let (Some(index), true) = (index, saved.is_some() || !driveline.gap_bites.is_empty())
+            {
+                let bites = driveline.gap_bites.iter().map(|(time, bite)| {
+                    let observation = GapObservation {
+                        static_torque_knm: bite.static_torque_knm,
+                        taf: bite.taf,
+                        taf_sigma: bite.taf_sigma,
+                        period_shift_s: bite.period_shift_s,
+                        period_shift_sigma_s: bite.period_shift_sigma_s,
+                    };
+                    (*time, observation)
                 });
                 self.analysis
-                    .restore_gap_pool(index, observations.collect());
+                    .restore_gap_trend(index, saved, bites.collect());
             }
             tracing::info!(
                 driveline = %driveline.name,
@@ -321,7 +332,8 @@ impl Service {
                 alarm_latched = driveline.results.taf_alarm,
                 last_bite_ms = ?driveline.results.last_bite_unix_ms,
                 gap_alarm_latched = driveline.results.gap_alarm,
-                gap_pool = driveline.gap_pool.len(),
+                gap_trend_saved = driveline.gap_trend.is_some(),
+                gap_bites = driveline.gap_bites.len(),
                 "state restored from the history"
             );
         }

@@ -256,7 +256,7 @@ impl Board {
                 events.push(state_record(
                     time,
                     &self.driveline_names[index],
-                    SubjectResults::Driveline(driveline.clone()),
+                    SubjectResults::Driveline(Box::new(driveline.clone())),
                 ));
             }
         });
@@ -276,7 +276,7 @@ impl Board {
                     events.push(state_record(
                         time,
                         name,
-                        SubjectResults::Driveline(driveline.clone()),
+                        SubjectResults::Driveline(Box::new(driveline.clone())),
                     ));
                 }
             }

@@ -30,8 +30,8 @@ impl WearState {
     }
 }
 
-/// A bite's entry in its driveline's gap pool: what the gap diagnosis needs to pool
-/// it again after a restart. The same fields as `analysis::gap_estimate::GapObservation`
+/// What a bite told the gap diagnosis: what the wear trend needs to fold it in again
+/// after a restart without a saved trend. The same fields as `analysis::gap_estimate::GapObservation`
 /// (the outputs do not import the analysis; the service converts).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PooledBite {
@@ -75,9 +75,13 @@ pub struct BiteRecord {
     /// The gap estimate of `figures` against the gap thresholds, when the bite gave
     /// one.
     pub gap_state: Option<WearState>,
-    /// What this bite put into the driveline's gap pool (`None`: nothing, e.g. no
-    /// model, no TAF or a degraded window): a restart pools the last ones again.
+    /// What this bite told the gap diagnosis (`None`: nothing, e.g. no model, no TAF
+    /// or a degraded window): a restart without a saved trend folds the last ones in
+    /// again.
     pub pooled: Option<PooledBite>,
+    /// The driveline's wear trend after this bite, in its saved form (JSON), when the
+    /// bite was folded into it: what a restart continues.
+    pub gap_trend: Option<String>,
     /// The driveline's published results after this bite (counter, last values,
     /// wear index and trend, gap estimate, warnings and latched alarms): what a restart
     /// restores (the catalogue's figures with a state column).
@@ -105,6 +109,7 @@ impl BiteRecord {
             shift_over_linear_s: None,
             gap_state: None,
             pooled: None,
+            gap_trend: None,
             state,
         }
     }
@@ -126,8 +131,8 @@ pub struct StateRecord {
 /// The results of a subject whose state the history keeps.
 #[derive(Debug, Clone, PartialEq)]
 pub enum SubjectResults {
-    /// A driveline's.
-    Driveline(DrivelineResults),
+    /// A driveline's (boxed: its gap forecast's cone makes it the largest by far).
+    Driveline(Box<DrivelineResults>),
     /// A tandem mill's.
     TandemMill(TandemMillResults),
 }

@@ -109,6 +109,17 @@ pub struct GapMaps {
     data: GapMapData,
     /// Per coupling, per gap, per torque.
     floors: Vec<Vec<Vec<Floor>>>,
+    /// A hash of `data`: which maps a wear trend's bites were folded against.
+    fingerprint: u64,
+}
+
+/// FNV-1a, 64 bits: a hash that stays the same across Rust releases (std's
+/// `DefaultHasher` does not promise to), for cache file names and the maps'
+/// fingerprint. Hand-rolled: six lines against a new dependency.
+pub(crate) fn fnv1a(text: &str) -> u64 {
+    text.bytes().fold(0xcbf2_9ce4_8422_2325, |hash, byte| {
+        (hash ^ u64::from(byte)).wrapping_mul(0x0000_0100_0000_01b3)
+    })
 }
 
 impl GapMaps {
@@ -116,7 +127,19 @@ impl GapMaps {
     /// computed here.
     pub fn new(data: GapMapData) -> Self {
         let floors = data.maps.iter().map(|map| floors(&map.rows)).collect();
-        Self { data, floors }
+        // Serializing plain numbers and names cannot fail.
+        let fingerprint = fnv1a(&serde_json::to_string(&data).unwrap_or_default());
+        Self {
+            data,
+            floors,
+            fingerprint,
+        }
+    }
+
+    /// A hash of the maps' values: equal maps, equal fingerprints (another model or
+    /// other settings: almost surely another one).
+    pub fn fingerprint(&self) -> u64 {
+        self.fingerprint
     }
 
     /// The maps as computed (what the cache stores).

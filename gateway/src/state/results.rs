@@ -58,7 +58,7 @@ pub struct DrivelineResults {
     pub restored: bool,
 }
 
-/// The pooled gap estimate of a driveline, as published (see
+/// The gap estimate of a driveline (its wear trend), as published (see
 /// [`crate::analysis::gap_estimate`]); serialized as the web API's `gap`.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct GapResults {
@@ -74,8 +74,119 @@ pub struct GapResults {
     /// The likeliest coupling (model index), named or not; `None` where it is not
     /// known (a bite replayed from the history, which keeps only `coupling`).
     pub likeliest_coupling: Option<usize>,
-    /// Bites pooled.
+    /// Bites in the wear trend since the last wear reset (the key keeps its old
+    /// name: the bites were once pooled).
     pub bites_pooled: usize,
+    /// Growth of the gap, mrad/day, with its 90% interval; `None` until the trend
+    /// has bites at two distinct times.
+    pub growth: Option<GapGrowth>,
+    /// When the gap reaches its alarm threshold; `None` where it is not known (a
+    /// bite replayed from the history).
+    pub forecast: Option<GapForecast>,
+}
+
+/// The gap's growth, mrad/day (calendar days), with its 90% interval.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct GapGrowth {
+    /// Growth, mrad/day.
+    pub mrad_per_day: f64,
+    /// Lower end of its 90% interval, mrad/day.
+    pub low_mrad_per_day: f64,
+    /// Upper end of its 90% interval, mrad/day.
+    pub high_mrad_per_day: f64,
+}
+
+/// The forecast of the gap reaching `thresholds.gap_alarm_mrad`: calendar days from the
+/// last bite, a point value and a 90% interval, and the date of the point value.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct GapForecast {
+    /// What the forecast says (and why days are missing when they are).
+    pub state: ForecastState,
+    /// Days from the last bite until the gap reaches the alarm; `None` when no
+    /// crossing is expected within the horizon (`state` says why).
+    pub days: Option<f64>,
+    /// Early end of the 90% interval of `days` (the gap may reach the alarm this soon).
+    pub days_low: Option<f64>,
+    /// Late end of the 90% interval of `days`; `None` beyond the horizon.
+    pub days_high: Option<f64>,
+    /// The date of `days`, ms since the Unix epoch (UTC).
+    pub date_unix_ms: Option<i64>,
+    /// The forecast's cone for drawing: the gap band from the last bite on, and the
+    /// fitted growth back over the last weeks; `None` where it is not known (restored
+    /// from the history until the trend is continued).
+    pub cone: Option<GapCone>,
+}
+
+/// Points of a forecast's cone.
+pub const CONE_POINTS: usize = 16;
+
+/// The forecast's cone as the page and the report draw it.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct GapCone {
+    /// The gap band at evenly spaced days from the last bite (0) to beyond the late
+    /// end of the forecast (or the horizon).
+    pub points: [ConePoint; CONE_POINTS],
+    /// How far back from the last bite the fitted growth line is drawn, days (at most
+    /// four weeks, not before the first bite since the last wear reset).
+    pub back_days: f64,
+}
+
+/// The gap band `days` after the last bite: the trend's mean, the early (high) and the
+/// late (low) end of its 90% band, mrad.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct ConePoint {
+    /// Days after the last bite.
+    pub days: f64,
+    /// The trend's gap, mrad.
+    pub mean_mrad: f64,
+    /// The late (low) end of the band, mrad.
+    pub low_mrad: f64,
+    /// The early (high) end of the band, mrad.
+    pub high_mrad: f64,
+}
+
+/// What a gap forecast says: `forecast` (days given), `at_alarm` (the gap is at the
+/// threshold), `not_growing` (no crossing expected: the growth's interval holds 0),
+/// `beyond_horizon` (growing, but not within the horizon), `too_few_bites` (not enough
+/// bites since the last wear reset for a trend).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ForecastState {
+    /// A crossing within the horizon: days given.
+    Forecast,
+    /// The gap is at or above the threshold already: days 0.
+    AtAlarm,
+    /// The growth's interval holds 0: no crossing expected.
+    NotGrowing,
+    /// Growing, but the crossing is beyond the horizon.
+    BeyondHorizon,
+    /// Too few bites since the last wear reset for a trend.
+    TooFewBites,
+}
+
+impl ForecastState {
+    /// The states by value, as the registers and OPC UA carry them.
+    pub const NAMES: &'static [&'static str] = &[
+        "forecast",
+        "at_alarm",
+        "not_growing",
+        "beyond_horizon",
+        "too_few_bites",
+    ];
+
+    /// Every state, by value.
+    pub const ALL: [Self; 5] = [
+        Self::Forecast,
+        Self::AtAlarm,
+        Self::NotGrowing,
+        Self::BeyondHorizon,
+        Self::TooFewBites,
+    ];
+
+    /// Its name.
+    pub fn name(self) -> &'static str {
+        Self::NAMES[self as usize]
+    }
 }
 
 /// Latest chatter figures of one tandem mill (see [`crate::analysis::chatter`]).

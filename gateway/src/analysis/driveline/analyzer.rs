@@ -13,11 +13,12 @@ use super::capture::Captures;
 use super::setup::{BiteSetup, ModelParts, WearDiagnosis};
 use crate::analysis::bite_window::{Detector, DetectorState};
 use crate::analysis::error::AnalysisError;
-use crate::analysis::gap_estimate::{GapEstimate, GapObservation};
+use crate::analysis::gap_estimate::GapObservation;
 use crate::analysis::gap_monitor::{GapMapJob, GapMonitor};
 use crate::analysis::wear::WearReference;
 use crate::state::captures::CaptureRecord;
 use crate::state::gap_maps::GapMaps;
+use crate::state::results::GapResults;
 
 /// Bite detection and analysis of one driveline.
 #[derive(Debug)]
@@ -72,7 +73,8 @@ impl DrivelineAnalyzer {
         let setup = BiteSetup::of(index, driveline, torque, parts.as_ref().map(|p| &p.model))?;
         let diagnosis = parts
             .zip(driveline.model.as_deref())
-            .map(|model| WearDiagnosis::new(index, driveline, model, &setup, cache_dir));
+            .map(|model| WearDiagnosis::new(index, driveline, model, &setup, cache_dir))
+            .transpose()?;
         let (wear, gap, gap_job) = match diagnosis {
             Some(d) => (Some(d.wear), Some(d.gap), Some(d.gap_job)),
             None => (None, None, None),
@@ -147,27 +149,34 @@ impl DrivelineAnalyzer {
         self.gap_job.take()
     }
 
-    /// Install the gap maps (or note they failed); returns the pooled estimate of the
-    /// bites seen so far, to publish.
-    pub(crate) fn set_gap_maps(&mut self, maps: Option<Arc<GapMaps>>) -> Option<GapEstimate> {
+    /// Install the gap maps (or note they failed); returns the trend's estimate after
+    /// the bites seen so far, to publish.
+    pub(crate) fn set_gap_maps(&mut self, maps: Option<Arc<GapMaps>>) -> Option<GapResults> {
         self.gap.as_mut()?.set_maps(maps)
     }
 
-    /// Replace the gap pool by `observations` (oldest first; restored from history).
-    pub(crate) fn restore_gap_pool(
+    /// Continue the wear trend `saved` (its saved form, kept by the history) or, when
+    /// there is none or it does not fit, fold `bites` in again (time ms since the epoch,
+    /// measures; oldest first); returns the estimate to publish once the maps are ready.
+    pub(crate) fn restore_gap_trend(
         &mut self,
-        observations: Vec<GapObservation>,
-    ) -> Option<GapEstimate> {
-        self.gap.as_mut()?.restore(observations)
+        saved: Option<&str>,
+        bites: Vec<(i64, GapObservation)>,
+    ) -> Option<GapResults> {
+        let monitor = self.gap.as_mut()?;
+        if !saved.is_some_and(|saved| monitor.restore_trend(saved)) {
+            monitor.restore_bites(bites);
+        }
+        monitor.results()
     }
 
-    /// The gap pool's saved form, when the driveline has a model.
-    pub(crate) fn gap_pool(&self) -> Option<Vec<GapObservation>> {
-        self.gap.as_ref().map(GapMonitor::observations)
+    /// The wear trend's saved form, when the driveline has a model.
+    pub(crate) fn gap_trend(&self) -> Option<String> {
+        self.gap.as_ref().map(GapMonitor::saved)
     }
 
-    /// Empty the gap pool (the reset command).
-    pub(crate) fn reset_gap_pool(&mut self) {
+    /// Forget the wear trend's bites (the reset command).
+    pub(crate) fn reset_gap_trend(&mut self) {
         if let Some(monitor) = &mut self.gap {
             monitor.reset();
         }

@@ -6,7 +6,6 @@ use millgate_dsp::transient::TransientQuality;
 
 use super::analyzer::DrivelineAnalyzer;
 use super::report::BiteReport;
-use crate::analysis::gap_estimate::GapEstimate;
 use crate::analysis::wear;
 use crate::state::board::Board;
 use crate::state::captures::{CapturedBite, KeepClass};
@@ -14,7 +13,7 @@ use crate::state::events::{
     AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, HistoryEvent, PooledBite, StateRecord,
     SubjectResults, WearState,
 };
-use crate::state::results::DrivelineResults;
+use crate::state::results::{DrivelineResults, GapResults};
 use crate::state::time::UtcTime;
 
 impl DrivelineAnalyzer {
@@ -34,7 +33,8 @@ impl DrivelineAnalyzer {
             let taf = self.publish_figures(driveline, report, time);
             let gap = report
                 .gap
-                .and_then(|gap| Some((self.gap.as_ref()?, gap.pooled?)));
+                .as_ref()
+                .and_then(|gap| Some((self.gap.as_ref()?, gap.trend?)));
             let mut gap_alarms = Vec::new();
             if let Some((monitor, estimate)) = gap {
                 let subject = (report.driveline_name.as_str(), time);
@@ -149,9 +149,9 @@ impl DrivelineAnalyzer {
         }
     }
 
-    /// Record `estimate` (from maps just installed or a restored pool) in the results,
-    /// with the alarm events it makes.
-    pub(crate) fn publish_gap(&self, board: &Board, estimate: &GapEstimate) {
+    /// Record `estimate` (from maps just installed or a restored trend) in the
+    /// results, with the alarm events it makes.
+    pub(crate) fn publish_gap(&self, board: &Board, estimate: &GapResults) {
         if let Some(monitor) = &self.gap {
             board.update_recorded(|results, events| {
                 let time = UtcTime::now();
@@ -160,7 +160,7 @@ impl DrivelineAnalyzer {
                 events.push(HistoryEvent::State(StateRecord {
                     time,
                     subject: self.name.clone(),
-                    results: SubjectResults::Driveline(driveline.clone()),
+                    results: SubjectResults::Driveline(Box::new(driveline.clone())),
                 }));
             });
         }
@@ -212,7 +212,8 @@ pub fn bite_record(
         reference_level_knm: reference.map(|r| r.level_knm),
         shift_over_linear_s: report.wear.and_then(|wear| wear.shift_excess_s),
         gap_state,
-        pooled: report.gap.map(|gap| {
+        gap_trend: report.gap.as_ref().and_then(|gap| gap.saved.clone()),
+        pooled: report.gap.as_ref().map(|gap| {
             let o = gap.observation;
             PooledBite {
                 static_torque_knm: o.static_torque_knm,

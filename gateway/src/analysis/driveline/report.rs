@@ -14,6 +14,7 @@ use crate::analysis::bite_window::{analyze_window, WINDOW_CAPACITY};
 use crate::analysis::gap_monitor::GapBite;
 use crate::analysis::wear::WearEstimate;
 use crate::state::captures::{BiteWindowAnalysis, CaptureRecord, CapturedBite, KeepClass};
+use crate::state::time::UtcTime;
 
 /// One analysed bite, as printed by the demo and logged by the service.
 #[derive(Debug, Clone, PartialEq)]
@@ -123,15 +124,15 @@ impl DrivelineAnalyzer {
             (event.window.len() - 1 - event.trigger_index) as f64 / self.sample_rate_hz;
         let degraded = !event.quality.is_good();
         let transient = &self.transient;
-        let gap = self
-            .gap
-            .as_mut()
-            .filter(|_| !degraded)
-            .and_then(|gap| gap.observe(&event.window, &analysis.transient, transient));
         let time = before(
             last_sample_time.unwrap_or_else(SystemTime::now),
             after_trigger,
         );
+        let unix_ms = UtcTime::from_system(time).unix_ms();
+        let gap =
+            self.gap.as_mut().filter(|_| !degraded).and_then(|gap| {
+                gap.observe(&event.window, &analysis.transient, transient, unix_ms)
+            });
         let samples = self.captures.bite_samples(
             event,
             self.window_analysis(event),

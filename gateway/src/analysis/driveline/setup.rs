@@ -204,7 +204,13 @@ impl WearDiagnosis {
         (parts, path): (ModelParts, &Path),
         setup: &BiteSetup,
         cache_dir: &Path,
-    ) -> Self {
+    ) -> Result<Self, AnalysisError> {
+        let gap = GapMonitor::new(
+            &driveline.name,
+            &driveline.thresholds,
+            driveline.wear.horizon_days,
+        )
+        .map_err(|source| AnalysisError::WearTrend { index, source })?;
         let simulator = setup.simulator(&parts.model);
         let mut reference = WearReference::new(simulator.clone());
         // Simulate the model's own load level now: a model that cannot give a
@@ -225,9 +231,9 @@ impl WearDiagnosis {
                 "no linear wear reference at the model's load"
             ),
         }
-        Self {
+        Ok(Self {
             wear: reference,
-            gap: GapMonitor::new(&driveline.thresholds, driveline.wear.pool_bites),
+            gap,
             gap_job: GapMapJob::new(
                 index,
                 &driveline.name,
@@ -236,6 +242,6 @@ impl WearDiagnosis {
                 parts.spec,
                 cache_dir,
             ),
-        }
+        })
     }
 }

@@ -136,6 +136,11 @@ impl Unit {
     pub(crate) const RECIPROCAL_SECOND: Unit = Unit::new("C97", "s⁻¹", "reciprocal second");
     /// °C, the rod temperature.
     pub(crate) const DEGREE_CELSIUS: Unit = Unit::new("CEL", "°C", "degree Celsius");
+    /// d, calendar days of a forecast.
+    pub(crate) const DAY: Unit = Unit::new("DAY", "d", "day");
+    /// mrad/d, the gap's growth: UNECE Recommendation 20 has no code for it, so its
+    /// `unitId` is -1 ("not available", OPC 10000-8, 5.6.3) and the symbol says it.
+    pub(crate) const MILLIRADIAN_PER_DAY: Unit = Unit::new("", "mrad/d", "milliradian per day");
 
     const fn new(unece_code: &'static str, symbol: &'static str, name: &'static str) -> Self {
         Self {
@@ -146,8 +151,11 @@ impl Unit {
     }
 
     /// EUInformation's `unitId`: the common code's characters, big-endian, one byte
-    /// each (OPC 10000-8, 5.6.3: `B48` is 0x423438).
+    /// each (OPC 10000-8, 5.6.3: `B48` is 0x423438); -1 without a code.
     pub fn unit_id(self) -> i32 {
+        if self.unece_code.is_empty() {
+            return -1;
+        }
         self.unece_code
             .bytes()
             .fold(0i32, |id, byte| (id << 8) | i32::from(byte))
@@ -299,8 +307,9 @@ pub(crate) fn render_markdown(spec: &AddressSpaceSpec) -> String {
     for (index, object) in spec.objects.iter().enumerate() {
         let path = object_path(spec, index);
         for variable in &object.variables {
-            let unit = variable.unit.map_or(String::new(), |u| {
-                format!("{} ({})", u.symbol, u.unece_code)
+            let unit = variable.unit.map_or(String::new(), |u| match u.unece_code {
+                "" => format!("{} (no code, unitId -1)", u.symbol),
+                code => format!("{} ({code})", u.symbol),
             });
             let range = variable
                 .range

@@ -7,7 +7,7 @@ use super::declare::{
 };
 use super::{AlarmKind, DrivelineResults, Figure};
 use super::{Columns, FigureType, Stale, Value};
-use crate::state::results::GapResults;
+use crate::state::results::{ForecastState, GapForecast, GapGrowth, GapResults};
 
 /// The table's figure type.
 type F = Figure<DrivelineResults>;
@@ -162,7 +162,7 @@ pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
         "mrad",
         at(22, F32, 9),
         Stale::LastUsable,
-        "Opened gap (total dead-zone width, referred to the rolls), maximum likelihood over the pooled bites (needs the driveline model)",
+        "Opened gap (total dead-zone width, referred to the rolls) at the last bite, from the wear trend of the bites since the last wear reset (needs the driveline model)",
         |d| real_of(d.gap.map(|g| g.gap_mrad)),
     )
     .kept(Columns::both("gap_mrad"), |d, v| {
@@ -173,6 +173,8 @@ pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
             coupling: None,
             likeliest_coupling: None,
             bites_pooled: 0,
+            growth: None,
+            forecast: None,
         })
     }),
     F::real(
@@ -229,13 +231,128 @@ pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
         "",
         at(29, U16, 13),
         Stale::LastUsable,
-        "Bites pooled into the gap estimate (the last drivelines[].wear.pool_bites since the last wear reset)",
+        "Bites in the gap's wear trend since the last wear reset (the name is from when the estimate pooled the last bites)",
         |d| d.gap.map(|g| Value::Count(g.bites_pooled as u64)),
     )
     .typed(FigureType::Count)
     .kept(Columns::both("bites_pooled"), |d, v| {
         if let Some(gap) = d.gap.as_mut() {
             gap.bites_pooled = usize::try_from(to_count(v)).unwrap_or(usize::MAX);
+        }
+    }),
+    F::real(
+        "gap_growth_mrad_per_day",
+        "mrad/d",
+        ext(7, F32, 3),
+        Stale::LastUsable,
+        "Growth of the gap (the wear trend's rate since the last wear reset), mrad per calendar day",
+        |d| real_of(growth(d).map(|g| g.mrad_per_day)),
+    )
+    .kept(Columns::both("gap_growth_mrad_per_day"), |d, v| {
+        if let (Some(gap), Some(rate)) = (d.gap.as_mut(), to_real(v)) {
+            gap.growth = Some(GapGrowth {
+                mrad_per_day: rate,
+                low_mrad_per_day: rate,
+                high_mrad_per_day: rate,
+            });
+        }
+    }),
+    F::real(
+        "gap_growth_low_mrad_per_day",
+        "mrad/d",
+        ext(9, F32, 4),
+        Stale::LastUsable,
+        "Lower end of the growth's 90% interval",
+        |d| real_of(growth(d).map(|g| g.low_mrad_per_day)),
+    )
+    .kept(Columns::both("gap_growth_low_mrad_per_day"), |d, v| {
+        if let (Some(growth), Some(low)) = (growth_mut(d), to_real(v)) {
+            growth.low_mrad_per_day = low;
+        }
+    }),
+    F::real(
+        "gap_growth_high_mrad_per_day",
+        "mrad/d",
+        ext(11, F32, 5),
+        Stale::LastUsable,
+        "Upper end of the growth's 90% interval",
+        |d| real_of(growth(d).map(|g| g.high_mrad_per_day)),
+    )
+    .kept(Columns::both("gap_growth_high_mrad_per_day"), |d, v| {
+        if let (Some(growth), Some(high)) = (growth_mut(d), to_real(v)) {
+            growth.high_mrad_per_day = high;
+        }
+    }),
+    F::state(
+        "gap_forecast",
+        ForecastState::NAMES,
+        ext(21, U16, 10),
+        "What the gap forecast says: forecast (days_to_gap_alarm given), at_alarm (the gap is at thresholds.gap_alarm_mrad), not_growing (the growth's interval holds 0), beyond_horizon (growing, the crossing beyond drivelines[].wear.horizon_days), too_few_bites (fewer than 5 bites since the last wear reset, or under 7 days of them while the growth is not 3 standard deviations clear of 0)",
+        |d| forecast(d).map(|f| Value::Index(f.state as u64)),
+    )
+    .kept(Columns::both("gap_forecast"), |d, v| {
+        if let (Some(gap), Some(state)) = (d.gap.as_mut(), to_index(v)) {
+            gap.forecast = ForecastState::ALL.get(state).map(|&state| GapForecast {
+                state,
+                days: None,
+                days_low: None,
+                days_high: None,
+                date_unix_ms: None,
+                cone: None,
+            });
+        }
+    }),
+    F::real(
+        "days_to_gap_alarm",
+        "d",
+        ext(13, F32, 6),
+        Stale::LastUsable,
+        "Calendar days from the last bite until the gap reaches thresholds.gap_alarm_mrad (the wear trend's point forecast); no value when no crossing is expected within the horizon (gap_forecast says why)",
+        |d| real_of(forecast(d).and_then(|f| f.days)),
+    )
+    .kept(Columns::both("days_to_gap_alarm"), |d, v| {
+        if let Some(forecast) = forecast_mut(d) {
+            forecast.days = to_real(v);
+        }
+    }),
+    F::real(
+        "days_to_gap_alarm_low",
+        "d",
+        ext(15, F32, 7),
+        Stale::LastUsable,
+        "Early end of the 90% interval of days_to_gap_alarm (given also when the growth is not certain, if the gap may reach the alarm within the horizon)",
+        |d| real_of(forecast(d).and_then(|f| f.days_low)),
+    )
+    .kept(Columns::both("days_to_gap_alarm_low"), |d, v| {
+        if let Some(forecast) = forecast_mut(d) {
+            forecast.days_low = to_real(v);
+        }
+    }),
+    F::real(
+        "days_to_gap_alarm_high",
+        "d",
+        ext(17, F32, 8),
+        Stale::LastUsable,
+        "Late end of the 90% interval of days_to_gap_alarm; no value beyond the horizon",
+        |d| real_of(forecast(d).and_then(|f| f.days_high)),
+    )
+    .kept(Columns::both("days_to_gap_alarm_high"), |d, v| {
+        if let Some(forecast) = forecast_mut(d) {
+            forecast.days_high = to_real(v);
+        }
+    }),
+    F::real(
+        "gap_alarm_date",
+        "",
+        ext(19, U32, 9),
+        Stale::LastUsable,
+        "The date of days_to_gap_alarm: the last bite's time plus those days (UTC)",
+        |d| forecast(d).and_then(|f| f.date_unix_ms).map(Value::Time),
+    )
+    .typed(FigureType::Time)
+    .kept(Columns::both("gap_alarm_date"), |d, v| {
+        if let Some(forecast) = forecast_mut(d) {
+            forecast.date_unix_ms = to_time(v);
         }
     }),
     F::flag(
@@ -310,3 +427,21 @@ pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
         |d| Some(Value::Bool(d.restored)),
     ),
 ];
+
+/// The gap's growth, when the trend has one.
+fn growth(d: &DrivelineResults) -> Option<GapGrowth> {
+    d.gap.and_then(|g| g.growth)
+}
+
+fn growth_mut(d: &mut DrivelineResults) -> Option<&mut GapGrowth> {
+    d.gap.as_mut().and_then(|g| g.growth.as_mut())
+}
+
+/// The gap forecast, when there is one.
+fn forecast(d: &DrivelineResults) -> Option<GapForecast> {
+    d.gap.and_then(|g| g.forecast)
+}
+
+fn forecast_mut(d: &mut DrivelineResults) -> Option<&mut GapForecast> {
+    d.gap.as_mut().and_then(|g| g.forecast.as_mut())
+}

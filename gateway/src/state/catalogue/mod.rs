@@ -662,6 +662,12 @@ mod tests {
                 "m/s" => "_m_s",
                 "1/s" => "_per_s",
                 "degC" => "_c",
+                "mrad/d" => "_mrad_per_day",
+                // Days read best first: `days_to_gap_alarm`.
+                "d" => {
+                    assert!(figure.key.starts_with("days_"), "{}", figure.key);
+                    continue;
+                }
                 other => panic!("unit {other} has no key suffix"),
             };
             assert!(figure.key.ends_with(suffix), "{}", figure.key);

@@ -149,6 +149,8 @@ fn driveline_block_golden_words_and_the_stale_rule() {
             coupling: None,
             likeliest_coupling: Some(1),
             bites_pooled: 12,
+            growth: None,
+            forecast: None,
         }),
         taf_warning: true,
         restored: true,
@@ -203,6 +205,8 @@ fn the_extension_block_holds_the_figures_declared_on_it_after_every_block() {
             coupling: None,
             likeliest_coupling: Some(2),
             bites_pooled: 12,
+            growth: None,
+            forecast: None,
         }),
         ..DrivelineResults::default()
     };

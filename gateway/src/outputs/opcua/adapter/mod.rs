@@ -39,6 +39,8 @@ fn unit(catalogue_unit: &str) -> Option<Unit> {
         "m/s" => Some(Unit::METRE_PER_SECOND),
         "1/s" => Some(Unit::RECIPROCAL_SECOND),
         "degC" => Some(Unit::DEGREE_CELSIUS),
+        "d" => Some(Unit::DAY),
+        "mrad/d" => Some(Unit::MILLIRADIAN_PER_DAY),
         _ => None,
     }
 }

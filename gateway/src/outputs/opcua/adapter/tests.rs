@@ -47,6 +47,8 @@ fn bitten() -> Results {
         coupling: None,
         likeliest_coupling: Some(1),
         bites_pooled: 5,
+        growth: None,
+        forecast: None,
     });
     results
 }
