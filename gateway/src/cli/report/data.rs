@@ -74,10 +74,8 @@ fn forecast(
         "the last run's settings have no gap alarm threshold (driveline_settings.gap_alarm_mrad)"
             .to_owned()
     })?;
-    let mut trend = gap_trend::GapTrend::new(millgate_config::WearSettings::default().horizon_days)
-        .map_err(|error| error.to_string())?;
-    trend
-        .restore(saved)
+    let horizon_days = millgate_config::WearSettings::default().horizon_days;
+    let trend = gap_trend::GapTrend::restored(horizon_days, saved)
         .map_err(|error| format!("the saved wear trend: {error}"))?;
     let Some(last_bite) = trend.last_bite_unix_ms().map(UtcTime::from_unix_ms) else {
         return Ok(None);
