@@ -1,11 +1,14 @@
 //! `millgate report` and `millgate history` on two weeks of bites of two drivelines
 //! (a bite every 30 s: 80 636), written through the gateway's own writer inserts:
 //! the report's plots are time buckets and binned cells, not a mark per bite, its
-//! driveline table has the gap columns the file holds, a run killed without a stop
-//! counts as running only until its last recorded event, and both commands stay in
-//! bounded memory (GNU time's peak RSS) and show progress only on a terminal
-//! (`script` gives them one). Another application's SQLite file is refused.
-//! Independent readings of the file come from Debian's `sqlite3`.
+//! driveline table has the gap columns the file holds (the growth and the expected
+//! date of the gap alarm too, rows sorted by that date), the gap's forecast redrawn
+//! from a saved wear trend (the dsp filter fed a linear gap) holds the true crossing
+//! of the alarm, a run killed without a stop counts as running only until its last
+//! recorded event, and both commands stay in bounded memory (GNU time's peak RSS) and
+//! show progress only on a terminal (`script` gives them one). Another application's
+//! SQLite file is refused. Independent readings of the file come from Debian's
+//! `sqlite3`.
 #![cfg(feature = "plot")]
 
 mod common;
@@ -18,8 +21,11 @@ use millgate::history::schema::APPLICATION_ID;
 use millgate::history::writer;
 use millgate::history::{DrivelineSettings, RunInfo};
 use millgate::state::events::{BiteRecord, HistoryEvent, WearState};
-use millgate::state::results::{DrivelineResults, GapResults};
+use millgate::state::results::{
+    DrivelineResults, ForecastState, GapForecast, GapGrowth, GapResults,
+};
 use millgate::state::time::UtcTime;
+use millgate_dsp::wear_trend::{Phase, WearTrend};
 
 const DAY_MS: i64 = 86_400_000;
 const WEEK_MS: f64 = 7.0 * 86_400_000.0;
@@ -79,9 +85,88 @@ fn unit(n: u64) -> f64 {
     (x >> 11) as f64 / (1u64 << 53) as f64
 }
 
-fn bite(driveline: &str, n: u32, time_ms: i64) -> HistoryEvent {
-    let weeks = (time_ms - start().unix_ms()) as f64 / WEEK_MS;
-    let gap_mrad = 0.5 + GROWTH_MRAD_PER_WEEK * weeks;
+/// The gap alarm threshold of the runs' settings, mrad.
+const GAP_ALARM_MRAD: f64 = 6.0;
+
+/// The true gap at `time_ms`, mrad.
+fn true_gap_mrad(time_ms: i64) -> f64 {
+    0.5 + GROWTH_MRAD_PER_WEEK * (time_ms - start().unix_ms()) as f64 / WEEK_MS
+}
+
+/// The forecast figures a bite of `driveline` at `time_ms` stores: F1's point value
+/// at the true crossing of the alarm with a +-10% interval; F2's at half those days
+/// (its alarm comes sooner: it sorts first).
+fn stored_forecast(driveline: &str, time_ms: i64) -> (GapGrowth, GapForecast) {
+    let rate = GROWTH_MRAD_PER_WEEK / 7.0;
+    let days = (GAP_ALARM_MRAD - true_gap_mrad(time_ms))
+        / rate
+        / if driveline == "F2" { 2.0 } else { 1.0 };
+    let growth = GapGrowth {
+        mrad_per_day: rate,
+        low_mrad_per_day: 0.9 * rate,
+        high_mrad_per_day: 1.1 * rate,
+    };
+    let forecast = GapForecast {
+        state: ForecastState::Forecast,
+        days: Some(days),
+        days_low: Some(0.9 * days),
+        days_high: Some(1.1 * days),
+        date_unix_ms: Some(time_ms + (days * DAY_MS as f64).round() as i64),
+        cone: None,
+    };
+    (growth, forecast)
+}
+
+/// The wear trend F1's last bite at `last_ms` leaves in the history, in its saved
+/// form: the dsp filter fed a Gaussian observation (sd 0.1 mrad) of the true gap
+/// once a day over the two weeks, as the gateway's trend would hold it.
+fn saved_trend(last_ms: i64) -> String {
+    let trend = WearTrend::new(365.0).unwrap();
+    let mut state = trend.state(1).unwrap();
+    let first_ms = start().unix_ms();
+    let mut bites = 0;
+    for day in 0.. {
+        let time_ms = (first_ms + day * DAY_MS).min(last_ms);
+        trend
+            .predict(&mut state, time_ms as f64 / DAY_MS as f64)
+            .unwrap();
+        trend
+            .update_gaussian(&mut state, 0, true_gap_mrad(time_ms), 0.01)
+            .unwrap();
+        trend.finish_bite(&mut state, None);
+        bites += 1;
+        if time_ms == last_ms {
+            break;
+        }
+    }
+    let h = state.hypotheses[0];
+    assert_eq!(h.phase, Phase::Tracking, "{bites} bites: {h:?}");
+    serde_json::json!({
+        "version": 1,
+        "couplings": [1],
+        "first_bite_unix_ms": first_ms,
+        "last_bite_unix_ms": last_ms,
+        "t_last_days": state.t_last_days,
+        "bites": state.bites,
+        "floor2_mrad2": state.floor2_mrad2,
+        "floor_measured": state.floor_measured,
+        "hypotheses": [{
+            "gap_mrad": h.gap_mrad,
+            "rate_mrad_per_day": h.rate_mrad_per_day,
+            "p": h.p,
+            "loglik": h.loglik,
+            "scale": h.scale,
+            "phase": "tracking",
+            "time_days": h.time_days,
+            "outlier_run": h.outlier_run,
+        }],
+    })
+    .to_string()
+}
+
+fn bite(driveline: &str, n: u32, time_ms: i64, last: bool) -> HistoryEvent {
+    let gap_mrad = true_gap_mrad(time_ms);
+    let (growth, forecast) = stored_forecast(driveline, time_ms);
     let degraded = n.is_multiple_of(211);
     let static_torque_knm = 300.0 + 300.0 * unit(u64::from(n) * 3);
     let taf = 1.2 + 0.05 * gap_mrad + 0.1 * unit(u64::from(n) * 7) - 1e-4 * static_torque_knm;
@@ -110,8 +195,8 @@ fn bite(driveline: &str, n: u32, time_ms: i64) -> HistoryEvent {
                 coupling: Some(1),
                 likeliest_coupling: None,
                 bites_pooled: 200,
-                growth: None,
-                forecast: None,
+                growth: Some(growth),
+                forecast: Some(forecast),
             }),
             ..state.clone()
         },
@@ -121,7 +206,7 @@ fn bite(driveline: &str, n: u32, time_ms: i64) -> HistoryEvent {
         reference_level_knm: Some(400.0),
         shift_over_linear_s: None,
         gap_state: Some(WearState::Ok),
-        gap_trend: None,
+        gap_trend: (last && driveline == "F1").then(|| saved_trend(time_ms)),
         pooled: None,
         state,
     }))
@@ -139,7 +224,7 @@ fn run_info() -> RunInfo {
                 taf_alarm: 1.9,
                 model: None,
                 gap_warning_mrad: Some(4.0),
-                gap_alarm_mrad: Some(6.0),
+                gap_alarm_mrad: Some(GAP_ALARM_MRAD),
             })
             .to_vec(),
     }
@@ -175,8 +260,9 @@ fn write_history(folder: &Path) -> (PathBuf, UtcTime) {
         for (k, name) in ["F1", "F2"].iter().enumerate() {
             counters[k] += 1;
             let at = time_ms + 7_500 * k as i64;
-            millgate::history::rows::insert(&transaction, run_id, &bite(name, counters[k], at))
-                .unwrap();
+            let last_bite = time_ms + EVERY_MS >= end_ms;
+            let bite = bite(name, counters[k], at, last_bite);
+            millgate::history::rows::insert(&transaction, run_id, &bite).unwrap();
             last = UtcTime::from_unix_ms(at);
         }
         time_ms += EVERY_MS;
@@ -310,7 +396,62 @@ fn report_of_two_weeks_of_bites_plots_buckets_and_cells_and_counts_a_killed_run_
         assert_eq!(row[9..12].join("|"), last_gap, "{row:?}");
         // The gap opened at exactly 0.2 mrad/week.
         assert_eq!(row[12], "+0.200", "{row:?}");
+        // The growth and the expected date after the last bite, as stored.
+        let stored = sqlite3(
+            &db,
+            &format!(
+                "SELECT printf('%+.4f (%+.4f..%+.4f)|%s (%s..%s)', gap_growth_mrad_per_day, \
+                 gap_growth_low_mrad_per_day, gap_growth_high_mrad_per_day, \
+                 substr(gap_alarm_date, 1, 10), \
+                 date(time, printf('%+.6f days', days_to_gap_alarm_low)), \
+                 date(time, printf('%+.6f days', days_to_gap_alarm_high))) \
+                 FROM bites WHERE driveline = '{name}' ORDER BY time DESC LIMIT 1"
+            ),
+        );
+        assert_eq!(row[13..15].join("|"), stored, "{row:?}");
     }
+    // Sorted by the expected date: F2's comes first.
+    let at = |name: &str| md.find(&format!("\n| {name} |")).unwrap();
+    assert!(at("F2") < at("F1"), "{md}");
+
+    // F1's forecast from the wear trend the history saved: its date and interval
+    // against the true crossing of the alarm (the gap grows linearly).
+    let section = &md[md.find("### F1").unwrap()..];
+    let said = section
+        .split("alarm expected ")
+        .nth(1)
+        .unwrap_or_else(|| panic!("no expected date: {md}"));
+    let date = |text: &str| UtcTime::parse(text).unwrap_or_else(|_| panic!("{text}: {said}"));
+    let (point, low, high) = (date(&said[..10]), date(&said[12..22]), date(&said[24..34]));
+    let truth_ms =
+        start().unix_ms() + ((GAP_ALARM_MRAD - 0.5) / GROWTH_MRAD_PER_WEEK * WEEK_MS) as i64;
+    let ahead_ms = (truth_ms - last.unix_ms()) as f64;
+    assert!(
+        low.unix_ms() - DAY_MS <= truth_ms && truth_ms <= high.unix_ms() + DAY_MS,
+        "true crossing {} outside {said}",
+        UtcTime::from_unix_ms(truth_ms)
+    );
+    assert!(
+        ((point.unix_ms() - truth_ms) as f64).abs() <= 0.2 * ahead_ms,
+        "expected {point}, truly {}: {said}",
+        UtcTime::from_unix_ms(truth_ms)
+    );
+    let gap_svg = std::fs::read_to_string(out.join("F1-gap.svg")).unwrap();
+    for drawn in [
+        "forecast 90% band",
+        "fitted growth",
+        "alarm expected",
+        "alarm 6",
+    ] {
+        assert!(gap_svg.contains(drawn), "F1-gap.svg lacks {drawn:?}");
+    }
+    // F2 has gap estimates but no saved trend: its plot without a forecast, and why.
+    let f2_svg = std::fs::read_to_string(out.join("F2-gap.svg")).unwrap();
+    assert!(!f2_svg.contains("alarm expected"), "F2-gap.svg");
+    assert!(
+        md.contains("No forecast drawn: the history keeps no wear trend"),
+        "{md}"
+    );
 
     // The killed run counts as running until its last bite, not to the period's end;
     // what follows is said to be unknown.

@@ -1,9 +1,10 @@
 //! The maintenance web page against a real service (`millgate run` between the demo's
 //! virtual DAQ and PLC) over real HTTP on loopback: the JSON API's answers and
-//! limits, the security headers, requests refused (bad parameters, methods, bodies,
-//! oversized, malformed and slow requests), the connection limit with the Modbus
-//! path answering meanwhile, live updates, and the page without a history; gzip and
-//! the assets' ETags as curl(1) sees them.
+//! limits (the gap forecast's cone against the same answer's figures), the security
+//! headers, requests refused (bad parameters, methods, bodies, oversized, malformed
+//! and slow requests), the connection limit with the Modbus path answering
+//! meanwhile, live updates, and the page without a history; gzip and the assets'
+//! ETags as curl(1) sees them.
 
 mod common;
 
@@ -12,6 +13,7 @@ use std::time::{Duration, Instant};
 use common::{free_port, http, http_raw, web_ready, HttpAnswer, Setup, MILLGATE};
 use millgate::history::query::{BiteRow, Filter, HistoryReader};
 use millgate::history::series::TREND_WINDOW;
+use millgate::state::time::UtcTime;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 
@@ -227,6 +229,78 @@ async fn gap_trend_follows_the_file(port: u16, setup: &Setup) {
         );
         seen.push(before);
     }
+}
+
+/// `/api/drivelines/F1`'s `gap_cone` against the same answer's figures (the board's
+/// gap, growth and last bite): dated from the last bite, the band around its mean,
+/// the fitted line ending at the gap with the growth's slope; null without a growth.
+async fn gap_cone_follows_the_board(port: u16) {
+    let time = |v: &serde_json::Value| {
+        UtcTime::parse(v.as_str().unwrap_or_else(|| panic!("a time: {v}")))
+            .unwrap()
+            .unix_ms()
+    };
+    let start = Instant::now();
+    let f1 = loop {
+        let f1 = http(port, "GET", "/api/drivelines/F1").await.json();
+        if !f1["gap_growth_mrad_per_day"].is_null() {
+            break f1;
+        }
+        assert!(f1["gap_cone"].is_null(), "a cone without a growth: {f1}");
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "no gap growth after 60 s: {f1}"
+        );
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    };
+    let cone = &f1["gap_cone"];
+    assert!(cone.is_object(), "a growth without a cone: {f1}");
+    eprintln!(
+        "F1 after bite {}: gap {} mrad, growth {} mrad/day, forecast {} ({} days, {}..{}), \
+         cone to {}",
+        f1["bite_counter"],
+        f1["gap_mrad"],
+        f1["gap_growth_mrad_per_day"],
+        f1["gap_forecast"],
+        f1["days_to_gap_alarm"],
+        f1["days_to_gap_alarm_low"],
+        f1["days_to_gap_alarm_high"],
+        cone["points"][15]["time"]
+    );
+    let last = time(&f1["last_bite_time"]);
+    let points = cone["points"].as_array().unwrap();
+    assert_eq!(points.len(), 16, "{cone}");
+    assert_eq!(time(&points[0]["time"]), last, "{cone}");
+    // In time order (all at the last bite when the gap is at the alarm already).
+    for pair in points.windows(2) {
+        assert!(time(&pair[0]["time"]) <= time(&pair[1]["time"]), "{cone}");
+    }
+    for point in points {
+        let mrad = |key: &str| point[key].as_f64().unwrap();
+        assert!(
+            mrad("low_mrad") <= mrad("mean_mrad") && mrad("mean_mrad") <= mrad("high_mrad"),
+            "{point}"
+        );
+    }
+    // The cone reaches past the late end of the forecast, when there is one.
+    if let Some(high) = f1["days_to_gap_alarm_high"].as_f64() {
+        let end = time(&points[15]["time"]);
+        assert!(
+            end as f64 >= last as f64 + high * 86_400_000.0,
+            "cone to {end}, late end {high} days after {last}: {f1}"
+        );
+    }
+    let line = &cone["fitted_line"];
+    assert_eq!(time(&line["to_time"]), last, "{line}");
+    assert_eq!(line["to_mrad"], f1["gap_mrad"], "{line}");
+    let back_days = (last - time(&line["from_time"])) as f64 / 86_400_000.0;
+    assert!((0.0..=28.0).contains(&back_days), "{line}");
+    let slope = f1["gap_growth_mrad_per_day"].as_f64().unwrap();
+    let from = f1["gap_mrad"].as_f64().unwrap() - slope * back_days;
+    assert!(
+        (line["from_mrad"].as_f64().unwrap() - from).abs() <= 1e-6 * (1.0 + from.abs()),
+        "{line}: {from} expected"
+    );
 }
 
 /// A 400 whose JSON error names `words`.
@@ -662,6 +736,7 @@ async fn the_api_answers_from_the_live_results_and_the_history_and_refuses_bad_r
 
     wear_map_on_the_page(port, &setup).await;
     gap_trend_follows_the_file(port, &setup).await;
+    gap_cone_follows_the_board(port).await;
 
     // Bad parameters, unknown names.
     assert_bad(

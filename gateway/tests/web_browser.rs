@@ -1,7 +1,8 @@
 //! The maintenance page in a real browser: Debian's headless chromium driven through
 //! chromedriver (WebDriver, fantoccini) against a real service with a history. The
 //! overview lists the driveline, the driveline page's gap plot is a uPlot canvas with
-//! data, its TAF plot carries the wear map's curves and the estimate's, its bite trace
+//! data and the API's forecast (the cone up to its end, the expected date or the
+//! forecast's words written on it), its TAF plot carries the wear map's curves and the estimate's, its bite trace
 //! is a captured bite's samples beside the model's response (the capture and response
 //! APIs' numbers; another row's "plot" switches to that bite), and a new bite
 //! shows on the open overview and driveline page without a reload (the time it took is
@@ -33,6 +34,8 @@ use common::tandem::modbus_source;
 use common::{free_port, web_ready, Plc, Setup, MILLGATE};
 use fantoccini::{Client, ClientBuilder};
 use hyper_util::client::legacy::connect::HttpConnector;
+use millgate::state::results::ForecastState;
+use millgate::state::time::UtcTime;
 
 /// `program` on the PATH.
 fn which(program: &str) -> Option<PathBuf> {
@@ -185,6 +188,106 @@ fn same_numbers(a: &serde_json::Value, b: &serde_json::Value) -> bool {
                 (Some(x), Some(y)) => (x - y).abs() <= 1e-12 * x.abs().max(1.0),
                 _ => false,
             })
+}
+
+/// The cone's means of a driveline's `gap_cone` as the page's plot holds them: one per
+/// time (a cone of a gap at the alarm already has all its points at the last bite).
+fn cone_means(cone: &serde_json::Value) -> serde_json::Value {
+    let mut means: Vec<(String, serde_json::Value)> = Vec::new();
+    for point in cone["points"].as_array().into_iter().flatten() {
+        let time = point["time"].as_str().unwrap_or("").to_owned();
+        match means.last_mut() {
+            Some(last) if last.0 == time => last.1 = point["mean_mrad"].clone(),
+            _ => means.push((time, point["mean_mrad"].clone())),
+        }
+    }
+    serde_json::Value::Array(means.into_iter().map(|(_, mean)| mean).collect())
+}
+
+/// `/api/drivelines/F1` and the driveline page's gap plot (its forecast series, its
+/// forecast text, the note under it, its last time, whether it has the forecast's
+/// band) once they agree: read until two API reads around the page's see the same
+/// bite and the page draws that answer's cone.
+async fn agreeing_forecast(client: &Client, port: u16) -> (serde_json::Value, serde_json::Value) {
+    let read_page = "const p = window.millgatePlots.gap; \
+        if (!p) return null; \
+        const i = p.series.findIndex((s) => s.label === 'forecast'); \
+        return [p.data[i].filter((v) => v !== null && v !== undefined), p.millgateForecast || null, \
+          document.getElementById('gap-forecast').textContent, p.data[0][p.data[0].length - 1], \
+          p.series.findIndex((s) => s.label === 'forecast 90% high') > 0];";
+    let start = Instant::now();
+    loop {
+        let before = common::http(port, "GET", "/api/drivelines/F1").await.json();
+        let page = client.execute(read_page, vec![]).await.unwrap();
+        let after = common::http(port, "GET", "/api/drivelines/F1").await.json();
+        let cone = &after["gap_cone"];
+        if before["bite_counter"] == after["bite_counter"]
+            && !cone.is_null()
+            && !page.is_null()
+            && same_numbers(&page[0], &cone_means(cone))
+        {
+            return (after, page);
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "the page's forecast {page} never matched the API's {after}"
+        );
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+}
+
+/// The driveline page's gap plot carries the API's forecast of `/api/drivelines/F1`:
+/// the cone's mean as its `forecast` series up to the cone's end, its band, and what
+/// the forecast says written on the plot and under it: the state's words while it
+/// gives no days, then (more bites asked of the `plc`: the demo's gap opens fast)
+/// the expected date of the gap alarm with its interval.
+async fn gap_plot_has_the_forecast(client: &Client, port: u16, plc: &Plc<'_>) {
+    for round in 0.. {
+        let (api, page) = agreeing_forecast(client, port).await;
+        let points = api["gap_cone"]["points"].as_array().unwrap();
+        let end = UtcTime::parse(points[points.len() - 1]["time"].as_str().unwrap()).unwrap();
+        assert_eq!(
+            page[3].as_f64(),
+            Some(end.unix_ms() as f64 / 1000.0),
+            "{page}"
+        );
+        assert_eq!(page[4], true, "the forecast's band: {page}");
+        let said = page[1]
+            .as_str()
+            .unwrap_or_else(|| panic!("no forecast text: {page}"));
+        assert!(
+            page[2].as_str().is_some_and(|note| note.contains(said)),
+            "{page}"
+        );
+        // A state figure carries its value; the catalogue names it.
+        let state = api["gap_forecast"]
+            .as_u64()
+            .and_then(|value| ForecastState::NAMES.get(value as usize))
+            .unwrap_or_else(|| panic!("gap_forecast of {api}"));
+        eprintln!(
+            "the gap plot's forecast after bite {}: {said} ({state})",
+            api["bite_counter"]
+        );
+        let words = match *state {
+            "forecast" => {
+                let date = &api["gap_alarm_date"].as_str().unwrap()[..10];
+                let expected = format!("alarm expected {date} (");
+                assert!(said.starts_with(&expected), "{said:?} for {api}");
+                return;
+            }
+            "at_alarm" => "at the alarm",
+            "not_growing" => "not growing",
+            "beyond_horizon" => "beyond the horizon",
+            "too_few_bites" => "too few bites",
+            other => panic!("gap_forecast {other}"),
+        };
+        assert_eq!(said, words, "{api}");
+        assert!(
+            round < 10,
+            "no forecast with days after {round} more bites: {api}"
+        );
+        plc.bites_after_now(1).await;
+    }
 }
 
 /// The driveline page's bite trace: the newest captured bite's torque samples as the
@@ -609,6 +712,7 @@ async fn the_pages_list_the_drivelines_plot_the_gap_and_show_a_new_bite_live() {
         canvas[0].as_u64() > Some(300) && canvas[1].as_u64() > Some(100),
         "{canvas}"
     );
+    gap_plot_has_the_forecast(&client, port, &plc).await;
     trace_is_the_captures_samples_beside_the_model(&client, port).await;
     let taf_points = until_js(
         &client,

@@ -37,7 +37,44 @@
   // A driveline's pooled gap estimate (its gap_mrad, gap_low_mrad, gap_high_mrad).
   const gapText = (d) =>
     d.gap_mrad !== null ? num(d.gap_mrad, 2) + " mrad (" + num(d.gap_low_mrad, 2) + "–" + num(d.gap_high_mrad, 2) + ")" : "–";
-  const trendText = (t) => (t === null || t === undefined ? "–" : (t >= 0 ? "+" : "") + num(t, 2) + " mrad/week");
+  const signed = (v, digits) => (v >= 0 ? "+" : "") + num(v, digits);
+  const missing = (v) => v === null || v === undefined;
+  // A driveline's gap growth (its gap_growth_mrad_per_day).
+  const growthText = (d) => (missing(d.gap_growth_mrad_per_day) ? "–" : signed(d.gap_growth_mrad_per_day, 3) + " mrad/day");
+  // The gap forecast's states by the value of a driveline's gap_forecast (the
+  // catalogue's order, docs/figures.md); null without a forecast.
+  const FORECAST_STATES = ["forecast", "at_alarm", "not_growing", "beyond_horizon", "too_few_bites"];
+  const forecastState = (d) => (missing(d.gap_forecast) ? null : FORECAST_STATES[d.gap_forecast] || null);
+  // What a gap forecast without days says, by its state.
+  const FORECAST_WORDS = {
+    at_alarm: "at the alarm", not_growing: "not growing", beyond_horizon: "beyond the horizon", too_few_bites: "too few bites",
+  };
+  // The expected date of a driveline's gap alarm with its 90% interval, "2027-03-14
+  // (03-02 .. 04-01)" (the ends' year only when it differs), UTC; null without one.
+  function expectedText(d) {
+    if (forecastState(d) !== "forecast" || !d.gap_alarm_date || !d.last_bite_time) return null;
+    const date = d.gap_alarm_date.slice(0, 10);
+    const day = (days) => new Date(Date.parse(d.last_bite_time) + days * 86400000).toISOString().slice(0, 10);
+    const short = (text) => (text.slice(0, 4) === date.slice(0, 4) ? text.slice(5) : text);
+    const low = missing(d.days_to_gap_alarm_low) ? "–" : short(day(d.days_to_gap_alarm_low));
+    const high = missing(d.days_to_gap_alarm_high) ? "beyond the horizon" : short(day(d.days_to_gap_alarm_high));
+    return date + " (" + low + " .. " + high + ")";
+  }
+  // What a driveline's gap forecast says: "alarm expected <date> (<interval>)" or the
+  // state's words; null without a forecast.
+  function forecastText(d) {
+    const expected = expectedText(d);
+    if (expected) return "alarm expected " + expected;
+    const state = forecastState(d);
+    return state ? FORECAST_WORDS[state] : null;
+  }
+  // Drivelines by the expected date of their gap alarm, soonest first, those without
+  // one last (in their order).
+  function byAlarmDate(drivelines) {
+    const dated = (d) => forecastState(d) === "forecast" || forecastState(d) === "at_alarm";
+    const key = (d) => (dated(d) && d.gap_alarm_date ? Date.parse(d.gap_alarm_date) : Infinity);
+    return drivelines.slice().sort((a, b) => key(a) - key(b) || 0);
+  }
   function fill(tbody, rows) {
     tbody.replaceChildren(...rows);
   }
@@ -154,17 +191,16 @@
 
   // ---- overview -----------------------------------------------------------------
   function overviewPage() {
-    let full = null; // the last /api/overview (with the history's trend and outages)
+    let full = null; // the last /api/overview (with the history's outages)
     function render(o) {
-      fill(document.querySelector("#drivelines tbody"), o.drivelines.map((d) => {
-        const trend = full && full.drivelines.find((f) => f.name === d.name);
+      fill(document.querySelector("#drivelines tbody"), byAlarmDate(o.drivelines).map((d) => {
         return el("tr", { id: "driveline-" + d.name },
           el("td", {}, el("a", { href: "/drivelines/" + encodeURIComponent(d.name) }, d.name)),
           el("td", {}, utc(d.last_bite_time), " ", el("span", { class: "muted" }, ago(d.last_bite_time))),
           el("td", { class: "bite-counter" }, d.bite_counter),
           el("td", {}, num(d.taf, 3), " ", badge(d.taf_state)),
           el("td", {}, gapText(d)),
-          el("td", {}, trendText(trend ? trend.gap_trend_mrad_per_week : null)),
+          el("td", { class: "forecast" }, growthText(d), " ", el("span", { class: "muted" }, forecastText(d) || "")),
           el("td", {}, badge(d.wear_state), d.source_stale ? badge("stale", "source stale") : null,
             d.restored ? el("span", { class: "muted" }, " restored") : null));
       }));
@@ -274,7 +310,7 @@
       render(now);
       const moved = newBites(now, before);
       appendGaps(moved);
-      // A bite changes the trend: fetch the overview's history part again, once.
+      // A bite changes the history's part: fetch the overview again, once.
       if (moved.length > 0 && pending === null) {
         pending = setTimeout(() => { pending = null; refresh(); }, 1000);
       }
@@ -308,6 +344,7 @@
     const gapNode = document.getElementById("gap-plot");
     const tafNode = document.getElementById("taf-plot");
     const gapNote = document.getElementById("gap-note");
+    const forecastNote = document.getElementById("gap-forecast");
     const tafNote = document.getElementById("taf-note");
     const tbody = document.querySelector("#bites tbody");
     const traceNode = document.getElementById("trace-plot");
@@ -331,9 +368,35 @@
         card("Opened gap", d.gap_mrad !== null ? num(d.gap_mrad, 2) + " mrad" : "–",
           d.gap_mrad !== null ? "90%: " + num(d.gap_low_mrad, 2) + "–" + num(d.gap_high_mrad, 2) + " mrad · " + d.bites_pooled + " bites"
             : (d.has_model ? "no estimate yet" : "no driveline model configured"), d.wear_state),
-        card("Gap trend", trendText(d.gap_trend_mrad_per_week), "least squares over 4 weeks, since the last reset"),
+        card("Growth", growthText(d), missing(d.gap_growth_mrad_per_day)
+          ? (d.has_model ? "no trend yet" : "no driveline model configured")
+          : "90%: " + signed(d.gap_growth_low_mrad_per_day, 3) + " to " + signed(d.gap_growth_high_mrad_per_day, 3) + " mrad/day"),
+        gapAlarmCard(d, card),
         card("Static torque", d.static_torque_knm === null ? "–" : num(d.static_torque_knm, 0) + " kN·m",
           "peak " + (d.peak_torque_knm === null ? "–" : num(d.peak_torque_knm, 0) + " kN·m")));
+    }
+
+    // The gap alarm's forecast: days with their interval and the date, or what the
+    // forecast says instead.
+    function gapAlarmCard(d, card) {
+      const state = forecastState(d);
+      if (state === "forecast" && !missing(d.days_to_gap_alarm)) {
+        // Days, or hours when the alarm is less than two days away.
+        const soon = d.days_to_gap_alarm < 2;
+        const span = (v) => (missing(v) ? "–" : soon ? num(v * 24, 1) : num(v, 0));
+        const unit = soon ? " h" : " days";
+        const high = missing(d.days_to_gap_alarm_high) ? "beyond the horizon" : span(d.days_to_gap_alarm_high) + unit;
+        return card("Gap alarm", "in " + span(d.days_to_gap_alarm) + unit,
+          "90%: " + span(d.days_to_gap_alarm_low) + " to " + high + " · expected " + expectedText(d));
+      }
+      const why = {
+        at_alarm: "the gap is at " + d.thresholds.gap_alarm_mrad + " mrad",
+        not_growing: "the growth's 90% interval holds 0",
+        beyond_horizon: "growing, the crossing lies beyond the forecast's horizon",
+        too_few_bites: "too few bites since the last wear reset for a trend",
+      };
+      return card("Gap alarm", state ? FORECAST_WORDS[state] : "–",
+        state ? why[state] : (d.has_model ? "no forecast yet" : "no driveline model configured"));
     }
 
     function row(b, fresh) {
@@ -422,40 +485,106 @@
       fill(tbody, bites.slice(-25).reverse().map((b) => row(b, false)));
     }
 
-    function drawGap(points) {
+    // The history's gap series (buckets), with the live bites since appended.
+    let wearPoints = [];
+    // The gap over time: the estimates with their 90% interval, the thresholds and,
+    // once the wear trend has a growth (info.gap_cone), the fitted growth line, the
+    // forecast's mean and 90% band (the time axis reaching its end) and the expected
+    // date of the gap alarm marked and written.
+    function drawGap() {
       const t = info.thresholds;
-      const data = [[], [], [], [], [], []];
-      for (const p of points) {
-        data[0].push(Date.parse(p.end) / 1000);
-        data[1].push(p.gap_mrad);
-        data[2].push(p.gap_low_mrad);
-        data[3].push(p.gap_high_mrad);
-        data[4].push(t.gap_warning_mrad);
-        data[5].push(t.gap_alarm_mrad);
+      const cone = info.gap_cone;
+      // Rows by time (Unix s): gap, low, high, fitted line, forecast mean, low, high.
+      const rows = new Map();
+      const at = (time) => {
+        const x = Date.parse(time) / 1000;
+        if (!rows.has(x)) rows.set(x, [null, null, null, null, null, null, null]);
+        return rows.get(x);
+      };
+      for (const p of wearPoints) {
+        const r = at(p.end);
+        r[0] = p.gap_mrad; r[1] = p.gap_low_mrad; r[2] = p.gap_high_mrad;
       }
+      if (cone) {
+        at(cone.fitted_line.from_time)[3] = cone.fitted_line.from_mrad;
+        at(cone.fitted_line.to_time)[3] = cone.fitted_line.to_mrad;
+        for (const c of cone.points) {
+          const r = at(c.time);
+          r[4] = c.mean_mrad; r[5] = c.low_mrad; r[6] = c.high_mrad;
+        }
+      }
+      const xs = Array.from(rows.keys()).sort((a, b) => a - b);
+      const column = (i) => xs.map((x) => rows.get(x)[i]);
+      const data = [xs, column(0), column(1), column(2), xs.map(() => t.gap_warning_mrad), xs.map(() => t.gap_alarm_mrad),
+        column(3), column(4), column(5), column(6)];
+      const expected = expectedText(info) ? Date.parse(info.gap_alarm_date) / 1000 : null;
+      const said = forecastText(info);
+      const mrad = (u, v) => num(v, 2) + " mrad";
       const options = {
         width: plotWidth(gapNode), height: 300, tzDate: utcDate,
         scales: { x: { time: true } },
         series: [
           { label: "time (UTC)", value: timeLabel },
-          { label: "gap", stroke: "#1d4ed8", width: 2, spanGaps: true, points: quiet, value: (u, v) => num(v, 2) + " mrad" },
+          { label: "gap", stroke: "#1d4ed8", width: 2, spanGaps: true, points: quiet, value: mrad },
           { label: "90% low", stroke: "#93c5fd", width: 1, spanGaps: true, points: quiet, value: (u, v) => num(v, 2) },
           { label: "90% high", stroke: "#93c5fd", width: 1, spanGaps: true, points: quiet, value: (u, v) => num(v, 2) },
           { label: "warning", stroke: "#b45309", width: 1.5, dash: [8, 5], points: quiet },
           { label: "alarm", stroke: "#b91c1c", width: 1.5, dash: [8, 5], points: quiet },
+          { label: "fitted growth", stroke: "#0f766e", width: 2, dash: [4, 3], spanGaps: true, points: quiet, value: mrad },
+          { label: "forecast", stroke: "#c2410c", width: 2, spanGaps: true, points: quiet, value: mrad },
+          { label: "forecast 90% low", stroke: "#fdba74", width: 1, spanGaps: true, points: quiet, value: (u, v) => num(v, 2) },
+          { label: "forecast 90% high", stroke: "#fdba74", width: 1, spanGaps: true, points: quiet, value: (u, v) => num(v, 2) },
         ],
-        bands: [{ series: [3, 2], fill: "rgba(29, 78, 216, 0.15)" }],
+        bands: [{ series: [3, 2], fill: "rgba(29, 78, 216, 0.15)" }, { series: [9, 8], fill: "rgba(194, 65, 12, 0.15)" }],
         axes: [{ values: utcTicks, incrs: timeIncrs, space: 70, label: "time (UTC)" }, { label: "opened gap, mrad" }],
+        plugins: [expectedMark(expected, said)],
       };
       if (gapPlot) gapPlot.destroy();
       gapPlot = new uPlot(options, data, gapNode);
+      gapPlot.millgateForecast = said;
       window.millgatePlots.gap = gapPlot;
+      forecastNote.textContent = cone
+        ? "Forecast (" + (said || "none") + "): the fitted growth since the last bites (dashed), the forecast's mean and 90% band (orange) up to the alarm line; growth "
+          + growthText(info) + "."
+        : (said ? "Forecast: " + said + " (no growth yet to draw)." : "");
       describeGap();
+    }
+    // A vertical line at the expected date `x` (Unix s) with `text` beside it.
+    function expectedMark(x, text) {
+      return {
+        hooks: {
+          draw: [(u) => {
+            if (x === null) return;
+            const ctx = u.ctx;
+            const ratio = uPlot.pxRatio;
+            const px = Math.round(u.valToPos(x, "x", true));
+            const right = px > u.bbox.left + u.bbox.width / 2;
+            ctx.save();
+            ctx.strokeStyle = "#b91c1c";
+            ctx.lineWidth = 1.5 * ratio;
+            ctx.setLineDash([3 * ratio, 3 * ratio]);
+            ctx.beginPath();
+            ctx.moveTo(px, u.bbox.top);
+            ctx.lineTo(px, u.bbox.top + u.bbox.height);
+            ctx.stroke();
+            ctx.fillStyle = "#b91c1c";
+            ctx.font = Math.round(12 * ratio) + "px system-ui, sans-serif";
+            ctx.textAlign = right ? "right" : "left";
+            ctx.fillText(text, px + (right ? -4 : 4) * ratio, u.bbox.top + 14 * ratio);
+            ctx.restore();
+          }],
+        },
+      };
     }
     function describeGap() {
       const t = info.thresholds;
+      const cone = info.gap_cone;
+      const last = cone ? cone.points[cone.points.length - 1] : null;
       describe(gapNode, gapSummary("Opened gap of " + name + " over time", gapPlot.data, ["gap"])
-        + " Warning at " + t.gap_warning_mrad + " mrad, alarm at " + t.gap_alarm_mrad + " mrad.");
+        + " Warning at " + t.gap_warning_mrad + " mrad, alarm at " + t.gap_alarm_mrad + " mrad."
+        + (cone ? " Growth " + growthText(info) + "; forecast: " + (forecastText(info) || "none") + "; its 90% band "
+          + num(cone.points[0].low_mrad, 2) + " to " + num(cone.points[0].high_mrad, 2) + " mrad at the last bite, "
+          + num(last.low_mrad, 2) + " to " + num(last.high_mrad, 2) + " mrad on " + utc(last.time) + "." : ""));
     }
 
     // The gap maps (/api/drivelines/{name}/map) and the coupling whose curves are
@@ -593,7 +722,8 @@
         }
         if (wear) {
           wearAt = Date.now();
-          drawGap(wear);
+          wearPoints = wear;
+          drawGap();
           gapNote.textContent = wear.some((p) => p.gap_mrad !== null) ? ""
             : (info.has_model ? "No gap estimate in the history yet." : "No gap estimates: the driveline has no model configured.");
         }
@@ -622,7 +752,7 @@
       listeners.push((now, before) => {
         const d = now.drivelines.find((x) => x.name === name);
         if (!d) return;
-        d.gap_trend_mrad_per_week = info.gap_trend_mrad_per_week;
+        info = d;
         cards(d);
         if (!newBites(now, before).some((x) => x.name === name)) return;
         // The new bite at once from the live figures...
@@ -634,12 +764,10 @@
         };
         tbody.prepend(row(liveBite, true));
         if (gapPlot && d.gap_mrad !== null && d.last_bite_time) {
-          const data = gapPlot.data.map((s) => s.slice());
-          data[0].push(Date.parse(d.last_bite_time) / 1000);
-          data[1].push(d.gap_mrad); data[2].push(d.gap_low_mrad); data[3].push(d.gap_high_mrad);
-          data[4].push(info.thresholds.gap_warning_mrad); data[5].push(info.thresholds.gap_alarm_mrad);
-          gapPlot.setData(data);
-          describeGap();
+          wearPoints = wearPoints.concat([{
+            end: d.last_bite_time, gap_mrad: d.gap_mrad, gap_low_mrad: d.gap_low_mrad, gap_high_mrad: d.gap_high_mrad,
+          }]);
+          drawGap();
           gapNote.textContent = "";
         }
         // ...then the stored rows and the trend, once the history has them (without

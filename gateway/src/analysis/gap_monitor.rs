@@ -4,7 +4,7 @@
 //! - **Maps** come from a [`GapMapJob`]: the cache when it holds maps for this model
 //!   and these settings (`gap_map_cache`), else a build on its own threads
 //!   ([`super::gap_map::build`]). Until they are installed the gap registers stay
-//!   invalid; bites seen meanwhile are held (at most [`MAX_PENDING`], the newest) and
+//!   invalid; bites seen meanwhile are held (at most `MAX_PENDING`, 1000, the newest) and
 //!   folded into the trend once the maps arrive. A build that fails leaves them invalid
 //!   for good (the error is logged, naming the model file).
 //! - **Trend** ([`super::gap_trend`]): every bite since the last wear reset, in time

@@ -11,7 +11,7 @@
 //! - **Time** is the bite's, in calendar days: shifts, weekends, outages and restarts
 //!   only lengthen the step between two bites. A bite dated before the last one (a
 //!   clock stepped back) is folded in at the last one's time.
-//! - **Saved form** ([`SavedTrend`]): the filter's state as plain numbers, which the
+//! - **Saved form** (`SavedTrend`, JSON): the filter's state as plain numbers, which the
 //!   history keeps with the driveline's state so a restart continues the trend.
 
 use millgate_dsp::wear_trend::{
@@ -318,6 +318,13 @@ impl GapTrend {
                 .collect(),
         };
         serde_json::to_string(&saved).unwrap_or_default()
+    }
+
+    /// The trend saved as `text` ([`Self::saved`]), forecasting up to `horizon_days`.
+    pub fn restored(horizon_days: f64, text: &str) -> Result<Self, RestoreError> {
+        let mut trend = Self::new(horizon_days)?;
+        trend.restore(text)?;
+        Ok(trend)
     }
 
     /// Continue the trend saved as `text` ([`Self::saved`]).

@@ -271,9 +271,7 @@ fn from_history(args: &WearArgs, db: &Path, driveline: &str) -> anyhow::Result<S
                 .unwrap_or(DEFAULT_ALARM_MRAD)
         }
     };
-    let mut trend = GapTrend::new(args.horizon_days)?;
-    trend
-        .restore(saved)
+    let trend = GapTrend::restored(args.horizon_days, saved)
         .map_err(|error| anyhow::anyhow!("{file}: the wear trend of `{driveline}`: {error}"))?;
     let outlook = Outlook {
         results: trend.results(alarm_mrad),

@@ -90,6 +90,15 @@ impl UtcTime {
         }
     }
 
+    /// This time moved by `days` calendar days (negative: back), to the millisecond.
+    pub fn plus_days(self, days: f64) -> Self {
+        // `as` saturates: a forecast a million years out stays a time.
+        let ms = (days * 86_400_000.0).round() as i64;
+        Self {
+            unix_ms: self.unix_ms.saturating_add(ms),
+        }
+    }
+
     /// This time moved back by `duration`.
     pub fn minus(self, duration: Duration) -> Self {
         let ms = i64::try_from(duration.as_millis()).unwrap_or(i64::MAX);

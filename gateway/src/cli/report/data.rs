@@ -1,14 +1,17 @@
 //! What the report reads of one driveline, without holding its bites: counts and TAF
 //! quantiles, the last gap estimate and its trend, the time series in buckets (the
 //! web page's [`HistoryReader::wear_series`] and the wear index in the same buckets),
-//! and the bites binned over static torque and TAF ([`TafGrid`]).
+//! the gap forecast's cone (recomputed from the wear trend the history saved, see
+//! [`Forecast`]) and the bites binned over static torque and TAF ([`TafGrid`]).
 
 use super::plots::{range, wear_curves, Curve, TafGrid};
+use crate::analysis::gap_trend;
 use crate::cli::progress::{percent, Progress};
 use crate::history::query::{BiteRow, Filter, HistoryReader, SettingsRow};
 use crate::history::series::TREND_WINDOW;
 use crate::history::series::{GapTrend, WearIndexPoint, WearPoint};
 use crate::history::summary::BiteSummary;
+use crate::state::results::GapResults;
 use crate::state::time::UtcTime;
 
 /// Time buckets of the plots over time: 2 px each of a 900 px wide panel.
@@ -33,16 +36,69 @@ pub(super) struct DrivelineData {
     pub(super) curves: Result<Vec<Curve>, String>,
     /// Its bites over static torque and TAF.
     pub(super) grid: TafGrid,
+    /// The gap forecast after its last bite, when the history saved its wear trend
+    /// and that bite lies in the period; why not drawn, when the saved trend cannot
+    /// be used.
+    pub(super) forecast: Result<Option<Forecast>, String>,
+}
+
+/// The gap forecast after a driveline's last bite: its wear trend as the history
+/// saved it (`driveline_state.gap_trend`), continued by
+/// [`gap_trend::GapTrend::restore`], asked
+/// for the alarm threshold of the last run's settings. The horizon is not stored: the
+/// default's ([`millgate_config::WearSettings`], 365 days) decides where a cone
+/// without a crossing ends.
+#[derive(Debug)]
+pub(super) struct Forecast {
+    /// The last bite the trend holds.
+    pub(super) last_bite: UtcTime,
+    /// The gap alarm threshold asked for, mrad.
+    pub(super) alarm_mrad: f64,
+    /// The trend's gap, growth and forecast (with its cone) at the last bite.
+    pub(super) gap: GapResults,
+}
+
+/// The forecast of the wear trend `saved` (a state row's `gap_trend`) for the alarm
+/// threshold of `setting`, when its last bite lies in the period `[since, until)`;
+/// `Ok(None)` without a saved trend or a bite, or when the trend's last bite lies
+/// outside the period.
+fn forecast(
+    saved: Option<&str>,
+    setting: Option<&SettingsRow>,
+    (since, until): (Option<UtcTime>, Option<UtcTime>),
+) -> Result<Option<Forecast>, String> {
+    let Some(saved) = saved else {
+        return Ok(None);
+    };
+    let alarm_mrad = setting.and_then(|s| s.gap_alarm_mrad).ok_or_else(|| {
+        "the last run's settings have no gap alarm threshold (driveline_settings.gap_alarm_mrad)"
+            .to_owned()
+    })?;
+    let horizon_days = millgate_config::WearSettings::default().horizon_days;
+    let trend = gap_trend::GapTrend::restored(horizon_days, saved)
+        .map_err(|error| format!("the saved wear trend: {error}"))?;
+    let Some(last_bite) = trend.last_bite_unix_ms().map(UtcTime::from_unix_ms) else {
+        return Ok(None);
+    };
+    if since.is_some_and(|since| last_bite < since) || until.is_some_and(|until| last_bite >= until)
+    {
+        return Ok(None);
+    }
+    Ok(trend.results(alarm_mrad).map(|gap| Forecast {
+        last_bite,
+        alarm_mrad,
+        gap,
+    }))
 }
 
 /// Read `name`'s part of the report for the period `[since, until)` (open ends: all
-/// of the file), showing how far on `progress`.
+/// of the file), with its `setting` and the wear trend its state row `saved`, showing
+/// how far on `progress`.
 pub(super) fn read(
     reader: &HistoryReader,
     name: &str,
-    since: Option<UtcTime>,
-    until: Option<UtcTime>,
-    setting: Option<SettingsRow>,
+    (since, until): (Option<UtcTime>, Option<UtcTime>),
+    (setting, saved): (Option<SettingsRow>, Option<&str>),
     progress: &mut Progress,
 ) -> anyhow::Result<DrivelineData> {
     step(progress, name, "counting bites");
@@ -90,6 +146,7 @@ pub(super) fn read(
         let bites = summary.bites;
         bin_bites(reader, name, (since, until), bites, &mut grid, progress)?;
     }
+    let forecast = forecast(saved, setting.as_ref(), (since, until));
     Ok(DrivelineData {
         summary,
         last,
@@ -99,6 +156,7 @@ pub(super) fn read(
         setting,
         curves,
         grid,
+        forecast,
     })
 }
 

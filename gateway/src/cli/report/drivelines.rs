@@ -4,12 +4,13 @@
 
 use std::path::Path;
 
-use super::data::{self, DrivelineData};
+use super::data::{self, DrivelineData, Forecast};
 use super::document::{fmt, Block};
 use super::period::Period;
-use super::plots::{taf_svg, time_svg, trace_svg, TimePanel};
+use super::plots::{taf_svg, time_svg, trace_svg, TimeAxis, TimePanel};
 use crate::cli::progress::Progress;
 use crate::history::query::HistoryReader;
+use crate::state::results::{ForecastState, GapForecast, GapGrowth, GapResults};
 use crate::state::time::UtcTime;
 
 /// Alarm bites whose captured trace the report draws, per driveline: the newest.
@@ -27,12 +28,17 @@ pub(super) fn read(
         let of = period.drivelines.len();
         progress.update(|| format!("report: {name} ({} of {of})", index + 1));
         let setting = period.setting(name);
+        let saved = period
+            .state
+            .drivelines
+            .iter()
+            .find(|d| &d.name == name)
+            .and_then(|d| d.gap_trend.as_deref());
         read.push(data::read(
             reader,
             name,
-            period.since,
-            period.until,
-            setting,
+            (period.since, period.until),
+            (setting, saved),
             progress,
         )?);
     }
@@ -47,15 +53,25 @@ pub(super) fn summary(period: &Period, read: &[DrivelineData], blocks: &mut Vec<
         "TAF figures are of clean windows (degraded ones left out); \"now\" is the \
          state a restart would restore; the gap is the last estimate in the period \
          with its 90% interval and coupling (model index, 0 = motor side), its trend \
-         the least-squares slope over the four weeks before the period's end."
+         the least-squares slope over the four weeks before the period's end \
+         (deprecated: the growth replaces it); the growth (90% interval) and the date \
+         the gap is expected to reach its alarm threshold (90% interval, UTC) are the \
+         wear trend's after that estimate. Rows by the expected date, soonest first \
+         (none last)."
             .into(),
     ));
-    let rows = period
+    let mut rows: Vec<(Option<i64>, Vec<String>)> = period
         .drivelines
         .iter()
         .zip(read)
-        .map(|(name, data)| summary_row(period, name, data))
+        .map(|(name, data)| {
+            let date = last_gap(data).and_then(|g| g.forecast?.date_unix_ms);
+            (date, summary_row(period, name, data))
+        })
         .collect();
+    // Stable: drivelines without a date keep their order, after the others.
+    rows.sort_by_key(|(date, _)| (date.is_none(), *date));
+    let rows = rows.into_iter().map(|(_, row)| row).collect();
     blocks.push(Block::Table(
         [
             "driveline",
@@ -71,6 +87,8 @@ pub(super) fn summary(period: &Period, read: &[DrivelineData], blocks: &mut Vec<
             "90% interval, mrad",
             "coupling",
             "gap trend, mrad/week",
+            "growth, mrad/day (90%)",
+            "gap alarm expected (90%)",
         ]
         .map(String::from)
         .to_vec(),
@@ -78,10 +96,16 @@ pub(super) fn summary(period: &Period, read: &[DrivelineData], blocks: &mut Vec<
     ));
 }
 
+/// The gap estimate after `data`'s last bite in the period.
+fn last_gap(data: &DrivelineData) -> Option<GapResults> {
+    data.last.as_ref().and_then(|b| b.figures.gap)
+}
+
 /// Driveline `name`'s row of the summary table, from its `data`.
 fn summary_row(period: &Period, name: &str, data: &DrivelineData) -> Vec<String> {
     let now = period.state.drivelines.iter().find(|d| d.name == name);
-    let gap = data.last.as_ref().and_then(|b| b.figures.gap);
+    let gap = last_gap(data);
+    let last_bite = data.last.as_ref().and_then(|b| b.figures.last_bite_unix_ms);
     vec![
         name.to_owned(),
         data.summary.bites.to_string(),
@@ -113,7 +137,44 @@ fn summary_row(period: &Period, name: &str, data: &DrivelineData) -> Vec<String>
         data.trend
             .as_ref()
             .map_or("-".into(), |t| format!("{:+.3}", t.mrad_per_week)),
+        growth_text(gap.and_then(|g| g.growth)),
+        match (gap.and_then(|g| g.forecast), last_bite) {
+            (Some(forecast), Some(last)) => expected_text(&forecast, UtcTime::from_unix_ms(last)),
+            _ => "-".into(),
+        },
     ]
+}
+
+/// A growth with its 90% interval: `+0.0286 (+0.0257..+0.0314)`, `-` for none.
+fn growth_text(growth: Option<GapGrowth>) -> String {
+    growth.map_or("-".into(), |g| {
+        format!(
+            "{:+.4} ({:+.4}..{:+.4})",
+            g.mrad_per_day, g.low_mrad_per_day, g.high_mrad_per_day
+        )
+    })
+}
+
+/// When `forecast` (made at the bite of `last_bite`) expects the gap at its alarm:
+/// the date with the dates of its 90% interval, `2027-03-14 (2027-03-02..2027-04-01)`
+/// (the late end `beyond the horizon` when it has none), or what the forecast says
+/// instead (`at the alarm`, `not growing`, `beyond the horizon`, `too few bites`), as
+/// the web page says it.
+fn expected_text(forecast: &GapForecast, last_bite: UtcTime) -> String {
+    let date = |days: f64| last_bite.plus_days(days).to_string()[..10].to_owned();
+    match (forecast.state, forecast.days) {
+        (ForecastState::Forecast, Some(days)) => format!(
+            "{} ({}..{})",
+            date(days),
+            forecast.days_low.map_or("-".into(), date),
+            forecast.days_high.map_or("beyond the horizon".into(), date)
+        ),
+        (ForecastState::AtAlarm, _) => "at the alarm".into(),
+        (ForecastState::NotGrowing, _) => "not growing".into(),
+        (ForecastState::BeyondHorizon, _) => "beyond the horizon".into(),
+        (ForecastState::TooFewBites, _) => "too few bites".into(),
+        (ForecastState::Forecast, None) => "-".into(),
+    }
 }
 
 /// Driveline `name`'s section, from its `data`: the plot over time, the TAF over
@@ -128,11 +189,12 @@ pub(super) fn section(
 ) -> anyhow::Result<()> {
     blocks.push(Block::Heading(3, name.to_owned()));
     over_time(period, name, data, blocks)?;
+    gap_over_time(period, name, data, blocks)?;
     taf_over_torque(name, data, blocks)?;
     alarm_traces(reader, db, period, name, blocks)
 }
 
-/// The plot of `name`'s TAF, wear and gap over time, with what it shows.
+/// The plot of `name`'s TAF and wear over time, with what it shows.
 fn over_time(
     period: &Period,
     name: &str,
@@ -140,7 +202,7 @@ fn over_time(
     blocks: &mut Vec<Block>,
 ) -> anyhow::Result<()> {
     let file = format!("{}-time.svg", file_stem(name));
-    let title = format!("{name}: TAF, wear and gap over time");
+    let title = format!("{name}: TAF and wear over time");
     blocks.push(Block::Figure {
         svg: time_svg(&title, &period.axis, &time_panels(period, data))?,
         file,
@@ -149,7 +211,8 @@ fn over_time(
     if let Some(bucket) = data.wear.first() {
         blocks.push(Block::Text(format!(
             "Per time bucket of {}: the range of the bites' values shaded, the mean \
-             TAF, the wear trend and the gap estimate after the bucket's last bite.",
+             TAF and the wear trend; on the gap's plot the gap estimate after the \
+             bucket's last bite.",
             duration_text(bucket.end.unix_ms() - bucket.start.unix_ms())
         )));
     }
@@ -161,8 +224,170 @@ fn over_time(
     Ok(())
 }
 
-/// The panels of a driveline's plot over time: the TAF, the wear index (with a
-/// model) and the gap estimate (when the history holds the gap diagnosis).
+/// The plot of `name`'s gap estimates over time with the forecast after its last
+/// bite (the axis reaching the cone's end), with what it shows; none when the history
+/// holds no gap estimate of it in the period.
+fn gap_over_time(
+    period: &Period,
+    name: &str,
+    data: &DrivelineData,
+    blocks: &mut Vec<Block>,
+) -> anyhow::Result<()> {
+    let forecast = data.forecast.as_ref().ok().and_then(Option::as_ref);
+    let cone_end = forecast.and_then(|f| {
+        let cone = f.gap.forecast?.cone?;
+        Some(
+            f.last_bite
+                .plus_days(cone.points[cone.points.len() - 1].days),
+        )
+    });
+    let axis = TimeAxis::new(
+        period.start,
+        cone_end.map_or(period.end, |end| end.max(period.end)),
+    );
+    let Some(panel) = gap_panel(&axis, data, forecast) else {
+        return Ok(());
+    };
+    let file = format!("{}-gap.svg", file_stem(name));
+    let title = format!("{name}: opened gap over time and its forecast");
+    blocks.push(Block::Figure {
+        svg: time_svg(&title, &axis, &[panel])?,
+        file,
+        title,
+    });
+    blocks.push(Block::Text(match (&data.forecast, forecast) {
+        (Err(why), _) => format!("No forecast drawn: {why}."),
+        (Ok(_), None) => "No forecast drawn: the history keeps no wear trend of the \
+             driveline after a bite in the period."
+            .into(),
+        (Ok(_), Some(forecast)) => forecast_text(forecast),
+    }));
+    Ok(())
+}
+
+/// What the forecast `forecast` says, under its figure.
+fn forecast_text(forecast: &Forecast) -> String {
+    let gap = &forecast.gap;
+    let said = gap.forecast.map_or("no forecast".into(), |f| {
+        let expected = expected_text(&f, forecast.last_bite);
+        match (f.state, f.days) {
+            (ForecastState::Forecast, Some(days)) => {
+                format!("alarm expected {expected}, in {days:.0} days")
+            }
+            _ => format!("no alarm date: {expected}"),
+        }
+    });
+    format!(
+        "The wear trend after the bite of {} (as the history saved it), for the \
+         gap alarm at {} mrad (the last run's threshold): gap {:.2} mrad ({:.2}..{:.2}), \
+         growth {} mrad/day; {said}. Drawn: the gap estimates per time bucket with \
+         their 90% interval, the fitted growth line over (at most) the four weeks \
+         before the last bite, the forecast's mean and 90% band (orange) up to beyond \
+         the late end of the forecast (or the 365-day horizon), the alarm line and the \
+         expected date.",
+        forecast.last_bite,
+        forecast.alarm_mrad,
+        gap.gap_mrad,
+        gap.low_mrad,
+        gap.high_mrad,
+        growth_text(gap.growth),
+    )
+}
+
+/// The gap panel on `axis`: the estimates per bucket of `data` with their interval,
+/// the thresholds and, with a `forecast`, its fitted line, cone and date; `None`
+/// without a gap estimate in the period.
+fn gap_panel(
+    axis: &TimeAxis,
+    data: &DrivelineData,
+    forecast: Option<&Forecast>,
+) -> Option<TimePanel<'static>> {
+    let gap: Vec<(f64, f64, f64, f64)> = data
+        .wear
+        .iter()
+        .filter_map(|p| {
+            Some((
+                axis.middle(p.start, p.end),
+                p.gap_mrad?,
+                p.gap_low_mrad?,
+                p.gap_high_mrad?,
+            ))
+        })
+        .collect();
+    if gap.is_empty() {
+        return None;
+    }
+    let mut panel = TimePanel {
+        y_label: "gap, mrad",
+        lines: vec![("gap estimate", gap.iter().map(|g| (g.0, g.1)).collect())],
+        bands: vec![(
+            "90% interval (lowest..highest)",
+            gap.iter().map(|g| (g.0, g.2, g.3)).collect(),
+        )],
+        thresholds: data
+            .setting
+            .as_ref()
+            .map(|s| {
+                [("warning", s.gap_warning_mrad), ("alarm", s.gap_alarm_mrad)]
+                    .into_iter()
+                    .filter_map(|(label, v)| Some((label, v?)))
+                    .collect()
+            })
+            .unwrap_or_default(),
+        marks: Vec::new(),
+        legend_lower_right: false,
+    };
+    let Some(forecast) = forecast else {
+        return Some(panel);
+    };
+    let (Some(growth), Some(predicted)) = (forecast.gap.growth, forecast.gap.forecast) else {
+        return Some(panel);
+    };
+    let x = |days: f64| axis.x_of(forecast.last_bite.plus_days(days));
+    if let Some(cone) = predicted.cone {
+        // The estimates sit at the left, the cone widens to the right from the gap
+        // up: the lower right corner is the free one.
+        panel.legend_lower_right = true;
+        let gap_mrad = forecast.gap.gap_mrad;
+        panel.lines.push((
+            "fitted growth",
+            vec![
+                (
+                    x(-cone.back_days),
+                    gap_mrad - growth.mrad_per_day * cone.back_days,
+                ),
+                (x(0.0), gap_mrad),
+            ],
+        ));
+        panel.lines.push((
+            "forecast",
+            cone.points
+                .iter()
+                .map(|p| (x(p.days), p.mean_mrad))
+                .collect(),
+        ));
+        panel.bands.push((
+            "forecast 90% band",
+            cone.points
+                .iter()
+                .map(|p| (x(p.days), p.low_mrad, p.high_mrad))
+                .collect(),
+        ));
+    }
+    if let (ForecastState::Forecast, Some(days)) = (predicted.state, predicted.days) {
+        panel.marks.push((
+            x(days),
+            format!(
+                "alarm expected {}",
+                expected_text(&predicted, forecast.last_bite)
+            ),
+        ));
+    }
+    Some(panel)
+}
+
+/// The panels of a driveline's plot over time: the TAF and the wear index (with a
+/// model); the gap has a plot of its own ([`gap_over_time`]).
 fn time_panels(period: &Period, data: &DrivelineData) -> Vec<TimePanel<'static>> {
     let setting = data.setting.as_ref();
     let middle = |start: UtcTime, end: UtcTime| period.axis.middle(start, end);
@@ -175,15 +400,18 @@ fn time_panels(period: &Period, data: &DrivelineData) -> Vec<TimePanel<'static>>
                 .filter_map(|p| Some((middle(p.start, p.end), p.taf_mean?)))
                 .collect(),
         )],
-        band_label: "TAF min..max",
-        band: data
-            .wear
-            .iter()
-            .filter_map(|p| Some((middle(p.start, p.end), p.taf_min?, p.taf_max?)))
-            .collect(),
+        bands: vec![(
+            "TAF min..max",
+            data.wear
+                .iter()
+                .filter_map(|p| Some((middle(p.start, p.end), p.taf_min?, p.taf_max?)))
+                .collect(),
+        )],
         thresholds: setting
             .map(|s| vec![("warning", s.taf_warning), ("alarm", s.taf_alarm)])
             .unwrap_or_default(),
+        marks: Vec::new(),
+        legend_lower_right: false,
     }];
     if !data.index.is_empty() {
         panels.push(TimePanel {
@@ -195,41 +423,16 @@ fn time_panels(period: &Period, data: &DrivelineData) -> Vec<TimePanel<'static>>
                     .filter_map(|p| Some((middle(p.start, p.end), p.trend?)))
                     .collect(),
             )],
-            band_label: "wear index min..max",
-            band: data
-                .index
-                .iter()
-                .map(|p| (middle(p.start, p.end), p.index_min, p.index_max))
-                .collect(),
+            bands: vec![(
+                "wear index min..max",
+                data.index
+                    .iter()
+                    .map(|p| (middle(p.start, p.end), p.index_min, p.index_max))
+                    .collect(),
+            )],
             thresholds: Vec::new(),
-        });
-    }
-    let gap: Vec<(f64, f64, f64, f64)> = data
-        .wear
-        .iter()
-        .filter_map(|p| {
-            Some((
-                middle(p.start, p.end),
-                p.gap_mrad?,
-                p.gap_low_mrad?,
-                p.gap_high_mrad?,
-            ))
-        })
-        .collect();
-    if !gap.is_empty() {
-        panels.push(TimePanel {
-            y_label: "gap, mrad",
-            lines: vec![("gap estimate", gap.iter().map(|g| (g.0, g.1)).collect())],
-            band_label: "90% interval (lowest..highest)",
-            band: gap.iter().map(|g| (g.0, g.2, g.3)).collect(),
-            thresholds: setting
-                .map(|s| {
-                    [("warning", s.gap_warning_mrad), ("alarm", s.gap_alarm_mrad)]
-                        .into_iter()
-                        .filter_map(|(label, v)| Some((label, v?)))
-                        .collect()
-                })
-                .unwrap_or_default(),
+            marks: Vec::new(),
+            legend_lower_right: false,
         });
     }
     panels

@@ -9,8 +9,12 @@
 //! (a year of bites is a million per driveline):
 //! - per driveline `<name>-time.svg`: in 450 time buckets (the web page's
 //!   [`wear_series`]), the TAF's range and mean with its warning and alarm
-//!   thresholds; the wear index's range and the wear trend; the gap estimate with
-//!   its interval and thresholds when the history holds the gap diagnosis;
+//!   thresholds; the wear index's range and the wear trend;
+//! - per driveline `<name>-gap.svg`, when the history holds the gap diagnosis: the
+//!   gap estimate in the same buckets with its interval and thresholds and, after
+//!   the last bite, the forecast recomputed from the wear trend the history saved
+//!   (the fitted growth line, the cone's mean and 90% band, the expected date of the
+//!   gap alarm written at it), the time axis reaching the cone's end;
 //! - per driveline `<name>-taf.svg`: TAF over static torque, the bites binned into
 //!   180 x 90 cells shaded by count (degraded windows grey), with the thresholds and,
 //!   when the driveline's model file (as configured) can be read, the wear map's

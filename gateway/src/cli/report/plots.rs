@@ -6,6 +6,7 @@
 use std::path::Path;
 
 use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use crate::history::captures::Capture;
 use crate::history::query::SettingsRow;
@@ -70,14 +71,27 @@ pub(super) fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
 }
 
 /// A panel of lines over time: `(label, line)` series and horizontal threshold lines
-/// `(label, value)`; `band` a range `(x, low, high)` drawn shaded, labelled
-/// `band_label`.
+/// `(label, value)`; `bands` ranges `(label, [(x, low, high)])` drawn shaded (the
+/// first blue, the next orange); `marks` vertical lines at `x` with their text; the
+/// legend upper left, or lower right where the data leave that corner free.
 pub(super) struct TimePanel<'a> {
     pub(super) y_label: &'a str,
     pub(super) lines: Vec<(&'a str, Vec<(f64, f64)>)>,
-    pub(super) band_label: &'a str,
-    pub(super) band: Vec<(f64, f64, f64)>,
+    pub(super) bands: Vec<Band<'a>>,
     pub(super) thresholds: Vec<(&'a str, f64)>,
+    pub(super) marks: Vec<(f64, String)>,
+    pub(super) legend_lower_right: bool,
+}
+
+/// A labelled range over time: `(label, [(x, low, high)])`.
+pub(super) type Band<'a> = (&'a str, Vec<(f64, f64, f64)>);
+
+/// The shade of a panel's band `index`.
+fn band_colour(index: usize) -> RGBAColor {
+    match index {
+        0 => BLUE.mix(0.15),
+        _ => RGBColor(230, 120, 0).mix(0.2),
+    }
 }
 
 pub(super) fn time_svg(
@@ -96,7 +110,12 @@ pub(super) fn time_svg(
                 .lines
                 .iter()
                 .flat_map(|(_, p)| p.iter().map(|(_, y)| *y))
-                .chain(panel.band.iter().flat_map(|(_, lo, hi)| [*lo, *hi]))
+                .chain(
+                    panel
+                        .bands
+                        .iter()
+                        .flat_map(|(_, band)| band.iter().flat_map(|(_, lo, hi)| [*lo, *hi])),
+                )
                 .chain(panel.thresholds.iter().map(|(_, v)| *v));
             let (y_low, y_high) = range(values);
             let mut chart = ChartBuilder::on(area)
@@ -112,20 +131,20 @@ pub(super) fn time_svg(
                 .label_style(("sans-serif", 12))
                 .draw()
                 .map_err(drawing)?;
-            if !panel.band.is_empty() {
-                let mut upper: Vec<(f64, f64)> =
-                    panel.band.iter().map(|(x, _, hi)| (*x, *hi)).collect();
-                let lower = panel.band.iter().rev().map(|(x, lo, _)| (*x, *lo));
+            for (index, (label, band)) in panel.bands.iter().enumerate() {
+                if band.is_empty() {
+                    continue;
+                }
+                let colour = band_colour(index);
+                let mut upper: Vec<(f64, f64)> = band.iter().map(|(x, _, hi)| (*x, *hi)).collect();
+                let lower = band.iter().rev().map(|(x, lo, _)| (*x, *lo));
                 upper.extend(lower);
                 chart
-                    .draw_series(std::iter::once(Polygon::new(
-                        upper,
-                        BLUE.mix(0.15).filled(),
-                    )))
+                    .draw_series(std::iter::once(Polygon::new(upper, colour.filled())))
                     .map_err(drawing)?
-                    .label(panel.band_label)
-                    .legend(|(x, y)| {
-                        Rectangle::new([(x, y - 4), (x + 16, y + 4)], BLUE.mix(0.15).filled())
+                    .label(*label)
+                    .legend(move |(x, y)| {
+                        Rectangle::new([(x, y - 4), (x + 16, y + 4)], colour.filled())
                     });
             }
             for (index, (label, points)) in panel.lines.iter().enumerate() {
@@ -153,9 +172,36 @@ pub(super) fn time_svg(
                     .label(format!("{label} {value}"))
                     .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], color));
             }
+            for (x, text) in &panel.marks {
+                let colour = RED.mix(0.8);
+                chart
+                    .draw_series(LineSeries::new(
+                        vec![(*x, y_low), (*x, y_high)],
+                        colour.stroke_width(1),
+                    ))
+                    .map_err(drawing)?;
+                // The text beside the line, on the side with room, near the top.
+                let pos = if *x > axis.span / 2.0 {
+                    Pos::new(HPos::Right, VPos::Top)
+                } else {
+                    Pos::new(HPos::Left, VPos::Top)
+                };
+                let style = ("sans-serif", 13).into_font().color(&RED).pos(pos);
+                chart
+                    .draw_series(std::iter::once(Text::new(
+                        text.clone(),
+                        (*x, y_high - 0.04 * (y_high - y_low)),
+                        style,
+                    )))
+                    .map_err(drawing)?;
+            }
             chart
                 .configure_series_labels()
-                .position(SeriesLabelPosition::UpperLeft)
+                .position(if panel.legend_lower_right {
+                    SeriesLabelPosition::LowerRight
+                } else {
+                    SeriesLabelPosition::UpperLeft
+                })
                 .background_style(WHITE.mix(0.8))
                 .border_style(BLACK)
                 .draw()

@@ -124,7 +124,7 @@ fn layout(state: &WebState, title: &str, page: &str, driveline: &str, body: &str
 const OVERVIEW: &str = r#"<h1>Overview</h1>
 <section><h2>Drivelines</h2>
 <div class="scroll" tabindex="0"><table id="drivelines" class="grid"><thead><tr><th>Driveline</th><th>Last bite</th><th>Bites</th>
-<th>TAF</th><th>Opened gap (90% interval)</th><th>Gap trend</th><th>Wear</th></tr></thead>
+<th>TAF</th><th>Opened gap (90% interval)</th><th>Growth · gap alarm expected</th><th>Wear</th></tr></thead>
 <tbody></tbody></table></div></section>
 <section><h2>Opened gap over time</h2><div id="overview-gap-plot" class="plot" role="img" aria-label="Opened gap over time: not drawn yet"></div>
 <p class="note" id="overview-gap-note"></p></section>
@@ -182,6 +182,7 @@ pub(crate) async fn driveline(
         "<h1>Driveline {name}</h1>\n<div id=\"cards\" class=\"cards\"></div>\n\
          <section><h2>Opened gap over time</h2><div id=\"gap-plot\" class=\"plot\" role=\"img\" \
          aria-label=\"Opened gap over time: not drawn yet\"></div>\
+         <p class=\"note\" id=\"gap-forecast\"></p>\
          <p class=\"note\" id=\"gap-note\"></p></section>\n\
          <section><h2>TAF over static torque</h2>\
          <label class=\"picker hidden\" id=\"taf-coupling-label\">gap map of coupling \

@@ -26,7 +26,9 @@ use crate::history::series::TREND_WINDOW;
 use crate::history::HistoryError;
 use crate::outputs::web::shared::{DrivelineInfo, TrendCache, WebState};
 use crate::state::catalogue::{self, Figure, Subject, Value};
-use crate::state::results::{DrivelineResults, Results, RodMillResults, TandemMillResults};
+use crate::state::results::{
+    DrivelineResults, GapResults, Results, RodMillResults, TandemMillResults,
+};
 use crate::state::time::UtcTime;
 
 /// A driveline's thresholds.
@@ -88,8 +90,12 @@ pub(crate) struct DrivelineView {
     pub figures: Map<String, JsonValue>,
     /// Gap trend, mrad per week, from the history (least squares over the estimates
     /// of the 4 weeks before the last bite, after the last wear reset); `None` on
-    /// live updates, without a history or with fewer than 5 estimates.
+    /// live updates, without a history or with fewer than 5 estimates. Deprecated:
+    /// the wear trend's `gap_growth_mrad_per_day` replaces it (kept for one release).
     pub gap_trend_mrad_per_week: Option<f64>,
+    /// The gap forecast's cone and the fitted growth line, dated, for drawing; `None`
+    /// until the wear trend has a growth.
+    pub gap_cone: Option<GapConeView>,
     /// `ok`, `warning` or `alarm` of the TAF.
     pub taf_state: &'static str,
     /// `ok`, `warning`, `alarm` of the gap, or `unknown` without an estimate.
@@ -105,6 +111,10 @@ impl DrivelineView {
             has_model: info.has_model,
             figures: figures_json(catalogue::DRIVELINE, results),
             gap_trend_mrad_per_week: None,
+            gap_cone: results
+                .gap
+                .zip(results.last_bite_unix_ms)
+                .and_then(|(gap, last)| GapConeView::new(&gap, last)),
             taf_state: state_of(results.taf_warning, results.taf_alarm),
             wear_state: if results.gap.is_none() && !results.gap_alarm {
                 "unknown"
@@ -118,6 +128,73 @@ impl DrivelineView {
                 gap_alarm_mrad: info.gap_alarm_mrad,
             },
         }
+    }
+}
+
+/// A driveline's gap forecast as the page draws it (`gap_cone`): the band the gap is
+/// expected in after the last bite, and the growth line fitted before it.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub(crate) struct GapConeView {
+    /// The band at evenly spaced times from the last bite to beyond the late end of
+    /// the forecast (or its horizon).
+    pub points: Vec<ConePointView>,
+    /// The fitted growth: the gap at the last bite and the growth back over (at most)
+    /// the last four weeks since the last wear reset.
+    pub fitted_line: FittedLineView,
+}
+
+/// One point of a [`GapConeView`].
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub(crate) struct ConePointView {
+    /// The last bite's time plus the point's days, UTC.
+    pub time: UtcTime,
+    /// The trend's gap, mrad.
+    pub mean_mrad: f64,
+    /// The late (low) end of its 90% band, mrad.
+    pub low_mrad: f64,
+    /// The early (high) end of its 90% band, mrad.
+    pub high_mrad: f64,
+}
+
+/// The fitted growth line of a [`GapConeView`]: from `from_time` (the last bite minus
+/// the cone's `back_days`) to the last bite.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub(crate) struct FittedLineView {
+    /// Its start, UTC.
+    pub from_time: UtcTime,
+    /// The gap there on the line: the gap minus the growth times the days back, mrad.
+    pub from_mrad: f64,
+    /// Its end: the last bite's time, UTC.
+    pub to_time: UtcTime,
+    /// The gap at the last bite, mrad.
+    pub to_mrad: f64,
+}
+
+impl GapConeView {
+    /// The cone of `gap` dated from the last bite at `last_bite_unix_ms`; `None`
+    /// without a growth or a cone.
+    fn new(gap: &GapResults, last_bite_unix_ms: i64) -> Option<Self> {
+        let growth = gap.growth?;
+        let cone = gap.forecast?.cone?;
+        let last = UtcTime::from_unix_ms(last_bite_unix_ms);
+        Some(Self {
+            points: cone
+                .points
+                .iter()
+                .map(|point| ConePointView {
+                    time: last.plus_days(point.days),
+                    mean_mrad: point.mean_mrad,
+                    low_mrad: point.low_mrad,
+                    high_mrad: point.high_mrad,
+                })
+                .collect(),
+            fitted_line: FittedLineView {
+                from_time: last.plus_days(-cone.back_days),
+                from_mrad: gap.gap_mrad - growth.mrad_per_day * cone.back_days,
+                to_time: last,
+                to_mrad: gap.gap_mrad,
+            },
+        })
     }
 }
 
@@ -490,6 +567,125 @@ impl<S: Stream + Unpin> Stream for Lifetime<S> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::state::results::{
+        ConePoint, ForecastState, GapCone, GapForecast, GapGrowth, CONE_POINTS,
+    };
+
+    /// A driveline on the board whose last bite (2027-01-10 06:00 UTC) left a gap of
+    /// 3 mrad growing 0.1 mrad/day, the forecast's cone over 40 days and a fitted
+    /// line 14 days back.
+    fn forecasting() -> (DrivelineInfo, DrivelineResults) {
+        let last = UtcTime::parse("2027-01-10T06:00:00Z").unwrap().unix_ms();
+        let mut points = [ConePoint::default(); CONE_POINTS];
+        for (k, point) in points.iter_mut().enumerate() {
+            let days = 40.0 * k as f64 / (CONE_POINTS - 1) as f64;
+            let spread = 0.1 + 0.02 * days;
+            *point = ConePoint {
+                days,
+                mean_mrad: 3.0 + 0.1 * days,
+                low_mrad: 3.0 + 0.1 * days - spread,
+                high_mrad: 3.0 + 0.1 * days + spread,
+            };
+        }
+        let gap = GapResults {
+            gap_mrad: 3.0,
+            low_mrad: 2.9,
+            high_mrad: 3.1,
+            coupling: Some(1),
+            likeliest_coupling: Some(1),
+            bites_pooled: 60,
+            growth: Some(GapGrowth {
+                mrad_per_day: 0.1,
+                low_mrad_per_day: 0.08,
+                high_mrad_per_day: 0.12,
+            }),
+            forecast: Some(GapForecast {
+                state: ForecastState::Forecast,
+                days: Some(30.0),
+                days_low: Some(25.0),
+                days_high: Some(37.5),
+                date_unix_ms: Some(last + 30 * 86_400_000),
+                cone: Some(GapCone {
+                    points,
+                    back_days: 14.0,
+                }),
+            }),
+        };
+        let info = DrivelineInfo {
+            name: "F1".into(),
+            taf_warning: 1.5,
+            taf_alarm: 1.8,
+            gap_warning_mrad: 4.0,
+            gap_alarm_mrad: 6.0,
+            has_model: true,
+            model: None,
+        };
+        let results = DrivelineResults {
+            last_bite_unix_ms: Some(last),
+            gap: Some(gap),
+            ..DrivelineResults::default()
+        };
+        (info, results)
+    }
+
+    #[test]
+    fn the_gap_cone_is_dated_from_the_last_bite_with_the_fitted_line_behind_it() {
+        let (info, results) = forecasting();
+        let view = serde_json::to_value(DrivelineView::new(&info, &results)).unwrap();
+        let cone = &view["gap_cone"];
+        let points = cone["points"].as_array().unwrap();
+        assert_eq!(points.len(), CONE_POINTS, "{cone}");
+        assert_eq!(points[0]["time"], "2027-01-10T06:00:00.000Z", "{cone}");
+        // 40 days after the last bite: 2027-02-19 06:00 UTC.
+        assert_eq!(points[15]["time"], "2027-02-19T06:00:00.000Z", "{cone}");
+        assert_eq!(points[15]["mean_mrad"], 7.0, "{cone}");
+        assert_eq!(points[15]["low_mrad"], 7.0 - 0.9, "{cone}");
+        assert_eq!(points[15]["high_mrad"], 7.0 + 0.9, "{cone}");
+        // Every point at its days, in time order.
+        let cone_points = results.gap.unwrap().forecast.unwrap().cone.unwrap().points;
+        for (point, on_board) in points.iter().zip(cone_points) {
+            let at = UtcTime::parse(point["time"].as_str().unwrap()).unwrap();
+            let days = (at.unix_ms() - results.last_bite_unix_ms.unwrap()) as f64 / 86_400_000.0;
+            assert!(
+                (days - on_board.days).abs() < 1e-6,
+                "{point} vs {on_board:?}"
+            );
+            assert_eq!(point["mean_mrad"], on_board.mean_mrad);
+        }
+        // The line: 14 days back at 0.1 mrad/day, to the gap at the last bite.
+        let line = &cone["fitted_line"];
+        assert_eq!(line["from_time"], "2026-12-27T06:00:00.000Z", "{line}");
+        assert!(
+            (line["from_mrad"].as_f64().unwrap() - 1.6).abs() < 1e-12,
+            "{line}"
+        );
+        assert_eq!(line["to_time"], "2027-01-10T06:00:00.000Z", "{line}");
+        assert_eq!(line["to_mrad"], 3.0, "{line}");
+        // The catalogue's forecast figures beside it, and the old key kept.
+        assert_eq!(view["gap_alarm_date"], "2027-02-09T06:00:00.000Z", "{view}");
+        assert_eq!(view["days_to_gap_alarm_high"], 37.5, "{view}");
+        assert!(view.get("gap_trend_mrad_per_week").is_some(), "{view}");
+    }
+
+    #[test]
+    fn no_cone_without_a_growth() {
+        let (info, mut results) = forecasting();
+        if let Some(gap) = results.gap.as_mut() {
+            gap.growth = None;
+        }
+        let view = serde_json::to_value(DrivelineView::new(&info, &results)).unwrap();
+        assert!(view["gap_cone"].is_null(), "{view}");
+        let (info, mut results) = forecasting();
+        results.gap = results.gap.map(|gap| GapResults {
+            forecast: gap.forecast.map(|forecast| GapForecast {
+                cone: None,
+                ..forecast
+            }),
+            ..gap
+        });
+        let view = serde_json::to_value(DrivelineView::new(&info, &results)).unwrap();
+        assert!(view["gap_cone"].is_null(), "{view}");
+    }
 
     #[tokio::test(start_paused = true)]
     async fn a_stream_ends_at_its_lifetime_and_frees_its_slot() {
