@@ -50,6 +50,8 @@ pub mod demo;
 #[cfg(feature = "sim-tools")]
 pub mod discrepancy;
 pub mod fatigue;
+#[cfg(feature = "sim-tools")]
+pub mod fatigue_gap;
 pub mod figures;
 pub mod history;
 pub(crate) mod progress;
