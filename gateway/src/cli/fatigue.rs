@@ -342,9 +342,15 @@ mod tests {
         }
     }
 
-    fn write(name: &str, text: &str) -> PathBuf {
-        let dir = std::env::temp_dir().join(format!("millgate-fatigue-{}", std::process::id()));
+    /// A scratch folder of this process and test, removed at the test's end.
+    fn folder(test: &str) -> PathBuf {
+        let dir =
+            std::env::temp_dir().join(format!("millgate-fatigue-{test}-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    fn write(dir: &std::path::Path, name: &str, text: &str) -> PathBuf {
         let path = dir.join(name);
         std::fs::write(&path, text).unwrap();
         path
@@ -359,8 +365,10 @@ mod tests {
         for (i, v) in values.iter().enumerate() {
             writeln!(text, "{},{}", i as f64 * 0.001, v * 10.0)?;
         }
-        let report: serde_json::Value =
-            serde_json::from_str(&run(&args(write("astm.csv", &text)))?)?;
+        let dir = folder("astm");
+        let report = run(&args(write(&dir, "astm.csv", &text)));
+        let _ = std::fs::remove_dir_all(&dir);
+        let report: serde_json::Value = serde_json::from_str(&report?)?;
         assert_eq!(report["cycles"], 4.0);
         assert_eq!(report["max_range_knm"], 90.0);
         let expected: f64 = [40.0, 40.0, 30.0, 40.0, 60.0, 80.0, 80.0, 90.0]
@@ -372,7 +380,7 @@ mod tests {
             (damage / expected - 1.0).abs() < 1e-12,
             "{damage} vs {expected}"
         );
-        // 30 is not over 9 ... all are: 8 entries, 4 cycles.
+        // Every range is over 10% of the largest (9): 8 entries, 4 cycles.
         assert_eq!(report["cycles_over_10pct"], 4.0);
         Ok(())
     }
@@ -380,7 +388,8 @@ mod tests {
     #[test]
     fn bad_curve_gate_and_unit_are_refused_by_option() {
         let text = "t,torque\n0,0\n0.001,10\n0.002,0\n";
-        let path = write("small.csv", text);
+        let dir = folder("refused");
+        let path = write(&dir, "small.csv", text);
         let mut bad = args(path.clone());
         bad.ref_cycles = 0.0;
         let error = run(&bad).unwrap_err().to_string();
