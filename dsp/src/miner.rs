@@ -145,7 +145,8 @@ impl SnCurve {
     /// `range_knm` consumes (0 for a range of 0, or below a cut-off endurance limit).
     pub fn damage_per_cycle(&self, range_knm: f64) -> f64 {
         let s = &self.settings;
-        if !(range_knm > 0.0) {
+        // NaN or <= 0: no damage.
+        if range_knm.is_nan() || range_knm <= 0.0 {
             return 0.0;
         }
         let basquin = |range: f64| libm::pow(range / s.ref_range_knm, s.m) / s.ref_cycles;
@@ -268,7 +269,8 @@ mod tests {
     #[test]
     fn non_positive_values_are_refused_by_name() {
         let good = *curve(None, EnduranceRule::Cutoff).settings();
-        let cases: [(fn(&mut SnCurveSettings), SnCurveError); 6] = [
+        type Spoil = fn(&mut SnCurveSettings);
+        let cases: [(Spoil, SnCurveError); 6] = [
             (|s| s.m = 0.0, SnCurveError::M),
             (|s| s.ref_cycles = -1.0, SnCurveError::RefCycles),
             (|s| s.ref_range_knm = f64::NAN, SnCurveError::RefRangeKnm),

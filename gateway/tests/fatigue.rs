@@ -111,29 +111,36 @@ fn merged(list: &[serde_json::Value]) -> Vec<(f64, f64, f64)> {
     out
 }
 
+/// `millgate fatigue` of `path` with a gate of `gate` kN*m on the curve m = 5, 2e6
+/// cycles at 150 kN*m, as JSON; `extra` options added.
+fn fatigue_json(path: &Path, gate: &str, extra: &[&str]) -> serde_json::Value {
+    let mut args = vec![
+        "fatigue",
+        "--input",
+        path.to_str().unwrap(),
+        "--m",
+        "5",
+        "--ref-cycles",
+        "2e6",
+        "--ref-range-knm",
+        "150",
+        "--gate-knm",
+        gate,
+        "--format",
+        "json",
+    ];
+    args.extend_from_slice(extra);
+    let output = millgate(&args);
+    assert!(output.status.success(), "{}", text(&output));
+    serde_json::from_slice(&output.stdout).unwrap()
+}
+
 #[test]
 fn same_cycles_and_damage_as_the_python_rainflow_package() {
     let dir = scratch("fatigue-python");
     for (gap_rad, seed) in [(0.0, 1), (3e-3, 2)] {
         let path = record(dir.path(), gap_rad, seed);
-        let output = millgate(&[
-            "fatigue",
-            "--input",
-            path.to_str().unwrap(),
-            "--m",
-            "5",
-            "--ref-cycles",
-            "2e6",
-            "--ref-range-knm",
-            "150",
-            "--gate-knm",
-            "0",
-            "--list-cycles",
-            "--format",
-            "json",
-        ]);
-        assert!(output.status.success(), "{}", text(&output));
-        let ours: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+        let ours = fatigue_json(&path, "0", &["--list-cycles"]);
         assert_eq!(ours["overflows"], 0, "the stack held the record");
         let Some(python) = python_rainflow(&path) else {
             return;
@@ -170,26 +177,7 @@ fn same_cycles_and_damage_as_the_python_rainflow_package() {
 fn the_gate_keeps_the_bars_cycles_and_drops_the_noise() {
     let dir = scratch("fatigue-gate");
     let path = record(dir.path(), 3e-3, 3);
-    let count = |gate: &str| -> serde_json::Value {
-        let output = millgate(&[
-            "fatigue",
-            "--input",
-            path.to_str().unwrap(),
-            "--m",
-            "5",
-            "--ref-cycles",
-            "2e6",
-            "--ref-range-knm",
-            "150",
-            "--gate-knm",
-            gate,
-            "--format",
-            "json",
-        ]);
-        assert!(output.status.success(), "{}", text(&output));
-        serde_json::from_slice(&output.stdout).unwrap()
-    };
-    let (ungated, gated) = (count("0"), count("6"));
+    let (ungated, gated) = (fatigue_json(&path, "0", &[]), fatigue_json(&path, "6", &[]));
     let cycles = |v: &serde_json::Value| v["cycles"].as_f64().unwrap();
     let damage = |v: &serde_json::Value| v["damage"].as_f64().unwrap();
     // Noise (1 kN*m RMS) makes most reversals: a gate of 6 kN*m drops them...

@@ -405,10 +405,12 @@ mod tests {
         );
         let header = r#"# millgate capture {"id":1,"kind":"bite","subject":"F1","bite_counter":1,"bite_time":null,"started_at":"2026-01-01T00:00:00.000Z","first_sample_unix_ns":0,"kernel_time":false,"sample_rate_hz":1000.0,"channels":[{"name":"speed","unit":"rpm","scale":1.0,"offset":0.0,"encoding":"float64"}],"gaps":[],"analysis":null,"episode":null,"gateway_version":"x","config_name":null,"config_hash":null}"#;
         let path = write(
+            &dir,
             "speed.csv",
             &format!("{header}\nt,speed\n0,0\n0.001,10\n0.002,0\n"),
         );
         let error = run(&args(path)).unwrap_err().to_string();
+        let _ = std::fs::remove_dir_all(&dir);
         assert!(
             error.contains("channel `speed` is in rpm, not a torque (kN*m)"),
             "{error}"
