@@ -5,8 +5,8 @@
 //!
 //! Prints the cycle histogram (range x mean bins), the damage (`"damage"` in JSON) on
 //! the S-N curve `N(dM) = ref_cycles * (ref_range_knm / dM)^m`, and the cycles whose
-//! range exceeds 10% of the largest (`"cycles_over_10pct"`). The counting is the
-//! service's ([`crate::analysis::fatigue`]).
+//! range exceeds 10% of the largest (`"cycles_over_10pct"`). The counting is
+//! `analysis::fatigue` (crate-private), meant for the service's ledger too.
 //!
 //! - `--input`: a CSV record (`t` then torque columns, kN*m), counted as one stream; a
 //!   capture export whose `# millgate capture` line gives the channel another unit than
