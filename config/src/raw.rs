@@ -76,6 +76,30 @@ pub(crate) struct RawDriveline {
     pub(crate) bite: RawBite,
     pub(crate) thresholds: RawThresholds,
     pub(crate) wear: Option<RawWear>,
+    pub(crate) fatigue: Option<RawFatigue>,
+}
+
+/// `drivelines[].fatigue`: the fatigue ledger.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawFatigue {
+    pub(crate) gate_knm: Option<f64>,
+    pub(crate) life_limit: Option<f64>,
+    pub(crate) components: Vec<RawFatigueComponent>,
+}
+
+/// `drivelines[].fatigue.components[]`: one component's S-N curve.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawFatigueComponent {
+    pub(crate) name: String,
+    pub(crate) m: f64,
+    pub(crate) ref_cycles: f64,
+    pub(crate) ref_range_knm: f64,
+    pub(crate) torque_share: Option<f64>,
+    pub(crate) endurance_knm: Option<f64>,
+    pub(crate) endurance_rule: Option<String>,
+    pub(crate) ultimate_knm: Option<f64>,
 }
 
 /// `drivelines[].wear`: the gap diagnosis against the driveline model.

@@ -2235,3 +2235,64 @@ fn bad_extra_channels_are_named_with_the_allowed_values() {
          the torque channel at 2000 Hz (extra channels must share the torque's sample rate)",
     );
 }
+
+#[test]
+fn fatigue_ledger_settings_name_the_key_and_the_range() {
+    let fatigue = |table: &str| {
+        edited(
+            "taf_warning = 2.2, taf_alarm = 2.6 }",
+            &format!(
+                "taf_warning = 2.2, taf_alarm = 2.6 }}\n\
+                 fatigue = {{ {table} }}"
+            ),
+        )
+    };
+    let spindle = "{ name = \"spindle 1\", m = 6, ref_cycles = 2e6, ref_range_knm = 150";
+    let config = parse(&fatigue(&format!(
+        "life_limit = 0.7, components = [{spindle}, torque_share = 0.5, endurance_knm = 20, \
+         endurance_rule = \"haibach\" }}, {{ name = \"coupling\", m = 5, ref_cycles = 1e7, \
+         ref_range_knm = 300 }}]"
+    )))
+    .unwrap_or_else(|error| panic!("{error}"));
+    let settings = config.drivelines[0].fatigue.as_ref().expect("a ledger");
+    // 1% of the channel's i16 range at 0.01 kN*m per count.
+    assert!(
+        (settings.gate_knm - 0.01 * 655.35).abs() < 1e-9,
+        "{}",
+        settings.gate_knm
+    );
+    assert_eq!(settings.life_limit, 0.7);
+    assert_eq!(settings.components.len(), 2);
+    assert_eq!(settings.components[0].curve.settings().torque_share, 0.5);
+    assert_eq!(parse(BASE).unwrap().drivelines[0].fatigue, None);
+
+    let one = |extra: &str| fatigue(&format!("{extra} components = [{spindle} }}]"));
+    assert_only_problem(
+        &one("gate_knm = 700,"),
+        "mill.toml: drivelines[0].fatigue.gate_knm: 700 is not allowed (must be >= 0 and below the torque channel's range, 655.35 kN*m)",
+    );
+    assert_only_problem(
+        &one("life_limit = 1.5,"),
+        "mill.toml: drivelines[0].fatigue.life_limit: 1.5 is not allowed (must be in (0, 1], a fraction of the life)",
+    );
+    assert_only_problem(
+        &fatigue(&format!("components = [{spindle}, m = 0 }}]").replace("m = 6, ", "")),
+        "mill.toml: drivelines[0].fatigue.components[0].m: 0 is not allowed (m must be finite and > 0)",
+    );
+    assert_only_problem(
+        &fatigue(&format!("components = [{spindle}, torque_share = -1 }}]")),
+        "mill.toml: drivelines[0].fatigue.components[0].torque_share: -1 is not allowed (torque_share must be finite and > 0)",
+    );
+    assert_only_problem(
+        &fatigue(&format!("components = [{spindle}, endurance_rule = \"flat\" }}]")),
+        "mill.toml: drivelines[0].fatigue.components[0].endurance_rule: unknown endurance rule \"flat\" (allowed: cutoff, haibach)",
+    );
+    assert_only_problem(
+        &fatigue(&format!("components = [{spindle} }}, {spindle} }}]")),
+        "mill.toml: drivelines[0].fatigue.components[1].name: \"spindle 1\" is used twice in this driveline",
+    );
+    assert_only_problem(
+        &fatigue("components = []"),
+        "mill.toml: drivelines[0].fatigue.components: no component (a ledger needs at least one [[...components]])",
+    );
+}

@@ -212,4 +212,32 @@ proptest! {
             }
         }
     }
+
+    #[test]
+    fn rainflow_cycles_and_damage_are_never_nan(samples in record(3000), gate in 0.0..50.0_f64) {
+        use millgate_dsp::miner::{EnduranceRule, MeanCorrection, SnCurve, SnCurveSettings};
+        use millgate_dsp::rainflow::{Cycle, Rainflow, RainflowSettings};
+        let counter = Rainflow::<8>::new(RainflowSettings { gate_knm: gate }).unwrap();
+        let curve = SnCurve::new(SnCurveSettings {
+            m: 6.0,
+            ref_cycles: 1e6,
+            ref_range_knm: 100.0,
+            torque_share: 0.5,
+            endurance_knm: Some(10.0),
+            endurance_rule: EnduranceRule::Haibach,
+            mean_correction: MeanCorrection::Goodman { ultimate_knm: 500.0 },
+        }).unwrap();
+        let check = |cycle: Cycle| {
+            assert!(cycle.range_knm >= 0.0 && !cycle.mean_knm.is_nan(), "{cycle:?}");
+            assert!(cycle.count == 1.0 || cycle.count == 0.5);
+            let damage = curve.damage(&cycle);
+            assert!((0.0..=cycle.count).contains(&damage), "{damage} of {cycle:?}");
+        };
+        let mut state = counter.state();
+        counter.block(&mut state, &samples, check);
+        counter.residue(&state, check);
+        prop_assert!(state.residue_len() <= 8);
+        let bad = samples.iter().filter(|v| !v.is_finite()).count() as u64;
+        prop_assert_eq!(state.non_finite(), bad);
+    }
 }

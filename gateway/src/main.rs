@@ -78,6 +78,8 @@ enum Command {
     Chatter(millgate::cli::chatter::ChatterArgs),
     /// The opened gap from recorded bites: in mrad, where, and how sure.
     Wear(millgate::cli::wear::WearArgs),
+    /// Rainflow count (ASTM E1049-85) and Miner's damage of a torque record or history.
+    Fatigue(millgate::cli::fatigue::FatigueArgs),
     #[cfg(feature = "sim-tools")]
     /// Where a model and a measured transient disagree, and the effect the model lacks.
     Discrepancy(millgate::cli::discrepancy::DiscrepancyArgs),
@@ -314,6 +316,7 @@ fn main() -> ExitCode {
             init_tracing("warn");
             millgate::cli::wear::run(&args).map(emit)
         }
+        Command::Fatigue(args) => millgate::cli::fatigue::run(&args).map(emit),
         Command::History(args) => millgate::cli::history::run(&args),
         Command::Capture(command) => millgate::cli::capture::run(&command).map(emit),
         #[cfg(feature = "plot")]

@@ -36,6 +36,32 @@ pub struct Driveline {
     pub thresholds: DrivelineThresholds,
     /// The gap diagnosis against `model` (used only with a model).
     pub wear: WearSettings,
+    /// The fatigue ledger of the driveline's components (`None`: no ledger).
+    pub fatigue: Option<FatigueSettings>,
+}
+
+/// `drivelines[].fatigue`: rainflow counting of the whole torque stream and Miner's
+/// rule per component.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FatigueSettings {
+    /// Hysteresis gate of the reversals, kN*m: finite, >= 0 and below the torque
+    /// channel's range where its encoding bounds it. Default: 1% of that range, or 10%
+    /// of `bite.threshold_knm` for a channel without a bounded range.
+    pub gate_knm: f64,
+    /// Consumed life at which a component is due, in (0, 1] (default 0.8): the
+    /// expected date of reaching it is forecast from the consumption rate.
+    pub life_limit: f64,
+    /// The components whose life is counted, at least one, names distinct.
+    pub components: Vec<FatigueComponent>,
+}
+
+/// One coupling or spindle of a fatigue ledger.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FatigueComponent {
+    /// Unique in the driveline, e.g. `spindle 2`.
+    pub name: String,
+    /// Its S-N curve (Basquin, torque share, endurance limit, mean correction).
+    pub curve: millgate_dsp::miner::SnCurve,
 }
 
 /// Alarm thresholds of a driveline.

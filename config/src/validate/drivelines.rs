@@ -1,9 +1,12 @@
 //! `[[drivelines]]`: torque and trigger channels, bite capture, TAF thresholds and the
 //! driveline model file.
 
-use crate::raw::{RawDriveline, RawWear};
+use millgate_dsp::miner::{EnduranceRule, MeanCorrection, SnCurve, SnCurveError, SnCurveSettings};
+
+use crate::raw::{RawDriveline, RawFatigue, RawFatigueComponent, RawWear};
 use crate::{
-    BiteSettings, ChannelKind, ChannelSource, Driveline, DrivelineThresholds, WearSettings,
+    BiteSettings, Channel, ChannelKind, ChannelSource, Driveline, DrivelineThresholds,
+    FatigueComponent, FatigueSettings, WearSettings,
 };
 
 use super::{
@@ -20,6 +23,28 @@ const MAX_HORIZON_DAYS: f64 = 3650.0;
 const MAX_MAX_GAP_MRAD: f64 = 100.0;
 /// Most gap steps of a wear map.
 const MAX_GAP_STEPS: f64 = 400.0;
+/// The fatigue gate when none is given, as a fraction of the torque channel's range.
+const DEFAULT_GATE_OF_RANGE: f64 = 0.01;
+/// The fatigue gate when none is given and the channel's range is not bounded, as a
+/// fraction of the bite threshold.
+const DEFAULT_GATE_OF_THRESHOLD: f64 = 0.1;
+/// The fatigue life limit when none is given.
+const DEFAULT_LIFE_LIMIT: f64 = 0.8;
+
+/// The range of engineering values the channel's encoding can carry, kN*m: a block
+/// channel's i16 counts, a CAN signal's raw range; `None` for a plain-register value
+/// (floats and 32-bit integers: no useful bound).
+fn channel_range(channel: &Channel) -> Option<f64> {
+    let range = match &channel.source {
+        ChannelSource::ModbusBlock { .. } => f64::from(u16::MAX) * channel.scale.abs(),
+        ChannelSource::Can { signal_layout, .. } => {
+            let counts = (2.0_f64).powi(i32::from(signal_layout.size)) - 1.0;
+            counts * (signal_layout.factor * channel.scale).abs()
+        }
+        ChannelSource::ModbusValue { .. } => return None,
+    };
+    (range.is_finite() && range > 0.0).then_some(range)
+}
 
 impl Checker<'_> {
     pub(super) fn driveline(
@@ -66,6 +91,16 @@ impl Checker<'_> {
                 return None;
             }
         }
+        let fatigue = match (&raw.fatigue, torque, bite) {
+            (None, ..) => Some(None),
+            (Some(fatigue), Some(torque), Some(bite)) => {
+                let channel = facts.channels[torque].as_ref();
+                self.fatigue(&format!("{key}.fatigue"), fatigue, channel, &bite)
+                    .map(Some)
+            }
+            // The torque channel or the bite settings are reported already.
+            (Some(_), ..) => None,
+        };
         Some(Driveline {
             name: name?,
             torque: torque?,
@@ -75,6 +110,7 @@ impl Checker<'_> {
             bite: bite?,
             thresholds: thresholds?,
             wear: wear?,
+            fatigue: fatigue?,
         })
     }
 
@@ -312,6 +348,127 @@ impl Checker<'_> {
             static_torque_knm: range?,
             torque_points: usize::try_from(points?).ok()?,
             horizon_days: pool.and(horizon)?,
+        })
+    }
+
+    /// `drivelines[i].fatigue`: the gate (below the torque channel's range), the life
+    /// limit and at least one component with distinct names.
+    fn fatigue(
+        &mut self,
+        key: &str,
+        raw: &RawFatigue,
+        channel: Option<&Channel>,
+        bite: &BiteSettings,
+    ) -> Option<FatigueSettings> {
+        let range_knm = channel.and_then(channel_range);
+        let default_gate = range_knm
+            .map_or(DEFAULT_GATE_OF_THRESHOLD * bite.threshold_knm, |range| {
+                DEFAULT_GATE_OF_RANGE * range
+            });
+        let gate = raw.gate_knm.unwrap_or(default_gate);
+        let gate = match range_knm {
+            Some(range) => self.float(
+                &format!("{key}.gate_knm"),
+                gate,
+                gate >= 0.0 && gate < range,
+                &format!(">= 0 and below the torque channel's range, {range} kN*m"),
+            ),
+            None => self.float(&format!("{key}.gate_knm"), gate, gate >= 0.0, ">= 0 kN*m"),
+        };
+        let limit = raw.life_limit.unwrap_or(DEFAULT_LIFE_LIMIT);
+        let limit = self.float(
+            &format!("{key}.life_limit"),
+            limit,
+            limit > 0.0 && limit <= 1.0,
+            "in (0, 1], a fraction of the life",
+        );
+        if raw.components.is_empty() {
+            self.report.push(
+                format!("{key}.components"),
+                "no component (a ledger needs at least one [[...components]])",
+            );
+            return None;
+        }
+        let mut components = Vec::with_capacity(raw.components.len());
+        let mut valid = true;
+        for (index, component) in raw.components.iter().enumerate() {
+            let key = format!("{key}.components[{index}]");
+            if raw.components[..index]
+                .iter()
+                .any(|c| c.name == component.name)
+            {
+                self.report.push(
+                    format!("{key}.name"),
+                    format!("\"{}\" is used twice in this driveline", component.name),
+                );
+                valid = false;
+            }
+            match self.component(&key, component) {
+                Some(component) => components.push(component),
+                None => valid = false,
+            }
+        }
+        Some(FatigueSettings {
+            gate_knm: gate?,
+            life_limit: limit?,
+            components: valid.then_some(components)?,
+        })
+    }
+
+    /// One component's S-N curve; an error names its key and the allowed range.
+    fn component(&mut self, key: &str, raw: &RawFatigueComponent) -> Option<FatigueComponent> {
+        let name = self.name(&format!("{key}.name"), &raw.name);
+        let rule = match raw.endurance_rule.as_deref() {
+            None => Some(EnduranceRule::Cutoff),
+            Some(text) => self.choice(
+                &format!("{key}.endurance_rule"),
+                "endurance rule",
+                text,
+                &[EnduranceRule::Cutoff, EnduranceRule::Haibach],
+                |rule| match rule {
+                    EnduranceRule::Cutoff => "cutoff",
+                    EnduranceRule::Haibach => "haibach",
+                },
+            ),
+        };
+        let settings = SnCurveSettings {
+            m: raw.m,
+            ref_cycles: raw.ref_cycles,
+            ref_range_knm: raw.ref_range_knm,
+            torque_share: raw.torque_share.unwrap_or(1.0),
+            endurance_knm: raw.endurance_knm,
+            endurance_rule: rule?,
+            mean_correction: raw
+                .ultimate_knm
+                .map_or(MeanCorrection::None, |ultimate_knm| {
+                    MeanCorrection::Goodman { ultimate_knm }
+                }),
+        };
+        let curve = match SnCurve::new(settings) {
+            Ok(curve) => Some(curve),
+            Err(error) => {
+                let (field, value) = match error {
+                    SnCurveError::M => ("m", raw.m),
+                    SnCurveError::RefCycles => ("ref_cycles", raw.ref_cycles),
+                    SnCurveError::RefRangeKnm => ("ref_range_knm", raw.ref_range_knm),
+                    SnCurveError::TorqueShare => ("torque_share", settings.torque_share),
+                    SnCurveError::EnduranceKnm => {
+                        ("endurance_knm", raw.endurance_knm.unwrap_or_default())
+                    }
+                    SnCurveError::UltimateKnm => {
+                        ("ultimate_knm", raw.ultimate_knm.unwrap_or_default())
+                    }
+                };
+                self.report.push(
+                    format!("{key}.{field}"),
+                    format!("{value} is not allowed ({error})"),
+                );
+                None
+            }
+        };
+        Some(FatigueComponent {
+            name: name?,
+            curve: curve?,
         })
     }
 

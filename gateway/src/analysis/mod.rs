@@ -11,6 +11,7 @@ pub mod chatter;
 pub mod driveline;
 mod error;
 mod extra_channels;
+pub(crate) mod fatigue;
 pub mod gap_estimate;
 pub mod gap_map;
 pub(crate) mod gap_map_cache;

@@ -24,6 +24,9 @@
 //! - `millgate wear --input FILE.csv --model MODEL.toml [--channel NAME] [--pool N]
 //!   [--format text|json] [--plot FILE.svg]`: [`wear`] (the gap diagnosis on a record;
 //!   `--plot` with `sim-tools`)
+//! - `millgate fatigue (--input FILE.csv [--channel NAME] | --db FILE --driveline NAME)
+//!   --m M --ref-cycles N --ref-range-knm S [--endurance-knm E] [--gate-knm G]
+//!   [--format text|json]`: [`fatigue`] (rainflow count and Miner's damage)
 //! - `millgate demo [--duration S] [--history FILE] [--mqtt HOST:PORT]`: `demo`
 //! - `millgate history --db FILE [--kind K] [--driveline NAME] [--since T] [--until T]
 //!   --format csv|json|md`: [`history`]
@@ -46,6 +49,9 @@ pub mod check;
 pub mod demo;
 #[cfg(feature = "sim-tools")]
 pub mod discrepancy;
+pub mod fatigue;
+#[cfg(feature = "sim-tools")]
+pub mod fatigue_gap;
 pub mod figures;
 pub mod history;
 pub(crate) mod progress;

@@ -3,6 +3,8 @@
 //! - `millgate sim transient --model M.toml [--noise-rms KNM] [--seed S] --out FILE.csv`
 //! - `millgate sim modes --model M.toml [--format text|json]`
 //! - `millgate sim wear-map --model M.toml --out DIR`
+//! - `millgate sim fatigue-gap --model M.toml --out DIR [...]`: damage per bar over the
+//!   opened gap ([`super::fatigue_gap`])
 //! - `millgate sim tandem --schedule S.toml [--speed F] [--ramp TO,ACCEL] --out FILE.csv`
 
 use std::fmt::Write as _;
@@ -66,6 +68,9 @@ pub enum SimCommand {
     /// A tandem cold mill's chock accelerations (`sim::tandem`): CSV `t,s1_vib,..`;
     /// prints the critical speed, the onset and when chatter developed.
     Tandem(TandemArgs),
+    /// Damage per bar over the opened gap (rainflow and Miner on simulated bars): CSV
+    /// and SVG.
+    FatigueGap(super::fatigue_gap::FatigueGapArgs),
 }
 
 /// Arguments of `millgate sim tandem`.
@@ -160,6 +165,7 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
             println!("wrote {} and {}", csv_path.display(), svg_path.display());
         }
         SimCommand::Tandem(args) => print!("{}", tandem(&args)?),
+        SimCommand::FatigueGap(args) => print!("{}", super::fatigue_gap::run(&args)?),
     }
     Ok(())
 }
