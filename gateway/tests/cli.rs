@@ -117,8 +117,8 @@ fn demo_prints_bites_within_two_percent_of_the_simulated_truth() {
     let output = millgate(&["demo", "--duration", "4"]);
     let said = text(&output);
     assert!(output.status.success(), "{said}");
-    // Bite rows: "time static TAF truth error% | gap truth, this bite, pooled (low ..
-    // high), coupling".
+    // Bite rows: "time static TAF truth error% | gap truth, this bite, trend (low ..
+    // high), coupling, growth, forecast".
     let rows: Vec<(&str, &str)> = said.lines().filter_map(|l| l.split_once(" | ")).collect();
     let errors: Vec<f64> = rows
         .iter()
@@ -151,6 +151,23 @@ fn demo_prints_bites_within_two_percent_of_the_simulated_truth() {
             "gap {bite} vs truth {truth}: {said}"
         );
     }
+    // The wear trend's 90% interval holds the simulated gap at every bite: it follows
+    // the growth (the pooled estimate of old lagged it and missed).
+    let mut intervals = 0;
+    for (_, right) in &rows {
+        let words: Vec<&str> = right.split_whitespace().collect();
+        let number = |k: usize, trim: &dyn Fn(&str) -> Option<&str>| {
+            words.get(k).and_then(|w| trim(w)).and_then(|w| w.parse::<f64>().ok())
+        };
+        let truth = number(0, &|w| Some(w));
+        let low = number(3, &|w| w.strip_prefix('('));
+        let high = number(5, &|w| w.strip_suffix(')'));
+        if let (Some(truth), Some(low), Some(high)) = (truth, low, high) {
+            assert!(low <= truth && truth <= high, "{truth} outside {low} .. {high}: {said}");
+            intervals += 1;
+        }
+    }
+    assert!(intervals >= 1, "no trend interval printed: {said}");
     // The wear registers filled and valid (quality bits 9 gap_mrad .. 11 gap_high_mrad,
     // 13 bites_pooled); the coupling (bit 12) only once the bites name it.
     let quality: u16 = said
@@ -159,10 +176,12 @@ fn demo_prints_bites_within_two_percent_of_the_simulated_truth() {
         .and_then(|l| l.split_whitespace().nth(2)?.parse().ok())
         .expect("quality register printed");
     assert_eq!(quality & (0b10111 << 9), 0b10111 << 9, "{said}");
+    // After the bar: gap truth, this bite, the trend "g (low .. high)", its coupling,
+    // then growth and forecast.
     let last_coupling = said
         .lines()
-        .filter(|l| l.contains(" | "))
-        .filter_map(|l| l.split_whitespace().last())
+        .filter_map(|l| l.split_once(" | "))
+        .map(|(_, right)| right.split_whitespace().nth(6).unwrap_or("-"))
         .next_back()
         .expect("a bite printed");
     assert_eq!(
