@@ -157,13 +157,19 @@ fn demo_prints_bites_within_two_percent_of_the_simulated_truth() {
     for (_, right) in &rows {
         let words: Vec<&str> = right.split_whitespace().collect();
         let number = |k: usize, trim: &dyn Fn(&str) -> Option<&str>| {
-            words.get(k).and_then(|w| trim(w)).and_then(|w| w.parse::<f64>().ok())
+            words
+                .get(k)
+                .and_then(|w| trim(w))
+                .and_then(|w| w.parse::<f64>().ok())
         };
         let truth = number(0, &|w| Some(w));
         let low = number(3, &|w| w.strip_prefix('('));
         let high = number(5, &|w| w.strip_suffix(')'));
         if let (Some(truth), Some(low), Some(high)) = (truth, low, high) {
-            assert!(low <= truth && truth <= high, "{truth} outside {low} .. {high}: {said}");
+            assert!(
+                low <= truth && truth <= high,
+                "{truth} outside {low} .. {high}: {said}"
+            );
             intervals += 1;
         }
     }

@@ -635,7 +635,7 @@ fn millgate_wear_reports_each_bite_and_the_trend_gap_as_json_and_plots_it() {
     );
     assert!(said.contains("--pool is deprecated"), "{said}");
     assert!(
-        said.contains("too few bites for a trend (3 since the last reset; needs 5)"),
+        said.contains("too few bites for a trend (3 since the last reset; needs 5,"),
         "{said}"
     );
 }
