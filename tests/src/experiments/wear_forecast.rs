@@ -44,10 +44,10 @@ pub const LEADS_DAYS: [f64; 6] = [120.0, 90.0, 60.0, 30.0, 14.0, 7.0];
 /// weeks to see a growth).
 const SETTLE_DAYS: f64 = 14.0;
 /// A forecast whose early end is within this many days is a near alarm.
-const NEAR_DAYS: f64 = 30.0;
+pub const NEAR_DAYS: f64 = 30.0;
 /// Each driveline runs until this many days after its crossing (stable ones: the
 /// plan's longest run).
-const AFTER_CROSSING_DAYS: f64 = 10.0;
+pub const AFTER_CROSSING_DAYS: f64 = 10.0;
 /// Each bite is one bar: idle, then rolling (the demo's timing).
 const TIMING: BarTiming = BarTiming {
     idle_s: 0.6,
