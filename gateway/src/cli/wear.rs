@@ -308,6 +308,18 @@ fn model_coupling_names(model: &Model) -> Vec<String> {
     model.couplings.iter().map(|c| c.name.clone()).collect()
 }
 
+/// The unit a forecast of `days` reads best in, and days' scale to it: days from two
+/// days on, else hours, else seconds (a compressed record such as the demo's).
+fn span_unit(days: f64) -> (&'static str, f64) {
+    if days >= 2.0 {
+        ("days", 1.0)
+    } else if days >= 1.0 / 24.0 {
+        ("hours", 24.0)
+    } else {
+        ("s", 86_400.0)
+    }
+}
+
 /// The trend's gap, growth and forecast, as the command reports them.
 struct Outlook {
     results: Option<GapResults>,
@@ -402,15 +414,16 @@ impl Outlook {
         }
         match (e.forecast, self.reason()) {
             (Some(f), None) => {
+                let (unit, scale) = span_unit(f.days.unwrap_or(0.0));
                 let _ = writeln!(
                     out,
-                    "gap alarm {} mrad in {} days (90% interval {} .. {} days){}",
+                    "gap alarm {} mrad in {} {unit} (90% interval {} .. {} {unit}){}",
                     self.alarm_mrad,
-                    optional(f.days, 1.0, 1),
-                    optional(f.days_low, 1.0, 1),
+                    optional(f.days, scale, 1),
+                    optional(f.days_low, scale, 1),
                     f.days_high.map_or_else(
-                        || format!("beyond {}", self.horizon_days),
-                        |d| format!("{d:.1}")
+                        || format!("beyond {}", self.horizon_days * scale),
+                        |d| format!("{:.1}", d * scale)
                     ),
                     self.date(&f)
                         .map_or(String::new(), |date| format!(", expected {date}"))
@@ -711,4 +724,17 @@ fn plot(
                 .collect(),
         ),
     })?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_forecast_reads_in_days_hours_or_seconds() {
+        assert_eq!(span_unit(22.0), ("days", 1.0));
+        assert_eq!(span_unit(1.5), ("hours", 24.0));
+        // The demo's 20 s.
+        assert_eq!(span_unit(20.0 / 86_400.0), ("s", 86_400.0));
+    }
 }
