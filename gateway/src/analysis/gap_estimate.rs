@@ -313,7 +313,12 @@ pub fn fine_loglik(
 /// The estimate from one bite against `maps` (with its whole allowance); `None` when
 /// the bite lies outside the maps' static torque range.
 pub fn estimate(maps: &GapMaps, observation: &GapObservation) -> Option<GapEstimate> {
-    let sums = fine_loglik(maps, observation, Allowance::Whole)?;
+    estimate_of(maps, &fine_loglik(maps, observation, Allowance::Whole)?)
+}
+
+/// The estimate from one bite's log-likelihood per coupling on the fine grid with the
+/// whole allowance ([`fine_loglik`]), for a caller that has it already.
+pub(crate) fn estimate_of(maps: &GapMaps, sums: &[Vec<f64>]) -> Option<GapEstimate> {
     let grid = fine_grid(maps);
     let gaps: Vec<f64> = (0..grid.len).map(|k| grid.at(k) * 1e-3).collect();
     let best_of = |sum: &[f64]| {

@@ -298,19 +298,19 @@ impl GapMonitor {
         time: i64,
     ) -> Option<GapBite> {
         let observation = GapObservation::from_window(window, transient, settings)?;
-        self.hold_or_fold(time, observation);
-        let maps = self.maps.as_deref();
-        let trend = maps.and_then(|_| self.results());
+        let bite = self.hold_or_fold(time, observation);
+        let trend = self.maps.as_ref().and_then(|_| self.results());
         Some(GapBite {
             observation,
-            bite: maps.and_then(|maps| super::gap_estimate::estimate(maps, &observation)),
+            bite,
             saved: trend.map(|_| self.saved()),
             trend,
         })
     }
 
-    /// Fold `observation` in when the maps are ready, else hold it.
-    fn hold_or_fold(&mut self, time: i64, observation: GapObservation) {
+    /// Fold `observation` in when the maps are ready (the bite's own estimate), else
+    /// hold it.
+    fn hold_or_fold(&mut self, time: i64, observation: GapObservation) -> Option<GapEstimate> {
         match self.maps.clone() {
             Some(maps) => self.fold(&maps, &observation, time),
             None => {
@@ -318,20 +318,33 @@ impl GapMonitor {
                     self.pending.pop_front();
                 }
                 self.pending.push_back((time, observation));
+                None
             }
         }
     }
 
-    /// Fold one bite into the trend; what it refuses is logged.
-    fn fold(&mut self, maps: &GapMaps, observation: &GapObservation, time: i64) {
+    /// Fold one bite into the trend; what it refuses is logged. The bite's own
+    /// estimate, when it was folded in.
+    fn fold(
+        &mut self,
+        maps: &GapMaps,
+        observation: &GapObservation,
+        time: i64,
+    ) -> Option<GapEstimate> {
         match self.trend.fold(maps, observation, time) {
-            Ok(Folded::Folded { jumped: true }) => tracing::warn!(
-                driveline = %self.name,
-                "the gap stepped: the wear trend reopened (a coupling changed without a wear reset? reset the wear trend)"
-            ),
-            Ok(_) => {}
+            Ok(Folded::Folded { jumped, bite }) => {
+                if jumped {
+                    tracing::warn!(
+                        driveline = %self.name,
+                        "the gap stepped: the wear trend reopened (a coupling changed without a wear reset? reset the wear trend)"
+                    );
+                }
+                bite
+            }
+            Ok(Folded::OutsideMaps) => None,
             Err(error) => {
-                tracing::warn!(driveline = %self.name, %error, "bite not folded into the wear trend")
+                tracing::warn!(driveline = %self.name, %error, "bite not folded into the wear trend");
+                None
             }
         }
     }

@@ -20,7 +20,9 @@ use millgate_dsp::wear_trend::{
 };
 use serde::{Deserialize, Serialize};
 
-use super::gap_estimate::{fine_grid, fine_loglik, loglik_at, Allowance, GapObservation};
+use super::gap_estimate::{
+    estimate_of, fine_grid, fine_loglik, loglik_at, Allowance, GapEstimate, GapObservation,
+};
 use crate::state::gap_maps::GapMaps;
 use crate::state::results::{
     ConePoint, ForecastState, GapCone, GapForecast, GapGrowth, GapResults, CONE_POINTS,
@@ -67,6 +69,9 @@ pub enum Folded {
         /// The gap stepped (every hypothesis was reopened): a coupling changed without
         /// a wear reset, a re-mounted sensor, another model.
         jumped: bool,
+        /// The bite's own estimate (its whole allowance, from the likelihood the fold
+        /// computed anyway for the model floor); `None` for a Gaussian observation.
+        bite: Option<GapEstimate>,
     },
     /// Outside the maps' static torque range: not folded in.
     OutsideMaps,
@@ -166,7 +171,10 @@ impl GapTrend {
         self.trend.finish_bite(&mut self.state, floor2);
         self.first_bite_unix_ms.get_or_insert(unix_ms);
         self.last_bite_unix_ms = Some(unix_ms);
-        Ok(Folded::Folded { jumped })
+        Ok(Folded::Folded {
+            jumped,
+            bite: estimate_of(maps, &whole),
+        })
     }
 
     /// Fold in a bite whose gap was measured elsewhere, as a Gaussian (mean mrad,
@@ -194,6 +202,7 @@ impl GapTrend {
         self.last_bite_unix_ms = Some(unix_ms);
         Ok(Folded::Folded {
             jumped: outcome.jumped,
+            bite: None,
         })
     }
 
