@@ -201,8 +201,7 @@ pub(super) fn best_rise(guess: Guess, data: &Data<'_>) -> Option<Evaluation> {
     {
         let mut trial = theta;
         trial[4] = rise;
-        let reference = best.map_or([0.0; 5], |b| b.linear);
-        if let Some(candidate) = evaluate(trial, &reference, data) {
+        if let Some(candidate) = evaluate(trial, data) {
             if best.is_none_or(|b| candidate.cost < b.cost) {
                 best = Some(candidate);
             }

@@ -11,8 +11,15 @@ use super::projection::project;
 use super::record::{Data, Linear, Nonlinear, BASIS};
 use crate::linalg::Cholesky5;
 
-/// Largest ratio of |r0|^2 to the cost accepted in [`evaluate`]: 4 of 16 digits lost.
+/// Largest ratio of |r0|^2 to the cost accepted in [`evaluate`] from a pass with a
+/// reference: 4 of 16 digits lost.
 const MAX_CANCELLATION: f64 = 1e4;
+
+/// Largest ratio of the record's energy to the cost accepted in [`evaluate`] from its
+/// first pass, on the record itself: 6 of 16 digits lost, 10 left, where the iteration
+/// compares costs to its tolerance (1e-6 by default). A residual of 0.1% of the record
+/// and more passes; an exact record (a residual of rounding) takes a second pass.
+const MAX_RECORD_CANCELLATION: f64 = 1e6;
 
 /// Relative excess of a cost over the record's energy put down to rounding in
 /// [`evaluate`]: far above what 4 lost digits leave, far below a lost solve.
@@ -33,28 +40,27 @@ pub(super) struct Evaluation {
     pub(super) derivative_projections: [f64; 5],
 }
 
-/// Solves the linear least squares at `theta`, starting from `reference` (any linear
-/// parameters; the previous solution makes the cost most accurate); `None` when the
-/// basis is singular or the solve cannot be trusted (a non-finite result, or a cost
-/// above the record's energy).
-pub(super) fn evaluate(
-    theta: Nonlinear,
-    reference: &Linear,
-    data: &Data<'_>,
-) -> Option<Evaluation> {
+/// Solves the linear least squares at `theta`; `None` when the basis is singular or
+/// the solve cannot be trusted (a non-finite result, or a cost above the record's
+/// energy).
+pub(super) fn evaluate(theta: Nonlinear, data: &Data<'_>) -> Option<Evaluation> {
     let gram = if data.positive_only {
         gram_direct(&theta, data)
     } else {
         gram_closed(&theta, data.count(), data.dt)
     };
     let phi_gram = Cholesky5::new(&SMatrix::<f64, 5, 5>::from_fn(|i, j| gram[i][j]))?;
-    let mut reference = *reference;
-    // A reference far from the solution (the first point, or a step that changed the
-    // basis a lot) leaves a cost that is a small difference of large numbers: then
-    // one more pass from the solution just found.
+    // The first pass projects the record itself (no model to evaluate). Where that
+    // leaves the cost a small difference of large numbers (a residual far below the
+    // record), one more pass from the solution just found, on the residual.
+    let mut reference = [0.0; 5];
     let mut attempts = 0;
     let (linear, cost, correction, projections) = loop {
-        let (squares, projections) = project(&theta, &reference, data);
+        let (squares, projections) = if attempts == 0 {
+            project::<false>(&theta, &reference, data)
+        } else {
+            project::<true>(&theta, &reference, data)
+        };
         let phi_projections = SVector::<f64, 5>::from_fn(|i, _| projections[i]);
         let correction = phi_gram.solve(&phi_projections);
         let mut linear = reference;
@@ -62,8 +68,13 @@ pub(super) fn evaluate(
             *l += d;
         }
         let cost = squares - phi_projections.dot(&correction);
+        let limit = if attempts == 0 {
+            MAX_RECORD_CANCELLATION
+        } else {
+            MAX_CANCELLATION
+        };
         attempts += 1;
-        if attempts >= 3 || !cost.is_finite() || cost * MAX_CANCELLATION >= squares {
+        if attempts >= 3 || !cost.is_finite() || cost * limit >= squares {
             break (linear, cost.max(0.0), correction, projections);
         }
         reference = linear;
@@ -171,7 +182,7 @@ pub(super) fn levenberg_marquardt(
             for (p, d) in trial.iter_mut().zip(delta.iter()) {
                 *p += d;
             }
-            let candidate = evaluate(trial, &point.linear, data);
+            let candidate = evaluate(trial, data);
             if let Some(candidate) = candidate.filter(|c| c.cost < point.cost) {
                 let decrease = (point.cost - candidate.cost) / point.cost;
                 let small_step = delta

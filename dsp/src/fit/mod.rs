@@ -211,11 +211,11 @@ fn starting_point(
         };
         let (point, _, iterations, _) =
             levenberg_marquardt(initial, &coarse, coarse_used, &coarse_options)?;
-        ((point.theta, point.linear), iterations)
+        (point.theta, iterations)
     } else {
-        ((initial_guess(full, poles)?.theta, [0.0; 5]), 0)
+        (initial_guess(full, poles)?.theta, 0)
     };
-    let start = evaluate(start.0, &start.1, full).ok_or(FitError::Singular)?;
+    let start = evaluate(start, full).ok_or(FitError::Singular)?;
     Ok((start, coarse_iterations))
 }
 
@@ -243,7 +243,7 @@ fn fitted_peak(p: &[f64; PARAMS], len: usize, dt: f64) -> Option<f64> {
     let mut mode1 = PairRotor::new(Rotor::new(p[6], p[4], dt), p[0], -p[2]);
     let mut mode2 = PairRotor::new(Rotor::new(p[7], p[5], dt), p[1], -p[3]);
     let load_step = libm::exp(-p[9] * dt);
-    let mut load = Pair([p[8], p[8] * load_step]);
+    let mut load = Pair::new(p[8], p[8] * load_step);
     let load_step = Pair::splat(load_step * load_step);
     let static_torque = Pair::splat(p[8]);
     let mut peak = [f64::NEG_INFINITY; 2];
@@ -252,7 +252,7 @@ fn fitted_peak(p: &[f64; PARAMS], len: usize, dt: f64) -> Option<f64> {
         mode1.advance();
         mode2.advance();
         load = load * load_step;
-        value.0
+        value.lanes()
     };
     for _ in 0..len / 2 {
         for (peak, lane) in peak.iter_mut().zip(value()) {

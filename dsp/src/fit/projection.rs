@@ -24,9 +24,10 @@ struct Projection {
 
 impl Projection {
     /// Takes the next pair of samples; `keep` (when given) masks lanes whose residual
-    /// is not fitted (0 instead).
+    /// is not fitted (0 instead). Without `REFERENCED` the residual is the record
+    /// itself (a reference of zero, no model evaluated and no squares summed).
     #[inline(always)]
-    fn step(&mut self, values: Pair, keep: Option<[bool; 2]>) {
+    fn step<const REFERENCED: bool>(&mut self, values: Pair, keep: Option<[bool; 2]>) {
         let (u1, v1, u2, v2, e10) = (
             self.mode1.re,
             self.mode1.im,
@@ -37,17 +38,18 @@ impl Projection {
         self.mode1.advance();
         self.mode2.advance();
         self.load = self.load * self.load_step;
-        let [c1, c2, c3, c4, c9] = self.reference;
-        let model = c1 * u1 + c2 * u2 + c3 * v1 + c4 * v2 + c9 * (Pair::splat(1.0) - e10);
-        let mut residual = values - model;
+        let mut residual = if REFERENCED {
+            let [c1, c2, c3, c4, c9] = self.reference;
+            values - (c1 * u1 + c2 * u2 + c3 * v1 + c4 * v2 + c9 * (Pair::splat(1.0) - e10))
+        } else {
+            values
+        };
         if let Some(keep) = keep {
-            for (r, keep) in residual.0.iter_mut().zip(keep) {
-                if !keep {
-                    *r = 0.0;
-                }
-            }
+            residual = residual.masked(keep);
         }
-        self.squares += residual * residual;
+        if REFERENCED {
+            self.squares += residual * residual;
+        }
         let running = &mut self.running;
         for (q, p) in self
             .nested
@@ -70,6 +72,9 @@ impl Projection {
 /// r0 = y - Phi(theta) reference, its sum of squares and its projections [Phi D]^T r0.
 /// Working on r0 rather than y keeps the cost free of cancellation near the optimum
 /// (cost = |r0|^2 - correction, both small), so exact records converge to full precision.
+/// Without `REFERENCED`, r0 is the record y itself (`reference` is not read) and its
+/// sum of squares is the record's energy, known beforehand: the pass evaluates no model,
+/// a third fewer operations per sample.
 ///
 /// Even and odd samples run in two lanes ([`Pair`]). The t-weighted sums use no
 /// multiplication by t: with P_m the running sum of a_j over the first m steps of a lane
@@ -78,7 +83,7 @@ impl Projection {
 // another codegen unit) the fit ran 12% more instructions (valgrind, 760 k against
 // 697 k per fit of 2000 samples).
 #[inline]
-pub(super) fn project(
+pub(super) fn project<const REFERENCED: bool>(
     theta: &Nonlinear,
     reference: &Linear,
     data: &Data<'_>,
@@ -89,7 +94,7 @@ pub(super) fn project(
     let mut state = Projection {
         mode1: PairRotor::new(Rotor::new(theta[2], theta[0], dt), 1.0, 0.0),
         mode2: PairRotor::new(Rotor::new(theta[3], theta[1], dt), 1.0, 0.0),
-        load: Pair([1.0, load_step]),
+        load: Pair::new(1.0, load_step),
         load_step: Pair::splat(load_step * load_step),
         reference: reference.map(Pair::splat),
         squares: zero,
@@ -100,24 +105,27 @@ pub(super) fn project(
     let (stride, scale) = (data.stride, data.inverse_scale);
     let chunks = data.samples.chunks_exact(2 * stride);
     let rest = chunks.remainder();
-    let pairs = chunks.map(|c| Pair([c[0] * scale, c[stride] * scale]));
+    let pairs = chunks.map(|c| Pair::new(c[0] * scale, c[stride] * scale));
     if data.positive_only {
         for values in pairs {
-            state.step(values, Some(values.0.map(|v| v > 0.0)));
+            state.step::<REFERENCED>(values, Some(values.lanes().map(|v| v > 0.0)));
         }
     } else {
         for values in pairs {
-            state.step(values, None);
+            state.step::<REFERENCED>(values, None);
         }
     }
     if !rest.is_empty() {
         // The last one or two samples; an empty odd lane is masked.
         let odd = rest.get(stride);
-        let values = Pair([rest[0] * scale, odd.map_or(0.0, |v| v * scale)]);
+        let values = Pair::new(rest[0] * scale, odd.map_or(0.0, |v| v * scale));
         let fitted = |v: f64| !data.positive_only || v > 0.0;
-        state.step(
+        state.step::<REFERENCED>(
             values,
-            Some([fitted(values.0[0]), odd.is_some() && fitted(values.0[1])]),
+            Some([
+                fitted(values.lanes()[0]),
+                odd.is_some() && fitted(values.lanes()[1]),
+            ]),
         );
     }
     let Projection {
@@ -130,7 +138,7 @@ pub(super) fn project(
     // Sample n = 2m + l of lane l: sum n a_n = sum over lanes of 2 (sum m a) + l P.
     let last = steps.saturating_sub(1) as f64;
     let weighted = |p: Pair, q: Pair| {
-        let per_lane = Pair::splat(2.0) * (Pair::splat(last) * p - q) + Pair([0.0, 1.0]) * p;
+        let per_lane = Pair::splat(2.0) * (Pair::splat(last) * p - q) + Pair::new(0.0, 1.0) * p;
         dt * per_lane.total()
     };
     let projections = [
@@ -145,7 +153,12 @@ pub(super) fn project(
         weighted(running[3], nested[3]),
         weighted(running[5], nested[4]),
     ];
-    (squares.total(), projections)
+    let squares = if REFERENCED {
+        squares.total()
+    } else {
+        data.energy
+    };
+    (squares, projections)
 }
 
 #[cfg(test)]
@@ -204,7 +217,7 @@ mod tests {
                         *sum += residual * b;
                     }
                 }
-                let (found_squares, found) = project(&theta, &reference, &data);
+                let (found_squares, found) = project::<true>(&theta, &reference, &data);
                 let label = (len, stride, positive_only);
                 assert!(
                     libm::fabs(found_squares - squares) <= 1e-12 * squares,
@@ -215,6 +228,16 @@ mod tests {
                     assert!(
                         libm::fabs(x - y) <= 1e-12 * scale,
                         "{label:?}: {found:?} vs {expected:?}"
+                    );
+                }
+                // The record's own projections: those of a zero reference.
+                let (record_squares, record) = project::<false>(&theta, &reference, &data);
+                let (zero_squares, zero) = project::<true>(&theta, &[0.0; 5], &data);
+                assert!(libm::fabs(record_squares - zero_squares) <= 1e-12 * zero_squares);
+                for (x, y) in record.iter().zip(zero) {
+                    assert!(
+                        libm::fabs(x - y) <= 1e-12 * scale,
+                        "{label:?}: {record:?} vs {zero:?}"
                     );
                 }
             }
