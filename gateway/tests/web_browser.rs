@@ -502,11 +502,21 @@ const MEASURE: &str = "const hidden = Array.from(document.querySelectorAll('.hid
       .map((p) => [p.id, p.getAttribute('role'), p.getAttribute('aria-label')]); \
     return [width, inner, out, plots];";
 
+/// How many `<main>` a page has, and the elements of its body outside the landmarks
+/// (`header`, `nav`, `main`, `footer`, `aside`; scripts and `noscript` do not show).
+const LANDMARKS: &str = "const landmarks = ['HEADER', 'NAV', 'MAIN', 'FOOTER', 'ASIDE', \
+     'SCRIPT', 'NOSCRIPT']; \
+     return [document.querySelectorAll('main').length, \
+       Array.from(document.body.children) \
+         .filter((e) => !landmarks.includes(e.tagName)) \
+         .map((e) => e.tagName + (e.id ? '#' + e.id : ''))];";
+
 /// At a phone's width every page, and `report.html` of the test's history, shows no
 /// horizontal overflow: `document.documentElement.scrollWidth <= window.innerWidth`
 /// (tables scroll in their own box, plots are as wide as the screen, the menu and long
-/// names wrap). And every plot on the pages is `role="img"` with a name that gives its
-/// figures (a drawn plot's, not the shell's placeholder).
+/// names wrap); each has one `<main>` and nothing outside its landmarks
+/// ([`LANDMARKS`]). And every plot on the pages is `role="img"` with a name that gives
+/// its figures (a drawn plot's, not the shell's placeholder).
 async fn pages_fit_a_phone_and_plots_are_described(client: &Client, port: u16, setup: &Setup) {
     let long = Duration::from_secs(20);
     let report = setup.scratch.join("report");
@@ -540,7 +550,8 @@ async fn pages_fit_a_phone_and_plots_are_described(client: &Client, port: u16, s
             format!("{base}/tandem_mills/TCM"),
             "const p = window.millgatePlots; \
              return !!(p.band && p.spectrum) \
-               && document.querySelectorAll('#episodes tbody tr').length > 0;",
+               && document.querySelectorAll('#episodes tbody tr').length > 0 \
+               && document.querySelectorAll('#mill-state .card').length === 4;",
         ),
         (
             format!("{base}/alarms"),
@@ -571,6 +582,15 @@ async fn pages_fit_a_phone_and_plots_are_described(client: &Client, port: u16, s
         eprintln!("{url} at {PHONE_WIDTH} px: {measured}");
         assert_eq!(inner, Some(u64::from(PHONE_WIDTH)), "{url}: {measured}");
         assert!(width <= inner, "{url} overflows sideways: {measured}");
+        // Landmarks (axe's `landmark-one-main` and `region` rules): one <main>, and
+        // every element of the body in a landmark.
+        let landmarks = client.execute(LANDMARKS, vec![]).await.unwrap();
+        assert_eq!(landmarks[0], 1, "{url}: one <main>: {landmarks}");
+        assert_eq!(
+            landmarks[1],
+            serde_json::json!([]),
+            "{url}: content outside the landmarks: {landmarks}"
+        );
         for plot in measured[3].as_array().unwrap() {
             assert_eq!(plot[1], "img", "{url}: {plot}");
             let name = plot[2].as_str().unwrap_or("");
