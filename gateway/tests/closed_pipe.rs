@@ -167,16 +167,19 @@ fn record_commands_end_quietly_on_a_closed_pipe() {
         "--schedule",
         &repo("sim/schedules/lu2019-5stand.toml"),
         "--duration",
-        "2",
+        "3",
         "--out",
         s(&stands),
     ]);
+    let tandem = repo("config/examples/tandem-5stand.toml");
+    ends_quietly(&["chatter", "--input", s(&stands), "--config", &tandem]);
     ends_quietly(&[
         "chatter",
+        "commission",
+        "--config",
+        &tandem,
         "--input",
         s(&stands),
-        "--config",
-        &repo("config/examples/tandem-5stand.toml"),
     ]);
     ends_quietly(&["sim", "modes", "--model", &model]);
     ends_quietly(&[
@@ -187,7 +190,40 @@ fn record_commands_end_quietly_on_a_closed_pipe() {
         "--out",
         s(&dir.join("again.csv")),
     ]);
+    ends_quietly(&[
+        "sim",
+        "tandem",
+        "--schedule",
+        &repo("sim/schedules/lu2019-5stand.toml"),
+        "--duration",
+        "1",
+        "--out",
+        s(&dir.join("stands-again.csv")),
+    ]);
+    ends_quietly(&[
+        "sim",
+        "fatigue-gap",
+        "--model",
+        &model,
+        "--bars",
+        "1",
+        "--max-gap-mrad",
+        "1",
+        "--step-mrad",
+        "1",
+        "--out",
+        s(&dir.join("fatigue-gap")),
+    ]);
     ends_quietly(&["rod", "mathieu", "--q", "1", "--order", "2"]);
+    ends_quietly(&["rod", "floquet", "--a", "1", "--q", "0.4"]);
+    ends_quietly(&[
+        "rod",
+        "check",
+        "--mill",
+        &repo("sim/models/rod/rsm-mill.toml"),
+        "--schedule",
+        &repo("sim/models/rod/rsm-schedule.csv"),
+    ]);
 }
 
 #[test]
