@@ -16,7 +16,7 @@ use crate::error::{line_column, Report};
 use crate::raw::RawConfig;
 
 /// Keys allowed at the top level of a configuration file.
-const TOP_LEVEL_KEYS: [&str; 9] = [
+const TOP_LEVEL_KEYS: [&str; 10] = [
     "name",
     "sources",
     "channels",
@@ -26,6 +26,7 @@ const TOP_LEVEL_KEYS: [&str; 9] = [
     "outputs",
     "history",
     "cache_dir",
+    "log_format",
 ];
 
 /// Keys allowed in the `[sources]` table.
@@ -53,6 +54,7 @@ pub(crate) fn parse(text: &str, report: &mut Report) -> Option<RawConfig> {
                 }
             }
             "cache_dir" => raw.cache_dir = schema.value(value, "cache_dir"),
+            "log_format" => raw.log_format = schema.value(value, "log_format"),
             "sources" => schema.sources(value, &mut raw),
             "channels" => raw.channels = schema.list(value, "channels"),
             "drivelines" => raw.drivelines = schema.list(value, "drivelines"),

@@ -300,6 +300,7 @@ pub(crate) struct RawHistory {
 pub(crate) struct RawConfig {
     pub(crate) name: String,
     pub(crate) cache_dir: Option<String>,
+    pub(crate) log_format: Option<String>,
     pub(crate) modbus_sources: Vec<RawModbusSource>,
     pub(crate) can_sources: Vec<RawCanSource>,
     pub(crate) channels: Vec<RawChannel>,

@@ -365,7 +365,7 @@ fn wrong_types_and_missing_keys_are_named() {
     );
     assert_problem_like(
         &(BASE.to_owned() + "\n[alarms]\nlevel = 1\n"),
-        "mill.toml: alarms: unknown key (allowed here: name, sources, channels, drivelines, tandem_mills, rod_mills, outputs, history, cache_dir)",
+        "mill.toml: alarms: unknown key (allowed here: name, sources, channels, drivelines, tandem_mills, rod_mills, outputs, history, cache_dir, log_format)",
         &[],
     );
     assert_problem_like(
@@ -2294,5 +2294,26 @@ fn fatigue_ledger_settings_name_the_key_and_the_range() {
     assert_only_problem(
         &fatigue("components = []"),
         "mill.toml: drivelines[0].fatigue.components: no component (a ledger needs at least one [[...components]])",
+    );
+}
+
+/// `log_format`: `text` by default, `json` when asked, anything else refused with the
+/// allowed spellings.
+#[test]
+fn log_format_is_text_or_json() {
+    let config = parse(BASE).unwrap_or_else(|error| panic!("{error}"));
+    assert_eq!(config.log_format, millgate_config::LogFormat::Text);
+    let json = edited(
+        "name = \"Test mill\"",
+        "name = \"Test mill\"\nlog_format = \"json\"",
+    );
+    let config = parse(&json).unwrap_or_else(|error| panic!("{error}"));
+    assert_eq!(config.log_format, millgate_config::LogFormat::Json);
+    assert_only_problem(
+        &edited(
+            "name = \"Test mill\"",
+            "name = \"Test mill\"\nlog_format = \"xml\"",
+        ),
+        "mill.toml: log_format: unknown format \"xml\" (allowed: text, json)",
     );
 }

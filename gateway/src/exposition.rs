@@ -8,6 +8,7 @@
 //! ([`Exposition::family`]), so no sample can stray outside its family; and a family
 //! name already on the page is refused, so no family appears twice (a bug in the
 //! writer: debug builds panic, release builds leave the second one out and log it).
+//! A family without a sample is not written at all: a scraper sees only series.
 //!
 //! A leaf module: `field` and `history` sit below `outputs` (which imports both), so
 //! their families could not be written through `outputs` without an import cycle.
@@ -50,7 +51,9 @@ impl Exposition {
     }
 
     /// One family: its HELP (escaped) and TYPE lines, then one sample per
-    /// `(labels, value)`. A family of a name already on the page is left out.
+    /// `(labels, value)`. A family without samples is left out (no HELP and TYPE
+    /// without a series: a gauge with no valid value, a subject the gateway does not
+    /// have), as is one of a name already on the page.
     pub fn family<'a>(
         &mut self,
         name: &str,
@@ -68,6 +71,10 @@ impl Exposition {
                 family = name,
                 "a /metrics family was written twice: the second is left out"
             );
+            return;
+        }
+        let mut samples = samples.into_iter().peekable();
+        if samples.peek().is_none() {
             return;
         }
         let kind = match kind {
@@ -187,6 +194,19 @@ mod tests {
              millgate_example_total{source=\"a \\\"b\\\"\\\\c\"} 2\n\
              millgate_example_total{source=\"d\",reason=\"e\"} 0.5\n\
              # HELP millgate_example_state State.\n\
+             # TYPE millgate_example_state gauge\n\
+             millgate_example_state 1\n"
+        );
+    }
+
+    #[test]
+    fn a_family_without_samples_is_left_out() {
+        let mut page = Exposition::new();
+        page.family("millgate_empty", Kind::Gauge, "No value yet.", []);
+        page.scalar("millgate_example_state", Kind::Gauge, "State.", 1.0);
+        assert_eq!(
+            page.into_text(),
+            "# HELP millgate_example_state State.\n\
              # TYPE millgate_example_state gauge\n\
              millgate_example_state 1\n"
         );

@@ -3,8 +3,30 @@
 //! `RUST_LOG` names it. Its RTU codec logs a WARN for every frame a device garbles
 //! (a device appending junk made one per poll); the gateway reports each failed
 //! request itself, counted on `/metrics` and rate-limited in the log.
+//!
+//! The lines go to stderr (the journal under systemd) as text or, with
+//! `log_format = "json"` or `--log-format json`, as one JSON object per line
+//! (tracing-subscriber's JSON formatter: `timestamp`, `level`, `target` and `fields`,
+//! the message and each field as a JSON value: a bite's TAF a number, not text).
 
+use millgate_config::LogFormat;
 use tracing_subscriber::EnvFilter;
+
+/// Send the log lines `filter` lets through to stderr in `format`, for the whole
+/// process.
+pub fn init(filter: EnvFilter, format: LogFormat) {
+    let builder = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr);
+    match format {
+        LogFormat::Text => {
+            // Colours only on a terminal: journald and log files get plain text.
+            let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
+            builder.with_ansi(ansi).init();
+        }
+        LogFormat::Json => builder.json().with_ansi(false).init(),
+    }
+}
 
 /// The crate whose log lines are left out unless asked for.
 const QUIET: &str = "tokio_modbus";

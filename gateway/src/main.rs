@@ -15,6 +15,30 @@ use clap::{CommandFactory, Parser, Subcommand};
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// How log lines are written on stderr: text (`LEVEL target: message key=value`)
+    /// or json (one object per line: timestamp, level, target, and the message and
+    /// every field as JSON values, for a log shipper). For `run` the default is the
+    /// configuration's `log_format`, else text.
+    #[arg(long, global = true, value_enum)]
+    log_format: Option<LogFormat>,
+}
+
+/// `--log-format`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum LogFormat {
+    /// Text lines.
+    Text,
+    /// JSON lines.
+    Json,
+}
+
+impl From<LogFormat> for millgate_config::LogFormat {
+    fn from(format: LogFormat) -> Self {
+        match format {
+            LogFormat::Text => Self::Text,
+            LogFormat::Json => Self::Json,
+        }
+    }
 }
 
 #[derive(Debug, Subcommand)]
@@ -107,19 +131,13 @@ enum Command {
 const QUIET_DEPENDENCIES: &str =
     "opcua_server=warn,opcua_server::subscriptions=error,opcua_core=warn";
 
-fn init_tracing(default_level: &str) {
+fn init_tracing(default_level: &str, format: millgate_config::LogFormat) {
     let rust_log = std::env::var("RUST_LOG").ok();
     let filter = millgate::logging::filter(
         rust_log.as_deref(),
         &format!("{default_level},{QUIET_DEPENDENCIES}"),
     );
-    // Colours only on a terminal: journald and log files get plain text.
-    let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
-    tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .with_ansi(ansi)
-        .init();
+    millgate::logging::init(filter, format);
 }
 
 /// SIGINT or SIGTERM, handled from the moment this is called (before the service is
@@ -143,9 +161,8 @@ fn stop_signals() -> std::io::Result<impl std::future::Future<Output = ()>> {
 /// write was attempted, pings its watchdog while the analysis and the outputs make
 /// progress (`WATCHDOG_USEC`), and says STOPPING=1 on SIGINT or SIGTERM. A service
 /// that ends by itself is a failure.
-async fn run_service(config_path: PathBuf) -> anyhow::Result<()> {
+async fn run_service(config_path: PathBuf, config: millgate_config::Config) -> anyhow::Result<()> {
     use sd_notify::NotifyState;
-    let config = millgate_config::load(&config_path)?;
     let heartbeat = config.outputs.plc.as_ref().map_or(
         millgate::outputs::modbus::heartbeat_period_without_plc(),
         |plc| plc.write_period,
@@ -238,12 +255,19 @@ fn sentence(error: &anyhow::Error) -> String {
 }
 
 /// Print a command's report, ending it with exactly one newline.
-fn emit(text: String) {
-    println!("{}", text.trim_end());
+fn emit(text: String) -> anyhow::Result<()> {
+    Ok(millgate::cli::shell::print(&format!(
+        "{}\n",
+        text.trim_end()
+    ))?)
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    let log_format = cli
+        .log_format
+        .map(millgate_config::LogFormat::from)
+        .unwrap_or_default();
     let runtime = || {
         tokio::runtime::Builder::new_multi_thread()
             .enable_all()
@@ -256,21 +280,17 @@ fn main() -> ExitCode {
             format: millgate::cli::OutputFormat::Json,
         } => {
             let (json, ok) = millgate::cli::check::report_json(&config);
-            println!("{json}");
-            return if ok {
-                ExitCode::SUCCESS
-            } else {
-                ExitCode::FAILURE
-            };
+            match emit(json) {
+                Err(error) if !millgate::cli::shell::is_broken_pipe(&error) => Err(error),
+                _ if ok => Ok(()),
+                _ => return ExitCode::FAILURE,
+            }
         }
         Command::Check {
             config,
             format: millgate::cli::OutputFormat::Text,
         } => match millgate::cli::check::check(&config) {
-            Ok(summary) => {
-                println!("{}", summary.trim_end());
-                Ok(())
-            }
+            Ok(summary) => emit(summary),
             Err(error) => {
                 eprintln!("{error}");
                 return ExitCode::FAILURE;
@@ -280,65 +300,68 @@ fn main() -> ExitCode {
             .map_err(anyhow::Error::from)
             .and_then(|config| {
                 let map = millgate::outputs::modbus::register_map::RegisterMap::try_new(&config)?;
-                print!(
-                    "{}",
-                    millgate::cli::registers::export(&map, config.outputs.plc.as_ref(), format)
-                );
-                Ok(())
+                let table =
+                    millgate::cli::registers::export(&map, config.outputs.plc.as_ref(), format);
+                Ok(millgate::cli::shell::print(&table)?)
             }),
         Command::Figures { format } => {
-            print!("{}", millgate::cli::figures::export(format));
-            Ok(())
+            millgate::cli::shell::print(&millgate::cli::figures::export(format)).map_err(Into::into)
         }
         Command::Completions(args) => {
             let script = millgate::cli::shell::completions(Cli::command(), args.shell);
-            std::io::Write::write_all(&mut std::io::stdout(), &script).map_err(Into::into)
+            millgate::cli::shell::print_bytes(&script).map_err(Into::into)
         }
         Command::Man(args) => match &args.out {
             Some(folder) => millgate::cli::shell::write_man_pages(Cli::command(), folder)
                 .map(|written| eprintln!("{} manual pages in {}", written.len(), folder.display())),
             None => millgate::cli::shell::man_page(Cli::command())
-                .and_then(|page| std::io::Write::write_all(&mut std::io::stdout(), &page))
+                .and_then(|page| millgate::cli::shell::print_bytes(&page))
                 .map_err(Into::into),
         },
         #[cfg(feature = "opcua")]
         Command::AddressSpace { config } => millgate_config::load(&config)
             .map_err(anyhow::Error::from)
             .and_then(|config| millgate::cli::address_space::run(&config))
-            .map(|table| print!("{table}")),
+            .and_then(|table| Ok(millgate::cli::shell::print(&table)?)),
         Command::Analyze(args) => {
-            init_tracing("warn");
-            millgate::cli::analyze::run(&args).map(emit)
+            init_tracing("warn", log_format);
+            millgate::cli::analyze::run(&args).and_then(emit)
         }
-        Command::Stiffness(args) => millgate::cli::stiffness::run(&args).map(emit),
-        Command::Chatter(args) => millgate::cli::chatter::run(&args).map(emit),
+        Command::Stiffness(args) => millgate::cli::stiffness::run(&args).and_then(emit),
+        Command::Chatter(args) => millgate::cli::chatter::run(&args).and_then(emit),
         Command::Wear(args) => {
-            init_tracing("warn");
-            millgate::cli::wear::run(&args).map(emit)
+            init_tracing("warn", log_format);
+            millgate::cli::wear::run(&args).and_then(emit)
         }
-        Command::Fatigue(args) => millgate::cli::fatigue::run(&args).map(emit),
+        Command::Fatigue(args) => millgate::cli::fatigue::run(&args).and_then(emit),
         Command::History(args) => millgate::cli::history::run(&args),
-        Command::Capture(command) => millgate::cli::capture::run(&command).map(emit),
+        Command::Capture(command) => millgate::cli::capture::run(&command).and_then(emit),
         #[cfg(feature = "plot")]
-        Command::Report(args) => millgate::cli::report::run(&args).map(emit),
+        Command::Report(args) => millgate::cli::report::run(&args).and_then(emit),
         #[cfg(feature = "sim-tools")]
-        Command::Discrepancy(args) => millgate::cli::discrepancy::run(&args).map(emit),
+        Command::Discrepancy(args) => millgate::cli::discrepancy::run(&args).and_then(emit),
         #[cfg(feature = "sim-tools")]
         Command::Sim(args) => millgate::cli::sim::run(args),
         #[cfg(feature = "sim-tools")]
-        Command::Rod(args) => millgate::cli::rod::run(args).map(emit),
-        Command::Run { config } => {
-            init_tracing("info");
-            runtime().block_on(run_service(config))
-        }
+        Command::Rod(args) => millgate::cli::rod::run(args).and_then(emit),
+        Command::Run { config: path } => match millgate_config::load(&path) {
+            Ok(config) => {
+                init_tracing("info", cli.log_format.map_or(config.log_format, Into::into));
+                runtime().block_on(run_service(path, config))
+            }
+            Err(error) => Err(error.into()),
+        },
         #[cfg(feature = "sim-tools")]
         Command::Demo(args) => {
-            init_tracing("warn");
+            init_tracing("warn", log_format);
             runtime().block_on(millgate::cli::demo::run(args))
         }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
+        // The reader of stdout went (`millgate figures | head`): the command stops
+        // writing, quietly, as other Unix tools do.
+        Err(error) if millgate::cli::shell::is_broken_pipe(&error) => ExitCode::SUCCESS,
         Err(error) => {
             eprintln!("millgate: {}", sentence(&error));
             ExitCode::FAILURE

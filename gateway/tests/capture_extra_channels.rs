@@ -127,7 +127,7 @@ async fn extra_channel_columns_are_what_the_daq_served() {
     for bite in &bites {
         let csv = MILLGATE.export_bite(&db, &out, bite.figures.bite_counter, "csv");
         let table = std::fs::read_to_string(&csv).unwrap();
-        let mut lines = table.lines().filter(|l| !l.starts_with('#'));
+        let mut lines = table.lines();
         assert_eq!(lines.next(), Some("t,spindle_top,motor_current"));
         let rows: Vec<Vec<Option<f64>>> = lines
             .map(|line| line.split(',').map(|cell| cell.parse().ok()).collect())
@@ -163,16 +163,10 @@ async fn extra_channel_columns_are_what_the_daq_served() {
             bite.figures.bite_counter,
             torque.len()
         );
-        // The header gives the current's unit and own timing.
-        let header: serde_json::Value = serde_json::from_str(
-            table
-                .lines()
-                .next()
-                .unwrap()
-                .strip_prefix("# millgate capture ")
-                .unwrap(),
-        )
-        .unwrap();
+        // The header beside the CSV gives the current's unit and own timing.
+        let sidecar = std::path::Path::new(&csv).with_extension("json");
+        let header: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(sidecar).unwrap()).unwrap();
         let meta = &header["channels"][1];
         assert_eq!(meta["name"], "motor_current");
         assert_eq!(meta["unit"], "A");

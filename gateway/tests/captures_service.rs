@@ -75,7 +75,11 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
             answer
         }
     };
-    let downloads = [download("csv").await, download("parquet").await];
+    let downloads = [
+        download("csv").await,
+        download("parquet").await,
+        download("json").await,
+    ];
     assert_eq!(
         downloads[0].header("content-type"),
         Some("text/csv; charset=utf-8")
@@ -83,6 +87,10 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
     assert_eq!(
         downloads[1].header("content-type"),
         Some("application/vnd.apache.parquet")
+    );
+    assert_eq!(
+        downloads[2].header("content-type"),
+        Some("application/json")
     );
     let bad = http(
         web_port,
@@ -94,7 +102,7 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
     assert!(bad.json()["error"]
         .as_str()
         .unwrap()
-        .contains("csv or parquet"));
+        .contains("csv, parquet or json"));
     let downloaded_bite = first["bite_counter"].as_i64().unwrap();
     let seen = plc.counter();
     wait_for("another bite in the PLC", Duration::from_secs(20), || {
@@ -166,7 +174,8 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
         let parquet = MILLGATE.export_bite(db, &out, bite.figures.bite_counter, "parquet");
         if i64::from(bite.figures.bite_counter) == downloaded_bite {
             // The page's download is the exported file, byte for byte, under its name.
-            for (answer, path) in downloads.iter().zip([&csv, &parquet]) {
+            let sidecar = Path::new(&csv).with_extension("json").display().to_string();
+            for (answer, path) in downloads.iter().zip([&csv, &parquet, &sidecar]) {
                 let file = String::from_utf8_lossy(&std::fs::read(path).unwrap()).into_owned();
                 assert_eq!(answer.body, file, "{path}");
                 let name = Path::new(path).file_name().unwrap().to_str().unwrap();

@@ -206,6 +206,8 @@ async fn births_data_rebirth_and_the_will_as_an_independent_host_decodes_them() 
     assert_eq!(seq(&nbirth), 0);
     let bd_seq = metric(&nbirth, "bdSeq")["value"].as_u64().unwrap();
     assert_eq!(bd_seq, 0, "a new history file starts at bdSeq 0");
+    // bdSeq has an alias as every metric of the births, unique in the node.
+    assert_eq!(metric(&nbirth, "bdSeq")["alias"], 0, "{nbirth}");
     let rebirth = metric(&nbirth, "Node Control/Rebirth");
     assert_eq!(
         (rebirth["datatype"].as_u64(), &rebirth["value"]),

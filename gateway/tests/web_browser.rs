@@ -9,7 +9,8 @@
 //! printed: the README's "within 2 s" is a figure of a quiet machine, not asserted on a
 //! loaded CI machine). Then, in the same browser at a phone's 390 px, every page and the
 //! `report` command's `report.html` fit the width (no sideways scrolling), and each
-//! plot has a text alternative that gives its figures. A tandem mill's page plots a
+//! plot has a text alternative that gives its figures, and axe-core (npm, installed by
+//! `scripts/test`) finds no violation on any of them. A tandem mill's page plots a
 //! chatter episode written into the history before the start: the band RMS and the
 //! spectra as `/api/captures/{id}/bands` gives them; its "capture" button (with
 //! `allow_commands`) has the gateway accept a manual capture of the stands.
@@ -502,13 +503,56 @@ const MEASURE: &str = "const hidden = Array.from(document.querySelectorAll('.hid
       .map((p) => [p.id, p.getAttribute('role'), p.getAttribute('aria-label')]); \
     return [width, inner, out, plots];";
 
+/// axe-core's script, as `scripts/test` installs it (`npm ci --prefix tests/browser`);
+/// `None` (said on stderr) where it is not installed.
+fn axe_source() -> Option<String> {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../tests/browser/node_modules/axe-core/axe.min.js");
+    let source = std::fs::read_to_string(&path).ok();
+    if source.is_none() {
+        eprintln!(
+            "axe-core is not installed ({}): its rules are not run (npm ci --prefix tests/browser)",
+            path.display()
+        );
+    }
+    source
+}
+
+/// The violations axe-core finds on the open page: `[rule, impact, nodes, first
+/// targets]` each.
+async fn axe_violations(client: &Client, axe: &str) -> serde_json::Value {
+    client.execute(axe, vec![]).await.expect("load axe-core");
+    client
+        .execute_async(
+            "const done = arguments[arguments.length - 1]; \
+             axe.run(document).then( \
+               (r) => done(r.violations.map((v) => [v.id, v.impact, v.nodes.length, \
+                 v.nodes.slice(0, 3).map((n) => n.target.join(' '))])), \
+               (e) => done(['axe failed', String(e)]));",
+            vec![],
+        )
+        .await
+        .expect("run axe-core")
+}
+
+/// How many `<main>` a page has, and the elements of its body outside the landmarks
+/// (`header`, `nav`, `main`, `footer`, `aside`; scripts and `noscript` do not show).
+const LANDMARKS: &str = "const landmarks = ['HEADER', 'NAV', 'MAIN', 'FOOTER', 'ASIDE', \
+     'SCRIPT', 'NOSCRIPT']; \
+     return [document.querySelectorAll('main').length, \
+       Array.from(document.body.children) \
+         .filter((e) => !landmarks.includes(e.tagName)) \
+         .map((e) => e.tagName + (e.id ? '#' + e.id : ''))];";
+
 /// At a phone's width every page, and `report.html` of the test's history, shows no
 /// horizontal overflow: `document.documentElement.scrollWidth <= window.innerWidth`
 /// (tables scroll in their own box, plots are as wide as the screen, the menu and long
-/// names wrap). And every plot on the pages is `role="img"` with a name that gives its
-/// figures (a drawn plot's, not the shell's placeholder).
+/// names wrap); each has one `<main>` and nothing outside its landmarks
+/// ([`LANDMARKS`]), and axe-core finds no violation of its rules. And every plot on the pages is `role="img"` with a name that gives
+/// its figures (a drawn plot's, not the shell's placeholder).
 async fn pages_fit_a_phone_and_plots_are_described(client: &Client, port: u16, setup: &Setup) {
     let long = Duration::from_secs(20);
+    let axe = axe_source();
     let report = setup.scratch.join("report");
     let made = common::MILLGATE
         .command()
@@ -540,7 +584,8 @@ async fn pages_fit_a_phone_and_plots_are_described(client: &Client, port: u16, s
             format!("{base}/tandem_mills/TCM"),
             "const p = window.millgatePlots; \
              return !!(p.band && p.spectrum) \
-               && document.querySelectorAll('#episodes tbody tr').length > 0;",
+               && document.querySelectorAll('#episodes tbody tr').length > 0 \
+               && document.querySelectorAll('#mill-state .card').length === 4;",
         ),
         (
             format!("{base}/alarms"),
@@ -571,6 +616,24 @@ async fn pages_fit_a_phone_and_plots_are_described(client: &Client, port: u16, s
         eprintln!("{url} at {PHONE_WIDTH} px: {measured}");
         assert_eq!(inner, Some(u64::from(PHONE_WIDTH)), "{url}: {measured}");
         assert!(width <= inner, "{url} overflows sideways: {measured}");
+        // Landmarks (axe's `landmark-one-main` and `region` rules): one <main>, and
+        // every element of the body in a landmark.
+        let landmarks = client.execute(LANDMARKS, vec![]).await.unwrap();
+        assert_eq!(landmarks[0], 1, "{url}: one <main>: {landmarks}");
+        assert_eq!(
+            landmarks[1],
+            serde_json::json!([]),
+            "{url}: content outside the landmarks: {landmarks}"
+        );
+        // And every rule of axe-core itself (WCAG 2 A/AA and best practices).
+        if let Some(axe) = &axe {
+            let violations = axe_violations(client, axe).await;
+            assert_eq!(
+                violations,
+                serde_json::json!([]),
+                "{url}: axe: {violations}"
+            );
+        }
         for plot in measured[3].as_array().unwrap() {
             assert_eq!(plot[1], "img", "{url}: {plot}");
             let name = plot[2].as_str().unwrap_or("");

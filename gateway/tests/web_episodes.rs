@@ -59,6 +59,9 @@ async fn an_episodes_band_signal_and_spectra_match_numpy_on_its_csv() -> anyhow:
     let bands_json: serde_json::Value = serde_json::from_str(&bands.body)?;
     let csv = http(port, "GET", &format!("/api/captures/{id}/file?format=csv")).await;
     assert_eq!(csv.status, 200);
+    // Its header, the JSON `capture export` writes beside the CSV.
+    let header = http(port, "GET", &format!("/api/captures/{id}/file?format=json")).await;
+    assert_eq!(header.status, 200, "{}", header.body);
     let bucketed = http(port, "GET", &format!("/api/captures/{id}/bands?points=50")).await;
     let bucketed: serde_json::Value = serde_json::from_str(&bucketed.body)?;
     let bad = http(port, "GET", &format!("/api/captures/{id}/bands?points=1")).await;
@@ -116,6 +119,7 @@ async fn an_episodes_band_signal_and_spectra_match_numpy_on_its_csv() -> anyhow:
     // numpy on the CSV download.
     let csv_path = scratch.path().join("capture.csv");
     std::fs::write(&csv_path, csv.body)?;
+    std::fs::write(scratch.path().join("capture.json"), header.body)?;
     let bands_path = scratch.path().join("bands.json");
     std::fs::write(&bands_path, &bands.body)?;
     let script = peer("capture_bands.py");

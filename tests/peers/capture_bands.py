@@ -19,14 +19,13 @@ import sys
 
 import numpy as np
 
-PREFIX = "# millgate capture "
-
-
 def read_csv(path):
+    """The export's header (the JSON file beside it), column names and samples."""
+    with open(path[: -len(".csv")] + ".json") as f:
+        header = json.load(f)
     with open(path) as f:
-        header = json.loads(f.readline()[len(PREFIX):])
         names = f.readline().strip().split(",")
-    data = np.loadtxt(path, delimiter=",", skiprows=2, ndmin=2)
+    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
     return header, names, data
 
 

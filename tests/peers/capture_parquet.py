@@ -1,5 +1,8 @@
-"""Read millgate capture exports with pyarrow: each Parquet file holds the samples of
-the CSV export of the same capture and the capture's metadata.
+"""Read millgate capture exports with pandas and pyarrow: each CSV reads with
+`pandas.read_csv(path)` and no options (a header line, then numbers: `t` and one
+float column per channel of the JSON header beside it, `<name>.json`), and each
+Parquet file holds the samples of the CSV export of the same capture and the
+capture's metadata.
 
 Usage: capture_parquet.py CSV PARQUET [CSV PARQUET ...]. With MILLGATE_CONFIG_HASH
 set, each file's configuration hash (the CSV header's `config_hash`, the Parquet
@@ -10,25 +13,43 @@ import json
 import os
 import sys
 
+import numpy as np
+import pandas as pd
 import pyarrow.parquet as pq
-
-PREFIX = "# millgate capture "
 
 
 def read_csv(path):
+    """The header beside the CSV, and its columns as Python parses each cell."""
+    with open(path[: -len(".csv")] + ".json") as f:
+        header = json.load(f)
     with open(path) as f:
         lines = f.read().splitlines()
-    header = json.loads(lines[0][len(PREFIX):])
-    names = lines[1].split(",")
+    names = lines[0].split(",")
     columns = {name: [] for name in names}
-    for line in lines[2:]:
+    for line in lines[1:]:
         for name, cell in zip(names, line.split(",")):
-            columns[name].append(float(cell))
+            columns[name].append(float(cell) if cell else float("nan"))
     return header, columns
+
+
+def check_pandas(csv_path, header, columns):
+    """`pandas.read_csv(path)` as a user types it: the header's channels as float
+    columns after `t`, every row, the values Python reads from the text (pandas'
+    default parser may differ in the last bit), `t` the sample index over the rate."""
+    frame = pd.read_csv(csv_path)
+    names = ["t"] + [channel["name"] for channel in header["channels"]]
+    assert list(frame.columns) == names, (list(frame.columns), names)
+    assert all(str(dtype) == "float64" for dtype in frame.dtypes), frame.dtypes
+    assert len(frame) == len(columns["t"]), (len(frame), len(columns["t"]))
+    for name in names:
+        np.testing.assert_allclose(frame[name].to_numpy(), columns[name], rtol=1e-15, atol=0)
+    rate = header["sample_rate_hz"]
+    assert all(t == k / rate for k, t in enumerate(columns["t"])), f"{csv_path}: t is not k / rate"
 
 
 def check(csv_path, parquet_path):
     header, columns = read_csv(csv_path)
+    check_pandas(csv_path, header, columns)
     parquet = pq.read_table(parquet_path)
     meta = {k.decode(): v.decode() for k, v in parquet.schema.metadata.items()}
     stored = json.loads(meta["millgate.capture"])
@@ -46,7 +67,8 @@ def check(csv_path, parquet_path):
         assert units[channel["name"]] == channel["unit"], (units, channel)
     for name, values in columns.items():
         got = parquet.column(name).to_pylist()
-        assert got == values, f"{parquet_path}: column {name} differs from {csv_path}"
+        same = all(a == b or (a != a and b != b) for a, b in zip(got, values))
+        assert same and len(got) == len(values), f"{parquet_path}: column {name} differs from {csv_path}"
     times = parquet.column("time").to_pandas()
     first = times.iloc[0].value
     assert first == header["first_sample_unix_ns"], (first, header)
@@ -58,7 +80,7 @@ def main(paths):
     assert paths and len(paths) % 2 == 0, "CSV PARQUET pairs"
     for csv_path, parquet_path in zip(paths[::2], paths[1::2]):
         check(csv_path, parquet_path)
-    print(f"{len(paths) // 2} captures: Parquet == CSV")
+    print(f"{len(paths) // 2} captures: pandas reads each CSV, Parquet == CSV")
 
 
 if __name__ == "__main__":

@@ -163,6 +163,24 @@ async fn pymodbus_hmi_reads_the_map_and_gets_exception_codes() -> anyhow::Result
         report["write_bad_ack_value"], 3,
         "illegal data value: {said}"
     );
+    // The function codes docs/register-map.md lists, and no other: FC 04 reads the
+    // map as FC 03 does (the heartbeat may move between the two reads), FC 16 takes
+    // a command as FC 06 does, every other one is refused with exception 01.
+    assert_eq!(
+        report["head_fc04"][1], report["head"][1],
+        "FC 04 reads the map: {said}"
+    );
+    assert_eq!(
+        report["write_ack_fc16"],
+        serde_json::Value::Null,
+        "FC 16 command accepted: {said}"
+    );
+    for fc in ["01", "02", "05", "15", "22", "23"] {
+        assert_eq!(
+            report["other_functions"][fc], 1,
+            "FC {fc}: illegal function: {said}"
+        );
+    }
 
     tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
     let _ = std::io::stdout().flush();

@@ -25,6 +25,30 @@ pub use sources::{
     WordOrder,
 };
 
+/// `log_format`: how the service writes its log lines on stderr (the journal).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum LogFormat {
+    /// `text`: one line per event, `LEVEL target: message key=value ...`.
+    #[default]
+    Text,
+    /// `json`: one JSON object per line (`timestamp`, `level`, `target`, `fields`
+    /// with the message and every key as a JSON value), for a log shipper.
+    Json,
+}
+
+impl LogFormat {
+    /// Both formats.
+    pub const ALL: [Self; 2] = [Self::Text, Self::Json];
+
+    /// The spelling in the file and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Text => "text",
+            Self::Json => "json",
+        }
+    }
+}
+
 /// A whole, validated millgate configuration, as returned by [`crate::load`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct Config {
@@ -35,6 +59,9 @@ pub struct Config {
     /// file's folder; without `cache_dir`, `$CACHE_DIRECTORY`; `None` (neither): the
     /// user's cache folder (see the gateway).
     pub cache_dir: Option<PathBuf>,
+    /// How `millgate run` writes its log lines (`log_format`, default `text`;
+    /// `millgate run --log-format` overrides it).
+    pub log_format: LogFormat,
     /// Modbus DAQs and PLCs that the gateway polls, over TCP or a serial line (RTU).
     pub modbus_sources: Vec<ModbusSource>,
     /// SocketCAN interfaces.

@@ -19,7 +19,8 @@ use crate::error::Report;
 use crate::layout::BLOCK_REGISTERS;
 use crate::raw::{RawCanSource, RawConfig, RawModbusSource};
 use crate::{
-    Channel, Config, Driveline, ModbusSource, RodMill, ServiceDirs, TandemMill, CACHE_DIRECTORY,
+    Channel, Config, Driveline, LogFormat, ModbusSource, RodMill, ServiceDirs, TandemMill,
+    CACHE_DIRECTORY,
 };
 
 /// What the gateway writes at a configured path, and so which service folder a
@@ -90,6 +91,16 @@ pub(crate) fn validate(
     };
     let name = checker.name("name", &raw.name);
     let cache_dir = cache_dir(&mut checker, raw.cache_dir.as_deref());
+    let log_format = match &raw.log_format {
+        Some(text) => checker.choice(
+            "log_format",
+            "format",
+            text,
+            &LogFormat::ALL,
+            LogFormat::name,
+        ),
+        None => Some(LogFormat::default()),
+    };
     let modbus_sources: Vec<_> = raw
         .modbus_sources
         .iter()
@@ -126,6 +137,7 @@ pub(crate) fn validate(
     Some(Config {
         name: name?,
         cache_dir: cache_dir?,
+        log_format: log_format?,
         modbus_sources: modbus_sources.into_iter().collect::<Option<_>>()?,
         can_sources: can_sources.into_iter().collect::<Option<_>>()?,
         channels: channels.into_iter().collect::<Option<_>>()?,

@@ -365,7 +365,7 @@
       document.getElementById("cards").replaceChildren(
         card("Last bite", d.last_bite_time ? utc(d.last_bite_time).slice(11) : "–", d.last_bite_time ? ago(d.last_bite_time) + " · bite " + d.bite_counter : "no bite yet"),
         card("TAF", num(d.taf, 3), "warning " + d.thresholds.taf_warning + " · alarm " + d.thresholds.taf_alarm, d.taf_state),
-        card("Opened gap", d.gap_mrad !== null ? num(d.gap_mrad, 2) + " mrad" : "–",
+        card("Opened gap", d.gap_mrad !== null ? num(d.gap_mrad, 2) + " mrad" + couplingText(d) : "–",
           d.gap_mrad !== null ? "90%: " + num(d.gap_low_mrad, 2) + "–" + num(d.gap_high_mrad, 2) + " mrad · " + d.bites_pooled + " bites"
             : (d.has_model ? "no estimate yet" : "no driveline model configured"), d.wear_state),
         card("Growth", growthText(d), missing(d.gap_growth_mrad_per_day)
@@ -374,6 +374,17 @@
         gapAlarmCard(d, card),
         card("Static torque", d.static_torque_knm === null ? "–" : num(d.static_torque_knm, 0) + " kN·m",
           "peak " + (d.peak_torque_knm === null ? "–" : num(d.peak_torque_knm, 0) + " kN·m")));
+    }
+
+    // Where the gap is, in the card's own words (not only in the TAF plot's coupling
+    // selector): " at coupling 2 “motor side”", or the likeliest one when the bites
+    // cannot tell the couplings apart.
+    function couplingText(d) {
+      const number = d.gap_coupling !== null ? d.gap_coupling : d.likeliest_coupling;
+      if (number === null || number === undefined) return "";
+      const known = map && map.couplings ? map.couplings.find((c) => c.coupling === number) : null;
+      const name = known ? " \u201c" + known.name + "\u201d" : "";
+      return (d.gap_coupling !== null ? " at coupling " : " at coupling (likeliest) ") + number + name;
     }
 
     // The gap alarm's forecast: days with their interval and the date, or what the
@@ -912,10 +923,30 @@
       }
     }
 
+    // The mill's state from the live updates, shown before any capture exists: its
+    // chatter state, gain, worst stand, frequency and slow-down request.
+    const stateNode = document.getElementById("mill-state");
+    function state(o) {
+      const m = o.tandem_mills.find((each) => each.name === mill);
+      if (!m) return;
+      const card = (label, value, sub) => el("div", { class: "card" }, el("div", { class: "label" }, label),
+        el("div", { class: "value" }, value), el("div", { class: "sub" }, sub || ""));
+      stateNode.replaceChildren(
+        card("Chatter", badge(m.chatter_state), m.source_stale ? "source stale" : ""),
+        card("Gain ratio", num(m.gain_ratio, 2), "worst stand " + (m.worst_stand_channel || "–")),
+        card("Chatter frequency", m.chatter_frequency_hz === null ? "–" : num(m.chatter_frequency_hz, 1) + " Hz", ""),
+        card("Slow-down request", m.slow_down_request ? badge("warning", "requested") : "no", ""));
+    }
+    listeners.push((now) => state(now));
+
     async function load() {
       try {
         const rows = await getJson("/api/tandem_mills/" + encodeURIComponent(mill) + "/captures?limit=100");
-        note.textContent = rows.length ? rows.length + " captures, newest first: plot one, or download it." : "No captures of this mill in the history.";
+        note.textContent = rows.length ? rows.length + " captures, newest first: plot one, or download it." : "No captures of this mill in the history yet: the plots below show one once the mill's first chatter episode or a manual capture is stored.";
+        // No empty panels: the plots only once there is a capture to draw.
+        for (const id of ["band-section", "spectrum-section"]) {
+          document.getElementById(id).classList.toggle("hidden", rows.length === 0);
+        }
         fill(tbody, rows.slice().reverse().map(row));
         const episodes = rows.filter((c) => c.kind === "chatter");
         const first = episodes.length ? episodes[episodes.length - 1] : rows[rows.length - 1];
@@ -933,6 +964,14 @@
   }
 
   // ---- alarms -------------------------------------------------------------------
+  // The unit of an alarm event's value and threshold, by its kind.
+  const ALARM_UNITS = {
+    taf_warning: "(TAF)", taf_alarm: "(TAF)", gap_warning: "mrad", gap_alarm: "mrad",
+    chatter_warning: "(gain ratio)", chatter_alarm: "(gain ratio)", slow_down_request: "(gain ratio)",
+    unstable: "m/s (speed margin)", near_tongue: "m/s (speed margin)",
+  };
+  const withUnit = (value, kind) => (value === null ? "–" : num(value, 3) + (ALARM_UNITS[kind] ? " " + ALARM_UNITS[kind] : ""));
+
   function alarmsPage() {
     const note = document.getElementById("alarms-note");
     async function refresh() {
@@ -944,8 +983,8 @@
             el("td", {}, utc(a.time)), el("td", {}, a.subject), el("td", {}, a.kind.replace("_", " ")),
             el("td", {}, badge(a.event === "raised" ? "alarm" : (a.event === "cleared" ? "ok" : "unknown"), a.event)),
             el("td", {}, a.origin + (a.peer ? " (" + a.peer + ")" : "")),
-            el("td", {}, a.value === null ? "–" : num(a.value, 3)),
-            el("td", {}, a.threshold === null ? "–" : num(a.threshold, 3)))));
+            el("td", {}, withUnit(a.value, a.kind)),
+            el("td", {}, withUnit(a.threshold, a.kind)))));
       } catch (error) {
         note.textContent = error.message;
       }

@@ -361,21 +361,24 @@ impl Analysis {
         for report in &released {
             self.drivelines[report.driveline].publish(&self.board, report);
             let trend = report.gap.as_ref().and_then(|gap| gap.trend);
+            // Each figure a field of its own type (a number, a bool), left out when the
+            // bite has none: `key=value` in the text log, a JSON member in the JSON log.
             tracing::info!(
                 driveline = %report.driveline_name,
                 static_knm = report.transient.static_torque_knm,
                 peak_knm = report.transient.peak_torque_knm,
-                taf = ?report.transient.taf,
-                beta_hz = ?report.beta_hz,
+                taf = report.transient.taf,
+                beta1_hz = report.beta_hz.map(|(beta1, _)| beta1),
+                beta2_hz = report.beta_hz.map(|(_, beta2)| beta2),
                 degraded = report.degraded,
-                wear_index = ?report.wear.map(|wear| wear.index),
-                shift_over_linear_s = ?report.wear.and_then(|wear| wear.shift_excess_s),
-                gap_mrad = ?trend.map(|e| e.gap_mrad),
-                gap_low_mrad = ?trend.map(|e| e.low_mrad),
-                gap_high_mrad = ?trend.map(|e| e.high_mrad),
-                gap_coupling = ?trend.map(|e| e.coupling),
-                gap_growth_mrad_per_day = ?trend.and_then(|e| e.growth).map(|g| g.mrad_per_day),
-                days_to_gap_alarm = ?trend.and_then(|e| e.forecast).and_then(|f| f.days),
+                wear_index = report.wear.map(|wear| wear.index),
+                shift_over_linear_s = report.wear.and_then(|wear| wear.shift_excess_s),
+                gap_mrad = trend.map(|e| e.gap_mrad),
+                gap_low_mrad = trend.map(|e| e.low_mrad),
+                gap_high_mrad = trend.map(|e| e.high_mrad),
+                gap_coupling = trend.and_then(|e| e.coupling),
+                gap_growth_mrad_per_day = trend.and_then(|e| e.growth).map(|g| g.mrad_per_day),
+                days_to_gap_alarm = trend.and_then(|e| e.forecast).and_then(|f| f.days),
                 "bite"
             );
             // Nobody listening is fine: the demo and tests subscribe, the service need not.

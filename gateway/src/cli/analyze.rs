@@ -7,8 +7,9 @@
 //! window capacity). `t_bite_s` is the load onset: the last sample before the trigger
 //! within [`ONSET_KNM`] of the baseline, where eq. (1) has t = 0.
 //!
-//! A capture exported by `millgate capture export` (its `# millgate capture` line
-//! holds how the gateway read the window) is analysed as the gateway did: one event
+//! A capture exported by `millgate capture export` (the JSON file beside it, or the
+//! `# millgate capture` line of an export written before, holds how the gateway read
+//! the window) is analysed as the gateway did: one event
 //! with the window's trigger, baseline, onset and transient settings, at the stored
 //! sample rate, so the figures are the ones the gateway published for that bite.
 
@@ -26,7 +27,6 @@ use super::OutputFormat;
 use crate::analysis::bite_window::{
     analyze_window, WindowAnalysis, PRE_TRIGGER_CAPACITY, WINDOW_CAPACITY,
 };
-use crate::history::capture_files::CaptureHeader;
 use crate::records::csv;
 use crate::state::captures::BiteWindowAnalysis;
 
@@ -116,16 +116,10 @@ pub fn run(args: &AnalyzeArgs) -> anyhow::Result<String> {
     let rate = table
         .sample_rate_hz()
         .map_err(|e| anyhow::anyhow!("{}: {e}", args.input.display()))?;
-    let capture = CaptureHeader::from_comments(&table.comments)
-        .transpose()
-        .map_err(|e| {
-            anyhow::anyhow!(
-                "{}: the `# millgate capture` line is not readable: {e}",
-                args.input.display()
-            )
-        })?;
+    let capture = table
+        .capture_header()
+        .map_err(|e| anyhow::anyhow!("{}: {e}", args.input.display()))?;
     let bite_window = capture
-        .as_ref()
         .and_then(|header| Some((header.sample_rate_hz, header.analysis?)))
         .filter(|_| args.window.is_none());
     let (rate, events) = match bite_window {

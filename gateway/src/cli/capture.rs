@@ -8,14 +8,17 @@
 //!                         [--bite N] [--id N] --format csv|parquet --out DIR
 //! ```
 //!
-//! A CSV export is the format `millgate analyze`, `wear` and `discrepancy` read: a
-//! header `t,<channel>,...` (t in s from the first sample), one line per sample with
-//! the stored values written as the shortest text that reads back to the same `f64`,
-//! and a first comment line `# millgate capture {...}` with what the file cannot say
+//! A CSV export is the format `millgate analyze`, `wear` and `discrepancy` read, and
+//! `pandas.read_csv(path)` or a spreadsheet as it is: a header `t,<channel>,...` (t in
+//! s from the first sample, the sample's index over the sample rate), one line per
+//! sample with the stored values written as the shortest text that reads back to the
+//! same `f64`, nothing else. Beside it, `<name>.json` holds what the file cannot say
 //! in columns (the capture's id, subject, bite, the first sample's UTC time in ns,
 //! sample rate, channels' units, scale and offset, gaps, and for a bite how the
-//! gateway read the window). `millgate analyze` reads a bite's window from that line
+//! gateway read the window). `millgate analyze` reads a bite's window from that file
 //! as the gateway did, so it prints the figures the gateway published for the bite.
+//! An export written before the JSON file (the same JSON in a first comment line
+//! `# millgate capture {...}`) is still read (deprecated, kept one release).
 //!
 //! Captures are read and written one at a time: an export of a year-scale file takes
 //! the memory of one capture.
@@ -28,7 +31,7 @@ use anyhow::Context as _;
 use crate::cli::history::parse_range;
 pub(crate) use crate::history::capture_files::CaptureHeader;
 pub use crate::history::capture_files::{file_name, ExportFormat};
-use crate::history::capture_files::{run_config, write};
+use crate::history::capture_files::{run_config, sidecar_path, write, write_sidecar};
 use crate::history::captures::row_json;
 use crate::history::query::{CaptureRow, Filter, HistoryReader};
 use crate::history::HistoryError;
@@ -354,18 +357,29 @@ pub fn export(args: &ExportArgs) -> anyhow::Result<Vec<PathBuf>> {
         let capture = reader.capture_of(row)?;
         let header = CaptureHeader::of(&capture, run);
         let path = args.out.join(file_name(&capture, args.format));
-        let file = std::fs::File::create(&path)
-            .with_context(|| format!("{}: cannot create", path.display()))?;
-        if let Err(error) = write(&capture, &header, args.format, file) {
+        let mut files = vec![path.clone()];
+        let mut result = std::fs::File::create(&path)
+            .map_err(Into::into)
+            .and_then(|file| write(&capture, &header, args.format, file));
+        if result.is_ok() && args.format == ExportFormat::Csv {
+            let sidecar = sidecar_path(&path);
+            files.push(sidecar.clone());
+            result = std::fs::File::create(&sidecar)
+                .map_err(Into::into)
+                .and_then(|file| write_sidecar(&header, file));
+        }
+        if let Err(error) = result {
             // No half-written file left behind (a full disk): only whole captures.
-            let _ = std::fs::remove_file(&path);
+            for file in &files {
+                let _ = std::fs::remove_file(file);
+            }
             return Err(anyhow::Error::new(error).context(format!(
                 "{}: capture {} not exported (the part written was removed)",
                 path.display(),
                 capture.row.id
             )));
         }
-        written.push(path);
+        written.extend(files);
         Ok(())
     })?;
     if written.is_empty() {

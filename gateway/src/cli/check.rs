@@ -73,7 +73,12 @@ pub fn check(path: &Path) -> Result<String, CheckError> {
 /// The configuration at `path` loaded and built as `run` builds it: its summary and
 /// the warnings (each `<key path>: <what>`) and its hash, or what is wrong.
 fn inspect(path: &Path) -> Result<(String, Vec<String>, String), CheckError> {
-    let config = millgate_config::load(path)?;
+    let mut config = millgate_config::load(path)?;
+    // Without `cache_dir` and outside systemd the gateway picks the user's cache
+    // folder: the summary names the one `run` would use.
+    config
+        .cache_dir
+        .get_or_insert_with(crate::analysis::gap_map_cache::default_dir);
     let summary = millgate_config::summary(&config);
     let hash = config.hash.clone();
     let file = path.display().to_string();

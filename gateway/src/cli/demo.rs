@@ -96,10 +96,18 @@ fn history_file(args: &DemoArgs) -> anyhow::Result<PathBuf> {
     Ok(path)
 }
 
-fn print_registers(map: &RegisterMap, words: &[u16]) {
+/// `println!` that returns the write's error (a reader that closed the pipe, which
+/// ends the demo quietly) instead of panicking.
+macro_rules! say {
+    ($($arg:tt)*) => {
+        super::shell::print(&format!("{}\n", format_args!($($arg)*)))
+    };
+}
+
+fn print_registers(map: &RegisterMap, words: &[u16]) -> std::io::Result<()> {
     use millgate_config::ValueType;
-    println!("\nPLC holding registers while running (base 0):");
-    println!("  {:>7}  {:<28} {:>14}  unit", "address", "name", "value");
+    say!("\nPLC holding registers while running (base 0):")?;
+    say!("  {:>7}  {:<28} {:>14}  unit", "address", "name", "value")?;
     for register in map.registers() {
         let start = usize::from(register.address);
         let Some(raw) = millgate_config::layout::decode_value(
@@ -114,11 +122,15 @@ fn print_registers(map: &RegisterMap, words: &[u16]) {
             ValueType::F32 => format!("{value:.4}"),
             _ => format!("{value:.0}"),
         };
-        println!(
+        say!(
             "  {:>7}  {:<28} {:>14}  {}",
-            register.address, register.name, shown, register.unit
-        );
+            register.address,
+            register.name,
+            shown,
+            register.unit
+        )?;
     }
+    Ok(())
 }
 
 /// Run the demo for `args.duration` seconds.
@@ -135,40 +147,47 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
     let history_path = history_file(&args)?;
     configure_outputs(&mut config, &args, &history_path);
     if let Some(broker) = args.mqtt {
-        println!(
+        say!(
             "Sparkplug B: edge node {}/{} on mqtt://{broker} (topics spBv1.0/{}/#)",
-            args.group, args.node, args.group
-        );
+            args.group,
+            args.node,
+            args.group
+        )?;
     }
-    print_history(&history_path);
+    print_history(&history_path)?;
     // The PLC holds the whole map and a margin.
     let plc_registers = usize::from(RegisterMap::new(&config).len()) + 16;
     let devices = DemoDevices::start(&mut config, &schedule, plc_registers).await?;
-    println!(
+    say!(
         "millgate demo: virtual DAQ at {} ({} Hz, blocks of {SAMPLES_PER_BLOCK}), virtual PLC at {}, {} s",
         config.modbus_sources[0].address,
         schedule.sample_rate_hz,
         plc_output_address(&config),
         args.duration
-    );
+    )?;
     let service = crate::Service::new(config.clone())?;
     let map = service.register_map();
     let mut gateway = service.spawn().await?;
     let board = gateway.board();
     let history = gateway.history().clone();
-    print_addresses(gateway.bound());
     let started = Instant::now();
-    let printed = print_bites(&mut gateway, &schedule, args.duration, started).await;
+    // A reader that closed the pipe ends the printing, not the stop: the gateway and
+    // the devices stop in order, then its error ends the command quietly.
+    let printed = match print_addresses(gateway.bound()) {
+        Ok(()) => print_bites(&mut gateway, &schedule, args.duration, started).await,
+        Err(error) => Err(error),
+    };
     let live = devices.plc.holding();
     gateway.stop().await?;
     let after_stop = devices.plc.holding();
     devices.stop().await?;
-    println!(
+    let printed = printed?;
+    say!(
         "{printed} bites analysed in {:.1} s",
         started.elapsed().as_secs_f64()
-    );
+    )?;
     let last = board.results().drivelines[0].clone();
-    println!(
+    say!(
         "history: {} ({} events stored; bite counter {}, wear trend {}; \
          `millgate history --db FILE`, `millgate report --db FILE --out DIR` read it)",
         history_path.display(),
@@ -176,9 +195,9 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         last.bite_counter,
         last.wear_trend
             .map_or_else(|| "none".to_owned(), |trend| format!("{trend:.4}"))
-    );
-    print_registers(&map, &live);
-    print_status_after_stop(&map, &after_stop);
+    )?;
+    print_registers(&map, &live)?;
+    print_status_after_stop(&map, &after_stop)?;
     Ok(())
 }
 
@@ -214,10 +233,10 @@ fn configure_outputs(config: &mut Config, args: &DemoArgs, history_path: &Path) 
 }
 
 /// The history file, and what a run on it continues.
-fn print_history(history_path: &Path) {
+fn print_history(history_path: &Path) -> std::io::Result<()> {
     match HistoryReader::open(history_path).and_then(|reader| reader.state()) {
         Ok(state) => match state.drivelines.first() {
-            Some(before) => println!(
+            Some(before) => say!(
                 "history: {} (continuing: bite counter {}, wear trend {})",
                 history_path.display(),
                 before.results.bite_counter,
@@ -225,21 +244,23 @@ fn print_history(history_path: &Path) {
                     .results
                     .wear_trend
                     .map_or_else(|| "none".to_owned(), |trend| format!("{trend:.4}"))
-            ),
-            None => println!("history: {}", history_path.display()),
+            )?,
+            None => say!("history: {}", history_path.display())?,
         },
-        Err(_) => println!("history: {} (new)", history_path.display()),
+        Err(_) => say!("history: {} (new)", history_path.display())?,
     }
+    Ok(())
 }
 
 /// Where the maintenance page and the OPC UA server listen.
-fn print_addresses(bound: Bound) {
+fn print_addresses(bound: Bound) -> std::io::Result<()> {
     if let Some(web) = bound.web {
-        println!("maintenance page: http://{web}/");
+        say!("maintenance page: http://{web}/")?;
     }
     if let Some(opcua) = bound.opcua {
-        println!("OPC UA server: opc.tcp://{opcua}/ (security none, anonymous)");
+        say!("OPC UA server: opc.tcp://{opcua}/ (security none, anonymous)")?;
     }
+    Ok(())
 }
 
 /// Print each bite `gateway` analyses beside its truth in `schedule` for `duration_s`
@@ -249,8 +270,8 @@ async fn print_bites(
     schedule: &Schedule,
     duration_s: f64,
     started: Instant,
-) -> usize {
-    println!(
+) -> std::io::Result<usize> {
+    say!(
         "{:>7} {:>12} {:>7} {:>10} {:>7} | {:>10} {:>10} {:>24} {:>9} {:>14} {:>22}",
         "time s",
         "static kN*m",
@@ -263,7 +284,7 @@ async fn print_bites(
         "coupling",
         "growth mrad/s",
         "alarm in s (90%)"
-    );
+    )?;
     let deadline = tokio::time::sleep(Duration::from_secs_f64(duration_s));
     tokio::pin!(deadline);
     let mut printed = 0usize;
@@ -284,12 +305,12 @@ async fn print_bites(
                     next_bar = index + 1;
                 }
                 let elapsed_s = started.elapsed().as_secs_f64();
-                println!("{}", bite_row(&bite, truth.map(|(_, truth)| truth), elapsed_s));
+                say!("{}", bite_row(&bite, truth.map(|(_, truth)| truth), elapsed_s))?;
                 printed += 1;
             }
         }
     }
-    printed
+    Ok(printed)
 }
 
 /// The printed row of `bite`, `elapsed_s` s into the demo, beside its `truth`.
@@ -368,14 +389,15 @@ fn seconds(days: Option<f64>) -> String {
 }
 
 /// The gateway status word the PLC holds in `words` after the gateway stopped.
-fn print_status_after_stop(map: &RegisterMap, words: &[u16]) {
+fn print_status_after_stop(map: &RegisterMap, words: &[u16]) -> std::io::Result<()> {
     let (_, status) = crate::outputs::modbus::register_map::GATEWAY_STATUS;
     if let Some(register) = map.named(status) {
-        println!(
+        say!(
             "after shutdown: gateway_status = {:#06b} (bit1 stopped; values flagged, no longer fresh)",
             words[usize::from(register.address)]
-        );
+        )?;
     }
+    Ok(())
 }
 
 fn plc_output_address(config: &Config) -> String {

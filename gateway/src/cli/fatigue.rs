@@ -9,8 +9,9 @@
 //! `analysis::fatigue` (crate-private), meant for the service's ledger too.
 //!
 //! - `--input`: a CSV record (`t` then torque columns, kN*m), counted as one stream; a
-//!   capture export whose `# millgate capture` line gives the channel another unit than
-//!   kN*m is refused. The gate defaults to 1% of the channel's range (largest minus
+//!   capture export whose header (the JSON file beside it, or the `# millgate
+//!   capture` line of an older export) gives the channel another unit than kN*m is
+//!   refused. The gate defaults to 1% of the channel's range (largest minus
 //!   smallest sample).
 //! - `--db`: the bite captures the history keeps for the driveline, each counted on
 //!   its own (never joined: they are windows of a few tenths of a second around each
@@ -30,7 +31,6 @@ use serde_json::json;
 
 use super::OutputFormat;
 use crate::analysis::fatigue::{account, Account, LARGE_FRACTION, STACK};
-use crate::history::capture_files::CaptureHeader;
 use crate::history::query::{CaptureRow, Filter, HistoryReader};
 use crate::records::csv;
 
@@ -177,11 +177,9 @@ fn record(
     let (name, signal) = table
         .pick_torque(args.channel.as_deref())
         .map_err(|e| anyhow::anyhow!("{path}: {e}"))?;
-    let header = CaptureHeader::from_comments(&table.comments)
-        .transpose()
-        .map_err(|e| {
-            anyhow::anyhow!("{path}: the `# millgate capture` line is not readable: {e}")
-        })?;
+    let header = table
+        .capture_header()
+        .map_err(|e| anyhow::anyhow!("{path}: {e}"))?;
     if let Some(header) = header {
         if let Some(channel) = header.channels.iter().find(|c| c.channel.name == name) {
             if channel.channel.unit != "kN*m" {

@@ -12,7 +12,8 @@ pub fn export(format: Format) -> String {
         Format::Json => serde_json::to_string_pretty(&rows).unwrap_or_default() + "\n",
         Format::Csv => {
             let mut out = String::from(
-                "subject,key,unit,type,guard,stale,register,sparkplug,metric,history,description\n",
+                "subject,key,unit,type,guard,stale,register,sparkplug,metric,history,description,\
+                 metric_deprecated\n",
             );
             for row in &rows {
                 let fields = [
@@ -27,6 +28,7 @@ pub fn export(format: Format) -> String {
                     &row.metric,
                     &row.history,
                     row.description,
+                    row.metric_deprecated.as_deref().unwrap_or(""),
                 ];
                 let fields: Vec<String> = fields.iter().map(|f| csv_field(f)).collect();
                 out += &fields.join(",");
@@ -45,7 +47,7 @@ fn markdown(rows: &[FigureRow]) -> String {
     );
     for row in rows {
         out += &format!(
-            "| {} | `{}` | {} | {} | {} | {} | {} | {} | `{}` | {} | {} |\n",
+            "| {} | `{}` | {} | {} | {} | {} | {} | {} | `{}`{} | {} | {} |\n",
             row.subject,
             row.key,
             row.unit.replace('*', "\\*"),
@@ -55,6 +57,9 @@ fn markdown(rows: &[FigureRow]) -> String {
             row.register,
             code_or_reason(&row.sparkplug),
             row.metric,
+            row.metric_deprecated
+                .as_ref()
+                .map_or(String::new(), |old| format!(" (and `{old}`, deprecated)")),
             row.history,
             row.description.replace('|', "\\|"),
         );

@@ -106,28 +106,10 @@ pub(crate) fn parse_range(
 /// The export `args` ask for, written to stdout as the rows are read (the memory of
 /// one row, whatever the file's size), with progress on stderr when it is a terminal
 /// (`Progress`). A closed stdout (`millgate history ... | head`) ends the export
-/// quietly.
+/// with an error `main` ends quietly ([`super::shell::is_broken_pipe`]).
 pub fn run(args: &HistoryArgs) -> anyhow::Result<()> {
     let stdout = std::io::stdout().lock();
-    match export(args, std::io::BufWriter::with_capacity(1 << 16, stdout)) {
-        Err(error) if is_broken_pipe(&error) => Ok(()),
-        other => other,
-    }
-}
-
-/// Whether `error` is a write to a closed pipe (directly or through serde_json).
-fn is_broken_pipe(error: &anyhow::Error) -> bool {
-    let broken = Some(std::io::ErrorKind::BrokenPipe);
-    error.chain().any(|cause| {
-        cause
-            .downcast_ref::<std::io::Error>()
-            .map(std::io::Error::kind)
-            == broken
-            || cause
-                .downcast_ref::<serde_json::Error>()
-                .and_then(serde_json::Error::io_error_kind)
-                == broken
-    })
+    export(args, std::io::BufWriter::with_capacity(1 << 16, stdout))
 }
 
 /// The export `args` ask for, written to `out`.

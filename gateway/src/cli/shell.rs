@@ -1,7 +1,9 @@
 //! The command line's conventions: shell completions (`millgate completions SHELL`,
 //! clap_complete), manual pages (`millgate man [--out DIR]`, clap_mangen) and the
 //! exit status every command follows ([`EXIT_STATUS`]), which `millgate --help`, the
-//! manual page and docs/usage.md state.
+//! manual page and docs/usage.md state, and how every command prints ([`print`]): a
+//! reader that closes the pipe (`millgate figures | head -1`) ends the command
+//! quietly with status 0, as `millgate history` always did, never with a panic.
 //!
 //! ```text
 //! millgate completions bash > /etc/bash_completion.d/millgate
@@ -35,7 +37,9 @@ pub const EXIT_STATUS: [(&str, &str); 4] = [
     (
         "0",
         "success: the command did what it was asked (check: the configuration is valid, \
-         warnings or not; run: stopped by SIGINT or SIGTERM; --help, --version)",
+         warnings or not; run: stopped by SIGINT or SIGTERM; --help, --version), or the \
+         reader of its output closed the pipe before the end (`millgate figures | head`: \
+         the command stops writing, quietly)",
     ),
     (
         "1",
@@ -53,6 +57,37 @@ pub const EXIT_STATUS: [(&str, &str); 4] = [
         "a panic: a bug in millgate (please report it with the message)",
     ),
 ];
+
+/// Write `text` to stdout and flush it. A reader that closed the pipe is an
+/// `ErrorKind::BrokenPipe` error, which `main` ends quietly with status 0
+/// ([`is_broken_pipe`]); `print!` would panic there (Rust ignores SIGPIPE, so a write
+/// to a closed pipe fails instead of killing the process).
+pub fn print(text: &str) -> std::io::Result<()> {
+    print_bytes(text.as_bytes())
+}
+
+/// Write `bytes` to stdout and flush them, as [`print`].
+pub fn print_bytes(bytes: &[u8]) -> std::io::Result<()> {
+    let mut out = std::io::stdout().lock();
+    out.write_all(bytes)?;
+    out.flush()
+}
+
+/// Whether `error` is a write to a closed pipe (directly or through serde_json): the
+/// reader of stdout went (`| head`), which ends a command quietly with status 0.
+pub fn is_broken_pipe(error: &anyhow::Error) -> bool {
+    let broken = Some(std::io::ErrorKind::BrokenPipe);
+    error.chain().any(|cause| {
+        cause
+            .downcast_ref::<std::io::Error>()
+            .map(std::io::Error::kind)
+            == broken
+            || cause
+                .downcast_ref::<serde_json::Error>()
+                .and_then(serde_json::Error::io_error_kind)
+                == broken
+    })
+}
 
 /// [`EXIT_STATUS`] as the paragraph ending `millgate --help`.
 pub fn exit_status_help() -> String {

@@ -21,6 +21,8 @@ use millgate_sim::tandem::truth::{ground_truth, mill_critical_speed};
 use millgate_sim::tandem::{PassSchedule, TandemMill};
 use millgate_sim::wear_map::{wear_map, WearMap, WearMapSpec};
 
+use super::shell::print;
+
 /// Arguments of `millgate sim`.
 #[derive(Debug, Args)]
 pub struct SimArgs {
@@ -140,19 +142,25 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
                 writeln!(csv, "{t},{torque}")?;
             }
             std::fs::write(&out, csv).with_context(|| format!("writing {}", out.display()))?;
-            println!("{}: {} samples", out.display(), transient.t.len());
+            print(&format!(
+                "{}: {} samples\n",
+                out.display(),
+                transient.t.len()
+            ))?;
         }
-        SimCommand::Modes { model, format } => print!("{}", modes_report(&model, format)?),
+        SimCommand::Modes { model, format } => print(&modes_report(&model, format)?)?,
         SimCommand::WearMap { model, out } => {
             let model = Model::load(&model)?;
             let spec = WearMapSpec::around(&model);
             let map = wear_map(&model, &spec, |done, total, row| {
-                println!(
-                    "[{done}/{total}] static {:.1} kN*m, gap {:.2} mrad: TAF {:.3}",
+                // A closed pipe is said by the last line's print, which ends the
+                // command quietly; the progress goes on unprinted until then.
+                let _ = print(&format!(
+                    "[{done}/{total}] static {:.1} kN*m, gap {:.2} mrad: TAF {:.3}\n",
                     row.static_torque_knm,
                     row.backlash_rad * 1.0e3,
                     row.taf
-                );
+                ));
             })?;
             check_computed(&map, &model)?;
             std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
@@ -162,10 +170,14 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
                 .with_context(|| format!("writing {}", csv_path.display()))?;
             std::fs::write(&svg_path, wear_map_svg(&map)?)
                 .with_context(|| format!("writing {}", svg_path.display()))?;
-            println!("wrote {} and {}", csv_path.display(), svg_path.display());
+            print(&format!(
+                "wrote {} and {}\n",
+                csv_path.display(),
+                svg_path.display()
+            ))?;
         }
-        SimCommand::Tandem(args) => print!("{}", tandem(&args)?),
-        SimCommand::FatigueGap(args) => print!("{}", super::fatigue_gap::run(&args)?),
+        SimCommand::Tandem(args) => print(&tandem(&args)?)?,
+        SimCommand::FatigueGap(args) => print(&super::fatigue_gap::run(&args)?)?,
     }
     Ok(())
 }

@@ -1,10 +1,16 @@
 //! A capture as a file, as `millgate capture export` writes it and the maintenance
 //! page's download serves it: CSV (the format `millgate analyze`, `wear` and
-//! `discrepancy` read, the capture's header in its first comment) or Parquet
-//! (`capture_parquet.rs`). One writer for both, so a download
-//! is byte for byte the exported file.
+//! `discrepancy` read, and `pandas.read_csv(path)` or a spreadsheet as it is: a header
+//! line and numbers; the capture's header in the JSON file beside it, [`sidecar_path`])
+//! or Parquet (`capture_parquet.rs`). One writer for both, so a download is byte for
+//! byte the exported file.
+//!
+//! A CSV written before the sidecar opens with a comment line `# millgate capture
+//! {json}` instead; the readers take either (deprecated, kept one release:
+//! [`CaptureHeader::from_comments`], [`CaptureHeader::from_sidecar`]).
 
 use std::io::Write;
+use std::path::{Path, PathBuf};
 
 use rusqlite::OptionalExtension;
 use serde::{Deserialize, Serialize};
@@ -28,8 +34,15 @@ pub enum CaptureFileError {
     ChannelName(String),
 }
 
-/// The comment that opens a capture's CSV, before its JSON.
+/// The comment that opened a capture's CSV before its JSON, in files written before
+/// the sidecar (read for one release; no longer written).
 pub(crate) const CSV_HEADER_PREFIX: &str = "millgate capture ";
+
+/// The file holding the header of the capture CSV `csv`: `<name>.json` beside
+/// `<name>.csv`.
+pub fn sidecar_path(csv: &Path) -> PathBuf {
+    csv.with_extension("json")
+}
 
 /// File format of an export.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -138,12 +151,33 @@ impl CaptureHeader {
         }
     }
 
-    /// The header in `comments` (a CSV's `#` lines), when one is a capture's.
-    pub(crate) fn from_comments(comments: &[String]) -> Option<Result<Self, serde_json::Error>> {
+    /// The header in `comments` (a CSV's `#` lines) of a file written before the
+    /// sidecar, when one is a capture's; the error says where.
+    pub(crate) fn from_comments(comments: &[String]) -> Option<Result<Self, String>> {
         let json = comments
             .iter()
             .find_map(|comment| comment.strip_prefix(CSV_HEADER_PREFIX))?;
-        Some(serde_json::from_str(json))
+        Some(serde_json::from_str(json).map_err(|error| {
+            format!("the `# {CSV_HEADER_PREFIX}` line is not a capture's header: {error}")
+        }))
+    }
+
+    /// The header in the sidecar of the CSV `csv` ([`sidecar_path`]), when there is
+    /// one; the error names the file and why.
+    pub(crate) fn from_sidecar(csv: &Path) -> Option<Result<Self, String>> {
+        let path = sidecar_path(csv);
+        let text = match std::fs::read_to_string(&path) {
+            Ok(text) => text,
+            Err(error) if error.kind() == std::io::ErrorKind::NotFound => return None,
+            Err(error) => return Some(Err(format!("{}: cannot read: {error}", path.display()))),
+        };
+        Some(serde_json::from_str(&text).map_err(|error| {
+            format!(
+                "{}: not a capture's header (the JSON `millgate capture export` writes \
+                 beside its CSV): {error}",
+                path.display()
+            )
+        }))
     }
 }
 
@@ -195,7 +229,9 @@ pub(crate) fn check_writable(
     }
 }
 
-/// Write `capture` with its `header` to `out` in `format`.
+/// Write `capture` to `out` in `format`: a Parquet file with its `header` in the
+/// key-value metadata; a CSV without it (the header goes to the sidecar,
+/// [`write_sidecar`]).
 pub fn write<W: Write + Send>(
     capture: &Capture,
     header: &CaptureHeader,
@@ -204,7 +240,7 @@ pub fn write<W: Write + Send>(
 ) -> Result<(), CaptureFileError> {
     check_writable(capture, format)?;
     match format {
-        ExportFormat::Csv => write_csv(capture, header, out),
+        ExportFormat::Csv => write_csv(capture, out),
         ExportFormat::Parquet => {
             let json = serde_json::to_string(header).map_err(std::io::Error::other)?;
             let hash = header.config_hash.as_deref();
@@ -213,18 +249,19 @@ pub fn write<W: Write + Send>(
     }
 }
 
-/// Write `capture` with its `header` as CSV to `out`.
-fn write_csv(
-    capture: &Capture,
-    header: &CaptureHeader,
-    out: impl Write,
-) -> Result<(), CaptureFileError> {
+/// Write `header` as the sidecar of a capture's CSV (pretty JSON, one trailing
+/// newline) to `out`.
+pub fn write_sidecar(header: &CaptureHeader, mut out: impl Write) -> Result<(), CaptureFileError> {
+    serde_json::to_writer_pretty(&mut out, header).map_err(std::io::Error::other)?;
+    writeln!(out)?;
+    out.flush()?;
+    Ok(())
+}
+
+/// Write `capture` as CSV to `out`: the header line `t,<channel>,...` and a line per
+/// sample, nothing else (its header goes to the sidecar, [`write_sidecar`]).
+fn write_csv(capture: &Capture, out: impl Write) -> Result<(), CaptureFileError> {
     let mut out = std::io::BufWriter::new(out);
-    writeln!(
-        out,
-        "# {CSV_HEADER_PREFIX}{}",
-        serde_json::to_string(header).map_err(std::io::Error::other)?
-    )?;
     let names: Vec<&str> = capture.channels.iter().map(|c| c.name.as_str()).collect();
     writeln!(out, "t,{}", names.join(","))?;
     for index in 0..usize::try_from(capture.row.samples).unwrap_or(0) {

@@ -35,8 +35,11 @@ pub(crate) struct FigureRow {
     pub register: String,
     /// The Sparkplug metric name and datatype.
     pub sparkplug: String,
-    /// The `/metrics` family.
+    /// The `/metrics` family (in base units).
     pub metric: String,
+    /// The family's name before base units when it was renamed, written beside it,
+    /// deprecated (kept one release); `None` otherwise.
+    pub metric_deprecated: Option<String>,
     /// The history's `bites` column, or why none.
     pub history: String,
 }
@@ -130,6 +133,7 @@ pub(crate) fn rows() -> Vec<FigureRow> {
                 }
             };
             let metric = metrics::metric_name(figure);
+            let metric_deprecated = metrics::deprecated_metric_name(figure);
             FigureRow {
                 subject: figure.subject.name(),
                 key: figure.key,
@@ -146,6 +150,7 @@ pub(crate) fn rows() -> Vec<FigureRow> {
                 register: register_of(figure),
                 sparkplug,
                 metric,
+                metric_deprecated,
                 history: history_of(figure),
             }
         })

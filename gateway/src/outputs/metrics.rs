@@ -54,42 +54,132 @@ pub(crate) fn exposure_warning(settings: &MetricsOutput) -> Option<String> {
 /// The content type of the text exposition format.
 pub(crate) const CONTENT_TYPE: &str = "text/plain; version=0.0.4; charset=utf-8";
 
-/// Key suffixes of units Prometheus writes out in base units (its linter refuses the
-/// abbreviations `s` and `m`): `(unit, key suffix, metric suffix)`.
-const PROMETHEUS_UNITS: [(&str, &str, &str); 3] = [
-    ("s", "_s", "_seconds"),
-    ("m/s", "_m_s", "_meters_per_second"),
-    ("1/s", "_per_s", "_per_second"),
+/// A catalogue unit as `/metrics` writes it: in Prometheus' base unit, named in words
+/// at the end of the family's name (its naming guide; its linter refuses the
+/// abbreviations `s` and `m`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct BaseUnit {
+    /// The catalogue's unit.
+    unit: &'static str,
+    /// How a catalogue key in that unit ends (`gap_mrad`), or, with a leading `*`,
+    /// begins (`*days_`: `days_to_gap_alarm`).
+    key: &'static str,
+    /// The name's ending in the base unit.
+    words: &'static str,
+    /// Base units per catalogue unit (1000 N*m per kN*m), as `times / per`: a
+    /// value is multiplied by `times` and divided by `per`, so that 2.5 mrad is
+    /// 0.0025 rad, not 0.0025000000000000005 (2.5 times 0.001).
+    times: f64,
+    /// See `times`.
+    per: f64,
+}
+
+/// Seconds per day.
+const DAY_S: f64 = 86_400.0;
+
+/// The units `/metrics` writes in base units. The first three were so from the start;
+/// the others were written in the catalogue's units before (`_knm`, `_mrad`, `_hz`,
+/// `_c`, days), and those names are still written beside the new ones, deprecated
+/// (kept one release, said in their HELP: [`deprecated_metric_name`]).
+const BASE_UNITS: [BaseUnit; 9] = [
+    BaseUnit::same("s", "_s", "_seconds"),
+    BaseUnit::same("m/s", "_m_s", "_meters_per_second"),
+    BaseUnit::same("1/s", "_per_s", "_per_second"),
+    BaseUnit {
+        times: 1.0e3,
+        ..BaseUnit::same("kN*m", "_knm", "_newton_meters")
+    },
+    BaseUnit {
+        per: 1.0e3,
+        ..BaseUnit::same("mrad", "_mrad", "_radians")
+    },
+    BaseUnit {
+        per: 1.0e3 * DAY_S,
+        ..BaseUnit::same("mrad/d", "_mrad_per_day", "_radians_per_second")
+    },
+    BaseUnit::same("Hz", "_hz", "_hertz"),
+    BaseUnit::same("degC", "_c", "_celsius"),
+    BaseUnit {
+        times: DAY_S,
+        ..BaseUnit::same("d", "*days_", "_seconds")
+    },
 ];
 
-/// The `/metrics` name of a catalogue figure: `millgate_<subject>_<key>` (a unit in
-/// Prometheus' base-unit words: `_seconds`, `_meters_per_second`, `_per_second`), a
-/// counter with `_total`, a time as `..._timestamp_seconds`, unless the catalogue
-/// names it.
-pub(crate) fn metric_name(figure: &FigureInfo) -> String {
-    if let Some(name) = figure.metric {
-        return name.to_owned();
+impl BaseUnit {
+    /// A unit whose values stay as they are (only its name changes).
+    const fn same(unit: &'static str, key: &'static str, words: &'static str) -> Self {
+        Self {
+            unit,
+            key,
+            words,
+            times: 1.0,
+            per: 1.0,
+        }
     }
-    let key = PROMETHEUS_UNITS
+
+    /// `value` (in the catalogue's unit) in the base unit.
+    fn convert(&self, value: f64) -> f64 {
+        value * self.times / self.per
+    }
+}
+
+/// How many of [`BASE_UNITS`] the names before base units used.
+const BASE_UNITS_BEFORE: usize = 3;
+
+/// `key` with its unit written as `base` says, when `key` is in that unit.
+fn in_base_unit(key: &str, unit: &str, base: &BaseUnit) -> Option<String> {
+    if unit != base.unit {
+        return None;
+    }
+    match base.key.strip_prefix('*') {
+        // `days_to_gap_alarm` -> `time_to_gap_alarm_seconds`.
+        Some(prefix) => key
+            .strip_prefix(prefix)
+            .map(|rest| format!("time_{rest}{}", base.words)),
+        None => key
+            .strip_suffix(base.key)
+            .map(|stem| format!("{stem}{}", base.words)),
+    }
+}
+
+/// The `/metrics` name of a catalogue figure with the units of `units`, and that
+/// unit (`None`: values as they are).
+fn name_in(figure: &FigureInfo, units: &[BaseUnit]) -> (String, Option<BaseUnit>) {
+    if let Some(name) = figure.metric {
+        return (name.to_owned(), None);
+    }
+    let (key, unit) = units
         .iter()
-        .find(|(unit, suffix, _)| figure.unit == *unit && figure.key.ends_with(suffix))
+        .find_map(|base| in_base_unit(figure.key, figure.unit, base).map(|key| (key, *base)))
         .map_or_else(
-            || figure.key.to_owned(),
-            |(_, suffix, words)| {
-                format!(
-                    "{}{words}",
-                    figure.key.strip_suffix(suffix).unwrap_or(figure.key)
-                )
-            },
+            || (figure.key.to_owned(), None),
+            |(key, unit)| (key, Some(unit)),
         );
     let base = format!("millgate_{}_{key}", figure.subject.name());
-    if figure.is_counter() {
+    let name = if figure.is_counter() {
         format!("{base}_total")
     } else if figure.figure_type == FigureType::Time {
         format!("{}_timestamp_seconds", base.trim_end_matches("_time"))
     } else {
         base
-    }
+    };
+    (name, unit)
+}
+
+/// The `/metrics` name of a catalogue figure: `millgate_<subject>_<key>` with its unit
+/// in Prometheus' base unit and words ([`BASE_UNITS`]: `_newton_meters`, `_radians`,
+/// `_hertz`, `_celsius`, `_seconds`, `_meters_per_second`, `_per_second`), a counter
+/// with `_total`, a time as `..._timestamp_seconds`, unless the catalogue names it.
+pub(crate) fn metric_name(figure: &FigureInfo) -> String {
+    name_in(figure, &BASE_UNITS).0
+}
+
+/// The name the figure had on `/metrics` before base units, when it differs from
+/// [`metric_name`]: written too, in the catalogue's unit, deprecated (kept one
+/// release).
+pub(crate) fn deprecated_metric_name(figure: &FigureInfo) -> Option<String> {
+    let (old, _) = name_in(figure, &BASE_UNITS[..BASE_UNITS_BEFORE]);
+    (old != metric_name(figure)).then_some(old)
 }
 
 /// A good value as a sample: a time in Unix seconds.
@@ -100,28 +190,53 @@ fn sample(value: Value) -> f64 {
     }
 }
 
-/// One family per figure of `figures`, a sample per row whose value is good.
+/// One family per figure of `figures`, a sample per row whose value is good, in base
+/// units; then, for a figure renamed to base units, the family of its earlier name in its
+/// unit, marked deprecated.
 fn catalogue_families<R: Subject>(
     page: &mut Exposition,
     figures: &[Figure<R>],
     rows: &[(Labels<'_>, &R)],
 ) {
     for figure in figures {
+        let info = figure.info();
         let kind = if figure.is_counter() {
             Kind::Counter
         } else {
             Kind::Gauge
         };
-        let help = if figure.unit.is_empty() {
-            format!("{}.", figure.description)
-        } else {
-            format!("{}, {}.", figure.description, figure.unit)
+        let (name, base) = name_in(&info, &BASE_UNITS);
+        let renamed = deprecated_metric_name(&info);
+        let help = match (&renamed, base) {
+            (Some(_), Some(base)) => format!(
+                "{}, {} (the other outputs give {}).",
+                figure.description,
+                base.words.trim_start_matches('_').replace('_', " "),
+                figure.unit
+            ),
+            _ if figure.unit.is_empty() => format!("{}.", figure.description),
+            _ => format!("{}, {}.", figure.description, figure.unit),
         };
-        let samples = rows.iter().filter_map(|(labels, subject)| {
-            let value = figure.read(subject).good()?;
-            Some((labels.clone(), sample(value)))
+        let good: Vec<(Labels<'_>, f64)> = rows
+            .iter()
+            .filter_map(|(labels, subject)| {
+                let value = figure.read(subject).good()?;
+                Some((labels.clone(), sample(value)))
+            })
+            .collect();
+        let scaled = good.iter().map(|(labels, value)| {
+            let value = base.map_or(*value, |base| base.convert(*value));
+            (labels.clone(), value)
         });
-        page.family(&metric_name(&figure.info()), kind, &help, samples);
+        page.family(&name, kind, &help, scaled);
+        if let Some(old) = renamed {
+            let help = format!(
+                "Deprecated (kept one release): the name before base units of {name}. \
+                 {}, {}.",
+                figure.description, figure.unit
+            );
+            page.family(&old, kind, &help, good);
+        }
     }
 }
 
@@ -514,30 +629,94 @@ mod tests {
             promtool_passes(each);
         }
         let all = format!("{page}{tandem_page}{rod_page}");
-        for figure in catalogue::all() {
-            let name = metric_name(&figure);
-            assert!(
-                all.contains(&format!("# HELP {name} ")),
-                "no family {name} for {} {}",
-                figure.subject.name(),
-                figure.key
-            );
-        }
         let label = "{driveline=\"F1 main drive\"}";
         for sample in [
-            format!("millgate_driveline_gap_mrad{label} 2.5"),
-            format!("millgate_driveline_gap_low_mrad{label} 2"),
+            format!("millgate_driveline_gap_radians{label} 0.0025"),
+            format!("millgate_driveline_gap_low_radians{label} 0.002"),
             format!("millgate_driveline_gap_coupling{label} 1"),
             format!("millgate_driveline_bites_total{label} 7"),
             format!("millgate_driveline_last_bite_timestamp_seconds{label} 1800000000.25"),
+            "millgate_tandem_mill_sigma_n_hertz{tandem_mill=\"TCM 2030\"} 0.5".to_owned(),
+            // The names before base units, in the catalogue's units, kept one release.
+            format!("millgate_driveline_gap_mrad{label} 2.5"),
+            format!("millgate_driveline_gap_low_mrad{label} 2"),
             "millgate_tandem_mill_sigma_n_hz{tandem_mill=\"TCM 2030\"} 0.5".to_owned(),
         ] {
             assert!(all.contains(&sample), "{sample} missing:\n{all}");
         }
-        // No value, no sample: the TAF's peak was never computed.
         assert!(
-            !page.contains("millgate_driveline_peak_torque_knm{"),
+            page.contains(
+                "# HELP millgate_driveline_gap_mrad Deprecated (kept one release): the name \
+                 before base units of millgate_driveline_gap_radians."
+            ),
             "{page}"
+        );
+        // No value, no family: the TAF's peak was never computed.
+        assert!(!page.contains("millgate_driveline_peak_torque_"), "{page}");
+        // A driveline-only gateway writes no tandem or rod mill family.
+        assert!(!page.contains("millgate_tandem_mill_"), "{page}");
+        assert!(!page.contains("millgate_rod_"), "{page}");
+        for each in [&page, &tandem_page, &rod_page] {
+            every_family_has_a_sample(each);
+        }
+    }
+
+    /// Every `# TYPE` line of `page` is followed by a sample of its family.
+    fn every_family_has_a_sample(page: &str) {
+        let lines: Vec<&str> = page.lines().collect();
+        for (index, line) in lines.iter().enumerate() {
+            if let Some(rest) = line.strip_prefix("# TYPE ") {
+                let name = rest.split(' ').next().unwrap();
+                let next = lines.get(index + 1).copied().unwrap_or("");
+                assert!(
+                    next.starts_with(&format!("{name} ")) || next.starts_with(&format!("{name}{{")),
+                    "family {name} without a sample:\n{page}"
+                );
+            }
+        }
+    }
+
+    /// Every figure with a unit is named in Prometheus' base unit, and a renamed one
+    /// keeps its earlier name beside it.
+    #[test]
+    fn figures_with_a_unit_are_named_in_base_units() {
+        for figure in catalogue::all() {
+            let name = metric_name(&figure);
+            if figure.unit.is_empty() || figure.metric.is_some() {
+                continue;
+            }
+            let base = BASE_UNITS
+                .iter()
+                .find(|base| in_base_unit(figure.key, figure.unit, base).is_some())
+                .unwrap_or_else(|| {
+                    panic!("{name}: no base unit for {} ({})", figure.unit, figure.key)
+                });
+            assert!(
+                name.ends_with(base.words) || name.ends_with(&format!("{}_total", base.words)),
+                "{name}"
+            );
+        }
+        let named = |key| {
+            let info = catalogue::find(catalogue::DRIVELINE, key).info();
+            (metric_name(&info), deprecated_metric_name(&info))
+        };
+        assert_eq!(
+            named("static_torque_knm"),
+            (
+                "millgate_driveline_static_torque_newton_meters".to_owned(),
+                Some("millgate_driveline_static_torque_knm".to_owned())
+            )
+        );
+        assert_eq!(
+            named("days_to_gap_alarm"),
+            (
+                "millgate_driveline_time_to_gap_alarm_seconds".to_owned(),
+                Some("millgate_driveline_days_to_gap_alarm".to_owned())
+            )
+        );
+        assert_eq!(
+            named("first_period_s"),
+            ("millgate_driveline_first_period_seconds".to_owned(), None)
         );
     }
 

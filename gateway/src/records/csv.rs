@@ -1,8 +1,10 @@
 //! Reader of recorded signals: a CSV with a header, first column `t` (s), the other
 //! columns channels (torque in kN*m). Errors name the line (1-based) and the column.
-//! Lines starting with `#` are comments (kept in [`Table::comments`]): a capture
-//! exported by `millgate capture export` says there how the gateway read it, and a
-//! `# reset` line marks a wear reset between the rows around it ([`Table::resets`]).
+//! Lines starting with `#` are comments (kept in [`Table::comments`]): a `# reset`
+//! line marks a wear reset between the rows around it ([`Table::resets`]). A capture
+//! exported by `millgate capture export` says how the gateway read it in the JSON
+//! file beside it (`<name>.json`, or, written before that, in a first comment line
+//! `# millgate capture {json}`): [`Table::capture`].
 //! A record of bites recorded apart jumps in time between them ([`Table::segments`]).
 
 use std::path::Path;
@@ -143,6 +145,10 @@ pub struct Table {
     /// Rows (indices into `time_s`) before which a `# reset` comment stands: a wear
     /// reset (the coupling was replaced) between the bites before and after it.
     pub resets: Vec<usize>,
+    /// A capture export's header: from its sidecar (`<name>.json`, when [`read`]
+    /// found one) or its `# millgate capture` comment (files written before the
+    /// sidecar); the error says where it is unreadable.
+    pub capture: Option<Result<CaptureHeader, String>>,
 }
 
 /// A record of bites recorded apart: runs of uniformly sampled rows (`ranges`, row
@@ -241,6 +247,15 @@ impl Table {
         })
     }
 
+    /// The capture header of an exported capture ([`Table::capture`]); `Ok(None)`
+    /// for another record, the error saying where the header is unreadable.
+    pub fn capture_header(&self) -> Result<Option<&CaptureHeader>, String> {
+        self.capture
+            .as_ref()
+            .map(|header| header.as_ref().map_err(Clone::clone))
+            .transpose()
+    }
+
     /// The channel called `name`, if any.
     pub fn channel(&self, name: &str) -> Option<&[f64]> {
         self.names
@@ -288,23 +303,34 @@ impl Table {
     }
 }
 
-/// Reads and parses the CSV at `path`.
+/// Reads and parses the CSV at `path`, with the capture header of its sidecar
+/// (`<name>.json` beside it) when there is one.
 pub fn read(path: &Path) -> Result<Table, CsvError> {
     let text = std::fs::read_to_string(path).map_err(|e| CsvError::Io {
         path: path.display().to_string(),
         message: e.to_string(),
     })?;
-    parse(&text)
+    parse_with(&text, CaptureHeader::from_sidecar(path))
 }
 
 /// Parses CSV text (comma-separated, cells trimmed, blank lines skipped, `#` lines
 /// kept as comments).
 pub fn parse(text: &str) -> Result<Table, CsvError> {
+    parse_with(text, None)
+}
+
+/// Parses CSV text whose capture header, when it has none in a comment, is
+/// `sidecar`'s.
+fn parse_with(
+    text: &str,
+    sidecar: Option<Result<CaptureHeader, String>>,
+) -> Result<Table, CsvError> {
     let comments: Vec<String> = text
         .lines()
         .filter_map(|l| l.trim().strip_prefix('#'))
         .map(|comment| comment.trim().to_string())
         .collect();
+    let capture = CaptureHeader::from_comments(&comments).or(sidecar);
     let mut lines = text
         .lines()
         .enumerate()
@@ -313,7 +339,7 @@ pub fn parse(text: &str) -> Result<Table, CsvError> {
     let (_, header) = lines.next().ok_or(CsvError::Empty)?;
     let header = parse_header(header)?;
     let columns = Columns {
-        may_be_empty: may_be_empty(&header, &comments),
+        may_be_empty: may_be_empty(&header, capture.as_ref()),
         header,
     };
     let mut table = Table {
@@ -323,6 +349,7 @@ pub fn parse(text: &str) -> Result<Table, CsvError> {
         lines: Vec::new(),
         comments,
         resets: reset_rows(text),
+        capture,
     };
     for (line, row) in lines {
         columns.push_row(&mut table, line, row)?;
@@ -374,15 +401,15 @@ fn parse_header(line: &str) -> Result<Vec<String>, CsvError> {
 }
 
 /// Per column of `header`, whether a cell may be empty: a capture's extra channels
-/// (`drivelines[].extra_channels`, named in its header `comments`) may lack samples at
+/// (`drivelines[].extra_channels`, named in its `capture` header) may lack samples at
 /// the window's ends, and an empty cell there reads as NaN.
-fn may_be_empty(header: &[String], comments: &[String]) -> Vec<bool> {
-    let extra: Vec<String> = match CaptureHeader::from_comments(comments) {
+fn may_be_empty(header: &[String], capture: Option<&Result<CaptureHeader, String>>) -> Vec<bool> {
+    let extra: Vec<String> = match capture {
         Some(Ok(capture)) => capture
             .channels
-            .into_iter()
+            .iter()
             .filter(|meta| meta.channel.timing.is_some())
-            .map(|meta| meta.channel.name)
+            .map(|meta| meta.channel.name.clone())
             .collect(),
         _ => Vec::new(),
     };

@@ -64,6 +64,7 @@ fn compare(running: &Config, new: &Config) -> Reload {
     let sections = [
         ("name", running.name != new.name),
         ("cache_dir", running.cache_dir != new.cache_dir),
+        ("log_format", running.log_format != new.log_format),
         ("sources", running.modbus_sources != new.modbus_sources),
         ("can_sources", running.can_sources != new.can_sources),
         ("channels", running.channels != new.channels),

@@ -26,7 +26,7 @@ impl Millgate {
     }
 
     /// `millgate capture export` of F1's bite `bite` from `db` to `out` as `format`:
-    /// the file written (checked to exist).
+    /// the file written (checked to exist; a CSV's header JSON beside it too).
     pub fn export_bite(self, db: &Path, out: &Path, bite: u32, format: &str) -> String {
         let bite = bite.to_string();
         let output = self.run(&[
@@ -44,8 +44,17 @@ impl Millgate {
             out.to_str().unwrap(),
         ]);
         assert!(output.status.success(), "{}", text(&output));
-        let path = String::from_utf8_lossy(&output.stdout).trim().to_owned();
+        let printed = String::from_utf8_lossy(&output.stdout).into_owned();
+        let files: Vec<&str> = printed.lines().collect();
+        let path = files[0].to_owned();
         assert!(Path::new(&path).is_file(), "{path}");
+        if format == "csv" {
+            let sidecar = Path::new(&path).with_extension("json");
+            assert_eq!(files, [path.as_str(), sidecar.to_str().unwrap()]);
+            assert!(sidecar.is_file(), "{}", sidecar.display());
+        } else {
+            assert_eq!(files.len(), 1, "{printed}");
+        }
         path
     }
 }

@@ -59,7 +59,10 @@ pub fn markdown(blocks: &[Block]) -> String {
     out
 }
 
-/// The report as one HTML page that needs no other file: the SVGs are inline.
+/// The report as one HTML page that needs no other file: the SVGs are inline. Every
+/// part of it is in a landmark (what axe's `region` and `landmark-one-main` rules
+/// ask): the first heading in `<header>`, a `<nav>` of links to the sections (the
+/// level-2 headings), the rest in `<main>`.
 pub fn html(title: &str, blocks: &[Block]) -> String {
     let mut out = format!(
         "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">\
@@ -69,11 +72,43 @@ pub fn html(title: &str, blocks: &[Block]) -> String {
          color:#222}}h1,h2,h3,p,figcaption{{overflow-wrap:anywhere}}\
          .scroll{{overflow-x:auto}}table{{border-collapse:collapse;margin:1em 0}}\
          td,th{{border:1px solid #bbb;padding:2px 8px;text-align:left}}figure{{margin:1em 0}}\
-         svg{{max-width:100%;height:auto}}</style></head><body>\n",
+         svg{{max-width:100%;height:auto}}nav ul{{padding-left:1.2em}}</style></head><body>\n",
         escape(title)
     );
+    let blocks = match blocks.split_first() {
+        Some((Block::Heading(1, heading), rest)) => {
+            let _ = writeln!(out, "<header><h1>{}</h1></header>", escape(heading));
+            rest
+        }
+        _ => blocks,
+    };
+    let sections: Vec<&String> = blocks
+        .iter()
+        .filter_map(|block| match block {
+            Block::Heading(2, text) => Some(text),
+            _ => None,
+        })
+        .collect();
+    if !sections.is_empty() {
+        out.push_str("<nav aria-label=\"Sections\"><ul>\n");
+        for (index, text) in sections.iter().enumerate() {
+            let _ = writeln!(
+                out,
+                "<li><a href=\"#section-{}\">{}</a></li>",
+                index + 1,
+                escape(text)
+            );
+        }
+        out.push_str("</ul></nav>\n");
+    }
+    out.push_str("<main>\n");
+    let mut section = 0;
     for block in blocks {
         match block {
+            Block::Heading(2, text) => {
+                section += 1;
+                let _ = writeln!(out, "<h2 id=\"section-{section}\">{}</h2>", escape(text));
+            }
             Block::Heading(level, text) => {
                 let _ = writeln!(out, "<h{level}>{}</h{level}>", escape(text));
             }
@@ -107,6 +142,6 @@ pub fn html(title: &str, blocks: &[Block]) -> String {
             }
         }
     }
-    out.push_str("</body></html>\n");
+    out.push_str("</main>\n</body></html>\n");
     out
 }

@@ -17,7 +17,8 @@ use crate::state::time::UtcTime;
 const PANEL: (u32, u32) = (900, 300);
 
 /// The time axis of the plots: seconds, minutes, hours or days since the period's
-/// start, whichever gives readable numbers.
+/// start, whichever gives readable numbers, labelled in UTC clock time
+/// ([`TimeAxis::clock`]: `16:30`, `11-22 16:30` or `2026-11-22` as the span asks).
 #[derive(Debug, Clone, Copy)]
 pub(super) struct TimeAxis {
     start: UtcTime,
@@ -58,7 +59,22 @@ impl TimeAxis {
     }
 
     fn label(&self) -> String {
-        format!("{} since {} UTC", self.unit, self.start)
+        let start = self.start.to_string();
+        format!("time, UTC (from {} {})", &start[..10], &start[11..19])
+    }
+
+    /// The clock time (UTC) at `x` on the axis, as much of it as the axis' unit
+    /// needs: `HH:MM:SS` for seconds, `HH:MM` for minutes, `MM-DD HH:MM` for hours,
+    /// the date for days.
+    pub(super) fn clock(&self, x: f64) -> String {
+        let unix_ms = self.start.unix_ms() + (x * self.unit_s * 1000.0).round() as i64;
+        let text = UtcTime::from_unix_ms(unix_ms).to_string();
+        match self.unit {
+            "s" => text[11..19].to_owned(),
+            "min" => text[11..16].to_owned(),
+            "h" => format!("{} {}", &text[5..10], &text[11..16]),
+            _ => text[..10].to_owned(),
+        }
     }
 }
 
@@ -127,6 +143,7 @@ pub(super) fn time_svg(
             chart
                 .configure_mesh()
                 .x_desc(axis.label())
+                .x_label_formatter(&|x| axis.clock(*x))
                 .y_desc(panel.y_label)
                 .label_style(("sans-serif", 12))
                 .draw()
@@ -340,12 +357,14 @@ pub(super) fn taf_svg(
             .label("bites, degraded window (a dot per cell)")
             .legend(move |(x, y)| Circle::new((x + 4, y), 2, grey.filled()));
         for (index, (label, curve)) in curves.iter().enumerate() {
-            let color = Palette99::pick(index + 5).to_rgba();
+            let color = CURVE_COLOURS[index % CURVE_COLOURS.len()];
             chart
-                .draw_series(LineSeries::new(curve.clone(), color.stroke_width(1)))
+                .draw_series(LineSeries::new(curve.clone(), color.stroke_width(2)))
                 .map_err(drawing)?
                 .label(label.as_str())
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], color));
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 16, y)], color.stroke_width(2))
+                });
         }
         for (index, (label, value)) in thresholds.iter().enumerate() {
             let color = if index == 0 {
@@ -374,6 +393,18 @@ pub(super) fn taf_svg(
     Ok(svg)
 }
 
+/// The wear map's curves over the bites' blue shade: dark, saturated colours, each
+/// at least 4.5:1 against white (WCAG's contrast for text, computed as WCAG 2.1
+/// defines it; the Palette99 colours they had from its sixth on measure 6.9, 1.4,
+/// 3.3, 1.25 and 1.6:1), none of them the shade's blue.
+const CURVE_COLOURS: [RGBColor; 5] = [
+    RGBColor(0, 110, 40),  // green, 6.4:1
+    RGBColor(170, 0, 120), // magenta, 7.0:1
+    RGBColor(120, 70, 0),  // brown, 7.9:1
+    RGBColor(0, 100, 110), // teal, 6.9:1
+    RGBColor(90, 40, 160), // violet, 9.4:1
+];
+
 /// A labelled curve of (x, y) points.
 pub(super) type Curve = (String, Vec<(f64, f64)>);
 
@@ -398,6 +429,7 @@ pub(super) fn lanes_svg(title: &str, axis: &TimeAxis, lanes: &[Lane]) -> anyhow:
         chart
             .configure_mesh()
             .x_desc(axis.label())
+            .x_label_formatter(&|x| axis.clock(*x))
             .y_labels(lanes.len().max(1))
             .y_label_formatter(&|y| {
                 let index = y.round();

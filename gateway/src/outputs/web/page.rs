@@ -218,14 +218,16 @@ pub(crate) async fn tandem_mill(
     let name = escape(mill);
     let body = format!(
         "<h1>Tandem mill {name}</h1>\n\
+         <section><h2>State</h2><div id=\"mill-state\" class=\"cards\">\
+         <p class=\"note\">waiting for the live state</p></div></section>\n\
          <section><h2>Episodes and captures</h2><p class=\"note\" id=\"episodes-note\"></p>\
          <div class=\"scroll\" tabindex=\"0\"><table id=\"episodes\" class=\"grid\"><thead><tr>\
          <th>Start</th><th>Kind</th><th>Length</th><th>Warning</th><th>Cleared</th>\
          <th>Capture</th></tr></thead><tbody></tbody></table></div></section>\n\
-         <section><h2>Chatter-band signal</h2><div id=\"band-plot\" class=\"plot\" role=\"img\" \
+         <section id=\"band-section\"><h2>Chatter-band signal</h2><div id=\"band-plot\" class=\"plot\" role=\"img\" \
          aria-label=\"Chatter-band signal: not drawn yet\"></div>\
          <p class=\"note\" id=\"band-note\"></p></section>\n\
-         <section><h2>Spectra around the warning</h2><div id=\"spectrum-plot\" class=\"plot\" \
+         <section id=\"spectrum-section\"><h2>Spectra around the warning</h2><div id=\"spectrum-plot\" class=\"plot\" \
          role=\"img\" aria-label=\"Spectra around the warning: not drawn yet\"></div>\
          <p class=\"note\" id=\"spectrum-note\"></p></section>"
     );

@@ -110,6 +110,7 @@ mod tests {
         let seqs: Vec<Option<u64>> = payloads.iter().map(|p| p.seq).collect();
         assert_eq!(seqs, [Some(0), Some(1), Some(2), Some(3)]);
         assert_eq!(payloads[0].metrics[0].name.as_deref(), Some("bdSeq"));
+        assert_eq!(payloads[0].metrics[0].alias, Some(0), "bdSeq's alias");
         assert_eq!(
             payloads[0].metrics[0].value,
             Some(MetricValue::LongValue(7))

@@ -54,6 +54,9 @@ pub const BITE_ID: &str = "bite_id";
 /// Node metrics: bdSeq (alias 0) and the rebirth command (alias 1).
 const NODE_METRICS: u64 = 2;
 
+/// bdSeq's alias.
+const BD_SEQ_ALIAS: u64 = 0;
+
 /// The edge node of one session.
 #[derive(Debug)]
 pub(crate) struct EdgeNode {
@@ -153,11 +156,13 @@ impl EdgeNode {
         u64::from(seq)
     }
 
-    /// The bdSeq metric: Int64, as Sparkplug 3.0 asks of the Will's and the NBIRTH's.
+    /// The bdSeq metric: Int64, as Sparkplug 3.0 asks of the Will's and the NBIRTH's,
+    /// with its name and its alias ([`BD_SEQ_ALIAS`]) as every other metric of the
+    /// births (a host that maps aliases finds it in the NBIRTH's map too).
     fn bd_seq_metric(&self, now_ms: u64) -> Metric {
         Metric {
             name: Some("bdSeq".to_owned()),
-            alias: None,
+            alias: Some(BD_SEQ_ALIAS),
             timestamp: Some(now_ms),
             datatype: Some(DataType::Int64.code()),
             value: Some(MetricValue::LongValue(u64::from(self.bd_seq))),

@@ -146,10 +146,11 @@ pub(super) fn read_capture(
         })
 }
 
-/// `GET /api/captures/{id}/file?format=csv|parquet`: the capture as the file
+/// `GET /api/captures/{id}/file?format=csv|parquet|json`: the capture as the file
 /// `millgate capture export --id {id} --format ...` writes (the same writer, byte for
-/// byte), as a download named as the export names it. Written as it is sent, in the
-/// query slot: the memory it takes is the capture's samples, not its file.
+/// byte), as a download named as the export names it; `json` is the header the export
+/// writes beside its CSV (`<name>.json`). Written as it is sent, in the query slot:
+/// the memory it takes is the capture's samples, not its file.
 pub(crate) async fn capture_file(
     State(state): State<Arc<WebState>>,
     id: Result<Path<i64>, PathRejection>,
@@ -157,12 +158,14 @@ pub(crate) async fn capture_file(
 ) -> Result<Response, ApiError> {
     let id = capture_id(id)?;
     let params = Params::of(query, &["format"])?;
-    let format = match params.get("format") {
-        Some("csv") | None => ExportFormat::Csv,
-        Some("parquet") => ExportFormat::Parquet,
+    // The CSV's header file is `format=json`: the CSV's name with `.json`.
+    let (format, header_only) = match params.get("format") {
+        Some("csv") | None => (ExportFormat::Csv, false),
+        Some("parquet") => (ExportFormat::Parquet, false),
+        Some("json") => (ExportFormat::Csv, true),
         Some(other) => {
             return Err(ApiError::bad(format!(
-                "format `{other}`: expected csv or parquet"
+                "format `{other}`: expected csv, parquet or json"
             )))
         }
     };
@@ -175,6 +178,13 @@ pub(crate) async fn capture_file(
             message: format!("capture {id}: {error}"),
         })?;
         let name = capture_files::file_name(&capture, format);
+        if header_only {
+            let name = capture_files::sidecar_path(std::path::Path::new(&name));
+            let write: BodyWriter = Box::new(move |out| {
+                capture_files::write_sidecar(&header, out).map_err(std::io::Error::other)
+            });
+            return Ok((name.display().to_string(), write));
+        }
         let write: BodyWriter = Box::new(move |out| {
             capture_files::write(&capture, &header, format, out).map_err(std::io::Error::other)
         });
@@ -182,6 +192,7 @@ pub(crate) async fn capture_file(
     })
     .await?;
     let content_type = match format {
+        _ if header_only => "application/json",
         ExportFormat::Csv => "text/csv; charset=utf-8",
         ExportFormat::Parquet => "application/vnd.apache.parquet",
     };
