@@ -1,6 +1,12 @@
 use std::hash::Hasher;
 
-use hashbrown::{Equivalent, HashMap, HashSet};
+use hashbrown::{Equivalent, HashMap};
+// (millgate patch) A node's references in the order they were added: a browse
+// answers its children in the same order at every start (a hash set's order
+// changed with each process's hash seed).
+use indexmap::IndexSet;
+
+type HashSet<T> = IndexSet<T>;
 use opcua_types::{
     node_id::{IdentifierRef, IntoNodeIdRef, NodeIdRef},
     BrowseDirection, Identifier, NodeId,
@@ -205,7 +211,7 @@ impl References {
         found |= self
             .by_source
             .get_mut(&source_node)
-            .map(|f| f.remove(&rf))
+            .map(|f| f.shift_remove(&rf))
             .unwrap_or_default();
 
         let rf = ReferenceKey {
@@ -216,7 +222,7 @@ impl References {
         found |= self
             .by_target
             .get_mut(&target_node)
-            .map(|f| f.remove(&rf))
+            .map(|f| f.shift_remove(&rf))
             .unwrap_or_default();
 
         found
@@ -238,7 +244,7 @@ impl References {
         if delete_target_references {
             for rf in source.into_iter().flatten() {
                 if let Some(rec) = self.by_target.get_mut(&rf.target_node) {
-                    rec.remove(&ReferenceKey {
+                    rec.shift_remove(&ReferenceKey {
                         reference_type: (&rf.reference_type).into_node_id_ref(),
                         target_node: source_node,
                     });
@@ -252,7 +258,7 @@ impl References {
         if delete_target_references {
             for rf in target.into_iter().flatten() {
                 if let Some(rec) = self.by_source.get_mut(&rf.target_node) {
-                    rec.remove(&ReferenceKey {
+                    rec.shift_remove(&ReferenceKey {
                         reference_type: (&rf.reference_type).into_node_id_ref(),
                         target_node: source_node,
                     });
@@ -305,8 +311,8 @@ impl References {
 struct ReferenceIterator<'a, 'b> {
     filter: Option<(NodeId, bool)>,
     type_tree: &'b dyn TypeTree,
-    iter_s: Option<hashbrown::hash_set::Iter<'a, Reference>>,
-    iter_t: Option<hashbrown::hash_set::Iter<'a, Reference>>,
+    iter_s: Option<indexmap::set::Iter<'a, Reference>>,
+    iter_t: Option<indexmap::set::Iter<'a, Reference>>,
 }
 
 impl<'a> Iterator for ReferenceIterator<'a, '_> {

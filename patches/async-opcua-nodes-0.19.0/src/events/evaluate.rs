@@ -349,6 +349,26 @@ impl ParsedContentFilter {
             (Variant::Double(lhs), Variant::Double(rhs)) => Some(lhs.total_cmp(&rhs)),
             (Variant::Float(lhs), Variant::Float(rhs)) => Some(lhs.total_cmp(&rhs)),
             (Variant::Boolean(lhs), Variant::Boolean(rhs)) => Some(lhs.cmp(&rhs)),
+            // (millgate patch) The built-in types OPC 10000-4 7.7.3 compares besides
+            // numbers: strings and times in order, the others equal or not (a
+            // `None` fails every operator but `Equals` of equal values). Without
+            // them `EventType InList [...]`, the where clause asyncua and others send
+            // by default, matched no event.
+            (Variant::String(lhs), Variant::String(rhs)) => Some(lhs.as_ref().cmp(rhs.as_ref())),
+            (Variant::DateTime(lhs), Variant::DateTime(rhs)) => Some(lhs.cmp(&rhs)),
+            (Variant::NodeId(lhs), Variant::NodeId(rhs)) => equal(lhs == rhs),
+            (Variant::NodeId(node), Variant::ExpandedNodeId(expanded))
+            | (Variant::ExpandedNodeId(expanded), Variant::NodeId(node)) => equal(
+                expanded.namespace_uri.is_null()
+                    && expanded.server_index == 0
+                    && expanded.node_id == *node,
+            ),
+            (Variant::ExpandedNodeId(lhs), Variant::ExpandedNodeId(rhs)) => equal(lhs == rhs),
+            (Variant::Guid(lhs), Variant::Guid(rhs)) => equal(lhs == rhs),
+            (Variant::ByteString(lhs), Variant::ByteString(rhs)) => equal(lhs == rhs),
+            (Variant::StatusCode(lhs), Variant::StatusCode(rhs)) => equal(lhs == rhs),
+            (Variant::QualifiedName(lhs), Variant::QualifiedName(rhs)) => equal(lhs == rhs),
+            (Variant::LocalizedText(lhs), Variant::LocalizedText(rhs)) => equal(lhs == rhs),
             _ => None,
         }
     }
@@ -359,6 +379,11 @@ impl ParsedContentFilter {
         let item_type = item.get_type();
         type_tree.is_subtype_of(&item_type, &type_id)
     }
+}
+
+/// (millgate patch) `Equal` for equal values of a type without an order, else none.
+fn equal(equal: bool) -> Option<Ordering> {
+    equal.then_some(Ordering::Equal)
 }
 
 fn get_field(event: &dyn Event, attr: &ParsedSimpleAttributeOperand) -> Variant {
@@ -1014,6 +1039,47 @@ mod tests {
         assert!(f.evaluate(&evt as &dyn Event, &type_tree));
         let evt = event(4);
         assert!(!f.evaluate(&evt as &dyn Event, &type_tree));
+    }
+
+    /// (millgate patch) `EventType InList [...]`: asyncua's default where clause.
+    #[test]
+    fn test_in_list_of_node_ids() {
+        let mut type_tree = type_tree();
+        type_tree.add_type_property(
+            &NodeId::new(0, 2042),
+            &ObjectTypeId::BaseEventType.into(),
+            &[&"EventType".into()],
+            NodeClass::Variable,
+        );
+        let in_list = |types: &[NodeId]| {
+            let mut operands = vec![Operand::simple_attribute(
+                ObjectTypeId::BaseEventType,
+                "EventType",
+                AttributeId::Value,
+                NumericRange::None,
+            )];
+            operands.extend(types.iter().map(|t| Operand::literal(t.clone())));
+            filter(
+                vec![filter_elem(&operands, FilterOperator::InList)],
+                &type_tree,
+            )
+        };
+        let evt = event(2);
+        let listed = in_list(&[NodeId::new(1, 456), NodeId::new(1, 123)]);
+        assert!(listed.evaluate(&evt as &dyn Event, &type_tree));
+        let not_listed = in_list(&[NodeId::new(1, 456), NodeId::new(2, 123)]);
+        assert!(!not_listed.evaluate(&evt as &dyn Event, &type_tree));
+        let equals = filter(
+            vec![filter_elem(
+                &[
+                    Operand::literal("message"),
+                    Operand::literal("message"),
+                ],
+                FilterOperator::Equals,
+            )],
+            &type_tree,
+        );
+        assert!(equals.evaluate(&evt as &dyn Event, &type_tree));
     }
 
     #[test]
