@@ -53,8 +53,10 @@ fn spec(objects: usize) -> AddressSpaceSpec {
                         unit: None,
                         datatype: VariableType::Double,
                         range: None,
+                        states: Vec::new(),
                     })
                     .collect(),
+                conditions: Vec::new(),
             })
             .collect(),
     }

@@ -64,6 +64,23 @@ pub struct ObjectSpec {
     pub description: String,
     /// Its variables, in the order of [`Snapshot::objects`]' updates.
     pub variables: Vec<VariableSpec>,
+    /// The alarms it raises: a condition instance each (OPC 10000-9), whose events
+    /// are the [`AlarmEventSpec`]s of this object and kind.
+    pub conditions: Vec<ConditionSpec>,
+}
+
+/// An alarm an object raises: a condition instance of `AlarmConditionType`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ConditionSpec {
+    /// Its key (`taf_alarm`, `source_lost`): the ConditionName, the instance's browse
+    /// name and the `kind` of its [`AlarmEventSpec`]s.
+    pub kind: String,
+    /// One sentence.
+    pub description: String,
+    /// Whether it latches until the PLC's acknowledge (`AcknowledgeAlarms`, a
+    /// condition's `Acknowledge`) clears it in every output; other conditions are
+    /// acknowledged on the OPC UA server only (a warning that follows the analysis).
+    pub latched: bool,
 }
 
 /// One published figure.
@@ -79,6 +96,9 @@ pub struct VariableSpec {
     pub datatype: VariableType,
     /// Its normal range `(low, high)` (EURange), where one exists.
     pub range: Option<(f64, f64)>,
+    /// For a state: the name of each value, from 0 (a `MultiStateDiscreteType` with
+    /// `EnumStrings`); empty for other figures.
+    pub states: Vec<String>,
 }
 
 /// OPC UA data types of the published figures.
@@ -364,7 +384,9 @@ mod tests {
                 unit: None,
                 datatype: VariableType::Boolean,
                 range: None,
+                states: Vec::new(),
             }],
+            conditions: Vec::new(),
         };
         let spec = AddressSpaceSpec {
             name: "plant".into(),

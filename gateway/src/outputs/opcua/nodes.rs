@@ -1,18 +1,25 @@
-//! The millgate namespace: the address space built from the [`AddressSpaceSpec`]
-//! and the acknowledge method, guarded like the HMI server's command registers.
+//! The millgate namespace: the address space built from the [`AddressSpaceSpec`],
+//! the acknowledge method, guarded like the HMI server's command registers, and the
+//! methods of the condition instances (`Acknowledge`, `ConditionRefresh`,
+//! `ConditionRefresh2`).
 //!
 //! Layout: `Objects/Millgate` (the root), with `Gateway` (its state, the method
 //! `AcknowledgeAlarms`) and one folder per kind of object (`Sources`, `Drivelines`,
 //! `TandemMills`, `RodMills`); each object holds its variables, an object with a
-//! parent sits in its parent. Node ids are strings of the browse path from the root:
-//! `ns=<millgate>;s=Drivelines/F1/taf`.
+//! parent sits in its parent, an object that raises alarms has a `Conditions` folder
+//! with a condition instance per alarm (`AlarmConditionType`, referenced from the
+//! object by `HasCondition`, with its `Acknowledge` method). Node ids are strings of
+//! the browse path from the root: `ns=<millgate>;s=Millgate/Drivelines/F1/taf`;
+//! browse names are in the millgate namespace (the standard properties', such as
+//! `EngineeringUnits`, and the condition's `Acknowledge` in namespace 0), children
+//! in the order they were added.
 
 use std::collections::HashSet;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use async_trait::async_trait;
-use opcua::nodes::{EventNotifier, MethodBuilder, NodeType, ObjectBuilder, VariableBuilder};
+use opcua::nodes::{Event, EventNotifier, MethodBuilder, NodeType, ObjectBuilder, VariableBuilder};
 use opcua::server::address_space::{AccessLevel, AddressSpace};
 use opcua::server::diagnostics::NamespaceMetadata;
 use opcua::server::node_manager::memory::{
@@ -21,14 +28,18 @@ use opcua::server::node_manager::memory::{
 use opcua::server::node_manager::{MethodCall, RequestContext, ServerContext};
 use opcua::sync::RwLock;
 use opcua::types::{
-    DataTypeId, DataValue, EUInformation, ExtensionObject, LocalizedText, NodeClass, NodeId,
-    ObjectId, ObjectTypeId, Range, StatusCode, VariableTypeId, Variant,
+    Argument, DataTypeId, DataValue, EUInformation, ExtensionObject, LocalizedText, MethodId,
+    NodeClass, NodeId, ObjectId, ObjectTypeId, QualifiedName, Range, ReferenceTypeId, StatusCode,
+    VariableTypeId, Variant,
 };
 
 use super::auth;
+use super::conditions::Conditions;
+use super::events;
 use super::front::ChannelPeers;
 use super::model::{
-    object_path, Acknowledgement, AddressSpaceSpec, ObjectKind, Unit, VariableType,
+    object_path, Acknowledgement, AddressSpaceSpec, ObjectKind, ObjectSpec, Unit, VariableSpec,
+    VariableType,
 };
 use super::status::{count, OpcUaCounters};
 use crate::warn_limit::{WarnLimit, WARN_PERIOD};
@@ -40,6 +51,10 @@ pub(crate) const NAMESPACE_URI: &str = "urn:millgate:results";
 pub(crate) const ROOT: &str = "Millgate";
 /// The acknowledge method's browse name (a component of the gateway object).
 pub(crate) const ACKNOWLEDGE_METHOD: &str = "AcknowledgeAlarms";
+/// The folder of an object's condition instances.
+pub(crate) const CONDITIONS: &str = "Conditions";
+/// A condition's acknowledge method's browse name (namespace 0, as the type's).
+const CONDITION_ACKNOWLEDGE: &str = "Acknowledge";
 /// EUInformation's namespace for UNECE codes (OPC 10000-8, 5.6.3).
 const UNECE_NAMESPACE: &str = "http://www.opcfoundation.org/UA/units/un/cefact";
 
@@ -51,6 +66,10 @@ pub(crate) type Acknowledger = Arc<dyn Fn(Acknowledgement) + Send + Sync>;
 pub(crate) struct NodeIds {
     pub(crate) objects: Vec<NodeId>,
     pub(crate) variables: Vec<Vec<NodeId>>,
+    /// Per object, its condition instances (as [`ObjectSpec::conditions`]).
+    ///
+    /// [`ObjectSpec::conditions`]: super::model::ObjectSpec::conditions
+    pub(crate) conditions: Vec<Vec<NodeId>>,
     pub(crate) acknowledge: Option<(NodeId, NodeId)>,
 }
 
@@ -71,6 +90,7 @@ impl NodeIds {
         };
         let mut objects = Vec::new();
         let mut variables = Vec::new();
+        let mut conditions = Vec::new();
         for (index, object) in spec.objects.iter().enumerate() {
             let path = format!("{ROOT}/{}", object_path(spec, index));
             objects.push(unique(path.clone())?);
@@ -79,6 +99,16 @@ impl NodeIds {
                     .variables
                     .iter()
                     .map(|v| unique(format!("{path}/{}", v.key)))
+                    .collect::<Result<_, _>>()?,
+            );
+            if !object.conditions.is_empty() {
+                unique(format!("{path}/{CONDITIONS}"))?;
+            }
+            conditions.push(
+                object
+                    .conditions
+                    .iter()
+                    .map(|c| unique(format!("{path}/{CONDITIONS}/{}", c.kind)))
                     .collect::<Result<_, _>>()?,
             );
         }
@@ -93,6 +123,7 @@ impl NodeIds {
         Ok(Self {
             objects,
             variables,
+            conditions,
             acknowledge,
         })
     }
@@ -118,6 +149,7 @@ pub(crate) struct Pace {
     last: Option<Instant>,
     refused: WarnLimit,
     limited: WarnLimit,
+    condition_refused: WarnLimit,
 }
 
 impl Default for Pace {
@@ -126,14 +158,15 @@ impl Default for Pace {
             last: None,
             refused: WarnLimit::new(WARN_PERIOD),
             limited: WarnLimit::new(WARN_PERIOD),
+            condition_refused: WarnLimit::new(WARN_PERIOD),
         }
     }
 }
 
 impl CommandGuard {
-    /// The acknowledge call of `context`'s session: done, or refused with
-    /// `BadUserAccessDenied`.
-    fn acknowledge(&self, context: &RequestContext) -> StatusCode {
+    /// Whether `context`'s session may acknowledge now: who it is, or the refusal
+    /// (`Bad_UserAccessDenied`, `Bad_TooManyOperations`), counted and logged.
+    fn permit(&self, context: &RequestContext) -> Result<Acknowledgement, StatusCode> {
         let channel = context.session.read().secure_channel_id();
         let peer = self.peers.peer(channel);
         let user = auth::user_name(&context.token).map(str::to_owned);
@@ -154,7 +187,7 @@ impl CommandGuard {
                      outputs.opcua.allow_remote_commands = true and a user of users_file"
                 );
             }
-            return StatusCode::BadUserAccessDenied;
+            return Err(StatusCode::BadUserAccessDenied);
         }
         if pace
             .last
@@ -164,14 +197,35 @@ impl CommandGuard {
             if let Some(suppressed) = pace.limited.occurred(now) {
                 tracing::warn!(peer = ?peer, user = ?user, suppressed, "OPC UA acknowledge refused: one was carried out less than a second ago");
             }
-            return StatusCode::BadTooManyOperations;
+            return Err(StatusCode::BadTooManyOperations);
         }
         pace.last = Some(now);
-        drop(pace);
         count(&self.counters.acknowledgements);
-        tracing::info!(peer = ?peer, user = ?user, "alarms acknowledged over OPC UA");
-        (self.acknowledge)(Acknowledgement { peer, user });
-        StatusCode::Good
+        Ok(Acknowledgement { peer, user })
+    }
+
+    /// The acknowledge call of `context`'s session: the latched alarms cleared as the
+    /// PLC's acknowledge does, or refused.
+    fn acknowledge(&self, context: &RequestContext) -> StatusCode {
+        match self.permit(context) {
+            Ok(who) => {
+                tracing::info!(peer = ?who.peer, user = ?who.user, "alarms acknowledged over OPC UA");
+                (self.acknowledge)(who);
+                StatusCode::Good
+            }
+            Err(status) => status,
+        }
+    }
+
+    /// A call of a condition's method refused for what it asked: counted, logged
+    /// (rate-limited), its status.
+    fn refuse(&self, method: &str, status: StatusCode) -> StatusCode {
+        count(&self.counters.condition_calls_refused);
+        let mut pace = crate::lock(&self.pace);
+        if let Some(suppressed) = pace.condition_refused.occurred(Instant::now()) {
+            tracing::warn!(method, %status, suppressed, "OPC UA condition method call refused");
+        }
+        status
     }
 }
 
@@ -179,6 +233,8 @@ impl CommandGuard {
 pub(crate) struct MillgateNodesBuilder {
     pub(crate) spec: Arc<AddressSpaceSpec>,
     pub(crate) guard: Arc<CommandGuard>,
+    /// Filled with the spec's condition instances once the namespace is known.
+    pub(crate) conditions: Arc<Mutex<Conditions>>,
 }
 
 impl InMemoryNodeManagerImplBuilder for MillgateNodesBuilder {
@@ -188,14 +244,22 @@ impl InMemoryNodeManagerImplBuilder for MillgateNodesBuilder {
         let mut type_tree = context.type_tree.write();
         let index = type_tree.namespaces_mut().add_namespace(NAMESPACE_URI);
         // The ConditionId of an event (its ConditionType's NodeId, empty browse path)
-        // as a field async-opcua accepts in a select clause: it answers null (there are
-        // no condition instances). A select clause async-opcua cannot resolve is left
-        // out of the event's fields, which shifts the fields after it for the client
-        // (asyncua and UaExpert select ConditionId).
+        // as a field async-opcua accepts in a select clause (the event answers it,
+        // `events::ConditionEvent`). A select clause async-opcua cannot resolve is
+        // left out of the event's fields, which shifts the fields after it for the
+        // client (asyncua, node-opcua and UaExpert select ConditionId).
         let condition_type = NodeId::from(ObjectTypeId::ConditionType);
         type_tree.add_type_property(&condition_type, &condition_type, &[], NodeClass::Object);
         drop(type_tree);
         address_space.add_namespace(NAMESPACE_URI, index);
+        match NodeIds::new(&self.spec, index) {
+            Ok(ids) => {
+                *crate::lock(&self.conditions) =
+                    Conditions::new(&self.spec, &ids.objects, &ids.conditions);
+            }
+            // The server checked the ids before it started (`NodeIds::new` in `run`).
+            Err(error) => tracing::error!(%error, "OPC UA conditions not made"),
+        }
         MillgateNodes {
             namespace: NamespaceMetadata {
                 namespace_uri: NAMESPACE_URI.to_owned(),
@@ -204,6 +268,7 @@ impl InMemoryNodeManagerImplBuilder for MillgateNodesBuilder {
             },
             spec: self.spec,
             guard: self.guard,
+            conditions: self.conditions,
         }
     }
 }
@@ -213,6 +278,113 @@ pub(crate) struct MillgateNodes {
     namespace: NamespaceMetadata,
     spec: Arc<AddressSpaceSpec>,
     guard: Arc<CommandGuard>,
+    conditions: Arc<Mutex<Conditions>>,
+}
+
+/// The methods of ConditionType and AcknowledgeableConditionType (namespace 0) that a
+/// client calls on a condition instance or on ConditionType, which async-opcua's
+/// core namespace does not carry out: the kept patch routes them here.
+const CONDITION_METHODS: [MethodId; 3] = [
+    MethodId::AcknowledgeableConditionType_Acknowledge,
+    MethodId::ConditionType_ConditionRefresh,
+    MethodId::ConditionType_ConditionRefresh2,
+];
+
+impl MillgateNodes {
+    /// A condition's `Acknowledge(EventId, Comment)` on `call`'s object: the PLC's
+    /// acknowledge for a latched alarm, this server's for another; refused with the
+    /// status OPC 10000-9 5.7.3 names when the EventId is not the condition's last.
+    fn acknowledge_condition(&self, context: &RequestContext, call: &MethodCall) -> StatusCode {
+        let refuse = |status| self.guard.refuse("Acknowledge", status);
+        let (event_id, comment) = match call.arguments() {
+            [Variant::ByteString(event_id), comment] => match comment {
+                Variant::LocalizedText(text) => (event_id, text.text.to_string()),
+                Variant::String(text) => (event_id, text.to_string()),
+                Variant::Empty => (event_id, String::new()),
+                _ => return refuse(StatusCode::BadTypeMismatch),
+            },
+            [_, _] => return refuse(StatusCode::BadTypeMismatch),
+            arguments if arguments.len() < 2 => return refuse(StatusCode::BadArgumentsMissing),
+            _ => return refuse(StatusCode::BadTooManyArguments),
+        };
+        let mut conditions = crate::lock(&self.conditions);
+        let to_acknowledge = match conditions.check_acknowledge(call.object_id(), event_id) {
+            Ok(to_acknowledge) => to_acknowledge,
+            Err(refused) => return refuse(refused.status()),
+        };
+        let who = match self.guard.permit(context) {
+            Ok(who) => who,
+            Err(status) => return status,
+        };
+        let name = who
+            .user
+            .clone()
+            .or_else(|| who.peer.map(|peer| peer.to_string()))
+            .unwrap_or_default();
+        tracing::info!(condition = %call.object_id(), peer = ?who.peer, user = ?who.user, comment, "OPC UA condition acknowledged");
+        if to_acknowledge.latched {
+            (self.guard.acknowledge)(who);
+        }
+        if let Some((event, source)) = conditions.acknowledged(to_acknowledge, &comment, &name) {
+            context
+                .subscriptions
+                .notify_events([(&event as &dyn Event, &source)].into_iter());
+            count(&self.guard.counters.events);
+        }
+        StatusCode::Good
+    }
+
+    /// ConditionRefresh (`monitored_item` none) or ConditionRefresh2 of `call`: the
+    /// retained conditions' last events between RefreshStart and RefreshEnd, to the
+    /// session's subscription (OPC 10000-9 5.5.7).
+    fn refresh(&self, context: &RequestContext, call: &MethodCall, two: bool) -> StatusCode {
+        let method = if two {
+            "ConditionRefresh2"
+        } else {
+            "ConditionRefresh"
+        };
+        let refuse = |status| self.guard.refuse(method, status);
+        let (subscription, monitored_item) = match (call.arguments(), two) {
+            ([Variant::UInt32(subscription)], false) => (*subscription, None),
+            ([Variant::UInt32(subscription), Variant::UInt32(item)], true) => {
+                (*subscription, Some(*item))
+            }
+            (arguments, _) if arguments.len() < 1 + usize::from(two) => {
+                return refuse(StatusCode::BadArgumentsMissing)
+            }
+            (arguments, _) if arguments.len() > 1 + usize::from(two) => {
+                return refuse(StatusCode::BadTooManyArguments)
+            }
+            _ => return refuse(StatusCode::BadTypeMismatch),
+        };
+        // Held while the events are queued: an alarm that changes meanwhile comes
+        // after RefreshEnd, as the specification asks.
+        let mut conditions = crate::lock(&self.conditions);
+        let start = events::refresh_event(true, conditions.next_event_id());
+        let end = events::refresh_event(false, conditions.next_event_id());
+        let retained = conditions.retained();
+        let mut sent: Vec<(&dyn Event, Option<&NodeId>)> = vec![(&*start, None)];
+        sent.extend(
+            retained
+                .iter()
+                .map(|(event, source)| (event as &dyn Event, Some(source))),
+        );
+        sent.push((&*end, None));
+        let session = context.session_id;
+        match context.subscriptions.notify_events_to_subscription(
+            session,
+            subscription,
+            monitored_item,
+            &sent,
+        ) {
+            Ok(()) => {
+                count(&self.guard.counters.condition_refreshes);
+                tracing::debug!(subscription, retained = retained.len(), "OPC UA {method}");
+                StatusCode::Good
+            }
+            Err(status) => refuse(status),
+        }
+    }
 }
 
 #[async_trait]
@@ -234,6 +406,18 @@ impl InMemoryNodeManagerImpl for MillgateNodes {
         vec![self.namespace.clone()]
     }
 
+    fn takes_method_call(&self, object_id: &NodeId, method_id: &NodeId) -> bool {
+        let Ok(method) = method_id.as_method_id() else {
+            return false;
+        };
+        match method {
+            MethodId::AcknowledgeableConditionType_Acknowledge => {
+                object_id.namespace == self.namespace.namespace_index
+            }
+            _ => CONDITION_METHODS.contains(&method),
+        }
+    }
+
     async fn call(
         &self,
         context: &RequestContext,
@@ -245,22 +429,52 @@ impl InMemoryNodeManagerImpl for MillgateNodes {
             format!("{ROOT}/Gateway/{ACKNOWLEDGE_METHOD}"),
         );
         for call in methods_to_call {
-            if *call.method_id() == acknowledge {
-                call.set_status(self.guard.acknowledge(context));
+            let method = call.method_id();
+            let status = if *method == acknowledge {
+                self.guard.acknowledge(context)
+            } else if is_condition_acknowledge(method) {
+                self.acknowledge_condition(context, call)
             } else {
-                call.set_status(StatusCode::BadMethodInvalid);
-            }
+                match method.as_method_id() {
+                    Ok(MethodId::AcknowledgeableConditionType_Acknowledge) => {
+                        self.acknowledge_condition(context, call)
+                    }
+                    Ok(MethodId::ConditionType_ConditionRefresh) => {
+                        self.refresh(context, call, false)
+                    }
+                    Ok(MethodId::ConditionType_ConditionRefresh2) => {
+                        self.refresh(context, call, true)
+                    }
+                    _ => StatusCode::BadMethodInvalid,
+                }
+            };
+            call.set_status(status);
         }
         Ok(())
     }
 }
 
+/// Whether `method` is a condition instance's own `Acknowledge` (its node id
+/// `<condition>/Acknowledge`; the call's object is the condition).
+fn is_condition_acknowledge(method: &NodeId) -> bool {
+    string_id(method)
+        .rsplit_once('/')
+        .is_some_and(|(condition, name)| {
+            name == CONDITION_ACKNOWLEDGE && condition.contains(&format!("/{CONDITIONS}/"))
+        })
+}
+
+/// A browse name in namespace `ns`.
+fn name(ns: u16, name: &str) -> QualifiedName {
+    QualifiedName::new(ns, name)
+}
+
 /// The nodes of `spec` in `address_space`: the root, the folders, the objects and
 /// their variables (`Bad_WaitingForInitialData` until the first snapshot), the
-/// acknowledge method.
+/// condition instances, the acknowledge method.
 fn build(address_space: &mut AddressSpace, spec: &AddressSpaceSpec, ids: &NodeIds, ns: u16) {
     let root = NodeId::new(ns, ROOT);
-    ObjectBuilder::new(&root, ROOT, ROOT)
+    ObjectBuilder::new(&root, name(ns, ROOT), ROOT)
         .description(format!("millgate gateway: {}", spec.name))
         .has_type_definition(ObjectTypeId::BaseObjectType)
         .organized_by(ObjectId::ObjectsFolder)
@@ -272,7 +486,7 @@ fn build(address_space: &mut AddressSpace, spec: &AddressSpaceSpec, ids: &NodeId
             (None, Some(folder)) => {
                 let id = NodeId::new(ns, format!("{ROOT}/{folder}"));
                 if !folders.contains(&id) {
-                    ObjectBuilder::new(&id, folder, folder)
+                    ObjectBuilder::new(&id, name(ns, folder), folder)
                         .is_folder()
                         .organized_by(root.clone())
                         .insert(address_space);
@@ -283,66 +497,19 @@ fn build(address_space: &mut AddressSpace, spec: &AddressSpaceSpec, ids: &NodeId
             (None, None) => root.clone(),
         };
         let id = &ids.objects[index];
-        ObjectBuilder::new(id, object.name.as_str(), object.name.as_str())
+        ObjectBuilder::new(id, name(ns, &object.name), object.name.as_str())
             .description(object.description.as_str())
             .event_notifier(EventNotifier::SUBSCRIBE_TO_EVENTS)
             .has_type_definition(ObjectTypeId::BaseObjectType)
             .component_of(parent)
             .insert(address_space);
         for (variable, variable_id) in object.variables.iter().zip(&ids.variables[index]) {
-            // A number with a unit or a range is an analog item (OPC 10000-8, 5.3.2).
-            let numeric = matches!(
-                variable.datatype,
-                VariableType::Double | VariableType::UInt32 | VariableType::UInt64
-            );
-            let analog = numeric && (variable.unit.is_some() || variable.range.is_some());
-            let type_definition = if analog {
-                VariableTypeId::BaseAnalogType
-            } else {
-                VariableTypeId::BaseDataVariableType
-            };
-            let variable_id_path = string_id(variable_id);
-            VariableBuilder::new(variable_id, variable.key.as_str(), variable.key.as_str())
-                .description(variable.description.as_str())
-                .data_type(data_type(variable.datatype))
-                .value_rank(-1)
-                .access_level(AccessLevel::CURRENT_READ)
-                .user_access_level(AccessLevel::CURRENT_READ)
-                .has_type_definition(type_definition)
-                .component_of(id.clone())
-                .insert(address_space);
-            if let Some(NodeType::Variable(node)) = address_space.find_mut(variable_id) {
-                node.set_data_value(DataValue {
-                    value: Some(Variant::Empty),
-                    status: Some(StatusCode::BadWaitingForInitialData),
-                    ..Default::default()
-                });
-            }
-            let property = |name: &str| {
-                let property_id = NodeId::new(ns, format!("{variable_id_path}/{name}"));
-                VariableBuilder::new(&property_id, name, name)
-                    .value_rank(-1)
-                    .access_level(AccessLevel::CURRENT_READ)
-                    .user_access_level(AccessLevel::CURRENT_READ)
-                    .has_type_definition(VariableTypeId::PropertyType)
-                    .property_of(variable_id.clone())
-            };
-            if let Some(unit) = variable.unit {
-                property("EngineeringUnits")
-                    .data_type(DataTypeId::EUInformation)
-                    .value(ExtensionObject::from_message(eu_information(unit)))
-                    .insert(address_space);
-            }
-            if let Some((low, high)) = variable.range {
-                property("EURange")
-                    .data_type(DataTypeId::Range)
-                    .value(ExtensionObject::from_message(Range { low, high }))
-                    .insert(address_space);
-            }
+            add_variable(address_space, variable, variable_id, id, ns);
         }
+        add_conditions(address_space, object, id, &ids.conditions[index], ns);
     }
     if let Some((gateway, method)) = &ids.acknowledge {
-        MethodBuilder::new(method, ACKNOWLEDGE_METHOD, ACKNOWLEDGE_METHOD)
+        MethodBuilder::new(method, name(ns, ACKNOWLEDGE_METHOD), ACKNOWLEDGE_METHOD)
             .description(
                 "Clear the latched alarms (TAF, gap and chatter alarms), as the PLC's \
                  acknowledge command does; from a client on this host, or with \
@@ -352,6 +519,151 @@ fn build(address_space: &mut AddressSpace, spec: &AddressSpaceSpec, ids: &NodeId
             .user_executable(true)
             .component_of(gateway.clone())
             .insert(address_space);
+    }
+}
+
+/// `variable` (node `variable_id`) of `object`: its value, unit and range.
+fn add_variable(
+    address_space: &mut AddressSpace,
+    variable: &VariableSpec,
+    variable_id: &NodeId,
+    object: &NodeId,
+    ns: u16,
+) {
+    // A number with a unit or a range is an analog item (OPC 10000-8, 5.3.2).
+    let numeric = matches!(
+        variable.datatype,
+        VariableType::Double | VariableType::UInt32 | VariableType::UInt64
+    );
+    let analog = numeric && (variable.unit.is_some() || variable.range.is_some());
+    // A state is a number whose values have names (OPC 10000-8, 5.3.3.3: the type
+    // of unsigned integers with EnumStrings; its value stays a UInt32).
+    let type_definition = if !variable.states.is_empty() {
+        VariableTypeId::MultiStateDiscreteType
+    } else if analog {
+        VariableTypeId::BaseAnalogType
+    } else {
+        VariableTypeId::BaseDataVariableType
+    };
+    let variable_id_path = string_id(variable_id);
+    VariableBuilder::new(variable_id, name(ns, &variable.key), variable.key.as_str())
+        .description(variable.description.as_str())
+        .data_type(data_type(variable.datatype))
+        .value_rank(-1)
+        .access_level(AccessLevel::CURRENT_READ)
+        .user_access_level(AccessLevel::CURRENT_READ)
+        // Values are written as they change (exception-based), not sampled.
+        .minimum_sampling_interval(0.0)
+        .has_type_definition(type_definition)
+        .component_of(object.clone())
+        .insert(address_space);
+    if let Some(NodeType::Variable(node)) = address_space.find_mut(variable_id) {
+        node.set_data_value(DataValue {
+            value: Some(Variant::Empty),
+            status: Some(StatusCode::BadWaitingForInitialData),
+            ..Default::default()
+        });
+    }
+    // The standard properties' browse names are namespace 0's.
+    let property = |property: &str| {
+        let property_id = NodeId::new(ns, format!("{variable_id_path}/{property}"));
+        VariableBuilder::new(&property_id, property, property)
+            .value_rank(-1)
+            .access_level(AccessLevel::CURRENT_READ)
+            .user_access_level(AccessLevel::CURRENT_READ)
+            .has_type_definition(VariableTypeId::PropertyType)
+            .property_of(variable_id.clone())
+    };
+    if let Some(unit) = variable.unit {
+        property("EngineeringUnits")
+            .data_type(DataTypeId::EUInformation)
+            .value(ExtensionObject::from_message(eu_information(unit)))
+            .insert(address_space);
+    }
+    if let Some((low, high)) = variable.range {
+        property("EURange")
+            .data_type(DataTypeId::Range)
+            .value(ExtensionObject::from_message(Range { low, high }))
+            .insert(address_space);
+    }
+    if !variable.states.is_empty() {
+        let names: Vec<LocalizedText> = variable
+            .states
+            .iter()
+            .map(|state| LocalizedText::new("en", state))
+            .collect();
+        property("EnumStrings")
+            .data_type(DataTypeId::LocalizedText)
+            .value_rank(1)
+            .value(names)
+            .insert(address_space);
+    }
+}
+
+/// The `Conditions` folder of `object` (node `object_id`) with its condition
+/// instances (`ids`), each referenced from the object by `HasCondition` and with its
+/// `Acknowledge(EventId, Comment)` method.
+fn add_conditions(
+    address_space: &mut AddressSpace,
+    object: &ObjectSpec,
+    object_id: &NodeId,
+    ids: &[NodeId],
+    ns: u16,
+) {
+    if object.conditions.is_empty() {
+        return;
+    }
+    let folder = NodeId::new(ns, format!("{}/{CONDITIONS}", string_id(object_id)));
+    ObjectBuilder::new(&folder, name(ns, CONDITIONS), CONDITIONS)
+        .description("The alarms of this object as condition instances (OPC 10000-9)")
+        .is_folder()
+        .organized_by(object_id.clone())
+        .insert(address_space);
+    for (condition, id) in object.conditions.iter().zip(ids) {
+        ObjectBuilder::new(id, name(ns, &condition.kind), condition.kind.as_str())
+            .description(condition.description.as_str())
+            .has_type_definition(ObjectTypeId::AlarmConditionType)
+            .organized_by(folder.clone())
+            .insert(address_space);
+        address_space.insert_reference(object_id, id, ReferenceTypeId::HasCondition);
+        let method = NodeId::new(ns, format!("{}/{CONDITION_ACKNOWLEDGE}", string_id(id)));
+        let arguments = [
+            argument(
+                "EventId",
+                DataTypeId::ByteString,
+                "The EventId of the event acknowledged",
+            ),
+            argument(
+                "Comment",
+                DataTypeId::LocalizedText,
+                "A comment kept with the condition",
+            ),
+        ];
+        let arguments_id = NodeId::new(ns, format!("{}/InputArguments", string_id(&method)));
+        MethodBuilder::new(&method, CONDITION_ACKNOWLEDGE, CONDITION_ACKNOWLEDGE)
+            .description(if condition.latched {
+                "Acknowledge the alarm: the latched alarms are cleared as the PLC's \
+                 acknowledge command does (AcknowledgeAlarms' rights and pace)"
+            } else {
+                "Acknowledge the condition on this server (AcknowledgeAlarms' rights \
+                 and pace)"
+            })
+            .executable(true)
+            .user_executable(true)
+            .component_of(id.clone())
+            .input_args(address_space, &arguments_id, &arguments)
+            .insert(address_space);
+    }
+}
+
+/// A method argument.
+fn argument(name: &str, data_type: DataTypeId, description: &str) -> Argument {
+    Argument {
+        name: name.into(),
+        data_type: data_type.into(),
+        value_rank: -1,
+        array_dimensions: None,
+        description: LocalizedText::new("en", description),
     }
 }
 

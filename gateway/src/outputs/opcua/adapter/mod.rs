@@ -22,10 +22,10 @@ use millgate_config::Config;
 use crate::state::catalogue::{self, Figure, FigureType, NoValue, Reading, Subject};
 use crate::state::results::{DrivelineResults, Results, RodMillResults, TandemMillResults};
 
-use super::alarms::EventObjects;
+use super::alarms::{source_conditions, EventObjects};
 use super::model::{
-    AddressSpaceSpec, ObjectKind, ObjectSpec, Quality, Snapshot, Unit, Value, VariableSpec,
-    VariableType, VariableUpdate,
+    AddressSpaceSpec, ConditionSpec, ObjectKind, ObjectSpec, Quality, Snapshot, Unit, Value,
+    VariableSpec, VariableType, VariableUpdate,
 };
 
 /// The OPC UA unit of a catalogue unit; `None` for none (ratios, counts, flags,
@@ -92,6 +92,23 @@ fn variables<R>(figures: &[Figure<R>]) -> Vec<VariableSpec> {
             range: figure
                 .range
                 .filter(|_| figure.figure_type != FigureType::Bool),
+            states: match figure.figure_type {
+                FigureType::State(names) => names.iter().map(|&name| name.into()).collect(),
+                _ => Vec::new(),
+            },
+        })
+        .collect()
+}
+
+/// The conditions of `figures`: one per alarm flag, named by its key.
+fn conditions<R>(figures: &[Figure<R>]) -> Vec<ConditionSpec> {
+    figures
+        .iter()
+        .filter(|figure| figure.alarm.is_some())
+        .map(|figure| ConditionSpec {
+            kind: figure.key.into(),
+            description: figure.description.into(),
+            latched: figure.latched,
         })
         .collect()
 }
@@ -187,7 +204,7 @@ impl Objects {
         (name, parent): (&str, Option<usize>),
         kind: ObjectKind,
         description: String,
-        variables: Vec<VariableSpec>,
+        (variables, conditions): (Vec<VariableSpec>, Vec<ConditionSpec>),
     ) -> usize {
         self.0.push(ObjectSpec {
             name: name.into(),
@@ -195,6 +212,7 @@ impl Objects {
             parent,
             description,
             variables,
+            conditions,
         });
         self.0.len() - 1
     }
@@ -210,8 +228,8 @@ impl Objects {
         names
             .iter()
             .map(|name| {
-                let variables = variables(figures);
-                self.add((name, None), kind, description.into(), variables)
+                let nodes = (variables(figures), conditions(figures));
+                self.add((name, None), kind, description.into(), nodes)
             })
             .collect()
     }
@@ -222,7 +240,10 @@ impl Objects {
             (name, None),
             ObjectKind::RodMill,
             "A rod mill whose spans are checked against the Mathieu tongues".into(),
-            variables(catalogue::ROD_MILL),
+            (
+                variables(catalogue::ROD_MILL),
+                conditions(catalogue::ROD_MILL),
+            ),
         );
         let spans = (0..spans)
             .map(|span| {
@@ -233,13 +254,11 @@ impl Objects {
                     span + 1,
                     span + 2
                 );
-                let variables = variables(catalogue::ROD_SPAN);
-                self.add(
-                    (&name, Some(mill)),
-                    ObjectKind::RodSpan,
-                    description,
-                    variables,
-                )
+                let nodes = (
+                    variables(catalogue::ROD_SPAN),
+                    conditions(catalogue::ROD_SPAN),
+                );
+                self.add((&name, Some(mill)), ObjectKind::RodSpan, description, nodes)
             })
             .collect();
         (mill, spans)
@@ -270,7 +289,10 @@ impl CatalogueAdapter {
             ("Gateway", None),
             ObjectKind::Gateway,
             "The gateway's own state".into(),
-            variables(catalogue::GATEWAY),
+            (
+                variables(catalogue::GATEWAY),
+                conditions(catalogue::GATEWAY),
+            ),
         );
         let source_names: Vec<String> = config.sources().map(|s| s.name().to_owned()).collect();
         let names = |names: &mut dyn Iterator<Item = &String>| names.cloned().collect::<Vec<_>>();
@@ -302,6 +324,10 @@ impl CatalogueAdapter {
                 .map(|(k, name)| objects.rod_mill(name, rod_spans.get(k).copied().unwrap_or(0)))
                 .collect(),
         };
+        // A source's outages are its conditions (the alarm stream's outage events).
+        for &source in &layout.sources {
+            objects.0[source].conditions = source_conditions();
+        }
         let adapter = Self {
             layout,
             source_names,
