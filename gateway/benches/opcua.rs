@@ -59,6 +59,7 @@ fn spec(objects: usize) -> AddressSpaceSpec {
                 conditions: Vec::new(),
             })
             .collect(),
+        machines: Vec::new(),
     }
 }
 
@@ -67,6 +68,7 @@ fn snapshot(objects: usize, bite: u64) -> Snapshot {
     let update = VariableUpdate::good(Value::Double(bite as f64), Some(SystemTime::now()));
     Snapshot {
         objects: vec![vec![update; VARIABLES]; objects],
+        machines: Vec::new(),
     }
 }
 

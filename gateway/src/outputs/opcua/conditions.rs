@@ -261,6 +261,7 @@ mod tests {
                     condition("taf_alarm", true),
                 ],
             }],
+            machines: Vec::new(),
         }
     }
 

@@ -409,6 +409,25 @@ impl Publish<'_> {
                 changes.push((id, value));
             }
         }
+        for (machine, now_is) in snapshot.machines.iter().enumerate() {
+            let Some([_, state, health]) = self.ids.machines.get(machine) else {
+                continue;
+            };
+            if self.last.machines.get(machine) == Some(now_is) {
+                continue;
+            }
+            let (state_now, health_now) = now_is;
+            let good = |value: Variant| DataValue {
+                value: Some(value),
+                status: Some(StatusCode::Good),
+                source_timestamp: Some(now),
+                server_timestamp: Some(now),
+                ..Default::default()
+            };
+            let text = opcua::types::LocalizedText::new("en", state_now.name());
+            changes.push((state, good(Variant::from(text))));
+            changes.push((health, good(Variant::UInt32(*health_now as u32))));
+        }
         if changes.is_empty() {
             return;
         }

@@ -38,8 +38,8 @@ use super::conditions::Conditions;
 use super::events;
 use super::front::ChannelPeers;
 use super::model::{
-    object_path, Acknowledgement, AddressSpaceSpec, ObjectKind, ObjectSpec, Unit, VariableSpec,
-    VariableType,
+    object_path, Acknowledgement, AddressSpaceSpec, DeviceHealth, ObjectKind, ObjectSpec, Unit,
+    VariableSpec, VariableType,
 };
 use super::status::{count, OpcUaCounters};
 use crate::warn_limit::{WarnLimit, WARN_PERIOD};
@@ -55,6 +55,12 @@ pub(crate) const ACKNOWLEDGE_METHOD: &str = "AcknowledgeAlarms";
 pub(crate) const CONDITIONS: &str = "Conditions";
 /// A condition's acknowledge method's browse name (namespace 0, as the type's).
 const CONDITION_ACKNOWLEDGE: &str = "Acknowledge";
+/// The Machinery companion specification's namespace (OPC 40001-1).
+pub(crate) const MACHINERY_URI: &str = "http://opcfoundation.org/UA/Machinery/";
+/// The Devices companion specification's namespace (OPC 10000-100, DI).
+pub(crate) const DI_URI: &str = "http://opcfoundation.org/UA/DI/";
+/// The folder of the Machinery items under Objects (its browse name Machinery's).
+pub(crate) const MACHINES: &str = "Machines";
 /// EUInformation's namespace for UNECE codes (OPC 10000-8, 5.6.3).
 const UNECE_NAMESPACE: &str = "http://www.opcfoundation.org/UA/units/un/cefact";
 
@@ -70,6 +76,8 @@ pub(crate) struct NodeIds {
     ///
     /// [`ObjectSpec::conditions`]: super::model::ObjectSpec::conditions
     pub(crate) conditions: Vec<Vec<NodeId>>,
+    /// Per Machinery item: its node, its `CurrentState` and its `DeviceHealth`.
+    pub(crate) machines: Vec<[NodeId; 3]>,
     pub(crate) acknowledge: Option<(NodeId, NodeId)>,
 }
 
@@ -112,6 +120,18 @@ impl NodeIds {
                     .collect::<Result<_, _>>()?,
             );
         }
+        let machines = spec
+            .machines
+            .iter()
+            .map(|machine| {
+                let item = format!("{MACHINES}/{}", object_path(spec, machine.object));
+                Ok([
+                    unique(item.clone())?,
+                    unique(format!("{item}/MachineryItemState/CurrentState"))?,
+                    unique(format!("{item}/DeviceHealth"))?,
+                ])
+            })
+            .collect::<Result<_, String>>()?;
         let acknowledge = spec
             .objects
             .iter()
@@ -124,6 +144,7 @@ impl NodeIds {
             objects,
             variables,
             conditions,
+            machines,
             acknowledge,
         })
     }
@@ -243,6 +264,8 @@ impl InMemoryNodeManagerImplBuilder for MillgateNodesBuilder {
     fn build(self, context: ServerContext, address_space: &mut AddressSpace) -> Self::Impl {
         let mut type_tree = context.type_tree.write();
         let index = type_tree.namespaces_mut().add_namespace(NAMESPACE_URI);
+        let machinery = type_tree.namespaces_mut().add_namespace(MACHINERY_URI);
+        let di = type_tree.namespaces_mut().add_namespace(DI_URI);
         // The ConditionId of an event (its ConditionType's NodeId, empty browse path)
         // as a field async-opcua accepts in a select clause (the event answers it,
         // `events::ConditionEvent`). A select clause async-opcua cannot resolve is
@@ -252,6 +275,8 @@ impl InMemoryNodeManagerImplBuilder for MillgateNodesBuilder {
         type_tree.add_type_property(&condition_type, &condition_type, &[], NodeClass::Object);
         drop(type_tree);
         address_space.add_namespace(NAMESPACE_URI, index);
+        address_space.add_namespace(MACHINERY_URI, machinery);
+        address_space.add_namespace(DI_URI, di);
         match NodeIds::new(&self.spec, index) {
             Ok(ids) => {
                 *crate::lock(&self.conditions) =
@@ -260,11 +285,16 @@ impl InMemoryNodeManagerImplBuilder for MillgateNodesBuilder {
             // The server checked the ids before it started (`NodeIds::new` in `run`).
             Err(error) => tracing::error!(%error, "OPC UA conditions not made"),
         }
+        let namespace = |uri: &str, index| NamespaceMetadata {
+            namespace_uri: uri.to_owned(),
+            namespace_index: index,
+            ..Default::default()
+        };
         MillgateNodes {
-            namespace: NamespaceMetadata {
-                namespace_uri: NAMESPACE_URI.to_owned(),
-                namespace_index: index,
-                ..Default::default()
+            namespace: namespace(NAMESPACE_URI, index),
+            companions: Companions {
+                machinery: namespace(MACHINERY_URI, machinery),
+                di: namespace(DI_URI, di),
             },
             spec: self.spec,
             guard: self.guard,
@@ -273,9 +303,18 @@ impl InMemoryNodeManagerImplBuilder for MillgateNodesBuilder {
     }
 }
 
+/// The companion specifications' namespaces, whose browse names the Machinery items
+/// use (their nodes are the millgate namespace's).
+#[derive(Debug, Clone)]
+struct Companions {
+    machinery: NamespaceMetadata,
+    di: NamespaceMetadata,
+}
+
 /// The node manager of the millgate namespace.
 pub(crate) struct MillgateNodes {
     namespace: NamespaceMetadata,
+    companions: Companions,
     spec: Arc<AddressSpaceSpec>,
     guard: Arc<CommandGuard>,
     conditions: Arc<Mutex<Conditions>>,
@@ -392,7 +431,14 @@ impl InMemoryNodeManagerImpl for MillgateNodes {
     async fn init(&self, address_space: &mut AddressSpace, _context: ServerContext) {
         let ns = self.namespace.namespace_index;
         match NodeIds::new(&self.spec, ns) {
-            Ok(ids) => build(address_space, &self.spec, &ids, ns),
+            Ok(ids) => {
+                build(address_space, &self.spec, &ids, ns);
+                let companions = (
+                    self.companions.machinery.namespace_index,
+                    self.companions.di.namespace_index,
+                );
+                add_machines(address_space, &self.spec, &ids, ns, companions);
+            }
             // The server checked the ids before it started (`NodeIds::new` in `run`).
             Err(error) => tracing::error!(%error, "OPC UA address space not built"),
         }
@@ -403,7 +449,11 @@ impl InMemoryNodeManagerImpl for MillgateNodes {
     }
 
     fn namespaces(&self) -> Vec<NamespaceMetadata> {
-        vec![self.namespace.clone()]
+        vec![
+            self.namespace.clone(),
+            self.companions.machinery.clone(),
+            self.companions.di.clone(),
+        ]
     }
 
     fn takes_method_call(&self, object_id: &NodeId, method_id: &NodeId) -> bool {
@@ -587,16 +637,9 @@ fn add_variable(
             .insert(address_space);
     }
     if !variable.states.is_empty() {
-        let names: Vec<LocalizedText> = variable
-            .states
-            .iter()
-            .map(|state| LocalizedText::new("en", state))
-            .collect();
-        property("EnumStrings")
-            .data_type(DataTypeId::LocalizedText)
-            .value_rank(1)
-            .value(names)
-            .insert(address_space);
+        let id = NodeId::new(ns, format!("{variable_id_path}/EnumStrings"));
+        let names = variable.states.iter().map(String::as_str);
+        add_enum_strings(address_space, &id, variable_id, names);
     }
 }
 
@@ -654,6 +697,126 @@ fn add_conditions(
             .input_args(address_space, &arguments_id, &arguments)
             .insert(address_space);
     }
+}
+
+/// The Machinery items (OPC 40001-1) of `spec` under `Objects/Machines`: each with
+/// its `Identification` (DI's nameplate names), its `MachineryItemState` with
+/// `CurrentState`, and its NE 107 `DeviceHealth` (DI), and organizing the object it
+/// stands for. Typed by the base types: the DI and Machinery nodesets are not loaded
+/// (docs/opcua.md).
+fn add_machines(
+    address_space: &mut AddressSpace,
+    spec: &AddressSpaceSpec,
+    ids: &NodeIds,
+    ns: u16,
+    (machinery, di): (u16, u16),
+) {
+    if spec.machines.is_empty() {
+        return;
+    }
+    let folder = NodeId::new(ns, MACHINES);
+    ObjectBuilder::new(&folder, name(machinery, MACHINES), MACHINES)
+        .description(
+            "The machines of OPC 40001-1 (Machinery): the gateway, its drivelines and mills",
+        )
+        .is_folder()
+        .organized_by(ObjectId::ObjectsFolder)
+        .insert(address_space);
+    let property = |id: &NodeId, browse: QualifiedName, display: &str| {
+        VariableBuilder::new(id, browse, display)
+            .value_rank(-1)
+            .access_level(AccessLevel::CURRENT_READ)
+            .user_access_level(AccessLevel::CURRENT_READ)
+    };
+    for (machine, [item, current_state, health]) in spec.machines.iter().zip(&ids.machines) {
+        let object = &spec.objects[machine.object];
+        let path = string_id(item);
+        ObjectBuilder::new(item, name(ns, &object.name), object.name.as_str())
+            .description(object.description.as_str())
+            .has_type_definition(ObjectTypeId::BaseObjectType)
+            .organized_by(folder.clone())
+            .insert(address_space);
+        address_space.insert_reference(
+            item,
+            &ids.objects[machine.object],
+            ReferenceTypeId::Organizes,
+        );
+        let identification = NodeId::new(ns, format!("{path}/Identification"));
+        ObjectBuilder::new(
+            &identification,
+            name(di, "Identification"),
+            "Identification",
+        )
+        .has_type_definition(ObjectTypeId::BaseObjectType)
+        .component_of(item.clone())
+        .insert(address_space);
+        for (key, value) in &machine.identification {
+            let id = NodeId::new(ns, format!("{path}/Identification/{key}"));
+            let builder = property(&id, name(di, key), key)
+                .has_type_definition(VariableTypeId::PropertyType)
+                .property_of(identification.clone());
+            // DI's nameplate: Manufacturer and Model are LocalizedText, the others String.
+            match *key {
+                "Manufacturer" | "Model" => builder
+                    .data_type(DataTypeId::LocalizedText)
+                    .value(LocalizedText::new("en", value)),
+                _ => builder.data_type(DataTypeId::String).value(value.as_str()),
+            }
+            .insert(address_space);
+        }
+        let state = NodeId::new(ns, format!("{path}/MachineryItemState"));
+        ObjectBuilder::new(
+            &state,
+            name(machinery, "MachineryItemState"),
+            "MachineryItemState",
+        )
+        .description("NotAvailable, NotExecuting or Executing (OPC 40001-1)")
+        .has_type_definition(ObjectTypeId::BaseObjectType)
+        .component_of(item.clone())
+        .insert(address_space);
+        property(
+            current_state,
+            QualifiedName::new(0, "CurrentState"),
+            "CurrentState",
+        )
+        .data_type(DataTypeId::LocalizedText)
+        .has_type_definition(VariableTypeId::BaseDataVariableType)
+        .minimum_sampling_interval(0.0)
+        .component_of(state.clone())
+        .insert(address_space);
+        property(health, name(di, "DeviceHealth"), "DeviceHealth")
+            .description("NE 107 device health: the values of DI's DeviceHealthEnumeration")
+            .data_type(DataTypeId::UInt32)
+            .has_type_definition(VariableTypeId::MultiStateDiscreteType)
+            .minimum_sampling_interval(0.0)
+            .component_of(item.clone())
+            .insert(address_space);
+        let id = NodeId::new(ns, format!("{path}/DeviceHealth/EnumStrings"));
+        add_enum_strings(address_space, &id, health, DeviceHealth::NAMES);
+    }
+}
+
+/// The `EnumStrings` property (node `id`) of `variable`: the names of its values,
+/// from 0 (OPC 10000-8, 5.3.3.3).
+fn add_enum_strings<'a>(
+    address_space: &mut AddressSpace,
+    id: &NodeId,
+    variable: &NodeId,
+    names: impl IntoIterator<Item = &'a str>,
+) {
+    let names: Vec<LocalizedText> = names
+        .into_iter()
+        .map(|name| LocalizedText::new("en", name))
+        .collect();
+    VariableBuilder::new(id, "EnumStrings", "EnumStrings")
+        .data_type(DataTypeId::LocalizedText)
+        .value_rank(1)
+        .access_level(AccessLevel::CURRENT_READ)
+        .user_access_level(AccessLevel::CURRENT_READ)
+        .value(names)
+        .has_type_definition(VariableTypeId::PropertyType)
+        .property_of(variable.clone())
+        .insert(address_space);
 }
 
 /// A method argument.

@@ -340,6 +340,7 @@ impl CatalogueAdapter {
         let spec = AddressSpaceSpec {
             name: config.name.clone(),
             objects: objects.0,
+            machines: machines::machines(&adapter.layout),
         };
         (adapter, spec)
     }
@@ -413,7 +414,10 @@ impl CatalogueAdapter {
                 snapshot[span_index] = updates(catalogue::ROD_SPAN, &published, time, why);
             }
         }
-        Snapshot { objects: snapshot }
+        Snapshot {
+            objects: snapshot,
+            machines: machines::states(&self.layout, results),
+        }
     }
 }
 
@@ -429,6 +433,7 @@ fn seen(
     seen.1
 }
 
+mod machines;
 mod task;
 
 pub(crate) use task::OpcUaOutputTask;
