@@ -686,6 +686,33 @@ async fn alarms_are_conditions_that_both_clients_see_refresh_and_acknowledge() {
     assert_eq!(fields["Severity"], 800, "{fields}");
     assert_eq!(fields["SourceName"], "Drivelines/F1", "{fields}");
     let stale_event_id = fields["EventId"].as_str().unwrap().to_owned();
+    // The companion model: the driveline as a Machinery item (OPC 40001-1) under
+    // Objects/Machines, executing, its NE 107 health MAINTENANCE_REQUIRED (4) while
+    // the TAF alarm is latched; the gateway's identification.
+    let index = |peer: &mut Peer, uri: &str| {
+        let line = peer.ask(&format!("nsindex {uri}"), "nsindex");
+        line["index"].as_u64().unwrap_or_else(|| panic!("{line}"))
+    };
+    let machinery = index(&mut asyncua, "http://opcfoundation.org/UA/Machinery/");
+    let di = index(&mut asyncua, "http://opcfoundation.org/UA/DI/");
+    let item = format!("{machinery}:Machines {ready_ns}:F1");
+    let health = asyncua.ask(&format!("readpath {item} {di}:DeviceHealth"), "readpath");
+    assert_eq!(
+        (&health["value"], &health["status"]),
+        (&4.into(), &"Good".into()),
+        "{health}"
+    );
+    let state = asyncua.ask(
+        &format!("readpath {item} {machinery}:MachineryItemState 0:CurrentState"),
+        "readpath",
+    );
+    assert_eq!(state["value"], "Executing", "{state}");
+    let revision = asyncua.ask(
+        &format!("readpath {machinery}:Machines {ready_ns}:Gateway {di}:Identification {di}:SoftwareRevision"),
+        "readpath",
+    );
+    assert_eq!(revision["value"], env!("CARGO_PKG_VERSION"), "{revision}");
+
     // ConditionRefresh2 of the event item gives the same.
     let again = refreshed(&mut asyncua, "refresh2");
     assert_eq!(

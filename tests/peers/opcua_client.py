@@ -18,6 +18,8 @@ stdin and answers with one JSON object per line on stdout:
     translate NAME...      TranslateBrowsePathsToNodeIds from Objects (names ns:Name)
     children PATH          the browse names of PATH's children, in the server's order
     buildinfo              Server/ServerStatus/BuildInfo
+    nsindex URI            the index of namespace URI
+    readpath NAME...       read the variable at the browse path NAME... from Objects
     ack                    call Gateway/AcknowledgeAlarms
     quit
 
@@ -229,6 +231,12 @@ async def session(args):
                     children = await node(rest[0]).get_children()
                     names = [(await c.read_browse_name()).to_string() for c in children]
                     emit({"type": "children", "names": names})
+                elif command == "nsindex":
+                    emit({"type": "nsindex", "index": await client.get_namespace_index(rest[0])})
+                elif command == "readpath":
+                    found = await client.nodes.objects.get_child(rest)
+                    dv = await found.read_data_value(raise_on_bad_status=False)
+                    emit({"type": "readpath", "node": found.nodeid.to_string(), **data_value(dv)})
                 elif command == "buildinfo":
                     info = await client.get_node(ua.ObjectIds.Server_ServerStatus_BuildInfo).read_value()
                     emit({"type": "buildinfo", "product": info.ProductName, "uri": info.ProductUri,
