@@ -970,16 +970,29 @@ async fn certificates_and_passwords_are_checked() {
     let mut peer = Peer::connect(&rig.url, &with_user("s3cret")).expect("trusted and signed in");
     let read = peer.ask("read Gateway/state", "read");
     assert_eq!(read["value"], 1);
-    // Acknowledge from another host's address needs allow_remote_commands.
+    // Acknowledge from another host's address needs allow_remote_commands, a
+    // condition's too (refused before its EventId is looked at).
     let ack = peer.ask("ack", "ack");
+    let ns = peer.ask("nsindex urn:millgate:results", "nsindex")["index"].clone();
+    let condition = format!("ns={ns};s=Millgate/Sources/daq1/Conditions/source_stale");
+    let condition_ack = peer.ask(&format!("ackcondition {condition} 00 remote"), "ack");
     match remote {
         Some(_) => {
             assert_eq!(ack["status"], "BadUserAccessDenied", "{ack}");
-            assert_eq!(status().acknowledgements_refused, 1);
+            assert_eq!(
+                condition_ack["status"], "BadUserAccessDenied",
+                "{condition_ack}"
+            );
+            assert_eq!(status().acknowledgements_refused, 2);
+            assert_eq!(status().condition_calls_refused, 0);
         }
         None => {
             eprintln!("no non-loopback address: the remote acknowledge is not tested");
             assert_eq!(ack["status"], "Good", "{ack}");
+            assert_eq!(
+                condition_ack["status"], "BadEventIdUnknown",
+                "{condition_ack}"
+            );
         }
     }
     peer.send("quit");

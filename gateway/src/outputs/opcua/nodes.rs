@@ -188,6 +188,13 @@ impl CommandGuard {
     /// Whether `context`'s session may acknowledge now: who it is, or the refusal
     /// (`Bad_UserAccessDenied`, `Bad_TooManyOperations`), counted and logged.
     fn permit(&self, context: &RequestContext) -> Result<Acknowledgement, StatusCode> {
+        let who = self.authorise(context)?;
+        self.pace(who)
+    }
+
+    /// Whether `context`'s session may acknowledge at all: who it is, or
+    /// `Bad_UserAccessDenied`, counted and logged.
+    fn authorise(&self, context: &RequestContext) -> Result<Acknowledgement, StatusCode> {
         let channel = context.session.read().secure_channel_id();
         let peer = self.peers.peer(channel);
         let user = auth::user_name(&context.token).map(str::to_owned);
@@ -210,6 +217,15 @@ impl CommandGuard {
             }
             return Err(StatusCode::BadUserAccessDenied);
         }
+        Ok(Acknowledgement { peer, user })
+    }
+
+    /// Whether `who` may acknowledge now (one a second): counted as carried out, or
+    /// `Bad_TooManyOperations`, counted and logged.
+    fn pace(&self, who: Acknowledgement) -> Result<Acknowledgement, StatusCode> {
+        let Acknowledgement { peer, user } = &who;
+        let now = Instant::now();
+        let mut pace = crate::lock(&self.pace);
         if pace
             .last
             .is_some_and(|last| now.duration_since(last) < ACKNOWLEDGE_INTERVAL)
@@ -222,7 +238,7 @@ impl CommandGuard {
         }
         pace.last = Some(now);
         count(&self.counters.acknowledgements);
-        Ok(Acknowledgement { peer, user })
+        Ok(who)
     }
 
     /// The acknowledge call of `context`'s session: the latched alarms cleared as the
@@ -346,12 +362,17 @@ impl MillgateNodes {
             arguments if arguments.len() < 2 => return refuse(StatusCode::BadArgumentsMissing),
             _ => return refuse(StatusCode::BadTooManyArguments),
         };
+        // Rights first: a client without them learns nothing of the EventIds.
+        let who = match self.guard.authorise(context) {
+            Ok(who) => who,
+            Err(status) => return status,
+        };
         let mut conditions = crate::lock(&self.conditions);
         let to_acknowledge = match conditions.check_acknowledge(call.object_id(), event_id) {
             Ok(to_acknowledge) => to_acknowledge,
             Err(refused) => return refuse(refused.status()),
         };
-        let who = match self.guard.permit(context) {
+        let who = match self.guard.pace(who) {
             Ok(who) => who,
             Err(status) => return status,
         };
