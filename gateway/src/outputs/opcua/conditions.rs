@@ -284,7 +284,11 @@ mod tests {
             .iter()
             .map(|kind| NodeId::new(2, format!("{object}/Conditions/{kind}")))
             .collect();
-        let conditions = Conditions::new(&spec(), &[NodeId::new(2, object)], &[ids.clone()]);
+        let conditions = Conditions::new(
+            &spec(),
+            &[NodeId::new(2, object)],
+            std::slice::from_ref(&ids),
+        );
         (conditions, ids)
     }
 
