@@ -18,9 +18,10 @@
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use opcua::core_namespace::events::{
-    AlarmConditionType, RefreshEndEventType, RefreshStartEventType, TwoStateVariableType,
+    AlarmConditionType, RefreshEndEventType, RefreshStartEventType, SystemEventType,
+    TwoStateVariableType,
 };
-use opcua::nodes::{Event, EventField, NamespaceMap};
+use opcua::nodes::{BaseEventType, Event, EventField, NamespaceMap};
 use opcua::types::{
     AttributeId, ByteString, DateTime, LocalizedText, NodeId, NumericRange, ObjectId, ObjectTypeId,
     QualifiedName, StatusCode, UAString, Variant,
@@ -221,42 +222,31 @@ impl Event for ConditionEvent {
 /// The RefreshStart (`start`) or RefreshEnd event of a ConditionRefresh, from the
 /// Server object.
 pub(crate) fn refresh_event(start: bool, event_id: ByteString) -> Box<dyn Event + Send> {
-    let (message, time) = (
-        if start {
-            "ConditionRefresh: the retained conditions follow"
-        } else {
-            "ConditionRefresh: end of the retained conditions"
-        },
+    let (type_id, message) = if start {
+        (
+            ObjectTypeId::RefreshStartEventType,
+            "ConditionRefresh: the retained conditions follow",
+        )
+    } else {
+        (
+            ObjectTypeId::RefreshEndEventType,
+            "ConditionRefresh: end of the retained conditions",
+        )
+    };
+    let mut base = BaseEventType::new(
+        type_id,
+        event_id,
+        LocalizedText::new("en", message),
         DateTime::now(),
     );
-    let server = NodeId::from(ObjectId::Server);
-    let namespaces = NamespaceMap::new();
+    base.source_node = ObjectId::Server.into();
+    base.source_name = UAString::from("Server");
+    base.severity = 1;
+    let base = SystemEventType { base };
     if start {
-        let mut event = RefreshStartEventType::new_event(
-            ObjectTypeId::RefreshStartEventType.into(),
-            event_id,
-            LocalizedText::new("en", message),
-            &namespaces,
-            time,
-        );
-        let base = &mut event.base.base;
-        base.source_node = server;
-        base.source_name = UAString::from("Server");
-        base.severity = 1;
-        Box::new(event)
+        Box::new(RefreshStartEventType { base })
     } else {
-        let mut event = RefreshEndEventType::new_event(
-            ObjectTypeId::RefreshEndEventType.into(),
-            event_id,
-            LocalizedText::new("en", message),
-            &namespaces,
-            time,
-        );
-        let base = &mut event.base.base;
-        base.source_node = server;
-        base.source_name = UAString::from("Server");
-        base.severity = 1;
-        Box::new(event)
+        Box::new(RefreshEndEventType { base })
     }
 }
 
