@@ -347,7 +347,12 @@ impl MonitoredItem {
             eu_range: request.eu_range,
         };
         let now = DateTime::now();
-        if let Some(val) = request.initial_value.as_ref() {
+        if matches!(v.filter, FilterType::EventFilter(_)) {
+            // (millgate patch) An item of events gets events only: a data value
+            // (BadWaitingForInitialData) in its queue reached the client as a
+            // DataChangeNotification for an event notifier, which node-opcua reports as
+            // not compliant and drops.
+        } else if let Some(val) = request.initial_value.as_ref() {
             v.notify_data_value(val.clone(), &now, true);
         } else {
             v.notify_data_value(
