@@ -1,6 +1,7 @@
 //! Alarms & Conditions (OPC 10000-9): a condition instance per alarm an object
-//! raises ([`ConditionSpec`]), its state as the alarm stream changes it, the
-//! EventIds a client acknowledges with, and what a ConditionRefresh sends.
+//! raises ([`ConditionSpec`](super::model::ConditionSpec)), its state as the alarm
+//! stream changes it, the EventIds a client acknowledges with, and what a
+//! ConditionRefresh sends.
 //!
 //! A condition becomes active and unacknowledged when its alarm is raised. A
 //! latched one (TAF, gap and chatter alarms) is acknowledged by the PLC's
