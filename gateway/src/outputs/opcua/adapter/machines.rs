@@ -16,11 +16,10 @@ use crate::state::results::{
 };
 
 use super::super::model::{DeviceHealth, MachineSpec, MachineState};
-use super::Layout;
 
-/// The items: the gateway (object 0), then the drivelines, tandem mills and rod mills
-/// of `layout`, as their objects.
-pub(super) fn machines(layout: &Layout) -> Vec<MachineSpec> {
+/// The items: the gateway (object 0), then `mills` (the objects of the drivelines,
+/// tandem mills and rod mills, in this order).
+pub(super) fn machines(mills: impl IntoIterator<Item = usize>) -> Vec<MachineSpec> {
     let gateway = MachineSpec {
         object: 0,
         identification: vec![
@@ -29,21 +28,20 @@ pub(super) fn machines(layout: &Layout) -> Vec<MachineSpec> {
             ("SoftwareRevision", env!("CARGO_PKG_VERSION").into()),
         ],
     };
-    let mills = layout
-        .drivelines
-        .iter()
-        .chain(&layout.tandem_mills)
-        .chain(layout.rod_mills.iter().map(|(mill, _)| mill))
-        .map(|&object| MachineSpec {
-            object,
-            // The configuration names no manufacturer, model or serial of a mill.
-            identification: Vec::new(),
-        });
+    let mills = mills.into_iter().map(|object| MachineSpec {
+        object,
+        // The configuration names no manufacturer, model or serial of a mill.
+        identification: Vec::new(),
+    });
     std::iter::once(gateway).chain(mills).collect()
 }
 
-/// Each item's state and health in `results`, in the order of [`machines`].
-pub(super) fn states(layout: &Layout, results: &Results) -> Vec<(MachineState, DeviceHealth)> {
+/// Each item's state and health in `results`, in the order of [`machines`], for
+/// `(drivelines, tandem_mills, rod_mills)` of each kind.
+pub(super) fn states(
+    results: &Results,
+    (drivelines, tandem_mills, rod_mills): (usize, usize, usize),
+) -> Vec<(MachineState, DeviceHealth)> {
     let gateway = results.gateway();
     let gateway = match gateway.state {
         GatewayState::Starting => (MachineState::NotExecuting, DeviceHealth::CheckFunction),
@@ -54,7 +52,7 @@ pub(super) fn states(layout: &Layout, results: &Results) -> Vec<(MachineState, D
         GatewayState::Running => (MachineState::Executing, DeviceHealth::OffSpec),
     };
     let empty = DrivelineResults::default();
-    let drivelines = (0..layout.drivelines.len()).map(|k| {
+    let drivelines = (0..drivelines).map(|k| {
         let d = results.drivelines.get(k).unwrap_or(&empty);
         let health = if d.taf_alarm || d.gap_alarm || d.gap_warning {
             DeviceHealth::MaintenanceRequired
@@ -70,7 +68,7 @@ pub(super) fn states(layout: &Layout, results: &Results) -> Vec<(MachineState, D
         )
     });
     let empty = TandemMillResults::default();
-    let tandem_mills = (0..layout.tandem_mills.len()).map(|k| {
+    let tandem_mills = (0..tandem_mills).map(|k| {
         let m = results.tandem_mills.get(k).unwrap_or(&empty);
         let health = if m.chatter_alarm {
             DeviceHealth::MaintenanceRequired
@@ -82,7 +80,7 @@ pub(super) fn states(layout: &Layout, results: &Results) -> Vec<(MachineState, D
         mill(m.source_stale, m.evaluations == 0, health)
     });
     let empty = RodMillResults::default();
-    let rod_mills = (0..layout.rod_mills.len()).map(|k| {
+    let rod_mills = (0..rod_mills).map(|k| {
         let m = results.rod_mills.get(k).unwrap_or(&empty);
         let health = if m.input_refused {
             DeviceHealth::OffSpec
@@ -116,20 +114,14 @@ mod tests {
 
     #[test]
     fn state_and_health_follow_the_source_the_results_and_the_alarms() {
-        let layout = Layout {
-            sources: vec![1],
-            drivelines: vec![2],
-            tandem_mills: Vec::new(),
-            rod_mills: Vec::new(),
-        };
-        assert_eq!(machines(&layout).len(), 2);
+        assert_eq!(machines([2]).len(), 2);
         let mut results = Results {
             drivelines: vec![DrivelineResults::default()],
             ..Results::default()
         };
-        let driveline = |results: &Results| states(&layout, results)[1];
+        let driveline = |results: &Results| states(results, (1, 0, 0))[1];
         assert_eq!(
-            states(&layout, &results)[0],
+            states(&results, (1, 0, 0))[0],
             (MachineState::NotExecuting, DeviceHealth::CheckFunction),
             "the gateway starting"
         );

@@ -194,6 +194,21 @@ struct Layout {
     rod_mills: Vec<(usize, Vec<usize>)>,
 }
 
+impl Layout {
+    /// The objects of the drivelines, tandem mills and rod mills, in this order.
+    fn mills(&self) -> Vec<usize> {
+        let rod_mills = self.rod_mills.iter().map(|(mill, _)| *mill);
+        let drivelines = self.drivelines.iter().chain(&self.tandem_mills).copied();
+        drivelines.chain(rod_mills).collect()
+    }
+
+    /// How many drivelines, tandem mills and rod mills.
+    fn mill_counts(&self) -> (usize, usize, usize) {
+        let rod_mills = self.rod_mills.len();
+        (self.drivelines.len(), self.tandem_mills.len(), rod_mills)
+    }
+}
+
 /// The address space's objects as they are added.
 struct Objects(Vec<ObjectSpec>);
 
@@ -340,7 +355,7 @@ impl CatalogueAdapter {
         let spec = AddressSpaceSpec {
             name: config.name.clone(),
             objects: objects.0,
-            machines: machines::machines(&adapter.layout),
+            machines: machines::machines(adapter.layout.mills()),
         };
         (adapter, spec)
     }
@@ -416,7 +431,7 @@ impl CatalogueAdapter {
         }
         Snapshot {
             objects: snapshot,
-            machines: machines::states(&self.layout, results),
+            machines: machines::states(results, self.layout.mill_counts()),
         }
     }
 }
