@@ -53,10 +53,13 @@ fn spec(objects: usize) -> AddressSpaceSpec {
                         unit: None,
                         datatype: VariableType::Double,
                         range: None,
+                        states: Vec::new(),
                     })
                     .collect(),
+                conditions: Vec::new(),
             })
             .collect(),
+        machines: Vec::new(),
     }
 }
 
@@ -65,6 +68,7 @@ fn snapshot(objects: usize, bite: u64) -> Snapshot {
     let update = VariableUpdate::good(Value::Double(bite as f64), Some(SystemTime::now()));
     Snapshot {
         objects: vec![vec![update; VARIABLES]; objects],
+        machines: Vec::new(),
     }
 }
 

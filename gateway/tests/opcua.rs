@@ -1,5 +1,6 @@
-//! The OPC UA server against a client that is not ours: Python asyncua 2.1.0
-//! (`opcua_client.py`), with the gateway between the demo's virtual DAQ and PLC.
+//! The OPC UA server against clients that are not ours: Python asyncua 2.1.0
+//! (`opcua_client.py`) and, for Alarms & Conditions, node-opcua 2.180.0
+//! (`opcua_node_client.mjs`), with the gateway between the demo's virtual DAQ and PLC.
 //! Checked: the address space (objects, keys, data types, EUInformation by UNECE code,
 //! EURange) and every value against the PLC's registers of the same run; a
 //! subscription receiving a bite; alarm events, the acknowledge method and its guard;
@@ -7,8 +8,9 @@
 //! refused and kept in `rejected/`, then trusted) and passwords; hostile streams,
 //! counted, while the service and the PLC writes go on.
 //!
-//! Needs `pip install asyncua==2.1.0` (scripts/test installs it) and the `opcua`
-//! feature: `cargo test -p millgate --features opcua --test opcua`.
+//! Needs `pip install asyncua==2.1.0` and `npm ci --prefix tests/peers` (scripts/test
+//! installs both) and the `opcua` feature: `cargo test -p millgate --features opcua
+//! --test opcua`.
 
 mod common;
 
@@ -40,8 +42,17 @@ impl Peer {
     /// Connect to `url` with `options` of opcua_client.py: `Ok` once the session is
     /// up, `Err` with the client's `refused` line.
     fn connect(url: &str, options: &[&str]) -> Result<Self, Value> {
+        Self::connect_with("opcua_client.py", url, options)
+    }
+
+    /// Connect with node-opcua (`opcua_node_client.mjs`), security none, anonymous.
+    fn node_opcua(url: &str) -> Result<Self, Value> {
+        Self::connect_with("opcua_node_client.mjs", url, &[])
+    }
+
+    fn connect_with(script: &str, url: &str, options: &[&str]) -> Result<Self, Value> {
         let args = [&[url], options].concat();
-        let (child, stdin, lines) = common::json_peer(&common::peer("opcua_client.py"), &args);
+        let (child, stdin, lines) = common::json_peer(&common::peer(script), &args);
         let mut peer = Self {
             _child: child,
             stdin,
@@ -573,6 +584,235 @@ async fn subscriptions_get_each_bite_and_alarms_come_as_events() {
     rig.stop().await;
 }
 
+/// The events of a ConditionRefresh (asyncua's `refresh`): the event types and the
+/// retained conditions' events between RefreshStart (i=2787) and RefreshEnd (i=2788).
+fn refreshed(peer: &mut Peer, command: &str) -> Vec<Value> {
+    let answer = peer.ask(command, "refresh");
+    assert_eq!(answer["status"], "Good", "{answer}");
+    let mut started = false;
+    let mut conditions = Vec::new();
+    loop {
+        let event = peer.next_of("event", Duration::from_secs(10));
+        match event["fields"]["EventType"].as_str() {
+            Some("i=2787") => started = true,
+            Some("i=2788") if started => return conditions,
+            _ if started => conditions.push(event),
+            _ => {}
+        }
+    }
+}
+
+/// The event of `kind` among `events`, if one.
+fn condition<'a>(events: &'a [Value], kind: &str) -> Option<&'a Value> {
+    events
+        .iter()
+        .find(|event| event["fields"]["ConditionName"] == kind)
+}
+
+/// Issue 40: each alarm is a condition instance (OPC 10000-9) that asyncua's and
+/// node-opcua's default alarm filters receive; a client that connects during an
+/// active alarm sees it through ConditionRefresh; node-opcua acknowledges it as it
+/// acknowledges any condition, which clears the latched alarm as the PLC's
+/// acknowledge does; a refresh of an unknown subscription, a stale or another
+/// condition's EventId are refused with their status, counted, and change nothing.
+/// The address space's conventions: browse names in the millgate namespace (a
+/// browse path resolves), children in the catalogue's order, BuildInfo.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn alarms_are_conditions_that_both_clients_see_refresh_and_acknowledge() {
+    // TAF thresholds every demo bite passes: the alarm latches at each bite.
+    let rig = Rig::start("conditions", 60.0, |config, _| {
+        let thresholds = &mut config.drivelines[0].thresholds;
+        thresholds.taf_warning = 1.1;
+        thresholds.taf_alarm = 1.15;
+    })
+    .await;
+    common::wait_for("a bite", Duration::from_secs(30), || {
+        rig.bite_counter() >= 1
+    })
+    .await;
+    let Guard::FlagBit(alarm_bit) = catalogue::find(catalogue::DRIVELINE, "taf_alarm").guard else {
+        panic!("taf_alarm is a flag");
+    };
+    let alarm_flag =
+        |rig: &Rig| rig.plc.holding()[rig.register("F1.flags")] & (1 << alarm_bit) != 0;
+    common::wait_for(
+        "the PLC shows the TAF alarm",
+        Duration::from_secs(10),
+        || alarm_flag(&rig),
+    )
+    .await;
+
+    // asyncua, connecting during the alarm: its own filter for AlarmConditionType
+    // and the refresh events (where clause EventType InList [...]); the refresh
+    // shows the alarm, active, unacknowledged, enabled, retained, with its instance.
+    let mut asyncua = Peer::connect(&rig.url, &[]).expect("anonymous on loopback");
+    let ready = asyncua.ask("defaultevents", "subscribed");
+    assert!(ready["subscription"].as_u64().is_some(), "{ready}");
+    let build = asyncua.ask("buildinfo", "buildinfo");
+    assert_eq!(build["product"], "millgate", "{build}");
+    assert_eq!(build["version"], env!("CARGO_PKG_VERSION"), "{build}");
+    assert_eq!(build["uri"], "urn:millgate", "{build}");
+    let start = Instant::now();
+    let conditions = loop {
+        let conditions = refreshed(&mut asyncua, "refresh");
+        if condition(&conditions, "taf_alarm").is_some()
+            || start.elapsed() > Duration::from_secs(10)
+        {
+            break conditions;
+        }
+    };
+    let alarm = condition(&conditions, "taf_alarm").expect("the TAF alarm in the refresh");
+    let fields = &alarm["fields"];
+    // The millgate namespace's index, from a browse name.
+    let ready_ns = {
+        let line = asyncua.ask("children Gateway", "children");
+        let first = line["names"][0].as_str().unwrap().to_owned();
+        first.split_once(':').unwrap().0.to_owned()
+    };
+    let condition_id = format!("ns={ready_ns};s=Millgate/Drivelines/F1/Conditions/taf_alarm");
+    assert_eq!(
+        fields["NodeId"],
+        condition_id.as_str(),
+        "ConditionId: {fields}"
+    );
+    assert_eq!(fields["EventType"], "i=2915", "{fields}");
+    assert_eq!(fields["ActiveState/Id"], true, "{fields}");
+    assert_eq!(fields["ActiveState"], "Active", "{fields}");
+    assert_eq!(fields["AckedState/Id"], false, "{fields}");
+    assert_eq!(fields["AckedState"], "Unacknowledged", "{fields}");
+    assert_eq!(fields["EnabledState/Id"], true, "{fields}");
+    assert_eq!(fields["EnabledState"], "Enabled", "{fields}");
+    assert_eq!(fields["Retain"], true, "{fields}");
+    assert_eq!(fields["Severity"], 800, "{fields}");
+    assert_eq!(fields["SourceName"], "Drivelines/F1", "{fields}");
+    let stale_event_id = fields["EventId"].as_str().unwrap().to_owned();
+    // The companion model: the driveline as a Machinery item (OPC 40001-1) under
+    // Objects/Machines, executing, its NE 107 health MAINTENANCE_REQUIRED (4) while
+    // the TAF alarm is latched; the gateway's identification.
+    let index = |peer: &mut Peer, uri: &str| {
+        let line = peer.ask(&format!("nsindex {uri}"), "nsindex");
+        line["index"].as_u64().unwrap_or_else(|| panic!("{line}"))
+    };
+    let machinery = index(&mut asyncua, "http://opcfoundation.org/UA/Machinery/");
+    let di = index(&mut asyncua, "http://opcfoundation.org/UA/DI/");
+    let item = format!("{machinery}:Machines {ready_ns}:F1");
+    let health = asyncua.ask(&format!("readpath {item} {di}:DeviceHealth"), "readpath");
+    assert_eq!(
+        (&health["value"], &health["status"]),
+        (&4.into(), &"Good".into()),
+        "{health}"
+    );
+    let state = asyncua.ask(
+        &format!("readpath {item} {machinery}:MachineryItemState 0:CurrentState"),
+        "readpath",
+    );
+    assert_eq!(state["value"], "Executing", "{state}");
+    let revision = asyncua.ask(
+        &format!("readpath {machinery}:Machines {ready_ns}:Gateway {di}:Identification {di}:SoftwareRevision"),
+        "readpath",
+    );
+    assert_eq!(revision["value"], env!("CARGO_PKG_VERSION"), "{revision}");
+
+    // ConditionRefresh2 of the event item gives the same.
+    let again = refreshed(&mut asyncua, "refresh2");
+    assert_eq!(
+        condition(&again, "taf_alarm").unwrap()["fields"]["EventId"],
+        stale_event_id.as_str(),
+        "a refresh sends the last event again"
+    );
+
+    // node-opcua, connecting during the alarm: its alarm monitoring (OfType
+    // AcknowledgeableConditionType, then ConditionRefresh) holds the alarm.
+    let mut node = Peer::node_opcua(&rig.url).expect("anonymous on loopback");
+    node.ask("alarms", "subscribed");
+    let seen = loop {
+        let alarm = node.next_of("alarm", Duration::from_secs(20));
+        if alarm["conditionName"] == "taf_alarm" {
+            break alarm;
+        }
+    };
+    assert_eq!(seen["conditionId"], condition_id.as_str(), "{seen}");
+    assert_eq!(
+        (
+            &seen["active"],
+            &seen["acked"],
+            &seen["enabled"],
+            &seen["retain"]
+        ),
+        (&true.into(), &false.into(), &true.into(), &true.into()),
+        "{seen}"
+    );
+    assert_eq!(seen["eventId"], stale_event_id.as_str(), "{seen}");
+
+    // Bad input: refused with its status, counted, nothing changed.
+    let counts = || rig.gateway.opcua().unwrap().counts();
+    let unknown = asyncua.ask("refresh 4000000000", "refresh");
+    assert_eq!(unknown["status"], "BadSubscriptionIdInvalid", "{unknown}");
+    let foreign = condition(&conditions, "taf_warning")
+        .map(|warning| warning["fields"]["EventId"].as_str().unwrap().to_owned())
+        .unwrap_or_else(|| "00".repeat(16));
+    for event_id in [foreign.as_str(), "0123456789abcdef0123456789abcdef"] {
+        let refused = asyncua.ask(&format!("ackcondition {condition_id} {event_id} no"), "ack");
+        assert_eq!(refused["status"], "BadEventIdUnknown", "{refused}");
+    }
+    assert_eq!(counts().condition_calls_refused, 3, "{:?}", counts());
+    assert_eq!(counts().acknowledgements, 0, "{:?}", counts());
+    assert!(alarm_flag(&rig), "the PLC's TAF alarm is still set");
+
+    // node-opcua acknowledges: the latched alarm clears as the PLC's acknowledge
+    // does (the alarm stream's `acknowledged`), and both clients are told.
+    let ack = node.ask(&format!("ack {condition_id} seen by the test"), "ack");
+    assert_eq!(ack["status"], "Good", "{ack}");
+    let acknowledged = loop {
+        let event = asyncua.next_of("event", Duration::from_secs(10));
+        if event["fields"]["ConditionName"] == "taf_alarm" {
+            break event;
+        }
+    };
+    let fields = &acknowledged["fields"];
+    assert_eq!(fields["AckedState/Id"], true, "{fields}");
+    assert_eq!(fields["AckedState"], "Acknowledged", "{fields}");
+    assert_eq!(fields["ActiveState/Id"], false, "{fields}");
+    assert_eq!(fields["Comment"], "seen by the test", "{fields}");
+    assert!(
+        fields["Message"].as_str().unwrap().contains("acknowledged"),
+        "{fields}"
+    );
+    let changed = loop {
+        let alarm = node.next_of("alarm", Duration::from_secs(10));
+        if alarm["conditionName"] == "taf_alarm" && alarm["acked"] == true {
+            break alarm;
+        }
+    };
+    assert_eq!(changed["active"], false, "{changed}");
+    assert_eq!(counts().acknowledgements, 1, "{:?}", counts());
+    // The EventId acknowledged is stale now.
+    let stale = node.ask(&format!("ackwith {condition_id} {stale_event_id}"), "ack");
+    assert_eq!(stale["status"], "BadEventIdUnknown", "{stale}");
+    assert_eq!(counts().condition_calls_refused, 4, "{:?}", counts());
+    assert_eq!(counts().acknowledgements, 1, "{:?}", counts());
+
+    // Browse names in the millgate namespace: the browse path resolves; children
+    // in the catalogue's order, then the conditions' folder.
+    let path = format!("translate {ready_ns}:Millgate {ready_ns}:Gateway {ready_ns}:state");
+    let state = asyncua.ask(&path, "translate");
+    assert_eq!(
+        state["node"],
+        format!("ns={ready_ns};s=Millgate/Gateway/state").as_str(),
+        "{state}"
+    );
+    let children = asyncua.ask("children Drivelines/F1", "children");
+    let mut expected: Vec<String> = catalogue::DRIVELINE
+        .iter()
+        .map(|figure| format!("{ready_ns}:{}", figure.key))
+        .collect();
+    expected.push(format!("{ready_ns}:Conditions"));
+    assert_eq!(children["names"], serde_json::json!(expected));
+    node.send("quit");
+    asyncua.send("quit");
+    rig.stop().await;
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_stale_source_is_bad_or_uncertain_never_good() {
     let mut rig = Rig::start("stale", 6.0, |_, _| {}).await;
@@ -730,16 +970,29 @@ async fn certificates_and_passwords_are_checked() {
     let mut peer = Peer::connect(&rig.url, &with_user("s3cret")).expect("trusted and signed in");
     let read = peer.ask("read Gateway/state", "read");
     assert_eq!(read["value"], 1);
-    // Acknowledge from another host's address needs allow_remote_commands.
+    // Acknowledge from another host's address needs allow_remote_commands, a
+    // condition's too (refused before its EventId is looked at).
     let ack = peer.ask("ack", "ack");
+    let ns = peer.ask("nsindex urn:millgate:results", "nsindex")["index"].clone();
+    let condition = format!("ns={ns};s=Millgate/Sources/daq1/Conditions/source_stale");
+    let condition_ack = peer.ask(&format!("ackcondition {condition} 00 remote"), "ack");
     match remote {
         Some(_) => {
             assert_eq!(ack["status"], "BadUserAccessDenied", "{ack}");
-            assert_eq!(status().acknowledgements_refused, 1);
+            assert_eq!(
+                condition_ack["status"], "BadUserAccessDenied",
+                "{condition_ack}"
+            );
+            assert_eq!(status().acknowledgements_refused, 2);
+            assert_eq!(status().condition_calls_refused, 0);
         }
         None => {
             eprintln!("no non-loopback address: the remote acknowledge is not tested");
             assert_eq!(ack["status"], "Good", "{ack}");
+            assert_eq!(
+                condition_ack["status"], "BadEventIdUnknown",
+                "{condition_ack}"
+            );
         }
     }
     peer.send("quit");

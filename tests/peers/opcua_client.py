@@ -7,6 +7,19 @@ stdin and answers with one JSON object per line on stdout:
     subscribe PATH...      data changes of variables (100 ms publishing)
     events                 AlarmConditionType events from the Server object (where
                            clause OfType AlarmConditionType)
+    defaultevents          AlarmConditionType, RefreshStartEventType and
+                           RefreshEndEventType events from the Server object with
+                           asyncua's own filter (subscribe_events: their fields, where
+                           clause EventType InList [the types and their subtypes])
+    refresh [ID]           ConditionRefresh of the subscription (or of ID)
+    refresh2 [ID]          ConditionRefresh2 of the subscription's event item (or ID)
+    ackcondition NODE HEX [COMMENT]
+                           call the condition NODE's Acknowledge (i=9111) with EventId HEX
+    translate NAME...      TranslateBrowsePathsToNodeIds from Objects (names ns:Name)
+    children PATH          the browse names of PATH's children, in the server's order
+    buildinfo              Server/ServerStatus/BuildInfo
+    nsindex URI            the index of namespace URI
+    readpath NAME...       read the variable at the browse path NAME... from Objects
     ack                    call Gateway/AcknowledgeAlarms
     quit
 
@@ -160,6 +173,7 @@ async def session(args):
         emit({"type": "ready", "namespace": ns})
         node = lambda path: client.get_node(ua.NodeId(f"Millgate/{path}", ns))
         subscription = None
+        event_item = None
         paths = {}
         loop = asyncio.get_running_loop()
         reader = asyncio.StreamReader()
@@ -175,6 +189,59 @@ async def session(args):
                 elif command == "read":
                     dv = await node(rest[0]).read_data_value(raise_on_bad_status=False)
                     emit({"type": "read", "path": rest[0], **data_value(dv)})
+                elif command == "defaultevents":
+                    if subscription is None:
+                        subscription = await client.create_subscription(100, Handler(paths))
+                    types = [client.get_node(t) for t in (ua.ObjectIds.AlarmConditionType,
+                             ua.ObjectIds.RefreshStartEventType, ua.ObjectIds.RefreshEndEventType)]
+                    event_item = await subscription.subscribe_events(client.nodes.server, types)
+                    emit({"type": "subscribed", "what": line, "subscription": subscription.subscription_id})
+                elif command in ("refresh", "refresh2"):
+                    condition_type = client.get_node(ua.ObjectIds.ConditionType)
+                    sub_id = int(rest[0]) if rest else subscription.subscription_id
+                    args = [ua.Variant(sub_id, ua.VariantType.UInt32)]
+                    method = ua.ObjectIds.ConditionType_ConditionRefresh
+                    if command == "refresh2":
+                        method = ua.ObjectIds.ConditionType_ConditionRefresh2
+                        item = int(rest[1]) if len(rest) > 1 else event_item
+                        args.append(ua.Variant(item, ua.VariantType.UInt32))
+                    try:
+                        await condition_type.call_method(ua.NodeId(method), *args)
+                        emit({"type": "refresh", "status": "Good"})
+                    except ua.UaStatusCodeError as error:
+                        emit({"type": "refresh", "status": ua.StatusCode(error.code).name})
+                elif command == "ackcondition":
+                    condition = client.get_node(ua.NodeId.from_string(rest[0]))
+                    comment = ua.LocalizedText(" ".join(rest[2:]), "en")
+                    try:
+                        await condition.call_method(
+                            ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge),
+                            ua.Variant(bytes.fromhex(rest[1]), ua.VariantType.ByteString),
+                            ua.Variant(comment, ua.VariantType.LocalizedText))
+                        emit({"type": "ack", "status": "Good"})
+                    except ua.UaStatusCodeError as error:
+                        emit({"type": "ack", "status": ua.StatusCode(error.code).name})
+                elif command == "translate":
+                    try:
+                        found = await client.nodes.objects.get_child(rest)
+                        emit({"type": "translate", "node": found.nodeid.to_string()})
+                    except ua.UaStatusCodeError as error:
+                        emit({"type": "translate", "status": ua.StatusCode(error.code).name})
+                elif command == "children":
+                    children = await node(rest[0]).get_children()
+                    names = [(await c.read_browse_name()).to_string() for c in children]
+                    emit({"type": "children", "names": names})
+                elif command == "nsindex":
+                    emit({"type": "nsindex", "index": await client.get_namespace_index(rest[0])})
+                elif command == "readpath":
+                    found = await client.nodes.objects.get_child(rest)
+                    dv = await found.read_data_value(raise_on_bad_status=False)
+                    emit({"type": "readpath", "node": found.nodeid.to_string(), **data_value(dv)})
+                elif command == "buildinfo":
+                    info = await client.get_node(ua.ObjectIds.Server_ServerStatus_BuildInfo).read_value()
+                    emit({"type": "buildinfo", "product": info.ProductName, "uri": info.ProductUri,
+                          "manufacturer": info.ManufacturerName, "version": info.SoftwareVersion,
+                          "date": plain(info.BuildDate)})
                 elif command in ("subscribe", "events"):
                     if subscription is None:
                         subscription = await client.create_subscription(100, Handler(paths))

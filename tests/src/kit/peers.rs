@@ -1,7 +1,7 @@
-//! Python peers: clients, hosts and readers that are not ours (paho-mqtt's Sparkplug
-//! host, asyncua's OPC UA client, pymodbus' PLC and devices, pyarrow and numpy
-//! readers), kept in `tests/peers/` ([`peer`]); [`json_peer`] runs one that talks
-//! JSON lines.
+//! Python and Node.js peers: clients, hosts and readers that are not ours (paho-mqtt's
+//! Sparkplug host, asyncua's and node-opcua's OPC UA clients, pymodbus' PLC and
+//! devices, pyarrow and numpy readers), kept in `tests/peers/` ([`peer`]);
+//! [`json_peer`] runs one that talks JSON lines.
 
 use std::path::{Path, PathBuf};
 use std::process::{ChildStdin, Command, Stdio};
@@ -16,20 +16,25 @@ pub fn peer(name: &str) -> PathBuf {
     path
 }
 
-/// `python3 script args` (`script` a path, [`peer`]): the child (killed when dropped), its
-/// stdin for commands and its stdout's JSON lines, read on a thread.
+/// `python3 script args` (`node script args` for a `.mjs` script; `script` a path,
+/// [`peer`]): the child (killed when dropped), its stdin for commands and its
+/// stdout's JSON lines, read on a thread.
 pub fn json_peer(
     script: &Path,
     args: &[&str],
 ) -> (KillOnDrop, ChildStdin, Receiver<serde_json::Value>) {
     use std::io::BufRead;
-    let mut child = Command::new("python3")
+    let interpreter = match script.extension().and_then(|e| e.to_str()) {
+        Some("mjs") => "node",
+        _ => "python3",
+    };
+    let mut child = Command::new(interpreter)
         .arg(script)
         .args(args)
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .spawn()
-        .expect("python3");
+        .unwrap_or_else(|error| panic!("{interpreter}: {error}"));
     let stdin = child.stdin.take().unwrap();
     let stdout = child.stdout.take().unwrap();
     let (tx, lines) = std::sync::mpsc::channel();

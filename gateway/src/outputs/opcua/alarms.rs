@@ -5,7 +5,7 @@
 
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
-use super::model::AlarmEventSpec;
+use super::model::{AlarmEventSpec, ConditionSpec};
 use crate::state::catalogue::{self, AlarmKind, Figure, Subject, SubjectKind};
 use crate::state::events::{AlarmEvent, AlarmRecord, HistoryEvent};
 use crate::state::results::Results;
@@ -19,6 +19,29 @@ pub(super) const ALARM_SEVERITY: u16 = 800;
 const STALE_SEVERITY: u16 = 600;
 /// Severity of a lost source and of the slow-down request.
 const LOST_SEVERITY: u16 = 700;
+
+/// A source's condition while it is stale (no fresh sample within its stale time).
+const SOURCE_STALE: &str = "source_stale";
+/// A source's condition while it is lost (no answer within its lost time).
+const SOURCE_LOST: &str = "source_lost";
+
+/// The conditions of a source: its outages, stale or lost (not latched).
+pub(super) fn source_conditions() -> Vec<ConditionSpec> {
+    [
+        (
+            SOURCE_STALE,
+            "The source is stale: its figures are withdrawn or marked",
+        ),
+        (SOURCE_LOST, "The source is lost: it does not answer"),
+    ]
+    .into_iter()
+    .map(|(kind, description)| ConditionSpec {
+        kind: kind.into(),
+        description: description.into(),
+        latched: false,
+    })
+    .collect()
+}
 
 /// The severity of an alarm of `kind`.
 fn severity(kind: AlarmKind) -> u16 {
@@ -77,14 +100,14 @@ impl EventObjects {
                 status,
             } => {
                 let kind = if *status == "lost" {
-                    "source_lost"
+                    SOURCE_LOST
                 } else {
-                    "source_stale"
+                    SOURCE_STALE
                 };
                 self.outage(source, Some(kind), to_system(*time))
             }
             HistoryEvent::OutageWorse { source } => {
-                self.outage(source, Some("source_lost"), SystemTime::now())
+                self.outage(source, Some(SOURCE_LOST), SystemTime::now())
             }
             HistoryEvent::OutageEnded { time, source, .. } => {
                 self.outage(source, None, to_system(*time))
@@ -158,7 +181,7 @@ impl EventObjects {
             object,
             kind: kind.into(),
             severity: match kind {
-                "source_lost" => LOST_SEVERITY,
+                SOURCE_LOST => LOST_SEVERITY,
                 _ => STALE_SEVERITY,
             },
             message: format!(

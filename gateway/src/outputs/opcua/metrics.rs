@@ -7,7 +7,7 @@ use crate::exposition::{Exposition, Families, Kind};
 impl Families for OpcUaStatus {
     fn write_families(&self, page: &mut Exposition) {
         let counts = &self.counts();
-        let scalars: [(&str, Kind, &str, f64); 19] = [
+        let scalars: [(&str, Kind, &str, f64); 21] = [
             (
                 "millgate_opcua_connections_total",
                 Kind::Counter,
@@ -79,6 +79,18 @@ impl Families for OpcUaStatus {
                 Kind::Counter,
                 "Acknowledge calls refused: one was carried out less than a second before.",
                 counts.acknowledgements_limited as f64,
+            ),
+            (
+                "millgate_opcua_condition_refreshes_total",
+                Kind::Counter,
+                "ConditionRefresh and ConditionRefresh2 calls carried out.",
+                counts.condition_refreshes as f64,
+            ),
+            (
+                "millgate_opcua_condition_calls_refused_total",
+                Kind::Counter,
+                "Calls of a condition's methods refused for what they asked: an unknown subscription, condition or EventId, a condition acknowledged already, bad arguments.",
+                counts.condition_calls_refused as f64,
             ),
             (
                 "millgate_opcua_rejected_certificates_removed_total",

@@ -11,6 +11,7 @@
 //! Files: `model.rs` (the vocabulary and the address space table), `nodes.rs` (the
 //! namespace, the nodes, the acknowledge guard), `events.rs` (alarm events),
 //! `auth.rs` (anonymous and user sign-in), `pki.rs` (the certificate store),
+//! `conditions.rs` (the condition instances' state: Alarms & Conditions),
 //! `front.rs` (the listener: connection bound, framing check, client addresses),
 //! `status.rs` (the counters), `metrics.rs` (their `/metrics` families), `error.rs`
 //! (why it stopped), `adapter/` (the catalogue to the address space, the board to
@@ -28,6 +29,7 @@
 pub(crate) mod adapter;
 mod alarms;
 mod auth;
+mod conditions;
 mod error;
 mod events;
 pub mod front;
@@ -58,6 +60,7 @@ pub use error::OpcUaError;
 pub use status::OpcUaStatus;
 pub use tools::{address_space_table, DemoOption};
 
+use conditions::Conditions;
 use front::{ChannelPeers, FrontDoor};
 use model::{AddressSpaceSpec, AlarmEventSpec, Quality, Snapshot, Value, VariableUpdate};
 use nodes::{Acknowledger, CommandGuard, MillgateNodes, MillgateNodesBuilder, NodeIds};
@@ -81,6 +84,10 @@ const MAX_MONITORED_ITEMS: usize = 20_000;
 /// Continuation points a session may hold (browse, history, query): each keeps the
 /// rest of a result until the client asks for it (async-opcua allows 5 000).
 const MAX_CONTINUATION_POINTS: usize = 10;
+/// Queue of an item of events whose client leaves its size to the server (0):
+/// room for a ConditionRefresh's retained conditions and a burst of alarms
+/// (async-opcua's default, one, kept only the last; the kept patch's setting).
+const EVENT_QUEUE_SIZE: usize = 100;
 /// How often `pki_dir/rejected/` is trimmed to [`pki::MAX_REJECTED`] files.
 const REJECTED_TRIM_PERIOD: Duration = Duration::from_secs(1);
 
@@ -186,11 +193,13 @@ impl OpcUaServer {
             counters: Arc::clone(&self.counters),
             pace: std::sync::Mutex::default(),
         });
+        let conditions = Arc::new(std::sync::Mutex::new(Conditions::default()));
         let (server, handle) = self
             .builder(public.port())
             .with_node_manager(InMemoryNodeManagerBuilder::new(MillgateNodesBuilder {
                 spec: Arc::clone(&self.spec),
                 guard,
+                conditions: Arc::clone(&conditions),
             }))
             .build()
             .map_err(OpcUaError::Server)?;
@@ -224,7 +233,7 @@ impl OpcUaServer {
             handle: &handle,
             counters: &self.counters,
             last: Snapshot::default(),
-            event_sequence: 0,
+            conditions: &conditions,
         };
         publish.apply(&updates.borrow_and_update());
         let front = FrontDoor {
@@ -304,7 +313,8 @@ impl OpcUaServer {
         let mut builder = ServerBuilder::new()
             .application_name(format!("millgate {}", self.spec.name))
             .application_uri(self.application_uri())
-            .product_uri("urn:millgate")
+            .product_uri(PRODUCT_URI)
+            .build_info(build_info())
             .host(settings.host.clone())
             .port(port)
             .pki_dir(settings.pki_dir.clone())
@@ -334,6 +344,7 @@ impl OpcUaServer {
         limits.subscriptions.max_monitored_items =
             MAX_MONITORED_ITEMS.max(settings.max_monitored_items_per_subscription);
         limits.subscriptions.max_lifetime_ms = MAX_SUBSCRIPTION_LIFETIME.as_millis() as f64;
+        limits.subscriptions.default_event_queue_size = EVENT_QUEUE_SIZE;
         limits.evict_idle_session_ms = front::EVICT_IDLE.as_millis() as u64;
         limits.max_browse_continuation_points = MAX_CONTINUATION_POINTS;
         limits.max_history_continuation_points = MAX_CONTINUATION_POINTS;
@@ -370,7 +381,7 @@ struct Publish<'a> {
     handle: &'a ServerHandle,
     counters: &'a OpcUaCounters,
     last: Snapshot,
-    event_sequence: u64,
+    conditions: &'a std::sync::Mutex<Conditions>,
 }
 
 impl Publish<'_> {
@@ -397,6 +408,25 @@ impl Publish<'_> {
                 let value = self.data_value(spec.datatype, update, now);
                 changes.push((id, value));
             }
+        }
+        for (machine, now_is) in snapshot.machines.iter().enumerate() {
+            let Some([_, state, health]) = self.ids.machines.get(machine) else {
+                continue;
+            };
+            if self.last.machines.get(machine) == Some(now_is) {
+                continue;
+            }
+            let (state_now, health_now) = now_is;
+            let good = |value: Variant| DataValue {
+                value: Some(value),
+                status: Some(StatusCode::Good),
+                source_timestamp: Some(now),
+                server_timestamp: Some(now),
+                ..Default::default()
+            };
+            let text = opcua::types::LocalizedText::new("en", state_now.name());
+            changes.push((state, good(Variant::from(text))));
+            changes.push((health, good(Variant::UInt32(*health_now as u32))));
         }
         if changes.is_empty() {
             return;
@@ -449,22 +479,23 @@ impl Publish<'_> {
         }
     }
 
-    /// Send `alarm` from its object: to the clients subscribed to the object's events
-    /// or the Server object's (async-opcua adds those of the Server object).
+    /// Apply `alarm` to its condition and send the condition's event from its
+    /// object: to the clients subscribed to the object's events or the Server
+    /// object's (async-opcua adds those of the Server object).
     fn event(&mut self, alarm: &AlarmEventSpec) {
-        let Some(source) = self.ids.objects.get(alarm.object) else {
-            tracing::error!(object = alarm.object, "OPC UA alarm of an unknown object");
+        // Held while the event is queued: a ConditionRefresh sees it before or after.
+        let mut conditions = crate::lock(self.conditions);
+        let Some((event, source)) = conditions.update(alarm) else {
+            tracing::error!(
+                object = alarm.object,
+                kind = alarm.kind,
+                "OPC UA alarm of no condition"
+            );
             return;
         };
-        self.event_sequence += 1;
-        let mut id = [0u8; 16];
-        id[..8].copy_from_slice(&self.event_sequence.to_be_bytes());
-        id[8..].copy_from_slice(&DateTime::now().ticks().to_be_bytes());
-        let name = model::object_path(self.spec, alarm.object);
-        let event = events::alarm_event(alarm, source, &name, id);
         self.handle
             .subscriptions()
-            .notify_events([(&event as &dyn Event, source)].into_iter());
+            .notify_events([(&event as &dyn Event, &source)].into_iter());
         count(&self.counters.events);
     }
 }
@@ -484,6 +515,28 @@ fn is_finite(value: Value) -> bool {
     match value {
         Value::Double(value) => value.is_finite(),
         _ => true,
+    }
+}
+
+/// The product's URI (BuildInfo, the application description).
+const PRODUCT_URI: &str = "urn:millgate";
+
+/// The server's BuildInfo (`Server/ServerStatus/BuildInfo`): millgate, its version
+/// (the crate's) and the build's date: when the executable was written (the link; a
+/// build records no date of its own, so two builds of one commit stay the same).
+fn build_info() -> opcua::types::BuildInfo {
+    let version = env!("CARGO_PKG_VERSION");
+    let built = std::env::current_exe()
+        .and_then(std::fs::metadata)
+        .and_then(|file| file.modified())
+        .map_or_else(|_| DateTime::null(), events::ua_time);
+    opcua::types::BuildInfo {
+        product_uri: PRODUCT_URI.into(),
+        manufacturer_name: "millgate project".into(),
+        product_name: "millgate".into(),
+        software_version: version.into(),
+        build_number: version.into(),
+        build_date: built,
     }
 }
 

@@ -15,6 +15,71 @@ pub struct AddressSpaceSpec {
     pub name: String,
     /// The objects; an object's `parent` comes before it.
     pub objects: Vec<ObjectSpec>,
+    /// The items of the Machinery companion model (`Objects/Machines`, OPC 40001-1),
+    /// in the order of [`Snapshot::machines`].
+    pub machines: Vec<MachineSpec>,
+}
+
+/// A Machinery item (OPC 40001-1): the gateway, a driveline or a mill, with its
+/// identification, its MachineryItemState and its NE 107 DeviceHealth (OPC
+/// 10000-100).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MachineSpec {
+    /// The object it stands for (index into [`AddressSpaceSpec::objects`]); its
+    /// browse name is the object's.
+    pub object: usize,
+    /// Identification: `(browse name in the DI namespace, value)`, the ones known
+    /// (`Manufacturer`, `Model`, `SoftwareRevision`).
+    pub identification: Vec<(&'static str, String)>,
+}
+
+/// A Machinery item's state (OPC 40001-1 `MachineryItemState_StateMachineType`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MachineState {
+    /// Its state is not known (its source is stale or lost).
+    NotAvailable,
+    /// Not working: waiting for its first bite or window, or stopped.
+    NotExecuting,
+    /// Working.
+    Executing,
+}
+
+impl MachineState {
+    /// The state's browse name, as `CurrentState` shows it.
+    pub fn name(self) -> &'static str {
+        match self {
+            MachineState::NotAvailable => "NotAvailable",
+            MachineState::NotExecuting => "NotExecuting",
+            MachineState::Executing => "Executing",
+        }
+    }
+}
+
+/// NE 107 device health (OPC 10000-100 `DeviceHealthEnumeration`: its values).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DeviceHealth {
+    /// 0: working, no condition.
+    Normal = 0,
+    /// 1: its output is not valid (a stopped gateway, a lost or stale source).
+    Failure = 1,
+    /// 2: its output is temporarily not valid (the gateway starting).
+    CheckFunction = 2,
+    /// 3: working outside its specification (a source stale for the gateway, a
+    /// degraded bite for a driveline).
+    OffSpec = 3,
+    /// 4: working, maintenance is needed (a latched alarm or a gap warning).
+    MaintenanceRequired = 4,
+}
+
+impl DeviceHealth {
+    /// The names of the values, from 0 (`DeviceHealthEnumeration`'s).
+    pub const NAMES: [&'static str; 5] = [
+        "NORMAL",
+        "FAILURE",
+        "CHECK_FUNCTION",
+        "OFF_SPEC",
+        "MAINTENANCE_REQUIRED",
+    ];
 }
 
 /// What an object stands for; objects without a parent are grouped by kind under
@@ -64,6 +129,23 @@ pub struct ObjectSpec {
     pub description: String,
     /// Its variables, in the order of [`Snapshot::objects`]' updates.
     pub variables: Vec<VariableSpec>,
+    /// The alarms it raises: a condition instance each (OPC 10000-9), whose events
+    /// are the [`AlarmEventSpec`]s of this object and kind.
+    pub conditions: Vec<ConditionSpec>,
+}
+
+/// An alarm an object raises: a condition instance of `AlarmConditionType`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ConditionSpec {
+    /// Its key (`taf_alarm`, `source_lost`): the ConditionName, the instance's browse
+    /// name and the `kind` of its [`AlarmEventSpec`]s.
+    pub kind: String,
+    /// One sentence.
+    pub description: String,
+    /// Whether it latches until the PLC's acknowledge (`AcknowledgeAlarms`, a
+    /// condition's `Acknowledge`) clears it in every output; other conditions are
+    /// acknowledged on the OPC UA server only (a warning that follows the analysis).
+    pub latched: bool,
 }
 
 /// One published figure.
@@ -79,6 +161,9 @@ pub struct VariableSpec {
     pub datatype: VariableType,
     /// Its normal range `(low, high)` (EURange), where one exists.
     pub range: Option<(f64, f64)>,
+    /// For a state: the name of each value, from 0 (a `MultiStateDiscreteType` with
+    /// `EnumStrings`); empty for other figures.
+    pub states: Vec<String>,
 }
 
 /// OPC UA data types of the published figures.
@@ -264,6 +349,8 @@ impl VariableUpdate {
 pub struct Snapshot {
     /// Per object, per variable.
     pub objects: Vec<Vec<VariableUpdate>>,
+    /// Per Machinery item ([`AddressSpaceSpec::machines`]): its state and health.
+    pub machines: Vec<(MachineState, DeviceHealth)>,
 }
 
 /// An alarm or warning that was raised, cleared or acknowledged, sent to clients as an
@@ -364,7 +451,9 @@ mod tests {
                 unit: None,
                 datatype: VariableType::Boolean,
                 range: None,
+                states: Vec::new(),
             }],
+            conditions: Vec::new(),
         };
         let spec = AddressSpaceSpec {
             name: "plant".into(),
@@ -373,6 +462,7 @@ mod tests {
                 object("R1", ObjectKind::RodMill, None),
                 object("span1", ObjectKind::RodSpan, Some(1)),
             ],
+            machines: Vec::new(),
         };
         let paths: Vec<_> = (0..3).map(|i| object_path(&spec, i)).collect();
         assert_eq!(paths, ["Gateway", "RodMills/R1", "RodMills/R1/span1"]);

@@ -20,6 +20,8 @@ pub(crate) struct OpcUaCounters {
     pub(super) acknowledgements: AtomicU64,
     pub(super) acknowledgements_refused: AtomicU64,
     pub(super) acknowledgements_limited: AtomicU64,
+    pub(super) condition_refreshes: AtomicU64,
+    pub(super) condition_calls_refused: AtomicU64,
     pub(super) rejected_certificates_removed: AtomicU64,
     pub(super) value_changes: AtomicU64,
     pub(super) invalid_updates: AtomicU64,
@@ -62,6 +64,14 @@ pub struct OpcUaCounts {
     /// Acknowledge calls refused because one was carried out less than a second
     /// before (`Bad_TooManyOperations`).
     pub acknowledgements_limited: u64,
+    /// ConditionRefresh and ConditionRefresh2 calls carried out.
+    pub condition_refreshes: u64,
+    /// Calls of a condition's methods refused for what they asked (not for rights or
+    /// pace): an unknown subscription or monitored item (`Bad_SubscriptionIdInvalid`,
+    /// `Bad_MonitoredItemIdInvalid`), an unknown condition, a stale or another
+    /// condition's EventId (`Bad_EventIdUnknown`), a condition acknowledged already,
+    /// arguments missing or of the wrong type.
+    pub condition_calls_refused: u64,
     /// Refused client certificates removed from `pki_dir/rejected/`, the oldest
     /// first, to keep it within its bound.
     pub rejected_certificates_removed: u64,
@@ -77,7 +87,7 @@ pub struct OpcUaCounts {
     /// Updates refused: a value not of its variable's type, or a non-finite number
     /// given as good (published as `Bad_TypeMismatch`).
     pub invalid_updates: u64,
-    /// Alarm events sent.
+    /// Condition events sent (a ConditionRefresh's not counted).
     pub events: u64,
 }
 
@@ -115,6 +125,8 @@ impl OpcUaCounters {
             acknowledgements: load(&self.acknowledgements),
             acknowledgements_refused: load(&self.acknowledgements_refused),
             acknowledgements_limited: load(&self.acknowledgements_limited),
+            condition_refreshes: load(&self.condition_refreshes),
+            condition_calls_refused: load(&self.condition_calls_refused),
             rejected_certificates_removed: load(&self.rejected_certificates_removed),
             subscriptions: subscriptions as u64,
             monitored_items: monitored_items as u64,

@@ -124,6 +124,10 @@ pub struct SubscriptionLimits {
     /// unlimited.
     #[serde(default)]
     pub max_monitored_items: usize,
+    /// (millgate patch) Queue size of an item of events whose client asks for the
+    /// server's default (queue size 0). 0: one event, as for data changes.
+    #[serde(default)]
+    pub default_event_queue_size: usize,
 }
 
 impl Default for SubscriptionLimits {
@@ -145,6 +149,7 @@ impl Default for SubscriptionLimits {
             max_lifetime_ms: 0.0,
             max_subscriptions: 0,
             max_monitored_items: 0,
+            default_event_queue_size: 0,
         }
     }
 }
@@ -404,6 +409,7 @@ mod tests {
                     max_lifetime_ms: 0.0,
                     max_subscriptions: 0,
                     max_monitored_items: 0,
+                    default_event_queue_size: 0,
                 },
                 operational: OperationalLimits {
                     max_nodes_per_translate_browse_paths_to_node_ids: 100,

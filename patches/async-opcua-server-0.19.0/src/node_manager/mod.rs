@@ -290,6 +290,17 @@ pub trait NodeManager: IntoAnyArc + Any {
     /// even if this is a cross node-manager request like Browse.
     fn owns_node(&self, id: &NodeId) -> bool;
 
+    /// (millgate patch) Return whether this node manager takes the call of
+    /// `method_id` on `object_id` though another node manager owns the method: the
+    /// methods of ConditionType and its subtypes, which a client calls with the
+    /// condition instance as the object and the type's method as the method
+    /// (`Acknowledge`, OPC 10000-9 5.7.3), or on the ConditionType itself
+    /// (`ConditionRefresh`, 5.5.7). The first node manager that takes a call gets
+    /// it, without the checks of the method's node.
+    fn takes_method_call(&self, object_id: &NodeId, method_id: &NodeId) -> bool {
+        false
+    }
+
     /// Name of this node manager, for debug purposes.
     fn name(&self) -> &str;
 

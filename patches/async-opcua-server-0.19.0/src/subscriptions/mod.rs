@@ -440,6 +440,58 @@ impl SubscriptionCache {
         }
     }
 
+    /// (millgate patch) Send `events` to one subscription of session `session_id`
+    /// only, as ConditionRefresh asks (OPC 10000-9 5.5.7): to each of its monitored
+    /// items of events (with `Some(monitored_item_id)`, ConditionRefresh2, to that one
+    /// only) that monitor the Server object or the event's source node (`None`: every
+    /// item, for RefreshStart and RefreshEnd). Each item's filter applies as to any
+    /// event. `Bad_SubscriptionIdInvalid` for a subscription the session does not
+    /// have, `Bad_MonitoredItemIdInvalid` for an item of events the subscription
+    /// does not have; nothing is sent then.
+    pub fn notify_events_to_subscription<'a>(
+        &self,
+        session_id: u32,
+        subscription_id: u32,
+        monitored_item_id: Option<u32>,
+        events: &[(&'a dyn Event, Option<&'a NodeId>)],
+    ) -> Result<(), StatusCode> {
+        let lck = trace_read_lock!(self.inner);
+        if lck.subscription_to_session.get(&subscription_id) != Some(&session_id) {
+            return Err(StatusCode::BadSubscriptionIdInvalid);
+        }
+        let Some(cache) = lck.session_subscriptions.get(&session_id) else {
+            return Err(StatusCode::BadSubscriptionIdInvalid);
+        };
+        let items: Vec<(&NodeId, MonitoredItemHandle, bool)> = lck
+            .monitored_items
+            .iter()
+            .filter(|(key, _)| key.attribute_id == AttributeId::EventNotifier)
+            .flat_map(|(key, handles)| {
+                handles
+                    .iter()
+                    .filter(|(handle, _)| {
+                        handle.subscription_id == subscription_id
+                            && monitored_item_id.is_none_or(|id| handle.monitored_item_id == id)
+                    })
+                    .map(move |(handle, entry)| (&key.id, *handle, entry.enabled))
+            })
+            .collect();
+        if monitored_item_id.is_some() && items.is_empty() {
+            return Err(StatusCode::BadMonitoredItemIdInvalid);
+        }
+        let server = NodeId::from(opcua_types::ObjectId::Server);
+        let mut notifications = Vec::new();
+        for (event, source) in events {
+            for (node, handle, enabled) in &items {
+                if *enabled && source.is_none_or(|source| **node == server || *node == source) {
+                    notifications.push((*handle, *event));
+                }
+            }
+        }
+        cache.lock().notify_events(notifications);
+        Ok(())
+    }
+
     pub(crate) fn create_monitored_items(
         &self,
         session_id: u32,

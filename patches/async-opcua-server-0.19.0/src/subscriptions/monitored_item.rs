@@ -7,7 +7,7 @@ use tracing::{error, warn};
 use super::MonitoredItemHandle;
 use crate::{info::ServerInfo, node_manager::ParsedReadValueId};
 use opcua_types::{
-    match_extension_object_owned, DataChangeFilter, DataValue, DateTime, EventFieldList,
+    match_extension_object_owned, AttributeId, DataChangeFilter, DataValue, DateTime, EventFieldList,
     EventFilter, EventFilterResult, ExtensionObject, MonitoredItemCreateRequest,
     MonitoredItemModifyRequest, MonitoredItemNotification, MonitoringMode, NumericRange,
     ParsedDataChangeFilter, StatusCode, TimestampsToReturn, Variant,
@@ -131,8 +131,14 @@ fn sanitize_sampling_interval(info: &ServerInfo, requested_sampling_interval: f6
 }
 
 /// Takes the requested queue size and ensures it is within the range supported by the server
-fn sanitize_queue_size(info: &ServerInfo, requested_queue_size: usize) -> usize {
-    if requested_queue_size == 0 || requested_queue_size == 1 {
+fn sanitize_queue_size(info: &ServerInfo, requested_queue_size: usize, events: bool) -> usize {
+    // (millgate patch) For an item of events, 0 asks for the server's default queue
+    // size (OPC 10000-4 7.21): one event would drop all but the last of a burst (an
+    // acknowledge, a ConditionRefresh).
+    let event_default = info.config.limits.subscriptions.default_event_queue_size;
+    if events && requested_queue_size == 0 && event_default > 0 {
+        event_default.min(info.config.limits.subscriptions.max_monitored_item_queue_size)
+    } else if requested_queue_size == 0 || requested_queue_size == 1 {
         // For data monitored items 0 -> 1
         // Future - for event monitored items, queue size should be the default queue size for event notifications
         1
@@ -169,7 +175,12 @@ impl CreateMonitoredItem {
             FilterType::from_filter(req.requested_parameters.filter, eu_range, type_tree);
         let sampling_interval =
             sanitize_sampling_interval(info, req.requested_parameters.sampling_interval);
-        let queue_size = sanitize_queue_size(info, req.requested_parameters.queue_size as usize);
+        let events = req.item_to_monitor.attribute_id == AttributeId::EventNotifier as u32;
+        let queue_size = sanitize_queue_size(
+            info,
+            req.requested_parameters.queue_size as usize,
+            events,
+        );
 
         let (filter, mut status) = match filter {
             Ok(s) => (s, StatusCode::BadNodeIdUnknown),
@@ -336,7 +347,12 @@ impl MonitoredItem {
             eu_range: request.eu_range,
         };
         let now = DateTime::now();
-        if let Some(val) = request.initial_value.as_ref() {
+        if matches!(v.filter, FilterType::EventFilter(_)) {
+            // (millgate patch) An item of events gets events only: a data value
+            // (BadWaitingForInitialData) in its queue reached the client as a
+            // DataChangeNotification for an event notifier, which node-opcua reports as
+            // not compliant and drops.
+        } else if let Some(val) = request.initial_value.as_ref() {
             v.notify_data_value(val.clone(), &now, true);
         } else {
             v.notify_data_value(
@@ -377,8 +393,11 @@ impl MonitoredItem {
         let parsed_sampling_interval =
             sanitize_sampling_interval(info, request.requested_parameters.sampling_interval);
         self.sampling_interval = parse_sampling_interval(parsed_sampling_interval);
-        self.queue_size =
-            sanitize_queue_size(info, request.requested_parameters.queue_size as usize);
+        self.queue_size = sanitize_queue_size(
+            info,
+            request.requested_parameters.queue_size as usize,
+            self.item_to_monitor.attribute_id == AttributeId::EventNotifier,
+        );
         self.client_handle = request.requested_parameters.client_handle;
         self.discard_oldest = request.requested_parameters.discard_oldest;
 

@@ -22,10 +22,10 @@ use millgate_config::Config;
 use crate::state::catalogue::{self, Figure, FigureType, NoValue, Reading, Subject};
 use crate::state::results::{DrivelineResults, Results, RodMillResults, TandemMillResults};
 
-use super::alarms::EventObjects;
+use super::alarms::{source_conditions, EventObjects};
 use super::model::{
-    AddressSpaceSpec, ObjectKind, ObjectSpec, Quality, Snapshot, Unit, Value, VariableSpec,
-    VariableType, VariableUpdate,
+    AddressSpaceSpec, ConditionSpec, ObjectKind, ObjectSpec, Quality, Snapshot, Unit, Value,
+    VariableSpec, VariableType, VariableUpdate,
 };
 
 /// The OPC UA unit of a catalogue unit; `None` for none (ratios, counts, flags,
@@ -92,6 +92,23 @@ fn variables<R>(figures: &[Figure<R>]) -> Vec<VariableSpec> {
             range: figure
                 .range
                 .filter(|_| figure.figure_type != FigureType::Bool),
+            states: match figure.figure_type {
+                FigureType::State(names) => names.iter().map(|&name| name.into()).collect(),
+                _ => Vec::new(),
+            },
+        })
+        .collect()
+}
+
+/// The conditions of `figures`: one per alarm flag, named by its key.
+fn conditions<R>(figures: &[Figure<R>]) -> Vec<ConditionSpec> {
+    figures
+        .iter()
+        .filter(|figure| figure.alarm.is_some())
+        .map(|figure| ConditionSpec {
+            kind: figure.key.into(),
+            description: figure.description.into(),
+            latched: figure.latched,
         })
         .collect()
 }
@@ -177,6 +194,21 @@ struct Layout {
     rod_mills: Vec<(usize, Vec<usize>)>,
 }
 
+impl Layout {
+    /// The objects of the drivelines, tandem mills and rod mills, in this order.
+    fn mills(&self) -> Vec<usize> {
+        let rod_mills = self.rod_mills.iter().map(|(mill, _)| *mill);
+        let drivelines = self.drivelines.iter().chain(&self.tandem_mills).copied();
+        drivelines.chain(rod_mills).collect()
+    }
+
+    /// How many drivelines, tandem mills and rod mills.
+    fn mill_counts(&self) -> (usize, usize, usize) {
+        let rod_mills = self.rod_mills.len();
+        (self.drivelines.len(), self.tandem_mills.len(), rod_mills)
+    }
+}
+
 /// The address space's objects as they are added.
 struct Objects(Vec<ObjectSpec>);
 
@@ -187,7 +219,7 @@ impl Objects {
         (name, parent): (&str, Option<usize>),
         kind: ObjectKind,
         description: String,
-        variables: Vec<VariableSpec>,
+        (variables, conditions): (Vec<VariableSpec>, Vec<ConditionSpec>),
     ) -> usize {
         self.0.push(ObjectSpec {
             name: name.into(),
@@ -195,6 +227,7 @@ impl Objects {
             parent,
             description,
             variables,
+            conditions,
         });
         self.0.len() - 1
     }
@@ -210,8 +243,8 @@ impl Objects {
         names
             .iter()
             .map(|name| {
-                let variables = variables(figures);
-                self.add((name, None), kind, description.into(), variables)
+                let nodes = (variables(figures), conditions(figures));
+                self.add((name, None), kind, description.into(), nodes)
             })
             .collect()
     }
@@ -222,7 +255,10 @@ impl Objects {
             (name, None),
             ObjectKind::RodMill,
             "A rod mill whose spans are checked against the Mathieu tongues".into(),
-            variables(catalogue::ROD_MILL),
+            (
+                variables(catalogue::ROD_MILL),
+                conditions(catalogue::ROD_MILL),
+            ),
         );
         let spans = (0..spans)
             .map(|span| {
@@ -233,13 +269,11 @@ impl Objects {
                     span + 1,
                     span + 2
                 );
-                let variables = variables(catalogue::ROD_SPAN);
-                self.add(
-                    (&name, Some(mill)),
-                    ObjectKind::RodSpan,
-                    description,
-                    variables,
-                )
+                let nodes = (
+                    variables(catalogue::ROD_SPAN),
+                    conditions(catalogue::ROD_SPAN),
+                );
+                self.add((&name, Some(mill)), ObjectKind::RodSpan, description, nodes)
             })
             .collect();
         (mill, spans)
@@ -270,7 +304,10 @@ impl CatalogueAdapter {
             ("Gateway", None),
             ObjectKind::Gateway,
             "The gateway's own state".into(),
-            variables(catalogue::GATEWAY),
+            (
+                variables(catalogue::GATEWAY),
+                conditions(catalogue::GATEWAY),
+            ),
         );
         let source_names: Vec<String> = config.sources().map(|s| s.name().to_owned()).collect();
         let names = |names: &mut dyn Iterator<Item = &String>| names.cloned().collect::<Vec<_>>();
@@ -302,6 +339,10 @@ impl CatalogueAdapter {
                 .map(|(k, name)| objects.rod_mill(name, rod_spans.get(k).copied().unwrap_or(0)))
                 .collect(),
         };
+        // A source's outages are its conditions (the alarm stream's outage events).
+        for &source in &layout.sources {
+            objects.0[source].conditions = source_conditions();
+        }
         let adapter = Self {
             layout,
             source_names,
@@ -314,6 +355,7 @@ impl CatalogueAdapter {
         let spec = AddressSpaceSpec {
             name: config.name.clone(),
             objects: objects.0,
+            machines: machines::machines(adapter.layout.mills()),
         };
         (adapter, spec)
     }
@@ -387,7 +429,10 @@ impl CatalogueAdapter {
                 snapshot[span_index] = updates(catalogue::ROD_SPAN, &published, time, why);
             }
         }
-        Snapshot { objects: snapshot }
+        Snapshot {
+            objects: snapshot,
+            machines: machines::states(results, self.layout.mill_counts()),
+        }
     }
 }
 
@@ -403,6 +448,7 @@ fn seen(
     seen.1
 }
 
+mod machines;
 mod task;
 
 pub(crate) use task::OpcUaOutputTask;

@@ -50,6 +50,14 @@ pub trait InMemoryNodeManagerImpl: Send + Sync + 'static {
     /// Name of this node manager, for debug purposes.
     fn name(&self) -> &str;
 
+    /// (millgate patch) Return whether this node manager takes the call of a method
+    /// it does not own on `object_id` (see `NodeManager::takes_method_call`); such
+    /// calls reach [`InMemoryNodeManagerImpl::call`] without the checks of the
+    /// method's node.
+    fn takes_method_call(&self, object_id: &NodeId, method_id: &NodeId) -> bool {
+        false
+    }
+
     /// Return the static list of namespaces this node manager uses.
     fn namespaces(&self) -> Vec<NamespaceMetadata>;
 

@@ -52,8 +52,17 @@ pub(crate) async fn call(node_managers: NodeManagers, request: Request<CallReque
         &node_managers,
         MethodServiceCb,
         |call, node_manager| {
-            node_manager.owns_node(call.method_id())
-                && call.status() == StatusCode::BadMethodInvalid
+            // (millgate patch) A call another node manager takes (a condition's
+            // method) goes there, not to the owner of the method.
+            let taken_by = |node_manager: &Arc<DynNodeManager>| {
+                node_manager.takes_method_call(call.object_id(), call.method_id())
+            };
+            let owner = if node_managers.iter().any(taken_by) {
+                taken_by(node_manager)
+            } else {
+                node_manager.owns_node(call.method_id())
+            };
+            owner && call.status() == StatusCode::BadMethodInvalid
         },
     )
     .await;
