@@ -54,8 +54,8 @@ enum Command {
         #[arg(long, value_enum, default_value = "text")]
         format: millgate::cli::OutputFormat,
     },
-    /// Run the gateway service until SIGINT or SIGTERM (SIGHUP checks the
-    /// configuration file again and says what a restart would change).
+    /// Run the gateway service until SIGINT or SIGTERM (SIGHUP reloads the
+    /// configuration file: what can change live is applied, the rest is named).
     Run {
         /// The configuration file (TOML).
         #[arg(long)]
@@ -172,19 +172,11 @@ async fn run_service(config_path: PathBuf, config: millgate_config::Config) -> a
         millgate::supervision::check_watchdog(period, heartbeat)
             .map_err(|error| anyhow::anyhow!("{}: {error}", config_path.display()))?;
     }
-    let running = config.clone();
     let service = millgate::Service::new(config)
         .map_err(|error| anyhow::anyhow!("{}: {error}", config_path.display()))?;
     let signal = stop_signals()?;
     tokio::pin!(signal);
     let mut hang_up = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::hangup())?;
-    let reload = || {
-        use millgate::service::reload::{reload, Reload};
-        match reload(&running, &config_path) {
-            outcome @ Reload::Unchanged => tracing::info!("{outcome}"),
-            outcome => tracing::warn!("{outcome}"),
-        }
-    };
     let mut gateway = service.spawn().await?;
     loop {
         tokio::select! {
@@ -194,7 +186,8 @@ async fn run_service(config_path: PathBuf, config: millgate_config::Config) -> a
                 gateway.stop().await?;
                 return Ok(());
             }
-            Some(()) = hang_up.recv() => reload(),
+            // Handled (and logged) by the service once it runs.
+            Some(()) = hang_up.recv() => drop(tokio::spawn(gateway.reload(&config_path))),
         }
     }
     tracing::info!("ready");
@@ -224,7 +217,8 @@ async fn run_service(config_path: PathBuf, config: millgate_config::Config) -> a
             }
             Some(()) = hang_up.recv() => {
                 notify(&[NotifyState::Reloading]);
-                reload();
+                // The service logs and counts the outcome.
+                let _ = gateway.reload(&config_path).await;
                 notify(&[NotifyState::Ready]);
             }
         }

@@ -26,7 +26,7 @@ use std::time::{Duration, Instant};
 
 use common::broker::Broker;
 use common::sparkplug as backlog;
-use common::{free_port, terminate, Setup, MILLGATE};
+use common::{free_port, hang_up, terminate, Setup, MILLGATE};
 use millgate::history::query::{CaptureRow, Filter, HistoryReader};
 use serde_json::Value;
 
@@ -1385,6 +1385,79 @@ async fn with_two_independent_brokers_the_node_moves_to_the_other() {
         2,
         "one session on each broker: {sessions:?}"
     );
+}
+
+/// A reload mid-stream that gives the node another server (`brokers` changed, issue
+/// 41): the node ends its session on the old one with its NDEATH, is born on the new
+/// one with the next bdSeq, and every bite the PLC saw reaches a host application,
+/// live or replayed flagged historical; the PLC writer and the analysis run on.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_reload_moves_the_node_to_its_new_server_and_loses_no_bite() {
+    let setup = Setup::new(MILLGATE, "sparkplug-reload", "db").await;
+    let (ports, _brokers) = two_brokers(&setup);
+    let mut hosts = vec![
+        Host::start(ports[0], "plant"),
+        Host::start(ports[1], "plant"),
+    ];
+    let original = std::fs::read_to_string(&setup.config).unwrap();
+    let mqtt = |port: u16| {
+        format!(
+            "\n[outputs.mqtt]\nbrokers = [\"127.0.0.1:{port}\"]\ngroup_id = \"plant\"\n\
+             node_id = \"f1\"\nkeep_alive_s = 5\n"
+        )
+    };
+    setup.append_config(&mqtt(ports[0]));
+    let mut service = setup.spawn("run.log");
+    let limit = Duration::from_secs(60);
+    let nbirth = read_until(&mut hosts, "NBIRTH", limit, |seen| nth_birth(seen, 0));
+    let bd_seq = metric(&nbirth, "bdSeq")["value"].as_u64().unwrap();
+    let dbirth = read_until(&mut hosts, "DBIRTH", limit, |seen| {
+        seen.iter()
+            .find(|m| m["type"] == "DBIRTH" && m["device"] == "F1")
+            .cloned()
+    });
+    let bite_alias = metric(&dbirth, "bite_id")["alias"].as_u64().unwrap();
+    let plc = setup.plc();
+    plc.bites_after_now(1).await;
+    let last = u64::from(plc.counter());
+    read_until(&mut hosts, "the bite", limit, |seen| {
+        bite_after(seen, bite_alias, last - 1)
+    });
+
+    std::fs::write(&setup.config, original + &mqtt(ports[1])).unwrap();
+    hang_up(service.id());
+    let death = read_until(&mut hosts, "NDEATH", limit, |seen| {
+        seen.iter().find(|m| m["type"] == "NDEATH").cloned()
+    });
+    assert_eq!(metric(&death, "bdSeq")["value"].as_u64(), Some(bd_seq));
+    let next_birth = read_until(&mut hosts, "second NBIRTH", limit, |seen| {
+        nth_birth(seen, 1)
+    });
+    assert_eq!(
+        metric(&next_birth, "bdSeq")["value"].as_u64(),
+        Some(bd_seq + 1),
+        "{next_birth}"
+    );
+    plc.bites_after_now(1).await;
+    let last = u64::from(plc.counter());
+    read_until(&mut hosts, "a bite after the reload", limit, |seen| {
+        bite_after(seen, bite_alias, last - 1)
+    });
+    // The first host saw the first session, the second the second.
+    let sessions = bites_by_session(&seen(&hosts), bite_alias);
+    assert_eq!(sessions.len(), 2, "{sessions:?}");
+    assert_every_bite_once(&sessions, last);
+    assert_eq!(
+        setup
+            .metric("millgate_config_reloads_total{outcome=\"applied\"}")
+            .await,
+        Some(1.0)
+    );
+    assert!(setup
+        .log_text("run.log")
+        .contains("reload: applied outputs.mqtt"));
+    terminate(&mut service);
+    setup.stop(service).await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -42,25 +42,32 @@ impl RunInfo {
             drivelines: config
                 .drivelines
                 .iter()
-                .map(|driveline| DrivelineSettings {
-                    name: driveline.name.clone(),
-                    taf_warning: driveline.thresholds.taf_warning,
-                    taf_alarm: driveline.thresholds.taf_alarm,
-                    model: driveline
-                        .model
-                        .as_ref()
-                        .map(|path| path.display().to_string()),
-                    // The gap diagnosis runs only with a model.
-                    gap_warning_mrad: driveline
-                        .model
-                        .as_ref()
-                        .map(|_| driveline.thresholds.gap_warning_mrad),
-                    gap_alarm_mrad: driveline
-                        .model
-                        .as_ref()
-                        .map(|_| driveline.thresholds.gap_alarm_mrad),
-                })
+                .map(DrivelineSettings::of)
                 .collect(),
+        }
+    }
+}
+
+impl DrivelineSettings {
+    /// `driveline`'s settings as the history keeps them.
+    pub fn of(driveline: &millgate_config::Driveline) -> Self {
+        Self {
+            name: driveline.name.clone(),
+            taf_warning: driveline.thresholds.taf_warning,
+            taf_alarm: driveline.thresholds.taf_alarm,
+            model: driveline
+                .model
+                .as_ref()
+                .map(|path| path.display().to_string()),
+            // The gap diagnosis runs only with a model.
+            gap_warning_mrad: driveline
+                .model
+                .as_ref()
+                .map(|_| driveline.thresholds.gap_warning_mrad),
+            gap_alarm_mrad: driveline
+                .model
+                .as_ref()
+                .map(|_| driveline.thresholds.gap_alarm_mrad),
         }
     }
 }
