@@ -60,7 +60,13 @@ enum Command {
         /// The configuration file (TOML).
         #[arg(long)]
         config: PathBuf,
+        /// Keep this process' id in FILE while it runs (for `millgate reload`).
+        #[arg(long, value_name = "FILE")]
+        pid_file: Option<PathBuf>,
     },
+    /// Ask a running service to reload its configuration file (as SIGHUP does):
+    /// found by its pid file; with --config the file is checked first.
+    Reload(millgate::cli::reload::ReloadArgs),
     /// Export the register map of a configuration (0-based PDU addresses: the map's
     /// offsets and, with a PLC output, register_base + offset).
     Registers {
@@ -338,13 +344,25 @@ fn main() -> ExitCode {
         Command::Sim(args) => millgate::cli::sim::run(args),
         #[cfg(feature = "sim-tools")]
         Command::Rod(args) => millgate::cli::rod::run(args).and_then(emit),
-        Command::Run { config: path } => match millgate_config::load(&path) {
+        Command::Run {
+            config: path,
+            pid_file,
+        } => match millgate_config::load(&path) {
             Ok(config) => {
                 init_tracing("info", cli.log_format.map_or(config.log_format, Into::into));
-                runtime().block_on(run_service(path, config))
+                pid_file
+                    .as_deref()
+                    .map(millgate::cli::reload::PidFile::write)
+                    .transpose()
+                    .and_then(|pid_file| {
+                        let ran = runtime().block_on(run_service(path, config));
+                        drop(pid_file);
+                        ran
+                    })
             }
             Err(error) => Err(error.into()),
         },
+        Command::Reload(args) => millgate::cli::reload::run(&args).and_then(emit),
         #[cfg(feature = "sim-tools")]
         Command::Demo(args) => {
             init_tracing("warn", log_format);

@@ -6,13 +6,14 @@
 //! started, then moved to another port (the old one closes); a change of a bite
 //! setting is named as needing a restart while the rest applies; `/metrics` counts
 //! each outcome. The service runs on throughout, no bite id is missing from the
-//! history, and it stops cleanly afterwards.
+//! history, and it stops cleanly afterwards. `millgate reload` finds the service by
+//! its pid file, refuses a file with errors itself and a stale pid file.
 
 mod common;
 
 use std::time::Duration;
 
-use common::{free_port, hang_up, http, terminate, wait_for, Setup, MILLGATE};
+use common::{free_port, hang_up, http, millgate, terminate, text, wait_for, Setup, MILLGATE};
 
 use millgate::history::query::{Filter, HistoryReader};
 
@@ -27,7 +28,9 @@ async fn sighup_applies_what_it_can_names_the_rest_and_loses_no_bite() {
     let setup = Setup::new(MILLGATE, "reload", "db").await;
     let plc = setup.plc();
     let original = std::fs::read_to_string(&setup.config).unwrap();
-    let mut service = setup.spawn("run.log");
+    let pid_file = setup.scratch.join("millgate.pid");
+    let pid_arg = pid_file.to_str().unwrap();
+    let mut service = setup.spawn_with(MILLGATE.command(), "run.log", &["--pid-file", pid_arg]);
     plc.bites_after_now(1).await;
     // The demo's bites pass the test's TAF warning threshold, 1.1.
     let limit = Duration::from_secs(40);
@@ -63,10 +66,18 @@ async fn sighup_applies_what_it_can_names_the_rest_and_loses_no_bite() {
             "reload: changed drivelines.F1.bite: applying them needs a restart",
         ),
     ];
-    for (index, (text, said)) in cases.into_iter().enumerate() {
+    for (index, (file, said)) in cases.into_iter().enumerate() {
         let before = setup.log_text("run.log").matches(said).count();
-        std::fs::write(&setup.config, text).unwrap();
-        hang_up(service.id());
+        std::fs::write(&setup.config, file).unwrap();
+        if index < 3 {
+            hang_up(service.id());
+        } else {
+            // The same through `millgate reload`, which checks the file first.
+            let config = setup.config.to_str().unwrap();
+            let asked = millgate(&["reload", "--pid-file", pid_arg, "--config", config]);
+            assert!(asked.status.success(), "{}", text(&asked));
+            assert!(text(&asked).contains(&format!("pid {}", service.id())));
+        }
         wait_for(said, Duration::from_secs(20), || {
             setup.log_text("run.log").matches(said).count() > before
         })
@@ -96,6 +107,22 @@ async fn sighup_applies_what_it_can_names_the_rest_and_loses_no_bite() {
         log.contains("taf_alarm"),
         "the refusal names the key: {log}"
     );
+    // `millgate reload` refuses a file with errors itself: the service is not asked.
+    let broken = setup.scratch.join("broken.toml");
+    std::fs::write(
+        &broken,
+        original.replace("taf_alarm = 1.15,", "taf_alarm = -1.0,"),
+    )
+    .unwrap();
+    let refused = millgate(&[
+        "reload",
+        "--pid-file",
+        pid_arg,
+        "--config",
+        broken.to_str().unwrap(),
+    ]);
+    assert!(!refused.status.success());
+    assert!(text(&refused).contains("taf_alarm"), "{}", text(&refused));
     for (outcome, count) in [("applied", 1.0), ("refused", 1.0), ("needs_restart", 2.0)] {
         assert_eq!(
             setup.metric(&reloads(outcome)).await,
@@ -107,6 +134,16 @@ async fn sighup_applies_what_it_can_names_the_rest_and_loses_no_bite() {
     plc.bites_after_now(2).await;
     assert_eq!(setup.metric(WARNING).await, Some(0.0));
     terminate(&mut service);
+    assert!(!pid_file.exists(), "the pid file outlived the service");
+    // A stale pid file (a killed service's, its pid reused) is not signalled.
+    std::fs::write(&pid_file, format!("{}\n", std::process::id())).unwrap();
+    let stale = millgate(&["reload", "--pid-file", pid_arg]);
+    assert!(!stale.status.success());
+    assert!(
+        text(&stale).contains("not a running millgate"),
+        "{}",
+        text(&stale)
+    );
 
     let history = HistoryReader::open(&setup.history).unwrap();
     let runs = history.runs(&Filter::default()).unwrap();
