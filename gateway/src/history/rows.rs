@@ -8,8 +8,7 @@ use rusqlite::{params, Transaction};
 
 use super::bite_row::OWN_COLUMNS;
 use super::figures::{bite_columns, to_sql, upsert_state};
-use super::run::DrivelineSettings;
-use super::writer::insert_settings;
+use super::run::{insert_settings, DrivelineSettings};
 use crate::state::events::{
     AlarmRecord, BiteRecord, ChatterWindow, HistoryEvent, StateRecord, SubjectResults,
 };

@@ -1,5 +1,6 @@
 //! What the history records about a run at its start: millgate's version, the
-//! configuration's name and hash, and each driveline's settings (for reports).
+//! configuration's name and hash, and each driveline's settings (for reports; a reload that
+//! changes thresholds adds them again, [`insert_settings`]).
 
 /// What the history records about this run at its start.
 #[derive(Debug, Clone)]
@@ -70,4 +71,33 @@ impl DrivelineSettings {
                 .map(|_| driveline.thresholds.gap_alarm_mrad),
         }
     }
+}
+
+/// Insert `drivelines`' settings of run `run_id` in effect from `time` (the run's
+/// start, or a reload that changed them).
+pub(crate) fn insert_settings(
+    connection: &rusqlite::Connection,
+    run_id: i64,
+    time: &str,
+    drivelines: &[DrivelineSettings],
+) -> rusqlite::Result<()> {
+    for driveline in drivelines {
+        connection
+            .prepare_cached(
+                "INSERT INTO driveline_settings (run_id, time, driveline, taf_warning, taf_alarm,
+                 model, gap_warning_mrad, gap_alarm_mrad)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+            )?
+            .execute(rusqlite::params![
+                run_id,
+                time,
+                driveline.name,
+                driveline.taf_warning,
+                driveline.taf_alarm,
+                driveline.model,
+                driveline.gap_warning_mrad,
+                driveline.gap_alarm_mrad
+            ])?;
+    }
+    Ok(())
 }

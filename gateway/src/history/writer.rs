@@ -24,7 +24,7 @@ use super::error::{explain, HistoryError};
 use super::restore::Restored;
 use super::retention::{Retention, RetentionState};
 use super::rows::insert;
-use super::run::{DrivelineSettings, RunInfo};
+use super::run::{insert_settings, RunInfo};
 use super::schema;
 use crate::state::events::HistoryEvent;
 use crate::state::history::History;
@@ -200,35 +200,6 @@ pub fn insert_run(
     let run_id = connection.last_insert_rowid();
     insert_settings(connection, run_id, &started_at, &run.drivelines)?;
     Ok(run_id)
-}
-
-/// Insert `drivelines`' settings of run `run_id` in effect from `time` (the run's
-/// start, or a reload that changed them).
-pub(crate) fn insert_settings(
-    connection: &Connection,
-    run_id: i64,
-    time: &str,
-    drivelines: &[DrivelineSettings],
-) -> rusqlite::Result<()> {
-    for driveline in drivelines {
-        connection
-            .prepare_cached(
-                "INSERT INTO driveline_settings (run_id, time, driveline, taf_warning, taf_alarm,
-                 model, gap_warning_mrad, gap_alarm_mrad)
-             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
-            )?
-            .execute(params![
-                run_id,
-                time,
-                driveline.name,
-                driveline.taf_warning,
-                driveline.taf_alarm,
-                driveline.model,
-                driveline.gap_warning_mrad,
-                driveline.gap_alarm_mrad
-            ])?;
-    }
-    Ok(())
 }
 
 impl Writer {
