@@ -1664,6 +1664,93 @@ fn mqtt_server_list_for_failover() {
 }
 
 #[test]
+fn mqtt_servers_with_their_own_tls_and_credentials() {
+    let folder = scratch("mqtt-per-server");
+    let scratch = folder.path();
+    let file = |name: &str, text: &str| {
+        let path = scratch.join(name);
+        std::fs::write(&path, text).unwrap();
+        path.display().to_string()
+    };
+    let ca = file(
+        "ca.pem",
+        "-----BEGIN CERTIFICATE-----\nMAMCAQA=\n-----END CERTIFICATE-----\n",
+    );
+    let secret = file("secret", "s3cret\n");
+    let history = format!(
+        "\n[history]\npath = \"{}\"\n",
+        std::env::temp_dir().join("h.db").display()
+    );
+    let with = |servers: &str| {
+        format!(
+            "{BASE}\n[outputs.mqtt]\n{servers}\ngroup_id = \"plant\"\nnode_id = \"f1\"\n{history}"
+        )
+    };
+    // A table has its own TLS and credentials; a string the shared ones.
+    let mqtt = parse(&with(&format!(
+        "brokers = [{{ address = \"mq1:8883\", tls = {{ ca_file = \"{ca}\" }}, username = \"gw\", \
+         password_file = \"{secret}\" }}, \"mq2:1883\", {{ address = \"mq3:1883\" }}]\n\
+         username = \"shared\"\npassword = \"pw\""
+    )))
+    .unwrap()
+    .outputs
+    .mqtt
+    .unwrap();
+    assert_eq!(mqtt.brokers, ["mq1:8883", "mq2:1883", "mq3:1883"]);
+    let own = &mqtt.security[0];
+    assert_eq!(own.credentials, Some(("gw".into(), "s3cret".into())));
+    let tls = own.tls.as_ref().unwrap();
+    assert_eq!(tls.key, "outputs.mqtt.brokers[0].tls");
+    assert_eq!(tls.ca_file.display().to_string(), ca);
+    assert_eq!(
+        mqtt.security[1].credentials,
+        Some(("shared".into(), "pw".into()))
+    );
+    assert_eq!(mqtt.security[1].tls, None);
+    assert_eq!(
+        mqtt.security[2],
+        millgate_config::MqttSecurity::default(),
+        "a table without keys is plain, without credentials"
+    );
+    // The single broker has the shared settings.
+    let single = parse(&with("broker = \"mq1:1883\""))
+        .unwrap()
+        .outputs
+        .mqtt
+        .unwrap();
+    assert_eq!(single.security, [millgate_config::MqttSecurity::default()]);
+
+    // Problems name the entry's keys.
+    let missing = scratch.join("missing.pem").display().to_string();
+    assert_eq!(
+        problems(&with(&format!(
+            "brokers = [\"mq0:1883\", {{ address = \"mq1\", username = \"gw\" }}, \
+             {{ address = \"mq2:1883\", tls = {{ ca_file = \"{missing}\" }} }}, \
+             {{ address = \"mq0:1883\" }}]"
+        ))),
+        [
+            "mill.toml: outputs.mqtt.brokers[1].address: \"mq1\" is not allowed (must be host:port with a port 1..=65535, e.g. 192.168.0.10:502 or plc1.local:502)".to_owned(),
+            "mill.toml: outputs.mqtt.brokers[3].address: \"mq0:1883\" is listed already at brokers[0]".to_owned(),
+            "mill.toml: outputs.mqtt.brokers[1].password: missing: username needs password, password_file or password_credential".to_owned(),
+            format!(
+                "mill.toml: outputs.mqtt.brokers[2].tls.ca_file: file \"{missing}\" not found \
+                 (looked for {missing}; paths are relative to the configuration file)"
+            ),
+        ]
+    );
+    assert_problem_like(
+        &with("brokers = [{ address = \"mq1:1883\", user = \"gw\" }]"),
+        "mill.toml: outputs.mqtt.brokers",
+        &["unknown field `user`", "username"],
+    );
+    assert_problem_like(
+        &with("brokers = [1883]"),
+        "mill.toml: outputs.mqtt.brokers",
+        &["\"host:port\" or a table"],
+    );
+}
+
+#[test]
 fn mqtt_credentials_and_tls_files() {
     let folder = scratch("mqtt-tls");
     let scratch = folder.path();

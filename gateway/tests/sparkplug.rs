@@ -1245,10 +1245,22 @@ async fn failover_keeps_every_bite(
     setup: Setup,
     ports: &[u16],
     extra: &str,
-    mut hosts: Vec<Host>,
+    hosts: Vec<Host>,
     kill: impl FnOnce(usize),
 ) -> (Vec<Vec<(u64, bool)>>, Vec<Value>) {
     let servers: Vec<String> = ports.iter().map(|p| format!("\"127.0.0.1:{p}\"")).collect();
+    failover_through(setup, (ports, &servers), extra, hosts, kill).await
+}
+
+/// As [`failover_keeps_every_bite`], with the `brokers` entries written as `servers`
+/// (a `"host:port"` or a table each, for `ports` in this order).
+async fn failover_through(
+    setup: Setup,
+    (ports, servers): (&[u16], &[String]),
+    extra: &str,
+    mut hosts: Vec<Host>,
+    kill: impl FnOnce(usize),
+) -> (Vec<Vec<(u64, bool)>>, Vec<Value>) {
     setup.append_config(&format!(
         "\n[outputs.mqtt]\nbrokers = [{}]\ngroup_id = \"plant\"\nnode_id = \"f1\"\nkeep_alive_s = 5\n{extra}\n",
         servers.join(", ")
@@ -1458,6 +1470,80 @@ async fn a_reload_moves_the_node_to_its_new_server_and_loses_no_bite() {
         .contains("reload: applied outputs.mqtt"));
     terminate(&mut service);
     setup.stop(service).await;
+}
+
+/// TLS and credentials per server (issue 41): the first server of the set a mosquitto
+/// over TLS with a password file (its table in `brokers` names its CA, user and
+/// password file), the second a plain one without users (a `"host:port"`: the shared
+/// settings, none here). The node is born over TLS with its password on the first; the
+/// first is killed mid-stream and the node moves to the plain one, where it sends no
+/// credentials; every bite reaches one of the hosts.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_server_of_the_set_with_its_own_tls_and_password_and_a_plain_one() {
+    let setup = Setup::new(MILLGATE, "sparkplug-per-server", "db").await;
+    let folder = setup.scratch.clone();
+    certificates(&folder);
+    let passwords = folder.join("passwords");
+    let made = Command::new("mosquitto_passwd")
+        .args(["-b", "-c"])
+        .arg(&passwords)
+        .args(["gw", "s3cret"])
+        .status()
+        .expect("mosquitto_passwd (Debian's mosquitto)");
+    assert!(made.success());
+    std::fs::write(folder.join("secret"), "s3cret\n").unwrap();
+    let file = |name: &str| folder.join(name).display().to_string();
+    let ports = [free_port(), free_port()];
+    let secure = folder.join("secure");
+    std::fs::create_dir_all(&secure).unwrap();
+    let tls_broker = Broker::with_listeners(
+        &secure,
+        ports[0],
+        &format!(
+            "listener {} 127.0.0.1\ncafile {}\ncertfile {}\nkeyfile {}\n\
+             allow_anonymous false\npassword_file {}\n",
+            ports[0],
+            file("ca.pem"),
+            file("server.pem"),
+            file("server.key"),
+            passwords.display(),
+        ),
+    );
+    let plain = folder.join("plain");
+    std::fs::create_dir_all(&plain).unwrap();
+    let plain_broker = Broker::start(&plain, ports[1]);
+    let mut brokers = vec![Some(tls_broker), Some(plain_broker)];
+    let hosts = vec![
+        Host::with_options(
+            ports[0],
+            "plant",
+            &[
+                "--ca",
+                &file("ca.pem"),
+                "--username",
+                "gw",
+                "--password",
+                "s3cret",
+            ],
+        ),
+        Host::start(ports[1], "plant"),
+    ];
+    let servers = [
+        format!(
+            "{{ address = \"127.0.0.1:{}\", tls = {{ ca_file = \"{}\" }}, username = \"gw\", \
+             password_file = \"{}\" }}",
+            ports[0],
+            file("ca.pem"),
+            file("secret")
+        ),
+        format!("\"127.0.0.1:{}\"", ports[1]),
+    ];
+    let (sessions, _) = failover_through(setup, (&ports, &servers), "", hosts, |broker| {
+        brokers[broker] = None;
+    })
+    .await;
+    // One session on each: the TLS host saw the first, the plain host the second.
+    assert_eq!(sessions.len(), 2, "{sessions:?}");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
