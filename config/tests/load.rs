@@ -1663,15 +1663,18 @@ fn mqtt_server_list_for_failover() {
     );
 }
 
+/// `text` written into the file `name` in `folder`; its path.
+fn write_in(folder: &Path, name: &str, text: &str) -> String {
+    let path = folder.join(name);
+    std::fs::write(&path, text).unwrap();
+    path.display().to_string()
+}
+
 #[test]
 fn mqtt_servers_with_their_own_tls_and_credentials() {
     let folder = scratch("mqtt-per-server");
     let scratch = folder.path();
-    let file = |name: &str, text: &str| {
-        let path = scratch.join(name);
-        std::fs::write(&path, text).unwrap();
-        path.display().to_string()
-    };
+    let file = |name: &str, text: &str| write_in(scratch, name, text);
     let ca = file(
         "ca.pem",
         "-----BEGIN CERTIFICATE-----\nMAMCAQA=\n-----END CERTIFICATE-----\n",
@@ -1754,11 +1757,7 @@ fn mqtt_servers_with_their_own_tls_and_credentials() {
 fn mqtt_credentials_and_tls_files() {
     let folder = scratch("mqtt-tls");
     let scratch = folder.path();
-    let file = |name: &str, text: &str| {
-        let path = scratch.join(name);
-        std::fs::write(&path, text).unwrap();
-        path.display().to_string()
-    };
+    let file = |name: &str, text: &str| write_in(scratch, name, text);
     // The PEM framing is checked here; the DER inside is rustls' to judge (the
     // gateway's TLS setup).
     let cert = file(
@@ -2210,11 +2209,7 @@ fn opcua_keys_name_their_range() {
 fn opcua_users_file_is_read_and_checked() {
     let folder = scratch("opcua-users");
     let scratch = folder.path();
-    let file = |name: &str, text: &str| {
-        let path = scratch.join(name);
-        std::fs::write(&path, text).unwrap();
-        path.display().to_string()
-    };
+    let file = |name: &str, text: &str| write_in(scratch, name, text);
     let good = file(
         "users",
         "# operators\noperator:s3cret:with:colons\n\nmaintenance:pw\r\n",

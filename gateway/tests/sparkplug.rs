@@ -1223,6 +1223,22 @@ fn nth_birth(seen: &[Value], n: usize) -> Option<Value> {
         .cloned()
 }
 
+/// The node's first births among what `hosts` see: the NBIRTH's bdSeq and the alias
+/// of F1's `bite_id` in its DBIRTH.
+fn first_births(hosts: &mut [Host], limit: Duration) -> (u64, u64) {
+    let nbirth = read_until(hosts, "NBIRTH", limit, |seen| nth_birth(seen, 0));
+    let bd_seq = metric(&nbirth, "bdSeq")["value"].as_u64().unwrap();
+    let dbirth = read_until(hosts, "DBIRTH", limit, |seen| {
+        seen.iter()
+            .find(|m| m["type"] == "DBIRTH" && m["device"] == "F1")
+            .cloned()
+    });
+    (
+        bd_seq,
+        metric(&dbirth, "bite_id")["alias"].as_u64().unwrap(),
+    )
+}
+
 /// Whether a bite of F1 after `after` is among `seen`.
 fn bite_after(seen: &[Value], bite_alias: u64, after: u64) -> Option<()> {
     let sessions = bites_by_session(seen, bite_alias);
@@ -1269,14 +1285,7 @@ async fn failover_through(
         |port: u16| format!("millgate_sparkplug_server_in_use{{server=\"127.0.0.1:{port}\"}}");
     let mut service = setup.spawn("run.log");
     let limit = Duration::from_secs(60);
-    let nbirth = read_until(&mut hosts, "NBIRTH", limit, |seen| nth_birth(seen, 0));
-    let bd_seq = metric(&nbirth, "bdSeq")["value"].as_u64().unwrap();
-    let dbirth = read_until(&mut hosts, "DBIRTH", limit, |seen| {
-        seen.iter()
-            .find(|m| m["type"] == "DBIRTH" && m["device"] == "F1")
-            .cloned()
-    });
-    let bite_alias = metric(&dbirth, "bite_id")["alias"].as_u64().unwrap();
+    let (bd_seq, bite_alias) = first_births(&mut hosts, limit);
     let mut used = None;
     for (index, &port) in ports.iter().enumerate() {
         if setup.metric(&in_use(port)).await == Some(1.0) {
@@ -1421,14 +1430,7 @@ async fn a_reload_moves_the_node_to_its_new_server_and_loses_no_bite() {
     setup.append_config(&mqtt(ports[0]));
     let mut service = setup.spawn("run.log");
     let limit = Duration::from_secs(60);
-    let nbirth = read_until(&mut hosts, "NBIRTH", limit, |seen| nth_birth(seen, 0));
-    let bd_seq = metric(&nbirth, "bdSeq")["value"].as_u64().unwrap();
-    let dbirth = read_until(&mut hosts, "DBIRTH", limit, |seen| {
-        seen.iter()
-            .find(|m| m["type"] == "DBIRTH" && m["device"] == "F1")
-            .cloned()
-    });
-    let bite_alias = metric(&dbirth, "bite_id")["alias"].as_u64().unwrap();
+    let (bd_seq, bite_alias) = first_births(&mut hosts, limit);
     let plc = setup.plc();
     plc.bites_after_now(1).await;
     let last = u64::from(plc.counter());
@@ -1512,7 +1514,7 @@ async fn a_server_of_the_set_with_its_own_tls_and_password_and_a_plain_one() {
     let plain = folder.join("plain");
     std::fs::create_dir_all(&plain).unwrap();
     let plain_broker = Broker::start(&plain, ports[1]);
-    let mut brokers = vec![Some(tls_broker), Some(plain_broker)];
+    let mut brokers = [Some(tls_broker), Some(plain_broker)];
     let hosts = vec![
         Host::with_options(
             ports[0],

@@ -86,29 +86,16 @@ impl Kept {
 /// What the outputs are built from.
 pub(super) struct Wiring {
     /// The configuration the outputs run (a reload replaces what it applies).
-    pub(super) config: Config,
-    pub(super) map: Arc<RegisterMap>,
-    pub(super) board: Arc<Board>,
-    pub(super) commands: CommandSender,
-    pub(super) acquisition: Acquisition,
-    pub(super) server_counters: Arc<ServerCounters>,
-    /// Told once the PLC writer attempted its first write (taken by the writer).
-    pub(super) plc_attempted: Option<watch::Sender<bool>>,
-    pub(super) listeners: Listeners,
-    pub(super) outage_monitor: Option<OutageMonitor>,
-    pub(super) rod_mill_spans: Vec<usize>,
+    config: Config,
+    parts: WiringParts,
     /// The PLC writer's counters, for `/metrics`.
-    pub(super) plc_counters: Arc<PlcCounters>,
-    /// The OPC UA server, made by `Service::new`.
-    pub(super) opcua: Option<OpcUaOutputTask>,
+    plc_counters: Arc<PlcCounters>,
     /// The `/metrics` families of the outputs that start on demand, by their place in
     /// [`OUTPUTS`]: each builder sets its own (the metrics endpoint shows them in this
     /// order).
-    pub(super) metrics: [Option<Arc<dyn Families>>; OUTPUTS.len()],
+    metrics: [Option<Arc<dyn Families>>; OUTPUTS.len()],
     /// The families of the output just built, for [`Self::metrics`].
     built_families: Option<Arc<dyn Families>>,
-    /// The reloads' counts, for `/metrics`.
-    pub(super) reloads: Arc<ReloadCounters>,
     /// Set before the PLC writer stops when another takes over.
     handover: Arc<AtomicBool>,
 }
@@ -118,20 +105,10 @@ impl Wiring {
     pub(super) fn new(config: Config, parts: WiringParts) -> Self {
         Self {
             config,
-            map: parts.map,
-            board: parts.board,
-            commands: parts.commands,
-            acquisition: parts.acquisition,
-            server_counters: parts.server_counters,
-            plc_attempted: parts.plc_attempted,
-            listeners: parts.listeners,
-            outage_monitor: parts.outage_monitor,
-            rod_mill_spans: parts.rod_mill_spans,
+            parts,
             plc_counters: Arc::default(),
-            opcua: parts.opcua,
             metrics: Default::default(),
             built_families: None,
-            reloads: parts.reloads,
             handover: Arc::default(),
         }
     }
@@ -144,11 +121,14 @@ pub(super) struct WiringParts {
     pub(super) commands: CommandSender,
     pub(super) acquisition: Acquisition,
     pub(super) server_counters: Arc<ServerCounters>,
+    /// Told once the PLC writer attempted its first write (taken by the writer).
     pub(super) plc_attempted: Option<watch::Sender<bool>>,
     pub(super) listeners: Listeners,
     pub(super) outage_monitor: Option<OutageMonitor>,
     pub(super) rod_mill_spans: Vec<usize>,
+    /// The OPC UA server, made by `Service::new`.
     pub(super) opcua: Option<OpcUaOutputTask>,
+    /// The reloads' counts, for `/metrics`.
     pub(super) reloads: Arc<ReloadCounters>,
 }
 
@@ -324,7 +304,7 @@ impl Outputs {
                 source,
             })
         }
-        let (outputs, kept) = (&config.outputs, &self.wiring.listeners);
+        let (outputs, kept) = (&config.outputs, &self.wiring.parts.listeners);
         Ok(NewListeners {
             server: bind(
                 "Modbus server",
@@ -375,7 +355,7 @@ impl Outputs {
             }
         }
         let outputs = &config.outputs;
-        let kept = &mut self.wiring.listeners;
+        let kept = &mut self.wiring.parts.listeners;
         replace(&mut kept.server, listeners.server, outputs.server.is_some());
         replace(
             &mut kept.metrics,
@@ -387,6 +367,7 @@ impl Outputs {
         if live.contains(&Live::Plc) {
             // A PLC output removed had its last write say "stopped"; the service runs.
             self.wiring
+                .parts
                 .board
                 .update(|results| results.state = GatewayState::Running);
         }
@@ -448,10 +429,10 @@ fn plc_writer(w: &mut Wiring, shutdown: &Shutdown) -> Result<Option<OutputTask>,
     tracing::info!(plc = %plc.address, base = plc.register_base, "starting PlcWriter");
     let mut writer = PlcWriter::new(
         plc.clone(),
-        (Arc::clone(&w.map), Arc::clone(&w.board)),
+        (Arc::clone(&w.parts.map), Arc::clone(&w.parts.board)),
         Arc::clone(&w.plc_counters),
     );
-    if let Some(attempted) = w.plc_attempted.take() {
+    if let Some(attempted) = w.parts.plc_attempted.take() {
         writer = writer.on_first_attempt(attempted);
     }
     writer = writer.with_handover(Arc::clone(&w.handover));
@@ -469,7 +450,7 @@ fn heartbeat_without_plc(
     if w.config.outputs.plc.is_some() {
         return Ok(None);
     }
-    let beat = heartbeat::beat_without_plc(Arc::clone(&w.board), shutdown.clone());
+    let beat = heartbeat::beat_without_plc(Arc::clone(&w.parts.board), shutdown.clone());
     Ok(task("heartbeat", async move {
         beat.await;
         Ok(())
@@ -477,7 +458,7 @@ fn heartbeat_without_plc(
 }
 
 fn outage_monitor(w: &mut Wiring, shutdown: &Shutdown) -> Result<Option<OutputTask>, ServiceError> {
-    let Some(monitor) = w.outage_monitor.take() else {
+    let Some(monitor) = w.parts.outage_monitor.take() else {
         return Ok(None);
     };
     let shutdown = shutdown.clone();
@@ -488,17 +469,17 @@ fn outage_monitor(w: &mut Wiring, shutdown: &Shutdown) -> Result<Option<OutputTa
 }
 
 fn hmi_server(w: &mut Wiring, shutdown: &Shutdown) -> Result<Option<OutputTask>, ServiceError> {
-    let (Some(output), Some(kept)) = (&w.config.outputs.server, &w.listeners.server) else {
+    let (Some(output), Some(kept)) = (&w.config.outputs.server, &w.parts.listeners.server) else {
         return Ok(None);
     };
     let listener = kept.listener("Modbus server")?;
     let plc_address = w.config.outputs.plc.as_ref().map(|plc| plc.address.clone());
     let served = Served {
-        map: Arc::clone(&w.map),
-        board: Arc::clone(&w.board),
-        commands: w.commands.clone(),
+        map: Arc::clone(&w.parts.map),
+        board: Arc::clone(&w.parts.board),
+        commands: w.parts.commands.clone(),
     };
-    let server = ModbusServer::new(output.clone(), served, Arc::clone(&w.server_counters))
+    let server = ModbusServer::new(output.clone(), served, Arc::clone(&w.parts.server_counters))
         .with_plc_address(plc_address);
     let shutdown = shutdown.clone();
     Ok(task("Modbus server", async move {
@@ -519,10 +500,14 @@ fn sparkplug(w: &mut Wiring, shutdown: &Shutdown) -> Result<Option<OutputTask>, 
         .rod_mills
         .iter()
         .map(|mill| mill.name.clone())
-        .zip(w.rod_mill_spans.iter().copied())
+        .zip(w.parts.rod_mill_spans.iter().copied())
         .collect();
-    let node = SparkplugNode::new(mqtt.clone(), history.path.clone(), Arc::clone(&w.board))?
-        .with_rod_mills(rod_mills);
+    let node = SparkplugNode::new(
+        mqtt.clone(),
+        history.path.clone(),
+        Arc::clone(&w.parts.board),
+    )?
+    .with_rod_mills(rod_mills);
     w.built_families = Some(node.status());
     let shutdown = shutdown.clone();
     Ok(task("Sparkplug B edge node", async move {
@@ -532,21 +517,20 @@ fn sparkplug(w: &mut Wiring, shutdown: &Shutdown) -> Result<Option<OutputTask>, 
 }
 
 fn web_page(w: &mut Wiring, shutdown: &Shutdown) -> Result<Option<OutputTask>, ServiceError> {
-    let (Some(settings), Some(kept)) = (&w.config.outputs.web, &w.listeners.web) else {
+    let (Some(settings), Some(kept)) = (&w.config.outputs.web, &w.parts.listeners.web) else {
         return Ok(None);
     };
     let listener = kept.listener("maintenance page")?;
-    let server =
-        WebServer::new(&w.config, settings.clone(), Arc::clone(&w.board)).map_err(|error| {
-            ServiceError::Output {
-                output: "maintenance page",
-                reason: format!("cannot start its history query threads: {error}"),
-            }
-        })?;
+    let server = WebServer::new(&w.config, settings.clone(), Arc::clone(&w.parts.board)).map_err(
+        |error| ServiceError::Output {
+            output: "maintenance page",
+            reason: format!("cannot start its history query threads: {error}"),
+        },
+    )?;
     // The page plots a tandem mill's captured episode with the monitor's own code.
     let config = Arc::new(w.config.clone());
     let server = server
-        .with_commands(w.commands.clone())
+        .with_commands(w.parts.commands.clone())
         .with_capture_bands(Arc::new(move |mill, rate_hz, stands, episode| {
             crate::analysis::chatter::episode_bands(&config, mill, rate_hz, stands, episode)
                 .map_err(|error| error.to_string())
@@ -564,7 +548,8 @@ fn web_page(w: &mut Wiring, shutdown: &Shutdown) -> Result<Option<OutputTask>, S
 /// The OPC UA server (made by `Service::new`; a millgate built without the `opcua`
 /// feature refused `[outputs.opcua]` there, so it has none).
 fn opcua(w: &mut Wiring, shutdown: &Shutdown) -> Result<Option<OutputTask>, ServiceError> {
-    let (Some(opcua), Some(listener)) = (w.opcua.take(), w.listeners.opcua.take()) else {
+    let (Some(opcua), Some(listener)) = (w.parts.opcua.take(), w.parts.listeners.opcua.take())
+    else {
         return Ok(None);
     };
     tracing::info!("starting the OPC UA server");
@@ -573,22 +558,28 @@ fn opcua(w: &mut Wiring, shutdown: &Shutdown) -> Result<Option<OutputTask>, Serv
 }
 
 fn metrics(w: &mut Wiring, shutdown: &Shutdown) -> Result<Option<OutputTask>, ServiceError> {
-    let Some(kept) = &w.listeners.metrics else {
+    let Some(kept) = &w.parts.listeners.metrics else {
         return Ok(None);
     };
     let listener = kept.listener("metrics endpoint")?;
     // The acquisition's, the PLC writer's, the HMI server's (counted with or without
     // one) and the history's, then those the outputs built added.
-    let mut metrics = Metrics::new(&w.config, Arc::clone(&w.board), &w.rod_mill_spans).with(
-        Arc::new(AcquisitionFamilies::new(&w.config, w.acquisition.clone())),
-    );
+    let mut metrics = Metrics::new(
+        &w.config,
+        Arc::clone(&w.parts.board),
+        &w.parts.rod_mill_spans,
+    )
+    .with(Arc::new(AcquisitionFamilies::new(
+        &w.config,
+        w.parts.acquisition.clone(),
+    )));
     if w.config.outputs.plc.is_some() {
         metrics = metrics.with(w.plc_counters.clone());
     }
     metrics = metrics
-        .with(w.server_counters.clone())
-        .with(Arc::new(w.board.history().clone()));
-    metrics = metrics.with(w.reloads.clone());
+        .with(w.parts.server_counters.clone())
+        .with(Arc::new(w.parts.board.history().clone()));
+    metrics = metrics.with(w.parts.reloads.clone());
     for families in w.metrics.iter().flatten() {
         metrics = metrics.with(Arc::clone(families));
     }

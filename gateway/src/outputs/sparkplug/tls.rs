@@ -20,8 +20,8 @@ pub enum TlsSetupError {
         key: String,
         /// The file.
         path: String,
-        /// Why.
-        source: rustls::Error,
+        /// Why (boxed: the error stays small).
+        source: Box<rustls::Error>,
     },
     /// The ring provider refuses the default protocol versions (not expected).
     #[error("the TLS provider (ring): {0}")]
@@ -36,8 +36,8 @@ pub enum TlsSetupError {
         cert: String,
         /// The key file.
         key: String,
-        /// Why.
-        source: rustls::Error,
+        /// Why (boxed: the error stays small).
+        source: Box<rustls::Error>,
     },
 }
 
@@ -51,7 +51,7 @@ pub(crate) fn client_config(tls: &MqttTls) -> Result<Arc<ClientConfig>, TlsSetup
         roots.add(certificate).map_err(|source| TlsSetupError::Ca {
             key: tls.key.clone(),
             path: tls.ca_file.display().to_string(),
-            source,
+            source: Box::new(source),
         })?;
     }
     let provider = Arc::new(rustls::crypto::ring::default_provider());
@@ -66,7 +66,7 @@ pub(crate) fn client_config(tls: &MqttTls) -> Result<Arc<ClientConfig>, TlsSetup
                 table: tls.key.clone(),
                 cert: cert_file.display().to_string(),
                 key: key_file.display().to_string(),
-                source,
+                source: Box::new(source),
             })?,
         _ => builder.with_no_client_auth(),
     };
