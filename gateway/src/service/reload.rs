@@ -173,8 +173,14 @@ pub fn plan(running: &Config, new: &Config) -> Plan {
         ("outputs.mqtt", old.mqtt != out.mqtt, Live::Mqtt),
         ("outputs.web", old.web != out.web, Live::Web),
     ];
+    // The edge node keeps its bdSeq and backlog in the history: without the history
+    // the service opened at its start, a new node waits for a restart.
+    let mqtt_waits = out.mqtt.is_some() && running.history.is_none();
     for (key, changed, part) in live {
-        if changed {
+        if changed && part == Live::Mqtt && mqtt_waits {
+            plan.needs_restart
+                .push(format!("{key} (its [history] opens at the start)"));
+        } else if changed {
             plan.applied.push(key.to_owned());
             plan.live.push(part);
         }
@@ -397,5 +403,20 @@ mod tests {
         let applied = plan.applied_to(&running, &new);
         assert_eq!(applied.outputs, new.outputs);
         assert_eq!(applied.hash, "other");
+
+        // An edge node needs the history the service opened at its start.
+        let text = format!(
+            "{}\n[outputs.mqtt]\nbroker = \"mq1:1883\"\ngroup_id = \"g\"\nnode_id = \"n\"\n\
+             \n[history]\npath = \"history.db\"\n",
+            demo()
+        );
+        let with_history = millgate_config::from_toml_str(&text, "demo.toml", examples).unwrap();
+        let plan = changed(compare(&running, &with_history));
+        assert!(plan.live.iter().all(|part| *part != Live::Mqtt), "{plan:?}");
+        assert!(
+            plan.needs_restart
+                .contains(&"outputs.mqtt (its [history] opens at the start)".to_owned()),
+            "{plan:?}"
+        );
     }
 }
