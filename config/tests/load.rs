@@ -1599,17 +1599,20 @@ fn mqtt_output_keys_defaults_and_errors() {
     );
 }
 
+/// `BASE` with `[outputs.mqtt]` of group `plant`, node `f1` and the `servers` keys
+/// (`broker`, `brokers`, more keys), and a `[history]`.
+fn mqtt_with(servers: &str) -> String {
+    let history = std::env::temp_dir().join("h.db");
+    format!(
+        "{BASE}\n[outputs.mqtt]\n{servers}\ngroup_id = \"plant\"\nnode_id = \"f1\"\n\
+         \n[history]\npath = \"{}\"\n",
+        history.display()
+    )
+}
+
 #[test]
 fn mqtt_server_list_for_failover() {
-    let history = format!(
-        "\n[history]\npath = \"{}\"\n",
-        std::env::temp_dir().join("h.db").display()
-    );
-    let with = |servers: &str| {
-        format!(
-            "{BASE}\n[outputs.mqtt]\n{servers}\ngroup_id = \"plant\"\nnode_id = \"f1\"\n{history}"
-        )
-    };
+    let with = mqtt_with;
     let listed = parse(&with(
         "brokers = [\"10.0.0.1:1883\", \"[::1]:1884\", \"mq3.local:1883\"]",
     ))
@@ -1663,6 +1666,9 @@ fn mqtt_server_list_for_failover() {
     );
 }
 
+/// A PEM certificate frame (the DER inside is rustls' to judge, not the config's).
+const CERTIFICATE_PEM: &str = "-----BEGIN CERTIFICATE-----\nMAMCAQA=\n-----END CERTIFICATE-----\n";
+
 /// `text` written into the file `name` in `folder`; its path.
 fn write_in(folder: &Path, name: &str, text: &str) -> String {
     let path = folder.join(name);
@@ -1675,20 +1681,9 @@ fn mqtt_servers_with_their_own_tls_and_credentials() {
     let folder = scratch("mqtt-per-server");
     let scratch = folder.path();
     let file = |name: &str, text: &str| write_in(scratch, name, text);
-    let ca = file(
-        "ca.pem",
-        "-----BEGIN CERTIFICATE-----\nMAMCAQA=\n-----END CERTIFICATE-----\n",
-    );
+    let ca = file("ca.pem", CERTIFICATE_PEM);
     let secret = file("secret", "s3cret\n");
-    let history = format!(
-        "\n[history]\npath = \"{}\"\n",
-        std::env::temp_dir().join("h.db").display()
-    );
-    let with = |servers: &str| {
-        format!(
-            "{BASE}\n[outputs.mqtt]\n{servers}\ngroup_id = \"plant\"\nnode_id = \"f1\"\n{history}"
-        )
-    };
+    let with = mqtt_with;
     // A table has its own TLS and credentials; a string the shared ones.
     let mqtt = parse(&with(&format!(
         "brokers = [{{ address = \"mq1:8883\", tls = {{ ca_file = \"{ca}\" }}, username = \"gw\", \
@@ -1760,10 +1755,7 @@ fn mqtt_credentials_and_tls_files() {
     let file = |name: &str, text: &str| write_in(scratch, name, text);
     // The PEM framing is checked here; the DER inside is rustls' to judge (the
     // gateway's TLS setup).
-    let cert = file(
-        "cert.pem",
-        "-----BEGIN CERTIFICATE-----\nMAMCAQA=\n-----END CERTIFICATE-----\n",
-    );
+    let cert = file("cert.pem", CERTIFICATE_PEM);
     let key = file(
         "key.pem",
         "-----BEGIN PRIVATE KEY-----\nMAMCAQA=\n-----END PRIVATE KEY-----\n",

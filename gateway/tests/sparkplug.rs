@@ -842,10 +842,9 @@ fn certificates(folder: &Path) {
     }
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn over_tls_with_a_password_and_a_client_certificate_and_clear_errors_when_refused() {
-    let setup = Setup::new(MILLGATE, "sparkplug-tls", "db").await;
-    let folder = &setup.scratch;
+/// The [`certificates`], a mosquitto password file with user `gw` (password `s3cret`)
+/// and the gateway's password file `secret`, in `folder`; the password file's path.
+fn tls_and_passwords(folder: &Path) -> std::path::PathBuf {
     certificates(folder);
     let passwords = folder.join("passwords");
     let made = Command::new("mosquitto_passwd")
@@ -856,6 +855,14 @@ async fn over_tls_with_a_password_and_a_client_certificate_and_clear_errors_when
         .expect("mosquitto_passwd (Debian's mosquitto)");
     assert!(made.success());
     std::fs::write(folder.join("secret"), "s3cret\n").unwrap();
+    passwords
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn over_tls_with_a_password_and_a_client_certificate_and_clear_errors_when_refused() {
+    let setup = Setup::new(MILLGATE, "sparkplug-tls", "db").await;
+    let folder = &setup.scratch;
+    let passwords = tls_and_passwords(folder);
     std::fs::write(folder.join("wrong-secret"), "guess\n").unwrap();
     // Two TLS listeners: one that requires a client certificate, one that does not;
     // both with passwords.
@@ -1239,6 +1246,18 @@ fn first_births(hosts: &mut [Host], limit: Duration) -> (u64, u64) {
     )
 }
 
+/// Wait for the node's second NBIRTH among what `hosts` see: a new session, with the
+/// bdSeq after `bd_seq` and seq from 0.
+fn born_again(hosts: &mut [Host], bd_seq: u64, limit: Duration) {
+    let next_birth = read_until(hosts, "second NBIRTH", limit, |seen| nth_birth(seen, 1));
+    assert_eq!(
+        metric(&next_birth, "bdSeq")["value"].as_u64(),
+        Some(bd_seq + 1),
+        "{next_birth}"
+    );
+    assert_eq!(seq(&next_birth), 0);
+}
+
 /// Whether a bite of F1 after `after` is among `seen`.
 fn bite_after(seen: &[Value], bite_alias: u64, after: u64) -> Option<()> {
     let sessions = bites_by_session(seen, bite_alias);
@@ -1308,15 +1327,7 @@ async fn failover_through(
     plc.bites_after_now(1).await;
 
     // Born again on another server, with the next bdSeq and seq from 0.
-    let next_birth = read_until(&mut hosts, "second NBIRTH", limit, |seen| {
-        nth_birth(seen, 1)
-    });
-    assert_eq!(
-        metric(&next_birth, "bdSeq")["value"].as_u64(),
-        Some(bd_seq + 1),
-        "{next_birth}"
-    );
-    assert_eq!(seq(&next_birth), 0);
+    born_again(&mut hosts, bd_seq, limit);
     let last_at_birth = u64::from(plc.counter());
     read_until(&mut hosts, "a bite after the birth", limit, |seen| {
         bite_after(seen, bite_alias, last_at_birth)
@@ -1444,14 +1455,7 @@ async fn a_reload_moves_the_node_to_its_new_server_and_loses_no_bite() {
         seen.iter().find(|m| m["type"] == "NDEATH").cloned()
     });
     assert_eq!(metric(&death, "bdSeq")["value"].as_u64(), Some(bd_seq));
-    let next_birth = read_until(&mut hosts, "second NBIRTH", limit, |seen| {
-        nth_birth(seen, 1)
-    });
-    assert_eq!(
-        metric(&next_birth, "bdSeq")["value"].as_u64(),
-        Some(bd_seq + 1),
-        "{next_birth}"
-    );
+    born_again(&mut hosts, bd_seq, limit);
     plc.bites_after_now(1).await;
     let last = u64::from(plc.counter());
     read_until(&mut hosts, "a bite after the reload", limit, |seen| {
@@ -1484,16 +1488,7 @@ async fn a_reload_moves_the_node_to_its_new_server_and_loses_no_bite() {
 async fn a_server_of_the_set_with_its_own_tls_and_password_and_a_plain_one() {
     let setup = Setup::new(MILLGATE, "sparkplug-per-server", "db").await;
     let folder = setup.scratch.clone();
-    certificates(&folder);
-    let passwords = folder.join("passwords");
-    let made = Command::new("mosquitto_passwd")
-        .args(["-b", "-c"])
-        .arg(&passwords)
-        .args(["gw", "s3cret"])
-        .status()
-        .expect("mosquitto_passwd (Debian's mosquitto)");
-    assert!(made.success());
-    std::fs::write(folder.join("secret"), "s3cret\n").unwrap();
+    let passwords = tls_and_passwords(&folder);
     let file = |name: &str| folder.join(name).display().to_string();
     let ports = [free_port(), free_port()];
     let secure = folder.join("secure");
