@@ -254,7 +254,7 @@ pub(crate) struct RawWebOutput {
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawMqttOutput {
     pub(crate) broker: Option<String>,
-    pub(crate) brokers: Option<Vec<String>>,
+    pub(crate) brokers: Option<Vec<RawBroker>>,
     pub(crate) group_id: String,
     pub(crate) node_id: String,
     pub(crate) client_id: Option<String>,
@@ -266,6 +266,66 @@ pub(crate) struct RawMqttOutput {
     pub(crate) password: Option<String>,
     pub(crate) replay_batch: Option<i64>,
     pub(crate) replay_period_ms: Option<i64>,
+    pub(crate) password_file: Option<String>,
+    pub(crate) password_credential: Option<String>,
+    pub(crate) tls: Option<RawMqttTls>,
+}
+
+/// An entry of `outputs.mqtt.brokers`: `"host:port"` (the shared TLS and
+/// credentials), or a table with the server's own.
+#[derive(Debug)]
+pub(crate) enum RawBroker {
+    /// `"host:port"`.
+    Address(String),
+    /// `{ address = "host:port", tls = {...}, username = ..., password_file = ... }`.
+    Server(RawMqttServer),
+}
+
+impl RawBroker {
+    /// The entry's `host:port`.
+    pub(crate) fn address(&self) -> &str {
+        match self {
+            RawBroker::Address(address) => address,
+            RawBroker::Server(server) => &server.address,
+        }
+    }
+}
+
+/// A string or a table, each read by its own rules, so a table's error names its key
+/// (an untagged enum would only say that no variant matched).
+impl<'de> Deserialize<'de> for RawBroker {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        struct Entry;
+        impl<'de> serde::de::Visitor<'de> for Entry {
+            type Value = RawBroker;
+            fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str(
+                    "\"host:port\" or a table { address = \"host:port\", tls = { ... }, \
+                     username = ..., password_file = ... }",
+                )
+            }
+            fn visit_str<E: serde::de::Error>(self, address: &str) -> Result<RawBroker, E> {
+                Ok(RawBroker::Address(address.to_owned()))
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                map: A,
+            ) -> Result<RawBroker, A::Error> {
+                RawMqttServer::deserialize(serde::de::value::MapAccessDeserializer::new(map))
+                    .map(RawBroker::Server)
+            }
+        }
+        deserializer.deserialize_any(Entry)
+    }
+}
+
+/// A table entry of `outputs.mqtt.brokers`: the server's address, TLS and credentials.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawMqttServer {
+    pub(crate) address: String,
+    pub(crate) username: Option<String>,
+    pub(crate) password: Option<String>,
     pub(crate) password_file: Option<String>,
     pub(crate) password_credential: Option<String>,
     pub(crate) tls: Option<RawMqttTls>,

@@ -1599,17 +1599,20 @@ fn mqtt_output_keys_defaults_and_errors() {
     );
 }
 
+/// `BASE` with `[outputs.mqtt]` of group `plant`, node `f1` and the `servers` keys
+/// (`broker`, `brokers`, more keys), and a `[history]`.
+fn mqtt_with(servers: &str) -> String {
+    let history = std::env::temp_dir().join("h.db");
+    format!(
+        "{BASE}\n[outputs.mqtt]\n{servers}\ngroup_id = \"plant\"\nnode_id = \"f1\"\n\
+         \n[history]\npath = \"{}\"\n",
+        history.display()
+    )
+}
+
 #[test]
 fn mqtt_server_list_for_failover() {
-    let history = format!(
-        "\n[history]\npath = \"{}\"\n",
-        std::env::temp_dir().join("h.db").display()
-    );
-    let with = |servers: &str| {
-        format!(
-            "{BASE}\n[outputs.mqtt]\n{servers}\ngroup_id = \"plant\"\nnode_id = \"f1\"\n{history}"
-        )
-    };
+    let with = mqtt_with;
     let listed = parse(&with(
         "brokers = [\"10.0.0.1:1883\", \"[::1]:1884\", \"mq3.local:1883\"]",
     ))
@@ -1663,21 +1666,96 @@ fn mqtt_server_list_for_failover() {
     );
 }
 
+/// A PEM certificate frame (the DER inside is rustls' to judge, not the config's).
+const CERTIFICATE_PEM: &str = "-----BEGIN CERTIFICATE-----\nMAMCAQA=\n-----END CERTIFICATE-----\n";
+
+/// `text` written into the file `name` in `folder`; its path.
+fn write_in(folder: &Path, name: &str, text: &str) -> String {
+    let path = folder.join(name);
+    std::fs::write(&path, text).unwrap();
+    path.display().to_string()
+}
+
+#[test]
+fn mqtt_servers_with_their_own_tls_and_credentials() {
+    let folder = scratch("mqtt-per-server");
+    let scratch = folder.path();
+    let file = |name: &str, text: &str| write_in(scratch, name, text);
+    let ca = file("ca.pem", CERTIFICATE_PEM);
+    let secret = file("secret", "s3cret\n");
+    let with = mqtt_with;
+    // A table has its own TLS and credentials; a string the shared ones.
+    let mqtt = parse(&with(&format!(
+        "brokers = [{{ address = \"mq1:8883\", tls = {{ ca_file = \"{ca}\" }}, username = \"gw\", \
+         password_file = \"{secret}\" }}, \"mq2:1883\", {{ address = \"mq3:1883\" }}]\n\
+         username = \"shared\"\npassword = \"pw\""
+    )))
+    .unwrap()
+    .outputs
+    .mqtt
+    .unwrap();
+    assert_eq!(mqtt.brokers, ["mq1:8883", "mq2:1883", "mq3:1883"]);
+    let own = &mqtt.security[0];
+    assert_eq!(own.credentials, Some(("gw".into(), "s3cret".into())));
+    let tls = own.tls.as_ref().unwrap();
+    assert_eq!(tls.key, "outputs.mqtt.brokers[0].tls");
+    assert_eq!(tls.ca_file.display().to_string(), ca);
+    assert_eq!(
+        mqtt.security[1].credentials,
+        Some(("shared".into(), "pw".into()))
+    );
+    assert_eq!(mqtt.security[1].tls, None);
+    assert_eq!(
+        mqtt.security[2],
+        millgate_config::MqttSecurity::default(),
+        "a table without keys is plain, without credentials"
+    );
+    // The single broker has the shared settings.
+    let single = parse(&with("broker = \"mq1:1883\""))
+        .unwrap()
+        .outputs
+        .mqtt
+        .unwrap();
+    assert_eq!(single.security, [millgate_config::MqttSecurity::default()]);
+
+    // Problems name the entry's keys.
+    let missing = scratch.join("missing.pem").display().to_string();
+    assert_eq!(
+        problems(&with(&format!(
+            "brokers = [\"mq0:1883\", {{ address = \"mq1\", username = \"gw\" }}, \
+             {{ address = \"mq2:1883\", tls = {{ ca_file = \"{missing}\" }} }}, \
+             {{ address = \"mq0:1883\" }}]"
+        ))),
+        [
+            "mill.toml: outputs.mqtt.brokers[1].address: \"mq1\" is not allowed (must be host:port with a port 1..=65535, e.g. 192.168.0.10:502 or plc1.local:502)".to_owned(),
+            "mill.toml: outputs.mqtt.brokers[3].address: \"mq0:1883\" is listed already at brokers[0]".to_owned(),
+            "mill.toml: outputs.mqtt.brokers[1].password: missing: username needs password, password_file or password_credential".to_owned(),
+            format!(
+                "mill.toml: outputs.mqtt.brokers[2].tls.ca_file: file \"{missing}\" not found \
+                 (looked for {missing}; paths are relative to the configuration file)"
+            ),
+        ]
+    );
+    assert_problem_like(
+        &with("brokers = [{ address = \"mq1:1883\", user = \"gw\" }]"),
+        "mill.toml: outputs.mqtt.brokers",
+        &["unknown field `user`", "username"],
+    );
+    assert_problem_like(
+        &with("brokers = [1883]"),
+        "mill.toml: outputs.mqtt.brokers",
+        &["\"host:port\" or a table"],
+    );
+}
+
 #[test]
 fn mqtt_credentials_and_tls_files() {
     let folder = scratch("mqtt-tls");
     let scratch = folder.path();
-    let file = |name: &str, text: &str| {
-        let path = scratch.join(name);
-        std::fs::write(&path, text).unwrap();
-        path.display().to_string()
-    };
+    let file = |name: &str, text: &str| write_in(scratch, name, text);
     // The PEM framing is checked here; the DER inside is rustls' to judge (the
     // gateway's TLS setup).
-    let cert = file(
-        "cert.pem",
-        "-----BEGIN CERTIFICATE-----\nMAMCAQA=\n-----END CERTIFICATE-----\n",
-    );
+    let cert = file("cert.pem", CERTIFICATE_PEM);
     let key = file(
         "key.pem",
         "-----BEGIN PRIVATE KEY-----\nMAMCAQA=\n-----END PRIVATE KEY-----\n",
@@ -2123,11 +2201,7 @@ fn opcua_keys_name_their_range() {
 fn opcua_users_file_is_read_and_checked() {
     let folder = scratch("opcua-users");
     let scratch = folder.path();
-    let file = |name: &str, text: &str| {
-        let path = scratch.join(name);
-        std::fs::write(&path, text).unwrap();
-        path.display().to_string()
-    };
+    let file = |name: &str, text: &str| write_in(scratch, name, text);
     let good = file(
         "users",
         "# operators\noperator:s3cret:with:colons\n\nmaintenance:pw\r\n",

@@ -54,13 +54,19 @@ enum Command {
         #[arg(long, value_enum, default_value = "text")]
         format: millgate::cli::OutputFormat,
     },
-    /// Run the gateway service until SIGINT or SIGTERM (SIGHUP checks the
-    /// configuration file again and says what a restart would change).
+    /// Run the gateway service until SIGINT or SIGTERM (SIGHUP reloads the
+    /// configuration file: what can change live is applied, the rest is named).
     Run {
         /// The configuration file (TOML).
         #[arg(long)]
         config: PathBuf,
+        /// Keep this process' id in FILE while it runs (for `millgate reload`).
+        #[arg(long, value_name = "FILE")]
+        pid_file: Option<PathBuf>,
     },
+    /// Ask a running service to reload its configuration file (as SIGHUP does):
+    /// found by its pid file; with --config the file is checked first.
+    Reload(millgate::cli::reload::ReloadArgs),
     /// Export the register map of a configuration (0-based PDU addresses: the map's
     /// offsets and, with a PLC output, register_base + offset).
     Registers {
@@ -172,19 +178,11 @@ async fn run_service(config_path: PathBuf, config: millgate_config::Config) -> a
         millgate::supervision::check_watchdog(period, heartbeat)
             .map_err(|error| anyhow::anyhow!("{}: {error}", config_path.display()))?;
     }
-    let running = config.clone();
     let service = millgate::Service::new(config)
         .map_err(|error| anyhow::anyhow!("{}: {error}", config_path.display()))?;
     let signal = stop_signals()?;
     tokio::pin!(signal);
     let mut hang_up = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::hangup())?;
-    let reload = || {
-        use millgate::service::reload::{reload, Reload};
-        match reload(&running, &config_path) {
-            outcome @ Reload::Unchanged => tracing::info!("{outcome}"),
-            outcome => tracing::warn!("{outcome}"),
-        }
-    };
     let mut gateway = service.spawn().await?;
     loop {
         tokio::select! {
@@ -194,7 +192,8 @@ async fn run_service(config_path: PathBuf, config: millgate_config::Config) -> a
                 gateway.stop().await?;
                 return Ok(());
             }
-            Some(()) = hang_up.recv() => reload(),
+            // Handled (and logged) by the service once it runs.
+            Some(()) = hang_up.recv() => drop(tokio::spawn(gateway.reload(&config_path))),
         }
     }
     tracing::info!("ready");
@@ -224,7 +223,8 @@ async fn run_service(config_path: PathBuf, config: millgate_config::Config) -> a
             }
             Some(()) = hang_up.recv() => {
                 notify(&[NotifyState::Reloading]);
-                reload();
+                // The service logs and counts the outcome.
+                let _ = gateway.reload(&config_path).await;
                 notify(&[NotifyState::Ready]);
             }
         }
@@ -344,13 +344,25 @@ fn main() -> ExitCode {
         Command::Sim(args) => millgate::cli::sim::run(args),
         #[cfg(feature = "sim-tools")]
         Command::Rod(args) => millgate::cli::rod::run(args).and_then(emit),
-        Command::Run { config: path } => match millgate_config::load(&path) {
+        Command::Run {
+            config: path,
+            pid_file,
+        } => match millgate_config::load(&path) {
             Ok(config) => {
                 init_tracing("info", cli.log_format.map_or(config.log_format, Into::into));
-                runtime().block_on(run_service(path, config))
+                pid_file
+                    .as_deref()
+                    .map(millgate::cli::reload::PidFile::write)
+                    .transpose()
+                    .and_then(|pid_file| {
+                        let ran = runtime().block_on(run_service(path, config));
+                        drop(pid_file);
+                        ran
+                    })
             }
             Err(error) => Err(error.into()),
         },
+        Command::Reload(args) => millgate::cli::reload::run(&args).and_then(emit),
         #[cfg(feature = "sim-tools")]
         Command::Demo(args) => {
             init_tracing("warn", log_format);

@@ -1,71 +1,176 @@
-//! `SIGHUP` to the real `millgate run` between the demo's virtual DAQ and PLC (round-4
-//! audit, finding 11: a hang-up ended the service with no final write, the PLC's
-//! status left "running", the run `unclean`): the configuration is checked again; a
-//! file with errors is refused with them, a changed one is named with what a restart
-//! would apply, an unchanged one changes nothing; the service runs on throughout (the
-//! PLC's bite counter keeps moving) and stops cleanly afterwards.
+//! `SIGHUP` to the real `millgate run` between the demo's virtual DAQ and PLC, while
+//! bites stream (round-4 audit, finding 11: a hang-up ended the service with no final
+//! write, the PLC's status left "running", the run `unclean`; issue 41: a reload
+//! applies what it can): a file with errors is refused with them; new thresholds take
+//! effect at the next bite and are recorded in the history; the maintenance page is
+//! started, then moved to another port (the old one closes); a change of a bite
+//! setting is named as needing a restart while the rest applies; `/metrics` counts
+//! each outcome. The service runs on throughout, no bite id is missing from the
+//! history, and it stops cleanly afterwards. `millgate reload` finds the service by
+//! its pid file, refuses a file with errors itself and a stale pid file.
 
 mod common;
 
 use std::time::Duration;
 
-use common::{terminate, wait_for, Setup, MILLGATE};
+use common::{free_port, hang_up, http, millgate, terminate, text, wait_for, Setup, MILLGATE};
 
 use millgate::history::query::{Filter, HistoryReader};
 
-/// Send SIGHUP to `pid`.
-fn hang_up(pid: u32) {
-    let sent = std::process::Command::new("kill")
-        .args(["-HUP", &pid.to_string()])
-        .status()
-        .unwrap();
-    assert!(sent.success());
+const WARNING: &str = "millgate_driveline_taf_warning{driveline=\"F1\"}";
+
+fn reloads(outcome: &str) -> String {
+    format!("millgate_config_reloads_total{{outcome=\"{outcome}\"}}")
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn sighup_checks_the_configuration_and_the_service_runs_on() {
+async fn sighup_applies_what_it_can_names_the_rest_and_loses_no_bite() {
     let setup = Setup::new(MILLGATE, "reload", "db").await;
     let plc = setup.plc();
     let original = std::fs::read_to_string(&setup.config).unwrap();
-    let mut service = setup.spawn("run.log");
+    let pid_file = setup.scratch.join("millgate.pid");
+    let pid_arg = pid_file.to_str().unwrap();
+    let mut service = setup.spawn_with(MILLGATE.command(), "run.log", &["--pid-file", pid_arg]);
     plc.bites_after_now(1).await;
+    // The demo's bites pass the test's TAF warning threshold, 1.1.
+    let limit = Duration::from_secs(40);
+    setup.until_metric(WARNING, 1.0, limit).await;
 
+    let (first_web, second_web) = (free_port(), free_port());
+    let calm = original.replace(
+        "taf_warning = 1.1, taf_alarm = 1.15,",
+        "taf_warning = 40.0, taf_alarm = 50.0,",
+    );
+    assert_ne!(
+        calm, original,
+        "the test's thresholds are no longer in the file"
+    );
+    let web = |port: u16| format!("\n[outputs.web]\nbind = \"127.0.0.1:{port}\"\n");
+    let later_bites = calm.replace("threshold_knm = 20.0", "threshold_knm = 21.0");
+    assert_ne!(later_bites, calm, "the demo's bite threshold changed");
     let cases = [
         (
             original.replace("taf_alarm = 1.15,", "taf_alarm = -1.0,"),
             "reload refused: the configuration has errors",
         ),
         (
-            original.replace("taf_alarm = 1.15,", "taf_alarm = 1.2,"),
-            "reload: changed drivelines: applying them needs a restart",
+            calm.clone() + &web(first_web),
+            "reload: applied outputs.web, drivelines.F1.thresholds outcome",
         ),
-        (original.clone(), "reload: the configuration is unchanged"),
+        (
+            later_bites.clone() + &web(second_web),
+            "reload: applied outputs.web; changed drivelines.F1.bite: applying them needs a restart",
+        ),
+        (
+            later_bites + &web(second_web),
+            "reload: changed drivelines.F1.bite: applying them needs a restart",
+        ),
     ];
-    for (text, said) in cases {
-        std::fs::write(&setup.config, text).unwrap();
-        hang_up(service.id());
-        wait_for(said, Duration::from_secs(10), || {
-            setup.log_text("run.log").contains(said)
+    for (index, (file, said)) in cases.into_iter().enumerate() {
+        let before = setup.log_text("run.log").matches(said).count();
+        std::fs::write(&setup.config, file).unwrap();
+        if index < 3 {
+            hang_up(service.id());
+        } else {
+            // The same through `millgate reload`, which checks the file first.
+            let config = setup.config.to_str().unwrap();
+            let asked = millgate(&["reload", "--pid-file", pid_arg, "--config", config]);
+            assert!(asked.status.success(), "{}", text(&asked));
+            assert!(text(&asked).contains(&format!("pid {}", service.id())));
+        }
+        wait_for(said, Duration::from_secs(20), || {
+            setup.log_text("run.log").matches(said).count() > before
         })
         .await;
         assert!(
             service.try_wait().unwrap().is_none(),
             "SIGHUP ended the service"
         );
+        match index {
+            1 => {
+                // The page runs, and the next bite is judged by the new thresholds.
+                let page = http(first_web, "GET", "/api/overview").await;
+                assert_eq!(page.status, 200, "{}", page.body);
+                setup.until_metric(WARNING, 0.0, limit).await;
+            }
+            2 => {
+                let page = http(second_web, "GET", "/api/overview").await;
+                assert_eq!(page.status, 200, "{}", page.body);
+                let old = tokio::net::TcpStream::connect(("127.0.0.1", first_web)).await;
+                assert!(old.is_err(), "the page's old port still answers");
+            }
+            _ => {}
+        }
     }
     let log = setup.log_text("run.log");
     assert!(
         log.contains("taf_alarm"),
         "the refusal names the key: {log}"
     );
-    // Still analysing and writing the PLC.
-    plc.bites_after_now(1).await;
+    // `millgate reload` refuses a file with errors itself: the service is not asked.
+    let broken = setup.scratch.join("broken.toml");
+    std::fs::write(
+        &broken,
+        original.replace("taf_alarm = 1.15,", "taf_alarm = -1.0,"),
+    )
+    .unwrap();
+    let refused = millgate(&[
+        "reload",
+        "--pid-file",
+        pid_arg,
+        "--config",
+        broken.to_str().unwrap(),
+    ]);
+    assert!(!refused.status.success());
+    assert!(text(&refused).contains("taf_alarm"), "{}", text(&refused));
+    for (outcome, count) in [("applied", 1.0), ("refused", 1.0), ("needs_restart", 2.0)] {
+        assert_eq!(
+            setup.metric(&reloads(outcome)).await,
+            Some(count),
+            "{outcome}"
+        );
+    }
+    // Still analysing and writing the PLC; the alarm latched before stays latched.
+    plc.bites_after_now(2).await;
+    assert_eq!(setup.metric(WARNING).await, Some(0.0));
     terminate(&mut service);
-    let runs = HistoryReader::open(&setup.history)
-        .unwrap()
-        .runs(&Filter::default())
-        .unwrap();
+    assert!(!pid_file.exists(), "the pid file outlived the service");
+    // A stale pid file (a killed service's, its pid reused) is not signalled.
+    std::fs::write(&pid_file, format!("{}\n", std::process::id())).unwrap();
+    let stale = millgate(&["reload", "--pid-file", pid_arg]);
+    assert!(!stale.status.success());
+    assert!(
+        text(&stale).contains("not a running millgate"),
+        "{}",
+        text(&stale)
+    );
+
+    let history = HistoryReader::open(&setup.history).unwrap();
+    let runs = history.runs(&Filter::default()).unwrap();
     let ends: Vec<Option<&str>> = runs.iter().map(|r| r.ended.as_deref()).collect();
     assert_eq!(ends, [Some("stopped")]);
+    // Every bite the PLC saw is in the history, none missing around the reloads.
+    let ids: Vec<u32> = history
+        .bites(&Filter::default())
+        .unwrap()
+        .iter()
+        .map(|bite| bite.figures.bite_counter)
+        .collect();
+    let last = plc.counter();
+    assert!(ids.len() >= 4, "{ids:?}");
+    assert_eq!(
+        ids,
+        (1..=last).collect::<Vec<_>>(),
+        "bite ids in the history"
+    );
+    // The thresholds as applied, after the run's own.
+    let settings: Vec<(f64, f64)> = history
+        .settings(&Filter::default())
+        .unwrap()
+        .iter()
+        .filter(|row| row.driveline == "F1")
+        .map(|row| (row.taf_warning, row.taf_alarm))
+        .collect();
+    assert_eq!(settings, [(1.1, 1.15), (40.0, 50.0)]);
     setup.stop(service).await;
 }

@@ -26,7 +26,7 @@ use std::time::{Duration, Instant};
 
 use common::broker::Broker;
 use common::sparkplug as backlog;
-use common::{free_port, terminate, Setup, MILLGATE};
+use common::{free_port, hang_up, terminate, Setup, MILLGATE};
 use millgate::history::query::{CaptureRow, Filter, HistoryReader};
 use serde_json::Value;
 
@@ -842,10 +842,9 @@ fn certificates(folder: &Path) {
     }
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn over_tls_with_a_password_and_a_client_certificate_and_clear_errors_when_refused() {
-    let setup = Setup::new(MILLGATE, "sparkplug-tls", "db").await;
-    let folder = &setup.scratch;
+/// The [`certificates`], a mosquitto password file with user `gw` (password `s3cret`)
+/// and the gateway's password file `secret`, in `folder`; the password file's path.
+fn tls_and_passwords(folder: &Path) -> std::path::PathBuf {
     certificates(folder);
     let passwords = folder.join("passwords");
     let made = Command::new("mosquitto_passwd")
@@ -856,6 +855,14 @@ async fn over_tls_with_a_password_and_a_client_certificate_and_clear_errors_when
         .expect("mosquitto_passwd (Debian's mosquitto)");
     assert!(made.success());
     std::fs::write(folder.join("secret"), "s3cret\n").unwrap();
+    passwords
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn over_tls_with_a_password_and_a_client_certificate_and_clear_errors_when_refused() {
+    let setup = Setup::new(MILLGATE, "sparkplug-tls", "db").await;
+    let folder = &setup.scratch;
+    let passwords = tls_and_passwords(folder);
     std::fs::write(folder.join("wrong-secret"), "guess\n").unwrap();
     // Two TLS listeners: one that requires a client certificate, one that does not;
     // both with passwords.
@@ -1223,6 +1230,34 @@ fn nth_birth(seen: &[Value], n: usize) -> Option<Value> {
         .cloned()
 }
 
+/// The node's first births among what `hosts` see: the NBIRTH's bdSeq and the alias
+/// of F1's `bite_id` in its DBIRTH.
+fn first_births(hosts: &mut [Host], limit: Duration) -> (u64, u64) {
+    let nbirth = read_until(hosts, "NBIRTH", limit, |seen| nth_birth(seen, 0));
+    let bd_seq = metric(&nbirth, "bdSeq")["value"].as_u64().unwrap();
+    let dbirth = read_until(hosts, "DBIRTH", limit, |seen| {
+        seen.iter()
+            .find(|m| m["type"] == "DBIRTH" && m["device"] == "F1")
+            .cloned()
+    });
+    (
+        bd_seq,
+        metric(&dbirth, "bite_id")["alias"].as_u64().unwrap(),
+    )
+}
+
+/// Wait for the node's second NBIRTH among what `hosts` see: a new session, with the
+/// bdSeq after `bd_seq` and seq from 0.
+fn born_again(hosts: &mut [Host], bd_seq: u64, limit: Duration) {
+    let next_birth = read_until(hosts, "second NBIRTH", limit, |seen| nth_birth(seen, 1));
+    assert_eq!(
+        metric(&next_birth, "bdSeq")["value"].as_u64(),
+        Some(bd_seq + 1),
+        "{next_birth}"
+    );
+    assert_eq!(seq(&next_birth), 0);
+}
+
 /// Whether a bite of F1 after `after` is among `seen`.
 fn bite_after(seen: &[Value], bite_alias: u64, after: u64) -> Option<()> {
     let sessions = bites_by_session(seen, bite_alias);
@@ -1245,10 +1280,22 @@ async fn failover_keeps_every_bite(
     setup: Setup,
     ports: &[u16],
     extra: &str,
-    mut hosts: Vec<Host>,
+    hosts: Vec<Host>,
     kill: impl FnOnce(usize),
 ) -> (Vec<Vec<(u64, bool)>>, Vec<Value>) {
     let servers: Vec<String> = ports.iter().map(|p| format!("\"127.0.0.1:{p}\"")).collect();
+    failover_through(setup, (ports, &servers), extra, hosts, kill).await
+}
+
+/// As [`failover_keeps_every_bite`], with the `brokers` entries written as `servers`
+/// (a `"host:port"` or a table each, for `ports` in this order).
+async fn failover_through(
+    setup: Setup,
+    (ports, servers): (&[u16], &[String]),
+    extra: &str,
+    mut hosts: Vec<Host>,
+    kill: impl FnOnce(usize),
+) -> (Vec<Vec<(u64, bool)>>, Vec<Value>) {
     setup.append_config(&format!(
         "\n[outputs.mqtt]\nbrokers = [{}]\ngroup_id = \"plant\"\nnode_id = \"f1\"\nkeep_alive_s = 5\n{extra}\n",
         servers.join(", ")
@@ -1257,14 +1304,7 @@ async fn failover_keeps_every_bite(
         |port: u16| format!("millgate_sparkplug_server_in_use{{server=\"127.0.0.1:{port}\"}}");
     let mut service = setup.spawn("run.log");
     let limit = Duration::from_secs(60);
-    let nbirth = read_until(&mut hosts, "NBIRTH", limit, |seen| nth_birth(seen, 0));
-    let bd_seq = metric(&nbirth, "bdSeq")["value"].as_u64().unwrap();
-    let dbirth = read_until(&mut hosts, "DBIRTH", limit, |seen| {
-        seen.iter()
-            .find(|m| m["type"] == "DBIRTH" && m["device"] == "F1")
-            .cloned()
-    });
-    let bite_alias = metric(&dbirth, "bite_id")["alias"].as_u64().unwrap();
+    let (bd_seq, bite_alias) = first_births(&mut hosts, limit);
     let mut used = None;
     for (index, &port) in ports.iter().enumerate() {
         if setup.metric(&in_use(port)).await == Some(1.0) {
@@ -1287,15 +1327,7 @@ async fn failover_keeps_every_bite(
     plc.bites_after_now(1).await;
 
     // Born again on another server, with the next bdSeq and seq from 0.
-    let next_birth = read_until(&mut hosts, "second NBIRTH", limit, |seen| {
-        nth_birth(seen, 1)
-    });
-    assert_eq!(
-        metric(&next_birth, "bdSeq")["value"].as_u64(),
-        Some(bd_seq + 1),
-        "{next_birth}"
-    );
-    assert_eq!(seq(&next_birth), 0);
+    born_again(&mut hosts, bd_seq, limit);
     let last_at_birth = u64::from(plc.counter());
     read_until(&mut hosts, "a bite after the birth", limit, |seen| {
         bite_after(seen, bite_alias, last_at_birth)
@@ -1385,6 +1417,130 @@ async fn with_two_independent_brokers_the_node_moves_to_the_other() {
         2,
         "one session on each broker: {sessions:?}"
     );
+}
+
+/// A reload mid-stream that gives the node another server (`brokers` changed, issue
+/// 41): the node ends its session on the old one with its NDEATH, is born on the new
+/// one with the next bdSeq, and every bite the PLC saw reaches a host application,
+/// live or replayed flagged historical; the PLC writer and the analysis run on.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_reload_moves_the_node_to_its_new_server_and_loses_no_bite() {
+    let setup = Setup::new(MILLGATE, "sparkplug-reload", "db").await;
+    let (ports, _brokers) = two_brokers(&setup);
+    let mut hosts = vec![
+        Host::start(ports[0], "plant"),
+        Host::start(ports[1], "plant"),
+    ];
+    let original = std::fs::read_to_string(&setup.config).unwrap();
+    let mqtt = |port: u16| {
+        format!(
+            "\n[outputs.mqtt]\nbrokers = [\"127.0.0.1:{port}\"]\ngroup_id = \"plant\"\n\
+             node_id = \"f1\"\nkeep_alive_s = 5\n"
+        )
+    };
+    setup.append_config(&mqtt(ports[0]));
+    let mut service = setup.spawn("run.log");
+    let limit = Duration::from_secs(60);
+    let (bd_seq, bite_alias) = first_births(&mut hosts, limit);
+    let plc = setup.plc();
+    plc.bites_after_now(1).await;
+    let last = u64::from(plc.counter());
+    read_until(&mut hosts, "the bite", limit, |seen| {
+        bite_after(seen, bite_alias, last - 1)
+    });
+
+    std::fs::write(&setup.config, original + &mqtt(ports[1])).unwrap();
+    hang_up(service.id());
+    let death = read_until(&mut hosts, "NDEATH", limit, |seen| {
+        seen.iter().find(|m| m["type"] == "NDEATH").cloned()
+    });
+    assert_eq!(metric(&death, "bdSeq")["value"].as_u64(), Some(bd_seq));
+    born_again(&mut hosts, bd_seq, limit);
+    plc.bites_after_now(1).await;
+    let last = u64::from(plc.counter());
+    read_until(&mut hosts, "a bite after the reload", limit, |seen| {
+        bite_after(seen, bite_alias, last - 1)
+    });
+    // The first host saw the first session, the second the second.
+    let sessions = bites_by_session(&seen(&hosts), bite_alias);
+    assert_eq!(sessions.len(), 2, "{sessions:?}");
+    assert_every_bite_once(&sessions, last);
+    assert_eq!(
+        setup
+            .metric("millgate_config_reloads_total{outcome=\"applied\"}")
+            .await,
+        Some(1.0)
+    );
+    assert!(setup
+        .log_text("run.log")
+        .contains("reload: applied outputs.mqtt"));
+    terminate(&mut service);
+    setup.stop(service).await;
+}
+
+/// TLS and credentials per server (issue 41): the first server of the set a mosquitto
+/// over TLS with a password file (its table in `brokers` names its CA, user and
+/// password file), the second a plain one without users (a `"host:port"`: the shared
+/// settings, none here). The node is born over TLS with its password on the first; the
+/// first is killed mid-stream and the node moves to the plain one, where it sends no
+/// credentials; every bite reaches one of the hosts.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_server_of_the_set_with_its_own_tls_and_password_and_a_plain_one() {
+    let setup = Setup::new(MILLGATE, "sparkplug-per-server", "db").await;
+    let folder = setup.scratch.clone();
+    let passwords = tls_and_passwords(&folder);
+    let file = |name: &str| folder.join(name).display().to_string();
+    let ports = [free_port(), free_port()];
+    let secure = folder.join("secure");
+    std::fs::create_dir_all(&secure).unwrap();
+    let tls_broker = Broker::with_listeners(
+        &secure,
+        ports[0],
+        &format!(
+            "listener {} 127.0.0.1\ncafile {}\ncertfile {}\nkeyfile {}\n\
+             allow_anonymous false\npassword_file {}\n",
+            ports[0],
+            file("ca.pem"),
+            file("server.pem"),
+            file("server.key"),
+            passwords.display(),
+        ),
+    );
+    let plain = folder.join("plain");
+    std::fs::create_dir_all(&plain).unwrap();
+    let plain_broker = Broker::start(&plain, ports[1]);
+    let mut brokers = [Some(tls_broker), Some(plain_broker)];
+    let hosts = vec![
+        Host::with_options(
+            ports[0],
+            "plant",
+            &[
+                "--ca",
+                &file("ca.pem"),
+                "--username",
+                "gw",
+                "--password",
+                "s3cret",
+            ],
+        ),
+        Host::start(ports[1], "plant"),
+    ];
+    let servers = [
+        format!(
+            "{{ address = \"127.0.0.1:{}\", tls = {{ ca_file = \"{}\" }}, username = \"gw\", \
+             password_file = \"{}\" }}",
+            ports[0],
+            file("ca.pem"),
+            file("secret")
+        ),
+        format!("\"127.0.0.1:{}\"", ports[1]),
+    ];
+    let (sessions, _) = failover_through(setup, (&ports, &servers), "", hosts, |broker| {
+        brokers[broker] = None;
+    })
+    .await;
+    // One session on each: the TLS host saw the first, the plain host the second.
+    assert_eq!(sessions.len(), 2, "{sessions:?}");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

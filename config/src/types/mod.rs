@@ -17,8 +17,8 @@ pub use mills::{
     FatigueSettings, RodMill, TandemMill, WearSettings,
 };
 pub use outputs::{
-    MetricsOutput, MqttOutput, MqttTls, OpcUaOutput, OpcUaSecurityMode, OpcUaUser, Outputs,
-    PlcOutput, ServerOutput, WebOutput,
+    MetricsOutput, MqttOutput, MqttSecurity, MqttTls, OpcUaOutput, OpcUaSecurityMode, OpcUaUser,
+    Outputs, PlcOutput, ServerOutput, WebOutput,
 };
 pub use sources::{
     CanSource, Channel, ChannelKind, ChannelSource, ModbusSource, RegisterTable, ValueType,

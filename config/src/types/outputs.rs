@@ -252,6 +252,20 @@ pub struct MqttOutput {
     pub replay_period: Duration,
     /// TLS to the broker (`[outputs.mqtt.tls]`); plain MQTT without it.
     pub tls: Option<MqttTls>,
+    /// Per server of `brokers` (in its order), its TLS and credentials: a `"host:port"`
+    /// entry has the shared `tls` and `credentials`; a table entry (`{ address = ...,
+    /// tls = {...}, username = ..., password_file = ... }`) has its own, and only those
+    /// (a table without `tls` is plain MQTT, one without `username` sends none).
+    pub security: Vec<MqttSecurity>,
+}
+
+/// The TLS and credentials the edge node uses with one MQTT server.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct MqttSecurity {
+    /// TLS; plain MQTT without it.
+    pub tls: Option<MqttTls>,
+    /// User name and password.
+    pub credentials: Option<(String, String)>,
 }
 
 /// `[outputs.mqtt.tls]`: the broker's certificate is checked against `ca_file`; with
@@ -260,6 +274,9 @@ pub struct MqttOutput {
 /// starts (errors name the key and the file).
 #[derive(Debug, Clone, PartialEq)]
 pub struct MqttTls {
+    /// Its key in the configuration (`outputs.mqtt.tls`, `outputs.mqtt.brokers[1].tls`),
+    /// for errors.
+    pub key: String,
     /// PEM file of the certificate authorities trusted for the broker, relative to the
     /// configuration file.
     pub ca_file: PathBuf,

@@ -7,10 +7,11 @@ use std::path::Path;
 use std::time::Duration;
 
 use crate::raw::{
-    RawMqttOutput, RawMqttTls, RawOutputs, RawPlcOutput, RawServerOutput, RawWebOutput,
+    RawBroker, RawMqttOutput, RawMqttServer, RawMqttTls, RawOutputs, RawPlcOutput, RawServerOutput,
+    RawWebOutput,
 };
 use crate::{
-    MetricsOutput, MqttOutput, MqttTls, Outputs, PlcOutput, ServerOutput, WebOutput,
+    MetricsOutput, MqttOutput, MqttSecurity, MqttTls, Outputs, PlcOutput, ServerOutput, WebOutput,
     CREDENTIALS_DIRECTORY,
 };
 
@@ -319,11 +320,12 @@ impl Checker<'_> {
                 .map(Some),
             None => Some(None),
         };
-        let credentials = self.mqtt_credentials(raw);
+        let credentials = self.mqtt_credentials(key, &Credentials::of(raw));
         let tls = match &raw.tls {
-            Some(tls) => self.mqtt_tls(tls).map(Some),
+            Some(tls) => self.mqtt_tls(&format!("{key}.tls"), tls).map(Some),
             None => Some(None),
         };
+        let security = self.mqtt_security(raw, credentials.as_ref(), tls.as_ref());
         if !history {
             self.report.push(
                 key,
@@ -354,7 +356,49 @@ impl Checker<'_> {
             replay_batch: u32::try_from(replay_batch?).ok()?,
             replay_period: replay_period?,
             tls: tls?,
+            security: security?,
         })
+    }
+
+    /// Per entry of `brokers` (or the one `broker`), its TLS and credentials: the
+    /// shared ones (`shared_credentials`, `shared_tls`, `None` when they have errors)
+    /// for a `"host:port"`, its own for a table.
+    fn mqtt_security(
+        &mut self,
+        raw: &RawMqttOutput,
+        shared_credentials: Option<&Option<(String, String)>>,
+        shared_tls: Option<&Option<MqttTls>>,
+    ) -> Option<Vec<MqttSecurity>> {
+        let shared = || {
+            Some(MqttSecurity {
+                tls: shared_tls?.clone(),
+                credentials: shared_credentials?.clone(),
+            })
+        };
+        let Some(brokers) = &raw.brokers else {
+            return shared().map(|security| vec![security]);
+        };
+        let mut all = Some(Vec::with_capacity(brokers.len()));
+        for (index, broker) in brokers.iter().enumerate() {
+            let security = match broker {
+                RawBroker::Address(_) => shared(),
+                RawBroker::Server(server) => {
+                    let key = format!("outputs.mqtt.brokers[{index}]");
+                    let credentials = self.mqtt_credentials(&key, &Credentials::of_server(server));
+                    let tls = match &server.tls {
+                        Some(tls) => self.mqtt_tls(&format!("{key}.tls"), tls).map(Some),
+                        None => Some(None),
+                    };
+                    tls.zip(credentials)
+                        .map(|(tls, credentials)| MqttSecurity { tls, credentials })
+                }
+            };
+            match (&mut all, security) {
+                (Some(all), Some(security)) => all.push(security),
+                _ => all = None,
+            }
+        }
+        all
     }
 
     /// The MQTT servers: `brokers` (1..=[`MAX_MQTT_SERVERS`], none twice) or `broker`,
@@ -363,7 +407,8 @@ impl Checker<'_> {
         let key = "outputs.mqtt";
         match (&raw.broker, &raw.brokers) {
             (Some(broker), None) => Some(vec![self.host_port(&format!("{key}.broker"), broker)?]),
-            (None, Some(brokers)) => {
+            (None, Some(entries)) => {
+                let brokers: Vec<&str> = entries.iter().map(RawBroker::address).collect();
                 if brokers.is_empty() || brokers.len() > MAX_MQTT_SERVERS {
                     self.report.push(
                         format!("{key}.brokers"),
@@ -377,7 +422,10 @@ impl Checker<'_> {
                 }
                 let mut servers = Vec::with_capacity(brokers.len());
                 for (index, broker) in brokers.iter().enumerate() {
-                    let entry = format!("{key}.brokers[{index}]");
+                    let entry = match entries[index] {
+                        RawBroker::Address(_) => format!("{key}.brokers[{index}]"),
+                        RawBroker::Server(_) => format!("{key}.brokers[{index}].address"),
+                    };
                     if let Some(first) = brokers[..index].iter().position(|b| b == broker) {
                         self.report.push(
                             entry,
@@ -409,9 +457,13 @@ impl Checker<'_> {
     }
 
     /// `username` with one of `password`, `password_file` (read now) and
-    /// `password_credential` (read now from `$CREDENTIALS_DIRECTORY`), or none of them.
-    fn mqtt_credentials(&mut self, raw: &RawMqttOutput) -> Option<Option<(String, String)>> {
-        let key = "outputs.mqtt";
+    /// `password_credential` (read now from `$CREDENTIALS_DIRECTORY`), or none of them,
+    /// of the table at `key`.
+    fn mqtt_credentials(
+        &mut self,
+        key: &str,
+        raw: &Credentials<'_>,
+    ) -> Option<Option<(String, String)>> {
         let given: Vec<&str> = [
             ("password", raw.password.is_some()),
             ("password_file", raw.password_file.is_some()),
@@ -428,7 +480,7 @@ impl Checker<'_> {
             return None;
         }
         let password = if let Some(password) = &raw.password {
-            Some(password.clone())
+            Some((*password).clone())
         } else if let Some(file) = &raw.password_file {
             Some(self.password_file(&format!("{key}.password_file"), file)?)
         } else if let Some(name) = &raw.password_credential {
@@ -437,7 +489,7 @@ impl Checker<'_> {
             None
         };
         match (&raw.username, password) {
-            (Some(user), Some(password)) => Some(Some((user.clone(), password))),
+            (Some(user), Some(password)) => Some(Some(((*user).clone(), password))),
             (None, None) => Some(None),
             (Some(_), None) => {
                 self.report.push(
@@ -530,8 +582,7 @@ impl Checker<'_> {
 
     /// `[outputs.mqtt.tls]`: the files exist and hold PEM certificates and a key; a
     /// client certificate needs its key and a key its certificate.
-    fn mqtt_tls(&mut self, raw: &RawMqttTls) -> Option<MqttTls> {
-        let key = "outputs.mqtt.tls";
+    fn mqtt_tls(&mut self, key: &str, raw: &RawMqttTls) -> Option<MqttTls> {
         let ca_file = self.existing_file(&format!("{key}.ca_file"), &raw.ca_file);
         let client = match (&raw.cert_file, &raw.key_file) {
             (Some(cert), Some(private)) => {
@@ -556,6 +607,7 @@ impl Checker<'_> {
             }
         };
         let tls = MqttTls {
+            key: key.to_owned(),
             ca_file: ca_file?,
             client: client?,
         };
@@ -579,6 +631,35 @@ impl Checker<'_> {
             None
         } else {
             Some(id.to_owned())
+        }
+    }
+}
+
+/// The credential keys of an `[outputs.mqtt]` table or of a server's table in
+/// `brokers`.
+struct Credentials<'a> {
+    username: Option<&'a String>,
+    password: Option<&'a String>,
+    password_file: Option<&'a String>,
+    password_credential: Option<&'a String>,
+}
+
+impl<'a> Credentials<'a> {
+    fn of(raw: &'a RawMqttOutput) -> Self {
+        Self {
+            username: raw.username.as_ref(),
+            password: raw.password.as_ref(),
+            password_file: raw.password_file.as_ref(),
+            password_credential: raw.password_credential.as_ref(),
+        }
+    }
+
+    fn of_server(raw: &'a RawMqttServer) -> Self {
+        Self {
+            username: raw.username.as_ref(),
+            password: raw.password.as_ref(),
+            password_file: raw.password_file.as_ref(),
+            password_credential: raw.password_credential.as_ref(),
         }
     }
 }

@@ -239,6 +239,12 @@ impl GapMonitor {
         })
     }
 
+    /// Warn and alarm at `thresholds` from the next bite on (a reload).
+    pub(super) fn set_thresholds(&mut self, thresholds: &DrivelineThresholds) {
+        self.warning_mrad = thresholds.gap_warning_mrad;
+        self.alarm_mrad = thresholds.gap_alarm_mrad;
+    }
+
     /// Install the maps (`None`: they failed and will not come); the trend's estimate
     /// after folding in the bites held meanwhile.
     pub(super) fn set_maps(&mut self, maps: Option<Arc<GapMaps>>) -> Option<GapResults> {

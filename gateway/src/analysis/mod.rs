@@ -24,8 +24,8 @@ pub mod wear;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use millgate_config::Config;
-use tokio::sync::{broadcast, mpsc};
+use millgate_config::{Config, DrivelineThresholds};
+use tokio::sync::{broadcast, mpsc, watch};
 
 use crate::field::acquired::Acquired;
 use crate::state::board::Board;
@@ -219,6 +219,15 @@ impl Analysis {
         self.drivelines.get(index)?.gap_trend()
     }
 
+    /// Warn and alarm at `thresholds` (one per driveline, in config order) from each
+    /// driveline's next bite on: a reload. Latched alarms stay latched until
+    /// acknowledged.
+    pub fn set_thresholds(&mut self, thresholds: &[DrivelineThresholds]) {
+        for (driveline, thresholds) in self.drivelines.iter_mut().zip(thresholds) {
+            driveline.set_thresholds(thresholds);
+        }
+    }
+
     /// Apply a command: acknowledge the latched alarms, or reset a driveline's wear
     /// (its TAF-ratio trend, its gap estimate and the gap's wear trend behind it).
     pub fn command(&mut self, command: Command) {
@@ -391,24 +400,36 @@ impl Analysis {
     /// arrive on `maps`, applying commands as they arrive on `commands` (in order with
     /// the samples: a command given before a bite is in effect at that bite), and
     /// counting each turn of the loop (a message handled, or [`ANALYSIS_TICK`] without
-    /// one) in `liveness`: a watchdog sees a stuck analysis as turns that stop.
+    /// one) in `liveness`: a watchdog sees a stuck analysis as turns that stop. New
+    /// `thresholds` (a reload) take effect in order with the samples, like commands.
     pub async fn run(
         mut self,
         mut samples: mpsc::Receiver<Acquired>,
         mut maps: mpsc::Receiver<GapMapsReady>,
-        mut commands: CommandReceiver,
+        (mut commands, mut thresholds): (
+            CommandReceiver,
+            watch::Receiver<Vec<DrivelineThresholds>>,
+        ),
         liveness: Arc<Liveness>,
     ) {
         let mut idle = tokio::time::interval(ANALYSIS_TICK);
         idle.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         let mut maps_open = true;
         let mut commands_open = true;
+        let mut thresholds_open = true;
         loop {
             tokio::select! {
                 biased;
                 command = commands.recv(), if commands_open => match command {
                     Some(command) => self.command(command),
                     None => commands_open = false,
+                },
+                changed = thresholds.changed(), if thresholds_open => match changed {
+                    Ok(()) => {
+                        let thresholds = thresholds.borrow_and_update().clone();
+                        self.set_thresholds(&thresholds);
+                    }
+                    Err(_) => thresholds_open = false,
                 },
                 message = samples.recv() => match message {
                     Some(message) => {

@@ -225,6 +225,7 @@ fn configure_outputs(config: &mut Config, args: &DemoArgs, history_path: &Path) 
             replay_batch: 100,
             replay_period: Duration::from_millis(100),
             tls: None,
+            security: vec![millgate_config::MqttSecurity::default()],
         });
     }
     config.outputs.web = Some(millgate_config::WebOutput::on(args.web));

@@ -56,6 +56,7 @@ pub mod figures;
 pub mod history;
 pub(crate) mod progress;
 pub mod registers;
+pub mod reload;
 #[cfg(feature = "plot")]
 pub mod report;
 #[cfg(feature = "sim-tools")]

@@ -240,7 +240,8 @@ record! {
         id: i64,
         /// The run.
         run_id: i64,
-        /// The run's start, UTC, ISO-8601.
+        /// The run's start, or the reload that applied these thresholds, UTC,
+        /// ISO-8601.
         time: String,
         /// Driveline name.
         driveline: String,

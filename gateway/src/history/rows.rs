@@ -8,6 +8,7 @@ use rusqlite::{params, Transaction};
 
 use super::bite_row::OWN_COLUMNS;
 use super::figures::{bite_columns, to_sql, upsert_state};
+use super::run::{insert_settings, DrivelineSettings};
 use crate::state::events::{
     AlarmRecord, BiteRecord, ChatterWindow, HistoryEvent, StateRecord, SubjectResults,
 };
@@ -51,6 +52,10 @@ pub fn insert(
                 .prepare_cached("UPDATE driveline_state SET gap_trend = NULL WHERE driveline = ?1")?
                 .execute(params![driveline])?;
             Ok(())
+        }
+        HistoryEvent::Settings { time, drivelines } => {
+            let settings: Vec<_> = drivelines.iter().map(DrivelineSettings::of).collect();
+            insert_settings(transaction, run_id, &time.to_string(), &settings)
         }
         HistoryEvent::ChatterStarted { .. }
         | HistoryEvent::ChatterWindow { .. }

@@ -1,5 +1,6 @@
 //! What the history records about a run at its start: millgate's version, the
-//! configuration's name and hash, and each driveline's settings (for reports).
+//! configuration's name and hash, and each driveline's settings (for reports; a reload that
+//! changes thresholds adds them again, [`insert_settings`]).
 
 /// What the history records about this run at its start.
 #[derive(Debug, Clone)]
@@ -42,25 +43,61 @@ impl RunInfo {
             drivelines: config
                 .drivelines
                 .iter()
-                .map(|driveline| DrivelineSettings {
-                    name: driveline.name.clone(),
-                    taf_warning: driveline.thresholds.taf_warning,
-                    taf_alarm: driveline.thresholds.taf_alarm,
-                    model: driveline
-                        .model
-                        .as_ref()
-                        .map(|path| path.display().to_string()),
-                    // The gap diagnosis runs only with a model.
-                    gap_warning_mrad: driveline
-                        .model
-                        .as_ref()
-                        .map(|_| driveline.thresholds.gap_warning_mrad),
-                    gap_alarm_mrad: driveline
-                        .model
-                        .as_ref()
-                        .map(|_| driveline.thresholds.gap_alarm_mrad),
-                })
+                .map(DrivelineSettings::of)
                 .collect(),
         }
     }
+}
+
+impl DrivelineSettings {
+    /// `driveline`'s settings as the history keeps them.
+    pub fn of(driveline: &millgate_config::Driveline) -> Self {
+        Self {
+            name: driveline.name.clone(),
+            taf_warning: driveline.thresholds.taf_warning,
+            taf_alarm: driveline.thresholds.taf_alarm,
+            model: driveline
+                .model
+                .as_ref()
+                .map(|path| path.display().to_string()),
+            // The gap diagnosis runs only with a model.
+            gap_warning_mrad: driveline
+                .model
+                .as_ref()
+                .map(|_| driveline.thresholds.gap_warning_mrad),
+            gap_alarm_mrad: driveline
+                .model
+                .as_ref()
+                .map(|_| driveline.thresholds.gap_alarm_mrad),
+        }
+    }
+}
+
+/// Insert `drivelines`' settings of run `run_id` in effect from `time` (the run's
+/// start, or a reload that changed them).
+pub(crate) fn insert_settings(
+    connection: &rusqlite::Connection,
+    run_id: i64,
+    time: &str,
+    drivelines: &[DrivelineSettings],
+) -> rusqlite::Result<()> {
+    for driveline in drivelines {
+        connection
+            .prepare_cached(
+                "INSERT INTO driveline_settings (run_id, time, driveline, taf_warning, taf_alarm,
+                 model, gap_warning_mrad, gap_alarm_mrad)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+            )?
+            .execute(rusqlite::params![
+                run_id,
+                time,
+                driveline.name,
+                driveline.taf_warning,
+                driveline.taf_alarm,
+                driveline.model,
+                driveline.gap_warning_mrad,
+                driveline.gap_alarm_mrad
+            ])?;
+    }
+    Ok(())
 }

@@ -24,7 +24,7 @@ use super::error::{explain, HistoryError};
 use super::restore::Restored;
 use super::retention::{Retention, RetentionState};
 use super::rows::insert;
-use super::run::RunInfo;
+use super::run::{insert_settings, RunInfo};
 use super::schema;
 use crate::state::events::HistoryEvent;
 use crate::state::history::History;
@@ -198,23 +198,7 @@ pub fn insert_run(
         params![started_at, run.version, run.config_name, run.config_hash],
     )?;
     let run_id = connection.last_insert_rowid();
-    for driveline in &run.drivelines {
-        connection.execute(
-            "INSERT INTO driveline_settings (run_id, time, driveline, taf_warning, taf_alarm,
-                 model, gap_warning_mrad, gap_alarm_mrad)
-             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
-            params![
-                run_id,
-                started_at,
-                driveline.name,
-                driveline.taf_warning,
-                driveline.taf_alarm,
-                driveline.model,
-                driveline.gap_warning_mrad,
-                driveline.gap_alarm_mrad
-            ],
-        )?;
-    }
+    insert_settings(connection, run_id, &started_at, &run.drivelines)?;
     Ok(run_id)
 }
 

@@ -7,11 +7,12 @@
 //! non-zero and its supervisor restarts it.
 
 use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use millgate_config::Config;
+use millgate_config::{Config, DrivelineThresholds, PlcOutput};
 use tokio::net::TcpListener;
-use tokio::sync::{broadcast, mpsc, watch};
+use tokio::sync::{broadcast, mpsc, oneshot, watch};
 
 mod error;
 mod outputs;
@@ -21,6 +22,9 @@ mod running;
 
 pub use error::ServiceError;
 pub use running::RunningService;
+
+use outputs::{Kept, Listeners, Outputs, ReloadCounters, Wiring, WiringParts};
+use reload::{Live, Reload};
 
 use crate::analysis::driveline::BiteReport;
 use crate::analysis::gap_estimate::GapObservation;
@@ -37,8 +41,10 @@ use crate::outputs::web;
 use crate::shutdown::{self, Shutdown};
 use crate::state::board::Board;
 use crate::state::commands::{self, CommandReceiver, CommandSender};
+use crate::state::events::HistoryEvent;
 use crate::state::history::History;
 use crate::state::results::GatewayState;
+use crate::state::time::UtcTime;
 use crate::supervision::Liveness;
 
 /// Samples in flight between readers and analysis. At 2 kHz and 100-sample blocks
@@ -70,7 +76,21 @@ pub struct Service {
     server_counters: Arc<ServerCounters>,
     /// Set once the PLC writer attempted its first write (at once without a PLC).
     plc_attempted: watch::Sender<bool>,
+    /// Reload requests ([`RunningService::reload`]), handled once the service runs.
+    reloads: (mpsc::Sender<ReloadRequest>, mpsc::Receiver<ReloadRequest>),
+    /// The drivelines' thresholds, as a reload sends them to the analysis.
+    thresholds: watch::Sender<Vec<DrivelineThresholds>>,
 }
+
+/// A reload of the configuration file at `path`, and where its outcome goes.
+#[derive(Debug)]
+pub(crate) struct ReloadRequest {
+    path: PathBuf,
+    reply: oneshot::Sender<Reload>,
+}
+
+/// Reload requests waiting for the service.
+const RELOAD_QUEUE: usize = 4;
 
 /// Addresses the service listens on.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -91,16 +111,7 @@ impl Service {
     pub fn new(config: Config) -> Result<Self, ServiceError> {
         let map = RegisterMap::try_new(&config)?;
         if let Some(plc) = &config.outputs.plc {
-            let span = map.plc_span(plc.extension_blocks);
-            let end = u32::from(plc.register_base) + u32::from(span) - 1;
-            if end > u32::from(u16::MAX) {
-                return Err(ServiceError::RegisterBase {
-                    base: plc.register_base,
-                    span,
-                    end,
-                    max: u32::from(u16::MAX) + 1 - u32::from(span),
-                });
-            }
+            check_register_base(&map, plc)?;
         }
         let counters = config
             .channels
@@ -132,6 +143,13 @@ impl Service {
         )?;
         let can_counters = config.can_sources.iter().map(|_| Arc::default()).collect();
         let (plc_attempted, _) = watch::channel(config.outputs.plc.is_none());
+        let (thresholds, _) = watch::channel(
+            config
+                .drivelines
+                .iter()
+                .map(|driveline| driveline.thresholds)
+                .collect(),
+        );
         Ok(Self {
             config,
             map: Arc::new(map),
@@ -152,6 +170,8 @@ impl Service {
             liveness: Arc::default(),
             server_counters: Arc::default(),
             plc_attempted,
+            reloads: mpsc::channel(RELOAD_QUEUE),
+            thresholds,
         })
     }
 
@@ -403,6 +423,8 @@ impl Service {
             liveness,
             server_counters,
             plc_attempted,
+            reloads,
+            thresholds,
             ..
         } = self;
         let rod_mill_spans = analysis.rod_mill_spans();
@@ -417,39 +439,62 @@ impl Service {
         let readers = readers::spawn(&config, &acquisition, samples, readers_shutdown);
         let analysis_task = readers::spawn_analysis(
             analysis,
-            (samples_rx, command_receiver),
+            (samples_rx, command_receiver, thresholds.subscribe()),
             &board,
             Arc::clone(&liveness),
         );
         // Outputs stop only after analysis has drained, so the last bite is published.
         // Each returns what ended it; before the stop, any end is a failure.
-        let (outputs_stop, outputs_shutdown) = shutdown::channel();
-        let wiring = outputs::Wiring {
-            config: &config,
-            map,
-            board: Arc::clone(&board),
-            commands,
-            acquisition,
-            server_counters,
-            plc_attempted: Some(plc_attempted),
-            listeners: outputs::Listeners {
-                server: server_listener,
-                metrics: metrics_listener,
-                web: web_listener,
-                opcua: opcua_listener,
-            },
-            outage_monitor,
-            rod_mill_spans,
-            plc_counters: Arc::default(),
-            opcua,
-            metrics: Vec::new(),
+        let keep = |listener: Option<TcpListener>, configured: Option<SocketAddr>| {
+            listener
+                .zip(configured)
+                .map(|(listener, configured)| {
+                    Kept::new(configured, listener).map_err(|source| (configured, source))
+                })
+                .transpose()
         };
-        let mut outputs = tokio::task::JoinSet::new();
-        for (name, task) in outputs::tasks(wiring, &outputs_shutdown)? {
-            outputs.spawn(async move { (name, task.await) });
-        }
+        let bind_error = |output| {
+            move |(address, source)| ServiceError::Bind {
+                output,
+                address,
+                source,
+            }
+        };
+        let configured = &config.outputs;
+        let listeners = Listeners {
+            server: keep(server_listener, configured.server.as_ref().map(|s| s.bind))
+                .map_err(bind_error("Modbus server"))?,
+            metrics: keep(
+                metrics_listener,
+                configured.metrics.as_ref().map(|m| m.bind),
+            )
+            .map_err(bind_error("metrics endpoint"))?,
+            web: keep(web_listener, configured.web.as_ref().map(|w| w.bind))
+                .map_err(bind_error("maintenance page"))?,
+            opcua: opcua_listener,
+        };
+        let reload_counters = Arc::new(ReloadCounters::default());
+        let wiring = Wiring::new(
+            config.clone(),
+            WiringParts {
+                map: Arc::clone(&map),
+                board: Arc::clone(&board),
+                commands,
+                acquisition,
+                server_counters,
+                plc_attempted: Some(plc_attempted),
+                listeners,
+                outage_monitor,
+                rod_mill_spans,
+                opcua,
+                reloads: Arc::clone(&reload_counters),
+            },
+        );
+        let outputs = Outputs::start(wiring)?;
         board.update(|results| results.state = GatewayState::Running);
         Ok(Started {
+            config,
+            map,
             board,
             history,
             readers,
@@ -458,13 +503,33 @@ impl Service {
             analysis: analysis_task.task,
             analysis_ended: None,
             outputs,
-            outputs_stop,
+            reloads: reloads.1,
+            reload_counters,
+            thresholds,
         })
     }
 }
 
+/// Whether the register map `map` written at `plc`'s base fits below register 65536.
+fn check_register_base(map: &RegisterMap, plc: &PlcOutput) -> Result<(), ServiceError> {
+    let span = map.plc_span(plc.extension_blocks);
+    let end = u32::from(plc.register_base) + u32::from(span) - 1;
+    if end > u32::from(u16::MAX) {
+        return Err(ServiceError::RegisterBase {
+            base: plc.register_base,
+            span,
+            end,
+            max: u32::from(u16::MAX) + 1 - u32::from(span),
+        });
+    }
+    Ok(())
+}
+
 /// A started service's tasks, in the order they stop.
 struct Started {
+    /// The configuration it runs (the file's at start, with what reloads applied).
+    config: Config,
+    map: Arc<RegisterMap>,
     board: Arc<Board>,
     history: History,
     readers: tokio::task::JoinSet<()>,
@@ -473,29 +538,98 @@ struct Started {
     analysis: tokio::task::JoinHandle<()>,
     /// How the analysis ended, when it ended before the stop.
     analysis_ended: Option<Result<(), tokio::task::JoinError>>,
-    outputs: tokio::task::JoinSet<(&'static str, Result<(), String>)>,
-    outputs_stop: shutdown::ShutdownTrigger,
+    outputs: Outputs,
+    reloads: mpsc::Receiver<ReloadRequest>,
+    reload_counters: Arc<ReloadCounters>,
+    thresholds: watch::Sender<Vec<DrivelineThresholds>>,
 }
 
 impl Started {
     /// Run until `shutdown` fires (`None`) or an output or the analysis ends (the
-    /// failure: before the stop, any end is one).
+    /// failure: before the stop, any end is one), applying reloads meanwhile.
     async fn until_failure(&mut self, shutdown: &mut Shutdown) -> Option<ServiceError> {
-        tokio::select! {
-            () = shutdown.recv() => None,
-            Some(ended) = self.outputs.join_next() => Some(output_failure(ended)),
-            ended = &mut self.analysis => {
-                let failure = match &ended {
-                    Ok(()) => ServiceError::Ended,
-                    Err(error) => ServiceError::Output {
-                        output: "analysis",
-                        reason: error.to_string(),
-                    },
-                };
-                self.analysis_ended = Some(ended);
-                Some(failure)
+        loop {
+            tokio::select! {
+                () = shutdown.recv() => return None,
+                failure = self.outputs.failure() => return Some(failure),
+                ended = &mut self.analysis => {
+                    let failure = match &ended {
+                        Ok(()) => ServiceError::Ended,
+                        Err(error) => ServiceError::Output {
+                            output: "analysis",
+                            reason: error.to_string(),
+                        },
+                    };
+                    self.analysis_ended = Some(ended);
+                    return Some(failure);
+                }
+                Some(request) = self.reloads.recv() => {
+                    match self.reload(&request.path).await {
+                        Ok(outcome) => {
+                            let _ = request.reply.send(outcome);
+                        }
+                        Err(failure) => return Some(failure),
+                    }
+                }
             }
         }
+    }
+
+    /// Reload the configuration file at `path`: apply what can be applied, log the
+    /// outcome, count it and return it. An error when an output cannot be started
+    /// again with settings that passed the checks (the service then ends with it, and
+    /// its supervisor starts it anew with the new file).
+    async fn reload(&mut self, path: &Path) -> Result<Reload, ServiceError> {
+        let outcome = match millgate_config::load(path) {
+            Err(errors) => Reload::Refused(errors.to_string()),
+            Ok(new) => match reload::compare(&self.config, &new) {
+                Reload::Changed(plan) => self.apply(plan, &new).await?,
+                other => other,
+            },
+        };
+        match &outcome {
+            Reload::Unchanged => tracing::info!(outcome = outcome.outcome(), "{outcome}"),
+            Reload::Changed(plan) if plan.needs_restart.is_empty() => {
+                tracing::info!(outcome = outcome.outcome(), "{outcome}");
+            }
+            _ => tracing::warn!(outcome = outcome.outcome(), "{outcome}"),
+        }
+        self.reload_counters.count(outcome.outcome());
+        Ok(outcome)
+    }
+
+    /// Apply the parts of `plan` that run live (`new`'s): check them, bind the new
+    /// addresses, then send the thresholds to the analysis and restart the outputs
+    /// they touch. A check or bind that fails refuses the whole reload.
+    async fn apply(&mut self, plan: reload::Plan, new: &Config) -> Result<Reload, ServiceError> {
+        let config = plan.applied_to(&self.config, new);
+        if let Some(plc) = &config.outputs.plc {
+            if let Err(error) = check_register_base(&self.map, plc) {
+                return Ok(Reload::Refused(error.to_string()));
+            }
+        }
+        let listeners = match self.outputs.bind_new(&config).await {
+            Ok(listeners) => listeners,
+            Err(error) => return Ok(Reload::Refused(error.to_string())),
+        };
+        if plan.live.contains(&Live::Thresholds) {
+            self.thresholds.send_replace(
+                config
+                    .drivelines
+                    .iter()
+                    .map(|driveline| driveline.thresholds)
+                    .collect(),
+            );
+            self.history.record(HistoryEvent::Settings {
+                time: UtcTime::now(),
+                drivelines: config.drivelines.clone(),
+            });
+        }
+        self.outputs
+            .reload(config.clone(), &plan.live, listeners)
+            .await?;
+        self.config = config;
+        Ok(Reload::Changed(plan))
     }
 
     /// Stop the readers (the source statuses kept as they were), let the analysis
@@ -510,8 +644,8 @@ impl Started {
             analysis_maps,
             analysis,
             analysis_ended,
-            mut outputs,
-            outputs_stop,
+            outputs,
+            ..
         } = self;
         board.freeze_health();
         readers_stop.trigger();
@@ -524,12 +658,7 @@ impl Started {
         if let Err(error) = analysis_ended {
             tracing::error!(%error, "analysis task failed");
         }
-        outputs_stop.trigger();
-        while let Some(ended) = outputs.join_next().await {
-            if let Ok((output, Err(reason))) = ended {
-                tracing::error!(output, %reason, "output failed");
-            }
-        }
+        outputs.stop().await;
         board.update(|results| results.state = GatewayState::Stopped);
         if tokio::task::spawn_blocking(move || history.close())
             .await
@@ -538,23 +667,6 @@ impl Started {
             tracing::error!("closing the history failed");
         }
         tracing::info!("stopped");
-    }
-}
-
-/// The error of an output task that ended while the service ran.
-fn output_failure(
-    ended: Result<(&'static str, Result<(), String>), tokio::task::JoinError>,
-) -> ServiceError {
-    match ended {
-        Ok((output, Err(reason))) => ServiceError::Output { output, reason },
-        Ok((output, Ok(()))) => ServiceError::Output {
-            output,
-            reason: "it ended on its own".into(),
-        },
-        Err(error) => ServiceError::Output {
-            output: "an output task",
-            reason: error.to_string(),
-        },
     }
 }
 

@@ -6,8 +6,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-use millgate_config::{Config, SourceRef};
-use tokio::sync::mpsc;
+use millgate_config::{Config, DrivelineThresholds, SourceRef};
+use tokio::sync::{mpsc, watch};
 use tokio::task::{JoinHandle, JoinSet};
 
 use crate::analysis::gap_monitor::spawn_job;
@@ -120,13 +120,17 @@ impl MapBuilds {
     }
 }
 
-/// Start `analysis` on the readers' `samples` and the `commands`, and the gap map
-/// builds of its drivelines on threads of their own (read from the cache or built
-/// while the service runs; the analysis installs them as they come, `board` shows
-/// their progress).
+/// Start `analysis` on the readers' `samples`, the `commands` and the `thresholds` a
+/// reload sends, and the gap map builds of its drivelines on threads of their own (read
+/// from the cache or built while the service runs; the analysis installs them as they
+/// come, `board` shows their progress).
 pub(super) fn spawn_analysis(
     mut analysis: Analysis,
-    (samples, commands): (mpsc::Receiver<Acquired>, CommandReceiver),
+    (samples, commands, thresholds): (
+        mpsc::Receiver<Acquired>,
+        CommandReceiver,
+        watch::Receiver<Vec<DrivelineThresholds>>,
+    ),
     board: &Arc<Board>,
     liveness: Arc<Liveness>,
 ) -> AnalysisTask {
@@ -158,7 +162,7 @@ pub(super) fn spawn_analysis(
     }
     drop(maps_tx);
     AnalysisTask {
-        task: tokio::spawn(analysis.run(samples, maps_rx, commands, liveness)),
+        task: tokio::spawn(analysis.run(samples, maps_rx, (commands, thresholds), liveness)),
         maps: MapBuilds(cancel_maps),
     }
 }

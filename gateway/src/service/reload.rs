@@ -1,13 +1,25 @@
-//! `SIGHUP` to `millgate run`: the configuration file is read and checked again, and
-//! the service says what became of it, without stopping.
+//! `SIGHUP` to `millgate run` (`systemctl reload millgate`): the configuration file is
+//! read and checked again, and what changed is applied where it can be without a
+//! restart. Nothing in flight is touched: the readers and the analysis run on (no
+//! bite, capture or sample is dropped), and the store-and-forward backlog is in the
+//! history, where a restarted Sparkplug node takes it up again.
 //!
 //! - A file with errors is refused with them (file, line, key, allowed range): the
 //!   service runs on with the configuration it has.
 //! - An unchanged file (by its [`millgate_config::Config::hash`]) changes nothing.
-//! - A changed file is compared section by section with the running one; the
-//!   sections that differ are named, and applying them needs a restart today (the
-//!   running service goes on with the configuration it started with: nothing in
-//!   flight, no bite, capture or store-and-forward backlog, is touched).
+//! - A changed file is compared section by section with the running one ([`plan`]):
+//!   - applied at once: a driveline's `thresholds` (TAF and gap warning and alarm),
+//!     in the analysis from its next bite on (the maintenance page, which shows them,
+//!     is restarted with them);
+//!   - applied by restarting the output with its new settings: `outputs.plc`,
+//!     `outputs.server`, `outputs.metrics`, `outputs.mqtt`, `outputs.web` (added,
+//!     changed or removed; a new address is bound before the old output stops, and a
+//!     bind that fails keeps the old output);
+//!   - kept as they run until a restart, each named: everything else (`name`,
+//!     `cache_dir`, the sources, channels, tandem and rod mills, `history`,
+//!     `outputs.opcua`, a driveline's other settings, drivelines added, removed or
+//!     reordered: a new driveline's register block goes before the extension blocks
+//!     and the tandem and rod mill blocks, so adding one moves their addresses).
 //!
 //! A hang-up is never the default action of the signal (which ends the process with
 //! no final PLC write and leaves its run `unclean` in the history).
@@ -15,17 +27,86 @@
 use std::fmt;
 use std::path::Path;
 
-use millgate_config::Config;
+use millgate_config::{Config, Driveline};
 
-/// What a reload request found.
+/// A part of the configuration that a reload applies without a restart.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Live {
+    /// `outputs.plc`.
+    Plc,
+    /// `outputs.server`.
+    Server,
+    /// `outputs.metrics`.
+    Metrics,
+    /// `outputs.mqtt`.
+    Mqtt,
+    /// `outputs.web`.
+    Web,
+    /// Any driveline's `thresholds`.
+    Thresholds,
+}
+
+/// What a reload changes: the applied parts (their keys) and what they touch, and the
+/// parts that keep running as they are until a restart (their keys, and why).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Plan {
+    /// The keys applied, e.g. `outputs.web`, `drivelines.F1.thresholds`.
+    pub applied: Vec<String>,
+    /// What the applied keys touch.
+    pub live: Vec<Live>,
+    /// The keys a restart applies.
+    pub needs_restart: Vec<String>,
+}
+
+impl Plan {
+    /// `running` with the parts this plan applies taken from `new`: what the service
+    /// runs once it is applied.
+    pub fn applied_to(&self, running: &Config, new: &Config) -> Config {
+        let mut config = running.clone();
+        let outputs = (&mut config.outputs, &new.outputs);
+        for live in &self.live {
+            match live {
+                Live::Plc => outputs.0.plc.clone_from(&outputs.1.plc),
+                Live::Server => outputs.0.server.clone_from(&outputs.1.server),
+                Live::Metrics => outputs.0.metrics.clone_from(&outputs.1.metrics),
+                Live::Mqtt => outputs.0.mqtt.clone_from(&outputs.1.mqtt),
+                Live::Web => outputs.0.web.clone_from(&outputs.1.web),
+                Live::Thresholds => {
+                    for (driveline, changed) in config.drivelines.iter_mut().zip(&new.drivelines) {
+                        driveline.thresholds = changed.thresholds;
+                    }
+                }
+            }
+        }
+        if self.needs_restart.is_empty() {
+            config.hash.clone_from(&new.hash);
+        }
+        config
+    }
+}
+
+/// What a reload request found, and did.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Reload {
     /// The file has errors (their report): nothing changes.
     Refused(String),
     /// The file's settings are the running ones.
     Unchanged,
-    /// These sections differ from the running configuration; a restart applies them.
-    NeedsRestart(Vec<&'static str>),
+    /// The file differs: what was applied and what needs a restart.
+    Changed(Plan),
+}
+
+impl Reload {
+    /// `applied`, `refused`, `needs_restart` (something is kept until a restart, even
+    /// when other parts were applied) or `unchanged`: the outcome `/metrics` counts.
+    pub fn outcome(&self) -> &'static str {
+        match self {
+            Reload::Refused(_) => "refused",
+            Reload::Unchanged => "unchanged",
+            Reload::Changed(plan) if plan.needs_restart.is_empty() => "applied",
+            Reload::Changed(_) => "needs_restart",
+        }
+    }
 }
 
 impl fmt::Display for Reload {
@@ -37,17 +118,29 @@ impl fmt::Display for Reload {
                  one it has: {errors}"
             ),
             Reload::Unchanged => write!(f, "reload: the configuration is unchanged"),
-            Reload::NeedsRestart(sections) => write!(
-                f,
-                "reload: changed {}: applying them needs a restart (systemctl restart \
-                 millgate); the service runs on with the configuration it started with",
-                sections.join(", ")
-            ),
+            Reload::Changed(plan) => {
+                write!(f, "reload: ")?;
+                if !plan.applied.is_empty() {
+                    write!(f, "applied {}", plan.applied.join(", "))?;
+                }
+                if !plan.needs_restart.is_empty() {
+                    if !plan.applied.is_empty() {
+                        write!(f, "; ")?;
+                    }
+                    write!(
+                        f,
+                        "changed {}: applying them needs a restart (systemctl restart \
+                         millgate); the service runs on with them as it started",
+                        plan.needs_restart.join(", ")
+                    )?;
+                }
+                Ok(())
+            }
         }
     }
 }
 
-/// The file at `path` checked and compared with `running`.
+/// The file at `path` checked and compared with `running` (nothing applied).
 pub fn reload(running: &Config, path: &Path) -> Reload {
     match millgate_config::load(path) {
         Err(errors) => Reload::Refused(errors.to_string()),
@@ -55,39 +148,126 @@ pub fn reload(running: &Config, path: &Path) -> Reload {
     }
 }
 
-/// What differs between `running` and `new`, by section.
-fn compare(running: &Config, new: &Config) -> Reload {
+/// What differs between `running` and `new`: unchanged, or the plan.
+pub fn compare(running: &Config, new: &Config) -> Reload {
     if running.hash == new.hash && running == new {
         return Reload::Unchanged;
     }
-    let outputs = (&running.outputs, &new.outputs);
-    let sections = [
+    let plan = plan(running, new);
+    match plan.applied.is_empty() && plan.needs_restart.is_empty() {
+        // Only what the hash sees and the settings do not (a default written out).
+        true => Reload::Unchanged,
+        false => Reload::Changed(plan),
+    }
+}
+
+/// What of `new` can be applied to a service running `running`, and what needs a
+/// restart, by key.
+pub fn plan(running: &Config, new: &Config) -> Plan {
+    let mut plan = Plan::default();
+    let (old, out) = (&running.outputs, &new.outputs);
+    let live = [
+        ("outputs.plc", old.plc != out.plc, Live::Plc),
+        ("outputs.server", old.server != out.server, Live::Server),
+        ("outputs.metrics", old.metrics != out.metrics, Live::Metrics),
+        ("outputs.mqtt", old.mqtt != out.mqtt, Live::Mqtt),
+        ("outputs.web", old.web != out.web, Live::Web),
+    ];
+    // The edge node keeps its bdSeq and backlog in the history: without the history
+    // the service opened at its start, a new node waits for a restart.
+    let mqtt_waits = out.mqtt.is_some() && running.history.is_none();
+    for (key, changed, part) in live {
+        if changed && part == Live::Mqtt && mqtt_waits {
+            plan.needs_restart
+                .push(format!("{key} (its [history] opens at the start)"));
+        } else if changed {
+            plan.applied.push(key.to_owned());
+            plan.live.push(part);
+        }
+    }
+    let restart = [
         ("name", running.name != new.name),
         ("cache_dir", running.cache_dir != new.cache_dir),
         ("log_format", running.log_format != new.log_format),
         ("sources", running.modbus_sources != new.modbus_sources),
         ("can_sources", running.can_sources != new.can_sources),
         ("channels", running.channels != new.channels),
-        ("drivelines", running.drivelines != new.drivelines),
         ("tandem_mills", running.tandem_mills != new.tandem_mills),
         ("rod_mills", running.rod_mills != new.rod_mills),
-        ("outputs.plc", outputs.0.plc != outputs.1.plc),
-        ("outputs.server", outputs.0.server != outputs.1.server),
-        ("outputs.metrics", outputs.0.metrics != outputs.1.metrics),
-        ("outputs.mqtt", outputs.0.mqtt != outputs.1.mqtt),
-        ("outputs.web", outputs.0.web != outputs.1.web),
-        ("outputs.opcua", outputs.0.opcua != outputs.1.opcua),
+        ("outputs.opcua", old.opcua != out.opcua),
         ("history", running.history != new.history),
     ];
-    let changed: Vec<&'static str> = sections
-        .iter()
-        .filter(|(_, changed)| *changed)
-        .map(|(name, _)| *name)
-        .collect();
-    match changed.is_empty() {
-        // Only what the hash sees and the settings do not (a default written out).
-        true => Reload::Unchanged,
-        false => Reload::NeedsRestart(changed),
+    plan.needs_restart.extend(
+        restart
+            .iter()
+            .filter(|(_, changed)| *changed)
+            .map(|(key, _)| (*key).to_owned()),
+    );
+    drivelines(&running.drivelines, &new.drivelines, &mut plan);
+    plan
+}
+
+/// Into `plan`, the drivelines' changes: thresholds apply; any other change, or a
+/// driveline added, removed or moved, needs a restart.
+fn drivelines(running: &[Driveline], new: &[Driveline], plan: &mut Plan) {
+    let names = |drivelines: &[Driveline]| -> Vec<String> {
+        drivelines.iter().map(|d| d.name.clone()).collect()
+    };
+    let (old_names, new_names) = (names(running), names(new));
+    if old_names != new_names {
+        let added: Vec<&str> = new_names
+            .iter()
+            .filter(|name| !old_names.contains(name))
+            .map(String::as_str)
+            .collect();
+        let removed: Vec<&str> = old_names
+            .iter()
+            .filter(|name| !new_names.contains(name))
+            .map(String::as_str)
+            .collect();
+        let mut what = Vec::new();
+        if !added.is_empty() {
+            what.push(format!(
+                "added {} (a new driveline's register block moves the extension, tandem \
+                 and rod mill blocks)",
+                added.join(", ")
+            ));
+        }
+        if !removed.is_empty() {
+            what.push(format!("removed {}", removed.join(", ")));
+        }
+        if what.is_empty() {
+            what.push("reordered".to_owned());
+        }
+        plan.needs_restart
+            .push(format!("drivelines ({})", what.join("; ")));
+        return;
+    }
+    let mut thresholds = false;
+    for (old, new) in running.iter().zip(new) {
+        if old.thresholds != new.thresholds {
+            plan.applied
+                .push(format!("drivelines.{}.thresholds", new.name));
+            thresholds = true;
+        }
+        let settings = [
+            ("torque", old.torque != new.torque),
+            ("metal_in_stand", old.metal_in_stand != new.metal_in_stand),
+            ("extra_channels", old.extra_channels != new.extra_channels),
+            ("model", old.model != new.model),
+            ("bite", old.bite != new.bite),
+            ("wear", old.wear != new.wear),
+            ("fatigue", old.fatigue != new.fatigue),
+        ];
+        plan.needs_restart.extend(
+            settings
+                .iter()
+                .filter(|(_, changed)| *changed)
+                .map(|(key, _)| format!("drivelines.{}.{key}", new.name)),
+        );
+    }
+    if thresholds {
+        plan.live.push(Live::Thresholds);
     }
 }
 
@@ -105,8 +285,15 @@ mod tests {
         )
     }
 
+    fn changed(plan: Reload) -> Plan {
+        match plan {
+            Reload::Changed(plan) => plan,
+            other => panic!("expected a change: {other:?}"),
+        }
+    }
+
     #[test]
-    fn a_reload_names_errors_changed_sections_or_nothing() {
+    fn a_reload_names_errors_what_it_applies_and_what_needs_a_restart() {
         let folder = std::env::temp_dir().join(format!("millgate-reload-{}", std::process::id()));
         std::fs::create_dir_all(&folder).unwrap();
         let path = folder.join("mill.toml");
@@ -116,12 +303,69 @@ mod tests {
         // A comment does not count.
         std::fs::write(&path, format!("# edited\n{}", demo())).unwrap();
         assert_eq!(reload(&running, &path), Reload::Unchanged);
-        let changed = demo().replace("taf_alarm = 2.6", "taf_alarm = 2.8");
-        std::fs::write(&path, &changed).unwrap();
-        assert_eq!(
-            reload(&running, &path),
-            Reload::NeedsRestart(vec!["drivelines"])
+
+        // A threshold applies.
+        let text = demo().replace("taf_alarm = 2.6", "taf_alarm = 2.8");
+        std::fs::write(&path, &text).unwrap();
+        let outcome = reload(&running, &path);
+        assert_eq!(outcome.outcome(), "applied");
+        let plan = changed(outcome.clone());
+        assert_eq!(plan.live, [Live::Thresholds]);
+        let name = &running.drivelines[0].name;
+        assert_eq!(plan.applied, [format!("drivelines.{name}.thresholds")]);
+        let new = millgate_config::load(&path).unwrap();
+        let applied = plan.applied_to(&running, &new);
+        assert_eq!(applied, new, "everything applied: the new configuration");
+        assert_eq!(compare(&applied, &new), Reload::Unchanged);
+        assert!(
+            outcome
+                .to_string()
+                .starts_with("reload: applied drivelines."),
+            "{outcome}"
         );
+
+        // A threshold and a bite setting: the one applies, the other waits.
+        let text = text.replace("threshold_knm = 20.0", "threshold_knm = 25.0");
+        std::fs::write(&path, &text).unwrap();
+        let outcome = reload(&running, &path);
+        assert_eq!(outcome.outcome(), "needs_restart");
+        let plan = changed(outcome.clone());
+        assert_eq!(plan.needs_restart, [format!("drivelines.{name}.bite")]);
+        assert_eq!(plan.live, [Live::Thresholds]);
+        let new = millgate_config::load(&path).unwrap();
+        let applied = plan.applied_to(&running, &new);
+        assert_eq!(
+            applied.drivelines[0].thresholds,
+            new.drivelines[0].thresholds
+        );
+        assert_eq!(applied.drivelines[0].bite, running.drivelines[0].bite);
+        assert_eq!(applied.hash, running.hash, "not all applied: the old hash");
+        // Reloading the same file again applies nothing new and names the rest again.
+        let again = changed(compare(&applied, &new));
+        assert!(
+            again.applied.is_empty() && again.live.is_empty(),
+            "{again:?}"
+        );
+        assert_eq!(again.needs_restart, plan.needs_restart);
+        let said = outcome.to_string();
+        assert!(said.contains("applied drivelines.") && said.contains("needs a restart"));
+
+        // A driveline added needs a restart, and says why.
+        let added = running.drivelines.len() + 1;
+        let mut bigger = running.clone();
+        let mut copy = running.drivelines[0].clone();
+        copy.name = "F9".into();
+        bigger.drivelines.push(copy);
+        bigger.hash = "other".into();
+        let plan = changed(compare(&running, &bigger));
+        assert_eq!(bigger.drivelines.len(), added);
+        assert!(plan.applied.is_empty());
+        assert!(
+            plan.needs_restart[0].starts_with("drivelines (added F9")
+                && plan.needs_restart[0].contains("moves"),
+            "{plan:?}"
+        );
+
         let broken = demo().replace("taf_alarm = 2.6", "taf_alarm = -1.0");
         std::fs::write(&path, broken).unwrap();
         let refused = reload(&running, &path);
@@ -132,10 +376,47 @@ mod tests {
             errors.contains("mill.toml") && errors.contains("taf_alarm"),
             "{errors}"
         );
+        assert_eq!(refused.outcome(), "refused");
         assert!(
             refused.to_string().starts_with("reload refused"),
             "{refused}"
         );
         std::fs::remove_dir_all(&folder).unwrap();
+    }
+
+    #[test]
+    fn an_output_removed_applies() {
+        let examples =
+            std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples"));
+        let running = millgate_config::from_toml_str(&demo(), "demo.toml", examples).unwrap();
+        assert!(
+            running.outputs.server.is_some(),
+            "the demo has an HMI server"
+        );
+        let mut new = running.clone();
+        new.hash = "other".into();
+        new.outputs.server = None;
+        let plan = changed(compare(&running, &new));
+        assert_eq!(plan.live, [Live::Server]);
+        assert_eq!(plan.applied, ["outputs.server"]);
+        assert!(plan.needs_restart.is_empty());
+        let applied = plan.applied_to(&running, &new);
+        assert_eq!(applied.outputs, new.outputs);
+        assert_eq!(applied.hash, "other");
+
+        // An edge node needs the history the service opened at its start.
+        let text = format!(
+            "{}\n[outputs.mqtt]\nbroker = \"mq1:1883\"\ngroup_id = \"g\"\nnode_id = \"n\"\n\
+             \n[history]\npath = \"history.db\"\n",
+            demo()
+        );
+        let with_history = millgate_config::from_toml_str(&text, "demo.toml", examples).unwrap();
+        let plan = changed(compare(&running, &with_history));
+        assert!(plan.live.iter().all(|part| *part != Live::Mqtt), "{plan:?}");
+        assert!(
+            plan.needs_restart
+                .contains(&"outputs.mqtt (its [history] opens at the start)".to_owned()),
+            "{plan:?}"
+        );
     }
 }

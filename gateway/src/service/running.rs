@@ -1,13 +1,15 @@
 //! A service running in its own task: what `main`, tests, the demo and benchmarks use to
 //! watch it and stop it.
 
+use std::path::Path;
 use std::sync::Arc;
 
-use tokio::sync::{broadcast, watch};
+use tokio::sync::{broadcast, mpsc, oneshot, watch};
 use tokio::task::JoinHandle;
 
 use super::error::ServiceError;
-use super::{Bound, Service};
+use super::reload::Reload;
+use super::{Bound, ReloadRequest, Service};
 use crate::analysis::driveline::BiteReport;
 use crate::field::counters::ChannelCounters;
 use crate::outputs::modbus::register_map::RegisterMap;
@@ -31,6 +33,7 @@ pub struct RunningService {
     liveness: Arc<Liveness>,
     plc_attempted: watch::Receiver<bool>,
     opcua: Option<crate::outputs::opcua::OpcUaStatus>,
+    reloads: mpsc::Sender<ReloadRequest>,
     stop: ShutdownTrigger,
     /// The service's task, until its outcome was taken.
     task: Option<JoinHandle<Result<(), ServiceError>>>,
@@ -53,6 +56,7 @@ impl Service {
         let liveness = Arc::clone(&self.liveness);
         let plc_attempted = self.plc_attempted.subscribe();
         let opcua = self.opcua.as_ref().map(|opcua| opcua.status());
+        let reloads = self.reloads.0.clone();
         let (stop, shutdown) = shutdown::channel();
         let task = tokio::spawn(self.run(shutdown));
         Ok(RunningService {
@@ -66,6 +70,7 @@ impl Service {
             liveness,
             plc_attempted,
             opcua,
+            reloads,
             stop,
             task: Some(task),
             ended: None,
@@ -82,6 +87,24 @@ impl RunningService {
     /// The OPC UA server's counts, with `[outputs.opcua]`.
     pub fn opcua(&self) -> Option<crate::outputs::opcua::OpcUaStatus> {
         self.opcua.clone()
+    }
+
+    /// Reload the configuration file at `path` as SIGHUP does: the service applies
+    /// what it can without a restart, logs and counts the outcome
+    /// ([`super::reload`]); the outcome, once the service has handled it (requests
+    /// made before the service runs wait for it). `None` when the service ended first.
+    /// Dropping the future leaves the request with the service.
+    pub fn reload(&self, path: &Path) -> impl std::future::Future<Output = Option<Reload>> {
+        let reloads = self.reloads.clone();
+        let (reply, outcome) = oneshot::channel();
+        let request = ReloadRequest {
+            path: path.to_owned(),
+            reply,
+        };
+        async move {
+            reloads.send(request).await.ok()?;
+            outcome.await.ok()
+        }
     }
 
     /// The published results.

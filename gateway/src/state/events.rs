@@ -301,6 +301,14 @@ pub enum HistoryEvent {
         /// Why.
         ended_by: EndedBy,
     },
+    /// A reload applied new thresholds: every driveline's settings from `time` on
+    /// (table `driveline_settings`, beside the run's start).
+    Settings {
+        /// When.
+        time: UtcTime,
+        /// The drivelines, as the service now runs them.
+        drivelines: Vec<millgate_config::Driveline>,
+    },
     /// A source stopped answering (stale or lost).
     OutageStarted {
         /// When it was first seen not ok.

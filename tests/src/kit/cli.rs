@@ -89,6 +89,16 @@ impl Drop for KillOnDrop {
     }
 }
 
+/// Send SIGHUP to process `pid` (`systemctl reload`: `millgate run` reloads its
+/// configuration file).
+pub fn hang_up(pid: u32) {
+    let sent = Command::new("kill")
+        .args(["-HUP", &pid.to_string()])
+        .status()
+        .unwrap();
+    assert!(sent.success());
+}
+
 /// Terminate `service` as systemd would, and check it stopped cleanly.
 pub fn terminate(service: &mut Child) {
     let term = Command::new("kill")

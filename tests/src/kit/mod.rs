@@ -38,7 +38,7 @@ pub mod service;
 pub mod sparkplug;
 pub mod tandem;
 
-pub use cli::{terminate, text, KillOnDrop, Millgate};
+pub use cli::{hang_up, terminate, text, KillOnDrop, Millgate};
 pub use net::{free_port, http, http_raw, scrape, wait_for, web_overview, web_ready, HttpAnswer};
 pub use peers::{json_peer, peer};
 pub use scratch::{fill_file_system, scratch, TempDir};

@@ -229,10 +229,16 @@ impl Setup {
     /// `command` (the `millgate` binary, or a program that runs it: `unshare`,
     /// `nsenter`) given `run --config` on the configuration, its log in the scratch
     /// folder.
-    pub fn spawn_command(&self, mut command: Command, log: &str) -> KillOnDrop {
+    pub fn spawn_command(&self, command: Command, log: &str) -> KillOnDrop {
+        self.spawn_with(command, log, &[])
+    }
+
+    /// As [`Self::spawn_command`], with `more` arguments of `run` (`--pid-file`).
+    pub fn spawn_with(&self, mut command: Command, log: &str, more: &[&str]) -> KillOnDrop {
         let log = std::fs::File::create(self.log(log)).unwrap();
         command
             .args(["run", "--config", self.config.to_str().unwrap()])
+            .args(more)
             .env("RUST_LOG", "info")
             .stdout(Stdio::null())
             .stderr(log)

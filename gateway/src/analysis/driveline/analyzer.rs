@@ -6,7 +6,7 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::SystemTime;
 
-use millgate_config::{Channel, Driveline};
+use millgate_config::{Channel, Driveline, DrivelineThresholds};
 use millgate_dsp::transient::TransientSettings;
 
 use super::capture::Captures;
@@ -179,6 +179,16 @@ impl DrivelineAnalyzer {
     pub(crate) fn reset_gap_trend(&mut self) {
         if let Some(monitor) = &mut self.gap {
             monitor.reset();
+        }
+    }
+
+    /// Warn and alarm at `thresholds` from the next bite on (a reload); a latched
+    /// alarm stays latched until acknowledged.
+    pub(crate) fn set_thresholds(&mut self, thresholds: &DrivelineThresholds) {
+        self.taf_warning = thresholds.taf_warning;
+        self.taf_alarm = thresholds.taf_alarm;
+        if let Some(monitor) = &mut self.gap {
+            monitor.set_thresholds(thresholds);
         }
     }
 

@@ -27,7 +27,7 @@
 //! waited for.
 
 use std::ops::Range;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -174,6 +174,9 @@ pub struct PlcWriter {
     counters: Arc<PlcCounters>,
     /// Told once the first write was attempted (the service's readiness).
     first_attempt: Option<tokio::sync::watch::Sender<bool>>,
+    /// Set before the shutdown when another writer takes over (a reload): no final
+    /// "stopped" write then.
+    handover: Option<Arc<AtomicBool>>,
 }
 
 impl PlcWriter {
@@ -190,7 +193,16 @@ impl PlcWriter {
             board,
             counters,
             first_attempt: None,
+            handover: None,
         }
+    }
+
+    /// At a shutdown with `handover` set, end without the final "stopped" write and
+    /// leave the gateway's state as it is: a writer with new settings takes over (a
+    /// reload), and the PLC must not see the gateway stop.
+    pub(crate) fn with_handover(mut self, handover: Arc<AtomicBool>) -> Self {
+        self.handover = Some(handover);
+        self
     }
 
     /// Send `true` on `attempted` once the first write was attempted (connected or
@@ -386,6 +398,14 @@ impl PlcWriter {
             if let Some(attempted) = self.first_attempt.take() {
                 attempted.send_replace(true);
             }
+        }
+        if self
+            .handover
+            .as_ref()
+            .is_some_and(|handover| handover.load(Ordering::Relaxed))
+        {
+            tracing::info!(plc = %self.output.address, "PLC writer handed over (reload)");
+            return;
         }
         self.board
             .update(|results| results.state = GatewayState::Stopped);

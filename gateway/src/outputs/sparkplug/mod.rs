@@ -43,7 +43,7 @@
 //!   on this server moves it on to the next, after the usual wait (after the last, the
 //!   first again). Each session on another server is a new session: a new bdSeq and
 //!   Will, new births, and the replay of what no server confirmed. TLS and credentials
-//!   are shared by every server of the list.
+//!   are shared by every server of the list, or a server's own (a table entry).
 
 pub(crate) mod devices;
 pub mod forward;
@@ -92,7 +92,8 @@ pub struct SparkplugNode {
     history: PathBuf,
     board: Arc<Board>,
     status: Arc<SparkplugStatus>,
-    tls: Option<Arc<rustls::ClientConfig>>,
+    /// Per server of the list, its TLS client configuration (`None`: plain MQTT).
+    tls: Vec<Option<Arc<rustls::ClientConfig>>>,
     /// Rod mills: name and span count.
     rod_mills: Vec<(String, usize)>,
 }
@@ -111,7 +112,11 @@ impl SparkplugNode {
         history: PathBuf,
         board: Arc<Board>,
     ) -> Result<Self, tls::TlsSetupError> {
-        let tls = config.tls.as_ref().map(tls::client_config).transpose()?;
+        let tls = config
+            .security
+            .iter()
+            .map(|security| security.tls.as_ref().map(tls::client_config).transpose())
+            .collect::<Result<_, _>>()?;
         let status = Arc::new(SparkplugStatus::for_servers(config.brokers.clone()));
         Ok(Self {
             config,
@@ -191,7 +196,9 @@ impl SparkplugNode {
 
     /// The connection to server `server` of the list, with `will` as the Will.
     fn options(&self, server: usize, will: node::Outgoing) -> MqttOptions {
-        let broker = self.config.brokers[server % self.config.brokers.len()].as_str();
+        let server = server % self.config.brokers.len();
+        let broker = self.config.brokers[server].as_str();
+        let security = self.config.security.get(server);
         let (host, port) = broker
             .rsplit_once(':')
             .map(|(host, port)| (host.trim_matches(['[', ']']), port.parse().unwrap_or(1883)))
@@ -206,10 +213,10 @@ impl SparkplugNode {
             QoS::AtLeastOnce,
             false,
         ));
-        if let Some((user, password)) = &self.config.credentials {
+        if let Some((user, password)) = security.and_then(|s| s.credentials.as_ref()) {
             options.set_credentials(user.clone(), password.clone());
         }
-        if let Some(config) = &self.tls {
+        if let Some(config) = self.tls.get(server).and_then(Option::as_ref) {
             options.set_transport(Transport::tls_with_config(TlsConfiguration::Rustls(
                 Arc::clone(config),
             )));

@@ -62,7 +62,7 @@ impl ConnectFailure {
     pub(super) fn hint(self) -> &'static str {
         match self {
             Self::Unreachable => "check outputs.mqtt.broker (or brokers) and that the broker runs",
-            Self::Tls => "check outputs.mqtt.tls (ca_file against the broker's certificate and its name, cert_file/key_file against the broker's require_certificate)",
+            Self::Tls => "check outputs.mqtt.tls, or the server's own tls in outputs.mqtt.brokers (ca_file against the broker's certificate and its name, cert_file/key_file against the broker's require_certificate)",
             Self::NotAuthorised => "not authorised: check outputs.mqtt.username and password (or password_file) against the broker",
             Self::Refused => "check outputs.mqtt.client_id and the broker's log",
         }

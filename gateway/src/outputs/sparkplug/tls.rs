@@ -14,26 +14,30 @@ pub enum TlsSetupError {
     #[error(transparent)]
     File(#[from] TlsFileError),
     /// A certificate of `ca_file` is not one rustls accepts as a trust anchor.
-    #[error("outputs.mqtt.tls.ca_file: {path}: not a usable CA certificate: {source}")]
+    #[error("{key}.ca_file: {path}: not a usable CA certificate: {source}")]
     Ca {
+        /// The table's key (`outputs.mqtt.tls`, `outputs.mqtt.brokers[1].tls`).
+        key: String,
         /// The file.
         path: String,
-        /// Why.
-        source: rustls::Error,
+        /// Why (boxed: the error stays small).
+        source: Box<rustls::Error>,
     },
     /// The ring provider refuses the default protocol versions (not expected).
     #[error("the TLS provider (ring): {0}")]
     Provider(rustls::Error),
     /// The client certificate and key are not usable together (for example the key
     /// is not the certificate's).
-    #[error("outputs.mqtt.tls.key_file: {key} with cert_file {cert}: {source}")]
+    #[error("{table}.key_file: {key} with cert_file {cert}: {source}")]
     ClientAuth {
+        /// The table's key (`outputs.mqtt.tls`, `outputs.mqtt.brokers[1].tls`).
+        table: String,
         /// The certificate file.
         cert: String,
         /// The key file.
         key: String,
-        /// Why.
-        source: rustls::Error,
+        /// Why (boxed: the error stays small).
+        source: Box<rustls::Error>,
     },
 }
 
@@ -45,8 +49,9 @@ pub(crate) fn client_config(tls: &MqttTls) -> Result<Arc<ClientConfig>, TlsSetup
     let mut roots = RootCertStore::empty();
     for certificate in material.ca {
         roots.add(certificate).map_err(|source| TlsSetupError::Ca {
+            key: tls.key.clone(),
             path: tls.ca_file.display().to_string(),
-            source,
+            source: Box::new(source),
         })?;
     }
     let provider = Arc::new(rustls::crypto::ring::default_provider());
@@ -58,9 +63,10 @@ pub(crate) fn client_config(tls: &MqttTls) -> Result<Arc<ClientConfig>, TlsSetup
         (Some((chain, key)), Some((cert_file, key_file))) => builder
             .with_client_auth_cert(chain, key)
             .map_err(|source| TlsSetupError::ClientAuth {
+                table: tls.key.clone(),
                 cert: cert_file.display().to_string(),
                 key: key_file.display().to_string(),
-                source,
+                source: Box::new(source),
             })?,
         _ => builder.with_no_client_auth(),
     };
