@@ -865,7 +865,7 @@ fn context_tags_and_the_weld_hold() {
     let mill = &config.tandem_mills[0];
     // Defaults: no tags; the weld hold from the closed loop (docs/chatter.md).
     assert_eq!(mill.context, ContextTags::default());
-    assert_eq!((mill.weld_settle_s, mill.weld_alarm_factor), (3.0, 2.0));
+    assert_eq!((mill.weld_settle_s, mill.weld_alarm_factor), (10.0, 2.0));
     let pv = |name: &str, address: u16| {
         format!(
             "[[channels]]\nname = \"{name}\"\nkind = \"process_value\"\nunit = \"1\"\n\
@@ -902,7 +902,7 @@ fn context_tags_and_the_weld_hold() {
             "context from the PLC: weld <- weld_bit, speed_mpm <- line_speed, product <- \
              product_code; products 101, 205"
         ) && summary
-            .contains("weld hold: the alarm needs 2 times its level during a weld and 3 s after"),
+            .contains("weld hold: the alarm needs 2 times its level during a weld and 10 s after"),
         "{summary}"
     );
 
