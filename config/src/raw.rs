@@ -152,9 +152,26 @@ pub(crate) struct RawTandemMill {
     pub(crate) gain_thresholds: Option<Vec<f64>>,
     pub(crate) slow_down_release: Option<f64>,
     pub(crate) slow_down_hold_s: Option<f64>,
+    pub(crate) weld_settle_s: Option<f64>,
+    pub(crate) weld_alarm_factor: Option<f64>,
+    pub(crate) context: Option<RawContextTags>,
     pub(crate) capture_before_s: Option<f64>,
     pub(crate) capture_after_s: Option<f64>,
     pub(crate) capture_max_s: Option<f64>,
+}
+
+/// `tandem_mills[].context`: the process-context tags, each a process-value channel.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawContextTags {
+    pub(crate) weld: Option<String>,
+    pub(crate) speed_mpm: Option<String>,
+    pub(crate) coil: Option<String>,
+    pub(crate) product: Option<String>,
+    pub(crate) thickness_mm: Option<String>,
+    pub(crate) pass: Option<String>,
+    pub(crate) state: Option<String>,
+    pub(crate) products: Option<Vec<i64>>,
 }
 
 /// `[[rod_mills]]`: a rod mill checked online against the Mathieu tongues.

@@ -208,6 +208,32 @@ fn tandem_mills(text: &mut String, config: &Config) {
             "    alarm: {detector}; slow-down released below {} for {} s",
             mill.slow_down_release, mill.slow_down_hold_s
         );
+        // Listed only when configured, so summaries of mills without stay as they were.
+        let tags: Vec<String> = mill
+            .context
+            .tags()
+            .map(|(key, channel)| format!("{key} <- {}", config.channels[channel].name))
+            .collect();
+        if !tags.is_empty() {
+            let products = if mill.context.products.is_empty() {
+                String::new()
+            } else {
+                let codes: Vec<String> = mill.context.products.iter().map(u32::to_string).collect();
+                format!("; products {}", codes.join(", "))
+            };
+            let _ = writeln!(
+                text,
+                "    context from the PLC: {}{products}",
+                tags.join(", ")
+            );
+        }
+        if mill.context.weld.is_some() {
+            let _ = writeln!(
+                text,
+                "    weld hold: the alarm needs {} times its level during a weld and {} s after",
+                mill.weld_alarm_factor, mill.weld_settle_s
+            );
+        }
     }
     none_if_empty(text, config.tandem_mills.len());
 }

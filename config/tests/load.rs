@@ -8,8 +8,8 @@ use tempfile::TempDir;
 
 use millgate_config::{
     from_toml_str, from_toml_str_with, load, load_uncommissioned, ChannelKind, ChannelSource,
-    ChatterDetectorKind, Config, ConfigError, OpcUaSecurityMode, RegisterTable, ServiceDirs,
-    ValueType, WordOrder,
+    ChatterDetectorKind, Config, ConfigError, ContextTags, OpcUaSecurityMode, RegisterTable,
+    ServiceDirs, ValueType, WordOrder,
 };
 
 fn examples_dir() -> PathBuf {
@@ -857,6 +857,90 @@ fn band_gain_keys() {
         "mill.toml: tandem_mills[0].reference_band_hz: upper edge 4500 Hz is not allowed (must be < 2000 Hz",
         &["the default is 1.5 to 3 times the chatter band's upper edge"],
     );
+}
+
+#[test]
+fn context_tags_and_the_weld_hold() {
+    let config = parse(BASE).unwrap_or_else(|error| panic!("{error}"));
+    let mill = &config.tandem_mills[0];
+    // Defaults: no tags; the weld hold from the closed loop (docs/chatter.md).
+    assert_eq!(mill.context, ContextTags::default());
+    assert_eq!((mill.weld_settle_s, mill.weld_alarm_factor), (10.0, 2.0));
+    let pv = |name: &str, address: u16| {
+        format!(
+            "[[channels]]\nname = \"{name}\"\nkind = \"process_value\"\nunit = \"1\"\n\
+             source = {{ modbus = \"plc\", table = \"holding\", address = {address} }}\n\n"
+        )
+    };
+    let with_tags = |tags: &str| {
+        edited(
+            "[[tandem_mills]]",
+            &format!(
+                "{}{}{}[[tandem_mills]]\ncontext = {{ {tags} }}",
+                pv("weld_bit", 20),
+                pv("product_code", 21),
+                pv("line_speed", 22)
+            ),
+        )
+    };
+    let config = parse(&with_tags(
+        "weld = \"weld_bit\", product = \"product_code\", speed_mpm = \"line_speed\", products = [101, 205]",
+    ))
+    .unwrap_or_else(|error| panic!("{error}"));
+    let mill = &config.tandem_mills[0];
+    let name = |index: Option<usize>| index.map(|i| config.channels[i].name.as_str());
+    assert_eq!(name(mill.context.weld), Some("weld_bit"));
+    assert_eq!(name(mill.context.product), Some("product_code"));
+    assert_eq!(name(mill.context.speed_mpm), Some("line_speed"));
+    assert_eq!(mill.context.coil, None);
+    assert_eq!(mill.context.products, [101, 205]);
+    let listed: Vec<&str> = mill.context.tags().map(|(key, _)| key).collect();
+    assert_eq!(listed, ["weld", "speed_mpm", "product"]);
+    let summary = millgate_config::summary(&config);
+    assert!(
+        summary.contains(
+            "context from the PLC: weld <- weld_bit, speed_mpm <- line_speed, product <- \
+             product_code; products 101, 205"
+        ) && summary
+            .contains("weld hold: the alarm needs 2 times its level during a weld and 10 s after"),
+        "{summary}"
+    );
+
+    let key = "mill.toml: tandem_mills[0].";
+    for (tags, problem) in [
+        ("weld = \"acc0\"", "context.weld: channel \"acc0\" is a acceleration channel (must be process_value)"),
+        ("weld = \"nothing\"", "context.weld: unknown channel \"nothing\""),
+        ("weld = \"weld_bit\", state = \"weld_bit\"", "context.state: channel \"weld_bit\" is already the weld tag (each tag needs its own process value)"),
+        ("product = \"product_code\", products = [101, 101]", "context.products[1]: product 101 is listed twice"),
+        ("product = \"product_code\", products = [-1]", "context.products[0]: -1 is not allowed (must be a product code 0..=4294967295)"),
+        ("products = [101]", "context.products: needs the product tag"),
+        ("weld = \"weld_bit\", colour = \"x\"", "context.colour: unknown field `colour`, expected one of `weld`"),
+    ] {
+        let found = problems(&with_tags(tags));
+        assert!(
+            found.iter().any(|p| p.starts_with(&format!("{key}{problem}"))),
+            "{tags}: {found:#?}"
+        );
+    }
+    for (to, problem) in [
+        (
+            "weld_settle_s = 61.0",
+            "weld_settle_s: 61 is not allowed (must be >= 0 and <= 60 s)",
+        ),
+        (
+            "weld_alarm_factor = 0.5",
+            "weld_alarm_factor: 0.5 is not allowed (must be >= 1 and <= 10",
+        ),
+    ] {
+        assert_problem_like(
+            &edited(
+                "gain_thresholds = [1.2, 1.5]",
+                &format!("gain_thresholds = [1.2, 1.5]\n{to}"),
+            ),
+            &format!("{key}{problem}"),
+            &[],
+        );
+    }
 }
 
 #[test]

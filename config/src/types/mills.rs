@@ -159,6 +159,17 @@ pub struct TandemMill {
     /// Time the alarm figure must stay below the release level before the slow-down
     /// request clears, s, >= 0 and <= 600 (default 5).
     pub slow_down_hold_s: f64,
+    /// The weld hold (with the mill's weld bit, band-gain detector): time after the
+    /// weld bit fell during which the alarm needs `weld_alarm_factor` times its level,
+    /// s, >= 0 and <= 60 (default from the closed loop on the tandem model,
+    /// `docs/chatter.md`).
+    pub weld_settle_s: f64,
+    /// Factor on the alarm level while a weld is in the mill and for `weld_settle_s`
+    /// after, >= 1 and <= 10 (1: no hold; default from the closed loop).
+    pub weld_alarm_factor: f64,
+    /// The process context read from the PLC (`context` table; all `None` and empty
+    /// when left out).
+    pub context: ContextTags,
     /// Chatter-episode captures (with `[history]`): stand samples kept before the
     /// warning is raised, s, >= 0 and <= 60 (default 5).
     pub capture_before_s: f64,
@@ -167,6 +178,49 @@ pub struct TandemMill {
     /// Longest chatter-episode capture, s, > `capture_before_s` and <= 600 (default
     /// 120): a longer episode's capture is cut there and says so.
     pub capture_max_s: f64,
+}
+
+/// A mill's process-context tags (`context = { weld = "...", ... }`): each names a
+/// `process_value` channel read like any channel (so a stale source flags it as it
+/// flags the channel).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ContextTags {
+    /// The weld-tracking bit for the mill (0/1: 1 from the weld reaching the first
+    /// stand until it has left the last); index into
+    /// [`Config::channels`](crate::Config::channels).
+    pub weld: Option<usize>,
+    /// Mill speed, m/min.
+    pub speed_mpm: Option<usize>,
+    /// Coil or bar id (a whole number; u32 registers).
+    pub coil: Option<usize>,
+    /// Product (steel grade) code (a whole number).
+    pub product: Option<usize>,
+    /// Strip thickness, mm.
+    pub thickness_mm: Option<usize>,
+    /// Pass number.
+    pub pass: Option<usize>,
+    /// The PLC's state code: 0 idle, 1 threading, 2 rolling, 3 maintenance.
+    pub state: Option<usize>,
+    /// The known product codes (`products`); a product read outside them makes the
+    /// context invalid. Empty: any code.
+    pub products: Vec<u32>,
+}
+
+impl ContextTags {
+    /// The tags' keys and channels, in the documentation's order, those configured.
+    pub fn tags(&self) -> impl Iterator<Item = (&'static str, usize)> + '_ {
+        [
+            ("weld", self.weld),
+            ("speed_mpm", self.speed_mpm),
+            ("coil", self.coil),
+            ("product", self.product),
+            ("thickness_mm", self.thickness_mm),
+            ("pass", self.pass),
+            ("state", self.state),
+        ]
+        .into_iter()
+        .filter_map(|(key, channel)| channel.map(|c| (key, c)))
+    }
 }
 
 /// The chatter detector that raises a tandem mill's alarm (`detector` key).

@@ -13,8 +13,8 @@ use std::path::PathBuf;
 
 pub use history::{CaptureSettings, History, Synchronous};
 pub use mills::{
-    BiteSettings, ChatterDetectorKind, Driveline, DrivelineThresholds, FatigueComponent,
-    FatigueSettings, RodMill, TandemMill, WearSettings,
+    BiteSettings, ChatterDetectorKind, ContextTags, Driveline, DrivelineThresholds,
+    FatigueComponent, FatigueSettings, RodMill, TandemMill, WearSettings,
 };
 pub use outputs::{
     MetricsOutput, MqttOutput, MqttSecurity, MqttTls, OpcUaOutput, OpcUaSecurityMode, OpcUaUser,

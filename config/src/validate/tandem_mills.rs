@@ -1,8 +1,8 @@
 //! `[[tandem_mills]]`: the stands' vibration channels, the chatter band, window and
 //! correlation threshold.
 
-use crate::raw::RawTandemMill;
-use crate::{Channel, ChannelKind, ChatterDetectorKind, TandemMill};
+use crate::raw::{RawContextTags, RawTandemMill};
+use crate::{Channel, ChannelKind, ChatterDetectorKind, ContextTags, TandemMill};
 
 use super::{ChannelFacts, Checker, Purpose, MAX_WINDOW_S, STANDS_RANGE};
 
@@ -12,6 +12,17 @@ const DEFAULT_GAIN_WINDOW_S: f64 = 2.0;
 const DEFAULT_SLOW_DOWN_RELEASE: f64 = 0.8;
 /// Default time below the release level before the slow-down request clears, s.
 const DEFAULT_SLOW_DOWN_HOLD_S: f64 = 5.0;
+/// Default settle time of the weld hold, s: on the tandem model the gain ratio was last
+/// at the alarm level up to 8.6 s after the weld had left in 19 of 20 welds (one 13.0 s;
+/// `docs/chatter.md`, "Welds").
+const DEFAULT_WELD_SETTLE_S: f64 = 10.0;
+/// Longest settle time of the weld hold, s.
+const MAX_WELD_SETTLE_S: f64 = 60.0;
+/// Default factor on the alarm level during the weld hold: above every weld transient's
+/// peak gain ratio on the tandem model (1.83; `docs/chatter.md`, "Welds").
+const DEFAULT_WELD_ALARM_FACTOR: f64 = 2.0;
+/// Largest factor on the alarm level during the weld hold.
+const MAX_WELD_ALARM_FACTOR: f64 = 10.0;
 /// Longest slow-down hold, s.
 const MAX_SLOW_DOWN_HOLD_S: f64 = 600.0;
 /// Default stand samples kept before a chatter warning, s.
@@ -34,6 +45,8 @@ struct GainKeys {
     gain_thresholds: Option<Vec<f64>>,
     slow_down_release: Option<f64>,
     slow_down_hold_s: Option<f64>,
+    weld_settle_s: Option<f64>,
+    weld_alarm_factor: Option<f64>,
 }
 
 impl Checker<'_> {
@@ -75,6 +88,10 @@ impl Checker<'_> {
             stands_ok.then_some(stands.len()),
         );
         let (capture_before_s, capture_after_s, capture_max_s) = self.capture_keys(key, raw);
+        let context = match &raw.context {
+            Some(tags) => self.context_tags(&format!("{key}.context"), tags, facts),
+            None => Some(ContextTags::default()),
+        };
         Some(TandemMill {
             name: name?,
             stands: stands_ok.then_some(stands)?,
@@ -87,6 +104,9 @@ impl Checker<'_> {
             gain_thresholds: gain.gain_thresholds?,
             slow_down_release: gain.slow_down_release?,
             slow_down_hold_s: gain.slow_down_hold_s?,
+            weld_settle_s: gain.weld_settle_s?,
+            weld_alarm_factor: gain.weld_alarm_factor?,
+            context: context?,
             capture_before_s: capture_before_s?,
             capture_after_s: capture_after_s?,
             capture_max_s: capture_max_s?,
@@ -192,6 +212,76 @@ impl Checker<'_> {
         band
     }
 
+    /// The context tags at `key` (`tandem_mills[0].context`): each a process-value
+    /// channel, no channel for two tags; `products` whole numbers 0..=u32::MAX, each
+    /// once.
+    pub(super) fn context_tags(
+        &mut self,
+        key: &str,
+        raw: &RawContextTags,
+        facts: &ChannelFacts<'_>,
+    ) -> Option<ContextTags> {
+        let mut ok = true;
+        let mut seen: Vec<(&str, String)> = Vec::new();
+        let mut tag = |checker: &mut Self, name: &'static str, channel: &Option<String>| {
+            let channel = channel.as_deref()?;
+            let tag_key = format!("{key}.{name}");
+            if let Some((other, _)) = seen.iter().find(|(_, c)| *c == channel) {
+                checker.report.push(
+                    &tag_key,
+                    format!(
+                        "channel \"{channel}\" is already the {other} tag (each tag needs its \
+                         own process value)"
+                    ),
+                );
+                ok = false;
+                return None;
+            }
+            seen.push((name, channel.to_owned()));
+            let index = checker.channel_ref(&tag_key, channel, facts, ChannelKind::ProcessValue);
+            ok &= index.is_some();
+            index
+        };
+        let tags = ContextTags {
+            weld: tag(self, "weld", &raw.weld),
+            speed_mpm: tag(self, "speed_mpm", &raw.speed_mpm),
+            coil: tag(self, "coil", &raw.coil),
+            product: tag(self, "product", &raw.product),
+            thickness_mm: tag(self, "thickness_mm", &raw.thickness_mm),
+            pass: tag(self, "pass", &raw.pass),
+            state: tag(self, "state", &raw.state),
+            products: Vec::new(),
+        };
+        let mut products = Vec::new();
+        for (position, &code) in raw.products.iter().flatten().enumerate() {
+            let product_key = format!("{key}.products[{position}]");
+            match u32::try_from(code) {
+                Ok(code) if products.contains(&code) => {
+                    self.report
+                        .push(product_key, format!("product {code} is listed twice"));
+                    ok = false;
+                }
+                Ok(code) => products.push(code),
+                Err(_) => {
+                    self.report.push(
+                        product_key,
+                        format!("{code} is not allowed (must be a product code 0..=4294967295)"),
+                    );
+                    ok = false;
+                }
+            }
+        }
+        if !products.is_empty() && tags.product.is_none() && raw.product.is_none() {
+            self.report.push(
+                format!("{key}.products"),
+                "needs the product tag (`product = \"<process value>\"`): the codes are checked \
+                 against what it reads",
+            );
+            ok = false;
+        }
+        ok.then_some(ContextTags { products, ..tags })
+    }
+
     /// `capture_before_s`, `capture_after_s` and `capture_max_s` of the mill at `key`.
     fn capture_keys(
         &mut self,
@@ -231,7 +321,8 @@ impl Checker<'_> {
     }
 
     /// `detector`, `reference_band_hz`, `gain_window_s`, `gain_thresholds`,
-    /// `slow_down_release` and `slow_down_hold_s` of the mill at `key`; `band` is its
+    /// `slow_down_release`, `slow_down_hold_s`, `weld_settle_s` and
+    /// `weld_alarm_factor` of the mill at `key`; `band` is its
     /// checked chatter band, `sample_rate_hz` its stands' rate and `stands` their
     /// number, when known.
     fn band_gain_keys(
@@ -266,6 +357,23 @@ impl Checker<'_> {
             (0.0..=MAX_SLOW_DOWN_HOLD_S).contains(&hold),
             &format!(">= 0 and <= {MAX_SLOW_DOWN_HOLD_S} s"),
         );
+        let settle = raw.weld_settle_s.unwrap_or(DEFAULT_WELD_SETTLE_S);
+        let weld_settle_s = self.float(
+            &format!("{key}.weld_settle_s"),
+            settle,
+            (0.0..=MAX_WELD_SETTLE_S).contains(&settle),
+            &format!(">= 0 and <= {MAX_WELD_SETTLE_S} s"),
+        );
+        let factor = raw.weld_alarm_factor.unwrap_or(DEFAULT_WELD_ALARM_FACTOR);
+        let weld_alarm_factor = self.float(
+            &format!("{key}.weld_alarm_factor"),
+            factor,
+            (1.0..=MAX_WELD_ALARM_FACTOR).contains(&factor),
+            &format!(
+                ">= 1 and <= {MAX_WELD_ALARM_FACTOR}, a factor on the alarm level (1: no weld \
+                 hold)"
+            ),
+        );
         GainKeys {
             detector,
             reference_band_hz,
@@ -273,6 +381,8 @@ impl Checker<'_> {
             gain_thresholds,
             slow_down_release,
             slow_down_hold_s,
+            weld_settle_s,
+            weld_alarm_factor,
         }
     }
 

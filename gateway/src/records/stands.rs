@@ -8,7 +8,7 @@ use std::path::Path;
 use millgate_config::Config;
 
 use super::csv::{self, CsvError};
-use crate::analysis::chatter::Recording;
+use crate::analysis::chatter::{ContextColumns, Recording};
 use crate::history::captures::Capture;
 
 /// Largest relative difference between a recording's and the channels' sample rate.
@@ -99,7 +99,8 @@ pub(crate) enum RecordingError {
 
 /// Reads the CSV at `path` for mill `index` of `config`: a column per stand channel
 /// (named as the channel), sampled at the channels' rate, and `speed_column` when
-/// given. Errors name the file and why.
+/// given; the context columns ([`ContextColumns::NAMES`]: `weld`, `speed_mpm`,
+/// `coil`, `product`) when present. Errors name the file and why.
 pub(crate) fn read(
     path: &Path,
     config: &Config,
@@ -138,6 +139,17 @@ pub(crate) fn read(
             Some((name.to_owned(), values.to_vec()))
         }
     };
+    let column = |name: &str| table.channel(name).map(<[f64]>::to_vec);
+    let mut context = ContextColumns {
+        weld: column("weld"),
+        speed_mpm: column("speed_mpm"),
+        coil: column("coil"),
+        product: column("product"),
+        lines: None,
+    };
+    if !context.is_empty() {
+        context.lines = Some(table.lines.clone());
+    }
     let rate_hz = config.channels[mill.stands[0]].sample_rate_hz;
     let csv_rate_hz = table
         .sample_rate_hz()
@@ -157,6 +169,7 @@ pub(crate) fn read(
         time_s: table.time_s,
         stands,
         speed,
+        context,
     })
 }
 
@@ -197,5 +210,6 @@ pub(crate) fn from_capture(
         time_s: (0..stands[0].len()).map(|k| capture.time_s(k)).collect(),
         stands,
         speed: None,
+        context: Default::default(),
     })
 }

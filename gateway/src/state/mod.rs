@@ -9,6 +9,7 @@ pub mod captures;
 pub mod catalogue;
 pub(crate) mod changes;
 pub mod commands;
+pub mod context;
 pub mod events;
 pub mod gap_maps;
 pub mod history;

@@ -223,6 +223,13 @@ pub struct TandemMillResults {
     /// A stand's source is stale or lost, or the window restarted after a gap:
     /// every value is flagged.
     pub source_stale: bool,
+    /// Windows whose alarm (and slow-down request) the weld hold kept off since start:
+    /// the gain ratio reached 1 but not `weld_alarm_factor` while a weld was in the
+    /// mill or settling.
+    pub weld_held_off: u64,
+    /// Context values read with an impossible value since start (not used for the
+    /// gating).
+    pub context_invalid: u64,
 }
 
 /// Spans of one rod mill the outputs have room for (a 12-stand block): the register

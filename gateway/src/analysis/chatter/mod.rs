@@ -42,8 +42,9 @@ pub use gain::GainReading;
 pub(crate) use monitor::ChatterSetupError;
 pub use monitor::{ChatterMonitor, ChatterUpdate, MIN_WINDOW_SAMPLES};
 pub use offline::{
-    episode_bands, welch_psd, windows, Recording, Window, SPECTRUM_WINDOWS_EACH_SIDE,
+    episode_bands, welch_psd, windows, windows_in_context, ContextColumns, InvalidContext,
+    Recording, Window, SPECTRUM_WINDOWS_EACH_SIDE,
 };
 pub use publish::ChatterAnalysis;
 pub use spectra::chatter_frequency_hz;
-pub use verdict::{SlowDown, Verdict};
+pub use verdict::{SlowDown, Verdict, WeldHold};

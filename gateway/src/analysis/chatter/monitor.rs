@@ -23,7 +23,7 @@ use millgate_dsp::chatter::{ChatterError, ChatterResult};
 use super::align::{Alignment, Realigned, RestartCause};
 use super::gain::{GainReading, GainTracker};
 use super::spectra::{Spectra, SpectraError};
-use super::verdict::{self, SlowDown, Verdict};
+use super::verdict::{self, SlowDown, Verdict, WeldHold};
 
 /// Fewest samples in a window.
 pub const MIN_WINDOW_SAMPLES: usize = 16;
@@ -222,7 +222,18 @@ impl ChatterMonitor {
         Ok(Self {
             name: mill.name.clone(),
             kind: mill.detector,
-            slow_down: SlowDown::new(mill.slow_down_release, mill.slow_down_hold_s),
+            slow_down: SlowDown::with_weld_hold(
+                mill.slow_down_release,
+                mill.slow_down_hold_s,
+                match mill.detector {
+                    ChatterDetectorKind::BandGain => WeldHold {
+                        settle_s: mill.weld_settle_s,
+                        alarm_factor: mill.weld_alarm_factor,
+                    },
+                    // The paper's figure has no level above its alarm (`verdict`).
+                    ChatterDetectorKind::Paper => WeldHold::NONE,
+                },
+            ),
             sample_rate_hz: fs,
             window,
             hop,

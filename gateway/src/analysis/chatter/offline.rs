@@ -17,6 +17,7 @@ use super::capture::ANCHOR_BLOCK;
 use super::monitor::{ChatterMonitor, ChatterSetupError, ChatterUpdate};
 use super::verdict::Verdict;
 use crate::state::captures::{CaptureBands, ChatterEpisode, StandSpectrum};
+use crate::state::context::{ContextError, ProcessContext, RawContext};
 
 /// One recording of a tandem mill's stands (read by `crate::records::stands` from
 /// a CSV or a capture, or simulated by the experiments).
@@ -30,6 +31,59 @@ pub struct Recording {
     pub stands: Vec<Vec<f64>>,
     /// The speed column's name and values, when one was asked for.
     pub speed: Option<(String, Vec<f64>)>,
+    /// The process context recorded beside the stands (a CSV's `weld`, `speed_mpm`,
+    /// `coil` and `product` columns), per sample.
+    pub context: ContextColumns,
+}
+
+/// A recording's process-context columns, each per sample when recorded.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ContextColumns {
+    /// The PLC's weld-tracking bit (0/1).
+    pub weld: Option<Vec<f64>>,
+    /// Mill speed, m/min.
+    pub speed_mpm: Option<Vec<f64>>,
+    /// Coil id.
+    pub coil: Option<Vec<f64>>,
+    /// Product code.
+    pub product: Option<Vec<f64>>,
+    /// The file's line of each sample (for messages), when read from a file.
+    pub lines: Option<Vec<usize>>,
+}
+
+impl ContextColumns {
+    /// The column names read when present, in this order.
+    pub const NAMES: [&'static str; 4] = ["weld", "speed_mpm", "coil", "product"];
+
+    /// True when no context column was recorded.
+    pub fn is_empty(&self) -> bool {
+        self.weld.is_none()
+            && self.speed_mpm.is_none()
+            && self.coil.is_none()
+            && self.product.is_none()
+    }
+
+    /// The values at sample `k`.
+    pub fn at(&self, k: usize) -> RawContext {
+        let value = |column: &Option<Vec<f64>>| column.as_ref().and_then(|c| c.get(k).copied());
+        RawContext {
+            weld: value(&self.weld),
+            speed_mpm: value(&self.speed_mpm),
+            coil: value(&self.coil),
+            product: value(&self.product),
+            ..RawContext::default()
+        }
+    }
+}
+
+/// Samples whose context was invalid ([`RawContext::check`]): not used for the
+/// gating, counted.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct InvalidContext {
+    /// Samples with an impossible context value.
+    pub samples: usize,
+    /// The first: its sample index and why.
+    pub first: Option<(usize, ContextError)>,
 }
 
 impl Recording {
@@ -68,6 +122,11 @@ pub struct Window {
     pub gain_ratio: Option<f64>,
     /// The configured detector's verdict after this window.
     pub verdict: Verdict,
+    /// Whether the weld hold raised the alarm level for this window.
+    pub weld_hold: bool,
+    /// The context at the window's last sample; `None` without context columns or
+    /// when it was invalid.
+    pub context: Option<ProcessContext>,
 }
 
 /// `stands` (per stand of mill `index` of `config`, in its order, equally long, with
@@ -80,6 +139,22 @@ pub fn windows(
     time_s: &[f64],
     stands: &[Vec<f64>],
 ) -> Result<Vec<Window>, ChatterSetupError> {
+    windows_in_context(config, index, time_s, stands, &ContextColumns::default())
+        .map(|(windows, _)| windows)
+}
+
+/// As [`windows`], with the process context recorded beside the stands: a block in
+/// which the weld bit was set starts (or continues) the weld hold of the slow-down
+/// request, as the service does with the live bit ([`super::SlowDown::weld`]); a
+/// sample whose context is invalid is not used and is counted.
+pub fn windows_in_context(
+    config: &Config,
+    index: usize,
+    time_s: &[f64],
+    stands: &[Vec<f64>],
+    context: &ContextColumns,
+) -> Result<(Vec<Window>, InvalidContext), ChatterSetupError> {
+    let mut invalid = InvalidContext::default();
     let mut monitor = ChatterMonitor::new(config, index)?;
     let mut slow_down = monitor.slow_down();
     let rate_hz = config.channels[config.tandem_mills[index].stands[0]].sample_rate_hz;
@@ -89,11 +164,32 @@ pub fn windows(
     let mut windows = Vec::new();
     for (b, start) in (0..samples).step_by(ANCHOR_BLOCK).enumerate() {
         let end = (start + ANCHOR_BLOCK).min(samples);
+        let mut last_context = None;
+        if !context.is_empty() {
+            let mut weld = false;
+            for k in start..end {
+                match context.at(k).check(&[]) {
+                    Ok(checked) => {
+                        weld |= checked.weld == Some(true);
+                        last_context = Some(checked);
+                    }
+                    Err(error) => {
+                        invalid.samples += 1;
+                        invalid.first.get_or_insert((k, error));
+                        last_context = None;
+                    }
+                }
+            }
+            if weld {
+                slow_down.weld();
+            }
+        }
         for (s, values) in stands.iter().enumerate() {
             let Some(change) = monitor.samples(s, &values[start..end], t0 + period * b as u32)
             else {
                 continue;
             };
+            let weld_hold = slow_down.weld_holding();
             let verdict = monitor.judge(&change, &mut slow_down);
             let ChatterUpdate::Evaluated(result) = change else {
                 continue;
@@ -108,10 +204,12 @@ pub fn windows(
                 gain: monitor.gain_window().cloned(),
                 gain_ratio: monitor.gain().and_then(|g| g.ratio).map(|(ratio, _)| ratio),
                 verdict,
+                weld_hold,
+                context: last_context,
             });
         }
     }
-    Ok(windows)
+    Ok((windows, invalid))
 }
 
 /// Windows of the monitor on each side of the warning whose samples the spectra of

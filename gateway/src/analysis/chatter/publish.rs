@@ -3,7 +3,7 @@
 //! writes, the HMI server and `/metrics`).
 
 use std::sync::Arc;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use millgate_config::Config;
 
@@ -16,6 +16,7 @@ use super::verdict::{SlowDown, Verdict};
 use crate::field::acquired::Acquired;
 use crate::state::board::Board;
 use crate::state::captures::CaptureRecord;
+use crate::state::context::RawContext;
 use crate::state::events::{AlarmKind, AlarmRecord, HistoryEvent};
 use crate::state::results::TandemMillResults;
 use crate::state::time::UtcTime;
@@ -30,6 +31,14 @@ use crate::state::time::UtcTime;
 /// alarm (band gain: ratio >= 1; paper: both conditions; latched until acknowledged,
 /// like the driveline alarms) and the slow-down request ([`SlowDown`]). A restart
 /// clears the values and sets "source stale" until the next full window.
+///
+/// **The weld bit** (a mill's `context.weld` tag): each value read that is 1 starts or
+/// continues the mill's weld hold ([`SlowDown::weld`]), and so does every window
+/// evaluated while the latest value is 1 and younger than [`WELD_BIT_POLLS`] poll
+/// periods of its channel (a bit the PLC no longer delivers, its source stale, holds
+/// nothing off). A value that is not 0 or 1 is not used and is counted
+/// (`context_invalid`); a window whose alarm the hold kept off is counted
+/// (`weld_held_off`).
 #[derive(Debug)]
 pub struct ChatterAnalysis {
     monitors: Vec<ChatterMonitor>,
@@ -39,19 +48,38 @@ pub struct ChatterAnalysis {
     captures: Vec<Option<EpisodeRecorder>>,
     /// Per channel: the (mill, stand) pairs it feeds.
     by_channel: Vec<Vec<(usize, usize)>>,
+    /// Per channel: the mills whose weld bit it is.
+    weld_by_channel: Vec<Vec<usize>>,
+    /// Per mill, the latest valid weld bit and when it was read.
+    weld_bits: Vec<Option<(bool, Instant)>>,
+    /// Per mill, the oldest weld bit still used ([`WELD_BIT_POLLS`] poll periods).
+    weld_max_age: Vec<Duration>,
     board: Arc<Board>,
 }
+
+/// Poll periods of its channel after which the latest weld bit is no longer used.
+pub(super) const WELD_BIT_POLLS: f64 = 3.0;
 
 impl ChatterAnalysis {
     /// Monitors for every tandem mill of `config`.
     pub fn new(config: &Config, board: Arc<Board>) -> Result<Self, ChatterSetupError> {
         let mut by_channel = vec![Vec::new(); config.channels.len()];
+        let mut weld_by_channel = vec![Vec::new(); config.channels.len()];
+        let mut weld_max_age = Vec::new();
         let mut monitors = Vec::new();
         for (m, mill) in config.tandem_mills.iter().enumerate() {
             monitors.push(ChatterMonitor::new(config, m)?);
             for (s, &channel) in mill.stands.iter().enumerate() {
                 by_channel[channel].push((m, s));
             }
+            if let Some(weld) = mill.context.weld {
+                weld_by_channel[weld].push(m);
+            }
+            let poll_s = mill
+                .context
+                .weld
+                .map_or(0.0, |weld| 1.0 / config.channels[weld].sample_rate_hz);
+            weld_max_age.push(Duration::from_secs_f64(WELD_BIT_POLLS * poll_s));
         }
         let keep_captures = config
             .history
@@ -65,10 +93,49 @@ impl ChatterAnalysis {
         Ok(Self {
             slow_downs: monitors.iter().map(ChatterMonitor::slow_down).collect(),
             captures,
+            weld_bits: vec![None; monitors.len()],
             monitors,
             by_channel,
+            weld_by_channel,
+            weld_max_age,
             board,
         })
+    }
+
+    /// A process value `value` of `channel`: the weld bit of the mills whose tag it is.
+    fn context_value(&mut self, channel: usize, value: f64, now: Instant) {
+        let Some(mills) = self.weld_by_channel.get(channel) else {
+            return;
+        };
+        for &mill in mills {
+            let raw = RawContext {
+                weld: Some(value),
+                ..RawContext::default()
+            };
+            match raw.check(&[]) {
+                Ok(context) => {
+                    let bit = context.weld == Some(true);
+                    self.weld_bits[mill] = Some((bit, now));
+                    if bit {
+                        self.slow_downs[mill].weld();
+                    }
+                }
+                Err(error) => {
+                    if self.weld_bits[mill].take().is_some() {
+                        tracing::warn!(
+                            mill = %self.monitors[mill].name(),
+                            %error,
+                            "context value invalid, not used for the gating"
+                        );
+                    }
+                    self.board.update(|results| {
+                        if let Some(published) = results.tandem_mills.get_mut(mill) {
+                            published.context_invalid += 1;
+                        }
+                    });
+                }
+            }
+        }
     }
 
     /// Keep mill `mill`'s stands' next `seconds` s as a capture of kind `manual`;
@@ -91,14 +158,22 @@ impl ChatterAnalysis {
     /// Route one reader message to the mills whose stand it is, and publish what
     /// changed.
     pub fn handle(&mut self, message: &Acquired) {
+        self.handle_at(message, Instant::now());
+    }
+
+    /// [`Self::handle`] with the message arriving at `now` (tests replay a DAQ's
+    /// pace without waiting for it).
+    fn handle_at(&mut self, message: &Acquired, now: Instant) {
         let channel = match message {
             Acquired::Samples { channel, .. } | Acquired::Gap { channel, .. } => *channel,
-            Acquired::ProcessValue { .. } => return,
+            Acquired::ProcessValue { channel, value } => {
+                self.context_value(*channel, *value, now);
+                return;
+            }
         };
         let Some(stands) = self.by_channel.get(channel) else {
             return;
         };
-        let now = Instant::now();
         for &(mill, stand) in stands {
             let monitor = &mut self.monitors[mill];
             let recorder = &mut self.captures[mill];
@@ -131,6 +206,11 @@ impl ChatterAnalysis {
                 Acquired::ProcessValue { .. } => None,
             };
             if let Some(change) = change {
+                if let Some((true, at)) = self.weld_bits[mill] {
+                    if now.saturating_duration_since(at) <= self.weld_max_age[mill] {
+                        self.slow_downs[mill].weld();
+                    }
+                }
                 let warning = publish(
                     &self.board,
                     mill,
@@ -218,6 +298,14 @@ fn publish(
                     );
                 }
                 published.chatter_alarm |= alarm;
+                if verdict.held_off {
+                    published.weld_held_off += 1;
+                    tracing::debug!(
+                        mill = %name,
+                        gain_ratio = ?published.gain_ratio,
+                        "chatter alarm held off: a weld is in the mill or settling"
+                    );
+                }
                 published.source_stale = false;
                 if was_flagged {
                     tracing::info!(mill = %name, "chatter window complete again");
@@ -259,4 +347,91 @@ fn clear(published: &mut TandemMillResults) {
     published.band_rms_max = None;
     published.worst_stand = None;
     published.chatter_warning = false;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::analysis::chatter::testing::lines_recording;
+
+    /// The example tandem mill (thresholds from the race: stand 1's is 1.187) with a
+    /// weld bit on the PLC; the channel index of the weld bit.
+    fn mill_with_weld_bit() -> (Config, usize) {
+        let examples = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/examples");
+        let text = std::fs::read_to_string(examples.join("tandem-5stand.toml")).expect("example");
+        let text = text.replacen(
+            "[[tandem_mills]]",
+            "[[channels]]\nname = \"weld_in_mill\"\nkind = \"process_value\"\nunit = \"1\"\n\
+             source = { modbus = \"mill_plc\", table = \"holding\", address = 10 }\n\n\
+             [[tandem_mills]]\ncontext = { weld = \"weld_in_mill\" }",
+            1,
+        );
+        let config = millgate_config::from_toml_str(&text, "tandem.toml", &examples)
+            .unwrap_or_else(|error| panic!("{error}"));
+        let weld = config.tandem_mills[0].context.weld.expect("the weld tag");
+        (config, weld)
+    }
+
+    /// 6 s of a chatter-band line at gain 1.6 (0.8 over the reference's 0.5: 1.35
+    /// times stand 1's threshold, below the weld hold's 2) through the service's
+    /// analysis, `weld` sent as the weld bit before each block when given; the
+    /// mill's results after.
+    fn run(weld: Option<f64>) -> TandemMillResults {
+        let (config, weld_channel) = mill_with_weld_bit();
+        let board = Arc::new(Board::new(&config, Vec::new()));
+        let mut analysis = ChatterAnalysis::new(&config, Arc::clone(&board)).expect("analysis");
+        let recording = lines_recording(15_000, |_| 0.8);
+        let stands = config.tandem_mills[0].stands.clone();
+        // A block every 48 ms, as the DAQ delivers them.
+        let t0 = Instant::now();
+        for (block, start) in (0..recording.len()).step_by(120).enumerate() {
+            let now = t0 + Duration::from_millis(48) * block as u32;
+            if let Some(value) = weld {
+                let message = Acquired::ProcessValue {
+                    channel: weld_channel,
+                    value,
+                };
+                analysis.handle_at(&message, now);
+            }
+            for (stand, &channel) in stands.iter().enumerate() {
+                let message = Acquired::Samples {
+                    channel,
+                    values: recording.stands[stand][start..start + 120].to_vec(),
+                    received: None,
+                };
+                analysis.handle_at(&message, now);
+            }
+        }
+        board.results().tandem_mills[0].clone()
+    }
+
+    #[test]
+    fn the_live_weld_bit_holds_the_alarm_off_and_an_impossible_bit_is_counted_not_used() {
+        let plain = run(None);
+        assert!(plain.evaluations > 15, "{plain:?}");
+        assert!(
+            plain.gain_ratio.is_some_and(|r| r > 1.2 && r < 1.5),
+            "{plain:?}"
+        );
+        assert!(plain.chatter_alarm && plain.slow_down_request, "{plain:?}");
+        assert_eq!((plain.weld_held_off, plain.context_invalid), (0, 0));
+
+        let welding = run(Some(1.0));
+        assert!(
+            !welding.chatter_alarm && !welding.slow_down_request,
+            "{welding:?}"
+        );
+        assert!(welding.weld_held_off > 10, "{welding:?}");
+        assert_eq!(welding.context_invalid, 0);
+
+        let not_welding = run(Some(0.0));
+        assert!(not_welding.slow_down_request, "{not_welding:?}");
+        assert_eq!(not_welding.weld_held_off, 0);
+
+        // 0.5 is no bit: counted, not used (the alarm is raised as without a weld).
+        let invalid = run(Some(0.5));
+        assert!(invalid.slow_down_request, "{invalid:?}");
+        assert_eq!(invalid.context_invalid, 125, "one per block");
+        assert_eq!(invalid.weld_held_off, 0);
+    }
 }

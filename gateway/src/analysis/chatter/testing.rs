@@ -97,5 +97,6 @@ pub(crate) fn lines_recording(samples: usize, amplitude: impl Fn(f64) -> f64) ->
         time_s,
         stands: vec![signal; 5],
         speed: None,
+        context: Default::default(),
     }
 }

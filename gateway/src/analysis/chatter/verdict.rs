@@ -7,6 +7,18 @@
 //! A restart or an unevaluable window neither sets nor clears it: it holds, and the time
 //! below the release level starts again (the mill is not sped up on data the gateway
 //! cannot read; the stale bit tells the PLC why).
+//!
+//! **Weld hold** ([`WeldHold`]): a weld passing the stands excites them louder, and
+//! when it has passed the chatter band (carried by weakly damped roots) decays over
+//! seconds while the reference band drops at once, so the gain ratio rises for about
+//! the gain window without chatter. While the PLC's weld bit is set, and for
+//! `weld_settle_s` of trusted windows after it fell, the band-gain alarm (and with it
+//! the slow-down request) needs `weld_alarm_factor` times the alarm level instead of
+//! the level itself: chatter that starts during or right after a weld is still caught,
+//! at a higher figure, never ignored. The warning is not gated, the release of a
+//! request already set is not changed (a request is never cleared sooner because of a
+//! weld), and a window whose alarm the hold kept off is marked ([`Verdict::held_off`]).
+//! Without a weld bit (none configured, stale or invalid) nothing is held off.
 
 use millgate_config::ChatterDetectorKind;
 use millgate_dsp::chatter::ChatterResult;
@@ -22,6 +34,28 @@ pub struct Verdict {
     pub alarm: bool,
     /// The slow-down request after this update.
     pub slow_down: bool,
+    /// The weld hold kept this window's alarm off: the figure reached the alarm level
+    /// but not the hold's higher one (a gating decision, counted and recorded).
+    pub held_off: bool,
+}
+
+/// The weld hold of one mill's slow-down request (see the module docs): the alarm
+/// level is raised by `alarm_factor` while a weld is in the mill and for `settle_s`
+/// of trusted windows after the weld bit was last seen set.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WeldHold {
+    /// Time after the weld bit fell during which the alarm level stays raised, s, >= 0.
+    pub settle_s: f64,
+    /// Factor on the alarm level during the hold, >= 1.
+    pub alarm_factor: f64,
+}
+
+impl WeldHold {
+    /// No hold: the alarm level never changes.
+    pub const NONE: WeldHold = WeldHold {
+        settle_s: 0.0,
+        alarm_factor: 1.0,
+    };
 }
 
 /// The slow-down request of one mill, with hysteresis (see the module docs).
@@ -32,17 +66,49 @@ pub struct SlowDown {
     requested: bool,
     /// Time the alarm figure has stayed below the release level while requested, s.
     below_s: f64,
+    weld: WeldHold,
+    /// Trusted time since the weld bit was last seen set, s; `None`: no weld seen.
+    since_weld_s: Option<f64>,
 }
 
 impl SlowDown {
     /// Not requested; clears after `hold_s` below `release` (a fraction of the alarm
     /// level, 0..1).
     pub fn new(release: f64, hold_s: f64) -> Self {
+        Self::with_weld_hold(release, hold_s, WeldHold::NONE)
+    }
+
+    /// As [`Self::new`], with the alarm level raised around welds by `weld`.
+    pub fn with_weld_hold(release: f64, hold_s: f64, weld: WeldHold) -> Self {
         Self {
             release,
             hold_s,
             requested: false,
             below_s: 0.0,
+            weld,
+            since_weld_s: None,
+        }
+    }
+
+    /// The PLC's weld bit was seen set since the previous window: the hold starts (or
+    /// goes on), its settle time counts from the next window.
+    pub fn weld(&mut self) {
+        self.since_weld_s = Some(0.0);
+    }
+
+    /// Whether the weld hold raises the alarm level now.
+    pub fn weld_holding(&self) -> bool {
+        self.since_weld_s
+            .is_some_and(|since| since <= self.weld.settle_s)
+    }
+
+    /// The alarm level now, relative to the configured one: the hold's factor during a
+    /// weld hold, else 1.
+    pub fn alarm_scale(&self) -> f64 {
+        if self.weld_holding() {
+            self.weld.alarm_factor
+        } else {
+            1.0
         }
     }
 
@@ -58,8 +124,14 @@ impl SlowDown {
 
     /// One trusted window: `level` is the alarm figure relative to its alarm level
     /// (1 = alarm), `step_s` the time since the previous window. Returns the request.
+    /// During a weld hold the request is set only at the hold's raised level
+    /// ([`Self::alarm_scale`]); its release is unchanged.
     pub fn window(&mut self, level: f64, step_s: f64) -> bool {
-        if level >= 1.0 {
+        let scale = self.alarm_scale();
+        if let Some(since) = &mut self.since_weld_s {
+            *since += step_s;
+        }
+        if level >= scale {
             self.requested = true;
             self.below_s = 0.0;
         } else if self.requested {
@@ -84,7 +156,7 @@ impl SlowDown {
 
     /// A fresh request with the same release level and hold.
     pub fn fresh(&self) -> Self {
-        Self::new(self.release, self.hold_s)
+        Self::with_weld_hold(self.release, self.hold_s, self.weld)
     }
 }
 
@@ -128,28 +200,39 @@ pub(super) fn judge(
             warning: false,
             alarm: false,
             slow_down: slow_down.requested(),
+            held_off: false,
         };
     };
+    // The level this window is judged against (before the window moves the hold on).
+    let scale = slow_down.alarm_scale();
     match alarm_level(kind, gain, slow_down.release, result) {
         Some(level) => {
             slow_down.window(level, hop_s);
         }
         None => slow_down.untrusted(),
     }
-    let (warning, alarm) = match kind {
+    let (warning, alarm, ungated_alarm) = match kind {
         ChatterDetectorKind::BandGain => {
             let ratio = gain.and_then(|g| g.ratio).map(|(ratio, _)| ratio);
             (
                 ratio.is_some_and(|r| r >= slow_down.release),
+                ratio.is_some_and(|r| r >= scale),
                 ratio.is_some_and(|r| r >= 1.0),
             )
         }
-        ChatterDetectorKind::Paper => (result.frequencies_locked, result.synchronized),
+        // The paper's figure is 0, the release level or 1: no higher level to hold
+        // it to (the monitor gives it no hold; its conditions ignored the welds).
+        ChatterDetectorKind::Paper => (
+            result.frequencies_locked,
+            result.synchronized,
+            result.synchronized,
+        ),
     };
     Verdict {
         warning,
         alarm,
         slow_down: slow_down.requested(),
+        held_off: ungated_alarm && !alarm,
     }
 }
 
@@ -189,5 +272,48 @@ mod tests {
             "cleared after 4 windows below"
         );
         assert!(!slow_down.requested());
+    }
+
+    #[test]
+    fn a_weld_raises_the_alarm_level_for_its_settle_time_and_never_hastens_a_release() {
+        let step = 0.25;
+        let hold = WeldHold {
+            settle_s: 1.0,
+            alarm_factor: 2.0,
+        };
+        let mut slow_down = SlowDown::with_weld_hold(0.8, 1.0, hold);
+        assert!(!slow_down.weld_holding());
+        slow_down.weld();
+        assert_eq!(slow_down.alarm_scale(), 2.0);
+        // During the weld and its settle time the alarm level is 2: 1.5 is held off.
+        for _ in 0..4 {
+            slow_down.weld();
+            assert!(!slow_down.window(1.5, step));
+        }
+        // The bit fell: 1 s (4 windows) of settle time, then the hold ends.
+        for _ in 0..4 {
+            assert!(!slow_down.window(1.5, step), "held off in the settle time");
+        }
+        assert!(!slow_down.weld_holding());
+        assert!(
+            slow_down.window(1.0, step),
+            "the plain level after the hold"
+        );
+        // Chatter during a weld is still caught at the raised level.
+        let mut caught = SlowDown::with_weld_hold(0.8, 1.0, hold);
+        caught.weld();
+        assert!(caught.window(2.0, step));
+        // A request set before the weld is released only as without it.
+        let mut set = SlowDown::with_weld_hold(0.8, 1.0, hold);
+        assert!(set.window(1.2, step));
+        set.weld();
+        for _ in 0..20 {
+            assert!(set.window(0.9, step), "between release and alarm it holds");
+        }
+        assert_eq!(
+            set.fresh().alarm_scale(),
+            1.0,
+            "a fresh request has no weld"
+        );
     }
 }

@@ -15,6 +15,17 @@
 //! `sim-tools` feature) draws the per-stand band RMS and gain, the gain ratio and the
 //! flags over time.
 //!
+//! **Process context.** Columns `weld` (the PLC's weld-tracking bit, 0/1: 1 from the
+//! weld reaching the first stand until it has left the last), `speed_mpm`, `coil` and
+//! `product` are read when present. With `weld` the slow-down request is gated as the
+//! service gates it: while the bit is set and for the mill's `weld_settle_s` after, the
+//! band-gain alarm needs `weld_alarm_factor` times its level (chatter during or right
+//! after a weld is still caught, at the higher level); a window the hold kept from the
+//! alarm is marked `held_off`, and `first_alarm_s` is the first alarm (= slow-down
+//! request) after the gating. A row with an impossible context value (weld not 0/1, a
+//! negative speed, a coil or product that is not a whole number) is not used for the
+//! gating and is counted (`invalid_context`, with its line); the analysis goes on.
+//!
 //! [`ChatterMonitor::judge`]: crate::analysis::chatter::ChatterMonitor::judge
 
 use std::path::PathBuf;
@@ -24,9 +35,10 @@ use anyhow::Context;
 use serde::Serialize;
 
 use super::mill::mill_index;
-use crate::analysis::chatter::windows;
+use crate::analysis::chatter::{windows_in_context, ContextColumns};
 use crate::cli::OutputFormat;
 use crate::records::stands;
+use crate::state::context::ProcessContext;
 
 /// Arguments of `millgate chatter` (without a subcommand).
 #[derive(Debug, Clone, clap::Args)]
@@ -84,6 +96,27 @@ pub struct WindowRow {
     pub alarm: bool,
     /// The slow-down request after this window.
     pub slow_down: bool,
+    /// The weld hold raised the alarm level in this window (a weld in the mill, or
+    /// less than `weld_settle_s` since it left).
+    pub weld_hold: bool,
+    /// The weld hold kept this window's alarm off (the gain ratio reached 1 but not
+    /// `weld_alarm_factor`).
+    pub held_off: bool,
+    /// The context at the window's last sample, with context columns (left out
+    /// without, or when invalid there).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub context: Option<ProcessContext>,
+}
+
+/// Rows of the CSV whose context was invalid.
+#[derive(Debug, Clone, Serialize)]
+pub struct InvalidContextReport {
+    /// How many rows.
+    pub rows: usize,
+    /// The first one's line in the file.
+    pub first_line: usize,
+    /// Why it was invalid.
+    pub why: String,
 }
 
 /// What `millgate chatter` reports.
@@ -93,8 +126,16 @@ pub struct ChatterReport {
     pub windows: Vec<WindowRow>,
     /// End time of the first window with the warning, s.
     pub first_warning_s: Option<f64>,
-    /// End time of the first window with the alarm, s.
+    /// End time of the first window with the alarm (after the weld gating: the first
+    /// slow-down request), s.
     pub first_alarm_s: Option<f64>,
+    /// The context columns found in the CSV ([`ContextColumns::NAMES`]).
+    pub context_columns: Vec<&'static str>,
+    /// Windows whose alarm the weld hold kept off.
+    pub held_off_windows: usize,
+    /// Rows with an impossible context value (not used for the gating); `None` when
+    /// there were none.
+    pub invalid_context: Option<InvalidContextReport>,
 }
 
 /// Runs `millgate chatter`: returns what it prints.
@@ -116,7 +157,34 @@ pub fn analyze(args: &WindowsArgs) -> anyhow::Result<ChatterReport> {
     let config = millgate_config::load_uncommissioned(&args.config)?;
     let index = mill_index(&config, args.mill.as_deref(), &args.config)?;
     let recording = stands::read(&args.input, &config, index, None)?;
-    let windows: Vec<WindowRow> = windows(&config, index, &recording.time_s, &recording.stands)?
+    let (windows, invalid) = windows_in_context(
+        &config,
+        index,
+        &recording.time_s,
+        &recording.stands,
+        &recording.context,
+    )?;
+    let context = &recording.context;
+    let invalid_context = invalid.first.map(|(sample, error)| InvalidContextReport {
+        rows: invalid.samples,
+        first_line: context
+            .lines
+            .as_ref()
+            .and_then(|lines| lines.get(sample).copied())
+            .unwrap_or(sample + 2),
+        why: error.to_string(),
+    });
+    let context_columns: Vec<&'static str> = ContextColumns::NAMES
+        .into_iter()
+        .zip([
+            context.weld.is_some(),
+            context.speed_mpm.is_some(),
+            context.coil.is_some(),
+            context.product.is_some(),
+        ])
+        .filter_map(|(name, present)| present.then_some(name))
+        .collect();
+    let windows: Vec<WindowRow> = windows
         .into_iter()
         .map(|window| WindowRow {
             t_s: window.t_s,
@@ -143,12 +211,18 @@ pub fn analyze(args: &WindowsArgs) -> anyhow::Result<ChatterReport> {
             warning: window.verdict.warning,
             alarm: window.verdict.alarm,
             slow_down: window.verdict.slow_down,
+            weld_hold: window.weld_hold,
+            held_off: window.verdict.held_off,
+            context: window.context,
         })
         .collect();
     let first = |pick: fn(&WindowRow) -> bool| windows.iter().find(|w| pick(w)).map(|w| w.t_s);
     Ok(ChatterReport {
         first_warning_s: first(|w| w.warning),
         first_alarm_s: first(|w| w.alarm),
+        held_off_windows: windows.iter().filter(|w| w.held_off).count(),
+        context_columns,
+        invalid_context,
         windows,
     })
 }
@@ -237,6 +311,8 @@ fn text(report: &ChatterReport) -> String {
             (w.warning, "warning"),
             (w.alarm, "alarm"),
             (w.slow_down, "slow-down"),
+            (w.weld_hold, "weld-hold"),
+            (w.held_off, "held-off"),
         ]
         .iter()
         .filter(|(set, _)| *set)
@@ -251,6 +327,21 @@ fn text(report: &ChatterReport) -> String {
         let _ = writeln!(out, "{}", line.trim_end());
     }
     let time = |t: Option<f64>| t.map_or("none".to_owned(), |t| format!("{t:.3} s"));
+    if !report.context_columns.is_empty() {
+        let _ = writeln!(
+            out,
+            "context columns: {}; windows held off by the weld hold: {}",
+            report.context_columns.join(", "),
+            report.held_off_windows
+        );
+    }
+    if let Some(invalid) = &report.invalid_context {
+        let _ = writeln!(
+            out,
+            "invalid context in {} rows (not used for the gating), the first at line {}: {}",
+            invalid.rows, invalid.first_line, invalid.why
+        );
+    }
     let _ = writeln!(
         out,
         "first warning: {}, first alarm: {}",
@@ -263,12 +354,147 @@ fn text(report: &ChatterReport) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use millgate_sim::tandem::simulate::{simulate, RunSettings};
+    use millgate_sim::tandem::simulate::{simulate, NoiseBurst, RunSettings};
     use millgate_sim::tandem::truth::{ground_truth, mill_critical_speed};
     use millgate_sim::tandem::{PassSchedule, TandemMill};
 
     fn example() -> PathBuf {
         PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/examples/tandem-5stand.toml")
+    }
+
+    /// `csv` (a simulated record's) with a `weld` column: 1 in `weld_s` (from, to).
+    fn with_weld_column(csv: &str, weld_s: (f64, f64)) -> String {
+        let mut lines = csv.lines();
+        let mut out = format!("{},weld\n", lines.next().unwrap_or_default());
+        for line in lines {
+            let t: f64 = line.split(',').next().and_then(|t| t.parse().ok()).unwrap();
+            let bit = u8::from(t >= weld_s.0 && t < weld_s.1);
+            out.push_str(&format!("{line},{bit}\n"));
+        }
+        out
+    }
+
+    /// The JSON report of `csv` on the example mill.
+    fn report_of(csv: &str, name: &str) -> anyhow::Result<serde_json::Value> {
+        let input = std::env::temp_dir().join(format!(
+            "millgate-chatter-{name}-{}.csv",
+            std::process::id()
+        ));
+        std::fs::write(&input, csv)?;
+        let args = WindowsArgs {
+            input: input.clone(),
+            config: example(),
+            mill: None,
+            format: OutputFormat::Json,
+            #[cfg(feature = "sim-tools")]
+            plot: None,
+        };
+        let report = run(&args);
+        std::fs::remove_file(&input)?;
+        Ok(serde_json::from_str(&report?)?)
+    }
+
+    #[test]
+    fn the_weld_bit_holds_a_welds_slow_down_off_and_a_ramp_after_a_weld_still_alarms(
+    ) -> anyhow::Result<()> {
+        // The physical model: at 95% of the critical speed (the highest allowed), a
+        // weld (the force noise 3 times louder for 3 s) at 8 s.
+        let mill = TandemMill::new(&PassSchedule::example()?)?;
+        let critical = mill_critical_speed(&mill)?;
+        let mut settings =
+            RunSettings::reference_ramp(critical.speed, 0.95, 30.0, 24.0, 2500.0, 11);
+        let weld = NoiseBurst {
+            time_s: 8.0,
+            duration_s: 3.0,
+            factor: 3.0,
+        };
+        settings.excitation.noise_bursts.push(weld);
+        let csv = simulate(&mill, &settings)?.to_csv(false);
+        let weld_s = (weld.time_s, weld.time_s + weld.duration_s);
+        let without = report_of(&csv, "weld-no-bit")?;
+        let alarm = without["first_alarm_s"]
+            .as_f64()
+            .expect("the weld alarms without its bit");
+        assert!(alarm > weld_s.0, "{alarm}");
+        assert_eq!(without["held_off_windows"], 0);
+        assert_eq!(without["context_columns"], serde_json::json!([]));
+        let with = report_of(&with_weld_column(&csv, weld_s), "weld-bit")?;
+        assert!(with["first_alarm_s"].is_null(), "{}", with["first_alarm_s"]);
+        assert!(
+            with["held_off_windows"].as_u64() > Some(0),
+            "{}",
+            with["held_off_windows"]
+        );
+        assert_eq!(with["context_columns"], serde_json::json!(["weld"]));
+        let windows = with["windows"].as_array().expect("windows");
+        assert!(windows.iter().all(|w| w["slow_down"] == false));
+        // The hold lasts from the weld to weld_settle_s after it left, no longer.
+        let held: Vec<f64> = windows
+            .iter()
+            .filter(|w| w["weld_hold"] == true)
+            .filter_map(|w| w["t_s"].as_f64())
+            .collect();
+        let settle_s =
+            millgate_config::load_uncommissioned(&example())?.tandem_mills[0].weld_settle_s;
+        assert!(
+            held.first().is_some_and(|&t| t >= weld_s.0)
+                && held.last().is_some_and(|&t| t <= weld_s.1 + settle_s + 0.5),
+            "{held:?}"
+        );
+        assert_eq!(windows[windows.len() - 1]["context"]["weld"], false);
+
+        // A ramp whose weld leaves the mill 1 s before the critical speed: the alarm
+        // still comes between the onset and developed chatter.
+        let mut settings = RunSettings::reference_ramp(critical.speed, 0.9, 6.0, 14.0, 2500.0, 7);
+        let at_critical_s = settings
+            .ramp
+            .time_at(critical.speed, mill.exit_speed(4, 1.0));
+        let at_critical_s = at_critical_s.expect("the ramp passes the critical speed");
+        let weld = NoiseBurst {
+            time_s: at_critical_s - 4.0,
+            duration_s: 3.0,
+            factor: 3.0,
+        };
+        settings.excitation.noise_bursts.push(weld);
+        let record = simulate(&mill, &settings)?;
+        let truth = ground_truth(&mill, &settings.ramp, &record, critical);
+        let (onset, developed) = (
+            truth.onset_s.expect("onset"),
+            truth.developed_s.expect("developed"),
+        );
+        let weld_s = (weld.time_s, weld.time_s + weld.duration_s);
+        let ramp = report_of(
+            &with_weld_column(&record.to_csv(false), weld_s),
+            "weld-ramp",
+        )?;
+        let alarm = ramp["first_alarm_s"].as_f64().expect("an alarm");
+        assert!(
+            alarm > onset && alarm < developed,
+            "alarm {alarm} s, onset {onset} s, developed {developed} s"
+        );
+
+        // An impossible weld value is counted with its line, not used, and the analysis
+        // goes on.
+        let bad = with_weld_column(&csv, weld_s).replacen(",1\n", ",2\n", 1);
+        let report = report_of(&bad, "weld-bad")?;
+        let invalid = &report["invalid_context"];
+        assert_eq!(invalid["rows"], 1);
+        let line = invalid["first_line"].as_u64().expect("a line") as usize;
+        assert!(
+            bad.lines().nth(line - 1).is_some_and(|l| l.ends_with(",2")),
+            "{line}"
+        );
+        assert!(
+            invalid["why"]
+                .as_str()
+                .is_some_and(|w| w.starts_with("weld 2 is not allowed")),
+            "{invalid}"
+        );
+        assert_eq!(
+            report["windows"].as_array().map(Vec::len),
+            Some(windows.len())
+        );
+        Ok(())
     }
 
     #[test]

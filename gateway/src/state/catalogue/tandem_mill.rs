@@ -17,6 +17,18 @@ pub const TANDEM_MILL: &[Figure<TandemMillResults>] = &[
         "Chatter windows evaluated since start",
         |m| Some(Value::Count(m.evaluations)),
     ),
+    F::count(
+        "weld_held_off",
+        unmapped_counter("a count of gating decisions for the crew and the history of the slow-down request; the PLC has the weld bit itself"),
+        "Windows whose alarm and slow-down request the weld hold kept off since start (gain ratio >= 1 but below weld_alarm_factor while a weld was in the mill or for weld_settle_s after)",
+        |m| Some(Value::Count(m.weld_held_off)),
+    ),
+    F::count(
+        "context_invalid",
+        unmapped_counter("a count of the PLC's own bad context values, for the crew; the PLC knows its values"),
+        "Context values from the PLC read with an impossible value since start (weld not 0/1): not used for the gating",
+        |m| Some(Value::Count(m.context_invalid)),
+    ),
     F::real(
         "sigma_n_hz",
         "Hz",

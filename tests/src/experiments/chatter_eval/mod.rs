@@ -406,5 +406,6 @@ pub fn recording_from(name: String, record: &Record, from: usize) -> Recording {
             .map(|a| a[from..].to_vec())
             .collect(),
         speed: None,
+        context: Default::default(),
     }
 }

@@ -119,7 +119,8 @@ pub fn runs(plan: &LoopPlan, mills: &[Mill]) -> Vec<Run> {
     let mut runs = Vec::new();
     let kinds = std::iter::repeat_n(0, plan.accelerated)
         .chain(std::iter::repeat_n(1, plan.stable))
-        .chain(std::iter::repeat_n(2, plan.welds));
+        .chain(std::iter::repeat_n(2, plan.welds))
+        .chain(std::iter::repeat_n(3, plan.weld_ramps));
     for (index, kind) in kinds.enumerate() {
         let mill = index % mills.len();
         let m = &mills[mill];
@@ -156,6 +157,27 @@ pub fn runs(plan: &LoopPlan, mills: &[Mill]) -> Vec<Run> {
                 Scenario::Stable { accel_m_s2: None },
                 plan.settle_s + plan.stable_scored_s,
             ),
+            3 => {
+                let start_m_s = rng.random_range(0.6..0.85) * critical;
+                let setpoint_m_s = rng.random_range(1.15..1.5) * critical;
+                let reach = (setpoint_m_s - start_m_s) / accel;
+                let at_critical_s = plan.settle_s + (critical - start_m_s) / accel;
+                let duration_s = rng.random_range(2.0..5.0);
+                let ends_before_s = rng.random_range(0.0..3.0);
+                (
+                    Scenario::WeldRamp {
+                        start_m_s,
+                        setpoint_m_s,
+                        accel_m_s2: accel,
+                        burst: NoiseBurst {
+                            time_s: (at_critical_s - ends_before_s - duration_s).max(0.0),
+                            duration_s,
+                            factor: rng.random_range(2.0..4.0),
+                        },
+                    },
+                    plan.settle_s + reach + 40.0,
+                )
+            }
             _ => (
                 Scenario::Weld {
                     burst: NoiseBurst {

@@ -29,10 +29,16 @@
 //! *stable*: at the highest allowed speed, half reached by an acceleration from 60% at
 //! 0.2-2 m/s^2 (the end of an acceleration raises the gain for a second or two), scored
 //! after the settling time; *weld*: stable at the highest allowed speed with the force
-//! noise 2-4 times louder for 2-5 s. Every run draws its mill, a noise factor (force
+//! noise 2-4 times louder for 2-5 s; *weld ramp*: an accelerated run whose weld (the
+//! same burst) ends 0-3 s before the speed reaches the critical speed. With
+//! [`LoopPlan::weld_bit`] the monitor's slow-down request is told of each weld by the
+//! PLC's weld bit (set for the burst, as the weld tracking sets it from the weld at the
+//! first stand until it has left the last) and holds the request off by the mill's weld
+//! hold ([`millgate::analysis::chatter::WeldHold`]). Every run draws its mill, a noise factor (force
 //! noise and incoming gauge, log-uniform 0.5-2), an eccentricity factor (0.5-2), a
 //! deceleration (0.5-2 m/s^2, log-uniform) and a seed.
 
+use millgate::analysis::chatter::WeldHold;
 use millgate_config::Config;
 use millgate_sim::tandem::control::{SlowDownEvent, SlowDownPolicy};
 use millgate_sim::tandem::roots::CriticalSpeed;
@@ -48,7 +54,8 @@ mod score;
 pub use mills::{mills, runs};
 pub use run::run_loop;
 pub use score::{
-    open_loop_developed, plot, reduced_times, score, table_row, LoopScore, TABLE_HEADER,
+    open_loop_developed, plot, reduced_times, score, table_row, weld_transients, LoopScore,
+    WeldTransient, TABLE_HEADER,
 };
 
 /// Samples per DAQ block and PLC cycle: 48 ms at 2500 Hz, the example configuration's
@@ -76,6 +83,11 @@ pub struct LoopPlan {
     pub stable_scored_s: f64,
     /// Weld runs per detector.
     pub welds: usize,
+    /// Accelerated runs with a weld ending 0-3 s before the critical speed.
+    pub weld_ramps: usize,
+    /// The weld bit and the mill's weld hold: `None`, the monitor is not told of welds
+    /// (as before the weld bit).
+    pub weld_bit: Option<WeldHold>,
     /// Unscored start of every run, s (the delay roots near the axis need it).
     pub settle_s: f64,
     /// The highest allowed speed, a fraction of the critical speed.
@@ -113,6 +125,8 @@ impl LoopPlan {
             stable: 60,
             stable_scored_s: 60.0,
             welds: 20,
+            weld_ramps: 20,
+            weld_bit: None,
             settle_s: 20.0,
             top: 0.95,
             delay_cycles: 1,
@@ -133,6 +147,7 @@ impl LoopPlan {
             stable: 2,
             stable_scored_s: 30.0,
             welds: 1,
+            weld_ramps: 0,
             settle_s: 12.0,
             threads: 2,
             ..LoopPlan::full()
@@ -225,8 +240,15 @@ impl Mill {
         self.critical.speed * self.unit_m_s
     }
 
-    /// The monitor configuration of `detector` with this mill's thresholds.
-    pub fn config(&self, detector: Detector) -> anyhow::Result<Config> {
+    /// The monitor configuration of `detector` with this mill's thresholds and the
+    /// weld hold `weld` (the configuration's default without).
+    pub fn config(&self, detector: Detector, weld: Option<WeldHold>) -> anyhow::Result<Config> {
+        let hold = weld.map_or(String::new(), |hold| {
+            format!(
+                "weld_settle_s = {}\nweld_alarm_factor = {}\n",
+                hold.settle_s, hold.alarm_factor
+            )
+        });
         let list = |values: &[f64]| {
             let items: Vec<String> = values.iter().map(|v| format!("{v}")).collect();
             format!("[{}]", items.join(", "))
@@ -236,7 +258,7 @@ impl Mill {
                 STANDS,
                 &format!(
                     "k_max = 0.25\ndetector = \"band_gain\"\ngain_thresholds = {}\n\
-                     slow_down_release = {}\n",
+                     slow_down_release = {}\n{hold}",
                     list(&self.gain_thresholds),
                     self.gain_release
                 ),
@@ -281,6 +303,27 @@ pub enum Scenario {
         /// The burst.
         burst: NoiseBurst,
     },
+    /// As `Accelerated`, with a weld (`burst`) shortly before the critical speed.
+    WeldRamp {
+        /// Speed at the start, m/s.
+        start_m_s: f64,
+        /// The operator's setpoint after the settling time, m/s.
+        setpoint_m_s: f64,
+        /// The operator's acceleration, m/s^2.
+        accel_m_s2: f64,
+        /// The weld.
+        burst: NoiseBurst,
+    },
+}
+
+impl Scenario {
+    /// The weld of the run, if any.
+    pub fn weld(&self) -> Option<NoiseBurst> {
+        match *self {
+            Scenario::Weld { burst } | Scenario::WeldRamp { burst, .. } => Some(burst),
+            Scenario::Accelerated { .. } | Scenario::Stable { .. } => None,
+        }
+    }
 }
 
 /// One drawn run.

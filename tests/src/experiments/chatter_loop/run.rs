@@ -31,6 +31,12 @@ pub fn run_loop(
             start_m_s,
             setpoint_m_s,
             accel_m_s2,
+        }
+        | Scenario::WeldRamp {
+            start_m_s,
+            setpoint_m_s,
+            accel_m_s2,
+            ..
         } => (start_m_s, setpoint_m_s, accel_m_s2),
         Scenario::Stable {
             accel_m_s2: Some(accel),
@@ -58,7 +64,9 @@ pub fn run_loop(
     };
     let mut online = OnlineMill::new(&mill.mill, &setup, control, CYCLE_SAMPLES, operator)?;
     let judged = detector.unwrap_or(Detector::BandGain);
-    let mut monitor = ChatterMonitor::new(&mill.config(judged)?, 0)?;
+    let mut monitor = ChatterMonitor::new(&mill.config(judged, plan.weld_bit)?, 0)?;
+    // The PLC's weld bit, when the plan reads it: set for the weld's burst.
+    let weld = run.scenario.weld().filter(|_| plan.weld_bit.is_some());
     let mut slow_down = monitor.slow_down();
     let hop_s = monitor.hop_s();
     let mut requested = VecDeque::from(vec![false; plan.delay_cycles]);
@@ -96,6 +104,11 @@ pub fn run_loop(
             outcome.onset_s = Some(truth.time_s);
         }
         let arrival = t0 + Duration::from_secs_f64(truth.time_s);
+        let cycle_start_s = truth.time_s - online.cycle_s();
+        if weld.is_some_and(|b| cycle_start_s < b.time_s + b.duration_s && truth.time_s > b.time_s)
+        {
+            slow_down.weld();
+        }
         for (stand, values) in record.acceleration.iter().enumerate() {
             let Some(change) = monitor.samples(stand, values, arrival) else {
                 continue;
@@ -154,7 +167,7 @@ fn excitation(run: &Run) -> Excitation {
     excitation.force_noise_density *= run.noise;
     excitation.entry_gauge_rms_m *= run.noise;
     excitation.eccentricity_m = excitation.eccentricity_m.map(|e| e * run.eccentricity);
-    if let Scenario::Weld { burst } = run.scenario {
+    if let Some(burst) = run.scenario.weld() {
         excitation.noise_bursts.push(burst);
     }
     excitation

@@ -24,6 +24,11 @@ pub struct LoopScore {
     pub false_stable: (usize, f64),
     /// Weld runs with a slow-down in their scored time, and weld runs.
     pub false_welds: (usize, usize),
+    /// Ramps with a weld before the critical speed that developed chatter with the
+    /// loop closed, and those ramps.
+    pub weld_ramps: (usize, usize),
+    /// Whether the monitor read the weld bit.
+    pub weld_bit: bool,
 }
 
 /// The time each event of `outcome` spent below its speed at the request, s.
@@ -61,6 +66,8 @@ pub fn score(
         reduced_s: Vec::new(),
         false_stable: (0, 0.0),
         false_welds: (0, 0),
+        weld_ramps: (0, 0),
+        weld_bit: plan.weld_bit.is_some(),
     };
     for (run, outcome) in runs.iter().zip(&outcomes) {
         match run.scenario {
@@ -80,6 +87,10 @@ pub fn score(
             Scenario::Weld { .. } => {
                 score.false_welds.0 += usize::from(outcome.events_from(plan.settle_s) > 0);
                 score.false_welds.1 += 1;
+            }
+            Scenario::WeldRamp { .. } => {
+                score.weld_ramps.0 += usize::from(outcome.developed_s.is_some());
+                score.weld_ramps.1 += 1;
             }
         }
     }
@@ -114,8 +125,9 @@ pub fn table_row(score: &LoopScore, open: (usize, usize)) -> String {
     let per_run = score.events.len() as f64 / (score.accelerated - score.developed).max(1) as f64;
     let max_shed = shed.iter().copied().fold(0.0, f64::max);
     format!(
-        "| {} | {}/{} | {}/{} | {} ({per_run:.1} per run) | {s2:.0} [{s1:.0}, {s3:.0}], max {max_shed:.0} | {r2:.1} [{r1:.1}, {r3:.1}] | {:.1} ({} in {:.2} h) | {}/{} |",
+        "| {}{} | {}/{} | {}/{} | {} ({per_run:.1} per run) | {s2:.0} [{s1:.0}, {s3:.0}], max {max_shed:.0} | {r2:.1} [{r1:.1}, {r3:.1}] | {:.1} ({} in {:.2} h) | {}/{} | {}/{} |",
         score.detector.name(),
+        if score.weld_bit { ", weld bit" } else { "" },
         score.developed,
         score.accelerated,
         open.0,
@@ -126,11 +138,63 @@ pub fn table_row(score: &LoopScore, open: (usize, usize)) -> String {
         score.false_stable.1,
         score.false_welds.0,
         score.false_welds.1,
+        score.weld_ramps.0,
+        score.weld_ramps.1,
     )
 }
 
+/// What a weld does to the band gain's figure with the loop open (the request
+/// ignored): what the weld hold's settle time and factor are chosen from.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WeldTransient {
+    /// Largest gain ratio from the weld's start on, while the weld is in the mill.
+    pub peak_during: f64,
+    /// Largest gain ratio after the weld has left the mill.
+    pub peak_after: f64,
+    /// Time from the weld's end to the last window at or above the alarm level, s
+    /// (`None`: none after the weld).
+    pub last_alarm_after_s: Option<f64>,
+}
+
+/// The [`WeldTransient`] of each weld run of `runs` (stable at the top speed), open
+/// loop with the band gain's figure.
+pub fn weld_transients(
+    plan: &LoopPlan,
+    mills: &[Mill],
+    runs: &[Run],
+) -> anyhow::Result<Vec<WeldTransient>> {
+    let welds: Vec<&Run> = runs
+        .iter()
+        .filter(|r| matches!(r.scenario, Scenario::Weld { .. }))
+        .collect();
+    parallel(plan.threads, &welds, |run| {
+        let outcome = run_loop(plan, &mills[run.mill], run, None, true)?;
+        let burst = run.scenario.weld().expect("a weld run");
+        let end_s = burst.time_s + burst.duration_s;
+        let mut transient = WeldTransient {
+            peak_during: 0.0,
+            peak_after: 0.0,
+            last_alarm_after_s: None,
+        };
+        for row in &outcome.trace {
+            let Some(level) = row.level.filter(|_| row.t_s >= burst.time_s) else {
+                continue;
+            };
+            if row.t_s <= end_s {
+                transient.peak_during = transient.peak_during.max(level);
+            } else {
+                transient.peak_after = transient.peak_after.max(level);
+            }
+            if level >= 1.0 {
+                transient.last_alarm_after_s = Some(row.t_s - end_s);
+            }
+        }
+        Ok(transient)
+    })
+}
+
 /// The table's header.
-pub const TABLE_HEADER: &str = "| detector | developed, closed loop | developed, open loop | slow-downs in runs kept below developed | speed shed per slow-down, m/min: median [IQR] | time below the speed at the request, s: median [IQR] | false slow-downs / h at the top speed | welds with a slow-down |\n|---|---|---|---|---|---|---|---|";
+pub const TABLE_HEADER: &str = "| detector | developed, closed loop | developed, open loop | slow-downs in runs kept below developed | speed shed per slow-down, m/min: median [IQR] | time below the speed at the request, s: median [IQR] | false slow-downs / h at the top speed | welds with a slow-down | ramps with a weld 0-3 s before the critical speed: developed, closed loop |\n|---|---|---|---|---|---|---|---|---|";
 
 /// The SVG of a traced closed-loop run: speed (m/min, the critical speed dashed as a
 /// flat line), the detector's figure over its alarm level, the request, and the

@@ -92,6 +92,8 @@ fn mill_block_golden_words() {
         chatter_alarm: true,
         source_stale: false,
         slow_down_request: true,
+        weld_held_off: 4,
+        context_invalid: 1,
     };
     let words = map.encode(&results);
     assert_eq!(words[base], 0b1011, "warning, alarm, slow-down");

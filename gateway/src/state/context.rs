@@ -1,0 +1,216 @@
+//! The process context of a mill at one time, as the PLC reports it (weld tracking,
+//! speed, coil, product, thickness, pass, state): [`RawContext`] holds the values as
+//! read (a CSV's columns offline, the context tags' registers in the service), and
+//! [`RawContext::check`] turns them into a [`ProcessContext`] or says which value is
+//! impossible. An invalid context is not used (no gating on it) and is counted; it
+//! never stops the analysis.
+
+/// What the mill is doing, the PLC's state code (a `state` context value).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MillState {
+    /// 0: no strip in the mill.
+    Idle,
+    /// 1: a new strip is threaded through the stands.
+    Threading,
+    /// 2: rolling.
+    Rolling,
+    /// 3: maintenance (roll change, inspection).
+    Maintenance,
+}
+
+impl MillState {
+    /// Every state, in code order (the code is the index).
+    pub const ALL: [MillState; 4] = [
+        MillState::Idle,
+        MillState::Threading,
+        MillState::Rolling,
+        MillState::Maintenance,
+    ];
+
+    /// The state of PLC code `code` (0 idle, 1 threading, 2 rolling, 3 maintenance).
+    pub fn from_code(code: u32) -> Option<MillState> {
+        Self::ALL.get(usize::try_from(code).ok()?).copied()
+    }
+}
+
+/// The context values as read, each `None` when not configured (or not recorded).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct RawContext {
+    /// The weld-tracking bit: 1 while a weld is inside the mill (from the first stand
+    /// until it has left the last), else 0.
+    pub weld: Option<f64>,
+    /// Mill speed, m/min, >= 0.
+    pub speed_mpm: Option<f64>,
+    /// Coil or bar id, a whole number 0..=u32::MAX.
+    pub coil: Option<f64>,
+    /// Product (steel grade) code, a whole number 0..=u32::MAX.
+    pub product: Option<f64>,
+    /// Strip thickness, mm, > 0.
+    pub thickness_mm: Option<f64>,
+    /// Pass number, a whole number 0..=u32::MAX.
+    pub pass: Option<f64>,
+    /// The PLC's state code ([`MillState::from_code`]).
+    pub state: Option<f64>,
+}
+
+/// A checked context ([`RawContext::check`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct ProcessContext {
+    /// A weld is inside the mill.
+    pub weld: Option<bool>,
+    /// Mill speed, m/min.
+    pub speed_mpm: Option<f64>,
+    /// Coil or bar id.
+    pub coil: Option<u32>,
+    /// Product code.
+    pub product: Option<u32>,
+    /// Strip thickness, mm.
+    pub thickness_mm: Option<f64>,
+    /// Pass number.
+    pub pass: Option<u32>,
+    /// What the mill is doing.
+    pub state: Option<MillState>,
+}
+
+/// An impossible context value: the context is invalid (not used, counted).
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum ContextError {
+    /// The weld bit is neither 0 nor 1.
+    #[error("weld {0} is not allowed (must be 0 or 1, the PLC's weld-tracking bit)")]
+    Weld(f64),
+    /// The speed is negative or not a number.
+    #[error("speed_mpm {0} is not allowed (must be >= 0 m/min)")]
+    Speed(f64),
+    /// The thickness is not positive or not a number.
+    #[error("thickness_mm {0} is not allowed (must be > 0 mm)")]
+    Thickness(f64),
+    /// A code is not a whole number in 0..=u32::MAX.
+    #[error("{key} {value} is not allowed (must be a whole number 0..=4294967295)")]
+    Code {
+        /// `coil`, `product` or `pass`.
+        key: &'static str,
+        /// The value read.
+        value: f64,
+    },
+    /// The product code is not one of the configured products.
+    #[error("product {0} is not one of the configured products")]
+    UnknownProduct(u32),
+    /// The state code is not a known state.
+    #[error("state {0} is not allowed (must be 0 idle, 1 threading, 2 rolling or 3 maintenance)")]
+    State(f64),
+}
+
+/// `value` as a whole number 0..=u32::MAX, or why not.
+fn code(key: &'static str, value: f64) -> Result<u32, ContextError> {
+    if value.fract() == 0.0 && (0.0..=f64::from(u32::MAX)).contains(&value) {
+        Ok(value as u32)
+    } else {
+        Err(ContextError::Code { key, value })
+    }
+}
+
+impl RawContext {
+    /// The checked context; `products` the known product codes (empty: any code).
+    /// The first impossible value makes the whole context invalid.
+    pub fn check(&self, products: &[u32]) -> Result<ProcessContext, ContextError> {
+        let weld = self
+            .weld
+            .map(|w| match w {
+                0.0 => Ok(false),
+                1.0 => Ok(true),
+                other => Err(ContextError::Weld(other)),
+            })
+            .transpose()?;
+        let speed_mpm = self
+            .speed_mpm
+            .map(|v| {
+                if v >= 0.0 {
+                    Ok(v)
+                } else {
+                    Err(ContextError::Speed(v))
+                }
+            })
+            .transpose()?;
+        let thickness_mm = self
+            .thickness_mm
+            .map(|v| {
+                if v > 0.0 && v.is_finite() {
+                    Ok(v)
+                } else {
+                    Err(ContextError::Thickness(v))
+                }
+            })
+            .transpose()?;
+        let coil = self.coil.map(|v| code("coil", v)).transpose()?;
+        let pass = self.pass.map(|v| code("pass", v)).transpose()?;
+        let product = self.product.map(|v| code("product", v)).transpose()?;
+        if let Some(p) = product.filter(|p| !products.is_empty() && !products.contains(p)) {
+            return Err(ContextError::UnknownProduct(p));
+        }
+        let state = self
+            .state
+            .map(|v| {
+                code("state", v)
+                    .ok()
+                    .and_then(MillState::from_code)
+                    .ok_or(ContextError::State(v))
+            })
+            .transpose()?;
+        Ok(ProcessContext {
+            weld,
+            speed_mpm,
+            coil,
+            product,
+            thickness_mm,
+            pass,
+            state,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn possible_values_pass_and_each_impossible_one_invalidates_the_context() {
+        let raw = RawContext {
+            weld: Some(1.0),
+            speed_mpm: Some(1200.0),
+            coil: Some(4_000_000_123.0),
+            product: Some(205.0),
+            thickness_mm: Some(0.25),
+            pass: Some(3.0),
+            state: Some(2.0),
+        };
+        let checked = raw.check(&[101, 205]).unwrap();
+        assert_eq!(checked.weld, Some(true));
+        assert_eq!(checked.coil, Some(4_000_000_123));
+        assert_eq!(checked.state, Some(MillState::Rolling));
+        assert_eq!(
+            RawContext::default().check(&[]),
+            Ok(ProcessContext::default())
+        );
+        let bad = |change: fn(&mut RawContext)| {
+            let mut r = raw;
+            change(&mut r);
+            r.check(&[101, 205]).unwrap_err().to_string()
+        };
+        assert!(bad(|r| r.weld = Some(0.5)).starts_with("weld 0.5 is not allowed"));
+        assert!(bad(|r| r.speed_mpm = Some(-3.0)).starts_with("speed_mpm -3 is not"));
+        assert!(bad(|r| r.speed_mpm = Some(f64::NAN)).starts_with("speed_mpm NaN"));
+        assert!(bad(|r| r.thickness_mm = Some(0.0)).starts_with("thickness_mm 0 is"));
+        assert!(bad(|r| r.coil = Some(-1.0)).starts_with("coil -1 is not allowed"));
+        assert!(bad(|r| r.pass = Some(2.5)).starts_with("pass 2.5 is not allowed"));
+        assert_eq!(
+            bad(|r| r.product = Some(7.0)),
+            "product 7 is not one of the configured products"
+        );
+        assert!(bad(|r| r.state = Some(4.0)).starts_with("state 4 is not allowed"));
+        // Without a product list any code is a product.
+        let mut any = raw;
+        any.product = Some(7.0);
+        assert_eq!(any.check(&[]).unwrap().product, Some(7));
+    }
+}
