@@ -32,6 +32,9 @@ pub struct RestoredDriveline {
     /// first, with their times (ms since the epoch), for a trend that cannot be
     /// continued from its saved form: at most [`MAX_GAP_BITES`].
     pub gap_bites: Vec<(i64, PooledBite)>,
+    /// The fatigue ledger after the last bite or reset, in its saved form (`None`: no
+    /// ledger, or a file from before version 12).
+    pub fatigue_ledger: Option<String>,
 }
 
 /// The most bites a start folds into a wear trend again when it has no saved form.
@@ -84,6 +87,13 @@ fn gap_trend(connection: &Connection, driveline: &str) -> rusqlite::Result<Optio
         .query_row(params![driveline], |row| row.get(0))
 }
 
+/// The saved fatigue ledger of `driveline` (`None` when there is none).
+fn fatigue_ledger(connection: &Connection, driveline: &str) -> rusqlite::Result<Option<String>> {
+    connection
+        .prepare_cached("SELECT fatigue_ledger FROM driveline_state WHERE driveline = ?1")?
+        .query_row(params![driveline], |row| row.get(0))
+}
+
 /// Everything a start restores.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Restored {
@@ -101,6 +111,7 @@ pub(crate) fn read(connection: &Connection) -> rusqlite::Result<Restored> {
             Ok(RestoredDriveline {
                 gap_trend: gap_trend(connection, &row.name)?,
                 gap_bites: gap_bites(connection, &row.name)?,
+                fatigue_ledger: fatigue_ledger(connection, &row.name)?,
                 name: row.name,
                 updated_at: row.updated_at,
                 results: DrivelineResults {
