@@ -349,6 +349,31 @@ impl FatigueLedger {
     }
 }
 
+/// One component of a saved ledger, as `millgate fatigue --db` prints it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub(crate) struct SavedLife {
+    /// Its name.
+    pub name: String,
+    /// Life used since its installation.
+    pub life_used: f64,
+    /// Its installation (last reset) or the ledger's start, ms since the epoch.
+    pub installed_unix_ms: i64,
+}
+
+/// The components of a ledger saved as `text` ([`FatigueLedger::saved`]).
+pub(crate) fn saved_lives(text: &str) -> Result<Vec<SavedLife>, serde_json::Error> {
+    let saved: Saved = serde_json::from_str(text)?;
+    Ok(saved
+        .components
+        .into_iter()
+        .map(|c| SavedLife {
+            name: c.name,
+            life_used: c.life_used,
+            installed_unix_ms: c.installed_unix_ms,
+        })
+        .collect())
+}
+
 /// Add `cycle`'s damage on `day` to each component.
 fn add_cycle(components: &mut [Account], cycle: &Cycle, day: i64) {
     for account in components {
