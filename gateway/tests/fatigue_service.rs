@@ -205,9 +205,9 @@ async fn the_service_s_ledger_counts_the_stream_resets_and_survives_a_restart() 
 
     // The CLI (checked against Python's rainflow) counts the record with its residue.
     let csv = folder.path().join("record.csv");
-    let mut rows = String::from("torque_knm\n");
-    for v in &samples {
-        rows += &format!("{v}\n");
+    let mut rows = String::from("t,torque_knm\n");
+    for (i, v) in samples.iter().enumerate() {
+        rows += &format!("{},{v}\n", i as f64 / schedule.sample_rate_hz);
     }
     std::fs::write(&csv, rows).unwrap();
     let (m, n, s) = SPINDLE;
@@ -250,7 +250,8 @@ async fn the_service_s_ledger_counts_the_stream_resets_and_survives_a_restart() 
                 |row| Ok((row.get(0)?, row.get(1)?, row.get(2)?)),
             )
             .unwrap();
-        assert_eq!((component.as_str(), origin.as_str()), ("coupling", "hmi"));
+        // The HMI client is on the PLC's address (loopback): recorded as the PLC.
+        assert_eq!((component.as_str(), origin.as_str()), ("coupling", "plc"));
         assert!(used > 0.0);
     }
     let again = millgate::Service::new(config).unwrap().spawn().await.unwrap();
