@@ -69,7 +69,10 @@ fn config_text(folder: &std::path::Path, web: u16, metrics: u16) -> String {
                  wear = {{ gap_step_mrad"
             ),
         );
-    assert!(text.contains("fatigue = {") && !text.contains("model ="), "demo.toml changed");
+    assert!(
+        text.contains("fatigue = {") && !text.contains("model ="),
+        "demo.toml changed"
+    );
     text + &format!(
         "\n[outputs.web]\nbind = \"127.0.0.1:{web}\"\nallow_commands = true\n\
          \n[outputs.metrics]\nbind = \"127.0.0.1:{metrics}\"\n\
@@ -85,7 +88,10 @@ async fn driveline(web: u16) -> serde_json::Value {
 }
 
 /// The components' life used on the web API, once `ready` holds of them.
-async fn published_lives(web: u16, ready: impl Fn(&[f64]) -> bool) -> (Vec<f64>, serde_json::Value) {
+async fn published_lives(
+    web: u16,
+    ready: impl Fn(&[f64]) -> bool,
+) -> (Vec<f64>, serde_json::Value) {
     let start = std::time::Instant::now();
     loop {
         let view = driveline(web).await;
@@ -158,10 +164,16 @@ async fn the_service_s_ledger_counts_the_stream_resets_and_survives_a_restart() 
         .unwrap();
     let reset = at("command.reset_fatigue");
     assert!(
-        hmi.write_single_register(reset, 0x0301).await.unwrap().is_err(),
+        hmi.write_single_register(reset, 0x0301)
+            .await
+            .unwrap()
+            .is_err(),
         "no third component"
     );
-    hmi.write_single_register(reset, 0x0201).await.unwrap().unwrap();
+    hmi.write_single_register(reset, 0x0201)
+        .await
+        .unwrap()
+        .unwrap();
     let (lives, view) = published_lives(web, |l| l[1] == 0.0 && l[0] > 0.0).await;
     // Tolerance: the service begins counting at its first block, a few blocks of
     // idle noise (below the gate) into the record; the closed cycles do not change.
@@ -254,7 +266,11 @@ async fn the_service_s_ledger_counts_the_stream_resets_and_survives_a_restart() 
         assert_eq!((component.as_str(), origin.as_str()), ("coupling", "plc"));
         assert!(used > 0.0);
     }
-    let again = millgate::Service::new(config).unwrap().spawn().await.unwrap();
+    let again = millgate::Service::new(config)
+        .unwrap()
+        .spawn()
+        .await
+        .unwrap();
     web_ready(web).await;
     let (restored, _) = published_lives(web, |l: &[f64]| l[0] > 0.0).await;
     assert_eq!(restored, lives, "restored as saved");
@@ -275,11 +291,14 @@ async fn the_service_s_ledger_counts_the_stream_resets_and_survives_a_restart() 
         "--format",
         "json",
     ]);
-    let json: serde_json::Value = serde_json::from_slice(&printed.stdout)
-        .unwrap_or_else(|_| panic!("{printed:?}"));
+    let json: serde_json::Value =
+        serde_json::from_slice(&printed.stdout).unwrap_or_else(|_| panic!("{printed:?}"));
     let ledger = &json["ledger"];
     assert_eq!(ledger["components"][0]["name"], "spindle");
-    assert_eq!(ledger["components"][0]["life_used"].as_f64(), Some(lives[0]));
+    assert_eq!(
+        ledger["components"][0]["life_used"].as_f64(),
+        Some(lives[0])
+    );
     assert_eq!(ledger["resets"][0]["component"], "coupling");
     tokio::time::timeout(Duration::from_secs(10), again.stop())
         .await

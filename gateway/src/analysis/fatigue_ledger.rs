@@ -32,7 +32,9 @@ use std::collections::VecDeque;
 
 use millgate_config::FatigueSettings;
 use millgate_dsp::miner::SnCurve;
-use millgate_dsp::rainflow::{Cycle, Rainflow, RainflowSettings, RainflowSettingsError, RainflowState};
+use millgate_dsp::rainflow::{
+    Cycle, Rainflow, RainflowSettings, RainflowSettingsError, RainflowState,
+};
 use serde::{Deserialize, Serialize};
 
 use super::fatigue::STACK;
@@ -327,7 +329,10 @@ impl FatigueLedger {
             .iter()
             .find(|c| !valid(c.life_used) || c.days.iter().any(|(_, d)| !valid(*d)))
         {
-            return Err(format!("component \"{}\": a life or damage that is not finite and >= 0", bad.name));
+            return Err(format!(
+                "component \"{}\": a life or damage that is not finite and >= 0",
+                bad.name
+            ));
         }
         let state = self
             .counter
@@ -388,7 +393,13 @@ fn worst(components: &[ComponentLife]) -> FatigueFigures {
     components
         .iter()
         .map(|c| c.figures)
-        .reduce(|worst, c| if c.life_used > worst.life_used { c } else { worst })
+        .reduce(|worst, c| {
+            if c.life_used > worst.life_used {
+                c
+            } else {
+                worst
+            }
+        })
         .unwrap_or(FatigueFigures {
             component: 0,
             life_used: 0.0,
@@ -544,7 +555,10 @@ mod tests {
         // Beyond the horizon: a horizon of a moment.
         let mut short = FatigueLedger::new(&settings(1.0), 1e-9, 0).unwrap();
         short.samples(&bars(2), DAY / 2);
-        assert_eq!(short.figures(2 * DAY).worst.forecast, ForecastState::BeyondHorizon);
+        assert_eq!(
+            short.figures(2 * DAY).worst.forecast,
+            ForecastState::BeyondHorizon
+        );
     }
 
     #[test]

@@ -268,7 +268,10 @@ impl Analysis {
                 origin,
             } => {
                 let Some(analyzer) = self.drivelines.get_mut(driveline) else {
-                    tracing::warn!(driveline, "fatigue reset of a driveline that does not exist");
+                    tracing::warn!(
+                        driveline,
+                        "fatigue reset of a driveline that does not exist"
+                    );
                     return;
                 };
                 match analyzer.reset_fatigue(component) {
@@ -282,7 +285,9 @@ impl Analysis {
                             Some((component, name, life_used, origin)),
                         );
                     }
-                    None => tracing::warn!(driveline = %self.board.driveline_names()[driveline], component, by = origin.name(), "fatigue reset refused: the driveline has no such fatigue component"),
+                    None => {
+                        tracing::warn!(driveline = %self.board.driveline_names()[driveline], component, by = origin.name(), "fatigue reset refused: the driveline has no such fatigue component")
+                    }
                 }
             }
             Command::CaptureTorque {

@@ -245,7 +245,10 @@ fn ledger_text(ledger: Option<&serde_json::Value>) -> anyhow::Result<String> {
     let Some(ledger) = ledger else {
         return Ok(out);
     };
-    writeln!(out, "\nthe service's fatigue ledger (the whole torque stream):")?;
+    writeln!(
+        out,
+        "\nthe service's fatigue ledger (the whole torque stream):"
+    )?;
     for c in ledger["components"].as_array().into_iter().flatten() {
         writeln!(
             out,

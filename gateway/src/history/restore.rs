@@ -228,14 +228,17 @@ pub(crate) fn fatigue_history(
                  AND b.time >= strftime('%Y-%m-%d', (SELECT time FROM last), ?2)
              GROUP BY day, f.component_index ORDER BY day, f.component_index",
         )?
-        .query_map(params![driveline, format!("-{} days", days.saturating_sub(1))], |row| {
-            Ok(FatigueDay {
-                day: row.get(0)?,
-                component: row.get(1)?,
-                damage: row.get::<_, Option<f64>>(2)?.unwrap_or(0.0),
-                bites: u64::try_from(row.get::<_, i64>(3)?).unwrap_or(0),
-            })
-        })?
+        .query_map(
+            params![driveline, format!("-{} days", days.saturating_sub(1))],
+            |row| {
+                Ok(FatigueDay {
+                    day: row.get(0)?,
+                    component: row.get(1)?,
+                    damage: row.get::<_, Option<f64>>(2)?.unwrap_or(0.0),
+                    bites: u64::try_from(row.get::<_, i64>(3)?).unwrap_or(0),
+                })
+            },
+        )?
         .collect::<rusqlite::Result<Vec<_>>>()?;
     Ok(FatigueHistory { resets, days })
 }

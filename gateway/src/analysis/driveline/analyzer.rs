@@ -83,7 +83,11 @@ impl DrivelineAnalyzer {
             .fatigue
             .as_ref()
             .map(|settings| {
-                FatigueLedger::new(settings, driveline.wear.horizon_days, UtcTime::now().unix_ms())
+                FatigueLedger::new(
+                    settings,
+                    driveline.wear.horizon_days,
+                    UtcTime::now().unix_ms(),
+                )
             })
             .transpose()
             .map_err(|source| AnalysisError::FatigueGate { index, source })?;

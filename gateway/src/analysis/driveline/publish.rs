@@ -6,10 +6,10 @@ use millgate_dsp::transient::TransientQuality;
 
 use super::analyzer::DrivelineAnalyzer;
 use super::report::BiteReport;
+use crate::analysis::fatigue_ledger::LedgerBite;
 use crate::analysis::wear;
 use crate::state::board::Board;
 use crate::state::captures::{CapturedBite, KeepClass};
-use crate::analysis::fatigue_ledger::LedgerBite;
 use crate::state::commands::CommandOrigin;
 use crate::state::events::{
     AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, FatigueResetRecord, HistoryEvent, PooledBite,

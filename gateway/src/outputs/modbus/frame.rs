@@ -543,7 +543,11 @@ mod tests {
             }))
         );
         for refused in [0x0101, 0x0402, 0x0002, 0x0103, 0x0100] {
-            assert_eq!(reset(refused), Err(Exception::IllegalDataValue), "{refused:#06x}");
+            assert_eq!(
+                reset(refused),
+                Err(Exception::IllegalDataValue),
+                "{refused:#06x}"
+            );
         }
     }
 

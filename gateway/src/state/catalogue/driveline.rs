@@ -8,9 +8,7 @@ use super::declare::{
 };
 use super::{AlarmKind, DrivelineResults, Figure};
 use super::{Columns, FigureType, Stale, Value};
-use crate::state::results::{
-    FatigueFigures, ForecastState, GapForecast, GapGrowth, GapResults,
-};
+use crate::state::results::{FatigueFigures, ForecastState, GapForecast, GapGrowth, GapResults};
 
 /// The table's figure type.
 type F = Figure<DrivelineResults>;

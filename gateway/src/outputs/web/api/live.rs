@@ -27,8 +27,7 @@ use crate::history::HistoryError;
 use crate::outputs::web::shared::{DrivelineInfo, TrendCache, WebState};
 use crate::state::catalogue::{self, Figure, Subject, Value};
 use crate::state::results::{
-    ComponentLife,
-    DrivelineResults, GapResults, Results, RodMillResults, TandemMillResults,
+    ComponentLife, DrivelineResults, GapResults, Results, RodMillResults, TandemMillResults,
 };
 use crate::state::time::UtcTime;
 
