@@ -80,15 +80,7 @@ fn main() -> anyhow::Result<()> {
     let mut config = demo.config;
     config.drivelines[0].model = None;
     let torque = config.channels[config.drivelines[0].torque].clone();
-    let samples: Vec<f64> = demo
-        .schedule
-        .torque_knm
-        .iter()
-        .map(|&v| {
-            let raw = millgate_config::layout::to_raw_sample(v, torque.scale, torque.offset);
-            f64::from(raw) * torque.scale + torque.offset
-        })
-        .collect();
+    let samples = millgate_tests::kit::as_daq_sends(&demo.schedule, &torque);
     let rate = torque.sample_rate_hz;
     println!(
         "{} samples at {rate} Hz through Analysis::handle, median of {ROUNDS} rounds",

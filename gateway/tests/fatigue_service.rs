@@ -33,8 +33,6 @@ const TIMING: BarTiming = BarTiming {
     idle_s: 0.6,
     rolling_s: 1.2,
 };
-/// The demo channel's scale, kN*m per count (config/examples/demo.toml).
-const SCALE: f64 = 0.01;
 /// The gate: 4 noise RMS.
 const GATE_KNM: f64 = 2.0;
 /// The spindle's S-N curve (the measured shaft: share 1).
@@ -144,11 +142,7 @@ async fn the_service_s_ledger_counts_the_stream_resets_and_survives_a_restart() 
         .await;
 
     // The same count offline: the samples as the DAQ sent them (i16 counts).
-    let samples: Vec<f64> = schedule
-        .torque_knm
-        .iter()
-        .map(|v| (v / SCALE).round().clamp(-32768.0, 32767.0) * SCALE)
-        .collect();
+    let samples = common::as_daq_sends(&schedule, &config.channels[config.drivelines[0].torque]);
     let counter = Rainflow::<256>::new(RainflowSettings { gate_knm: GATE_KNM }).unwrap();
     let spindle = curve(SPINDLE);
     let (mut closed, mut residue) = (0.0, 0.0);

@@ -226,9 +226,6 @@ impl FatigueLedger {
         let components = &mut self.components;
         self.counter
             .residue(&self.state, |cycle| add_cycle(components, &cycle, day));
-        if self.state.non_finite() > self.non_finite_seen {
-            self.untrusted_since_bite = true;
-        }
         self.state = self.counter.state();
         self.non_finite_seen = 0;
         self.untrusted_since_bite = true;

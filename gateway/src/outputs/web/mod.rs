@@ -167,7 +167,7 @@ impl WebServer {
         shutdown: Shutdown,
     ) -> std::io::Result<()> {
         let limits = Limits {
-            post_paths: &["/api/captures"],
+            post_paths: &["/api/captures", "/api/drivelines/*/fatigue/reset"],
             max_connections: self.settings.max_connections,
             header_timeout: self.settings.header_timeout,
         };
