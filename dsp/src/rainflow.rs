@@ -139,7 +139,44 @@ impl<const STACK: usize> RainflowState<STACK> {
     pub fn residue_len(&self) -> usize {
         self.stack.len()
     }
+
+    /// The state as plain numbers, to save and [`Rainflow::resume`] later: the
+    /// reversals on the stack (oldest first, the start point at the bottom), and the
+    /// running extreme with whether the torque is rising towards it (`None` before the
+    /// torque has moved beyond the gate from the start point). The counters are not
+    /// saved.
+    pub fn saved(&self) -> (&[f64], Option<(f64, bool)>) {
+        let pending = match self.heading {
+            Heading::Unknown => None,
+            Heading::Up => Some((self.pending_knm, true)),
+            Heading::Down => Some((self.pending_knm, false)),
+        };
+        (&self.stack, pending)
+    }
 }
+
+/// Why [`Rainflow::resume`] refused a saved state.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ResumeError {
+    /// More reversals than the stack holds.
+    Capacity,
+    /// A reversal or the running extreme is not finite.
+    NotFinite,
+    /// A running extreme without a start point on the stack.
+    NoStart,
+}
+
+impl core::fmt::Display for ResumeError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            ResumeError::Capacity => "more reversals than the residue stack holds",
+            ResumeError::NotFinite => "a reversal or the running extreme is not finite",
+            ResumeError::NoStart => "a running extreme without a start point",
+        })
+    }
+}
+
+impl core::error::Error for ResumeError {}
 
 impl<const STACK: usize> Rainflow<STACK> {
     /// Validates `settings` and the capacity `STACK`.
@@ -167,6 +204,29 @@ impl<const STACK: usize> Rainflow<STACK> {
             overflows: 0,
             non_finite: 0,
         }
+    }
+
+    /// A state that continues one [`RainflowState::saved`] gave: the same reversals and
+    /// running extreme (counters at 0).
+    pub fn resume(
+        &self,
+        reversals: &[f64],
+        pending: Option<(f64, bool)>,
+    ) -> Result<RainflowState<STACK>, ResumeError> {
+        let mut state = self.state();
+        if reversals.iter().any(|r| !r.is_finite()) || pending.is_some_and(|(p, _)| !p.is_finite())
+        {
+            return Err(ResumeError::NotFinite);
+        }
+        state.stack = Vec::from_slice(reversals).map_err(|_| ResumeError::Capacity)?;
+        if let Some((pending_knm, rising)) = pending {
+            if reversals.is_empty() {
+                return Err(ResumeError::NoStart);
+            }
+            state.pending_knm = pending_knm;
+            state.heading = if rising { Heading::Up } else { Heading::Down };
+        }
+        Ok(state)
     }
 
     /// Processes one torque sample (kN*m), calling `on_cycle` for each cycle it closes
@@ -473,6 +533,43 @@ mod tests {
         );
         assert_eq!(state.non_finite(), 2);
         assert_eq!(cycles, 1, "1 .. 4 closes");
+    }
+
+    #[test]
+    fn a_resumed_state_counts_on_as_if_never_stopped() {
+        // Stopped and resumed at every point of random walks, with and without a gate:
+        // the same cycles, in the same order, as one run through.
+        for (seed, gate) in [(3, 0.0), (11, 0.0), (5, 1.5)] {
+            let series = walk(seed, 400);
+            let counter = Rainflow::<64>::new(RainflowSettings { gate_knm: gate }).unwrap();
+            let mut whole = StdVec::new();
+            let mut state = counter.state();
+            counter.block(&mut state, &series, |c| whole.push(c));
+            counter.residue(&state, |c| whole.push(c));
+            for stop in [0, 1, 2, 57, 200, 399] {
+                let mut cycles = StdVec::new();
+                let mut first = counter.state();
+                counter.block(&mut first, &series[..stop], |c| cycles.push(c));
+                let (reversals, pending) = first.saved();
+                let mut resumed = counter.resume(reversals, pending).unwrap();
+                counter.block(&mut resumed, &series[stop..], |c| cycles.push(c));
+                counter.residue(&resumed, |c| cycles.push(c));
+                assert_eq!(cycles, whole, "seed {seed}, stop {stop}");
+            }
+        }
+        let counter = Rainflow::<4>::new(RainflowSettings { gate_knm: 0.0 }).unwrap();
+        assert_eq!(
+            counter.resume(&[0.0; 5], None).map(|_| ()),
+            Err(ResumeError::Capacity)
+        );
+        assert_eq!(
+            counter.resume(&[0.0, f64::NAN], None).map(|_| ()),
+            Err(ResumeError::NotFinite)
+        );
+        assert_eq!(
+            counter.resume(&[], Some((1.0, true))).map(|_| ()),
+            Err(ResumeError::NoStart)
+        );
     }
 
     #[test]

@@ -64,15 +64,7 @@ fn demo_bites() -> anyhow::Result<Vec<[HistoryEvent; 2]>> {
     let board = Arc::new(Board::new(&config, vec![health]));
     let (bites, mut reports) = tokio::sync::broadcast::channel(4096);
     let mut analysis = Analysis::new(&config, Arc::clone(&board), bites)?;
-    let counts: Vec<f64> = demo
-        .schedule
-        .torque_knm
-        .iter()
-        .map(|&v| {
-            let raw = millgate_config::layout::to_raw_sample(v, torque.scale, torque.offset);
-            f64::from(raw) * torque.scale + torque.offset
-        })
-        .collect();
+    let counts = millgate_tests::kit::as_daq_sends(&demo.schedule, &torque);
     for block in counts.chunks(100) {
         analysis.handle(Acquired::Samples {
             channel: 0,

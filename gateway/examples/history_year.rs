@@ -327,6 +327,7 @@ fn bite(driveline: &mut Driveline, time_ms: i64, random: &mut Random, out: &mut 
         shift_over_linear_s: Some(0.0004 * true_gap),
         gap_state: gap.map(|(_, state)| state),
         gap_trend: gap.is_some().then(|| driveline.gap_trend.saved()),
+        fatigue_ledger: None,
         pooled: (!degraded).then_some(PooledBite {
             static_torque_knm,
             taf,

@@ -82,6 +82,7 @@ fn bite(n: u32, time: UtcTime, taf: f64, trend: f64, alarm: bool) -> HistoryEven
         shift_over_linear_s: None,
         gap_state: None,
         gap_trend: None,
+        fatigue_ledger: None,
         pooled: pooled(n, taf),
         state,
     }))

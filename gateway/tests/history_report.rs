@@ -207,6 +207,7 @@ fn bite(driveline: &str, n: u32, time_ms: i64, last: bool) -> HistoryEvent {
         shift_over_linear_s: None,
         gap_state: Some(WearState::Ok),
         gap_trend: (last && driveline == "F1").then(|| saved_trend(time_ms)),
+        fatigue_ledger: None,
         pooled: None,
         state,
     }))

@@ -109,6 +109,7 @@ fn bite(n: u32, time: UtcTime) -> HistoryEvent {
         shift_over_linear_s: None,
         gap_state: (!pool_filling).then_some(WearState::Ok),
         gap_trend: None,
+        fatigue_ledger: None,
         pooled: None,
         state,
     }))

@@ -295,6 +295,81 @@ async fn gap_plot_has_the_forecast(client: &Client, port: u16, plc: &Plc<'_>) {
 /// capture API gives them, the model's response as the response API gives it, on the
 /// capture's time grid; the bite's row links its capture's downloads, and its "plot"
 /// button on another bite's row plots that bite's capture.
+/// The fatigue panel lists the web API's components, plots the stored bites' life used
+/// and damage per bite over TAF, and its reset button resets the component (the API
+/// then gives it a later installation).
+async fn fatigue_panel_is_the_ledger_and_resets(client: &Client, port: u16) {
+    let long = Duration::from_secs(10);
+    let panel = until_js(
+        client,
+        "const s = document.getElementById('fatigue'); \
+         const rows = document.querySelectorAll('#fatigue-components tbody tr'); \
+         const p = window.millgatePlots || {}; \
+         return s && !s.classList.contains('hidden') && rows.length === 2 && p.fatigueLife \
+           ? [Array.from(rows).map((r) => r.cells[0].textContent), \
+              p.fatigueLife.data[1].filter((v) => v !== null).length, \
+              p.fatigueDamage.data[0].length, \
+              document.querySelectorAll('#fatigue-components button.fatigue-reset').length] : null;",
+        long,
+        |v| !v.is_null(),
+    )
+    .await;
+    assert_eq!(
+        panel[0],
+        serde_json::json!(["spindle", "coupling"]),
+        "{panel}"
+    );
+    let bites = common::http(port, "GET", "/api/drivelines/F1/bites?limit=500")
+        .await
+        .json();
+    let with_life = bites
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|b| b["fatigue_life_used"].is_number())
+        .count();
+    assert!(
+        panel[1].as_u64() >= Some(2) && panel[1].as_u64() <= Some(with_life as u64 + 1),
+        "{panel} vs {with_life} stored bites with a life"
+    );
+    assert!(panel[2].as_u64() >= Some(1), "{panel}");
+    assert_eq!(panel[3].as_u64(), Some(2), "a reset button per component");
+    // The reset button (confirmed) resets the coupling.
+    let installed = || async {
+        common::http(port, "GET", "/api/drivelines/F1").await.json()["fatigue_components"][1]
+            ["installed_unix_ms"]
+            .as_i64()
+    };
+    let before = installed().await;
+    assert!(before.is_some());
+    client
+        .execute(
+            "window.confirm = () => true; \
+             document.querySelector('button.fatigue-reset[data-component=\"coupling\"]').click(); \
+             return true;",
+            vec![],
+        )
+        .await
+        .unwrap();
+    let start = std::time::Instant::now();
+    loop {
+        let now = installed().await;
+        if now > before {
+            break;
+        }
+        assert!(start.elapsed() < long, "not reset: installed {now:?}");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let said = until_js(
+        client,
+        "return document.getElementById('fatigue-said').textContent;",
+        long,
+        |v| v.as_str().is_some_and(|t| !t.is_empty()),
+    )
+    .await;
+    assert!(said.as_str().unwrap().contains("coupling"), "{said}");
+}
+
 async fn trace_is_the_captures_samples_beside_the_model(client: &Client, port: u16) {
     let long = Duration::from_secs(20);
     let trace = until_js(
@@ -687,6 +762,17 @@ async fn the_pages_list_the_drivelines_plot_the_gap_and_show_a_new_bite_live() {
     // A tandem mill (its DAQ absent) with a chatter episode already in the history.
     write_chatter_capture(&setup.history, "TCM").expect("write the episode");
     setup.append_config(&(modbus_source("tcm") + &stands("tcm", "TCM").toml()));
+    // A fatigue ledger of two components on the driveline: the page's fatigue panel.
+    let text = std::fs::read_to_string(&setup.config).unwrap();
+    let text = text.replace(
+        "wear = { gap_step_mrad",
+        "fatigue = { gate_knm = 2.0, components = [\n  \
+         { name = \"spindle\", m = 5, ref_cycles = 1e6, ref_range_knm = 112 },\n  \
+         { name = \"coupling\", m = 3, ref_cycles = 1e7, ref_range_knm = 150 },\n] }\n\
+         wear = { gap_step_mrad",
+    );
+    assert!(text.contains("name = \"coupling\""), "demo.toml changed");
+    std::fs::write(&setup.config, text).unwrap();
     let service = setup.spawn("web-browser.log");
     web_ready(port).await;
     let plc = setup.plc();
@@ -776,6 +862,7 @@ async fn the_pages_list_the_drivelines_plot_the_gap_and_show_a_new_bite_live() {
         "{canvas}"
     );
     gap_plot_has_the_forecast(&client, port, &plc).await;
+    fatigue_panel_is_the_ledger_and_resets(&client, port).await;
     trace_is_the_captures_samples_beside_the_model(&client, port).await;
     let taf_points = until_js(
         &client,

@@ -3,7 +3,9 @@
 //! refusal (no JSON content type, another site's Host, a body too large, a body that
 //! is no request, an unknown subject, seconds out of range, POST on another path) is
 //! a JSON error saying why, and an accepted request leaves a capture of kind
-//! `manual` of the asked seconds in the history, logged with the web origin.
+//! `manual` of the asked seconds in the history, logged with the web origin. The
+//! fatigue reset (`POST /api/drivelines/{name}/fatigue/reset`) is refused alike, and
+//! names an unknown driveline (404) or component (400).
 
 mod common;
 
@@ -70,6 +72,10 @@ async fn a_capture_asked_through_the_api_is_refused_unless_allowed_and_kept_when
         error.contains("outputs.web.allow_commands = false"),
         "{error}"
     );
+    let reset = r#"{"component": "spindle"}"#;
+    let path = "/api/drivelines/F1/fatigue/reset";
+    let (status, error) = refusal(&post(port, path, "127.0.0.1", json, reset).await);
+    assert_eq!(status, 403, "{error}");
     terminate(&mut service);
     drop(service);
 
@@ -81,7 +87,33 @@ async fn a_capture_asked_through_the_api_is_refused_unless_allowed_and_kept_when
         overview_allows(&http(port, "GET", "/api/overview").await),
         Some(true)
     );
-    let refusals: [Refusal<'_>; 10] = [
+    let reset = r#"{"component": "spindle"}"#;
+    let refusals: [Refusal<'_>; 13] = [
+        // The fatigue reset: authorised as the captures are; the demo has no ledger.
+        (
+            "/api/drivelines/F1/fatigue/reset",
+            "127.0.0.1",
+            None,
+            reset.into(),
+            415,
+            "application/json",
+        ),
+        (
+            "/api/drivelines/F9/fatigue/reset",
+            "127.0.0.1",
+            json,
+            reset.into(),
+            404,
+            "no driveline \"F9\"",
+        ),
+        (
+            "/api/drivelines/F1/fatigue/reset",
+            "127.0.0.1",
+            json,
+            reset.into(),
+            400,
+            "no fatigue component \"spindle\" (known: none: no drivelines[].fatigue)",
+        ),
         (
             "/api/captures",
             "127.0.0.1",

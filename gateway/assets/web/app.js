@@ -356,8 +356,98 @@
     let gapPlot = null;
     let tafPlot = null;
     let bites = [];
+    const fatigueSection = document.getElementById("fatigue");
+    const fatigueBody = document.querySelector("#fatigue-components tbody");
+    const fatigueSaid = document.getElementById("fatigue-said");
+    const lifeNode = document.getElementById("fatigue-life-plot");
+    const damageNode = document.getElementById("fatigue-damage-plot");
+    const fatigueNote = document.getElementById("fatigue-note");
+    let lifePlot = null;
+    let damagePlot = null;
+    let allowCommands = false;
+
+    // The fatigue ledger per component (the live figures), with a reset button per
+    // component when the page takes commands.
+    function fatigueTable(d) {
+      const components = d.fatigue_components || [];
+      fatigueSection.classList.toggle("hidden", components.length === 0);
+      const percent = (v, digits) => (missing(v) ? "–" : num(v * 100, digits) + " %");
+      fill(fatigueBody, components.map((c) => {
+        const limit = c.forecast === "forecast" && !missing(c.days_to_limit)
+          ? "in " + num(c.days_to_limit, 0) + " days (" + new Date(c.limit_date_unix_ms).toISOString().slice(0, 10) + ")"
+          : (c.forecast === "at_alarm" ? "reached" : (c.forecast === "not_growing" ? "not consuming" : FORECAST_WORDS[c.forecast] || "–"));
+        const reset = allowCommands ? el("button", { type: "button", class: "fatigue-reset", "data-component": c.name }, "replaced: reset") : "";
+        if (reset) reset.addEventListener("click", () => resetFatigue(c.name, reset));
+        return el("tr", {},
+          el("td", {}, c.name),
+          el("td", {}, percent(c.life_used, 4)),
+          el("td", {}, missing(c.bite_damage) ? "–" : Number(c.bite_damage).toExponential(3)),
+          el("td", {}, missing(c.rate_per_day) ? "–" : percent(c.rate_per_day, 5) + "/day"),
+          el("td", {}, limit),
+          el("td", {}, new Date(c.installed_unix_ms).toISOString().slice(0, 16).replace("T", " ") + " UTC"),
+          el("td", {}, reset));
+      }));
+    }
+
+    async function resetFatigue(component, button) {
+      if (!window.confirm("Reset the life used of " + component + " (it was replaced)?")) return;
+      button.disabled = true;
+      try {
+        const response = await fetch("/api/drivelines/" + encodeURIComponent(name) + "/fatigue/reset", {
+          method: "POST",
+          headers: { "Content-Type": "application/json", Accept: "application/json" },
+          body: JSON.stringify({ component }),
+        });
+        const answer = await response.json();
+        if (!response.ok) throw new Error(answer.error || response.statusText);
+        fatigueSaid.textContent = "Reset asked: " + answer.component + " starts again at 0 (recorded in the history).";
+      } catch (error) {
+        fatigueSaid.textContent = error.message;
+      }
+      button.disabled = false;
+    }
+
+    // The worst component's life used at each bite over time, and its damage per bite
+    // over the bite's TAF (untrusted bites have no damage and are left out).
+    function drawFatigue() {
+      if (!(info.fatigue_components || []).length) return;
+      const rows = bites.filter((b) => !missing(b.fatigue_life_used));
+      const times = rows.map((b) => Date.parse(b.time) / 1000);
+      const lifeOptions = {
+        width: plotWidth(lifeNode), height: 260, tzDate: utcDate,
+        scales: { x: { time: true } },
+        series: [
+          { label: "time (UTC)", value: timeLabel },
+          { label: "life used (worst component), %", stroke: "#7c3aed", width: 2, spanGaps: true, points: quiet, value: (u, v) => num(v, 4) },
+        ],
+        axes: [{ values: utcTicks, incrs: timeIncrs, space: 70, label: "time (UTC)" }, { label: "life used, %" }],
+      };
+      if (lifePlot) lifePlot.destroy();
+      lifePlot = new uPlot(lifeOptions, [times, rows.map((b) => b.fatigue_life_used * 100)], lifeNode);
+      window.millgatePlots.fatigueLife = lifePlot;
+      describe(lifeNode, "Life used of the worst fatigue component at " + rows.length + " bites"
+        + (rows.length ? ": " + rangeText(rows.map((b) => b.fatigue_life_used * 100), 4, "%") : "") + ".");
+      const points = bites.filter((b) => !missing(b.fatigue_bite_damage) && !missing(b.taf) && !b.degraded)
+        .map((b) => [b.taf, b.fatigue_bite_damage]).sort((a, b) => a[0] - b[0]);
+      const damageOptions = {
+        width: plotWidth(damageNode), height: 260,
+        scales: { x: { time: false } },
+        series: [
+          { label: "TAF", value: (u, v) => num(v, 3) },
+          { label: "damage per bite (worst component)", stroke: "#7c3aed", width: 0, paths: () => null, points: { show: true, size: 6, fill: "#7c3aed" }, value: (u, v) => Number(v).toExponential(3) },
+        ],
+        axes: [{ label: "TAF of the bite" }, { label: "damage per bite" }],
+      };
+      if (damagePlot) damagePlot.destroy();
+      damagePlot = new uPlot(damageOptions, [points.map((p) => p[0]), points.map((p) => p[1])], damageNode);
+      window.millgatePlots.fatigueDamage = damagePlot;
+      describe(damageNode, "Damage per bite over TAF of " + points.length + " bites.");
+      fatigueNote.textContent = "The worst component (the most life used) at each stored bite: its life used over time, "
+        + "and its damage per bite (the cycles closed since the bite before) over the bite's TAF. Per component: the table.";
+    }
 
     function cards(d) {
+      fatigueTable(d);
       const card = (label, value, sub, state) =>
         el("div", { class: "card" }, el("div", { class: "label" }, label),
           el("div", { class: "value" }, value, state ? " " : null, state ? badge(state) : null),
@@ -722,6 +812,7 @@
         bites = rows;
         captureOf = new Map(captures.filter((c) => c.kind === "bite").map((c) => [c.bite_counter, c.id]));
         table();
+        drawFatigue();
         // The newest captured bite's trace until one is chosen.
         if (traceShown === null) {
           const newest = bites.slice().reverse().find((b) => captureOf.has(b.bite_counter));
@@ -747,8 +838,9 @@
 
     async function start() {
       info = await getJson("/api/drivelines/" + encodeURIComponent(name));
-      cards(info);
       const overview = await getJson("/api/overview");
+      allowCommands = overview.allow_commands;
+      cards(info);
       if (overview.history) {
         await loadHistory();
       } else {
@@ -798,6 +890,8 @@
         if (gapPlot) gapPlot.setSize({ width: plotWidth(gapNode), height: 300 });
         if (tafPlot) tafPlot.setSize({ width: plotWidth(tafNode), height: 320 });
         if (tracePlot) tracePlot.setSize({ width: plotWidth(traceNode), height: 300 });
+        if (lifePlot) lifePlot.setSize({ width: plotWidth(lifeNode), height: 260 });
+        if (damagePlot) damagePlot.setSize({ width: plotWidth(damageNode), height: 260 });
       });
     }
     start().catch((error) => { gapNote.textContent = error.message; });

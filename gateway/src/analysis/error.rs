@@ -66,6 +66,15 @@ pub enum AnalysisError {
         #[source]
         source: Box<super::gap_map::GapMapError>,
     },
+    /// The rainflow counter refused the driveline's `fatigue.gate_knm`.
+    #[error("drivelines[{index}].fatigue.gate_knm: {source}")]
+    FatigueGate {
+        /// Index of the driveline in the configuration.
+        index: usize,
+        /// What the counter refused.
+        #[source]
+        source: millgate_dsp::rainflow::RainflowSettingsError,
+    },
     /// The driveline's model file (for the wear diagnosis) is not a valid model.
     #[error("drivelines[{index}].model: {source}")]
     Model {

@@ -12,6 +12,7 @@ pub mod driveline;
 mod error;
 mod extra_channels;
 pub(crate) mod fatigue;
+pub mod fatigue_ledger;
 pub mod gap_estimate;
 pub mod gap_map;
 pub(crate) mod gap_map_cache;
@@ -65,7 +66,7 @@ pub struct Analysis {
     /// driveline, of the stands): a client may send them in a loop (the web API, an
     /// HMI, OPC UA), so each kind logs its first, then one line per period with how
     /// many it stands for. The history records each with its origin.
-    command_logs: [WarnLimit; 4],
+    command_logs: [WarnLimit; 5],
 }
 
 impl Analysis {
@@ -214,6 +215,18 @@ impl Analysis {
         }
     }
 
+    /// Continue driveline `index`'s fatigue ledger from its saved form (the history's)
+    /// and publish its figures; a form that is not usable is logged and the ledger
+    /// starts at 0.
+    pub fn restore_fatigue(&mut self, index: usize, saved: &str) {
+        let Some(driveline) = self.drivelines.get_mut(index) else {
+            return;
+        };
+        if let Some(ledger) = driveline.restore_fatigue(saved) {
+            driveline.publish_fatigue(&self.board, &ledger, None);
+        }
+    }
+
     /// Driveline `index`'s wear trend in its saved form; `None` without a model.
     pub fn gap_trend(&self, index: usize) -> Option<String> {
         self.drivelines.get(index)?.gap_trend()
@@ -236,6 +249,7 @@ impl Analysis {
             Command::ResetWear { .. } => 1,
             Command::CaptureTorque { .. } => 2,
             Command::CaptureStands { .. } => 3,
+            Command::ResetFatigue { .. } => 4,
         };
         // `None`: this line is left out (counted in the next one logged).
         let log = self.command_logs[kind].occurred(tokio::time::Instant::now());
@@ -256,6 +270,34 @@ impl Analysis {
                 }
                 analyzer.reset_gap_trend();
                 self.board.reset_wear(driveline, origin);
+            }
+            Command::ResetFatigue {
+                driveline,
+                component,
+                origin,
+            } => {
+                let Some(analyzer) = self.drivelines.get_mut(driveline) else {
+                    tracing::warn!(
+                        driveline,
+                        "fatigue reset of a driveline that does not exist"
+                    );
+                    return;
+                };
+                match analyzer.reset_fatigue(component) {
+                    Some((name, life_used, ledger)) => {
+                        if let Some(suppressed) = log {
+                            tracing::info!(driveline = %self.board.driveline_names()[driveline], component = %name, life_used, by = origin.name(), peer = ?origin.peer(), suppressed, "fatigue reset");
+                        }
+                        analyzer.publish_fatigue(
+                            &self.board,
+                            &ledger,
+                            Some((component, name, life_used, origin)),
+                        );
+                    }
+                    None => {
+                        tracing::warn!(driveline = %self.board.driveline_names()[driveline], component, by = origin.name(), "fatigue reset refused: the driveline has no such fatigue component")
+                    }
+                }
             }
             Command::CaptureTorque {
                 driveline,

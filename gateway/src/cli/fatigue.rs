@@ -151,17 +151,134 @@ pub fn run(args: &FatigueArgs) -> anyhow::Result<String> {
                 "{} driveline `{driveline}` (kept bite captures)",
                 db.display()
             );
-            (source, gate, account, None)
+            let ledger = service_ledger(db, driveline)?;
+            if account.cycles == 0.0 && ledger.is_some() {
+                // The service's ledger is the result; the captures add nothing.
+                return Ok(match args.format {
+                    OutputFormat::Json => json!({ "ledger": ledger }).to_string(),
+                    OutputFormat::Text => format!(
+                        "{source}: no cycle above the gate of {gate} kN*m\n\n{}",
+                        ledger_text(ledger.as_ref())?
+                    ),
+                });
+            }
+            return finish(args, (&source, gate, &account, None), ledger);
         }
         (None, None) => bail!("one of --input or --db is required"),
     };
+    finish(args, (&source, gate_knm, &account, cycles), None)
+}
+
+/// The report of `account` (of `source`, counted with `gate_knm`; `cycles` listed),
+/// with the service's `ledger` when there is one. A record without a cycle has no
+/// result: an error.
+fn finish(
+    args: &FatigueArgs,
+    (source, gate_knm, account, cycles): (&str, f64, &Account, Option<CycleList>),
+    ledger: Option<serde_json::Value>,
+) -> anyhow::Result<String> {
     if account.cycles == 0.0 {
         bail!("{source}: no cycle above the gate of {gate_knm} kN*m");
     }
     Ok(match args.format {
-        OutputFormat::Json => json_report(&account, gate_knm, cycles).to_string(),
-        OutputFormat::Text => text_report(&source, &account, gate_knm)?,
+        OutputFormat::Json => {
+            let mut report = json_report(account, gate_knm, cycles);
+            if let Some(ledger) = ledger {
+                report["ledger"] = ledger;
+            }
+            report.to_string()
+        }
+        OutputFormat::Text => {
+            text_report(source, account, gate_knm)? + &ledger_text(ledger.as_ref())?
+        }
     })
+}
+
+/// Days of damage per day `--db` prints.
+const LEDGER_DAYS: u32 = 14;
+
+/// The fatigue ledger the service keeps in the history for `driveline`: each
+/// component's life used and installation, the resets, the damage per UTC day of the
+/// last [`LEDGER_DAYS`] days with bites; `None` without one (no
+/// `drivelines[].fatigue`, or a file from before the ledger).
+fn service_ledger(
+    db: &std::path::Path,
+    driveline: &str,
+) -> anyhow::Result<Option<serde_json::Value>> {
+    let reader = HistoryReader::open(db)?;
+    let state = reader.state()?;
+    let Some(saved) = state
+        .drivelines
+        .iter()
+        .find(|d| d.name == driveline)
+        .and_then(|d| d.fatigue_ledger.as_deref())
+    else {
+        return Ok(None);
+    };
+    let components = crate::analysis::fatigue_ledger::saved_lives(saved).with_context(|| {
+        format!(
+            "{}: the fatigue ledger of `{driveline}` is not readable",
+            db.display()
+        )
+    })?;
+    let components: Vec<serde_json::Value> = components
+        .iter()
+        .map(|c| {
+            json!({
+                "name": c.name,
+                "life_used": c.life_used,
+                "installed": crate::state::time::UtcTime::from_unix_ms(c.installed_unix_ms).to_string(),
+            })
+        })
+        .collect();
+    let history = reader.fatigue(driveline, LEDGER_DAYS)?;
+    Ok(Some(json!({
+        "components": components,
+        "resets": history.resets,
+        "days": history.days,
+    })))
+}
+
+/// The ledger as text (nothing without one).
+fn ledger_text(ledger: Option<&serde_json::Value>) -> anyhow::Result<String> {
+    let mut out = String::new();
+    let Some(ledger) = ledger else {
+        return Ok(out);
+    };
+    writeln!(
+        out,
+        "\nthe service's fatigue ledger (the whole torque stream):"
+    )?;
+    for c in ledger["components"].as_array().into_iter().flatten() {
+        writeln!(
+            out,
+            "  {:<20} life used {:.6e} since {}",
+            c["name"].as_str().unwrap_or_default(),
+            c["life_used"].as_f64().unwrap_or_default(),
+            c["installed"].as_str().unwrap_or_default()
+        )?;
+    }
+    for r in ledger["resets"].as_array().into_iter().flatten() {
+        writeln!(
+            out,
+            "  reset {} of {} (life used {:.6e}) by {}",
+            r["time"].as_str().unwrap_or_default(),
+            r["component"].as_str().unwrap_or_default(),
+            r["life_used"].as_f64().unwrap_or_default(),
+            r["origin"].as_str().unwrap_or_default()
+        )?;
+    }
+    for d in ledger["days"].as_array().into_iter().flatten() {
+        writeln!(
+            out,
+            "  {} {:<20} damage {:.6e} over {} bites",
+            d["day"].as_str().unwrap_or_default(),
+            d["component"].as_str().unwrap_or_default(),
+            d["damage"].as_f64().unwrap_or_default(),
+            d["bites"]
+        )?;
+    }
+    Ok(out)
 }
 
 /// Every cycle of `signal` as [range, mean, count], in counting order.

@@ -72,5 +72,6 @@ pub(crate) mod summary;
 pub mod writer;
 
 pub use error::HistoryError;
+pub use restore::{FatigueDay, FatigueHistory, FatigueReset};
 pub use run::{DrivelineSettings, RunInfo};
 pub use writer::start;

@@ -18,7 +18,7 @@ pub use super::bite_row::{trusted, BiteRow};
 use super::error::{check_file_owner, HistoryError};
 pub(crate) use super::record::ToCell;
 pub use super::record::{Cell, Record};
-use super::restore::Restored;
+use super::restore::{FatigueHistory, Restored};
 use super::schema::{current_version, SchemaError};
 use crate::state::time::UtcTime;
 
@@ -561,6 +561,14 @@ impl HistoryReader {
             .map_err(|e| self.error(e))?;
         names
             .collect::<rusqlite::Result<Vec<String>>>()
+            .map_err(|e| self.error(e))
+    }
+
+    /// `driveline`'s fatigue resets, oldest first, and its components' damage per UTC
+    /// day over the last `days` days that have bites (the `fatigue_bites` rows; empty
+    /// for a file from before version 12).
+    pub fn fatigue(&self, driveline: &str, days: u32) -> Result<FatigueHistory, HistoryError> {
+        super::restore::fatigue_history(&self.connection, driveline, days)
             .map_err(|e| self.error(e))
     }
 

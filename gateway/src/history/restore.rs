@@ -32,6 +32,9 @@ pub struct RestoredDriveline {
     /// first, with their times (ms since the epoch), for a trend that cannot be
     /// continued from its saved form: at most [`MAX_GAP_BITES`].
     pub gap_bites: Vec<(i64, PooledBite)>,
+    /// The fatigue ledger after the last bite or reset, in its saved form (`None`: no
+    /// ledger, or a file from before version 12).
+    pub fatigue_ledger: Option<String>,
 }
 
 /// The most bites a start folds into a wear trend again when it has no saved form.
@@ -84,6 +87,13 @@ fn gap_trend(connection: &Connection, driveline: &str) -> rusqlite::Result<Optio
         .query_row(params![driveline], |row| row.get(0))
 }
 
+/// The saved fatigue ledger of `driveline` (`None` when there is none).
+fn fatigue_ledger(connection: &Connection, driveline: &str) -> rusqlite::Result<Option<String>> {
+    connection
+        .prepare_cached("SELECT fatigue_ledger FROM driveline_state WHERE driveline = ?1")?
+        .query_row(params![driveline], |row| row.get(0))
+}
+
 /// Everything a start restores.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Restored {
@@ -101,6 +111,7 @@ pub(crate) fn read(connection: &Connection) -> rusqlite::Result<Restored> {
             Ok(RestoredDriveline {
                 gap_trend: gap_trend(connection, &row.name)?,
                 gap_bites: gap_bites(connection, &row.name)?,
+                fatigue_ledger: fatigue_ledger(connection, &row.name)?,
                 name: row.name,
                 updated_at: row.updated_at,
                 results: DrivelineResults {
@@ -138,4 +149,96 @@ impl Restored {
         }
         applied
     }
+}
+
+/// What the history keeps of a driveline's fatigue ledger beside its saved form.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct FatigueHistory {
+    /// The resets, oldest first.
+    pub resets: Vec<FatigueReset>,
+    /// Damage per UTC day and component (days oldest first; untrusted bites' damage
+    /// left out, as the outputs leave it out).
+    pub days: Vec<FatigueDay>,
+}
+
+/// One reset of a fatigue component.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct FatigueReset {
+    /// When (UTC, ISO-8601).
+    pub time: String,
+    /// The component's name.
+    pub component: String,
+    /// The life it had used until then.
+    pub life_used: f64,
+    /// Who: `plc`, `hmi`, `local`, `opcua`, `web`.
+    pub origin: String,
+    /// The client's address, when a client sent it.
+    pub peer: Option<String>,
+}
+
+/// One component's damage on one UTC day, from its bites.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct FatigueDay {
+    /// The day, `YYYY-MM-DD`.
+    pub day: String,
+    /// The component's name.
+    pub component: String,
+    /// The sum of its bites' damage that day.
+    pub damage: f64,
+    /// Its bites that day.
+    pub bites: u64,
+}
+
+/// `driveline`'s fatigue resets and its damage per day over the last `days` days with
+/// bites (by the `(driveline, time)` index: a year of bites is not read for a month).
+pub(crate) fn fatigue_history(
+    connection: &Connection,
+    driveline: &str,
+    days: u32,
+) -> rusqlite::Result<FatigueHistory> {
+    let has_ledger: bool = connection.query_row(
+        "SELECT count(*) > 0 FROM sqlite_schema WHERE name = 'fatigue_resets'",
+        [],
+        |row| row.get(0),
+    )?;
+    if !has_ledger {
+        return Ok(FatigueHistory::default());
+    }
+    let resets = connection
+        .prepare_cached(
+            "SELECT time, component, life_used, origin, peer FROM fatigue_resets
+             WHERE driveline = ?1 ORDER BY time, id",
+        )?
+        .query_map(params![driveline], |row| {
+            Ok(FatigueReset {
+                time: row.get(0)?,
+                component: row.get(1)?,
+                life_used: row.get(2)?,
+                origin: row.get(3)?,
+                peer: row.get(4)?,
+            })
+        })?
+        .collect::<rusqlite::Result<Vec<_>>>()?;
+    let days = connection
+        .prepare_cached(
+            "WITH last AS (SELECT max(time) AS time FROM bites WHERE driveline = ?1)
+             SELECT substr(b.time, 1, 10) AS day, f.component, sum(f.damage), count(*)
+             FROM bites b JOIN fatigue_bites f ON f.bite_id = b.id
+             WHERE b.driveline = ?1
+                 AND b.time >= strftime('%Y-%m-%d', (SELECT time FROM last), ?2)
+             GROUP BY day, f.component_index ORDER BY day, f.component_index",
+        )?
+        .query_map(
+            params![driveline, format!("-{} days", days.saturating_sub(1))],
+            |row| {
+                Ok(FatigueDay {
+                    day: row.get(0)?,
+                    component: row.get(1)?,
+                    damage: row.get::<_, Option<f64>>(2)?.unwrap_or(0.0),
+                    bites: u64::try_from(row.get::<_, i64>(3)?).unwrap_or(0),
+                })
+            },
+        )?
+        .collect::<rusqlite::Result<Vec<_>>>()?;
+    Ok(FatigueHistory { resets, days })
 }

@@ -57,6 +57,28 @@ pub fn insert(
             let settings: Vec<_> = drivelines.iter().map(DrivelineSettings::of).collect();
             insert_settings(transaction, run_id, &time.to_string(), &settings)
         }
+        HistoryEvent::FatigueReset(reset) => {
+            transaction
+                .prepare_cached(
+                    "INSERT INTO fatigue_resets (run_id, time, driveline, component_index,
+                         component, life_used, origin, peer)
+                     VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+                )?
+                .execute(params![
+                    run_id,
+                    reset.time.to_string(),
+                    reset.driveline,
+                    i64::try_from(reset.index).unwrap_or(i64::MAX),
+                    reset.component,
+                    reset.life_used,
+                    reset.origin.name(),
+                    reset.origin.peer().map(|peer| peer.to_string())
+                ])?;
+            Ok(())
+        }
+        HistoryEvent::FatigueLedger { driveline, saved } => {
+            save_fatigue_ledger(transaction, driveline, saved)
+        }
         HistoryEvent::ChatterStarted { .. }
         | HistoryEvent::ChatterWindow { .. }
         | HistoryEvent::ChatterEnded { .. } => insert_chatter(transaction, run_id, event),
@@ -236,6 +258,21 @@ fn insert_bite(
             placeholders.join(", ")
         ))?
         .execute(rusqlite::params_from_iter(values))?;
+    let bite_id = transaction.last_insert_rowid();
+    for (index, component) in bite.state.fatigue_components.iter().enumerate() {
+        transaction
+            .prepare_cached(
+                "INSERT INTO fatigue_bites (bite_id, component_index, component, damage, life_used)
+                 VALUES (?1, ?2, ?3, ?4, ?5)",
+            )?
+            .execute(params![
+                bite_id,
+                i64::try_from(index).unwrap_or(i64::MAX),
+                component.name,
+                component.figures.bite_damage,
+                component.figures.life_used
+            ])?;
+    }
     let time = bite.time.to_string();
     let state = &bite.state;
     let gap = bite.figures.gap.filter(|_| bite.gap_state.is_some());
@@ -274,6 +311,21 @@ fn insert_bite(
             .prepare_cached("UPDATE driveline_state SET gap_trend = ?2 WHERE driveline = ?1")?
             .execute(params![bite.driveline, trend])?;
     }
+    if let Some(saved) = &bite.fatigue_ledger {
+        save_fatigue_ledger(transaction, &bite.driveline, saved)?;
+    }
+    Ok(())
+}
+
+/// The fatigue ledger's saved form into `driveline`'s state row (written before it).
+fn save_fatigue_ledger(
+    transaction: &Transaction<'_>,
+    driveline: &str,
+    saved: &str,
+) -> rusqlite::Result<()> {
+    transaction
+        .prepare_cached("UPDATE driveline_state SET fatigue_ledger = ?2 WHERE driveline = ?1")?
+        .execute(params![driveline, saved])?;
     Ok(())
 }
 

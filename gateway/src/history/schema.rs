@@ -311,6 +311,53 @@ ALTER TABLE driveline_state ADD COLUMN days_to_gap_alarm_high REAL;
 ALTER TABLE driveline_state ADD COLUMN gap_alarm_date TEXT;
 ALTER TABLE driveline_state ADD COLUMN gap_trend TEXT;
 "#,
+    // Version 12: the fatigue ledger (issue 38). Each bite and the state row keep the
+    // worst component's figures (the catalogue's columns); `fatigue_bites` every
+    // component's damage and life used at each bite (damage NULL: untrusted torque,
+    // counted in the life all the same), deleted with its bite; the state row keeps
+    // the ledger's saved form (JSON: lives, installations, days, the rainflow
+    // residue), which a start continues; `fatigue_resets` who reset which component
+    // when, and the life it had used.
+    r#"
+ALTER TABLE bites ADD COLUMN fatigue_forecast INTEGER;
+ALTER TABLE bites ADD COLUMN fatigue_component INTEGER;
+ALTER TABLE bites ADD COLUMN fatigue_life_used REAL;
+ALTER TABLE bites ADD COLUMN fatigue_rate_per_day REAL;
+ALTER TABLE bites ADD COLUMN days_to_fatigue_limit REAL;
+ALTER TABLE bites ADD COLUMN fatigue_limit_date TEXT;
+ALTER TABLE bites ADD COLUMN fatigue_bite_damage REAL;
+ALTER TABLE driveline_state ADD COLUMN fatigue_forecast INTEGER;
+ALTER TABLE driveline_state ADD COLUMN fatigue_component INTEGER;
+ALTER TABLE driveline_state ADD COLUMN fatigue_life_used REAL;
+ALTER TABLE driveline_state ADD COLUMN fatigue_rate_per_day REAL;
+ALTER TABLE driveline_state ADD COLUMN days_to_fatigue_limit REAL;
+ALTER TABLE driveline_state ADD COLUMN fatigue_limit_date TEXT;
+ALTER TABLE driveline_state ADD COLUMN fatigue_bite_damage REAL;
+ALTER TABLE driveline_state ADD COLUMN fatigue_ledger TEXT;
+CREATE TABLE fatigue_bites (
+    bite_id         INTEGER NOT NULL,  -- bites.id
+    component_index INTEGER NOT NULL,  -- index in drivelines[].fatigue.components
+    component       TEXT NOT NULL,
+    damage          REAL,              -- since the bite before; NULL: untrusted torque
+    life_used       REAL NOT NULL,     -- since the component's installation
+    PRIMARY KEY (bite_id, component_index)
+) WITHOUT ROWID;
+CREATE TRIGGER bites_deleted_fatigue AFTER DELETE ON bites BEGIN
+    DELETE FROM fatigue_bites WHERE bite_id = old.id;
+END;
+CREATE TABLE fatigue_resets (
+    id              INTEGER PRIMARY KEY,
+    run_id          INTEGER NOT NULL REFERENCES gateway_runs(id),
+    time            TEXT NOT NULL,
+    driveline       TEXT NOT NULL,
+    component_index INTEGER NOT NULL,
+    component       TEXT NOT NULL,
+    life_used       REAL NOT NULL,     -- what it had used until the reset
+    origin          TEXT NOT NULL,     -- plc, hmi, local, opcua, web
+    peer            TEXT
+);
+CREATE INDEX fatigue_resets_by_driveline_time ON fatigue_resets(driveline, time);
+"#,
 ];
 
 /// `PRAGMA application_id` of a millgate history: the bytes "MLGT" (0x4D4C4754), set
@@ -445,6 +492,8 @@ mod tests {
                 "chatter_episodes",
                 "driveline_settings",
                 "driveline_state",
+                "fatigue_bites",
+                "fatigue_resets",
                 "gateway_runs",
                 "mill_state",
                 "source_outages",

@@ -2,8 +2,8 @@
 //! read-only HTTP/1.1 on hyper and axum, served by a bounded accept loop.
 //!
 //! - GET and HEAD only (405 otherwise), no request body (413), except POST on the
-//!   paths a server names in [`Limits::post_paths`] (the page's manual-capture
-//!   request, whose handler checks and bounds its body); the head within
+//!   paths a server names in [`Limits::post_paths`] (the page's commands, the manual
+//!   capture and the fatigue reset, whose handlers check and bound their body); the head within
 //!   16 KiB (431) and within the listener's header timeout (the connection
 //!   is closed: a slow client cannot hold it).
 //! - At most `max_connections` connections. When all are taken, a new one evicts an
@@ -75,7 +75,8 @@ pub(crate) struct Limits {
     /// Time a client has to send a request head.
     pub(crate) header_timeout: Duration,
     /// Paths that also take POST, with a body (their handler bounds it); every other
-    /// path is read-only.
+    /// path is read-only. A segment `*` stands for any one segment
+    /// (`/api/drivelines/*/fatigue/reset`).
     pub(crate) post_paths: &'static [&'static str],
 }
 
@@ -356,6 +357,19 @@ impl http_body::Body for TrackedBody {
     }
 }
 
+/// Whether `path` is `pattern`, whose segments `*` stand for any one non-empty segment.
+fn path_matches(pattern: &str, path: &str) -> bool {
+    let (mut pattern, mut path) = (pattern.split('/'), path.split('/'));
+    loop {
+        match (pattern.next(), path.next()) {
+            (None, None) => return true,
+            (Some("*"), Some(segment)) if !segment.is_empty() => {}
+            (Some(want), Some(segment)) if want == segment => {}
+            _ => return false,
+        }
+    }
+}
+
 /// Refuses what a read-only server does not take (any method but GET and HEAD: 405;
 /// a request body: 413), then adds [`security_headers`] to the answer.
 async fn read_only(
@@ -363,7 +377,8 @@ async fn read_only(
     request: Request,
     next: Next,
 ) -> Response {
-    let postable = post_paths.contains(&request.uri().path());
+    let path = request.uri().path();
+    let postable = post_paths.iter().any(|pattern| path_matches(pattern, path));
     let mut response = if postable && request.method() == Method::POST {
         next.run(request).await
     } else if request.method() != Method::GET && request.method() != Method::HEAD {

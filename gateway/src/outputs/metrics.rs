@@ -81,7 +81,7 @@ const DAY_S: f64 = 86_400.0;
 /// the others were written in the catalogue's units before (`_knm`, `_mrad`, `_hz`,
 /// `_c`, days), and those names are still written beside the new ones, deprecated
 /// (kept one release, said in their HELP: [`deprecated_metric_name`]).
-const BASE_UNITS: [BaseUnit; 9] = [
+const BASE_UNITS: [BaseUnit; 10] = [
     BaseUnit::same("s", "_s", "_seconds"),
     BaseUnit::same("m/s", "_m_s", "_meters_per_second"),
     BaseUnit::same("1/s", "_per_s", "_per_second"),
@@ -102,6 +102,11 @@ const BASE_UNITS: [BaseUnit; 9] = [
     BaseUnit {
         times: DAY_S,
         ..BaseUnit::same("d", "*days_", "_seconds")
+    },
+    // A fraction of a life per day: `fatigue_rate_per_day` -> `..._rate_per_second`.
+    BaseUnit {
+        per: DAY_S,
+        ..BaseUnit::same("1/d", "_per_day", "_per_second")
     },
 ];
 

@@ -345,6 +345,9 @@ impl Service {
                 self.analysis
                     .restore_gap_trend(index, saved, bites.collect());
             }
+            if let (Some(index), Some(saved)) = (index, &driveline.fatigue_ledger) {
+                self.analysis.restore_fatigue(index, saved);
+            }
             tracing::info!(
                 driveline = %driveline.name,
                 bite_counter = driveline.results.bite_counter,
@@ -354,6 +357,7 @@ impl Service {
                 gap_alarm_latched = driveline.results.gap_alarm,
                 gap_trend_saved = driveline.gap_trend.is_some(),
                 gap_bites = driveline.gap_bites.len(),
+                fatigue_ledger_saved = driveline.fatigue_ledger.is_some(),
                 "state restored from the history"
             );
         }

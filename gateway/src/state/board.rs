@@ -30,6 +30,8 @@ pub struct Board {
     /// The source statuses of the final image, once the service stops.
     frozen_health: Mutex<Option<Vec<SourceStatus>>>,
     driveline_names: Vec<String>,
+    /// Per driveline, its fatigue ledger's components (empty without a ledger).
+    fatigue_components: Vec<Vec<String>>,
     tandem_mill_names: Vec<String>,
     /// Index in [`Config::sources`] of each driveline's torque channel's source.
     driveline_sources: Vec<usize>,
@@ -62,6 +64,15 @@ impl Board {
             health,
             frozen_health: Mutex::new(None),
             driveline_names: config.drivelines.iter().map(|d| d.name.clone()).collect(),
+            fatigue_components: config
+                .drivelines
+                .iter()
+                .map(|d| {
+                    d.fatigue.as_ref().map_or_else(Vec::new, |f| {
+                        f.components.iter().map(|c| c.name.clone()).collect()
+                    })
+                })
+                .collect(),
             tandem_mill_names: config.tandem_mills.iter().map(|m| m.name.clone()).collect(),
             driveline_sources: config
                 .drivelines
@@ -129,6 +140,12 @@ impl Board {
     /// Driveline names, in config order.
     pub(crate) fn driveline_names(&self) -> &[String] {
         &self.driveline_names
+    }
+
+    /// Per driveline (config order), its fatigue ledger's component names (empty
+    /// without `drivelines[].fatigue`).
+    pub(crate) fn fatigue_components(&self) -> &[Vec<String>] {
+        &self.fatigue_components
     }
 
     /// Tandem mill names, in config order.

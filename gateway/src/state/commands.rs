@@ -70,6 +70,16 @@ pub enum Command {
         /// Who.
         origin: CommandOrigin,
     },
+    /// Start component `component` of driveline `driveline`'s fatigue ledger afresh
+    /// (it was replaced): its life used 0 from now, the reset recorded.
+    ResetFatigue {
+        /// The driveline, index in config order.
+        driveline: usize,
+        /// The component, index in `drivelines[].fatigue.components`.
+        component: usize,
+        /// Who.
+        origin: CommandOrigin,
+    },
     /// Keep the next `seconds` s of driveline `driveline`'s torque as a capture of
     /// kind `manual` (with captures kept: `[history]`).
     CaptureTorque {

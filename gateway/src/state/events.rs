@@ -82,6 +82,9 @@ pub struct BiteRecord {
     /// The driveline's wear trend after this bite, in its saved form (JSON), when the
     /// bite was folded into it: what a restart continues.
     pub gap_trend: Option<String>,
+    /// The driveline's fatigue ledger after this bite, in its saved form (JSON), with
+    /// `drivelines[].fatigue`: what a restart continues.
+    pub fatigue_ledger: Option<String>,
     /// The driveline's published results after this bite (counter, last values,
     /// wear index and trend, gap estimate, warnings and latched alarms): what a restart
     /// restores (the catalogue's figures with a state column).
@@ -110,6 +113,7 @@ impl BiteRecord {
             gap_state: None,
             pooled: None,
             gap_trend: None,
+            fatigue_ledger: None,
             state,
         }
     }
@@ -249,6 +253,23 @@ impl EndedBy {
     }
 }
 
+/// The reset of one component of a driveline's fatigue ledger.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FatigueResetRecord {
+    /// When.
+    pub time: UtcTime,
+    /// The driveline.
+    pub driveline: String,
+    /// The component's index in `drivelines[].fatigue.components`.
+    pub index: usize,
+    /// Its name.
+    pub component: String,
+    /// The life it had used until the reset.
+    pub life_used: f64,
+    /// Who.
+    pub origin: CommandOrigin,
+}
+
 /// Everything the history records.
 #[derive(Debug, Clone, PartialEq)]
 pub enum HistoryEvent {
@@ -275,6 +296,16 @@ pub enum HistoryEvent {
         driveline: String,
         /// Who.
         origin: CommandOrigin,
+    },
+    /// A fatigue ledger component's life was reset by a command (it was replaced).
+    FatigueReset(FatigueResetRecord),
+    /// A driveline's fatigue ledger in its saved form (after a restore or a reset;
+    /// a bite carries its own in [`BiteRecord::fatigue_ledger`]).
+    FatigueLedger {
+        /// The driveline.
+        driveline: String,
+        /// The saved form (JSON).
+        saved: String,
     },
     /// A chatter episode began (the warning condition set) with its first window.
     ChatterStarted {

@@ -56,6 +56,55 @@ pub struct DrivelineResults {
     /// The values are from before the last restart (restored from the history);
     /// cleared by the next bite.
     pub restored: bool,
+    /// The fatigue ledger's figures of the component that has used the most of its
+    /// life; `None` without `drivelines[].fatigue` or before its first bite.
+    pub fatigue: Option<FatigueFigures>,
+    /// The fatigue ledger per component (config order), as of the last bite; empty
+    /// without a ledger (the web API's and the history's, not the catalogue's: the
+    /// registers carry [`Self::fatigue`]).
+    pub fatigue_components: Vec<ComponentLife>,
+    /// Times the fatigue ledger's torque stream was cut since start (lost or
+    /// saturated samples, a stale source): the residue was counted as half cycles.
+    pub fatigue_stream_cuts: u64,
+}
+
+/// The fatigue figures of one component, as the registers carry them for the worst
+/// one (see [`crate::analysis::fatigue_ledger`]).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct FatigueFigures {
+    /// The component (index in `drivelines[].fatigue.components`).
+    pub component: usize,
+    /// Miner's sum since its installation (its last reset): 1 is the S-N curve's failure.
+    pub life_used: f64,
+    /// Its damage at the last bite (the cycles closed since the bite before); `None`
+    /// when the torque since that bite cannot be trusted (a cut stream, non-finite
+    /// samples, a degraded window): counted in `life_used` all the same.
+    pub bite_damage: Option<f64>,
+    /// Consumption rate, life per calendar day, over the last
+    /// [`crate::analysis::fatigue_ledger::RATE_WINDOW_DAYS`] days; `None` until a day of
+    /// it is known.
+    pub rate_per_day: Option<f64>,
+    /// What the forecast of reaching `fatigue.life_limit` says: `forecast`,
+    /// `at_alarm` (at the limit), `not_growing` (not consuming), `beyond_horizon`,
+    /// `too_few_bites` (under a day counted since installation or the start).
+    pub forecast: ForecastState,
+    /// Days from the last bite until the life limit is reached (0 at it).
+    pub days_to_limit: Option<f64>,
+    /// The date of `days_to_limit`, ms since the Unix epoch.
+    pub limit_date_unix_ms: Option<i64>,
+}
+
+/// One component's fatigue account, as the web API and the history show it.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ComponentLife {
+    /// Its name (`drivelines[].fatigue.components[].name`).
+    pub name: String,
+    /// Since when it is counted (its last reset; or when the ledger began), ms since
+    /// the Unix epoch.
+    pub installed_unix_ms: i64,
+    /// Its figures.
+    #[serde(flatten)]
+    pub figures: FatigueFigures,
 }
 
 /// The gap estimate of a driveline (its wear trend), as published (see

@@ -42,7 +42,7 @@ pub use cli::{hang_up, terminate, text, KillOnDrop, Millgate};
 pub use net::{free_port, http, http_raw, scrape, wait_for, web_overview, web_ready, HttpAnswer};
 pub use peers::{json_peer, peer};
 pub use scratch::{fill_file_system, scratch, TempDir};
-pub use service::{demo_devices, Plc, Setup};
+pub use service::{as_daq_sends, demo_devices, Plc, Setup};
 
 use std::path::PathBuf;
 

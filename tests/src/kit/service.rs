@@ -26,6 +26,19 @@ pub async fn demo_devices(config: &mut Config, schedule: &Schedule) -> anyhow::R
     Ok(DemoDevices::start(config, schedule, plc_registers).await?)
 }
 
+/// `schedule`'s torque as the demo's DAQ sends it on `torque`, a block channel: each
+/// sample its i16 count (`to_raw_sample`) times the scale plus the offset.
+pub fn as_daq_sends(schedule: &Schedule, torque: &millgate_config::Channel) -> Vec<f64> {
+    schedule
+        .torque_knm
+        .iter()
+        .map(|&v| {
+            let raw = millgate_config::layout::to_raw_sample(v, torque.scale, torque.offset);
+            f64::from(raw) * torque.scale + torque.offset
+        })
+        .collect()
+}
+
 /// Registers of the driveline block read from the virtual PLC.
 #[derive(Debug)]
 pub struct Plc<'a> {

@@ -13,12 +13,14 @@ use super::capture::Captures;
 use super::setup::{BiteSetup, ModelParts, WearDiagnosis};
 use crate::analysis::bite_window::{Detector, DetectorState};
 use crate::analysis::error::AnalysisError;
+use crate::analysis::fatigue_ledger::{FatigueLedger, LedgerBite};
 use crate::analysis::gap_estimate::GapObservation;
 use crate::analysis::gap_monitor::{GapMapJob, GapMonitor};
 use crate::analysis::wear::WearReference;
 use crate::state::captures::CaptureRecord;
 use crate::state::gap_maps::GapMaps;
 use crate::state::results::GapResults;
+use crate::state::time::UtcTime;
 
 /// Bite detection and analysis of one driveline.
 #[derive(Debug)]
@@ -55,6 +57,8 @@ pub(crate) struct DrivelineAnalyzer {
     wear_problem: Option<AnalysisError>,
     /// What is kept for the captures.
     pub(super) captures: Captures,
+    /// The fatigue ledger, with `drivelines[].fatigue`.
+    pub(super) fatigue: Option<FatigueLedger>,
 }
 
 impl DrivelineAnalyzer {
@@ -75,6 +79,18 @@ impl DrivelineAnalyzer {
             .zip(driveline.model.as_deref())
             .map(|model| WearDiagnosis::new(index, driveline, model, &setup, cache_dir))
             .transpose()?;
+        let fatigue = driveline
+            .fatigue
+            .as_ref()
+            .map(|settings| {
+                FatigueLedger::new(
+                    settings,
+                    driveline.wear.horizon_days,
+                    UtcTime::now().unix_ms(),
+                )
+            })
+            .transpose()
+            .map_err(|source| AnalysisError::FatigueGate { index, source })?;
         let (wear, gap, gap_job) = match diagnosis {
             Some(d) => (Some(d.wear), Some(d.gap), Some(d.gap_job)),
             None => (None, None, None),
@@ -96,6 +112,7 @@ impl DrivelineAnalyzer {
             gap_job,
             wear_problem,
             captures: Captures::new(torque.sample_rate_hz),
+            fatigue,
         })
     }
 
@@ -190,6 +207,38 @@ impl DrivelineAnalyzer {
         if let Some(monitor) = &mut self.gap {
             monitor.set_thresholds(thresholds);
         }
+    }
+
+    /// Continue the fatigue ledger `saved` (its saved form, kept by the history);
+    /// returns its figures to publish, `None` without a ledger or when `saved` is not
+    /// one (logged: the ledger starts at 0).
+    pub(crate) fn restore_fatigue(&mut self, saved: &str) -> Option<LedgerBite> {
+        let ledger = self.fatigue.as_mut()?;
+        match ledger.restore(saved) {
+            Ok(components) => {
+                tracing::info!(driveline = %self.name, components, "fatigue ledger continued");
+                Some(ledger.figures(UtcTime::now().unix_ms()))
+            }
+            Err(error) => {
+                tracing::error!(driveline = %self.name, %error, "the saved fatigue ledger is not usable: the components' lives start at 0");
+                None
+            }
+        }
+    }
+
+    /// The fatigue ledger's saved form, with a ledger.
+    pub(crate) fn fatigue_saved(&self) -> Option<String> {
+        self.fatigue.as_ref().map(FatigueLedger::saved)
+    }
+
+    /// Reset component `component` of the fatigue ledger (it was replaced): its name,
+    /// the life it had used and the ledger's figures after; `None` without a ledger or
+    /// such a component.
+    pub(crate) fn reset_fatigue(&mut self, component: usize) -> Option<(String, f64, LedgerBite)> {
+        let ledger = self.fatigue.as_mut()?;
+        let now = UtcTime::now().unix_ms();
+        let (name, used) = ledger.reset(component, now)?;
+        Some((name, used, ledger.figures(now)))
     }
 
     /// "Metal in stand": a rising edge through 0.5 triggers a capture.

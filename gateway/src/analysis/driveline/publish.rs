@@ -6,12 +6,14 @@ use millgate_dsp::transient::TransientQuality;
 
 use super::analyzer::DrivelineAnalyzer;
 use super::report::BiteReport;
+use crate::analysis::fatigue_ledger::LedgerBite;
 use crate::analysis::wear;
 use crate::state::board::Board;
 use crate::state::captures::{CapturedBite, KeepClass};
+use crate::state::commands::CommandOrigin;
 use crate::state::events::{
-    AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, HistoryEvent, PooledBite, StateRecord,
-    SubjectResults, WearState,
+    AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, FatigueResetRecord, HistoryEvent, PooledBite,
+    StateRecord, SubjectResults, WearState,
 };
 use crate::state::results::{DrivelineResults, GapResults};
 use crate::state::time::UtcTime;
@@ -41,11 +43,12 @@ impl DrivelineAnalyzer {
                 monitor.publish(driveline, &estimate, subject, &mut gap_alarms);
             }
             driveline.restored = false;
-            let record = bite_record(
+            let mut record = bite_record(
                 report,
                 driveline,
                 gap.map(|(monitor, estimate)| monitor.verdict(&estimate)),
             );
+            record.fatigue_ledger = self.fatigue_saved();
             let keep = self.keep_class(driveline, taf, &gap_alarms);
             let bite = CapturedBite {
                 counter: driveline.bite_counter,
@@ -82,6 +85,11 @@ impl DrivelineAnalyzer {
         let taf = trusted(t.taf);
         driveline.taf_warning = taf.is_some_and(|taf| taf >= self.taf_warning);
         driveline.taf_alarm |= taf.is_some_and(|taf| taf >= self.taf_alarm);
+        if let Some(ledger) = &report.fatigue {
+            driveline.fatigue = Some(ledger.worst);
+            driveline.fatigue_components = ledger.components.clone();
+            driveline.fatigue_stream_cuts = ledger.stream_cuts;
+        }
         driveline.wear_index = trusted(report.wear.map(|wear| wear.index));
         if let Some(index) = driveline.wear_index {
             driveline.wear_trend = Some(wear::next_trend(driveline.wear_trend, index));
@@ -149,6 +157,47 @@ impl DrivelineAnalyzer {
         }
     }
 
+    /// Publish the fatigue ledger's figures `ledger` (restored, or after a component's
+    /// reset) and record the driveline's state with the ledger's saved form; with
+    /// `reset`, the reset of a component (its index, name and the life it had used)
+    /// by `origin` is recorded first.
+    pub(crate) fn publish_fatigue(
+        &self,
+        board: &Board,
+        ledger: &LedgerBite,
+        reset: Option<(usize, String, f64, CommandOrigin)>,
+    ) {
+        let saved = self.fatigue_saved();
+        board.update_recorded(|results, events| {
+            let time = UtcTime::now();
+            let driveline = &mut results.drivelines[self.index];
+            driveline.fatigue = Some(ledger.worst);
+            driveline.fatigue_components = ledger.components.clone();
+            driveline.fatigue_stream_cuts = ledger.stream_cuts;
+            if let Some((index, component, life_used, origin)) = reset {
+                events.push(HistoryEvent::FatigueReset(FatigueResetRecord {
+                    time,
+                    driveline: self.name.clone(),
+                    index,
+                    component,
+                    life_used,
+                    origin,
+                }));
+            }
+            events.push(HistoryEvent::State(StateRecord {
+                time,
+                subject: self.name.clone(),
+                results: SubjectResults::Driveline(Box::new(driveline.clone())),
+            }));
+            if let Some(saved) = saved {
+                events.push(HistoryEvent::FatigueLedger {
+                    driveline: self.name.clone(),
+                    saved,
+                });
+            }
+        });
+    }
+
     /// Record `estimate` (from maps just installed or a restored trend) in the
     /// results, with the alarm events it makes.
     pub(crate) fn publish_gap(&self, board: &Board, estimate: &GapResults) {
@@ -213,6 +262,7 @@ pub fn bite_record(
         shift_over_linear_s: report.wear.and_then(|wear| wear.shift_excess_s),
         gap_state,
         gap_trend: report.gap.as_ref().and_then(|gap| gap.saved.clone()),
+        fatigue_ledger: None,
         pooled: report.gap.as_ref().map(|gap| {
             let o = gap.observation;
             PooledBite {

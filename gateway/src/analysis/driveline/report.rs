@@ -11,6 +11,7 @@ use millgate_dsp::transient::TransientResult;
 use super::analyzer::DrivelineAnalyzer;
 use super::capture::{before, BiteSamples};
 use crate::analysis::bite_window::{analyze_window, WINDOW_CAPACITY};
+use crate::analysis::fatigue_ledger::LedgerBite;
 use crate::analysis::gap_monitor::GapBite;
 use crate::analysis::wear::WearEstimate;
 use crate::state::captures::{BiteWindowAnalysis, CaptureRecord, CapturedBite, KeepClass};
@@ -51,6 +52,8 @@ pub struct BiteReport {
     pub gap: Option<GapBite>,
     /// The window's samples as analysed, when the driveline keeps captures.
     pub samples: Option<Arc<BiteSamples>>,
+    /// The fatigue ledger after this bite, with `drivelines[].fatigue`.
+    pub fatigue: Option<LedgerBite>,
 }
 
 impl BiteReport {
@@ -72,16 +75,26 @@ impl DrivelineAnalyzer {
         reports: &mut Vec<BiteReport>,
     ) {
         self.captures.manual_samples(values, received);
+        let last = received.unwrap_or_else(SystemTime::now);
+        // Samples up to here are in the fatigue ledger: a bite's damage is what closed
+        // up to the end of its window.
+        let mut counted = 0;
         for (i, &value) in values.iter().enumerate() {
             if let Some(event) = self.detector.process(&mut self.state, value) {
                 // The window's last sample is `later` before the block's last: dated
                 // from its receive time, or (a Modbus DAQ) from now, as the extra
                 // channels' samples are.
                 let later = (values.len() - 1 - i) as f64 / self.sample_rate_hz;
-                let last = received.unwrap_or_else(SystemTime::now);
                 let time = before(last, later);
+                if let Some(ledger) = &mut self.fatigue {
+                    ledger.samples(&values[counted..=i], UtcTime::from_system(time).unix_ms());
+                    counted = i + 1;
+                }
                 reports.extend(self.report(&event, Some(time), received.is_some(), None));
             }
+        }
+        if let Some(ledger) = &mut self.fatigue {
+            ledger.samples(&values[counted..], UtcTime::from_system(last).unix_ms());
         }
     }
 
@@ -89,6 +102,9 @@ impl DrivelineAnalyzer {
     /// ends is reported.
     pub(crate) fn gap(&mut self, missed: Option<u64>, reports: &mut Vec<BiteReport>) {
         self.captures.manual_gap(missed);
+        if let Some(ledger) = &mut self.fatigue {
+            ledger.cut(UtcTime::now().unix_ms());
+        }
         if let Some(event) = self.detector.gap(&mut self.state, missed.unwrap_or(0)) {
             reports.extend(self.report(&event, None, false, Some(missed)));
         }
@@ -140,6 +156,10 @@ impl DrivelineAnalyzer {
             kernel_time,
             ended_by_gap,
         );
+        let fatigue = self
+            .fatigue
+            .as_mut()
+            .map(|ledger| ledger.bite(unix_ms, degraded));
         Some(BiteReport {
             driveline: self.index,
             driveline_name: self.name.clone(),
@@ -154,6 +174,7 @@ impl DrivelineAnalyzer {
             wear: self.wear_estimate(&analysis.transient),
             gap,
             samples,
+            fatigue,
         })
     }
 

@@ -191,7 +191,96 @@ pub(super) fn section(
     over_time(period, name, data, blocks)?;
     gap_over_time(period, name, data, blocks)?;
     taf_over_torque(name, data, blocks)?;
+    fatigue(reader, period, name, blocks)?;
     alarm_traces(reader, db, period, name, blocks)
+}
+
+/// Days of damage per day the report's fatigue section lists.
+const FATIGUE_DAYS: u32 = 14;
+
+/// `name`'s fatigue ledger as the history keeps it (nothing without one): each
+/// component's life used and installation (the state a restart continues), the
+/// resets, and the damage per UTC day of the last days with bites.
+fn fatigue(
+    reader: &HistoryReader,
+    period: &Period,
+    name: &str,
+    blocks: &mut Vec<Block>,
+) -> anyhow::Result<()> {
+    let Some(saved) = period
+        .state
+        .drivelines
+        .iter()
+        .find(|d| d.name == name)
+        .and_then(|d| d.fatigue_ledger.as_deref())
+    else {
+        return Ok(());
+    };
+    let lives = crate::analysis::fatigue_ledger::saved_lives(saved)?;
+    blocks.push(Block::Text(format!(
+        "Fatigue ledger of {name} (the service's count of the whole torque stream, as a \
+         restart continues it): life used since each component's installation (Miner's \
+         sum; 1 is its S-N curve's failure)."
+    )));
+    blocks.push(Block::Table(
+        ["component", "life used", "installed (UTC)"]
+            .map(String::from)
+            .to_vec(),
+        lives
+            .iter()
+            .map(|c| {
+                vec![
+                    c.name.clone(),
+                    format!("{:.4}%", 100.0 * c.life_used),
+                    UtcTime::from_unix_ms(c.installed_unix_ms).to_string(),
+                ]
+            })
+            .collect(),
+    ));
+    let history = reader.fatigue(name, FATIGUE_DAYS)?;
+    if !history.resets.is_empty() {
+        blocks.push(Block::Table(
+            ["reset (UTC)", "component", "life used until then", "by"]
+                .map(String::from)
+                .to_vec(),
+            history
+                .resets
+                .iter()
+                .map(|r| {
+                    vec![
+                        r.time.clone(),
+                        r.component.clone(),
+                        format!("{:.4}%", 100.0 * r.life_used),
+                        r.origin.clone(),
+                    ]
+                })
+                .collect(),
+        ));
+    }
+    if !history.days.is_empty() {
+        blocks.push(Block::Text(format!(
+            "Damage per UTC day (the last {FATIGUE_DAYS} days with bites; untrusted \
+             bites' damage left out)."
+        )));
+        blocks.push(Block::Table(
+            ["day", "component", "damage", "bites"]
+                .map(String::from)
+                .to_vec(),
+            history
+                .days
+                .iter()
+                .map(|d| {
+                    vec![
+                        d.day.clone(),
+                        d.component.clone(),
+                        format!("{:.3e}", d.damage),
+                        d.bites.to_string(),
+                    ]
+                })
+                .collect(),
+        ));
+    }
+    Ok(())
 }
 
 /// The plot of `name`'s TAF and wear over time, with what it shows.

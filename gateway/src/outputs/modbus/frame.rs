@@ -259,9 +259,19 @@ fn write(
     // Validate every value before acting on any, so a rejected request changes nothing.
     let drivelines = served.board.driveline_names().len();
     let mills = served.board.results().tandem_mills.len();
+    let components: Vec<usize> = served
+        .board
+        .fatigue_components()
+        .iter()
+        .map(Vec::len)
+        .collect();
     let mut commands = Vec::new();
     for (field, value) in writes {
-        commands.extend(commands_of(field, value, (drivelines, mills), origin)?);
+        if field == Field::ResetFatigue {
+            commands.extend(reset_fatigue_of(value, &components, origin)?);
+        } else {
+            commands.extend(commands_of(field, value, (drivelines, mills), origin)?);
+        }
     }
     for command in commands {
         served
@@ -273,6 +283,29 @@ fn write(
             })?;
     }
     Ok(())
+}
+
+/// The command a write of `value` to `command.reset_fatigue` gives when the
+/// drivelines' fatigue ledgers have `components` components (0 without a ledger):
+/// the high byte the component's number, the low byte the driveline's (both 1-based);
+/// none for 0, exception 03 for a driveline or component that does not exist.
+fn reset_fatigue_of(
+    value: u16,
+    components: &[usize],
+    origin: CommandOrigin,
+) -> Result<Option<Command>, Exception> {
+    if value == 0 {
+        return Ok(None);
+    }
+    let [component, driveline] = value.to_be_bytes().map(usize::from);
+    match components.get(driveline.wrapping_sub(1)) {
+        Some(&count) if (1..=count).contains(&component) => Ok(Some(Command::ResetFatigue {
+            driveline: driveline - 1,
+            component: component - 1,
+            origin,
+        })),
+        _ => Err(Exception::IllegalDataValue),
+    }
 }
 
 /// The commands a write of `value` to command register `field` gives in a map of
@@ -493,6 +526,29 @@ mod tests {
         // Reads are served.
         let read = frame(1, &[0x03, 0x00, 0x00, 0x00, 0x01]);
         assert_eq!(respond(&served, remote, &read).exception(), None);
+    }
+
+    #[test]
+    fn a_fatigue_reset_names_a_component_of_a_driveline_with_a_ledger() {
+        let origin = CommandOrigin::Local;
+        // Driveline 1 without a ledger, driveline 2 with three components.
+        let reset = |value| reset_fatigue_of(value, &[0, 3], origin);
+        assert_eq!(reset(0), Ok(None));
+        assert_eq!(
+            reset(0x0302),
+            Ok(Some(Command::ResetFatigue {
+                driveline: 1,
+                component: 2,
+                origin
+            }))
+        );
+        for refused in [0x0101, 0x0402, 0x0002, 0x0103, 0x0100] {
+            assert_eq!(
+                reset(refused),
+                Err(Exception::IllegalDataValue),
+                "{refused:#06x}"
+            );
+        }
     }
 
     #[test]

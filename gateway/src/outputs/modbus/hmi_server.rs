@@ -14,7 +14,9 @@
 //! nothing) and refuses bits of drivelines that do not exist; `command.reset_wear` takes
 //! a driveline's number (1-based, any count of drivelines); `command.manual_capture`
 //! takes seconds * 256 + a driveline's number (both 1..=255; 0 seconds: 10 s) and keeps
-//! the next seconds of its torque as a capture of kind `manual`. All read back 0. A command
+//! the next seconds of its torque as a capture of kind `manual`; `command.reset_fatigue`
+//! takes a fatigue component's number * 256 + its driveline's number (both 1-based) and
+//! refuses a driveline without a ledger or a component it does not have. All read back 0. A command
 //! the analysis cannot take now gets exception 06 (busy), and 04 while the gateway
 //! stops. Only loopback clients may write them unless
 //! `allow_remote_commands` is set (the registers need no authentication). The

@@ -87,6 +87,9 @@ impl WebServer {
                     // diagnosis); the page then shows no simulated response.
                     millgate_sim::model::Model::load(path).ok().map(Arc::new)
                 }),
+                fatigue_components: d.fatigue.as_ref().map_or_else(Vec::new, |f| {
+                    f.components.iter().map(|c| c.name.clone()).collect()
+                }),
             })
             .collect();
         let (live, live_rx) = watch::channel(Arc::new(String::new()));
@@ -164,7 +167,7 @@ impl WebServer {
         shutdown: Shutdown,
     ) -> std::io::Result<()> {
         let limits = Limits {
-            post_paths: &["/api/captures"],
+            post_paths: &["/api/captures", "/api/drivelines/*/fatigue/reset"],
             max_connections: self.settings.max_connections,
             header_timeout: self.settings.header_timeout,
         };
@@ -231,6 +234,15 @@ pub(crate) fn router(state: Arc<WebState>) -> Router {
         .route(
             "/api/tandem_mills/{name}/captures",
             get(api::tandem_mill_captures),
+        )
+        .route(
+            "/api/drivelines/{name}/fatigue/reset",
+            axum::routing::post(api::reset_fatigue).fallback(|| async {
+                http::error(
+                    StatusCode::METHOD_NOT_ALLOWED,
+                    "POST only: {\"component\": NAME} resets a fatigue component's life",
+                )
+            }),
         )
         .route("/api/drivelines/{name}/wear", get(api::wear))
         .route("/api/drivelines/{name}/map", get(api::gap_maps))

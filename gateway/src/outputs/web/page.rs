@@ -190,6 +190,16 @@ pub(crate) async fn driveline(
          <div id=\"taf-plot\" class=\"plot\" role=\"img\" \
          aria-label=\"TAF over static torque: not drawn yet\"></div>\
          <p class=\"note\" id=\"taf-note\"></p></section>\n\
+         <section id=\"fatigue\" class=\"hidden\"><h2>Fatigue</h2>\
+         <div class=\"scroll\" tabindex=\"0\"><table id=\"fatigue-components\" class=\"grid\"><thead><tr>\
+         <th>Component</th><th>Life used</th><th>Last bite's damage</th><th>Rate</th>\
+         <th>Life limit</th><th>Since</th><th></th></tr></thead><tbody></tbody></table></div>\
+         <p class=\"note\" id=\"fatigue-said\"></p>\
+         <div id=\"fatigue-life-plot\" class=\"plot\" role=\"img\" \
+         aria-label=\"Life used over time: not drawn yet\"></div>\
+         <div id=\"fatigue-damage-plot\" class=\"plot\" role=\"img\" \
+         aria-label=\"Damage per bite over TAF: not drawn yet\"></div>\
+         <p class=\"note\" id=\"fatigue-note\"></p></section>\n\
          <section><h2>Bite trace</h2><div id=\"trace-plot\" class=\"plot\" role=\"img\" \
          aria-label=\"Bite trace: not drawn yet\"></div>\
          <p class=\"note\" id=\"trace-note\"></p></section>\n\

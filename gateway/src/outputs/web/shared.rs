@@ -28,6 +28,8 @@ pub(crate) struct DrivelineInfo {
     pub has_model: bool,
     /// The model, when it loads: the simulated response beside a bite's capture.
     pub model: Option<Arc<millgate_sim::model::Model>>,
+    /// Its fatigue ledger's components (empty without `drivelines[].fatigue`).
+    pub fatigue_components: Vec<String>,
 }
 
 /// Everything the handlers share.

@@ -4,10 +4,11 @@ use millgate_config::ValueType::{F32, U16, U32};
 
 use super::declare::{
     at, counter_at, ext, index_of, real_of, to_count, to_flag, to_index, to_real, to_time,
+    unmapped, unmapped_counter,
 };
 use super::{AlarmKind, DrivelineResults, Figure};
 use super::{Columns, FigureType, Stale, Value};
-use crate::state::results::{ForecastState, GapForecast, GapGrowth, GapResults};
+use crate::state::results::{FatigueFigures, ForecastState, GapForecast, GapGrowth, GapResults};
 
 /// The table's figure type.
 type F = Figure<DrivelineResults>;
@@ -355,6 +356,114 @@ pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
             forecast.date_unix_ms = to_time(v);
         }
     }),
+    // The fatigue ledger's worst component (the most life used); the state first: it
+    // makes the figures the others fill.
+    F::state(
+        "fatigue_forecast",
+        ForecastState::NAMES,
+        unmapped("the registers carry days_to_fatigue_limit (its quality bit clear when no date is expected); the state is in every other output"),
+        "What the forecast of the worst fatigue component reaching drivelines[].fatigue.life_limit says: forecast (days_to_fatigue_limit given), at_alarm (at or over the limit), not_growing (not consuming: no damage in the rate's window), beyond_horizon (later than drivelines[].wear.horizon_days), too_few_bites (under a day counted since its installation or the ledger's start)",
+        |d| d.fatigue.map(|f| Value::Index(f.forecast as u64)),
+    )
+    .kept(Columns::both("fatigue_forecast"), |d, v| {
+        d.fatigue = to_index(v)
+            .and_then(|state| ForecastState::ALL.get(state))
+            .map(|&forecast| FatigueFigures {
+                component: 0,
+                life_used: 0.0,
+                bite_damage: None,
+                rate_per_day: None,
+                forecast,
+                days_to_limit: None,
+                limit_date_unix_ms: None,
+            })
+    }),
+    F::real(
+        "fatigue_component",
+        "",
+        ext(22, U16, 11),
+        Stale::LastUsable,
+        "The fatigue component that has used the most of its life (index in drivelines[].fatigue.components): the one the fatigue figures are of",
+        |d| index_of(d.fatigue.map(|f| f.component)),
+    )
+    .typed(FigureType::Index)
+    .kept(Columns::both("fatigue_component"), |d, v| {
+        if let (Some(f), Some(component)) = (d.fatigue.as_mut(), to_index(v)) {
+            f.component = component;
+        }
+    }),
+    F::real(
+        "fatigue_life_used",
+        "",
+        ext(23, F32, 12),
+        Stale::LastUsable,
+        "Life used by that component since its installation (its last fatigue reset): Miner's sum of the rainflow cycles of the whole torque stream on its S-N curve, 1 = the curve's failure",
+        |d| real_of(d.fatigue.map(|f| f.life_used)),
+    )
+    .kept(Columns::both("fatigue_life_used"), |d, v| {
+        if let (Some(f), Some(used)) = (d.fatigue.as_mut(), to_real(v)) {
+            f.life_used = used;
+        }
+    }),
+    F::real(
+        "fatigue_rate_per_day",
+        "1/d",
+        ext(25, F32, 13),
+        Stale::LastUsable,
+        "That component's consumption rate: its damage over the last 7 UTC days (today's part included) per day counted in them; no value under a day counted",
+        |d| real_of(d.fatigue.and_then(|f| f.rate_per_day)),
+    )
+    .kept(Columns::both("fatigue_rate_per_day"), |d, v| {
+        if let Some(f) = d.fatigue.as_mut() {
+            f.rate_per_day = to_real(v);
+        }
+    }),
+    F::real(
+        "days_to_fatigue_limit",
+        "d",
+        ext(27, F32, 14),
+        Stale::LastUsable,
+        "Calendar days from the last bite until that component reaches drivelines[].fatigue.life_limit at its rate (0 at the limit); no value when no date is expected within the horizon (fatigue_forecast says why)",
+        |d| real_of(d.fatigue.and_then(|f| f.days_to_limit)),
+    )
+    .kept(Columns::both("days_to_fatigue_limit"), |d, v| {
+        if let Some(f) = d.fatigue.as_mut() {
+            f.days_to_limit = to_real(v);
+        }
+    }),
+    F::real(
+        "fatigue_limit_date",
+        "",
+        unmapped("the registers carry days_to_fatigue_limit"),
+        Stale::LastUsable,
+        "The date of days_to_fatigue_limit: the last bite's time plus those days (UTC)",
+        |d| d.fatigue.and_then(|f| f.limit_date_unix_ms).map(Value::Time),
+    )
+    .typed(FigureType::Time)
+    .kept(Columns::both("fatigue_limit_date"), |d, v| {
+        if let Some(f) = d.fatigue.as_mut() {
+            f.limit_date_unix_ms = to_time(v);
+        }
+    }),
+    F::real(
+        "fatigue_bite_damage",
+        "",
+        ext(29, F32, 15),
+        Stale::LastUsable,
+        "That component's damage at the last bite: the cycles closed since the bite before, up to the end of its window; no value when that torque cannot be trusted (a cut stream, non-finite samples, a degraded window), counted in fatigue_life_used all the same",
+        |d| real_of(d.fatigue.and_then(|f| f.bite_damage)),
+    )
+    .kept(Columns::both("fatigue_bite_damage"), |d, v| {
+        if let Some(f) = d.fatigue.as_mut() {
+            f.bite_damage = to_real(v);
+        }
+    }),
+    F::count(
+        "fatigue_stream_cuts",
+        unmapped_counter("a diagnostic of the other outputs"),
+        "Times the fatigue ledger's torque stream was cut since start (lost or saturated samples, a stale source): each time its rainflow residue was counted as half cycles and the count began afresh",
+        |d| Some(Value::Count(d.fatigue_stream_cuts)),
+    ),
     F::flag(
         "taf_warning",
         0,

@@ -663,6 +663,7 @@ mod tests {
                 "1/s" => "_per_s",
                 "degC" => "_c",
                 "mrad/d" => "_mrad_per_day",
+                "1/d" => "_per_day",
                 // Days read best first: `days_to_gap_alarm`.
                 "d" => {
                     assert!(figure.key.starts_with("days_"), "{}", figure.key);

@@ -99,7 +99,8 @@ fn value_of(field: Field, results: &Results) -> Option<f64> {
         Field::AcknowledgeAlarms
         | Field::ResetWearTrend
         | Field::ResetWear
-        | Field::ManualCapture => return Some(0.0),
+        | Field::ManualCapture
+        | Field::ResetFatigue => return Some(0.0),
         Field::Flags(block) | Field::Quality(block, _) | Field::Figure(block, _) => block,
     };
     match block {

@@ -324,6 +324,17 @@ fn build(config: &Config) -> RegisterMap {
              in order (all their stands); reads back 0",
         Field::ManualCapture,
     );
+    b.global(
+        (12, ValueType::U16),
+        "command.reset_fatigue",
+        "",
+        Access::ReadWrite,
+        "Command: write a fatigue component's number * 256 + its driveline's number (both \
+             1-based, config order: drivelines[].fatigue.components) to start the \
+             component's life used at 0 (after it was replaced; recorded in the history); \
+             reads back 0",
+        Field::ResetFatigue,
+    );
     for (k, driveline) in config.drivelines.iter().enumerate() {
         let base = DRIVELINES_START + DRIVELINE_STRIDE * k as u16;
         b.block(

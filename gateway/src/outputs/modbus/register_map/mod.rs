@@ -78,6 +78,9 @@ pub enum Field {
     /// Command: write seconds * 256 + a driveline's number (both 1..=255) to keep the
     /// next seconds of its torque as a manual capture.
     ManualCapture,
+    /// Command: write a fatigue component's number * 256 + its driveline's number
+    /// (both 1-based) to reset the component's life.
+    ResetFatigue,
     /// A block's flag figures, each at its catalogue bit.
     Flags(Block),
     /// The quality bits of a block's page (0: the block, 1: its extension block): bit

@@ -318,7 +318,8 @@ fn register_names_are_block_names_and_catalogue_keys() {
             Field::AcknowledgeAlarms
             | Field::ResetWearTrend
             | Field::ResetWear
-            | Field::ManualCapture => register.name.starts_with("command."),
+            | Field::ManualCapture
+            | Field::ResetFatigue => register.name.starts_with("command."),
             Field::Flags(Block::Gateway) => register.name == GATEWAY_STATUS.1,
             Field::SourceBits(index) => {
                 register.name == source_bits_name(catalogue::SOURCE[index].key)
@@ -332,7 +333,7 @@ fn register_names_are_block_names_and_catalogue_keys() {
 /// The global registers, as a PLC has always read them: heartbeat 0,
 /// `gateway_status` 1 (bit0 running, bit1 stopped, bit2 a source not ok),
 /// `sources_ok` 2, `sources_stale` 3, `sources_lost` 4 (bit i: source i), the
-/// commands at 8..=11; nothing else below the first block.
+/// commands at 8..=12; nothing else below the first block.
 #[test]
 fn the_global_registers_golden_words() {
     let map = RegisterMap::new(&example("hot-mill.toml"));
@@ -354,6 +355,7 @@ fn the_global_registers_golden_words() {
             (9, "command.reset_wear_trend", "bits"),
             (10, "command.reset_wear", ""),
             (11, "command.manual_capture", ""),
+            (12, "command.reset_fatigue", ""),
         ]
     );
     assert!(map

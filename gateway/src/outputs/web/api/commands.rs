@@ -42,19 +42,14 @@ fn refused(status: StatusCode, message: String) -> ApiError {
     ApiError { status, message }
 }
 
-/// `POST /api/captures` with `{"subject": NAME, "seconds": S}`: keep the next S
-/// seconds of driveline NAME's torque, or of every stand of tandem mill NAME, as a
-/// capture of kind `manual` (202 when the analysis has the command; the capture is
-/// in the history once the span has passed). 403 without `outputs.web.allow_commands`,
-/// 415 without a JSON content type, 413 for a body over [`MAX_COMMAND_BODY`] bytes,
-/// 400 for a body that is no such object, an unknown subject or seconds out of
-/// range, 409 without a history or with `history.captures = false`, 503 when the analysis is busy or stopped.
-pub(crate) async fn request_capture(
-    State(state): State<Arc<WebState>>,
-    Extension(ConnectInfo(peer)): Extension<ConnectInfo<SocketAddr>>,
-    headers: HeaderMap,
+/// The command channel and the body of a command request: 403 without
+/// `outputs.web.allow_commands`, 415 without a JSON content type, 413 for a body over
+/// [`MAX_COMMAND_BODY`] bytes.
+async fn command_body(
+    state: &WebState,
+    headers: &HeaderMap,
     body: Body,
-) -> Result<(StatusCode, Json<serde_json::Value>), ApiError> {
+) -> Result<(crate::state::commands::CommandSender, axum::body::Bytes), ApiError> {
     let Some(commands) = state.commands.get().filter(|_| state.allow_commands) else {
         return Err(refused(
             StatusCode::FORBIDDEN,
@@ -80,6 +75,88 @@ pub(crate) async fn request_capture(
                 format!("the body is over {MAX_COMMAND_BODY} bytes"),
             )
         })?;
+    Ok((commands.clone(), bytes))
+}
+
+/// The body of a fatigue reset: `{"component": "spindle top"}`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FatigueResetRequest {
+    /// The component's name (`drivelines[].fatigue.components[].name`).
+    component: String,
+}
+
+/// `POST /api/drivelines/{name}/fatigue/reset` with `{"component": NAME}`: start the
+/// component's life used at 0 (it was replaced), the same command as
+/// `command.reset_fatigue`, with the client as its origin (202 when the analysis has
+/// it; the history records it). Authorised as `POST /api/captures` is (403, 415, 413
+/// as there); 404 for an unknown driveline, 400 for a body that is no such object or
+/// a component the driveline's ledger does not have, 503 when the analysis is busy or
+/// stopped.
+pub(crate) async fn reset_fatigue(
+    State(state): State<Arc<WebState>>,
+    axum::extract::Path(name): axum::extract::Path<String>,
+    Extension(ConnectInfo(peer)): Extension<ConnectInfo<SocketAddr>>,
+    headers: HeaderMap,
+    body: Body,
+) -> Result<(StatusCode, Json<serde_json::Value>), ApiError> {
+    let (commands, bytes) = command_body(&state, &headers, body).await?;
+    let Some(driveline) = state.drivelines.iter().position(|d| d.name == name) else {
+        return Err(refused(
+            StatusCode::NOT_FOUND,
+            format!("no driveline \"{}\"", name.escape_default()),
+        ));
+    };
+    let request: FatigueResetRequest = serde_json::from_slice(&bytes).map_err(|error| {
+        ApiError::bad(format!("the body must be {{\"component\": NAME}}: {error}"))
+    })?;
+    let components = &state.drivelines[driveline].fatigue_components;
+    let Some(component) = components.iter().position(|c| *c == request.component) else {
+        return Err(ApiError::bad(format!(
+            "component: driveline \"{}\" has no fatigue component \"{}\" (known: {})",
+            name.escape_default(),
+            request.component.escape_default(),
+            if components.is_empty() {
+                "none: no drivelines[].fatigue".to_owned()
+            } else {
+                components.join(", ")
+            }
+        )));
+    };
+    commands
+        .send(Command::ResetFatigue {
+            driveline,
+            component,
+            origin: CommandOrigin::Web(peer),
+        })
+        .map_err(|error: CommandRefused| {
+            refused(StatusCode::SERVICE_UNAVAILABLE, error.to_string())
+        })?;
+    tracing::info!(%peer, driveline = %name, component = %request.component, "fatigue reset asked through the web API");
+    Ok((
+        StatusCode::ACCEPTED,
+        Json(serde_json::json!({
+            "accepted": true,
+            "driveline": name,
+            "component": request.component,
+        })),
+    ))
+}
+
+/// `POST /api/captures` with `{"subject": NAME, "seconds": S}`: keep the next S
+/// seconds of driveline NAME's torque, or of every stand of tandem mill NAME, as a
+/// capture of kind `manual` (202 when the analysis has the command; the capture is
+/// in the history once the span has passed). 403 without `outputs.web.allow_commands`,
+/// 415 without a JSON content type, 413 for a body over [`MAX_COMMAND_BODY`] bytes,
+/// 400 for a body that is no such object, an unknown subject or seconds out of
+/// range, 409 without a history or with `history.captures = false`, 503 when the analysis is busy or stopped.
+pub(crate) async fn request_capture(
+    State(state): State<Arc<WebState>>,
+    Extension(ConnectInfo(peer)): Extension<ConnectInfo<SocketAddr>>,
+    headers: HeaderMap,
+    body: Body,
+) -> Result<(StatusCode, Json<serde_json::Value>), ApiError> {
+    let (commands, bytes) = command_body(&state, &headers, body).await?;
     let request: CaptureRequest = serde_json::from_slice(&bytes).map_err(|error| {
         ApiError::bad(format!(
             "the body must be {{\"subject\": NAME, \"seconds\": S}}: {error}"

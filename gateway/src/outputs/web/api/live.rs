@@ -27,7 +27,7 @@ use crate::history::HistoryError;
 use crate::outputs::web::shared::{DrivelineInfo, TrendCache, WebState};
 use crate::state::catalogue::{self, Figure, Subject, Value};
 use crate::state::results::{
-    DrivelineResults, GapResults, Results, RodMillResults, TandemMillResults,
+    ComponentLife, DrivelineResults, GapResults, Results, RodMillResults, TandemMillResults,
 };
 use crate::state::time::UtcTime;
 
@@ -102,6 +102,11 @@ pub(crate) struct DrivelineView {
     pub wear_state: &'static str,
     /// Thresholds.
     pub thresholds: ThresholdsView,
+    /// The fatigue ledger per component (config order) as of the last bite or reset:
+    /// name, installation, life used, last bite's damage, rate, forecast; empty
+    /// without `drivelines[].fatigue` (the catalogue's `fatigue_*` figures are the
+    /// worst component's).
+    pub fatigue_components: Vec<ComponentLife>,
 }
 
 impl DrivelineView {
@@ -127,6 +132,7 @@ impl DrivelineView {
                 gap_warning_mrad: info.gap_warning_mrad,
                 gap_alarm_mrad: info.gap_alarm_mrad,
             },
+            fatigue_components: results.fatigue_components.clone(),
         }
     }
 }
@@ -619,6 +625,7 @@ mod tests {
             gap_alarm_mrad: 6.0,
             has_model: true,
             model: None,
+            fatigue_components: Vec::new(),
         };
         let results = DrivelineResults {
             last_bite_unix_ms: Some(last),
