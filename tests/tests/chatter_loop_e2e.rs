@@ -473,7 +473,9 @@ async fn a_chatter_episode_is_captured_as_the_daq_sent_it_and_reproduces_its_war
         format: ExportFormat::Csv,
         out: out.clone(),
     })?;
-    assert_eq!(files.len(), 1);
+    // The CSV and its header beside it (`<name>.json`).
+    assert_eq!(files.len(), 2, "{files:?}");
+    assert_eq!(files[1], files[0].with_extension("json"), "{files:?}");
     // The Parquet export holds the CSV's samples, a column per stand, and the header
     // with the episode (pyarrow reads both: the bite captures' script).
     let parquet = export(&ExportArgs {
@@ -502,14 +504,14 @@ async fn a_chatter_episode_is_captured_as_the_daq_sent_it_and_reproduces_its_war
         String::from_utf8_lossy(&checked.stderr)
     );
     let csv = std::fs::read_to_string(&files[0])?;
-    assert!(
-        csv.lines().nth(1) == Some("t,s1_vib,s2_vib,s3_vib,s4_vib,s5_vib")
-            && csv
-                .lines()
-                .next()
-                .is_some_and(|l| l.contains("\"episode\":{\"warning_sample\"")),
-        "{}",
-        csv.lines().take(2).collect::<Vec<_>>().join("\n")
+    assert_eq!(
+        csv.lines().next(),
+        Some("t,s1_vib,s2_vib,s3_vib,s4_vib,s5_vib")
+    );
+    let header: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&files[1])?)?;
+    assert_eq!(
+        header["episode"]["warning_sample"], episode.warning_sample,
+        "{header}"
     );
     let config_path = dir.join("mill.toml");
     std::fs::write(&config_path, config_text(mill, None))?;
