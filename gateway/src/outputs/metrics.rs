@@ -179,10 +179,17 @@ pub(crate) fn metric_name(figure: &FigureInfo) -> String {
     name_in(figure, &BASE_UNITS).0
 }
 
+/// Figures that came after `/metrics` moved to base units: they never had a name in
+/// the catalogue's units, so none is kept for them.
+const NEW_IN_BASE_UNITS: [&str; 2] = ["fatigue_rate_per_day", "days_to_fatigue_limit"];
+
 /// The name the figure had on `/metrics` before base units, when it differs from
 /// [`metric_name`]: written too, in the catalogue's unit, deprecated (kept one
 /// release).
 pub(crate) fn deprecated_metric_name(figure: &FigureInfo) -> Option<String> {
+    if NEW_IN_BASE_UNITS.contains(&figure.key) {
+        return None;
+    }
     let (old, _) = name_in(figure, &BASE_UNITS[..BASE_UNITS_BEFORE]);
     (old != metric_name(figure)).then_some(old)
 }
@@ -723,6 +730,17 @@ mod tests {
             named("first_period_s"),
             ("millgate_driveline_first_period_seconds".to_owned(), None)
         );
+        // A figure that came after the rename has no earlier name.
+        assert_eq!(
+            named("days_to_fatigue_limit"),
+            (
+                "millgate_driveline_time_to_fatigue_limit_seconds".to_owned(),
+                None
+            )
+        );
+        for key in NEW_IN_BASE_UNITS {
+            catalogue::find(catalogue::DRIVELINE, key);
+        }
     }
 
     #[test]
