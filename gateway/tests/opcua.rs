@@ -22,7 +22,7 @@ use std::time::{Duration, Instant};
 
 use millgate::outputs::modbus::register_map::{decode_f32, decode_u32, RegisterMap};
 use millgate::service::RunningService;
-use millgate::state::catalogue::{self, FigureType, Guard};
+use millgate::state::catalogue::{self, FigureType, Guard, Register};
 use millgate_config::{Config, MetricsOutput, OpcUaOutput, OpcUaSecurityMode, OpcUaUser};
 use millgate_sim::devices::demo::{demo_daq, setup};
 use millgate_sim::devices::modbus_bank::{Running, ServeOptions};
@@ -442,11 +442,15 @@ async fn the_address_space_holds_what_the_plc_holds() {
         "the PLC has whole seconds"
     );
     let flags = words[rig.register("F1.flags")];
-    let quality = words[rig.register("F1.quality")];
     let mut compared = 0;
     for figure in catalogue::DRIVELINE {
         let path = format!("Drivelines/F1/{}", figure.key);
         let opcua = variable(&browse, &path);
+        // A figure of the extension block has its bit in that block's quality register.
+        let quality = match figure.register {
+            Register::At { page: 1, .. } => words[rig.register("F1.extension_quality")],
+            _ => words[rig.register("F1.quality")],
+        };
         match (figure.guard, figure.figure_type) {
             (Guard::FlagBit(bit), _) => {
                 assert_eq!(opcua["value"], flags & (1 << bit) != 0, "{path}");

@@ -226,6 +226,9 @@ impl Unit {
     /// mrad/d, the gap's growth: UNECE Recommendation 20 has no code for it, so its
     /// `unitId` is -1 ("not available", OPC 10000-8, 5.6.3) and the symbol says it.
     pub(crate) const MILLIRADIAN_PER_DAY: Unit = Unit::new("", "mrad/d", "milliradian per day");
+    /// 1/d, the share of a fatigue life used per day: like mrad/d, `unitId` -1 with the
+    /// symbol saying it.
+    pub(crate) const RECIPROCAL_DAY: Unit = Unit::new("", "d⁻¹", "reciprocal day");
 
     const fn new(unece_code: &'static str, symbol: &'static str, name: &'static str) -> Self {
         Self {

@@ -193,7 +193,7 @@ pub(crate) async fn driveline(
          <section id=\"fatigue\" class=\"hidden\"><h2>Fatigue</h2>\
          <div class=\"scroll\" tabindex=\"0\"><table id=\"fatigue-components\" class=\"grid\"><thead><tr>\
          <th>Component</th><th>Life used</th><th>Last bite's damage</th><th>Rate</th>\
-         <th>Life limit</th><th>Since</th><th></th></tr></thead><tbody></tbody></table></div>\
+         <th>Life limit</th><th>Since</th><th>Replaced</th></tr></thead><tbody></tbody></table></div>\
          <p class=\"note\" id=\"fatigue-said\"></p>\
          <div id=\"fatigue-life-plot\" class=\"plot\" role=\"img\" \
          aria-label=\"Life used over time: not drawn yet\"></div>\

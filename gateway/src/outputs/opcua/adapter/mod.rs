@@ -41,6 +41,7 @@ fn unit(catalogue_unit: &str) -> Option<Unit> {
         "degC" => Some(Unit::DEGREE_CELSIUS),
         "d" => Some(Unit::DAY),
         "mrad/d" => Some(Unit::MILLIRADIAN_PER_DAY),
+        "1/d" => Some(Unit::RECIPROCAL_DAY),
         _ => None,
     }
 }
