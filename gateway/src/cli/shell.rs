@@ -1,7 +1,7 @@
 //! The command line's conventions: shell completions (`millgate completions SHELL`,
 //! clap_complete), manual pages (`millgate man [--out DIR]`, clap_mangen) and the
 //! exit status every command follows ([`EXIT_STATUS`]), which `millgate --help`, the
-//! manual page and docs/usage.md state, and how every command prints ([`print`]): a
+//! manual page and docs/usage.md state, and how every command prints ([`print()`]): a
 //! reader that closes the pipe (`millgate figures | head -1`) ends the command
 //! quietly with status 0, as `millgate history` always did, never with a panic.
 //!
@@ -66,7 +66,7 @@ pub fn print(text: &str) -> std::io::Result<()> {
     print_bytes(text.as_bytes())
 }
 
-/// Write `bytes` to stdout and flush them, as [`print`].
+/// Write `bytes` to stdout and flush them, as [`print()`].
 pub fn print_bytes(bytes: &[u8]) -> std::io::Result<()> {
     let mut out = std::io::stdout().lock();
     out.write_all(bytes)?;

@@ -7,7 +7,7 @@
 //!
 //! A CSV written before the sidecar opens with a comment line `# millgate capture
 //! {json}` instead; the readers take either (deprecated, kept one release:
-//! [`CaptureHeader::from_comments`], [`CaptureHeader::from_sidecar`]).
+//! `CaptureHeader::from_comments`, `CaptureHeader::from_sidecar`).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};

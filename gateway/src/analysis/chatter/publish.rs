@@ -34,7 +34,7 @@ use crate::state::time::UtcTime;
 ///
 /// **The weld bit** (a mill's `context.weld` tag): each value read that is 1 starts or
 /// continues the mill's weld hold ([`SlowDown::weld`]), and so does every window
-/// evaluated while the latest value is 1 and younger than [`WELD_BIT_POLLS`] poll
+/// evaluated while the latest value is 1 and younger than `WELD_BIT_POLLS` poll
 /// periods of its channel (a bit the PLC no longer delivers, its source stale, holds
 /// nothing off). A value that is not 0 or 1 is not used and is counted
 /// (`context_invalid`); a window whose alarm the hold kept off is counted
