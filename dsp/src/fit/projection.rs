@@ -118,14 +118,11 @@ pub(super) fn project<const REFERENCED: bool>(
     if !rest.is_empty() {
         // The last one or two samples; an empty odd lane is masked.
         let odd = rest.get(stride);
-        let values = Pair::new(rest[0] * scale, odd.map_or(0.0, |v| v * scale));
+        let (even, odd_value) = (rest[0] * scale, odd.map_or(0.0, |v| v * scale));
         let fitted = |v: f64| !data.positive_only || v > 0.0;
         state.step::<REFERENCED>(
-            values,
-            Some([
-                fitted(values.lanes()[0]),
-                odd.is_some() && fitted(values.lanes()[1]),
-            ]),
+            Pair::new(even, odd_value),
+            Some([fitted(even), odd.is_some() && fitted(odd_value)]),
         );
     }
     let Projection {
