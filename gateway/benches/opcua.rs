@@ -1,76 +1,42 @@
 //! Variable updates per second from the OPC UA server to a subscribed client, all
 //! figures changing at each bite. The server (`OpcUaServer`, release build, security
 //! none) runs in-process with a spec of `objects` drivelines of `variables` doubles
-//! each; a bite every 100 ms changes every value; the client is Python asyncua
-//! (`opcua_subscriber.py`, another process) subscribed to every variable (publishing
-//! interval 100 ms, queue size 1), counting what it receives for 10 s.
+//! each; a bite every 100 ms changes every value; the client, another process,
+//! subscribes to every variable (publishing interval 100 ms) and counts what it
+//! receives for 10 s. Two clients that are not ours, one after the other: Python
+//! asyncua (`opcua_subscriber.py`, one Publish request in flight) and node-opcua
+//! (`opcua_subscriber.mjs`, several in flight), each with queue size 1 and 4.
 //!
-//! Prints per case: variables, updates offered per second (variables x bites/s),
-//! changes received per second, the share received, changes the client saw out of
-//! order (none expected), the gateway's CPU time per received change (this process's
-//! user + system time over the run) and the client's CPU seconds. A client gets at
-//! most one value per variable and publishing interval (queue size 1: a value changed
-//! twice within one interval arrives once, the latest), so bites as often as the
-//! publishing interval lose some changes to that alone; a client whose CPU seconds
-//! near the run's is the bound.
+//! Prints per case: the client and queue size, variables, updates offered per second
+//! (variables x bites/s), changes received per second, the share received, the changes
+//! that carried the Overflow bit (a value of that variable was dropped from the server's
+//! queue before it), changes the client saw out of order (none expected), the gateway's
+//! CPU time per received change (this process's user + system time over the run) and
+//! the client's CPU seconds. A client gets at most `queue` values per variable and
+//! Publish response; a client whose CPU seconds near the run's is the bound.
 //!
-//! Run with (Python asyncua 2.1.0 installed):
+//! Run with (Python asyncua 2.1.0 installed, and `npm ci --prefix tests/peers`):
 //!
-//!     cargo bench -p millgate --features opcua --bench opcua
+//!     cargo bench -p millgate --features opcua --bench opcua [-- 400]
+//!
+//! (a number: only that many drivelines of 22 variables, as the last case).
 
 use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
 use std::process::{Command, Stdio};
 use std::sync::Arc;
-use std::time::{Duration, Instant, SystemTime};
+use std::time::{Duration, Instant};
 
-use millgate::outputs::opcua::model::{
-    AddressSpaceSpec, ObjectKind, ObjectSpec, Snapshot, Value, VariableSpec, VariableType,
-    VariableUpdate,
-};
 use millgate::outputs::opcua::OpcUaServer;
 use millgate_config::OpcUaOutput;
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::sync::{mpsc, watch};
 
 const BITE_PERIOD: Duration = Duration::from_millis(100);
 const SECONDS: f64 = 10.0;
 const VARIABLES: usize = 22;
 
-fn spec(objects: usize) -> AddressSpaceSpec {
-    AddressSpaceSpec {
-        name: "bench".into(),
-        objects: (0..objects)
-            .map(|k| ObjectSpec {
-                name: format!("D{k}"),
-                kind: ObjectKind::Driveline,
-                parent: None,
-                description: String::new(),
-                variables: (0..VARIABLES)
-                    .map(|j| VariableSpec {
-                        key: format!("v{j}"),
-                        description: String::new(),
-                        unit: None,
-                        datatype: VariableType::Double,
-                        range: None,
-                        states: Vec::new(),
-                    })
-                    .collect(),
-                conditions: Vec::new(),
-            })
-            .collect(),
-        machines: Vec::new(),
-    }
-}
-
-/// Every value `bite`, measured now.
-fn snapshot(objects: usize, bite: u64) -> Snapshot {
-    let update = VariableUpdate::good(Value::Double(bite as f64), Some(SystemTime::now()));
-    Snapshot {
-        objects: vec![vec![update; VARIABLES]; objects],
-        machines: Vec::new(),
-    }
-}
+#[path = "../tests/common/opcua_space.rs"]
+mod opcua_space;
 
 /// This process's user + system CPU time (/proc/self/stat, in USER_HZ = 100 ticks).
 fn cpu_time() -> Duration {
@@ -80,53 +46,69 @@ fn cpu_time() -> Duration {
     Duration::from_millis(ticks * 10)
 }
 
-/// Wait until the server answers a Hello.
-async fn serving(address: std::net::SocketAddr, url: &str) {
-    let mut body = Vec::new();
-    for word in [0u32, 65_535, 65_535, 0, 0] {
-        body.extend_from_slice(&word.to_le_bytes());
-    }
-    body.extend_from_slice(&(url.len() as u32).to_le_bytes());
-    body.extend_from_slice(url.as_bytes());
-    let mut hello = b"HELF".to_vec();
-    hello.extend_from_slice(&(8 + body.len() as u32).to_le_bytes());
-    hello.extend_from_slice(&body);
-    let mut stream = tokio::net::TcpStream::connect(address).await.unwrap();
-    stream.write_all(&hello).await.unwrap();
-    let mut answer = [0u8; 4];
-    tokio::time::timeout(Duration::from_secs(60), stream.read_exact(&mut answer))
-        .await
-        .expect("the server answers")
-        .unwrap();
-    assert_eq!(&answer, b"ACKF");
+/// A subscribed client that is not ours.
+#[derive(Clone, Copy)]
+enum Subscriber {
+    Asyncua,
+    NodeOpcua,
 }
 
-async fn case(objects: usize, pki: &std::path::Path) {
+impl Subscriber {
+    fn name(self) -> &'static str {
+        match self {
+            Subscriber::Asyncua => "asyncua",
+            Subscriber::NodeOpcua => "node-opcua",
+        }
+    }
+
+    fn command(self) -> Command {
+        let benches = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("benches");
+        match self {
+            Subscriber::Asyncua => {
+                let mut command = Command::new("python3");
+                command.arg(benches.join("opcua_subscriber.py"));
+                command
+            }
+            Subscriber::NodeOpcua => {
+                let mut command = Command::new("node");
+                command.arg(benches.join("opcua_subscriber.mjs"));
+                command
+            }
+        }
+    }
+}
+
+async fn case(objects: usize, pki: &std::path::Path, subscriber: Subscriber, queue: u32) {
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let address = listener.local_addr().unwrap();
     let mut settings = OpcUaOutput::on(address, pki.to_path_buf());
     settings.max_monitored_items_per_subscription = 100_000;
     let url = settings.endpoint_url();
-    let (updates, updates_rx) = watch::channel(snapshot(objects, 0));
+    let (updates, updates_rx) = watch::channel(opcua_space::snapshot(objects, VARIABLES, 0));
     let (_events, events_rx) = mpsc::channel(1);
     let (stop, shutdown) = millgate::shutdown::channel();
-    let server = OpcUaServer::new(settings, spec(objects), Arc::new(|_| {})).unwrap();
+    let server = OpcUaServer::new(
+        settings,
+        opcua_space::spec(objects, VARIABLES),
+        Arc::new(|_| {}),
+    )
+    .unwrap();
     let status = server.status();
     let served = tokio::spawn(server.run(listener, updates_rx, events_rx, shutdown));
-    serving(address, &url).await;
+    opcua_space::serving(address, &url).await;
 
-    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("benches/opcua_subscriber.py");
-    let mut client = Command::new("python3")
-        .arg(script)
+    let mut client = subscriber
+        .command()
         .args([
             url.as_str(),
             &objects.to_string(),
             &VARIABLES.to_string(),
             &SECONDS.to_string(),
+            &queue.to_string(),
         ])
         .stdout(Stdio::piped())
         .spawn()
-        .expect("python3");
+        .expect("the subscriber starts");
     let (tx, lines) = std::sync::mpsc::channel::<serde_json::Value>();
     let stdout = client.stdout.take().unwrap();
     std::thread::spawn(move || {
@@ -144,7 +126,7 @@ async fn case(objects: usize, pki: &std::path::Path) {
     while measured.is_none() {
         tick.tick().await;
         bite += 1;
-        updates.send_replace(snapshot(objects, bite));
+        updates.send_replace(opcua_space::snapshot(objects, VARIABLES, bite));
         if let Ok(line) = lines.try_recv() {
             if line["ready"] == true {
                 ready = true;
@@ -172,10 +154,13 @@ async fn case(objects: usize, pki: &std::path::Path) {
     let seconds = result["seconds"].as_f64().unwrap();
     let received = changes as f64 / seconds;
     println!(
-        "{variables:>6} variables: offered {offered:>8.0} updates/s, received {received:>8.0} \
-         changes/s ({:.1}%), out of order {}, values written {written}, gateway CPU {:.1} us \
-         per received change ({:.2} s over the run), client CPU {:.1} s of {SECONDS} s",
+        "{:>10} queue {queue}: {variables:>6} variables: offered {offered:>8.0} updates/s, \
+         received {received:>8.0} changes/s ({:.1}%), with Overflow {}, out of order {}, \
+         values written {written}, gateway CPU {:.1} us per received change ({:.2} s over \
+         the run), client CPU {:.1} s of {SECONDS} s",
+        subscriber.name(),
         100.0 * received / offered,
+        result["overflow"],
         result["out_of_order"],
         cpu.as_secs_f64() * 1e6 / changes.max(1) as f64,
         cpu.as_secs_f64(),
@@ -188,11 +173,20 @@ async fn main() {
     let pki = std::env::temp_dir().join(format!("millgate-opcua-bench-{}", std::process::id()));
     println!(
         "OPC UA: every variable changes every {} ms; a client subscribed to all (100 ms \
-         publishing, queue 1) for {SECONDS} s",
+         publishing) for {SECONDS} s",
         BITE_PERIOD.as_millis()
     );
-    for objects in [20, 100, 400] {
-        case(objects, &pki).await;
+    // `cargo bench` passes `--bench`; a number picks one size.
+    let sizes: Vec<usize> = match std::env::args().skip(1).find_map(|a| a.parse().ok()) {
+        Some(objects) => vec![objects],
+        None => vec![20, 100, 400],
+    };
+    for objects in sizes {
+        for subscriber in [Subscriber::Asyncua, Subscriber::NodeOpcua] {
+            for queue in [1, 4] {
+                case(objects, &pki, subscriber, queue).await;
+            }
+        }
     }
     let _ = std::fs::remove_dir_all(&pki);
 }

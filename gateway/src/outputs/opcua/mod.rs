@@ -81,6 +81,13 @@ const MAX_SUBSCRIPTION_LIFETIME: Duration = Duration::from_secs(600);
 /// Monitored items on the server, all sessions together, unless
 /// `max_monitored_items_per_subscription` is larger (about 1.5 kB each).
 const MAX_MONITORED_ITEMS: usize = 20_000;
+/// Most notifications in one Publish response (the client may ask for fewer). A data
+/// change of a double with both timestamps is about 40 bytes, one of our longest
+/// strings about 100: 1 000 stay far below the 327 675-byte message async-opcua and
+/// most clients allow. Unbounded, 8 800 figures changing at once made a response of
+/// about 330 kB: the server answered `Bad_ResponseTooLarge` and the client lost every
+/// value in it, with nothing to say which (issue 42, item 5).
+const MAX_NOTIFICATIONS_PER_PUBLISH: u64 = 1_000;
 /// Continuation points a session may hold (browse, history, query): each keeps the
 /// rest of a result until the client asks for it (async-opcua allows 5 000).
 const MAX_CONTINUATION_POINTS: usize = 10;
@@ -345,6 +352,7 @@ impl OpcUaServer {
             MAX_MONITORED_ITEMS.max(settings.max_monitored_items_per_subscription);
         limits.subscriptions.max_lifetime_ms = MAX_SUBSCRIPTION_LIFETIME.as_millis() as f64;
         limits.subscriptions.default_event_queue_size = EVENT_QUEUE_SIZE;
+        limits.subscriptions.max_notifications_per_publish = MAX_NOTIFICATIONS_PER_PUBLISH;
         limits.evict_idle_session_ms = front::EVICT_IDLE.as_millis() as u64;
         limits.max_browse_continuation_points = MAX_CONTINUATION_POINTS;
         limits.max_history_continuation_points = MAX_CONTINUATION_POINTS;

@@ -611,19 +611,31 @@ impl MonitoredItem {
 
     fn enqueue_notification(&mut self, notification: impl Into<Notification>) {
         self.any_new_notification = true;
+        let mut notification = notification.into();
         let overflow = self.notification_queue.len() == self.queue_size;
+        // (millgate patch) The Overflow bit as OPC 10000-4 5.12.1.5 and 7.39.1 have it: on
+        // the value that follows the discarded one (the new oldest when the oldest is
+        // discarded, the new value when it replaces the newest), with the InfoType
+        // DataValue bit beside it (async-opcua set 0x80 alone on the new value, which
+        // asyncua and other strict clients read as no info bits), and never in a queue
+        // of one, a buffer of the newest value.
         if overflow {
-            if self.discard_oldest {
+            let marked = if self.discard_oldest {
                 self.notification_queue.pop_front();
+                self.notification_queue.front_mut()
             } else {
                 self.notification_queue.pop_back();
-            }
-        }
-
-        let mut notification = notification.into();
-        if overflow {
-            if let Notification::MonitoredItemNotification(n) = &mut notification {
-                n.value.status = Some(n.value.status().set_overflow(true));
+                Some(&mut notification)
+            };
+            if let (true, Some(Notification::MonitoredItemNotification(n))) =
+                (self.queue_size > 1, marked)
+            {
+                n.value.status = Some(
+                    n.value
+                        .status()
+                        .set_info_type(opcua_types::StatusCodeInfoType::DataValue)
+                        .set_overflow(true),
+                );
             }
             self.queue_overflow = true;
         }

@@ -99,6 +99,9 @@ pub struct Subscription {
     monitored_items: HashMap<u32, MonitoredItem>,
     /// Monitored items that have seen notifications.
     notified_monitored_items: HashSet<u32>,
+    /// (millgate patch) The id of the last item whose notifications went into a message:
+    /// the next message starts after it.
+    last_item_ticked: u32,
     /// State of the subscription
     state: SubscriptionState,
     /// A value that contains the number of consecutive publishing timer expirations without Client
@@ -155,6 +158,7 @@ impl Subscription {
             priority,
             monitored_items: HashMap::new(),
             notified_monitored_items: HashSet::new(),
+            last_item_ticked: 0,
             // State variables
             state: SubscriptionState::Creating,
             lifetime_counter,
@@ -511,10 +515,18 @@ impl Subscription {
                 TickResult::Enqueued
             }
             UpdateStateAction::ReturnNotifications => {
-                let resend_data = std::mem::take(&mut self.resend_data);
-                let messages = self.tick_monitored_items(now, resend_data);
-                for msg in messages {
-                    self.enqueue_notification(msg);
+                // (millgate patch) No new messages while built ones wait for Publish
+                // requests: the values stay in their monitored items' queues, where a
+                // value pushed out sets the Overflow bit of the next (OPC 10000-4
+                // 5.12.1.5). Built on every interval, a client slower than the
+                // messages lost whole messages from this queue (`max_queued_notifications`)
+                // with nothing to tell it which values were gone.
+                if self.notifications.is_empty() {
+                    let resend_data = std::mem::take(&mut self.resend_data);
+                    let messages = self.tick_monitored_items(now, resend_data);
+                    for msg in messages {
+                        self.enqueue_notification(msg);
+                    }
                 }
                 TickResult::Enqueued
             }
@@ -674,7 +686,22 @@ impl Subscription {
                 );
             }
         } else {
-            for item_id in self.notified_monitored_items.drain() {
+            // (millgate patch) No more messages than the queue has room for
+            // (`max_queued_notifications`, which drops the oldest message beyond it, and
+            // every value in it with no mark): the items left keep their values, their
+            // queues marking what they drop with the Overflow bit, for the next
+            // message, and they go first then (items in id order from where this one
+            // stopped, so none waits behind the others for ever).
+            let room = self
+                .max_queued_notifications
+                .saturating_sub(self.notifications.len())
+                .max(2);
+            let mut items: Vec<u32> = self.notified_monitored_items.drain().collect();
+            items.sort_unstable();
+            let first = items.partition_point(|&id| id <= self.last_item_ticked);
+            items.rotate_left(first);
+            let mut items = items.into_iter();
+            for item_id in items.by_ref() {
                 let Some(monitored_item) = self.monitored_items.get_mut(&item_id) else {
                     continue;
                 };
@@ -688,7 +715,12 @@ impl Subscription {
                     &mut messages,
                     &mut self.sequence_number,
                 );
+                self.last_item_ticked = item_id;
+                if self.max_notifications_per_publish > 0 && messages.len() + 1 >= room {
+                    break;
+                }
             }
+            self.notified_monitored_items.extend(items);
         }
 
         self.handle_triggers(now, triggers, &mut notifications, &mut messages);
