@@ -6,6 +6,7 @@
 
 use std::path::Path;
 
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
@@ -323,24 +324,12 @@ pub(super) fn taf_svg(
         .unwrap_or_default();
     let (x_range, y_range) = (grid.x, grid.y);
     let most = grid.clean.iter().max().copied().unwrap_or(0).max(1);
-    let mut svg = String::new();
-    {
-        let root = SVGBackend::with_string(&mut svg, (PANEL.0, 450)).into_drawing_area();
-        root.fill(&WHITE).map_err(drawing)?;
-        let root = root.titled(title, ("sans-serif", 20)).map_err(drawing)?;
-        let mut chart = ChartBuilder::on(&root)
-            .margin(10)
-            .x_label_area_size(35)
-            .y_label_area_size(60)
-            .build_cartesian_2d(x_range.0..x_range.1, y_range.0..y_range.1)
-            .map_err(drawing)?;
-        chart
-            .configure_mesh()
-            .x_desc("static torque, kN*m")
-            .y_desc("TAF (peak / static)")
-            .label_style(("sans-serif", 12))
-            .draw()
-            .map_err(drawing)?;
+    let axes = XyAxes {
+        x: (x_range, "static torque, kN*m"),
+        y: (y_range, "TAF (peak / static)"),
+        y_format: None,
+    };
+    xy_svg(title, &axes, SeriesLabelPosition::UpperRight, |chart| {
         // Shade by the logarithm of the count: one bite still shows, the densest
         // cell is darkest.
         let shade = |count: u32| 0.2 + 0.8 * f64::from(count).ln_1p() / f64::from(most).ln_1p();
@@ -386,9 +375,54 @@ pub(super) fn taf_svg(
                 .label(format!("{label} {value}"))
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], color));
         }
+        Ok(())
+    })
+}
+
+/// The chart of [`xy_svg`].
+type XyChart<'a, 'b> =
+    ChartContext<'a, SVGBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+
+/// The axes of [`xy_svg`]: each `((low, high), description)`, and how y's labels
+/// are written (plotters' own numbers when `None`).
+struct XyAxes<'a> {
+    x: ((f64, f64), &'a str),
+    y: ((f64, f64), &'a str),
+    y_format: Option<&'a dyn Fn(&f64) -> String>,
+}
+
+/// A 900 x 450 px plot titled `title` over `axes`, with what `draw` adds and its
+/// legend at `legend`.
+fn xy_svg(
+    title: &str,
+    axes: &XyAxes<'_>,
+    legend: SeriesLabelPosition,
+    draw: impl FnOnce(&mut XyChart<'_, '_>) -> anyhow::Result<()>,
+) -> anyhow::Result<String> {
+    let (((x_low, x_high), x_desc), ((y_low, y_high), y_desc)) = (axes.x, axes.y);
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (PANEL.0, 450)).into_drawing_area();
+        root.fill(&WHITE).map_err(drawing)?;
+        let root = root.titled(title, ("sans-serif", 20)).map_err(drawing)?;
+        let mut chart = ChartBuilder::on(&root)
+            .margin(10)
+            .x_label_area_size(35)
+            .y_label_area_size(60)
+            .build_cartesian_2d(x_low..x_high, y_low..y_high)
+            .map_err(drawing)?;
+        let mut mesh = chart.configure_mesh();
+        mesh.x_desc(x_desc)
+            .y_desc(y_desc)
+            .label_style(("sans-serif", 12));
+        if let Some(format) = axes.y_format {
+            mesh.y_label_formatter(format);
+        }
+        mesh.draw().map_err(drawing)?;
+        draw(&mut chart)?;
         chart
             .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
+            .position(legend)
             .background_style(WHITE.mix(0.8))
             .border_style(BLACK)
             .draw()
@@ -678,25 +712,16 @@ pub(super) fn damage_svg(
         (x_range.1 - x_range.0) / GRID.0 as f64,
         (y_high - y_low) / GRID.1 as f64,
     );
-    let mut svg = String::new();
-    {
-        let root = SVGBackend::with_string(&mut svg, (PANEL.0, 450)).into_drawing_area();
-        root.fill(&WHITE).map_err(drawing)?;
-        let root = root.titled(title, ("sans-serif", 20)).map_err(drawing)?;
-        let mut chart = ChartBuilder::on(&root)
-            .margin(10)
-            .x_label_area_size(35)
-            .y_label_area_size(70)
-            .build_cartesian_2d(x_range.0..x_range.1, y_low..y_high)
-            .map_err(drawing)?;
-        chart
-            .configure_mesh()
-            .x_desc("TAF of the bite (peak / static)")
-            .y_desc("damage per bite (Miner's sum, 1 = failure; logarithmic)")
-            .y_label_formatter(&|y| format!("{:.1e}", 10f64.powf(*y)))
-            .label_style(("sans-serif", 12))
-            .draw()
-            .map_err(drawing)?;
+    let damage_label = |y: &f64| format!("{:.1e}", 10f64.powf(*y));
+    let axes = XyAxes {
+        x: (x_range, "TAF of the bite (peak / static)"),
+        y: (
+            (y_low, y_high),
+            "damage per bite (Miner's sum, 1 = failure; logarithmic)",
+        ),
+        y_format: Some(&damage_label),
+    };
+    xy_svg(title, &axes, grid.legend_corner(), |chart| {
         let shade = |count: u32| 0.35 + 0.65 * f64::from(count).ln_1p() / f64::from(most).ln_1p();
         for (index, cells) in grid.cells.iter().enumerate() {
             let colour = CURVE_COLOURS[index % CURVE_COLOURS.len()];
@@ -718,14 +743,6 @@ pub(super) fn damage_svg(
                 .label(name.to_owned())
                 .legend(move |(x, y)| Circle::new((x + 4, y), 3, colour.filled()));
         }
-        chart
-            .configure_series_labels()
-            .position(grid.legend_corner())
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()
-            .map_err(drawing)?;
-        root.present().map_err(drawing)?;
-    }
-    Ok(svg)
+        Ok(())
+    })
 }
