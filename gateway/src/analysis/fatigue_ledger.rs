@@ -382,7 +382,9 @@ pub(crate) fn saved_lives(text: &str) -> Result<Vec<SavedLife>, serde_json::Erro
 }
 
 /// The `fatigue.life_limit` a ledger saved as `text` was counted against; `None` for
-/// a ledger saved before the limit was kept.
+/// a ledger saved before the limit was kept. Read by `millgate report` alone, which
+/// the `plot` feature builds.
+#[cfg_attr(not(feature = "plot"), allow(dead_code))]
 pub(crate) fn saved_life_limit(text: &str) -> Result<Option<f64>, serde_json::Error> {
     Ok(serde_json::from_str::<Saved>(text)?.life_limit)
 }
