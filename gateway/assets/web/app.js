@@ -364,6 +364,9 @@
     const fatigueNote = document.getElementById("fatigue-note");
     let lifePlot = null;
     let damagePlot = null;
+    // /fatigue/history: each component's life used over time (time buckets), the
+    // resets and the life limit; fetched with the other series.
+    let fatigueSeries = null;
     let allowCommands = false;
 
     // The fatigue ledger per component (the live figures), with a reset button per
@@ -407,26 +410,53 @@
       button.disabled = false;
     }
 
-    // The worst component's life used at each bite over time, and its damage per bite
-    // over the bite's TAF (untrusted bites have no damage and are left out).
+    // Each component's life used over time: the history's series (the last stored
+    // bite of each time bucket), then the live figures of a bite since it was read.
+    function lifeColumns() {
+      const series = fatigueSeries || { components: [], points: [] };
+      const live = info.fatigue_components || [];
+      const names = series.components.concat(live.map((c) => c.name).filter((n) => !series.components.includes(n)));
+      const rows = series.points.map((p) => [Date.parse(p.time) / 1000,
+        names.map((n, k) => (missing(p.life_used[k]) ? null : p.life_used[k] * 100))]);
+      const last = rows.length ? rows[rows.length - 1][0] : -Infinity;
+      const at = info.last_bite_time ? Date.parse(info.last_bite_time) / 1000 : null;
+      if (at !== null && at > last && live.length) {
+        rows.push([at, names.map((n) => {
+          const c = live.find((x) => x.name === n);
+          return c && !missing(c.life_used) ? c.life_used * 100 : null;
+        })]);
+      }
+      return { names, times: rows.map((r) => r[0]), columns: names.map((n, k) => rows.map((r) => r[1][k])) };
+    }
+
+    // Each component's life used over time with the life limit, and the worst
+    // component's damage per bite over the bite's TAF (untrusted bites have no damage
+    // and are left out).
     function drawFatigue() {
       if (!(info.fatigue_components || []).length) return;
-      const rows = bites.filter((b) => !missing(b.fatigue_life_used));
-      const times = rows.map((b) => Date.parse(b.time) / 1000);
+      const life = lifeColumns();
+      const limit = fatigueSeries && !missing(fatigueSeries.life_limit) ? fatigueSeries.life_limit * 100 : null;
+      const lifeSeries = [{ label: "time (UTC)", value: timeLabel }].concat(life.names.map((n, k) => (
+        { label: n + ", life used %", stroke: colours[k % colours.length], width: 2, spanGaps: true, points: quiet, value: (u, v) => num(v, 4) })));
+      const lifeData = [life.times].concat(life.columns);
+      if (limit !== null) {
+        lifeSeries.push({ label: "life limit %", stroke: "#b91c1c", width: 1, dash: [6, 4], points: quiet, value: (u, v) => num(v, 1) });
+        lifeData.push(life.times.map(() => limit));
+      }
       const lifeOptions = {
         width: plotWidth(lifeNode), height: 260, tzDate: utcDate,
         scales: { x: { time: true } },
-        series: [
-          { label: "time (UTC)", value: timeLabel },
-          { label: "life used (worst component), %", stroke: "#7c3aed", width: 2, spanGaps: true, points: quiet, value: (u, v) => num(v, 4) },
-        ],
+        series: lifeSeries,
         axes: [{ values: utcTicks, incrs: timeIncrs, space: 70, label: "time (UTC)" }, { label: "life used, %" }],
       };
       if (lifePlot) lifePlot.destroy();
-      lifePlot = new uPlot(lifeOptions, [times, rows.map((b) => b.fatigue_life_used * 100)], lifeNode);
+      lifePlot = new uPlot(lifeOptions, lifeData, lifeNode);
       window.millgatePlots.fatigueLife = lifePlot;
-      describe(lifeNode, "Life used of the worst fatigue component at " + rows.length + " bites"
-        + (rows.length ? ": " + rangeText(rows.map((b) => b.fatigue_life_used * 100), 4, "%") : "") + ".");
+      const resets = fatigueSeries ? fatigueSeries.resets.length : 0;
+      describe(lifeNode, "Life used per fatigue component over time, " + timeSpan(life.times) + ": "
+        + life.names.map((n, k) => n + " " + (rangeText(life.columns[k], 4, "%") || "no value")).join("; ")
+        + (limit !== null ? "; life limit " + num(limit, 1) + " %" : "")
+        + (resets ? "; " + resets + " reset" + (resets === 1 ? "" : "s") + " (the line starts again at 0)" : "") + ".");
       const points = bites.filter((b) => !missing(b.fatigue_bite_damage) && !missing(b.taf) && !b.degraded)
         .map((b) => [b.taf, b.fatigue_bite_damage]).sort((a, b) => a[0] - b[0]);
       const damageOptions = {
@@ -442,8 +472,9 @@
       damagePlot = new uPlot(damageOptions, [points.map((p) => p[0]), points.map((p) => p[1])], damageNode);
       window.millgatePlots.fatigueDamage = damagePlot;
       describe(damageNode, "Damage per bite over TAF of " + points.length + " bites.");
-      fatigueNote.textContent = "The worst component (the most life used) at each stored bite: its life used over time, "
-        + "and its damage per bite (the cycles closed since the bite before) over the bite's TAF. Per component: the table.";
+      fatigueNote.textContent = "Life used per component over time (the last stored bite of each time bucket, "
+        + "a replaced component's line starting again at 0), with the life limit; the worst component's damage per bite "
+        + "(the cycles closed since the bite before) over the bite's TAF.";
     }
 
     function cards(d) {
@@ -804,11 +835,14 @@
     async function loadHistory() {
       try {
         const series = Date.now() - wearAt >= SERIES_PERIOD_MS;
-        const [wear, rows, captures] = await Promise.all([
+        const fatigue = series && (info.fatigue_components || []).length > 0;
+        const [wear, rows, captures, life] = await Promise.all([
           series ? getJson("/api/drivelines/" + encodeURIComponent(name) + "/wear?points=400") : null,
           getJson("/api/drivelines/" + encodeURIComponent(name) + "/bites?limit=500"),
           getJson("/api/drivelines/" + encodeURIComponent(name) + "/captures?limit=500"),
+          fatigue ? getJson("/api/drivelines/" + encodeURIComponent(name) + "/fatigue/history?points=400") : null,
         ]);
+        if (life) fatigueSeries = life;
         bites = rows;
         captureOf = new Map(captures.filter((c) => c.kind === "bite").map((c) => [c.bite_counter, c.id]));
         table();

@@ -30,6 +30,8 @@ pub(crate) struct DrivelineInfo {
     pub model: Option<Arc<millgate_sim::model::Model>>,
     /// Its fatigue ledger's components (empty without `drivelines[].fatigue`).
     pub fatigue_components: Vec<String>,
+    /// Its fatigue ledger's `life_limit` (none without `drivelines[].fatigue`).
+    pub fatigue_life_limit: Option<f64>,
 }
 
 /// Everything the handlers share.

@@ -17,6 +17,7 @@ use super::{
 };
 use crate::history::capture_files::{self, CaptureHeader, ExportFormat};
 use crate::history::captures::Capture;
+use crate::history::fatigue_series::FatigueSeries;
 use crate::history::query::{AlarmRow, BiteRow, CaptureRow, Filter, Record};
 use crate::history::series::{WearPoint, MAX_SERIES_POINTS};
 use crate::history::HistoryError;
@@ -288,6 +289,47 @@ pub(crate) async fn wear(
     })
     .await?;
     Ok(Json(series))
+}
+
+/// `GET /api/drivelines/{name}/fatigue/history?since=&until=&points=`: each fatigue
+/// component's life used in at most `points` time buckets (default
+/// [`FATIGUE_POINTS_DEFAULT`]), the resets in the range and the configured life limit
+/// (null without `drivelines[].fatigue`); a history without a ledger of the driveline
+/// gives no components.
+pub(crate) async fn fatigue_history(
+    State(state): State<Arc<WebState>>,
+    DrivelineName(name): DrivelineName,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Json<FatigueHistoryJson>, ApiError> {
+    let params = Params::of(query, &["since", "until", "points"])?;
+    let index = driveline_index(&state, &name)?;
+    let (since, until) = params.range()?;
+    let max = u32::try_from(MAX_SERIES_POINTS).unwrap_or(u32::MAX);
+    let points = params.count("points", 1..=max, FATIGUE_POINTS_DEFAULT)?;
+    let series = with_history(&state, move |reader| {
+        match reader.fatigue_series(&name, since, until, points as usize) {
+            Ok(series) => Ok(series),
+            Err(HistoryError::UnknownDriveline { .. }) => Ok(FatigueSeries::default()),
+            Err(error) => Err(history_error(error)),
+        }
+    })
+    .await?;
+    Ok(Json(FatigueHistoryJson {
+        life_limit: state.drivelines[index].fatigue_life_limit,
+        series,
+    }))
+}
+
+/// Default `points` of `/api/drivelines/{name}/fatigue/history`.
+pub(crate) const FATIGUE_POINTS_DEFAULT: u32 = 300;
+
+/// What `GET /api/drivelines/{name}/fatigue/history` answers: the series' keys
+/// (`components`, `points`, `resets`) and `life_limit`.
+#[derive(serde::Serialize)]
+pub(crate) struct FatigueHistoryJson {
+    #[serde(flatten)]
+    series: FatigueSeries,
+    life_limit: Option<f64>,
 }
 
 /// `GET /api/alarms?since=&until=&limit=&subject=`: the newest `limit` alarm events

@@ -626,6 +626,7 @@ mod tests {
             has_model: true,
             model: None,
             fatigue_components: Vec::new(),
+            fatigue_life_limit: None,
         };
         let results = DrivelineResults {
             last_bite_unix_ms: Some(last),
