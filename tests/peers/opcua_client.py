@@ -86,6 +86,7 @@ def plain(value):
 def data_value(dv):
     return {
         "value": plain(dv.Value.Value) if dv.Value is not None else None,
+        "variant": dv.Value.VariantType.name if dv.Value is not None else None,
         "status": dv.StatusCode.name,
         "source": plain(dv.SourceTimestamp) if dv.SourceTimestamp else None,
         "server": plain(dv.ServerTimestamp) if dv.ServerTimestamp else None,

@@ -90,6 +90,7 @@ impl WebServer {
                 fatigue_components: d.fatigue.as_ref().map_or_else(Vec::new, |f| {
                     f.components.iter().map(|c| c.name.clone()).collect()
                 }),
+                identification: shared::identification_json(&d.identification),
             })
             .collect();
         let (live, live_rx) = watch::channel(Arc::new(String::new()));
