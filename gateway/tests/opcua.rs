@@ -513,6 +513,10 @@ async fn subscriptions_get_each_bite_and_alarms_come_as_events() {
         "subscribed",
     );
     peer.ask("events", "subscribed");
+    // A second client with asyncua's default event subscription (no arguments:
+    // BaseEventType's fields, every event type).
+    let mut base = Peer::connect(&rig.url, &[]).expect("anonymous on loopback");
+    base.ask("baseevents", "subscribed");
     // A bite: the counter's data change carries the PLC's count, the TAF the PLC's
     // (both come in one publish, in either order, with the bite's time).
     let seen = rig.bite_counter();
@@ -583,6 +587,27 @@ async fn subscriptions_get_each_bite_and_alarms_come_as_events() {
         .as_str()
         .unwrap()
         .starts_with("F1: taf_alarm raised, taf "));
+    // The default subscription got the alarm's events too, with BaseEventType's fields.
+    let by_default = loop {
+        let event = base.next_of("event", Duration::from_secs(30));
+        if event["fields"]["SourceName"] == "Drivelines/F1" {
+            break event;
+        }
+    };
+    let fields = &by_default["fields"];
+    assert_eq!(fields["Severity"], 800, "{fields}");
+    assert!(
+        fields["Message"]
+            .as_str()
+            .unwrap()
+            .starts_with("F1: taf_alarm "),
+        "{fields}"
+    );
+    assert!(
+        fields["EventId"].as_str().is_some_and(|id| !id.is_empty()),
+        "{fields}"
+    );
+    base.send("quit");
     let status = rig.gateway.opcua().unwrap().counts();
     assert_eq!(status.acknowledgements, 1);
     assert!(status.events >= 2, "{status:?}");
