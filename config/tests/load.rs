@@ -365,7 +365,7 @@ fn wrong_types_and_missing_keys_are_named() {
     );
     assert_problem_like(
         &(BASE.to_owned() + "\n[alarms]\nlevel = 1\n"),
-        "mill.toml: alarms: unknown key (allowed here: name, sources, channels, drivelines, tandem_mills, rod_mills, outputs, history, cache_dir, log_format)",
+        "mill.toml: alarms: unknown key (allowed here: name, sources, channels, drivelines, tandem_mills, rod_mills, outputs, history, cache_dir, log_format, gateway)",
         &[],
     );
     assert_problem_like(
@@ -2473,5 +2473,94 @@ fn log_format_is_text_or_json() {
             "name = \"Test mill\"\nlog_format = \"xml\"",
         ),
         "mill.toml: log_format: unknown format \"xml\" (allowed: text, json)",
+    );
+}
+
+#[test]
+fn identification_is_read_in_order_and_checked_with_its_key() {
+    use millgate_config::{IdentificationField as Field, IdentificationValue as Value};
+    let text = BASE.to_owned()
+        + "\n[gateway.identification]\nasset_id = \"IPC-7\"\nmanufacturer = \"Siemens\"\n";
+    let text = text.replacen(
+        "thresholds = { taf_warning = 2.2, taf_alarm = 2.6 }",
+        "thresholds = { taf_warning = 2.2, taf_alarm = 2.6 }\n\
+         identification = { serial_number = \"SN 4711\", manufacturer = \"SMS group\", \
+         year_of_construction = 1998, product_instance_uri = \"urn:example:F1\" }",
+        1,
+    );
+    let config = parse(&text).expect("valid");
+    let text_of = |s: &str| Value::Text(s.to_owned());
+    assert_eq!(
+        config.drivelines[0].identification.fields,
+        [
+            (Field::Manufacturer, text_of("SMS group")),
+            (Field::SerialNumber, text_of("SN 4711")),
+            (Field::ProductInstanceUri, text_of("urn:example:F1")),
+            (Field::YearOfConstruction, Value::Year(1998)),
+        ]
+    );
+    assert_eq!(
+        config.gateway_identification.fields,
+        [
+            (Field::Manufacturer, text_of("Siemens")),
+            (Field::AssetId, text_of("IPC-7")),
+        ]
+    );
+    assert!(config.tandem_mills[0].identification.fields.is_empty());
+    // Left out: empty.
+    assert!(parse(BASE)
+        .unwrap()
+        .gateway_identification
+        .fields
+        .is_empty());
+
+    let driveline = |table: &str| {
+        edited(
+            "thresholds = { taf_warning = 2.2, taf_alarm = 2.6 }",
+            &format!(
+                "thresholds = {{ taf_warning = 2.2, taf_alarm = 2.6 }}\nidentification = {table}"
+            ),
+        )
+    };
+    assert_only_problem(
+        &driveline("{ year_of_construction = 98 }"),
+        "mill.toml: drivelines[0].identification.year_of_construction: 98 is not allowed (must be 1800..=2100)",
+    );
+    assert_only_problem(
+        &driveline("{ product_instance_uri = \"F1 stand\" }"),
+        "mill.toml: drivelines[0].identification.product_instance_uri: \"F1 stand\" is not allowed (must be a URI, scheme:rest without spaces, e.g. urn:example:mill:F1 or https://example.com/F1)",
+    );
+    assert_only_problem(
+        &driveline("{ serial_number = \" \" }"),
+        "mill.toml: drivelines[0].identification.serial_number: must not be empty",
+    );
+    let long = "x".repeat(256);
+    assert_only_problem(
+        &driveline(&format!("{{ model = \"{long}\" }}")),
+        "mill.toml: drivelines[0].identification.model: 256 characters are not allowed (must be 1..=255)",
+    );
+    assert_problem_like(
+        &driveline("{ serial_number = 4711 }"),
+        "mill.toml: drivelines[0].identification.serial_number: invalid type: integer `4711`, expected a string",
+        &["line "],
+    );
+    assert_problem_like(
+        &driveline("{ software_revision = \"1.0\" }"),
+        "mill.toml: drivelines[0].identification.software_revision: unknown field `software_revision`",
+        &["serial_number", "line "],
+    );
+    let tandem = edited(
+        "gain_thresholds = [1.2, 1.5]\n",
+        "gain_thresholds = [1.2, 1.5]\nidentification = { manufacturer = \"a\\u0007b\" }\n",
+    );
+    assert_problem_like(
+        &tandem,
+        "mill.toml: tandem_mills[0].identification.manufacturer: \"a\\u{7}b\" is not allowed (must not contain control characters",
+        &[],
+    );
+    assert_problem_like(
+        &(BASE.to_owned() + "\n[gateway]\nidentification = { year_of_construction = \"1998\" }\n"),
+        "mill.toml: gateway.identification.year_of_construction: invalid type: string \"1998\", expected i64",
+        &["line "],
     );
 }

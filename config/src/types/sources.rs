@@ -235,3 +235,10 @@ pub struct Channel {
     /// Where the samples come from.
     pub source: ChannelSource,
 }
+
+impl Channel {
+    /// Its counts to engineering values (`scale` and `offset`, decimal-exact).
+    pub fn scaling(&self) -> crate::Scaling {
+        crate::Scaling::new(self.scale, self.offset)
+    }
+}

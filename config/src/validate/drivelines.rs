@@ -101,6 +101,10 @@ impl Checker<'_> {
             // The torque channel or the bite settings are reported already.
             (Some(_), ..) => None,
         };
+        let identification = self.identification(
+            &format!("{key}.identification"),
+            raw.identification.as_ref(),
+        );
         Some(Driveline {
             name: name?,
             torque: torque?,
@@ -111,6 +115,7 @@ impl Checker<'_> {
             thresholds: thresholds?,
             wear: wear?,
             fatigue: fatigue?,
+            identification: identification?,
         })
     }
 

@@ -91,6 +91,7 @@ impl WebServer {
                     f.components.iter().map(|c| c.name.clone()).collect()
                 }),
                 fatigue_life_limit: d.fatigue.as_ref().map(|f| f.life_limit),
+                identification: shared::identification_json(&d.identification),
             })
             .collect();
         let (live, live_rx) = watch::channel(Arc::new(String::new()));
