@@ -1,0 +1,36 @@
+// One node of a clustered MQTT broker for the Sparkplug failover test: aedes with its
+// messages passed between nodes by mqemitter-redis and its state (retained messages,
+// subscriptions, Wills, QoS 1 queues) kept by aedes-persistence-redis, both on one
+// redis-server. Several processes of this script on one redis are one cluster: a
+// message published on any node reaches the subscribers of every node, a retained
+// message is kept for all, and the Wills of a node that died are sent by the others
+// once its heartbeat is missed (3 heartbeat intervals, checked every 4).
+//
+// usage: node aedes_node.mjs MQTT_PORT REDIS_PORT NODE_ID [HEARTBEAT_MS]
+// Listens on 127.0.0.1:MQTT_PORT; prints {"ready": true, ...} once it does.
+
+import net from 'node:net'
+import { Aedes } from 'aedes'
+import mqemitterRedis from 'mqemitter-redis'
+import persistenceRedis from 'aedes-persistence-redis'
+
+const [mqttPort, redisPort, nodeId, heartbeatMs = '1000'] = process.argv.slice(2)
+if (!mqttPort || !redisPort || !nodeId) {
+  console.error('usage: node aedes_node.mjs MQTT_PORT REDIS_PORT NODE_ID [HEARTBEAT_MS]')
+  process.exit(2)
+}
+const redis = { host: '127.0.0.1', port: Number(redisPort) }
+
+const broker = await Aedes.createBroker({
+  id: nodeId,
+  mq: mqemitterRedis(redis),
+  persistence: persistenceRedis(redis),
+  heartbeatInterval: Number(heartbeatMs)
+})
+broker.on('clientError', (client, err) => {
+  console.error(`${nodeId}: client ${client.id}: ${err.message}`)
+})
+const server = net.createServer(broker.handle)
+server.listen(Number(mqttPort), '127.0.0.1', () => {
+  console.log(JSON.stringify({ ready: true, node: nodeId, port: Number(mqttPort) }))
+})
