@@ -9,11 +9,13 @@
 //! killed during one, every bite arrives once live or flagged historical, the
 //! historical ones first; the replay's pacing. A server set (`brokers`): the node
 //! moves on when its server is killed mid-stream (two independent mosquittos; a
-//! three-node RabbitMQ cluster, the host application on another node) or when the
-//! primary host is offline on its server, and no bite is lost.
+//! three-node aedes cluster on redis and a three-node RabbitMQ cluster, the host
+//! application on another node) or when the primary host is offline on its server,
+//! and no bite is lost.
 //!
-//! Needs `apt install mosquitto rabbitmq-server` and `pip install pysparkplug==0.6.1`
-//! (with paho-mqtt 1.6.1) (scripts/test installs them).
+//! Needs `apt install mosquitto rabbitmq-server redis-server`, `pip install
+//! pysparkplug==0.6.1` (with paho-mqtt 1.6.1) and `npm ci --prefix tests/peers`
+//! (aedes) (scripts/test installs them).
 
 mod common;
 
