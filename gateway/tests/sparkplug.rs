@@ -1435,19 +1435,33 @@ async fn killing_the_aedes_cluster_node_of_the_session_loses_no_bite() {
     // The Will: sent 3-7 s after the kill (3 missed heartbeats of 1 s, checked every
     // 4 s); it carries the first session's bdSeq, so a host that saw the second
     // birth (bdSeq + 1) knows it is not the current session's death.
-    let will = read_until(&mut hosts, "the Will", Duration::from_secs(30), |seen| {
+    let node_messages = |seen: &[Value]| -> Vec<(String, Option<u64>)> {
         seen.iter()
-            .find(|m| {
-                m["type"] == "NDEATH" && metric(m, "bdSeq")["value"].as_u64() == Some(first_bd_seq)
+            .filter(|m| m["type"] == "NBIRTH" || m["type"] == "NDEATH")
+            .map(|m| {
+                let bd_seq = metric(m, "bdSeq")["value"].as_u64();
+                (m["type"].as_str().unwrap().to_owned(), bd_seq)
             })
-            .cloned()
-    });
+            .collect()
+    };
+    let is_will = |m: &&Value| {
+        m["type"] == "NDEATH" && metric(m, "bdSeq")["value"].as_u64() == Some(first_bd_seq)
+    };
+    let started = Instant::now();
+    while !seen(&hosts).iter().any(|m| is_will(&m)) && started.elapsed() < Duration::from_secs(30) {
+        if let Ok(value) = hosts[0].lines.recv_timeout(Duration::from_millis(100)) {
+            hosts[0].seen.push(value);
+        }
+    }
     let seen = seen(&hosts);
-    let order: Vec<&str> = seen
+    eprintln!(
+        "node messages at the host (type, bdSeq): {:?}",
+        node_messages(&seen)
+    );
+    let will = seen
         .iter()
-        .filter_map(|m| m["type"].as_str().filter(|t| t.starts_with('N')))
-        .collect();
-    eprintln!("node messages at the host: {order:?}");
+        .find(is_will)
+        .unwrap_or_else(|| panic!("no Will within 30 s: {:?}", node_messages(&seen)));
     assert_eq!(will["topic"], "spBv1.0/plant/NDEATH/f1");
     // aedes keeps the topics: nothing rewritten, every message under spBv1.0/plant/.
     assert!(

@@ -12,7 +12,9 @@
 //! a message published on one node reaches subscribers on the others, topic
 //! unchanged; a retained message published on one node is delivered by the others;
 //! the Will of a client of a killed node is sent by another node once the dead node's
-//! heartbeat is missed (3 heartbeats of [`AEDES_HEARTBEAT_MS`], checked every 4: 3-7 s).
+//! heartbeat is missed (3 heartbeats of [`AEDES_HEARTBEAT_MS`], checked every 4: 3-7 s;
+//! with a workaround in `aedes_node.mjs`, without which a subscriber may drop it as a
+//! duplicate).
 //!
 //! RabbitMQ, three nodes on loopback (`n0@localhost` ..) joined by the
 //! classic peer discovery, with an `epmd` of their own on a port of the test's; their
