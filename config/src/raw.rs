@@ -77,6 +77,8 @@ pub(crate) struct RawDriveline {
     pub(crate) thresholds: RawThresholds,
     pub(crate) wear: Option<RawWear>,
     pub(crate) fatigue: Option<RawFatigue>,
+    pub(crate) context: Option<RawContextTags>,
+    pub(crate) pool_speed_range_mpm: Option<Vec<f64>>,
 }
 
 /// `drivelines[].fatigue`: the fatigue ledger.

@@ -595,17 +595,21 @@
     function drawGap() {
       const t = info.thresholds;
       const cone = info.gap_cone;
-      // Rows by time (Unix s): gap, low, high, fitted line, forecast mean, low, high.
+      // Rows by time (Unix s): gap, low, high, fitted line, forecast mean, low, high,
+      // a bite not pooled (drawn at 0 mrad).
       const rows = new Map();
       const at = (time) => {
         const x = Date.parse(time) / 1000;
-        if (!rows.has(x)) rows.set(x, [null, null, null, null, null, null, null]);
+        if (!rows.has(x)) rows.set(x, [null, null, null, null, null, null, null, null]);
         return rows.get(x);
       };
       for (const p of wearPoints) {
         const r = at(p.end);
         r[0] = p.gap_mrad; r[1] = p.gap_low_mrad; r[2] = p.gap_high_mrad;
       }
+      // Bites the context kept out of the wear trend (gated 1 state, 2 speed).
+      const gated = bites.filter((b) => b.gated === 1 || b.gated === 2);
+      for (const b of gated) at(b.time)[7] = 0;
       if (cone) {
         at(cone.fitted_line.from_time)[3] = cone.fitted_line.from_mrad;
         at(cone.fitted_line.to_time)[3] = cone.fitted_line.to_mrad;
@@ -617,7 +621,7 @@
       const xs = Array.from(rows.keys()).sort((a, b) => a - b);
       const column = (i) => xs.map((x) => rows.get(x)[i]);
       const data = [xs, column(0), column(1), column(2), xs.map(() => t.gap_warning_mrad), xs.map(() => t.gap_alarm_mrad),
-        column(3), column(4), column(5), column(6)];
+        column(3), column(4), column(5), column(6), column(7)];
       const expected = expectedText(info) ? Date.parse(info.gap_alarm_date) / 1000 : null;
       const said = forecastText(info);
       const mrad = (u, v) => num(v, 2) + " mrad";
@@ -635,6 +639,8 @@
           { label: "forecast", stroke: "#c2410c", width: 2, spanGaps: true, points: quiet, value: mrad },
           { label: "forecast 90% low", stroke: "#fdba74", width: 1, spanGaps: true, points: quiet, value: (u, v) => num(v, 2) },
           { label: "forecast 90% high", stroke: "#fdba74", width: 1, spanGaps: true, points: quiet, value: (u, v) => num(v, 2) },
+          { label: "bite not pooled (state, speed)", stroke: "#6b7280", width: 0, paths: () => null,
+            points: { show: true, size: 7, fill: "#ffffff", stroke: "#6b7280" }, value: (u, v) => (v === null ? "–" : "not pooled") },
         ],
         bands: [{ series: [3, 2], fill: "rgba(29, 78, 216, 0.15)" }, { series: [9, 8], fill: "rgba(194, 65, 12, 0.15)" }],
         axes: [{ values: utcTicks, incrs: timeIncrs, space: 70, label: "time (UTC)" }, { label: "opened gap, mrad" }],
@@ -681,7 +687,9 @@
       const t = info.thresholds;
       const cone = info.gap_cone;
       const last = cone ? cone.points[cone.points.length - 1] : null;
+      const gated = gapPlot.data[10].filter((v) => v !== null).length;
       describe(gapNode, gapSummary("Opened gap of " + name + " over time", gapPlot.data, ["gap"])
+        + (gated ? " " + gated + " bites not pooled into the trend (the mill's state or speed), marked at 0 mrad." : "")
         + " Warning at " + t.gap_warning_mrad + " mrad, alarm at " + t.gap_alarm_mrad + " mrad."
         + (cone ? " Growth " + growthText(info) + "; forecast: " + (forecastText(info) || "none") + "; its 90% band "
           + num(cone.points[0].low_mrad, 2) + " to " + num(cone.points[0].high_mrad, 2) + " mrad at the last bite, "

@@ -358,6 +358,12 @@ CREATE TABLE fatigue_resets (
 );
 CREATE INDEX fatigue_resets_by_driveline_time ON fatigue_resets(driveline, time);
 "#,
+    // Version 13: the process context (issue 39). A bite's gate (the catalogue's
+    // `last_bite_gated`: 0 pooled into the wear trend, 1 not for the mill's state, 2
+    // not for its speed; NULL without drivelines[].context, and for every bite before).
+    r#"
+ALTER TABLE bites ADD COLUMN gated INTEGER;
+"#,
 ];
 
 /// `PRAGMA application_id` of a millgate history: the bytes "MLGT" (0x4D4C4754), set
