@@ -5,8 +5,8 @@
 //! recorded but not pooled into the wear trend; a state code the PLC does not define
 //! makes the context invalid (counted, the bite pooled as without context). The test
 //! checks each bite's gate and context as the gateway read them, the pooled count in
-//! the PLC's registers, the counters on `/metrics` and the `gated` column of the
-//! history.
+//! the PLC's registers, the counters on `/metrics` and, in the history, each bite's
+//! `gated` column and the context it was rolled in (issue 39 item 3).
 
 use std::path::PathBuf;
 use std::time::Duration;
@@ -170,7 +170,24 @@ async fn bites_outside_rolling_or_the_speed_range_are_recorded_not_pooled() -> a
         .map(|bar| Some(bar.4.unwrap_or(BiteGate::Pooled)))
         .collect();
     assert_eq!(gates, expected);
+    // Tagged with the context it was rolled in (none for the invalid one).
+    for (row, &(_, _, state, speed, gate)) in rows.iter().zip(&BARS) {
+        let valid = gate.is_some();
+        assert_eq!(
+            row.context.state,
+            MillState::from_code(u32::from(state)).filter(|_| valid)
+        );
+        assert_eq!(row.context.speed_mpm, valid.then_some(f64::from(speed)));
+    }
     let json = serde_json::to_value(&rows[1])?;
-    assert_eq!(json["gated"], 1, "{json}");
+    assert_eq!(
+        (&json["gated"], &json["mill_state"], &json["speed_mpm"]),
+        (
+            &serde_json::json!(1),
+            &serde_json::json!("threading"),
+            &serde_json::json!(250.0)
+        ),
+        "{json}"
+    );
     Ok(())
 }

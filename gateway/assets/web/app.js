@@ -582,8 +582,29 @@
         traceNote.textContent = error.message;
       }
     }
+    // The product filter of the bite table, and the table by product.
+    const productSection = document.getElementById("products");
+    const productBody = document.querySelector("#product-table tbody");
+    const productLabel = document.getElementById("product-filter-label");
+    const productSelect = document.getElementById("product-filter");
+    productSelect.addEventListener("change", () => table());
     function table() {
-      fill(tbody, bites.slice(-25).reverse().map((b) => row(b, false)));
+      const chosen = productSelect.value === "" ? null : Number(productSelect.value);
+      const shown = chosen === null ? bites : bites.filter((b) => b.product === chosen);
+      fill(tbody, shown.slice(-25).reverse().map((b) => row(b, false)));
+    }
+    function drawProducts(products) {
+      productSection.classList.toggle("hidden", products.length === 0);
+      productLabel.classList.toggle("hidden", products.length === 0);
+      fill(productBody, products.map((p) => el("tr", {},
+        el("td", {}, String(p.product)), el("td", {}, String(p.bites)), el("td", {}, String(p.not_pooled)),
+        el("td", {}, num(p.taf_mean, 3)), el("td", {}, num(p.taf_max, 3)),
+        el("td", {}, p.static_torque_mean_knm === null ? "–" : num(p.static_torque_mean_knm, 1) + " kN·m"),
+        el("td", {}, p.gap_mean_mrad === null ? "–" : num(p.gap_mean_mrad, 2) + " mrad"))));
+      const chosen = productSelect.value;
+      productSelect.replaceChildren(el("option", { value: "" }, "all"),
+        ...products.map((p) => el("option", { value: String(p.product) }, String(p.product))));
+      productSelect.value = products.some((p) => String(p.product) === chosen) ? chosen : "";
     }
 
     // The history's gap series (buckets), with the live bites since appended.
@@ -812,12 +833,14 @@
     async function loadHistory() {
       try {
         const series = Date.now() - wearAt >= SERIES_PERIOD_MS;
-        const [wear, rows, captures] = await Promise.all([
+        const [wear, rows, captures, products] = await Promise.all([
           series ? getJson("/api/drivelines/" + encodeURIComponent(name) + "/wear?points=400") : null,
           getJson("/api/drivelines/" + encodeURIComponent(name) + "/bites?limit=500"),
           getJson("/api/drivelines/" + encodeURIComponent(name) + "/captures?limit=500"),
+          series ? getJson("/api/drivelines/" + encodeURIComponent(name) + "/products") : null,
         ]);
         bites = rows;
+        if (products) drawProducts(products);
         captureOf = new Map(captures.filter((c) => c.kind === "bite").map((c) => [c.bite_counter, c.id]));
         table();
         drawFatigue();

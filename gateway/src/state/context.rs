@@ -28,9 +28,23 @@ impl MillState {
         MillState::Maintenance,
     ];
 
+    /// The names, in code order (the history's text).
+    pub const NAMES: [&'static str; 4] = ["idle", "threading", "rolling", "maintenance"];
+
     /// The state of PLC code `code` (0 idle, 1 threading, 2 rolling, 3 maintenance).
     pub fn from_code(code: u32) -> Option<MillState> {
         Self::ALL.get(usize::try_from(code).ok()?).copied()
+    }
+
+    /// Its name (`rolling`), as the history keeps it.
+    pub fn name(self) -> &'static str {
+        Self::NAMES[self as usize]
+    }
+
+    /// The state named `name` ([`Self::name`]).
+    pub fn from_name(name: &str) -> Option<MillState> {
+        let code = Self::NAMES.iter().position(|n| *n == name)?;
+        Some(Self::ALL[code])
     }
 }
 

@@ -294,6 +294,7 @@ pub fn bite_record(
                 period_shift_sigma_s: o.period_shift_sigma_s,
             }
         }),
+        context: report.context.and_then(|context| context.context.ok()),
         state: state.clone(),
     }
 }

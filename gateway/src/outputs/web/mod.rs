@@ -245,6 +245,7 @@ pub(crate) fn router(state: Arc<WebState>) -> Router {
             }),
         )
         .route("/api/drivelines/{name}/wear", get(api::wear))
+        .route("/api/drivelines/{name}/products", get(api::products))
         .route("/api/drivelines/{name}/map", get(api::gap_maps))
         .route("/api/alarms", get(api::alarms))
         .route("/api/events", get(api::events))
