@@ -7,9 +7,7 @@
 //! that counts from 1 (the Modicon 4xxxx notation, mbpoll without `-0`) shows
 //! address 0 as register 1 (40001).
 
-use millgate_config::{
-    ChannelSource, Config, ContextTags, PlcOutput, RegisterTable, ValueType, WordOrder,
-};
+use millgate_config::{ChannelSource, Config, ContextTags, PlcOutput, ValueType, WordOrder};
 use serde::Serialize;
 
 use crate::outputs::modbus::register_map::RegisterMap;
@@ -207,10 +205,7 @@ fn context_inputs(config: &Config) -> Vec<ContextInput<'_>> {
                     word_order,
                 } => (
                     config.modbus_sources[*source].name.as_str(),
-                    match table {
-                        RegisterTable::Input => "input",
-                        RegisterTable::Holding => "holding",
-                    },
+                    table.name(),
                     Some(*address),
                     format!(
                         "{} {}, x {} + {}",
