@@ -78,6 +78,8 @@ pub(crate) struct RawDriveline {
     pub(crate) wear: Option<RawWear>,
     pub(crate) fatigue: Option<RawFatigue>,
     pub(crate) identification: Option<RawIdentification>,
+    pub(crate) context: Option<RawContextTags>,
+    pub(crate) pool_speed_range_mpm: Option<Vec<f64>>,
 }
 
 /// `identification`: a machine's nameplate (OPC 40001-1 `MachineIdentificationType`),

@@ -944,6 +944,55 @@ fn context_tags_and_the_weld_hold() {
 }
 
 #[test]
+fn driveline_context_and_the_pooled_speed_range() {
+    let config = parse(BASE).unwrap_or_else(|error| panic!("{error}"));
+    assert_eq!(config.drivelines[0].context, ContextTags::default());
+    assert_eq!(config.drivelines[0].pool_speed_range_mpm, None);
+    let with = |keys: &str| {
+        edited(
+            "[[drivelines]]",
+            &format!(
+                "[[channels]]\nname = \"mill_state\"\nkind = \"process_value\"\nunit = \"1\"\n\
+                 source = {{ modbus = \"plc\", table = \"holding\", address = 30 }}\n\n\
+                 [[channels]]\nname = \"mill_speed\"\nkind = \"process_value\"\nunit = \"m/min\"\n\
+                 source = {{ modbus = \"plc\", table = \"holding\", address = 31 }}\n\n\
+                 [[drivelines]]\n{keys}\n"
+            ),
+        )
+    };
+    let config = parse(&with(
+        "context = { state = \"mill_state\", speed_mpm = \"mill_speed\" }\npool_speed_range_mpm = [60.0, 400.0]",
+    ))
+    .unwrap_or_else(|error| panic!("{error}"));
+    let driveline = &config.drivelines[0];
+    let name = |index: Option<usize>| index.map(|i| config.channels[i].name.as_str());
+    assert_eq!(name(driveline.context.state), Some("mill_state"));
+    assert_eq!(name(driveline.context.speed_mpm), Some("mill_speed"));
+    assert_eq!(driveline.pool_speed_range_mpm, Some((60.0, 400.0)));
+    let summary = millgate_config::summary(&config);
+    assert!(
+        summary
+            .contains("    context from the PLC: speed_mpm <- mill_speed, state <- mill_state\n")
+            && summary.contains("wear trend pools bites rolled at 60 to 400 m/min"),
+        "{summary}"
+    );
+    let key = "mill.toml: drivelines[0].";
+    for (keys, problem) in [
+        ("context = { weld = \"mill_state\" }", "context.weld: is not allowed on a driveline"),
+        ("context = { state = \"spindle_top\" }", "context.state: channel \"spindle_top\" is a torque channel (must be process_value)"),
+        ("pool_speed_range_mpm = [60.0, 400.0]", "pool_speed_range_mpm: needs the speed tag"),
+        ("context = { speed_mpm = \"mill_speed\" }\npool_speed_range_mpm = [400.0, 60.0]", "pool_speed_range_mpm: [400.0, 60.0] is not allowed (must be [low, high] in m/min with 0 <= low < high)"),
+        ("context = { speed_mpm = \"mill_speed\" }\npool_speed_range_mpm = [-1.0, 60.0]", "pool_speed_range_mpm: [-1.0, 60.0] is not allowed"),
+    ] {
+        let found = problems(&with(keys));
+        assert!(
+            found.iter().any(|p| p.starts_with(&format!("{key}{problem}"))),
+            "{keys}: {found:#?}"
+        );
+    }
+}
+
+#[test]
 fn addresses() {
     assert_only_problem(
         &edited("address = \"127.0.0.1:5020\"", "address = \"127.0.0.1\""),

@@ -709,6 +709,27 @@ async fn the_api_answers_from_the_live_results_and_the_history_and_refuses_bad_r
     )
     .await;
     assert_eq!(ranged.status, 200, "{}", ranged.body);
+    // No process context here: the bites have no product, none is listed by product.
+    assert!(
+        last["product"].is_null() && last["gated"].is_null(),
+        "{last}"
+    );
+    let of_product = http(port, "GET", "/api/drivelines/F1/bites?product=101").await;
+    assert_eq!(
+        (of_product.status, of_product.json()),
+        (200, serde_json::json!([]))
+    );
+    let products = http(port, "GET", "/api/drivelines/F1/products").await;
+    assert_eq!(
+        (products.status, products.json()),
+        (200, serde_json::json!([]))
+    );
+    assert_bad(
+        port,
+        "/api/drivelines/F1/bites?product=-1",
+        &["product", "0..=4294967295"],
+    )
+    .await;
     let ranged = ranged.json();
     let ranged = ranged.as_array().unwrap();
     assert!(!ranged.is_empty());

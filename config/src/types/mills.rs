@@ -42,6 +42,14 @@ pub struct Driveline {
     pub fatigue: Option<FatigueSettings>,
     /// Its nameplate (`identification`, empty when left out).
     pub identification: Identification,
+    /// The mill's process context at each bite (`context` table; every tag but
+    /// `weld`): a bite while the state is idle, threading or maintenance is recorded
+    /// but not pooled into the wear trend. All `None` when left out.
+    pub context: ContextTags,
+    /// Mill speed range whose bites are pooled into the wear trend, m/min, `0 <= low
+    /// < high` (`pool_speed_range_mpm`, needs the `speed_mpm` context tag): a bite
+    /// rolled outside it is recorded but not pooled. `None`: any speed.
+    pub pool_speed_range_mpm: Option<(f64, f64)>,
 }
 
 /// `drivelines[].fatigue`: rainflow counting of the whole torque stream and Miner's

@@ -84,7 +84,7 @@ impl RegisterTable {
     pub(crate) const ALL: [RegisterTable; 2] = [RegisterTable::Input, RegisterTable::Holding];
 
     /// The spelling used in configuration files: `input`, `holding`.
-    pub(crate) fn name(self) -> &'static str {
+    pub fn name(self) -> &'static str {
         match self {
             RegisterTable::Input => "input",
             RegisterTable::Holding => "holding",

@@ -613,8 +613,29 @@
         traceNote.textContent = error.message;
       }
     }
+    // The product filter of the bite table, and the table by product.
+    const productSection = document.getElementById("products");
+    const productBody = document.querySelector("#product-table tbody");
+    const productLabel = document.getElementById("product-filter-label");
+    const productSelect = document.getElementById("product-filter");
+    productSelect.addEventListener("change", () => table());
     function table() {
-      fill(tbody, bites.slice(-25).reverse().map((b) => row(b, false)));
+      const chosen = productSelect.value === "" ? null : Number(productSelect.value);
+      const shown = chosen === null ? bites : bites.filter((b) => b.product === chosen);
+      fill(tbody, shown.slice(-25).reverse().map((b) => row(b, false)));
+    }
+    function drawProducts(products) {
+      productSection.classList.toggle("hidden", products.length === 0);
+      productLabel.classList.toggle("hidden", products.length === 0);
+      fill(productBody, products.map((p) => el("tr", {},
+        el("td", {}, String(p.product)), el("td", {}, String(p.bites)), el("td", {}, String(p.not_pooled)),
+        el("td", {}, num(p.taf_mean, 3)), el("td", {}, num(p.taf_max, 3)),
+        el("td", {}, p.static_torque_mean_knm === null ? "–" : num(p.static_torque_mean_knm, 1) + " kN·m"),
+        el("td", {}, p.gap_mean_mrad === null ? "–" : num(p.gap_mean_mrad, 2) + " mrad"))));
+      const chosen = productSelect.value;
+      productSelect.replaceChildren(el("option", { value: "" }, "all"),
+        ...products.map((p) => el("option", { value: String(p.product) }, String(p.product))));
+      productSelect.value = products.some((p) => String(p.product) === chosen) ? chosen : "";
     }
 
     // The history's gap series (buckets), with the live bites since appended.
@@ -626,17 +647,21 @@
     function drawGap() {
       const t = info.thresholds;
       const cone = info.gap_cone;
-      // Rows by time (Unix s): gap, low, high, fitted line, forecast mean, low, high.
+      // Rows by time (Unix s): gap, low, high, fitted line, forecast mean, low, high,
+      // a bite not pooled (drawn at 0 mrad).
       const rows = new Map();
       const at = (time) => {
         const x = Date.parse(time) / 1000;
-        if (!rows.has(x)) rows.set(x, [null, null, null, null, null, null, null]);
+        if (!rows.has(x)) rows.set(x, [null, null, null, null, null, null, null, null]);
         return rows.get(x);
       };
       for (const p of wearPoints) {
         const r = at(p.end);
         r[0] = p.gap_mrad; r[1] = p.gap_low_mrad; r[2] = p.gap_high_mrad;
       }
+      // Bites the context kept out of the wear trend (gated 1 state, 2 speed).
+      const gated = bites.filter((b) => b.gated === 1 || b.gated === 2);
+      for (const b of gated) at(b.time)[7] = 0;
       if (cone) {
         at(cone.fitted_line.from_time)[3] = cone.fitted_line.from_mrad;
         at(cone.fitted_line.to_time)[3] = cone.fitted_line.to_mrad;
@@ -648,7 +673,7 @@
       const xs = Array.from(rows.keys()).sort((a, b) => a - b);
       const column = (i) => xs.map((x) => rows.get(x)[i]);
       const data = [xs, column(0), column(1), column(2), xs.map(() => t.gap_warning_mrad), xs.map(() => t.gap_alarm_mrad),
-        column(3), column(4), column(5), column(6)];
+        column(3), column(4), column(5), column(6), column(7)];
       const expected = expectedText(info) ? Date.parse(info.gap_alarm_date) / 1000 : null;
       const said = forecastText(info);
       const mrad = (u, v) => num(v, 2) + " mrad";
@@ -666,6 +691,8 @@
           { label: "forecast", stroke: "#c2410c", width: 2, spanGaps: true, points: quiet, value: mrad },
           { label: "forecast 90% low", stroke: "#fdba74", width: 1, spanGaps: true, points: quiet, value: (u, v) => num(v, 2) },
           { label: "forecast 90% high", stroke: "#fdba74", width: 1, spanGaps: true, points: quiet, value: (u, v) => num(v, 2) },
+          { label: "bite not pooled (state, speed)", stroke: "#6b7280", width: 0, paths: () => null,
+            points: { show: true, size: 7, fill: "#ffffff", stroke: "#6b7280" }, value: (u, v) => (v === null ? "–" : "not pooled") },
         ],
         bands: [{ series: [3, 2], fill: "rgba(29, 78, 216, 0.15)" }, { series: [9, 8], fill: "rgba(194, 65, 12, 0.15)" }],
         axes: [{ values: utcTicks, incrs: timeIncrs, space: 70, label: "time (UTC)" }, { label: "opened gap, mrad" }],
@@ -712,7 +739,9 @@
       const t = info.thresholds;
       const cone = info.gap_cone;
       const last = cone ? cone.points[cone.points.length - 1] : null;
+      const gated = gapPlot.data[10].filter((v) => v !== null).length;
       describe(gapNode, gapSummary("Opened gap of " + name + " over time", gapPlot.data, ["gap"])
+        + (gated ? " " + gated + " bites not pooled into the trend (the mill's state or speed), marked at 0 mrad." : "")
         + " Warning at " + t.gap_warning_mrad + " mrad, alarm at " + t.gap_alarm_mrad + " mrad."
         + (cone ? " Growth " + growthText(info) + "; forecast: " + (forecastText(info) || "none") + "; its 90% band "
           + num(cone.points[0].low_mrad, 2) + " to " + num(cone.points[0].high_mrad, 2) + " mrad at the last bite, "
@@ -836,14 +865,16 @@
       try {
         const series = Date.now() - wearAt >= SERIES_PERIOD_MS;
         const fatigue = series && (info.fatigue_components || []).length > 0;
-        const [wear, rows, captures, life] = await Promise.all([
+        const [wear, rows, captures, life, products] = await Promise.all([
           series ? getJson("/api/drivelines/" + encodeURIComponent(name) + "/wear?points=400") : null,
           getJson("/api/drivelines/" + encodeURIComponent(name) + "/bites?limit=500"),
           getJson("/api/drivelines/" + encodeURIComponent(name) + "/captures?limit=500"),
           fatigue ? getJson("/api/drivelines/" + encodeURIComponent(name) + "/fatigue/history?points=400") : null,
+          series ? getJson("/api/drivelines/" + encodeURIComponent(name) + "/products") : null,
         ]);
         if (life) fatigueSeries = life;
         bites = rows;
+        if (products) drawProducts(products);
         captureOf = new Map(captures.filter((c) => c.kind === "bite").map((c) => [c.bite_counter, c.id]));
         table();
         drawFatigue();

@@ -100,6 +100,54 @@ pub(super) fn summary(period: &Period, read: &[DrivelineData], blocks: &mut Vec<
     ));
 }
 
+/// The bites by product, a table of every driveline's products (rows of drivelines
+/// in `read`'s order); nothing when no bite of the period has a product, so reports
+/// without a process context stay as they were.
+pub(super) fn products(period: &Period, read: &[DrivelineData], blocks: &mut Vec<Block>) {
+    let rows: Vec<Vec<String>> = period
+        .drivelines
+        .iter()
+        .zip(read)
+        .flat_map(|(name, data)| {
+            data.products.iter().map(move |p| {
+                vec![
+                    name.clone(),
+                    p.product.to_string(),
+                    p.bites.to_string(),
+                    p.not_pooled.to_string(),
+                    fmt(p.taf_mean, 3),
+                    fmt(p.taf_max, 3),
+                    fmt(p.static_torque_mean_knm, 1),
+                    fmt(p.gap_mean_mrad, 2),
+                ]
+            })
+        })
+        .collect();
+    if rows.is_empty() {
+        return;
+    }
+    blocks.push(Block::Heading(3, "Bites by product".into()));
+    blocks.push(Block::Text(format!(
+        "Each driveline's bites in the period by the product code the PLC gave          (drivelines[].context; bites without one left out; at most {} products per          driveline, those with the most bites): bites not pooled into the wear trend (the          mill's state or speed), the TAF and static torque of the clean bites, and the          mean of the wear trend's gap after the product's pooled bites.",
+        crate::history::summary::MAX_PRODUCTS
+    )));
+    blocks.push(Block::Table(
+        [
+            "driveline",
+            "product",
+            "bites",
+            "not pooled",
+            "TAF mean",
+            "TAF max",
+            "static torque mean, kN*m",
+            "gap mean, mrad",
+        ]
+        .map(String::from)
+        .to_vec(),
+        rows,
+    ));
+}
+
 /// The gap estimate after `data`'s last bite in the period.
 fn last_gap(data: &DrivelineData) -> Option<GapResults> {
     data.last.as_ref().and_then(|b| b.figures.gap)

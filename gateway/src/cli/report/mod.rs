@@ -100,6 +100,7 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<String> {
     let read = drivelines::read(&reader, &period, &mut progress)?;
     let mut blocks = title(&args.db, &period);
     drivelines::summary(&period, &read, &mut blocks);
+    drivelines::products(&period, &read, &mut blocks);
     for (name, data) in period.drivelines.iter().zip(&read) {
         drivelines::section(&reader, &args.db, &period, (name, data), &mut blocks)?;
     }

@@ -251,6 +251,7 @@ pub(crate) fn router(state: Arc<WebState>) -> Router {
             "/api/drivelines/{name}/fatigue/history",
             get(api::fatigue_history),
         )
+        .route("/api/drivelines/{name}/products", get(api::products))
         .route("/api/drivelines/{name}/map", get(api::gap_maps))
         .route("/api/alarms", get(api::alarms))
         .route("/api/events", get(api::events))

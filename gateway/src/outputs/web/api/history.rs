@@ -20,17 +20,18 @@ use crate::history::captures::Capture;
 use crate::history::fatigue_series::FatigueSeries;
 use crate::history::query::{AlarmRow, BiteRow, CaptureRow, Filter, Record};
 use crate::history::series::{WearPoint, MAX_SERIES_POINTS};
+use crate::history::summary::ProductSummary;
 use crate::history::HistoryError;
 use crate::outputs::web::shared::WebState;
 
-/// `GET /api/drivelines/{name}/bites?since=&until=&limit=`: the newest `limit` bites
-/// in the range, oldest first.
+/// `GET /api/drivelines/{name}/bites?since=&until=&limit=&product=`: the newest
+/// `limit` bites in the range (of product code `product` when given), oldest first.
 pub(crate) async fn bites(
     State(state): State<Arc<WebState>>,
     DrivelineName(name): DrivelineName,
     query: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Json<Vec<BiteRow>>, ApiError> {
-    let params = Params::of(query, &["since", "until", "limit"])?;
+    let params = Params::of(query, &["since", "until", "limit", "product"])?;
     driveline_index(&state, &name)?;
     Ok(Json(newest(&state, &params, Some(name)).await?))
 }
@@ -332,6 +333,26 @@ pub(crate) struct FatigueHistoryJson {
     life_limit: Option<f64>,
 }
 
+/// `GET /api/drivelines/{name}/products?since=&until=`: the driveline's bites in the
+/// range by the product they were rolled in (count, not pooled, TAF mean and max,
+/// static torque and gap means), the products with the most bites first.
+pub(crate) async fn products(
+    State(state): State<Arc<WebState>>,
+    DrivelineName(name): DrivelineName,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Json<Vec<ProductSummary>>, ApiError> {
+    let params = Params::of(query, &["since", "until"])?;
+    driveline_index(&state, &name)?;
+    let (since, until) = params.range()?;
+    let products = with_history(&state, move |reader| {
+        reader
+            .product_summaries(&name, since, until)
+            .map_err(history_error)
+    })
+    .await?;
+    Ok(Json(products))
+}
+
 /// `GET /api/alarms?since=&until=&limit=&subject=`: the newest `limit` alarm events
 /// in the range, oldest first.
 pub(crate) async fn alarms(
@@ -352,12 +373,17 @@ pub(super) async fn newest<R: Record + Send + 'static>(
 ) -> Result<Vec<R>, ApiError> {
     let (since, until) = params.range()?;
     let limit = params.count("limit", 1..=LIMIT_MAX, LIMIT_DEFAULT)?;
+    let product = params
+        .get("product")
+        .map(|_| params.count("product", 0..=u32::MAX, 0))
+        .transpose()?;
     let filter = Filter {
         name,
         since,
         until,
         after_id: None,
         limit: Some(limit),
+        product,
     };
     with_history(state, move |reader| {
         reader.newest(&filter).map_err(history_error)
