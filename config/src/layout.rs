@@ -81,11 +81,11 @@ pub struct Block<'a> {
 }
 
 impl Block<'_> {
-    /// Samples in engineering units.
-    pub fn values(&self, scale: f64, offset: f64) -> impl Iterator<Item = f64> + '_ {
+    /// Samples in engineering units, decoded by `scaling`.
+    pub fn values(&self, scaling: crate::Scaling) -> impl Iterator<Item = f64> + '_ {
         self.raw
             .iter()
-            .map(move |&word| f64::from(word as i16) * scale + offset)
+            .map(move |&word| scaling.apply(f64::from(word as i16)))
     }
 }
 
@@ -163,8 +163,9 @@ fn swaps_bytes(order: WordOrder) -> bool {
 }
 
 /// Decode a process value from its registers (1 for 16-bit types, 2 for 32-bit
-/// ones) into its raw numeric value, before scale and offset. `None` when fewer
-/// registers than the type needs.
+/// ones) into its raw numeric value, before scale and offset (a float32 as its
+/// shortest decimal, [`crate::f32_decimal`]). `None` when fewer registers than the
+/// type needs.
 pub fn decode_value(registers: &[u16], value_type: ValueType, order: WordOrder) -> Option<f64> {
     let word = |i: usize| registers.get(i).copied();
     let single = || {
@@ -187,7 +188,7 @@ pub fn decode_value(registers: &[u16], value_type: ValueType, order: WordOrder) 
         ValueType::I16 => f64::from(single()? as i16),
         ValueType::U32 => f64::from(double()?),
         ValueType::I32 => f64::from(double()? as i32),
-        ValueType::F32 => f64::from(f32::from_bits(double()?)),
+        ValueType::F32 => crate::f32_decimal(f32::from_bits(double()?)),
     })
 }
 
@@ -307,7 +308,7 @@ mod tests {
         encode_block(65535, &[-1, 2, 300], &mut registers);
         let block = decode_block(&registers).unwrap();
         assert_eq!(block.sequence, 65535);
-        let values: Vec<f64> = block.values(0.5, 1.0).collect();
+        let values: Vec<f64> = block.values(crate::Scaling::new(0.5, 1.0)).collect();
         assert_eq!(values, vec![0.5, 2.0, 151.0]);
         assert_eq!(sequence_advance(65535, 1), 2);
         assert_eq!(

@@ -8,6 +8,7 @@ mod hash;
 pub mod layout;
 mod parse;
 mod raw;
+mod scaling;
 pub mod serial;
 mod service_dirs;
 pub mod signal;
@@ -19,6 +20,7 @@ mod validate;
 use std::path::Path;
 
 pub use error::{ConfigError, Problem};
+pub use scaling::{f32_decimal, Scaling};
 pub use serial::{Parity, SerialLine};
 pub use service_dirs::{ServiceDirs, CACHE_DIRECTORY, CREDENTIALS_DIRECTORY, STATE_DIRECTORY};
 pub use summary::summary;

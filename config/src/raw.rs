@@ -77,6 +77,33 @@ pub(crate) struct RawDriveline {
     pub(crate) thresholds: RawThresholds,
     pub(crate) wear: Option<RawWear>,
     pub(crate) fatigue: Option<RawFatigue>,
+    pub(crate) identification: Option<RawIdentification>,
+    pub(crate) context: Option<RawContextTags>,
+    pub(crate) pool_speed_range_mpm: Option<Vec<f64>>,
+}
+
+/// `identification`: a machine's nameplate (OPC 40001-1 `MachineIdentificationType`),
+/// of the gateway (`[gateway.identification]`), a driveline or a mill.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawIdentification {
+    pub(crate) manufacturer: Option<String>,
+    pub(crate) manufacturer_uri: Option<String>,
+    pub(crate) model: Option<String>,
+    pub(crate) product_code: Option<String>,
+    pub(crate) hardware_revision: Option<String>,
+    pub(crate) serial_number: Option<String>,
+    pub(crate) product_instance_uri: Option<String>,
+    pub(crate) year_of_construction: Option<i64>,
+    pub(crate) asset_id: Option<String>,
+    pub(crate) location: Option<String>,
+}
+
+/// `[gateway]`: about the gateway itself.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawGateway {
+    pub(crate) identification: Option<RawIdentification>,
 }
 
 /// `drivelines[].fatigue`: the fatigue ledger.
@@ -158,6 +185,7 @@ pub(crate) struct RawTandemMill {
     pub(crate) capture_before_s: Option<f64>,
     pub(crate) capture_after_s: Option<f64>,
     pub(crate) capture_max_s: Option<f64>,
+    pub(crate) identification: Option<RawIdentification>,
 }
 
 /// `tandem_mills[].context`: the process-context tags, each a process-value channel.
@@ -189,6 +217,7 @@ pub(crate) struct RawRodMill {
     pub(crate) near_tongue_m_s: Option<f64>,
     pub(crate) hysteresis_m_s: Option<f64>,
     pub(crate) temperature_step_c: Option<f64>,
+    pub(crate) identification: Option<RawIdentification>,
 }
 
 /// `[outputs]`.
@@ -378,6 +407,7 @@ pub(crate) struct RawConfig {
     pub(crate) name: String,
     pub(crate) cache_dir: Option<String>,
     pub(crate) log_format: Option<String>,
+    pub(crate) gateway: RawGateway,
     pub(crate) modbus_sources: Vec<RawModbusSource>,
     pub(crate) can_sources: Vec<RawCanSource>,
     pub(crate) channels: Vec<RawChannel>,

@@ -96,13 +96,25 @@ impl SignalLayout {
     /// assert_eq!(layout.decode(&[0x39]), None);
     /// ```
     pub fn decode(&self, data: &[u8]) -> Option<f64> {
+        Some(self.scaling().apply(self.decode_count(data)?))
+    }
+
+    /// Reads the signal's raw value (sign-extended when signed, not scaled), as the
+    /// count [`Self::scaling`] turns into the physical value.
+    ///
+    /// `None` when `data` is too short or `size` is outside 1..=64.
+    pub fn decode_count(&self, data: &[u8]) -> Option<f64> {
         let raw = self.decode_raw(data)?;
-        let raw = if self.signed {
+        Some(if self.signed {
             self.sign_extend(raw) as f64
         } else {
             raw as f64
-        };
-        Some(raw * self.factor + self.offset)
+        })
+    }
+
+    /// The DBC's factor and offset as a [`crate::Scaling`] (decimal-exact).
+    pub fn scaling(&self) -> crate::Scaling {
+        crate::Scaling::new(self.factor, self.offset)
     }
 
     /// Reads the signal's raw bits (not sign-extended, not scaled), right-aligned.

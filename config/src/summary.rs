@@ -3,7 +3,7 @@
 use std::fmt::Write as _;
 
 use crate::layout::BLOCK_REGISTERS;
-use crate::{ChannelSource, Config, OpcUaOutput, Outputs};
+use crate::{ChannelSource, Config, ContextTags, OpcUaOutput, Outputs};
 
 /// Lists sources, channels (with where each comes from), drivelines, tandem mills
 /// and outputs, one item per line under a heading per section.
@@ -169,8 +169,38 @@ fn drivelines(text: &mut String, config: &Config) {
             );
         }
         text.push('\n');
+        context_line(text, config, &driveline.context);
+        if let Some((low, high)) = driveline.pool_speed_range_mpm {
+            let _ = writeln!(
+                text,
+                "    wear trend pools bites rolled at {low} to {high} m/min (and in the rolling state)"
+            );
+        }
     }
     none_if_empty(text, config.drivelines.len());
+}
+
+/// The context tags of a mill or driveline, a line under it; listed only when
+/// configured, so summaries without stay as they were.
+fn context_line(text: &mut String, config: &Config, context: &ContextTags) {
+    let tags: Vec<String> = context
+        .tags()
+        .map(|(key, channel)| format!("{key} <- {}", config.channels[channel].name))
+        .collect();
+    if tags.is_empty() {
+        return;
+    }
+    let products = if context.products.is_empty() {
+        String::new()
+    } else {
+        let codes: Vec<String> = context.products.iter().map(u32::to_string).collect();
+        format!("; products {}", codes.join(", "))
+    };
+    let _ = writeln!(
+        text,
+        "    context from the PLC: {}{products}",
+        tags.join(", ")
+    );
 }
 
 /// The tandem mills, two lines each: stands and band, then the alarm.
@@ -208,25 +238,7 @@ fn tandem_mills(text: &mut String, config: &Config) {
             "    alarm: {detector}; slow-down released below {} for {} s",
             mill.slow_down_release, mill.slow_down_hold_s
         );
-        // Listed only when configured, so summaries of mills without stay as they were.
-        let tags: Vec<String> = mill
-            .context
-            .tags()
-            .map(|(key, channel)| format!("{key} <- {}", config.channels[channel].name))
-            .collect();
-        if !tags.is_empty() {
-            let products = if mill.context.products.is_empty() {
-                String::new()
-            } else {
-                let codes: Vec<String> = mill.context.products.iter().map(u32::to_string).collect();
-                format!("; products {}", codes.join(", "))
-            };
-            let _ = writeln!(
-                text,
-                "    context from the PLC: {}{products}",
-                tags.join(", ")
-            );
-        }
+        context_line(text, config, &mill.context);
         if mill.context.weld.is_some() {
             let _ = writeln!(
                 text,

@@ -365,7 +365,7 @@ fn wrong_types_and_missing_keys_are_named() {
     );
     assert_problem_like(
         &(BASE.to_owned() + "\n[alarms]\nlevel = 1\n"),
-        "mill.toml: alarms: unknown key (allowed here: name, sources, channels, drivelines, tandem_mills, rod_mills, outputs, history, cache_dir, log_format)",
+        "mill.toml: alarms: unknown key (allowed here: name, sources, channels, drivelines, tandem_mills, rod_mills, outputs, history, cache_dir, log_format, gateway)",
         &[],
     );
     assert_problem_like(
@@ -939,6 +939,55 @@ fn context_tags_and_the_weld_hold() {
             ),
             &format!("{key}{problem}"),
             &[],
+        );
+    }
+}
+
+#[test]
+fn driveline_context_and_the_pooled_speed_range() {
+    let config = parse(BASE).unwrap_or_else(|error| panic!("{error}"));
+    assert_eq!(config.drivelines[0].context, ContextTags::default());
+    assert_eq!(config.drivelines[0].pool_speed_range_mpm, None);
+    let with = |keys: &str| {
+        edited(
+            "[[drivelines]]",
+            &format!(
+                "[[channels]]\nname = \"mill_state\"\nkind = \"process_value\"\nunit = \"1\"\n\
+                 source = {{ modbus = \"plc\", table = \"holding\", address = 30 }}\n\n\
+                 [[channels]]\nname = \"mill_speed\"\nkind = \"process_value\"\nunit = \"m/min\"\n\
+                 source = {{ modbus = \"plc\", table = \"holding\", address = 31 }}\n\n\
+                 [[drivelines]]\n{keys}\n"
+            ),
+        )
+    };
+    let config = parse(&with(
+        "context = { state = \"mill_state\", speed_mpm = \"mill_speed\" }\npool_speed_range_mpm = [60.0, 400.0]",
+    ))
+    .unwrap_or_else(|error| panic!("{error}"));
+    let driveline = &config.drivelines[0];
+    let name = |index: Option<usize>| index.map(|i| config.channels[i].name.as_str());
+    assert_eq!(name(driveline.context.state), Some("mill_state"));
+    assert_eq!(name(driveline.context.speed_mpm), Some("mill_speed"));
+    assert_eq!(driveline.pool_speed_range_mpm, Some((60.0, 400.0)));
+    let summary = millgate_config::summary(&config);
+    assert!(
+        summary
+            .contains("    context from the PLC: speed_mpm <- mill_speed, state <- mill_state\n")
+            && summary.contains("wear trend pools bites rolled at 60 to 400 m/min"),
+        "{summary}"
+    );
+    let key = "mill.toml: drivelines[0].";
+    for (keys, problem) in [
+        ("context = { weld = \"mill_state\" }", "context.weld: is not allowed on a driveline"),
+        ("context = { state = \"spindle_top\" }", "context.state: channel \"spindle_top\" is a torque channel (must be process_value)"),
+        ("pool_speed_range_mpm = [60.0, 400.0]", "pool_speed_range_mpm: needs the speed tag"),
+        ("context = { speed_mpm = \"mill_speed\" }\npool_speed_range_mpm = [400.0, 60.0]", "pool_speed_range_mpm: [400.0, 60.0] is not allowed (must be [low, high] in m/min with 0 <= low < high)"),
+        ("context = { speed_mpm = \"mill_speed\" }\npool_speed_range_mpm = [-1.0, 60.0]", "pool_speed_range_mpm: [-1.0, 60.0] is not allowed"),
+    ] {
+        let found = problems(&with(keys));
+        assert!(
+            found.iter().any(|p| p.starts_with(&format!("{key}{problem}"))),
+            "{keys}: {found:#?}"
         );
     }
 }
@@ -2473,5 +2522,94 @@ fn log_format_is_text_or_json() {
             "name = \"Test mill\"\nlog_format = \"xml\"",
         ),
         "mill.toml: log_format: unknown format \"xml\" (allowed: text, json)",
+    );
+}
+
+#[test]
+fn identification_is_read_in_order_and_checked_with_its_key() {
+    use millgate_config::{IdentificationField as Field, IdentificationValue as Value};
+    let text = BASE.to_owned()
+        + "\n[gateway.identification]\nasset_id = \"IPC-7\"\nmanufacturer = \"Siemens\"\n";
+    let text = text.replacen(
+        "thresholds = { taf_warning = 2.2, taf_alarm = 2.6 }",
+        "thresholds = { taf_warning = 2.2, taf_alarm = 2.6 }\n\
+         identification = { serial_number = \"SN 4711\", manufacturer = \"SMS group\", \
+         year_of_construction = 1998, product_instance_uri = \"urn:example:F1\" }",
+        1,
+    );
+    let config = parse(&text).expect("valid");
+    let text_of = |s: &str| Value::Text(s.to_owned());
+    assert_eq!(
+        config.drivelines[0].identification.fields,
+        [
+            (Field::Manufacturer, text_of("SMS group")),
+            (Field::SerialNumber, text_of("SN 4711")),
+            (Field::ProductInstanceUri, text_of("urn:example:F1")),
+            (Field::YearOfConstruction, Value::Year(1998)),
+        ]
+    );
+    assert_eq!(
+        config.gateway_identification.fields,
+        [
+            (Field::Manufacturer, text_of("Siemens")),
+            (Field::AssetId, text_of("IPC-7")),
+        ]
+    );
+    assert!(config.tandem_mills[0].identification.fields.is_empty());
+    // Left out: empty.
+    assert!(parse(BASE)
+        .unwrap()
+        .gateway_identification
+        .fields
+        .is_empty());
+
+    let driveline = |table: &str| {
+        edited(
+            "thresholds = { taf_warning = 2.2, taf_alarm = 2.6 }",
+            &format!(
+                "thresholds = {{ taf_warning = 2.2, taf_alarm = 2.6 }}\nidentification = {table}"
+            ),
+        )
+    };
+    assert_only_problem(
+        &driveline("{ year_of_construction = 98 }"),
+        "mill.toml: drivelines[0].identification.year_of_construction: 98 is not allowed (must be 1800..=2100)",
+    );
+    assert_only_problem(
+        &driveline("{ product_instance_uri = \"F1 stand\" }"),
+        "mill.toml: drivelines[0].identification.product_instance_uri: \"F1 stand\" is not allowed (must be a URI, scheme:rest without spaces, e.g. urn:example:mill:F1 or https://example.com/F1)",
+    );
+    assert_only_problem(
+        &driveline("{ serial_number = \" \" }"),
+        "mill.toml: drivelines[0].identification.serial_number: must not be empty",
+    );
+    let long = "x".repeat(256);
+    assert_only_problem(
+        &driveline(&format!("{{ model = \"{long}\" }}")),
+        "mill.toml: drivelines[0].identification.model: 256 characters are not allowed (must be 1..=255)",
+    );
+    assert_problem_like(
+        &driveline("{ serial_number = 4711 }"),
+        "mill.toml: drivelines[0].identification.serial_number: invalid type: integer `4711`, expected a string",
+        &["line "],
+    );
+    assert_problem_like(
+        &driveline("{ software_revision = \"1.0\" }"),
+        "mill.toml: drivelines[0].identification.software_revision: unknown field `software_revision`",
+        &["serial_number", "line "],
+    );
+    let tandem = edited(
+        "gain_thresholds = [1.2, 1.5]\n",
+        "gain_thresholds = [1.2, 1.5]\nidentification = { manufacturer = \"a\\u0007b\" }\n",
+    );
+    assert_problem_like(
+        &tandem,
+        "mill.toml: tandem_mills[0].identification.manufacturer: \"a\\u{7}b\" is not allowed (must not contain control characters",
+        &[],
+    );
+    assert_problem_like(
+        &(BASE.to_owned() + "\n[gateway]\nidentification = { year_of_construction = \"1998\" }\n"),
+        "mill.toml: gateway.identification.year_of_construction: invalid type: string \"1998\", expected i64",
+        &["line "],
     );
 }

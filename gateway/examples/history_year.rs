@@ -328,6 +328,7 @@ fn bite(driveline: &mut Driveline, time_ms: i64, random: &mut Random, out: &mut 
         gap_state: gap.map(|(_, state)| state),
         gap_trend: gap.is_some().then(|| driveline.gap_trend.saved()),
         fatigue_ledger: None,
+        context: None,
         pooled: (!degraded).then_some(PooledBite {
             static_torque_knm,
             taf,

@@ -76,6 +76,11 @@ enum Command {
         /// Output format.
         #[arg(long, value_enum, default_value = "md")]
         format: millgate::cli::registers::Format,
+        /// List instead what the PLC must provide for the process-context tags
+        /// (`context` of tandem mills and drivelines): source, register, encoding and
+        /// the values the gateway accepts.
+        #[arg(long)]
+        context: bool,
     },
     /// Print the catalogue of published figures: each figure's unit, type, quality
     /// guard and stale rule, and its register, Sparkplug metric, /metrics family and
@@ -296,7 +301,21 @@ fn main() -> ExitCode {
                 return ExitCode::FAILURE;
             }
         },
-        Command::Registers { config, format } => millgate_config::load(&config)
+        Command::Registers {
+            config,
+            format,
+            context: true,
+        } => millgate_config::load(&config)
+            .map_err(anyhow::Error::from)
+            .and_then(|config| {
+                let table = millgate::cli::registers::context_export(&config, format);
+                Ok(millgate::cli::shell::print(&table)?)
+            }),
+        Command::Registers {
+            config,
+            format,
+            context: false,
+        } => millgate_config::load(&config)
             .map_err(anyhow::Error::from)
             .and_then(|config| {
                 let map = millgate::outputs::modbus::register_map::RegisterMap::try_new(&config)?;

@@ -37,7 +37,7 @@ fn motor_current_a(torque_knm: f64) -> f64 {
 
 /// `value` as the gateway reads it back from a block of counts at `scale`.
 fn served(value: f64, scale: f64) -> f64 {
-    f64::from(to_raw_sample(value, scale, 0.0)) * scale
+    millgate_config::Scaling::new(scale, 0.0).apply(f64::from(to_raw_sample(value, scale, 0.0)))
 }
 
 /// Where `run` starts in `signal` (the only place: the simulated torque is noisy).

@@ -34,7 +34,8 @@ fn window(seed: u64) -> Vec<f64> {
             } else {
                 100.0 * (1.0 - (-8.0 * t).exp() * (2.0 * std::f64::consts::PI * 12.0 * t).cos())
             };
-            f64::from(((torque + noise) / 0.01).round() as i16) * 0.01
+            millgate_config::Scaling::new(0.01, 0.0)
+                .apply(f64::from(((torque + noise) / 0.01).round() as i16))
         })
         .collect()
 }

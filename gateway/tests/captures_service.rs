@@ -185,6 +185,16 @@ async fn sigkill_keeps_every_capture_the_plc_saw_and_analyze_reproduces_the_bite
                 );
             }
         }
+        // Counts at 0.01 kN*m are written as the decimals they mean (shortest
+        // round-trip text of the decimal-exact decoding), never `0.5700000000000001`.
+        let csv_text = std::fs::read_to_string(&csv).unwrap();
+        for artefact in ["00000000", "99999999"] {
+            assert!(
+                !csv_text.contains(artefact),
+                "{csv}: `{artefact}` in {:?}",
+                csv_text.lines().find(|line| line.contains(artefact))
+            );
+        }
         parquet_pairs.push((csv, parquet));
     }
     assert!(

@@ -272,6 +272,61 @@ fn readme_figure_table_is_the_generated_one_and_the_exports_agree() {
     );
 }
 
+/// `registers --context`: what the PLC must provide for the context tags of the
+/// demo's driveline (state, speed as f32 CDAB, product with its codes), from the
+/// configuration's channels.
+#[test]
+fn registers_context_lists_what_the_plc_must_provide_for_the_context_tags() {
+    let demo = std::fs::read_to_string(examples().join("demo.toml")).unwrap();
+    let body = demo.replacen(
+        "[[drivelines]]",
+        "[[sources.modbus]]\nname = \"mill_plc\"\naddress = \"127.0.0.1:5031\"\npoll_period_ms = 100\n\n\
+         [[channels]]\nname = \"mill_state\"\nkind = \"process_value\"\nunit = \"1\"\n\
+         source = { modbus = \"mill_plc\", table = \"holding\", address = 40 }\n\n\
+         [[channels]]\nname = \"mill_speed\"\nkind = \"process_value\"\nunit = \"m/min\"\n\
+         source = { modbus = \"mill_plc\", table = \"input\", address = 41, type = \"f32\", word_order = \"CDAB\" }\n\n\
+         [[channels]]\nname = \"grade\"\nkind = \"process_value\"\nunit = \"1\"\n\
+         source = { modbus = \"mill_plc\", table = \"holding\", address = 43 }\n\n\
+         [[drivelines]]\ncontext = { state = \"mill_state\", speed_mpm = \"mill_speed\", product = \"grade\", products = [101, 205] }",
+        1,
+    );
+    let (_folder, path) = write_config("registers-context", &body);
+    let md = millgate(&["registers", "--config", path.to_str().unwrap(), "--context"]);
+    assert!(md.status.success(), "{}", text(&md));
+    let md = String::from_utf8(md.stdout).unwrap();
+    for line in [
+        "| F1 | speed_mpm | mill_speed | mill_plc | input | 41 | f32 CDAB, x 1 + 0 | >= 0 m/min |",
+        "| F1 | product | grade | mill_plc | holding | 43 | u16 ABCD, x 1 + 0 | one of 101, 205 |",
+        "| F1 | state | mill_state | mill_plc | holding | 40 | u16 ABCD, x 1 + 0 | 0 idle, 1 threading, 2 rolling, 3 maintenance |",
+    ] {
+        assert!(md.lines().any(|l| l == line), "{line} not in:\n{md}");
+    }
+    let csv = millgate(&[
+        "registers",
+        "--config",
+        path.to_str().unwrap(),
+        "--context",
+        "--format",
+        "csv",
+    ]);
+    let csv = String::from_utf8(csv.stdout).unwrap();
+    assert_eq!(
+        csv.lines().next(),
+        Some("subject,tag,channel,source,table,address,encoding,allowed")
+    );
+    assert_eq!(csv.lines().count(), 4, "{csv}");
+    // Without context tags: the header only.
+    let none = millgate(&[
+        "registers",
+        "--config",
+        examples().join("demo.toml").to_str().unwrap(),
+        "--context",
+        "--format",
+        "csv",
+    ]);
+    assert_eq!(String::from_utf8(none.stdout).unwrap().lines().count(), 1);
+}
+
 #[test]
 fn registers_export_json_and_csv_have_the_documented_fields() {
     let config = examples().join("tandem-5stand.toml");

@@ -189,3 +189,49 @@ fn the_gate_keeps_the_bars_cycles_and_drops_the_noise() {
     );
     assert_eq!(gated["max_range_knm"], ungated["max_range_knm"]);
 }
+
+/// Bad input is refused with the option and its allowed range: an S-N curve with
+/// non-positive values (negative numbers reach the check, not clap's "unexpected
+/// argument"), a gate larger than the signal's range.
+#[test]
+fn bad_curves_and_gates_are_refused_with_the_option_and_its_range() {
+    let dir = scratch("fatigue-refused");
+    let path = record(dir.path(), 0.0, 5);
+    let input = path.to_str().unwrap();
+    let curve = ["--m", "5", "--ref-cycles", "2e6", "--ref-range-knm", "150"];
+    let cases: [(&[&str], &str); 5] = [
+        (&["--m", "-3"], "--m -3: m must be finite and > 0"),
+        (
+            &["--ref-cycles", "0"],
+            "--ref-cycles 0: ref_cycles must be finite and > 0",
+        ),
+        (
+            &["--ref-range-knm", "-150"],
+            "--ref-range-knm -150: ref_range_knm must be finite and > 0",
+        ),
+        (
+            &["--endurance-knm", "-1"],
+            "--endurance-knm -1: endurance_knm must be finite and > 0",
+        ),
+        (
+            &["--gate-knm", "5000"],
+            "--gate-knm 5000: must be >= 0 and below the range",
+        ),
+    ];
+    for (bad, said) in cases {
+        let mut args = vec!["fatigue", "--input", input];
+        // The bad option replaces the curve's one of the same name.
+        let mut k = 0;
+        while k < curve.len() {
+            if curve[k] != bad[0] {
+                args.extend_from_slice(&curve[k..k + 2]);
+            }
+            k += 2;
+        }
+        args.extend_from_slice(bad);
+        let output = millgate(&args);
+        assert!(!output.status.success(), "{bad:?} accepted");
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(stderr.contains(said), "{bad:?}: {stderr}");
+    }
+}

@@ -9,7 +9,13 @@
 //!   cycles;
 //! - `command.reset_fatigue` resets one component, is recorded in the history with its
 //!   origin, and the registers, `/metrics` and the web API agree;
-//! - a restart on the same history continues every component's life.
+//! - a restart on the same history continues every component's life;
+//! - `/api/drivelines/F1/fatigue/history` gives each component's life used over time
+//!   and the reset, and `millgate report` draws them (life used per component over
+//!   time with the limit and the reset; damage per bite over TAF);
+//! - a restart with the driveline's `fatigue` section removed publishes no fatigue
+//!   figure (registers' quality bit, `/metrics`, web API) while the saved ledger stays
+//!   in the history, and one with the section back resumes the ledger.
 
 mod common;
 
@@ -260,7 +266,7 @@ async fn the_service_s_ledger_counts_the_stream_resets_and_survives_a_restart() 
         assert_eq!((component.as_str(), origin.as_str()), ("coupling", "plc"));
         assert!(used > 0.0);
     }
-    let again = millgate::Service::new(config)
+    let again = millgate::Service::new(config.clone())
         .unwrap()
         .spawn()
         .await
@@ -294,9 +300,155 @@ async fn the_service_s_ledger_counts_the_stream_resets_and_survives_a_restart() 
         Some(lives[0])
     );
     assert_eq!(ledger["resets"][0]["component"], "coupling");
+    life_history_on_the_api(web, &lives).await;
     tokio::time::timeout(Duration::from_secs(10), again.stop())
         .await
         .unwrap()
         .unwrap();
+    report_draws_the_ledger(folder.path());
+
+    // Restart without the driveline's fatigue section: no fatigue figure anywhere,
+    // the saved ledger kept.
+    let mut without = config.clone();
+    without.drivelines[0].fatigue = None;
+    let bare = millgate::Service::new(without)
+        .unwrap()
+        .spawn()
+        .await
+        .unwrap();
+    web_ready(web).await;
+    let view = driveline(web).await;
+    assert!(view["fatigue_life_used"].is_null(), "{view}");
+    assert!(view["fatigue_component"].is_null(), "{view}");
+    assert!(view["fatigue_rate_per_day"].is_null(), "{view}");
+    assert_eq!(view["fatigue_components"], serde_json::json!([]), "{view}");
+    let server = bare.bound().server.expect("the HMI server");
+    let mut hmi = tokio_modbus::client::tcp::connect_slave(server, Slave(1))
+        .await
+        .unwrap();
+    let quality = hmi
+        .read_holding_registers(at("F1.extension_quality"), 1)
+        .await
+        .unwrap()
+        .unwrap()[0];
+    assert_eq!(
+        quality & (1 << 12),
+        0,
+        "life used without a value: {quality:#b}"
+    );
+    let page = http(metrics, "GET", "/metrics").await.body;
+    let published: Vec<&str> = page
+        .lines()
+        .filter(|line| line.starts_with("millgate_driveline_fatigue_life_used{"))
+        .collect();
+    assert!(published.is_empty(), "{published:?}");
+    {
+        let db = rusqlite::Connection::open(&history).unwrap();
+        let saved: Option<String> = db
+            .query_row(
+                "SELECT fatigue_ledger FROM driveline_state WHERE driveline = 'F1'",
+                [],
+                |row| row.get(0),
+            )
+            .unwrap();
+        assert!(
+            saved.is_some_and(|s| s.contains("spindle")),
+            "the ledger kept"
+        );
+    }
+    tokio::time::timeout(Duration::from_secs(10), bare.stop())
+        .await
+        .unwrap()
+        .unwrap();
+    // With the section back, the ledger resumes.
+    let back = millgate::Service::new(config)
+        .unwrap()
+        .spawn()
+        .await
+        .unwrap();
+    web_ready(web).await;
+    let (resumed, _) = published_lives(web, |l: &[f64]| l[0] > 0.0).await;
+    assert_eq!(resumed, lives, "resumed as saved");
+    tokio::time::timeout(Duration::from_secs(10), back.stop())
+        .await
+        .unwrap()
+        .unwrap();
     devices.stop().await.unwrap();
+}
+
+/// `/api/drivelines/F1/fatigue/history`: both components over time as the bites
+/// stored them (at most the life published since), the coupling's reset, the limit.
+async fn life_history_on_the_api(web: u16, lives: &[f64]) {
+    let answer = http(web, "GET", "/api/drivelines/F1/fatigue/history?points=50").await;
+    let history: serde_json::Value =
+        serde_json::from_str(&answer.body).unwrap_or_else(|_| panic!("{}", answer.body));
+    assert_eq!(
+        history["components"],
+        serde_json::json!(["spindle", "coupling"])
+    );
+    assert_eq!(history["life_limit"], 0.8, "{history}");
+    assert_eq!(history["resets"][0]["component"], "coupling", "{history}");
+    let points = history["points"].as_array().unwrap();
+    assert!(!points.is_empty() && points.len() <= 50, "{history}");
+    let mut previous = 0.0;
+    for point in points {
+        let spindle = point["life_used"][0].as_f64().unwrap();
+        assert!(spindle >= previous && spindle <= lives[0], "{history}");
+        previous = spindle;
+        assert!(point["life_used"][1].is_number(), "{history}");
+    }
+    assert!(previous > 0.0, "{history}");
+    // The coupling was reset after the bites: its stored life is not 0.
+    let last = &points[points.len() - 1];
+    assert!(last["life_used"][1].as_f64().unwrap() > 0.0, "{history}");
+    // Bad parameters are refused with their allowed range.
+    let refused = http(web, "GET", "/api/drivelines/F1/fatigue/history?points=0").await;
+    assert_eq!(refused.status, 400, "{}", refused.body);
+    assert!(refused.body.contains("points"), "{}", refused.body);
+    let unknown = http(web, "GET", "/api/drivelines/X9/fatigue/history").await;
+    assert_eq!(unknown.status, 404, "{}", unknown.body);
+}
+
+/// `millgate report` on the history: each component's life used over time with the
+/// limit and the coupling's reset, and the damage per bite over TAF, linked from the
+/// HTML with their captions.
+fn report_draws_the_ledger(folder: &std::path::Path) {
+    let out = folder.join("report");
+    let history = folder.join("history.db");
+    let written = millgate(&[
+        "report",
+        "--db",
+        history.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(written.status.success(), "{written:?}");
+    let life = std::fs::read_to_string(out.join("F1-fatigue-life.svg")).unwrap();
+    for text in [
+        "spindle",
+        "coupling",
+        "life limit, % 80",
+        "coupling replaced",
+        "time, UTC",
+    ] {
+        assert!(life.contains(text), "no {text:?} in the life plot");
+    }
+    // Two lines (a polyline each) and the limit's.
+    assert!(life.matches("<polyline").count() >= 3, "{life}");
+    let damage = std::fs::read_to_string(out.join("F1-fatigue-damage.svg")).unwrap();
+    assert!(damage.contains("TAF of the bite"), "{damage}");
+    assert!(damage.matches("<circle").count() >= 2, "{damage}");
+    let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    for caption in [
+        "F1: fatigue life used per component over time",
+        "F1: fatigue damage per bite over the bite&#39;s TAF",
+    ] {
+        assert!(
+            html.contains(&format!("<figcaption>{caption}</figcaption>")),
+            "{caption}"
+        );
+    }
+    let markdown = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(markdown.contains("(F1-fatigue-life.svg)"), "{markdown}");
+    assert!(markdown.contains("(F1-fatigue-damage.svg)"), "{markdown}");
 }

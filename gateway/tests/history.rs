@@ -83,6 +83,7 @@ fn bite(n: u32, time: UtcTime, taf: f64, trend: f64, alarm: bool) -> HistoryEven
         gap_state: None,
         gap_trend: None,
         fatigue_ledger: None,
+        context: None,
         pooled: pooled(n, taf),
         state,
     }))

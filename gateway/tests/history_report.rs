@@ -6,7 +6,9 @@
 //! from a saved wear trend (the dsp filter fed a linear gap) holds the true crossing
 //! of the alarm, a run killed without a stop counts as running only until its last
 //! recorded event, and both commands stay in bounded memory (GNU time's peak RSS) and
-//! show progress only on a terminal (`script` gives them one). Another application's
+//! show progress only on a terminal (`script` gives them one). The bites carry a
+//! product (issue 39): the report's table by product and `history --product` against
+//! the file. Another application's
 //! SQLite file is refused. Independent readings of the file come from Debian's
 //! `sqlite3`.
 #![cfg(feature = "plot")]
@@ -20,6 +22,7 @@ use common::{millgate, scratch, MILLGATE};
 use millgate::history::schema::APPLICATION_ID;
 use millgate::history::writer;
 use millgate::history::{DrivelineSettings, RunInfo};
+use millgate::state::context::{BiteGate, MillState, ProcessContext};
 use millgate::state::events::{BiteRecord, HistoryEvent, WearState};
 use millgate::state::results::{
     DrivelineResults, ForecastState, GapForecast, GapGrowth, GapResults,
@@ -175,6 +178,11 @@ fn bite(driveline: &str, n: u32, time_ms: i64, last: bool) -> HistoryEvent {
         taf: Some(taf),
         wear_index: (!degraded).then_some(taf / 1.25 - 1.0),
         wear_trend: Some(0.001 * f64::from(n % 1000)),
+        last_bite_gated: Some(if n.is_multiple_of(5) {
+            BiteGate::State
+        } else {
+            BiteGate::Pooled
+        }),
         ..DrivelineResults::default()
     };
     HistoryEvent::Bite(Box::new(BiteRecord {
@@ -208,9 +216,25 @@ fn bite(driveline: &str, n: u32, time_ms: i64, last: bool) -> HistoryEvent {
         gap_state: Some(WearState::Ok),
         gap_trend: (last && driveline == "F1").then(|| saved_trend(time_ms)),
         fatigue_ledger: None,
+        context: Some(context(n)),
         pooled: None,
         state,
     }))
+}
+
+/// Bite `n`'s process context: product 101 every third bite, else 205; threading
+/// (not pooled) every fifth.
+fn context(n: u32) -> ProcessContext {
+    ProcessContext {
+        product: Some(if n.is_multiple_of(3) { 101 } else { 205 }),
+        speed_mpm: Some(250.0),
+        state: Some(if n.is_multiple_of(5) {
+            MillState::Threading
+        } else {
+            MillState::Rolling
+        }),
+        ..ProcessContext::default()
+    }
 }
 
 fn run_info() -> RunInfo {
@@ -411,6 +435,30 @@ fn report_of_two_weeks_of_bites_plots_buckets_and_cells_and_counts_a_killed_run_
         );
         assert_eq!(row[13..15].join("|"), stored, "{row:?}");
     }
+    // Bites by product (issue 39): counts, the not pooled and TAF against the file.
+    for name in ["F1", "F2"] {
+        for product in ["101", "205"] {
+            let row: Vec<&str> = md
+                .lines()
+                .find(|line| line.starts_with(&format!("| {name} | {product} |")))
+                .unwrap_or_else(|| panic!("no product row {name} {product}: {md}"))
+                .trim_matches('|')
+                .split('|')
+                .map(str::trim)
+                .collect();
+            let stored = sqlite3(
+                &db,
+                &format!(
+                    "SELECT printf('%d|%d|%.3f|%.3f', count(*), \
+                     count(CASE WHEN gated = 1 THEN 1 END), \
+                     avg(CASE WHEN NOT degraded THEN taf END), \
+                     max(CASE WHEN NOT degraded THEN taf END)) \
+                     FROM bites WHERE driveline = '{name}' AND product = {product}"
+                ),
+            );
+            assert_eq!(row[2..6].join("|"), stored, "{row:?}");
+        }
+    }
     // Sorted by the expected date: F2's comes first.
     let at = |name: &str| md.find(&format!("\n| {name} |")).unwrap();
     assert!(at("F2") < at("F1"), "{md}");
@@ -513,6 +561,45 @@ fn history_streams_two_weeks_of_bites_quits_quietly_on_a_closed_pipe_and_shows_p
             "history peak RSS {kib} KiB for {count} rows"
         );
     }
+
+    // Only one product's bites (`--product`), as the file holds them.
+    let output = millgate(&[
+        "history",
+        "--db",
+        db_arg,
+        "--format",
+        "csv",
+        "--product",
+        "101",
+    ]);
+    assert!(output.status.success(), "{output:?}");
+    let text = String::from_utf8(output.stdout).unwrap();
+    assert_eq!(
+        (text.lines().count() - 1).to_string(),
+        sqlite3(&db, "SELECT count(*) FROM bites WHERE product = 101")
+    );
+    let header: Vec<&str> = text.lines().next().unwrap().split(',').collect();
+    let product = header
+        .iter()
+        .position(|c| *c == "product")
+        .expect("a product column");
+    assert!(text
+        .lines()
+        .skip(1)
+        .all(|line| line.split(',').nth(product) == Some("101")));
+    let refused = millgate(&[
+        "history",
+        "--db",
+        db_arg,
+        "--kind",
+        "alarms",
+        "--product",
+        "101",
+    ]);
+    assert!(
+        String::from_utf8_lossy(&refused.stderr).contains("--product applies to bites only"),
+        "{refused:?}"
+    );
 
     // A reader that stops early (`| head`): the export ends without an error.
     let mut child = common::MILLGATE

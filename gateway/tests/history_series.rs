@@ -110,6 +110,7 @@ fn bite(n: u32, time: UtcTime) -> HistoryEvent {
         gap_state: (!pool_filling).then_some(WearState::Ok),
         gap_trend: None,
         fatigue_ledger: None,
+        context: None,
         pooled: None,
         state,
     }))

@@ -9,11 +9,13 @@
 //! killed during one, every bite arrives once live or flagged historical, the
 //! historical ones first; the replay's pacing. A server set (`brokers`): the node
 //! moves on when its server is killed mid-stream (two independent mosquittos; a
-//! three-node RabbitMQ cluster, the host application on another node) or when the
-//! primary host is offline on its server, and no bite is lost.
+//! three-node aedes cluster on redis and a three-node RabbitMQ cluster, the host
+//! application on another node) or when the primary host is offline on its server,
+//! and no bite is lost.
 //!
-//! Needs `apt install mosquitto rabbitmq-server` and `pip install pysparkplug==0.6.1`
-//! (with paho-mqtt 1.6.1) (scripts/test installs them).
+//! Needs `apt install mosquitto rabbitmq-server redis-server`, `pip install
+//! pysparkplug==0.6.1` (with paho-mqtt 1.6.1) and `npm ci --prefix tests/peers`
+//! (aedes) (scripts/test installs them).
 
 mod common;
 
@@ -1273,29 +1275,30 @@ fn bite_after(seen: &[Value], bite_alias: u64, after: u64) -> Option<()> {
 /// PLC saw reaching `hosts` (host applications subscribed on servers that stay up, or
 /// one per server; their messages are read in this order, as the node moves on).
 /// Once a server has the node's session and a bite went out, `kill` stops that server
-/// (its index in `ports`) mid-stream; the node moves on to the next server that
-/// answers, born again with the next bdSeq, and replays flagged historical what no
-/// server confirmed. Returns the sessions' bites and every message the hosts saw.
-async fn failover_keeps_every_bite(
+/// (its index in `ports`) mid-stream and returns what ends the outage, called once the
+/// PLC has seen the next bite (`|| ()`: nothing more); the node moves on to the next
+/// server that answers, born again with the next bdSeq, and replays flagged
+/// historical what no server confirmed. Returns the sessions' bites and the hosts.
+async fn failover_keeps_every_bite<End: FnOnce()>(
     setup: Setup,
     ports: &[u16],
     extra: &str,
     hosts: Vec<Host>,
-    kill: impl FnOnce(usize),
-) -> (Vec<Vec<(u64, bool)>>, Vec<Value>) {
+    kill: impl FnOnce(usize) -> End,
+) -> (Vec<Vec<(u64, bool)>>, Vec<Host>) {
     let servers: Vec<String> = ports.iter().map(|p| format!("\"127.0.0.1:{p}\"")).collect();
     failover_through(setup, (ports, &servers), extra, hosts, kill).await
 }
 
 /// As [`failover_keeps_every_bite`], with the `brokers` entries written as `servers`
 /// (a `"host:port"` or a table each, for `ports` in this order).
-async fn failover_through(
+async fn failover_through<End: FnOnce()>(
     setup: Setup,
     (ports, servers): (&[u16], &[String]),
     extra: &str,
     mut hosts: Vec<Host>,
-    kill: impl FnOnce(usize),
-) -> (Vec<Vec<(u64, bool)>>, Vec<Value>) {
+    kill: impl FnOnce(usize) -> End,
+) -> (Vec<Vec<(u64, bool)>>, Vec<Host>) {
     setup.append_config(&format!(
         "\n[outputs.mqtt]\nbrokers = [{}]\ngroup_id = \"plant\"\nnode_id = \"f1\"\nkeep_alive_s = 5\n{extra}\n",
         servers.join(", ")
@@ -1323,8 +1326,9 @@ async fn failover_through(
     let switches = setup
         .metric("millgate_sparkplug_server_switches_total")
         .await;
-    kill(used);
+    let end_outage = kill(used);
     plc.bites_after_now(1).await;
+    end_outage();
 
     // Born again on another server, with the next bdSeq and seq from 0.
     born_again(&mut hosts, bd_seq, limit);
@@ -1354,7 +1358,7 @@ async fn failover_through(
     assert!(without.is_some_and(|s| s > 0.0), "{without:?}");
     terminate(&mut service);
     setup.stop(service).await;
-    (sessions, seen(&hosts))
+    (sessions, hosts)
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -1367,12 +1371,14 @@ async fn killing_the_cluster_node_of_the_session_loses_no_bite() {
     // queue on the node of the first session, and refuses the resubscription on the
     // others while that node is down (docs/sparkplug.md).
     let host = Host::with_options(ports[2], "plant", &["--dots-as-slashes"]);
-    let (sessions, seen) =
+    let (sessions, hosts) =
         failover_keeps_every_bite(setup, &ports[..2], "command_qos = 0", vec![host], |node| {
-            cluster.kill(node)
+            cluster.kill(node);
+            || ()
         })
         .await;
     assert!(sessions.len() >= 2, "{sessions:?}");
+    let seen = seen(&hosts);
     // RabbitMQ 3.10 delivers `spBv1.0/...` as `spBv1/0/...` (docs/sparkplug.md): a
     // plant's host needs a broker that keeps the topic.
     assert!(
@@ -1380,6 +1386,90 @@ async fn killing_the_cluster_node_of_the_session_loses_no_bite() {
             .filter(|m| m.get("type").is_some())
             .all(|m| m["rewritten"] == true),
         "RabbitMQ keeps the topics now: update docs/sparkplug.md"
+    );
+}
+
+/// A Sparkplug-clean cluster (issue 41): three aedes nodes sharing one redis
+/// (tests/src/kit/cluster.rs). The primary host application is on the third node and
+/// has published its retained STATE there; the node knows the first two, waits for
+/// that STATE (kept for every node in redis) before each birth, and its node is
+/// killed mid-stream. Every bite reaches the host, topics as sent, the one the PLC saw
+/// while no server answered replayed flagged historical; the Will of the
+/// killed node's session (NDEATH with that session's bdSeq) is sent by a node that
+/// stays up once the dead node's heartbeat is missed.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn killing_the_aedes_cluster_node_of_the_session_loses_no_bite() {
+    let setup = Setup::new(MILLGATE, "sparkplug-aedes", "db").await;
+    let mut cluster = common::cluster::AedesCluster::start(&setup.scratch);
+    let ports = cluster.mqtt_ports().to_vec();
+    let mut host = Host::start(ports[2], "plant");
+    host.command("state scada online");
+    while host.next(Duration::from_secs(10))["sent"] != "state" {}
+    host.seen.clear();
+    // The node's server killed and the other one stopped (SIGSTOP) until the PLC has
+    // seen a bite: that bite waits in the history and reaches the host replayed,
+    // flagged historical. (The closures borrow the cluster: it lives to the end.)
+    let nodes = &mut cluster;
+    let (sessions, mut hosts) = failover_keeps_every_bite(
+        setup,
+        &ports[..2],
+        "primary_host_id = \"scada\"",
+        vec![host],
+        |node| {
+            nodes.kill(node);
+            let other = 1 - node;
+            nodes.pause(other);
+            move || nodes.resume(other)
+        },
+    )
+    .await;
+    eprintln!("bites by session (id, historical): {sessions:?}");
+    assert_eq!(sessions.len(), 2, "{sessions:?}");
+    assert!(
+        sessions[1].iter().any(|&(_, historical)| historical),
+        "the bite seen during the outage replayed: {sessions:?}"
+    );
+    let first_bd_seq = metric(&nth_birth(&seen(&hosts), 0).unwrap(), "bdSeq")["value"]
+        .as_u64()
+        .unwrap();
+    // The Will: sent 3-7 s after the kill (3 missed heartbeats of 1 s, checked every
+    // 4 s); it carries the first session's bdSeq, so a host that saw the second
+    // birth (bdSeq + 1) knows it is not the current session's death.
+    let node_messages = |seen: &[Value]| -> Vec<(String, Option<u64>)> {
+        seen.iter()
+            .filter(|m| m["type"] == "NBIRTH" || m["type"] == "NDEATH")
+            .map(|m| {
+                let bd_seq = metric(m, "bdSeq")["value"].as_u64();
+                (m["type"].as_str().unwrap().to_owned(), bd_seq)
+            })
+            .collect()
+    };
+    let is_will = |m: &&Value| {
+        m["type"] == "NDEATH" && metric(m, "bdSeq")["value"].as_u64() == Some(first_bd_seq)
+    };
+    let started = Instant::now();
+    while !seen(&hosts).iter().any(|m| is_will(&m)) && started.elapsed() < Duration::from_secs(30) {
+        if let Ok(value) = hosts[0].lines.recv_timeout(Duration::from_millis(100)) {
+            hosts[0].seen.push(value);
+        }
+    }
+    let seen = seen(&hosts);
+    eprintln!(
+        "node messages at the host (type, bdSeq): {:?}",
+        node_messages(&seen)
+    );
+    let will = seen
+        .iter()
+        .find(is_will)
+        .unwrap_or_else(|| panic!("no Will within 30 s: {:?}", node_messages(&seen)));
+    assert_eq!(will["topic"], "spBv1.0/plant/NDEATH/f1");
+    // aedes keeps the topics: nothing rewritten, every message under spBv1.0/plant/.
+    assert!(
+        seen.iter()
+            .filter(|m| m.get("type").is_some())
+            .all(|m| m["rewritten"] == false
+                && m["topic"].as_str().unwrap().starts_with("spBv1.0/plant/")),
+        "{seen:?}"
     );
 }
 
@@ -1410,6 +1500,7 @@ async fn with_two_independent_brokers_the_node_moves_to_the_other() {
     ];
     let (sessions, _) = failover_keeps_every_bite(setup, &ports, "", hosts, |broker| {
         brokers[broker] = None;
+        || ()
     })
     .await;
     assert_eq!(
@@ -1537,6 +1628,7 @@ async fn a_server_of_the_set_with_its_own_tls_and_password_and_a_plain_one() {
     ];
     let (sessions, _) = failover_through(setup, (&ports, &servers), "", hosts, |broker| {
         brokers[broker] = None;
+        || ()
     })
     .await;
     // One session on each: the TLS host saw the first, the plain host the second.

@@ -673,6 +673,17 @@ async fn the_api_answers_from_the_live_results_and_the_history_and_refuses_bad_r
     let one = http(port, "GET", "/api/drivelines/F1").await.json();
     assert_eq!(one["name"], "F1");
     assert_eq!(one["thresholds"]["taf_alarm"], 1.15);
+    // The nameplate of the demo's `drivelines[0].identification`, by its file keys.
+    assert_eq!(
+        one["identification"],
+        serde_json::json!({
+            "manufacturer": "Example Mill Works",
+            "model": "HSM finishing stand drive",
+            "serial_number": "F1-0001",
+            "product_instance_uri": "urn:example:millgate-demo:F1",
+            "year_of_construction": 1998,
+        })
+    );
 
     // Bites: the newest, as stored.
     let stored = newest_bites(&setup, 2);
@@ -698,6 +709,27 @@ async fn the_api_answers_from_the_live_results_and_the_history_and_refuses_bad_r
     )
     .await;
     assert_eq!(ranged.status, 200, "{}", ranged.body);
+    // No process context here: the bites have no product, none is listed by product.
+    assert!(
+        last["product"].is_null() && last["gated"].is_null(),
+        "{last}"
+    );
+    let of_product = http(port, "GET", "/api/drivelines/F1/bites?product=101").await;
+    assert_eq!(
+        (of_product.status, of_product.json()),
+        (200, serde_json::json!([]))
+    );
+    let products = http(port, "GET", "/api/drivelines/F1/products").await;
+    assert_eq!(
+        (products.status, products.json()),
+        (200, serde_json::json!([]))
+    );
+    assert_bad(
+        port,
+        "/api/drivelines/F1/bites?product=-1",
+        &["product", "0..=4294967295"],
+    )
+    .await;
     let ranged = ranged.json();
     let ranged = ranged.as_array().unwrap();
     assert!(!ranged.is_empty());

@@ -295,9 +295,10 @@ async fn gap_plot_has_the_forecast(client: &Client, port: u16, plc: &Plc<'_>) {
 /// capture API gives them, the model's response as the response API gives it, on the
 /// capture's time grid; the bite's row links its capture's downloads, and its "plot"
 /// button on another bite's row plots that bite's capture.
-/// The fatigue panel lists the web API's components, plots the stored bites' life used
-/// and damage per bite over TAF, and its reset button resets the component (the API
-/// then gives it a later installation).
+/// The fatigue panel lists the web API's components, plots each component's life used
+/// over time (a line per component, from `/fatigue/history`, and the life limit) and
+/// the damage per bite over TAF, and its reset button resets the component (the API
+/// then gives it a later installation, and `/fatigue/history` the reset).
 async fn fatigue_panel_is_the_ledger_and_resets(client: &Client, port: u16) {
     let long = Duration::from_secs(10);
     let panel = until_js(
@@ -309,7 +310,11 @@ async fn fatigue_panel_is_the_ledger_and_resets(client: &Client, port: u16) {
            ? [Array.from(rows).map((r) => r.cells[0].textContent), \
               p.fatigueLife.data[1].filter((v) => v !== null).length, \
               p.fatigueDamage.data[0].length, \
-              document.querySelectorAll('#fatigue-components button.fatigue-reset').length] : null;",
+              document.querySelectorAll('#fatigue-components button.fatigue-reset').length, \
+              p.fatigueLife.series.map((s) => s.label), \
+              p.fatigueLife.data.slice(1).map((c) => c.filter((v) => v !== null).length), \
+              p.fatigueLife.data[p.fatigueLife.data.length - 1][0], \
+              document.getElementById('fatigue-life-plot').getAttribute('aria-label')] : null;",
         long,
         |v| !v.is_null(),
     )
@@ -334,6 +339,43 @@ async fn fatigue_panel_is_the_ledger_and_resets(client: &Client, port: u16) {
     );
     assert!(panel[2].as_u64() >= Some(1), "{panel}");
     assert_eq!(panel[3].as_u64(), Some(2), "a reset button per component");
+    // A line per component and the limit, as the history API gives them.
+    let history = common::http(port, "GET", "/api/drivelines/F1/fatigue/history?points=400")
+        .await
+        .json();
+    assert_eq!(
+        history["components"],
+        serde_json::json!(["spindle", "coupling"]),
+        "{history}"
+    );
+    let stored = history["points"].as_array().unwrap().len() as u64;
+    assert!(stored >= 2, "{history}");
+    assert_eq!(
+        panel[4],
+        serde_json::json!([
+            "time (UTC)",
+            "spindle, life used %",
+            "coupling, life used %",
+            "life limit %"
+        ]),
+        "{panel}"
+    );
+    // The page read the series a moment before: as many buckets or fewer, and the
+    // live figures' point after them.
+    for drawn in panel[5].as_array().unwrap() {
+        let drawn = drawn.as_u64().unwrap();
+        assert!(drawn >= 2 && drawn <= stored + 1, "{panel} vs {history}");
+    }
+    let limit = history["life_limit"].as_f64().unwrap();
+    assert!(
+        (panel[6].as_f64().unwrap() - 100.0 * limit).abs() < 1e-9,
+        "{panel}"
+    );
+    let label = panel[7].as_str().unwrap();
+    assert!(
+        label.contains("spindle") && label.contains("coupling") && label.contains("life limit"),
+        "{label}"
+    );
     // The reset button (confirmed) resets the coupling.
     let installed = || async {
         common::http(port, "GET", "/api/drivelines/F1").await.json()["fatigue_components"][1]
@@ -368,6 +410,17 @@ async fn fatigue_panel_is_the_ledger_and_resets(client: &Client, port: u16) {
     )
     .await;
     assert!(said.as_str().unwrap().contains("coupling"), "{said}");
+    let start = std::time::Instant::now();
+    loop {
+        let history = common::http(port, "GET", "/api/drivelines/F1/fatigue/history")
+            .await
+            .json();
+        if history["resets"][0]["component"] == "coupling" {
+            break;
+        }
+        assert!(start.elapsed() < long, "no reset in the history: {history}");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
 }
 
 async fn trace_is_the_captures_samples_beside_the_model(client: &Client, port: u16) {

@@ -96,6 +96,9 @@ pub struct Simulator {
     /// [`Simulator::run_into`] stops when |output| exceeds this, kN*m.
     divergence_limit_knm: f64,
     sample_period_s: f64,
+    /// The sample rate, Hz: the record's times are `k / sample_rate_hz`, correctly
+    /// rounded (`k * sample_period_s` would print `0.0045000000000000005`).
+    sample_rate_hz: f64,
     samples: usize,
     substeps: usize,
 }
@@ -158,6 +161,7 @@ impl Simulator {
             measured: model.measurement.coupling,
             divergence_limit_knm: f64::INFINITY,
             sample_period_s,
+            sample_rate_hz: model.measurement.sample_rate,
             samples: model.sample_count(),
             substeps: 1,
         };
@@ -280,7 +284,7 @@ impl Simulator {
         let mut torque_knm = vec![0.0; self.samples];
         self.run_into(&mut state, &mut torque_knm);
         let t = (0..self.samples)
-            .map(|k| k as f64 * self.sample_period_s)
+            .map(|k| k as f64 / self.sample_rate_hz)
             .collect();
         Transient { t, torque_knm }
     }

@@ -1,6 +1,7 @@
 """Read millgate capture exports with pandas and pyarrow: each CSV reads with
 `pandas.read_csv(path)` and no options (a header line, then numbers: `t` and one
-float column per channel of the JSON header beside it, `<name>.json`), and each
+float column per channel of the JSON header beside it, `<name>.json`; a channel of
+counts gives the decimals its scale means, `0.57`, not `0.5700000000000001`), and each
 Parquet file holds the samples of the CSV export of the same capture and the
 capture's metadata.
 
@@ -12,6 +13,7 @@ file's `millgate.config_hash`) must be it. Exits non-zero with the first differe
 import json
 import os
 import sys
+from decimal import Decimal
 
 import numpy as np
 import pandas as pd
@@ -45,6 +47,24 @@ def check_pandas(csv_path, header, columns):
         np.testing.assert_allclose(frame[name].to_numpy(), columns[name], rtol=1e-15, atol=0)
     rate = header["sample_rate_hz"]
     assert all(t == k / rate for k, t in enumerate(columns["t"])), f"{csv_path}: t is not k / rate"
+    # A channel of counts at a decimal scale and offset (0.01 kN*m) reads as the
+    # decimals the device meant: each value's shortest text (as pandas and Python
+    # print it) has no more decimals than the scale and offset, 0.57 and not
+    # 0.5700000000000001.
+    for channel in header["channels"]:
+        if channel["encoding"] != "counts":
+            continue
+        allowed = max(decimals(channel["scale"]), decimals(channel["offset"]))
+        for value in frame[channel["name"]].dropna():
+            assert decimals(value) <= allowed, (
+                f"{csv_path}: {channel['name']} value {value!r} has more than the "
+                f"{allowed} decimals of scale {channel['scale']!r}, offset {channel['offset']!r}"
+            )
+
+
+def decimals(value):
+    """How many decimals the shortest text of `value` has (`0.57`: 2, `100.0`: 0)."""
+    return max(0, -Decimal(repr(float(value))).normalize().as_tuple().exponent)
 
 
 def check(csv_path, parquet_path):

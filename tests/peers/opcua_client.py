@@ -11,6 +11,9 @@ stdin and answers with one JSON object per line on stdout:
                            RefreshEndEventType events from the Server object with
                            asyncua's own filter (subscribe_events: their fields, where
                            clause EventType InList [the types and their subtypes])
+    baseevents             events from the Server object with asyncua's defaults
+                           (subscribe_events() without arguments: BaseEventType's
+                           fields, where clause EventType InList [every event type])
     refresh [ID]           ConditionRefresh of the subscription (or of ID)
     refresh2 [ID]          ConditionRefresh2 of the subscription's event item (or ID)
     ackcondition NODE HEX [COMMENT]
@@ -86,6 +89,7 @@ def plain(value):
 def data_value(dv):
     return {
         "value": plain(dv.Value.Value) if dv.Value is not None else None,
+        "variant": dv.Value.VariantType.name if dv.Value is not None else None,
         "status": dv.StatusCode.name,
         "source": plain(dv.SourceTimestamp) if dv.SourceTimestamp else None,
         "server": plain(dv.ServerTimestamp) if dv.ServerTimestamp else None,
@@ -195,6 +199,11 @@ async def session(args):
                     types = [client.get_node(t) for t in (ua.ObjectIds.AlarmConditionType,
                              ua.ObjectIds.RefreshStartEventType, ua.ObjectIds.RefreshEndEventType)]
                     event_item = await subscription.subscribe_events(client.nodes.server, types)
+                    emit({"type": "subscribed", "what": line, "subscription": subscription.subscription_id})
+                elif command == "baseevents":
+                    if subscription is None:
+                        subscription = await client.create_subscription(100, Handler(paths))
+                    await subscription.subscribe_events()
                     emit({"type": "subscribed", "what": line, "subscription": subscription.subscription_id})
                 elif command in ("refresh", "refresh2"):
                     condition_type = client.get_node(ua.ObjectIds.ConditionType)

@@ -388,7 +388,9 @@ async fn poll_once(reply: &[u8]) -> Result<(), TestCaseError> {
         prop_assert_eq!(registers.len(), 122, "only whole replies get through");
         if let Ok(block) = decode_block(&registers) {
             prop_assert!((1..=120).contains(&block.raw.len()));
-            let values: Vec<f64> = block.values(0.01, 0.0).collect();
+            let values: Vec<f64> = block
+                .values(millgate_config::Scaling::new(0.01, 0.0))
+                .collect();
             let limits = SaturationLimits {
                 low: -327.67,
                 high: 327.67,

@@ -3,6 +3,8 @@
 
 use std::path::PathBuf;
 
+use super::Identification;
+
 /// Bite detection settings of one driveline.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BiteSettings {
@@ -38,6 +40,16 @@ pub struct Driveline {
     pub wear: WearSettings,
     /// The fatigue ledger of the driveline's components (`None`: no ledger).
     pub fatigue: Option<FatigueSettings>,
+    /// Its nameplate (`identification`, empty when left out).
+    pub identification: Identification,
+    /// The mill's process context at each bite (`context` table; every tag but
+    /// `weld`): a bite while the state is idle, threading or maintenance is recorded
+    /// but not pooled into the wear trend. All `None` when left out.
+    pub context: ContextTags,
+    /// Mill speed range whose bites are pooled into the wear trend, m/min, `0 <= low
+    /// < high` (`pool_speed_range_mpm`, needs the `speed_mpm` context tag): a bite
+    /// rolled outside it is recorded but not pooled. `None`: any speed.
+    pub pool_speed_range_mpm: Option<(f64, f64)>,
 }
 
 /// `drivelines[].fatigue`: rainflow counting of the whole torque stream and Miner's
@@ -178,6 +190,8 @@ pub struct TandemMill {
     /// Longest chatter-episode capture, s, > `capture_before_s` and <= 600 (default
     /// 120): a longer episode's capture is cut there and says so.
     pub capture_max_s: f64,
+    /// Its nameplate (`identification`, empty when left out).
+    pub identification: Identification,
 }
 
 /// A mill's process-context tags (`context = { weld = "...", ... }`): each names a
@@ -272,4 +286,6 @@ pub struct RodMill {
     /// Rod temperature step, deg C, > 0 (default 10): the measured temperature is
     /// rounded to a multiple of it before the pass's setup is (re)computed.
     pub temperature_step_c: f64,
+    /// Its nameplate (`identification`, empty when left out).
+    pub identification: Identification,
 }

@@ -5,6 +5,7 @@
 //! (seconds, hertz) except torque, which stays in kN*m as in files and registers.
 
 mod history;
+mod identification;
 mod mills;
 mod outputs;
 mod sources;
@@ -12,6 +13,7 @@ mod sources;
 use std::path::PathBuf;
 
 pub use history::{CaptureSettings, History, Synchronous};
+pub use identification::{Identification, IdentificationField, IdentificationValue};
 pub use mills::{
     BiteSettings, ChatterDetectorKind, ContextTags, Driveline, DrivelineThresholds,
     FatigueComponent, FatigueSettings, RodMill, TandemMill, WearSettings,
@@ -54,6 +56,8 @@ impl LogFormat {
 pub struct Config {
     /// Plant or mill name, for logs and the HMI.
     pub name: String,
+    /// The gateway's nameplate (`[gateway.identification]`, empty when left out).
+    pub gateway_identification: Identification,
     /// Folder for files the gateway may rebuild (the wear maps): `cache_dir`, resolved
     /// against `$CACHE_DIRECTORY` when systemd sets it, else against the configuration
     /// file's folder; without `cache_dir`, `$CACHE_DIRECTORY`; `None` (neither): the

@@ -84,7 +84,7 @@ impl RegisterTable {
     pub(crate) const ALL: [RegisterTable; 2] = [RegisterTable::Input, RegisterTable::Holding];
 
     /// The spelling used in configuration files: `input`, `holding`.
-    pub(crate) fn name(self) -> &'static str {
+    pub fn name(self) -> &'static str {
         match self {
             RegisterTable::Input => "input",
             RegisterTable::Holding => "holding",
@@ -234,4 +234,11 @@ pub struct Channel {
     pub sample_rate_hz: f64,
     /// Where the samples come from.
     pub source: ChannelSource,
+}
+
+impl Channel {
+    /// Its counts to engineering values (`scale` and `offset`, decimal-exact).
+    pub fn scaling(&self) -> crate::Scaling {
+        crate::Scaling::new(self.scale, self.offset)
+    }
 }

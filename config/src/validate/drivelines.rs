@@ -3,9 +3,9 @@
 
 use millgate_dsp::miner::{EnduranceRule, MeanCorrection, SnCurve, SnCurveError, SnCurveSettings};
 
-use crate::raw::{RawDriveline, RawFatigue, RawFatigueComponent, RawWear};
+use crate::raw::{RawContextTags, RawDriveline, RawFatigue, RawFatigueComponent, RawWear};
 use crate::{
-    BiteSettings, Channel, ChannelKind, ChannelSource, Driveline, DrivelineThresholds,
+    BiteSettings, Channel, ChannelKind, ChannelSource, ContextTags, Driveline, DrivelineThresholds,
     FatigueComponent, FatigueSettings, WearSettings,
 };
 
@@ -101,7 +101,18 @@ impl Checker<'_> {
             // The torque channel or the bite settings are reported already.
             (Some(_), ..) => None,
         };
+        let identification = self.identification(
+            &format!("{key}.identification"),
+            raw.identification.as_ref(),
+        );
+        let context = match &raw.context {
+            Some(tags) => self.driveline_context(&format!("{key}.context"), tags, facts),
+            None => Some(ContextTags::default()),
+        };
+        let pool_speed_range_mpm = self.pool_speed_range(key, raw);
         Some(Driveline {
+            context: context?,
+            pool_speed_range_mpm: pool_speed_range_mpm?,
             name: name?,
             torque: torque?,
             metal_in_stand: metal_in_stand?,
@@ -111,7 +122,67 @@ impl Checker<'_> {
             thresholds: thresholds?,
             wear: wear?,
             fatigue: fatigue?,
+            identification: identification?,
         })
+    }
+
+    /// The context tags of the driveline at `key` (`drivelines[0].context`): the
+    /// tandem mill's tags but the weld bit (no detector of a driveline holds off at
+    /// a weld).
+    fn driveline_context(
+        &mut self,
+        key: &str,
+        raw: &RawContextTags,
+        facts: &ChannelFacts<'_>,
+    ) -> Option<ContextTags> {
+        let tags = self.context_tags(key, raw, facts);
+        if raw.weld.is_some() {
+            self.report.push(
+                format!("{key}.weld"),
+                "is not allowed on a driveline (the weld bit holds a tandem mill's chatter \
+                 alarm off; a driveline's bites are gated by state and speed)",
+            );
+            return None;
+        }
+        tags
+    }
+
+    /// `drivelines[i].pool_speed_range_mpm`: `[low, high]` m/min with `0 <= low <
+    /// high`, and a `speed_mpm` context tag to compare with.
+    fn pool_speed_range(&mut self, key: &str, raw: &RawDriveline) -> Option<Option<(f64, f64)>> {
+        let Some(values) = &raw.pool_speed_range_mpm else {
+            return Some(None);
+        };
+        let range_key = format!("{key}.pool_speed_range_mpm");
+        let range = match values.as_slice() {
+            [low, high] if low.is_finite() && high.is_finite() && *low >= 0.0 && low < high => {
+                (*low, *high)
+            }
+            _ => {
+                self.report.push(
+                    range_key,
+                    format!(
+                        "{values:?} is not allowed (must be [low, high] in m/min with 0 <= low < high)"
+                    ),
+                );
+                return None;
+            }
+        };
+        if raw
+            .context
+            .as_ref()
+            .is_none_or(|tags| tags.speed_mpm.is_none())
+        {
+            self.report.push(
+                range_key,
+                format!(
+                    "needs the speed tag (`{key}.context = {{ speed_mpm = \"<process value>\" }}`): \
+                     the range is checked against what it reads"
+                ),
+            );
+            return None;
+        }
+        Some(Some(range))
     }
 
     /// `drivelines[i].bite`: the rise that marks a bite and the capture around it.

@@ -90,6 +90,10 @@ pub(crate) fn validate(
         purpose,
     };
     let name = checker.name("name", &raw.name);
+    let gateway_identification = checker.identification(
+        "gateway.identification",
+        raw.gateway.identification.as_ref(),
+    );
     let cache_dir = cache_dir(&mut checker, raw.cache_dir.as_deref());
     let log_format = match &raw.log_format {
         Some(text) => checker.choice(
@@ -136,6 +140,7 @@ pub(crate) fn validate(
     let history = raw.history.as_ref().map(|history| checker.history(history));
     Some(Config {
         name: name?,
+        gateway_identification: gateway_identification?,
         cache_dir: cache_dir?,
         log_format: log_format?,
         modbus_sources: modbus_sources.into_iter().collect::<Option<_>>()?,
@@ -291,6 +296,7 @@ struct Checker<'a> {
 mod channels;
 mod drivelines;
 mod history;
+mod identification;
 mod opcua;
 mod outputs;
 mod rod_mills;

@@ -68,6 +68,10 @@ impl Checker<'_> {
             temperature_step_c > 0.0,
             "> 0 deg C",
         );
+        let identification = self.identification(
+            &format!("{key}.identification"),
+            raw.identification.as_ref(),
+        );
         Some(RodMill {
             name: name?,
             mill: mill?,
@@ -80,6 +84,7 @@ impl Checker<'_> {
             near_tongue_m_s: near_tongue_m_s?,
             hysteresis_m_s: hysteresis_m_s?,
             temperature_step_c: temperature_step_c?,
+            identification: identification?,
         })
     }
 

@@ -92,6 +92,10 @@ impl Checker<'_> {
             Some(tags) => self.context_tags(&format!("{key}.context"), tags, facts),
             None => Some(ContextTags::default()),
         };
+        let identification = self.identification(
+            &format!("{key}.identification"),
+            raw.identification.as_ref(),
+        );
         Some(TandemMill {
             name: name?,
             stands: stands_ok.then_some(stands)?,
@@ -110,6 +114,7 @@ impl Checker<'_> {
             capture_before_s: capture_before_s?,
             capture_after_s: capture_after_s?,
             capture_max_s: capture_max_s?,
+            identification: identification?,
         })
     }
 

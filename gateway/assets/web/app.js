@@ -364,6 +364,9 @@
     const fatigueNote = document.getElementById("fatigue-note");
     let lifePlot = null;
     let damagePlot = null;
+    // /fatigue/history: each component's life used over time (time buckets), the
+    // resets and the life limit; fetched with the other series.
+    let fatigueSeries = null;
     let allowCommands = false;
 
     // The fatigue ledger per component (the live figures), with a reset button per
@@ -407,26 +410,53 @@
       button.disabled = false;
     }
 
-    // The worst component's life used at each bite over time, and its damage per bite
-    // over the bite's TAF (untrusted bites have no damage and are left out).
+    // Each component's life used over time: the history's series (the last stored
+    // bite of each time bucket), then the live figures of a bite since it was read.
+    function lifeColumns() {
+      const series = fatigueSeries || { components: [], points: [] };
+      const live = info.fatigue_components || [];
+      const names = series.components.concat(live.map((c) => c.name).filter((n) => !series.components.includes(n)));
+      const rows = series.points.map((p) => [Date.parse(p.time) / 1000,
+        names.map((n, k) => (missing(p.life_used[k]) ? null : p.life_used[k] * 100))]);
+      const last = rows.length ? rows[rows.length - 1][0] : -Infinity;
+      const at = info.last_bite_time ? Date.parse(info.last_bite_time) / 1000 : null;
+      if (at !== null && at > last && live.length) {
+        rows.push([at, names.map((n) => {
+          const c = live.find((x) => x.name === n);
+          return c && !missing(c.life_used) ? c.life_used * 100 : null;
+        })]);
+      }
+      return { names, times: rows.map((r) => r[0]), columns: names.map((n, k) => rows.map((r) => r[1][k])) };
+    }
+
+    // Each component's life used over time with the life limit, and the worst
+    // component's damage per bite over the bite's TAF (untrusted bites have no damage
+    // and are left out).
     function drawFatigue() {
       if (!(info.fatigue_components || []).length) return;
-      const rows = bites.filter((b) => !missing(b.fatigue_life_used));
-      const times = rows.map((b) => Date.parse(b.time) / 1000);
+      const life = lifeColumns();
+      const limit = fatigueSeries && !missing(fatigueSeries.life_limit) ? fatigueSeries.life_limit * 100 : null;
+      const lifeSeries = [{ label: "time (UTC)", value: timeLabel }].concat(life.names.map((n, k) => (
+        { label: n + ", life used %", stroke: colours[k % colours.length], width: 2, spanGaps: true, points: quiet, value: (u, v) => num(v, 4) })));
+      const lifeData = [life.times].concat(life.columns);
+      if (limit !== null) {
+        lifeSeries.push({ label: "life limit %", stroke: "#b91c1c", width: 1, dash: [6, 4], points: quiet, value: (u, v) => num(v, 1) });
+        lifeData.push(life.times.map(() => limit));
+      }
       const lifeOptions = {
         width: plotWidth(lifeNode), height: 260, tzDate: utcDate,
         scales: { x: { time: true } },
-        series: [
-          { label: "time (UTC)", value: timeLabel },
-          { label: "life used (worst component), %", stroke: "#7c3aed", width: 2, spanGaps: true, points: quiet, value: (u, v) => num(v, 4) },
-        ],
+        series: lifeSeries,
         axes: [{ values: utcTicks, incrs: timeIncrs, space: 70, label: "time (UTC)" }, { label: "life used, %" }],
       };
       if (lifePlot) lifePlot.destroy();
-      lifePlot = new uPlot(lifeOptions, [times, rows.map((b) => b.fatigue_life_used * 100)], lifeNode);
+      lifePlot = new uPlot(lifeOptions, lifeData, lifeNode);
       window.millgatePlots.fatigueLife = lifePlot;
-      describe(lifeNode, "Life used of the worst fatigue component at " + rows.length + " bites"
-        + (rows.length ? ": " + rangeText(rows.map((b) => b.fatigue_life_used * 100), 4, "%") : "") + ".");
+      const resets = fatigueSeries ? fatigueSeries.resets.length : 0;
+      describe(lifeNode, "Life used per fatigue component over time, " + timeSpan(life.times) + ": "
+        + life.names.map((n, k) => n + " " + (rangeText(life.columns[k], 4, "%") || "no value")).join("; ")
+        + (limit !== null ? "; life limit " + num(limit, 1) + " %" : "")
+        + (resets ? "; " + resets + " reset" + (resets === 1 ? "" : "s") + " (the line starts again at 0)" : "") + ".");
       const points = bites.filter((b) => !missing(b.fatigue_bite_damage) && !missing(b.taf) && !b.degraded)
         .map((b) => [b.taf, b.fatigue_bite_damage]).sort((a, b) => a[0] - b[0]);
       const damageOptions = {
@@ -442,8 +472,9 @@
       damagePlot = new uPlot(damageOptions, [points.map((p) => p[0]), points.map((p) => p[1])], damageNode);
       window.millgatePlots.fatigueDamage = damagePlot;
       describe(damageNode, "Damage per bite over TAF of " + points.length + " bites.");
-      fatigueNote.textContent = "The worst component (the most life used) at each stored bite: its life used over time, "
-        + "and its damage per bite (the cycles closed since the bite before) over the bite's TAF. Per component: the table.";
+      fatigueNote.textContent = "Life used per component over time (the last stored bite of each time bucket, "
+        + "a replaced component's line starting again at 0), with the life limit; the worst component's damage per bite "
+        + "(the cycles closed since the bite before) over the bite's TAF.";
     }
 
     function cards(d) {
@@ -582,8 +613,29 @@
         traceNote.textContent = error.message;
       }
     }
+    // The product filter of the bite table, and the table by product.
+    const productSection = document.getElementById("products");
+    const productBody = document.querySelector("#product-table tbody");
+    const productLabel = document.getElementById("product-filter-label");
+    const productSelect = document.getElementById("product-filter");
+    productSelect.addEventListener("change", () => table());
     function table() {
-      fill(tbody, bites.slice(-25).reverse().map((b) => row(b, false)));
+      const chosen = productSelect.value === "" ? null : Number(productSelect.value);
+      const shown = chosen === null ? bites : bites.filter((b) => b.product === chosen);
+      fill(tbody, shown.slice(-25).reverse().map((b) => row(b, false)));
+    }
+    function drawProducts(products) {
+      productSection.classList.toggle("hidden", products.length === 0);
+      productLabel.classList.toggle("hidden", products.length === 0);
+      fill(productBody, products.map((p) => el("tr", {},
+        el("td", {}, String(p.product)), el("td", {}, String(p.bites)), el("td", {}, String(p.not_pooled)),
+        el("td", {}, num(p.taf_mean, 3)), el("td", {}, num(p.taf_max, 3)),
+        el("td", {}, p.static_torque_mean_knm === null ? "–" : num(p.static_torque_mean_knm, 1) + " kN·m"),
+        el("td", {}, p.gap_mean_mrad === null ? "–" : num(p.gap_mean_mrad, 2) + " mrad"))));
+      const chosen = productSelect.value;
+      productSelect.replaceChildren(el("option", { value: "" }, "all"),
+        ...products.map((p) => el("option", { value: String(p.product) }, String(p.product))));
+      productSelect.value = products.some((p) => String(p.product) === chosen) ? chosen : "";
     }
 
     // The history's gap series (buckets), with the live bites since appended.
@@ -595,17 +647,21 @@
     function drawGap() {
       const t = info.thresholds;
       const cone = info.gap_cone;
-      // Rows by time (Unix s): gap, low, high, fitted line, forecast mean, low, high.
+      // Rows by time (Unix s): gap, low, high, fitted line, forecast mean, low, high,
+      // a bite not pooled (drawn at 0 mrad).
       const rows = new Map();
       const at = (time) => {
         const x = Date.parse(time) / 1000;
-        if (!rows.has(x)) rows.set(x, [null, null, null, null, null, null, null]);
+        if (!rows.has(x)) rows.set(x, [null, null, null, null, null, null, null, null]);
         return rows.get(x);
       };
       for (const p of wearPoints) {
         const r = at(p.end);
         r[0] = p.gap_mrad; r[1] = p.gap_low_mrad; r[2] = p.gap_high_mrad;
       }
+      // Bites the context kept out of the wear trend (gated 1 state, 2 speed).
+      const gated = bites.filter((b) => b.gated === 1 || b.gated === 2);
+      for (const b of gated) at(b.time)[7] = 0;
       if (cone) {
         at(cone.fitted_line.from_time)[3] = cone.fitted_line.from_mrad;
         at(cone.fitted_line.to_time)[3] = cone.fitted_line.to_mrad;
@@ -617,7 +673,7 @@
       const xs = Array.from(rows.keys()).sort((a, b) => a - b);
       const column = (i) => xs.map((x) => rows.get(x)[i]);
       const data = [xs, column(0), column(1), column(2), xs.map(() => t.gap_warning_mrad), xs.map(() => t.gap_alarm_mrad),
-        column(3), column(4), column(5), column(6)];
+        column(3), column(4), column(5), column(6), column(7)];
       const expected = expectedText(info) ? Date.parse(info.gap_alarm_date) / 1000 : null;
       const said = forecastText(info);
       const mrad = (u, v) => num(v, 2) + " mrad";
@@ -635,6 +691,8 @@
           { label: "forecast", stroke: "#c2410c", width: 2, spanGaps: true, points: quiet, value: mrad },
           { label: "forecast 90% low", stroke: "#fdba74", width: 1, spanGaps: true, points: quiet, value: (u, v) => num(v, 2) },
           { label: "forecast 90% high", stroke: "#fdba74", width: 1, spanGaps: true, points: quiet, value: (u, v) => num(v, 2) },
+          { label: "bite not pooled (state, speed)", stroke: "#6b7280", width: 0, paths: () => null,
+            points: { show: true, size: 7, fill: "#ffffff", stroke: "#6b7280" }, value: (u, v) => (v === null ? "–" : "not pooled") },
         ],
         bands: [{ series: [3, 2], fill: "rgba(29, 78, 216, 0.15)" }, { series: [9, 8], fill: "rgba(194, 65, 12, 0.15)" }],
         axes: [{ values: utcTicks, incrs: timeIncrs, space: 70, label: "time (UTC)" }, { label: "opened gap, mrad" }],
@@ -681,7 +739,9 @@
       const t = info.thresholds;
       const cone = info.gap_cone;
       const last = cone ? cone.points[cone.points.length - 1] : null;
+      const gated = gapPlot.data[10].filter((v) => v !== null).length;
       describe(gapNode, gapSummary("Opened gap of " + name + " over time", gapPlot.data, ["gap"])
+        + (gated ? " " + gated + " bites not pooled into the trend (the mill's state or speed), marked at 0 mrad." : "")
         + " Warning at " + t.gap_warning_mrad + " mrad, alarm at " + t.gap_alarm_mrad + " mrad."
         + (cone ? " Growth " + growthText(info) + "; forecast: " + (forecastText(info) || "none") + "; its 90% band "
           + num(cone.points[0].low_mrad, 2) + " to " + num(cone.points[0].high_mrad, 2) + " mrad at the last bite, "
@@ -804,12 +864,17 @@
     async function loadHistory() {
       try {
         const series = Date.now() - wearAt >= SERIES_PERIOD_MS;
-        const [wear, rows, captures] = await Promise.all([
+        const fatigue = series && (info.fatigue_components || []).length > 0;
+        const [wear, rows, captures, life, products] = await Promise.all([
           series ? getJson("/api/drivelines/" + encodeURIComponent(name) + "/wear?points=400") : null,
           getJson("/api/drivelines/" + encodeURIComponent(name) + "/bites?limit=500"),
           getJson("/api/drivelines/" + encodeURIComponent(name) + "/captures?limit=500"),
+          fatigue ? getJson("/api/drivelines/" + encodeURIComponent(name) + "/fatigue/history?points=400") : null,
+          series ? getJson("/api/drivelines/" + encodeURIComponent(name) + "/products") : null,
         ]);
+        if (life) fatigueSeries = life;
         bites = rows;
+        if (products) drawProducts(products);
         captureOf = new Map(captures.filter((c) => c.kind === "bite").map((c) => [c.bite_counter, c.id]));
         table();
         drawFatigue();

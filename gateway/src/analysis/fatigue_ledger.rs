@@ -165,6 +165,10 @@ struct Saved {
     /// whether the torque is rising towards it (none before the first move).
     residue: Vec<f64>,
     pending: Option<(f64, bool)>,
+    /// `fatigue.life_limit` when saved (the report draws it; a restore takes the
+    /// configuration's). Absent from ledgers saved before it was kept.
+    #[serde(default)]
+    life_limit: Option<f64>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -309,6 +313,7 @@ impl FatigueLedger {
                 .collect(),
             residue: residue.to_vec(),
             pending,
+            life_limit: Some(self.life_limit),
         };
         serde_json::to_string(&saved).unwrap_or_default()
     }
@@ -374,6 +379,14 @@ pub(crate) fn saved_lives(text: &str) -> Result<Vec<SavedLife>, serde_json::Erro
             installed_unix_ms: c.installed_unix_ms,
         })
         .collect())
+}
+
+/// The `fatigue.life_limit` a ledger saved as `text` was counted against; `None` for
+/// a ledger saved before the limit was kept. Read by `millgate report` alone, which
+/// the `plot` feature builds.
+#[cfg_attr(not(feature = "plot"), allow(dead_code))]
+pub(crate) fn saved_life_limit(text: &str) -> Result<Option<f64>, serde_json::Error> {
+    Ok(serde_json::from_str::<Saved>(text)?.life_limit)
 }
 
 /// Add `cycle`'s damage on `day` to each component.
@@ -519,6 +532,15 @@ mod tests {
         assert!(second.restore("{\"components\": 3}").is_err());
         let bad = saved.replacen("\"life_used\":", "\"life_used\":-", 1);
         assert!(second.restore(&bad).is_err(), "{bad}");
+        assert_eq!(saved_life_limit(&saved).unwrap(), Some(0.8));
+        let old = saved.replace(",\"life_limit\":0.8", "");
+        assert_ne!(old, saved);
+        assert_eq!(saved_life_limit(&old).unwrap(), None);
+        assert_eq!(
+            second.restore(&old),
+            Ok(2),
+            "a ledger saved without its limit"
+        );
     }
 
     #[test]

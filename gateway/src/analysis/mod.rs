@@ -49,6 +49,8 @@ pub struct Analysis {
     by_torque: Vec<Vec<usize>>,
     /// Per channel: the drivelines it triggers.
     by_trigger: Vec<Vec<usize>>,
+    /// Per channel: the drivelines whose context tag it is.
+    by_context: Vec<Vec<usize>>,
     /// Per channel: the drivelines whose extra channel it is, with its position in
     /// their `extra_channels`.
     by_extra: Vec<Vec<(usize, usize)>>,
@@ -82,6 +84,7 @@ impl Analysis {
     ) -> Result<Self, AnalysisError> {
         let mut by_torque = vec![Vec::new(); config.channels.len()];
         let mut by_trigger = vec![Vec::new(); config.channels.len()];
+        let mut by_context: Vec<Vec<usize>> = vec![Vec::new(); config.channels.len()];
         let mut by_extra = vec![Vec::new(); config.channels.len()];
         let mut extra_hold = Vec::new();
         let mut drivelines = Vec::new();
@@ -96,6 +99,9 @@ impl Analysis {
         for (index, driveline) in config.drivelines.iter().enumerate() {
             let torque = &config.channels[driveline.torque];
             let mut analyzer = DrivelineAnalyzer::new(index, driveline, torque, &cache_dir)?;
+            for channel in analyzer.track_context(driveline, config) {
+                by_context[channel].push(index);
+            }
             let hold = extra_channel_hold(config, &driveline.extra_channels);
             if captures {
                 let extra: Vec<_> = driveline
@@ -132,6 +138,7 @@ impl Analysis {
             drivelines,
             by_torque,
             by_trigger,
+            by_context,
             by_extra,
             extra_hold,
             held: Vec::new(),
@@ -379,6 +386,10 @@ impl Analysis {
             Acquired::ProcessValue { channel, value } => {
                 for &d in &self.by_trigger[channel] {
                     self.drivelines[d].trigger_value(value);
+                }
+                let now = Instant::now();
+                for &d in &self.by_context[channel] {
+                    self.drivelines[d].context_value(channel, value, now);
                 }
             }
         }

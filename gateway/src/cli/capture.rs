@@ -199,6 +199,7 @@ fn filter(reader: &HistoryReader, selection: &Selection) -> anyhow::Result<Filte
         until,
         after_id: None,
         limit: None,
+        product: None,
     })
 }
 

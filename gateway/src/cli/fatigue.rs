@@ -64,24 +64,26 @@ pub struct FatigueArgs {
     /// The driveline of `--db`.
     #[arg(long, requires = "db")]
     pub driveline: Option<String>,
-    /// Basquin exponent m of the S-N curve (> 0).
-    #[arg(long)]
+    /// Basquin exponent m of the S-N curve (> 0). The numeric options take negative
+    /// values, so that `--m -3` is refused with the allowed range rather than read
+    /// as an unknown option.
+    #[arg(long, allow_negative_numbers = true)]
     pub m: f64,
     /// Cycles to failure at the reference range (> 0).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub ref_cycles: f64,
     /// Reference torque range, kN*m (> 0).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub ref_range_knm: f64,
     /// Endurance limit, kN*m (> 0).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub endurance_knm: Option<f64>,
     /// Below the endurance limit: no damage (cutoff) or Haibach's slope 2m - 1.
     #[arg(long, value_enum, default_value_t = EnduranceArg::Cutoff, requires = "endurance_knm")]
     pub endurance_rule: EnduranceArg,
     /// Hysteresis gate of the reversals, kN*m (>= 0 and below the channel's range;
     /// default 1% of the range of `--input`; required with `--db`).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub gate_knm: Option<f64>,
     /// Output format.
     #[arg(long, value_enum, default_value_t = OutputFormat::Text)]

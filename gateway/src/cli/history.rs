@@ -77,6 +77,9 @@ pub struct HistoryArgs {
     /// At most this many rows (the oldest first).
     #[arg(long)]
     pub limit: Option<u32>,
+    /// Only bites of this product code (the context they were rolled in; bites only).
+    #[arg(long)]
+    pub product: Option<u32>,
     /// Output format.
     #[arg(long, value_enum, default_value = "csv")]
     pub format: Format,
@@ -125,12 +128,16 @@ pub fn export(args: &HistoryArgs, out: impl Write) -> anyhow::Result<()> {
         }
         (_, driveline, None) => driveline.clone(),
     };
+    if args.product.is_some() && args.kind != Kind::Bites {
+        anyhow::bail!("--product applies to bites only (--kind bites)");
+    }
     let filter = Filter {
         name,
         since: parse_time("--since", args.since.as_deref())?,
         until: parse_time("--until", args.until.as_deref())?,
         after_id: None,
         limit: args.limit,
+        product: args.product,
     };
     let reader = HistoryReader::open(&args.db)?;
     match args.kind {

@@ -7,7 +7,7 @@
 //! that counts from 1 (the Modicon 4xxxx notation, mbpoll without `-0`) shows
 //! address 0 as register 1 (40001).
 
-use millgate_config::{PlcOutput, ValueType, WordOrder};
+use millgate_config::{ChannelSource, Config, ContextTags, PlcOutput, ValueType, WordOrder};
 use serde::Serialize;
 
 use crate::outputs::modbus::register_map::RegisterMap;
@@ -135,6 +135,158 @@ pub fn export(map: &RegisterMap, output: Option<&PlcOutput>, format: Format) -> 
                     row.word_order,
                     row.access,
                     row.description.replace('|', "\\|")
+                );
+            }
+            out
+        }
+    }
+}
+
+/// One context tag the gateway reads: what the PLC must provide.
+#[derive(Serialize)]
+struct ContextInput<'a> {
+    /// The mill or driveline whose tag it is.
+    subject: &'a str,
+    /// `weld`, `speed_mpm`, ... (the `context` table's key).
+    tag: &'static str,
+    /// The `process_value` channel.
+    channel: &'a str,
+    /// The source (a `[[sources.modbus]]` or `[[sources.can]]` name).
+    source: &'a str,
+    /// `input`, `holding` or `can`.
+    table: &'static str,
+    /// First register (Modbus, 0-based PDU address); `None` for CAN.
+    address: Option<u16>,
+    /// The register type, or the CAN message and signal.
+    encoding: String,
+    /// The values the PLC may give (anything else makes the context invalid).
+    allowed: String,
+}
+
+/// The values a context tag may take (`products`: the known product codes).
+fn allowed(tag: &str, products: &[u32]) -> String {
+    match tag {
+        "weld" => "0 or 1 (1 while a weld is in the mill)".to_owned(),
+        "speed_mpm" => ">= 0 m/min".to_owned(),
+        "thickness_mm" => "> 0 mm".to_owned(),
+        "state" => "0 idle, 1 threading, 2 rolling, 3 maintenance".to_owned(),
+        "product" if !products.is_empty() => {
+            let codes: Vec<String> = products.iter().map(u32::to_string).collect();
+            format!("one of {}", codes.join(", "))
+        }
+        _ => "a whole number 0..=4294967295".to_owned(),
+    }
+}
+
+/// Every context tag of `config` (the tandem mills', then the drivelines'), with where
+/// the gateway reads it and the values it accepts.
+fn context_inputs(config: &Config) -> Vec<ContextInput<'_>> {
+    let subjects = config
+        .tandem_mills
+        .iter()
+        .map(|mill| (mill.name.as_str(), &mill.context))
+        .chain(
+            config
+                .drivelines
+                .iter()
+                .map(|driveline| (driveline.name.as_str(), &driveline.context)),
+        );
+    let mut inputs = Vec::new();
+    for (subject, tags) in subjects {
+        let tags: &ContextTags = tags;
+        for (tag, channel) in tags.tags() {
+            let channel = &config.channels[channel];
+            let (source, table, address, encoding) = match &channel.source {
+                ChannelSource::ModbusValue {
+                    source,
+                    table,
+                    address,
+                    value_type,
+                    word_order,
+                } => (
+                    config.modbus_sources[*source].name.as_str(),
+                    table.name(),
+                    Some(*address),
+                    format!(
+                        "{} {}, x {} + {}",
+                        type_name(*value_type),
+                        word_order_name(*word_order),
+                        channel.scale,
+                        channel.offset
+                    ),
+                ),
+                ChannelSource::Can {
+                    source,
+                    message,
+                    signal,
+                    ..
+                } => (
+                    config.can_sources[*source].name.as_str(),
+                    "can",
+                    None,
+                    format!("{message}.{signal}"),
+                ),
+                // A context tag is a process value: never a block (the configuration
+                // refuses it).
+                ChannelSource::ModbusBlock { .. } => continue,
+            };
+            inputs.push(ContextInput {
+                subject,
+                tag,
+                channel: &channel.name,
+                source,
+                table,
+                address,
+                encoding,
+                allowed: allowed(tag, &tags.products),
+            });
+        }
+    }
+    inputs
+}
+
+/// What the PLC must provide for `config`'s process-context tags (`registers
+/// --context`), in `format`: per tag its subject, channel, source, table, address,
+/// encoding and the values the gateway accepts.
+pub fn context_export(config: &Config, format: Format) -> String {
+    let inputs = context_inputs(config);
+    let address = |input: &ContextInput<'_>| input.address.map_or(String::new(), |a| a.to_string());
+    match format {
+        Format::Json => serde_json::to_string_pretty(&inputs).unwrap_or_default() + "\n",
+        Format::Csv => {
+            let mut out =
+                String::from("subject,tag,channel,source,table,address,encoding,allowed\n");
+            for input in &inputs {
+                out += &format!(
+                    "{},{},{},{},{},{},{},{}\n",
+                    csv_field(input.subject),
+                    input.tag,
+                    csv_field(input.channel),
+                    csv_field(input.source),
+                    input.table,
+                    address(input),
+                    csv_field(&input.encoding),
+                    csv_field(&input.allowed)
+                );
+            }
+            out
+        }
+        Format::Md => {
+            let mut out = String::from(
+                "| subject | tag | channel | source | table | address | encoding | allowed |\n\
+                 |---|---|---|---|---|---|---|---|\n",
+            );
+            for input in &inputs {
+                out += &format!(
+                    "| {} | {} | {} | {} | {} | {} | {} | {} |\n",
+                    input.subject,
+                    input.tag,
+                    input.channel,
+                    input.source,
+                    input.table,
+                    input.address.map_or("-".to_owned(), |a| a.to_string()),
+                    input.encoding,
+                    input.allowed
                 );
             }
             out

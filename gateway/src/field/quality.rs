@@ -16,7 +16,7 @@
 use std::time::SystemTime;
 
 use millgate_config::signal::SignalLayout;
-use millgate_config::{Channel, ChannelKind, ChannelSource};
+use millgate_config::{Channel, ChannelKind, ChannelSource, Scaling};
 
 use crate::field::acquired::Acquired;
 
@@ -42,9 +42,10 @@ impl SaturationLimits {
     }
 }
 
-/// The engineering values a raw i16 sample takes at the converter's ends.
-fn i16_limits(scale: f64, offset: f64) -> SaturationLimits {
-    let at = |raw: i16| f64::from(raw) * scale + offset;
+/// The engineering values a raw i16 sample takes at the converter's ends (decoded as
+/// the reader decodes a sample, so a raw end compares equal).
+fn i16_limits(scaling: Scaling) -> SaturationLimits {
+    let at = |raw: i16| scaling.apply(f64::from(raw));
     // A negative scale swaps the ends.
     let (a, b) = (at(i16::MIN + 1), at(i16::MAX));
     SaturationLimits {
@@ -56,7 +57,7 @@ fn i16_limits(scale: f64, offset: f64) -> SaturationLimits {
 /// The saturation limits of `channel`'s samples in engineering units.
 pub fn saturation_limits(channel: &Channel) -> SaturationLimits {
     match &channel.source {
-        ChannelSource::ModbusBlock { .. } => i16_limits(channel.scale, channel.offset),
+        ChannelSource::ModbusBlock { .. } => i16_limits(channel.scaling()),
         // A process value on CAN (a counter, a speed, a flag) may use its whole range.
         ChannelSource::Can { .. } if channel.kind == ChannelKind::ProcessValue => {
             SaturationLimits::NONE
@@ -78,7 +79,8 @@ pub fn can_signal_limits(layout: &SignalLayout, scale: f64, offset: f64) -> Satu
     if !(8..=64).contains(&layout.size) {
         return SaturationLimits::NONE;
     }
-    let engineering = |raw: f64| (raw * layout.factor + layout.offset) * scale + offset;
+    let (dbc, scaling) = (layout.scaling(), Scaling::new(scale, offset));
+    let engineering = |raw: f64| scaling.apply(dbc.apply(raw));
     let (a, b) = if layout.signed {
         let max = ((1u64 << (layout.size - 1)) - 1) as f64;
         (engineering(-max), engineering(max))
@@ -148,10 +150,10 @@ mod tests {
 
     #[test]
     fn modbus_limits_are_the_ends_of_raw_i16() {
-        let limits = i16_limits(0.01, 0.0);
+        let limits = i16_limits(Scaling::new(0.01, 0.0));
         assert!(limits.saturated(327.67) && limits.saturated(-327.67) && limits.saturated(-327.68));
         assert!(!limits.saturated(327.66) && !limits.saturated(-327.66));
-        let inverted = i16_limits(-0.01, 5.0);
+        let inverted = i16_limits(Scaling::new(-0.01, 5.0));
         assert!(inverted.saturated(5.0 - 327.67) && inverted.saturated(5.0 + 327.67));
         assert!(!inverted.saturated(5.0));
     }

@@ -13,6 +13,7 @@ use serde::ser::{Serialize, SerializeMap, Serializer};
 use super::figures::{bite_columns, from_sql};
 use super::record::{Cell, Record, ToCell};
 use crate::state::catalogue::Value;
+use crate::state::context::{MillState, ProcessContext};
 use crate::state::results::DrivelineResults;
 use crate::state::time::UtcTime;
 
@@ -35,6 +36,9 @@ pub struct BiteRow {
     pub reference_taf: Option<f64>,
     /// Measured minus reference first-period shift, s.
     pub shift_over_linear_s: Option<f64>,
+    /// The process context the bite was rolled in (schema v13; every value `None`
+    /// without `drivelines[].context`, for an invalid context and before v13).
+    pub context: ProcessContext,
     /// The catalogue's figures the row keeps: the bite's counter and time, what its
     /// window measured (also from a degraded window: `last_bite_degraded`), the wear
     /// index and trend and the gap estimate after it; every other figure at its
@@ -93,9 +97,20 @@ pub(super) const OWN_COLUMNS: [&str; 7] = [
     "shift_over_linear_s",
 ];
 
+/// The bite's process context (schema v13), the row's own columns after the
+/// figures in the exports.
+pub(super) const CONTEXT_COLUMNS: [&str; 6] = [
+    "speed_mpm",
+    "coil",
+    "product",
+    "thickness_mm",
+    "pass",
+    "mill_state",
+];
+
 /// Whether `name` is one of the row's own columns (not a figure of the catalogue).
 fn own(name: &str) -> bool {
-    name == "id" || OWN_COLUMNS.contains(&name)
+    name == "id" || OWN_COLUMNS.contains(&name) || CONTEXT_COLUMNS.contains(&name)
 }
 
 /// Every column, in export order, with its name.
@@ -124,6 +139,7 @@ fn layout() -> &'static [(&'static str, Column)] {
                 layout.push((name, Column::Figure(index)));
             }
         }
+        layout.extend(CONTEXT_COLUMNS.map(|name| (name, Column::Own(name))));
         layout
     })
 }
@@ -157,6 +173,12 @@ impl BiteRow {
             "quality" => self.quality.to_cell(),
             "reference_taf" => self.reference_taf.to_cell(),
             "shift_over_linear_s" => self.shift_over_linear_s.to_cell(),
+            "speed_mpm" => self.context.speed_mpm.to_cell(),
+            "coil" => self.context.coil.map(i64::from).to_cell(),
+            "product" => self.context.product.map(i64::from).to_cell(),
+            "thickness_mm" => self.context.thickness_mm.to_cell(),
+            "pass" => self.context.pass.map(i64::from).to_cell(),
+            "mill_state" => self.context.state.map(|s| s.name().to_owned()).to_cell(),
             other => unreachable!("{other} is not one of the row's own columns"),
         }
     }
@@ -180,6 +202,7 @@ impl Record for BiteRow {
     const TABLE: &'static str = "bites";
     const NAME_COLUMN: &'static str = "driveline";
     const TIME_COLUMN: &'static str = "time";
+    const PRODUCT_COLUMN: Option<&'static str> = Some("product");
 
     fn columns() -> &'static [&'static str] {
         columns()
@@ -202,6 +225,7 @@ impl Record for BiteRow {
             quality: row.get("quality")?,
             reference_taf: row.get("reference_taf")?,
             shift_over_linear_s: row.get("shift_over_linear_s")?,
+            context: context_of(row)?,
             figures,
         })
     }
@@ -245,6 +269,28 @@ impl Serialize for BiteRow {
         }
         map.end()
     }
+}
+
+/// The process context of a bite row (a code out of u32's range, an unknown state: no
+/// value).
+fn context_of(row: &rusqlite::Row<'_>) -> rusqlite::Result<ProcessContext> {
+    let code = |column: &str| -> rusqlite::Result<Option<u32>> {
+        Ok(row
+            .get::<_, Option<i64>>(column)?
+            .and_then(|v| u32::try_from(v).ok()))
+    };
+    Ok(ProcessContext {
+        weld: None,
+        speed_mpm: row.get("speed_mpm")?,
+        coil: code("coil")?,
+        product: code("product")?,
+        thickness_mm: row.get("thickness_mm")?,
+        pass: code("pass")?,
+        state: row
+            .get::<_, Option<String>>("mill_state")?
+            .as_deref()
+            .and_then(MillState::from_name),
+    })
 }
 
 /// The figures of a driveline a bite row gives, as the analysis would publish them:

@@ -16,13 +16,16 @@
 //! cleanup of files orphaned by a kill.
 //!
 //! **Encoding** (`meta.format` 1): per channel either raw counts (when every sample
-//! is `count * scale + offset` bit for bit, as a Modbus DAQ's are) as zigzag varints
-//! of the differences between successive counts, or the `f64` values' little-endian
-//! bytes (CAN signals, NaN); the channels' bytes one after the other, deflated.
-//! Decoding gives back the very samples the analysis used.
+//! is its count decoded by the channel's [`Scaling`] bit for bit, as a Modbus DAQ's
+//! are) as zigzag varints of the differences between successive counts, or the `f64`
+//! values' little-endian bytes (CAN signals, NaN); the channels' bytes one after the
+//! other, deflated. Decoding gives back the very samples the analysis used (counts
+//! stored before the decimal-exact [`Scaling`] come back as their decimal, at most one
+//! unit in the last place from the `count * scale + offset` then analysed).
 
 use std::io::{Read as _, Write as _};
 
+use millgate_config::Scaling;
 use rusqlite::{params, OptionalExtension, Transaction};
 use serde::{Deserialize, Serialize};
 
@@ -92,19 +95,20 @@ impl Capture {
     }
 }
 
-/// The counts of `channel`'s samples when every one is exactly `count * scale +
-/// offset` (so decoding gives the same `f64`), else `None`.
+/// The counts of `channel`'s samples when every one is exactly its count decoded by
+/// the channel's [`Scaling`] (so decoding gives the same `f64`), else `None`.
 fn exact_counts(channel: &CaptureChannel) -> Option<Vec<i64>> {
     let (scale, offset) = (channel.scale, channel.offset);
     if !(scale.is_finite() && scale != 0.0 && offset.is_finite()) {
         return None;
     }
+    let scaling = Scaling::new(scale, offset);
     channel
         .samples
         .iter()
         .map(|&value| {
             let count = ((value - offset) / scale).round();
-            let exact = count.abs() <= 2f64.powi(52) && (count * scale + offset) == value;
+            let exact = count.abs() <= 2f64.powi(52) && scaling.apply(count) == value;
             exact.then_some(count as i64)
         })
         .collect()
@@ -278,12 +282,13 @@ pub fn decode(
         let mut values = Vec::with_capacity(samples);
         match channel.encoding {
             Encoding::Counts => {
+                let scaling = Scaling::new(channel.channel.scale, channel.channel.offset);
                 let mut count = 0i64;
                 for _ in 0..samples {
                     let zigzag = get_varint(&raw, &mut at).ok_or_else(|| damaged("ends early"))?;
                     let delta = ((zigzag >> 1) as i64) ^ -((zigzag & 1) as i64);
                     count = count.wrapping_add(delta);
-                    values.push(count as f64 * channel.channel.scale + channel.channel.offset);
+                    values.push(scaling.apply(count as f64));
                 }
             }
             Encoding::Float64 => {
@@ -510,10 +515,11 @@ mod tests {
 
     #[test]
     fn counts_and_floats_come_back_bit_for_bit() {
-        // Counts as a Modbus DAQ gives them (raw * scale + offset), and values that
-        // are not counts of the channel's scale (a CAN signal, a NaN).
+        // Counts as a Modbus DAQ gives them (raw decoded by the channel's scaling),
+        // and values that are not counts of the channel's scale (a CAN signal, a NaN).
+        let scaling = Scaling::new(0.1, 3.0);
         let counts: Vec<f64> = (0..1400)
-            .map(|i| f64::from(((i as f64 * 0.05).sin() * 9000.0) as i16) * 0.1 + 3.0)
+            .map(|i| scaling.apply(f64::from(((i as f64 * 0.05).sin() * 9000.0) as i16)))
             .collect();
         let floats: Vec<f64> = (0..1400)
             .map(|i| (i as f64 * 0.013).cos() * 123.456_789)

@@ -39,7 +39,9 @@
 //! - **Reading** ([`query`]): [`query::HistoryReader`] opens its own read-only
 //!   connection; `millgate history` and `millgate report` use it. [`series`] adds
 //!   what a page plots over months: the gap and TAF in time buckets and the gap's
-//!   trend per week, aggregated by SQLite; `summary` what a report reads over a
+//!   trend per week, aggregated by SQLite; [`fatigue_series`] the fatigue
+//!   components' life used in the same buckets and each bite's damage beside its
+//!   TAF; `summary` what a report reads over a
 //!   year without holding it (a driveline's TAF quantiles, its bites one by one, when
 //!   a run without a recorded stop was last seen).
 //!
@@ -57,6 +59,7 @@ mod capture_parquet;
 pub mod captures;
 mod checkpoint;
 mod error;
+pub mod fatigue_series;
 pub(crate) mod figures;
 mod metrics;
 pub(crate) mod outages;

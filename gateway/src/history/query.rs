@@ -65,6 +65,9 @@ pub struct Filter {
     pub after_id: Option<i64>,
     /// At most this many rows.
     pub limit: Option<u32>,
+    /// Only rows of this product code (bites: their `product` column, schema v13; a
+    /// table without a product has no row of any product).
+    pub product: Option<u32>,
 }
 
 /// Declares a row struct of `table` with its [`Record`] implementation: one place
@@ -452,6 +455,12 @@ impl HistoryReader {
         }
         if let Some(after) = filter.after_id {
             condition("id >".into(), after.into());
+        }
+        if let Some(product) = filter.product {
+            match R::PRODUCT_COLUMN {
+                Some(column) => condition(format!("{column} ="), i64::from(product).into()),
+                None => conditions.push("0".to_owned()),
+            }
         }
         if conditions.is_empty() {
             (String::new(), values)

@@ -74,6 +74,9 @@ pub trait Record: Sized + Serialize {
     const NAME_COLUMN: &'static str;
     /// The column [`Filter::since`](super::query::Filter::since) and [`Filter::until`](super::query::Filter::until) compare.
     const TIME_COLUMN: &'static str;
+    /// The column [`Filter::product`](super::query::Filter::product) matches; `None`:
+    /// the table has no product (a product filter leaves no row).
+    const PRODUCT_COLUMN: Option<&'static str> = None;
     /// The row from a result row of [`Self::columns`].
     fn from_row(row: &rusqlite::Row<'_>) -> rusqlite::Result<Self>;
     /// The values, in [`Self::columns`] order.

@@ -196,29 +196,10 @@ pub(crate) fn fatigue_history(
     driveline: &str,
     days: u32,
 ) -> rusqlite::Result<FatigueHistory> {
-    let has_ledger: bool = connection.query_row(
-        "SELECT count(*) > 0 FROM sqlite_schema WHERE name = 'fatigue_resets'",
-        [],
-        |row| row.get(0),
-    )?;
-    if !has_ledger {
+    if !has_fatigue_tables(connection)? {
         return Ok(FatigueHistory::default());
     }
-    let resets = connection
-        .prepare_cached(
-            "SELECT time, component, life_used, origin, peer FROM fatigue_resets
-             WHERE driveline = ?1 ORDER BY time, id",
-        )?
-        .query_map(params![driveline], |row| {
-            Ok(FatigueReset {
-                time: row.get(0)?,
-                component: row.get(1)?,
-                life_used: row.get(2)?,
-                origin: row.get(3)?,
-                peer: row.get(4)?,
-            })
-        })?
-        .collect::<rusqlite::Result<Vec<_>>>()?;
+    let resets = fatigue_resets(connection, driveline)?;
     let days = connection
         .prepare_cached(
             "WITH last AS (SELECT max(time) AS time FROM bites WHERE driveline = ?1)
@@ -241,4 +222,36 @@ pub(crate) fn fatigue_history(
         )?
         .collect::<rusqlite::Result<Vec<_>>>()?;
     Ok(FatigueHistory { resets, days })
+}
+
+/// Whether the file has the fatigue ledger's tables (schema version 12 on).
+pub(crate) fn has_fatigue_tables(connection: &Connection) -> rusqlite::Result<bool> {
+    connection.query_row(
+        "SELECT count(*) > 0 FROM sqlite_schema WHERE name = 'fatigue_resets'",
+        [],
+        |row| row.get(0),
+    )
+}
+
+/// `driveline`'s fatigue resets, oldest first (a few per component replaced: read
+/// whole).
+pub(crate) fn fatigue_resets(
+    connection: &Connection,
+    driveline: &str,
+) -> rusqlite::Result<Vec<FatigueReset>> {
+    connection
+        .prepare_cached(
+            "SELECT time, component, life_used, origin, peer FROM fatigue_resets
+             WHERE driveline = ?1 ORDER BY time, id",
+        )?
+        .query_map(params![driveline], |row| {
+            Ok(FatigueReset {
+                time: row.get(0)?,
+                component: row.get(1)?,
+                life_used: row.get(2)?,
+                origin: row.get(3)?,
+                peer: row.get(4)?,
+            })
+        })?
+        .collect()
 }

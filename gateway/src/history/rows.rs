@@ -6,7 +6,7 @@
 use rusqlite::types::Value as SqlValue;
 use rusqlite::{params, Transaction};
 
-use super::bite_row::OWN_COLUMNS;
+use super::bite_row::{CONTEXT_COLUMNS, OWN_COLUMNS};
 use super::figures::{bite_columns, to_sql, upsert_state};
 use super::run::{insert_settings, DrivelineSettings};
 use crate::state::events::{
@@ -208,9 +208,9 @@ fn chatter_window(
 }
 
 /// The columns of a bite row beside the catalogue's figures, in the order
-/// [`bite_facts`] gives their values: the row's own (as read back) and what the bite
-/// put into the gap pool, which a restart pools again.
-const BITE_FACTS: [&str; 9] = [
+/// [`bite_facts`] gives their values: the row's own (as read back), what the bite
+/// put into the gap pool, which a restart pools again, and its process context.
+const BITE_FACTS: [&str; 15] = [
     OWN_COLUMNS[0],
     OWN_COLUMNS[1],
     OWN_COLUMNS[2],
@@ -220,10 +220,18 @@ const BITE_FACTS: [&str; 9] = [
     OWN_COLUMNS[6],
     "gap_taf_sigma",
     "gap_period_shift_sigma_s",
+    CONTEXT_COLUMNS[0],
+    CONTEXT_COLUMNS[1],
+    CONTEXT_COLUMNS[2],
+    CONTEXT_COLUMNS[3],
+    CONTEXT_COLUMNS[4],
+    CONTEXT_COLUMNS[5],
 ];
 
 fn bite_facts(run_id: i64, bite: &BiteRecord) -> Vec<SqlValue> {
     let real = |value: Option<f64>| value.map_or(SqlValue::Null, SqlValue::Real);
+    let code = |value: Option<u32>| value.map_or(SqlValue::Null, |v| SqlValue::Integer(v.into()));
+    let context = bite.context.unwrap_or_default();
     vec![
         SqlValue::Integer(run_id),
         SqlValue::Text(bite.driveline.clone()),
@@ -234,6 +242,14 @@ fn bite_facts(run_id: i64, bite: &BiteRecord) -> Vec<SqlValue> {
         real(bite.shift_over_linear_s),
         real(bite.pooled.map(|p| p.taf_sigma)),
         real(bite.pooled.map(|p| p.period_shift_sigma_s)),
+        real(context.speed_mpm),
+        code(context.coil),
+        code(context.product),
+        real(context.thickness_mm),
+        code(context.pass),
+        context.state.map_or(SqlValue::Null, |state| {
+            SqlValue::Text(state.name().to_owned())
+        }),
     ]
 }
 

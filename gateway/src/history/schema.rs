@@ -358,6 +358,19 @@ CREATE TABLE fatigue_resets (
 );
 CREATE INDEX fatigue_resets_by_driveline_time ON fatigue_resets(driveline, time);
 "#,
+    // Version 13: the process context (issue 39). A bite's gate (the catalogue's
+    // `last_bite_gated`: 0 pooled into the wear trend, 1 not for the mill's state, 2
+    // not for its speed; NULL without drivelines[].context, and for every bite before)
+    // and the context it was rolled in (NULL: not read, or the context invalid).
+    r#"
+ALTER TABLE bites ADD COLUMN gated INTEGER;
+ALTER TABLE bites ADD COLUMN speed_mpm REAL;
+ALTER TABLE bites ADD COLUMN coil INTEGER;
+ALTER TABLE bites ADD COLUMN product INTEGER;
+ALTER TABLE bites ADD COLUMN thickness_mm REAL;
+ALTER TABLE bites ADD COLUMN pass INTEGER;
+ALTER TABLE bites ADD COLUMN mill_state TEXT;      -- idle, threading, rolling, maintenance
+"#,
 ];
 
 /// `PRAGMA application_id` of a millgate history: the bytes "MLGT" (0x4D4C4754), set

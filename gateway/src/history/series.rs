@@ -141,7 +141,7 @@ impl HistoryReader {
     }
 
     /// A time column's text as a time; a malformed one is a corrupt row.
-    fn time(&self, text: &str) -> Result<UtcTime, HistoryError> {
+    pub(super) fn time(&self, text: &str) -> Result<UtcTime, HistoryError> {
         UtcTime::parse(text).map_err(|e| {
             self.error(rusqlite::Error::FromSqlConversionFailure(
                 0,
@@ -155,7 +155,7 @@ impl HistoryReader {
     /// first bite) to `until` (exclusive; default just after its last bite): at most
     /// `points` of equal length (whole ms), oldest first; none when it has no bites
     /// there. Checks the arguments as [`Self::wear_series`] documents.
-    fn buckets(
+    pub(super) fn buckets(
         &self,
         driveline: &str,
         since: Option<UtcTime>,

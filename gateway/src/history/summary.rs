@@ -1,5 +1,6 @@
 //! What a report reads over months of bites without holding them: a driveline's bite
-//! counts and TAF quantiles ([`HistoryReader::bite_summary`]), its bites one by one for
+//! counts and TAF quantiles ([`HistoryReader::bite_summary`]), the same by product
+//! ([`HistoryReader::product_summaries`]), its bites one by one for
 //! a plot that bins them ([`HistoryReader::for_each_taf_point`]), and when a run
 //! without a recorded stop was last seen ([`HistoryReader::last_event`]).
 //!
@@ -29,6 +30,31 @@ pub struct BiteSummary {
     /// See [`Self::taf_median`].
     pub taf_max: Option<f64>,
 }
+
+/// A driveline's bites of one product in a time range (the context they were rolled
+/// in, schema v13).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ProductSummary {
+    /// The product code.
+    pub product: u32,
+    /// Bites (degraded ones too).
+    pub bites: u64,
+    /// Of those, bites not pooled into the wear trend (`gated` 1 or 2).
+    pub not_pooled: u64,
+    /// Mean TAF of the clean bites that measured one; `None` without such bites.
+    pub taf_mean: Option<f64>,
+    /// Largest TAF of those.
+    pub taf_max: Option<f64>,
+    /// Mean static torque of the clean bites, kN*m.
+    pub static_torque_mean_knm: Option<f64>,
+    /// Mean opened gap (the wear trend's estimate after each pooled bite of the
+    /// product), mrad; `None` without a gap estimate.
+    pub gap_mean_mrad: Option<f64>,
+}
+
+/// Most products a [`HistoryReader::product_summaries`] lists (those with the most
+/// bites): the answer's memory is bounded whatever the file holds.
+pub(crate) const MAX_PRODUCTS: usize = 200;
 
 /// One bite as a TAF-over-static-torque plot needs it.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -113,6 +139,52 @@ impl HistoryReader {
             index += 1;
         }
         Ok(summary)
+    }
+
+    /// `driveline`'s bites at or after `since` and before `until` grouped by the
+    /// product they were rolled in (bites without a product left out), the products
+    /// with the most bites first, at most [`MAX_PRODUCTS`].
+    ///
+    /// Cost: one pass over the driveline's range (SQLite's grouping: memory per
+    /// product, not per bite).
+    pub fn product_summaries(
+        &self,
+        driveline: &str,
+        since: Option<UtcTime>,
+        until: Option<UtcTime>,
+    ) -> Result<Vec<ProductSummary>, HistoryError> {
+        let (since, until) = bounds(since, until);
+        let mut statement = self
+            .connection()
+            .prepare_cached(
+                "SELECT product, count(*), count(CASE WHEN gated IN (1, 2) THEN 1 END),
+                     avg(CASE WHEN degraded = 0 THEN taf END),
+                     max(CASE WHEN degraded = 0 THEN taf END),
+                     avg(CASE WHEN degraded = 0 THEN static_torque_knm END),
+                     avg(CASE WHEN gated IS NULL OR gated = 0 THEN gap_mrad END)
+                 FROM bites
+                 WHERE driveline = ?1 AND time >= ?2 AND time < ?3 AND product IS NOT NULL
+                 GROUP BY product ORDER BY count(*) DESC, product LIMIT ?4",
+            )
+            .map_err(|e| self.error(e))?;
+        let count = |value: i64| u64::try_from(value).unwrap_or(0);
+        let rows = statement
+            .query_map(
+                params![driveline, since, until, MAX_PRODUCTS as i64],
+                |row| {
+                    Ok(ProductSummary {
+                        product: u32::try_from(row.get::<_, i64>(0)?).unwrap_or(u32::MAX),
+                        bites: count(row.get(1)?),
+                        not_pooled: count(row.get(2)?),
+                        taf_mean: row.get(3)?,
+                        taf_max: row.get(4)?,
+                        static_torque_mean_knm: row.get(5)?,
+                        gap_mean_mrad: row.get(6)?,
+                    })
+                },
+            )
+            .map_err(|e| self.error(e))?;
+        rows.collect::<Result<_, _>>().map_err(|e| self.error(e))
     }
 
     /// Hands each of `driveline`'s bites at or after `since` and before `until` to

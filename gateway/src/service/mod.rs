@@ -322,7 +322,20 @@ impl Service {
         };
         let board = &self.board;
         board.update(|results| {
-            restored.apply(results, board.driveline_names(), board.tandem_mill_names())
+            restored.apply(results, board.driveline_names(), board.tandem_mill_names());
+            // A driveline whose `fatigue` section was removed publishes no fatigue
+            // figures: its state row still holds the last ledger's (the saved ledger
+            // stays in the history, so that adding the section again resumes it).
+            for (driveline, components) in results
+                .drivelines
+                .iter_mut()
+                .zip(board.fatigue_components())
+            {
+                if components.is_empty() {
+                    driveline.fatigue = None;
+                    driveline.fatigue_components.clear();
+                }
+            }
         });
         for driveline in &restored.drivelines {
             let index = board

@@ -6,8 +6,9 @@
 //!
 //! Samples are kept exactly as the analysis saw them (engineering units, `f64`), with
 //! each channel's scale and offset: the writer stores raw counts when every sample is
-//! `count * scale + offset` bit for bit (a Modbus DAQ's samples), the `f64` values
-//! otherwise, so an export gives back the very samples the analysis used.
+//! its count decoded by the channel's `millgate_config::Scaling` bit for bit (a Modbus
+//! DAQ's samples), the `f64` values otherwise, so an export gives back the very
+//! samples the analysis used.
 
 use std::sync::Arc;
 

@@ -28,9 +28,60 @@ impl MillState {
         MillState::Maintenance,
     ];
 
+    /// The names, in code order (the history's text).
+    pub const NAMES: [&'static str; 4] = ["idle", "threading", "rolling", "maintenance"];
+
     /// The state of PLC code `code` (0 idle, 1 threading, 2 rolling, 3 maintenance).
     pub fn from_code(code: u32) -> Option<MillState> {
         Self::ALL.get(usize::try_from(code).ok()?).copied()
+    }
+
+    /// Its name (`rolling`), as the history keeps it.
+    pub fn name(self) -> &'static str {
+        Self::NAMES[self as usize]
+    }
+
+    /// The state named `name` ([`Self::name`]).
+    pub fn from_name(name: &str) -> Option<MillState> {
+        let code = Self::NAMES.iter().position(|n| *n == name)?;
+        Some(Self::ALL[code])
+    }
+}
+
+/// Why a bite is (not) pooled into the wear trend: the value of `last_bite_gated`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BiteGate {
+    /// Pooled: rolling (or the state unknown), inside the speed range (or unknown).
+    Pooled,
+    /// Not pooled: the mill was idle, threading or in maintenance.
+    State,
+    /// Not pooled: the mill speed was outside `pool_speed_range_mpm`.
+    Speed,
+}
+
+impl BiteGate {
+    /// Every gate, in value order.
+    pub const ALL: [BiteGate; 3] = [BiteGate::Pooled, BiteGate::State, BiteGate::Speed];
+
+    /// The names, in value order (the catalogue's state figure).
+    pub const NAMES: &'static [&'static str] = &["pooled", "state", "speed"];
+
+    /// The gate of a bite rolled in `context`, pooled only inside `speed_range_mpm`.
+    pub fn of(context: &ProcessContext, speed_range_mpm: Option<(f64, f64)>) -> Self {
+        let outside =
+            |speed: f64| speed_range_mpm.is_some_and(|(low, high)| !(low..=high).contains(&speed));
+        match (context.state, context.speed_mpm) {
+            (Some(MillState::Idle | MillState::Threading | MillState::Maintenance), _) => {
+                BiteGate::State
+            }
+            (_, Some(speed)) if outside(speed) => BiteGate::Speed,
+            _ => BiteGate::Pooled,
+        }
+    }
+
+    /// Whether the bite goes into the wear trend.
+    pub fn pooled(self) -> bool {
+        self == BiteGate::Pooled
     }
 }
 
@@ -172,6 +223,38 @@ impl RawContext {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_gate_follows_the_state_and_the_speed_range() {
+        let context = |state, speed_mpm| ProcessContext {
+            state,
+            speed_mpm,
+            ..ProcessContext::default()
+        };
+        let range = Some((100.0, 400.0));
+        for (state, speed, gate) in [
+            (None, None, BiteGate::Pooled),
+            (Some(MillState::Rolling), Some(250.0), BiteGate::Pooled),
+            (Some(MillState::Rolling), Some(100.0), BiteGate::Pooled),
+            (Some(MillState::Rolling), Some(400.0), BiteGate::Pooled),
+            (Some(MillState::Rolling), Some(99.9), BiteGate::Speed),
+            (None, Some(400.1), BiteGate::Speed),
+            (Some(MillState::Threading), Some(250.0), BiteGate::State),
+            (Some(MillState::Maintenance), None, BiteGate::State),
+            (Some(MillState::Idle), Some(0.0), BiteGate::State),
+        ] {
+            assert_eq!(
+                BiteGate::of(&context(state, speed), range),
+                gate,
+                "{state:?} {speed:?}"
+            );
+        }
+        // Without a range any speed is pooled.
+        assert_eq!(
+            BiteGate::of(&context(Some(MillState::Rolling), Some(9999.0)), None),
+            BiteGate::Pooled
+        );
+    }
 
     #[test]
     fn possible_values_pass_and_each_impossible_one_invalidates_the_context() {

@@ -5,6 +5,7 @@
 pub use super::catalogue::AlarmKind;
 use super::catalogue::{Figure, Subject, Value};
 use super::commands::CommandOrigin;
+use super::context::ProcessContext;
 use super::results::{DrivelineResults, TandemMillResults};
 use super::time::UtcTime;
 
@@ -85,6 +86,9 @@ pub struct BiteRecord {
     /// The driveline's fatigue ledger after this bite, in its saved form (JSON), with
     /// `drivelines[].fatigue`: what a restart continues.
     pub fatigue_ledger: Option<String>,
+    /// The mill's process context when the bite's window completed (with
+    /// `drivelines[].context` and a valid context): the evidence's tags.
+    pub context: Option<ProcessContext>,
     /// The driveline's published results after this bite (counter, last values,
     /// wear index and trend, gap estimate, warnings and latched alarms): what a restart
     /// restores (the catalogue's figures with a state column).
@@ -112,6 +116,7 @@ impl BiteRecord {
             shift_over_linear_s: None,
             gap_state: None,
             pooled: None,
+            context: None,
             gap_trend: None,
             fatigue_ledger: None,
             state,

@@ -2,6 +2,7 @@
 //! (each figure named and described once in [`super::catalogue`]).
 
 use crate::field::source_health::SourceStatus;
+use crate::state::context::BiteGate;
 
 /// Latest results of one driveline. `None` = not computed (yet), published with
 /// its quality bit cleared.
@@ -66,6 +67,18 @@ pub struct DrivelineResults {
     /// Times the fatigue ledger's torque stream was cut since start (lost or
     /// saturated samples, a stale source): the residue was counted as half cycles.
     pub fatigue_stream_cuts: u64,
+    /// Whether the last bite was pooled into the wear trend, and if not why; `None`
+    /// without `drivelines[].context` (every bite is pooled).
+    pub last_bite_gated: Option<BiteGate>,
+    /// Bites not pooled since start because the mill was idle, threading or in
+    /// maintenance.
+    pub bites_gated_state: u64,
+    /// Bites not pooled since start because the mill speed was outside
+    /// `pool_speed_range_mpm`.
+    pub bites_gated_speed: u64,
+    /// Bites since start whose context held an impossible value (not used for the
+    /// gating: pooled as without context).
+    pub bites_context_invalid: u64,
 }
 
 /// The fatigue figures of one component, as the registers carry them for the worst

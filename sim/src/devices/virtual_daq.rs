@@ -267,7 +267,10 @@ mod tests {
         let block = layout::decode_block(&bank.input[10..]).unwrap();
         assert_eq!(block.sequence, 2);
         assert_eq!(block.raw.len(), 100);
-        assert_eq!(block.values(0.5, 0.0).next(), Some(50.0));
+        assert_eq!(
+            block.values(millgate_config::Scaling::new(0.5, 0.0)).next(),
+            Some(50.0)
+        );
         assert_eq!(daq.next_sample, 200);
         assert_eq!(daq.block_period(), Duration::from_millis(100));
         drop(bank);
@@ -278,7 +281,10 @@ mod tests {
         let bank = bank.lock();
         let block = layout::decode_block(&bank.input[10..]).unwrap();
         assert_eq!(block.sequence, 3);
-        assert_eq!(block.values(0.5, 0.0).nth(7), Some(-3.5));
+        assert_eq!(
+            block.values(millgate_config::Scaling::new(0.5, 0.0)).nth(7),
+            Some(-3.5)
+        );
         assert_eq!(daq.next_sample, 300);
     }
 
@@ -300,7 +306,9 @@ mod tests {
         let input = daq.bank().lock().input.clone();
         let block = layout::decode_block(&input).unwrap();
         assert_eq!(
-            block.values(1.0, 0.0).collect::<Vec<_>>(),
+            block
+                .values(millgate_config::Scaling::new(1.0, 0.0))
+                .collect::<Vec<_>>(),
             [2.0, 3.0, 1.0, 2.0]
         );
     }

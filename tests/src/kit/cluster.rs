@@ -1,5 +1,22 @@
-//! A clustered MQTT broker for the failover tests: Debian's `rabbitmq-server` (3.10)
-//! with its MQTT plugin, three nodes on loopback (`n0@localhost` ..) joined by the
+//! Clustered MQTT brokers for the failover tests, each started on loopback by the test
+//! with every process a child of it, killed when the cluster is dropped:
+//!
+//! - [`AedesCluster`]: three aedes 1.2.0 processes (`tests/peers/aedes_node.mjs`,
+//!   npm, pinned by `tests/peers/package-lock.json`) sharing one Debian
+//!   `redis-server`: messages pass between nodes through mqemitter-redis, retained
+//!   messages, subscriptions, QoS 1 queues and Wills are kept in redis by
+//!   aedes-persistence-redis. It keeps Sparkplug topics as they are.
+//! - [`RabbitCluster`]: Debian's `rabbitmq-server` (3.10) with its MQTT plugin.
+//!
+//! What aedes on redis does, measured with paho (docs/sparkplug.md, "Brokers measured"):
+//! a message published on one node reaches subscribers on the others, topic
+//! unchanged; a retained message published on one node is delivered by the others;
+//! the Will of a client of a killed node is sent by another node once the dead node's
+//! heartbeat is missed (3 heartbeats of [`AEDES_HEARTBEAT_MS`], checked every 4: 3-7 s;
+//! with a workaround in `aedes_node.mjs`, without which a subscriber may drop it as a
+//! duplicate).
+//!
+//! RabbitMQ, three nodes on loopback (`n0@localhost` ..) joined by the
 //! classic peer discovery, with an `epmd` of their own on a port of the test's; their
 //! data, logs and Erlang cookie in a folder of the caller's. Every process is a child
 //! of the test (the nodes run `erl` in the foreground), killed when the cluster is
@@ -18,9 +35,17 @@
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
+use std::sync::mpsc::RecvTimeoutError;
 use std::time::{Duration, Instant};
 
-/// How long the cluster may take to form (measured: about 20 s on a 2-core machine).
+use super::cli::KillOnDrop;
+
+/// The heartbeat of each aedes node, ms: a node is taken for dead (and its clients'
+/// Wills sent by the others) 3 heartbeats after its last.
+pub const AEDES_HEARTBEAT_MS: u64 = 1000;
+
+/// How long a cluster may take to form (RabbitMQ, measured: about 20 s on a 2-core
+/// machine; aedes on redis: under 2 s).
 const FORM_LIMIT: Duration = Duration::from_secs(90);
 /// The nodes of the cluster.
 const NODES: usize = 3;
@@ -28,7 +53,97 @@ const NODES: usize = 3;
 /// (`/usr/sbin/rabbitmq-server` switches to the `rabbitmq` user).
 const SCRIPTS: &str = "/usr/lib/rabbitmq/bin";
 
-/// A running three-node cluster.
+/// A running three-node aedes cluster on one redis.
+#[derive(Debug)]
+pub struct AedesCluster {
+    nodes: Vec<Option<KillOnDrop>>,
+    /// Dropped after the nodes (fields drop in order).
+    _redis: KillOnDrop,
+    mqtt_ports: Vec<u16>,
+}
+
+impl AedesCluster {
+    /// The cluster with redis' folder in `folder`; returns once every node listens.
+    /// Panics when it cannot start (a test's setup).
+    pub fn start(folder: &Path) -> Self {
+        let start = Instant::now();
+        let redis_port = super::free_port();
+        let redis = Command::new("redis-server")
+            .args(["--bind", "127.0.0.1", "--port", &redis_port.to_string()])
+            // Nothing written to disk: the cluster lives as long as the test.
+            .args(["--save", "", "--appendonly", "no", "--dir"])
+            .arg(folder)
+            .args(["--logfile"])
+            .arg(folder.join("redis.log"))
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .spawn()
+            .map(KillOnDrop)
+            .unwrap_or_else(|e| panic!("redis-server (apt install redis-server): {e}"));
+        wait_for_port(redis_port, start, folder);
+        let mut nodes = Vec::new();
+        let mut mqtt_ports = Vec::new();
+        for node in 0..NODES {
+            let port = super::free_port();
+            let (child, _stdin, lines) = super::json_peer(
+                &super::peer("aedes_node.mjs"),
+                &[
+                    &port.to_string(),
+                    &redis_port.to_string(),
+                    &format!("n{node}"),
+                    &AEDES_HEARTBEAT_MS.to_string(),
+                ],
+            );
+            let left = FORM_LIMIT.saturating_sub(start.elapsed());
+            match lines.recv_timeout(left) {
+                Ok(ready) => assert_eq!(ready["ready"], true, "{ready}"),
+                Err(RecvTimeoutError::Timeout) => panic!("aedes node {node} not ready in {left:?}"),
+                Err(RecvTimeoutError::Disconnected) => {
+                    panic!("aedes node {node} ended (npm ci --prefix tests/peers)")
+                }
+            }
+            nodes.push(Some(child));
+            mqtt_ports.push(port);
+        }
+        Self {
+            nodes,
+            _redis: redis,
+            mqtt_ports,
+        }
+    }
+
+    /// The MQTT port of each node.
+    pub fn mqtt_ports(&self) -> &[u16] {
+        &self.mqtt_ports
+    }
+
+    /// Kill node `node` (SIGKILL: its clients' sockets close without a DISCONNECT).
+    pub fn kill(&mut self, node: usize) {
+        self.nodes[node] = None;
+    }
+
+    /// Stop node `node` (SIGSTOP): its port still accepts connections, it answers
+    /// nothing until [`resume`](Self::resume).
+    pub fn pause(&mut self, node: usize) {
+        self.signal(node, "-STOP");
+    }
+
+    /// Let node `node` run on (SIGCONT).
+    pub fn resume(&mut self, node: usize) {
+        self.signal(node, "-CONT");
+    }
+
+    fn signal(&self, node: usize, signal: &str) {
+        let child = self.nodes[node].as_ref().expect("a running node");
+        let sent = Command::new("kill")
+            .args([signal, &child.id().to_string()])
+            .status()
+            .unwrap();
+        assert!(sent.success(), "kill {signal} aedes node {node}");
+    }
+}
+
+/// A running three-node RabbitMQ cluster.
 #[derive(Debug)]
 pub struct RabbitCluster {
     nodes: Vec<Option<Child>>,
@@ -171,7 +286,7 @@ fn wait_for_port(port: u16, start: Instant, folder: &Path) {
     while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
         assert!(
             start.elapsed() < FORM_LIMIT,
-            "port {port} of the RabbitMQ cluster not open within {FORM_LIMIT:?} (logs in {})",
+            "port {port} of the cluster not open within {FORM_LIMIT:?} (logs in {})",
             folder.display()
         );
         std::thread::sleep(Duration::from_millis(50));

@@ -27,14 +27,14 @@ pub async fn demo_devices(config: &mut Config, schedule: &Schedule) -> anyhow::R
 }
 
 /// `schedule`'s torque as the demo's DAQ sends it on `torque`, a block channel: each
-/// sample its i16 count (`to_raw_sample`) times the scale plus the offset.
+/// sample its i16 count (`to_raw_sample`) decoded by the channel's scaling.
 pub fn as_daq_sends(schedule: &Schedule, torque: &millgate_config::Channel) -> Vec<f64> {
     schedule
         .torque_knm
         .iter()
         .map(|&v| {
             let raw = millgate_config::layout::to_raw_sample(v, torque.scale, torque.offset);
-            f64::from(raw) * torque.scale + torque.offset
+            torque.scaling().apply(f64::from(raw))
         })
         .collect()
 }

@@ -4,12 +4,13 @@
 
 use std::path::Path;
 use std::sync::Arc;
-use std::time::SystemTime;
+use std::time::{Instant, SystemTime};
 
-use millgate_config::{Channel, Driveline, DrivelineThresholds};
+use millgate_config::{Channel, Config, Driveline, DrivelineThresholds};
 use millgate_dsp::transient::TransientSettings;
 
 use super::capture::Captures;
+use super::context::ContextTracker;
 use super::setup::{BiteSetup, ModelParts, WearDiagnosis};
 use crate::analysis::bite_window::{Detector, DetectorState};
 use crate::analysis::error::AnalysisError;
@@ -59,6 +60,8 @@ pub(crate) struct DrivelineAnalyzer {
     pub(super) captures: Captures,
     /// The fatigue ledger, with `drivelines[].fatigue`.
     pub(super) fatigue: Option<FatigueLedger>,
+    /// The process context at each bite and its gate, with `drivelines[].context`.
+    pub(super) context: Option<ContextTracker>,
 }
 
 impl DrivelineAnalyzer {
@@ -113,6 +116,7 @@ impl DrivelineAnalyzer {
             wear_problem,
             captures: Captures::new(torque.sample_rate_hz),
             fatigue,
+            context: None,
         })
     }
 
@@ -239,6 +243,25 @@ impl DrivelineAnalyzer {
         let now = UtcTime::now().unix_ms();
         let (name, used) = ledger.reset(component, now)?;
         Some((name, used, ledger.figures(now)))
+    }
+
+    /// Read the context tags of `driveline` (its `context` table, channels of
+    /// `config`): each bite then carries the context of its time and is pooled only
+    /// as [`BiteGate`](crate::state::context::BiteGate) says. The tags' channels.
+    pub(crate) fn track_context(&mut self, driveline: &Driveline, config: &Config) -> Vec<usize> {
+        self.context =
+            ContextTracker::new(&driveline.context, config, driveline.pool_speed_range_mpm);
+        self.context
+            .as_ref()
+            .map(|tracker| tracker.channels().collect())
+            .unwrap_or_default()
+    }
+
+    /// A value of context channel `channel`, read at `now`.
+    pub(crate) fn context_value(&mut self, channel: usize, value: f64, now: Instant) {
+        if let Some(tracker) = &mut self.context {
+            tracker.value(channel, value, now);
+        }
     }
 
     /// "Metal in stand": a rising edge through 0.5 triggers a capture.

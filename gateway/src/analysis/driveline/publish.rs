@@ -11,6 +11,7 @@ use crate::analysis::wear;
 use crate::state::board::Board;
 use crate::state::captures::{CapturedBite, KeepClass};
 use crate::state::commands::CommandOrigin;
+use crate::state::context::BiteGate;
 use crate::state::events::{
     AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, FatigueResetRecord, HistoryEvent, PooledBite,
     StateRecord, SubjectResults, WearState,
@@ -91,7 +92,8 @@ impl DrivelineAnalyzer {
             driveline.fatigue_stream_cuts = ledger.stream_cuts;
         }
         driveline.wear_index = trusted(report.wear.map(|wear| wear.index));
-        if let Some(index) = driveline.wear_index {
+        let pooled = gate_figures(driveline, report);
+        if let Some(index) = driveline.wear_index.filter(|_| pooled) {
             driveline.wear_trend = Some(wear::next_trend(driveline.wear_trend, index));
         }
         taf
@@ -216,6 +218,25 @@ impl DrivelineAnalyzer {
     }
 }
 
+/// Count `report`'s context in `driveline`'s results: its gate (`last_bite_gated`),
+/// the gated bites and the invalid contexts; whether the bite is pooled.
+fn gate_figures(driveline: &mut DrivelineResults, report: &BiteReport) -> bool {
+    let Some(context) = &report.context else {
+        return true;
+    };
+    driveline.last_bite_gated = Some(context.gate);
+    match context.gate {
+        BiteGate::Pooled => {}
+        BiteGate::State => driveline.bites_gated_state += 1,
+        BiteGate::Speed => driveline.bites_gated_speed += 1,
+    }
+    if let Err(error) = &context.context {
+        driveline.bites_context_invalid += 1;
+        tracing::warn!(driveline = %report.driveline_name, %error, "bite context invalid: not used for the gating");
+    }
+    context.gate.pooled()
+}
+
 /// What `report`'s window measured, as figures of `driveline`: its torques, TAF,
 /// periods, natural frequencies and first mode's damping, each only while `valid` (a
 /// degraded window's are no values where they are published; the bite's row keeps
@@ -273,6 +294,7 @@ pub fn bite_record(
                 period_shift_sigma_s: o.period_shift_sigma_s,
             }
         }),
+        context: report.context.and_then(|context| context.context.ok()),
         state: state.clone(),
     }
 }

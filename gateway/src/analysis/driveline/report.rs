@@ -10,6 +10,7 @@ use millgate_dsp::transient::TransientResult;
 
 use super::analyzer::DrivelineAnalyzer;
 use super::capture::{before, BiteSamples};
+use super::context::BiteContext;
 use crate::analysis::bite_window::{analyze_window, WINDOW_CAPACITY};
 use crate::analysis::fatigue_ledger::LedgerBite;
 use crate::analysis::gap_monitor::GapBite;
@@ -48,12 +49,15 @@ pub struct BiteReport {
     /// model or when the bite has no TAF.
     pub wear: Option<WearEstimate>,
     /// The bite's gap observation and the gap estimates; `None` without a model, for a
-    /// degraded window or a bite without TAF.
+    /// degraded window, a bite without TAF or one not pooled (`context.gate`).
     pub gap: Option<GapBite>,
     /// The window's samples as analysed, when the driveline keeps captures.
     pub samples: Option<Arc<BiteSamples>>,
     /// The fatigue ledger after this bite, with `drivelines[].fatigue`.
     pub fatigue: Option<LedgerBite>,
+    /// The process context when the window completed and whether the bite was pooled
+    /// into the wear trend, with `drivelines[].context`.
+    pub context: Option<BiteContext>,
 }
 
 impl BiteReport {
@@ -145,10 +149,16 @@ impl DrivelineAnalyzer {
             after_trigger,
         );
         let unix_ms = UtcTime::from_system(time).unix_ms();
-        let gap =
-            self.gap.as_mut().filter(|_| !degraded).and_then(|gap| {
-                gap.observe(&event.window, &analysis.transient, transient, unix_ms)
-            });
+        let context = self
+            .context
+            .as_ref()
+            .map(|tracker| tracker.at(window_complete));
+        let pooled = context.is_none_or(|context| context.gate.pooled());
+        let gap = self
+            .gap
+            .as_mut()
+            .filter(|_| !degraded && pooled)
+            .and_then(|gap| gap.observe(&event.window, &analysis.transient, transient, unix_ms));
         let samples = self.captures.bite_samples(
             event,
             self.window_analysis(event),
@@ -175,6 +185,7 @@ impl DrivelineAnalyzer {
             gap,
             samples,
             fatigue,
+            context,
         })
     }
 

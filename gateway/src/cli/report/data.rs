@@ -10,7 +10,7 @@ use crate::cli::progress::{percent, Progress};
 use crate::history::query::{BiteRow, Filter, HistoryReader, SettingsRow};
 use crate::history::series::TREND_WINDOW;
 use crate::history::series::{GapTrend, WearIndexPoint, WearPoint};
-use crate::history::summary::BiteSummary;
+use crate::history::summary::{BiteSummary, ProductSummary};
 use crate::state::results::GapResults;
 use crate::state::time::UtcTime;
 
@@ -22,6 +22,8 @@ pub(super) const PLOT_BUCKETS: usize = 450;
 pub(super) struct DrivelineData {
     /// Counts and TAF quantiles of its bites in the period.
     pub(super) summary: BiteSummary,
+    /// Its bites in the period by product (empty without a product context).
+    pub(super) products: Vec<ProductSummary>,
     /// Its last bite in the period (with the gap estimate after it).
     pub(super) last: Option<BiteRow>,
     /// The gap's growth over the four weeks before the period's end (or its last bite).
@@ -103,6 +105,7 @@ pub(super) fn read(
 ) -> anyhow::Result<DrivelineData> {
     step(progress, name, "counting bites");
     let summary = reader.bite_summary(name, since, until)?;
+    let products = reader.product_summaries(name, since, until)?;
     let last = reader
         .newest::<BiteRow>(&Filter {
             name: Some(name.to_owned()),
@@ -110,6 +113,7 @@ pub(super) fn read(
             until,
             after_id: None,
             limit: Some(1),
+            product: None,
         })?
         .pop();
     let known = last.is_some();
@@ -149,6 +153,7 @@ pub(super) fn read(
     let forecast = forecast(saved, setting.as_ref(), (since, until));
     Ok(DrivelineData {
         summary,
+        products,
         last,
         trend,
         wear,

@@ -1,13 +1,17 @@
 //! The report's drivelines: each one's part read ([`read`]), the summary table of
-//! all, and per driveline its section: the plot over time, the TAF over static torque
-//! and the captured traces of its last alarm bites.
+//! all, and per driveline its section: the plot over time, the TAF over static torque,
+//! the fatigue ledger (its tables and plots) and the captured traces of its last alarm
+//! bites.
 
 use std::path::Path;
 
+use super::data::PLOT_BUCKETS;
 use super::data::{self, DrivelineData, Forecast};
 use super::document::{fmt, Block};
 use super::period::Period;
-use super::plots::{taf_svg, time_svg, trace_svg, TimeAxis, TimePanel};
+use super::plots::{
+    damage_svg, range, taf_svg, time_svg, trace_svg, DamageGrid, TimeAxis, TimePanel,
+};
 use crate::cli::progress::Progress;
 use crate::history::query::HistoryReader;
 use crate::state::results::{ForecastState, GapForecast, GapGrowth, GapResults};
@@ -89,6 +93,54 @@ pub(super) fn summary(period: &Period, read: &[DrivelineData], blocks: &mut Vec<
             "gap trend, mrad/week",
             "growth, mrad/day (90%)",
             "gap alarm expected (90%)",
+        ]
+        .map(String::from)
+        .to_vec(),
+        rows,
+    ));
+}
+
+/// The bites by product, a table of every driveline's products (rows of drivelines
+/// in `read`'s order); nothing when no bite of the period has a product, so reports
+/// without a process context stay as they were.
+pub(super) fn products(period: &Period, read: &[DrivelineData], blocks: &mut Vec<Block>) {
+    let rows: Vec<Vec<String>> = period
+        .drivelines
+        .iter()
+        .zip(read)
+        .flat_map(|(name, data)| {
+            data.products.iter().map(move |p| {
+                vec![
+                    name.clone(),
+                    p.product.to_string(),
+                    p.bites.to_string(),
+                    p.not_pooled.to_string(),
+                    fmt(p.taf_mean, 3),
+                    fmt(p.taf_max, 3),
+                    fmt(p.static_torque_mean_knm, 1),
+                    fmt(p.gap_mean_mrad, 2),
+                ]
+            })
+        })
+        .collect();
+    if rows.is_empty() {
+        return;
+    }
+    blocks.push(Block::Heading(3, "Bites by product".into()));
+    blocks.push(Block::Text(format!(
+        "Each driveline's bites in the period by the product code the PLC gave          (drivelines[].context; bites without one left out; at most {} products per          driveline, those with the most bites): bites not pooled into the wear trend (the          mill's state or speed), the TAF and static torque of the clean bites, and the          mean of the wear trend's gap after the product's pooled bites.",
+        crate::history::summary::MAX_PRODUCTS
+    )));
+    blocks.push(Block::Table(
+        [
+            "driveline",
+            "product",
+            "bites",
+            "not pooled",
+            "TAF mean",
+            "TAF max",
+            "static torque mean, kN*m",
+            "gap mean, mrad",
         ]
         .map(String::from)
         .to_vec(),
@@ -257,6 +309,9 @@ fn fatigue(
                 .collect(),
         ));
     }
+    let limit = crate::analysis::fatigue_ledger::saved_life_limit(saved)?;
+    life_over_time(reader, period, name, limit, blocks)?;
+    damage_over_taf(reader, period, name, blocks)?;
     if !history.days.is_empty() {
         blocks.push(Block::Text(format!(
             "Damage per UTC day (the last {FATIGUE_DAYS} days with bites; untrusted \
@@ -280,6 +335,150 @@ fn fatigue(
                 .collect(),
         ));
     }
+    Ok(())
+}
+
+/// The plot of `name`'s fatigue components' life used over time (the last bite of
+/// each of [`PLOT_BUCKETS`] time buckets), with the life limit `limit` the ledger
+/// was saved with and a mark at each reset; a sentence instead when the period has
+/// no bite of the ledger.
+fn life_over_time(
+    reader: &HistoryReader,
+    period: &Period,
+    name: &str,
+    limit: Option<f64>,
+    blocks: &mut Vec<Block>,
+) -> anyhow::Result<()> {
+    let series = reader.fatigue_series(name, period.since, period.until, PLOT_BUCKETS)?;
+    if series.points.is_empty() {
+        blocks.push(Block::Text(
+            "No bite of the fatigue ledger in the period: no plot of the life used.".into(),
+        ));
+        return Ok(());
+    }
+    let axis = &period.axis;
+    let lines: Vec<(&str, Vec<(f64, f64)>)> = series
+        .components
+        .iter()
+        .enumerate()
+        .map(|(k, label)| {
+            let line = series
+                .points
+                .iter()
+                .filter_map(|p| Some((axis.x_of(p.time), 100.0 * p.life_used[k]?)))
+                .collect();
+            (label.as_str(), line)
+        })
+        .collect();
+    let marks: Vec<(f64, String)> = series
+        .resets
+        .iter()
+        .filter_map(|r| Some((axis.x(&r.time)?, format!("{} replaced", r.component))))
+        .collect();
+    let panel = |y_label, thresholds| TimePanel {
+        y_label,
+        lines: lines.clone(),
+        bands: Vec::new(),
+        thresholds,
+        marks: marks.clone(),
+        legend_lower_right: false,
+    };
+    let mut panels = vec![panel(
+        "life used, % of the S-N life",
+        limit.map_or_else(Vec::new, |l| vec![("life limit, %", 100.0 * l)]),
+    )];
+    // Lives far under the limit are a flat line at 0 beside it: a second panel
+    // zoomed to them.
+    let most = lines
+        .iter()
+        .flat_map(|(_, line)| line.iter().map(|(_, y)| *y))
+        .fold(0.0, f64::max);
+    let zoomed = limit.is_some_and(|l| most < 10.0 * l);
+    if zoomed {
+        panels.push(panel("life used, % (zoomed to the lives)", Vec::new()));
+    }
+    let file = format!("{}-fatigue-life.svg", file_stem(name));
+    let title = format!("{name}: fatigue life used per component over time");
+    blocks.push(Block::Figure {
+        svg: time_svg(&title, axis, &panels)?,
+        file,
+        title,
+    });
+    blocks.push(Block::Text(format!(
+        "Each component's life used after the last bite of each time bucket ({} \
+         buckets with bites); a replaced component's line starts again at 0 at its \
+         reset (marked).{} {}",
+        series.points.len(),
+        if zoomed {
+            " Below, the same lines zoomed to the lives: under a tenth of the limit."
+        } else {
+            ""
+        },
+        limit.map_or_else(
+            || "The ledger was saved without its life limit: none drawn.".to_owned(),
+            |l| format!("The life limit: {:.0}%.", 100.0 * l)
+        )
+    )));
+    Ok(())
+}
+
+/// The plot of `name`'s fatigue components' damage per bite over the bite's TAF
+/// (trusted bites: a clean window, the damage recorded), binned as read in two
+/// passes over the period's bites (the ranges, then the cells).
+fn damage_over_taf(
+    reader: &HistoryReader,
+    period: &Period,
+    name: &str,
+    blocks: &mut Vec<Block>,
+) -> anyhow::Result<()> {
+    let (mut tafs, mut damages) = ((f64::MAX, f64::MIN), (f64::MAX, f64::MIN));
+    reader.for_each_fatigue_damage::<anyhow::Error>(name, period.since, period.until, |p| {
+        tafs = (tafs.0.min(p.taf), tafs.1.max(p.taf));
+        if p.damage > 0.0 {
+            damages = (damages.0.min(p.damage), damages.1.max(p.damage));
+        }
+        Ok(())
+    })?;
+    if tafs.0 > tafs.1 || damages.0 > damages.1 {
+        blocks.push(Block::Text(
+            "No trusted bite with fatigue damage in the period: no plot of the damage \
+             per bite."
+                .into(),
+        ));
+        return Ok(());
+    }
+    // A tenth of a decade of room, half a decade each way for a single value.
+    let pad = if damages.1 > damages.0 {
+        10f64.powf(0.1)
+    } else {
+        10f64.powf(0.5)
+    };
+    let mut grid = DamageGrid::new(
+        range([tafs.0, tafs.1].into_iter()),
+        (damages.0 / pad, damages.1 * pad),
+    );
+    reader.for_each_fatigue_damage::<anyhow::Error>(name, period.since, period.until, |p| {
+        grid.add(p);
+        Ok(())
+    })?;
+    // The components' names in index order: those of the period's last bite.
+    let names = reader
+        .fatigue_series(name, period.since, period.until, 1)?
+        .components;
+    let file = format!("{}-fatigue-damage.svg", file_stem(name));
+    let title = format!("{name}: fatigue damage per bite over the bite's TAF");
+    blocks.push(Block::Figure {
+        svg: damage_svg(&title, &grid, &names)?,
+        file,
+        title,
+    });
+    blocks.push(Block::Text(format!(
+        "{} component damages of trusted bites (a clean window, the torque since the \
+         bite before not cut), a dot per cell of the TAF and the damage's logarithm, \
+         darker for more bites; {} with no damage (every cycle under the endurance \
+         limit) not drawn.",
+        grid.drawn, grid.without_damage
+    )));
     Ok(())
 }
 

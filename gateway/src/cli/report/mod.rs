@@ -24,6 +24,11 @@
 //!   alarm bites' captures longest), reduced to 450 columns of lowest and highest
 //!   samples with the trigger marked, each with the capture's id and the
 //!   `millgate capture export` command that writes its samples;
+//! - per driveline with a fatigue ledger `<name>-fatigue-life.svg`: each component's
+//!   life used after the last bite of each of the same time buckets, with the life
+//!   limit the ledger was saved with and the resets marked; and
+//!   `<name>-fatigue-damage.svg`: each component's damage per trusted bite over the
+//!   bite's TAF (logarithmic), binned into 180 x 90 cells as the bites are read;
 //! - `alarms.svg`: the alarm timeline (raised, cleared, acknowledged; latched spans);
 //! - `availability.svg`: when the gateway ran (and, for a run without a recorded
 //!   stop, from its last recorded event on, that the file cannot tell), each
@@ -95,6 +100,7 @@ pub fn run(args: &ReportArgs) -> anyhow::Result<String> {
     let read = drivelines::read(&reader, &period, &mut progress)?;
     let mut blocks = title(&args.db, &period);
     drivelines::summary(&period, &read, &mut blocks);
+    drivelines::products(&period, &read, &mut blocks);
     for (name, data) in period.drivelines.iter().zip(&read) {
         drivelines::section(&reader, &args.db, &period, (name, data), &mut blocks)?;
     }

@@ -1,14 +1,17 @@
 //! The report's SVG plots (plotters): quantities over time in stacked panels
 //! ([`time_svg`]), TAF over static torque with the wear map's curves ([`taf_svg`],
 //! [`wear_curves`]), lanes of spans over time ([`lanes_svg`]: alarms, availability)
-//! and an alarm bite's captured torque ([`trace_svg`]).
+//! an alarm bite's captured torque ([`trace_svg`]) and the fatigue components' damage
+//! per bite over its TAF ([`damage_svg`]).
 
 use std::path::Path;
 
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use crate::history::captures::Capture;
+use crate::history::fatigue_series::FatigueDamagePoint;
 use crate::history::query::SettingsRow;
 use crate::history::summary::TafPoint;
 use crate::state::time::UtcTime;
@@ -229,8 +232,18 @@ pub(super) fn time_svg(
     Ok(svg)
 }
 
-/// Cells of [`TafGrid`] across and up: 4.5 by 4 px of a 900 by 450 px plot.
+/// Cells of [`TafGrid`] and [`DamageGrid`] across and up: 4.5 by 4 px of a 900 by
+/// 450 px plot.
 const GRID: (usize, usize) = (180, 90);
+
+/// The cell of `value` among `cells` equal cells over `low..=high` (the top edge
+/// the last cell's); `None` outside.
+fn cell(value: f64, (low, high): (f64, f64), cells: usize) -> Option<usize> {
+    let at = (value - low) / (high - low) * cells as f64;
+    (0.0..=cells as f64)
+        .contains(&at)
+        .then(|| (at as usize).min(cells - 1))
+}
 
 /// Bites binned over static torque (x) and TAF (y) for [`taf_svg`]: a year of bites
 /// drawn as at most 180 x 90 shaded cells instead of a million circles; clean and
@@ -262,13 +275,6 @@ impl TafGrid {
     pub(super) fn add(&mut self, point: TafPoint) {
         let Some(taf) = point.taf else {
             return;
-        };
-        let cell = |value: f64, (low, high): (f64, f64), cells: usize| {
-            let at = (value - low) / (high - low) * cells as f64;
-            // The top edge belongs to the last cell.
-            (0.0..=cells as f64)
-                .contains(&at)
-                .then(|| (at as usize).min(cells - 1))
         };
         match (
             cell(point.static_torque_knm, self.x, GRID.0),
@@ -318,24 +324,12 @@ pub(super) fn taf_svg(
         .unwrap_or_default();
     let (x_range, y_range) = (grid.x, grid.y);
     let most = grid.clean.iter().max().copied().unwrap_or(0).max(1);
-    let mut svg = String::new();
-    {
-        let root = SVGBackend::with_string(&mut svg, (PANEL.0, 450)).into_drawing_area();
-        root.fill(&WHITE).map_err(drawing)?;
-        let root = root.titled(title, ("sans-serif", 20)).map_err(drawing)?;
-        let mut chart = ChartBuilder::on(&root)
-            .margin(10)
-            .x_label_area_size(35)
-            .y_label_area_size(60)
-            .build_cartesian_2d(x_range.0..x_range.1, y_range.0..y_range.1)
-            .map_err(drawing)?;
-        chart
-            .configure_mesh()
-            .x_desc("static torque, kN*m")
-            .y_desc("TAF (peak / static)")
-            .label_style(("sans-serif", 12))
-            .draw()
-            .map_err(drawing)?;
+    let axes = XyAxes {
+        x: (x_range, "static torque, kN*m"),
+        y: (y_range, "TAF (peak / static)"),
+        y_format: None,
+    };
+    xy_svg(title, &axes, SeriesLabelPosition::UpperRight, |chart| {
         // Shade by the logarithm of the count: one bite still shows, the densest
         // cell is darkest.
         let shade = |count: u32| 0.2 + 0.8 * f64::from(count).ln_1p() / f64::from(most).ln_1p();
@@ -381,9 +375,54 @@ pub(super) fn taf_svg(
                 .label(format!("{label} {value}"))
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], color));
         }
+        Ok(())
+    })
+}
+
+/// The chart of [`xy_svg`].
+type XyChart<'a, 'b> =
+    ChartContext<'a, SVGBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+
+/// The axes of [`xy_svg`]: each `((low, high), description)`, and how y's labels
+/// are written (plotters' own numbers when `None`).
+struct XyAxes<'a> {
+    x: ((f64, f64), &'a str),
+    y: ((f64, f64), &'a str),
+    y_format: Option<&'a dyn Fn(&f64) -> String>,
+}
+
+/// A 900 x 450 px plot titled `title` over `axes`, with what `draw` adds and its
+/// legend at `legend`.
+fn xy_svg(
+    title: &str,
+    axes: &XyAxes<'_>,
+    legend: SeriesLabelPosition,
+    draw: impl FnOnce(&mut XyChart<'_, '_>) -> anyhow::Result<()>,
+) -> anyhow::Result<String> {
+    let (((x_low, x_high), x_desc), ((y_low, y_high), y_desc)) = (axes.x, axes.y);
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (PANEL.0, 450)).into_drawing_area();
+        root.fill(&WHITE).map_err(drawing)?;
+        let root = root.titled(title, ("sans-serif", 20)).map_err(drawing)?;
+        let mut chart = ChartBuilder::on(&root)
+            .margin(10)
+            .x_label_area_size(35)
+            .y_label_area_size(60)
+            .build_cartesian_2d(x_low..x_high, y_low..y_high)
+            .map_err(drawing)?;
+        let mut mesh = chart.configure_mesh();
+        mesh.x_desc(x_desc)
+            .y_desc(y_desc)
+            .label_style(("sans-serif", 12));
+        if let Some(format) = axes.y_format {
+            mesh.y_label_formatter(format);
+        }
+        mesh.draw().map_err(drawing)?;
+        draw(&mut chart)?;
         chart
             .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
+            .position(legend)
             .background_style(WHITE.mix(0.8))
             .border_style(BLACK)
             .draw()
@@ -572,4 +611,138 @@ pub(super) fn wear_curves(model: &str, torques: (f64, f64)) -> Result<Vec<Curve>
             (format!("wear map, gap {:.0} mrad", gap * 1e3), curve)
         })
         .collect())
+}
+
+/// Bites' damage per fatigue component over their TAF for [`damage_svg`]: binned into
+/// [`GRID`] cells over the TAF (x) and the damage's decimal logarithm (y), so a year
+/// of bites is drawn as at most 180 x 90 dots per component.
+#[derive(Debug, Clone)]
+pub(super) struct DamageGrid {
+    taf: (f64, f64),
+    log_damage: (f64, f64),
+    /// Counts per component index, `[j * GRID.0 + i]`.
+    cells: Vec<Vec<u32>>,
+    /// Bites whose damage was 0 (every cycle under the endurance limit): not on a
+    /// logarithmic axis.
+    pub(super) without_damage: u64,
+    /// Bites drawn.
+    pub(super) drawn: u64,
+}
+
+impl DamageGrid {
+    /// An empty grid over the TAF `taf` and the damage `damage` (> 0), each
+    /// `(low, high)` with low < high.
+    pub(super) fn new(taf: (f64, f64), damage: (f64, f64)) -> Self {
+        Self {
+            taf,
+            log_damage: (damage.0.log10(), damage.1.log10()),
+            cells: Vec::new(),
+            without_damage: 0,
+            drawn: 0,
+        }
+    }
+
+    /// The upper corner of the plot with fewer occupied cells (a quarter of the width,
+    /// a fifth of the height): where the legend hides the fewest dots.
+    fn legend_corner(&self) -> SeriesLabelPosition {
+        let in_corner = |left: bool| {
+            let columns = if left {
+                0..GRID.0 / 4
+            } else {
+                GRID.0 - GRID.0 / 4..GRID.0
+            };
+            let rows = GRID.1 - GRID.1 / 5..GRID.1;
+            let mut occupied = 0;
+            for cells in &self.cells {
+                for j in rows.clone() {
+                    let row = &cells[j * GRID.0..(j + 1) * GRID.0];
+                    occupied += row[columns.clone()].iter().filter(|c| **c > 0).count();
+                }
+            }
+            occupied
+        };
+        if in_corner(true) <= in_corner(false) {
+            SeriesLabelPosition::UpperLeft
+        } else {
+            SeriesLabelPosition::UpperRight
+        }
+    }
+
+    /// Count a component's damage at a bite.
+    pub(super) fn add(&mut self, point: FatigueDamagePoint) {
+        if point.damage <= 0.0 {
+            self.without_damage += 1;
+            return;
+        }
+        let (Some(i), Some(j)) = (
+            cell(point.taf, self.taf, GRID.0),
+            cell(point.damage.log10(), self.log_damage, GRID.1),
+        ) else {
+            return;
+        };
+        if self.cells.len() <= point.component_index {
+            self.cells
+                .resize(point.component_index + 1, vec![0; GRID.0 * GRID.1]);
+        }
+        self.cells[point.component_index][j * GRID.0 + i] += 1;
+        self.drawn += 1;
+    }
+}
+
+/// Damage per bite over the bite's TAF: per component (`names`, by index) a dot per
+/// occupied cell of `grid` at its centre, shaded by its count; damage on a
+/// logarithmic axis (its decimal logarithm drawn linearly, labelled as the damage:
+/// plotters' own logarithmic axis crowds its labels within a decade); the legend in
+/// the upper corner with fewer dots.
+pub(super) fn damage_svg(
+    title: &str,
+    grid: &DamageGrid,
+    names: &[String],
+) -> anyhow::Result<String> {
+    let (x_range, (y_low, y_high)) = (grid.taf, grid.log_damage);
+    let most = grid
+        .cells
+        .iter()
+        .flat_map(|cells| cells.iter())
+        .max()
+        .copied()
+        .unwrap_or(0)
+        .max(1);
+    let (width, height) = (
+        (x_range.1 - x_range.0) / GRID.0 as f64,
+        (y_high - y_low) / GRID.1 as f64,
+    );
+    let damage_label = |y: &f64| format!("{:.1e}", 10f64.powf(*y));
+    let axes = XyAxes {
+        x: (x_range, "TAF of the bite (peak / static)"),
+        y: (
+            (y_low, y_high),
+            "damage per bite (Miner's sum, 1 = failure; logarithmic)",
+        ),
+        y_format: Some(&damage_label),
+    };
+    xy_svg(title, &axes, grid.legend_corner(), |chart| {
+        let shade = |count: u32| 0.35 + 0.65 * f64::from(count).ln_1p() / f64::from(most).ln_1p();
+        for (index, cells) in grid.cells.iter().enumerate() {
+            let colour = CURVE_COLOURS[index % CURVE_COLOURS.len()];
+            let name = names.get(index).map_or("component", String::as_str);
+            chart
+                .draw_series(
+                    cells
+                        .iter()
+                        .enumerate()
+                        .filter(|(_, c)| **c > 0)
+                        .map(|(k, count)| {
+                            let (i, j) = ((k % GRID.0) as f64, (k / GRID.0) as f64);
+                            let x = x_range.0 + (i + 0.5) * width;
+                            let y = y_low + (j + 0.5) * height;
+                            Circle::new((x, y), 2, colour.mix(shade(*count)).filled())
+                        }),
+                )
+                .map_err(drawing)?
+                .label(name.to_owned())
+                .legend(move |(x, y)| Circle::new((x + 4, y), 3, colour.filled()));
+        }
+        Ok(())
+    })
 }

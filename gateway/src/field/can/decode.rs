@@ -5,7 +5,7 @@
 use std::collections::HashMap;
 
 use millgate_config::signal::SignalLayout;
-use millgate_config::{ChannelSource, Config};
+use millgate_config::{ChannelSource, Config, Scaling};
 
 use crate::field::counters::BusState;
 use crate::field::quality::{saturation_limits, SaturationLimits};
@@ -58,9 +58,10 @@ pub enum FrameOutcome {
 struct ChannelSignal {
     channel: usize,
     layout: SignalLayout,
+    /// The DBC's factor and offset ([`SignalLayout::scaling`]).
+    dbc: Scaling,
     /// The channel's own scale and offset, applied after the DBC's.
-    scale: f64,
-    offset: f64,
+    scaling: Scaling,
 }
 
 /// Signals of one message and the length they need.
@@ -119,8 +120,8 @@ impl CanDecoder {
         message.signals.push(ChannelSignal {
             channel,
             layout,
-            scale,
-            offset,
+            dbc: layout.scaling(),
+            scaling: Scaling::new(scale, offset),
         });
     }
 
@@ -171,8 +172,11 @@ impl CanDecoder {
         }
         let start = samples.len();
         for signal in &message.signals {
-            match signal.layout.decode(data) {
-                Some(value) => samples.push((signal.channel, value * signal.scale + signal.offset)),
+            match signal.layout.decode_count(data) {
+                Some(count) => samples.push((
+                    signal.channel,
+                    signal.scaling.apply(signal.dbc.apply(count)),
+                )),
                 None => {
                     // Unreachable once `bytes_needed` passed, unless a layout has an
                     // invalid size; then drop the whole frame, as for a short one.

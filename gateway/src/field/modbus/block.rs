@@ -6,7 +6,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use millgate_config::layout;
-use millgate_config::{Channel, RegisterTable};
+use millgate_config::{Channel, RegisterTable, Scaling};
 
 use crate::field::acquired::Acquired;
 use crate::field::counters::ChannelCounters;
@@ -21,8 +21,7 @@ pub(super) struct BlockChannel {
     pub(super) channel: usize,
     pub(super) table: RegisterTable,
     pub(super) base: u16,
-    scale: f64,
-    offset: f64,
+    scaling: Scaling,
     sample_rate_hz: f64,
     limits: SaturationLimits,
     /// Sequence, time it was first seen and sample count of the last new block.
@@ -57,8 +56,7 @@ impl BlockChannel {
             channel,
             table,
             base,
-            scale: spec.scale,
-            offset: spec.offset,
+            scaling: spec.scaling(),
             sample_rate_hz: spec.sample_rate_hz,
             limits: quality::saturation_limits(spec),
             last: None,
@@ -124,7 +122,7 @@ impl BlockChannel {
         self.stalled = false;
         self.counters.block(raw.len());
         let values = layout::Block { sequence, raw }
-            .values(self.scale, self.offset)
+            .values(self.scaling)
             .collect();
         let saturated =
             quality::split_saturated(&self.limits, self.channel, values, None, &mut messages);
@@ -147,8 +145,7 @@ mod tests {
             channel: 3,
             table: RegisterTable::Input,
             base: 0,
-            scale: 1.0,
-            offset: 0.0,
+            scaling: Scaling::new(1.0, 0.0),
             sample_rate_hz: 1000.0,
             limits: quality::SaturationLimits {
                 low: -32767.0,

@@ -27,7 +27,9 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use millgate_config::layout::{self, BlockError, BLOCK_REGISTERS};
-use millgate_config::{ChannelSource, Config, ModbusSource, RegisterTable, ValueType, WordOrder};
+use millgate_config::{
+    ChannelSource, Config, ModbusSource, RegisterTable, Scaling, ValueType, WordOrder,
+};
 use tokio::sync::mpsc;
 use tokio_modbus::client::Context;
 
@@ -72,8 +74,7 @@ struct ValueChannel {
     address: u16,
     value_type: ValueType,
     word_order: WordOrder,
-    scale: f64,
-    offset: f64,
+    scaling: Scaling,
     counters: Arc<ChannelCounters>,
 }
 
@@ -129,8 +130,7 @@ impl DaqReader {
                     address,
                     value_type,
                     word_order,
-                    scale: spec.scale,
-                    offset: spec.offset,
+                    scaling: spec.scaling(),
                     counters: Arc::clone(&counters[channel]),
                 }),
                 _ => {}
@@ -324,7 +324,7 @@ impl DaqReader {
             new_data |= self.blocks.is_empty();
             let message = Acquired::ProcessValue {
                 channel: value.channel,
-                value: raw * value.scale + value.offset,
+                value: value.scaling.apply(raw),
             };
             if samples.send(message).await.is_err() {
                 return Ok(Poll::AnalysisGone);

@@ -29,8 +29,20 @@ pub struct MachineSpec {
     /// browse name is the object's.
     pub object: usize,
     /// Identification: `(browse name in the DI namespace, value)`, the ones known
-    /// (`Manufacturer`, `Model`, `SoftwareRevision`).
-    pub identification: Vec<(&'static str, String)>,
+    /// (the gateway's `Manufacturer`, `Model`, `SoftwareRevision`, and what the
+    /// configuration's `identification` tables give).
+    pub identification: Vec<(&'static str, NameplateValue)>,
+}
+
+/// A value of an `Identification` property, of the data type DI's nameplate gives it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum NameplateValue {
+    /// `LocalizedText` (`Manufacturer`, `Model`), in English.
+    LocalizedText(String),
+    /// `String` (`SerialNumber`, `ProductInstanceUri`, `SoftwareRevision`, ...).
+    String(String),
+    /// `UInt16` (`YearOfConstruction`).
+    UInt16(u16),
 }
 
 /// A Machinery item's state (OPC 40001-1 `MachineryItemState_StateMachineType`).

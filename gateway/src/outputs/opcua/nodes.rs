@@ -38,8 +38,8 @@ use super::conditions::Conditions;
 use super::events;
 use super::front::ChannelPeers;
 use super::model::{
-    object_path, Acknowledgement, AddressSpaceSpec, DeviceHealth, ObjectKind, ObjectSpec, Unit,
-    VariableSpec, VariableType,
+    object_path, Acknowledgement, AddressSpaceSpec, DeviceHealth, NameplateValue, ObjectKind,
+    ObjectSpec, Unit, VariableSpec, VariableType,
 };
 use super::status::{count, OpcUaCounters};
 use crate::warn_limit::{WarnLimit, WARN_PERIOD};
@@ -776,12 +776,16 @@ fn add_machines(
             let builder = property(&id, name(di, key), key)
                 .has_type_definition(VariableTypeId::PropertyType)
                 .property_of(identification.clone());
-            // DI's nameplate: Manufacturer and Model are LocalizedText, the others String.
-            match *key {
-                "Manufacturer" | "Model" => builder
+            match value {
+                NameplateValue::LocalizedText(text) => builder
                     .data_type(DataTypeId::LocalizedText)
-                    .value(LocalizedText::new("en", value)),
-                _ => builder.data_type(DataTypeId::String).value(value.as_str()),
+                    .value(LocalizedText::new("en", text)),
+                NameplateValue::String(text) => {
+                    builder.data_type(DataTypeId::String).value(text.as_str())
+                }
+                NameplateValue::UInt16(number) => {
+                    builder.data_type(DataTypeId::UInt16).value(*number)
+                }
             }
             .insert(address_space);
         }

@@ -9,7 +9,7 @@
 //! - **Encoding** (`encoding.rs`): text answers gzipped by `Accept-Encoding`, the
 //!   assets with strong ETags and 304 on `If-None-Match`.
 //! - **API** (`api/`): `/api/overview`,
-//!   `/api/drivelines[/{name}[/bites|/captures|/wear|/map]]`,
+//!   `/api/drivelines[/{name}[/bites|/captures|/wear|/map|/fatigue/history]]`,
 //!   `/api/tandem_mills/{name}/captures`,
 //!   `/api/captures/{id}[/file|/response|/bands]`,
 //!   `/api/alarms` and `/api/events` (server-sent events: the live results, sent when
@@ -90,6 +90,8 @@ impl WebServer {
                 fatigue_components: d.fatigue.as_ref().map_or_else(Vec::new, |f| {
                     f.components.iter().map(|c| c.name.clone()).collect()
                 }),
+                fatigue_life_limit: d.fatigue.as_ref().map(|f| f.life_limit),
+                identification: shared::identification_json(&d.identification),
             })
             .collect();
         let (live, live_rx) = watch::channel(Arc::new(String::new()));
@@ -245,6 +247,11 @@ pub(crate) fn router(state: Arc<WebState>) -> Router {
             }),
         )
         .route("/api/drivelines/{name}/wear", get(api::wear))
+        .route(
+            "/api/drivelines/{name}/fatigue/history",
+            get(api::fatigue_history),
+        )
+        .route("/api/drivelines/{name}/products", get(api::products))
         .route("/api/drivelines/{name}/map", get(api::gap_maps))
         .route("/api/alarms", get(api::alarms))
         .route("/api/events", get(api::events))

@@ -200,10 +200,20 @@ pub(crate) async fn driveline(
          <div id=\"fatigue-damage-plot\" class=\"plot\" role=\"img\" \
          aria-label=\"Damage per bite over TAF: not drawn yet\"></div>\
          <p class=\"note\" id=\"fatigue-note\"></p></section>\n\
+         <section id=\"products\" class=\"hidden\"><h2>By product</h2>\
+         <div class=\"scroll\" tabindex=\"0\"><table id=\"product-table\" class=\"grid\"><thead><tr>\
+         <th>Product</th><th>Bites</th><th>Not pooled</th><th>TAF mean</th><th>TAF max</th>\
+         <th>Static torque mean</th><th>Gap mean</th></tr></thead><tbody></tbody></table></div>\
+         <p class=\"note\">The bites in the history by the product code the PLC gave (the \
+         driveline's context): those not pooled into the wear trend (the mill's state or speed), \
+         the TAF and static torque of clean bites, the wear trend's gap after the pooled ones.</p>\
+         </section>\n\
          <section><h2>Bite trace</h2><div id=\"trace-plot\" class=\"plot\" role=\"img\" \
          aria-label=\"Bite trace: not drawn yet\"></div>\
          <p class=\"note\" id=\"trace-note\"></p></section>\n\
-         <section><h2>Last bites</h2><div class=\"scroll\" tabindex=\"0\"><table id=\"bites\" class=\"grid\"><thead><tr>\
+         <section><h2>Last bites</h2><label class=\"picker hidden\" id=\"product-filter-label\">product \
+         <select id=\"product-filter\"><option value=\"\">all</option></select></label>\
+         <div class=\"scroll\" tabindex=\"0\"><table id=\"bites\" class=\"grid\"><thead><tr>\
          <th>Time</th><th>Bite</th><th>Static torque</th><th>Peak torque</th><th>TAF</th>\
          <th>Period shift</th><th>Gap (90% interval)</th><th>Quality</th><th>Capture</th>\
          </tr></thead><tbody></tbody></table></div></section>"

@@ -6,6 +6,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
+use millgate_config::{Identification, IdentificationValue};
+use serde_json::{Map, Value as JsonValue};
 use tokio::sync::{watch, OwnedSemaphorePermit, Semaphore};
 
 use crate::state::board::Board;
@@ -30,6 +32,26 @@ pub(crate) struct DrivelineInfo {
     pub model: Option<Arc<millgate_sim::model::Model>>,
     /// Its fatigue ledger's components (empty without `drivelines[].fatigue`).
     pub fatigue_components: Vec<String>,
+    /// Its fatigue ledger's `life_limit` (none without `drivelines[].fatigue`).
+    pub fatigue_life_limit: Option<f64>,
+    /// Its nameplate (`drivelines[].identification`) as the API gives it: each key
+    /// set, a text or (`year_of_construction`) a number.
+    pub identification: Map<String, JsonValue>,
+}
+
+/// A nameplate as the API gives it: `{key: text or year}` of the keys set.
+pub(crate) fn identification_json(identification: &Identification) -> Map<String, JsonValue> {
+    identification
+        .fields
+        .iter()
+        .map(|(field, value)| {
+            let value = match value {
+                IdentificationValue::Text(text) => text.as_str().into(),
+                IdentificationValue::Year(year) => (*year).into(),
+            };
+            (field.key().to_owned(), value)
+        })
+        .collect()
 }
 
 /// Everything the handlers share.

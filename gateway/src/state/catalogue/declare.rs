@@ -85,6 +85,14 @@ impl Columns {
         }
     }
 
+    /// Column `name` of the bite rows only (a mark of the bite, not restored).
+    pub(super) const fn bite(name: &'static str) -> Self {
+        Self {
+            bite: Some(name),
+            state: None,
+        }
+    }
+
     /// Column `name` of the state rows only (a flag a start restores).
     pub(super) const fn state(name: &'static str) -> Self {
         Self {

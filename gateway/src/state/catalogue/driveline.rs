@@ -8,6 +8,7 @@ use super::declare::{
 };
 use super::{AlarmKind, DrivelineResults, Figure};
 use super::{Columns, FigureType, Stale, Value};
+use crate::state::context::BiteGate;
 use crate::state::results::{FatigueFigures, ForecastState, GapForecast, GapGrowth, GapResults};
 
 /// The table's figure type.
@@ -534,6 +535,34 @@ pub const DRIVELINE: &[Figure<DrivelineResults>] = &[
         None,
         "The values are from before the gateway's last restart (restored from the history; last_bite_time says when); cleared by the next bite",
         |d| Some(Value::Bool(d.restored)),
+    ),
+    F::state(
+        "last_bite_gated",
+        BiteGate::NAMES,
+        unmapped("a mark for the crew and the history of the wear trend; the PLC has the state and speed itself"),
+        "Whether the last bite was pooled into the wear trend (with drivelines[].context): pooled, or not because of the mill's state (idle, threading, maintenance) or its speed (outside pool_speed_range_mpm); no value without a context",
+        |d| d.last_bite_gated.map(|gate| Value::Index(gate as u64)),
+    )
+    .kept(Columns::bite("gated"), |d, v| {
+        d.last_bite_gated = to_index(v).and_then(|i| BiteGate::ALL.get(i).copied())
+    }),
+    F::count(
+        "bites_gated_state",
+        unmapped_counter("a count of gating decisions for the crew; the PLC has the state itself"),
+        "Bites recorded but not pooled into the wear trend since start: the mill was idle, threading or in maintenance (context.state)",
+        |d| Some(Value::Count(d.bites_gated_state)),
+    ),
+    F::count(
+        "bites_gated_speed",
+        unmapped_counter("a count of gating decisions for the crew; the PLC has the speed itself"),
+        "Bites recorded but not pooled into the wear trend since start: the mill speed was outside pool_speed_range_mpm",
+        |d| Some(Value::Count(d.bites_gated_speed)),
+    ),
+    F::count(
+        "bites_context_invalid",
+        unmapped_counter("a count of the PLC's own bad context values, for the crew; the PLC knows its values"),
+        "Bites since start whose context from the PLC held an impossible value (negative speed, unknown product or state): not used for the gating, the bite pooled as without context",
+        |d| Some(Value::Count(d.bites_context_invalid)),
     ),
 ];
 

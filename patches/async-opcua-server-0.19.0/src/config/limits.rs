@@ -43,8 +43,9 @@ pub struct Limits {
     #[serde(default = "defaults::max_sessions")]
     pub max_sessions: usize,
     /// (millgate patch) When `max_sessions` are registered, a new session takes the
-    /// place of the session idle longest if it has been idle at least this long, ms
-    /// (a client that dropped its connection without CloseSession). 0: never.
+    /// place of a session whose connection has closed (a client that dropped its
+    /// connection without CloseSession; the idlest of them), else of the session idle
+    /// longest if it has been idle at least this long, ms. 0: never.
     #[serde(default)]
     pub evict_idle_session_ms: u64,
 }

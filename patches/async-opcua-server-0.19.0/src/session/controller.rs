@@ -260,6 +260,8 @@ impl SessionController {
                 }
             }
         }
+        // (millgate patch) The connection is gone: its sessions may give way.
+        trace_write_lock!(self.session_manager).channel_closed(self.channel.secure_channel_id());
     }
 
     fn response_metrics(&self, msg: &Response) {
@@ -702,6 +704,8 @@ impl SessionController {
         self.channel
             .set_token_id(self.secure_channel_state.create_token_id());
         self.channel.set_secure_channel_id(secure_channel_id);
+        // (millgate patch) Sessions on a channel whose connection closed may give way.
+        trace_write_lock!(self.session_manager).channel_opened(secure_channel_id);
         self.channel
             .set_remote_cert_from_byte_string(&security_header.sender_certificate)?;
 

@@ -1,5 +1,5 @@
 use std::{
-    collections::HashMap,
+    collections::{HashMap, HashSet},
     sync::{
         atomic::{AtomicU32, Ordering},
         Arc,
@@ -33,6 +33,8 @@ pub(super) fn next_session_id() -> (NodeId, u32) {
 /// Manages all sessions on the server.
 pub struct SessionManager {
     sessions: HashMap<NodeId, Arc<RwLock<Session>>>,
+    /// (millgate patch) The secure channels whose connection is open.
+    live_channels: HashSet<u32>,
     info: Arc<ServerInfo>,
     notify: Arc<Notify>,
 }
@@ -41,6 +43,7 @@ impl SessionManager {
     pub(crate) fn new(info: Arc<ServerInfo>, notify: Arc<Notify>) -> Self {
         Self {
             sessions: Default::default(),
+            live_channels: Default::default(),
             info,
             notify,
         }
@@ -215,8 +218,21 @@ impl SessionManager {
         }
     }
 
-    /// (millgate patch) Close the session idle longest, if it has been idle at least
-    /// `evict_idle_session_ms`, to make room; `BadTooManySessions` otherwise.
+    /// (millgate patch) Secure channel `id` was opened on a connection.
+    pub(crate) fn channel_opened(&mut self, id: u32) {
+        self.live_channels.insert(id);
+    }
+
+    /// (millgate patch) The connection of secure channel `id` closed.
+    pub(crate) fn channel_closed(&mut self, id: u32) {
+        self.live_channels.remove(&id);
+    }
+
+    /// (millgate patch) To make room, close the session idle longest among those whose
+    /// secure channel's connection has closed (a client gone without CloseSession),
+    /// whatever its idle time; else the session idle longest if it has been idle at
+    /// least `evict_idle_session_ms`; `BadTooManySessions` otherwise, or when
+    /// `evict_idle_session_ms` is 0.
     fn evict_idlest_session(&mut self) -> Result<(), StatusCode> {
         let min_idle = self.info.config.limits.evict_idle_session_ms;
         let now = Instant::now();
@@ -226,12 +242,16 @@ impl SessionManager {
             .map(|(id, s)| {
                 let s = s.read();
                 let idle = now.saturating_duration_since(s.deadline() - s.timeout());
-                (idle, id.clone())
+                let orphan = !self.live_channels.contains(&s.secure_channel_id());
+                (orphan, idle, id.clone())
             })
-            .max_by_key(|(idle, _)| *idle);
+            .max_by_key(|(orphan, idle, _)| (*orphan, *idle));
         match idlest {
-            Some((idle, id)) if min_idle > 0 && idle >= Duration::from_millis(min_idle) => {
-                warn!("Session {id} idle for {idle:?} closed to make room for a new session");
+            Some((orphan, idle, id))
+                if min_idle > 0 && (orphan || idle >= Duration::from_millis(min_idle)) =>
+            {
+                let why = if orphan { "without a connection" } else { "idle" };
+                warn!("Session {id} {why} for {idle:?} closed to make room for a new session");
                 self.expire_session(&id);
                 Ok(())
             }

@@ -11,29 +11,64 @@
 //! driveline's degraded bite, a tandem mill's slow-down request or a rod mill's
 //! refused input OFF_SPEC, else NORMAL.
 
+use millgate_config::{Identification, IdentificationField, IdentificationValue};
+
 use crate::state::results::{
     DrivelineResults, GatewayState, Results, RodMillResults, TandemMillResults,
 };
 
-use super::super::model::{DeviceHealth, MachineSpec, MachineState};
+use super::super::model::{DeviceHealth, MachineSpec, MachineState, NameplateValue};
 
-/// The items: the gateway (object 0), then `mills` (the objects of the drivelines,
-/// tandem mills and rod mills, in this order).
-pub(super) fn machines(mills: impl IntoIterator<Item = usize>) -> Vec<MachineSpec> {
+/// The items: the gateway (object 0, its nameplate `gateway`), then `mills` (the
+/// objects of the drivelines, tandem mills and rod mills, in this order, with their
+/// nameplates from the configuration).
+pub(super) fn machines<'a>(
+    gateway: &Identification,
+    mills: impl IntoIterator<Item = (usize, &'a Identification)>,
+) -> Vec<MachineSpec> {
+    // The gateway is millgate unless the plant names the box it runs on; its
+    // software revision is always millgate's version.
+    let gateway_nameplate = gateway
+        .clone()
+        .or_default(IdentificationField::Manufacturer, "millgate project")
+        .or_default(IdentificationField::Model, "millgate");
+    let mut identification = nameplate(&gateway_nameplate);
+    identification.push((
+        "SoftwareRevision",
+        NameplateValue::String(env!("CARGO_PKG_VERSION").into()),
+    ));
     let gateway = MachineSpec {
         object: 0,
-        identification: vec![
-            ("Manufacturer", "millgate project".into()),
-            ("Model", "millgate".into()),
-            ("SoftwareRevision", env!("CARGO_PKG_VERSION").into()),
-        ],
+        identification,
     };
-    let mills = mills.into_iter().map(|object| MachineSpec {
-        object,
-        // The configuration names no manufacturer, model or serial of a mill.
-        identification: Vec::new(),
-    });
+    let mills = mills
+        .into_iter()
+        .map(|(object, identification)| MachineSpec {
+            object,
+            identification: nameplate(identification),
+        });
     std::iter::once(gateway).chain(mills).collect()
+}
+
+/// The `Identification` properties of a configured nameplate, each of DI's data
+/// type: Manufacturer and Model LocalizedText, YearOfConstruction UInt16, the
+/// others String.
+fn nameplate(identification: &Identification) -> Vec<(&'static str, NameplateValue)> {
+    identification
+        .fields
+        .iter()
+        .map(|(field, value)| {
+            let value = match (field, value) {
+                (_, IdentificationValue::Year(year)) => NameplateValue::UInt16(*year),
+                (
+                    IdentificationField::Manufacturer | IdentificationField::Model,
+                    IdentificationValue::Text(text),
+                ) => NameplateValue::LocalizedText(text.clone()),
+                (_, IdentificationValue::Text(text)) => NameplateValue::String(text.clone()),
+            };
+            (field.browse_name(), value)
+        })
+        .collect()
 }
 
 /// Each item's state and health in `results`, in the order of [`machines`], for
@@ -114,7 +149,15 @@ mod tests {
 
     #[test]
     fn state_and_health_follow_the_source_the_results_and_the_alarms() {
-        assert_eq!(machines([2]).len(), 2);
+        let none = Identification::default();
+        let items = machines(&none, [(2, &none)]);
+        assert_eq!(items.len(), 2);
+        assert!(
+            items[1].identification.is_empty(),
+            "a mill without a nameplate"
+        );
+        let browse: Vec<_> = items[0].identification.iter().map(|(b, _)| *b).collect();
+        assert_eq!(browse, ["Manufacturer", "Model", "SoftwareRevision"]);
         let mut results = Results {
             drivelines: vec![DrivelineResults::default()],
             ..Results::default()

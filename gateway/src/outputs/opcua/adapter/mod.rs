@@ -356,7 +356,13 @@ impl CatalogueAdapter {
         let spec = AddressSpaceSpec {
             name: config.name.clone(),
             objects: objects.0,
-            machines: machines::machines(adapter.layout.mills()),
+            machines: machines::machines(&config.gateway_identification, {
+                let nameplates = config.drivelines.iter().map(|d| &d.identification);
+                let nameplates = nameplates
+                    .chain(config.tandem_mills.iter().map(|m| &m.identification))
+                    .chain(config.rod_mills.iter().map(|m| &m.identification));
+                adapter.layout.mills().into_iter().zip(nameplates)
+            }),
         };
         (adapter, spec)
     }

@@ -17,19 +17,21 @@ use super::{
 };
 use crate::history::capture_files::{self, CaptureHeader, ExportFormat};
 use crate::history::captures::Capture;
+use crate::history::fatigue_series::FatigueSeries;
 use crate::history::query::{AlarmRow, BiteRow, CaptureRow, Filter, Record};
 use crate::history::series::{WearPoint, MAX_SERIES_POINTS};
+use crate::history::summary::ProductSummary;
 use crate::history::HistoryError;
 use crate::outputs::web::shared::WebState;
 
-/// `GET /api/drivelines/{name}/bites?since=&until=&limit=`: the newest `limit` bites
-/// in the range, oldest first.
+/// `GET /api/drivelines/{name}/bites?since=&until=&limit=&product=`: the newest
+/// `limit` bites in the range (of product code `product` when given), oldest first.
 pub(crate) async fn bites(
     State(state): State<Arc<WebState>>,
     DrivelineName(name): DrivelineName,
     query: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Json<Vec<BiteRow>>, ApiError> {
-    let params = Params::of(query, &["since", "until", "limit"])?;
+    let params = Params::of(query, &["since", "until", "limit", "product"])?;
     driveline_index(&state, &name)?;
     Ok(Json(newest(&state, &params, Some(name)).await?))
 }
@@ -290,6 +292,67 @@ pub(crate) async fn wear(
     Ok(Json(series))
 }
 
+/// `GET /api/drivelines/{name}/fatigue/history?since=&until=&points=`: each fatigue
+/// component's life used in at most `points` time buckets (default
+/// [`FATIGUE_POINTS_DEFAULT`]), the resets in the range and the configured life limit
+/// (null without `drivelines[].fatigue`); a history without a ledger of the driveline
+/// gives no components.
+pub(crate) async fn fatigue_history(
+    State(state): State<Arc<WebState>>,
+    DrivelineName(name): DrivelineName,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Json<FatigueHistoryJson>, ApiError> {
+    let params = Params::of(query, &["since", "until", "points"])?;
+    let index = driveline_index(&state, &name)?;
+    let (since, until) = params.range()?;
+    let max = u32::try_from(MAX_SERIES_POINTS).unwrap_or(u32::MAX);
+    let points = params.count("points", 1..=max, FATIGUE_POINTS_DEFAULT)?;
+    let series = with_history(&state, move |reader| {
+        match reader.fatigue_series(&name, since, until, points as usize) {
+            Ok(series) => Ok(series),
+            Err(HistoryError::UnknownDriveline { .. }) => Ok(FatigueSeries::default()),
+            Err(error) => Err(history_error(error)),
+        }
+    })
+    .await?;
+    Ok(Json(FatigueHistoryJson {
+        life_limit: state.drivelines[index].fatigue_life_limit,
+        series,
+    }))
+}
+
+/// Default `points` of `/api/drivelines/{name}/fatigue/history`.
+pub(crate) const FATIGUE_POINTS_DEFAULT: u32 = 300;
+
+/// What `GET /api/drivelines/{name}/fatigue/history` answers: the series' keys
+/// (`components`, `points`, `resets`) and `life_limit`.
+#[derive(serde::Serialize)]
+pub(crate) struct FatigueHistoryJson {
+    #[serde(flatten)]
+    series: FatigueSeries,
+    life_limit: Option<f64>,
+}
+
+/// `GET /api/drivelines/{name}/products?since=&until=`: the driveline's bites in the
+/// range by the product they were rolled in (count, not pooled, TAF mean and max,
+/// static torque and gap means), the products with the most bites first.
+pub(crate) async fn products(
+    State(state): State<Arc<WebState>>,
+    DrivelineName(name): DrivelineName,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Json<Vec<ProductSummary>>, ApiError> {
+    let params = Params::of(query, &["since", "until"])?;
+    driveline_index(&state, &name)?;
+    let (since, until) = params.range()?;
+    let products = with_history(&state, move |reader| {
+        reader
+            .product_summaries(&name, since, until)
+            .map_err(history_error)
+    })
+    .await?;
+    Ok(Json(products))
+}
+
 /// `GET /api/alarms?since=&until=&limit=&subject=`: the newest `limit` alarm events
 /// in the range, oldest first.
 pub(crate) async fn alarms(
@@ -310,12 +373,17 @@ pub(super) async fn newest<R: Record + Send + 'static>(
 ) -> Result<Vec<R>, ApiError> {
     let (since, until) = params.range()?;
     let limit = params.count("limit", 1..=LIMIT_MAX, LIMIT_DEFAULT)?;
+    let product = params
+        .get("product")
+        .map(|_| params.count("product", 0..=u32::MAX, 0))
+        .transpose()?;
     let filter = Filter {
         name,
         since,
         until,
         after_id: None,
         limit: Some(limit),
+        product,
     };
     with_history(state, move |reader| {
         reader.newest(&filter).map_err(history_error)

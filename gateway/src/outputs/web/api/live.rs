@@ -107,6 +107,9 @@ pub(crate) struct DrivelineView {
     /// without `drivelines[].fatigue` (the catalogue's `fatigue_*` figures are the
     /// worst component's).
     pub fatigue_components: Vec<ComponentLife>,
+    /// Its nameplate from `drivelines[].identification` (the keys set; `{}` without
+    /// one), as the OPC UA server's `Identification` gives it.
+    pub identification: Map<String, JsonValue>,
 }
 
 impl DrivelineView {
@@ -133,6 +136,7 @@ impl DrivelineView {
                 gap_alarm_mrad: info.gap_alarm_mrad,
             },
             fatigue_components: results.fatigue_components.clone(),
+            identification: info.identification.clone(),
         }
     }
 }
@@ -626,6 +630,8 @@ mod tests {
             has_model: true,
             model: None,
             fatigue_components: Vec::new(),
+            fatigue_life_limit: None,
+            identification: Map::new(),
         };
         let results = DrivelineResults {
             last_bite_unix_ms: Some(last),

@@ -19,7 +19,10 @@ mod maps;
 
 pub(crate) use commands::{request_capture, reset_fatigue};
 pub(crate) use episodes::{capture_bands, tandem_mill_captures};
-pub(crate) use history::{alarms, bites, capture, capture_file, capture_response, captures, wear};
+pub(crate) use history::{
+    alarms, bites, capture, capture_file, capture_response, captures, fatigue_history, products,
+    wear,
+};
 pub(crate) use live::{driveline, drivelines, events, live_json, overview};
 pub(crate) use maps::gap_maps;
 

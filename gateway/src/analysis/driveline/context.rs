@@ -1,0 +1,121 @@
+//! A driveline's process context at each bite ([`ContextTracker`]) and whether the
+//! bite is pooled into the wear trend ([`BiteGate`]).
+//!
+//! - **Values**: the latest value of each context tag (`drivelines[].context`) and
+//!   when it came; a value older than its source's stale time ([`max_age`]: a tag
+//!   its PLC no longer delivers, its source stale) is left out, as if the tag were
+//!   not configured.
+//! - **At a bite** (when its window is complete) the fresh values are checked
+//!   ([`RawContext::check`]): an impossible value (negative speed, a product not in
+//!   `products`, an unknown state) makes the context invalid: not used for the
+//!   gating (the bite is pooled as without context) and counted.
+//! - **The gate**: a bite while the state is idle, threading or maintenance, or
+//!   rolled outside `pool_speed_range_mpm`, is recorded with its figures but not
+//!   folded into the wear trend (the gap, its growth and forecast) nor into the wear
+//!   index's trend; a bite whose state or speed is unknown is pooled.
+
+use std::time::{Duration, Instant};
+
+use millgate_config::{ChannelSource, Config, ContextTags};
+
+use crate::state::context::{BiteGate, ContextError, ProcessContext, RawContext};
+
+/// Poll periods of its channel after which a context value is no longer used (at
+/// least; see [`max_age`]).
+pub(crate) const CONTEXT_POLLS: f64 = 3.0;
+
+/// How long a value of `channel` of `config` is used: its source's stale time, three
+/// poll periods or two timeouts of a Modbus source (whichever is longer), three
+/// periods or 1 s of a CAN signal.
+fn max_age(config: &Config, channel: usize) -> Duration {
+    let channel = &config.channels[channel];
+    let polls = Duration::from_secs_f64(CONTEXT_POLLS / channel.sample_rate_hz);
+    match channel.source {
+        ChannelSource::ModbusValue { source, .. } | ChannelSource::ModbusBlock { source, .. } => {
+            polls.max(config.modbus_sources[source].timeout * 2)
+        }
+        ChannelSource::Can { .. } => polls.max(Duration::from_secs(1)),
+    }
+}
+
+/// The context of one bite: what was read, and the gate.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BiteContext {
+    /// The checked context; `Err` when a value was impossible (not used).
+    pub context: Result<ProcessContext, ContextError>,
+    /// Whether the bite was pooled, and if not why.
+    pub gate: BiteGate,
+}
+
+/// The latest context values of a driveline, for its bites.
+#[derive(Debug, Clone)]
+pub(crate) struct ContextTracker {
+    /// The configured tags: key, channel, the oldest value still used.
+    tags: Vec<(&'static str, usize, Duration)>,
+    /// Per tag, the latest value and when it came.
+    latest: Vec<Option<(f64, Instant)>>,
+    products: Vec<u32>,
+    speed_range_mpm: Option<(f64, f64)>,
+}
+
+impl ContextTracker {
+    /// The tracker of `tags` (channels of `config`), gating on `speed_range_mpm`;
+    /// `None` without tags.
+    pub(crate) fn new(
+        tags: &ContextTags,
+        config: &Config,
+        speed_range_mpm: Option<(f64, f64)>,
+    ) -> Option<Self> {
+        let configured: Vec<_> = tags
+            .tags()
+            .map(|(key, channel)| (key, channel, max_age(config, channel)))
+            .collect();
+        (!configured.is_empty()).then(|| Self {
+            latest: vec![None; configured.len()],
+            tags: configured,
+            products: tags.products.clone(),
+            speed_range_mpm,
+        })
+    }
+
+    /// The channels of the tags.
+    pub(crate) fn channels(&self) -> impl Iterator<Item = usize> + '_ {
+        self.tags.iter().map(|&(_, channel, _)| channel)
+    }
+
+    /// A value of `channel` read at `now`.
+    pub(crate) fn value(&mut self, channel: usize, value: f64, now: Instant) {
+        for (tag, latest) in self.tags.iter().zip(&mut self.latest) {
+            if tag.1 == channel {
+                *latest = Some((value, now));
+            }
+        }
+    }
+
+    /// The context of a bite whose window completed at `now`, from the values no
+    /// older than their tag's bound, and its gate.
+    pub(crate) fn at(&self, now: Instant) -> BiteContext {
+        let mut raw = RawContext::default();
+        for (&(key, _, max_age), latest) in self.tags.iter().zip(&self.latest) {
+            let fresh = latest
+                .filter(|&(_, at)| now.saturating_duration_since(at) <= max_age)
+                .map(|(value, _)| value);
+            let field = match key {
+                "weld" => &mut raw.weld,
+                "speed_mpm" => &mut raw.speed_mpm,
+                "coil" => &mut raw.coil,
+                "product" => &mut raw.product,
+                "thickness_mm" => &mut raw.thickness_mm,
+                "pass" => &mut raw.pass,
+                _ => &mut raw.state,
+            };
+            *field = fresh;
+        }
+        let context = raw.check(&self.products);
+        let gate = match &context {
+            Ok(context) => BiteGate::of(context, self.speed_range_mpm),
+            Err(_) => BiteGate::Pooled,
+        };
+        BiteContext { context, gate }
+    }
+}
