@@ -12,7 +12,7 @@ use millgate::outputs::opcua::model::{
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
 /// `objects` drivelines of `variables` doubles each.
-pub fn spec(objects: usize, variables: usize) -> AddressSpaceSpec {
+pub(crate) fn spec(objects: usize, variables: usize) -> AddressSpaceSpec {
     AddressSpaceSpec {
         name: "bench".into(),
         objects: (0..objects)
@@ -39,7 +39,7 @@ pub fn spec(objects: usize, variables: usize) -> AddressSpaceSpec {
 }
 
 /// Every value `value`, measured now.
-pub fn snapshot(objects: usize, variables: usize, value: u64) -> Snapshot {
+pub(crate) fn snapshot(objects: usize, variables: usize, value: u64) -> Snapshot {
     let update = VariableUpdate::good(Value::Double(value as f64), Some(SystemTime::now()));
     Snapshot {
         objects: vec![vec![update; variables]; objects],
@@ -48,7 +48,7 @@ pub fn snapshot(objects: usize, variables: usize, value: u64) -> Snapshot {
 }
 
 /// Wait until the server answers a Hello.
-pub async fn serving(address: std::net::SocketAddr, url: &str) {
+pub(crate) async fn serving(address: std::net::SocketAddr, url: &str) {
     let mut body = Vec::new();
     for word in [0u32, 65_535, 65_535, 0, 0] {
         body.extend_from_slice(&word.to_le_bytes());
