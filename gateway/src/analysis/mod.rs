@@ -350,6 +350,9 @@ impl Analysis {
     /// one has samples up to the end of its window, or its hold bound passes
     /// ([`Self::release_held`]); any other bite is released at once.
     pub fn handle(&mut self, message: Acquired) -> Vec<BiteReport> {
+        if let Acquired::Samples { handed, .. } = &message {
+            self.board.latencies().block_taken(handed.elapsed());
+        }
         self.chatter.handle(&message);
         self.rod_mills.handle(&message);
         let mut reports = Vec::new();
@@ -358,12 +361,13 @@ impl Analysis {
                 channel,
                 values,
                 received,
+                handed,
             } => {
                 for &(d, extra) in &self.by_extra[channel] {
                     self.drivelines[d].extra_samples(extra, &values, received);
                 }
                 for &d in &self.by_torque[channel] {
-                    self.drivelines[d].samples(&values, received, &mut reports);
+                    self.drivelines[d].samples(&values, (received, handed), &mut reports);
                     if let Some(capture) = self.drivelines[d].take_manual_capture() {
                         tracing::info!(driveline = %capture.subject, samples = capture.samples(), "manual capture kept");
                         self.board
