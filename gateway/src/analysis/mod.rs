@@ -397,9 +397,12 @@ impl Analysis {
                 }
             }
         }
+        // The hold counts from now, not from the block's hand-over: a bite found late
+        // (the analysis behind) still waits its whole hold for the extra channels'
+        // blocks, which are behind it in the readers' channel.
         let now = Instant::now();
         self.held.extend(reports.into_iter().map(|report| HeldBite {
-            deadline: report.window_complete + self.extra_hold[report.driveline],
+            deadline: now + self.extra_hold[report.driveline],
             report,
         }));
         self.release_held(now, false)
