@@ -25,7 +25,7 @@
 //!     cargo bench -p millgate --bench bite_to_plc -- --extra-channels
 
 use std::sync::Arc;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use millgate::analysis::Analysis;
 use millgate::field::acquired::Acquired;
@@ -144,12 +144,14 @@ async fn main() -> anyhow::Result<()> {
                 channel: 0,
                 values: block.to_vec(),
                 received: None,
+                handed: Instant::now(),
             });
             if with_extra && which == 0 {
                 reports.extend(analysis.handle(Acquired::Samples {
                     channel: current_channel,
                     values: block.iter().map(|t| 80.0 + 3.2 * t).collect(),
                     received: None,
+                    handed: Instant::now(),
                 }));
             }
             for report in reports {

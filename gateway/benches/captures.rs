@@ -70,6 +70,7 @@ fn demo_bites() -> anyhow::Result<Vec<[HistoryEvent; 2]>> {
             channel: 0,
             values: block.to_vec(),
             received: None,
+            handed: Instant::now(),
         });
     }
     let mut pairs = Vec::new();

@@ -129,6 +129,7 @@ async fn main() -> anyhow::Result<()> {
                 channel: stand,
                 values: signal[from..from + BLOCK].to_vec(),
                 received: None,
+                handed: Instant::now(),
             });
         }
         let results = board.results();

@@ -67,6 +67,7 @@ fn per_sample(config: &millgate_config::Config, samples: &[f64]) -> anyhow::Resu
                 channel,
                 values: block.to_vec(),
                 received: None,
+                handed: Instant::now(),
             });
         }
         times.push(start.elapsed().as_secs_f64() / samples.len() as f64);

@@ -96,6 +96,7 @@ fn main() -> anyhow::Result<()> {
             channel: 0,
             values: block.to_vec(),
             received: None,
+            handed: Instant::now(),
         }) {
             observations.extend(report.gap.map(|gap| gap.observation));
         }

@@ -94,6 +94,7 @@ fn run_case(
             channel: 0,
             values: block.to_vec(),
             received: None,
+            handed: Instant::now(),
         }));
     }
     let last = reports

@@ -15,6 +15,8 @@
 
 use std::collections::HashSet;
 use std::fmt::Write as _;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
 
 /// Prometheus' metric type of a family.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -23,6 +25,16 @@ pub enum Kind {
     Counter,
     /// Goes up and down.
     Gauge,
+}
+
+impl Kind {
+    /// The name on the TYPE line.
+    fn name(self) -> &'static str {
+        match self {
+            Kind::Counter => "counter",
+            Kind::Gauge => "gauge",
+        }
+    }
 }
 
 /// A sample's labels: `(name, value)` pairs; the values are escaped when written.
@@ -61,6 +73,46 @@ impl Exposition {
         help: &str,
         samples: impl IntoIterator<Item = (Labels<'a>, f64)>,
     ) {
+        let mut samples = samples.into_iter().peekable();
+        if !self.head(name, kind.name(), help, samples.peek().is_some()) {
+            return;
+        }
+        for (labels, value) in samples {
+            self.sample(name, &labels, None, value);
+        }
+    }
+
+    /// A histogram family: its HELP and TYPE lines, then per `(labels, histogram)`
+    /// the cumulative `_bucket{le}` counts (the last `le="+Inf"`), `_sum` and
+    /// `_count`. Left out, as [`Self::family`] leaves a family out, without a series.
+    pub fn histogram<'a>(
+        &mut self,
+        name: &str,
+        help: &str,
+        series: impl IntoIterator<Item = (Labels<'a>, HistogramCounts)>,
+    ) {
+        let mut series = series.into_iter().peekable();
+        if !self.head(name, "histogram", help, series.peek().is_some()) {
+            return;
+        }
+        let bucket = format!("{name}_bucket");
+        for (labels, counts) in series {
+            let mut cumulative = 0;
+            for (&bound, &count) in counts.bounds.iter().zip(&counts.buckets) {
+                cumulative += count;
+                let le = number(bound);
+                self.sample(&bucket, &labels, Some(("le", &le)), cumulative as f64);
+            }
+            self.sample(&bucket, &labels, Some(("le", "+Inf")), counts.count as f64);
+            self.sample(&format!("{name}_sum"), &labels, None, counts.sum);
+            self.sample(&format!("{name}_count"), &labels, None, counts.count as f64);
+        }
+    }
+
+    /// The HELP and TYPE lines of family `name` of type `kind`, when it has a
+    /// sample (`any`) and its name is not on the page yet; whether they were
+    /// written (and so its samples are to be).
+    fn head(&mut self, name: &str, kind: &str, help: &str, any: bool) -> bool {
         debug_assert!(
             is_metric_name(name),
             "{name:?} is no Prometheus metric name"
@@ -71,33 +123,39 @@ impl Exposition {
                 family = name,
                 "a /metrics family was written twice: the second is left out"
             );
-            return;
+            return false;
         }
-        let mut samples = samples.into_iter().peekable();
-        if samples.peek().is_none() {
-            return;
+        if !any {
+            return false;
         }
-        let kind = match kind {
-            Kind::Counter => "counter",
-            Kind::Gauge => "gauge",
-        };
         let help = help.replace('\\', "\\\\").replace('\n', "\\n");
         let _ = writeln!(self.out, "# HELP {name} {help}");
         let _ = writeln!(self.out, "# TYPE {name} {kind}");
-        for (labels, value) in samples {
-            let _ = write!(self.out, "{name}");
-            if !labels.is_empty() {
-                let labels: Vec<String> = labels
-                    .iter()
-                    .map(|(label, value)| {
-                        debug_assert!(is_label_name(label), "{label:?} is no label name");
-                        format!("{label}=\"{}\"", escape(value))
-                    })
-                    .collect();
-                let _ = write!(self.out, "{{{}}}", labels.join(","));
-            }
-            let _ = writeln!(self.out, " {}", number(value));
+        true
+    }
+
+    /// One sample line of `name` with `labels` and, last, `extra` (a histogram's `le`).
+    fn sample(
+        &mut self,
+        name: &str,
+        labels: &Labels<'_>,
+        extra: Option<(&'static str, &str)>,
+        value: f64,
+    ) {
+        let _ = write!(self.out, "{name}");
+        let all: Vec<String> = labels
+            .iter()
+            .copied()
+            .chain(extra)
+            .map(|(label, value)| {
+                debug_assert!(is_label_name(label), "{label:?} is no label name");
+                format!("{label}=\"{}\"", escape(value))
+            })
+            .collect();
+        if !all.is_empty() {
+            let _ = write!(self.out, "{{{}}}", all.join(","));
         }
+        let _ = writeln!(self.out, " {}", number(value));
     }
 
     /// A family of one sample without labels.
@@ -118,6 +176,79 @@ impl Exposition {
     /// The page's text.
     pub(crate) fn into_text(self) -> String {
         self.out
+    }
+}
+
+/// A histogram of durations that any thread observes into: fixed bucket bounds,
+/// counts, sum and count in atomics, so an observation is a few relaxed atomic
+/// additions and takes no lock (the analysis and the PLC writer observe in their
+/// hot paths). Read with [`Self::counts`]; written onto the page by
+/// [`Exposition::histogram`].
+///
+/// Hand-rolled rather than taken from a Prometheus client crate for the reason
+/// `outputs::metrics` gives: the page is written here, and a client's registry would
+/// be a second one. A scrape between the atomics of one observation may see its
+/// bucket and not yet its sum; the next scrape sees both.
+#[derive(Debug)]
+pub struct Histogram {
+    /// Upper bounds of the buckets, seconds, increasing (the `+Inf` bucket is implied).
+    bounds: &'static [f64],
+    /// Observations per bucket (not cumulative); one more than `bounds`: above the last.
+    buckets: Vec<AtomicU64>,
+    /// Sum of the observations, nanoseconds.
+    sum_ns: AtomicU64,
+}
+
+/// A copy of a [`Histogram`]'s counts.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HistogramCounts {
+    /// Upper bounds of the buckets, seconds.
+    pub bounds: &'static [f64],
+    /// Observations per bucket (not cumulative), one per bound.
+    pub buckets: Vec<u64>,
+    /// All observations (those above the last bound too).
+    pub count: u64,
+    /// Sum of the observations, seconds.
+    pub sum: f64,
+}
+
+impl Histogram {
+    /// An empty histogram with buckets up to `bounds` (seconds, increasing).
+    pub fn new(bounds: &'static [f64]) -> Self {
+        debug_assert!(bounds.windows(2).all(|pair| pair[0] < pair[1]));
+        Self {
+            bounds,
+            buckets: (0..=bounds.len()).map(|_| AtomicU64::new(0)).collect(),
+            sum_ns: AtomicU64::new(0),
+        }
+    }
+
+    /// Count one duration.
+    pub fn observe(&self, duration: Duration) {
+        let seconds = duration.as_secs_f64();
+        let bucket = self
+            .bounds
+            .iter()
+            .position(|&bound| seconds <= bound)
+            .unwrap_or(self.bounds.len());
+        self.buckets[bucket].fetch_add(1, Ordering::Relaxed);
+        let ns = u64::try_from(duration.as_nanos()).unwrap_or(u64::MAX);
+        self.sum_ns.fetch_add(ns, Ordering::Relaxed);
+    }
+
+    /// The counts now.
+    pub fn counts(&self) -> HistogramCounts {
+        let all: Vec<u64> = self
+            .buckets
+            .iter()
+            .map(|bucket| bucket.load(Ordering::Relaxed))
+            .collect();
+        HistogramCounts {
+            bounds: self.bounds,
+            buckets: all[..self.bounds.len()].to_vec(),
+            count: all.iter().sum(),
+            sum: self.sum_ns.load(Ordering::Relaxed) as f64 / 1e9,
+        }
     }
 }
 
@@ -209,6 +340,40 @@ mod tests {
             "# HELP millgate_example_state State.\n\
              # TYPE millgate_example_state gauge\n\
              millgate_example_state 1\n"
+        );
+    }
+
+    #[test]
+    fn a_histogram_is_cumulative_buckets_up_to_inf_its_sum_and_count() {
+        static BOUNDS: [f64; 2] = [0.001, 0.01];
+        let histogram = Histogram::new(&BOUNDS);
+        for us in [500, 1_000, 3_000, 30_000, 40_000] {
+            histogram.observe(Duration::from_micros(us));
+        }
+        let counts = histogram.counts();
+        assert_eq!(counts.buckets, [2, 1], "1 ms is in the 1 ms bucket (le)");
+        assert_eq!(counts.count, 5);
+        assert_eq!(counts.sum, 0.0745);
+        let mut page = Exposition::new();
+        page.histogram(
+            "millgate_example_seconds",
+            "Latency.",
+            [(vec![("driveline", "F1")], counts)],
+        );
+        page.histogram(
+            "millgate_empty_seconds",
+            "No series.",
+            std::iter::empty::<(Labels, HistogramCounts)>(),
+        );
+        assert_eq!(
+            page.into_text(),
+            "# HELP millgate_example_seconds Latency.\n\
+             # TYPE millgate_example_seconds histogram\n\
+             millgate_example_seconds_bucket{driveline=\"F1\",le=\"0.001\"} 2\n\
+             millgate_example_seconds_bucket{driveline=\"F1\",le=\"0.01\"} 3\n\
+             millgate_example_seconds_bucket{driveline=\"F1\",le=\"+Inf\"} 5\n\
+             millgate_example_seconds_sum{driveline=\"F1\"} 0.0745\n\
+             millgate_example_seconds_count{driveline=\"F1\"} 5\n"
         );
     }
 

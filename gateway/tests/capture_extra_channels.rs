@@ -292,12 +292,14 @@ async fn a_bite_waits_for_its_extra_channel_at_most_its_bound() {
             channel: 0,
             values: torque[at..end].to_vec(),
             received: dated(end),
+            handed: Instant::now(),
         });
         assert!(held.is_empty(), "a bite released before the current came");
         released.extend(analysis.handle(Acquired::Samples {
             channel: 1,
             values: current[at..end].to_vec(),
             received: dated(end),
+            handed: Instant::now(),
         }));
     }
     assert_eq!(released.len(), 1, "the first bar's bite");
@@ -333,12 +335,14 @@ async fn a_bite_waits_for_its_extra_channel_at_most_its_bound() {
             channel: 0,
             values: torque[at..end].to_vec(),
             received: dated(end),
+            handed: Instant::now(),
         }));
         if end <= current_stops {
             held.extend(analysis.handle(Acquired::Samples {
                 channel: 1,
                 values: current[at..end].to_vec(),
                 received: dated(end),
+                handed: Instant::now(),
             }));
         }
     }

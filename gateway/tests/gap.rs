@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 
 use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, OnceLock};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use common::{millgate, scratch, text, Seeded, TempDir};
 use millgate::analysis::driveline::BiteReport;
@@ -142,6 +142,7 @@ fn feed(
             channel: 0,
             values: block.to_vec(),
             received: None,
+            handed: Instant::now(),
         }));
     }
     assert_eq!(reports.len(), torques.len(), "one bite per bar");

@@ -11,16 +11,19 @@
 //!   space is freed. The tmpfs are mounted in a private mount namespace
 //!   (`unshare -rm`, util-linux) that only the service sees;
 //! - a gap past the warning threshold: the PLC's flag, an alarm event in the file and
-//!   on the Alarms page's API, the gap figures on `/metrics` as in the PLC.
+//!   on the Alarms page's API, the gap figures on `/metrics` as in the PLC;
+//! - `/metrics`' latency histograms: bite -> PLC counts every bite the PLC was
+//!   written (each committed to the history first), block wait every block taken up.
 
 mod common;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use common::{
-    fill_file_system, free_port, http, terminate, wait_for, web_ready, KillOnDrop, Setup, MILLGATE,
+    fill_file_system, free_port, http, promtool_passes, terminate, wait_for, web_ready, KillOnDrop,
+    Setup, MILLGATE,
 };
 
 use millgate::analysis::wear::next_trend;
@@ -409,33 +412,6 @@ async fn a_corrupt_file_is_reported_left_alone_and_the_plc_goes_on() {
     setup.stop(service).await;
 }
 
-/// `promtool check metrics` (Debian's `prometheus`, which `scripts/test` installs)
-/// finds no problem in `page` (an HTTP answer: the body is checked).
-fn promtool_passes(page: &str) {
-    use std::io::Write;
-    let body = page.split_once("\r\n\r\n").map_or(page, |(_, body)| body);
-    let mut promtool = Command::new("promtool")
-        .args(["check", "metrics"])
-        .stdin(std::process::Stdio::piped())
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .expect("promtool is not installed: scripts/test installs it (apt-get install prometheus)");
-    promtool
-        .stdin
-        .take()
-        .unwrap()
-        .write_all(body.as_bytes())
-        .unwrap();
-    let output = promtool.wait_with_output().unwrap();
-    assert!(
-        output.status.success(),
-        "promtool check metrics: {}{}\n{body}",
-        String::from_utf8_lossy(&output.stdout),
-        String::from_utf8_lossy(&output.stderr)
-    );
-}
-
 /// A gap past the warning threshold is one truth in every output: the PLC's flag, an
 /// alarm event in the history and on the Alarms page's API, and the gap figures on
 /// `/metrics` equal to the PLC's registers, while `millgate run` runs.
@@ -523,4 +499,94 @@ async fn a_gap_warning_is_an_alarm_event_and_the_gap_is_on_metrics() {
         .collect();
     assert_eq!(in_file.first(), Some(&"raised"), "{stored:#?}");
     setup.stop(service).await;
+}
+
+/// `/metrics`' latency histograms in a real run (the demo's virtual DAQ and PLC over
+/// Modbus TCP, the history on): bite -> PLC counts every bite the PLC was written,
+/// each histogram's buckets are the documented bounds, cumulative, up to `+Inf` equal
+/// to `_count`, the block wait counts the blocks the analysis took up, and promtool
+/// passes the page.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_bite_to_plc_latency_counts_every_bite_the_plc_was_written() {
+    let setup = Setup::new(MILLGATE, "latency", "db").await;
+    let plc = setup.plc();
+    let service = setup.spawn("run.log");
+    wait_for("3 bites in the PLC", Duration::from_secs(60), || {
+        plc.counter() >= 3
+    })
+    .await;
+    // The PLC holds a bite's counter a moment before the gateway has the answer to
+    // the write that carried it: read the PLC around the scrape until the two agree
+    // with no bite between them.
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let page = loop {
+        let before = plc.counter();
+        let page = setup.metrics().await;
+        let counted = histogram(&page, "millgate_bite_to_plc_seconds").count;
+        if plc.counter() == before && counted == f64::from(before) {
+            break page;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "bite -> PLC counted {counted}, the PLC's counter {before}:\n{page}"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    };
+    for name in [
+        "millgate_bite_to_plc_seconds",
+        "millgate_block_wait_seconds",
+    ] {
+        let counts = histogram(&page, name);
+        let bounds: Vec<&str> = counts.buckets.iter().map(|(le, _)| le.as_str()).collect();
+        assert_eq!(
+            bounds,
+            [
+                "0.0001", "0.0002", "0.0005", "0.001", "0.002", "0.005", "0.01", "0.02", "0.05",
+                "0.1", "+Inf"
+            ],
+            "{name}"
+        );
+        assert!(
+            counts.buckets.windows(2).all(|pair| pair[0].1 <= pair[1].1),
+            "{name}: buckets not cumulative: {:?}",
+            counts.buckets
+        );
+        assert_eq!(counts.buckets.last().unwrap().1, counts.count, "{name}");
+        assert!(counts.count > 0.0 && counts.sum > 0.0, "{name}: {counts:?}");
+    }
+    promtool_passes(&page);
+    setup.stop(service).await;
+}
+
+/// A histogram family's samples on a `/metrics` page.
+#[derive(Debug)]
+struct HistogramSamples {
+    /// `(le, cumulative count)` in page order.
+    buckets: Vec<(String, f64)>,
+    count: f64,
+    sum: f64,
+}
+
+/// The samples of the unlabelled histogram `name` on `page` (0 for a missing one).
+fn histogram(page: &str, name: &str) -> HistogramSamples {
+    let value = |rest: &str| rest.trim().parse::<f64>().unwrap_or(f64::NAN);
+    let mut samples = HistogramSamples {
+        buckets: Vec::new(),
+        count: 0.0,
+        sum: 0.0,
+    };
+    for line in page.lines() {
+        let Some(rest) = line.strip_prefix(name) else {
+            continue;
+        };
+        if let Some(bucket) = rest.strip_prefix("_bucket{le=\"") {
+            let (le, count) = bucket.split_once("\"}").expect("a bucket line");
+            samples.buckets.push((le.to_owned(), value(count)));
+        } else if let Some(count) = rest.strip_prefix("_count ") {
+            samples.count = value(count);
+        } else if let Some(sum) = rest.strip_prefix("_sum ") {
+            samples.sum = value(sum);
+        }
+    }
+    samples
 }

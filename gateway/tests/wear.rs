@@ -3,7 +3,7 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use millgate::analysis::driveline::BiteReport;
 use millgate::analysis::Analysis;
@@ -74,6 +74,7 @@ fn analyse_with(
             channel: 0,
             values: block.to_vec(),
             received: None,
+            handed: Instant::now(),
         }));
     }
     assert_eq!(reports.len(), static_torques_knm.len(), "one bite per bar");

@@ -396,7 +396,8 @@ async fn poll_once(reply: &[u8]) -> Result<(), TestCaseError> {
                 high: 327.67,
             };
             let mut messages = Vec::new();
-            let saturated = split_saturated(&limits, 0, values.clone(), None, &mut messages);
+            let handed = (None, Instant::now());
+            let saturated = split_saturated(&limits, 0, values.clone(), handed, &mut messages);
             let saturated_in = values.iter().filter(|&&v| limits.saturated(v)).count() as u64;
             prop_assert_eq!(saturated, saturated_in);
         }

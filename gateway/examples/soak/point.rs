@@ -76,6 +76,7 @@ pub(crate) async fn run_point(
     });
     let mut sampler = sample(options, &watched).await?;
     let (final_metrics, warm_up_end) = sampler.finish(&watched).await?;
+    print_gateway_latency(&final_metrics);
 
     drop(gateway);
     stall_watch.abort();
@@ -185,6 +186,34 @@ fn print_load_point(
             .as_ref()
             .map_or(String::new(), |cpu| format!(" on core {cpu}"))
     );
+}
+
+/// The gateway's own latency histograms on its last `/metrics` (the whole run, the
+/// warm-up included; bucket bounds, so shares, not quantiles): beside the bench's
+/// figures, which the bench stamps on its own devices.
+fn print_gateway_latency(final_metrics: &str) {
+    for name in [
+        "millgate_bite_to_plc_seconds",
+        "millgate_block_wait_seconds",
+    ] {
+        let count = metric_sum(final_metrics, &format!("{name}_count"));
+        let sum = metric_sum(final_metrics, &format!("{name}_sum"));
+        let within = |le: &str| {
+            let bucket = metric_sum(final_metrics, &format!("{name}_bucket{{le=\"{le}\"}}"));
+            100.0 * bucket / count.max(1.0)
+        };
+        println!(
+            "# the gateway's {name}: {count} observed, mean {:.2} ms, {:.1}% <= 1 ms, \
+             {:.1}% <= 2 ms, {:.1}% <= 5 ms, {:.1}% <= 10 ms, {:.1}% <= 20 ms \
+             (whole run, warm-up included)",
+            1000.0 * sum / count.max(1.0),
+            within("0.001"),
+            within("0.002"),
+            within("0.005"),
+            within("0.01"),
+            within("0.02"),
+        );
+    }
 }
 
 /// The final checks: every bite the gateway counted (by the final `/metrics`) in the

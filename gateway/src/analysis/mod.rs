@@ -350,6 +350,9 @@ impl Analysis {
     /// one has samples up to the end of its window, or its hold bound passes
     /// ([`Self::release_held`]); any other bite is released at once.
     pub fn handle(&mut self, message: Acquired) -> Vec<BiteReport> {
+        if let Acquired::Samples { handed, .. } = &message {
+            self.board.latencies().block_taken(handed.elapsed());
+        }
         self.chatter.handle(&message);
         self.rod_mills.handle(&message);
         let mut reports = Vec::new();
@@ -358,12 +361,13 @@ impl Analysis {
                 channel,
                 values,
                 received,
+                handed,
             } => {
                 for &(d, extra) in &self.by_extra[channel] {
                     self.drivelines[d].extra_samples(extra, &values, received);
                 }
                 for &d in &self.by_torque[channel] {
-                    self.drivelines[d].samples(&values, received, &mut reports);
+                    self.drivelines[d].samples(&values, (received, handed), &mut reports);
                     if let Some(capture) = self.drivelines[d].take_manual_capture() {
                         tracing::info!(driveline = %capture.subject, samples = capture.samples(), "manual capture kept");
                         self.board
@@ -393,9 +397,12 @@ impl Analysis {
                 }
             }
         }
+        // The hold counts from now, not from the block's hand-over: a bite found late
+        // (the analysis behind) still waits its whole hold for the extra channels'
+        // blocks, which are behind it in the readers' channel.
         let now = Instant::now();
         self.held.extend(reports.into_iter().map(|report| HeldBite {
-            deadline: report.window_complete + self.extra_hold[report.driveline],
+            deadline: now + self.extra_hold[report.driveline],
             report,
         }));
         self.release_held(now, false)

@@ -1,6 +1,6 @@
 //! What acquisition tasks hand to analysis: samples in engineering units.
 
-use std::time::SystemTime;
+use std::time::{Instant, SystemTime};
 
 /// One message from a reader task (`DaqReader`, `CanReader`) to the analysis task.
 ///
@@ -23,6 +23,11 @@ pub enum Acquired {
         values: Vec<f64>,
         /// When the last of `values` was received, when known (see above).
         received: Option<SystemTime>,
+        /// When the reader handed the samples over: a Modbus DAQ's block when its
+        /// read returned, a CAN batch when it was read. The analysis measures from it
+        /// how long blocks wait for it and bites take to reach the PLC
+        /// (`crate::state::latency`).
+        handed: Instant,
     },
     /// Samples were lost on this channel between the previous and the next
     /// `Samples`: the analysis must not join across it. `missed_samples` when known.

@@ -13,7 +13,7 @@
 //! DBCs reserve for "not available", see [`can_signal_limits`]). Process values
 //! (register values, and CAN counters, speeds, flags) have none.
 
-use std::time::SystemTime;
+use std::time::{Instant, SystemTime};
 
 use millgate_config::signal::SignalLayout;
 use millgate_config::{Channel, ChannelKind, ChannelSource, Scaling};
@@ -98,16 +98,16 @@ pub fn can_signal_limits(layout: &SignalLayout, scale: f64, offset: f64) -> Satu
     }
 }
 
-/// Split `values` (consecutive samples of `channel`, the last received at `received`)
-/// at the saturated ones: each run of good samples becomes a `Samples` message and
-/// each run of saturated ones a `Gap` of its length, in order, appended to `out`.
-/// Returns the number of saturated samples. `received` stays with the last message
-/// only when it is samples (the others' receive times are not known).
+/// Split `values` (consecutive samples of `channel`, the last received at `received`,
+/// handed over at `handed`) at the saturated ones: each run of good samples becomes a
+/// `Samples` message and each run of saturated ones a `Gap` of its length, in order,
+/// appended to `out`. Returns the number of saturated samples. `received` stays with
+/// the last message only when it is samples (the others' receive times are not known).
 pub fn split_saturated(
     limits: &SaturationLimits,
     channel: usize,
     values: Vec<f64>,
-    received: Option<SystemTime>,
+    (received, handed): (Option<SystemTime>, Instant),
     out: &mut Vec<Acquired>,
 ) -> u64 {
     if !values.iter().any(|&v| limits.saturated(v)) {
@@ -115,6 +115,7 @@ pub fn split_saturated(
             channel,
             values,
             received,
+            handed,
         });
         return 0;
     }
@@ -137,6 +138,7 @@ pub fn split_saturated(
                 channel,
                 values: values[start..end].to_vec(),
                 received: if end == values.len() { received } else { None },
+                handed,
             });
         }
         start = end;
@@ -238,11 +240,12 @@ mod tests {
             high: 10.0,
         };
         let mut out = Vec::new();
+        let handed = Instant::now();
         let count = split_saturated(
             &limits,
             2,
             vec![1.0, 10.0, 11.0, 2.0, 3.0, -10.0],
-            None,
+            (None, handed),
             &mut out,
         );
         assert_eq!(count, 3);
@@ -252,7 +255,8 @@ mod tests {
                 Acquired::Samples {
                     channel: 2,
                     values: vec![1.0],
-                    received: None
+                    received: None,
+                    handed
                 },
                 Acquired::Gap {
                     channel: 2,
@@ -261,7 +265,8 @@ mod tests {
                 Acquired::Samples {
                     channel: 2,
                     values: vec![2.0, 3.0],
-                    received: None
+                    received: None,
+                    handed
                 },
                 Acquired::Gap {
                     channel: 2,
@@ -272,7 +277,7 @@ mod tests {
         out.clear();
         let t = SystemTime::UNIX_EPOCH;
         assert_eq!(
-            split_saturated(&limits, 2, vec![1.0, 2.0], Some(t), &mut out),
+            split_saturated(&limits, 2, vec![1.0, 2.0], (Some(t), handed), &mut out),
             0
         );
         assert_eq!(
@@ -280,7 +285,8 @@ mod tests {
             [Acquired::Samples {
                 channel: 2,
                 values: vec![1.0, 2.0],
-                received: Some(t)
+                received: Some(t),
+                handed
             }]
         );
     }

@@ -143,7 +143,7 @@ impl HistoryReader {
 
     /// `driveline`'s bites at or after `since` and before `until` grouped by the
     /// product they were rolled in (bites without a product left out), the products
-    /// with the most bites first, at most [`MAX_PRODUCTS`].
+    /// with the most bites first, at most 200 (`MAX_PRODUCTS`).
     ///
     /// Cost: one pass over the driveline's range (SQLite's grouping: memory per
     /// product, not per bite).

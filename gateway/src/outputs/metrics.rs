@@ -524,6 +524,7 @@ mod tests {
         }
         let board = Arc::new(Board::new(config, health.clone()));
         board.update(set);
+        board.latencies().block_taken(Duration::from_micros(300));
         let acquisition = Acquisition {
             counters: config.channels.iter().map(|_| Arc::default()).collect(),
             health,
@@ -535,6 +536,7 @@ mod tests {
         Metrics::new(config, Arc::clone(&board), spans)
             .with(Arc::new(AcquisitionFamilies::new(config, acquisition)))
             .with(plc)
+            .with(Arc::clone(board.latencies()) as Arc<dyn Families>)
             .with(server)
             .with(Arc::new(board.history().clone()))
             .with(sparkplug)
@@ -681,7 +683,9 @@ mod tests {
                 let name = rest.split(' ').next().unwrap();
                 let next = lines.get(index + 1).copied().unwrap_or("");
                 assert!(
-                    next.starts_with(&format!("{name} ")) || next.starts_with(&format!("{name}{{")),
+                    next.starts_with(&format!("{name} "))
+                        || next.starts_with(&format!("{name}{{"))
+                        || next.starts_with(&format!("{name}_bucket{{")),
                     "family {name} without a sample:\n{page}"
                 );
             }
@@ -779,6 +783,21 @@ mod tests {
         let flag = format!("\nmillgate_source_ok{{source=\"{source}\"}} 1\n");
         assert!(page.contains(&flag), "{flag} missing:\n{page}");
         assert_eq!(page.matches("# TYPE millgate_heartbeat ").count(), 1);
+        // The latencies: a block waited 0.3 ms, no bite reached a PLC.
+        assert!(
+            page.contains(
+                "# TYPE millgate_block_wait_seconds histogram\n\
+                 millgate_block_wait_seconds_bucket{le=\"0.0001\"} 0\n\
+                 millgate_block_wait_seconds_bucket{le=\"0.0002\"} 0\n\
+                 millgate_block_wait_seconds_bucket{le=\"0.0005\"} 1\n"
+            ),
+            "{page}"
+        );
+        assert!(
+            page.contains("\nmillgate_block_wait_seconds_count 1\n"),
+            "{page}"
+        );
+        assert!(!page.contains("millgate_bite_to_plc_seconds"), "{page}");
         assert_eq!(page.matches("# TYPE millgate_source_status ").count(), 1);
         // A new figure of the gateway: its state, 0 starting.
         assert!(page.contains("\nmillgate_gateway_state 0\n"), "{page}");

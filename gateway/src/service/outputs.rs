@@ -562,8 +562,8 @@ fn metrics(w: &mut Wiring, shutdown: &Shutdown) -> Result<Option<OutputTask>, Se
         return Ok(None);
     };
     let listener = kept.listener("metrics endpoint")?;
-    // The acquisition's, the PLC writer's, the HMI server's (counted with or without
-    // one) and the history's, then those the outputs built added.
+    // The acquisition's, the PLC writer's, the latencies, the HMI server's (counted
+    // with or without one) and the history's, then those the outputs built added.
     let mut metrics = Metrics::new(
         &w.config,
         Arc::clone(&w.parts.board),
@@ -576,6 +576,7 @@ fn metrics(w: &mut Wiring, shutdown: &Shutdown) -> Result<Option<OutputTask>, Se
     if w.config.outputs.plc.is_some() {
         metrics = metrics.with(w.plc_counters.clone());
     }
+    metrics = metrics.with(Arc::clone(w.parts.board.latencies()) as Arc<dyn Families>);
     metrics = metrics
         .with(w.parts.server_counters.clone())
         .with(Arc::new(w.parts.board.history().clone()));

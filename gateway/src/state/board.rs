@@ -15,6 +15,7 @@ use super::events::{
 };
 use super::gap_maps::GapMapState;
 use super::history::History;
+use super::latency::Latencies;
 use super::results::Results;
 use super::time::UtcTime;
 use crate::field::source_health::{SourceHealth, SourceStatus};
@@ -43,6 +44,8 @@ pub struct Board {
     history: History,
     /// Each driveline's gap maps, for the outputs that draw them.
     gap_maps: Mutex<Vec<GapMapState>>,
+    /// The block wait and bite -> PLC histograms, and the bites waiting for the PLC.
+    latencies: Arc<Latencies>,
 }
 
 impl Board {
@@ -103,7 +106,13 @@ impl Board {
                     })
                     .collect(),
             ),
+            latencies: Arc::default(),
         }
+    }
+
+    /// The latency histograms (for `/metrics`, the analysis and the PLC writer).
+    pub fn latencies(&self) -> &Arc<Latencies> {
+        &self.latencies
     }
 
     /// Driveline `index`'s gap maps.
@@ -169,6 +178,20 @@ impl Board {
         self.update_recorded_if(|results, events| (change(results, events), true))
     }
 
+    /// As [`Self::update_recorded`], for a bite whose window a block handed over at
+    /// `handed` completed: its stamp waits, with the results, for the PLC writer
+    /// ([`Self::results_for_plc`]).
+    pub(crate) fn update_bite_recorded<T>(
+        &self,
+        handed: std::time::Instant,
+        change: impl FnOnce(&mut Results, &mut Vec<HistoryEvent>) -> T,
+    ) -> T {
+        self.update_recorded(|results, events| {
+            self.latencies.published(handed);
+            change(results, events)
+        })
+    }
+
     /// As [`Self::update_recorded`], waking the outputs only when `change` says it
     /// changed the results (the `bool` it returns).
     fn update_recorded_if<T>(
@@ -199,6 +222,19 @@ impl Board {
         let mut results = crate::lock(&self.results).clone();
         self.apply_health(&mut results);
         results
+    }
+
+    /// A copy of the results (as [`Self::results`]) and, taken under the same lock,
+    /// the stamps of the bites published in them that no PLC write carried yet:
+    /// what the PLC writer encodes, and observes once the PLC acknowledged it
+    /// ([`Latencies::written`]).
+    pub(crate) fn results_for_plc(&self) -> (Results, Vec<std::time::Instant>) {
+        let locked = crate::lock(&self.results);
+        let stamps = self.latencies.take_waiting();
+        let mut results = locked.clone();
+        drop(locked);
+        self.apply_health(&mut results);
+        (results, stamps)
     }
 
     /// Keep the source statuses as they are now in every later image: the readers are

@@ -22,7 +22,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
-use std::time::{Duration, SystemTime};
+use std::time::{Duration, Instant, SystemTime};
 
 use millgate::analysis::Analysis;
 use millgate::field::acquired::Acquired;
@@ -249,6 +249,7 @@ pub fn run(case: &Case, plan: &Plan, maps: &GapMaps, models: &Path) -> anyhow::R
                 channel: 0,
                 values: block.to_vec(),
                 received: Some(start + Duration::from_secs_f64(end)),
+                handed: Instant::now(),
             }) {
                 outcome.bites += 1;
                 gap = report.gap.as_ref().and_then(|g| g.trend).or(gap);

@@ -16,7 +16,7 @@
 //! - [`broker`], [`sparkplug`]: Debian's mosquitto; a Sparkplug node in-process
 //!   against a history holding a backlog. [`cluster`]: a three-node `nats-server`
 //!   cluster with MQTT, for the failover tests.
-//! - [`peers`]: the Python peers in `tests/peers/`, talking JSON lines.
+//! - [`peers`]: the Python peers in `tests/peers/`, talking JSON lines; promtool.
 //! - [`hostile_daq`]: a scripted Modbus TCP DAQ for the faults real ones show.
 //! - [`serial_line`]: a pseudo-terminal pair and a pymodbus RTU device on it.
 //! - [`counting_allocator`]: the zero-allocation tests' global allocator.
@@ -40,7 +40,7 @@ pub mod tandem;
 
 pub use cli::{hang_up, terminate, text, KillOnDrop, Millgate};
 pub use net::{free_port, http, http_raw, scrape, wait_for, web_overview, web_ready, HttpAnswer};
-pub use peers::{json_peer, peer};
+pub use peers::{json_peer, peer, promtool_passes};
 pub use scratch::{fill_file_system, scratch, TempDir};
 pub use service::{as_daq_sends, demo_devices, Plc, Setup};
 

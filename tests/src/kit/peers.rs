@@ -1,7 +1,8 @@
 //! Python and Node.js peers: clients, hosts and readers that are not ours (paho-mqtt's
 //! Sparkplug host, asyncua's and node-opcua's OPC UA clients, pymodbus' PLC and
 //! devices, pyarrow and numpy readers), kept in `tests/peers/` ([`peer`]);
-//! [`json_peer`] runs one that talks JSON lines.
+//! [`json_peer`] runs one that talks JSON lines. Prometheus' linter checks a
+//! `/metrics` page ([`promtool_passes`]).
 
 use std::path::{Path, PathBuf};
 use std::process::{ChildStdin, Command, Stdio};
@@ -49,4 +50,31 @@ pub fn json_peer(
         }
     });
     (KillOnDrop(child), stdin, lines)
+}
+
+/// `promtool check metrics` (Debian's `prometheus`, which `scripts/test` installs)
+/// finds no problem in `page` (an HTTP answer, whose body is checked, or a body).
+pub fn promtool_passes(page: &str) {
+    use std::io::Write;
+    let body = page.split_once("\r\n\r\n").map_or(page, |(_, body)| body);
+    let mut promtool = Command::new("promtool")
+        .args(["check", "metrics"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("promtool is not installed: scripts/test installs it (apt-get install prometheus)");
+    promtool
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(body.as_bytes())
+        .unwrap();
+    let output = promtool.wait_with_output().unwrap();
+    assert!(
+        output.status.success(),
+        "promtool check metrics: {}{}\n{body}",
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr)
+    );
 }

@@ -398,6 +398,7 @@ mod tests {
                     channel,
                     values: recording.stands[stand][start..start + 120].to_vec(),
                     received: None,
+                    handed: now,
                 };
                 analysis.handle_at(&message, now);
             }

@@ -29,7 +29,7 @@ impl DrivelineAnalyzer {
     /// alarm, and do not move the wear trend. Nothing computed from data that cannot be
     /// trusted reads as a result.
     pub(crate) fn publish(&self, board: &Board, report: &BiteReport) {
-        board.update_recorded(|results, events| {
+        board.update_bite_recorded(report.window_complete, |results, events| {
             let driveline = &mut results.drivelines[report.driveline];
             let was = (driveline.taf_warning, driveline.taf_alarm);
             let time = UtcTime::from_system(report.time);

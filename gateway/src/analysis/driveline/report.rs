@@ -34,7 +34,9 @@ pub struct BiteReport {
     /// from when the block that completed the window was handled here (its last
     /// sample taken then, the window's last one period by period before it).
     pub time: SystemTime,
-    /// When the window's last sample was handed to analysis (before the analysis ran).
+    /// When the reader handed over the block whose samples completed the window (its
+    /// `Acquired::Samples::handed`), before it waited for and went through the
+    /// analysis; for a window a gap ended, when the analysis took the gap up.
     pub window_complete: Instant,
     /// Static torque, peak, TAF and periods.
     pub transient: TransientResult,
@@ -71,11 +73,12 @@ impl BiteReport {
 }
 
 impl DrivelineAnalyzer {
-    /// Process `values`, the last of which was received at `received` (when known).
+    /// Process `values`, the last of which was received at `received` (when known),
+    /// handed over by their reader at `handed`.
     pub(crate) fn samples(
         &mut self,
         values: &[f64],
-        received: Option<SystemTime>,
+        (received, handed): (Option<SystemTime>, Instant),
         reports: &mut Vec<BiteReport>,
     ) {
         self.captures.manual_samples(values, received);
@@ -94,7 +97,8 @@ impl DrivelineAnalyzer {
                     ledger.samples(&values[counted..=i], UtcTime::from_system(time).unix_ms());
                     counted = i + 1;
                 }
-                reports.extend(self.report(&event, Some(time), received.is_some(), None));
+                let dated = (Some(time), received.is_some());
+                reports.extend(self.report(&event, dated, handed, None));
             }
         }
         if let Some(ledger) = &mut self.fatigue {
@@ -110,21 +114,21 @@ impl DrivelineAnalyzer {
             ledger.cut(UtcTime::now().unix_ms());
         }
         if let Some(event) = self.detector.gap(&mut self.state, missed.unwrap_or(0)) {
-            reports.extend(self.report(&event, None, false, Some(missed)));
+            reports.extend(self.report(&event, (None, false), Instant::now(), Some(missed)));
         }
     }
 
     /// The report of a completed window whose last sample was taken at
     /// `last_sample_time` (now when unknown), a time counted back from a kernel
-    /// receive timestamp when `kernel_time`.
+    /// receive timestamp when `kernel_time`, completed by what was handed over at
+    /// `window_complete`.
     fn report(
         &mut self,
         event: &BiteEvent<WINDOW_CAPACITY>,
-        last_sample_time: Option<SystemTime>,
-        kernel_time: bool,
+        (last_sample_time, kernel_time): (Option<SystemTime>, bool),
+        window_complete: Instant,
         ended_by_gap: Option<Option<u64>>,
     ) -> Option<BiteReport> {
-        let window_complete = Instant::now();
         let result = analyze_window(
             &event.window,
             event.trigger_index,

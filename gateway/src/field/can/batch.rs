@@ -3,7 +3,7 @@
 //! frames or a signal's value lay at the end of its raw range (saturated or "not
 //! available": [`crate::field::quality`]).
 
-use std::time::SystemTime;
+use std::time::{Instant, SystemTime};
 
 use crate::field::acquired::Acquired;
 use crate::field::quality::SaturationLimits;
@@ -14,9 +14,9 @@ use crate::field::quality::SaturationLimits;
 pub(crate) struct SampleBatch {
     /// Output of the last decode.
     pub(crate) pending: Vec<(usize, f64)>,
-    /// Channel index -> values and the receive time of the last, channels in order
-    /// of first appearance.
-    per_channel: Vec<(usize, Vec<f64>, SystemTime)>,
+    /// Channel index -> values, the receive time of the last and when its batch was
+    /// read (handed over), channels in order of first appearance.
+    per_channel: Vec<(usize, Vec<f64>, SystemTime, Instant)>,
     /// Messages already complete (samples before a gap, and the gap).
     ready: Vec<Acquired>,
     /// Saturation limits of the channels that have any, by channel index.
@@ -38,21 +38,22 @@ impl SampleBatch {
             .any(|(known, limits)| *known == channel && limits.saturated(value))
     }
 
-    /// Moves `pending`, from a frame received at `received`, into the per-channel lists;
-    /// a saturated value closes its channel's samples and becomes a one-sample gap.
-    /// Returns the number of saturated values.
-    pub(crate) fn collect(&mut self, received: SystemTime) -> u64 {
+    /// Moves `pending`, from a frame received at `received` in a batch read at
+    /// `handed`, into the per-channel lists; a saturated value closes its channel's
+    /// samples and becomes a one-sample gap. Returns the number of saturated values.
+    pub(crate) fn collect(&mut self, (received, handed): (SystemTime, Instant)) -> u64 {
         let mut saturated = 0;
         let pending = std::mem::take(&mut self.pending);
         for &(channel, value) in &pending {
             if self.saturated(channel, value) {
                 saturated += 1;
-                if let Some(at) = self.per_channel.iter().position(|(c, _, _)| *c == channel) {
-                    let (channel, values, received) = self.per_channel.remove(at);
+                if let Some(at) = self.per_channel.iter().position(|(c, ..)| *c == channel) {
+                    let (channel, values, received, handed) = self.per_channel.remove(at);
                     self.ready.push(Acquired::Samples {
                         channel,
                         values,
                         received: Some(received),
+                        handed,
                     });
                 }
                 self.ready.push(Acquired::Gap {
@@ -64,13 +65,16 @@ impl SampleBatch {
             match self
                 .per_channel
                 .iter_mut()
-                .find(|(known, _, _)| *known == channel)
+                .find(|(known, ..)| *known == channel)
             {
-                Some((_, values, last)) => {
+                Some((_, values, last, last_handed)) => {
                     values.push(value);
                     *last = received;
+                    *last_handed = handed;
                 }
-                None => self.per_channel.push((channel, vec![value], received)),
+                None => self
+                    .per_channel
+                    .push((channel, vec![value], received, handed)),
             }
         }
         self.pending = pending;
@@ -92,10 +96,11 @@ impl SampleBatch {
         self.ready.extend(
             self.per_channel
                 .drain(..)
-                .map(|(channel, values, received)| Acquired::Samples {
+                .map(|(channel, values, received, handed)| Acquired::Samples {
                     channel,
                     values,
                     received: Some(received),
+                    handed,
                 }),
         );
     }
@@ -114,14 +119,20 @@ mod tests {
 
     use super::*;
 
+    /// The receive time `ms` after the epoch, in a batch read at `handed`.
+    fn at(ms: u64, handed: Instant) -> (SystemTime, Instant) {
+        (UNIX_EPOCH + Duration::from_millis(ms), handed)
+    }
+
     #[test]
     fn batch_groups_per_channel_in_arrival_order() {
         let t = |ms: u64| UNIX_EPOCH + Duration::from_millis(ms);
+        let handed = Instant::now();
         let mut batch = SampleBatch::default();
         batch.pending.extend([(3, 1.0), (5, 10.0)]);
-        batch.collect(t(1));
+        batch.collect(at(1, handed));
         batch.pending.extend([(3, 2.0), (5, 20.0)]);
-        batch.collect(t(2));
+        batch.collect(at(2, handed));
         let messages: Vec<Acquired> = batch.drain().collect();
         assert_eq!(
             messages,
@@ -130,11 +141,13 @@ mod tests {
                     channel: 3,
                     values: vec![1.0, 2.0],
                     received: Some(t(2)),
+                    handed,
                 },
                 Acquired::Samples {
                     channel: 5,
                     values: vec![10.0, 20.0],
                     received: Some(t(2)),
+                    handed,
                 },
             ]
         );
@@ -144,17 +157,18 @@ mod tests {
     #[test]
     fn a_saturated_value_becomes_a_gap_on_its_channel_only() {
         let t = |ms: u64| UNIX_EPOCH + Duration::from_millis(ms);
+        let handed = Instant::now();
         let limits = SaturationLimits {
             low: -327.67,
             high: 327.67,
         };
         let mut batch = SampleBatch::new(vec![(3, limits)]);
         batch.pending.extend([(3, 1.0), (5, 400.0)]);
-        assert_eq!(batch.collect(t(1)), 0, "channel 5 has no limits");
+        assert_eq!(batch.collect(at(1, handed)), 0, "channel 5 has no limits");
         batch.pending.extend([(3, 327.67), (5, 401.0)]);
-        assert_eq!(batch.collect(t(2)), 1);
+        assert_eq!(batch.collect(at(2, handed)), 1);
         batch.pending.push((3, 2.0));
-        batch.collect(t(3));
+        batch.collect(at(3, handed));
         let messages: Vec<Acquired> = batch.drain().collect();
         assert_eq!(
             messages,
@@ -163,6 +177,7 @@ mod tests {
                     channel: 3,
                     values: vec![1.0],
                     received: Some(t(1)),
+                    handed,
                 },
                 Acquired::Gap {
                     channel: 3,
@@ -172,11 +187,13 @@ mod tests {
                     channel: 5,
                     values: vec![400.0, 401.0],
                     received: Some(t(2)),
+                    handed,
                 },
                 Acquired::Samples {
                     channel: 3,
                     values: vec![2.0],
                     received: Some(t(3)),
+                    handed,
                 },
             ]
         );
@@ -185,12 +202,13 @@ mod tests {
     #[test]
     fn kernel_drops_split_the_batch_with_a_gap() {
         let t = |ms: u64| UNIX_EPOCH + Duration::from_millis(ms);
+        let handed = Instant::now();
         let mut batch = SampleBatch::default();
         batch.pending.push((3, 1.0));
-        batch.collect(t(1));
+        batch.collect(at(1, handed));
         batch.gap(&[3, 5]);
         batch.pending.extend([(3, 2.0), (5, 20.0)]);
-        batch.collect(t(9));
+        batch.collect(at(9, handed));
         let messages: Vec<Acquired> = batch.drain().collect();
         let gap = |channel| Acquired::Gap {
             channel,
@@ -203,6 +221,7 @@ mod tests {
                     channel: 3,
                     values: vec![1.0],
                     received: Some(t(1)),
+                    handed,
                 },
                 gap(3),
                 gap(5),
@@ -210,11 +229,13 @@ mod tests {
                     channel: 3,
                     values: vec![2.0],
                     received: Some(t(9)),
+                    handed,
                 },
                 Acquired::Samples {
                     channel: 5,
                     values: vec![20.0],
                     received: Some(t(9)),
+                    handed,
                 },
             ]
         );

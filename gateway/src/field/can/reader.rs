@@ -3,7 +3,7 @@
 
 use std::io;
 use std::sync::Arc;
-use std::time::SystemTime;
+use std::time::{Instant, SystemTime};
 
 use millgate_config::frame::{parse_frame, FrameKind};
 use millgate_config::Config;
@@ -135,8 +135,11 @@ impl CanReader {
             // One clock reading per batch: outside a vDSO (User-Mode Linux, some
             // hypervisors) every reading is a system call, as costly as the read.
             let handled = SystemTime::now();
+            // The monotonic clock too, for the latencies measured from the hand-over
+            // (`Acquired::Samples::handed`): the wall clock may step.
+            let handed = Instant::now();
             for (frame, received) in buffers.frames() {
-                self.handle(frame, received, handled, &mut batch);
+                self.handle(frame, received, (handled, handed), &mut batch);
             }
             if let Some(health) = &self.health {
                 health.answered();
@@ -152,13 +155,13 @@ impl CanReader {
         }
     }
 
-    /// Counts and decodes one frame (`bytes`, with `received`) read at `handled` (the
-    /// batch's clock reading).
+    /// Counts and decodes one frame (`bytes`, with `received`) read at `handled`, in a
+    /// batch handed over at `handed` (the batch's clock readings).
     fn handle(
         &mut self,
         bytes: &[u8],
         received: &Received,
-        handled: SystemTime,
+        (handled, handed): (SystemTime, Instant),
         batch: &mut SampleBatch,
     ) {
         self.counters.count_frame();
@@ -186,7 +189,7 @@ impl CanReader {
                     FrameOutcome::UnknownId => self.counters.count_unknown_id(),
                     FrameOutcome::BadLength => self.counters.count_bad_length(),
                 }
-                let saturated = batch.collect(received.kernel_time.unwrap_or(handled));
+                let saturated = batch.collect((received.kernel_time.unwrap_or(handled), handed));
                 if saturated > 0 {
                     self.counters.count_saturated(saturated);
                 }

@@ -71,7 +71,7 @@ impl BlockChannel {
     /// What a block read at `now` brings: `Same` when it is the block already seen
     /// (counting a stall once it stands still past [`STALL_BLOCK_PERIODS`]), else the
     /// messages: an optional gap (lost blocks, or a DAQ restart), then the samples,
-    /// saturated ones replaced by gaps.
+    /// saturated ones replaced by gaps, handed over at `now`.
     pub(super) fn accept(&mut self, sequence: u16, raw: &[u16], now: Instant) -> BlockNews {
         let count = raw.len() as u16;
         let mut messages = Vec::with_capacity(2);
@@ -124,8 +124,13 @@ impl BlockChannel {
         let values = layout::Block { sequence, raw }
             .values(self.scaling)
             .collect();
-        let saturated =
-            quality::split_saturated(&self.limits, self.channel, values, None, &mut messages);
+        let saturated = quality::split_saturated(
+            &self.limits,
+            self.channel,
+            values,
+            (None, now),
+            &mut messages,
+        );
         self.counters.saturated(saturated);
         BlockNews::New(messages)
     }
@@ -175,7 +180,8 @@ mod tests {
             BlockNews::Same,
             "same block twice"
         );
-        let messages = messages(block.accept(13, &[3, 4], t0 + Duration::from_millis(6)));
+        let read = t0 + Duration::from_millis(6);
+        let messages = messages(block.accept(13, &[3, 4], read));
         assert_eq!(
             messages[0],
             Acquired::Gap {
@@ -189,6 +195,7 @@ mod tests {
                 channel: 3,
                 values: vec![3.0, 4.0],
                 received: None,
+                handed: read,
             }
         );
         let counters = block.counters.snapshot();
@@ -299,7 +306,8 @@ mod tests {
                 Acquired::Samples {
                     channel: 3,
                     values: vec![100.0],
-                    received: None
+                    received: None,
+                    handed: t0
                 },
                 Acquired::Gap {
                     channel: 3,
@@ -308,7 +316,8 @@ mod tests {
                 Acquired::Samples {
                     channel: 3,
                     values: vec![5.0],
-                    received: None
+                    received: None,
+                    handed: t0
                 },
             ]
         );

@@ -21,6 +21,12 @@
 //! a read-only folder stopped storing them), so the PLC never sees its counter go
 //! back and bite numbers repeat.
 //!
+//! Each bite's latency, from the block that completed its window to the write that
+//! carried its counter, is observed when the PLC acknowledged that write (the board
+//! hands the writer the bites' stamps with the results it encodes:
+//! `crate::state::latency`); a bite of a write that failed is observed at the next
+//! that goes through.
+//!
 //! With a history, each write first waits (at most [`HISTORY_WAIT`]) until the
 //! events recorded before the map was read are committed: a bite the PLC sees is in
 //! the file, even if the gateway is killed right after. A failing history is not
@@ -333,6 +339,10 @@ impl PlcWriter {
             .map(|d| d.bite_counter)
             .collect();
         let mut counters_read = false;
+        // The bites' stamps are kept for this writer while it runs (`/metrics`' bite
+        // -> PLC latency, observed when a write that carried them went through).
+        let latencies = Arc::clone(self.board.latencies());
+        let _latency_stamps = latencies.plc_writer();
         loop {
             let period = tokio::select! {
                 _ = ticks.tick() => true,
@@ -361,7 +371,8 @@ impl PlcWriter {
                     self.continue_counters(connected, &at_start).await;
                     counters_read = true;
                 }
-                let words = self.map.encode(&self.board.results());
+                let (results, bites) = self.board.results_for_plc();
+                let words = self.map.encode(&results);
                 let history = self.board.history();
                 if !history.wait_settled(history.enqueued(), HISTORY_WAIT).await {
                     tracing::debug!(wait = ?HISTORY_WAIT, "history commit slower than the PLC wait");
@@ -376,6 +387,7 @@ impl PlcWriter {
                 let requests = changed.as_ref().unwrap_or(&whole);
                 match self.write(connected, &words, requests).await {
                     Ok(()) => {
+                        latencies.written(&bites);
                         at_plc = Some(words);
                         self.counters.written();
                         backoff.reset();
@@ -383,6 +395,7 @@ impl PlcWriter {
                         write_warnings.clear();
                     }
                     Err(error) => {
+                        latencies.not_written(bites);
                         self.counters.failed(&error);
                         if let Some(suppressed) = write_warnings.occurred(Instant::now()) {
                             tracing::warn!(plc = %self.output.address, %error, suppressed, "PLC write failed");
