@@ -245,6 +245,7 @@ pub(crate) struct RawOpcUaOutput {
     pub(crate) allow_remote_commands: Option<bool>,
     pub(crate) max_connections: Option<i64>,
     pub(crate) max_sessions: Option<i64>,
+    pub(crate) max_sessions_per_peer: Option<i64>,
     pub(crate) max_subscriptions_per_session: Option<i64>,
     pub(crate) max_monitored_items_per_subscription: Option<i64>,
     pub(crate) max_session_timeout_ms: Option<i64>,

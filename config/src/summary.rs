@@ -364,8 +364,8 @@ fn opcua_line(text: &mut String, opcua: &OpcUaOutput) {
     let _ = writeln!(
         text,
         "  OPC UA server: {} (listen on {}), security {}, {}{} user(s), at most {} \
-         connections, {} sessions, {} subscriptions per session, {} monitored items per \
-         subscription; certificates in {}; acknowledge from {}",
+         connections, {} sessions ({} per client address), {} subscriptions per session, {} \
+         monitored items per subscription; certificates in {}; acknowledge from {}",
         opcua.endpoint_url(),
         opcua.bind,
         modes.join(", "),
@@ -377,6 +377,7 @@ fn opcua_line(text: &mut String, opcua: &OpcUaOutput) {
         opcua.users.len(),
         opcua.max_connections,
         opcua.max_sessions,
+        opcua.max_sessions_per_peer,
         opcua.max_subscriptions_per_session,
         opcua.max_monitored_items_per_subscription,
         opcua.pki_dir.display(),

@@ -2244,11 +2244,12 @@ fn opcua_defaults_follow_the_bind() {
         (
             opcua.max_connections,
             opcua.max_sessions,
+            opcua.max_sessions_per_peer,
             opcua.max_subscriptions_per_session,
             opcua.max_monitored_items_per_subscription,
             opcua.max_session_timeout
         ),
-        (16, 10, 10, 1000, Duration::from_secs(60))
+        (16, 10, 5, 10, 1000, Duration::from_secs(60))
     );
     // Another host's reach: signed and encrypted by default; a wildcard needs the
     // host clients use, and the URL brackets an IPv6 host.
@@ -2287,12 +2288,28 @@ fn opcua_keys_name_their_range() {
             "1..=100000",
         ),
         ("max_session_timeout_ms", "999", "1000..=3600000 ms"),
+        (
+            "max_sessions_per_peer",
+            "11",
+            "1..=10, at most outputs.opcua.max_sessions",
+        ),
     ] {
         assert_only_problem(
             &with_opcua(&format!("{key} = {value}")),
             &format!("mill.toml: outputs.opcua.{key}: {value} is not allowed (must be {range})"),
         );
     }
+    // Sessions per address: half of max_sessions (rounded up) unless given.
+    let sessions_per_peer = |keys: &str| {
+        let opcua = parse(&with_opcua(keys)).unwrap().outputs.opcua.unwrap();
+        (opcua.max_sessions, opcua.max_sessions_per_peer)
+    };
+    assert_eq!(sessions_per_peer("max_sessions = 3"), (3, 2));
+    assert_eq!(sessions_per_peer("max_sessions = 1"), (1, 1));
+    assert_eq!(
+        sessions_per_peer("max_sessions = 4\nmax_sessions_per_peer = 4"),
+        (4, 4)
+    );
     assert_only_problem(
         &with_opcua("security_modes = [\"sign\", \"encrypt\"]"),
         "mill.toml: outputs.opcua.security_modes[1]: unknown security mode \"encrypt\" \

@@ -1604,7 +1604,11 @@ async fn one_client_cannot_hold_every_connection() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sessions_of_a_vanished_client_make_room() {
     let rig = Rig::start("sessions", 90.0, |config, _| {
-        config.outputs.opcua.as_mut().unwrap().max_sessions = 2;
+        let opcua = config.outputs.opcua.as_mut().unwrap();
+        opcua.max_sessions = 2;
+        // One client (an address) takes every session here: what is tested is how
+        // they make room once it vanished.
+        opcua.max_sessions_per_peer = 2;
     })
     .await;
     let (holder, lines) = abuse(&["hold-sessions", &rig.url, "2"]);
@@ -1624,6 +1628,40 @@ async fn sessions_of_a_vanished_client_make_room() {
     };
     eprintln!("a session after {:?}", started.elapsed());
     assert_eq!(peer.ask("read Gateway/state", "read")["value"], 1);
+    peer.send("quit");
+    rig.stop().await;
+}
+
+/// Finding 5, sessions per client: OPC UA allows several sessions per connection and
+/// a client several connections, so one address could hold every session over its
+/// open connections (10 of 10 in the audit). An address holds at most
+/// `max_sessions_per_peer` (by default half of `max_sessions`): its next
+/// CreateSession is answered `Bad_TooManySessions` and counted, and a client from
+/// another address still gets a session.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn one_client_cannot_hold_every_session() {
+    // The defaults: 10 sessions, 5 per address.
+    let rig = Rig::start("peer-sessions", 60.0, |config, _| {
+        config.outputs.metrics = Some(MetricsOutput {
+            bind: "127.0.0.1:0".parse().unwrap(),
+        });
+    })
+    .await;
+    let (_holder, lines) = abuse(&["hold-sessions", &rig.url, "6", "127.0.0.2"]);
+    let held = abuse_line(&lines, Duration::from_secs(60));
+    assert_eq!(held["sessions"], 5, "{held}");
+    assert_eq!(held["refused"]["BadTooManySessions"], 1, "{held}");
+    // Another address (the test's own, 127.0.0.1) still gets a session, though the
+    // holder keeps its five open.
+    let mut peer = Peer::connect(&rig.url, &[]).expect("a session for another address");
+    assert_eq!(peer.ask("read Gateway/state", "read")["value"], 1);
+    let counts = rig.gateway.opcua().unwrap().counts();
+    assert_eq!(counts.sessions_refused, 1, "{counts:?}");
+    let page = metrics_page(rig.gateway.bound().metrics.unwrap()).await;
+    assert!(
+        page.contains("\nmillgate_opcua_sessions_refused_total 1\n"),
+        "{page}"
+    );
     peer.send("quit");
     rig.stop().await;
 }

@@ -8,9 +8,11 @@ per step.
         ITEMS monitored items each (the variables of Millgate, repeated), closed with
         DeleteSubscriptions = false. Prints the revised values of the first
         subscription and what was created and refused (by status name).
-    python3 opcua_abuse.py hold-sessions URL COUNT
-        COUNT sessions, then {"type": "held"}; waits to be killed (sockets dropped
-        without CloseSession).
+    python3 opcua_abuse.py hold-sessions URL COUNT [FROM]
+        COUNT sessions, each on its own connection (from the local address FROM, a
+        loopback address, when given), then {"type": "held"} with the sessions held
+        and the refused by status name; waits to be killed (sockets dropped without
+        CloseSession).
     python3 opcua_abuse.py browse-points URL COUNT
         COUNT browses of one reference at a time without BrowseNext: how many left a
         continuation point, how many were refused (by status name).
@@ -133,13 +135,25 @@ async def orphans(url, sessions, subscriptions, items):
     emit({"type": "orphans", "created": created, "refused": refused, "revised": revised})
 
 
-async def hold_sessions(url, count):
+async def hold_sessions(url, count, source=None):
+    if source is not None:
+        # asyncua has no option for the local address: its connections are made by
+        # the loop's create_connection.
+        loop = asyncio.get_running_loop()
+        connect = loop.create_connection
+        loop.create_connection = lambda *args, **kwargs: connect(
+            *args, local_addr=(source, 0), **kwargs)
     clients = []
+    refused = Counter()
     for _ in range(count):
         client = Client(url, timeout=30)
-        await client.connect()
-        clients.append(client)
-    emit({"type": "held", "sessions": len(clients)})
+        try:
+            await client.connect()
+            clients.append(client)
+        except Exception as error:
+            refused[status_name(error)] += 1
+            client.disconnect_socket()
+    emit({"type": "held", "sessions": len(clients), "refused": refused})
     await asyncio.sleep(3600)
 
 
@@ -291,7 +305,7 @@ def main():
     if command == "orphans":
         asyncio.run(orphans(url, *map(int, rest)))
     elif command == "hold-sessions":
-        asyncio.run(hold_sessions(url, int(rest[0])))
+        asyncio.run(hold_sessions(url, int(rest[0]), *rest[1:2]))
     elif command == "browse-points":
         asyncio.run(browse_points(url, int(rest[0])))
     elif command == "unread":

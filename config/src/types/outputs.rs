@@ -54,6 +54,10 @@ pub struct OpcUaOutput {
     pub max_connections: usize,
     /// Sessions at once, 1..=100 (default 10).
     pub max_sessions: usize,
+    /// Sessions one client address may hold on open connections,
+    /// 1..=`max_sessions` (default half of `max_sessions`, rounded up); a further
+    /// CreateSession from that address is answered `Bad_TooManySessions`.
+    pub max_sessions_per_peer: usize,
     /// Subscriptions per session, 1..=100 (default 10).
     pub max_subscriptions_per_session: usize,
     /// Monitored items per subscription, 1..=100000 (default 1000).
@@ -70,6 +74,11 @@ impl OpcUaOutput {
     pub(crate) const DEFAULT_MAX_CONNECTIONS: usize = 16;
     /// Default `max_sessions`.
     pub(crate) const DEFAULT_MAX_SESSIONS: usize = 10;
+    /// Default `max_sessions_per_peer` for `max_sessions`: half of them, rounded up
+    /// (one address cannot take every session, as it cannot take every connection).
+    pub(crate) const fn default_max_sessions_per_peer(max_sessions: usize) -> usize {
+        max_sessions.div_ceil(2)
+    }
     /// Default `max_subscriptions_per_session`.
     pub(crate) const DEFAULT_MAX_SUBSCRIPTIONS_PER_SESSION: usize = 10;
     /// Default `max_monitored_items_per_subscription`.
@@ -93,6 +102,7 @@ impl OpcUaOutput {
             allow_remote_commands: false,
             max_connections: Self::DEFAULT_MAX_CONNECTIONS,
             max_sessions: Self::DEFAULT_MAX_SESSIONS,
+            max_sessions_per_peer: Self::default_max_sessions_per_peer(Self::DEFAULT_MAX_SESSIONS),
             max_subscriptions_per_session: Self::DEFAULT_MAX_SUBSCRIPTIONS_PER_SESSION,
             max_monitored_items_per_subscription:
                 Self::DEFAULT_MAX_MONITORED_ITEMS_PER_SUBSCRIPTION,

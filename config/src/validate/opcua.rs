@@ -41,6 +41,7 @@ fn default_pki_dir(state: Option<&Path>, history: Option<&Path>, base_dir: &Path
 struct Limits {
     connections: Option<usize>,
     sessions: Option<usize>,
+    sessions_per_peer: Option<usize>,
     subscriptions: Option<usize>,
     monitored_items: Option<usize>,
     session_timeout_ms: Option<usize>,
@@ -95,6 +96,7 @@ impl Checker<'_> {
             allow_remote_commands: raw.allow_remote_commands.unwrap_or(false),
             max_connections: limits.connections?,
             max_sessions: limits.sessions?,
+            max_sessions_per_peer: limits.sessions_per_peer?,
             max_subscriptions_per_session: limits.subscriptions?,
             max_monitored_items_per_subscription: limits.monitored_items?,
             max_session_timeout: Duration::from_millis(limits.session_timeout_ms? as u64),
@@ -192,9 +194,22 @@ impl Checker<'_> {
             SESSION_TIMEOUT_RANGE_MS,
             " ms",
         );
+        // At most max_sessions (half of it by default); an invalid max_sessions is
+        // reported on its own.
+        let most = sessions.unwrap_or(*SESSIONS_RANGE.end() as usize);
+        let sessions_per_peer = self
+            .int_in(
+                &format!("{key}.max_sessions_per_peer"),
+                raw.max_sessions_per_peer
+                    .unwrap_or(OpcUaOutput::default_max_sessions_per_peer(most) as i64),
+                1..=most as i64,
+                &format!(", at most {key}.max_sessions"),
+            )
+            .and_then(|value| usize::try_from(value).ok());
         Limits {
             connections,
             sessions,
+            sessions_per_peer,
             subscriptions,
             monitored_items,
             session_timeout_ms,

@@ -10,7 +10,7 @@ use opcua_types::{BuildInfo, MessageSecurityMode, TypeLoader, TypeLoaderCollecti
 
 use super::{
     authenticator::AuthManager, node_manager::NodeManagerBuilder, Limits, Server, ServerConfig,
-    ServerEndpoint, ServerHandle, ServerUserToken, ANONYMOUS_USER_TOKEN_ID,
+    ServerEndpoint, ServerHandle, ServerUserToken, SessionClients, ANONYMOUS_USER_TOKEN_ID,
 };
 
 /// Server builder, used to configure the server programatically,
@@ -24,6 +24,8 @@ pub struct ServerBuilder {
     pub(crate) type_loaders: TypeLoaderCollection,
     pub(crate) token: CancellationToken,
     pub(crate) build_info: BuildInfo,
+    /// (millgate patch) Who each secure channel's client is.
+    pub(crate) session_clients: Option<Arc<dyn SessionClients>>,
 }
 
 impl Default for ServerBuilder {
@@ -35,6 +37,7 @@ impl Default for ServerBuilder {
             token: CancellationToken::new(),
             type_tree_getter: None,
             build_info: BuildInfo::default(),
+            session_clients: None,
             type_loaders: TypeLoaderCollection::new(),
         };
         #[cfg(feature = "generated-address-space")]
@@ -268,6 +271,14 @@ impl ServerBuilder {
     /// Set a custom authenticator.
     pub fn with_authenticator(mut self, authenticator: Arc<dyn AuthManager>) -> Self {
         self.authenticator = Some(authenticator);
+        self
+    }
+
+    /// (millgate patch) Who the client of each secure channel is, for
+    /// `Limits::max_sessions_per_client` (without it, sessions are not limited per
+    /// client).
+    pub fn with_session_clients(mut self, clients: Arc<dyn SessionClients>) -> Self {
+        self.session_clients = Some(clients);
         self
     }
 

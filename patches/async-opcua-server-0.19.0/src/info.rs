@@ -4,6 +4,7 @@
 
 //! Provides server state information, such as status, configuration, running servers and so on.
 
+use std::net::IpAddr;
 use std::sync::atomic::{AtomicU16, AtomicU8, Ordering};
 use std::sync::Arc;
 
@@ -91,6 +92,25 @@ pub struct ServerInfo {
     pub type_loaders: RwLock<TypeLoaderCollection>,
     /// Current server diagnostics.
     pub diagnostics: ServerDiagnostics,
+    /// (millgate patch) Who each secure channel's client is, for
+    /// `Limits::max_sessions_per_client`.
+    pub session_clients: Option<Arc<dyn SessionClients>>,
+}
+
+/// (millgate patch) Who the client of a secure channel is, for
+/// `Limits::max_sessions_per_client`. A server behind a relay or a proxy sees the
+/// relay's address on every connection; the relay knows the client's.
+pub trait SessionClients: Send + Sync {
+    /// The client (its IP address) of secure channel `secure_channel_id` while the
+    /// channel's connection is open; `None` when not known (sessions on that channel
+    /// are not limited per client).
+    fn client(&self, secure_channel_id: u32) -> Option<IpAddr>;
+
+    /// A CreateSession from `client` was refused with `BadTooManySessions`: it holds
+    /// `Limits::max_sessions_per_client` sessions already.
+    fn session_refused(&self, client: IpAddr) {
+        let _ = client;
+    }
 }
 
 impl ServerInfo {

@@ -183,6 +183,7 @@ impl Server {
                 enabled: config.diagnostics,
                 ..Default::default()
             },
+            session_clients: builder.session_clients,
         };
 
         let certificate_store = Arc::new(RwLock::new(certificate_store));

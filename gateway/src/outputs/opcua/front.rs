@@ -15,8 +15,9 @@
 //!   receive buffer); a stream that breaks it gets an `ERR` message and is closed, and
 //!   is counted;
 //! - what the server answers: the secure channel each connection opened (so a method
-//!   call knows its client's address: the acknowledge guard) and the `ERR` messages it
-//!   sent (a message its decoder refused), counted and logged.
+//!   call knows its client's address: the acknowledge guard; and async-opcua the
+//!   client of each session: [`SessionPeers`], `max_sessions_per_peer`) and the `ERR`
+//!   messages it sent (a message its decoder refused), counted and logged.
 //!
 //! The relay copies bytes as they come; it never decodes or changes a message body.
 
@@ -326,6 +327,30 @@ impl ChannelPeers {
 
     fn closed(&self, peer: SocketAddr) {
         crate::lock(&self.0).retain(|_, p| *p != peer);
+    }
+}
+
+/// Who the client of each secure channel is, for async-opcua's sessions per client
+/// (`max_sessions_per_peer`, the kept patch's `SessionClients`): async-opcua sees the
+/// relays' loopback connections only. A refused CreateSession is counted and logged
+/// (rate-limited).
+pub(crate) struct SessionPeers {
+    pub(crate) peers: Arc<ChannelPeers>,
+    pub(crate) counters: Arc<OpcUaCounters>,
+    pub(crate) problems: Mutex<WarnLimit>,
+}
+
+impl opcua::server::SessionClients for SessionPeers {
+    fn client(&self, secure_channel_id: u32) -> Option<IpAddr> {
+        self.peers.peer(secure_channel_id).map(|peer| peer.ip())
+    }
+
+    fn session_refused(&self, client: IpAddr) {
+        count(&self.counters.sessions_refused);
+        let suppressed = crate::lock(&self.problems).occurred(tokio::time::Instant::now());
+        if let Some(suppressed) = suppressed {
+            tracing::warn!(%client, suppressed, "OPC UA session refused: the client holds max_sessions_per_peer sessions");
+        }
     }
 }
 

@@ -7,7 +7,7 @@ use crate::exposition::{Exposition, Families, Kind};
 impl Families for OpcUaStatus {
     fn write_families(&self, page: &mut Exposition) {
         let counts = &self.counts();
-        let scalars: [(&str, Kind, &str, f64); 21] = [
+        let scalars: [(&str, Kind, &str, f64); 22] = [
             (
                 "millgate_opcua_connections_total",
                 Kind::Counter,
@@ -25,6 +25,12 @@ impl Families for OpcUaStatus {
                 Kind::Counter,
                 "Idle connections closed to make room for a new client.",
                 counts.evicted as f64,
+            ),
+            (
+                "millgate_opcua_sessions_refused_total",
+                Kind::Counter,
+                "CreateSession refused because the client address held max_sessions_per_peer sessions.",
+                counts.sessions_refused as f64,
             ),
             (
                 "millgate_opcua_discovery_channels_closed_total",

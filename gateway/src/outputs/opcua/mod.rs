@@ -61,7 +61,7 @@ pub use status::OpcUaStatus;
 pub use tools::{address_space_table, DemoOption};
 
 use conditions::Conditions;
-use front::{ChannelPeers, FrontDoor};
+use front::{ChannelPeers, FrontDoor, SessionPeers};
 use model::{AddressSpaceSpec, AlarmEventSpec, Quality, Snapshot, Value, VariableUpdate};
 use nodes::{Acknowledger, CommandGuard, MillgateNodes, MillgateNodesBuilder, NodeIds};
 use status::{count, OpcUaCounters};
@@ -201,8 +201,14 @@ impl OpcUaServer {
             pace: std::sync::Mutex::default(),
         });
         let conditions = Arc::new(std::sync::Mutex::new(Conditions::default()));
+        let session_peers = Arc::new(SessionPeers {
+            peers: Arc::clone(&peers),
+            counters: Arc::clone(&self.counters),
+            problems: std::sync::Mutex::new(WarnLimit::new(WARN_PERIOD)),
+        });
         let (server, handle) = self
             .builder(public.port())
+            .with_session_clients(session_peers)
             .with_node_manager(InMemoryNodeManagerBuilder::new(MillgateNodesBuilder {
                 spec: Arc::clone(&self.spec),
                 guard,
@@ -345,7 +351,7 @@ impl OpcUaServer {
         // The bounds of the kept patch (patches/README.md): all sessions' subscriptions
         // (closed sessions' too, until they expire) and monitored items together, the
         // lifetime of a subscription nobody publishes, the idle session that makes
-        // room for a new one when all are taken.
+        // room for a new one when all are taken, the sessions a client address holds.
         limits.subscriptions.max_subscriptions =
             settings.max_sessions * settings.max_subscriptions_per_session;
         limits.subscriptions.max_monitored_items =
@@ -354,6 +360,7 @@ impl OpcUaServer {
         limits.subscriptions.default_event_queue_size = EVENT_QUEUE_SIZE;
         limits.subscriptions.max_notifications_per_publish = MAX_NOTIFICATIONS_PER_PUBLISH;
         limits.evict_idle_session_ms = front::EVICT_IDLE.as_millis() as u64;
+        limits.max_sessions_per_client = settings.max_sessions_per_peer;
         limits.max_browse_continuation_points = MAX_CONTINUATION_POINTS;
         limits.max_history_continuation_points = MAX_CONTINUATION_POINTS;
         limits.max_query_continuation_points = MAX_CONTINUATION_POINTS;

@@ -13,6 +13,7 @@ pub(crate) struct OpcUaCounters {
     pub(super) connections: AtomicU64,
     pub(super) refused: AtomicU64,
     pub(super) evicted: AtomicU64,
+    pub(super) sessions_refused: AtomicU64,
     pub(super) discovery_closed: AtomicU64,
     pub(super) malformed_frames: AtomicU64,
     pub(super) protocol_errors: AtomicU64,
@@ -38,6 +39,9 @@ pub struct OpcUaCounts {
     pub refused: u64,
     /// Idle connections closed to make room for a new client.
     pub evicted: u64,
+    /// CreateSession refused (`Bad_TooManySessions`): the client address held
+    /// `max_sessions_per_peer` sessions on open connections.
+    pub sessions_refused: u64,
     /// Channels without security closed after their discovery requests (where
     /// `none` is not a security mode).
     pub discovery_closed: u64,
@@ -112,6 +116,7 @@ impl OpcUaCounters {
             connections: load(&self.connections),
             refused: load(&self.refused),
             evicted: load(&self.evicted),
+            sessions_refused: load(&self.sessions_refused),
             discovery_closed: load(&self.discovery_closed),
             malformed_frames: load(&self.malformed_frames),
             protocol_errors: load(&self.protocol_errors),

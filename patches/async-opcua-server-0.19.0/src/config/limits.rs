@@ -48,6 +48,13 @@ pub struct Limits {
     /// longest if it has been idle at least this long, ms. 0: never.
     #[serde(default)]
     pub evict_idle_session_ms: u64,
+    /// (millgate patch) Sessions one client (an IP address, as the server's
+    /// [`SessionClients`](crate::SessionClients) names it) may hold on open connections;
+    /// a further CreateSession from it is answered `BadTooManySessions`, so one client
+    /// cannot take every session. Sessions whose connection closed do not count.
+    /// 0: no limit.
+    #[serde(default)]
+    pub max_sessions_per_client: usize,
 }
 
 impl Default for Limits {
@@ -67,6 +74,7 @@ impl Default for Limits {
             operational: OperationalLimits::default(),
             max_sessions: defaults::max_sessions(),
             evict_idle_session_ms: 0,
+            max_sessions_per_client: 0,
         }
     }
 }
@@ -394,6 +402,7 @@ mod tests {
                 max_query_continuation_points: 500,
                 max_sessions: 20,
                 evict_idle_session_ms: 0,
+                max_sessions_per_client: 0,
                 subscriptions: SubscriptionLimits {
                     max_subscriptions_per_session: 100,
                     max_pending_publish_requests: 20,

@@ -11,7 +11,7 @@ use opcua_core::{comms::secure_channel::SecureChannel, trace_read_lock, trace_wr
 use opcua_crypto::{random, CertificateStore, SecurityPolicy};
 use parking_lot::RwLock;
 use tokio::sync::Notify;
-use tracing::{error, info, warn};
+use tracing::{debug, error, info, warn};
 
 use crate::{identity_token::IdentityToken, info::ServerInfo};
 use opcua_types::{
@@ -70,6 +70,7 @@ impl SessionManager {
         certificate_store: &RwLock<CertificateStore>,
         request: &CreateSessionRequest,
     ) -> Result<CreateSessionResponse, StatusCode> {
+        self.check_client_sessions(channel.secure_channel_id())?;
         if self.sessions.len() >= self.info.config.limits.max_sessions {
             self.evict_idlest_session()?;
         }
@@ -216,6 +217,30 @@ impl SessionManager {
                 "Client signature verification failed, session has no client certificate",
             ))
         }
+    }
+
+    /// (millgate patch) `BadTooManySessions` when the client of secure channel
+    /// `channel` holds `max_sessions_per_client` sessions on open connections (as
+    /// `ServerInfo::session_clients` names the client of each session's channel).
+    fn check_client_sessions(&self, channel: u32) -> Result<(), StatusCode> {
+        let limit = self.info.config.limits.max_sessions_per_client;
+        let Some(clients) = self.info.session_clients.as_ref().filter(|_| limit > 0) else {
+            return Ok(());
+        };
+        let Some(client) = clients.client(channel) else {
+            return Ok(());
+        };
+        let held = self
+            .sessions
+            .values()
+            .filter(|s| clients.client(s.read().secure_channel_id()) == Some(client))
+            .count();
+        if held < limit {
+            return Ok(());
+        }
+        debug!("CreateSession refused: client {client} holds {held} sessions");
+        clients.session_refused(client);
+        Err(StatusCode::BadTooManySessions)
     }
 
     /// (millgate patch) Secure channel `id` was opened on a connection.
