@@ -25,7 +25,7 @@ pub mod wear;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use millgate_config::{Config, DrivelineThresholds};
+use millgate_config::{Config, DrivelineThresholds, TandemMill};
 use tokio::sync::{broadcast, mpsc, watch};
 
 use crate::field::acquired::Acquired;
@@ -239,13 +239,14 @@ impl Analysis {
         self.drivelines.get(index)?.gap_trend()
     }
 
-    /// Warn and alarm at `thresholds` (one per driveline, in config order) from each
-    /// driveline's next bite on: a reload. Latched alarms stay latched until
-    /// acknowledged.
-    pub fn set_thresholds(&mut self, thresholds: &[DrivelineThresholds]) {
-        for (driveline, thresholds) in self.drivelines.iter_mut().zip(thresholds) {
+    /// Warn and alarm at `settings` (a reload): each driveline at its thresholds from
+    /// its next bite on, each tandem mill at its chatter thresholds from its next
+    /// window on. Latched alarms stay latched until acknowledged.
+    pub fn set_thresholds(&mut self, settings: &LiveSettings) {
+        for (driveline, thresholds) in self.drivelines.iter_mut().zip(&settings.drivelines) {
             driveline.set_thresholds(thresholds);
         }
+        self.chatter.set_thresholds(&settings.tandem_mills);
     }
 
     /// Apply a command: acknowledge the latched alarms, or reset a driveline's wear
@@ -466,10 +467,7 @@ impl Analysis {
         mut self,
         mut samples: mpsc::Receiver<Acquired>,
         mut maps: mpsc::Receiver<GapMapsReady>,
-        (mut commands, mut thresholds): (
-            CommandReceiver,
-            watch::Receiver<Vec<DrivelineThresholds>>,
-        ),
+        (mut commands, mut thresholds): (CommandReceiver, watch::Receiver<LiveSettings>),
         liveness: Arc<Liveness>,
     ) {
         let mut idle = tokio::time::interval(ANALYSIS_TICK);
@@ -486,8 +484,8 @@ impl Analysis {
                 },
                 changed = thresholds.changed(), if thresholds_open => match changed {
                     Ok(()) => {
-                        let thresholds = thresholds.borrow_and_update().clone();
-                        self.set_thresholds(&thresholds);
+                        let settings = thresholds.borrow_and_update().clone();
+                        self.set_thresholds(&settings);
                     }
                     Err(_) => thresholds_open = false,
                 },
@@ -509,6 +507,31 @@ impl Analysis {
         }
         // The readers are gone: no more extra samples will come.
         self.release_held(Instant::now(), true);
+    }
+}
+
+/// The settings a reload changes in the running analysis (`service::reload`), in
+/// config order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LiveSettings {
+    /// Each driveline's TAF and gap thresholds.
+    pub drivelines: Vec<DrivelineThresholds>,
+    /// Each tandem mill: its chatter thresholds apply (`gain_thresholds`, the
+    /// slow-down's release and hold, the weld hold), the rest runs as it started.
+    pub tandem_mills: Vec<TandemMill>,
+}
+
+impl LiveSettings {
+    /// The settings of `config`.
+    pub fn of(config: &Config) -> Self {
+        Self {
+            drivelines: config
+                .drivelines
+                .iter()
+                .map(|driveline| driveline.thresholds)
+                .collect(),
+            tandem_mills: config.tandem_mills.clone(),
+        }
     }
 }
 

@@ -10,7 +10,7 @@ use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use millgate_config::{Config, DrivelineThresholds, PlcOutput};
+use millgate_config::{Config, PlcOutput};
 use tokio::net::TcpListener;
 use tokio::sync::{broadcast, mpsc, oneshot, watch};
 
@@ -28,7 +28,7 @@ use reload::{Live, Reload};
 
 use crate::analysis::driveline::BiteReport;
 use crate::analysis::gap_estimate::GapObservation;
-use crate::analysis::Analysis;
+use crate::analysis::{Analysis, LiveSettings};
 use crate::field::counters::Acquisition;
 use crate::field::counters::{CanCounters, ChannelCounters};
 use crate::field::source_health::SourceHealth;
@@ -78,8 +78,9 @@ pub struct Service {
     plc_attempted: watch::Sender<bool>,
     /// Reload requests ([`RunningService::reload`]), handled once the service runs.
     reloads: (mpsc::Sender<ReloadRequest>, mpsc::Receiver<ReloadRequest>),
-    /// The drivelines' thresholds, as a reload sends them to the analysis.
-    thresholds: watch::Sender<Vec<DrivelineThresholds>>,
+    /// The thresholds of the drivelines and tandem mills, as a reload sends them to the
+    /// analysis.
+    thresholds: watch::Sender<LiveSettings>,
 }
 
 /// A reload of the configuration file at `path`, and where its outcome goes.
@@ -143,13 +144,7 @@ impl Service {
         )?;
         let can_counters = config.can_sources.iter().map(|_| Arc::default()).collect();
         let (plc_attempted, _) = watch::channel(config.outputs.plc.is_none());
-        let (thresholds, _) = watch::channel(
-            config
-                .drivelines
-                .iter()
-                .map(|driveline| driveline.thresholds)
-                .collect(),
-        );
+        let (thresholds, _) = watch::channel(LiveSettings::of(&config));
         Ok(Self {
             config,
             map: Arc::new(map),
@@ -558,7 +553,7 @@ struct Started {
     outputs: Outputs,
     reloads: mpsc::Receiver<ReloadRequest>,
     reload_counters: Arc<ReloadCounters>,
-    thresholds: watch::Sender<Vec<DrivelineThresholds>>,
+    thresholds: watch::Sender<LiveSettings>,
 }
 
 impl Started {
@@ -629,14 +624,10 @@ impl Started {
             Ok(listeners) => listeners,
             Err(error) => return Ok(Reload::Refused(error.to_string())),
         };
+        if plan.live.contains(&Live::Thresholds) || plan.live.contains(&Live::Chatter) {
+            self.thresholds.send_replace(LiveSettings::of(&config));
+        }
         if plan.live.contains(&Live::Thresholds) {
-            self.thresholds.send_replace(
-                config
-                    .drivelines
-                    .iter()
-                    .map(|driveline| driveline.thresholds)
-                    .collect(),
-            );
             self.history.record(HistoryEvent::Settings {
                 time: UtcTime::now(),
                 drivelines: config.drivelines.clone(),

@@ -6,12 +6,12 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-use millgate_config::{Config, DrivelineThresholds, SourceRef};
+use millgate_config::{Config, SourceRef};
 use tokio::sync::{mpsc, watch};
 use tokio::task::{JoinHandle, JoinSet};
 
 use crate::analysis::gap_monitor::spawn_job;
-use crate::analysis::Analysis;
+use crate::analysis::{Analysis, LiveSettings};
 use crate::field::acquired::Acquired;
 use crate::field::can::supervisor::supervise_can;
 use crate::field::counters::Acquisition;
@@ -129,7 +129,7 @@ pub(super) fn spawn_analysis(
     (samples, commands, thresholds): (
         mpsc::Receiver<Acquired>,
         CommandReceiver,
-        watch::Receiver<Vec<DrivelineThresholds>>,
+        watch::Receiver<LiveSettings>,
     ),
     board: &Arc<Board>,
     liveness: Arc<Liveness>,

@@ -10,16 +10,22 @@
 //! - A changed file is compared section by section with the running one ([`plan`]):
 //!   - applied at once: a driveline's `thresholds` (TAF and gap warning and alarm),
 //!     in the analysis from its next bite on (the maintenance page, which shows them,
-//!     is restarted with them);
+//!     is restarted with them); a tandem mill's chatter thresholds
+//!     (`gain_thresholds`, `slow_down_release`, `slow_down_hold_s`, `weld_settle_s`,
+//!     `weld_alarm_factor`) from its next window on, its windows, filters and
+//!     slow-down request running on (a request set stays set and clears by the new
+//!     release level and hold);
 //!   - applied by restarting the output with its new settings: `outputs.plc`,
 //!     `outputs.server`, `outputs.metrics`, `outputs.mqtt`, `outputs.web` (added,
 //!     changed or removed; a new address is bound before the old output stops, and a
 //!     bind that fails keeps the old output);
 //!   - kept as they run until a restart, each named: everything else (`name`,
-//!     `cache_dir`, the sources, channels, tandem and rod mills, `history`,
-//!     `outputs.opcua`, a driveline's other settings, drivelines added, removed or
-//!     reordered: a new driveline's register block goes before the extension blocks
-//!     and the tandem and rod mill blocks, so adding one moves their addresses).
+//!     `cache_dir`, the sources, channels, rod mills, `history`, `outputs.opcua`, a
+//!     driveline's other settings (`wear` builds the gap maps at the start), a tandem
+//!     mill's other settings (stands, bands, windows, `k_max`, `detector`, context
+//!     tags, captures), drivelines or tandem mills added, removed or reordered: a new
+//!     driveline's register block goes before the extension blocks and the tandem and
+//!     rod mill blocks, so adding one moves their addresses).
 //!
 //! A hang-up is never the default action of the signal (which ends the process with
 //! no final PLC write and leaves its run `unclean` in the history).
@@ -27,7 +33,7 @@
 use std::fmt;
 use std::path::Path;
 
-use millgate_config::{Config, Driveline};
+use millgate_config::{Config, Driveline, TandemMill};
 
 /// A part of the configuration that a reload applies without a restart.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -44,6 +50,23 @@ pub enum Live {
     Web,
     /// Any driveline's `thresholds`.
     Thresholds,
+    /// Any tandem mill's chatter thresholds: `gain_thresholds`, `slow_down_release`,
+    /// `slow_down_hold_s`, `weld_settle_s`, `weld_alarm_factor` (what its detector's
+    /// bits and slow-down request are judged by; the rest of its entry shapes its
+    /// windows, filters, register block or nodes and needs a restart).
+    Chatter,
+}
+
+/// `running`'s tandem mill entry with the chatter thresholds ([`Live::Chatter`]) of `new`.
+fn with_chatter_thresholds(running: &TandemMill, new: &TandemMill) -> TandemMill {
+    TandemMill {
+        gain_thresholds: new.gain_thresholds.clone(),
+        slow_down_release: new.slow_down_release,
+        slow_down_hold_s: new.slow_down_hold_s,
+        weld_settle_s: new.weld_settle_s,
+        weld_alarm_factor: new.weld_alarm_factor,
+        ..running.clone()
+    }
 }
 
 /// What a reload changes: the applied parts (their keys) and what they touch, and the
@@ -74,6 +97,11 @@ impl Plan {
                 Live::Thresholds => {
                     for (driveline, changed) in config.drivelines.iter_mut().zip(&new.drivelines) {
                         driveline.thresholds = changed.thresholds;
+                    }
+                }
+                Live::Chatter => {
+                    for (mill, changed) in config.tandem_mills.iter_mut().zip(&new.tandem_mills) {
+                        *mill = with_chatter_thresholds(mill, changed);
                     }
                 }
             }
@@ -192,7 +220,6 @@ pub fn plan(running: &Config, new: &Config) -> Plan {
         ("sources", running.modbus_sources != new.modbus_sources),
         ("can_sources", running.can_sources != new.can_sources),
         ("channels", running.channels != new.channels),
-        ("tandem_mills", running.tandem_mills != new.tandem_mills),
         ("rod_mills", running.rod_mills != new.rod_mills),
         ("outputs.opcua", old.opcua != out.opcua),
         ("history", running.history != new.history),
@@ -204,7 +231,87 @@ pub fn plan(running: &Config, new: &Config) -> Plan {
             .map(|(key, _)| (*key).to_owned()),
     );
     drivelines(&running.drivelines, &new.drivelines, &mut plan);
+    tandem_mills(&running.tandem_mills, &new.tandem_mills, &mut plan);
     plan
+}
+
+/// Into `plan`, the tandem mills' changes: the chatter thresholds ([`Live::Chatter`]) apply; any other
+/// change, or a mill added, removed or moved, needs a restart.
+fn tandem_mills(running: &[TandemMill], new: &[TandemMill], plan: &mut Plan) {
+    let names = |mills: &[TandemMill]| mills.iter().map(|m| m.name.clone()).collect::<Vec<_>>();
+    if names(running) != names(new) {
+        plan.needs_restart
+            .push("tandem_mills (added, removed or reordered)".to_owned());
+        return;
+    }
+    let mut chatter = false;
+    for (old, new) in running.iter().zip(new) {
+        let live = [
+            (
+                "gain_thresholds",
+                old.gain_thresholds != new.gain_thresholds,
+            ),
+            (
+                "slow_down_release",
+                old.slow_down_release != new.slow_down_release,
+            ),
+            (
+                "slow_down_hold_s",
+                old.slow_down_hold_s != new.slow_down_hold_s,
+            ),
+            ("weld_settle_s", old.weld_settle_s != new.weld_settle_s),
+            (
+                "weld_alarm_factor",
+                old.weld_alarm_factor != new.weld_alarm_factor,
+            ),
+        ];
+        for (key, _) in live.iter().filter(|(_, changed)| *changed) {
+            plan.applied
+                .push(format!("tandem_mills.{}.{key}", new.name));
+            chatter = true;
+        }
+        let settings = [
+            ("stands", old.stands != new.stands),
+            (
+                "chatter_band_hz",
+                old.chatter_band_hz != new.chatter_band_hz,
+            ),
+            ("window_s", old.window_s != new.window_s),
+            ("k_max", old.k_max != new.k_max),
+            ("detector", old.detector != new.detector),
+            (
+                "reference_band_hz",
+                old.reference_band_hz != new.reference_band_hz,
+            ),
+            ("gain_window_s", old.gain_window_s != new.gain_window_s),
+            ("context", old.context != new.context),
+            (
+                "capture_before_s",
+                old.capture_before_s != new.capture_before_s,
+            ),
+            (
+                "capture_after_s",
+                old.capture_after_s != new.capture_after_s,
+            ),
+            ("capture_max_s", old.capture_max_s != new.capture_max_s),
+            ("identification", old.identification != new.identification),
+        ];
+        let before = plan.needs_restart.len();
+        plan.needs_restart.extend(
+            settings
+                .iter()
+                .filter(|(_, changed)| *changed)
+                .map(|(key, _)| format!("tandem_mills.{}.{key}", new.name)),
+        );
+        // A key added to the entry and not named above still needs a restart.
+        if plan.needs_restart.len() == before && with_chatter_thresholds(old, new) != *new {
+            plan.needs_restart
+                .push(format!("tandem_mills.{}", new.name));
+        }
+    }
+    if chatter {
+        plan.live.push(Live::Chatter);
+    }
 }
 
 /// Into `plan`, the drivelines' changes: thresholds apply; any other change, or a
@@ -382,6 +489,53 @@ mod tests {
             "{refused}"
         );
         std::fs::remove_dir_all(&folder).unwrap();
+    }
+
+    #[test]
+    fn a_tandem_mills_thresholds_apply_and_its_windows_need_a_restart() {
+        let examples =
+            std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples"));
+        let text = include_str!("../../../config/examples/tandem-5stand.toml");
+        let running = millgate_config::from_toml_str(text, "tandem.toml", examples).unwrap();
+        let mut new = running.clone();
+        new.hash = "other".into();
+        new.tandem_mills[0].gain_thresholds[2] = 9.0;
+        new.tandem_mills[0].weld_alarm_factor = 3.0;
+        let plan = changed(compare(&running, &new));
+        assert_eq!(plan.live, [Live::Chatter]);
+        assert_eq!(
+            plan.applied,
+            [
+                "tandem_mills.TCM 2030.gain_thresholds",
+                "tandem_mills.TCM 2030.weld_alarm_factor"
+            ]
+        );
+        assert!(plan.needs_restart.is_empty(), "{plan:?}");
+        assert_eq!(plan.applied_to(&running, &new), new);
+
+        // A window change waits for a restart; the thresholds beside it apply.
+        new.tandem_mills[0].window_s = 1.0;
+        new.tandem_mills[0].slow_down_hold_s = 2.0;
+        let plan = changed(compare(&running, &new));
+        assert_eq!(plan.live, [Live::Chatter]);
+        assert_eq!(plan.needs_restart, ["tandem_mills.TCM 2030.window_s"]);
+        let applied = plan.applied_to(&running, &new);
+        let (mill, was) = (&applied.tandem_mills[0], &running.tandem_mills[0]);
+        assert_eq!(mill.window_s, was.window_s);
+        assert_eq!(mill.gain_thresholds, new.tandem_mills[0].gain_thresholds);
+        assert_eq!(mill.slow_down_hold_s, 2.0);
+        assert_eq!(applied.hash, running.hash);
+
+        // A mill renamed (its register block and nodes named by it) waits.
+        let mut renamed = running.clone();
+        renamed.hash = "other".into();
+        renamed.tandem_mills[0].name = "TCM 2".into();
+        let plan = changed(compare(&running, &renamed));
+        assert!(plan.live.is_empty(), "{plan:?}");
+        assert_eq!(
+            plan.needs_restart,
+            ["tandem_mills (added, removed or reordered)"]
+        );
     }
 
     #[test]

@@ -81,6 +81,16 @@ impl GainTracker {
         }
     }
 
+    /// Judge by per-stand `thresholds` (a reload; may be empty): the latest window's
+    /// reading too, so the next evaluation uses them.
+    pub(super) fn set_thresholds(&mut self, thresholds: Vec<f64>) {
+        self.thresholds = thresholds;
+        self.reading = self
+            .window
+            .as_ref()
+            .map(|window| GainReading::new(window, &self.thresholds));
+    }
+
     /// The latest window's reading.
     pub(super) fn reading(&self) -> Option<GainReading> {
         self.reading

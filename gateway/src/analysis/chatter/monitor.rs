@@ -222,18 +222,7 @@ impl ChatterMonitor {
         Ok(Self {
             name: mill.name.clone(),
             kind: mill.detector,
-            slow_down: SlowDown::with_weld_hold(
-                mill.slow_down_release,
-                mill.slow_down_hold_s,
-                match mill.detector {
-                    ChatterDetectorKind::BandGain => WeldHold {
-                        settle_s: mill.weld_settle_s,
-                        alarm_factor: mill.weld_alarm_factor,
-                    },
-                    // The paper's figure has no level above its alarm (`verdict`).
-                    ChatterDetectorKind::Paper => WeldHold::NONE,
-                },
-            ),
+            slow_down: slow_down_of(mill),
             sample_rate_hz: fs,
             window,
             hop,
@@ -242,6 +231,15 @@ impl ChatterMonitor {
             gain: GainTracker::new(band_gain, mill.gain_thresholds.clone()),
             evaluations: 0,
         })
+    }
+
+    /// Judge by `mill`'s thresholds from the next window on (a reload): its
+    /// `gain_thresholds`, the slow-down request's release level and hold and the weld
+    /// hold. The windows, filters and detector run on as they are (what changes them
+    /// needs a restart, `service::reload`).
+    pub fn set_thresholds(&mut self, mill: &TandemMill) {
+        self.slow_down = slow_down_of(mill);
+        self.gain.set_thresholds(mill.gain_thresholds.clone());
     }
 
     /// The mill's name.
@@ -382,4 +380,20 @@ impl ChatterMonitor {
         let start = self.aligned.restart();
         self.gain.restart(start);
     }
+}
+
+/// A fresh slow-down request with `mill`'s release level, hold and weld hold.
+fn slow_down_of(mill: &TandemMill) -> SlowDown {
+    SlowDown::with_weld_hold(
+        mill.slow_down_release,
+        mill.slow_down_hold_s,
+        match mill.detector {
+            ChatterDetectorKind::BandGain => WeldHold {
+                settle_s: mill.weld_settle_s,
+                alarm_factor: mill.weld_alarm_factor,
+            },
+            // The paper's figure has no level above its alarm (`verdict`).
+            ChatterDetectorKind::Paper => WeldHold::NONE,
+        },
+    )
 }

@@ -5,7 +5,7 @@
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use millgate_config::Config;
+use millgate_config::{Config, TandemMill};
 
 use super::align::RestartCause;
 use super::capture::EpisodeRecorder;
@@ -147,6 +147,17 @@ impl ChatterAnalysis {
                 true
             }
             _ => false,
+        }
+    }
+
+    /// Judge each mill by its entry of `mills` (config order) from its next window on
+    /// (a reload: [`ChatterMonitor::set_thresholds`]); a slow-down request already set
+    /// stays set, and clears by the new release level and hold.
+    pub fn set_thresholds(&mut self, mills: &[TandemMill]) {
+        let monitors = self.monitors.iter_mut().zip(&mut self.slow_downs);
+        for ((monitor, slow_down), mill) in monitors.zip(mills) {
+            monitor.set_thresholds(mill);
+            slow_down.retune(&monitor.slow_down());
         }
     }
 

@@ -154,6 +154,15 @@ impl SlowDown {
         self.below_s = 0.0;
     }
 
+    /// The release level, hold and weld hold of `settings` (a reload), this request's
+    /// state kept: a request set stays set, the time below the release level and
+    /// since the weld bit go on.
+    pub fn retune(&mut self, settings: &SlowDown) {
+        self.release = settings.release;
+        self.hold_s = settings.hold_s;
+        self.weld = settings.weld;
+    }
+
     /// A fresh request with the same release level and hold.
     pub fn fresh(&self) -> Self {
         Self::with_weld_hold(self.release, self.hold_s, self.weld)
