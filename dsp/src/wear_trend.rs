@@ -506,6 +506,13 @@ impl WearTrend {
         self.horizon_days
     }
 
+    /// Forecast up to `horizon_days` from now on (as [`Self::new`] allows it); the
+    /// states it folded are unchanged. On an error the horizon is unchanged.
+    pub fn set_horizon_days(&mut self, horizon_days: f64) -> Result<(), TrendError> {
+        self.horizon_days = Self::new(horizon_days)?.horizon_days;
+        Ok(())
+    }
+
     /// A fresh state for `couplings` hypotheses (0 ..= [`MAX_COUPLINGS`]).
     pub fn state(&self, couplings: usize) -> Result<WearTrendState, TrendError> {
         let mut state = WearTrendState::EMPTY;

@@ -180,6 +180,11 @@ struct SavedComponent {
 }
 
 impl FatigueLedger {
+    /// Forecast within `horizon_days` from the next bite on (a reload).
+    pub(crate) fn set_horizon_days(&mut self, horizon_days: f64) {
+        self.horizon_days = horizon_days;
+    }
+
     /// The ledger of `settings`, forecasting within `horizon_days`, begun at
     /// `now_ms` (each component's installation until a reset or a restore says
     /// otherwise); an error for a gate the counter refuses.

@@ -239,10 +239,16 @@ impl GapMonitor {
         })
     }
 
-    /// Warn and alarm at `thresholds` from the next bite on (a reload).
-    pub(super) fn set_thresholds(&mut self, thresholds: &DrivelineThresholds) {
+    /// Warn and alarm at `thresholds`, and forecast up to `horizon_days`, from the
+    /// next bite on (a reload).
+    pub(super) fn set_thresholds(
+        &mut self,
+        thresholds: &DrivelineThresholds,
+        horizon_days: f64,
+    ) -> Result<(), TrendError> {
         self.warning_mrad = thresholds.gap_warning_mrad;
         self.alarm_mrad = thresholds.gap_alarm_mrad;
+        self.trend.set_horizon_days(horizon_days)
     }
 
     /// Install the maps (`None`: they failed and will not come); the trend's estimate

@@ -91,6 +91,12 @@ impl GapTrend {
         })
     }
 
+    /// Forecast up to `horizon_days` from the next forecast on (a reload); the bites
+    /// folded in are kept. On an error the horizon is unchanged.
+    pub fn set_horizon_days(&mut self, horizon_days: f64) -> Result<(), TrendError> {
+        self.trend.set_horizon_days(horizon_days)
+    }
+
     /// Forget every bite (a wear reset: the coupling was replaced).
     pub fn reset(&mut self) {
         // At most MAX_COUPLINGS hypotheses (`fold` keeps no more): the reset holds.
@@ -507,5 +513,35 @@ impl SavedHypothesis {
             time_days: self.time_days,
             outlier_run: self.outlier_run,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_new_horizon_applies_to_the_next_forecast_and_keeps_the_bites() {
+        let mut trend = GapTrend::new(365.0).unwrap();
+        // 60 days of daily bites on a gap opening 0.02 mrad a day from 1 mrad: the
+        // alarm at 4 mrad is about 90 days past the last bite.
+        for day in 0..60 {
+            let gap = 1.0 + 0.02 * f64::from(day);
+            let ms = i64::from(day) * MS_PER_DAY as i64;
+            trend.fold_gaussian(0, (gap, 0.01), ms).unwrap();
+        }
+        let forecast = |trend: &GapTrend| trend.results(4.0).unwrap().forecast.unwrap();
+        let year = forecast(&trend);
+        assert_eq!(year.state, ForecastState::Forecast, "{year:?}");
+        let days = year.days.unwrap();
+        assert!((60.0..120.0).contains(&days), "{days}");
+
+        trend.set_horizon_days(30.0).unwrap();
+        let month = forecast(&trend);
+        assert_eq!(month.state, ForecastState::BeyondHorizon, "{month:?}");
+        assert_eq!(month.days, None);
+        assert!(trend.set_horizon_days(0.0).is_err());
+        trend.set_horizon_days(365.0).unwrap();
+        assert_eq!(forecast(&trend), year, "the bites are kept");
     }
 }

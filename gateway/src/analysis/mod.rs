@@ -243,8 +243,10 @@ impl Analysis {
     /// its next bite on, each tandem mill at its chatter thresholds from its next
     /// window on. Latched alarms stay latched until acknowledged.
     pub fn set_thresholds(&mut self, settings: &LiveSettings) {
-        for (driveline, thresholds) in self.drivelines.iter_mut().zip(&settings.drivelines) {
-            driveline.set_thresholds(thresholds);
+        for (driveline, (thresholds, horizon_days)) in
+            self.drivelines.iter_mut().zip(&settings.drivelines)
+        {
+            driveline.set_thresholds((thresholds, *horizon_days));
         }
         self.chatter.set_thresholds(&settings.tandem_mills);
     }
@@ -514,8 +516,9 @@ impl Analysis {
 /// config order.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LiveSettings {
-    /// Each driveline's TAF and gap thresholds.
-    pub drivelines: Vec<DrivelineThresholds>,
+    /// Each driveline's TAF and gap thresholds and its forecasts' horizon
+    /// (`wear.horizon_days`).
+    pub drivelines: Vec<(DrivelineThresholds, f64)>,
     /// Each tandem mill: its chatter thresholds apply (`gain_thresholds`, the
     /// slow-down's release and hold, the weld hold), the rest runs as it started.
     pub tandem_mills: Vec<TandemMill>,
@@ -528,7 +531,7 @@ impl LiveSettings {
             drivelines: config
                 .drivelines
                 .iter()
-                .map(|driveline| driveline.thresholds)
+                .map(|driveline| (driveline.thresholds, driveline.wear.horizon_days))
                 .collect(),
             tandem_mills: config.tandem_mills.clone(),
         }

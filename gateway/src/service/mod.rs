@@ -624,7 +624,8 @@ impl Started {
             Ok(listeners) => listeners,
             Err(error) => return Ok(Reload::Refused(error.to_string())),
         };
-        if plan.live.contains(&Live::Thresholds) || plan.live.contains(&Live::Chatter) {
+        let analysis = [Live::Thresholds, Live::Horizon, Live::Chatter];
+        if analysis.iter().any(|part| plan.live.contains(part)) {
             self.thresholds.send_replace(LiveSettings::of(&config));
         }
         if plan.live.contains(&Live::Thresholds) {

@@ -14,14 +14,16 @@
 //!     (`gain_thresholds`, `slow_down_release`, `slow_down_hold_s`, `weld_settle_s`,
 //!     `weld_alarm_factor`) from its next window on, its windows, filters and
 //!     slow-down request running on (a request set stays set and clears by the new
-//!     release level and hold);
+//!     release level and hold); a driveline's `wear.horizon_days` (how far the gap's
+//!     and the fatigue life's forecasts look) from its next bite on;
 //!   - applied by restarting the output with its new settings: `outputs.plc`,
 //!     `outputs.server`, `outputs.metrics`, `outputs.mqtt`, `outputs.web` (added,
 //!     changed or removed; a new address is bound before the old output stops, and a
 //!     bind that fails keeps the old output);
 //!   - kept as they run until a restart, each named: everything else (`name`,
 //!     `cache_dir`, the sources, channels, rod mills, `history`, `outputs.opcua`, a
-//!     driveline's other settings (`wear` builds the gap maps at the start), a tandem
+//!     driveline's other settings (its other `wear` keys build the gap maps at the
+//!     start), a tandem
 //!     mill's other settings (stands, bands, windows, `k_max`, `detector`, context
 //!     tags, captures), drivelines or tandem mills added, removed or reordered: a new
 //!     driveline's register block goes before the extension blocks and the tandem and
@@ -33,7 +35,7 @@
 use std::fmt;
 use std::path::Path;
 
-use millgate_config::{Config, Driveline, TandemMill};
+use millgate_config::{Config, Driveline, TandemMill, WearSettings};
 
 /// A part of the configuration that a reload applies without a restart.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -50,6 +52,9 @@ pub enum Live {
     Web,
     /// Any driveline's `thresholds`.
     Thresholds,
+    /// Any driveline's `wear.horizon_days` (the gap's and the fatigue life's
+    /// forecasts; its other `wear` keys build the gap maps at the start).
+    Horizon,
     /// Any tandem mill's chatter thresholds: `gain_thresholds`, `slow_down_release`,
     /// `slow_down_hold_s`, `weld_settle_s`, `weld_alarm_factor` (what its detector's
     /// bits and slow-down request are judged by; the rest of its entry shapes its
@@ -97,6 +102,11 @@ impl Plan {
                 Live::Thresholds => {
                     for (driveline, changed) in config.drivelines.iter_mut().zip(&new.drivelines) {
                         driveline.thresholds = changed.thresholds;
+                    }
+                }
+                Live::Horizon => {
+                    for (driveline, changed) in config.drivelines.iter_mut().zip(&new.drivelines) {
+                        driveline.wear.horizon_days = changed.wear.horizon_days;
                     }
                 }
                 Live::Chatter => {
@@ -350,20 +360,30 @@ fn drivelines(running: &[Driveline], new: &[Driveline], plan: &mut Plan) {
             .push(format!("drivelines ({})", what.join("; ")));
         return;
     }
-    let mut thresholds = false;
+    let (mut thresholds, mut horizon) = (false, false);
     for (old, new) in running.iter().zip(new) {
         if old.thresholds != new.thresholds {
             plan.applied
                 .push(format!("drivelines.{}.thresholds", new.name));
             thresholds = true;
         }
+        let (old_wear, new_wear) = (&old.wear, &new.wear);
+        if old_wear.horizon_days != new_wear.horizon_days {
+            plan.applied
+                .push(format!("drivelines.{}.wear.horizon_days", new.name));
+            horizon = true;
+        }
+        let wear_maps = WearSettings {
+            horizon_days: old_wear.horizon_days,
+            ..new_wear.clone()
+        };
         let settings = [
             ("torque", old.torque != new.torque),
             ("metal_in_stand", old.metal_in_stand != new.metal_in_stand),
             ("extra_channels", old.extra_channels != new.extra_channels),
             ("model", old.model != new.model),
             ("bite", old.bite != new.bite),
-            ("wear", old.wear != new.wear),
+            ("wear", old.wear != wear_maps),
             ("fatigue", old.fatigue != new.fatigue),
         ];
         plan.needs_restart.extend(
@@ -375,6 +395,9 @@ fn drivelines(running: &[Driveline], new: &[Driveline], plan: &mut Plan) {
     }
     if thresholds {
         plan.live.push(Live::Thresholds);
+    }
+    if horizon {
+        plan.live.push(Live::Horizon);
     }
 }
 
@@ -535,6 +558,36 @@ mod tests {
         assert_eq!(
             plan.needs_restart,
             ["tandem_mills (added, removed or reordered)"]
+        );
+    }
+
+    #[test]
+    fn the_wear_horizon_applies_and_the_maps_grid_needs_a_restart() {
+        let examples =
+            std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples"));
+        let running = millgate_config::from_toml_str(&demo(), "demo.toml", examples).unwrap();
+        let name = running.drivelines[0].name.clone();
+        let mut new = running.clone();
+        new.hash = "other".into();
+        new.drivelines[0].wear.horizon_days = 90.0;
+        let plan = changed(compare(&running, &new));
+        assert_eq!(plan.live, [Live::Horizon]);
+        assert_eq!(
+            plan.applied,
+            [format!("drivelines.{name}.wear.horizon_days")]
+        );
+        assert!(plan.needs_restart.is_empty(), "{plan:?}");
+        assert_eq!(plan.applied_to(&running, &new), new);
+
+        new.drivelines[0].wear.max_gap_mrad = 6.0;
+        let plan = changed(compare(&running, &new));
+        assert_eq!(plan.live, [Live::Horizon]);
+        assert_eq!(plan.needs_restart, [format!("drivelines.{name}.wear")]);
+        let applied = plan.applied_to(&running, &new);
+        assert_eq!(applied.drivelines[0].wear.horizon_days, 90.0);
+        assert_eq!(
+            applied.drivelines[0].wear.max_gap_mrad,
+            running.drivelines[0].wear.max_gap_mrad
         );
     }
 

@@ -203,13 +203,22 @@ impl DrivelineAnalyzer {
         }
     }
 
-    /// Warn and alarm at `thresholds` from the next bite on (a reload); a latched
+    /// Warn and alarm at `thresholds`, and forecast the gap and the fatigue life up to
+    /// `horizon_days`, from the next bite on (a reload); a latched
     /// alarm stays latched until acknowledged.
-    pub(crate) fn set_thresholds(&mut self, thresholds: &DrivelineThresholds) {
+    pub(crate) fn set_thresholds(
+        &mut self,
+        (thresholds, horizon_days): (&DrivelineThresholds, f64),
+    ) {
         self.taf_warning = thresholds.taf_warning;
         self.taf_alarm = thresholds.taf_alarm;
         if let Some(monitor) = &mut self.gap {
-            monitor.set_thresholds(thresholds);
+            if let Err(error) = monitor.set_thresholds(thresholds, horizon_days) {
+                tracing::error!(driveline = %self.name, %error, "the gap forecast keeps its horizon");
+            }
+        }
+        if let Some(ledger) = &mut self.fatigue {
+            ledger.set_horizon_days(horizon_days);
         }
     }
 
