@@ -385,13 +385,29 @@ fn drivelines(running: &[Driveline], new: &[Driveline], plan: &mut Plan) {
             ("bite", old.bite != new.bite),
             ("wear", old.wear != wear_maps),
             ("fatigue", old.fatigue != new.fatigue),
+            ("context", old.context != new.context),
+            (
+                "pool_speed_range_mpm",
+                old.pool_speed_range_mpm != new.pool_speed_range_mpm,
+            ),
+            ("identification", old.identification != new.identification),
         ];
+        let before = plan.needs_restart.len();
         plan.needs_restart.extend(
             settings
                 .iter()
                 .filter(|(_, changed)| *changed)
                 .map(|(key, _)| format!("drivelines.{}.{key}", new.name)),
         );
+        // A key added to the entry and not named above still needs a restart.
+        let applied = Driveline {
+            thresholds: new.thresholds,
+            wear: new.wear.clone(),
+            ..old.clone()
+        };
+        if plan.needs_restart.len() == before && applied != *new {
+            plan.needs_restart.push(format!("drivelines.{}", new.name));
+        }
     }
     if thresholds {
         plan.live.push(Live::Thresholds);
@@ -588,6 +604,16 @@ mod tests {
         assert_eq!(
             applied.drivelines[0].wear.max_gap_mrad,
             running.drivelines[0].wear.max_gap_mrad
+        );
+        // Keys added after the list above are named too (was: a changed nameplate or
+        // context tag reloaded as "unchanged").
+        let mut tagged = running.clone();
+        tagged.hash = "other".into();
+        tagged.drivelines[0].pool_speed_range_mpm = Some((10.0, 900.0));
+        let plan = changed(compare(&running, &tagged));
+        assert_eq!(
+            plan.needs_restart,
+            [format!("drivelines.{name}.pool_speed_range_mpm")]
         );
     }
 
