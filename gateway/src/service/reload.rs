@@ -306,22 +306,32 @@ fn tandem_mills(running: &[TandemMill], new: &[TandemMill], plan: &mut Plan) {
             ("capture_max_s", old.capture_max_s != new.capture_max_s),
             ("identification", old.identification != new.identification),
         ];
-        let before = plan.needs_restart.len();
-        plan.needs_restart.extend(
-            settings
-                .iter()
-                .filter(|(_, changed)| *changed)
-                .map(|(key, _)| format!("tandem_mills.{}.{key}", new.name)),
+        let otherwise = with_chatter_thresholds(old, new) != *new;
+        name_restarts(
+            plan,
+            &format!("tandem_mills.{}", new.name),
+            &settings,
+            otherwise,
         );
-        // A key added to the entry and not named above still needs a restart.
-        if plan.needs_restart.len() == before && with_chatter_thresholds(old, new) != *new {
-            plan.needs_restart
-                .push(format!("tandem_mills.{}", new.name));
-        }
     }
     if chatter {
         plan.live.push(Live::Chatter);
     }
+}
+
+/// Into `plan`'s restarts, the keys of `entry` (`drivelines.F1`) whose `settings`
+/// changed, or when none did and the entry differs `otherwise` (a key added to it and
+/// not named), the entry.
+fn name_restarts(plan: &mut Plan, entry: &str, settings: &[(&str, bool)], otherwise: bool) {
+    let named: Vec<String> = settings
+        .iter()
+        .filter(|(_, changed)| *changed)
+        .map(|(key, _)| format!("{entry}.{key}"))
+        .collect();
+    if named.is_empty() && otherwise {
+        plan.needs_restart.push(entry.to_owned());
+    }
+    plan.needs_restart.extend(named);
 }
 
 /// Into `plan`, the drivelines' changes: thresholds apply; any other change, or a
@@ -392,22 +402,17 @@ fn drivelines(running: &[Driveline], new: &[Driveline], plan: &mut Plan) {
             ),
             ("identification", old.identification != new.identification),
         ];
-        let before = plan.needs_restart.len();
-        plan.needs_restart.extend(
-            settings
-                .iter()
-                .filter(|(_, changed)| *changed)
-                .map(|(key, _)| format!("drivelines.{}.{key}", new.name)),
-        );
-        // A key added to the entry and not named above still needs a restart.
         let applied = Driveline {
             thresholds: new.thresholds,
             wear: new.wear.clone(),
             ..old.clone()
         };
-        if plan.needs_restart.len() == before && applied != *new {
-            plan.needs_restart.push(format!("drivelines.{}", new.name));
-        }
+        name_restarts(
+            plan,
+            &format!("drivelines.{}", new.name),
+            &settings,
+            applied != *new,
+        );
     }
     if thresholds {
         plan.live.push(Live::Thresholds);
