@@ -21,8 +21,8 @@ use std::time::Duration;
 
 use common::tandem::{modbus_source, Stands, FS};
 use common::{
-    free_port, hang_up, http, millgate, scrape, scratch, terminate, text, wait_for, KillOnDrop,
-    Setup, MILLGATE,
+    free_port, hang_up, http, millgate, scratch, terminate, text, wait_for, KillOnDrop, Setup,
+    MILLGATE,
 };
 use millgate_config::RegisterTable;
 use millgate_sim::devices::modbus_bank::ServeOptions;
@@ -190,7 +190,7 @@ async fn sighup_applies_what_it_can_names_the_rest_and_loses_no_bite() {
 
 /// The value of `/metrics`' line for `name` (labels after it), when published.
 async fn tandem_metric(port: u16, name: &str) -> Option<f64> {
-    let page = scrape(port).await.unwrap();
+    let page = http(port, "GET", "/metrics").await.body;
     page.lines()
         .find_map(|line| line.strip_prefix(name)?.strip_prefix('{'))
         .and_then(|rest| rest.rsplit(' ').next()?.parse().ok())
@@ -332,7 +332,7 @@ async fn sighup_applies_a_tandem_mills_thresholds_at_its_next_window() {
         service.try_wait().unwrap().is_none(),
         "SIGHUP ended the service"
     );
-    let page = scrape(metrics).await.unwrap();
+    let page = http(metrics, "GET", "/metrics").await.body;
     for (outcome, count) in [("applied", 1), ("needs_restart", 1)] {
         let line = format!("millgate_config_reloads_total{{outcome=\"{outcome}\"}} {count}");
         assert!(page.contains(&line), "{line} not in {page}");
