@@ -198,22 +198,56 @@ pub fn free_port() -> u16 {
 
 /// Whether every metric family's samples on a `/metrics` page sit in one block after
 /// its `# TYPE` line (the exposition format's rule, which strict parsers enforce);
-/// what breaks it.
+/// what breaks it. A histogram's samples are its family's name with `_bucket`, `_sum`
+/// or `_count`, a summary's with `_sum` or `_count` (or none).
 pub fn exposition_blocks(page: &str) -> Result<(), String> {
     let mut seen = std::collections::HashSet::new();
-    let mut current = "";
+    let (mut current, mut kind) = ("", "");
     for line in page.lines().filter(|l| !l.is_empty()) {
         if let Some(rest) = line.strip_prefix("# TYPE ") {
-            current = rest.split(' ').next().unwrap_or_default();
+            let mut words = rest.split(' ');
+            current = words.next().unwrap_or_default();
+            kind = words.next().unwrap_or_default();
             if !seen.insert(current.to_owned()) {
                 return Err(format!("family {current} twice"));
             }
         } else if !line.starts_with('#') {
             let name = line.split(['{', ' ']).next().unwrap_or_default();
-            if name != current {
+            let suffixes: &[&str] = match kind {
+                "histogram" => &["_bucket", "_sum", "_count"],
+                "summary" => &["", "_sum", "_count"],
+                _ => &[""],
+            };
+            let of_family = name
+                .strip_prefix(current)
+                .is_some_and(|suffix| suffixes.contains(&suffix));
+            if !of_family {
                 return Err(format!("sample {line:?} outside its family block"));
             }
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::exposition_blocks;
+
+    #[test]
+    fn a_histogram_block_holds_its_buckets_sum_and_count_and_nothing_else() {
+        let histogram = "# TYPE wait_seconds histogram\n\
+                         wait_seconds_bucket{le=\"0.1\"} 1\n\
+                         wait_seconds_bucket{le=\"+Inf\"} 2\n\
+                         wait_seconds_sum 0.3\n\
+                         wait_seconds_count 2\n\
+                         # TYPE bites_total counter\n\
+                         bites_total 2\n";
+        assert_eq!(exposition_blocks(histogram), Ok(()));
+        let stray = "# TYPE bites_total counter\nbites_total 2\nwait_seconds_count 2\n";
+        assert!(exposition_blocks(stray).is_err());
+        let counter_suffix = "# TYPE bites_total counter\nbites_total_bucket 2\n";
+        assert!(exposition_blocks(counter_suffix).is_err());
+        let twice = "# TYPE a gauge\na 1\n# TYPE b gauge\nb 1\n# TYPE a gauge\na 2\n";
+        assert!(exposition_blocks(twice).is_err());
+    }
 }
