@@ -25,6 +25,7 @@ use millgate::history::RunInfo;
 use millgate::state::captures::{CaptureChannel, CaptureKind, CaptureRecord, KeepClass};
 use millgate::state::events::HistoryEvent;
 use millgate::state::time::UtcTime;
+use millgate_config::Scaling;
 
 /// Stands, sample rate and seconds of the large manual capture.
 const STANDS: usize = 10;
@@ -50,7 +51,8 @@ fn manual_capture(stands: usize, samples: usize) -> CaptureRecord {
                 samples: (0..samples)
                     .map(|k| {
                         let phase = k as f64 * (0.05 + stand as f64 * 0.01);
-                        f64::from((phase.sin() * 8000.0) as i16) * 0.001
+                        // Decoded as the gateway decodes a count (0.57, not 57 x 0.01).
+                        Scaling::new(0.001, 0.0).apply(f64::from((phase.sin() * 8000.0) as i16))
                     })
                     .collect(),
                 timing: None,

@@ -587,10 +587,14 @@ async fn subscriptions_get_each_bite_and_alarms_come_as_events() {
         .as_str()
         .unwrap()
         .starts_with("F1: taf_alarm raised, taf "));
-    // The default subscription got the alarm's events too, with BaseEventType's fields.
+    // The default subscription got the alarm's events too, with BaseEventType's fields
+    // (BaseEventType has no ConditionName: the alarm's events are told from the TAF
+    // warning's, which may come first, by their message).
     let by_default = loop {
         let event = base.next_of("event", Duration::from_secs(30));
-        if event["fields"]["SourceName"] == "Drivelines/F1" {
+        let message = event["fields"]["Message"].as_str().unwrap_or_default();
+        if event["fields"]["SourceName"] == "Drivelines/F1" && message.starts_with("F1: taf_alarm ")
+        {
             break event;
         }
     };
