@@ -16,7 +16,7 @@
 //!   is counted;
 //! - what the server answers: the secure channel each connection opened (so a method
 //!   call knows its client's address: the acknowledge guard; and async-opcua the
-//!   client of each session: [`SessionPeers`], `max_sessions_per_peer`) and the `ERR`
+//!   client of each session: `SessionPeers`, `max_sessions_per_peer`) and the `ERR`
 //!   messages it sent (a message its decoder refused), counted and logged.
 //!
 //! The relay copies bytes as they come; it never decodes or changes a message body.
