@@ -220,8 +220,8 @@ impl RabbitCluster {
                 .unwrap_or_else(|e| panic!("rabbitmq-server (apt install rabbitmq-server): {e}"));
             cluster.nodes.push(Some(child));
         }
-        for &port in &cluster.mqtt_ports {
-            wait_for_port(port, start, folder);
+        for node in 0..NODES {
+            cluster.wait_for_node(node, start, folder);
         }
         let left = FORM_LIMIT.saturating_sub(start.elapsed()).as_secs().max(1);
         let formed = rabbit_command(folder, &home, epmd_port, 0, "rabbitmqctl")
@@ -238,11 +238,33 @@ impl RabbitCluster {
             .expect("rabbitmqctl");
         assert!(
             formed.status.success(),
-            "the RabbitMQ cluster did not form: {} (logs in {})",
+            "the RabbitMQ cluster did not form: {}\n{}",
             String::from_utf8_lossy(&formed.stderr),
-            folder.join("rabbit-log").display()
+            rabbit_logs(folder)
         );
         cluster
+    }
+
+    /// Wait until node `node` accepts MQTT connections, within [`FORM_LIMIT`] of
+    /// `start`; a node that ended is reported at once, with the nodes' logs (the
+    /// folder is removed with the test's scratch).
+    fn wait_for_node(&mut self, node: usize, start: Instant, folder: &Path) {
+        let port = self.mqtt_ports[node];
+        while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+            let child = self.nodes[node].as_mut().expect("a started node");
+            if let Ok(Some(status)) = child.try_wait() {
+                panic!(
+                    "RabbitMQ node n{node} ended ({status}) before its MQTT port {port} opened\n{}",
+                    rabbit_logs(folder)
+                );
+            }
+            assert!(
+                start.elapsed() < FORM_LIMIT,
+                "MQTT port {port} of RabbitMQ node n{node} not open within {FORM_LIMIT:?}\n{}",
+                rabbit_logs(folder)
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
     }
 
     /// The MQTT port of each node.
@@ -291,6 +313,25 @@ fn wait_for_port(port: u16, start: Instant, folder: &Path) {
         );
         std::thread::sleep(Duration::from_millis(50));
     }
+}
+
+/// The last lines of each RabbitMQ node's log, for a failed start.
+fn rabbit_logs(folder: &Path) -> String {
+    const LINES: usize = 25;
+    let Ok(entries) = std::fs::read_dir(folder.join("rabbit-log")) else {
+        return "no RabbitMQ log written".to_owned();
+    };
+    let mut logs: Vec<PathBuf> = entries.flatten().map(|e| e.path()).collect();
+    logs.sort();
+    logs.iter()
+        .map(|log| {
+            let text = std::fs::read_to_string(log).unwrap_or_default();
+            let lines: Vec<&str> = text.lines().collect();
+            let tail = lines[lines.len().saturating_sub(LINES)..].join("\n");
+            format!("--- {} (last {LINES} lines)\n{tail}", log.display())
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
 }
 
 impl Drop for RabbitCluster {

@@ -183,13 +183,22 @@ pub async fn web_ready(to: impl Endpoint) {
 /// kernel's ephemeral range (32768..): a port a test frees for a while (a broker
 /// restarted on it) is not handed to another test's listener meanwhile, as the
 /// kernel's `:0` can do.
+///
+/// The ports are 20000..32000, taken in turn from an offset of the process id (two
+/// test binaries running at once start far apart). A process wraps only after all
+/// 12000: the window used to be 60 ports, so a test binary that had handed out 60
+/// gave a port again while a slow peer (a RabbitMQ node, seconds to boot) had not
+/// bound it yet; another test's broker took it and the node died at boot (CI, issue
+/// 41: "port of the cluster not open within 90s").
 pub fn free_port() -> u16 {
-    use std::sync::atomic::{AtomicU16, Ordering};
-    const PER_PROCESS: u16 = 60;
-    static NEXT: AtomicU16 = AtomicU16::new(0);
-    let base = 20_000 + u16::try_from(std::process::id() % 200).unwrap() * PER_PROCESS;
+    use std::sync::atomic::{AtomicU32, Ordering};
+    const FIRST: u32 = 20_000;
+    const PORTS: u32 = 12_000;
+    static NEXT: AtomicU32 = AtomicU32::new(0);
+    let offset = std::process::id() % 200 * (PORTS / 200);
     loop {
-        let port = base + NEXT.fetch_add(1, Ordering::Relaxed) % PER_PROCESS;
+        let n = NEXT.fetch_add(1, Ordering::Relaxed);
+        let port = u16::try_from(FIRST + (offset + n) % PORTS).expect("below 32000");
         if std::net::TcpListener::bind(("127.0.0.1", port)).is_ok() {
             return port;
         }
@@ -231,7 +240,19 @@ pub fn exposition_blocks(page: &str) -> Result<(), String> {
 
 #[cfg(test)]
 mod tests {
-    use super::exposition_blocks;
+    use super::{exposition_blocks, free_port};
+
+    #[test]
+    fn a_process_is_not_handed_the_same_port_twice() {
+        // More ports than a test binary uses (the sparkplug binary: about 150).
+        let ports: Vec<u16> = (0..1000).map(|_| free_port()).collect();
+        let distinct: std::collections::HashSet<u16> = ports.iter().copied().collect();
+        assert_eq!(distinct.len(), ports.len());
+        assert!(
+            ports.iter().all(|p| (20_000..32_000).contains(p)),
+            "{ports:?}"
+        );
+    }
 
     #[test]
     fn a_histogram_block_holds_its_buckets_sum_and_count_and_nothing_else() {
