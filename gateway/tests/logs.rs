@@ -124,3 +124,147 @@ fn run_logs_json_when_the_configuration_says_so() {
         "{line}"
     );
 }
+
+/// A Modbus RTU line whose far end answers every request with junk (the test kit's
+/// `junk_reply`: noise, another unit's frame, a frame of the wrong length) as fast as
+/// it is asked, for longer than one warning period (audit round 4, finding 8): each
+/// warning is logged the first time and then at most once per 10 s with the number of
+/// occurrences it stands for, while the junk goes on.
+#[test]
+fn junk_on_an_rtu_line_is_warned_about_at_a_limited_rate() {
+    use std::io::{Read as _, Write as _};
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::Arc;
+    use std::time::{Duration, Instant};
+
+    const UNIT: u8 = 7;
+    let scratch = scratch("logs-rtu-junk");
+    let pair = common::serial_line::PtyPair::open().unwrap();
+    let config = scratch.path().join("rtu.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "name = \"RTU junk\"\n\
+             [[sources.modbus]]\nname = \"drive\"\ndevice = \"{}\"\nbaud_rate = 115200\n\
+             parity = \"none\"\nstop_bits = 1\nunit_id = {UNIT}\npoll_period_ms = 20\n\
+             timeout_ms = 50\n\
+             [[channels]]\nname = \"speed\"\nkind = \"process_value\"\nunit = \"m/s\"\n\
+             source = {{ modbus = \"drive\", table = \"holding\", address = 200, type = \"f32\" }}\n",
+            pair.gateway.display()
+        ),
+    )
+    .unwrap();
+
+    let running = Arc::new(AtomicBool::new(true));
+    let far_end = {
+        let running = Arc::clone(&running);
+        let mut line = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .open(&pair.device)
+            .unwrap();
+        std::thread::spawn(move || {
+            let mut buffer = [0u8; 256];
+            let mut answered = 0usize;
+            while running.load(Ordering::Relaxed) {
+                let Ok(read) = line.read(&mut buffer) else {
+                    break;
+                };
+                let reply = common::serial_line::junk_reply(answered, &buffer[..read], UNIT);
+                let _ = line.write_all(&reply);
+                answered += 1;
+            }
+            answered
+        })
+    };
+
+    let mut service = KillOnDrop(
+        Command::new(MILLGATE.0)
+            .args(["run", "--config"])
+            .arg(&config)
+            .env("RUST_LOG", "warn")
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("millgate run"),
+    );
+    let stderr = service.stderr.take().unwrap();
+    let (sender, received) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+            if sender.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    // Until a warning's summary line (its second, at least 10 s after its first: the
+    // reconnect backoff, up to 5 s, spaces the junk out), within a minute.
+    let start = Instant::now();
+    let deadline = start + Duration::from_secs(60);
+    let mut lines = Vec::new();
+    while !lines
+        .iter()
+        .any(|l: &String| suppressed(l).is_some_and(|n| n > 0))
+    {
+        let left = deadline.saturating_duration_since(Instant::now());
+        match received.recv_timeout(left) {
+            Ok(line) => lines.push(line),
+            Err(_) => panic!("no summary line in 60 s:\n{}", lines.join("\n")),
+        }
+    }
+    let elapsed = start.elapsed().as_secs_f64();
+    running.store(false, Ordering::Relaxed);
+    common::terminate(&mut service);
+    lines.extend(received.try_iter());
+    // The far end leaves at its next read, which may never come after the stop: the
+    // line is closed under it.
+    drop(pair);
+    let answered = far_end.join().unwrap();
+
+    let mut per_message = std::collections::BTreeMap::<String, Vec<&String>>::new();
+    for line in lines.iter().filter(|l| l.contains("WARN")) {
+        // `... WARN target: message field=value ...`: the message is what repeats.
+        let message = line
+            .split_once(": ")
+            .map_or(line.as_str(), |(_, rest)| rest)
+            .split(" source=")
+            .next()
+            .unwrap_or_default();
+        per_message
+            .entry(message.to_owned())
+            .or_default()
+            .push(line);
+    }
+    let allowed = 1 + (elapsed / 10.0).ceil() as usize;
+    for (message, lines) in &per_message {
+        assert!(
+            lines.len() <= allowed,
+            "{message}: {} lines in {elapsed:.1} s (at most {allowed}):\n{lines:#?}",
+            lines.len()
+        );
+    }
+    // Every junk answer is an occurrence: each one a line, or counted in a summary.
+    let logged: u64 = per_message
+        .values()
+        .flatten()
+        .map(|l| 1 + suppressed(l).unwrap_or(0))
+        .sum();
+    let lines_logged = per_message.values().map(Vec::len).sum::<usize>();
+    assert!(
+        lines_logged < answered && logged <= answered as u64,
+        "{lines_logged} warning lines standing for {logged} occurrences, for {answered} \
+         junk answers:\n{}",
+        lines.join("\n")
+    );
+}
+
+/// The `suppressed=N` of a rate-limited warning line.
+fn suppressed(line: &str) -> Option<u64> {
+    line.split("suppressed=")
+        .nth(1)?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
+}

@@ -23,7 +23,8 @@ use millgate_config::Config;
 use millgate_sim::devices::modbus_bank::ServeOptions;
 use millgate_sim::devices::virtual_plc::VirtualPlc;
 use millgate_tests::kit::serial_line::{
-    next_sample, unix_now, PtyPair, RtuDevice, BLOCK_SAMPLES, COUNT_REGISTER, SPEED_REGISTER,
+    junk_reply, next_sample, unix_now, PtyPair, RtuDevice, BLOCK_SAMPLES, COUNT_REGISTER,
+    SPEED_REGISTER,
 };
 use millgate_tests::kit::wait_for;
 use tokio::net::TcpListener;
@@ -229,38 +230,6 @@ async fn reads_a_pymodbus_rtu_device_and_rides_out_a_pulled_cable() -> anyhow::R
     Ok(())
 }
 
-/// Modbus CRC-16 (polynomial 0xA001 reflected, initial 0xFFFF), low byte first.
-fn with_crc(frame: &[u8]) -> Vec<u8> {
-    let mut crc: u16 = 0xFFFF;
-    for &byte in frame {
-        crc ^= u16::from(byte);
-        for _ in 0..8 {
-            crc = if crc & 1 == 1 {
-                (crc >> 1) ^ 0xA001
-            } else {
-                crc >> 1
-            };
-        }
-    }
-    let mut out = frame.to_vec();
-    out.extend(crc.to_le_bytes());
-    out
-}
-
-/// What the hostile line answers each request with, in turn.
-fn hostile_reply(turn: usize, request: &[u8]) -> Option<Vec<u8>> {
-    let function = request.get(1).copied().unwrap_or(3);
-    match turn % 3 {
-        // Noise that never makes a frame: the read times out.
-        0 => Some((0..17u8).map(|i| i.wrapping_mul(97) ^ 0x5A).collect()),
-        // A well-formed reply from another unit: out of step.
-        1 => Some(with_crc(&[UNIT + 1, function, 2, 0, 1])),
-        // The right unit, one register whatever was asked (a mismatch for the block
-        // and the f32 speed).
-        _ => Some(with_crc(&[UNIT, function, 2, 0, 1])),
-    }
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn garbage_and_silence_on_the_line_are_counted_and_the_plc_writes_go_on() -> anyhow::Result<()>
 {
@@ -293,9 +262,7 @@ async fn garbage_and_silence_on_the_line_are_counted_and_the_plc_writes_go_on() 
                 if !garbage.load(Ordering::Relaxed) {
                     break;
                 }
-                if let Some(reply) = hostile_reply(turn, &buffer[..read]) {
-                    let _ = line.write_all(&reply);
-                }
+                let _ = line.write_all(&junk_reply(turn, &buffer[..read], UNIT));
                 turn += 1;
             }
             turn

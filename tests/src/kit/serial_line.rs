@@ -29,6 +29,37 @@ pub fn next_sample(value: i64) -> i64 {
     }
 }
 
+/// Modbus CRC-16 (polynomial 0xA001 reflected, initial 0xFFFF), low byte first.
+pub fn with_crc(frame: &[u8]) -> Vec<u8> {
+    let mut crc: u16 = 0xFFFF;
+    for &byte in frame {
+        crc ^= u16::from(byte);
+        for _ in 0..8 {
+            crc = if crc & 1 == 1 {
+                (crc >> 1) ^ 0xA001
+            } else {
+                crc >> 1
+            };
+        }
+    }
+    let mut out = frame.to_vec();
+    out.extend(crc.to_le_bytes());
+    out
+}
+
+/// What a hostile line's far end answers request `turn` (`request` the bytes it read),
+/// for a gateway polling unit `unit`: in turn noise that never makes a frame (the read
+/// times out), a well-formed reply from another unit (out of step), and the right unit
+/// with one register whatever was asked (a length mismatch).
+pub fn junk_reply(turn: usize, request: &[u8], unit: u8) -> Vec<u8> {
+    let function = request.get(1).copied().unwrap_or(3);
+    match turn % 3 {
+        0 => (0..17u8).map(|i| i.wrapping_mul(97) ^ 0x5A).collect(),
+        1 => with_crc(&[unit + 1, function, 2, 0, 1]),
+        _ => with_crc(&[unit, function, 2, 0, 1]),
+    }
+}
+
 /// Two linked pseudo-terminals: the gateway opens [`PtyPair::gateway`], the device
 /// [`PtyPair::device`]. socat holds them until dropped.
 #[derive(Debug)]
