@@ -32,9 +32,11 @@ use serde::{Deserialize, Serialize};
 use super::query::{CaptureRow, HistoryReader};
 use super::HistoryError;
 use crate::state::captures::{
-    BiteWindowAnalysis, CaptureChannel, CaptureGap, CaptureRecord, ChatterEpisode, KeepClass,
+    BiteWindowAnalysis, CaptureChannel, CaptureGap, CaptureRecord, ChatterEpisode,
 };
-use crate::state::time::UtcTime;
+// The report's query of alarm bites (`alarm_bite_captures`) only.
+#[cfg(feature = "plot")]
+use crate::state::{captures::KeepClass, time::UtcTime};
 
 /// The blob format this millgate writes (`meta.format`).
 pub const FORMAT: u32 = 1;
@@ -410,7 +412,8 @@ impl HistoryReader {
 
     /// The newest `limit` captures of `subject`'s alarm bites (kind `bite`, kept
     /// longest: a TAF alarm, or the bite that raised the gap alarm) whose first sample
-    /// is in `since..until` (either open), newest first.
+    /// is in `since..until` (either open), newest first. (For the report's plots.)
+    #[cfg(feature = "plot")]
     pub(crate) fn alarm_bite_captures(
         &self,
         subject: &str,
