@@ -224,6 +224,7 @@ pub(crate) struct RawRodMill {
 #[derive(Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawOutputs {
+    pub(crate) driveline_slots: Option<i64>,
     pub(crate) plc: Option<RawPlcOutput>,
     pub(crate) server: Option<RawServerOutput>,
     pub(crate) metrics: Option<RawMetricsOutput>,

@@ -29,6 +29,14 @@ pub fn summary(config: &Config) -> String {
     tandem_mills(&mut text, config);
     rod_mills(&mut text, config);
     outputs(&mut text, &config.outputs);
+    if let Some(slots) = config.outputs.driveline_slots {
+        let _ = writeln!(
+            text,
+            "  register map: {slots} driveline blocks reserved ({} configured; the unused \
+             ones read 0)",
+            config.drivelines.len()
+        );
+    }
     history(&mut text, config);
     text
 }

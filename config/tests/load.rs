@@ -583,6 +583,55 @@ fn the_plc_gets_the_extension_blocks_when_asked_and_a_wrong_type_is_named() {
 }
 
 #[test]
+fn driveline_slots_reserve_blocks_and_fewer_than_the_drivelines_are_refused() {
+    let base = parse(BASE).unwrap_or_else(|error| panic!("{error}"));
+    assert_eq!(base.outputs.driveline_slots, None);
+    assert_eq!(
+        base.driveline_slots(),
+        base.drivelines.len(),
+        "default: the drivelines"
+    );
+    let config = parse(&edited(
+        "[outputs.plc]",
+        "[outputs]\ndriveline_slots = 4\n\n[outputs.plc]",
+    ))
+    .unwrap_or_else(|error| panic!("{error}"));
+    assert_eq!(config.outputs.driveline_slots, Some(4));
+    assert_eq!(config.driveline_slots(), 4);
+    assert_ne!(config.hash, base.hash, "the key is part of the settings");
+    // Fewer slots than drivelines: named with the allowed range.
+    let second = "[[tandem_mills]]";
+    let f2 = "[[drivelines]]\nname = \"F2\"\ntorque = \"spindle_top\"\n\
+              metal_in_stand = \"metal_in\"\nbite = { threshold_knm = 20.0 }\n\
+              thresholds = { taf_warning = 2.2, taf_alarm = 2.6 }\n\n";
+    let two = edited(second, &format!("{f2}{second}"));
+    assert_eq!(parse(&two).map(|c| c.driveline_slots()).ok(), Some(2));
+    assert_only_problem(
+        &two.replace(
+            "[outputs.plc]",
+            "[outputs]\ndriveline_slots = 1\n\n[outputs.plc]",
+        ),
+        "mill.toml: outputs.driveline_slots: 1 is fewer than the 2 drivelines configured \
+         (must be 2..=1022: a register block each; raise it, or leave it out for exactly \
+         the drivelines)",
+    );
+    assert_only_problem(
+        &edited(
+            "[outputs.plc]",
+            "[outputs]\ndriveline_slots = 0\n\n[outputs.plc]",
+        ),
+        "mill.toml: outputs.driveline_slots: 0 is not allowed (must be 1..=1022)",
+    );
+    assert_only_problem(
+        &edited(
+            "[outputs.plc]",
+            "[outputs]\ndriveline_slots = 1023\n\n[outputs.plc]",
+        ),
+        "mill.toml: outputs.driveline_slots: 1023 is not allowed (must be 1..=1022)",
+    );
+}
+
+#[test]
 fn value_type_and_word_order_names() {
     assert_only_problem(
         &edited("address = 10 }", "address = 10, type = \"float\" }"),

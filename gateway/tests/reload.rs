@@ -14,6 +14,12 @@
 //! mill's `gain_thresholds`, raised tenfold, divide its gain ratio by ten from the next
 //! window on and the slow-down request clears after its hold, while its windows run on;
 //! a window change is named as needing a restart.
+//!
+//! A driveline added within `outputs.driveline_slots` (issue 41): the PLC is written the
+//! reserved block as zeros; a `SIGHUP` adding the driveline says it needs a restart
+//! that moves no address, and after the restart its bites reach the history and the
+//! PLC in the reserved block while every register of the running driveline keeps its
+//! address, its bite ids continuing without a gap.
 
 mod common;
 
@@ -29,6 +35,7 @@ use millgate_sim::devices::modbus_bank::ServeOptions;
 use millgate_sim::devices::virtual_daq::{DaqChannel, Placement, Publish, VirtualDaq};
 
 use millgate::history::query::{Filter, HistoryReader};
+use millgate::outputs::modbus::register_map::{decode_u32, RegisterMap};
 
 const WARNING: &str = "millgate_driveline_taf_warning{driveline=\"F1\"}";
 
@@ -340,4 +347,109 @@ async fn sighup_applies_a_tandem_mills_thresholds_at_its_next_window() {
     let ratio = tandem_metric(metrics, RATIO).await.unwrap();
     assert!((ratio / after - 1.0).abs() < 0.02, "{after} -> {ratio}");
     terminate(&mut service);
+}
+
+/// The register map of the configuration file at `path`.
+fn map_of(path: &std::path::Path) -> RegisterMap {
+    RegisterMap::new(&millgate_config::load(path).unwrap_or_else(|error| panic!("{error}")))
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_driveline_added_within_the_reserved_slots_moves_no_address() {
+    let setup = Setup::new(MILLGATE, "reload-slots", "db").await;
+    // The kit's PLC holds the demo's map (16 + 32 + 32 registers and 16 more): with a
+    // slot reserved, the first layout (16 + 2 * 32) fits it, the extension blocks not.
+    let demo = std::fs::read_to_string(&setup.config).unwrap();
+    let first_layout = demo.replace("extension_blocks = true", "extension_blocks = false");
+    assert_ne!(
+        first_layout, demo,
+        "the demo writes the extension blocks no more"
+    );
+    std::fs::write(&setup.config, first_layout).unwrap();
+    setup.append_config("\n[outputs]\ndriveline_slots = 2\n");
+    let reserved = map_of(&setup.config);
+    let slot = reserved
+        .named("driveline_slot2.quality")
+        .expect("the reserved block is listed")
+        .address
+        - 1;
+    // `millgate registers` shows the reserved block where the PLC gets it.
+    let config = setup.config.to_str().unwrap();
+    let listed = millgate(&["registers", "--config", config, "--format", "csv"]);
+    assert!(listed.status.success(), "{}", text(&listed));
+    let row = format!("driveline_slot2.quality,{},{},u16", slot + 1, slot + 1);
+    assert!(text(&listed).contains(&row), "{}", text(&listed));
+
+    let mut service = setup.spawn("run.log");
+    let plc = common::Plc {
+        plc: &setup.devices.plc,
+        map: &reserved,
+    };
+    plc.bites_after_now(1).await;
+    let words = setup.devices.plc.holding();
+    let block = usize::from(slot)..usize::from(slot + 32);
+    assert!(words[block.clone()].iter().all(|w| *w == 0), "{words:?}");
+    // A second driveline on the same torque channel, after F1.
+    let original = std::fs::read_to_string(&setup.config).unwrap();
+    let f2 = "[[drivelines]]\nname = \"F2\"\ntorque = \"spindle_top\"\n\
+              bite = { threshold_knm = 20.0, pre_trigger_s = 0.1, post_trigger_s = 0.5 }\n\
+              thresholds = { taf_warning = 2.2, taf_alarm = 2.6 }\n\n[outputs.plc]";
+    let added = original.replacen("[outputs.plc]", f2, 1);
+    assert_ne!(added, original);
+    std::fs::write(&setup.config, &added).unwrap();
+    hang_up(service.id());
+    let said = "reload: changed drivelines (added F2 in the register blocks \
+                outputs.driveline_slots (2) reserves: no address moves";
+    wait_for(said, Duration::from_secs(20), || {
+        setup.log_text("run.log").contains(said)
+    })
+    .await;
+    assert!(setup.log_text("run.log").contains("needs a restart"));
+    assert!(
+        service.try_wait().unwrap().is_none(),
+        "SIGHUP ended the service"
+    );
+    plc.bites_after_now(1).await;
+    terminate(&mut service);
+    let before_restart = plc.counter();
+
+    // After the restart F2 writes the reserved block; F1's registers have not moved.
+    let grown = map_of(&setup.config);
+    assert_eq!(grown.len(), reserved.len());
+    assert_eq!(grown.named("F2.flags").map(|r| r.address), Some(slot));
+    for register in reserved.registers() {
+        if !register.name.starts_with("driveline_slot2.") {
+            assert_eq!(
+                grown.named(&register.name).map(|r| r.address),
+                Some(register.address),
+                "{} moved",
+                register.name
+            );
+        }
+    }
+    let mut service = setup.spawn("restarted.log");
+    let f2_counter = usize::from(grown.named("F2.bite_counter").unwrap().address);
+    wait_for("F2's bites in the PLC", Duration::from_secs(40), || {
+        decode_u32(&setup.devices.plc.holding()[f2_counter..]).unwrap_or(0) >= 2
+    })
+    .await;
+    assert!(plc.counter() > before_restart, "F1 writes where it did");
+    terminate(&mut service);
+
+    let history = HistoryReader::open(&setup.history).unwrap();
+    let ids = |name: &str| -> Vec<u32> {
+        let filter = Filter {
+            name: Some(name.to_owned()),
+            ..Filter::default()
+        };
+        let bites = history.bites(&filter).unwrap();
+        bites.iter().map(|bite| bite.figures.bite_counter).collect()
+    };
+    let (f1, f2) = (ids("F1"), ids("F2"));
+    assert_eq!(f1, (1..=plc.counter()).collect::<Vec<_>>(), "F1's bite ids");
+    assert!(
+        f2.len() >= 2 && f2[0] == 1,
+        "F2's bites in the history: {f2:?}"
+    );
+    setup.stop(service).await;
 }

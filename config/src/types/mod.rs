@@ -91,6 +91,15 @@ pub struct Config {
 }
 
 impl Config {
+    /// Driveline blocks the register map holds: `outputs.driveline_slots`, else the
+    /// drivelines configured (the map's first layout). Never fewer than the drivelines.
+    pub fn driveline_slots(&self) -> usize {
+        self.outputs
+            .driveline_slots
+            .unwrap_or(0)
+            .max(self.drivelines.len())
+    }
+
     /// Index into [`Config::channels`] of the channel called `name`.
     pub fn channel_index(&self, name: &str) -> Option<usize> {
         self.channels

@@ -8,6 +8,11 @@ use std::time::Duration;
 /// Where results go.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Outputs {
+    /// Driveline blocks the register map reserves (`driveline_slots`, at least the
+    /// drivelines configured; `None`: as many as there are drivelines, the map's first
+    /// layout): a driveline added within them takes the next reserved block and moves
+    /// no other address. Use [`crate::Config::driveline_slots`].
+    pub driveline_slots: Option<usize>,
     /// PLC whose holding registers the gateway writes (FC 16).
     pub plc: Option<PlcOutput>,
     /// Modbus TCP server serving the same register map to HMIs.

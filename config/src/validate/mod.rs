@@ -137,6 +137,20 @@ pub(crate) fn validate(
         .as_ref()
         .map(|history| base_dir.join(&history.path));
     let outputs = checker.outputs(&raw.outputs, history_path.as_deref());
+    if let Some(slots) = raw.outputs.driveline_slots {
+        let drivelines = raw.drivelines.len();
+        if (1..=outputs::MAX_DRIVELINE_SLOTS).contains(&slots) && (slots as usize) < drivelines {
+            checker.report.push(
+                "outputs.driveline_slots",
+                format!(
+                    "{slots} is fewer than the {drivelines} drivelines configured (must be \
+                     {drivelines}..={}: a register block each; raise it, or leave it out for \
+                     exactly the drivelines)",
+                    outputs::MAX_DRIVELINE_SLOTS
+                ),
+            );
+        }
+    }
     let history = raw.history.as_ref().map(|history| checker.history(history));
     Some(Config {
         name: name?,

@@ -22,6 +22,9 @@ use super::{
 };
 
 /// Most HMI clients `outputs.server.max_connections` may allow.
+/// Most driveline slots: 16 global registers and 64 per slot (its block and its
+/// extension block) fill the 65 536 registers a Modbus table addresses.
+pub(super) const MAX_DRIVELINE_SLOTS: i64 = 1022;
 const MAX_CONNECTIONS_LIMIT: i64 = 64;
 /// Allowed `outputs.server.idle_timeout_ms`.
 const IDLE_TIMEOUT_RANGE_MS: RangeInclusive<i64> = 100..=3_600_000;
@@ -81,7 +84,16 @@ impl Checker<'_> {
             .mqtt
             .as_ref()
             .map(|mqtt| self.mqtt(mqtt, history.is_some()));
+        let driveline_slots = raw.driveline_slots.map(|slots| {
+            self.int_in(
+                "outputs.driveline_slots",
+                slots,
+                1..=MAX_DRIVELINE_SLOTS,
+                "",
+            )
+        });
         Some(Outputs {
+            driveline_slots: optional(driveline_slots)?.map(|slots| slots as usize),
             plc: optional(plc)?,
             server: server?,
             metrics: metrics?,

@@ -25,9 +25,11 @@
 //!     driveline's other settings (its other `wear` keys build the gap maps at the
 //!     start), a tandem
 //!     mill's other settings (stands, bands, windows, `k_max`, `detector`, context
-//!     tags, captures), drivelines or tandem mills added, removed or reordered: a new
-//!     driveline's register block goes before the extension blocks and the tandem and
-//!     rod mill blocks, so adding one moves their addresses).
+//!     tags, captures), drivelines or tandem mills added, removed or reordered. A
+//!     driveline added after the others within `outputs.driveline_slots` is named
+//!     with "no address moves" (it takes its reserved register block at the restart);
+//!     one beyond the slots with the blocks it moves (a new driveline block goes
+//!     before the extension, tandem and rod mill blocks).
 //!
 //! A hang-up is never the default action of the signal (which ends the process with
 //! no final PLC write and leaves its run `unclean` in the history).
@@ -232,6 +234,12 @@ pub fn plan(running: &Config, new: &Config) -> Plan {
         ("channels", running.channels != new.channels),
         ("rod_mills", running.rod_mills != new.rod_mills),
         ("outputs.opcua", old.opcua != out.opcua),
+        (
+            "outputs.driveline_slots (the tandem and rod mill blocks and the extension \
+             blocks move)",
+            running.driveline_slots() != new.driveline_slots()
+                && old.driveline_slots != out.driveline_slots,
+        ),
         ("history", running.history != new.history),
     ];
     plan.needs_restart.extend(
@@ -240,7 +248,7 @@ pub fn plan(running: &Config, new: &Config) -> Plan {
             .filter(|(_, changed)| *changed)
             .map(|(key, _)| (*key).to_owned()),
     );
-    drivelines(&running.drivelines, &new.drivelines, &mut plan);
+    drivelines(running, &new.drivelines, &mut plan);
     tandem_mills(&running.tandem_mills, &new.tandem_mills, &mut plan);
     plan
 }
@@ -335,8 +343,11 @@ fn name_restarts(plan: &mut Plan, entry: &str, settings: &[(&str, bool)], otherw
 }
 
 /// Into `plan`, the drivelines' changes: thresholds apply; any other change, or a
-/// driveline added, removed or moved, needs a restart.
-fn drivelines(running: &[Driveline], new: &[Driveline], plan: &mut Plan) {
+/// driveline added, removed or moved, needs a restart (one added after the others
+/// within `outputs.driveline_slots` takes its reserved register block: no address
+/// moves, and the restart says so).
+fn drivelines(running_config: &Config, new: &[Driveline], plan: &mut Plan) {
+    let running = &running_config.drivelines;
     let names = |drivelines: &[Driveline]| -> Vec<String> {
         drivelines.iter().map(|d| d.name.clone()).collect()
     };
@@ -353,10 +364,19 @@ fn drivelines(running: &[Driveline], new: &[Driveline], plan: &mut Plan) {
             .map(String::as_str)
             .collect();
         let mut what = Vec::new();
-        if !added.is_empty() {
+        let slots = running_config.driveline_slots();
+        let appended = new_names.starts_with(&old_names);
+        if !added.is_empty() && appended && new_names.len() <= slots {
             what.push(format!(
-                "added {} (a new driveline's register block moves the extension, tandem \
-                 and rod mill blocks)",
+                "added {} in the register blocks outputs.driveline_slots ({slots}) reserves: \
+                 no address moves; its channels, analysis and outputs start with the service",
+                added.join(", ")
+            ));
+        } else if !added.is_empty() {
+            what.push(format!(
+                "added {} (beyond the {slots} driveline blocks of the register map: a new \
+                 block moves the extension, tandem and rod mill blocks; reserve them with \
+                 outputs.driveline_slots)",
                 added.join(", ")
             ));
         }
@@ -513,7 +533,26 @@ mod tests {
         assert!(plan.applied.is_empty());
         assert!(
             plan.needs_restart[0].starts_with("drivelines (added F9")
-                && plan.needs_restart[0].contains("moves"),
+                && plan.needs_restart[0].contains("moves the extension"),
+            "{plan:?}"
+        );
+        // Within the reserved slots it still waits for a restart, which moves nothing.
+        let mut reserved = running.clone();
+        reserved.outputs.driveline_slots = Some(added);
+        let mut grown = bigger.clone();
+        grown.outputs.driveline_slots = Some(added);
+        let plan = changed(compare(&reserved, &grown));
+        assert_eq!(plan.needs_restart.len(), 1, "{plan:?}");
+        assert!(
+            plan.needs_restart[0].starts_with("drivelines (added F9 in the register blocks")
+                && plan.needs_restart[0].contains("no address moves"),
+            "{plan:?}"
+        );
+        // The slots themselves move the blocks after them.
+        let plan = changed(compare(&running, &reserved));
+        assert_eq!(plan.needs_restart.len(), 1, "{plan:?}");
+        assert!(
+            plan.needs_restart[0].starts_with("outputs.driveline_slots"),
             "{plan:?}"
         );
 

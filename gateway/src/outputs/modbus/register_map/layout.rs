@@ -47,7 +47,7 @@ fn extension_strides(_config: &Config) -> ExtensionStrides {
 pub(super) fn span_of(config: &Config) -> u64 {
     let extensions = extension_strides(config);
     u64::from(DRIVELINES_START)
-        + u64::from(DRIVELINE_STRIDE + extensions.driveline) * config.drivelines.len() as u64
+        + u64::from(DRIVELINE_STRIDE + extensions.driveline) * config.driveline_slots() as u64
         + u64::from(TANDEM_MILL_STRIDE) * config.tandem_mills.len() as u64
         + u64::from(ROD_MILL_STRIDE) * config.rod_mills.len() as u64
 }
@@ -102,6 +102,32 @@ impl Builder {
                 );
             }
         }
+    }
+
+    /// The quality register (register 1) of page `page` of the driveline block at
+    /// `base` that slot `k` of `slots` (`outputs.driveline_slots`) reserves for a
+    /// driveline added later: `driveline_slot<k+1>.quality` (or `.extension_quality`),
+    /// which reads 0 like the rest of the block until a driveline takes it. Listed so
+    /// that `millgate registers` and the docs show where the reserved blocks are.
+    fn reserved(&mut self, base: u16, (k, slots): (usize, usize), stride: u16, page: u8) {
+        let page_name = ["block", "extension block"][usize::from(page)];
+        self.registers.push(Register {
+            name: format!("driveline_slot{}.{}", k + 1, QUALITY[usize::from(page)]),
+            address: base + 1,
+            value_type: ValueType::U16,
+            unit: "bits",
+            scale: 1.0,
+            word_order: WordOrder::Abcd,
+            access: Access::Read,
+            description: format!(
+                "Reserved by outputs.driveline_slots ({slots}): the {page_name} {base}..={} of \
+                 the driveline numbered {} in config order once one is added; reads 0 (quality \
+                 0: no value valid) until then",
+                base + stride - 1,
+                k + 1,
+            ),
+            field: Field::Quality(Block::Driveline(k), page),
+        });
     }
 
     /// A register of the global block at `address` as `value_type`.
@@ -261,7 +287,7 @@ impl RegisterMap {
         let span = span_of(config);
         if span > u64::from(u16::MAX) {
             return Err(MapTooLarge {
-                drivelines: config.drivelines.len(),
+                drivelines: config.driveline_slots(),
                 tandem_mills: config.tandem_mills.len(),
                 rod_mills: config.rod_mills.len(),
                 span,
@@ -335,18 +361,22 @@ fn build(config: &Config) -> RegisterMap {
              reads back 0",
         Field::ResetFatigue,
     );
-    for (k, driveline) in config.drivelines.iter().enumerate() {
+    let slots = config.driveline_slots();
+    for k in 0..slots {
         let base = DRIVELINES_START + DRIVELINE_STRIDE * k as u16;
-        b.block(
-            base,
-            &driveline.name,
-            "",
-            Block::Driveline(k),
-            catalogue::DRIVELINE,
-            0,
-        );
+        match config.drivelines.get(k) {
+            Some(driveline) => b.block(
+                base,
+                &driveline.name,
+                "",
+                Block::Driveline(k),
+                catalogue::DRIVELINE,
+                0,
+            ),
+            None => b.reserved(base, (k, slots), DRIVELINE_STRIDE, 0),
+        }
     }
-    let mills_start = DRIVELINES_START + DRIVELINE_STRIDE * config.drivelines.len() as u16;
+    let mills_start = DRIVELINES_START + DRIVELINE_STRIDE * slots as u16;
     for (m, mill) in config.tandem_mills.iter().enumerate() {
         let base = mills_start + TANDEM_MILL_STRIDE * m as u16;
         b.block(
@@ -388,32 +418,28 @@ fn build(config: &Config) -> RegisterMap {
     }
     let base_len = rods_start + ROD_MILL_STRIDE * config.rod_mills.len() as u16;
     let extensions = extension_strides(config);
-    for (k, driveline) in config.drivelines.iter().enumerate() {
-        if extensions.driveline > 0 {
-            b.block(
-                base_len + extensions.driveline * k as u16,
+    for k in (0..slots).filter(|_| extensions.driveline > 0) {
+        let base = base_len + extensions.driveline * k as u16;
+        match config.drivelines.get(k) {
+            Some(driveline) => b.block(
+                base,
                 &driveline.name,
                 "",
                 Block::Driveline(k),
                 catalogue::DRIVELINE,
                 1,
-            );
+            ),
+            None => b.reserved(base, (k, slots), extensions.driveline, 1),
         }
     }
     let strides = std::iter::once(DRIVELINES_START)
-        .chain(std::iter::repeat_n(
-            DRIVELINE_STRIDE,
-            config.drivelines.len(),
-        ))
+        .chain(std::iter::repeat_n(DRIVELINE_STRIDE, slots))
         .chain(std::iter::repeat_n(
             TANDEM_MILL_STRIDE,
             config.tandem_mills.len(),
         ))
         .chain(std::iter::repeat_n(ROD_MILL_STRIDE, config.rod_mills.len()))
-        .chain(std::iter::repeat_n(
-            extensions.driveline,
-            config.drivelines.len(),
-        ))
+        .chain(std::iter::repeat_n(extensions.driveline, slots))
         .filter(|stride| *stride > 0);
     let mut blocks: Vec<Range<u16>> = Vec::new();
     for stride in strides {

@@ -139,12 +139,13 @@ pub fn flag_mask<R>(figures: &[Figure<R>], key: &str) -> u16 {
 /// A configuration whose register map does not fit the 65 536 registers of a table.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 #[error(
-    "the register map of {drivelines} drivelines, {tandem_mills} tandem mills and \
+    "the register map of {drivelines} driveline blocks (the drivelines, or \
+     outputs.driveline_slots), {tandem_mills} tandem mills and \
      {rod_mills} rod mills spans {span} registers, more than the 65535 a Modbus table \
      can address from 0"
 )]
 pub struct MapTooLarge {
-    /// Drivelines configured.
+    /// Driveline blocks: the drivelines configured, or `outputs.driveline_slots`.
     pub drivelines: usize,
     /// Tandem mills configured.
     pub tandem_mills: usize,

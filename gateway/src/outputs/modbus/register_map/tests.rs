@@ -435,3 +435,85 @@ fn every_gateway_and_source_figure_has_a_global_register_or_a_reason() {
         }
     }
 }
+
+/// `outputs.driveline_slots` reserves driveline blocks (and extension blocks) that
+/// read 0: a driveline added within them takes the next one and moves no other
+/// address, and without the key the map is the first layout exactly.
+#[test]
+fn reserved_driveline_slots_read_zero_and_a_driveline_added_within_them_moves_nothing() {
+    let mut config = example("hot-mill.toml");
+    config.tandem_mills = example("tandem-5stand.toml").tandem_mills;
+    config.rod_mills = example("rod-mill.toml").rod_mills;
+    let first_layout = RegisterMap::new(&config);
+    config.outputs.driveline_slots = Some(1);
+    assert_eq!(
+        RegisterMap::new(&config),
+        first_layout,
+        "as many slots as drivelines: today's layout"
+    );
+    config.outputs.driveline_slots = Some(3);
+    let reserved = RegisterMap::new(&config);
+    assert_eq!(
+        reserved.len(),
+        first_layout.len() + 2 * (DRIVELINE_STRIDE + DRIVELINE_EXTENSION_STRIDE)
+    );
+    let slot2 = reserved
+        .named("driveline_slot2.quality")
+        .expect("slot 2 listed");
+    assert_eq!(slot2.address, DRIVELINES_START + DRIVELINE_STRIDE + 1);
+    assert!(reserved
+        .named("driveline_slot3.extension_quality")
+        .is_some());
+    assert!(reserved.named("driveline_slot1.quality").is_none(), "taken");
+    // The blocks still tile the map, a reserved one among them, so the PLC is
+    // written its zeros.
+    let blocks = reserved.blocks();
+    assert_eq!(blocks.len(), first_layout.blocks().len() + 4);
+    for pair in blocks.windows(2) {
+        assert_eq!(pair[0].end, pair[1].start);
+    }
+    let results = Results::new(config.sources().count(), config.drivelines.len(), 1);
+    let words = reserved.encode(&results);
+    let slot2_block = DRIVELINES_START + DRIVELINE_STRIDE;
+    let range = usize::from(slot2_block)..usize::from(slot2_block + DRIVELINE_STRIDE);
+    assert!(
+        words[range].iter().all(|w| *w == 0),
+        "a reserved block reads 0"
+    );
+
+    // A second driveline takes slot 2: every other register keeps its address.
+    let mut grown = config.clone();
+    let mut f2 = grown.drivelines[0].clone();
+    f2.name = "F2".into();
+    grown.drivelines.push(f2);
+    let added = RegisterMap::new(&grown);
+    assert_eq!(added.len(), reserved.len());
+    assert_eq!(added.blocks(), reserved.blocks());
+    assert_eq!(added.named("F2.flags").unwrap().address, slot2_block);
+    let f1_ext = added.named("F2.extension_quality").unwrap().address;
+    assert_eq!(
+        Some(f1_ext),
+        reserved
+            .named("driveline_slot2.extension_quality")
+            .map(|r| r.address)
+    );
+    for register in reserved.registers() {
+        if register.name.starts_with("driveline_slot2.") {
+            continue;
+        }
+        assert_eq!(
+            added.named(&register.name).map(|r| r.address),
+            Some(register.address),
+            "{} moved",
+            register.name
+        );
+    }
+    // Without slots the same driveline moves the mills' blocks.
+    let mut unreserved = grown.clone();
+    unreserved.outputs.driveline_slots = None;
+    let moved = RegisterMap::new(&unreserved);
+    assert_ne!(
+        moved.named("TCM 2030.flags").map(|r| r.address),
+        reserved.named("TCM 2030.flags").map(|r| r.address)
+    );
+}
