@@ -58,6 +58,9 @@ pub(crate) const DEFAULT_METRICS_BIND: &str = "127.0.0.1:9187";
 pub(crate) const DEFAULT_WEB_BIND: &str = "127.0.0.1:8080";
 /// Stands a tandem mill may have.
 const STANDS_RANGE: RangeInclusive<usize> = 2..=8;
+/// Most driveline slots: 16 global registers and 64 per slot (its block and its
+/// extension block) fill the 65 536 registers a Modbus table addresses.
+const MAX_DRIVELINE_SLOTS: i64 = 1022;
 /// Longest Linux network interface name, bytes (IFNAMSIZ - 1).
 const MAX_INTERFACE_NAME: usize = 15;
 /// Highest first register of a block: the block must end by register 65535.
@@ -139,14 +142,14 @@ pub(crate) fn validate(
     let outputs = checker.outputs(&raw.outputs, history_path.as_deref());
     if let Some(slots) = raw.outputs.driveline_slots {
         let drivelines = raw.drivelines.len();
-        if (1..=outputs::MAX_DRIVELINE_SLOTS).contains(&slots) && (slots as usize) < drivelines {
+        if (1..=MAX_DRIVELINE_SLOTS).contains(&slots) && (slots as usize) < drivelines {
             checker.report.push(
                 "outputs.driveline_slots",
                 format!(
                     "{slots} is fewer than the {drivelines} drivelines configured (must be \
                      {drivelines}..={}: a register block each; raise it, or leave it out for \
                      exactly the drivelines)",
-                    outputs::MAX_DRIVELINE_SLOTS
+                    MAX_DRIVELINE_SLOTS
                 ),
             );
         }

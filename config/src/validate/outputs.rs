@@ -18,13 +18,10 @@ use crate::{
 use super::{
     optional, Checker, DEFAULT_IDLE_TIMEOUT_MS, DEFAULT_MAX_CONNECTIONS,
     DEFAULT_MAX_CONNECTIONS_PER_PEER, DEFAULT_METRICS_BIND, DEFAULT_TIMEOUT_MS, DEFAULT_UNIT_ID,
-    DEFAULT_WEB_BIND,
+    DEFAULT_WEB_BIND, MAX_DRIVELINE_SLOTS,
 };
 
 /// Most HMI clients `outputs.server.max_connections` may allow.
-/// Most driveline slots: 16 global registers and 64 per slot (its block and its
-/// extension block) fill the 65 536 registers a Modbus table addresses.
-pub(super) const MAX_DRIVELINE_SLOTS: i64 = 1022;
 const MAX_CONNECTIONS_LIMIT: i64 = 64;
 /// Allowed `outputs.server.idle_timeout_ms`.
 const IDLE_TIMEOUT_RANGE_MS: RangeInclusive<i64> = 100..=3_600_000;

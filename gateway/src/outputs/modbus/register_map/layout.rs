@@ -104,6 +104,27 @@ impl Builder {
         }
     }
 
+    /// Page `page` of each driveline slot's block from `start`, `stride` apart: the
+    /// driveline's block, or past the drivelines the slot's reserved one
+    /// ([`Self::reserved`]).
+    fn driveline_slots(&mut self, config: &Config, start: u16, stride: u16, page: u8) {
+        let slots = config.driveline_slots();
+        for k in 0..slots {
+            let base = start + stride * k as u16;
+            match config.drivelines.get(k) {
+                Some(driveline) => self.block(
+                    base,
+                    &driveline.name,
+                    "",
+                    Block::Driveline(k),
+                    catalogue::DRIVELINE,
+                    page,
+                ),
+                None => self.reserved(base, (k, slots), stride, page),
+            }
+        }
+    }
+
     /// The quality register (register 1) of page `page` of the driveline block at
     /// `base` that slot `k` of `slots` (`outputs.driveline_slots`) reserves for a
     /// driveline added later: `driveline_slot<k+1>.quality` (or `.extension_quality`),
@@ -362,20 +383,7 @@ fn build(config: &Config) -> RegisterMap {
         Field::ResetFatigue,
     );
     let slots = config.driveline_slots();
-    for k in 0..slots {
-        let base = DRIVELINES_START + DRIVELINE_STRIDE * k as u16;
-        match config.drivelines.get(k) {
-            Some(driveline) => b.block(
-                base,
-                &driveline.name,
-                "",
-                Block::Driveline(k),
-                catalogue::DRIVELINE,
-                0,
-            ),
-            None => b.reserved(base, (k, slots), DRIVELINE_STRIDE, 0),
-        }
-    }
+    b.driveline_slots(config, DRIVELINES_START, DRIVELINE_STRIDE, 0);
     let mills_start = DRIVELINES_START + DRIVELINE_STRIDE * slots as u16;
     for (m, mill) in config.tandem_mills.iter().enumerate() {
         let base = mills_start + TANDEM_MILL_STRIDE * m as u16;
@@ -418,19 +426,8 @@ fn build(config: &Config) -> RegisterMap {
     }
     let base_len = rods_start + ROD_MILL_STRIDE * config.rod_mills.len() as u16;
     let extensions = extension_strides(config);
-    for k in (0..slots).filter(|_| extensions.driveline > 0) {
-        let base = base_len + extensions.driveline * k as u16;
-        match config.drivelines.get(k) {
-            Some(driveline) => b.block(
-                base,
-                &driveline.name,
-                "",
-                Block::Driveline(k),
-                catalogue::DRIVELINE,
-                1,
-            ),
-            None => b.reserved(base, (k, slots), extensions.driveline, 1),
-        }
+    if extensions.driveline > 0 {
+        b.driveline_slots(config, base_len, extensions.driveline, 1);
     }
     let strides = std::iter::once(DRIVELINES_START)
         .chain(std::iter::repeat_n(DRIVELINE_STRIDE, slots))
