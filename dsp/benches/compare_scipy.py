@@ -6,7 +6,9 @@ transient over 0.5 s with seeded gaussian noise (RMS 2% of a9), writes it to CSV
 it (no initial guess: matrix-pencil start) and prints its median time as JSON. This
 script fits the very same CSV with curve_fit given the TRUE parameters as the initial
 guess (the most favourable start scipy can get), and prints both times, both
-frequency errors and the speed ratio.
+frequency errors and the speed ratio. Both fits must find the same frequencies (f1 and
+f2 within a relative 1e-6 of scipy's, the resolution of the printed parameters is 1e-7):
+the script exits with status 1 otherwise.
 
 Usage (from the repository root): python3 dsp/benches/compare_scipy.py
 Needs: pip install numpy scipy
@@ -23,6 +25,9 @@ import numpy as np
 from scipy.optimize import curve_fit
 
 TABLE1 = [-147.0, 85.0, 191.0, -31.0, 11.99, 20.91, 22.17, 3.65, 112.0, 36.7]
+
+# Largest relative difference between our fitted f1, f2 and scipy's.
+SAME_FREQUENCY = 1e-6
 
 
 def eq1(t, a1, a2, a3, a4, a5, a6, a7, a8, a9, a10):
@@ -63,6 +68,7 @@ def main():
     print(f"{'N':>5} | {'ours (s)':>10} {'scipy (s)':>10} {'ratio':>7} | "
           f"{'f1 err ours':>11} {'f1 err scipy':>12} | {'f2 err ours':>11} "
           f"{'f2 err scipy':>12} | {'rms ours':>8} {'rms scipy':>9}")
+    failed = False
     with tempfile.TemporaryDirectory() as tmp:
         for length in (500, 2000):
             csv_path = os.path.join(tmp, f"table1_{length}.csv")
@@ -74,7 +80,13 @@ def main():
                   f"{scipy_s / ours['median_s']:>6.1f}x | {ours['f1_rel_error']:>11.2e} "
                   f"{f1_err:>12.2e} | {ours['f2_rel_error']:>11.2e} {f2_err:>12.2e} | "
                   f"{ours['rms_residual']:>8.4f} {scipy_rms:>9.4f}")
-    return 0
+            for name, index in (("f1", 4), ("f2", 5)):
+                difference = abs(ours["params"][index] / params[index] - 1)
+                if difference > SAME_FREQUENCY:
+                    print(f"{length} samples: {name} {ours['params'][index]} differs from "
+                          f"scipy's {params[index]} by {difference:.1e} (relative)")
+                    failed = True
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":
