@@ -183,20 +183,36 @@ fn shift_eigenvalues(
     }
     order.sort_unstable_by(|&a, &b| values[b].total_cmp(&values[a]));
 
-    // V1: rows 0..L of the signal subspace, V2: rows 1..L+1 (column j of `vectors` is
-    // the eigenvector of `values[j]`).
-    let v1 =
-        SMatrix::<f64, { PENCIL_COLUMNS - 1 }, MODEL_ORDER>::from_fn(|i, k| vectors[order[k]][i]);
-    let v2 = SMatrix::<f64, { PENCIL_COLUMNS - 1 }, MODEL_ORDER>::from_fn(|i, k| {
-        vectors[order[k]][i + 1]
-    });
-    let gram = v1.transpose() * v1;
-    let cross = v1.transpose() * v2;
-    let psi = gram.lu().solve(&cross).ok_or(PencilError::Decomposition)?;
-    if psi.iter().any(|v| !v.is_finite()) {
+    // V1: rows 0..L of the signal subspace V (its columns the eigenvectors of the
+    // MODEL_ORDER largest eigenvalues, orthonormal), V2: rows 1..L+1. Psi solves
+    // V1^T V1 Psi = V1^T V2 with V1^T V1 = I - u u^T (u the last row of V), whose
+    // inverse is I + u u^T / (1 - u^T u) (Sherman-Morrison): no LU of it.
+    let column = |k: usize| &vectors[order[k]];
+    let u: [f64; MODEL_ORDER] = core::array::from_fn(|k| column(k)[PENCIL_COLUMNS - 1]);
+    let u_norm2: f64 = u.iter().map(|x| x * x).sum();
+    let denominator = 1.0 - u_norm2;
+    // Also false for NaN.
+    if !(denominator > f64::EPSILON) {
         return Err(PencilError::Decomposition);
     }
-    general_eigenvalues(psi.transpose().into()).ok_or(PencilError::Decomposition)
+    // cross[j][k] = (V1^T V2)[j][k] = sum over i of V[i][j] V[i + 1][k].
+    let cross: [[f64; MODEL_ORDER]; MODEL_ORDER] = core::array::from_fn(|j| {
+        core::array::from_fn(|k| {
+            let (a, b) = (column(j), column(k));
+            (0..PENCIL_COLUMNS - 1).map(|i| a[i] * b[i + 1]).sum()
+        })
+    });
+    // psi = cross + u (u^T cross) / (1 - u^T u).
+    let u_cross: [f64; MODEL_ORDER] =
+        core::array::from_fn(|k| (0..MODEL_ORDER).map(|j| u[j] * cross[j][k]).sum());
+    let inverse = 1.0 / denominator;
+    let psi: [[f64; MODEL_ORDER]; MODEL_ORDER] = core::array::from_fn(|j| {
+        core::array::from_fn(|k| cross[j][k] + u[j] * u_cross[k] * inverse)
+    });
+    if psi.iter().flatten().any(|v| !v.is_finite()) {
+        return Err(PencilError::Decomposition);
+    }
+    general_eigenvalues(psi).ok_or(PencilError::Decomposition)
 }
 
 /// The poles of discrete `eigenvalues` `dt` seconds apart: complex pairs once
