@@ -16,7 +16,7 @@ use crate::error::{line_column, Report};
 use crate::raw::RawConfig;
 
 /// Keys allowed at the top level of a configuration file.
-const TOP_LEVEL_KEYS: [&str; 11] = [
+const TOP_LEVEL_KEYS: [&str; 12] = [
     "name",
     "sources",
     "channels",
@@ -28,6 +28,7 @@ const TOP_LEVEL_KEYS: [&str; 11] = [
     "cache_dir",
     "log_format",
     "gateway",
+    "analysis",
 ];
 
 /// Keys allowed in the `[sources]` table.
@@ -57,6 +58,7 @@ pub(crate) fn parse(text: &str, report: &mut Report) -> Option<RawConfig> {
             "cache_dir" => raw.cache_dir = schema.value(value, "cache_dir"),
             "log_format" => raw.log_format = schema.value(value, "log_format"),
             "gateway" => raw.gateway = schema.value(value, "gateway").unwrap_or_default(),
+            "analysis" => raw.analysis = schema.value(value, "analysis").unwrap_or_default(),
             "sources" => schema.sources(value, &mut raw),
             "channels" => raw.channels = schema.list(value, "channels"),
             "drivelines" => raw.drivelines = schema.list(value, "drivelines"),

@@ -106,6 +106,13 @@ pub(crate) struct RawGateway {
     pub(crate) identification: Option<RawIdentification>,
 }
 
+/// `[analysis]`: how the analysis runs.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawAnalysis {
+    pub(crate) workers: Option<i64>,
+}
+
 /// `drivelines[].fatigue`: the fatigue ledger.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -410,6 +417,7 @@ pub(crate) struct RawConfig {
     pub(crate) cache_dir: Option<String>,
     pub(crate) log_format: Option<String>,
     pub(crate) gateway: RawGateway,
+    pub(crate) analysis: RawAnalysis,
     pub(crate) modbus_sources: Vec<RawModbusSource>,
     pub(crate) can_sources: Vec<RawCanSource>,
     pub(crate) channels: Vec<RawChannel>,

@@ -365,7 +365,7 @@ fn wrong_types_and_missing_keys_are_named() {
     );
     assert_problem_like(
         &(BASE.to_owned() + "\n[alarms]\nlevel = 1\n"),
-        "mill.toml: alarms: unknown key (allowed here: name, sources, channels, drivelines, tandem_mills, rod_mills, outputs, history, cache_dir, log_format, gateway)",
+        "mill.toml: alarms: unknown key (allowed here: name, sources, channels, drivelines, tandem_mills, rod_mills, outputs, history, cache_dir, log_format, gateway, analysis)",
         &[],
     );
     assert_problem_like(
@@ -2589,6 +2589,30 @@ fn log_format_is_text_or_json() {
         ),
         "mill.toml: log_format: unknown format \"xml\" (allowed: text, json)",
     );
+}
+
+/// `[analysis] workers`: 0 (one per core) by default, a count when given, refused
+/// outside 0..=64 with the allowed range.
+#[test]
+fn analysis_workers_default_to_the_cores_and_are_range_checked() {
+    let config = parse(BASE).unwrap_or_else(|error| panic!("{error}"));
+    assert_eq!(config.analysis.workers, 0);
+    let workers = |text: &str| {
+        edited(
+            "name = \"Test mill\"\n",
+            &format!("name = \"Test mill\"\n[analysis]\n{text}\n"),
+        )
+    };
+    let config = parse(&workers("workers = 3")).unwrap_or_else(|error| panic!("{error}"));
+    assert_eq!(config.analysis.workers, 3);
+    for refused in ["65", "-1"] {
+        assert_only_problem(
+            &workers(&format!("workers = {refused}")),
+            &format!(
+                "mill.toml: analysis.workers: {refused} is not allowed (must be 0..=64 threads, 0 = one per core)"
+            ),
+        );
+    }
 }
 
 #[test]

@@ -51,6 +51,20 @@ impl LogFormat {
     }
 }
 
+/// `[analysis]`: how the analysis runs.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct AnalysisSettings {
+    /// Threads that analyse the bites completing together (`workers`,
+    /// [`Self::WORKERS_RANGE`]); 0 (the default) sizes the pool from the machine's
+    /// cores.
+    pub workers: usize,
+}
+
+impl AnalysisSettings {
+    /// The allowed `workers`: 0 (one per core) to 64.
+    pub const WORKERS_RANGE: std::ops::RangeInclusive<i64> = 0..=64;
+}
+
 /// A whole, validated millgate configuration, as returned by [`crate::load`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct Config {
@@ -66,6 +80,8 @@ pub struct Config {
     /// How `millgate run` writes its log lines (`log_format`, default `text`;
     /// `millgate run --log-format` overrides it).
     pub log_format: LogFormat,
+    /// How the analysis runs (`[analysis]`).
+    pub analysis: AnalysisSettings,
     /// Modbus DAQs and PLCs that the gateway polls, over TCP or a serial line (RTU).
     pub modbus_sources: Vec<ModbusSource>,
     /// SocketCAN interfaces.

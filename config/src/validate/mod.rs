@@ -19,8 +19,8 @@ use crate::error::Report;
 use crate::layout::BLOCK_REGISTERS;
 use crate::raw::{RawCanSource, RawConfig, RawModbusSource};
 use crate::{
-    Channel, Config, Driveline, LogFormat, ModbusSource, RodMill, ServiceDirs, TandemMill,
-    CACHE_DIRECTORY,
+    AnalysisSettings, Channel, Config, Driveline, LogFormat, ModbusSource, RodMill, ServiceDirs,
+    TandemMill, CACHE_DIRECTORY,
 };
 
 /// What the gateway writes at a configured path, and so which service folder a
@@ -108,6 +108,20 @@ pub(crate) fn validate(
         ),
         None => Some(LogFormat::default()),
     };
+    let analysis = raw
+        .analysis
+        .workers
+        .map_or(Some(0), |workers| {
+            checker.int_in(
+                "analysis.workers",
+                workers,
+                AnalysisSettings::WORKERS_RANGE,
+                " threads, 0 = one per core",
+            )
+        })
+        .map(|workers| AnalysisSettings {
+            workers: workers as usize,
+        });
     let modbus_sources: Vec<_> = raw
         .modbus_sources
         .iter()
@@ -160,6 +174,7 @@ pub(crate) fn validate(
         gateway_identification: gateway_identification?,
         cache_dir: cache_dir?,
         log_format: log_format?,
+        analysis: analysis?,
         modbus_sources: modbus_sources.into_iter().collect::<Option<_>>()?,
         can_sources: can_sources.into_iter().collect::<Option<_>>()?,
         channels: channels.into_iter().collect::<Option<_>>()?,

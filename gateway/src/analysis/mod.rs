@@ -18,7 +18,9 @@ pub mod gap_map;
 pub(crate) mod gap_map_cache;
 pub mod gap_monitor;
 pub mod gap_trend;
+mod pool;
 pub mod rod_monitor;
+mod round;
 pub(crate) mod simulated_bite;
 pub mod wear;
 
@@ -31,15 +33,20 @@ use tokio::sync::{broadcast, mpsc, watch};
 use crate::field::acquired::Acquired;
 use crate::state::board::Board;
 use crate::state::commands::{Command, CommandReceiver};
-use crate::state::events::HistoryEvent;
 use crate::state::gap_maps::{GapMapState, GapMaps};
 use crate::supervision::{Liveness, ANALYSIS_TICK};
 use crate::warn_limit::{WarnLimit, WARN_PERIOD};
-use driveline::{BiteReport, DrivelineAnalyzer};
+use driveline::{publish_bites, BiteReport, DrivelineAnalyzer};
 pub use error::AnalysisError;
 use gap_estimate::GapObservation;
 use gap_map::GapMapError;
 use gap_monitor::{GapMapJob, GapMapsReady};
+use round::Routes;
+
+/// Most reader messages (blocks, gaps, process values) the analysis takes up in one
+/// round: what is ready when a round starts, up to this many (the readers' channel
+/// holds more; the rest are the next round's).
+pub const MAX_ROUND_MESSAGES: usize = 1024;
 
 /// The analysis task: consumes samples until every reader has hung up.
 #[derive(Debug)]
@@ -58,6 +65,9 @@ pub struct Analysis {
     extra_hold: Vec<Duration>,
     /// Bites waiting for their extra channels, in the order they completed.
     held: Vec<HeldBite>,
+    /// Threads that analyse the drivelines' shares of a round (`analysis.workers`,
+    /// resolved: at least 1).
+    workers: usize,
     board: Arc<Board>,
     bites: broadcast::Sender<BiteReport>,
     /// Chatter monitors of the tandem mills.
@@ -142,6 +152,7 @@ impl Analysis {
             by_extra,
             extra_hold,
             held: Vec::new(),
+            workers: workers(config.analysis.workers),
             board,
             bites,
             chatter,
@@ -348,73 +359,86 @@ impl Analysis {
         }
     }
 
-    /// Handle one message from a reader; returns the bites it released: published
-    /// and recorded. A bite of a driveline with extra channels is held until every
-    /// one has samples up to the end of its window, or its hold bound passes
-    /// ([`Self::release_held`]); any other bite is released at once.
+    /// Handle one message from a reader; returns the bites it released (see
+    /// [`Self::handle_all`]).
     pub fn handle(&mut self, message: Acquired) -> Vec<BiteReport> {
-        if let Acquired::Samples { handed, .. } = &message {
-            self.board.latencies().block_taken(handed.elapsed());
+        self.handle_all(vec![message])
+    }
+
+    /// Handle the messages from the readers that are ready together (one round), in
+    /// their order; returns the bites they released: published and recorded.
+    ///
+    /// Each driveline's share of the messages runs on the pool of
+    /// `analysis.workers` threads ([`pool::run_round`]); the bites of the
+    /// drivelines that are done are published together ([`publish_bites`]: one
+    /// change of the results, one history commit, one PLC write), while the others
+    /// still run. A bite of a driveline with extra channels is held until every one
+    /// has samples up to the end of its window, or its hold bound passes
+    /// ([`Self::release_held`]); any other bite is released at once.
+    pub fn handle_all(&mut self, messages: Vec<Acquired>) -> Vec<BiteReport> {
+        for message in &messages {
+            if let Acquired::Samples { handed, .. } = message {
+                self.board.latencies().block_taken(handed.elapsed());
+            }
+            self.chatter.handle(message);
+            self.rod_mills.handle(message);
         }
-        self.chatter.handle(&message);
-        self.rod_mills.handle(&message);
-        let mut reports = Vec::new();
-        match message {
-            Acquired::Samples {
-                channel,
-                values,
-                received,
-                handed,
-            } => {
-                for &(d, extra) in &self.by_extra[channel] {
-                    self.drivelines[d].extra_samples(extra, &values, received);
-                }
-                for &d in &self.by_torque[channel] {
-                    self.drivelines[d].samples(&values, (received, handed), &mut reports);
-                    if let Some(capture) = self.drivelines[d].take_manual_capture() {
-                        tracing::info!(driveline = %capture.subject, samples = capture.samples(), "manual capture kept");
-                        self.board
-                            .history()
-                            .record(HistoryEvent::Capture(Box::new(capture)));
+        let routes = Routes {
+            by_torque: &self.by_torque,
+            by_trigger: &self.by_trigger,
+            by_context: &self.by_context,
+            by_extra: &self.by_extra,
+        };
+        let steps = routes.steps(&messages, self.drivelines.len());
+        let jobs: Vec<_> = self
+            .drivelines
+            .iter_mut()
+            .zip(&steps)
+            .filter(|(_, steps)| !steps.is_empty())
+            .collect();
+        let (board, subscribers, extra_hold) = (&self.board, &self.bites, &self.extra_hold);
+        let mut released = Vec::new();
+        // Bites of drivelines with extra channels, to hold.
+        let mut to_hold = Vec::new();
+        pool::run_round(
+            jobs,
+            self.workers,
+            |(analyzer, steps)| {
+                let reports = analyzer.run_steps(steps, board);
+                (&*analyzer, reports)
+            },
+            |done| {
+                let mut ready = Vec::new();
+                for (analyzer, reports) in done {
+                    for report in reports {
+                        if extra_hold[report.driveline].is_zero() {
+                            ready.push((analyzer, report));
+                        } else {
+                            to_hold.push(report);
+                        }
                     }
                 }
-            }
-            Acquired::Gap {
-                channel,
-                missed_samples,
-            } => {
-                for &(d, extra) in &self.by_extra[channel] {
-                    self.drivelines[d].extra_gap(extra);
-                }
-                for &d in &self.by_torque[channel] {
-                    self.drivelines[d].gap(missed_samples, &mut reports);
-                }
-            }
-            Acquired::ProcessValue { channel, value } => {
-                for &d in &self.by_trigger[channel] {
-                    self.drivelines[d].trigger_value(value);
-                }
-                let now = Instant::now();
-                for &d in &self.by_context[channel] {
-                    self.drivelines[d].context_value(channel, value, now);
-                }
-            }
-        }
+                let bites: Vec<_> = ready.iter().map(|(a, report)| (*a, report)).collect();
+                publish_bites(board, subscribers, &bites);
+                released.extend(ready.into_iter().map(|(_, report)| report));
+            },
+        );
         // The hold counts from now, not from the block's hand-over: a bite found late
         // (the analysis behind) still waits its whole hold for the extra channels'
         // blocks, which are behind it in the readers' channel.
         let now = Instant::now();
-        self.held.extend(reports.into_iter().map(|report| HeldBite {
+        self.held.extend(to_hold.into_iter().map(|report| HeldBite {
             deadline: now + self.extra_hold[report.driveline],
             report,
         }));
-        self.release_held(now, false)
+        released.extend(self.release_held(now, false));
+        released
     }
 
     /// Release the held bites (in the order they completed, per driveline) whose
     /// extra channels reach the end of their window, whose bound has passed at `now`,
     /// or all when `all`: their captures take what the rings hold, and they are
-    /// published and recorded. Returns them.
+    /// published and recorded together. Returns them.
     pub fn release_held(&mut self, now: Instant, all: bool) -> Vec<BiteReport> {
         let mut released = Vec::new();
         let mut waiting: Vec<usize> = Vec::new();
@@ -430,32 +454,11 @@ impl Analysis {
             driveline.capture_extras(&mut held.report);
             released.push(held.report);
         }
-        for report in &released {
-            self.drivelines[report.driveline].publish(&self.board, report);
-            let trend = report.gap.as_ref().and_then(|gap| gap.trend);
-            // Each figure a field of its own type (a number, a bool), left out when the
-            // bite has none: `key=value` in the text log, a JSON member in the JSON log.
-            tracing::info!(
-                driveline = %report.driveline_name,
-                static_knm = report.transient.static_torque_knm,
-                peak_knm = report.transient.peak_torque_knm,
-                taf = report.transient.taf,
-                beta1_hz = report.beta_hz.map(|(beta1, _)| beta1),
-                beta2_hz = report.beta_hz.map(|(_, beta2)| beta2),
-                degraded = report.degraded,
-                wear_index = report.wear.map(|wear| wear.index),
-                shift_over_linear_s = report.wear.and_then(|wear| wear.shift_excess_s),
-                gap_mrad = trend.map(|e| e.gap_mrad),
-                gap_low_mrad = trend.map(|e| e.low_mrad),
-                gap_high_mrad = trend.map(|e| e.high_mrad),
-                gap_coupling = trend.and_then(|e| e.coupling),
-                gap_growth_mrad_per_day = trend.and_then(|e| e.growth).map(|g| g.mrad_per_day),
-                days_to_gap_alarm = trend.and_then(|e| e.forecast).and_then(|f| f.days),
-                "bite"
-            );
-            // Nobody listening is fine: the demo and tests subscribe, the service need not.
-            let _ = self.bites.send(report.clone());
-        }
+        let bites: Vec<_> = released
+            .iter()
+            .map(|report| (&self.drivelines[report.driveline], report))
+            .collect();
+        publish_bites(&self.board, &self.bites, &bites);
         released
     }
 
@@ -493,7 +496,15 @@ impl Analysis {
                 },
                 message = samples.recv() => match message {
                     Some(message) => {
-                        self.handle(message);
+                        // With it, whatever else is ready: one round.
+                        let mut round = vec![message];
+                        while round.len() < MAX_ROUND_MESSAGES {
+                            match samples.try_recv() {
+                                Ok(message) => round.push(message),
+                                Err(_) => break,
+                            }
+                        }
+                        self.handle_all(round);
                     }
                     None => break,
                 },
@@ -535,6 +546,15 @@ impl LiveSettings {
                 .collect(),
             tandem_mills: config.tandem_mills.clone(),
         }
+    }
+}
+
+/// The analysis pool's threads for `analysis.workers` = `configured`: as many when
+/// not 0, else one per core the machine offers (1 when it does not say).
+fn workers(configured: usize) -> usize {
+    match configured {
+        0 => std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get),
+        workers => workers,
     }
 }
 

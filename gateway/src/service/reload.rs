@@ -229,6 +229,7 @@ pub fn plan(running: &Config, new: &Config) -> Plan {
         ("name", running.name != new.name),
         ("cache_dir", running.cache_dir != new.cache_dir),
         ("log_format", running.log_format != new.log_format),
+        ("analysis.workers", running.analysis != new.analysis),
         ("sources", running.modbus_sources != new.modbus_sources),
         ("can_sources", running.can_sources != new.can_sources),
         ("channels", running.channels != new.channels),

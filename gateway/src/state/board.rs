@@ -178,16 +178,20 @@ impl Board {
         self.update_recorded_if(|results, events| (change(results, events), true))
     }
 
-    /// As [`Self::update_recorded`], for a bite whose window a block handed over at
-    /// `handed` completed: its stamp waits, with the results, for the PLC writer
-    /// ([`Self::results_for_plc`]).
-    pub(crate) fn update_bite_recorded<T>(
+    /// As [`Self::update_recorded`], for bites whose windows blocks handed over at
+    /// `handed` completed: their stamps wait, with the results, for the PLC writer
+    /// ([`Self::results_for_plc`]). The bites of an analysis round go in one call:
+    /// one change for the outputs, the PLC write and the history commit that follow
+    /// carry them all.
+    pub(crate) fn update_bites_recorded<T>(
         &self,
-        handed: std::time::Instant,
+        handed: impl IntoIterator<Item = std::time::Instant>,
         change: impl FnOnce(&mut Results, &mut Vec<HistoryEvent>) -> T,
     ) -> T {
         self.update_recorded(|results, events| {
-            self.latencies.published(handed);
+            for handed in handed {
+                self.latencies.published(handed);
+            }
             change(results, events)
         })
     }

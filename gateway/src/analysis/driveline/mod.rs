@@ -27,5 +27,6 @@ pub(super) use analyzer::DrivelineAnalyzer;
 pub use capture::BiteSamples;
 pub use context::BiteContext;
 pub use publish::bite_record;
+pub(super) use publish::publish_bites;
 pub use report::BiteReport;
 pub use setup::BiteSetup;

@@ -16,7 +16,7 @@ use crate::state::events::{
     AlarmEvent, AlarmKind, AlarmRecord, BiteRecord, FatigueResetRecord, HistoryEvent, PooledBite,
     StateRecord, SubjectResults, WearState,
 };
-use crate::state::results::{DrivelineResults, GapResults};
+use crate::state::results::{DrivelineResults, GapResults, Results};
 use crate::state::time::UtcTime;
 
 impl DrivelineAnalyzer {
@@ -28,40 +28,46 @@ impl DrivelineAnalyzer {
     /// published with their quality bits clear (registers 0), raise no TAF warning or
     /// alarm, and do not move the wear trend. Nothing computed from data that cannot be
     /// trusted reads as a result.
-    pub(crate) fn publish(&self, board: &Board, report: &BiteReport) {
-        board.update_bite_recorded(report.window_complete, |results, events| {
-            let driveline = &mut results.drivelines[report.driveline];
-            let was = (driveline.taf_warning, driveline.taf_alarm);
-            let time = UtcTime::from_system(report.time);
-            let taf = self.publish_figures(driveline, report, time);
-            let gap = report
-                .gap
-                .as_ref()
-                .and_then(|gap| Some((self.gap.as_ref()?, gap.trend?)));
-            let mut gap_alarms = Vec::new();
-            if let Some((monitor, estimate)) = gap {
-                let subject = (report.driveline_name.as_str(), time);
-                monitor.publish(driveline, &estimate, subject, &mut gap_alarms);
-            }
-            driveline.restored = false;
-            let mut record = bite_record(
-                report,
-                driveline,
-                gap.map(|(monitor, estimate)| monitor.verdict(&estimate)),
-            );
-            record.fatigue_ledger = self.fatigue_saved();
-            let keep = self.keep_class(driveline, taf, &gap_alarms);
-            let bite = CapturedBite {
-                counter: driveline.bite_counter,
-                time,
-            };
-            events.push(match report.capture(bite, keep) {
-                Some(capture) => HistoryEvent::CapturedBite(Box::new(record), Box::new(capture)),
-                None => HistoryEvent::Bite(Box::new(record)),
-            });
-            self.taf_alarms(report, driveline, was, time, events);
-            events.extend(gap_alarms);
+    ///
+    /// `results` and `events` are the board's under its lock: the caller publishes
+    /// the bites of a round together ([`publish_bites`]).
+    pub(crate) fn publish(
+        &self,
+        results: &mut Results,
+        events: &mut Vec<HistoryEvent>,
+        report: &BiteReport,
+    ) {
+        let driveline = &mut results.drivelines[report.driveline];
+        let was = (driveline.taf_warning, driveline.taf_alarm);
+        let time = UtcTime::from_system(report.time);
+        let taf = self.publish_figures(driveline, report, time);
+        let gap = report
+            .gap
+            .as_ref()
+            .and_then(|gap| Some((self.gap.as_ref()?, gap.trend?)));
+        let mut gap_alarms = Vec::new();
+        if let Some((monitor, estimate)) = gap {
+            let subject = (report.driveline_name.as_str(), time);
+            monitor.publish(driveline, &estimate, subject, &mut gap_alarms);
+        }
+        driveline.restored = false;
+        let mut record = bite_record(
+            report,
+            driveline,
+            gap.map(|(monitor, estimate)| monitor.verdict(&estimate)),
+        );
+        record.fatigue_ledger = self.fatigue_saved();
+        let keep = self.keep_class(driveline, taf, &gap_alarms);
+        let bite = CapturedBite {
+            counter: driveline.bite_counter,
+            time,
+        };
+        events.push(match report.capture(bite, keep) {
+            Some(capture) => HistoryEvent::CapturedBite(Box::new(record), Box::new(capture)),
+            None => HistoryEvent::Bite(Box::new(record)),
         });
+        self.taf_alarms(report, driveline, was, time, events);
+        events.extend(gap_alarms);
     }
 
     /// Count and date `report`, a bite at `time`, in `driveline`'s results and publish
@@ -216,6 +222,56 @@ impl DrivelineAnalyzer {
             });
         }
     }
+}
+
+/// Publish `bites` (each with its driveline's analyser) in one change of `board`:
+/// one update of the results, their history records enqueued together (one commit),
+/// one wake-up of the outputs (one PLC write carries them all). Each is logged and
+/// sent to the subscribers of `subscribers` (none listening is fine: the demo and
+/// tests subscribe, the service need not).
+pub(crate) fn publish_bites(
+    board: &Board,
+    subscribers: &tokio::sync::broadcast::Sender<BiteReport>,
+    bites: &[(&DrivelineAnalyzer, &BiteReport)],
+) {
+    if bites.is_empty() {
+        return;
+    }
+    let handed = bites.iter().map(|(_, report)| report.window_complete);
+    board.update_bites_recorded(handed, |results, events| {
+        for (analyzer, report) in bites {
+            analyzer.publish(results, events, report);
+        }
+    });
+    for (_, report) in bites {
+        log_bite(report);
+        let _ = subscribers.send((*report).clone());
+    }
+}
+
+/// The log line of a published bite.
+fn log_bite(report: &BiteReport) {
+    let trend = report.gap.as_ref().and_then(|gap| gap.trend);
+    // Each figure a field of its own type (a number, a bool), left out when the
+    // bite has none: `key=value` in the text log, a JSON member in the JSON log.
+    tracing::info!(
+        driveline = %report.driveline_name,
+        static_knm = report.transient.static_torque_knm,
+        peak_knm = report.transient.peak_torque_knm,
+        taf = report.transient.taf,
+        beta1_hz = report.beta_hz.map(|(beta1, _)| beta1),
+        beta2_hz = report.beta_hz.map(|(_, beta2)| beta2),
+        degraded = report.degraded,
+        wear_index = report.wear.map(|wear| wear.index),
+        shift_over_linear_s = report.wear.and_then(|wear| wear.shift_excess_s),
+        gap_mrad = trend.map(|e| e.gap_mrad),
+        gap_low_mrad = trend.map(|e| e.low_mrad),
+        gap_high_mrad = trend.map(|e| e.high_mrad),
+        gap_coupling = trend.and_then(|e| e.coupling),
+        gap_growth_mrad_per_day = trend.and_then(|e| e.growth).map(|g| g.mrad_per_day),
+        days_to_gap_alarm = trend.and_then(|e| e.forecast).and_then(|f| f.days),
+        "bite"
+    );
 }
 
 /// Count `report`'s context in `driveline`'s results: its gate (`last_bite_gated`),

@@ -1,0 +1,223 @@
+//! The analysis pool gives the serial analysis' results (issue 42): the load bench's
+//! plant (16 drivelines, each a copy of the simulator's seeded bars 0.2 s after the
+//! one before, so their bites complete in clumps, the demo's model with gap maps)
+//! fed block by block with one history file per run:
+//!
+//! - serially, one message at a time (what the analysis did before the pool);
+//! - in rounds (each poll's blocks of every driveline together) with `workers = 1`;
+//! - in rounds with `workers = 4`.
+//!
+//! Every bite report (its figures bit for bit, as `{:?}` prints every `f64` exactly,
+//! its gap estimate and capture) is the same in the same order per driveline, and so
+//! is every history row.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+use std::time::{Duration, Instant, SystemTime};
+
+use common::scratch;
+use millgate::analysis::driveline::BiteReport;
+use millgate::analysis::Analysis;
+use millgate::field::acquired::Acquired;
+use millgate::field::source_health::SourceHealth;
+use millgate::history::query::{Filter, HistoryReader};
+use millgate::state::board::Board;
+use millgate::state::gap_maps::GapMaps;
+use millgate::state::history::History;
+
+const MODELS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../sim/models");
+const DRIVELINES: usize = 16;
+const CHANNELS_PER_DAQ: usize = 8;
+const RATE_HZ: f64 = 2000.0;
+const BLOCK: usize = 100;
+/// The bench's delay between two drivelines' copies of the bars, s.
+const STAGGER_S: f64 = 0.2;
+const BARS_S: f64 = 14.0;
+
+/// The load bench's plant: `DRIVELINES` torque channels on DAQs of 8 channels, each
+/// driveline with the demo's model (coarse maps, to keep the test short).
+fn config(cache: &Path, history: &Path, workers: usize) -> millgate_config::Config {
+    let mut text = format!(
+        "name = \"parallel analysis\"\ncache_dir = \"{}\"\n\n[analysis]\nworkers = {workers}\n\n",
+        cache.display()
+    );
+    for daq in 0..DRIVELINES.div_ceil(CHANNELS_PER_DAQ) {
+        text.push_str(&format!(
+            "[[sources.modbus]]\nname = \"daq{daq}\"\naddress = \"127.0.0.1:{}\"\npoll_period_ms = 20\n\n",
+            5020 + daq
+        ));
+    }
+    for k in 0..DRIVELINES {
+        let (daq, slot) = (k / CHANNELS_PER_DAQ, k % CHANNELS_PER_DAQ);
+        text.push_str(&format!(
+            "[[channels]]\nname = \"d{k}_torque\"\nkind = \"torque\"\nunit = \"kN*m\"\n\
+             scale = 0.01\nsample_rate_hz = {RATE_HZ:.1}\n\
+             source = {{ modbus = \"daq{daq}\", table = \"input\", block = {} }}\n\n\
+             [[drivelines]]\nname = \"D{k}\"\ntorque = \"d{k}_torque\"\n\
+             model = \"table2-adjusted.toml\"\n\
+             bite = {{ threshold_knm = 20.0, pre_trigger_s = 0.1, post_trigger_s = 0.5 }}\n\
+             thresholds = {{ taf_warning = 2.2, taf_alarm = 2.6, gap_warning_mrad = 2.0, gap_alarm_mrad = 4.0 }}\n\
+             wear = {{ gap_step_mrad = 0.25, torque_points = 10 }}\n\n",
+            slot as u16 * millgate_config::layout::BLOCK_REGISTERS
+        ));
+    }
+    text.push_str(&format!("[history]\npath = \"{}\"\n", history.display()));
+    millgate_config::from_toml_str(&text, "parallel.toml", Path::new(MODELS))
+        .unwrap_or_else(|error| panic!("{error}"))
+}
+
+/// A health per source, never stale within the test.
+fn health(config: &millgate_config::Config) -> Vec<Arc<SourceHealth>> {
+    (0..config.modbus_sources.len())
+        .map(|_| {
+            Arc::new(SourceHealth::new(
+                Duration::from_secs(3600),
+                Duration::from_secs(3600),
+            ))
+        })
+        .collect()
+}
+
+/// How the blocks are handed to the analysis.
+#[derive(Debug, Clone, Copy)]
+enum Feed {
+    /// One message at a time.
+    Serial,
+    /// Each poll's blocks of every driveline in one round.
+    Rounds,
+}
+
+/// One run: the bites released per driveline (as `{:?}`) and the history's rows per
+/// driveline (as `{:?}`, without their row and run ids), both in order.
+struct Run {
+    reports: Vec<Vec<String>>,
+    rows: Vec<Vec<String>>,
+}
+
+fn run(
+    dir: &Path,
+    workers: usize,
+    feed: Feed,
+    signals: &[Vec<f64>],
+    maps: &GapMaps,
+    stamps: &(SystemTime, Instant),
+) -> Run {
+    let history_path = dir.join(format!("history-{workers}-{feed:?}.db"));
+    let config = config(&dir.join("cache"), &history_path, workers);
+    let history = History::new(config.history.as_ref());
+    millgate::history::start(&history, millgate::history::RunInfo::of(&config));
+    let board = Arc::new(Board::new(&config, health(&config)).with_history(history.clone()));
+    let (bites, _) = tokio::sync::broadcast::channel(16);
+    let mut analysis = Analysis::new(&config, Arc::clone(&board), bites).expect("analysis");
+    assert_eq!(analysis.take_gap_map_jobs().len(), DRIVELINES);
+    for driveline in 0..DRIVELINES {
+        analysis.install_gap_maps(driveline, Ok(maps.clone()));
+    }
+    let mut released: Vec<BiteReport> = Vec::new();
+    let (start_time, start_instant) = *stamps;
+    let polls = signals[0].len() / BLOCK;
+    for poll in 0..polls {
+        let offset = Duration::from_secs_f64(((poll + 1) * BLOCK) as f64 / RATE_HZ);
+        let messages: Vec<Acquired> = signals
+            .iter()
+            .enumerate()
+            .map(|(channel, signal)| Acquired::Samples {
+                channel,
+                values: signal[poll * BLOCK..(poll + 1) * BLOCK].to_vec(),
+                received: Some(start_time + offset),
+                handed: start_instant + offset,
+            })
+            .collect();
+        match feed {
+            Feed::Serial => {
+                for message in messages {
+                    released.extend(analysis.handle(message));
+                }
+            }
+            Feed::Rounds => released.extend(analysis.handle_all(messages)),
+        }
+    }
+    drop(analysis);
+    history.close();
+    let mut reports = vec![Vec::new(); DRIVELINES];
+    for report in &released {
+        reports[report.driveline].push(format!("{report:?}"));
+    }
+    let reader = HistoryReader::open(&history_path).expect("history");
+    let mut rows = vec![Vec::new(); DRIVELINES];
+    let mut stored = reader.bites(&Filter::default()).expect("bites");
+    stored.sort_by_key(|row| row.id);
+    for mut row in stored {
+        let driveline: usize = row.driveline[1..].parse().expect("D<k>");
+        (row.id, row.run_id) = (0, 0);
+        rows[driveline].push(format!("{row:?}"));
+    }
+    Run { reports, rows }
+}
+
+#[test]
+fn the_pool_gives_the_serial_analysis_results_bit_for_bit() {
+    let dir = scratch("parallel-analysis");
+    let dir: PathBuf = dir.path().to_path_buf();
+    let bars = millgate_sim::devices::demo::setup(BARS_S, 0.5, 1)
+        .expect("demo")
+        .schedule
+        .torque_knm;
+    let stagger = (STAGGER_S * RATE_HZ) as usize;
+    let signals: Vec<Vec<f64>> = (0..DRIVELINES)
+        .map(|k| {
+            let mut signal = bars.clone();
+            signal.rotate_right((k * stagger) % bars.len());
+            signal
+        })
+        .collect();
+    let maps = {
+        let config = config(&dir.join("cache"), &dir.join("maps.db"), 1);
+        let (bites, _) = tokio::sync::broadcast::channel(1);
+        let board = Arc::new(Board::new(&config, health(&config)));
+        let mut analysis = Analysis::new(&config, board, bites).expect("analysis");
+        let job = analysis.take_gap_map_jobs().remove(0);
+        job.run(2, &AtomicBool::new(false), &|_, _| {})
+            .unwrap_or_else(|error| panic!("{error}"))
+            .0
+    };
+    let stamps = (
+        SystemTime::UNIX_EPOCH + Duration::from_secs(1_795_000_000),
+        Instant::now(),
+    );
+    let serial = run(&dir, 1, Feed::Serial, &signals, &maps, &stamps);
+    let bites: usize = serial.reports.iter().map(Vec::len).sum();
+    println!("{bites} bites over {DRIVELINES} drivelines");
+    for (driveline, reports) in serial.reports.iter().enumerate() {
+        assert!(reports.len() >= 5, "D{driveline}: {} bites", reports.len());
+        assert_eq!(
+            serial.rows[driveline].len(),
+            reports.len(),
+            "D{driveline}'s rows"
+        );
+    }
+    assert!(
+        serial
+            .reports
+            .iter()
+            .flatten()
+            .any(|report| report.contains("trend: Some")),
+        "the gap estimate is part of what is compared"
+    );
+    for (workers, feed) in [(1, Feed::Rounds), (4, Feed::Rounds), (4, Feed::Serial)] {
+        let pooled = run(&dir, workers, feed, &signals, &maps, &stamps);
+        for driveline in 0..DRIVELINES {
+            assert_eq!(
+                pooled.reports[driveline], serial.reports[driveline],
+                "D{driveline}'s bites with {workers} workers, {feed:?}"
+            );
+            assert_eq!(
+                pooled.rows[driveline], serial.rows[driveline],
+                "D{driveline}'s history rows with {workers} workers, {feed:?}"
+            );
+        }
+    }
+}
