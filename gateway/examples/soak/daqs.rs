@@ -113,18 +113,22 @@ pub(crate) struct LoadPoint {
 }
 
 /// Generates the configuration of a load point in `folder` (beside a copy of the
-/// demo's model) and binds the DAQs it reads, the PLC and the gateway's ports.
+/// demo's model), with the broker at `broker_port` and `[analysis] workers` when
+/// given, and binds the DAQs it reads, the PLC and the gateway's ports.
 pub(crate) fn load_point(
     folder: &Path,
     drivelines: usize,
     stands: usize,
     tandem_rate_hz: f64,
-    broker_port: u16,
+    (broker_port, analysis_workers): (u16, Option<u32>),
 ) -> anyhow::Result<LoadPoint> {
     let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../sim/models/table2-adjusted.toml");
     std::fs::copy(&model, folder.join("table2-adjusted.toml"))
         .with_context(|| format!("copying {}", model.display()))?;
     let mut config = format!("name = \"load bench: {drivelines} drivelines, {stands} stands\"\n\n");
+    if let Some(workers) = analysis_workers {
+        config.push_str(&format!("[analysis]\nworkers = {workers}\n\n"));
+    }
     let mut listeners = Vec::new();
     let (torque_channels, driveline_tables) = driveline_channels(drivelines)?;
     daqs(

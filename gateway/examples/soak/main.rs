@@ -54,7 +54,8 @@
 //! (10), `--warm-up` s not counted (15), `--drivelines` list (1), `--tandem-stands` list
 //! (0), `--tandem-rate-hz` (2500), `--cpu` the core to pin the gateway to (none),
 //! `--p99-limit-ms` (5), `--keep-going` (step on after a failed point), `--millgate`
-//! the binary (the one beside this example's folder).
+//! the binary (the one beside this example's folder), `--analysis-workers` the
+//! gateway's `[analysis] workers` (left out: its default, one per core).
 
 mod bites;
 mod daqs;

@@ -21,6 +21,8 @@ pub(crate) struct Options {
     pub(crate) p99_limit_ms: f64,
     pub(crate) keep_going: bool,
     pub(crate) millgate: PathBuf,
+    /// The gateway's `[analysis] workers` (left out: its default, one per core).
+    pub(crate) analysis_workers: Option<u32>,
 }
 
 impl Options {
@@ -36,6 +38,7 @@ impl Options {
             cpu: None,
             p99_limit_ms: P99_LIMIT_MS,
             keep_going: false,
+            analysis_workers: None,
             millgate: std::env::current_exe()?
                 .parent()
                 .and_then(Path::parent)
@@ -109,9 +112,16 @@ impl Options {
                     .with_context(|| format!("--p99-limit-ms: {value:?} is not a time > 0 ms"))?
             }
             "--millgate" => self.millgate = PathBuf::from(&value),
+            "--analysis-workers" => {
+                // The gateway's check reports a count out of its range.
+                self.analysis_workers = Some(value.parse().with_context(|| {
+                    format!("--analysis-workers: {value:?} is not a count of threads")
+                })?)
+            }
             _ => bail!(
                 "unknown option {arg} (allowed: --duration, --every, --warm-up, --drivelines, \
-                 --tandem-stands, --tandem-rate-hz, --cpu, --p99-limit-ms, --keep-going, --millgate)"
+                 --tandem-stands, --tandem-rate-hz, --cpu, --p99-limit-ms, --keep-going, \
+                 --millgate, --analysis-workers)"
             ),
         }
         Ok(())

@@ -41,7 +41,7 @@ pub(crate) async fn run_point(
         drivelines,
         stands,
         options.tandem_rate_hz,
-        broker_port,
+        (broker_port, options.analysis_workers),
     )?;
     let map = RegisterMap::new(&point.config);
     let counters = bite_counters(&point.config, &map)?;
