@@ -109,6 +109,7 @@ pub fn write_chatter_capture(db: &Path, mill: &str) -> anyhow::Result<()> {
             analysis: None,
             episode: Some(episode),
             keep: KeepClass::Important,
+            context: None,
         };
         let transaction = connection.transaction()?;
         insert(&transaction, run, &HistoryEvent::Capture(Box::new(capture)))?;
