@@ -307,7 +307,13 @@ pub fn write<W: Write + Send>(
         ExportFormat::Csv => write_csv(capture, out),
         ExportFormat::Parquet => {
             let json = serde_json::to_string(header).map_err(std::io::Error::other)?;
-            Ok(super::capture_parquet::write(capture, &json, header, out)?)
+            let hash = header
+                .config_hash
+                .iter()
+                .map(|h| ("config_hash", h.clone()));
+            let context = header.context.iter().flat_map(CaptureContext::metadata);
+            let more = hash.chain(context).collect();
+            Ok(super::capture_parquet::write(capture, &json, more, out)?)
         }
     }
 }

@@ -29,7 +29,6 @@ use parquet::file::properties::WriterProperties;
 use parquet::file::writer::SerializedFileWriter;
 use parquet::schema::types::Type;
 
-use super::capture_files::CaptureHeader;
 use super::captures::Capture;
 use parquet::errors::ParquetError;
 
@@ -48,14 +47,14 @@ fn column(name: &str, physical: PhysicalType) -> Result<Arc<Type>, ParquetError>
     ))
 }
 
-/// Write `capture` to `out` as Parquet, with `json` (its `header` as JSON, as a CSV
-/// export's sidecar has it), its run's configuration hash (when known) and its
-/// context in the metadata. Its channels' names are not the time columns' (`time`,
-/// `t`): [`TIME_COLUMNS`].
+/// Write `capture` to `out` as Parquet, with `header` (its header as JSON, as a CSV
+/// export's sidecar has it) and `more` (key without `millgate.`, value: its run's
+/// configuration hash when known, its context) in the metadata. Its channels' names
+/// are not the time columns' (`time`, `t`): [`TIME_COLUMNS`].
 pub(super) fn write<W: Write + Send>(
     capture: &Capture,
-    json: &str,
-    header: &CaptureHeader,
+    header: &str,
+    more: Vec<(&str, String)>,
     out: W,
 ) -> Result<(), ParquetError> {
     let row = &capture.row;
@@ -83,7 +82,7 @@ pub(super) fn write<W: Write + Send>(
         .collect();
     let key = |key: &str, value: String| KeyValue::new(format!("millgate.{key}"), value);
     let mut metadata = vec![
-        key("capture", json.to_owned()),
+        key("capture", header.to_owned()),
         key("subject", row.subject.clone()),
         key("kind", row.kind.clone()),
         key(
@@ -95,15 +94,7 @@ pub(super) fn write<W: Write + Send>(
         key("units", serde_json::Value::Object(units).to_string()),
         key("gateway_version", capture.meta.version.clone()),
     ];
-    metadata.extend(
-        header
-            .config_hash
-            .as_ref()
-            .map(|hash| key("config_hash", hash.clone())),
-    );
-    for (name, value) in header.context.iter().flat_map(|c| c.metadata()) {
-        metadata.push(key(name, value));
-    }
+    metadata.extend(more.into_iter().map(|(name, value)| key(name, value)));
     let properties = WriterProperties::builder()
         .set_compression(Compression::SNAPPY)
         .set_key_value_metadata(Some(metadata))

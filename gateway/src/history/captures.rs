@@ -30,8 +30,8 @@ use rusqlite::types::Value as SqlValue;
 use rusqlite::{params, OptionalExtension, Transaction};
 use serde::{Deserialize, Serialize};
 
+use super::context_columns::{evidence_context_values, EVIDENCE_CONTEXT_COLUMNS};
 use super::query::{CaptureRow, HistoryReader};
-use super::rows::{evidence_context_values, EVIDENCE_CONTEXT_COLUMNS};
 use super::HistoryError;
 use crate::state::captures::{
     BiteWindowAnalysis, CaptureChannel, CaptureGap, CaptureRecord, ChatterEpisode,

@@ -7,9 +7,11 @@ use rusqlite::types::Value as SqlValue;
 use rusqlite::{params, Transaction};
 
 use super::bite_row::{CONTEXT_COLUMNS, OWN_COLUMNS};
+use super::context_columns::{
+    context_values, evidence_context_values, real, EVIDENCE_CONTEXT_COLUMNS,
+};
 use super::figures::{bite_columns, to_sql, upsert_state};
 use super::run::{insert_settings, DrivelineSettings};
-use crate::state::context::{ContextReading, ProcessContext};
 use crate::state::events::{
     AlarmRecord, BiteRecord, ChatterWindow, HistoryEvent, StateRecord, SubjectResults,
 };
@@ -239,52 +241,6 @@ const BITE_FACTS: [&str; 15] = [
     CONTEXT_COLUMNS[5],
 ];
 
-fn real(value: Option<f64>) -> SqlValue {
-    value.map_or(SqlValue::Null, SqlValue::Real)
-}
-
-/// The values of `context` in [`CONTEXT_COLUMNS`] order.
-fn context_values(context: &ProcessContext) -> [SqlValue; 6] {
-    let code = |value: Option<u32>| value.map_or(SqlValue::Null, |v| SqlValue::Integer(v.into()));
-    [
-        real(context.speed_mpm),
-        code(context.coil),
-        code(context.product),
-        real(context.thickness_mm),
-        code(context.pass),
-        context.state.map_or(SqlValue::Null, |state| {
-            SqlValue::Text(state.name().to_owned())
-        }),
-    ]
-}
-
-/// The context columns of a capture or chatter episode (schema v14): the context's
-/// values, then its status and why it is not valid.
-pub(super) const EVIDENCE_CONTEXT_COLUMNS: [&str; 8] = [
-    CONTEXT_COLUMNS[0],
-    CONTEXT_COLUMNS[1],
-    CONTEXT_COLUMNS[2],
-    CONTEXT_COLUMNS[3],
-    CONTEXT_COLUMNS[4],
-    CONTEXT_COLUMNS[5],
-    "context_status",
-    "context_note",
-];
-
-/// The values of `context` in [`EVIDENCE_CONTEXT_COLUMNS`] order: only the values the
-/// gateway trusts (none of an invalid context, no stale tag's); all `NULL` without
-/// context tags.
-pub(super) fn evidence_context_values(context: Option<&ContextReading>) -> Vec<SqlValue> {
-    let values = context_values(&context.map(ContextReading::trusted).unwrap_or_default());
-    let status = context.map_or(SqlValue::Null, |c| {
-        SqlValue::Text(c.status().name().to_owned())
-    });
-    let note = context
-        .and_then(ContextReading::note)
-        .map_or(SqlValue::Null, SqlValue::Text);
-    values.into_iter().chain([status, note]).collect()
-}
-
 fn bite_facts(run_id: i64, bite: &BiteRecord) -> Vec<SqlValue> {
     let context = bite.context.unwrap_or_default();
     vec![
@@ -444,7 +400,9 @@ mod tests {
     use super::*;
     use crate::history::query::{CaptureRow, ChatterRow, Filter, HistoryReader, Record};
     use crate::state::captures::{CaptureKind, CaptureRecord, KeepClass};
-    use crate::state::context::{ContextError, MillState, StaleTags};
+    use crate::state::context::{
+        ContextError, ContextReading, MillState, ProcessContext, StaleTags,
+    };
     use crate::state::time::UtcTime;
 
     /// A capture of `subject` in `context`.

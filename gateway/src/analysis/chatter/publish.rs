@@ -13,7 +13,7 @@ use super::history::record_episode;
 use super::monitor::{ChatterMonitor, ChatterSetupError, ChatterUpdate};
 use super::spectra::chatter_frequency_hz;
 use super::verdict::{SlowDown, Verdict};
-use crate::analysis::driveline::ContextTracker;
+use crate::analysis::context::ContextTracker;
 use crate::field::acquired::Acquired;
 use crate::state::board::Board;
 use crate::state::captures::CaptureRecord;

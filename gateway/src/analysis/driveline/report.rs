@@ -10,8 +10,8 @@ use millgate_dsp::transient::TransientResult;
 
 use super::analyzer::DrivelineAnalyzer;
 use super::capture::{before, BiteSamples};
-use super::context::BiteContext;
 use crate::analysis::bite_window::{analyze_window, WINDOW_CAPACITY};
+use crate::analysis::context::BiteContext;
 use crate::analysis::fatigue_ledger::LedgerBite;
 use crate::analysis::gap_monitor::GapBite;
 use crate::analysis::wear::WearEstimate;

@@ -1,5 +1,6 @@
-//! A driveline's process context at each bite ([`ContextTracker`]) and whether the
-//! bite is pooled into the wear trend ([`BiteGate`]).
+//! A mill's process context ([`ContextTracker`]): a driveline's at each bite, and
+//! whether the bite is pooled into the wear trend ([`BiteGate`]); a tandem mill's at
+//! each chatter episode and capture ([`ContextTracker::reading`]).
 //!
 //! - **Values**: the latest value of each context tag (`drivelines[].context`) and
 //!   when it came; a value older than its source's stale time ([`max_age`]: a tag
