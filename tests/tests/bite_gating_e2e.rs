@@ -257,15 +257,16 @@ async fn bites_outside_rolling_or_the_speed_range_are_recorded_not_pooled() -> a
     }
     // `capture list --product 205`: the bites of product 205 with a trusted product
     // (bars 1 and 3; bar 5's context was invalid).
+    let selection = |product| Selection {
+        db: db.clone(),
+        driveline: None,
+        kind: None,
+        since: None,
+        until: None,
+        product,
+    };
     let listed = millgate::cli::capture::run(&CaptureCommand::List(ListArgs {
-        selection: Selection {
-            db: db.clone(),
-            driveline: None,
-            kind: None,
-            since: None,
-            until: None,
-            product: Some(205),
-        },
+        selection: selection(Some(205)),
         format: OutputFormat::Json,
     }))?;
     let listed: Vec<serde_json::Value> = serde_json::from_str(&listed)?;
@@ -276,14 +277,7 @@ async fn bites_outside_rolling_or_the_speed_range_are_recorded_not_pooled() -> a
     let out = scratch.path().join("export");
     let export = |format| {
         millgate::cli::capture::export(&ExportArgs {
-            selection: Selection {
-                db: db.clone(),
-                driveline: None,
-                kind: None,
-                since: None,
-                until: None,
-                product: None,
-            },
+            selection: selection(None),
             bite: None,
             id: Some(bite_captures[1].id),
             format,

@@ -30,7 +30,7 @@ use rusqlite::types::Value as SqlValue;
 use rusqlite::{params, OptionalExtension, Transaction};
 use serde::{Deserialize, Serialize};
 
-use super::context_columns::{evidence_context_values, EVIDENCE_CONTEXT_COLUMNS};
+use super::context_columns::{evidence_context_columns, evidence_context_values};
 use super::query::{CaptureRow, HistoryReader};
 use super::HistoryError;
 use crate::state::captures::{
@@ -382,7 +382,7 @@ pub fn insert(
                  started_at, first_sample_unix_ns, kernel_time, sample_rate_hz, samples,
                  duration_s, keep, meta, bytes, {})
              VALUES ({})",
-            EVIDENCE_CONTEXT_COLUMNS.join(", "),
+            evidence_context_columns(),
             placeholders.join(", ")
         ))?
         .execute(rusqlite::params_from_iter(values))?;

@@ -1,6 +1,6 @@
 //! The process context's columns as the history writes them: a bite's (schema v13,
 //! [`CONTEXT_COLUMNS`]), and a capture's or chatter episode's with how far it can be
-//! trusted (v14, [`EVIDENCE_CONTEXT_COLUMNS`]).
+//! trusted (v14, [`evidence_context_columns`]).
 
 use rusqlite::types::Value as SqlValue;
 
@@ -27,20 +27,19 @@ pub(super) fn context_values(context: &ProcessContext) -> [SqlValue; 6] {
     ]
 }
 
-/// The context columns of a capture or chatter episode (schema v14): the context's
-/// values, then its status and why it is not valid.
-pub(super) const EVIDENCE_CONTEXT_COLUMNS: [&str; 8] = [
-    CONTEXT_COLUMNS[0],
-    CONTEXT_COLUMNS[1],
-    CONTEXT_COLUMNS[2],
-    CONTEXT_COLUMNS[3],
-    CONTEXT_COLUMNS[4],
-    CONTEXT_COLUMNS[5],
-    "context_status",
-    "context_note",
-];
+/// The context columns of a capture or chatter episode (schema v14), comma-separated:
+/// the context's values ([`CONTEXT_COLUMNS`]), then its status and why it is not
+/// valid.
+pub(super) fn evidence_context_columns() -> String {
+    let status = ["context_status", "context_note"];
+    CONTEXT_COLUMNS
+        .into_iter()
+        .chain(status)
+        .collect::<Vec<_>>()
+        .join(", ")
+}
 
-/// The values of `context` in [`EVIDENCE_CONTEXT_COLUMNS`] order: only the values the
+/// The values of `context` in [`evidence_context_columns`] order: only the values the
 /// gateway trusts (none of an invalid context, no stale tag's); all `NULL` without
 /// context tags.
 pub(super) fn evidence_context_values(context: Option<&ContextReading>) -> Vec<SqlValue> {

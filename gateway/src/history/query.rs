@@ -72,8 +72,42 @@ pub struct Filter {
 }
 
 /// Declares a row struct of `table` with its [`Record`] implementation: one place
-/// names each column, its type and its meaning.
+/// names each column, its type and its meaning. `with context`: the row also has the
+/// process context's columns (schema v14), and its product is `product`.
 macro_rules! record {
+    (
+        $(#[$meta:meta])* $name:ident, $table:literal, name $name_column:literal,
+        time $time_column:literal, with context {
+            $($(#[$field_meta:meta])* $field:ident: $ty:ty,)*
+        }
+    ) => {
+        record! {
+            $(#[$meta])* $name, $table, name $name_column, time $time_column,
+            product "product" {
+                $($(#[$field_meta])* $field: $ty,)*
+                /// Line speed then, m/min (schema v14: the process context of its time; every
+                /// value `None` without context tags, for a stale tag, for an invalid
+                /// context and before v14).
+                speed_mpm: Option<f64>,
+                /// Coil or bar id.
+                coil: Option<i64>,
+                /// Product code.
+                product: Option<i64>,
+                /// Strip thickness, mm.
+                thickness_mm: Option<f64>,
+                /// Pass number.
+                pass: Option<i64>,
+                /// `idle`, `threading`, `rolling`, `maintenance`.
+                mill_state: Option<String>,
+                /// `valid`, `stale` (a tag without a fresh value: that value `None`),
+                /// `invalid` (an impossible value: every value `None`); `None` without
+                /// context tags and before v14.
+                context_status: Option<String>,
+                /// Why the context is not valid.
+                context_note: Option<String>,
+            }
+        }
+    };
     (
         $(#[$meta:meta])* $name:ident, $table:literal, name $name_column:literal,
         time $time_column:literal $(, product $product_column:literal)? {
@@ -196,7 +230,7 @@ record! {
 
 record! {
     /// A chatter episode (table `chatter_episodes`).
-    ChatterRow, "chatter_episodes", name "mill", time "started_at", product "product" {
+    ChatterRow, "chatter_episodes", name "mill", time "started_at", with context {
         /// Row id.
         id: i64,
         /// The tandem mill.
@@ -217,26 +251,6 @@ record! {
         frequency_hz: Option<f64>,
         /// The alarm condition held in a window.
         alarm: bool,
-        /// Line speed then, m/min (schema v14: the process context of its time; every
-        /// value `None` without context tags, for a stale tag, for an invalid
-        /// context and before v14).
-        speed_mpm: Option<f64>,
-        /// Coil or bar id.
-        coil: Option<i64>,
-        /// Product code.
-        product: Option<i64>,
-        /// Strip thickness, mm.
-        thickness_mm: Option<f64>,
-        /// Pass number.
-        pass: Option<i64>,
-        /// `idle`, `threading`, `rolling`, `maintenance`.
-        mill_state: Option<String>,
-        /// `valid`, `stale` (a tag without a fresh value: that value `None`),
-        /// `invalid` (an impossible value: every value `None`); `None` without
-        /// context tags and before v14.
-        context_status: Option<String>,
-        /// Why the context is not valid.
-        context_note: Option<String>,
     }
 }
 
@@ -286,7 +300,7 @@ record! {
 record! {
     /// A capture (table `captures`, schema v7): what, when and how large; its
     /// samples are read with [`HistoryReader::capture_of`].
-    CaptureRow, "captures", name "subject", time "started_at", product "product" {
+    CaptureRow, "captures", name "subject", time "started_at", with context {
         /// Row id: the capture's id.
         id: i64,
         /// The gateway run that stored it.
@@ -319,26 +333,6 @@ record! {
         meta: String,
         /// Size of the stored samples, bytes.
         bytes: i64,
-        /// Line speed then, m/min (schema v14: the process context of its time; every
-        /// value `None` without context tags, for a stale tag, for an invalid
-        /// context and before v14).
-        speed_mpm: Option<f64>,
-        /// Coil or bar id.
-        coil: Option<i64>,
-        /// Product code.
-        product: Option<i64>,
-        /// Strip thickness, mm.
-        thickness_mm: Option<f64>,
-        /// Pass number.
-        pass: Option<i64>,
-        /// `idle`, `threading`, `rolling`, `maintenance`.
-        mill_state: Option<String>,
-        /// `valid`, `stale` (a tag without a fresh value: that value `None`),
-        /// `invalid` (an impossible value: every value `None`); `None` without
-        /// context tags and before v14.
-        context_status: Option<String>,
-        /// Why the context is not valid.
-        context_note: Option<String>,
     }
 }
 

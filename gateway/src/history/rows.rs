@@ -8,7 +8,7 @@ use rusqlite::{params, Transaction};
 
 use super::bite_row::{CONTEXT_COLUMNS, OWN_COLUMNS};
 use super::context_columns::{
-    context_values, evidence_context_values, real, EVIDENCE_CONTEXT_COLUMNS,
+    context_values, evidence_context_columns, evidence_context_values, real,
 };
 use super::figures::{bite_columns, to_sql, upsert_state};
 use super::run::{insert_settings, DrivelineSettings};
@@ -120,7 +120,7 @@ fn insert_chatter(
                     "INSERT INTO chatter_episodes (run_id, mill, started_at,
                          min_sigma_n_hz, max_k_mean, frequency_hz, alarm, {}, windows)
                      VALUES ({}, 1)",
-                    EVIDENCE_CONTEXT_COLUMNS.join(", "),
+                    evidence_context_columns(),
                     placeholders.join(", ")
                 ))?
                 .execute(rusqlite::params_from_iter(values))?;
