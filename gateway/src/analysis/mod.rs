@@ -8,7 +8,7 @@
 
 pub(crate) mod bite_window;
 pub mod chatter;
-pub mod context;
+pub(crate) mod context;
 pub mod driveline;
 mod error;
 mod extra_channels;
