@@ -287,6 +287,7 @@ async fn main() -> anyhow::Result<()> {
                 kind: None,
                 since: Some(since.to_string()),
                 until: None,
+                product: None,
             },
             bite: None,
             id: None,

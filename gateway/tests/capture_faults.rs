@@ -62,6 +62,7 @@ fn manual_capture(stands: usize, samples: usize) -> CaptureRecord {
         analysis: None,
         episode: None,
         keep: KeepClass::Ordinary,
+        context: None,
     }
 }
 

@@ -81,6 +81,7 @@ fn bite_with_capture(n: u32, time: UtcTime, keep: KeepClass) -> [HistoryEvent; 2
         }),
         episode: None,
         keep,
+        context: None,
     };
     [
         HistoryEvent::Bite(Box::new(bite)),

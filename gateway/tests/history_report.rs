@@ -597,7 +597,8 @@ fn history_streams_two_weeks_of_bites_quits_quietly_on_a_closed_pipe_and_shows_p
         "101",
     ]);
     assert!(
-        String::from_utf8_lossy(&refused.stderr).contains("--product applies to bites only"),
+        String::from_utf8_lossy(&refused.stderr)
+            .contains("--product applies to bites and chatter episodes only"),
         "{refused:?}"
     );
 

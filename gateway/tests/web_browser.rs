@@ -542,13 +542,20 @@ async fn episode_plots_are_the_bands_api(client: &Client, port: u16) {
          return p.band && p.spectrum && rows.length > 0 \
            ? [p.band.millgateCapture, p.band.data, p.spectrum.data, \
               document.getElementById('spectrum-plot').getAttribute('aria-label'), \
-              rows[0].querySelector('a').getAttribute('href'), rows.length] : null;",
+              rows[0].querySelector('a').getAttribute('href'), rows.length, \
+              rows[0].cells[5].textContent] : null;",
         Duration::from_secs(20),
         |v| !v.is_null(),
     )
     .await;
     let id = shown[0].as_i64().expect("the plotted capture's id");
     assert_eq!(shown[5].as_u64(), Some(1), "{shown}");
+    // The context the episode was captured in, beside it.
+    assert_eq!(
+        shown[6].as_str(),
+        Some("coil 4711, product 205, 1200 m/min"),
+        "{shown}"
+    );
     assert_eq!(
         shown[4].as_str(),
         Some(format!("/api/captures/{id}/file?format=csv").as_str())

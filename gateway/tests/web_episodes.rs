@@ -8,7 +8,9 @@
 
 mod common;
 
-use common::episode::{amplitude, stands, tone_hz, write_chatter_capture, FS, GAIN_WINDOW_S};
+use common::episode::{
+    amplitude, stands, tone_hz, write_chatter_capture, COIL, FS, GAIN_WINDOW_S, PRODUCT,
+};
 use common::tandem::modbus_source;
 use common::{free_port, http, peer, scratch, web_ready};
 
@@ -47,6 +49,54 @@ async fn an_episodes_band_signal_and_spectra_match_numpy_on_its_csv() -> anyhow:
     let unknown = http(port, "GET", "/api/tandem_mills/XYZ/captures").await;
     assert_eq!(unknown.status, 404, "{}", unknown.body);
     assert!(unknown.body.contains("TCM"), "{}", unknown.body);
+    // The capture and the episode carry the context they were taken in, and a
+    // product filter finds them by it (none of another product).
+    assert_eq!(
+        (
+            &rows[0]["coil"],
+            &rows[0]["product"],
+            &rows[0]["context_status"]
+        ),
+        (
+            &serde_json::json!(COIL),
+            &serde_json::json!(PRODUCT),
+            &serde_json::json!("valid")
+        ),
+        "{rows:?}"
+    );
+    for (path, rows_of_product) in [
+        (
+            format!("/api/tandem_mills/TCM/captures?product={PRODUCT}"),
+            1,
+        ),
+        (
+            format!("/api/tandem_mills/TCM/episodes?product={PRODUCT}"),
+            1,
+        ),
+        ("/api/tandem_mills/TCM/episodes".to_owned(), 1),
+        ("/api/tandem_mills/TCM/captures?product=101".to_owned(), 0),
+        ("/api/tandem_mills/TCM/episodes?product=101".to_owned(), 0),
+    ] {
+        let answer = http(port, "GET", &path).await;
+        assert_eq!(answer.status, 200, "{path}: {}", answer.body);
+        let listed: Vec<serde_json::Value> = serde_json::from_str(&answer.body)?;
+        assert_eq!(listed.len(), rows_of_product, "{path}: {listed:?}");
+        if let Some(row) = listed.first() {
+            assert_eq!(row["coil"], serde_json::json!(COIL), "{path}: {row}");
+            assert_eq!(row["speed_mpm"], serde_json::json!(1200.0), "{path}: {row}");
+        }
+    }
+    let episodes = http(port, "GET", "/api/tandem_mills/TCM/episodes").await;
+    let episodes: Vec<serde_json::Value> = serde_json::from_str(&episodes.body)?;
+    assert_eq!(episodes[0]["ended_by"], "analysis", "{episodes:?}");
+    for (path, status) in [
+        ("/api/tandem_mills/TCM/episodes?product=-1", 400),
+        ("/api/tandem_mills/TCM/episodes?coil=1", 400),
+        ("/api/tandem_mills/XYZ/episodes", 404),
+    ] {
+        let answer = http(port, "GET", path).await;
+        assert_eq!(answer.status, status, "{path}: {}", answer.body);
+    }
 
     // Every point (no bucketing: the spectra have 626 bins, the band 40-odd windows).
     let bands = http(

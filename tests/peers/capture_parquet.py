@@ -5,9 +5,17 @@ counts gives the decimals its scale means, `0.57`, not `0.5700000000000001`), an
 Parquet file holds the samples of the CSV export of the same capture and the
 capture's metadata.
 
+The process context of the capture's time (the header's `context`, the Parquet
+file's `millgate.context_status`, `millgate.coil`, `millgate.product`, ...) must say
+the same in both: each known value under its key, an unknown one (`null` in the
+header) without a key.
+
 Usage: capture_parquet.py CSV PARQUET [CSV PARQUET ...]. With MILLGATE_CONFIG_HASH
 set, each file's configuration hash (the CSV header's `config_hash`, the Parquet
-file's `millgate.config_hash`) must be it. Exits non-zero with the first difference.
+file's `millgate.config_hash`) must be it. With MILLGATE_CONTEXT set (a JSON object
+such as {"context_status": "valid", "coil": 4711, "product": 205}), each file's
+context must hold those values (`null`: no key in the Parquet metadata). Exits
+non-zero with the first difference.
 """
 
 import json
@@ -67,6 +75,47 @@ def decimals(value):
     return max(0, -Decimal(repr(float(value))).normalize().as_tuple().exponent)
 
 
+# The Parquet metadata's context keys (after `millgate.`) and the header's names.
+CONTEXT_KEYS = {
+    "context_status": "status",
+    "context_note": "note",
+    "speed_mpm": "speed_mpm",
+    "coil": "coil",
+    "product": "product",
+    "thickness_mm": "thickness_mm",
+    "pass": "pass",
+    "mill_state": "mill_state",
+}
+
+
+def check_context(path, header, meta):
+    context = header.get("context")
+    present = {k for k in CONTEXT_KEYS if "millgate." + k in meta}
+    if context is None:
+        assert not present, f"{path}: context keys {present} without a context in the header"
+    else:
+        for key, name in CONTEXT_KEYS.items():
+            value = context.get(name)
+            got = meta.get("millgate." + key)
+            if value is None:
+                assert got is None, f"{path}: millgate.{key} = {got!r}, the header has no value"
+            elif isinstance(value, (int, float)) and not isinstance(value, bool):
+                assert got is not None and float(got) == float(value), (path, key, got, value)
+            else:
+                assert got == value, (path, key, got, value)
+    expected = os.environ.get("MILLGATE_CONTEXT")
+    if expected is not None:
+        assert context is not None, f"{path}: no context in the header"
+        for key, value in json.loads(expected).items():
+            got = meta.get("millgate." + key)
+            if value is None:
+                assert got is None, f"{path}: millgate.{key} = {got!r}, expected none"
+            elif isinstance(value, (int, float)):
+                assert got is not None and float(got) == float(value), (path, key, got, value)
+            else:
+                assert got == value, (path, key, got, value)
+
+
 def check(csv_path, parquet_path):
     header, columns = read_csv(csv_path)
     check_pandas(csv_path, header, columns)
@@ -82,6 +131,7 @@ def check(csv_path, parquet_path):
     if expected_hash is not None:
         assert header.get("config_hash") == expected_hash, (header, expected_hash)
         assert meta.get("millgate.config_hash") == expected_hash, (meta, expected_hash)
+    check_context(parquet_path, header, meta)
     units = json.loads(meta["millgate.units"])
     for channel in header["channels"]:
         assert units[channel["name"]] == channel["unit"], (units, channel)

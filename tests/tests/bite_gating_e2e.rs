@@ -6,17 +6,25 @@
 //! makes the context invalid (counted, the bite pooled as without context). The test
 //! checks each bite's gate and context as the gateway read them, the pooled count in
 //! the PLC's registers, the counters on `/metrics` and, in the history, each bite's
-//! `gated` column and the context it was rolled in (issue 39 item 3).
+//! `gated` column and the context it was rolled in (issue 39 item 3). The PLC also
+//! serves each bar's coil id and product code: every bite's capture carries them
+//! (schema v14), an invalid context's capture none and says so, `capture list
+//! --product` finds a product's captures, and pyarrow reads the coil and product from
+//! a capture's Parquet metadata.
 
 use std::path::PathBuf;
 use std::time::Duration;
 
-use millgate::history::query::{Filter, HistoryReader};
+use millgate::cli::capture::{CaptureCommand, ExportArgs, ListArgs, Selection};
+use millgate::cli::OutputFormat;
+use millgate::history::capture_files::ExportFormat;
+use millgate::history::query::{CaptureRow, Filter, HistoryReader};
 use millgate::state::context::{BiteGate, MillState};
 use millgate_sim::devices::modbus_bank::ServeOptions;
 use millgate_sim::devices::virtual_plc::VirtualPlc;
 use millgate_sim::model::Model;
 use millgate_sim::schedule::{rolling_schedule_with_gap, BarTiming};
+use millgate_tests::kit::peers::peer;
 use millgate_tests::kit::{demo_devices, scrape, scratch, wait_for, Plc};
 use tokio::net::TcpListener;
 
@@ -27,9 +35,16 @@ const TIMING: BarTiming = BarTiming {
     idle_s: 1.5,
     rolling_s: 0.8,
 };
-/// Holding registers of the process PLC: the state code and the speed, m/min.
+/// Holding registers of the process PLC: the state code, the speed (m/min), the coil
+/// id and the product code.
 const STATE_REGISTER: usize = 0;
 const SPEED_REGISTER: usize = 1;
+const COIL_REGISTER: usize = 2;
+const PRODUCT_REGISTER: usize = 3;
+/// Bar `i`'s coil id and product code.
+fn coil_and_product(bar: usize) -> (u16, u16) {
+    (4711 + bar as u16, [101, 205][bar % 2])
+}
 /// Per bar: static torque (kN*m), spindle gap (mrad), state code, speed (m/min), and
 /// the gate the gateway must give its bite (`None`: an invalid context, pooled).
 const BARS: [(f64, f64, u16, u16, Option<BiteGate>); 6] = [
@@ -54,7 +69,12 @@ fn config(history: &std::path::Path) -> anyhow::Result<millgate_config::Config> 
          source = { modbus = \"process_plc\", table = \"holding\", address = 0 }\n\n\
          [[channels]]\nname = \"mill_speed\"\nkind = \"process_value\"\nunit = \"m/min\"\n\
          source = { modbus = \"process_plc\", table = \"holding\", address = 1 }\n\n\
-         [[drivelines]]\ncontext = { state = \"mill_state\", speed_mpm = \"mill_speed\" }\n\
+         [[channels]]\nname = \"coil_id\"\nkind = \"process_value\"\nunit = \"1\"\n\
+         source = { modbus = \"process_plc\", table = \"holding\", address = 2 }\n\n\
+         [[channels]]\nname = \"product_code\"\nkind = \"process_value\"\nunit = \"1\"\n\
+         source = { modbus = \"process_plc\", table = \"holding\", address = 3 }\n\n\
+         [[drivelines]]\ncontext = { state = \"mill_state\", speed_mpm = \"mill_speed\", \
+         coil = \"coil_id\", product = \"product_code\" }\n\
          pool_speed_range_mpm = [100.0, 400.0]",
         1,
     ) + &format!(
@@ -77,13 +97,16 @@ async fn bites_outside_rolling_or_the_speed_range_are_recorded_not_pooled() -> a
     config.cache_dir = Some(scratch.path().to_path_buf());
 
     let process = VirtualPlc::new(4);
-    let set = |state: u16, speed: u16| {
+    let set = |bar: usize| {
+        let (coil, product) = coil_and_product(bar);
         let bank = process.bank();
         let mut bank = bank.lock();
-        bank.holding[STATE_REGISTER] = state;
-        bank.holding[SPEED_REGISTER] = speed;
+        bank.holding[STATE_REGISTER] = BARS[bar].2;
+        bank.holding[SPEED_REGISTER] = BARS[bar].3;
+        bank.holding[COIL_REGISTER] = coil;
+        bank.holding[PRODUCT_REGISTER] = product;
     };
-    set(BARS[0].2, BARS[0].3);
+    set(0);
     let listener = TcpListener::bind("127.0.0.1:0").await?;
     config.modbus_sources[1].address = listener.local_addr()?.to_string();
     let process_running = process.spawn(listener, ServeOptions::default());
@@ -95,8 +118,8 @@ async fn bites_outside_rolling_or_the_speed_range_are_recorded_not_pooled() -> a
     for (bar, &(_, _, state, speed, gate)) in BARS.iter().enumerate() {
         let bite = tokio::time::timeout(Duration::from_secs(15), gateway.bites().recv()).await??;
         // The next bar's context, while this bar tails out and the mill idles.
-        if let Some(next) = BARS.get(bar + 1) {
-            set(next.2, next.3);
+        if bar + 1 < BARS.len() {
+            set(bar + 1);
         }
         let context = bite.context.expect("a driveline with context tags");
         println!("bar {bar}: {context:?}");
@@ -109,6 +132,12 @@ async fn bites_outside_rolling_or_the_speed_range_are_recorded_not_pooled() -> a
                     "bar {bar}"
                 );
                 assert_eq!(read.speed_mpm, Some(f64::from(speed)), "bar {bar}");
+                let (coil, product) = coil_and_product(bar);
+                assert_eq!(
+                    (read.coil, read.product),
+                    (Some(u32::from(coil)), Some(u32::from(product))),
+                    "bar {bar}"
+                );
                 assert_eq!(context.gate, gate, "bar {bar}");
             }
             None => {
@@ -188,6 +217,90 @@ async fn bites_outside_rolling_or_the_speed_range_are_recorded_not_pooled() -> a
             &serde_json::json!(250.0)
         ),
         "{json}"
+    );
+
+    // Each bite's capture carries its bite's context (schema v14): the bar's coil and
+    // product, valid; the invalid context's capture no value, and says why.
+    let captures: Vec<CaptureRow> = reader.rows(&Filter::default())?;
+    let bite_captures: Vec<&CaptureRow> = captures.iter().filter(|c| c.kind == "bite").collect();
+    assert_eq!(bite_captures.len(), BARS.len(), "{captures:?}");
+    for (bar, capture) in bite_captures.iter().enumerate() {
+        let (coil, product) = coil_and_product(bar);
+        match BARS[bar].4 {
+            Some(_) => {
+                assert_eq!(
+                    (
+                        capture.coil,
+                        capture.product,
+                        capture.context_status.as_deref()
+                    ),
+                    (
+                        Some(i64::from(coil)),
+                        Some(i64::from(product)),
+                        Some("valid")
+                    ),
+                    "bar {bar}"
+                );
+                assert_eq!(capture.speed_mpm, Some(f64::from(BARS[bar].3)));
+            }
+            None => {
+                assert_eq!(
+                    (capture.coil, capture.product, capture.mill_state.as_deref()),
+                    (None, None, None),
+                    "bar {bar}: an invalid context keeps no value"
+                );
+                assert_eq!(capture.context_status.as_deref(), Some("invalid"));
+                let note = capture.context_note.as_deref().unwrap_or_default();
+                assert!(note.starts_with("state 7 is not allowed"), "{note}");
+            }
+        }
+    }
+    // `capture list --product 205`: the bites of product 205 with a trusted product
+    // (bars 1 and 3; bar 5's context was invalid).
+    let selection = |product| Selection {
+        db: db.clone(),
+        driveline: None,
+        kind: None,
+        since: None,
+        until: None,
+        product,
+    };
+    let listed = millgate::cli::capture::run(&CaptureCommand::List(ListArgs {
+        selection: selection(Some(205)),
+        format: OutputFormat::Json,
+    }))?;
+    let listed: Vec<serde_json::Value> = serde_json::from_str(&listed)?;
+    let coils: Vec<&serde_json::Value> = listed.iter().map(|c| &c["coil"]).collect();
+    assert_eq!(coils, [&serde_json::json!(4712), &serde_json::json!(4714)]);
+    // pyarrow reads the coil and product from bar 1's Parquet export, and the
+    // context from the CSV's sidecar says the same.
+    let out = scratch.path().join("export");
+    let export = |format| {
+        millgate::cli::capture::export(&ExportArgs {
+            selection: selection(None),
+            bite: None,
+            id: Some(bite_captures[1].id),
+            format,
+            out: out.clone(),
+        })
+    };
+    let csv = export(ExportFormat::Csv)?;
+    let parquet = export(ExportFormat::Parquet)?;
+    let checked = std::process::Command::new("python3")
+        .arg(peer("capture_parquet.py"))
+        .arg(&csv[0])
+        .arg(&parquet[0])
+        .env(
+            "MILLGATE_CONTEXT",
+            r#"{"context_status": "valid", "coil": 4712, "product": 205,
+                "speed_mpm": 250, "mill_state": "threading", "context_note": null}"#,
+        )
+        .output()?;
+    assert!(
+        checked.status.success(),
+        "{}{}",
+        String::from_utf8_lossy(&checked.stdout),
+        String::from_utf8_lossy(&checked.stderr)
     );
     Ok(())
 }

@@ -39,6 +39,9 @@ const SETTLE_S: f64 = 6.0;
 /// The manual capture of the stands taken at the start of a run with a history, s
 /// (within the stable rolling before the ramp).
 const MANUAL_CAPTURE_S: u16 = 4;
+/// The coil id and product code the process PLC serves in a run with a history.
+const COIL: u16 = 4711;
+const PRODUCT: u16 = 205;
 
 /// Five stands on one DAQ at 2500 Hz (0.01 m/s^2 per bit), the mill commissioned on
 /// `mill`'s recordings, a PLC output.
@@ -50,11 +53,25 @@ fn config(mill: &Mill, history: Option<&std::path::Path>) -> anyhow::Result<Conf
 
 /// [`config`]'s text.
 fn config_text(mill: &Mill, history: Option<&std::path::Path>) -> String {
-    let stands = Stands::modbus(5, "daq")
+    let mut stands = Stands::modbus(5, "daq")
         .thresholds(&mill.gain_thresholds)
         .keys(&format!("slow_down_release = {}", mill.gain_release));
+    let mut process = String::new();
+    if history.is_some() {
+        // With a history, the mill's coil and product from a process PLC: the
+        // context its episodes and captures carry.
+        process = "[[sources.modbus]]\nname = \"process_plc\"\naddress = \"127.0.0.1:1\"\n\
+                   poll_period_ms = 100\n\n\
+                   [[channels]]\nname = \"coil_id\"\nkind = \"process_value\"\nunit = \"1\"\n\
+                   source = { modbus = \"process_plc\", table = \"holding\", address = 0 }\n\n\
+                   [[channels]]\nname = \"product_code\"\nkind = \"process_value\"\nunit = \"1\"\n\
+                   source = { modbus = \"process_plc\", table = \"holding\", address = 1 }\n\n"
+            .to_owned();
+        stands = stands.keys("context = { coil = \"coil_id\", product = \"product_code\" }");
+    }
     let mut text = String::from("name = \"chatter loop\"\n")
         + &modbus_source("daq")
+        + &process
         + &stands.toml()
         + "[outputs.plc]\naddress = \"127.0.0.1:1\"\nwrite_period_ms = 50\n";
     if let Some(path) = history {
@@ -179,6 +196,22 @@ async fn closed_loop(
         output.register_base = 0;
     }
     let serving_plc = plc.spawn(listener, ServeOptions::default());
+    // With a history, the process PLC serving the coil and the product.
+    let serving_process = match history {
+        Some(_) => {
+            let process = VirtualPlc::new(4);
+            {
+                let bank = process.bank();
+                let mut bank = bank.lock();
+                bank.holding[0] = COIL;
+                bank.holding[1] = PRODUCT;
+            }
+            let listener = TcpListener::bind("127.0.0.1:0").await?;
+            config.modbus_sources[1].address = listener.local_addr()?.to_string();
+            Some(process.spawn(listener, ServeOptions::default()))
+        }
+        None => None,
+    };
     let gateway = millgate::Service::new(config)?.spawn().await?;
 
     // The bit's rises in the PLC's register, polled every millisecond.
@@ -246,6 +279,9 @@ async fn closed_loop(
     gateway.stop().await?;
     serving_daq.stop().await?;
     serving_plc.stop().await?;
+    if let Some(process) = serving_process {
+        process.stop().await?;
+    }
     let rises = rises.lock().map(|r| r.clone()).unwrap_or_default();
     Ok(LoopRun {
         rig: rig?,
@@ -369,7 +405,7 @@ async fn a_chatter_episode_is_captured_as_the_daq_sent_it_and_reproduces_its_war
     use millgate::cli::chatter::commission::CommissionArgs;
     use millgate::cli::chatter::windows::{analyze, WindowsArgs};
     use millgate::history::capture_files::ExportFormat;
-    use millgate::history::query::{CaptureRow, Filter, HistoryReader};
+    use millgate::history::query::{CaptureRow, ChatterRow, Filter, HistoryReader};
 
     let plan = LoopPlan::quick();
     let mills = mills(&plan)?;
@@ -405,6 +441,35 @@ async fn a_chatter_episode_is_captured_as_the_daq_sent_it_and_reproduces_its_war
         [] => assert_eq!(manual[0].samples, i64::from(MANUAL_CAPTURE_S) * FS as i64),
         [gap] => assert_eq!(gap.before_sample as i64, manual[0].samples),
         _ => panic!("{:?}", manual_capture.meta.gaps),
+    }
+    // The episode, its capture and the manual capture carry the coil and product the
+    // process PLC served (schema v14).
+    let context = |row: &CaptureRow| (row.coil, row.product, row.context_status.clone());
+    let served = (
+        Some(i64::from(COIL)),
+        Some(i64::from(PRODUCT)),
+        Some("valid".to_owned()),
+    );
+    assert_eq!(context(chatter[0]), served, "{:?}", chatter[0]);
+    assert_eq!(context(manual[0]), served, "{:?}", manual[0]);
+    let episodes: Vec<ChatterRow> = reader.rows(&Filter {
+        product: Some(u32::from(PRODUCT)),
+        ..Filter::default()
+    })?;
+    assert!(
+        !episodes.is_empty(),
+        "no chatter episode of product {PRODUCT}"
+    );
+    for episode in &episodes {
+        assert_eq!(
+            (
+                episode.coil,
+                episode.product,
+                episode.context_status.clone()
+            ),
+            served,
+            "{episode:?}"
+        );
     }
     let capture = reader.capture_of(chatter[0].clone())?;
     let episode = capture
@@ -467,6 +532,7 @@ async fn a_chatter_episode_is_captured_as_the_daq_sent_it_and_reproduces_its_war
             kind: Some(KindArg::Chatter),
             since: None,
             until: None,
+            product: None,
         },
         bite: None,
         id: None,
@@ -485,6 +551,7 @@ async fn a_chatter_episode_is_captured_as_the_daq_sent_it_and_reproduces_its_war
             kind: Some(KindArg::Chatter),
             since: None,
             until: None,
+            product: None,
         },
         bite: None,
         id: None,
@@ -496,6 +563,10 @@ async fn a_chatter_episode_is_captured_as_the_daq_sent_it_and_reproduces_its_war
         .arg(&script)
         .arg(&files[0])
         .arg(&parquet[0])
+        .env(
+            "MILLGATE_CONTEXT",
+            format!(r#"{{"context_status": "valid", "coil": {COIL}, "product": {PRODUCT}}}"#),
+        )
         .output()?;
     assert!(
         checked.status.success(),

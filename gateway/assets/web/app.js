@@ -13,6 +13,22 @@
   const num = (v, digits) => (v === null || v === undefined ? "–" : Number(v).toFixed(digits));
   // Every time on the pages is UTC and says so: "2026-11-27 08:14:03 UTC".
   const utc = (text) => (text ? text.replace("T", " ").replace(/\.\d+Z$|Z$/, "") + " UTC" : "–");
+  // The process context a capture or chatter episode was taken in (its row's
+  // columns, schema v14): the values the gateway trusted, and why not when it did not
+  // ("coil 4711, product 205, 0.25 mm, 1200 m/min, pass 3, rolling"); "–" without one.
+  function contextText(r) {
+    if (!r || !r.context_status) return "–";
+    const parts = [];
+    if (r.coil !== null && r.coil !== undefined) parts.push("coil " + r.coil);
+    if (r.product !== null && r.product !== undefined) parts.push("product " + r.product);
+    if (r.thickness_mm !== null && r.thickness_mm !== undefined) parts.push(num(r.thickness_mm, 2) + " mm");
+    if (r.speed_mpm !== null && r.speed_mpm !== undefined) parts.push(num(r.speed_mpm, 0) + " m/min");
+    if (r.pass !== null && r.pass !== undefined) parts.push("pass " + r.pass);
+    if (r.mill_state) parts.push(r.mill_state);
+    const values = parts.length ? parts.join(", ") : "no values";
+    return r.context_status === "valid" ? values
+      : values + " (context " + r.context_status + (r.context_note ? ": " + r.context_note : "") + ")";
+  }
   function ago(text) {
     if (!text) return "";
     const s = Math.max(0, (Date.now() - Date.parse(text)) / 1000);
@@ -603,8 +619,9 @@
         const bite = bites.find((b) => b.bite_counter === capture.bite_counter);
         const gap = bite && bite.gap_mrad !== null && bite.gap_mrad !== undefined
           ? "; estimated gap " + num(bite.gap_mrad, 2) + " mrad (" + num(bite.gap_low_mrad, 2) + "–" + num(bite.gap_high_mrad, 2) + ")" : "";
+        const context = capture.context_status ? "; rolled in: " + contextText(capture) : "";
         traceNote.textContent = "Bite " + capture.bite_counter + " at " + utc(capture.bite_time) + ", capture " + id + ", "
-          + channel.samples.length + " samples at " + rate + " Hz" + gap + ". "
+          + channel.samples.length + " samples at " + rate + " Hz" + gap + context + ". "
           + (response ? "Model aligned to the record: static torque " + num(response.response.static_torque_knm, 1)
             + " kN·m, onset " + num(response.response.onset_s * 1000, 1) + " ms; residual (measured − model) "
             + num(response.response.residual_rms_knm, 2) + " kN·m RMS: what the model does not explain (a gap, a stiffness off)."
@@ -988,6 +1005,7 @@
         el("td", {}, num(c.duration_s, 1) + " s"),
         el("td", {}, episode ? at(episode.warning_sample) : "–"),
         el("td", {}, episode ? (episode.cut ? "cut" : at(episode.cleared_sample)) : "–"),
+        el("td", { class: c.context_status && c.context_status !== "valid" ? "muted" : "" }, contextText(c)),
         el("td", {},
           el("button", { type: "button", class: "plot-capture", "data-capture": c.id }, "plot"), " ",
           el("a", { href: file("csv"), download: "" }, "CSV"), " ",

@@ -8,6 +8,7 @@
 
 pub(crate) mod bite_window;
 pub mod chatter;
+pub(crate) mod context;
 pub mod driveline;
 mod error;
 mod extra_channels;

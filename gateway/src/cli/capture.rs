@@ -106,6 +106,10 @@ pub struct Selection {
     /// Captures whose first sample is before this time (UTC).
     #[arg(long)]
     pub until: Option<String>,
+    /// Only captures taken rolling this product code (the context of their time,
+    /// schema v14; a capture whose product is unknown is left out).
+    #[arg(long)]
+    pub product: Option<u32>,
 }
 
 /// A capture kind on the command line.
@@ -199,7 +203,7 @@ fn filter(reader: &HistoryReader, selection: &Selection) -> anyhow::Result<Filte
         until,
         after_id: None,
         limit: None,
-        product: None,
+        product: selection.product,
     })
 }
 
@@ -240,6 +244,9 @@ fn nothing(reader: &HistoryReader, selection: &Selection) -> anyhow::Error {
     if let Some(until) = &selection.until {
         write!(what, " until {until}").ok();
     }
+    if let Some(product) = selection.product {
+        write!(what, " of product {product}").ok();
+    }
     let range = reader
         .rows::<CaptureRow>(&Filter {
             limit: Some(1),
@@ -277,7 +284,7 @@ fn list(args: &ListArgs) -> anyhow::Result<String> {
     if args.format == super::OutputFormat::Text {
         writeln!(
             out,
-            "{:>6} {:<8} {:<12} {:>6} {:<24} {:>8} {:>7} {:>9} {:>4} {:>8}  channels",
+            "{:>6} {:<8} {:<12} {:>6} {:<24} {:>8} {:>7} {:>9} {:>4} {:>8} {:>10} {:>7} {:<8}  channels",
             "id",
             "kind",
             "subject",
@@ -287,7 +294,10 @@ fn list(args: &ListArgs) -> anyhow::Result<String> {
             "rate_hz",
             "samples",
             "keep",
-            "bytes"
+            "bytes",
+            "coil",
+            "product",
+            "context"
         )?;
     }
     for_each_row(
@@ -311,7 +321,7 @@ fn list(args: &ListArgs) -> anyhow::Result<String> {
                         .unwrap_or_default();
                     writeln!(
                     out,
-                    "{:>6} {:<8} {:<12} {:>6} {:<24} {:>8.3} {:>7} {:>9} {:>4} {:>8}  {channels}",
+                    "{:>6} {:<8} {:<12} {:>6} {:<24} {:>8.3} {:>7} {:>9} {:>4} {:>8} {:>10} {:>7} {:<8}  {channels}",
                     row.id,
                     row.kind,
                     row.subject,
@@ -321,7 +331,10 @@ fn list(args: &ListArgs) -> anyhow::Result<String> {
                     row.sample_rate_hz,
                     row.samples,
                     row.keep,
-                    row.bytes
+                    row.bytes,
+                    row.coil.map_or("-".to_owned(), |c| c.to_string()),
+                    row.product.map_or("-".to_owned(), |p| p.to_string()),
+                    row.context_status.as_deref().unwrap_or("-")
                 )?;
                 }
                 super::OutputFormat::Json => {

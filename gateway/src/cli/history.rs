@@ -77,7 +77,8 @@ pub struct HistoryArgs {
     /// At most this many rows (the oldest first).
     #[arg(long)]
     pub limit: Option<u32>,
-    /// Only bites of this product code (the context they were rolled in; bites only).
+    /// Only bites (or chatter episodes) of this product code (the context of their
+    /// time; bites and chatter episodes only).
     #[arg(long)]
     pub product: Option<u32>,
     /// Output format.
@@ -128,8 +129,10 @@ pub fn export(args: &HistoryArgs, out: impl Write) -> anyhow::Result<()> {
         }
         (_, driveline, None) => driveline.clone(),
     };
-    if args.product.is_some() && args.kind != Kind::Bites {
-        anyhow::bail!("--product applies to bites only (--kind bites)");
+    if args.product.is_some() && !matches!(args.kind, Kind::Bites | Kind::Chatter) {
+        anyhow::bail!(
+            "--product applies to bites and chatter episodes only (--kind bites, --kind chatter)"
+        );
     }
     let filter = Filter {
         name,

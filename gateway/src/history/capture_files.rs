@@ -16,7 +16,7 @@ use rusqlite::OptionalExtension;
 use serde::{Deserialize, Serialize};
 
 use super::captures::{Capture, ChannelMeta};
-use super::query::HistoryReader;
+use super::query::{CaptureRow, HistoryReader};
 use super::HistoryError;
 use crate::state::captures::{BiteWindowAnalysis, CaptureGap, ChatterEpisode};
 
@@ -116,6 +116,69 @@ pub struct CaptureHeader {
     /// run recorded before schema version 8.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub config_hash: Option<String>,
+    /// The process context of its time (schema v14); absent without context tags
+    /// and for a capture stored before.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub context: Option<CaptureContext>,
+}
+
+/// The process context a capture was taken in, as its files say it: only values the
+/// gateway trusted (an unknown value is `null` in JSON and absent from the Parquet
+/// metadata), and how far it could be trusted.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CaptureContext {
+    /// `valid`, `stale` (a tag without a fresh value: that value unknown) or
+    /// `invalid` (an impossible value: every value unknown).
+    pub status: String,
+    /// Why it is not valid.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub note: Option<String>,
+    /// Mill speed, m/min.
+    pub speed_mpm: Option<f64>,
+    /// Coil or bar id.
+    pub coil: Option<i64>,
+    /// Product code.
+    pub product: Option<i64>,
+    /// Strip thickness, mm.
+    pub thickness_mm: Option<f64>,
+    /// Pass number.
+    pub pass: Option<i64>,
+    /// `idle`, `threading`, `rolling`, `maintenance`.
+    pub mill_state: Option<String>,
+}
+
+impl CaptureContext {
+    /// The context of capture row `row`; `None` when it has none.
+    pub fn of(row: &CaptureRow) -> Option<Self> {
+        Some(Self {
+            status: row.context_status.clone()?,
+            note: row.context_note.clone(),
+            speed_mpm: row.speed_mpm,
+            coil: row.coil,
+            product: row.product,
+            thickness_mm: row.thickness_mm,
+            pass: row.pass,
+            mill_state: row.mill_state.clone(),
+        })
+    }
+
+    /// The Parquet metadata entries (key without the `millgate.` prefix, value): the
+    /// status, the note when there is one, and each known value.
+    pub(super) fn metadata(&self) -> Vec<(&'static str, String)> {
+        [
+            ("context_status", Some(self.status.clone())),
+            ("context_note", self.note.clone()),
+            ("speed_mpm", self.speed_mpm.map(|v| v.to_string())),
+            ("coil", self.coil.map(|v| v.to_string())),
+            ("product", self.product.map(|v| v.to_string())),
+            ("thickness_mm", self.thickness_mm.map(|v| v.to_string())),
+            ("pass", self.pass.map(|v| v.to_string())),
+            ("mill_state", self.mill_state.clone()),
+        ]
+        .into_iter()
+        .filter_map(|(key, value)| value.map(|value| (key, value)))
+        .collect()
+    }
 }
 
 /// The configuration a run was started with, as its history row keeps it.
@@ -148,6 +211,7 @@ impl CaptureHeader {
             gateway_version: capture.meta.version.clone(),
             config_name: run.name,
             config_hash: run.hash,
+            context: CaptureContext::of(row),
         }
     }
 
@@ -243,8 +307,13 @@ pub fn write<W: Write + Send>(
         ExportFormat::Csv => write_csv(capture, out),
         ExportFormat::Parquet => {
             let json = serde_json::to_string(header).map_err(std::io::Error::other)?;
-            let hash = header.config_hash.as_deref();
-            Ok(super::capture_parquet::write(capture, &json, hash, out)?)
+            let hash = header
+                .config_hash
+                .iter()
+                .map(|h| ("config_hash", h.clone()));
+            let context = header.context.iter().flat_map(CaptureContext::metadata);
+            let more = hash.chain(context).collect();
+            Ok(super::capture_parquet::write(capture, &json, more, out)?)
         }
     }
 }

@@ -8,7 +8,12 @@
 //! version), and the most asked of it under keys of their own (`millgate.subject`,
 //! `millgate.kind`, `millgate.bite_counter`, `millgate.sample_rate_hz`,
 //! `millgate.started_at`, `millgate.units`, `millgate.gateway_version`, and
-//! `millgate.config_hash` when the run recorded it).
+//! `millgate.config_hash` when the run recorded it), and the process context of its
+//! time (schema v14): `millgate.context_status` (`valid`, `stale`, `invalid`),
+//! `millgate.context_note` when it is not valid, and each value the gateway trusted
+//! (`millgate.coil`, `millgate.product`, `millgate.speed_mpm`,
+//! `millgate.thickness_mm`, `millgate.pass`, `millgate.mill_state`): an unknown
+//! value has no key.
 //!
 //! Written with arrow-rs' `parquet` crate without its `arrow` feature (the column
 //! writers alone: the samples are plain `f64` columns, and arrow's array crates would
@@ -42,14 +47,14 @@ fn column(name: &str, physical: PhysicalType) -> Result<Arc<Type>, ParquetError>
     ))
 }
 
-/// Write `capture` to `out` as Parquet, with `header` (the capture's header as JSON,
-/// as a CSV export's first line has it) and `config_hash` (its run's configuration
-/// hash, when known) in the metadata. Its channels' names are not the time columns'
-/// (`time`, `t`): [`TIME_COLUMNS`].
+/// Write `capture` to `out` as Parquet, with `header` (its header as JSON, as a CSV
+/// export's sidecar has it) and `more` (key without `millgate.`, value: its run's
+/// configuration hash when known, its context) in the metadata. Its channels' names
+/// are not the time columns' (`time`, `t`): [`TIME_COLUMNS`].
 pub(super) fn write<W: Write + Send>(
     capture: &Capture,
     header: &str,
-    config_hash: Option<&str>,
+    more: Vec<(&str, String)>,
     out: W,
 ) -> Result<(), ParquetError> {
     let row = &capture.row;
@@ -89,7 +94,7 @@ pub(super) fn write<W: Write + Send>(
         key("units", serde_json::Value::Object(units).to_string()),
         key("gateway_version", capture.meta.version.clone()),
     ];
-    metadata.extend(config_hash.map(|hash| key("config_hash", hash.to_owned())));
+    metadata.extend(more.into_iter().map(|(name, value)| key(name, value)));
     let properties = WriterProperties::builder()
         .set_compression(Compression::SNAPPY)
         .set_key_value_metadata(Some(metadata))

@@ -26,9 +26,11 @@
 use std::io::{Read as _, Write as _};
 
 use millgate_config::Scaling;
+use rusqlite::types::Value as SqlValue;
 use rusqlite::{params, OptionalExtension, Transaction};
 use serde::{Deserialize, Serialize};
 
+use super::context_columns::{evidence_context_columns, evidence_context_values};
 use super::query::{CaptureRow, HistoryReader};
 use super::HistoryError;
 use crate::state::captures::{
@@ -347,30 +349,43 @@ pub fn insert(
         None => None,
     };
     let samples = record.samples();
+    let mut values: Vec<SqlValue> = vec![
+        run_id.into(),
+        record.kind.name().to_owned().into(),
+        record.subject.clone().into(),
+        bite_id.into(),
+        record
+            .bite
+            .as_ref()
+            .map(|bite| i64::from(bite.counter))
+            .into(),
+        record
+            .bite
+            .as_ref()
+            .map(|bite| bite.time.to_string())
+            .into(),
+        record.started_at().to_string().into(),
+        record.first_sample_unix_ns.into(),
+        i64::from(record.kernel_time).into(),
+        record.sample_rate_hz.into(),
+        i64::try_from(samples).unwrap_or(i64::MAX).into(),
+        (samples as f64 / record.sample_rate_hz).into(),
+        record.keep.code().into(),
+        meta.into(),
+        i64::try_from(blob.len()).unwrap_or(i64::MAX).into(),
+    ];
+    values.extend(evidence_context_values(record.context.as_ref()));
+    let placeholders: Vec<String> = (1..=values.len()).map(|i| format!("?{i}")).collect();
     transaction
-        .prepare_cached(
+        .prepare_cached(&format!(
             "INSERT INTO captures (run_id, kind, subject, bite_id, bite_counter, bite_time,
                  started_at, first_sample_unix_ns, kernel_time, sample_rate_hz, samples,
-                 duration_s, keep, meta, bytes)
-             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15)",
-        )?
-        .execute(params![
-            run_id,
-            record.kind.name(),
-            record.subject,
-            bite_id,
-            record.bite.as_ref().map(|bite| bite.counter),
-            record.bite.as_ref().map(|bite| bite.time.to_string()),
-            record.started_at().to_string(),
-            record.first_sample_unix_ns,
-            record.kernel_time,
-            record.sample_rate_hz,
-            i64::try_from(samples).unwrap_or(i64::MAX),
-            samples as f64 / record.sample_rate_hz,
-            record.keep.code(),
-            meta,
-            i64::try_from(blob.len()).unwrap_or(i64::MAX),
-        ])?;
+                 duration_s, keep, meta, bytes, {})
+             VALUES ({})",
+            evidence_context_columns(),
+            placeholders.join(", ")
+        ))?
+        .execute(rusqlite::params_from_iter(values))?;
     transaction
         .prepare_cached("INSERT INTO capture_data (id, data) VALUES (?1, ?2)")?
         .execute(params![transaction.last_insert_rowid(), blob])?;
@@ -502,6 +517,7 @@ mod tests {
             analysis: None,
             episode: None,
             keep: KeepClass::Ordinary,
+            context: None,
         }
     }
 

@@ -58,6 +58,7 @@ pub mod capture_files;
 mod capture_parquet;
 pub mod captures;
 mod checkpoint;
+mod context_columns;
 mod error;
 pub mod fatigue_series;
 pub(crate) mod figures;

@@ -65,17 +65,52 @@ pub struct Filter {
     pub after_id: Option<i64>,
     /// At most this many rows.
     pub limit: Option<u32>,
-    /// Only rows of this product code (bites: their `product` column, schema v13; a
-    /// table without a product has no row of any product).
+    /// Only rows of this product code (bites: their `product` column, schema v13;
+    /// captures and chatter episodes, v14; a table without a product has no row of
+    /// any product).
     pub product: Option<u32>,
 }
 
 /// Declares a row struct of `table` with its [`Record`] implementation: one place
-/// names each column, its type and its meaning.
+/// names each column, its type and its meaning. `with context`: the row also has the
+/// process context's columns (schema v14), and its product is `product`.
 macro_rules! record {
     (
         $(#[$meta:meta])* $name:ident, $table:literal, name $name_column:literal,
-        time $time_column:literal {
+        time $time_column:literal, with context {
+            $($(#[$field_meta:meta])* $field:ident: $ty:ty,)*
+        }
+    ) => {
+        record! {
+            $(#[$meta])* $name, $table, name $name_column, time $time_column,
+            product "product" {
+                $($(#[$field_meta])* $field: $ty,)*
+                /// Line speed then, m/min (schema v14: the process context of its time; every
+                /// value `None` without context tags, for a stale tag, for an invalid
+                /// context and before v14).
+                speed_mpm: Option<f64>,
+                /// Coil or bar id.
+                coil: Option<i64>,
+                /// Product code.
+                product: Option<i64>,
+                /// Strip thickness, mm.
+                thickness_mm: Option<f64>,
+                /// Pass number.
+                pass: Option<i64>,
+                /// `idle`, `threading`, `rolling`, `maintenance`.
+                mill_state: Option<String>,
+                /// `valid`, `stale` (a tag without a fresh value: that value `None`),
+                /// `invalid` (an impossible value: every value `None`); `None` without
+                /// context tags and before v14.
+                context_status: Option<String>,
+                /// Why the context is not valid.
+                context_note: Option<String>,
+            }
+        }
+    };
+    (
+        $(#[$meta:meta])* $name:ident, $table:literal, name $name_column:literal,
+        time $time_column:literal $(, product $product_column:literal)? {
             $($(#[$field_meta:meta])* $field:ident: $ty:ty,)*
         }
     ) => {
@@ -92,6 +127,7 @@ macro_rules! record {
             }
             const NAME_COLUMN: &'static str = $name_column;
             const TIME_COLUMN: &'static str = $time_column;
+            $(const PRODUCT_COLUMN: Option<&'static str> = Some($product_column);)?
 
             fn from_row(row: &rusqlite::Row<'_>) -> rusqlite::Result<Self> {
                 Ok(Self { $($field: row.get(stringify!($field))?,)* })
@@ -194,7 +230,7 @@ record! {
 
 record! {
     /// A chatter episode (table `chatter_episodes`).
-    ChatterRow, "chatter_episodes", name "mill", time "started_at" {
+    ChatterRow, "chatter_episodes", name "mill", time "started_at", with context {
         /// Row id.
         id: i64,
         /// The tandem mill.
@@ -264,7 +300,7 @@ record! {
 record! {
     /// A capture (table `captures`, schema v7): what, when and how large; its
     /// samples are read with [`HistoryReader::capture_of`].
-    CaptureRow, "captures", name "subject", time "started_at" {
+    CaptureRow, "captures", name "subject", time "started_at", with context {
         /// Row id: the capture's id.
         id: i64,
         /// The gateway run that stored it.

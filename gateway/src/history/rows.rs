@@ -7,6 +7,9 @@ use rusqlite::types::Value as SqlValue;
 use rusqlite::{params, Transaction};
 
 use super::bite_row::{CONTEXT_COLUMNS, OWN_COLUMNS};
+use super::context_columns::{
+    context_values, evidence_context_columns, evidence_context_values, real,
+};
 use super::figures::{bite_columns, to_sql, upsert_state};
 use super::run::{insert_settings, DrivelineSettings};
 use crate::state::events::{
@@ -95,22 +98,32 @@ fn insert_chatter(
     event: &HistoryEvent,
 ) -> rusqlite::Result<()> {
     match event {
-        HistoryEvent::ChatterStarted { time, mill, window } => {
+        HistoryEvent::ChatterStarted {
+            time,
+            mill,
+            window,
+            context,
+        } => {
+            let mut values = vec![
+                SqlValue::Integer(run_id),
+                SqlValue::Text(mill.clone()),
+                SqlValue::Text(time.to_string()),
+                SqlValue::Real(window.sigma_n_hz),
+                SqlValue::Real(window.k_mean),
+                real(window.frequency_hz),
+                SqlValue::Integer(window.synchronized.into()),
+            ];
+            values.extend(evidence_context_values(context.as_ref()));
+            let placeholders: Vec<String> = (1..=values.len()).map(|i| format!("?{i}")).collect();
             transaction
-                .prepare_cached(
-                    "INSERT INTO chatter_episodes (run_id, mill, started_at, windows,
-                     min_sigma_n_hz, max_k_mean, frequency_hz, alarm)
-                 VALUES (?1, ?2, ?3, 1, ?4, ?5, ?6, ?7)",
-                )?
-                .execute(params![
-                    run_id,
-                    mill,
-                    time.to_string(),
-                    window.sigma_n_hz,
-                    window.k_mean,
-                    window.frequency_hz,
-                    window.synchronized
-                ])?;
+                .prepare_cached(&format!(
+                    "INSERT INTO chatter_episodes (run_id, mill, started_at,
+                         min_sigma_n_hz, max_k_mean, frequency_hz, alarm, {}, windows)
+                     VALUES ({}, 1)",
+                    evidence_context_columns(),
+                    placeholders.join(", ")
+                ))?
+                .execute(rusqlite::params_from_iter(values))?;
             Ok(())
         }
         HistoryEvent::ChatterWindow { mill, window } => chatter_window(transaction, mill, window),
@@ -229,8 +242,6 @@ const BITE_FACTS: [&str; 15] = [
 ];
 
 fn bite_facts(run_id: i64, bite: &BiteRecord) -> Vec<SqlValue> {
-    let real = |value: Option<f64>| value.map_or(SqlValue::Null, SqlValue::Real);
-    let code = |value: Option<u32>| value.map_or(SqlValue::Null, |v| SqlValue::Integer(v.into()));
     let context = bite.context.unwrap_or_default();
     vec![
         SqlValue::Integer(run_id),
@@ -242,15 +253,10 @@ fn bite_facts(run_id: i64, bite: &BiteRecord) -> Vec<SqlValue> {
         real(bite.shift_over_linear_s),
         real(bite.pooled.map(|p| p.taf_sigma)),
         real(bite.pooled.map(|p| p.period_shift_sigma_s)),
-        real(context.speed_mpm),
-        code(context.coil),
-        code(context.product),
-        real(context.thickness_mm),
-        code(context.pass),
-        context.state.map_or(SqlValue::Null, |state| {
-            SqlValue::Text(state.name().to_owned())
-        }),
     ]
+    .into_iter()
+    .chain(context_values(&context))
+    .collect()
 }
 
 /// The bite's row (its figures by the catalogue's bite columns), its wear estimate
@@ -384,5 +390,188 @@ fn insert_state(transaction: &Transaction<'_>, state: &StateRecord) -> rusqlite:
         SubjectResults::TandemMill(results) => {
             upsert_state(transaction, &state.subject, state.time, results)
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use rusqlite::Connection;
+
+    use super::*;
+    use crate::history::query::{CaptureRow, ChatterRow, Filter, HistoryReader, Record};
+    use crate::state::captures::{CaptureKind, CaptureRecord, KeepClass};
+    use crate::state::context::{
+        ContextError, ContextReading, MillState, ProcessContext, StaleTags,
+    };
+    use crate::state::time::UtcTime;
+
+    /// A capture of `subject` in `context`.
+    fn capture(subject: &str, context: Option<ContextReading>) -> CaptureRecord {
+        CaptureRecord {
+            kind: CaptureKind::Chatter,
+            subject: subject.into(),
+            bite: None,
+            first_sample_unix_ns: 1_790_000_000_000_000_000,
+            kernel_time: false,
+            sample_rate_hz: 2500.0,
+            channels: Vec::new(),
+            gaps: Vec::new(),
+            analysis: None,
+            episode: None,
+            keep: KeepClass::Important,
+            context,
+        }
+    }
+
+    /// Captures and chatter episodes keep the trusted values of their context and
+    /// say how far it could be trusted: a valid one its values, a stale tag's value
+    /// none (the others kept), an invalid context none at all; a product filter
+    /// finds them by their product.
+    #[test]
+    fn evidence_keeps_only_the_context_the_gateway_trusts_and_says_why() {
+        let folder = std::env::temp_dir().join(format!(
+            "millgate-evidence-context-{}-{}",
+            std::process::id(),
+            UtcTime::now().unix_ms()
+        ));
+        std::fs::create_dir_all(&folder).unwrap();
+        let path = folder.join("history.db");
+        let mut connection = Connection::open(&path).unwrap();
+        super::super::schema::migrate(&mut connection).unwrap();
+        connection
+            .execute_batch(
+                "INSERT INTO gateway_runs (id, started_at, version, config_name)
+                 VALUES (1, 't', 'v', 'c')",
+            )
+            .unwrap();
+        let rolled = ProcessContext {
+            weld: Some(false),
+            speed_mpm: Some(1200.0),
+            coil: Some(4_000_000_123),
+            product: Some(205),
+            thickness_mm: Some(0.25),
+            pass: Some(3),
+            state: Some(MillState::Rolling),
+        };
+        let valid = ContextReading {
+            context: Ok(rolled),
+            stale: StaleTags::default(),
+        };
+        let mut coil_stale = StaleTags::default();
+        coil_stale.insert("coil");
+        let stale = ContextReading {
+            context: Ok(ProcessContext {
+                coil: None,
+                ..rolled
+            }),
+            stale: coil_stale,
+        };
+        let invalid = ContextReading {
+            context: Err(ContextError::Speed(-3.0)),
+            stale: StaleTags::default(),
+        };
+        let transaction = connection.transaction().unwrap();
+        for (subject, context) in [
+            ("A", Some(valid)),
+            ("B", Some(stale)),
+            ("C", Some(invalid)),
+            ("D", None),
+        ] {
+            insert(
+                &transaction,
+                1,
+                &HistoryEvent::Capture(Box::new(capture(subject, context))),
+            )
+            .unwrap();
+            let started = HistoryEvent::ChatterStarted {
+                time: UtcTime::parse("2026-11-29T10:00:00.000Z").unwrap(),
+                mill: subject.into(),
+                window: ChatterWindow {
+                    sigma_n_hz: 0.5,
+                    k_mean: 0.9,
+                    frequency_hz: Some(180.0),
+                    synchronized: false,
+                },
+                context,
+            };
+            insert(&transaction, 1, &started).unwrap();
+        }
+        transaction.commit().unwrap();
+        let reader = HistoryReader::open(&path).unwrap();
+        let captures: Vec<CaptureRow> = reader.rows(&Filter::default()).unwrap();
+        let episodes: Vec<ChatterRow> = reader.rows(&Filter::default()).unwrap();
+        let json: Vec<serde_json::Value> = captures
+            .iter()
+            .map(|row| serde_json::to_value(row).unwrap())
+            .chain(
+                episodes
+                    .iter()
+                    .map(|row| serde_json::to_value(row).unwrap()),
+            )
+            .collect();
+        let keys = [
+            "coil",
+            "product",
+            "speed_mpm",
+            "thickness_mm",
+            "pass",
+            "mill_state",
+            "context_status",
+            "context_note",
+        ];
+        let expected = [
+            serde_json::json!([
+                4_000_000_123u32,
+                205,
+                1200.0,
+                0.25,
+                3,
+                "rolling",
+                "valid",
+                null
+            ]),
+            serde_json::json!([
+                null,
+                205,
+                1200.0,
+                0.25,
+                3,
+                "rolling",
+                "stale",
+                "no fresh value of coil (source stale or tag not delivered)"
+            ]),
+            serde_json::json!([
+                null,
+                null,
+                null,
+                null,
+                null,
+                null,
+                "invalid",
+                "speed_mpm -3 is not allowed (must be >= 0 m/min)"
+            ]),
+            serde_json::json!([null, null, null, null, null, null, null, null]),
+        ];
+        for (index, row) in json.iter().enumerate() {
+            let got = serde_json::Value::Array(keys.iter().map(|k| row[*k].clone()).collect());
+            assert_eq!(got, expected[index % 4], "{row}");
+        }
+        let of_product = Filter {
+            product: Some(205),
+            ..Filter::default()
+        };
+        let subjects =
+            |rows: Vec<CaptureRow>| rows.into_iter().map(|r| r.subject).collect::<Vec<_>>();
+        assert_eq!(subjects(reader.rows(&of_product).unwrap()), ["A", "B"]);
+        let mills: Vec<String> = reader
+            .rows::<ChatterRow>(&of_product)
+            .unwrap()
+            .into_iter()
+            .map(|r| r.mill)
+            .collect();
+        assert_eq!(mills, ["A", "B"]);
+        assert!(CaptureRow::columns().contains(&"context_status"));
+        drop((reader, connection));
+        let _ = std::fs::remove_dir_all(&folder);
     }
 }

@@ -371,6 +371,35 @@ ALTER TABLE bites ADD COLUMN thickness_mm REAL;
 ALTER TABLE bites ADD COLUMN pass INTEGER;
 ALTER TABLE bites ADD COLUMN mill_state TEXT;      -- idle, threading, rolling, maintenance
 "#,
+    // Version 14: the process context on the evidence (issue 39 item 3). Each capture
+    // (a bite's at its bite, a chatter episode's when its warning was raised) and each
+    // chatter episode (at its start) keeps the context of its time, as the bites do,
+    // and how far it can be trusted: context_status 'valid', 'stale' (a configured
+    // tag had no fresh value: that value NULL), 'invalid' (an impossible value: every
+    // value NULL), with context_note saying why; NULL without context tags and for
+    // every row before. Columns added, no row rewritten; the product indexes are
+    // partial (no entry for the rows without a product, every row before).
+    r#"
+ALTER TABLE captures ADD COLUMN speed_mpm REAL;
+ALTER TABLE captures ADD COLUMN coil INTEGER;
+ALTER TABLE captures ADD COLUMN product INTEGER;
+ALTER TABLE captures ADD COLUMN thickness_mm REAL;
+ALTER TABLE captures ADD COLUMN pass INTEGER;
+ALTER TABLE captures ADD COLUMN mill_state TEXT;   -- idle, threading, rolling, maintenance
+ALTER TABLE captures ADD COLUMN context_status TEXT;  -- valid, stale, invalid
+ALTER TABLE captures ADD COLUMN context_note TEXT;
+CREATE INDEX captures_by_product ON captures(product, started_at) WHERE product IS NOT NULL;
+ALTER TABLE chatter_episodes ADD COLUMN speed_mpm REAL;
+ALTER TABLE chatter_episodes ADD COLUMN coil INTEGER;
+ALTER TABLE chatter_episodes ADD COLUMN product INTEGER;
+ALTER TABLE chatter_episodes ADD COLUMN thickness_mm REAL;
+ALTER TABLE chatter_episodes ADD COLUMN pass INTEGER;
+ALTER TABLE chatter_episodes ADD COLUMN mill_state TEXT;
+ALTER TABLE chatter_episodes ADD COLUMN context_status TEXT;
+ALTER TABLE chatter_episodes ADD COLUMN context_note TEXT;
+CREATE INDEX chatter_by_product ON chatter_episodes(product, started_at)
+    WHERE product IS NOT NULL;
+"#,
 ];
 
 /// `PRAGMA application_id` of a millgate history: the bytes "MLGT" (0x4D4C4754), set
@@ -710,6 +739,88 @@ mod tests {
             )
             .unwrap();
         assert_eq!((wear, kind.as_str(), gap_warning), (0, "gap_alarm", 0));
+    }
+
+    /// A version 13 file (`rows` captures and as many chatter episodes, written as v13
+    /// wrote them) at `path`.
+    fn version_13_file(path: &std::path::Path, rows: i64) -> Connection {
+        let connection = Connection::open(path).unwrap();
+        for step in &MIGRATIONS[..13] {
+            connection.execute_batch(step).unwrap();
+        }
+        connection.pragma_update(None, "user_version", 13).unwrap();
+        connection
+            .execute_batch(&format!(
+                "INSERT INTO gateway_runs (started_at, version, config_name)
+                     VALUES ('2026-01-01T00:00:00.000Z', 't', 't');
+                 WITH RECURSIVE n(i) AS (SELECT 1 UNION ALL SELECT i + 1 FROM n WHERE i < {rows})
+                 INSERT INTO captures (run_id, kind, subject, started_at, first_sample_unix_ns,
+                     kernel_time, sample_rate_hz, samples, duration_s, keep, meta, bytes)
+                     SELECT 1, 'bite', 'F1', printf('2026-01-01T%06d', i), i, 0, 2000, 1300,
+                         0.65, 0, '{{\"format\":1,\"channels\":[],\"gaps\":[],\"analysis\":null,\"version\":\"t\"}}', 3000
+                     FROM n;
+                 WITH RECURSIVE n(i) AS (SELECT 1 UNION ALL SELECT i + 1 FROM n WHERE i < {rows})
+                 INSERT INTO chatter_episodes (run_id, mill, started_at, windows, alarm)
+                     SELECT 1, 'TCM', printf('2026-01-01T%06d', i), 3, 0 FROM n;"
+            ))
+            .unwrap();
+        connection
+    }
+
+    /// Version 14 adds the context columns to the captures and the chatter episodes
+    /// without rewriting a row: a v13 file's rows are kept with no context (NULL, the
+    /// status too), the file grows by the two partial indexes' root pages only, and
+    /// a product filter reads its index.
+    #[test]
+    fn version_14_gives_captures_and_episodes_a_context_without_rewriting_a_v13_file() {
+        let folder = std::env::temp_dir().join(format!(
+            "millgate-schema-v14-{}-{}",
+            std::process::id(),
+            crate::state::time::UtcTime::now().unix_ms()
+        ));
+        std::fs::create_dir_all(&folder).unwrap();
+        let path = folder.join("history.db");
+        let mut connection = version_13_file(&path, 20_000);
+        let pages = |connection: &Connection| -> i64 {
+            connection
+                .pragma_query_value(None, "page_count", |row| row.get(0))
+                .unwrap()
+        };
+        let before = pages(&connection);
+        assert_eq!(migrate(&mut connection).unwrap(), 13);
+        let after = pages(&connection);
+        assert!(
+            after - before <= 2,
+            "{before} pages before, {after} after: a row was rewritten"
+        );
+        for table in ["captures", "chatter_episodes"] {
+            let (rows, without): (i64, i64) = connection
+                .query_row(
+                    &format!(
+                        "SELECT count(*), count(*) FILTER (WHERE context_status IS NULL
+                             AND coil IS NULL AND product IS NULL AND speed_mpm IS NULL
+                             AND thickness_mm IS NULL AND pass IS NULL AND mill_state IS NULL
+                             AND context_note IS NULL) FROM {table}"
+                    ),
+                    [],
+                    |row| Ok((row.get(0)?, row.get(1)?)),
+                )
+                .unwrap();
+            assert_eq!((rows, without), (20_000, 20_000), "{table}");
+            let plan: String = connection
+                .query_row(
+                    &format!(
+                        "EXPLAIN QUERY PLAN SELECT id FROM {table}
+                         WHERE product = 205 AND started_at >= '2026'"
+                    ),
+                    [],
+                    |row| row.get(3),
+                )
+                .unwrap();
+            assert!(plan.contains("_by_product"), "{table}: {plan}");
+        }
+        drop(connection);
+        let _ = std::fs::remove_dir_all(&folder);
     }
 
     /// The declared type a catalogue figure's column must have.

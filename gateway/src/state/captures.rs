@@ -14,6 +14,7 @@ use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 
+use super::context::ContextReading;
 use super::time::UtcTime;
 
 /// What a capture was taken for.
@@ -198,6 +199,9 @@ pub struct CaptureRecord {
     pub episode: Option<ChatterEpisode>,
     /// How long it is kept under the budget.
     pub keep: KeepClass,
+    /// The process context of its time (a bite's at the bite, a chatter episode's
+    /// when its warning was raised); `None` without context tags.
+    pub context: Option<ContextReading>,
 }
 
 impl CaptureRecord {

@@ -220,6 +220,109 @@ impl RawContext {
     }
 }
 
+/// The context tags' keys, in the configuration's order ([`StaleTags`] bit `i` is
+/// key `i`).
+pub const CONTEXT_KEYS: [&str; 7] = [
+    "weld",
+    "speed_mpm",
+    "coil",
+    "product",
+    "thickness_mm",
+    "pass",
+    "state",
+];
+
+/// Configured context tags whose latest value was too old to use (its source stale,
+/// or the PLC no longer delivering it): a set of [`CONTEXT_KEYS`].
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct StaleTags(u8);
+
+impl StaleTags {
+    /// Add the tag `key` (one of [`CONTEXT_KEYS`]; another key is ignored).
+    pub fn insert(&mut self, key: &str) {
+        if let Some(bit) = CONTEXT_KEYS.iter().position(|k| *k == key) {
+            self.0 |= 1 << bit;
+        }
+    }
+
+    /// No tag was stale.
+    pub fn is_empty(self) -> bool {
+        self.0 == 0
+    }
+
+    /// The stale tags' keys, in [`CONTEXT_KEYS`] order.
+    pub fn keys(self) -> impl Iterator<Item = &'static str> {
+        CONTEXT_KEYS
+            .into_iter()
+            .enumerate()
+            .filter(move |(bit, _)| self.0 & (1 << bit) != 0)
+            .map(|(_, key)| key)
+    }
+}
+
+/// How far a context kept with evidence (a capture, a chatter episode) can be trusted
+/// (the history's `context_status`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ContextStatus {
+    /// Every configured tag had a fresh, possible value.
+    Valid,
+    /// At least one configured tag had no fresh value: those are unknown, the others
+    /// kept.
+    Stale,
+    /// A value was impossible ([`ContextError`]): every value is unknown.
+    Invalid,
+}
+
+impl ContextStatus {
+    /// As stored: `valid`, `stale`, `invalid`.
+    pub fn name(self) -> &'static str {
+        match self {
+            ContextStatus::Valid => "valid",
+            ContextStatus::Stale => "stale",
+            ContextStatus::Invalid => "invalid",
+        }
+    }
+}
+
+/// The context of a mill at one time as its tags gave it: the checked values (or
+/// why not) and the tags left out as stale.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ContextReading {
+    /// The checked context of the fresh values; `Err` when one was impossible.
+    pub context: Result<ProcessContext, ContextError>,
+    /// The configured tags whose value was too old (left out of `context`).
+    pub stale: StaleTags,
+}
+
+impl ContextReading {
+    /// The values the gateway can trust: none of an invalid context.
+    pub fn trusted(&self) -> ProcessContext {
+        self.context.unwrap_or_default()
+    }
+
+    /// Valid, stale or invalid.
+    pub fn status(&self) -> ContextStatus {
+        match (&self.context, self.stale.is_empty()) {
+            (Err(_), _) => ContextStatus::Invalid,
+            (Ok(_), false) => ContextStatus::Stale,
+            (Ok(_), true) => ContextStatus::Valid,
+        }
+    }
+
+    /// Why it is not valid (the impossible value, or the stale tags); `None` when it
+    /// is.
+    pub fn note(&self) -> Option<String> {
+        match &self.context {
+            Err(error) => Some(error.to_string()),
+            Ok(_) if !self.stale.is_empty() => Some(format!(
+                "no fresh value of {} (source stale or tag not delivered)",
+                self.stale.keys().collect::<Vec<_>>().join(", ")
+            )),
+            Ok(_) => None,
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -295,5 +398,46 @@ mod tests {
         let mut any = raw;
         any.product = Some(7.0);
         assert_eq!(any.check(&[]).unwrap().product, Some(7));
+    }
+
+    #[test]
+    fn a_reading_says_whether_it_is_valid_stale_or_invalid_and_trusts_no_invalid_value() {
+        let fresh = ProcessContext {
+            coil: Some(42),
+            product: Some(205),
+            ..ProcessContext::default()
+        };
+        let valid = ContextReading {
+            context: Ok(fresh),
+            stale: StaleTags::default(),
+        };
+        assert_eq!(
+            (valid.status(), valid.note(), valid.trusted()),
+            (ContextStatus::Valid, None, fresh)
+        );
+        let mut stale_tags = StaleTags::default();
+        stale_tags.insert("product");
+        stale_tags.insert("coil");
+        stale_tags.insert("no_such_tag");
+        assert_eq!(stale_tags.keys().collect::<Vec<_>>(), ["coil", "product"]);
+        let stale = ContextReading {
+            context: Ok(ProcessContext::default()),
+            stale: stale_tags,
+        };
+        assert_eq!(stale.status().name(), "stale");
+        assert_eq!(
+            stale.note().as_deref(),
+            Some("no fresh value of coil, product (source stale or tag not delivered)")
+        );
+        let invalid = ContextReading {
+            context: Err(ContextError::UnknownProduct(7)),
+            stale: StaleTags::default(),
+        };
+        assert_eq!(invalid.status().name(), "invalid");
+        assert_eq!(invalid.trusted(), ProcessContext::default());
+        assert_eq!(
+            invalid.note().as_deref(),
+            Some("product 7 is not one of the configured products")
+        );
     }
 }

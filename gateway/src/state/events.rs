@@ -5,7 +5,7 @@
 pub use super::catalogue::AlarmKind;
 use super::catalogue::{Figure, Subject, Value};
 use super::commands::CommandOrigin;
-use super::context::ProcessContext;
+use super::context::{ContextReading, ProcessContext};
 use super::results::{DrivelineResults, TandemMillResults};
 use super::time::UtcTime;
 
@@ -320,6 +320,8 @@ pub enum HistoryEvent {
         mill: String,
         /// The window that started it.
         window: ChatterWindow,
+        /// The mill's process context then; `None` without context tags.
+        context: Option<ContextReading>,
     },
     /// Another window of a running chatter episode.
     ChatterWindow {

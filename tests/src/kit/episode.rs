@@ -11,7 +11,8 @@ use millgate::history::RunInfo;
 use millgate::state::captures::{
     CaptureChannel, CaptureKind, CaptureRecord, ChatterEpisode, KeepClass,
 };
-use millgate::state::events::HistoryEvent;
+use millgate::state::context::{ContextReading, ProcessContext, StaleTags};
+use millgate::state::events::{ChatterWindow, EndedBy, HistoryEvent};
 use millgate::state::time::UtcTime;
 
 pub use super::tandem::FS;
@@ -64,8 +65,14 @@ pub fn stands(source: &str, mill: &str) -> Stands {
     Stands::modbus(3, source).mill(mill).thresholds(&[2.0; 3])
 }
 
-/// The episode's capture of tandem mill `mill` (warning at 6 s, cleared at 10.5 s),
-/// written into the history file `db` (created when missing) under a run of its own.
+/// The coil id and product code of the episode's context.
+pub const COIL: u32 = 4711;
+pub const PRODUCT: u32 = 205;
+
+/// The episode's capture of tandem mill `mill` (warning at 6 s, cleared at 10.5 s) and
+/// its row in `chatter_episodes`, both rolled in coil [`COIL`] of product
+/// [`PRODUCT`] at 1200 m/min (a valid context), written into the history file `db`
+/// (created when missing) under a run of its own.
 pub fn write_chatter_capture(db: &Path, mill: &str) -> anyhow::Result<()> {
     let window = (0.5 * FS) as usize;
     let episode = ChatterEpisode {
@@ -88,6 +95,15 @@ pub fn write_chatter_capture(db: &Path, mill: &str) -> anyhow::Result<()> {
                 drivelines: vec![],
             },
         )?;
+        let context = ContextReading {
+            context: Ok(ProcessContext {
+                speed_mpm: Some(1200.0),
+                coil: Some(COIL),
+                product: Some(PRODUCT),
+                ..ProcessContext::default()
+            }),
+            stale: StaleTags::default(),
+        };
         let capture = CaptureRecord {
             kind: CaptureKind::Chatter,
             subject: mill.into(),
@@ -109,8 +125,34 @@ pub fn write_chatter_capture(db: &Path, mill: &str) -> anyhow::Result<()> {
             analysis: None,
             episode: Some(episode),
             keep: KeepClass::Important,
+            context: Some(context),
         };
+        let warning = UtcTime::from_unix_ms(start.unix_ms() + 6000);
         let transaction = connection.transaction()?;
+        insert(
+            &transaction,
+            run,
+            &HistoryEvent::ChatterStarted {
+                time: warning,
+                mill: mill.into(),
+                window: ChatterWindow {
+                    sigma_n_hz: 0.4,
+                    k_mean: 0.8,
+                    frequency_hz: Some(tone_hz(0)),
+                    synchronized: false,
+                },
+                context: Some(context),
+            },
+        )?;
+        insert(
+            &transaction,
+            run,
+            &HistoryEvent::ChatterEnded {
+                time: UtcTime::from_unix_ms(start.unix_ms() + 10_500),
+                mill: mill.into(),
+                ended_by: EndedBy::Analysis,
+            },
+        )?;
         insert(&transaction, run, &HistoryEvent::Capture(Box::new(capture)))?;
         transaction.commit()?;
     }

@@ -24,6 +24,7 @@ use super::monitor::ChatterMonitor;
 use crate::state::captures::{
     unix_ns, CaptureChannel, CaptureGap, CaptureKind, CaptureRecord, ChatterEpisode, KeepClass,
 };
+use crate::state::context::ContextReading;
 
 /// Samples a capture holds before its first whole hop: the largest DAQ block
 /// ([`millgate_config::layout::MAX_BLOCK_SAMPLES`]), the block `millgate chatter` feeds
@@ -73,6 +74,8 @@ struct Episode {
     samples: Vec<Vec<f64>>,
     first_sample: SystemTime,
     kernel_time: bool,
+    /// The mill's process context when it started.
+    context: Option<ContextReading>,
 }
 
 impl EpisodeRecorder {
@@ -163,8 +166,8 @@ impl EpisodeRecorder {
     }
 
     /// Keep the stands' next `seconds` s as a capture of kind `manual` (a manual
-    /// capture already running starts again).
-    pub(super) fn start_manual(&mut self, seconds: f64) {
+    /// capture already running starts again), in the mill's `context`.
+    pub(super) fn start_manual(&mut self, seconds: f64, context: Option<ContextReading>) {
         let start = self.next.iter().flatten().copied().max().unwrap_or(0);
         let (first_sample, kernel_time) = self.time_of(start);
         self.manual = Some(Episode {
@@ -175,6 +178,7 @@ impl EpisodeRecorder {
             samples: vec![Vec::new(); self.rings.len()],
             first_sample,
             kernel_time,
+            context,
         });
     }
 
@@ -210,11 +214,17 @@ impl EpisodeRecorder {
     }
 
     /// The monitor's latest window, ending at common index `window_end`, left the
-    /// warning at `warning`: a raised warning starts a capture, a cleared one sets its
-    /// end. Returns the capture when this completed it.
-    pub(super) fn warning(&mut self, warning: bool, window_end: i64) -> Option<CaptureRecord> {
+    /// warning at `warning`: a raised warning starts a capture (in the mill's
+    /// `context`), a cleared one sets its end. Returns the capture when this completed
+    /// it.
+    pub(super) fn warning(
+        &mut self,
+        warning: bool,
+        window_end: i64,
+        context: Option<ContextReading>,
+    ) -> Option<CaptureRecord> {
         match (&mut self.episode, warning) {
-            (None, true) => self.start(window_end),
+            (None, true) => self.start(window_end, context),
             (Some(episode), false) if episode.cleared_end.is_none() => {
                 episode.cleared_end = Some(window_end);
                 episode.end = episode.end.min(window_end + self.after);
@@ -225,7 +235,7 @@ impl EpisodeRecorder {
     }
 
     /// Start a capture for the warning raised by the window ending at `window_end`.
-    fn start(&mut self, window_end: i64) {
+    fn start(&mut self, window_end: i64, context: Option<ContextReading>) {
         let latest = self.next.iter().flatten().copied().max().unwrap_or(0);
         let held_from = latest - self.rings[0].len() as i64;
         let lower = self.valid_from.max(held_from);
@@ -255,6 +265,7 @@ impl EpisodeRecorder {
             samples,
             first_sample,
             kernel_time,
+            context,
         });
     }
 
@@ -312,6 +323,7 @@ impl EpisodeRecorder {
                 cut,
             }),
             keep: KeepClass::Important,
+            context: episode.context,
         }
     }
 }
@@ -401,9 +413,9 @@ mod tests {
         let mut recorder = recorder();
         assert!(feed(&mut recorder, 0..30).is_empty());
         // Raised by the window ending at 3000 (the stands are at 3600).
-        assert!(recorder.warning(true, 3000).is_none());
+        assert!(recorder.warning(true, 3000, None).is_none());
         assert!(feed(&mut recorder, 30..36).is_empty());
-        assert!(recorder.warning(false, 4250).is_none());
+        assert!(recorder.warning(false, 4250, None).is_none());
         // 0.1 s after: up to 4500, in with block 37 (4440..4560).
         assert!(feed(&mut recorder, 36..37).is_empty());
         let done = feed(&mut recorder, 37..38);
@@ -428,7 +440,7 @@ mod tests {
             })
         );
         // A second episode is captured on its own.
-        assert!(recorder.warning(true, 5000).is_none());
+        assert!(recorder.warning(true, 5000, None).is_none());
         assert!(feed(&mut recorder, 41..60).is_empty());
     }
 
@@ -436,7 +448,7 @@ mod tests {
     fn an_episode_longer_than_the_maximum_is_cut_and_says_so() {
         let mut recorder = recorder();
         feed(&mut recorder, 0..30);
-        recorder.warning(true, 3000);
+        recorder.warning(true, 3000, None);
         let done = feed(&mut recorder, 30..60);
         assert_eq!(done.len(), 1);
         let start = 3000 - 625 - ANCHOR_BLOCK as i64;
@@ -446,14 +458,14 @@ mod tests {
         assert!(episode.cut);
         assert_eq!(episode.cleared_sample, None);
         // Clearing later starts nothing, finishes nothing.
-        assert!(recorder.warning(false, 7000).is_none());
+        assert!(recorder.warning(false, 7000, None).is_none());
     }
 
     #[test]
     fn lost_samples_end_the_capture_with_the_gap_marked_and_nothing_older_is_kept() {
         let mut recorder = recorder();
         feed(&mut recorder, 0..30);
-        recorder.warning(true, 3000);
+        recorder.warning(true, 3000, None);
         feed(&mut recorder, 30..33);
         let capture = recorder
             .lost(Some(7))
@@ -473,9 +485,9 @@ mod tests {
         // A warning soon after the gap: the capture starts after it, still on the
         // hop grid of the warning window (whole hops and the block).
         feed(&mut recorder, 33..50);
-        recorder.warning(true, 5500);
+        recorder.warning(true, 5500, None);
         // The stands are at 6000, past 5500 + 250: complete at once.
-        let done: Vec<_> = recorder.warning(false, 5500).into_iter().collect();
+        let done: Vec<_> = recorder.warning(false, 5500, None).into_iter().collect();
         let start = 5500 - 625 - ANCHOR_BLOCK as i64;
         assert!(start >= 33 * BLOCK as i64);
         assert_eq!(done.len(), 1);
@@ -486,8 +498,8 @@ mod tests {
         feed(&mut recorder, 0..30);
         recorder.lost(None);
         feed(&mut recorder, 30..36);
-        recorder.warning(true, 4320);
-        assert!(recorder.warning(false, 4320).is_none());
+        recorder.warning(true, 4320, None);
+        assert!(recorder.warning(false, 4320, None).is_none());
         let done = feed(&mut recorder, 36..40);
         assert_eq!(done.len(), 1);
         let episode = done[0].episode.expect("episode");

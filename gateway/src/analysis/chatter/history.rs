@@ -3,6 +3,7 @@
 //! when it latches (with the mill's state after it).
 
 use super::monitor::ChatterUpdate;
+use crate::state::context::ContextReading;
 use crate::state::events::{
     AlarmEvent, AlarmKind, AlarmRecord, ChatterWindow, EndedBy, HistoryEvent, StateRecord,
     SubjectResults,
@@ -13,10 +14,10 @@ use crate::state::time::UtcTime;
 /// The history events of one update: an episode starts, goes on or ends with the
 /// warning condition (a window restart ends it too); the warning is recorded when it
 /// is raised or cleared, the alarm when it latches (with the gain ratio, or K_mean
-/// for the paper's detector).
+/// for the paper's detector). An episode keeps the mill's `context` at its start.
 pub(super) fn record_episode(
     events: &mut Vec<HistoryEvent>,
-    mill: &str,
+    (mill, context): (&str, Option<ContextReading>),
     change: &ChatterUpdate,
     (was_warning, was_alarm): (bool, bool),
     published: &TandemMillResults,
@@ -36,6 +37,7 @@ pub(super) fn record_episode(
             time,
             mill: mill.to_owned(),
             window,
+            context,
         }),
         (true, true, Some(window)) => events.push(HistoryEvent::ChatterWindow {
             mill: mill.to_owned(),

@@ -13,10 +13,11 @@ use super::history::record_episode;
 use super::monitor::{ChatterMonitor, ChatterSetupError, ChatterUpdate};
 use super::spectra::chatter_frequency_hz;
 use super::verdict::{SlowDown, Verdict};
+use crate::analysis::context::ContextTracker;
 use crate::field::acquired::Acquired;
 use crate::state::board::Board;
 use crate::state::captures::CaptureRecord;
-use crate::state::context::RawContext;
+use crate::state::context::{ContextReading, RawContext};
 use crate::state::events::{AlarmKind, AlarmRecord, HistoryEvent};
 use crate::state::results::TandemMillResults;
 use crate::state::time::UtcTime;
@@ -54,6 +55,11 @@ pub struct ChatterAnalysis {
     weld_bits: Vec<Option<(bool, Instant)>>,
     /// Per mill, the oldest weld bit still used ([`WELD_BIT_POLLS`] poll periods).
     weld_max_age: Vec<Duration>,
+    /// Per mill with context tags, their latest values: the context its episodes and
+    /// captures carry.
+    contexts: Vec<Option<ContextTracker>>,
+    /// Per channel: the mills whose context tag it is.
+    context_by_channel: Vec<Vec<usize>>,
     board: Arc<Board>,
 }
 
@@ -66,6 +72,8 @@ impl ChatterAnalysis {
         let mut by_channel = vec![Vec::new(); config.channels.len()];
         let mut weld_by_channel = vec![Vec::new(); config.channels.len()];
         let mut weld_max_age = Vec::new();
+        let mut contexts = Vec::new();
+        let mut context_by_channel = vec![Vec::new(); config.channels.len()];
         let mut monitors = Vec::new();
         for (m, mill) in config.tandem_mills.iter().enumerate() {
             monitors.push(ChatterMonitor::new(config, m)?);
@@ -80,6 +88,11 @@ impl ChatterAnalysis {
                 .weld
                 .map_or(0.0, |weld| 1.0 / config.channels[weld].sample_rate_hz);
             weld_max_age.push(Duration::from_secs_f64(WELD_BIT_POLLS * poll_s));
+            let tracker = ContextTracker::new(&mill.context, config, None);
+            for channel in tracker.iter().flat_map(ContextTracker::channels) {
+                context_by_channel[channel].push(m);
+            }
+            contexts.push(tracker);
         }
         let keep_captures = config
             .history
@@ -98,12 +111,20 @@ impl ChatterAnalysis {
             by_channel,
             weld_by_channel,
             weld_max_age,
+            contexts,
+            context_by_channel,
             board,
         })
     }
 
-    /// A process value `value` of `channel`: the weld bit of the mills whose tag it is.
+    /// A process value `value` of `channel`: a context tag of the mills whose tag it
+    /// is, and their weld bit.
     fn context_value(&mut self, channel: usize, value: f64, now: Instant) {
+        for &mill in self.context_by_channel.get(channel).into_iter().flatten() {
+            if let Some(tracker) = &mut self.contexts[mill] {
+                tracker.value(channel, value, now);
+            }
+        }
         let Some(mills) = self.weld_by_channel.get(channel) else {
             return;
         };
@@ -141,13 +162,22 @@ impl ChatterAnalysis {
     /// Keep mill `mill`'s stands' next `seconds` s as a capture of kind `manual`;
     /// false when the mill does not exist or captures are not kept.
     pub(crate) fn start_manual_capture(&mut self, mill: usize, seconds: f64) -> bool {
+        let context = self.context_at(mill, Instant::now());
         match self.captures.get_mut(mill) {
             Some(Some(recorder)) => {
-                recorder.start_manual(seconds);
+                recorder.start_manual(seconds, context);
                 true
             }
             _ => false,
         }
+    }
+
+    /// Mill `mill`'s context at `now`; `None` without context tags.
+    fn context_at(&self, mill: usize, now: Instant) -> Option<ContextReading> {
+        self.contexts
+            .get(mill)?
+            .as_ref()
+            .map(|tracker| tracker.reading(now))
     }
 
     /// Judge each mill by its entry of `mills` (config order) from its next window on
@@ -217,6 +247,9 @@ impl ChatterAnalysis {
                 Acquired::ProcessValue { .. } => None,
             };
             if let Some(change) = change {
+                let context = self.contexts[mill]
+                    .as_ref()
+                    .map(|tracker| tracker.reading(now));
                 if let Some((true, at)) = self.weld_bits[mill] {
                     if now.saturating_duration_since(at) <= self.weld_max_age[mill] {
                         self.slow_downs[mill].weld();
@@ -227,10 +260,10 @@ impl ChatterAnalysis {
                     mill,
                     monitor,
                     &mut self.slow_downs[mill],
-                    &change,
+                    (&change, context),
                 );
                 if let Some(recorder) = recorder.as_mut() {
-                    done.extend(recorder.warning(warning, monitor.last_window_end()));
+                    done.extend(recorder.warning(warning, monitor.last_window_end(), context));
                 }
             }
             for capture in done {
@@ -257,14 +290,14 @@ fn keep(board: &Board, capture: CaptureRecord) {
 }
 
 /// Record one monitor update in the published results, and in the history the
-/// chatter episodes (from the warning condition set to it cleared) and the alarm.
-/// Returns the warning as published.
+/// chatter episodes (from the warning condition set to it cleared, with the mill's
+/// `context` at its start) and the alarm. Returns the warning as published.
 fn publish(
     board: &Board,
     mill: usize,
     monitor: &ChatterMonitor,
     slow_down: &mut SlowDown,
-    change: &ChatterUpdate,
+    (change, context): (&ChatterUpdate, Option<ContextReading>),
 ) -> bool {
     let name = monitor.name();
     let was_requested = slow_down.requested();
@@ -337,7 +370,13 @@ fn publish(
             }
         }
         published.slow_down_request = verdict.slow_down;
-        record_episode(events, name, change, (was_warning, was_alarm), published);
+        record_episode(
+            events,
+            (name, context),
+            change,
+            (was_warning, was_alarm),
+            published,
+        );
         events.extend(AlarmRecord::flag_changes(
             (&was, &*published),
             &[AlarmKind::SlowDownRequest],

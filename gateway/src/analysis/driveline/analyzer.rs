@@ -10,9 +10,9 @@ use millgate_config::{Channel, Config, Driveline, DrivelineThresholds};
 use millgate_dsp::transient::TransientSettings;
 
 use super::capture::Captures;
-use super::context::ContextTracker;
 use super::setup::{BiteSetup, ModelParts, WearDiagnosis};
 use crate::analysis::bite_window::{Detector, DetectorState};
+use crate::analysis::context::ContextTracker;
 use crate::analysis::error::AnalysisError;
 use crate::analysis::fatigue_ledger::{FatigueLedger, LedgerBite};
 use crate::analysis::gap_estimate::GapObservation;

@@ -15,6 +15,7 @@ use crate::state::captures::{
     unix_ns, BiteWindowAnalysis, CaptureChannel, CaptureGap, CaptureKind, CaptureRecord,
     CapturedBite, KeepClass,
 };
+use crate::state::context::ContextReading;
 
 /// A bite window's samples as the analysis read them: what its capture keeps.
 #[derive(Debug, Clone, PartialEq)]
@@ -38,12 +39,13 @@ pub struct BiteSamples {
 
 impl BiteSamples {
     /// The capture of these samples as the history keeps it, of a bite of driveline
-    /// `subject`, the bite `bite`, kept as `keep`.
+    /// `subject`, the bite `bite`, kept as `keep`, rolled in `context`.
     pub(super) fn record(
         &self,
         subject: &str,
         bite: CapturedBite,
         keep: KeepClass,
+        context: Option<ContextReading>,
     ) -> CaptureRecord {
         CaptureRecord {
             kind: CaptureKind::Bite,
@@ -60,6 +62,7 @@ impl BiteSamples {
             analysis: Some(self.analysis),
             episode: None,
             keep,
+            context,
         }
     }
 }
@@ -154,6 +157,7 @@ impl Captures {
             analysis: None,
             episode: None,
             keep: KeepClass::Important,
+            context: None,
         })
     }
 

@@ -10,22 +10,19 @@
 //!   extra channels' rings, the manual captures);
 //! - `analyzer`: the driveline's analyser, built from the configuration, holding the
 //!   detector, the wear diagnosis and the captures between bites;
-//! - `context`: the process context at each bite and whether the bite is pooled
-//!   into the wear trend ([`BiteGate`](crate::state::context::BiteGate));
 //! - `report`: samples in, each completed window analysed into a [`BiteReport`];
 //! - `publish`: each report into the published results and the history, under the
 //!   board's lock ([`bite_record`]).
 
 mod analyzer;
 mod capture;
-mod context;
 mod publish;
 mod report;
 mod setup;
 
+pub use super::context::BiteContext;
 pub(super) use analyzer::DrivelineAnalyzer;
 pub use capture::BiteSamples;
-pub use context::BiteContext;
 pub use publish::bite_record;
 pub(super) use publish::publish_bites;
 pub use report::BiteReport;

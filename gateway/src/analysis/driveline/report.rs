@@ -10,8 +10,8 @@ use millgate_dsp::transient::TransientResult;
 
 use super::analyzer::DrivelineAnalyzer;
 use super::capture::{before, BiteSamples};
-use super::context::BiteContext;
 use crate::analysis::bite_window::{analyze_window, WINDOW_CAPACITY};
+use crate::analysis::context::BiteContext;
 use crate::analysis::fatigue_ledger::LedgerBite;
 use crate::analysis::gap_monitor::GapBite;
 use crate::analysis::wear::WearEstimate;
@@ -64,11 +64,12 @@ pub struct BiteReport {
 
 impl BiteReport {
     /// The capture of this bite's window as the history keeps it, for the bite
-    /// `bite` of its driveline kept as `keep`; `None` when the driveline keeps no
+    /// `bite` of its driveline kept as `keep`, with the bite's context; `None` when the driveline keeps no
     /// captures.
     pub fn capture(&self, bite: CapturedBite, keep: KeepClass) -> Option<CaptureRecord> {
         let samples = self.samples.as_ref()?;
-        Some(samples.record(&self.driveline_name, bite, keep))
+        let context = self.context.map(|context| context.reading());
+        Some(samples.record(&self.driveline_name, bite, keep, context))
     }
 }
 

@@ -238,6 +238,10 @@ pub(crate) fn router(state: Arc<WebState>) -> Router {
             get(api::tandem_mill_captures),
         )
         .route(
+            "/api/tandem_mills/{name}/episodes",
+            get(api::tandem_mill_episodes),
+        )
+        .route(
             "/api/drivelines/{name}/fatigue/reset",
             axum::routing::post(api::reset_fatigue).fallback(|| async {
                 http::error(

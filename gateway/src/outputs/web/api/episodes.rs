@@ -11,19 +11,20 @@ use axum::Json;
 
 use super::history::{capture_id, newest, read_capture};
 use super::{ApiError, DrivelineName, Params, POINTS_DEFAULT};
-use crate::history::query::CaptureRow;
+use crate::history::query::{CaptureRow, ChatterRow};
 use crate::history::series::MAX_SERIES_POINTS;
 use crate::outputs::web::shared::WebState;
 
-/// `GET /api/tandem_mills/{name}/captures?since=&until=&limit=`: the newest `limit`
-/// captures of the mill in the range (chatter episodes and manual captures of its
-/// stands: their rows, not their samples), oldest first.
+/// `GET /api/tandem_mills/{name}/captures?since=&until=&limit=&product=`: the newest
+/// `limit` captures of the mill in the range (of product code `product` when given;
+/// chatter episodes and manual captures of its stands: their rows with the context of
+/// their time, not their samples), oldest first.
 pub(crate) async fn tandem_mill_captures(
     State(state): State<Arc<WebState>>,
     DrivelineName(name): DrivelineName,
     query: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Json<Vec<serde_json::Value>>, ApiError> {
-    let params = Params::of(query, &["since", "until", "limit"])?;
+    let params = Params::of(query, &["since", "until", "limit", "product"])?;
     mill_index(&state, &name)?;
     let rows: Vec<CaptureRow> = newest(&state, &params, Some(name)).await?;
     Ok(Json(
@@ -31,6 +32,20 @@ pub(crate) async fn tandem_mill_captures(
             .map(crate::history::captures::row_json)
             .collect(),
     ))
+}
+
+/// `GET /api/tandem_mills/{name}/episodes?since=&until=&limit=&product=`: the newest
+/// `limit` chatter episodes of the mill that started in the range (of product code
+/// `product` when given), oldest first, each with the context of its start (table
+/// `chatter_episodes`' columns).
+pub(crate) async fn tandem_mill_episodes(
+    State(state): State<Arc<WebState>>,
+    DrivelineName(name): DrivelineName,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Json<Vec<ChatterRow>>, ApiError> {
+    let params = Params::of(query, &["since", "until", "limit", "product"])?;
+    mill_index(&state, &name)?;
+    Ok(Json(newest(&state, &params, Some(name)).await?))
 }
 
 /// `GET /api/captures/{id}/bands?points=`: for a chatter or manual capture of a

@@ -36,15 +36,16 @@ pub(crate) async fn bites(
     Ok(Json(newest(&state, &params, Some(name)).await?))
 }
 
-/// `GET /api/drivelines/{name}/captures?since=&until=&limit=`: the newest `limit`
-/// captures of the driveline in the range (their rows, not their samples), oldest
+/// `GET /api/drivelines/{name}/captures?since=&until=&limit=&product=`: the newest
+/// `limit` captures of the driveline in the range (of product code `product` when
+/// given; their rows with the context of their time, not their samples), oldest
 /// first.
 pub(crate) async fn captures(
     State(state): State<Arc<WebState>>,
     DrivelineName(name): DrivelineName,
     query: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Json<Vec<serde_json::Value>>, ApiError> {
-    let params = Params::of(query, &["since", "until", "limit"])?;
+    let params = Params::of(query, &["since", "until", "limit", "product"])?;
     driveline_index(&state, &name)?;
     let rows: Vec<CaptureRow> = newest(&state, &params, Some(name)).await?;
     Ok(Json(

@@ -18,7 +18,7 @@ mod live;
 mod maps;
 
 pub(crate) use commands::{request_capture, reset_fatigue};
-pub(crate) use episodes::{capture_bands, tandem_mill_captures};
+pub(crate) use episodes::{capture_bands, tandem_mill_captures, tandem_mill_episodes};
 pub(crate) use history::{
     alarms, bites, capture, capture_file, capture_response, captures, fatigue_history, products,
     wear,

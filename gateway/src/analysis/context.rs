@@ -1,5 +1,6 @@
-//! A driveline's process context at each bite ([`ContextTracker`]) and whether the
-//! bite is pooled into the wear trend ([`BiteGate`]).
+//! A mill's process context ([`ContextTracker`]): a driveline's at each bite, and
+//! whether the bite is pooled into the wear trend ([`BiteGate`]); a tandem mill's at
+//! each chatter episode and capture ([`ContextTracker::reading`]).
 //!
 //! - **Values**: the latest value of each context tag (`drivelines[].context`) and
 //!   when it came; a value older than its source's stale time ([`max_age`]: a tag
@@ -18,7 +19,9 @@ use std::time::{Duration, Instant};
 
 use millgate_config::{ChannelSource, Config, ContextTags};
 
-use crate::state::context::{BiteGate, ContextError, ProcessContext, RawContext};
+use crate::state::context::{
+    BiteGate, ContextError, ContextReading, ProcessContext, RawContext, StaleTags,
+};
 
 /// Poll periods of its channel after which a context value is no longer used (at
 /// least; see [`max_age`]).
@@ -45,6 +48,18 @@ pub struct BiteContext {
     pub context: Result<ProcessContext, ContextError>,
     /// Whether the bite was pooled, and if not why.
     pub gate: BiteGate,
+    /// The configured tags left out as stale.
+    pub stale: StaleTags,
+}
+
+impl BiteContext {
+    /// The context as its bite's capture keeps it.
+    pub fn reading(&self) -> ContextReading {
+        ContextReading {
+            context: self.context,
+            stale: self.stale,
+        }
+    }
 }
 
 /// The latest context values of a driveline, for its bites.
@@ -92,14 +107,18 @@ impl ContextTracker {
         }
     }
 
-    /// The context of a bite whose window completed at `now`, from the values no
-    /// older than their tag's bound, and its gate.
-    pub(crate) fn at(&self, now: Instant) -> BiteContext {
+    /// The context at `now`, from the values no older than their tag's bound (an
+    /// older one is left out and named stale), checked.
+    pub(crate) fn reading(&self, now: Instant) -> ContextReading {
         let mut raw = RawContext::default();
+        let mut stale = StaleTags::default();
         for (&(key, _, max_age), latest) in self.tags.iter().zip(&self.latest) {
             let fresh = latest
                 .filter(|&(_, at)| now.saturating_duration_since(at) <= max_age)
                 .map(|(value, _)| value);
+            if fresh.is_none() {
+                stale.insert(key);
+            }
             let field = match key {
                 "weld" => &mut raw.weld,
                 "speed_mpm" => &mut raw.speed_mpm,
@@ -111,11 +130,76 @@ impl ContextTracker {
             };
             *field = fresh;
         }
-        let context = raw.check(&self.products);
+        ContextReading {
+            context: raw.check(&self.products),
+            stale,
+        }
+    }
+
+    /// The context of a bite whose window completed at `now` ([`Self::reading`]),
+    /// and its gate.
+    pub(crate) fn at(&self, now: Instant) -> BiteContext {
+        let ContextReading { context, stale } = self.reading(now);
         let gate = match &context {
             Ok(context) => BiteGate::of(context, self.speed_range_mpm),
             Err(_) => BiteGate::Pooled,
         };
-        BiteContext { context, gate }
+        BiteContext {
+            context,
+            gate,
+            stale,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::state::context::ContextStatus;
+
+    /// A coil and a product tag (channels 0 and 1) used for 300 ms, product 205 the
+    /// only one known.
+    fn tracker() -> ContextTracker {
+        let bound = Duration::from_millis(300);
+        ContextTracker {
+            tags: vec![("coil", 0, bound), ("product", 1, bound)],
+            latest: vec![None; 2],
+            products: vec![205],
+            speed_range_mpm: None,
+        }
+    }
+
+    /// A value past its bound is left out and named stale (the other kept); an
+    /// impossible one makes the whole reading invalid; a tag never read is stale.
+    #[test]
+    fn a_reading_leaves_out_and_names_a_stale_tag_and_keeps_nothing_invalid() {
+        let t0 = Instant::now();
+        let mut tracker = tracker();
+        let never = tracker.reading(t0);
+        assert_eq!(never.status(), ContextStatus::Stale);
+        assert_eq!(never.stale.keys().collect::<Vec<_>>(), ["coil", "product"]);
+        tracker.value(0, 4711.0, t0);
+        tracker.value(1, 205.0, t0 + Duration::from_millis(200));
+        let fresh = tracker.reading(t0 + Duration::from_millis(300));
+        assert_eq!(fresh.status(), ContextStatus::Valid);
+        assert_eq!(
+            (fresh.trusted().coil, fresh.trusted().product),
+            (Some(4711), Some(205))
+        );
+        let later = tracker.reading(t0 + Duration::from_millis(450));
+        assert_eq!(later.status(), ContextStatus::Stale);
+        assert_eq!(later.stale.keys().collect::<Vec<_>>(), ["coil"]);
+        assert_eq!(
+            (later.trusted().coil, later.trusted().product),
+            (None, Some(205))
+        );
+        tracker.value(1, 7.0, t0 + Duration::from_millis(400));
+        let invalid = tracker.reading(t0 + Duration::from_millis(450));
+        assert_eq!(invalid.status(), ContextStatus::Invalid);
+        assert_eq!(invalid.trusted(), ProcessContext::default());
+        // The bite's context says the same.
+        let bite = tracker.at(t0 + Duration::from_millis(450));
+        assert_eq!(bite.reading(), invalid);
+        assert_eq!(bite.gate, BiteGate::Pooled);
     }
 }
