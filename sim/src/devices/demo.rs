@@ -68,6 +68,16 @@ pub enum DemoError {
     /// The configuration has no `[outputs.plc]` for the virtual PLC.
     #[error("the demo configuration needs outputs.plc")]
     NoPlcOutput,
+    /// The configuration lacks what the demo's tandem mill needs (a bug of the bundled
+    /// `demo-tandem.toml`).
+    #[error("the demo's tandem mill needs {0}")]
+    NoTandem(&'static str),
+    /// The tandem model's critical speed could not be found.
+    #[error("the demo's tandem mill: {0}")]
+    Roots(#[from] crate::tandem::roots::RootsError),
+    /// The online tandem mill refused a setting.
+    #[error("the demo's tandem mill: {0}")]
+    Online(crate::tandem::online::OnlineError),
     /// A loopback port could not be bound, or a device did not stop cleanly.
     #[error("{what}: {source}")]
     Io {
@@ -93,8 +103,29 @@ pub struct DemoSetup {
 /// is written to `millgate-demo` in the system's temporary folder, where the
 /// configuration's `model` finds it.
 pub fn setup(duration_s: f64, noise_rms_knm: f64, seed: u64) -> Result<DemoSetup, DemoError> {
+    setup_from(DEMO_CONFIG, duration_s, noise_rms_knm, seed)
+}
+
+/// As [`setup`], with the demo's tandem mill
+/// ([`super::demo_tandem::DEMO_TANDEM_CONFIG`] appended to the configuration).
+pub fn setup_with_tandem(
+    duration_s: f64,
+    noise_rms_knm: f64,
+    seed: u64,
+) -> Result<DemoSetup, DemoError> {
+    let text = format!("{DEMO_CONFIG}\n{}", super::demo_tandem::DEMO_TANDEM_CONFIG);
+    setup_from(&text, duration_s, noise_rms_knm, seed)
+}
+
+/// [`setup`] on the configuration `text`.
+fn setup_from(
+    text: &str,
+    duration_s: f64,
+    noise_rms_knm: f64,
+    seed: u64,
+) -> Result<DemoSetup, DemoError> {
     let folder = write_model()?;
-    let config = millgate_config::from_toml_str(DEMO_CONFIG, "demo.toml", &folder)?;
+    let config = millgate_config::from_toml_str(text, "demo.toml", &folder)?;
     let mut model = Model::from_toml_str(DEMO_MODEL, DEMO_MODEL_FILE)?;
     let torque = &config.channels[config.drivelines[0].torque];
     model.measurement.sample_rate = torque.sample_rate_hz;
