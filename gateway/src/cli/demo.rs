@@ -34,7 +34,7 @@ use millgate_sim::devices::demo::{
     setup, setup_with_tandem, DemoDevices, DemoSetup, BARS_PER_CYCLE, GAP_COUPLING,
     SAMPLES_PER_BLOCK,
 };
-use millgate_sim::devices::demo_tandem::{TandemDemo, TandemMoment, TandemScript};
+use millgate_sim::devices::demo_tandem::{PreparedTandem, TandemDemo, TandemMoment, TandemScript};
 use millgate_sim::devices::tandem_rig::{RigError, RigRun};
 
 use millgate_sim::schedule::{BiteTruth, Schedule};
@@ -185,15 +185,21 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
     // mill's weld bit at 1000).
     let map = RegisterMap::new(&config);
     let plc_registers = (usize::from(map.len()) + 16).max(PLC_OWN_REGISTERS);
+    // The tandem mill's simulation is set up before the driveline's DAQ streams.
+    let prepared = match config.tandem_mills.first() {
+        Some(_) => Some(PreparedTandem::new(&config, args.seed)?),
+        None => None,
+    };
     let devices = DemoDevices::start(&mut config, &schedule, plc_registers).await?;
-    let tandem = match config.tandem_mills.first() {
-        Some(mill) => {
+    let tandem = match prepared {
+        Some(prepared) => {
+            let mill = &config.tandem_mills[0];
+            let hold = (mill.weld_settle_s, mill.weld_alarm_factor);
             let flags = map
                 .named(&format!("{}.flags", mill.name))
                 .map(|register| usize::from(register.address))
                 .ok_or_else(|| anyhow::anyhow!("the demo's tandem mill has no flags register"))?;
-            let hold = (mill.weld_settle_s, mill.weld_alarm_factor);
-            let (rig, daq) = TandemDemo::start(&mut config, &devices.plc, flags, args.seed).await?;
+            let (rig, daq) = TandemDemo::start(prepared, &mut config, &devices.plc, flags).await?;
             Some((rig, daq, hold))
         }
         None => None,

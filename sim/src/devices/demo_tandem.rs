@@ -122,52 +122,25 @@ pub fn tandem_mill(weld_settle_s: f64) -> Result<(TandemMill, TandemScript), Dem
     Ok((mill, script))
 }
 
-impl TandemDemo {
-    /// Builds the mill of `config`'s first tandem mill (the demo's, [`DEMO_TANDEM_CONFIG`])
-    /// with noise seeded by `seed`, serves its stand DAQ on a free loopback port, and
-    /// points `config`'s stand source there and its PLC source at `plc` (the demo's
-    /// virtual PLC, at `config`'s PLC output address: start [`super::demo::DemoDevices`]
-    /// first). The PLC program reads the slow-down request from bit 3 of holding
-    /// register `flags_register` (the mill's `flags` in the gateway's register map).
-    /// Returns the mill and its serving DAQ (stop it after the gateway: the DAQ keeps
-    /// answering with its last block once the run is over).
-    pub async fn start(
-        config: &mut Config,
-        plc: &VirtualPlc,
-        flags_register: usize,
-        seed: u64,
-    ) -> Result<(Self, Running), DemoError> {
-        let io = |what| move |source| DemoError::Io { what, source };
-        let source_index = |name: &str| {
-            config
-                .modbus_sources
-                .iter()
-                .position(|s| s.name == name)
-                .ok_or(DemoError::NoTandem(
-                    "a modbus source named stand_daq and mill_plc",
-                ))
-        };
-        let (stands_at, plc_at) = (source_index(STAND_SOURCE)?, source_index(PLC_SOURCE)?);
+/// The demo's tandem mill built, before its DAQ serves ([`TandemDemo::start`]): the
+/// simulation's set-up (the critical speed, the mill's discretisation) takes a moment,
+/// done before the driveline's DAQ starts streaming.
+#[derive(Debug)]
+pub struct PreparedTandem {
+    mill: OnlineMill,
+    script: TandemScript,
+    placements: Vec<Placement>,
+    sample_rate_hz: f64,
+}
+
+impl PreparedTandem {
+    /// The mill of `config`'s first tandem mill (the demo's, [`DEMO_TANDEM_CONFIG`]) with
+    /// noise seeded by `seed`.
+    pub fn new(config: &Config, seed: u64) -> Result<Self, DemoError> {
         let tandem = config
             .tandem_mills
             .first()
             .ok_or(DemoError::NoTandem("a tandem mill"))?;
-        let weld_register = config
-            .channels
-            .iter()
-            .find(|c| c.name == WELD_CHANNEL)
-            .and_then(|c| match c.source {
-                ChannelSource::ModbusValue {
-                    table: RegisterTable::Holding,
-                    address,
-                    ..
-                } => Some(usize::from(address)),
-                _ => None,
-            })
-            .filter(|&address| address < plc.holding().len() && address != flags_register)
-            .ok_or(DemoError::NoTandem(
-                "the weld_in_mill tag in a holding register of the PLC",
-            ))?;
         let mut placements = Vec::new();
         for &stand in &tandem.stands {
             let channel = &config.channels[stand];
@@ -207,6 +180,62 @@ impl TandemDemo {
         };
         let mill = OnlineMill::new(&mill, &setup, control, CYCLE_SAMPLES, script.setpoint_m_s)
             .map_err(DemoError::Online)?;
+        Ok(Self {
+            mill,
+            script,
+            placements,
+            sample_rate_hz,
+        })
+    }
+}
+
+impl TandemDemo {
+    /// Serves `prepared`'s stand DAQ on a free loopback port, and points `config`'s
+    /// stand source there and its PLC source at `plc` (the demo's virtual PLC, at
+    /// `config`'s PLC output address: start [`super::demo::DemoDevices`] first). The
+    /// PLC program reads the slow-down request from bit 3 of holding register
+    /// `flags_register` (the mill's `flags` in the gateway's register map). Returns the
+    /// mill and its serving DAQ (stop it after the gateway: the DAQ keeps answering
+    /// with its last block once the run is over).
+    pub async fn start(
+        prepared: PreparedTandem,
+        config: &mut Config,
+        plc: &VirtualPlc,
+        flags_register: usize,
+    ) -> Result<(Self, Running), DemoError> {
+        let io = |what| move |source| DemoError::Io { what, source };
+        let source_index = |name: &str| {
+            config
+                .modbus_sources
+                .iter()
+                .position(|s| s.name == name)
+                .ok_or(DemoError::NoTandem(
+                    "a modbus source named stand_daq and mill_plc",
+                ))
+        };
+        let (stands_at, plc_at) = (source_index(STAND_SOURCE)?, source_index(PLC_SOURCE)?);
+        let weld_register = config
+            .channels
+            .iter()
+            .find(|c| c.name == WELD_CHANNEL)
+            .and_then(|c| match c.source {
+                ChannelSource::ModbusValue {
+                    table: RegisterTable::Holding,
+                    address,
+                    ..
+                } => Some(usize::from(address)),
+                _ => None,
+            })
+            .filter(|&address| address < plc.holding().len() && address != flags_register)
+            .ok_or(DemoError::NoTandem(
+                "the weld_in_mill tag in a holding register of the PLC",
+            ))?;
+        let PreparedTandem {
+            mill,
+            script,
+            placements,
+            sample_rate_hz,
+        } = prepared;
         let channels = placements
             .into_iter()
             .map(|placement| DaqChannel {
