@@ -31,10 +31,11 @@ use std::time::{Duration, Instant};
 
 use millgate_config::Config;
 use millgate_sim::devices::demo::{
-    setup, setup_with_tandem, DemoDevices, DemoSetup, BARS_PER_CYCLE, GAP_COUPLING,
-    SAMPLES_PER_BLOCK,
+    setup, DemoDevices, DemoSetup, BARS_PER_CYCLE, GAP_COUPLING, SAMPLES_PER_BLOCK,
 };
-use millgate_sim::devices::demo_tandem::{PreparedTandem, TandemDemo, TandemMoment, TandemScript};
+use millgate_sim::devices::demo_tandem::{
+    setup_with_tandem, PreparedTandem, TandemDemo, TandemMoment, TandemScript,
+};
 use millgate_sim::devices::tandem_rig::{RigError, RigRun};
 
 use millgate_sim::schedule::{BiteTruth, Schedule};

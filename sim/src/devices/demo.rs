@@ -28,7 +28,7 @@ use crate::model::{Model, ModelError};
 use crate::schedule::{rolling_schedule_with_gap, BarTiming, Schedule, TAIL_OUT_S};
 
 /// The demo's configuration (addresses are replaced by the loopback ports taken at start).
-const DEMO_CONFIG: &str = include_str!("../../../config/examples/demo.toml");
+pub(super) const DEMO_CONFIG: &str = include_str!("../../../config/examples/demo.toml");
 /// The driveline model: the configuration names it (the gateway's monitoring model),
 /// and the virtual DAQ simulates it with the growing gap.
 const DEMO_MODEL: &str = include_str!("../../models/table2-adjusted.toml");
@@ -106,19 +106,8 @@ pub fn setup(duration_s: f64, noise_rms_knm: f64, seed: u64) -> Result<DemoSetup
     setup_from(DEMO_CONFIG, duration_s, noise_rms_knm, seed)
 }
 
-/// As [`setup`], with the demo's tandem mill
-/// ([`super::demo_tandem::DEMO_TANDEM_CONFIG`] appended to the configuration).
-pub fn setup_with_tandem(
-    duration_s: f64,
-    noise_rms_knm: f64,
-    seed: u64,
-) -> Result<DemoSetup, DemoError> {
-    let text = format!("{DEMO_CONFIG}\n{}", super::demo_tandem::DEMO_TANDEM_CONFIG);
-    setup_from(&text, duration_s, noise_rms_knm, seed)
-}
-
-/// [`setup`] on the configuration `text`.
-fn setup_from(
+/// [`setup`] on the configuration `text` (the demo's, extended).
+pub(super) fn setup_from(
     text: &str,
     duration_s: f64,
     noise_rms_knm: f64,

@@ -17,7 +17,7 @@
 use millgate_config::{ChannelSource, Config, RegisterTable};
 use tokio::net::TcpListener;
 
-use super::demo::DemoError;
+use super::demo::{setup_from, DemoError, DemoSetup, DEMO_CONFIG};
 use super::modbus_bank::{Running, ServeOptions};
 use super::tandem_rig::{self, RequestBit, RigError, RigRun};
 use super::virtual_daq::{DaqChannel, Placement, Publish, VirtualDaq};
@@ -53,6 +53,17 @@ pub const WELD_FACTOR: f64 = 4.0;
 pub const SETPOINT_OF_CRITICAL: f64 = 1.3;
 /// The operator's acceleration to it, m/s^2.
 pub const RAMP_ACCEL_M_S2: f64 = 2.0;
+
+/// As [`super::demo::setup`], with the demo's tandem mill ([`DEMO_TANDEM_CONFIG`]
+/// appended to the configuration).
+pub fn setup_with_tandem(
+    duration_s: f64,
+    noise_rms_knm: f64,
+    seed: u64,
+) -> Result<DemoSetup, DemoError> {
+    let text = format!("{DEMO_CONFIG}\n{DEMO_TANDEM_CONFIG}");
+    setup_from(&text, duration_s, noise_rms_knm, seed)
+}
 
 /// When what happens in the demo's tandem mill, and its speeds.
 #[derive(Debug, Clone, Copy, PartialEq)]
