@@ -72,9 +72,6 @@ pub enum DemoError {
     /// `demo-tandem.toml`).
     #[error("the demo's tandem mill needs {0}")]
     NoTandem(&'static str),
-    /// The tandem model's critical speed could not be found.
-    #[error("the demo's tandem mill: {0}")]
-    Roots(#[from] crate::tandem::roots::RootsError),
     /// The online tandem mill refused a setting.
     #[error("the demo's tandem mill: {0}")]
     Online(crate::tandem::online::OnlineError),
