@@ -11,8 +11,18 @@
 //! temporary folder; the path is printed at start); a second run on the same file
 //! continues the bite counter, the wear trend and the pooled gap estimate.
 //!
+//! Beside it, unless `--no-tandem`, a five-stand tandem cold mill of the project's
+//! tandem model runs online in real time (`millgate_sim::devices::demo_tandem`): its
+//! chock accelerations on a second virtual DAQ, a weld passing the stands 2 s in (the
+//! PLC's weld bit, in one of the virtual PLC's holding registers, read by the gateway
+//! over Modbus TCP as a context tag), then, once the weld hold is over, the operator's
+//! ramp past the critical speed. The console prints the weld, the alarms the weld hold
+//! kept off, the ramp and the slow-down request the gateway raises (the PLC slows the
+//! mill); the page, the API and `/metrics` show the mill's figures.
+//!
 //! The maintenance page is served while the demo runs (`--web HOST:PORT`, by default
-//! a free loopback port; its address is printed at start); with the `opcua` feature,
+//! a free loopback port; its address is printed at start), and the Prometheus metrics
+//! (`--metrics HOST:PORT`, the same); with the `opcua` feature,
 //! `--opcua HOST:PORT` serves the results over OPC UA too (security none, anonymous,
 //! its certificates in `opcua-pki` beside the history).
 
@@ -23,6 +33,10 @@ use millgate_config::Config;
 use millgate_sim::devices::demo::{
     setup, DemoDevices, DemoSetup, BARS_PER_CYCLE, GAP_COUPLING, SAMPLES_PER_BLOCK,
 };
+use millgate_sim::devices::demo_tandem::{
+    setup_with_tandem, PreparedTandem, TandemDemo, TandemMoment, TandemScript,
+};
+use millgate_sim::devices::tandem_rig::{RigError, RigRun};
 
 use millgate_sim::schedule::{BiteTruth, Schedule};
 
@@ -30,6 +44,7 @@ use crate::analysis::driveline::BiteReport;
 use crate::history::query::HistoryReader;
 use crate::outputs::modbus::register_map::RegisterMap;
 use crate::service::{Bound, RunningService};
+use crate::state::results::TandemMillResults;
 use crate::state::time::UtcTime;
 
 /// Arguments of `millgate demo`.
@@ -61,9 +76,17 @@ pub struct DemoArgs {
     /// Serve the maintenance page on this address (default: a free loopback port).
     #[arg(long, value_name = "HOST:PORT", default_value = "127.0.0.1:0")]
     pub web: std::net::SocketAddr,
+    /// Serve the Prometheus metrics (`/metrics`) on this address (default: a free
+    /// loopback port).
+    #[arg(long, value_name = "HOST:PORT", default_value = "127.0.0.1:0")]
+    pub metrics: std::net::SocketAddr,
     /// The OPC UA server (`--opcua`, with the `opcua` feature).
     #[command(flatten)]
     pub opcua: crate::outputs::opcua::DemoOption,
+    /// Leave out the tandem mill (its real-time simulation of five stands takes about
+    /// a core while the demo runs): the driveline only.
+    #[arg(long)]
+    pub no_tandem: bool,
 }
 
 fn sparkplug_id(id: &str) -> Result<String, String> {
@@ -143,7 +166,11 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
     let DemoSetup {
         mut config,
         schedule,
-    } = setup(args.duration, args.noise_rms, args.seed)?;
+    } = if args.no_tandem {
+        setup(args.duration, args.noise_rms, args.seed)?
+    } else {
+        setup_with_tandem(args.duration, args.noise_rms, args.seed)?
+    };
     let history_path = history_file(&args)?;
     configure_outputs(&mut config, &args, &history_path);
     if let Some(broker) = args.mqtt {
@@ -155,9 +182,29 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         )?;
     }
     print_history(&history_path)?;
-    // The PLC holds the whole map and a margin.
-    let plc_registers = usize::from(RegisterMap::new(&config).len()) + 16;
+    // The PLC holds the whole map and a margin, and its own data past it (the tandem
+    // mill's weld bit at 1000).
+    let map = RegisterMap::new(&config);
+    let plc_registers = (usize::from(map.len()) + 16).max(PLC_OWN_REGISTERS);
+    // The tandem mill's simulation is set up before the driveline's DAQ streams.
+    let prepared = match config.tandem_mills.first() {
+        Some(_) => Some(PreparedTandem::new(&config, args.seed)?),
+        None => None,
+    };
     let devices = DemoDevices::start(&mut config, &schedule, plc_registers).await?;
+    let tandem = match prepared {
+        Some(prepared) => {
+            let mill = &config.tandem_mills[0];
+            let hold = (mill.weld_settle_s, mill.weld_alarm_factor);
+            let flags = map
+                .named(&format!("{}.flags", mill.name))
+                .map(|register| usize::from(register.address))
+                .ok_or_else(|| anyhow::anyhow!("the demo's tandem mill has no flags register"))?;
+            let (rig, daq) = TandemDemo::start(prepared, &mut config, &devices.plc, flags).await?;
+            Some((rig, daq, hold))
+        }
+        None => None,
+    };
     say!(
         "millgate demo: virtual DAQ at {} ({} Hz, blocks of {SAMPLES_PER_BLOCK}), virtual PLC at {}, {} s",
         config.modbus_sources[0].address,
@@ -171,16 +218,40 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
     let board = gateway.board();
     let history = gateway.history().clone();
     let started = Instant::now();
+    let (mut tandem, tandem_daq) = match tandem {
+        Some((rig, daq, hold)) => {
+            let console = TandemConsole::start(rig, hold, args.duration);
+            print_script(&console.script, hold, args.duration)?;
+            (Some(console), Some(daq))
+        }
+        None => (None, None),
+    };
     // A reader that closed the pipe ends the printing, not the stop: the gateway and
     // the devices stop in order, then its error ends the command quietly.
     let printed = match print_addresses(gateway.bound()) {
-        Ok(()) => print_bites(&mut gateway, &schedule, args.duration, started).await,
+        Ok(()) => {
+            print_bites(
+                &mut gateway,
+                &schedule,
+                args.duration,
+                started,
+                tandem.as_mut(),
+            )
+            .await
+        }
         Err(error) => Err(error),
+    };
+    let tandem_run = match tandem {
+        Some(console) => Some(console.stop().await),
+        None => None,
     };
     let live = devices.plc.holding();
     gateway.stop().await?;
     let after_stop = devices.plc.holding();
     devices.stop().await?;
+    if let Some(daq) = tandem_daq {
+        daq.stop().await?;
+    }
     let printed = printed?;
     say!(
         "{printed} bites analysed in {:.1} s",
@@ -196,13 +267,20 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         last.wear_trend
             .map_or_else(|| "none".to_owned(), |trend| format!("{trend:.4}"))
     )?;
+    if let Some((run, script)) = tandem_run {
+        print_tandem_summary(&board.results().tandem_mills[0], &run?, &script)?;
+    }
     print_registers(&map, &live)?;
     print_status_after_stop(&map, &after_stop)?;
     Ok(())
 }
 
+/// Holding registers of the demo's PLC at least: its own data (the tandem mill's weld
+/// bit at 1000) sits past the block the gateway writes.
+const PLC_OWN_REGISTERS: usize = 1024;
+
 /// The demo's outputs in `config`: the history at `history_path`, Sparkplug with
-/// `--mqtt`, the maintenance page, OPC UA with `--opcua`.
+/// `--mqtt`, the maintenance page, the Prometheus metrics, OPC UA with `--opcua`.
 fn configure_outputs(config: &mut Config, args: &DemoArgs, history_path: &Path) {
     config.history = Some(millgate_config::History {
         path: history_path.to_path_buf(),
@@ -229,6 +307,7 @@ fn configure_outputs(config: &mut Config, args: &DemoArgs, history_path: &Path) 
         });
     }
     config.outputs.web = Some(millgate_config::WebOutput::on(args.web));
+    config.outputs.metrics = Some(millgate_config::MetricsOutput { bind: args.metrics });
     let folder = history_path.parent().unwrap_or(Path::new("."));
     args.opcua.apply(config, folder);
 }
@@ -258,6 +337,9 @@ fn print_addresses(bound: Bound) -> std::io::Result<()> {
     if let Some(web) = bound.web {
         say!("maintenance page: http://{web}/")?;
     }
+    if let Some(metrics) = bound.metrics {
+        say!("Prometheus metrics: http://{metrics}/metrics")?;
+    }
     if let Some(opcua) = bound.opcua {
         say!("OPC UA server: opc.tcp://{opcua}/ (security none, anonymous)")?;
     }
@@ -271,7 +353,9 @@ async fn print_bites(
     schedule: &Schedule,
     duration_s: f64,
     started: Instant,
+    mut tandem: Option<&mut TandemConsole>,
 ) -> std::io::Result<usize> {
+    let board = gateway.board();
     say!(
         "{:>7} {:>12} {:>7} {:>10} {:>7} | {:>10} {:>10} {:>24} {:>9} {:>14} {:>22}",
         "time s",
@@ -309,9 +393,228 @@ async fn print_bites(
                 say!("{}", bite_row(&bite, truth.map(|(_, truth)| truth), elapsed_s))?;
                 printed += 1;
             }
+            event = tandem_event(tandem.as_deref_mut()) => {
+                let Some(console) = tandem.as_deref_mut() else { continue };
+                match event {
+                    TandemEvent::Ended(ran) => console.ended = Some(ran),
+                    TandemEvent::Moment(moment) => {
+                        let mill = &board.results().tandem_mills[0];
+                        for line in console.lines(&moment, mill) {
+                            say!("{:>7.2}  {line}", started.elapsed().as_secs_f64())?;
+                        }
+                    }
+                }
+            }
         }
     }
     Ok(printed)
+}
+
+/// What the tandem mill did.
+enum TandemEvent {
+    /// A PLC cycle.
+    Moment(TandemMoment),
+    /// The run ended.
+    Ended(Result<RigRun, RigError>),
+}
+
+/// The tandem mill's next cycle or the end of its run; never without a mill.
+async fn tandem_event(tandem: Option<&mut TandemConsole>) -> TandemEvent {
+    let Some(console) = tandem else {
+        return std::future::pending().await;
+    };
+    if console.ended.is_some() {
+        return match console.moments.recv().await {
+            Some(moment) => TandemEvent::Moment(moment),
+            None => std::future::pending().await,
+        };
+    }
+    tokio::select! {
+        ran = &mut console.rig => TandemEvent::Ended(ran),
+        Some(moment) = console.moments.recv() => TandemEvent::Moment(moment),
+    }
+}
+
+/// The demo's tandem mill running beside the gateway, and what the console has said
+/// about it.
+struct TandemConsole {
+    /// The mill's run, polled by the console (the demo's own task: the rig's future
+    /// borrows across its publishing, which a spawned task cannot).
+    rig: std::pin::Pin<Box<dyn std::future::Future<Output = Result<RigRun, RigError>>>>,
+    /// How it ended, once it did.
+    ended: Option<Result<RigRun, RigError>>,
+    moments: tokio::sync::mpsc::UnboundedReceiver<TandemMoment>,
+    script: TandemScript,
+    /// The weld hold: settle time, s, and factor on the alarm level.
+    hold: (f64, f64),
+    last: TandemMoment,
+    /// The mill's slow-down request as the gateway published it last.
+    requested: bool,
+    /// Windows the weld hold kept off, as printed last.
+    held_off: u64,
+    ramped: bool,
+    hold_over: bool,
+}
+
+impl TandemConsole {
+    /// Runs `rig` in the background for `duration_s`; `hold` the mill's weld hold
+    /// (`weld_settle_s`, `weld_alarm_factor`).
+    fn start(rig: TandemDemo, hold: (f64, f64), duration_s: f64) -> Self {
+        let script = rig.script();
+        let cycles = (duration_s / rig.cycle_s()).floor() as usize;
+        let (sender, moments) = tokio::sync::mpsc::unbounded_channel();
+        let rig = Box::pin(rig.run(cycles, move |moment| {
+            // The console may have stopped reading: the mill runs on.
+            let _ = sender.send(moment);
+        }));
+        TandemConsole {
+            rig,
+            ended: None,
+            moments,
+            script,
+            hold,
+            last: TandemMoment::default(),
+            requested: false,
+            held_off: 0,
+            ramped: false,
+            hold_over: false,
+        }
+    }
+
+    /// What the console says about `moment`, given the gateway's latest figures of the
+    /// mill.
+    fn lines(&mut self, moment: &TandemMoment, mill: &TandemMillResults) -> Vec<String> {
+        let mpm = |m_s: f64| m_s * 60.0;
+        let (settle_s, factor) = self.hold;
+        let mut lines = Vec::new();
+        if moment.weld && !self.last.weld {
+            lines.push(format!(
+                "TCM  weld in the mill at {:.0} m/min: the PLC's weld bit is 1 (holding \
+                 register 1000, read by the gateway over Modbus TCP)",
+                mpm(moment.speed_m_s)
+            ));
+        }
+        if mill.weld_held_off > self.held_off {
+            if self.held_off == 0 {
+                lines.push(format!(
+                    "TCM  gain ratio {} >= 1 from the weld's excitation: the alarm and the \
+                     slow-down request held off (the weld hold needs {factor}x the alarm level)",
+                    mill.gain_ratio
+                        .map_or_else(|| "-".to_owned(), |ratio| format!("{ratio:.2}"))
+                ));
+            }
+            self.held_off = mill.weld_held_off;
+        }
+        if !moment.weld && self.last.weld {
+            lines.push(format!(
+                "TCM  weld has left the mill (weld bit 0): the alarm level stays {factor}x \
+                 for {settle_s} s more"
+            ));
+        }
+        let hold_end_s = self.script.weld.time_s + self.script.weld.duration_s + settle_s;
+        if !self.hold_over && moment.t_s >= hold_end_s {
+            self.hold_over = true;
+            lines.push(format!(
+                "TCM  weld hold over: {} windows held off, slow-down request {}",
+                mill.weld_held_off,
+                if mill.slow_down_request {
+                    "set"
+                } else {
+                    "never set"
+                }
+            ));
+        }
+        if !self.ramped && moment.setpoint_m_s > self.script.start_m_s {
+            self.ramped = true;
+            lines.push(format!(
+                "TCM  the operator ramps the mill from {:.0} to {:.0} m/min, past its \
+                 critical speed {:.0} m/min",
+                mpm(moment.speed_m_s),
+                mpm(moment.setpoint_m_s),
+                mpm(self.script.critical_m_s)
+            ));
+        }
+        if mill.slow_down_request != self.requested {
+            self.requested = mill.slow_down_request;
+            lines.push(if mill.slow_down_request {
+                format!(
+                    "TCM  slow-down request raised (gain ratio {}, stand {}) at {:.0} m/min: \
+                     the PLC slows the mill",
+                    mill.gain_ratio
+                        .map_or_else(|| "-".to_owned(), |ratio| format!("{ratio:.2}")),
+                    mill.worst_stand
+                        .map_or_else(|| "-".to_owned(), |stand| (stand + 1).to_string()),
+                    mpm(moment.speed_m_s)
+                )
+            } else {
+                format!(
+                    "TCM  slow-down request cleared at {:.0} m/min",
+                    mpm(moment.speed_m_s)
+                )
+            });
+        }
+        self.last = *moment;
+        lines
+    }
+
+    /// Waits for the mill's run to end (a second past its last cycle at most), and
+    /// returns it with the script.
+    async fn stop(self) -> (anyhow::Result<RigRun>, TandemScript) {
+        let run = match self.ended {
+            Some(ended) => ended.map_err(anyhow::Error::from),
+            None => match tokio::time::timeout(Duration::from_secs(1), self.rig).await {
+                Ok(ended) => ended.map_err(anyhow::Error::from),
+                // Dropped: its DAQ stops serving with it.
+                Err(_) => Err(anyhow::anyhow!(
+                    "the tandem mill's simulation fell behind the wall clock"
+                )),
+            },
+        };
+        (run, self.script)
+    }
+}
+
+/// What the tandem mill will do.
+fn print_script(script: &TandemScript, hold: (f64, f64), duration_s: f64) -> std::io::Result<()> {
+    let (settle_s, _) = hold;
+    let weld_end_s = script.weld.time_s + script.weld.duration_s;
+    say!(
+        "tandem mill TCM (5 stands, the tandem model on a second virtual DAQ): a weld in the \
+         mill {:.0}-{weld_end_s:.0} s, its hold until {:.0} s, then the operator's ramp past \
+         the critical speed{}",
+        script.weld.time_s,
+        weld_end_s + settle_s,
+        if duration_s < script.ramp_at_s + 4.0 {
+            format!(
+                " (run --duration {:.0} or more to see it)",
+                (script.ramp_at_s + 4.0).ceil()
+            )
+        } else {
+            String::new()
+        }
+    )
+}
+
+/// What the tandem mill did over the demo.
+fn print_tandem_summary(
+    mill: &TandemMillResults,
+    run: &RigRun,
+    script: &TandemScript,
+) -> std::io::Result<()> {
+    let top = run.cycles.iter().map(|c| c.speed_m_s).fold(0.0, f64::max);
+    say!(
+        "tandem mill TCM: {} windows evaluated, {} held off by the weld hold, {} slow-downs \
+         by the PLC; top speed {:.0} m/min (critical {:.0} m/min), chatter {}",
+        mill.evaluations,
+        mill.weld_held_off,
+        run.events.len(),
+        top * 60.0,
+        script.critical_m_s * 60.0,
+        run.developed_s.map_or_else(
+            || "never developed".to_owned(),
+            |t| format!("developed at {t:.1} s")
+        )
+    )
 }
 
 /// The printed row of `bite`, `elapsed_s` s into the demo, beside its `truth`.

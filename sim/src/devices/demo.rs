@@ -28,7 +28,7 @@ use crate::model::{Model, ModelError};
 use crate::schedule::{rolling_schedule_with_gap, BarTiming, Schedule, TAIL_OUT_S};
 
 /// The demo's configuration (addresses are replaced by the loopback ports taken at start).
-const DEMO_CONFIG: &str = include_str!("../../../config/examples/demo.toml");
+pub(super) const DEMO_CONFIG: &str = include_str!("../../../config/examples/demo.toml");
 /// The driveline model: the configuration names it (the gateway's monitoring model),
 /// and the virtual DAQ simulates it with the growing gap.
 const DEMO_MODEL: &str = include_str!("../../models/table2-adjusted.toml");
@@ -68,6 +68,13 @@ pub enum DemoError {
     /// The configuration has no `[outputs.plc]` for the virtual PLC.
     #[error("the demo configuration needs outputs.plc")]
     NoPlcOutput,
+    /// The configuration lacks what the demo's tandem mill needs (a bug of the bundled
+    /// `demo-tandem.toml`).
+    #[error("the demo's tandem mill needs {0}")]
+    NoTandem(&'static str),
+    /// The online tandem mill refused a setting.
+    #[error("the demo's tandem mill: {0}")]
+    Online(crate::tandem::online::OnlineError),
     /// A loopback port could not be bound, or a device did not stop cleanly.
     #[error("{what}: {source}")]
     Io {
@@ -93,8 +100,18 @@ pub struct DemoSetup {
 /// is written to `millgate-demo` in the system's temporary folder, where the
 /// configuration's `model` finds it.
 pub fn setup(duration_s: f64, noise_rms_knm: f64, seed: u64) -> Result<DemoSetup, DemoError> {
+    setup_from(DEMO_CONFIG, duration_s, noise_rms_knm, seed)
+}
+
+/// [`setup`] on the configuration `text` (the demo's, extended).
+pub(super) fn setup_from(
+    text: &str,
+    duration_s: f64,
+    noise_rms_knm: f64,
+    seed: u64,
+) -> Result<DemoSetup, DemoError> {
     let folder = write_model()?;
-    let config = millgate_config::from_toml_str(DEMO_CONFIG, "demo.toml", &folder)?;
+    let config = millgate_config::from_toml_str(text, "demo.toml", &folder)?;
     let mut model = Model::from_toml_str(DEMO_MODEL, DEMO_MODEL_FILE)?;
     let torque = &config.channels[config.drivelines[0].torque];
     model.measurement.sample_rate = torque.sample_rate_hz;

@@ -54,9 +54,9 @@ pub enum RigError {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RigCycle {
     /// Simulated time at the cycle's end, s.
-    pub(crate) t_s: f64,
+    pub t_s: f64,
     /// Exit speed at the cycle's end, m/s.
-    pub(crate) speed_m_s: f64,
+    pub speed_m_s: f64,
     /// The request as the PLC read it for this cycle.
     pub request: bool,
     /// Chatter amplitude over the cycle (tension swing over its developed limit).

@@ -233,12 +233,12 @@ impl SpeedControl {
     }
 
     /// The speed now, m/s.
-    pub(crate) fn speed_m_s(&self) -> f64 {
+    pub fn speed_m_s(&self) -> f64 {
         self.speed_m_s
     }
 
     /// The operator's setpoint, m/s.
-    pub(crate) fn setpoint_m_s(&self) -> f64 {
+    pub fn setpoint_m_s(&self) -> f64 {
         self.setpoint_m_s
     }
 
