@@ -1030,7 +1030,9 @@ fn product_groups_and_their_checks() {
         "{summary}"
     );
     // Left out: no groups.
-    assert!(parse(BASE).unwrap().tandem_mills[0].product_groups.is_empty());
+    assert!(parse(BASE).unwrap().tandem_mills[0]
+        .product_groups
+        .is_empty());
 
     let key = "mill.toml: tandem_mills[0].product_groups";
     for (context, groups, problem) in [

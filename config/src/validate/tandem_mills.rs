@@ -561,7 +561,11 @@ impl Checker<'_> {
         };
         let list_key = format!("{key}.product_groups");
         let mut ok = true;
-        if raw.context.as_ref().is_none_or(|tags| tags.product.is_none()) {
+        if raw
+            .context
+            .as_ref()
+            .is_none_or(|tags| tags.product.is_none())
+        {
             self.report.push(
                 &list_key,
                 "needs the product tag (`context = { product = \"<process value>\" }`): the \

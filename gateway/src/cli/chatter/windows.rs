@@ -25,6 +25,11 @@
 //! request) after the gating. A row with an impossible context value (weld not 0/1, a
 //! negative speed, a coil or product that is not a whole number) is not used for the
 //! gating and is counted (`invalid_context`, with its line); the analysis goes on.
+//! With the mill's `product_groups`, each window is judged by the thresholds of the
+//! group holding the `product` column's value at the end of its last block (the mill's
+//! `gain_thresholds` for a product in no group, or without a valid one), as the
+//! service does with the PLC's product; each row names the group (`thresholds_group`,
+//! and in the text the flag `group=NAME`).
 //!
 //! [`ChatterMonitor::judge`]: crate::analysis::chatter::ChatterMonitor::judge
 
@@ -106,6 +111,9 @@ pub struct WindowRow {
     /// without, or when invalid there).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub context: Option<ProcessContext>,
+    /// The product group whose thresholds judged this window (by the row's `product`
+    /// column); `None`: the mill's `gain_thresholds`.
+    pub thresholds_group: Option<String>,
 }
 
 /// Rows of the CSV whose context was invalid.
@@ -214,6 +222,9 @@ pub fn analyze(args: &WindowsArgs) -> anyhow::Result<ChatterReport> {
             weld_hold: window.weld_hold,
             held_off: window.verdict.held_off,
             context: window.context,
+            thresholds_group: window
+                .thresholds_group
+                .map(|g| config.tandem_mills[index].product_groups[g].name.clone()),
         })
         .collect();
     let first = |pick: fn(&WindowRow) -> bool| windows.iter().find(|w| pick(w)).map(|w| w.t_s);
@@ -318,6 +329,11 @@ fn text(report: &ChatterReport) -> String {
         .filter(|(set, _)| *set)
         .map(|(_, name)| *name)
         .collect();
+        let group = w
+            .thresholds_group
+            .as_ref()
+            .map(|name| format!("group={name}"));
+        let flags: Vec<&str> = flags.into_iter().chain(group.as_deref()).collect();
         let line = format!(
             " {:>8.3} {:>7.3} {ratio:>7} {}",
             w.sigma_n_hz,
