@@ -129,7 +129,8 @@ pub struct Score {
     pub caught: usize,
     /// Ramps.
     pub ramps: usize,
-    /// Mean time from the first alarm to developed chatter over the caught ramps, s.
+    /// Mean time from the first alarm to developed chatter over the caught ramps in
+    /// which chatter developed before the run ended, s.
     pub mean_lead_s: f64,
 }
 
@@ -372,7 +373,7 @@ pub fn evaluate(plan: &ProductPlan) -> anyhow::Result<ProductResult> {
 /// The score of `runs` by their first alarm `alarm`.
 fn score(runs: &[&Outcome], alarm: fn(&Outcome) -> Option<f64>) -> Score {
     let mut score = Score::default();
-    let mut lead = 0.0;
+    let (mut lead, mut led) = (0.0, 0);
     for run in runs {
         if run.ramp {
             score.ramps += 1;
@@ -381,6 +382,7 @@ fn score(runs: &[&Outcome], alarm: fn(&Outcome) -> Option<f64>) -> Score {
                 score.caught += 1;
                 if developed.is_finite() {
                     lead += developed - at;
+                    led += 1;
                 }
             }
         } else {
@@ -388,11 +390,7 @@ fn score(runs: &[&Outcome], alarm: fn(&Outcome) -> Option<f64>) -> Score {
             score.false_alarms += usize::from(alarm(run).is_some());
         }
     }
-    score.mean_lead_s = if score.caught > 0 {
-        lead / score.caught as f64
-    } else {
-        0.0
-    };
+    score.mean_lead_s = if led > 0 { lead / f64::from(led) } else { 0.0 };
     score
 }
 

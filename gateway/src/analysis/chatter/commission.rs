@@ -735,6 +735,82 @@ mod tests {
         );
     }
 
+    /// [`lines_recording`] of 3 s (five windows with a full gain window), chatter line
+    /// `amplitude` over the reference's 0.5 (gain `2 amplitude`), named `name`, its
+    /// `product` column `product` on every row.
+    fn product_recording(name: &str, amplitude: f64, product: Option<f64>) -> Recording {
+        let mut recording = lines_recording(7_500, |_| amplitude);
+        recording.name = name.into();
+        recording.context.product = product.map(|code| vec![code; recording.len()]);
+        recording
+    }
+
+    #[test]
+    fn by_product_each_group_with_enough_recordings_gets_its_own_thresholds() {
+        let config = example_tandem();
+        // Product 1 rolls at gain 1 (two recordings), product 2 at gain 2 (one), and a
+        // recording without a product column at gain 1.5.
+        let recordings = [
+            product_recording("a.csv", 0.5, Some(1.0)),
+            product_recording("b.csv", 0.5, Some(1.0)),
+            product_recording("c.csv", 1.0, Some(2.0)),
+            product_recording("d.csv", 0.75, None),
+        ];
+        let c = commission_by_product(&config, 0, &recordings, 10.0, 2).expect("commissioned");
+        // The mill's (the fallback) from every recording: gain 2 plus 10%.
+        for threshold in &c.gain_thresholds {
+            assert!((threshold - 2.2).abs() < 0.1, "{c:?}");
+        }
+        assert_eq!(c.recordings.len(), 4);
+        let names: Vec<&str> = c.product_groups.iter().map(|g| g.name.as_str()).collect();
+        assert_eq!(names, ["product-1", "product-2"]);
+        let one = &c.product_groups[0];
+        assert_eq!(
+            (one.products.as_slice(), one.recordings.len()),
+            (&[1][..], 2)
+        );
+        let own = one
+            .gain_thresholds
+            .as_ref()
+            .expect("two recordings: its own");
+        for threshold in own {
+            assert!((threshold - 1.1).abs() < 0.05, "{one:?}");
+        }
+        // Product 2 has one recording: too few, its products fall back to the mill's.
+        let two = &c.product_groups[1];
+        assert_eq!(
+            (two.recordings.len(), two.gain_thresholds.as_ref()),
+            (1, None)
+        );
+        // With one recording enough, it has its own (the mill's, here).
+        let c = commission_by_product(&config, 0, &recordings, 10.0, 1).expect("commissioned");
+        assert!(c.product_groups[1].gain_thresholds.is_some());
+        // Without product columns: no groups, the plain commissioning.
+        let plain = commission_by_product(&config, 0, &recordings[3..], 10.0, 2).expect("plain");
+        assert_eq!(
+            plain,
+            commission(&config, 0, &recordings[3..], 10.0).expect("plain")
+        );
+        assert!(plain.product_groups.is_empty());
+
+        // A recording with two products is refused, naming the line of the change.
+        let mut mixed = product_recording("mixed.csv", 0.5, Some(1.0));
+        if let Some(column) = mixed.context.product.as_mut() {
+            column[4000..].fill(2.0);
+        }
+        assert_eq!(
+            commission_by_product(&config, 0, &[mixed], 10.0, 2)
+                .expect_err("two products")
+                .to_string(),
+            "mixed.csv: the product column holds 1 and then 2 (line 4001): commissioning by \
+             product takes one product per recording (split the recording at the product change)"
+        );
+        assert_eq!(
+            commission_by_product(&config, 0, &recordings, 10.0, 0),
+            Err(CommissionError::MinGroupRecordings)
+        );
+    }
+
     #[test]
     fn a_chatter_line_growing_past_eight_times_its_median_is_refused() {
         let config = example_tandem();

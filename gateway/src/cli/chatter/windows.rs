@@ -411,6 +411,71 @@ mod tests {
     }
 
     #[test]
+    fn each_rows_product_picks_its_groups_thresholds() -> anyhow::Result<()> {
+        // The example mill with a product tag and the group "quiet" (product 7, every
+        // threshold ten times the mill's).
+        let text = std::fs::read_to_string(example())?
+            .replacen(
+                "[[tandem_mills]]",
+                "[[channels]]\nname = \"product_code\"\nkind = \"process_value\"\nunit = \"1\"\n\
+                 source = { modbus = \"mill_plc\", table = \"holding\", address = 11 }\n\n\
+                 [[tandem_mills]]\ncontext = { product = \"product_code\" }",
+                1,
+            )
+            .replacen(
+                "slow_down_hold_s = 5.0\n",
+                "slow_down_hold_s = 5.0\n[[tandem_mills.product_groups]]\nname = \"quiet\"\n\
+                 products = [7]\ngain_thresholds = [11.87, 14.92, 22.09, 30.87, 33.27]\n",
+                1,
+            );
+        let scratch =
+            std::env::temp_dir().join(format!("millgate-products-{}", std::process::id()));
+        std::fs::create_dir_all(&scratch)?;
+        let config = scratch.join("mill.toml");
+        std::fs::write(&config, text)?;
+        // A chatter-band line at gain 1.6 on every stand (1.35 times stand 1's
+        // threshold), product 7 for 6 s, then product 8 (in no group).
+        let recording = crate::analysis::chatter::testing::lines_recording(30_000, |_| 0.8);
+        let mut csv = String::from("t,s1_vib,s2_vib,s3_vib,s4_vib,s5_vib,product\n");
+        for (k, t) in recording.time_s.iter().enumerate() {
+            let stands: Vec<String> = recording.stands.iter().map(|s| s[k].to_string()).collect();
+            let product = if *t < 6.0 { 7 } else { 8 };
+            csv += &format!("{t},{},{product}\n", stands.join(","));
+        }
+        let input = scratch.join("stands.csv");
+        std::fs::write(&input, csv)?;
+        let args = WindowsArgs {
+            input,
+            config,
+            mill: None,
+            format: OutputFormat::Json,
+            #[cfg(feature = "sim-tools")]
+            plot: None,
+        };
+        let report: serde_json::Value = serde_json::from_str(&run(&args)?)?;
+        std::fs::remove_dir_all(&scratch)?;
+        let windows = report["windows"].as_array().expect("windows");
+        for window in windows {
+            let t = window["t_s"].as_f64().unwrap_or(f64::NAN);
+            let group = &window["thresholds_group"];
+            if t < 6.0 {
+                assert_eq!(group, "quiet", "{window}");
+                assert_eq!(window["alarm"], false, "{window}");
+                assert!(
+                    window["gain_ratio"].as_f64().is_none_or(|r| r < 0.2),
+                    "{window}"
+                );
+            } else if t > 6.2 {
+                assert_eq!(group, &serde_json::Value::Null, "{window}");
+            }
+        }
+        // The first alarm comes with product 8's first window (the mill's thresholds).
+        let first_alarm = report["first_alarm_s"].as_f64().expect("an alarm");
+        assert!((6.0..6.3).contains(&first_alarm), "{first_alarm}");
+        Ok(())
+    }
+
+    #[test]
     fn the_weld_bit_holds_a_welds_slow_down_off_and_a_ramp_after_a_weld_still_alarms(
     ) -> anyhow::Result<()> {
         // The physical model: at 95% of the critical speed (the highest allowed), a
