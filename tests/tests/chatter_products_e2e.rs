@@ -11,11 +11,13 @@
 
 use std::time::{Duration, Instant};
 
-use millgate_config::{Config, RegisterTable};
+use millgate_config::Config;
 use millgate_sim::devices::modbus_bank::ServeOptions;
-use millgate_sim::devices::virtual_daq::{DaqChannel, Placement, Publish, VirtualDaq};
+use millgate_sim::devices::virtual_daq::VirtualDaq;
 use millgate_sim::devices::virtual_plc::VirtualPlc;
-use millgate_tests::kit::tandem::{modbus_source, reference_ramp, Stands, FS, GAIN_THRESHOLDS};
+use millgate_tests::kit::tandem::{
+    modbus_source, reference_ramp, stand_daq_channels, Stands, FS, GAIN_THRESHOLDS,
+};
 use millgate_tests::kit::{scrape, web_overview};
 use tokio::net::TcpListener;
 
@@ -58,22 +60,12 @@ fn metric(page: &str, family: &str) -> Option<f64> {
 async fn the_thresholds_in_use_follow_the_plcs_product() -> anyhow::Result<()> {
     // 20 s of stable rolling at 90% of the critical speed, played again and again.
     let run = reference_ramp(0.9, 60.0, 20.0, 21)?;
-    let channels = run
-        .acceleration
-        .iter()
-        .enumerate()
-        .map(|(stand, signal)| DaqChannel {
-            placement: Placement {
-                table: RegisterTable::Input,
-                address: (stand * 122) as u16,
-                scale: 0.01,
-                offset: 0.0,
-            },
-            publish: Publish::Block,
-            signal: signal.clone(),
-        })
-        .collect();
-    let daq = VirtualDaq::new(FS, 120, channels).looped();
+    let daq = VirtualDaq::new(
+        FS,
+        120,
+        stand_daq_channels(&run.acceleration, &[0, 1, 2, 3, 4]),
+    )
+    .looped();
     let process = VirtualPlc::new(4);
     let set_product = |code: u16| process.bank().lock().holding[PRODUCT_REGISTER] = code;
     set_product(8);

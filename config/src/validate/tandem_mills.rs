@@ -494,7 +494,7 @@ impl Checker<'_> {
 
     /// The per-stand thresholds at `thresholds_key` (`values`, as written): one per
     /// stand (`stands`, when known; `written_stands` the mill's list as written), each
-    /// > 0; needed by the band-gain `detector` in service, empty when left out
+    /// above 0; needed by the band-gain `detector` in service, empty when left out
     /// otherwise.
     fn stand_thresholds(
         &mut self,

@@ -18,15 +18,15 @@
 use millgate::analysis::chatter::commission::{commission, commission_by_product};
 use millgate::analysis::chatter::{windows_in_context, ContextColumns, Recording};
 use millgate_config::Config;
-use millgate_sim::tandem::simulate::{
-    simulate, Accelerometer, Excitation, Record, RunSettings, SpeedRamp,
-};
+use millgate_sim::tandem::simulate::{Record, SpeedRamp};
 use millgate_sim::tandem::truth::{developed_time, mill_critical_speed};
 use millgate_sim::tandem::{PassSchedule, TandemMill};
 use rand::rngs::SmallRng;
 use rand::{Rng, SeedableRng};
 
-use super::chatter_eval::{monitor_config_with, parallel, recording_from, SAMPLE_RATE_HZ};
+use super::chatter_eval::{
+    monitor_config_with, noisy_run, parallel, recording_from, SAMPLE_RATE_HZ,
+};
 use crate::kit::tandem::{modbus_source, Stands};
 
 /// Stands of the example schedule.
@@ -163,33 +163,6 @@ fn product_recording(name: String, record: &Record, from: usize, code: u32) -> R
     recording
 }
 
-/// One run: `ramp` on `mill`, `duration_s` long, the excitation's noise times `noise`.
-fn run(
-    mill: &TandemMill,
-    ramp: SpeedRamp,
-    duration_s: f64,
-    noise: f64,
-    seed: u64,
-) -> anyhow::Result<Record> {
-    let mut excitation = Excitation::default();
-    excitation.force_noise_density *= noise;
-    excitation.entry_gauge_rms_m *= noise;
-    Ok(simulate(
-        mill,
-        &RunSettings {
-            ramp,
-            excitation,
-            sensor: Accelerometer {
-                sample_rate_hz: SAMPLE_RATE_HZ,
-                ..Accelerometer::default()
-            },
-            duration_s,
-            seed,
-            internal_rate_hz: None,
-        },
-    )?)
-}
-
 /// The monitor configuration with a product tag, `thresholds` the mill's and `groups`
 /// (code, thresholds) one product group each.
 fn config(thresholds: &[f64], groups: &[(u32, Vec<f64>)]) -> anyhow::Result<Config> {
@@ -255,7 +228,7 @@ fn commissioning_set(plan: &ProductPlan) -> anyhow::Result<Vec<Recording>> {
             } else {
                 (SpeedRamp::constant(top), plan.settle_s + plan.run_s)
             };
-            let record = run(&mill, ramp, duration_s, noise, seed)?;
+            let record = noisy_run(&mill, ramp, duration_s, noise, seed)?;
             let from = (plan.settle_s * SAMPLE_RATE_HZ) as usize;
             Ok(product_recording(
                 format!("product {} commissioning {k}", product.code),
@@ -328,7 +301,7 @@ pub fn evaluate(plan: &ProductPlan) -> anyhow::Result<ProductResult> {
                     plan.settle_s + plan.run_s,
                 )
             };
-            let record = run(&mill, speeds, duration_s, noise, seed)?;
+            let record = noisy_run(&mill, speeds, duration_s, noise, seed)?;
             let recording = product_recording(String::new(), &record, 0, product.code);
             Ok(Outcome {
                 product: product.code,
@@ -400,9 +373,9 @@ pub fn table(result: &ProductResult) -> String {
         let items: Vec<String> = values.iter().map(|v| format!("{v:.3}")).collect();
         items.join(", ")
     };
-    let mut text = format!(
+    let mut text = String::from(
         "| product | critical speed, m/s | thresholds | false alarms (stable runs) | caught before developed chatter (ramps) | mean lead, s |\n\
-         |---|---|---|---|---|---|\n"
+         |---|---|---|---|---|---|\n",
     );
     for (code, critical_m_s, own, mill_wide, per_product) in &result.products {
         for (what, thresholds, score) in [

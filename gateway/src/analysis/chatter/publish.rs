@@ -435,7 +435,7 @@ fn clear(published: &mut TandemMillResults) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::analysis::chatter::testing::lines_recording;
+    use crate::analysis::chatter::testing::{example_with_quiet_group, lines_recording};
 
     /// The example tandem mill (thresholds from the race: stand 1's is 1.187) with a
     /// weld bit on the PLC; the channel index of the weld bit.
@@ -468,21 +468,7 @@ mod tests {
     /// "quiet" (product 7, every threshold 10 times the mill's); the product channel.
     fn mill_with_product_groups() -> (Config, usize) {
         let examples = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/examples");
-        let text = std::fs::read_to_string(examples.join("tandem-5stand.toml")).expect("example");
-        let text = text
-            .replacen(
-                "[[tandem_mills]]",
-                "[[channels]]\nname = \"product_code\"\nkind = \"process_value\"\nunit = \"1\"\n\
-                 source = { modbus = \"mill_plc\", table = \"holding\", address = 11 }\n\n\
-                 [[tandem_mills]]\ncontext = { product = \"product_code\", products = [7, 8] }",
-                1,
-            )
-            .replacen(
-                "slow_down_hold_s = 5.0\n",
-                "slow_down_hold_s = 5.0\n[[tandem_mills.product_groups]]\nname = \"quiet\"\n\
-                 products = [7]\ngain_thresholds = [11.87, 14.92, 22.09, 30.87, 33.27]\n",
-                1,
-            );
+        let text = example_with_quiet_group("product = \"product_code\", products = [7, 8]");
         let config = millgate_config::from_toml_str(&text, "tandem.toml", &examples)
             .unwrap_or_else(|error| panic!("{error}"));
         let product = config.tandem_mills[0]

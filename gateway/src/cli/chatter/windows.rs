@@ -414,20 +414,9 @@ mod tests {
     fn each_rows_product_picks_its_groups_thresholds() -> anyhow::Result<()> {
         // The example mill with a product tag and the group "quiet" (product 7, every
         // threshold ten times the mill's).
-        let text = std::fs::read_to_string(example())?
-            .replacen(
-                "[[tandem_mills]]",
-                "[[channels]]\nname = \"product_code\"\nkind = \"process_value\"\nunit = \"1\"\n\
-                 source = { modbus = \"mill_plc\", table = \"holding\", address = 11 }\n\n\
-                 [[tandem_mills]]\ncontext = { product = \"product_code\" }",
-                1,
-            )
-            .replacen(
-                "slow_down_hold_s = 5.0\n",
-                "slow_down_hold_s = 5.0\n[[tandem_mills.product_groups]]\nname = \"quiet\"\n\
-                 products = [7]\ngain_thresholds = [11.87, 14.92, 22.09, 30.87, 33.27]\n",
-                1,
-            );
+        let text = crate::analysis::chatter::testing::example_with_quiet_group(
+            "product = \"product_code\"",
+        );
         let scratch =
             std::env::temp_dir().join(format!("millgate-products-{}", std::process::id()));
         std::fs::create_dir_all(&scratch)?;
