@@ -184,6 +184,7 @@ pub(crate) struct RawTandemMill {
     pub(crate) reference_band_hz: Option<Vec<f64>>,
     pub(crate) gain_window_s: Option<f64>,
     pub(crate) gain_thresholds: Option<Vec<f64>>,
+    pub(crate) product_groups: Option<Vec<RawProductGroup>>,
     pub(crate) slow_down_release: Option<f64>,
     pub(crate) slow_down_hold_s: Option<f64>,
     pub(crate) weld_settle_s: Option<f64>,
@@ -193,6 +194,15 @@ pub(crate) struct RawTandemMill {
     pub(crate) capture_after_s: Option<f64>,
     pub(crate) capture_max_s: Option<f64>,
     pub(crate) identification: Option<RawIdentification>,
+}
+
+/// `tandem_mills[].product_groups[]`: chatter thresholds for a group of products.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawProductGroup {
+    pub(crate) name: String,
+    pub(crate) products: Vec<i64>,
+    pub(crate) gain_thresholds: Option<Vec<f64>>,
 }
 
 /// `tandem_mills[].context`: the process-context tags, each a process-value channel.

@@ -246,6 +246,16 @@ fn tandem_mills(text: &mut String, config: &Config) {
             "    alarm: {detector}; slow-down released below {} for {} s",
             mill.slow_down_release, mill.slow_down_hold_s
         );
+        for (g, group) in mill.product_groups.iter().enumerate() {
+            let _ = writeln!(
+                text,
+                "    product group {}: products {:?}, thresholds {:?} (other products: the \
+                 mill's)",
+                group.name,
+                group.products,
+                mill.thresholds_of(Some(g))
+            );
+        }
         context_line(text, config, &mill.context);
         if mill.context.weld.is_some() {
             let _ = writeln!(

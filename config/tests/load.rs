@@ -993,6 +993,115 @@ fn context_tags_and_the_weld_hold() {
 }
 
 #[test]
+fn product_groups_and_their_checks() {
+    let product_tag = "[[channels]]\nname = \"product_code\"\nkind = \"process_value\"\n\
+                       unit = \"1\"\nsource = { modbus = \"plc\", table = \"holding\", \
+                       address = 21 }\n\n[[tandem_mills]]\ncontext = { product = \"product_code\" }";
+    let with_groups = |context: &str, groups: &str| {
+        let text = edited("[[tandem_mills]]", context);
+        text.replacen(
+            "gain_thresholds = [1.2, 1.5]",
+            &format!("gain_thresholds = [1.2, 1.5]\n{groups}"),
+            1,
+        )
+    };
+    let group = |name: &str, products: &str, thresholds: &str| {
+        format!(
+            "[[tandem_mills.product_groups]]\nname = \"{name}\"\nproducts = {products}\n\
+             gain_thresholds = {thresholds}\n"
+        )
+    };
+    let two = group("thin", "[101, 102]", "[2.0, 2.5]") + &group("thick", "[201]", "[1.1, 1.3]");
+    let config = parse(&with_groups(product_tag, &two)).unwrap_or_else(|error| panic!("{error}"));
+    let mill = &config.tandem_mills[0];
+    assert_eq!(mill.product_groups.len(), 2);
+    assert_eq!(mill.product_groups[0].name, "thin");
+    assert_eq!(mill.product_groups[0].products, [101, 102]);
+    // A product picks its group's thresholds; any other product the mill's.
+    assert_eq!(mill.product_group(102), Some(0));
+    assert_eq!(mill.product_group(201), Some(1));
+    assert_eq!(mill.product_group(999), None);
+    assert_eq!(mill.thresholds_of(Some(0)), [2.0, 2.5]);
+    assert_eq!(mill.thresholds_of(Some(1)), [1.1, 1.3]);
+    assert_eq!(mill.thresholds_of(None), [1.2, 1.5]);
+    let summary = millgate_config::summary(&config);
+    assert!(
+        summary.contains("product group thin: products [101, 102], thresholds [2.0, 2.5]"),
+        "{summary}"
+    );
+    // Left out: no groups.
+    assert!(parse(BASE).unwrap().tandem_mills[0]
+        .product_groups
+        .is_empty());
+
+    let key = "mill.toml: tandem_mills[0].product_groups";
+    for (context, groups, problem) in [
+        (
+            "[[tandem_mills]]",
+            two.clone(),
+            format!("{key}: needs the product tag"),
+        ),
+        (
+            product_tag,
+            group("thin", "[101]", "[2.0, 2.5]") + &group("thick", "[201, 101]", "[1.1, 1.3]"),
+            format!(
+                "{key}[1].products[1]: product 101 is already in group \"thin\" (a product is in \
+                 one group at most)"
+            ),
+        ),
+        (
+            product_tag,
+            group("thin", "[101, 101]", "[2.0, 2.5]"),
+            format!("{key}[0].products[1]: product 101 is listed twice"),
+        ),
+        (
+            product_tag,
+            group("thin", "[]", "[2.0, 2.5]"),
+            format!("{key}[0].products: must not be empty"),
+        ),
+        (
+            product_tag,
+            group("thin", "[-4]", "[2.0, 2.5]"),
+            format!("{key}[0].products[0]: -4 is not allowed (must be a product code 0..=4294967295)"),
+        ),
+        (
+            product_tag,
+            group("thin", "[101]", "[2.0, 0.0]"),
+            format!("{key}[0].gain_thresholds[1]: 0 is not allowed (must be > 0, a ratio of band RMS values)"),
+        ),
+        (
+            product_tag,
+            group("thin", "[101]", "[2.0]"),
+            format!("{key}[0].gain_thresholds: 1 values is not allowed (must be one per stand: 2)"),
+        ),
+        (
+            product_tag,
+            "[[tandem_mills.product_groups]]\nname = \"thin\"\nproducts = [101]\n".to_owned(),
+            format!("{key}[0].gain_thresholds: missing"),
+        ),
+        (
+            product_tag,
+            group("thin", "[101]", "[2.0, 2.5]") + &group("thin", "[102]", "[2.0, 2.5]"),
+            format!("{key}[1].name: duplicate product group name \"thin\""),
+        ),
+        (
+            &product_tag.replace("product_code\" }", "product_code\", products = [101, 205] }"),
+            group("thin", "[101, 102]", "[2.0, 2.5]"),
+            format!(
+                "{key}[0].products[1]: product 102 is not one of the context's products \
+                 (tandem_mills[0].context.products)"
+            ),
+        ),
+    ] {
+        let found = problems(&with_groups(context, &groups));
+        assert!(
+            found.iter().any(|p| p.starts_with(&problem)),
+            "{groups}: {found:#?}"
+        );
+    }
+}
+
+#[test]
 fn driveline_context_and_the_pooled_speed_range() {
     let config = parse(BASE).unwrap_or_else(|error| panic!("{error}"));
     assert_eq!(config.drivelines[0].context, ContextTags::default());

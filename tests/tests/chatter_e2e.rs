@@ -7,11 +7,13 @@
 use std::time::{Duration, Instant};
 
 use millgate::outputs::modbus::register_map::{decode_f32, RegisterMap};
-use millgate_config::{Config, RegisterTable};
+use millgate_config::Config;
 use millgate_sim::devices::modbus_bank::{Running, ServeOptions};
-use millgate_sim::devices::virtual_daq::{DaqChannel, Placement, Publish, VirtualDaq};
+use millgate_sim::devices::virtual_daq::VirtualDaq;
 use millgate_sim::devices::virtual_plc::VirtualPlc;
-use millgate_tests::kit::tandem::{modbus_source, reference_ramp, RampRun, Stands, FS};
+use millgate_tests::kit::tandem::{
+    modbus_source, reference_ramp, stand_daq_channels, RampRun, Stands, FS,
+};
 use millgate_tests::kit::{scrape, wait_for, web_overview};
 use tokio::net::TcpListener;
 
@@ -44,20 +46,7 @@ fn config(daq_of_stand: [usize; 5]) -> anyhow::Result<Config> {
 
 /// A DAQ publishing the stands in `stands` (indices into `signals`) at their blocks.
 fn daq(signals: &[Vec<f64>], stands: &[usize]) -> VirtualDaq {
-    let channels = stands
-        .iter()
-        .map(|&stand| DaqChannel {
-            placement: Placement {
-                table: RegisterTable::Input,
-                address: (stand * 122) as u16,
-                scale: 0.01,
-                offset: 0.0,
-            },
-            publish: Publish::Block,
-            signal: signals[stand].clone(),
-        })
-        .collect();
-    VirtualDaq::new(FS, SAMPLES_PER_BLOCK, channels)
+    VirtualDaq::new(FS, SAMPLES_PER_BLOCK, stand_daq_channels(signals, stands))
 }
 
 /// The mill's registers in a PLC snapshot.

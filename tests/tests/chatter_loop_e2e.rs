@@ -623,6 +623,7 @@ async fn a_chatter_episode_is_captured_as_the_daq_sent_it_and_reproduces_its_war
             mill: None,
             margin: 10.0,
             speed_column: None,
+            min_group_recordings: 2,
             format: millgate::cli::OutputFormat::Text,
         })
     };

@@ -164,6 +164,12 @@ pub struct TandemMill {
     /// the highest allowed speed, plus a margin). Required with the band-gain
     /// detector; may be empty with the paper's (no gain ratio is then published).
     pub gain_thresholds: Vec<f64>,
+    /// Chatter thresholds per product group (`[[tandem_mills.product_groups]]`, empty
+    /// when left out): while the PLC's product (the `product` context tag) is one of a
+    /// group's products, that group's `gain_thresholds` judge the windows; any other
+    /// product, or no valid and fresh product, falls back to the mill's
+    /// `gain_thresholds`. No product is in two groups.
+    pub product_groups: Vec<ProductGroup>,
     /// The slow-down request clears once the alarm figure (the gain ratio, or for the
     /// paper's detector the synchronization) has stayed below this fraction of its
     /// alarm level for `slow_down_hold_s`; > 0 and < 1 (default 0.8).
@@ -192,6 +198,41 @@ pub struct TandemMill {
     pub capture_max_s: f64,
     /// Its nameplate (`identification`, empty when left out).
     pub identification: Identification,
+}
+
+/// Chatter thresholds for a group of products of a tandem mill
+/// (`[[tandem_mills.product_groups]]`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ProductGroup {
+    /// Unique among the mill's groups (non-empty); the name the outputs show for the
+    /// thresholds in use.
+    pub name: String,
+    /// The product codes of the group, at least one, each in no other group of the
+    /// mill (and one of the context's `products` when that list is given).
+    pub products: Vec<u32>,
+    /// Alarm threshold of the chatter-band gain per stand, as the mill's
+    /// `gain_thresholds` (one per stand, each > 0). Empty only where the mill's may be
+    /// (not yet commissioned, or the paper's detector): the mill's then judge.
+    pub gain_thresholds: Vec<f64>,
+}
+
+impl TandemMill {
+    /// The index in [`Self::product_groups`] of the group holding `product`; `None`
+    /// when no group does (the mill's thresholds judge).
+    pub fn product_group(&self, product: u32) -> Option<usize> {
+        self.product_groups
+            .iter()
+            .position(|group| group.products.contains(&product))
+    }
+
+    /// The thresholds that judge while group `group` is in use (`None`: the mill's):
+    /// the group's, or the mill's when the group has none.
+    pub fn thresholds_of(&self, group: Option<usize>) -> &[f64] {
+        match group.map(|g| &self.product_groups[g].gain_thresholds) {
+            Some(thresholds) if !thresholds.is_empty() => thresholds,
+            _ => &self.gain_thresholds,
+        }
+    }
 }
 
 /// A mill's process-context tags (`context = { weld = "...", ... }`): each names a

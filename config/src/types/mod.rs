@@ -16,7 +16,7 @@ pub use history::{CaptureSettings, History, Synchronous};
 pub use identification::{Identification, IdentificationField, IdentificationValue};
 pub use mills::{
     BiteSettings, ChatterDetectorKind, ContextTags, Driveline, DrivelineThresholds,
-    FatigueComponent, FatigueSettings, RodMill, TandemMill, WearSettings,
+    FatigueComponent, FatigueSettings, ProductGroup, RodMill, TandemMill, WearSettings,
 };
 pub use outputs::{
     MetricsOutput, MqttOutput, MqttSecurity, MqttTls, OpcUaOutput, OpcUaSecurityMode, OpcUaUser,

@@ -1,8 +1,8 @@
 //! `[[tandem_mills]]`: the stands' vibration channels, the chatter band, window and
 //! correlation threshold.
 
-use crate::raw::{RawContextTags, RawTandemMill};
-use crate::{Channel, ChannelKind, ChatterDetectorKind, ContextTags, TandemMill};
+use crate::raw::{RawContextTags, RawProductGroup, RawTandemMill};
+use crate::{Channel, ChannelKind, ChatterDetectorKind, ContextTags, ProductGroup, TandemMill};
 
 use super::{ChannelFacts, Checker, Purpose, MAX_WINDOW_S, STANDS_RANGE};
 
@@ -92,6 +92,13 @@ impl Checker<'_> {
             Some(tags) => self.context_tags(&format!("{key}.context"), tags, facts),
             None => Some(ContextTags::default()),
         };
+        let product_groups = self.product_groups(
+            key,
+            raw,
+            gain.detector,
+            stands_ok.then_some(stands.len()),
+            context.as_ref(),
+        );
         let identification = self.identification(
             &format!("{key}.identification"),
             raw.identification.as_ref(),
@@ -106,6 +113,7 @@ impl Checker<'_> {
             reference_band_hz: gain.reference_band_hz?,
             gain_window_s: gain.gain_window_s?,
             gain_thresholds: gain.gain_thresholds?,
+            product_groups: product_groups?,
             slow_down_release: gain.slow_down_release?,
             slow_down_hold_s: gain.slow_down_hold_s?,
             weld_settle_s: gain.weld_settle_s?,
@@ -475,11 +483,31 @@ impl Checker<'_> {
         detector: Option<ChatterDetectorKind>,
         stands: Option<usize>,
     ) -> Option<Vec<f64>> {
-        let thresholds_key = format!("{key}.gain_thresholds");
-        match (&raw.gain_thresholds, detector) {
+        self.stand_thresholds(
+            &format!("{key}.gain_thresholds"),
+            raw.gain_thresholds.as_deref(),
+            detector,
+            stands,
+            raw.stands.len(),
+        )
+    }
+
+    /// The per-stand thresholds at `thresholds_key` (`values`, as written): one per
+    /// stand (`stands`, when known; `written_stands` the mill's list as written), each
+    /// above 0; needed by the band-gain `detector` in service, empty when left out
+    /// otherwise.
+    fn stand_thresholds(
+        &mut self,
+        thresholds_key: &str,
+        values: Option<&[f64]>,
+        detector: Option<ChatterDetectorKind>,
+        stands: Option<usize>,
+        written_stands: usize,
+    ) -> Option<Vec<f64>> {
+        match (values, detector) {
             (None, Some(ChatterDetectorKind::BandGain)) if self.purpose == Purpose::Service => {
                 self.report.push(
-                    &thresholds_key,
+                    thresholds_key,
                     "missing (the band-gain detector, the default, needs one alarm threshold \
                      per stand, > 0, from stable rolling up to the highest allowed speed: \
                      `millgate chatter commission` computes them from stable recordings; or \
@@ -490,11 +518,10 @@ impl Checker<'_> {
             (None, _) => Some(Vec::new()),
             (Some(values), _) if stands.is_some_and(|n| n != values.len()) => {
                 self.report.push(
-                    &thresholds_key,
+                    thresholds_key,
                     format!(
-                        "{} values is not allowed (must be one per stand: {})",
+                        "{} values is not allowed (must be one per stand: {written_stands})",
                         values.len(),
-                        raw.stands.len()
                     ),
                 );
                 None
@@ -511,8 +538,124 @@ impl Checker<'_> {
                         )
                         .is_some();
                 }
-                ok.then(|| values.clone())
+                ok.then(|| values.to_vec())
             }
         }
+    }
+
+    /// `product_groups` of the mill at `key`: each named (unique among the mill's
+    /// groups), with at least one product code 0..=u32::MAX, no code in two groups (nor
+    /// twice in one), each one of the context's `products` when that list is given,
+    /// and its `gain_thresholds` as the mill's. Groups need the mill's `product`
+    /// context tag (`context`, when it passed): they follow what it reads.
+    fn product_groups(
+        &mut self,
+        key: &str,
+        raw: &RawTandemMill,
+        detector: Option<ChatterDetectorKind>,
+        stands: Option<usize>,
+        context: Option<&ContextTags>,
+    ) -> Option<Vec<ProductGroup>> {
+        let Some(raw_groups) = raw.product_groups.as_deref() else {
+            return Some(Vec::new());
+        };
+        let list_key = format!("{key}.product_groups");
+        let mut ok = true;
+        if raw
+            .context
+            .as_ref()
+            .is_none_or(|tags| tags.product.is_none())
+        {
+            self.report.push(
+                &list_key,
+                "needs the product tag (`context = { product = \"<process value>\" }`): the \
+                 groups' thresholds follow the product the PLC reports",
+            );
+            ok = false;
+        }
+        // Where each product code was first seen: (group, position).
+        let mut seen: Vec<(u32, usize)> = Vec::new();
+        let mut group_index = 0;
+        let groups = self.named_list(
+            &list_key,
+            "product group",
+            raw_groups,
+            |group| &group.name,
+            |checker, group_key, group: &RawProductGroup| {
+                let name = checker.name(&format!("{group_key}.name"), &group.name);
+                let mut group_ok = true;
+                if group.products.is_empty() {
+                    checker.report.push(
+                        format!("{group_key}.products"),
+                        "must not be empty (at least one product code of the group)",
+                    );
+                    group_ok = false;
+                }
+                let mut products = Vec::with_capacity(group.products.len());
+                let index = group_index;
+                group_index += 1;
+                for (position, &code) in group.products.iter().enumerate() {
+                    let product_key = format!("{group_key}.products[{position}]");
+                    let Ok(code) = u32::try_from(code) else {
+                        checker.report.push(
+                            product_key,
+                            format!(
+                                "{code} is not allowed (must be a product code 0..=4294967295)"
+                            ),
+                        );
+                        group_ok = false;
+                        continue;
+                    };
+                    if products.contains(&code) {
+                        checker
+                            .report
+                            .push(product_key, format!("product {code} is listed twice"));
+                        group_ok = false;
+                        continue;
+                    }
+                    if let Some(&(_, other)) = seen.iter().find(|(c, _)| *c == code) {
+                        checker.report.push(
+                            product_key,
+                            format!(
+                                "product {code} is already in group \"{}\" (a product is in \
+                                 one group at most)",
+                                raw_groups[other].name
+                            ),
+                        );
+                        group_ok = false;
+                        continue;
+                    }
+                    if let Some(known) = context.map(|c| &c.products).filter(|p| !p.is_empty()) {
+                        if !known.contains(&code) {
+                            checker.report.push(
+                                product_key,
+                                format!(
+                                    "product {code} is not one of the context's products \
+                                     ({key}.context.products)"
+                                ),
+                            );
+                            group_ok = false;
+                            continue;
+                        }
+                    }
+                    seen.push((code, index));
+                    products.push(code);
+                }
+                let thresholds = checker.stand_thresholds(
+                    &format!("{group_key}.gain_thresholds"),
+                    group.gain_thresholds.as_deref(),
+                    detector,
+                    stands,
+                    raw.stands.len(),
+                );
+                Some(ProductGroup {
+                    name: name?,
+                    products: group_ok.then_some(products)?,
+                    gain_thresholds: thresholds?,
+                })
+            },
+        );
+        let groups: Option<Vec<ProductGroup>> = groups.into_iter().collect();
+        ok.then_some(groups?)
     }
 }

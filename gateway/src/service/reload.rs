@@ -11,8 +11,8 @@
 //!   - applied at once: a driveline's `thresholds` (TAF and gap warning and alarm),
 //!     in the analysis from its next bite on (the maintenance page, which shows them,
 //!     is restarted with them); a tandem mill's chatter thresholds
-//!     (`gain_thresholds`, `slow_down_release`, `slow_down_hold_s`, `weld_settle_s`,
-//!     `weld_alarm_factor`) from its next window on, its windows, filters and
+//!     (`gain_thresholds`, `product_groups`, `slow_down_release`, `slow_down_hold_s`,
+//!     `weld_settle_s`, `weld_alarm_factor`) from its next window on, its windows, filters and
 //!     slow-down request running on (a request set stays set and clears by the new
 //!     release level and hold); a driveline's `wear.horizon_days` (how far the gap's
 //!     and the fatigue life's forecasts look) from its next bite on;
@@ -57,7 +57,7 @@ pub enum Live {
     /// Any driveline's `wear.horizon_days` (the gap's and the fatigue life's
     /// forecasts; its other `wear` keys build the gap maps at the start).
     Horizon,
-    /// Any tandem mill's chatter thresholds: `gain_thresholds`, `slow_down_release`,
+    /// Any tandem mill's chatter thresholds: `gain_thresholds`, `product_groups`, `slow_down_release`,
     /// `slow_down_hold_s`, `weld_settle_s`, `weld_alarm_factor` (what its detector's
     /// bits and slow-down request are judged by; the rest of its entry shapes its
     /// windows, filters, register block or nodes and needs a restart).
@@ -68,6 +68,7 @@ pub enum Live {
 fn with_chatter_thresholds(running: &TandemMill, new: &TandemMill) -> TandemMill {
     TandemMill {
         gain_thresholds: new.gain_thresholds.clone(),
+        product_groups: new.product_groups.clone(),
         slow_down_release: new.slow_down_release,
         slow_down_hold_s: new.slow_down_hold_s,
         weld_settle_s: new.weld_settle_s,
@@ -270,6 +271,7 @@ fn tandem_mills(running: &[TandemMill], new: &[TandemMill], plan: &mut Plan) {
                 "gain_thresholds",
                 old.gain_thresholds != new.gain_thresholds,
             ),
+            ("product_groups", old.product_groups != new.product_groups),
             (
                 "slow_down_release",
                 old.slow_down_release != new.slow_down_release,

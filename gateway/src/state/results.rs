@@ -292,6 +292,16 @@ pub struct TandemMillResults {
     /// Context values read with an impossible value since start (not used for the
     /// gating).
     pub context_invalid: u64,
+    /// The thresholds that judged the last window: 0 the mill's `gain_thresholds`, k
+    /// its `product_groups[k - 1]`'s (the product the PLC reported); `None` before the
+    /// first window.
+    pub thresholds_group: Option<usize>,
+    /// The name of the product group whose thresholds judged the last window; `None`
+    /// for the mill's own.
+    pub thresholds_group_name: Option<String>,
+    /// Windows judged by the mill's thresholds since start because the product context
+    /// was missing, invalid or stale while the mill has product groups.
+    pub product_fallback: u64,
 }
 
 /// Spans of one rod mill the outputs have room for (a 12-stand block): the register

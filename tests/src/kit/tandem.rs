@@ -2,6 +2,8 @@
 //! the critical speed ([`reference_ramp`]) and the configuration of N stand
 //! accelerometers with a tandem mill over them ([`Stands`]).
 
+use millgate_config::RegisterTable;
+use millgate_sim::devices::virtual_daq::{DaqChannel, Placement, Publish};
 use millgate_sim::tandem::roots::CriticalSpeed;
 use millgate_sim::tandem::simulate::{simulate, RunSettings};
 use millgate_sim::tandem::truth::{ground_truth, mill_critical_speed, GroundTruth};
@@ -187,6 +189,25 @@ impl Stands {
             self.keys
         )
     }
+}
+
+/// The virtual DAQ channels of the stands in `stands` (indices into `signals`, one
+/// per stand of [`Stands::modbus`]): each stand's block at input register `122 i`,
+/// 0.01 m/s^2 a count.
+pub fn stand_daq_channels(signals: &[Vec<f64>], stands: &[usize]) -> Vec<DaqChannel> {
+    stands
+        .iter()
+        .map(|&stand| DaqChannel {
+            placement: Placement {
+                table: RegisterTable::Input,
+                address: (stand * 122) as u16,
+                scale: 0.01,
+                offset: 0.0,
+            },
+            publish: Publish::Block,
+            signal: signals[stand].clone(),
+        })
+        .collect()
 }
 
 /// A Modbus TCP source `name` (to be pointed at its device), polled every 20 ms.

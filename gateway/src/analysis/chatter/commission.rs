@@ -40,6 +40,7 @@ use serde::Serialize;
 use super::capture::ANCHOR_BLOCK;
 use super::monitor::ChatterSetupError;
 use super::offline::{windows, Recording, Window};
+use crate::state::context::RawContext;
 
 /// The margin when none is given, percent.
 pub(crate) const DEFAULT_MARGIN_PERCENT: f64 = 10.0;
@@ -120,6 +121,25 @@ pub enum CommissionError {
         /// When the gain first passed the factor, s.
         first_at_s: f64,
     },
+    /// A recording's `product` column holds two products.
+    #[error(
+        "{recording}: the product column holds {first} and then {other} (line {line}): \
+         commissioning by product takes one product per recording (split the recording at \
+         the product change)"
+    )]
+    MixedProducts {
+        /// The recording.
+        recording: String,
+        /// Its first product.
+        first: u32,
+        /// The other product.
+        other: u32,
+        /// The file's line (or the sample's number) where it first appears.
+        line: usize,
+    },
+    /// `--min-group-recordings` is 0.
+    #[error("--min-group-recordings: 0 is not allowed (must be >= 1 recording)")]
+    MinGroupRecordings,
 }
 
 /// The speeds some windows covered, from a speed column of the recordings.
@@ -199,6 +219,38 @@ pub struct Commissioning {
     pub speeds: Option<SpeedCoverage>,
     /// Per recording.
     pub recordings: Vec<RecordingFigures>,
+    /// By product group ([`commission_by_product`]; empty when no recording has a
+    /// product): each group's thresholds, or why it has none. With groups,
+    /// `slow_down_release` (and `stable_ratio_p99`, `release_cramped`) are those of the
+    /// mill's and every commissioned group's thresholds together: the release is one
+    /// key of the mill.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub product_groups: Vec<GroupCommissioning>,
+}
+
+/// One product group's part of commissioning by product.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct GroupCommissioning {
+    /// The group: its name in the mill's `product_groups`, or `product-CODE` for a
+    /// product when the mill has none configured.
+    pub name: String,
+    /// Its product codes.
+    pub products: Vec<u32>,
+    /// Whether the group comes from the mill's configured `product_groups`.
+    pub configured: bool,
+    /// The recordings of its products.
+    pub recordings: Vec<String>,
+    /// Its windows with a full gain window.
+    pub windows: usize,
+    /// Fewest recordings for its own thresholds (`--min-group-recordings`).
+    pub min_recordings: usize,
+    /// Its thresholds (its largest stable gain per stand plus the margin, rounded up to
+    /// 0.001); `None` when it had fewer than the minimum of recordings: its products
+    /// then fall back to the mill's thresholds.
+    pub gain_thresholds: Option<Vec<f64>>,
+    /// The 99th percentile over its stable windows of the gain ratio against its
+    /// thresholds (with thresholds).
+    pub stable_ratio_p99: Option<f64>,
 }
 
 /// Commission mill `index` of `config` from stable `recordings` with `margin_percent`
@@ -221,6 +273,133 @@ pub fn commission(
         .map(|recording| stable.add(config, index, recording))
         .collect::<Result<Vec<_>, _>>()?;
     Ok(stable.commissioning(margin_percent, figures))
+}
+
+/// Fewest recordings of a product group for its own thresholds, when none is given.
+pub const DEFAULT_MIN_GROUP_RECORDINGS: usize = 2;
+
+/// As [`commission`], and the recordings grouped by product: each recording's product
+/// is its `product` column's (one product per recording; rows with no valid code are
+/// left out of the grouping, a recording without any is the mill's only). The groups
+/// are the mill's configured `product_groups` (products in none only count for the
+/// mill's thresholds), or without those one group per product (`product-CODE`). A
+/// group with `min_group_recordings` recordings or more gets thresholds from its own
+/// recordings as the mill's come from all of them; one with fewer is reported without
+/// thresholds (its products fall back to the mill's). The mill's thresholds come from
+/// every recording: the fallback for any product outside a group.
+pub fn commission_by_product(
+    config: &Config,
+    index: usize,
+    recordings: &[Recording],
+    margin_percent: f64,
+    min_group_recordings: usize,
+) -> Result<Commissioning, CommissionError> {
+    if !(0.0..=MAX_MARGIN_PERCENT).contains(&margin_percent) {
+        return Err(CommissionError::Margin(margin_percent));
+    }
+    if recordings.is_empty() {
+        return Err(CommissionError::NoRecording);
+    }
+    if min_group_recordings == 0 {
+        return Err(CommissionError::MinGroupRecordings);
+    }
+    let products = recordings
+        .iter()
+        .map(recording_product)
+        .collect::<Result<Vec<_>, _>>()?;
+    let mill = &config.tandem_mills[index];
+    let mut groups: Vec<(GroupCommissioning, Stable, Vec<RecordingFigures>)> = Vec::new();
+    let mut group = |name: String, products: Vec<u32>, configured: bool| {
+        let figures = GroupCommissioning {
+            name,
+            products,
+            configured,
+            recordings: Vec::new(),
+            windows: 0,
+            min_recordings: min_group_recordings,
+            gain_thresholds: None,
+            stable_ratio_p99: None,
+        };
+        groups.push((figures, Stable::new(config, index), Vec::new()));
+    };
+    for configured in &mill.product_groups {
+        group(configured.name.clone(), configured.products.clone(), true);
+    }
+    if mill.product_groups.is_empty() {
+        let mut seen: Vec<u32> = products.iter().flatten().copied().collect();
+        seen.sort_unstable();
+        seen.dedup();
+        for code in seen {
+            group(format!("product-{code}"), vec![code], false);
+        }
+    }
+    let mut all = Stable::new(config, index);
+    let mut figures = Vec::with_capacity(recordings.len());
+    for (recording, product) in recordings.iter().zip(&products) {
+        let evaluated = evaluate(config, index, recording)?;
+        figures.push(all.take(config, index, recording, &evaluated)?);
+        let Some((group, stable, group_figures)) = groups
+            .iter_mut()
+            .find(|(g, _, _)| product.is_some_and(|p| g.products.contains(&p)))
+        else {
+            continue;
+        };
+        group.recordings.push(recording.name.clone());
+        group_figures.push(stable.take(config, index, recording, &evaluated)?);
+    }
+    let mut commissioning = all.commissioning(margin_percent, figures);
+    for (mut group, stable, group_figures) in groups {
+        group.windows = group_figures.iter().map(|f| f.windows).sum();
+        if group.recordings.len() >= min_group_recordings {
+            let own = stable.commissioning(margin_percent, group_figures);
+            commissioning.stable_ratio_p99 =
+                commissioning.stable_ratio_p99.max(own.stable_ratio_p99);
+            commissioning.release_cramped |= own.release_cramped;
+            commissioning.slow_down_release =
+                commissioning.slow_down_release.max(own.slow_down_release);
+            group.gain_thresholds = Some(own.gain_thresholds);
+            group.stable_ratio_p99 = Some(own.stable_ratio_p99);
+        }
+        commissioning.product_groups.push(group);
+    }
+    Ok(commissioning)
+}
+
+/// The one product of `recording` (its `product` column's valid codes); `None`
+/// without the column or a valid code in it.
+fn recording_product(recording: &Recording) -> Result<Option<u32>, CommissionError> {
+    let Some(column) = &recording.context.product else {
+        return Ok(None);
+    };
+    let mut first: Option<u32> = None;
+    for (k, &value) in column.iter().enumerate() {
+        let raw = RawContext {
+            product: Some(value),
+            ..RawContext::default()
+        };
+        let Ok(Some(code)) = raw.check(&[]).map(|c| c.product) else {
+            continue;
+        };
+        match first {
+            None => first = Some(code),
+            Some(p) if p == code => {}
+            Some(p) => {
+                let line = recording
+                    .context
+                    .lines
+                    .as_ref()
+                    .and_then(|lines| lines.get(k).copied())
+                    .unwrap_or(k + 1);
+                return Err(CommissionError::MixedProducts {
+                    recording: recording.name.clone(),
+                    first: p,
+                    other: code,
+                    line,
+                });
+            }
+        }
+    }
+    Ok(first)
 }
 
 /// The stable figures of the recordings so far.
@@ -280,13 +459,19 @@ impl Stable {
         index: usize,
         recording: &Recording,
     ) -> Result<RecordingFigures, CommissionError> {
-        let evaluated =
-            windows(config, index, &recording.time_s, &recording.stands).map_err(|source| {
-                CommissionError::Monitor {
-                    recording: recording.name.clone(),
-                    source,
-                }
-            })?;
+        let evaluated = evaluate(config, index, recording)?;
+        self.take(config, index, recording, &evaluated)
+    }
+
+    /// Take in `recording` of mill `index` of `config` by its windows through the
+    /// monitor (`evaluated`), each stand checked for chatter; returns its figures.
+    fn take(
+        &mut self,
+        config: &Config,
+        index: usize,
+        recording: &Recording,
+        evaluated: &[Window],
+    ) -> Result<RecordingFigures, CommissionError> {
         let full: Vec<&Window> = evaluated.iter().filter(|w| w.gain.is_some()).collect();
         if full.is_empty() {
             return Err(too_short(config, index, recording));
@@ -371,6 +556,7 @@ impl Stable {
             duration_s: figures.iter().map(|f| f.duration_s).sum(),
             speeds: all_speeds(&figures),
             recordings: figures,
+            product_groups: Vec::new(),
         }
     }
 }
@@ -424,6 +610,20 @@ impl StandGain {
             first_at_s,
         }
     }
+}
+
+/// `recording`'s windows through the monitor of mill `index` of `config`.
+fn evaluate(
+    config: &Config,
+    index: usize,
+    recording: &Recording,
+) -> Result<Vec<Window>, CommissionError> {
+    windows(config, index, &recording.time_s, &recording.stands).map_err(|source| {
+        CommissionError::Monitor {
+            recording: recording.name.clone(),
+            source,
+        }
+    })
 }
 
 /// Stand `stand`'s gain in each of the `full` windows, with the window's end time, s.
@@ -532,6 +732,82 @@ mod tests {
             error.to_string(),
             "lines.csv: 2.298 s is too short for the gain window: the first gain needs 2.298 s \
              of samples (the first 120-sample block, then gain_window_s = 2 s and a hop of 0.25 s)"
+        );
+    }
+
+    /// [`lines_recording`] of 3 s (five windows with a full gain window), chatter line
+    /// `amplitude` over the reference's 0.5 (gain `2 amplitude`), named `name`, its
+    /// `product` column `product` on every row.
+    fn product_recording(name: &str, amplitude: f64, product: Option<f64>) -> Recording {
+        let mut recording = lines_recording(7_500, |_| amplitude);
+        recording.name = name.into();
+        recording.context.product = product.map(|code| vec![code; recording.len()]);
+        recording
+    }
+
+    #[test]
+    fn by_product_each_group_with_enough_recordings_gets_its_own_thresholds() {
+        let config = example_tandem();
+        // Product 1 rolls at gain 1 (two recordings), product 2 at gain 2 (one), and a
+        // recording without a product column at gain 1.5.
+        let recordings = [
+            product_recording("a.csv", 0.5, Some(1.0)),
+            product_recording("b.csv", 0.5, Some(1.0)),
+            product_recording("c.csv", 1.0, Some(2.0)),
+            product_recording("d.csv", 0.75, None),
+        ];
+        let c = commission_by_product(&config, 0, &recordings, 10.0, 2).expect("commissioned");
+        // The mill's (the fallback) from every recording: gain 2 plus 10%.
+        for threshold in &c.gain_thresholds {
+            assert!((threshold - 2.2).abs() < 0.1, "{c:?}");
+        }
+        assert_eq!(c.recordings.len(), 4);
+        let names: Vec<&str> = c.product_groups.iter().map(|g| g.name.as_str()).collect();
+        assert_eq!(names, ["product-1", "product-2"]);
+        let one = &c.product_groups[0];
+        assert_eq!(
+            (one.products.as_slice(), one.recordings.len()),
+            (&[1][..], 2)
+        );
+        let own = one
+            .gain_thresholds
+            .as_ref()
+            .expect("two recordings: its own");
+        for threshold in own {
+            assert!((threshold - 1.1).abs() < 0.05, "{one:?}");
+        }
+        // Product 2 has one recording: too few, its products fall back to the mill's.
+        let two = &c.product_groups[1];
+        assert_eq!(
+            (two.recordings.len(), two.gain_thresholds.as_ref()),
+            (1, None)
+        );
+        // With one recording enough, it has its own (the mill's, here).
+        let c = commission_by_product(&config, 0, &recordings, 10.0, 1).expect("commissioned");
+        assert!(c.product_groups[1].gain_thresholds.is_some());
+        // Without product columns: no groups, the plain commissioning.
+        let plain = commission_by_product(&config, 0, &recordings[3..], 10.0, 2).expect("plain");
+        assert_eq!(
+            plain,
+            commission(&config, 0, &recordings[3..], 10.0).expect("plain")
+        );
+        assert!(plain.product_groups.is_empty());
+
+        // A recording with two products is refused, naming the line of the change.
+        let mut mixed = product_recording("mixed.csv", 0.5, Some(1.0));
+        if let Some(column) = mixed.context.product.as_mut() {
+            column[4000..].fill(2.0);
+        }
+        assert_eq!(
+            commission_by_product(&config, 0, &[mixed], 10.0, 2)
+                .expect_err("two products")
+                .to_string(),
+            "mixed.csv: the product column holds 1 and then 2 (line 4001): commissioning by \
+             product takes one product per recording (split the recording at the product change)"
+        );
+        assert_eq!(
+            commission_by_product(&config, 0, &recordings, 10.0, 0),
+            Err(CommissionError::MinGroupRecordings)
         );
     }
 

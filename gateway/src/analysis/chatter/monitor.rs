@@ -11,6 +11,13 @@
 //! invalidates the mill's values (flag "source stale") and restarts the window: the
 //! next evaluation uses only samples taken after the restart on every stand, and the
 //! gain's filters restart.
+//!
+//! **Product groups.** A mill with `product_groups` is judged by the thresholds of the
+//! group holding the product given to [`ChatterMonitor::use_product`] (the PLC's, at
+//! the time of the samples), by the mill's `gain_thresholds` for any other product or
+//! none. A change of group applies to the latest window's reading at once and to
+//! every window from then on (a window that spans the change is judged wholly by the
+//! new group's thresholds); the windows and filters run on.
 
 use std::time::Instant;
 
@@ -137,6 +144,13 @@ pub struct ChatterMonitor {
     spectra: Spectra,
     gain: GainTracker,
     evaluations: u64,
+    /// The mill's entry as last applied: its `gain_thresholds` and `product_groups`
+    /// judge.
+    settings: TandemMill,
+    /// The product the thresholds follow ([`Self::use_product`]).
+    product: Option<u32>,
+    /// The group of `product` in `settings` (`None`: the mill's thresholds).
+    group: Option<usize>,
 }
 
 // By hand: the rings, FFT plans and buffers are not worth printing.
@@ -230,6 +244,9 @@ impl ChatterMonitor {
             spectra,
             gain: GainTracker::new(band_gain, mill.gain_thresholds.clone()),
             evaluations: 0,
+            settings: mill.clone(),
+            product: None,
+            group: None,
         })
     }
 
@@ -239,7 +256,43 @@ impl ChatterMonitor {
     /// needs a restart, `service::reload`).
     pub fn set_thresholds(&mut self, mill: &TandemMill) {
         self.slow_down = slow_down_of(mill);
-        self.gain.set_thresholds(mill.gain_thresholds.clone());
+        self.settings = mill.clone();
+        self.group = self
+            .product
+            .and_then(|product| self.settings.product_group(product));
+        self.gain
+            .set_thresholds(self.settings.thresholds_of(self.group).to_vec());
+    }
+
+    /// Judge by the thresholds of `product` (the PLC's product code; `None`: no valid
+    /// and fresh one) from now on: its product group's, or the mill's when no group
+    /// holds it (see the module docs). Returns the group in use.
+    pub fn use_product(&mut self, product: Option<u32>) -> Option<usize> {
+        self.product = product;
+        let group = product.and_then(|product| self.settings.product_group(product));
+        if group != self.group {
+            self.group = group;
+            self.gain
+                .set_thresholds(self.settings.thresholds_of(group).to_vec());
+        }
+        group
+    }
+
+    /// The product group whose thresholds judge (index in the mill's
+    /// `product_groups`); `None`: the mill's `gain_thresholds`.
+    pub fn thresholds_group(&self) -> Option<usize> {
+        self.group
+    }
+
+    /// The name of [`Self::thresholds_group`], when a group's thresholds judge.
+    pub fn thresholds_group_name(&self) -> Option<&str> {
+        self.group
+            .map(|group| self.settings.product_groups[group].name.as_str())
+    }
+
+    /// Whether the mill has product groups (then a missing product is a fallback).
+    pub fn has_product_groups(&self) -> bool {
+        !self.settings.product_groups.is_empty()
     }
 
     /// The mill's name.

@@ -127,6 +127,9 @@ pub struct Window {
     /// The context at the window's last sample; `None` without context columns or
     /// when it was invalid.
     pub context: Option<ProcessContext>,
+    /// The product group whose thresholds judged the window (index in the mill's
+    /// `product_groups`); `None`: the mill's `gain_thresholds`.
+    pub thresholds_group: Option<usize>,
 }
 
 /// `stands` (per stand of mill `index` of `config`, in its order, equally long, with
@@ -145,8 +148,11 @@ pub fn windows(
 
 /// As [`windows`], with the process context recorded beside the stands: a block in
 /// which the weld bit was set starts (or continues) the weld hold of the slow-down
-/// request, as the service does with the live bit ([`super::SlowDown::weld`]); a
-/// sample whose context is invalid is not used and is counted.
+/// request, as the service does with the live bit ([`super::SlowDown::weld`]); the
+/// product of a block's last valid sample picks the thresholds its windows are judged
+/// by (its product group's, else the mill's: [`ChatterMonitor::use_product`]; a block
+/// whose last sample is invalid falls back to the mill's, as a stale product does in
+/// the service); a sample whose context is invalid is not used and is counted.
 pub fn windows_in_context(
     config: &Config,
     index: usize,
@@ -184,6 +190,7 @@ pub fn windows_in_context(
                 slow_down.weld();
             }
         }
+        monitor.use_product(last_context.and_then(|c| c.product));
         for (s, values) in stands.iter().enumerate() {
             let Some(change) = monitor.samples(s, &values[start..end], t0 + period * b as u32)
             else {
@@ -206,6 +213,7 @@ pub fn windows_in_context(
                 verdict,
                 weld_hold,
                 context: last_context,
+                thresholds_group: monitor.thresholds_group(),
             });
         }
     }

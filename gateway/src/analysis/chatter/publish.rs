@@ -17,7 +17,7 @@ use crate::analysis::context::ContextTracker;
 use crate::field::acquired::Acquired;
 use crate::state::board::Board;
 use crate::state::captures::CaptureRecord;
-use crate::state::context::{ContextReading, RawContext};
+use crate::state::context::{ContextError, ContextReading, RawContext};
 use crate::state::events::{AlarmKind, AlarmRecord, HistoryEvent};
 use crate::state::results::TandemMillResults;
 use crate::state::time::UtcTime;
@@ -40,6 +40,18 @@ use crate::state::time::UtcTime;
 /// nothing off). A value that is not 0 or 1 is not used and is counted
 /// (`context_invalid`); a window whose alarm the hold kept off is counted
 /// (`weld_held_off`).
+///
+/// **The product** (a mill's `context.product` tag, with `product_groups`): the latest
+/// valid product code, while younger than `WELD_BIT_POLLS` poll periods of its channel,
+/// picks the thresholds each window is judged by ([`ChatterMonitor::use_product`]): its
+/// group's, else the mill's. A code outside the context's `products` (or not a whole
+/// number) is not used and is counted (`context_invalid`); a window judged by the
+/// mill's thresholds because no valid, fresh product was there is counted
+/// (`product_fallback`). The thresholds in use are published (`thresholds_group`, and
+/// the group's name on the page). A product change while the alarm or the slow-down
+/// request is set leaves both set: the latched alarm waits for its acknowledgement
+/// as ever, and the request clears by the release level and hold against the new
+/// group's thresholds (as after a reload).
 #[derive(Debug)]
 pub struct ChatterAnalysis {
     monitors: Vec<ChatterMonitor>,
@@ -60,10 +72,19 @@ pub struct ChatterAnalysis {
     contexts: Vec<Option<ContextTracker>>,
     /// Per channel: the mills whose context tag it is.
     context_by_channel: Vec<Vec<usize>>,
+    /// Per channel: the mills whose product tag it is.
+    product_by_channel: Vec<Vec<usize>>,
+    /// Per mill, the latest valid product code and when it was read.
+    products: Vec<Option<(u32, Instant)>>,
+    /// Per mill, the oldest product code still used ([`WELD_BIT_POLLS`] poll periods).
+    product_max_age: Vec<Duration>,
+    /// Per mill, its context's known product codes (empty: any).
+    known_products: Vec<Vec<u32>>,
     board: Arc<Board>,
 }
 
-/// Poll periods of its channel after which the latest weld bit is no longer used.
+/// Poll periods of its channel after which the latest weld bit (or product code) is
+/// no longer used.
 pub(super) const WELD_BIT_POLLS: f64 = 3.0;
 
 impl ChatterAnalysis {
@@ -71,10 +92,16 @@ impl ChatterAnalysis {
     pub fn new(config: &Config, board: Arc<Board>) -> Result<Self, ChatterSetupError> {
         let mut by_channel = vec![Vec::new(); config.channels.len()];
         let mut weld_by_channel = vec![Vec::new(); config.channels.len()];
+        let mut product_by_channel = vec![Vec::new(); config.channels.len()];
         let mut weld_max_age = Vec::new();
+        let mut product_max_age = Vec::new();
         let mut contexts = Vec::new();
         let mut context_by_channel = vec![Vec::new(); config.channels.len()];
         let mut monitors = Vec::new();
+        let max_age = |tag: Option<usize>| {
+            let poll_s = tag.map_or(0.0, |channel| 1.0 / config.channels[channel].sample_rate_hz);
+            Duration::from_secs_f64(WELD_BIT_POLLS * poll_s)
+        };
         for (m, mill) in config.tandem_mills.iter().enumerate() {
             monitors.push(ChatterMonitor::new(config, m)?);
             for (s, &channel) in mill.stands.iter().enumerate() {
@@ -83,11 +110,11 @@ impl ChatterAnalysis {
             if let Some(weld) = mill.context.weld {
                 weld_by_channel[weld].push(m);
             }
-            let poll_s = mill
-                .context
-                .weld
-                .map_or(0.0, |weld| 1.0 / config.channels[weld].sample_rate_hz);
-            weld_max_age.push(Duration::from_secs_f64(WELD_BIT_POLLS * poll_s));
+            if let Some(product) = mill.context.product {
+                product_by_channel[product].push(m);
+            }
+            weld_max_age.push(max_age(mill.context.weld));
+            product_max_age.push(max_age(mill.context.product));
             let tracker = ContextTracker::new(&mill.context, config, None);
             for channel in tracker.iter().flat_map(ContextTracker::channels) {
                 context_by_channel[channel].push(m);
@@ -113,22 +140,29 @@ impl ChatterAnalysis {
             weld_max_age,
             contexts,
             context_by_channel,
+            product_by_channel,
+            products: vec![None; config.tandem_mills.len()],
+            product_max_age,
+            known_products: config
+                .tandem_mills
+                .iter()
+                .map(|mill| mill.context.products.clone())
+                .collect(),
             board,
         })
     }
 
     /// A process value `value` of `channel`: a context tag of the mills whose tag it
-    /// is, and their weld bit.
+    /// is (the context their episodes and captures carry), and their weld bit or
+    /// product.
     fn context_value(&mut self, channel: usize, value: f64, now: Instant) {
         for &mill in self.context_by_channel.get(channel).into_iter().flatten() {
             if let Some(tracker) = &mut self.contexts[mill] {
                 tracker.value(channel, value, now);
             }
         }
-        let Some(mills) = self.weld_by_channel.get(channel) else {
-            return;
-        };
-        for &mill in mills {
+        for m in 0..self.weld_by_channel.get(channel).map_or(0, Vec::len) {
+            let mill = self.weld_by_channel[channel][m];
             let raw = RawContext {
                 weld: Some(value),
                 ..RawContext::default()
@@ -142,21 +176,42 @@ impl ChatterAnalysis {
                     }
                 }
                 Err(error) => {
-                    if self.weld_bits[mill].take().is_some() {
-                        tracing::warn!(
-                            mill = %self.monitors[mill].name(),
-                            %error,
-                            "context value invalid, not used for the gating"
-                        );
-                    }
-                    self.board.update(|results| {
-                        if let Some(published) = results.tandem_mills.get_mut(mill) {
-                            published.context_invalid += 1;
-                        }
-                    });
+                    let was_valid = self.weld_bits[mill].take().is_some();
+                    self.invalid_context(mill, &error, was_valid);
                 }
             }
         }
+        for m in 0..self.product_by_channel.get(channel).map_or(0, Vec::len) {
+            let mill = self.product_by_channel[channel][m];
+            let raw = RawContext {
+                product: Some(value),
+                ..RawContext::default()
+            };
+            match raw.check(&self.known_products[mill]) {
+                Ok(context) => self.products[mill] = context.product.map(|code| (code, now)),
+                Err(error) => {
+                    let was_valid = self.products[mill].take().is_some();
+                    self.invalid_context(mill, &error, was_valid);
+                }
+            }
+        }
+    }
+
+    /// Mill `mill`'s context value was impossible (`error`): counted, and said in the
+    /// log when the tag's previous value was valid (`was_valid`).
+    fn invalid_context(&self, mill: usize, error: &ContextError, was_valid: bool) {
+        if was_valid {
+            tracing::warn!(
+                mill = %self.monitors[mill].name(),
+                %error,
+                "context value invalid, not used for the gating"
+            );
+        }
+        self.board.update(|results| {
+            if let Some(published) = results.tandem_mills.get_mut(mill) {
+                published.context_invalid += 1;
+            }
+        });
     }
 
     /// Keep mill `mill`'s stands' next `seconds` s as a capture of kind `manual`;
@@ -217,6 +272,11 @@ impl ChatterAnalysis {
         };
         for &(mill, stand) in stands {
             let monitor = &mut self.monitors[mill];
+            let product = self.products[mill]
+                .filter(|(_, at)| now.saturating_duration_since(*at) <= self.product_max_age[mill])
+                .map(|(code, _)| code);
+            monitor.use_product(product);
+            let product_fallback = product.is_none() && monitor.has_product_groups();
             let recorder = &mut self.captures[mill];
             let mut done = Vec::new();
             let change = match message {
@@ -257,10 +317,10 @@ impl ChatterAnalysis {
                 }
                 let warning = publish(
                     &self.board,
-                    mill,
-                    monitor,
+                    (mill, monitor),
                     &mut self.slow_downs[mill],
                     (&change, context),
+                    product_fallback,
                 );
                 if let Some(recorder) = recorder.as_mut() {
                     done.extend(recorder.warning(warning, monitor.last_window_end(), context));
@@ -291,13 +351,15 @@ fn keep(board: &Board, capture: CaptureRecord) {
 
 /// Record one monitor update in the published results, and in the history the
 /// chatter episodes (from the warning condition set to it cleared, with the mill's
-/// `context` at its start) and the alarm. Returns the warning as published.
+/// `context` at its start) and the alarm. `product_fallback`: the mill's thresholds
+/// judge because no valid, fresh product was there (counted). Returns the warning as
+/// published.
 fn publish(
     board: &Board,
-    mill: usize,
-    monitor: &ChatterMonitor,
+    (mill, monitor): (usize, &ChatterMonitor),
     slow_down: &mut SlowDown,
     (change, context): (&ChatterUpdate, Option<ContextReading>),
+    product_fallback: bool,
 ) -> bool {
     let name = monitor.name();
     let was_requested = slow_down.requested();
@@ -327,6 +389,17 @@ fn publish(
                 published.band_rms_max = gain.map(|g| g.max_band_rms);
                 published.gain_ratio = gain.and_then(|g| g.ratio).map(|(ratio, _)| ratio);
                 published.worst_stand = gain.and_then(|g| g.ratio).map(|(_, stand)| stand);
+                published.thresholds_group = Some(monitor.thresholds_group().map_or(0, |g| g + 1));
+                if published.thresholds_group_name.as_deref() != monitor.thresholds_group_name() {
+                    tracing::info!(
+                        mill = %name,
+                        group = ?monitor.thresholds_group_name(),
+                        "chatter thresholds in use changed (None: the mill's)"
+                    );
+                    published.thresholds_group_name =
+                        monitor.thresholds_group_name().map(str::to_owned);
+                }
+                published.product_fallback += u64::from(product_fallback);
                 let Verdict { warning, alarm, .. } = verdict;
                 published.chatter_warning = warning;
                 if alarm && !published.chatter_alarm {
@@ -402,7 +475,7 @@ fn clear(published: &mut TandemMillResults) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::analysis::chatter::testing::lines_recording;
+    use crate::analysis::chatter::testing::{example_with_quiet_group, lines_recording};
 
     /// The example tandem mill (thresholds from the race: stand 1's is 1.187) with a
     /// weld bit on the PLC; the channel index of the weld bit.
@@ -428,17 +501,43 @@ mod tests {
     /// mill's results after.
     fn run(weld: Option<f64>) -> TandemMillResults {
         let (config, weld_channel) = mill_with_weld_bit();
-        let board = Arc::new(Board::new(&config, Vec::new()));
-        let mut analysis = ChatterAnalysis::new(&config, Arc::clone(&board)).expect("analysis");
+        run_with(&config, weld_channel, |_| weld).0
+    }
+
+    /// The example tandem mill with a product tag on the PLC and the product group
+    /// "quiet" (product 7, every threshold 10 times the mill's); the product channel.
+    fn mill_with_product_groups() -> (Config, usize) {
+        let examples = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/examples");
+        let text = example_with_quiet_group("product = \"product_code\", products = [7, 8]");
+        let config = millgate_config::from_toml_str(&text, "tandem.toml", &examples)
+            .unwrap_or_else(|error| panic!("{error}"));
+        let product = config.tandem_mills[0]
+            .context
+            .product
+            .expect("the product tag");
+        (config, product)
+    }
+
+    /// [`run`]'s line through the analysis of `config`, `context(block)` sent on
+    /// channel `context_channel` before each block when given; the mill's results
+    /// after, and the gain ratio published after each block.
+    fn run_with(
+        config: &Config,
+        context_channel: usize,
+        context: impl Fn(usize) -> Option<f64>,
+    ) -> (TandemMillResults, Vec<Option<f64>>) {
+        let board = Arc::new(Board::new(config, Vec::new()));
+        let mut analysis = ChatterAnalysis::new(config, Arc::clone(&board)).expect("analysis");
         let recording = lines_recording(15_000, |_| 0.8);
         let stands = config.tandem_mills[0].stands.clone();
+        let mut ratios = Vec::new();
         // A block every 48 ms, as the DAQ delivers them.
         let t0 = Instant::now();
         for (block, start) in (0..recording.len()).step_by(120).enumerate() {
             let now = t0 + Duration::from_millis(48) * block as u32;
-            if let Some(value) = weld {
+            if let Some(value) = context(block) {
                 let message = Acquired::ProcessValue {
-                    channel: weld_channel,
+                    channel: context_channel,
                     value,
                 };
                 analysis.handle_at(&message, now);
@@ -452,8 +551,64 @@ mod tests {
                 };
                 analysis.handle_at(&message, now);
             }
+            ratios.push(board.results().tandem_mills[0].gain_ratio);
         }
-        board.results().tandem_mills[0].clone()
+        (board.results().tandem_mills[0].clone(), ratios)
+    }
+
+    #[test]
+    fn the_plcs_product_picks_its_groups_thresholds_and_a_missing_one_falls_back_counted() {
+        let (config, product) = mill_with_product_groups();
+        // Product 7, the "quiet" group's: thresholds 10 times the mill's, ratio 0.135.
+        let (quiet, _) = run_with(&config, product, |_| Some(7.0));
+        assert_eq!(quiet.thresholds_group, Some(1), "{quiet:?}");
+        assert_eq!(quiet.thresholds_group_name.as_deref(), Some("quiet"));
+        assert!(
+            quiet.gain_ratio.is_some_and(|r| r > 0.12 && r < 0.15),
+            "{quiet:?}"
+        );
+        assert!(
+            !quiet.chatter_alarm && !quiet.slow_down_request,
+            "{quiet:?}"
+        );
+        assert_eq!((quiet.product_fallback, quiet.context_invalid), (0, 0));
+
+        // Product 8 is known but in no group: the mill's thresholds, no fallback counted.
+        let (other, _) = run_with(&config, product, |_| Some(8.0));
+        assert_eq!(other.thresholds_group, Some(0), "{other:?}");
+        assert_eq!(other.thresholds_group_name, None);
+        assert!(other.chatter_alarm && other.slow_down_request, "{other:?}");
+        assert_eq!((other.product_fallback, other.context_invalid), (0, 0));
+
+        // No product value at all: the mill's, every window counted as a fallback.
+        let (none, _) = run_with(&config, product, |_| None);
+        assert_eq!(none.thresholds_group, Some(0));
+        assert!(none.chatter_alarm, "{none:?}");
+        assert_eq!(none.product_fallback, none.evaluations);
+
+        // An unknown code (9, not in `products`) is invalid: counted, not used.
+        let (invalid, _) = run_with(&config, product, |_| Some(9.0));
+        assert_eq!(invalid.thresholds_group, Some(0));
+        assert_eq!(invalid.context_invalid, 125, "one per block");
+        assert_eq!(invalid.product_fallback, invalid.evaluations);
+
+        // Product 7 read once, then the PLC's value goes stale (3 polls of 100 ms):
+        // the mill's thresholds from then on, counted.
+        let (stale, _) = run_with(&config, product, |block| (block == 0).then_some(7.0));
+        assert_eq!(stale.thresholds_group, Some(0), "{stale:?}");
+        assert!(stale.chatter_alarm, "{stale:?}");
+        assert_eq!(stale.product_fallback, stale.evaluations, "{stale:?}");
+
+        // The product changes mid-coil from 7 to 8 at block 80 (3.84 s): the ratio
+        // jumps tenfold with the next window (a hop of 0.25 s is 5.2 blocks), the
+        // alarm follows.
+        let (switched, ratios) = run_with(&config, product, |block| {
+            Some(if block < 80 { 7.0 } else { 8.0 })
+        });
+        assert!(ratios[79].is_some_and(|r| r < 0.15), "{ratios:?}");
+        assert!(ratios[86].is_some_and(|r| r > 1.2), "{ratios:?}");
+        assert_eq!(switched.thresholds_group, Some(0));
+        assert!(switched.chatter_alarm && switched.slow_down_request);
     }
 
     #[test]

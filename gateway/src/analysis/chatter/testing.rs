@@ -100,3 +100,29 @@ pub(crate) fn lines_recording(samples: usize, amplitude: impl Fn(f64) -> f64) ->
         context: Default::default(),
     }
 }
+
+/// The text of the example tandem mill (`config/examples/tandem-5stand.toml`) with a
+/// `product_code` process value, the mill's `context = { CONTEXT }` (e.g. `product =
+/// "product_code"`) and the product group "quiet" (product 7, every threshold ten
+/// times the mill's).
+pub(crate) fn example_with_quiet_group(context: &str) -> String {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../config/examples/tandem-5stand.toml");
+    std::fs::read_to_string(path)
+        .expect("example")
+        .replacen(
+            "[[tandem_mills]]",
+            &format!(
+                "[[channels]]\nname = \"product_code\"\nkind = \"process_value\"\nunit = \"1\"\n\
+                 source = {{ modbus = \"mill_plc\", table = \"holding\", address = 11 }}\n\n\
+                 [[tandem_mills]]\ncontext = {{ {context} }}"
+            ),
+            1,
+        )
+        .replacen(
+            "slow_down_hold_s = 5.0\n",
+            "slow_down_hold_s = 5.0\n[[tandem_mills.product_groups]]\nname = \"quiet\"\n\
+             products = [7]\ngain_thresholds = [11.87, 14.92, 22.09, 30.87, 33.27]\n",
+            1,
+        )
+}

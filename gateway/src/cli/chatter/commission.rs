@@ -20,7 +20,8 @@ use millgate_config::Config;
 
 use super::mill::mill_index;
 use crate::analysis::chatter::commission::{
-    commission, Commissioning, DEFAULT_MARGIN_PERCENT, NOTE_FACTOR, RELEASE_CEILING,
+    commission_by_product, Commissioning, GroupCommissioning, DEFAULT_MARGIN_PERCENT,
+    DEFAULT_MIN_GROUP_RECORDINGS, NOTE_FACTOR, RELEASE_CEILING,
 };
 use crate::analysis::chatter::Recording;
 use crate::cli::capture::Picked;
@@ -58,6 +59,10 @@ pub struct CommissionArgs {
     /// speeds the recordings covered.
     #[arg(long)]
     pub speed_column: Option<String>,
+    /// Fewest recordings of a product group (by the recordings' `product` column) for
+    /// its own thresholds; a group with fewer falls back to the mill's.
+    #[arg(long, default_value_t = DEFAULT_MIN_GROUP_RECORDINGS)]
+    pub min_group_recordings: usize,
     /// Output format.
     #[arg(long, value_enum, default_value = "text")]
     pub format: OutputFormat,
@@ -75,7 +80,13 @@ pub fn run(args: &CommissionArgs) -> anyhow::Result<String> {
     if let (Some(db), Some(selection)) = (&args.db, &args.captures) {
         recordings.extend(captured(db, &config, index, selection)?);
     }
-    let commissioning = commission(&config, index, &recordings, args.margin)?;
+    let commissioning = commission_by_product(
+        &config,
+        index,
+        &recordings,
+        args.margin,
+        args.min_group_recordings,
+    )?;
     Ok(match args.format {
         OutputFormat::Json => serde_json::to_string_pretty(&commissioning)? + "\n",
         OutputFormat::Text => text(&commissioning),
@@ -183,7 +194,53 @@ fn text(c: &Commissioning) -> String {
     speeds_text(c, &mut out);
     stands_text(c, &mut out);
     paste_text(c, &mut out);
+    groups_text(c, &mut out);
     out
+}
+
+/// The product groups: each with its recordings, and the entries to paste for those
+/// with thresholds.
+fn groups_text(c: &Commissioning, out: &mut String) {
+    if c.product_groups.is_empty() {
+        return;
+    }
+    let _ = writeln!(
+        out,
+        "# product groups (recordings grouped by their product column; any other product, \
+         or none, falls back to gain_thresholds above):"
+    );
+    let codes = |g: &GroupCommissioning| {
+        let codes: Vec<String> = g.products.iter().map(u32::to_string).collect();
+        codes.join(", ")
+    };
+    for group in &c.product_groups {
+        let what = match &group.gain_thresholds {
+            Some(_) => format!("{} windows", group.windows),
+            None => format!(
+                "too few recordings for its own thresholds (need {}): its products fall back \
+                 to the mill's",
+                group.min_recordings
+            ),
+        };
+        let _ = writeln!(
+            out,
+            "#   \"{}\" (products {}): {} recording(s), {what}",
+            group.name,
+            codes(group),
+            group.recordings.len()
+        );
+    }
+    for group in &c.product_groups {
+        let Some(thresholds) = &group.gain_thresholds else {
+            continue;
+        };
+        let _ = writeln!(out, "[[tandem_mills.product_groups]]");
+        // A configured name has no control characters; Debug's quotes and escapes of
+        // `"` and `\` are TOML's.
+        let _ = writeln!(out, "name = {:?}", group.name);
+        let _ = writeln!(out, "products = [{}]", codes(group));
+        let _ = writeln!(out, "gain_thresholds = {}", toml_list(thresholds));
+    }
 }
 
 /// The recordings, each with its windows and the stands it notes.
@@ -306,6 +363,7 @@ fn paste_text(c: &Commissioning, out: &mut String) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::analysis::chatter::commission::commission;
     use crate::analysis::chatter::testing::{example_tandem, lines_recording};
 
     #[test]

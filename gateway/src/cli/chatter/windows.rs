@@ -25,6 +25,11 @@
 //! request) after the gating. A row with an impossible context value (weld not 0/1, a
 //! negative speed, a coil or product that is not a whole number) is not used for the
 //! gating and is counted (`invalid_context`, with its line); the analysis goes on.
+//! With the mill's `product_groups`, each window is judged by the thresholds of the
+//! group holding the `product` column's value at the end of its last block (the mill's
+//! `gain_thresholds` for a product in no group, or without a valid one), as the
+//! service does with the PLC's product; each row names the group (`thresholds_group`,
+//! and in the text the flag `group=NAME`).
 //!
 //! [`ChatterMonitor::judge`]: crate::analysis::chatter::ChatterMonitor::judge
 
@@ -106,6 +111,9 @@ pub struct WindowRow {
     /// without, or when invalid there).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub context: Option<ProcessContext>,
+    /// The product group whose thresholds judged this window (by the row's `product`
+    /// column); `None`: the mill's `gain_thresholds`.
+    pub thresholds_group: Option<String>,
 }
 
 /// Rows of the CSV whose context was invalid.
@@ -214,6 +222,9 @@ pub fn analyze(args: &WindowsArgs) -> anyhow::Result<ChatterReport> {
             weld_hold: window.weld_hold,
             held_off: window.verdict.held_off,
             context: window.context,
+            thresholds_group: window
+                .thresholds_group
+                .map(|g| config.tandem_mills[index].product_groups[g].name.clone()),
         })
         .collect();
     let first = |pick: fn(&WindowRow) -> bool| windows.iter().find(|w| pick(w)).map(|w| w.t_s);
@@ -318,6 +329,11 @@ fn text(report: &ChatterReport) -> String {
         .filter(|(set, _)| *set)
         .map(|(_, name)| *name)
         .collect();
+        let group = w
+            .thresholds_group
+            .as_ref()
+            .map(|name| format!("group={name}"));
+        let flags: Vec<&str> = flags.into_iter().chain(group.as_deref()).collect();
         let line = format!(
             " {:>8.3} {:>7.3} {ratio:>7} {}",
             w.sigma_n_hz,
@@ -392,6 +408,60 @@ mod tests {
         let report = run(&args);
         std::fs::remove_file(&input)?;
         Ok(serde_json::from_str(&report?)?)
+    }
+
+    #[test]
+    fn each_rows_product_picks_its_groups_thresholds() -> anyhow::Result<()> {
+        // The example mill with a product tag and the group "quiet" (product 7, every
+        // threshold ten times the mill's).
+        let text = crate::analysis::chatter::testing::example_with_quiet_group(
+            "product = \"product_code\"",
+        );
+        let scratch =
+            std::env::temp_dir().join(format!("millgate-products-{}", std::process::id()));
+        std::fs::create_dir_all(&scratch)?;
+        let config = scratch.join("mill.toml");
+        std::fs::write(&config, text)?;
+        // A chatter-band line at gain 1.6 on every stand (1.35 times stand 1's
+        // threshold), product 7 for 6 s, then product 8 (in no group).
+        let recording = crate::analysis::chatter::testing::lines_recording(30_000, |_| 0.8);
+        let mut csv = String::from("t,s1_vib,s2_vib,s3_vib,s4_vib,s5_vib,product\n");
+        for (k, t) in recording.time_s.iter().enumerate() {
+            let stands: Vec<String> = recording.stands.iter().map(|s| s[k].to_string()).collect();
+            let product = if *t < 6.0 { 7 } else { 8 };
+            csv += &format!("{t},{},{product}\n", stands.join(","));
+        }
+        let input = scratch.join("stands.csv");
+        std::fs::write(&input, csv)?;
+        let args = WindowsArgs {
+            input,
+            config,
+            mill: None,
+            format: OutputFormat::Json,
+            #[cfg(feature = "sim-tools")]
+            plot: None,
+        };
+        let report: serde_json::Value = serde_json::from_str(&run(&args)?)?;
+        std::fs::remove_dir_all(&scratch)?;
+        let windows = report["windows"].as_array().expect("windows");
+        for window in windows {
+            let t = window["t_s"].as_f64().unwrap_or(f64::NAN);
+            let group = &window["thresholds_group"];
+            if t < 6.0 {
+                assert_eq!(group, "quiet", "{window}");
+                assert_eq!(window["alarm"], false, "{window}");
+                assert!(
+                    window["gain_ratio"].as_f64().is_none_or(|r| r < 0.2),
+                    "{window}"
+                );
+            } else if t > 6.2 {
+                assert_eq!(group, &serde_json::Value::Null, "{window}");
+            }
+        }
+        // The first alarm comes with product 8's first window (the mill's thresholds).
+        let first_alarm = report["first_alarm_s"].as_f64().expect("an alarm");
+        assert!((6.0..6.3).contains(&first_alarm), "{first_alarm}");
+        Ok(())
     }
 
     #[test]

@@ -2,7 +2,7 @@
 
 use millgate_config::ValueType::{F32, U16};
 
-use super::declare::{at, index_of, real_of, to_flag, unmapped_counter};
+use super::declare::{at, index_of, real_of, to_flag, unmapped, unmapped_counter};
 use super::{AlarmKind, Figure, TandemMillResults};
 use super::{Columns, FigureType, Stale, Value};
 
@@ -26,8 +26,23 @@ pub const TANDEM_MILL: &[Figure<TandemMillResults>] = &[
     F::count(
         "context_invalid",
         unmapped_counter("a count of the PLC's own bad context values, for the crew; the PLC knows its values"),
-        "Context values from the PLC read with an impossible value since start (weld not 0/1): not used for the gating",
+        "Context values from the PLC read with an impossible value since start (weld not 0/1, a product that is not a known code): not used for the gating",
         |m| Some(Value::Count(m.context_invalid)),
+    ),
+    F::real(
+            "thresholds_group",
+            "",
+            unmapped("a mark for the crew and the history of the thresholds in use; the PLC has the product itself"),
+            Stale::Kept,
+            "The thresholds that judged the last window: 0 the mill's gain_thresholds (no product group, or no valid fresh product), k the product_groups[k-1]'s (the product the PLC reported)",
+            |m| index_of(m.thresholds_group),
+        )
+    .typed(FigureType::Index),
+    F::count(
+        "product_fallback",
+        unmapped_counter("a count of gating decisions for the crew; the PLC knows its product values"),
+        "Windows judged by the mill's gain_thresholds since start because the product context was missing, invalid or stale while the mill has product_groups",
+        |m| Some(Value::Count(m.product_fallback)),
     ),
     F::real(
         "sigma_n_hz",

@@ -384,6 +384,35 @@ pub fn monitor_config_with(stands: usize, keys: &str) -> anyhow::Result<Config> 
         .map_err(|e| anyhow::anyhow!("{e}"))
 }
 
+/// `mill` simulated along `ramp` for `duration_s`, the default excitation's force and
+/// gauge noise times `noise`, the accelerometer at [`SAMPLE_RATE_HZ`], seeded with
+/// `seed` (the closed loop's commissioning recordings, the per-product experiment).
+pub fn noisy_run(
+    mill: &TandemMill,
+    ramp: SpeedRamp,
+    duration_s: f64,
+    noise: f64,
+    seed: u64,
+) -> anyhow::Result<Record> {
+    let mut excitation = Excitation::default();
+    excitation.force_noise_density *= noise;
+    excitation.entry_gauge_rms_m *= noise;
+    Ok(simulate(
+        mill,
+        &RunSettings {
+            ramp,
+            excitation,
+            sensor: Accelerometer {
+                sample_rate_hz: SAMPLE_RATE_HZ,
+                ..Accelerometer::default()
+            },
+            duration_s,
+            seed,
+            internal_rate_hz: None,
+        },
+    )?)
+}
+
 /// The scenario's mill and its simulated record.
 pub fn simulated(scenario: &Scenario) -> anyhow::Result<(TandemMill, Record)> {
     let base = PassSchedule::example()?.scaled(scenario.friction, scenario.damping);

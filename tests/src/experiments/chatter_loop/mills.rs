@@ -2,9 +2,7 @@
 //! and the runs drawn over them ([`runs`]).
 
 use millgate::analysis::chatter::commission::commission;
-use millgate_sim::tandem::simulate::{
-    simulate, Accelerometer, Excitation, NoiseBurst, RunSettings, SpeedRamp,
-};
+use millgate_sim::tandem::simulate::{NoiseBurst, SpeedRamp};
 use millgate_sim::tandem::truth::mill_critical_speed;
 use millgate_sim::tandem::TandemMill;
 use rand::rngs::SmallRng;
@@ -12,7 +10,7 @@ use rand::{Rng, SeedableRng};
 
 use super::{LoopPlan, Mill, Run, Scenario, MARGIN_PERCENT, STANDS};
 use crate::experiments::chatter_eval::{
-    monitor_config_with, parallel, recording_from, SAMPLE_RATE_HZ,
+    monitor_config_with, noisy_run, parallel, recording_from, SAMPLE_RATE_HZ,
 };
 
 /// The mills of `plan` with their critical speeds and commissioned thresholds.
@@ -57,23 +55,7 @@ pub fn mills(plan: &LoopPlan) -> anyhow::Result<Vec<Mill>> {
                 } else {
                     (SpeedRamp::constant(top), plan.settle_s + plan.commission_s)
                 };
-                let mut excitation = Excitation::default();
-                excitation.force_noise_density *= noise;
-                excitation.entry_gauge_rms_m *= noise;
-                let record = simulate(
-                    &mill,
-                    &RunSettings {
-                        ramp,
-                        excitation,
-                        sensor: Accelerometer {
-                            sample_rate_hz: SAMPLE_RATE_HZ,
-                            ..Accelerometer::default()
-                        },
-                        duration_s,
-                        seed: rng.random(),
-                        internal_rate_hz: None,
-                    },
-                )?;
+                let record = noisy_run(&mill, ramp, duration_s, noise, rng.random())?;
                 // The settling time is not part of the recording.
                 let from = (plan.settle_s * SAMPLE_RATE_HZ) as usize;
                 Ok(recording_from(format!("commissioning {k}"), &record, from))

@@ -94,6 +94,7 @@ fn mill_block_golden_words() {
         slow_down_request: true,
         weld_held_off: 4,
         context_invalid: 1,
+        ..TandemMillResults::default()
     };
     let words = map.encode(&results);
     assert_eq!(words[base], 0b1011, "warning, alarm, slow-down");

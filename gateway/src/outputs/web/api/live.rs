@@ -219,6 +219,9 @@ pub(crate) struct TandemMillView {
     pub chatter_state: &'static str,
     /// The stand channel of `worst_stand`.
     pub worst_stand_channel: Option<String>,
+    /// The product group whose thresholds judged the last window (`thresholds_group`
+    /// by name); `None`: the mill's `gain_thresholds`.
+    pub thresholds_group_name: Option<String>,
     /// The catalogue's tandem mill figures by key ([`catalogue::TANDEM_MILL`]): a stale
     /// stand withdraws the window's (as the PLC gets them).
     #[serde(flatten)]
@@ -245,6 +248,7 @@ impl TandemMillView {
                 .worst_stand
                 .filter(|_| !results.source_stale)
                 .and_then(|stand| stands.get(stand).cloned()),
+            thresholds_group_name: results.thresholds_group_name.clone(),
             figures: figures_json(catalogue::TANDEM_MILL, results),
         }
     }
