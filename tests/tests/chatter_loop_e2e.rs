@@ -18,10 +18,10 @@ use std::time::{Duration, Instant};
 use millgate::outputs::modbus::register_map::RegisterMap;
 use millgate::state::commands::{Command, CommandOrigin};
 use millgate_config::layout::to_raw_sample;
-use millgate_config::{Config, RegisterTable};
+use millgate_config::Config;
 use millgate_sim::devices::modbus_bank::ServeOptions;
 use millgate_sim::devices::tandem_rig::{self, RequestBit, RigRun};
-use millgate_sim::devices::virtual_daq::{DaqChannel, Placement, Publish, VirtualDaq};
+use millgate_sim::devices::virtual_daq::VirtualDaq;
 use millgate_sim::devices::virtual_plc::VirtualPlc;
 use millgate_sim::tandem::control::{SlowDownPolicy, SpeedControl};
 use millgate_sim::tandem::online::OnlineMill;
@@ -29,7 +29,7 @@ use millgate_sim::tandem::simulate::{Accelerometer, Excitation, SimulationSetup,
 use millgate_tests::experiments::chatter_loop::{mills, LoopPlan, Mill, CYCLE_SAMPLES};
 use millgate_tests::kit::peers::peer;
 use millgate_tests::kit::scratch;
-use millgate_tests::kit::tandem::{modbus_source, Stands, FS};
+use millgate_tests::kit::tandem::{modbus_source, stand_daq_channels, Stands, FS};
 use tokio::net::TcpListener;
 
 /// The slow-down request: bit 3 of the mill's flags register.
@@ -170,18 +170,7 @@ async fn closed_loop(
         .map(|r| usize::from(r.address))
         .ok_or_else(|| anyhow::anyhow!("no TCM.flags register"))?;
     let plc = VirtualPlc::new(usize::from(map.len()) + 16);
-    let channels = (0..5)
-        .map(|stand| DaqChannel {
-            placement: Placement {
-                table: RegisterTable::Input,
-                address: (stand * 122) as u16,
-                scale: 0.01,
-                offset: 0.0,
-            },
-            publish: Publish::Block,
-            signal: Vec::new(),
-        })
-        .collect();
+    let channels = stand_daq_channels(&vec![Vec::new(); 5], &[0, 1, 2, 3, 4]);
     let mut daq = VirtualDaq::new(FS, CYCLE_SAMPLES as u16, channels);
     // A DAQ answers with a block from power-up: the first, at rest, anchors the stands.
     let rest = vec![0.0; CYCLE_SAMPLES];
