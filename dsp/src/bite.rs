@@ -258,7 +258,9 @@ impl<const PRE: usize, const N: usize> BiteDetector<PRE, N> {
         libm::fmin(1.0 / self.settings.baseline_alpha, f64::from(u32::MAX)) as u32
     }
 
-    /// A fresh, armed state with no baseline yet.
+    /// A fresh, armed state with no baseline yet, for a record that begins where its
+    /// author cut it (a file: its first samples are taken as what came before a bite).
+    /// A live stream joined while the mill runs starts with [`Self::joining_state`].
     pub fn state(&self) -> BiteDetectorState<PRE, N> {
         BiteDetectorState {
             phase: Phase::Armed,
@@ -280,6 +282,17 @@ impl<const PRE: usize, const N: usize> BiteDetector<PRE, N> {
             fast_baseline_remaining: 0,
             resync_remaining: 0,
         }
+    }
+
+    /// A fresh state for a live stream joined while the mill runs (what came before
+    /// its first sample is unknown): as after a [gap](Self::gap), no trigger fires
+    /// until a whole pre-trigger of usable samples below the threshold has come. A
+    /// stream that starts during a bite's rise has not seen the onset, and its window
+    /// would have no pre-trigger to measure from.
+    pub fn joining_state(&self) -> BiteDetectorState<PRE, N> {
+        let mut state = self.state();
+        state.resync_remaining = PRE.max(1) as u32;
+        state
     }
 
     /// External trigger: the next processed sample becomes the trigger sample.

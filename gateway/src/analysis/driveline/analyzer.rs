@@ -103,7 +103,7 @@ impl DrivelineAnalyzer {
             name: driveline.name.clone(),
             channel_name: torque.name.clone(),
             sample_rate_hz: torque.sample_rate_hz,
-            state: setup.detector.state(),
+            state: setup.detector.joining_state(),
             detector: setup.detector,
             transient: setup.transient,
             taf_warning: driveline.thresholds.taf_warning,
