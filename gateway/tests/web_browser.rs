@@ -720,7 +720,8 @@ async fn pages_fit_a_phone_and_plots_are_described(client: &Client, port: u16, s
             "const p = window.millgatePlots; \
              return !!(p.band && p.spectrum) \
                && document.querySelectorAll('#episodes tbody tr').length > 0 \
-               && document.querySelectorAll('#mill-state .card').length === 4;",
+               && document.querySelectorAll('#mill-state .card').length === 5 \
+               && document.querySelector('#mill-state').textContent.includes('Thresholds');",
         ),
         (
             format!("{base}/alarms"),
