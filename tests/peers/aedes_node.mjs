@@ -19,7 +19,17 @@ if (!mqttPort || !redisPort || !nodeId) {
   console.error('usage: node aedes_node.mjs MQTT_PORT REDIS_PORT NODE_ID [HEARTBEAT_MS]')
   process.exit(2)
 }
-const redis = { host: '127.0.0.1', port: Number(redisPort) }
+// No ready check (INFO) and no CLIENT SETINFO on connecting: ioredis 5.8.2-5.x may
+// send them after mqemitter-redis' SUBSCRIBE on the same connection, which redis
+// refuses in subscriber mode; the error is thrown out of the emitter and the node
+// dies at start-up (ioredis issue #2037, fixed by the handshake gate of 6.0.0; seen
+// once in CI: "Connection in subscriber mode, only subscriber commands may be used").
+const redis = {
+  host: '127.0.0.1',
+  port: Number(redisPort),
+  enableReadyCheck: false,
+  disableClientInfo: true
+}
 const persistence = persistenceRedis(redis)
 
 // Worked around (aedes 1.2.0, aedes-packet 4.0.1): a node that sends the Will of a
