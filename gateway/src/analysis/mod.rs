@@ -370,8 +370,8 @@ impl Analysis {
     /// their order; returns the bites they released: published and recorded.
     ///
     /// Each driveline's share of the messages runs on the pool of
-    /// `analysis.workers` threads ([`pool::run_round`]); the bites of the
-    /// drivelines that are done are published together ([`publish_bites`]: one
+    /// `analysis.workers` threads (`pool::run_round`); the bites of the
+    /// drivelines that are done are published together (`publish_bites`: one
     /// change of the results, one history commit, one PLC write), while the others
     /// still run. A bite of a driveline with extra channels is held until every one
     /// has samples up to the end of its window, or its hold bound passes

@@ -3,7 +3,7 @@
 //! mill's chatter thresholds from recordings of its stable rolling.
 //!
 //! The recordings (CSVs, and with `--db --captures` captures the history keeps) go
-//! through [`commission`] (how the thresholds, the release level and `k_max` come
+//! through `analysis::chatter::commission` (how the thresholds, the release level and `k_max` come
 //! about, and which recordings are refused); the thresholds are printed as the TOML
 //! line `gain_thresholds = [...]` to paste into the mill's `[[tandem_mills]]` entry,
 //! with `slow_down_release` (and a warning when the margin leaves the release no room
@@ -96,7 +96,7 @@ pub fn run(args: &CommissionArgs) -> anyhow::Result<String> {
 /// The captures of mill `index` of `config` that `selection` names in the history
 /// `db`, oldest first, as recordings of its stands (each named `db#capture ID`).
 /// Errors name the file and the capture: one that is not the mill's, lacks a stand, or
-/// is a chatter episode (the chatter check of [`commission`] then runs on the rest).
+/// is a chatter episode (the chatter check of `analysis::chatter::commission` then runs on the rest).
 fn captured(
     db: &Path,
     config: &Config,
