@@ -4,9 +4,9 @@
 
 use millgate_dsp::bite::{BiteDetector, BiteSettings};
 
-#[test]
-fn start_mid_bar_measures_the_next_bite_from_the_true_zero() {
-    let settings = BiteSettings {
+/// The detector both tests run: a 20 kN*m threshold, 32 samples of pre-trigger.
+fn detector() -> BiteDetector<32, 256> {
+    BiteDetector::new(BiteSettings {
         threshold_knm: 20.0,
         rearm_knm: 10.0,
         holdoff_samples: 100,
@@ -14,8 +14,13 @@ fn start_mid_bar_measures_the_next_bite_from_the_true_zero() {
         saturation_low_knm: -300.0,
         saturation_high_knm: 300.0,
         post_trigger_samples: 200,
-    };
-    let detector = BiteDetector::<32, 256>::new(settings).unwrap();
+    })
+    .unwrap()
+}
+
+#[test]
+fn start_mid_bar_measures_the_next_bite_from_the_true_zero() {
+    let detector = detector();
     let mut state = detector.state();
     let mut events = Vec::new();
     // 0.5 s rolling at 112 kN*m, the bar leaves, 0.3 s idle at 0, a 60 kN*m step.
@@ -42,16 +47,7 @@ fn start_mid_bar_measures_the_next_bite_from_the_true_zero() {
 /// real bite.
 #[test]
 fn joined_mid_rise_reports_only_the_next_bite() {
-    let settings = BiteSettings {
-        threshold_knm: 20.0,
-        rearm_knm: 10.0,
-        holdoff_samples: 100,
-        baseline_alpha: 1e-3,
-        saturation_low_knm: -300.0,
-        saturation_high_knm: 300.0,
-        post_trigger_samples: 200,
-    };
-    let detector = BiteDetector::<32, 256>::new(settings).unwrap();
+    let detector = detector();
     let mut state = detector.joining_state();
     let mut events = Vec::new();
     // The rise from 23 to 112 kN*m over 40 samples, 0.5 s rolling, the bar leaves,
