@@ -61,8 +61,15 @@ impl Endpoint for SocketAddr {
 }
 
 /// Send `raw` (a whole HTTP/1.x request) to `to` and read the answer until the server
-/// closes (the request says `connection: close`, or is HTTP/1.0); within 10 s.
+/// closes (the request says `connection: close`, or is HTTP/1.0); within 10 s. Panics
+/// when the exchange fails ([`try_http_raw`] says so instead).
 pub async fn http_raw(to: impl Endpoint, raw: &[u8]) -> HttpAnswer {
+    try_http_raw(to, raw).await.expect("HTTP exchange")
+}
+
+/// [`http_raw`], with a refused connection, a reset or no answer within 10 s as an
+/// error: for a test that asks while the service may be stopping.
+pub async fn try_http_raw(to: impl Endpoint, raw: &[u8]) -> anyhow::Result<HttpAnswer> {
     let address = to.address();
     let exchange = async {
         let mut stream = tokio::net::TcpStream::connect(address).await?;
@@ -73,8 +80,8 @@ pub async fn http_raw(to: impl Endpoint, raw: &[u8]) -> HttpAnswer {
     };
     let bytes = tokio::time::timeout(Duration::from_secs(10), exchange)
         .await
-        .expect("HTTP answer within 10 s")
-        .expect("HTTP exchange");
+        .map_err(|_| anyhow::anyhow!("no HTTP answer from {address} within 10 s"))?
+        .map_err(|e| anyhow::anyhow!("HTTP exchange with {address}: {e}"))?;
     let split = bytes
         .windows(4)
         .position(|w| w == b"\r\n\r\n")
@@ -85,7 +92,7 @@ pub async fn http_raw(to: impl Endpoint, raw: &[u8]) -> HttpAnswer {
         .next()
         .and_then(|line| line.split(' ').nth(1))
         .and_then(|code| code.parse().ok())
-        .unwrap_or_else(|| panic!("no status line in {head:?}"));
+        .ok_or_else(|| anyhow::anyhow!("no status line in {head:?}"))?;
     let headers: Vec<(String, String)> = lines
         .filter_map(|line| line.split_once(':'))
         .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_owned()))
@@ -95,42 +102,46 @@ pub async fn http_raw(to: impl Endpoint, raw: &[u8]) -> HttpAnswer {
         .any(|(k, v)| k == "transfer-encoding" && v.eq_ignore_ascii_case("chunked"));
     let body = &bytes[split.1..];
     let body = match chunked {
-        true => dechunk(body),
+        true => dechunk(body)?,
         false => body.to_vec(),
     };
-    HttpAnswer {
+    Ok(HttpAnswer {
         status,
         headers,
         body: String::from_utf8_lossy(&body).into_owned(),
-    }
+    })
 }
 
-/// The body of a chunked HTTP/1.1 answer (RFC 9112 7.1); panics on a malformed one,
-/// or on one cut short (no last chunk: the server ended the answer early).
-fn dechunk(mut chunked: &[u8]) -> Vec<u8> {
+/// The body of a chunked HTTP/1.1 answer (RFC 9112 7.1); an error for a malformed one,
+/// or for one cut short (no last chunk: the server ended the answer early).
+fn dechunk(mut chunked: &[u8]) -> anyhow::Result<Vec<u8>> {
+    let cut = || anyhow::anyhow!("a chunked answer cut short");
     let mut body = Vec::new();
     loop {
         let line_end = chunked
             .windows(2)
             .position(|w| w == b"\r\n")
-            .expect("a chunk size line (the answer was cut short)");
-        let line = std::str::from_utf8(&chunked[..line_end]).expect("chunk size");
-        let size = usize::from_str_radix(line.split(';').next().unwrap().trim(), 16)
-            .unwrap_or_else(|_| panic!("chunk size {line:?}"));
+            .ok_or_else(cut)?;
+        let line = std::str::from_utf8(&chunked[..line_end])?;
+        let size = usize::from_str_radix(line.split(';').next().unwrap_or("").trim(), 16)
+            .map_err(|_| anyhow::anyhow!("chunk size {line:?}"))?;
         chunked = &chunked[line_end + 2..];
         if size == 0 {
-            return body;
+            return Ok(body);
         }
-        body.extend_from_slice(&chunked[..size]);
-        chunked = &chunked[size + 2..];
+        body.extend_from_slice(chunked.get(..size).ok_or_else(cut)?);
+        chunked = chunked.get(size + 2..).ok_or_else(cut)?;
     }
 }
 
 /// `method path` on `to`.
 pub async fn http(to: impl Endpoint, method: &str, path: &str) -> HttpAnswer {
-    let request =
-        format!("{method} {path} HTTP/1.1\r\nhost: localhost\r\nconnection: close\r\n\r\n");
-    http_raw(to, request.as_bytes()).await
+    http_raw(to, request(method, path).as_bytes()).await
+}
+
+/// A whole HTTP/1.1 request for `method path` that asks the server to close.
+fn request(method: &str, path: &str) -> String {
+    format!("{method} {path} HTTP/1.1\r\nhost: localhost\r\nconnection: close\r\n\r\n")
 }
 
 /// The maintenance page's `/api/overview` at `to`, as JSON.
@@ -142,8 +153,9 @@ pub async fn web_overview(to: impl Endpoint) -> anyhow::Result<serde_json::Value
 
 /// GET /metrics as Prometheus does; checks the status and that every metric family's
 /// samples sit in one block after its `# TYPE` line ([`exposition_blocks`]).
+/// A refused connection is an error, not a panic.
 pub async fn scrape(to: impl Endpoint) -> anyhow::Result<String> {
-    let answer = http(to, "GET", "/metrics").await;
+    let answer = try_http_raw(to, request("GET", "/metrics").as_bytes()).await?;
     anyhow::ensure!(answer.status == 200, "/metrics: {}", answer.body);
     exposition_blocks(&answer.body).map_err(anyhow::Error::msg)?;
     Ok(answer.body)
