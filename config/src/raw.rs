@@ -210,6 +210,7 @@ pub(crate) struct RawProductGroup {
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawContextTags {
     pub(crate) weld: Option<String>,
+    pub(crate) weld_stands: Option<Vec<String>>,
     pub(crate) speed_mpm: Option<String>,
     pub(crate) coil: Option<String>,
     pub(crate) product: Option<String>,

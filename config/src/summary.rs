@@ -191,10 +191,18 @@ fn drivelines(text: &mut String, config: &Config) {
 /// The context tags of a mill or driveline, a line under it; listed only when
 /// configured, so summaries without stay as they were.
 fn context_line(text: &mut String, config: &Config, context: &ContextTags) {
-    let tags: Vec<String> = context
+    let mut tags: Vec<String> = context
         .tags()
         .map(|(key, channel)| format!("{key} <- {}", config.channels[channel].name))
         .collect();
+    if !context.weld_stands.is_empty() {
+        let names: Vec<&str> = context
+            .weld_stands
+            .iter()
+            .map(|&channel| config.channels[channel].name.as_str())
+            .collect();
+        tags.insert(0, format!("weld_stands <- {}", names.join(", ")));
+    }
     if tags.is_empty() {
         return;
     }
@@ -257,7 +265,7 @@ fn tandem_mills(text: &mut String, config: &Config) {
             );
         }
         context_line(text, config, &mill.context);
-        if mill.context.weld.is_some() {
+        if mill.context.has_weld_bits() {
             let _ = writeln!(
                 text,
                 "    weld hold: the alarm needs {} times its level during a weld and {} s after",

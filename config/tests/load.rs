@@ -115,6 +115,28 @@ fn problems(text: &str) -> Vec<String> {
     }
 }
 
+/// Asserts that each case's text (`text(case)`) is rejected with, among others, a
+/// problem starting with `{key}{problem}`.
+fn assert_problems_start(text: impl Fn(&str) -> String, key: &str, cases: &[(&str, &str)]) {
+    for (case, problem) in cases {
+        let found = problems(&text(case));
+        assert!(
+            found
+                .iter()
+                .any(|p| p.starts_with(&format!("{key}{problem}"))),
+            "{case}: {found:#?}"
+        );
+    }
+}
+
+/// A `process_value` channel `name` at holding register `address` of source `plc`.
+fn process_value(name: &str, address: u16) -> String {
+    format!(
+        "[[channels]]\nname = \"{name}\"\nkind = \"process_value\"\nunit = \"1\"\n\
+         source = {{ modbus = \"plc\", table = \"holding\", address = {address} }}\n\n"
+    )
+}
+
 /// 1-based line number of the first line of `BASE` equal to `line`.
 fn line_of(line: &str) -> usize {
     BASE.lines().position(|l| l == line).expect("line in BASE") + 1
@@ -915,20 +937,14 @@ fn context_tags_and_the_weld_hold() {
     // Defaults: no tags; the weld hold from the closed loop (docs/chatter.md).
     assert_eq!(mill.context, ContextTags::default());
     assert_eq!((mill.weld_settle_s, mill.weld_alarm_factor), (10.0, 2.0));
-    let pv = |name: &str, address: u16| {
-        format!(
-            "[[channels]]\nname = \"{name}\"\nkind = \"process_value\"\nunit = \"1\"\n\
-             source = {{ modbus = \"plc\", table = \"holding\", address = {address} }}\n\n"
-        )
-    };
     let with_tags = |tags: &str| {
         edited(
             "[[tandem_mills]]",
             &format!(
                 "{}{}{}[[tandem_mills]]\ncontext = {{ {tags} }}",
-                pv("weld_bit", 20),
-                pv("product_code", 21),
-                pv("line_speed", 22)
+                process_value("weld_bit", 20),
+                process_value("product_code", 21),
+                process_value("line_speed", 22)
             ),
         )
     };
@@ -956,21 +972,19 @@ fn context_tags_and_the_weld_hold() {
     );
 
     let key = "mill.toml: tandem_mills[0].";
-    for (tags, problem) in [
-        ("weld = \"acc0\"", "context.weld: channel \"acc0\" is a acceleration channel (must be process_value)"),
-        ("weld = \"nothing\"", "context.weld: unknown channel \"nothing\""),
-        ("weld = \"weld_bit\", state = \"weld_bit\"", "context.state: channel \"weld_bit\" is already the weld tag (each tag needs its own process value)"),
-        ("product = \"product_code\", products = [101, 101]", "context.products[1]: product 101 is listed twice"),
-        ("product = \"product_code\", products = [-1]", "context.products[0]: -1 is not allowed (must be a product code 0..=4294967295)"),
-        ("products = [101]", "context.products: needs the product tag"),
-        ("weld = \"weld_bit\", colour = \"x\"", "context.colour: unknown field `colour`, expected one of `weld`"),
-    ] {
-        let found = problems(&with_tags(tags));
-        assert!(
-            found.iter().any(|p| p.starts_with(&format!("{key}{problem}"))),
-            "{tags}: {found:#?}"
-        );
-    }
+    assert_problems_start(
+        with_tags,
+        key,
+        &[
+            ("weld = \"acc0\"", "context.weld: channel \"acc0\" is a acceleration channel (must be process_value)"),
+            ("weld = \"nothing\"", "context.weld: unknown channel \"nothing\""),
+            ("weld = \"weld_bit\", state = \"weld_bit\"", "context.state: channel \"weld_bit\" is already the weld tag (each tag needs its own process value)"),
+            ("product = \"product_code\", products = [101, 101]", "context.products[1]: product 101 is listed twice"),
+            ("product = \"product_code\", products = [-1]", "context.products[0]: -1 is not allowed (must be a product code 0..=4294967295)"),
+            ("products = [101]", "context.products: needs the product tag"),
+            ("weld = \"weld_bit\", colour = \"x\"", "context.colour: unknown field `colour`, expected one of `weld`"),
+        ],
+    );
     for (to, problem) in [
         (
             "weld_settle_s = 61.0",
@@ -990,6 +1004,59 @@ fn context_tags_and_the_weld_hold() {
             &[],
         );
     }
+}
+
+#[test]
+fn weld_bits_per_stand_one_per_stand_and_not_with_the_mills_bit() {
+    let with_tags = |tags: &str| {
+        edited(
+            "[[tandem_mills]]",
+            &format!(
+                "{}{}{}[[tandem_mills]]\ncontext = {{ {tags} }}",
+                process_value("weld_1", 20),
+                process_value("weld_2", 21),
+                process_value("weld_bit", 22)
+            ),
+        )
+    };
+    let config = parse(&with_tags("weld_stands = [\"weld_1\", \"weld_2\"]"))
+        .unwrap_or_else(|error| panic!("{error}"));
+    let context = &config.tandem_mills[0].context;
+    let names: Vec<&str> = context
+        .weld_stands
+        .iter()
+        .map(|&c| config.channels[c].name.as_str())
+        .collect();
+    assert_eq!(names, ["weld_1", "weld_2"]);
+    assert_eq!(context.weld, None);
+    assert!(context.has_weld_bits());
+    assert_eq!(
+        context.tags().count(),
+        0,
+        "the stands' bits are not mill tags"
+    );
+    let summary = millgate_config::summary(&config);
+    assert!(
+        summary.contains("context from the PLC: weld_stands <- weld_1, weld_2")
+            && summary.contains("weld hold: the alarm needs 2 times its level"),
+        "{summary}"
+    );
+
+    let key = "mill.toml: tandem_mills[0].context.";
+    assert_problems_start(
+        with_tags,
+        key,
+        &[
+            ("weld_stands = []", "weld_stands: [] is not allowed (must be one weld bit per stand"),
+            ("weld_stands = [\"weld_1\"]", "weld_stands: 1 channels are not allowed (must be one weld bit per stand: 2, in the order of `stands`)"),
+            ("weld_stands = [\"weld_1\", \"weld_2\", \"weld_bit\"]", "weld_stands: 3 channels are not allowed (must be one weld bit per stand: 2"),
+            ("weld = \"weld_bit\", weld_stands = [\"weld_1\", \"weld_2\"]", "weld_stands: is not allowed with `weld` (give the mill's weld bit or one per stand, not both)"),
+            ("weld_stands = [\"weld_1\", \"nothing\"]", "weld_stands[1]: unknown channel \"nothing\""),
+            ("weld_stands = [\"weld_1\", \"acc0\"]", "weld_stands[1]: channel \"acc0\" is a acceleration channel (must be process_value)"),
+            ("weld_stands = [\"weld_1\", \"weld_1\"]", "weld_stands[1]: channel \"weld_1\" is already the weld_stands[0] tag (each tag needs its own process value)"),
+            ("weld_stands = [\"weld_1\", \"weld_2\"], state = \"weld_2\"", "state: channel \"weld_2\" is already the weld_stands[1] tag"),
+        ],
+    );
 }
 
 #[test]
@@ -1135,19 +1202,18 @@ fn driveline_context_and_the_pooled_speed_range() {
         "{summary}"
     );
     let key = "mill.toml: drivelines[0].";
-    for (keys, problem) in [
-        ("context = { weld = \"mill_state\" }", "context.weld: is not allowed on a driveline"),
-        ("context = { state = \"spindle_top\" }", "context.state: channel \"spindle_top\" is a torque channel (must be process_value)"),
-        ("pool_speed_range_mpm = [60.0, 400.0]", "pool_speed_range_mpm: needs the speed tag"),
-        ("context = { speed_mpm = \"mill_speed\" }\npool_speed_range_mpm = [400.0, 60.0]", "pool_speed_range_mpm: [400.0, 60.0] is not allowed (must be [low, high] in m/min with 0 <= low < high)"),
-        ("context = { speed_mpm = \"mill_speed\" }\npool_speed_range_mpm = [-1.0, 60.0]", "pool_speed_range_mpm: [-1.0, 60.0] is not allowed"),
-    ] {
-        let found = problems(&with(keys));
-        assert!(
-            found.iter().any(|p| p.starts_with(&format!("{key}{problem}"))),
-            "{keys}: {found:#?}"
-        );
-    }
+    assert_problems_start(
+        with,
+        key,
+        &[
+            ("context = { weld = \"mill_state\" }", "context.weld: is not allowed on a driveline"),
+            ("context = { weld_stands = [\"mill_state\"] }", "context.weld_stands: is not allowed on a driveline"),
+            ("context = { state = \"spindle_top\" }", "context.state: channel \"spindle_top\" is a torque channel (must be process_value)"),
+            ("pool_speed_range_mpm = [60.0, 400.0]", "pool_speed_range_mpm: needs the speed tag"),
+            ("context = { speed_mpm = \"mill_speed\" }\npool_speed_range_mpm = [400.0, 60.0]", "pool_speed_range_mpm: [400.0, 60.0] is not allowed (must be [low, high] in m/min with 0 <= low < high)"),
+            ("context = { speed_mpm = \"mill_speed\" }\npool_speed_range_mpm = [-1.0, 60.0]", "pool_speed_range_mpm: [-1.0, 60.0] is not allowed"),
+        ],
+    );
 }
 
 #[test]

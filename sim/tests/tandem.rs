@@ -463,6 +463,7 @@ fn a_run_advanced_in_pieces_is_the_run_advanced_at_once() -> anyhow::Result<()> 
         time_s: 1.3,
         duration_s: 0.7,
         factor: 4.0,
+        stand: None,
     });
     let ramp = SpeedRamp {
         start: 1.0,

@@ -244,6 +244,11 @@ pub struct ContextTags {
     /// stand until it has left the last); index into
     /// [`Config::channels`](crate::Config::channels).
     pub weld: Option<usize>,
+    /// The weld-tracking bits per stand (`weld_stands`, one per stand in the mill's
+    /// order, 0/1: 1 while the weld is in that stand); indices into
+    /// [`Config::channels`](crate::Config::channels). Empty: none (exclusive with
+    /// [`Self::weld`]).
+    pub weld_stands: Vec<usize>,
     /// Mill speed, m/min.
     pub speed_mpm: Option<usize>,
     /// Coil or bar id (a whole number; u32 registers).
@@ -262,7 +267,13 @@ pub struct ContextTags {
 }
 
 impl ContextTags {
-    /// The tags' keys and channels, in the documentation's order, those configured.
+    /// Whether a weld bit is configured: the mill's or one per stand.
+    pub fn has_weld_bits(&self) -> bool {
+        self.weld.is_some() || !self.weld_stands.is_empty()
+    }
+
+    /// The tags' keys and channels, in the documentation's order, those configured
+    /// (the per-stand weld bits are in [`Self::weld_stands`], not here).
     pub fn tags(&self) -> impl Iterator<Item = (&'static str, usize)> + '_ {
         [
             ("weld", self.weld),

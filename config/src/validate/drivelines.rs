@@ -136,9 +136,14 @@ impl Checker<'_> {
         facts: &ChannelFacts<'_>,
     ) -> Option<ContextTags> {
         let tags = self.context_tags(key, raw, facts);
-        if raw.weld.is_some() {
+        let weld_key = if raw.weld.is_some() {
+            Some("weld")
+        } else {
+            raw.weld_stands.as_ref().map(|_| "weld_stands")
+        };
+        if let Some(weld_key) = weld_key {
             self.report.push(
-                format!("{key}.weld"),
+                format!("{key}.{weld_key}"),
                 "is not allowed on a driveline (the weld bit holds a tandem mill's chatter \
                  alarm off; a driveline's bites are gated by state and speed)",
             );

@@ -92,6 +92,8 @@ impl Checker<'_> {
             Some(tags) => self.context_tags(&format!("{key}.context"), tags, facts),
             None => Some(ContextTags::default()),
         };
+        let context = context
+            .filter(|tags| self.weld_stand_count(key, tags, stands_ok.then_some(stands.len())));
         let product_groups = self.product_groups(
             key,
             raw,
@@ -235,8 +237,8 @@ impl Checker<'_> {
         facts: &ChannelFacts<'_>,
     ) -> Option<ContextTags> {
         let mut ok = true;
-        let mut seen: Vec<(&str, String)> = Vec::new();
-        let mut tag = |checker: &mut Self, name: &'static str, channel: &Option<String>| {
+        let mut seen: Vec<(String, String)> = Vec::new();
+        let mut tag = |checker: &mut Self, name: &str, channel: &Option<String>| {
             let channel = channel.as_deref()?;
             let tag_key = format!("{key}.{name}");
             if let Some((other, _)) = seen.iter().find(|(_, c)| *c == channel) {
@@ -250,13 +252,36 @@ impl Checker<'_> {
                 ok = false;
                 return None;
             }
-            seen.push((name, channel.to_owned()));
+            seen.push((name.to_owned(), channel.to_owned()));
             let index = checker.channel_ref(&tag_key, channel, facts, ChannelKind::ProcessValue);
             ok &= index.is_some();
             index
         };
+        let weld = tag(self, "weld", &raw.weld);
+        let mut weld_stands = Vec::new();
+        let both_welds = raw.weld.is_some() && raw.weld_stands.is_some();
+        if both_welds {
+            self.report.push(
+                format!("{key}.weld_stands"),
+                "is not allowed with `weld` (give the mill's weld bit or one per stand, not \
+                 both)",
+            );
+        }
+        let no_stands = raw.weld_stands.as_ref().is_some_and(Vec::is_empty);
+        if no_stands {
+            self.report.push(
+                format!("{key}.weld_stands"),
+                "[] is not allowed (must be one weld bit per stand, in the order of `stands`)",
+            );
+        }
+        for (stand, channel) in raw.weld_stands.iter().flatten().enumerate() {
+            let name = format!("weld_stands[{stand}]");
+            // A channel that fails is reported (and fails the tags) by `tag`.
+            weld_stands.extend(tag(self, &name, &Some(channel.clone())));
+        }
         let tags = ContextTags {
-            weld: tag(self, "weld", &raw.weld),
+            weld,
+            weld_stands,
             speed_mpm: tag(self, "speed_mpm", &raw.speed_mpm),
             coil: tag(self, "coil", &raw.coil),
             product: tag(self, "product", &raw.product),
@@ -292,7 +317,26 @@ impl Checker<'_> {
             );
             ok = false;
         }
-        ok.then_some(ContextTags { products, ..tags })
+        (ok && !both_welds && !no_stands).then_some(ContextTags { products, ..tags })
+    }
+
+    /// Whether the mill at `key` with `stands` stands (`None`: its list failed) has
+    /// one weld bit per stand in `tags.weld_stands` (or none).
+    fn weld_stand_count(&mut self, key: &str, tags: &ContextTags, stands: Option<usize>) -> bool {
+        match stands {
+            Some(stands) if !tags.weld_stands.is_empty() && tags.weld_stands.len() != stands => {
+                self.report.push(
+                    format!("{key}.context.weld_stands"),
+                    format!(
+                        "{} channels are not allowed (must be one weld bit per stand: {stands}, \
+                         in the order of `stands`)",
+                        tags.weld_stands.len()
+                    ),
+                );
+                false
+            }
+            _ => true,
+        }
     }
 
     /// `capture_before_s`, `capture_after_s` and `capture_max_s` of the mill at `key`.

@@ -20,7 +20,7 @@ use std::time::{Duration, Instant};
 use millgate_config::{ChannelSource, Config, ContextTags};
 
 use crate::state::context::{
-    BiteGate, ContextError, ContextReading, ProcessContext, RawContext, StaleTags,
+    any_weld, BiteGate, ContextError, ContextReading, ProcessContext, RawContext, StaleTags,
 };
 
 /// Poll periods of its channel after which a context value is no longer used (at
@@ -81,8 +81,10 @@ impl ContextTracker {
         config: &Config,
         speed_range_mpm: Option<(f64, f64)>,
     ) -> Option<Self> {
+        // A tandem mill's per-stand weld bits make its `weld`: 1 while any stand has it.
         let configured: Vec<_> = tags
             .tags()
+            .chain(tags.weld_stands.iter().map(|&channel| ("weld", channel)))
             .map(|(key, channel)| (key, channel, max_age(config, channel)))
             .collect();
         (!configured.is_empty()).then(|| Self {
@@ -120,7 +122,10 @@ impl ContextTracker {
                 stale.insert(key);
             }
             let field = match key {
-                "weld" => &mut raw.weld,
+                "weld" => {
+                    raw.weld = any_weld(raw.weld, fresh);
+                    continue;
+                }
                 "speed_mpm" => &mut raw.speed_mpm,
                 "coil" => &mut raw.coil,
                 "product" => &mut raw.product,

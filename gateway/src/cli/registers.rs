@@ -147,8 +147,8 @@ pub fn export(map: &RegisterMap, output: Option<&PlcOutput>, format: Format) -> 
 struct ContextInput<'a> {
     /// The mill or driveline whose tag it is.
     subject: &'a str,
-    /// `weld`, `speed_mpm`, ... (the `context` table's key).
-    tag: &'static str,
+    /// `weld`, `weld_stands[0]`, `speed_mpm`, ... (the `context` table's key).
+    tag: String,
     /// The `process_value` channel.
     channel: &'a str,
     /// The source (a `[[sources.modbus]]` or `[[sources.can]]` name).
@@ -167,6 +167,7 @@ struct ContextInput<'a> {
 fn allowed(tag: &str, products: &[u32]) -> String {
     match tag {
         "weld" => "0 or 1 (1 while a weld is in the mill)".to_owned(),
+        _ if tag.starts_with("weld_stands") => "0 or 1 (1 while a weld is in the stand)".to_owned(),
         "speed_mpm" => ">= 0 m/min".to_owned(),
         "thickness_mm" => "> 0 mm".to_owned(),
         "state" => "0 idle, 1 threading, 2 rolling, 3 maintenance".to_owned(),
@@ -194,7 +195,16 @@ fn context_inputs(config: &Config) -> Vec<ContextInput<'_>> {
     let mut inputs = Vec::new();
     for (subject, tags) in subjects {
         let tags: &ContextTags = tags;
-        for (tag, channel) in tags.tags() {
+        let weld_stands = tags
+            .weld_stands
+            .iter()
+            .enumerate()
+            .map(|(stand, &channel)| (format!("weld_stands[{stand}]"), channel));
+        let all = tags
+            .tags()
+            .map(|(tag, channel)| (tag.to_owned(), channel))
+            .chain(weld_stands);
+        for (tag, channel) in all {
             let channel = &config.channels[channel];
             let (source, table, address, encoding) = match &channel.source {
                 ChannelSource::ModbusValue {
@@ -232,13 +242,13 @@ fn context_inputs(config: &Config) -> Vec<ContextInput<'_>> {
             };
             inputs.push(ContextInput {
                 subject,
+                allowed: allowed(&tag, &tags.products),
                 tag,
                 channel: &channel.name,
                 source,
                 table,
                 address,
                 encoding,
-                allowed: allowed(tag, &tags.products),
             });
         }
     }

@@ -51,6 +51,24 @@ pub(crate) enum RecordingError {
         /// The CSV's columns, comma-separated.
         columns: String,
     },
+    /// The CSV has weld-bit columns for some stands, not all.
+    #[error(
+        "{recording}: line 1: no column `{column}`: weld-bit columns per stand (`weld_1` .. \
+         `weld_{stands}`) must be given for every stand of tandem mill \"{mill}\" or none \
+         (columns: {columns})"
+    )]
+    WeldStandColumns {
+        /// The file, as given.
+        recording: String,
+        /// The first missing column.
+        column: String,
+        /// Stands of the mill.
+        stands: usize,
+        /// The tandem mill.
+        mill: String,
+        /// The CSV's columns, comma-separated.
+        columns: String,
+    },
     /// The CSV's time column is not uniform.
     #[error("{recording}: {error}")]
     Uneven {
@@ -100,7 +118,8 @@ pub(crate) enum RecordingError {
 /// Reads the CSV at `path` for mill `index` of `config`: a column per stand channel
 /// (named as the channel), sampled at the channels' rate, and `speed_column` when
 /// given; the context columns ([`ContextColumns::NAMES`]: `weld`, `speed_mpm`,
-/// `coil`, `product`) when present. Errors name the file and why.
+/// `coil`, `product`, and the per-stand weld bits `weld_1` .. `weld_N` for all stands
+/// or none) when present. Errors name the file and why.
 pub(crate) fn read(
     path: &Path,
     config: &Config,
@@ -140,8 +159,25 @@ pub(crate) fn read(
         }
     };
     let column = |name: &str| table.channel(name).map(<[f64]>::to_vec);
+    let stand_welds: Vec<Option<Vec<f64>>> = (0..mill.stands.len())
+        .map(|stand| column(&ContextColumns::weld_stand_column(stand)))
+        .collect();
+    let weld_stands = if stand_welds.iter().all(Option::is_none) {
+        None
+    } else if let Some(missing) = stand_welds.iter().position(Option::is_none) {
+        return Err(RecordingError::WeldStandColumns {
+            recording,
+            column: ContextColumns::weld_stand_column(missing),
+            stands: mill.stands.len(),
+            mill: mill.name.clone(),
+            columns: table.names.join(", "),
+        });
+    } else {
+        Some(stand_welds.into_iter().flatten().collect())
+    };
     let mut context = ContextColumns {
         weld: column("weld"),
+        weld_stands,
         speed_mpm: column("speed_mpm"),
         coil: column("coil"),
         product: column("product"),

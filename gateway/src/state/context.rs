@@ -220,6 +220,18 @@ impl RawContext {
     }
 }
 
+/// The mill's weld bit from `so_far` (the bits combined before) and `next` (a
+/// stand's, `weld_stands`): 1 when any is 1, an impossible value kept (it makes the
+/// context invalid); a missing value is left out.
+pub fn any_weld(so_far: Option<f64>, next: Option<f64>) -> Option<f64> {
+    let bit = |value: f64| value == 0.0 || value == 1.0;
+    match (so_far, next) {
+        (Some(a), Some(b)) if bit(a) && bit(b) => Some(a.max(b)),
+        (Some(a), Some(b)) => Some(if bit(a) { b } else { a }),
+        (a, b) => a.or(b),
+    }
+}
+
 /// The context tags' keys, in the configuration's order ([`StaleTags`] bit `i` is
 /// key `i`).
 pub const CONTEXT_KEYS: [&str; 7] = [
@@ -398,6 +410,21 @@ mod tests {
         let mut any = raw;
         any.product = Some(7.0);
         assert_eq!(any.check(&[]).unwrap().product, Some(7));
+    }
+
+    #[test]
+    fn the_stands_weld_bits_make_the_mills_and_keep_an_impossible_one() {
+        assert_eq!(any_weld(Some(0.0), Some(1.0)), Some(1.0));
+        assert_eq!(any_weld(Some(0.0), Some(0.0)), Some(0.0));
+        assert_eq!(any_weld(None, Some(0.0)), Some(0.0));
+        assert_eq!(any_weld(Some(1.0), None), Some(1.0));
+        assert_eq!(any_weld(Some(1.0), Some(0.5)), Some(0.5));
+        assert_eq!(any_weld(Some(2.0), Some(1.0)), Some(2.0));
+        let raw = RawContext {
+            weld: any_weld(Some(1.0), Some(3.0)),
+            ..RawContext::default()
+        };
+        assert_eq!(raw.check(&[]), Err(ContextError::Weld(3.0)));
     }
 
     #[test]

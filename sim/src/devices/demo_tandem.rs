@@ -129,6 +129,7 @@ pub fn tandem_mill(weld_settle_s: f64) -> Result<(TandemMill, TandemScript), Dem
             time_s: WELD_AT_S,
             duration_s: WELD_S,
             factor: WELD_FACTOR,
+            stand: None,
         },
         ramp_at_s: WELD_AT_S + WELD_S + weld_settle_s,
         setpoint_m_s: SETPOINT_OF_CRITICAL * critical_m_s,

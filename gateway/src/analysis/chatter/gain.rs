@@ -25,6 +25,12 @@ pub struct GainReading {
     /// The largest `gain[s] / gain_thresholds[s]` (>= 1: the band-gain alarm) and the
     /// stand (index in the mill) it belongs to; `None` without thresholds.
     pub ratio: Option<(f64, usize)>,
+    /// Each stand's `gain[s] / gain_thresholds[s]`, in the mill's order (the first
+    /// `stands` entries; the rest 0); all 0 without thresholds. The weld hold judges
+    /// each stand by its own level ([`super::SlowDown::stand_alarm_scale`]).
+    pub stand_ratios: [f64; MAX_STANDS],
+    /// Stands in [`Self::stand_ratios`] (0 without thresholds).
+    pub stands: usize,
 }
 
 impl GainReading {
@@ -46,11 +52,29 @@ impl GainReading {
                     }
                 })
         });
+        let mut stand_ratios = [0.0; MAX_STANDS];
+        let stands = if ratio.is_some() {
+            for ((slot, gain), threshold) in
+                stand_ratios.iter_mut().zip(&window.gain).zip(thresholds)
+            {
+                *slot = gain / threshold;
+            }
+            thresholds.len().min(MAX_STANDS)
+        } else {
+            0
+        };
         Self {
             max_gain: window.max_gain(),
             max_band_rms: window.max_band_rms(),
             ratio,
+            stand_ratios,
+            stands,
         }
+    }
+
+    /// Each stand's gain ratio (empty without thresholds).
+    pub fn stand_ratios(&self) -> &[f64] {
+        &self.stand_ratios[..self.stands]
     }
 }
 

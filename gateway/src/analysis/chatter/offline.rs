@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use millgate_config::Config;
 use millgate_dsp::band_gain::BandGainWindow;
-use millgate_dsp::chatter::ChatterResult;
+use millgate_dsp::chatter::{ChatterResult, MAX_STANDS};
 use rustfft::num_complex::Complex;
 use rustfft::FftPlanner;
 
@@ -17,7 +17,7 @@ use super::capture::ANCHOR_BLOCK;
 use super::monitor::{ChatterMonitor, ChatterSetupError, ChatterUpdate};
 use super::verdict::Verdict;
 use crate::state::captures::{CaptureBands, ChatterEpisode, StandSpectrum};
-use crate::state::context::{ContextError, ProcessContext, RawContext};
+use crate::state::context::{any_weld, ContextError, ProcessContext, RawContext};
 
 /// One recording of a tandem mill's stands (read by `crate::records::stands` from
 /// a CSV or a capture, or simulated by the experiments).
@@ -41,6 +41,9 @@ pub struct Recording {
 pub struct ContextColumns {
     /// The PLC's weld-tracking bit (0/1).
     pub weld: Option<Vec<f64>>,
+    /// The PLC's weld-tracking bits per stand (a CSV's `weld_1` .. `weld_N`, stand 1
+    /// first), each 0/1: 1 while the weld is in that stand.
+    pub weld_stands: Option<Vec<Vec<f64>>>,
     /// Mill speed, m/min.
     pub speed_mpm: Option<Vec<f64>>,
     /// Coil id.
@@ -52,22 +55,64 @@ pub struct ContextColumns {
 }
 
 impl ContextColumns {
-    /// The column names read when present, in this order.
+    /// The column names read when present, in this order (the per-stand weld bits
+    /// after `weld`: [`Self::weld_stand_column`]).
     pub const NAMES: [&'static str; 4] = ["weld", "speed_mpm", "coil", "product"];
+
+    /// The name of stand `stand`'s weld-bit column (index in the mill; `weld_1` is
+    /// the first stand's).
+    pub fn weld_stand_column(stand: usize) -> String {
+        format!("weld_{}", stand + 1)
+    }
+
+    /// The names of the columns recorded, in [`Self::NAMES`] order.
+    pub fn names(&self) -> Vec<String> {
+        let mut names = Vec::new();
+        if self.weld.is_some() {
+            names.push("weld".to_owned());
+        }
+        for stand in 0..self.weld_stands.as_ref().map_or(0, Vec::len) {
+            names.push(Self::weld_stand_column(stand));
+        }
+        for (name, present) in Self::NAMES[1..].iter().zip([
+            self.speed_mpm.is_some(),
+            self.coil.is_some(),
+            self.product.is_some(),
+        ]) {
+            if present {
+                names.push((*name).to_owned());
+            }
+        }
+        names
+    }
+
+    /// Stand `stand`'s weld bit at sample `k`, when recorded.
+    pub fn stand_weld(&self, stand: usize, k: usize) -> Option<f64> {
+        self.weld_stands
+            .as_ref()
+            .and_then(|stands| stands.get(stand))
+            .and_then(|column| column.get(k).copied())
+    }
 
     /// True when no context column was recorded.
     pub fn is_empty(&self) -> bool {
         self.weld.is_none()
+            && self.weld_stands.is_none()
             && self.speed_mpm.is_none()
             && self.coil.is_none()
             && self.product.is_none()
     }
 
-    /// The values at sample `k`.
+    /// The values at sample `k`; `weld` is the mill's bit and the stands' combined
+    /// ([`any_weld`]: 1 when any is).
     pub fn at(&self, k: usize) -> RawContext {
         let value = |column: &Option<Vec<f64>>| column.as_ref().and_then(|c| c.get(k).copied());
+        let stands = self.weld_stands.as_ref().map_or(0, Vec::len);
+        let weld = (0..stands).fold(value(&self.weld), |weld, stand| {
+            any_weld(weld, self.stand_weld(stand, k))
+        });
         RawContext {
-            weld: value(&self.weld),
+            weld,
             speed_mpm: value(&self.speed_mpm),
             coil: value(&self.coil),
             product: value(&self.product),
@@ -148,7 +193,8 @@ pub fn windows(
 
 /// As [`windows`], with the process context recorded beside the stands: a block in
 /// which the weld bit was set starts (or continues) the weld hold of the slow-down
-/// request, as the service does with the live bit ([`super::SlowDown::weld`]); the
+/// request, as the service does with the live bit ([`super::SlowDown::weld`]; a
+/// stand's bit for that stand only, [`super::SlowDown::weld_at`]); the
 /// product of a block's last valid sample picks the thresholds its windows are judged
 /// by (its product group's, else the mill's: [`ChatterMonitor::use_product`]; a block
 /// whose last sample is invalid falls back to the mill's, as a stale product does in
@@ -173,10 +219,15 @@ pub fn windows_in_context(
         let mut last_context = None;
         if !context.is_empty() {
             let mut weld = false;
+            let mut stand_welds = [false; MAX_STANDS];
             for k in start..end {
                 match context.at(k).check(&[]) {
                     Ok(checked) => {
-                        weld |= checked.weld == Some(true);
+                        // Checked: every bit recorded is 0 or 1.
+                        weld |= context.weld.as_ref().and_then(|c| c.get(k)) == Some(&1.0);
+                        for (stand, set) in stand_welds.iter_mut().enumerate() {
+                            *set |= context.stand_weld(stand, k) == Some(1.0);
+                        }
                         last_context = Some(checked);
                     }
                     Err(error) => {
@@ -188,6 +239,9 @@ pub fn windows_in_context(
             }
             if weld {
                 slow_down.weld();
+            }
+            for (stand, _) in stand_welds.iter().enumerate().filter(|(_, set)| **set) {
+                slow_down.weld_at(stand);
             }
         }
         monitor.use_product(last_context.and_then(|c| c.product));

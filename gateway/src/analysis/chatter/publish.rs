@@ -39,7 +39,9 @@ use crate::state::time::UtcTime;
 /// periods of its channel (a bit the PLC no longer delivers, its source stale, holds
 /// nothing off). A value that is not 0 or 1 is not used and is counted
 /// (`context_invalid`); a window whose alarm the hold kept off is counted
-/// (`weld_held_off`).
+/// (`weld_held_off`). **Per stand** (`context.weld_stands`): each stand's bit does the
+/// same for that stand's level only ([`SlowDown::weld_at`]); the counts are the
+/// mill's, as with the mill's bit.
 ///
 /// **The product** (a mill's `context.product` tag, with `product_groups`): the latest
 /// valid product code, while younger than `WELD_BIT_POLLS` poll periods of its channel,
@@ -61,12 +63,10 @@ pub struct ChatterAnalysis {
     captures: Vec<Option<EpisodeRecorder>>,
     /// Per channel: the (mill, stand) pairs it feeds.
     by_channel: Vec<Vec<(usize, usize)>>,
-    /// Per channel: the mills whose weld bit it is.
-    weld_by_channel: Vec<Vec<usize>>,
-    /// Per mill, the latest valid weld bit and when it was read.
-    weld_bits: Vec<Option<(bool, Instant)>>,
-    /// Per mill, the oldest weld bit still used ([`WELD_BIT_POLLS`] poll periods).
-    weld_max_age: Vec<Duration>,
+    /// Per channel: the weld bits it is (mill, index in `weld_bits[mill]`).
+    weld_by_channel: Vec<Vec<(usize, usize)>>,
+    /// Per mill, its weld bits: the mill's, or one per stand.
+    weld_bits: Vec<Vec<WeldBit>>,
     /// Per mill with context tags, their latest values: the context its episodes and
     /// captures carry.
     contexts: Vec<Option<ContextTracker>>,
@@ -87,13 +87,44 @@ pub struct ChatterAnalysis {
 /// no longer used.
 pub(super) const WELD_BIT_POLLS: f64 = 3.0;
 
+/// One weld-tracking bit of a mill: the mill's (`context.weld`) or a stand's
+/// (`context.weld_stands`).
+#[derive(Debug, Clone)]
+struct WeldBit {
+    /// The stand (index in the mill) it tracks; `None`: the whole mill.
+    stand: Option<usize>,
+    /// The oldest value still used ([`WELD_BIT_POLLS`] poll periods).
+    max_age: Duration,
+    /// The latest valid value and when it was read.
+    latest: Option<(bool, Instant)>,
+}
+
+impl WeldBit {
+    /// Start (or continue) the weld hold this bit gives in `slow_down`.
+    fn hold(&self, slow_down: &mut SlowDown) {
+        match self.stand {
+            None => slow_down.weld(),
+            Some(stand) => slow_down.weld_at(stand),
+        }
+    }
+
+    /// Hold `slow_down` when the latest value at `now` is a fresh 1.
+    fn hold_if_set(&self, slow_down: &mut SlowDown, now: Instant) {
+        if let Some((true, at)) = self.latest {
+            if now.saturating_duration_since(at) <= self.max_age {
+                self.hold(slow_down);
+            }
+        }
+    }
+}
+
 impl ChatterAnalysis {
     /// Monitors for every tandem mill of `config`.
     pub fn new(config: &Config, board: Arc<Board>) -> Result<Self, ChatterSetupError> {
         let mut by_channel = vec![Vec::new(); config.channels.len()];
         let mut weld_by_channel = vec![Vec::new(); config.channels.len()];
         let mut product_by_channel = vec![Vec::new(); config.channels.len()];
-        let mut weld_max_age = Vec::new();
+        let mut weld_bits = Vec::new();
         let mut product_max_age = Vec::new();
         let mut contexts = Vec::new();
         let mut context_by_channel = vec![Vec::new(); config.channels.len()];
@@ -107,13 +138,34 @@ impl ChatterAnalysis {
             for (s, &channel) in mill.stands.iter().enumerate() {
                 by_channel[channel].push((m, s));
             }
-            if let Some(weld) = mill.context.weld {
-                weld_by_channel[weld].push(m);
+            let bits: Vec<(usize, Option<usize>)> = mill
+                .context
+                .weld
+                .map(|channel| (channel, None))
+                .into_iter()
+                .chain(
+                    mill.context
+                        .weld_stands
+                        .iter()
+                        .enumerate()
+                        .map(|(stand, &channel)| (channel, Some(stand))),
+                )
+                .collect();
+            for (slot, &(channel, _)) in bits.iter().enumerate() {
+                weld_by_channel[channel].push((m, slot));
             }
+            weld_bits.push(
+                bits.iter()
+                    .map(|&(channel, stand)| WeldBit {
+                        stand,
+                        max_age: max_age(Some(channel)),
+                        latest: None,
+                    })
+                    .collect(),
+            );
             if let Some(product) = mill.context.product {
                 product_by_channel[product].push(m);
             }
-            weld_max_age.push(max_age(mill.context.weld));
             product_max_age.push(max_age(mill.context.product));
             let tracker = ContextTracker::new(&mill.context, config, None);
             for channel in tracker.iter().flat_map(ContextTracker::channels) {
@@ -133,11 +185,10 @@ impl ChatterAnalysis {
         Ok(Self {
             slow_downs: monitors.iter().map(ChatterMonitor::slow_down).collect(),
             captures,
-            weld_bits: vec![None; monitors.len()],
+            weld_bits,
             monitors,
             by_channel,
             weld_by_channel,
-            weld_max_age,
             contexts,
             context_by_channel,
             product_by_channel,
@@ -161,8 +212,9 @@ impl ChatterAnalysis {
                 tracker.value(channel, value, now);
             }
         }
-        for m in 0..self.weld_by_channel.get(channel).map_or(0, Vec::len) {
-            let mill = self.weld_by_channel[channel][m];
+        for w in 0..self.weld_by_channel.get(channel).map_or(0, Vec::len) {
+            let (mill, slot) = self.weld_by_channel[channel][w];
+            let weld = &mut self.weld_bits[mill][slot];
             let raw = RawContext {
                 weld: Some(value),
                 ..RawContext::default()
@@ -170,13 +222,13 @@ impl ChatterAnalysis {
             match raw.check(&[]) {
                 Ok(context) => {
                     let bit = context.weld == Some(true);
-                    self.weld_bits[mill] = Some((bit, now));
+                    weld.latest = Some((bit, now));
                     if bit {
-                        self.slow_downs[mill].weld();
+                        weld.hold(&mut self.slow_downs[mill]);
                     }
                 }
                 Err(error) => {
-                    let was_valid = self.weld_bits[mill].take().is_some();
+                    let was_valid = weld.latest.take().is_some();
                     self.invalid_context(mill, &error, was_valid);
                 }
             }
@@ -310,10 +362,8 @@ impl ChatterAnalysis {
                 let context = self.contexts[mill]
                     .as_ref()
                     .map(|tracker| tracker.reading(now));
-                if let Some((true, at)) = self.weld_bits[mill] {
-                    if now.saturating_duration_since(at) <= self.weld_max_age[mill] {
-                        self.slow_downs[mill].weld();
-                    }
+                for weld in &self.weld_bits[mill] {
+                    weld.hold_if_set(&mut self.slow_downs[mill], now);
                 }
                 let warning = publish(
                     &self.board,
@@ -526,6 +576,19 @@ mod tests {
         context_channel: usize,
         context: impl Fn(usize) -> Option<f64>,
     ) -> (TandemMillResults, Vec<Option<f64>>) {
+        run_with_values(config, |block| {
+            context(block)
+                .map(|value| (context_channel, value))
+                .into_iter()
+                .collect()
+        })
+    }
+
+    /// [`run_with`] with `values(block)` (channel, value) sent before each block.
+    fn run_with_values(
+        config: &Config,
+        values: impl Fn(usize) -> Vec<(usize, f64)>,
+    ) -> (TandemMillResults, Vec<Option<f64>>) {
         let board = Arc::new(Board::new(config, Vec::new()));
         let mut analysis = ChatterAnalysis::new(config, Arc::clone(&board)).expect("analysis");
         let recording = lines_recording(15_000, |_| 0.8);
@@ -535,11 +598,8 @@ mod tests {
         let t0 = Instant::now();
         for (block, start) in (0..recording.len()).step_by(120).enumerate() {
             let now = t0 + Duration::from_millis(48) * block as u32;
-            if let Some(value) = context(block) {
-                let message = Acquired::ProcessValue {
-                    channel: context_channel,
-                    value,
-                };
+            for (channel, value) in values(block) {
+                let message = Acquired::ProcessValue { channel, value };
                 analysis.handle_at(&message, now);
             }
             for (stand, &channel) in stands.iter().enumerate() {
@@ -609,6 +669,69 @@ mod tests {
         assert!(ratios[86].is_some_and(|r| r > 1.2), "{ratios:?}");
         assert_eq!(switched.thresholds_group, Some(0));
         assert!(switched.chatter_alarm && switched.slow_down_request);
+    }
+
+    /// The example tandem mill with a weld bit per stand on the PLC; their channels.
+    fn mill_with_weld_stands() -> (Config, Vec<usize>) {
+        let examples = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/examples");
+        let text = std::fs::read_to_string(examples.join("tandem-5stand.toml")).expect("example");
+        let channels: String = (1..=5)
+            .map(|s| {
+                format!(
+                    "[[channels]]\nname = \"weld_s{s}\"\nkind = \"process_value\"\nunit = \"1\"\n\
+                     source = {{ modbus = \"mill_plc\", table = \"holding\", address = {} }}\n\n",
+                    10 + s
+                )
+            })
+            .collect();
+        let text = text.replacen(
+            "[[tandem_mills]]",
+            &format!(
+                "{channels}[[tandem_mills]]\ncontext = {{ weld_stands = [\"weld_s1\", \"weld_s2\", \
+                 \"weld_s3\", \"weld_s4\", \"weld_s5\"] }}"
+            ),
+            1,
+        );
+        let config = millgate_config::from_toml_str(&text, "tandem.toml", &examples)
+            .unwrap_or_else(|error| panic!("{error}"));
+        let welds = config.tandem_mills[0].context.weld_stands.clone();
+        (config, welds)
+    }
+
+    #[test]
+    fn a_stands_live_weld_bit_holds_that_stand_only_and_an_impossible_one_is_counted() {
+        // The line at gain 1.6: 1.35 times stand 1's threshold, 1.07 times stand 2's
+        // (with margin: 1.0 the hold's 2 would hold both), below the others'.
+        let (config, welds) = mill_with_weld_stands();
+        let bits = |set: &'static [usize], value: f64| {
+            let welds = welds.clone();
+            move |_| -> Vec<(usize, f64)> {
+                welds
+                    .iter()
+                    .enumerate()
+                    .map(|(stand, &channel)| {
+                        (channel, if set.contains(&stand) { value } else { 0.0 })
+                    })
+                    .collect()
+            }
+        };
+        // The weld in stands 1 and 2: both held, nothing raised, counted.
+        let (both, _) = run_with_values(&config, bits(&[0, 1], 1.0));
+        assert!(!both.chatter_alarm && !both.slow_down_request, "{both:?}");
+        assert!(both.weld_held_off > 10, "{both:?}");
+        assert_eq!(both.context_invalid, 0);
+        // In stand 1 only: stand 2 is judged at its plain level.
+        let (first, _) = run_with_values(&config, bits(&[0], 1.0));
+        assert!(first.chatter_alarm && first.slow_down_request, "{first:?}");
+        // In stand 3 only: as without a weld (stand 1's ratio raises it).
+        let (third, _) = run_with_values(&config, bits(&[2], 1.0));
+        assert!(third.slow_down_request, "{third:?}");
+        assert_eq!(third.weld_held_off, 0, "{third:?}");
+        // Stands 1 and 2 at 0.5: no bit, counted per value, not used.
+        let (invalid, _) = run_with_values(&config, bits(&[0, 1], 0.5));
+        assert!(invalid.slow_down_request, "{invalid:?}");
+        assert_eq!(invalid.context_invalid, 250, "two per block");
+        assert_eq!(invalid.weld_held_off, 0);
     }
 
     #[test]

@@ -19,9 +19,15 @@
 //! request already set is not changed (a request is never cleared sooner because of a
 //! weld), and a window whose alarm the hold kept off is marked ([`Verdict::held_off`]).
 //! Without a weld bit (none configured, stale or invalid) nothing is held off.
+//!
+//! **Per stand** (`context.weld_stands`, a bit per stand): each stand's band-gain ratio
+//! is judged against its own level, raised while the weld is in *that* stand and
+//! `weld_settle_s` after its bit fell ([`SlowDown::weld_at`]); the other stands keep
+//! their plain level, so chatter at a stand the weld has left (or not reached) is
+//! caught as without a weld. The mill's bit ([`SlowDown::weld`]) raises every stand's.
 
 use millgate_config::ChatterDetectorKind;
-use millgate_dsp::chatter::ChatterResult;
+use millgate_dsp::chatter::{ChatterResult, MAX_STANDS};
 
 use super::gain::GainReading;
 
@@ -67,8 +73,9 @@ pub struct SlowDown {
     /// Time the alarm figure has stayed below the release level while requested, s.
     below_s: f64,
     weld: WeldHold,
-    /// Trusted time since the weld bit was last seen set, s; `None`: no weld seen.
-    since_weld_s: Option<f64>,
+    /// Per stand (index in the mill), trusted time since its weld bit (or the mill's)
+    /// was last seen set, s; `None`: no weld seen.
+    since_weld_s: [Option<f64>; MAX_STANDS],
 }
 
 impl SlowDown {
@@ -86,30 +93,67 @@ impl SlowDown {
             requested: false,
             below_s: 0.0,
             weld,
-            since_weld_s: None,
+            since_weld_s: [None; MAX_STANDS],
         }
     }
 
-    /// The PLC's weld bit was seen set since the previous window: the hold starts (or
-    /// goes on), its settle time counts from the next window.
+    /// The PLC's weld bit for the mill was seen set since the previous window: the
+    /// hold starts (or goes on) at every stand, its settle time counts from the next
+    /// window.
     pub fn weld(&mut self) {
-        self.since_weld_s = Some(0.0);
+        self.since_weld_s = [Some(0.0); MAX_STANDS];
     }
 
-    /// Whether the weld hold raises the alarm level now.
+    /// The weld bit of stand `stand` (index in the mill) was seen set since the
+    /// previous window: as [`Self::weld`] for that stand only (another index is
+    /// ignored).
+    pub fn weld_at(&mut self, stand: usize) {
+        if let Some(since) = self.since_weld_s.get_mut(stand) {
+            *since = Some(0.0);
+        }
+    }
+
+    /// Whether the weld hold raises the alarm level of any stand now.
     pub fn weld_holding(&self) -> bool {
+        (0..MAX_STANDS).any(|stand| self.stand_holding(stand))
+    }
+
+    /// Whether the weld hold raises stand `stand`'s alarm level now.
+    pub fn stand_holding(&self, stand: usize) -> bool {
         self.since_weld_s
+            .get(stand)
+            .copied()
+            .flatten()
             .is_some_and(|since| since <= self.weld.settle_s)
     }
 
-    /// The alarm level now, relative to the configured one: the hold's factor during a
-    /// weld hold, else 1.
+    /// The alarm level of a figure for the whole mill now, relative to the configured
+    /// one: the hold's factor while any stand is held, else 1.
     pub fn alarm_scale(&self) -> f64 {
         if self.weld_holding() {
             self.weld.alarm_factor
         } else {
             1.0
         }
+    }
+
+    /// Stand `stand`'s alarm level now, relative to the configured one: the hold's
+    /// factor while the weld hold holds that stand, else 1.
+    pub fn stand_alarm_scale(&self, stand: usize) -> f64 {
+        if self.stand_holding(stand) {
+            self.weld.alarm_factor
+        } else {
+            1.0
+        }
+    }
+
+    /// Whether a stand's ratio of `stand_ratios` (per stand, in the mill's order,
+    /// relative to its alarm level) reaches its level now ([`Self::stand_alarm_scale`]).
+    pub fn stand_alarm(&self, stand_ratios: &[f64]) -> bool {
+        stand_ratios
+            .iter()
+            .enumerate()
+            .any(|(stand, &ratio)| ratio >= self.stand_alarm_scale(stand))
     }
 
     /// Whether the slow-down is requested.
@@ -127,11 +171,29 @@ impl SlowDown {
     /// During a weld hold the request is set only at the hold's raised level
     /// ([`Self::alarm_scale`]); its release is unchanged.
     pub fn window(&mut self, level: f64, step_s: f64) -> bool {
-        let scale = self.alarm_scale();
-        if let Some(since) = &mut self.since_weld_s {
+        let alarm = level >= self.alarm_scale();
+        self.judged(level, alarm, step_s)
+    }
+
+    /// As [`Self::window`] for a figure per stand (`stand_ratios`, each relative to its
+    /// stand's alarm level): set when a stand reaches its own level
+    /// ([`Self::stand_alarm`]), released by the largest.
+    pub fn window_by_stand(&mut self, stand_ratios: &[f64], step_s: f64) -> bool {
+        let alarm = self.stand_alarm(stand_ratios);
+        let level = stand_ratios
+            .iter()
+            .copied()
+            .fold(f64::NEG_INFINITY, f64::max);
+        self.judged(level, alarm, step_s)
+    }
+
+    /// One trusted window whose alarm figure is `level` and whose alarm was `alarm`
+    /// (judged before the window moves the hold on).
+    fn judged(&mut self, level: f64, alarm: bool, step_s: f64) -> bool {
+        for since in self.since_weld_s.iter_mut().flatten() {
             *since += step_s;
         }
-        if level >= scale {
+        if alarm {
             self.requested = true;
             self.below_s = 0.0;
         } else if self.requested {
@@ -212,20 +274,25 @@ pub(super) fn judge(
             held_off: false,
         };
     };
-    // The level this window is judged against (before the window moves the hold on).
-    let scale = slow_down.alarm_scale();
-    match alarm_level(kind, gain, slow_down.release, result) {
-        Some(level) => {
+    // The alarm of this window, against the levels before the window moves the hold
+    // on: each stand's band-gain ratio against its own.
+    let stand_ratios = gain.as_ref().map_or(&[][..], GainReading::stand_ratios);
+    let held_alarm = slow_down.stand_alarm(stand_ratios);
+    match (kind, alarm_level(kind, gain, slow_down.release, result)) {
+        (ChatterDetectorKind::BandGain, Some(_)) => {
+            slow_down.window_by_stand(stand_ratios, hop_s);
+        }
+        (ChatterDetectorKind::Paper, Some(level)) => {
             slow_down.window(level, hop_s);
         }
-        None => slow_down.untrusted(),
+        (_, None) => slow_down.untrusted(),
     }
     let (warning, alarm, ungated_alarm) = match kind {
         ChatterDetectorKind::BandGain => {
             let ratio = gain.and_then(|g| g.ratio).map(|(ratio, _)| ratio);
             (
                 ratio.is_some_and(|r| r >= slow_down.release),
-                ratio.is_some_and(|r| r >= scale),
+                held_alarm,
                 ratio.is_some_and(|r| r >= 1.0),
             )
         }
@@ -324,5 +391,67 @@ mod tests {
             1.0,
             "a fresh request has no weld"
         );
+    }
+
+    #[test]
+    fn a_weld_at_one_stand_raises_that_stands_level_only_for_its_settle_time() {
+        let step = 0.25;
+        let hold = WeldHold {
+            settle_s: 1.0,
+            alarm_factor: 2.0,
+        };
+        // Stand 1 of three welding: its ratio 1.5 is held off, the same at stand 2 is
+        // an alarm (the weld is not there).
+        let mut slow_down = SlowDown::with_weld_hold(0.8, 1.0, hold);
+        slow_down.weld_at(1);
+        assert!(slow_down.stand_holding(1) && !slow_down.stand_holding(0));
+        assert!(slow_down.weld_holding());
+        assert_eq!(
+            (
+                slow_down.stand_alarm_scale(0),
+                slow_down.stand_alarm_scale(1)
+            ),
+            (1.0, 2.0)
+        );
+        assert!(!slow_down.window_by_stand(&[0.5, 1.5, 0.5], step));
+        assert!(!slow_down.stand_alarm(&[0.9, 1.9, 0.9]));
+        let mut elsewhere = slow_down;
+        assert!(
+            elsewhere.window_by_stand(&[0.5, 0.5, 1.5], step),
+            "chatter at a stand without the weld is judged at its plain level"
+        );
+        // The weld moves on to stand 2: stand 1 settles for 1 s (4 windows), stand 2
+        // is held from now.
+        for _ in 0..4 {
+            slow_down.weld_at(2);
+            assert!(!slow_down.window_by_stand(&[0.5, 1.5, 1.5], step));
+        }
+        assert!(!slow_down.stand_holding(1), "stand 1's settle time is over");
+        assert!(slow_down.stand_holding(2));
+        assert!(
+            slow_down.window_by_stand(&[0.5, 1.5, 1.5], step),
+            "stand 1 at its plain level again"
+        );
+        // Chatter at the welding stand is still caught at the raised level; the
+        // release goes by the largest ratio as without a weld.
+        let mut caught = SlowDown::with_weld_hold(0.8, 0.5, hold);
+        caught.weld_at(0);
+        assert!(caught.window_by_stand(&[2.0, 0.1], step));
+        assert!(
+            caught.window_by_stand(&[0.1, 0.85], step),
+            "0.85 >= release"
+        );
+        assert!(caught.window_by_stand(&[0.1, 0.5], step));
+        assert!(
+            !caught.window_by_stand(&[0.1, 0.5], step),
+            "released after 0.5 s"
+        );
+        // The mill's bit holds every stand; an index past the stands is ignored.
+        let mut mill = SlowDown::with_weld_hold(0.8, 1.0, hold);
+        mill.weld_at(MAX_STANDS);
+        assert!(!mill.weld_holding());
+        mill.weld();
+        assert!((0..MAX_STANDS).all(|stand| mill.stand_holding(stand)));
+        assert!(!mill.window_by_stand(&[1.5, 1.5, 1.5], step));
     }
 }

@@ -16,11 +16,14 @@
 //! flags over time.
 //!
 //! **Process context.** Columns `weld` (the PLC's weld-tracking bit, 0/1: 1 from the
-//! weld reaching the first stand until it has left the last), `speed_mpm`, `coil` and
-//! `product` are read when present. With `weld` the slow-down request is gated as the
-//! service gates it: while the bit is set and for the mill's `weld_settle_s` after, the
-//! band-gain alarm needs `weld_alarm_factor` times its level (chatter during or right
-//! after a weld is still caught, at the higher level); a window the hold kept from the
+//! weld reaching the first stand until it has left the last), `weld_1` .. `weld_N`
+//! (a bit per stand, stand 1 first: 1 while the weld is in that stand; all N or
+//! none), `speed_mpm`, `coil` and `product` are read when present. With `weld` the
+//! slow-down request is gated as the service gates it: while the bit is set and for
+//! the mill's `weld_settle_s` after, the band-gain alarm needs `weld_alarm_factor`
+//! times its level (chatter during or right after a weld is still caught, at the
+//! higher level); with `weld_1` .. `weld_N` each stand's gain ratio is held so by its
+//! own bit only (the row's context `weld` is 1 when any stand's is); a window the hold kept from the
 //! alarm is marked `held_off`, and `first_alarm_s` is the first alarm (= slow-down
 //! request) after the gating. A row with an impossible context value (weld not 0/1, a
 //! negative speed, a coil or product that is not a whole number) is not used for the
@@ -40,7 +43,7 @@ use anyhow::Context;
 use serde::Serialize;
 
 use super::mill::mill_index;
-use crate::analysis::chatter::{windows_in_context, ContextColumns};
+use crate::analysis::chatter::windows_in_context;
 use crate::cli::OutputFormat;
 use crate::records::stands;
 use crate::state::context::ProcessContext;
@@ -137,8 +140,8 @@ pub struct ChatterReport {
     /// End time of the first window with the alarm (after the weld gating: the first
     /// slow-down request), s.
     pub first_alarm_s: Option<f64>,
-    /// The context columns found in the CSV ([`ContextColumns::NAMES`]).
-    pub context_columns: Vec<&'static str>,
+    /// The context columns found in the CSV ([`ContextColumns::names`](crate::analysis::chatter::ContextColumns::names)).
+    pub context_columns: Vec<String>,
     /// Windows whose alarm the weld hold kept off.
     pub held_off_windows: usize,
     /// Rows with an impossible context value (not used for the gating); `None` when
@@ -182,16 +185,7 @@ pub fn analyze(args: &WindowsArgs) -> anyhow::Result<ChatterReport> {
             .unwrap_or(sample + 2),
         why: error.to_string(),
     });
-    let context_columns: Vec<&'static str> = ContextColumns::NAMES
-        .into_iter()
-        .zip([
-            context.weld.is_some(),
-            context.speed_mpm.is_some(),
-            context.coil.is_some(),
-            context.product.is_some(),
-        ])
-        .filter_map(|(name, present)| present.then_some(name))
-        .collect();
+    let context_columns = context.names();
     let windows: Vec<WindowRow> = windows
         .into_iter()
         .map(|window| WindowRow {
@@ -465,6 +459,62 @@ mod tests {
     }
 
     #[test]
+    fn weld_columns_per_stand_hold_their_stands_only_and_come_for_every_stand_or_none(
+    ) -> anyhow::Result<()> {
+        // A chatter-band line at gain 1.8 on every stand: 1.52 times stand 1's
+        // threshold, 1.21 times stand 2's (both below the weld hold's 2), 0.81 times
+        // stand 3's.
+        let recording = crate::analysis::chatter::testing::lines_recording(15_000, |_| 0.9);
+        let csv = |welding: &[usize], columns: usize| {
+            let names: Vec<String> = (1..=columns).map(|s| format!("weld_{s}")).collect();
+            let mut csv = format!("t,s1_vib,s2_vib,s3_vib,s4_vib,s5_vib,{}\n", names.join(","));
+            let bits: Vec<&str> = (0..columns)
+                .map(|s| if welding.contains(&s) { "1" } else { "0" })
+                .collect();
+            for (k, t) in recording.time_s.iter().enumerate() {
+                let stands: Vec<String> =
+                    recording.stands.iter().map(|s| s[k].to_string()).collect();
+                csv += &format!("{t},{},{}\n", stands.join(","), bits.join(","));
+            }
+            csv
+        };
+        // The weld in stand 1 holds stand 1; stand 2 alarms at its plain level.
+        let first = report_of(&csv(&[0], 5), "weld-stand-1")?;
+        assert!(
+            first["first_alarm_s"].as_f64().is_some(),
+            "{}",
+            first["first_alarm_s"]
+        );
+        assert_eq!(
+            first["context_columns"],
+            serde_json::json!(["weld_1", "weld_2", "weld_3", "weld_4", "weld_5"])
+        );
+        // In stands 1 and 2 (a long weld): both held, nothing raised, counted.
+        let both = report_of(&csv(&[0, 1], 5), "weld-stands-1-2")?;
+        assert!(both["first_alarm_s"].is_null(), "{}", both["first_alarm_s"]);
+        assert!(both["held_off_windows"].as_u64() > Some(10), "{both}");
+        let windows = both["windows"].as_array().expect("windows");
+        assert!(windows.iter().all(|w| w["slow_down"] == false));
+        assert_eq!(windows[windows.len() - 1]["context"]["weld"], true);
+        // In stand 3 only: stands 1 and 2 alarm as without a weld.
+        let third = report_of(&csv(&[2], 5), "weld-stand-3")?;
+        assert_eq!(third["held_off_windows"], 0);
+        assert!(third["first_alarm_s"].as_f64().is_some());
+        // A column for some stands only is refused, naming the first one missing.
+        let error = report_of(&csv(&[0], 2), "weld-stands-2-of-5")
+            .expect_err("two of five weld columns")
+            .to_string();
+        assert!(
+            error.contains(
+                "line 1: no column `weld_3`: weld-bit columns per stand (`weld_1` .. \
+                            `weld_5`) must be given for every stand"
+            ),
+            "{error}"
+        );
+        Ok(())
+    }
+
+    #[test]
     fn the_weld_bit_holds_a_welds_slow_down_off_and_a_ramp_after_a_weld_still_alarms(
     ) -> anyhow::Result<()> {
         // The physical model: at 95% of the critical speed (the highest allowed), a
@@ -477,6 +527,7 @@ mod tests {
             time_s: 8.0,
             duration_s: 3.0,
             factor: 3.0,
+            stand: None,
         };
         settings.excitation.noise_bursts.push(weld);
         let csv = simulate(&mill, &settings)?.to_csv(false);
@@ -524,6 +575,7 @@ mod tests {
             time_s: at_critical_s - 4.0,
             duration_s: 3.0,
             factor: 3.0,
+            stand: None,
         };
         settings.excitation.noise_bursts.push(weld);
         let record = simulate(&mill, &settings)?;

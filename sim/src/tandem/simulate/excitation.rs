@@ -75,9 +75,9 @@ impl Sources {
     /// The force noise on each of the first `stands` work rolls over the step at `t`
     /// s, N: white, held over the step, louder in a burst.
     pub(super) fn force(&self, t: f64, stands: usize, rng: &mut SmallRng) -> [f64; MAX_STANDS] {
-        let sigma = self.force_sigma * self.excitation.force_noise_factor(t);
         let mut force = [0.0; MAX_STANDS];
-        for value in force.iter_mut().take(stands) {
+        for (stand, value) in force.iter_mut().take(stands).enumerate() {
+            let sigma = self.force_sigma * self.excitation.force_noise_factor(t, stand);
             *value = sigma * rng.sample::<f64, _>(StandardNormal);
         }
         force

@@ -91,9 +91,11 @@ pub struct Excitation {
     pub noise_bursts: Vec<NoiseBurst>,
 }
 
-/// The force noise on every work roll `factor` times louder from `time_s` for
-/// `duration_s`: an excitation step that leaves the mill's stability as it is (a weld
-/// or a rougher strip section passing the stands, all stands at once).
+/// The force noise on every work roll (or on one stand's, `stand`) `factor` times
+/// louder from `time_s` for `duration_s`: an excitation step that leaves the mill's
+/// stability as it is (a weld or a rougher strip section passing the stands, all
+/// stands at once; a weld passing stand by stand is a burst per stand, one after the
+/// other).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NoiseBurst {
     /// Start, s, >= 0.
@@ -102,14 +104,19 @@ pub struct NoiseBurst {
     pub duration_s: f64,
     /// Factor on the force-noise density, >= 1.
     pub factor: f64,
+    /// The stand (index from the entry) whose work roll it excites; `None`: every
+    /// stand.
+    pub stand: Option<usize>,
 }
 
 impl Excitation {
-    /// The factor on the force noise at `t_s`: the largest of the bursts then, else 1.
-    pub(crate) fn force_noise_factor(&self, t_s: f64) -> f64 {
+    /// The factor on stand `stand`'s force noise at `t_s`: the largest of the bursts
+    /// on it then, else 1.
+    pub(crate) fn force_noise_factor(&self, t_s: f64, stand: usize) -> f64 {
         self.noise_bursts
             .iter()
             .filter(|b| t_s >= b.time_s && t_s < b.time_s + b.duration_s)
+            .filter(|b| b.stand.is_none_or(|s| s == stand))
             .fold(1.0, |factor, b| factor.max(b.factor))
     }
 }

@@ -34,7 +34,12 @@
 //! [`LoopPlan::weld_bit`] the monitor's slow-down request is told of each weld by the
 //! PLC's weld bit (set for the burst, as the weld tracking sets it from the weld at the
 //! first stand until it has left the last) and holds the request off by the mill's weld
-//! hold ([`millgate::analysis::chatter::WeldHold`]). Every run draws its mill, a noise factor (force
+//! hold ([`millgate::analysis::chatter::WeldHold`]). With [`LoopPlan::weld_passes`]
+//! the weld passes the stands one after the other (its burst split into one per stand,
+//! each a stand's share of the time in the mill, at that stand only), and with
+//! [`WeldBits::Stands`] the monitor reads a bit per stand (set while the weld is in
+//! that stand: [`millgate::analysis::chatter::SlowDown::weld_at`]) instead of the
+//! mill's. Every run draws its mill, a noise factor (force
 //! noise and incoming gauge, log-uniform 0.5-2), an eccentricity factor (0.5-2), a
 //! deceleration (0.5-2 m/s^2, log-uniform) and a seed.
 
@@ -54,8 +59,9 @@ mod score;
 pub use mills::{mills, runs};
 pub use run::run_loop;
 pub use score::{
-    open_loop_developed, plot, reduced_times, score, table_row, weld_transients, LoopScore,
-    WeldTransient, TABLE_HEADER,
+    open_loop_developed, open_loop_weld_ramps, plot, reduced_times, score, table_row,
+    weld_bits_row, weld_bits_table, weld_transients, LoopScore, WeldBitsRow, WeldTransient,
+    TABLE_HEADER,
 };
 
 /// Samples per DAQ block and PLC cycle: 48 ms at 2500 Hz, the example configuration's
@@ -88,6 +94,11 @@ pub struct LoopPlan {
     /// The weld bit and the mill's weld hold: `None`, the monitor is not told of welds
     /// (as before the weld bit).
     pub weld_bit: Option<WeldHold>,
+    /// Which weld bits the monitor reads (with [`Self::weld_bit`]).
+    pub weld_bits: WeldBits,
+    /// The weld passes the stands one after the other (a burst per stand); `false`:
+    /// it excites every stand at once for its whole time in the mill.
+    pub weld_passes: bool,
     /// Unscored start of every run, s (the delay roots near the axis need it).
     pub settle_s: f64,
     /// The highest allowed speed, a fraction of the critical speed.
@@ -127,6 +138,8 @@ impl LoopPlan {
             welds: 20,
             weld_ramps: 20,
             weld_bit: None,
+            weld_bits: WeldBits::Mill,
+            weld_passes: false,
             settle_s: 20.0,
             top: 0.95,
             delay_cycles: 1,
@@ -153,6 +166,16 @@ impl LoopPlan {
             ..LoopPlan::full()
         }
     }
+}
+
+/// The PLC's weld tracking the monitor reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum WeldBits {
+    /// One bit for the mill: 1 from the weld reaching the first stand until it has
+    /// left the last (`context.weld`).
+    Mill,
+    /// A bit per stand: 1 while the weld is in that stand (`context.weld_stands`).
+    Stands,
 }
 
 /// A mill of the plan: a pass schedule of `sim/schedules/` with its friction and stack
@@ -323,6 +346,27 @@ impl Scenario {
             Scenario::Weld { burst } | Scenario::WeldRamp { burst, .. } => Some(burst),
             Scenario::Accelerated { .. } | Scenario::Stable { .. } => None,
         }
+    }
+
+    /// The weld's bursts: the whole weld at every stand, or with `passes` one per
+    /// stand of [`STANDS`], stand `s` excited for the `s`-th share of its time in the
+    /// mill (the weld in that stand).
+    pub fn weld_bursts(&self, passes: bool) -> Vec<NoiseBurst> {
+        let Some(weld) = self.weld() else {
+            return Vec::new();
+        };
+        if !passes {
+            return vec![weld];
+        }
+        let share_s = weld.duration_s / STANDS as f64;
+        (0..STANDS)
+            .map(|stand| NoiseBurst {
+                time_s: weld.time_s + stand as f64 * share_s,
+                duration_s: share_s,
+                stand: Some(stand),
+                ..weld
+            })
+            .collect()
     }
 }
 

@@ -8,10 +8,10 @@ use millgate::analysis::chatter::{ChatterMonitor, ChatterUpdate};
 use millgate_sim::tandem::control::{SlowDownPolicy, SpeedControl};
 use millgate_sim::tandem::online::{OnlineError, OnlineMill};
 use millgate_sim::tandem::simulate::{
-    Accelerometer, Excitation, RunError, SimulationSetup, SpeedRange,
+    Accelerometer, Excitation, NoiseBurst, RunError, SimulationSetup, SpeedRange,
 };
 
-use super::{Detector, LoopPlan, Mill, Outcome, Run, Scenario, TraceRow, CYCLE_SAMPLES};
+use super::{Detector, LoopPlan, Mill, Outcome, Run, Scenario, TraceRow, WeldBits, CYCLE_SAMPLES};
 use crate::experiments::chatter_eval::SAMPLE_RATE_HZ;
 
 /// `run` on `mill`, with `detector` acting on the automation (closed loop) or with the
@@ -50,7 +50,7 @@ pub fn run_loop(
     };
     let control = SpeedControl::new(policy, start, start)?;
     let setup = SimulationSetup {
-        excitation: excitation(run),
+        excitation: excitation(plan, run),
         sensor: Accelerometer {
             sample_rate_hz: SAMPLE_RATE_HZ,
             ..Accelerometer::default()
@@ -65,8 +65,13 @@ pub fn run_loop(
     let mut online = OnlineMill::new(&mill.mill, &setup, control, CYCLE_SAMPLES, operator)?;
     let judged = detector.unwrap_or(Detector::BandGain);
     let mut monitor = ChatterMonitor::new(&mill.config(judged, plan.weld_bit)?, 0)?;
-    // The PLC's weld bit, when the plan reads it: set for the weld's burst.
+    // The PLC's weld bits, when the plan reads them: the mill's set for the whole
+    // weld, a stand's for its burst.
     let weld = run.scenario.weld().filter(|_| plan.weld_bit.is_some());
+    let stand_welds = match weld {
+        Some(_) if plan.weld_bits == WeldBits::Stands => run.scenario.weld_bursts(plan.weld_passes),
+        _ => Vec::new(),
+    };
     let mut slow_down = monitor.slow_down();
     let hop_s = monitor.hop_s();
     let mut requested = VecDeque::from(vec![false; plan.delay_cycles]);
@@ -105,9 +110,16 @@ pub fn run_loop(
         }
         let arrival = t0 + Duration::from_secs_f64(truth.time_s);
         let cycle_start_s = truth.time_s - online.cycle_s();
-        if weld.is_some_and(|b| cycle_start_s < b.time_s + b.duration_s && truth.time_s > b.time_s)
-        {
+        let in_cycle =
+            |b: &NoiseBurst| cycle_start_s < b.time_s + b.duration_s && truth.time_s > b.time_s;
+        if plan.weld_bits == WeldBits::Mill && weld.as_ref().is_some_and(in_cycle) {
             slow_down.weld();
+        }
+        for burst in stand_welds.iter().filter(|&b| in_cycle(b)) {
+            match burst.stand {
+                Some(stand) => slow_down.weld_at(stand),
+                None => slow_down.weld(),
+            }
         }
         for (stand, values) in record.acceleration.iter().enumerate() {
             let Some(change) = monitor.samples(stand, values, arrival) else {
@@ -161,14 +173,14 @@ pub fn run_loop(
     Ok(outcome)
 }
 
-/// The excitation of a run.
-fn excitation(run: &Run) -> Excitation {
+/// The excitation of a run of `plan`.
+fn excitation(plan: &LoopPlan, run: &Run) -> Excitation {
     let mut excitation = Excitation::default();
     excitation.force_noise_density *= run.noise;
     excitation.entry_gauge_rms_m *= run.noise;
     excitation.eccentricity_m = excitation.eccentricity_m.map(|e| e * run.eccentricity);
-    if let Some(burst) = run.scenario.weld() {
-        excitation.noise_bursts.push(burst);
-    }
+    excitation
+        .noise_bursts
+        .extend(run.scenario.weld_bursts(plan.weld_passes));
     excitation
 }

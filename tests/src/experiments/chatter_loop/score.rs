@@ -239,3 +239,93 @@ pub fn plot(outcome: &Outcome, critical_m_min: f64, title: &str) -> anyhow::Resu
         ],
     )?)
 }
+
+/// The weld runs of one way of reading the weld tracking (the band gain, the loop
+/// closed): [`weld_bits_row`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct WeldBitsRow {
+    /// What the monitor read: `none`, `mill bit`, `stand bits`.
+    pub bits: &'static str,
+    /// Weld runs at the top speed with a slow-down in their scored time, and weld runs.
+    pub false_welds: (usize, usize),
+    /// Ramps with a weld before the critical speed that developed chatter with the
+    /// loop closed, and those ramps.
+    pub ramps_developed: (usize, usize),
+    /// Per ramp that developed chatter with the loop open: its open-loop development
+    /// time minus the closed loop's first request, s (`None`: no request before the
+    /// run's end).
+    pub leads_s: Vec<Option<f64>>,
+}
+
+/// The [`WeldBitsRow`] of `plan` (its weld bits and hold) over the weld runs of `runs`,
+/// `open_developed_s` per run (the open loop's development time of each weld ramp,
+/// [`open_loop_weld_ramps`]; `None` for the others).
+pub fn weld_bits_row(
+    bits: &'static str,
+    plan: &LoopPlan,
+    mills: &[Mill],
+    runs: &[Run],
+    open_developed_s: &[Option<f64>],
+) -> anyhow::Result<WeldBitsRow> {
+    let (score, outcomes) = score(plan, mills, runs, Detector::BandGain)?;
+    let leads_s = runs
+        .iter()
+        .zip(&outcomes)
+        .zip(open_developed_s)
+        .filter(|((run, _), _)| matches!(run.scenario, Scenario::WeldRamp { .. }))
+        .filter_map(|((_, outcome), open)| {
+            let open = (*open)?;
+            Some(outcome.events.first().map(|e| open - e.requested_s))
+        })
+        .collect();
+    Ok(WeldBitsRow {
+        bits,
+        false_welds: score.false_welds,
+        ramps_developed: score.weld_ramps,
+        leads_s,
+    })
+}
+
+/// Per run of `runs`, for each weld ramp the time its chatter developed with the loop
+/// open (the request ignored), `None` when it did not or for another run.
+pub fn open_loop_weld_ramps(
+    plan: &LoopPlan,
+    mills: &[Mill],
+    runs: &[Run],
+) -> anyhow::Result<Vec<Option<f64>>> {
+    parallel(plan.threads, runs, |run| {
+        if !matches!(run.scenario, Scenario::WeldRamp { .. }) {
+            return Ok(None);
+        }
+        Ok(run_loop(plan, &mills[run.mill], run, None, false)?.developed_s)
+    })
+}
+
+/// The table of [`WeldBitsRow`]s: a row each, the leads as median [min, max].
+pub fn weld_bits_table(rows: &[WeldBitsRow]) -> String {
+    let mut out = String::from(
+        "| weld bits read | welds at the top speed with a slow-down | ramps with a weld 0-3 s before the critical speed: developed, closed loop | ramps requested before chatter developed (open loop) | lead of the request, s: median [min, max] |\n|---|---|---|---|---|\n",
+    );
+    for row in rows {
+        let leads: Vec<f64> = row.leads_s.iter().flatten().copied().collect();
+        let lead = if leads.is_empty() {
+            "-".to_owned()
+        } else {
+            let (_, median, _) = quartiles(&leads);
+            let min = leads.iter().copied().fold(f64::INFINITY, f64::min);
+            let max = leads.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            format!("{median:.1} [{min:.1}, {max:.1}]")
+        };
+        out += &format!(
+            "| {} | {}/{} | {}/{} | {}/{} | {lead} |\n",
+            row.bits,
+            row.false_welds.0,
+            row.false_welds.1,
+            row.ramps_developed.0,
+            row.ramps_developed.1,
+            leads.iter().filter(|&&lead| lead > 0.0).count(),
+            row.leads_s.len(),
+        );
+    }
+    out
+}
