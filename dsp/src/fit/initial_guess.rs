@@ -259,7 +259,7 @@ mod tests {
     /// a slow real pole left out of the basis and an unused slot.
     #[test]
     fn amplitudes_match_a_direct_least_squares_solve() {
-        const ROWS: usize = 128;
+        const ROWS: usize = 64;
         let poles = [
             pencil::Pole {
                 decay_per_s: 5.0,
@@ -279,7 +279,7 @@ mod tests {
             },
         ];
         // A transient with a wiggle none of the poles explains, crossing zero.
-        let samples: [f64; 2 * ROWS] = core::array::from_fn(|i| {
+        let samples: [f64; 4 * ROWS] = core::array::from_fn(|i| {
             let t = i as f64 * 1e-3;
             30.0 * libm::exp(-5.0 * t) * libm::cos(2.0 * PI * 12.0 * t + 0.3)
                 - 12.0 * libm::exp(-2.0 * t) * libm::sin(2.0 * PI * 31.0 * t)
@@ -288,14 +288,7 @@ mod tests {
                 - 2.0
         });
         let mut checked = 0;
-        for (len, stride) in [
-            (128, 1),
-            (127, 1),
-            (2 * ROWS, 2),
-            (255, 2),
-            (203, 4),
-            (201, 4),
-        ] {
+        for (len, stride) in [(64, 1), (63, 1), (128, 2), (127, 2), (256, 4), (251, 4)] {
             for positive_only in [false, true] {
                 let data = Data::new(
                     &samples[..len],
