@@ -119,23 +119,13 @@ fn amplitudes(
             }
         }
     };
-    let (stride, scale) = (data.stride, data.inverse_scale);
-    let chunks = data.samples.chunks_exact(2 * stride);
-    let rest = chunks.remainder();
-    let fitted = |v: f64| !data.positive_only || v > 0.0;
-    for chunk in chunks {
-        let values = Pair::new(chunk[0] * scale, chunk[stride] * scale);
-        let keep = data.positive_only.then(|| values.lanes().map(fitted));
+    let (pairs, tail) = data.pairs();
+    for values in pairs {
+        let keep = data.positive_only.then(|| values.lanes().map(|v| v > 0.0));
         accumulate(values, keep);
     }
-    if !rest.is_empty() {
-        // The last one or two samples; an empty odd lane is masked.
-        let odd = rest.get(stride);
-        let (even, odd_value) = (rest[0] * scale, odd.map_or(0.0, |v| v * scale));
-        accumulate(
-            Pair::new(even, odd_value),
-            Some([fitted(even), odd.is_some() && fitted(odd_value)]),
-        );
+    if let Some((values, keep)) = tail {
+        accumulate(values, Some(keep));
     }
     let ata: [[f64; MAX_BASIS]; MAX_BASIS] = ata.map(|row| row.map(Pair::total));
     let atb: [f64; MAX_BASIS] = atb.map(Pair::total);
