@@ -81,7 +81,26 @@ pub fn poles(
     sample_rate_hz: f64,
     decimation: usize,
 ) -> Result<Vec<Pole, MODEL_ORDER>, PencilError> {
-    let scale = check(samples, sample_rate_hz, decimation)?;
+    check_settings(samples, sample_rate_hz, decimation)?;
+    let (scale, finite) = peak_magnitude(samples);
+    if !finite {
+        return Err(PencilError::NonFinite);
+    }
+    if scale == 0.0 {
+        return Err(PencilError::Flat);
+    }
+    poles_at_scale(samples, sample_rate_hz, decimation, scale)
+}
+
+/// [`poles`] of a record whose peak magnitude `scale` the caller has found (> 0, every
+/// sample finite), so it is not scanned again: the fit scans it for its own checks.
+pub(crate) fn poles_at_scale(
+    samples: &[f64],
+    sample_rate_hz: f64,
+    decimation: usize,
+    scale: f64,
+) -> Result<Vec<Pole, MODEL_ORDER>, PencilError> {
+    check_settings(samples, sample_rate_hz, decimation)?;
     let gram = hankel_gram(samples, decimation, 1.0 / scale / decimation as f64);
     let eigenvalues = shift_eigenvalues(gram)?;
     Ok(continuous_poles(
@@ -90,9 +109,12 @@ pub fn poles(
     ))
 }
 
-/// Checks the rate, the decimation and the record (long enough, finite, not all zero);
-/// its peak magnitude.
-fn check(samples: &[f64], sample_rate_hz: f64, decimation: usize) -> Result<f64, PencilError> {
+/// Checks the rate, the decimation and the record's length.
+fn check_settings(
+    samples: &[f64],
+    sample_rate_hz: f64,
+    decimation: usize,
+) -> Result<(), PencilError> {
     if !(sample_rate_hz.is_finite() && sample_rate_hz > 0.0) {
         return Err(PencilError::SampleRateHz);
     }
@@ -102,14 +124,7 @@ fn check(samples: &[f64], sample_rate_hz: f64, decimation: usize) -> Result<f64,
     if samples.len() / decimation < MIN_DECIMATED_SAMPLES {
         return Err(PencilError::TooFewSamples);
     }
-    let (scale, finite) = peak_magnitude(samples);
-    if !finite {
-        return Err(PencilError::NonFinite);
-    }
-    if scale == 0.0 {
-        return Err(PencilError::Flat);
-    }
-    Ok(scale)
+    Ok(())
 }
 
 /// Gram matrix Y^T Y of the Hankel matrix Y of the record decimated by `decimation`
@@ -264,6 +279,37 @@ mod tests {
         assert!(near(31.0, 2.0), "{found:?}");
         assert!(near(0.0, 20.0), "{found:?}");
         assert!(near(0.0, 0.0), "{found:?}");
+    }
+
+    /// The fit's entry, given the peak it already found, gives the very same poles and
+    /// the same errors for bad settings.
+    #[test]
+    fn poles_at_scale_matches_poles() {
+        let samples: [f64; 300] = core::array::from_fn(|i| {
+            let t = i as f64 / 500.0;
+            -3.0 * libm::exp(-5.0 * t) * libm::cos(2.0 * PI * 12.0 * t)
+                + 1.5 * libm::sin(0.3 * (i * i) as f64)
+        });
+        let (scale, finite) = peak_magnitude(&samples);
+        assert!(finite && scale > 0.0);
+        for decimation in [1, 2, 5] {
+            assert_eq!(
+                poles_at_scale(&samples, 500.0, decimation, scale),
+                poles(&samples, 500.0, decimation)
+            );
+        }
+        assert_eq!(
+            poles_at_scale(&samples, f64::NAN, 1, scale),
+            Err(PencilError::SampleRateHz)
+        );
+        assert_eq!(
+            poles_at_scale(&samples, 500.0, 0, scale),
+            Err(PencilError::Decimation)
+        );
+        assert_eq!(
+            poles_at_scale(&samples, 500.0, 13, scale),
+            Err(PencilError::TooFewSamples)
+        );
     }
 
     #[test]

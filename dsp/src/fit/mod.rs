@@ -103,7 +103,7 @@ pub fn fit_eq1(samples: &[f64], options: &FitOptions) -> Result<Eq1Fit, FitError
     let decimation = (samples.len() / (2 * MIN_DECIMATED_SAMPLES))
         .min((rate / (4.0 * options.max_mode_hz)) as usize)
         .max(1);
-    let poles = pencil::poles(samples, rate, decimation).map_err(|e| match e {
+    let poles = pencil::poles_at_scale(samples, rate, decimation, scale).map_err(|e| match e {
         pencil::PencilError::TooFewSamples => FitError::TooFewSamples,
         _ => FitError::Singular,
     })?;

@@ -102,10 +102,7 @@ pub(super) fn project<const REFERENCED: bool>(
         nested: [zero; 5],
         steps: 0,
     };
-    let (stride, scale) = (data.stride, data.inverse_scale);
-    let chunks = data.samples.chunks_exact(2 * stride);
-    let rest = chunks.remainder();
-    let pairs = chunks.map(|c| Pair::new(c[0] * scale, c[stride] * scale));
+    let (pairs, tail) = data.pairs();
     if data.positive_only {
         for values in pairs {
             state.step::<REFERENCED>(values, Some(values.lanes().map(|v| v > 0.0)));
@@ -115,15 +112,8 @@ pub(super) fn project<const REFERENCED: bool>(
             state.step::<REFERENCED>(values, None);
         }
     }
-    if !rest.is_empty() {
-        // The last one or two samples; an empty odd lane is masked.
-        let odd = rest.get(stride);
-        let (even, odd_value) = (rest[0] * scale, odd.map_or(0.0, |v| v * scale));
-        let fitted = |v: f64| !data.positive_only || v > 0.0;
-        state.step::<REFERENCED>(
-            Pair::new(even, odd_value),
-            Some([fitted(even), odd.is_some() && fitted(odd_value)]),
-        );
+    if let Some((values, keep)) = tail {
+        state.step::<REFERENCED>(values, Some(keep));
     }
     let Projection {
         squares,

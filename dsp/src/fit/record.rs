@@ -1,6 +1,8 @@
 //! The record as the fit works on it, and the split of the eq. (1) parameters into the
 //! nonlinear ones (iterated) and the linear ones (solved at each point).
 
+use super::recurrence::Pair;
+
 /// The record as fitted: every `stride`-th sample times `inverse_scale` (peak
 /// magnitude 1), `dt` seconds apart.
 pub(super) struct Data<'a> {
@@ -67,6 +69,28 @@ impl<'a> Data<'a> {
             .iter()
             .step_by(self.stride)
             .map(|v| v * self.inverse_scale)
+    }
+
+    /// The samples used, scaled, as (even, odd) pairs for the two lanes of a [`Pair`]:
+    /// the whole pairs, and the last sample or two with the lanes to keep (an empty odd
+    /// lane and, with `positive_only`, samples not above zero masked), if any remain.
+    /// The whole pairs' mask is the caller's (`values > 0` lane by lane with
+    /// `positive_only`), so a pass without it tests nothing per pair.
+    pub(super) fn pairs(&self) -> (impl Iterator<Item = Pair> + '_, Option<(Pair, [bool; 2])>) {
+        let (stride, scale) = (self.stride, self.inverse_scale);
+        let chunks = self.samples.chunks_exact(2 * stride);
+        let rest = chunks.remainder();
+        let tail = (!rest.is_empty()).then(|| {
+            let odd = rest.get(stride);
+            let (even, odd_value) = (rest[0] * scale, odd.map_or(0.0, |v| v * scale));
+            let fitted = |v: f64| !self.positive_only || v > 0.0;
+            (
+                Pair::new(even, odd_value),
+                [fitted(even), odd.is_some() && fitted(odd_value)],
+            )
+        });
+        let pairs = chunks.map(move |c| Pair::new(c[0] * scale, c[stride] * scale));
+        (pairs, tail)
     }
 
     /// Number of samples in the residual (after the stride and the positive mask).
