@@ -1260,6 +1260,34 @@ fn born_again(hosts: &mut [Host], bd_seq: u64, limit: Duration) {
     assert_eq!(seq(&next_birth), 0);
 }
 
+/// After a reload that restarts the node: its NDEATH with `bd_seq`, then its next
+/// birth among what `hosts` see.
+fn ended_and_born_again(hosts: &mut [Host], bd_seq: u64, limit: Duration) {
+    let death = read_until(hosts, "NDEATH", limit, |seen| {
+        seen.iter().find(|m| m["type"] == "NDEATH").cloned()
+    });
+    assert_eq!(metric(&death, "bdSeq")["value"].as_u64(), Some(bd_seq));
+    born_again(hosts, bd_seq, limit);
+}
+
+/// Once the PLC shows another bite of F1 and `hosts` see it: two sessions between
+/// them, with every bite of F1 the PLC saw once.
+async fn every_bite_in_two_sessions(
+    hosts: &mut [Host],
+    plc: &common::Plc<'_>,
+    bite_alias: u64,
+    limit: Duration,
+) {
+    plc.bites_after_now(1).await;
+    let last = u64::from(plc.counter());
+    read_until(hosts, "a bite of F1 after the reload", limit, |seen| {
+        bite_after(seen, bite_alias, last - 1)
+    });
+    let sessions = bites_by_session(&seen(hosts), bite_alias);
+    assert_eq!(sessions.len(), 2, "{sessions:?}");
+    assert_every_bite_once(&sessions, last);
+}
+
 /// Whether a bite of F1 after `after` is among `seen`.
 fn bite_after(seen: &[Value], bite_alias: u64, after: u64) -> Option<()> {
     let sessions = bites_by_session(seen, bite_alias);
@@ -1542,20 +1570,9 @@ async fn a_reload_moves_the_node_to_its_new_server_and_loses_no_bite() {
 
     std::fs::write(&setup.config, original + &mqtt(ports[1])).unwrap();
     hang_up(service.id());
-    let death = read_until(&mut hosts, "NDEATH", limit, |seen| {
-        seen.iter().find(|m| m["type"] == "NDEATH").cloned()
-    });
-    assert_eq!(metric(&death, "bdSeq")["value"].as_u64(), Some(bd_seq));
-    born_again(&mut hosts, bd_seq, limit);
-    plc.bites_after_now(1).await;
-    let last = u64::from(plc.counter());
-    read_until(&mut hosts, "a bite after the reload", limit, |seen| {
-        bite_after(seen, bite_alias, last - 1)
-    });
-    // The first host saw the first session, the second the second.
-    let sessions = bites_by_session(&seen(&hosts), bite_alias);
-    assert_eq!(sessions.len(), 2, "{sessions:?}");
-    assert_every_bite_once(&sessions, last);
+    ended_and_born_again(&mut hosts, bd_seq, limit);
+    // (With two hosts, the first saw the first session, the second the second.)
+    every_bite_in_two_sessions(&mut hosts, &plc, bite_alias, limit).await;
     assert_eq!(
         setup
             .metric("millgate_config_reloads_total{outcome=\"applied\"}")
@@ -1606,11 +1623,7 @@ async fn a_driveline_added_by_a_reload_is_born_before_its_data() {
               thresholds = { taf_warning = 2.2, taf_alarm = 2.6 }\n\n[outputs.plc]";
     std::fs::write(&setup.config, original.replacen("[outputs.plc]", f2, 1)).unwrap();
     hang_up(service.id());
-    let death = read_until(&mut hosts, "NDEATH", limit, |seen| {
-        seen.iter().find(|m| m["type"] == "NDEATH").cloned()
-    });
-    assert_eq!(metric(&death, "bdSeq")["value"].as_u64(), Some(bd_seq));
-    born_again(&mut hosts, bd_seq, limit);
+    ended_and_born_again(&mut hosts, bd_seq, limit);
     let position = |seen: &[Value], kind: &str| {
         seen.iter()
             .position(|m| m["type"] == kind && m["device"] == "F2")
@@ -1646,14 +1659,7 @@ async fn a_driveline_added_by_a_reload_is_born_before_its_data() {
         .unwrap();
     assert_eq!(first_f2["value"].as_u64(), Some(1), "{f2_bite}");
 
-    plc.bites_after_now(1).await;
-    let last = u64::from(plc.counter());
-    read_until(&mut hosts, "a bite of F1 after the reload", limit, |seen| {
-        bite_after(seen, bite_alias, last - 1)
-    });
-    let sessions = bites_by_session(&seen(&hosts), bite_alias);
-    assert_eq!(sessions.len(), 2, "{sessions:?}");
-    assert_every_bite_once(&sessions, last);
+    every_bite_in_two_sessions(&mut hosts, &plc, bite_alias, limit).await;
     assert!(setup
         .log_text("run.log")
         .contains("reload: applied drivelines.F2"));
