@@ -649,6 +649,24 @@ mod tests {
         );
         let applied = plan.applied_to(&reserved, &grown);
         assert_eq!(applied, grown, "everything applied: the new configuration");
+        // An OPC UA server shows it after a restart, and the plan says so.
+        let with_opcua = format!("{}\n[outputs.opcua]\nbind = \"127.0.0.1:4840\"\n", demo());
+        let examples =
+            std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples"));
+        let opcua = millgate_config::from_toml_str(&with_opcua, "demo.toml", examples)
+            .unwrap()
+            .outputs
+            .opcua;
+        assert!(opcua.is_some());
+        let (mut served, mut grown_served) = (reserved.clone(), grown.clone());
+        served.outputs.opcua.clone_from(&opcua);
+        grown_served.outputs.opcua = opcua;
+        let plan = changed(compare(&served, &grown_served));
+        assert_eq!(plan.live, [Live::Drivelines]);
+        assert_eq!(
+            plan.needs_restart,
+            ["outputs.opcua (shows F9 after a restart: its nodes are built at the start)"]
+        );
         // On a channel the running service does not read, it waits for a restart.
         let mut on_new_channel = grown.clone();
         let mut channel = on_new_channel.channels[grown.drivelines[0].torque].clone();
