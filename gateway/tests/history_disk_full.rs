@@ -20,7 +20,6 @@ use std::time::Duration;
 
 use common::{fill_file_system, wait_for, KillOnDrop, Plc, Setup, MILLGATE};
 use millgate::history::query::{Filter, HistoryReader};
-use millgate::outputs::modbus::register_map::decode_u32;
 
 /// A user and mount namespace with a tmpfs of `size` on `folder`, held by a `sleep`.
 fn namespace_with_tmpfs(folder: &Path, size: &str) -> KillOnDrop {
@@ -93,21 +92,6 @@ fn sqlite(holder: &KillOnDrop, history: &Path, sql: &str) -> String {
     String::from_utf8(output.stdout).unwrap().trim().to_owned()
 }
 
-/// F1's bite counter as the HMI server at `port` serves it.
-async fn hmi_counter(port: u16, address: u16) -> u32 {
-    use tokio_modbus::client::Reader;
-    let server = std::net::SocketAddr::from(([127, 0, 0, 1], port));
-    let mut hmi = tokio_modbus::client::tcp::connect_slave(server, tokio_modbus::Slave(1))
-        .await
-        .unwrap();
-    let words = hmi
-        .read_holding_registers(address, 2)
-        .await
-        .unwrap()
-        .unwrap();
-    decode_u32(&words).unwrap()
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_full_disk_loses_nothing_stored_and_the_counter_never_goes_back() {
     let setup = Setup::new(MILLGATE, "disk-full", "tmpfs").await;
@@ -147,7 +131,7 @@ async fn a_full_disk_loses_nothing_stored_and_the_counter_never_goes_back() {
     // Acquisition, the PLC and the HMI go on.
     plc.bites_after_now(2).await;
     let at = plc.at("F1.bite_counter") as u16;
-    let hmi = hmi_counter(setup.server_port, at).await;
+    let hmi = common::hmi_u32(setup.server_port, at).await;
     assert!(hmi + 1 >= plc.counter(), "HMI {hmi}, PLC {}", plc.counter());
 
     // Killed while full, started again while still full.

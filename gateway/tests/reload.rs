@@ -16,10 +16,11 @@
 //! a window change is named as needing a restart.
 //!
 //! A driveline added within `outputs.driveline_slots` (issue 41): the PLC is written the
-//! reserved block as zeros; a `SIGHUP` adding the driveline says it needs a restart
-//! that moves no address, and after the restart its bites reach the history and the
-//! PLC in the reserved block while every register of the running driveline keeps its
-//! address, its bite ids continuing without a gap.
+//! reserved block as zeros; a `SIGHUP` adding the driveline applies it without a
+//! restart: its bites reach the history, the PLC in the reserved block, the HMI
+//! server and `/metrics`, while every register of the running driveline keeps its
+//! address and its bite ids run on without a gap. A driveline beyond the slots is
+//! named as needing a restart and changes nothing.
 
 mod common;
 
@@ -355,7 +356,7 @@ fn map_of(path: &std::path::Path) -> RegisterMap {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_driveline_added_within_the_reserved_slots_moves_no_address() {
+async fn a_driveline_added_within_the_reserved_slots_starts_live_and_moves_no_address() {
     let setup = Setup::new(MILLGATE, "reload-slots", "db").await;
     // The kit's PLC holds the demo's map (16 + 32 + 32 registers and 16 more): with a
     // slot reserved, the first layout (16 + 2 * 32) fits it, the extension blocks not.
@@ -389,7 +390,8 @@ async fn a_driveline_added_within_the_reserved_slots_moves_no_address() {
     let words = setup.devices.plc.holding();
     let block = usize::from(slot)..usize::from(slot + 32);
     assert!(words[block.clone()].iter().all(|w| *w == 0), "{words:?}");
-    // A second driveline on the same torque channel, after F1.
+    // A second driveline on the torque channel read for F1 (without a model), after
+    // F1: added by a SIGHUP, without a restart.
     let original = std::fs::read_to_string(&setup.config).unwrap();
     let f2 = "[[drivelines]]\nname = \"F2\"\ntorque = \"spindle_top\"\n\
               bite = { threshold_knm = 20.0, pre_trigger_s = 0.1, post_trigger_s = 0.5 }\n\
@@ -397,23 +399,24 @@ async fn a_driveline_added_within_the_reserved_slots_moves_no_address() {
     let added = original.replacen("[outputs.plc]", f2, 1);
     assert_ne!(added, original);
     std::fs::write(&setup.config, &added).unwrap();
+    let before_reload = plc.counter();
     hang_up(service.id());
-    let said = "reload: changed drivelines (added F2 in the register blocks \
-                outputs.driveline_slots (2) reserves: no address moves";
+    let said = "reload: applied drivelines.F2 (added in the register block of \
+                driveline_slot2: no address moves)";
     wait_for(said, Duration::from_secs(20), || {
         setup.log_text("run.log").contains(said)
     })
     .await;
-    assert!(setup.log_text("run.log").contains("needs a restart"));
     assert!(
-        service.try_wait().unwrap().is_none(),
-        "SIGHUP ended the service"
+        !setup.log_text("run.log").contains("needs a restart"),
+        "{}",
+        setup.log_text("run.log")
     );
-    plc.bites_after_now(1).await;
-    terminate(&mut service);
-    let before_restart = plc.counter();
+    setup
+        .until_metric(&reloads("applied"), 1.0, Duration::from_secs(10))
+        .await;
 
-    // After the restart F2 writes the reserved block; F1's registers have not moved.
+    // F2 takes the reserved block; every other register keeps its address.
     let grown = map_of(&setup.config);
     assert_eq!(grown.len(), reserved.len());
     assert_eq!(grown.named("F2.flags").map(|r| r.address), Some(slot));
@@ -427,13 +430,50 @@ async fn a_driveline_added_within_the_reserved_slots_moves_no_address() {
             );
         }
     }
-    let mut service = setup.spawn("restarted.log");
-    let f2_counter = usize::from(grown.named("F2.bite_counter").unwrap().address);
+    // F2's bites reach the PLC in its block, the HMI server and /metrics, while F1
+    // writes where it did: the same process.
+    let f2_counter = grown.named("F2.bite_counter").unwrap().address;
+    let f2_in_plc =
+        || decode_u32(&setup.devices.plc.holding()[usize::from(f2_counter)..]).unwrap_or(0);
     wait_for("F2's bites in the PLC", Duration::from_secs(40), || {
-        decode_u32(&setup.devices.plc.holding()[f2_counter..]).unwrap_or(0) >= 2
+        f2_in_plc() >= 2
     })
     .await;
-    assert!(plc.counter() > before_restart, "F1 writes where it did");
+    assert!(plc.counter() > before_reload, "F1 writes where it did");
+    assert!(common::hmi_u32(setup.server_port, f2_counter).await >= 2);
+    let f2_metric = "millgate_driveline_bites_total{driveline=\"F2\"}";
+    let f2_bites = setup.metric(f2_metric).await;
+    assert!(f2_bites.is_some_and(|bites| bites >= 2.0), "{f2_bites:?}");
+    assert!(
+        service.try_wait().unwrap().is_none(),
+        "SIGHUP ended the service"
+    );
+
+    // A third driveline is beyond the two slots (with three slots, or the file is
+    // refused): it needs a restart (it would move the blocks after the drivelines')
+    // and changes nothing meanwhile.
+    let f3 = f2.replace("F2", "F3");
+    let beyond = added
+        .replacen("[outputs.plc]", &f3, 1)
+        .replace("driveline_slots = 2", "driveline_slots = 3");
+    std::fs::write(&setup.config, &beyond).unwrap();
+    hang_up(service.id());
+    let said = "drivelines (added F3 (beyond the 2 driveline blocks";
+    wait_for(said, Duration::from_secs(20), || {
+        setup.log_text("run.log").contains(said)
+    })
+    .await;
+    setup
+        .until_metric(&reloads("needs_restart"), 1.0, Duration::from_secs(10))
+        .await;
+    let f2_before = f2_in_plc();
+    plc.bites_after_now(1).await;
+    wait_for("F2's next bite in the PLC", Duration::from_secs(40), || {
+        f2_in_plc() > f2_before
+    })
+    .await;
+    let page = setup.metrics().await;
+    assert!(!page.contains("driveline=\"F3\""), "{page}");
     terminate(&mut service);
 
     let history = HistoryReader::open(&setup.history).unwrap();
@@ -445,11 +485,11 @@ async fn a_driveline_added_within_the_reserved_slots_moves_no_address() {
         let bites = history.bites(&filter).unwrap();
         bites.iter().map(|bite| bite.figures.bite_counter).collect()
     };
-    let (f1, f2) = (ids("F1"), ids("F2"));
+    let (f1, f2, f3) = (ids("F1"), ids("F2"), ids("F3"));
+    // Nothing of F1 lost across the reloads: its ids are every one the PLC saw.
     assert_eq!(f1, (1..=plc.counter()).collect::<Vec<_>>(), "F1's bite ids");
-    assert!(
-        f2.len() >= 2 && f2[0] == 1,
-        "F2's bites in the history: {f2:?}"
-    );
+    let last_f2 = f2_in_plc();
+    assert_eq!(f2, (1..=last_f2).collect::<Vec<_>>(), "F2's bite ids");
+    assert!(f3.is_empty(), "F3 is not analysed before a restart: {f3:?}");
     setup.stop(service).await;
 }

@@ -1260,6 +1260,34 @@ fn born_again(hosts: &mut [Host], bd_seq: u64, limit: Duration) {
     assert_eq!(seq(&next_birth), 0);
 }
 
+/// After a reload that restarts the node: its NDEATH with `bd_seq`, then its next
+/// birth among what `hosts` see.
+fn ended_and_born_again(hosts: &mut [Host], bd_seq: u64, limit: Duration) {
+    let death = read_until(hosts, "NDEATH", limit, |seen| {
+        seen.iter().find(|m| m["type"] == "NDEATH").cloned()
+    });
+    assert_eq!(metric(&death, "bdSeq")["value"].as_u64(), Some(bd_seq));
+    born_again(hosts, bd_seq, limit);
+}
+
+/// Once the PLC shows another bite of F1 and `hosts` see it: two sessions between
+/// them, with every bite of F1 the PLC saw once.
+async fn every_bite_in_two_sessions(
+    hosts: &mut [Host],
+    plc: &common::Plc<'_>,
+    bite_alias: u64,
+    limit: Duration,
+) {
+    plc.bites_after_now(1).await;
+    let last = u64::from(plc.counter());
+    read_until(hosts, "a bite of F1 after the reload", limit, |seen| {
+        bite_after(seen, bite_alias, last - 1)
+    });
+    let sessions = bites_by_session(&seen(hosts), bite_alias);
+    assert_eq!(sessions.len(), 2, "{sessions:?}");
+    assert_every_bite_once(&sessions, last);
+}
+
 /// Whether a bite of F1 after `after` is among `seen`.
 fn bite_after(seen: &[Value], bite_alias: u64, after: u64) -> Option<()> {
     let sessions = bites_by_session(seen, bite_alias);
@@ -1542,20 +1570,9 @@ async fn a_reload_moves_the_node_to_its_new_server_and_loses_no_bite() {
 
     std::fs::write(&setup.config, original + &mqtt(ports[1])).unwrap();
     hang_up(service.id());
-    let death = read_until(&mut hosts, "NDEATH", limit, |seen| {
-        seen.iter().find(|m| m["type"] == "NDEATH").cloned()
-    });
-    assert_eq!(metric(&death, "bdSeq")["value"].as_u64(), Some(bd_seq));
-    born_again(&mut hosts, bd_seq, limit);
-    plc.bites_after_now(1).await;
-    let last = u64::from(plc.counter());
-    read_until(&mut hosts, "a bite after the reload", limit, |seen| {
-        bite_after(seen, bite_alias, last - 1)
-    });
-    // The first host saw the first session, the second the second.
-    let sessions = bites_by_session(&seen(&hosts), bite_alias);
-    assert_eq!(sessions.len(), 2, "{sessions:?}");
-    assert_every_bite_once(&sessions, last);
+    ended_and_born_again(&mut hosts, bd_seq, limit);
+    // (With two hosts, the first saw the first session, the second the second.)
+    every_bite_in_two_sessions(&mut hosts, &plc, bite_alias, limit).await;
     assert_eq!(
         setup
             .metric("millgate_config_reloads_total{outcome=\"applied\"}")
@@ -1565,6 +1582,87 @@ async fn a_reload_moves_the_node_to_its_new_server_and_loses_no_bite() {
     assert!(setup
         .log_text("run.log")
         .contains("reload: applied outputs.mqtt"));
+    terminate(&mut service);
+    setup.stop(service).await;
+}
+
+/// A driveline added by a reload within `outputs.driveline_slots` (issue 41): the node
+/// ends its session (NDEATH) and is born again with the next bdSeq, its births now
+/// with the new device's DBIRTH, which comes before any DDATA of that device; the new
+/// driveline's bites follow as DDATA, and every bite of F1 the PLC saw reaches the
+/// host once.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_driveline_added_by_a_reload_is_born_before_its_data() {
+    let setup = Setup::new(MILLGATE, "sparkplug-added-driveline", "db").await;
+    let port = free_port();
+    let _broker = Broker::start(&setup.scratch, port);
+    let mut hosts = vec![Host::start(port, "plant")];
+    // The kit's PLC holds the first layout with a slot reserved (reload.rs says why).
+    let demo = std::fs::read_to_string(&setup.config).unwrap();
+    let first_layout = demo.replace("extension_blocks = true", "extension_blocks = false");
+    std::fs::write(&setup.config, first_layout).unwrap();
+    setup.append_config(&format!(
+        "\n[outputs.mqtt]\nbroker = \"127.0.0.1:{port}\"\ngroup_id = \"plant\"\n\
+         node_id = \"f1\"\nkeep_alive_s = 5\n\n[outputs]\ndriveline_slots = 2\n"
+    ));
+    let reserved = millgate::outputs::modbus::register_map::RegisterMap::new(
+        &millgate_config::load(&setup.config).unwrap(),
+    );
+    let plc = common::Plc {
+        plc: &setup.devices.plc,
+        map: &reserved,
+    };
+    let mut service = setup.spawn("run.log");
+    let limit = Duration::from_secs(60);
+    let (bd_seq, bite_alias) = first_births(&mut hosts, limit);
+    plc.bites_after_now(1).await;
+
+    let original = std::fs::read_to_string(&setup.config).unwrap();
+    let f2 = "[[drivelines]]\nname = \"F2\"\ntorque = \"spindle_top\"\n\
+              bite = { threshold_knm = 20.0, pre_trigger_s = 0.1, post_trigger_s = 0.5 }\n\
+              thresholds = { taf_warning = 2.2, taf_alarm = 2.6 }\n\n[outputs.plc]";
+    std::fs::write(&setup.config, original.replacen("[outputs.plc]", f2, 1)).unwrap();
+    hang_up(service.id());
+    ended_and_born_again(&mut hosts, bd_seq, limit);
+    let position = |seen: &[Value], kind: &str| {
+        seen.iter()
+            .position(|m| m["type"] == kind && m["device"] == "F2")
+    };
+    let dbirth = read_until(&mut hosts, "F2's DBIRTH", limit, |seen| {
+        position(seen, "DBIRTH").map(|at| seen[at].clone())
+    });
+    assert_eq!(dbirth["topic"], "spBv1.0/plant/DBIRTH/f1/F2", "{dbirth}");
+    let f2_bite_alias = metric(&dbirth, "bite_id")["alias"].as_u64().unwrap();
+    assert_ne!(f2_bite_alias, bite_alias, "aliases are unique in the node");
+    // F2's bites as DDATA, each after its DBIRTH.
+    let f2_bite = read_until(&mut hosts, "F2's bite", limit, |seen| {
+        seen.iter()
+            .find(|m| {
+                m["type"] == "DDATA"
+                    && m["device"] == "F2"
+                    && m["metrics"]
+                        .as_array()
+                        .is_some_and(|ms| ms.iter().any(|x| x["alias"] == f2_bite_alias))
+            })
+            .cloned()
+    });
+    let seen_now = seen(&hosts);
+    assert!(
+        position(&seen_now, "DDATA") > position(&seen_now, "DBIRTH"),
+        "a DDATA of F2 before its DBIRTH"
+    );
+    let first_f2 = f2_bite["metrics"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|m| m["alias"] == f2_bite_alias)
+        .unwrap();
+    assert_eq!(first_f2["value"].as_u64(), Some(1), "{f2_bite}");
+
+    every_bite_in_two_sessions(&mut hosts, &plc, bite_alias, limit).await;
+    assert!(setup
+        .log_text("run.log")
+        .contains("reload: applied drivelines.F2"));
     terminate(&mut service);
     setup.stop(service).await;
 }

@@ -29,7 +29,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use millgate_config::{Config, DrivelineThresholds, TandemMill};
-use tokio::sync::{broadcast, mpsc, watch};
+use tokio::sync::{broadcast, mpsc, oneshot, watch};
 
 use crate::field::acquired::Acquired;
 use crate::state::board::Board;
@@ -93,65 +93,22 @@ impl Analysis {
         board: Arc<Board>,
         bites: broadcast::Sender<BiteReport>,
     ) -> Result<Self, AnalysisError> {
-        let mut by_torque = vec![Vec::new(); config.channels.len()];
-        let mut by_trigger = vec![Vec::new(); config.channels.len()];
-        let mut by_context: Vec<Vec<usize>> = vec![Vec::new(); config.channels.len()];
-        let mut by_extra = vec![Vec::new(); config.channels.len()];
-        let mut extra_hold = Vec::new();
-        let mut drivelines = Vec::new();
-        let cache_dir = config
-            .cache_dir
-            .clone()
-            .unwrap_or_else(gap_map_cache::default_dir);
-        let captures = config
-            .history
-            .as_ref()
-            .is_some_and(|history| history.captures.enabled);
-        for (index, driveline) in config.drivelines.iter().enumerate() {
-            let torque = &config.channels[driveline.torque];
-            let mut analyzer = DrivelineAnalyzer::new(index, driveline, torque, &cache_dir)?;
-            for channel in analyzer.track_context(driveline, config) {
-                by_context[channel].push(index);
-            }
-            let hold = extra_channel_hold(config, &driveline.extra_channels);
-            if captures {
-                let extra: Vec<_> = driveline
-                    .extra_channels
-                    .iter()
-                    .map(|&channel| &config.channels[channel])
-                    .collect();
-                let window_s = driveline.bite.pre_trigger_s + driveline.bite.post_trigger_s;
-                // The window, the hold, and as much again for a channel ahead of the
-                // torque by up to the hold.
-                let ring = ((window_s + 2.0 * hold.as_secs_f64()) * torque.sample_rate_hz).ceil()
-                    as usize
-                    + 1;
-                analyzer.keep_captures(torque, &extra, ring);
-                for (position, &channel) in driveline.extra_channels.iter().enumerate() {
-                    by_extra[channel].push((index, position));
-                }
-            }
-            extra_hold.push(hold);
-            drivelines.push(analyzer);
-            by_torque[driveline.torque].push(index);
-            if let Some(trigger) = driveline.metal_in_stand {
-                by_trigger[trigger].push(index);
-            }
-        }
-        for (index, driveline) in drivelines.iter().enumerate() {
+        let built = built_drivelines(config, 0)?;
+        for (index, (driveline, _)) in built.iter().enumerate() {
             if let Some(problem) = driveline.wear_problem() {
                 board.set_gap_maps(index, GapMapState::Failed(problem.to_string()));
             }
         }
         let chatter = chatter::ChatterAnalysis::new(config, Arc::clone(&board))?;
         let rod_mills = rod_monitor::RodAnalysis::new(config, Arc::clone(&board))?;
-        Ok(Self {
-            drivelines,
-            by_torque,
-            by_trigger,
-            by_context,
-            by_extra,
-            extra_hold,
+        let channels = config.channels.len();
+        let mut analysis = Self {
+            drivelines: Vec::new(),
+            by_torque: vec![Vec::new(); channels],
+            by_trigger: vec![Vec::new(); channels],
+            by_context: vec![Vec::new(); channels],
+            by_extra: vec![Vec::new(); channels],
+            extra_hold: Vec::new(),
             held: Vec::new(),
             workers: workers(config.analysis.workers),
             board,
@@ -159,7 +116,54 @@ impl Analysis {
             chatter,
             rod_mills,
             command_logs: std::array::from_fn(|_| WarnLimit::new(WARN_PERIOD)),
-        })
+        };
+        for (analyzer, routes) in built {
+            analysis.push_driveline(analyzer, routes);
+        }
+        Ok(analysis)
+    }
+
+    /// Start analysing the drivelines of `config` after those analysed (a reload
+    /// that adds drivelines after the others; `config` is the running configuration
+    /// with them, its channels the ones read): each from the next block of its torque
+    /// channel on, as a driveline does at a start, its results on the board. An
+    /// error (nothing added) names a driveline the analysis cannot be built for.
+    /// Returns the names of the drivelines added.
+    ///
+    /// A driveline added this way has no gap maps built (a reload with a `model`
+    /// waits for a restart): its wear diagnosis is what a restart starts.
+    pub fn add_drivelines(&mut self, config: &Config) -> Result<Vec<String>, AnalysisError> {
+        let from = self.drivelines.len();
+        let built = built_drivelines(config, from)?;
+        if built.is_empty() {
+            return Ok(Vec::new());
+        }
+        self.board.add_drivelines(config);
+        let names = config.drivelines[from..]
+            .iter()
+            .map(|driveline| driveline.name.clone())
+            .collect();
+        for (analyzer, routes) in built {
+            self.push_driveline(analyzer, routes);
+        }
+        Ok(names)
+    }
+
+    /// Analyse `analyzer` (the next driveline) on the channels of `routes`.
+    fn push_driveline(&mut self, analyzer: DrivelineAnalyzer, routes: DrivelineRoutes) {
+        let index = self.drivelines.len();
+        self.by_torque[routes.torque].push(index);
+        if let Some(trigger) = routes.trigger {
+            self.by_trigger[trigger].push(index);
+        }
+        for channel in routes.context {
+            self.by_context[channel].push(index);
+        }
+        for (position, channel) in routes.extra.into_iter().enumerate() {
+            self.by_extra[channel].push((index, position));
+        }
+        self.extra_hold.push(routes.hold);
+        self.drivelines.push(analyzer);
     }
 
     /// Each rod mill's span count (from its mill file), in config order.
@@ -333,7 +337,8 @@ impl Analysis {
                     );
                     return;
                 };
-                let name = &self.board.driveline_names()[driveline];
+                let names = self.board.driveline_names();
+                let name = &names[driveline];
                 let started = analyzer.start_manual_capture(f64::from(seconds));
                 match (log, started) {
                     (None, _) => {}
@@ -468,12 +473,17 @@ impl Analysis {
     /// the samples: a command given before a bite is in effect at that bite), and
     /// counting each turn of the loop (a message handled, or [`ANALYSIS_TICK`] without
     /// one) in `liveness`: a watchdog sees a stuck analysis as turns that stop. New
-    /// `thresholds` (a reload) take effect in order with the samples, like commands.
+    /// `thresholds` (a reload) take effect in order with the samples, like commands,
+    /// and so do drivelines a reload adds (`additions`), between two rounds.
     pub async fn run(
         mut self,
         mut samples: mpsc::Receiver<Acquired>,
         mut maps: mpsc::Receiver<GapMapsReady>,
-        (mut commands, mut thresholds): (CommandReceiver, watch::Receiver<LiveSettings>),
+        (mut commands, mut thresholds, mut additions): (
+            CommandReceiver,
+            watch::Receiver<LiveSettings>,
+            mpsc::Receiver<DrivelineAddition>,
+        ),
         liveness: Arc<Liveness>,
     ) {
         let mut idle = tokio::time::interval(ANALYSIS_TICK);
@@ -481,6 +491,7 @@ impl Analysis {
         let mut maps_open = true;
         let mut commands_open = true;
         let mut thresholds_open = true;
+        let mut additions_open = true;
         loop {
             tokio::select! {
                 biased;
@@ -494,6 +505,13 @@ impl Analysis {
                         self.set_thresholds(&settings);
                     }
                     Err(_) => thresholds_open = false,
+                },
+                addition = additions.recv(), if additions_open => match addition {
+                    Some(DrivelineAddition { config, done }) => {
+                        let added = self.add_drivelines(&config);
+                        let _ = done.send(added.map_err(|error| error.to_string()));
+                    }
+                    None => additions_open = false,
                 },
                 message = samples.recv() => match message {
                     Some(message) => {
@@ -524,6 +542,15 @@ impl Analysis {
     }
 }
 
+/// Drivelines a reload adds after the others ([`Analysis::add_drivelines`]).
+#[derive(Debug)]
+pub struct DrivelineAddition {
+    /// The running configuration with them (its channels the ones read).
+    pub config: Arc<Config>,
+    /// Told the names of the drivelines the analysis added, or why it added none.
+    pub done: oneshot::Sender<Result<Vec<String>, String>>,
+}
+
 /// The settings a reload changes in the running analysis (`service::reload`), in
 /// config order.
 #[derive(Debug, Clone, PartialEq)]
@@ -548,6 +575,72 @@ impl LiveSettings {
             tandem_mills: config.tandem_mills.clone(),
         }
     }
+}
+
+/// The channels (indices in `config.channels`) whose messages go to a driveline's
+/// analyser, and how long its bites wait for its extra channels.
+#[derive(Debug)]
+struct DrivelineRoutes {
+    torque: usize,
+    trigger: Option<usize>,
+    context: Vec<usize>,
+    /// Its extra channels, in order, when captures are kept.
+    extra: Vec<usize>,
+    hold: Duration,
+}
+
+/// Whether the analysis can be built for `config`'s drivelines from index `from` on
+/// (drivelines a reload adds): the first error when not.
+pub fn check_added_drivelines(config: &Config, from: usize) -> Result<(), AnalysisError> {
+    built_drivelines(config, from).map(drop)
+}
+
+/// The analysers of `config`'s drivelines from index `from` on, with their routes; the
+/// first error when one cannot be built.
+fn built_drivelines(
+    config: &Config,
+    from: usize,
+) -> Result<Vec<(DrivelineAnalyzer, DrivelineRoutes)>, AnalysisError> {
+    let cache_dir = config
+        .cache_dir
+        .clone()
+        .unwrap_or_else(gap_map_cache::default_dir);
+    let captures = config
+        .history
+        .as_ref()
+        .is_some_and(|history| history.captures.enabled);
+    let drivelines = config.drivelines.get(from..).unwrap_or_default();
+    let mut built = Vec::with_capacity(drivelines.len());
+    for (index, driveline) in (from..).zip(drivelines) {
+        let torque = &config.channels[driveline.torque];
+        let mut analyzer = DrivelineAnalyzer::new(index, driveline, torque, &cache_dir)?;
+        let context = analyzer.track_context(driveline, config);
+        let hold = extra_channel_hold(config, &driveline.extra_channels);
+        let mut extra = Vec::new();
+        if captures {
+            let extra_channels: Vec<_> = driveline
+                .extra_channels
+                .iter()
+                .map(|&channel| &config.channels[channel])
+                .collect();
+            let window_s = driveline.bite.pre_trigger_s + driveline.bite.post_trigger_s;
+            // The window, the hold, and as much again for a channel ahead of the
+            // torque by up to the hold.
+            let ring =
+                ((window_s + 2.0 * hold.as_secs_f64()) * torque.sample_rate_hz).ceil() as usize + 1;
+            analyzer.keep_captures(torque, &extra_channels, ring);
+            extra.clone_from(&driveline.extra_channels);
+        }
+        let routes = DrivelineRoutes {
+            torque: driveline.torque,
+            trigger: driveline.metal_in_stand,
+            context,
+            extra,
+            hold,
+        };
+        built.push((analyzer, routes));
+    }
+    Ok(built)
 }
 
 /// The analysis pool's threads for `analysis.workers` = `configured`: as many when

@@ -322,9 +322,8 @@ impl Metrics {
             .map(|(name, s)| (vec![("source", name.as_str())], s))
             .collect();
         catalogue_families(page, catalogue::SOURCE, &source_rows);
-        let drivelines: Vec<(Labels<'_>, _)> = self
-            .board
-            .driveline_names()
+        let driveline_names = self.board.driveline_names();
+        let drivelines: Vec<(Labels<'_>, _)> = driveline_names
             .iter()
             .zip(&results.drivelines)
             .map(|(name, d)| (vec![("driveline", name.as_str())], d))

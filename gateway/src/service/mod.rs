@@ -28,7 +28,7 @@ use reload::{Live, Reload};
 
 use crate::analysis::driveline::BiteReport;
 use crate::analysis::gap_estimate::GapObservation;
-use crate::analysis::{Analysis, LiveSettings};
+use crate::analysis::{Analysis, DrivelineAddition, LiveSettings};
 use crate::field::counters::Acquisition;
 use crate::field::counters::{CanCounters, ChannelCounters};
 use crate::field::source_health::SourceHealth;
@@ -317,14 +317,14 @@ impl Service {
         };
         let board = &self.board;
         board.update(|results| {
-            restored.apply(results, board.driveline_names(), board.tandem_mill_names());
+            restored.apply(results, &board.driveline_names(), board.tandem_mill_names());
             // A driveline whose `fatigue` section was removed publishes no fatigue
             // figures: its state row still holds the last ledger's (the saved ledger
             // stays in the history, so that adding the section again resumes it).
             for (driveline, components) in results
                 .drivelines
                 .iter_mut()
-                .zip(board.fatigue_components())
+                .zip(board.fatigue_components().iter())
             {
                 if components.is_empty() {
                     driveline.fatigue = None;
@@ -443,6 +443,8 @@ impl Service {
         // Readers stop on their own signal, after the final source statuses are kept.
         let (readers_stop, readers_shutdown) = shutdown::channel();
         let (samples, samples_rx) = mpsc::channel(SAMPLE_QUEUE);
+        // One addition at a time: a reload waits for the analysis to take it.
+        let (additions, additions_rx) = mpsc::channel(1);
         let acquisition = Acquisition {
             counters,
             health,
@@ -451,7 +453,12 @@ impl Service {
         let readers = readers::spawn(&config, &acquisition, samples, readers_shutdown);
         let analysis_task = readers::spawn_analysis(
             analysis,
-            (samples_rx, command_receiver, thresholds.subscribe()),
+            (
+                samples_rx,
+                command_receiver,
+                thresholds.subscribe(),
+                additions_rx,
+            ),
             &board,
             Arc::clone(&liveness),
         );
@@ -518,6 +525,7 @@ impl Service {
             reloads: reloads.1,
             reload_counters,
             thresholds,
+            additions,
         })
     }
 }
@@ -554,6 +562,8 @@ struct Started {
     reloads: mpsc::Receiver<ReloadRequest>,
     reload_counters: Arc<ReloadCounters>,
     thresholds: watch::Sender<LiveSettings>,
+    /// Drivelines a reload adds, to the analysis.
+    additions: mpsc::Sender<DrivelineAddition>,
 }
 
 impl Started {
@@ -620,6 +630,13 @@ impl Started {
                 return Ok(Reload::Refused(error.to_string()));
             }
         }
+        let added_map = match plan.live.contains(&Live::Drivelines) {
+            true => match self.map_with_added(&config) {
+                Ok(map) => Some(map),
+                Err(refused) => return Ok(Reload::Refused(refused)),
+            },
+            false => None,
+        };
         let listeners = match self.outputs.bind_new(&config).await {
             Ok(listeners) => listeners,
             Err(error) => return Ok(Reload::Refused(error.to_string())),
@@ -628,17 +645,76 @@ impl Started {
         if analysis.iter().any(|part| plan.live.contains(part)) {
             self.thresholds.send_replace(LiveSettings::of(&config));
         }
-        if plan.live.contains(&Live::Thresholds) {
+        if plan.live.contains(&Live::Thresholds) || added_map.is_some() {
             self.history.record(HistoryEvent::Settings {
                 time: UtcTime::now(),
                 drivelines: config.drivelines.clone(),
             });
         }
+        // The outputs that show drivelines stop before the board grows: an output
+        // built for the drivelines it had never meets one it does not know.
+        let restart = self.outputs.stop_touched(&config, &plan.live).await;
+        if let Some(map) = added_map {
+            self.add_drivelines(&config, map).await?;
+        }
         self.outputs
-            .reload(config.clone(), &plan.live, listeners)
-            .await?;
+            .start_touched(config.clone(), &plan.live, &restart, listeners)?;
         self.config = config;
         Ok(Reload::Changed(plan))
+    }
+
+    /// The register map of `config` (the running configuration with drivelines added
+    /// after the others), once checked: the map it grows into has every register where
+    /// it was (the added drivelines take blocks `outputs.driveline_slots` reserves),
+    /// and the analysis can be built for the added drivelines. `Err` says why not.
+    fn map_with_added(&self, config: &Config) -> Result<RegisterMap, String> {
+        let map = RegisterMap::try_new(config).map_err(|error| error.to_string())?;
+        if map.len() != self.map.len() {
+            return Err(format!(
+                "the register map would grow from {} to {} registers: a driveline added \
+                 live takes a block outputs.driveline_slots reserves",
+                self.map.len(),
+                map.len()
+            ));
+        }
+        crate::analysis::check_added_drivelines(config, self.config.drivelines.len())
+            .map_err(|error| error.to_string())?;
+        Ok(map)
+    }
+
+    /// Start analysing the drivelines `config` (the running configuration with them,
+    /// checked by [`Self::map_with_added`]) adds after the others, on `map`: the
+    /// analysis takes them between two rounds and grows the board; the outputs
+    /// restarted for [`Live::Drivelines`] then run on `map`. An error when the
+    /// analysis has ended or refuses them after all (the service ends with it, and
+    /// its supervisor starts it anew with the file).
+    async fn add_drivelines(
+        &mut self,
+        config: &Config,
+        map: RegisterMap,
+    ) -> Result<(), ServiceError> {
+        let (done, added) = oneshot::channel();
+        let addition = DrivelineAddition {
+            config: Arc::new(config.clone()),
+            done,
+        };
+        if self.additions.send(addition).await.is_err() {
+            return Err(ServiceError::Ended);
+        }
+        let names = match added.await {
+            Ok(Ok(names)) => names,
+            Ok(Err(reason)) => {
+                return Err(ServiceError::Output {
+                    output: "analysis",
+                    reason,
+                })
+            }
+            Err(_) => return Err(ServiceError::Ended),
+        };
+        tracing::info!(drivelines = ?names, "reload: drivelines added, analysed from their next block on");
+        self.map = Arc::new(map);
+        self.outputs.use_map(Arc::clone(&self.map));
+        Ok(())
     }
 
     /// Stop the readers (the source statuses kept as they were), let the analysis

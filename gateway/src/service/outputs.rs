@@ -1,6 +1,7 @@
 //! The service's output side: every output task, built from one list. An output costs
 //! its protocol code and one builder here. [`Outputs`] runs them, and a reload
-//! restarts those whose settings changed ([`Outputs::reload`]): each has a stop of its
+//! restarts those whose settings changed ([`Outputs::stop_touched`],
+//! [`Outputs::start_touched`]): each has a stop of its
 //! own, and a listening output keeps its socket between two runs (a client that
 //! connects meanwhile waits in the backlog), so only a new address is bound anew.
 
@@ -139,17 +140,32 @@ type Builder = fn(&mut Wiring, &Shutdown) -> Result<Option<OutputTask>, ServiceE
 /// before it added, in this order), with the parts of the configuration a reload
 /// restarts it for (the metrics endpoint also restarts with any output whose families
 /// it shows: the PLC writer's, the page's, the Sparkplug node's).
+///
+/// Drivelines added live ([`Live::Drivelines`]) restart the outputs that show
+/// drivelines: the PLC writer and the HMI server on the map with their blocks, the
+/// page and `/metrics` with their rows, the Sparkplug node with a new session whose
+/// births carry their devices (a DBIRTH before any DDATA of a device). The OPC UA
+/// server's nodes are built at the start: it shows them after a restart.
 const OUTPUTS: [(Builder, &[Live]); 8] = [
-    (plc_writer, &[Live::Plc]),
+    (plc_writer, &[Live::Plc, Live::Drivelines]),
     (heartbeat_without_plc, &[Live::Plc]),
     (outage_monitor, &[]),
     // The server tells the PLC's commands from an HMI's by the PLC's address.
-    (hmi_server, &[Live::Server, Live::Plc]),
+    (hmi_server, &[Live::Server, Live::Plc, Live::Drivelines]),
     // The page shows the thresholds.
-    (web_page, &[Live::Web, Live::Thresholds]),
-    (sparkplug, &[Live::Mqtt]),
+    (web_page, &[Live::Web, Live::Thresholds, Live::Drivelines]),
+    (sparkplug, &[Live::Mqtt, Live::Drivelines]),
     (opcua, &[]),
-    (metrics, &[Live::Metrics, Live::Plc, Live::Web, Live::Mqtt]),
+    (
+        metrics,
+        &[
+            Live::Metrics,
+            Live::Plc,
+            Live::Web,
+            Live::Mqtt,
+            Live::Drivelines,
+        ],
+    ),
 ];
 
 /// How long a restarted output may take to stop before it is aborted.
@@ -327,16 +343,10 @@ impl Outputs {
         })
     }
 
-    /// Run `config` (the running one with a reload's `live` parts applied): stop the
-    /// outputs these parts touch, then start them again with it on `listeners` (from
-    /// [`Self::bind_new`]). An output that cannot be built again is the error (the
-    /// others are running by then).
-    pub(super) async fn reload(
-        &mut self,
-        config: Config,
-        live: &[Live],
-        listeners: NewListeners,
-    ) -> Result<(), ServiceError> {
+    /// Stop the outputs a reload's `live` parts touch (`config` is the running one
+    /// with them applied): the PLC gets no "stopped" write while `config` keeps a PLC
+    /// output. Returns them, for [`Self::start_touched`].
+    pub(super) async fn stop_touched(&mut self, config: &Config, live: &[Live]) -> Vec<usize> {
         let touched = |parts: &[Live]| parts.iter().any(|part| live.contains(part));
         let restart: Vec<usize> = (0..OUTPUTS.len())
             .filter(|&index| touched(OUTPUTS[index].1))
@@ -354,6 +364,20 @@ impl Outputs {
                 self.wiring.handover.store(false, Ordering::Relaxed);
             }
         }
+        restart
+    }
+
+    /// Run `config` (the running one with a reload's `live` parts applied): start the
+    /// outputs [`Self::stop_touched`] stopped (`restart`) again with it on `listeners`
+    /// (from [`Self::bind_new`]). An output that cannot be built again is the error
+    /// (the others are running by then).
+    pub(super) fn start_touched(
+        &mut self,
+        config: Config,
+        live: &[Live],
+        restart: &[usize],
+        listeners: NewListeners,
+    ) -> Result<(), ServiceError> {
         let outputs = &config.outputs;
         let kept = &mut self.wiring.parts.listeners;
         replace(&mut kept.server, listeners.server, outputs.server.is_some());
@@ -371,10 +395,16 @@ impl Outputs {
                 .board
                 .update(|results| results.state = GatewayState::Running);
         }
-        for index in restart {
+        for &index in restart {
             self.start_one(index)?;
         }
         Ok(())
+    }
+
+    /// Encode on `map` from the next start of the PLC writer and the HMI server on
+    /// (drivelines added live: [`Live::Drivelines`] restarts them).
+    pub(super) fn use_map(&mut self, map: Arc<RegisterMap>) {
+        self.wiring.parts.map = map;
     }
 
     /// Stop every output and wait for them (the PLC gets its last write).

@@ -11,7 +11,7 @@ use tokio::sync::{mpsc, watch};
 use tokio::task::{JoinHandle, JoinSet};
 
 use crate::analysis::gap_monitor::spawn_job;
-use crate::analysis::{Analysis, LiveSettings};
+use crate::analysis::{Analysis, DrivelineAddition, LiveSettings};
 use crate::field::acquired::Acquired;
 use crate::field::can::supervisor::supervise_can;
 use crate::field::counters::Acquisition;
@@ -120,16 +120,17 @@ impl MapBuilds {
     }
 }
 
-/// Start `analysis` on the readers' `samples`, the `commands` and the `thresholds` a
-/// reload sends, and the gap map builds of its drivelines on threads of their own (read
+/// Start `analysis` on the readers' `samples`, the `commands`, and the `thresholds`
+/// and driveline `additions` a reload sends, and the gap map builds of its drivelines on threads of their own (read
 /// from the cache or built while the service runs; the analysis installs them as they
 /// come, `board` shows their progress).
 pub(super) fn spawn_analysis(
     mut analysis: Analysis,
-    (samples, commands, thresholds): (
+    (samples, commands, thresholds, additions): (
         mpsc::Receiver<Acquired>,
         CommandReceiver,
         watch::Receiver<LiveSettings>,
+        mpsc::Receiver<DrivelineAddition>,
     ),
     board: &Arc<Board>,
     liveness: Arc<Liveness>,
@@ -162,7 +163,12 @@ pub(super) fn spawn_analysis(
     }
     drop(maps_tx);
     AnalysisTask {
-        task: tokio::spawn(analysis.run(samples, maps_rx, (commands, thresholds), liveness)),
+        task: tokio::spawn(analysis.run(
+            samples,
+            maps_rx,
+            (commands, thresholds, additions),
+            liveness,
+        )),
         maps: MapBuilds(cancel_maps),
     }
 }

@@ -20,16 +20,24 @@
 //!     `outputs.server`, `outputs.metrics`, `outputs.mqtt`, `outputs.web` (added,
 //!     changed or removed; a new address is bound before the old output stops, and a
 //!     bind that fails keeps the old output);
+//!   - drivelines added after the others within `outputs.driveline_slots`, on
+//!     channels already read and without a `model` ([`Live::Drivelines`]): checked
+//!     first (the map keeps every address, the analysis builds), then the outputs
+//!     that show drivelines stop, the analysis takes them between two rounds (the
+//!     board grows), and the outputs start again on the map with their reserved
+//!     blocks (Sparkplug with a new session: their DBIRTHs); an OPC UA server shows
+//!     them after a restart, and the plan says so;
 //!   - kept as they run until a restart, each named: everything else (`name`,
 //!     `cache_dir`, the sources, channels, rod mills, `history`, `outputs.opcua`, a
 //!     driveline's other settings (its other `wear` keys build the gap maps at the
 //!     start), a tandem
 //!     mill's other settings (stands, bands, windows, `k_max`, `detector`, context
-//!     tags, captures), drivelines or tandem mills added, removed or reordered. A
-//!     driveline added after the others within `outputs.driveline_slots` is named
-//!     with "no address moves" (it takes its reserved register block at the restart);
-//!     one beyond the slots with the blocks it moves (a new driveline block goes
-//!     before the extension, tandem and rod mill blocks).
+//!     tags, captures), drivelines or tandem mills added (but the above), removed or
+//!     reordered. A driveline added within the slots on a channel not read yet or
+//!     with a `model` is named with "no address moves" (it takes its reserved register
+//!     block at the restart) and why it waits; one beyond the slots with the blocks it
+//!     moves (a new driveline block goes before the extension, tandem and rod mill
+//!     blocks).
 //!
 //! A hang-up is never the default action of the signal (which ends the process with
 //! no final PLC write and leaves its run `unclean` in the history).
@@ -62,6 +70,11 @@ pub enum Live {
     /// bits and slow-down request are judged by; the rest of its entry shapes its
     /// windows, filters, register block or nodes and needs a restart).
     Chatter,
+    /// Drivelines added after the others within `outputs.driveline_slots`, on
+    /// channels already read and without a `model`: the analysis takes them between
+    /// two rounds, the board grows, and the outputs that show drivelines restart on
+    /// the map with their reserved blocks.
+    Drivelines,
 }
 
 /// `running`'s tandem mill entry with the chatter thresholds ([`Live::Chatter`]) of `new`.
@@ -116,6 +129,12 @@ impl Plan {
                     for (mill, changed) in config.tandem_mills.iter_mut().zip(&new.tandem_mills) {
                         *mill = with_chatter_thresholds(mill, changed);
                     }
+                }
+                Live::Drivelines => {
+                    let added = new.drivelines.get(running.drivelines.len()..);
+                    config
+                        .drivelines
+                        .extend(added.into_iter().flatten().cloned());
                 }
             }
         }
@@ -250,7 +269,7 @@ pub fn plan(running: &Config, new: &Config) -> Plan {
             .filter(|(_, changed)| *changed)
             .map(|(key, _)| (*key).to_owned()),
     );
-    drivelines(running, &new.drivelines, &mut plan);
+    drivelines(running, new, &mut plan);
     tandem_mills(&running.tandem_mills, &new.tandem_mills, &mut plan);
     plan
 }
@@ -345,11 +364,13 @@ fn name_restarts(plan: &mut Plan, entry: &str, settings: &[(&str, bool)], otherw
     plan.needs_restart.extend(named);
 }
 
-/// Into `plan`, the drivelines' changes: thresholds apply; any other change, or a
-/// driveline added, removed or moved, needs a restart (one added after the others
-/// within `outputs.driveline_slots` takes its reserved register block: no address
-/// moves, and the restart says so).
-fn drivelines(running_config: &Config, new: &[Driveline], plan: &mut Plan) {
+/// Into `plan`, the drivelines' changes: thresholds and `wear.horizon_days` apply, and
+/// drivelines added after the others within `outputs.driveline_slots` on channels
+/// already read and without a `model` ([`Live::Drivelines`]); any other change, or a
+/// driveline added otherwise, removed or moved, needs a restart (one added within the
+/// slots takes its reserved register block: no address moves, and the plan says so).
+fn drivelines(running_config: &Config, new_config: &Config, plan: &mut Plan) {
+    let new = &new_config.drivelines;
     let running = &running_config.drivelines;
     let names = |drivelines: &[Driveline]| -> Vec<String> {
         drivelines.iter().map(|d| d.name.clone()).collect()
@@ -370,11 +391,17 @@ fn drivelines(running_config: &Config, new: &[Driveline], plan: &mut Plan) {
         let slots = running_config.driveline_slots();
         let appended = new_names.starts_with(&old_names);
         if !added.is_empty() && appended && new_names.len() <= slots {
-            what.push(format!(
-                "added {} in the register blocks outputs.driveline_slots ({slots}) reserves: \
-                 no address moves; its channels, analysis and outputs start with the service",
-                added.join(", ")
-            ));
+            let waits = added_waits(running_config, new_config, &added);
+            if waits.is_empty() {
+                added_live(running_config, new_config, &added, plan);
+            } else {
+                what.push(format!(
+                    "added {} in the register blocks outputs.driveline_slots ({slots}) \
+                     reserves: no address moves; {}",
+                    added.join(", "),
+                    waits.join("; ")
+                ));
+            }
         } else if !added.is_empty() {
             what.push(format!(
                 "added {} (beyond the {slots} driveline blocks of the register map: a new \
@@ -386,12 +413,14 @@ fn drivelines(running_config: &Config, new: &[Driveline], plan: &mut Plan) {
         if !removed.is_empty() {
             what.push(format!("removed {}", removed.join(", ")));
         }
-        if what.is_empty() {
+        if what.is_empty() && !plan.live.contains(&Live::Drivelines) {
             what.push("reordered".to_owned());
         }
-        plan.needs_restart
-            .push(format!("drivelines ({})", what.join("; ")));
-        return;
+        if !what.is_empty() {
+            plan.needs_restart
+                .push(format!("drivelines ({})", what.join("; ")));
+            return;
+        }
     }
     let (mut thresholds, mut horizon) = (false, false);
     for (old, new) in running.iter().zip(new) {
@@ -442,6 +471,57 @@ fn drivelines(running_config: &Config, new: &[Driveline], plan: &mut Plan) {
     }
     if horizon {
         plan.live.push(Live::Horizon);
+    }
+}
+
+/// Why the drivelines `added` (after the others, within the slots) cannot start
+/// live: their channels are not the ones read (the readers start channels at a
+/// start), or a `model` (its gap maps build at the start). Empty when they can.
+fn added_waits(running: &Config, new: &Config, added: &[&str]) -> Vec<String> {
+    let mut waits = Vec::new();
+    if running.channels != new.channels
+        || running.modbus_sources != new.modbus_sources
+        || running.can_sources != new.can_sources
+    {
+        waits.push(
+            "the channels or sources changed: a driveline starts live only on channels \
+             already read, its channels and analysis start with the service"
+                .to_owned(),
+        );
+    }
+    let with_model: Vec<&str> = new
+        .drivelines
+        .iter()
+        .filter(|driveline| added.contains(&driveline.name.as_str()) && driveline.model.is_some())
+        .map(|driveline| driveline.name.as_str())
+        .collect();
+    if !with_model.is_empty() {
+        waits.push(format!(
+            "{} named a model: its gap maps build at the start",
+            with_model.join(", ")
+        ));
+    }
+    waits
+}
+
+/// Into `plan`, the drivelines `added` applied live ([`Live::Drivelines`]), each in
+/// the register block the slots reserve; an OPC UA server shows them after a restart
+/// (its nodes are built at the start), and the plan names that.
+fn added_live(running: &Config, new: &Config, added: &[&str], plan: &mut Plan) {
+    let first = running.drivelines.len();
+    for (k, name) in (first..).zip(added) {
+        plan.applied.push(format!(
+            "drivelines.{name} (added in the register block of driveline_slot{}: no address \
+             moves)",
+            k + 1
+        ));
+    }
+    plan.live.push(Live::Drivelines);
+    if new.outputs.opcua.is_some() {
+        plan.needs_restart.push(format!(
+            "outputs.opcua (shows {} after a restart: its nodes are built at the start)",
+            added.join(", ")
+        ));
     }
 }
 
@@ -539,16 +619,66 @@ mod tests {
                 && plan.needs_restart[0].contains("moves the extension"),
             "{plan:?}"
         );
-        // Within the reserved slots it still waits for a restart, which moves nothing.
+        // Within the reserved slots, with a model (its gap maps build at the start), it
+        // waits for a restart, which moves nothing.
         let mut reserved = running.clone();
         reserved.outputs.driveline_slots = Some(added);
         let mut grown = bigger.clone();
         grown.outputs.driveline_slots = Some(added);
+        assert!(grown.drivelines[added - 1].model.is_some());
         let plan = changed(compare(&reserved, &grown));
         assert_eq!(plan.needs_restart.len(), 1, "{plan:?}");
+        assert!(plan.live.is_empty(), "{plan:?}");
         assert!(
             plan.needs_restart[0].starts_with("drivelines (added F9 in the register blocks")
-                && plan.needs_restart[0].contains("no address moves"),
+                && plan.needs_restart[0].contains("no address moves")
+                && plan.needs_restart[0].contains("F9 named a model"),
+            "{plan:?}"
+        );
+        // Without a model, on a channel read, it is added live, in its reserved block.
+        grown.drivelines[added - 1].model = None;
+        let plan = changed(compare(&reserved, &grown));
+        assert!(plan.needs_restart.is_empty(), "{plan:?}");
+        assert_eq!(plan.live, [Live::Drivelines]);
+        assert_eq!(
+            plan.applied,
+            [format!(
+                "drivelines.F9 (added in the register block of driveline_slot{added}: no \
+                 address moves)"
+            )]
+        );
+        let applied = plan.applied_to(&reserved, &grown);
+        assert_eq!(applied, grown, "everything applied: the new configuration");
+        // An OPC UA server shows it after a restart, and the plan says so.
+        let with_opcua = format!("{}\n[outputs.opcua]\nbind = \"127.0.0.1:4840\"\n", demo());
+        let examples =
+            std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples"));
+        let opcua = millgate_config::from_toml_str(&with_opcua, "demo.toml", examples)
+            .unwrap()
+            .outputs
+            .opcua;
+        assert!(opcua.is_some());
+        let (mut served, mut grown_served) = (reserved.clone(), grown.clone());
+        served.outputs.opcua.clone_from(&opcua);
+        grown_served.outputs.opcua = opcua;
+        let plan = changed(compare(&served, &grown_served));
+        assert_eq!(plan.live, [Live::Drivelines]);
+        assert_eq!(
+            plan.needs_restart,
+            ["outputs.opcua (shows F9 after a restart: its nodes are built at the start)"]
+        );
+        // On a channel the running service does not read, it waits for a restart.
+        let mut on_new_channel = grown.clone();
+        let mut channel = on_new_channel.channels[grown.drivelines[0].torque].clone();
+        channel.name = "spindle_f9".into();
+        on_new_channel.channels.push(channel);
+        on_new_channel.drivelines[added - 1].torque = on_new_channel.channels.len() - 1;
+        let plan = changed(compare(&reserved, &on_new_channel));
+        assert!(plan.live.is_empty(), "{plan:?}");
+        assert!(
+            plan.needs_restart
+                .iter()
+                .any(|key| key.contains("added F9") && key.contains("channels already read")),
             "{plan:?}"
         );
         // The slots themselves move the blocks after them.

@@ -30,12 +30,10 @@ pub struct Board {
     health: Vec<Arc<SourceHealth>>,
     /// The source statuses of the final image, once the service stops.
     frozen_health: Mutex<Option<Vec<SourceStatus>>>,
-    driveline_names: Vec<String>,
-    /// Per driveline, its fatigue ledger's components (empty without a ledger).
-    fatigue_components: Vec<Vec<String>>,
+    /// The drivelines' names, fatigue components and sources: a reload that adds
+    /// drivelines grows them ([`Self::add_drivelines`]).
+    drivelines: Mutex<DrivelineShape>,
     tandem_mill_names: Vec<String>,
-    /// Index in [`Config::sources`] of each driveline's torque channel's source.
-    driveline_sources: Vec<usize>,
     /// Indices of the sources of each tandem mill's stand channels.
     tandem_mill_sources: Vec<Vec<usize>>,
     /// Indices of the sources of each rod mill's input channels.
@@ -46,6 +44,46 @@ pub struct Board {
     gap_maps: Mutex<Vec<GapMapState>>,
     /// The block wait and bite -> PLC histograms, and the bites waiting for the PLC.
     latencies: Arc<Latencies>,
+}
+
+/// What the board knows of the drivelines besides their results, in config order.
+#[derive(Debug)]
+struct DrivelineShape {
+    names: Arc<[String]>,
+    /// Per driveline, its fatigue ledger's components (empty without a ledger).
+    fatigue_components: Arc<[Vec<String>]>,
+    /// Index in [`Config::sources`] of each driveline's torque channel's source.
+    sources: Arc<[usize]>,
+}
+
+impl DrivelineShape {
+    /// The drivelines of `config`.
+    fn of(config: &Config) -> Self {
+        let drivelines = &config.drivelines;
+        Self {
+            names: drivelines.iter().map(|d| d.name.clone()).collect(),
+            fatigue_components: drivelines
+                .iter()
+                .map(|d| {
+                    d.fatigue.as_ref().map_or_else(Vec::new, |f| {
+                        f.components.iter().map(|c| c.name.clone()).collect()
+                    })
+                })
+                .collect(),
+            sources: drivelines
+                .iter()
+                .map(|d| config.source_of_channel(d.torque))
+                .collect(),
+        }
+    }
+}
+
+/// The gap maps of `driveline` before any is built.
+fn gap_maps_at_start(driveline: &millgate_config::Driveline) -> GapMapState {
+    match driveline.model {
+        Some(_) => GapMapState::Building { done: 0, total: 0 },
+        None => GapMapState::NoModel,
+    }
 }
 
 impl Board {
@@ -66,22 +104,8 @@ impl Board {
             signal: Signal::default(),
             health,
             frozen_health: Mutex::new(None),
-            driveline_names: config.drivelines.iter().map(|d| d.name.clone()).collect(),
-            fatigue_components: config
-                .drivelines
-                .iter()
-                .map(|d| {
-                    d.fatigue.as_ref().map_or_else(Vec::new, |f| {
-                        f.components.iter().map(|c| c.name.clone()).collect()
-                    })
-                })
-                .collect(),
+            drivelines: Mutex::new(DrivelineShape::of(config)),
             tandem_mill_names: config.tandem_mills.iter().map(|m| m.name.clone()).collect(),
-            driveline_sources: config
-                .drivelines
-                .iter()
-                .map(|d| config.source_of_channel(d.torque))
-                .collect(),
             tandem_mill_sources: config
                 .tandem_mills
                 .iter()
@@ -96,16 +120,7 @@ impl Board {
                 })
                 .collect(),
             history: History::disabled(),
-            gap_maps: Mutex::new(
-                config
-                    .drivelines
-                    .iter()
-                    .map(|d| match d.model {
-                        Some(_) => GapMapState::Building { done: 0, total: 0 },
-                        None => GapMapState::NoModel,
-                    })
-                    .collect(),
-            ),
+            gap_maps: Mutex::new(config.drivelines.iter().map(gap_maps_at_start).collect()),
             latencies: Arc::default(),
         }
     }
@@ -146,15 +161,38 @@ impl Board {
         &self.history
     }
 
-    /// Driveline names, in config order.
-    pub(crate) fn driveline_names(&self) -> &[String] {
-        &self.driveline_names
+    /// Driveline names, in config order (a reload may add some at the end).
+    pub(crate) fn driveline_names(&self) -> Arc<[String]> {
+        Arc::clone(&crate::lock(&self.drivelines).names)
     }
 
     /// Per driveline (config order), its fatigue ledger's component names (empty
     /// without `drivelines[].fatigue`).
-    pub(crate) fn fatigue_components(&self) -> &[Vec<String>] {
-        &self.fatigue_components
+    pub(crate) fn fatigue_components(&self) -> Arc<[Vec<String>]> {
+        Arc::clone(&crate::lock(&self.drivelines).fatigue_components)
+    }
+
+    /// Add the drivelines of `config` after those the board has (a reload that adds
+    /// drivelines after the others, `config` being the running one with them): their
+    /// results start empty, as at a start, and the outputs are woken. Returns how many
+    /// were added. The drivelines the board has are `config`'s first ones.
+    pub(crate) fn add_drivelines(&self, config: &Config) -> usize {
+        let mut results = crate::lock(&self.results);
+        let mut shape = crate::lock(&self.drivelines);
+        let Some(added) = config.drivelines.get(shape.names.len()..) else {
+            return 0;
+        };
+        if added.is_empty() {
+            return 0;
+        }
+        results
+            .drivelines
+            .resize(config.drivelines.len(), Default::default());
+        *shape = DrivelineShape::of(config);
+        crate::lock(&self.gap_maps).extend(added.iter().map(gap_maps_at_start));
+        drop((shape, results));
+        self.signal.results_changed();
+        added.len()
     }
 
     /// Tandem mill names, in config order.
@@ -259,7 +297,8 @@ impl Board {
                 .get(*source)
                 .is_some_and(|s| *s != SourceStatus::Ok)
         };
-        for (driveline, source) in results.drivelines.iter_mut().zip(&self.driveline_sources) {
+        let sources = Arc::clone(&crate::lock(&self.drivelines).sources);
+        for (driveline, source) in results.drivelines.iter_mut().zip(sources.iter()) {
             driveline.source_stale = bad(source);
         }
         // A mill is also flagged by its analysis (a gap restarted its window).
@@ -289,6 +328,7 @@ impl Board {
     /// holds); `origin` says who, for the history.
     pub fn reset_wear(&self, index: usize, origin: CommandOrigin) {
         let time = UtcTime::now();
+        let names = self.driveline_names();
         self.update_recorded(|results, events| {
             if let Some(driveline) = results.drivelines.get_mut(index) {
                 driveline.wear_trend = None;
@@ -297,7 +337,7 @@ impl Board {
                     driveline.gap_warning = false;
                     events.push(HistoryEvent::Alarm(AlarmRecord {
                         time,
-                        subject: self.driveline_names[index].clone(),
+                        subject: names[index].clone(),
                         kind: AlarmKind::GapWarning,
                         event: AlarmEvent::Cleared,
                         origin: Some(origin),
@@ -307,12 +347,12 @@ impl Board {
                 }
                 events.push(HistoryEvent::WearReset {
                     time,
-                    driveline: self.driveline_names[index].clone(),
+                    driveline: names[index].clone(),
                     origin,
                 });
                 events.push(state_record(
                     time,
-                    &self.driveline_names[index],
+                    &names[index],
                     SubjectResults::Driveline(Box::new(driveline.clone())),
                 ));
             }
@@ -325,10 +365,11 @@ impl Board {
     /// each subject after it.
     pub fn acknowledge_alarms(&self, origin: CommandOrigin) {
         let time = UtcTime::now();
+        let names = self.driveline_names();
         // Nothing latched, nothing changes: the outputs are not woken (an acknowledge
         // sent in a loop made a PLC write each).
         self.update_recorded_if(|results, events| {
-            for (driveline, name) in results.drivelines.iter_mut().zip(&self.driveline_names) {
+            for (driveline, name) in results.drivelines.iter_mut().zip(names.iter()) {
                 if acknowledge(driveline, name, (time, origin), events) {
                     events.push(state_record(
                         time,

@@ -13,3 +13,19 @@ pub(crate) const MILLGATE: Millgate = Millgate(env!("CARGO_BIN_EXE_millgate"));
 pub(crate) fn millgate(args: &[&str]) -> std::process::Output {
     MILLGATE.run(args)
 }
+
+/// The u32 at register `address` as the HMI server at `port` answers (Modbus TCP on
+/// loopback, unit 1).
+pub(crate) async fn hmi_u32(port: u16, address: u16) -> u32 {
+    use tokio_modbus::client::Reader;
+    let server = std::net::SocketAddr::from(([127, 0, 0, 1], port));
+    let mut hmi = tokio_modbus::client::tcp::connect_slave(server, tokio_modbus::Slave(1))
+        .await
+        .unwrap();
+    let words = hmi
+        .read_holding_registers(address, 2)
+        .await
+        .unwrap()
+        .unwrap();
+    millgate::outputs::modbus::register_map::decode_u32(&words).unwrap()
+}

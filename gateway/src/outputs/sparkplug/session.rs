@@ -107,7 +107,10 @@ impl<'a> Session<'a> {
         let node = EdgeNode::new(
             &config.group_id,
             &config.node_id,
-            (task.board.driveline_names(), task.board.tandem_mill_names()),
+            (
+                &task.board.driveline_names(),
+                task.board.tandem_mill_names(),
+            ),
             &task.rod_mills,
             bd_seq,
         );
