@@ -1,8 +1,12 @@
-//! What the unit tests of several rooms share: the example configurations.
+//! What the unit tests of several rooms share: the example configurations, and
+//! evidence as the analysis hands it to the history.
 
 use std::path::PathBuf;
 
 use millgate_config::Config;
+
+use crate::state::captures::{CaptureKind, CaptureRecord, KeepClass};
+use crate::state::context::ContextReading;
 
 /// The path of `config/examples/<name>`.
 pub(crate) fn example(name: &str) -> PathBuf {
@@ -14,4 +18,26 @@ pub(crate) fn example(name: &str) -> PathBuf {
 /// The example configuration `config/examples/<name>`, loaded.
 pub(crate) fn example_config(name: &str) -> Config {
     millgate_config::load(&example(name)).expect("the example loads")
+}
+
+/// A capture of `kind` of `subject` without channels, kept as important, in `context`.
+pub(crate) fn capture_without_samples(
+    kind: CaptureKind,
+    subject: &str,
+    context: Option<ContextReading>,
+) -> CaptureRecord {
+    CaptureRecord {
+        kind,
+        subject: subject.into(),
+        bite: None,
+        first_sample_unix_ns: 1_790_000_000_000_000_000,
+        kernel_time: false,
+        sample_rate_hz: 2500.0,
+        channels: Vec::new(),
+        gaps: Vec::new(),
+        analysis: None,
+        episode: None,
+        keep: KeepClass::Important,
+        context,
+    }
 }
