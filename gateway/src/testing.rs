@@ -7,6 +7,8 @@ use millgate_config::Config;
 
 use crate::state::captures::{CaptureKind, CaptureRecord, KeepClass};
 use crate::state::context::ContextReading;
+use crate::state::events::{ChatterWindow, HistoryEvent};
+use crate::state::time::UtcTime;
 
 /// The path of `config/examples/<name>`.
 pub(crate) fn example(name: &str) -> PathBuf {
@@ -39,5 +41,27 @@ pub(crate) fn capture_without_samples(
         episode: None,
         keep: KeepClass::Important,
         context,
+    }
+}
+
+/// A chatter episode's start of `mill` at 2026-11-29T10:00:00Z (sigma_n 0.5 Hz,
+/// K_mean 0.9, 180 Hz) in `context`, judged by the thresholds of product group
+/// `thresholds_group` (`None`: the mill's).
+pub(crate) fn chatter_started(
+    mill: &str,
+    context: Option<ContextReading>,
+    thresholds_group: Option<&str>,
+) -> HistoryEvent {
+    HistoryEvent::ChatterStarted {
+        time: UtcTime::parse("2026-11-29T10:00:00.000Z").expect("a time"),
+        mill: mill.into(),
+        window: ChatterWindow {
+            sigma_n_hz: 0.5,
+            k_mean: 0.9,
+            frequency_hz: Some(180.0),
+            synchronized: false,
+        },
+        context,
+        thresholds_group: thresholds_group.map(str::to_owned),
     }
 }

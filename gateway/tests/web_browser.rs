@@ -543,17 +543,23 @@ async fn episode_plots_are_the_bands_api(client: &Client, port: u16) {
            ? [p.band.millgateCapture, p.band.data, p.spectrum.data, \
               document.getElementById('spectrum-plot').getAttribute('aria-label'), \
               rows[0].querySelector('a').getAttribute('href'), rows.length, \
-              rows[0].cells[5].textContent] : null;",
+              rows[0].cells[6].textContent, rows[0].cells[5].textContent] : null;",
         Duration::from_secs(20),
         |v| !v.is_null(),
     )
     .await;
     let id = shown[0].as_i64().expect("the plotted capture's id");
     assert_eq!(shown[5].as_u64(), Some(1), "{shown}");
-    // The context the episode was captured in, beside it.
+    // The context the episode was captured in, beside it, and the product group whose
+    // thresholds judged it (schema v15).
     assert_eq!(
         shown[6].as_str(),
         Some("coil 4711, product 205, 1200 m/min"),
+        "{shown}"
+    );
+    assert_eq!(
+        shown[7].as_str(),
+        Some(common::episode::THRESHOLDS_GROUP),
         "{shown}"
     );
     assert_eq!(

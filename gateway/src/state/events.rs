@@ -322,6 +322,9 @@ pub enum HistoryEvent {
         window: ChatterWindow,
         /// The mill's process context then; `None` without context tags.
         context: Option<ContextReading>,
+        /// The product group whose thresholds judged the window (its name in the
+        /// mill's `product_groups`); `None`: the mill's own `gain_thresholds`.
+        thresholds_group: Option<String>,
     },
     /// Another window of a running chatter episode.
     ChatterWindow {
