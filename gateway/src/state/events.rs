@@ -384,6 +384,23 @@ impl HistoryEvent {
         matches!(self, Self::CapturedBite(..) | Self::Capture(_))
     }
 
+    /// For evidence kept with the process context of its time: its subject, what it is
+    /// (`episode`: a chatter episode's start; `capture`) and the context; `None` for
+    /// any other event and for evidence without context tags.
+    pub(crate) fn evidence_context(&self) -> Option<(&str, &'static str, &ContextReading)> {
+        match self {
+            Self::ChatterStarted { mill, context, .. } => {
+                Some((mill.as_str(), "episode", context.as_ref()?))
+            }
+            Self::CapturedBite(_, capture) | Self::Capture(capture) => Some((
+                capture.subject.as_str(),
+                "capture",
+                capture.context.as_ref()?,
+            )),
+            _ => None,
+        }
+    }
+
     /// Whether the event belongs to the alarm stream ([`super::history::History::alarms`]):
     /// an alarm's change or a source outage's.
     pub(crate) fn is_alarm_stream(&self) -> bool {
