@@ -1127,7 +1127,9 @@
         card("Chatter", badge(m.chatter_state), m.source_stale ? "source stale" : ""),
         card("Gain ratio", num(m.gain_ratio, 2), "worst stand " + (m.worst_stand_channel || "–")),
         card("Thresholds", m.thresholds_group === null ? "–" : (m.thresholds_group_name || "mill's"),
-          m.product_fallback ? m.product_fallback + " windows without a valid product" : ""),
+          [m.gain_thresholds_in_use ? m.gain_thresholds_in_use.map((t) => num(t, 3)).join(", ") : "",
+            m.product_fallback ? m.product_fallback + " windows without a valid product" : ""]
+            .filter((part) => part !== "").join("; ")),
         card("Chatter frequency", m.chatter_frequency_hz === null ? "–" : num(m.chatter_frequency_hz, 1) + " Hz", ""),
         card("Slow-down request", m.slow_down_request ? badge("warning", "requested") : "no", ""));
     }

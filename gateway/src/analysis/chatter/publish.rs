@@ -397,6 +397,9 @@ fn publish(
                     published.thresholds_group_name =
                         monitor.thresholds_group_name().map(str::to_owned);
                 }
+                if published.gain_thresholds_in_use.as_deref() != Some(monitor.thresholds()) {
+                    published.gain_thresholds_in_use = Some(monitor.thresholds().into());
+                }
                 published.product_fallback += u64::from(product_fallback);
                 let Verdict { warning, alarm, .. } = verdict;
                 published.chatter_warning = warning;
