@@ -543,17 +543,23 @@ async fn episode_plots_are_the_bands_api(client: &Client, port: u16) {
            ? [p.band.millgateCapture, p.band.data, p.spectrum.data, \
               document.getElementById('spectrum-plot').getAttribute('aria-label'), \
               rows[0].querySelector('a').getAttribute('href'), rows.length, \
-              rows[0].cells[5].textContent] : null;",
+              rows[0].cells[6].textContent, rows[0].cells[5].textContent] : null;",
         Duration::from_secs(20),
         |v| !v.is_null(),
     )
     .await;
     let id = shown[0].as_i64().expect("the plotted capture's id");
     assert_eq!(shown[5].as_u64(), Some(1), "{shown}");
-    // The context the episode was captured in, beside it.
+    // The context the episode was captured in, beside it, and the product group whose
+    // thresholds judged it (schema v15).
     assert_eq!(
         shown[6].as_str(),
         Some("coil 4711, product 205, 1200 m/min"),
+        "{shown}"
+    );
+    assert_eq!(
+        shown[7].as_str(),
+        Some(common::episode::THRESHOLDS_GROUP),
         "{shown}"
     );
     assert_eq!(
@@ -992,4 +998,112 @@ async fn the_pages_list_the_drivelines_plot_the_gap_and_show_a_new_bite_live() {
     drop(driver);
     drop(service);
     setup.finish().await;
+}
+
+/// The Thresholds card of a tandem mill whose product comes from the PLC (issue 39):
+/// a virtual DAQ streams the tandem model's stable rolling, a virtual PLC the product
+/// code; product 7 is in the group "tight" (a quarter of the mill's thresholds),
+/// product 8 in none. Read from the rendered card: product 7 shows the group's name and
+/// its thresholds, product 8 the fallback ("mill's") and the mill's thresholds.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_thresholds_card_names_the_products_group_and_its_thresholds() {
+    use millgate_sim::devices::modbus_bank::ServeOptions;
+    use millgate_sim::devices::virtual_daq::VirtualDaq;
+    use millgate_sim::devices::virtual_plc::VirtualPlc;
+    use millgate_tests::kit::tandem::{
+        reference_ramp, stand_daq_channels, Stands, FS, GAIN_THRESHOLDS,
+    };
+    use tokio::net::TcpListener;
+
+    let (Some(chromium), Some(chromedriver)) = (which("chromium"), which("chromedriver")) else {
+        eprintln!(
+            "skipped: chromium or chromedriver not installed (scripts/test installs them: \
+             apt-get install chromium chromium-driver)"
+        );
+        return;
+    };
+    let tight: Vec<f64> = GAIN_THRESHOLDS.iter().map(|t| t / 4.0).collect();
+    // `values`, each as `write` gives it, comma-separated.
+    let joined = |values: &[f64], write: fn(&f64) -> String| {
+        values.iter().map(write).collect::<Vec<_>>().join(", ")
+    };
+    let port = free_port();
+    let text = String::from("name = \"thresholds card\"\n")
+        + &modbus_source("daq")
+        + "[[sources.modbus]]\nname = \"process_plc\"\naddress = \"127.0.0.1:1\"\n\
+           poll_period_ms = 100\ntimeout_ms = 500\n\n\
+           [[channels]]\nname = \"product_code\"\nkind = \"process_value\"\nunit = \"1\"\n\
+           source = { modbus = \"process_plc\", table = \"holding\", address = 0 }\n\n"
+        + &Stands::modbus(5, "daq")
+            .keys(&format!(
+                "context = {{ product = \"product_code\", products = [7, 8] }}\n\
+                 [[tandem_mills.product_groups]]\nname = \"tight\"\nproducts = [7]\n\
+                 gain_thresholds = [{}]\n",
+                joined(&tight, |t| format!("{t:?}"))
+            ))
+            .toml()
+        + &format!("[outputs.web]\nbind = \"127.0.0.1:{port}\"\n");
+    let mut config =
+        millgate_config::from_toml_str(&text, "thresholds-card.toml", std::path::Path::new("."))
+            .unwrap_or_else(|e| panic!("{e}"));
+    let run = reference_ramp(0.9, 60.0, 20.0, 21).expect("the tandem model's rolling");
+    let daq = VirtualDaq::new(
+        FS,
+        120,
+        stand_daq_channels(&run.acceleration, &[0, 1, 2, 3, 4]),
+    )
+    .looped();
+    let process = VirtualPlc::new(4);
+    let set_product = |code: u16| process.bank().lock().holding[0] = code;
+    set_product(7);
+    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    config.modbus_sources[0].address = listener.local_addr().unwrap().to_string();
+    let daq_running = daq.spawn(listener, ServeOptions::default());
+    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    config.modbus_sources[1].address = listener.local_addr().unwrap().to_string();
+    let process_running = process.spawn(listener, ServeOptions::default());
+    let gateway = millgate::Service::new(config)
+        .unwrap()
+        .spawn()
+        .await
+        .unwrap();
+    web_ready(port).await;
+    let driver = start_driver(&chromedriver).await;
+    let client = browser(&driver, &chromium).await;
+    client
+        .goto(&format!("http://127.0.0.1:{port}/tandem_mills/TCM"))
+        .await
+        .unwrap();
+    // The card's value and its line below, read in one script call (a live update
+    // re-renders the cards).
+    const CARD: &str = "const card = Array.from(document.querySelectorAll('#mill-state .card')) \
+          .find((c) => c.querySelector('.label').textContent === 'Thresholds'); \
+        return card ? [card.querySelector('.value').textContent, \
+          card.querySelector('.sub').textContent] : null;";
+    // As the card shows them.
+    let shown = |values: &[f64]| joined(values, |t| format!("{t:.3}"));
+    let long = Duration::from_secs(30);
+    let group = until_js(&client, CARD, long, |v| v[0] == "tight").await;
+    assert!(
+        group[1]
+            .as_str()
+            .is_some_and(|sub| sub.contains(&shown(&tight))),
+        "product 7: {group}"
+    );
+    set_product(8);
+    let fallback = until_js(&client, CARD, long, |v| v[0] == "mill's").await;
+    assert!(
+        fallback[1]
+            .as_str()
+            .is_some_and(|sub| sub.contains(&shown(&GAIN_THRESHOLDS))),
+        "product 8: {fallback}"
+    );
+    client.close().await.unwrap();
+    drop(driver);
+    tokio::time::timeout(Duration::from_secs(10), gateway.stop())
+        .await
+        .unwrap()
+        .unwrap();
+    daq_running.stop().await.unwrap();
+    process_running.stop().await.unwrap();
 }

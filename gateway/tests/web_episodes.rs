@@ -10,6 +10,7 @@ mod common;
 
 use common::episode::{
     amplitude, stands, tone_hz, write_chatter_capture, COIL, FS, GAIN_WINDOW_S, PRODUCT,
+    THRESHOLDS_GROUP,
 };
 use common::tandem::modbus_source;
 use common::{free_port, http, peer, scratch, web_ready};
@@ -89,6 +90,11 @@ async fn an_episodes_band_signal_and_spectra_match_numpy_on_its_csv() -> anyhow:
     let episodes = http(port, "GET", "/api/tandem_mills/TCM/episodes").await;
     let episodes: Vec<serde_json::Value> = serde_json::from_str(&episodes.body)?;
     assert_eq!(episodes[0]["ended_by"], "analysis", "{episodes:?}");
+    // The thresholds that judged it (schema v15).
+    assert_eq!(
+        episodes[0]["thresholds_group"], THRESHOLDS_GROUP,
+        "{episodes:?}"
+    );
     for (path, status) in [
         ("/api/tandem_mills/TCM/episodes?product=-1", 400),
         ("/api/tandem_mills/TCM/episodes?coil=1", 400),

@@ -10,15 +10,17 @@
 //! serves each bar's coil id and product code: every bite's capture carries them
 //! (schema v14), an invalid context's capture none and says so, `capture list
 //! --product` finds a product's captures, and pyarrow reads the coil and product from
-//! a capture's Parquet metadata.
+//! a capture's Parquet metadata. A manual capture of the torque, asked for after the
+//! first bite, carries the context of its time too.
 
 use std::path::PathBuf;
 use std::time::Duration;
 
-use millgate::cli::capture::{CaptureCommand, ExportArgs, ListArgs, Selection};
+use millgate::cli::capture::{CaptureCommand, ExportArgs, KindArg, ListArgs, Selection};
 use millgate::cli::OutputFormat;
 use millgate::history::capture_files::ExportFormat;
 use millgate::history::query::{CaptureRow, Filter, HistoryReader};
+use millgate::state::commands::{Command, CommandOrigin};
 use millgate::state::context::{BiteGate, MillState};
 use millgate_sim::devices::modbus_bank::ServeOptions;
 use millgate_sim::devices::virtual_plc::VirtualPlc;
@@ -117,6 +119,17 @@ async fn bites_outside_rolling_or_the_speed_range_are_recorded_not_pooled() -> a
     let mut pooled = 0;
     for (bar, &(_, _, state, speed, gate)) in BARS.iter().enumerate() {
         let bite = tokio::time::timeout(Duration::from_secs(15), gateway.bites().recv()).await??;
+        if bar == 0 {
+            // A manual capture of the torque, asked for just before the PLC moves on
+            // to bar 1's context: it carries bar 0's context, or bar 1's should the
+            // PLC's next poll reach the analysis first (both valid).
+            let sent = gateway.commands().send(Command::CaptureTorque {
+                driveline: 0,
+                seconds: 1,
+                origin: CommandOrigin::Local,
+            });
+            assert_eq!(sent, Ok(()), "manual capture command");
+        }
         // The next bar's context, while this bar tails out and the mill idles.
         if bar + 1 < BARS.len() {
             set(bar + 1);
@@ -255,12 +268,36 @@ async fn bites_outside_rolling_or_the_speed_range_are_recorded_not_pooled() -> a
             }
         }
     }
-    // `capture list --product 205`: the bites of product 205 with a trusted product
-    // (bars 1 and 3; bar 5's context was invalid).
+    // The manual capture carries the context of its time (bar 0's or bar 1's: see
+    // above), as the bites' captures do.
+    let manual: Vec<&CaptureRow> = captures.iter().filter(|c| c.kind == "manual").collect();
+    assert_eq!(manual.len(), 1, "{captures:?}");
+    let of_bar = |bar: usize| {
+        let (coil, product) = coil_and_product(bar);
+        (
+            Some(i64::from(coil)),
+            Some(i64::from(product)),
+            MillState::from_code(u32::from(BARS[bar].2)).map(|state| state.name().to_owned()),
+            Some("valid".to_owned()),
+        )
+    };
+    let carried = (
+        manual[0].coil,
+        manual[0].product,
+        manual[0].mill_state.clone(),
+        manual[0].context_status.clone(),
+    );
+    assert!(
+        carried == of_bar(0) || carried == of_bar(1),
+        "the manual capture's context: {:?}",
+        manual[0]
+    );
+    // `capture list --kind bite --product 205`: the bites of product 205 with a
+    // trusted product (bars 1 and 3; bar 5's context was invalid).
     let selection = |product| Selection {
         db: db.clone(),
         driveline: None,
-        kind: None,
+        kind: Some(KindArg::Bite),
         since: None,
         until: None,
         product,

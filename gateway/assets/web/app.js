@@ -996,7 +996,21 @@
     let spectrumPlot = null;
     let shown = null;
 
-    function row(c) {
+    // The thresholds that judged a chatter capture's episode: the episode (of
+    // `episodes`, /api/tandem_mills/{name}/episodes) whose warning lies within the
+    // capture; its product group's name, or the mill's own.
+    function thresholds(c, episodes) {
+      if (c.kind !== "chatter") return "–";
+      const from = Date.parse(c.started_at);
+      const to = from + c.duration_s * 1000;
+      const e = episodes.find((each) => {
+        const at = Date.parse(each.started_at);
+        return at >= from && at <= to;
+      });
+      return e ? (e.thresholds_group || "mill's") : "–";
+    }
+
+    function row(c, episodes) {
       const episode = c.meta && c.meta.episode;
       const at = (index) => (index === null || index === undefined ? "–" : num(index / c.sample_rate_hz, 2) + " s");
       const file = (format) => "/api/captures/" + c.id + "/file?format=" + format;
@@ -1005,6 +1019,7 @@
         el("td", {}, num(c.duration_s, 1) + " s"),
         el("td", {}, episode ? at(episode.warning_sample) : "–"),
         el("td", {}, episode ? (episode.cut ? "cut" : at(episode.cleared_sample)) : "–"),
+        el("td", {}, thresholds(c, episodes)),
         el("td", { class: c.context_status && c.context_status !== "valid" ? "muted" : "" }, contextText(c)),
         el("td", {},
           el("button", { type: "button", class: "plot-capture", "data-capture": c.id }, "plot"), " ",
@@ -1112,7 +1127,9 @@
         card("Chatter", badge(m.chatter_state), m.source_stale ? "source stale" : ""),
         card("Gain ratio", num(m.gain_ratio, 2), "worst stand " + (m.worst_stand_channel || "–")),
         card("Thresholds", m.thresholds_group === null ? "–" : (m.thresholds_group_name || "mill's"),
-          m.product_fallback ? m.product_fallback + " windows without a valid product" : ""),
+          [m.gain_thresholds_in_use ? m.gain_thresholds_in_use.map((t) => num(t, 3)).join(", ") : "",
+            m.product_fallback ? m.product_fallback + " windows without a valid product" : ""]
+            .filter((part) => part !== "").join("; ")),
         card("Chatter frequency", m.chatter_frequency_hz === null ? "–" : num(m.chatter_frequency_hz, 1) + " Hz", ""),
         card("Slow-down request", m.slow_down_request ? badge("warning", "requested") : "no", ""));
     }
@@ -1120,13 +1137,15 @@
 
     async function load() {
       try {
-        const rows = await getJson("/api/tandem_mills/" + encodeURIComponent(mill) + "/captures?limit=100");
+        const base = "/api/tandem_mills/" + encodeURIComponent(mill);
+        const [rows, episodeRows] = await Promise.all([
+          getJson(base + "/captures?limit=100"), getJson(base + "/episodes?limit=100")]);
         note.textContent = rows.length ? rows.length + " captures, newest first: plot one, or download it." : "No captures of this mill in the history yet: the plots below show one once the mill's first chatter episode or a manual capture is stored.";
         // No empty panels: the plots only once there is a capture to draw.
         for (const id of ["band-section", "spectrum-section"]) {
           document.getElementById(id).classList.toggle("hidden", rows.length === 0);
         }
-        fill(tbody, rows.slice().reverse().map(row));
+        fill(tbody, rows.slice().reverse().map((c) => row(c, episodeRows)));
         const episodes = rows.filter((c) => c.kind === "chatter");
         const first = episodes.length ? episodes[episodes.length - 1] : rows[rows.length - 1];
         if (first && shown === null) show(first.id);

@@ -1,6 +1,6 @@
 //! The history's `/metrics` families: state, events stored and dropped, commits,
-//! retention, the file's size and the last error (an info metric with the message as
-//! label, and its time).
+//! retention, the file's size, the evidence whose context was not valid, and the last
+//! error (an info metric with the message as label, and its time).
 
 use crate::exposition::{Exposition, Families, Kind};
 use crate::state::history::History;
@@ -79,6 +79,21 @@ impl Families for History {
             "Captures (a bite's window with its bite, a chatter episode, a manual request) not stored: the queue was full or the file could not take them; never announced, as nothing reads them from the file.",
             status.captures_dropped as f64,
         );
+        page.family(
+            "millgate_context_untrusted_total",
+            Kind::Counter,
+            "Evidence handed to the history whose process context was not valid, by subject (tandem mill or driveline), evidence (episode: a chatter episode; capture) and status (stale: a configured context tag had no fresh value, that value left out; invalid: an impossible value, every value left out); no sample before the first.",
+            status.context_untrusted.iter().map(|(key, count)| {
+                (
+                    vec![
+                        ("subject", key.subject.as_str()),
+                        ("evidence", key.evidence),
+                        ("status", key.status),
+                    ],
+                    *count as f64,
+                )
+            }),
+        );
         let last = status.last_error.as_ref();
         page.family(
             "millgate_history_last_error_info",
@@ -92,5 +107,95 @@ impl Families for History {
             "When the history's last error happened, Unix seconds.",
             last.map(|(time, _)| (Vec::new(), time.unix_s())),
         );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::PathBuf;
+
+    use millgate_config::{CaptureSettings, Synchronous};
+
+    use crate::exposition::{Exposition, Families};
+    use crate::state::captures::CaptureKind;
+    use crate::state::context::{ContextError, ContextReading, ProcessContext, StaleTags};
+    use crate::state::events::HistoryEvent;
+    use crate::state::history::History;
+    use crate::testing::{capture_without_samples, chatter_started};
+
+    /// A chatter episode's start of `mill` in `context`.
+    fn episode(mill: &str, context: Option<ContextReading>) -> HistoryEvent {
+        chatter_started(mill, context, None)
+    }
+
+    /// A manual capture of `subject` (no samples) in `context`.
+    fn capture(subject: &str, context: Option<ContextReading>) -> HistoryEvent {
+        HistoryEvent::Capture(Box::new(capture_without_samples(
+            CaptureKind::Manual,
+            subject,
+            context,
+        )))
+    }
+
+    /// Episodes and captures handed to the history with a stale or invalid context
+    /// are counted by subject, evidence and status; valid ones and those without
+    /// context tags are not.
+    #[test]
+    fn evidence_with_a_stale_or_invalid_context_is_counted_by_subject_and_status() {
+        let config = millgate_config::History {
+            path: PathBuf::from("unused.db"),
+            retention_days: 400,
+            max_size_mb: 1024,
+            captures: CaptureSettings::defaults(1024),
+            synchronous: Synchronous::Normal,
+        };
+        let history = History::new(Some(&config));
+        let valid = ContextReading {
+            context: Ok(ProcessContext::default()),
+            stale: StaleTags::default(),
+        };
+        let mut stale_tags = StaleTags::default();
+        stale_tags.insert("product");
+        let stale = ContextReading {
+            context: Ok(ProcessContext::default()),
+            stale: stale_tags,
+        };
+        let invalid = ContextReading {
+            context: Err(ContextError::Speed(-1.0)),
+            stale: StaleTags::default(),
+        };
+        for event in [
+            episode("TCM", Some(valid)),
+            episode("TCM", Some(stale)),
+            episode("TCM", Some(stale)),
+            episode("TCM", Some(invalid)),
+            episode("TCM", None),
+            capture("TCM", Some(invalid)),
+            capture("F1", Some(stale)),
+            capture("F1", Some(valid)),
+        ] {
+            assert!(history.record(event));
+        }
+        let mut page = Exposition::new();
+        history.write_families(&mut page);
+        let text = page.into_text();
+        let samples: Vec<&str> = text
+            .lines()
+            .filter(|line| line.starts_with("millgate_context_untrusted_total{"))
+            .collect();
+        assert_eq!(
+            samples,
+            [
+                r#"millgate_context_untrusted_total{subject="F1",evidence="capture",status="stale"} 1"#,
+                r#"millgate_context_untrusted_total{subject="TCM",evidence="capture",status="invalid"} 1"#,
+                r#"millgate_context_untrusted_total{subject="TCM",evidence="episode",status="invalid"} 1"#,
+                r#"millgate_context_untrusted_total{subject="TCM",evidence="episode",status="stale"} 2"#,
+            ],
+            "{text}"
+        );
+        // Without [history] nothing is recorded, nothing counted.
+        let disabled = History::disabled();
+        assert!(!disabled.record(episode("TCM", Some(invalid))));
+        assert!(disabled.status().context_untrusted.is_empty());
     }
 }

@@ -251,6 +251,10 @@ record! {
         frequency_hz: Option<f64>,
         /// The alarm condition held in a window.
         alarm: bool,
+        /// The product group whose `gain_thresholds` judged the window that raised
+        /// its warning (its name in the mill's `product_groups`); `None`: the mill's
+        /// own thresholds, and every episode before schema v15.
+        thresholds_group: Option<String>,
     }
 }
 

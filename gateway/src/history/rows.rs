@@ -103,8 +103,12 @@ fn insert_chatter(
             mill,
             window,
             context,
+            thresholds_group,
         } => {
             let mut values = vec![
+                thresholds_group
+                    .as_ref()
+                    .map_or(SqlValue::Null, |name| SqlValue::Text(name.clone())),
                 SqlValue::Integer(run_id),
                 SqlValue::Text(mill.clone()),
                 SqlValue::Text(time.to_string()),
@@ -117,7 +121,7 @@ fn insert_chatter(
             let placeholders: Vec<String> = (1..=values.len()).map(|i| format!("?{i}")).collect();
             transaction
                 .prepare_cached(&format!(
-                    "INSERT INTO chatter_episodes (run_id, mill, started_at,
+                    "INSERT INTO chatter_episodes (thresholds_group, run_id, mill, started_at,
                          min_sigma_n_hz, max_k_mean, frequency_hz, alarm, {}, windows)
                      VALUES ({}, 1)",
                     evidence_context_columns(),
@@ -399,29 +403,12 @@ mod tests {
 
     use super::*;
     use crate::history::query::{CaptureRow, ChatterRow, Filter, HistoryReader, Record};
-    use crate::state::captures::{CaptureKind, CaptureRecord, KeepClass};
+    use crate::state::captures::CaptureKind;
     use crate::state::context::{
         ContextError, ContextReading, MillState, ProcessContext, StaleTags,
     };
     use crate::state::time::UtcTime;
-
-    /// A capture of `subject` in `context`.
-    fn capture(subject: &str, context: Option<ContextReading>) -> CaptureRecord {
-        CaptureRecord {
-            kind: CaptureKind::Chatter,
-            subject: subject.into(),
-            bite: None,
-            first_sample_unix_ns: 1_790_000_000_000_000_000,
-            kernel_time: false,
-            sample_rate_hz: 2500.0,
-            channels: Vec::new(),
-            gaps: Vec::new(),
-            analysis: None,
-            episode: None,
-            keep: KeepClass::Important,
-            context,
-        }
-    }
+    use crate::testing::{capture_without_samples, chatter_started};
 
     /// Captures and chatter episodes keep the trusted values of their context and
     /// say how far it could be trusted: a valid one its values, a stale tag's value
@@ -480,21 +467,14 @@ mod tests {
             insert(
                 &transaction,
                 1,
-                &HistoryEvent::Capture(Box::new(capture(subject, context))),
+                &HistoryEvent::Capture(Box::new(capture_without_samples(
+                    CaptureKind::Chatter,
+                    subject,
+                    context,
+                ))),
             )
             .unwrap();
-            let started = HistoryEvent::ChatterStarted {
-                time: UtcTime::parse("2026-11-29T10:00:00.000Z").unwrap(),
-                mill: subject.into(),
-                window: ChatterWindow {
-                    sigma_n_hz: 0.5,
-                    k_mean: 0.9,
-                    frequency_hz: Some(180.0),
-                    synchronized: false,
-                },
-                context,
-            };
-            insert(&transaction, 1, &started).unwrap();
+            insert(&transaction, 1, &chatter_started(subject, context, None)).unwrap();
         }
         transaction.commit().unwrap();
         let reader = HistoryReader::open(&path).unwrap();

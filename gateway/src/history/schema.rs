@@ -400,6 +400,13 @@ ALTER TABLE chatter_episodes ADD COLUMN context_note TEXT;
 CREATE INDEX chatter_by_product ON chatter_episodes(product, started_at)
     WHERE product IS NOT NULL;
 "#,
+    // Version 15: the thresholds that judged a chatter episode (issue 39): the name of
+    // the mill's product group whose gain_thresholds were in use when its warning was
+    // raised; NULL for the mill's own thresholds, and for every episode before. A column
+    // added, no row rewritten.
+    r#"
+ALTER TABLE chatter_episodes ADD COLUMN thresholds_group TEXT;
+"#,
 ];
 
 /// `PRAGMA application_id` of a millgate history: the bytes "MLGT" (0x4D4C4754), set
@@ -820,6 +827,62 @@ mod tests {
             assert!(plan.contains("_by_product"), "{table}: {plan}");
         }
         drop(connection);
+        let _ = std::fs::remove_dir_all(&folder);
+    }
+
+    /// Version 15 adds the thresholds' group to the chatter episodes without rewriting
+    /// a row: a v14 file's episodes (their context kept) have none (NULL: the mill's
+    /// thresholds), and an episode written now keeps its group.
+    #[test]
+    fn version_15_gives_episodes_their_thresholds_group_without_rewriting_a_v14_file() {
+        use crate::history::query::{ChatterRow, Filter, HistoryReader};
+        use crate::state::time::UtcTime;
+        use crate::testing::chatter_started;
+
+        let folder = std::env::temp_dir().join(format!(
+            "millgate-schema-v15-{}-{}",
+            std::process::id(),
+            UtcTime::now().unix_ms()
+        ));
+        std::fs::create_dir_all(&folder).unwrap();
+        let path = folder.join("history.db");
+        let mut connection = version_13_file(&path, 2_000);
+        connection.execute_batch(MIGRATIONS[13]).unwrap();
+        connection.pragma_update(None, "user_version", 14).unwrap();
+        connection
+            .execute_batch(
+                "UPDATE chatter_episodes SET product = 205, context_status = 'valid'
+                     WHERE id = 1",
+            )
+            .unwrap();
+        let pages = |connection: &Connection| -> i64 {
+            connection
+                .pragma_query_value(None, "page_count", |row| row.get(0))
+                .unwrap()
+        };
+        let before = pages(&connection);
+        assert_eq!(migrate(&mut connection).unwrap(), 14);
+        assert_eq!(pages(&connection), before, "a row was rewritten");
+        let transaction = connection.transaction().unwrap();
+        for group in [Some("thin gauge"), None] {
+            let started = chatter_started("TCM", None, group);
+            crate::history::rows::insert(&transaction, 1, &started).unwrap();
+        }
+        transaction.commit().unwrap();
+        drop(connection);
+        let rows: Vec<ChatterRow> = HistoryReader::open(&path)
+            .unwrap()
+            .rows(&Filter::default())
+            .unwrap();
+        assert_eq!(rows.len(), 2_002);
+        assert!(rows[..2_000].iter().all(|r| r.thresholds_group.is_none()));
+        assert_eq!(
+            (rows[0].product, rows[0].context_status.as_deref()),
+            (Some(205), Some("valid")),
+            "the v14 context kept"
+        );
+        assert_eq!(rows[2_000].thresholds_group.as_deref(), Some("thin gauge"));
+        assert_eq!(rows[2_001].thresholds_group, None);
         let _ = std::fs::remove_dir_all(&folder);
     }
 

@@ -322,6 +322,9 @@ pub enum HistoryEvent {
         window: ChatterWindow,
         /// The mill's process context then; `None` without context tags.
         context: Option<ContextReading>,
+        /// The product group whose thresholds judged the window (its name in the
+        /// mill's `product_groups`); `None`: the mill's own `gain_thresholds`.
+        thresholds_group: Option<String>,
     },
     /// Another window of a running chatter episode.
     ChatterWindow {
@@ -379,6 +382,23 @@ impl HistoryEvent {
     /// a manual request's): the history counts those it could not store.
     pub(crate) fn holds_capture(&self) -> bool {
         matches!(self, Self::CapturedBite(..) | Self::Capture(_))
+    }
+
+    /// For evidence kept with the process context of its time: its subject, what it is
+    /// (`episode`: a chatter episode's start; `capture`) and the context; `None` for
+    /// any other event and for evidence without context tags.
+    pub(crate) fn evidence_context(&self) -> Option<(&str, &'static str, &ContextReading)> {
+        match self {
+            Self::ChatterStarted { mill, context, .. } => {
+                Some((mill.as_str(), "episode", context.as_ref()?))
+            }
+            Self::CapturedBite(_, capture) | Self::Capture(capture) => Some((
+                capture.subject.as_str(),
+                "capture",
+                capture.context.as_ref()?,
+            )),
+            _ => None,
+        }
     }
 
     /// Whether the event belongs to the alarm stream ([`super::history::History::alarms`]):

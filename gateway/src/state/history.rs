@@ -9,6 +9,7 @@
 //! known dropped. The PLC writer waits for that (bounded) before each write, so a bite
 //! the PLC has seen is in the file.
 
+use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicU8, Ordering};
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex};
@@ -17,6 +18,7 @@ use std::time::{Duration, Instant};
 use tokio::sync::broadcast;
 
 use super::changes::Signal;
+use super::context::ContextStatus;
 use super::events::HistoryEvent;
 use super::time;
 
@@ -87,6 +89,21 @@ pub struct HistoryStatus {
     pub file_bytes: u64,
     /// The last error, with its time (UTC), while the state is failing or since.
     pub last_error: Option<(time::UtcTime, String)>,
+    /// Evidence handed to the history whose process context was not valid, per
+    /// `(subject, evidence, status)` (evidence `episode` or `capture`, status `stale`
+    /// or `invalid`), in that order.
+    pub context_untrusted: Vec<(UntrustedEvidence, u64)>,
+}
+
+/// Which evidence a count of [`HistoryStatus::context_untrusted`] is of.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord)]
+pub struct UntrustedEvidence {
+    /// The tandem mill or driveline.
+    pub subject: String,
+    /// `episode` (a chatter episode) or `capture`.
+    pub evidence: &'static str,
+    /// `stale` or `invalid` ([`ContextStatus::name`]).
+    pub status: &'static str,
 }
 
 /// Counters shared by the handle and the writer thread.
@@ -106,6 +123,8 @@ pub(crate) struct Counters {
     last_error: Mutex<Option<(time::UtcTime, String)>>,
     /// The last checkpoint failed (the state stays failing until one succeeds).
     checkpoint_failing: AtomicBool,
+    /// Evidence recorded with a context that was not valid, counted.
+    context_untrusted: Mutex<BTreeMap<UntrustedEvidence, u64>>,
 }
 
 impl Counters {
@@ -156,6 +175,24 @@ impl Counters {
         self.dropped_error
             .fetch_add(events.len() as u64, Ordering::Relaxed);
         self.captures_lost(events);
+    }
+
+    /// Count `event` when it is evidence (a chatter episode's start, a capture) whose
+    /// context was stale or invalid.
+    fn evidence_recorded(&self, event: &HistoryEvent) {
+        let Some((subject, evidence, context)) = event.evidence_context() else {
+            return;
+        };
+        let status = context.status();
+        if status == ContextStatus::Valid {
+            return;
+        }
+        let key = UntrustedEvidence {
+            subject: subject.to_owned(),
+            evidence,
+            status: status.name(),
+        };
+        *crate::lock(&self.context_untrusted).entry(key).or_default() += 1;
     }
 
     fn captures_lost(&self, events: &[HistoryEvent]) {
@@ -290,6 +327,7 @@ impl History {
         let Some(sender) = queue.sender.as_ref() else {
             return false;
         };
+        self.shared.counters.evidence_recorded(&event);
         match sender.try_send(event) {
             Ok(()) => {
                 queue.enqueued += 1;
@@ -375,6 +413,10 @@ impl History {
             retention_deleted: load(&c.retention_deleted),
             file_bytes: load(&c.file_bytes),
             last_error: crate::lock(&c.last_error).clone(),
+            context_untrusted: crate::lock(&c.context_untrusted)
+                .iter()
+                .map(|(key, &count)| (key.clone(), count))
+                .collect(),
         }
     }
 

@@ -299,6 +299,10 @@ pub struct TandemMillResults {
     /// The name of the product group whose thresholds judged the last window; `None`
     /// for the mill's own.
     pub thresholds_group_name: Option<String>,
+    /// The `gain_thresholds` that judged the last window, per stand (the group's or
+    /// the mill's); `None` before the first window. Shared: a window whose thresholds
+    /// did not change copies no figure.
+    pub gain_thresholds_in_use: Option<std::sync::Arc<[f64]>>,
     /// Windows judged by the mill's thresholds since start because the product context
     /// was missing, invalid or stale while the mill has product groups.
     pub product_fallback: u64,

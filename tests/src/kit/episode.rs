@@ -68,10 +68,13 @@ pub fn stands(source: &str, mill: &str) -> Stands {
 /// The coil id and product code of the episode's context.
 pub const COIL: u32 = 4711;
 pub const PRODUCT: u32 = 205;
+/// The product group whose thresholds judged the episode.
+pub const THRESHOLDS_GROUP: &str = "thin gauge";
 
 /// The episode's capture of tandem mill `mill` (warning at 6 s, cleared at 10.5 s) and
 /// its row in `chatter_episodes`, both rolled in coil [`COIL`] of product
-/// [`PRODUCT`] at 1200 m/min (a valid context), written into the history file `db`
+/// [`PRODUCT`] at 1200 m/min (a valid context), the episode judged by the thresholds of
+/// product group [`THRESHOLDS_GROUP`], written into the history file `db`
 /// (created when missing) under a run of its own.
 pub fn write_chatter_capture(db: &Path, mill: &str) -> anyhow::Result<()> {
     let window = (0.5 * FS) as usize;
@@ -142,6 +145,7 @@ pub fn write_chatter_capture(db: &Path, mill: &str) -> anyhow::Result<()> {
                     synchronized: false,
                 },
                 context: Some(context),
+                thresholds_group: Some(THRESHOLDS_GROUP.to_owned()),
             },
         )?;
         insert(

@@ -226,6 +226,23 @@ pub struct Commissioning {
     /// key of the mill.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub product_groups: Vec<GroupCommissioning>,
+    /// The recordings left out of the product groups because their context was not
+    /// trusted (a capture's stale or invalid context: its product is not used); they
+    /// count for the mill's thresholds only. Filled by the caller that knows the
+    /// context (`millgate chatter commission --db`).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub not_pooled: Vec<NotPooled>,
+}
+
+/// A recording left out of the product groups: its context was not trusted.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct NotPooled {
+    /// The recording.
+    pub recording: String,
+    /// Its context's status (`stale`, `invalid`).
+    pub context_status: String,
+    /// Why (the stale tags, the impossible value).
+    pub context_note: Option<String>,
 }
 
 /// One product group's part of commissioning by product.
@@ -557,6 +574,7 @@ impl Stable {
             speeds: all_speeds(&figures),
             recordings: figures,
             product_groups: Vec::new(),
+            not_pooled: Vec::new(),
         }
     }
 }

@@ -14,7 +14,8 @@ use crate::state::time::UtcTime;
 /// The history events of one update: an episode starts, goes on or ends with the
 /// warning condition (a window restart ends it too); the warning is recorded when it
 /// is raised or cleared, the alarm when it latches (with the gain ratio, or K_mean
-/// for the paper's detector). An episode keeps the mill's `context` at its start.
+/// for the paper's detector). An episode keeps the mill's `context` at its start, and
+/// the thresholds that judged that window (`published.thresholds_group_name`).
 pub(super) fn record_episode(
     events: &mut Vec<HistoryEvent>,
     (mill, context): (&str, Option<ContextReading>),
@@ -38,6 +39,7 @@ pub(super) fn record_episode(
             mill: mill.to_owned(),
             window,
             context,
+            thresholds_group: published.thresholds_group_name.clone(),
         }),
         (true, true, Some(window)) => events.push(HistoryEvent::ChatterWindow {
             mill: mill.to_owned(),

@@ -290,6 +290,12 @@ impl ChatterMonitor {
             .map(|group| self.settings.product_groups[group].name.as_str())
     }
 
+    /// The thresholds that judge now, per stand: [`Self::thresholds_group`]'s, or the
+    /// mill's `gain_thresholds`.
+    pub fn thresholds(&self) -> &[f64] {
+        self.settings.thresholds_of(self.group)
+    }
+
     /// Whether the mill has product groups (then a missing product is a fallback).
     pub fn has_product_groups(&self) -> bool {
         !self.settings.product_groups.is_empty()

@@ -43,11 +43,14 @@ use crate::state::time::UtcTime;
 /// same for that stand's level only ([`SlowDown::weld_at`]); the counts are the
 /// mill's, as with the mill's bit.
 ///
-/// **The product** (a mill's `context.product` tag, with `product_groups`): the latest
-/// valid product code, while younger than `WELD_BIT_POLLS` poll periods of its channel,
-/// picks the thresholds each window is judged by ([`ChatterMonitor::use_product`]): its
-/// group's, else the mill's. A code outside the context's `products` (or not a whole
-/// number) is not used and is counted (`context_invalid`); a window judged by the
+/// **The product** (a mill's `context.product` tag, with `product_groups`): one reading
+/// of the mill's context ([`ContextTracker::reading`]) serves each message: its product
+/// picks the thresholds the windows are judged by ([`ChatterMonitor::use_product`]:
+/// its group's, else the mill's), and the same reading is the context the episodes and
+/// captures carry. The product tag's value is used while younger than
+/// `WELD_BIT_POLLS` poll periods of its channel. A code outside the context's
+/// `products` (or not a whole number) is not used and is counted (`context_invalid`);
+/// an invalid context (any impossible value) gives no product. A window judged by the
 /// mill's thresholds because no valid, fresh product was there is counted
 /// (`product_fallback`). The thresholds in use are published (`thresholds_group`, and
 /// the group's name on the page). A product change while the alarm or the slow-down
@@ -68,16 +71,13 @@ pub struct ChatterAnalysis {
     /// Per mill, its weld bits: the mill's, or one per stand.
     weld_bits: Vec<Vec<WeldBit>>,
     /// Per mill with context tags, their latest values: the context its episodes and
-    /// captures carry.
+    /// captures carry, and its product (the tag used for [`WELD_BIT_POLLS`] poll
+    /// periods).
     contexts: Vec<Option<ContextTracker>>,
     /// Per channel: the mills whose context tag it is.
     context_by_channel: Vec<Vec<usize>>,
-    /// Per channel: the mills whose product tag it is.
+    /// Per channel: the mills whose product tag it is (its impossible values counted).
     product_by_channel: Vec<Vec<usize>>,
-    /// Per mill, the latest valid product code and when it was read.
-    products: Vec<Option<(u32, Instant)>>,
-    /// Per mill, the oldest product code still used ([`WELD_BIT_POLLS`] poll periods).
-    product_max_age: Vec<Duration>,
     /// Per mill, its context's known product codes (empty: any).
     known_products: Vec<Vec<u32>>,
     board: Arc<Board>,
@@ -125,7 +125,6 @@ impl ChatterAnalysis {
         let mut weld_by_channel = vec![Vec::new(); config.channels.len()];
         let mut product_by_channel = vec![Vec::new(); config.channels.len()];
         let mut weld_bits = Vec::new();
-        let mut product_max_age = Vec::new();
         let mut contexts = Vec::new();
         let mut context_by_channel = vec![Vec::new(); config.channels.len()];
         let mut monitors = Vec::new();
@@ -166,8 +165,8 @@ impl ChatterAnalysis {
             if let Some(product) = mill.context.product {
                 product_by_channel[product].push(m);
             }
-            product_max_age.push(max_age(mill.context.product));
-            let tracker = ContextTracker::new(&mill.context, config, None);
+            let tracker = ContextTracker::new(&mill.context, config, None)
+                .map(|tracker| tracker.with_max_age("product", max_age(mill.context.product)));
             for channel in tracker.iter().flat_map(ContextTracker::channels) {
                 context_by_channel[channel].push(m);
             }
@@ -192,8 +191,6 @@ impl ChatterAnalysis {
             contexts,
             context_by_channel,
             product_by_channel,
-            products: vec![None; config.tandem_mills.len()],
-            product_max_age,
             known_products: config
                 .tandem_mills
                 .iter()
@@ -207,6 +204,23 @@ impl ChatterAnalysis {
     /// is (the context their episodes and captures carry), and their weld bit or
     /// product.
     fn context_value(&mut self, channel: usize, value: f64, now: Instant) {
+        for m in 0..self.product_by_channel.get(channel).map_or(0, Vec::len) {
+            let mill = self.product_by_channel[channel][m];
+            let check = |value: f64| {
+                let raw = RawContext {
+                    product: Some(value),
+                    ..RawContext::default()
+                };
+                raw.check(&self.known_products[mill])
+            };
+            if let Err(error) = check(value) {
+                let was_valid = self.contexts[mill]
+                    .as_ref()
+                    .and_then(|tracker| tracker.latest("product"))
+                    .is_some_and(|latest| check(latest).is_ok());
+                self.invalid_context(mill, &error, was_valid);
+            }
+        }
         for &mill in self.context_by_channel.get(channel).into_iter().flatten() {
             if let Some(tracker) = &mut self.contexts[mill] {
                 tracker.value(channel, value, now);
@@ -229,20 +243,6 @@ impl ChatterAnalysis {
                 }
                 Err(error) => {
                     let was_valid = weld.latest.take().is_some();
-                    self.invalid_context(mill, &error, was_valid);
-                }
-            }
-        }
-        for m in 0..self.product_by_channel.get(channel).map_or(0, Vec::len) {
-            let mill = self.product_by_channel[channel][m];
-            let raw = RawContext {
-                product: Some(value),
-                ..RawContext::default()
-            };
-            match raw.check(&self.known_products[mill]) {
-                Ok(context) => self.products[mill] = context.product.map(|code| (code, now)),
-                Err(error) => {
-                    let was_valid = self.products[mill].take().is_some();
                     self.invalid_context(mill, &error, was_valid);
                 }
             }
@@ -323,10 +323,11 @@ impl ChatterAnalysis {
             return;
         };
         for &(mill, stand) in stands {
+            // One reading: its product picks the thresholds, and it is the context of
+            // an episode or capture this message ends or starts.
+            let context = self.context_at(mill, now);
+            let product = context.and_then(|reading| reading.trusted().product);
             let monitor = &mut self.monitors[mill];
-            let product = self.products[mill]
-                .filter(|(_, at)| now.saturating_duration_since(*at) <= self.product_max_age[mill])
-                .map(|(code, _)| code);
             monitor.use_product(product);
             let product_fallback = product.is_none() && monitor.has_product_groups();
             let recorder = &mut self.captures[mill];
@@ -359,9 +360,6 @@ impl ChatterAnalysis {
                 Acquired::ProcessValue { .. } => None,
             };
             if let Some(change) = change {
-                let context = self.contexts[mill]
-                    .as_ref()
-                    .map(|tracker| tracker.reading(now));
                 for weld in &self.weld_bits[mill] {
                     weld.hold_if_set(&mut self.slow_downs[mill], now);
                 }
@@ -448,6 +446,9 @@ fn publish(
                     );
                     published.thresholds_group_name =
                         monitor.thresholds_group_name().map(str::to_owned);
+                }
+                if published.gain_thresholds_in_use.as_deref() != Some(monitor.thresholds()) {
+                    published.gain_thresholds_in_use = Some(monitor.thresholds().into());
                 }
                 published.product_fallback += u64::from(product_fallback);
                 let Verdict { warning, alarm, .. } = verdict;
@@ -584,7 +585,9 @@ mod tests {
         })
     }
 
-    /// [`run_with`] with `values(block)` (channel, value) sent before each block.
+    /// [`run`]'s line through the analysis of `config`, the `(channel, value)` pairs
+    /// of `values(block)` sent before each block; the mill's results after, and the
+    /// gain ratio published after each block.
     fn run_with_values(
         config: &Config,
         values: impl Fn(usize) -> Vec<(usize, f64)>,
@@ -599,8 +602,7 @@ mod tests {
         for (block, start) in (0..recording.len()).step_by(120).enumerate() {
             let now = t0 + Duration::from_millis(48) * block as u32;
             for (channel, value) in values(block) {
-                let message = Acquired::ProcessValue { channel, value };
-                analysis.handle_at(&message, now);
+                analysis.handle_at(&Acquired::ProcessValue { channel, value }, now);
             }
             for (stand, &channel) in stands.iter().enumerate() {
                 let message = Acquired::Samples {
@@ -732,6 +734,32 @@ mod tests {
         assert!(invalid.slow_down_request, "{invalid:?}");
         assert_eq!(invalid.context_invalid, 250, "two per block");
         assert_eq!(invalid.weld_held_off, 0);
+    }
+
+    /// The product that picks the thresholds is the one of the context reading the
+    /// evidence carries: a valid product 7 beside an impossible speed is an invalid
+    /// context, with no product; the mill's thresholds judge, counted as a fallback.
+    #[test]
+    fn an_invalid_context_picks_no_groups_thresholds_as_it_tags_no_product() {
+        let examples = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/examples");
+        let text = example_with_quiet_group(
+            "product = \"product_code\", products = [7, 8], speed_mpm = \"exit_strip_speed\"",
+        );
+        let config = millgate_config::from_toml_str(&text, "tandem.toml", &examples)
+            .unwrap_or_else(|error| panic!("{error}"));
+        let tags = &config.tandem_mills[0].context;
+        let (product, speed) = (
+            tags.product.expect("product"),
+            tags.speed_mpm.expect("speed"),
+        );
+        let (valid, _) = run_with_values(&config, |_| vec![(product, 7.0), (speed, 600.0)]);
+        assert_eq!(valid.thresholds_group, Some(1), "{valid:?}");
+        assert_eq!(valid.product_fallback, 0);
+        let (invalid, _) = run_with_values(&config, |_| vec![(product, 7.0), (speed, -5.0)]);
+        assert_eq!(invalid.thresholds_group, Some(0), "{invalid:?}");
+        assert_eq!(invalid.thresholds_group_name, None);
+        assert!(invalid.chatter_alarm, "{invalid:?}");
+        assert_eq!(invalid.product_fallback, invalid.evaluations, "{invalid:?}");
     }
 
     #[test]

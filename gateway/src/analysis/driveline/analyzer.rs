@@ -134,9 +134,15 @@ impl DrivelineAnalyzer {
     }
 
     /// Start keeping the next `seconds` s of torque as a manual capture (a capture
-    /// already running starts again); false when captures are not kept.
+    /// already running starts again), carrying the driveline's process context of now
+    /// (with context tags, as its bites' captures carry theirs); false when captures
+    /// are not kept.
     pub(crate) fn start_manual_capture(&mut self, seconds: f64) -> bool {
-        self.captures.start_manual(seconds)
+        let context = self
+            .context
+            .as_ref()
+            .map(|tracker| tracker.reading(Instant::now()));
+        self.captures.start_manual(seconds, context)
     }
 
     /// The manual capture, once its samples are all in.

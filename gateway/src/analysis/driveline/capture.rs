@@ -93,6 +93,9 @@ struct ManualCapture {
     kernel_time: bool,
     /// Where data was lost.
     gaps: Vec<CaptureGap>,
+    /// The driveline's process context when it was asked for (`None` without context
+    /// tags).
+    context: Option<ContextReading>,
 }
 
 impl Captures {
@@ -120,8 +123,9 @@ impl Captures {
     }
 
     /// Start keeping the next `seconds` s of torque as a manual capture (a capture
-    /// already running starts again); false when captures are not kept.
-    pub(super) fn start_manual(&mut self, seconds: f64) -> bool {
+    /// already running starts again) with the driveline's `context` of now; false when
+    /// captures are not kept.
+    pub(super) fn start_manual(&mut self, seconds: f64, context: Option<ContextReading>) -> bool {
         if self.torque.is_none() {
             return false;
         }
@@ -131,6 +135,7 @@ impl Captures {
             first_sample: None,
             kernel_time: false,
             gaps: Vec::new(),
+            context,
         });
         true
     }
@@ -157,7 +162,7 @@ impl Captures {
             analysis: None,
             episode: None,
             keep: KeepClass::Important,
-            context: None,
+            context: manual.context,
         })
     }
 

@@ -4,7 +4,10 @@
 //!
 //! The recordings (CSVs, and with `--db --captures` captures the history keeps) go
 //! through `analysis::chatter::commission` (how the thresholds, the release level and `k_max` come
-//! about, and which recordings are refused); the thresholds are printed as the TOML
+//! about, and which recordings are refused), grouped by product: a CSV by its `product`
+//! column, a capture by the product it carries (schema v14) when its context was
+//! valid; a capture whose context was stale or invalid counts for the mill's
+//! thresholds only, and the output says so. The thresholds are printed as the TOML
 //! line `gain_thresholds = [...]` to paste into the mill's `[[tandem_mills]]` entry,
 //! with `slow_down_release` (and a warning when the margin leaves the release no room
 //! below the alarm: raise `--margin`), how many windows and seconds the recordings
@@ -20,7 +23,7 @@ use millgate_config::Config;
 
 use super::mill::mill_index;
 use crate::analysis::chatter::commission::{
-    commission_by_product, Commissioning, GroupCommissioning, DEFAULT_MARGIN_PERCENT,
+    commission_by_product, Commissioning, GroupCommissioning, NotPooled, DEFAULT_MARGIN_PERCENT,
     DEFAULT_MIN_GROUP_RECORDINGS, NOTE_FACTOR, RELEASE_CEILING,
 };
 use crate::analysis::chatter::Recording;
@@ -59,8 +62,9 @@ pub struct CommissionArgs {
     /// speeds the recordings covered.
     #[arg(long)]
     pub speed_column: Option<String>,
-    /// Fewest recordings of a product group (by the recordings' `product` column) for
-    /// its own thresholds; a group with fewer falls back to the mill's.
+    /// Fewest recordings of a product group (by the recordings' `product` column, the
+    /// captures' product) for its own thresholds; a group with fewer falls back to the
+    /// mill's.
     #[arg(long, default_value_t = DEFAULT_MIN_GROUP_RECORDINGS)]
     pub min_group_recordings: usize,
     /// Output format.
@@ -77,16 +81,20 @@ pub fn run(args: &CommissionArgs) -> anyhow::Result<String> {
         .iter()
         .map(|path| stands::read(path, &config, index, args.speed_column.as_deref()))
         .collect::<Result<Vec<_>, _>>()?;
+    let mut not_pooled = Vec::new();
     if let (Some(db), Some(selection)) = (&args.db, &args.captures) {
-        recordings.extend(captured(db, &config, index, selection)?);
+        let (taken, untrusted) = captured(db, &config, index, selection)?;
+        recordings.extend(taken);
+        not_pooled = untrusted;
     }
-    let commissioning = commission_by_product(
+    let mut commissioning = commission_by_product(
         &config,
         index,
         &recordings,
         args.margin,
         args.min_group_recordings,
     )?;
+    commissioning.not_pooled = not_pooled;
     Ok(match args.format {
         OutputFormat::Json => serde_json::to_string_pretty(&commissioning)? + "\n",
         OutputFormat::Text => text(&commissioning),
@@ -94,19 +102,23 @@ pub fn run(args: &CommissionArgs) -> anyhow::Result<String> {
 }
 
 /// The captures of mill `index` of `config` that `selection` names in the history
-/// `db`, oldest first, as recordings of its stands (each named `db#capture ID`).
-/// Errors name the file and the capture: one that is not the mill's, lacks a stand, or
-/// is a chatter episode (the chatter check of `analysis::chatter::commission` then runs on the rest).
+/// `db`, oldest first, as recordings of its stands (each named `db#capture ID`), each
+/// with the product it carries as its `product` column when its context was valid;
+/// and the captures whose context was stale or invalid (no product: not pooled into
+/// a product's group). Errors name the file and the capture: one that is not the
+/// mill's, lacks a stand, or is a chatter episode (the chatter check of
+/// `analysis::chatter::commission` then runs on the rest).
 fn captured(
     db: &Path,
     config: &Config,
     index: usize,
     selection: &Picked,
-) -> anyhow::Result<Vec<Recording>> {
+) -> anyhow::Result<(Vec<Recording>, Vec<NotPooled>)> {
     let mill = &config.tandem_mills[index].name;
     let reader = HistoryReader::open(db)?;
     let rows = picked_rows(&reader, db, mill, selection)?;
     let mut recordings = Vec::with_capacity(rows.len());
+    let mut not_pooled = Vec::new();
     for row in rows {
         if row.kind == "chatter" {
             // The gateway warned in it: not stable rolling, however far it developed
@@ -121,9 +133,24 @@ fn captured(
         }
         let capture = reader.capture_of(row)?;
         let name = format!("{}#capture {}", db.display(), capture.row.id);
-        recordings.push(stands::from_capture(name, &capture, config, index)?);
+        let mut recording = stands::from_capture(name, &capture, config, index)?;
+        match capture.row.context_status.as_deref() {
+            Some("valid") => {
+                let samples = recording.len();
+                recording.context.product =
+                    capture.row.product.map(|code| vec![code as f64; samples]);
+            }
+            Some(status) => not_pooled.push(NotPooled {
+                recording: recording.name.clone(),
+                context_status: status.to_owned(),
+                context_note: capture.row.context_note.clone(),
+            }),
+            // No context tags (or a capture from before schema v14): no product.
+            None => {}
+        }
+        recordings.push(recording);
     }
-    Ok(recordings)
+    Ok((recordings, not_pooled))
 }
 
 /// The rows of the captures that `selection` names in the history `db` (read by
@@ -195,7 +222,31 @@ fn text(c: &Commissioning) -> String {
     stands_text(c, &mut out);
     paste_text(c, &mut out);
     groups_text(c, &mut out);
+    not_pooled_text(c, &mut out);
     out
+}
+
+/// The captures left out of the product groups: their context was not trusted.
+fn not_pooled_text(c: &Commissioning, out: &mut String) {
+    if c.not_pooled.is_empty() {
+        return;
+    }
+    let _ = writeln!(
+        out,
+        "# not pooled into a product group (the capture's context was not valid: its product \
+         is not trusted; counted for gain_thresholds above only):"
+    );
+    for left in &c.not_pooled {
+        let why = left
+            .context_note
+            .as_deref()
+            .map_or(String::new(), |note| format!(": {note}"));
+        let _ = writeln!(
+            out,
+            "#   {}: context {}{why}",
+            left.recording, left.context_status
+        );
+    }
 }
 
 /// The product groups: each with its recordings, and the entries to paste for those
@@ -365,6 +416,171 @@ mod tests {
     use super::*;
     use crate::analysis::chatter::commission::commission;
     use crate::analysis::chatter::testing::{example_tandem, lines_recording};
+    use crate::history::writer::{connect, insert_run};
+    use crate::history::RunInfo;
+    use crate::state::captures::{CaptureChannel, CaptureKind, CaptureRecord};
+    use crate::state::context::{ContextError, ContextReading, ProcessContext, StaleTags};
+    use crate::state::events::HistoryEvent;
+    use crate::state::time::UtcTime;
+    use crate::testing::capture_without_samples;
+
+    /// A history file at `path` with a manual capture of the example tandem mill's
+    /// stands per `(amplitude, context)`: 3 s of [`lines_recording`]'s lines, the
+    /// chatter line `amplitude` (gain `2 amplitude`), the context as the gateway kept
+    /// it. Capture ids are 1, 2, ... in this order.
+    fn history_with_captures(path: &Path, captures: &[(f64, Option<ContextReading>)]) {
+        let config = example_tandem();
+        let mill = &config.tandem_mills[0];
+        let mut connection = connect(path).expect("history");
+        let start = UtcTime::parse("2026-11-01T00:00:00Z").expect("time");
+        let run = RunInfo {
+            version: "test".into(),
+            config_name: "tandem".into(),
+            config_hash: String::new(),
+            drivelines: Vec::new(),
+        };
+        let run = insert_run(&connection, start, &run).expect("run");
+        let transaction = connection.transaction().expect("transaction");
+        for (k, &(amplitude, context)) in captures.iter().enumerate() {
+            let recording = lines_recording(7_500, |_| amplitude);
+            let channels = mill
+                .stands
+                .iter()
+                .zip(&recording.stands)
+                .map(|(&channel, samples)| CaptureChannel {
+                    samples: samples.clone(),
+                    ..CaptureChannel::described(&config.channels[channel])
+                })
+                .collect();
+            let capture = CaptureRecord {
+                first_sample_unix_ns: (start.unix_ms() + 60_000 * k as i64) * 1_000_000,
+                channels,
+                ..capture_without_samples(CaptureKind::Manual, &mill.name, context)
+            };
+            crate::history::rows::insert(
+                &transaction,
+                run,
+                &HistoryEvent::Capture(Box::new(capture)),
+            )
+            .expect("capture");
+        }
+        transaction.commit().expect("commit");
+    }
+
+    /// `--db --captures` groups the captures by the product they carry, as the
+    /// `product` column groups CSVs; a capture whose context was stale or invalid
+    /// counts for the mill's thresholds only, and the output names it.
+    #[test]
+    fn captures_are_grouped_by_the_product_they_carry_unless_their_context_was_untrusted() {
+        let folder = std::env::temp_dir().join(format!(
+            "millgate-commission-captures-{}",
+            std::process::id()
+        ));
+        std::fs::create_dir_all(&folder).expect("folder");
+        let db = folder.join("history.db");
+        let _ = std::fs::remove_file(&db);
+        let product = |code| ProcessContext {
+            product: Some(code),
+            ..ProcessContext::default()
+        };
+        let valid = |code| ContextReading {
+            context: Ok(product(code)),
+            stale: StaleTags::default(),
+        };
+        let mut stale_coil = StaleTags::default();
+        stale_coil.insert("coil");
+        history_with_captures(
+            &db,
+            &[
+                // Product 7 at gain 1, twice: its own thresholds.
+                (0.5, Some(valid(7))),
+                (0.5, Some(valid(7))),
+                // Product 7 at gain 2 while the coil tag was stale: not pooled.
+                (
+                    1.0,
+                    Some(ContextReading {
+                        context: Ok(product(7)),
+                        stale: stale_coil,
+                    }),
+                ),
+                // An impossible speed: no product at all.
+                (
+                    0.75,
+                    Some(ContextReading {
+                        context: Err(ContextError::Speed(-5.0)),
+                        stale: StaleTags::default(),
+                    }),
+                ),
+            ],
+        );
+        let args = |format| CommissionArgs {
+            config: crate::testing::example("tandem-5stand.toml"),
+            inputs: Vec::new(),
+            db: Some(db.clone()),
+            captures: Some(Picked::captures("LAST:4").expect("selection")),
+            mill: None,
+            margin: 10.0,
+            speed_column: None,
+            min_group_recordings: 2,
+            format,
+        };
+        let json: serde_json::Value =
+            serde_json::from_str(&run(&args(OutputFormat::Json)).expect("commissioned"))
+                .expect("json");
+        // The mill's thresholds from all four (gain 2 plus 10%), product 7's from its
+        // two trusted captures (gain 1 plus 10%).
+        let mill = json["gain_thresholds"].as_array().expect("thresholds");
+        assert!(
+            mill.iter().all(|t| (t.as_f64().unwrap() - 2.2).abs() < 0.1),
+            "{json}"
+        );
+        let groups = json["product_groups"].as_array().expect("groups");
+        assert_eq!(groups.len(), 1, "{json}");
+        assert_eq!(groups[0]["name"], "product-7");
+        let pooled = db.display().to_string();
+        assert_eq!(
+            groups[0]["recordings"],
+            serde_json::json!([format!("{pooled}#capture 1"), format!("{pooled}#capture 2")])
+        );
+        let own = groups[0]["gain_thresholds"].as_array().expect("its own");
+        assert!(
+            own.iter().all(|t| (t.as_f64().unwrap() - 1.1).abs() < 0.05),
+            "{json}"
+        );
+        let left: Vec<(&str, &str)> = json["not_pooled"]
+            .as_array()
+            .expect("not pooled")
+            .iter()
+            .map(|n| {
+                (
+                    n["recording"].as_str().unwrap(),
+                    n["context_status"].as_str().unwrap(),
+                )
+            })
+            .collect();
+        let (three, four) = (format!("{pooled}#capture 3"), format!("{pooled}#capture 4"));
+        assert_eq!(
+            left,
+            [(three.as_str(), "stale"), (four.as_str(), "invalid")]
+        );
+
+        let printed = run(&args(OutputFormat::Text)).expect("commissioned");
+        assert!(
+            printed.contains("#   \"product-7\" (products 7): 2 recording(s)")
+                && printed.contains("[[tandem_mills.product_groups]]\nname = \"product-7\"\n"),
+            "{printed}"
+        );
+        assert!(
+            printed.contains(&format!(
+                "#   {three}: context stale: no fresh value of coil (source stale or tag not \
+                 delivered)"
+            )) && printed.contains(&format!(
+                "#   {four}: context invalid: speed_mpm -5 is not allowed"
+            )),
+            "{printed}"
+        );
+        let _ = std::fs::remove_dir_all(&folder);
+    }
 
     #[test]
     fn a_stand_above_three_times_its_median_is_noted_with_the_time() {

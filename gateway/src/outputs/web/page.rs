@@ -243,7 +243,7 @@ pub(crate) async fn tandem_mill(
          <section><h2>Episodes and captures</h2><p class=\"note\" id=\"episodes-note\"></p>\
          <div class=\"scroll\" tabindex=\"0\"><table id=\"episodes\" class=\"grid\"><thead><tr>\
          <th>Start</th><th>Kind</th><th>Length</th><th>Warning</th><th>Cleared</th>\
-         <th>Context</th><th>Capture</th></tr></thead><tbody></tbody></table></div></section>\n\
+         <th>Thresholds</th><th>Context</th><th>Capture</th></tr></thead><tbody></tbody></table></div></section>\n\
          <section id=\"band-section\"><h2>Chatter-band signal</h2><div id=\"band-plot\" class=\"plot\" role=\"img\" \
          aria-label=\"Chatter-band signal: not drawn yet\"></div>\
          <p class=\"note\" id=\"band-note\"></p></section>\n\

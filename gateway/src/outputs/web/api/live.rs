@@ -222,6 +222,9 @@ pub(crate) struct TandemMillView {
     /// The product group whose thresholds judged the last window (`thresholds_group`
     /// by name); `None`: the mill's `gain_thresholds`.
     pub thresholds_group_name: Option<String>,
+    /// The `gain_thresholds` that judged the last window, per stand (the group's or
+    /// the mill's); `None` before the first window.
+    pub gain_thresholds_in_use: Option<Vec<f64>>,
     /// The catalogue's tandem mill figures by key ([`catalogue::TANDEM_MILL`]): a stale
     /// stand withdraws the window's (as the PLC gets them).
     #[serde(flatten)]
@@ -249,6 +252,10 @@ impl TandemMillView {
                 .filter(|_| !results.source_stale)
                 .and_then(|stand| stands.get(stand).cloned()),
             thresholds_group_name: results.thresholds_group_name.clone(),
+            gain_thresholds_in_use: results
+                .gain_thresholds_in_use
+                .as_deref()
+                .map(<[f64]>::to_vec),
             figures: figures_json(catalogue::TANDEM_MILL, results),
         }
     }
