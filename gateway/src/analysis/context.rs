@@ -95,20 +95,6 @@ impl ContextTracker {
         })
     }
 
-    /// The same tracker with the values of tag `key` (one of [`CONTEXT_KEYS`]) used
-    /// for `max_age` instead of [`max_age`]'s bound: a tandem mill's product for as
-    /// long as its thresholds follow it. A tag not configured: unchanged.
-    ///
-    /// [`CONTEXT_KEYS`]: crate::state::context::CONTEXT_KEYS
-    pub(crate) fn with_max_age(mut self, key: &str, max_age: Duration) -> Self {
-        for tag in &mut self.tags {
-            if tag.0 == key {
-                tag.2 = max_age;
-            }
-        }
-        self
-    }
-
     /// The latest value of tag `key`, however old; `None` before the first or
     /// without the tag.
     pub(crate) fn latest(&self, key: &str) -> Option<f64> {

@@ -47,8 +47,8 @@ use crate::state::time::UtcTime;
 /// of the mill's context ([`ContextTracker::reading`]) serves each message: its product
 /// picks the thresholds the windows are judged by ([`ChatterMonitor::use_product`]:
 /// its group's, else the mill's), and the same reading is the context the episodes and
-/// captures carry. The product tag's value is used while younger than
-/// `WELD_BIT_POLLS` poll periods of its channel. A code outside the context's
+/// captures carry. The product tag's value is used while younger than its source's
+/// stale time (the context's rule: three poll periods or two Modbus timeouts). A code outside the context's
 /// `products` (or not a whole number) is not used and is counted (`context_invalid`);
 /// an invalid context (any impossible value) gives no product. A window judged by the
 /// mill's thresholds because no valid, fresh product was there is counted
@@ -71,8 +71,7 @@ pub struct ChatterAnalysis {
     /// Per mill, its weld bits: the mill's, or one per stand.
     weld_bits: Vec<Vec<WeldBit>>,
     /// Per mill with context tags, their latest values: the context its episodes and
-    /// captures carry, and its product (the tag used for [`WELD_BIT_POLLS`] poll
-    /// periods).
+    /// captures carry, and the product that picks its thresholds.
     contexts: Vec<Option<ContextTracker>>,
     /// Per channel: the mills whose context tag it is.
     context_by_channel: Vec<Vec<usize>>,
@@ -165,8 +164,7 @@ impl ChatterAnalysis {
             if let Some(product) = mill.context.product {
                 product_by_channel[product].push(m);
             }
-            let tracker = ContextTracker::new(&mill.context, config, None)
-                .map(|tracker| tracker.with_max_age("product", max_age(mill.context.product)));
+            let tracker = ContextTracker::new(&mill.context, config, None);
             for channel in tracker.iter().flat_map(ContextTracker::channels) {
                 context_by_channel[channel].push(m);
             }
@@ -654,12 +652,29 @@ mod tests {
         assert_eq!(invalid.context_invalid, 125, "one per block");
         assert_eq!(invalid.product_fallback, invalid.evaluations);
 
-        // Product 7 read once, then the PLC's value goes stale (3 polls of 100 ms):
-        // the mill's thresholds from then on, counted.
-        let (stale, _) = run_with(&config, product, |block| (block == 0).then_some(7.0));
+        // Product 7 read once, then the PLC's value goes stale (its source's stale
+        // time: two timeouts of the PLC, longer than 3 polls of 100 ms): the group's
+        // thresholds until then, the mill's from the next window on, counted.
+        let (stale, ratios) = run_with(&config, product, |block| (block == 0).then_some(7.0));
         assert_eq!(stale.thresholds_group, Some(0), "{stale:?}");
         assert!(stale.chatter_alarm, "{stale:?}");
-        assert_eq!(stale.product_fallback, stale.evaluations, "{stale:?}");
+        assert!(
+            stale.product_fallback > 0 && stale.product_fallback < stale.evaluations,
+            "{stale:?}"
+        );
+        let stale_after = match config.channels[product].source {
+            millgate_config::ChannelSource::ModbusValue { source, .. } => {
+                config.modbus_sources[source].timeout * 2
+            }
+            _ => panic!("the example's product is a PLC register"),
+        };
+        let raised = ratios.iter().position(|r| r.is_some_and(|r| r > 1.2));
+        let raised_at = Duration::from_millis(48) * raised.expect("the mill's thresholds") as u32;
+        // A window every 0.25 s (5.2 blocks of 48 ms) after the value went stale.
+        assert!(
+            raised_at >= stale_after && raised_at <= stale_after + Duration::from_millis(300),
+            "{raised_at:?} against {stale_after:?}: {ratios:?}"
+        );
 
         // The product changes mid-coil from 7 to 8 at block 80 (3.84 s): the ratio
         // jumps tenfold with the next window (a hop of 0.25 s is 5.2 blocks), the
