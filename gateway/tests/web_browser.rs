@@ -460,8 +460,11 @@ async fn trace_is_the_captures_samples_beside_the_model(client: &Client, port: u
         "the model's series is not the response API's"
     );
     // The aligned model's static torque is the bite's as the gateway measured it
-    // (another computation: the bite detector's settled mean), and the residual is
-    // small beside it (the demo's driveline is near the configured model).
+    // (another computation: the bite detector's settled mean), and the model explains
+    // most of the measured transient: its residual is small beside the samples' own
+    // spread about that static torque. (Not beside the static torque: the demo's
+    // spindles wear by design, so the residual grows bite by bite, and which bite the
+    // page plots depends on how fast the machine is; 5.19 kN*m at bite 5 once.)
     let bites = common::http(port, "GET", "/api/drivelines/F1/bites?limit=500").await;
     let bite_counter = capture["bite_counter"].as_i64().unwrap();
     let bite = bites
@@ -475,15 +478,31 @@ async fn trace_is_the_captures_samples_beside_the_model(client: &Client, port: u
     let measured_knm = bite["static_torque_knm"].as_f64().unwrap();
     let aligned_knm = response["response"]["static_torque_knm"].as_f64().unwrap();
     let residual_knm = response["response"]["residual_rms_knm"].as_f64().unwrap();
+    let values: Vec<f64> = samples
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let spread_knm = (values
+        .iter()
+        .map(|v| (v - aligned_knm).powi(2))
+        .sum::<f64>()
+        / values.len() as f64)
+        .sqrt();
     eprintln!(
         "bite {bite_counter}: static torque {measured_knm:.1} kN*m measured, \
-         {aligned_knm:.1} kN*m aligned; residual {residual_knm:.2} kN*m RMS"
+         {aligned_knm:.1} kN*m aligned; residual {residual_knm:.2} kN*m RMS, \
+         the samples' spread about it {spread_knm:.2} kN*m RMS"
     );
     assert!(
         (aligned_knm / measured_knm - 1.0).abs() < 0.05,
         "{aligned_knm} vs {measured_knm}"
     );
-    assert!(residual_knm < 0.1 * measured_knm, "{residual_knm}");
+    assert!(
+        residual_knm < 0.5 * spread_knm,
+        "{residual_knm} against a spread of {spread_knm}"
+    );
     // The row links the capture's files; another row's button plots its capture.
     let links = client
         .execute(
