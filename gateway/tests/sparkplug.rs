@@ -1306,6 +1306,7 @@ async fn failover_through<End: FnOnce()>(
     let in_use =
         |port: u16| format!("millgate_sparkplug_server_in_use{{server=\"127.0.0.1:{port}\"}}");
     let mut service = setup.spawn("run.log");
+    let log_on_failure = setup.log_on_failure("run.log");
     let limit = Duration::from_secs(60);
     let (bd_seq, bite_alias) = first_births(&mut hosts, limit);
     let mut used = None;
@@ -1357,6 +1358,7 @@ async fn failover_through<End: FnOnce()>(
         .await;
     assert!(without.is_some_and(|s| s > 0.0), "{without:?}");
     terminate(&mut service);
+    drop(log_on_failure);
     setup.stop(service).await;
     (sessions, hosts)
 }
