@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use millgate::outputs::modbus::register_map::{decode_f32, decode_u32, RegisterMap};
 use millgate_sim::devices::demo::setup;
-use millgate_tests::kit::demo_devices;
+use millgate_tests::kit::{demo_devices, free_port};
 
 fn peer(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -47,10 +47,9 @@ async fn read_plc(port: u16, len: u16) -> anyhow::Result<Vec<u16>> {
 async fn gateway_writes_its_map_into_a_pymodbus_plc() -> anyhow::Result<()> {
     let demo = setup(2.0, 0.5, 3)?;
     let mut config = demo.config;
-    let port = tokio::net::TcpListener::bind("127.0.0.1:0")
-        .await?
-        .local_addr()?
-        .port();
+    // A kit port, below the kernel's ephemeral range: no outgoing connection is given
+    // it before the Python PLC binds it.
+    let port = free_port();
     let map = RegisterMap::new(&config);
     let mut plc = Command::new("python3")
         .arg(peer("pymodbus_plc.py"))
