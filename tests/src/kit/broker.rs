@@ -20,35 +20,35 @@ impl Broker {
 
     /// As [`Self::start`], the failure as a sentence (for the examples).
     pub fn try_start(folder: &Path, port: u16) -> Result<Self, String> {
-        let mut broker = Self::try_with_listeners(
+        // An open port is this mosquitto only if it answers MQTT (and still runs: one
+        // that could not bind ends at once, and the port may be another's).
+        Self::try_with_listeners(
             folder,
             port,
             &format!("listener {port} 127.0.0.1\nallow_anonymous true\n"),
-        )?;
-        // An open port is this mosquitto only if it answers MQTT and is still running
-        // (one that could not bind ends at once, and the port may be another's).
-        let start = Instant::now();
-        while connack(port, "millgate-probe") != Some(0) {
-            broker.ended()?;
-            if start.elapsed() > Duration::from_secs(10) {
-                return Err(format!(
-                    "mosquitto on port {port} accepts no MQTT session within 10 s"
-                ));
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        broker.ended()?;
-        Ok(broker)
+            ("accepts no MQTT session", |port| {
+                connack(port, "millgate-probe") == Some(0)
+            }),
+        )
     }
 
     /// mosquitto with the `listeners` configuration (TLS, passwords), no persistence;
-    /// returns once `port` accepts connections and mosquitto still runs. Panics when
-    /// it cannot start.
+    /// returns once `port` accepts connections and mosquitto still runs (a TLS
+    /// listener takes no plain CONNECT). Panics when it cannot start.
     pub fn with_listeners(folder: &Path, port: u16, listeners: &str) -> Self {
-        Self::try_with_listeners(folder, port, listeners).unwrap_or_else(|error| panic!("{error}"))
+        let open = |port| std::net::TcpStream::connect(("127.0.0.1", port)).is_ok();
+        Self::try_with_listeners(folder, port, listeners, ("not listening", open))
+            .unwrap_or_else(|error| panic!("{error}"))
     }
 
-    fn try_with_listeners(folder: &Path, port: u16, listeners: &str) -> Result<Self, String> {
+    /// mosquitto with `listeners`, returned once `ready(port)` holds within 10 s while
+    /// it runs; the error says it was `not_ready` (or that mosquitto ended).
+    fn try_with_listeners(
+        folder: &Path,
+        port: u16,
+        listeners: &str,
+        (not_ready, ready): (&str, impl Fn(u16) -> bool),
+    ) -> Result<Self, String> {
         let config = folder.join("mosquitto.conf");
         std::fs::write(&config, format!("{listeners}\npersistence false\n"))
             .map_err(|e| format!("{}: {e}", config.display()))?;
@@ -67,12 +67,10 @@ impl Broker {
                 .map_err(|e| format!("Debian's mosquitto (apt install mosquitto): {e}"))?,
         );
         let start = Instant::now();
-        while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+        while !ready(port) {
             broker.ended()?;
             if start.elapsed() > Duration::from_secs(10) {
-                return Err(format!(
-                    "mosquitto not listening on port {port} within 10 s"
-                ));
+                return Err(format!("mosquitto on port {port} {not_ready} within 10 s"));
             }
             std::thread::sleep(Duration::from_millis(20));
         }
