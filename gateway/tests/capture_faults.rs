@@ -16,8 +16,11 @@ mod common;
 
 use std::io::Write as _;
 use std::path::Path;
+use std::time::Duration;
 
-use common::{free_port, http, http_raw, millgate, terminate, text, web_ready, Setup, MILLGATE};
+use common::{
+    free_port, http, http_raw, millgate, terminate, text, wait_for, web_ready, Setup, MILLGATE,
+};
 
 use millgate::history::rows::insert;
 use millgate::history::writer::{connect, insert_run};
@@ -316,8 +319,14 @@ async fn a_loop_of_capture_requests_is_logged_once_per_period() {
         let answer = ask_for_capture(web_port).await;
         assert_eq!(answer.status, 202, "{}", answer.body);
     }
-    // The analysis takes each command within its next turn.
-    tokio::time::sleep(std::time::Duration::from_millis(500)).await;
+    // The analysis takes the commands in its turns: the first one's line is logged
+    // (waited for: a fixed half second was too short on a loaded machine).
+    wait_for(
+        "the manual capture started",
+        Duration::from_secs(20),
+        || setup.log_text("run.log").contains("manual capture started"),
+    )
+    .await;
     terminate(&mut service);
     let log = setup.log_text("run.log");
     let lines = |text: &str| log.lines().filter(|line| line.contains(text)).count();

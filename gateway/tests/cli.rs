@@ -2,7 +2,7 @@
 
 mod common;
 
-use common::{millgate, scratch, text, TempDir, MILLGATE};
+use common::{millgate, scratch, text, KillOnDrop, TempDir, MILLGATE};
 use std::path::PathBuf;
 use std::process::Command;
 
@@ -715,12 +715,15 @@ async fn run_stops_on_sigterm_with_a_final_stopped_write() {
         .replace("127.0.0.1:5502", &plc_address.to_string())
         .replace("127.0.0.1:5503", "127.0.0.1:0");
     let (_folder, path) = write_config("sigterm", &config);
-    let child = MILLGATE
-        .command()
-        .args(["run", "--config", path.to_str().unwrap()])
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
+    // Killed when a failing check ends the test early.
+    let mut child = KillOnDrop(
+        MILLGATE
+            .command()
+            .args(["run", "--config", path.to_str().unwrap()])
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
     let running = std::time::Instant::now();
     while plc.holding()[1] & 1 == 0 {
         assert!(

@@ -1432,12 +1432,9 @@ fn rss_kib(pid: u32) -> u64 {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_client_that_never_reads_cannot_grow_the_server() {
     let folder = common::scratch("opcua-unread");
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let address: std::net::SocketAddr = ([127, 0, 0, 1], port).into();
+    // A kit port: one the kernel's `:0` gave could go to an outgoing connection
+    // before the demo binds it.
+    let address: std::net::SocketAddr = ([127, 0, 0, 1], common::free_port()).into();
     let history = folder.path().join("history.db");
     let demo = common::KillOnDrop(
         common::MILLGATE
@@ -1449,7 +1446,7 @@ async fn a_client_that_never_reads_cannot_grow_the_server() {
             .spawn()
             .unwrap(),
     );
-    let url = format!("opc.tcp://127.0.0.1:{port}/");
+    let url = format!("opc.tcp://{address}/");
     let started = Instant::now();
     while TcpStream::connect(address).await.is_err() {
         assert!(

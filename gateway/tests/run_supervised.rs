@@ -9,7 +9,7 @@ use std::os::unix::net::UnixDatagram;
 use std::path::Path;
 use std::process::{Command, Output, Stdio};
 
-use millgate_tests::kit::scratch;
+use millgate_tests::kit::{scratch, KillOnDrop};
 use std::time::{Duration, Instant};
 
 use millgate_sim::devices::demo::{demo_daq, setup};
@@ -164,14 +164,17 @@ async fn readiness_watchdog_and_an_orderly_stop_under_a_service_manager() {
     .unwrap();
     let socket_path = dir.join("notify.sock");
     let socket = UnixDatagram::bind(&socket_path).unwrap();
-    let child = Command::new(env!("CARGO_BIN_EXE_millgate"))
-        .args(["run", "--config", path.to_str().unwrap()])
-        .env("NOTIFY_SOCKET", &socket_path)
-        // 1 s: four PLC write periods of 100 ms fit; pings every 250 ms.
-        .env("WATCHDOG_USEC", "1000000")
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    // Killed when a failing check ends the test early.
+    let mut child = KillOnDrop(
+        Command::new(env!("CARGO_BIN_EXE_millgate"))
+            .args(["run", "--config", path.to_str().unwrap()])
+            .env("NOTIFY_SOCKET", &socket_path)
+            // 1 s: four PLC write periods of 100 ms fit; pings every 250 ms.
+            .env("WATCHDOG_USEC", "1000000")
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
 
     let (socket, messages) = tokio::task::spawn_blocking(move || {
         let messages = receive_until(&socket, Duration::from_secs(15), |messages| {

@@ -28,7 +28,7 @@ use std::time::{Duration, Instant};
 
 use common::broker::Broker;
 use common::sparkplug as backlog;
-use common::{free_port, hang_up, terminate, Setup, MILLGATE};
+use common::{free_port, hang_up, terminate, KillOnDrop, Setup, MILLGATE};
 use millgate::history::query::{CaptureRow, Filter, HistoryReader};
 use serde_json::Value;
 
@@ -586,25 +586,28 @@ fn the_demo_publishes_its_edge_node() {
     let mut host = Host::start(port, "demo-plant");
     let broker = format!("127.0.0.1:{port}");
     let history = scratch.join("history.db");
-    let demo = MILLGATE
-        .command()
-        .args([
-            "demo",
-            "--duration",
-            "4",
-            "--mqtt",
-            &broker,
-            "--group",
-            "demo-plant",
-            "--node",
-            "n1",
-        ])
-        .arg("--history")
-        .arg(&history)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
+    // Killed when a failing check ends the test early.
+    let mut demo = KillOnDrop(
+        MILLGATE
+            .command()
+            .args([
+                "demo",
+                "--duration",
+                "4",
+                "--mqtt",
+                &broker,
+                "--group",
+                "demo-plant",
+                "--node",
+                "n1",
+            ])
+            .arg("--history")
+            .arg(&history)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
     let limit = Duration::from_secs(30);
     let nbirth = host.next_of("NBIRTH", limit);
     assert_eq!(nbirth["topic"], "spBv1.0/demo-plant/NBIRTH/n1");
@@ -1115,15 +1118,18 @@ async fn a_rod_mill_is_a_device_with_its_spans_and_worst_margin() {
     )
     .unwrap();
     let log = std::fs::File::create(scratch.join("run.log")).unwrap();
-    let mut service = MILLGATE
-        .command()
-        .args(["run", "--config"])
-        .arg(&config)
-        .env("RUST_LOG", "info")
-        .stdout(Stdio::null())
-        .stderr(log)
-        .spawn()
-        .unwrap();
+    // Killed when a failing check ends the test early.
+    let mut service = KillOnDrop(
+        MILLGATE
+            .command()
+            .args(["run", "--config"])
+            .arg(&config)
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(log)
+            .spawn()
+            .unwrap(),
+    );
 
     let limit = Duration::from_secs(30);
     let dbirth = host.next_of("DBIRTH", limit);
@@ -1334,6 +1340,7 @@ async fn failover_through<End: FnOnce()>(
     let in_use =
         |port: u16| format!("millgate_sparkplug_server_in_use{{server=\"127.0.0.1:{port}\"}}");
     let mut service = setup.spawn("run.log");
+    let log_on_failure = setup.log_on_failure("run.log");
     let limit = Duration::from_secs(60);
     let (bd_seq, bite_alias) = first_births(&mut hosts, limit);
     let mut used = None;
@@ -1385,6 +1392,7 @@ async fn failover_through<End: FnOnce()>(
         .await;
     assert!(without.is_some_and(|s| s > 0.0), "{without:?}");
     terminate(&mut service);
+    drop(log_on_failure);
     setup.stop(service).await;
     (sessions, hosts)
 }

@@ -9,7 +9,7 @@ use millgate::field::source_health::SourceStatus;
 use millgate_config::{Config, RegisterTable};
 use millgate_sim::devices::modbus_bank::{Running, ServeOptions};
 use millgate_sim::devices::virtual_daq::{DaqChannel, Placement, Publish, VirtualDaq};
-use millgate_tests::kit::{scrape, wait_for};
+use millgate_tests::kit::{free_port, scrape, wait_for};
 use tokio::net::TcpListener;
 
 const SAMPLES_PER_BLOCK: u16 = 100;
@@ -55,8 +55,10 @@ async fn daq_restart_goes_stale_then_ok_and_counts_the_gap() -> anyhow::Result<(
     config.outputs.metrics = Some(millgate_config::MetricsOutput {
         bind: "127.0.0.1:0".parse()?,
     });
-    // Reserve a port for both lives of the DAQ.
-    let address = TcpListener::bind("127.0.0.1:0").await?.local_addr()?;
+    // A port for both lives of the DAQ, below the kernel's ephemeral range: while no
+    // DAQ listens, no outgoing connection (the reader's own retries to it among them,
+    // which could connect to themselves) is given it.
+    let address = SocketAddr::from(([127, 0, 0, 1], free_port()));
     config.modbus_sources[0].address = address.to_string();
 
     let daq_device = start_daq(daq(&config).with_sequence(FIRST_SEQUENCE), address).await?;

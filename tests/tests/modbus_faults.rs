@@ -9,7 +9,7 @@ use millgate::outputs::modbus::register_map::RegisterMap;
 use millgate_sim::devices::demo::setup;
 use millgate_sim::devices::modbus_bank::ServeOptions;
 use millgate_sim::devices::virtual_plc::VirtualPlc;
-use millgate_tests::kit::{scrape, wait_for};
+use millgate_tests::kit::{free_port, scrape, wait_for};
 use std::time::Instant;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
@@ -17,7 +17,9 @@ use tokio::net::{TcpListener, TcpStream};
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn plc_unreachable_at_start_gets_registers_when_it_appears() -> anyhow::Result<()> {
     let mut config = setup(1.0, 0.0, 1)?.config;
-    let plc_address = TcpListener::bind("127.0.0.1:0").await?.local_addr()?;
+    // Below the kernel's ephemeral range: while no PLC listens, no outgoing connection
+    // (the writer's own retries to it among them) is given the port.
+    let plc_address = SocketAddr::from(([127, 0, 0, 1], free_port()));
     config.modbus_sources[0].address = "127.0.0.1:1".into();
     config.outputs.server = None;
     let plc_output = config.outputs.plc.as_mut().unwrap();
@@ -494,7 +496,8 @@ async fn a_plc_that_vanishes_and_returns_gets_registers_again() -> anyhow::Resul
     let mut config = setup(1.0, 0.0, 1)?.config;
     config.modbus_sources[0].address = "127.0.0.1:1".into();
     config.outputs.server = None;
-    let plc_address = TcpListener::bind("127.0.0.1:0").await?.local_addr()?;
+    // The PLC's two lives on a port below the ephemeral range (as above).
+    let plc_address = SocketAddr::from(([127, 0, 0, 1], free_port()));
     config.outputs.plc.as_mut().unwrap().address = plc_address.to_string();
     let map = RegisterMap::new(&config);
     let plc = VirtualPlc::new(usize::from(map.len()));

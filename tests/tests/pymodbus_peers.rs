@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use millgate::outputs::modbus::register_map::{decode_f32, decode_u32, RegisterMap};
 use millgate_sim::devices::demo::setup;
-use millgate_tests::kit::demo_devices;
+use millgate_tests::kit::{demo_devices, free_port};
 
 fn peer(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -47,10 +47,9 @@ async fn read_plc(port: u16, len: u16) -> anyhow::Result<Vec<u16>> {
 async fn gateway_writes_its_map_into_a_pymodbus_plc() -> anyhow::Result<()> {
     let demo = setup(2.0, 0.5, 3)?;
     let mut config = demo.config;
-    let port = tokio::net::TcpListener::bind("127.0.0.1:0")
-        .await?
-        .local_addr()?
-        .port();
+    // A kit port, below the kernel's ephemeral range: no outgoing connection is given
+    // it before the Python PLC binds it.
+    let port = free_port();
     let map = RegisterMap::new(&config);
     let mut plc = Command::new("python3")
         .arg(peer("pymodbus_plc.py"))
@@ -71,10 +70,22 @@ async fn gateway_writes_its_map_into_a_pymodbus_plc() -> anyhow::Result<()> {
     let mut gateway = millgate::Service::new(config)?.spawn().await?;
     let mut received =
         vec![tokio::time::timeout(Duration::from_secs(10), gateway.bites().recv()).await??];
-    // Let at least two write periods pass so the bite is in the PLC, then read the
-    // pymodbus PLC live, as its program would.
-    tokio::time::sleep(Duration::from_millis(300)).await;
-    let live = read_plc(port, map.len()).await?;
+    // Read the pymodbus PLC live, as its program would, once a write has brought it
+    // the bite (waited for: two write periods, 300 ms, were too few on a loaded
+    // machine).
+    let counter_at = address_of(&map, "F1.bite_counter");
+    let started = std::time::Instant::now();
+    let live = loop {
+        let live = read_plc(port, map.len()).await?;
+        if decode_u32(&live[counter_at..]).is_some_and(|counter| counter >= 1) {
+            break live;
+        }
+        anyhow::ensure!(
+            started.elapsed() < Duration::from_secs(20),
+            "no bite in the pymodbus PLC within 20 s"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    };
     // On a loaded machine more bars may have been analysed meanwhile: the PLC holds the
     // last one, so compare against the bite with the PLC's bite counter.
     while let Ok(bite) = gateway.bites().try_recv() {

@@ -82,6 +82,33 @@ impl std::ops::DerefMut for KillOnDrop {
     }
 }
 
+impl KillOnDrop {
+    /// Wait for the child to end and collect what it wrote to its piped stdout and
+    /// stderr, as [`Child::wait_with_output`] does, the guard kept: a test that fails
+    /// before the child ends still kills it.
+    pub fn wait_with_output(&mut self) -> std::io::Result<Output> {
+        use std::io::Read;
+        let (stdout, stderr) = (self.0.stdout.take(), self.0.stderr.take());
+        // Both pipes read at once: a child blocked writing one while the other is read
+        // would never end.
+        let stderr = std::thread::spawn(move || {
+            let mut bytes = Vec::new();
+            stderr.map_or(Ok(0), |mut pipe| pipe.read_to_end(&mut bytes))?;
+            std::io::Result::Ok(bytes)
+        });
+        let mut stdout_bytes = Vec::new();
+        if let Some(mut pipe) = stdout {
+            pipe.read_to_end(&mut stdout_bytes)?;
+        }
+        let stderr = stderr.join().expect("the stderr reader")?;
+        Ok(Output {
+            status: self.0.wait()?,
+            stdout: stdout_bytes,
+            stderr,
+        })
+    }
+}
+
 impl Drop for KillOnDrop {
     fn drop(&mut self) {
         let _ = self.0.kill();

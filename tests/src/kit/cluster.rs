@@ -246,7 +246,7 @@ impl RabbitCluster {
         // plugin refuses or leaves unanswered the first CONNECTs for a while (a
         // subscriber connecting then timed out in CI).
         for (node, &port) in cluster.mqtt_ports.iter().enumerate() {
-            while !mqtt_accepts(port, node) {
+            while super::broker::connack(port, &format!("millgate-probe-n{node}")) != Some(0) {
                 assert!(
                     start.elapsed() < FORM_LIMIT,
                     "RabbitMQ node n{node} accepts no MQTT session on port {port} within \
@@ -327,31 +327,6 @@ fn wait_for_port(port: u16, start: Instant, folder: &Path) {
         );
         std::thread::sleep(Duration::from_millis(50));
     }
-}
-
-/// Whether the MQTT server on loopback `port` accepts a clean MQTT 3.1.1 session within
-/// 2 s: CONNECT answered by a CONNACK with return code 0 (then DISCONNECT).
-fn mqtt_accepts(port: u16, node: usize) -> bool {
-    use std::io::{Read as _, Write as _};
-    let Ok(mut stream) = std::net::TcpStream::connect(("127.0.0.1", port)) else {
-        return false;
-    };
-    let _ = stream.set_read_timeout(Some(Duration::from_secs(2)));
-    let id = format!("millgate-probe-n{node}");
-    let mut packet = vec![0x10, u8::try_from(12 + id.len()).expect("a short id")];
-    // Protocol "MQTT", level 4, clean session, keep-alive 60 s, then the client id.
-    packet.extend([0, 4, b'M', b'Q', b'T', b'T', 4, 0x02, 0, 60]);
-    packet.extend(u16::try_from(id.len()).expect("a short id").to_be_bytes());
-    packet.extend(id.as_bytes());
-    let mut connack = [0u8; 4];
-    let accepted = stream.write_all(&packet).is_ok()
-        && stream.read_exact(&mut connack).is_ok()
-        && connack[0] == 0x20
-        && connack[3] == 0;
-    if accepted {
-        let _ = stream.write_all(&[0xE0, 0]);
-    }
-    accepted
 }
 
 /// The last lines of each RabbitMQ node's log, for a failed start.

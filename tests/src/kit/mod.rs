@@ -39,7 +39,9 @@ pub mod sparkplug;
 pub mod tandem;
 
 pub use cli::{hang_up, terminate, text, KillOnDrop, Millgate};
-pub use net::{free_port, http, http_raw, scrape, wait_for, web_overview, web_ready, HttpAnswer};
+pub use net::{
+    free_port, http, http_raw, scrape, try_http, wait_for, web_overview, web_ready, HttpAnswer,
+};
 pub use peers::{json_peer, peer, promtool_passes};
 pub use scratch::{fill_file_system, scratch, TempDir};
 pub use service::{as_daq_sends, demo_devices, Plc, Setup};

@@ -15,7 +15,7 @@ use millgate_sim::devices::virtual_plc::VirtualPlc;
 use millgate_sim::schedule::Schedule;
 
 use super::cli::{KillOnDrop, Millgate};
-use super::net::{free_port, http, wait_for};
+use super::net::{free_port, http, try_http, wait_for};
 use super::scratch::{scratch, TempDir};
 
 /// The demo's virtual DAQ playing `schedule` and a virtual PLC holding `config`'s whole
@@ -88,6 +88,32 @@ impl Plc<'_> {
         })
         .await;
     }
+}
+
+/// Prints a [`Setup`]'s log when dropped by a failing test ([`Setup::log_on_failure`]).
+#[derive(Debug)]
+pub struct LogOnFailure<'a> {
+    setup: &'a Setup,
+    name: &'a str,
+}
+
+impl Drop for LogOnFailure<'_> {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            eprintln!(
+                "--- {} of the failed test:\n{}",
+                self.name,
+                self.setup.log_text(self.name)
+            );
+        }
+    }
+}
+
+/// The value of the line of `page` (a `/metrics` page) starting with `name` (with its
+/// labels).
+fn metric_line(page: &str, name: &str) -> Option<f64> {
+    page.lines()
+        .find_map(|line| line.strip_prefix(name)?.strip_prefix(' ')?.parse().ok())
 }
 
 /// A scratch folder, the demo's devices and the configuration of a `millgate run`
@@ -211,6 +237,13 @@ impl Setup {
         std::fs::read_to_string(self.log(name)).unwrap_or_default()
     }
 
+    /// A guard that prints the log `name` when it is dropped by a failing test (the
+    /// scratch folder that holds it goes with the test): what the service said about
+    /// an event the test waited for in vain.
+    pub fn log_on_failure<'a>(&'a self, name: &'a str) -> LogOnFailure<'a> {
+        LogOnFailure { setup: self, name }
+    }
+
     /// `millgate run` on the configuration, its log in the scratch folder.
     pub fn spawn(&self, log: &str) -> KillOnDrop {
         self.spawn_in_namespace(log, None)
@@ -267,17 +300,18 @@ impl Setup {
 
     /// The value of the metric line starting with `name` (with its labels).
     pub async fn metric(&self, name: &str) -> Option<f64> {
-        let page = self.metrics().await;
-        page.lines()
-            .find_map(|line| line.strip_prefix(name)?.strip_prefix(' ')?.parse().ok())
+        metric_line(&self.metrics().await, name)
     }
 
-    /// Wait until `/metrics` shows `name` at `value`, at most `limit`.
+    /// Wait until `/metrics` shows `name` at `value`, at most `limit`; a `/metrics`
+    /// not answering yet (the service starting) is waited for too.
     pub async fn until_metric(&self, name: &str, value: f64, limit: Duration) {
         let start = std::time::Instant::now();
         loop {
-            let now = self.metric(name).await;
-            if now == Some(value) {
+            let now = try_http(self.metrics_port, "GET", "/metrics")
+                .await
+                .map(|answer| metric_line(&answer.body, name));
+            if matches!(now, Ok(Some(now)) if now == value) {
                 return;
             }
             assert!(
