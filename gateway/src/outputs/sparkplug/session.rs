@@ -313,7 +313,9 @@ impl<'a> Session<'a> {
 
     /// The connection failed or the session ended: counted and logged, what the
     /// session had queued dropped, a new bdSeq (and Will) after a session the broker
-    /// had accepted. Returns the wait before the next connection.
+    /// had accepted or a CONNECT it may have taken
+    /// ([`ConnectFailure::may_have_registered_will`]).
+    /// Returns the wait before the next connection.
     async fn lost(&mut self, error: &rumqttc::ConnectionError) -> Duration {
         let task = self.task;
         let broker = self.broker().to_owned();
@@ -349,9 +351,11 @@ impl<'a> Session<'a> {
         self.events.pending.clear();
         self.confirmations.session_lost();
         self.replay_end = None;
-        // A new bdSeq only after a session the broker accepted: a refused or failed
-        // CONNECT never registered its Will.
-        if self.connected {
+        // A new bdSeq after every CONNECT the broker may have taken (Sparkplug 3.0: one
+        // bdSeq per CONNECT): a CONNECT that timed out can still be read by a broker that
+        // was only slow, which then registers its Will and publishes that NDEATH when the
+        // socket closes. With the same bdSeq the next session would be declared dead by it.
+        if self.connected || ConnectFailure::may_have_registered_will(error) {
             self.bd_seq = task.next_bd_seq(self.bd_seq).await;
             self.node.new_session(self.bd_seq);
             task.status.bd_seq.store(self.bd_seq, Ordering::Relaxed);

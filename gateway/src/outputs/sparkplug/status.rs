@@ -58,6 +58,31 @@ impl ConnectFailure {
         }
     }
 
+    /// Whether the CONNECT of a connection that failed with `error` may have reached
+    /// the broker, so that the broker may hold (or still register) that CONNECT's
+    /// Will. No when nothing was sent (the TCP connection refused, the name not
+    /// resolved, the TLS handshake failed: it comes before the CONNECT) or the broker
+    /// answered with a refusing CONNACK (no session, no Will); yes for the rest (no
+    /// CONNACK in time, the connection reset or closed after the CONNECT, a session
+    /// that ended).
+    pub(super) fn may_have_registered_will(error: &ConnectionError) -> bool {
+        use std::io::ErrorKind;
+        match error {
+            ConnectionError::ConnectionRefused(_) => false,
+            ConnectionError::Io(io)
+                if matches!(
+                    io.kind(),
+                    ErrorKind::ConnectionRefused
+                        | ErrorKind::NotFound
+                        | ErrorKind::AddrNotAvailable
+                ) =>
+            {
+                false
+            }
+            _ => Self::of(error) != Self::Tls,
+        }
+    }
+
     /// What to check, for the log.
     pub(super) fn hint(self) -> &'static str {
         match self {
@@ -208,6 +233,26 @@ impl SparkplugStatus {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_connect_the_broker_may_have_taken_is_told_from_one_it_cannot_have() {
+        use std::io::{Error, ErrorKind};
+        let io = |kind| ConnectionError::Io(Error::from(kind));
+        let taken = ConnectFailure::may_have_registered_will;
+        // Nothing sent, or refused by a CONNACK: no Will registered.
+        assert!(!taken(&io(ErrorKind::ConnectionRefused)));
+        assert!(!taken(&io(ErrorKind::NotFound)));
+        assert!(!taken(&ConnectionError::ConnectionRefused(
+            ConnectReturnCode::NotAuthorized
+        )));
+        assert!(!taken(&ConnectionError::Io(Error::other(
+            rustls::Error::HandshakeNotComplete
+        ))));
+        // The CONNECT went out and no CONNACK came, or the connection broke after it.
+        assert!(taken(&ConnectionError::NetworkTimeout));
+        assert!(taken(&io(ErrorKind::ConnectionReset)));
+        assert!(taken(&io(ErrorKind::UnexpectedEof)));
+    }
 
     #[tokio::test(start_paused = true)]
     async fn time_without_a_broker_counts_every_outage_the_current_one_included() {
