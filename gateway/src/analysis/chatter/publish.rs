@@ -44,7 +44,7 @@ use crate::state::time::UtcTime;
 /// mill's, as with the mill's bit.
 ///
 /// **The product** (a mill's `context.product` tag, with `product_groups`): one reading
-/// of the mill's context ([`ContextTracker::reading`]) serves each message: its product
+/// of the mill's context (`ContextTracker::reading`) serves each message: its product
 /// picks the thresholds the windows are judged by ([`ChatterMonitor::use_product`]:
 /// its group's, else the mill's), and the same reading is the context the episodes and
 /// captures carry. The product tag's value is used while younger than its source's
