@@ -11,6 +11,7 @@ pub mod outputs;
 pub mod records;
 pub mod service;
 pub mod shutdown;
+pub mod stage_timing;
 pub mod state;
 pub mod supervision;
 #[cfg(test)]
