@@ -66,9 +66,9 @@ pub struct Analysis {
     extra_hold: Vec<Duration>,
     /// Bites waiting for their extra channels, in the order they completed.
     held: Vec<HeldBite>,
-    /// Threads that analyse the drivelines' shares of a round (`analysis.workers`,
-    /// resolved: at least 1).
-    workers: usize,
+    /// The threads that analyse the drivelines' shares of a round
+    /// (`analysis.workers`, resolved: at least 1), started once and kept.
+    pool: pool::Pool,
     board: Arc<Board>,
     bites: broadcast::Sender<BiteReport>,
     /// Chatter monitors of the tandem mills.
@@ -153,7 +153,7 @@ impl Analysis {
             by_extra,
             extra_hold,
             held: Vec::new(),
-            workers: workers(config.analysis.workers),
+            pool: pool::Pool::new(workers(config.analysis.workers)),
             board,
             bites,
             chatter,
@@ -370,7 +370,7 @@ impl Analysis {
     /// their order; returns the bites they released: published and recorded.
     ///
     /// Each driveline's share of the messages runs on the pool of
-    /// `analysis.workers` threads (`pool::run_round`); the bites of the
+    /// `analysis.workers` threads (`pool::Pool::run_round`); the bites of the
     /// drivelines that are done are published together (`publish_bites`: one
     /// change of the results, one history commit, one PLC write), while the others
     /// still run. A bite of a driveline with extra channels is held until every one
@@ -402,9 +402,8 @@ impl Analysis {
         let mut released = Vec::new();
         // Bites of drivelines with extra channels, to hold.
         let mut to_hold = Vec::new();
-        pool::run_round(
+        self.pool.run_round(
             jobs,
-            self.workers,
             |(analyzer, steps)| {
                 let job_start = Instant::now();
                 let reports = analyzer.run_steps(steps, board);
