@@ -11,7 +11,6 @@ pub mod outputs;
 pub mod records;
 pub mod service;
 pub mod shutdown;
-pub mod stage_timing;
 pub mod state;
 pub mod supervision;
 #[cfg(test)]

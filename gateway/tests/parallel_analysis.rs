@@ -21,8 +21,6 @@ use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime};
 
 use common::scratch;
-use rand::SeedableRng as _;
-use rand_distr::Distribution as _;
 use millgate::analysis::driveline::BiteReport;
 use millgate::analysis::Analysis;
 use millgate::field::acquired::Acquired;
@@ -31,6 +29,8 @@ use millgate::history::query::{Filter, HistoryReader};
 use millgate::state::board::Board;
 use millgate::state::gap_maps::GapMaps;
 use millgate::state::history::History;
+use rand::SeedableRng as _;
+use rand_distr::Distribution as _;
 
 const MODELS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../sim/models");
 const DRIVELINES: usize = 16;
@@ -176,9 +176,11 @@ fn run(
         let messages: Vec<Acquired> = (signals.torques.iter().enumerate())
             .map(|(channel, signal)| block(channel, signal, BLOCK))
             .chain(
-                signals.stands.iter().enumerate().map(|(stand, signal)| {
-                    block(DRIVELINES + stand, signal, STAND_BLOCK)
-                }),
+                signals
+                    .stands
+                    .iter()
+                    .enumerate()
+                    .map(|(stand, signal)| block(DRIVELINES + stand, signal, STAND_BLOCK)),
             )
             .collect();
         match feed {
@@ -289,7 +291,10 @@ fn the_pool_gives_the_serial_analysis_results_bit_for_bit() {
         "both mills evaluated windows: {last}"
     );
     assert!(
-        serial.mills.iter().any(|mills| mills.contains("chatter_warning: true")),
+        serial
+            .mills
+            .iter()
+            .any(|mills| mills.contains("chatter_warning: true")),
         "the second mill's chatter is part of what is compared"
     );
     for (workers, feed) in [(1, Feed::Rounds), (4, Feed::Rounds), (4, Feed::Serial)] {

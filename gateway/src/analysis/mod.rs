@@ -379,7 +379,6 @@ impl Analysis {
     /// has samples up to the end of its window, or its hold bound passes
     /// ([`Self::release_held`]); any other bite is released at once.
     pub fn handle_all(&mut self, messages: Vec<Acquired>) -> Vec<BiteReport> {
-        let round_start = Instant::now();
         for message in &messages {
             if let Acquired::Samples { handed, .. } = message {
                 self.board.latencies().block_taken(handed.elapsed());
@@ -393,8 +392,11 @@ impl Analysis {
         };
         let steps = routes.steps(&messages, self.drivelines.len());
         let no_mills = self.chatter.monitors().is_empty() && self.rod_mills.monitors().is_empty();
-        let mills =
-            (!no_mills).then_some(Job::Mills(&mut self.chatter, &mut self.rod_mills, &messages));
+        let mills = (!no_mills).then_some(Job::Mills(
+            &mut self.chatter,
+            &mut self.rod_mills,
+            &messages,
+        ));
         let jobs: Vec<_> = mills
             .into_iter()
             .chain(
@@ -428,18 +430,7 @@ impl Analysis {
                         return None;
                     }
                 };
-                let job_start = Instant::now();
                 let reports = analyzer.run_steps(steps, board);
-                crate::stage_timing::line(
-                    "job",
-                    &[
-                        analyzer.index() as i128,
-                        crate::stage_timing::ns(job_start),
-                        crate::stage_timing::ns(Instant::now()),
-                        reports.len() as i128,
-                        crate::stage_timing::thread(),
-                    ],
-                );
                 Some((&*analyzer, reports))
             },
             |done| {
@@ -457,15 +448,6 @@ impl Analysis {
                 publish_bites(board, subscribers, &bites);
                 released.extend(ready.into_iter().map(|(_, report)| report));
             },
-        );
-        crate::stage_timing::line(
-            "round",
-            &[
-                crate::stage_timing::ns(round_start),
-                crate::stage_timing::ns(Instant::now()),
-                messages.len() as i128,
-                steps.iter().filter(|steps| !steps.is_empty()).count() as i128,
-            ],
         );
         // The hold counts from now, not from the block's hand-over: a bite found late
         // (the analysis behind) still waits its whole hold for the extra channels'

@@ -486,14 +486,6 @@ impl Writer {
         match written {
             Ok(()) => {
                 self.counters.committed(events, started.elapsed());
-                crate::stage_timing::line(
-                    "commit",
-                    &[
-                        crate::stage_timing::ns(started),
-                        crate::stage_timing::ns(Instant::now()),
-                        i128::from(events as u32),
-                    ],
-                );
                 if self.counters.state() == HistoryState::Failing {
                     self.recovered();
                 }

@@ -160,11 +160,6 @@ impl DrivelineAnalyzer {
         self.captures.extra_gap(extra);
     }
 
-    /// TEMPORARY (stage timings): the driveline's index.
-    pub(crate) fn index(&self) -> usize {
-        self.index
-    }
-
     /// Why the driveline runs without wear diagnosis although it names a model.
     pub(crate) fn wear_problem(&self) -> Option<&AnalysisError> {
         self.wear_problem.as_ref()

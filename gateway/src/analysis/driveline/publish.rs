@@ -237,24 +237,12 @@ pub(crate) fn publish_bites(
     if bites.is_empty() {
         return;
     }
-    let publish_start = std::time::Instant::now();
     let handed = bites.iter().map(|(_, report)| report.window_complete);
     board.update_bites_recorded(handed, |results, events| {
         for (analyzer, report) in bites {
             analyzer.publish(results, events, report);
         }
     });
-    if crate::stage_timing::on() {
-        let mut fields = vec![
-            crate::stage_timing::ns(publish_start),
-            crate::stage_timing::ns(std::time::Instant::now()),
-        ];
-        for (_, report) in bites {
-            fields.push(report.driveline as i128);
-            fields.push(crate::stage_timing::ns(report.window_complete));
-        }
-        crate::stage_timing::line("publish", &fields);
-    }
     for (_, report) in bites {
         log_bite(report);
         let _ = subscribers.send((*report).clone());

@@ -99,17 +99,7 @@ impl DrivelineAnalyzer {
                     counted = i + 1;
                 }
                 let dated = (Some(time), received.is_some());
-                let analysis_start = Instant::now();
                 reports.extend(self.report(&event, dated, handed, None));
-                crate::stage_timing::line(
-                    "bite",
-                    &[
-                        self.index as i128,
-                        crate::stage_timing::ns(handed),
-                        crate::stage_timing::ns(analysis_start),
-                        crate::stage_timing::ns(Instant::now()),
-                    ],
-                );
             }
         }
         if let Some(ledger) = &mut self.fatigue {

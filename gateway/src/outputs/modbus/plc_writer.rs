@@ -349,7 +349,6 @@ impl PlcWriter {
                 _ = changes.results() => false,
                 () = shutdown.recv() => break,
             };
-            let woke = std::time::Instant::now();
             self.board.beat();
             if context.is_none() && Instant::now() >= next_attempt {
                 match self.connect().await {
@@ -372,15 +371,12 @@ impl PlcWriter {
                     self.continue_counters(connected, &at_start).await;
                     counters_read = true;
                 }
-                let taken = std::time::Instant::now();
                 let (results, bites) = self.board.results_for_plc();
                 let words = self.map.encode(&results);
-                let encoded = std::time::Instant::now();
                 let history = self.board.history();
                 if !history.wait_settled(history.enqueued(), HISTORY_WAIT).await {
                     tracing::debug!(wait = ?HISTORY_WAIT, "history commit slower than the PLC wait");
                 }
-                let settled = std::time::Instant::now();
                 // On a change, the blocks that differ from what the PLC holds.
                 let changed = at_plc.as_deref().filter(|_| !period).map(|held| {
                     requests(blocks, |block| {
@@ -392,20 +388,6 @@ impl PlcWriter {
                 match self.write(connected, &words, requests).await {
                     Ok(()) => {
                         latencies.written(&bites);
-                        if crate::stage_timing::on() {
-                            let ns = crate::stage_timing::ns;
-                            let mut fields = vec![
-                                i128::from(period),
-                                ns(woke),
-                                ns(taken),
-                                ns(encoded),
-                                ns(settled),
-                                ns(std::time::Instant::now()),
-                                requests.len() as i128,
-                            ];
-                            fields.extend(bites.iter().map(|&handed| ns(handed)));
-                            crate::stage_timing::line("plc", &fields);
-                        }
                         at_plc = Some(words);
                         self.counters.written();
                         backoff.reset();
