@@ -1,7 +1,8 @@
 //! The analysis pool gives the serial analysis' results (issue 42): the load bench's
 //! plant (16 drivelines, each a copy of the simulator's seeded bars 0.2 s after the
-//! one before, so their bites complete in clumps, the demo's model with gap maps)
-//! fed block by block with one history file per run:
+//! one before, so their bites complete in clumps, the demo's model with gap maps; two
+//! tandem mills of 5 stands, seeded noise, the second's stands with a 200 Hz chatter
+//! tone that grows over the run) fed block by block with one history file per run:
 //!
 //! - serially, one message at a time (what the analysis did before the pool);
 //! - in rounds (each poll's blocks of every driveline together) with `workers = 1`;
@@ -9,7 +10,8 @@
 //!
 //! Every bite report (its figures bit for bit, as `{:?}` prints every `f64` exactly,
 //! its gap estimate and capture) is the same in the same order per driveline, and so
-//! is every history row.
+//! is every history row; the tandem mills' published results (their windows'
+//! evaluations, gains, warnings and alarms) are the same after every poll.
 
 mod common;
 
@@ -27,6 +29,8 @@ use millgate::history::query::{Filter, HistoryReader};
 use millgate::state::board::Board;
 use millgate::state::gap_maps::GapMaps;
 use millgate::state::history::History;
+use rand::SeedableRng as _;
+use rand_distr::Distribution as _;
 
 const MODELS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../sim/models");
 const DRIVELINES: usize = 16;
@@ -36,6 +40,11 @@ const BLOCK: usize = 100;
 /// The bench's delay between two drivelines' copies of the bars, s.
 const STAGGER_S: f64 = 0.2;
 const BARS_S: f64 = 14.0;
+/// Tandem mills, stands each, their rate and samples per poll (50 ms).
+const MILLS: usize = 2;
+const STANDS_PER_MILL: usize = 5;
+const STAND_RATE_HZ: f64 = 2500.0;
+const STAND_BLOCK: usize = 125;
 
 /// The load bench's plant: `DRIVELINES` torque channels on DAQs of 8 channels, each
 /// driveline with the demo's model (coarse maps, to keep the test short).
@@ -44,7 +53,9 @@ fn config(cache: &Path, history: &Path, workers: usize) -> millgate_config::Conf
         "name = \"parallel analysis\"\ncache_dir = \"{}\"\n\n[analysis]\nworkers = {workers}\n\n",
         cache.display()
     );
-    for daq in 0..DRIVELINES.div_ceil(CHANNELS_PER_DAQ) {
+    let stands = MILLS * STANDS_PER_MILL;
+    let daqs = DRIVELINES.div_ceil(CHANNELS_PER_DAQ) + stands.div_ceil(CHANNELS_PER_DAQ);
+    for daq in 0..daqs {
         text.push_str(&format!(
             "[[sources.modbus]]\nname = \"daq{daq}\"\naddress = \"127.0.0.1:{}\"\npoll_period_ms = 20\n\n",
             5020 + daq
@@ -62,6 +73,32 @@ fn config(cache: &Path, history: &Path, workers: usize) -> millgate_config::Conf
              thresholds = {{ taf_warning = 2.2, taf_alarm = 2.6, gap_warning_mrad = 2.0, gap_alarm_mrad = 4.0 }}\n\
              wear = {{ gap_step_mrad = 0.25, torque_points = 10 }}\n\n",
             slot as u16 * millgate_config::layout::BLOCK_REGISTERS
+        ));
+    }
+    // The stands' channels after the drivelines' (channel DRIVELINES + s), on the
+    // DAQs after theirs.
+    for s in 0..stands {
+        let k = DRIVELINES.div_ceil(CHANNELS_PER_DAQ) * CHANNELS_PER_DAQ + s;
+        let (daq, slot) = (k / CHANNELS_PER_DAQ, k % CHANNELS_PER_DAQ);
+        text.push_str(&format!(
+            "[[channels]]\nname = \"s{s}_vib\"\nkind = \"acceleration\"\nunit = \"m/s^2\"\n\
+             scale = 0.01\nsample_rate_hz = {STAND_RATE_HZ:.1}\n\
+             source = {{ modbus = \"daq{daq}\", table = \"input\", block = {} }}\n\n",
+            slot as u16 * millgate_config::layout::BLOCK_REGISTERS
+        ));
+    }
+    // The load bench's tandem mills (band-gain detector).
+    for mill in 0..MILLS {
+        let names: Vec<String> = (0..STANDS_PER_MILL)
+            .map(|stand| format!("\"s{}_vib\"", mill * STANDS_PER_MILL + stand))
+            .collect();
+        text.push_str(&format!(
+            "[[tandem_mills]]\nname = \"TCM{mill}\"\nstands = [{}]\n\
+             chatter_band_hz = [100.0, 300.0]\nwindow_s = 0.5\nk_max = 0.25\n\
+             detector = \"band_gain\"\nreference_band_hz = [450.0, 900.0]\n\
+             gain_window_s = 2.0\ngain_thresholds = [3.0, 3.0, 3.0, 3.0, 3.0]\n\
+             slow_down_release = 0.8\nslow_down_hold_s = 5.0\n\n",
+            names.join(", ")
         ));
     }
     text.push_str(&format!("[history]\npath = \"{}\"\n", history.display()));
@@ -91,17 +128,25 @@ enum Feed {
 }
 
 /// One run: the bites released per driveline (as `{:?}`) and the history's rows per
-/// driveline (as `{:?}`, without their row and run ids), both in order.
+/// driveline (as `{:?}`, without their row and run ids), both in order; the tandem
+/// mills' published results after each poll (as `{:?}`).
 struct Run {
     reports: Vec<Vec<String>>,
     rows: Vec<Vec<String>>,
+    mills: Vec<String>,
+}
+
+/// The plant's channels: the drivelines' torques, then the stands' vibration.
+struct Signals {
+    torques: Vec<Vec<f64>>,
+    stands: Vec<Vec<f64>>,
 }
 
 fn run(
     dir: &Path,
     workers: usize,
     feed: Feed,
-    signals: &[Vec<f64>],
+    signals: &Signals,
     maps: &GapMaps,
     stamps: &(SystemTime, Instant),
 ) -> Run {
@@ -118,18 +163,25 @@ fn run(
     }
     let mut released: Vec<BiteReport> = Vec::new();
     let (start_time, start_instant) = *stamps;
-    let polls = signals[0].len() / BLOCK;
+    let mut mills = Vec::new();
+    let polls = signals.torques[0].len() / BLOCK;
     for poll in 0..polls {
         let offset = Duration::from_secs_f64(((poll + 1) * BLOCK) as f64 / RATE_HZ);
-        let messages: Vec<Acquired> = signals
-            .iter()
-            .enumerate()
-            .map(|(channel, signal)| Acquired::Samples {
-                channel,
-                values: signal[poll * BLOCK..(poll + 1) * BLOCK].to_vec(),
-                received: Some(start_time + offset),
-                handed: start_instant + offset,
-            })
+        let block = |channel, signal: &Vec<f64>, length: usize| Acquired::Samples {
+            channel,
+            values: signal[poll * length..(poll + 1) * length].to_vec(),
+            received: Some(start_time + offset),
+            handed: start_instant + offset,
+        };
+        let messages: Vec<Acquired> = (signals.torques.iter().enumerate())
+            .map(|(channel, signal)| block(channel, signal, BLOCK))
+            .chain(
+                signals
+                    .stands
+                    .iter()
+                    .enumerate()
+                    .map(|(stand, signal)| block(DRIVELINES + stand, signal, STAND_BLOCK)),
+            )
             .collect();
         match feed {
             Feed::Serial => {
@@ -139,6 +191,7 @@ fn run(
             }
             Feed::Rounds => released.extend(analysis.handle_all(messages)),
         }
+        mills.push(format!("{:?}", board.results().tandem_mills));
     }
     drop(analysis);
     history.close();
@@ -155,7 +208,11 @@ fn run(
         (row.id, row.run_id) = (0, 0);
         rows[driveline].push(format!("{row:?}"));
     }
-    Run { reports, rows }
+    Run {
+        reports,
+        rows,
+        mills,
+    }
 }
 
 #[test]
@@ -167,13 +224,34 @@ fn the_pool_gives_the_serial_analysis_results_bit_for_bit() {
         .schedule
         .torque_knm;
     let stagger = (STAGGER_S * RATE_HZ) as usize;
-    let signals: Vec<Vec<f64>> = (0..DRIVELINES)
+    let torques: Vec<Vec<f64>> = (0..DRIVELINES)
         .map(|k| {
             let mut signal = bars.clone();
             signal.rotate_right((k * stagger) % bars.len());
             signal
         })
         .collect();
+    let stand_samples = torques[0].len() / BLOCK * STAND_BLOCK;
+    let noise = rand_distr::Normal::new(0.0, 2.0).expect("noise");
+    let stands = (0..MILLS * STANDS_PER_MILL)
+        .map(|s| {
+            let mut rng = rand::rngs::StdRng::seed_from_u64(1000 + s as u64);
+            (0..stand_samples)
+                .map(|i| {
+                    let t = i as f64 / STAND_RATE_HZ;
+                    // The second mill chatters: a 200 Hz tone growing to 8 m/s^2.
+                    let tone = if s >= STANDS_PER_MILL {
+                        8.0 * (i as f64 / stand_samples as f64)
+                            * (2.0 * std::f64::consts::PI * 200.0 * t).sin()
+                    } else {
+                        0.0
+                    };
+                    noise.sample(&mut rng) + tone
+                })
+                .collect()
+        })
+        .collect();
+    let signals = Signals { torques, stands };
     let maps = {
         let config = config(&dir.join("cache"), &dir.join("maps.db"), 1);
         let (bites, _) = tokio::sync::broadcast::channel(1);
@@ -207,6 +285,18 @@ fn the_pool_gives_the_serial_analysis_results_bit_for_bit() {
             .any(|report| report.contains("trend: Some")),
         "the gap estimate is part of what is compared"
     );
+    let last = serial.mills.last().expect("polls");
+    assert!(
+        !last.contains("evaluations: 0,"),
+        "both mills evaluated windows: {last}"
+    );
+    assert!(
+        serial
+            .mills
+            .iter()
+            .any(|mills| mills.contains("chatter_warning: true")),
+        "the second mill's chatter is part of what is compared"
+    );
     for (workers, feed) in [(1, Feed::Rounds), (4, Feed::Rounds), (4, Feed::Serial)] {
         let pooled = run(&dir, workers, feed, &signals, &maps, &stamps);
         for driveline in 0..DRIVELINES {
@@ -219,5 +309,12 @@ fn the_pool_gives_the_serial_analysis_results_bit_for_bit() {
                 "D{driveline}'s history rows with {workers} workers, {feed:?}"
             );
         }
+        for (poll, (pooled, serial)) in pooled.mills.iter().zip(&serial.mills).enumerate() {
+            assert_eq!(
+                pooled, serial,
+                "the tandem mills after poll {poll} with {workers} workers, {feed:?}"
+            );
+        }
+        assert_eq!(pooled.mills.len(), serial.mills.len());
     }
 }

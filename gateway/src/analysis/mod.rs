@@ -66,9 +66,9 @@ pub struct Analysis {
     extra_hold: Vec<Duration>,
     /// Bites waiting for their extra channels, in the order they completed.
     held: Vec<HeldBite>,
-    /// Threads that analyse the drivelines' shares of a round (`analysis.workers`,
-    /// resolved: at least 1).
-    workers: usize,
+    /// The threads that analyse the drivelines' shares of a round
+    /// (`analysis.workers`, resolved: at least 1), started once and kept.
+    pool: pool::Pool,
     board: Arc<Board>,
     bites: broadcast::Sender<BiteReport>,
     /// Chatter monitors of the tandem mills.
@@ -110,7 +110,7 @@ impl Analysis {
             by_extra: vec![Vec::new(); channels],
             extra_hold: Vec::new(),
             held: Vec::new(),
-            workers: workers(config.analysis.workers),
+            pool: pool::Pool::new(workers(config.analysis.workers)),
             board,
             bites,
             chatter,
@@ -375,7 +375,9 @@ impl Analysis {
     /// their order; returns the bites they released: published and recorded.
     ///
     /// Each driveline's share of the messages runs on the pool of
-    /// `analysis.workers` threads (`pool::run_round`); the bites of the
+    /// `analysis.workers` threads (`pool::Pool::run_round`), and so do the tandem
+    /// mills' chatter windows and the rod mills' operating points (every message of
+    /// the round, in order, as one job beside the drivelines'); the bites of the
     /// drivelines that are done are published together (`publish_bites`: one
     /// change of the results, one history commit, one PLC write), while the others
     /// still run. A bite of a driveline with extra channels is held until every one
@@ -386,8 +388,6 @@ impl Analysis {
             if let Acquired::Samples { handed, .. } = message {
                 self.board.latencies().block_taken(handed.elapsed());
             }
-            self.chatter.handle(message);
-            self.rod_mills.handle(message);
         }
         let routes = Routes {
             by_torque: &self.by_torque,
@@ -396,26 +396,51 @@ impl Analysis {
             by_extra: &self.by_extra,
         };
         let steps = routes.steps(&messages, self.drivelines.len());
-        let jobs: Vec<_> = self
-            .drivelines
-            .iter_mut()
-            .zip(&steps)
-            .filter(|(_, steps)| !steps.is_empty())
+        let no_mills = self.chatter.monitors().is_empty() && self.rod_mills.monitors().is_empty();
+        let mills = (!no_mills).then_some(Job::Mills(
+            &mut self.chatter,
+            &mut self.rod_mills,
+            &messages,
+        ));
+        let jobs: Vec<_> = mills
+            .into_iter()
+            .chain(
+                self.drivelines
+                    .iter_mut()
+                    .zip(&steps)
+                    .filter(|(_, steps)| !steps.is_empty())
+                    .map(|(analyzer, steps)| Job::Driveline(analyzer, steps)),
+            )
             .collect();
         let (board, subscribers, extra_hold) = (&self.board, &self.bites, &self.extra_hold);
         let mut released = Vec::new();
         // Bites of drivelines with extra channels, to hold.
         let mut to_hold = Vec::new();
-        pool::run_round(
+        self.pool.run_round(
             jobs,
-            self.workers,
-            |(analyzer, steps)| {
+            |job| {
+                let (analyzer, steps) = match job {
+                    Job::Driveline(analyzer, steps) => (analyzer, steps),
+                    Job::Mills(chatter, rod_mills, messages) => {
+                        for message in messages {
+                            // A block arrived when its reader handed it over, not when
+                            // its round (or this job) took it up.
+                            let arrival = match message {
+                                Acquired::Samples { handed, .. } => *handed,
+                                _ => Instant::now(),
+                            };
+                            chatter.handle_at(message, arrival);
+                            rod_mills.handle(message);
+                        }
+                        return None;
+                    }
+                };
                 let reports = analyzer.run_steps(steps, board);
-                (&*analyzer, reports)
+                Some((&*analyzer, reports))
             },
             |done| {
                 let mut ready = Vec::new();
-                for (analyzer, reports) in done {
+                for (analyzer, reports) in done.into_iter().flatten() {
                     for report in reports {
                         if extra_hold[report.driveline].is_zero() {
                             ready.push((analyzer, report));
@@ -650,6 +675,19 @@ fn workers(configured: usize) -> usize {
         0 => std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get),
         workers => workers,
     }
+}
+
+/// A job of an analysis round.
+enum Job<'a, 'm> {
+    /// A driveline's share of the round, in order.
+    Driveline(&'a mut DrivelineAnalyzer, &'a [round::Step<'m>]),
+    /// The tandem mills' and the rod mills' share: every message of the round, in
+    /// order (each mill's state depends only on its own messages' order).
+    Mills(
+        &'a mut chatter::ChatterAnalysis,
+        &'a mut rod_monitor::RodAnalysis,
+        &'m [Acquired],
+    ),
 }
 
 /// A bite waiting for its driveline's extra channels.

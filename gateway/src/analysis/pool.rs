@@ -1,82 +1,149 @@
 //! The analysis round's bounded pool: the jobs of one round (a driveline's share of
-//! the blocks drained together) run on at most `workers` threads, and each job's
-//! result is handed to the publisher as soon as it is done, together with whatever
-//! else finished meanwhile. A slow job delays only itself: the others' results are
-//! published while it runs; the round (and so the next blocks) ends when it ends.
+//! the blocks drained together) run on a pool of `workers` persistent threads, and
+//! each job's result is handed to the publisher as soon as it is done, together with
+//! whatever else finished meanwhile. A slow job delays only itself: the others'
+//! results are published while it runs; the round (and so the next blocks) ends when
+//! it ends.
 //!
-//! Scoped threads (`std::thread::scope`) rather than a crate's pool (rayon is not in
-//! the workspace, and its `par_iter` would return the results only once all are
-//! done): the jobs borrow the drivelines' analysers, which a scope allows without
-//! moving them in and out of `Arc<Mutex<_>>`. Spawning the threads costs some tens
-//! of microseconds per round against about 0.5 ms per bite analysed. Nothing queues
-//! without bound: the jobs are the round's (at most [`super::MAX_ROUND_MESSAGES`]
-//! blocks' worth) and the results' channel holds one result per job.
+//! The threads are rayon's (`ThreadPool::in_place_scope`): started once, at the
+//! first round that has work for more than one, and kept, so a round costs a wake-up
+//! of idle threads rather than the start of new ones (scoped threads spawned per
+//! round, as before, cost some tens of microseconds each, more on a loaded machine,
+//! at every round: a round per DAQ poll, hundreds a second). The scope lets the jobs
+//! borrow the drivelines' analysers without moving them in and out of
+//! `Arc<Mutex<_>>`, and the publisher runs on the calling thread inside it, so the
+//! results are published as they come rather than once all are done (what rayon's
+//! `par_iter` would give). Nothing queues without bound: the jobs are the round's (at
+//! most [`super::MAX_ROUND_MESSAGES`] blocks' worth) and the results' channel holds
+//! one result per job.
 
 use std::sync::mpsc;
-use std::sync::Mutex;
+use std::sync::OnceLock;
 
-/// Run `jobs` through `work` on at most `workers` threads (inline on the calling
-/// thread with one worker or one job), calling `publish` on the calling thread with
-/// each group of results that are done, in the order they finished. Returns once
-/// every job is done and published.
-pub(crate) fn run_round<J: Send, R: Send>(
-    jobs: Vec<J>,
+/// A pool of `workers` analysis threads, started when first needed.
+#[derive(Debug)]
+pub(crate) struct Pool {
     workers: usize,
-    work: impl Fn(J) -> R + Sync,
-    mut publish: impl FnMut(Vec<R>),
-) {
-    let threads = workers.min(jobs.len());
-    if threads <= 1 {
-        for job in jobs {
-            publish(vec![work(job)]);
+    /// The threads (`None`: they could not be started, the rounds run inline).
+    threads: OnceLock<Option<rayon::ThreadPool>>,
+}
+
+impl Pool {
+    /// A pool of `workers` threads (at least 1; with 1, every job runs inline on the
+    /// calling thread and no thread is started).
+    pub(crate) fn new(workers: usize) -> Self {
+        Self {
+            workers: workers.max(1),
+            threads: OnceLock::new(),
         }
-        return;
     }
-    let (done, finished) = mpsc::sync_channel(jobs.len());
-    let queue = Mutex::new(jobs.into_iter());
-    std::thread::scope(|scope| {
-        for _ in 0..threads {
-            let done = done.clone();
-            let (queue, work) = (&queue, &work);
-            scope.spawn(move || loop {
-                let Some(job) = crate::lock(queue).next() else {
-                    break;
-                };
+
+    /// The threads, started at the first call.
+    fn threads(&self) -> Option<&rayon::ThreadPool> {
+        self.threads
+            .get_or_init(|| {
+                let built = rayon::ThreadPoolBuilder::new()
+                    .num_threads(self.workers)
+                    .thread_name(|i| format!("analysis-{i}"))
+                    .build();
+                built
+                    .inspect_err(|error| {
+                        tracing::error!(%error, workers = self.workers, "the analysis pool's threads did not start: the analysis runs on one thread")
+                    })
+                    .ok()
+            })
+            .as_ref()
+    }
+
+    /// Run `jobs` through `work` on the pool (inline on the calling thread with one
+    /// worker or one job), calling `publish` on the calling thread with each group of
+    /// results that are done, in the order they finished. Returns once every job is
+    /// done and published.
+    pub(crate) fn run_round<J: Send, R: Send>(
+        &self,
+        jobs: Vec<J>,
+        work: impl Fn(J) -> R + Sync,
+        mut publish: impl FnMut(Vec<R>),
+    ) {
+        let threads = if self.workers > 1 && jobs.len() > 1 {
+            self.threads()
+        } else {
+            None
+        };
+        let Some(threads) = threads else {
+            for job in jobs {
+                publish(vec![work(job)]);
+            }
+            return;
+        };
+        let (done, finished) = mpsc::sync_channel(jobs.len());
+        threads.in_place_scope(|scope| {
+            for job in jobs {
+                let (done, work) = (done.clone(), &work);
                 // Room for every job's result: never blocks. A publisher gone (it
                 // panicked) ends the scope with its panic anyway.
-                if done.send(work(job)).is_err() {
-                    break;
-                }
-            });
-        }
-        drop(done);
-        while let Ok(first) = finished.recv() {
-            let mut group = vec![first];
-            group.extend(finished.try_iter());
-            publish(group);
-        }
-    });
+                scope.spawn(move |_| {
+                    let _ = done.send(work(job));
+                });
+            }
+            drop(done);
+            while let Ok(first) = finished.recv() {
+                let mut group = vec![first];
+                group.extend(finished.try_iter());
+                publish(group);
+            }
+        });
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::sync::Mutex;
     use std::time::Duration;
 
-    /// Every job runs once and is published once, at any worker count.
+    /// Every job runs once and is published once, at any worker count, round after
+    /// round on the same threads.
     #[test]
     fn every_job_is_published_once() {
         for workers in [1, 2, 3, 8] {
-            let mut published = Vec::new();
-            run_round(
-                (0..20).collect(),
-                workers,
-                |job: u32| job * 10,
-                |group| published.extend(group),
-            );
-            published.sort_unstable();
-            assert_eq!(published, (0..20).map(|j| j * 10).collect::<Vec<_>>());
+            let pool = Pool::new(workers);
+            for _round in 0..3 {
+                let mut published = Vec::new();
+                pool.run_round(
+                    (0..20).collect(),
+                    |job: u32| job * 10,
+                    |group| published.extend(group),
+                );
+                published.sort_unstable();
+                assert_eq!(published, (0..20).map(|j| j * 10).collect::<Vec<_>>());
+            }
         }
+    }
+
+    /// The rounds run on the pool's threads, the same ones every round (persistent),
+    /// never more than `workers` of them, and not on the calling thread.
+    #[test]
+    fn the_rounds_run_on_the_same_persistent_threads() {
+        let pool = Pool::new(2);
+        let caller = std::thread::current().id();
+        let mut seen = std::collections::HashSet::new();
+        for _round in 0..20 {
+            pool.run_round(
+                (0..8).collect(),
+                |_job: u32| {
+                    std::thread::sleep(Duration::from_millis(1));
+                    std::thread::current().id()
+                },
+                |group| seen.extend(group),
+            );
+        }
+        assert!(!seen.contains(&caller), "a job ran on the calling thread");
+        assert!(
+            (1..=2).contains(&seen.len()),
+            "{} threads over 20 rounds: {seen:?}",
+            seen.len()
+        );
     }
 
     /// A slow job does not hold the others back: it waits until the fast jobs'
@@ -87,9 +154,8 @@ mod tests {
         let (fast_published, wait_for_fast) = mpsc::sync_channel::<()>(1);
         let wait_for_fast = Mutex::new(wait_for_fast);
         let mut order = Vec::new();
-        run_round(
+        Pool::new(2).run_round(
             vec!["slow", "fast 1", "fast 2"],
-            2,
             |job| {
                 if job == "slow" {
                     let waited = crate::lock(&wait_for_fast).recv_timeout(Duration::from_secs(10));

@@ -307,9 +307,10 @@ impl ChatterAnalysis {
         self.handle_at(message, Instant::now());
     }
 
-    /// [`Self::handle`] with the message arriving at `now` (tests replay a DAQ's
-    /// pace without waiting for it).
-    fn handle_at(&mut self, message: &Acquired, now: Instant) {
+    /// [`Self::handle`] with the message arriving at `now` (the analysis' rounds give
+    /// a block the instant its reader handed it over; tests replay a DAQ's pace
+    /// without waiting for it).
+    pub(crate) fn handle_at(&mut self, message: &Acquired, now: Instant) {
         let channel = match message {
             Acquired::Samples { channel, .. } | Acquired::Gap { channel, .. } => *channel,
             Acquired::ProcessValue { channel, value } => {
