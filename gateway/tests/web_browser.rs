@@ -1026,13 +1026,11 @@ async fn the_pages_list_the_drivelines_plot_the_gap_and_show_a_new_bite_live() {
 /// its thresholds, product 8 the fallback ("mill's") and the mill's thresholds.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_thresholds_card_names_the_products_group_and_its_thresholds() {
-    use millgate_sim::devices::modbus_bank::ServeOptions;
-    use millgate_sim::devices::virtual_daq::VirtualDaq;
     use millgate_sim::devices::virtual_plc::VirtualPlc;
     use millgate_tests::kit::tandem::{
-        reference_ramp, stand_daq_channels, Stands, FS, GAIN_THRESHOLDS,
+        product_groups_toml, serve_daq_and_plc, stable_rolling_daq, tight_thresholds,
+        GAIN_THRESHOLDS,
     };
-    use tokio::net::TcpListener;
 
     let (Some(chromium), Some(chromedriver)) = (which("chromium"), which("chromedriver")) else {
         eprintln!(
@@ -1041,46 +1039,23 @@ async fn the_thresholds_card_names_the_products_group_and_its_thresholds() {
         );
         return;
     };
-    let tight: Vec<f64> = GAIN_THRESHOLDS.iter().map(|t| t / 4.0).collect();
+    let tight = tight_thresholds();
     // `values`, each as `write` gives it, comma-separated.
     let joined = |values: &[f64], write: fn(&f64) -> String| {
         values.iter().map(write).collect::<Vec<_>>().join(", ")
     };
     let port = free_port();
-    let text = String::from("name = \"thresholds card\"\n")
-        + &modbus_source("daq")
-        + "[[sources.modbus]]\nname = \"process_plc\"\naddress = \"127.0.0.1:1\"\n\
-           poll_period_ms = 100\ntimeout_ms = 500\n\n\
-           [[channels]]\nname = \"product_code\"\nkind = \"process_value\"\nunit = \"1\"\n\
-           source = { modbus = \"process_plc\", table = \"holding\", address = 0 }\n\n"
-        + &Stands::modbus(5, "daq")
-            .keys(&format!(
-                "context = {{ product = \"product_code\", products = [7, 8] }}\n\
-                 [[tandem_mills.product_groups]]\nname = \"tight\"\nproducts = [7]\n\
-                 gain_thresholds = [{}]\n",
-                joined(&tight, |t| format!("{t:?}"))
-            ))
-            .toml()
+    let text = product_groups_toml("thresholds card")
         + &format!("[outputs.web]\nbind = \"127.0.0.1:{port}\"\n");
     let mut config =
         millgate_config::from_toml_str(&text, "thresholds-card.toml", std::path::Path::new("."))
             .unwrap_or_else(|e| panic!("{e}"));
-    let run = reference_ramp(0.9, 60.0, 20.0, 21).expect("the tandem model's rolling");
-    let daq = VirtualDaq::new(
-        FS,
-        120,
-        stand_daq_channels(&run.acceleration, &[0, 1, 2, 3, 4]),
-    )
-    .looped();
+    let daq = stable_rolling_daq().expect("the tandem model's rolling");
     let process = VirtualPlc::new(4);
     let set_product = |code: u16| process.bank().lock().holding[0] = code;
     set_product(7);
-    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
-    config.modbus_sources[0].address = listener.local_addr().unwrap().to_string();
-    let daq_running = daq.spawn(listener, ServeOptions::default());
-    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
-    config.modbus_sources[1].address = listener.local_addr().unwrap().to_string();
-    let process_running = process.spawn(listener, ServeOptions::default());
+    let (daq_running, process_running) =
+        serve_daq_and_plc(&mut config, daq, &process).await.unwrap();
     let gateway = millgate::Service::new(config)
         .unwrap()
         .spawn()

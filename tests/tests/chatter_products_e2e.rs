@@ -9,89 +9,42 @@
 //! and the mill's thresholds judge again (a counted fallback). Read on the page's JSON
 //! and on `/metrics`.
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use millgate_config::Config;
-use millgate_sim::devices::modbus_bank::ServeOptions;
-use millgate_sim::devices::virtual_daq::VirtualDaq;
 use millgate_sim::devices::virtual_plc::VirtualPlc;
+use millgate_tests::kit::scrape;
 use millgate_tests::kit::tandem::{
-    modbus_source, reference_ramp, stand_daq_channels, Stands, FS, GAIN_THRESHOLDS,
+    product_groups_toml, serve_daq_and_plc, stable_rolling_daq, tcm_metric, until_tandem_mill,
 };
-use millgate_tests::kit::{scrape, web_overview};
-use tokio::net::TcpListener;
 
 /// The process PLC's holding register with the product code.
 const PRODUCT_REGISTER: usize = 0;
 
 fn config() -> anyhow::Result<Config> {
-    let tight: Vec<String> = GAIN_THRESHOLDS
-        .iter()
-        .map(|t| format!("{:?}", t / 4.0))
-        .collect();
-    let text = String::from("name = \"chatter products\"\n")
-        + &modbus_source("daq")
-        + "[[sources.modbus]]\nname = \"process_plc\"\naddress = \"127.0.0.1:1\"\n\
-           poll_period_ms = 100\ntimeout_ms = 500\n\n\
-           [[channels]]\nname = \"product_code\"\nkind = \"process_value\"\nunit = \"1\"\n\
-           source = { modbus = \"process_plc\", table = \"holding\", address = 0 }\n\n"
-        + &Stands::modbus(5, "daq")
-            .keys(&format!(
-                "context = {{ product = \"product_code\", products = [7, 8] }}\n\
-                 [[tandem_mills.product_groups]]\nname = \"tight\"\nproducts = [7]\n\
-                 gain_thresholds = [{}]\n",
-                tight.join(", ")
-            ))
-            .toml()
+    let text = product_groups_toml("chatter products")
         + "[outputs.metrics]\nbind = \"127.0.0.1:0\"\n[outputs.web]\nbind = \"127.0.0.1:0\"\n";
     millgate_config::from_toml_str(&text, "chatter-products.toml", std::path::Path::new("."))
         .map_err(|e| anyhow::anyhow!("{e}"))
 }
 
-/// The value of `family{tandem_mill="TCM"}` on `page`.
-fn metric(page: &str, family: &str) -> Option<f64> {
-    let prefix = format!("{family}{{tandem_mill=\"TCM\"}} ");
-    page.lines()
-        .find_map(|line| line.strip_prefix(&prefix))
-        .and_then(|value| value.trim().parse().ok())
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_thresholds_in_use_follow_the_plcs_product() -> anyhow::Result<()> {
     // 20 s of stable rolling at 90% of the critical speed, played again and again.
-    let run = reference_ramp(0.9, 60.0, 20.0, 21)?;
-    let daq = VirtualDaq::new(
-        FS,
-        120,
-        stand_daq_channels(&run.acceleration, &[0, 1, 2, 3, 4]),
-    )
-    .looped();
+    let daq = stable_rolling_daq()?;
     let process = VirtualPlc::new(4);
     let set_product = |code: u16| process.bank().lock().holding[PRODUCT_REGISTER] = code;
     set_product(8);
 
     let mut config = config()?;
-    let listener = TcpListener::bind("127.0.0.1:0").await?;
-    config.modbus_sources[0].address = listener.local_addr()?.to_string();
-    let daq_running = daq.spawn(listener, ServeOptions::default());
-    let listener = TcpListener::bind("127.0.0.1:0").await?;
-    config.modbus_sources[1].address = listener.local_addr()?.to_string();
-    let process_running = process.spawn(listener, ServeOptions::default());
+    let (daq_running, process_running) = serve_daq_and_plc(&mut config, daq, &process).await?;
     let gateway = millgate::Service::new(config)?.spawn().await?;
     let web = gateway.bound().web.expect("the page");
     let metrics = gateway.bound().metrics.expect("metrics");
 
-    // Waits (up to 10 s) until the mill's JSON on the page satisfies `done`; returns it.
-    let until = |what: &'static str, done: fn(&serde_json::Value) -> bool| async move {
-        let start = Instant::now();
-        loop {
-            let tcm = web_overview(web).await?["tandem_mills"][0].clone();
-            if done(&tcm) {
-                return anyhow::Ok(tcm);
-            }
-            anyhow::ensure!(start.elapsed() < Duration::from_secs(10), "{what}: {tcm}");
-            tokio::time::sleep(Duration::from_millis(50)).await;
-        }
+    // Waits until the mill's JSON on the page satisfies `done`; returns it.
+    let until = |what: &'static str, done: fn(&serde_json::Value) -> bool| {
+        until_tandem_mill(web, Duration::from_secs(10), what, done)
     };
 
     // Product 8, in no group: the mill's thresholds, below the alarm.
@@ -109,12 +62,12 @@ async fn the_thresholds_in_use_follow_the_plcs_product() -> anyhow::Result<()> {
     assert_eq!(mill["chatter_alarm"], false, "{mill}");
     let page = scrape(metrics).await?;
     assert_eq!(
-        metric(&page, "millgate_tandem_mill_thresholds_group"),
+        tcm_metric(&page, "millgate_tandem_mill_thresholds_group"),
         Some(0.0),
         "{page}"
     );
     assert_eq!(
-        metric(&page, "millgate_tandem_mill_product_fallback_total"),
+        tcm_metric(&page, "millgate_tandem_mill_product_fallback_total"),
         Some(0.0)
     );
 
@@ -132,7 +85,7 @@ async fn the_thresholds_in_use_follow_the_plcs_product() -> anyhow::Result<()> {
     );
     let page = scrape(metrics).await?;
     assert_eq!(
-        metric(&page, "millgate_tandem_mill_thresholds_group"),
+        tcm_metric(&page, "millgate_tandem_mill_thresholds_group"),
         Some(1.0),
         "{page}"
     );
@@ -150,7 +103,7 @@ async fn the_thresholds_in_use_follow_the_plcs_product() -> anyhow::Result<()> {
     assert_eq!(invalid["thresholds_group_name"], serde_json::Value::Null);
     let page = scrape(metrics).await?;
     assert!(
-        metric(&page, "millgate_tandem_mill_product_fallback_total").is_some_and(|n| n > 0.0),
+        tcm_metric(&page, "millgate_tandem_mill_product_fallback_total").is_some_and(|n| n > 0.0),
         "{page}"
     );
 

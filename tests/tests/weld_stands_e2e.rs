@@ -12,17 +12,15 @@
 //! only. A bit of 2 is invalid: counted, not used. Read on the page's JSON and on
 //! `/metrics`.
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use millgate_config::Config;
-use millgate_sim::devices::modbus_bank::ServeOptions;
-use millgate_sim::devices::virtual_daq::VirtualDaq;
 use millgate_sim::devices::virtual_plc::VirtualPlc;
+use millgate_tests::kit::scrape;
 use millgate_tests::kit::tandem::{
-    modbus_source, reference_ramp, stand_daq_channels, Stands, FS, GAIN_THRESHOLDS,
+    modbus_source, serve_daq_and_plc, stable_rolling_daq, tcm_metric, until_tandem_mill, Stands,
+    GAIN_THRESHOLDS,
 };
-use millgate_tests::kit::{scrape, web_overview};
-use tokio::net::TcpListener;
 
 fn config() -> anyhow::Result<Config> {
     let mut thresholds = GAIN_THRESHOLDS;
@@ -53,51 +51,24 @@ fn config() -> anyhow::Result<Config> {
         .map_err(|e| anyhow::anyhow!("{e}"))
 }
 
-/// The value of `family{tandem_mill="TCM"}` on `page`.
-fn metric(page: &str, family: &str) -> Option<f64> {
-    let prefix = format!("{family}{{tandem_mill=\"TCM\"}} ");
-    page.lines()
-        .find_map(|line| line.strip_prefix(&prefix))
-        .and_then(|value| value.trim().parse().ok())
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_weld_holds_the_alarm_of_its_own_stand_only() -> anyhow::Result<()> {
     // 20 s of stable rolling at 90% of the critical speed, played again and again.
-    let run = reference_ramp(0.9, 60.0, 20.0, 21)?;
-    let daq = VirtualDaq::new(
-        FS,
-        120,
-        stand_daq_channels(&run.acceleration, &[0, 1, 2, 3, 4]),
-    )
-    .looped();
+    let daq = stable_rolling_daq()?;
     let plc = VirtualPlc::new(8);
     let set_welds = |bits: [u16; 5]| plc.bank().lock().holding[..5].copy_from_slice(&bits);
     // The weld in stand 1 before the gateway starts.
     set_welds([1, 0, 0, 0, 0]);
 
     let mut config = config()?;
-    let listener = TcpListener::bind("127.0.0.1:0").await?;
-    config.modbus_sources[0].address = listener.local_addr()?.to_string();
-    let daq_running = daq.spawn(listener, ServeOptions::default());
-    let listener = TcpListener::bind("127.0.0.1:0").await?;
-    config.modbus_sources[1].address = listener.local_addr()?.to_string();
-    let plc_running = plc.spawn(listener, ServeOptions::default());
+    let (daq_running, plc_running) = serve_daq_and_plc(&mut config, daq, &plc).await?;
     let gateway = millgate::Service::new(config)?.spawn().await?;
     let web = gateway.bound().web.expect("the page");
     let metrics = gateway.bound().metrics.expect("metrics");
 
-    // Waits (up to 15 s) until the mill's JSON on the page satisfies `done`; returns it.
-    let until = |what: &'static str, done: fn(&serde_json::Value) -> bool| async move {
-        let start = Instant::now();
-        loop {
-            let tcm = web_overview(web).await?["tandem_mills"][0].clone();
-            if done(&tcm) {
-                return anyhow::Ok(tcm);
-            }
-            anyhow::ensure!(start.elapsed() < Duration::from_secs(15), "{what}: {tcm}");
-            tokio::time::sleep(Duration::from_millis(50)).await;
-        }
+    // Waits until the mill's JSON on the page satisfies `done`; returns it.
+    let until = |what: &'static str, done: fn(&serde_json::Value) -> bool| {
+        until_tandem_mill(web, Duration::from_secs(15), what, done)
     };
 
     // The weld in stand 1: stand 1's ratio reaches the alarm level, held off.
@@ -113,7 +84,7 @@ async fn a_weld_holds_the_alarm_of_its_own_stand_only() -> anyhow::Result<()> {
     assert_eq!(held["context_invalid"], 0, "{held}");
     let page = scrape(metrics).await?;
     assert!(
-        metric(&page, "millgate_tandem_mill_weld_held_off_total").is_some_and(|n| n >= 8.0),
+        tcm_metric(&page, "millgate_tandem_mill_weld_held_off_total").is_some_and(|n| n >= 8.0),
         "{page}"
     );
 
@@ -127,7 +98,7 @@ async fn a_weld_holds_the_alarm_of_its_own_stand_only() -> anyhow::Result<()> {
     assert_eq!(raised["worst_stand_channel"], "s1_vib", "{raised}");
     let page = scrape(metrics).await?;
     assert_eq!(
-        metric(&page, "millgate_tandem_mill_slow_down_request"),
+        tcm_metric(&page, "millgate_tandem_mill_slow_down_request"),
         Some(1.0),
         "{page}"
     );

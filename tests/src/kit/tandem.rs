@@ -3,11 +3,14 @@
 //! accelerometers with a tandem mill over them ([`Stands`]).
 
 use millgate_config::RegisterTable;
-use millgate_sim::devices::virtual_daq::{DaqChannel, Placement, Publish};
+use millgate_sim::devices::modbus_bank::{Running, ServeOptions};
+use millgate_sim::devices::virtual_daq::{DaqChannel, Placement, Publish, VirtualDaq};
+use millgate_sim::devices::virtual_plc::VirtualPlc;
 use millgate_sim::tandem::roots::CriticalSpeed;
 use millgate_sim::tandem::simulate::{simulate, RunSettings};
 use millgate_sim::tandem::truth::{ground_truth, mill_critical_speed, GroundTruth};
 use millgate_sim::tandem::{PassSchedule, TandemMill};
+use tokio::net::TcpListener;
 
 /// The stand accelerometers' sample rate, Hz.
 pub const FS: f64 = 2500.0;
@@ -215,4 +218,90 @@ pub fn modbus_source(name: &str) -> String {
     format!(
         "[[sources.modbus]]\nname = \"{name}\"\naddress = \"127.0.0.1:1\"\npoll_period_ms = 20\n\n"
     )
+}
+
+/// The configuration's text (before its outputs) of a five-stand mill named `name`
+/// read from the Modbus source `daq`, whose product code comes from the PLC source
+/// `process_plc` (polled every 100 ms; channel `product_code`, holding register 0):
+/// products 7 and 8, product 7 in the group `tight` with [`tight_thresholds`].
+pub fn product_groups_toml(name: &str) -> String {
+    let tight: Vec<String> = tight_thresholds()
+        .iter()
+        .map(|t| format!("{t:?}"))
+        .collect();
+    format!("name = \"{name}\"\n")
+        + &modbus_source("daq")
+        + "[[sources.modbus]]\nname = \"process_plc\"\naddress = \"127.0.0.1:1\"\n\
+           poll_period_ms = 100\ntimeout_ms = 500\n\n\
+           [[channels]]\nname = \"product_code\"\nkind = \"process_value\"\nunit = \"1\"\n\
+           source = { modbus = \"process_plc\", table = \"holding\", address = 0 }\n\n"
+        + &Stands::modbus(5, "daq")
+            .keys(&format!(
+                "context = {{ product = \"product_code\", products = [7, 8] }}\n\
+                 [[tandem_mills.product_groups]]\nname = \"tight\"\nproducts = [7]\n\
+                 gain_thresholds = [{}]\n",
+                tight.join(", ")
+            ))
+            .toml()
+}
+
+/// The group `tight`'s thresholds in [`product_groups_toml`]: a quarter of
+/// [`GAIN_THRESHOLDS`].
+pub fn tight_thresholds() -> Vec<f64> {
+    GAIN_THRESHOLDS.iter().map(|t| t / 4.0).collect()
+}
+
+/// Waits until the first tandem mill's JSON on the page at `web` satisfies `done`,
+/// at most `limit` (then an error naming `what` with the last JSON); returns it.
+pub async fn until_tandem_mill(
+    web: std::net::SocketAddr,
+    limit: std::time::Duration,
+    what: &str,
+    done: impl Fn(&serde_json::Value) -> bool,
+) -> anyhow::Result<serde_json::Value> {
+    let start = std::time::Instant::now();
+    loop {
+        let mill = super::web_overview(web).await?["tandem_mills"][0].clone();
+        if done(&mill) {
+            return Ok(mill);
+        }
+        anyhow::ensure!(start.elapsed() < limit, "{what}: {mill}");
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+}
+
+/// The virtual DAQ of the five stands' accelerometers ([`stand_daq_channels`], blocks
+/// of 120 samples at [`FS`]) playing 20 s of stable rolling at 90% of the critical
+/// speed ([`reference_ramp`], seed 21) again and again.
+pub fn stable_rolling_daq() -> anyhow::Result<VirtualDaq> {
+    let run = reference_ramp(0.9, 60.0, 20.0, 21)?;
+    Ok(VirtualDaq::new(
+        FS,
+        120,
+        stand_daq_channels(&run.acceleration, &[0, 1, 2, 3, 4]),
+    )
+    .looped())
+}
+
+/// `daq` and `plc` served on loopback ports, `config`'s first and second Modbus
+/// sources pointed at them; their running servers (stop them at the test's end).
+pub async fn serve_daq_and_plc(
+    config: &mut millgate_config::Config,
+    daq: VirtualDaq,
+    plc: &VirtualPlc,
+) -> std::io::Result<(Running, Running)> {
+    let listener = TcpListener::bind("127.0.0.1:0").await?;
+    config.modbus_sources[0].address = listener.local_addr()?.to_string();
+    let daq = daq.spawn(listener, ServeOptions::default());
+    let listener = TcpListener::bind("127.0.0.1:0").await?;
+    config.modbus_sources[1].address = listener.local_addr()?.to_string();
+    Ok((daq, plc.spawn(listener, ServeOptions::default())))
+}
+
+/// The value of `family{tandem_mill="TCM"}` on a `/metrics` page.
+pub fn tcm_metric(page: &str, family: &str) -> Option<f64> {
+    let prefix = format!("{family}{{tandem_mill=\"TCM\"}} ");
+    page.lines()
+        .find_map(|line| line.strip_prefix(&prefix))
+        .and_then(|value| value.trim().parse().ok())
 }
