@@ -350,6 +350,49 @@ async fn sighup_applies_a_tandem_mills_thresholds_at_its_next_window() {
     terminate(&mut service);
 }
 
+/// A `SIGHUP` to `service`, answered by `said` in its log (nothing waits for a
+/// restart) and counted as applied.
+async fn applied_by_sighup(setup: &Setup, service: &KillOnDrop, said: &str) {
+    hang_up(service.id());
+    wait_for(said, Duration::from_secs(20), || {
+        setup.log_text("run.log").contains(said)
+    })
+    .await;
+    assert!(
+        !setup.log_text("run.log").contains("needs a restart"),
+        "{}",
+        setup.log_text("run.log")
+    );
+    setup
+        .until_metric(&reloads("applied"), 1.0, Duration::from_secs(10))
+        .await;
+}
+
+/// The u32 the PLC holds at `address`.
+fn u32_in_plc(setup: &Setup, address: u16) -> u32 {
+    decode_u32(&setup.devices.plc.holding()[usize::from(address)..]).unwrap_or(0)
+}
+
+/// The address of F2's bite counter in `map`, once the PLC holds two bites of F2 there.
+async fn f2_bites_in_plc(setup: &Setup, map: &RegisterMap) -> u16 {
+    let address = map.named("F2.bite_counter").unwrap().address;
+    wait_for("F2's bites in the PLC", Duration::from_secs(40), || {
+        u32_in_plc(setup, address) >= 2
+    })
+    .await;
+    address
+}
+
+/// The bite ids of driveline `name` in `history`, in order.
+fn bite_ids(history: &HistoryReader, name: &str) -> Vec<u32> {
+    let filter = Filter {
+        name: Some(name.to_owned()),
+        ..Filter::default()
+    };
+    let bites = history.bites(&filter).unwrap();
+    bites.iter().map(|bite| bite.figures.bite_counter).collect()
+}
+
 /// The register map of the configuration file at `path`.
 fn map_of(path: &std::path::Path) -> RegisterMap {
     RegisterMap::new(&millgate_config::load(path).unwrap_or_else(|error| panic!("{error}")))
@@ -400,21 +443,9 @@ async fn a_driveline_added_within_the_reserved_slots_starts_live_and_moves_no_ad
     assert_ne!(added, original);
     std::fs::write(&setup.config, &added).unwrap();
     let before_reload = plc.counter();
-    hang_up(service.id());
     let said = "reload: applied drivelines.F2 (added in the register block of \
                 driveline_slot2: no address moves)";
-    wait_for(said, Duration::from_secs(20), || {
-        setup.log_text("run.log").contains(said)
-    })
-    .await;
-    assert!(
-        !setup.log_text("run.log").contains("needs a restart"),
-        "{}",
-        setup.log_text("run.log")
-    );
-    setup
-        .until_metric(&reloads("applied"), 1.0, Duration::from_secs(10))
-        .await;
+    applied_by_sighup(&setup, &service, said).await;
 
     // F2 takes the reserved block; every other register keeps its address.
     let grown = map_of(&setup.config);
@@ -432,13 +463,8 @@ async fn a_driveline_added_within_the_reserved_slots_starts_live_and_moves_no_ad
     }
     // F2's bites reach the PLC in its block, the HMI server and /metrics, while F1
     // writes where it did: the same process.
-    let f2_counter = grown.named("F2.bite_counter").unwrap().address;
-    let f2_in_plc =
-        || decode_u32(&setup.devices.plc.holding()[usize::from(f2_counter)..]).unwrap_or(0);
-    wait_for("F2's bites in the PLC", Duration::from_secs(40), || {
-        f2_in_plc() >= 2
-    })
-    .await;
+    let f2_counter = f2_bites_in_plc(&setup, &grown).await;
+    let f2_in_plc = || u32_in_plc(&setup, f2_counter);
     assert!(plc.counter() > before_reload, "F1 writes where it did");
     assert!(common::hmi_u32(setup.server_port, f2_counter).await >= 2);
     let f2_metric = "millgate_driveline_bites_total{driveline=\"F2\"}";
@@ -477,14 +503,7 @@ async fn a_driveline_added_within_the_reserved_slots_starts_live_and_moves_no_ad
     terminate(&mut service);
 
     let history = HistoryReader::open(&setup.history).unwrap();
-    let ids = |name: &str| -> Vec<u32> {
-        let filter = Filter {
-            name: Some(name.to_owned()),
-            ..Filter::default()
-        };
-        let bites = history.bites(&filter).unwrap();
-        bites.iter().map(|bite| bite.figures.bite_counter).collect()
-    };
+    let ids = |name: &str| bite_ids(&history, name);
     let (f1, f2, f3) = (ids("F1"), ids("F2"), ids("F3"));
     // Nothing of F1 lost across the reloads: its ids are every one the PLC saw.
     assert_eq!(f1, (1..=plc.counter()).collect::<Vec<_>>(), "F1's bite ids");
@@ -537,34 +556,17 @@ async fn a_driveline_on_a_source_added_live_starts_without_a_restart() {
     );
     std::fs::write(&setup.config, &added).unwrap();
     let before_reload = plc.counter();
-    hang_up(service.id());
     let said = "reload: applied sources.daq2 (its reader started live), channels.spindle_f2 \
                 (on a source added live), drivelines.F2 (added in the register block of \
                 driveline_slot2: no address moves)";
-    wait_for(said, Duration::from_secs(20), || {
-        setup.log_text("run.log").contains(said)
-    })
-    .await;
-    assert!(
-        !setup.log_text("run.log").contains("needs a restart"),
-        "{}",
-        setup.log_text("run.log")
-    );
-    setup
-        .until_metric(&reloads("applied"), 1.0, Duration::from_secs(10))
-        .await;
+    applied_by_sighup(&setup, &service, said).await;
 
     // F2's bites, read by the new source's reader, reach the PLC in the reserved block
     // and /metrics, with the new source's health and counters; F1 runs on.
     let grown = map_of(&setup.config);
     assert_eq!(grown.len(), reserved.len());
-    let f2_counter = grown.named("F2.bite_counter").unwrap().address;
-    let f2_in_plc =
-        || decode_u32(&setup.devices.plc.holding()[usize::from(f2_counter)..]).unwrap_or(0);
-    wait_for("F2's bites in the PLC", Duration::from_secs(40), || {
-        f2_in_plc() >= 2
-    })
-    .await;
+    let f2_counter = f2_bites_in_plc(&setup, &grown).await;
+    let f2_in_plc = || u32_in_plc(&setup, f2_counter);
     assert!(plc.counter() > before_reload, "F1 writes where it did");
     let connects = setup
         .metric("millgate_source_connects_total{source=\"daq2\"}")
@@ -581,14 +583,7 @@ async fn a_driveline_on_a_source_added_live_starts_without_a_restart() {
     terminate(&mut service);
 
     let history = HistoryReader::open(&setup.history).unwrap();
-    let ids = |name: &str| -> Vec<u32> {
-        let filter = Filter {
-            name: Some(name.to_owned()),
-            ..Filter::default()
-        };
-        let bites = history.bites(&filter).unwrap();
-        bites.iter().map(|bite| bite.figures.bite_counter).collect()
-    };
+    let ids = |name: &str| bite_ids(&history, name);
     // Nothing of F1 lost across the reload; F2's ids run from 1 to the PLC's last.
     assert_eq!(
         ids("F1"),
