@@ -350,6 +350,49 @@ async fn sighup_applies_a_tandem_mills_thresholds_at_its_next_window() {
     terminate(&mut service);
 }
 
+/// A `SIGHUP` to `service`, answered by `said` in its log (nothing waits for a
+/// restart) and counted as applied.
+async fn applied_by_sighup(setup: &Setup, service: &KillOnDrop, said: &str) {
+    hang_up(service.id());
+    wait_for(said, Duration::from_secs(20), || {
+        setup.log_text("run.log").contains(said)
+    })
+    .await;
+    assert!(
+        !setup.log_text("run.log").contains("needs a restart"),
+        "{}",
+        setup.log_text("run.log")
+    );
+    setup
+        .until_metric(&reloads("applied"), 1.0, Duration::from_secs(10))
+        .await;
+}
+
+/// The u32 the PLC holds at `address`.
+fn u32_in_plc(setup: &Setup, address: u16) -> u32 {
+    decode_u32(&setup.devices.plc.holding()[usize::from(address)..]).unwrap_or(0)
+}
+
+/// The address of F2's bite counter in `map`, once the PLC holds two bites of F2 there.
+async fn f2_bites_in_plc(setup: &Setup, map: &RegisterMap) -> u16 {
+    let address = map.named("F2.bite_counter").unwrap().address;
+    wait_for("F2's bites in the PLC", Duration::from_secs(40), || {
+        u32_in_plc(setup, address) >= 2
+    })
+    .await;
+    address
+}
+
+/// The bite ids of driveline `name` in `history`, in order.
+fn bite_ids(history: &HistoryReader, name: &str) -> Vec<u32> {
+    let filter = Filter {
+        name: Some(name.to_owned()),
+        ..Filter::default()
+    };
+    let bites = history.bites(&filter).unwrap();
+    bites.iter().map(|bite| bite.figures.bite_counter).collect()
+}
+
 /// The register map of the configuration file at `path`.
 fn map_of(path: &std::path::Path) -> RegisterMap {
     RegisterMap::new(&millgate_config::load(path).unwrap_or_else(|error| panic!("{error}")))
@@ -400,21 +443,9 @@ async fn a_driveline_added_within_the_reserved_slots_starts_live_and_moves_no_ad
     assert_ne!(added, original);
     std::fs::write(&setup.config, &added).unwrap();
     let before_reload = plc.counter();
-    hang_up(service.id());
     let said = "reload: applied drivelines.F2 (added in the register block of \
                 driveline_slot2: no address moves)";
-    wait_for(said, Duration::from_secs(20), || {
-        setup.log_text("run.log").contains(said)
-    })
-    .await;
-    assert!(
-        !setup.log_text("run.log").contains("needs a restart"),
-        "{}",
-        setup.log_text("run.log")
-    );
-    setup
-        .until_metric(&reloads("applied"), 1.0, Duration::from_secs(10))
-        .await;
+    applied_by_sighup(&setup, &service, said).await;
 
     // F2 takes the reserved block; every other register keeps its address.
     let grown = map_of(&setup.config);
@@ -432,13 +463,8 @@ async fn a_driveline_added_within_the_reserved_slots_starts_live_and_moves_no_ad
     }
     // F2's bites reach the PLC in its block, the HMI server and /metrics, while F1
     // writes where it did: the same process.
-    let f2_counter = grown.named("F2.bite_counter").unwrap().address;
-    let f2_in_plc =
-        || decode_u32(&setup.devices.plc.holding()[usize::from(f2_counter)..]).unwrap_or(0);
-    wait_for("F2's bites in the PLC", Duration::from_secs(40), || {
-        f2_in_plc() >= 2
-    })
-    .await;
+    let f2_counter = f2_bites_in_plc(&setup, &grown).await;
+    let f2_in_plc = || u32_in_plc(&setup, f2_counter);
     assert!(plc.counter() > before_reload, "F1 writes where it did");
     assert!(common::hmi_u32(setup.server_port, f2_counter).await >= 2);
     let f2_metric = "millgate_driveline_bites_total{driveline=\"F2\"}";
@@ -477,19 +503,97 @@ async fn a_driveline_added_within_the_reserved_slots_starts_live_and_moves_no_ad
     terminate(&mut service);
 
     let history = HistoryReader::open(&setup.history).unwrap();
-    let ids = |name: &str| -> Vec<u32> {
-        let filter = Filter {
-            name: Some(name.to_owned()),
-            ..Filter::default()
-        };
-        let bites = history.bites(&filter).unwrap();
-        bites.iter().map(|bite| bite.figures.bite_counter).collect()
-    };
+    let ids = |name: &str| bite_ids(&history, name);
     let (f1, f2, f3) = (ids("F1"), ids("F2"), ids("F3"));
     // Nothing of F1 lost across the reloads: its ids are every one the PLC saw.
     assert_eq!(f1, (1..=plc.counter()).collect::<Vec<_>>(), "F1's bite ids");
     let last_f2 = f2_in_plc();
     assert_eq!(f2, (1..=last_f2).collect::<Vec<_>>(), "F2's bite ids");
     assert!(f3.is_empty(), "F3 is not analysed before a restart: {f3:?}");
+    setup.stop(service).await;
+}
+
+/// The entry of `file` from the line `first` to the blank line after it.
+fn entry<'f>(file: &'f str, first: &str) -> &'f str {
+    let start = file
+        .find(first)
+        .unwrap_or_else(|| panic!("{first} not in {file}"));
+    let length = file[start..].find("\n\n").unwrap_or(file.len() - start);
+    &file[start..start + length]
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_driveline_on_a_source_added_live_starts_without_a_restart() {
+    let setup = Setup::new(MILLGATE, "reload-source", "db").await;
+    let demo = std::fs::read_to_string(&setup.config).unwrap();
+    let first_layout = demo.replace("extension_blocks = true", "extension_blocks = false");
+    std::fs::write(&setup.config, first_layout).unwrap();
+    setup.append_config("\n[outputs]\ndriveline_slots = 2\n");
+    let reserved = map_of(&setup.config);
+    let mut service = setup.spawn("run.log");
+    let plc = common::Plc {
+        plc: &setup.devices.plc,
+        map: &reserved,
+    };
+    plc.bites_after_now(1).await;
+    // A second Modbus source (a second connection to the virtual DAQ), a torque
+    // channel on it and F2 on that channel: none read by the running service.
+    let original = std::fs::read_to_string(&setup.config).unwrap();
+    let source = entry(&original, "[[sources.modbus]]").replace("\"daq1\"", "\"daq2\"");
+    let channel = entry(&original, "[[channels]]\nname = \"spindle_top\"")
+        .replace("\"spindle_top\"", "\"spindle_f2\"")
+        .replace("modbus = \"daq1\"", "modbus = \"daq2\"");
+    assert!(
+        source.contains("daq2") && channel.contains("daq2"),
+        "{source}\n{channel}"
+    );
+    let f2 = "[[drivelines]]\nname = \"F2\"\ntorque = \"spindle_f2\"\n\
+              bite = { threshold_knm = 20.0, pre_trigger_s = 0.1, post_trigger_s = 0.5 }\n\
+              thresholds = { taf_warning = 2.2, taf_alarm = 2.6 }\n\n[outputs.plc]";
+    let added = format!(
+        "{}\n{source}\n\n{channel}\n",
+        original.replacen("[outputs.plc]", f2, 1)
+    );
+    std::fs::write(&setup.config, &added).unwrap();
+    let before_reload = plc.counter();
+    let said = "reload: applied sources.daq2 (its reader started live), channels.spindle_f2 \
+                (on a source added live), drivelines.F2 (added in the register block of \
+                driveline_slot2: no address moves)";
+    applied_by_sighup(&setup, &service, said).await;
+
+    // F2's bites, read by the new source's reader, reach the PLC in the reserved block
+    // and /metrics, with the new source's health and counters; F1 runs on.
+    let grown = map_of(&setup.config);
+    assert_eq!(grown.len(), reserved.len());
+    let f2_counter = f2_bites_in_plc(&setup, &grown).await;
+    let f2_in_plc = || u32_in_plc(&setup, f2_counter);
+    assert!(plc.counter() > before_reload, "F1 writes where it did");
+    let connects = setup
+        .metric("millgate_source_connects_total{source=\"daq2\"}")
+        .await;
+    assert!(connects.is_some_and(|c| c >= 1.0), "{connects:?}");
+    let blocks = setup
+        .metric("millgate_channel_blocks_read_total{channel=\"spindle_f2\"}")
+        .await;
+    assert!(blocks.is_some_and(|b| b >= 1.0), "{blocks:?}");
+    assert!(
+        service.try_wait().unwrap().is_none(),
+        "SIGHUP ended the service"
+    );
+    terminate(&mut service);
+
+    let history = HistoryReader::open(&setup.history).unwrap();
+    let ids = |name: &str| bite_ids(&history, name);
+    // Nothing of F1 lost across the reload; F2's ids run from 1 to the PLC's last.
+    assert_eq!(
+        ids("F1"),
+        (1..=plc.counter()).collect::<Vec<_>>(),
+        "F1's bite ids"
+    );
+    assert_eq!(
+        ids("F2"),
+        (1..=f2_in_plc()).collect::<Vec<_>>(),
+        "F2's bite ids"
+    );
     setup.stop(service).await;
 }

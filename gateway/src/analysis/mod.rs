@@ -135,6 +135,13 @@ impl Analysis {
     pub fn add_drivelines(&mut self, config: &Config) -> Result<Vec<String>, AnalysisError> {
         let from = self.drivelines.len();
         let built = built_drivelines(config, from)?;
+        // Channels a reload appended (on a source added live): routed from now on,
+        // before their reader starts.
+        let channels = config.channels.len().max(self.by_torque.len());
+        self.by_torque.resize(channels, Vec::new());
+        self.by_trigger.resize(channels, Vec::new());
+        self.by_context.resize(channels, Vec::new());
+        self.by_extra.resize(channels, Vec::new());
         if built.is_empty() {
             return Ok(Vec::new());
         }

@@ -29,6 +29,7 @@ use reload::{Live, Reload};
 use crate::analysis::driveline::BiteReport;
 use crate::analysis::gap_estimate::GapObservation;
 use crate::analysis::{Analysis, DrivelineAddition, LiveSettings};
+use crate::field::acquired::Acquired;
 use crate::field::counters::Acquisition;
 use crate::field::counters::{CanCounters, ChannelCounters};
 use crate::field::source_health::SourceHealth;
@@ -374,21 +375,13 @@ impl Service {
 
     /// The outage monitor of every source.
     fn outage_monitor(&self) -> OutageMonitor {
-        let config = &self.config;
-        let sources = config
-            .sources()
-            .zip(&self.health)
-            .enumerate()
-            .map(|(index, (source, health))| WatchedSource {
-                name: source.name().to_owned(),
-                health: Arc::clone(health),
-                channels: (0..config.channels.len())
-                    .filter(|&c| config.source_of_channel(c) == index)
-                    .map(|c| Arc::clone(&self.counters[c]))
-                    .collect(),
-            })
-            .collect();
-        OutageMonitor::new(sources, self.history.clone())
+        let sources = 0..self.health.len();
+        outage_monitor(
+            &self.config,
+            (&self.health[..], &self.counters[..]),
+            sources,
+            &self.history,
+        )
     }
 
     /// Run until `shutdown` fires; then stop the readers, let analysis drain what
@@ -450,7 +443,12 @@ impl Service {
             health,
             can: can_counters,
         };
-        let readers = readers::spawn(&config, &acquisition, samples, readers_shutdown);
+        let readers = readers::spawn(&config, &acquisition, &samples, &readers_shutdown);
+        let inputs = Inputs {
+            acquisition: acquisition.clone(),
+            samples: Some(samples),
+            shutdown: readers_shutdown,
+        };
         let analysis_task = readers::spawn_analysis(
             analysis,
             (
@@ -518,6 +516,7 @@ impl Service {
             history,
             readers,
             readers_stop,
+            inputs,
             analysis_maps: analysis_task.maps,
             analysis: analysis_task.task,
             analysis_ended: None,
@@ -528,6 +527,31 @@ impl Service {
             additions,
         })
     }
+}
+
+/// The outage monitor of `config`'s `sources` (indices in the order of
+/// [`Config::sources`]), by their `health` and their channels' `counters`.
+fn outage_monitor(
+    config: &Config,
+    (health, counters): (&[Arc<SourceHealth>], &[Arc<ChannelCounters>]),
+    sources: std::ops::Range<usize>,
+    history: &History,
+) -> OutageMonitor {
+    let watched = config
+        .sources()
+        .zip(health)
+        .enumerate()
+        .filter(|(index, _)| sources.contains(index))
+        .map(|(index, (source, health))| WatchedSource {
+            name: source.name().to_owned(),
+            health: Arc::clone(health),
+            channels: (0..config.channels.len())
+                .filter(|&c| config.source_of_channel(c) == index)
+                .map(|c| Arc::clone(&counters[c]))
+                .collect(),
+        })
+        .collect();
+    OutageMonitor::new(watched, history.clone())
 }
 
 /// Whether the register map `map` written at `plc`'s base fits below register 65536.
@@ -545,6 +569,17 @@ fn check_register_base(map: &RegisterMap, plc: &PlcOutput) -> Result<(), Service
     Ok(())
 }
 
+/// What the readers run with, kept for the sources a reload adds.
+struct Inputs {
+    /// The counters and health records, grown by the sources added.
+    acquisition: Acquisition,
+    /// Where readers send, dropped at the stop (the analysis ends once every reader
+    /// has hung up).
+    samples: Option<mpsc::Sender<Acquired>>,
+    /// The readers' stop.
+    shutdown: Shutdown,
+}
+
 /// A started service's tasks, in the order they stop.
 struct Started {
     /// The configuration it runs (the file's at start, with what reloads applied).
@@ -552,8 +587,11 @@ struct Started {
     map: Arc<RegisterMap>,
     board: Arc<Board>,
     history: History,
+    /// The readers, and the outage monitors of sources a reload added.
     readers: tokio::task::JoinSet<()>,
     readers_stop: shutdown::ShutdownTrigger,
+    /// What a reader a reload adds starts with.
+    inputs: Inputs,
     analysis_maps: readers::MapBuilds,
     analysis: tokio::task::JoinHandle<()>,
     /// How the analysis ended, when it ended before the stop.
@@ -654,8 +692,12 @@ impl Started {
         // The outputs that show drivelines stop before the board grows: an output
         // built for the drivelines it had never meets one it does not know.
         let restart = self.outputs.stop_touched(&config, &plan.live).await;
-        if let Some(map) = added_map {
-            self.add_drivelines(&config, map).await?;
+        let sources = plan.live.contains(&Live::Sources);
+        if added_map.is_some() || sources {
+            self.add_drivelines(&config, added_map).await?;
+        }
+        if sources {
+            self.start_sources(&config);
         }
         self.outputs
             .start_touched(config.clone(), &plan.live, &restart, listeners)?;
@@ -691,7 +733,7 @@ impl Started {
     async fn add_drivelines(
         &mut self,
         config: &Config,
-        map: RegisterMap,
+        map: Option<RegisterMap>,
     ) -> Result<(), ServiceError> {
         let (done, added) = oneshot::channel();
         let addition = DrivelineAddition {
@@ -711,10 +753,44 @@ impl Started {
             }
             Err(_) => return Err(ServiceError::Ended),
         };
+        let Some(map) = map else {
+            return Ok(());
+        };
         tracing::info!(drivelines = ?names, "reload: drivelines added, analysed from their next block on");
         self.map = Arc::new(map);
         self.outputs.use_map(Arc::clone(&self.map));
         Ok(())
+    }
+
+    /// Start reading the sources `config` (the running configuration with them,
+    /// [`Live::Sources`]) adds after the others, once the analysis routes their
+    /// channels: their health records join the board's, their counters the
+    /// acquisition's (the outputs restarted for them show both), a reader each, and an
+    /// outage monitor of their own. The sources running are not touched.
+    fn start_sources(&mut self, config: &Config) {
+        let Some(samples) = &self.inputs.samples else {
+            return;
+        };
+        let acquisition = &mut self.inputs.acquisition;
+        let from = acquisition.health.len();
+        let added = readers::source_health(config).split_off(from);
+        let counters = acquisition.counters.len()..config.channels.len();
+        acquisition
+            .counters
+            .extend(counters.map(|_| Arc::new(ChannelCounters::default())));
+        acquisition.health.extend(added.iter().cloned());
+        self.board.add_sources(&added);
+        self.outputs.use_acquisition(acquisition.clone());
+        let shared = Arc::new(config.clone());
+        let sources = from..from + added.len();
+        for index in sources.clone() {
+            let inputs = (samples, &self.inputs.shutdown);
+            readers::spawn_source(&shared, index, acquisition, inputs, &mut self.readers);
+        }
+        let watched = (&acquisition.health[..], &acquisition.counters[..]);
+        let monitor = outage_monitor(config, watched, sources, &self.history);
+        self.readers
+            .spawn(monitor.run(self.inputs.shutdown.clone()));
     }
 
     /// Stop the readers (the source statuses kept as they were), let the analysis
@@ -726,6 +802,7 @@ impl Started {
             history,
             mut readers,
             readers_stop,
+            inputs,
             analysis_maps,
             analysis,
             analysis_ended,
@@ -735,6 +812,8 @@ impl Started {
         board.freeze_health();
         readers_stop.trigger();
         while readers.join_next().await.is_some() {}
+        // The last sender: the analysis drains what was read, then ends.
+        drop(inputs);
         analysis_maps.cancel();
         let analysis_ended = match analysis_ended {
             Some(ended) => ended,

@@ -153,7 +153,10 @@ const OUTPUTS: [(Builder, &[Live]); 8] = [
     // The server tells the PLC's commands from an HMI's by the PLC's address.
     (hmi_server, &[Live::Server, Live::Plc, Live::Drivelines]),
     // The page shows the thresholds.
-    (web_page, &[Live::Web, Live::Thresholds, Live::Drivelines]),
+    (
+        web_page,
+        &[Live::Web, Live::Thresholds, Live::Drivelines, Live::Sources],
+    ),
     (sparkplug, &[Live::Mqtt, Live::Drivelines]),
     (opcua, &[]),
     (
@@ -164,6 +167,7 @@ const OUTPUTS: [(Builder, &[Live]); 8] = [
             Live::Web,
             Live::Mqtt,
             Live::Drivelines,
+            Live::Sources,
         ],
     ),
 ];
@@ -405,6 +409,12 @@ impl Outputs {
     /// (drivelines added live: [`Live::Drivelines`] restarts them).
     pub(super) fn use_map(&mut self, map: Arc<RegisterMap>) {
         self.wiring.parts.map = map;
+    }
+
+    /// Show `acquisition` (grown by sources added live: [`Live::Sources`] restarts the
+    /// outputs that show it) from the next start of an output on.
+    pub(super) fn use_acquisition(&mut self, acquisition: Acquisition) {
+        self.wiring.parts.acquisition = acquisition;
     }
 
     /// Stop every output and wait for them (the PLC gets its last write).

@@ -70,36 +70,55 @@ pub(super) fn source_health(config: &Config) -> Vec<Arc<SourceHealth>> {
 pub(super) fn spawn(
     config: &Config,
     acquisition: &Acquisition,
-    samples: mpsc::Sender<Acquired>,
-    shutdown: Shutdown,
+    samples: &mpsc::Sender<Acquired>,
+    shutdown: &Shutdown,
 ) -> JoinSet<()> {
     let mut readers = JoinSet::new();
     let shared = Arc::new(config.clone());
-    let (mut modbus, mut can) = (0, 0);
-    for (index, source) in config.sources().enumerate() {
-        let health = Arc::clone(&acquisition.health[index]);
-        match source {
-            SourceRef::Modbus(source) => {
-                let reader = DaqReader::new(config, modbus, &acquisition.counters, health);
-                tracing::info!(source = %source.name, address = %source.address, "starting DaqReader");
-                readers.spawn(reader.run(samples.clone(), shutdown.clone()));
-                modbus += 1;
-            }
-            SourceRef::Can(source) => {
-                tracing::info!(source = %source.name, interface = %source.interface, "starting CanReader");
-                readers.spawn(supervise_can(
-                    Arc::clone(&shared),
-                    can,
-                    health,
-                    Arc::clone(&acquisition.can[can]),
-                    samples.clone(),
-                    shutdown.clone(),
-                ));
-                can += 1;
-            }
-        }
+    for index in 0..config.sources().count() {
+        spawn_source(
+            &shared,
+            index,
+            acquisition,
+            (samples, shutdown),
+            &mut readers,
+        );
     }
     readers
+}
+
+/// Into `readers`, the reader of source `index` of `config` (in the order of
+/// [`Config::sources`]), counting into `acquisition` (which has its health record and
+/// its channels' counters), sending on `samples` until `shutdown`.
+pub(super) fn spawn_source(
+    config: &Arc<Config>,
+    index: usize,
+    acquisition: &Acquisition,
+    (samples, shutdown): (&mpsc::Sender<Acquired>, &Shutdown),
+    readers: &mut JoinSet<()>,
+) {
+    let health = Arc::clone(&acquisition.health[index]);
+    let modbus = config.modbus_sources.len();
+    match config.sources().nth(index) {
+        Some(SourceRef::Modbus(source)) => {
+            let reader = DaqReader::new(config, index, &acquisition.counters, health);
+            tracing::info!(source = %source.name, address = %source.address, "starting DaqReader");
+            readers.spawn(reader.run(samples.clone(), shutdown.clone()));
+        }
+        Some(SourceRef::Can(source)) => {
+            let can = index - modbus;
+            tracing::info!(source = %source.name, interface = %source.interface, "starting CanReader");
+            readers.spawn(supervise_can(
+                Arc::clone(config),
+                can,
+                health,
+                Arc::clone(&acquisition.can[can]),
+                samples.clone(),
+                shutdown.clone(),
+            ));
+        }
+        None => {}
+    }
 }
 
 /// The analysis task and the gap map builds it waits for.

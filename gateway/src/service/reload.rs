@@ -27,8 +27,14 @@
 //!     board grows), and the outputs start again on the map with their reserved
 //!     blocks (Sparkplug with a new session: their DBIRTHs); an OPC UA server shows
 //!     them after a restart, and the plan says so;
+//!   - Modbus sources appended after the others (none while CAN sources run), with
+//!     channels appended after the others, each on such a source ([`Live::Sources`]):
+//!     the analysis routes their channels, then a reader starts per source (its
+//!     health, counters and outage tracking with it); a driveline added on such a
+//!     channel starts live with it. A new channel on a running source waits (its
+//!     reader keeps the channels it started with);
 //!   - kept as they run until a restart, each named: everything else (`name`,
-//!     `cache_dir`, the sources, channels, rod mills, `history`, `outputs.opcua`, a
+//!     `cache_dir`, the sources and channels but the above, rod mills, `history`, `outputs.opcua`, a
 //!     driveline's other settings (its other `wear` keys build the gap maps at the
 //!     start), a tandem
 //!     mill's other settings (stands, bands, windows, `k_max`, `detector`, context
@@ -75,6 +81,11 @@ pub enum Live {
     /// two rounds, the board grows, and the outputs that show drivelines restart on
     /// the map with their reserved blocks.
     Drivelines,
+    /// Modbus sources appended after the others (none added before the CAN sources)
+    /// with channels appended after the others, each on such a source: their readers
+    /// start (health, counters and outage tracking with them), the analysis routes
+    /// their channels, and the outputs that name sources or channels restart.
+    Sources,
 }
 
 /// `running`'s tandem mill entry with the chatter thresholds ([`Live::Chatter`]) of `new`.
@@ -129,6 +140,10 @@ impl Plan {
                     for (mill, changed) in config.tandem_mills.iter_mut().zip(&new.tandem_mills) {
                         *mill = with_chatter_thresholds(mill, changed);
                     }
+                }
+                Live::Sources => {
+                    config.modbus_sources.clone_from(&new.modbus_sources);
+                    config.channels.clone_from(&new.channels);
                 }
                 Live::Drivelines => {
                     let added = new.drivelines.get(running.drivelines.len()..);
@@ -250,9 +265,6 @@ pub fn plan(running: &Config, new: &Config) -> Plan {
         ("cache_dir", running.cache_dir != new.cache_dir),
         ("log_format", running.log_format != new.log_format),
         ("analysis.workers", running.analysis != new.analysis),
-        ("sources", running.modbus_sources != new.modbus_sources),
-        ("can_sources", running.can_sources != new.can_sources),
-        ("channels", running.channels != new.channels),
         ("rod_mills", running.rod_mills != new.rod_mills),
         ("outputs.opcua", old.opcua != out.opcua),
         (
@@ -269,6 +281,36 @@ pub fn plan(running: &Config, new: &Config) -> Plan {
             .filter(|(_, changed)| *changed)
             .map(|(key, _)| (*key).to_owned()),
     );
+    match sources_added(running, new) {
+        Ok(added) if added.is_empty() => {}
+        Ok(added) => {
+            plan.applied.extend(added);
+            plan.live.push(Live::Sources);
+            let sources = &new.modbus_sources[running.modbus_sources.len()..];
+            if out.opcua.is_some() && !sources.is_empty() {
+                let names: Vec<&str> = sources.iter().map(|s| s.name.as_str()).collect();
+                plan.needs_restart.push(format!(
+                    "outputs.opcua (shows {} after a restart: its nodes are built at the \
+                     start)",
+                    names.join(", ")
+                ));
+            }
+        }
+        Err(why) => {
+            let inputs = [
+                ("sources", running.modbus_sources != new.modbus_sources),
+                ("can_sources", running.can_sources != new.can_sources),
+                ("channels", running.channels != new.channels),
+            ];
+            let changed: Vec<&str> = inputs
+                .iter()
+                .filter(|(_, changed)| *changed)
+                .map(|(key, _)| *key)
+                .collect();
+            plan.needs_restart
+                .push(format!("{} ({why})", changed.join(", ")));
+        }
+    }
     drivelines(running, new, &mut plan);
     tandem_mills(&running.tandem_mills, &new.tandem_mills, &mut plan);
     plan
@@ -479,15 +521,11 @@ fn drivelines(running_config: &Config, new_config: &Config, plan: &mut Plan) {
 /// start), or a `model` (its gap maps build at the start). Empty when they can.
 fn added_waits(running: &Config, new: &Config, added: &[&str]) -> Vec<String> {
     let mut waits = Vec::new();
-    if running.channels != new.channels
-        || running.modbus_sources != new.modbus_sources
-        || running.can_sources != new.can_sources
-    {
-        waits.push(
-            "the channels or sources changed: a driveline starts live only on channels \
-             already read, its channels and analysis start with the service"
-                .to_owned(),
-        );
+    if let Err(why) = sources_added(running, new) {
+        waits.push(format!(
+            "{why}: a driveline starts live only on channels already read or on a Modbus \
+             source added with it"
+        ));
     }
     let with_model: Vec<&str> = new
         .drivelines
@@ -502,6 +540,62 @@ fn added_waits(running: &Config, new: &Config, added: &[&str]) -> Vec<String> {
         ));
     }
     waits
+}
+
+/// The keys of the Modbus sources and channels `new` appends to `running`'s, which
+/// start live ([`Live::Sources`]; empty when the inputs are the running ones), or why
+/// they wait for a restart: a running source's reader keeps the channels it started
+/// with (restarting it would lose its poll in flight), a CAN source starts with the
+/// service, and a Modbus source added while CAN sources run would move their status
+/// bits and indices (sources count Modbus first, then CAN).
+fn sources_added(running: &Config, new: &Config) -> Result<Vec<String>, String> {
+    let running_sources = running.sources().count();
+    if new.can_sources != running.can_sources {
+        return Err("the CAN sources changed: a CAN source starts with the service".into());
+    }
+    if !new.modbus_sources.starts_with(&running.modbus_sources) {
+        return Err(
+            "a running Modbus source changed or moved: its reader keeps the settings it \
+             started with"
+                .into(),
+        );
+    }
+    let sources = &new.modbus_sources[running.modbus_sources.len()..];
+    if !sources.is_empty() && !running.can_sources.is_empty() {
+        return Err(
+            "a Modbus source added while CAN sources run would move their status bits \
+             (sources count Modbus first, then CAN)"
+                .into(),
+        );
+    }
+    if !new.channels.starts_with(&running.channels) {
+        return Err(
+            "a channel read changed, moved or was removed: its reader keeps the channels \
+             it started with"
+                .into(),
+        );
+    }
+    let mut added: Vec<String> = sources
+        .iter()
+        .map(|source| format!("sources.{} (its reader started live)", source.name))
+        .collect();
+    for (index, channel) in new.channels.iter().enumerate().skip(running.channels.len()) {
+        let source = new.source_of_channel(index);
+        if source < running_sources {
+            let name = running.sources().nth(source).map(|s| s.name().to_owned());
+            return Err(format!(
+                "channels.{} is on the running source {}: its reader keeps the channels it \
+                 started with",
+                channel.name,
+                name.unwrap_or_default()
+            ));
+        }
+        added.push(format!(
+            "channels.{} (on a source added live)",
+            channel.name
+        ));
+    }
+    Ok(added)
 }
 
 /// Into `plan`, the drivelines `added` applied live ([`Live::Drivelines`]), each in
@@ -679,6 +773,46 @@ mod tests {
             plan.needs_restart
                 .iter()
                 .any(|key| key.contains("added F9") && key.contains("channels already read")),
+            "{plan:?}"
+        );
+        // On a Modbus source added with it (a reader of its own), it starts live too.
+        let mut on_new_source = grown.clone();
+        let mut source = on_new_source.modbus_sources[0].clone();
+        source.name = "daq9".into();
+        on_new_source.modbus_sources.push(source);
+        let mut channel = on_new_source.channels[grown.drivelines[0].torque].clone();
+        channel.name = "spindle_f9".into();
+        let millgate_config::ChannelSource::ModbusBlock { table, base, .. } = channel.source else {
+            panic!("the demo's torque is a Modbus block: {:?}", channel.source);
+        };
+        let source = on_new_source.modbus_sources.len() - 1;
+        channel.source = millgate_config::ChannelSource::ModbusBlock {
+            source,
+            table,
+            base,
+        };
+        on_new_source.channels.push(channel);
+        on_new_source.drivelines[added - 1].torque = on_new_source.channels.len() - 1;
+        let plan = changed(compare(&reserved, &on_new_source));
+        assert!(plan.needs_restart.is_empty(), "{plan:?}");
+        assert_eq!(plan.live, [Live::Sources, Live::Drivelines]);
+        assert_eq!(
+            plan.applied[..2],
+            [
+                "sources.daq9 (its reader started live)",
+                "channels.spindle_f9 (on a source added live)"
+            ]
+        );
+        assert_eq!(plan.applied_to(&reserved, &on_new_source), on_new_source);
+        // A running source changed beside it: everything waits, and says why.
+        let mut changed_too = on_new_source.clone();
+        changed_too.modbus_sources[0].timeout *= 2;
+        let plan = changed(compare(&reserved, &changed_too));
+        assert!(plan.live.is_empty(), "{plan:?}");
+        assert!(
+            plan.needs_restart
+                .iter()
+                .any(|key| key.starts_with("sources, channels (a running Modbus source changed")),
             "{plan:?}"
         );
         // The slots themselves move the blocks after them.

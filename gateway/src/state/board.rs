@@ -27,7 +27,7 @@ pub struct Board {
     results: Mutex<Results>,
     /// The change signal every output waits on (its history's: [`Self::with_history`]).
     signal: Signal,
-    health: Vec<Arc<SourceHealth>>,
+    health: Mutex<Vec<Arc<SourceHealth>>>,
     /// The source statuses of the final image, once the service stops.
     frozen_health: Mutex<Option<Vec<SourceStatus>>>,
     /// The drivelines' names, fatigue components and sources: a reload that adds
@@ -102,7 +102,7 @@ impl Board {
         Self {
             results: Mutex::new(results),
             signal: Signal::default(),
-            health,
+            health: Mutex::new(health),
             frozen_health: Mutex::new(None),
             drivelines: Mutex::new(DrivelineShape::of(config)),
             tandem_mill_names: config.tandem_mills.iter().map(|m| m.name.clone()).collect(),
@@ -283,14 +283,28 @@ impl Board {
     /// about to stop, and a source they stop reading is not a source gone stale. The
     /// final image of an orderly stop shows the sources as they were while running.
     pub(crate) fn freeze_health(&self) {
-        let statuses = self.health.iter().map(|h| h.status()).collect();
+        let statuses = self.statuses();
         *crate::lock(&self.frozen_health) = Some(statuses);
+    }
+
+    /// Each source's status now, in the order of [`Config::sources`].
+    fn statuses(&self) -> Vec<SourceStatus> {
+        crate::lock(&self.health)
+            .iter()
+            .map(|h| h.status())
+            .collect()
+    }
+
+    /// Show the sources a reload added (after the others, in the order of
+    /// [`Config::sources`]) by their `health`.
+    pub(crate) fn add_sources(&self, health: &[Arc<SourceHealth>]) {
+        crate::lock(&self.health).extend(health.iter().cloned());
+        self.signal.results_changed();
     }
 
     fn apply_health(&self, results: &mut Results) {
         let frozen = crate::lock(&self.frozen_health).clone();
-        let statuses: Vec<SourceStatus> =
-            frozen.unwrap_or_else(|| self.health.iter().map(|h| h.status()).collect());
+        let statuses: Vec<SourceStatus> = frozen.unwrap_or_else(|| self.statuses());
         results.sources = statuses.iter().copied().map(Some).collect();
         let bad = |source: &usize| {
             statuses
