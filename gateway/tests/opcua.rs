@@ -1855,13 +1855,7 @@ async fn a_driveline_added_live_gets_its_nodes_while_clients_stay_connected() {
     assert_eq!(absent["status"], "BadNodeIdUnknown", "{absent}");
 
     // F2 on the torque channel read for F1, added by a SIGHUP.
-    let original = std::fs::read_to_string(&setup.config).unwrap();
-    let f2 = "[[drivelines]]\nname = \"F2\"\ntorque = \"spindle_top\"\n\
-              bite = { threshold_knm = 20.0, pre_trigger_s = 0.1, post_trigger_s = 0.5 }\n\
-              thresholds = { taf_warning = 2.2, taf_alarm = 2.6 }\n\n[outputs.plc]";
-    let added = original.replacen("[outputs.plc]", f2, 1);
-    assert_ne!(added, original);
-    std::fs::write(&setup.config, &added).unwrap();
+    setup.add_driveline("F2");
     common::hang_up(service.id());
     let said = "drivelines.F2 (added in the register block of driveline_slot2: no address \
                 moves), outputs.opcua (the nodes of F2 added as the server runs)";
