@@ -86,6 +86,7 @@ async fn case(objects: usize, pki: &std::path::Path, subscriber: Subscriber, que
     let url = settings.endpoint_url();
     let (updates, updates_rx) = watch::channel(opcua_space::snapshot(objects, VARIABLES, 0));
     let (_events, events_rx) = mpsc::channel(1);
+    let (_grown, grown_rx) = mpsc::channel(1);
     let (stop, shutdown) = millgate::shutdown::channel();
     let server = OpcUaServer::new(
         settings,
@@ -94,7 +95,7 @@ async fn case(objects: usize, pki: &std::path::Path, subscriber: Subscriber, que
     )
     .unwrap();
     let status = server.status();
-    let served = tokio::spawn(server.run(listener, updates_rx, events_rx, shutdown));
+    let served = tokio::spawn(server.run(listener, updates_rx, events_rx, grown_rx, shutdown));
     opcua_space::serving(address, &url).await;
 
     let mut client = subscriber

@@ -1786,3 +1786,145 @@ async fn acknowledges_are_paced() {
     peer.send("quit");
     rig.stop().await;
 }
+
+/// The entries of `browse` below `Drivelines/<name>/` (variables and objects) with what
+/// a client sees of each but its value: the path below the driveline, the node id
+/// with the driveline's name as `{}`, the data type, type definition, description and
+/// properties.
+fn driveline_nodes(browse: &Value, name: &str) -> Vec<String> {
+    let prefix = format!("Drivelines/{name}/");
+    let mut nodes: Vec<String> = ["objects", "variables", "methods"]
+        .iter()
+        .flat_map(|kind| browse[kind].as_array().unwrap())
+        .filter(|entry| entry["path"].as_str().unwrap().starts_with(&prefix))
+        .map(|entry| {
+            let mut entry = entry.clone();
+            let fields = entry.as_object_mut().unwrap();
+            for value_field in ["value", "variant", "status", "source", "server"] {
+                fields.remove(value_field);
+            }
+            entry
+                .to_string()
+                .replace(&format!("/{name}/"), "/{}/")
+                .replace(&format!("/{name}\""), "/{}\"")
+        })
+        .collect();
+    nodes.sort_unstable();
+    nodes
+}
+
+/// A driveline added by `SIGHUP` to the real `millgate run` within
+/// `outputs.driveline_slots` (issue 41): the running OPC UA server adds its nodes, the
+/// reload says so, and a client connected before the reload browses them without
+/// reconnecting: the same node ids, browse names, types, properties and conditions as
+/// the driveline configured at the start (its Machinery item too), its bite counter
+/// moving with its bites while F1's nodes are unchanged.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_driveline_added_live_gets_its_nodes_while_clients_stay_connected() {
+    let setup = common::Setup::new(common::MILLGATE, "opcua-live", "db").await;
+    // The kit's PLC holds the demo's first layout with a reserved slot (as in
+    // tests/reload.rs), not the extension blocks.
+    let demo = std::fs::read_to_string(&setup.config).unwrap();
+    let first_layout = demo.replace("extension_blocks = true", "extension_blocks = false");
+    assert_ne!(first_layout, demo, "the demo writes the extension blocks");
+    std::fs::write(&setup.config, first_layout).unwrap();
+    let pki = setup.scratch.join("pki");
+    copy_pki(&pki);
+    let port = common::free_port();
+    setup.append_config(&format!(
+        "\n[outputs]\ndriveline_slots = 2\n\n[outputs.opcua]\nbind = \"127.0.0.1:{port}\"\n\
+         pki_dir = \"{}\"\n",
+        pki.display()
+    ));
+    let mut service = setup.spawn("run.log");
+    let url = format!("opc.tcp://127.0.0.1:{port}/");
+    let address = std::net::SocketAddr::from(([127, 0, 0, 1], port));
+    common::wait_for("the OPC UA port", Duration::from_secs(60), || {
+        std::net::TcpStream::connect(address).is_ok()
+    })
+    .await;
+    serving(address, &url).await;
+    keep_pki(&pki);
+    setup.plc().bites_after_now(1).await;
+    let mut peer = Peer::connect(&url, &[]).expect("anonymous on loopback");
+    let before = peer.ask("browse", "browse");
+    let f1 = driveline_nodes(&before, "F1");
+    assert!(!f1.is_empty(), "{before}");
+    assert!(driveline_nodes(&before, "F2").is_empty(), "{before}");
+    let absent = peer.ask("read Drivelines/F2/bite_counter", "read");
+    assert_eq!(absent["status"], "BadNodeIdUnknown", "{absent}");
+
+    // F2 on the torque channel read for F1, added by a SIGHUP.
+    setup.add_driveline("F2");
+    common::hang_up(service.id());
+    let said = "drivelines.F2 (added in the register block of driveline_slot2: no address \
+                moves), outputs.opcua (the nodes of F2 added as the server runs)";
+    common::wait_for(said, Duration::from_secs(20), || {
+        setup.log_text("run.log").contains(said)
+    })
+    .await;
+    let log = setup.log_text("run.log");
+    assert!(!log.contains("needs a restart"), "{log}");
+
+    // The client connected before browses F2's nodes: as F1's, F1's unchanged.
+    let after = peer.ask("browse", "browse");
+    assert_eq!(driveline_nodes(&after, "F1"), f1, "F1's nodes changed");
+    assert_eq!(driveline_nodes(&after, "F2"), f1, "F2's nodes are not F1's");
+    let ns = peer.ask("nsindex urn:millgate:results", "nsindex")["index"]
+        .as_u64()
+        .unwrap();
+    let objects = |browse: &Value| -> Vec<String> {
+        let objects = browse["objects"].as_array().unwrap();
+        objects.iter().map(|o| o["path"].to_string()).collect()
+    };
+    assert!(objects(&after).contains(&"\"Drivelines/F2\"".to_owned()));
+    let f2_node = after["objects"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|o| o["path"] == "Drivelines/F2")
+        .unwrap();
+    assert_eq!(f2_node["node"], format!("ns={ns};s=Millgate/Drivelines/F2"));
+    assert_eq!(f2_node["events"], true, "{f2_node}");
+    // Its bite counter moves with its bites, as the PLC's F2 block shows.
+    let start = Instant::now();
+    let mut seen = Vec::new();
+    while seen.len() < 2 {
+        let read = peer.ask("read Drivelines/F2/bite_counter", "read");
+        let counter = read["value"].as_u64().filter(|_| read["status"] == "Good");
+        if let Some(counter) = counter.filter(|c| seen.last() != Some(c)) {
+            seen.push(counter);
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "F2's bite counter did not move: {seen:?}, last {read}"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    assert!(seen[0] < seen[1], "{seen:?}");
+    // Its Machinery item, executing.
+    let machinery = peer.ask("nsindex http://opcfoundation.org/UA/Machinery/", "nsindex")["index"]
+        .as_u64()
+        .unwrap();
+    let state = peer.ask(
+        &format!(
+            "readpath {machinery}:Machines {ns}:F2 {machinery}:MachineryItemState 0:CurrentState"
+        ),
+        "readpath",
+    );
+    assert_eq!(state["status"], "Good", "{state}");
+    assert_eq!(
+        state["node"],
+        format!("ns={ns};s=Machines/Drivelines/F2/MachineryItemState/CurrentState"),
+        "{state}"
+    );
+    let f1_counter = peer.ask("read Drivelines/F1/bite_counter", "read");
+    assert_eq!(f1_counter["status"], "Good", "{f1_counter}");
+    assert!(
+        service.try_wait().unwrap().is_none(),
+        "SIGHUP ended the service"
+    );
+    peer.send("quit");
+    common::terminate(&mut service);
+    setup.stop(service).await;
+}

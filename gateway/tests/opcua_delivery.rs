@@ -40,6 +40,7 @@ async fn every_change_arrives_or_is_marked_as_dropped() {
     let url = settings.endpoint_url();
     let (updates, updates_rx) = watch::channel(opcua_space::snapshot(OBJECTS, VARIABLES, 0));
     let (_events, events_rx) = mpsc::channel(1);
+    let (_grown, grown_rx) = mpsc::channel(1);
     let (stop, shutdown) = millgate::shutdown::channel();
     let server = OpcUaServer::new(
         settings,
@@ -47,7 +48,7 @@ async fn every_change_arrives_or_is_marked_as_dropped() {
         Arc::new(|_| {}),
     )
     .unwrap();
-    let served = tokio::spawn(server.run(listener, updates_rx, events_rx, shutdown));
+    let served = tokio::spawn(server.run(listener, updates_rx, events_rx, grown_rx, shutdown));
     opcua_space::serving(address, &url).await;
 
     let (_child, mut stdin, lines) = common::json_peer(

@@ -435,13 +435,7 @@ async fn a_driveline_added_within_the_reserved_slots_starts_live_and_moves_no_ad
     assert!(words[block.clone()].iter().all(|w| *w == 0), "{words:?}");
     // A second driveline on the torque channel read for F1 (without a model), after
     // F1: added by a SIGHUP, without a restart.
-    let original = std::fs::read_to_string(&setup.config).unwrap();
-    let f2 = "[[drivelines]]\nname = \"F2\"\ntorque = \"spindle_top\"\n\
-              bite = { threshold_knm = 20.0, pre_trigger_s = 0.1, post_trigger_s = 0.5 }\n\
-              thresholds = { taf_warning = 2.2, taf_alarm = 2.6 }\n\n[outputs.plc]";
-    let added = original.replacen("[outputs.plc]", f2, 1);
-    assert_ne!(added, original);
-    std::fs::write(&setup.config, &added).unwrap();
+    setup.add_driveline("F2");
     let before_reload = plc.counter();
     let said = "reload: applied drivelines.F2 (added in the register block of \
                 driveline_slot2: no address moves)";
@@ -478,9 +472,8 @@ async fn a_driveline_added_within_the_reserved_slots_starts_live_and_moves_no_ad
     // A third driveline is beyond the two slots (with three slots, or the file is
     // refused): it needs a restart (it would move the blocks after the drivelines')
     // and changes nothing meanwhile.
-    let f3 = f2.replace("F2", "F3");
-    let beyond = added
-        .replacen("[outputs.plc]", &f3, 1)
+    let beyond = setup
+        .add_driveline("F3")
         .replace("driveline_slots = 2", "driveline_slots = 3");
     std::fs::write(&setup.config, &beyond).unwrap();
     hang_up(service.id());

@@ -37,6 +37,7 @@ impl OpcUaOutputTask {
         _rod_spans: &[usize],
         _board: Arc<Board>,
         _commands: CommandSender,
+        _configs: tokio::sync::watch::Receiver<Arc<Config>>,
     ) -> Result<Option<Self>, OpcUaError> {
         match config.outputs.opcua {
             Some(_) => Err(OpcUaError::NotBuilt),

@@ -79,6 +79,8 @@ pub struct Service {
     plc_attempted: watch::Sender<bool>,
     /// Reload requests ([`RunningService::reload`]), handled once the service runs.
     reloads: (mpsc::Sender<ReloadRequest>, mpsc::Receiver<ReloadRequest>),
+    /// The configurations with drivelines added live, to the OPC UA server.
+    added_configs: watch::Sender<Arc<Config>>,
     /// The thresholds of the drivelines and tandem mills, as a reload sends them to the
     /// analysis.
     thresholds: watch::Sender<LiveSettings>,
@@ -137,11 +139,13 @@ impl Service {
             return Err(ServiceError::Wear(problems));
         }
         let (commands, command_receiver) = commands::channel();
+        let (added_configs, added_configs_rx) = watch::channel(Arc::new(config.clone()));
         let opcua = OpcUaOutputTask::prepare(
             &config,
             &analysis.rod_mill_spans(),
             Arc::clone(&board),
             commands.clone(),
+            added_configs_rx,
         )?;
         let can_counters = config.can_sources.iter().map(|_| Arc::default()).collect();
         let (plc_attempted, _) = watch::channel(config.outputs.plc.is_none());
@@ -167,6 +171,7 @@ impl Service {
             server_counters: Arc::default(),
             plc_attempted,
             reloads: mpsc::channel(RELOAD_QUEUE),
+            added_configs,
             thresholds,
         })
     }
@@ -429,6 +434,7 @@ impl Service {
             server_counters,
             plc_attempted,
             reloads,
+            added_configs,
             thresholds,
             ..
         } = self;
@@ -525,6 +531,7 @@ impl Service {
             reload_counters,
             thresholds,
             additions,
+            added_configs,
         })
     }
 }
@@ -602,6 +609,9 @@ struct Started {
     thresholds: watch::Sender<LiveSettings>,
     /// Drivelines a reload adds, to the analysis.
     additions: mpsc::Sender<DrivelineAddition>,
+    /// The configurations with drivelines added live, to the OPC UA server (which
+    /// adds their nodes as it runs), sent once the board has them.
+    added_configs: watch::Sender<Arc<Config>>,
 }
 
 impl Started {
@@ -736,8 +746,9 @@ impl Started {
         map: Option<RegisterMap>,
     ) -> Result<(), ServiceError> {
         let (done, added) = oneshot::channel();
+        let config = Arc::new(config.clone());
         let addition = DrivelineAddition {
-            config: Arc::new(config.clone()),
+            config: Arc::clone(&config),
             done,
         };
         if self.additions.send(addition).await.is_err() {
@@ -757,6 +768,7 @@ impl Started {
             return Ok(());
         };
         tracing::info!(drivelines = ?names, "reload: drivelines added, analysed from their next block on");
+        self.added_configs.send_replace(config);
         self.map = Arc::new(map);
         self.outputs.use_map(Arc::clone(&self.map));
         Ok(())

@@ -145,7 +145,7 @@ type Builder = fn(&mut Wiring, &Shutdown) -> Result<Option<OutputTask>, ServiceE
 /// drivelines: the PLC writer and the HMI server on the map with their blocks, the
 /// page and `/metrics` with their rows, the Sparkplug node with a new session whose
 /// births carry their devices (a DBIRTH before any DDATA of a device). The OPC UA
-/// server's nodes are built at the start: it shows them after a restart.
+/// server runs on: it adds their nodes as it runs (`Started::add_drivelines` tells it).
 const OUTPUTS: [(Builder, &[Live]); 8] = [
     (plc_writer, &[Live::Plc, Live::Drivelines]),
     (heartbeat_without_plc, &[Live::Plc]),

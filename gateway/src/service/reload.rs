@@ -25,8 +25,8 @@
 //!     first (the map keeps every address, the analysis builds), then the outputs
 //!     that show drivelines stop, the analysis takes them between two rounds (the
 //!     board grows), and the outputs start again on the map with their reserved
-//!     blocks (Sparkplug with a new session: their DBIRTHs); an OPC UA server shows
-//!     them after a restart, and the plan says so;
+//!     blocks (Sparkplug with a new session: their DBIRTHs); a running OPC UA server
+//!     adds their nodes as it runs (its sessions kept), and the plan says so;
 //!   - Modbus sources appended after the others (none while CAN sources run), with
 //!     channels appended after the others, each on such a source ([`Live::Sources`]):
 //!     the analysis routes their channels, then a reader starts per source (its
@@ -599,8 +599,8 @@ fn sources_added(running: &Config, new: &Config) -> Result<Vec<String>, String> 
 }
 
 /// Into `plan`, the drivelines `added` applied live ([`Live::Drivelines`]), each in
-/// the register block the slots reserve; an OPC UA server shows them after a restart
-/// (its nodes are built at the start), and the plan names that.
+/// the register block the slots reserve; a running OPC UA server adds their nodes as
+/// it runs, and the plan names that.
 fn added_live(running: &Config, new: &Config, added: &[&str], plan: &mut Plan) {
     let first = running.drivelines.len();
     for (k, name) in (first..).zip(added) {
@@ -611,9 +611,11 @@ fn added_live(running: &Config, new: &Config, added: &[&str], plan: &mut Plan) {
         ));
     }
     plan.live.push(Live::Drivelines);
-    if new.outputs.opcua.is_some() {
-        plan.needs_restart.push(format!(
-            "outputs.opcua (shows {} after a restart: its nodes are built at the start)",
+    // A server added by this reload waits for a restart ("outputs.opcua"), and then
+    // shows them from its start.
+    if running.outputs.opcua.is_some() && new.outputs.opcua.is_some() {
+        plan.applied.push(format!(
+            "outputs.opcua (the nodes of {} added as the server runs)",
             added.join(", ")
         ));
     }
@@ -743,7 +745,7 @@ mod tests {
         );
         let applied = plan.applied_to(&reserved, &grown);
         assert_eq!(applied, grown, "everything applied: the new configuration");
-        // An OPC UA server shows it after a restart, and the plan says so.
+        // A running OPC UA server adds its nodes, and the plan says so.
         let with_opcua = format!("{}\n[outputs.opcua]\nbind = \"127.0.0.1:4840\"\n", demo());
         let examples =
             std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples"));
@@ -757,9 +759,10 @@ mod tests {
         grown_served.outputs.opcua = opcua;
         let plan = changed(compare(&served, &grown_served));
         assert_eq!(plan.live, [Live::Drivelines]);
+        assert!(plan.needs_restart.is_empty(), "{plan:?}");
         assert_eq!(
-            plan.needs_restart,
-            ["outputs.opcua (shows F9 after a restart: its nodes are built at the start)"]
+            plan.applied.last().map(String::as_str),
+            Some("outputs.opcua (the nodes of F9 added as the server runs)")
         );
         // On a channel the running service does not read, it waits for a restart.
         let mut on_new_channel = grown.clone();

@@ -219,6 +219,27 @@ impl Setup {
         std::fs::write(&self.config, config).unwrap();
     }
 
+    /// Append driveline `name` to `[[drivelines]]` (before `[outputs.plc]`), on the
+    /// torque channel the demo reads for F1 and without a `model`: one a reload can
+    /// add live within `outputs.driveline_slots`. The file as written.
+    pub fn add_driveline(&self, name: &str) -> String {
+        let original = std::fs::read_to_string(&self.config).unwrap();
+        let driveline = format!(
+            "[[drivelines]]\nname = \"{name}\"\ntorque = \"spindle_top\"\n\
+             bite = {{ threshold_knm = 20.0, pre_trigger_s = 0.1, post_trigger_s = 0.5 }}\n\
+             thresholds = {{ taf_warning = 2.2, taf_alarm = 2.6 }}\n\n[outputs.plc]"
+        );
+        let added = original.replacen("[outputs.plc]", &driveline, 1);
+        assert_ne!(
+            added,
+            original,
+            "no [outputs.plc] in {}",
+            self.config.display()
+        );
+        std::fs::write(&self.config, &added).unwrap();
+        added
+    }
+
     /// The driveline registers the virtual PLC holds.
     pub fn plc(&self) -> Plc<'_> {
         Plc {

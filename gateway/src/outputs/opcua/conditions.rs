@@ -103,6 +103,24 @@ impl Conditions {
         conditions
     }
 
+    /// The conditions of `spec` grown from these (drivelines added live): each one
+    /// already here keeps its state (by its node), the EventIds go on.
+    pub(crate) fn grown(
+        &mut self,
+        spec: &AddressSpaceSpec,
+        objects: &[NodeId],
+        ids: &[Vec<NodeId>],
+    ) {
+        let mut grown = Self::new(spec, objects, ids);
+        for condition in &mut grown.list {
+            if let Some(&index) = self.by_id.get(&condition.id) {
+                condition.state = self.list[index].state.take();
+            }
+        }
+        grown.sequence = self.sequence;
+        *self = grown;
+    }
+
     /// A new EventId: unique for the server's life (a sequence) and across starts
     /// (the time).
     pub(crate) fn next_event_id(&mut self) -> ByteString {

@@ -178,12 +178,15 @@ impl OpcUaServer {
 
     /// Serve on `listener` (bound to `settings.bind`) until `shutdown`: `updates` holds
     /// the latest snapshot (applied at start and at each change), `events` the alarms to
-    /// send. An error when the certificate store, async-opcua or a listener fails.
+    /// send, `grown` the address spaces grown from this one by drivelines added live
+    /// (their nodes added while the server runs; each one before any snapshot of it).
+    /// An error when the certificate store, async-opcua or a listener fails.
     pub async fn run(
         self,
         listener: TcpListener,
         mut updates: watch::Receiver<Snapshot>,
         mut events: mpsc::Receiver<AlarmEventSpec>,
+        mut grown: mpsc::Receiver<AddressSpaceSpec>,
         mut shutdown: Shutdown,
     ) -> Result<(), OpcUaError> {
         let public = listener.local_addr()?;
@@ -239,9 +242,14 @@ impl OpcUaServer {
             .get_namespace_index(nodes::NAMESPACE_URI)
             .ok_or_else(|| OpcUaError::Server("the millgate namespace is missing".into()))?;
         let ids = NodeIds::new(&self.spec, ns).map_err(OpcUaError::AddressSpace)?;
+        let companions = [nodes::MACHINERY_URI, nodes::DI_URI]
+            .map(|uri| handle.get_namespace_index(uri).unwrap_or_default());
         let mut publish = Publish {
-            spec: &self.spec,
-            ids: &ids,
+            spec: Arc::clone(&self.spec),
+            ids,
+            ns,
+            companions: (companions[0], companions[1]),
+            grown: false,
             nodes: &nodes,
             handle: &handle,
             counters: &self.counters,
@@ -268,6 +276,9 @@ impl OpcUaServer {
         let mut trim_problems = WarnLimit::new(WARN_PERIOD);
         let ended = loop {
             tokio::select! {
+                // A grown address space before the snapshots of it (sent after it).
+                biased;
+                Some(spec) = grown.recv() => publish.grow(spec),
                 _ = trim.tick() => self.trim_rejected(&mut trim_problems).await,
                 changed = updates.changed() => match changed {
                     Ok(()) => publish.apply(&updates.borrow_and_update()),
@@ -388,10 +399,17 @@ impl OpcUaServer {
     }
 }
 
-/// The running server's publishing side: snapshots to values, alarms to events.
+/// The running server's publishing side: snapshots to values, alarms to events, the
+/// nodes of drivelines added live.
 struct Publish<'a> {
-    spec: &'a AddressSpaceSpec,
-    ids: &'a NodeIds,
+    spec: Arc<AddressSpaceSpec>,
+    ids: NodeIds,
+    /// The millgate namespace and the companions' (Machinery, DI).
+    ns: u16,
+    companions: (u16, u16),
+    /// Set by [`Self::grow`] until a snapshot of the grown address space comes: one
+    /// the feed sent before it (fewer objects) is not applied to the grown one.
+    grown: bool,
     nodes: &'a InMemoryNodeManager<MillgateNodes>,
     handle: &'a ServerHandle,
     counters: &'a OpcUaCounters,
@@ -400,8 +418,44 @@ struct Publish<'a> {
 }
 
 impl Publish<'_> {
+    /// Add the nodes `spec` (this address space grown by drivelines added live) has
+    /// beyond the running ones, as the start builds them, and publish on it from now
+    /// on: the conditions keep their states, every value is written anew (the objects
+    /// after the new ones moved in the snapshots). Clients browse the new nodes at
+    /// once; a GeneralModelChangeEvent is not sent.
+    fn grow(&mut self, spec: AddressSpaceSpec) {
+        let ids = match NodeIds::new(&spec, self.ns) {
+            Ok(ids) => ids,
+            Err(error) => {
+                tracing::error!(%error, "OPC UA nodes of the added drivelines not made");
+                return;
+            }
+        };
+        let before = self.ids.objects.len();
+        {
+            let mut address_space = self.nodes.address_space().write();
+            nodes::build(&mut address_space, &spec, &ids, self.ns);
+            nodes::add_machines(&mut address_space, &spec, &ids, self.ns, self.companions);
+        }
+        crate::lock(self.conditions).grown(&spec, &ids.objects, &ids.conditions);
+        tracing::info!(
+            objects = ids.objects.len() - before,
+            "OPC UA nodes of the added drivelines added"
+        );
+        self.spec = Arc::new(spec);
+        self.ids = ids;
+        self.last = Snapshot::default();
+        self.grown = true;
+    }
+
     /// Write what changed since the last snapshot; subscribed clients are notified.
     fn apply(&mut self, snapshot: &Snapshot) {
+        if self.grown {
+            if snapshot.objects.len() != self.spec.objects.len() {
+                return;
+            }
+            self.grown = false;
+        }
         let now = DateTime::now();
         let mut changes = Vec::new();
         for (object, updates) in snapshot.objects.iter().enumerate() {

@@ -542,32 +542,41 @@ fn name(ns: u16, name: &str) -> QualifiedName {
 
 /// The nodes of `spec` in `address_space`: the root, the folders, the objects and
 /// their variables (`Bad_WaitingForInitialData` until the first snapshot), the
-/// condition instances, the acknowledge method.
-fn build(address_space: &mut AddressSpace, spec: &AddressSpaceSpec, ids: &NodeIds, ns: u16) {
+/// condition instances, the acknowledge method. Nodes already there are kept as
+/// they are: on a grown spec (drivelines added live) only the new objects are added.
+pub(crate) fn build(
+    address_space: &mut AddressSpace,
+    spec: &AddressSpaceSpec,
+    ids: &NodeIds,
+    ns: u16,
+) {
     let root = NodeId::new(ns, ROOT);
-    ObjectBuilder::new(&root, name(ns, ROOT), ROOT)
-        .description(format!("millgate gateway: {}", spec.name))
-        .has_type_definition(ObjectTypeId::BaseObjectType)
-        .organized_by(ObjectId::ObjectsFolder)
-        .insert(address_space);
-    let mut folders = Vec::new();
+    if !address_space.node_exists(&root) {
+        ObjectBuilder::new(&root, name(ns, ROOT), ROOT)
+            .description(format!("millgate gateway: {}", spec.name))
+            .has_type_definition(ObjectTypeId::BaseObjectType)
+            .organized_by(ObjectId::ObjectsFolder)
+            .insert(address_space);
+    }
     for (index, object) in spec.objects.iter().enumerate() {
+        let id = &ids.objects[index];
+        if address_space.node_exists(id) {
+            continue;
+        }
         let parent = match (object.parent, object.kind.folder()) {
             (Some(parent), _) => ids.objects[parent].clone(),
             (None, Some(folder)) => {
                 let id = NodeId::new(ns, format!("{ROOT}/{folder}"));
-                if !folders.contains(&id) {
+                if !address_space.node_exists(&id) {
                     ObjectBuilder::new(&id, name(ns, folder), folder)
                         .is_folder()
                         .organized_by(root.clone())
                         .insert(address_space);
-                    folders.push(id.clone());
                 }
                 id
             }
             (None, None) => root.clone(),
         };
-        let id = &ids.objects[index];
         ObjectBuilder::new(id, name(ns, &object.name), object.name.as_str())
             .description(object.description.as_str())
             .event_notifier(EventNotifier::SUBSCRIBE_TO_EVENTS)
@@ -579,7 +588,11 @@ fn build(address_space: &mut AddressSpace, spec: &AddressSpaceSpec, ids: &NodeId
         }
         add_conditions(address_space, object, id, &ids.conditions[index], ns);
     }
-    if let Some((gateway, method)) = &ids.acknowledge {
+    if let Some((gateway, method)) = ids
+        .acknowledge
+        .as_ref()
+        .filter(|(_, method)| !address_space.node_exists(method))
+    {
         MethodBuilder::new(method, name(ns, ACKNOWLEDGE_METHOD), ACKNOWLEDGE_METHOD)
             .description(
                 "Clear the latched alarms (TAF, gap and chatter alarms), as the PLC's \
@@ -724,8 +737,8 @@ fn add_conditions(
 /// its `Identification` (DI's nameplate names), its `MachineryItemState` with
 /// `CurrentState`, and its NE 107 `DeviceHealth` (DI), and organizing the object it
 /// stands for. Typed by the base types: the DI and Machinery nodesets are not loaded
-/// (docs/opcua.md).
-fn add_machines(
+/// (docs/opcua.md). Items already there are kept as they are (as in [`build`]).
+pub(crate) fn add_machines(
     address_space: &mut AddressSpace,
     spec: &AddressSpaceSpec,
     ids: &NodeIds,
@@ -736,13 +749,15 @@ fn add_machines(
         return;
     }
     let folder = NodeId::new(ns, MACHINES);
-    ObjectBuilder::new(&folder, name(machinery, MACHINES), MACHINES)
-        .description(
-            "The machines of OPC 40001-1 (Machinery): the gateway, its drivelines and mills",
-        )
-        .is_folder()
-        .organized_by(ObjectId::ObjectsFolder)
-        .insert(address_space);
+    if !address_space.node_exists(&folder) {
+        ObjectBuilder::new(&folder, name(machinery, MACHINES), MACHINES)
+            .description(
+                "The machines of OPC 40001-1 (Machinery): the gateway, its drivelines and mills",
+            )
+            .is_folder()
+            .organized_by(ObjectId::ObjectsFolder)
+            .insert(address_space);
+    }
     let property = |id: &NodeId, browse: QualifiedName, display: &str| {
         VariableBuilder::new(id, browse, display)
             .value_rank(-1)
@@ -750,6 +765,9 @@ fn add_machines(
             .user_access_level(AccessLevel::CURRENT_READ)
     };
     for (machine, [item, current_state, health]) in spec.machines.iter().zip(&ids.machines) {
+        if address_space.node_exists(item) {
+            continue;
+        }
         let object = &spec.objects[machine.object];
         let path = string_id(item);
         ObjectBuilder::new(item, name(ns, &object.name), object.name.as_str())

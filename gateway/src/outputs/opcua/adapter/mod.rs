@@ -367,6 +367,20 @@ impl CatalogueAdapter {
         (adapter, spec)
     }
 
+    /// The adapter and address space of `config`, this one's configuration with
+    /// drivelines added live: the mills keep the windows seen so far (their figures'
+    /// source timestamps stay those of their last window).
+    pub(crate) fn grown(&self, config: &Config, rod_spans: &[usize]) -> (Self, AddressSpaceSpec) {
+        let (mut adapter, spec) = Self::new(config, rod_spans);
+        if adapter.tandem_seen.len() == self.tandem_seen.len() {
+            adapter.tandem_seen.clone_from(&self.tandem_seen);
+        }
+        if adapter.rod_seen.len() == self.rod_seen.len() {
+            adapter.rod_seen.clone_from(&self.rod_seen);
+        }
+        (adapter, spec)
+    }
+
     /// The objects the alarm stream's events are about, by name.
     fn event_objects(&self) -> EventObjects {
         let named = |names: &[String], objects: &[usize]| -> Vec<(String, usize)> {
