@@ -34,7 +34,9 @@ fn max_age(config: &Config, channel: usize) -> Duration {
     let channel = &config.channels[channel];
     let polls = Duration::from_secs_f64(CONTEXT_POLLS / channel.sample_rate_hz);
     match channel.source {
-        ChannelSource::ModbusValue { source, .. } | ChannelSource::ModbusBlock { source, .. } => {
+        ChannelSource::ModbusValue { source, .. }
+        | ChannelSource::ModbusBlock { source, .. }
+        | ChannelSource::ModbusText { source, .. } => {
             polls.max(config.modbus_sources[source].timeout * 2)
         }
         ChannelSource::Can { .. } => polls.max(Duration::from_secs(1)),
