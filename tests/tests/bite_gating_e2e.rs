@@ -19,9 +19,9 @@ use std::time::Duration;
 use millgate::cli::capture::{CaptureCommand, ExportArgs, KindArg, ListArgs, Selection};
 use millgate::cli::OutputFormat;
 use millgate::history::capture_files::ExportFormat;
-use millgate::history::query::{CaptureRow, Filter, HistoryReader};
+use millgate::history::query::{CaptureRow, Filter, HistoryReader, StoredCoil};
 use millgate::state::commands::{Command, CommandOrigin};
-use millgate::state::context::{BiteGate, MillState};
+use millgate::state::context::{BiteGate, Coil, MillState};
 use millgate_sim::devices::modbus_bank::ServeOptions;
 use millgate_sim::devices::virtual_plc::VirtualPlc;
 use millgate_sim::model::Model;
@@ -148,7 +148,7 @@ async fn bites_outside_rolling_or_the_speed_range_are_recorded_not_pooled() -> a
                 let (coil, product) = coil_and_product(bar);
                 assert_eq!(
                     (read.coil, read.product),
-                    (Some(u32::from(coil)), Some(u32::from(product))),
+                    (Some(Coil::Number(coil.into())), Some(u32::from(product))),
                     "bar {bar}"
                 );
                 assert_eq!(context.gate, gate, "bar {bar}");
@@ -243,12 +243,12 @@ async fn bites_outside_rolling_or_the_speed_range_are_recorded_not_pooled() -> a
             Some(_) => {
                 assert_eq!(
                     (
-                        capture.coil,
+                        capture.coil.clone(),
                         capture.product,
                         capture.context_status.as_deref()
                     ),
                     (
-                        Some(i64::from(coil)),
+                        Some(StoredCoil::Number(coil.into())),
                         Some(i64::from(product)),
                         Some("valid")
                     ),
@@ -258,7 +258,11 @@ async fn bites_outside_rolling_or_the_speed_range_are_recorded_not_pooled() -> a
             }
             None => {
                 assert_eq!(
-                    (capture.coil, capture.product, capture.mill_state.as_deref()),
+                    (
+                        capture.coil.clone(),
+                        capture.product,
+                        capture.mill_state.as_deref()
+                    ),
                     (None, None, None),
                     "bar {bar}: an invalid context keeps no value"
                 );
@@ -275,14 +279,14 @@ async fn bites_outside_rolling_or_the_speed_range_are_recorded_not_pooled() -> a
     let of_bar = |bar: usize| {
         let (coil, product) = coil_and_product(bar);
         (
-            Some(i64::from(coil)),
+            Some(StoredCoil::Number(coil.into())),
             Some(i64::from(product)),
             MillState::from_code(u32::from(BARS[bar].2)).map(|state| state.name().to_owned()),
             Some("valid".to_owned()),
         )
     };
     let carried = (
-        manual[0].coil,
+        manual[0].coil.clone(),
         manual[0].product,
         manual[0].mill_state.clone(),
         manual[0].context_status.clone(),
