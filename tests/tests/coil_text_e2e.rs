@@ -11,9 +11,8 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
-use millgate::cli::capture::{CaptureCommand, ExportArgs, KindArg, ListArgs, Selection};
+use millgate::cli::capture::{CaptureCommand, KindArg, ListArgs, Selection};
 use millgate::cli::OutputFormat;
-use millgate::history::capture_files::ExportFormat;
 use millgate::history::query::{CaptureRow, Filter, HistoryReader, StoredCoil};
 use millgate::state::context::{Coil, ContextError};
 use millgate_config::text::{encode_ascii, AsciiText, ByteOrder, TextError};
@@ -21,11 +20,10 @@ use millgate_sim::devices::modbus_bank::ServeOptions;
 use millgate_sim::devices::virtual_plc::VirtualPlc;
 use millgate_sim::model::Model;
 use millgate_sim::schedule::{rolling_schedule_with_gap, BarTiming};
-use millgate_tests::kit::peers::peer;
+use millgate_tests::kit::process_plc::{context_config, pyarrow_checks_export, MODELS};
 use millgate_tests::kit::{demo_devices, scrape, scratch};
 use tokio::net::TcpListener;
 
-const MODELS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../sim/models");
 /// Idle time between bars long enough that the test sets the next bar's coil (read
 /// every 100 ms) well before that bar's bite completes.
 const TIMING: BarTiming = BarTiming {
@@ -48,25 +46,14 @@ const JUNK: TextError = TextError::NotPrintable {
 };
 
 fn config(history: &std::path::Path) -> anyhow::Result<millgate_config::Config> {
-    let demo = std::fs::read_to_string(format!(
-        "{}/../config/examples/demo.toml",
-        env!("CARGO_MANIFEST_DIR")
-    ))?;
-    let text = demo.replacen(
-        "[[drivelines]]",
-        "[[sources.modbus]]\nname = \"process_plc\"\naddress = \"127.0.0.1:1\"\n\
-         poll_period_ms = 100\ntimeout_ms = 500\n\n\
-         [[channels]]\nname = \"coil_id\"\nkind = \"process_value\"\nunit = \"1\"\n\
+    context_config(
+        "coil-text.toml",
+        "[[channels]]\nname = \"coil_id\"\nkind = \"process_value\"\nunit = \"1\"\n\
          source = { modbus = \"process_plc\", table = \"holding\", address = 0, \
-         type = \"ascii\", registers = 4, byte_order = \"low_first\" }\n\n\
-         [[drivelines]]\ncontext = { coil = \"coil_id\" }",
-        1,
-    ) + &format!(
-        "\n[outputs.metrics]\nbind = \"127.0.0.1:0\"\n\n[history]\npath = {:?}\n",
-        history.display().to_string()
-    );
-    millgate_config::from_toml_str(&text, "coil-text.toml", std::path::Path::new(MODELS))
-        .map_err(|error| anyhow::anyhow!("{error}"))
+         type = \"ascii\", registers = 4, byte_order = \"low_first\" }\n\n",
+        "context = { coil = \"coil_id\" }",
+        history,
+    )
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -179,32 +166,11 @@ async fn a_coil_id_read_as_text_tags_the_evidence_and_junk_makes_the_context_inv
     );
     // pyarrow reads the text from bar 0's Parquet metadata, and the CSV's sidecar
     // says the same.
-    let out = scratch.path().join("export");
-    let export = |format| {
-        millgate::cli::capture::export(&ExportArgs {
-            selection: selection.clone(),
-            bite: None,
-            id: Some(captures[0].id),
-            format,
-            out: out.clone(),
-        })
-    };
-    let csv = export(ExportFormat::Csv)?;
-    let parquet = export(ExportFormat::Parquet)?;
-    let checked = std::process::Command::new("python3")
-        .arg(peer("capture_parquet.py"))
-        .arg(&csv[0])
-        .arg(&parquet[0])
-        .env(
-            "MILLGATE_CONTEXT",
-            r#"{"context_status": "valid", "coil": "CH-4711", "context_note": null}"#,
-        )
-        .output()?;
-    assert!(
-        checked.status.success(),
-        "{}{}",
-        String::from_utf8_lossy(&checked.stdout),
-        String::from_utf8_lossy(&checked.stderr)
-    );
+    pyarrow_checks_export(
+        &selection,
+        captures[0].id,
+        scratch.path().join("export"),
+        r#"{"context_status": "valid", "coil": "CH-4711", "context_note": null}"#,
+    )?;
     Ok(())
 }

@@ -331,15 +331,22 @@ impl Checker<'_> {
             None => Some(WordOrder::Abcd),
         };
         let value_type = value_type?;
-        let last = 65_535 - i64::from(value_type.register_count()) + 1;
-        let address = self.int_in(&format!("{key}.address"), address, 0..=last, "")?;
+        let address = self.first_register(key, address, value_type.register_count())?;
         Some(ChannelSource::ModbusValue {
             source: source?,
             table: table?,
-            address: u16::try_from(address).ok()?,
+            address,
             value_type,
             word_order: word_order?,
         })
+    }
+
+    /// `address` (key `{key}.address`) as the first of `count` registers, all inside
+    /// the table.
+    fn first_register(&mut self, key: &str, address: i64, count: u16) -> Option<u16> {
+        let last = 65_535 - i64::from(count) + 1;
+        let address = self.int_in(&format!("{key}.address"), address, 0..=last, "")?;
+        u16::try_from(address).ok()
     }
 
     /// A text (`type = "ascii"`) of `registers` registers from `address` of
@@ -388,12 +395,11 @@ impl Checker<'_> {
             None => Some(ByteOrder::default()),
         };
         let registers = u16::try_from(registers?).ok()?;
-        let last = 65_535 - i64::from(registers) + 1;
-        let address = self.int_in(&format!("{key}.address"), address, 0..=last, "")?;
+        let address = self.first_register(key, address, registers)?;
         Some(ChannelSource::ModbusText {
             source: source?,
             table: table?,
-            address: u16::try_from(address).ok()?,
+            address,
             registers,
             byte_order: byte_order?,
         })
