@@ -13,6 +13,7 @@ pub mod serial;
 mod service_dirs;
 pub mod signal;
 mod summary;
+pub mod text;
 mod tls;
 mod types;
 mod validate;

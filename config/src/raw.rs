@@ -60,6 +60,8 @@ pub(crate) struct RawChannelSource {
     #[serde(rename = "type")]
     pub(crate) value_type: Option<String>,
     pub(crate) word_order: Option<String>,
+    pub(crate) registers: Option<i64>,
+    pub(crate) byte_order: Option<String>,
     pub(crate) message: Option<String>,
     pub(crate) signal: Option<String>,
 }

@@ -125,6 +125,20 @@ fn channel_origin(config: &Config, source: &ChannelSource) -> String {
             value_type.name(),
             word_order.name()
         ),
+        ChannelSource::ModbusText {
+            source,
+            table,
+            address,
+            registers,
+            byte_order,
+        } => format!(
+            "{} {} registers {}..={} (ascii {})",
+            config.modbus_sources[*source].name,
+            table.name(),
+            address,
+            u32::from(*address) + u32::from(*registers) - 1,
+            byte_order.name()
+        ),
         ChannelSource::Can {
             source,
             message,

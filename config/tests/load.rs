@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 use tempfile::TempDir;
 
+use millgate_config::text::ByteOrder;
 use millgate_config::{
     from_toml_str, from_toml_str_with, load, load_uncommissioned, ChannelKind, ChannelSource,
     ChatterDetectorKind, Config, ConfigError, ContextTags, OpcUaSecurityMode, RegisterTable,
@@ -657,7 +658,7 @@ fn driveline_slots_reserve_blocks_and_fewer_than_the_drivelines_are_refused() {
 fn value_type_and_word_order_names() {
     assert_only_problem(
         &edited("address = 10 }", "address = 10, type = \"float\" }"),
-        "mill.toml: channels[2].source.type: unknown value type \"float\" (allowed: u16, i16, u32, i32, f32)",
+        "mill.toml: channels[2].source.type: unknown value type (a text is \"ascii\") \"float\" (allowed: u16, i16, u32, i32, f32)",
     );
     assert_only_problem(
         &edited("address = 10 }", "address = 10, type = \"f32\", word_order = \"DCAB\" }"),
@@ -1004,6 +1005,96 @@ fn context_tags_and_the_weld_hold() {
             &[],
         );
     }
+}
+
+#[test]
+fn a_coil_id_as_text_in_registers() {
+    let text_channel = |source: &str| {
+        format!(
+            "[[channels]]\nname = \"coil_text\"\nkind = \"process_value\"\nunit = \"1\"\n\
+             source = {{ modbus = \"plc\", table = \"holding\", address = 30{source} }}\n\n"
+        )
+    };
+    let with = |source: &str, tags: &str| {
+        edited(
+            "[[tandem_mills]]",
+            &format!(
+                "{}{}[[tandem_mills]]\ncontext = {{ {tags} }}",
+                text_channel(source),
+                process_value("product_code", 21)
+            ),
+        )
+    };
+    let config = parse(&with(
+        ", type = \"ascii\", registers = 8",
+        "coil = \"coil_text\"",
+    ))
+    .unwrap_or_else(|error| panic!("{error}"));
+    let coil = config.tandem_mills[0].context.coil.expect("the coil tag");
+    assert_eq!(
+        config.channels[coil].source,
+        ChannelSource::ModbusText {
+            source: 1,
+            table: RegisterTable::Holding,
+            address: 30,
+            registers: 8,
+            byte_order: ByteOrder::HighFirst,
+        }
+    );
+    let summary = millgate_config::summary(&config);
+    assert!(
+        summary.contains("holding registers 30..=37 (ascii high_first)"),
+        "{summary}"
+    );
+    let config = parse(&with(
+        ", type = \"ascii\", registers = 16, byte_order = \"low_first\"",
+        "coil = \"coil_text\"",
+    ))
+    .unwrap_or_else(|error| panic!("{error}"));
+    let coil = config.tandem_mills[0].context.coil.expect("the coil tag");
+    assert!(matches!(
+        config.channels[coil].source,
+        ChannelSource::ModbusText {
+            registers: 16,
+            byte_order: ByteOrder::LowFirst,
+            ..
+        }
+    ));
+
+    let coil_tag = |source: &str| with(source, "coil = \"coil_text\"");
+    let key = "mill.toml: channels[5].";
+    assert_problems_start(
+        coil_tag,
+        key,
+        &[
+            (", type = \"ascii\"", "source.registers: missing (the registers the text spans, 1..=16, two characters each)"),
+            (", type = \"ascii\", registers = 17", "source.registers: 17 is not allowed (must be 1..=16 registers, two characters each)"),
+            (", type = \"ascii\", registers = 0", "source.registers: 0 is not allowed (must be 1..=16 registers"),
+            (", type = \"ascii\", registers = 4, byte_order = \"little\"", "source.byte_order: unknown byte order \"little\" (allowed: high_first, low_first)"),
+            (", type = \"ascii\", registers = 4, word_order = \"CDAB\"", "source.word_order: does not apply to a text"),
+            (", type = \"u32\", registers = 4", "source.registers: does not apply to a number"),
+            (", byte_order = \"low_first\"", "source.byte_order: does not apply to a number"),
+        ],
+    );
+    assert_problems_start(
+        |source| {
+            coil_tag(source).replace("unit = \"1\"\nsource = { modbus = \"plc\", table = \"holding\", address = 30", "unit = \"1\"\nscale = 2.0\nsource = { modbus = \"plc\", table = \"holding\", address = 30")
+        },
+        key,
+        &[(
+            ", type = \"ascii\", registers = 4",
+            "scale: does not apply to a text channel (type = \"ascii\")",
+        )],
+    );
+    // Only as the coil tag.
+    assert_problems_start(
+        |tags| with(", type = \"ascii\", registers = 4", tags),
+        "mill.toml: tandem_mills[0].",
+        &[
+            ("product = \"coil_text\"", "context.product: channel \"coil_text\" is a text channel (type = \"ascii\"): allowed only as a context tag `coil` (context = { coil = \"coil_text\" }), not here"),
+            ("speed_mpm = \"coil_text\"", "context.speed_mpm: channel \"coil_text\" is a text channel"),
+        ],
+    );
 }
 
 #[test]

@@ -146,7 +146,7 @@ async fn gateway(mut config: millgate_config::Config, channel: usize) -> anyhow:
                         }
                     }
                     Acquired::Gap { .. } => gaps += 1,
-                    Acquired::ProcessValue { .. } => {}
+                    Acquired::ProcessValue { .. } | Acquired::Text { .. } => {}
                 }
             }
             gaps

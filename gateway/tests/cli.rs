@@ -273,7 +273,7 @@ fn readme_figure_table_is_the_generated_one_and_the_exports_agree() {
 }
 
 /// `registers --context`: what the PLC must provide for the context tags of the
-/// demo's driveline (state, speed as f32 CDAB, product with its codes), from the
+/// demo's driveline (state, speed as f32 CDAB, a coil as text, product with its codes), from the
 /// configuration's channels.
 #[test]
 fn registers_context_lists_what_the_plc_must_provide_for_the_context_tags() {
@@ -287,7 +287,9 @@ fn registers_context_lists_what_the_plc_must_provide_for_the_context_tags() {
          source = { modbus = \"mill_plc\", table = \"input\", address = 41, type = \"f32\", word_order = \"CDAB\" }\n\n\
          [[channels]]\nname = \"grade\"\nkind = \"process_value\"\nunit = \"1\"\n\
          source = { modbus = \"mill_plc\", table = \"holding\", address = 43 }\n\n\
-         [[drivelines]]\ncontext = { state = \"mill_state\", speed_mpm = \"mill_speed\", product = \"grade\", products = [101, 205] }",
+         [[channels]]\nname = \"coil_id\"\nkind = \"process_value\"\nunit = \"1\"\n\
+         source = { modbus = \"mill_plc\", table = \"holding\", address = 44, type = \"ascii\", registers = 8 }\n\n\
+         [[drivelines]]\ncontext = { state = \"mill_state\", speed_mpm = \"mill_speed\", coil = \"coil_id\", product = \"grade\", products = [101, 205] }",
         1,
     );
     let (_folder, path) = write_config("registers-context", &body);
@@ -297,6 +299,7 @@ fn registers_context_lists_what_the_plc_must_provide_for_the_context_tags() {
     for line in [
         "| F1 | speed_mpm | mill_speed | mill_plc | input | 41 | f32 CDAB, x 1 + 0 | >= 0 m/min |",
         "| F1 | product | grade | mill_plc | holding | 43 | u16 ABCD, x 1 + 0 | one of 101, 205 |",
+        "| F1 | coil | coil_id | mill_plc | holding | 44 | ascii, 8 registers, high_first | 1..=16 printable ASCII characters (0x20..=0x7E), ended by a NUL or padded with spaces |",
         "| F1 | state | mill_state | mill_plc | holding | 40 | u16 ABCD, x 1 + 0 | 0 idle, 1 threading, 2 rolling, 3 maintenance |",
     ] {
         assert!(md.lines().any(|l| l == line), "{line} not in:\n{md}");
@@ -314,7 +317,7 @@ fn registers_context_lists_what_the_plc_must_provide_for_the_context_tags() {
         csv.lines().next(),
         Some("subject,tag,channel,source,table,address,encoding,allowed")
     );
-    assert_eq!(csv.lines().count(), 4, "{csv}");
+    assert_eq!(csv.lines().count(), 5, "{csv}");
     // Without context tags: the header only.
     let none = millgate(&[
         "registers",

@@ -16,21 +16,19 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
-use millgate::cli::capture::{CaptureCommand, ExportArgs, KindArg, ListArgs, Selection};
+use millgate::cli::capture::{CaptureCommand, KindArg, ListArgs, Selection};
 use millgate::cli::OutputFormat;
-use millgate::history::capture_files::ExportFormat;
-use millgate::history::query::{CaptureRow, Filter, HistoryReader};
+use millgate::history::query::{CaptureRow, Filter, HistoryReader, StoredCoil};
 use millgate::state::commands::{Command, CommandOrigin};
-use millgate::state::context::{BiteGate, MillState};
+use millgate::state::context::{BiteGate, Coil, MillState};
 use millgate_sim::devices::modbus_bank::ServeOptions;
 use millgate_sim::devices::virtual_plc::VirtualPlc;
 use millgate_sim::model::Model;
 use millgate_sim::schedule::{rolling_schedule_with_gap, BarTiming};
-use millgate_tests::kit::peers::peer;
+use millgate_tests::kit::process_plc::{context_config, pyarrow_checks_export, MODELS};
 use millgate_tests::kit::{demo_devices, scrape, scratch, wait_for, Plc};
 use tokio::net::TcpListener;
 
-const MODELS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../sim/models");
 /// Idle time between bars long enough that the test sets the next bar's context
 /// (read every 100 ms) well before that bar's bite completes.
 const TIMING: BarTiming = BarTiming {
@@ -59,32 +57,21 @@ const BARS: [(f64, f64, u16, u16, Option<BiteGate>); 6] = [
 ];
 
 fn config(history: &std::path::Path) -> anyhow::Result<millgate_config::Config> {
-    let demo = std::fs::read_to_string(format!(
-        "{}/../config/examples/demo.toml",
-        env!("CARGO_MANIFEST_DIR")
-    ))?;
-    let text = demo.replacen(
-        "[[drivelines]]",
-        "[[sources.modbus]]\nname = \"process_plc\"\naddress = \"127.0.0.1:1\"\n\
-         poll_period_ms = 100\ntimeout_ms = 500\n\n\
-         [[channels]]\nname = \"mill_state\"\nkind = \"process_value\"\nunit = \"1\"\n\
+    context_config(
+        "gating.toml",
+        "[[channels]]\nname = \"mill_state\"\nkind = \"process_value\"\nunit = \"1\"\n\
          source = { modbus = \"process_plc\", table = \"holding\", address = 0 }\n\n\
          [[channels]]\nname = \"mill_speed\"\nkind = \"process_value\"\nunit = \"m/min\"\n\
          source = { modbus = \"process_plc\", table = \"holding\", address = 1 }\n\n\
          [[channels]]\nname = \"coil_id\"\nkind = \"process_value\"\nunit = \"1\"\n\
          source = { modbus = \"process_plc\", table = \"holding\", address = 2 }\n\n\
          [[channels]]\nname = \"product_code\"\nkind = \"process_value\"\nunit = \"1\"\n\
-         source = { modbus = \"process_plc\", table = \"holding\", address = 3 }\n\n\
-         [[drivelines]]\ncontext = { state = \"mill_state\", speed_mpm = \"mill_speed\", \
+         source = { modbus = \"process_plc\", table = \"holding\", address = 3 }\n\n",
+        "context = { state = \"mill_state\", speed_mpm = \"mill_speed\", \
          coil = \"coil_id\", product = \"product_code\" }\n\
          pool_speed_range_mpm = [100.0, 400.0]",
-        1,
-    ) + &format!(
-        "\n[outputs.metrics]\nbind = \"127.0.0.1:0\"\n\n[history]\npath = {:?}\n",
-        history.display().to_string()
-    );
-    millgate_config::from_toml_str(&text, "gating.toml", std::path::Path::new(MODELS))
-        .map_err(|error| anyhow::anyhow!("{error}"))
+        history,
+    )
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -148,7 +135,7 @@ async fn bites_outside_rolling_or_the_speed_range_are_recorded_not_pooled() -> a
                 let (coil, product) = coil_and_product(bar);
                 assert_eq!(
                     (read.coil, read.product),
-                    (Some(u32::from(coil)), Some(u32::from(product))),
+                    (Some(Coil::Number(coil.into())), Some(u32::from(product))),
                     "bar {bar}"
                 );
                 assert_eq!(context.gate, gate, "bar {bar}");
@@ -243,12 +230,12 @@ async fn bites_outside_rolling_or_the_speed_range_are_recorded_not_pooled() -> a
             Some(_) => {
                 assert_eq!(
                     (
-                        capture.coil,
+                        capture.coil.clone(),
                         capture.product,
                         capture.context_status.as_deref()
                     ),
                     (
-                        Some(i64::from(coil)),
+                        Some(StoredCoil::Number(coil.into())),
                         Some(i64::from(product)),
                         Some("valid")
                     ),
@@ -258,7 +245,11 @@ async fn bites_outside_rolling_or_the_speed_range_are_recorded_not_pooled() -> a
             }
             None => {
                 assert_eq!(
-                    (capture.coil, capture.product, capture.mill_state.as_deref()),
+                    (
+                        capture.coil.clone(),
+                        capture.product,
+                        capture.mill_state.as_deref()
+                    ),
                     (None, None, None),
                     "bar {bar}: an invalid context keeps no value"
                 );
@@ -275,14 +266,14 @@ async fn bites_outside_rolling_or_the_speed_range_are_recorded_not_pooled() -> a
     let of_bar = |bar: usize| {
         let (coil, product) = coil_and_product(bar);
         (
-            Some(i64::from(coil)),
+            Some(StoredCoil::Number(coil.into())),
             Some(i64::from(product)),
             MillState::from_code(u32::from(BARS[bar].2)).map(|state| state.name().to_owned()),
             Some("valid".to_owned()),
         )
     };
     let carried = (
-        manual[0].coil,
+        manual[0].coil.clone(),
         manual[0].product,
         manual[0].mill_state.clone(),
         manual[0].context_status.clone(),
@@ -311,33 +302,12 @@ async fn bites_outside_rolling_or_the_speed_range_are_recorded_not_pooled() -> a
     assert_eq!(coils, [&serde_json::json!(4712), &serde_json::json!(4714)]);
     // pyarrow reads the coil and product from bar 1's Parquet export, and the
     // context from the CSV's sidecar says the same.
-    let out = scratch.path().join("export");
-    let export = |format| {
-        millgate::cli::capture::export(&ExportArgs {
-            selection: selection(None),
-            bite: None,
-            id: Some(bite_captures[1].id),
-            format,
-            out: out.clone(),
-        })
-    };
-    let csv = export(ExportFormat::Csv)?;
-    let parquet = export(ExportFormat::Parquet)?;
-    let checked = std::process::Command::new("python3")
-        .arg(peer("capture_parquet.py"))
-        .arg(&csv[0])
-        .arg(&parquet[0])
-        .env(
-            "MILLGATE_CONTEXT",
-            r#"{"context_status": "valid", "coil": 4712, "product": 205,
-                "speed_mpm": 250, "mill_state": "threading", "context_note": null}"#,
-        )
-        .output()?;
-    assert!(
-        checked.status.success(),
-        "{}{}",
-        String::from_utf8_lossy(&checked.stdout),
-        String::from_utf8_lossy(&checked.stderr)
-    );
+    pyarrow_checks_export(
+        &selection(None),
+        bite_captures[1].id,
+        scratch.path().join("export"),
+        r#"{"context_status": "valid", "coil": 4712, "product": 205,
+            "speed_mpm": 250, "mill_state": "threading", "context_note": null}"#,
+    )?;
     Ok(())
 }

@@ -394,7 +394,7 @@ async fn a_chatter_episode_is_captured_as_the_daq_sent_it_and_reproduces_its_war
     use millgate::cli::chatter::commission::CommissionArgs;
     use millgate::cli::chatter::windows::{analyze, WindowsArgs};
     use millgate::history::capture_files::ExportFormat;
-    use millgate::history::query::{CaptureRow, ChatterRow, Filter, HistoryReader};
+    use millgate::history::query::{CaptureRow, ChatterRow, Filter, HistoryReader, StoredCoil};
 
     let plan = LoopPlan::quick();
     let mills = mills(&plan)?;
@@ -433,9 +433,9 @@ async fn a_chatter_episode_is_captured_as_the_daq_sent_it_and_reproduces_its_war
     }
     // The episode, its capture and the manual capture carry the coil and product the
     // process PLC served (schema v14).
-    let context = |row: &CaptureRow| (row.coil, row.product, row.context_status.clone());
+    let context = |row: &CaptureRow| (row.coil.clone(), row.product, row.context_status.clone());
     let served = (
-        Some(i64::from(COIL)),
+        Some(StoredCoil::Number(COIL.into())),
         Some(i64::from(PRODUCT)),
         Some("valid".to_owned()),
     );
@@ -452,7 +452,7 @@ async fn a_chatter_episode_is_captured_as_the_daq_sent_it_and_reproduces_its_war
     for episode in &episodes {
         assert_eq!(
             (
-                episode.coil,
+                episode.coil.clone(),
                 episode.product,
                 episode.context_status.clone()
             ),

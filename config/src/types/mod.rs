@@ -137,7 +137,8 @@ impl Config {
     pub fn source_of_channel(&self, channel: usize) -> usize {
         match self.channels[channel].source {
             ChannelSource::ModbusBlock { source, .. }
-            | ChannelSource::ModbusValue { source, .. } => source,
+            | ChannelSource::ModbusValue { source, .. }
+            | ChannelSource::ModbusText { source, .. } => source,
             ChannelSource::Can { source, .. } => self.modbus_sources.len() + source,
         }
     }

@@ -202,6 +202,21 @@ pub enum ChannelSource {
         /// Where the value's bytes land in the registers.
         word_order: WordOrder,
     },
+    /// A short ASCII text in plain registers (`type = "ascii"`), two characters per
+    /// register: a coil or bar id ([`crate::text`]); allowed only as a context `coil`
+    /// tag.
+    ModbusText {
+        /// Index into [`Config::modbus_sources`](crate::Config::modbus_sources).
+        source: usize,
+        /// Input or holding registers.
+        table: RegisterTable,
+        /// First register of the text.
+        address: u16,
+        /// Registers the text spans, 1..=[`crate::text::MAX_TEXT_REGISTERS`].
+        registers: u16,
+        /// Where the characters sit in each register.
+        byte_order: crate::text::ByteOrder,
+    },
     /// A signal of a CAN message described by the source's DBC file, resolved at
     /// load time. The DBC's factor and offset give the engineering value; the
     /// channel's own `scale`/`offset` are then 1 and 0.

@@ -7,9 +7,13 @@ use std::collections::BTreeMap;
 use crate::dbc::{signal_layout, SignalLookupError};
 use crate::layout::{BLOCK_REGISTERS, MAX_BLOCK_SAMPLES};
 use crate::raw::{RawChannel, RawChannelSource, RawModbusSource};
+use crate::text::{ByteOrder, MAX_TEXT_REGISTERS};
 use crate::{Channel, ChannelKind, ChannelSource, RegisterTable, ValueType, WordOrder};
 
 use super::{format_ms, known_list, ChannelFacts, Checker, Sources, MAX_BLOCK_BASE};
+
+/// The `type` of a text channel (a coil id in characters): not a [`ValueType`].
+const TEXT_TYPE: &str = "ascii";
 
 impl Checker<'_> {
     pub(super) fn channel(
@@ -55,6 +59,16 @@ impl Checker<'_> {
                         }),
                     (false, rate) => self.sample_rate(key, rate),
                 };
+                if matches!(channel_source, Some(ChannelSource::ModbusText { .. })) {
+                    self.not_applicable(
+                        key,
+                        &[
+                            ("scale", raw.scale.is_some()),
+                            ("offset", raw.offset.is_some()),
+                        ],
+                        "a text channel (type = \"ascii\")",
+                    );
+                }
                 let scale = raw.scale.unwrap_or(1.0);
                 let scale = self.float(
                     &format!("{key}.scale"),
@@ -262,6 +276,8 @@ impl Checker<'_> {
             &[
                 ("type", raw.value_type.is_some()),
                 ("word_order", raw.word_order.is_some()),
+                ("registers", raw.registers.is_some()),
+                ("byte_order", raw.byte_order.is_some()),
             ],
             "a block (block samples are i16 in the millgate layout)",
         );
@@ -283,10 +299,21 @@ impl Checker<'_> {
         source: Option<usize>,
         table: Option<RegisterTable>,
     ) -> Option<ChannelSource> {
+        if raw.value_type.as_deref() == Some(TEXT_TYPE) {
+            return self.text_source(key, raw, address, source, table);
+        }
+        self.not_applicable(
+            key,
+            &[
+                ("registers", raw.registers.is_some()),
+                ("byte_order", raw.byte_order.is_some()),
+            ],
+            "a number (only a text, type = \"ascii\", spans `registers` in a `byte_order`)",
+        );
         let value_type = match &raw.value_type {
             Some(text) => self.choice(
                 &format!("{key}.type"),
-                "value type",
+                "value type (a text is \"ascii\")",
                 text,
                 &ValueType::ALL,
                 ValueType::name,
@@ -304,14 +331,77 @@ impl Checker<'_> {
             None => Some(WordOrder::Abcd),
         };
         let value_type = value_type?;
-        let last = 65_535 - i64::from(value_type.register_count()) + 1;
-        let address = self.int_in(&format!("{key}.address"), address, 0..=last, "")?;
+        let address = self.first_register(key, address, value_type.register_count())?;
         Some(ChannelSource::ModbusValue {
             source: source?,
             table: table?,
-            address: u16::try_from(address).ok()?,
+            address,
             value_type,
             word_order: word_order?,
+        })
+    }
+
+    /// `address` (key `{key}.address`) as the first of `count` registers, all inside
+    /// the table.
+    fn first_register(&mut self, key: &str, address: i64, count: u16) -> Option<u16> {
+        let last = 65_535 - i64::from(count) + 1;
+        let address = self.int_in(&format!("{key}.address"), address, 0..=last, "")?;
+        u16::try_from(address).ok()
+    }
+
+    /// A text (`type = "ascii"`) of `registers` registers from `address` of
+    /// `source`'s `table`, in its byte order.
+    fn text_source(
+        &mut self,
+        key: &str,
+        raw: &RawChannelSource,
+        address: i64,
+        source: Option<usize>,
+        table: Option<RegisterTable>,
+    ) -> Option<ChannelSource> {
+        self.not_applicable(
+            key,
+            &[("word_order", raw.word_order.is_some())],
+            "a text (its registers are in text order; give byte_order = \"high_first\" or \
+             \"low_first\")",
+        );
+        let registers_key = format!("{key}.registers");
+        let registers = match raw.registers {
+            Some(registers) => self.int_in(
+                &registers_key,
+                registers,
+                1..=i64::from(MAX_TEXT_REGISTERS),
+                " registers, two characters each",
+            ),
+            None => {
+                self.report.push(
+                    registers_key,
+                    format!(
+                        "missing (the registers the text spans, 1..={MAX_TEXT_REGISTERS}, two \
+                         characters each)"
+                    ),
+                );
+                None
+            }
+        };
+        let byte_order = match &raw.byte_order {
+            Some(text) => self.choice(
+                &format!("{key}.byte_order"),
+                "byte order",
+                text,
+                &ByteOrder::ALL,
+                ByteOrder::name,
+            ),
+            None => Some(ByteOrder::default()),
+        };
+        let registers = u16::try_from(registers?).ok()?;
+        let address = self.first_register(key, address, registers)?;
+        Some(ChannelSource::ModbusText {
+            source: source?,
+            table: table?,
+            address,
+            registers,
+            byte_order: byte_order?,
         })
     }
 
@@ -330,6 +420,8 @@ impl Checker<'_> {
                 ("address", raw.address.is_some()),
                 ("type", raw.value_type.is_some()),
                 ("word_order", raw.word_order.is_some()),
+                ("registers", raw.registers.is_some()),
+                ("byte_order", raw.byte_order.is_some()),
             ],
             "a CAN source (the DBC describes the signal)",
         );
@@ -437,6 +529,13 @@ impl Checker<'_> {
                     value_type,
                     ..
                 } => (source, table, address, value_type.register_count()),
+                ChannelSource::ModbusText {
+                    source,
+                    table,
+                    address,
+                    registers,
+                    ..
+                } => (source, table, address, registers),
                 ChannelSource::Can { .. } => continue,
             };
             let first = u32::from(first);
@@ -532,6 +631,16 @@ impl Checker<'_> {
                     "channel \"{name}\" is a {} channel (must be {})",
                     channel.kind.name(),
                     want.name()
+                ),
+            );
+            return None;
+        }
+        if matches!(channel.source, ChannelSource::ModbusText { .. }) && !key.ends_with(".coil") {
+            self.report.push(
+                key,
+                format!(
+                    "channel \"{name}\" is a text channel (type = \"ascii\"): allowed only as \
+                     a context tag `coil` (context = {{ coil = \"{name}\" }}), not here"
                 ),
             );
             return None;

@@ -41,7 +41,7 @@ fn channel_range(channel: &Channel) -> Option<f64> {
             let counts = (2.0_f64).powi(i32::from(signal_layout.size)) - 1.0;
             counts * (signal_layout.factor * channel.scale).abs()
         }
-        ChannelSource::ModbusValue { .. } => return None,
+        ChannelSource::ModbusValue { .. } | ChannelSource::ModbusText { .. } => return None,
     };
     (range.is_finite() && range > 0.0).then_some(range)
 }

@@ -221,6 +221,9 @@ impl Checker<'_> {
                     ChannelSource::ModbusValue {
                         source, value_type, ..
                     } if source == index => Some(value_type.register_count()),
+                    ChannelSource::ModbusText {
+                        source, registers, ..
+                    } if source == index => Some(registers),
                     _ => None,
                 })
                 .collect();

@@ -17,6 +17,7 @@
 
 use std::time::{Duration, Instant};
 
+use millgate_config::text::{AsciiText, TextError};
 use millgate_config::{ChannelSource, Config, ContextTags};
 
 use crate::state::context::{
@@ -34,7 +35,9 @@ fn max_age(config: &Config, channel: usize) -> Duration {
     let channel = &config.channels[channel];
     let polls = Duration::from_secs_f64(CONTEXT_POLLS / channel.sample_rate_hz);
     match channel.source {
-        ChannelSource::ModbusValue { source, .. } | ChannelSource::ModbusBlock { source, .. } => {
+        ChannelSource::ModbusValue { source, .. }
+        | ChannelSource::ModbusBlock { source, .. }
+        | ChannelSource::ModbusText { source, .. } => {
             polls.max(config.modbus_sources[source].timeout * 2)
         }
         ChannelSource::Can { .. } => polls.max(Duration::from_secs(1)),
@@ -62,13 +65,23 @@ impl BiteContext {
     }
 }
 
+/// A context tag's value as read: a number, or a text channel's text (a coil id) or
+/// why its registers held none.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) enum TagValue {
+    /// A process value in engineering units.
+    Number(f64),
+    /// A `type = "ascii"` channel's text.
+    Text(Result<AsciiText, TextError>),
+}
+
 /// The latest context values of a driveline, for its bites.
 #[derive(Debug, Clone)]
 pub(crate) struct ContextTracker {
     /// The configured tags: key, channel, the oldest value still used.
     tags: Vec<(&'static str, usize, Duration)>,
     /// Per tag, the latest value and when it came.
-    latest: Vec<Option<(f64, Instant)>>,
+    latest: Vec<Option<(TagValue, Instant)>>,
     products: Vec<u32>,
     speed_range_mpm: Option<(f64, f64)>,
 }
@@ -98,6 +111,14 @@ impl ContextTracker {
     /// The latest value of tag `key`, however old; `None` before the first or
     /// without the tag.
     pub(crate) fn latest(&self, key: &str) -> Option<f64> {
+        match self.latest_value(key)? {
+            TagValue::Number(value) => Some(value),
+            TagValue::Text(_) => None,
+        }
+    }
+
+    /// [`Self::latest`], a number or a text.
+    pub(crate) fn latest_value(&self, key: &str) -> Option<TagValue> {
         let position = self.tags.iter().position(|tag| tag.0 == key)?;
         self.latest[position].map(|(value, _)| value)
     }
@@ -108,7 +129,7 @@ impl ContextTracker {
     }
 
     /// A value of `channel` read at `now`.
-    pub(crate) fn value(&mut self, channel: usize, value: f64, now: Instant) {
+    pub(crate) fn value(&mut self, channel: usize, value: TagValue, now: Instant) {
         for (tag, latest) in self.tags.iter().zip(&mut self.latest) {
             if tag.1 == channel {
                 *latest = Some((value, now));
@@ -128,6 +149,15 @@ impl ContextTracker {
             if fresh.is_none() {
                 stale.insert(key);
             }
+            // Only a coil can be a text (`check` refuses a text channel elsewhere).
+            let fresh = match fresh {
+                Some(TagValue::Text(text)) => {
+                    raw.coil_text = Some(text);
+                    continue;
+                }
+                Some(TagValue::Number(value)) => Some(value),
+                None => None,
+            };
             let field = match key {
                 "weld" => {
                     raw.weld = any_weld(raw.weld, fresh);
@@ -167,7 +197,7 @@ impl ContextTracker {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::state::context::ContextStatus;
+    use crate::state::context::{Coil, ContextStatus};
 
     /// A coil and a product tag (channels 0 and 1) used for 300 ms, product 205 the
     /// only one known.
@@ -190,13 +220,13 @@ mod tests {
         let never = tracker.reading(t0);
         assert_eq!(never.status(), ContextStatus::Stale);
         assert_eq!(never.stale.keys().collect::<Vec<_>>(), ["coil", "product"]);
-        tracker.value(0, 4711.0, t0);
-        tracker.value(1, 205.0, t0 + Duration::from_millis(200));
+        tracker.value(0, TagValue::Number(4711.0), t0);
+        tracker.value(1, TagValue::Number(205.0), t0 + Duration::from_millis(200));
         let fresh = tracker.reading(t0 + Duration::from_millis(300));
         assert_eq!(fresh.status(), ContextStatus::Valid);
         assert_eq!(
             (fresh.trusted().coil, fresh.trusted().product),
-            (Some(4711), Some(205))
+            (Some(Coil::Number(4711)), Some(205))
         );
         let later = tracker.reading(t0 + Duration::from_millis(450));
         assert_eq!(later.status(), ContextStatus::Stale);
@@ -205,7 +235,7 @@ mod tests {
             (later.trusted().coil, later.trusted().product),
             (None, Some(205))
         );
-        tracker.value(1, 7.0, t0 + Duration::from_millis(400));
+        tracker.value(1, TagValue::Number(7.0), t0 + Duration::from_millis(400));
         let invalid = tracker.reading(t0 + Duration::from_millis(450));
         assert_eq!(invalid.status(), ContextStatus::Invalid);
         assert_eq!(invalid.trusted(), ProcessContext::default());
@@ -213,5 +243,33 @@ mod tests {
         let bite = tracker.at(t0 + Duration::from_millis(450));
         assert_eq!(bite.reading(), invalid);
         assert_eq!(bite.gate, BiteGate::Pooled);
+    }
+
+    /// A text coil (`type = "ascii"`) is the coil; junk in its registers makes the
+    /// reading invalid, saying why, and keeps nothing.
+    #[test]
+    fn a_text_coil_is_the_coil_and_junk_makes_the_reading_invalid() {
+        let t0 = Instant::now();
+        let mut tracker = tracker();
+        let text = AsciiText::new("CH-4711").unwrap();
+        tracker.value(0, TagValue::Text(Ok(text)), t0);
+        tracker.value(1, TagValue::Number(205.0), t0);
+        let reading = tracker.reading(t0);
+        assert_eq!(reading.status(), ContextStatus::Valid);
+        assert_eq!(reading.trusted().coil, Some(Coil::Text(text)));
+        assert_eq!(tracker.latest("coil"), None, "a text is no number");
+        let junk = TextError::NotPrintable {
+            position: 2,
+            byte: 0xFF,
+        };
+        tracker.value(0, TagValue::Text(Err(junk)), t0);
+        let reading = tracker.reading(t0);
+        assert_eq!(reading.context, Err(ContextError::CoilText(junk)));
+        assert_eq!(reading.trusted(), ProcessContext::default());
+        assert_eq!(
+            reading.context.unwrap_err().to_string(),
+            "coil text character 2 is byte 0xFF (must be printable ASCII 0x20..=0x7E, the \
+             text ending at a NUL)"
+        );
     }
 }

@@ -7,6 +7,7 @@
 
 use std::time::{Instant, SystemTime};
 
+use super::context::TagValue;
 use super::driveline::{BiteReport, DrivelineAnalyzer};
 use crate::field::acquired::Acquired;
 use crate::state::board::Board;
@@ -37,7 +38,7 @@ pub(super) enum Step<'a> {
     /// A value of its context channel `channel`, taken up at `now`.
     Context {
         channel: usize,
-        value: f64,
+        value: TagValue,
         now: Instant,
     },
 }
@@ -104,7 +105,17 @@ impl Routes<'_> {
                     for &d in &self.by_context[*channel] {
                         steps[d].push(Step::Context {
                             channel: *channel,
-                            value: *value,
+                            value: TagValue::Number(*value),
+                            now,
+                        });
+                    }
+                }
+                Acquired::Text { channel, text } => {
+                    let now = Instant::now();
+                    for &d in &self.by_context[*channel] {
+                        steps[d].push(Step::Context {
+                            channel: *channel,
+                            value: TagValue::Text(*text),
                             now,
                         });
                     }

@@ -225,6 +225,18 @@ fn context_inputs(config: &Config) -> Vec<ContextInput<'_>> {
                         channel.offset
                     ),
                 ),
+                ChannelSource::ModbusText {
+                    source,
+                    table,
+                    address,
+                    registers,
+                    byte_order,
+                } => (
+                    config.modbus_sources[*source].name.as_str(),
+                    table.name(),
+                    Some(*address),
+                    format!("ascii, {registers} registers, {}", byte_order.name()),
+                ),
                 ChannelSource::Can {
                     source,
                     message,
@@ -240,9 +252,17 @@ fn context_inputs(config: &Config) -> Vec<ContextInput<'_>> {
                 // refuses it).
                 ChannelSource::ModbusBlock { .. } => continue,
             };
+            let allowed = match channel.source {
+                ChannelSource::ModbusText { registers, .. } => format!(
+                    "1..={} printable ASCII characters (0x20..=0x7E), ended by a NUL or padded \
+                     with spaces",
+                    2 * registers
+                ),
+                _ => allowed(&tag, &tags.products),
+            };
             inputs.push(ContextInput {
                 subject,
-                allowed: allowed(&tag, &tags.products),
+                allowed,
                 tag,
                 channel: &channel.name,
                 source,

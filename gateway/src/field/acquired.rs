@@ -44,4 +44,12 @@ pub enum Acquired {
         /// The value in engineering units.
         value: f64,
     },
+    /// The latest text of a text channel (`type = "ascii"`, a coil id), or why its
+    /// registers held none (never used as a value).
+    Text {
+        /// Index of the channel in the configuration.
+        channel: usize,
+        /// The text, or why not.
+        text: Result<millgate_config::text::AsciiText, millgate_config::text::TextError>,
+    },
 }

@@ -65,7 +65,9 @@ pub fn saturation_limits(channel: &Channel) -> SaturationLimits {
         ChannelSource::Can { signal_layout, .. } => {
             can_signal_limits(signal_layout, channel.scale, channel.offset)
         }
-        ChannelSource::ModbusValue { .. } => SaturationLimits::NONE,
+        ChannelSource::ModbusValue { .. } | ChannelSource::ModbusText { .. } => {
+            SaturationLimits::NONE
+        }
     }
 }
 

@@ -11,11 +11,12 @@ use std::sync::OnceLock;
 use serde::ser::{Serialize, SerializeMap, Serializer};
 
 use super::figures::{bite_columns, from_sql};
-use super::record::{Cell, Record, ToCell};
+use super::record::{Cell, Record, StoredCoil, ToCell};
 use crate::state::catalogue::Value;
-use crate::state::context::{MillState, ProcessContext};
+use crate::state::context::{Coil, MillState, ProcessContext};
 use crate::state::results::DrivelineResults;
 use crate::state::time::UtcTime;
+use millgate_config::text::AsciiText;
 
 /// A bite (table `bites`); torques kN*m, periods s, frequencies Hz, gaps mrad.
 #[derive(Debug, Clone, PartialEq)]
@@ -174,7 +175,11 @@ impl BiteRow {
             "reference_taf" => self.reference_taf.to_cell(),
             "shift_over_linear_s" => self.shift_over_linear_s.to_cell(),
             "speed_mpm" => self.context.speed_mpm.to_cell(),
-            "coil" => self.context.coil.map(i64::from).to_cell(),
+            "coil" => match self.context.coil {
+                Some(Coil::Number(number)) => Cell::Integer(number.into()),
+                Some(Coil::Text(text)) => Cell::Text(text.as_str().to_owned()),
+                None => Cell::Null,
+            },
             "product" => self.context.product.map(i64::from).to_cell(),
             "thickness_mm" => self.context.thickness_mm.to_cell(),
             "pass" => self.context.pass.map(i64::from).to_cell(),
@@ -282,7 +287,11 @@ fn context_of(row: &rusqlite::Row<'_>) -> rusqlite::Result<ProcessContext> {
     Ok(ProcessContext {
         weld: None,
         speed_mpm: row.get("speed_mpm")?,
-        coil: code("coil")?,
+        coil: match row.get::<_, Option<StoredCoil>>("coil")? {
+            Some(StoredCoil::Number(number)) => u32::try_from(number).ok().map(Coil::Number),
+            Some(StoredCoil::Text(text)) => AsciiText::new(&text).map(Coil::Text),
+            None => None,
+        },
         product: code("product")?,
         thickness_mm: row.get("thickness_mm")?,
         pass: code("pass")?,

@@ -16,7 +16,7 @@ use rusqlite::OptionalExtension;
 use serde::{Deserialize, Serialize};
 
 use super::captures::{Capture, ChannelMeta};
-use super::query::{CaptureRow, HistoryReader};
+use super::query::{CaptureRow, HistoryReader, StoredCoil};
 use super::HistoryError;
 use crate::state::captures::{BiteWindowAnalysis, CaptureGap, ChatterEpisode};
 
@@ -135,8 +135,8 @@ pub struct CaptureContext {
     pub note: Option<String>,
     /// Mill speed, m/min.
     pub speed_mpm: Option<f64>,
-    /// Coil or bar id.
-    pub coil: Option<i64>,
+    /// Coil or bar id: a number, or a text (`type = "ascii"`).
+    pub coil: Option<StoredCoil>,
     /// Product code.
     pub product: Option<i64>,
     /// Strip thickness, mm.
@@ -154,7 +154,7 @@ impl CaptureContext {
             status: row.context_status.clone()?,
             note: row.context_note.clone(),
             speed_mpm: row.speed_mpm,
-            coil: row.coil,
+            coil: row.coil.clone(),
             product: row.product,
             thickness_mm: row.thickness_mm,
             pass: row.pass,
@@ -169,7 +169,7 @@ impl CaptureContext {
             ("context_status", Some(self.status.clone())),
             ("context_note", self.note.clone()),
             ("speed_mpm", self.speed_mpm.map(|v| v.to_string())),
-            ("coil", self.coil.map(|v| v.to_string())),
+            ("coil", self.coil.as_ref().map(ToString::to_string)),
             ("product", self.product.map(|v| v.to_string())),
             ("thickness_mm", self.thickness_mm.map(|v| v.to_string())),
             ("pass", self.pass.map(|v| v.to_string())),

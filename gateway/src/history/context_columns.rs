@@ -5,7 +5,7 @@
 use rusqlite::types::Value as SqlValue;
 
 use super::bite_row::CONTEXT_COLUMNS;
-use crate::state::context::{ContextReading, ProcessContext};
+use crate::state::context::{Coil, ContextReading, ProcessContext};
 
 /// A measured value, or `NULL`.
 pub(super) fn real(value: Option<f64>) -> SqlValue {
@@ -17,7 +17,10 @@ pub(super) fn context_values(context: &ProcessContext) -> [SqlValue; 6] {
     let code = |value: Option<u32>| value.map_or(SqlValue::Null, |v| SqlValue::Integer(v.into()));
     [
         real(context.speed_mpm),
-        code(context.coil),
+        context.coil.map_or(SqlValue::Null, |coil| match coil {
+            Coil::Number(number) => SqlValue::Integer(number.into()),
+            Coil::Text(text) => SqlValue::Text(text.as_str().to_owned()),
+        }),
         code(context.product),
         real(context.thickness_mm),
         code(context.pass),

@@ -16,6 +16,7 @@ use serde::Serialize;
 
 pub use super::bite_row::{trusted, BiteRow};
 use super::error::{check_file_owner, HistoryError};
+pub use super::record::StoredCoil;
 pub(crate) use super::record::ToCell;
 pub use super::record::{Cell, Record};
 use super::restore::{FatigueHistory, Restored};
@@ -90,7 +91,7 @@ macro_rules! record {
                 /// context and before v14).
                 speed_mpm: Option<f64>,
                 /// Coil or bar id.
-                coil: Option<i64>,
+                coil: Option<StoredCoil>,
                 /// Product code.
                 product: Option<i64>,
                 /// Strip thickness, mm.

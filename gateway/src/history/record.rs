@@ -28,6 +28,48 @@ impl std::fmt::Display for Cell {
     }
 }
 
+/// A coil or bar id as the history keeps it in its `coil` column: an integer for a
+/// numeric coil, text for a text coil (`type = "ascii"`; SQLite keeps TEXT in the
+/// INTEGER-affinity column). As JSON a number stays a number, a text is a string.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[serde(untagged)]
+pub enum StoredCoil {
+    /// A whole number.
+    Number(i64),
+    /// A text.
+    Text(String),
+}
+
+impl std::fmt::Display for StoredCoil {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            StoredCoil::Number(number) => write!(f, "{number}"),
+            StoredCoil::Text(text) => f.write_str(text),
+        }
+    }
+}
+
+impl rusqlite::types::FromSql for StoredCoil {
+    fn column_result(value: rusqlite::types::ValueRef<'_>) -> rusqlite::types::FromSqlResult<Self> {
+        match value {
+            rusqlite::types::ValueRef::Integer(number) => Ok(StoredCoil::Number(number)),
+            rusqlite::types::ValueRef::Text(_) => {
+                String::column_result(value).map(StoredCoil::Text)
+            }
+            _ => Err(rusqlite::types::FromSqlError::InvalidType),
+        }
+    }
+}
+
+impl ToCell for StoredCoil {
+    fn to_cell(&self) -> Cell {
+        match self {
+            StoredCoil::Number(number) => Cell::Integer(*number),
+            StoredCoil::Text(text) => Cell::Text(text.clone()),
+        }
+    }
+}
+
 /// Conversion of a row field to a [`Cell`].
 pub(crate) trait ToCell {
     /// The cell.

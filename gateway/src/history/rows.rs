@@ -402,13 +402,16 @@ mod tests {
     use rusqlite::Connection;
 
     use super::*;
-    use crate::history::query::{CaptureRow, ChatterRow, Filter, HistoryReader, Record};
+    use crate::history::query::{
+        CaptureRow, ChatterRow, Filter, HistoryReader, Record, StoredCoil,
+    };
     use crate::state::captures::CaptureKind;
     use crate::state::context::{
-        ContextError, ContextReading, MillState, ProcessContext, StaleTags,
+        Coil, ContextError, ContextReading, MillState, ProcessContext, StaleTags,
     };
     use crate::state::time::UtcTime;
     use crate::testing::{capture_without_samples, chatter_started};
+    use millgate_config::text::AsciiText;
 
     /// Captures and chatter episodes keep the trusted values of their context and
     /// say how far it could be trusted: a valid one its values, a stale tag's value
@@ -434,7 +437,7 @@ mod tests {
         let rolled = ProcessContext {
             weld: Some(false),
             speed_mpm: Some(1200.0),
-            coil: Some(4_000_000_123),
+            coil: Some(Coil::Number(4_000_000_123)),
             product: Some(205),
             thickness_mm: Some(0.25),
             pass: Some(3),
@@ -457,12 +460,21 @@ mod tests {
             context: Err(ContextError::Speed(-3.0)),
             stale: StaleTags::default(),
         };
+        // A text coil (`type = "ascii"`) is kept as TEXT in the same column.
+        let text = ContextReading {
+            context: Ok(ProcessContext {
+                coil: AsciiText::new("CH-4711").map(Coil::Text),
+                ..rolled
+            }),
+            stale: StaleTags::default(),
+        };
         let transaction = connection.transaction().unwrap();
         for (subject, context) in [
             ("A", Some(valid)),
             ("B", Some(stale)),
             ("C", Some(invalid)),
             ("D", None),
+            ("E", Some(text)),
         ] {
             insert(
                 &transaction,
@@ -531,25 +543,30 @@ mod tests {
                 "speed_mpm -3 is not allowed (must be >= 0 m/min)"
             ]),
             serde_json::json!([null, null, null, null, null, null, null, null]),
+            serde_json::json!(["CH-4711", 205, 1200.0, 0.25, 3, "rolling", "valid", null]),
         ];
         for (index, row) in json.iter().enumerate() {
             let got = serde_json::Value::Array(keys.iter().map(|k| row[*k].clone()).collect());
-            assert_eq!(got, expected[index % 4], "{row}");
+            assert_eq!(got, expected[index % 5], "{row}");
         }
+        // A number stays a number, a text is a text, as read back.
+        let coils: Vec<_> = captures.iter().map(|row| row.coil.clone()).collect();
+        assert_eq!(coils[0], Some(StoredCoil::Number(4_000_000_123)));
+        assert_eq!(coils[4], Some(StoredCoil::Text("CH-4711".to_owned())));
         let of_product = Filter {
             product: Some(205),
             ..Filter::default()
         };
         let subjects =
             |rows: Vec<CaptureRow>| rows.into_iter().map(|r| r.subject).collect::<Vec<_>>();
-        assert_eq!(subjects(reader.rows(&of_product).unwrap()), ["A", "B"]);
+        assert_eq!(subjects(reader.rows(&of_product).unwrap()), ["A", "B", "E"]);
         let mills: Vec<String> = reader
             .rows::<ChatterRow>(&of_product)
             .unwrap()
             .into_iter()
             .map(|r| r.mill)
             .collect();
-        assert_eq!(mills, ["A", "B"]);
+        assert_eq!(mills, ["A", "B", "E"]);
         assert!(CaptureRow::columns().contains(&"context_status"));
         drop((reader, connection));
         let _ = std::fs::remove_dir_all(&folder);

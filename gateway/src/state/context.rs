@@ -5,6 +5,8 @@
 //! impossible. An invalid context is not used (no gating on it) and is counted; it
 //! never stops the analysis.
 
+use millgate_config::text::{AsciiText, TextError};
+
 /// What the mill is doing, the PLC's state code (a `state` context value).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -95,6 +97,9 @@ pub struct RawContext {
     pub speed_mpm: Option<f64>,
     /// Coil or bar id, a whole number 0..=u32::MAX.
     pub coil: Option<f64>,
+    /// Coil or bar id as a text (a `type = "ascii"` channel), or why its registers
+    /// held none; when given it is the coil (a channel is a number or a text).
+    pub coil_text: Option<Result<AsciiText, TextError>>,
     /// Product (steel grade) code, a whole number 0..=u32::MAX.
     pub product: Option<f64>,
     /// Strip thickness, mm, > 0.
@@ -113,7 +118,7 @@ pub struct ProcessContext {
     /// Mill speed, m/min.
     pub speed_mpm: Option<f64>,
     /// Coil or bar id.
-    pub coil: Option<u32>,
+    pub coil: Option<Coil>,
     /// Product code.
     pub product: Option<u32>,
     /// Strip thickness, mm.
@@ -122,6 +127,30 @@ pub struct ProcessContext {
     pub pass: Option<u32>,
     /// What the mill is doing.
     pub state: Option<MillState>,
+}
+
+/// A coil or bar id: a whole number (u32 registers) or a text (`type = "ascii"`
+/// registers). As JSON a number stays a number and a text is a string.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(untagged)]
+pub enum Coil {
+    /// A whole number.
+    Number(u32),
+    /// 1..=32 printable ASCII characters.
+    Text(#[serde(serialize_with = "text_str")] AsciiText),
+}
+
+fn text_str<S: serde::Serializer>(text: &AsciiText, serializer: S) -> Result<S::Ok, S::Error> {
+    serializer.serialize_str(text.as_str())
+}
+
+impl core::fmt::Display for Coil {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Coil::Number(number) => number.fmt(f),
+            Coil::Text(text) => text.fmt(f),
+        }
+    }
 }
 
 /// An impossible context value: the context is invalid (not used, counted).
@@ -144,6 +173,9 @@ pub enum ContextError {
         /// The value read.
         value: f64,
     },
+    /// The coil's text registers hold no usable text (junk bytes, empty).
+    #[error("coil text {0}")]
+    CoilText(TextError),
     /// The product code is not one of the configured products.
     #[error("product {0} is not one of the configured products")]
     UnknownProduct(u32),
@@ -193,7 +225,15 @@ impl RawContext {
                 }
             })
             .transpose()?;
-        let coil = self.coil.map(|v| code("coil", v)).transpose()?;
+        let coil = match self.coil_text {
+            Some(Ok(text)) => Some(Coil::Text(text)),
+            Some(Err(error)) => return Err(ContextError::CoilText(error)),
+            None => self
+                .coil
+                .map(|v| code("coil", v))
+                .transpose()?
+                .map(Coil::Number),
+        };
         let pass = self.pass.map(|v| code("pass", v)).transpose()?;
         let product = self.product.map(|v| code("product", v)).transpose()?;
         if let Some(p) = product.filter(|p| !products.is_empty() && !products.contains(p)) {
@@ -372,11 +412,31 @@ mod tests {
     }
 
     #[test]
+    fn a_text_coil_is_the_coil_and_serializes_as_a_string_a_number_as_a_number() {
+        let text = AsciiText::new("CH-4711").unwrap();
+        let raw = RawContext {
+            coil_text: Some(Ok(text)),
+            product: Some(205.0),
+            ..RawContext::default()
+        };
+        let checked = raw.check(&[]).unwrap();
+        assert_eq!(checked.coil, Some(Coil::Text(text)));
+        let json = |coil| serde_json::to_value(ProcessContext { coil, ..checked }).unwrap();
+        assert_eq!(
+            json(Some(Coil::Text(text)))["coil"],
+            serde_json::json!("CH-4711")
+        );
+        assert_eq!(json(Some(Coil::Number(42)))["coil"], serde_json::json!(42));
+        assert_eq!(Coil::Text(text).to_string(), "CH-4711");
+    }
+
+    #[test]
     fn possible_values_pass_and_each_impossible_one_invalidates_the_context() {
         let raw = RawContext {
             weld: Some(1.0),
             speed_mpm: Some(1200.0),
             coil: Some(4_000_000_123.0),
+            coil_text: None,
             product: Some(205.0),
             thickness_mm: Some(0.25),
             pass: Some(3.0),
@@ -384,7 +444,7 @@ mod tests {
         };
         let checked = raw.check(&[101, 205]).unwrap();
         assert_eq!(checked.weld, Some(true));
-        assert_eq!(checked.coil, Some(4_000_000_123));
+        assert_eq!(checked.coil, Some(Coil::Number(4_000_000_123)));
         assert_eq!(checked.state, Some(MillState::Rolling));
         assert_eq!(
             RawContext::default().check(&[]),
@@ -401,6 +461,10 @@ mod tests {
         assert!(bad(|r| r.thickness_mm = Some(0.0)).starts_with("thickness_mm 0 is"));
         assert!(bad(|r| r.coil = Some(-1.0)).starts_with("coil -1 is not allowed"));
         assert!(bad(|r| r.pass = Some(2.5)).starts_with("pass 2.5 is not allowed"));
+        assert_eq!(
+            bad(|r| r.coil_text = Some(Err(TextError::Empty))),
+            "coil text is empty (no character before the first NUL)"
+        );
         assert_eq!(
             bad(|r| r.product = Some(7.0)),
             "product 7 is not one of the configured products"
@@ -430,7 +494,7 @@ mod tests {
     #[test]
     fn a_reading_says_whether_it_is_valid_stale_or_invalid_and_trusts_no_invalid_value() {
         let fresh = ProcessContext {
-            coil: Some(42),
+            coil: Some(Coil::Number(42)),
             product: Some(205),
             ..ProcessContext::default()
         };

@@ -11,7 +11,7 @@ use millgate::history::RunInfo;
 use millgate::state::captures::{
     CaptureChannel, CaptureKind, CaptureRecord, ChatterEpisode, KeepClass,
 };
-use millgate::state::context::{ContextReading, ProcessContext, StaleTags};
+use millgate::state::context::{Coil, ContextReading, ProcessContext, StaleTags};
 use millgate::state::events::{ChatterWindow, EndedBy, HistoryEvent};
 use millgate::state::time::UtcTime;
 
@@ -101,7 +101,7 @@ pub fn write_chatter_capture(db: &Path, mill: &str) -> anyhow::Result<()> {
         let context = ContextReading {
             context: Ok(ProcessContext {
                 speed_mpm: Some(1200.0),
-                coil: Some(COIL),
+                coil: Some(Coil::Number(COIL)),
                 product: Some(PRODUCT),
                 ..ProcessContext::default()
             }),

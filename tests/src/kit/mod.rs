@@ -32,6 +32,7 @@ pub mod episode;
 pub mod hostile_daq;
 pub mod net;
 pub mod peers;
+pub mod process_plc;
 pub mod scratch;
 pub mod serial_line;
 pub mod service;

@@ -5,6 +5,7 @@
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use millgate_config::text::{AsciiText, TextError};
 use millgate_config::{Config, TandemMill};
 
 use super::align::RestartCause;
@@ -13,7 +14,7 @@ use super::history::record_episode;
 use super::monitor::{ChatterMonitor, ChatterSetupError, ChatterUpdate};
 use super::spectra::chatter_frequency_hz;
 use super::verdict::{SlowDown, Verdict};
-use crate::analysis::context::ContextTracker;
+use crate::analysis::context::{ContextTracker, TagValue};
 use crate::field::acquired::Acquired;
 use crate::state::board::Board;
 use crate::state::captures::CaptureRecord;
@@ -221,7 +222,7 @@ impl ChatterAnalysis {
         }
         for &mill in self.context_by_channel.get(channel).into_iter().flatten() {
             if let Some(tracker) = &mut self.contexts[mill] {
-                tracker.value(channel, value, now);
+                tracker.value(channel, TagValue::Number(value), now);
             }
         }
         for w in 0..self.weld_by_channel.get(channel).map_or(0, Vec::len) {
@@ -243,6 +244,23 @@ impl ChatterAnalysis {
                     let was_valid = weld.latest.take().is_some();
                     self.invalid_context(mill, &error, was_valid);
                 }
+            }
+        }
+    }
+
+    /// A text `text` of `channel` (a coil id, or why its registers held none): the
+    /// coil of the mills whose tag it is; a text that is none is counted as an
+    /// invalid context value.
+    fn context_text(&mut self, channel: usize, text: Result<AsciiText, TextError>, now: Instant) {
+        for m in 0..self.context_by_channel.get(channel).map_or(0, Vec::len) {
+            let mill = self.context_by_channel[channel][m];
+            let Some(tracker) = &mut self.contexts[mill] else {
+                continue;
+            };
+            let was_valid = matches!(tracker.latest_value("coil"), Some(TagValue::Text(Ok(_))));
+            tracker.value(channel, TagValue::Text(text), now);
+            if let Err(error) = text {
+                self.invalid_context(mill, &ContextError::CoilText(error), was_valid);
             }
         }
     }
@@ -317,6 +335,10 @@ impl ChatterAnalysis {
                 self.context_value(*channel, *value, now);
                 return;
             }
+            Acquired::Text { channel, text } => {
+                self.context_text(*channel, *text, now);
+                return;
+            }
         };
         let Some(stands) = self.by_channel.get(channel) else {
             return;
@@ -356,7 +378,7 @@ impl ChatterAnalysis {
                     }
                     monitor.gap(stand, *missed_samples)
                 }
-                Acquired::ProcessValue { .. } => None,
+                Acquired::ProcessValue { .. } | Acquired::Text { .. } => None,
             };
             if let Some(change) = change {
                 for weld in &self.weld_bits[mill] {

@@ -12,7 +12,7 @@ use millgate_dsp::transient::TransientSettings;
 use super::capture::Captures;
 use super::setup::{BiteSetup, ModelParts, WearDiagnosis};
 use crate::analysis::bite_window::{Detector, DetectorState};
-use crate::analysis::context::ContextTracker;
+use crate::analysis::context::{ContextTracker, TagValue};
 use crate::analysis::error::AnalysisError;
 use crate::analysis::fatigue_ledger::{FatigueLedger, LedgerBite};
 use crate::analysis::gap_estimate::GapObservation;
@@ -273,7 +273,7 @@ impl DrivelineAnalyzer {
     }
 
     /// A value of context channel `channel`, read at `now`.
-    pub(crate) fn context_value(&mut self, channel: usize, value: f64, now: Instant) {
+    pub(crate) fn context_value(&mut self, channel: usize, value: TagValue, now: Instant) {
         if let Some(tracker) = &mut self.context {
             tracker.value(channel, value, now);
         }

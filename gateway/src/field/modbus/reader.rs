@@ -27,6 +27,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use millgate_config::layout::{self, BlockError, BLOCK_REGISTERS};
+use millgate_config::text::{decode_ascii, ByteOrder};
 use millgate_config::{
     ChannelSource, Config, ModbusSource, RegisterTable, Scaling, ValueType, WordOrder,
 };
@@ -78,6 +79,18 @@ struct ValueChannel {
     counters: Arc<ChannelCounters>,
 }
 
+/// A text channel (`type = "ascii"`): decoded here and handed over as text, not as
+/// samples (a text has no engineering value to scale or saturate).
+#[derive(Debug)]
+struct TextChannel {
+    channel: usize,
+    table: RegisterTable,
+    address: u16,
+    registers: u16,
+    byte_order: ByteOrder,
+    counters: Arc<ChannelCounters>,
+}
+
 /// Reads every channel of one Modbus source.
 #[derive(Debug)]
 pub struct DaqReader {
@@ -85,6 +98,7 @@ pub struct DaqReader {
     source: ModbusSource,
     blocks: Vec<BlockChannel>,
     values: Vec<ValueChannel>,
+    texts: Vec<TextChannel>,
     health: Arc<SourceHealth>,
     /// Over RTU, the silence between frames on the line; `None` over TCP.
     spacing: Option<FrameSpacing>,
@@ -106,6 +120,7 @@ impl DaqReader {
         let source = config.modbus_sources[source_index].clone();
         let mut blocks = Vec::new();
         let mut values = Vec::new();
+        let mut texts = Vec::new();
         for (channel, spec) in config.channels.iter().enumerate() {
             match spec.source {
                 ChannelSource::ModbusBlock {
@@ -133,6 +148,20 @@ impl DaqReader {
                     scaling: spec.scaling(),
                     counters: Arc::clone(&counters[channel]),
                 }),
+                ChannelSource::ModbusText {
+                    source: s,
+                    table,
+                    address,
+                    registers,
+                    byte_order,
+                } if s == source_index => texts.push(TextChannel {
+                    channel,
+                    table,
+                    address,
+                    registers,
+                    byte_order,
+                    counters: Arc::clone(&counters[channel]),
+                }),
                 _ => {}
             }
         }
@@ -144,6 +173,7 @@ impl DaqReader {
             source,
             blocks,
             values,
+            texts,
             health,
             #[cfg(test)]
             connector: None,
@@ -325,6 +355,31 @@ impl DaqReader {
             let message = Acquired::ProcessValue {
                 channel: value.channel,
                 value: value.scaling.apply(raw),
+            };
+            if samples.send(message).await.is_err() {
+                return Ok(Poll::AnalysisGone);
+            }
+        }
+        for text in &self.texts {
+            let what = (text.table, text.address, text.registers);
+            let registers = match read(context, &mut self.spacing, what, timeout).await {
+                Ok(registers) => registers,
+                Err(error) => {
+                    count_error(&text.counters, &error);
+                    if error.needs_reconnect() {
+                        return Err(error);
+                    }
+                    first_error.get_or_insert(error);
+                    continue;
+                }
+            };
+            // Junk in the registers is the PLC's value, not a failed read: it goes on
+            // as an invalid text (the context invalid, counted by the analysis).
+            text.counters.block(1);
+            new_data |= self.blocks.is_empty();
+            let message = Acquired::Text {
+                channel: text.channel,
+                text: decode_ascii(&registers, text.byte_order),
             };
             if samples.send(message).await.is_err() {
                 return Ok(Poll::AnalysisGone);
