@@ -319,16 +319,18 @@ impl LoadTrend {
 /// ln(2^64): the trend's weights below 2^-64 of the first are left out of its sums.
 const WEIGHT_FLOOR_LN: f64 = 64.0 * core::f64::consts::LN_2;
 
-/// Sum of `(values[k] - offset) * ratio^k`, in four interleaved lanes so that the
-/// multiplications by the ratio do not wait on one another.
+/// Sum of `(values[k] - offset) * ratio^k`, in [`LANES`] interleaved lanes so that the
+/// multiplications by the ratio and the additions do not wait on one another.
 fn weighted_sum(values: &[f64], offset: f64, ratio: f64) -> f64 {
-    let square = ratio * ratio;
-    let stride = square * square;
-    let mut weights = [1.0, ratio, square, square * ratio];
-    let mut sums = [0.0_f64; 4];
-    let mut chunks = values.chunks_exact(4);
+    let mut weights = [1.0; LANES];
+    for lane in 1..LANES {
+        weights[lane] = weights[lane - 1] * ratio;
+    }
+    let stride = weights[LANES - 1] * ratio;
+    let mut sums = [0.0_f64; LANES];
+    let mut chunks = values.chunks_exact(LANES);
     for chunk in &mut chunks {
-        for lane in 0..4 {
+        for lane in 0..LANES {
             sums[lane] += (chunk[lane] - offset) * weights[lane];
             weights[lane] *= stride;
         }
@@ -339,8 +341,12 @@ fn weighted_sum(values: &[f64], offset: f64, ratio: f64) -> f64 {
         .zip(weights)
         .map(|(value, weight)| (value - offset) * weight)
         .sum();
-    (sums[0] + sums[1]) + (sums[2] + sums[3]) + tail
+    sums.iter().sum::<f64>() + tail
 }
+
+/// Lanes of [`weighted_sum`]: enough independent chains to keep two floating-point
+/// units busy through their latency.
+const LANES: usize = 8;
 
 /// Up-crossings of zero (s after the first sample, at most three, and how many) by
 /// `samples - baseline_knm - trend`, low-passed at `cutoff_hz` into `scratch`.
