@@ -356,22 +356,28 @@ async fn sighup_applies_a_tandem_mills_thresholds_at_its_next_window() {
     terminate(&mut service);
 }
 
-/// A `SIGHUP` to `service`, answered by `said` in its log (nothing waits for a
-/// restart) and counted as applied.
-async fn applied_by_sighup(setup: &Setup, service: &KillOnDrop, said: &str) {
+/// A `SIGHUP` to `service`, answered by `said` in its log and counted (the first
+/// time) as `outcome`.
+async fn answered_by_sighup(setup: &Setup, service: &KillOnDrop, said: &str, outcome: &str) {
     hang_up(service.id());
     wait_for(said, Duration::from_secs(20), || {
         setup.log_text("run.log").contains(said)
     })
     .await;
+    setup
+        .until_metric(&reloads(outcome), 1.0, Duration::from_secs(10))
+        .await;
+}
+
+/// A `SIGHUP` to `service`, answered by `said` in its log (nothing waits for a
+/// restart) and counted as applied.
+async fn applied_by_sighup(setup: &Setup, service: &KillOnDrop, said: &str) {
+    answered_by_sighup(setup, service, said, "applied").await;
     assert!(
         !setup.log_text("run.log").contains("needs a restart"),
         "{}",
         setup.log_text("run.log")
     );
-    setup
-        .until_metric(&reloads("applied"), 1.0, Duration::from_secs(10))
-        .await;
 }
 
 /// The u32 the PLC holds at `address`.
@@ -397,6 +403,27 @@ fn bite_ids(history: &HistoryReader, name: &str) -> Vec<u32> {
     };
     let bites = history.bites(&filter).unwrap();
     bites.iter().map(|bite| bite.figures.bite_counter).collect()
+}
+
+/// `setup`'s configuration in the demo's first layout (no extension blocks) with two
+/// driveline slots: `top` (top-level keys) before the demo's file, `more` after the
+/// slots. Its register map.
+fn two_slots(setup: &Setup, top: &str, more: &str) -> RegisterMap {
+    let demo = std::fs::read_to_string(&setup.config).unwrap();
+    let first_layout = demo.replace("extension_blocks = true", "extension_blocks = false");
+    std::fs::write(&setup.config, format!("{top}{first_layout}")).unwrap();
+    setup.append_config(&format!("\n[outputs]\ndriveline_slots = 2\n{more}"));
+    map_of(&setup.config)
+}
+
+/// Each driveline's bite ids in `setup`'s history are every one from 1 to its last
+/// (the PLC's), in order.
+fn every_bite_id(setup: &Setup, lasts: &[(&str, u32)]) {
+    let history = HistoryReader::open(&setup.history).unwrap();
+    for &(name, last) in lasts {
+        let expected: Vec<u32> = (1..=last).collect();
+        assert_eq!(bite_ids(&history, name), expected, "{name}'s bite ids");
+    }
 }
 
 /// The register map of the configuration file at `path`.
@@ -482,15 +509,8 @@ async fn a_driveline_added_within_the_reserved_slots_starts_live_and_moves_no_ad
         .add_driveline("F3")
         .replace("driveline_slots = 2", "driveline_slots = 3");
     std::fs::write(&setup.config, &beyond).unwrap();
-    hang_up(service.id());
     let said = "drivelines (added F3 (beyond the 2 driveline blocks";
-    wait_for(said, Duration::from_secs(20), || {
-        setup.log_text("run.log").contains(said)
-    })
-    .await;
-    setup
-        .until_metric(&reloads("needs_restart"), 1.0, Duration::from_secs(10))
-        .await;
+    answered_by_sighup(&setup, &service, said, "needs_restart").await;
     let f2_before = f2_in_plc();
     plc.bites_after_now(1).await;
     wait_for("F2's next bite in the PLC", Duration::from_secs(40), || {
@@ -524,11 +544,7 @@ fn entry<'f>(file: &'f str, first: &str) -> &'f str {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_driveline_on_a_source_added_live_starts_without_a_restart() {
     let setup = Setup::new(MILLGATE, "reload-source", "db").await;
-    let demo = std::fs::read_to_string(&setup.config).unwrap();
-    let first_layout = demo.replace("extension_blocks = true", "extension_blocks = false");
-    std::fs::write(&setup.config, first_layout).unwrap();
-    setup.append_config("\n[outputs]\ndriveline_slots = 2\n");
-    let reserved = map_of(&setup.config);
+    let reserved = two_slots(&setup, "", "");
     let mut service = setup.spawn("run.log");
     let plc = common::Plc {
         plc: &setup.devices.plc,
@@ -581,19 +597,8 @@ async fn a_driveline_on_a_source_added_live_starts_without_a_restart() {
     );
     terminate(&mut service);
 
-    let history = HistoryReader::open(&setup.history).unwrap();
-    let ids = |name: &str| bite_ids(&history, name);
     // Nothing of F1 lost across the reload; F2's ids run from 1 to the PLC's last.
-    assert_eq!(
-        ids("F1"),
-        (1..=plc.counter()).collect::<Vec<_>>(),
-        "F1's bite ids"
-    );
-    assert_eq!(
-        ids("F2"),
-        (1..=f2_in_plc()).collect::<Vec<_>>(),
-        "F2's bite ids"
-    );
+    every_bite_id(&setup, &[("F1", plc.counter()), ("F2", f2_in_plc())]);
     setup.stop(service).await;
 }
 
@@ -624,13 +629,11 @@ async fn a_driveline_with_a_model_added_live_builds_its_gap_maps_as_the_service_
     let web = free_port();
     let demo = std::fs::read_to_string(&setup.config).unwrap();
     // The gap maps' cache in the scratch folder: F1's built at the start, F2's live.
-    let first_layout = format!("cache_dir = \"{}\"\n", cache.display())
-        + &demo.replace("extension_blocks = true", "extension_blocks = false");
-    std::fs::write(&setup.config, first_layout).unwrap();
-    setup.append_config(&format!(
-        "\n[outputs]\ndriveline_slots = 2\n\n[outputs.web]\nbind = \"127.0.0.1:{web}\"\n"
-    ));
-    let reserved = map_of(&setup.config);
+    let reserved = two_slots(
+        &setup,
+        &format!("cache_dir = \"{}\"\n", cache.display()),
+        &format!("\n[outputs.web]\nbind = \"127.0.0.1:{web}\"\n"),
+    );
     let mut service = setup.spawn("run.log");
     let plc = common::Plc {
         plc: &setup.devices.plc,
@@ -667,15 +670,7 @@ async fn a_driveline_with_a_model_added_live_builds_its_gap_maps_as_the_service_
     // nothing is added.
     let original = std::fs::read_to_string(&setup.config).unwrap();
     with_model(&format!("model = \"{}\"", setup.config.display()));
-    hang_up(service.id());
-    let said = "drivelines[1].model";
-    wait_for(said, Duration::from_secs(20), || {
-        setup.log_text("run.log").contains(said)
-    })
-    .await;
-    setup
-        .until_metric(&reloads("refused"), 1.0, Duration::from_secs(10))
-        .await;
+    answered_by_sighup(&setup, &service, "drivelines[1].model", "refused").await;
     assert_eq!(http(web, "GET", "/api/drivelines/F2/map").await.status, 404);
 
     std::fs::write(&setup.config, &original).unwrap();
@@ -772,19 +767,8 @@ async fn a_driveline_with_a_model_added_live_builds_its_gap_maps_as_the_service_
     eprintln!("{built}");
     terminate(&mut service);
 
-    let history = HistoryReader::open(&setup.history).unwrap();
-    let ids = |name: &str| bite_ids(&history, name);
-    assert_eq!(
-        ids("F1"),
-        (1..=plc.counter()).collect::<Vec<_>>(),
-        "F1's bite ids"
-    );
     let last_f2 = decode_u32(&setup.devices.plc.holding()[f2.at("F2.bite_counter")..]).unwrap();
-    assert_eq!(
-        ids("F2"),
-        (1..=last_f2).collect::<Vec<_>>(),
-        "F2's bite ids"
-    );
+    every_bite_id(&setup, &[("F1", plc.counter()), ("F2", last_f2)]);
     drop(log_on_failure);
     setup.stop(service).await;
 }

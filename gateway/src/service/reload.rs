@@ -708,37 +708,30 @@ mod tests {
                 && plan.needs_restart[0].contains("moves the extension"),
             "{plan:?}"
         );
-        // Within the reserved slots, with a model, it is added live, in its reserved
-        // block, its gap maps built as the service runs.
+        // Within the reserved slots, on a channel read, it is added live, in its
+        // reserved block: with a model (its gap maps built as the service runs), and
+        // without.
         let mut reserved = running.clone();
         reserved.outputs.driveline_slots = Some(added);
         let mut grown = bigger.clone();
         grown.outputs.driveline_slots = Some(added);
-        assert!(grown.drivelines[added - 1].model.is_some());
+        let model = grown.drivelines[added - 1].model.clone();
+        assert!(model.is_some());
+        let maps = "; its gap maps read from the cache or built as the service runs";
+        for (model, said) in [(model, maps), (None, "")] {
+            grown.drivelines[added - 1].model = model;
+            let plan = changed(compare(&reserved, &grown));
+            assert!(plan.needs_restart.is_empty(), "{plan:?}");
+            assert_eq!(plan.live, [Live::Drivelines]);
+            assert_eq!(
+                plan.applied,
+                [format!(
+                    "drivelines.F9 (added in the register block of driveline_slot{added}: \
+                     no address moves{said})"
+                )]
+            );
+        }
         let plan = changed(compare(&reserved, &grown));
-        assert!(plan.needs_restart.is_empty(), "{plan:?}");
-        assert_eq!(plan.live, [Live::Drivelines]);
-        assert_eq!(
-            plan.applied,
-            [format!(
-                "drivelines.F9 (added in the register block of driveline_slot{added}: no \
-                 address moves; its gap maps read from the cache or built as the service \
-                 runs)"
-            )]
-        );
-        assert_eq!(plan.applied_to(&reserved, &grown), grown);
-        // Without a model, on a channel read, it is added live, in its reserved block.
-        grown.drivelines[added - 1].model = None;
-        let plan = changed(compare(&reserved, &grown));
-        assert!(plan.needs_restart.is_empty(), "{plan:?}");
-        assert_eq!(plan.live, [Live::Drivelines]);
-        assert_eq!(
-            plan.applied,
-            [format!(
-                "drivelines.F9 (added in the register block of driveline_slot{added}: no \
-                 address moves)"
-            )]
-        );
         let applied = plan.applied_to(&reserved, &grown);
         assert_eq!(applied, grown, "everything applied: the new configuration");
         // A running OPC UA server adds its nodes, and the plan says so.
