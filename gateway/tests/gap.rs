@@ -22,7 +22,7 @@ use millgate::analysis::driveline::BiteReport;
 use millgate::analysis::gap_estimate::{GapObservation, SHIFT_FLOOR_S, SHIFT_JUMP_S, TAF_FLOOR};
 use millgate::analysis::gap_map::GapMapError;
 use millgate::analysis::gap_monitor::MapsOrigin;
-use millgate::analysis::Analysis;
+use millgate::analysis::{AddedDrivelines, Analysis};
 use millgate::field::acquired::Acquired;
 use millgate::field::source_health::SourceHealth;
 use millgate::outputs::modbus::register_map::{flag_mask, RegisterMap};
@@ -463,6 +463,77 @@ fn a_map_that_cannot_be_built_is_named_and_the_driveline_runs_on_with_the_gap_in
         Some(GapMapState::Failed(why)) => assert!(why.contains("gives no bite window"), "{why}"),
         other => panic!("{other:?}"),
     }
+}
+
+#[test]
+fn a_driveline_with_a_model_added_to_a_running_analysis_gets_its_maps_as_at_a_start() {
+    let running = config(COARSE, "", &shared("cache"));
+    let (mut analysis, board) = analysis(&running);
+    analysis.take_gap_map_jobs();
+    analysis.install_gap_maps(0, Ok(coarse_maps().clone()));
+    // F2 as a reload appends it: F1's entry again (its channel, model and maps).
+    let mut grown = running.clone();
+    let mut f2 = running.drivelines[0].clone();
+    f2.name = "F2".into();
+    grown.drivelines.push(f2);
+
+    // A model file that is no model: refused, as at a start, nothing built.
+    let mut bad = grown.clone();
+    bad.drivelines[1].model = Some(PathBuf::from(MODELS).join("identify_rsm_table3.py"));
+    let error = AddedDrivelines::build(&bad, 1).expect_err("no model");
+    assert!(
+        error.to_string().starts_with("drivelines[1].model: "),
+        "{error}"
+    );
+    // Built for another count of drivelines than the analysis has: refused.
+    let stale = AddedDrivelines::build(&grown, 0).unwrap();
+    assert!(analysis.add_drivelines(&grown, stale).is_err());
+
+    let mut added = AddedDrivelines::build(&grown, 1).unwrap();
+    let mut jobs = added.take_gap_map_jobs();
+    assert_eq!(jobs.len(), 1);
+    assert!(added.take_gap_map_jobs().is_empty(), "each job once");
+    let job = jobs.remove(0);
+    assert_eq!((job.driveline, job.driveline_name.as_str()), (1, "F2"));
+    assert_eq!(analysis.add_drivelines(&grown, added).unwrap(), ["F2"]);
+    assert!(
+        matches!(board.gap_maps(1), Some(GapMapState::Building { .. })),
+        "{:?}",
+        board.gap_maps(1)
+    );
+
+    // Bites before F2's maps: F1 folds them in, F2 holds them (its TAF published).
+    let schedule = rolling_schedule(&hidden(1, 2.0), &[60.0, 100.0, 140.0], TIMING, 0.5, 11)
+        .expect("schedule");
+    // Each block received 50 ms (its 100 samples) after the one before: both drivelines
+    // date a bite alike.
+    let start = std::time::SystemTime::now();
+    let mut reports = Vec::new();
+    for (k, block) in (0u32..).zip(schedule.torque_knm.chunks(100)) {
+        reports.extend(analysis.handle(Acquired::Samples {
+            channel: 0,
+            values: block.to_vec(),
+            received: Some(start + k * Duration::from_millis(50)),
+            handed: Instant::now(),
+        }));
+    }
+    assert_eq!(reports.len(), 6, "a bite per bar of each driveline");
+    let results = board.results();
+    assert!(results.drivelines[1].taf.is_some());
+    assert_eq!(results.drivelines[1].gap, None, "no maps yet");
+    let f1 = results.drivelines[0].gap.expect("F1's estimate");
+
+    // Its maps as a start's job gives them: F1's grid, so from the cache F1's filled.
+    let (maps, origin) = job
+        .run(2, &AtomicBool::new(false), &|_, _| {})
+        .unwrap_or_else(|error| panic!("{error}"));
+    assert!(matches!(origin, MapsOrigin::Cache(_)), "{origin:?}");
+    analysis.install_gap_maps(1, Ok(maps));
+    assert!(matches!(board.gap_maps(1), Some(GapMapState::Ready(_))));
+    // The bites held are folded in: the estimate F1 has from the same bites.
+    let f2 = board.results().drivelines[1].gap.expect("F2's estimate");
+    assert_eq!(f2.bites_pooled, 3);
+    assert_eq!((f2.gap_mrad, f2.low_mrad), (f1.gap_mrad, f1.low_mrad));
 }
 
 #[test]

@@ -123,18 +123,29 @@ impl Analysis {
         Ok(analysis)
     }
 
-    /// Start analysing the drivelines of `config` after those analysed (a reload
-    /// that adds drivelines after the others; `config` is the running configuration
-    /// with them, its channels the ones read): each from the next block of its torque
-    /// channel on, as a driveline does at a start, its results on the board. An
-    /// error (nothing added) names a driveline the analysis cannot be built for.
-    /// Returns the names of the drivelines added.
+    /// Start analysing the drivelines `added` (built by [`AddedDrivelines::build`]
+    /// off this task) after those analysed (a reload that adds drivelines after the
+    /// others; `config` is the running configuration with them, its channels the ones
+    /// read): each from the next block of its torque channel on, as a driveline does
+    /// at a start, its results on the board. Returns the names of the drivelines
+    /// added; an error (nothing added) when `added` was built for another count of
+    /// drivelines than the analysis has.
     ///
-    /// A driveline added this way has no gap maps built (a reload with a `model`
-    /// waits for a restart): its wear diagnosis is what a restart starts.
-    pub fn add_drivelines(&mut self, config: &Config) -> Result<Vec<String>, AnalysisError> {
+    /// The gap maps of an added driveline with a model build as at a start: take
+    /// their jobs from `added` ([`AddedDrivelines::take_gap_map_jobs`]) and run them
+    /// off this task once it has the drivelines; the board shows them building.
+    pub fn add_drivelines(
+        &mut self,
+        config: &Config,
+        added: AddedDrivelines,
+    ) -> Result<Vec<String>, String> {
         let from = self.drivelines.len();
-        let built = built_drivelines(config, from)?;
+        if added.from != from {
+            return Err(format!(
+                "drivelines built from index {} for an analysis of {from} drivelines",
+                added.from
+            ));
+        }
         // Channels a reload appended (on a source added live): routed from now on,
         // before their reader starts.
         let channels = config.channels.len().max(self.by_torque.len());
@@ -142,7 +153,7 @@ impl Analysis {
         self.by_trigger.resize(channels, Vec::new());
         self.by_context.resize(channels, Vec::new());
         self.by_extra.resize(channels, Vec::new());
-        if built.is_empty() {
+        if added.built.is_empty() {
             return Ok(Vec::new());
         }
         self.board.add_drivelines(config);
@@ -150,7 +161,7 @@ impl Analysis {
             .iter()
             .map(|driveline| driveline.name.clone())
             .collect();
-        for (analyzer, routes) in built {
+        for (analyzer, routes) in added.built {
             self.push_driveline(analyzer, routes);
         }
         Ok(names)
@@ -539,9 +550,8 @@ impl Analysis {
                     Err(_) => thresholds_open = false,
                 },
                 addition = additions.recv(), if additions_open => match addition {
-                    Some(DrivelineAddition { config, done }) => {
-                        let added = self.add_drivelines(&config);
-                        let _ = done.send(added.map_err(|error| error.to_string()));
+                    Some(DrivelineAddition { config, drivelines, done }) => {
+                        let _ = done.send(self.add_drivelines(&config, drivelines));
                     }
                     None => additions_open = false,
                 },
@@ -579,8 +589,55 @@ impl Analysis {
 pub struct DrivelineAddition {
     /// The running configuration with them (its channels the ones read).
     pub config: Arc<Config>,
+    /// Their analysers, built off the analysis task.
+    pub drivelines: AddedDrivelines,
     /// Told the names of the drivelines the analysis added, or why it added none.
     pub done: oneshot::Sender<Result<Vec<String>, String>>,
+}
+
+/// The analysers of drivelines a reload adds after the others, built (their models
+/// loaded, their linear wear references simulated) before the analysis takes them,
+/// so it does not stop for that.
+#[derive(Debug)]
+pub struct AddedDrivelines {
+    /// Index of the first in the configuration.
+    from: usize,
+    built: Vec<(DrivelineAnalyzer, DrivelineRoutes)>,
+}
+
+impl AddedDrivelines {
+    /// The analysers of `config`'s drivelines from index `from` on (none when `from`
+    /// is their count). An error names the first driveline the analysis cannot be
+    /// built for, or whose model does not load or fit its `wear` settings (a start
+    /// refuses such a file too).
+    pub fn build(config: &Config, from: usize) -> Result<Self, AnalysisError> {
+        let mut built = built_drivelines(config, from)?;
+        if let Some(problem) = built
+            .iter_mut()
+            .find_map(|(analyzer, _)| analyzer.take_wear_problem())
+        {
+            return Err(problem);
+        }
+        Ok(Self { from, built })
+    }
+
+    /// No driveline added after the first `from` (a reload that adds sources only:
+    /// the analysis routes their channels).
+    pub fn none(from: usize) -> Self {
+        Self {
+            from,
+            built: Vec::new(),
+        }
+    }
+
+    /// Their gap map builds, as [`Analysis::take_gap_map_jobs`] gives a start's (each
+    /// once).
+    pub fn take_gap_map_jobs(&mut self) -> Vec<GapMapJob> {
+        self.built
+            .iter_mut()
+            .filter_map(|(analyzer, _)| analyzer.take_gap_map_job())
+            .collect()
+    }
 }
 
 /// The settings a reload changes in the running analysis (`service::reload`), in
@@ -619,12 +676,6 @@ struct DrivelineRoutes {
     /// Its extra channels, in order, when captures are kept.
     extra: Vec<usize>,
     hold: Duration,
-}
-
-/// Whether the analysis can be built for `config`'s drivelines from index `from` on
-/// (drivelines a reload adds): the first error when not.
-pub fn check_added_drivelines(config: &Config, from: usize) -> Result<(), AnalysisError> {
-    built_drivelines(config, from).map(drop)
 }
 
 /// The analysers of `config`'s drivelines from index `from` on, with their routes; the

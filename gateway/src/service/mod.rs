@@ -28,7 +28,7 @@ use reload::{Live, Reload};
 
 use crate::analysis::driveline::BiteReport;
 use crate::analysis::gap_estimate::GapObservation;
-use crate::analysis::{Analysis, DrivelineAddition, LiveSettings};
+use crate::analysis::{AddedDrivelines, Analysis, DrivelineAddition, LiveSettings};
 use crate::field::acquired::Acquired;
 use crate::field::counters::Acquisition;
 use crate::field::counters::{CanCounters, ChannelCounters};
@@ -678,9 +678,9 @@ impl Started {
                 return Ok(Reload::Refused(error.to_string()));
             }
         }
-        let added_map = match plan.live.contains(&Live::Drivelines) {
-            true => match self.map_with_added(&config) {
-                Ok(map) => Some(map),
+        let added = match plan.live.contains(&Live::Drivelines) {
+            true => match self.map_with_added(&config).await {
+                Ok(added) => Some(added),
                 Err(refused) => return Ok(Reload::Refused(refused)),
             },
             false => None,
@@ -693,7 +693,7 @@ impl Started {
         if analysis.iter().any(|part| plan.live.contains(part)) {
             self.thresholds.send_replace(LiveSettings::of(&config));
         }
-        if plan.live.contains(&Live::Thresholds) || added_map.is_some() {
+        if plan.live.contains(&Live::Thresholds) || added.is_some() {
             self.history.record(HistoryEvent::Settings {
                 time: UtcTime::now(),
                 drivelines: config.drivelines.clone(),
@@ -703,8 +703,8 @@ impl Started {
         // built for the drivelines it had never meets one it does not know.
         let restart = self.outputs.stop_touched(&config, &plan.live).await;
         let sources = plan.live.contains(&Live::Sources);
-        if added_map.is_some() || sources {
-            self.add_drivelines(&config, added_map).await?;
+        if added.is_some() || sources {
+            self.add_drivelines(&config, added).await?;
         }
         if sources {
             self.start_sources(&config);
@@ -716,10 +716,15 @@ impl Started {
     }
 
     /// The register map of `config` (the running configuration with drivelines added
-    /// after the others), once checked: the map it grows into has every register where
-    /// it was (the added drivelines take blocks `outputs.driveline_slots` reserves),
-    /// and the analysis can be built for the added drivelines. `Err` says why not.
-    fn map_with_added(&self, config: &Config) -> Result<RegisterMap, String> {
+    /// after the others) and the analysers of the drivelines added, once checked: the
+    /// map it grows into has every register where it was (the added drivelines take
+    /// blocks `outputs.driveline_slots` reserves), and the analysis can be built for
+    /// the added drivelines, their models loaded (built on a blocking thread: a model
+    /// is loaded and its linear wear reference simulated). `Err` says why not.
+    async fn map_with_added(
+        &self,
+        config: &Config,
+    ) -> Result<(RegisterMap, AddedDrivelines), String> {
         let map = RegisterMap::try_new(config).map_err(|error| error.to_string())?;
         if map.len() != self.map.len() {
             return Err(format!(
@@ -729,32 +734,42 @@ impl Started {
                 map.len()
             ));
         }
-        crate::analysis::check_added_drivelines(config, self.config.drivelines.len())
-            .map_err(|error| error.to_string())?;
-        Ok(map)
+        let (config, from) = (config.clone(), self.config.drivelines.len());
+        let built = tokio::task::spawn_blocking(move || AddedDrivelines::build(&config, from))
+            .await
+            .map_err(|error| format!("building the added drivelines' analysis failed: {error}"))?;
+        Ok((map, built.map_err(|error| error.to_string())?))
     }
 
-    /// Start analysing the drivelines `config` (the running configuration with them,
-    /// checked by [`Self::map_with_added`]) adds after the others, on `map`: the
-    /// analysis takes them between two rounds and grows the board; the outputs
-    /// restarted for [`Live::Drivelines`] then run on `map`. An error when the
+    /// Start analysing the drivelines `config` (the running configuration with them)
+    /// adds after the others, `added` as [`Self::map_with_added`] checked them (the
+    /// map and their analysers; `None` when a reload adds sources only, whose
+    /// channels the analysis then routes): the analysis takes them between two rounds
+    /// and grows the board, then their gap maps build as a start's do; the outputs
+    /// restarted for [`Live::Drivelines`] then run on the map. An error when the
     /// analysis has ended or refuses them after all (the service ends with it, and
     /// its supervisor starts it anew with the file).
     async fn add_drivelines(
         &mut self,
         config: &Config,
-        map: Option<RegisterMap>,
+        added: Option<(RegisterMap, AddedDrivelines)>,
     ) -> Result<(), ServiceError> {
-        let (done, added) = oneshot::channel();
+        let (map, mut drivelines) = match added {
+            Some((map, drivelines)) => (Some(map), drivelines),
+            None => (None, AddedDrivelines::none(self.config.drivelines.len())),
+        };
+        let gap_maps = drivelines.take_gap_map_jobs();
+        let (done, answer) = oneshot::channel();
         let config = Arc::new(config.clone());
         let addition = DrivelineAddition {
             config: Arc::clone(&config),
+            drivelines,
             done,
         };
         if self.additions.send(addition).await.is_err() {
             return Err(ServiceError::Ended);
         }
-        let names = match added.await {
+        let names = match answer.await {
             Ok(Ok(names)) => names,
             Ok(Err(reason)) => {
                 return Err(ServiceError::Output {
@@ -764,6 +779,9 @@ impl Started {
             }
             Err(_) => return Err(ServiceError::Ended),
         };
+        // The analysis and the board have them now: the maps' progress and outcome
+        // find their driveline.
+        self.analysis_maps.spawn(gap_maps);
         let Some(map) = map else {
             return Ok(());
         };

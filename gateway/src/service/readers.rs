@@ -10,7 +10,7 @@ use millgate_config::{Config, SourceRef};
 use tokio::sync::{mpsc, watch};
 use tokio::task::{JoinHandle, JoinSet};
 
-use crate::analysis::gap_monitor::spawn_job;
+use crate::analysis::gap_monitor::{spawn_job, GapMapJob, GapMapsReady};
 use crate::analysis::{Analysis, DrivelineAddition, LiveSettings};
 use crate::field::acquired::Acquired;
 use crate::field::can::supervisor::supervise_can;
@@ -129,20 +129,73 @@ pub(super) struct AnalysisTask {
     pub(super) maps: MapBuilds,
 }
 
-/// The gap map builds running on threads of their own.
-pub(super) struct MapBuilds(Arc<AtomicBool>);
+/// The gap map builds, each on a thread of its own: a start's, and those of
+/// drivelines a reload adds (the same way); the analysis installs what they give.
+pub(super) struct MapBuilds {
+    /// Where the builds send their maps, to the analysis.
+    ready: mpsc::Sender<GapMapsReady>,
+    /// Set at the stop: the builds still running end early.
+    cancel: Arc<AtomicBool>,
+    /// Where their progress shows.
+    board: Arc<Board>,
+    /// Workers per build: one per core (the build uses the machine while the service
+    /// runs).
+    threads: usize,
+}
 
 impl MapBuilds {
+    /// Builds of `jobs` (read from the cache or simulated), `board` showing their
+    /// progress, and the receiver of their outcome for the analysis.
+    fn start(jobs: Vec<GapMapJob>, board: &Arc<Board>) -> (Self, mpsc::Receiver<GapMapsReady>) {
+        let (ready, ready_rx) = mpsc::channel(jobs.len().max(1));
+        let builds = Self {
+            ready,
+            cancel: Arc::new(AtomicBool::new(false)),
+            board: Arc::clone(board),
+            threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+        };
+        builds.spawn(jobs);
+        (builds, ready_rx)
+    }
+
+    /// Start the builds of `jobs`, each on a thread of its own (drivelines the
+    /// analysis already has: their progress and their maps find them); one that cannot
+    /// start is a failed build on the board.
+    pub(super) fn spawn(&self, jobs: Vec<GapMapJob>) {
+        for job in jobs {
+            let driveline = job.driveline_name.clone();
+            let index = job.driveline;
+            let progress = {
+                let board = Arc::clone(&self.board);
+                move |done, total| board.set_gap_maps(index, GapMapState::Building { done, total })
+            };
+            let spawned = spawn_job(
+                job,
+                self.threads,
+                self.ready.clone(),
+                Arc::clone(&self.cancel),
+                progress,
+            );
+            if let Err(error) = spawned {
+                tracing::error!(%driveline, %error, "cannot start the gap map build");
+                self.board.set_gap_maps(
+                    index,
+                    GapMapState::Failed(format!("cannot start the gap map build: {error}")),
+                );
+            }
+        }
+    }
+
     /// Stop the builds still running.
     pub(super) fn cancel(&self) {
-        self.0.store(true, Ordering::Relaxed);
+        self.cancel.store(true, Ordering::Relaxed);
     }
 }
 
 /// Start `analysis` on the readers' `samples`, the `commands`, and the `thresholds`
-/// and driveline `additions` a reload sends, and the gap map builds of its drivelines on threads of their own (read
-/// from the cache or built while the service runs; the analysis installs them as they
-/// come, `board` shows their progress).
+/// and driveline `additions` a reload sends, and the gap map builds of its drivelines
+/// on threads of their own (read from the cache or built while the service runs; the
+/// analysis installs them as they come, `board` shows their progress).
 pub(super) fn spawn_analysis(
     mut analysis: Analysis,
     (samples, commands, thresholds, additions): (
@@ -154,33 +207,7 @@ pub(super) fn spawn_analysis(
     board: &Arc<Board>,
     liveness: Arc<Liveness>,
 ) -> AnalysisTask {
-    let jobs = analysis.take_gap_map_jobs();
-    let (maps_tx, maps_rx) = mpsc::channel(jobs.len().max(1));
-    let cancel_maps = Arc::new(AtomicBool::new(false));
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-    for job in jobs {
-        let driveline = job.driveline_name.clone();
-        let index = job.driveline;
-        let progress = {
-            let board = Arc::clone(board);
-            move |done, total| board.set_gap_maps(index, GapMapState::Building { done, total })
-        };
-        let spawned = spawn_job(
-            job,
-            threads,
-            maps_tx.clone(),
-            Arc::clone(&cancel_maps),
-            progress,
-        );
-        if let Err(error) = spawned {
-            tracing::error!(%driveline, %error, "cannot start the gap map build");
-            board.set_gap_maps(
-                index,
-                GapMapState::Failed(format!("cannot start the gap map build: {error}")),
-            );
-        }
-    }
-    drop(maps_tx);
+    let (maps, maps_rx) = MapBuilds::start(analysis.take_gap_map_jobs(), board);
     AnalysisTask {
         task: tokio::spawn(analysis.run(
             samples,
@@ -188,6 +215,6 @@ pub(super) fn spawn_analysis(
             (commands, thresholds, additions),
             liveness,
         )),
-        maps: MapBuilds(cancel_maps),
+        maps,
     }
 }

@@ -21,12 +21,15 @@
 //!     changed or removed; a new address is bound before the old output stops, and a
 //!     bind that fails keeps the old output);
 //!   - drivelines added after the others within `outputs.driveline_slots`, on
-//!     channels already read and without a `model` ([`Live::Drivelines`]): checked
-//!     first (the map keeps every address, the analysis builds), then the outputs
-//!     that show drivelines stop, the analysis takes them between two rounds (the
-//!     board grows), and the outputs start again on the map with their reserved
-//!     blocks (Sparkplug with a new session: their DBIRTHs); a running OPC UA server
-//!     adds their nodes as it runs (its sessions kept), and the plan says so;
+//!     channels already read ([`Live::Drivelines`]): checked first (the map keeps
+//!     every address, the analysis builds, a `model` loads and fits its `wear`
+//!     settings), then the outputs that show drivelines stop, the analysis takes them
+//!     between two rounds (the board grows), and the outputs start again on the map
+//!     with their reserved blocks (Sparkplug with a new session: their DBIRTHs); a
+//!     running OPC UA server adds their nodes as it runs (its sessions kept), and the
+//!     plan says so. The gap maps of one with a `model` are read from the cache or
+//!     built off the analysis as at a start (`building` on the web API until they are
+//!     ready; its bites meanwhile are held and folded in then);
 //!   - Modbus sources appended after the others (none while CAN sources run), with
 //!     channels appended after the others, each on such a source ([`Live::Sources`]):
 //!     the analysis routes their channels, then a reader starts per source (its
@@ -39,9 +42,9 @@
 //!     start), a tandem
 //!     mill's other settings (stands, bands, windows, `k_max`, `detector`, context
 //!     tags, captures), drivelines or tandem mills added (but the above), removed or
-//!     reordered. A driveline added within the slots on a channel not read yet or
-//!     with a `model` is named with "no address moves" (it takes its reserved register
-//!     block at the restart) and why it waits; one beyond the slots with the blocks it
+//!     reordered. A driveline added within the slots on a channel not read yet is
+//!     named with "no address moves" (it takes its reserved register block at the
+//!     restart) and why it waits; one beyond the slots with the blocks it
 //!     moves (a new driveline block goes before the extension, tandem and rod mill
 //!     blocks).
 //!
@@ -77,9 +80,9 @@ pub enum Live {
     /// windows, filters, register block or nodes and needs a restart).
     Chatter,
     /// Drivelines added after the others within `outputs.driveline_slots`, on
-    /// channels already read and without a `model`: the analysis takes them between
-    /// two rounds, the board grows, and the outputs that show drivelines restart on
-    /// the map with their reserved blocks.
+    /// channels already read: the analysis takes them between two rounds, the board
+    /// grows, the gap maps of those with a `model` build as at a start, and the
+    /// outputs that show drivelines restart on the map with their reserved blocks.
     Drivelines,
     /// Modbus sources appended after the others (none added before the CAN sources)
     /// with channels appended after the others, each on such a source: their readers
@@ -408,7 +411,7 @@ fn name_restarts(plan: &mut Plan, entry: &str, settings: &[(&str, bool)], otherw
 
 /// Into `plan`, the drivelines' changes: thresholds and `wear.horizon_days` apply, and
 /// drivelines added after the others within `outputs.driveline_slots` on channels
-/// already read and without a `model` ([`Live::Drivelines`]); any other change, or a
+/// already read ([`Live::Drivelines`]); any other change, or a
 /// driveline added otherwise, removed or moved, needs a restart (one added within the
 /// slots takes its reserved register block: no address moves, and the plan says so).
 fn drivelines(running_config: &Config, new_config: &Config, plan: &mut Plan) {
@@ -433,16 +436,13 @@ fn drivelines(running_config: &Config, new_config: &Config, plan: &mut Plan) {
         let slots = running_config.driveline_slots();
         let appended = new_names.starts_with(&old_names);
         if !added.is_empty() && appended && new_names.len() <= slots {
-            let waits = added_waits(running_config, new_config, &added);
-            if waits.is_empty() {
-                added_live(running_config, new_config, &added, plan);
-            } else {
-                what.push(format!(
+            match added_waits(running_config, new_config) {
+                None => added_live(running_config, new_config, plan),
+                Some(why) => what.push(format!(
                     "added {} in the register blocks outputs.driveline_slots ({slots}) \
-                     reserves: no address moves; {}",
-                    added.join(", "),
-                    waits.join("; ")
-                ));
+                     reserves: no address moves; {why}",
+                    added.join(", ")
+                )),
             }
         } else if !added.is_empty() {
             what.push(format!(
@@ -516,30 +516,15 @@ fn drivelines(running_config: &Config, new_config: &Config, plan: &mut Plan) {
     }
 }
 
-/// Why the drivelines `added` (after the others, within the slots) cannot start
-/// live: their channels are not the ones read (the readers start channels at a
-/// start), or a `model` (its gap maps build at the start). Empty when they can.
-fn added_waits(running: &Config, new: &Config, added: &[&str]) -> Vec<String> {
-    let mut waits = Vec::new();
-    if let Err(why) = sources_added(running, new) {
-        waits.push(format!(
-            "{why}: a driveline starts live only on channels already read or on a Modbus \
-             source added with it"
-        ));
-    }
-    let with_model: Vec<&str> = new
-        .drivelines
-        .iter()
-        .filter(|driveline| added.contains(&driveline.name.as_str()) && driveline.model.is_some())
-        .map(|driveline| driveline.name.as_str())
-        .collect();
-    if !with_model.is_empty() {
-        waits.push(format!(
-            "{} named a model: its gap maps build at the start",
-            with_model.join(", ")
-        ));
-    }
-    waits
+/// Why the drivelines added (after the others, within the slots) cannot start live:
+/// their channels are not the ones read (the readers start channels at a start).
+/// `None` when they can (with a `model` too: its gap maps build as at a start).
+fn added_waits(running: &Config, new: &Config) -> Option<String> {
+    let why = sources_added(running, new).err()?;
+    Some(format!(
+        "{why}: a driveline starts live only on channels already read or on a Modbus \
+         source added with it"
+    ))
 }
 
 /// The keys of the Modbus sources and channels `new` appends to `running`'s, which
@@ -598,15 +583,22 @@ fn sources_added(running: &Config, new: &Config) -> Result<Vec<String>, String> 
     Ok(added)
 }
 
-/// Into `plan`, the drivelines `added` applied live ([`Live::Drivelines`]), each in
-/// the register block the slots reserve; a running OPC UA server adds their nodes as
-/// it runs, and the plan names that.
-fn added_live(running: &Config, new: &Config, added: &[&str], plan: &mut Plan) {
+/// Into `plan`, the drivelines `new` adds after `running`'s applied live
+/// ([`Live::Drivelines`]), each in the register block the slots reserve (one with a
+/// `model` says its gap maps build as the service runs); a running OPC UA server adds
+/// their nodes as it runs, and the plan names that.
+fn added_live(running: &Config, new: &Config, plan: &mut Plan) {
     let first = running.drivelines.len();
-    for (k, name) in (first..).zip(added) {
+    let added = new.drivelines.get(first..).unwrap_or_default();
+    for (k, driveline) in (first..).zip(added) {
+        let maps = match driveline.model {
+            Some(_) => "; its gap maps read from the cache or built as the service runs",
+            None => "",
+        };
         plan.applied.push(format!(
-            "drivelines.{name} (added in the register block of driveline_slot{}: no address \
-             moves)",
+            "drivelines.{} (added in the register block of driveline_slot{}: no address \
+             moves{maps})",
+            driveline.name,
             k + 1
         ));
     }
@@ -614,9 +606,10 @@ fn added_live(running: &Config, new: &Config, added: &[&str], plan: &mut Plan) {
     // A server added by this reload waits for a restart ("outputs.opcua"), and then
     // shows them from its start.
     if running.outputs.opcua.is_some() && new.outputs.opcua.is_some() {
+        let names: Vec<&str> = added.iter().map(|d| d.name.as_str()).collect();
         plan.applied.push(format!(
             "outputs.opcua (the nodes of {} added as the server runs)",
-            added.join(", ")
+            names.join(", ")
         ));
     }
 }
@@ -715,34 +708,30 @@ mod tests {
                 && plan.needs_restart[0].contains("moves the extension"),
             "{plan:?}"
         );
-        // Within the reserved slots, with a model (its gap maps build at the start), it
-        // waits for a restart, which moves nothing.
+        // Within the reserved slots, on a channel read, it is added live, in its
+        // reserved block: with a model (its gap maps built as the service runs), and
+        // without.
         let mut reserved = running.clone();
         reserved.outputs.driveline_slots = Some(added);
         let mut grown = bigger.clone();
         grown.outputs.driveline_slots = Some(added);
-        assert!(grown.drivelines[added - 1].model.is_some());
+        let model = grown.drivelines[added - 1].model.clone();
+        assert!(model.is_some());
+        let maps = "; its gap maps read from the cache or built as the service runs";
+        for (model, said) in [(model, maps), (None, "")] {
+            grown.drivelines[added - 1].model = model;
+            let plan = changed(compare(&reserved, &grown));
+            assert!(plan.needs_restart.is_empty(), "{plan:?}");
+            assert_eq!(plan.live, [Live::Drivelines]);
+            assert_eq!(
+                plan.applied,
+                [format!(
+                    "drivelines.F9 (added in the register block of driveline_slot{added}: \
+                     no address moves{said})"
+                )]
+            );
+        }
         let plan = changed(compare(&reserved, &grown));
-        assert_eq!(plan.needs_restart.len(), 1, "{plan:?}");
-        assert!(plan.live.is_empty(), "{plan:?}");
-        assert!(
-            plan.needs_restart[0].starts_with("drivelines (added F9 in the register blocks")
-                && plan.needs_restart[0].contains("no address moves")
-                && plan.needs_restart[0].contains("F9 named a model"),
-            "{plan:?}"
-        );
-        // Without a model, on a channel read, it is added live, in its reserved block.
-        grown.drivelines[added - 1].model = None;
-        let plan = changed(compare(&reserved, &grown));
-        assert!(plan.needs_restart.is_empty(), "{plan:?}");
-        assert_eq!(plan.live, [Live::Drivelines]);
-        assert_eq!(
-            plan.applied,
-            [format!(
-                "drivelines.F9 (added in the register block of driveline_slot{added}: no \
-                 address moves)"
-            )]
-        );
         let applied = plan.applied_to(&reserved, &grown);
         assert_eq!(applied, grown, "everything applied: the new configuration");
         // A running OPC UA server adds its nodes, and the plan says so.

@@ -171,6 +171,11 @@ impl DrivelineAnalyzer {
         self.wear_problem.as_ref()
     }
 
+    /// Why the driveline runs without wear diagnosis, taken (a reload refuses it).
+    pub(crate) fn take_wear_problem(&mut self) -> Option<AnalysisError> {
+        self.wear_problem.take()
+    }
+
     /// The build of the gap maps, once (the service runs it off the analysis task).
     pub(crate) fn take_gap_map_job(&mut self) -> Option<GapMapJob> {
         self.gap_job.take()
