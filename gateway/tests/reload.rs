@@ -20,7 +20,10 @@
 //! restart: its bites reach the history, the PLC in the reserved block, the HMI
 //! server and `/metrics`, while every register of the running driveline keeps its
 //! address and its bite ids run on without a gap. A driveline beyond the slots is
-//! named as needing a restart and changes nothing.
+//! named as needing a restart and changes nothing. The same on a Modbus source added
+//! live, and on a channel added on the running source: its reader takes the channel
+//! between two polls, on the connection it has, and the running channel misses no
+//! block.
 
 mod common;
 
@@ -588,5 +591,109 @@ async fn a_driveline_on_a_source_added_live_starts_without_a_restart() {
         (1..=f2_in_plc()).collect::<Vec<_>>(),
         "F2's bite ids"
     );
+    setup.stop(service).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_channel_added_on_a_running_source_starts_without_a_restart_or_a_missed_block() {
+    // The demo's DAQ serving the torque twice: at block 0 (read for F1) and at block
+    // 122 (right after it), which the running service does not read yet.
+    let setup = Setup::with_daq(MILLGATE, "reload-channel", "db", |config, schedule| {
+        let torque = &config.channels[config.drivelines[0].torque];
+        let channels = [0, 122]
+            .map(|address| DaqChannel {
+                placement: Placement {
+                    table: RegisterTable::Input,
+                    address,
+                    scale: torque.scale,
+                    offset: torque.offset,
+                },
+                publish: Publish::Block,
+                signal: schedule.torque_knm.clone(),
+            })
+            .to_vec();
+        let samples = millgate_sim::devices::demo::SAMPLES_PER_BLOCK;
+        VirtualDaq::new(torque.sample_rate_hz, samples, channels)
+    })
+    .await;
+    let demo = std::fs::read_to_string(&setup.config).unwrap();
+    let first_layout = demo.replace("extension_blocks = true", "extension_blocks = false");
+    std::fs::write(&setup.config, first_layout).unwrap();
+    setup.append_config("\n[outputs]\ndriveline_slots = 2\n");
+    let reserved = map_of(&setup.config);
+    let mut service = setup.spawn("run.log");
+    let log_guard = setup.log_on_failure("run.log");
+    let plc = common::Plc {
+        plc: &setup.devices.plc,
+        map: &reserved,
+    };
+    plc.bites_after_now(1).await;
+    // A channel on the running source daq1 (its second block) and F2 on it.
+    let original = std::fs::read_to_string(&setup.config).unwrap();
+    let channel = entry(&original, "[[channels]]\nname = \"spindle_top\"")
+        .replace("\"spindle_top\"", "\"spindle_f2\"")
+        .replace("block = 0 }", "block = 122 }");
+    assert!(channel.contains("block = 122"), "{channel}");
+    let f2 = "[[drivelines]]\nname = \"F2\"\ntorque = \"spindle_f2\"\n\
+              bite = { threshold_knm = 20.0, pre_trigger_s = 0.1, post_trigger_s = 0.5 }\n\
+              thresholds = { taf_warning = 2.2, taf_alarm = 2.6 }\n\n[outputs.plc]";
+    let added = format!("{}\n{channel}\n", original.replacen("[outputs.plc]", f2, 1));
+    std::fs::write(&setup.config, &added).unwrap();
+    let counter = |name: &str, channel: &str| {
+        format!("millgate_channel_{name}_total{{channel=\"{channel}\"}}")
+    };
+    let connects = "millgate_source_connects_total{source=\"daq1\"}";
+    let missed_before = setup.metric(&counter("blocks_missed", "spindle_top")).await;
+    let read_before = setup.metric(&counter("blocks_read", "spindle_top")).await;
+    let connects_before = setup.metric(connects).await;
+    assert_eq!(connects_before, Some(1.0), "daq1 connected once");
+    let before_reload = plc.counter();
+    let said = "reload: applied channels.spindle_f2 (on the running source daq1: its reader \
+                takes it between two polls), drivelines.F2 (added in the register block of \
+                driveline_slot2: no address moves)";
+    applied_by_sighup(&setup, &service, said).await;
+
+    // The running reader reads the new block, on the connection it had: F2's bites
+    // reach the PLC in the reserved block; spindle_top's blocks run on, none missed.
+    let grown = map_of(&setup.config);
+    let f2_counter = f2_bites_in_plc(&setup, &grown).await;
+    let f2_in_plc = || u32_in_plc(&setup, f2_counter);
+    assert!(plc.counter() > before_reload, "F1 writes where it did");
+    let f2_blocks = setup.metric(&counter("blocks_read", "spindle_f2")).await;
+    assert!(f2_blocks.is_some_and(|b| b >= 1.0), "{f2_blocks:?}");
+    assert_eq!(
+        setup.metric(connects).await,
+        connects_before,
+        "daq1 reconnected"
+    );
+    let read_after = setup.metric(&counter("blocks_read", "spindle_top")).await;
+    assert!(
+        read_after > read_before,
+        "{read_before:?} -> {read_after:?}"
+    );
+    assert_eq!(
+        setup.metric(&counter("blocks_missed", "spindle_top")).await,
+        missed_before,
+        "spindle_top missed blocks across the reload"
+    );
+    assert!(
+        service.try_wait().unwrap().is_none(),
+        "SIGHUP ended the service"
+    );
+    terminate(&mut service);
+
+    let history = HistoryReader::open(&setup.history).unwrap();
+    let ids = |name: &str| bite_ids(&history, name);
+    assert_eq!(
+        ids("F1"),
+        (1..=plc.counter()).collect::<Vec<_>>(),
+        "F1's bite ids"
+    );
+    assert_eq!(
+        ids("F2"),
+        (1..=f2_in_plc()).collect::<Vec<_>>(),
+        "F2's bite ids"
+    );
+    drop(log_guard);
     setup.stop(service).await;
 }
