@@ -31,8 +31,8 @@ use std::time::Duration;
 
 use common::tandem::{modbus_source, Stands, FS};
 use common::{
-    free_port, hang_up, http, millgate, scratch, terminate, text, wait_for, KillOnDrop, Setup,
-    MILLGATE,
+    applied_by_sighup, free_port, hang_up, http, millgate, reloads, scratch, terminate, text,
+    wait_for, KillOnDrop, Setup, MILLGATE,
 };
 use millgate_config::RegisterTable;
 use millgate_sim::devices::modbus_bank::ServeOptions;
@@ -42,10 +42,6 @@ use millgate::history::query::{Filter, HistoryReader};
 use millgate::outputs::modbus::register_map::{decode_u32, RegisterMap};
 
 const WARNING: &str = "millgate_driveline_taf_warning{driveline=\"F1\"}";
-
-fn reloads(outcome: &str) -> String {
-    format!("millgate_config_reloads_total{{outcome=\"{outcome}\"}}")
-}
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sighup_applies_what_it_can_names_the_rest_and_loses_no_bite() {
@@ -353,24 +349,6 @@ async fn sighup_applies_a_tandem_mills_thresholds_at_its_next_window() {
     terminate(&mut service);
 }
 
-/// A `SIGHUP` to `service`, answered by `said` in its log (nothing waits for a
-/// restart) and counted as applied.
-async fn applied_by_sighup(setup: &Setup, service: &KillOnDrop, said: &str) {
-    hang_up(service.id());
-    wait_for(said, Duration::from_secs(20), || {
-        setup.log_text("run.log").contains(said)
-    })
-    .await;
-    assert!(
-        !setup.log_text("run.log").contains("needs a restart"),
-        "{}",
-        setup.log_text("run.log")
-    );
-    setup
-        .until_metric(&reloads("applied"), 1.0, Duration::from_secs(10))
-        .await;
-}
-
 /// The u32 the PLC holds at `address`.
 fn u32_in_plc(setup: &Setup, address: u16) -> u32 {
     decode_u32(&setup.devices.plc.holding()[usize::from(address)..]).unwrap_or(0)
@@ -509,6 +487,34 @@ async fn a_driveline_added_within_the_reserved_slots_starts_live_and_moves_no_ad
     setup.stop(service).await;
 }
 
+/// Stop `service`, which ran on through the reloads (SIGHUP did not end it); its
+/// history holds every bite id of F1 the PLC saw, and of F2 up to `last_f2` (the
+/// PLC's last), none lost across the reloads.
+fn stopped_with_every_bite(
+    setup: &Setup,
+    service: &mut KillOnDrop,
+    plc: &common::Plc,
+    last_f2: u32,
+) {
+    assert!(
+        service.try_wait().unwrap().is_none(),
+        "SIGHUP ended the service"
+    );
+    terminate(service);
+    let history = HistoryReader::open(&setup.history).unwrap();
+    let ids = |name: &str| bite_ids(&history, name);
+    assert_eq!(
+        ids("F1"),
+        (1..=plc.counter()).collect::<Vec<_>>(),
+        "F1's bite ids"
+    );
+    assert_eq!(
+        ids("F2"),
+        (1..=last_f2).collect::<Vec<_>>(),
+        "F2's bite ids"
+    );
+}
+
 /// The entry of `file` from the line `first` to the blank line after it.
 fn entry<'f>(file: &'f str, first: &str) -> &'f str {
     let start = file
@@ -572,25 +578,7 @@ async fn a_driveline_on_a_source_added_live_starts_without_a_restart() {
         .metric("millgate_channel_blocks_read_total{channel=\"spindle_f2\"}")
         .await;
     assert!(blocks.is_some_and(|b| b >= 1.0), "{blocks:?}");
-    assert!(
-        service.try_wait().unwrap().is_none(),
-        "SIGHUP ended the service"
-    );
-    terminate(&mut service);
-
-    let history = HistoryReader::open(&setup.history).unwrap();
-    let ids = |name: &str| bite_ids(&history, name);
-    // Nothing of F1 lost across the reload; F2's ids run from 1 to the PLC's last.
-    assert_eq!(
-        ids("F1"),
-        (1..=plc.counter()).collect::<Vec<_>>(),
-        "F1's bite ids"
-    );
-    assert_eq!(
-        ids("F2"),
-        (1..=f2_in_plc()).collect::<Vec<_>>(),
-        "F2's bite ids"
-    );
+    stopped_with_every_bite(&setup, &mut service, &plc, f2_in_plc());
     setup.stop(service).await;
 }
 
@@ -676,24 +664,7 @@ async fn a_channel_added_on_a_running_source_starts_without_a_restart_or_a_misse
         missed_before,
         "spindle_top missed blocks across the reload"
     );
-    assert!(
-        service.try_wait().unwrap().is_none(),
-        "SIGHUP ended the service"
-    );
-    terminate(&mut service);
-
-    let history = HistoryReader::open(&setup.history).unwrap();
-    let ids = |name: &str| bite_ids(&history, name);
-    assert_eq!(
-        ids("F1"),
-        (1..=plc.counter()).collect::<Vec<_>>(),
-        "F1's bite ids"
-    );
-    assert_eq!(
-        ids("F2"),
-        (1..=f2_in_plc()).collect::<Vec<_>>(),
-        "F2's bite ids"
-    );
+    stopped_with_every_bite(&setup, &mut service, &plc, f2_in_plc());
     drop(log_guard);
     setup.stop(service).await;
 }

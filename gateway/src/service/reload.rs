@@ -996,6 +996,14 @@ mod tests {
             .unwrap_or_else(|error| panic!("{error}"))
     }
 
+    /// `channel` (a CAN channel) read from CAN source `index`.
+    fn on_can_source(channel: &mut millgate_config::Channel, index: usize) {
+        match &mut channel.source {
+            millgate_config::ChannelSource::Can { source, .. } => *source = index,
+            other => panic!("not a CAN channel: {other:?}"),
+        }
+    }
+
     #[test]
     fn a_can_source_appended_starts_live_and_a_changed_one_waits() {
         let running = hot_mill();
@@ -1018,10 +1026,7 @@ mod tests {
             .unwrap();
         let mut channel = new.channels[on_can].clone();
         channel.name = "f2_roll_force".into();
-        let millgate_config::ChannelSource::Can { source, .. } = &mut channel.source else {
-            unreachable!()
-        };
-        *source = 1;
+        on_can_source(&mut channel, 1);
         new.channels.push(channel.clone());
         let plan = changed(compare(&running, &new));
         assert!(plan.needs_restart.is_empty(), "{plan:?}");
@@ -1038,10 +1043,7 @@ mod tests {
         // A channel appended on the running CAN source waits, and says why.
         let mut on_running = running.clone();
         on_running.hash = "other".into();
-        let millgate_config::ChannelSource::Can { source, .. } = &mut channel.source else {
-            unreachable!()
-        };
-        *source = 0;
+        on_can_source(&mut channel, 0);
         on_running.channels.push(channel);
         let plan = changed(compare(&running, &on_running));
         assert!(plan.live.is_empty(), "{plan:?}");

@@ -29,3 +29,26 @@ pub(crate) async fn hmi_u32(port: u16, address: u16) -> u32 {
         .unwrap();
     millgate::outputs::modbus::register_map::decode_u32(&words).unwrap()
 }
+
+/// `/metrics`' count of configuration reloads with `outcome`.
+pub(crate) fn reloads(outcome: &str) -> String {
+    format!("millgate_config_reloads_total{{outcome=\"{outcome}\"}}")
+}
+
+/// A `SIGHUP` to `service`, answered by `said` in its log (nothing waits for a
+/// restart) and counted as applied.
+pub(crate) async fn applied_by_sighup(setup: &Setup, service: &KillOnDrop, said: &str) {
+    hang_up(service.id());
+    wait_for(said, std::time::Duration::from_secs(20), || {
+        setup.log_text("run.log").contains(said)
+    })
+    .await;
+    assert!(
+        !setup.log_text("run.log").contains("needs a restart"),
+        "{}",
+        setup.log_text("run.log")
+    );
+    setup
+        .until_metric(&reloads("applied"), 1.0, std::time::Duration::from_secs(10))
+        .await;
+}
