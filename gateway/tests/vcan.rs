@@ -16,8 +16,8 @@ mod common;
 use std::process::Command;
 use std::time::Duration;
 
-use common::{applied_by_sighup, terminate, Setup, MILLGATE};
-use millgate::history::query::{Filter, HistoryReader};
+use common::{applied_by_sighup, bite_ids, terminate, Setup, MILLGATE};
+use millgate::history::query::HistoryReader;
 
 /// `cansend interface frame`, `MILLGATE_CANSEND` or the one on `PATH`.
 fn cansend(interface: &str, frame: &str) {
@@ -93,12 +93,7 @@ async fn a_can_source_added_by_sighup_reads_cansend_frames_while_the_modbus_sour
     );
     terminate(&mut service);
     let history = HistoryReader::open(&setup.history).unwrap();
-    let ids: Vec<u32> = history
-        .bites(&Filter::default())
-        .unwrap()
-        .iter()
-        .map(|bite| bite.figures.bite_counter)
-        .collect();
+    let ids = bite_ids(&history, "F1");
     assert_eq!(
         ids,
         (1..=plc.counter()).collect::<Vec<_>>(),

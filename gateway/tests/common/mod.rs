@@ -52,3 +52,13 @@ pub(crate) async fn applied_by_sighup(setup: &Setup, service: &KillOnDrop, said:
         .until_metric(&reloads("applied"), 1.0, std::time::Duration::from_secs(10))
         .await;
 }
+
+/// The bite ids of driveline `name` in `history`, in order.
+pub(crate) fn bite_ids(history: &millgate::history::query::HistoryReader, name: &str) -> Vec<u32> {
+    let filter = millgate::history::query::Filter {
+        name: Some(name.to_owned()),
+        ..millgate::history::query::Filter::default()
+    };
+    let bites = history.bites(&filter).unwrap();
+    bites.iter().map(|bite| bite.figures.bite_counter).collect()
+}
