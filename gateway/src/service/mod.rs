@@ -32,6 +32,7 @@ use crate::analysis::{AddedDrivelines, Analysis, DrivelineAddition, LiveSettings
 use crate::field::acquired::Acquired;
 use crate::field::counters::Acquisition;
 use crate::field::counters::{CanCounters, ChannelCounters};
+use crate::field::modbus::NewChannels;
 use crate::field::source_health::SourceHealth;
 use crate::history::outages::{OutageMonitor, WatchedSource};
 use crate::history::RunInfo;
@@ -449,9 +450,10 @@ impl Service {
             health,
             can: can_counters,
         };
-        let readers = readers::spawn(&config, &acquisition, &samples, &readers_shutdown);
+        let (readers, feeds) = readers::spawn(&config, &acquisition, &samples, &readers_shutdown);
         let inputs = Inputs {
             acquisition: acquisition.clone(),
+            feeds,
             samples: Some(samples),
             shutdown: readers_shutdown,
         };
@@ -578,8 +580,10 @@ fn check_register_base(map: &RegisterMap, plc: &PlcOutput) -> Result<(), Service
 
 /// What the readers run with, kept for the sources a reload adds.
 struct Inputs {
-    /// The counters and health records, grown by the sources added.
+    /// The counters and health records, grown by the sources and channels added.
     acquisition: Acquisition,
+    /// Where the running Modbus readers take the channels added on their sources.
+    feeds: readers::ChannelFeeds,
     /// Where readers send, dropped at the stop (the analysis ends once every reader
     /// has hung up).
     samples: Option<mpsc::Sender<Acquired>>,
@@ -792,11 +796,13 @@ impl Started {
         Ok(())
     }
 
-    /// Start reading the sources `config` (the running configuration with them,
-    /// [`Live::Sources`]) adds after the others, once the analysis routes their
-    /// channels: their health records join the board's, their counters the
-    /// acquisition's (the outputs restarted for them show both), a reader each, and an
-    /// outage monitor of their own. The sources running are not touched.
+    /// Start reading the sources and channels `config` (the running configuration
+    /// with them, [`Live::Sources`]) adds after the others, once the analysis routes
+    /// their channels: their health records join the board's, their counters the
+    /// acquisition's (the outputs restarted for them show both), a reader per source
+    /// added, with an outage monitor of their own, and the channels added on a running
+    /// Modbus source to its reader, which takes them between two polls. The running
+    /// sources' readers and their channels are not touched otherwise.
     fn start_sources(&mut self, config: &Config) {
         let Some(samples) = &self.inputs.samples else {
             return;
@@ -804,18 +810,39 @@ impl Started {
         let acquisition = &mut self.inputs.acquisition;
         let from = acquisition.health.len();
         let added = readers::source_health(config).split_off(from);
-        let counters = acquisition.counters.len()..config.channels.len();
-        acquisition
-            .counters
-            .extend(counters.map(|_| Arc::new(ChannelCounters::default())));
+        let channels = acquisition.counters.len();
+        acquisition.counters.extend(
+            (channels..config.channels.len()).map(|_| Arc::new(ChannelCounters::default())),
+        );
+        let can = acquisition.can.len()..config.can_sources.len();
+        acquisition.can.extend(can.map(|_| Arc::default()));
         acquisition.health.extend(added.iter().cloned());
         self.board.add_sources(&added);
         self.outputs.use_acquisition(acquisition.clone());
         let shared = Arc::new(config.clone());
+        let mut grown: Vec<usize> = (channels..config.channels.len())
+            .map(|channel| config.source_of_channel(channel))
+            .filter(|&source| source < from)
+            .collect();
+        grown.dedup();
+        for feed in grown
+            .iter()
+            .filter_map(|&source| self.inputs.feeds[source].as_ref())
+        {
+            feed.send_replace(NewChannels {
+                config: Arc::clone(&shared),
+                counters: acquisition.counters.clone(),
+            });
+        }
         let sources = from..from + added.len();
         for index in sources.clone() {
             let inputs = (samples, &self.inputs.shutdown);
-            readers::spawn_source(&shared, index, acquisition, inputs, &mut self.readers);
+            let feed =
+                readers::spawn_source(&shared, index, acquisition, inputs, &mut self.readers);
+            self.inputs.feeds.push(feed);
+        }
+        if sources.is_empty() {
+            return;
         }
         let watched = (&acquisition.health[..], &acquisition.counters[..]);
         let monitor = outage_monitor(config, watched, sources, &self.history);

@@ -15,7 +15,7 @@ use crate::analysis::{Analysis, DrivelineAddition, LiveSettings};
 use crate::field::acquired::Acquired;
 use crate::field::can::supervisor::supervise_can;
 use crate::field::counters::Acquisition;
-use crate::field::modbus::DaqReader;
+use crate::field::modbus::{DaqReader, NewChannels};
 use crate::field::source_health::SourceHealth;
 use crate::shutdown::Shutdown;
 use crate::state::board::Board;
@@ -66,44 +66,59 @@ pub(super) fn source_health(config: &Config) -> Vec<Arc<SourceHealth>> {
         .collect()
 }
 
-/// Start a reader per source, sending on `samples`, until `shutdown`.
+/// Where the running Modbus readers take the channels a reload appends on their
+/// sources: per source in the order of [`Config::sources`], `None` for a CAN source.
+pub(super) type ChannelFeeds = Vec<Option<watch::Sender<NewChannels>>>;
+
+/// Start a reader per source, sending on `samples`, until `shutdown`; with the feeds
+/// of their new channels.
 pub(super) fn spawn(
     config: &Config,
     acquisition: &Acquisition,
     samples: &mpsc::Sender<Acquired>,
     shutdown: &Shutdown,
-) -> JoinSet<()> {
+) -> (JoinSet<()>, ChannelFeeds) {
     let mut readers = JoinSet::new();
     let shared = Arc::new(config.clone());
-    for index in 0..config.sources().count() {
-        spawn_source(
-            &shared,
-            index,
-            acquisition,
-            (samples, shutdown),
-            &mut readers,
-        );
-    }
-    readers
+    let feeds = (0..config.sources().count())
+        .map(|index| {
+            spawn_source(
+                &shared,
+                index,
+                acquisition,
+                (samples, shutdown),
+                &mut readers,
+            )
+        })
+        .collect();
+    (readers, feeds)
 }
 
 /// Into `readers`, the reader of source `index` of `config` (in the order of
 /// [`Config::sources`]), counting into `acquisition` (which has its health record and
-/// its channels' counters), sending on `samples` until `shutdown`.
+/// its channels' counters, and its CAN counters for a CAN source), sending on
+/// `samples` until `shutdown`. A Modbus reader's feed of new channels
+/// ([`DaqReader::with_new_channels`]).
 pub(super) fn spawn_source(
     config: &Arc<Config>,
     index: usize,
     acquisition: &Acquisition,
     (samples, shutdown): (&mpsc::Sender<Acquired>, &Shutdown),
     readers: &mut JoinSet<()>,
-) {
+) -> Option<watch::Sender<NewChannels>> {
     let health = Arc::clone(&acquisition.health[index]);
     let modbus = config.modbus_sources.len();
     match config.sources().nth(index) {
         Some(SourceRef::Modbus(source)) => {
-            let reader = DaqReader::new(config, index, &acquisition.counters, health);
+            let (feed, new_channels) = watch::channel(NewChannels {
+                config: Arc::clone(config),
+                counters: acquisition.counters.clone(),
+            });
+            let reader = DaqReader::new(config, index, &acquisition.counters, health)
+                .with_new_channels(new_channels);
             tracing::info!(source = %source.name, address = %source.address, "starting DaqReader");
             readers.spawn(reader.run(samples.clone(), shutdown.clone()));
+            Some(feed)
         }
         Some(SourceRef::Can(source)) => {
             let can = index - modbus;
@@ -116,8 +131,9 @@ pub(super) fn spawn_source(
                 samples.clone(),
                 shutdown.clone(),
             ));
+            None
         }
-        None => {}
+        None => None,
     }
 }
 

@@ -30,12 +30,14 @@
 //!     plan says so. The gap maps of one with a `model` are read from the cache or
 //!     built off the analysis as at a start (`building` on the web API until they are
 //!     ready; its bites meanwhile are held and folded in then);
-//!   - Modbus sources appended after the others (none while CAN sources run), with
-//!     channels appended after the others, each on such a source ([`Live::Sources`]):
-//!     the analysis routes their channels, then a reader starts per source (its
-//!     health, counters and outage tracking with it); a driveline added on such a
-//!     channel starts live with it. A new channel on a running source waits (its
-//!     reader keeps the channels it started with);
+//!   - Modbus sources appended after the others (none while CAN sources run), CAN
+//!     sources appended after the others, and channels appended after the others on
+//!     such a source or on a running Modbus source ([`Live::Sources`]): the analysis
+//!     routes their channels, then a reader starts per source (its health, counters
+//!     and outage tracking with it) and a running Modbus source's reader takes its new
+//!     channels between two polls; a driveline added on such a channel starts live
+//!     with it. A new channel on a running CAN source waits (its reader keeps the
+//!     channels it started with);
 //!   - kept as they run until a restart, each named: everything else (`name`,
 //!     `cache_dir`, the sources and channels but the above, rod mills, `history`, `outputs.opcua`, a
 //!     driveline's other settings (its other `wear` keys build the gap maps at the
@@ -84,10 +86,12 @@ pub enum Live {
     /// grows, the gap maps of those with a `model` build as at a start, and the
     /// outputs that show drivelines restart on the map with their reserved blocks.
     Drivelines,
-    /// Modbus sources appended after the others (none added before the CAN sources)
-    /// with channels appended after the others, each on such a source: their readers
-    /// start (health, counters and outage tracking with them), the analysis routes
-    /// their channels, and the outputs that name sources or channels restart.
+    /// Modbus sources appended after the others (none added before the CAN sources),
+    /// CAN sources appended after the others, and channels appended after the others
+    /// on such a source or on a running Modbus source: the analysis routes their
+    /// channels, their readers start (health, counters and outage tracking with them),
+    /// a running Modbus source's reader takes its new channels between two polls, and
+    /// the outputs that name sources or channels restart.
     Sources,
 }
 
@@ -146,6 +150,7 @@ impl Plan {
                 }
                 Live::Sources => {
                     config.modbus_sources.clone_from(&new.modbus_sources);
+                    config.can_sources.clone_from(&new.can_sources);
                     config.channels.clone_from(&new.channels);
                 }
                 Live::Drivelines => {
@@ -289,9 +294,12 @@ pub fn plan(running: &Config, new: &Config) -> Plan {
         Ok(added) => {
             plan.applied.extend(added);
             plan.live.push(Live::Sources);
-            let sources = &new.modbus_sources[running.modbus_sources.len()..];
-            if out.opcua.is_some() && !sources.is_empty() {
-                let names: Vec<&str> = sources.iter().map(|s| s.name.as_str()).collect();
+            let names: Vec<String> = new
+                .sources()
+                .skip(running.sources().count())
+                .map(|source| source.name().to_owned())
+                .collect();
+            if out.opcua.is_some() && !names.is_empty() {
                 plan.needs_restart.push(format!(
                     "outputs.opcua (shows {} after a restart: its nodes are built at the \
                      start)",
@@ -522,21 +530,26 @@ fn drivelines(running_config: &Config, new_config: &Config, plan: &mut Plan) {
 fn added_waits(running: &Config, new: &Config) -> Option<String> {
     let why = sources_added(running, new).err()?;
     Some(format!(
-        "{why}: a driveline starts live only on channels already read or on a Modbus \
-         source added with it"
+        "{why}: a driveline starts live only on channels already read or added with it"
     ))
 }
 
-/// The keys of the Modbus sources and channels `new` appends to `running`'s, which
-/// start live ([`Live::Sources`]; empty when the inputs are the running ones), or why
-/// they wait for a restart: a running source's reader keeps the channels it started
-/// with (restarting it would lose its poll in flight), a CAN source starts with the
-/// service, and a Modbus source added while CAN sources run would move their status
-/// bits and indices (sources count Modbus first, then CAN).
+/// The keys of the sources and channels `new` appends to `running`'s, which start
+/// live ([`Live::Sources`]; empty when the inputs are the running ones), or why they
+/// wait for a restart. Modbus and CAN sources appended after the others start a reader
+/// each; a channel appended on a running Modbus source is handed to its reader, which
+/// takes it between two polls (its poll in flight and its other channels untouched).
+/// Waits: a running source or channel changed, moved or removed (its reader keeps the
+/// settings it started with), a channel appended on a running CAN source (its reader
+/// keeps the frames it decodes), and a Modbus source added while CAN sources run
+/// (sources count Modbus first, then CAN: it would move their status bits).
 fn sources_added(running: &Config, new: &Config) -> Result<Vec<String>, String> {
-    let running_sources = running.sources().count();
-    if new.can_sources != running.can_sources {
-        return Err("the CAN sources changed: a CAN source starts with the service".into());
+    if !new.can_sources.starts_with(&running.can_sources) {
+        return Err(
+            "a running CAN source changed or moved: its reader keeps the settings it \
+             started with"
+                .into(),
+        );
     }
     if !new.modbus_sources.starts_with(&running.modbus_sources) {
         return Err(
@@ -545,8 +558,8 @@ fn sources_added(running: &Config, new: &Config) -> Result<Vec<String>, String> 
                 .into(),
         );
     }
-    let sources = &new.modbus_sources[running.modbus_sources.len()..];
-    if !sources.is_empty() && !running.can_sources.is_empty() {
+    let modbus = &new.modbus_sources[running.modbus_sources.len()..];
+    if !modbus.is_empty() && !running.can_sources.is_empty() {
         return Err(
             "a Modbus source added while CAN sources run would move their status bits \
              (sources count Modbus first, then CAN)"
@@ -560,27 +573,46 @@ fn sources_added(running: &Config, new: &Config) -> Result<Vec<String>, String> 
                 .into(),
         );
     }
-    let mut added: Vec<String> = sources
+    let can = &new.can_sources[running.can_sources.len()..];
+    let mut added: Vec<String> = modbus
         .iter()
-        .map(|source| format!("sources.{} (its reader started live)", source.name))
+        .map(|source| &source.name)
+        .chain(can.iter().map(|source| &source.name))
+        .map(|name| format!("sources.{name} (its reader started live)"))
         .collect();
+    let running_modbus = running.modbus_sources.len();
     for (index, channel) in new.channels.iter().enumerate().skip(running.channels.len()) {
-        let source = new.source_of_channel(index);
-        if source < running_sources {
-            let name = running.sources().nth(source).map(|s| s.name().to_owned());
-            return Err(format!(
-                "channels.{} is on the running source {}: its reader keeps the channels it \
-                 started with",
-                channel.name,
-                name.unwrap_or_default()
-            ));
+        let name = &channel.name;
+        match running_source_of(running, new, index) {
+            None => added.push(format!("channels.{name} (on a source added live)")),
+            Some(source) if source < running_modbus => {
+                let source = &running.modbus_sources[source].name;
+                added.push(format!(
+                    "channels.{name} (on the running source {source}: its reader takes it \
+                     between two polls)"
+                ));
+            }
+            Some(source) => {
+                let source = &running.can_sources[source - running_modbus].name;
+                return Err(format!(
+                    "channels.{name} is on the running CAN source {source}: its reader \
+                     keeps the channels it started with"
+                ));
+            }
         }
-        added.push(format!(
-            "channels.{} (on a source added live)",
-            channel.name
-        ));
     }
     Ok(added)
+}
+
+/// The index in `running`'s [`Config::sources`] of the source `new`'s channel
+/// `channel` is read from, when that source runs (`None`: a source `new` adds).
+fn running_source_of(running: &Config, new: &Config, channel: usize) -> Option<usize> {
+    match new.channels[channel].source {
+        millgate_config::ChannelSource::Can { source, .. } => {
+            (source < running.can_sources.len()).then(|| running.modbus_sources.len() + source)
+        }
+        _ => Some(new.source_of_channel(channel)).filter(|&s| s < running.modbus_sources.len()),
+    }
 }
 
 /// Into `plan`, the drivelines `new` adds after `running`'s applied live
@@ -753,14 +785,37 @@ mod tests {
             plan.applied.last().map(String::as_str),
             Some("outputs.opcua (the nodes of F9 added as the server runs)")
         );
-        // On a channel the running service does not read, it waits for a restart.
+        // On a channel appended on a running source, it starts live: the source's
+        // reader takes the channel between two polls.
         let mut on_new_channel = grown.clone();
         let mut channel = on_new_channel.channels[grown.drivelines[0].torque].clone();
         channel.name = "spindle_f9".into();
         on_new_channel.channels.push(channel);
         on_new_channel.drivelines[added - 1].torque = on_new_channel.channels.len() - 1;
         let plan = changed(compare(&reserved, &on_new_channel));
+        assert!(plan.needs_restart.is_empty(), "{plan:?}");
+        assert_eq!(plan.live, [Live::Sources, Live::Drivelines]);
+        let daq = &reserved.modbus_sources[0].name;
+        assert_eq!(
+            plan.applied[0],
+            format!(
+                "channels.spindle_f9 (on the running source {daq}: its reader takes it \
+                 between two polls)"
+            )
+        );
+        assert_eq!(plan.applied_to(&reserved, &on_new_channel), on_new_channel);
+        // A channel read changed beside it: everything on the inputs waits, and the
+        // driveline on the new channel with them.
+        let mut moved = on_new_channel.clone();
+        moved.channels[0].scale *= 2.0;
+        let plan = changed(compare(&reserved, &moved));
         assert!(plan.live.is_empty(), "{plan:?}");
+        assert!(
+            plan.needs_restart
+                .iter()
+                .any(|key| key.starts_with("channels (a channel read changed")),
+            "{plan:?}"
+        );
         assert!(
             plan.needs_restart
                 .iter()
@@ -917,6 +972,118 @@ mod tests {
         assert_eq!(
             plan.needs_restart,
             [format!("drivelines.{name}.pool_speed_range_mpm")]
+        );
+    }
+
+    /// The hot mill example (Modbus and CAN sources), its DBC found beside it.
+    fn hot_mill() -> Config {
+        let examples =
+            std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/examples"));
+        let text = include_str!("../../../config/examples/hot-mill.toml");
+        millgate_config::from_toml_str(text, "hot-mill.toml", examples)
+            .unwrap_or_else(|error| panic!("{error}"))
+    }
+
+    /// `channel` (a CAN channel) read from CAN source `index`.
+    fn on_can_source(channel: &mut millgate_config::Channel, index: usize) {
+        match &mut channel.source {
+            millgate_config::ChannelSource::Can { source, .. } => *source = index,
+            other => panic!("not a CAN channel: {other:?}"),
+        }
+    }
+
+    #[test]
+    fn a_can_source_appended_starts_live_and_a_changed_one_waits() {
+        let running = hot_mill();
+        assert_eq!(
+            running.can_sources.len(),
+            1,
+            "the example has one CAN source"
+        );
+        // A second CAN source, with a channel on it, after the others.
+        let mut new = running.clone();
+        new.hash = "other".into();
+        let mut can = new.can_sources[0].clone();
+        can.name = "stand_can2".into();
+        can.interface = "vcan1".into();
+        new.can_sources.push(can);
+        let on_can = new
+            .channels
+            .iter()
+            .position(|c| matches!(c.source, millgate_config::ChannelSource::Can { .. }))
+            .unwrap();
+        let mut channel = new.channels[on_can].clone();
+        channel.name = "f2_roll_force".into();
+        on_can_source(&mut channel, 1);
+        new.channels.push(channel.clone());
+        let plan = changed(compare(&running, &new));
+        assert!(plan.needs_restart.is_empty(), "{plan:?}");
+        assert_eq!(plan.live, [Live::Sources]);
+        assert_eq!(
+            plan.applied,
+            [
+                "sources.stand_can2 (its reader started live)",
+                "channels.f2_roll_force (on a source added live)"
+            ]
+        );
+        assert_eq!(plan.applied_to(&running, &new), new);
+
+        // A channel appended on the running CAN source waits, and says why.
+        let mut on_running = running.clone();
+        on_running.hash = "other".into();
+        on_can_source(&mut channel, 0);
+        on_running.channels.push(channel);
+        let plan = changed(compare(&running, &on_running));
+        assert!(plan.live.is_empty(), "{plan:?}");
+        assert_eq!(
+            plan.needs_restart,
+            [
+                "channels (channels.f2_roll_force is on the running CAN source stand_can: its \
+                 reader keeps the channels it started with)"
+            ]
+        );
+
+        // The running CAN source changed: it waits.
+        let mut changed_can = new.clone();
+        changed_can.can_sources[0].interface = "vcan9".into();
+        let plan = changed(compare(&running, &changed_can));
+        assert!(plan.live.is_empty(), "{plan:?}");
+        assert_eq!(
+            plan.needs_restart,
+            [
+                "can_sources, channels (a running CAN source changed or moved: its reader \
+                 keeps the settings it started with)"
+            ]
+        );
+
+        // A Modbus source added while the CAN source runs would move its status bit.
+        let mut modbus = running.clone();
+        modbus.hash = "other".into();
+        let mut source = modbus.modbus_sources[0].clone();
+        source.name = "daq2".into();
+        modbus.modbus_sources.push(source);
+        let plan = changed(compare(&running, &modbus));
+        assert!(plan.live.is_empty(), "{plan:?}");
+        assert!(
+            plan.needs_restart[0].starts_with("sources (a Modbus source added while CAN"),
+            "{plan:?}"
+        );
+
+        // A channel appended on a running Modbus source beside the CAN source starts.
+        let mut on_daq = running.clone();
+        on_daq.hash = "other".into();
+        let mut channel = on_daq.channels[0].clone();
+        channel.name = "spindle_middle".into();
+        on_daq.channels.push(channel);
+        let plan = changed(compare(&running, &on_daq));
+        assert!(plan.needs_restart.is_empty(), "{plan:?}");
+        assert_eq!(plan.live, [Live::Sources]);
+        assert_eq!(
+            plan.applied,
+            [
+                "channels.spindle_middle (on the running source daq1: its reader takes it \
+              between two polls)"
+            ]
         );
     }
 

@@ -29,3 +29,47 @@ pub(crate) async fn hmi_u32(port: u16, address: u16) -> u32 {
         .unwrap();
     millgate::outputs::modbus::register_map::decode_u32(&words).unwrap()
 }
+
+/// `/metrics`' count of configuration reloads with `outcome`.
+pub(crate) fn reloads(outcome: &str) -> String {
+    format!("millgate_config_reloads_total{{outcome=\"{outcome}\"}}")
+}
+
+/// A `SIGHUP` to `service`, answered by `said` in its log and counted (the first
+/// time) as `outcome`.
+pub(crate) async fn answered_by_sighup(
+    setup: &Setup,
+    service: &KillOnDrop,
+    said: &str,
+    outcome: &str,
+) {
+    hang_up(service.id());
+    wait_for(said, std::time::Duration::from_secs(20), || {
+        setup.log_text("run.log").contains(said)
+    })
+    .await;
+    setup
+        .until_metric(&reloads(outcome), 1.0, std::time::Duration::from_secs(10))
+        .await;
+}
+
+/// A `SIGHUP` to `service`, answered by `said` in its log (nothing waits for a
+/// restart) and counted as applied.
+pub(crate) async fn applied_by_sighup(setup: &Setup, service: &KillOnDrop, said: &str) {
+    answered_by_sighup(setup, service, said, "applied").await;
+    assert!(
+        !setup.log_text("run.log").contains("needs a restart"),
+        "{}",
+        setup.log_text("run.log")
+    );
+}
+
+/// The bite ids of driveline `name` in `history`, in order.
+pub(crate) fn bite_ids(history: &millgate::history::query::HistoryReader, name: &str) -> Vec<u32> {
+    let filter = millgate::history::query::Filter {
+        name: Some(name.to_owned()),
+        ..millgate::history::query::Filter::default()
+    };
+    let bites = history.bites(&filter).unwrap();
+    bites.iter().map(|bite| bite.figures.bite_counter).collect()
+}

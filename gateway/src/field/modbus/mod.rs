@@ -12,4 +12,4 @@ pub(crate) mod reader;
 pub(crate) mod rtu;
 
 pub use error::{ModbusError, ReplyMismatch};
-pub use reader::DaqReader;
+pub use reader::{DaqReader, NewChannels};

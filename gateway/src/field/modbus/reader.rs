@@ -31,7 +31,7 @@ use millgate_config::text::{decode_ascii, ByteOrder};
 use millgate_config::{
     ChannelSource, Config, ModbusSource, RegisterTable, Scaling, ValueType, WordOrder,
 };
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, watch};
 use tokio_modbus::client::Context;
 
 use super::block::{BlockChannel, BlockNews};
@@ -91,11 +91,29 @@ struct TextChannel {
     counters: Arc<ChannelCounters>,
 }
 
+/// The channels a reload appended, for the running readers of their sources: the
+/// running configuration with them (appended after the others), and one counter set
+/// per channel of it (indexed like its `channels`).
+#[derive(Debug, Clone)]
+pub struct NewChannels {
+    /// The running configuration with the channels appended.
+    pub config: Arc<Config>,
+    /// One counter set per channel of `config`.
+    pub counters: Vec<Arc<ChannelCounters>>,
+}
+
 /// Reads every channel of one Modbus source.
 #[derive(Debug)]
 pub struct DaqReader {
     name: String,
+    /// Its index in `config.modbus_sources`.
+    source_index: usize,
     source: ModbusSource,
+    /// The channels of the configuration considered so far (its channels beyond
+    /// are ones a reload appends: [`Self::with_new_channels`]).
+    channels_seen: usize,
+    /// Channels a reload appends, taken between two polls.
+    new_channels: Option<watch::Receiver<NewChannels>>,
     blocks: Vec<BlockChannel>,
     values: Vec<ValueChannel>,
     texts: Vec<TextChannel>,
@@ -118,16 +136,48 @@ impl DaqReader {
         health: Arc<SourceHealth>,
     ) -> Self {
         let source = config.modbus_sources[source_index].clone();
-        let mut blocks = Vec::new();
-        let mut values = Vec::new();
-        let mut texts = Vec::new();
-        for (channel, spec) in config.channels.iter().enumerate() {
+        let mut reader = Self {
+            name: source.name.clone(),
+            source_index,
+            spacing: source
+                .serial
+                .map(|line| FrameSpacing::new(line.inter_frame_delay)),
+            source,
+            channels_seen: 0,
+            new_channels: None,
+            blocks: Vec::new(),
+            values: Vec::new(),
+            texts: Vec::new(),
+            health,
+            #[cfg(test)]
+            connector: None,
+        };
+        reader.add_channels(config, counters);
+        reader
+    }
+
+    /// This reader with the channels a reload appends on its source, as `new_channels`
+    /// sends them: taken between two polls (the poll in flight ends as it began), each
+    /// polled from the next poll on after the channels it reads already, whose blocks
+    /// keep their sequence tracking (no block missed).
+    pub fn with_new_channels(mut self, new_channels: watch::Receiver<NewChannels>) -> Self {
+        self.new_channels = Some(new_channels);
+        self
+    }
+
+    /// Read the channels of `config` on this source past the ones seen so far, counting
+    /// into `counters` (indexed like `config.channels`). Returns how many it added.
+    fn add_channels(&mut self, config: &Config, counters: &[Arc<ChannelCounters>]) -> usize {
+        let source_index = self.source_index;
+        let before = self.blocks.len() + self.values.len() + self.texts.len();
+        let seen = self.channels_seen;
+        for (channel, spec) in config.channels.iter().enumerate().skip(seen) {
             match spec.source {
                 ChannelSource::ModbusBlock {
                     source: s,
                     table,
                     base,
-                } if s == source_index => blocks.push(BlockChannel::new(
+                } if s == source_index => self.blocks.push(BlockChannel::new(
                     (channel, spec),
                     table,
                     base,
@@ -139,7 +189,7 @@ impl DaqReader {
                     address,
                     value_type,
                     word_order,
-                } if s == source_index => values.push(ValueChannel {
+                } if s == source_index => self.values.push(ValueChannel {
                     channel,
                     table,
                     address,
@@ -154,7 +204,7 @@ impl DaqReader {
                     address,
                     registers,
                     byte_order,
-                } if s == source_index => texts.push(TextChannel {
+                } if s == source_index => self.texts.push(TextChannel {
                     channel,
                     table,
                     address,
@@ -165,19 +215,21 @@ impl DaqReader {
                 _ => {}
             }
         }
-        Self {
-            name: source.name.clone(),
-            spacing: source
-                .serial
-                .map(|line| FrameSpacing::new(line.inter_frame_delay)),
-            source,
-            blocks,
-            values,
-            texts,
-            health,
-            #[cfg(test)]
-            connector: None,
+        self.channels_seen = self.channels_seen.max(config.channels.len());
+        self.blocks.len() + self.values.len() + self.texts.len() - before
+    }
+
+    /// Take the channels a reload appended since the last poll, if any.
+    fn take_new_channels(&mut self) {
+        let Some(receiver) = &mut self.new_channels else {
+            return;
+        };
+        if !receiver.has_changed().unwrap_or(false) {
+            return;
         }
+        let new = receiver.borrow_and_update().clone();
+        let added = self.add_channels(&new.config, &new.counters);
+        tracing::info!(source = %self.name, added, "reload: channels added, read from the next poll on");
     }
 
     async fn connect(&mut self) -> Result<Context, ModbusError> {
@@ -292,6 +344,7 @@ impl DaqReader {
         context: &mut Context,
         samples: &mpsc::Sender<Acquired>,
     ) -> Result<Poll, DaqError> {
+        self.take_new_channels();
         let timeout = self.source.timeout;
         let mut first_error = None;
         let mut new_data = false;
@@ -561,6 +614,25 @@ mod tests {
         }
     }
 
+    /// The test source (polled every 20 ms, 300 ms timeout) with one 2 kHz block
+    /// channel, and as many more after it as `more` names (blocks right after it).
+    fn source_config(more: &[&str]) -> Config {
+        let mut text = String::from(
+            "name = \"t\"\n[[sources.modbus]]\nname = \"daq\"\naddress = \"127.0.0.1:1\"\n\
+             poll_period_ms = 20\ntimeout_ms = 300\n",
+        );
+        for (k, name) in std::iter::once(&"a").chain(more).enumerate() {
+            text += &format!(
+                "[[channels]]\nname = \"{name}\"\nkind = \"acceleration\"\n\
+                 unit = \"m/s^2\"\nsample_rate_hz = 2000\n\
+                 source = {{ modbus = \"daq\", table = \"input\", block = {} }}\n",
+                k * usize::from(BLOCK_REGISTERS)
+            );
+        }
+        millgate_config::from_toml_str(&text, "t.toml", std::path::Path::new("."))
+            .unwrap_or_else(|error| panic!("{error}"))
+    }
+
     /// A reader of one 2 kHz block channel (polled every 20 ms, 300 ms timeout) on
     /// `script`'s DAQs, its samples drained; the times of its connections and its
     /// source's health (stale after 200 ms, lost after 1 s), until `shutdown` fires.
@@ -572,12 +644,7 @@ mod tests {
         Arc<SourceHealth>,
         Arc<ChannelCounters>,
     ) {
-        let text = "name = \"t\"\n[[sources.modbus]]\nname = \"daq\"\naddress = \"127.0.0.1:1\"\n\
-                    poll_period_ms = 20\ntimeout_ms = 300\n[[channels]]\nname = \"a\"\n\
-                    kind = \"acceleration\"\nunit = \"m/s^2\"\nsample_rate_hz = 2000\n\
-                    source = { modbus = \"daq\", table = \"input\", block = 0 }\n";
-        let config = millgate_config::from_toml_str(text, "t.toml", std::path::Path::new("."))
-            .unwrap_or_else(|error| panic!("{error}"));
+        let config = source_config(&[]);
         let counters = Arc::new(ChannelCounters::default());
         let health = Arc::new(SourceHealth::new(
             Duration::from_millis(200),
@@ -699,6 +766,69 @@ mod tests {
         // The DAQ kept answering: one connection, its blocks read once each.
         assert_eq!(made.lock().unwrap().len(), 1);
         assert_eq!(counters.snapshot().blocks_read, 21, "blocks 1..=21");
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_channel_added_between_two_polls_is_read_and_the_running_one_misses_no_block() {
+        let (stop, shutdown) = crate::shutdown::channel();
+        let running = Arc::new(source_config(&[]));
+        let grown = Arc::new(source_config(&["b"]));
+        let counters: Vec<Arc<ChannelCounters>> = (0..2).map(|_| Arc::default()).collect();
+        let (feed, new_channels) = watch::channel(NewChannels {
+            config: Arc::clone(&running),
+            counters: counters[..1].to_vec(),
+        });
+        let health = Arc::new(SourceHealth::new(
+            Duration::from_millis(200),
+            Duration::from_secs(1),
+        ));
+        let mut reader =
+            DaqReader::new(&running, 0, &counters[..1], health).with_new_channels(new_channels);
+        let made = Arc::new(Mutex::new(Vec::new()));
+        reader.connector = Some(Connector {
+            script: vec![STREAMS],
+            start: Instant::now(),
+            made: Arc::clone(&made),
+        });
+        let (samples, mut received) = mpsc::channel(64);
+        let messages = tokio::spawn(async move {
+            let mut messages = Vec::new();
+            while let Some(message) = received.recv().await {
+                messages.push(message);
+            }
+            messages
+        });
+        let reading = tokio::spawn(reader.run(samples, shutdown));
+        // 1 s of polls on channel a (blocks 1..=20), then channel b appended.
+        tokio::time::sleep(Duration::from_millis(1010)).await;
+        assert_eq!(counters[0].snapshot().blocks_read, 21, "blocks 1..=21");
+        feed.send_replace(NewChannels {
+            config: grown,
+            counters: counters.clone(),
+        });
+        tokio::time::sleep(Duration::from_millis(980)).await;
+        stop.trigger();
+        reading.await.unwrap();
+        let messages = messages.await.unwrap();
+        // One connection throughout; a read every block on, none missed or restarted.
+        assert_eq!(made.lock().unwrap().len(), 1);
+        let (a, b) = (counters[0].snapshot(), counters[1].snapshot());
+        assert_eq!(a.blocks_read, 40, "blocks 1..=40 by 1.99 s");
+        assert_eq!((a.blocks_missed, a.sequence_restarts), (0, 0));
+        assert_eq!(b.blocks_read, 20, "blocks 21..=40 for the channel added");
+        assert_eq!((b.blocks_missed, b.sequence_restarts), (0, 0));
+        let gaps = messages
+            .iter()
+            .filter(|message| matches!(message, Acquired::Gap { .. }))
+            .count();
+        assert_eq!(gaps, 0, "no gap on either channel");
+        let blocks_of = |wanted: usize| {
+            messages
+                .iter()
+                .filter(|m| matches!(m, Acquired::Samples { channel, .. } if *channel == wanted))
+                .count()
+        };
+        assert_eq!((blocks_of(0), blocks_of(1)), (40, 20));
     }
 
     #[test]
