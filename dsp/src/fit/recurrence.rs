@@ -4,6 +4,8 @@
 
 use core::f64::consts::PI;
 
+use super::record::Nonlinear;
+
 /// exp((-decay + i 2 pi f) t) advanced sample by sample.
 #[derive(Clone, Copy)]
 pub(super) struct Rotor {
@@ -30,6 +32,28 @@ impl Rotor {
         let re = self.re * self.step_re - self.im * self.step_im;
         self.im = self.re * self.step_im + self.im * self.step_re;
         self.re = re;
+    }
+}
+
+/// The per-sample steps of the basis at one nonlinear point: the two modes' rotors
+/// and the load's factor exp(-a10 dt). An evaluation takes them once for its Gram
+/// matrix and its pass over the samples (two sines and cosines and three exponentials
+/// that both computed alike before).
+#[derive(Clone, Copy)]
+pub(super) struct BasisSteps {
+    pub(super) mode1: Rotor,
+    pub(super) mode2: Rotor,
+    pub(super) load: f64,
+}
+
+impl BasisSteps {
+    /// The steps at `theta` (a5, a6, a7, a8, a10) for samples `dt` seconds apart.
+    pub(super) fn new(theta: &Nonlinear, dt: f64) -> Self {
+        Self {
+            mode1: Rotor::new(theta[2], theta[0], dt),
+            mode2: Rotor::new(theta[3], theta[1], dt),
+            load: libm::exp(-theta[4] * dt),
+        }
     }
 }
 
