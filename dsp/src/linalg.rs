@@ -606,6 +606,28 @@ mod tests {
         assert!(Cholesky5::new(&nan).is_none());
     }
 
+    /// Asserts that `vectors` are orthonormal (to 1e-13: rotations keep them so at
+    /// any precision) and `a v = lambda v` to `tolerance` for each pair.
+    fn assert_eigenpairs<const N: usize>(
+        a: &[[f64; N]; N],
+        values: &[f64; N],
+        vectors: &[[f64; N]; N],
+        tolerance: f64,
+    ) {
+        for (j, vector) in vectors.iter().enumerate() {
+            for (k, other) in vectors.iter().enumerate() {
+                let dot: f64 = vector.iter().zip(other).map(|(x, y)| x * y).sum();
+                let expected = if j == k { 1.0 } else { 0.0 };
+                assert!(libm::fabs(dot - expected) < 1e-13, "{j} {k}: {dot}");
+            }
+            for (row, a_row) in a.iter().enumerate() {
+                let product: f64 = a_row.iter().zip(vector).map(|(x, y)| x * y).sum();
+                let residual = libm::fabs(product - values[j] * vector[row]);
+                assert!(residual <= tolerance, "{j}: {residual}");
+            }
+        }
+    }
+
     #[test]
     fn symmetric_eigen_diagonalises() {
         // Symmetric, with a cluster of close eigenvalues and a zero row and column.
@@ -616,17 +638,7 @@ mod tests {
             })
         });
         let (values, vectors) = symmetric_eigen(a, Precision::Full).unwrap();
-        for (j, vector) in vectors.iter().enumerate() {
-            for (k, other) in vectors.iter().enumerate() {
-                let dot: f64 = vector.iter().zip(other).map(|(x, y)| x * y).sum();
-                let expected = if j == k { 1.0 } else { 0.0 };
-                assert!(libm::fabs(dot - expected) < 1e-13, "{j} {k}: {dot}");
-            }
-            for (row, a_row) in a.iter().enumerate() {
-                let product: f64 = a_row.iter().zip(vector).map(|(x, y)| x * y).sum();
-                assert!(libm::fabs(product - values[j] * vector[row]) < 1e-13);
-            }
-        }
+        assert_eigenpairs(&a, &values, &vectors, 1e-13);
         let mut sorted = values;
         sorted.sort_unstable_by(f64::total_cmp);
         assert!(libm::fabs(sorted[0]) < 1e-14, "{sorted:?}");
@@ -650,18 +662,7 @@ mod tests {
         let (full, _) = symmetric_eigen(a, Precision::Full).unwrap();
         let (start, vectors) = symmetric_eigen(a, Precision::Start).unwrap();
         let norm = full.iter().fold(0.0_f64, |m, v| m.max(libm::fabs(*v)));
-        for (j, vector) in vectors.iter().enumerate() {
-            for (k, other) in vectors.iter().enumerate() {
-                let dot: f64 = vector.iter().zip(other).map(|(x, y)| x * y).sum();
-                let expected = if j == k { 1.0 } else { 0.0 };
-                assert!(libm::fabs(dot - expected) < 1e-13, "{j} {k}: {dot}");
-            }
-            for (row, a_row) in a.iter().enumerate() {
-                let product: f64 = a_row.iter().zip(vector).map(|(x, y)| x * y).sum();
-                let residual = libm::fabs(product - start[j] * vector[row]);
-                assert!(residual <= 2.0 * START_DEFLATION * norm, "{j}: {residual}");
-            }
-        }
+        assert_eigenpairs(&a, &start, &vectors, 2.0 * START_DEFLATION * norm);
         let (mut full, mut start) = (full, start);
         full.sort_unstable_by(f64::total_cmp);
         start.sort_unstable_by(f64::total_cmp);

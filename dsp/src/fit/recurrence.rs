@@ -4,8 +4,6 @@
 
 use core::f64::consts::PI;
 
-use super::record::Nonlinear;
-
 /// exp((-decay + i 2 pi f) t) advanced sample by sample.
 #[derive(Clone, Copy)]
 pub(super) struct Rotor {
@@ -47,8 +45,9 @@ pub(super) struct BasisSteps {
 }
 
 impl BasisSteps {
-    /// The steps at `theta` (a5, a6, a7, a8, a10) for samples `dt` seconds apart.
-    pub(super) fn new(theta: &Nonlinear, dt: f64) -> Self {
+    /// The steps at `theta` (the nonlinear parameters a5, a6, a7, a8, a10, as
+    /// `record::Nonlinear`) for samples `dt` seconds apart.
+    pub(super) fn new(theta: &[f64; 5], dt: f64) -> Self {
         Self {
             mode1: Rotor::new(theta[2], theta[0], dt),
             mode2: Rotor::new(theta[3], theta[1], dt),
