@@ -11,6 +11,9 @@ f2 within a relative 1e-6 of scipy's, the resolution of the printed parameters i
 the script exits with status 1 otherwise.
 
 Usage (from the repository root): python3 dsp/benches/compare_scipy.py
+With FIT_TIMING=/path/to/fit_timing set, that binary is run instead of `cargo run`:
+so two builds (a branch and main) can be timed alternately against scipy in one
+sitting, each run measuring scipy again beside it.
 Needs: pip install numpy scipy
 """
 
@@ -42,9 +45,12 @@ def eq1(t, a1, a2, a3, a4, a5, a6, a7, a8, a9, a10):
 def rust_fit(length, csv_path):
     env = dict(os.environ)
     env.setdefault("CARGO_TARGET_DIR", "target-dsp")
+    binary = env.get("FIT_TIMING")
+    command = [binary] if binary else [
+        "cargo", "run", "--release", "-q", "-p", "millgate-dsp", "--example", "fit_timing",
+        "--"]
     out = subprocess.run(
-        ["cargo", "run", "--release", "-q", "-p", "millgate-dsp", "--example",
-         "fit_timing", "--", str(length), csv_path],
+        command + [str(length), csv_path],
         check=True, capture_output=True, text=True, env=env,
     )
     return json.loads(out.stdout)

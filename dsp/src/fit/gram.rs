@@ -6,7 +6,7 @@ use core::f64::consts::PI;
 use nalgebra::Complex;
 
 use super::record::{Data, Nonlinear, BASIS};
-use super::recurrence::Rotor;
+use super::recurrence::{BasisSteps, Rotor};
 
 /// Factors of the basis functions apart from their power of t: Re and Im of z1^n and
 /// z2^n (z = exp((-decay + i 2 pi f) dt)), the rise 1 - e^n and the load e^n
@@ -95,7 +95,8 @@ fn power_sums_closed(w: Complex<f64>, w_count: Complex<f64>, count: usize) -> [C
         let [sums] = power_sums(&[w], count);
         return sums;
     }
-    let inverse = gap.conj() / gap_norm2;
+    // One division, not one per part.
+    let inverse = gap.conj() * (1.0 / gap_norm2);
     let last = n - 1.0;
     let s0 = (one - w_count) * inverse;
     let s1 = (s0 - one - w_count * last) * inverse;
@@ -108,21 +109,25 @@ fn power_sums_closed(w: Complex<f64>, w_count: Complex<f64>, count: usize) -> [C
 /// n^k w^n (w a product of z1, z2, e, their conjugates and 1), which
 /// [`power_sums_closed`] gives in O(1); the 6 x 6 x 3 table of factor products then
 /// fills the 10 x 10 matrix. No pass over the samples.
-pub(super) fn gram_closed(theta: &Nonlinear, count: usize, dt: f64) -> [[f64; BASIS]; BASIS] {
+pub(super) fn gram_closed(
+    theta: &Nonlinear,
+    steps: &BasisSteps,
+    count: usize,
+    dt: f64,
+) -> [[f64; BASIS]; BASIS] {
     let n = count as f64;
-    // exp((-decay + i 2 pi f) dt) and its count-th power.
-    let rotor = |decay: f64, frequency: f64| {
+    // exp((-decay + i 2 pi f) dt) (the step of `steps`) and its count-th power.
+    let rotor = |step: &Rotor, decay: f64, frequency: f64| {
         let angle = 2.0 * PI * frequency * dt;
-        let (s, c) = libm::sincos(angle);
         let (s_count, c_count) = libm::sincos(angle * n);
         (
-            Complex::new(c, s) * libm::exp(-decay * dt),
+            Complex::new(step.step_re, step.step_im),
             Complex::new(c_count, s_count) * libm::exp(-decay * dt * n),
         )
     };
-    let (z1, z1_count) = rotor(theta[2], theta[0]);
-    let (z2, z2_count) = rotor(theta[3], theta[1]);
-    let load = Complex::new(libm::exp(-theta[4] * dt), 0.0);
+    let (z1, z1_count) = rotor(&steps.mode1, theta[2], theta[0]);
+    let (z2, z2_count) = rotor(&steps.mode2, theta[3], theta[1]);
+    let load = Complex::new(steps.load, 0.0);
     let load_count = Complex::new(libm::exp(-theta[4] * dt * n), 0.0);
     let sums = |w: Complex<f64>, w_count: Complex<f64>| power_sums_closed(w, w_count, count);
     let z11 = sums(z1 * z1, z1_count * z1_count);
@@ -187,12 +192,15 @@ pub(super) fn gram_closed(theta: &Nonlinear, count: usize, dt: f64) -> [[f64; BA
 }
 
 /// Gram matrix [Phi D]^T [Phi D] summed sample by sample over the unmasked samples
-/// (the `positive_only` case, where the closed form does not apply).
-pub(super) fn gram_direct(theta: &Nonlinear, data: &Data<'_>) -> [[f64; BASIS]; BASIS] {
+/// (the `positive_only` case, where the closed form does not apply), the basis advanced
+/// by `steps`.
+pub(super) fn gram_direct(steps: &BasisSteps, data: &Data<'_>) -> [[f64; BASIS]; BASIS] {
     let dt = data.dt;
-    let mut mode1 = Rotor::new(theta[2], theta[0], dt);
-    let mut mode2 = Rotor::new(theta[3], theta[1], dt);
-    let load_step = libm::exp(-theta[4] * dt);
+    let BasisSteps {
+        mut mode1,
+        mut mode2,
+        load: load_step,
+    } = *steps;
     let mut load = 1.0;
     let mut gram = [[0.0; BASIS]; BASIS];
     for (index, value) in data.values().enumerate() {
@@ -241,8 +249,9 @@ mod tests {
             ([20.0, 20.0005, 1e-9, 0.0, 0.0], 1),
         ] {
             let data = Data::new(&samples, stride, 1.0, 1e-3 * stride as f64, true);
-            let direct = gram_direct(&theta, &data);
-            let closed = gram_closed(&theta, data.count(), data.dt);
+            let steps = BasisSteps::new(&theta, data.dt);
+            let direct = gram_direct(&steps, &data);
+            let closed = gram_closed(&theta, &steps, data.count(), data.dt);
             for i in 0..BASIS {
                 for j in 0..BASIS {
                     let scale = libm::sqrt(direct[i][i] * direct[j][j]) + 1e-300;

@@ -8,7 +8,8 @@ use nalgebra::{SMatrix, SVector};
 use super::gram::{gram_closed, gram_direct};
 use super::model::{FitError, FitOptions, FitStatus};
 use super::projection::project;
-use super::record::{Data, Linear, Nonlinear, BASIS};
+use super::record::{Data, Linear, Nonlinear};
+use super::recurrence::BasisSteps;
 use crate::linalg::Cholesky5;
 
 /// Largest ratio of |r0|^2 to the cost accepted in [`evaluate`] from a pass with a
@@ -33,8 +34,11 @@ pub(super) struct Evaluation {
     pub(super) linear: Linear,
     /// min over the linear parameters of sum(r^2).
     pub(super) cost: f64,
-    pub(super) gram: [[f64; BASIS]; BASIS],
-    /// Cholesky factor of Phi^T Phi (the top left 5 x 5 of `gram`).
+    /// Phi^T D and D^T D, the blocks of the basis' Gram matrix that the normal
+    /// equations need (not the whole 10 x 10: every copy of an evaluation moves it).
+    pub(super) phi_derivative_gram: [[f64; 5]; 5],
+    pub(super) derivative_gram: [[f64; 5]; 5],
+    /// Cholesky factor of Phi^T Phi (the top left 5 x 5 of the Gram matrix).
     pub(super) phi_gram: Cholesky5,
     /// D^T r at the optimal linear parameters.
     pub(super) derivative_projections: [f64; 5],
@@ -63,10 +67,11 @@ impl From<&Evaluation> for Solution {
 /// the solve cannot be trusted (a non-finite result, or a cost above the record's
 /// energy).
 pub(super) fn evaluate(theta: Nonlinear, data: &Data<'_>) -> Option<Evaluation> {
+    let steps = BasisSteps::new(&theta, data.dt);
     let gram = if data.positive_only {
-        gram_direct(&theta, data)
+        gram_direct(&steps, data)
     } else {
-        gram_closed(&theta, data.count(), data.dt)
+        gram_closed(&theta, &steps, data.count(), data.dt)
     };
     let phi_gram = Cholesky5::new(&SMatrix::<f64, 5, 5>::from_fn(|i, j| gram[i][j]))?;
     // The first pass projects the record itself (no model to evaluate). Where that
@@ -76,9 +81,9 @@ pub(super) fn evaluate(theta: Nonlinear, data: &Data<'_>) -> Option<Evaluation> 
     let mut attempts = 0;
     let (linear, cost, correction, projections) = loop {
         let (squares, projections) = if attempts == 0 {
-            project::<false>(&theta, &reference, data)
+            project::<false>(&steps, &reference, data)
         } else {
-            project::<true>(&theta, &reference, data)
+            project::<true>(&steps, &reference, data)
         };
         let phi_projections = SVector::<f64, 5>::from_fn(|i, _| projections[i]);
         let correction = phi_gram.solve(&phi_projections);
@@ -115,7 +120,8 @@ pub(super) fn evaluate(theta: Nonlinear, data: &Data<'_>) -> Option<Evaluation> 
         theta,
         linear,
         cost,
-        gram,
+        phi_derivative_gram: core::array::from_fn(|i| core::array::from_fn(|j| gram[i][5 + j])),
+        derivative_gram: core::array::from_fn(|i| core::array::from_fn(|j| gram[5 + i][5 + j])),
         phi_gram,
         derivative_projections,
     })
@@ -140,9 +146,8 @@ fn normal_equations(
         0.0,   -w * c2, 0.0, -c4, 0.0,
         0.0,    0.0,    0.0, 0.0, c9,
     ]);
-    let g = &point.gram;
-    let cross = SMatrix::<f64, 5, 5>::from_fn(|i, j| g[i][5 + j]) * mixing;
-    let derivative_gram = SMatrix::<f64, 5, 5>::from_fn(|i, j| g[5 + i][5 + j]);
+    let cross = SMatrix::<f64, 5, 5>::from_fn(|i, j| point.phi_derivative_gram[i][j]) * mixing;
+    let derivative_gram = SMatrix::<f64, 5, 5>::from_fn(|i, j| point.derivative_gram[i][j]);
     let projected = point.phi_gram.solve_matrix(&cross);
     let jtj = mixing.transpose() * derivative_gram * mixing - cross.transpose() * projected;
     let jtr = mixing.transpose() * SVector::<f64, 5>::from(point.derivative_projections);

@@ -52,7 +52,7 @@ mod projection;
 mod record;
 mod recurrence;
 
-use crate::linalg::peak_magnitude;
+use crate::linalg::{peak_magnitude, Precision};
 use crate::pencil::{self, MIN_DECIMATED_SAMPLES};
 use initial_guess::{best_rise, initial_guess};
 use levenberg_marquardt::{evaluate, levenberg_marquardt, Evaluation, Solution};
@@ -103,10 +103,12 @@ pub fn fit_eq1(samples: &[f64], options: &FitOptions) -> Result<Eq1Fit, FitError
     let decimation = (samples.len() / (2 * MIN_DECIMATED_SAMPLES))
         .min((rate / (4.0 * options.max_mode_hz)) as usize)
         .max(1);
-    let poles = pencil::poles_at_scale(samples, rate, decimation, scale).map_err(|e| match e {
-        pencil::PencilError::TooFewSamples => FitError::TooFewSamples,
-        _ => FitError::Singular,
-    })?;
+    // The start's poles to a relative 1e-6, not to rounding: the iteration refines them.
+    let poles = pencil::poles_at_scale(samples, rate, decimation, scale, Precision::Start)
+        .map_err(|e| match e {
+            pencil::PencilError::TooFewSamples => FitError::TooFewSamples,
+            _ => FitError::Singular,
+        })?;
     let full = Data::new(samples, 1, 1.0 / scale, dt, options.positive_only);
     let (start, coarse_iterations) =
         starting_point(samples, &full, &poles, decimation, scale, options)?;

@@ -1,8 +1,8 @@
 //! The one pass over the samples per evaluated point: the residual against a
 //! reference linear part, its sum of squares and its projections on the basis.
 
-use super::record::{Data, Linear, Nonlinear, BASIS};
-use super::recurrence::{Pair, PairRotor, Rotor};
+use super::record::{Data, Linear, BASIS};
+use super::recurrence::{BasisSteps, Pair, PairRotor};
 
 /// Accumulators of [`project`]: even and odd samples in the two lanes of each [`Pair`].
 struct Projection {
@@ -68,8 +68,9 @@ impl Projection {
     }
 }
 
-/// One pass over the record with a reference linear part `reference`: the residual
-/// r0 = y - Phi(theta) reference, its sum of squares and its projections [Phi D]^T r0.
+/// One pass over the record (the basis advanced by `steps`) with a reference linear
+/// part `reference`: the residual r0 = y - Phi(theta) reference, its sum of squares and
+/// its projections [Phi D]^T r0.
 /// Working on r0 rather than y keeps the cost free of cancellation near the optimum
 /// (cost = |r0|^2 - correction, both small), so exact records converge to full precision.
 /// Without `REFERENCED`, r0 is the record y itself (`reference` is not read) and its
@@ -84,16 +85,16 @@ impl Projection {
 // 697 k per fit of 2000 samples).
 #[inline]
 pub(super) fn project<const REFERENCED: bool>(
-    theta: &Nonlinear,
+    steps: &BasisSteps,
     reference: &Linear,
     data: &Data<'_>,
 ) -> (f64, [f64; BASIS]) {
     let dt = data.dt;
-    let load_step = libm::exp(-theta[4] * dt);
+    let load_step = steps.load;
     let zero = Pair::splat(0.0);
     let mut state = Projection {
-        mode1: PairRotor::new(Rotor::new(theta[2], theta[0], dt), 1.0, 0.0),
-        mode2: PairRotor::new(Rotor::new(theta[3], theta[1], dt), 1.0, 0.0),
+        mode1: PairRotor::new(steps.mode1, 1.0, 0.0),
+        mode2: PairRotor::new(steps.mode2, 1.0, 0.0),
         load: Pair::new(1.0, load_step),
         load_step: Pair::splat(load_step * load_step),
         reference: reference.map(Pair::splat),
@@ -204,7 +205,8 @@ mod tests {
                         *sum += residual * b;
                     }
                 }
-                let (found_squares, found) = project::<true>(&theta, &reference, &data);
+                let steps = BasisSteps::new(&theta, data.dt);
+                let (found_squares, found) = project::<true>(&steps, &reference, &data);
                 let label = (len, stride, positive_only);
                 assert!(
                     libm::fabs(found_squares - squares) <= 1e-12 * squares,
@@ -218,8 +220,8 @@ mod tests {
                     );
                 }
                 // The record's own projections: those of a zero reference.
-                let (record_squares, record) = project::<false>(&theta, &reference, &data);
-                let (zero_squares, zero) = project::<true>(&theta, &[0.0; 5], &data);
+                let (record_squares, record) = project::<false>(&steps, &reference, &data);
+                let (zero_squares, zero) = project::<true>(&steps, &[0.0; 5], &data);
                 assert!(libm::fabs(record_squares - zero_squares) <= 1e-12 * zero_squares);
                 for (x, y) in record.iter().zip(zero) {
                     assert!(

@@ -33,6 +33,29 @@ impl Rotor {
     }
 }
 
+/// The per-sample steps of the basis at one nonlinear point: the two modes' rotors
+/// and the load's factor exp(-a10 dt). An evaluation takes them once for its Gram
+/// matrix and its pass over the samples (two sines and cosines and three exponentials
+/// that both computed alike before).
+#[derive(Clone, Copy)]
+pub(super) struct BasisSteps {
+    pub(super) mode1: Rotor,
+    pub(super) mode2: Rotor,
+    pub(super) load: f64,
+}
+
+impl BasisSteps {
+    /// The steps at `theta` (the nonlinear parameters a5, a6, a7, a8, a10, as
+    /// `record::Nonlinear`) for samples `dt` seconds apart.
+    pub(super) fn new(theta: &[f64; 5], dt: f64) -> Self {
+        Self {
+            mode1: Rotor::new(theta[2], theta[0], dt),
+            mode2: Rotor::new(theta[3], theta[1], dt),
+            load: libm::exp(-theta[4] * dt),
+        }
+    }
+}
+
 /// Two f64 lanes with element-wise arithmetic: the even and the odd samples of a pass,
 /// advanced side by side. Independent lanes halve the recurrences' dependency chains
 /// and fill one 2-wide vector register.
