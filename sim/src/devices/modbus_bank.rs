@@ -34,6 +34,8 @@ pub struct RegisterBank {
     /// here with its time and first word (a virtual DAQ watched by a latency
     /// benchmark: a block's first word is its sequence; whoever reads it drains it).
     pub(crate) read_log: Option<Vec<ReadRecord>>,
+    /// Number of successful reads (FC 03 / FC 04) served.
+    pub(crate) reads: u64,
 }
 
 /// One successful input-register read, as recorded in the read log.
@@ -68,6 +70,7 @@ impl RegisterBank {
             writes: 0,
             write_log: None,
             read_log: None,
+            reads: 0,
         }
     }
 
@@ -109,6 +112,7 @@ impl RegisterBank {
         match request {
             Request::ReadInputRegisters(address, count) => {
                 let words = Self::read(&self.input, *address, *count)?;
+                self.reads += 1;
                 if let Some(log) = self.read_log.as_mut() {
                     log.push(ReadRecord {
                         time: SystemTime::now(),
@@ -119,7 +123,9 @@ impl RegisterBank {
                 Ok(Response::ReadInputRegisters(words))
             }
             Request::ReadHoldingRegisters(address, count) => {
-                Self::read(&self.holding, *address, *count).map(Response::ReadHoldingRegisters)
+                let words = Self::read(&self.holding, *address, *count)?;
+                self.reads += 1;
+                Ok(Response::ReadHoldingRegisters(words))
             }
             Request::WriteSingleRegister(address, word) => self
                 .write(*address, &[*word])

@@ -69,6 +69,7 @@ pub struct VirtualDaq {
     next_sample: usize,
     sequence: u16,
     looped: bool,
+    from_first_read: bool,
 }
 
 impl VirtualDaq {
@@ -97,6 +98,7 @@ impl VirtualDaq {
             next_sample: 0,
             sequence: 0,
             looped: false,
+            from_first_read: false,
         }
     }
 
@@ -112,6 +114,14 @@ impl VirtualDaq {
     /// last value (a long run from a short signal: load benchmarks and soaks).
     pub fn looped(mut self) -> Self {
         self.looped = true;
+        self
+    }
+
+    /// This DAQ holding its first block until a client has read it, then playing in
+    /// real time: the whole signal reaches a reader that connects late (a test's
+    /// gateway starting on a loaded machine), from the first block on.
+    pub fn playing_from_first_read(mut self) -> Self {
+        self.from_first_read = true;
         self
     }
 
@@ -196,6 +206,15 @@ impl VirtualDaq {
         // A DAQ answers with its first block already in the buffer, never an empty one.
         self.publish_next_block();
         let mut server = tokio::spawn(serve(listener, self.bank(), options, shutdown));
+        if self.from_first_read {
+            // Polled: the bank is a plain mutex shared with the server.
+            while self.bank.lock().reads == 0 {
+                tokio::select! {
+                    () = tokio::time::sleep(Duration::from_millis(1)) => {}
+                    served = &mut server => return served.map_err(io::Error::other)?,
+                }
+            }
+        }
         let period = self.block_period();
         let mut ticks = tokio::time::interval_at(tokio::time::Instant::now() + period, period);
         ticks.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Burst);

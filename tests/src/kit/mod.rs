@@ -45,7 +45,7 @@ pub use net::{
 };
 pub use peers::{json_peer, peer, promtool_passes};
 pub use scratch::{fill_file_system, scratch, TempDir};
-pub use service::{as_daq_sends, demo_devices, Plc, Setup};
+pub use service::{as_daq_sends, demo_devices, demo_devices_with, Plc, Setup};
 
 use std::path::PathBuf;
 

@@ -22,8 +22,18 @@ use super::scratch::{scratch, TempDir};
 /// register map, started on loopback; `config` is pointed at them
 /// ([`DemoDevices::start`]).
 pub async fn demo_devices(config: &mut Config, schedule: &Schedule) -> anyhow::Result<DemoDevices> {
+    let daq = millgate_sim::devices::demo::demo_daq(config, schedule)?;
+    demo_devices_with(config, daq).await
+}
+
+/// As [`demo_devices`], with the caller's DAQ (the demo's, logging the reads or
+/// playing from its first read: `VirtualDaq::playing_from_first_read`).
+pub async fn demo_devices_with(
+    config: &mut Config,
+    daq: VirtualDaq,
+) -> anyhow::Result<DemoDevices> {
     let plc_registers = usize::from(RegisterMap::new(config).len()) + 16;
-    Ok(DemoDevices::start(config, schedule, plc_registers).await?)
+    Ok(DemoDevices::start_with(config, daq, plc_registers).await?)
 }
 
 /// `schedule`'s torque as the demo's DAQ sends it on `torque`, a block channel: each
