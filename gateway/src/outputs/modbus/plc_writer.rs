@@ -8,6 +8,8 @@
 //! whatever the number of drivelines. After a failed write, a reconnect or a start the
 //! next write is whole. Requests hold whole blocks, up to 123 registers (the FC 16
 //! limit): a PLC never holds part of a block's new values beside the rest's old ones.
+//! Unchanged blocks between two changed ones go along in one request when it stays
+//! within the limit (a round trip saved for a few registers the PLC holds already).
 //! A PLC that is unreachable, or whose connection fails, is retried with capped
 //! exponential backoff, which starts again from its initial delay only after a write
 //! went through (a PLC that accepts and closes is not retried every period); the
@@ -58,16 +60,17 @@ const MAX_WRITE_REGISTERS: usize = 123;
 pub const HISTORY_WAIT: Duration = Duration::from_millis(500);
 
 /// The FC 16 requests (ranges from the map's start) that write the `blocks` for which
-/// `send` is true: blocks next to each other share a request up to
-/// [`MAX_WRITE_REGISTERS`]; a block is never split.
+/// `send` is true: a block joins the request before it when the request then spans
+/// at most [`MAX_WRITE_REGISTERS`], taking the blocks between along (`blocks` are
+/// contiguous, and a block not sent holds what the PLC holds already, so writing it
+/// again changes nothing there); a block is never split. Greedy from the first block,
+/// this makes the fewest requests; a request costs a round trip to the PLC, a register
+/// two bytes more of one.
 fn requests(blocks: &[Range<u16>], mut send: impl FnMut(&Range<u16>) -> bool) -> Vec<Range<u16>> {
     let mut requests: Vec<Range<u16>> = Vec::new();
     for block in blocks.iter().filter(|&block| send(block)) {
         match requests.last_mut() {
-            Some(last)
-                if last.end == block.start
-                    && usize::from(block.end - last.start) <= MAX_WRITE_REGISTERS =>
-            {
+            Some(last) if usize::from(block.end - last.start) <= MAX_WRITE_REGISTERS => {
                 last.end = block.end;
             }
             _ => requests.push(block.clone()),
@@ -467,8 +470,20 @@ mod tests {
         let chosen = [0, 80, 112];
         assert_eq!(
             requests(&blocks, |b| chosen.contains(&b.start)),
-            vec![0..16, 80..144],
-            "blocks apart are apart, neighbours share a request"
+            vec![0..112, 112..144],
+            "the blocks between go along up to the limit"
+        );
+        let chosen = [0, 112, 176];
+        assert_eq!(
+            requests(&blocks, |b| chosen.contains(&b.start)),
+            vec![0..16, 112..144, 176..272],
+            "blocks further apart than a request are apart"
+        );
+        let chosen = [16, 80];
+        assert_eq!(
+            requests(&blocks, |b| chosen.contains(&b.start)),
+            vec![16..112],
+            "two changed blocks with two unchanged between: one request"
         );
         assert_eq!(requests(&blocks, |_| false), Vec::<Range<u16>>::new());
     }
