@@ -30,9 +30,14 @@
 //! that goes through.
 //!
 //! With a history, each write first waits (at most [`HISTORY_WAIT`]) until the
-//! events recorded before the map was read are committed: a bite the PLC sees is in
-//! the file, even if the gateway is killed right after. A failing history is not
-//! waited for.
+//! events recorded with the results it shows are committed (the board counts them
+//! under the lock the results are copied under, so the wait covers exactly those, not
+//! events of bites published after): a bite the PLC sees is in the file, even if the
+//! gateway is killed right after. A failing history is not waited for. When the wait
+//! ends, results published meanwhile whose events are committed already (the writer
+//! thread committed them with those waited for, or since) replace the copy: their
+//! bites go in this write instead of waiting for it to end and then for a write of
+//! their own; results whose events are not committed yet wait for the next write.
 
 use std::ops::Range;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -374,12 +379,19 @@ impl PlcWriter {
                     self.continue_counters(connected, &at_start).await;
                     counters_read = true;
                 }
-                let (results, bites) = self.board.results_for_plc();
-                let words = self.map.encode(&results);
+                let mut image = self.board.results_for_plc();
+                let mut words = self.map.encode(&image.results);
                 let history = self.board.history();
-                if !history.wait_settled(history.enqueued(), HISTORY_WAIT).await {
+                if !history.wait_settled(image.through, HISTORY_WAIT).await {
                     tracing::debug!(wait = ?HISTORY_WAIT, "history commit slower than the PLC wait");
+                } else if self.board.newer_settled_for_plc(&mut image) {
+                    // Bites published during the wait and already committed go in
+                    // this write, not in the next one after it.
+                    words = self.map.encode(&image.results);
                 }
+                // What the write shows needs no other write.
+                changes.saw_results(image.version);
+                let bites = image.bites;
                 // On a change, the blocks that differ from what the PLC holds.
                 let changed = at_plc.as_deref().filter(|_| !period).map(|held| {
                     requests(blocks, |block| {
