@@ -23,7 +23,7 @@
 //! stored before the decimal-exact [`Scaling`] come back as their decimal, at most one
 //! unit in the last place from the `count * scale + offset` then analysed).
 
-use std::io::{Read as _, Write as _};
+use std::io::Read as _;
 
 use millgate_config::Scaling;
 use rusqlite::types::Value as SqlValue;
@@ -139,6 +139,37 @@ fn get_varint(bytes: &[u8], at: &mut usize) -> Option<u64> {
     None
 }
 
+/// `raw` deflated (default level, no header) by this thread's compressor, reset for
+/// it: a new one allocates and clears some 300 KiB of tables (miniz_oxide's
+/// dictionary, hash chains and buffers), which cost several times what deflating a
+/// bite's capture of a few KiB does (see docs/measured.md); the writer thread keeps
+/// one for its life.
+fn deflate(raw: &[u8]) -> std::io::Result<Vec<u8>> {
+    thread_local! {
+        static COMPRESSOR: std::cell::RefCell<flate2::Compress> =
+            std::cell::RefCell::new(flate2::Compress::new(flate2::Compression::default(), false));
+    }
+    COMPRESSOR.with_borrow_mut(|compress| {
+        compress.reset();
+        let mut blob = Vec::with_capacity(raw.len() / 2 + 64);
+        loop {
+            let taken = usize::try_from(compress.total_in()).unwrap_or(usize::MAX);
+            let status = compress
+                .compress_vec(
+                    raw.get(taken..).unwrap_or_default(),
+                    &mut blob,
+                    flate2::FlushCompress::Finish,
+                )
+                .map_err(std::io::Error::other)?;
+            if status == flate2::Status::StreamEnd {
+                return Ok(blob);
+            }
+            // `compress_vec` fills the spare capacity only.
+            blob.reserve(blob.capacity().max(64));
+        }
+    })
+}
+
 /// The blob and `meta` of `record`.
 pub fn encode(record: &CaptureRecord) -> std::io::Result<(Vec<u8>, CaptureMeta)> {
     let mut raw = Vec::new();
@@ -169,12 +200,7 @@ pub fn encode(record: &CaptureRecord) -> std::io::Result<(Vec<u8>, CaptureMeta)>
             encoding,
         });
     }
-    let mut deflate = flate2::write::DeflateEncoder::new(
-        Vec::with_capacity(raw.len() / 2),
-        flate2::Compression::default(),
-    );
-    deflate.write_all(&raw)?;
-    let blob = deflate.finish()?;
+    let blob = deflate(&raw)?;
     let meta = CaptureMeta {
         format: FORMAT,
         channels,
@@ -503,6 +529,7 @@ impl HistoryReader {
 mod tests {
     use super::*;
     use crate::state::captures::{CaptureKind, KeepClass};
+    use std::io::Write as _;
 
     fn record(channels: Vec<CaptureChannel>) -> CaptureRecord {
         CaptureRecord {
@@ -588,6 +615,46 @@ mod tests {
             error.to_string(),
             "capture 7: the samples are damaged (ends early)"
         );
+    }
+
+    /// Captures deflated one after the other by the thread's one compressor come back
+    /// whole, among them one whose blob outgrows the room first given (values that do
+    /// not deflate: `f64`s of a seeded random walk).
+    #[test]
+    fn captures_deflated_in_turn_by_one_compressor_decode_to_their_samples() {
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut walk = 0.0;
+        let noisy: Vec<f64> = (0..20_000)
+            .map(|_| {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                walk += (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
+                walk
+            })
+            .collect();
+        let scaling = Scaling::new(0.05, 0.0);
+        let counts: Vec<f64> = (0..3000)
+            .map(|i| scaling.apply(f64::from(i % 97)))
+            .collect();
+        let records = [
+            record(vec![channel(0.05, 0.0, counts)]),
+            record(vec![channel(1.0, 0.0, noisy)]),
+            record(vec![channel(0.05, 0.0, vec![scaling.apply(3.0); 10])]),
+        ];
+        for record in &records {
+            let (blob, meta) = encode(record).unwrap();
+            let decoded = decode(1, &meta, record.samples(), &blob).unwrap();
+            assert_eq!(decoded.len(), 1);
+            let (back, sent) = (&decoded[0].samples, &record.channels[0].samples);
+            assert_eq!(back.len(), sent.len());
+            assert!(
+                back.iter()
+                    .zip(sent)
+                    .all(|(b, s)| b.to_bits() == s.to_bits()),
+                "the samples come back bit for bit"
+            );
+        }
     }
 
     /// A deflate bomb (64 MiB of zeros, 64 KiB deflated) under a row of 1 000 samples

@@ -46,6 +46,20 @@ pub struct Board {
     latencies: Arc<Latencies>,
 }
 
+/// The results the PLC writer writes next ([`Board::results_for_plc`]).
+#[derive(Debug)]
+pub(crate) struct PlcImage {
+    /// The results, source health applied.
+    pub(crate) results: Results,
+    /// The stamps of the bites these results show first (no write carried them yet).
+    pub(crate) bites: Vec<std::time::Instant>,
+    /// History events recorded up to these results: a write of them waits until the
+    /// history has settled this many ([`History::wait_settled`]).
+    pub(crate) through: u64,
+    /// The change signal's results version when they were taken.
+    pub(crate) version: u64,
+}
+
 /// What the board knows of the drivelines besides their results, in config order.
 #[derive(Debug)]
 struct DrivelineShape {
@@ -266,17 +280,51 @@ impl Board {
         results
     }
 
-    /// A copy of the results (as [`Self::results`]) and, taken under the same lock,
-    /// the stamps of the bites published in them that no PLC write carried yet:
-    /// what the PLC writer encodes, and observes once the PLC acknowledged it
-    /// ([`Latencies::written`]).
-    pub(crate) fn results_for_plc(&self) -> (Results, Vec<std::time::Instant>) {
+    /// What the PLC writer writes next: a copy of the results (as [`Self::results`])
+    /// and, taken under the same lock, the stamps of the bites published in them that
+    /// no PLC write carried yet (observed once the PLC acknowledged the write:
+    /// [`Latencies::written`]) and the count of history events recorded with them
+    /// (the write waits until the history has settled exactly those).
+    pub(crate) fn results_for_plc(&self) -> PlcImage {
         let locked = crate::lock(&self.results);
-        let stamps = self.latencies.take_waiting();
-        let mut results = locked.clone();
+        let image = self.image_locked(&locked, Vec::new());
         drop(locked);
-        self.apply_health(&mut results);
-        (results, stamps)
+        self.with_health(image)
+    }
+
+    /// `image` brought up to the results now when the history has already settled
+    /// every event recorded with them (a bite published while the writer waited for
+    /// the commit of `image`'s, and committed with them or since): the write then
+    /// carries it too, instead of the next write after this one. Returns whether it
+    /// moved; `image` is left as it is otherwise.
+    pub(crate) fn newer_settled_for_plc(&self, image: &mut PlcImage) -> bool {
+        let locked = crate::lock(&self.results);
+        let version = self.signal.now().results;
+        let through = self.history.enqueued();
+        if version == image.version || !self.history.settled_now(through) {
+            return false;
+        }
+        let newer = self.image_locked(&locked, std::mem::take(&mut image.bites));
+        drop(locked);
+        *image = self.with_health(newer);
+        true
+    }
+
+    /// A [`PlcImage`] of `locked` (the results under their lock), its stamps after
+    /// `carried`, health not applied yet.
+    fn image_locked(&self, locked: &Results, mut carried: Vec<std::time::Instant>) -> PlcImage {
+        carried.extend(self.latencies.take_waiting());
+        PlcImage {
+            results: locked.clone(),
+            bites: carried,
+            through: self.history.enqueued(),
+            version: self.signal.now().results,
+        }
+    }
+
+    fn with_health(&self, mut image: PlcImage) -> PlcImage {
+        self.apply_health(&mut image.results);
+        image
     }
 
     /// Keep the source statuses as they are now in every later image: the readers are
@@ -471,5 +519,69 @@ mod tests {
         board.acknowledge_alarms(CommandOrigin::Local);
         assert!(woken(&mut changes).await, "an alarm cleared: a change");
         assert!(!board.results().drivelines[0].taf_alarm);
+    }
+
+    /// Publish a bite of driveline 0 handed over at `handed`, counted `counter`, with
+    /// one history event.
+    fn bite(board: &Board, handed: std::time::Instant, counter: u32) {
+        board.update_bites_recorded([handed], |results, events| {
+            results.drivelines[0].bite_counter = counter;
+            events.push(HistoryEvent::WearReset {
+                time: UtcTime::now(),
+                driveline: "F1".into(),
+                origin: CommandOrigin::Local,
+            });
+        });
+    }
+
+    /// The PLC writer's copy waits for exactly the history events recorded with its
+    /// results; newer results replace it only once their own events are settled, and
+    /// then carry the bites of both; a writer that took them is not woken for them
+    /// again.
+    #[tokio::test(start_paused = true)]
+    async fn the_plc_image_waits_for_its_own_events_and_takes_newer_settled_ones() {
+        let config = crate::testing::example_config("demo.toml");
+        let settings = millgate_config::History {
+            // Never opened: no writer runs, the test settles events itself.
+            path: std::env::temp_dir().join("millgate-board-plc-image-unused.db"),
+            retention_days: 1,
+            max_size_mb: 16,
+            captures: millgate_config::CaptureSettings::defaults(16),
+            synchronous: millgate_config::Synchronous::default(),
+        };
+        let history = History::new(Some(&settings));
+        let board = Board::new(&config, Vec::new()).with_history(history.clone());
+        let _writer = board.latencies().plc_writer();
+        let mut changes = board.changes();
+        let (first, second) = (
+            std::time::Instant::now(),
+            std::time::Instant::now() + Duration::from_millis(1),
+        );
+        bite(&board, first, 1);
+        let mut image = board.results_for_plc();
+        assert_eq!((image.through, image.bites.as_slice()), (1, &[first][..]));
+        bite(&board, second, 2);
+        assert_eq!(history.enqueued(), 2);
+        assert_eq!(image.through, 1, "the later bite's event is not waited for");
+        assert!(!history.settled_now(image.through));
+        history.signal().settled(1);
+        assert!(history.settled_now(image.through));
+        assert!(
+            !board.newer_settled_for_plc(&mut image),
+            "the newer results' event is not committed yet"
+        );
+        assert_eq!(image.results.drivelines[0].bite_counter, 1);
+        history.signal().settled(2);
+        assert!(board.newer_settled_for_plc(&mut image));
+        assert_eq!(image.results.drivelines[0].bite_counter, 2);
+        assert_eq!(
+            (image.through, image.bites.as_slice()),
+            (2, &[first, second][..])
+        );
+        assert!(!board.newer_settled_for_plc(&mut image), "nothing newer");
+        changes.saw_results(image.version);
+        assert!(!woken(&mut changes).await, "the image showed it all");
+        bite(&board, second, 3);
+        assert!(woken(&mut changes).await);
     }
 }

@@ -92,6 +92,12 @@ impl Changes {
         self.moved(|version| version.results).await
     }
 
+    /// Count the results up to `version` (a [`Signal::now`]'s) as seen: a waiter that
+    /// has taken results at least that new is not woken for them again.
+    pub(crate) fn saw_results(&mut self, version: u64) {
+        self.seen.results = version;
+    }
+
     /// Wait until the history settled more events since the last wait.
     pub async fn settled(&mut self) -> Version {
         self.moved(|version| version.settled).await

@@ -374,13 +374,21 @@ impl History {
     /// at once when the history is disabled or failing: the PLC must not wait on a
     /// store that cannot take its events.
     pub async fn wait_settled(&self, through: u64, limit: Duration) -> bool {
-        if self.shared.counters.state() != HistoryState::Ok {
+        if self.settled_now(through) {
             return true;
         }
         let mut changes = self.shared.signal.subscribe();
         tokio::time::timeout(limit, changes.settled_through(through))
             .await
             .is_ok()
+    }
+
+    /// Whether the first `through` events recorded are settled now, or need not be
+    /// waited for (the history is disabled or failing): [`Self::wait_settled`] without
+    /// the wait.
+    pub(crate) fn settled_now(&self, through: u64) -> bool {
+        self.shared.counters.state() != HistoryState::Ok
+            || self.shared.signal.now().settled >= through
     }
 
     /// The change signal this history's writer reports to (the board reports the

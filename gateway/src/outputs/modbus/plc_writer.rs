@@ -8,6 +8,8 @@
 //! whatever the number of drivelines. After a failed write, a reconnect or a start the
 //! next write is whole. Requests hold whole blocks, up to 123 registers (the FC 16
 //! limit): a PLC never holds part of a block's new values beside the rest's old ones.
+//! Unchanged blocks between two changed ones go along in one request when it stays
+//! within the limit (a round trip saved for a few registers the PLC holds already).
 //! A PLC that is unreachable, or whose connection fails, is retried with capped
 //! exponential backoff, which starts again from its initial delay only after a write
 //! went through (a PLC that accepts and closes is not retried every period); the
@@ -28,9 +30,14 @@
 //! that goes through.
 //!
 //! With a history, each write first waits (at most [`HISTORY_WAIT`]) until the
-//! events recorded before the map was read are committed: a bite the PLC sees is in
-//! the file, even if the gateway is killed right after. A failing history is not
-//! waited for.
+//! events recorded with the results it shows are committed (the board counts them
+//! under the lock the results are copied under, so the wait covers exactly those, not
+//! events of bites published after): a bite the PLC sees is in the file, even if the
+//! gateway is killed right after. A failing history is not waited for. When the wait
+//! ends, results published meanwhile whose events are committed already (the writer
+//! thread committed them with those waited for, or since) replace the copy: their
+//! bites go in this write instead of waiting for it to end and then for a write of
+//! their own; results whose events are not committed yet wait for the next write.
 
 use std::ops::Range;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -58,16 +65,17 @@ const MAX_WRITE_REGISTERS: usize = 123;
 pub const HISTORY_WAIT: Duration = Duration::from_millis(500);
 
 /// The FC 16 requests (ranges from the map's start) that write the `blocks` for which
-/// `send` is true: blocks next to each other share a request up to
-/// [`MAX_WRITE_REGISTERS`]; a block is never split.
+/// `send` is true: a block joins the request before it when the request then spans
+/// at most [`MAX_WRITE_REGISTERS`], taking the blocks between along (`blocks` are
+/// contiguous, and a block not sent holds what the PLC holds already, so writing it
+/// again changes nothing there); a block is never split. Greedy from the first block,
+/// this makes the fewest requests; a request costs a round trip to the PLC, a register
+/// two bytes more of one.
 fn requests(blocks: &[Range<u16>], mut send: impl FnMut(&Range<u16>) -> bool) -> Vec<Range<u16>> {
     let mut requests: Vec<Range<u16>> = Vec::new();
     for block in blocks.iter().filter(|&block| send(block)) {
         match requests.last_mut() {
-            Some(last)
-                if last.end == block.start
-                    && usize::from(block.end - last.start) <= MAX_WRITE_REGISTERS =>
-            {
+            Some(last) if usize::from(block.end - last.start) <= MAX_WRITE_REGISTERS => {
                 last.end = block.end;
             }
             _ => requests.push(block.clone()),
@@ -371,12 +379,19 @@ impl PlcWriter {
                     self.continue_counters(connected, &at_start).await;
                     counters_read = true;
                 }
-                let (results, bites) = self.board.results_for_plc();
-                let words = self.map.encode(&results);
+                let mut image = self.board.results_for_plc();
+                let mut words = self.map.encode(&image.results);
                 let history = self.board.history();
-                if !history.wait_settled(history.enqueued(), HISTORY_WAIT).await {
+                if !history.wait_settled(image.through, HISTORY_WAIT).await {
                     tracing::debug!(wait = ?HISTORY_WAIT, "history commit slower than the PLC wait");
+                } else if self.board.newer_settled_for_plc(&mut image) {
+                    // Bites published during the wait and already committed go in
+                    // this write, not in the next one after it.
+                    words = self.map.encode(&image.results);
                 }
+                // What the write shows needs no other write.
+                changes.saw_results(image.version);
+                let bites = image.bites;
                 // On a change, the blocks that differ from what the PLC holds.
                 let changed = at_plc.as_deref().filter(|_| !period).map(|held| {
                     requests(blocks, |block| {
@@ -467,8 +482,20 @@ mod tests {
         let chosen = [0, 80, 112];
         assert_eq!(
             requests(&blocks, |b| chosen.contains(&b.start)),
-            vec![0..16, 80..144],
-            "blocks apart are apart, neighbours share a request"
+            vec![0..112, 112..144],
+            "the blocks between go along up to the limit"
+        );
+        let chosen = [0, 112, 176];
+        assert_eq!(
+            requests(&blocks, |b| chosen.contains(&b.start)),
+            vec![0..16, 112..144, 176..272],
+            "blocks further apart than a request are apart"
+        );
+        let chosen = [16, 80];
+        assert_eq!(
+            requests(&blocks, |b| chosen.contains(&b.start)),
+            vec![16..112],
+            "two changed blocks with two unchanged between: one request"
         );
         assert_eq!(requests(&blocks, |_| false), Vec::<Range<u16>>::new());
     }
