@@ -785,7 +785,7 @@ impl Started {
         };
         // The analysis and the board have them now: the maps' progress and outcome
         // find their driveline.
-        self.analysis_maps.spawn(gap_maps);
+        self.analysis_maps.spawn_live(gap_maps);
         let Some(map) = map else {
             return Ok(());
         };

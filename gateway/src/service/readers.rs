@@ -154,8 +154,8 @@ pub(super) struct MapBuilds {
     cancel: Arc<AtomicBool>,
     /// Where their progress shows.
     board: Arc<Board>,
-    /// Workers per build: one per core (the build uses the machine while the service
-    /// runs).
+    /// The machine's cores: a start's builds take one worker per core, a reload's one
+    /// fewer ([`MapBuilds::spawn_live`]).
     threads: usize,
 }
 
@@ -170,14 +170,22 @@ impl MapBuilds {
             board: Arc::clone(board),
             threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
         };
-        builds.spawn(jobs);
+        builds.spawn(jobs, builds.threads);
         (builds, ready_rx)
     }
 
-    /// Start the builds of `jobs`, each on a thread of its own (drivelines the
-    /// analysis already has: their progress and their maps find them); one that cannot
-    /// start is a failed build on the board.
-    pub(super) fn spawn(&self, jobs: Vec<GapMapJob>) {
+    /// Start the builds of `jobs` of drivelines a reload added, on one worker fewer
+    /// than the cores (at least one): the running drivelines' analysis keeps a core
+    /// while the maps build (with every core, a live build of 20 600 simulated bites
+    /// doubled their bite -> PLC latency in `reload.rs`' measurement).
+    pub(super) fn spawn_live(&self, jobs: Vec<GapMapJob>) {
+        self.spawn(jobs, self.threads.saturating_sub(1).max(1));
+    }
+
+    /// Start the builds of `jobs`, each on a thread of its own with `threads` workers
+    /// (drivelines the analysis already has: their progress and their maps find them);
+    /// one that cannot start is a failed build on the board.
+    fn spawn(&self, jobs: Vec<GapMapJob>, threads: usize) {
         for job in jobs {
             let driveline = job.driveline_name.clone();
             let index = job.driveline;
@@ -187,7 +195,7 @@ impl MapBuilds {
             };
             let spawned = spawn_job(
                 job,
-                self.threads,
+                threads,
                 self.ready.clone(),
                 Arc::clone(&self.cancel),
                 progress,
