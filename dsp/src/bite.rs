@@ -201,6 +201,11 @@ impl<const PRE: usize, const N: usize> BiteDetectorState<PRE, N> {
     pub fn sample_index(&self) -> u64 {
         self.sample_index
     }
+
+    /// True while a window is being captured (a gap ends it, and hands it over).
+    pub fn is_capturing(&self) -> bool {
+        self.phase == Phase::Capturing
+    }
 }
 
 impl<const PRE: usize, const N: usize> BiteDetector<PRE, N> {
@@ -482,6 +487,20 @@ impl<const PRE: usize, const N: usize> BiteDetector<PRE, N> {
             if let Some(event) = self.process(state, sample) {
                 on_event(event);
             }
+        }
+    }
+
+    /// The fewest samples after which [`Self::process`] can hand a window over: the
+    /// rest of the window being captured, or, while none is, the post-trigger samples
+    /// a trigger needs (its own sample and the rest). A caller that has fewer to give
+    /// knows no window completes with them (but a gap ends one being captured).
+    pub fn samples_to_window_end(&self, state: &BiteDetectorState<PRE, N>) -> usize {
+        match state.phase {
+            Phase::Capturing => self
+                .settings
+                .post_trigger_samples
+                .saturating_sub(state.window.len() - state.trigger_index),
+            Phase::Armed | Phase::Dead => self.settings.post_trigger_samples,
         }
     }
 

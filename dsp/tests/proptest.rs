@@ -71,6 +71,41 @@ proptest! {
         prop_assert!(!state.baseline_knm().is_nan());
     }
 
+    /// `samples_to_window_end` is a bound a caller can plan on: a window comes from
+    /// `process` only at the sample it counted down to, and from `gap` only while
+    /// one is being captured.
+    #[test]
+    fn a_window_comes_only_when_its_samples_are_in(samples in record(3000), gaps in prop::collection::vec(0..3000usize, 0..4), post in 1..200usize) {
+        let detector = BiteDetector::<32, 256>::new(BiteSettings {
+            threshold_knm: 20.0,
+            rearm_knm: 10.0,
+            holdoff_samples: 10,
+            baseline_alpha: 0.01,
+            saturation_low_knm: -400.0,
+            saturation_high_knm: 400.0,
+            post_trigger_samples: post,
+        }).unwrap();
+        let mut state = detector.state();
+        let mut windows = 0;
+        for (i, &sample) in samples.iter().enumerate() {
+            if gaps.contains(&i) {
+                let capturing = state.is_capturing();
+                let ended = detector.gap(&mut state, 3).is_some();
+                prop_assert!(!ended || capturing, "a gap handed a window over with none captured");
+            }
+            if i % 7 == 0 {
+                let _ = detector.trigger(&mut state);
+            }
+            let before = detector.samples_to_window_end(&state);
+            prop_assert!(before >= 1);
+            if detector.process(&mut state, sample).is_some() {
+                windows += 1;
+                prop_assert_eq!(before, 1, "a window came with {} samples still to go", before);
+            }
+        }
+        prop_assert!(windows <= samples.len() / post.max(1));
+    }
+
     #[test]
     fn transient_outputs_are_finite(window in record(600), trigger in 0..600usize, baseline in any_sample()) {
         let settings = TransientSettings {

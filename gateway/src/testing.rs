@@ -41,6 +41,7 @@ pub(crate) fn capture_without_samples(
         episode: None,
         keep: KeepClass::Important,
         context,
+        encoded: None,
     }
 }
 

@@ -190,22 +190,35 @@ fn print_load_point(
 
 /// The gateway's own latency histograms on its last `/metrics` (the whole run, the
 /// warm-up included; bucket bounds, so shares, not quantiles): beside the bench's
-/// figures, which the bench stamps on its own devices.
+/// figures, which the bench stamps on its own devices; then a bite's stages
+/// (`millgate_bite_stage_seconds`), which add up to its bite -> PLC time.
 fn print_gateway_latency(final_metrics: &str) {
-    for name in [
-        "millgate_bite_to_plc_seconds",
-        "millgate_block_wait_seconds",
-    ] {
-        let count = metric_sum(final_metrics, &format!("{name}_count"));
-        let sum = metric_sum(final_metrics, &format!("{name}_sum"));
-        let within = |le: &str| {
-            let bucket = metric_sum(final_metrics, &format!("{name}_bucket{{le=\"{le}\"}}"));
-            100.0 * bucket / count.max(1.0)
+    let stages = ["analysis", "to_writer", "history", "write"]
+        .map(|stage| ("millgate_bite_stage_seconds", format!("stage=\"{stage}\"")));
+    let series = [
+        ("millgate_bite_to_plc_seconds", String::new()),
+        ("millgate_block_wait_seconds", String::new()),
+    ]
+    .into_iter()
+    .chain(stages);
+    for (name, labels) in series {
+        let with = |suffix: &str, le: Option<&str>| {
+            let labels = match (labels.is_empty(), le) {
+                (true, None) => String::new(),
+                (true, Some(le)) => format!("{{le=\"{le}\"}}"),
+                (false, None) => format!("{{{labels}}}"),
+                (false, Some(le)) => format!("{{{labels},le=\"{le}\"}}"),
+            };
+            metric_sum(final_metrics, &format!("{name}_{suffix}{labels}"))
         };
+        let count = with("count", None);
+        let sum = with("sum", None);
+        let within = |le: &str| 100.0 * with("bucket", Some(le)) / count.max(1.0);
         println!(
-            "# the gateway's {name}: {count} observed, mean {:.2} ms, {:.1}% <= 1 ms, \
+            "# the gateway's {name}{}: {count} observed, mean {:.2} ms, {:.1}% <= 1 ms, \
              {:.1}% <= 2 ms, {:.1}% <= 5 ms, {:.1}% <= 10 ms, {:.1}% <= 20 ms \
              (whole run, warm-up included)",
+            if labels.is_empty() { String::new() } else { format!("{{{labels}}}") },
             1000.0 * sum / count.max(1.0),
             within("0.001"),
             within("0.002"),

@@ -436,6 +436,10 @@ impl Analysis {
         let mut to_hold = Vec::new();
         self.pool.run_round(
             jobs,
+            |job| match job {
+                Job::Driveline(analyzer, steps) => analyzer.may_complete_a_window(steps),
+                Job::Mills(..) => true,
+            },
             |job| {
                 let (analyzer, steps) = match job {
                     Job::Driveline(analyzer, steps) => (analyzer, steps),

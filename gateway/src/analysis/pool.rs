@@ -1,6 +1,7 @@
 //! The analysis round's bounded pool: the jobs of one round (a driveline's share of
-//! the blocks drained together) run on a pool of `workers` persistent threads, and
-//! each job's result is handed to the publisher as soon as it is done, together with
+//! the blocks drained together) that may take a bite's analysis run on a pool of
+//! `workers` persistent threads, the others on the round's own thread, and each
+//! job's result is handed to the publisher as soon as it is done, together with
 //! whatever else finished meanwhile. A slow job delays only itself: the others'
 //! results are published while it runs; the round (and so the next blocks) ends when
 //! it ends.
@@ -55,30 +56,37 @@ impl Pool {
             .as_ref()
     }
 
-    /// Run `jobs` through `work` on the pool (inline on the calling thread with one
-    /// worker or one job), calling `publish` on the calling thread with each group of
-    /// results that are done, in the order they finished. Returns once every job is
-    /// done and published.
+    /// Run `jobs` through `work`, calling `publish` on the calling thread with each
+    /// group of results that are done, in the order they finished; returns once every
+    /// job is done and published. The `heavy` jobs (those that may take a bite's
+    /// analysis) run on the pool when there are two or more and more than one worker;
+    /// the others run on the calling thread meanwhile (taking a block's samples in is
+    /// a few microseconds: waking a pool thread for it costs more than it saves, and a
+    /// woken thread that finds no work spins on `sched_yield` before it sleeps, which
+    /// on a small machine takes a core from the readers and the outputs). Otherwise
+    /// every job runs on the calling thread, the heavy ones first.
     pub(crate) fn run_round<J: Send, R: Send>(
         &self,
         jobs: Vec<J>,
+        heavy: impl Fn(&J) -> bool,
         work: impl Fn(J) -> R + Sync,
         mut publish: impl FnMut(Vec<R>),
     ) {
-        let threads = if self.workers > 1 && jobs.len() > 1 {
+        let (pooled, inline): (Vec<J>, Vec<J>) = jobs.into_iter().partition(|job| heavy(job));
+        let threads = if self.workers > 1 && pooled.len() > 1 {
             self.threads()
         } else {
             None
         };
         let Some(threads) = threads else {
-            for job in jobs {
+            for job in pooled.into_iter().chain(inline) {
                 publish(vec![work(job)]);
             }
             return;
         };
-        let (done, finished) = mpsc::sync_channel(jobs.len());
+        let (done, finished) = mpsc::sync_channel(pooled.len());
         threads.in_place_scope(|scope| {
-            for job in jobs {
+            for job in pooled {
                 let (done, work) = (done.clone(), &work);
                 // Room for every job's result: never blocks. A publisher gone (it
                 // panicked) ends the scope with its panic anyway.
@@ -87,6 +95,11 @@ impl Pool {
                 });
             }
             drop(done);
+            for job in inline {
+                let mut group = vec![work(job)];
+                group.extend(finished.try_iter());
+                publish(group);
+            }
             while let Ok(first) = finished.recv() {
                 let mut group = vec![first];
                 group.extend(finished.try_iter());
@@ -112,6 +125,7 @@ mod tests {
                 let mut published = Vec::new();
                 pool.run_round(
                     (0..20).collect(),
+                    |job| job % 3 != 0,
                     |job: u32| job * 10,
                     |group| published.extend(group),
                 );
@@ -131,6 +145,7 @@ mod tests {
         for _round in 0..20 {
             pool.run_round(
                 (0..8).collect(),
+                |_| true,
                 |_job: u32| {
                     std::thread::sleep(Duration::from_millis(1));
                     std::thread::current().id()
@@ -146,6 +161,31 @@ mod tests {
         );
     }
 
+    /// The light jobs run on the calling thread beside the heavy ones on the pool; a
+    /// round with fewer than two heavy jobs wakes no pool thread at all.
+    #[test]
+    fn light_jobs_run_on_the_calling_thread() {
+        let pool = Pool::new(2);
+        let caller = std::thread::current().id();
+        let on = |heavy_jobs: u32| {
+            let mut ran = Vec::new();
+            pool.run_round(
+                (0..10).collect(),
+                |&job| job < heavy_jobs,
+                |job: u32| (job, std::thread::current().id()),
+                |group| ran.extend(group),
+            );
+            ran.sort_unstable_by_key(|&(job, _)| job);
+            assert_eq!(ran.len(), 10);
+            ran
+        };
+        for (job, thread) in on(3) {
+            assert_eq!(thread == caller, job >= 3, "job {job}");
+        }
+        assert!(on(1).iter().all(|&(_, thread)| thread == caller));
+        assert!(on(0).iter().all(|&(_, thread)| thread == caller));
+    }
+
     /// A slow job does not hold the others back: it waits until the fast jobs'
     /// results were published (if the pool published only at the round's end, the
     /// slow job would wait for ever: it gives up after 10 s and the test fails).
@@ -156,6 +196,7 @@ mod tests {
         let mut order = Vec::new();
         Pool::new(2).run_round(
             vec!["slow", "fast 1", "fast 2"],
+            |_| true,
             |job| {
                 if job == "slow" {
                     let waited = crate::lock(&wait_for_fast).recv_timeout(Duration::from_secs(10));

@@ -127,6 +127,23 @@ impl Routes<'_> {
 }
 
 impl DrivelineAnalyzer {
+    /// Whether `steps` may complete a bite window, so that their job may take a
+    /// bite's analysis (some hundreds of microseconds) rather than the few it takes
+    /// to take samples in: their torque samples reach the detector's window end
+    /// ([`millgate_dsp::bite::BiteDetector::samples_to_window_end`]), or a gap may end
+    /// a window.
+    pub(super) fn may_complete_a_window(&self, steps: &[Step<'_>]) -> bool {
+        let mut torque = 0;
+        for step in steps {
+            match step {
+                Step::Torque { values, .. } => torque += values.len(),
+                Step::TorqueGap { .. } => return true,
+                _ => {}
+            }
+        }
+        torque >= self.samples_to_window_end()
+    }
+
     /// Take `steps` in order; returns the bites they completed, analysed. A manual
     /// capture whose samples are all in is recorded in `board`'s history.
     pub(super) fn run_steps(&mut self, steps: &[Step<'_>], board: &Board) -> Vec<BiteReport> {

@@ -232,13 +232,23 @@ pub(super) fn spawn_analysis(
     liveness: Arc<Liveness>,
 ) -> AnalysisTask {
     let (maps, maps_rx) = MapBuilds::start(analysis.take_gap_map_jobs(), board);
+    let run = analysis.run(
+        samples,
+        maps_rx,
+        (commands, thresholds, additions),
+        liveness,
+    );
+    // On a thread of its own, not on a runtime worker: a round blocks its thread
+    // for as long as its bites take (it waits for the pool's jobs, or runs them), and
+    // a task a worker wakes goes to that worker's LIFO slot, which no other worker
+    // can take. On a worker, the PLC writer woken by a bite's publication (and the
+    // Sparkplug node, the web's streams) waited there until the round ended, the
+    // last bite of a burst analysed, and a busy analysis left one worker for every
+    // reader and output. Woken from this thread, they go to the runtime's shared
+    // queue, which any worker takes at once.
+    let runtime = tokio::runtime::Handle::current();
     AnalysisTask {
-        task: tokio::spawn(analysis.run(
-            samples,
-            maps_rx,
-            (commands, thresholds, additions),
-            liveness,
-        )),
+        task: tokio::task::spawn_blocking(move || runtime.block_on(run)),
         maps,
     }
 }

@@ -52,7 +52,7 @@ pub(crate) struct PlcImage {
     /// The results, source health applied.
     pub(crate) results: Results,
     /// The stamps of the bites these results show first (no write carried them yet).
-    pub(crate) bites: Vec<std::time::Instant>,
+    pub(crate) bites: Vec<crate::state::latency::BiteStamps>,
     /// History events recorded up to these results: a write of them waits until the
     /// history has settled this many ([`History::wait_settled`]).
     pub(crate) through: u64,
@@ -312,7 +312,11 @@ impl Board {
 
     /// A [`PlcImage`] of `locked` (the results under their lock), its stamps after
     /// `carried`, health not applied yet.
-    fn image_locked(&self, locked: &Results, mut carried: Vec<std::time::Instant>) -> PlcImage {
+    fn image_locked(
+        &self,
+        locked: &Results,
+        mut carried: Vec<crate::state::latency::BiteStamps>,
+    ) -> PlcImage {
         carried.extend(self.latencies.take_waiting());
         PlcImage {
             results: locked.clone(),
@@ -559,7 +563,8 @@ mod tests {
         );
         bite(&board, first, 1);
         let mut image = board.results_for_plc();
-        assert_eq!((image.through, image.bites.as_slice()), (1, &[first][..]));
+        let handed = |image: &PlcImage| image.bites.iter().map(|b| b.handed).collect::<Vec<_>>();
+        assert_eq!((image.through, handed(&image)), (1, vec![first]));
         bite(&board, second, 2);
         assert_eq!(history.enqueued(), 2);
         assert_eq!(image.through, 1, "the later bite's event is not waited for");
@@ -574,9 +579,10 @@ mod tests {
         history.signal().settled(2);
         assert!(board.newer_settled_for_plc(&mut image));
         assert_eq!(image.results.drivelines[0].bite_counter, 2);
-        assert_eq!(
-            (image.through, image.bites.as_slice()),
-            (2, &[first, second][..])
+        assert_eq!((image.through, handed(&image)), (2, vec![first, second]));
+        assert!(
+            image.bites[1].taken >= image.bites[0].taken,
+            "the bite taken after the wait was taken then"
         );
         assert!(!board.newer_settled_for_plc(&mut image), "nothing newer");
         changes.saw_results(image.version);

@@ -324,6 +324,7 @@ impl EpisodeRecorder {
             }),
             keep: KeepClass::Important,
             context: episode.context,
+            encoded: None,
         }
     }
 }

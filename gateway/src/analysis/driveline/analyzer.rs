@@ -284,6 +284,12 @@ impl DrivelineAnalyzer {
         }
     }
 
+    /// Torque samples the detector must still take before it can hand a window over
+    /// ([`millgate_dsp::bite::BiteDetector::samples_to_window_end`]).
+    pub(crate) fn samples_to_window_end(&self) -> usize {
+        self.detector.samples_to_window_end(&self.state)
+    }
+
     /// "Metal in stand": a rising edge through 0.5 triggers a capture.
     pub(crate) fn trigger_value(&mut self, value: f64) {
         let high = value > 0.5;

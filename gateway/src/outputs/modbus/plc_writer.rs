@@ -400,9 +400,10 @@ impl PlcWriter {
                     })
                 });
                 let requests = changed.as_ref().unwrap_or(&whole);
+                let sent = std::time::Instant::now();
                 match self.write(connected, &words, requests).await {
                     Ok(()) => {
-                        latencies.written(&bites);
+                        latencies.written(&bites, sent);
                         at_plc = Some(words);
                         self.counters.written();
                         backoff.reset();
