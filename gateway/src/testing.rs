@@ -41,7 +41,6 @@ pub(crate) fn capture_without_samples(
         episode: None,
         keep: KeepClass::Important,
         context,
-        encoded: None,
     }
 }
 

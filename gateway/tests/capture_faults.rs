@@ -66,7 +66,6 @@ fn manual_capture(stands: usize, samples: usize) -> CaptureRecord {
         episode: None,
         keep: KeepClass::Ordinary,
         context: None,
-        encoded: None,
     }
 }
 

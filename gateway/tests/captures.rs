@@ -82,7 +82,6 @@ fn bite_with_capture(n: u32, time: UtcTime, keep: KeepClass) -> [HistoryEvent; 2
         episode: None,
         keep,
         context: None,
-        encoded: None,
     };
     [
         HistoryEvent::Bite(Box::new(bite)),

@@ -34,7 +34,7 @@ use super::context_columns::{evidence_context_columns, evidence_context_values};
 use super::query::{CaptureRow, HistoryReader};
 use super::HistoryError;
 use crate::state::captures::{
-    BiteWindowAnalysis, CaptureChannel, CaptureGap, CaptureRecord, ChatterEpisode, EncodedSamples,
+    BiteWindowAnalysis, CaptureChannel, CaptureGap, CaptureRecord, ChatterEpisode,
 };
 // The report's query of alarm bites (`alarm_bite_captures`) only.
 #[cfg(feature = "plot")]
@@ -170,64 +170,37 @@ fn deflate(raw: &[u8]) -> std::io::Result<Vec<u8>> {
     })
 }
 
-/// `channels`' samples as the blob stores them (the blob of [`encode`]): done here
-/// by the writer thread, or before, by the analysis for a bite's window
-/// ([`CaptureRecord::encoded`]), on its pool and off the commit the PLC waits for.
-pub fn encode_samples(channels: &[CaptureChannel]) -> std::io::Result<EncodedSamples> {
+/// The blob and `meta` of `record`.
+pub fn encode(record: &CaptureRecord) -> std::io::Result<(Vec<u8>, CaptureMeta)> {
     let mut raw = Vec::new();
-    let mut counts = Vec::with_capacity(channels.len());
-    for channel in channels {
-        match exact_counts(channel) {
-            Some(exact) => {
+    let mut channels = Vec::with_capacity(record.channels.len());
+    for channel in &record.channels {
+        let encoding = match exact_counts(channel) {
+            Some(counts) => {
                 let mut previous = 0i64;
-                for count in exact {
+                for count in counts {
                     let delta = count.wrapping_sub(previous);
                     put_varint(&mut raw, ((delta << 1) ^ (delta >> 63)) as u64);
                     previous = count;
                 }
-                counts.push(true);
+                Encoding::Counts
             }
             None => {
                 for value in &channel.samples {
                     raw.extend_from_slice(&value.to_le_bytes());
                 }
-                counts.push(false);
+                Encoding::Float64
             }
-        }
-    }
-    Ok(EncodedSamples {
-        blob: deflate(&raw)?,
-        counts,
-    })
-}
-
-/// The blob and `meta` of `record`: its samples as [`CaptureRecord::encoded`] holds
-/// them when it holds every channel's, else encoded now.
-pub fn encode(record: &CaptureRecord) -> std::io::Result<(Vec<u8>, CaptureMeta)> {
-    let encoded_now;
-    let EncodedSamples { blob, counts } = match record.encoded.as_deref() {
-        Some(encoded) if encoded.counts.len() == record.channels.len() => encoded,
-        _ => {
-            encoded_now = encode_samples(&record.channels)?;
-            &encoded_now
-        }
-    };
-    let channels = record
-        .channels
-        .iter()
-        .zip(counts)
-        .map(|(channel, &counts)| ChannelMeta {
+        };
+        channels.push(ChannelMeta {
             channel: CaptureChannel {
                 samples: Vec::new(),
                 ..channel.clone()
             },
-            encoding: if counts {
-                Encoding::Counts
-            } else {
-                Encoding::Float64
-            },
-        })
-        .collect();
+            encoding,
+        });
+    }
+    let blob = deflate(&raw)?;
     let meta = CaptureMeta {
         format: FORMAT,
         channels,
@@ -236,7 +209,7 @@ pub fn encode(record: &CaptureRecord) -> std::io::Result<(Vec<u8>, CaptureMeta)>
         episode: record.episode,
         version: env!("CARGO_PKG_VERSION").to_owned(),
     };
-    Ok((blob.clone(), meta))
+    Ok((blob, meta))
 }
 
 /// Why a stored capture cannot be read.
@@ -572,7 +545,6 @@ mod tests {
             episode: None,
             keep: KeepClass::Ordinary,
             context: None,
-            encoded: None,
         }
     }
 
@@ -607,36 +579,6 @@ mod tests {
             let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
             assert_eq!(bits(&back[0].samples), bits(&samples));
         }
-    }
-
-    /// Samples the analysis encoded before are stored as the writer would have
-    /// stored them; an encoding of other channels (extra channels added since) is not
-    /// used.
-    #[test]
-    fn samples_encoded_before_are_stored_as_the_writer_would_store_them() {
-        let scaling = Scaling::new(0.1, 3.0);
-        let torque = channel(
-            0.1,
-            3.0,
-            (0..1200)
-                .map(|i| scaling.apply(f64::from(((i as f64 * 0.03).sin() * 5000.0) as i16)))
-                .collect(),
-        );
-        let plain = record(vec![torque.clone()]);
-        let mut before = record(vec![torque.clone()]);
-        before.encoded = Some(std::sync::Arc::new(
-            encode_samples(std::slice::from_ref(&torque)).unwrap(),
-        ));
-        assert_eq!(encode(&before).unwrap(), encode(&plain).unwrap());
-        // Extra channels came since: the writer encodes them all.
-        let floats = channel(1.0, 0.0, vec![0.25; 1200]);
-        let mut extended = before.clone();
-        extended.channels.push(floats.clone());
-        let (blob, meta) = encode(&extended).unwrap();
-        assert_eq!(
-            (blob, meta),
-            encode(&record(vec![torque, floats])).unwrap()
-        );
     }
 
     #[test]

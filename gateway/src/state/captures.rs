@@ -2,8 +2,7 @@
 //! analysis builds a [`CaptureRecord`] for each bite window (and each chatter episode,
 //! and each manual request) and records it on the history's queue beside the event it
 //! belongs to; the history's writer compresses and stores it
-//! ([`crate::history::captures`]), or stores what the analysis compressed already (a
-//! bite window's, on the analysis pool: [`CaptureRecord::encoded`]).
+//! ([`crate::history::captures`]).
 //!
 //! Samples are kept exactly as the analysis saw them (engineering units, `f64`), with
 //! each channel's scale and offset: the writer stores raw counts when every sample is
@@ -203,20 +202,6 @@ pub struct CaptureRecord {
     /// The process context of its time (a bite's at the bite, a chatter episode's
     /// when its warning was raised); `None` without context tags.
     pub context: Option<ContextReading>,
-    /// Its channels' samples already encoded for the history, when the analysis did
-    /// it (a bite's window, on the analysis pool); `None`: the history's writer
-    /// encodes them.
-    pub encoded: Option<Arc<EncodedSamples>>,
-}
-
-/// A capture's samples as the history stores them
-/// (`crate::history::captures::encode_samples`).
-#[derive(Debug, Clone, PartialEq)]
-pub struct EncodedSamples {
-    /// The channels' samples one after the other, each encoded exactly, deflated.
-    pub blob: Vec<u8>,
-    /// Per channel, whether its samples went as raw counts (else as `f64`).
-    pub counts: Vec<bool>,
 }
 
 impl CaptureRecord {

@@ -129,7 +129,6 @@ pub fn write_chatter_capture(db: &Path, mill: &str) -> anyhow::Result<()> {
             episode: Some(episode),
             keep: KeepClass::Important,
             context: Some(context),
-            encoded: None,
         };
         let warning = UtcTime::from_unix_ms(start.unix_ms() + 6000);
         let transaction = connection.transaction()?;

@@ -324,7 +324,6 @@ impl EpisodeRecorder {
             }),
             keep: KeepClass::Important,
             context: episode.context,
-            encoded: None,
         }
     }
 }

@@ -11,10 +11,9 @@ use millgate_dsp::bite::BiteEvent;
 
 use crate::analysis::bite_window::WINDOW_CAPACITY;
 use crate::analysis::extra_channels::ExtraRing;
-use crate::history::captures::encode_samples;
 use crate::state::captures::{
     unix_ns, BiteWindowAnalysis, CaptureChannel, CaptureGap, CaptureKind, CaptureRecord,
-    CapturedBite, EncodedSamples, KeepClass,
+    CapturedBite, KeepClass,
 };
 use crate::state::context::ContextReading;
 
@@ -36,10 +35,6 @@ pub struct BiteSamples {
     /// The driveline's extra channels over the window, row for row with the torque
     /// (filled when the bite is released to the history).
     pub extra: Vec<CaptureChannel>,
-    /// The torque's samples encoded for the history, when the driveline has no extra
-    /// channels (done in the bite's job, on the analysis pool: the history's commit,
-    /// which the PLC write waits for, then only stores them).
-    pub encoded: Option<Arc<EncodedSamples>>,
 }
 
 impl BiteSamples {
@@ -68,7 +63,6 @@ impl BiteSamples {
             episode: None,
             keep,
             context,
-            encoded: self.encoded.clone(),
         }
     }
 }
@@ -169,7 +163,6 @@ impl Captures {
             episode: None,
             keep: KeepClass::Important,
             context: manual.context,
-            encoded: None,
         })
     }
 
@@ -243,8 +236,6 @@ impl Captures {
         }
         if let Some(samples) = samples {
             let samples = Arc::make_mut(samples);
-            // What was encoded holds the torque alone.
-            samples.encoded = None;
             let rows = samples.torque.samples.len();
             samples.extra = self
                 .extras
@@ -266,19 +257,12 @@ impl Captures {
         kernel_time: bool,
         ended_by_gap: Option<Option<u64>>,
     ) -> Option<Arc<BiteSamples>> {
-        let torque = CaptureChannel {
-            samples: event.window.to_vec(),
-            ..self.torque.clone()?
-        };
-        // With extra channels, the history's writer encodes them all once they are in.
-        let encoded = self
-            .extras
-            .is_empty()
-            .then(|| encode_samples(std::slice::from_ref(&torque)).ok())
-            .flatten()
-            .map(Arc::new);
+        let torque = self.torque.as_ref()?;
         Some(Arc::new(BiteSamples {
-            torque,
+            torque: CaptureChannel {
+                samples: event.window.to_vec(),
+                ..torque.clone()
+            },
             first_sample: before(time, event.trigger_index as f64 / self.sample_rate_hz),
             kernel_time,
             gap: ended_by_gap.map(|missed_samples| CaptureGap {
@@ -288,7 +272,6 @@ impl Captures {
             analysis,
             sample_rate_hz: self.sample_rate_hz,
             extra: Vec::new(),
-            encoded,
         }))
     }
 }
