@@ -9,10 +9,13 @@ use millgate::outputs::modbus::register_map::RegisterMap;
 use millgate_sim::devices::demo::setup;
 use millgate_sim::devices::modbus_bank::ServeOptions;
 use millgate_sim::devices::virtual_plc::VirtualPlc;
-use millgate_tests::kit::{free_port, scrape, wait_for};
+use millgate_tests::kit::{free_port, scrape, until_scraped_at_least, wait_for};
 use std::time::Instant;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
+
+/// The PLC writer's failed connections on `/metrics`.
+const PLC_CONNECT_FAILURES: &str = "millgate_plc_write_failures_total{reason=\"connect\"}";
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn plc_unreachable_at_start_gets_registers_when_it_appears() -> anyhow::Result<()> {
@@ -22,13 +25,18 @@ async fn plc_unreachable_at_start_gets_registers_when_it_appears() -> anyhow::Re
     let plc_address = SocketAddr::from(([127, 0, 0, 1], free_port()));
     config.modbus_sources[0].address = "127.0.0.1:1".into();
     config.outputs.server = None;
+    config.outputs.metrics = Some(millgate_config::MetricsOutput {
+        bind: "127.0.0.1:0".parse()?,
+    });
     let plc_output = config.outputs.plc.as_mut().unwrap();
     plc_output.address = plc_address.to_string();
     plc_output.register_base = 100;
     let map = RegisterMap::new(&config);
 
     let gateway = millgate::Service::new(config)?.spawn().await?;
-    tokio::time::sleep(Duration::from_millis(800)).await;
+    let metrics = gateway.bound().metrics.expect("metrics");
+    // Unreachable at start: the writer has tried and retried before the PLC appears.
+    until_scraped_at_least(metrics, PLC_CONNECT_FAILURES, 3.0, Duration::from_secs(20)).await;
 
     let plc = VirtualPlc::new(100 + usize::from(map.len()));
     let running_plc = plc.spawn(
@@ -49,7 +57,7 @@ async fn plc_unreachable_at_start_gets_registers_when_it_appears() -> anyhow::Re
     );
     assert_eq!(holding[104] & 1, 1, "the unreachable DAQ is reported lost");
     let first = holding[100];
-    wait_for("heartbeat moves", Duration::from_secs(2), || {
+    wait_for("heartbeat moves", Duration::from_secs(10), || {
         plc.holding()[100] != first
     })
     .await;
@@ -496,6 +504,9 @@ async fn a_plc_that_vanishes_and_returns_gets_registers_again() -> anyhow::Resul
     let mut config = setup(1.0, 0.0, 1)?.config;
     config.modbus_sources[0].address = "127.0.0.1:1".into();
     config.outputs.server = None;
+    config.outputs.metrics = Some(millgate_config::MetricsOutput {
+        bind: "127.0.0.1:0".parse()?,
+    });
     // The PLC's two lives on a port below the ephemeral range (as above).
     let plc_address = SocketAddr::from(([127, 0, 0, 1], free_port()));
     config.outputs.plc.as_mut().unwrap().address = plc_address.to_string();
@@ -506,20 +517,28 @@ async fn a_plc_that_vanishes_and_returns_gets_registers_again() -> anyhow::Resul
         ServeOptions::default(),
     );
     let gateway = Service::new(config)?.spawn().await?;
-    wait_for("first writes", Duration::from_secs(5), || plc.writes() >= 3).await;
+    let metrics = gateway.bound().metrics.expect("metrics");
+    wait_for("first writes", Duration::from_secs(20), || {
+        plc.writes() >= 3
+    })
+    .await;
     first_life.stop().await?;
-    // Gone for 1.5 s: the gateway keeps running, the heartbeat keeps moving.
+    // Gone until the writer has failed to reconnect three times (0.3 s of backoff at
+    // least): the gateway keeps running, the heartbeat keeps moving.
     let beat = gateway.board().results().heartbeat;
-    tokio::time::sleep(Duration::from_millis(1500)).await;
+    until_scraped_at_least(metrics, PLC_CONNECT_FAILURES, 3.0, Duration::from_secs(20)).await;
+    wait_for("heartbeat moves", Duration::from_secs(10), || {
+        gateway.board().results().heartbeat != beat
+    })
+    .await;
     assert!(!gateway.is_finished());
-    assert_ne!(gateway.board().results().heartbeat, beat, "heartbeat moves");
     let writes = plc.writes();
     let second_life = plc.spawn(
         TcpListener::bind(plc_address).await?,
         ServeOptions::default(),
     );
-    // Backoff after 1.5 s of failures is at most 1.6 s.
-    wait_for("writes again", Duration::from_secs(5), || {
+    // The backoff grows to 5 s at most.
+    wait_for("writes again", Duration::from_secs(20), || {
         plc.writes() > writes + 2
     })
     .await;
