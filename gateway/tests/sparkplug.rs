@@ -655,7 +655,25 @@ async fn no_birth_before_the_primary_host_is_online_and_its_offline_ends_the_ses
             .contains("Sparkplug session up")
     })
     .await;
-    std::thread::sleep(Duration::from_millis(1500));
+    // The window: from the session's start (where a node that did not wait for the
+    // host sends its births) until a bite made since is in the history, held back
+    // (the backlog counts it) where such a node would have sent its DDATA. The
+    // node's own count of what it handed to the broker, then what the host got.
+    setup.plc().bites_after_now(1).await;
+    common::until_scraped_at_least(
+        setup.metrics_port,
+        "millgate_sparkplug_backlog_bites",
+        1.0,
+        Duration::from_secs(20),
+    )
+    .await;
+    assert_eq!(
+        setup
+            .metric("millgate_sparkplug_messages_published_total")
+            .await,
+        Some(0.0),
+        "nothing handed to the broker before the host is online"
+    );
     let early = host.lines.try_recv();
     assert!(
         early.is_err(),

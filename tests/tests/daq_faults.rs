@@ -68,7 +68,7 @@ async fn daq_restart_goes_stale_then_ok_and_counts_the_gap() -> anyhow::Result<(
     let board = gateway.board();
     let status = || board.results().sources[0];
 
-    wait_for("first blocks", Duration::from_secs(10), || {
+    wait_for("first blocks", Duration::from_secs(30), || {
         counters.snapshot().blocks_read >= 10 && status() == Some(SourceStatus::Ok)
     })
     .await;
@@ -77,7 +77,7 @@ async fn daq_restart_goes_stale_then_ok_and_counts_the_gap() -> anyhow::Result<(
     let pulled = Instant::now();
     wait_for(
         "stale after the DAQ stopped",
-        Duration::from_secs(5),
+        Duration::from_secs(20),
         || matches!(status(), Some(SourceStatus::Stale | SourceStatus::Lost)),
     )
     .await;
@@ -85,7 +85,7 @@ async fn daq_restart_goes_stale_then_ok_and_counts_the_gap() -> anyhow::Result<(
     tokio::time::sleep(Duration::from_millis(1500).saturating_sub(pulled.elapsed())).await;
 
     let daq_device = start_daq(daq(&config), address).await?;
-    wait_for("ok again after restart", Duration::from_secs(10), || {
+    wait_for("ok again after restart", Duration::from_secs(30), || {
         status() == Some(SourceStatus::Ok)
             && counters.snapshot().blocks_read > before_restart.blocks_read + 3
     })
@@ -144,15 +144,8 @@ fn hostile_config(daq: &HostileDaq) -> anyhow::Result<Config> {
 /// status and the bites counted.
 type RunEnd = (ChannelCountersSnapshot, Option<SourceStatus>, u64);
 
-/// Run a gateway on `config` for `seconds`; its counters and source status at the end.
-async fn run_against(config: Config, seconds: f64) -> anyhow::Result<RunEnd> {
-    let gateway = millgate::Service::new(config)?.spawn().await?;
-    tokio::time::sleep(Duration::from_secs_f64(seconds)).await;
-    end_run(gateway).await
-}
-
 /// Run a gateway on `config` until `done` holds of its channel's counters and its
-/// source's status (`what`, at most 10 s); its counters and status then.
+/// source's status (`what`, at most 30 s); its counters and status then.
 async fn run_until(
     config: Config,
     what: &str,
@@ -161,7 +154,7 @@ async fn run_until(
     let gateway = millgate::Service::new(config)?.spawn().await?;
     let counters = gateway.counters()[0].clone();
     let board = gateway.board();
-    wait_for(what, Duration::from_secs(10), || {
+    wait_for(what, Duration::from_secs(30), || {
         done(&counters.snapshot(), board.results().sources[0])
     })
     .await;
@@ -184,12 +177,22 @@ async fn a_daq_that_accepts_and_closes_is_retried_with_backoff_not_a_storm() -> 
     // A real DAQ at its client limit accepts and closes at once. The backoff used to
     // restart on every TCP connect: ~6 000 reconnects a second.
     let daq = HostileDaq::accept_and_close().await?;
-    let (counters, status, _) = run_against(hostile_config(&daq)?, 3.0).await?;
-    let connections = daq.stats().connections();
-    // Backoff 0.1, 0.2, 0.4, 0.8, 1.6 s: 5 or 6 attempts in 3 s.
+    let stats = daq.stats();
+    let started = Instant::now();
+    let (counters, status, _) =
+        run_until(hostile_config(&daq)?, "five connections", |_, status| {
+            stats.connections() >= 5 && status == Some(SourceStatus::Lost)
+        })
+        .await?;
+    let elapsed = started.elapsed().as_secs_f64();
+    let connections = stats.connections();
+    // Backoff 0.1, 0.2, 0.4, 0.8, 1.6 s: connection k + 1 comes 0.1 * (2^k - 1) s
+    // after the first at the earliest (a loaded machine only spaces them more), so
+    // the time since before the start bounds the count, whatever the scheduling.
+    let allowed = 1 + (elapsed / 0.1 + 1.0).log2().floor() as u64;
     assert!(
-        (3..=8).contains(&connections),
-        "{connections} connections in 3 s"
+        connections <= allowed,
+        "{connections} connections in {elapsed:.2} s, at most {allowed} with the backoff"
     );
     assert_eq!(counters.samples, 0);
     assert_eq!(status, Some(SourceStatus::Lost), "never answered");
@@ -264,20 +267,20 @@ async fn a_frozen_sequence_makes_the_source_stale_and_is_counted() -> anyhow::Re
         .await?;
     let counters = gateway.counters()[0].clone();
     let board = gateway.board();
-    wait_for("blocks flow", Duration::from_secs(5), || {
+    wait_for("blocks flow", Duration::from_secs(20), || {
         counters.snapshot().blocks_read >= 5
     })
     .await;
     let frozen = Instant::now();
     wait_for(
         "stale while the frozen DAQ still answers",
-        Duration::from_secs(5),
+        Duration::from_secs(20),
         || board.results().sources[0] != Some(SourceStatus::Ok),
     )
     .await;
-    // Stale after the source's stale time (1 s) from the last new block: the limit of
-    // 5 s above catches the old behaviour (ok for as long as the DAQ answered), the
-    // time is printed rather than asserted (a loaded machine delays it).
+    // Stale after the source's stale time (1 s) from the last new block: the limit
+    // above catches the old behaviour (ok for as long as the DAQ answered, here for
+    // ever), the time is printed rather than asserted (a loaded machine delays it).
     eprintln!(
         "stale {:.2} s after the sequence froze",
         frozen.elapsed().as_secs_f64()
@@ -288,12 +291,10 @@ async fn a_frozen_sequence_makes_the_source_stale_and_is_counted() -> anyhow::Re
     })
     .await;
     let seen = counters.snapshot();
-    // Sequences 100..=110 at most (the first ones may pass before the gateway
-    // connects): the repeated block 110 is never counted again.
-    assert!(
-        (5..=11).contains(&(seen.blocks_read + seen.blocks_missed)),
-        "{seen:?}"
-    );
+    // Sequences 100..=110 (the stream starts at the gateway's first read; a poll a
+    // loaded machine delays misses a block, counted): the repeated block 110 is never
+    // counted again.
+    assert_eq!(seen.blocks_read + seen.blocks_missed, 11, "{seen:?}");
     assert_eq!(seen.samples, seen.blocks_read * 100, "{seen:?}");
     assert_eq!(seen.sequence_stalls, 1, "{seen:?}");
     tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
@@ -318,7 +319,7 @@ async fn a_sequence_going_backwards_is_a_restart_and_no_bite_across_it_is_valid(
         .await?;
     let board = gateway.board();
     let map = gateway.register_map();
-    let first = tokio::time::timeout(Duration::from_secs(10), gateway.bites().recv()).await??;
+    let first = tokio::time::timeout(Duration::from_secs(30), gateway.bites().recv()).await??;
     assert!(first.degraded, "the window spans the restart: {first:?}");
     let results = board.results().drivelines[0].clone();
     assert_eq!(results.static_torque_knm, None, "not published as valid");
@@ -327,7 +328,7 @@ async fn a_sequence_going_backwards_is_a_restart_and_no_bite_across_it_is_valid(
     assert_eq!(words[17] & !1, 0, "F1 quality: only the bite time is valid");
     assert_eq!(words[16] & 0b1000, 0b1000, "F1 flags: degraded");
     // The next bite, after the restart, is whole and right.
-    let second = tokio::time::timeout(Duration::from_secs(10), gateway.bites().recv()).await??;
+    let second = tokio::time::timeout(Duration::from_secs(30), gateway.bites().recv()).await??;
     assert!(!second.degraded, "{second:?}");
     let truth = demo
         .schedule
@@ -390,7 +391,7 @@ async fn samples_at_full_scale_publish_no_bite_as_valid() -> anyhow::Result<()> 
     });
     let mut gateway = millgate::Service::new(config)?.spawn().await?;
     let counters = gateway.counters()[0].clone();
-    wait_for("saturated blocks", Duration::from_secs(10), || {
+    wait_for("saturated blocks", Duration::from_secs(30), || {
         counters.snapshot().saturated_samples >= 2000
     })
     .await;
@@ -431,7 +432,7 @@ async fn bites_clipped_at_full_scale_are_counted_degraded_and_not_published() ->
     let mut gateway = millgate::Service::new(config)?.spawn().await?;
     let board = gateway.board();
     // The first bar is 112 kN*m static: clipped.
-    let first = tokio::time::timeout(Duration::from_secs(10), gateway.bites().recv()).await??;
+    let first = tokio::time::timeout(Duration::from_secs(30), gateway.bites().recv()).await??;
     assert!(first.degraded, "{first:?}");
     let results = board.results().drivelines[0].clone();
     assert_eq!(

@@ -9,10 +9,13 @@ use millgate::outputs::modbus::register_map::RegisterMap;
 use millgate_sim::devices::demo::setup;
 use millgate_sim::devices::modbus_bank::ServeOptions;
 use millgate_sim::devices::virtual_plc::VirtualPlc;
-use millgate_tests::kit::{free_port, scrape, wait_for};
+use millgate_tests::kit::{free_port, scrape, until_scraped_at_least, wait_for};
 use std::time::Instant;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
+
+/// The PLC writer's failed connections on `/metrics`.
+const PLC_CONNECT_FAILURES: &str = "millgate_plc_write_failures_total{reason=\"connect\"}";
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn plc_unreachable_at_start_gets_registers_when_it_appears() -> anyhow::Result<()> {
@@ -22,13 +25,18 @@ async fn plc_unreachable_at_start_gets_registers_when_it_appears() -> anyhow::Re
     let plc_address = SocketAddr::from(([127, 0, 0, 1], free_port()));
     config.modbus_sources[0].address = "127.0.0.1:1".into();
     config.outputs.server = None;
+    config.outputs.metrics = Some(millgate_config::MetricsOutput {
+        bind: "127.0.0.1:0".parse()?,
+    });
     let plc_output = config.outputs.plc.as_mut().unwrap();
     plc_output.address = plc_address.to_string();
     plc_output.register_base = 100;
     let map = RegisterMap::new(&config);
 
     let gateway = millgate::Service::new(config)?.spawn().await?;
-    tokio::time::sleep(Duration::from_millis(800)).await;
+    let metrics = gateway.bound().metrics.expect("metrics");
+    // Unreachable at start: the writer has tried and retried before the PLC appears.
+    until_scraped_at_least(metrics, PLC_CONNECT_FAILURES, 3.0, Duration::from_secs(20)).await;
 
     let plc = VirtualPlc::new(100 + usize::from(map.len()));
     let running_plc = plc.spawn(
@@ -49,7 +57,7 @@ async fn plc_unreachable_at_start_gets_registers_when_it_appears() -> anyhow::Re
     );
     assert_eq!(holding[104] & 1, 1, "the unreachable DAQ is reported lost");
     let first = holding[100];
-    wait_for("heartbeat moves", Duration::from_secs(2), || {
+    wait_for("heartbeat moves", Duration::from_secs(10), || {
         plc.holding()[100] != first
     })
     .await;
@@ -280,9 +288,11 @@ async fn hostile_frames_get_exceptions_and_the_connection_stays_open() -> anyhow
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn slowloris_and_connection_floods_are_bounded() -> anyhow::Result<()> {
-    // Two clients at most, 300 ms idle time: before, 1 000 one-byte connections were
-    // held open for ever.
-    let (gateway, address) = server_gateway(2, 300).await?;
+    // Two clients at most, 2 s idle time: before, 1 000 one-byte connections were
+    // held open for ever. The idle time is the window the test's steps must fall in
+    // (the third client comes and the trickler starts before the first two idle out):
+    // 2 s, not 300 ms, so that a loaded machine's scheduling does not close them first.
+    let (gateway, address) = server_gateway(2, 2000).await?;
     let mut idle = TcpStream::connect(address).await?;
     let mut trickle = TcpStream::connect(address).await?;
     tokio::time::sleep(Duration::from_millis(50)).await;
@@ -290,9 +300,9 @@ async fn slowloris_and_connection_floods_are_bounded() -> anyhow::Result<()> {
     // request): that one is closed at once.
     let mut third = TcpStream::connect(address).await?;
     let mut byte = [0u8; 1];
-    let closed = tokio::time::timeout(Duration::from_millis(500), idle.read(&mut byte)).await;
+    let closed = tokio::time::timeout(Duration::from_secs(10), idle.read(&mut byte)).await;
     assert!(matches!(closed, Ok(Ok(0)) | Ok(Err(_))), "{closed:?}");
-    // The trickler sends a request one byte every 100 ms: the request must be whole
+    // The trickler sends a request one byte every 400 ms: the request must be whole
     // within the idle time, so it is closed as the idle one is.
     let request = frame(1, &[0x03, 0x00, 0x01, 0x00, 0x01]);
     let started = Instant::now();
@@ -302,9 +312,9 @@ async fn slowloris_and_connection_floods_are_bounded() -> anyhow::Result<()> {
             trickle_closed = true;
             break;
         }
-        tokio::time::sleep(Duration::from_millis(100)).await;
+        tokio::time::sleep(Duration::from_millis(400)).await;
     }
-    let ended = tokio::time::timeout(Duration::from_secs(2), trickle.read(&mut byte)).await;
+    let ended = tokio::time::timeout(Duration::from_secs(10), trickle.read(&mut byte)).await;
     trickle_closed |= matches!(ended, Ok(Ok(0)) | Ok(Err(_)));
     assert!(
         trickle_closed,
@@ -313,7 +323,7 @@ async fn slowloris_and_connection_floods_are_bounded() -> anyhow::Result<()> {
     );
     // The third never sends a request: closed after the first-request time (here
     // the idle time).
-    let ended = tokio::time::timeout(Duration::from_secs(2), third.read(&mut byte)).await;
+    let ended = tokio::time::timeout(Duration::from_secs(10), third.read(&mut byte)).await;
     assert!(
         matches!(ended, Ok(Ok(0)) | Ok(Err(_))),
         "silent client not closed"
@@ -496,6 +506,9 @@ async fn a_plc_that_vanishes_and_returns_gets_registers_again() -> anyhow::Resul
     let mut config = setup(1.0, 0.0, 1)?.config;
     config.modbus_sources[0].address = "127.0.0.1:1".into();
     config.outputs.server = None;
+    config.outputs.metrics = Some(millgate_config::MetricsOutput {
+        bind: "127.0.0.1:0".parse()?,
+    });
     // The PLC's two lives on a port below the ephemeral range (as above).
     let plc_address = SocketAddr::from(([127, 0, 0, 1], free_port()));
     config.outputs.plc.as_mut().unwrap().address = plc_address.to_string();
@@ -506,20 +519,28 @@ async fn a_plc_that_vanishes_and_returns_gets_registers_again() -> anyhow::Resul
         ServeOptions::default(),
     );
     let gateway = Service::new(config)?.spawn().await?;
-    wait_for("first writes", Duration::from_secs(5), || plc.writes() >= 3).await;
+    let metrics = gateway.bound().metrics.expect("metrics");
+    wait_for("first writes", Duration::from_secs(20), || {
+        plc.writes() >= 3
+    })
+    .await;
     first_life.stop().await?;
-    // Gone for 1.5 s: the gateway keeps running, the heartbeat keeps moving.
+    // Gone until the writer has failed to reconnect three times (0.3 s of backoff at
+    // least): the gateway keeps running, the heartbeat keeps moving.
     let beat = gateway.board().results().heartbeat;
-    tokio::time::sleep(Duration::from_millis(1500)).await;
+    until_scraped_at_least(metrics, PLC_CONNECT_FAILURES, 3.0, Duration::from_secs(20)).await;
+    wait_for("heartbeat moves", Duration::from_secs(10), || {
+        gateway.board().results().heartbeat != beat
+    })
+    .await;
     assert!(!gateway.is_finished());
-    assert_ne!(gateway.board().results().heartbeat, beat, "heartbeat moves");
     let writes = plc.writes();
     let second_life = plc.spawn(
         TcpListener::bind(plc_address).await?,
         ServeOptions::default(),
     );
-    // Backoff after 1.5 s of failures is at most 1.6 s.
-    wait_for("writes again", Duration::from_secs(5), || {
+    // The backoff grows to 5 s at most.
+    wait_for("writes again", Duration::from_secs(20), || {
         plc.writes() > writes + 2
     })
     .await;

@@ -209,6 +209,8 @@ async fn answer(
 /// A script streaming `raw` in blocks of `per_block` samples, one block every
 /// `block_period`, numbered by `sequence(block index)`: what a DAQ does, with the
 /// numbering a test chooses (frozen, going backwards...). The last block is held.
+/// The stream starts at the first request: a gateway whose start-up a loaded machine
+/// delays still gets it from its first block.
 pub fn streaming(
     raw: Vec<i16>,
     per_block: usize,
@@ -216,7 +218,9 @@ pub fn streaming(
     mut sequence: impl FnMut(u64) -> u16 + Send + 'static,
 ) -> impl FnMut(Duration) -> Reply + Send + 'static {
     let blocks = (raw.len() / per_block).max(1) as u64;
+    let mut first_request = None;
     move |elapsed| {
+        let elapsed = elapsed - *first_request.get_or_insert(elapsed);
         let index = (elapsed.as_secs_f64() / block_period.as_secs_f64()) as u64;
         let index = index.min(blocks - 1);
         let start = index as usize * per_block;

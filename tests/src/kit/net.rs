@@ -197,6 +197,41 @@ pub async fn scrape(to: impl Endpoint) -> anyhow::Result<String> {
     Ok(answer.body)
 }
 
+/// The value of the line of `page` (a `/metrics` page) starting with `name` (with its
+/// labels).
+pub fn metric_line(page: &str, name: &str) -> Option<f64> {
+    page.lines()
+        .find_map(|line| line.strip_prefix(name)?.strip_prefix(' ')?.parse().ok())
+}
+
+/// Scrape `/metrics` on `to` until the line starting with `name` (with its labels)
+/// shows at least `value`, at most `limit`; its value then. A `/metrics` not answering
+/// yet (the service starting) is waited for too.
+pub async fn until_scraped_at_least(
+    to: impl Endpoint,
+    name: &str,
+    value: f64,
+    limit: Duration,
+) -> f64 {
+    let address = to.address();
+    let start = Instant::now();
+    loop {
+        let now = try_http(address, "GET", "/metrics")
+            .await
+            .map(|answer| metric_line(&answer.body, name));
+        if let Ok(Some(now)) = now {
+            if now >= value {
+                return now;
+            }
+        }
+        assert!(
+            start.elapsed() < limit,
+            "{name} {now:?}, not at least {value} within {limit:?}"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
 /// Wait until the web page on `to` answers `/api/drivelines` (the service is up), at
 /// most 30 s.
 pub async fn web_ready(to: impl Endpoint) {

@@ -15,7 +15,7 @@ use millgate_sim::devices::virtual_plc::VirtualPlc;
 use millgate_sim::schedule::Schedule;
 
 use super::cli::{KillOnDrop, Millgate};
-use super::net::{free_port, http, try_http, wait_for};
+use super::net::{free_port, http, metric_line, try_http, wait_for};
 use super::scratch::{scratch, TempDir};
 
 /// The demo's virtual DAQ playing `schedule` and a virtual PLC holding `config`'s whole
@@ -117,13 +117,6 @@ impl Drop for LogOnFailure<'_> {
             );
         }
     }
-}
-
-/// The value of the line of `page` (a `/metrics` page) starting with `name` (with its
-/// labels).
-fn metric_line(page: &str, name: &str) -> Option<f64> {
-    page.lines()
-        .find_map(|line| line.strip_prefix(name)?.strip_prefix(' ')?.parse().ok())
 }
 
 /// A scratch folder, the demo's devices and the configuration of a `millgate run`
