@@ -599,9 +599,7 @@ fn characteristic_polynomial<const N: usize>(h: &[[f64; N]; N]) -> [f64; N] {
     for r in 0..N {
         // p_(r+1) without its leading 1 (the z^(r+1) term).
         let mut next = [0.0_f64; N];
-        for k in 1..=r {
-            next[k] = minors[r][k - 1];
-        }
+        next[1..=r].copy_from_slice(&minors[r][..r]);
         for k in 0..=r {
             next[k] -= h[r][r] * minors[r][k];
         }
@@ -977,6 +975,25 @@ mod tests {
             Complex::from_polar(1.0, -third),
         ];
         assert_same_eigenvalues(&roots, &expected, 1e-10);
+    }
+
+    /// Degenerate spectra to the start's precision: the zero matrix (a polynomial z^6,
+    /// whose roots' centroid and spread are 0) and a six-fold eigenvalue (a Jordan
+    /// block: the roots converge only linearly, or Francis QR takes over), each
+    /// eigenvalue to the sixth root of rounding the block allows.
+    #[test]
+    fn general_eigenvalues_of_degenerate_spectra_to_the_start_precision() {
+        let zero = general_eigenvalues([[0.0; 6]; 6], Precision::Start).unwrap();
+        assert_same_eigenvalues(&zero, &[Complex::new(0.0, 0.0); 6], 1e-12);
+        let jordan: [[f64; 6]; 6] = core::array::from_fn(|i| {
+            core::array::from_fn(|j| match j as isize - i as isize {
+                0 => 0.9,
+                1 => 1.0,
+                _ => 0.0,
+            })
+        });
+        let found = general_eigenvalues(jordan, Precision::Start).unwrap();
+        assert_same_eigenvalues(&found, &[Complex::new(0.9, 0.0); 6], 1e-2);
     }
 
     #[test]
