@@ -5,7 +5,9 @@
 //! - [`peak_magnitude`]: the scale both work at (data scaled to a peak of 1);
 //! - [`Cholesky5`]: 5 x 5 Cholesky factor and solves (the fit's normal equations);
 //! - [`symmetric_eigen`]: symmetric eigendecomposition (the pencil's Gram matrix);
-//! - [`general_eigenvalues`]: eigenvalues of a general real matrix (the pencil's poles);
+//! - [`general_eigenvalues`]: eigenvalues of a general real matrix (the pencil's poles):
+//!   Francis QR, or to the start's precision the characteristic polynomial's roots
+//!   by Aberth-Ehrlich iterations;
 //! - [`Precision`]: how far both eigenvalue iterations go.
 
 use nalgebra::{Complex, SMatrix, SVector};
@@ -113,7 +115,9 @@ impl Cholesky5 {
 }
 
 /// How far [`symmetric_eigen`] and [`general_eigenvalues`] iterate: when an
-/// off-diagonal entry counts as zero next to its diagonal neighbours.
+/// off-diagonal entry counts as zero next to its diagonal neighbours (QL, Francis QR),
+/// or when a root's correction counts as zero next to the largest root (the
+/// characteristic polynomial's roots that [`general_eigenvalues`] takes to `Start`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) enum Precision {
     /// To rounding (EISPACK's tests): the pencil's public poles, which `mode_damping`
@@ -122,7 +126,9 @@ pub(crate) enum Precision {
     /// Below [`START_DEFLATION`] of its neighbours: the eigenvalues to about that
     /// relative size, for a start that an iteration refines (the eq. (1) fit's). The
     /// iterations converge quadratically or faster, so this saves their last sweep
-    /// or step, about one in four.
+    /// or step, about one in four. The general eigenvalues come from the
+    /// characteristic polynomial of the Hessenberg form (Aberth-Ehrlich), whose
+    /// coefficients cost the roots about cond * 1e-16 relative, far below this.
     Start,
 }
 
@@ -322,18 +328,32 @@ const MAX_QR_STEPS: usize = 60;
 /// Eigenvalues of the real square matrix `a` (`a[i][j]`, row i, column j) to
 /// `precision`, unsorted, complex pairs adjacent; `None` if one did not converge within [`MAX_QR_STEPS`]
 /// steps or the input is not finite. Householder reduction to upper Hessenberg form,
-/// then Francis double-shift QR with deflation (EISPACK hqr), no Schur vectors: the
-/// pencil needs the poles only, and nalgebra's generic `Schur` (which accumulates the
-/// vectors) took a fifth of the pencil's time on its 6 x 6 matrix.
-// Index loops: the QR sweeps walk rows and columns of `a` at once.
-#[allow(clippy::needless_range_loop)]
+/// then, to [`Precision::Full`], Francis double-shift QR with deflation (EISPACK hqr),
+/// no Schur vectors: the pencil needs the poles only, and nalgebra's generic `Schur`
+/// (which accumulates the vectors) took a fifth of the pencil's time on its 6 x 6
+/// matrix. To [`Precision::Start`], the roots of the Hessenberg form's characteristic
+/// polynomial by Aberth-Ehrlich iterations ([`polynomial_roots`]), Francis QR where
+/// they do not converge.
 pub(crate) fn general_eigenvalues<const N: usize>(
-    mut a: [[f64; N]; N],
+    a: [[f64; N]; N],
     precision: Precision,
 ) -> Option<[Complex<f64>; N]> {
     if a.iter().flatten().any(|v| !v.is_finite()) {
         return None;
     }
+    let hessenberg = hessenberg(a);
+    if precision == Precision::Start {
+        if let Some(roots) = polynomial_roots(&characteristic_polynomial(&hessenberg)) {
+            return Some(roots);
+        }
+    }
+    francis_eigenvalues(hessenberg, precision)
+}
+
+/// Upper Hessenberg form of `a` by Householder reflections (the same eigenvalues).
+// Index loops: the reflections walk rows and columns of `a` at once.
+#[allow(clippy::needless_range_loop)]
+fn hessenberg<const N: usize>(mut a: [[f64; N]; N]) -> [[f64; N]; N] {
     // Householder: column k below the subdiagonal is reflected onto a[k + 1][k].
     for k in 0..N.saturating_sub(2) {
         let norm = libm::sqrt(a[k + 1..].iter().map(|row| row[k] * row[k]).sum::<f64>());
@@ -373,6 +393,18 @@ pub(crate) fn general_eigenvalues<const N: usize>(
         }
     }
 
+    a
+}
+
+/// Eigenvalues of the upper Hessenberg matrix `a` by Francis double-shift QR with
+/// deflation (EISPACK hqr) to `precision`; `None` if one did not converge within
+/// [`MAX_QR_STEPS`] steps.
+// Index loops: the QR sweeps walk rows and columns of `a` at once.
+#[allow(clippy::needless_range_loop)]
+fn francis_eigenvalues<const N: usize>(
+    mut a: [[f64; N]; N],
+    precision: Precision,
+) -> Option<[Complex<f64>; N]> {
     let mut eigenvalues = [Complex::new(0.0, 0.0); N];
     // Scale for negligible subdiagonal entries when both neighbours vanish.
     let mut norm = 0.0;
@@ -542,6 +574,124 @@ pub(crate) fn general_eigenvalues<const N: usize>(
         }
     }
     Some(eigenvalues)
+}
+
+/// Most Aberth-Ehrlich iterations [`polynomial_roots`] spends before giving up (to
+/// Francis QR). Cubic convergence from the seeds takes far fewer on the pencil's
+/// matrices; a multiple root converges only linearly and may run out.
+const MAX_ABERTH_ITERATIONS: usize = 40;
+
+/// Coefficients c_0..c_{N-1} (lowest power first) of the monic characteristic
+/// polynomial det(z I - h) = z^N + c_{N-1} z^(N-1) + ... + c_0 of the upper
+/// Hessenberg `h`, by the recurrence on its leading principal minors (expansion along
+/// the last column): p_(r+1) = (z - h_rr) p_r - sum over s < r of
+/// h_sr (h_(s+1)s ... h_r(r-1)) p_s.
+// Index loops: the recurrence walks the minors' coefficients and `h` at once.
+#[allow(clippy::needless_range_loop)]
+fn characteristic_polynomial<const N: usize>(h: &[[f64; N]; N]) -> [f64; N] {
+    // minors[s]: p_s, monic of degree s (s < N).
+    let mut minors = [[0.0_f64; N]; N];
+    let mut last = [0.0_f64; N];
+    if N == 0 {
+        return last;
+    }
+    minors[0][0] = 1.0;
+    for r in 0..N {
+        // p_(r+1) without its leading 1 (the z^(r+1) term).
+        let mut next = [0.0_f64; N];
+        next[1..=r].copy_from_slice(&minors[r][..r]);
+        for k in 0..=r {
+            next[k] -= h[r][r] * minors[r][k];
+        }
+        let mut subdiagonal_product = 1.0;
+        for s in (0..r).rev() {
+            subdiagonal_product *= h[s + 1][s];
+            let factor = h[s][r] * subdiagonal_product;
+            for k in 0..=s {
+                next[k] -= factor * minors[s][k];
+            }
+        }
+        if r + 1 < N {
+            next[r + 1] = 1.0;
+            minors[r + 1] = next;
+        } else {
+            last = next;
+        }
+    }
+    last
+}
+
+/// The N roots of the monic z^N + c_(N-1) z^(N-1) + ... + c_0 (`coefficients` lowest
+/// power first) by simultaneous Aberth-Ehrlich iterations, to a correction below
+/// [`START_DEFLATION`] of the largest root; roots within that of the real axis are
+/// made real. `None` if they do not converge within [`MAX_ABERTH_ITERATIONS`].
+///
+/// Each root's correction is p / (p' - p sum 1 / (z_i - z_j)), taken as
+/// p Q / (p' Q - p Q') with Q the product of the z_i - z_j: one complex division per
+/// root and iteration, and the N roots' corrections independent of each other (the
+/// Francis steps it replaces are one chain of square roots and divisions).
+fn polynomial_roots<const N: usize>(coefficients: &[f64; N]) -> Option<[Complex<f64>; N]> {
+    let zero = Complex::new(0.0, 0.0);
+    // Seeds on a circle about the roots' centroid c = -c_(N-1) / N, of their geometric
+    // mean distance from it |p(c)|^(1/N), turned off the real axis (the seeds of a real
+    // polynomial symmetric about it would stay symmetric).
+    let centre = -coefficients[N - 1] / N as f64;
+    let mut at_centre = 1.0;
+    for &c in coefficients.iter().rev() {
+        at_centre = at_centre * centre + c;
+    }
+    let mut radius = libm::pow(libm::fabs(at_centre), 1.0 / N as f64);
+    if !(radius > 0.0 && radius.is_finite()) {
+        radius = 1.0;
+    }
+    let mut roots: [Complex<f64>; N] = core::array::from_fn(|k| {
+        let angle = 2.0 * core::f64::consts::PI * (k as f64 + 0.25) / N as f64;
+        let (sin, cos) = libm::sincos(angle);
+        Complex::new(centre + radius * cos, radius * sin)
+    });
+    for _ in 0..MAX_ABERTH_ITERATIONS {
+        let mut corrections = [zero; N];
+        for (i, correction) in corrections.iter_mut().enumerate() {
+            let z = roots[i];
+            let (mut value, mut derivative) = (Complex::new(1.0, 0.0), zero);
+            for &c in coefficients.iter().rev() {
+                derivative = derivative * z + value;
+                value = value * z + c;
+            }
+            let (mut product, mut product_derivative) = (Complex::new(1.0, 0.0), zero);
+            for (j, &other) in roots.iter().enumerate() {
+                if j != i {
+                    let difference = z - other;
+                    product_derivative = product_derivative * difference + product;
+                    product *= difference;
+                }
+            }
+            *correction = value * product / (derivative * product - value * product_derivative);
+        }
+        let mut largest_root = 0.0_f64;
+        let mut largest_correction = 0.0_f64;
+        let mut finite = true;
+        for (root, correction) in roots.iter_mut().zip(&corrections) {
+            *root -= correction;
+            // (f64::max passes over NaN: checked apart.)
+            finite &= root.re.is_finite() && root.im.is_finite();
+            largest_root = largest_root.max(root.norm_sqr());
+            largest_correction = largest_correction.max(correction.norm_sqr());
+        }
+        if !finite {
+            return None;
+        }
+        let tolerance = START_DEFLATION * START_DEFLATION * largest_root;
+        if largest_correction <= tolerance {
+            for root in roots.iter_mut() {
+                if root.im * root.im <= tolerance {
+                    root.im = 0.0;
+                }
+            }
+            return Some(roots);
+        }
+    }
+    None
 }
 
 #[cfg(test)]
@@ -727,6 +877,125 @@ mod tests {
         }
     }
 
+    /// The characteristic polynomial of a Hessenberg form: its value at each
+    /// eigenvalue of a matrix with a known spectrum is zero to rounding, and it is
+    /// monic (z^6 dominates far from the spectrum).
+    #[test]
+    fn characteristic_polynomial_vanishes_at_the_eigenvalues() {
+        // Eigenvalues 1, 0.86, 0.9 e^(+-0.3i), 0.95 e^(+-0.52i) (the pencil's kind:
+        // the constant, the load, two damped modes), as a real block-diagonal matrix
+        // turned by a Householder similarity, then reduced.
+        let pair = |modulus: f64, angle: f64| {
+            let (sin, cos) = libm::sincos(angle);
+            [
+                [modulus * cos, -modulus * sin],
+                [modulus * sin, modulus * cos],
+            ]
+        };
+        let (mode1, mode2) = (pair(0.9, 0.3), pair(0.95, 0.52));
+        let mut a = [[0.0_f64; 6]; 6];
+        a[0][0] = 1.0;
+        a[1][1] = 0.86;
+        for i in 0..2 {
+            for j in 0..2 {
+                a[2 + i][2 + j] = mode1[i][j];
+                a[4 + i][4 + j] = mode2[i][j];
+            }
+        }
+        let v = [0.3, -0.5, 0.2, 0.7, -0.1, 0.4];
+        let v_norm2: f64 = v.iter().map(|x| x * x).sum();
+        let q: [[f64; 6]; 6] = core::array::from_fn(|i| {
+            core::array::from_fn(|j| f64::from(u8::from(i == j)) - 2.0 * v[i] * v[j] / v_norm2)
+        });
+        let product = |x: &[[f64; 6]; 6], y: &[[f64; 6]; 6]| -> [[f64; 6]; 6] {
+            core::array::from_fn(|i| {
+                core::array::from_fn(|j| (0..6).map(|k| x[i][k] * y[k][j]).sum())
+            })
+        };
+        let turned = product(&product(&q, &a), &q);
+        let coefficients = characteristic_polynomial(&hessenberg(turned));
+        let evaluate = |z: Complex<f64>| {
+            coefficients
+                .iter()
+                .rev()
+                .fold(Complex::new(1.0, 0.0), |value, &c| value * z + c)
+        };
+        let polar = |modulus: f64, angle: f64| Complex::from_polar(modulus, angle);
+        for z in [
+            Complex::new(1.0, 0.0),
+            Complex::new(0.86, 0.0),
+            polar(0.9, 0.3),
+            polar(0.9, -0.3),
+            polar(0.95, 0.52),
+            polar(0.95, -0.52),
+        ] {
+            assert!(evaluate(z).norm() < 1e-14, "{z}: {}", evaluate(z));
+        }
+        // Monic of degree 6: p(z) / z^6 -> 1.
+        let far = Complex::new(1e4, 0.0);
+        assert!((evaluate(far) / far.powu(6) - 1.0).norm() < 1e-3);
+        // The roots: the same spectrum, the real ones exactly real.
+        let roots = polynomial_roots(&coefficients).unwrap();
+        let expected = [
+            Complex::new(1.0, 0.0),
+            Complex::new(0.86, 0.0),
+            polar(0.9, 0.3),
+            polar(0.9, -0.3),
+            polar(0.95, 0.52),
+            polar(0.95, -0.52),
+        ];
+        assert_same_eigenvalues(&roots, &expected, 1e-10);
+        assert_eq!(roots.iter().filter(|z| z.im == 0.0).count(), 2, "{roots:?}");
+        assert_eq!(
+            general_eigenvalues(turned, Precision::Start),
+            Some(roots),
+            "Start takes the roots"
+        );
+    }
+
+    /// Roots of small known polynomials (none real, one real), and `None`, never NaN
+    /// roots, for non-finite coefficients.
+    #[test]
+    fn polynomial_roots_of_known_polynomials() {
+        // z^2 + 1: a pair, neither made real.
+        let roots = polynomial_roots(&[1.0, 0.0]).unwrap();
+        assert_same_eigenvalues(
+            &roots,
+            &[Complex::new(0.0, 1.0), Complex::new(0.0, -1.0)],
+            1e-10,
+        );
+        assert!(polynomial_roots(&[f64::NAN, 0.0, 1.0]).is_none());
+        assert!(polynomial_roots(&[1.0, f64::INFINITY, 0.0]).is_none());
+        // z^3 - 1: one real root, a pair at +-120 degrees.
+        let roots = polynomial_roots(&[-1.0, 0.0, 0.0]).unwrap();
+        let third = 2.0 * core::f64::consts::PI / 3.0;
+        let expected = [
+            Complex::new(1.0, 0.0),
+            Complex::from_polar(1.0, third),
+            Complex::from_polar(1.0, -third),
+        ];
+        assert_same_eigenvalues(&roots, &expected, 1e-10);
+    }
+
+    /// Degenerate spectra to the start's precision: the zero matrix (a polynomial z^6,
+    /// whose roots' centroid and spread are 0) and a six-fold eigenvalue (a Jordan
+    /// block: the roots converge only linearly, or Francis QR takes over), each
+    /// eigenvalue to the sixth root of rounding the block allows.
+    #[test]
+    fn general_eigenvalues_of_degenerate_spectra_to_the_start_precision() {
+        let zero = general_eigenvalues([[0.0; 6]; 6], Precision::Start).unwrap();
+        assert_same_eigenvalues(&zero, &[Complex::new(0.0, 0.0); 6], 1e-12);
+        let jordan: [[f64; 6]; 6] = core::array::from_fn(|i| {
+            core::array::from_fn(|j| match j as isize - i as isize {
+                0 => 0.9,
+                1 => 1.0,
+                _ => 0.0,
+            })
+        });
+        let found = general_eigenvalues(jordan, Precision::Start).unwrap();
+        assert_same_eigenvalues(&found, &[Complex::new(0.9, 0.0); 6], 1e-2);
+    }
+
     #[test]
     fn general_eigenvalues_of_known_spectra() {
         // Triangular plus a rotation block: eigenvalues 2, -1, 0.5 +- 0.25i, 3, 3.
@@ -763,6 +1032,12 @@ mod tests {
         let found = general_eigenvalues(similar, Precision::Full).unwrap();
         // The double eigenvalue 3 (a Jordan block) is only determined to sqrt(eps).
         assert_same_eigenvalues(&found, &expected, 1e-7);
+        // To the start's precision (the polynomial's roots, or Francis QR where they
+        // do not converge): the double eigenvalue to the square root of it.
+        for matrix in [a, similar] {
+            let found = general_eigenvalues(matrix, Precision::Start).unwrap();
+            assert_same_eigenvalues(&found, &expected, 1e-3);
+        }
         assert_same_eigenvalues(&found, &reference_eigenvalues(&similar), 1e-7);
         assert!(general_eigenvalues([[f64::NAN; 6]; 6], Precision::Full).is_none());
     }

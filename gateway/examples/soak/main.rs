@@ -40,7 +40,8 @@
 //! `taskset -c 0`); `bench_%` is the bench's own CPU (its DAQs, PLC and clients, not
 //! mosquitto) in the sample period, of one core. After each point, the gateway's own
 //! latency histograms from its last `/metrics` (`millgate_bite_to_plc_seconds`,
-//! `millgate_block_wait_seconds`: the whole run, the shares within bucket bounds).
+//! `millgate_block_wait_seconds` and a bite's stages, `millgate_bite_stage_seconds`:
+//! the whole run, the means and the shares within bucket bounds).
 //!
 //! ```sh
 //! cargo build --release -p millgate --bin millgate --example soak
