@@ -1303,7 +1303,7 @@ mod tests {
     }
 
     #[test]
-    fn a_driveline_added_live_without_a_history_to_read_starts_empty_or_waits() {
+    fn a_driveline_added_live_without_a_history_to_read_starts_empty_or_is_refused() {
         let names = ["F2".to_owned(), "F3".to_owned()];
         // No [history], or its file absent: nothing to resume, and both entries say
         // they start empty.
