@@ -267,7 +267,8 @@ async fn what_is_recorded_is_read_back_and_restored_at_the_next_start() {
     let map = RegisterMap::new(&config_f1);
     let mut results = Results::new(1, 1, 0);
     results.sources = vec![Some(millgate::field::source_health::SourceStatus::Ok)];
-    assert_eq!(restored.apply(&mut results, &["F1".into()], &[]), 1);
+    // On the board as the analysis resumes it (`Analysis::resume_driveline`).
+    results.drivelines[0] = f1.results.clone();
     let words = map.encode(&results);
     let flags = map
         .registers()

@@ -31,6 +31,13 @@
 //! A channel added on the running source (issue 41): its reader takes the channel
 //! between two polls, on the connection it has, and the running channel misses no
 //! block.
+//!
+//! A driveline added again under a name the history knows: F1 and F2 (with F1's model)
+//! run; F2's removal waits for a restart, and after it a `SIGHUP` adding F2 again
+//! resumes what the history kept of it, as a start would: its bite counter on the
+//! PLC, the HMI server, `/metrics` and the web API continues from the kept one, its
+//! bite ids in the history run on without a repeat, its first bite continues the wear
+//! trend it had and its gap trend holds its earlier bites.
 
 mod common;
 
@@ -856,5 +863,172 @@ async fn a_channel_added_on_a_running_source_starts_without_a_restart_or_a_misse
     terminate(&mut service);
     every_bite_id(&setup, &[("F1", plc.counter()), ("F2", f2_in_plc())]);
     drop(log_guard);
+    setup.stop(service).await;
+}
+
+/// The value of `key` in `object` (a driveline of the web API) as a number.
+fn number(object: &serde_json::Value, key: &str) -> Option<f64> {
+    object[key].as_f64()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_driveline_added_again_under_a_name_the_history_knows_resumes_its_state() {
+    // The demo's bites for as long as the two runs take.
+    let setup = Setup::with_daq(MILLGATE, "reload-resume", "db", |config, schedule| {
+        millgate_sim::devices::demo::demo_daq(config, schedule)
+            .unwrap()
+            .looped()
+    })
+    .await;
+    let log_on_failure = setup.log_on_failure("run.log");
+    let cache = setup.scratch.join("cache");
+    let web = free_port();
+    two_slots(
+        &setup,
+        &format!("cache_dir = \"{}\"\n", cache.display()),
+        &format!("\n[outputs.web]\nbind = \"127.0.0.1:{web}\"\n"),
+    );
+    let without_f2 = std::fs::read_to_string(&setup.config).unwrap();
+    // F2: F1 again under another name (its model, wear grid and thresholds: its TAF
+    // alarm latches at its first bite, its gap maps are F1's cache file).
+    let f1 = entry(&without_f2, "[[drivelines]]");
+    let f2 = f1.replace("F1", "F2");
+    assert!(f1.contains("model = ") && f2.contains("\"F2\""), "{f1}");
+    let with_f2 = without_f2.replacen(f1, &format!("{f1}\n\n{f2}"), 1);
+    std::fs::write(&setup.config, &with_f2).unwrap();
+    let map = map_of(&setup.config);
+    let plc = common::Plc {
+        plc: &setup.devices.plc,
+        map: &map,
+    };
+    let f2_counter = plc.at("F2.bite_counter") as u16;
+    let f2_in_plc = || u32_in_plc(&setup, f2_counter);
+    let gap_valid = 1 << 9;
+
+    // The first run: F1 and F2 from the start, until F2 has bites in its gap trend.
+    let mut service = setup.spawn("run.log");
+    wait_for("F2's gap in the PLC", Duration::from_secs(90), || {
+        f2_in_plc() >= 3 && setup.devices.plc.holding()[plc.at("F2.quality")] & gap_valid != 0
+    })
+    .await;
+    // Removing F2 waits for a restart; the restart applies it.
+    std::fs::write(&setup.config, &without_f2).unwrap();
+    answered_by_sighup(&setup, &service, "drivelines (removed F2)", "needs_restart").await;
+    terminate(&mut service);
+    drop(service);
+    let history = HistoryReader::open(&setup.history).unwrap();
+    let kept = history
+        .driveline_state("F2")
+        .unwrap()
+        .expect("F2's state in the history");
+    let kept_bites = kept.results.bite_counter;
+    let kept_trend = kept.results.wear_trend.expect("F2's wear trend");
+    let kept_pooled = kept.results.gap.expect("F2's gap").bites_pooled;
+    assert!(kept_bites >= 3 && kept_pooled >= 1, "{kept:?}");
+    assert!(kept.results.taf_alarm, "F2's TAF alarm latched: {kept:?}");
+    assert!(kept.gap_trend.is_some(), "F2's saved gap trend");
+    assert_eq!(
+        bite_ids(&history, "F2"),
+        (1..=kept_bites).collect::<Vec<_>>()
+    );
+    drop(history);
+
+    // The second run, without F2: its block is the reserved slot's zeros.
+    let mut service = setup.spawn("run.log");
+    wait_for(
+        "the reserved block written",
+        Duration::from_secs(40),
+        || f2_in_plc() == 0,
+    )
+    .await;
+    plc.bites_after_now(1).await;
+    // F2 added again by a SIGHUP: it resumes what the history kept of it.
+    std::fs::write(&setup.config, &with_f2).unwrap();
+    let said = format!(
+        "reload: applied drivelines.F2 (added in the register block of driveline_slot2: \
+         no address moves; its gap maps read from the cache or built as the service runs; \
+         its state resumed from the history: bite counter {kept_bites}, last bite "
+    );
+    applied_by_sighup(&setup, &service, &said).await;
+    let log = setup.log_text("run.log");
+    let restored_line = log
+        .lines()
+        .find(|line| line.contains("state restored from the history") && line.contains("F2"))
+        .unwrap_or_else(|| panic!("no state restored for F2 in {log}"));
+    assert!(
+        restored_line.contains(&format!("bite_counter={kept_bites}")),
+        "{restored_line}"
+    );
+    // From the reload's answer on, every output shows F2's counter at least where the
+    // history had it (at it until its next bite, then past it), never from 0.
+    let f2_metric = "millgate_driveline_bites_total{driveline=\"F2\"}";
+    let bites = setup.metric(f2_metric).await;
+    assert!(
+        bites.is_some_and(|bites| bites >= f64::from(kept_bites)),
+        "{f2_metric} {bites:?}, the history {kept_bites}"
+    );
+    let api = http(web, "GET", "/api/drivelines/F2").await.json();
+    let counter = number(&api, "bite_counter").unwrap_or(0.0);
+    assert!(counter >= f64::from(kept_bites), "{api}");
+    if counter == f64::from(kept_bites) {
+        // Before its next bite: the restored state itself.
+        assert_eq!(number(&api, "wear_trend"), Some(kept_trend), "{api}");
+        assert_eq!(api["taf_alarm"], true, "{api}");
+    }
+    wait_for("F2's counter in the PLC", Duration::from_secs(40), || {
+        f2_in_plc() != 0
+    })
+    .await;
+    let first_in_plc = f2_in_plc();
+    assert!(first_in_plc >= kept_bites, "{first_in_plc} < {kept_bites}");
+    wait_for(
+        "F2's next bites in the PLC",
+        Duration::from_secs(60),
+        || {
+            f2_in_plc() >= kept_bites + 3
+                && setup.devices.plc.holding()[plc.at("F2.quality")] & gap_valid != 0
+        },
+    )
+    .await;
+    assert!(common::hmi_u32(setup.server_port, f2_counter).await > kept_bites);
+    terminate(&mut service);
+
+    // In the history: F2's ids run on from the kept counter without a repeat; its
+    // first bite after the reload continued the wear trend it had, and its gap trend
+    // holds more bites than it saw since (the kept ones with them).
+    let last = f2_in_plc();
+    every_bite_id(&setup, &[("F2", last)]);
+    let history = HistoryReader::open(&setup.history).unwrap();
+    let filter = Filter {
+        name: Some("F2".to_owned()),
+        ..Filter::default()
+    };
+    let rows = history.bites(&filter).unwrap();
+    let after: Vec<_> = rows
+        .iter()
+        .filter(|row| row.figures.bite_counter > kept_bites)
+        .collect();
+    let first = after.first().expect("F2's bites after the reload");
+    assert_eq!(first.figures.bite_counter, kept_bites + 1);
+    let expected = match first.figures.wear_index {
+        Some(index) => millgate::analysis::wear::next_trend(Some(kept_trend), index),
+        None => kept_trend,
+    };
+    let trend = first.figures.wear_trend.expect("F2's wear trend");
+    assert!(
+        (trend - expected).abs() <= 1e-9 * expected.abs().max(1.0),
+        "{trend} != {expected}"
+    );
+    let with_gap = after
+        .iter()
+        .find_map(|row| Some((row.figures.bite_counter - kept_bites, row.figures.gap?)))
+        .expect("a gap after the reload");
+    assert!(
+        with_gap.1.bites_pooled > with_gap.0 as usize,
+        "{} bites in F2's gap trend at the {}th bite after the reload (kept {kept_pooled})",
+        with_gap.1.bites_pooled,
+        with_gap.0
+    );
+    drop(log_on_failure);
     setup.stop(service).await;
 }

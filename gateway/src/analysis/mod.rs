@@ -34,6 +34,7 @@ use tokio::sync::{broadcast, mpsc, oneshot, watch};
 use crate::field::acquired::Acquired;
 use crate::state::board::Board;
 use crate::state::commands::{Command, CommandReceiver};
+use crate::state::events::RestoredDriveline;
 use crate::state::gap_maps::{GapMapState, GapMaps};
 use crate::supervision::{Liveness, ANALYSIS_TICK};
 use crate::warn_limit::{WarnLimit, WARN_PERIOD};
@@ -127,9 +128,11 @@ impl Analysis {
     /// off this task) after those analysed (a reload that adds drivelines after the
     /// others; `config` is the running configuration with them, its channels the ones
     /// read): each from the next block of its torque channel on, as a driveline does
-    /// at a start, its results on the board. Returns the names of the drivelines
-    /// added; an error (nothing added) when `added` was built for another count of
-    /// drivelines than the analysis has.
+    /// at a start, its results on the board, resumed from the state a history kept
+    /// under its name when `added` carries one ([`AddedDrivelines::resume`]), as a
+    /// start resumes it ([`Self::resume_driveline`]), before its first bite. Returns
+    /// the names of the drivelines added; an error (nothing added) when `added` was
+    /// built for another count of drivelines than the analysis has.
     ///
     /// The gap maps of an added driveline with a model build as at a start: take
     /// their jobs from `added` ([`AddedDrivelines::take_gap_map_jobs`]) and run them
@@ -157,12 +160,18 @@ impl Analysis {
             return Ok(Vec::new());
         }
         self.board.add_drivelines(config);
-        let names = config.drivelines[from..]
+        let names: Vec<String> = config.drivelines[from..]
             .iter()
             .map(|driveline| driveline.name.clone())
             .collect();
         for (analyzer, routes) in added.built {
             self.push_driveline(analyzer, routes);
+        }
+        // Before the next round: their first bite continues the counter resumed.
+        for restored in &added.resumed {
+            if let Some(k) = names.iter().position(|name| *name == restored.name) {
+                self.resume_driveline(from + k, restored);
+            }
         }
         Ok(names)
     }
@@ -256,16 +265,69 @@ impl Analysis {
         }
     }
 
-    /// Continue driveline `index`'s fatigue ledger from its saved form (the history's)
-    /// and publish its figures; a form that is not usable is logged and the ledger
-    /// starts at 0.
-    pub fn restore_fatigue(&mut self, index: usize, saved: &str) {
+    /// Resume driveline `index` from the state a history kept of it (`restored`, under
+    /// its name): its published results (bite counter, last bite's values and time,
+    /// wear index and trend, gap estimate, warnings, latched alarms, flagged
+    /// `restored` until its next bite), its gap's wear trend (continued from its saved
+    /// form, or its bites folded in again) and its fatigue ledger (a form that is not
+    /// usable is logged and the ledger starts at 0). What a start restores, and what a
+    /// driveline a reload adds under a name the history knows resumes before its
+    /// first bite ([`Self::add_drivelines`]).
+    pub fn resume_driveline(&mut self, index: usize, restored: &RestoredDriveline) {
         let Some(driveline) = self.drivelines.get_mut(index) else {
             return;
         };
-        if let Some(ledger) = driveline.restore_fatigue(saved) {
+        // A driveline whose `fatigue` section was removed publishes no fatigue
+        // figures: its state row still holds the last ledger's (the saved ledger stays
+        // in the history, so that adding the section again resumes it).
+        let no_ledger = self
+            .board
+            .fatigue_components()
+            .get(index)
+            .is_none_or(Vec::is_empty);
+        self.board.update(|results| {
+            let results = &mut results.drivelines[index];
+            *results = restored.results.clone();
+            if no_ledger {
+                results.fatigue = None;
+                results.fatigue_components.clear();
+            }
+        });
+        let saved = restored.gap_trend.as_deref();
+        if saved.is_some() || !restored.gap_bites.is_empty() {
+            let bites = restored.gap_bites.iter().map(|(time, bite)| {
+                let observation = GapObservation {
+                    static_torque_knm: bite.static_torque_knm,
+                    taf: bite.taf,
+                    taf_sigma: bite.taf_sigma,
+                    period_shift_s: bite.period_shift_s,
+                    period_shift_sigma_s: bite.period_shift_sigma_s,
+                };
+                (*time, observation)
+            });
+            if let Some(estimate) = driveline.restore_gap_trend(saved, bites.collect()) {
+                driveline.publish_gap(&self.board, &estimate);
+            }
+        }
+        if let Some(ledger) = restored
+            .fatigue_ledger
+            .as_deref()
+            .and_then(|saved| driveline.restore_fatigue(saved))
+        {
             driveline.publish_fatigue(&self.board, &ledger, None);
         }
+        tracing::info!(
+            driveline = %restored.name,
+            bite_counter = restored.results.bite_counter,
+            wear_trend = ?restored.results.wear_trend,
+            alarm_latched = restored.results.taf_alarm,
+            last_bite_ms = ?restored.results.last_bite_unix_ms,
+            gap_alarm_latched = restored.results.gap_alarm,
+            gap_trend_saved = restored.gap_trend.is_some(),
+            gap_bites = restored.gap_bites.len(),
+            fatigue_ledger_saved = restored.fatigue_ledger.is_some(),
+            "state restored from the history"
+        );
     }
 
     /// Driveline `index`'s wear trend in its saved form; `None` without a model.
@@ -607,6 +669,8 @@ pub struct AddedDrivelines {
     /// Index of the first in the configuration.
     from: usize,
     built: Vec<(DrivelineAnalyzer, DrivelineRoutes)>,
+    /// The state a history kept of those it knows by name, read off the analysis.
+    resumed: Vec<RestoredDriveline>,
 }
 
 impl AddedDrivelines {
@@ -622,7 +686,17 @@ impl AddedDrivelines {
         {
             return Err(problem);
         }
-        Ok(Self { from, built })
+        Ok(Self {
+            from,
+            built,
+            resumed: Vec::new(),
+        })
+    }
+
+    /// Resume those of them a history knows by name from the state it kept
+    /// (`restored`, read off the analysis task: the analysis only applies it).
+    pub fn resume(&mut self, restored: Vec<RestoredDriveline>) {
+        self.resumed = restored;
     }
 
     /// No driveline added after the first `from` (a reload that adds sources only:
@@ -631,6 +705,7 @@ impl AddedDrivelines {
         Self {
             from,
             built: Vec::new(),
+            resumed: Vec::new(),
         }
     }
 

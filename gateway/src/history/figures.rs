@@ -138,30 +138,50 @@ pub struct StateRow<R> {
 
 /// Every state row of `R`'s table, by name, with each kept figure set back.
 pub(crate) fn read_states<R: Kept>(connection: &Connection) -> rusqlite::Result<Vec<StateRow<R>>> {
+    let sql = format!("{} ORDER BY {key}", select_states::<R>(), key = R::KEY);
+    let mut statement = connection.prepare(&sql)?;
+    let rows = statement.query_map([], state_row)?;
+    rows.collect()
+}
+
+/// The state row of subject `name` in `R`'s table, with each kept figure set back
+/// (`None` when it has none): one subject's [`read_states`], by the table's key.
+pub(crate) fn read_state<R: Kept>(
+    connection: &Connection,
+    name: &str,
+) -> rusqlite::Result<Option<StateRow<R>>> {
+    let sql = format!("{} WHERE {key} = ?1", select_states::<R>(), key = R::KEY);
+    let mut statement = connection.prepare_cached(&sql)?;
+    let mut rows = statement.query_map([name], state_row)?;
+    rows.next().transpose()
+}
+
+/// `SELECT` of `R`'s state rows: the key, `updated_at`, then the kept columns.
+fn select_states<R: Kept>() -> String {
     let columns: Vec<&str> = state_columns::<R>().map(|(_, column)| column).collect();
-    let sql = format!(
-        "SELECT {key}, updated_at, {columns} FROM {table} ORDER BY {key}",
+    format!(
+        "SELECT {key}, updated_at, {columns} FROM {table}",
         key = R::KEY,
         columns = columns.join(", "),
         table = R::STATE_TABLE,
-    );
-    let mut statement = connection.prepare(&sql)?;
-    let rows = statement.query_map([], |row| {
-        let mut results = R::default();
-        for (i, (figure, _)) in state_columns::<R>().enumerate() {
-            figure.set(
-                &mut results,
-                from_sql(figure.figure_type, row.get_ref(2 + i)?),
-            );
-        }
-        let updated_at: Option<String> = row.get(1)?;
-        Ok(StateRow {
-            name: row.get(0)?,
-            updated_at: updated_at.and_then(|text| UtcTime::parse(&text).ok()),
-            results,
-        })
-    })?;
-    rows.collect()
+    )
+}
+
+/// A row of [`select_states`] read back.
+fn state_row<R: Kept>(row: &rusqlite::Row<'_>) -> rusqlite::Result<StateRow<R>> {
+    let mut results = R::default();
+    for (i, (figure, _)) in state_columns::<R>().enumerate() {
+        figure.set(
+            &mut results,
+            from_sql(figure.figure_type, row.get_ref(2 + i)?),
+        );
+    }
+    let updated_at: Option<String> = row.get(1)?;
+    Ok(StateRow {
+        name: row.get(0)?,
+        updated_at: updated_at.and_then(|text| UtcTime::parse(&text).ok()),
+        results,
+    })
 }
 
 /// Copy the kept figures of `from` onto `to` (what a start restores of a subject whose

@@ -19,7 +19,7 @@ use super::error::{check_file_owner, HistoryError};
 pub use super::record::StoredCoil;
 pub(crate) use super::record::ToCell;
 pub use super::record::{Cell, Record};
-use super::restore::{FatigueHistory, Restored};
+use super::restore::{FatigueHistory, Restored, RestoredDriveline};
 use super::schema::{current_version, SchemaError};
 use crate::state::time::UtcTime;
 
@@ -625,5 +625,11 @@ impl HistoryReader {
     /// The state the next start would restore.
     pub fn state(&self) -> Result<Restored, HistoryError> {
         super::restore::read(&self.connection).map_err(|e| self.error(e))
+    }
+
+    /// What the next start would restore of driveline `name` (`None` when the file
+    /// has no state of it): what a driveline a reload adds under that name resumes.
+    pub fn driveline_state(&self, name: &str) -> Result<Option<RestoredDriveline>, HistoryError> {
+        super::restore::read_driveline(&self.connection, name).map_err(|e| self.error(e))
     }
 }

@@ -11,33 +11,14 @@
 
 use rusqlite::{params, Connection};
 
-use super::figures::{read_states, restore_onto, StateRow};
+use super::figures::{read_state, read_states, restore_onto, StateRow};
 use crate::state::events::PooledBite;
+pub(crate) use crate::state::events::RestoredDriveline;
 use crate::state::results::{DrivelineResults, Results, TandemMillResults};
 use crate::state::time::UtcTime;
 
-/// The restorable state of one driveline, as last recorded.
-#[derive(Debug, Clone, PartialEq)]
-pub struct RestoredDriveline {
-    /// The driveline's name (matched against the configuration's).
-    pub name: String,
-    /// When the state was last recorded.
-    pub updated_at: Option<UtcTime>,
-    /// The published results as they were, with `restored` set.
-    pub results: DrivelineResults,
-    /// The gap's wear trend after the last bite, in its saved form (`None`: no bite
-    /// since the last wear reset, no gap diagnosis, or a file from before version 11).
-    pub gap_trend: Option<String>,
-    /// The last bites since the last wear reset that the gap diagnosis saw, oldest
-    /// first, with their times (ms since the epoch), for a trend that cannot be
-    /// continued from its saved form: at most [`MAX_GAP_BITES`].
-    pub gap_bites: Vec<(i64, PooledBite)>,
-    /// The fatigue ledger after the last bite or reset, in its saved form (`None`: no
-    /// ledger, or a file from before version 12).
-    pub fatigue_ledger: Option<String>,
-}
-
-/// The most bites a start folds into a wear trend again when it has no saved form.
+/// The most bites a start folds into a wear trend again when it has no saved form
+/// ([`RestoredDriveline::gap_bites`]).
 const MAX_GAP_BITES: i64 = 1000;
 
 /// The last [`MAX_GAP_BITES`] bites `driveline`'s gap diagnosis saw since its last
@@ -107,40 +88,47 @@ pub struct Restored {
 pub(crate) fn read(connection: &Connection) -> rusqlite::Result<Restored> {
     let drivelines = read_states::<DrivelineResults>(connection)?
         .into_iter()
-        .map(|row| {
-            Ok(RestoredDriveline {
-                gap_trend: gap_trend(connection, &row.name)?,
-                gap_bites: gap_bites(connection, &row.name)?,
-                fatigue_ledger: fatigue_ledger(connection, &row.name)?,
-                name: row.name,
-                updated_at: row.updated_at,
-                results: DrivelineResults {
-                    restored: true,
-                    ..row.results
-                },
-            })
-        })
+        .map(|row| restored_driveline(connection, row))
         .collect::<rusqlite::Result<Vec<_>>>()?;
     let mills = read_states::<TandemMillResults>(connection)?;
     Ok(Restored { drivelines, mills })
 }
 
+/// What a start would restore of driveline `name` alone (`None` when the file has no
+/// state of it): a driveline a reload adds under a name the file knows resumes it.
+pub(crate) fn read_driveline(
+    connection: &Connection,
+    name: &str,
+) -> rusqlite::Result<Option<RestoredDriveline>> {
+    read_state::<DrivelineResults>(connection, name)?
+        .map(|row| restored_driveline(connection, row))
+        .transpose()
+}
+
+/// The restorable state of the driveline whose state row is `row`.
+fn restored_driveline(
+    connection: &Connection,
+    row: StateRow<DrivelineResults>,
+) -> rusqlite::Result<RestoredDriveline> {
+    Ok(RestoredDriveline {
+        gap_trend: gap_trend(connection, &row.name)?,
+        gap_bites: gap_bites(connection, &row.name)?,
+        fatigue_ledger: fatigue_ledger(connection, &row.name)?,
+        name: row.name,
+        updated_at: row.updated_at,
+        results: DrivelineResults {
+            restored: true,
+            ..row.results
+        },
+    })
+}
+
 impl Restored {
-    /// Put the restored state into `results` for the drivelines and mills named as in
-    /// the file (a renamed driveline starts afresh); returns how many were restored.
-    pub fn apply(
-        &self,
-        results: &mut Results,
-        driveline_names: &[String],
-        mill_names: &[String],
-    ) -> usize {
+    /// Put the restored state of the tandem mills named as in the file into
+    /// `results`; returns how many were restored. (A driveline's state goes to the
+    /// analysis, which continues its trends with it: `Analysis::resume_driveline`.)
+    pub fn apply_mills(&self, results: &mut Results, mill_names: &[String]) -> usize {
         let mut applied = 0;
-        for restored in &self.drivelines {
-            if let Some(k) = driveline_names.iter().position(|n| *n == restored.name) {
-                results.drivelines[k] = restored.results.clone();
-                applied += 1;
-            }
-        }
         for restored in &self.mills {
             if let Some(m) = mill_names.iter().position(|n| *n == restored.name) {
                 restore_onto(&restored.results, &mut results.tandem_mills[m]);
@@ -254,4 +242,87 @@ pub(crate) fn fatigue_resets(
             })
         })?
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::figures::upsert_state;
+    use super::*;
+    use crate::state::results::GapResults;
+
+    /// A migrated file in memory with the state of F1 and F2, F2's saved trend and
+    /// ledger, and bites of both: F2's first two before its wear reset.
+    fn two_drivelines() -> Connection {
+        let mut connection = Connection::open_in_memory().unwrap();
+        super::super::schema::migrate(&mut connection).unwrap();
+        let transaction = connection.transaction().unwrap();
+        for (name, counter) in [("F1", 11), ("F2", 7)] {
+            let results = DrivelineResults {
+                bite_counter: counter,
+                last_bite_unix_ms: Some(1_777_939_198_250),
+                wear_trend: Some(0.125),
+                taf_alarm: true,
+                gap: Some(GapResults {
+                    gap_mrad: 1.5,
+                    low_mrad: 1.0,
+                    high_mrad: 2.0,
+                    coupling: Some(1),
+                    likeliest_coupling: None,
+                    bites_pooled: 5,
+                    growth: None,
+                    forecast: None,
+                }),
+                ..DrivelineResults::default()
+            };
+            upsert_state(&transaction, name, UtcTime::from_unix_ms(9), &results).unwrap();
+        }
+        transaction
+            .execute_batch(
+                "UPDATE driveline_state SET gap_trend = '{\"trend\": 2}',
+                     fatigue_ledger = '{\"ledger\": 2}' WHERE driveline = 'F2';
+                 INSERT INTO gateway_runs (id, started_at, version, config_name)
+                     VALUES (1, '2026-11-30T04:00:00Z', 'test', 'test');
+                 INSERT INTO wear_estimates (run_id, driveline, time, event, origin)
+                     VALUES (1, 'F2', '2026-11-30T04:00:02.500Z', 'reset', 'local');
+                 WITH RECURSIVE n(i) AS (SELECT 1 UNION ALL SELECT i + 1 FROM n WHERE i < 7)
+                 INSERT INTO bites (run_id, driveline, time, bite_counter, channel,
+                     static_torque_knm, peak_torque_knm, taf, quality, degraded,
+                     gap_taf_sigma, period_shift_s)
+                 SELECT 1, d.name, strftime('%Y-%m-%dT%H:%M:%fZ', '2026-11-30T04:00:00Z',
+                     '+' || i || ' seconds'), i, 'torque', 100.0 + i, 200.0, 1.5 + i / 100.0,
+                     'good', 0, 0.01, NULL
+                 FROM n, (SELECT 'F1' AS name UNION ALL SELECT 'F2') AS d;",
+            )
+            .unwrap();
+        transaction.commit().unwrap();
+        connection
+    }
+
+    #[test]
+    fn one_driveline_restores_as_a_start_restores_it() {
+        let connection = two_drivelines();
+        let start = read(&connection).unwrap();
+        for name in ["F1", "F2"] {
+            let alone = read_driveline(&connection, name).unwrap();
+            let at_start = start.drivelines.iter().find(|d| d.name == name);
+            assert_eq!(alone.as_ref(), at_start, "{name}");
+        }
+        let f2 = read_driveline(&connection, "F2").unwrap().unwrap();
+        assert_eq!(f2.results.bite_counter, 7);
+        assert!(f2.results.restored && f2.results.taf_alarm);
+        assert_eq!(f2.results.wear_trend, Some(0.125));
+        assert_eq!(f2.results.gap.map(|gap| gap.bites_pooled), Some(5));
+        assert_eq!(f2.gap_trend.as_deref(), Some("{\"trend\": 2}"));
+        assert_eq!(f2.fatigue_ledger.as_deref(), Some("{\"ledger\": 2}"));
+        // Its own bites since its wear reset (bites 3 to 7), oldest first; F1's not.
+        let torques: Vec<f64> = f2
+            .gap_bites
+            .iter()
+            .map(|(_, bite)| bite.static_torque_knm)
+            .collect();
+        assert_eq!(torques, [103.0, 104.0, 105.0, 106.0, 107.0]);
+        let f1 = read_driveline(&connection, "F1").unwrap().unwrap();
+        assert_eq!((f1.results.bite_counter, f1.gap_bites.len()), (11, 7));
+        assert_eq!(read_driveline(&connection, "F9").unwrap(), None);
+    }
 }

@@ -323,58 +323,12 @@ impl Service {
             }
         };
         let board = &self.board;
-        board.update(|results| {
-            restored.apply(results, &board.driveline_names(), board.tandem_mill_names());
-            // A driveline whose `fatigue` section was removed publishes no fatigue
-            // figures: its state row still holds the last ledger's (the saved ledger
-            // stays in the history, so that adding the section again resumes it).
-            for (driveline, components) in results
-                .drivelines
-                .iter_mut()
-                .zip(board.fatigue_components().iter())
-            {
-                if components.is_empty() {
-                    driveline.fatigue = None;
-                    driveline.fatigue_components.clear();
-                }
-            }
-        });
+        board.update(|results| restored.apply_mills(results, board.tandem_mill_names()));
+        let names = board.driveline_names();
         for driveline in &restored.drivelines {
-            let index = board
-                .driveline_names()
-                .iter()
-                .position(|name| *name == driveline.name);
-            let saved = driveline.gap_trend.as_deref();
-            if let (Some(index), true) = (index, saved.is_some() || !driveline.gap_bites.is_empty())
-            {
-                let bites = driveline.gap_bites.iter().map(|(time, bite)| {
-                    let observation = GapObservation {
-                        static_torque_knm: bite.static_torque_knm,
-                        taf: bite.taf,
-                        taf_sigma: bite.taf_sigma,
-                        period_shift_s: bite.period_shift_s,
-                        period_shift_sigma_s: bite.period_shift_sigma_s,
-                    };
-                    (*time, observation)
-                });
-                self.analysis
-                    .restore_gap_trend(index, saved, bites.collect());
+            if let Some(index) = names.iter().position(|name| *name == driveline.name) {
+                self.analysis.resume_driveline(index, driveline);
             }
-            if let (Some(index), Some(saved)) = (index, &driveline.fatigue_ledger) {
-                self.analysis.restore_fatigue(index, saved);
-            }
-            tracing::info!(
-                driveline = %driveline.name,
-                bite_counter = driveline.results.bite_counter,
-                wear_trend = ?driveline.results.wear_trend,
-                alarm_latched = driveline.results.taf_alarm,
-                last_bite_ms = ?driveline.results.last_bite_unix_ms,
-                gap_alarm_latched = driveline.results.gap_alarm,
-                gap_trend_saved = driveline.gap_trend.is_some(),
-                gap_bites = driveline.gap_bites.len(),
-                fatigue_ledger_saved = driveline.fatigue_ledger.is_some(),
-                "state restored from the history"
-            );
         }
         true
     }
@@ -675,7 +629,11 @@ impl Started {
     /// Apply the parts of `plan` that run live (`new`'s): check them, bind the new
     /// addresses, then send the thresholds to the analysis and restart the outputs
     /// they touch. A check or bind that fails refuses the whole reload.
-    async fn apply(&mut self, plan: reload::Plan, new: &Config) -> Result<Reload, ServiceError> {
+    async fn apply(
+        &mut self,
+        mut plan: reload::Plan,
+        new: &Config,
+    ) -> Result<Reload, ServiceError> {
         let config = plan.applied_to(&self.config, new);
         if let Some(plc) = &config.outputs.plc {
             if let Err(error) = check_register_base(&self.map, plc) {
@@ -684,7 +642,10 @@ impl Started {
         }
         let added = match plan.live.contains(&Live::Drivelines) {
             true => match self.map_with_added(&config).await {
-                Ok(added) => Some(added),
+                Ok((map, drivelines, resumed)) => {
+                    plan.note_resumed(&resumed);
+                    Some((map, drivelines))
+                }
                 Err(refused) => return Ok(Reload::Refused(refused)),
             },
             false => None,
@@ -720,15 +681,18 @@ impl Started {
     }
 
     /// The register map of `config` (the running configuration with drivelines added
-    /// after the others) and the analysers of the drivelines added, once checked: the
-    /// map it grows into has every register where it was (the added drivelines take
-    /// blocks `outputs.driveline_slots` reserves), and the analysis can be built for
-    /// the added drivelines, their models loaded (built on a blocking thread: a model
-    /// is loaded and its linear wear reference simulated). `Err` says why not.
+    /// after the others), the analysers of the drivelines added, and what the history
+    /// holds of them, once checked: the map it grows into has every register where it
+    /// was (the added drivelines take blocks `outputs.driveline_slots` reserves), the
+    /// analysis can be built for the added drivelines, their models loaded, and the
+    /// history read for the state it kept under their names ([`reload::resumed_from`];
+    /// the analysers resume it). Built and read on a blocking thread (a model is
+    /// loaded and its linear wear reference simulated; the history file is read): the
+    /// analysis runs on meanwhile. `Err` says why not.
     async fn map_with_added(
         &self,
         config: &Config,
-    ) -> Result<(RegisterMap, AddedDrivelines), String> {
+    ) -> Result<(RegisterMap, AddedDrivelines, reload::Resumed), String> {
         let map = RegisterMap::try_new(config).map_err(|error| error.to_string())?;
         if map.len() != self.map.len() {
             return Err(format!(
@@ -739,17 +703,30 @@ impl Started {
             ));
         }
         let (config, from) = (config.clone(), self.config.drivelines.len());
-        let built = tokio::task::spawn_blocking(move || AddedDrivelines::build(&config, from))
-            .await
-            .map_err(|error| format!("building the added drivelines' analysis failed: {error}"))?;
-        Ok((map, built.map_err(|error| error.to_string())?))
+        let history = self.config.history.as_ref().map(|h| h.path.clone());
+        let built = tokio::task::spawn_blocking(move || {
+            let mut drivelines =
+                AddedDrivelines::build(&config, from).map_err(|error| error.to_string())?;
+            let names: Vec<String> = config.drivelines[from..]
+                .iter()
+                .map(|driveline| driveline.name.clone())
+                .collect();
+            let resumed = reload::resumed_from(history.as_deref(), &names)?;
+            drivelines.resume(resumed.drivelines.clone());
+            Ok::<_, String>((drivelines, resumed))
+        })
+        .await
+        .map_err(|error| format!("building the added drivelines' analysis failed: {error}"))?;
+        let (drivelines, resumed) = built?;
+        Ok((map, drivelines, resumed))
     }
 
     /// Start analysing the drivelines `config` (the running configuration with them)
     /// adds after the others, `added` as [`Self::map_with_added`] checked them (the
-    /// map and their analysers; `None` when a reload adds sources only, whose
-    /// channels the analysis then routes): the analysis takes them between two rounds
-    /// and grows the board, then their gap maps build as a start's do; the outputs
+    /// map and their analysers with the state the history kept of them; `None` when a
+    /// reload adds sources only, whose channels the analysis then routes): the
+    /// analysis takes them between two rounds, grows the board and resumes that state
+    /// before their first bite, then their gap maps build as a start's do; the outputs
     /// restarted for [`Live::Drivelines`] then run on the map. An error when the
     /// analysis has ended or refuses them after all (the service ends with it, and
     /// its supervisor starts it anew with the file).

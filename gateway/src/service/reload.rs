@@ -23,8 +23,12 @@
 //!   - drivelines added after the others within `outputs.driveline_slots`, on
 //!     channels already read ([`Live::Drivelines`]): checked first (the map keeps
 //!     every address, the analysis builds, a `model` loads and fits its `wear`
-//!     settings), then the outputs that show drivelines stop, the analysis takes them
-//!     between two rounds (the board grows), and the outputs start again on the map
+//!     settings; the history read for the state it kept under their names, on a
+//!     read-only connection of its own, a file that cannot be read refusing the
+//!     reload: [`resumed_from`]), then the outputs that show drivelines stop, the
+//!     analysis takes them between two rounds (the board grows, each resuming what a
+//!     start would restore of its name before its first bite), and the outputs start
+//!     again on the map
 //!     with their reserved blocks (Sparkplug with a new session: their DBIRTHs); a
 //!     running OPC UA server adds their nodes as it runs (its sessions kept), and the
 //!     plan says so. The gap maps of one with a `model` are read from the cache or
@@ -57,6 +61,10 @@ use std::fmt;
 use std::path::Path;
 
 use millgate_config::{Config, Driveline, TandemMill, WearSettings};
+
+use crate::history::query::HistoryReader;
+use crate::state::events::RestoredDriveline;
+use crate::state::time::UtcTime;
 
 /// A part of the configuration that a reload applies without a restart.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -166,6 +174,97 @@ impl Plan {
         }
         config
     }
+}
+
+impl Plan {
+    /// Say in the entry of each driveline added live (`drivelines.F2 (added in ...)`)
+    /// what it resumes from the history (`resumed`), or that it starts empty when
+    /// there is no history to resume it from; a name the history does not know starts
+    /// empty, as a new driveline does at a start, and its entry says nothing more.
+    pub(crate) fn note_resumed(&mut self, resumed: &Resumed) {
+        let notes = resumed.names.iter().filter_map(|name| {
+            let note = match resumed.drivelines.iter().find(|d| d.name == *name) {
+                Some(state) => {
+                    let results = &state.results;
+                    let last = results
+                        .last_bite_unix_ms
+                        .map(|ms| format!(", last bite {}", UtcTime::from_unix_ms(ms)))
+                        .unwrap_or_default();
+                    format!(
+                        "its state resumed from the history: bite counter {}{last}",
+                        results.bite_counter
+                    )
+                }
+                None => resumed.otherwise.clone()?,
+            };
+            Some((name, note))
+        });
+        for (name, note) in notes {
+            let entry = format!("drivelines.{name} (added in ");
+            if let Some(applied) = self.applied.iter_mut().find(|a| a.starts_with(&entry)) {
+                // Inside its parentheses.
+                applied.pop();
+                applied.push_str(&format!("; {note})"));
+            }
+        }
+    }
+}
+
+/// What the history holds of the drivelines a reload adds live ([`resumed_from`]).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub(crate) struct Resumed {
+    /// The drivelines added, by name.
+    pub names: Vec<String>,
+    /// The state the history kept of those it knows by name, as a start restores it.
+    pub drivelines: Vec<RestoredDriveline>,
+    /// Why the others start empty when there is nothing to resume them from (no
+    /// `[history]`, its file absent); `None` when the history was read.
+    pub otherwise: Option<String>,
+}
+
+/// The state the history file at `path` (`None` without `[history]`) kept of the
+/// drivelines `names` a reload adds, as a start would restore it: read on a
+/// read-only connection of its own (the writer thread owns the read-write one; in WAL
+/// mode neither waits for the other), on the caller's thread (a blocking one: the
+/// analysis does not wait for it). `Err` says why the file cannot be read (busy,
+/// damaged, not a history): the reload is then refused, since a driveline the file
+/// knows would otherwise publish a bite counter below the one it kept.
+pub(crate) fn resumed_from(path: Option<&Path>, names: &[String]) -> Result<Resumed, String> {
+    let empty = |why: String| Resumed {
+        names: names.to_vec(),
+        drivelines: Vec::new(),
+        otherwise: Some(why),
+    };
+    let Some(path) = path else {
+        return Ok(empty(
+            "no [history] to resume it from: it starts empty".into(),
+        ));
+    };
+    if !path.exists() {
+        return Ok(empty(format!(
+            "the history file {} is absent: it starts empty",
+            path.display()
+        )));
+    }
+    let refused = |error| {
+        format!(
+            "the history cannot be read to resume the state of {} ({error}): nothing is \
+             added and the running drivelines run on; reload again once the file can be \
+             read",
+            names.join(", ")
+        )
+    };
+    let reader = HistoryReader::open(path).map_err(refused)?;
+    let drivelines = names
+        .iter()
+        .filter_map(|name| reader.driveline_state(name).transpose())
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(refused)?;
+    Ok(Resumed {
+        names: names.to_vec(),
+        drivelines,
+        otherwise: None,
+    })
 }
 
 /// What a reload request found, and did.
@@ -1121,5 +1220,133 @@ mod tests {
                 .contains(&"outputs.mqtt (its [history] opens at the start)".to_owned()),
             "{plan:?}"
         );
+    }
+
+    /// A scratch folder for `name`'s files, empty.
+    fn folder(name: &str) -> std::path::PathBuf {
+        let folder =
+            std::env::temp_dir().join(format!("millgate-reload-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&folder);
+        std::fs::create_dir_all(&folder).unwrap();
+        folder
+    }
+
+    /// A plan that adds F2 and F3 live, as `added_live` words it.
+    fn adding_f2_f3() -> Plan {
+        let added = |name: &str, slot: usize| {
+            format!(
+                "drivelines.{name} (added in the register block of driveline_slot{slot}: no \
+                 address moves)"
+            )
+        };
+        Plan {
+            applied: vec![added("F2", 2), added("F3", 3)],
+            live: vec![Live::Drivelines],
+            needs_restart: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn a_driveline_added_live_resumes_what_the_history_kept_of_its_name() {
+        let folder = folder("resume");
+        let path = folder.join("history.db");
+        let mut connection = crate::history::writer::connect(&path).unwrap();
+        let kept = crate::state::results::DrivelineResults {
+            bite_counter: 41,
+            last_bite_unix_ms: Some(1_777_939_198_250),
+            wear_trend: Some(0.25),
+            ..Default::default()
+        };
+        let transaction = connection.transaction().unwrap();
+        crate::history::figures::upsert_state(&transaction, "F2", UtcTime::from_unix_ms(1), &kept)
+            .unwrap();
+        transaction.commit().unwrap();
+        let names = ["F2".to_owned(), "F3".to_owned()];
+        let resumed = resumed_from(Some(&path), &names).unwrap();
+        assert_eq!(resumed.otherwise, None);
+        let [f2] = &resumed.drivelines[..] else {
+            panic!("{resumed:?}");
+        };
+        assert_eq!((f2.name.as_str(), f2.results.bite_counter), ("F2", 41));
+        assert_eq!(f2.results.wear_trend, Some(0.25));
+        assert!(f2.results.restored);
+        // F2's entry says what it resumed; F3, a name the file does not know, starts
+        // empty as a new driveline does, and its entry says nothing more.
+        let mut plan = adding_f2_f3();
+        plan.note_resumed(&resumed);
+        assert_eq!(
+            plan.applied[0],
+            "drivelines.F2 (added in the register block of driveline_slot2: no address \
+             moves; its state resumed from the history: bite counter 41, last bite \
+             2026-05-04T23:59:58.250Z)"
+        );
+        assert_eq!(plan.applied[1], adding_f2_f3().applied[1]);
+
+        // While another connection holds the file locked, the reload is refused at
+        // once, saying so (nothing waits: the running drivelines run on).
+        connection
+            .pragma_update(None, "locking_mode", "EXCLUSIVE")
+            .unwrap();
+        connection
+            .execute("UPDATE driveline_state SET gap_trend = NULL", [])
+            .unwrap();
+        let busy = resumed_from(Some(&path), &names).unwrap_err();
+        assert!(
+            busy.starts_with("the history cannot be read to resume the state of F2, F3 (")
+                && busy.contains("locked")
+                && busy.ends_with("reload again once the file can be read"),
+            "{busy}"
+        );
+        drop(connection);
+        assert_eq!(resumed_from(Some(&path), &names).unwrap(), resumed);
+        std::fs::remove_dir_all(&folder).unwrap();
+    }
+
+    #[test]
+    fn a_driveline_added_live_without_a_history_to_read_starts_empty_or_is_refused() {
+        let names = ["F2".to_owned(), "F3".to_owned()];
+        // No [history], or its file absent: nothing to resume, and both entries say
+        // they start empty.
+        let folder = folder("no-history");
+        let absent = folder.join("history.db");
+        for (path, why) in [
+            (
+                None,
+                "no [history] to resume it from: it starts empty".to_owned(),
+            ),
+            (
+                Some(absent.as_path()),
+                format!(
+                    "the history file {} is absent: it starts empty",
+                    absent.display()
+                ),
+            ),
+        ] {
+            let resumed = resumed_from(path, &names).unwrap();
+            assert!(resumed.drivelines.is_empty(), "{resumed:?}");
+            let mut plan = adding_f2_f3();
+            plan.note_resumed(&resumed);
+            for (entry, name) in plan.applied.iter().zip(&names) {
+                assert!(
+                    entry.starts_with(&format!("drivelines.{name} (added")),
+                    "{entry}"
+                );
+                assert!(
+                    entry.ends_with(&format!("no address moves; {why})")),
+                    "{entry}"
+                );
+            }
+        }
+        // A file that is no history: refused with the reason (a start would not
+        // restore from it either).
+        std::fs::write(
+            &absent,
+            "not a database, but long enough for SQLite to look",
+        )
+        .unwrap();
+        let refused = resumed_from(Some(&absent), &names).unwrap_err();
+        assert!(refused.contains(&absent.display().to_string()), "{refused}");
+        assert!(refused.contains("nothing is added"), "{refused}");
+        std::fs::remove_dir_all(&folder).unwrap();
     }
 }

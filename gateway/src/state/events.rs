@@ -1,6 +1,8 @@
 //! What the history records: one [`HistoryEvent`] per thing that happened, built
 //! where it happened (the analysis for bites, alarms, chatter and the commands it
-//! applies, the outage monitor for sources) and written by the history's writer thread.
+//! applies, the outage monitor for sources) and written by the history's writer thread;
+//! and what it gives back of a driveline, at a start or when a reload adds one under a
+//! name it knows ([`RestoredDriveline`]).
 
 pub use super::catalogue::AlarmKind;
 use super::catalogue::{Figure, Subject, Value};
@@ -46,6 +48,29 @@ pub struct PooledBite {
     pub period_shift_s: Option<f64>,
     /// Standard deviation of `period_shift_s`, s (>= 0).
     pub period_shift_sigma_s: f64,
+}
+
+/// The restorable state of one driveline as the history last recorded it: what a
+/// start restores (`history::restore`), and what a driveline a reload adds under a
+/// name the history knows resumes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RestoredDriveline {
+    /// The driveline's name (matched against the configuration's).
+    pub name: String,
+    /// When the state was last recorded.
+    pub updated_at: Option<UtcTime>,
+    /// The published results as they were, with `restored` set.
+    pub results: DrivelineResults,
+    /// The gap's wear trend after the last bite, in its saved form (`None`: no bite
+    /// since the last wear reset, no gap diagnosis, or a file from before version 11).
+    pub gap_trend: Option<String>,
+    /// The last bites since the last wear reset that the gap diagnosis saw, oldest
+    /// first, with their times (ms since the epoch), for a trend that cannot be
+    /// continued from its saved form: at most 1000.
+    pub gap_bites: Vec<(i64, PooledBite)>,
+    /// The fatigue ledger after the last bite or reset, in its saved form (`None`: no
+    /// ledger, or a file from before version 12).
+    pub fatigue_ledger: Option<String>,
 }
 
 /// One analysed bite with the driveline's published state after it.
