@@ -218,7 +218,11 @@ fn print_gateway_latency(final_metrics: &str) {
             "# the gateway's {name}{}: {count} observed, mean {:.2} ms, {:.1}% <= 1 ms, \
              {:.1}% <= 2 ms, {:.1}% <= 5 ms, {:.1}% <= 10 ms, {:.1}% <= 20 ms \
              (whole run, warm-up included)",
-            if labels.is_empty() { String::new() } else { format!("{{{labels}}}") },
+            if labels.is_empty() {
+                String::new()
+            } else {
+                format!("{{{labels}}}")
+            },
             1000.0 * sum / count.max(1.0),
             within("0.001"),
             within("0.002"),

@@ -311,7 +311,9 @@ mod tests {
         let text = page.into_text();
         for (stage, _) in BITE_STAGES {
             assert!(
-                text.contains(&format!("millgate_bite_stage_seconds_count{{stage=\"{stage}\"}} 1")),
+                text.contains(&format!(
+                    "millgate_bite_stage_seconds_count{{stage=\"{stage}\"}} 1"
+                )),
                 "{text}"
             );
         }
