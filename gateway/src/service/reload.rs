@@ -25,7 +25,7 @@
 //!     every address, the analysis builds, a `model` loads and fits its `wear`
 //!     settings; the history read for the state it kept under their names, on a
 //!     read-only connection of its own, a file that cannot be read refusing the
-//!     reload: [`resumed_from`]), then the outputs that show drivelines stop, the
+//!     reload: `resumed_from`), then the outputs that show drivelines stop, the
 //!     analysis takes them between two rounds (the board grows, each resuming what a
 //!     start would restore of its name before its first bite), and the outputs start
 //!     again on the map
