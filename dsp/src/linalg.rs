@@ -700,6 +700,21 @@ mod tests {
 
     /// The four lanes against one plain scan: every length's remainder, the peak in
     /// each lane, NaN and infinities anywhere.
+
+    /// Q a Q^T with a fixed Householder Q: a matrix with `a`'s spectrum.
+    fn householder_similar(a: &[[f64; 6]; 6]) -> [[f64; 6]; 6] {
+        let v = [0.3, -0.5, 0.2, 0.7, -0.1, 0.4];
+        let v_norm2: f64 = v.iter().map(|x| x * x).sum();
+        let q: [[f64; 6]; 6] = core::array::from_fn(|i| {
+            core::array::from_fn(|j| f64::from(u8::from(i == j)) - 2.0 * v[i] * v[j] / v_norm2)
+        });
+        let product = |x: &[[f64; 6]; 6], y: &[[f64; 6]; 6]| -> [[f64; 6]; 6] {
+            core::array::from_fn(|i| {
+                core::array::from_fn(|j| (0..6).map(|k| x[i][k] * y[k][j]).sum())
+            })
+        };
+        product(&product(&q, a), &q)
+    }
     #[test]
     fn peak_magnitude_matches_a_plain_scan() {
         let values: [f64; 11] = core::array::from_fn(|i| (i as f64 - 4.3) * [1.0, -2.5][i % 2]);
@@ -902,17 +917,7 @@ mod tests {
                 a[4 + i][4 + j] = mode2[i][j];
             }
         }
-        let v = [0.3, -0.5, 0.2, 0.7, -0.1, 0.4];
-        let v_norm2: f64 = v.iter().map(|x| x * x).sum();
-        let q: [[f64; 6]; 6] = core::array::from_fn(|i| {
-            core::array::from_fn(|j| f64::from(u8::from(i == j)) - 2.0 * v[i] * v[j] / v_norm2)
-        });
-        let product = |x: &[[f64; 6]; 6], y: &[[f64; 6]; 6]| -> [[f64; 6]; 6] {
-            core::array::from_fn(|i| {
-                core::array::from_fn(|j| (0..6).map(|k| x[i][k] * y[k][j]).sum())
-            })
-        };
-        let turned = product(&product(&q, &a), &q);
+        let turned = householder_similar(&a);
         let coefficients = characteristic_polynomial(&hessenberg(turned));
         let evaluate = |z: Complex<f64>| {
             coefficients
@@ -921,21 +926,6 @@ mod tests {
                 .fold(Complex::new(1.0, 0.0), |value, &c| value * z + c)
         };
         let polar = |modulus: f64, angle: f64| Complex::from_polar(modulus, angle);
-        for z in [
-            Complex::new(1.0, 0.0),
-            Complex::new(0.86, 0.0),
-            polar(0.9, 0.3),
-            polar(0.9, -0.3),
-            polar(0.95, 0.52),
-            polar(0.95, -0.52),
-        ] {
-            assert!(evaluate(z).norm() < 1e-14, "{z}: {}", evaluate(z));
-        }
-        // Monic of degree 6: p(z) / z^6 -> 1.
-        let far = Complex::new(1e4, 0.0);
-        assert!((evaluate(far) / far.powu(6) - 1.0).norm() < 1e-3);
-        // The roots: the same spectrum, the real ones exactly real.
-        let roots = polynomial_roots(&coefficients).unwrap();
         let expected = [
             Complex::new(1.0, 0.0),
             Complex::new(0.86, 0.0),
@@ -944,6 +934,14 @@ mod tests {
             polar(0.95, 0.52),
             polar(0.95, -0.52),
         ];
+        for z in expected {
+            assert!(evaluate(z).norm() < 1e-14, "{z}: {}", evaluate(z));
+        }
+        // Monic of degree 6: p(z) / z^6 -> 1.
+        let far = Complex::new(1e4, 0.0);
+        assert!((evaluate(far) / far.powu(6) - 1.0).norm() < 1e-3);
+        // The roots: the same spectrum, the real ones exactly real.
+        let roots = polynomial_roots(&coefficients).unwrap();
         assert_same_eigenvalues(&roots, &expected, 1e-10);
         assert_eq!(roots.iter().filter(|z| z.im == 0.0).count(), 2, "{roots:?}");
         assert_eq!(
@@ -1018,17 +1016,7 @@ mod tests {
         let found = general_eigenvalues(a, Precision::Full).unwrap();
         assert_same_eigenvalues(&found, &expected, 1e-12);
         // A similarity transform keeps the spectrum: Q a Q^T with a Householder Q.
-        let v = [0.3, -0.5, 0.2, 0.7, -0.1, 0.4];
-        let v_norm2: f64 = v.iter().map(|x| x * x).sum();
-        let q: [[f64; 6]; 6] = core::array::from_fn(|i| {
-            core::array::from_fn(|j| f64::from(u8::from(i == j)) - 2.0 * v[i] * v[j] / v_norm2)
-        });
-        let product = |x: &[[f64; 6]; 6], y: &[[f64; 6]; 6]| -> [[f64; 6]; 6] {
-            core::array::from_fn(|i| {
-                core::array::from_fn(|j| (0..6).map(|k| x[i][k] * y[k][j]).sum())
-            })
-        };
-        let similar = product(&product(&q, &a), &q);
+        let similar = householder_similar(&a);
         let found = general_eigenvalues(similar, Precision::Full).unwrap();
         // The double eigenvalue 3 (a Jordan block) is only determined to sqrt(eps).
         assert_same_eigenvalues(&found, &expected, 1e-7);

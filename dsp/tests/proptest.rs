@@ -35,20 +35,26 @@ fn finite_opt(v: Option<f64>) -> bool {
     v.is_none_or(f64::is_finite)
 }
 
+/// The detector of the property tests, `post` samples after its trigger.
+fn detector(post: usize) -> BiteDetector<32, 256> {
+    BiteDetector::new(BiteSettings {
+        threshold_knm: 20.0,
+        rearm_knm: 10.0,
+        holdoff_samples: 10,
+        baseline_alpha: 0.01,
+        saturation_low_knm: -400.0,
+        saturation_high_knm: 400.0,
+        post_trigger_samples: post,
+    })
+    .unwrap()
+}
+
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(256))]
 
     #[test]
     fn detector_outputs_are_finite(samples in record(3000), gaps in prop::collection::vec(0..3000usize, 0..4)) {
-        let detector = BiteDetector::<32, 256>::new(BiteSettings {
-            threshold_knm: 20.0,
-            rearm_knm: 10.0,
-            holdoff_samples: 10,
-            baseline_alpha: 0.01,
-            saturation_low_knm: -400.0,
-            saturation_high_knm: 400.0,
-            post_trigger_samples: 200,
-        }).unwrap();
+        let detector = detector(200);
         let mut state = detector.state();
         let check = |event: millgate_dsp::bite::BiteEvent<256>| {
             assert!(event.window.iter().all(|v| !v.is_nan()));
@@ -76,15 +82,7 @@ proptest! {
     /// one is being captured.
     #[test]
     fn a_window_comes_only_when_its_samples_are_in(samples in record(3000), gaps in prop::collection::vec(0..3000usize, 0..4), post in 1..200usize) {
-        let detector = BiteDetector::<32, 256>::new(BiteSettings {
-            threshold_knm: 20.0,
-            rearm_knm: 10.0,
-            holdoff_samples: 10,
-            baseline_alpha: 0.01,
-            saturation_low_knm: -400.0,
-            saturation_high_knm: 400.0,
-            post_trigger_samples: post,
-        }).unwrap();
+        let detector = detector(post);
         let mut state = detector.state();
         let mut windows = 0;
         for (i, &sample) in samples.iter().enumerate() {
