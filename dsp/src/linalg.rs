@@ -698,9 +698,6 @@ fn polynomial_roots<const N: usize>(coefficients: &[f64; N]) -> Option<[Complex<
 mod tests {
     use super::*;
 
-    /// The four lanes against one plain scan: every length's remainder, the peak in
-    /// each lane, NaN and infinities anywhere.
-
     /// Q a Q^T with a fixed Householder Q: a matrix with `a`'s spectrum.
     fn householder_similar(a: &[[f64; 6]; 6]) -> [[f64; 6]; 6] {
         let v = [0.3, -0.5, 0.2, 0.7, -0.1, 0.4];
@@ -715,6 +712,9 @@ mod tests {
         };
         product(&product(&q, a), &q)
     }
+
+    /// The four lanes against one plain scan: every length's remainder, the peak in
+    /// each lane, NaN and infinities anywhere.
     #[test]
     fn peak_magnitude_matches_a_plain_scan() {
         let values: [f64; 11] = core::array::from_fn(|i| (i as f64 - 4.3) * [1.0, -2.5][i % 2]);
