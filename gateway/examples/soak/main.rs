@@ -75,9 +75,29 @@ use crate::summary::print_table;
 #[tokio::main(flavor = "multi_thread", worker_threads = 2)]
 async fn main() -> anyhow::Result<()> {
     let options = Options::from_args()?;
+    // Ctrl-C or SIGTERM (a `timeout`, a CI job cancelled) ends the run by dropping it:
+    // the gateway, the broker and the devices of the point under way are killed and
+    // reaped by their guards. Killed by the signal's default action instead, the
+    // bench would leave them running.
+    let mut terminate = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+    tokio::select! {
+        outcome = run_points(&options) => outcome,
+        _ = tokio::signal::ctrl_c() => stopped("interrupted"),
+        _ = terminate.recv() => stopped("terminated"),
+    }
+}
+
+/// The bench's end on a signal: the point under way was dropped (its processes
+/// killed); a failure status, as the points did not all run.
+fn stopped(how: &str) -> anyhow::Result<()> {
+    anyhow::bail!("{how}: the load point under way was stopped and its processes killed")
+}
+
+/// Every load point of `options`, in turn, with the table after each.
+async fn run_points(options: &Options) -> anyhow::Result<()> {
     let mut summaries = Vec::new();
     for (drivelines, stands) in options.load_points()? {
-        let summary = run_point(&options, drivelines, stands).await?;
+        let summary = run_point(options, drivelines, stands).await?;
         let passed = summary.passed(options.p99_limit_ms);
         summaries.push(summary);
         print_table(&summaries, options.p99_limit_ms);

@@ -18,7 +18,7 @@ use millgate_tests::kit::broker::Broker as Mosquitto;
 
 use crate::daqs::{load_point, CHANNELS_PER_DAQ, DRIVELINE_RATE_HZ};
 use crate::options::Options;
-use crate::probe::{free_port, metric_sum, watch_stalls, Killed};
+use crate::probe::{free_port, metric_sum, watch_stalls, Killed, Removed};
 use crate::samples::{print_columns, sample, Sampler, WarmUpEnd, Watched};
 use crate::summary::Summary;
 
@@ -34,6 +34,9 @@ pub(crate) async fn run_point(
     ));
     let _ = std::fs::remove_dir_all(&folder);
     std::fs::create_dir_all(&folder)?;
+    // Dropped last: the folder goes after the processes that write in it, also when
+    // the point ends early (an error, a signal).
+    let _removed = Removed(folder.clone());
     let broker_port = free_port()?.port();
     let broker = Mosquitto::try_start(&folder, broker_port).map_err(anyhow::Error::msg)?;
     let point = load_point(

@@ -128,6 +128,16 @@ impl Drop for Killed {
     }
 }
 
+/// A folder removed, with what it holds, when dropped (the load point's, even on an
+/// error).
+pub(crate) struct Removed(pub(crate) std::path::PathBuf);
+
+impl Drop for Removed {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
 /// Records in `stall` (us) the longest lateness of a 5 ms timer of the bench's runtime,
 /// the one its virtual DAQs publish on, until aborted.
 pub(crate) async fn watch_stalls(stall: Arc<AtomicU64>) {
