@@ -7,6 +7,8 @@
 //! through here, by its column's name; a new one needs its declaration and a
 //! migration that adds the column ([`super::schema`]), nothing here.
 
+use std::sync::OnceLock;
+
 use rusqlite::types::{Value as SqlValue, ValueRef};
 use rusqlite::{Connection, Transaction};
 
@@ -64,16 +66,27 @@ pub(crate) trait Kept: Subject + Clone {
     const STATE_TABLE: &'static str;
     /// Its key column: the subject's name.
     const KEY: &'static str;
+    /// The state row's upsert ([`upsert_sql`]), built once: the writer runs it with
+    /// every bite, and its text is the key of the connection's statement cache.
+    fn upsert_sql() -> &'static str;
 }
 
 impl Kept for DrivelineResults {
     const STATE_TABLE: &'static str = "driveline_state";
     const KEY: &'static str = "driveline";
+    fn upsert_sql() -> &'static str {
+        static SQL: OnceLock<String> = OnceLock::new();
+        SQL.get_or_init(upsert_sql::<Self>)
+    }
 }
 
 impl Kept for TandemMillResults {
     const STATE_TABLE: &'static str = "mill_state";
     const KEY: &'static str = "mill";
+    fn upsert_sql() -> &'static str {
+        static SQL: OnceLock<String> = OnceLock::new();
+        SQL.get_or_init(upsert_sql::<Self>)
+    }
 }
 
 /// The figures of `R` with a state column, and the column.
@@ -91,6 +104,26 @@ pub(crate) fn bite_columns(
         .filter_map(|figure| Some((figure, figure.columns.bite?)))
 }
 
+/// The statement that writes a subject's state row: inserted, or its kept columns
+/// replaced; the name and the time are `?1` and `?2`, the kept figures follow.
+fn upsert_sql<R: Kept>() -> String {
+    let columns: Vec<&str> = state_columns::<R>().map(|(_, column)| column).collect();
+    let placeholders: Vec<String> = (3..3 + columns.len()).map(|i| format!("?{i}")).collect();
+    let updates: Vec<String> = columns
+        .iter()
+        .map(|column| format!("{column} = excluded.{column}"))
+        .collect();
+    format!(
+        "INSERT INTO {table} ({key}, updated_at, {columns}) VALUES (?1, ?2, {placeholders})
+         ON CONFLICT ({key}) DO UPDATE SET updated_at = excluded.updated_at, {updates}",
+        table = R::STATE_TABLE,
+        key = R::KEY,
+        columns = columns.join(", "),
+        placeholders = placeholders.join(", "),
+        updates = updates.join(", "),
+    )
+}
+
 /// Write `results` as subject `name`'s state row at `time` (inserted, or its kept
 /// columns replaced).
 pub(crate) fn upsert_state<R: Kept>(
@@ -99,28 +132,13 @@ pub(crate) fn upsert_state<R: Kept>(
     time: UtcTime,
     results: &R,
 ) -> rusqlite::Result<()> {
-    let columns: Vec<&str> = state_columns::<R>().map(|(_, column)| column).collect();
-    let placeholders: Vec<String> = (3..3 + columns.len()).map(|i| format!("?{i}")).collect();
-    let updates: Vec<String> = columns
-        .iter()
-        .map(|column| format!("{column} = excluded.{column}"))
-        .collect();
-    let sql = format!(
-        "INSERT INTO {table} ({key}, updated_at, {columns}) VALUES (?1, ?2, {placeholders})
-         ON CONFLICT ({key}) DO UPDATE SET updated_at = excluded.updated_at, {updates}",
-        table = R::STATE_TABLE,
-        key = R::KEY,
-        columns = columns.join(", "),
-        placeholders = placeholders.join(", "),
-        updates = updates.join(", "),
-    );
     let mut values = vec![
         SqlValue::Text(name.to_owned()),
         SqlValue::Text(time.to_string()),
     ];
     values.extend(state_columns::<R>().map(|(figure, _)| to_sql(figure.value(results))));
     transaction
-        .prepare_cached(&sql)?
+        .prepare_cached(R::upsert_sql())?
         .execute(rusqlite::params_from_iter(values))?;
     Ok(())
 }

@@ -3,6 +3,8 @@
 //! what a bite row keeps beside them (its channel, second period, quality, the wear
 //! reference, what it put into the gap pool) is listed here.
 
+use std::sync::OnceLock;
+
 use rusqlite::types::Value as SqlValue;
 use rusqlite::{params, Transaction};
 
@@ -25,10 +27,10 @@ pub fn insert(
     event: &HistoryEvent,
 ) -> rusqlite::Result<()> {
     match event {
-        HistoryEvent::Bite(bite) => insert_bite(transaction, run_id, bite),
+        HistoryEvent::Bite(bite) => insert_bite(transaction, run_id, bite).map(drop),
         HistoryEvent::CapturedBite(bite, capture) => {
-            insert_bite(transaction, run_id, bite)?;
-            super::captures::insert(transaction, run_id, capture)
+            let bite_id = insert_bite(transaction, run_id, bite)?;
+            super::captures::insert_of_bite(transaction, run_id, capture, bite_id)
         }
         HistoryEvent::Capture(capture) => super::captures::insert(transaction, run_id, capture),
         HistoryEvent::Alarm(alarm) => insert_alarm(transaction, run_id, alarm),
@@ -263,26 +265,36 @@ fn bite_facts(run_id: i64, bite: &BiteRecord) -> Vec<SqlValue> {
     .collect()
 }
 
+/// The statement that inserts a bite's row: its facts and the catalogue's bite
+/// columns. Built once (the writer runs it for every bite, and its text is the key of
+/// the connection's statement cache).
+fn insert_bite_sql() -> &'static str {
+    static SQL: OnceLock<String> = OnceLock::new();
+    SQL.get_or_init(|| {
+        let columns: Vec<&str> = BITE_FACTS
+            .into_iter()
+            .chain(bite_columns().map(|(_, column)| column))
+            .collect();
+        let placeholders: Vec<String> = (1..=columns.len()).map(|i| format!("?{i}")).collect();
+        format!(
+            "INSERT INTO bites ({}) VALUES ({})",
+            columns.join(", "),
+            placeholders.join(", ")
+        )
+    })
+}
+
 /// The bite's row (its figures by the catalogue's bite columns), its wear estimate
-/// when it has wear measures, and its driveline's state row.
+/// when it has wear measures, and its driveline's state row; the row's id.
 fn insert_bite(
     transaction: &Transaction<'_>,
     run_id: i64,
     bite: &BiteRecord,
-) -> rusqlite::Result<()> {
-    let columns: Vec<&str> = BITE_FACTS
-        .into_iter()
-        .chain(bite_columns().map(|(_, column)| column))
-        .collect();
-    let placeholders: Vec<String> = (1..=columns.len()).map(|i| format!("?{i}")).collect();
+) -> rusqlite::Result<i64> {
     let mut values = bite_facts(run_id, bite);
     values.extend(bite_columns().map(|(figure, _)| to_sql(figure.value(&bite.figures))));
     transaction
-        .prepare_cached(&format!(
-            "INSERT INTO bites ({}) VALUES ({})",
-            columns.join(", "),
-            placeholders.join(", ")
-        ))?
+        .prepare_cached(insert_bite_sql())?
         .execute(rusqlite::params_from_iter(values))?;
     let bite_id = transaction.last_insert_rowid();
     for (index, component) in bite.state.fatigue_components.iter().enumerate() {
@@ -340,7 +352,7 @@ fn insert_bite(
     if let Some(saved) = &bite.fatigue_ledger {
         save_fatigue_ledger(transaction, &bite.driveline, saved)?;
     }
-    Ok(())
+    Ok(bite_id)
 }
 
 /// The fatigue ledger's saved form into `driveline`'s state row (written before it).
