@@ -176,19 +176,69 @@ impl Allowance {
     }
 }
 
+/// How far below the outlier part a Gaussian part's log-density must lie to vanish
+/// from [`robust`]'s sum: `exp(-40)` = 4.2e-18 of the outlier part is below half a unit
+/// in the last place of any double (at least 2^-54 = 5.6e-17 of it), so the sum
+/// rounds to the outlier part exactly.
+const NEGLIGIBLE_LOG: f64 = 40.0;
+
+/// What a bite's likelihood at every grid point shares: its variances under the
+/// allowance, and what lets a point far from the maps' values skip the exponential and
+/// the logarithm of [`robust`] (most of a fine grid's points, a few standard
+/// deviations into the tails, at two `exp` and three `ln` each).
+#[derive(Debug, Clone, Copy)]
+struct Terms {
+    /// The TAF's and the shift's variances (s^2) before the maps' interpolation error.
+    taf_variance: f64,
+    shift_variance: f64,
+    /// `ln(2 pi v)` of those variances: a point's variance adds the map's error to
+    /// them, so its Gaussian's log-density is at most `-(q + this) / 2` for the
+    /// point's `q = residual^2 / variance`.
+    taf_log_floor: f64,
+    shift_log_floor: f64,
+    /// `robust` of a vanishing Gaussian part: the outlier part's log-density alone.
+    taf_outliers: f64,
+    shift_outliers: f64,
+}
+
+impl Terms {
+    fn new(observation: &GapObservation, allowance: Allowance) -> Self {
+        let (taf_model, shift_model) = allowance.model_floors();
+        let taf_variance = observation.taf_sigma.powi(2) + taf_model;
+        let shift_variance = observation.period_shift_sigma_s.powi(2) + shift_model;
+        let log_floor = |variance: f64| (2.0 * std::f64::consts::PI * variance).ln();
+        Self {
+            taf_variance,
+            shift_variance,
+            taf_log_floor: log_floor(taf_variance),
+            shift_log_floor: log_floor(shift_variance),
+            taf_outliers: (OUTLIER_WEIGHT / TAF_OUTLIER_SPAN).ln(),
+            shift_outliers: (OUTLIER_WEIGHT / SHIFT_OUTLIER_SPAN_S).ln(),
+        }
+    }
+}
+
+/// `robust(log_gauss(residual, variance), span)`, bit for bit, where `log_floor` is at
+/// most `ln(2 pi variance)` and `outliers` is `robust`'s value without a Gaussian part
+/// for `span`: that value without computing the Gaussian's part when it cannot reach
+/// the sum's last bit ([`NEGLIGIBLE_LOG`]).
+fn robust_gauss(residual: f64, variance: f64, (log_floor, outliers): (f64, f64), span: f64) -> f64 {
+    if -0.5 * (residual * residual / variance + log_floor) < outliers - NEGLIGIBLE_LOG {
+        return outliers;
+    }
+    robust(log_gauss(residual, variance), span)
+}
+
 /// The log-likelihood of `observation` at the gap `weight` of the way from gap row
 /// `row` to the next of one coupling's map (`cells`: the map at the bite's static
-/// torque, one per gap row), with `allowance`.
+/// torque, one per gap row), with the allowance `terms` were made for.
 fn point_loglik(
     cells: &[Cell],
     observation: &GapObservation,
-    allowance: Allowance,
+    terms: &Terms,
     row: usize,
     weight: f64,
 ) -> f64 {
-    let (taf_model, shift_model) = allowance.model_floors();
-    let taf_variance = observation.taf_sigma.powi(2) + taf_model;
-    let shift_variance = observation.period_shift_sigma_s.powi(2) + shift_model;
     let (lower, upper, weight) = match cells.get(row + 1) {
         Some(next) => (&cells[row], next, weight),
         None => (&cells[row], &cells[row], 0.0),
@@ -206,12 +256,14 @@ fn point_loglik(
         .iter()
         .map(|&(cell, side, w)| w * cell.taf_floor[side])
         .sum::<f64>();
-    let mut loglik = robust(
-        log_gauss(observation.taf - taf, taf_variance + taf_floor * taf_floor),
+    let mut loglik = robust_gauss(
+        observation.taf - taf,
+        terms.taf_variance + taf_floor * taf_floor,
+        (terms.taf_log_floor, terms.taf_outliers),
         TAF_OUTLIER_SPAN,
     );
     if let Some(measured) = observation.period_shift_s {
-        loglik += shift_loglik(measured, shift_variance, &corners);
+        loglik += shift_loglik(measured, terms, &corners);
     }
     loglik
 }
@@ -222,7 +274,7 @@ fn lerp(a: f64, b: f64, weight: f64) -> f64 {
 
 /// The shift term at one point whose map corners are `corners` (cell, torque side,
 /// bilinear weight): 0 when a corner in use has no shift.
-fn shift_loglik(measured: f64, variance: f64, corners: &[(&Cell, usize, f64); 4]) -> f64 {
+fn shift_loglik(measured: f64, terms: &Terms, corners: &[(&Cell, usize, f64); 4]) -> f64 {
     let mut values = [0.0; 4];
     let (mut low, mut high) = (f64::INFINITY, f64::NEG_INFINITY);
     let (mut value, mut floor) = (0.0, 0.0);
@@ -239,16 +291,20 @@ fn shift_loglik(measured: f64, variance: f64, corners: &[(&Cell, usize, f64); 4]
         value += weight * shift;
         floor += weight * cell.shift_floor_s[side];
     }
-    let variance = variance + floor * floor;
-    let density = if high - low <= SHIFT_JUMP_S {
-        log_gauss(measured - value, variance).exp()
-    } else {
-        values
-            .iter()
-            .zip(corners)
-            .map(|(&shift, &(_, _, weight))| weight * log_gauss(measured - shift, variance).exp())
-            .sum()
-    };
+    let variance = terms.shift_variance + floor * floor;
+    if high - low <= SHIFT_JUMP_S {
+        return robust_gauss(
+            measured - value,
+            variance,
+            (terms.shift_log_floor, terms.shift_outliers),
+            SHIFT_OUTLIER_SPAN_S,
+        );
+    }
+    let density: f64 = values
+        .iter()
+        .zip(corners)
+        .map(|(&shift, &(_, _, weight))| weight * log_gauss(measured - shift, variance).exp())
+        .sum();
     ((1.0 - OUTLIER_WEIGHT) * density + OUTLIER_WEIGHT / SHIFT_OUTLIER_SPAN_S).ln()
 }
 
@@ -267,10 +323,11 @@ pub fn loglik_at(
         return false;
     };
     let step_mrad = map_step_mrad(maps);
+    let terms = Terms::new(observation, allowance);
     for (k, slot) in out.iter_mut().take(grid.len).enumerate() {
         let rows = (grid.at(k) / step_mrad).max(0.0);
         let row = (rows.floor() as usize).min(cells.len() - 1);
-        *slot = point_loglik(&cells, observation, allowance, row, rows - row as f64);
+        *slot = point_loglik(&cells, observation, &terms, row, rows - row as f64);
     }
     true
 }
@@ -399,6 +456,145 @@ fn interval(sum: &[f64], gaps: &[f64], threshold: f64) -> (f64, f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::state::gap_maps::MapPoint;
+    use rand::{Rng as _, SeedableRng as _};
+
+    /// The likelihood of one point as it was before the far points' shortcut: every
+    /// term through its exponential and logarithm.
+    fn every_term(
+        cells: &[Cell],
+        observation: &GapObservation,
+        allowance: Allowance,
+        row: usize,
+        weight: f64,
+    ) -> f64 {
+        let (taf_model, shift_model) = allowance.model_floors();
+        let taf_variance = observation.taf_sigma.powi(2) + taf_model;
+        let shift_variance = observation.period_shift_sigma_s.powi(2) + shift_model;
+        let (lower, upper, weight) = match cells.get(row + 1) {
+            Some(next) => (&cells[row], next, weight),
+            None => (&cells[row], &cells[row], 0.0),
+        };
+        let corners = [
+            (lower, 0, (1.0 - weight) * (1.0 - lower.weight)),
+            (lower, 1, (1.0 - weight) * lower.weight),
+            (upper, 0, weight * (1.0 - upper.weight)),
+            (upper, 1, weight * upper.weight),
+        ];
+        let taf = lerp(lower.taf(), upper.taf(), weight);
+        let taf_floor: f64 = corners
+            .iter()
+            .map(|&(cell, side, w)| w * cell.taf_floor[side])
+            .sum();
+        let mut loglik = robust(
+            log_gauss(observation.taf - taf, taf_variance + taf_floor * taf_floor),
+            TAF_OUTLIER_SPAN,
+        );
+        let Some(measured) = observation.period_shift_s else {
+            return loglik;
+        };
+        let (mut values, mut value, mut floor) = ([0.0; 4], 0.0, 0.0);
+        let (mut low, mut high) = (f64::INFINITY, f64::NEG_INFINITY);
+        for (slot, &(cell, side, w)) in values.iter_mut().zip(&corners) {
+            if w <= 0.0 {
+                continue;
+            }
+            let Some(shift) = cell.points[side].period_shift_s else {
+                return loglik;
+            };
+            *slot = shift;
+            low = low.min(shift);
+            high = high.max(shift);
+            value += w * shift;
+            floor += w * cell.shift_floor_s[side];
+        }
+        let variance = shift_variance + floor * floor;
+        let density = if high - low <= SHIFT_JUMP_S {
+            log_gauss(measured - value, variance).exp()
+        } else {
+            values
+                .iter()
+                .zip(&corners)
+                .map(|(&shift, &(_, _, w))| w * log_gauss(measured - shift, variance).exp())
+                .sum()
+        };
+        loglik += ((1.0 - OUTLIER_WEIGHT) * density + OUTLIER_WEIGHT / SHIFT_OUTLIER_SPAN_S).ln();
+        loglik
+    }
+
+    /// The shortcut for far points changes no bit: seeded random maps (TAF 1-4, shifts
+    /// of -10..10 ms with jumps, some corners without a shift, interpolation errors
+    /// from none to large) and bites (noise from none to large, residuals from zero
+    /// to far in the tails), both allowances, every gap row and weight. At least a
+    /// tenth of the points must have taken the shortcut and a tenth not, or the test
+    /// would prove nothing.
+    #[test]
+    fn far_points_skip_their_exponentials_without_changing_a_bit() {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(42);
+        let (mut points, mut skipped) = (0, 0);
+        for _ in 0..2_000 {
+            let mut point = |rng: &mut rand::rngs::StdRng| MapPoint {
+                static_knm: 500.0,
+                taf: rng.random_range(1.0..4.0),
+                period_shift_s: rng.random_bool(0.95).then(|| rng.random_range(-0.01..0.01)),
+            };
+            let cells: Vec<Cell> = (0..6)
+                .map(|_| Cell {
+                    points: [point(&mut rng), point(&mut rng)],
+                    taf_floor: [rng.random_range(0.0..0.05), rng.random_range(0.0..0.05)],
+                    shift_floor_s: [rng.random_range(0.0..1e-3), rng.random_range(0.0..1e-3)],
+                    weight: rng.random_range(0.0..1.0),
+                })
+                .collect();
+            let scale = 10f64.powf(rng.random_range(-4.0..0.0));
+            let observation = GapObservation {
+                static_torque_knm: 500.0,
+                taf: rng.random_range(0.5..4.5),
+                taf_sigma: if rng.random_bool(0.1) { 0.0 } else { scale },
+                period_shift_s: rng
+                    .random_bool(0.8)
+                    .then(|| rng.random_range(-0.012..0.012)),
+                period_shift_sigma_s: scale * 1e-2,
+            };
+            for allowance in [Allowance::Trend, Allowance::Whole] {
+                let terms = Terms::new(&observation, allowance);
+                for row in 0..cells.len() {
+                    let weight = rng.random_range(0.0..1.0);
+                    let fast = point_loglik(&cells, &observation, &terms, row, weight);
+                    let slow = every_term(&cells, &observation, allowance, row, weight);
+                    assert_eq!(fast.to_bits(), slow.to_bits(), "{fast} against {slow}: {observation:?}, {allowance:?}, row {row}, weight {weight}");
+                    points += 1;
+                    skipped += usize::from(fast_skips(&cells, &observation, &terms, row, weight));
+                }
+            }
+        }
+        assert!(
+            skipped * 10 > points && (points - skipped) * 10 > points,
+            "{skipped} of {points} points skipped"
+        );
+    }
+
+    /// Whether the TAF term of a point skipped its exponential.
+    fn fast_skips(
+        cells: &[Cell],
+        observation: &GapObservation,
+        terms: &Terms,
+        row: usize,
+        weight: f64,
+    ) -> bool {
+        let (lower, upper, weight) = match cells.get(row + 1) {
+            Some(next) => (&cells[row], next, weight),
+            None => (&cells[row], &cells[row], 0.0),
+        };
+        let floor = (1.0 - weight)
+            * ((1.0 - lower.weight) * lower.taf_floor[0] + lower.weight * lower.taf_floor[1])
+            + weight
+                * ((1.0 - upper.weight) * upper.taf_floor[0] + upper.weight * upper.taf_floor[1]);
+        let residual = observation.taf - lerp(lower.taf(), upper.taf(), weight);
+        let variance = terms.taf_variance + floor * floor;
+        -0.5 * (residual * residual / variance + terms.taf_log_floor)
+            < terms.taf_outliers - NEGLIGIBLE_LOG
+    }
 
     #[test]
     fn the_interval_ends_where_the_log_likelihood_crosses_the_threshold() {
