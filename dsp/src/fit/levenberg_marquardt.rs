@@ -148,8 +148,8 @@ fn normal_equations(
     ]);
     let cross = SMatrix::<f64, 5, 5>::from_fn(|i, j| point.phi_derivative_gram[i][j]) * mixing;
     let derivative_gram = SMatrix::<f64, 5, 5>::from_fn(|i, j| point.derivative_gram[i][j]);
-    let projected = point.phi_gram.solve_matrix(&cross);
-    let jtj = mixing.transpose() * derivative_gram * mixing - cross.transpose() * projected;
+    let jtj = mixing.transpose() * derivative_gram * mixing
+        - point.phi_gram.inverse_quadratic_form(&cross);
     let jtr = mixing.transpose() * SVector::<f64, 5>::from(point.derivative_projections);
     (jtj, jtr, cross)
 }
