@@ -83,16 +83,22 @@ impl Cholesky5 {
         })
     }
 
+    /// Solves L y = b (the forward substitution).
+    fn forward(&self, b: &SVector<f64, 5>) -> SVector<f64, 5> {
+        let mut y = *b;
+        for i in 0..5 {
+            let mut value = y[i];
+            for k in 0..i {
+                value -= self.lower[i][k] * y[k];
+            }
+            y[i] = value * self.inverse_diagonal[i];
+        }
+        y
+    }
+
     /// Solves A x = b.
     pub(crate) fn solve(&self, b: &SVector<f64, 5>) -> SVector<f64, 5> {
-        let mut x = *b;
-        for i in 0..5 {
-            let mut value = x[i];
-            for k in 0..i {
-                value -= self.lower[i][k] * x[k];
-            }
-            x[i] = value * self.inverse_diagonal[i];
-        }
+        let mut x = self.forward(b);
         for i in (0..5).rev() {
             let mut value = x[i];
             for k in i + 1..5 {
@@ -103,14 +109,16 @@ impl Cholesky5 {
         x
     }
 
-    /// Solves A X = B column by column.
-    pub(crate) fn solve_matrix(&self, b: &SMatrix<f64, 5, 5>) -> SMatrix<f64, 5, 5> {
-        let mut x = *b;
-        for mut column in x.column_iter_mut() {
-            let solved = self.solve(&column.clone_owned());
+    /// B^T A^-1 B, as Y^T Y with L Y = B solved column by column: the forward
+    /// substitutions only (half the work of solving A X = B for B^T X), and a result
+    /// symmetric to the last bit.
+    pub(crate) fn inverse_quadratic_form(&self, b: &SMatrix<f64, 5, 5>) -> SMatrix<f64, 5, 5> {
+        let mut y = *b;
+        for mut column in y.column_iter_mut() {
+            let solved = self.forward(&column.clone_owned());
             column.copy_from(&solved);
         }
-        x
+        y.tr_mul(&y)
     }
 }
 
@@ -758,10 +766,12 @@ mod tests {
         );
         let residual = a * x - b;
         assert!(residual.norm() <= 1e-12 * b.norm());
-        let columns = SMatrix::<f64, 5, 5>::from_fn(|i, j| (i * 5 + j) as f64);
-        let solved = ours.solve_matrix(&columns);
-        let expected = theirs.solve(&columns);
-        assert!((solved - expected).norm() <= 1e-12 * expected.norm());
+        let columns =
+            SMatrix::<f64, 5, 5>::from_fn(|i, j| (i * 5 + j) as f64 - 0.3 * (i * i) as f64);
+        let form = ours.inverse_quadratic_form(&columns);
+        let expected = columns.transpose() * theirs.solve(&columns);
+        assert!((form - expected).norm() <= 1e-12 * expected.norm());
+        assert_eq!(form, form.transpose());
         // Not positive definite, not finite.
         let mut indefinite = a;
         indefinite[(3, 3)] = -1.0;

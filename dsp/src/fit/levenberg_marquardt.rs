@@ -6,7 +6,7 @@ use core::f64::consts::PI;
 use nalgebra::{SMatrix, SVector};
 
 use super::gram::{gram_closed, gram_direct};
-use super::model::{FitError, FitOptions, FitStatus};
+use super::model::{FitError, FitOptions, FitStatus, PARAMS};
 use super::projection::project;
 use super::record::{Data, Linear, Nonlinear};
 use super::recurrence::BasisSteps;
@@ -148,8 +148,8 @@ fn normal_equations(
     ]);
     let cross = SMatrix::<f64, 5, 5>::from_fn(|i, j| point.phi_derivative_gram[i][j]) * mixing;
     let derivative_gram = SMatrix::<f64, 5, 5>::from_fn(|i, j| point.derivative_gram[i][j]);
-    let projected = point.phi_gram.solve_matrix(&cross);
-    let jtj = mixing.transpose() * derivative_gram * mixing - cross.transpose() * projected;
+    let jtj = mixing.transpose() * derivative_gram * mixing
+        - point.phi_gram.inverse_quadratic_form(&cross);
     let jtr = mixing.transpose() * SVector::<f64, 5>::from(point.derivative_projections);
     (jtj, jtr, cross)
 }
@@ -221,8 +221,25 @@ const FINAL_STEP_GAIN: f64 = 1e-4;
 /// Gauss-Newton prediction for the model to be trusted with a final step.
 const MODEL_AGREEMENT: f64 = 0.1;
 
+/// What a [`levenberg_marquardt`] run is for, which sets when its last step may be
+/// taken without a pass over the record.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Pass {
+    /// The fit's result, on the full record: the final step without its pass only once
+    /// the gains fall below the tolerance ([`FINAL_STEP_GAIN`]).
+    Full,
+    /// The start of the full record's iteration, on every `decimation`-th sample: only
+    /// its nonlinear point is used, and the full record evaluates that point again.
+    /// Its optimum differs from the full record's by the noise, a relative cost of
+    /// about [`PARAMS`] / (samples used), so a step the trusted model predicts to gain
+    /// less than that is its last and is taken without its pass (the full record's
+    /// first evaluation checks it).
+    Coarse,
+}
+
 /// Levenberg-Marquardt over the nonlinear parameters with the linear ones projected
-/// out; returns (solution, rms residual, iterations, status) in scaled units.
+/// out, for `pass`; returns (solution, rms residual, iterations, status) in scaled
+/// units.
 ///
 /// Near the optimum the iteration converges linearly (Kaufman's Jacobian leaves out a
 /// term of the residual's size), each gain a similar fraction of the one before: on the
@@ -231,14 +248,17 @@ const MODEL_AGREEMENT: f64 = 0.1;
 /// accepted step's decrease to [`MODEL_AGREEMENT`], and that ratio makes the next gain
 /// fall below the tolerance, the step is the last one and is taken to first order
 /// without its pass over the record (79 k of the 501 k instructions a fit of 2000
-/// samples took).
+/// samples took). A [`Pass::Coarse`] run takes its last step without the pass earlier,
+/// once the trusted model predicts a gain below the coarse record's noise.
 pub(super) fn levenberg_marquardt(
     start: Evaluation,
     data: &Data<'_>,
     used: usize,
     options: &FitOptions,
+    pass: Pass,
 ) -> Result<(Solution, f64, u32, FitStatus), FitError> {
     const LAMBDA_MAX: f64 = 1e12;
+    let noise_gain = PARAMS as f64 / used as f64;
     let mut point = start;
     let mut solution = Solution::from(&point);
     let mut lambda = 1e-3;
@@ -269,11 +289,16 @@ pub(super) fn levenberg_marquardt(
                 break 'outer;
             }
             let relative_gain = gain / point.cost;
-            if lambda <= 1e-2
-                && relative_gain <= FINAL_STEP_GAIN
-                && trusted_gain
-                    .is_some_and(|last| relative_gain * relative_gain <= options.tolerance * last)
-            {
+            let last_step = match pass {
+                Pass::Full => {
+                    relative_gain <= FINAL_STEP_GAIN
+                        && trusted_gain.is_some_and(|last| {
+                            relative_gain * relative_gain <= options.tolerance * last
+                        })
+                }
+                Pass::Coarse => relative_gain <= noise_gain && trusted_gain.is_some(),
+            };
+            if lambda <= 1e-2 && last_step {
                 solution = linearised_step(&point, &delta, &jtj, &jtr, &cross);
                 status = FitStatus::Converged;
                 break 'outer;
@@ -338,7 +363,7 @@ mod tests {
         let data = Data::new(&samples, 1, 1.0 / scale, 1e-3, false);
         let options = FitOptions::new(1000.0);
         let start = evaluate([12.0, 20.9, 22.0, 3.6, 36.0], &data).unwrap();
-        let (optimum, ..) = levenberg_marquardt(start, &data, 500, &options).unwrap();
+        let (optimum, ..) = levenberg_marquardt(start, &data, 500, &options, Pass::Full).unwrap();
         let mut checked = 0;
         for offset in [1e-4, 3e-4, 1e-3, 3e-3] {
             let mut theta = optimum.theta;
