@@ -533,7 +533,7 @@ mod tests {
         let mut rng = rand::rngs::StdRng::seed_from_u64(42);
         let (mut points, mut skipped) = (0, 0);
         for _ in 0..2_000 {
-            let mut point = |rng: &mut rand::rngs::StdRng| MapPoint {
+            let point = |rng: &mut rand::rngs::StdRng| MapPoint {
                 static_knm: 500.0,
                 taf: rng.random_range(1.0..4.0),
                 period_shift_s: rng.random_bool(0.95).then(|| rng.random_range(-0.01..0.01)),
