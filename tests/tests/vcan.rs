@@ -514,6 +514,9 @@ async fn throughput_without_loss() -> Result<()> {
     decoder.add(TORQUE_SEQ, seq_layout, 1.0, 0.0);
     let reader = CanReader::open_interface(&vcan(), decoder)?;
     let counters = reader.counters();
+    let seq_counters = reader
+        .channel_counters(TORQUE_SEQ)
+        .context("the reader counts its channel")?;
     let (samples_tx, mut samples) = mpsc::channel(1024);
     let (stop, shutdown) = watch::channel(false);
     let task = tokio::spawn(reader.run(samples_tx, shutdown));
@@ -554,6 +557,11 @@ async fn throughput_without_loss() -> Result<()> {
     task.await??;
     let counts = counters.snapshot();
     assert_eq!(counts.decoded, FRAMES as u64);
+    let seq = seq_counters.snapshot();
+    assert_eq!(
+        (seq.blocks_read, seq.samples),
+        (FRAMES as u64, FRAMES as u64)
+    );
     println!(
         "vcan throughput: {FRAMES} frames in {:.3} s = {:.0} frames/s, zero loss",
         elapsed.as_secs_f64(),
