@@ -8,8 +8,9 @@
 //! demo's virtual DAQ and PLC, its Modbus source streaming bites, gets a CAN source
 //! and a channel on it appended to its file. The reload applies them without a
 //! restart; every frame `cansend` writes is decoded into a sample (the source's
-//! counters on `/metrics`), the new source is ok; the Modbus source runs on on its one connection, no bite id
-//! of it missing from the history.
+//! counters and the channel's on `/metrics`: a block read and a sample a frame, a frame
+//! too short for the signal an error), the new source is ok; the Modbus source runs on
+//! on its one connection, no bite id of it missing from the history.
 
 mod common;
 
@@ -56,15 +57,20 @@ async fn a_can_source_added_by_sighup_reads_cansend_frames_while_the_modbus_sour
     applied_by_sighup(&setup, &service, said).await;
 
     // The new reader counts a connect once its socket is bound (a frame sent before
-    // would reach no socket); then each frame is decoded into a sample of the channel.
-    // (A CAN channel's own counters on /metrics stay 0: the CAN reader counts per
-    // source, as at a start.)
+    // would reach no socket); then each frame is decoded into a sample of the channel,
+    // counted per source and per channel.
     let can = |family: &str| format!("millgate_can_{family}_total{{source=\"stand_can\"}}");
+    let channel =
+        |family: &str| format!("millgate_channel_{family}_total{{channel=\"f1_roll_speed\"}}");
     let connects = "millgate_source_connects_total{source=\"stand_can\"}";
     setup
         .until_metric(connects, 1.0, Duration::from_secs(10))
         .await;
     assert_eq!(setup.metric(&can("decoded_frames")).await, Some(0.0));
+    assert_eq!(setup.metric(&channel("samples")).await, Some(0.0));
+    // One byte: RollSpeed needs two. Sent first, so it is counted once the last good
+    // frame's sample is.
+    cansend(&interface, "102#13");
     let sent = 20_u8;
     for sequence in 0..sent {
         // 500.0 rpm; the message's Seq in byte 7.
@@ -78,7 +84,25 @@ async fn a_can_source_added_by_sighup_reads_cansend_frames_while_the_modbus_sour
             Duration::from_secs(10),
         )
         .await;
-    assert_eq!(setup.metric(&can("frames")).await, Some(f64::from(sent)));
+    // The frame carries one signal of the channel: a sample a frame.
+    setup
+        .until_metric(
+            &channel("samples"),
+            f64::from(sent),
+            Duration::from_secs(10),
+        )
+        .await;
+    assert_eq!(
+        setup.metric(&channel("blocks_read")).await,
+        Some(f64::from(sent))
+    );
+    assert_eq!(setup.metric(&channel("errors")).await, Some(1.0));
+    assert_eq!(setup.metric(&channel("saturated_samples")).await, Some(0.0));
+    assert_eq!(
+        setup.metric(&can("frames")).await,
+        Some(f64::from(sent) + 1.0)
+    );
+    assert_eq!(setup.metric(&can("bad_length_frames")).await, Some(1.0));
     assert_eq!(setup.metric(&can("unknown_id_frames")).await, Some(0.0));
     let status = "millgate_source_status{source=\"stand_can\"}";
     assert_eq!(setup.metric(status).await, Some(0.0), "stand_can not ok");

@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, ensure, Context, Result};
 use millgate::field::acquired::Acquired;
 use millgate::field::can::{CanDecoder, CanError, CanReader};
-use millgate::field::counters::CanCounts;
+use millgate::field::counters::{CanCounts, ChannelCountersSnapshot};
 use millgate_config::{ChannelSource, Config};
 use millgate_dsp::testing::assert_isclose;
 use millgate_sim::devices::can_node::{CanMessage, CanNode};
@@ -178,6 +178,8 @@ fn message(config: &Config, channels: &[usize]) -> Result<CanMessage> {
 struct RunningReader {
     samples: mpsc::Receiver<Acquired>,
     counters: std::sync::Arc<millgate::field::counters::CanCounters>,
+    /// Per channel of the configuration.
+    channel_counters: Vec<std::sync::Arc<millgate::field::counters::ChannelCounters>>,
     stop: watch::Sender<bool>,
     task: JoinHandle<Result<(), CanError>>,
     /// Values received so far, per channel, oldest first.
@@ -189,12 +191,20 @@ impl RunningReader {
     fn start(config: &Config) -> Result<RunningReader> {
         let reader = CanReader::open(config, 0)?;
         let counters = reader.counters();
+        let channel_counters = (0..config.channels.len())
+            .map(|channel| {
+                reader
+                    .channel_counters(channel)
+                    .with_context(|| format!("no counters for channel {channel}"))
+            })
+            .collect::<Result<_>>()?;
         let (samples_tx, samples) = mpsc::channel(1024);
         let (stop, shutdown) = watch::channel(false);
         let task = tokio::spawn(reader.run(samples_tx, shutdown));
         Ok(RunningReader {
             samples,
             counters,
+            channel_counters,
             stop,
             task,
             received: HashMap::new(),
@@ -437,6 +447,34 @@ async fn unknown_short_remote_and_error_frames_are_counted_and_ignored() -> Resu
         lengths,
         vec![(SPINDLE_TOP, 1), (SPINDLE_BOTTOM, 1), (TORQUE_SEQ, 1)]
     );
+    // Per channel (the `millgate_channel_*_total` families): the good frame is a block
+    // read and a sample on each of its message's channels, the short frame of a message
+    // an error on each of its channels; the good frame came last, so its samples above
+    // mean every frame was counted.
+    let channel = |index: usize| reader.channel_counters[index].snapshot();
+    for index in [SPINDLE_TOP, SPINDLE_BOTTOM, TORQUE_SEQ] {
+        let expected = ChannelCountersSnapshot {
+            blocks_read: 1,
+            samples: 1,
+            errors: 1,
+            ..ChannelCountersSnapshot::default()
+        };
+        assert_eq!(channel(index), expected, "channel {index}");
+    }
+    for index in [ACC0, ACC3] {
+        let expected = ChannelCountersSnapshot {
+            errors: 1,
+            ..ChannelCountersSnapshot::default()
+        };
+        assert_eq!(channel(index), expected, "channel {index}");
+    }
+    for index in [ROLL_SPEED, STRIP_TENSION, ROLL_FORCE, OIL_TEMP] {
+        assert_eq!(
+            channel(index),
+            ChannelCountersSnapshot::default(),
+            "channel {index}"
+        );
+    }
     reader.stop().await
 }
 
@@ -476,6 +514,9 @@ async fn throughput_without_loss() -> Result<()> {
     decoder.add(TORQUE_SEQ, seq_layout, 1.0, 0.0);
     let reader = CanReader::open_interface(&vcan(), decoder)?;
     let counters = reader.counters();
+    let seq_counters = reader
+        .channel_counters(TORQUE_SEQ)
+        .context("the reader counts its channel")?;
     let (samples_tx, mut samples) = mpsc::channel(1024);
     let (stop, shutdown) = watch::channel(false);
     let task = tokio::spawn(reader.run(samples_tx, shutdown));
@@ -516,6 +557,11 @@ async fn throughput_without_loss() -> Result<()> {
     task.await??;
     let counts = counters.snapshot();
     assert_eq!(counts.decoded, FRAMES as u64);
+    let seq = seq_counters.snapshot();
+    assert_eq!(
+        (seq.blocks_read, seq.samples),
+        (FRAMES as u64, FRAMES as u64)
+    );
     println!(
         "vcan throughput: {FRAMES} frames in {:.3} s = {:.0} frames/s, zero loss",
         elapsed.as_secs_f64(),

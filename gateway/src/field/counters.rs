@@ -34,9 +34,17 @@ pub struct ChannelCounters {
 }
 
 /// A copy of [`ChannelCounters`] at one moment.
+///
+/// A CAN channel counts a frame that gave it a value as a block read and a sample (one
+/// signal a channel: one value a frame), saturated or not; a frame of its message too
+/// short for the message's signals, and a failed read of its interface, as an error.
+/// Its `blocks_missed`, `timeouts`, `sequence_restarts` and `sequence_stalls` stay 0:
+/// CAN has no requests, and frames the kernel dropped cannot be told per channel (their
+/// ids are lost; they are counted per source, [`CanCounts::kernel_drops`], and a gap on
+/// every channel of the source).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct ChannelCountersSnapshot {
-    /// New blocks (or frames) decoded.
+    /// New blocks (or CAN frames) decoded.
     pub blocks_read: u64,
     /// Blocks lost between two reads, from sequence-number gaps.
     pub blocks_missed: u64,
@@ -44,7 +52,8 @@ pub struct ChannelCountersSnapshot {
     pub samples: u64,
     /// Requests that got no answer in time.
     pub timeouts: u64,
-    /// Transport errors, device exceptions and malformed replies.
+    /// Transport errors, device exceptions and malformed replies (CAN: frames too short
+    /// for their signals, failed reads).
     pub errors: u64,
     /// Samples at the converter's limits, replaced by gaps.
     pub saturated_samples: u64,

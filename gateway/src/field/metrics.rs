@@ -50,7 +50,7 @@ impl Families for AcquisitionFamilies {
             }),
             (
                 "errors",
-                "Transport errors, device exceptions and malformed replies",
+                "Transport errors, device exceptions and malformed replies (CAN: frames too short for their signals, failed reads)",
                 |s| s.errors,
             ),
             (

@@ -127,7 +127,10 @@ pub(super) fn spawn_source(
                 Arc::clone(config),
                 can,
                 health,
-                Arc::clone(&acquisition.can[can]),
+                (
+                    Arc::clone(&acquisition.can[can]),
+                    acquisition.counters.clone(),
+                ),
                 samples.clone(),
                 shutdown.clone(),
             ));

@@ -137,6 +137,19 @@ impl CanDecoder {
         channels
     }
 
+    /// Indices of the channels message `frame_id`/`extended` carries (none for an id no
+    /// channel uses), in configuration order.
+    pub(crate) fn channels_of(
+        &self,
+        frame_id: u32,
+        extended: bool,
+    ) -> impl Iterator<Item = usize> + '_ {
+        self.messages
+            .get(&(frame_id, extended))
+            .into_iter()
+            .flat_map(|message| message.signals.iter().map(|signal| signal.channel))
+    }
+
     /// The saturation limits of the measured channels of the source (torque and
     /// acceleration: [`crate::field::quality::saturation_limits`]); channels added with
     /// [`Self::add`] have none.

@@ -6,6 +6,10 @@
 //! and sends [`Acquired::Samples`] over a bounded channel. Frames with an id no
 //! channel uses, frames too short for their signals, remote and error frames are
 //! counted in [`CanCounters`](crate::field::counters::CanCounters) and otherwise ignored.
+//! Each channel counts its frames, samples, saturated samples and errors in its
+//! [`ChannelCounters`](crate::field::counters::ChannelCounters), as a Modbus channel
+//! does ([`ChannelCountersSnapshot`](crate::field::counters::ChannelCountersSnapshot)
+//! says which stay 0).
 //!
 //! Frames are read in batches, up to 64 per `recvmmsg` call.
 //!

@@ -15,7 +15,7 @@ use super::decode::{bus_state_of_error_frame, CanDecoder, FrameOutcome};
 use super::error::CanError;
 use super::socket::{open_socket, receive_batch, ReceiveBuffers, Received, MAX_FRAMES_PER_BATCH};
 use crate::field::acquired::Acquired;
-use crate::field::counters::{BusState, CanCounters};
+use crate::field::counters::{BusState, CanCounters, ChannelCounters};
 use crate::field::source_health::SourceHealth;
 
 /// Reads one SocketCAN interface and turns its frames into [`Acquired::Samples`].
@@ -27,6 +27,8 @@ pub struct CanReader {
     /// Channels the decoder fills: each gets a gap when the kernel drops frames.
     channels: Vec<usize>,
     counters: Arc<CanCounters>,
+    /// Per channel, indexed like `config.channels` (only the decoder's are counted).
+    channel_counters: Vec<Arc<ChannelCounters>>,
     health: Option<Arc<SourceHealth>>,
     /// The socket's `SO_RXQ_OVFL` count at the last frame.
     drops_seen: u32,
@@ -59,12 +61,17 @@ impl CanReader {
     pub fn open_interface(interface: &str, decoder: CanDecoder) -> Result<CanReader, CanError> {
         let socket = open_socket(interface)?;
         let channels = decoder.channels();
+        let channel_counters = match channels.last() {
+            Some(&last) => (0..=last).map(|_| Arc::default()).collect(),
+            None => Vec::new(),
+        };
         Ok(CanReader {
             interface: interface.to_owned(),
             socket,
             decoder,
             channels,
             counters: Arc::new(CanCounters::default()),
+            channel_counters,
             health: None,
             drops_seen: 0,
         })
@@ -84,9 +91,26 @@ impl CanReader {
         self
     }
 
+    /// Count per channel into `counters`, indexed like `config.channels`, instead of
+    /// the reader's own (the service's, shown on `/metrics`).
+    pub(crate) fn with_channel_counters(mut self, counters: Vec<Arc<ChannelCounters>>) -> Self {
+        self.channel_counters = counters;
+        self
+    }
+
     /// The reader's counters; they keep counting while [`Self::run`] runs.
     pub fn counters(&self) -> Arc<CanCounters> {
         Arc::clone(&self.counters)
+    }
+
+    /// The counters of channel index `channel` (the reader's own unless
+    /// [`Self::with_channel_counters`] gave others), if the reader counts it: a frame
+    /// that gave the channel a value counts as a block read and a sample, its value
+    /// saturated also as a saturated sample; a frame of its message too short for its
+    /// signals, or a read that failed, as an error. They keep counting while
+    /// [`Self::run`] runs.
+    pub fn channel_counters(&self, channel: usize) -> Option<Arc<ChannelCounters>> {
+        self.channel_counters.get(channel).cloned()
     }
 
     /// Interface name.
@@ -187,9 +211,15 @@ impl CanReader {
                 match outcome {
                     FrameOutcome::Decoded => self.counters.count_decoded(),
                     FrameOutcome::UnknownId => self.counters.count_unknown_id(),
-                    FrameOutcome::BadLength => self.counters.count_bad_length(),
+                    FrameOutcome::BadLength => {
+                        self.counters.count_bad_length();
+                        self.count_errors(self.decoder.channels_of(frame.id, frame.extended));
+                    }
                 }
-                let saturated = batch.collect((received.kernel_time.unwrap_or(handled), handed));
+                let saturated = batch.collect(
+                    (received.kernel_time.unwrap_or(handled), handed),
+                    &self.channel_counters,
+                );
                 if saturated > 0 {
                     self.counters.count_saturated(saturated);
                 }
@@ -207,7 +237,19 @@ impl CanReader {
         }
     }
 
+    /// Count an error on each of `channels`.
+    fn count_errors(&self, channels: impl IntoIterator<Item = usize>) {
+        for channel in channels {
+            if let Some(counters) = self.channel_counters.get(channel) {
+                counters.error();
+            }
+        }
+    }
+
+    /// A failed read of the interface, counted as an error on each channel of the
+    /// source (as a Modbus transport error on the channels it read).
     fn read_error(&self, source: io::Error) -> CanError {
+        self.count_errors(self.channels.iter().copied());
         CanError::Read {
             interface: self.interface.clone(),
             source,

@@ -10,19 +10,20 @@ use super::error::CanError;
 use super::reader::CanReader;
 use crate::field::acquired::Acquired;
 use crate::field::backoff::Backoff;
-use crate::field::counters::CanCounters;
+use crate::field::counters::{CanCounters, ChannelCounters};
 use crate::field::source_health::SourceHealth;
 use crate::shutdown::Shutdown;
 
 /// Keep CAN source `index` read until shutdown: open its interface, read it, and on
 /// any failure (interface absent, down, removed) mark the gap on its channels and
 /// reopen with capped backoff, so an interface that goes down and comes back is
-/// survived.
+/// survived. The readers count into `counters` (the source's) and `channel_counters`
+/// (indexed like `config.channels`).
 pub(crate) async fn supervise_can(
     config: Arc<Config>,
     index: usize,
     health: Arc<SourceHealth>,
-    counters: Arc<CanCounters>,
+    (counters, channel_counters): (Arc<CanCounters>, Vec<Arc<ChannelCounters>>),
     samples: mpsc::Sender<Acquired>,
     mut shutdown: Shutdown,
 ) {
@@ -57,6 +58,7 @@ pub(crate) async fn supervise_can(
                 let result = reader
                     .with_health(Arc::clone(&health))
                     .with_counters(Arc::clone(&counters))
+                    .with_channel_counters(channel_counters.clone())
                     .run(samples.clone(), shutdown.receiver())
                     .await;
                 health.set_connected(false);
