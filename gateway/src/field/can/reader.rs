@@ -104,7 +104,7 @@ impl CanReader {
     }
 
     /// The counters of channel index `channel` (the reader's own unless
-    /// [`Self::with_channel_counters`] gave others), if the reader counts it: a frame
+    /// the service gave it the acquisition's), if the reader counts it: a frame
     /// that gave the channel a value counts as a block read and a sample, its value
     /// saturated also as a saturated sample; a frame of its message too short for its
     /// signals, or a read that failed, as an error. They keep counting while
