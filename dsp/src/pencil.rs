@@ -342,10 +342,7 @@ mod tests {
     /// error against the truth (the start's error is the noise's, not the deflation's).
     #[test]
     fn start_precision_poles_stay_within_the_noise() {
-        use crate::fit::eq1;
-        let table1 = [
-            -147.0, 85.0, 191.0, -31.0, 11.99, 20.91, 22.17, 3.65, 112.0, 36.7,
-        ];
+        use crate::fit::tests::noisy_table1;
         let mut state = 0x9e37_79b9_7f4a_7c15_u64;
         let mut worst = [0.0_f64; 4];
         for len in [500, 2000] {
@@ -353,14 +350,7 @@ mod tests {
             let decimation = (len / (2 * MIN_DECIMATED_SAMPLES)).min((rate / 240.0) as usize);
             for _ in 0..20 {
                 let mut samples = [0.0_f64; 2000];
-                for (i, v) in samples[..len].iter_mut().enumerate() {
-                    state = state
-                        .wrapping_mul(6_364_136_223_846_793_005)
-                        .wrapping_add(1);
-                    let uniform = (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
-                    // Uniform noise of RMS 2% of a9.
-                    *v = eq1(&table1, i as f64 / rate) + 7.8 * uniform;
-                }
+                noisy_table1(&mut samples[..len], rate, &mut state);
                 let samples = &samples[..len];
                 let (scale, _) = peak_magnitude(samples);
                 let full =

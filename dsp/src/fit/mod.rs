@@ -317,12 +317,24 @@ fn bound(mode1: &PairRotor, mode2: &PairRotor, rise: Pair, static_torque: f64) -
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    pub(super) const TABLE1: [f64; PARAMS] = [
+    pub(crate) const TABLE1: [f64; PARAMS] = [
         -147.0, 85.0, 191.0, -31.0, 11.99, 20.91, 22.17, 3.65, 112.0, 36.7,
     ];
+
+    /// Fill `samples` with Table 1's transient sampled at `rate` plus deterministic
+    /// uniform noise of RMS about 2% of a9 (an LCG continued from `state`).
+    pub(crate) fn noisy_table1(samples: &mut [f64], rate: f64, state: &mut u64) {
+        for (i, v) in samples.iter_mut().enumerate() {
+            *state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1);
+            let uniform = (*state >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
+            *v = eq1(&TABLE1, i as f64 / rate) + 7.8 * uniform;
+        }
+    }
 
     /// A record of a constant has no oscillating mode: the pencil's two "modes" are
     /// noise of the rounding, one at times growing e^188 over the record, and the
@@ -369,14 +381,7 @@ mod tests {
             for _ in 0..10 {
                 let mut samples = [0.0_f64; 2000];
                 let rate = len as f64 / 0.5;
-                for (i, v) in samples[..len].iter_mut().enumerate() {
-                    state = state
-                        .wrapping_mul(6_364_136_223_846_793_005)
-                        .wrapping_add(1);
-                    let uniform = (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
-                    // Uniform noise of RMS 2% of a9.
-                    *v = eq1(&TABLE1, i as f64 / rate) + 7.8 * uniform;
-                }
+                noisy_table1(&mut samples[..len], rate, &mut state);
                 let samples = &samples[..len];
                 let options = FitOptions::new(rate);
                 let (scale, _) = peak_magnitude(samples);

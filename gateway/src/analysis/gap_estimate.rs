@@ -239,23 +239,7 @@ fn point_loglik(
     row: usize,
     weight: f64,
 ) -> f64 {
-    let (lower, upper, weight) = match cells.get(row + 1) {
-        Some(next) => (&cells[row], next, weight),
-        None => (&cells[row], &cells[row], 0.0),
-    };
-    // Bilinear weights of the corners: (gap row, torque neighbour, weight); each
-    // row has its own torque weight (its measured static torques differ a little).
-    let corners = [
-        (lower, 0, (1.0 - weight) * (1.0 - lower.weight)),
-        (lower, 1, (1.0 - weight) * lower.weight),
-        (upper, 0, weight * (1.0 - upper.weight)),
-        (upper, 1, weight * upper.weight),
-    ];
-    let taf = lerp(lower.taf(), upper.taf(), weight);
-    let taf_floor = corners
-        .iter()
-        .map(|&(cell, side, w)| w * cell.taf_floor[side])
-        .sum::<f64>();
+    let (taf, taf_floor, corners) = interpolated(cells, row, weight);
     let mut loglik = robust_gauss(
         observation.taf - taf,
         terms.taf_variance + taf_floor * taf_floor,
@@ -272,9 +256,33 @@ fn lerp(a: f64, b: f64, weight: f64) -> f64 {
     a + (b - a) * weight
 }
 
+/// The four map corners around a point: (cell, torque neighbour, bilinear weight).
+type Corners<'a> = [(&'a Cell, usize, f64); 4];
+
+/// The map's TAF and TAF interpolation error at the point `weight` of the way from gap
+/// row `row` to the next of `cells`, and the point's corners.
+fn interpolated(cells: &[Cell], row: usize, weight: f64) -> (f64, f64, Corners<'_>) {
+    let (lower, upper, weight) = match cells.get(row + 1) {
+        Some(next) => (&cells[row], next, weight),
+        None => (&cells[row], &cells[row], 0.0),
+    };
+    // Each row has its own torque weight (its measured static torques differ a little).
+    let corners = [
+        (lower, 0, (1.0 - weight) * (1.0 - lower.weight)),
+        (lower, 1, (1.0 - weight) * lower.weight),
+        (upper, 0, weight * (1.0 - upper.weight)),
+        (upper, 1, weight * upper.weight),
+    ];
+    let taf_floor = corners
+        .iter()
+        .map(|&(cell, side, w)| w * cell.taf_floor[side])
+        .sum::<f64>();
+    (lerp(lower.taf(), upper.taf(), weight), taf_floor, corners)
+}
+
 /// The shift term at one point whose map corners are `corners` (cell, torque side,
 /// bilinear weight): 0 when a corner in use has no shift.
-fn shift_loglik(measured: f64, terms: &Terms, corners: &[(&Cell, usize, f64); 4]) -> f64 {
+fn shift_loglik(measured: f64, terms: &Terms, corners: &Corners<'_>) -> f64 {
     let mut values = [0.0; 4];
     let (mut low, mut high) = (f64::INFINITY, f64::NEG_INFINITY);
     let (mut value, mut floor) = (0.0, 0.0);
@@ -471,21 +479,7 @@ mod tests {
         let (taf_model, shift_model) = allowance.model_floors();
         let taf_variance = observation.taf_sigma.powi(2) + taf_model;
         let shift_variance = observation.period_shift_sigma_s.powi(2) + shift_model;
-        let (lower, upper, weight) = match cells.get(row + 1) {
-            Some(next) => (&cells[row], next, weight),
-            None => (&cells[row], &cells[row], 0.0),
-        };
-        let corners = [
-            (lower, 0, (1.0 - weight) * (1.0 - lower.weight)),
-            (lower, 1, (1.0 - weight) * lower.weight),
-            (upper, 0, weight * (1.0 - upper.weight)),
-            (upper, 1, weight * upper.weight),
-        ];
-        let taf = lerp(lower.taf(), upper.taf(), weight);
-        let taf_floor: f64 = corners
-            .iter()
-            .map(|&(cell, side, w)| w * cell.taf_floor[side])
-            .sum();
+        let (taf, taf_floor, corners) = interpolated(cells, row, weight);
         let mut loglik = robust(
             log_gauss(observation.taf - taf, taf_variance + taf_floor * taf_floor),
             TAF_OUTLIER_SPAN,
@@ -582,15 +576,8 @@ mod tests {
         row: usize,
         weight: f64,
     ) -> bool {
-        let (lower, upper, weight) = match cells.get(row + 1) {
-            Some(next) => (&cells[row], next, weight),
-            None => (&cells[row], &cells[row], 0.0),
-        };
-        let floor = (1.0 - weight)
-            * ((1.0 - lower.weight) * lower.taf_floor[0] + lower.weight * lower.taf_floor[1])
-            + weight
-                * ((1.0 - upper.weight) * upper.taf_floor[0] + upper.weight * upper.taf_floor[1]);
-        let residual = observation.taf - lerp(lower.taf(), upper.taf(), weight);
+        let (taf, floor, _) = interpolated(cells, row, weight);
+        let residual = observation.taf - taf;
         let variance = terms.taf_variance + floor * floor;
         -0.5 * (residual * residual / variance + terms.taf_log_floor)
             < terms.taf_outliers - NEGLIGIBLE_LOG

@@ -223,26 +223,14 @@ mod tests {
 
     #[test]
     fn decoded_frames_count_per_channel() {
-        use millgate_config::signal::SignalLayout;
-
+        use crate::field::can::decode::tests::torque_layout;
         use crate::field::can::{CanDecoder, FrameOutcome};
 
         // Message 0x101: channel 3 an Intel i16 at bits 0..16, channel 5 one at 16..32,
         // 0.01 a count; channel 3 saturates at the raw ends (+-327.67).
-        let torque = |start_bit| SignalLayout {
-            frame_id: 0x101,
-            extended: false,
-            frame_len: 8,
-            start_bit,
-            size: 16,
-            little_endian: true,
-            signed: true,
-            factor: 0.01,
-            offset: 0.0,
-        };
         let mut decoder = CanDecoder::default();
-        decoder.add(3, torque(0), 1.0, 0.0);
-        decoder.add(5, torque(16), 1.0, 0.0);
+        decoder.add(3, torque_layout(0), 1.0, 0.0);
+        decoder.add(5, torque_layout(16), 1.0, 0.0);
         let limits = SaturationLimits {
             low: -327.67,
             high: 327.67,

@@ -203,7 +203,7 @@ impl CanDecoder {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     #[test]
@@ -245,7 +245,9 @@ mod tests {
         );
     }
 
-    fn torque_layout(start_bit: u16) -> SignalLayout {
+    /// Message 0x101's Intel i16 at `start_bit`, 0.01 a count (shared with the batch's
+    /// tests).
+    pub(crate) fn torque_layout(start_bit: u16) -> SignalLayout {
         SignalLayout {
             frame_id: 0x101,
             extended: false,
