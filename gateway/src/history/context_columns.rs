@@ -5,6 +5,7 @@
 use rusqlite::types::Value as SqlValue;
 
 use super::bite_row::CONTEXT_COLUMNS;
+use super::record::StoredCoil;
 use crate::state::context::{Coil, ContextReading, ProcessContext};
 
 /// A measured value, or `NULL`.
@@ -19,7 +20,7 @@ pub(super) fn context_values(context: &ProcessContext) -> [SqlValue; 6] {
         real(context.speed_mpm),
         context.coil.map_or(SqlValue::Null, |coil| match coil {
             Coil::Number(number) => SqlValue::Integer(number.into()),
-            Coil::Text(text) => SqlValue::Text(text.as_str().to_owned()),
+            Coil::Text(text) => StoredCoil::text_value(text.as_str()),
         }),
         code(context.product),
         real(context.thickness_mm),

@@ -30,7 +30,9 @@ impl std::fmt::Display for Cell {
 
 /// A coil or bar id as the history keeps it in its `coil` column: an integer for a
 /// numeric coil, text for a text coil (`type = "ascii"`; SQLite keeps TEXT in the
-/// INTEGER-affinity column). As JSON a number stays a number, a text is a string.
+/// INTEGER-affinity column), and a BLOB of the text's bytes for a text coil that the
+/// column's affinity would turn into a number ([`StoredCoil::text_value`]). As JSON a
+/// number stays a number, a text is a string.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, serde::Deserialize)]
 #[serde(untagged)]
 pub enum StoredCoil {
@@ -49,6 +51,34 @@ impl std::fmt::Display for StoredCoil {
     }
 }
 
+impl StoredCoil {
+    /// The value a text coil is stored as: TEXT, or, for a text SQLite would take for a
+    /// number ([`numeric_looking`]), a BLOB of its bytes, which the column's INTEGER
+    /// affinity leaves as it is (TEXT `'04711'` would be stored as the integer 4711,
+    /// `'24E0123'` as the real 2.4e124).
+    pub(crate) fn text_value(text: &str) -> rusqlite::types::Value {
+        if numeric_looking(text) {
+            rusqlite::types::Value::Blob(text.as_bytes().to_vec())
+        } else {
+            rusqlite::types::Value::Text(text.to_owned())
+        }
+    }
+}
+
+/// Whether SQLite's INTEGER (or NUMERIC) affinity could store `text` as a number: a
+/// well-formed integer or real literal, with white space around it (`"04711"`,
+/// `" 42"`, `"12.5"`, `"24E0123"`, `"1e400"`). A superset of SQLite's rule (any text
+/// of digits, signs, points and exponent letters with a digit among them), so that no
+/// such text is turned into a number; a text it takes in that SQLite would have kept
+/// is stored as a BLOB all the same and reads back alike.
+fn numeric_looking(text: &str) -> bool {
+    let core = text.trim_matches(|c: char| c == ' ' || ('\t'..='\r').contains(&c));
+    core.bytes().any(|b| b.is_ascii_digit())
+        && core
+            .bytes()
+            .all(|b| b.is_ascii_digit() || matches!(b, b'+' | b'-' | b'.' | b'e' | b'E'))
+}
+
 impl rusqlite::types::FromSql for StoredCoil {
     fn column_result(value: rusqlite::types::ValueRef<'_>) -> rusqlite::types::FromSqlResult<Self> {
         match value {
@@ -56,7 +86,19 @@ impl rusqlite::types::FromSql for StoredCoil {
             rusqlite::types::ValueRef::Text(_) => {
                 String::column_result(value).map(StoredCoil::Text)
             }
-            _ => Err(rusqlite::types::FromSqlError::InvalidType),
+            // A text coil SQLite would have taken for a number ([`StoredCoil::text_value`]).
+            rusqlite::types::ValueRef::Blob(bytes) => std::str::from_utf8(bytes)
+                .map(|text| StoredCoil::Text(text.to_owned()))
+                .map_err(|error| rusqlite::types::FromSqlError::Other(Box::new(error))),
+            // A text coil written before the BLOB, which SQLite stored as a real
+            // ('12.5', '24E0123'): its digits are what SQLite kept, read rather than
+            // refused (an error here made every query of its row fail).
+            rusqlite::types::ValueRef::Real(real) => Ok(StoredCoil::Text(if real.abs() < 1e16 {
+                real.to_string()
+            } else {
+                format!("{real:e}")
+            })),
+            rusqlite::types::ValueRef::Null => Err(rusqlite::types::FromSqlError::InvalidType),
         }
     }
 }

@@ -583,4 +583,148 @@ mod tests {
         drop((reader, connection));
         let _ = std::fs::remove_dir_all(&folder);
     }
+
+    /// A text coil that SQLite's INTEGER affinity would have turned into a number
+    /// (leading zeros, an exponent, a point, spaces) is kept as written, in captures,
+    /// chatter episodes and bites alike, and `CAST(coil AS TEXT)` gives it to a reader of
+    /// the file; a text coil stored as a real before this (SQLite's conversion) reads
+    /// back as that real's digits instead of failing its row.
+    #[test]
+    fn text_coils_that_look_like_numbers_read_back_as_written() {
+        let folder = std::env::temp_dir().join(format!(
+            "millgate-coil-text-{}-{}",
+            std::process::id(),
+            UtcTime::now().unix_ms()
+        ));
+        std::fs::create_dir_all(&folder).unwrap();
+        let path = folder.join("history.db");
+        let mut connection = Connection::open(&path).unwrap();
+        super::super::schema::migrate(&mut connection).unwrap();
+        connection
+            .execute_batch(
+                "INSERT INTO gateway_runs (id, started_at, version, config_name)
+                 VALUES (1, 't', 'v', 'c')",
+            )
+            .unwrap();
+        let coils = [
+            "04711", " 42", "12.5", "24E0123", "1e400", "-7", "CH-4711", "H-12",
+        ];
+        let transaction = connection.transaction().unwrap();
+        for coil in coils {
+            let context = ContextReading {
+                context: Ok(ProcessContext {
+                    coil: AsciiText::new(coil).map(Coil::Text),
+                    ..ProcessContext::default()
+                }),
+                stale: StaleTags::default(),
+            };
+            insert(
+                &transaction,
+                1,
+                &HistoryEvent::Capture(Box::new(capture_without_samples(
+                    CaptureKind::Chatter,
+                    coil,
+                    Some(context),
+                ))),
+            )
+            .unwrap();
+            insert(&transaction, 1, &chatter_started(coil, Some(context), None)).unwrap();
+        }
+        transaction.commit().unwrap();
+        let reader = HistoryReader::open(&path).unwrap();
+        let texts = |stored: Vec<Option<StoredCoil>>| -> Vec<String> {
+            stored.into_iter().map(|c| c.unwrap().to_string()).collect()
+        };
+        let captures: Vec<CaptureRow> = reader.rows(&Filter::default()).unwrap();
+        let episodes: Vec<ChatterRow> = reader.rows(&Filter::default()).unwrap();
+        assert_eq!(texts(captures.into_iter().map(|r| r.coil).collect()), coils);
+        assert_eq!(texts(episodes.into_iter().map(|r| r.coil).collect()), coils);
+        for table in ["captures", "chatter_episodes"] {
+            let stored: Vec<(String, String)> = connection
+                .prepare(&format!(
+                    "SELECT typeof(coil), CAST(coil AS TEXT) FROM {table} ORDER BY id"
+                ))
+                .unwrap()
+                .query_map([], |row| Ok((row.get(0)?, row.get(1)?)))
+                .unwrap()
+                .collect::<Result<_, _>>()
+                .unwrap();
+            let kinds: Vec<&str> = stored.iter().map(|(kind, _)| kind.as_str()).collect();
+            assert_eq!(
+                kinds,
+                ["blob", "blob", "blob", "blob", "blob", "blob", "text", "text"],
+                "{table}"
+            );
+            let as_text: Vec<&str> = stored.iter().map(|(_, text)| text.as_str()).collect();
+            assert_eq!(as_text, coils, "{table}");
+        }
+        // What SQLite made of such a text before: a real. Read, not refused.
+        connection
+            .execute("UPDATE captures SET coil = 12.5 WHERE subject = '12.5'", [])
+            .unwrap();
+        connection
+            .execute(
+                "UPDATE captures SET coil = 2.4e124 WHERE subject = '24E0123'",
+                [],
+            )
+            .unwrap();
+        let captures: Vec<CaptureRow> = reader.rows(&Filter::default()).unwrap();
+        let read: Vec<String> = texts(captures.into_iter().map(|r| r.coil).collect());
+        assert_eq!(read[2], "12.5");
+        assert_eq!(read[3], "2.4e124");
+        drop((reader, connection));
+        let _ = std::fs::remove_dir_all(&folder);
+    }
+
+    /// Every text SQLite's INTEGER affinity stores as a number (asked of SQLite itself,
+    /// over every text of up to four characters from digits, signs, a point, exponent
+    /// letters, spaces and a tab) is one `numeric_looking` protects: none is turned
+    /// into a number.
+    #[test]
+    fn every_text_sqlite_would_turn_into_a_number_is_kept_as_written() {
+        let connection = Connection::open_in_memory().unwrap();
+        connection
+            .execute_batch("CREATE TABLE c (coil INTEGER)")
+            .unwrap();
+        let alphabet = ['0', '9', '+', '-', '.', 'e', 'E', ' ', '\t', 'x'];
+        let mut texts = vec![String::new()];
+        let mut all = Vec::new();
+        for _ in 0..4 {
+            texts = texts
+                .iter()
+                .flat_map(|text| alphabet.iter().map(move |c| format!("{text}{c}")))
+                .collect();
+            all.extend(texts.iter().cloned());
+        }
+        let mut converted = 0;
+        for text in &all {
+            connection.execute("DELETE FROM c", []).unwrap();
+            connection
+                .execute("INSERT INTO c VALUES (?1)", [text.as_str()])
+                .unwrap();
+            let kind: String = connection
+                .query_row("SELECT typeof(coil) FROM c", [], |row| row.get(0))
+                .unwrap();
+            if kind != "text" {
+                converted += 1;
+                assert!(
+                    matches!(
+                        StoredCoil::text_value(text),
+                        rusqlite::types::Value::Blob(_)
+                    ),
+                    "{text:?} is stored by SQLite as {kind}"
+                );
+            }
+            // What the history writes reads back as written.
+            connection.execute("DELETE FROM c", []).unwrap();
+            connection
+                .execute("INSERT INTO c VALUES (?1)", [StoredCoil::text_value(text)])
+                .unwrap();
+            let read: StoredCoil = connection
+                .query_row("SELECT coil FROM c", [], |row| row.get(0))
+                .unwrap();
+            assert_eq!(read, StoredCoil::Text(text.clone()));
+        }
+        assert!(converted > 100, "{converted} of {} converted", all.len());
+    }
 }
