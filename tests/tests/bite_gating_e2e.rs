@@ -292,6 +292,7 @@ async fn bites_outside_rolling_or_the_speed_range_are_recorded_not_pooled() -> a
         since: None,
         until: None,
         product,
+        coil: None,
     };
     let listed = millgate::cli::capture::run(&CaptureCommand::List(ListArgs {
         selection: selection(Some(205)),

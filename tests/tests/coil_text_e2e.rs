@@ -4,9 +4,11 @@
 //! first (`type = "ascii"`, `byte_order = "low_first"`). Each bite's context carries
 //! the text; the history keeps it in the `coil` column, the JSON of `capture list`
 //! gives it as a string, and pyarrow reads it from the capture's Parquet metadata and
-//! CSV sidecar. A bar whose registers hold a byte that is no printable ASCII makes
-//! the context invalid: no coil kept, the reason in the capture's note, the bite
-//! counted on `/metrics`.
+//! CSV sidecar. A coil id of digits with leading zeros keeps them (the history's
+//! `coil` column would otherwise take it for a number), and `capture list --coil` and
+//! `history --coil` find its evidence by it. A bar whose registers hold a byte that is
+//! no printable ASCII makes the context invalid: no coil kept, the reason in the
+//! capture's note, the bite counted on `/metrics`.
 
 use std::path::PathBuf;
 use std::time::Duration;
@@ -37,7 +39,8 @@ const BARS: [(f64, &[u8]); 3] = [
     (60.0, b"CH-4711"),
     // A byte no ASCII text has (a PLC string in another code page, a torn write).
     (140.0, b"CH-\xFF712"),
-    (80.0, b"CH-4713\0"),
+    // Digits with leading zeros, ended by a NUL: a text, not the number 4713.
+    (80.0, b"004713\0\0"),
 ];
 /// The junk byte's error.
 const JUNK: TextError = TextError::NotPrintable {
@@ -84,7 +87,7 @@ async fn a_coil_id_read_as_text_tags_the_evidence_and_junk_makes_the_context_inv
     let expected = [
         Ok(Some(Coil::Text(text("CH-4711")))),
         Err(ContextError::CoilText(JUNK)),
-        Ok(Some(Coil::Text(text("CH-4713")))),
+        Ok(Some(Coil::Text(text("004713")))),
     ];
     for (bar, expected) in expected.iter().enumerate() {
         let bite = tokio::time::timeout(Duration::from_secs(15), gateway.bites().recv()).await??;
@@ -116,7 +119,7 @@ async fn a_coil_id_read_as_text_tags_the_evidence_and_junk_makes_the_context_inv
         [
             Some(Coil::Text(text("CH-4711"))),
             None,
-            Some(Coil::Text(text("CH-4713")))
+            Some(Coil::Text(text("004713")))
         ]
     );
     assert_eq!(serde_json::to_value(&bites[0])?["coil"], "CH-4711");
@@ -131,7 +134,7 @@ async fn a_coil_id_read_as_text_tags_the_evidence_and_junk_makes_the_context_inv
         [
             (Some(StoredCoil::Text("CH-4711".into())), Some("valid")),
             (None, Some("invalid")),
-            (Some(StoredCoil::Text("CH-4713".into())), Some("valid")),
+            (Some(StoredCoil::Text("004713".into())), Some("valid")),
         ]
     );
     assert_eq!(
@@ -149,6 +152,7 @@ async fn a_coil_id_read_as_text_tags_the_evidence_and_junk_makes_the_context_inv
         since: None,
         until: None,
         product: None,
+        coil: None,
     };
     let listed = millgate::cli::capture::run(&CaptureCommand::List(ListArgs {
         selection: selection.clone(),
@@ -161,9 +165,46 @@ async fn a_coil_id_read_as_text_tags_the_evidence_and_junk_makes_the_context_inv
         [
             &serde_json::json!("CH-4711"),
             &serde_json::Value::Null,
-            &serde_json::json!("CH-4713")
+            &serde_json::json!("004713")
         ]
     );
+    // Found by its coil, as the PLC gave it; `4713` is another coil.
+    let of_coil = |coil: &str| Selection {
+        coil: Some(coil.to_owned()),
+        ..selection.clone()
+    };
+    let listed = millgate::cli::capture::run(&CaptureCommand::List(ListArgs {
+        selection: of_coil("004713"),
+        format: OutputFormat::Json,
+    }))?;
+    let listed: Vec<serde_json::Value> = serde_json::from_str(&listed)?;
+    let ids: Vec<i64> = listed.iter().filter_map(|c| c["id"].as_i64()).collect();
+    assert_eq!(ids, [captures[2].id]);
+    let other = millgate::cli::capture::run(&CaptureCommand::List(ListArgs {
+        selection: of_coil("4713"),
+        format: OutputFormat::Json,
+    }))?;
+    assert_eq!(other, "[]", "captures of coil 4713");
+    let mut csv = Vec::new();
+    millgate::cli::history::export(
+        &millgate::cli::history::HistoryArgs {
+            db: db.clone(),
+            kind: millgate::cli::history::Kind::Bites,
+            driveline: None,
+            source: None,
+            since: None,
+            until: None,
+            limit: None,
+            product: None,
+            coil: Some("004713".to_owned()),
+            format: millgate::cli::history::Format::Csv,
+        },
+        &mut csv,
+    )?;
+    let csv = String::from_utf8(csv)?;
+    let rows: Vec<&str> = csv.lines().skip(1).collect();
+    assert_eq!(rows.len(), 1, "{csv}");
+    assert!(rows[0].split(',').any(|cell| cell == "004713"), "{csv}");
     // pyarrow reads the text from bar 0's Parquet metadata, and the CSV's sidecar
     // says the same.
     pyarrow_checks_export(

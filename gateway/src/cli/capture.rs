@@ -110,6 +110,11 @@ pub struct Selection {
     /// schema v14; a capture whose product is unknown is left out).
     #[arg(long)]
     pub product: Option<u32>,
+    /// Only captures taken rolling this coil or bar id, as the PLC gave it (a text id
+    /// with its characters: `04711` is not `4711`; a capture whose coil is unknown is
+    /// left out).
+    #[arg(long)]
+    pub coil: Option<String>,
 }
 
 /// A capture kind on the command line.
@@ -204,6 +209,7 @@ fn filter(reader: &HistoryReader, selection: &Selection) -> anyhow::Result<Filte
         after_id: None,
         limit: None,
         product: selection.product,
+        coil: selection.coil.clone(),
     })
 }
 
@@ -246,6 +252,9 @@ fn nothing(reader: &HistoryReader, selection: &Selection) -> anyhow::Error {
     }
     if let Some(product) = selection.product {
         write!(what, " of product {product}").ok();
+    }
+    if let Some(coil) = &selection.coil {
+        write!(what, " of coil {coil:?}").ok();
     }
     let range = reader
         .rows::<CaptureRow>(&Filter {

@@ -81,6 +81,11 @@ pub struct HistoryArgs {
     /// time; bites and chatter episodes only).
     #[arg(long)]
     pub product: Option<u32>,
+    /// Only bites (or chatter episodes) of this coil or bar id, as the PLC gave it
+    /// (a text id with its characters: `04711` is not `4711`; bites and chatter
+    /// episodes only).
+    #[arg(long)]
+    pub coil: Option<String>,
     /// Output format.
     #[arg(long, value_enum, default_value = "csv")]
     pub format: Format,
@@ -129,10 +134,15 @@ pub fn export(args: &HistoryArgs, out: impl Write) -> anyhow::Result<()> {
         }
         (_, driveline, None) => driveline.clone(),
     };
-    if args.product.is_some() && !matches!(args.kind, Kind::Bites | Kind::Chatter) {
-        anyhow::bail!(
-            "--product applies to bites and chatter episodes only (--kind bites, --kind chatter)"
-        );
+    for (option, given) in [
+        ("--product", args.product.is_some()),
+        ("--coil", args.coil.is_some()),
+    ] {
+        if given && !matches!(args.kind, Kind::Bites | Kind::Chatter) {
+            anyhow::bail!(
+                "{option} applies to bites and chatter episodes only (--kind bites, --kind chatter)"
+            );
+        }
     }
     let filter = Filter {
         name,
@@ -141,6 +151,7 @@ pub fn export(args: &HistoryArgs, out: impl Write) -> anyhow::Result<()> {
         after_id: None,
         limit: args.limit,
         product: args.product,
+        coil: args.coil.clone(),
     };
     let reader = HistoryReader::open(&args.db)?;
     match args.kind {

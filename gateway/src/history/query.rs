@@ -70,6 +70,10 @@ pub struct Filter {
     /// captures and chatter episodes, v14; a table without a product has no row of
     /// any product).
     pub product: Option<u32>,
+    /// Only rows of this coil or bar id, compared as text (`CAST(coil AS TEXT)`: a
+    /// numeric coil 4711 is `4711`, a text coil its characters; `04711` is not
+    /// `4711`); a table without the context's columns has no row of any coil.
+    pub coil: Option<String>,
 }
 
 /// Declares a row struct of `table` with its [`Record`] implementation: one place
@@ -481,6 +485,8 @@ impl HistoryReader {
     fn conditions<R: Record>(filter: &Filter) -> (String, Vec<rusqlite::types::Value>) {
         let mut conditions = Vec::new();
         let mut values: Vec<rusqlite::types::Value> = Vec::new();
+        // A filter on a column the table does not have: no row.
+        let mut no_row = false;
         let mut condition = |sql: String, value: rusqlite::types::Value| {
             values.push(value);
             conditions.push(format!("{sql} ?{}", values.len()));
@@ -500,8 +506,18 @@ impl HistoryReader {
         if let Some(product) = filter.product {
             match R::PRODUCT_COLUMN {
                 Some(column) => condition(format!("{column} ="), i64::from(product).into()),
-                None => conditions.push("0".to_owned()),
+                None => no_row = true,
             }
+        }
+        if let Some(coil) = &filter.coil {
+            // The tables with a product column are those with the context's columns.
+            match R::PRODUCT_COLUMN {
+                Some(_) => condition("CAST(coil AS TEXT) =".into(), coil.clone().into()),
+                None => no_row = true,
+            }
+        }
+        if no_row {
+            conditions.push("0".to_owned());
         }
         if conditions.is_empty() {
             (String::new(), values)

@@ -579,6 +579,12 @@ mod tests {
             .map(|r| r.mill)
             .collect();
         assert_eq!(mills, ["A", "B", "E"]);
+        // A numeric coil is found by its digits; a stale or invalid context's is unknown.
+        let of_coil = Filter {
+            coil: Some("4000000123".to_owned()),
+            ..Filter::default()
+        };
+        assert_eq!(subjects(reader.rows(&of_coil).unwrap()), ["A"]);
         assert!(CaptureRow::columns().contains(&"context_status"));
         drop((reader, connection));
         let _ = std::fs::remove_dir_all(&folder);
@@ -632,6 +638,23 @@ mod tests {
         }
         transaction.commit().unwrap();
         let reader = HistoryReader::open(&path).unwrap();
+        // Found by the coil as written: `04711` is not `4711`.
+        let of_coil = |coil: &str| Filter {
+            coil: Some(coil.to_owned()),
+            ..Filter::default()
+        };
+        for (coil, subjects) in [
+            ("04711", vec!["04711"]),
+            ("4711", vec![]),
+            (" 42", vec![" 42"]),
+        ] {
+            let found: Vec<CaptureRow> = reader.rows(&of_coil(coil)).unwrap();
+            let found: Vec<String> = found.into_iter().map(|r| r.subject).collect();
+            assert_eq!(found, subjects, "captures of coil {coil:?}");
+            let found: Vec<ChatterRow> = reader.rows(&of_coil(coil)).unwrap();
+            let found: Vec<String> = found.into_iter().map(|r| r.mill).collect();
+            assert_eq!(found, subjects, "chatter episodes of coil {coil:?}");
+        }
         let texts = |stored: Vec<Option<StoredCoil>>| -> Vec<String> {
             stored.into_iter().map(|c| c.unwrap().to_string()).collect()
         };

@@ -114,6 +114,7 @@ pub(super) fn read(
             after_id: None,
             limit: Some(1),
             product: None,
+            coil: None,
         })?
         .pop();
     let known = last.is_some();

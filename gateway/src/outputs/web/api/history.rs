@@ -385,6 +385,7 @@ pub(super) async fn newest<R: Record + Send + 'static>(
         after_id: None,
         limit: Some(limit),
         product,
+        coil: None,
     };
     with_history(state, move |reader| {
         reader.newest(&filter).map_err(history_error)
