@@ -77,6 +77,9 @@ async fn an_episodes_band_signal_and_spectra_match_numpy_on_its_csv() -> anyhow:
         ("/api/tandem_mills/TCM/episodes".to_owned(), 1),
         ("/api/tandem_mills/TCM/captures?product=101".to_owned(), 0),
         ("/api/tandem_mills/TCM/episodes?product=101".to_owned(), 0),
+        (format!("/api/tandem_mills/TCM/captures?coil={COIL}"), 1),
+        (format!("/api/tandem_mills/TCM/episodes?coil={COIL}"), 1),
+        (format!("/api/tandem_mills/TCM/episodes?coil=0{COIL}"), 0),
     ] {
         let answer = http(port, "GET", &path).await;
         assert_eq!(answer.status, 200, "{path}: {}", answer.body);
@@ -97,7 +100,13 @@ async fn an_episodes_band_signal_and_spectra_match_numpy_on_its_csv() -> anyhow:
     );
     for (path, status) in [
         ("/api/tandem_mills/TCM/episodes?product=-1", 400),
-        ("/api/tandem_mills/TCM/episodes?coil=1", 400),
+        ("/api/tandem_mills/TCM/episodes?grade=1", 400),
+        ("/api/tandem_mills/TCM/episodes?coil=", 400),
+        ("/api/tandem_mills/TCM/captures?coil=%FF", 400),
+        (
+            "/api/tandem_mills/TCM/episodes?coil=123456789012345678901234567890123",
+            400,
+        ),
         ("/api/tandem_mills/XYZ/episodes", 404),
     ] {
         let answer = http(port, "GET", path).await;

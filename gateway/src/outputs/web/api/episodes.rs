@@ -15,7 +15,7 @@ use crate::history::query::{CaptureRow, ChatterRow};
 use crate::history::series::MAX_SERIES_POINTS;
 use crate::outputs::web::shared::WebState;
 
-/// `GET /api/tandem_mills/{name}/captures?since=&until=&limit=&product=`: the newest
+/// `GET /api/tandem_mills/{name}/captures?since=&until=&limit=&product=&coil=`: the newest
 /// `limit` captures of the mill in the range (of product code `product` when given;
 /// chatter episodes and manual captures of its stands: their rows with the context of
 /// their time, not their samples), oldest first.
@@ -24,7 +24,7 @@ pub(crate) async fn tandem_mill_captures(
     DrivelineName(name): DrivelineName,
     query: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Json<Vec<serde_json::Value>>, ApiError> {
-    let params = Params::of(query, &["since", "until", "limit", "product"])?;
+    let params = Params::of(query, &["since", "until", "limit", "product", "coil"])?;
     mill_index(&state, &name)?;
     let rows: Vec<CaptureRow> = newest(&state, &params, Some(name)).await?;
     Ok(Json(
@@ -34,7 +34,7 @@ pub(crate) async fn tandem_mill_captures(
     ))
 }
 
-/// `GET /api/tandem_mills/{name}/episodes?since=&until=&limit=&product=`: the newest
+/// `GET /api/tandem_mills/{name}/episodes?since=&until=&limit=&product=&coil=`: the newest
 /// `limit` chatter episodes of the mill that started in the range (of product code
 /// `product` when given), oldest first, each with the context of its start (table
 /// `chatter_episodes`' columns).
@@ -43,7 +43,7 @@ pub(crate) async fn tandem_mill_episodes(
     DrivelineName(name): DrivelineName,
     query: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Json<Vec<ChatterRow>>, ApiError> {
-    let params = Params::of(query, &["since", "until", "limit", "product"])?;
+    let params = Params::of(query, &["since", "until", "limit", "product", "coil"])?;
     mill_index(&state, &name)?;
     Ok(Json(newest(&state, &params, Some(name)).await?))
 }

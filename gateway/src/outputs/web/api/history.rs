@@ -24,19 +24,20 @@ use crate::history::summary::ProductSummary;
 use crate::history::HistoryError;
 use crate::outputs::web::shared::WebState;
 
-/// `GET /api/drivelines/{name}/bites?since=&until=&limit=&product=`: the newest
-/// `limit` bites in the range (of product code `product` when given), oldest first.
+/// `GET /api/drivelines/{name}/bites?since=&until=&limit=&product=&coil=`: the newest
+/// `limit` bites in the range (of product code `product`, of coil `coil`, when
+/// given), oldest first.
 pub(crate) async fn bites(
     State(state): State<Arc<WebState>>,
     DrivelineName(name): DrivelineName,
     query: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Json<Vec<BiteRow>>, ApiError> {
-    let params = Params::of(query, &["since", "until", "limit", "product"])?;
+    let params = Params::of(query, &["since", "until", "limit", "product", "coil"])?;
     driveline_index(&state, &name)?;
     Ok(Json(newest(&state, &params, Some(name)).await?))
 }
 
-/// `GET /api/drivelines/{name}/captures?since=&until=&limit=&product=`: the newest
+/// `GET /api/drivelines/{name}/captures?since=&until=&limit=&product=&coil=`: the newest
 /// `limit` captures of the driveline in the range (of product code `product` when
 /// given; their rows with the context of their time, not their samples), oldest
 /// first.
@@ -45,7 +46,7 @@ pub(crate) async fn captures(
     DrivelineName(name): DrivelineName,
     query: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Json<Vec<serde_json::Value>>, ApiError> {
-    let params = Params::of(query, &["since", "until", "limit", "product"])?;
+    let params = Params::of(query, &["since", "until", "limit", "product", "coil"])?;
     driveline_index(&state, &name)?;
     let rows: Vec<CaptureRow> = newest(&state, &params, Some(name)).await?;
     Ok(Json(
@@ -378,6 +379,7 @@ pub(super) async fn newest<R: Record + Send + 'static>(
         .get("product")
         .map(|_| params.count("product", 0..=u32::MAX, 0))
         .transpose()?;
+    let coil = params.coil()?;
     let filter = Filter {
         name,
         since,
@@ -385,7 +387,7 @@ pub(super) async fn newest<R: Record + Send + 'static>(
         after_id: None,
         limit: Some(limit),
         product,
-        coil: None,
+        coil,
     };
     with_history(state, move |reader| {
         reader.newest(&filter).map_err(history_error)

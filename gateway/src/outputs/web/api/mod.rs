@@ -36,6 +36,7 @@ use axum::extract::rejection::QueryRejection;
 use axum::extract::{FromRequestParts, Path, Query};
 use axum::http::request::Parts;
 use axum::http::StatusCode;
+use millgate_config::text::MAX_TEXT_LEN;
 
 use super::shared::WebState;
 use crate::history::query::HistoryReader;
@@ -130,6 +131,24 @@ impl Params {
     }
 
     /// `since` and `until`, `since` before `until`.
+    /// `coil`: a coil or bar id as the context gives it, 1 to [`MAX_TEXT_LEN`] printable
+    /// ASCII characters (a numeric coil's digits, or a text coil's characters).
+    fn coil(&self) -> Result<Option<String>, ApiError> {
+        let Some(coil) = self.get("coil") else {
+            return Ok(None);
+        };
+        if coil.is_empty()
+            || coil.len() > MAX_TEXT_LEN
+            || !coil.bytes().all(|b| (0x20..=0x7E).contains(&b))
+        {
+            return Err(ApiError::bad(format!(
+                "coil must be 1..={MAX_TEXT_LEN} printable ASCII characters (a coil or bar id \
+                 as the PLC gives it), not {coil:?}"
+            )));
+        }
+        Ok(Some(coil.to_owned()))
+    }
+
     fn range(&self) -> Result<(Option<UtcTime>, Option<UtcTime>), ApiError> {
         let (since, until) = (self.time("since")?, self.time("until")?);
         if let (Some(since), Some(until)) = (since, until) {
