@@ -17,6 +17,32 @@ pub(crate) fn example(name: &str) -> PathBuf {
         .join(name)
 }
 
+/// `connection`'s file at the current schema, with gateway run 1 that rows can name.
+pub(crate) fn history_with_run(connection: &mut rusqlite::Connection) {
+    crate::history::schema::migrate(connection).expect("the schema");
+    connection
+        .execute_batch(
+            "INSERT INTO gateway_runs (id, started_at, version, config_name)
+             VALUES (1, 't', 'v', 'c')",
+        )
+        .expect("a run");
+}
+
+/// A history file `history.db` in a new folder of the temporary directory named after
+/// `name` ([`history_with_run`]): the folder, the file and a connection to it.
+pub(crate) fn history_file(name: &str) -> (PathBuf, PathBuf, rusqlite::Connection) {
+    let folder = std::env::temp_dir().join(format!(
+        "millgate-{name}-{}-{}",
+        std::process::id(),
+        UtcTime::now().unix_ms()
+    ));
+    std::fs::create_dir_all(&folder).expect("a folder");
+    let path = folder.join("history.db");
+    let mut connection = rusqlite::Connection::open(&path).expect("the file");
+    history_with_run(&mut connection);
+    (folder, path, connection)
+}
+
 /// The example configuration `config/examples/<name>`, loaded.
 pub(crate) fn example_config(name: &str) -> Config {
     millgate_config::load(&example(name)).expect("the example loads")

@@ -325,13 +325,7 @@ mod tests {
     /// A degraded bite with every figure of its row set, stored and read back.
     fn stored() -> (BiteRecord, BiteRow) {
         let mut connection = Connection::open_in_memory().unwrap();
-        super::super::schema::migrate(&mut connection).unwrap();
-        connection
-            .execute_batch(
-                "INSERT INTO gateway_runs (id, started_at, version, config_name)
-                 VALUES (1, 't', 'v', 'c')",
-            )
-            .unwrap();
+        crate::testing::history_with_run(&mut connection);
         let time = UtcTime::parse("2026-05-04T23:59:58.250Z").unwrap();
         let mut figures: DrivelineResults =
             crate::history::figures::tests::every_kept_figure_set(|f| f.columns.bite.is_some());

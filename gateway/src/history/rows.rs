@@ -421,8 +421,7 @@ mod tests {
     use crate::state::context::{
         Coil, ContextError, ContextReading, MillState, ProcessContext, StaleTags,
     };
-    use crate::state::time::UtcTime;
-    use crate::testing::{capture_without_samples, chatter_started};
+    use crate::testing::{capture_without_samples, chatter_started, history_file};
     use millgate_config::text::AsciiText;
 
     /// Captures and chatter episodes keep the trusted values of their context and
@@ -431,21 +430,7 @@ mod tests {
     /// finds them by their product.
     #[test]
     fn evidence_keeps_only_the_context_the_gateway_trusts_and_says_why() {
-        let folder = std::env::temp_dir().join(format!(
-            "millgate-evidence-context-{}-{}",
-            std::process::id(),
-            UtcTime::now().unix_ms()
-        ));
-        std::fs::create_dir_all(&folder).unwrap();
-        let path = folder.join("history.db");
-        let mut connection = Connection::open(&path).unwrap();
-        super::super::schema::migrate(&mut connection).unwrap();
-        connection
-            .execute_batch(
-                "INSERT INTO gateway_runs (id, started_at, version, config_name)
-                 VALUES (1, 't', 'v', 'c')",
-            )
-            .unwrap();
+        let (folder, path, mut connection) = history_file("evidence-context");
         let rolled = ProcessContext {
             weld: Some(false),
             speed_mpm: Some(1200.0),
@@ -597,21 +582,7 @@ mod tests {
     /// back as that real's digits instead of failing its row.
     #[test]
     fn text_coils_that_look_like_numbers_read_back_as_written() {
-        let folder = std::env::temp_dir().join(format!(
-            "millgate-coil-text-{}-{}",
-            std::process::id(),
-            UtcTime::now().unix_ms()
-        ));
-        std::fs::create_dir_all(&folder).unwrap();
-        let path = folder.join("history.db");
-        let mut connection = Connection::open(&path).unwrap();
-        super::super::schema::migrate(&mut connection).unwrap();
-        connection
-            .execute_batch(
-                "INSERT INTO gateway_runs (id, started_at, version, config_name)
-                 VALUES (1, 't', 'v', 'c')",
-            )
-            .unwrap();
+        let (folder, path, mut connection) = history_file("coil-text");
         let coils = [
             "04711", " 42", "12.5", "24E0123", "1e400", "-7", "CH-4711", "H-12",
         ];
