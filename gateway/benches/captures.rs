@@ -288,6 +288,7 @@ async fn main() -> anyhow::Result<()> {
                 since: Some(since.to_string()),
                 until: None,
                 product: None,
+                coil: None,
             },
             bite: None,
             id: None,
