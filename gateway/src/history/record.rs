@@ -31,8 +31,8 @@ impl std::fmt::Display for Cell {
 /// A coil or bar id as the history keeps it in its `coil` column: an integer for a
 /// numeric coil, text for a text coil (`type = "ascii"`; SQLite keeps TEXT in the
 /// INTEGER-affinity column), and a BLOB of the text's bytes for a text coil that the
-/// column's affinity would turn into a number ([`StoredCoil::text_value`]). As JSON a
-/// number stays a number, a text is a string.
+/// column's affinity would turn into a number. As JSON a number stays a number, a text
+/// is a string.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, serde::Deserialize)]
 #[serde(untagged)]
 pub enum StoredCoil {
