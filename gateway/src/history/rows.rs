@@ -576,9 +576,9 @@ mod tests {
     }
 
     /// A text coil that SQLite's INTEGER affinity would have turned into a number
-    /// (leading zeros, an exponent, a point, spaces) is kept as written, in captures,
-    /// chatter episodes and bites alike, and `CAST(coil AS TEXT)` gives it to a reader of
-    /// the file; a text coil stored as a real before this (SQLite's conversion) reads
+    /// (leading zeros, an exponent, a point, spaces) is kept as written in captures and
+    /// chatter episodes (bites write the same columns: `coil_text_e2e`), and
+    /// `CAST(coil AS TEXT)` gives it to a reader of the file; a text coil stored as a real before this (SQLite's conversion) reads
     /// back as that real's digits instead of failing its row.
     #[test]
     fn text_coils_that_look_like_numbers_read_back_as_written() {
