@@ -292,6 +292,14 @@ pub struct TandemMillResults {
     /// Context values read with an impossible value since start (not used for the
     /// gating).
     pub context_invalid: u64,
+    /// Restarts of the window since start because samples were lost on a stand.
+    pub window_restarts_gap: u64,
+    /// Restarts of the window since start because a stand fell more than
+    /// `MAX_STAND_LAG_S` behind the others.
+    pub window_restarts_lagging: u64,
+    /// Restarts of the window since start because a stand's place on the common
+    /// sample axis was re-anchored against the arrival times.
+    pub window_restarts_realigned: u64,
     /// The thresholds that judged the last window: 0 the mill's `gain_thresholds`, k
     /// its `product_groups[k - 1]`'s (the product the PLC reported); `None` before the
     /// first window.

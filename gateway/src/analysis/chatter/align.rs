@@ -7,9 +7,9 @@
 //! mill must be sampled on one clock (one DAQ, or DAQs sharing sample clock and block
 //! grid). Where each stand's count starts is checked against arrival times: the
 //! earliest arrival of a sample, less its count over the sample rate, estimates when
-//! the stand's first sample was taken; the difference to the mill's reference is
-//! rounded to whole blocks (the length of the stand's first message) and added to the
-//! count. This catches a stand whose first block was one newer than the others' (the
+//! the stand's first sample was taken; the difference to the mill's reference (the
+//! earliest such estimate of any stand) is rounded to whole blocks (the length of the
+//! stand's first message) and added to the count. This catches a stand whose first block was one newer than the others' (the
 //! DAQ published between two reads of one poll) and re-anchors a stand after a gap of
 //! unknown length.
 //!
@@ -121,6 +121,8 @@ pub(super) struct Alignment {
     /// Common index one past the next window's last sample.
     next_end: i64,
     epoch: Option<Instant>,
+    /// The earliest origin of any stand, s since the epoch: the stands' offsets are
+    /// rounded against it.
     reference_origin_s: Option<f64>,
     lagging: Option<usize>,
 }
@@ -206,10 +208,16 @@ impl Alignment {
         let stream = &mut self.stands[stand];
         let through = (stream.counted + len as i64) as f64 / fs;
         let origin_s = arrival.saturating_duration_since(epoch).as_secs_f64() - through;
-        let reference = *self.reference_origin_s.get_or_insert(origin_s);
         let previous = stream.anchor;
         let block = previous.map_or_else(|| anchor_step(len, fs), |a| a.block);
         let origin_s = previous.map_or(origin_s, |a| a.origin_s.min(origin_s));
+        // The earliest origin of any stand: when every stand's first messages came
+        // late (a busy start) and later ones on time, each origin falls by the same
+        // amount and so does the reference, and no stand moves against the others.
+        let reference = self
+            .reference_origin_s
+            .map_or(origin_s, |r| r.min(origin_s));
+        self.reference_origin_s = Some(reference);
         let blocks = ((origin_s - reference) * fs / block as f64).round() as i64;
         let offset = blocks * block;
         stream.anchor = Some(Anchor {
@@ -411,6 +419,37 @@ mod tests {
         let r = results.last().expect("evaluations after realignment");
         assert!(r.k_mean > 0.95, "K_mean {}", r.k_mean);
         assert!(r.synchronized);
+    }
+
+    #[test]
+    fn every_stand_late_at_first_then_on_time_is_not_realigned() {
+        // The first ten polls of both stands come 40 ms late (a busy start: more than
+        // half a 48 ms block), the rest on time: the stands keep their places against
+        // each other, and the window runs on without a restart.
+        let mut monitor = monitor(2);
+        let signal = sine(180.0, 0.0, 1.0, 0..40 * BLOCK);
+        let period = Duration::from_secs_f64(BLOCK as f64 / FS);
+        let t0 = Instant::now();
+        let mut evaluated = 0;
+        for b in 0..40 {
+            let late = if b < 10 {
+                Duration::from_millis(40)
+            } else {
+                Duration::ZERO
+            };
+            let at = t0 + period * (b as u32 + 1) + late;
+            for s in 0..2 {
+                match monitor.samples(s, &signal[b * BLOCK..(b + 1) * BLOCK], at) {
+                    Some(ChatterUpdate::Restarted(cause)) => panic!("block {b}: {cause}"),
+                    Some(ChatterUpdate::Evaluated(r)) => {
+                        assert!(r.k_mean > 0.95, "block {b}: K_mean {}", r.k_mean);
+                        evaluated += 1;
+                    }
+                    _ => {}
+                }
+            }
+        }
+        assert!(evaluated > 0);
     }
 
     #[test]

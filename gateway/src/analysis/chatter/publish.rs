@@ -507,6 +507,12 @@ fn publish(
                 clear(published);
             }
             ChatterUpdate::Restarted(cause) => {
+                let count = match cause {
+                    RestartCause::Gap { .. } => &mut published.window_restarts_gap,
+                    RestartCause::Lagging { .. } => &mut published.window_restarts_lagging,
+                    RestartCause::Realigned { .. } => &mut published.window_restarts_realigned,
+                };
+                *count += 1;
                 if !was_flagged {
                     tracing::warn!(mill = %name, %cause, "chatter window restarted, values invalid");
                 }

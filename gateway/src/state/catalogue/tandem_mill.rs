@@ -29,6 +29,24 @@ pub const TANDEM_MILL: &[Figure<TandemMillResults>] = &[
         "Context values from the PLC read with an impossible value since start (weld not 0/1, a product that is not a known code): not used for the gating",
         |m| Some(Value::Count(m.context_invalid)),
     ),
+    F::count(
+        "window_restarts_gap",
+        unmapped_counter("a count of restarts for the crew and plant IT; the PLC has source_stale"),
+        "Chatter windows restarted since start because samples were lost on a stand (the DAQ's blocks missed, a restart of its sequence, a gap in a CAN stream)",
+        |m| Some(Value::Count(m.window_restarts_gap)),
+    ),
+    F::count(
+        "window_restarts_lagging",
+        unmapped_counter("a count of restarts for the crew and plant IT; the PLC has source_stale"),
+        "Chatter windows restarted since start because a stand fell more than 0.5 s behind the others (its source stopped delivering)",
+        |m| Some(Value::Count(m.window_restarts_lagging)),
+    ),
+    F::count(
+        "window_restarts_realigned",
+        unmapped_counter("a count of restarts for the crew and plant IT; the PLC has source_stale"),
+        "Chatter windows restarted since start because a stand moved on the mill's common sample axis (re-anchored against the arrival times: a first block one newer than the other stands', after a gap of unknown length, or reads that jitter by half a block)",
+        |m| Some(Value::Count(m.window_restarts_realigned)),
+    ),
     F::real(
             "thresholds_group",
             "",
