@@ -404,7 +404,7 @@ fn insert_state(transaction: &Transaction<'_>, state: &StateRecord) -> rusqlite:
             upsert_state(transaction, &state.subject, state.time, results.as_ref())
         }
         SubjectResults::TandemMill(results) => {
-            upsert_state(transaction, &state.subject, state.time, results)
+            upsert_state(transaction, &state.subject, state.time, results.as_ref())
         }
     }
 }

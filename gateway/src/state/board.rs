@@ -449,7 +449,7 @@ impl Board {
                     events.push(state_record(
                         time,
                         name,
-                        SubjectResults::TandemMill(mill.clone()),
+                        SubjectResults::TandemMill(Box::new(mill.clone())),
                     ));
                 }
             }

@@ -167,8 +167,8 @@ pub struct StateRecord {
 pub enum SubjectResults {
     /// A driveline's (boxed: its gap forecast's cone makes it the largest by far).
     Driveline(Box<DrivelineResults>),
-    /// A tandem mill's.
-    TandemMill(TandemMillResults),
+    /// A tandem mill's (boxed as the driveline's, so the enum stays small).
+    TandemMill(Box<TandemMillResults>),
 }
 
 /// A change of an alarm or warning.

@@ -81,7 +81,7 @@ pub(super) fn record_episode(
         events.push(HistoryEvent::State(StateRecord {
             time,
             subject: mill.to_owned(),
-            results: SubjectResults::TandemMill(published.clone()),
+            results: SubjectResults::TandemMill(Box::new(published.clone())),
         }));
     }
 }
