@@ -152,6 +152,7 @@ pub(crate) struct RawWear {
     /// without effect.
     pub(crate) pool_bites: Option<i64>,
     pub(crate) horizon_days: Option<f64>,
+    pub(crate) growth_span_s: Option<f64>,
 }
 
 /// `drivelines[].bite`.

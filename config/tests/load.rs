@@ -194,6 +194,7 @@ fn base_is_valid_and_takes_defaults() {
     assert_eq!((wear.max_gap_mrad, wear.gap_step_mrad), (8.0, 0.125));
     assert_eq!(wear.static_torque_knm, None, "from the model");
     assert_eq!((wear.torque_points, wear.horizon_days), (16, 365.0));
+    assert_eq!(wear.growth_span_s, 3600.0, "an hour of bites is one gap");
     assert_eq!(config.cache_dir, None, "the user's cache folder");
     let plc = config.outputs.plc.as_ref().expect("plc output");
     assert_eq!((plc.unit_id, plc.register_base), (1, 0));
@@ -762,7 +763,7 @@ fn wear_settings_and_gap_thresholds() {
         "taf_warning = 2.2, taf_alarm = 2.6, gap_warning_mrad = 1.5, gap_alarm_mrad = 3 }\n\
          wear = { couplings = [1], max_gap_mrad = 6, gap_step_mrad = 0.25, \
          static_torque_knm = [30, 200], torque_points = 8, pool_bites = 10, \
-         horizon_days = 90 }",
+         horizon_days = 90, growth_span_s = 0 }",
     )
     .replacen(
         "name = \"Test mill\"",
@@ -780,6 +781,7 @@ fn wear_settings_and_gap_thresholds() {
     assert_eq!(driveline.wear.torque_points, 8);
     // pool_bites is deprecated: accepted, checked, without effect.
     assert_eq!(driveline.wear.horizon_days, 90.0);
+    assert_eq!(driveline.wear.growth_span_s, 0.0);
     assert_eq!(config.cache_dir, Some(examples_dir().join("cache")));
 
     let wear = |table: &str| {
@@ -824,6 +826,10 @@ fn wear_settings_and_gap_thresholds() {
     assert_only_problem(
         &wear("horizon_days = 0.5"),
         "mill.toml: drivelines[0].wear.horizon_days: 0.5 is not allowed (must be >= 1 and <= 3650 days)",
+    );
+    assert_only_problem(
+        &wear("growth_span_s = -1"),
+        "mill.toml: drivelines[0].wear.growth_span_s: -1 is not allowed (must be >= 0 and <= 2592000 s (30 days))",
     );
     assert_problem_like(
         &wear("pool = 3"),

@@ -22,10 +22,16 @@
 //! gap only. `L_k` gains the log of the predictive density.
 //!
 //! **Start** (information form): the first bite gives the gap, with no rate prior at all;
-//! the first bite at a later time gives the rate (`(m2 - m1) / dt`, variance `(V1 + V2) /
-//! dt^2` plus the process noise). No rate prior means the same filter follows a mill
-//! wearing 0.02 mrad/day and the demo's 1 -> 3 mrad in 20 s (8 640 mrad/day); a rate
-//! prior of 1 mrad/day froze the demo's estimate at its first bite in the prototype.
+//! the bites within the growth span ([`DEFAULT_GROWTH_SPAN_DAYS`], set by
+//! [`WearTrend::set_growth_span_days`]) of it are taken as the same gap, and the first
+//! bite after the span gives the rate (`(m2 - m1) / dt`, variance `(V1 + V2) / dt^2` plus
+//! the process noise). No rate prior means the same filter follows a mill wearing 0.02
+//! mrad/day and the demo's 1 -> 3 mrad in 20 s (8 640 mrad/day, with a span of 0); a rate
+//! prior of 1 mrad/day froze the demo's estimate at its first bite in the prototype. The
+//! span is why a rate is not taken from two bites a bar apart: over 1.8 s, the difference
+//! of two bites' estimates (each may be two-humped at a low torque) is a rate of
+//! thousands of mrad/day, and a wrong coupling's hypothesis could ride it to the best
+//! likelihood (a 3.6 mrad gap in coupling 0 came out as 2.4 mrad in coupling 1).
 //!
 //! **Adaptive scale**: the bites' noise comes from a formula; per hypothesis a variance
 //! scale `s >= 1` follows the normalised innovation `z^2 = (m_bite - m)^2 / (V + s
@@ -124,6 +130,11 @@ pub const JUMP_GAP_VARIANCE_MRAD2: f64 = 1.0;
 /// Times closer than this are the same time, days (86 us: Unix milliseconds as days
 /// are exact to ~1e-11 day).
 pub const SAME_TIME_DAYS: f64 = 1e-9;
+/// Default growth span, days (1 hour): bites within it of a hypothesis' first are taken
+/// as one gap, the growth comes from bites further apart (see the module docs).
+pub const DEFAULT_GROWTH_SPAN_DAYS: f64 = 1.0 / 24.0;
+/// Longest growth span [`WearTrend::set_growth_span_days`] accepts, days.
+pub const MAX_GROWTH_SPAN_DAYS: f64 = 30.0;
 /// Longest step between two bites, days (100 years): beyond it the covariance would
 /// lose its meaning long before it overflows.
 pub const MAX_STEP_DAYS: f64 = 36_525.0;
@@ -172,6 +183,8 @@ pub enum TrendError {
     NoTime,
     /// The horizon is not finite, > 0 and <= [`MAX_HORIZON_DAYS`].
     HorizonDays,
+    /// The growth span is not finite, >= 0 and <= [`MAX_GROWTH_SPAN_DAYS`].
+    GrowthSpan,
 }
 
 impl core::fmt::Display for TrendError {
@@ -192,6 +205,7 @@ impl core::fmt::Display for TrendError {
             TrendError::Couplings => "the number of couplings must be 0 ..= 8",
             TrendError::NoTime => "predict must be given the bite's time before update",
             TrendError::HorizonDays => "horizon_days must be finite, > 0 and <= 36525",
+            TrendError::GrowthSpan => "the growth span must be finite, >= 0 and <= 30 days",
         })
     }
 }
@@ -477,6 +491,7 @@ pub struct WearTrend {
     floor_weight: f64,
     z: f64,
     horizon_days: f64,
+    growth_span_days: f64,
     min_bites: u32,
     jump_bites: u32,
 }
@@ -496,6 +511,7 @@ impl WearTrend {
             floor_weight: FLOOR_WEIGHT,
             z: Z90,
             horizon_days,
+            growth_span_days: DEFAULT_GROWTH_SPAN_DAYS,
             min_bites: MIN_BITES,
             jump_bites: JUMP_BITES,
         })
@@ -511,6 +527,23 @@ impl WearTrend {
     pub fn set_horizon_days(&mut self, horizon_days: f64) -> Result<(), TrendError> {
         self.horizon_days = Self::new(horizon_days)?.horizon_days;
         Ok(())
+    }
+
+    /// Take the bites within `days` of a hypothesis' first (or of its reopening after a
+    /// jump) as one gap, and its growth from bites further apart (finite, >= 0, <=
+    /// [`MAX_GROWTH_SPAN_DAYS`]; 0: from the first bite at a later time). On an error
+    /// the span is unchanged.
+    pub fn set_growth_span_days(&mut self, days: f64) -> Result<(), TrendError> {
+        if !(days.is_finite() && (0.0..=MAX_GROWTH_SPAN_DAYS).contains(&days)) {
+            return Err(TrendError::GrowthSpan);
+        }
+        self.growth_span_days = days;
+        Ok(())
+    }
+
+    /// The growth span, days (see [`Self::set_growth_span_days`]).
+    pub fn growth_span_days(&self) -> f64 {
+        self.growth_span_days
     }
 
     /// A fresh state for `couplings` hypotheses (0 ..= [`MAX_COUPLINGS`]).
@@ -580,10 +613,10 @@ impl WearTrend {
 
     /// Whether hypothesis `h`'s gap has a proper prior at `t_last` (else the bite is
     /// taken with a flat prior).
-    fn has_prior(h: &Hypothesis, t_last: f64) -> bool {
+    fn has_prior(&self, h: &Hypothesis, t_last: f64) -> bool {
         match h.phase {
             Phase::Empty => false,
-            Phase::GapOnly => t_last - h.time_days < SAME_TIME_DAYS,
+            Phase::GapOnly => t_last - h.time_days < self.growth_span_days.max(SAME_TIME_DAYS),
             Phase::Tracking => true,
         }
     }
@@ -596,7 +629,7 @@ impl WearTrend {
         let (Some(h), Some(t_last)) = (active(state).get(k), state.t_last_days) else {
             return fallback;
         };
-        if !Self::has_prior(h, t_last) || fallback.check().is_err() {
+        if !self.has_prior(h, t_last) || fallback.check().is_err() {
             return fallback;
         }
         let sd = libm::sqrt(h.p[0][0]);
@@ -642,14 +675,14 @@ impl WearTrend {
         }
         let bites_now = state.bites.saturating_add(1);
         let h = &mut state.hypotheses[k];
-        if Self::has_prior(h, t_last)
+        if self.has_prior(h, t_last)
             && self.innovation(h, bite.mean_mrad, bite.var_mrad2, bites_now, t_last, true)
         {
             return Ok(UpdateOutcome { jumped: true });
         }
         let gain = 1.0 / h.scale;
         let step = grid.step_mrad;
-        if Self::has_prior(h, t_last) {
+        if self.has_prior(h, t_last) {
             let (m, v) = (h.gap_mrad, h.p[0][0]);
             let extra = |i: usize| {
                 let d = grid.at(i) - m;
@@ -692,7 +725,7 @@ impl WearTrend {
         let bites_now = state.bites.saturating_add(1);
         let h = &mut state.hypotheses[k];
         let mut jumped = false;
-        if Self::has_prior(h, t_last) {
+        if self.has_prior(h, t_last) {
             jumped = self.innovation(h, mean_mrad, var_mrad2, bites_now, t_last, false);
             if !jumped {
                 fold_gaussian(h, mean_mrad, var_mrad2);

@@ -292,8 +292,10 @@ fn a_jump_of_the_gap_reopens_the_hypothesis_and_is_followed() {
 
 #[test]
 fn the_demo_time_scale_is_followed_from_the_second_bite() {
-    // The demo compresses wear: 1 -> 3 mrad over 20 s (8 640 mrad/day), bites 2 s apart.
-    let trend = WearTrend::new(365.0).unwrap();
+    // The demo compresses wear: 1 -> 3 mrad over 20 s (8 640 mrad/day), bites 2 s apart,
+    // with no growth span (its configuration's `growth_span_s = 0`).
+    let mut trend = WearTrend::new(365.0).unwrap();
+    trend.set_growth_span_days(0.0).unwrap();
     let mut state = trend.state(2).unwrap();
     let mut rng = StdRng::seed_from_u64(42);
     let day_s = 86_400.0;
@@ -505,8 +507,60 @@ fn grid_updates_agree_with_the_gaussian_update_for_a_gaussian_likelihood() {
 }
 
 #[test]
-fn the_information_form_start_gives_the_two_point_rate() {
+fn bites_within_the_growth_span_are_one_gap_and_the_rate_comes_after_it() {
+    // A constant 3 mrad in coupling 0, bites a bar (1.8 s) apart: within the default
+    // hour no rate is taken, the estimate is every bite's; the first bite after the
+    // hour starts the growth.
     let trend = WearTrend::new(365.0).unwrap();
+    let mut state = trend.state(2).unwrap();
+    let mut rng = StdRng::seed_from_u64(7);
+    let bar_days = 1.8 / 86_400.0;
+    for bar in 0..10 {
+        fold(
+            &trend,
+            &mut state,
+            100.0 + bar as f64 * bar_days,
+            &Bite::draw(&mut rng, 0, 3.0, 1.0),
+        );
+    }
+    assert!(state.hypotheses[..2]
+        .iter()
+        .all(|h| h.phase == Phase::GapOnly));
+    let e = trend.estimate(&state).unwrap();
+    assert_eq!(e.rate_mrad_per_day, None);
+    assert!(inside(3.0, e.gap_low_mrad, e.gap_high_mrad), "{e:?}");
+    assert_eq!(e.coupling, Some(0), "{e:?}");
+    fold(
+        &trend,
+        &mut state,
+        100.0 + 2.0 / 24.0,
+        &Bite::draw(&mut rng, 0, 3.0, 1.0),
+    );
+    assert_eq!(state.hypotheses[0].phase, Phase::Tracking);
+    // With no span the second bite already gives a rate.
+    let mut eager = WearTrend::new(365.0).unwrap();
+    eager.set_growth_span_days(0.0).unwrap();
+    let mut state = eager.state(1).unwrap();
+    for bar in 0..2 {
+        fold(
+            &eager,
+            &mut state,
+            100.0 + bar as f64 * bar_days,
+            &Bite::draw(&mut rng, 0, 3.0, 1.0),
+        );
+    }
+    assert_eq!(state.hypotheses[0].phase, Phase::Tracking);
+    // Refused spans leave it as it was.
+    for bad in [-1.0, f64::NAN, 30.5, f64::INFINITY] {
+        assert_eq!(eager.set_growth_span_days(bad), Err(TrendError::GrowthSpan));
+    }
+    assert_eq!(eager.growth_span_days(), 0.0);
+}
+
+#[test]
+fn the_information_form_start_gives_the_two_point_rate() {
+    let mut trend = WearTrend::new(365.0).unwrap();
+    trend.set_growth_span_days(0.0).unwrap();
     let mut state = trend.state(1).unwrap();
     trend.predict(&mut state, 10.0).unwrap();
     trend.update_gaussian(&mut state, 0, 1.0, 0.01).unwrap();

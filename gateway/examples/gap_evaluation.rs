@@ -22,7 +22,7 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::{Duration, Instant, UNIX_EPOCH};
 
 use millgate::analysis::driveline::BiteReport;
 use millgate::analysis::Analysis;
@@ -89,11 +89,18 @@ fn run_case(
     analysis.install_gap_maps(0, Ok(maps.clone()));
     let schedule = rolling_schedule(model, torques, TIMING, noise, seed)?;
     let mut reports = Vec::new();
+    // Each block dated at its samples' time, as a reader with receive times dates it:
+    // the bites come a bar (1.8 s) apart, as in the mill (within the default growth
+    // span, so the ten are one gap). Dated when the analysis handles them, they would
+    // be a fraction of a millisecond apart in a release build, and how far apart would
+    // depend on the machine.
+    let mut clock = UNIX_EPOCH + Duration::from_secs(1_800_000_000);
     for block in schedule.torque_knm.chunks(100) {
+        clock += Duration::from_secs_f64(block.len() as f64 / schedule.sample_rate_hz);
         reports.extend(analysis.handle(Acquired::Samples {
             channel: 0,
             values: block.to_vec(),
-            received: None,
+            received: Some(clock),
             handed: Instant::now(),
         }));
     }

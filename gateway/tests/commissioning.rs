@@ -157,7 +157,7 @@ impl Phase<'_> {
                 &format!("model = \"{}\"", self.model.display()),
             )
             .replace(
-                "wear = { gap_step_mrad = 0.25, torque_points = 12 }",
+                "wear = { gap_step_mrad = 0.25, torque_points = 12, growth_span_s = 0 }",
                 "wear = { gap_step_mrad = 0.25, \
                  torque_points = 10, static_torque_knm = [28.0, 224.0] }",
             )

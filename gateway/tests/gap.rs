@@ -11,11 +11,12 @@
 
 mod common;
 
+use std::cell::Cell;
 use std::path::{Path, PathBuf};
 
 use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, OnceLock};
-use std::time::{Duration, Instant};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use common::{millgate, scratch, text, Seeded, TempDir};
 use millgate::analysis::driveline::BiteReport;
@@ -126,8 +127,21 @@ fn hidden(coupling: usize, gap_mrad: f64) -> Model {
     model
 }
 
+thread_local! {
+    /// When the last sample fed on this thread was taken (each test runs on a thread of
+    /// its own): see [`feed`].
+    static SAMPLE_CLOCK: Cell<SystemTime> =
+        Cell::new(UNIX_EPOCH + Duration::from_secs(1_800_000_000));
+}
+
 /// Feed the bars of `torques` simulated with `model` (noise `noise` kN*m RMS, `seed`)
 /// through `analysis` in 100-sample blocks, as the DAQ reader delivers them.
+///
+/// Each block is dated at its samples' time (the thread's sample clock, carried from one
+/// call to the next), as a reader with receive times dates it: the bites come 1.8 s
+/// apart, as the bars are. Dated when the analysis handles them, the wear trend's time
+/// steps were the wall clock's milliseconds, and a busy machine's pauses moved its
+/// estimate (a 3.6 mrad gap came out at 6.8 mrad in one CI run).
 fn feed(
     analysis: &mut Analysis,
     model: &Model,
@@ -138,10 +152,15 @@ fn feed(
     let schedule = rolling_schedule(model, torques, TIMING, noise, seed).expect("schedule");
     let mut reports = Vec::new();
     for block in schedule.torque_knm.chunks(100) {
+        let period = Duration::from_secs_f64(block.len() as f64 / schedule.sample_rate_hz);
+        let received = SAMPLE_CLOCK.with(|clock| {
+            clock.set(clock.get() + period);
+            clock.get()
+        });
         reports.extend(analysis.handle(Acquired::Samples {
             channel: 0,
             values: block.to_vec(),
-            received: None,
+            received: Some(received),
             handed: Instant::now(),
         }));
     }

@@ -112,6 +112,11 @@ pub struct WearSettings {
     /// How far ahead the gap forecast looks, calendar days, in [1, 3650] (default
     /// 365): a crossing later than this is reported as beyond the horizon.
     pub horizon_days: f64,
+    /// Bites within this of the trend's first (after a start, a wear reset or a jump
+    /// of the gap) are taken as one gap, s, in [0, 2 592 000] (default 3600): the
+    /// growth comes from bites further apart. 0 takes a growth from two bites a bar
+    /// apart (the demo's wear, compressed into seconds).
+    pub growth_span_s: f64,
 }
 
 impl Default for WearSettings {
@@ -124,6 +129,7 @@ impl Default for WearSettings {
             static_torque_knm: None,
             torque_points: 16,
             horizon_days: 365.0,
+            growth_span_s: 3600.0,
         }
     }
 }

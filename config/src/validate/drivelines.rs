@@ -19,6 +19,9 @@ const DEFAULT_GAP_WARNING_MRAD: f64 = DrivelineThresholds::DEFAULT_GAP_WARNING_M
 const DEFAULT_GAP_ALARM_MRAD: f64 = DrivelineThresholds::DEFAULT_GAP_ALARM_MRAD;
 /// Longest forecast horizon allowed, days (ten years).
 const MAX_HORIZON_DAYS: f64 = 3650.0;
+/// Longest `drivelines[].wear.growth_span_s`, s (30 days, the dsp crate's
+/// `MAX_GROWTH_SPAN_DAYS`).
+const MAX_GROWTH_SPAN_S: f64 = 2_592_000.0;
 /// Largest `max_gap_mrad` allowed, mrad.
 const MAX_MAX_GAP_MRAD: f64 = 100.0;
 /// Most gap steps of a wear map.
@@ -359,6 +362,7 @@ impl Checker<'_> {
             torque_points: None,
             pool_bites: None,
             horizon_days: None,
+            growth_span_s: None,
         };
         let raw = raw.unwrap_or(&empty);
         let couplings = match &raw.couplings {
@@ -417,6 +421,13 @@ impl Checker<'_> {
             (1.0..=MAX_HORIZON_DAYS).contains(&horizon),
             &format!(">= 1 and <= {MAX_HORIZON_DAYS} days"),
         );
+        let span = raw.growth_span_s.unwrap_or(defaults.growth_span_s);
+        let span = self.float(
+            &format!("{key}.growth_span_s"),
+            span,
+            (0.0..=MAX_GROWTH_SPAN_S).contains(&span),
+            &format!(">= 0 and <= {MAX_GROWTH_SPAN_S} s (30 days)"),
+        );
         Some(WearSettings {
             couplings: couplings?,
             max_gap_mrad: max_gap?,
@@ -424,6 +435,7 @@ impl Checker<'_> {
             static_torque_knm: range?,
             torque_points: usize::try_from(points?).ok()?,
             horizon_days: pool.and(horizon)?,
+            growth_span_s: span?,
         })
     }
 

@@ -25,7 +25,7 @@ use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::Instant;
 
-use millgate_config::DrivelineThresholds;
+use millgate_config::{DrivelineThresholds, WearSettings};
 use millgate_dsp::transient::{TransientResult, TransientSettings};
 use millgate_dsp::wear_trend::TrendError;
 
@@ -222,16 +222,18 @@ pub(super) struct GapMonitor {
 }
 
 impl GapMonitor {
-    /// The monitor of driveline `name` with its thresholds, forecasting up to
-    /// `horizon_days`.
+    /// The monitor of driveline `name` with its thresholds, its trend as `wear` says
+    /// (forecasting up to `horizon_days`, the growth over `growth_span_s`).
     pub(super) fn new(
         name: &str,
         thresholds: &DrivelineThresholds,
-        horizon_days: f64,
+        wear: &WearSettings,
     ) -> Result<Self, TrendError> {
+        let mut trend = GapTrend::new(wear.horizon_days)?;
+        trend.set_growth_span_s(wear.growth_span_s)?;
         Ok(Self {
             maps: None,
-            trend: GapTrend::new(horizon_days)?,
+            trend,
             pending: VecDeque::new(),
             name: name.to_owned(),
             warning_mrad: thresholds.gap_warning_mrad,

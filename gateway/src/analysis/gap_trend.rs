@@ -91,6 +91,13 @@ impl GapTrend {
         })
     }
 
+    /// Take the bites within `seconds` of the trend's first (or of a jump) as one gap,
+    /// its growth from bites further apart (`wear.growth_span_s`; see
+    /// [`WearTrend::set_growth_span_days`]). On an error the span is unchanged.
+    pub fn set_growth_span_s(&mut self, seconds: f64) -> Result<(), TrendError> {
+        self.trend.set_growth_span_days(seconds / 86_400.0)
+    }
+
     /// Forecast up to `horizon_days` from the next forecast on (a reload); the bites
     /// folded in are kept. On an error the horizon is unchanged.
     pub fn set_horizon_days(&mut self, horizon_days: f64) -> Result<(), TrendError> {

@@ -78,6 +78,11 @@ pub struct WearArgs {
     /// How far ahead the forecast looks, days (`wear.horizon_days`).
     #[arg(long, default_value_t = WearSettings::default().horizon_days)]
     pub horizon_days: f64,
+    /// Bites within this of the trend's first (or of a jump) are one gap, s; the
+    /// growth comes from bites further apart (`wear.growth_span_s`; 0 for bites
+    /// compressed in time, as the demo's).
+    #[arg(long, default_value_t = WearSettings::default().growth_span_s)]
+    pub growth_span_s: f64,
     /// Rise above the baseline that marks a bite, kN*m.
     #[arg(long, default_value_t = 20.0)]
     pub threshold_knm: f64,
@@ -188,6 +193,7 @@ fn from_record(args: &WearArgs, input: &Path, model_file: &Path) -> anyhow::Resu
     let maps = build_maps(&job)?;
     let alarm_mrad = args.alarm_mrad.unwrap_or(DEFAULT_ALARM_MRAD);
     let mut trend = GapTrend::new(args.horizon_days)?;
+    trend.set_growth_span_s(args.growth_span_s)?;
     for bite in &mut bites {
         if bite.after_reset {
             trend.reset();
@@ -467,6 +473,12 @@ fn check_numbers(args: &WearArgs) -> anyhow::Result<()> {
         bail!(
             "--horizon-days {} is not allowed (must be >= 1 and <= 3650 days)",
             args.horizon_days
+        );
+    }
+    if !(0.0..=2_592_000.0).contains(&args.growth_span_s) {
+        bail!(
+            "--growth-span-s {} is not allowed (must be >= 0 and <= 2592000 s, 30 days)",
+            args.growth_span_s
         );
     }
     if !(args.threshold_knm.is_finite() && args.threshold_knm > 0.0) {

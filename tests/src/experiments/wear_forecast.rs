@@ -301,13 +301,17 @@ pub fn run(case: &Case, plan: &Plan, maps: &GapMaps, models: &Path) -> anyhow::R
 fn config(plan: &Plan, models: &Path) -> anyhow::Result<millgate_config::Config> {
     let text = include_str!("../../../config/examples/demo.toml")
         .replace(
-            "wear = { gap_step_mrad = 0.25, torque_points = 12 }",
+            "wear = { gap_step_mrad = 0.25, torque_points = 12, growth_span_s = 0 }",
             &format!("wear = {{ {} }}", plan.wear),
         )
         .replace(
             "gap_alarm_mrad = 4",
             &format!("gap_alarm_mrad = {}", plan.alarm_mrad),
         );
+    anyhow::ensure!(
+        text.contains(&format!("wear = {{ {} }}", plan.wear)),
+        "demo.toml's wear line changed: the plan's maps were not set"
+    );
     Ok(millgate_config::from_toml_str(&text, "demo.toml", models)?)
 }
 

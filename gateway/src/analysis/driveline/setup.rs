@@ -205,12 +205,8 @@ impl WearDiagnosis {
         setup: &BiteSetup,
         cache_dir: &Path,
     ) -> Result<Self, AnalysisError> {
-        let gap = GapMonitor::new(
-            &driveline.name,
-            &driveline.thresholds,
-            driveline.wear.horizon_days,
-        )
-        .map_err(|source| AnalysisError::WearTrend { index, source })?;
+        let gap = GapMonitor::new(&driveline.name, &driveline.thresholds, &driveline.wear)
+            .map_err(|source| AnalysisError::WearTrend { index, source })?;
         let simulator = setup.simulator(&parts.model);
         let mut reference = WearReference::new(simulator.clone());
         // Simulate the model's own load level now: a model that cannot give a
