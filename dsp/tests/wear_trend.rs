@@ -511,18 +511,17 @@ fn bites_within_the_growth_span_are_one_gap_and_the_rate_comes_after_it() {
     // A constant 3 mrad in coupling 0, bites a bar (1.8 s) apart: within the default
     // hour no rate is taken, the estimate is every bite's; the first bite after the
     // hour starts the growth.
+    let mut rng = StdRng::seed_from_u64(7);
+    // `bars` bites of the 3 mrad gap from day 100 on, a bar apart.
+    let fold_bars = |trend: &WearTrend, state: &mut WearTrendState, rng: &mut StdRng, bars| {
+        for bar in 0..bars {
+            let t = 100.0 + f64::from(bar) * 1.8 / 86_400.0;
+            fold(trend, state, t, &Bite::draw(rng, 0, 3.0, 1.0));
+        }
+    };
     let trend = WearTrend::new(365.0).unwrap();
     let mut state = trend.state(2).unwrap();
-    let mut rng = StdRng::seed_from_u64(7);
-    let bar_days = 1.8 / 86_400.0;
-    for bar in 0..10 {
-        fold(
-            &trend,
-            &mut state,
-            100.0 + bar as f64 * bar_days,
-            &Bite::draw(&mut rng, 0, 3.0, 1.0),
-        );
-    }
+    fold_bars(&trend, &mut state, &mut rng, 10);
     assert!(state.hypotheses[..2]
         .iter()
         .all(|h| h.phase == Phase::GapOnly));
@@ -530,25 +529,14 @@ fn bites_within_the_growth_span_are_one_gap_and_the_rate_comes_after_it() {
     assert_eq!(e.rate_mrad_per_day, None);
     assert!(inside(3.0, e.gap_low_mrad, e.gap_high_mrad), "{e:?}");
     assert_eq!(e.coupling, Some(0), "{e:?}");
-    fold(
-        &trend,
-        &mut state,
-        100.0 + 2.0 / 24.0,
-        &Bite::draw(&mut rng, 0, 3.0, 1.0),
-    );
+    let bite = Bite::draw(&mut rng, 0, 3.0, 1.0);
+    fold(&trend, &mut state, 100.0 + 2.0 / 24.0, &bite);
     assert_eq!(state.hypotheses[0].phase, Phase::Tracking);
     // With no span the second bite already gives a rate.
     let mut eager = WearTrend::new(365.0).unwrap();
     eager.set_growth_span_days(0.0).unwrap();
     let mut state = eager.state(1).unwrap();
-    for bar in 0..2 {
-        fold(
-            &eager,
-            &mut state,
-            100.0 + bar as f64 * bar_days,
-            &Bite::draw(&mut rng, 0, 3.0, 1.0),
-        );
-    }
+    fold_bars(&eager, &mut state, &mut rng, 2);
     assert_eq!(state.hypotheses[0].phase, Phase::Tracking);
     // Refused spans leave it as it was.
     for bad in [-1.0, f64::NAN, 30.5, f64::INFINITY] {

@@ -19,9 +19,8 @@ const DEFAULT_GAP_WARNING_MRAD: f64 = DrivelineThresholds::DEFAULT_GAP_WARNING_M
 const DEFAULT_GAP_ALARM_MRAD: f64 = DrivelineThresholds::DEFAULT_GAP_ALARM_MRAD;
 /// Longest forecast horizon allowed, days (ten years).
 const MAX_HORIZON_DAYS: f64 = 3650.0;
-/// Longest `drivelines[].wear.growth_span_s`, s (30 days, the dsp crate's
-/// `MAX_GROWTH_SPAN_DAYS`).
-const MAX_GROWTH_SPAN_S: f64 = 2_592_000.0;
+/// Longest `drivelines[].wear.growth_span_s`, s: the wear trend's longest span (30 days).
+const MAX_GROWTH_SPAN_S: f64 = millgate_dsp::wear_trend::MAX_GROWTH_SPAN_DAYS * 86_400.0;
 /// Largest `max_gap_mrad` allowed, mrad.
 const MAX_MAX_GAP_MRAD: f64 = 100.0;
 /// Most gap steps of a wear map.

@@ -475,9 +475,10 @@ fn check_numbers(args: &WearArgs) -> anyhow::Result<()> {
             args.horizon_days
         );
     }
-    if !(0.0..=2_592_000.0).contains(&args.growth_span_s) {
+    let max_span_s = millgate_dsp::wear_trend::MAX_GROWTH_SPAN_DAYS * 86_400.0;
+    if !(0.0..=max_span_s).contains(&args.growth_span_s) {
         bail!(
-            "--growth-span-s {} is not allowed (must be >= 0 and <= 2592000 s, 30 days)",
+            "--growth-span-s {} is not allowed (must be >= 0 and <= {max_span_s} s, 30 days)",
             args.growth_span_s
         );
     }
