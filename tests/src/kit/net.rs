@@ -2,7 +2,7 @@
 //! running gateway: its page ([`web_ready`], [`web_overview`]), its `/metrics`
 //! ([`scrape`]), any request ([`http`], [`http_raw`]) to a port or an address.
 
-use std::net::SocketAddr;
+use std::net::{IpAddr, SocketAddr};
 use std::time::{Duration, Instant};
 
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -42,10 +42,49 @@ impl HttpAnswer {
     }
 }
 
-/// Where a request goes: a port on `127.0.0.1` (`u16`) or an address.
+/// Where a request goes: a port on `127.0.0.1` (`u16`), an address, or an address
+/// reached from a chosen loopback address ([`FromSource`]).
 pub trait Endpoint {
     /// The address.
     fn address(&self) -> SocketAddr;
+
+    /// The local address to connect from; the kernel's choice when `None`.
+    fn source(&self) -> Option<IpAddr> {
+        None
+    }
+}
+
+/// `to`, connected to from `source` (say `127.0.0.2`): a client the server tells
+/// apart by its address from the others on `127.0.0.1`.
+#[derive(Debug, Clone, Copy)]
+pub struct FromSource {
+    /// The local address the connection is made from.
+    pub source: IpAddr,
+    /// Where it goes.
+    pub to: SocketAddr,
+}
+
+impl Endpoint for FromSource {
+    fn address(&self) -> SocketAddr {
+        self.to
+    }
+
+    fn source(&self) -> Option<IpAddr> {
+        Some(self.source)
+    }
+}
+
+/// A TCP connection to `to`, from its [`Endpoint::source`] when it names one.
+pub async fn connect(to: &impl Endpoint) -> std::io::Result<tokio::net::TcpStream> {
+    let Some(source) = to.source() else {
+        return tokio::net::TcpStream::connect(to.address()).await;
+    };
+    let socket = match source {
+        IpAddr::V4(_) => tokio::net::TcpSocket::new_v4()?,
+        IpAddr::V6(_) => tokio::net::TcpSocket::new_v6()?,
+    };
+    socket.bind(SocketAddr::new(source, 0))?;
+    socket.connect(to.address()).await
 }
 
 impl Endpoint for u16 {
@@ -87,7 +126,7 @@ pub async fn try_http_raw(to: impl Endpoint, raw: &[u8]) -> anyhow::Result<HttpA
     let address = to.address();
     let silent = |what: &str| anyhow::anyhow!("{address} silent for {HTTP_SILENCE:?} {what}");
     let failed = |e: std::io::Error| anyhow::anyhow!("HTTP exchange with {address}: {e}");
-    let mut stream = tokio::time::timeout(HTTP_SILENCE, tokio::net::TcpStream::connect(address))
+    let mut stream = tokio::time::timeout(HTTP_SILENCE, connect(&to))
         .await
         .map_err(|_| silent("at connecting"))?
         .map_err(failed)?;
