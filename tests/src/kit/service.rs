@@ -145,7 +145,8 @@ impl Setup {
     /// The demo's configuration with the driveline model (wear index and trend), TAF
     /// thresholds every demo bite passes (the alarm latches at the first bite), the
     /// `/metrics` endpoint and the history at `folder/history.db` (`folder` relative to
-    /// the scratch folder), for `millgate`.
+    /// the scratch folder), for `millgate`. The virtual DAQ plays its 60 s of bars
+    /// from the gateway's first read.
     pub async fn new(millgate: Millgate, tag: &str, folder: &str) -> Self {
         Self::with_daq(millgate, tag, folder, |config, schedule| {
             millgate_sim::devices::demo::demo_daq(config, schedule).unwrap()
@@ -168,7 +169,10 @@ impl Setup {
         let demo = setup(60.0, 0.5, 5).unwrap();
         let mut config = demo.config;
         let map = RegisterMap::new(&config);
-        let daq = daq(&config, &demo.schedule);
+        // Its 60 s of bars from the gateway's first read on: a test that starts a
+        // slow peer first (a RabbitMQ cluster on a loaded machine) would otherwise
+        // start the gateway after the last bar (CI: "bites in the PLC: not within 40s").
+        let daq = daq(&config, &demo.schedule).playing_from_first_read();
         let devices = DemoDevices::start_with(&mut config, daq, usize::from(map.len()) + 16)
             .await
             .unwrap();
