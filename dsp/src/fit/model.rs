@@ -123,7 +123,7 @@ pub struct Eq1Fit {
     pub taf: Option<f64>,
     /// RMS of the residual over the fitted samples.
     pub rms_residual: f64,
-    /// Levenberg-Marquardt iterations done.
+    /// Levenberg-Marquardt iterations done (the coarse pass's and every start's).
     pub iterations: u32,
     /// How the iteration ended.
     pub status: FitStatus,
