@@ -69,27 +69,33 @@ fn fit_bite(samples: &[f64]) -> Eq1Fit {
     fit_eq1(&record, &FitOptions::new(FS)).unwrap()
 }
 
-/// 150 kN*m, no gap: the first start's coarse pass took mode 1 through 0 Hz (f1 came
-/// out 2.17 Hz, inside the band a 0.6 s record resolves, so the gateway published it).
-#[test]
-fn no_gap_fit_finds_the_first_mode() {
-    let fit = fit_bite(&torque(include_str!("fit_minimum/static150-gap0mrad.csv")));
-    let modes = model_modes();
+/// The fit converged (or stalled at its tolerance) with f2 within 5% of the model's
+/// second mode (the gap leaves it where it is).
+fn converged_with_the_second_mode(fit: &Eq1Fit, modes: &NaturalFrequencies) {
     assert!(
         matches!(fit.status, FitStatus::Converged | FitStatus::Stalled),
         "{fit:?}"
-    );
-    assert!(
-        (fit.f1_hz / modes.beta1_hz - 1.0).abs() < 0.05,
-        "f1 {} Hz against the model's {} Hz",
-        fit.f1_hz,
-        modes.beta1_hz
     );
     assert!(
         (fit.f2_hz / modes.beta2_hz - 1.0).abs() < 0.05,
         "f2 {} Hz against the model's {} Hz",
         fit.f2_hz,
         modes.beta2_hz
+    );
+}
+
+/// 150 kN*m, no gap: the first start's coarse pass took mode 1 through 0 Hz (f1 came
+/// out 2.17 Hz, inside the band a 0.6 s record resolves, so the gateway published it).
+#[test]
+fn no_gap_fit_finds_the_first_mode() {
+    let fit = fit_bite(&torque(include_str!("fit_minimum/static150-gap0mrad.csv")));
+    let modes = model_modes();
+    converged_with_the_second_mode(&fit, &modes);
+    assert!(
+        (fit.f1_hz / modes.beta1_hz - 1.0).abs() < 0.05,
+        "f1 {} Hz against the model's {} Hz",
+        fit.f1_hz,
+        modes.beta1_hz
     );
 }
 
@@ -100,10 +106,7 @@ fn no_gap_fit_finds_the_first_mode() {
 fn gap_fit_finds_a_softened_first_mode_not_a_slow_exponential() {
     let fit = fit_bite(&torque(include_str!("fit_minimum/static80-gap3mrad.csv")));
     let modes = model_modes();
-    assert!(
-        matches!(fit.status, FitStatus::Converged | FitStatus::Stalled),
-        "{fit:?}"
-    );
+    converged_with_the_second_mode(&fit, &modes);
     assert!(
         fit.f1_hz > 0.75 * modes.beta1_hz && fit.f1_hz < 1.02 * modes.beta1_hz,
         "f1 {} Hz against the model's {} Hz",
@@ -111,10 +114,4 @@ fn gap_fit_finds_a_softened_first_mode_not_a_slow_exponential() {
         modes.beta1_hz
     );
     assert!(fit.decay1_per_s > 0.0, "{fit:?}");
-    assert!(
-        (fit.f2_hz / modes.beta2_hz - 1.0).abs() < 0.05,
-        "f2 {} Hz against the model's {} Hz",
-        fit.f2_hz,
-        modes.beta2_hz
-    );
 }
