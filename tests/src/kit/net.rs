@@ -292,17 +292,20 @@ pub async fn web_ready(to: impl Endpoint) {
     }
 }
 
-/// A free loopback port, never the same one twice in this process, and below the
-/// kernel's ephemeral range (32768..): a port a test frees for a while (a broker
-/// restarted on it) is not handed to another test's listener meanwhile, as the
-/// kernel's `:0` can do.
+/// A free loopback port, never the same one twice in this process nor to another test
+/// process running at the same time, and below the kernel's ephemeral range
+/// (32768..): a port a test frees for a while (a broker restarted on it) is not handed
+/// to another test's listener meanwhile, as the kernel's `:0` can do.
 ///
-/// The ports are 20000..32000, taken in turn from an offset of the process id (two
-/// test binaries running at once start far apart). A process wraps only after all
-/// 12000: the window used to be 60 ports, so a test binary that had handed out 60
-/// gave a port again while a slow peer (a RabbitMQ node, seconds to boot) had not
-/// bound it yet; another test's broker took it and the node died at boot (CI, issue
-/// 41: "port of the cluster not open within 90s").
+/// The ports are 20000..32000, taken in turn from an offset of the process id. A
+/// process wraps only after all 12000: the window used to be 60 ports, so a test
+/// binary that had handed out 60 gave a port again while a slow peer (a RabbitMQ node,
+/// seconds to boot) had not bound it yet; another test's broker took it and the node
+/// died at boot (CI, issue 41: "port of the cluster not open within 90s"). Test
+/// binaries run two at a time (`scripts/test-lanes`), so a port is also claimed across
+/// processes: a lock on its file in the `millgate-test-ports` folder of the system's
+/// temporary folder, held until this process ends
+/// (the kernel releases it however the process ends).
 pub fn free_port() -> u16 {
     use std::sync::atomic::{AtomicU32, Ordering};
     const FIRST: u32 = 20_000;
@@ -312,9 +315,34 @@ pub fn free_port() -> u16 {
     loop {
         let n = NEXT.fetch_add(1, Ordering::Relaxed);
         let port = u16::try_from(FIRST + (offset + n) % PORTS).expect("below 32000");
-        if std::net::TcpListener::bind(("127.0.0.1", port)).is_ok() {
+        if claim(port) && std::net::TcpListener::bind(("127.0.0.1", port)).is_ok() {
             return port;
         }
+    }
+}
+
+/// The folder (in the system's temporary folder) of the ports' claim files.
+const PORT_CLAIMS: &str = "millgate-test-ports";
+
+/// Claim `port` for this process: whether no other process holds it. The claim is an
+/// exclusive lock on the port's file, kept open to the end of the process.
+fn claim(port: u16) -> bool {
+    static HELD: std::sync::Mutex<Vec<std::fs::File>> = std::sync::Mutex::new(Vec::new());
+    let folder = std::env::temp_dir().join(PORT_CLAIMS);
+    std::fs::create_dir_all(&folder).expect("the ports' claim folder");
+    let file = std::fs::File::options()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(folder.join(port.to_string()))
+        .expect("a port's claim file");
+    match file.try_lock() {
+        Ok(()) => {
+            HELD.lock().unwrap_or_else(|e| e.into_inner()).push(file);
+            true
+        }
+        Err(std::fs::TryLockError::WouldBlock) => false,
+        Err(std::fs::TryLockError::Error(error)) => panic!("claiming port {port}: {error}"),
     }
 }
 
@@ -365,6 +393,32 @@ mod tests {
             ports.iter().all(|p| (20_000..32_000).contains(p)),
             "{ports:?}"
         );
+    }
+
+    #[test]
+    fn a_port_handed_out_is_claimed_against_other_processes() {
+        let port = free_port();
+        let claim = std::env::temp_dir()
+            .join(super::PORT_CLAIMS)
+            .join(port.to_string());
+        // flock(1) takes the lock that File::try_lock takes (flock(2)), from another process.
+        let other = |port_file: &std::path::Path| {
+            std::process::Command::new("flock")
+                .args(["--nonblock", "--conflict-exit-code", "3"])
+                .arg(port_file)
+                .arg("true")
+                .status()
+                .expect("flock(1)")
+                .code()
+        };
+        assert_eq!(other(&claim), Some(3), "port {port} not claimed");
+        // A file no process holds is free to the other process.
+        let unclaimed = std::env::temp_dir()
+            .join(super::PORT_CLAIMS)
+            .join(format!("unclaimed-{}", std::process::id()));
+        std::fs::write(&unclaimed, b"").unwrap();
+        assert_eq!(other(&unclaimed), Some(0));
+        std::fs::remove_file(unclaimed).unwrap();
     }
 
     #[test]
