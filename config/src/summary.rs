@@ -183,11 +183,13 @@ fn drivelines(text: &mut String, config: &Config) {
         if let Some(model) = &driveline.model {
             let _ = write!(
                 text,
-                ", model {} (gap warning {} mrad, alarm {} mrad, forecast over {} days)",
+                ", model {} (gap warning {} mrad, alarm {} mrad, forecast over {} days, \
+                 growth from bites over {} s apart)",
                 model.display(),
                 driveline.thresholds.gap_warning_mrad,
                 driveline.thresholds.gap_alarm_mrad,
-                driveline.wear.horizon_days
+                driveline.wear.horizon_days,
+                driveline.wear.growth_span_s
             );
         }
         text.push('\n');

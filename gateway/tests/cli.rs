@@ -38,6 +38,17 @@ fn check_accepts_every_example_and_prints_a_summary() {
         assert!(output.status.success(), "{example}: {}", text(&output));
         assert!(!output.stdout.is_empty(), "{example}: empty summary");
     }
+    // The demo compresses wear into seconds: its summary says the growth span it sets.
+    let demo = millgate(&[
+        "check",
+        "--config",
+        examples().join("demo.toml").to_str().unwrap(),
+    ]);
+    assert!(
+        text(&demo).contains("forecast over 365 days, growth from bites over 0 s apart)"),
+        "{}",
+        text(&demo)
+    );
 }
 
 #[test]
