@@ -1,6 +1,24 @@
 //! One block channel of a DAQ in the millgate acquisition layout: the block sequence
-//! tracked (new, same, lost blocks, a restart, a stall) and the samples passed on,
-//! saturated ones as gaps.
+//! tracked (new, same, lost blocks, a restart, a stall), the samples passed on,
+//! saturated ones as gaps, and when the channel is next worth reading.
+//!
+//! A DAQ writes a channel's next block one block period after the last. Reading the
+//! channel at every poll reads each block several times (three times for a 50 ms block
+//! polled every 16 ms); instead a channel is read when its next block is due
+//! ([`ReadSchedule`]). Once a block was found within a poll period of its coming (a
+//! read a poll period before did not find it), the next read comes a block period
+//! after the read that found it, less [`CREEP_DIVISOR`]'s share of the period, and
+//! when the block is not there yet, again a poll period later. So the reads creep
+//! earlier block by block until one comes before the block, which sets them back a poll
+//! period: a little over one read a block, each block read within a poll period of its
+//! coming, as with a read at every poll. Until a block was found that way (the first
+//! block, or after a read made late), the channel is read every poll period. A block
+//! that comes late is found by the reads a poll period apart; a DAQ whose clock runs up
+//! to 1/[`CREEP_DIVISOR`] fast is followed. Each read is within a block period of the
+//! last, so while the DAQ keeps its rate no block is overwritten unread; a DAQ faster
+//! than that (a configured sample rate above the DAQ's) loses a block, which is counted
+//! (`blocks_missed`, a gap) and reads the channel every poll period for
+//! [`EVERY_POLL_AFTER_LOSS`] block periods.
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -16,6 +34,17 @@ use crate::warn_limit::{WarnLimit, WARN_PERIOD};
 /// Block periods a sequence may stand still before the stall is counted.
 const STALL_BLOCK_PERIODS: u32 = 3;
 
+/// Block periods a channel is read every poll period after it lost a block.
+const EVERY_POLL_AFTER_LOSS: u32 = 64;
+
+/// The next read comes a block period less this share of it after the last new block
+/// was found (3.1 ms for a 50 ms block).
+const CREEP_DIVISOR: u32 = 16;
+
+/// A read due within this share of a block period is made now (0.8 ms for a 50 ms
+/// block): the channels of one DAQ, whose blocks come together, are read together.
+const EARLY_DIVISOR: u32 = 64;
+
 #[derive(Debug)]
 pub(super) struct BlockChannel {
     pub(super) channel: usize,
@@ -26,6 +55,8 @@ pub(super) struct BlockChannel {
     limits: SaturationLimits,
     /// Sequence, time it was first seen and sample count of the last new block.
     last: Option<(u16, Instant, u16)>,
+    /// When the channel is next read.
+    schedule: ReadSchedule,
     /// The sequence has stood still past [`STALL_BLOCK_PERIODS`] (counted once).
     stalled: bool,
     /// One warning per period for restarts: a sequence running backwards restarts
@@ -44,12 +75,12 @@ pub(super) enum BlockNews {
 }
 
 impl BlockChannel {
-    /// Channel `channel` (`spec`) read as a block of `table` at `base`, counting into
-    /// `counters`.
+    /// Channel `channel` (`spec`) read as a block of `table` at `base` on a source
+    /// polled every `poll_period`, counting into `counters`.
     pub(super) fn new(
         (channel, spec): (usize, &Channel),
-        table: RegisterTable,
-        base: u16,
+        (table, base): (RegisterTable, u16),
+        poll_period: Duration,
         counters: Arc<ChannelCounters>,
     ) -> Self {
         Self {
@@ -60,6 +91,7 @@ impl BlockChannel {
             sample_rate_hz: spec.sample_rate_hz,
             limits: quality::saturation_limits(spec),
             last: None,
+            schedule: ReadSchedule::new(poll_period),
             stalled: false,
             restart_warnings: WarnLimit::new(WARN_PERIOD),
             counters,
@@ -68,6 +100,28 @@ impl BlockChannel {
 }
 
 impl BlockChannel {
+    /// When the channel is next read (`None`: at once).
+    pub(super) fn next_read(&self) -> Option<Instant> {
+        self.schedule.next_read
+    }
+
+    /// Whether a read at `now` is due (or due so soon that it is made with this one).
+    pub(super) fn due(&self, now: Instant) -> bool {
+        let early = self.block_period(self.samples()) / EARLY_DIVISOR;
+        self.schedule.next_read.is_none_or(|at| now + early >= at)
+    }
+
+    /// A read at `now` failed: the next a poll period later.
+    pub(super) fn failed(&mut self, now: Instant) {
+        self.schedule.failed(now);
+    }
+
+    /// Samples of the last block (of the largest a block can hold before the first).
+    fn samples(&self) -> u16 {
+        self.last
+            .map_or(layout::MAX_BLOCK_SAMPLES, |(_, _, count)| count)
+    }
+
     /// What a block read at `now` brings: `Same` when it is the block already seen
     /// (counting a stall once it stands still past [`STALL_BLOCK_PERIODS`]), else the
     /// messages: an optional gap (lost blocks, or a DAQ restart), then the samples,
@@ -80,6 +134,7 @@ impl BlockChannel {
             let elapsed = now.saturating_duration_since(last_time);
             let block_period = self.block_period(last_count);
             if advance == 0 {
+                self.schedule.same(now);
                 if !self.stalled && elapsed > block_period * STALL_BLOCK_PERIODS {
                     self.stalled = true;
                     self.counters.stall();
@@ -91,6 +146,7 @@ impl BlockChannel {
                 if advance > 1 {
                     let missed_blocks = u64::from(advance - 1);
                     self.counters.missed(missed_blocks);
+                    self.schedule.lost(now, block_period);
                     messages.push(Acquired::Gap {
                         channel: self.channel,
                         missed_samples: Some(missed_blocks * u64::from(count)),
@@ -119,6 +175,7 @@ impl BlockChannel {
             }
         }
         self.last = Some((sequence, now, count));
+        self.schedule.new_block(now, self.block_period(count));
         self.stalled = false;
         self.counters.block(raw.len());
         let values = layout::Block { sequence, raw }
@@ -141,6 +198,70 @@ impl BlockChannel {
     }
 }
 
+/// When a block channel is next read (the module's docs).
+#[derive(Debug)]
+struct ReadSchedule {
+    /// The source's poll period: the time between reads while a block is awaited.
+    poll_period: Duration,
+    /// When the channel is next read (`None`: at once).
+    next_read: Option<Instant>,
+    /// The last read that found the block already seen, since the last new one.
+    same_at: Option<Instant>,
+    /// The last new block was found within a poll period (and a half) of a read that
+    /// did not find it, and the reads since kept to the schedule: when the next block
+    /// comes is known.
+    in_phase: bool,
+    /// Until when the channel is read every poll period, after a lost block.
+    every_poll_until: Option<Instant>,
+}
+
+impl ReadSchedule {
+    fn new(poll_period: Duration) -> Self {
+        Self {
+            poll_period,
+            next_read: None,
+            same_at: None,
+            in_phase: false,
+            every_poll_until: None,
+        }
+    }
+
+    /// A read at `now` failed: again a poll period later.
+    fn failed(&mut self, now: Instant) {
+        self.next_read = Some(now + self.poll_period);
+    }
+
+    /// A read at `now` found that blocks of `block_period` were lost: a read every
+    /// poll period for [`EVERY_POLL_AFTER_LOSS`] block periods.
+    fn lost(&mut self, now: Instant, block_period: Duration) {
+        self.every_poll_until = Some(now + block_period * EVERY_POLL_AFTER_LOSS);
+    }
+
+    /// A read at `now` found the block already seen: again a poll period later.
+    fn same(&mut self, now: Instant) {
+        self.same_at = Some(now);
+        self.next_read = Some(now + self.poll_period);
+    }
+
+    /// A read at `now` found a new block of `block_period`.
+    fn new_block(&mut self, now: Instant, block_period: Duration) {
+        let creep = block_period / CREEP_DIVISOR;
+        let between_reads = self
+            .same_at
+            .is_some_and(|same| now.saturating_duration_since(same) <= self.poll_period * 3 / 2);
+        let on_schedule = self.in_phase && self.next_read.is_some_and(|at| now <= at + creep);
+        self.in_phase = between_reads || on_schedule;
+        self.same_at = None;
+        let every_poll = self.every_poll_until.is_some_and(|until| now < until);
+        let wait = if self.in_phase && !every_poll {
+            block_period - creep
+        } else {
+            self.poll_period
+        };
+        self.next_read = Some(now + wait);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -157,6 +278,7 @@ mod tests {
                 high: 32767.0,
             },
             last: None,
+            schedule: ReadSchedule::new(Duration::from_millis(20)),
             stalled: false,
             restart_warnings: WarnLimit::new(WARN_PERIOD),
             counters: Arc::default(),
@@ -273,6 +395,68 @@ mod tests {
 
     fn messages_of(block: &mut BlockChannel, sequence: u16, at: Instant) -> Vec<Acquired> {
         messages(block.accept(sequence, &[0; 100], at))
+    }
+
+    #[test]
+    fn a_channel_is_read_when_its_next_block_is_due_once_one_was_found_as_it_came() {
+        let mut block = channel();
+        let t0 = Instant::now();
+        let us = |us: u64| t0 + Duration::from_micros(us);
+        assert!(block.due(t0), "nothing read yet");
+        // The first block: when it came is not known, the next read a poll period
+        // (20 ms) later.
+        messages_of(&mut block, 1, t0);
+        assert_eq!(block.next_read(), Some(us(20_000)));
+        assert_eq!(block.accept(1, &[0; 100], us(20_000)), BlockNews::Same);
+        assert_eq!(block.next_read(), Some(us(40_000)));
+        // Found a poll period after a read that did not find it: the next read a block
+        // period (100 ms) less its 16th later, made from 1.5625 ms before (the 64th)
+        // with the reads due then.
+        messages_of(&mut block, 2, us(40_000));
+        assert_eq!(block.next_read(), Some(us(133_750)));
+        assert!(!block.due(us(132_180)));
+        assert!(block.due(us(132_190)));
+        // Not there yet: again a poll period later; found then, and at the read after.
+        assert_eq!(block.accept(2, &[0; 100], us(133_750)), BlockNews::Same);
+        assert_eq!(block.next_read(), Some(us(153_750)));
+        messages_of(&mut block, 3, us(153_750));
+        assert_eq!(block.next_read(), Some(us(247_500)));
+        messages_of(&mut block, 4, us(247_500));
+        assert_eq!(block.next_read(), Some(us(341_250)));
+        // A read made more than the creep (6.25 ms) late: when the block came is not
+        // known any more, a read every poll period until it is.
+        messages_of(&mut block, 5, us(350_000));
+        assert_eq!(block.next_read(), Some(us(370_000)));
+        // A failed read: again a poll period later.
+        block.failed(us(370_100));
+        assert_eq!(block.next_read(), Some(us(390_100)));
+    }
+
+    #[test]
+    fn a_lost_block_reads_the_channel_every_poll_period_for_a_while() {
+        let mut block = channel();
+        let t0 = Instant::now();
+        let ms = |ms: u64| t0 + Duration::from_millis(ms);
+        messages_of(&mut block, 1, t0);
+        block.accept(1, &[0; 100], ms(20));
+        messages_of(&mut block, 2, ms(40));
+        assert_eq!(block.next_read(), Some(t0 + Duration::from_micros(133_750)));
+        // A DAQ faster than its configured rate: block 3 overwritten by 4 at 134 ms.
+        messages_of(&mut block, 4, ms(134));
+        assert_eq!(block.counters.snapshot().blocks_missed, 1);
+        // Every poll period for 64 block periods (6.4 s), new block or not.
+        for k in 1..320 {
+            let at = ms(134 + 20 * k);
+            assert_eq!(block.next_read(), Some(at), "{} ms after the loss", 20 * k);
+            messages_of(&mut block, 4 + k as u16, at);
+        }
+        assert_eq!(block.counters.snapshot().blocks_missed, 1);
+        // Then a block period less its 16th after a new block again.
+        messages_of(&mut block, 400, ms(6540));
+        assert_eq!(
+            block.next_read(),
+            Some(ms(6540) + Duration::from_micros(93_750))
+        );
     }
 
     #[test]

@@ -179,8 +179,8 @@ impl DaqReader {
                     base,
                 } if s == source_index => self.blocks.push(BlockChannel::new(
                     (channel, spec),
-                    table,
-                    base,
+                    (table, base),
+                    self.source.poll_period,
                     Arc::clone(&counters[channel]),
                 )),
                 ChannelSource::ModbusValue {
@@ -303,23 +303,30 @@ impl DaqReader {
         backoff: &mut Backoff,
     ) -> ConnectionEnd {
         let period = self.source.poll_period;
+        // The poll grid of the process values and texts; block channels are read when
+        // their next block is due (`block.rs`).
         let mut due = tokio::time::Instant::now();
         let mut reply_warnings = WarnLimit::new(WARN_PERIOD);
         loop {
-            // Only wait on the timer when the poll is not due yet: a poll that
-            // took a period or longer starts the next at once. (`Interval`
-            // re-arms its timer every tick, and once 5 ms behind waits for the
-            // timer's next 1 ms tick: a third fewer polls when polls are fast.)
-            if tokio::time::Instant::now() < due {
+            // Only wait on the timer when no read is due yet: a poll that took a
+            // period or longer starts the next at once. (`Interval` re-arms its
+            // timer every tick, and once 5 ms behind waits for the timer's next
+            // 1 ms tick: a third fewer polls when polls are fast.)
+            let wake = self.next_wake(due);
+            if tokio::time::Instant::now() < wake {
                 tokio::select! {
-                    () = tokio::time::sleep_until(due) => {}
+                    () = tokio::time::sleep_until(wake) => {}
                     () = shutdown.recv() => return ConnectionEnd::Stop,
                 }
             } else if shutdown.is_shutdown() {
                 return ConnectionEnd::Stop;
             }
-            due = next_poll(due, tokio::time::Instant::now(), period);
-            match self.poll(context, samples).await {
+            let now = tokio::time::Instant::now();
+            let on_grid = now >= due;
+            if on_grid {
+                due = next_poll(due, now, period);
+            }
+            match self.poll(context, samples, on_grid).await {
                 Ok(Poll::NewData) => {
                     self.health.answered();
                     backoff.reset();
@@ -337,22 +344,48 @@ impl DaqReader {
         }
     }
 
-    /// One poll of every channel: whether it brought new data (a block advanced, or
-    /// a process value was read on a source without blocks), or the analysis is gone.
+    /// When the next read is due: the first block channel's next read, or the next
+    /// poll on the grid (`grid`) of the process values and texts.
+    fn next_wake(&self, grid: tokio::time::Instant) -> tokio::time::Instant {
+        let blocks = self
+            .blocks
+            .iter()
+            .map(|block| {
+                block
+                    .next_read()
+                    .map_or_else(tokio::time::Instant::now, tokio::time::Instant::from_std)
+            })
+            .min();
+        match blocks {
+            Some(block) if self.values.is_empty() && self.texts.is_empty() => block,
+            Some(block) => block.min(grid),
+            None => grid,
+        }
+    }
+
+    /// One poll: the block channels whose read is due and, on the grid (`on_grid`),
+    /// the process values and texts. Whether it brought new data (a block advanced,
+    /// or a process value was read on a source without blocks), or the analysis is
+    /// gone.
     async fn poll(
         &mut self,
         context: &mut Context,
         samples: &mpsc::Sender<Acquired>,
+        on_grid: bool,
     ) -> Result<Poll, DaqError> {
         self.take_new_channels();
         let timeout = self.source.timeout;
         let mut first_error = None;
         let mut new_data = false;
         for block in &mut self.blocks {
+            if !block.due(now()) {
+                continue;
+            }
             let what = (block.table, block.base, BLOCK_REGISTERS);
             let registers = match read(context, &mut self.spacing, what, timeout).await {
                 Ok(registers) => registers,
                 Err(error) => {
+                    block.failed(now());
                     count_error(&block.counters, &error);
                     if error.needs_reconnect() {
                         return Err(error);
@@ -364,6 +397,7 @@ impl DaqReader {
             let decoded = match layout::decode_block(&registers) {
                 Ok(decoded) => decoded,
                 Err(error) => {
+                    block.failed(now());
                     block.counters.error();
                     first_error.get_or_insert(DaqError::Block {
                         address: block.base,
@@ -372,8 +406,7 @@ impl DaqReader {
                     continue;
                 }
             };
-            let BlockNews::New(messages) =
-                block.accept(decoded.sequence, decoded.raw, Instant::now())
+            let BlockNews::New(messages) = block.accept(decoded.sequence, decoded.raw, now())
             else {
                 continue;
             };
@@ -384,7 +417,12 @@ impl DaqReader {
                 }
             }
         }
-        for value in &self.values {
+        let (values, texts) = if on_grid {
+            (&self.values[..], &self.texts[..])
+        } else {
+            (&[][..], &[][..])
+        };
+        for value in values {
             let count = value.value_type.register_count();
             let what = (value.table, value.address, count);
             let registers = match read(context, &mut self.spacing, what, timeout).await {
@@ -413,7 +451,7 @@ impl DaqReader {
                 return Ok(Poll::AnalysisGone);
             }
         }
-        for text in &self.texts {
+        for text in texts {
             let what = (text.table, text.address, text.registers);
             let registers = match read(context, &mut self.spacing, what, timeout).await {
                 Ok(registers) => registers,
@@ -483,6 +521,11 @@ fn next_poll(
     }
 }
 
+/// The time now: the system's clock, the paused clock of the unit tests.
+fn now() -> Instant {
+    tokio::time::Instant::now().into_std()
+}
+
 fn count_error(counters: &ChannelCounters, error: &DaqError) {
     match error {
         DaqError::Modbus(ModbusError::Timeout(_)) => counters.timeout(),
@@ -531,20 +574,43 @@ mod tests {
         Closes,
         /// Reads every request and never answers.
         Silent,
-        /// Answers every poll with the block of the moment: a new one every
-        /// [`BLOCK_PERIOD`] since the test began, the same one from `frozen_at` on;
-        /// closes at the first request `closes_after` or more into the connection.
-        Streams {
-            frozen_at: Duration,
-            closes_after: Duration,
-        },
+        /// Answers every poll with the block of the moment.
+        Streams(Stream),
     }
 
-    /// A DAQ that streams for ever.
-    const STREAMS: Daq = Daq::Streams {
+    /// A streaming DAQ: a new block every `period` since the test began (block
+    /// `late.0` that much later than its time), the same one from `frozen_at` on;
+    /// closes at the first request `closes_after` or more into the connection.
+    #[derive(Debug, Clone, Copy)]
+    pub(super) struct Stream {
+        frozen_at: Duration,
+        closes_after: Duration,
+        period: Duration,
+        late: Option<(u128, Duration)>,
+    }
+
+    impl Stream {
+        /// The sequence of the block of the moment, `elapsed` into the test.
+        fn sequence(&self, elapsed: Duration) -> u16 {
+            let elapsed = elapsed.min(self.frozen_at);
+            let mut blocks = elapsed.as_nanos() / self.period.as_nanos();
+            if let Some((block, by)) = self.late {
+                if blocks == block && elapsed < self.period * block as u32 + by {
+                    blocks -= 1;
+                }
+            }
+            1 + blocks as u16
+        }
+    }
+
+    /// A DAQ that streams for ever at the test channel's rate.
+    const STREAM: Stream = Stream {
         frozen_at: Duration::MAX,
         closes_after: Duration::MAX,
+        period: BLOCK_PERIOD,
+        late: None,
     };
+    const STREAMS: Daq = Daq::Streams(STREAM);
 
     /// 100 samples at the test channel's 2 kHz.
     const BLOCK_PERIOD: Duration = Duration::from_millis(50);
@@ -555,7 +621,13 @@ mod tests {
         script: Vec<Daq>,
         start: Instant,
         made: Arc<Mutex<Vec<Instant>>>,
+        /// The requests the DAQs answered: when, and the sequence of the block.
+        requests: Requests,
     }
+
+    /// The requests a DAQ answered: when (since the test began), and the sequence of
+    /// the block answered.
+    type Requests = Arc<Mutex<Vec<(Duration, u16)>>>;
 
     impl std::fmt::Debug for Connector {
         fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -571,23 +643,20 @@ mod tests {
             let daq = self.script[made.len().min(self.script.len() - 1)];
             made.push(Instant::now());
             let (gateway, device) = tokio::io::duplex(4096);
-            tokio::spawn(serve(device, daq, self.start));
+            tokio::spawn(serve(device, daq, self.start, Arc::clone(&self.requests)));
             tokio_modbus::client::tcp::attach_slave(gateway, Slave(1))
         }
     }
 
     /// The DAQ's end of one connection.
-    async fn serve(mut device: DuplexStream, daq: Daq, start: Instant) {
-        let (frozen_at, closes_after) = match daq {
+    async fn serve(mut device: DuplexStream, daq: Daq, start: Instant, requests: Requests) {
+        let stream = match daq {
             Daq::Closes => return,
             Daq::Silent => {
                 let _ = device.read_to_end(&mut Vec::new()).await;
                 return;
             }
-            Daq::Streams {
-                frozen_at,
-                closes_after,
-            } => (frozen_at, closes_after),
+            Daq::Streams(stream) => stream,
         };
         let connected = Instant::now();
         loop {
@@ -597,12 +666,16 @@ mod tests {
             }
             let length = usize::from(u16::from_be_bytes([header[4], header[5]]));
             let mut pdu = vec![0u8; length.saturating_sub(1)];
-            if device.read_exact(&mut pdu).await.is_err() || connected.elapsed() >= closes_after {
+            if device.read_exact(&mut pdu).await.is_err()
+                || connected.elapsed() >= stream.closes_after
+            {
                 return;
             }
-            let blocks = start.elapsed().min(frozen_at).as_nanos() / BLOCK_PERIOD.as_nanos();
+            let elapsed = start.elapsed();
+            let sequence = stream.sequence(elapsed);
+            requests.lock().unwrap().push((elapsed, sequence));
             let mut words = vec![0u16; usize::from(BLOCK_REGISTERS)];
-            layout::encode_block(1 + blocks as u16, &[0; 100], &mut words);
+            layout::encode_block(sequence, &[0; 100], &mut words);
             let bytes = (words.len() * 2) as u8;
             let mut frame = vec![header[0], header[1], 0, 0];
             frame.extend((3 + u16::from(bytes)).to_be_bytes());
@@ -633,17 +706,21 @@ mod tests {
             .unwrap_or_else(|error| panic!("{error}"))
     }
 
+    /// What a test watches of a running reader.
+    struct Watched {
+        /// The times of its connections.
+        made: Arc<Mutex<Vec<Instant>>>,
+        /// Its source's health (stale after 200 ms, lost after 1 s).
+        health: Arc<SourceHealth>,
+        /// Its channel's counters.
+        counters: Arc<ChannelCounters>,
+        /// The requests its DAQs answered.
+        requests: Requests,
+    }
+
     /// A reader of one 2 kHz block channel (polled every 20 ms, 300 ms timeout) on
-    /// `script`'s DAQs, its samples drained; the times of its connections and its
-    /// source's health (stale after 200 ms, lost after 1 s), until `shutdown` fires.
-    fn reader(
-        script: Vec<Daq>,
-        shutdown: Shutdown,
-    ) -> (
-        Arc<Mutex<Vec<Instant>>>,
-        Arc<SourceHealth>,
-        Arc<ChannelCounters>,
-    ) {
+    /// `script`'s DAQs, its samples drained, until `shutdown` fires.
+    fn reader(script: Vec<Daq>, shutdown: Shutdown) -> Watched {
         let config = source_config(&[]);
         let counters = Arc::new(ChannelCounters::default());
         let health = Arc::new(SourceHealth::new(
@@ -657,15 +734,22 @@ mod tests {
             Arc::clone(&health),
         );
         let made = Arc::new(Mutex::new(Vec::new()));
+        let requests = Requests::default();
         reader.connector = Some(Connector {
             script,
             start: Instant::now(),
             made: Arc::clone(&made),
+            requests: Arc::clone(&requests),
         });
         let (samples, mut drain) = mpsc::channel(64);
         tokio::spawn(async move { while drain.recv().await.is_some() {} });
         tokio::spawn(reader.run(samples, shutdown));
-        (made, health, counters)
+        Watched {
+            made,
+            health,
+            counters,
+            requests,
+        }
     }
 
     /// The gaps between the connections made, ms.
@@ -679,7 +763,7 @@ mod tests {
     #[tokio::test(start_paused = true)]
     async fn a_daq_that_accepts_and_closes_is_retried_with_a_doubling_backoff_to_5_s() {
         let (_stop, shutdown) = crate::shutdown::channel();
-        let (made, health, _) = reader(vec![Daq::Closes], shutdown);
+        let Watched { made, health, .. } = reader(vec![Daq::Closes], shutdown);
         tokio::time::sleep(Duration::from_secs(20)).await;
         // Each attempt fails at once: the attempts are the backoff apart, not a storm.
         assert_eq!(
@@ -693,7 +777,12 @@ mod tests {
     #[tokio::test(start_paused = true)]
     async fn a_silent_daq_times_out_each_connection_then_backs_off() {
         let (_stop, shutdown) = crate::shutdown::channel();
-        let (made, health, counters) = reader(vec![Daq::Silent], shutdown);
+        let Watched {
+            made,
+            health,
+            counters,
+            ..
+        } = reader(vec![Daq::Silent], shutdown);
         tokio::time::sleep(Duration::from_millis(3500)).await;
         // The request's 300 ms timeout, then the backoff.
         assert_eq!(spacing_ms(&made), [400, 500, 700, 1100]);
@@ -704,10 +793,10 @@ mod tests {
     #[tokio::test(start_paused = true)]
     async fn new_data_restarts_the_backoff_and_a_connect_alone_does_not() {
         let (_stop, shutdown) = crate::shutdown::channel();
-        let half_a_second = Daq::Streams {
-            frozen_at: Duration::MAX,
+        let half_a_second = Daq::Streams(Stream {
             closes_after: Duration::from_millis(490),
-        };
+            ..STREAM
+        });
         let script = vec![
             Daq::Closes,
             Daq::Closes,
@@ -715,12 +804,12 @@ mod tests {
             half_a_second,
             Daq::Closes,
         ];
-        let (made, health, _) = reader(script, shutdown);
+        let Watched { made, health, .. } = reader(script, shutdown);
         tokio::time::sleep(Duration::from_secs(2)).await;
         // Connects at 0, 0.1, 0.3 and 0.7 s: the backoff grew over three connects. The
-        // fourth brought data until it closed at its poll of 1.2 s; the next attempts
+        // fourth brought data until it closed at its read of 1.203 s; the next attempts
         // start from 100 ms again.
-        assert_eq!(spacing_ms(&made), [100, 200, 400, 600, 200, 400]);
+        assert_eq!(spacing_ms(&made), [100, 200, 400, 603, 200, 400]);
         assert_eq!(
             health.status(),
             SourceStatus::Stale,
@@ -731,7 +820,12 @@ mod tests {
     #[tokio::test(start_paused = true)]
     async fn a_streaming_daq_is_polled_on_one_connection_and_stays_ok() {
         let (_stop, shutdown) = crate::shutdown::channel();
-        let (made, health, counters) = reader(vec![STREAMS], shutdown);
+        let Watched {
+            made,
+            health,
+            counters,
+            ..
+        } = reader(vec![STREAMS], shutdown);
         tokio::time::sleep(Duration::from_millis(1990)).await;
         assert_eq!(made.lock().unwrap().len(), 1);
         assert_eq!(health.status(), SourceStatus::Ok);
@@ -746,11 +840,16 @@ mod tests {
     async fn a_frozen_daq_goes_stale_after_its_stale_time_and_lost_after_its_lost_time() {
         let (_stop, shutdown) = crate::shutdown::channel();
         let frozen_at = Duration::from_millis(1000);
-        let daq = Daq::Streams {
+        let daq = Daq::Streams(Stream {
             frozen_at,
-            closes_after: Duration::MAX,
-        };
-        let (made, health, counters) = reader(vec![daq], shutdown);
+            ..STREAM
+        });
+        let Watched {
+            made,
+            health,
+            counters,
+            ..
+        } = reader(vec![daq], shutdown);
         let start = Instant::now();
         // The last new block is the one of 1.000 s, read at the first poll after it.
         tokio::time::sleep_until(start + frozen_at).await;
@@ -789,6 +888,7 @@ mod tests {
             script: vec![STREAMS],
             start: Instant::now(),
             made: Arc::clone(&made),
+            requests: Arc::default(),
         });
         let (samples, mut received) = mpsc::channel(64);
         let messages = tokio::spawn(async move {
@@ -799,23 +899,25 @@ mod tests {
             messages
         });
         let reading = tokio::spawn(reader.run(samples, shutdown));
-        // 1 s of polls on channel a (blocks 1..=20), then channel b appended.
-        tokio::time::sleep(Duration::from_millis(1010)).await;
+        // 1 s of reads of channel a (blocks 1..=21, the 21st read within a poll period of
+        // its coming at 1 s), then channel b appended.
+        tokio::time::sleep(Duration::from_millis(1025)).await;
         assert_eq!(counters[0].snapshot().blocks_read, 21, "blocks 1..=21");
         feed.send_replace(NewChannels {
             config: grown,
             counters: counters.clone(),
         });
-        tokio::time::sleep(Duration::from_millis(980)).await;
+        tokio::time::sleep(Duration::from_millis(960)).await;
         stop.trigger();
         reading.await.unwrap();
         let messages = messages.await.unwrap();
         // One connection throughout; a read every block on, none missed or restarted.
         assert_eq!(made.lock().unwrap().len(), 1);
         let (a, b) = (counters[0].snapshot(), counters[1].snapshot());
-        assert_eq!(a.blocks_read, 40, "blocks 1..=40 by 1.99 s");
+        assert_eq!(a.blocks_read, 40, "blocks 1..=40 by 1.985 s");
         assert_eq!((a.blocks_missed, a.sequence_restarts), (0, 0));
-        assert_eq!(b.blocks_read, 20, "blocks 21..=40 for the channel added");
+        // Channel b is taken at the source's next read, of a's block 22 (due at 1.05 s).
+        assert_eq!(b.blocks_read, 19, "blocks 22..=40 for the channel added");
         assert_eq!((b.blocks_missed, b.sequence_restarts), (0, 0));
         let gaps = messages
             .iter()
@@ -828,7 +930,109 @@ mod tests {
                 .filter(|m| matches!(m, Acquired::Samples { channel, .. } if *channel == wanted))
                 .count()
         };
-        assert_eq!((blocks_of(0), blocks_of(1)), (40, 20));
+        assert_eq!((blocks_of(0), blocks_of(1)), (40, 19));
+    }
+
+    /// Per block a DAQ made while `watched` read it for `seconds`: how long after it
+    /// came it was first read, and how many reads were made in all. `stream` is the
+    /// DAQ's timing.
+    async fn read_delays(stream: Stream, seconds: u64) -> (Vec<Duration>, usize, Watched) {
+        let (_stop, shutdown) = crate::shutdown::channel();
+        let watched = reader(vec![Daq::Streams(stream)], shutdown);
+        tokio::time::sleep(Duration::from_secs(seconds)).await;
+        let requests = watched.requests.lock().unwrap().clone();
+        let mut delays = Vec::new();
+        for (k, pair) in requests.windows(2).enumerate() {
+            let ((_, before), (at, sequence)) = (pair[0], pair[1]);
+            if sequence != before {
+                // Block `sequence` came (sequence - 1) periods in, later if it was late.
+                let index = u128::from(sequence - 1);
+                let mut came = stream.period * (sequence - 1) as u32;
+                if let Some((late, by)) = stream.late {
+                    came += if index == late { by } else { Duration::ZERO };
+                }
+                assert!(at >= came, "read {k}: block {sequence} before it came");
+                delays.push(at - came);
+            }
+        }
+        (delays, requests.len(), watched)
+    }
+
+    /// The poll period of the test source, and the timer's millisecond on top.
+    const WITHIN_A_POLL: Duration = Duration::from_millis(21);
+
+    #[tokio::test(start_paused = true)]
+    async fn each_block_is_read_once_and_within_a_poll_period_of_its_coming() {
+        let (delays, reads, watched) = read_delays(STREAM, 10).await;
+        let counters = watched.counters.snapshot();
+        assert_eq!((counters.blocks_read, counters.blocks_missed), (200, 0));
+        assert_eq!(delays.len(), 199, "every block after the first");
+        let late = delays.iter().max().unwrap();
+        assert!(*late < WITHIN_A_POLL, "a block read {late:?} after it came");
+        // A read every poll period would make 500 reads: 2.5 a block.
+        assert!(reads <= 240, "{reads} reads for 200 blocks");
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_daq_clock_a_few_percent_off_is_followed() {
+        for period_us in [48_500, 51_500] {
+            let stream = Stream {
+                period: Duration::from_micros(period_us),
+                ..STREAM
+            };
+            let (delays, reads, watched) = read_delays(stream, 20).await;
+            let counters = watched.counters.snapshot();
+            assert_eq!(counters.blocks_missed, 0, "period {period_us} us");
+            assert_eq!(counters.blocks_read as usize, delays.len() + 1);
+            let late = delays.iter().max().unwrap();
+            assert!(
+                *late < WITHIN_A_POLL,
+                "{period_us} us: a block read {late:?} after it came"
+            );
+            let per_block = reads as f64 / counters.blocks_read as f64;
+            assert!(per_block < 1.4, "{period_us} us: {per_block} reads a block");
+        }
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_late_block_is_read_when_it_comes_and_the_next_ones_catch_up() {
+        let by = Duration::from_millis(30);
+        let stream = Stream {
+            late: Some((20, by)),
+            ..STREAM
+        };
+        let (delays, _, watched) = read_delays(stream, 5).await;
+        let counters = watched.counters.snapshot();
+        assert_eq!((counters.blocks_read, counters.blocks_missed), (100, 0));
+        // delays[k] is block k + 2's: block 21 (index 20) 30 ms late.
+        assert!(
+            delays[19] < WITHIN_A_POLL,
+            "the late block: {:?}",
+            delays[19]
+        );
+        // The next blocks came on time: read at most the lateness after, and within a
+        // poll period again after ten blocks.
+        assert!(delays[20..].iter().all(|delay| *delay < by + WITHIN_A_POLL));
+        assert!(delays[30..].iter().all(|delay| *delay < WITHIN_A_POLL));
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_daq_twice_as_fast_as_configured_loses_blocks_counted_and_is_read_every_poll() {
+        let stream = Stream {
+            period: BLOCK_PERIOD / 2,
+            ..STREAM
+        };
+        let (_, reads, watched) = read_delays(stream, 10).await;
+        let counters = watched.counters.snapshot();
+        // A loss, then a read every poll period for 64 block periods (3.2 s): a few
+        // losses in 10 s, each counted, and about a read every poll period.
+        assert!(
+            (1..=4).contains(&counters.blocks_missed),
+            "{} blocks missed",
+            counters.blocks_missed
+        );
+        assert_eq!(counters.blocks_read + counters.blocks_missed, 400);
+        assert!(reads > 400, "{reads} reads in 10 s");
     }
 
     #[test]
