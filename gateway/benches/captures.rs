@@ -34,8 +34,8 @@ use millgate::history::rows::insert;
 use millgate::history::writer::{connect, insert_run};
 use millgate::history::RunInfo;
 use millgate::state::board::Board;
-use millgate::state::captures::{CapturedBite, KeepClass};
-use millgate::state::events::HistoryEvent;
+use millgate::state::captures::{CaptureRecord, CapturedBite, KeepClass};
+use millgate::state::events::{BiteRecord, HistoryEvent};
 use millgate::state::history::History;
 use millgate::state::results::DrivelineResults;
 use millgate::state::time::UtcTime;
@@ -43,8 +43,11 @@ use millgate::state::time::UtcTime;
 const STORED_BITES: usize = 5_000;
 const EXPORTED: usize = 2_000;
 
+/// A bite's record and its capture, as the analysis makes them.
+type Captured = (BiteRecord, CaptureRecord);
+
 /// The demo's bites with their captures, as the analysis records them.
-fn demo_bites() -> anyhow::Result<Vec<[HistoryEvent; 2]>> {
+fn demo_bites() -> anyhow::Result<Vec<Captured>> {
     let demo = millgate_sim::devices::demo::setup(120.0, 0.5, 7)?;
     let mut config = demo.config;
     let scratch =
@@ -78,24 +81,48 @@ fn demo_bites() -> anyhow::Result<Vec<[HistoryEvent; 2]>> {
         let time = UtcTime::from_system(report.time);
         let capture = report.capture(CapturedBite { counter: 0, time }, KeepClass::Ordinary);
         if let Some(capture) = capture {
-            pairs.push([
-                bite_event(&report),
-                HistoryEvent::Capture(Box::new(capture)),
-            ]);
+            pairs.push((bite_record_of(&report), capture));
         }
     }
     anyhow::ensure!(!pairs.is_empty(), "the demo gave no bites");
     Ok(pairs)
 }
 
-/// The history's record of `report` as the analysis makes it (the state after it left
-/// default, no gap estimate).
-fn bite_event(report: &BiteReport) -> HistoryEvent {
-    HistoryEvent::Bite(Box::new(bite_record(
-        report,
-        &DrivelineResults::default(),
-        None,
-    )))
+/// The history's record of `report` as the analysis makes it (the state after it: its
+/// time and counter 1, no gap estimate).
+fn bite_record_of(report: &BiteReport) -> BiteRecord {
+    let state = DrivelineResults {
+        bite_counter: 1,
+        last_bite_unix_ms: Some(UtcTime::from_system(report.time).unix_ms()),
+        ..DrivelineResults::default()
+    };
+    bite_record(report, &state, None)
+}
+
+/// The event the analysis records for bite `n` (counter n + 1) of `bites`: the bite with
+/// its capture (one event, as the service's), or the bite alone; at `time` when given.
+fn event(bites: &[Captured], n: usize, captured: bool, time: Option<UtcTime>) -> HistoryEvent {
+    let (bite, capture) = &bites[n % bites.len()];
+    let (mut bite, mut capture) = (bite.clone(), capture.clone());
+    let counter = n as u32 + 1;
+    for figures in [&mut bite.figures, &mut bite.state] {
+        figures.bite_counter = counter;
+        if let Some(time) = time {
+            figures.last_bite_unix_ms = Some(time.unix_ms());
+        }
+    }
+    if let Some(time) = time {
+        bite.time = time;
+        capture.first_sample_unix_ns = time.unix_ms() * 1_000_000;
+    }
+    if let Some(of) = &mut capture.bite {
+        of.counter = counter;
+        of.time = bite.time;
+    }
+    match captured {
+        true => HistoryEvent::CapturedBite(Box::new(bite), Box::new(capture)),
+        false => HistoryEvent::Bite(Box::new(bite)),
+    }
 }
 
 fn run_info() -> RunInfo {
@@ -118,11 +145,7 @@ fn data_bytes(path: &Path) -> anyhow::Result<u64> {
 
 /// Record `bites` (each with its capture when `captures`) through the real writer;
 /// returns the time it took until all were committed.
-async fn store(
-    path: &Path,
-    bites: &[[HistoryEvent; 2]],
-    captures: bool,
-) -> anyhow::Result<Duration> {
+async fn store(path: &Path, bites: &[Captured], captures: bool) -> anyhow::Result<Duration> {
     let config = millgate_config::History {
         path: path.to_path_buf(),
         retention_days: 400,
@@ -137,20 +160,9 @@ async fn store(
     millgate::history::start(&history, run_info());
     let started = Instant::now();
     for n in 0..STORED_BITES {
-        let pair = &bites[n % bites.len()];
-        for event in pair.iter().take(if captures { 2 } else { 1 }) {
-            let mut event = event.clone();
-            if let HistoryEvent::Bite(bite) = &mut event {
-                bite.state.bite_counter = n as u32 + 1;
-            }
-            if let HistoryEvent::Capture(capture) = &mut event {
-                if let Some(bite) = &mut capture.bite {
-                    bite.counter = n as u32 + 1;
-                }
-            }
-            while !history.record(event.clone()) {
-                tokio::time::sleep(Duration::from_millis(1)).await;
-            }
+        let event = event(bites, n, captures, None);
+        while !history.record(event.clone()) {
+            tokio::time::sleep(Duration::from_millis(1)).await;
         }
     }
     let through = history.enqueued();
@@ -162,7 +174,7 @@ async fn store(
 
 /// A file of `count` captures, one bite every 30 s up to now: the writer's inserts in
 /// transactions of 1 000.
-fn year_file(path: &Path, bites: &[[HistoryEvent; 2]], count: usize) -> anyhow::Result<()> {
+fn year_file(path: &Path, bites: &[Captured], count: usize) -> anyhow::Result<()> {
     let mut connection = connect(path)?;
     let now = UtcTime::now().unix_ms();
     let first = now - count as i64 * 30_000;
@@ -171,24 +183,7 @@ fn year_file(path: &Path, bites: &[[HistoryEvent; 2]], count: usize) -> anyhow::
         let transaction = connection.transaction()?;
         for &n in chunk {
             let time = UtcTime::from_unix_ms(first + n as i64 * 30_000);
-            for event in &bites[n % bites.len()] {
-                let mut event = event.clone();
-                match &mut event {
-                    HistoryEvent::Bite(bite) => {
-                        bite.time = time;
-                        bite.state.bite_counter = n as u32 + 1;
-                    }
-                    HistoryEvent::Capture(capture) => {
-                        capture.first_sample_unix_ns = time.unix_ms() * 1_000_000;
-                        if let Some(bite) = &mut capture.bite {
-                            bite.time = time;
-                            bite.counter = n as u32 + 1;
-                        }
-                    }
-                    _ => {}
-                }
-                insert(&transaction, run, &event)?;
-            }
+            insert(&transaction, run, &event(bites, n, true, Some(time)))?;
         }
         transaction.commit()?;
     }
@@ -234,18 +229,14 @@ async fn main() -> anyhow::Result<()> {
     let bites = demo_bites()?;
     let blob_mean = bites
         .iter()
-        .filter_map(|[_, capture]| match capture {
-            HistoryEvent::Capture(c) => millgate::history::captures::encode(c)
+        .filter_map(|(_, capture)| {
+            millgate::history::captures::encode(capture)
                 .ok()
-                .map(|(blob, _)| blob.len()),
-            _ => None,
+                .map(|(blob, _)| blob.len())
         })
         .sum::<usize>() as f64
         / bites.len() as f64;
-    let samples = match &bites[0][1] {
-        HistoryEvent::Capture(c) => c.samples(),
-        _ => 0,
-    };
+    let samples = bites[0].1.samples();
 
     let with = scratch.join("with.db");
     let without = scratch.join("without.db");
