@@ -139,15 +139,18 @@ fn get_varint(bytes: &[u8], at: &mut usize) -> Option<u64> {
     None
 }
 
-/// `raw` deflated (default level, no header) by this thread's compressor, reset for
-/// it: a new one allocates and clears some 300 KiB of tables (miniz_oxide's
-/// dictionary, hash chains and buffers), which cost several times what deflating a
-/// bite's capture of a few KiB does (see docs/measured.md); the writer thread keeps
-/// one for its life.
+/// `raw` deflated (fast level, no header) by this thread's compressor, reset for it:
+/// a new one allocates and clears some 300 KiB of tables (miniz_oxide's dictionary,
+/// hash chains and buffers), which cost several times what deflating a bite's capture
+/// of a few KiB does (see docs/measured.md); the writer thread keeps one for its life.
+/// The fast level (one probe, greedy matches): a bite capture's varints of noisy
+/// differences have few long matches to find, and the default level's lazy search
+/// took twice the time for a larger blob (the demo's 62 bite windows: 1 699 bytes at
+/// the default level, 1 685 at the fast one; `cargo bench --bench captures`).
 fn deflate(raw: &[u8]) -> std::io::Result<Vec<u8>> {
     thread_local! {
         static COMPRESSOR: std::cell::RefCell<flate2::Compress> =
-            std::cell::RefCell::new(flate2::Compress::new(flate2::Compression::default(), false));
+            std::cell::RefCell::new(flate2::Compress::new(flate2::Compression::fast(), false));
     }
     COMPRESSOR.with_borrow_mut(|compress| {
         compress.reset();
