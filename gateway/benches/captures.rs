@@ -89,10 +89,9 @@ fn demo_bites() -> anyhow::Result<Vec<Captured>> {
 }
 
 /// The history's record of `report` as the analysis makes it (the state after it: its
-/// time and counter 1, no gap estimate).
+/// time, no gap estimate; [`event`] numbers it).
 fn bite_record_of(report: &BiteReport) -> BiteRecord {
     let state = DrivelineResults {
-        bite_counter: 1,
         last_bite_unix_ms: Some(UtcTime::from_system(report.time).unix_ms()),
         ..DrivelineResults::default()
     };
@@ -103,7 +102,7 @@ fn bite_record_of(report: &BiteReport) -> BiteRecord {
 /// its capture (one event, as the service's), or the bite alone; at `time` when given.
 fn event(bites: &[Captured], n: usize, captured: bool, time: Option<UtcTime>) -> HistoryEvent {
     let (bite, capture) = &bites[n % bites.len()];
-    let (mut bite, mut capture) = (bite.clone(), capture.clone());
+    let mut bite = bite.clone();
     let counter = n as u32 + 1;
     for figures in [&mut bite.figures, &mut bite.state] {
         figures.bite_counter = counter;
@@ -113,16 +112,19 @@ fn event(bites: &[Captured], n: usize, captured: bool, time: Option<UtcTime>) ->
     }
     if let Some(time) = time {
         bite.time = time;
+    }
+    if !captured {
+        return HistoryEvent::Bite(Box::new(bite));
+    }
+    let mut capture = capture.clone();
+    if let Some(time) = time {
         capture.first_sample_unix_ns = time.unix_ms() * 1_000_000;
     }
     if let Some(of) = &mut capture.bite {
         of.counter = counter;
         of.time = bite.time;
     }
-    match captured {
-        true => HistoryEvent::CapturedBite(Box::new(bite), Box::new(capture)),
-        false => HistoryEvent::Bite(Box::new(bite)),
-    }
+    HistoryEvent::CapturedBite(Box::new(bite), Box::new(capture))
 }
 
 fn run_info() -> RunInfo {

@@ -146,7 +146,7 @@ fn get_varint(bytes: &[u8], at: &mut usize) -> Option<u64> {
 /// The fast level (one probe, greedy matches): a bite capture's varints of noisy
 /// differences have few long matches to find, and the default level's lazy search
 /// took twice the time for a larger blob (the demo's 62 bite windows: 1 699 bytes at
-/// the default level, 1 685 at the fast one; `cargo bench --bench captures`).
+/// the default level, 1 686 at the fast one; `cargo bench --bench captures`).
 fn deflate(raw: &[u8]) -> std::io::Result<Vec<u8>> {
     thread_local! {
         static COMPRESSOR: std::cell::RefCell<flate2::Compress> =
