@@ -14,7 +14,8 @@
 //! `cargo test --workspace` (a debug build: tokio-modbus's debug assertions on) runs
 //! 1 000 cases per harness, a few seconds; `FUZZ_CASES` sets the count. The fuzz stage
 //! of `scripts/test` runs 100 000 per harness in that same debug build (overflow checks
-//! on; about two minutes of CPU each for the slowest) and prints the counts and times:
+//! on; proptest and the parsers optimised by the dev profile: 53 s of CPU for all seven,
+//! the configuration's 29 s the slowest) and prints the counts and times:
 //! `FUZZ_CASES=100000 cargo test --workspace --features millgate/opcua,millgate-tests/opcua
 //! --test fuzz -- --nocapture`.
 
