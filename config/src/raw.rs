@@ -283,6 +283,7 @@ pub(crate) struct RawPlcOutput {
     pub(crate) write_period_ms: i64,
     pub(crate) timeout_ms: Option<i64>,
     pub(crate) extension_blocks: Option<bool>,
+    pub(crate) requests_in_flight: Option<i64>,
 }
 
 /// `[outputs.server]`.

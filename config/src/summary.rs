@@ -340,7 +340,7 @@ fn plc_and_servers(text: &mut String, outputs: &Outputs) {
     if let Some(plc) = &outputs.plc {
         let _ = writeln!(
             text,
-            "  PLC: {} unit {}, holding registers from {}, write every {} ms, timeout {} ms{}",
+            "  PLC: {} unit {}, holding registers from {}, write every {} ms, timeout {} ms{}{}",
             plc.address,
             plc.unit_id,
             plc.register_base,
@@ -350,6 +350,10 @@ fn plc_and_servers(text: &mut String, outputs: &Outputs) {
                 ", with the extension blocks"
             } else {
                 ""
+            },
+            match plc.requests_in_flight {
+                1 => String::new(),
+                n => format!(", {n} requests in flight"),
             }
         );
     }

@@ -200,6 +200,10 @@ fn base_is_valid_and_takes_defaults() {
     assert_eq!((plc.unit_id, plc.register_base), (1, 0));
     assert_eq!(plc.timeout, Duration::from_millis(1000));
     assert!(!plc.extension_blocks, "the first layout only, by default");
+    assert_eq!(
+        plc.requests_in_flight, 1,
+        "one request at a time, by default"
+    );
     let server = config.outputs.server.as_ref().expect("server output");
     assert_eq!(server.unit_id, 1);
     assert_eq!(server.max_connections, 8);
@@ -604,6 +608,27 @@ fn the_plc_gets_the_extension_blocks_when_asked_and_a_wrong_type_is_named() {
             .any(|p| p.contains("outputs.plc.extension_blocks")),
         "{problems:?}"
     );
+}
+
+#[test]
+fn the_plc_takes_requests_in_flight_within_their_range() {
+    let config = parse(&edited(
+        "write_period_ms = 100",
+        "write_period_ms = 100\nrequests_in_flight = 16",
+    ))
+    .unwrap_or_else(|error| panic!("{error}"));
+    assert_eq!(config.outputs.plc.unwrap().requests_in_flight, 16);
+    for refused in ["0", "17"] {
+        assert_only_problem(
+            &edited(
+                "write_period_ms = 100",
+                &format!("write_period_ms = 100\nrequests_in_flight = {refused}"),
+            ),
+            &format!(
+                "mill.toml: outputs.plc.requests_in_flight: {refused} is not allowed (must be 1..=16)"
+            ),
+        );
+    }
 }
 
 #[test]

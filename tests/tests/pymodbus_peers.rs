@@ -45,8 +45,34 @@ async fn read_plc(port: u16, len: u16) -> anyhow::Result<Vec<u16>> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn gateway_writes_its_map_into_a_pymodbus_plc() -> anyhow::Result<()> {
+    writes_its_map_into_a_pymodbus_plc(1).await
+}
+
+/// The same with `requests_in_flight = 8` and four drivelines (each bite changes four
+/// driveline blocks, more than one FC 16 request holds). pymodbus 3.16's server takes
+/// one request at a time: of several sent before their answers it answers the first
+/// at most and drops the rest. The writer's first write of several requests then gets
+/// no answer in time, and it goes on one request at a time: the PLC gets the map and
+/// the bites all the same, a timeout later.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_pymodbus_plc_that_takes_one_request_at_a_time_still_gets_the_map() -> anyhow::Result<()>
+{
+    writes_its_map_into_a_pymodbus_plc(8).await
+}
+
+async fn writes_its_map_into_a_pymodbus_plc(requests_in_flight: usize) -> anyhow::Result<()> {
     let demo = setup(2.0, 0.5, 3)?;
     let mut config = demo.config;
+    if requests_in_flight > 1 {
+        // Three more drivelines on the demo's torque channel.
+        let first = config.drivelines[0].clone();
+        config
+            .drivelines
+            .extend((2..=4).map(|k| millgate_config::Driveline {
+                name: format!("F{k}"),
+                ..first.clone()
+            }));
+    }
     // A kit port, below the kernel's ephemeral range: no outgoing connection is given
     // it before the Python PLC binds it.
     let port = free_port();
@@ -65,7 +91,17 @@ async fn gateway_writes_its_map_into_a_pymodbus_plc() -> anyhow::Result<()> {
     // take longer than the first bar's idle time), so the gateway sees the first bite
     // from its idle level.
     let devices = demo_devices(&mut config, &demo.schedule).await?;
-    config.outputs.plc.as_mut().unwrap().address = format!("127.0.0.1:{port}");
+    let output = config.outputs.plc.as_mut().unwrap();
+    output.address = format!("127.0.0.1:{port}");
+    output.requests_in_flight = requests_in_flight;
+    // A timeout of a fraction of the default's 1 s: the first write's wait for the
+    // answers pymodbus drops.
+    output.timeout = Duration::from_millis(300);
+    assert!(
+        requests_in_flight == 1 || map.len() > 2 * 123,
+        "the map has {} registers: one request's worth",
+        map.len()
+    );
 
     let mut gateway = millgate::Service::new(config)?.spawn().await?;
     let mut received =

@@ -1233,6 +1233,7 @@ async fn tandem_chatter_closed_loop_over_can_keeps_the_mill_below_developed_chat
         write_period: Duration::from_millis(50),
         timeout: Duration::from_secs(1),
         extension_blocks: false,
+        requests_in_flight: 1,
     });
     let serving_plc = plc.spawn(listener, ServeOptions::default());
     let message = message(&config, &[0, 1, 2, 3, 4])?;

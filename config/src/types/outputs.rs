@@ -318,7 +318,16 @@ pub struct PlcOutput {
     /// after every block) are written too (default false: a PLC whose area was sized
     /// for the first layout gets exactly what it got before).
     pub extension_blocks: bool,
+    /// FC 16 requests of one write sent before their answers came, 1..=16 (default 1:
+    /// one at a time). More needs a PLC whose Modbus TCP server takes requests in
+    /// flight on one connection (the implementation guide's
+    /// `NumberMaxOfServerTransaction`); a write of many blocks then costs about one
+    /// round trip instead of one per request.
+    pub requests_in_flight: usize,
 }
+
+/// Most FC 16 requests a PLC write sends before their answers came.
+pub const MAX_PLC_REQUESTS_IN_FLIGHT: i64 = 16;
 
 /// The gateway's own Modbus TCP server.
 #[derive(Debug, Clone, PartialEq)]

@@ -12,7 +12,7 @@ use crate::raw::{
 };
 use crate::{
     MetricsOutput, MqttOutput, MqttSecurity, MqttTls, Outputs, PlcOutput, ServerOutput, WebOutput,
-    CREDENTIALS_DIRECTORY,
+    CREDENTIALS_DIRECTORY, MAX_PLC_REQUESTS_IN_FLIGHT,
 };
 
 use super::{
@@ -116,6 +116,12 @@ impl Checker<'_> {
             &format!("{key}.timeout_ms"),
             plc.timeout_ms.unwrap_or(DEFAULT_TIMEOUT_MS),
         );
+        let requests_in_flight = self.int_in(
+            &format!("{key}.requests_in_flight"),
+            plc.requests_in_flight.unwrap_or(1),
+            1..=MAX_PLC_REQUESTS_IN_FLIGHT,
+            "",
+        );
         Some(PlcOutput {
             address: address?,
             unit_id: unit_id?,
@@ -123,6 +129,7 @@ impl Checker<'_> {
             write_period: write_period?,
             timeout: timeout?,
             extension_blocks: plc.extension_blocks.unwrap_or(false),
+            requests_in_flight: usize::try_from(requests_in_flight?).ok()?,
         })
     }
 

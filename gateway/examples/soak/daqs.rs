@@ -13,6 +13,7 @@ use millgate_sim::devices::virtual_daq::{DaqChannel, Placement, Publish, Virtual
 use rand::SeedableRng as _;
 use rand_distr::Distribution as _;
 
+use crate::options::Options;
 use crate::probe::free_port;
 
 /// Channels per virtual DAQ (one Modbus source each).
@@ -113,20 +114,21 @@ pub(crate) struct LoadPoint {
 }
 
 /// Generates the configuration of a load point in `folder` (beside a copy of the
-/// demo's model), with the broker at `broker_port` and `[analysis] workers` when
+/// demo's model), with the broker at `broker_port`, the tandem mills' rate of
+/// `options`, and its `[analysis] workers` and the PLC's requests in flight when
 /// given, and binds the DAQs it reads, the PLC and the gateway's ports.
 pub(crate) fn load_point(
     folder: &Path,
-    drivelines: usize,
-    stands: usize,
-    tandem_rate_hz: f64,
-    (broker_port, analysis_workers): (u16, Option<u32>),
+    (drivelines, stands): (usize, usize),
+    options: &Options,
+    broker_port: u16,
 ) -> anyhow::Result<LoadPoint> {
+    let tandem_rate_hz = options.tandem_rate_hz;
     let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../sim/models/table2-adjusted.toml");
     std::fs::copy(&model, folder.join("table2-adjusted.toml"))
         .with_context(|| format!("copying {}", model.display()))?;
     let mut config = format!("name = \"load bench: {drivelines} drivelines, {stands} stands\"\n\n");
-    if let Some(workers) = analysis_workers {
+    if let Some(workers) = options.analysis_workers {
         config.push_str(&format!("[analysis]\nworkers = {workers}\n\n"));
     }
     let mut listeners = Vec::new();
@@ -156,12 +158,15 @@ pub(crate) fn load_point(
     let (server, metrics, web) = (free_port()?, free_port()?, free_port()?);
     config.push_str(&format!(
         "[outputs.plc]\naddress = \"{}\"\nregister_base = 0\nwrite_period_ms = 100\n\
-         timeout_ms = 500\n\n[outputs.server]\nbind = \"{server}\"\n\n\
+         timeout_ms = 500\n{}\n[outputs.server]\nbind = \"{server}\"\n\n\
          [outputs.metrics]\nbind = \"{metrics}\"\n\n[outputs.web]\nbind = \"{web}\"\n\n\
          [history]\npath = \"history.db\"\n\n\
          [outputs.mqtt]\nbroker = \"127.0.0.1:{broker_port}\"\ngroup_id = \"load\"\n\
          node_id = \"bench\"\n",
-        plc_listener.local_addr()?
+        plc_listener.local_addr()?,
+        options
+            .plc_requests_in_flight
+            .map_or(String::new(), |n| format!("requests_in_flight = {n}\n"))
     ));
     let config_path = folder.join("mill.toml");
     std::fs::write(&config_path, &config)?;

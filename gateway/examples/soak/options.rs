@@ -23,6 +23,8 @@ pub(crate) struct Options {
     pub(crate) millgate: PathBuf,
     /// The gateway's `[analysis] workers` (left out: its default, one per core).
     pub(crate) analysis_workers: Option<u32>,
+    /// The PLC output's `requests_in_flight` (left out: its default, 1).
+    pub(crate) plc_requests_in_flight: Option<u32>,
 }
 
 impl Options {
@@ -39,6 +41,7 @@ impl Options {
             p99_limit_ms: P99_LIMIT_MS,
             keep_going: false,
             analysis_workers: None,
+            plc_requests_in_flight: None,
             millgate: std::env::current_exe()?
                 .parent()
                 .and_then(Path::parent)
@@ -118,10 +121,16 @@ impl Options {
                     format!("--analysis-workers: {value:?} is not a count of threads")
                 })?)
             }
+            "--plc-requests-in-flight" => {
+                // The gateway's check reports a count out of its range.
+                self.plc_requests_in_flight = Some(value.parse().with_context(|| {
+                    format!("--plc-requests-in-flight: {value:?} is not a count of requests")
+                })?)
+            }
             _ => bail!(
                 "unknown option {arg} (allowed: --duration, --every, --warm-up, --drivelines, \
                  --tandem-stands, --tandem-rate-hz, --cpu, --p99-limit-ms, --keep-going, \
-                 --millgate, --analysis-workers)"
+                 --millgate, --analysis-workers, --plc-requests-in-flight)"
             ),
         }
         Ok(())

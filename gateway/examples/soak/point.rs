@@ -39,13 +39,7 @@ pub(crate) async fn run_point(
     let _removed = Removed(folder.clone());
     let broker_port = free_port()?.port();
     let broker = Mosquitto::try_start(&folder, broker_port).map_err(anyhow::Error::msg)?;
-    let point = load_point(
-        &folder,
-        drivelines,
-        stands,
-        options.tandem_rate_hz,
-        (broker_port, options.analysis_workers),
-    )?;
+    let point = load_point(&folder, (drivelines, stands), options, broker_port)?;
     let map = RegisterMap::new(&point.config);
     let counters = bite_counters(&point.config, &map)?;
     let names: HashMap<String, usize> = point
@@ -180,14 +174,17 @@ fn print_load_point(
     println!(
         "load point: {drivelines} drivelines at {DRIVELINE_RATE_HZ} Hz, {stands} stands at {} Hz \
          ({channels} channels, {samples_per_s:.0} samples/s), {:.0} s (warm-up {:.0} s), \
-         pid {pid}{}",
+         pid {pid}{}{}",
         options.tandem_rate_hz,
         options.duration.as_secs_f64(),
         options.warm_up.as_secs_f64(),
         options
             .cpu
             .as_ref()
-            .map_or(String::new(), |cpu| format!(" on core {cpu}"))
+            .map_or(String::new(), |cpu| format!(" on core {cpu}")),
+        options
+            .plc_requests_in_flight
+            .map_or(String::new(), |n| format!(", {n} PLC requests in flight"))
     );
 }
 

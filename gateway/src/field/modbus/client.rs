@@ -1,9 +1,8 @@
-//! What the gateway's Modbus client tasks (the DAQ reader, the PLC writer) share:
-//! connecting over TCP with a timeout (tokio-modbus has none; a serial line is opened
-//! by `rtu.rs`), and reads and writes within a timeout that check the reply answers
-//! the request, over TCP or RTU alike ([`ModbusError`] for all).
+//! The DAQ reader's Modbus client: connecting over TCP with a timeout (tokio-modbus
+//! has none; a serial line is opened by `rtu.rs`), and reads within a timeout that
+//! check the reply answers the request, over TCP or RTU alike ([`ModbusError`] for
+//! all, which the PLC writer's own link, `outputs::modbus::plc_link`, shares).
 
-use std::borrow::Cow;
 use std::time::Duration;
 
 use millgate_config::RegisterTable;
@@ -19,6 +18,19 @@ pub(crate) async fn connect(
     unit_id: u8,
     timeout: Duration,
 ) -> Result<Context, ModbusError> {
+    let stream = connect_tcp(address, timeout).await?;
+    Ok(tokio_modbus::client::tcp::attach_slave(
+        stream,
+        Slave(unit_id),
+    ))
+}
+
+/// A TCP connection to the Modbus device at `address` (`host:port`), made within
+/// `timeout` (the DAQ reader's and the PLC writer's).
+pub(crate) async fn connect_tcp(
+    address: &str,
+    timeout: Duration,
+) -> Result<TcpStream, ModbusError> {
     let stream = tokio::time::timeout(timeout, TcpStream::connect(address))
         .await
         .map_err(|_| ModbusError::Timeout(timeout))?
@@ -28,10 +40,7 @@ pub(crate) async fn connect(
         })?;
     // Requests are small and frequent: do not let Nagle hold them back.
     let _ = stream.set_nodelay(true);
-    Ok(tokio_modbus::client::tcp::attach_slave(
-        stream,
-        Slave(unit_id),
-    ))
+    Ok(stream)
 }
 
 /// What a checked request gives: the transport's error, the reply's mismatch, or the
@@ -46,19 +55,6 @@ pub async fn read(
 ) -> Result<Vec<u16>, ModbusError> {
     let request = read_registers(context, table, address, count);
     let reply = tokio::time::timeout(timeout, request)
-        .await
-        .map_err(|_| ModbusError::Timeout(timeout))??;
-    reply.map_err(|exception| ModbusError::Exception { address, exception })
-}
-
-/// Write `words` (at most 123) from `address` within `timeout`.
-pub async fn write(
-    context: &mut Context,
-    address: u16,
-    words: &[u16],
-    timeout: Duration,
-) -> Result<(), ModbusError> {
-    let reply = tokio::time::timeout(timeout, write_registers(context, address, words))
         .await
         .map_err(|_| ModbusError::Timeout(timeout))??;
     reply.map_err(|exception| ModbusError::Exception { address, exception })
@@ -90,30 +86,6 @@ async fn read_registers(
         .into());
     }
     Ok(Ok(words))
-}
-
-/// Write `words` (at most 123) from `address` (FC 16); a reply echoing another
-/// address or count is a [`ReplyMismatch`], never a panic.
-async fn write_registers(context: &mut Context, address: u16, words: &[u16]) -> Checked<()> {
-    let count = words.len() as u16;
-    let request = Request::WriteMultipleRegisters(address, Cow::Borrowed(words));
-    match context.call(request).await? {
-        Ok(Response::WriteMultipleRegisters(echoed_address, echoed_count)) => {
-            if (echoed_address, echoed_count) == (address, count) {
-                Ok(Ok(()))
-            } else {
-                Err(ReplyMismatch::Echo {
-                    address,
-                    count,
-                    echoed_address,
-                    echoed_count,
-                }
-                .into())
-            }
-        }
-        Ok(_) => Err(ReplyMismatch::Function.into()),
-        Err(exception) => Ok(Err(exception)),
-    }
 }
 
 #[cfg(test)]
@@ -156,25 +128,5 @@ mod tests {
         let mut context = client_answered(&reply).await;
         let read = read_registers(&mut context, RegisterTable::Holding, 0, 2).await;
         assert_eq!(read.unwrap().unwrap(), [1, 2]);
-    }
-
-    #[tokio::test]
-    async fn a_write_echoed_with_another_count_is_a_mismatch_not_a_panic() {
-        // FC 16 reply echoing address 0, count 1 to a write of 2 registers at 0.
-        let reply = [0, 0, 0, 0, 0, 6, 1, 16, 0, 0, 0, 1];
-        let mut context = client_answered(&reply).await;
-        let written = write_registers(&mut context, 0, &[7, 8]).await;
-        match written {
-            Err(ModbusError::Mismatch(mismatch)) => assert_eq!(
-                mismatch,
-                ReplyMismatch::Echo {
-                    address: 0,
-                    count: 2,
-                    echoed_address: 0,
-                    echoed_count: 1
-                }
-            ),
-            other => panic!("expected a mismatch, got {other:?}"),
-        }
     }
 }

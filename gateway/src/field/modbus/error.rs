@@ -39,6 +39,15 @@ pub enum ReplyMismatch {
     /// kept so no reply can panic).
     #[error("reply of another function")]
     Function,
+    /// A reply whose transaction id or unit no request in flight has (the PLC
+    /// writer's requests in flight, `outputs::modbus::plc_link`).
+    #[error("reply for transaction {id} of unit {unit}, which no request in flight has")]
+    Header {
+        /// The reply's transaction id.
+        id: u16,
+        /// The reply's unit id.
+        unit: u8,
+    },
 }
 
 /// Why a request to a Modbus device got no usable answer.

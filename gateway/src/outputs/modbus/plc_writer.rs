@@ -17,6 +17,14 @@
 //! so the first write after it appears is fresh. Repeating warnings are rate-limited.
 //! On shutdown a last write publishes the "stopped" status.
 //!
+//! The requests of a write go one at a time, each after the last one's answer, or
+//! with `requests_in_flight` up to that many sent before their answers came
+//! (`super::plc_link`). A PLC whose stack takes one at a time answers the first of
+//! them at most (pymodbus 3.16 drops the others: `tests/tests/pymodbus_peers.rs`):
+//! a write of several requests that fails then for want of an answer (a timeout, the
+//! connection closed) makes the writer warn and send one at a time for the rest of
+//! the run.
+//!
 //! Before its first write the writer reads each driveline's bite counter back from the
 //! PLC: while no bite of this run has been counted, a counter the PLC holds above the
 //! restored one is continued (the history can lack bites the PLC saw: a full disk or
@@ -47,11 +55,11 @@ use std::time::Duration;
 use tokio::time::Instant;
 
 use millgate_config::layout::decode_value;
-use millgate_config::{PlcOutput, RegisterTable};
-use tokio_modbus::client::Context;
+use millgate_config::PlcOutput;
 
 use crate::field::backoff::Backoff;
-use crate::field::modbus::{client, ModbusError};
+use crate::field::modbus::ModbusError;
+use crate::outputs::modbus::plc_link::PlcLink;
 use crate::outputs::modbus::register_map::RegisterMap;
 use crate::shutdown::Shutdown;
 use crate::state::board::Board;
@@ -226,19 +234,21 @@ impl PlcWriter {
         self
     }
 
-    async fn connect(&self) -> Result<Context, ModbusError> {
+    async fn connect(&self) -> Result<PlcLink, ModbusError> {
         let output = &self.output;
-        client::connect(&output.address, output.unit_id, output.timeout).await
+        PlcLink::connect(&output.address, output.unit_id, output.timeout).await
     }
 
     /// Write the registers of `requests` (ranges of `words`, from the map's start),
-    /// one FC 16 request each.
+    /// one FC 16 request each, up to `in_flight` of them sent before their answers
+    /// came.
     async fn write(
         &self,
-        context: &mut Context,
-        words: &[u16],
-        requests: &[Range<u16>],
+        link: &mut PlcLink,
+        (words, requests): (&[u16], &[Range<u16>]),
+        in_flight: usize,
     ) -> Result<(), ModbusError> {
+        let mut writes = Vec::with_capacity(requests.len());
         for request in requests {
             let range = usize::from(request.start)..usize::from(request.end);
             // A request is at most 123 registers (`requests` packs blocks so); chunked
@@ -246,16 +256,16 @@ impl PlcWriter {
             for (i, chunk) in words[range].chunks(MAX_WRITE_REGISTERS).enumerate() {
                 let address =
                     self.output.register_base + request.start + (i * MAX_WRITE_REGISTERS) as u16;
-                client::write(context, address, chunk, self.output.timeout).await?;
+                writes.push((address, chunk));
             }
         }
-        Ok(())
+        link.write(&writes, in_flight).await
     }
 
     /// Continue each driveline's bite counter from what the PLC holds, when that is
     /// more than the board's and the board's is still `at_start` (no bite counted in
     /// this run yet). A read that fails leaves the counters as they are.
-    async fn continue_counters(&self, context: &mut Context, at_start: &[u32]) {
+    async fn continue_counters(&self, link: &mut PlcLink, at_start: &[u32]) {
         for (index, name) in self.board.driveline_names().iter().enumerate() {
             let register_name = format!("{name}.bite_counter");
             let Some(register) = self
@@ -268,12 +278,7 @@ impl PlcWriter {
             };
             let address = self.output.register_base + register.address;
             let count = register.value_type.register_count();
-            let read = client::read(
-                context,
-                (RegisterTable::Holding, address, count),
-                self.output.timeout,
-            )
-            .await;
+            let read = link.read_holding(address, count).await;
             let words = match read {
                 Ok(words) => words,
                 Err(error) => {
@@ -325,7 +330,7 @@ impl PlcWriter {
     /// The heartbeat moves every period even while the PLC is unreachable (the map is
     /// also served to HMIs); connection attempts are spaced by the backoff meanwhile.
     pub async fn run(mut self, mut shutdown: Shutdown) {
-        let mut context: Option<Context> = None;
+        let mut context: Option<PlcLink> = None;
         let mut backoff = Backoff::new();
         let mut next_attempt = Instant::now();
         let mut connect_warnings = WarnLimit::new(WARN_PERIOD);
@@ -347,6 +352,9 @@ impl PlcWriter {
             .map(|d| d.bite_counter)
             .collect();
         let mut counters_read = false;
+        // Requests sent before their answers came; 1 for the rest of the run once the
+        // PLC failed to answer them (its stack takes one at a time).
+        let mut in_flight = self.output.requests_in_flight;
         // The bites' stamps are kept for this writer while it runs (`/metrics`' bite
         // -> PLC latency, observed when a write that carried them went through).
         let latencies = Arc::clone(self.board.latencies());
@@ -401,7 +409,7 @@ impl PlcWriter {
                 });
                 let requests = changed.as_ref().unwrap_or(&whole);
                 let sent = std::time::Instant::now();
-                match self.write(connected, &words, requests).await {
+                match self.write(connected, (&words, requests), in_flight).await {
                     Ok(()) => {
                         latencies.written(&bites, sent);
                         at_plc = Some(words);
@@ -413,6 +421,17 @@ impl PlcWriter {
                     Err(error) => {
                         latencies.not_written(bites);
                         self.counters.failed(&error);
+                        if in_flight > 1 && requests.len() > 1 && error.needs_reconnect() {
+                            in_flight = 1;
+                            tracing::warn!(
+                                plc = %self.output.address,
+                                %error,
+                                requests_in_flight = self.output.requests_in_flight,
+                                "the PLC did not answer a write's requests in flight: requests \
+                                 go one at a time from now on (set outputs.plc.requests_in_flight \
+                                 = 1 for this PLC)"
+                            );
+                        }
                         if let Some(suppressed) = write_warnings.occurred(Instant::now()) {
                             tracing::warn!(plc = %self.output.address, %error, suppressed, "PLC write failed");
                         }
@@ -445,7 +464,10 @@ impl PlcWriter {
             None => self.connect().await,
         };
         let written = match connected {
-            Ok(mut connected) => self.write(&mut connected, &words, &whole).await,
+            Ok(mut connected) => {
+                self.write(&mut connected, (&words, &whole), in_flight)
+                    .await
+            }
             Err(error) => Err(error),
         };
         match written {
@@ -506,19 +528,26 @@ mod tests {
     /// PLC holding the whole map as encoded; the first write was the whole map.
     #[tokio::test]
     async fn a_change_writes_the_blocks_that_changed_and_the_periodic_write_all() {
-        change_and_period(false).await;
+        change_and_period(false, 1).await;
     }
 
     /// With `extension_blocks` the whole map, extension blocks too, goes to the PLC.
     #[tokio::test]
     async fn with_extension_blocks_the_plc_gets_the_whole_map() {
-        change_and_period(true).await;
+        change_and_period(true, 1).await;
     }
 
-    /// The test above with `outputs.plc.extension_blocks` = `extension`: the PLC's area
-    /// is exactly what it is written (the first layout without it: a write past it
-    /// would be refused).
-    async fn change_and_period(extension: bool) {
+    /// With requests in flight, the same requests reach the PLC in the same order and
+    /// leave it holding the same map.
+    #[tokio::test]
+    async fn with_requests_in_flight_the_plc_gets_the_same_requests_in_order() {
+        change_and_period(false, 8).await;
+    }
+
+    /// The test above with `outputs.plc.extension_blocks` = `extension` and
+    /// `requests_in_flight`: the PLC's area is exactly what it is written (the first
+    /// layout without it: a write past it would be refused).
+    async fn change_and_period(extension: bool, requests_in_flight: usize) {
         let mut config = crate::testing::example_config("demo.toml");
         let first = config.drivelines[0].clone();
         config.drivelines = (0..8)
@@ -543,6 +572,7 @@ mod tests {
         output.register_base = base;
         output.write_period = Duration::from_secs(3600);
         output.extension_blocks = extension;
+        output.requests_in_flight = requests_in_flight;
         let running = plc.clone().spawn(listener, ServeOptions::default());
         let health = Arc::new(SourceHealth::new(
             Duration::from_secs(3600),
