@@ -23,6 +23,7 @@ pub(crate) struct RawModbusSource {
     pub(crate) unit_id: Option<i64>,
     pub(crate) poll_period_ms: i64,
     pub(crate) timeout_ms: Option<i64>,
+    pub(crate) requests_in_flight: Option<i64>,
 }
 
 /// `[[sources.can]]`: a SocketCAN interface and its DBC file.

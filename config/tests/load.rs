@@ -632,6 +632,28 @@ fn the_plc_takes_requests_in_flight_within_their_range() {
 }
 
 #[test]
+fn a_tcp_source_takes_requests_in_flight_and_a_serial_one_does_not() {
+    let config = parse(&edited(
+        "poll_period_ms = 20",
+        "poll_period_ms = 20\nrequests_in_flight = 8",
+    ))
+    .unwrap_or_else(|error| panic!("{error}"));
+    assert_eq!(config.modbus_sources[0].requests_in_flight, 8);
+    assert_eq!(
+        parse(BASE).unwrap().modbus_sources[0].requests_in_flight,
+        1,
+        "one at a time by default"
+    );
+    assert_only_problem(
+        &edited(
+            "poll_period_ms = 20",
+            "poll_period_ms = 20\nrequests_in_flight = 17",
+        ),
+        "mill.toml: sources.modbus[0].requests_in_flight: 17 is not allowed (must be 1..=16)",
+    );
+}
+
+#[test]
 fn driveline_slots_reserve_blocks_and_fewer_than_the_drivelines_are_refused() {
     let base = parse(BASE).unwrap_or_else(|error| panic!("{error}"));
     assert_eq!(base.outputs.driveline_slots, None);

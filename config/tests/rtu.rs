@@ -180,6 +180,12 @@ fn every_line_setting_names_its_key_and_range() {
             "mill.toml: sources.modbus[0].inter_frame_delay_us: 1749 is not allowed (must be \
              1750..=100000 us; at least the fixed 1.75 ms above 19200 Bd)",
         ),
+        (
+            "poll_period_ms = 40",
+            "requests_in_flight = 2\npoll_period_ms = 40",
+            "mill.toml: sources.modbus[0].requests_in_flight: only for a Modbus TCP source \
+             (address): a serial line carries one request at a time: remove it",
+        ),
     ];
     for (from, to, expected) in cases {
         assert_eq!(only_problem(&edited(from, to)), expected, "{to}");

@@ -51,6 +51,20 @@ fn position_of(run: &[f64], signal: &[f64]) -> Option<usize> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn extra_channel_columns_are_what_the_daq_served() {
+    columns_as_served(None).await;
+}
+
+/// The same with the DAQ's two block channels read with requests in flight (the
+/// virtual DAQ, tokio-modbus's server, takes them): the same samples.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn with_requests_in_flight_the_columns_are_what_the_daq_served() {
+    columns_as_served(Some(8)).await;
+}
+
+/// Three bites of the demo with a motor current beside the torque on the same DAQ,
+/// its source's `requests_in_flight` set when given: each bite's exported columns are
+/// the samples the DAQ served, in the CSV and in the Parquet file.
+async fn columns_as_served(requests_in_flight: Option<u32>) {
     let mut served_torque = Vec::new();
     let mut served_current = Vec::new();
     let setup = Setup::with_daq(MILLGATE, "extra-channels", "db", |config, schedule| {
@@ -102,6 +116,15 @@ async fn extra_channel_columns_are_what_the_daq_served() {
         edited, config,
         "the demo's driveline names its torque otherwise"
     );
+    let edited = match requests_in_flight {
+        Some(n) => edited.replacen(
+            "name = \"daq1\"\n",
+            &format!("name = \"daq1\"\nrequests_in_flight = {n}\n"),
+            1,
+        ),
+        None => edited,
+    };
+    assert!(requests_in_flight.is_none() || edited.contains("requests_in_flight"));
     std::fs::write(&setup.config, edited).unwrap();
     setup.append_config(&format!(
         "\n[[channels]]\nname = \"motor_current\"\nkind = \"process_value\"\nunit = \"A\"\n\
@@ -116,6 +139,10 @@ async fn extra_channel_columns_are_what_the_daq_served() {
     })
     .await;
     terminate(&mut service);
+    // Read with requests in flight throughout: the reader never fell back to one at a
+    // time (it warns when it does).
+    let log = setup.log_text("run.log");
+    assert!(!log.contains("requests in flight"), "{log}");
 
     let db = setup.history.clone();
     let reader = HistoryReader::open(&db).unwrap();

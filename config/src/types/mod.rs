@@ -20,7 +20,7 @@ pub use mills::{
 };
 pub use outputs::{
     MetricsOutput, MqttOutput, MqttSecurity, MqttTls, OpcUaOutput, OpcUaSecurityMode, OpcUaUser,
-    Outputs, PlcOutput, ServerOutput, WebOutput, MAX_PLC_REQUESTS_IN_FLIGHT,
+    Outputs, PlcOutput, ServerOutput, WebOutput, MAX_REQUESTS_IN_FLIGHT,
 };
 pub use sources::{
     CanSource, Channel, ChannelKind, ChannelSource, ModbusSource, RegisterTable, ValueType,

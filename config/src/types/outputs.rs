@@ -326,8 +326,9 @@ pub struct PlcOutput {
     pub requests_in_flight: usize,
 }
 
-/// Most FC 16 requests a PLC write sends before their answers came.
-pub const MAX_PLC_REQUESTS_IN_FLIGHT: i64 = 16;
+/// Most requests sent to one Modbus TCP device before their answers came (a PLC
+/// write's, a DAQ poll's).
+pub const MAX_REQUESTS_IN_FLIGHT: i64 = 16;
 
 /// The gateway's own Modbus TCP server.
 #[derive(Debug, Clone, PartialEq)]

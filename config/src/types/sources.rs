@@ -27,6 +27,9 @@ pub struct ModbusSource {
     /// Time allowed for one request/response (over RTU the response timeout),
     /// 1..=60000 ms (default 1000 ms).
     pub timeout: Duration,
+    /// Block reads of one poll sent before their answers came, 1..=16 (default 1: one
+    /// at a time); Modbus TCP only, for a DAQ whose server takes requests in flight.
+    pub requests_in_flight: usize,
 }
 
 /// A SocketCAN interface with the DBC file that describes its frames.

@@ -12,7 +12,7 @@ use crate::raw::{
 };
 use crate::{
     MetricsOutput, MqttOutput, MqttSecurity, MqttTls, Outputs, PlcOutput, ServerOutput, WebOutput,
-    CREDENTIALS_DIRECTORY, MAX_PLC_REQUESTS_IN_FLIGHT,
+    CREDENTIALS_DIRECTORY, MAX_REQUESTS_IN_FLIGHT,
 };
 
 use super::{
@@ -119,7 +119,7 @@ impl Checker<'_> {
         let requests_in_flight = self.int_in(
             &format!("{key}.requests_in_flight"),
             plc.requests_in_flight.unwrap_or(1),
-            1..=MAX_PLC_REQUESTS_IN_FLIGHT,
+            1..=MAX_REQUESTS_IN_FLIGHT,
             "",
         );
         Some(PlcOutput {

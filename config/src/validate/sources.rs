@@ -10,7 +10,7 @@ use crate::dbc::read_dbc;
 use crate::layout::BLOCK_REGISTERS;
 use crate::raw::{RawCanSource, RawModbusSource};
 use crate::serial::{self, Parity, PollLoad, SerialLine};
-use crate::{CanSource, Channel, ChannelSource, ModbusSource};
+use crate::{CanSource, Channel, ChannelSource, ModbusSource, MAX_REQUESTS_IN_FLIGHT};
 
 use super::{format_ms, Checker, DEFAULT_TIMEOUT_MS, DEFAULT_UNIT_ID, MAX_INTERFACE_NAME};
 
@@ -77,6 +77,18 @@ impl Checker<'_> {
             &format!("{key}.timeout_ms"),
             raw.timeout_ms.unwrap_or(DEFAULT_TIMEOUT_MS),
         );
+        let requests_in_flight = self.int_in(
+            &format!("{key}.requests_in_flight"),
+            raw.requests_in_flight.unwrap_or(1),
+            1..=MAX_REQUESTS_IN_FLIGHT,
+            "",
+        );
+        if raw.device.is_some() && raw.requests_in_flight.is_some_and(|n| n > 1) {
+            self.report.push(
+                format!("{key}.requests_in_flight"),
+                "only for a Modbus TCP source (address): a serial line carries one request at a time: remove it",
+            );
+        }
         Some(ModbusSource {
             name: name?,
             address: address?,
@@ -84,6 +96,7 @@ impl Checker<'_> {
             unit_id: unit_id?,
             poll_period: poll_period?,
             timeout: timeout?,
+            requests_in_flight: usize::try_from(requests_in_flight?).ok()?,
         })
     }
 

@@ -42,13 +42,14 @@ struct GeneratedChannel {
     daq_channel: DaqChannel,
 }
 
-/// The virtual DAQs of one rate and their `[[sources.modbus]]` tables.
+/// The virtual DAQs of one rate and their `[[sources.modbus]]` tables (with
+/// `requests_in_flight` when given).
 fn daqs(
     prefix: &str,
     rate_hz: f64,
     block: u16,
     channels: Vec<GeneratedChannel>,
-    log_reads: bool,
+    (log_reads, requests_in_flight): (bool, Option<u32>),
     config: &mut String,
     listeners: &mut Vec<(VirtualDaq, std::net::TcpListener)>,
 ) -> anyhow::Result<()> {
@@ -61,8 +62,9 @@ fn daqs(
         let name = format!("{prefix}{daq}");
         config.push_str(&format!(
             "[[sources.modbus]]\nname = \"{name}\"\naddress = \"{}\"\n\
-             poll_period_ms = {poll_ms}\ntimeout_ms = 500\n\n",
-            listener.local_addr()?
+             poll_period_ms = {poll_ms}\ntimeout_ms = 500\n{}\n",
+            listener.local_addr()?,
+            requests_in_flight.map_or(String::new(), |n| format!("requests_in_flight = {n}\n"))
         ));
         let mut played = Vec::new();
         for (slot, channel) in channels.by_ref().take(CHANNELS_PER_DAQ).enumerate() {
@@ -138,7 +140,7 @@ pub(crate) fn load_point(
         DRIVELINE_RATE_HZ,
         DRIVELINE_BLOCK,
         torque_channels,
-        true,
+        (true, options.daq_requests_in_flight),
         &mut config,
         &mut listeners,
     )?;
@@ -147,7 +149,7 @@ pub(crate) fn load_point(
         tandem_rate_hz,
         STAND_BLOCK,
         stand_channels(stands, tandem_rate_hz)?,
-        false,
+        (false, options.daq_requests_in_flight),
         &mut config,
         &mut listeners,
     )?;

@@ -57,8 +57,8 @@
 //! `--p99-limit-ms` (5), `--keep-going` (step on after a failed point), `--millgate`
 //! the binary (the one beside this example's folder), `--analysis-workers` the
 //! gateway's `[analysis] workers` (left out: its default, one per core),
-//! `--plc-requests-in-flight` the PLC output's `requests_in_flight` (left out: its
-//! default, 1).
+//! `--plc-requests-in-flight` the PLC output's `requests_in_flight`, and
+//! `--daq-requests-in-flight` the DAQ sources' (left out: their default, 1).
 
 mod bites;
 mod daqs;

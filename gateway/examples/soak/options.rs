@@ -25,6 +25,8 @@ pub(crate) struct Options {
     pub(crate) analysis_workers: Option<u32>,
     /// The PLC output's `requests_in_flight` (left out: its default, 1).
     pub(crate) plc_requests_in_flight: Option<u32>,
+    /// The DAQ sources' `requests_in_flight` (left out: their default, 1).
+    pub(crate) daq_requests_in_flight: Option<u32>,
 }
 
 impl Options {
@@ -42,6 +44,7 @@ impl Options {
             keep_going: false,
             analysis_workers: None,
             plc_requests_in_flight: None,
+            daq_requests_in_flight: None,
             millgate: std::env::current_exe()?
                 .parent()
                 .and_then(Path::parent)
@@ -121,16 +124,23 @@ impl Options {
                     format!("--analysis-workers: {value:?} is not a count of threads")
                 })?)
             }
-            "--plc-requests-in-flight" => {
+            "--plc-requests-in-flight" | "--daq-requests-in-flight" => {
                 // The gateway's check reports a count out of its range.
-                self.plc_requests_in_flight = Some(value.parse().with_context(|| {
-                    format!("--plc-requests-in-flight: {value:?} is not a count of requests")
-                })?)
+                let count = Some(
+                    value
+                        .parse()
+                        .with_context(|| format!("{arg}: {value:?} is not a count of requests"))?,
+                );
+                match arg {
+                    "--plc-requests-in-flight" => self.plc_requests_in_flight = count,
+                    _ => self.daq_requests_in_flight = count,
+                }
             }
             _ => bail!(
                 "unknown option {arg} (allowed: --duration, --every, --warm-up, --drivelines, \
                  --tandem-stands, --tandem-rate-hz, --cpu, --p99-limit-ms, --keep-going, \
-                 --millgate, --analysis-workers, --plc-requests-in-flight)"
+                 --millgate, --analysis-workers, --plc-requests-in-flight, \
+                 --daq-requests-in-flight)"
             ),
         }
         Ok(())

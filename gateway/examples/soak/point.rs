@@ -174,7 +174,7 @@ fn print_load_point(
     println!(
         "load point: {drivelines} drivelines at {DRIVELINE_RATE_HZ} Hz, {stands} stands at {} Hz \
          ({channels} channels, {samples_per_s:.0} samples/s), {:.0} s (warm-up {:.0} s), \
-         pid {pid}{}{}",
+         pid {pid}{}{}{}",
         options.tandem_rate_hz,
         options.duration.as_secs_f64(),
         options.warm_up.as_secs_f64(),
@@ -184,7 +184,10 @@ fn print_load_point(
             .map_or(String::new(), |cpu| format!(" on core {cpu}")),
         options
             .plc_requests_in_flight
-            .map_or(String::new(), |n| format!(", {n} PLC requests in flight"))
+            .map_or(String::new(), |n| format!(", {n} PLC requests in flight")),
+        options
+            .daq_requests_in_flight
+            .map_or(String::new(), |n| format!(", {n} DAQ requests in flight"))
     );
 }
 

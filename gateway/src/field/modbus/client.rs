@@ -1,7 +1,7 @@
 //! The DAQ reader's Modbus client: connecting over TCP with a timeout (tokio-modbus
 //! has none; a serial line is opened by `rtu.rs`), and reads within a timeout that
 //! check the reply answers the request, over TCP or RTU alike ([`ModbusError`] for
-//! all, which the PLC writer's own link, `outputs::modbus::plc_link`, shares).
+//! all, which the TCP link with requests in flight, `link.rs`, shares).
 
 use std::time::Duration;
 

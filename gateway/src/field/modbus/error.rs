@@ -39,8 +39,8 @@ pub enum ReplyMismatch {
     /// kept so no reply can panic).
     #[error("reply of another function")]
     Function,
-    /// A reply whose transaction id or unit no request in flight has (the PLC
-    /// writer's requests in flight, `outputs::modbus::plc_link`).
+    /// A reply whose transaction id or unit no request in flight has (requests in
+    /// flight on a `link::TcpLink`).
     #[error("reply for transaction {id} of unit {unit}, which no request in flight has")]
     Header {
         /// The reply's transaction id.

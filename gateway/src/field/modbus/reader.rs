@@ -22,7 +22,14 @@
 //! data (not on TCP connect: a DAQ at its client limit accepts and closes at once,
 //! and would be reconnected thousands of times a second). Repeating warnings are
 //! rate-limited (one line per 10 s with the count suppressed, `warn_limit.rs`).
+//!
+//! A TCP source with `requests_in_flight` above 1 is read over a [`TcpLink`]: the
+//! block channels due in one poll are read with that many requests sent before their
+//! answers came, each answer then taken as one read's. A DAQ that fails such a poll
+//! for want of an answer (its stack takes one request at a time) is warned about and
+//! read one request at a time from the next connection on.
 
+use std::collections::VecDeque;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -37,6 +44,7 @@ use tokio_modbus::client::Context;
 use super::block::{BlockChannel, BlockNews};
 use super::client;
 use super::error::ModbusError;
+use super::link::{Answer, Request, TcpLink};
 use super::rtu::{self, FrameSpacing};
 use crate::field::acquired::Acquired;
 use crate::field::backoff::Backoff;
@@ -102,6 +110,13 @@ pub struct NewChannels {
     pub counters: Vec<Arc<ChannelCounters>>,
 }
 
+/// A connection to the DAQ: tokio-modbus's client (TCP or RTU, one request at a
+/// time), or a TCP link with requests in flight.
+enum Connection {
+    Client(Context),
+    Link(TcpLink),
+}
+
 /// Reads every channel of one Modbus source.
 #[derive(Debug)]
 pub struct DaqReader {
@@ -120,6 +135,9 @@ pub struct DaqReader {
     health: Arc<SourceHealth>,
     /// Over RTU, the silence between frames on the line; `None` over TCP.
     spacing: Option<FrameSpacing>,
+    /// Block reads of one poll sent before their answers came (the source's
+    /// `requests_in_flight`; 1 once the DAQ failed to answer them).
+    in_flight: usize,
     /// The unit tests' DAQ: connections made in memory, so the reconnect and stale
     /// timing run on a paused clock (`tests` below).
     #[cfg(test)]
@@ -142,6 +160,7 @@ impl DaqReader {
             spacing: source
                 .serial
                 .map(|line| FrameSpacing::new(line.inter_frame_delay)),
+            in_flight: source.requests_in_flight,
             source,
             channels_seen: 0,
             new_channels: None,
@@ -232,19 +251,26 @@ impl DaqReader {
         tracing::info!(source = %self.name, added, "reload: channels added, read from the next poll on");
     }
 
-    async fn connect(&mut self) -> Result<Context, ModbusError> {
+    async fn connect(&mut self) -> Result<Connection, ModbusError> {
         #[cfg(test)]
         if let Some(connector) = &mut self.connector {
-            return Ok(connector.connect());
+            return Ok(Connection::Client(connector.connect()));
         }
         let source = &self.source;
         match (&source.serial, &mut self.spacing) {
             (Some(line), Some(spacing)) => {
                 let context = rtu::connect(&source.address, line, source.unit_id)?;
                 spacing.opened();
-                Ok(context)
+                Ok(Connection::Client(context))
             }
-            _ => client::connect(&source.address, source.unit_id, source.timeout).await,
+            _ if self.in_flight > 1 => {
+                TcpLink::connect(&source.address, source.unit_id, source.timeout)
+                    .await
+                    .map(Connection::Link)
+            }
+            _ => client::connect(&source.address, source.unit_id, source.timeout)
+                .await
+                .map(Connection::Client),
         }
     }
 
@@ -297,7 +323,7 @@ impl DaqReader {
     /// analysis side hangs up (`Stop`). A poll that brought new data resets `backoff`.
     async fn poll_connection(
         &mut self,
-        context: &mut Context,
+        context: &mut Connection,
         samples: &mpsc::Sender<Acquired>,
         shutdown: &mut Shutdown,
         backoff: &mut Backoff,
@@ -363,13 +389,62 @@ impl DaqReader {
         }
     }
 
+    /// Over a link with requests in flight, the block channels due now read together:
+    /// each one's index and answer, in order; `None` (read them one at a time) over
+    /// tokio-modbus's client or when fewer than two are due. A failure of the exchange
+    /// counts against every block read, and one for want of an answer makes the
+    /// reader warn and read one request at a time from the next connection on.
+    async fn read_due_blocks(
+        &mut self,
+        context: &mut Connection,
+    ) -> Result<Option<VecDeque<(usize, Answer)>>, DaqError> {
+        let Connection::Link(link) = context else {
+            return Ok(None);
+        };
+        let due: Vec<usize> = (0..self.blocks.len())
+            .filter(|&index| self.blocks[index].due(now()))
+            .collect();
+        if due.len() < 2 {
+            return Ok(None);
+        }
+        let requests: Vec<Request<'_>> = due
+            .iter()
+            .map(|&index| {
+                let block = &self.blocks[index];
+                Request::Read(block.table, block.base, BLOCK_REGISTERS)
+            })
+            .collect();
+        match link.exchange(&requests, self.in_flight, false).await {
+            Ok(answers) => Ok(Some(due.into_iter().zip(answers).collect())),
+            Err(error) => {
+                let error = DaqError::from(error);
+                for &index in &due {
+                    self.blocks[index].failed(now());
+                    count_error(&self.blocks[index].counters, &error);
+                }
+                if error.needs_reconnect() && self.in_flight > 1 {
+                    tracing::warn!(
+                        source = %self.name,
+                        %error,
+                        requests_in_flight = self.in_flight,
+                        "the DAQ did not answer a poll's requests in flight: its blocks are \
+                         read one request at a time from the next connection on (set \
+                         requests_in_flight = 1 for this source)"
+                    );
+                    self.in_flight = 1;
+                }
+                Err(error)
+            }
+        }
+    }
+
     /// One poll: the block channels whose read is due and, on the grid (`on_grid`),
     /// the process values and texts. Whether it brought new data (a block advanced,
     /// or a process value was read on a source without blocks), or the analysis is
     /// gone.
     async fn poll(
         &mut self,
-        context: &mut Context,
+        context: &mut Connection,
         samples: &mpsc::Sender<Acquired>,
         on_grid: bool,
     ) -> Result<Poll, DaqError> {
@@ -377,12 +452,31 @@ impl DaqReader {
         let timeout = self.source.timeout;
         let mut first_error = None;
         let mut new_data = false;
-        for block in &mut self.blocks {
-            if !block.due(now()) {
-                continue;
-            }
-            let what = (block.table, block.base, BLOCK_REGISTERS);
-            let registers = match read(context, &mut self.spacing, what, timeout).await {
+        let mut answered = self.read_due_blocks(context).await?;
+        for (index, block) in self.blocks.iter_mut().enumerate() {
+            let read = match &mut answered {
+                // Read together: the answer of this block, if it was due.
+                Some(answers) => {
+                    if answers.front().is_none_or(|(due, _)| *due != index) {
+                        continue;
+                    }
+                    let Some((_, answer)) = answers.pop_front() else {
+                        continue;
+                    };
+                    answer.map_err(|exception| {
+                        DaqError::from(ModbusError::Exception {
+                            address: block.base,
+                            exception,
+                        })
+                    })
+                }
+                None if !block.due(now()) => continue,
+                None => {
+                    let what = (block.table, block.base, BLOCK_REGISTERS);
+                    read(context, &mut self.spacing, what, timeout).await
+                }
+            };
+            let registers = match read {
                 Ok(registers) => registers,
                 Err(error) => {
                     block.failed(now());
@@ -533,13 +627,18 @@ fn count_error(counters: &ChannelCounters, error: &DaqError) {
     }
 }
 
-/// [`client::read`] as a poll's error; over RTU (`spacing`) after the line's silence.
+/// One read ([`client::read`], or one request over a link) as a poll's error; over
+/// RTU (`spacing`) after the line's silence.
 async fn read(
-    context: &mut Context,
+    context: &mut Connection,
     spacing: &mut Option<FrameSpacing>,
     what: (RegisterTable, u16, u16),
     timeout: Duration,
 ) -> Result<Vec<u16>, DaqError> {
+    let context = match context {
+        Connection::Client(context) => context,
+        Connection::Link(link) => return Ok(link.read(what).await?),
+    };
     if let Some(spacing) = spacing {
         spacing.before_request().await;
     }
@@ -1045,5 +1144,82 @@ mod tests {
         assert_eq!(next_poll(t0 + ms(20), t0 + ms(21), period), t0 + ms(40));
         // A slow poll: 30 ms late. The next is a period after it began, not at once.
         assert_eq!(next_poll(t0 + ms(40), t0 + ms(70), period), t0 + ms(90));
+    }
+
+    /// A DAQ on loopback whose stack takes one request at a time, as pymodbus 3.16's
+    /// server does: of what one read brings it, it answers the first frame (exception
+    /// 02, which keeps the connection) and drops the rest. Gives its address and the
+    /// frames each connection brought in one read.
+    async fn one_at_a_time_daq() -> (String, Arc<Mutex<Vec<Vec<usize>>>>) {
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let address = listener.local_addr().unwrap().to_string();
+        let seen = Arc::new(Mutex::new(Vec::new()));
+        let connections = Arc::clone(&seen);
+        tokio::spawn(async move {
+            while let Ok((mut socket, _)) = listener.accept().await {
+                let connection = {
+                    let mut seen = connections.lock().unwrap();
+                    seen.push(Vec::new());
+                    seen.len() - 1
+                };
+                let seen = Arc::clone(&connections);
+                tokio::spawn(async move {
+                    let mut buffer = [0u8; 4096];
+                    while let Ok(n @ 1..) = socket.read(&mut buffer).await {
+                        let frames = buffer[..n].chunks(12).count();
+                        seen.lock().unwrap()[connection].push(frames);
+                        let (id, unit, function) = (&buffer[..2], buffer[6], buffer[7]);
+                        let answer = [id, &[0, 0, 0, 3, unit, function | 0x80, 2]].concat();
+                        if socket.write_all(&answer).await.is_err() {
+                            break;
+                        }
+                    }
+                });
+            }
+        });
+        (address, seen)
+    }
+
+    /// Two block channels due together, read with requests in flight from a DAQ that
+    /// answers the first only: the poll times out once (each channel counts the
+    /// timeout), the reader connects again and reads one request at a time from then
+    /// on, each read answered (the DAQ's refusal, counted as an error).
+    #[tokio::test]
+    async fn a_daq_that_takes_one_request_at_a_time_is_read_one_at_a_time_after_one_timeout() {
+        let (address, seen) = one_at_a_time_daq().await;
+        let mut config = source_config(&["b"]);
+        config.modbus_sources[0].address = address;
+        config.modbus_sources[0].requests_in_flight = 8;
+        let counters = [
+            Arc::new(ChannelCounters::default()),
+            Arc::new(ChannelCounters::default()),
+        ];
+        let health = Arc::new(SourceHealth::new(
+            Duration::from_millis(200),
+            Duration::from_secs(1),
+        ));
+        let reader = DaqReader::new(&config, 0, &counters, health);
+        let (samples, mut drain) = mpsc::channel(64);
+        tokio::spawn(async move { while drain.recv().await.is_some() {} });
+        let (stop, shutdown) = crate::shutdown::channel();
+        let running = tokio::spawn(reader.run(samples, shutdown));
+        // The timeout (300 ms), the backoff before the next connection, then polls.
+        tokio::time::sleep(Duration::from_millis(2500)).await;
+        stop.trigger();
+        running.await.unwrap();
+        let seen = seen.lock().unwrap().clone();
+        assert!(seen.len() >= 2, "connections: {seen:?}");
+        // The first read of the first connection brought both requests (24 bytes: two
+        // FC 04 frames of 12).
+        assert_eq!(seen[0].first(), Some(&2), "{seen:?}");
+        // From the next connection on, one request at a time, and many of them.
+        let later: Vec<usize> = seen[1..].iter().flatten().copied().collect();
+        assert!(later.iter().all(|&frames| frames == 1), "{seen:?}");
+        assert!(later.len() >= 10, "{seen:?}");
+        for counter in &counters {
+            let counted = counter.snapshot();
+            assert_eq!(counted.timeouts, 1, "{counted:?}");
+            assert!(counted.errors >= 5, "{counted:?}");
+        }
     }
 }

@@ -1,5 +1,5 @@
 //! The Modbus outputs, mirroring `field/modbus/`: the [`register_map`] derived from
-//! the catalogue, the [`plc_writer`] (FC 16 to the PLC, over its `plc_link`), the
+//! the catalogue, the [`plc_writer`] (FC 16 to the PLC, over `field::modbus::link`), the
 //! `hmi_server` (reads and command registers), the [`frame`] codec they share, and the
 //! heartbeat's own task when there is no PLC.
 
@@ -7,7 +7,6 @@ pub mod frame;
 pub(crate) mod heartbeat;
 pub(crate) mod hmi_server;
 pub(crate) mod metrics;
-pub(crate) mod plc_link;
 pub mod plc_writer;
 pub mod register_map;
 

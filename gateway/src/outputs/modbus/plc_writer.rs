@@ -19,7 +19,7 @@
 //!
 //! The requests of a write go one at a time, each after the last one's answer, or
 //! with `requests_in_flight` up to that many sent before their answers came
-//! (`super::plc_link`). A PLC whose stack takes one at a time answers the first of
+//! (`crate::field::modbus::link`). A PLC whose stack takes one at a time answers the first of
 //! them at most (pymodbus 3.16 drops the others: `tests/tests/pymodbus_peers.rs`):
 //! a write of several requests that fails then for want of an answer (a timeout, the
 //! connection closed) makes the writer warn and send one at a time for the rest of
@@ -58,8 +58,8 @@ use millgate_config::layout::decode_value;
 use millgate_config::PlcOutput;
 
 use crate::field::backoff::Backoff;
+use crate::field::modbus::link::TcpLink;
 use crate::field::modbus::ModbusError;
-use crate::outputs::modbus::plc_link::PlcLink;
 use crate::outputs::modbus::register_map::RegisterMap;
 use crate::shutdown::Shutdown;
 use crate::state::board::Board;
@@ -234,9 +234,9 @@ impl PlcWriter {
         self
     }
 
-    async fn connect(&self) -> Result<PlcLink, ModbusError> {
+    async fn connect(&self) -> Result<TcpLink, ModbusError> {
         let output = &self.output;
-        PlcLink::connect(&output.address, output.unit_id, output.timeout).await
+        TcpLink::connect(&output.address, output.unit_id, output.timeout).await
     }
 
     /// Write the registers of `requests` (ranges of `words`, from the map's start),
@@ -244,7 +244,7 @@ impl PlcWriter {
     /// came.
     async fn write(
         &self,
-        link: &mut PlcLink,
+        link: &mut TcpLink,
         (words, requests): (&[u16], &[Range<u16>]),
         in_flight: usize,
     ) -> Result<(), ModbusError> {
@@ -265,7 +265,7 @@ impl PlcWriter {
     /// Continue each driveline's bite counter from what the PLC holds, when that is
     /// more than the board's and the board's is still `at_start` (no bite counted in
     /// this run yet). A read that fails leaves the counters as they are.
-    async fn continue_counters(&self, link: &mut PlcLink, at_start: &[u32]) {
+    async fn continue_counters(&self, link: &mut TcpLink, at_start: &[u32]) {
         for (index, name) in self.board.driveline_names().iter().enumerate() {
             let register_name = format!("{name}.bite_counter");
             let Some(register) = self
@@ -278,7 +278,9 @@ impl PlcWriter {
             };
             let address = self.output.register_base + register.address;
             let count = register.value_type.register_count();
-            let read = link.read_holding(address, count).await;
+            let read = link
+                .read((millgate_config::RegisterTable::Holding, address, count))
+                .await;
             let words = match read {
                 Ok(words) => words,
                 Err(error) => {
@@ -330,7 +332,7 @@ impl PlcWriter {
     /// The heartbeat moves every period even while the PLC is unreachable (the map is
     /// also served to HMIs); connection attempts are spaced by the backoff meanwhile.
     pub async fn run(mut self, mut shutdown: Shutdown) {
-        let mut context: Option<PlcLink> = None;
+        let mut context: Option<TcpLink> = None;
         let mut backoff = Backoff::new();
         let mut next_attempt = Instant::now();
         let mut connect_warnings = WarnLimit::new(WARN_PERIOD);

@@ -1,45 +1,79 @@
-//! The PLC writer's Modbus TCP connection: FC 16 writes with up to `in_flight`
-//! requests sent before their answers came (the MBAP transaction id pairs each answer
-//! with its request), and the FC 03 read-back of the bite counters.
+//! A Modbus TCP connection with requests in flight: up to `in_flight` requests (FC 03
+//! and 04 reads, FC 16 writes) sent before their answers came, the MBAP transaction id
+//! pairing each answer with its request. The PLC writer writes the register map over
+//! it, and a DAQ reader whose source sets `requests_in_flight` above 1 reads its
+//! blocks over it.
 //!
-//! Why not tokio-modbus's client, which the DAQ readers use: its `Context::call` sends
-//! one request and waits for its answer (0.17.0 also clears its read buffer before
-//! every request), so a write of many blocks costs a round trip to the PLC each. A
-//! burst of bites changes one block per driveline (13 requests at 128 drivelines), and
-//! their round trips one after the other were a bite's `write` stage. The Modbus TCP
+//! Why not tokio-modbus's client, which the readers use otherwise: its `Context::call`
+//! sends one request and waits for its answer (0.17.0 also clears its read buffer
+//! before every request), so a burst of requests costs a round trip each: a burst of
+//! bites changes one register block per driveline (13 FC 16 requests at 128
+//! drivelines), a DAQ's block channels fall due together (8 reads). The Modbus TCP
 //! implementation guide (v1.0b) lets a client send several requests before their
 //! answers on one connection, each with its own transaction id, as many as the server
 //! takes (its `NumberMaxOfServerTransaction`); a server that takes one at a time reads
 //! the next from the stream when it has answered the last. Not every device's stack
-//! does that, so `requests_in_flight` is a setting of the PLC output, 1 by default:
-//! one request at a time, as tokio-modbus sends them.
+//! does that (pymodbus 3.16's server answers the first of several in one segment at
+//! most), so requests in flight are a setting, 1 by default.
 //!
 //! Every answer is checked before it is used (its header, its unit, its function, its
-//! echo), so no answer a PLC sends can panic the writer; an answer that does not
-//! match a request in flight ends the connection (it is out of step).
+//! echo or register count), so no answer a device sends can panic the caller; an
+//! answer that does not match a request in flight ends the exchange (the connection
+//! is out of step and must be made again).
 
 use std::collections::VecDeque;
 use std::time::Duration;
 
+use millgate_config::RegisterTable;
 use tokio::io::{AsyncReadExt, AsyncWriteExt, BufReader};
 use tokio::net::TcpStream;
 use tokio_modbus::prelude::ExceptionCode;
 
-use super::frame::{frame_len, MAX_FRAME_LEN, MBAP_HEADER_LEN};
-use crate::field::modbus::{client, ModbusError, ReplyMismatch};
+use super::client;
+use super::error::{ModbusError, ReplyMismatch};
 
+/// Bytes of the MBAP header: transaction id, protocol id, length, unit id.
+const MBAP_HEADER_LEN: usize = 7;
+/// Largest MBAP length field of an answer: the unit id and a 253-byte PDU.
+const MAX_MBAP_LENGTH: u16 = 254;
+/// Bytes of the largest request frame (an FC 16 of 123 registers).
+const MAX_REQUEST_LEN: usize = MBAP_HEADER_LEN + 6 + 2 * MAX_WRITE;
 /// FC 03, read holding registers.
 const READ_HOLDING: u8 = 0x03;
+/// FC 04, read input registers.
+const READ_INPUT: u8 = 0x04;
 /// FC 16, write multiple registers.
 const WRITE_MULTIPLE: u8 = 0x10;
-/// Most registers one FC 03 request reads.
+/// Most registers one FC 03 or 04 request reads.
 const MAX_READ: u16 = 125;
 /// Most registers one FC 16 request writes.
 const MAX_WRITE: usize = 123;
 
-/// One Modbus TCP connection to the PLC.
+/// One request of an [`TcpLink::exchange`].
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum Request<'a> {
+    /// Read `count` (at most 125) registers of a table from an address (FC 03 or 04).
+    Read(RegisterTable, u16, u16),
+    /// Write the words (at most 123) from an address (FC 16).
+    Write(u16, &'a [u16]),
+}
+
+impl Request<'_> {
+    /// The first register it names.
+    fn address(&self) -> u16 {
+        match *self {
+            Request::Read(_, address, _) | Request::Write(address, _) => address,
+        }
+    }
+}
+
+/// A request's answer: a read's registers (none for a write), or the device's
+/// refusal.
+pub(crate) type Answer = Result<Vec<u16>, ExceptionCode>;
+
+/// A Modbus TCP connection to one device (unit).
 #[derive(Debug)]
-pub(crate) struct PlcLink {
+pub(crate) struct TcpLink {
     stream: BufReader<TcpStream>,
     unit_id: u8,
     /// The transaction id of the next request.
@@ -48,27 +82,26 @@ pub(crate) struct PlcLink {
     timeout: Duration,
 }
 
-/// A request sent and not answered yet.
+/// A request sent and not answered yet: its transaction id, function, first register,
+/// register count and place in the exchange.
 #[derive(Debug, Clone, Copy)]
 struct InFlight {
     id: u16,
     function: u8,
     address: u16,
     count: u16,
-}
-
-/// What an answer said: done (a write's echo, or a read's registers), or the PLC's
-/// refusal.
-enum Answer {
-    Done(Vec<u16>),
-    Refused(ExceptionCode),
+    index: usize,
 }
 
 fn io_error(source: std::io::Error) -> ModbusError {
     ModbusError::Transport(tokio_modbus::Error::Transport(source))
 }
 
-impl PlcLink {
+fn invalid(why: String) -> ModbusError {
+    io_error(std::io::Error::new(std::io::ErrorKind::InvalidData, why))
+}
+
+impl TcpLink {
     /// Connect to `address` (`host:port`) within `timeout` and talk to `unit_id`,
     /// each answer awaited at most `timeout`.
     pub(crate) async fn connect(
@@ -78,27 +111,33 @@ impl PlcLink {
     ) -> Result<Self, ModbusError> {
         let stream = client::connect_tcp(address, timeout).await?;
         Ok(Self {
-            stream: BufReader::with_capacity(4 * MAX_FRAME_LEN, stream),
+            stream: BufReader::with_capacity(8 * MAX_REQUEST_LEN, stream),
             unit_id,
             next_id: 0,
             timeout,
         })
     }
 
-    /// Append the frame of a request of `function` at `address` for `count`
-    /// registers (with `words` for a write) to `out`; returns what is in flight.
-    fn frame(
-        &mut self,
-        out: &mut Vec<u8>,
-        (function, address, count): (u8, u16, u16),
-        words: &[u16],
-    ) -> InFlight {
+    /// Append the frame of `request` to `out`; returns what is in flight.
+    fn frame(&mut self, out: &mut Vec<u8>, request: Request<'_>, index: usize) -> InFlight {
         let id = self.next_id;
         self.next_id = id.wrapping_add(1);
-        let data = if words.is_empty() {
-            0
-        } else {
+        let (function, address, count, words) = match request {
+            Request::Read(RegisterTable::Holding, address, count) => {
+                (READ_HOLDING, address, count.min(MAX_READ), &[][..])
+            }
+            Request::Read(RegisterTable::Input, address, count) => {
+                (READ_INPUT, address, count.min(MAX_READ), &[][..])
+            }
+            Request::Write(address, words) => {
+                let words = &words[..words.len().min(MAX_WRITE)];
+                (WRITE_MULTIPLE, address, words.len() as u16, words)
+            }
+        };
+        let data = if function == WRITE_MULTIPLE {
             1 + 2 * words.len()
+        } else {
+            0
         };
         let length = (1 + 5 + data) as u16;
         out.extend_from_slice(&id.to_be_bytes());
@@ -107,7 +146,7 @@ impl PlcLink {
         out.extend_from_slice(&[self.unit_id, function]);
         out.extend_from_slice(&address.to_be_bytes());
         out.extend_from_slice(&count.to_be_bytes());
-        if !words.is_empty() {
+        if function == WRITE_MULTIPLE {
             out.push((2 * words.len()) as u8);
             for word in words {
                 out.extend_from_slice(&word.to_be_bytes());
@@ -118,6 +157,7 @@ impl PlcLink {
             function,
             address,
             count,
+            index,
         }
     }
 
@@ -132,34 +172,41 @@ impl PlcLink {
     /// The next answer's frame, whole, within the timeout.
     async fn answer_frame(&mut self) -> Result<Vec<u8>, ModbusError> {
         let timeout = self.timeout;
-        // Each answer acknowledged at once: a PLC whose stack holds small segments
+        // Each answer acknowledged at once: a device whose stack holds small segments
         // until the last one is acknowledged (Nagle's algorithm, on by default in
-        // many) sends the second answer of a write only then, and this end's delayed
-        // ACK would wait up to 40 ms for data to ride on that, with requests in
-        // flight, never comes (the load bench's virtual PLC: a write's answers took
-        // 44 ms on the mean without this). The kernel leaves quick-ACK mode by
+        // many) sends the second answer of an exchange only then, and this end's
+        // delayed ACK would wait up to 40 ms for data to ride on that, with requests
+        // in flight, never comes (the load bench's virtual PLC: a write's answers
+        // took 44 ms on the mean without this). The kernel leaves quick-ACK mode by
         // itself, so it is asked for before every answer.
         let _ = socket2::SockRef::from(self.stream.get_ref()).set_tcp_quickack(true);
         let read = async {
             let mut frame = vec![0; MBAP_HEADER_LEN];
-            self.stream.read_exact(&mut frame).await?;
-            // The header is whole: checked here, its length read below.
-            frame_len(&frame)
-                .map_err(|error| std::io::Error::new(std::io::ErrorKind::InvalidData, error))?;
-            let len = 6 + usize::from(u16::from_be_bytes([frame[4], frame[5]]));
-            frame.resize(len, 0);
+            self.stream.read_exact(&mut frame).await.map_err(io_error)?;
+            let protocol = u16::from_be_bytes([frame[2], frame[3]]);
+            let length = u16::from_be_bytes([frame[4], frame[5]]);
+            if protocol != 0 {
+                return Err(invalid(format!(
+                    "MBAP protocol id {protocol}, not 0 (Modbus)"
+                )));
+            }
+            if !(2..=MAX_MBAP_LENGTH).contains(&length) {
+                return Err(invalid(format!("MBAP length {length} outside 2..=254")));
+            }
+            frame.resize(6 + usize::from(length), 0);
             self.stream
                 .read_exact(&mut frame[MBAP_HEADER_LEN..])
-                .await?;
-            Ok::<_, std::io::Error>(frame)
+                .await
+                .map_err(io_error)?;
+            Ok(frame)
         };
         tokio::time::timeout(timeout, read)
             .await
             .map_err(|_| ModbusError::Timeout(timeout))?
-            .map_err(io_error)
     }
 
-    /// The next answer, checked against the requests in `flight` (and taken off it).
+    /// The next answer, checked against the requests in `flight` (and taken off it),
+    /// with the request it answers.
     async fn answer(
         &mut self,
         flight: &mut VecDeque<InFlight>,
@@ -178,7 +225,7 @@ impl PlcLink {
         let pdu = &frame[MBAP_HEADER_LEN..];
         let answer = match *pdu {
             [function, code] if function == request.function | 0x80 => {
-                Answer::Refused(ExceptionCode::new(code))
+                Err(ExceptionCode::new(code))
             }
             [WRITE_MULTIPLE, a0, a1, c0, c1] if request.function == WRITE_MULTIPLE => {
                 let (echoed_address, echoed_count) =
@@ -192,9 +239,11 @@ impl PlcLink {
                     }
                     .into());
                 }
-                Answer::Done(Vec::new())
+                Ok(Vec::new())
             }
-            [READ_HOLDING, bytes, ref data @ ..] if request.function == READ_HOLDING => {
+            [function, bytes, ref data @ ..]
+                if function == request.function && function != WRITE_MULTIPLE =>
+            {
                 if usize::from(bytes) != data.len() || data.len() != 2 * usize::from(request.count)
                 {
                     return Err(ReplyMismatch::Registers {
@@ -203,76 +252,94 @@ impl PlcLink {
                     }
                     .into());
                 }
-                let words = data
+                Ok(data
                     .chunks_exact(2)
                     .map(|pair| u16::from_be_bytes([pair[0], pair[1]]))
-                    .collect();
-                Answer::Done(words)
+                    .collect())
             }
             _ => return Err(ReplyMismatch::Function.into()),
         };
         Ok((request, answer))
     }
 
-    /// Read `count` (at most 125) holding registers from `address` (FC 03).
-    pub(crate) async fn read_holding(
+    /// Send `requests` in order, up to `in_flight` (at least 1) before their answers
+    /// came, and give each one's answer, in the order of `requests`. With
+    /// `stop_at_refusal`, no further request is sent once the device refused one (the
+    /// answers of those in flight are still read, so the connection stays in step),
+    /// and the answers end there. A transport error, a timeout or an answer that
+    /// matches no request ends the exchange with that error.
+    pub(crate) async fn exchange(
         &mut self,
-        address: u16,
-        count: u16,
-    ) -> Result<Vec<u16>, ModbusError> {
-        let mut frame = Vec::with_capacity(MBAP_HEADER_LEN + 5);
-        let request = self.frame(
-            &mut frame,
-            (READ_HOLDING, address, count.min(MAX_READ)),
-            &[],
-        );
-        self.send(&frame).await?;
-        let mut flight = VecDeque::from([request]);
-        match self.answer(&mut flight).await? {
-            (_, Answer::Done(words)) => Ok(words),
-            (_, Answer::Refused(exception)) => Err(ModbusError::Exception { address, exception }),
-        }
-    }
-
-    /// Write each of `writes` (an address and at most 123 words) with FC 16, in order,
-    /// up to `in_flight` (at least 1) requests sent before their answers came. When
-    /// the PLC refuses one, no further request is sent, the answers of those in flight
-    /// are read (the connection stays in step), and the first refusal is the error.
-    pub(crate) async fn write(
-        &mut self,
-        writes: &[(u16, &[u16])],
+        requests: &[Request<'_>],
         in_flight: usize,
-    ) -> Result<(), ModbusError> {
+        stop_at_refusal: bool,
+    ) -> Result<Vec<Answer>, ModbusError> {
         let in_flight = in_flight.max(1);
         let mut flight = VecDeque::with_capacity(in_flight);
-        let mut pending = writes.iter();
-        let mut refused: Option<ModbusError> = None;
-        let mut frames = Vec::with_capacity(in_flight * MAX_FRAME_LEN);
+        let mut answers: Vec<Option<Answer>> = vec![None; requests.len()];
+        let mut next = 0;
+        let mut refused = false;
+        let mut frames = Vec::with_capacity(in_flight.min(requests.len()) * MAX_REQUEST_LEN);
         loop {
             // Fill the window in one send.
             frames.clear();
-            while refused.is_none() && flight.len() < in_flight {
-                let Some(&(address, words)) = pending.next() else {
-                    break;
-                };
-                let words = &words[..words.len().min(MAX_WRITE)];
-                let count = words.len() as u16;
-                flight.push_back(self.frame(&mut frames, (WRITE_MULTIPLE, address, count), words));
+            while !refused && flight.len() < in_flight && next < requests.len() {
+                flight.push_back(self.frame(&mut frames, requests[next], next));
+                next += 1;
             }
             if !frames.is_empty() {
                 self.send(&frames).await?;
             }
             if flight.is_empty() {
-                return refused.map_or(Ok(()), Err);
+                break;
             }
-            if let (request, Answer::Refused(exception)) = self.answer(&mut flight).await? {
-                refused.get_or_insert(ModbusError::Exception {
-                    address: request.address,
-                    exception,
-                });
-            }
+            let (request, answer) = self.answer(&mut flight).await?;
+            refused |= stop_at_refusal && answer.is_err();
+            answers[request.index] = Some(answer);
+        }
+        Ok(answers.into_iter().map_while(|answer| answer).collect())
+    }
+
+    /// Read `count` (at most 125) registers of `table` from `address` (FC 03 or 04).
+    pub(crate) async fn read(
+        &mut self,
+        (table, address, count): (RegisterTable, u16, u16),
+    ) -> Result<Vec<u16>, ModbusError> {
+        let request = Request::Read(table, address, count);
+        let answers = self.exchange(&[request], 1, false).await?;
+        first_answer(&[request], answers)
+    }
+
+    /// Write each of `writes` (an address and at most 123 words) with FC 16, in order,
+    /// up to `in_flight` requests sent before their answers came. When the device
+    /// refuses one, no further request is sent, and the refusal is the error.
+    pub(crate) async fn write(
+        &mut self,
+        writes: &[(u16, &[u16])],
+        in_flight: usize,
+    ) -> Result<(), ModbusError> {
+        let requests: Vec<Request<'_>> = writes
+            .iter()
+            .map(|&(address, words)| Request::Write(address, words))
+            .collect();
+        let answers = self.exchange(&requests, in_flight, true).await?;
+        match answers.iter().position(Result::is_err) {
+            Some(at) => first_answer(&requests[at..], answers[at..].to_vec()).map(drop),
+            None => Ok(()),
         }
     }
+}
+
+/// The first of `answers` (to `requests`) as a result: a refusal is the error naming
+/// its request's first register.
+fn first_answer(requests: &[Request<'_>], answers: Vec<Answer>) -> Result<Vec<u16>, ModbusError> {
+    let (Some(request), Some(answer)) = (requests.first(), answers.into_iter().next()) else {
+        return Err(ReplyMismatch::Function.into());
+    };
+    answer.map_err(|exception| ModbusError::Exception {
+        address: request.address(),
+        exception,
+    })
 }
 
 #[cfg(test)]
@@ -297,9 +364,9 @@ mod tests {
     }
 
     /// A link (unit 1) to a PLC from [`plc`].
-    async fn linked(expect: usize, answer: Vec<u8>) -> PlcLink {
+    async fn linked(expect: usize, answer: Vec<u8>) -> TcpLink {
         let address = plc(expect, answer).await;
-        PlcLink::connect(&address, 1, Duration::from_secs(5))
+        TcpLink::connect(&address, 1, Duration::from_secs(5))
             .await
             .unwrap()
     }
@@ -378,7 +445,7 @@ mod tests {
         // FC 03 answer with 2 registers for 3 requested.
         let answer = vec![0, 0, 0, 0, 0, 7, 1, 3, 4, 0, 1, 0, 2];
         let mut link = linked(MBAP_HEADER_LEN + 5, answer).await;
-        match link.read_holding(0, 3).await {
+        match link.read((RegisterTable::Holding, 0, 3)).await {
             Err(ModbusError::Mismatch(ReplyMismatch::Registers {
                 requested: 3,
                 answered: 2,
@@ -391,7 +458,7 @@ mod tests {
     async fn an_answer_that_is_not_modbus_tcp_is_a_transport_error() {
         // Protocol id 1.
         let mut link = linked(MBAP_HEADER_LEN + 5, vec![0, 0, 0, 1, 0, 3, 1, 3, 0]).await;
-        let error = link.read_holding(0, 1).await.unwrap_err();
+        let error = link.read((RegisterTable::Holding, 0, 1)).await.unwrap_err();
         assert!(matches!(error, ModbusError::Transport(_)), "{error:?}");
     }
 }
