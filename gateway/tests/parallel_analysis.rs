@@ -6,7 +6,10 @@
 //!
 //! - serially, one message at a time (what the analysis did before the pool);
 //! - in rounds (each poll's blocks of every driveline together) with `workers = 1`;
-//! - in rounds with `workers = 4`.
+//! - in rounds with `workers = 4`;
+//! - taken up as they come with `workers = 4` (what the service does): each poll's
+//!   blocks handed over while the shares of the earlier polls may still run, waited
+//!   for only at the end.
 //!
 //! Every bite report (its figures bit for bit, as `{:?}` prints every `f64` exactly,
 //! its gap estimate and capture) is the same in the same order per driveline, and so
@@ -125,6 +128,8 @@ enum Feed {
     Serial,
     /// Each poll's blocks of every driveline in one round.
     Rounds,
+    /// Each poll's blocks taken up without waiting for the shares in flight.
+    TakenUp,
 }
 
 /// One run: the bites released per driveline (as `{:?}`) and the history's rows per
@@ -190,7 +195,15 @@ fn run(
                 }
             }
             Feed::Rounds => released.extend(analysis.handle_all(messages)),
+            Feed::TakenUp => released.extend(analysis.take_up(messages)),
         }
+        // Taken up, the mills may be behind a poll: compared once all is done.
+        if !matches!(feed, Feed::TakenUp) {
+            mills.push(format!("{:?}", board.results().tandem_mills));
+        }
+    }
+    released.extend(analysis.handle_all(Vec::new()));
+    if matches!(feed, Feed::TakenUp) {
         mills.push(format!("{:?}", board.results().tandem_mills));
     }
     drop(analysis);
@@ -297,7 +310,12 @@ fn the_pool_gives_the_serial_analysis_results_bit_for_bit() {
             .any(|mills| mills.contains("chatter_warning: true")),
         "the second mill's chatter is part of what is compared"
     );
-    for (workers, feed) in [(1, Feed::Rounds), (4, Feed::Rounds), (4, Feed::Serial)] {
+    for (workers, feed) in [
+        (1, Feed::Rounds),
+        (4, Feed::Rounds),
+        (4, Feed::Serial),
+        (4, Feed::TakenUp),
+    ] {
         let pooled = run(&dir, workers, feed, &signals, &maps, &stamps);
         for driveline in 0..DRIVELINES {
             assert_eq!(
@@ -308,6 +326,14 @@ fn the_pool_gives_the_serial_analysis_results_bit_for_bit() {
                 pooled.rows[driveline], serial.rows[driveline],
                 "D{driveline}'s history rows with {workers} workers, {feed:?}"
             );
+        }
+        if matches!(feed, Feed::TakenUp) {
+            assert_eq!(
+                pooled.mills.last(),
+                serial.mills.last(),
+                "the tandem mills at the end with {workers} workers, {feed:?}"
+            );
+            continue;
         }
         for (poll, (pooled, serial)) in pooled.mills.iter().zip(&serial.mills).enumerate() {
             assert_eq!(

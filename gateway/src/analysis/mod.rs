@@ -14,6 +14,7 @@ mod error;
 mod extra_channels;
 pub(crate) mod fatigue;
 pub mod fatigue_ledger;
+mod flight;
 pub mod gap_estimate;
 pub mod gap_map;
 pub(crate) mod gap_map_cache;
@@ -21,11 +22,11 @@ pub mod gap_monitor;
 pub mod gap_trend;
 mod pool;
 pub mod rod_monitor;
-mod round;
+mod shares;
 pub(crate) mod simulated_bite;
 pub mod wear;
 
-use std::sync::Arc;
+use std::sync::{Arc, MutexGuard};
 use std::time::{Duration, Instant};
 
 use millgate_config::{Config, DrivelineThresholds, TandemMill};
@@ -38,22 +39,18 @@ use crate::state::events::RestoredDriveline;
 use crate::state::gap_maps::{GapMapState, GapMaps};
 use crate::supervision::{Liveness, ANALYSIS_TICK};
 use crate::warn_limit::{WarnLimit, WARN_PERIOD};
-use driveline::{publish_bites, BiteReport, DrivelineAnalyzer};
+use driveline::{BiteReport, DrivelineAnalyzer};
 pub use error::AnalysisError;
 use gap_estimate::GapObservation;
 use gap_map::GapMapError;
 use gap_monitor::{GapMapJob, GapMapsReady};
-use round::Routes;
+use shares::Routes;
 
-/// Most reader messages (blocks, gaps, process values) the analysis takes up in one
-/// round: what is ready when a round starts, up to this many (the readers' channel
-/// holds more; the rest are the next round's).
-pub const MAX_ROUND_MESSAGES: usize = 1024;
+pub use flight::MAX_ROUND_MESSAGES;
 
 /// The analysis task: consumes samples until every reader has hung up.
 #[derive(Debug)]
 pub struct Analysis {
-    drivelines: Vec<DrivelineAnalyzer>,
     /// Per channel: the drivelines whose torque it is.
     by_torque: Vec<Vec<usize>>,
     /// Per channel: the drivelines it triggers.
@@ -63,19 +60,10 @@ pub struct Analysis {
     /// Per channel: the drivelines whose extra channel it is, with its position in
     /// their `extra_channels`.
     by_extra: Vec<Vec<(usize, usize)>>,
-    /// Per driveline: how long a bite waits for its extra channels.
-    extra_hold: Vec<Duration>,
-    /// Bites waiting for their extra channels, in the order they completed.
-    held: Vec<HeldBite>,
-    /// The threads that analyse the drivelines' shares of a round
-    /// (`analysis.workers`, resolved: at least 1), started once and kept.
-    pool: pool::Pool,
+    /// The drivelines' analysers and the mills' monitors, their shares in flight on
+    /// the pool and the bites held for extra channels.
+    flight: flight::Flight,
     board: Arc<Board>,
-    bites: broadcast::Sender<BiteReport>,
-    /// Chatter monitors of the tandem mills.
-    chatter: chatter::ChatterAnalysis,
-    /// Span stability monitors of the rod mills.
-    rod_mills: rod_monitor::RodAnalysis,
     /// The commands' log lines, per kind (acknowledge, wear reset, capture of a
     /// driveline, of the stands): a client may send them in a loop (the web API, an
     /// HMI, OPC UA), so each kind logs its first, then one line per period with how
@@ -104,18 +92,17 @@ impl Analysis {
         let rod_mills = rod_monitor::RodAnalysis::new(config, Arc::clone(&board))?;
         let channels = config.channels.len();
         let mut analysis = Self {
-            drivelines: Vec::new(),
             by_torque: vec![Vec::new(); channels],
             by_trigger: vec![Vec::new(); channels],
             by_context: vec![Vec::new(); channels],
             by_extra: vec![Vec::new(); channels],
-            extra_hold: Vec::new(),
-            held: Vec::new(),
-            pool: pool::Pool::new(workers(config.analysis.workers)),
+            flight: flight::Flight::new(
+                pool::Pool::new(workers(config.analysis.workers)),
+                Arc::clone(&board),
+                bites,
+                flight::Mills { chatter, rod_mills },
+            ),
             board,
-            bites,
-            chatter,
-            rod_mills,
             command_logs: std::array::from_fn(|_| WarnLimit::new(WARN_PERIOD)),
         };
         for (analyzer, routes) in built {
@@ -142,7 +129,8 @@ impl Analysis {
         config: &Config,
         added: AddedDrivelines,
     ) -> Result<Vec<String>, String> {
-        let from = self.drivelines.len();
+        self.flight.settle();
+        let from = self.flight.drivelines.len();
         if added.from != from {
             return Err(format!(
                 "drivelines built from index {} for an analysis of {from} drivelines",
@@ -167,7 +155,7 @@ impl Analysis {
         for (analyzer, routes) in added.built {
             self.push_driveline(analyzer, routes);
         }
-        // Before the next round: their first bite continues the counter resumed.
+        // Before their first block: their first bite continues the counter resumed.
         for restored in &added.resumed {
             if let Some(k) = names.iter().position(|name| *name == restored.name) {
                 self.resume_driveline(from + k, restored);
@@ -178,7 +166,7 @@ impl Analysis {
 
     /// Analyse `analyzer` (the next driveline) on the channels of `routes`.
     fn push_driveline(&mut self, analyzer: DrivelineAnalyzer, routes: DrivelineRoutes) {
-        let index = self.drivelines.len();
+        let index = self.flight.drivelines.len();
         self.by_torque[routes.torque].push(index);
         if let Some(trigger) = routes.trigger {
             self.by_trigger[trigger].push(index);
@@ -189,13 +177,14 @@ impl Analysis {
         for (position, channel) in routes.extra.into_iter().enumerate() {
             self.by_extra[channel].push((index, position));
         }
-        self.extra_hold.push(routes.hold);
-        self.drivelines.push(analyzer);
+        self.flight.add_driveline(analyzer, routes.hold);
     }
 
     /// Each rod mill's span count (from its mill file), in config order.
     pub fn rod_mill_spans(&self) -> Vec<usize> {
-        self.rod_mills
+        self.flight
+            .mills()
+            .rod_mills
             .monitors()
             .iter()
             .map(|monitor| monitor.span_names().len())
@@ -204,10 +193,15 @@ impl Analysis {
 
     /// Why drivelines that name a model run without wear diagnosis (a model that does
     /// not load, `wear` settings that do not fit it); each message names the key.
-    pub fn wear_problems(&self) -> Vec<&AnalysisError> {
-        self.drivelines
+    pub fn wear_problems(&self) -> Vec<String> {
+        self.flight
+            .drivelines
             .iter()
-            .filter_map(DrivelineAnalyzer::wear_problem)
+            .filter_map(|driveline| {
+                crate::lock(driveline)
+                    .wear_problem()
+                    .map(ToString::to_string)
+            })
             .collect()
     }
 
@@ -215,35 +209,42 @@ impl Analysis {
     /// none). Run each off the analysis task and hand the result to
     /// [`Self::install_gap_maps`] (or through the `maps` channel of [`Self::run`]).
     pub fn take_gap_map_jobs(&mut self) -> Vec<GapMapJob> {
-        self.drivelines
-            .iter_mut()
-            .filter_map(DrivelineAnalyzer::take_gap_map_job)
+        self.flight
+            .drivelines
+            .iter()
+            .filter_map(|driveline| crate::lock(driveline).take_gap_map_job())
             .collect()
+    }
+
+    /// Driveline `index`'s analyser once its shares in flight (all of them) are
+    /// done; `None` when there is no such driveline.
+    fn settled_driveline(&mut self, index: usize) -> Option<MutexGuard<'_, DrivelineAnalyzer>> {
+        self.flight.settle();
+        self.flight.driveline(index)
     }
 
     /// Install driveline `index`'s gap maps, or note that they failed (logged with
     /// the error, the gap registers stay invalid); publishes the trend's estimate of
     /// the bites seen meanwhile.
     pub fn install_gap_maps(&mut self, index: usize, maps: Result<GapMaps, GapMapError>) {
-        let Some(driveline) = self.drivelines.get_mut(index) else {
+        let board = Arc::clone(&self.board);
+        let Some(mut driveline) = self.settled_driveline(index) else {
             return;
         };
         let maps = match maps {
             Ok(maps) => {
                 let maps = Arc::new(maps);
-                self.board
-                    .set_gap_maps(index, GapMapState::Ready(Arc::clone(&maps)));
+                board.set_gap_maps(index, GapMapState::Ready(Arc::clone(&maps)));
                 Some(maps)
             }
             Err(error) => {
                 tracing::error!(driveline = index, %error, "no gap maps: the gap registers stay invalid");
-                self.board
-                    .set_gap_maps(index, GapMapState::Failed(error.to_string()));
+                board.set_gap_maps(index, GapMapState::Failed(error.to_string()));
                 None
             }
         };
         if let Some(estimate) = driveline.set_gap_maps(maps) {
-            driveline.publish_gap(&self.board, &estimate);
+            driveline.publish_gap(&board, &estimate);
         }
     }
 
@@ -257,11 +258,12 @@ impl Analysis {
         saved: Option<&str>,
         bites: Vec<(i64, GapObservation)>,
     ) {
-        let Some(driveline) = self.drivelines.get_mut(index) else {
+        let board = Arc::clone(&self.board);
+        let Some(mut driveline) = self.settled_driveline(index) else {
             return;
         };
         if let Some(estimate) = driveline.restore_gap_trend(saved, bites) {
-            driveline.publish_gap(&self.board, &estimate);
+            driveline.publish_gap(&board, &estimate);
         }
     }
 
@@ -274,18 +276,18 @@ impl Analysis {
     /// driveline a reload adds under a name the history knows resumes before its
     /// first bite ([`Self::add_drivelines`]).
     pub fn resume_driveline(&mut self, index: usize, restored: &RestoredDriveline) {
-        let Some(driveline) = self.drivelines.get_mut(index) else {
+        let board = Arc::clone(&self.board);
+        let Some(mut driveline) = self.settled_driveline(index) else {
             return;
         };
         // A driveline whose `fatigue` section was removed publishes no fatigue
         // figures: its state row still holds the last ledger's (the saved ledger stays
         // in the history, so that adding the section again resumes it).
-        let no_ledger = self
-            .board
+        let no_ledger = board
             .fatigue_components()
             .get(index)
             .is_none_or(Vec::is_empty);
-        self.board.update(|results| {
+        board.update(|results| {
             let results = &mut results.drivelines[index];
             *results = restored.results.clone();
             if no_ledger {
@@ -306,7 +308,7 @@ impl Analysis {
                 (*time, observation)
             });
             if let Some(estimate) = driveline.restore_gap_trend(saved, bites.collect()) {
-                driveline.publish_gap(&self.board, &estimate);
+                driveline.publish_gap(&board, &estimate);
             }
         }
         if let Some(ledger) = restored
@@ -314,7 +316,7 @@ impl Analysis {
             .as_deref()
             .and_then(|saved| driveline.restore_fatigue(saved))
         {
-            driveline.publish_fatigue(&self.board, &ledger, None);
+            driveline.publish_fatigue(&board, &ledger, None);
         }
         tracing::info!(
             driveline = %restored.name,
@@ -332,24 +334,32 @@ impl Analysis {
 
     /// Driveline `index`'s wear trend in its saved form; `None` without a model.
     pub fn gap_trend(&self, index: usize) -> Option<String> {
-        self.drivelines.get(index)?.gap_trend()
+        self.flight.driveline(index)?.gap_trend()
     }
 
     /// Warn and alarm at `settings` (a reload): each driveline at its thresholds from
     /// its next bite on, each tandem mill at its chatter thresholds from its next
     /// window on. Latched alarms stay latched until acknowledged.
     pub fn set_thresholds(&mut self, settings: &LiveSettings) {
+        self.flight.settle();
         for (driveline, (thresholds, horizon_days)) in
-            self.drivelines.iter_mut().zip(&settings.drivelines)
+            self.flight.drivelines.iter().zip(&settings.drivelines)
         {
-            driveline.set_thresholds((thresholds, *horizon_days));
+            crate::lock(driveline).set_thresholds((thresholds, *horizon_days));
         }
-        self.chatter.set_thresholds(&settings.tandem_mills);
+        self.flight
+            .mills()
+            .chatter
+            .set_thresholds(&settings.tandem_mills);
     }
 
     /// Apply a command: acknowledge the latched alarms, or reset a driveline's wear
     /// (its TAF-ratio trend, its gap estimate and the gap's wear trend behind it).
+    /// Waits for the shares in flight first (their bites are published as they end),
+    /// so the command is in effect after the samples taken up before it.
     pub fn command(&mut self, command: Command) {
+        // In order with the samples taken up before it.
+        self.flight.settle();
         let kind = match &command {
             Command::AcknowledgeAlarms { .. } => 0,
             Command::ResetWear { .. } => 1,
@@ -367,7 +377,7 @@ impl Analysis {
                 self.board.acknowledge_alarms(origin);
             }
             Command::ResetWear { driveline, origin } => {
-                let Some(analyzer) = self.drivelines.get_mut(driveline) else {
+                let Some(mut analyzer) = self.flight.driveline(driveline) else {
                     tracing::warn!(driveline, "wear reset of a driveline that does not exist");
                     return;
                 };
@@ -382,7 +392,7 @@ impl Analysis {
                 component,
                 origin,
             } => {
-                let Some(analyzer) = self.drivelines.get_mut(driveline) else {
+                let Some(mut analyzer) = self.flight.driveline(driveline) else {
                     tracing::warn!(
                         driveline,
                         "fatigue reset of a driveline that does not exist"
@@ -410,7 +420,7 @@ impl Analysis {
                 seconds,
                 origin,
             } => {
-                let Some(analyzer) = self.drivelines.get_mut(driveline) else {
+                let Some(mut analyzer) = self.flight.driveline(driveline) else {
                     tracing::warn!(
                         driveline,
                         "manual capture of a driveline that does not exist"
@@ -435,7 +445,11 @@ impl Analysis {
                 seconds,
                 origin,
             } => {
-                let started = self.chatter.start_manual_capture(mill, f64::from(seconds));
+                let started = self
+                    .flight
+                    .mills()
+                    .chatter
+                    .start_manual_capture(mill, f64::from(seconds));
                 match (log, started) {
                     (None, _) => {}
                     (Some(suppressed), true) => tracing::info!(mill, seconds, by = origin.name(), peer = ?origin.peer(), suppressed, "manual capture of the stands started"),
@@ -451,130 +465,48 @@ impl Analysis {
         self.handle_all(vec![message])
     }
 
-    /// Handle the messages from the readers that are ready together (one round), in
-    /// their order; returns the bites they released: published and recorded.
-    ///
-    /// Each driveline's share of the messages runs on the pool of
-    /// `analysis.workers` threads (`pool::Pool::run_round`), and so do the tandem
-    /// mills' chatter windows and the rod mills' operating points (every message of
-    /// the round, in order, as one job beside the drivelines'); the bites of the
-    /// drivelines that are done are published together (`publish_bites`: one
-    /// change of the results, one history commit, one PLC write), while the others
-    /// still run. A bite of a driveline with extra channels is held until every one
-    /// has samples up to the end of its window, or its hold bound passes
-    /// ([`Self::release_held`]); any other bite is released at once.
+    /// Handle the messages from the readers that are ready together, in their order,
+    /// and wait until every driveline's share of them is done; returns the bites they
+    /// released: published and recorded. What [`Self::run`] does without the wait
+    /// ([`Self::take_up`]).
     pub fn handle_all(&mut self, messages: Vec<Acquired>) -> Vec<BiteReport> {
+        let mut released = self.take_up(messages);
+        released.extend(self.flight.settle());
+        released
+    }
+
+    /// Take `messages` up, in their order: each driveline's share of them starts now
+    /// (or after its share in flight), and so does the mills' (every message). Does
+    /// not wait for the shares on the pool; returns the bites released meanwhile
+    /// (published and recorded): those of the shares that ran on this thread and of
+    /// those that ended on the pool. A bite of a
+    /// driveline with extra channels is held until every one has samples up to the
+    /// end of its window, or its hold bound passes ([`Self::release_held`]); any
+    /// other bite is released as soon as its share ends.
+    pub fn take_up(&mut self, messages: Vec<Acquired>) -> Vec<BiteReport> {
+        let latencies = self.board.latencies();
         for message in &messages {
             if let Acquired::Samples { handed, .. } = message {
-                self.board.latencies().block_taken(handed.elapsed());
+                latencies.block_taken(handed.elapsed());
             }
         }
+        let messages: Vec<Arc<Acquired>> = messages.into_iter().map(Arc::new).collect();
         let routes = Routes {
             by_torque: &self.by_torque,
             by_trigger: &self.by_trigger,
             by_context: &self.by_context,
             by_extra: &self.by_extra,
         };
-        let steps = routes.steps(&messages, self.drivelines.len());
-        let no_mills = self.chatter.monitors().is_empty() && self.rod_mills.monitors().is_empty();
-        let mills = (!no_mills).then_some(Job::Mills(
-            &mut self.chatter,
-            &mut self.rod_mills,
-            &messages,
-        ));
-        let jobs: Vec<_> = mills
-            .into_iter()
-            .chain(
-                self.drivelines
-                    .iter_mut()
-                    .zip(&steps)
-                    .filter(|(_, steps)| !steps.is_empty())
-                    .map(|(analyzer, steps)| Job::Driveline(analyzer, steps)),
-            )
-            .collect();
-        let (board, subscribers, extra_hold) = (&self.board, &self.bites, &self.extra_hold);
-        let mut released = Vec::new();
-        // Bites of drivelines with extra channels, to hold.
-        let mut to_hold = Vec::new();
-        self.pool.run_round(
-            jobs,
-            |job| match job {
-                Job::Driveline(analyzer, steps) => analyzer.may_complete_a_window(steps),
-                Job::Mills(..) => true,
-            },
-            |job| {
-                let (analyzer, steps) = match job {
-                    Job::Driveline(analyzer, steps) => (analyzer, steps),
-                    Job::Mills(chatter, rod_mills, messages) => {
-                        for message in messages {
-                            // A block arrived when its reader handed it over, not when
-                            // its round (or this job) took it up.
-                            let arrival = match message {
-                                Acquired::Samples { handed, .. } => *handed,
-                                _ => Instant::now(),
-                            };
-                            chatter.handle_at(message, arrival);
-                            rod_mills.handle(message);
-                        }
-                        return None;
-                    }
-                };
-                let reports = analyzer.run_steps(steps, board);
-                Some((&*analyzer, reports))
-            },
-            |done| {
-                let mut ready = Vec::new();
-                for (analyzer, reports) in done.into_iter().flatten() {
-                    for report in reports {
-                        if extra_hold[report.driveline].is_zero() {
-                            ready.push((analyzer, report));
-                        } else {
-                            to_hold.push(report);
-                        }
-                    }
-                }
-                let bites: Vec<_> = ready.iter().map(|(a, report)| (*a, report)).collect();
-                publish_bites(board, subscribers, &bites);
-                released.extend(ready.into_iter().map(|(_, report)| report));
-            },
-        );
-        // The hold counts from now, not from the block's hand-over: a bite found late
-        // (the analysis behind) still waits its whole hold for the extra channels'
-        // blocks, which are behind it in the readers' channel.
-        let now = Instant::now();
-        self.held.extend(to_hold.into_iter().map(|report| HeldBite {
-            deadline: now + self.extra_hold[report.driveline],
-            report,
-        }));
-        released.extend(self.release_held(now, false));
-        released
+        let shares = routes.steps(&messages, self.flight.drivelines.len());
+        self.flight.take_up(messages, shares)
     }
 
     /// Release the held bites (in the order they completed, per driveline) whose
     /// extra channels reach the end of their window, whose bound has passed at `now`,
-    /// or all when `all`: their captures take what the rings hold, and they are
-    /// published and recorded together. Returns them.
+    /// or all when `all` (once the shares in flight ended): their captures take what
+    /// the rings hold, and they are published and recorded together. Returns them.
     pub fn release_held(&mut self, now: Instant, all: bool) -> Vec<BiteReport> {
-        let mut released = Vec::new();
-        let mut waiting: Vec<usize> = Vec::new();
-        for mut held in std::mem::take(&mut self.held) {
-            let driveline = &self.drivelines[held.report.driveline];
-            let ready =
-                all || now >= held.deadline || driveline.extras_reach_window_end(&held.report);
-            if !ready || waiting.contains(&held.report.driveline) {
-                waiting.push(held.report.driveline);
-                self.held.push(held);
-                continue;
-            }
-            driveline.capture_extras(&mut held.report);
-            released.push(held.report);
-        }
-        let bites: Vec<_> = released
-            .iter()
-            .map(|report| (&self.drivelines[report.driveline], report))
-            .collect();
-        publish_bites(&self.board, &self.bites, &bites);
-        released
+        self.flight.release_held(now, all)
     }
 
     /// Run until every sender of `samples` is dropped, installing gap maps as they
@@ -583,7 +515,8 @@ impl Analysis {
     /// counting each turn of the loop (a message handled, or [`ANALYSIS_TICK`] without
     /// one) in `liveness`: a watchdog sees a stuck analysis as turns that stop. New
     /// `thresholds` (a reload) take effect in order with the samples, like commands,
-    /// and so do drivelines a reload adds (`additions`), between two rounds.
+    /// and so do drivelines a reload adds (`additions`), once the shares in flight
+    /// ended.
     pub async fn run(
         mut self,
         mut samples: mpsc::Receiver<Acquired>,
@@ -601,6 +534,7 @@ impl Analysis {
         let mut commands_open = true;
         let mut thresholds_open = true;
         let mut additions_open = true;
+        let ended = self.flight.woken();
         loop {
             tokio::select! {
                 biased;
@@ -621,17 +555,20 @@ impl Analysis {
                     }
                     None => additions_open = false,
                 },
+                () = ended.notified(), if self.flight.any() => {
+                    self.flight.finished();
+                }
                 message = samples.recv() => match message {
                     Some(message) => {
-                        // With it, whatever else is ready: one round.
-                        let mut round = vec![message];
-                        while round.len() < MAX_ROUND_MESSAGES {
+                        // With it, whatever else is ready.
+                        let mut ready = vec![message];
+                        while ready.len() < MAX_ROUND_MESSAGES {
                             match samples.try_recv() {
-                                Ok(message) => round.push(message),
+                                Ok(message) => ready.push(message),
                                 Err(_) => break,
                             }
                         }
-                        self.handle_all(round);
+                        self.take_up(ready);
                     }
                     None => break,
                 },
@@ -812,28 +749,6 @@ fn workers(configured: usize) -> usize {
         0 => std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get),
         workers => workers,
     }
-}
-
-/// A job of an analysis round.
-enum Job<'a, 'm> {
-    /// A driveline's share of the round, in order.
-    Driveline(&'a mut DrivelineAnalyzer, &'a [round::Step<'m>]),
-    /// The tandem mills' and the rod mills' share: every message of the round, in
-    /// order (each mill's state depends only on its own messages' order).
-    Mills(
-        &'a mut chatter::ChatterAnalysis,
-        &'a mut rod_monitor::RodAnalysis,
-        &'m [Acquired],
-    ),
-}
-
-/// A bite waiting for its driveline's extra channels.
-#[derive(Debug)]
-struct HeldBite {
-    /// The bite, analysed.
-    report: BiteReport,
-    /// When it is released whatever the extra channels hold.
-    deadline: Instant,
 }
 
 /// Least time a bite waits for its extra channels.

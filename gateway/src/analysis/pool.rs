@@ -1,22 +1,15 @@
-//! The analysis round's bounded pool: the jobs of one round (a driveline's share of
-//! the blocks drained together) that may take a bite's analysis run on a pool of
-//! `workers` persistent threads, the others on the round's own thread, and each
-//! job's result is handed to the publisher as soon as it is done, together with
-//! whatever else finished meanwhile. A slow job delays only itself: the others'
-//! results are published while it runs; the round (and so the next blocks) ends when
-//! it ends.
+//! The analysis' bounded pool: a driveline's share of the messages that may take a
+//! bite's analysis (and the tandem and rod mills' share) runs on one of `workers`
+//! persistent threads, and says so when it is done ([`Finished`]); the analysis
+//! task does not wait for it, but takes up the next messages meanwhile (a share for
+//! a driveline still being analysed waits for it: `super::flight`). A slow job so
+//! delays only its own driveline.
 //!
-//! The threads are rayon's (`ThreadPool::in_place_scope`): started once, at the
-//! first round that has work for more than one, and kept, so a round costs a wake-up
-//! of idle threads rather than the start of new ones (scoped threads spawned per
-//! round, as before, cost some tens of microseconds each, more on a loaded machine,
-//! at every round: a round per DAQ poll, hundreds a second). The scope lets the jobs
-//! borrow the drivelines' analysers without moving them in and out of
-//! `Arc<Mutex<_>>`, and the publisher runs on the calling thread inside it, so the
-//! results are published as they come rather than once all are done (what rayon's
-//! `par_iter` would give). Nothing queues without bound: the jobs are the round's (at
-//! most [`super::MAX_ROUND_MESSAGES`] blocks' worth) and the results' channel holds
-//! one result per job.
+//! The threads are rayon's (`ThreadPool::spawn`): started once, at the first job,
+//! and kept, so a job costs the wake-up of an idle thread rather than the start of a
+//! new one (some tens of microseconds, more on a loaded machine, hundreds of times a
+//! second). Nothing queues without bound: each driveline and the mills have at most
+//! one job in flight, and the finished jobs' channel at most one message per job.
 
 use std::sync::mpsc;
 use std::sync::OnceLock;
@@ -25,7 +18,7 @@ use std::sync::OnceLock;
 #[derive(Debug)]
 pub(crate) struct Pool {
     workers: usize,
-    /// The threads (`None`: they could not be started, the rounds run inline).
+    /// The threads (`None`: they could not be started, every share runs inline).
     threads: OnceLock<Option<rayon::ThreadPool>>,
 }
 
@@ -40,7 +33,7 @@ impl Pool {
     }
 
     /// The threads, started at the first call.
-    fn threads(&self) -> Option<&rayon::ThreadPool> {
+    fn started(&self) -> Option<&rayon::ThreadPool> {
         self.threads
             .get_or_init(|| {
                 let built = rayon::ThreadPoolBuilder::new()
@@ -56,169 +49,188 @@ impl Pool {
             .as_ref()
     }
 
-    /// Run `jobs` through `work`, calling `publish` on the calling thread with each
-    /// group of results that are done, in the order they finished; returns once every
-    /// job is done and published. The `heavy` jobs (those that may take a bite's
-    /// analysis) run on the pool when there are two or more and more than one worker;
-    /// the others run on the calling thread meanwhile (taking a block's samples in is
-    /// a few microseconds: waking a pool thread for it costs more than it saves, and a
-    /// woken thread that finds no work spins on `sched_yield` before it sleeps, which
-    /// on a small machine takes a core from the readers and the outputs). Otherwise
-    /// every job runs on the calling thread, the heavy ones first.
-    pub(crate) fn run_round<J: Send, R: Send>(
-        &self,
-        jobs: Vec<J>,
-        heavy: impl Fn(&J) -> bool,
-        work: impl Fn(J) -> R + Sync,
-        mut publish: impl FnMut(Vec<R>),
-    ) {
-        let (pooled, inline): (Vec<J>, Vec<J>) = jobs.into_iter().partition(|job| heavy(job));
-        let threads = if self.workers > 1 && pooled.len() > 1 {
-            self.threads()
+    /// The threads that run jobs: `None` with one worker (every job runs on the
+    /// calling thread) or when they could not be started.
+    pub(crate) fn threads(&self) -> Option<&rayon::ThreadPool> {
+        if self.workers > 1 {
+            self.started()
         } else {
             None
-        };
-        let Some(threads) = threads else {
-            for job in pooled.into_iter().chain(inline) {
-                publish(vec![work(job)]);
-            }
-            return;
-        };
-        let (done, finished) = mpsc::sync_channel(pooled.len());
-        threads.in_place_scope(|scope| {
-            for job in pooled {
-                let (done, work) = (done.clone(), &work);
-                // Room for every job's result: never blocks. A publisher gone (it
-                // panicked) ends the scope with its panic anyway.
-                scope.spawn(move |_| {
-                    let _ = done.send(work(job));
-                });
-            }
-            drop(done);
-            for job in inline {
-                let mut group = vec![work(job)];
-                group.extend(finished.try_iter());
-                publish(group);
-            }
-            while let Ok(first) = finished.recv() {
-                let mut group = vec![first];
-                group.extend(finished.try_iter());
-                publish(group);
-            }
+        }
+    }
+}
+
+/// Jobs' ends: each job in flight sends what it gives once done, and wakes the
+/// analysis task waiting on [`Self::woken`]. A job that panics sends its panic, which
+/// the analysis task resumes when it takes that end (as a job run on its own thread
+/// would panic there; rayon's default for a spawned job's panic is to abort).
+#[derive(Debug)]
+pub(crate) struct Finished<T> {
+    sender: mpsc::Sender<std::thread::Result<T>>,
+    receiver: mpsc::Receiver<std::thread::Result<T>>,
+    wake: std::sync::Arc<tokio::sync::Notify>,
+}
+
+impl<T: Send + 'static> Finished<T> {
+    pub(crate) fn new() -> Self {
+        let (sender, receiver) = mpsc::channel();
+        Self {
+            sender,
+            receiver,
+            wake: std::sync::Arc::new(tokio::sync::Notify::new()),
+        }
+    }
+
+    /// Run `job` on `threads`; what it gives is sent here once it is done.
+    pub(crate) fn spawn(
+        &self,
+        threads: &rayon::ThreadPool,
+        job: impl FnOnce() -> T + Send + 'static,
+    ) {
+        let (sender, wake) = (self.sender.clone(), std::sync::Arc::clone(&self.wake));
+        threads.spawn(move || {
+            let ended = std::panic::catch_unwind(std::panic::AssertUnwindSafe(job));
+            // The receiver lives as long as the analysis that spawned the job.
+            let _ = sender.send(ended);
+            wake.notify_one();
         });
     }
+
+    /// What the jobs done so far gave, without waiting.
+    pub(crate) fn done(&self) -> Vec<T> {
+        self.receiver.try_iter().map(resumed).collect()
+    }
+
+    /// What the next job to end gives and whatever else ended meanwhile, waiting
+    /// for it on this thread (only when a job is in flight).
+    pub(crate) fn wait(&self) -> Vec<T> {
+        let first = self.receiver.recv().into_iter();
+        first.chain(self.receiver.try_iter()).map(resumed).collect()
+    }
+
+    /// Notified when a job has ended since the last wake-up (an async wait; the
+    /// ends are then taken with [`Self::done`]).
+    pub(crate) fn woken(&self) -> std::sync::Arc<tokio::sync::Notify> {
+        std::sync::Arc::clone(&self.wake)
+    }
+}
+
+/// What a job gave, or its panic resumed on this thread.
+fn resumed<T>(ended: std::thread::Result<T>) -> T {
+    ended.unwrap_or_else(|panic| std::panic::resume_unwind(panic))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::sync::Mutex;
     use std::time::Duration;
 
-    /// Every job runs once and is published once, at any worker count, round after
-    /// round on the same threads.
+    /// One worker: no threads, the jobs run on the calling thread.
     #[test]
-    fn every_job_is_published_once() {
-        for workers in [1, 2, 3, 8] {
-            let pool = Pool::new(workers);
-            for _round in 0..3 {
-                let mut published = Vec::new();
-                pool.run_round(
-                    (0..20).collect(),
-                    |job| job % 3 != 0,
-                    |job: u32| job * 10,
-                    |group| published.extend(group),
-                );
-                published.sort_unstable();
-                assert_eq!(published, (0..20).map(|j| j * 10).collect::<Vec<_>>());
-            }
-        }
+    fn one_worker_starts_no_thread() {
+        assert!(Pool::new(1).threads().is_none());
+        assert!(Pool::new(0).threads().is_none());
     }
 
-    /// The rounds run on the pool's threads, the same ones every round (persistent),
-    /// never more than `workers` of them, and not on the calling thread.
+    /// Every job spawned ends once, with what it gave, and the jobs run on the same
+    /// persistent threads, never more than `workers` of them, not the caller's.
     #[test]
-    fn the_rounds_run_on_the_same_persistent_threads() {
+    fn every_job_ends_once_on_the_same_persistent_threads() {
         let pool = Pool::new(2);
+        let threads = pool.threads().expect("two workers");
+        let finished = Finished::new();
         let caller = std::thread::current().id();
+        let mut ended = Vec::new();
         let mut seen = std::collections::HashSet::new();
-        for _round in 0..20 {
-            pool.run_round(
-                (0..8).collect(),
-                |_| true,
-                |_job: u32| {
+        for batch in 0..10_u32 {
+            for job in 0..8 {
+                finished.spawn(threads, move || {
                     std::thread::sleep(Duration::from_millis(1));
-                    std::thread::current().id()
-                },
-                |group| seen.extend(group),
-            );
+                    (batch * 8 + job, std::thread::current().id())
+                });
+            }
+            while ended.len() < ((batch + 1) * 8) as usize {
+                for (job, thread) in finished.wait() {
+                    ended.push(job);
+                    seen.insert(thread);
+                }
+            }
         }
+        assert!(finished.done().is_empty(), "no job ended twice");
+        ended.sort_unstable();
+        assert_eq!(ended, (0..80).collect::<Vec<_>>());
         assert!(!seen.contains(&caller), "a job ran on the calling thread");
         assert!(
             (1..=2).contains(&seen.len()),
-            "{} threads over 20 rounds: {seen:?}",
+            "{} threads: {seen:?}",
             seen.len()
         );
     }
 
-    /// The light jobs run on the calling thread beside the heavy ones on the pool; a
-    /// round with fewer than two heavy jobs wakes no pool thread at all.
+    /// A slow job does not hold the others back: it waits until the fast jobs'
+    /// ends were taken (were the ends taken only once all are done, it would wait
+    /// for ever: it gives up after 10 s and the test fails).
     #[test]
-    fn light_jobs_run_on_the_calling_thread() {
+    fn a_slow_job_does_not_delay_the_others_ends() {
         let pool = Pool::new(2);
-        let caller = std::thread::current().id();
-        let on = |heavy_jobs: u32| {
-            let mut ran = Vec::new();
-            pool.run_round(
-                (0..10).collect(),
-                |&job| job < heavy_jobs,
-                |job: u32| (job, std::thread::current().id()),
-                |group| ran.extend(group),
-            );
-            ran.sort_unstable_by_key(|&(job, _)| job);
-            assert_eq!(ran.len(), 10);
-            ran
-        };
-        for (job, thread) in on(3) {
-            assert_eq!(thread == caller, job >= 3, "job {job}");
+        let threads = pool.threads().expect("two workers");
+        let finished = Finished::new();
+        let (fast_taken, wait_for_fast) = mpsc::sync_channel::<()>(1);
+        finished.spawn(threads, move || {
+            (
+                "slow",
+                wait_for_fast.recv_timeout(Duration::from_secs(10)).is_ok(),
+            )
+        });
+        for job in ["fast 1", "fast 2"] {
+            finished.spawn(threads, move || (job, true));
         }
-        assert!(on(1).iter().all(|&(_, thread)| thread == caller));
-        assert!(on(0).iter().all(|&(_, thread)| thread == caller));
+        let mut order = Vec::new();
+        while order.len() < 3 {
+            for (job, in_time) in finished.wait() {
+                assert!(in_time, "the slow job ended before the fast ones");
+                order.push(job);
+                if order.len() == 2 {
+                    fast_taken.send(()).unwrap();
+                }
+            }
+        }
+        assert_eq!(order[2], "slow", "in the order they ended: {order:?}");
     }
 
-    /// A slow job does not hold the others back: it waits until the fast jobs'
-    /// results were published (if the pool published only at the round's end, the
-    /// slow job would wait for ever: it gives up after 10 s and the test fails).
+    /// A job's panic is resumed where its end is taken, and the pool runs on.
     #[test]
-    fn a_slow_job_does_not_delay_the_others_publication() {
-        let (fast_published, wait_for_fast) = mpsc::sync_channel::<()>(1);
-        let wait_for_fast = Mutex::new(wait_for_fast);
-        let mut order = Vec::new();
-        Pool::new(2).run_round(
-            vec!["slow", "fast 1", "fast 2"],
-            |_| true,
-            |job| {
-                if job == "slow" {
-                    let waited = crate::lock(&wait_for_fast).recv_timeout(Duration::from_secs(10));
-                    (job, waited.is_ok())
-                } else {
-                    (job, true)
-                }
-            },
-            |group| {
-                for (job, in_time) in group {
-                    order.push(job);
-                    assert!(in_time, "the slow job was published before the fast ones");
-                    if order.len() == 2 {
-                        fast_published.send(()).unwrap();
-                    }
-                }
-            },
-        );
-        assert_eq!(order.len(), 3);
+    fn a_jobs_panic_is_resumed_where_its_end_is_taken() {
+        let pool = Pool::new(2);
+        let threads = pool.threads().expect("two workers");
+        let finished = Finished::new();
+        finished.spawn(threads, || -> u32 { panic!("a bite's analysis failed") });
+        let taken = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| finished.wait()));
+        let panic = taken.expect_err("the panic resumed");
         assert_eq!(
-            order[2], "slow",
-            "published in the order they finished: {order:?}"
+            panic.downcast_ref::<&str>(),
+            Some(&"a bite's analysis failed")
         );
+        finished.spawn(threads, || 5);
+        assert_eq!(finished.wait(), vec![5]);
+    }
+
+    /// A job's end wakes an async waiter.
+    #[test]
+    fn an_end_wakes_the_async_waiter() {
+        let pool = Pool::new(2);
+        let threads = pool.threads().expect("two workers");
+        let finished = Finished::new();
+        let woken = finished.woken();
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_time()
+            .build()
+            .unwrap();
+        finished.spawn(threads, || 7);
+        let waited = runtime.block_on(async {
+            tokio::time::timeout(Duration::from_secs(10), woken.notified()).await
+        });
+        assert!(waited.is_ok(), "not woken within 10 s");
+        assert_eq!(finished.done(), vec![7]);
     }
 }

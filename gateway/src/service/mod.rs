@@ -131,11 +131,7 @@ impl Service {
         // A driveline model that does not load, or `wear` settings that do not fit it,
         // is a configuration error: `run` exits with it at once (and `check` names it)
         // rather than running on without the wear diagnosis the file asks for.
-        let problems: Vec<String> = analysis
-            .wear_problems()
-            .iter()
-            .map(ToString::to_string)
-            .collect();
+        let problems = analysis.wear_problems();
         if !problems.is_empty() {
             return Err(ServiceError::Wear(problems));
         }
@@ -725,7 +721,7 @@ impl Started {
     /// adds after the others, `added` as [`Self::map_with_added`] checked them (the
     /// map and their analysers with the state the history kept of them; `None` when a
     /// reload adds sources only, whose channels the analysis then routes): the
-    /// analysis takes them between two rounds, grows the board and resumes that state
+    /// analysis takes them once its shares in flight ended, grows the board and resumes that state
     /// before their first bite, then their gap maps build as a start's do; the outputs
     /// restarted for [`Live::Drivelines`] then run on the map. An error when the
     /// analysis has ended or refuses them after all (the service ends with it, and

@@ -241,13 +241,13 @@ pub(super) fn spawn_analysis(
         (commands, thresholds, additions),
         liveness,
     );
-    // On a thread of its own, not on a runtime worker: a round blocks its thread
-    // for as long as its bites take (it waits for the pool's jobs, or runs them), and
-    // a task a worker wakes goes to that worker's LIFO slot, which no other worker
-    // can take. On a worker, the PLC writer woken by a bite's publication (and the
-    // Sparkplug node, the web's streams) waited there until the round ended, the
-    // last bite of a burst analysed, and a busy analysis left one worker for every
-    // reader and output. Woken from this thread, they go to the runtime's shared
+    // On a thread of its own, not on a runtime worker: the analysis blocks its
+    // thread while it runs a share (or, one worker configured, a bite's analysis) or
+    // waits for the shares in flight, and a task a worker wakes goes to that worker's
+    // LIFO slot, which no other worker can take. On a worker, the PLC writer woken by
+    // a bite's publication (and the Sparkplug node, the web's streams) waited there
+    // until the analysis let go, and a busy analysis left one worker for every reader
+    // and output. Woken from this thread, they go to the runtime's shared
     // queue, which any worker takes at once.
     let runtime = tokio::runtime::Handle::current();
     AnalysisTask {

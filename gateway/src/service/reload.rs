@@ -26,7 +26,7 @@
 //!     settings; the history read for the state it kept under their names, on a
 //!     read-only connection of its own, a file that cannot be read refusing the
 //!     reload: `resumed_from`), then the outputs that show drivelines stop, the
-//!     analysis takes them between two rounds (the board grows, each resuming what a
+//!     analysis takes them once its shares in flight ended (the board grows, each resuming what a
 //!     start would restore of its name before its first bite), and the outputs start
 //!     again on the map
 //!     with their reserved blocks (Sparkplug with a new session: their DBIRTHs); a
@@ -90,7 +90,7 @@ pub enum Live {
     /// windows, filters, register block or nodes and needs a restart).
     Chatter,
     /// Drivelines added after the others within `outputs.driveline_slots`, on
-    /// channels already read: the analysis takes them between two rounds, the board
+    /// channels already read: the analysis takes them once its shares in flight ended, the board
     /// grows, the gap maps of those with a `model` build as at a start, and the
     /// outputs that show drivelines restart on the map with their reserved blocks.
     Drivelines,

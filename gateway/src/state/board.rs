@@ -232,9 +232,9 @@ impl Board {
 
     /// As [`Self::update_recorded`], for bites whose windows blocks handed over at
     /// `handed` completed: their stamps wait, with the results, for the PLC writer
-    /// ([`Self::results_for_plc`]). The bites of an analysis round go in one call:
-    /// one change for the outputs, the PLC write and the history commit that follow
-    /// carry them all.
+    /// ([`Self::results_for_plc`]). The bites of the analysis' shares that ended
+    /// together go in one call: one change for the outputs, the PLC write and the
+    /// history commit that follow carry them all.
     pub(crate) fn update_bites_recorded<T>(
         &self,
         handed: impl IntoIterator<Item = std::time::Instant>,

@@ -34,7 +34,7 @@ pub const BITE_STAGES: [(&str, &str); 4] = [
     (
         "analysis",
         "the block's hand-over to the bite's publication: the block's wait for the analysis, \
-         the round's other work before the bite's job, and the bite's analysis",
+         the wait for the driveline's earlier share and for a pool thread, and the bite's analysis",
     ),
     (
         "to_writer",

@@ -30,7 +30,7 @@ impl DrivelineAnalyzer {
     /// trusted reads as a result.
     ///
     /// `results` and `events` are the board's under its lock: the caller publishes
-    /// the bites of a round together ([`publish_bites`]).
+    /// the bites of the shares that ended together ([`publish_bites`]).
     pub(crate) fn publish(
         &self,
         results: &mut Results,
