@@ -59,6 +59,7 @@
 //! gateway's `[analysis] workers` (left out: its default, one per core),
 //! `--plc-requests-in-flight` the PLC output's `requests_in_flight`, and
 //! `--daq-requests-in-flight` the DAQ sources' (left out: their default, 1).
+//! `--help` lists them.
 
 mod bites;
 mod daqs;

@@ -9,6 +9,31 @@ use anyhow::{bail, Context as _};
 /// The largest bite -> PLC p99 a load point passes with by default, ms.
 const P99_LIMIT_MS: f64 = 5.0;
 
+/// What `--help` prints.
+const USAGE: &str = "\
+Load bench and soak: `millgate run` watching N drivelines (2 kHz) and M tandem-mill
+stands streamed by virtual DAQs; prints each load point's samples and a summary row.
+
+usage: soak [options]
+
+  --duration S                 seconds per load point (600)
+  --every S                    seconds between samples (10)
+  --warm-up S                  seconds not counted (15)
+  --drivelines N[,N...]        drivelines per load point (1)
+  --tandem-stands M[,M...]     tandem-mill stands per load point (0)
+  --tandem-rate-hz HZ          the stands' sample rate: 2500 or 10000 (2500)
+  --cpu K                      pin the gateway to core K (not pinned)
+  --p99-limit-ms MS            bite -> PLC p99 a point passes with (5)
+  --keep-going                 step on after a failed point
+  --millgate PATH              the gateway binary (the one beside this example's folder)
+  --analysis-workers N         the gateway's [analysis] workers (its default)
+  --plc-requests-in-flight N   the PLC output's requests_in_flight (its default, 1)
+  --daq-requests-in-flight N   the DAQ sources' requests_in_flight (their default, 1)
+  --help, -h                   this text
+
+Lists are stepped together; a single value is held.
+";
+
 /// The command line's options (their defaults: the module docs of `main.rs`).
 pub(crate) struct Options {
     pub(crate) duration: Duration,
@@ -56,6 +81,10 @@ impl Options {
             if arg == "--keep-going" {
                 options.keep_going = true;
                 continue;
+            }
+            if arg == "--help" || arg == "-h" {
+                print!("{USAGE}");
+                std::process::exit(0);
             }
             let value = args
                 .next()
@@ -140,7 +169,7 @@ impl Options {
                 "unknown option {arg} (allowed: --duration, --every, --warm-up, --drivelines, \
                  --tandem-stands, --tandem-rate-hz, --cpu, --p99-limit-ms, --keep-going, \
                  --millgate, --analysis-workers, --plc-requests-in-flight, \
-                 --daq-requests-in-flight)"
+                 --daq-requests-in-flight; --help lists them)"
             ),
         }
         Ok(())
