@@ -97,8 +97,6 @@ pub(super) struct Flight {
     busy: Vec<bool>,
     /// Per driveline: the steps taken up while its share ran, to run next.
     waiting: Vec<Vec<Step>>,
-    /// Steps waiting, over every driveline.
-    waiting_steps: usize,
     /// Whether the mills' share runs on the pool (`None`: no mills to analyse).
     mills_busy: Option<bool>,
     /// The messages taken up while the mills' share ran, to run next.
@@ -129,7 +127,6 @@ impl Flight {
             bites,
             busy: Vec::new(),
             waiting: Vec::new(),
-            waiting_steps: 0,
             mills_busy: (!no_mills).then_some(false),
             mills_waiting: Vec::new(),
             in_flight: 0,
@@ -198,7 +195,6 @@ impl Flight {
                 continue;
             }
             if self.busy[driveline] {
-                self.waiting_steps += steps.len();
                 self.waiting[driveline].extend(steps);
             } else if crate::lock(&self.drivelines[driveline]).may_complete_a_window(&steps) {
                 released.extend(self.start(driveline, steps));
@@ -213,7 +209,7 @@ impl Flight {
             let ended = self.ended.done();
             released.extend(self.ends(ended));
         }
-        while self.waiting_steps > MAX_ROUND_MESSAGES
+        while self.waiting.iter().map(Vec::len).sum::<usize>() > MAX_ROUND_MESSAGES
             || self.mills_waiting.len() > MAX_ROUND_MESSAGES
         {
             let ended = self.ended.wait();
@@ -298,7 +294,6 @@ impl Flight {
         for driveline in next {
             let steps = std::mem::take(&mut self.waiting[driveline]);
             if !steps.is_empty() {
-                self.waiting_steps -= steps.len();
                 released.extend(self.start(driveline, steps));
             }
         }
@@ -343,17 +338,14 @@ impl Flight {
     /// Publish `reports` together (one change of the results, one history commit,
     /// one PLC write); their drivelines have no share in flight.
     fn publish_now(&self, reports: &[BiteReport]) {
-        let analyzers: BTreeMap<usize, _> = reports
-            .iter()
-            .map(|report| {
-                let driveline = report.driveline;
-                (driveline, &self.drivelines[driveline])
-            })
-            .collect();
-        let locked: BTreeMap<usize, _> = analyzers
-            .into_iter()
-            .map(|(driveline, analyzer)| (driveline, crate::lock(analyzer)))
-            .collect();
+        // Each driveline locked once, however many of its bites.
+        let mut locked = BTreeMap::new();
+        for report in reports {
+            let driveline = report.driveline;
+            locked
+                .entry(driveline)
+                .or_insert_with(|| crate::lock(&self.drivelines[driveline]));
+        }
         let bites: Vec<_> = reports
             .iter()
             .map(|report| (&*locked[&report.driveline], report))

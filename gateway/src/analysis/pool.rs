@@ -32,8 +32,12 @@ impl Pool {
         }
     }
 
-    /// The threads, started at the first call.
-    fn started(&self) -> Option<&rayon::ThreadPool> {
+    /// The threads that run jobs, started at the first call: `None` with one worker
+    /// (every job runs on the calling thread) or when they could not be started.
+    pub(crate) fn threads(&self) -> Option<&rayon::ThreadPool> {
+        if self.workers == 1 {
+            return None;
+        }
         self.threads
             .get_or_init(|| {
                 let built = rayon::ThreadPoolBuilder::new()
@@ -47,16 +51,6 @@ impl Pool {
                     .ok()
             })
             .as_ref()
-    }
-
-    /// The threads that run jobs: `None` with one worker (every job runs on the
-    /// calling thread) or when they could not be started.
-    pub(crate) fn threads(&self) -> Option<&rayon::ThreadPool> {
-        if self.workers > 1 {
-            self.started()
-        } else {
-            None
-        }
     }
 }
 

@@ -86,28 +86,27 @@ impl Routes<'_> {
                     for &d in &self.by_trigger[*channel] {
                         steps[d].push(Step::Trigger { value: *value });
                     }
-                    let now = Instant::now();
-                    for &d in &self.by_context[*channel] {
-                        steps[d].push(Step::Context {
-                            channel: *channel,
-                            value: TagValue::Number(*value),
-                            now,
-                        });
-                    }
+                    self.context(&mut steps, *channel, TagValue::Number(*value));
                 }
                 Acquired::Text { channel, text } => {
-                    let now = Instant::now();
-                    for &d in &self.by_context[*channel] {
-                        steps[d].push(Step::Context {
-                            channel: *channel,
-                            value: TagValue::Text(*text),
-                            now,
-                        });
-                    }
+                    self.context(&mut steps, *channel, TagValue::Text(*text));
                 }
             }
         }
         steps
+    }
+
+    /// The context value `value` of `channel`, taken up now, as a step of each
+    /// driveline whose context tag it is.
+    fn context(&self, steps: &mut [Vec<Step>], channel: usize, value: TagValue) {
+        let now = Instant::now();
+        for &d in &self.by_context[channel] {
+            steps[d].push(Step::Context {
+                channel,
+                value,
+                now,
+            });
+        }
     }
 }
 
