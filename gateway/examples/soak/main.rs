@@ -38,7 +38,9 @@
 //! near a block period (50 ms) makes a DAQ skip a block, which the gateway counts as
 //! missed though it did not fall behind (run the bench pinned to the other core:
 //! `taskset -c 0`); `bench_%` is the bench's own CPU (its DAQs, PLC and clients, not
-//! mosquitto) in the sample period, of one core. After each point, the gateway's own
+//! mosquitto) in the sample period, of one core; `steal_%` the machine's CPU time a
+//! hypervisor gave to other guests in that period (`/proc/stat`), of all cores: on a
+//! shared virtual machine the latency moves with it. After each point, the gateway's own
 //! latency histograms from its last `/metrics` (`millgate_bite_to_plc_seconds`,
 //! `millgate_block_wait_seconds` and a bite's stages, `millgate_bite_stage_seconds`:
 //! the whole run, the means and the shares within bucket bounds).

@@ -234,6 +234,15 @@ fn print_gateway_latency(final_metrics: &str) {
             within("0.02"),
         );
     }
+    let commits = metric_sum(final_metrics, "millgate_history_commits_total");
+    println!(
+        "# the gateway's history: {commits} commits, mean {:.2} ms, max {:.2} ms; PLC: {} writes \
+         (whole run, warm-up included)",
+        1000.0 * metric_sum(final_metrics, "millgate_history_commit_seconds_total")
+            / commits.max(1.0),
+        1000.0 * metric_sum(final_metrics, "millgate_history_commit_max_seconds"),
+        metric_sum(final_metrics, "millgate_plc_writes_total"),
+    );
 }
 
 /// The final checks: every bite the gateway counted (by the final `/metrics`) in the

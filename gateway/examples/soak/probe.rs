@@ -66,6 +66,26 @@ pub(crate) fn process_figures(pid: u32) -> anyhow::Result<ProcessFigures> {
     })
 }
 
+/// The machine's CPU time in ticks since boot, all cores: the whole and what the
+/// hypervisor gave other guests while this one wanted to run (`steal`, the 8th field of
+/// `/proc/stat`'s `cpu` line). On a shared virtual machine a load point's latency moves
+/// with it; the `steal_%` column shows it beside the figures.
+pub(crate) fn machine_ticks() -> anyhow::Result<(u64, u64)> {
+    let stat = std::fs::read_to_string("/proc/stat")?;
+    let fields: Vec<u64> = stat
+        .lines()
+        .next()
+        .and_then(|line| line.strip_prefix("cpu "))
+        .context("/proc/stat without its cpu line")?
+        .split_whitespace()
+        .map(str::parse)
+        .collect::<Result<_, _>>()?;
+    let steal = *fields
+        .get(7)
+        .context("/proc/stat's cpu line without steal")?;
+    Ok((fields.iter().sum(), steal))
+}
+
 /// One HTTP/1.1 GET over a new connection: the status and the body.
 pub(crate) fn get(address: SocketAddr, path: &str) -> anyhow::Result<(u16, String)> {
     let mut stream = TcpStream::connect_timeout(&address, Duration::from_secs(2))?;

@@ -16,7 +16,7 @@ use tokio_modbus::client::Reader;
 
 use crate::bites::{quantile, Bites};
 use crate::options::Options;
-use crate::probe::{get, metric_sum, process_figures, web_answers, ProcessFigures};
+use crate::probe::{get, machine_ticks, metric_sum, process_figures, web_answers, ProcessFigures};
 
 /// What the samples read: the gateway's process and addresses, the sources of the
 /// bite bookkeeping and the bench's timer stall.
@@ -74,6 +74,8 @@ pub(crate) struct Sampler {
     /// The gateway's and the bench's CPU time at the last sample (s), and when.
     last_cpu: (Instant, f64),
     bench_cpu: (Instant, f64),
+    /// The machine's ticks, all and stolen, at the last sample ([`machine_ticks`]).
+    machine: (u64, u64),
     /// RSS (KiB) and descriptors of each sample after the warm-up.
     pub(crate) samples: Vec<(u64, usize)>,
     /// After the warm-up: the web page's and `/metrics`' answers asked, and failed.
@@ -92,6 +94,7 @@ pub(crate) struct Sampler {
 struct Reading {
     gateway: anyhow::Result<ProcessFigures>,
     bench: anyhow::Result<ProcessFigures>,
+    machine: anyhow::Result<(u64, u64)>,
     /// The GETs that did not answer 200.
     failures: Vec<String>,
     metrics_text: Option<String>,
@@ -100,7 +103,7 @@ struct Reading {
 /// Prints the header of the samples' rows.
 pub(crate) fn print_columns() {
     println!(
-        "{:>6} {:>8} {:>4} {:>4} {:>6} {:>6} {:>5} {:>6} {:>5} {:>6} {:>7} {:>8} {:>7}",
+        "{:>6} {:>8} {:>4} {:>4} {:>6} {:>6} {:>5} {:>6} {:>5} {:>6} {:>7} {:>8} {:>7} {:>7}",
         "t_s",
         "rss_kib",
         "fds",
@@ -113,7 +116,8 @@ pub(crate) fn print_columns() {
         "p99_ms",
         "mqtt",
         "stall_ms",
-        "bench_%"
+        "bench_%",
+        "steal_%"
     );
 }
 
@@ -141,6 +145,7 @@ impl Sampler {
             warm_up_end: None,
             last_cpu: (Instant::now(), 0.0),
             bench_cpu: (Instant::now(), 0.0),
+            machine: machine_ticks().unwrap_or_default(),
             samples: Vec::new(),
             answers: 0,
             answers_failed: 0,
@@ -172,11 +177,13 @@ impl Sampler {
         let (returned, reading) = tokio::task::spawn_blocking(move || -> anyhow::Result<_> {
             let gateway = process_figures(watched.pid);
             let bench = process_figures(std::process::id());
+            let machine = machine_ticks();
             let (failures, metrics_text) = web_answers(watched.web, watched.metrics);
             watched.collect(&mut bites, false)?;
             let reading = Reading {
                 gateway,
                 bench,
+                machine,
                 failures,
                 metrics_text,
             };
@@ -212,6 +219,14 @@ impl Sampler {
         let bench_percent =
             (bench_s - self.bench_cpu.1) / self.bench_cpu.0.elapsed().as_secs_f64() * 100.0;
         self.bench_cpu = (Instant::now(), bench_s);
+        let steal_percent = match reading.machine {
+            Ok((all, stolen)) => {
+                let (last_all, last_stolen) = std::mem::replace(&mut self.machine, (all, stolen));
+                100.0 * stolen.saturating_sub(last_stolen) as f64
+                    / all.saturating_sub(last_all).max(1) as f64
+            }
+            Err(_) => f64::NAN,
+        };
         if warm && self.warm_up_end.is_none() {
             self.warm_up_end = Some(WarmUpEnd {
                 time: SystemTime::now(),
@@ -225,7 +240,7 @@ impl Sampler {
         let mut sorted = self.bites.latencies_ms.clone();
         sorted.sort_by(f64::total_cmp);
         println!(
-            "{:>6.0} {:>8} {:>4} {:>4} {:>6.1} {:>6} {:>5} {:>6} {:>5} {:>6.2} {:>7} {:>8.1} {:>7.1}",
+            "{:>6.0} {:>8} {:>4} {:>4} {:>6.1} {:>6} {:>5} {:>6} {:>5} {:>6.2} {:>7} {:>8.1} {:>7.1} {:>7.1}",
             self.started.elapsed().as_secs_f64(),
             gateway.rss_kib,
             gateway.fds,
@@ -239,6 +254,7 @@ impl Sampler {
             metric_sum(&self.last_metrics, "millgate_sparkplug_bites_published_total"),
             stall.swap(0, Ordering::Relaxed) as f64 / 1e3,
             bench_percent,
+            steal_percent,
         );
         if warm {
             self.samples.push((gateway.rss_kib, gateway.fds));
