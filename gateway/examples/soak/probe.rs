@@ -66,9 +66,10 @@ pub(crate) fn process_figures(pid: u32) -> anyhow::Result<ProcessFigures> {
     })
 }
 
-/// The machine's CPU time in ticks since boot, all cores: the whole and what the
-/// hypervisor gave other guests while this one wanted to run (`steal`, the 8th field of
-/// `/proc/stat`'s `cpu` line). On a shared virtual machine a load point's latency moves
+/// The machine's CPU time in ticks since boot, all cores: the whole (`/proc/stat`'s
+/// `cpu` line, user to steal: its `guest` fields are counted in `user` and `nice`
+/// already) and what the hypervisor gave other guests while this one wanted to run
+/// (`steal`, the 8th field). On a shared virtual machine a load point's latency moves
 /// with it; the `steal_%` column shows it beside the figures.
 pub(crate) fn machine_ticks() -> anyhow::Result<(u64, u64)> {
     let stat = std::fs::read_to_string("/proc/stat")?;
@@ -80,10 +81,10 @@ pub(crate) fn machine_ticks() -> anyhow::Result<(u64, u64)> {
         .split_whitespace()
         .map(str::parse)
         .collect::<Result<_, _>>()?;
-    let steal = *fields
-        .get(7)
+    let counted = fields
+        .get(..8)
         .context("/proc/stat's cpu line without steal")?;
-    Ok((fields.iter().sum(), steal))
+    Ok((counted.iter().sum(), counted[7]))
 }
 
 /// One HTTP/1.1 GET over a new connection: the status and the body.
