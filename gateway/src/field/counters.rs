@@ -207,10 +207,11 @@ pub struct CanCounts {
 }
 
 impl CanCounters {
-    /// Current values.
+    /// Current values: every count made for the frames in `frames` (read first, see
+    /// [`Self::count_frame`]), and perhaps some of the next frame's.
     pub fn snapshot(&self) -> CanCounts {
         CanCounts {
-            frames: self.frames.load(Ordering::Relaxed),
+            frames: self.frames.load(Ordering::Acquire),
             decoded: self.decoded.load(Ordering::Relaxed),
             unknown_id: self.unknown_id.load(Ordering::Relaxed),
             bad_length: self.bad_length.load(Ordering::Relaxed),
@@ -243,9 +244,10 @@ impl CanCounters {
             .fetch_max(delay_ns, Ordering::Relaxed);
     }
 
-    /// Count a frame of any kind.
+    /// Count a frame of any kind, after what it counted besides: released, so that a
+    /// [`Self::snapshot`] that sees it sees those counts as well.
     pub(crate) fn count_frame(&self) {
-        self.frames.fetch_add(1, Ordering::Relaxed);
+        self.frames.fetch_add(1, Ordering::Release);
     }
 
     /// Count a data frame decoded into samples.

@@ -180,15 +180,28 @@ impl CanReader {
     }
 
     /// Counts and decodes one frame (`bytes`, with `received`) read at `handled`, in a
-    /// batch handed over at `handed` (the batch's clock readings).
+    /// batch handed over at `handed` (the batch's clock readings). The frame is counted
+    /// last, once what it is has been counted: a snapshot that holds it holds that too
+    /// ([`CanCounters::count_frame`]).
     fn handle(
+        &mut self,
+        bytes: &[u8],
+        received: &Received,
+        clock: (SystemTime, Instant),
+        batch: &mut SampleBatch,
+    ) {
+        self.classify(bytes, received, clock, batch);
+        self.counters.count_frame();
+    }
+
+    /// [`Self::handle`] but the frame's own count.
+    fn classify(
         &mut self,
         bytes: &[u8],
         received: &Received,
         (handled, handed): (SystemTime, Instant),
         batch: &mut SampleBatch,
     ) {
-        self.counters.count_frame();
         self.counters.count_timestamp(received.kernel_time, handled);
         if let Some(drops) = received.drops {
             let new_drops = drops.wrapping_sub(self.drops_seen);
