@@ -207,8 +207,9 @@ pub struct CanCounts {
 }
 
 impl CanCounters {
-    /// Current values: every count made for the frames in `frames` (read first, see
-    /// [`Self::count_frame`]), and perhaps some of the next frame's.
+    /// Current values: every count made for the frames in `frames` (read first; a
+    /// frame is counted after the rest of its counts), and perhaps some of the next
+    /// frame's.
     pub fn snapshot(&self) -> CanCounts {
         CanCounts {
             frames: self.frames.load(Ordering::Acquire),
