@@ -229,27 +229,36 @@ fn robust_gauss(residual: f64, variance: f64, (log_floor, outliers): (f64, f64),
     robust(log_gauss(residual, variance), span)
 }
 
-/// The log-likelihood of `observation` at the gap `weight` of the way from gap row
+/// The log-likelihoods of `observation` at the gap `weight` of the way from gap row
 /// `row` to the next of one coupling's map (`cells`: the map at the bite's static
-/// torque, one per gap row), with the allowance `terms` were made for.
-fn point_loglik(
+/// torque, one per gap row), one per allowance `terms` were made for: the maps are
+/// interpolated at the point once for all of them.
+fn point_logliks<const N: usize>(
     cells: &[Cell],
     observation: &GapObservation,
-    terms: &Terms,
+    terms: &[Terms; N],
     row: usize,
     weight: f64,
-) -> f64 {
+) -> [f64; N] {
     let (taf, taf_floor, corners) = interpolated(cells, row, weight);
-    let mut loglik = robust_gauss(
-        observation.taf - taf,
-        terms.taf_variance + taf_floor * taf_floor,
-        (terms.taf_log_floor, terms.taf_outliers),
-        TAF_OUTLIER_SPAN,
-    );
-    if let Some(measured) = observation.period_shift_s {
-        loglik += shift_loglik(measured, terms, &corners);
-    }
-    loglik
+    let shift = observation
+        .period_shift_s
+        .map(|measured| (measured, ShiftCorners::new(&corners)));
+    core::array::from_fn(|at| {
+        let terms = &terms[at];
+        let mut loglik = robust_gauss(
+            observation.taf - taf,
+            terms.taf_variance + taf_floor * taf_floor,
+            (terms.taf_log_floor, terms.taf_outliers),
+            TAF_OUTLIER_SPAN,
+        );
+        if let Some((measured, corners)) = &shift {
+            loglik += corners
+                .as_ref()
+                .map_or(0.0, |corners| corners.loglik(*measured, terms));
+        }
+        loglik
+    })
 }
 
 fn lerp(a: f64, b: f64, weight: f64) -> f64 {
@@ -280,40 +289,68 @@ fn interpolated(cells: &[Cell], row: usize, weight: f64) -> (f64, f64, Corners<'
     (lerp(lower.taf(), upper.taf(), weight), taf_floor, corners)
 }
 
-/// The shift term at one point whose map corners are `corners` (cell, torque side,
-/// bilinear weight): 0 when a corner in use has no shift.
-fn shift_loglik(measured: f64, terms: &Terms, corners: &Corners<'_>) -> f64 {
-    let mut values = [0.0; 4];
-    let (mut low, mut high) = (f64::INFINITY, f64::NEG_INFINITY);
-    let (mut value, mut floor) = (0.0, 0.0);
-    for (slot, &(cell, side, weight)) in values.iter_mut().zip(corners) {
-        if weight <= 0.0 {
-            continue;
+/// The map's shifts at a point's four corners: what the point's shift term needs
+/// besides the allowance.
+struct ShiftCorners {
+    /// The corners' shifts (0 where a corner's weight is 0), s.
+    values: [f64; 4],
+    /// The corners' bilinear weights.
+    weights: [f64; 4],
+    /// Largest minus smallest shift of the corners in use, s.
+    spread: f64,
+    /// The interpolated shift, s.
+    value: f64,
+    /// The interpolated shift's interpolation error, s.
+    floor: f64,
+}
+
+impl ShiftCorners {
+    /// The shifts at `corners` (cell, torque side, bilinear weight); `None` when a
+    /// corner in use has no shift (the point's shift term is then 0).
+    fn new(corners: &Corners<'_>) -> Option<Self> {
+        let mut values = [0.0; 4];
+        let (mut low, mut high) = (f64::INFINITY, f64::NEG_INFINITY);
+        let (mut value, mut floor) = (0.0, 0.0);
+        for (slot, &(cell, side, weight)) in values.iter_mut().zip(corners) {
+            if weight <= 0.0 {
+                continue;
+            }
+            let shift = cell.points[side].period_shift_s?;
+            *slot = shift;
+            low = low.min(shift);
+            high = high.max(shift);
+            value += weight * shift;
+            floor += weight * cell.shift_floor_s[side];
         }
-        let Some(shift) = cell.points[side].period_shift_s else {
-            return 0.0;
-        };
-        *slot = shift;
-        low = low.min(shift);
-        high = high.max(shift);
-        value += weight * shift;
-        floor += weight * cell.shift_floor_s[side];
+        Some(Self {
+            values,
+            weights: corners.map(|(_, _, weight)| weight),
+            spread: high - low,
+            value,
+            floor,
+        })
     }
-    let variance = terms.shift_variance + floor * floor;
-    if high - low <= SHIFT_JUMP_S {
-        return robust_gauss(
-            measured - value,
-            variance,
-            (terms.shift_log_floor, terms.shift_outliers),
-            SHIFT_OUTLIER_SPAN_S,
-        );
+
+    /// The shift term of a bite that measured `measured` s, with the allowance `terms`
+    /// were made for.
+    fn loglik(&self, measured: f64, terms: &Terms) -> f64 {
+        let variance = terms.shift_variance + self.floor * self.floor;
+        if self.spread <= SHIFT_JUMP_S {
+            return robust_gauss(
+                measured - self.value,
+                variance,
+                (terms.shift_log_floor, terms.shift_outliers),
+                SHIFT_OUTLIER_SPAN_S,
+            );
+        }
+        let density: f64 = self
+            .values
+            .iter()
+            .zip(self.weights)
+            .map(|(&shift, weight)| weight * log_gauss(measured - shift, variance).exp())
+            .sum();
+        ((1.0 - OUTLIER_WEIGHT) * density + OUTLIER_WEIGHT / SHIFT_OUTLIER_SPAN_S).ln()
     }
-    let density: f64 = values
-        .iter()
-        .zip(corners)
-        .map(|(&shift, &(_, _, weight))| weight * log_gauss(measured - shift, variance).exp())
-        .sum();
-    ((1.0 - OUTLIER_WEIGHT) * density + OUTLIER_WEIGHT / SHIFT_OUTLIER_SPAN_S).ln()
 }
 
 /// Coupling `index`'s log-likelihood of `observation` at the gaps of `grid` (mrad)
@@ -327,15 +364,32 @@ pub fn loglik_at(
     allowance: Allowance,
     out: &mut [f64],
 ) -> bool {
+    logliks_at(maps, index, observation, grid, [allowance], [out])
+}
+
+/// [`loglik_at`] under each of `allowances` into the matching `outs`, the maps
+/// interpolated once per point for all of them.
+fn logliks_at<const N: usize>(
+    maps: &GapMaps,
+    index: usize,
+    observation: &GapObservation,
+    grid: GapGrid,
+    allowances: [Allowance; N],
+    mut outs: [&mut [f64]; N],
+) -> bool {
     let Some(cells) = maps.cells(index, observation.static_torque_knm) else {
         return false;
     };
     let step_mrad = map_step_mrad(maps);
-    let terms = Terms::new(observation, allowance);
-    for (k, slot) in out.iter_mut().take(grid.len).enumerate() {
+    let terms = allowances.map(|allowance| Terms::new(observation, allowance));
+    let len = outs.iter().map(|out| out.len()).fold(grid.len, usize::min);
+    for k in 0..len {
         let rows = (grid.at(k) / step_mrad).max(0.0);
         let row = (rows.floor() as usize).min(cells.len() - 1);
-        *slot = point_loglik(&cells, observation, &terms, row, rows - row as f64);
+        let values = point_logliks(&cells, observation, &terms, row, rows - row as f64);
+        for (out, value) in outs.iter_mut().zip(values) {
+            out[k] = value;
+        }
     }
     true
 }
@@ -366,13 +420,30 @@ pub fn fine_loglik(
     observation: &GapObservation,
     allowance: Allowance,
 ) -> Option<Vec<Vec<f64>>> {
+    let [sums] = fine_logliks(maps, observation, [allowance])?;
+    Some(sums)
+}
+
+/// [`fine_loglik`] under each of `allowances`, the maps interpolated once per point for
+/// all of them (the wear trend folds in one and keeps the other's interval).
+pub fn fine_logliks<const N: usize>(
+    maps: &GapMaps,
+    observation: &GapObservation,
+    allowances: [Allowance; N],
+) -> Option<[Vec<Vec<f64>>; N]> {
     let grid = fine_grid(maps);
-    (0..maps.maps().len())
-        .map(|index| {
-            let mut out = vec![0.0; grid.len];
-            loglik_at(maps, index, observation, grid, allowance, &mut out).then_some(out)
-        })
-        .collect()
+    let mut sums: [Vec<Vec<f64>>; N] = core::array::from_fn(|_| Vec::new());
+    for index in 0..maps.maps().len() {
+        let mut outs: [Vec<f64>; N] = core::array::from_fn(|_| vec![0.0; grid.len]);
+        let slices = outs.each_mut().map(Vec::as_mut_slice);
+        if !logliks_at(maps, index, observation, grid, allowances, slices) {
+            return None;
+        }
+        for (coupling, out) in sums.iter_mut().zip(outs) {
+            coupling.push(out);
+        }
+    }
+    Some(sums)
 }
 
 /// The estimate from one bite against `maps` (with its whole allowance); `None` when
@@ -550,15 +621,17 @@ mod tests {
                     .then(|| rng.random_range(-0.012..0.012)),
                 period_shift_sigma_s: scale * 1e-2,
             };
-            for allowance in [Allowance::Trend, Allowance::Whole] {
-                let terms = Terms::new(&observation, allowance);
-                for row in 0..cells.len() {
-                    let weight = rng.random_range(0.0..1.0);
-                    let fast = point_loglik(&cells, &observation, &terms, row, weight);
+            // Both allowances at once, as the wear trend takes them.
+            let allowances = [Allowance::Trend, Allowance::Whole];
+            let terms = allowances.map(|allowance| Terms::new(&observation, allowance));
+            for row in 0..cells.len() {
+                let weight = rng.random_range(0.0..1.0);
+                let both = point_logliks(&cells, &observation, &terms, row, weight);
+                for ((fast, allowance), terms) in both.into_iter().zip(allowances).zip(&terms) {
                     let slow = every_term(&cells, &observation, allowance, row, weight);
                     assert_eq!(fast.to_bits(), slow.to_bits(), "{fast} against {slow}: {observation:?}, {allowance:?}, row {row}, weight {weight}");
                     points += 1;
-                    skipped += usize::from(fast_skips(&cells, &observation, &terms, row, weight));
+                    skipped += usize::from(fast_skips(&cells, &observation, terms, row, weight));
                 }
             }
         }

@@ -21,7 +21,7 @@ use millgate_dsp::wear_trend::{
 use serde::{Deserialize, Serialize};
 
 use super::gap_estimate::{
-    estimate_of, fine_grid, fine_loglik, loglik_at, Allowance, GapEstimate, GapObservation,
+    estimate_of, fine_grid, fine_logliks, loglik_at, Allowance, GapEstimate, GapObservation,
 };
 use crate::state::gap_maps::GapMaps;
 use crate::state::results::{
@@ -138,11 +138,11 @@ impl GapTrend {
             self.maps = Some(maps.fingerprint());
             self.reset();
         }
-        let Some(noise) = fine_loglik(maps, observation, Allowance::Trend) else {
+        let Some([noise, whole]) =
+            fine_logliks(maps, observation, [Allowance::Trend, Allowance::Whole])
+        else {
             return Ok(Folded::OutsideMaps);
         };
-        let whole = fine_loglik(maps, observation, Allowance::Whole)
-            .expect("inside the maps for one allowance, inside for both");
         let fine = fine_grid(maps);
         // A bite dated before the last one (the clock stepped back, or bites dated
         // from when their blocks were handled came out of order) is folded in at the
