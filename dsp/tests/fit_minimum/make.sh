@@ -9,7 +9,7 @@ bin=$1
 here=$(dirname "$0")
 model=$(mktemp)
 trap 'rm -f "$model"' EXIT
-for case in "150 0" "80 3"; do
+for case in "150 0" "80 3" "80 0" "112 0"; do
   set -- $case
   sed -e "s/^static_torque = .*/static_torque = $1.0/" \
       -e "s/^onset = .*/onset = 0.15/" \
