@@ -783,7 +783,8 @@ mod tests {
         // A smooth minimum, one beside a region without a value (infinity): far fewer
         // evaluations than the golden section's 41. A minimum at an end of the bracket
         // (golden steps all the way, the parabola stepping outside): no more.
-        let cases: [(fn(f64) -> f64, f64, usize); 3] = [
+        type Case = (fn(f64) -> f64, f64, usize);
+        let cases: [Case; 3] = [
             (
                 |x| libm::cosh(x - 1.3) + 0.1 * (x - 1.3),
                 1.3 - libm::asinh(0.1),
