@@ -262,11 +262,12 @@ const LINEAR_RATIO: f64 = 0.01;
 
 /// Largest relative decrease of two accepted steps in a row from which on the secant
 /// term is learnt (and may be taken): the tail of the iteration, in the minimum's
-/// basin. Learnt from the long steps before it, the term was no model of the residual's
-/// curvature, and its longer steps could leave the basin Gauss-Newton's path leads to
-/// (a simulated bite at 80 kN*m with a 3 mrad gap ended at f1 = 21 Hz with a residual
-/// 47% above the minimum's); learnt from every step of the tail, a fit of that bite
-/// failed as singular. A record eq. (1) describes converges before its tail has two
+/// basin. Learnt from the long steps before it and taken before the tail, the term was
+/// no model of the residual's curvature, and its longer steps could leave the basin
+/// Gauss-Newton's path leads to (a simulated bite at 80 kN*m with a 3 mrad gap ended at
+/// f1 = 21 Hz with a residual 47% above the minimum's); learnt from every step of the
+/// tail, a fit of that bite failed as singular (docs/measured.md, "A bite's analysis a
+/// quarter cheaper"). A record eq. (1) describes converges before its tail has two
 /// steps, so it pays nothing for the term (Table 1's: 5 iterations, 0.1% more
 /// instructions for the bookkeeping).
 const TAIL_DECREASE: f64 = 1e-3;
