@@ -34,9 +34,9 @@
 //! needs two or three iterations on a record eq. (1) describes (Table 1's); a
 //! driveline's bite, whose residual stays large (eq. (1) lacks the speed controller),
 //! took 15 to 68 in all, median 20.5, on the simulated bites of docs/measured.md, the
-//! tail sped up by the secant term of `levenberg_marquardt`. Where the fit ends with a mode more than a factor 2
-//! from the pencil's, it starts again on the full record without the coarse pass and
-//! keeps the lower residual (see `far_from_start`). All work is done on data scaled to
+//! tail sped up by the secant term of `levenberg_marquardt`. Where the fit ends with a
+//! mode more than a factor 2 from the pencil's, it starts again on the full record
+//! without the coarse pass and keeps the lower residual (see `far_from_start`). All work is done on data scaled to
 //! a peak of 1, so huge inputs do not overflow, and a point whose least-squares cost
 //! comes out above the record's own energy (what all-zero linear parameters leave: a
 //! basis that grows by e^100 and more over the record leaves the solve no correct
