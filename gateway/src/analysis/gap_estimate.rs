@@ -222,6 +222,7 @@ impl Terms {
 /// most `ln(2 pi variance)` and `outliers` is `robust`'s value without a Gaussian part
 /// for `span`: that value without computing the Gaussian's part when it cannot reach
 /// the sum's last bit ([`NEGLIGIBLE_LOG`]).
+#[inline(always)]
 fn robust_gauss(residual: f64, variance: f64, (log_floor, outliers): (f64, f64), span: f64) -> f64 {
     if -0.5 * (residual * residual / variance + log_floor) < outliers - NEGLIGIBLE_LOG {
         return outliers;
@@ -233,6 +234,11 @@ fn robust_gauss(residual: f64, variance: f64, (log_floor, outliers): (f64, f64),
 /// `row` to the next of one coupling's map (`cells`: the map at the bite's static
 /// torque, one per gap row), one per allowance `terms` were made for: the maps are
 /// interpolated at the point once for all of them.
+///
+/// This and the helpers it calls per point are `#[inline(always)]`: left to the
+/// compiler, one bite's estimate (one allowance) ran 20-40% slower than before the
+/// allowances shared the pass (`cargo bench -p millgate --bench gap`, alternated).
+#[inline(always)]
 fn point_logliks<const N: usize>(
     cells: &[Cell],
     observation: &GapObservation,
@@ -270,6 +276,7 @@ type Corners<'a> = [(&'a Cell, usize, f64); 4];
 
 /// The map's TAF and TAF interpolation error at the point `weight` of the way from gap
 /// row `row` to the next of `cells`, and the point's corners.
+#[inline(always)]
 fn interpolated(cells: &[Cell], row: usize, weight: f64) -> (f64, f64, Corners<'_>) {
     let (lower, upper, weight) = match cells.get(row + 1) {
         Some(next) => (&cells[row], next, weight),
@@ -307,6 +314,7 @@ struct ShiftCorners {
 impl ShiftCorners {
     /// The shifts at `corners` (cell, torque side, bilinear weight); `None` when a
     /// corner in use has no shift (the point's shift term is then 0).
+    #[inline(always)]
     fn new(corners: &Corners<'_>) -> Option<Self> {
         let mut values = [0.0; 4];
         let (mut low, mut high) = (f64::INFINITY, f64::NEG_INFINITY);
@@ -333,6 +341,7 @@ impl ShiftCorners {
 
     /// The shift term of a bite that measured `measured` s, with the allowance `terms`
     /// were made for.
+    #[inline(always)]
     fn loglik(&self, measured: f64, terms: &Terms) -> f64 {
         let variance = terms.shift_variance + self.floor * self.floor;
         if self.spread <= SHIFT_JUMP_S {
