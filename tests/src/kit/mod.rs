@@ -41,8 +41,8 @@ pub mod tandem;
 
 pub use cli::{hang_up, terminate, text, KillOnDrop, Millgate};
 pub use net::{
-    connect, free_port, http, http_raw, metric_line, scrape, try_http, until_scraped_at_least,
-    wait_for, web_overview, web_ready, FromSource, HttpAnswer,
+    connect, free_port, http, http_raw, http_within, metric_line, scrape, try_http,
+    until_scraped_at_least, wait_for, web_overview, web_ready, FromSource, HttpAnswer,
 };
 pub use peers::{json_peer, peer, promtool_passes};
 pub use scratch::{fill_file_system, scratch, TempDir};

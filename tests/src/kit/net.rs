@@ -123,14 +123,25 @@ pub const HTTP_EXCHANGE_LIMIT: Duration = Duration::from_secs(120);
 /// [`http_raw`], with a refused connection, a reset or a silence of [`HTTP_SILENCE`]
 /// as an error: for a test that asks while the service may be stopping.
 pub async fn try_http_raw(to: impl Endpoint, raw: &[u8]) -> anyhow::Result<HttpAnswer> {
+    try_http_raw_within(to, raw, HTTP_SILENCE).await
+}
+
+/// [`try_http_raw`], the server silent for at most `silence` at a time instead of
+/// [`HTTP_SILENCE`]: for an answer whose head comes only after work that takes longer
+/// on a loaded machine (a capture of millions of samples read and decoded first).
+pub async fn try_http_raw_within(
+    to: impl Endpoint,
+    raw: &[u8],
+    silence: Duration,
+) -> anyhow::Result<HttpAnswer> {
     let address = to.address();
-    let silent = |what: &str| anyhow::anyhow!("{address} silent for {HTTP_SILENCE:?} {what}");
+    let silent = |what: &str| anyhow::anyhow!("{address} silent for {silence:?} {what}");
     let failed = |e: std::io::Error| anyhow::anyhow!("HTTP exchange with {address}: {e}");
-    let mut stream = tokio::time::timeout(HTTP_SILENCE, connect(&to))
+    let mut stream = tokio::time::timeout(silence, connect(&to))
         .await
         .map_err(|_| silent("at connecting"))?
         .map_err(failed)?;
-    tokio::time::timeout(HTTP_SILENCE, stream.write_all(raw))
+    tokio::time::timeout(silence, stream.write_all(raw))
         .await
         .map_err(|_| silent("taking the request"))?
         .map_err(failed)?;
@@ -138,7 +149,7 @@ pub async fn try_http_raw(to: impl Endpoint, raw: &[u8]) -> anyhow::Result<HttpA
     let mut bytes = Vec::new();
     let mut piece = vec![0u8; 64 * 1024];
     loop {
-        let read = tokio::time::timeout(HTTP_SILENCE, stream.read(&mut piece))
+        let read = tokio::time::timeout(silence, stream.read(&mut piece))
             .await
             .map_err(|_| silent(&format!("after {} bytes of its answer", bytes.len())))?
             .map_err(failed)?;
@@ -207,6 +218,19 @@ fn dechunk(mut chunked: &[u8]) -> anyhow::Result<Vec<u8>> {
 /// `method path` on `to`.
 pub async fn http(to: impl Endpoint, method: &str, path: &str) -> HttpAnswer {
     http_raw(to, request(method, path).as_bytes()).await
+}
+
+/// [`http`], the server silent for at most `silence` at a time
+/// ([`try_http_raw_within`]); panics when the exchange fails.
+pub async fn http_within(
+    to: impl Endpoint,
+    method: &str,
+    path: &str,
+    silence: Duration,
+) -> HttpAnswer {
+    try_http_raw_within(to, request(method, path).as_bytes(), silence)
+        .await
+        .expect("HTTP exchange")
 }
 
 /// [`http`], a failed exchange as an error ([`try_http_raw`]).
