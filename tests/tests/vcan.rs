@@ -1048,19 +1048,18 @@ async fn tandem_chatter_over_can_requests_a_slow_down_before_it_develops() -> Re
     let mut peak_before = 0.0_f64;
     let mut valid_before = 0;
     let mut restarted = None;
+    // The alarm, or None when none came within a minute.
     let alarm = loop {
-        ensure!(
-            started.elapsed() < Duration::from_secs(60),
-            "no alarm: {:?}",
-            board.results().tandem_mills[0]
-        );
         let mill = board.results().tandem_mills[0].clone();
         if mill.evaluations > 0 && mill.source_stale && restarted.is_none() {
             restarted = Some(mill.clone());
         }
         let at_s = window_end_s(mill.evaluations);
         if mill.chatter_alarm {
-            break (at_s, mill);
+            break Some((at_s, mill));
+        }
+        if started.elapsed() >= Duration::from_secs(60) {
+            break None;
         }
         if let Some(ratio) = mill.gain_ratio {
             if at_s < onset {
@@ -1070,15 +1069,16 @@ async fn tandem_chatter_over_can_requests_a_slow_down_before_it_develops() -> Re
         }
         tokio::time::sleep(Duration::from_millis(20)).await;
     };
-    let (alarm_s, mill) = alarm;
-    ensure!(
-        mill.slow_down_request,
-        "slow-down requested with the alarm: {mill:?}"
-    );
-    ensure!(
-        mill.gain_ratio.is_some_and(|r| r >= 1.0) && mill.worst_stand.is_some(),
-        "{mill:?}"
-    );
+    if let Some((_, mill)) = &alarm {
+        ensure!(
+            mill.slow_down_request,
+            "slow-down requested with the alarm: {mill:?}"
+        );
+        ensure!(
+            mill.gain_ratio.is_some_and(|r| r >= 1.0) && mill.worst_stand.is_some(),
+            "{mill:?}"
+        );
+    }
     // Steady frames never restart the window (no gap, no lag, no realignment). A
     // restart is the reader's true report only when the input was not steady: the
     // kernel dropped frames (each a gap), or the node or the reader stalled for half a
@@ -1097,20 +1097,27 @@ async fn tandem_chatter_over_can_requests_a_slow_down_before_it_develops() -> Re
     let reader_s = can("millgate_can_receive_latency_max_seconds");
     let node_s = node_behind_ns.load(std::sync::atomic::Ordering::Relaxed) as f64 * 1e-9;
     let steady = drops == Some(0.0) && reader_s.is_some_and(|s| s < 0.5) && node_s < 0.5;
-    if let Some(restart) = restarted {
-        ensure!(
-            !steady,
-            "window restarted with steady frames (node {node_s:.3} s behind, reader \
-             {reader_s:?} s, kernel drops {drops:?}): {restart:?}"
-        );
-        println!(
-            "not in real time (node {node_s:.3} s behind, reader {reader_s:?} s, kernel \
-             drops {drops:?}): the window restarted, the alarm's timing is not asserted"
-        );
+    let input = format!("node {node_s:.3} s behind, reader {reader_s:?} s, kernel drops {drops:?}");
+    // A window that restarted again and again may never hold the alarm: once
+    // chatter developed, the clipped samples (the DBC's range) are gaps too. Without
+    // steady frames neither the alarm nor its timing is asserted.
+    let restarted = restarted.map(|restart| ("the window restarted", restart));
+    let unsteady = match (restarted, &alarm) {
+        (Some(restart), _) => Some(restart),
+        (None, None) => Some((
+            "no alarm within 60 s",
+            board.results().tandem_mills[0].clone(),
+        )),
+        (None, Some(_)) => None,
+    };
+    if let Some((what, mill)) = unsteady {
+        ensure!(!steady, "{what} with steady frames ({input}): {mill:?}");
+        println!("not in real time ({input}): {what}, the alarm's timing is not asserted");
         sender.abort();
         tokio::time::timeout(Duration::from_secs(10), gateway.stop()).await??;
         return Ok(());
     }
+    let (alarm_s, mill) = alarm.context("an alarm, or a restart above")?;
     println!(
         "tandem over CAN: onset {onset:.2} s, developed {developed:.2} s; {valid_before} polls \
          with a gain ratio before the onset, peak {peak_before:.3}; alarm in the window ending at \
