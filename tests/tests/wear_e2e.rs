@@ -93,6 +93,21 @@ async fn quality(hmi: &mut Context, map: &RegisterMap) -> anyhow::Result<u16> {
         .await??[0])
 }
 
+/// The quality bits once a reset command written to the HMI is applied, or 5 s
+/// after: the analysis applies the command from its command channel, in order with the
+/// samples, so at once but after the write's answer (reading the bits right after it
+/// raced the analysis, once, in a rehearsal).
+async fn after_reset(hmi: &mut Context, map: &RegisterMap) -> anyhow::Result<u16> {
+    let applied = tokio::time::Instant::now();
+    loop {
+        let bits = quality(hmi, map).await?;
+        if bits & WEAR_TREND_BIT == 0 || applied.elapsed() > Duration::from_secs(5) {
+            return Ok(bits);
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+}
+
 /// Wait until the HMI sees the bite counter at `count`.
 async fn wait_bites(hmi: &mut Context, map: &RegisterMap, count: u32) -> anyhow::Result<()> {
     let counter = address(map, "F1.bite_counter");
@@ -163,16 +178,7 @@ async fn wear_index_over_modbus_grows_with_the_gap_and_the_trend_resets() -> any
     );
     hmi.write_single_register(reset, 1).await??;
     assert_eq!(hmi.read_holding_registers(reset, 1).await??, vec![0]);
-    // The analysis applies the command from its command channel, in order with the
-    // samples: at once, but after the write's answer.
-    let applied = tokio::time::Instant::now();
-    let bits = loop {
-        let bits = quality(&mut hmi, &worn.map).await?;
-        if bits & WEAR_TREND_BIT == 0 || applied.elapsed() > Duration::from_secs(5) {
-            break bits;
-        }
-        tokio::time::sleep(Duration::from_millis(10)).await;
-    };
+    let bits = after_reset(&mut hmi, &worn.map).await?;
     assert_eq!(bits & WEAR_TREND_BIT, 0, "trend invalid after the reset");
     assert_ne!(bits & WEAR_INDEX_BIT, 0, "the last index stays valid");
     assert_eq!(read_f32(&mut hmi, &worn.map, "F1.wear_trend").await?, 0.0);
@@ -233,7 +239,7 @@ async fn wear_index_over_modbus_grows_with_the_gap_and_the_trend_resets() -> any
             "{}",
             String::from_utf8_lossy(&accepted.stderr)
         );
-        let bits = quality(&mut hmi, &worn.map).await?;
+        let bits = after_reset(&mut hmi, &worn.map).await?;
         assert_eq!(bits & WEAR_TREND_BIT, 0, "mbpoll reset the trend");
     } else {
         println!("skipped the mbpoll part: mbpoll is not installed (scripts/test installs it)");
