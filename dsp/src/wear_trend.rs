@@ -276,11 +276,21 @@ impl BiteMoments {
         grid.check()?;
         check_loglik(grid, loglik)?;
         let top = loglik.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        let floor = libm::exp(loglik.iter().copied().fold(f64::INFINITY, f64::min) - top);
+        let low = loglik.iter().copied().fold(f64::INFINITY, f64::min);
+        let floor = libm::exp(low - top);
         let weight = |v: f64, floor: f64| (libm::exp(v - top) - floor).max(0.0);
         let peaked = loglik.iter().any(|&v| weight(v, floor) > 0.0);
-        let floor = if peaked { floor } else { 0.0 };
-        let (_, mean, var) = weighted_moments(grid, |i| weight(loglik[i], floor));
+        let (_, mean, var) = if peaked {
+            // A point at the lowest value weighs exactly 0 (its exponential is the
+            // floor): most of a fine grid's points, far in both measures' tails, sit
+            // there on the outlier parts alone, and skip the exponential.
+            weighted_moments(grid, |i| match loglik[i] {
+                v if v == low => 0.0,
+                v => weight(v, floor),
+            })
+        } else {
+            weighted_moments(grid, |i| weight(loglik[i], 0.0))
+        };
         Ok(Self {
             mean_mrad: mean,
             var_mrad2: var + grid.step_mrad * grid.step_mrad / 12.0,

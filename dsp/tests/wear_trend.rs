@@ -761,3 +761,66 @@ fn bite_moments_leave_the_outlier_floor_out() {
         Err(TrendError::GridLength)
     );
 }
+
+/// The moments as they were before the floor's points skipped their exponential:
+/// every point through it.
+fn moments_of_every_point(grid: GapGrid, ll: &[f64]) -> (f64, f64) {
+    let top = ll.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let floor = libm::exp(ll.iter().copied().fold(f64::INFINITY, f64::min) - top);
+    let weight = |v: f64, floor: f64| (libm::exp(v - top) - floor).max(0.0);
+    let floor = if ll.iter().any(|&v| weight(v, floor) > 0.0) {
+        floor
+    } else {
+        0.0
+    };
+    let (mut sum, mut first, mut second) = (0.0, 0.0, 0.0);
+    for (i, &v) in ll.iter().enumerate() {
+        let w = weight(v, floor);
+        let offset = grid.step_mrad * i as f64;
+        sum += w;
+        first += w * offset;
+        second += w * offset * offset;
+    }
+    let mean_offset = first / sum;
+    let var = (second / sum - mean_offset * mean_offset).max(0.0);
+    (
+        grid.first_mrad + mean_offset,
+        var + grid.step_mrad * grid.step_mrad / 12.0,
+    )
+}
+
+/// The points at the floor skip their exponential without changing a bit: seeded
+/// log-likelihoods with a peak or two over a floor that holds from none to nearly all
+/// of the points, flat ones among them.
+#[test]
+fn bite_moments_skip_the_floor_without_changing_a_bit() {
+    let mut rng = StdRng::seed_from_u64(11);
+    for case in 0..2_000 {
+        let floor = rng.random_range(-10.0..0.0);
+        let peaks: Vec<(f64, f64, f64)> = (0..rng.random_range(0..3))
+            .map(|_| {
+                (
+                    rng.random_range(0.0..8.0),
+                    10f64.powf(rng.random_range(-2.0..0.5)),
+                    rng.random_range(0.0..20.0),
+                )
+            })
+            .collect();
+        let ll: Vec<f64> = (0..FINE.len)
+            .map(|i| {
+                let gap = FINE.at(i);
+                peaks
+                    .iter()
+                    .map(|&(at, sd, height)| height - 0.5 * ((gap - at) / sd).powi(2))
+                    .fold(floor, f64::max)
+            })
+            .collect();
+        let m = BiteMoments::from_loglik(FINE, &ll).unwrap();
+        let (mean, var) = moments_of_every_point(FINE, &ll);
+        assert_eq!(
+            (m.mean_mrad.to_bits(), m.var_mrad2.to_bits()),
+            (mean.to_bits(), var.to_bits()),
+            "case {case}: {m:?} against {mean}, {var}"
+        );
+    }
+}

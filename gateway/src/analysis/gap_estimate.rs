@@ -267,6 +267,113 @@ fn point_logliks<const N: usize>(
     })
 }
 
+/// What every point from gap row `row` of `cells` to the next has under each allowance
+/// `terms` were made for, when all of them lie far in both measures' tails: their
+/// Gaussian parts then vanish ([`robust_gauss`]) and each point's value is its outlier
+/// parts' sum, bit for bit what [`point_logliks`] gives. `None` when some point may
+/// not (the row's points are then taken one by one).
+///
+/// The bound: within a row's span a point's TAF and shift are linear in its weight
+/// (so are their interpolation errors), so a residual is smallest at an end or zero
+/// where it changes sign, and a variance largest at an end. Most rows of a fine grid
+/// are far from the bite (a likelihood is peaked over a few map steps): one bound per
+/// row spares their points the maps' interpolation.
+#[inline(always)]
+fn far_logliks<const N: usize>(
+    cells: &[Cell],
+    observation: &GapObservation,
+    terms: &[Terms; N],
+    row: usize,
+) -> Option<[f64; N]> {
+    let lower = &cells[row];
+    let upper = cells.get(row + 1).unwrap_or(lower);
+    let ends = |of: fn(&Cell, usize) -> f64| {
+        let end = |cell: &Cell| lerp(of(cell, 0), of(cell, 1), cell.weight);
+        (end(lower), end(upper))
+    };
+    let taf = ends(|cell, side| cell.points[side].taf);
+    let taf_floor = ends(|cell, side| cell.taf_floor[side]);
+    let taf_far = |terms: &Terms| {
+        far(
+            observation.taf,
+            taf,
+            taf_floor,
+            terms.taf_variance,
+            (terms.taf_log_floor, terms.taf_outliers),
+        )
+    };
+    let Some(measured) = observation.period_shift_s else {
+        return terms
+            .iter()
+            .all(taf_far)
+            .then(|| terms.map(|terms| terms.taf_outliers));
+    };
+    // Every corner has a shift and they spread by no more than a jump: each point's
+    // shift term is then its Gaussian one (`ShiftCorners::loglik`).
+    let mut shifts = [lower, upper]
+        .into_iter()
+        .flat_map(|cell| cell.points.iter().map(|point| point.period_shift_s));
+    let (mut low, mut high) = (f64::INFINITY, f64::NEG_INFINITY);
+    for shift in shifts.by_ref() {
+        let shift = shift?;
+        low = low.min(shift);
+        high = high.max(shift);
+    }
+    if high - low > SHIFT_JUMP_S {
+        return None;
+    }
+    let shift = ends(|cell, side| cell.points[side].period_shift_s.unwrap_or(0.0));
+    let shift_floor = ends(|cell, side| cell.shift_floor_s[side]);
+    let shift_far = |terms: &Terms| {
+        far(
+            measured,
+            shift,
+            shift_floor,
+            terms.shift_variance,
+            (terms.shift_log_floor, terms.shift_outliers),
+        )
+    };
+    terms
+        .iter()
+        .all(|terms| taf_far(terms) && shift_far(terms))
+        .then(|| {
+            terms.map(|terms| {
+                let mut loglik = terms.taf_outliers;
+                loglik += terms.shift_outliers;
+                loglik
+            })
+        })
+}
+
+/// Whether [`robust_gauss`] gives its outlier part alone at every point of a row's
+/// span for a measure `measured` whose model runs linearly from `model.0` to `model.1`
+/// with interpolation errors from `floor.0` to `floor.1`: `variance` and `(log_floor,
+/// outliers)` as it takes them. The residual is taken smaller by its rounding (a few
+/// units in the last place of the values it comes from) and the bound is one unit of
+/// `q` beyond the point's, so no rounding can put a point on the other side.
+#[inline(always)]
+fn far(
+    measured: f64,
+    model: (f64, f64),
+    floor: (f64, f64),
+    variance: f64,
+    (log_floor, outliers): (f64, f64),
+) -> bool {
+    let (to_low, to_high) = (measured - model.0, measured - model.1);
+    let nearest = if to_low.signum() == to_high.signum() {
+        to_low.abs().min(to_high.abs())
+    } else {
+        0.0
+    };
+    let rounding = 8.0 * f64::EPSILON * (measured.abs() + model.0.abs() + model.1.abs());
+    let nearest = (nearest - rounding).max(0.0);
+    let widest = variance + floor.0.abs().max(floor.1.abs()).powi(2);
+    // A point's Gaussian part vanishes where -(q + log_floor) / 2 < outliers -
+    // NEGLIGIBLE_LOG, q = residual^2 / its variance.
+    let q_needed = 2.0 * (NEGLIGIBLE_LOG - outliers) - log_floor + 1.0;
+    nearest * nearest > q_needed * widest * (1.0 + 1e-9)
+}
+
 fn lerp(a: f64, b: f64, weight: f64) -> f64 {
     a + (b - a) * weight
 }
@@ -384,23 +491,50 @@ fn logliks_at<const N: usize>(
     observation: &GapObservation,
     grid: GapGrid,
     allowances: [Allowance; N],
-    mut outs: [&mut [f64]; N],
+    outs: [&mut [f64]; N],
 ) -> bool {
     let Some(cells) = maps.cells(index, observation.static_torque_knm) else {
         return false;
     };
-    let step_mrad = map_step_mrad(maps);
+    cells_logliks(
+        &cells,
+        observation,
+        (grid, map_step_mrad(maps)),
+        allowances,
+        outs,
+    );
+    true
+}
+
+/// [`logliks_at`] on one coupling's `cells` (one per gap row, `step_mrad` apart).
+fn cells_logliks<const N: usize>(
+    cells: &[Cell],
+    observation: &GapObservation,
+    (grid, step_mrad): (GapGrid, f64),
+    allowances: [Allowance; N],
+    mut outs: [&mut [f64]; N],
+) {
     let terms = allowances.map(|allowance| Terms::new(observation, allowance));
     let len = outs.iter().map(|out| out.len()).fold(grid.len, usize::min);
+    // The last row's span and what its points all have when they are far.
+    let mut span: Option<(usize, Option<[f64; N]>)> = None;
     for k in 0..len {
         let rows = (grid.at(k) / step_mrad).max(0.0);
         let row = (rows.floor() as usize).min(cells.len() - 1);
-        let values = point_logliks(&cells, observation, &terms, row, rows - row as f64);
+        let far = match span {
+            Some((last, far)) if last == row => far,
+            _ => {
+                let far = far_logliks(cells, observation, &terms, row);
+                span = Some((row, far));
+                far
+            }
+        };
+        let values = far
+            .unwrap_or_else(|| point_logliks(cells, observation, &terms, row, rows - row as f64));
         for (out, value) in outs.iter_mut().zip(values) {
             out[k] = value;
         }
     }
-    true
 }
 
 /// The maps' gap step, mrad.
@@ -647,6 +781,81 @@ mod tests {
         assert!(
             skipped * 10 > points && (points - skipped) * 10 > points,
             "{skipped} of {points} points skipped"
+        );
+    }
+
+    /// The far rows' shortcut changes no bit either: seeded maps shaped as a
+    /// driveline's (TAF and shift drifting over the gap rows, some shifts jumping or
+    /// missing), bites near one row with noise from small to large, with and without a
+    /// shift, both allowances, a fine grid reaching beyond the maps. At least a tenth of
+    /// the rows must have taken the shortcut and a tenth not.
+    #[test]
+    fn far_rows_take_their_outlier_parts_without_changing_a_bit() {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+        let (mut rows, mut far_rows) = (0, 0);
+        for _ in 0..1_000 {
+            let taf = (rng.random_range(1.0..2.0), rng.random_range(-0.1..0.1));
+            let shift = (rng.random_range(-5e-3..5e-3), rng.random_range(-1e-3..1e-3));
+            let jump_at = rng.random_range(0..40);
+            let point = |rng: &mut rand::rngs::StdRng, row: usize| MapPoint {
+                static_knm: 500.0,
+                taf: taf.0 + taf.1 * row as f64 + rng.random_range(-1e-3..1e-3),
+                period_shift_s: rng.random_bool(0.98).then_some(
+                    shift.0 + shift.1 * row as f64 + if row >= jump_at { 8e-3 } else { 0.0 },
+                ),
+            };
+            let cells: Vec<Cell> = (0..17)
+                .map(|row| Cell {
+                    points: [point(&mut rng, row), point(&mut rng, row)],
+                    taf_floor: [rng.random_range(0.0..0.01), rng.random_range(0.0..0.01)],
+                    shift_floor_s: [rng.random_range(0.0..3e-4), rng.random_range(0.0..3e-4)],
+                    weight: rng.random_range(0.0..1.0),
+                })
+                .collect();
+            let near = rng.random_range(0..cells.len());
+            let scale = 10f64.powf(rng.random_range(-4.0..-1.0));
+            let observation = GapObservation {
+                static_torque_knm: 500.0,
+                taf: cells[near].taf() + rng.random_range(-3.0..3.0) * scale,
+                taf_sigma: scale,
+                period_shift_s: rng.random_bool(0.8).then(|| {
+                    cells[near].points[0].period_shift_s.unwrap_or(0.0)
+                        + rng.random_range(-3.0..3.0) * scale * 1e-2
+                }),
+                period_shift_sigma_s: scale * 1e-2,
+            };
+            let step_mrad = 0.125;
+            let grid = GapGrid {
+                first_mrad: 0.0,
+                step_mrad: step_mrad / SUBSTEPS as f64,
+                len: (cells.len() + 1) * SUBSTEPS + 1,
+            };
+            let allowances = [Allowance::Trend, Allowance::Whole];
+            let mut outs = [vec![0.0; grid.len], vec![0.0; grid.len]];
+            let slices = outs.each_mut().map(Vec::as_mut_slice);
+            cells_logliks(&cells, &observation, (grid, step_mrad), allowances, slices);
+            for k in 0..grid.len {
+                let at = (grid.at(k) / step_mrad).max(0.0);
+                let row = (at.floor() as usize).min(cells.len() - 1);
+                for (out, allowance) in outs.iter().zip(allowances) {
+                    let slow = every_term(&cells, &observation, allowance, row, at - row as f64);
+                    assert_eq!(
+                        out[k].to_bits(),
+                        slow.to_bits(),
+                        "{} against {slow}: {observation:?}, {allowance:?}, row {row}",
+                        out[k]
+                    );
+                }
+            }
+            let terms = allowances.map(|allowance| Terms::new(&observation, allowance));
+            for row in 0..cells.len() {
+                rows += 1;
+                far_rows += usize::from(far_logliks(&cells, &observation, &terms, row).is_some());
+            }
+        }
+        assert!(
+            far_rows * 10 > rows && (rows - far_rows) * 10 > rows,
+            "{far_rows} of {rows} rows far"
         );
     }
 

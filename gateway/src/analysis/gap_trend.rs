@@ -156,8 +156,12 @@ impl GapTrend {
             .map_or(0, |estimate| estimate.likeliest);
         let mut local = vec![0.0; fine.len];
         let mut jumped = false;
+        let mut likeliest_noise = None;
         for (k, loglik) in noise.iter().enumerate().take(self.couplings.len()) {
             let bite = BiteMoments::from_loglik(fine, loglik)?;
+            if k == likeliest {
+                likeliest_noise = Some(bite);
+            }
             let grid = self.trend.grid(&self.state, k, fine);
             let values = if grid == fine {
                 loglik.as_slice()
@@ -175,7 +179,10 @@ impl GapTrend {
         // variance on the likeliest coupling.
         let floor2 = match whole.get(likeliest) {
             Some(whole) => {
-                let noise = BiteMoments::from_loglik(fine, &noise[likeliest])?;
+                let noise = match likeliest_noise {
+                    Some(noise) => noise,
+                    None => BiteMoments::from_loglik(fine, &noise[likeliest])?,
+                };
                 let whole = BiteMoments::from_loglik(fine, whole)?;
                 Some((whole.var_mrad2 - noise.var_mrad2).max(0.0))
             }
