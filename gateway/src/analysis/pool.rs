@@ -5,21 +5,26 @@
 //! a driveline still being analysed waits for it: `super::flight`). A slow job so
 //! delays only its own driveline.
 //!
-//! The threads are rayon's (`ThreadPool::spawn`): started once, at the first job,
-//! and kept, so a job costs the wake-up of an idle thread rather than the start of a
-//! new one (some tens of microseconds, more on a loaded machine, hundreds of times a
-//! second). Nothing queues without bound: each driveline and the mills have at most
-//! one job in flight, and the finished jobs' channel at most one message per job.
+//! The threads ([`Threads`]) are started once, at the first job, and kept, so a job
+//! costs the wake-up of an idle thread rather than the start of a new one (some tens
+//! of microseconds, more on a loaded machine, hundreds of times a second). An idle
+//! thread sleeps on the queue's condition variable. They were rayon's, whose idle
+//! threads spin (`sched_yield` in a loop) before they sleep: between the bursts of
+//! bites at 128 drivelines that spinning took 28% of the analysis threads' CPU
+//! (docs/measured.md), on a machine of two cores shared with the readers and the
+//! writers; a queue under a mutex is all this pool needs. Nothing queues without
+//! bound: each driveline and the mills have at most one job in flight, and the
+//! finished jobs' channel at most one message per job.
 
-use std::sync::mpsc;
-use std::sync::OnceLock;
+use std::collections::VecDeque;
+use std::sync::{mpsc, Arc, Condvar, Mutex, OnceLock};
 
 /// A pool of `workers` analysis threads, started when first needed.
 #[derive(Debug)]
 pub(crate) struct Pool {
     workers: usize,
     /// The threads (`None`: they could not be started, every share runs inline).
-    threads: OnceLock<Option<rayon::ThreadPool>>,
+    threads: OnceLock<Option<Threads>>,
 }
 
 impl Pool {
@@ -34,17 +39,13 @@ impl Pool {
 
     /// The threads that run jobs, started at the first call: `None` with one worker
     /// (every job runs on the calling thread) or when they could not be started.
-    pub(crate) fn threads(&self) -> Option<&rayon::ThreadPool> {
+    pub(crate) fn threads(&self) -> Option<&Threads> {
         if self.workers == 1 {
             return None;
         }
         self.threads
             .get_or_init(|| {
-                let built = rayon::ThreadPoolBuilder::new()
-                    .num_threads(self.workers)
-                    .thread_name(|i| format!("analysis-{i}"))
-                    .build();
-                built
+                Threads::start(self.workers)
                     .inspect_err(|error| {
                         tracing::error!(%error, workers = self.workers, "the analysis pool's threads did not start: the analysis runs on one thread")
                     })
@@ -54,10 +55,107 @@ impl Pool {
     }
 }
 
+/// A job: run once on one of the threads. It must not panic ([`Finished::spawn`]
+/// catches its jobs' panics): a panic would end its thread.
+type Job = Box<dyn FnOnce() + Send>;
+
+/// The pool's threads, named `analysis-N`, and their queue of jobs: taken in the
+/// order they came. Dropping this lets the threads end once the queue is empty.
+#[derive(Debug)]
+pub(crate) struct Threads {
+    shared: Arc<Shared>,
+}
+
+/// What the threads share.
+struct Shared {
+    queue: Mutex<Queue>,
+    /// Notified when a job is queued or the threads are to end.
+    ready: Condvar,
+}
+
+impl std::fmt::Debug for Shared {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let queue = crate::lock(&self.queue);
+        f.debug_struct("Shared")
+            .field("queued", &queue.jobs.len())
+            .field("closed", &queue.closed)
+            .finish()
+    }
+}
+
+struct Queue {
+    jobs: VecDeque<Job>,
+    /// The pool was dropped: a thread ends when it finds the queue empty.
+    closed: bool,
+}
+
+impl Threads {
+    /// Start `workers` threads.
+    fn start(workers: usize) -> std::io::Result<Self> {
+        let threads = Self {
+            shared: Arc::new(Shared {
+                queue: Mutex::new(Queue {
+                    jobs: VecDeque::new(),
+                    closed: false,
+                }),
+                ready: Condvar::new(),
+            }),
+        };
+        for index in 0..workers {
+            let shared = Arc::clone(&threads.shared);
+            // On an error the threads started so far end with `threads`' drop.
+            std::thread::Builder::new()
+                .name(format!("analysis-{index}"))
+                .spawn(move || shared.work())?;
+        }
+        Ok(threads)
+    }
+
+    /// Queue `job`; an idle thread takes it at once.
+    pub(crate) fn spawn(&self, job: impl FnOnce() + Send + 'static) {
+        crate::lock(&self.shared.queue)
+            .jobs
+            .push_back(Box::new(job));
+        self.shared.ready.notify_one();
+    }
+}
+
+impl Drop for Threads {
+    fn drop(&mut self) {
+        crate::lock(&self.shared.queue).closed = true;
+        self.shared.ready.notify_all();
+    }
+}
+
+impl Shared {
+    /// A thread's life: the queue's jobs one after another, asleep while it is empty,
+    /// until the pool is dropped.
+    fn work(&self) {
+        loop {
+            let job = {
+                let mut queue = crate::lock(&self.queue);
+                loop {
+                    if let Some(job) = queue.jobs.pop_front() {
+                        break job;
+                    }
+                    if queue.closed {
+                        return;
+                    }
+                    queue = self
+                        .ready
+                        .wait(queue)
+                        .unwrap_or_else(std::sync::PoisonError::into_inner);
+                }
+            };
+            job();
+        }
+    }
+}
+
 /// Jobs' ends: each job in flight sends what it gives once done, and wakes the
 /// analysis task waiting on [`Self::woken`]. A job that panics sends its panic, which
 /// the analysis task resumes when it takes that end (as a job run on its own thread
-/// would panic there; rayon's default for a spawned job's panic is to abort).
+/// would panic there).
 #[derive(Debug)]
 pub(crate) struct Finished<T> {
     sender: mpsc::Sender<std::thread::Result<T>>,
@@ -76,11 +174,7 @@ impl<T: Send + 'static> Finished<T> {
     }
 
     /// Run `job` on `threads`; what it gives is sent here once it is done.
-    pub(crate) fn spawn(
-        &self,
-        threads: &rayon::ThreadPool,
-        job: impl FnOnce() -> T + Send + 'static,
-    ) {
+    pub(crate) fn spawn(&self, threads: &Threads, job: impl FnOnce() -> T + Send + 'static) {
         let (sender, wake) = (self.sender.clone(), std::sync::Arc::clone(&self.wake));
         threads.spawn(move || {
             let ended = std::panic::catch_unwind(std::panic::AssertUnwindSafe(job));
@@ -159,6 +253,27 @@ mod tests {
             "{} threads: {seen:?}",
             seen.len()
         );
+    }
+
+    /// Dropping the pool ends its threads (they hold what they share: once it is
+    /// gone, every thread has ended).
+    #[test]
+    fn the_threads_end_with_the_pool() {
+        let pool = Pool::new(2);
+        let threads = pool.threads().expect("two workers");
+        let finished = Finished::new();
+        finished.spawn(threads, || 1);
+        assert_eq!(finished.wait(), vec![1]);
+        let shared = Arc::downgrade(&threads.shared);
+        drop(pool);
+        let dropped = std::time::Instant::now();
+        while shared.upgrade().is_some() {
+            assert!(
+                dropped.elapsed() < Duration::from_secs(10),
+                "the threads still run 10 s after the pool was dropped"
+            );
+            std::thread::sleep(Duration::from_millis(1));
+        }
     }
 
     /// A slow job does not hold the others back: it waits until the fast jobs'
