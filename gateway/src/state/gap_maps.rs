@@ -71,11 +71,15 @@ pub struct GapMapData {
     pub maps: Vec<CouplingMap>,
 }
 
-/// Interpolation error estimates of one point: TAF and shift (s).
+/// What a look-up needs of one point beyond its values: its interpolation error
+/// estimates, TAF and shift (s), and the logarithm of its static torque (a bite's
+/// look-up interpolates in log torque on every gap row of every coupling, more than
+/// once: taken once here).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 struct Floor {
     taf: f64,
     shift_s: f64,
+    ln_static_knm: f64,
 }
 
 /// A coupling's map at one static torque, between two grid torques: per gap row the
@@ -176,10 +180,11 @@ impl GapMaps {
     pub fn cells(&self, index: usize, static_knm: f64) -> Option<Vec<Cell>> {
         let map = self.data.maps.get(index)?;
         let floors = &self.floors[index];
+        let ln_static_knm = static_knm.ln();
         map.rows
             .iter()
             .zip(floors)
-            .map(|(row, floors)| cell(row, floors, static_knm))
+            .map(|(row, floors)| cell(row, floors, (static_knm, ln_static_knm)))
             .collect()
     }
 }
@@ -241,8 +246,12 @@ impl GapMaps {
     }
 }
 
-/// The cell of `row` around `static_knm`.
-fn cell(row: &[MapPoint], floors: &[Floor], static_knm: f64) -> Option<Cell> {
+/// The cell of `row` around `static_knm` (with its logarithm).
+fn cell(
+    row: &[MapPoint],
+    floors: &[Floor],
+    (static_knm, ln_static_knm): (f64, f64),
+) -> Option<Cell> {
     let (first, last) = (row.first()?, row.last()?);
     let tolerance = 1.0 + EDGE_TOLERANCE;
     if !(static_knm * tolerance >= first.static_knm && static_knm <= last.static_knm * tolerance) {
@@ -252,8 +261,8 @@ fn cell(row: &[MapPoint], floors: &[Floor], static_knm: f64) -> Option<Cell> {
         .partition_point(|p| p.static_knm <= static_knm)
         .clamp(1, row.len() - 1);
     let lower = upper - 1;
-    let (a, b) = (row[lower].static_knm, row[upper].static_knm);
-    let weight = ((static_knm.ln() - a.ln()) / (b.ln() - a.ln())).clamp(0.0, 1.0);
+    let (a, b) = (floors[lower].ln_static_knm, floors[upper].ln_static_knm);
+    let weight = ((ln_static_knm - a) / (b - a)).clamp(0.0, 1.0);
     Some(Cell {
         points: [row[lower], row[upper]],
         taf_floor: [floors[lower].taf, floors[upper].taf],
@@ -304,6 +313,7 @@ fn floors(rows: &[Vec<MapPoint>]) -> Vec<Vec<Floor>> {
                 .map(|i| Floor {
                     taf: along_torque(j, i, taf).hypot(along_gap(j, i, taf)),
                     shift_s: along_torque(j, i, shift).hypot(along_gap(j, i, shift)),
+                    ln_static_knm: rows[j][i].static_knm.ln(),
                 })
                 .collect()
         })
@@ -327,4 +337,63 @@ pub enum GapMapState {
     Ready(Arc<GapMaps>),
     /// Will not come: why (the model does not load or fit, the build failed).
     Failed(String),
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng as _, SeedableRng as _};
+
+    /// A cell's weight is the static torque's place between its neighbours in log
+    /// torque, bit for bit as each logarithm taken at the look-up gives it (the maps
+    /// keep their points' logarithms): seeded rows whose measured torques differ a
+    /// little from row to row, torques anywhere in and just outside the maps.
+    #[test]
+    fn a_cells_weight_is_its_place_in_log_torque() {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(5);
+        let torques = [40.0, 55.0, 75.0, 100.0, 130.0, 170.0];
+        let rows: Vec<Vec<MapPoint>> = (0..5)
+            .map(|_| {
+                torques
+                    .iter()
+                    .map(|&t| MapPoint {
+                        static_knm: t * rng.random_range(0.99..1.01),
+                        taf: rng.random_range(1.0..2.0),
+                        period_shift_s: None,
+                    })
+                    .collect()
+            })
+            .collect();
+        let maps = GapMaps::new(GapMapData {
+            model_name: "test".into(),
+            spec: GapMapSpec {
+                couplings: vec![0],
+                gaps_rad: (0..5).map(|g| f64::from(g) * 1e-3).collect(),
+                static_torques_knm: torques.to_vec(),
+            },
+            maps: vec![CouplingMap {
+                coupling: 0,
+                name: "spindle".into(),
+                rows: rows.clone(),
+            }],
+        });
+        let mut looked = 0;
+        for _ in 0..2_000 {
+            let static_knm = rng.random_range(35.0..180.0);
+            let Some(cells) = maps.cells(0, static_knm) else {
+                continue;
+            };
+            looked += 1;
+            for (cell, row) in cells.iter().zip(&rows) {
+                let upper = row
+                    .partition_point(|p| p.static_knm <= static_knm)
+                    .clamp(1, row.len() - 1);
+                let (a, b) = (row[upper - 1].static_knm, row[upper].static_knm);
+                let weight = ((static_knm.ln() - a.ln()) / (b.ln() - a.ln())).clamp(0.0, 1.0);
+                assert_eq!(cell.weight.to_bits(), weight.to_bits(), "{static_knm} kN*m");
+                assert_eq!(cell.points, [row[upper - 1], row[upper]]);
+            }
+        }
+        assert!(looked > 1_500, "{looked} look-ups inside the maps");
+    }
 }
