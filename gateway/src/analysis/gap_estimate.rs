@@ -310,12 +310,9 @@ fn far_logliks<const N: usize>(
     };
     // Every corner has a shift and they spread by no more than a jump: each point's
     // shift term is then its Gaussian one (`ShiftCorners::loglik`).
-    let mut shifts = [lower, upper]
-        .into_iter()
-        .flat_map(|cell| cell.points.iter().map(|point| point.period_shift_s));
     let (mut low, mut high) = (f64::INFINITY, f64::NEG_INFINITY);
-    for shift in shifts.by_ref() {
-        let shift = shift?;
+    for point in lower.points.iter().chain(&upper.points) {
+        let shift = point.period_shift_s?;
         low = low.min(shift);
         high = high.max(shift);
     }
