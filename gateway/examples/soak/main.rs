@@ -38,7 +38,10 @@
 //! near a block period (50 ms) makes a DAQ skip a block, which the gateway counts as
 //! missed though it did not fall behind (run the bench pinned to the other core:
 //! `taskset -c 0`); `bench_%` is the bench's own CPU (its DAQs, PLC and clients, not
-//! mosquitto) in the sample period, of one core; `steal_%` the machine's CPU time a
+//! mosquitto) in the sample period, of one core; `wait_%` the time the gateway's
+//! threads were ready to run but waited for a core in that period (their scheduler
+//! statistics' `run_delay`), of one core like `cpu_%`: near `cpu_%`, its work waited
+//! for a core about as long as it ran; `steal_%` the machine's CPU time a
 //! hypervisor gave to other guests in that period (`/proc/stat`), of all cores: on a
 //! shared virtual machine the latency moves with it. After each point, the gateway's own
 //! latency histograms from its last `/metrics` (`millgate_bite_to_plc_seconds`,

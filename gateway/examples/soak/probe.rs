@@ -2,6 +2,7 @@
 //! `/proc`, HTTP GETs of the web page and `/metrics`, the sums of metric samples, the
 //! stalls of the bench's own timers, and the guard that kills the gateway.
 
+use std::collections::BTreeMap;
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpListener as StdListener, TcpStream};
 use std::process::Child;
@@ -85,6 +86,33 @@ pub(crate) fn machine_ticks() -> anyhow::Result<(u64, u64)> {
         .get(..8)
         .context("/proc/stat's cpu line without steal")?;
     Ok((counted.iter().sum(), counted[7]))
+}
+
+/// Per thread of process `pid` (by thread id), the time it was runnable but waited for
+/// a CPU since it started, ns: the second field of `/proc/<pid>/task/<tid>/schedstat`
+/// (`run_delay`, counted when the kernel keeps scheduler statistics). A thread that
+/// ends between two samples takes its last wait with it. On a machine with cores to
+/// spare this stays small beside the CPU time; where it nears the CPU time, a bite's
+/// work waited for a core as long as it ran (the `wait_%` column).
+pub(crate) fn runnable_waits(pid: u32) -> anyhow::Result<BTreeMap<u32, u64>> {
+    let mut waits = BTreeMap::new();
+    for task in std::fs::read_dir(format!("/proc/{pid}/task"))? {
+        let task = task?;
+        let Some(tid) = task.file_name().to_str().and_then(|tid| tid.parse().ok()) else {
+            continue;
+        };
+        // A thread that ended since the listing has no file left: not counted.
+        let Ok(schedstat) = std::fs::read_to_string(task.path().join("schedstat")) else {
+            continue;
+        };
+        let waited = schedstat
+            .split_whitespace()
+            .nth(1)
+            .context("/proc/<pid>/task/<tid>/schedstat without run_delay")?
+            .parse()?;
+        waits.insert(tid, waited);
+    }
+    Ok(waits)
 }
 
 /// One HTTP/1.1 GET over a new connection: the status and the body.

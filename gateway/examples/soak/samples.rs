@@ -2,6 +2,7 @@
 //! `/metrics`' answers, the process figures of the gateway and of the bench, and the
 //! new bites, each sample a printed row.
 
+use std::collections::BTreeMap;
 use std::collections::HashMap;
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -16,7 +17,9 @@ use tokio_modbus::client::Reader;
 
 use crate::bites::{quantile, Bites};
 use crate::options::Options;
-use crate::probe::{get, machine_ticks, metric_sum, process_figures, web_answers, ProcessFigures};
+use crate::probe::{
+    get, machine_ticks, metric_sum, process_figures, runnable_waits, web_answers, ProcessFigures,
+};
 
 /// What the samples read: the gateway's process and addresses, the sources of the
 /// bite bookkeeping and the bench's timer stall.
@@ -76,6 +79,8 @@ pub(crate) struct Sampler {
     bench_cpu: (Instant, f64),
     /// The machine's ticks, all and stolen, at the last sample ([`machine_ticks`]).
     machine: (u64, u64),
+    /// The gateway's threads' waits for a CPU at the last sample, ns, and when.
+    waits: (Instant, BTreeMap<u32, u64>),
     /// RSS (KiB) and descriptors of each sample after the warm-up.
     pub(crate) samples: Vec<(u64, usize)>,
     /// After the warm-up: the web page's and `/metrics`' answers asked, and failed.
@@ -95,6 +100,8 @@ struct Reading {
     gateway: anyhow::Result<ProcessFigures>,
     bench: anyhow::Result<ProcessFigures>,
     machine: anyhow::Result<(u64, u64)>,
+    /// The gateway's threads' waits for a CPU ([`runnable_waits`]).
+    waits: anyhow::Result<BTreeMap<u32, u64>>,
     /// The GETs that did not answer 200.
     failures: Vec<String>,
     metrics_text: Option<String>,
@@ -103,12 +110,13 @@ struct Reading {
 /// Prints the header of the samples' rows.
 pub(crate) fn print_columns() {
     println!(
-        "{:>6} {:>8} {:>4} {:>4} {:>6} {:>6} {:>5} {:>6} {:>5} {:>6} {:>7} {:>8} {:>7} {:>7}",
+        "{:>6} {:>8} {:>4} {:>4} {:>6} {:>6} {:>6} {:>5} {:>6} {:>5} {:>6} {:>7} {:>8} {:>7} {:>7}",
         "t_s",
         "rss_kib",
         "fds",
         "thr",
         "cpu_%",
+        "wait_%",
         "bites",
         "degr",
         "missed",
@@ -146,6 +154,7 @@ impl Sampler {
             last_cpu: (Instant::now(), 0.0),
             bench_cpu: (Instant::now(), 0.0),
             machine: machine_ticks().unwrap_or_default(),
+            waits: (Instant::now(), BTreeMap::new()),
             samples: Vec::new(),
             answers: 0,
             answers_failed: 0,
@@ -178,12 +187,14 @@ impl Sampler {
             let gateway = process_figures(watched.pid);
             let bench = process_figures(std::process::id());
             let machine = machine_ticks();
+            let waits = runnable_waits(watched.pid);
             let (failures, metrics_text) = web_answers(watched.web, watched.metrics);
             watched.collect(&mut bites, false)?;
             let reading = Reading {
                 gateway,
                 bench,
                 machine,
+                waits,
                 failures,
                 metrics_text,
             };
@@ -227,6 +238,20 @@ impl Sampler {
             }
             Err(_) => f64::NAN,
         };
+        let wait_percent = match reading.waits {
+            Ok(waits) => {
+                let (since, last) = std::mem::replace(&mut self.waits, (Instant::now(), waits));
+                // A thread started since the last sample counts its whole wait.
+                let waited: u64 = self
+                    .waits
+                    .1
+                    .iter()
+                    .map(|(tid, &now)| now.saturating_sub(last.get(tid).copied().unwrap_or(0)))
+                    .sum();
+                waited as f64 / 1e9 / since.elapsed().as_secs_f64() * 100.0
+            }
+            Err(_) => f64::NAN,
+        };
         if warm && self.warm_up_end.is_none() {
             self.warm_up_end = Some(WarmUpEnd {
                 time: SystemTime::now(),
@@ -240,12 +265,13 @@ impl Sampler {
         let mut sorted = self.bites.latencies_ms.clone();
         sorted.sort_by(f64::total_cmp);
         println!(
-            "{:>6.0} {:>8} {:>4} {:>4} {:>6.1} {:>6} {:>5} {:>6} {:>5} {:>6.2} {:>7} {:>8.1} {:>7.1} {:>7.1}",
+            "{:>6.0} {:>8} {:>4} {:>4} {:>6.1} {:>6.1} {:>6} {:>5} {:>6} {:>5} {:>6.2} {:>7} {:>8.1} {:>7.1} {:>7.1}",
             self.started.elapsed().as_secs_f64(),
             gateway.rss_kib,
             gateway.fds,
             gateway.threads,
             cpu_percent,
+            wait_percent,
             bite_total,
             self.bites.degraded(),
             missed,
