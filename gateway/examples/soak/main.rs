@@ -57,7 +57,8 @@
 //! ```
 //!
 //! Options: `--duration` s per load point (default 600), `--every` s between samples
-//! (10), `--warm-up` s not counted (15), `--drivelines` list (1), `--tandem-stands` list
+//! (10; a sample is also taken at the warm-up's end, where the figures after it start),
+//! `--warm-up` s not counted (15), `--drivelines` list (1), `--tandem-stands` list
 //! (0), `--tandem-rate-hz` (2500), `--cpu` the core to pin the gateway to (none),
 //! `--p99-limit-ms` (5), `--keep-going` (step on after a failed point), `--millgate`
 //! the binary (the one beside this example's folder), `--analysis-workers` the

@@ -17,7 +17,7 @@ stands streamed by virtual DAQs; prints each load point's samples and a summary 
 usage: soak [options]
 
   --duration S                 seconds per load point (600)
-  --every S                    seconds between samples (10)
+  --every S                    seconds between samples (10), and one at the warm-up's end
   --warm-up S                  seconds not counted (15)
   --drivelines N[,N...]        drivelines per load point (1)
   --tandem-stands M[,M...]     tandem-mill stands per load point (0)

@@ -129,13 +129,21 @@ pub(crate) fn print_columns() {
     );
 }
 
-/// Samples the load point every `--every` s for `--duration` s, a row each.
+/// Samples the load point every `--every` s for `--duration` s, a row each, and once at
+/// the end of the warm-up whatever `--every` is: the figures after the warm-up (p99,
+/// CPU, blocks missed) count from that sample.
 pub(crate) async fn sample(options: &Options, watched: &Arc<Watched>) -> anyhow::Result<Sampler> {
     let mut sampler = Sampler::new();
     while sampler.started.elapsed() < options.duration {
-        let next = options
-            .every
-            .min(options.duration.saturating_sub(sampler.started.elapsed()));
+        let elapsed = sampler.started.elapsed();
+        let mut next = options.every.min(options.duration.saturating_sub(elapsed));
+        if let Some(to_warm) = options
+            .warm_up
+            .checked_sub(elapsed)
+            .filter(|d| !d.is_zero())
+        {
+            next = next.min(to_warm);
+        }
         tokio::time::sleep(next).await;
         let warm = sampler.started.elapsed() >= options.warm_up;
         sampler.read_hmi(watched.server).await;
