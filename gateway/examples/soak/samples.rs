@@ -2,8 +2,7 @@
 //! `/metrics`' answers, the process figures of the gateway and of the bench, and the
 //! new bites, each sample a printed row.
 
-use std::collections::BTreeMap;
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -248,15 +247,15 @@ impl Sampler {
         };
         let wait_percent = match reading.waits {
             Ok(waits) => {
-                let (since, last) = std::mem::replace(&mut self.waits, (Instant::now(), waits));
+                let (since, last) = &self.waits;
                 // A thread started since the last sample counts its whole wait.
-                let waited: u64 = self
-                    .waits
-                    .1
+                let waited: u64 = waits
                     .iter()
                     .map(|(tid, &now)| now.saturating_sub(last.get(tid).copied().unwrap_or(0)))
                     .sum();
-                waited as f64 / 1e9 / since.elapsed().as_secs_f64() * 100.0
+                let percent = waited as f64 / 1e9 / since.elapsed().as_secs_f64() * 100.0;
+                self.waits = (Instant::now(), waits);
+                percent
             }
             Err(_) => f64::NAN,
         };
